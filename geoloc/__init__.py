@@ -1,0 +1,20 @@
+"""geoloc: direct geolocation of ground targets from airborne and spaceborne cameras.
+
+The compute core. It imports no visualisation library; ``viz/`` depends on it,
+never the reverse. Conventions (frames, rotation order, units, angle names):
+``docs/conventions.md``.
+"""
+
+from .camera import Camera
+from .ellipsoid import ecef_to_geodetic, ecef_to_geodetic_q17, geodetic_to_ecef
+from .frames import FrameChain, Pose
+from .locate import GroundPoint, LineOfSight, ground_to_pixel, intersect_los_height, line_of_sight, locate
+from .status import Status
+
+__all__ = [
+    "Camera", "FrameChain", "GroundPoint", "LineOfSight", "Pose", "Status",
+    "ecef_to_geodetic", "ecef_to_geodetic_q17", "geodetic_to_ecef",
+    "ground_to_pixel", "intersect_los_height", "line_of_sight", "locate",
+]
+
+__version__ = "0.1.0"

@@ -1,0 +1,196 @@
+"""Direct geolocation: pixel -> line of sight in ECEF -> ground point at a target height.
+
+[Q17 section 2.2]: T'_E = C^ECEF_NED C^NED_AC C^AC_S T'_S (eq. 9), the target on
+the line from the optical centre O_E through T'_E (eq. 10), on the ellipsoid
+inflated to the target height (eq. 11), converted to geodetic coordinates
+(eq. 12-13; here by the closed form of :func:`geoloc.ellipsoid.ecef_to_geodetic`).
+
+Conventions: ``docs/conventions.md``. Batch functions never raise for a bad ray:
+they return NaN and a :class:`geoloc.status.Status` code per ray.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import rotations as rot
+from .camera import Camera
+from .ellipsoid import ecef_to_geodetic
+from .frames import FrameChain, Pose
+from .intersect import ray_at_height
+from .status import Status
+
+
+@dataclass(frozen=True)
+class LineOfSight:
+    """A batch of lines of sight in ECEF.
+
+    Attributes
+    ----------
+    origin_ecef : ndarray (..., 3)
+        Optical centre O_E [m].
+    direction_ecef : ndarray (..., 3)
+        Unit direction d_E.
+    status : ndarray (...) of uint8
+        INVALID_INPUT where the pose or pixel is not finite / out of range.
+    """
+
+    origin_ecef: np.ndarray
+    direction_ecef: np.ndarray
+    status: np.ndarray
+
+
+def line_of_sight(pose: Pose, camera: Camera, row=None, col=None, *, chain: FrameChain | None = None,
+                  ) -> LineOfSight:
+    """Pixel (i, j) -> line of sight in ECEF [Q17 eq. 8-9].
+
+    Parameters
+    ----------
+    pose : Pose
+        Aircraft pose and gimbal angles (radians), any batch shape.
+    camera : Camera
+        The camera.
+    row, col : array_like, optional
+        1-based pixel; default the CCD centre ((M+1)/2, (N+1)/2).
+    chain : FrameChain, optional
+        A prebuilt chain for ``pose`` (to add boresight / mounting rotations).
+
+    Returns
+    -------
+    LineOfSight
+    """
+    if row is None or col is None:
+        r0, c0 = camera.center_pixel
+        row = r0 if row is None else row
+        col = c0 if col is None else col
+    chain = chain if chain is not None else FrameChain(pose)
+    d_cam = camera.pixel_to_los(row, col)
+    d_ecef = rot.rotate(chain.R_ecef_cam, d_cam)
+    o = chain.origin_ecef
+    shape = np.broadcast_shapes(o.shape, d_ecef.shape)[:-1]
+    o = np.broadcast_to(o, shape + (3,))
+    d_ecef = np.broadcast_to(d_ecef, shape + (3,))
+    bad = np.broadcast_to(pose.invalid_mask(), shape)
+    bad = bad | ~np.all(np.isfinite(d_ecef), axis=-1)
+    status = np.where(bad, Status.INVALID_INPUT, Status.OK).astype(np.uint8)
+    return LineOfSight(o, d_ecef, status)
+
+
+@dataclass(frozen=True)
+class GroundPoint:
+    """Result of a batch geolocation.
+
+    Attributes
+    ----------
+    lat, lon : ndarray
+        Geodetic latitude and longitude of the target [rad]; NaN where no hit.
+    h : ndarray
+        Ellipsoidal height of the target [m].
+    ecef : ndarray (..., 3)
+        Target in ECEF [m].
+    slant_range : ndarray
+        Distance from the optical centre [m].
+    status : ndarray of uint8
+        :class:`geoloc.status.Status` per ray.
+    los : LineOfSight
+        The line of sight used.
+    """
+
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    ecef: np.ndarray
+    slant_range: np.ndarray
+    status: np.ndarray
+    los: LineOfSight
+
+    @property
+    def lat_deg(self):
+        return np.rad2deg(self.lat)
+
+    @property
+    def lon_deg(self):
+        return np.rad2deg(self.lon)
+
+
+def intersect_los_height(los: LineOfSight, target_h, surface: str = "inflated") -> GroundPoint:
+    """Intersect lines of sight with the surface of height ``target_h`` [Q17 eq. 10-13].
+
+    Parameters
+    ----------
+    los : LineOfSight
+    target_h : array_like
+        Target ellipsoidal height h_T [m], broadcasting.
+    surface : {"inflated", "geodetic"}
+        The paper's inflated ellipsoid (eq. 11) or the exact constant-height surface.
+
+    Returns
+    -------
+    GroundPoint
+    """
+    hit = ray_at_height(los.origin_ecef, los.direction_ecef, target_h, surface)
+    status = np.where(los.status != Status.OK, los.status, hit.status).astype(np.uint8)
+    ok = status == Status.OK
+    ecef = np.where(ok[..., None], hit.ecef, np.nan)
+    lat, lon, h = ecef_to_geodetic(ecef)
+    return GroundPoint(lat, lon, h, ecef, np.where(ok, hit.s, np.nan), status, los)
+
+
+def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
+           surface: str = "inflated", chain: FrameChain | None = None) -> GroundPoint:
+    """Geolocate pixels at a known target height: the whole of [Q17 section 2.2].
+
+    Vectorised: pose fields, pixels and ``target_h`` broadcast together.
+
+    Parameters
+    ----------
+    pose : Pose
+    camera : Camera
+    row, col : array_like, optional
+        1-based pixel; default the CCD centre.
+    target_h : array_like
+        Target ellipsoidal height [m].
+    surface : {"inflated", "geodetic"}
+        See :func:`intersect_los_height`.
+    chain : FrameChain, optional
+        Prebuilt chain (boresight / mounting rotations).
+
+    Returns
+    -------
+    GroundPoint
+        NaN and a status where a ray looks at the sky, starts below the
+        target height or has invalid input.
+
+    Examples
+    --------
+    >>> from geoloc import Camera, Pose, locate
+    >>> cam = Camera(166841.0, 1162.12, 1146.42, 2323, 2292)
+    >>> pose = Pose.from_deg(35.48, 80.97, 18000, 45, 3.5, 0, 50, -2.6)
+    >>> round(float(locate(pose, cam, target_h=5083.5).lat_deg), 5)
+    35.57709
+    """
+    los = line_of_sight(pose, camera, row, col, chain=chain)
+    return intersect_los_height(los, target_h, surface)
+
+
+def ground_to_pixel(pose: Pose, camera: Camera, lat, lon, h, *, chain: FrameChain | None = None):
+    """Ground point (geodetic) -> pixel: the inverse of :func:`locate`.
+
+    d_S = R_cam_ecef (P_E - O_E), then the pinhole projection of
+    :meth:`Camera.los_to_pixel`.
+
+    Returns
+    -------
+    row, col : ndarray
+        1-based pixel coordinates; NaN where the point is behind the camera.
+    status : ndarray of uint8
+    """
+    from .ellipsoid import geodetic_to_ecef
+
+    chain = chain if chain is not None else FrameChain(pose)
+    p = geodetic_to_ecef(lat, lon, h)
+    R_cam_ecef = np.swapaxes(chain.R_ecef_cam, -1, -2)
+    d_cam = rot.rotate(R_cam_ecef, p - chain.origin_ecef)
+    return camera.los_to_pixel(d_cam)

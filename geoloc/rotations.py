@@ -1,0 +1,84 @@
+"""Elementary passive rotations and 4x4 homogeneous transforms.
+
+Conventions: ``docs/conventions.md``. The rotations here are *passive*
+(GEOMETRY.md section 2): ``rx(a) @ v`` gives the coordinates, in a frame turned
+by ``+a`` about X, of a vector whose coordinates were ``v``. So ``rx(a)`` is the
+transpose of the active (right-hand-rule) rotation matrix.
+
+Angles are radians and broadcast: ``rx(np.zeros(5))`` has shape ``(5, 3, 3)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _stack33(rows):
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def rx(a):
+    """Passive rotation about X: [[1,0,0],[0,c,s],[0,-s,c]] [Q17 eq. 6, 7]."""
+    a = np.asarray(a, float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return _stack33([(o, z, z), (z, c, s), (z, -s, c)])
+
+
+def ry(a):
+    """Passive rotation about Y: [[c,0,-s],[0,1,0],[s,0,c]] [Q17 eq. 6, 7]."""
+    a = np.asarray(a, float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return _stack33([(c, z, -s), (z, o, z), (s, z, c)])
+
+
+def rz(a):
+    """Passive rotation about Z: [[c,s,0],[-s,c,0],[0,0,1]] [Q17 eq. 5, 6]."""
+    a = np.asarray(a, float)
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return _stack33([(c, s, z), (-s, c, z), (z, z, o)])
+
+
+def transform(R, t=None):
+    """4x4 homogeneous matrix [[R, t], [0, 1]] from R (..., 3, 3) and t (..., 3).
+
+    ``transform(R_a_b, p_a_borigin)`` maps homogeneous coordinates in frame b to
+    frame a: ``x_a = R_a_b x_b + t``.
+    """
+    R = np.asarray(R, float)
+    if t is None:
+        t = np.zeros(R.shape[:-1])
+    t = np.asarray(t, float)
+    shape = np.broadcast_shapes(R.shape[:-2], t.shape[:-1])
+    T = np.zeros(shape + (4, 4))
+    T[..., :3, :3] = R
+    T[..., :3, 3] = t
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def translation(t):
+    """4x4 pure translation by t (..., 3)."""
+    t = np.asarray(t, float)
+    return transform(np.broadcast_to(np.eye(3), t.shape[:-1] + (3, 3)), t)
+
+
+def invert(T):
+    """Inverse of a rigid 4x4 transform: [[R^T, -R^T t], [0, 1]]."""
+    T = np.asarray(T, float)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    return transform(Rt, -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3]))
+
+
+def apply(T, p):
+    """Apply a 4x4 transform to points p (..., 3)."""
+    T = np.asarray(T, float)
+    p = np.asarray(p, float)
+    return np.einsum("...ij,...j->...i", T[..., :3, :3], p) + T[..., :3, 3]
+
+
+def rotate(R, v):
+    """Apply a 3x3 rotation (..., 3, 3) to vectors v (..., 3)."""
+    return np.einsum("...ij,...j->...i", np.asarray(R, float), np.asarray(v, float))

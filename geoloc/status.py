@@ -1,0 +1,55 @@
+"""Status codes returned by batch functions (one ``uint8`` per ray or sample).
+
+Batch functions never raise for a bad ray: they return NaN in the numeric
+outputs and one of these codes in a ``status`` array, so that one call can
+serve a million rays of which a few look at the sky. Scalar front ends (the
+command line) turn a non-OK status into an error message with
+:func:`describe`.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+import numpy as np
+
+
+class Status(IntEnum):
+    """Why a ray did or did not give a ground point."""
+
+    OK = 0  #: a valid hit / tangent point
+    SKY = 1  #: the line of sight misses the (inflated) ellipsoid: it points above the horizon
+    ORIGIN_BELOW = 2  #: the camera is below the target-height surface
+    INVALID_INPUT = 3  #: NaN / infinite / out-of-range input for this ray
+    LEFT_DEM = 4  #: the ray left the DEM's extent before hitting the terrain
+    NODATA = 5  #: the DEM has no data where the ray meets it
+    NO_CONVERGENCE = 6  #: an iteration did not converge within its limit
+    HITS_EARTH = 7  #: limb viewing: the line of sight meets the Earth, there is no tangent point
+    BEHIND_CAMERA = 8  #: ground -> pixel: the point is behind the camera
+
+
+_TEXT = {
+    Status.OK: "ok",
+    Status.SKY: "line of sight misses the Earth (points above the horizon)",
+    Status.ORIGIN_BELOW: "camera is below the target height surface",
+    Status.INVALID_INPUT: "invalid input (NaN, infinite or out of range)",
+    Status.LEFT_DEM: "line of sight left the DEM before meeting the terrain",
+    Status.NODATA: "DEM has no data where the line of sight meets it",
+    Status.NO_CONVERGENCE: "iteration did not converge",
+    Status.HITS_EARTH: "line of sight hits the Earth: no tangent point",
+    Status.BEHIND_CAMERA: "point is behind the camera",
+}
+
+
+def describe(code) -> str:
+    """Human-readable text for a status code."""
+    return _TEXT[Status(int(code))]
+
+
+def names(status) -> np.ndarray:
+    """Array of lower-case status names (e.g. ``'sky'``) for an array of codes."""
+    status = np.asarray(status)
+    out = np.empty(status.shape, dtype=object)
+    for s in Status:
+        out[status == s] = s.name.lower()
+    return out
