@@ -111,6 +111,12 @@ def replay_at_height(records: Records, camera: Camera, height_column: str | None
     return result_from_ground(records, ground)
 
 
+def _nanmean(v) -> float:
+    v = np.asarray(v, float)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else float("nan")
+
+
 def _fmt(v, spec):
     return "" if not np.isfinite(v) else format(float(v), spec)
 
@@ -157,11 +163,11 @@ def summary_table(result: ReplayResult, group_column: str = "table") -> str:
     for g in sorted(set(groups)):
         m = np.array([x == g for x in groups])
         lines.append(
-            f"group {g}: n={int(m.sum())}, mean error to truth {_fmt(np.nanmean(result.error_to_truth_m[m]), '.2f')} m "
-            f"(published {_fmt(np.nanmean(pub[m]), '.2f')} m), "
-            f"RMS to published position {_fmt(np.sqrt(np.nanmean(result.error_to_paper_m[m] ** 2)), '.2f')} m")
+            f"group {g}: n={int(m.sum())}, mean error to truth {_fmt(_nanmean(result.error_to_truth_m[m]), '.2f')} m "
+            f"(published {_fmt(_nanmean(pub[m]), '.2f')} m), "
+            f"RMS to published position {_fmt(np.sqrt(_nanmean(result.error_to_paper_m[m] ** 2)), '.2f')} m")
     if np.any(np.isfinite(result.error_to_paper_m)):
         lines.append(f"all: RMS distance to the published positions "
-                     f"{np.sqrt(np.nanmean(result.error_to_paper_m ** 2)):.2f} m over "
+                     f"{np.sqrt(_nanmean(result.error_to_paper_m ** 2)):.2f} m over "
                      f"{int(np.isfinite(result.error_to_paper_m).sum())} records")
     return "\n".join(lines)
