@@ -19,6 +19,23 @@ Camera file (TOML), e.g. ``assets/cameras/qiao2017.toml``::
     cols = 2292                  # N
     pixel_pitch_m = 7.0e-6       # optional: gives the sensor size in metres
     name = "..."                 # optional
+    boresight_deg = [0.0, 0.0, 0.0]  # optional: camera in the inner gimbal (R_cam_inner)
+    mount_deg = [0.0, 0.22, 0.0]     # optional: gimbal base in the aircraft body (R_base_body)
+
+The two optional calibration rotations (written by ``geoloc calibrate
+--write-camera``, see ``docs/calibration.md``) are three small angles
+(x, y, z) in degrees, each giving the passive rotation
+``rx(x) @ ry(y) @ rz(z)`` (``docs/conventions.md``):
+
+- ``boresight_deg``: ``R_cam_inner``, the camera (optical axes) relative to
+  the inner gimbal frame, ``v_cam = R_cam_inner @ v_inner``;
+- ``mount_deg``: ``R_base_body``, the gimbal base relative to the aircraft
+  body (POS) axes, ``v_base = R_base_body @ v_body``.
+
+They enter the frame chain of :class:`geoloc.frames.FrameChain` exactly where
+its ``R_cam_inner`` / ``R_base_body`` hooks are; :func:`geoloc.locate.line_of_sight`
+and :func:`geoloc.locate.ground_to_pixel` apply them whenever they build the
+chain themselves. Absent (the default), the camera behaves as before.
 
 Lens distortion: none in [Q17]; :meth:`Camera.undistort` /
 :meth:`Camera.distort` are the hook (identity here) that a distortion model
@@ -53,6 +70,12 @@ class Camera:
         Pixel pitch a [m]; optional, only for the sensor size in metres.
     name : str
         Free text.
+    boresight : tuple of 3 float or None
+        Angles (x, y, z) [rad] of ``R_cam_inner = rx(x) @ ry(y) @ rz(z)``,
+        the camera relative to the inner gimbal (file key ``boresight_deg``).
+    mount : tuple of 3 float or None
+        Angles (x, y, z) [rad] of ``R_base_body = rx(x) @ ry(y) @ rz(z)``,
+        the gimbal base relative to the aircraft body (file key ``mount_deg``).
     """
 
     focal_length_px: float
@@ -62,6 +85,8 @@ class Camera:
     cols: int
     pixel_pitch_m: float | None = None
     name: str = ""
+    boresight: tuple | None = None
+    mount: tuple | None = None
 
     def __post_init__(self):
         def bad(field, value, why):
@@ -81,6 +106,16 @@ class Camera:
         p = self.pixel_pitch_m
         if p is not None and not (isinstance(p, (int, float)) and math.isfinite(p) and p > 0):
             bad("pixel_pitch_m", p, "must be a finite number > 0 (metres)")
+        for k in ("boresight", "mount"):
+            v = getattr(self, k)
+            if v is None:
+                continue
+            ok = (isinstance(v, (tuple, list)) and len(v) == 3
+                  and all(isinstance(a, (int, float)) and not isinstance(a, bool)
+                          and math.isfinite(a) and abs(a) <= math.pi for a in v))
+            if not ok:
+                bad(k, v, "must be three finite angles in [-pi, pi] radians")
+            object.__setattr__(self, k, tuple(float(a) for a in v))
 
     # ------------------------------------------------------------------ I/O
     @classmethod
@@ -98,7 +133,7 @@ class Camera:
     @classmethod
     def from_dict(cls, data: dict, source: str = "camera") -> "Camera":
         known = {"focal_length_px", "principal_row", "principal_col", "rows", "cols",
-                 "pixel_pitch_m", "name"}
+                 "pixel_pitch_m", "name", "boresight_deg", "mount_deg"}
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(known)}")
@@ -106,6 +141,14 @@ class Camera:
                    if k not in data]
         if missing:
             raise ValueError(f"{source}: missing key(s) {missing}")
+        data = dict(data)
+        for k in ("boresight", "mount"):
+            if f"{k}_deg" in data:
+                v = data.pop(f"{k}_deg")
+                if not (isinstance(v, list) and len(v) == 3
+                        and all(isinstance(a, (int, float)) and not isinstance(a, bool) for a in v)):
+                    raise ValueError(f"{source}: {k}_deg = {v!r}: must be a list of three numbers (degrees)")
+                data[k] = tuple(math.radians(a) for a in v)
         return cls(**data)
 
     def to_toml(self, path) -> None:
@@ -114,10 +157,32 @@ class Camera:
         for k, v in asdict(self).items():
             if v is None or (k == "name" and not v):
                 continue
+            if k in ("boresight", "mount"):
+                lines.append(f"{k}_deg = [{', '.join(repr(math.degrees(a)) for a in v)}]")
+                continue
             lines.append(f"{k} = {v!r}" if not isinstance(v, str) else f'{k} = "{v}"')
         Path(path).write_text("\n".join(lines) + "\n")
 
     # ------------------------------------------------------------ geometry
+    @staticmethod
+    def _rotation(angles):
+        from .rotations import rx, ry, rz
+
+        if angles is None:
+            return None
+        x, y, z = angles
+        return rx(x) @ ry(y) @ rz(z)
+
+    @property
+    def R_cam_inner(self):
+        """Boresight rotation inner gimbal -> camera (3, 3), or None if the camera has none."""
+        return self._rotation(self.boresight)
+
+    @property
+    def R_base_body(self):
+        """Mounting rotation aircraft body -> gimbal base (3, 3), or None if the camera has none."""
+        return self._rotation(self.mount)
+
     @property
     def center_pixel(self) -> tuple[float, float]:
         """CCD centre ((M+1)/2, (N+1)/2) in 1-based pixels [Q17 eq. 8]."""

@@ -23,6 +23,15 @@ from .intersect import ray_at_height
 from .status import Status
 
 
+def camera_chain(pose: Pose, camera: Camera) -> FrameChain:
+    """The frame chain of ``pose`` with the camera's optional boresight and mounting rotations.
+
+    ``FrameChain(pose, R_cam_inner=camera.R_cam_inner, R_base_body=camera.R_base_body)``;
+    for a camera without them it is ``FrameChain(pose)``.
+    """
+    return FrameChain(pose, R_cam_inner=camera.R_cam_inner, R_base_body=camera.R_base_body)
+
+
 @dataclass(frozen=True)
 class LineOfSight:
     """A batch of lines of sight in ECEF.
@@ -55,7 +64,9 @@ def line_of_sight(pose: Pose, camera: Camera, row=None, col=None, *, chain: Fram
     row, col : array_like, optional
         1-based pixel; default the CCD centre ((M+1)/2, (N+1)/2).
     chain : FrameChain, optional
-        A prebuilt chain for ``pose`` (to add boresight / mounting rotations).
+        A prebuilt chain for ``pose`` (to add boresight / mounting rotations);
+        default :func:`camera_chain` (which applies the camera's own
+        ``boresight`` / ``mount`` if it has them; a given chain replaces them).
 
     Returns
     -------
@@ -65,7 +76,7 @@ def line_of_sight(pose: Pose, camera: Camera, row=None, col=None, *, chain: Fram
         r0, c0 = camera.center_pixel
         row = r0 if row is None else row
         col = c0 if col is None else col
-    chain = chain if chain is not None else FrameChain(pose)
+    chain = chain if chain is not None else camera_chain(pose, camera)
     d_cam = camera.pixel_to_los(row, col)
     d_ecef = rot.rotate(chain.R_ecef_cam, d_cam)
     o = chain.origin_ecef
@@ -189,7 +200,7 @@ def ground_to_pixel(pose: Pose, camera: Camera, lat, lon, h, *, chain: FrameChai
     """
     from .ellipsoid import geodetic_to_ecef
 
-    chain = chain if chain is not None else FrameChain(pose)
+    chain = chain if chain is not None else camera_chain(pose, camera)
     p = geodetic_to_ecef(lat, lon, h)
     R_cam_ecef = np.swapaxes(chain.R_ecef_cam, -1, -2)
     d_cam = rot.rotate(R_cam_ecef, p - chain.origin_ecef)
