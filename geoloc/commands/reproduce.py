@@ -1,0 +1,46 @@
+"""``geoloc reproduce``: print a paper's published numbers beside the project's."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .. import reproduce as rp
+
+PAPERS = {
+    "qiao2017": "[Q17] Table 1 nominal point, Monte Carlo standard deviations (ellipsoid and DEM), "
+                "flight-test positions and errors, Fig. 10 trend",
+}
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "reproduce",
+        help="reproduce a paper's results: the published numbers and geoloc's side by side",
+        description="Recompute the published results of a source paper with the project's "
+        "code and print both side by side. " + "; ".join(f"{k}: {v}" for k, v in PAPERS.items()),
+    )
+    p.add_argument("paper", choices=sorted(PAPERS), help="which paper")
+    p.add_argument("--samples", type=int, default=5000, help="Monte Carlo N (default 5000, as in [Q17])")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--sweep-samples", type=int, default=2000,
+                   help="samples per point of the Fig. 10 trend (default 2000)")
+    p.add_argument("--no-dem", action="store_true", help="skip the DEM parts")
+    p.add_argument("--json", default=None, help="also write the key numbers to this JSON file")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    if args.samples < 2 or args.sweep_samples < 2:
+        raise ValueError(f"--samples = {args.samples}, --sweep-samples = {args.sweep_samples}: "
+                         "must be >= 2")
+    if args.paper == "qiao2017":
+        rep = rp.qiao2017_report(args.samples, args.seed, args.sweep_samples,
+                                 dem=False if args.no_dem else None)
+    else:
+        rep = rp.li2023_report(seed=args.seed)
+    print(rep.text())
+    if args.json:
+        Path(args.json).write_text(json.dumps(rep.numbers, indent=2) + "\n")
+        print(f"wrote {args.json}")
+    return 0
