@@ -150,7 +150,8 @@ def intersect_los_height(los: LineOfSight, target_h, surface: str = "inflated") 
 
 
 def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
-           surface: str = "inflated", chain: FrameChain | None = None) -> GroundPoint:
+           surface: str = "inflated", chain: FrameChain | None = None,
+           engine: str = "auto") -> GroundPoint:
     """Geolocate pixels at a known target height: the whole of [Q17 section 2.2].
 
     Vectorised: pose fields, pixels and ``target_h`` broadcast together.
@@ -167,6 +168,12 @@ def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
         See :func:`intersect_los_height`.
     chain : FrameChain, optional
         Prebuilt chain (boresight / mounting rotations).
+    engine : {"auto", "numpy", "numba"}
+        ``"numpy"`` composes the :class:`FrameChain` matrices (the reference);
+        ``"numba"`` runs the fused kernel of :mod:`geoloc._fastlocate` (same
+        mathematics, ~10x faster on large batches; inflated surface, no extra
+        chain rotations, no lens distortion). ``"auto"`` picks numba for
+        batches of 10 000 rays or more when it applies.
 
     Returns
     -------
@@ -182,8 +189,28 @@ def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
     >>> round(float(locate(pose, cam, target_h=5083.5).lat_deg), 5)
     35.57709
     """
+    if engine not in ("auto", "numpy", "numba"):
+        raise ValueError(f"engine must be 'auto', 'numpy' or 'numba', got {engine!r}")
+    fast_ok = chain is None and surface == "inflated" and type(camera) is Camera
+    if engine == "numba" and not fast_ok:
+        raise ValueError("engine='numba' needs surface='inflated', no chain and a plain Camera")
+    if row is None or col is None:
+        r0, c0 = camera.center_pixel
+        row = r0 if row is None else row
+        col = c0 if col is None else col
+    if engine == "numba" or (engine == "auto" and fast_ok and _batch_size(pose, row, col, target_h) >= 10_000):
+        from ._fastlocate import locate_fast
+
+        lat, lon, h, ecef, s, status, o, d = locate_fast(pose, camera, row, col, target_h)
+        los = LineOfSight(o, d, np.where(status == Status.INVALID_INPUT, status, Status.OK).astype(np.uint8))
+        return GroundPoint(lat, lon, h, ecef, s, status, los)
     los = line_of_sight(pose, camera, row, col, chain=chain)
     return intersect_los_height(los, target_h, surface)
+
+
+def _batch_size(pose: Pose, *arrays) -> int:
+    shape = np.broadcast_shapes(pose.shape, *(np.shape(a) for a in arrays))
+    return int(np.prod(shape))
 
 
 def ground_to_pixel(pose: Pose, camera: Camera, lat, lon, h, *, chain: FrameChain | None = None):
