@@ -172,7 +172,7 @@ def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
         ``"numpy"`` composes the :class:`FrameChain` matrices (the reference);
         ``"numba"`` runs the fused kernel of :mod:`geoloc._fastlocate` (same
         mathematics, ~10x faster on large batches; inflated surface, no extra
-        chain rotations, no lens distortion). ``"auto"`` picks numba for
+        chain rotations, no camera boresight / mount, no lens distortion). ``"auto"`` picks numba for
         batches of 10 000 rays or more when it applies.
 
     Returns
@@ -191,7 +191,8 @@ def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
     """
     if engine not in ("auto", "numpy", "numba"):
         raise ValueError(f"engine must be 'auto', 'numpy' or 'numba', got {engine!r}")
-    fast_ok = chain is None and surface == "inflated" and type(camera) is Camera
+    fast_ok = (chain is None and surface == "inflated" and type(camera) is Camera
+               and camera.boresight is None and camera.mount is None)
     if engine == "numba" and not fast_ok:
         raise ValueError("engine='numba' needs surface='inflated', no chain and a plain Camera")
     if row is None or col is None:

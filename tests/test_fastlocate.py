@@ -48,3 +48,15 @@ def test_random_batch_with_sky_invalid_and_below():
 def test_single_rays(lat, lon, h, heading, groll, gpitch):
     pose = Pose.from_deg(lat, lon, h, heading, 2.0, -1.0, groll, gpitch)
     _compare(pose, 100.0, 2000.0, 0.0)
+
+
+def test_auto_engine_respects_camera_boresight():
+    # a camera with a boresight rotation must not take the kernel (which has none)
+    cam = Camera(166841.0, 1162.12, 1146.42, 2323, 2292, boresight=(0.0, 0.01, 0.0))
+    n = 12_000
+    pose = Pose.from_deg(np.full(n, 35.48), 80.97, 18000.0, 45, 3.5, 0, 50, -2.6)
+    auto = locate(pose, cam, target_h=5000.0)
+    ref = locate(pose, cam, target_h=5000.0, engine="numpy")
+    assert np.allclose(auto.ecef, ref.ecef, rtol=0, atol=1e-6)
+    plain = locate(pose, CAM, target_h=5000.0)
+    assert np.min(np.linalg.norm(auto.ecef - plain.ecef, axis=-1)) > 1.0
