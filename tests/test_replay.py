@@ -85,6 +85,8 @@ def test_cli_locate_json(capsys):
     assert out["lat_deg"] == pytest.approx(35.57709, abs=0.5e-5)
     assert out["lon_deg"] == pytest.approx(80.84918, abs=0.5e-5)
     assert out["status"] == "ok"
+    # the two height surfaces differ by ~1 cm here (see test_locate)
+    assert 1e-3 < out["surface_difference_m"] < 0.1
 
 
 def test_cli_locate_sky_and_bad_angle(capsys):

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
+
 from ..assets import DEFAULT_CAMERA, asset_path
 from ..camera import Camera
 from ..frames import Pose
@@ -70,6 +72,11 @@ def run(args) -> int:
         if args.target_h_m is None:
             raise ValueError("--target-h-m is required (the target's ellipsoidal height in metres)")
         ground = intersect_los_height(los, args.target_h_m, args.surface)
+        other = intersect_los_height(los, args.target_h_m,
+                                     "geodetic" if args.surface == "inflated" else "inflated")
+        if int(other.status) == Status.OK:
+            # the paper's inflated ellipsoid vs the exact constant-height surface
+            extra["surface_difference_m"] = float(np.linalg.norm(ground.ecef - other.ecef))
     status = int(ground.status)
     if status != Status.OK:
         msg = f"no ground point for pixel ({row:g}, {col:g}): {describe(status)}"
@@ -93,4 +100,7 @@ def run(args) -> int:
     else:
         print(f"lat {out['lat_deg']:.7f} deg  lon {out['lon_deg']:.7f} deg  h {out['h_m']:.2f} m"
               f"  (slant range {out['slant_range_m']:.1f} m)")
+        if "surface_difference_m" in out:
+            print(f"inflated ellipsoid [Q17 eq. 11] vs exact constant-height surface: "
+                  f"{out['surface_difference_m'] * 1000:.1f} mm apart")
     return 0
