@@ -1,0 +1,68 @@
+"""Error-vector layer on an in-process viser server: node positions against pymap3d.
+
+pymap3d.geodetic2enu is the outside reference for the ENU placement; the
+computed positions come from the core (geoloc.locate), the truth from the records.
+"""
+
+import numpy as np
+import pymap3d
+import pytest
+
+viser = pytest.importorskip("viser")
+
+from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path  # noqa: E402
+from geoloc.calibrate import HeightTarget, calibrate_groups  # noqa: E402
+from geoloc.camera import Camera  # noqa: E402
+from geoloc.enu import EnuFrame  # noqa: E402
+from geoloc.locate import locate  # noqa: E402
+from geoloc.records import load_records  # noqa: E402
+from viz.calibration_layer import add_error_vectors  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def server():
+    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    yield s
+    s.stop()
+
+
+def test_error_vector_nodes(server):
+    rec = load_records(asset_path(*DEFAULT_RECORDS))
+    cam = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
+    h = rec.column("paper_height_m")
+    _, cams = calibrate_groups(rec, cam, HeightTarget(h), "table", joint=True)
+    lat0, lon0, h00 = 36.36, 78.87, 5000.0  # flight T3's area
+    frame = EnuFrame.from_deg(lat0, lon0, h00)
+    layer = add_error_vectors(server.scene, rec, frame, h, cam, cams["joint"], exaggeration=20.0)
+
+    tl, tn = rec.column("truth_lat_deg"), rec.column("truth_lon_deg")
+    truth = np.stack(pymap3d.geodetic2enu(tl, tn, h, lat0, lon0, h00), axis=-1)
+    before = np.array(layer.handles["before"].points)  # copies: the handle reuses its buffer
+    after = np.array(layer.handles["after"].points)
+    assert before.shape == after.shape == (20, 2, 3)
+    # start of every segment = truth. Tolerance 0.05 m: the truth is placed at the
+    # computed height, which differs from paper_height_m by the inflated-ellipsoid
+    # approximation (mm at 5 km, GEOMETRY.md section 3), plus float32 storage of
+    # coordinates up to ~250 km (T4 is 2.5 deg away): 250e3 * 6e-8 = 0.015 m.
+    np.testing.assert_allclose(before[:, 0], truth, atol=0.05)
+    np.testing.assert_allclose(layer.truth_handle.points, truth, atol=0.05)
+    for stage, c, pts in (("before", cam, before), ("after", cams["joint"], after)):
+        g = locate(rec.pose(), c, rec.column("row"), rec.column("col"), h)
+        comp = np.stack(pymap3d.geodetic2enu(g.lat_deg, g.lon_deg, g.h, lat0, lon0, h00), axis=-1)
+        # end = truth + 20 (computed - truth); float32 error 0.015 m on each end
+        np.testing.assert_allclose((pts[:, 1] - pts[:, 0]) / 20.0, comp - truth, atol=0.01)
+    length = np.linalg.norm(before[:, 1] - before[:, 0], axis=1) / 20.0
+    length_after = np.linalg.norm(after[:, 1] - after[:, 0], axis=1) / 20.0
+    assert length.mean() > 45.0 and length_after.mean() < 8.0  # ~50 m -> ~5 m (issue 8)
+
+    layer.set_stage("after")
+    assert not layer.handles["before"].visible and layer.handles["after"].visible
+    layer.set_exaggeration(5.0)
+    np.testing.assert_allclose(layer.handles["after"].points[:, 1] - layer.handles["after"].points[:, 0],
+                               (after[:, 1] - after[:, 0]) / 4.0, atol=0.01)
+    with pytest.raises(ValueError, match="exaggeration"):
+        layer.set_exaggeration(0.0)
+    with pytest.raises(ValueError, match="stage"):
+        layer.set_stage("during")
+    dd, sl = layer.add_gui(server.gui)
+    assert dd.value == "after" and sl.value == 5.0

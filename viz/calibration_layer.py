@@ -1,0 +1,198 @@
+"""Flight-test error vectors in the viser scene, before and after calibration (issue 8).
+
+Each record's error (computed minus surveyed truth) is drawn as a line segment
+from the truth point to ``truth + exaggeration * (computed - truth)``, in the
+scene's local ENU frame (:class:`geoloc.enu.EnuFrame`, metres; three.js stores
+float32, hence the local origin). The truth is placed at the computed point's
+height (the records give no truth height), so the segments are horizontal.
+Geometry comes from the core only (:func:`geoloc.locate.locate`,
+:mod:`geoloc.enu`); the calibrated camera is the one of ``geoloc calibrate
+--write-camera`` or :func:`geoloc.calibrate.calibrate_groups`.
+
+Conventions: ``docs/conventions.md``. Scene nodes (under ``name``, default
+``/calibration``): ``truth`` (points), ``before`` and ``after`` (segments).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geoloc.camera import Camera
+from geoloc.enu import EnuFrame
+from geoloc.locate import locate
+from geoloc.records import Records
+
+#: Segment colours (RGB 0-255): before red, after blue; truth markers white.
+COLORS = {"before": (220, 40, 40), "after": (40, 90, 230), "truth": (255, 255, 255)}
+STAGES = ("before", "after", "both")
+
+
+@dataclass
+class ErrorGeometry:
+    """Truth and computed positions in the scene's ENU frame [m].
+
+    Attributes
+    ----------
+    truth : ndarray (n, 3)
+    computed : dict
+        Stage name (``"before"``, ``"after"``) -> ndarray (n, 3); NaN rows for
+        records whose ray failed (they are not drawn).
+    labels : list of str
+    """
+
+    truth: np.ndarray
+    computed: dict
+    labels: list
+
+    def segments(self, stage: str, exaggeration: float) -> np.ndarray:
+        """Segments (m, 2, 3): truth -> truth + exaggeration * (computed - truth), failed rays dropped."""
+        c = self.computed[stage]
+        ok = np.all(np.isfinite(c), axis=1) & np.all(np.isfinite(self.truth), axis=1)
+        t = self.truth[ok]
+        return np.stack([t, t + exaggeration * (c[ok] - t)], axis=1)
+
+
+def error_geometry(records: Records, frame: EnuFrame, heights, cameras: dict,
+                   truth_prefix: str = "truth") -> ErrorGeometry:
+    """Locate every record with each camera (at ``heights``) and express all in ENU.
+
+    Parameters
+    ----------
+    records : Records
+        With ``{truth_prefix}_lat_deg`` / ``_lon_deg``.
+    frame : EnuFrame
+        The scene's origin.
+    heights : array_like
+        Target ellipsoidal height of each record [m] (e.g. ``paper_height_m``).
+    cameras : dict
+        Stage name -> Camera, e.g. ``{"before": nominal, "after": calibrated}``.
+    """
+    h = np.asarray(heights, float)
+    pose, row, col = records.pose(), records.column("row"), records.column("col")
+    computed, hh = {}, None
+    for stage, cam in cameras.items():
+        if not isinstance(cam, Camera):
+            raise ValueError(f"cameras[{stage!r}] = {cam!r}: must be a geoloc.camera.Camera")
+        g = locate(pose, cam, row, col, h)
+        computed[stage] = frame.from_ecef(g.ecef)
+        hh = g.h if hh is None else np.where(np.isfinite(hh), hh, g.h)
+    tlat = np.deg2rad(records.column(f"{truth_prefix}_lat_deg"))
+    tlon = np.deg2rad(records.column(f"{truth_prefix}_lon_deg"))
+    truth = frame.from_geodetic(tlat, tlon, h if hh is None else np.where(np.isfinite(hh), hh, h))
+    return ErrorGeometry(truth, computed, records.labels())
+
+
+class CalibrationLayer:
+    """Error-vector nodes in a viser scene with a before/after stage and an exaggeration.
+
+    Parameters
+    ----------
+    scene : viser.SceneApi
+        ``server.scene``.
+    geometry : ErrorGeometry
+    name : str
+        Parent node name.
+    exaggeration : float
+        Arrow scale (> 0); the errors are ~50 m over a ~10 km scene.
+    stage : {"before", "after", "both"}
+    """
+
+    def __init__(self, scene, geometry: ErrorGeometry, name: str = "/calibration",
+                 exaggeration: float = 20.0, stage: str = "both", thickness: float = 3.0):
+        self.scene = scene
+        self.geometry = geometry
+        self.name = name.rstrip("/")
+        self.thickness = thickness
+        self.exaggeration = self._check_exaggeration(exaggeration)
+        self.stage = self._check_stage(stage)
+        self.handles = {}
+        self.truth_handle = scene.add_point_cloud(
+            f"{self.name}/truth", geometry.truth.astype(np.float32), COLORS["truth"],
+            point_size=25.0, point_shape="circle", precision="float32")
+        self._draw()
+
+    @staticmethod
+    def _check_exaggeration(x) -> float:
+        x = float(x)
+        if not (np.isfinite(x) and x > 0):
+            raise ValueError(f"exaggeration = {x}: must be a finite number > 0")
+        return x
+
+    def _check_stage(self, stage: str) -> str:
+        if stage not in STAGES:
+            raise ValueError(f"stage = {stage!r}: must be one of {STAGES}")
+        if stage != "both" and stage not in self.geometry.computed:
+            raise ValueError(f"stage = {stage!r}: no camera given for it "
+                             f"(have {sorted(self.geometry.computed)})")
+        return stage
+
+    def _draw(self) -> None:
+        for stage in self.geometry.computed:
+            seg = self.geometry.segments(stage, self.exaggeration)
+            visible = self.stage in (stage, "both")
+            if stage in self.handles:
+                self.handles[stage].points = seg
+                self.handles[stage].visible = visible
+            else:
+                self.handles[stage] = self.scene.add_line_segments(
+                    f"{self.name}/{stage}", seg, COLORS.get(stage, (200, 200, 0)),
+                    thickness=self.thickness, thickness_units="screen", visible=visible)
+
+    def set_exaggeration(self, x: float) -> None:
+        """Rescale every vector (the truth end stays)."""
+        self.exaggeration = self._check_exaggeration(x)
+        self._draw()
+
+    def set_stage(self, stage: str) -> None:
+        """Show ``"before"``, ``"after"`` or ``"both"``."""
+        self.stage = self._check_stage(stage)
+        self._draw()
+
+    def set_visible(self, visible: bool) -> None:
+        self.truth_handle.visible = bool(visible)
+        for stage, h in self.handles.items():
+            h.visible = bool(visible) and self.stage in (stage, "both")
+
+    def add_gui(self, gui, folder: str = "Calibration: error vectors"):
+        """GUI folder with a before/after/both dropdown and an exaggeration slider.
+
+        Returns the (dropdown, slider) handles.
+        """
+        with gui.add_folder(folder):
+            dd = gui.add_dropdown("show", list(STAGES), initial_value=self.stage)
+            sl = gui.add_slider("exaggeration", 1.0, 200.0, 1.0, self.exaggeration)
+
+        @dd.on_update
+        def _(_event) -> None:
+            self.set_stage(dd.value)
+
+        @sl.on_update
+        def _(_event) -> None:
+            self.set_exaggeration(sl.value)
+
+        return dd, sl
+
+
+def add_error_vectors(scene, records: Records, frame: EnuFrame, heights, camera_before: Camera,
+                      camera_after: Camera | None = None, **kw) -> CalibrationLayer:
+    """Add the error vectors of all records (before and, if given, after calibration) to a scene.
+
+    Parameters
+    ----------
+    scene : viser.SceneApi
+    records : Records
+    frame : EnuFrame
+        The scene's local ENU origin.
+    heights : array_like
+        Target height per record [m].
+    camera_before, camera_after : Camera
+        Nominal and calibrated cameras.
+    **kw
+        Passed to :class:`CalibrationLayer` (``exaggeration``, ``stage``, ``name``).
+    """
+    cams = {"before": camera_before}
+    if camera_after is not None:
+        cams["after"] = camera_after
+    return CalibrationLayer(scene, error_geometry(records, frame, heights, cams), **kw)
