@@ -223,6 +223,7 @@ class MountFit:
     sigma_m: float
     success: bool
     message: str
+    f0: float = float("nan")  # focal length [px] the relative parameters refer to
 
     @property
     def angles(self) -> np.ndarray:
@@ -234,7 +235,6 @@ class MountFit:
 
     def report(self) -> dict:
         """JSON-ready parameters: angles in degrees, intrinsics in pixels."""
-        f0 = None
         out = {"model": self.model,
                "angles_deg": [float(np.rad2deg(a)) for a in self.angles],
                "angles_sd_deg": [float(np.rad2deg(a)) for a in self.angles_sd],
@@ -245,14 +245,9 @@ class MountFit:
                "converged": self.success}
         cam = self.camera
         for k, name in enumerate(self.names[3:], start=3):
-            if name == "focal_length":
-                f0 = cam.focal_length_px / (1.0 + self.x[k])
-                out["focal_length_px"] = cam.focal_length_px
-                out["focal_length_sd_px"] = float(f0 * self.sd[k])
-            else:
-                f0 = f0 if f0 is not None else cam.focal_length_px
-                out[name] = getattr(cam, name)
-                out[f"{name}_sd"] = float(f0 * self.sd[k])
+            key = "focal_length_px" if name == "focal_length" else name
+            out[key] = float(getattr(cam, key))
+            out[f"{key}_sd" if name != "focal_length" else "focal_length_sd_px"] = float(self.f0 * self.sd[k])
         return out
 
 
@@ -283,7 +278,7 @@ def _fit(data: _Data, camera: Camera, idx, model: str, fit_focal: bool, fit_pp: 
     cam = _camera_from_params(base, model, sol.x, fit_focal, fit_pp)
     return MountFit(model, names, sol.x, sd, corr, cam, sol.fun.reshape(-1, 2), idx,
                     float(np.sqrt(s2)) if np.isfinite(s2) else float("nan"),
-                    bool(sol.success), str(sol.message))
+                    bool(sol.success), str(sol.message), float(base.focal_length_px))
 
 
 def fit_mounting(records: Records, camera: Camera, target, idx=None, model: str = "mount",

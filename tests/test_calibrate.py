@@ -312,3 +312,27 @@ def test_cli_errors_name_the_problem(tmp_path, capsys):
     assert "'nope'" in capsys.readouterr().err
     assert main(["calibrate", "--height-column", "paper_height_m", "--group-by", "zzz"]) == 2
     assert "'zzz'" in capsys.readouterr().err
+
+
+def test_intrinsics_with_mount_from_both_sides(tmp_path):
+    # Noise-free records from both flights' geometries, planted mount + 2 % focal
+    # length + principal-point shift (+30, -20 px). Expected values are the planted
+    # ones; tolerances: solver termination (f to 0.1 px = 6e-7 relative, i0 to
+    # 0.01 px). The principal column and the mount's x angle are both rotations
+    # about (nearly) the body X axis (gimbal pitch ~ -2.5 deg), so they are
+    # degenerate: the fit must say so (|corr| > 0.99) rather than hide it.
+    rng = np.random.default_rng(5)
+    base = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
+    planted = np.deg2rad([0.05, 0.2, -0.1])
+    true = Camera(**{**base.__dict__, "mount": tuple(planted), "focal_length_px": base.focal_length_px * 1.02,
+                     "principal_row": base.principal_row + 30.0, "principal_col": base.principal_col - 20.0})
+    rec = _synthetic(tmp_path, rng, true, 0.0, n=20)
+    fit = fit_mounting(rec, base, HeightTarget(rec.column("paper_height_m")), fit_focal=True, fit_pp=True)
+    rep = fit.report()
+    assert rep["focal_length_px"] == pytest.approx(true.focal_length_px, abs=0.1)
+    assert rep["principal_row"] == pytest.approx(true.principal_row, abs=0.01)
+    np.testing.assert_allclose(rep["angles_deg"][1:], np.rad2deg(planted[1:]), atol=1e-5)
+    names = rep["parameter_names"]
+    assert abs(rep["correlation"][names.index("mount_x")][names.index("principal_col")]) > 0.99
+    # and within its (large) uncertainty the degenerate pair is still right
+    assert abs(rep["principal_col"] - true.principal_col) < 3 * rep["principal_col_sd"] + 0.01
