@@ -1,0 +1,215 @@
+"""In-process scene tests: the viser nodes sit where the core (and PROJ) say.
+
+Each test builds the app on a viser server bound to 127.0.0.1 on a free port
+(port 0), with no browser, and inspects the scene nodes by name.
+"""
+
+import math
+
+import numpy as np
+import pyproj
+import pytest
+import viser.transforms as vtf
+
+from geoloc.camera import Camera
+from geoloc.dem import DEM
+from geoloc.ellipsoid import geodetic_to_ecef
+from geoloc.frames import FrameChain, Pose
+from geoloc.locate import line_of_sight
+from geoloc.assets import asset_path
+from geoloc.terrain import intersect_dem
+from viz.app import GeolocApp, make_server
+from viz.scenario import load_scenario
+
+# The first record of the bundled flight test (T3-1), as in the CSV.
+T31 = dict(lat=36.39895, lon=78.72927, h=17987.25, heading=30.0457, pitch=3.3903, roll=-0.0110,
+           groll=-45.2273, gpitch=-2.4880, row=526, col=1550)
+
+
+@pytest.fixture(scope="module")
+def app():
+    server = make_server(port=0)
+    a = GeolocApp(server, load_scenario())
+    yield a
+    server.stop()
+
+
+def node(app, name):
+    h = app.server.scene.get_handle_by_name(name)
+    assert h is not None, f"scene node {name} missing"
+    return h
+
+
+def pyproj_enu(app, lat_deg, lon_deg, h):
+    """ENU of a geodetic point by PROJ (EPSG:4979 -> 4978, then +proj=topocentric)."""
+    enu = app.scn.enu
+    geo = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    x0, y0, z0 = geo.transform(math.degrees(enu.lon0), math.degrees(enu.lat0), enu.h0)
+    x, y, z = geo.transform(lon_deg, lat_deg, h)
+    topo = pyproj.Transformer.from_pipeline(
+        f"+proj=topocentric +ellps=WGS84 +X_0={x0!r} +Y_0={y0!r} +Z_0={z0!r}")
+    return np.array(topo.transform(x, y, z))
+
+
+def core_t31():
+    pose = Pose.from_deg(T31["lat"], T31["lon"], T31["h"], T31["heading"], T31["pitch"], T31["roll"],
+                         T31["groll"], T31["gpitch"])
+    cam = Camera.from_toml(asset_path("cameras", "qiao2017.toml"))
+    return pose, cam, line_of_sight(pose, cam, T31["row"], T31["col"])
+
+
+def test_default_scene_has_every_element(app):
+    names = set(app.server.scene._handle_from_node_name)
+    for n in ["/terrain", "/aircraft", "/aircraft/mesh", "/los", "/frustum", "/hit/result", "/hit/hmax",
+              "/hit/exact", "/iterations/points", "/iterations/verticals", "/iterations/brackets",
+              "/iterations/current", "/record/published", "/record/surveyed", "/record/error",
+              "/origin", "/scale_bar"] + [f"/frames/{f}{s}" for f in ("ned", "body", "gimbal_outer", "cam")
+                                          for s in ("", "/label")]:
+        assert n in names, n
+    assert app.error == ""
+
+
+def test_hit_marker_at_the_terrain_hit_in_pyproj_enu(app):
+    pose, cam, los = core_t31()
+    dem = DEM.open(asset_path("dem", "etopo5_flight_area.tif"), datum="egm96")
+    hit = intersect_dem(los, dem, "bisect", eps_h=20.0, threshold=1.0)
+    expected = pyproj_enu(app, float(hit.lat_deg), float(hit.lon_deg), float(hit.h))
+    # 1e-3 m: float64 positions on the wire; PROJ and our ENU agree to 1e-6 m (test_enu).
+    np.testing.assert_allclose(node(app, "/hit/result").position, expected, atol=1e-3)
+    exact = intersect_dem(los, dem, "exact")
+    np.testing.assert_allclose(node(app, "/hit/exact").position,
+                               pyproj_enu(app, float(exact.lat_deg), float(exact.lon_deg), float(exact.h)),
+                               atol=1e-3)
+    # The aircraft node sits at the POS position of the record.
+    np.testing.assert_allclose(node(app, "/aircraft").position,
+                               pyproj_enu(app, T31["lat"], T31["lon"], T31["h"]), atol=1e-3)
+    # The line of sight runs from the aircraft to the hit (float32 vertices: ~2 mm at 20 km).
+    seg = np.asarray(node(app, "/los").points, float)[0]
+    np.testing.assert_allclose(seg[0], node(app, "/aircraft").position, atol=0.01)
+    np.testing.assert_allclose(seg[1], expected, atol=0.01)
+
+
+def test_frames_orientation_closed_form(app):
+    R = {f: vtf.SO3(np.asarray(node(app, f"/frames/{f}").wxyz)).as_matrix()
+         for f in ("ned", "body", "gimbal_outer", "cam")}
+    # NED at the aircraft vs ENU at the origin ~16 km away: axes differ by the
+    # angle between the two normals, 16 km / 6371 km = 2.5e-3 rad.
+    np.testing.assert_allclose(R["ned"], [[0, 1, 0], [1, 0, 0], [0, 0, -1]], atol=4e-3)
+    # Body X (nose): azimuth = heading 30.0457 deg, elevation = pitch 3.3903 deg.
+    x = R["body"][:, 0]
+    assert math.degrees(math.atan2(x[0], x[1])) == pytest.approx(T31["heading"], abs=0.3)
+    assert math.degrees(math.asin(x[2])) == pytest.approx(T31["pitch"], abs=0.3)
+    # Outer gimbal shares body X ([Q17 eq. 7]: roll about X); its Y is turned by the gimbal roll.
+    np.testing.assert_allclose(R["gimbal_outer"][:, 0], x, atol=1e-9)
+    cosang = R["gimbal_outer"][:, 1] @ R["body"][:, 1]
+    assert math.degrees(math.acos(cosang)) == pytest.approx(abs(T31["groll"]), abs=1e-6)
+    # gimbal roll -45 deg looks right of track (conventions.md): camera Z has a
+    # positive component on the body's right wing.
+    assert R["cam"][:, 2] @ R["body"][:, 1] > 0.6
+
+
+def test_step_slider_walks_the_core_trace(app):
+    pose, cam, los = core_t31()
+    dem = app.scn.dem
+    hit = intersect_dem(los, dem, "bisect", threshold=1.0, trace=True)
+    tr = hit.trace.ray()
+    app.cb_all_steps.value = False
+    try:
+        for k in (0, 2, len(tr["H"]) - 1):
+            app.sl_step.value = k
+            cur = node(app, "/iterations/current")
+            np.testing.assert_allclose(cur.position, app.scn.enu.from_ecef(tr["ecef"][k]), atol=1e-6)
+            pts = np.asarray(node(app, "/iterations/points").points)
+            assert len(pts) == k + 1
+            # Vertical segment from H_n on the line of sight down (or up) to the DEM height h_n.
+            v = np.asarray(node(app, "/iterations/verticals").points, float)[k]
+            up = app.scn.enu.from_geodetic(tr["lat"][k], tr["lon"][k], tr["h_dem"][k])
+            np.testing.assert_allclose(v[1], up, atol=0.01)
+            above = tr["H"][k] - tr["h_dem"][k] > 0
+            col = np.asarray(node(app, "/iterations/verticals").colors)[k, 0]
+            assert (col[2] > col[0]) == above  # blue above the terrain, red below
+    finally:
+        app.cb_all_steps.value = True
+
+
+def test_vertical_exaggeration_scales_up_only(app):
+    before = np.array(node(app, "/hit/result").position)
+    app.sl_vexag.value = 3.0
+    try:
+        after = np.array(node(app, "/hit/result").position)
+        np.testing.assert_allclose(after, before * [1, 1, 3], rtol=1e-12)
+        assert node(app, "/terrain").scale == pytest.approx((1.0, 1.0, 3.0))
+    finally:
+        app.sl_vexag.value = 1.0
+
+
+def test_gui_pose_change_moves_the_line_of_sight(app):
+    old = np.array(node(app, "/hit/result").position)
+    app.num["gimbal_roll_deg"].value = -40.0
+    try:
+        assert app.dd_record.value == "(custom pose)"
+        pose = Pose.from_deg(T31["lat"], T31["lon"], T31["h"], T31["heading"], T31["pitch"], T31["roll"],
+                             -40.0, T31["gpitch"])
+        cam = Camera.from_toml(asset_path("cameras", "qiao2017.toml"))
+        hit = intersect_dem(line_of_sight(pose, cam, T31["row"], T31["col"]), app.scn.dem, "bisect")
+        new = np.array(node(app, "/hit/result").position)
+        np.testing.assert_allclose(new, app.scn.enu.from_ecef(hit.ecef), atol=1e-6)
+        assert np.linalg.norm(new - old) > 1000.0  # 5 deg at ~18 km slant range: km-scale shift
+    finally:
+        app.dd_record.value = "T4-1"
+        app.dd_record.value = "T3-1"
+
+
+def test_teaching_panel_shows_the_core_matrices_and_highlights(app):
+    pose, _, _ = core_t31()
+    chain = FrameChain(pose)
+    for hop in chain.hops:
+        app.dd_hop.value = hop.name
+        text = app.md_hop.content
+        # Every entry of the core's matrix appears, formatted as shown.
+        for r in range(3):
+            assert f"{hop.T[r, 3]: .3f}" in text
+            for c in range(3):
+                assert f"{hop.T[r, c]: .6f}" in text
+        # Selecting T_dst_src highlights the frame it maps from (thicker axes, marked label).
+        assert node(app, f"/frames/{hop.src}/label").text.startswith("> ")
+        assert node(app, f"/frames/{hop.src}").axes_radius == pytest.approx(
+            0.05 * node(app, f"/frames/{hop.src}").axes_length)
+    assert "max |difference|" in app.md_q17.content
+    diff = float(app.md_q17.content.split("max |difference| = ")[1].split()[0])
+    assert diff < 1e-6  # [Q17 eq. 5] four factors = direct form (float64 at 6.4e6 m)
+    app.dd_hop.value = "(none)"
+
+
+def test_record_dropdown_loads_published_and_surveyed(app):
+    app.dd_record.value = "T4-3"
+    try:
+        # T4-3 in the CSV: published 35.59935 N 80.85938 E at paper_height 4799.9 m.
+        np.testing.assert_allclose(node(app, "/record/published").position,
+                                   pyproj_enu(app, 35.59935, 80.85938, 4799.9), atol=1e-3)
+        assert app.inputs.gimbal_roll_deg == pytest.approx(51.9420)
+        assert "T4-3" in app.md_summary.content
+        # The ENU origin moved near the new target (float32 safety): within 1 km.
+        assert np.linalg.norm(node(app, "/hit/result").position[:2]) < 2000.0
+    finally:
+        app.dd_record.value = "T3-1"
+
+
+def test_export_writes_static_recordings(app, tmp_path):
+    p = app.export(tmp_path / "scene.viser")
+    data = p.read_bytes()
+    assert len(data) > 10_000  # terrain + aircraft GLBs are tens of kB
+    h = app.export(tmp_path / "scene.html", animate_steps=False)
+    html = h.read_text()
+    assert html.lstrip().lower().startswith("<!doctype html") and len(html) > 100_000
+
+
+def test_bad_input_is_reported_not_raised(app):
+    app.num["h_m"].value = 1.0e9  # out of the Pose range
+    try:
+        assert "h = 1e+09 m" in app.error
+        assert "input error" in app.md_summary.content
+    finally:
+        app.dd_record.value = "T4-1"
+        app.dd_record.value = "T3-1"
+    assert app.error == ""
