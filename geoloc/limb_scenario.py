@@ -77,7 +77,10 @@ class LimbScenario:
 
     def __post_init__(self):
         def bad(field, value, why):
-            raise ValueError(f"{self.source}: {field} = {value!r} {why}")
+            key = _KEY.get(field, field)
+            if key.endswith("_deg") and field in _KEY and isinstance(value, float):
+                value = math.degrees(value)
+            raise ValueError(f"{self.source}: {key} = {value!r} {why}")
 
         for field in ("altitude", "inclination", "raan", "arg_latitude0", "greenwich0", "interval",
                       "yaw", "roll", "pitch", "theta_mount", "fov"):
@@ -85,17 +88,17 @@ class LimbScenario:
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 bad(field, v, "must be a finite number")
         if self.altitude <= 0:
-            bad("orbit.altitude_m", self.altitude, "must be > 0")
+            bad("altitude", self.altitude, "must be > 0")
         if not (0 <= self.inclination <= math.pi):
-            bad("orbit.inclination_deg", math.degrees(self.inclination), "must be within [0, 180]")
+            bad("inclination", self.inclination, "must be within [0, 180]")
         if not (0 < self.fov < math.pi):
-            bad("sensor.fov_deg", math.degrees(self.fov), "must be within (0, 180)")
+            bad("fov", self.fov, "must be within (0, 180)")
         for field in ("n_frames", "n_pixels"):
             v = getattr(self, field)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
                 bad(field, v, "must be an integer >= 1")
         if self.interval < 0:
-            bad("frames.interval_s", self.interval, "must be >= 0")
+            bad("interval", self.interval, "must be >= 0")
 
     # ---- derived geometry -------------------------------------------------
     @property
@@ -170,6 +173,10 @@ _FIELDS = {
     ("sensor", "fov_deg"): ("fov", True, True),
     ("sensor", "n_pixels"): ("n_pixels", False, True),
 }
+
+
+#: attribute -> "section.key" of the TOML file, for error messages.
+_KEY = {attr: f"{sec}.{key}" for (sec, key), (attr, _, _) in _FIELDS.items()}
 
 
 def scenario_from_dict(data: dict, source: str = "scenario") -> LimbScenario:
