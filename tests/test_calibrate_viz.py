@@ -66,3 +66,45 @@ def test_error_vector_nodes(server):
         layer.set_stage("during")
     dd, sl = layer.add_gui(server.gui)
     assert dd.value == "after" and sl.value == 5.0
+
+
+def test_app_calibration_with_a_scenario_like_app(server):
+    # A stand-in for viz.app.GeolocApp: server, scn.enu, scn.camera and
+    # scn.records as (info, inputs) pairs, as the viewer holds them.
+    from types import SimpleNamespace
+
+    from viz.calibration_layer import attach
+
+    rec = load_records(asset_path(*DEFAULT_RECORDS))
+    cam = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
+    c = rec.column
+    pairs = []
+    for k, label in enumerate(rec.labels()):
+        info = SimpleNamespace(label=label, paper_height_m=c("paper_height_m")[k],
+                               truth_lat_deg=c("truth_lat_deg")[k], truth_lon_deg=c("truth_lon_deg")[k])
+        inp = SimpleNamespace(**{n: c(f)[k] for n, f in (
+            ("row", "row"), ("col", "col"), ("lat_deg", "ac_lat_deg"), ("lon_deg", "ac_lon_deg"),
+            ("h_m", "ac_h_m"), ("heading_deg", "heading_deg"), ("pitch_deg", "pitch_deg"),
+            ("roll_deg", "roll_deg"), ("gimbal_roll_deg", "gimbal_roll_deg"),
+            ("gimbal_pitch_deg", "gimbal_pitch_deg"))})
+        pairs.append((info, inp))
+    lat0, lon0, h00 = 35.59, 80.87, 4900.0  # flight T4's area
+    scn = SimpleNamespace(records=pairs, camera=cam, enu=EnuFrame.from_deg(lat0, lon0, h00), source="x.csv")
+    app = SimpleNamespace(server=server, scn=scn)
+    cal = attach(app)
+    h = c("paper_height_m")
+    truth = np.stack(pymap3d.geodetic2enu(c("truth_lat_deg"), c("truth_lon_deg"), h, lat0, lon0, h00), -1)
+    np.testing.assert_allclose(cal.layer.truth_handle.points, truth, atol=0.05)  # as above
+    after = np.array(cal.layer.handles["after"].points)
+    assert np.linalg.norm(after[:, 1] - after[:, 0], axis=1).mean() / 20.0 < 8.0
+    # the GUI drives the layer
+    cal.dd_stage.value = "before"
+    cal.sl_exag.value = 10.0
+    assert cal.layer.stage == "before" and cal.layer.exaggeration == 10.0
+    # moving the origin and rebuilding keeps stage and exaggeration, in the new frame
+    scn.enu = EnuFrame.from_deg(36.36, 78.87, 5000.0)
+    cal.rebuild()
+    truth2 = np.stack(pymap3d.geodetic2enu(c("truth_lat_deg"), c("truth_lon_deg"), h, 36.36, 78.87, 5000.0), -1)
+    np.testing.assert_allclose(cal.layer.truth_handle.points, truth2, atol=0.05)
+    assert cal.layer.stage == "before" and cal.layer.exaggeration == 10.0
+    assert not cal.layer.handles["after"].visible

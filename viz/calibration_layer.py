@@ -196,3 +196,102 @@ def add_error_vectors(scene, records: Records, frame: EnuFrame, heights, camera_
     if camera_after is not None:
         cams["after"] = camera_after
     return CalibrationLayer(scene, error_geometry(records, frame, heights, cams), **kw)
+
+
+# --------------------------------------------------------------------------- the geoloc view app
+def records_from_scenario(scn) -> Records:
+    """A :class:`geoloc.records.Records` from a viewer scenario's ``(RecordInfo, Inputs)`` list.
+
+    The flight (``table``) is the label's part before ``-`` (``T3-1`` -> ``T3``).
+    """
+    header = ["table", "point", "row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg",
+              "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg", "paper_height_m",
+              "truth_lat_deg", "truth_lon_deg"]
+    rows = []
+    for info, inp in scn.records:
+        table, _, point = info.label.partition("-")
+        vals = [inp.row, inp.col, inp.lat_deg, inp.lon_deg, inp.h_m, inp.heading_deg, inp.pitch_deg,
+                inp.roll_deg, inp.gimbal_roll_deg, inp.gimbal_pitch_deg, info.paper_height_m,
+                info.truth_lat_deg, info.truth_lon_deg]
+        rows.append(dict(zip(header, [table, point or table] +
+                             ["" if not np.isfinite(v) else repr(float(v)) for v in vals])))
+    return Records(getattr(scn, "source", "scenario"), header, rows,
+                   np.arange(2, len(rows) + 2), [])
+
+
+class AppCalibration:
+    """The calibration layer of a ``geoloc view`` app: fit once, redraw on a new ENU origin.
+
+    The "after" camera is one mounting rotation fitted to all records with a
+    surveyed truth and a ``paper_height_m`` (``geoloc.calibrate``, joint fit).
+    """
+
+    def __init__(self, app, exaggeration: float = 20.0, stage: str = "both"):
+        from geoloc.calibrate import HeightTarget, calibrate_groups
+
+        self.app = app
+        self.records = records_from_scenario(app.scn)
+        self.heights = self.records.column("paper_height_m")
+        ok = (np.isfinite(self.heights) & np.isfinite(self.records.column("truth_lat_deg"))
+              & np.isfinite(self.records.column("truth_lon_deg")))
+        self.message = ""
+        self.layer = None
+        self.cameras = {"before": app.scn.camera}
+        if ok.sum() >= 2 and ok.all():
+            _, cams = calibrate_groups(self.records, app.scn.camera, HeightTarget(self.heights), "table",
+                                       joint=True)
+            self.cameras["after"] = cams["joint"]
+        else:
+            self.message = "calibration needs truth_lat/lon and paper_height_m on every record"
+        self.exaggeration, self.stage, self.visible = exaggeration, stage, True
+        if ok.all():
+            self.rebuild()
+
+    def rebuild(self) -> None:
+        """(Re)draw in the app's current ENU frame (call after the origin moves)."""
+        if self.layer is not None:
+            self.exaggeration, self.stage = self.layer.exaggeration, self.layer.stage
+            for h in (*self.layer.handles.values(), self.layer.truth_handle):
+                h.remove()
+        if "after" not in self.cameras and self.stage != "before":
+            self.stage = "before"
+        geom = error_geometry(self.records, self.app.scn.enu, self.heights, self.cameras)
+        self.layer = CalibrationLayer(self.app.server.scene, geom, exaggeration=self.exaggeration,
+                                      stage=self.stage)
+        self.layer.set_visible(self.visible)
+
+    def add_gui(self, gui, folder: str = "Calibration: error vectors of all records"):
+        """Folder with a show checkbox, a before/after/both dropdown and an exaggeration slider."""
+        with gui.add_folder(folder, expand_by_default=False):
+            self.cb_show = gui.add_checkbox("show", True)
+            stages = list(STAGES) if "after" in self.cameras else ["before"]
+            self.dd_stage = gui.add_dropdown("before / after calibration", stages,
+                                             initial_value=self.stage if self.stage in stages else stages[0])
+            self.sl_exag = gui.add_slider("exaggeration", 1.0, 200.0, 1.0, self.exaggeration)
+            if self.message:
+                gui.add_markdown(self.message)
+
+        @self.cb_show.on_update
+        def _(_e) -> None:
+            self.visible = bool(self.cb_show.value)
+            if self.layer is not None:
+                self.layer.set_visible(self.visible)
+
+        @self.dd_stage.on_update
+        def _(_e) -> None:
+            if self.layer is not None:
+                self.layer.set_stage(str(self.dd_stage.value))
+                self.layer.set_visible(self.visible)
+
+        @self.sl_exag.on_update
+        def _(_e) -> None:
+            if self.layer is not None:
+                self.layer.set_exaggeration(float(self.sl_exag.value))
+                self.layer.set_visible(self.visible)
+
+
+def attach(app) -> AppCalibration:
+    """Add the calibration layer and its GUI folder to a ``viz.app.GeolocApp``."""
+    cal = AppCalibration(app)
+    cal.add_gui(app.server.gui)
+    return cal
