@@ -108,3 +108,6 @@ def test_app_calibration_with_a_scenario_like_app(server):
     np.testing.assert_allclose(cal.layer.truth_handle.points, truth2, atol=0.05)
     assert cal.layer.stage == "before" and cal.layer.exaggeration == 10.0
     assert not cal.layer.handles["after"].visible
+    # vertical exaggeration as the scene's terrain: node scale (1, 1, v)
+    cal.layer.set_vertical_exaggeration(3.0)
+    np.testing.assert_allclose(cal.layer.handles["before"].scale, (1.0, 1.0, 3.0))

@@ -107,6 +107,7 @@ class CalibrationLayer:
         self.thickness = thickness
         self.exaggeration = self._check_exaggeration(exaggeration)
         self.stage = self._check_stage(stage)
+        self.vertical = 1.0
         self.handles = {}
         self.truth_handle = scene.add_point_cloud(
             f"{self.name}/truth", geometry.truth.astype(np.float32), COLORS["truth"],
@@ -144,6 +145,15 @@ class CalibrationLayer:
         """Rescale every vector (the truth end stays)."""
         self.exaggeration = self._check_exaggeration(x)
         self._draw()
+
+    def set_vertical_exaggeration(self, v: float) -> None:
+        """Scale the layer's U axis like the scene's terrain (node scale (1, 1, v) about the ENU origin)."""
+        v = float(v)
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"vertical exaggeration = {v}: must be a finite number > 0")
+        self.vertical = v
+        for h in (*self.handles.values(), self.truth_handle):
+            h.scale = (1.0, 1.0, v)
 
     def set_stage(self, stage: str) -> None:
         """Show ``"before"``, ``"after"`` or ``"both"``."""
@@ -243,7 +253,7 @@ class AppCalibration:
             self.cameras["after"] = cams["joint"]
         else:
             self.message = "calibration needs truth_lat/lon and paper_height_m on every record"
-        self.exaggeration, self.stage, self.visible = exaggeration, stage, True
+        self.exaggeration, self.stage, self.visible, self.vertical = exaggeration, stage, True, 1.0
         if ok.all():
             self.rebuild()
 
@@ -259,6 +269,7 @@ class AppCalibration:
         self.layer = CalibrationLayer(self.app.server.scene, geom, exaggeration=self.exaggeration,
                                       stage=self.stage)
         self.layer.set_visible(self.visible)
+        self.layer.set_vertical_exaggeration(self.vertical)
 
     def add_gui(self, gui, folder: str = "Calibration: error vectors of all records"):
         """Folder with a show checkbox, a before/after/both dropdown and an exaggeration slider."""
@@ -291,7 +302,19 @@ class AppCalibration:
 
 
 def attach(app) -> AppCalibration:
-    """Add the calibration layer and its GUI folder to a ``viz.app.GeolocApp``."""
+    """Add the calibration layer and its GUI folder to a ``viz.app.GeolocApp``.
+
+    Follows the app's vertical-exaggeration slider (``app.sl_vexag``) when it has one.
+    """
     cal = AppCalibration(app)
     cal.add_gui(app.server.gui)
+    slider = getattr(app, "sl_vexag", None)
+    if slider is not None:
+        def follow(_e=None) -> None:
+            cal.vertical = float(slider.value)
+            if cal.layer is not None:
+                cal.layer.set_vertical_exaggeration(cal.vertical)
+
+        slider.on_update(follow)
+        follow()
     return cal
