@@ -60,6 +60,10 @@ class GeolocApp:
         self.view.draw_static()
         self.refresh()
         self.view.set_initial_camera(server)
+        # Issue 8: error vectors of all records, before/after a fitted mounting rotation.
+        from .calibration_layer import attach as attach_calibration
+
+        self.calibration = attach_calibration(self)
 
     # ------------------------------------------------------------ GUI
     def _build_gui(self) -> None:
@@ -178,6 +182,8 @@ class GeolocApp:
             self._mute = False
         with self.server.atomic():
             self.view.draw_static()
+            if getattr(self, "calibration", None) is not None:
+                self.calibration.rebuild()  # the ENU origin moved with the record
         self.refresh()
         self.view.set_initial_camera(self.server)
 
