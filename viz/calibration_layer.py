@@ -111,7 +111,7 @@ class CalibrationLayer:
         self.handles = {}
         self.truth_handle = scene.add_point_cloud(
             f"{self.name}/truth", geometry.truth.astype(np.float32), COLORS["truth"],
-            point_size=25.0, point_shape="circle", precision="float32")
+            point_size=60.0, point_shape="circle", precision="float32")
         self._draw()
 
     @staticmethod
