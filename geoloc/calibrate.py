@@ -243,6 +243,11 @@ class MountFit:
                                for row in self.corr],
                "sigma_m": self.sigma_m,
                "converged": self.success}
+        # pairs the records cannot separate (|correlation| > 0.99): their values are
+        # not meaningful one by one (e.g. mount angles within one flight)
+        out["degenerate_pairs"] = [[self.names[a], self.names[b]]
+                                   for a in range(len(self.names)) for b in range(a + 1, len(self.names))
+                                   if not np.isfinite(self.corr[a, b]) or abs(self.corr[a, b]) > 0.99]
         cam = self.camera
         for k, name in enumerate(self.names[3:], start=3):
             key = "focal_length_px" if name == "focal_length" else name

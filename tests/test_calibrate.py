@@ -336,3 +336,16 @@ def test_intrinsics_with_mount_from_both_sides(tmp_path):
     assert abs(rep["correlation"][names.index("mount_x")][names.index("principal_col")]) > 0.99
     # and within its (large) uncertainty the degenerate pair is still right
     assert abs(rep["principal_col"] - true.principal_col) < 3 * rep["principal_col_sd"] + 0.01
+
+
+def test_cli_flags_degenerate_parameters(tmp_path, capsys):
+    # One flight cannot separate the principal point from the mount angles (module
+    # docstring): the report must say so, and stay valid JSON (no NaN).
+    out = tmp_path / "r.json"
+    assert main(["calibrate", "--height-column", "paper_height_m", "--fit-focal", "--fit-principal-point",
+                 "--out", str(out)]) == 0
+    assert "not separable" in capsys.readouterr().out
+    rep = json.loads(out.read_text())
+    for e in rep["groups"].values():
+        assert ["mount_x", "principal_col"] in e["degenerate_pairs"]
+        assert "focal_length_sd_px" in e and "principal_row_sd" in e

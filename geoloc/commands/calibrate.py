@@ -88,6 +88,21 @@ def _target(args, records):
     raise ValueError("give --height-column (e.g. paper_height_m), --target-h-m or --dem")
 
 
+def _json_safe(v):
+    """NaN / inf -> None (JSON has no NaN), recursively; numpy scalars -> Python."""
+    if isinstance(v, dict):
+        return {k: _json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_json_safe(x) for x in v]
+    if isinstance(v, (float, np.floating)):
+        return float(v) if np.isfinite(v) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
 def _fmt(v, spec=".2f"):
     return "-" if v is None else format(v, spec)
 
@@ -114,9 +129,12 @@ def run(args) -> int:
 
     print(f"{'flight':<8} {'n':>3} {'before_m':>9} {'after_m':>8} {'loo_m':>7}   angles_deg (x, y, z) +- sd")
     for g, e in report["groups"].items():
-        ang = ", ".join(f"{a:+.4f}+-{s:.4f}" for a, s in zip(e["angles_deg"], e["angles_sd_deg"]))
+        ang = ", ".join(f"{a:+.4f}+-{_fmt(s, '.4f')}" for a, s in zip(e["angles_deg"], e["angles_sd_deg"]))
         print(f"{g:<8} {e['n']:>3} {_fmt(e['mean_error_before_m']):>9} {_fmt(e['mean_error_after_m']):>8} "
               f"{_fmt(e['mean_error_loo_m']):>7}   {ang}")
+        if e["degenerate_pairs"]:
+            print(f"         not separable with these records (|correlation| > 0.99): "
+                  f"{', '.join('/'.join(p) for p in e['degenerate_pairs'])}")
         if e["before"]["outliers"]:
             print(f"         outliers before calibration: "
                   f"{[e['records'][k]['label'] for k in e['before']['outliers']]}")
@@ -127,6 +145,7 @@ def run(args) -> int:
               f"j0 = {r['principal_col']:.2f} +- {r['principal_col_sd']:.2f}, "
               f"RMS misfit {r['rms_misfit_m']:.2f} m")
 
+    report = _json_safe(report)
     if args.out:
         Path(args.out).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
         print(f"wrote {args.out}")
