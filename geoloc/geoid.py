@@ -99,8 +99,12 @@ class NodeGrid:
             v = r - i
             u = c - j
         z = self.values
-        out = ((1 - v) * ((1 - u) * z[i, j] + u * z[i, j + 1])
-               + v * ((1 - u) * z[i + 1, j] + u * z[i + 1, j + 1]))
+        out = np.zeros(np.shape(u))
+        # a missing node spoils the point only if its weight is not zero
+        for w, zz in (((1 - u) * (1 - v), z[i, j]), (u * (1 - v), z[i, j + 1]),
+                      ((1 - u) * v, z[i + 1, j]), (u * v, z[i + 1, j + 1])):
+            with np.errstate(invalid="ignore"):
+                out = out + np.where(w != 0, w * zz, 0.0)
         return np.where(inside, out, np.nan)
 
 
