@@ -10,6 +10,8 @@ from .. import reproduce as rp
 PAPERS = {
     "qiao2017": "[Q17] Table 1 nominal point, Monte Carlo standard deviations (ellipsoid and DEM), "
                 "flight-test positions and errors, Fig. 10 trend",
+    "li2023": "[L23] DEM evaluations of the bisection on the target elevation against [Q17]'s "
+              "descending steps, at equal height tolerances",
 }
 
 
@@ -25,7 +27,9 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--sweep-samples", type=int, default=2000,
                    help="samples per point of the Fig. 10 trend (default 2000)")
-    p.add_argument("--no-dem", action="store_true", help="skip the DEM parts")
+    p.add_argument("--no-dem", action="store_true", help="qiao2017: skip the DEM parts")
+    p.add_argument("--rays", type=int, default=100,
+                   help="li2023: number of Table 1-2 rays (plus the 20 flight-test records; default 100)")
     p.add_argument("--json", default=None, help="also write the key numbers to this JSON file")
     p.set_defaults(func=run)
 
@@ -38,7 +42,9 @@ def run(args) -> int:
         rep = rp.qiao2017_report(args.samples, args.seed, args.sweep_samples,
                                  dem=False if args.no_dem else None)
     else:
-        rep = rp.li2023_report(seed=args.seed)
+        if args.rays < 1:
+            raise ValueError(f"--rays = {args.rays}: must be >= 1")
+        rep = rp.li2023_report(seed=args.seed, n_rays=args.rays)
     print(rep.text())
     if args.json:
         Path(args.json).write_text(json.dumps(rep.numbers, indent=2) + "\n")
