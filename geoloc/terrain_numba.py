@@ -1,0 +1,527 @@
+"""Compiled kernel of the exact first-hit DEM solver (see :mod:`geoloc.terrain`).
+
+Why numba: the walk is a per-ray loop over a data-dependent number of cells
+(tens, with early exit at the first hit); in numpy it would be a masked loop
+over the longest ray with a dozen temporary arrays per step, about two orders
+of magnitude slower than the 1 M rays/s goal. The kernel is compiled once
+(``cache=True`` keeps the machine code in ``__pycache__``).
+
+The kernel works in ECEF with the exact cell boundaries of a geographic grid:
+a meridian lambda = lambda_j is a plane through the Z axis, and a parallel
+phi = phi_i of constant *geodetic* latitude is the cone
+
+    z + R_N(phi) e^2 sin(phi) = rho tan(phi),   rho = sqrt(x^2 + y^2)
+
+(from x = (R_N + h) cos phi, z = (R_N (1 - e^2) + h) sin phi, GEOMETRY.md
+section 1), so the cell where the ray leaves the current one is found with one
+division per meridian and one quadratic per parallel, without approximation.
+
+It carries a scalar copy of Vermeille's ECEF -> geodetic closed form of
+:func:`geoloc.ellipsoid.ecef_to_geodetic` (numba cannot call the vectorised
+numpy version per point); ``tests/test_terrain.py`` checks the two agree.
+
+Conventions: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from .ellipsoid import A, E2
+from .status import Status
+
+_OK = int(Status.OK)
+_SKY = int(Status.SKY)
+_LEFT = int(Status.LEFT_DEM)
+_NODATA = int(Status.NODATA)
+_NOCONV = int(Status.NO_CONVERGENCE)
+_INVALID = int(Status.INVALID_INPUT)
+#: Cells per side of a block of the min/max hierarchy.
+BLOCK = 8
+
+
+@njit(cache=True, fastmath=False)
+def geodetic(x, y, z):
+    """Scalar Vermeille (2002/2004) ECEF -> (lat, lon, h), as geoloc.ellipsoid.ecef_to_geodetic."""
+    e4 = E2 * E2
+    rho2 = x * x + y * y
+    rho = math.sqrt(rho2)
+    p = rho2 / (A * A)
+    q = (1.0 - E2) * z * z / (A * A)
+    r = (p + q - e4) / 6.0
+    s = e4 * p * q / (4.0 * r * r * r)
+    t = np.cbrt(1.0 + s + math.sqrt(s * (2.0 + s)))
+    u = r * (1.0 + t + 1.0 / t)
+    v = math.sqrt(u * u + e4 * q)
+    w = E2 * (u + v - q) / (2.0 * v)
+    k = math.sqrt(u + v + w * w) - w
+    d = k * rho / (k + E2)
+    dz = math.hypot(d, z)
+    lat = 2.0 * math.atan2(z, d + dz)
+    h = (k + E2 - 1.0) / k * dz
+    lon = math.atan2(y, x)
+    return lat, lon, h
+
+
+@njit(cache=True)
+def geodetic_up(x, y, z):
+    """Vermeille as :func:`geodetic`, plus the outward normal (cos phi cos lam, cos phi sin lam, sin phi).
+
+    phi = atan2(z, d) in Vermeille's notation, so the normal needs no trigonometry.
+    """
+    e4 = E2 * E2
+    rho2 = x * x + y * y
+    rho = math.sqrt(rho2)
+    p = rho2 / (A * A)
+    q = (1.0 - E2) * z * z / (A * A)
+    r = (p + q - e4) / 6.0
+    s = e4 * p * q / (4.0 * r * r * r)
+    t = np.cbrt(1.0 + s + math.sqrt(s * (2.0 + s)))
+    u = r * (1.0 + t + 1.0 / t)
+    v = math.sqrt(u * u + e4 * q)
+    w = E2 * (u + v - q) / (2.0 * v)
+    k = math.sqrt(u + v + w * w) - w
+    d = k * rho / (k + E2)
+    dz = math.hypot(d, z)
+    lat = 2.0 * math.atan2(z, d + dz)
+    h = (k + E2 - 1.0) / k * dz
+    lon = math.atan2(y, x)
+    cphi = d / dz
+    return lat, lon, h, cphi * x / rho, cphi * y / rho, z / dz
+
+
+@njit(cache=True)
+def _wrap(lon, lon_west):
+    """Longitude into the grid's window [lon_west - pi, lon_west + pi)."""
+    return (lon - lon_west + math.pi) % (2.0 * math.pi) + lon_west - math.pi
+
+
+@njit(cache=True)
+def _cone_cross(px, py, pz, dx, dy, dz, tanp, cpar, skip_small):
+    """Smallest Delta > 0 with p + Delta d on the parallel cone (tan phi, c); inf if none."""
+    zp = pz + cpar
+    t2 = tanp * tanp
+    qa = dz * dz - t2 * (dx * dx + dy * dy)
+    qb = 2.0 * (zp * dz - t2 * (px * dx + py * dy))
+    qc = zp * zp - t2 * (px * px + py * py)
+    r0 = np.inf
+    r1 = np.inf
+    if abs(qa) < 1e-300:
+        if qb != 0.0:
+            r0 = -qc / qb
+    else:
+        disc = qb * qb - 4.0 * qa * qc
+        if disc < 0.0:
+            return np.inf
+        sq = math.sqrt(disc)
+        qq = -0.5 * (qb + math.copysign(sq, qb))
+        if qq != 0.0:
+            r0 = qq / qa
+            r1 = qc / qq
+        else:
+            r0 = 0.0
+    best = np.inf
+    for r in (r0, r1):
+        if r <= skip_small or r == np.inf:
+            continue
+        zr = zp + r * dz
+        if tanp > 1e-15 and zr < 0.0:  # the other nappe
+            continue
+        if tanp < -1e-15 and zr > 0.0:
+            continue
+        if r < best:
+            best = r
+    return best
+
+
+@njit(cache=True)
+def _plane_cross(px, py, sl, cl, dx, dy, skip_small):
+    """Smallest Delta > 0 with p + Delta d on the meridian half-plane (sin, cos of lambda)."""
+    den = -sl * dx + cl * dy
+    if den == 0.0:
+        return np.inf
+    r = -(-sl * px + cl * py) / den
+    if r <= skip_small:
+        return np.inf
+    if cl * (px + r * dx) + sl * (py + r * dy) < 0.0:  # the antimeridian half of the plane
+        return np.inf
+    return r
+
+
+@njit(cache=True)
+def _tri(ox, oy, oz, dx, dy, dz, p0, p1, p2):
+    """Moller-Trumbore ray x triangle; the ray parameter or inf."""
+    e1x = p1[0] - p0[0]
+    e1y = p1[1] - p0[1]
+    e1z = p1[2] - p0[2]
+    e2x = p2[0] - p0[0]
+    e2y = p2[1] - p0[1]
+    e2z = p2[2] - p0[2]
+    hx = dy * e2z - dz * e2y
+    hy = dz * e2x - dx * e2z
+    hz = dx * e2y - dy * e2x
+    det = e1x * hx + e1y * hy + e1z * hz
+    if det == 0.0:
+        return np.inf
+    inv = 1.0 / det
+    sx = ox - p0[0]
+    sy = oy - p0[1]
+    sz = oz - p0[2]
+    u = (sx * hx + sy * hy + sz * hz) * inv
+    if u < -1e-12 or u > 1.0 + 1e-12:
+        return np.inf
+    qx = sy * e1z - sz * e1y
+    qy = sz * e1x - sx * e1z
+    qz = sx * e1y - sy * e1x
+    v = (dx * qx + dy * qy + dz * qz) * inv
+    if v < -1e-12 or u + v > 1.0 + 1e-12:
+        return np.inf
+    t = (e2x * qx + e2y * qy + e2z * qz) * inv
+    if t <= 0.0:
+        return np.inf
+    return t
+
+
+@njit(cache=True)
+def _bilin(hgt, i, j, u, v):
+    return ((1.0 - v) * ((1.0 - u) * hgt[i, j] + u * hgt[i, j + 1])
+            + v * ((1.0 - u) * hgt[i + 1, j] + u * hgt[i + 1, j + 1]))
+
+
+@njit(cache=True)
+def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b, lon_b, h_b,
+                   hgt, i, j, lat_n, lon_w, dlat, dlon):
+    """First root of h_ray(s) - bilinear(lat(s), lon(s)) on [sa, sb]; inf if none.
+
+    Model on the cell: (u, v) linear between the exact entry/exit grid
+    coordinates and h(t) quadratic matching h_a, dh/ds(a) and h_b; the model
+    root is then polished by Newton steps on the exact residual (exact
+    geodetic conversion of the ray point), to 1e-7 m along the ray.
+    """
+    L = sb - sa
+    ua = (lon_a - (lon_w + j * dlon)) / dlon
+    va = ((lat_n - i * dlat) - lat_a) / dlat
+    ub = (lon_b - (lon_w + j * dlon)) / dlon
+    vb = ((lat_n - i * dlat) - lat_b) / dlat
+    du = ub - ua
+    dv = vb - va
+    z00 = hgt[i, j]
+    z10 = hgt[i, j + 1]
+    z01 = hgt[i + 1, j]
+    z11 = hgt[i + 1, j + 1]
+    B = z10 - z00
+    C = z01 - z00
+    D = z00 - z10 - z01 + z11
+    k = h_b - h_a - g_a * L
+    c0 = h_a - (z00 + B * ua + C * va + D * ua * va)
+    c1 = g_a * L - (B * du + C * dv + D * (ua * dv + va * du))
+    c2 = k - D * du * dv
+    t = np.inf
+    if c0 <= 0.0:
+        t = 0.0
+    else:
+        if abs(c2) < 1e-12 * (abs(c1) + abs(c0) + 1e-300):
+            if c1 < 0.0:
+                r = -c0 / c1
+                if r <= 1.0:
+                    t = r
+        else:
+            disc = c1 * c1 - 4.0 * c2 * c0
+            if disc >= 0.0:
+                sq = math.sqrt(disc)
+                qq = -0.5 * (c1 + math.copysign(sq, c1))
+                r1 = qq / c2
+                r2 = c0 / qq if qq != 0.0 else np.inf
+                for r in (r1, r2):
+                    if 0.0 <= r <= 1.0 and r < t:
+                        t = r
+            if t == np.inf and c2 > 0.0:
+                # near-tangency: check the exact residual at the model's minimum
+                tm = -c1 / (2.0 * c2)
+                if 0.0 < tm < 1.0 and c0 + c1 * tm + c2 * tm * tm < 1e-2:
+                    s = sa + tm * L
+                    la, lo, hh = geodetic(ox + s * dx, oy + s * dy, oz + s * dz)
+                    lo = _wrap(lo, lon_w)
+                    u = (lo - (lon_w + j * dlon)) / dlon
+                    v = ((lat_n - i * dlat) - la) / dlat
+                    if hh - _bilin(hgt, i, j, u, v) <= 0.0:
+                        # a root in [0, tm]: bisect the model there, Newton below polishes
+                        lo_t = 0.0
+                        hi_t = tm
+                        for _ in range(60):
+                            mid = 0.5 * (lo_t + hi_t)
+                            if c0 + c1 * mid + c2 * mid * mid > 0.0:
+                                lo_t = mid
+                            else:
+                                hi_t = mid
+                        t = hi_t
+    if t == np.inf:
+        return np.inf
+    s = sa + t * L
+    if t == 0.0:
+        return s
+    for _ in range(6):
+        la, lo, hh = geodetic(ox + s * dx, oy + s * dy, oz + s * dz)
+        lo = _wrap(lo, lon_w)
+        u = (lo - (lon_w + j * dlon)) / dlon
+        v = ((lat_n - i * dlat) - la) / dlat
+        res = hh - _bilin(hgt, i, j, u, v)
+        tt = (s - sa) / L
+        slope = (c1 + 2.0 * c2 * tt) / L
+        if slope >= 0.0:
+            break
+        step = res / slope
+        s = s - step
+        if abs(step) < 1e-7:
+            break
+    return s
+
+
+def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat, dlon,
+         tan_row, c_row, sin_col, cos_col, triangles, s_out, status, ncell, trace_s, trace_ij):
+    """Exact first hit for each ray (see module docstring); fills s_out, status, ncell.
+
+    cinv[i, j] = (1/(a+H)^2, 1/(b+H)^2) of the ellipsoid inflated to H = cell max + margin:
+    the ray's part in a cell is skipped when it stays outside that ellipsoid (the
+    quadratic |P'(s)|^2 - 1 of [Q17 eq. 11] is convex in s, so its minimum on the
+    cell's interval decides). binv is the same for blocks of BLOCK x BLOCK cells (their
+    highest node): a block the ray crosses clear of it is skipped in one step (a
+    two-level min/max hierarchy). trace_s / trace_ij have shape (n, m); m = 0 disables
+    the trace.
+    """
+    n = o.shape[0]
+    nr = hgt.shape[0]
+    nc = hgt.shape[1]
+    mtrace = trace_s.shape[1]
+    for r in prange(n):
+        s_out[r] = np.nan
+        ncell[r] = 0
+        if status[r] != _OK:
+            continue
+        ox = o[r, 0]
+        oy = o[r, 1]
+        oz = o[r, 2]
+        dx = d[r, 0]
+        dy = d[r, 1]
+        dz = d[r, 2]
+        dxy2 = dx * dx + dy * dy
+        dz2 = dz * dz
+        oxd = ox * dx + oy * dy
+        ozd = oz * dz
+        oxy2 = ox * ox + oy * oy
+        oz2 = oz * oz
+        s = s_start[r]
+        lat, lon, h, nx, ny, nz = geodetic_up(ox + s * dx, oy + s * dy, oz + s * dz)
+        lon = _wrap(lon, lon_w)
+        g = nx * dx + ny * dy + nz * dz
+        geo_ok = True  # lat, lon, h, g hold the geodetic state at s
+        fi = (lat_n - lat) / dlat
+        fj = (lon - lon_w) / dlon
+        i = int(math.floor(fi))
+        j = int(math.floor(fj))
+        # a start point on the last node line belongs to the last cell
+        if i == nr - 1 and fi - i < 1e-9:
+            i = nr - 2
+        if j == nc - 1 and fj - j < 1e-9:
+            j = nc - 2
+        best = np.inf
+        st = _LEFT
+        came = -1  # boundary we entered through: 0 north, 1 south, 2 west, 3 east
+        max_steps = 4 * (nr + nc) + 16  # a straight ray crosses each meridian/parallel at most twice
+        send = s_end[r]
+        fail_bi = -1
+        fail_bj = -1
+        while True:
+            if ncell[r] > max_steps:
+                st = _NOCONV
+                break
+            if i < 0 or i >= nr - 1 or j < 0 or j >= nc - 1:
+                st = _LEFT
+                break
+            if s > send:
+                st = _NOCONV if end_is_floor[r] else _SKY
+                break
+            px = ox + s * dx
+            py = oy + s * dy
+            pz = oz + s * dz
+            # exit through the four exact boundaries
+            ex = np.inf
+            via = -1
+            tiny = 1e-6
+            c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[i], c_row[i], tiny if came == 0 else 0.0)
+            if c < ex:
+                ex = c
+                via = 0
+            c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[i + 1], c_row[i + 1], tiny if came == 1 else 0.0)
+            if c < ex:
+                ex = c
+                via = 1
+            c = _plane_cross(px, py, sin_col[j], cos_col[j], dx, dy, tiny if came == 2 else 0.0)
+            if c < ex:
+                ex = c
+                via = 2
+            c = _plane_cross(px, py, sin_col[j + 1], cos_col[j + 1], dx, dy, tiny if came == 3 else 0.0)
+            if c < ex:
+                ex = c
+                via = 3
+            if ex < 0.0:
+                ex = 0.0
+            s_b = s + ex
+            if s_b > send:
+                s_b = send if send > s else s
+            bi = i // BLOCK
+            bj = j // BLOCK
+            if bi != fail_bi or bj != fail_bj:
+                i0 = bi * BLOCK
+                i1 = min(i0 + BLOCK, nr - 1)
+                j0 = bj * BLOCK
+                j1 = min(j0 + BLOCK, nc - 1)
+                bx = np.inf
+                bvia = -1
+                c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[i0], c_row[i0], tiny)
+                if c < bx:
+                    bx = c
+                    bvia = 0
+                c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[i1], c_row[i1], tiny)
+                if c < bx:
+                    bx = c
+                    bvia = 1
+                c = _plane_cross(px, py, sin_col[j0], cos_col[j0], dx, dy, tiny)
+                if c < bx:
+                    bx = c
+                    bvia = 2
+                c = _plane_cross(px, py, sin_col[j1], cos_col[j1], dx, dy, tiny)
+                if c < bx:
+                    bx = c
+                    bvia = 3
+                ia = binv[bi, bj, 0]
+                clear = False
+                if bvia >= 0 and ia == ia:
+                    ib = binv[bi, bj, 1]
+                    sb2 = s + bx
+                    qa = dxy2 * ia + dz2 * ib
+                    qb = 2.0 * (oxd * ia + ozd * ib)
+                    qc = oxy2 * ia + oz2 * ib - 1.0
+                    sm = -qb / (2.0 * qa)
+                    if sm < s:
+                        sm = s
+                    elif sm > sb2:
+                        sm = sb2
+                    clear = (qa * sm + qb) * sm + qc > 0.0 and sb2 < send
+                if clear:
+                    k = ncell[r]
+                    if k < mtrace:
+                        trace_s[r, k] = s
+                        trace_ij[r, k, 0] = i
+                        trace_ij[r, k, 1] = j
+                    ncell[r] = k + 1
+                    s = s + bx
+                    la2, lo2, h2 = geodetic(ox + s * dx, oy + s * dy, oz + s * dz)
+                    lo2 = _wrap(lo2, lon_w)
+                    ii = min(max(int(math.floor((lat_n - la2) / dlat)), i0), i1 - 1)
+                    jj = min(max(int(math.floor((lo2 - lon_w) / dlon)), j0), j1 - 1)
+                    geo_ok = False
+                    if bvia == 0:
+                        i = i0 - 1
+                        j = jj
+                        came = 1
+                    elif bvia == 1:
+                        i = i1
+                        j = jj
+                        came = 0
+                    elif bvia == 2:
+                        i = ii
+                        j = j0 - 1
+                        came = 3
+                    else:
+                        i = ii
+                        j = j1
+                        came = 2
+                    continue
+                fail_bi = bi
+                fail_bj = bj
+            k = ncell[r]
+            if k < mtrace:
+                trace_s[r, k] = s
+                trace_ij[r, k, 0] = i
+                trace_ij[r, k, 1] = j
+            ncell[r] = k + 1
+            cm = cmax[i, j]
+            if cm != cm:
+                st = _NODATA
+                break
+            # skip test: min over [s, s_b] of F(s) = |P'(s)|^2 - 1 for the cell's inflated ellipsoid
+            ia = cinv[i, j, 0]
+            ib = cinv[i, j, 1]
+            qa = dxy2 * ia + dz2 * ib
+            qb = 2.0 * (oxd * ia + ozd * ib)
+            qc = oxy2 * ia + oz2 * ib - 1.0
+            sm = -qb / (2.0 * qa)
+            if sm < s:
+                sm = s
+            elif sm > s_b:
+                sm = s_b
+            if (qa * sm + qb) * sm + qc <= 0.0:
+                if triangles:
+                    t1 = _tri(ox, oy, oz, dx, dy, dz, nodes[i, j], nodes[i + 1, j], nodes[i + 1, j + 1])
+                    t2 = _tri(ox, oy, oz, dx, dy, dz, nodes[i, j], nodes[i + 1, j + 1], nodes[i, j + 1])
+                    if t1 < best:
+                        best = t1
+                    if t2 < best:
+                        best = t2
+                    geo_ok = False
+                else:
+                    if not geo_ok:
+                        lat, lon, h, nx, ny, nz = geodetic_up(px, py, pz)
+                        lon = _wrap(lon, lon_w)
+                        g = nx * dx + ny * dy + nz * dz
+                    lat_b, lon_b, h_b, nx, ny, nz = geodetic_up(ox + s_b * dx, oy + s_b * dy, oz + s_b * dz)
+                    lon_b = _wrap(lon_b, lon_w)
+                    t1 = _bilinear_cell(ox, oy, oz, dx, dy, dz, s, s_b, lat, lon, h, g,
+                                        lat_b, lon_b, h_b, hgt, i, j, lat_n, lon_w, dlat, dlon)
+                    if t1 < best:
+                        best = t1
+                    lat = lat_b
+                    lon = lon_b
+                    h = h_b
+                    g = nx * dx + ny * dy + nz * dz
+                    geo_ok = True
+            else:
+                geo_ok = False
+            if best <= s_b + 1e-9:
+                st = _OK
+                break
+            if s_b >= send:
+                st = _NOCONV if end_is_floor[r] else _SKY
+                break
+            if via < 0 or ex == np.inf:
+                st = _NOCONV if end_is_floor[r] else _SKY
+                break
+            s = s_b
+            if via == 0:
+                i -= 1
+                came = 1
+            elif via == 1:
+                i += 1
+                came = 0
+            elif via == 2:
+                j -= 1
+                came = 3
+            else:
+                j += 1
+                came = 2
+        if best < np.inf and st != _OK:
+            # a triangle sliver found beyond the last cell: still the first hit on the mesh
+            st = _OK
+        status[r] = st
+        if st == _OK:
+            s_out[r] = best
+
+
+#: Serial walk (prange runs as range).
+walk = njit(cache=True)(_walk)
+#: The same walk over rays on all cores (numba threads); identical results.
+walk_parallel = njit(cache=True, parallel=True)(_walk)

@@ -1,0 +1,250 @@
+"""Line of sight x DEM (geoloc.terrain): synthetic DEMs with independent answers, statuses, traces."""
+
+import numpy as np
+import pytest
+from scipy.interpolate import RegularGridInterpolator
+from scipy.optimize import brentq
+
+from geoloc.dem import DEM
+from geoloc.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
+from geoloc.enu import EnuFrame
+from geoloc.intersect import ray_geodetic_height
+from geoloc.locate import LineOfSight
+from geoloc.status import Status
+from geoloc.terrain import intersect_dem
+
+r = np.deg2rad
+
+
+def rays_enu(frame: EnuFrame, origins_enu, dirs_enu):
+    o = frame.to_ecef(np.asarray(origins_enu, float))
+    d = np.einsum("ij,...j->...i", frame.R_ecef_enu, np.asarray(dirs_enu, float))
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    o, d = np.broadcast_arrays(o, d)
+    return LineOfSight(o, d, np.zeros(o.shape[:-1], np.uint8))
+
+
+def reference_first_hit(o, d, terrain_h, s_max, ds=0.5):
+    """First root of h_ray(s) - terrain(lat, lon) by a dense scan + brentq, with the core's
+    ECEF -> geodetic conversion and an independent terrain function (deg in)."""
+    def g(s):
+        lat, lon, h = ecef_to_geodetic(o + np.asarray(s)[..., None] * d)
+        return h - terrain_h(np.rad2deg(lat), np.rad2deg(lon))
+
+    s = np.arange(0.0, s_max, ds)
+    gs = g(s)
+    k = np.flatnonzero((gs[:-1] > 0) & (gs[1:] <= 0))[0]
+    return brentq(lambda x: float(np.ravel(g(np.array(x)))[0]), s[k], s[k + 1], xtol=1e-9)
+
+
+def hit_s(hit, los):
+    return np.sum((hit.ecef - los.origin_ecef) * los.direction_ecef, -1)
+
+
+# --------------------------------------------------------------------------- flat
+def test_flat_exact_equals_constant_height_surface():
+    dem = DEM.from_array(np.full((21, 21), 250.0), 36.1, 78.0, 0.01, 0.01)
+    fr = EnuFrame.from_deg(36.0, 78.1, 0.0)
+    off = r(np.array([0, 30, 60, 75]))
+    az = r(np.array([0, 100, 200, 300]))
+    los = rays_enu(fr, [0, 0, 3000.0], np.c_[np.sin(az) * np.sin(off), np.cos(az) * np.sin(off), -np.cos(off)])
+    ref = ray_geodetic_height(los.origin_ecef, los.direction_ecef, 250.0)  # core, Newton on h
+    hit = intersect_dem(los, dem, "exact")
+    assert (hit.status == Status.OK).all()
+    # goal: exact to 1 cm
+    assert np.max(np.linalg.norm(hit.ecef - ref.ecef, axis=-1)) < 0.01
+
+
+# --------------------------------------------------------------------------- tilted plane
+def plane_dem():
+    lat_n, lon_w, step = 36.1, 78.0, 0.005
+    la = lat_n - step * np.arange(41)
+    lo = lon_w + step * np.arange(41)
+    LO, LA = np.meshgrid(lo, la)
+
+    def f(lat_deg, lon_deg):  # metres per degree: bilinear reproduces a plane in (lat, lon) exactly
+        return 300.0 + 2000.0 * (lon_deg - 78.1) + 1500.0 * (lat_deg - 36.0)
+
+    return DEM.from_array(f(LA, LO), lat_n, lon_w, step, step), f
+
+
+def test_tilted_plane_all_methods():
+    dem, f = plane_dem()
+    fr = EnuFrame.from_deg(36.0, 78.1, 0.0)
+    off = r(np.array([20, 45, 60, 70]))
+    az = r(np.array([10, 130, 250, 330]))
+    los = rays_enu(fr, [0, 0, 4000.0], np.c_[np.sin(az) * np.sin(off), np.cos(az) * np.sin(off), -np.cos(off)])
+    s_ref = np.array([reference_first_hit(los.origin_ecef[k], los.direction_ecef[k], f, 20000.0)
+                      for k in range(4)])
+    p_ref = los.origin_ecef + s_ref[:, None] * los.direction_ecef
+    h_ref = ecef_to_geodetic(p_ref)[2]
+    ex = intersect_dem(los, dem, "exact")
+    assert (ex.status == Status.OK).all()
+    assert np.max(np.linalg.norm(ex.ecef - p_ref, axis=-1)) < 0.01  # goal: 1 cm
+    eps = 2.0
+    st = intersect_dem(los, dem, "steps", eps_h=eps)
+    # [Q17]: the first H_n below the terrain; the crossing lies within one step above it.
+    # 0.01 m: the inflated ellipsoid's height departs from h_T by millimetres at these heights.
+    assert np.all(st.h <= h_ref + 0.01) and np.all(st.h > h_ref - eps - 0.01)
+    thr = 0.5
+    bi = intersect_dem(los, dem, "bisect", threshold=thr)
+    # [L23]'s contract: |H - h_DEM| < threshold at the answer (same 0.01 m for the inflated surface)
+    assert np.all(np.abs(bi.h - dem.height(bi.lat, bi.lon)) < thr + 0.01)
+    assert not bi.hidden.any()
+    # evaluations: steps from H_max down, about (H_max - h) / eps_h + 1
+    n_expected = np.floor((dem.max_height() - h_ref) / eps) + 1
+    assert np.all(np.abs(st.dem_evaluations - n_expected) <= 1)
+
+
+# --------------------------------------------------------------------------- hill
+def hill_dem():
+    step = 0.001
+    la = 36.05 - step * np.arange(101)
+    lo = 78.05 + step * np.arange(101)
+    LO, LA = np.meshgrid(lo, la)
+    z = 200.0 + 600.0 * np.exp(-(((LO - 78.1) / 0.012) ** 2 + ((LA - 36.0) / 0.01) ** 2))
+    dem = DEM.from_array(z, 36.05, 78.05, step, step)
+    interp = RegularGridInterpolator((la[::-1], lo), z[::-1], method="linear", bounds_error=False)  # independent bilinear
+    return dem, lambda lat_deg, lon_deg: interp(np.stack(np.broadcast_arrays(lat_deg, lon_deg), -1))
+
+
+@pytest.mark.parametrize("surface", ["bilinear", "triangles"])
+def test_hill_exact(surface):
+    dem, f = hill_dem()
+    fr = EnuFrame.from_deg(36.0, 78.1, 0.0)
+    rng = np.random.default_rng(7)
+    n = 12
+    off = r(rng.uniform(45, 75, n))
+    az = rng.uniform(0, 2 * np.pi, n)
+    d = np.c_[np.sin(az) * np.sin(off), np.cos(az) * np.sin(off), -np.cos(off)]
+    aim = np.c_[rng.uniform(-1500, 1500, n), rng.uniform(-1500, 1500, n), np.full(n, 500.0)]
+    o = aim - (2500 / np.cos(off))[:, None] * d
+    los = rays_enu(fr, o, d)
+    hit = intersect_dem(los, dem, "exact", surface=surface)
+    assert (hit.status == Status.OK).all()
+    if surface == "bilinear":
+        s_ref = np.array([reference_first_hit(los.origin_ecef[k], los.direction_ecef[k], f, 15000.0)
+                          for k in range(n)])
+        assert np.max(np.abs(hit_s(hit, los) - s_ref)) < 0.01  # goal: 1 cm
+    else:
+        import trimesh
+
+        m = dem.to_trimesh()
+        frm = m.metadata["enu_frame"]
+        # pure-python trimesh backend on this small mesh (20 000 triangles, 12 rays)
+        tri = trimesh.ray.ray_triangle.RayMeshIntersector(m)
+        loc, idx, _ = tri.intersects_location(frm.from_ecef(los.origin_ecef),
+                                              frm.vector_from_ecef(los.direction_ecef), multiple_hits=False)
+        assert sorted(idx) == list(range(n))
+        mine = frm.from_ecef(hit.ecef)[idx]
+        assert np.max(np.linalg.norm(mine - loc, axis=-1)) < 0.05  # issue: <= 5 cm
+
+
+# --------------------------------------------------------------------------- ridge and valley
+def ridge_dem():
+    """Terrain that depends on longitude only: a 300 m ridge 0.0025 deg wide on a 0 m floor."""
+    step_lon, step_lat = 0.0005, 0.005
+    lo = 78.0 + step_lon * np.arange(121)
+    la = 36.05 - step_lat * np.arange(21)
+    peak = 78.02
+
+    def prof(lon_deg):
+        return 300.0 * np.clip(1 - np.abs(np.asarray(lon_deg) - peak) / 0.0025, 0, None)
+
+    z = np.tile(prof(lo), (len(la), 1))
+    return DEM.from_array(z, 36.05, 78.0, step_lat, step_lon), (lambda lat_deg, lon_deg: prof(lon_deg))
+
+
+def test_ridge_in_front_of_valley_grazing():
+    dem, f = ridge_dem()
+    fr = EnuFrame.from_deg(36.0, 78.002, 0.0)
+    # due east, 6.8 deg below the horizon (frame angle 83 deg): meets the ridge face at about
+    # 213 m, comes out of its back at about 196 m and reaches the floor 1.6 km further on.
+    d = np.array([1.0, 0.0, -0.12])
+    los = rays_enu(fr, [[0, 0, 400.0], [0, 50.0, 400.0]], d)
+    s_ref = np.array([reference_first_hit(los.origin_ecef[k], los.direction_ecef[k], f, 4000.0)
+                      for k in range(2)])
+    ex = intersect_dem(los, dem, "exact")
+    assert np.max(np.abs(hit_s(ex, los) - s_ref)) < 0.01  # goal: 1 cm
+    assert np.all(ex.h > 150)  # the ridge, not the floor
+    st = intersect_dem(los, dem, "steps", eps_h=1.0)
+    assert np.all(np.abs(st.h - ex.h) < 1.0 + 0.01)  # within eps_h (0.01 m: inflated surface)
+    bi = intersect_dem(los, dem, "bisect", threshold=1.0)
+    assert (bi.status == Status.OK).all()
+    assert np.all(bi.h < 2.0)  # [L23]'s halving lands on the floor behind the ridge...
+    assert bi.hidden.all()  # ...and is flagged
+    ex_tri = intersect_dem(los, dem, "exact", surface="triangles")
+    assert np.all(ex_tri.h > 150)
+
+
+# --------------------------------------------------------------------------- statuses, batches, traces
+@pytest.mark.parametrize("method", ["steps", "bisect", "exact"])
+def test_statuses(method):
+    z = np.full((21, 21), 100.0)
+    z[8:12, 8:12] = np.nan
+    dem = DEM.from_array(z, 36.1, 78.0, 0.01, 0.01)
+    fr = EnuFrame.from_deg(36.0, 78.1, 0.0)
+    o = np.array([[0, 0, 3000.0], [3000, 3000, 3000.0], [-2000, 3000, 3000.0], [np.nan, 0, 3000.0]])
+    d = np.array([[0, 0, 1.0], [0.0, 0.0, -1.0], [-1, 0, -0.1], [0, 0, -1.0]])
+    los = rays_enu(fr, o, d)
+    hit = intersect_dem(los, dem, method)
+    assert list(hit.status) == [Status.SKY, Status.OK, Status.LEFT_DEM, Status.INVALID_INPUT]
+    los2 = rays_enu(fr, [0, 0, 3000.0], [0, 0, -1.0])  # straight down into the hole
+    assert int(intersect_dem(los2, dem, method).status) == Status.NODATA
+    assert np.isnan(hit.lat[[0, 2, 3]]).all() and np.isfinite(hit.lat[1])
+
+
+def test_batch_shape_and_trace():
+    dem, f = hill_dem()
+    fr = EnuFrame.from_deg(36.0, 78.1, 0.0)
+    rng = np.random.default_rng(1)
+    d = np.c_[rng.uniform(-0.5, 0.5, 6), rng.uniform(-0.5, 0.5, 6), -np.ones(6)].reshape(2, 3, 3)
+    los = rays_enu(fr, [0, 0, 3000.0], d)
+    for method in ("steps", "bisect", "exact"):
+        hit = intersect_dem(los, dem, method, eps_h=5.0, threshold=1.0, trace=True)
+        assert hit.lat.shape == (2, 3) and hit.ecef.shape == (2, 3, 3) and hit.status.shape == (2, 3)
+        t = hit.trace.ray((1, 2))
+        assert len(t["H"]) == hit.dem_evaluations[1, 2]
+        # every trace point lies on the line of sight at its trial height (core conversion;
+        # 0.01 m: inflated ellipsoid vs geodetic height) and h_dem is the DEM there
+        lat, lon, h = ecef_to_geodetic(t["ecef"])
+        assert np.allclose(h, t["H"], atol=0.01)
+        o, dd = los.origin_ecef[1, 2], los.direction_ecef[1, 2]
+        along = t["ecef"] - o
+        assert np.allclose(np.cross(along, dd), 0, atol=1e-6 * np.linalg.norm(along, axis=-1).max())
+        assert np.allclose(t["h_dem"], dem.height(lat, lon), equal_nan=True)
+        if method == "steps":
+            assert np.allclose(np.diff(t["H"]), -5.0)
+            assert np.all(t["H"][:-1] > t["h_dem"][:-1]) and t["H"][-1] <= t["h_dem"][-1]
+        if method == "bisect":
+            assert np.allclose(t["H"], 0.5 * (t["lo"] + t["hi"]))
+            assert np.allclose(np.diff(t["hi"] - t["lo"]), -0.5 * (t["hi"] - t["lo"])[:-1])
+        if method == "exact":
+            assert t["cell"].shape[1] == 2 and (t["cell"] >= 0).all()
+
+
+def test_scalar_vermeille_matches_core():
+    from geoloc.terrain_numba import geodetic, geodetic_up
+
+    rng = np.random.default_rng(2)
+    p = geodetic_to_ecef(r(rng.uniform(-89, 89, 50)), r(rng.uniform(-180, 180, 50)), rng.uniform(-400, 9e4, 50))
+    ref = np.array(ecef_to_geodetic(p))
+    for k in range(50):
+        got = geodetic(*p[k])
+        # same formula, compiled: angles to 1e-12 rad, height to 1e-6 m (float rounding)
+        assert np.allclose(got[:2], ref[:2, k], rtol=0, atol=1e-12)
+        assert abs(got[2] - ref[2, k]) < 1e-6
+        lat, lon, h, nx, ny, nz = geodetic_up(*p[k])
+        assert np.allclose([nx, ny, nz], [np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)],
+                           atol=1e-12)
+
+
+def test_bad_arguments():
+    dem, _ = plane_dem()
+    los = rays_enu(EnuFrame.from_deg(36, 78.1, 0), [0, 0, 3000.0], [0, 0, -1.0])
+    with pytest.raises(ValueError, match="method"):
+        intersect_dem(los, dem, "newton")
+    with pytest.raises(ValueError, match="eps_h"):
+        intersect_dem(los, dem, "steps", eps_h=0)
+    with pytest.raises(ValueError, match="surface"):
+        intersect_dem(los, dem, "exact", surface="quads")
