@@ -30,6 +30,9 @@ def register(sub) -> None:
     p.add_argument("--no-dem", action="store_true", help="qiao2017: skip the DEM parts")
     p.add_argument("--rays", type=int, default=100,
                    help="li2023: number of Table 1-2 rays (plus the 20 flight-test records; default 100)")
+    p.add_argument("--tolerances-m", default="10,2,1",
+                   help="li2023: comma-separated height tolerances [m], step of the descending "
+                   "method and bisection threshold (default 10,2,1)")
     p.add_argument("--json", default=None, help="also write the key numbers to this JSON file")
     p.set_defaults(func=run)
 
@@ -44,7 +47,14 @@ def run(args) -> int:
     else:
         if args.rays < 1:
             raise ValueError(f"--rays = {args.rays}: must be >= 1")
-        rep = rp.li2023_report(seed=args.seed, n_rays=args.rays)
+        try:
+            tols = tuple(float(x) for x in args.tolerances_m.split(","))
+        except ValueError:
+            tols = ()
+        if not tols or not all(t > 0 and t == t and t != float("inf") for t in tols):
+            raise ValueError(f"--tolerances-m = {args.tolerances_m!r}: expected positive numbers "
+                             "of metres, comma-separated")
+        rep = rp.li2023_report(seed=args.seed, n_rays=args.rays, tolerances_m=tols)
     print(rep.text())
     if args.json:
         Path(args.json).write_text(json.dumps(rep.numbers, indent=2) + "\n")
