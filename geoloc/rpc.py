@@ -395,6 +395,7 @@ def gdal_rpc_to_ground(model: RPCModel, row, col, *, dem_path=None, height=0.0,
     lat, lon : ndarray
         Radians; NaN where GDAL reports a failed transform.
     """
+    import rasterio
     from rasterio.transform import RPCTransformer
 
     row = np.atleast_1d(np.asarray(row, float))
@@ -409,7 +410,8 @@ def gdal_rpc_to_ground(model: RPCModel, row, col, *, dem_path=None, height=0.0,
     if max_iterations is not None:
         opts["RPC_MAX_ITERATIONS"] = str(int(max_iterations))
     zs = np.full(row.shape, float(height))
-    with RPCTransformer(model.to_rasterio(), **opts) as tr:
+    # the Env registers GDAL's drivers, which RPC_DEM needs to open its file
+    with rasterio.Env(), RPCTransformer(model.to_rasterio(), **opts) as tr:
         lons, lats = [], []
         for i in range(row.size):  # one call per point so that a failure only loses that point
             try:
@@ -419,6 +421,170 @@ def gdal_rpc_to_ground(model: RPCModel, row, col, *, dem_path=None, height=0.0,
             lons.append(float(x))
             lats.append(float(y))
     return np.deg2rad(np.asarray(lats)), np.deg2rad(np.asarray(lons))
+
+
+# ------------------------------------------------------- GDAL RPC_DEM check
+def write_ellipsoidal_dem(dem, path) -> Path:
+    """Write a geoloc DEM's *ellipsoidal* node heights as a plain EPSG:4326 GeoTIFF.
+
+    GDAL's RPC transformer uses ``RPC_DEM`` values as heights above the WGS-84
+    ellipsoid unless the DEM's CRS carries a vertical datum (and
+    ``RPC_DEM_APPLY_VDATUM_SHIFT`` is on, and its PROJ finds the geoid grid).
+    The bundled DEMs are orthometric (EGM96) with a 2-D CRS, so GDAL would use
+    H instead of h = H + N. This copy holds h (the nodes of
+    :class:`geoloc.dem.DEM`, where N was added node by node), on the same
+    pixel-centre nodes, so GDAL's bilinear sampling equals the project's.
+
+    Parameters
+    ----------
+    dem : geoloc.dem.DEM
+        A geographic (lat/lon) DEM.
+    path : path-like
+
+    Returns
+    -------
+    Path
+    """
+    import rasterio
+    from affine import Affine
+
+    if not dem.is_geographic:
+        raise ValueError(f"DEM {dem.path}: RPC_DEM copy needs a geographic (lat/lon) grid, got {dem.crs}")
+    g = dem.grid
+    v = np.asarray(g.values, float)
+    t = Affine(g.dlon_deg, 0.0, g.lon_west_deg - g.dlon_deg / 2, 0.0, -g.dlat_deg, g.lat_north_deg + g.dlat_deg / 2)
+    path = Path(path)
+    with rasterio.open(path, "w", driver="GTiff", width=v.shape[1], height=v.shape[0], count=1,
+                       dtype="float64", crs="EPSG:4326", transform=t, nodata=np.nan) as dst:
+        dst.write(v, 1)
+        dst.update_tags(VERTICAL_DATUM="WGS-84 ellipsoidal heights (h = H + N, EGM96)",
+                        SOURCE=str(dem.path))
+    return path
+
+
+@dataclass(frozen=True)
+class DemCrossCheck:
+    """GDAL RPC + RPC_DEM against the project's exact DEM intersection (:func:`crosscheck_gdal_dem`).
+
+    Attributes
+    ----------
+    row, col : ndarray
+        Pixels compared (1-based).
+    exact_lat, exact_lon, exact_h : ndarray
+        Exact first hit of the rigorous line of sight with the DEM [rad, rad, m].
+    gdal_lat, gdal_lon : ndarray
+        GDAL's answer [rad] (NaN where GDAL failed).
+    error_px : ndarray
+        GDAL's ground point (at the DEM height there) projected by the rigorous
+        model, distance to the pixel asked for [px].
+    error_m : ndarray
+        Distance between GDAL's and the exact ground point [m].
+    n_failed : int
+        Pixels where GDAL reported no solution.
+    options : dict
+        The GDAL transformer options used.
+    """
+
+    row: np.ndarray
+    col: np.ndarray
+    exact_lat: np.ndarray
+    exact_lon: np.ndarray
+    exact_h: np.ndarray
+    gdal_lat: np.ndarray
+    gdal_lon: np.ndarray
+    error_px: np.ndarray
+    error_m: np.ndarray
+    n_failed: int
+    options: dict
+
+    @property
+    def max_px(self) -> float:
+        return float(np.nanmax(self.error_px)) if self.error_px.size else float("nan")
+
+    @property
+    def rms_px(self) -> float:
+        return float(np.sqrt(np.nanmean(self.error_px**2))) if self.error_px.size else float("nan")
+
+    @property
+    def max_m(self) -> float:
+        return float(np.nanmax(self.error_m)) if self.error_m.size else float("nan")
+
+
+def dem_pixels(sensor, dem, grid=(12, 12), margin=0.05):
+    """A grid of pixels whose ground points lie inside the DEM.
+
+    The DEM's node hull is projected into the image (at its mean height); the
+    grid spans the part of the image inside that projection and inside the
+    image, shrunk by ``margin`` on each side. Pixels whose exact DEM
+    intersection fails are dropped by the caller.
+    """
+    w, s_, e, n = dem.bounds_deg
+    lat = np.deg2rad(np.linspace(s_, n, 9))
+    lon = np.deg2rad(np.linspace(w, e, 9))
+    LA, LO = np.meshgrid(lat, lon, indexing="ij")
+    edge = np.zeros(LA.shape, bool)
+    edge[[0, -1], :] = edge[:, [0, -1]] = True
+    hm = float(np.nanmean(dem.grid.values))
+    r, c, st = sensor.ground_to_pixel(LA[edge], LO[edge], np.full(int(edge.sum()), hm))
+    ok = st == Status.OK
+    r0 = max(0.5, np.nanmin(r[ok])) if ok.any() else 0.5
+    r1 = min(sensor.rows + 0.5, np.nanmax(r[ok])) if ok.any() else sensor.rows + 0.5
+    c0 = max(0.5, np.nanmin(c[ok])) if ok.any() else 0.5
+    c1 = min(sensor.cols + 0.5, np.nanmax(c[ok])) if ok.any() else sensor.cols + 0.5
+    dr, dc = margin * (r1 - r0), margin * (c1 - c0)
+    R, C = np.meshgrid(np.linspace(r0 + dr, r1 - dr, grid[0]), np.linspace(c0 + dc, c1 - dc, grid[1]),
+                       indexing="ij")
+    return R.ravel(), C.ravel()
+
+
+def crosscheck_gdal_dem(sensor, model: RPCModel, dem, dem_path_for_gdal, row, col, *,
+                        pixel_error_threshold=1e-6, max_iterations=100) -> DemCrossCheck:
+    """Pixel -> ground by GDAL (RPC + ``RPC_DEM``) against the project's exact DEM intersection.
+
+    The exact side intersects the rigorous line of sight with the DEM
+    (:func:`geoloc.terrain.intersect_dem`, ``method="exact"``: the visible first
+    hit on the bilinear surface). The GDAL side runs rasterio's
+    ``RPCTransformer`` with ``RPC_DEM=dem_path_for_gdal`` and height 0 above
+    it. GDAL stops iterating when its back-projected pixel is within
+    ``RPC_PIXEL_ERROR_THRESHOLD`` (default 0.1 px in GDAL; set tighter here).
+
+    Parameters
+    ----------
+    sensor : PushbroomSensor or FrameCameraSensor
+    model : RPCModel
+        The RPC fitted to ``sensor``.
+    dem : geoloc.dem.DEM
+        The project's DEM (ellipsoidal node heights).
+    dem_path_for_gdal : path-like
+        The file GDAL reads: normally :func:`write_ellipsoidal_dem` of ``dem``.
+    row, col : array_like
+        Pixels (1-based).
+
+    Returns
+    -------
+    DemCrossCheck
+        Pixels whose exact intersection fails (ray leaves the DEM) are dropped.
+    """
+    from .ellipsoid import geodetic_to_ecef
+    from .terrain import intersect_dem
+
+    row, col = np.broadcast_arrays(np.asarray(row, float).ravel(), np.asarray(col, float).ravel())
+    hit = intersect_dem(sensor.line_of_sight(row, col), dem, method="exact")
+    ok = hit.status == Status.OK
+    row, col = row[ok], col[ok]
+    lat_e, lon_e, h_e, p_e = hit.lat[ok], hit.lon[ok], hit.h[ok], hit.ecef[ok]
+    lat_g, lon_g = gdal_rpc_to_ground(model, row, col, dem_path=dem_path_for_gdal, height=0.0,
+                                      pixel_error_threshold=pixel_error_threshold,
+                                      max_iterations=max_iterations)
+    h_g = dem.height(lat_g, lon_g)
+    r_g, c_g, st = sensor.ground_to_pixel(lat_g, lon_g, h_g)
+    err_px = np.where(st == Status.OK, np.hypot(r_g - row, c_g - col), np.nan)
+    err_m = np.linalg.norm(geodetic_to_ecef(lat_g, lon_g, h_g) - p_e, axis=-1)
+    opts = {"RPC_DEM": str(dem_path_for_gdal), "RPC_DEMINTERPOLATION": "bilinear",
+            "RPC_DEM_APPLY_VDATUM_SHIFT": "FALSE", "RPC_HEIGHT": "0 (zs = 0 above the DEM)",
+            "RPC_PIXEL_ERROR_THRESHOLD": pixel_error_threshold, "RPC_MAX_ITERATIONS": max_iterations}
+    return DemCrossCheck(row, col, lat_e, lon_e, h_e, lat_g, lon_g, err_px, err_m,
+                         int(np.sum(~np.isfinite(lat_g))), opts)
 
 
 # --------------------------------------------------------------- scenarios
@@ -539,5 +705,73 @@ def load_scenario(path) -> RPCScenario:
                        dem_path, datum, cc)
 
 
-__all__ = ["TERMS", "FrameCameraSensor", "RPCFit", "RPCModel", "RPCScenario", "fit_rpc",
-           "gdal_rpc_to_ground", "load_scenario", "read_rpc_geotiff", "rpc_terms", "write_rpc_geotiff"]
+def rpc_report(scenario: RPCScenario, out_tif, *, gdal: bool = True, pixel_error_threshold: float = 1e-6,
+               dem_copy=None) -> dict:
+    """Fit, write and cross-check the RPC of a scenario: what ``geoloc rpc`` reports.
+
+    Parameters
+    ----------
+    scenario : RPCScenario
+    out_tif : path-like
+        GeoTIFF to write (RPC metadata, sparse pixels).
+    gdal : bool
+        Run the GDAL RPC_DEM cross-check (needs ``scenario.dem_path``).
+    pixel_error_threshold : float
+        GDAL's ``RPC_PIXEL_ERROR_THRESHOLD`` for the main figure [px].
+    dem_copy : path-like, optional
+        Where to keep the ellipsoidal-height DEM given to GDAL (default: a
+        temporary file, deleted).
+
+    Returns
+    -------
+    dict
+        JSON-ready: ``fit_rms_px``, ``check_rms_px``, ``check_max_px``,
+        ``gdal_vs_exact_max_px`` and the supporting figures (docs/rpc.md).
+    """
+    import tempfile
+
+    s = scenario.sensor
+    fit = fit_rpc(s, scenario.height_min, scenario.height_max, scenario.grid, scenario.check_grid)
+    write_rpc_geotiff(out_tif, fit.model, s.rows, s.cols)
+    rep = {
+        "scenario": scenario.name, "kind": scenario.kind, "image": str(out_tif),
+        "rows": int(s.rows), "cols": int(s.cols),
+        "height_range_m": [scenario.height_min, scenario.height_max],
+        "n_fit": fit.n_fit, "n_check": fit.n_check,
+        "fit_rms_px": fit.fit_rms_px, "fit_max_px": fit.fit_max_px,
+        "check_rms_px": fit.check_rms_px, "check_max_px": fit.check_max_px,
+    }
+    if not gdal or scenario.dem_path is None:
+        rep["gdal_vs_exact_max_px"] = None
+        rep["gdal_note"] = "skipped" if not gdal else "no [dem] in the scenario"
+        return rep
+    from .dem import DEM
+
+    dem = DEM.open(scenario.dem_path, datum=scenario.dem_datum)
+    rows, cols = dem_pixels(s, dem, scenario.cross_check_grid)
+    with tempfile.TemporaryDirectory() as tmp:
+        ell = Path(dem_copy) if dem_copy is not None else Path(tmp) / "dem_ellipsoidal.tif"
+        write_ellipsoidal_dem(dem, ell)
+        cc = crosscheck_gdal_dem(s, fit.model, dem, ell, rows, cols,
+                                 pixel_error_threshold=pixel_error_threshold)
+        cc_default = crosscheck_gdal_dem(s, fit.model, dem, ell, cc.row, cc.col,
+                                         pixel_error_threshold=None, max_iterations=None)
+    # GDAL's default handling of the bundled file: orthometric values taken as ellipsoidal
+    cc_raw = crosscheck_gdal_dem(s, fit.model, dem, scenario.dem_path, cc.row, cc.col,
+                                 pixel_error_threshold=pixel_error_threshold)
+    rep.update({
+        "gdal_vs_exact_max_px": cc.max_px, "gdal_vs_exact_rms_px": cc.rms_px,
+        "gdal_vs_exact_max_m": cc.max_m, "gdal_points": int(cc.row.size), "gdal_failed": cc.n_failed,
+        "gdal_options": {k: str(v) for k, v in cc.options.items() if k != "RPC_DEM"},
+        "gdal_default_threshold_max_px": cc_default.max_px,
+        "gdal_orthometric_dem_max_px": cc_raw.max_px, "gdal_orthometric_dem_max_m": cc_raw.max_m,
+        "dem": str(scenario.dem_path), "dem_datum": scenario.dem_datum,
+    })
+    if dem_copy is not None:
+        rep["ellipsoidal_dem"] = str(dem_copy)
+    return rep
+
+
+__all__ = ["TERMS", "DemCrossCheck", "FrameCameraSensor", "RPCFit", "RPCModel", "RPCScenario",
+           "crosscheck_gdal_dem", "dem_pixels", "fit_rpc", "gdal_rpc_to_ground", "load_scenario",
+           "read_rpc_geotiff", "rpc_report", "rpc_terms", "write_ellipsoidal_dem", "write_rpc_geotiff"]
