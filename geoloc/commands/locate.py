@@ -44,6 +44,9 @@ def register(sub) -> None:
                    help="inflated ellipsoid of [Q17] eq. 11 (default) or the exact constant-height surface")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
     p.set_defaults(func=run, _terrain_hook=None)
+    from ..terrain_cli import add_dem_options, locate_hook
+
+    add_dem_options(p, locate_hook)
 
 
 def load_camera(path) -> Camera:

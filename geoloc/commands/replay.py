@@ -30,6 +30,9 @@ def register(sub) -> None:
     p.add_argument("--out", default=None, help="output CSV (default: print the summary only)")
     p.add_argument("--group-by", default="table", help="column that groups records into flights (default: table)")
     p.set_defaults(func=run, _terrain_hook=None)
+    from ..terrain_cli import add_dem_options, replay_hook
+
+    add_dem_options(p, replay_hook)
 
 
 def run(args) -> int:
