@@ -20,6 +20,7 @@ from geoloc.assets import asset_path
 from geoloc.terrain import intersect_dem
 from viz.app import GeolocApp, make_server
 from viz.scenario import load_scenario
+from viz.scene_geoloc import WORLD_SCALE
 
 # The first record of the bundled flight test (T3-1), as in the CSV.
 T31 = dict(lat=36.39895, lon=78.72927, h=17987.25, heading=30.0457, pitch=3.3903, roll=-0.0110,
@@ -35,9 +36,15 @@ def app():
 
 
 def node(app, name):
+    name = "/enu" + name  # the scene root
     h = app.server.scene.get_handle_by_name(name)
     assert h is not None, f"scene node {name} missing"
     return h
+
+
+def pos(app, name):
+    """Node position in ENU metres (the scene's world unit is the km)."""
+    return np.asarray(node(app, name).position, float) / WORLD_SCALE
 
 
 def pyproj_enu(app, lat_deg, lon_deg, h):
@@ -59,7 +66,7 @@ def core_t31():
 
 
 def test_default_scene_has_every_element(app):
-    names = set(app.server.scene._handle_from_node_name)
+    names = {n.removeprefix("/enu") for n in app.server.scene._handle_from_node_name}
     for n in ["/terrain", "/aircraft", "/aircraft/mesh", "/los", "/frustum", "/hit/result", "/hit/hmax",
               "/hit/exact", "/iterations/points", "/iterations/verticals", "/iterations/brackets",
               "/iterations/current", "/record/published", "/record/surveyed", "/record/error",
@@ -74,18 +81,19 @@ def test_hit_marker_at_the_terrain_hit_in_pyproj_enu(app):
     dem = DEM.open(asset_path("dem", "etopo5_flight_area.tif"), datum="egm96")
     hit = intersect_dem(los, dem, "bisect", eps_h=20.0, threshold=1.0)
     expected = pyproj_enu(app, float(hit.lat_deg), float(hit.lon_deg), float(hit.h))
-    # 1e-3 m: float64 positions on the wire; PROJ and our ENU agree to 1e-6 m (test_enu).
-    np.testing.assert_allclose(node(app, "/hit/result").position, expected, atol=1e-3)
+    # 1e-3 m: float64 positions on the wire (in km: 1e-3 scaling costs ~1e-12 relative);
+    # PROJ and our ENU agree to 1e-6 m (test_enu).
+    np.testing.assert_allclose(pos(app, "/hit/result"), expected, atol=1e-3)
     exact = intersect_dem(los, dem, "exact")
-    np.testing.assert_allclose(node(app, "/hit/exact").position,
+    np.testing.assert_allclose(pos(app, "/hit/exact"),
                                pyproj_enu(app, float(exact.lat_deg), float(exact.lon_deg), float(exact.h)),
                                atol=1e-3)
     # The aircraft node sits at the POS position of the record.
-    np.testing.assert_allclose(node(app, "/aircraft").position,
+    np.testing.assert_allclose(pos(app, "/aircraft"),
                                pyproj_enu(app, T31["lat"], T31["lon"], T31["h"]), atol=1e-3)
     # The line of sight runs from the aircraft to the hit (float32 vertices: ~2 mm at 20 km).
-    seg = np.asarray(node(app, "/los").points, float)[0]
-    np.testing.assert_allclose(seg[0], node(app, "/aircraft").position, atol=0.01)
+    seg = (np.asarray(node(app, "/los").points, float) / WORLD_SCALE)[0]
+    np.testing.assert_allclose(seg[0], pos(app, "/aircraft"), atol=0.01)
     np.testing.assert_allclose(seg[1], expected, atol=0.01)
 
 
@@ -117,12 +125,12 @@ def test_step_slider_walks_the_core_trace(app):
     try:
         for k in (0, 2, len(tr["H"]) - 1):
             app.sl_step.value = k
-            cur = node(app, "/iterations/current")
-            np.testing.assert_allclose(cur.position, app.scn.enu.from_ecef(tr["ecef"][k]), atol=1e-6)
+            np.testing.assert_allclose(pos(app, "/iterations/current"), app.scn.enu.from_ecef(tr["ecef"][k]),
+                                       atol=1e-6)
             pts = np.asarray(node(app, "/iterations/points").points)
             assert len(pts) == k + 1
             # Vertical segment from H_n on the line of sight down (or up) to the DEM height h_n.
-            v = np.asarray(node(app, "/iterations/verticals").points, float)[k]
+            v = (np.asarray(node(app, "/iterations/verticals").points, float) / WORLD_SCALE)[k]
             up = app.scn.enu.from_geodetic(tr["lat"][k], tr["lon"][k], tr["h_dem"][k])
             np.testing.assert_allclose(v[1], up, atol=0.01)
             above = tr["H"][k] - tr["h_dem"][k] > 0
@@ -133,18 +141,18 @@ def test_step_slider_walks_the_core_trace(app):
 
 
 def test_vertical_exaggeration_scales_up_only(app):
-    before = np.array(node(app, "/hit/result").position)
+    before = np.array(pos(app, "/hit/result"))
     app.sl_vexag.value = 3.0
     try:
-        after = np.array(node(app, "/hit/result").position)
+        after = np.array(pos(app, "/hit/result"))
         np.testing.assert_allclose(after, before * [1, 1, 3], rtol=1e-12)
-        assert node(app, "/terrain").scale == pytest.approx((1.0, 1.0, 3.0))
+        assert node(app, "/terrain").scale == pytest.approx((1e-3, 1e-3, 3e-3))
     finally:
         app.sl_vexag.value = 1.0
 
 
 def test_gui_pose_change_moves_the_line_of_sight(app):
-    old = np.array(node(app, "/hit/result").position)
+    old = np.array(pos(app, "/hit/result"))
     app.num["gimbal_roll_deg"].value = -40.0
     try:
         assert app.dd_record.value == "(custom pose)"
@@ -152,7 +160,7 @@ def test_gui_pose_change_moves_the_line_of_sight(app):
                              -40.0, T31["gpitch"])
         cam = Camera.from_toml(asset_path("cameras", "qiao2017.toml"))
         hit = intersect_dem(line_of_sight(pose, cam, T31["row"], T31["col"]), app.scn.dem, "bisect")
-        new = np.array(node(app, "/hit/result").position)
+        new = np.array(pos(app, "/hit/result"))
         np.testing.assert_allclose(new, app.scn.enu.from_ecef(hit.ecef), atol=1e-6)
         assert np.linalg.norm(new - old) > 1000.0  # 5 deg at ~18 km slant range: km-scale shift
     finally:
@@ -185,12 +193,12 @@ def test_record_dropdown_loads_published_and_surveyed(app):
     app.dd_record.value = "T4-3"
     try:
         # T4-3 in the CSV: published 35.59935 N 80.85938 E at paper_height 4799.9 m.
-        np.testing.assert_allclose(node(app, "/record/published").position,
+        np.testing.assert_allclose(pos(app, "/record/published"),
                                    pyproj_enu(app, 35.59935, 80.85938, 4799.9), atol=1e-3)
         assert app.inputs.gimbal_roll_deg == pytest.approx(51.9420)
         assert "T4-3" in app.md_summary.content
         # The ENU origin moved near the new target (float32 safety): within 1 km.
-        assert np.linalg.norm(node(app, "/hit/result").position[:2]) < 2000.0
+        assert np.linalg.norm(pos(app, "/hit/result")[:2]) < 2000.0
     finally:
         app.dd_record.value = "T3-1"
 

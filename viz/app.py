@@ -218,8 +218,8 @@ class GeolocApp:
         scn, enu = self.scn, self.scn.enu
         lines = [f"**{scn.name}**  ",
                  f"terrain: {scn.dem_name}  ",
-                 f"scene: local ENU, metres, origin {np.rad2deg(enu.lat0):.3f} N "
-                 f"{np.rad2deg(enu.lon0):.3f} E h {enu.h0:.0f} m; grid cells 1 km  "]
+                 f"scene: local East-North-Up, origin {np.rad2deg(enu.lat0):.3f} N "
+                 f"{np.rad2deg(enu.lon0):.3f} E h {enu.h0:.0f} m; scale bar 5 km  "]
         if self.error:
             lines.append(f"\n**input error:** {self.error}")
         hit = g.hit

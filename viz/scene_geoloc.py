@@ -6,7 +6,11 @@ scene's local East-North-Up frame (metres, origin near the target; see
 exaggeration multiplies the Up coordinate of every point (and scales the terrain
 node), and the aircraft and frame axes have a display size.
 
-Scene nodes (stable names, used by the tests and docs/viz.md):
+Scene nodes (stable names, used by the tests and docs/viz.md), all under the
+root ``/enu``. The browser's world unit is the **kilometre** (:data:`WORLD_SCALE`:
+viser's own renders clip at 1000 units, and node scales do not propagate to
+children), so a node at ENU ``p`` metres sits at ``p / 1000`` (Up also times the
+vertical exaggeration):
 
 ``/origin`` (+ ``/origin/label``), ``/grid``, ``/terrain``, ``/aircraft``
 (+ ``/aircraft/mesh``), ``/frames/{ned,body,gimbal_outer,cam}`` (+ ``/label``),
@@ -31,8 +35,12 @@ from geoloc.assets import ASSETS
 
 from .model import DRAWN_FRAMES, Geometry, Scenario
 
+#: Root node of the scene, and scene units per metre (the world unit is the km).
+ROOT = "/enu"
+WORLD_SCALE = 1e-3
+
 #: Axis length of each frame, in multiples of the aircraft display scale (nested so all show).
-FRAME_AXES = {"ned": 26.0, "body": 20.0, "gimbal_outer": 15.0, "cam": 11.0}
+FRAME_AXES = {"ned": 16.0, "body": 13.0, "gimbal_outer": 10.0, "cam": 7.5}
 FRAME_LABELS = {
     "ned": "NED: N",
     "body": "body: X nose",
@@ -62,18 +70,18 @@ class Display:
     """Display-only settings (no effect on the geometry)."""
 
     vertical_exaggeration: float = 1.0
-    aircraft_scale: float = 120.0  # the 15 m mesh drawn 120x larger: ~1.8 km
+    aircraft_scale: float = 200.0  # the 15 m mesh drawn 200x larger: ~3 km
     error_exaggeration: float = 10.0
-    marker_radius_m: float = 160.0
+    marker_radius_m: float = 220.0
     step: int | None = None  # iteration shown (None: all)
     frames_visible: dict = field(default_factory=lambda: {f: True for f in DRAWN_FRAMES})
     terrain_visible: bool = True
     highlight: str | None = None  # frame highlighted by the teaching panel
 
     def z(self, p) -> np.ndarray:
-        """Display position of ENU points (..., 3): Up multiplied by the exaggeration."""
+        """Scene position (km) of ENU points (..., 3) [m]: Up multiplied by the exaggeration."""
         p = np.asarray(p, float)
-        return p * np.array([1.0, 1.0, self.vertical_exaggeration])
+        return p * (WORLD_SCALE * np.array([1.0, 1.0, self.vertical_exaggeration]))
 
 
 def load_aircraft_mesh() -> trimesh.Trimesh:
@@ -97,59 +105,94 @@ class GeolocScene:
         self.terrain_handle = None
         self.aircraft_mesh = load_aircraft_mesh()
         self.handles: dict = {}
+        self._cache: dict = {}  # node name -> (handle, creation key), see _alive
 
     # ------------------------------------------------------------ static parts
     def draw_static(self) -> None:
         """Origin, grid and terrain: redrawn when the scenario (ENU origin, DEM) changes."""
         s, enu = self.scene, self.scn.enu
-        s.add_frame("/origin", axes_length=600.0, axes_radius=25.0, origin_radius=60.0)
-        s.add_label("/origin/label",
+        W = WORLD_SCALE
+        s.add_frame(ROOT, show_axes=False)
+        s.add_frame("/enu/origin", axes_length=600.0 * W, axes_radius=25.0 * W, origin_radius=60.0 * W)
+        s.add_label("/enu/origin/label",
                     "ENU origin",
                     position=(0.0, 0.0, 0.0), anchor="top-right")
-        s.add_grid("/grid", width=40000.0, height=40000.0, cell_size=1000.0, section_size=5000.0,
+        s.add_grid("/enu/grid", width=40000.0, height=40000.0, cell_size=1000.0, section_size=5000.0,
                    plane="xy", cell_color=(120, 120, 120), section_color=(90, 90, 90),
                    fade_distance=2e5, shadow_opacity=0.0, visible=self.scn.dem is None)
         # Scale bar: 5 km along East with 1 km ticks, set 6 km south-west of the origin.
         x0 = np.array([-11000.0, -6000.0, 0.0])
         bar = np.array([[x0, x0 + [5000.0, 0, 0]]] + [[x0 + [x, 0, 0], x0 + [x, 0, 400.0]] for x in
                                                         (0.0, 1000.0, 2000.0, 3000.0, 4000.0, 5000.0)])
-        s.add_line_segments("/scale_bar", bar.astype(np.float32), (255, 255, 255), thickness=3.0,
+        s.add_line_segments("/enu/scale_bar", (bar * W).astype(np.float32), (255, 255, 255), thickness=3.0,
                             thickness_units="screen")
-        s.add_label("/scale_bar/label", "5 km, ticks 1 km (East)", position=x0 + [2500.0, 0.0, 400.0],
+        s.add_label("/enu/scale_bar/label", "5 km, ticks 1 km (East)", position=(x0 + [2500.0, 0.0, 400.0]) * W,
                     anchor="bottom-center")
         self.draw_terrain()
-        self.handles["aircraft"] = s.add_frame("/aircraft", show_axes=False)
-        self.handles["aircraft_mesh"] = s.add_mesh_trimesh("/aircraft/mesh", self.aircraft_mesh,
-                                                           scale=self.disp.aircraft_scale,
+        self.handles["aircraft"] = s.add_frame("/enu/aircraft", show_axes=False)
+        self.handles["aircraft_mesh"] = s.add_mesh_trimesh("/enu/aircraft/mesh", self.aircraft_mesh,
+                                                           scale=self.disp.aircraft_scale * W,
                                                            cast_shadow=False, receive_shadow=False)
+
+    def _terrain_scale(self):
+        W = WORLD_SCALE
+        return (W, W, W * self.disp.vertical_exaggeration)
 
     def draw_terrain(self) -> None:
         if self.scn.dem is None:
             self.terrain_handle = None
-            self.scene.remove_by_name("/terrain")
+            self.scene.remove_by_name("/enu/terrain")
             return
         from . import terrain_link
 
         mesh = terrain_link.terrain_mesh(self.scn)
         self.terrain_handle = self.scene.add_mesh_trimesh(
-            "/terrain", mesh, scale=(1.0, 1.0, self.disp.vertical_exaggeration),
+            "/enu/terrain", mesh, scale=self._terrain_scale(),
             visible=self.disp.terrain_visible, cast_shadow=False, receive_shadow=False)
 
     # ------------------------------------------------------------ dynamic parts
+    def _alive(self, name, key):
+        """The cached handle of ``name`` if it still exists and was made with ``key``."""
+        h, k = self._cache.get(name, (None, None))
+        if h is not None and k == key and self.scene.get_handle_by_name(name) is h:
+            return h
+        return None
+
     def _sphere(self, name, p, color, label=None, radius=None, anchor="bottom-left"):
-        r = radius or self.disp.marker_radius_m
-        h = self.scene.add_icosphere(name, radius=r, color=color, subdivisions=2,
-                                     position=self.disp.z(p), cast_shadow=False,
-                                     receive_shadow=False)
+        # Moving an existing node costs one small message; re-creating it costs a full one.
+        r = (radius or self.disp.marker_radius_m) * WORLD_SCALE
+        key = (r, tuple(int(c) for c in color))
+        h = self._alive(name, key)
+        if h is None:
+            h = self.scene.add_icosphere(name, radius=r, color=color, subdivisions=2,
+                                         position=self.disp.z(p), cast_shadow=False,
+                                         receive_shadow=False)
+            self._cache[name] = (h, key)
+        else:
+            h.position = self.disp.z(p)
+            h.visible = True
         if label is not None:
-            self.scene.add_label(name + "/label", label, position=(0.0, 0.0, 0.0), anchor=anchor)
+            lh = self._alive(name + "/label", anchor)
+            if lh is None:
+                lh = self.scene.add_label(name + "/label", label, position=(0.0, 0.0, 0.0), anchor=anchor)
+                self._cache[name + "/label"] = (lh, anchor)
+            elif lh.text != label:
+                lh.text = label
         return h
 
     def _segments(self, name, pts, color, thickness=3.0):
         pts = self.disp.z(np.asarray(pts, float).reshape(-1, 2, 3)).astype(np.float32)
         colors = np.broadcast_to(np.asarray(color, np.uint8), pts.shape).copy()
-        return self.scene.add_line_segments(name, pts, colors, thickness=thickness,
-                                            thickness_units="screen")
+        key = (thickness, pts.shape)
+        h = self._alive(name, key)
+        if h is None:
+            h = self.scene.add_line_segments(name, pts, colors, thickness=thickness,
+                                             thickness_units="screen")
+            self._cache[name] = (h, key)
+        else:
+            h.points = pts
+            h.colors = colors
+        return h
 
     def update(self, g: Geometry) -> None:
         """Redraw every dynamic node from ``g`` (call inside ``server.atomic()``)."""
@@ -157,42 +200,51 @@ class GeolocScene:
         d, s = self.disp, self.scene
         self.handles["aircraft"].position = d.z(g.aircraft_enu)
         self.handles["aircraft"].wxyz = wxyz(g.R_enu_body)
-        self.handles["aircraft_mesh"].scale = d.aircraft_scale
+        self.handles["aircraft_mesh"].scale = d.aircraft_scale * WORLD_SCALE
         if self.terrain_handle is not None:
-            self.terrain_handle.scale = (1.0, 1.0, d.vertical_exaggeration)
+            self.terrain_handle.scale = self._terrain_scale()
             self.terrain_handle.visible = d.terrain_visible
         for name in DRAWN_FRAMES:
             f = g.frames[name]
             big = d.highlight == name
-            L = FRAME_AXES[name] * d.aircraft_scale * (1.4 if big else 1.0)
-            s.add_frame(f"/frames/{name}", axes_length=L,
-                        axes_radius=L * (0.05 if big else 0.02), origin_radius=L * 0.04,
-                        position=d.z(f.origin_enu), wxyz=wxyz(f.R_enu_frame),
-                        visible=d.frames_visible.get(name, True))
+            L = FRAME_AXES[name] * d.aircraft_scale * (1.4 if big else 1.0) * WORLD_SCALE
+            key = (L, big)
+            fh = self._alive(f"/enu/frames/{name}", key)
+            if fh is None:
+                fh = s.add_frame(f"/enu/frames/{name}", axes_length=L,
+                                 axes_radius=L * (0.05 if big else 0.02), origin_radius=L * 0.04,
+                                 position=d.z(f.origin_enu), wxyz=wxyz(f.R_enu_frame),
+                                 visible=d.frames_visible.get(name, True))
+                self._cache[f"/enu/frames/{name}"] = (fh, key)
+            else:
+                fh.position = d.z(f.origin_enu)
+                fh.wxyz = wxyz(f.R_enu_frame)
+                fh.visible = d.frames_visible.get(name, True)
+                continue
             tip = np.zeros(3)
             tip[LABEL_AXIS[name]] = L * 1.05
-            s.add_label(f"/frames/{name}/label", ("> " if big else "") + FRAME_LABELS[name],
+            s.add_label(f"/enu/frames/{name}/label", ("> " if big else "") + FRAME_LABELS[name],
                         position=tip, anchor="center-left")
         # Line of sight: aircraft -> answer, then faintly on to the end of its usefulness.
         ok = np.all(np.isfinite(g.hit_enu))
         end = g.hit_enu if ok else g.aircraft_enu + 40e3 * g.los_dir_enu
-        self._segments("/los", [g.aircraft_enu, end], COLORS["los"], 4.0)
+        self._segments("/enu/los", [g.aircraft_enu, end], COLORS["los"], 4.0)
         beyond = end + 0.15 * np.linalg.norm(end - g.aircraft_enu) * g.los_dir_enu
-        self._segments("/los_beyond", [end, beyond], COLORS["los_beyond"], 2.0)
+        self._segments("/enu/los_beyond", [end, beyond], COLORS["los_beyond"], 2.0)
         if g.footprint_enu is not None and np.all(np.isfinite(g.footprint_enu)):
             fp = g.footprint_enu
             segs = [[g.aircraft_enu, c] for c in fp] + [[fp[i], fp[(i + 1) % 4]] for i in range(4)]
-            self._segments("/frustum", segs, COLORS["frustum"], 1.5)
+            self._segments("/enu/frustum", segs, COLORS["frustum"], 1.5)
         else:
-            s.remove_by_name("/frustum")
-        self._sphere("/hit/result", g.hit_enu if ok else g.aircraft_enu, COLORS["result"], g.hit_label)
-        s.get_handle_by_name("/hit/result").visible = bool(ok)
+            s.remove_by_name("/enu/frustum")
+        self._sphere("/enu/hit/result", g.hit_enu if ok else g.aircraft_enu, COLORS["result"], g.hit_label)
+        s.get_handle_by_name("/enu/hit/result").visible = bool(ok)
         if g.hit_hmax_enu is not None:
-            self._sphere("/hit/hmax", g.hit_hmax_enu, COLORS["hmax"],
+            self._sphere("/enu/hit/hmax", g.hit_hmax_enu, COLORS["hmax"],
                          f"ellipsoid hit at H_max = {g.hmax:.0f} m", radius=0.7 * d.marker_radius_m,
                          anchor="center-right")
         if g.exact_enu is not None and np.all(np.isfinite(g.exact_enu)):
-            self._sphere("/hit/exact", g.exact_enu, COLORS["exact"], "exact first hit",
+            self._sphere("/enu/hit/exact", g.exact_enu, COLORS["exact"], "exact first hit",
                          radius=0.8 * d.marker_radius_m, anchor="top-right")
         self._draw_iterations(g)
         self._draw_record(g)
@@ -201,21 +253,21 @@ class GeolocScene:
         s, d, it = self.scene, self.disp, g.iterations
         if it is None or len(it.H) == 0:
             for n in ("points", "verticals", "brackets", "current"):
-                s.remove_by_name(f"/iterations/{n}")
+                s.remove_by_name(f"/enu/iterations/{n}")
             return
         n = len(it.H) if d.step is None else int(np.clip(d.step, 0, len(it.H) - 1)) + 1
         above = (it.H - it.h_dem)[:n] > 0
         cols = np.where(above[:, None], COLORS["above"], COLORS["below"]).astype(np.uint8)
-        s.add_point_cloud("/iterations/points", d.z(it.on_los_enu[:n]).astype(np.float32), cols,
-                          point_size=0.6 * d.marker_radius_m, point_shape="circle",
+        s.add_point_cloud("/enu/iterations/points", d.z(it.on_los_enu[:n]).astype(np.float32), cols,
+                          point_size=0.6 * d.marker_radius_m * WORLD_SCALE, point_shape="circle",
                           precision="float32")
         segs = d.z(np.stack([it.on_los_enu[:n], it.dem_enu[:n]], 1)).astype(np.float32)
-        s.add_line_segments("/iterations/verticals", segs, np.repeat(cols[:, None], 2, 1),
+        s.add_line_segments("/enu/iterations/verticals", segs, np.repeat(cols[:, None], 2, 1),
                             thickness=2.5, thickness_units="screen")
         if it.brackets_enu is not None:
-            self._segments("/iterations/brackets", it.brackets_enu[:n], COLORS["bracket"], 6.0)
+            self._segments("/enu/iterations/brackets", it.brackets_enu[:n], COLORS["bracket"], 6.0)
         k = n - 1
-        self._sphere("/iterations/current", it.on_los_enu[k], COLORS["above"] if above[k] else COLORS["below"],
+        self._sphere("/enu/iterations/current", it.on_los_enu[k], COLORS["above"] if above[k] else COLORS["below"],
                      f"{it.method} n={k}: H={it.H[k]:.1f} m, DEM h={it.h_dem[k]:.1f} m, "
                      f"H-h={it.H[k] - it.h_dem[k]:+.1f} m", radius=0.5 * d.marker_radius_m,
                      anchor="center-left")
@@ -223,15 +275,15 @@ class GeolocScene:
     def _draw_record(self, g: Geometry) -> None:
         s, d = self.scene, self.disp
         if g.published_enu is not None:
-            self._sphere("/record/published", g.published_enu, COLORS["published"],
+            self._sphere("/enu/record/published", g.published_enu, COLORS["published"],
                          "published [Q17]", radius=0.6 * d.marker_radius_m, anchor="top-left")
         if g.surveyed_enu is not None:
-            self._sphere("/record/surveyed", g.surveyed_enu, COLORS["surveyed"], "surveyed",
+            self._sphere("/enu/record/surveyed", g.surveyed_enu, COLORS["surveyed"], "surveyed",
                          radius=0.6 * d.marker_radius_m, anchor="bottom-right")
             if np.all(np.isfinite(g.hit_enu)):
                 tip = g.hit_enu + d.error_exaggeration * (g.surveyed_enu - g.hit_enu)
-                self._segments("/record/error", [g.hit_enu, tip], COLORS["error"], 5.0)
-                s.add_label("/record/error/label",
+                self._segments("/enu/record/error", [g.hit_enu, tip], COLORS["error"], 5.0)
+                s.add_label("/enu/record/error/label",
                             f"error x{d.error_exaggeration:g}: "
                             f"{np.linalg.norm(g.surveyed_enu - g.hit_enu):.1f} m",
                             position=d.z(tip), anchor="top-left")
@@ -249,11 +301,12 @@ class GeolocScene:
         side = np.array([u[1], -u[0], 0.0])  # to the right of the ground track
         # Step back to the right of the track and up; aim a little beyond the middle so the
         # scene sits left of the GUI panel.
-        pos = mid + side * 0.75 * L + np.array([0, 0, 0.25 * L]) - np.r_[u, 0] * 0.1 * L
-        mid = mid - side * 0.1 * L + np.r_[u, 0] * 0.12 * L
+        up = np.array([0.0, 0.0, 1.0])
+        pos = mid + side * 0.7 * L + up * 0.55 * L - np.r_[u, 0] * 0.2 * L
+        mid = mid - side * 0.1 * L + np.r_[u, 0] * 0.1 * L - up * 0.12 * L
         cam = server.initial_camera
         cam.up = (0.0, 0.0, 1.0)
-        cam.near = 20.0
-        cam.far = 5.0e5
+        cam.near = 0.02  # km (world units, see ROOT)
+        cam.far = 1000.0
         cam.position = tuple(pos)
         cam.look_at = tuple(mid)

@@ -1,0 +1,120 @@
+"""End-to-end: the viewer in real headless Chromium (Debian ``chromium``, playwright).
+
+The page loads, the browser registers as a viser client (its WebGL canvas is
+up), the 3D render is not blank (pixel statistics), and typing a new aircraft
+height into the GUI moves the scene (server state, node positions and pixels).
+Screenshots (the browser's own renders) go to ``test-artifacts/``.
+
+Run alone: ``python -m pytest -q -m browser tests/test_viz_browser.py``.
+"""
+
+import os
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync",
+         "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="Debian chromium not installed"),
+]
+
+
+def wait_for(cond, timeout, what):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if cond():
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def n_colours(img):
+    return len(np.unique((img // 16).reshape(-1, 3), axis=0))
+
+
+def look_at_wxyz(pos, target, up=(0.0, 0.0, 1.0)):
+    """Quaternion of a viser camera (OpenCV axes: x right, y down, z forward) at pos looking at target."""
+    import viser.transforms as vtf
+
+    f = np.asarray(target, float) - np.asarray(pos, float)
+    f /= np.linalg.norm(f)
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    return vtf.SO3.from_matrix(np.stack([r, np.cross(f, r), f], axis=1)).wxyz
+
+
+def render(server, path, timeout=40.0, min_colours=20):
+    """The browser's render of the viewer's initial view (JPEG, RGB), retried until it shows a scene.
+
+    Right after connecting, the client may not have applied every scene message
+    yet; a render that stays blank until ``timeout`` fails the test.
+    """
+    import PIL.Image
+
+    client = next(iter(server.get_clients().values()))
+    cam = server.initial_camera
+    t0 = time.monotonic()
+    while True:
+        img = client.get_render(360, 540, position=cam.position, wxyz=look_at_wxyz(cam.position, cam.look_at),
+                                fov=cam.fov, transport_format="jpeg", timeout=timeout)
+        if n_colours(img) > min_colours or time.monotonic() - t0 > timeout:
+            break
+        time.sleep(1.0)
+    PIL.Image.fromarray(img).save(path)
+    return img[..., :3].astype(float)
+
+
+def test_viewer_in_headless_chromium(tmp_path):
+    playwright = pytest.importorskip("playwright.sync_api")
+    from viz.app import GeolocApp, make_server
+    from viz.scenario import load_scenario
+
+    ARTIFACTS.mkdir(exist_ok=True)
+    server = make_server(port=0)
+    try:
+        app = GeolocApp(server, load_scenario())
+        env = {**os.environ, "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"),
+               "XDG_CACHE_HOME": str(tmp_path / "cache")}
+        with playwright.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, env=env, timeout=60000)
+            try:
+                page = browser.new_page(viewport={"width": 960, "height": 600})
+                page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
+                # A client registers only once its 3D canvas is up (WebGL works).
+                wait_for(lambda: len(server.get_clients()) > 0, 40, "the browser to register")
+                page.wait_for_selector("canvas", timeout=20000)
+                img0 = render(server, ARTIFACTS / "viz_default.png")
+                # Not blank: a blank canvas is one flat colour. The default scene has
+                # dark sky, coloured terrain, yellow line of sight: many colours.
+                assert img0.std(axis=(0, 1)).max() > 10.0
+                assert n_colours(img0) > 20
+                # The summary panel reached the page.
+                page.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=20000)
+
+                # Type a new aircraft height into the GUI, as a user would.
+                before = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
+                box = page.get_by_label("height (m, ellipsoidal)")
+                box.fill("12000")
+                box.press("Enter")
+                wait_for(lambda: abs(app.inputs.h_m - 12000.0) < 1e-6, 20, "the height to reach the server")
+                hit = lambda: np.array(server.scene.get_handle_by_name("/enu/hit/result").position)  # noqa: E731
+                # A 6 km lower aircraft looking down at ~45 deg hits the ground km closer (scene unit: km).
+                wait_for(lambda: np.linalg.norm(hit() - before) > 1.0, 20, "the scene to update")
+                ac = np.array(server.scene.get_handle_by_name("/enu/aircraft").position) * 1e3  # km -> m
+                assert ac[2] == pytest.approx(12000.0 - app.scn.enu.h0, abs=50.0)  # ENU up ~ height
+                img1 = render(server, ARTIFACTS / "viz_after_height_change.png")
+                changed = np.abs(img1 - img0).max(axis=-1) > 30
+                assert changed.mean() > 0.002, changed.mean()
+            finally:
+                browser.close()
+    finally:
+        server.stop()
