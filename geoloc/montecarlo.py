@@ -35,11 +35,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import frames
 from . import rotations as rot
-from .ellipsoid import meridian_radius, prime_vertical_radius
+from .ellipsoid import geodetic_to_ecef, meridian_radius, prime_vertical_radius
 from .errormodel import POSE_KEYS, ErrorModel
 from .frames import FrameChain, Pose
-from .locate import intersect_los_height, line_of_sight
+from .locate import LineOfSight, intersect_los_height, line_of_sight
 from .status import Status
 
 #: Keys of ``geoloc montecarlo --out stats.json`` (the interface of issue 4).
@@ -92,7 +93,7 @@ class Progress:
 
 
 # --------------------------------------------------------------------- evaluation
-def perturbed_geometry(model: ErrorModel, errors: dict):
+def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True):
     """Pose, chain and pixel of a batch of perturbed samples.
 
     Parameters
@@ -106,6 +107,8 @@ def perturbed_geometry(model: ErrorModel, errors: dict):
     -------
     pose : Pose
     chain : FrameChain
+        (with ``build_chain=False``: the pair ``(R_cam_inner, R_base_body)``,
+        either may be None, for :func:`line_of_sight_hops`)
     row, col : ndarray
         Target pixel including the image-centre error.
     """
@@ -142,13 +145,44 @@ def perturbed_geometry(model: ErrorModel, errors: dict):
         R_cam_inner = Rb if R_cam_inner is None else R_cam_inner @ Rb
     if Rm is not None:
         R_base_body = Rm if R_base_body is None else Rm @ R_base_body
-    chain = FrameChain(pose, R_cam_inner=R_cam_inner, R_base_body=R_base_body)
     row = model.row + _or(errors.get("image_centre_x_px"), 0.0)
     col = model.col + _or(errors.get("image_centre_y_px"), 0.0)
-    return pose, chain, np.broadcast_to(row, (n,)), np.broadcast_to(col, (n,))
+    row, col = np.broadcast_to(row, (n,)), np.broadcast_to(col, (n,))
+    if not build_chain:
+        return pose, (R_cam_inner, R_base_body), row, col
+    chain = FrameChain(pose, R_cam_inner=R_cam_inner, R_base_body=R_base_body)
+    return pose, chain, row, col
 
 
-def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None):
+def line_of_sight_hops(pose: Pose, camera, row, col, R_cam_inner=None, R_base_body=None) -> LineOfSight:
+    """Line of sight of a batch, the vector rotated hop by hop (same result as the chain).
+
+    d_E = R_ecef_ned R_ned_body R_body_outer R_outer_cam d_S [Q17 eq. 9], with
+    R_outer_cam = Ry(theta_p)^T R_cam_inner^T and R_body_outer = R_base_body^T Rx(theta_r)^T
+    as in :class:`geoloc.frames.FrameChain`; applying each factor to the vector
+    (matrix-vector products) instead of multiplying the 3x3 matrices and building
+    the 4x4 hops halves the time for a million samples. The tests hold it equal
+    to :func:`geoloc.locate.line_of_sight` with a :class:`FrameChain`.
+    """
+    def T(R):
+        return np.swapaxes(R, -1, -2)
+
+    v = camera.pixel_to_los(row, col)
+    if R_cam_inner is not None:
+        v = rot.rotate(T(R_cam_inner), v)
+    v = rot.rotate(T(frames.R_cam_outer(pose.gimbal_pitch)), v)
+    v = rot.rotate(T(frames.R_outer_body(pose.gimbal_roll)), v)
+    if R_base_body is not None:
+        v = rot.rotate(T(R_base_body), v)
+    v = rot.rotate(T(frames.R_body_ned(pose.heading, pose.pitch, pose.roll)), v)
+    v = rot.rotate(frames.R_ecef_ned(pose.lat, pose.lon), v)
+    o = geodetic_to_ecef(pose.lat, pose.lon, pose.h)
+    bad = pose.invalid_mask() | ~np.all(np.isfinite(v), axis=-1)
+    status = np.where(bad, Status.INVALID_INPUT, Status.OK).astype(np.uint8)
+    return LineOfSight(o, v, status)
+
+
+def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine: str = "hops"):
     """Locate the target for a batch of perturbed samples [Q17 eq. 14].
 
     Parameters
@@ -162,6 +196,10 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None):
         target height is ``model.target_h_m + errors["target_h_m"]``.
     dem_method : str, optional
         Method passed to :func:`geoloc.terrain.intersect_dem`.
+    engine : {"hops", "chain"}
+        "chain" builds a batched :class:`geoloc.frames.FrameChain` (the
+        reference); "hops" (default) rotates the vector hop by hop with the same
+        core rotations (:func:`line_of_sight_hops`), about twice as fast.
 
     Returns
     -------
@@ -169,8 +207,14 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None):
         Radians and metres; NaN where the status is not OK.
     status : ndarray (n,) of uint8
     """
-    pose, chain, row, col = perturbed_geometry(model, errors)
-    los = line_of_sight(pose, model.camera, row, col, chain=chain)
+    if engine == "chain":
+        pose, chain, row, col = perturbed_geometry(model, errors)
+        los = line_of_sight(pose, model.camera, row, col, chain=chain)
+    elif engine == "hops":
+        pose, (Ri, Rb), row, col = perturbed_geometry(model, errors, build_chain=False)
+        los = line_of_sight_hops(pose, model.camera, row, col, Ri, Rb)
+    else:
+        raise ValueError(f"engine must be 'hops' or 'chain', got {engine!r}")
     if dem is None:
         h_t = model.target_h_m + _or(errors.get("target_h_m"), 0.0)
         g = intersect_los_height(los, h_t, model.surface)

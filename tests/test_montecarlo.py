@@ -258,3 +258,26 @@ def test_cli_sweep_writes_csv_and_png(tmp_path, capsys):
 def test_cli_bad_samples_is_an_error(capsys):
     assert main(["montecarlo", str(SCEN), "--samples", "1"]) == 2
     assert "--samples = 1" in capsys.readouterr().err
+
+
+def test_hop_by_hop_engine_equals_frame_chain(model):
+    # The fast path rotates the vector hop by hop; the reference builds the batched
+    # FrameChain. Include every error source and a camera with its own boresight
+    # and mount rotations, at large errors so every factor matters.
+    cam = replace(model.camera, boresight=(0.01, -0.02, 0.03), mount=(-0.005, 0.004, 0.02))
+    big = replace(model, camera=cam,
+                  errors={k: Distribution(d.dist, d.scale * (1 if k == "target_h_m" else 1000))
+                          for k, d in model.errors.items()})
+    errs = big.sample(3000, np.random.default_rng(8))
+    a = mc.evaluate(big, errs, engine="chain")
+    b = mc.evaluate(big, errs, engine="hops")
+    np.testing.assert_array_equal(a[3], b[3])
+    ok = a[3] == 0
+    assert ok.sum() > 2500
+    # 1e-12 rad (6 um) and 1e-5 m: two orders of float64 products of unit
+    # rotations (ulp 1e-16) on ranges of ~1e5 m
+    np.testing.assert_allclose(a[0][ok], b[0][ok], atol=1e-12, rtol=0)
+    np.testing.assert_allclose(a[1][ok], b[1][ok], atol=1e-12, rtol=0)
+    np.testing.assert_allclose(a[2][ok], b[2][ok], atol=1e-5, rtol=0)
+    with pytest.raises(ValueError, match="engine"):
+        mc.evaluate(big, errs, engine="gpu")
