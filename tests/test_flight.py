@@ -80,8 +80,11 @@ def test_bad_fields_are_named(section, key, value, needle):
 
 def test_missing_pieces_are_named(tmp_path):
     d = _data()
-    del d["terrain"]["target_h_m"]
+    d["terrain"] = {"method": "ellipsoid"}
     with pytest.raises(ValueError, match="give target_h_m"):
+        FlightScenario.from_dict(d)
+    d["terrain"] = {"target_h_m": 5000.0, "method": "steps"}
+    with pytest.raises(ValueError, match="method = 'steps' needs a dem"):
         FlightScenario.from_dict(d)
     d = _data()
     del d["aircraft"]["h_m"]

@@ -81,12 +81,21 @@ def mat3(rows):
     return np.array([np.reshape(r[0], (3, 3)).T for r in rows], dtype=np.float64)
 
 
+def ellipsoid_scenario() -> FlightScenario:
+    """The bundled scan on the ellipsoid model only (target_h_m = 5083 m, no DEM)."""
+    import tomllib
+
+    d = tomllib.loads(SCENARIO.read_text())
+    d["terrain"] = {"target_h_m": 5083.0}
+    return FlightScenario.from_dict(d, base=SCENARIO.parent, source=str(SCENARIO))
+
+
 @pytest.fixture(scope="module")
 def flight(home, tmp_path_factory):
     from viz.rerun_log import write
     from viz.rerun_model import steps_from_flight
 
-    scn = FlightScenario.from_toml(SCENARIO)
+    scn = ellipsoid_scenario()
     steps = steps_from_flight(scn)
     out = tmp_path_factory.mktemp("rrd") / "flight.rrd"
     write(steps, out)

@@ -26,6 +26,7 @@ Entities (all positions in the scene's ENU frame, metres):
 ``series/range/slant_range_m``              optical centre to located target
 ``series/height/target_h_m``                ellipsoidal height of the located target
 ``series/error/*_m``                        horizontal error against truth / published
+``series/ellipsoid_model/*_m``              the ellipsoid model's error (scan over a DEM)
 ``series/dem/evaluations``                  DEM evaluations of each ray
 ``convergence/H_minus_h_m``                 BarChart of H_n - h_n over the iterations
 ``log/status``                              TextLog of steps without a ground point
@@ -96,6 +97,9 @@ def blueprint(steps: LogSteps) -> rrb.Blueprint:
     ]
     if steps.truth is not None or steps.published is not None:
         series.append(rrb.TimeSeriesView(origin="/series/error", name="Horizontal error [m]"))
+    if steps.extra_series:
+        series.append(rrb.TimeSeriesView(origin="/series/ellipsoid_model",
+                                         name="Ellipsoid model: horizontal error [m]"))
     if steps.terrain is not None:
         series.append(rrb.Horizontal(
             rrb.TimeSeriesView(origin="/series/dem", name="DEM evaluations per ray"),
@@ -124,16 +128,28 @@ def blueprint(steps: LogSteps) -> rrb.Blueprint:
 
 
 def default_eye(steps: LogSteps):
-    """3D view camera: behind and above the aircraft's mean position, looking at the targets."""
+    """3D view camera: behind and to the side of the track, above it, looking at the scene's middle.
+
+    The middle is halfway between the median aircraft position and the median target;
+    the eye stands back by 0.6 times the scene's extent, on the side away from the
+    line of sight and behind the aircraft, at 0.4 times the extent above the middle.
+    """
     ac = steps.aircraft_enu
     tgt = steps.target_enu
     ok = np.all(np.isfinite(tgt), axis=-1)
-    target = np.median(tgt[ok], axis=0) if np.any(ok) else np.median(ac, axis=0)
     a = np.median(ac, axis=0)
-    away = a - target
-    away[2] = 0.0
-    pos = a + 0.8 * away + np.array([0.0, 0.0, 0.6 * np.linalg.norm(away) + 5000.0])
-    return pos.tolist(), target.tolist()
+    t = np.median(tgt[ok], axis=0) if np.any(ok) else a - np.array([0.0, 0.0, 10_000.0])
+    mid = 0.5 * (a + t)
+    pts = np.concatenate([ac, tgt[ok]])
+    extent = max(float(np.max(np.linalg.norm((pts - mid)[:, :2], axis=-1))), 5_000.0)
+    side = a[:2] - t[:2]
+    side = side / (np.linalg.norm(side) or 1.0)
+    psi = float(np.median(np.broadcast_to(steps.pose.heading, (len(steps),))))
+    fwd = np.array([np.sin(psi), np.cos(psi)])  # ENU (east, north) of the heading
+    back = 0.8 * side - 0.6 * fwd
+    back = back / (np.linalg.norm(back) or 1.0)
+    pos = mid + 0.6 * extent * np.r_[back, 0.0] + np.array([0.0, 0.0, 0.4 * extent])
+    return pos.tolist(), mid.tolist()
 
 
 def map_zoom(steps: LogSteps) -> float:
@@ -153,7 +169,7 @@ def _aircraft_mesh():
 
 def info_markdown(steps: LogSteps) -> str:
     e = steps.enu
-    lines = [f"### {steps.name}", "", *[f"- {n}" for n in steps.notes],
+    lines = [f"**{steps.name}**", "", *[f"- {n}" for n in steps.notes],
              f"- camera: {steps.camera.name or 'unnamed'} (f = {steps.camera.focal_length_px:g} px)",
              f"- scene origin (ENU): {np.rad2deg(e.lat0):.3f} N, {np.rad2deg(e.lon0):.3f} E, "
              f"{e.h0:.0f} m (ellipsoidal); X east, Y north, Z up, metres",
@@ -198,25 +214,25 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
     # ------------------------------------------------------ points and lines
     ac = steps.aircraft_enu
     tgt = steps.target_enu
-    rec.log("world/track", rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=40.0),
+    rec.log("world/track", rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=80.0),
             static=True)
     ok = np.all(np.isfinite(tgt), axis=-1)
-    rec.log("world/footprint", rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=60.0),
+    rec.log("world/footprint", rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=150.0),
             static=True)
     # The line of sight ends at the target, or runs 200 km into the sky where there is none.
     far = ac + 2.0e5 * steps.enu.vector_from_ecef(steps.los.direction_ecef)
     end = np.where(ok[:, None], tgt, far)
     rec.send_columns("world/los", indexes=idx, columns=rr.LineStrips3D.columns(
         strips=list(np.stack([ac, end], axis=1).astype(f32))))
-    rec.log("world/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=25.0), static=True)
-    _points(rec, steps, "world/target", tgt, COLORS["target"], 150.0)
+    rec.log("world/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=60.0), static=True)
+    _points(rec, steps, "world/target", tgt, COLORS["target"], 500.0)
     geo = {"target": (steps.ground.lat_deg, steps.ground.lon_deg)}
     for key in ("truth", "published"):
         ref = getattr(steps, key)
         if ref is None:
             continue
         p = steps.enu.from_geodetic(np.deg2rad(ref["lat_deg"]), np.deg2rad(ref["lon_deg"]), ref["h_m"])
-        _points(rec, steps, f"world/{key}", p, COLORS[key], 120.0)
+        _points(rec, steps, f"world/{key}", p, COLORS[key], 400.0)
         geo[key] = (ref["lat_deg"], ref["lon_deg"])
 
     # ------------------------------------------------------------------- map
@@ -252,6 +268,7 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
         series["series/error/to_truth_m"] = steps.truth["error_m"]
     if steps.published is not None:
         series["series/error/to_published_m"] = steps.published["error_m"]
+    series.update(steps.extra_series)
     if steps.terrain is not None and steps.terrain.method != "ellipsoid":
         series["series/dem/evaluations"] = steps.terrain.dem_evaluations.astype(float)
     for path, values in series.items():

@@ -45,6 +45,8 @@ class TerrainSteps:
         Per step, the trial heights H_n of the iteration [m].
     h_dem : list of ndarray
         Per step, the DEM height h_n below the line of sight at H_n [m].
+    lat, lon, ecef : list of ndarray
+        Per step, the point of the line of sight at H_n [rad, rad; ECEF m].
     """
 
     method: str
@@ -53,6 +55,9 @@ class TerrainSteps:
     dem_evaluations: np.ndarray
     H: list
     h_dem: list
+    lat: list = field(default_factory=list)
+    lon: list = field(default_factory=list)
+    ecef: list = field(default_factory=list)
 
 
 @dataclass
@@ -85,6 +90,8 @@ class LogSteps:
     terrain : TerrainSteps or None
     notes : list of str
         Plain-text description of the inputs (for the recording's info panel).
+    extra_series : dict
+        Further scalar series, entity path -> (n,) array (e.g. the ellipsoid model's error).
     """
 
     kind: str
@@ -103,6 +110,7 @@ class LogSteps:
     published: dict | None = None
     terrain: TerrainSteps | None = None
     notes: list = field(default_factory=list)
+    extra_series: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -177,6 +185,7 @@ def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogS
     los = line_of_sight(track.pose, camera, row, col, chain=chain)
     terrain = None
     truth = None
+    extra = {}
     notes = [f"scenario: {scn.name}", f"{n} steps at {scn.rate_hz:g} Hz, "
              f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
              f"period {scn.scan_period_s:g} s"]
@@ -194,16 +203,21 @@ def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogS
             from .rerun_terrain import open_dem
 
             terrain = TerrainSteps("ellipsoid", open_dem(scn.dem_path, scn.dem_datum), str(scn.dem_path),
-                                   np.zeros(n, int), [np.empty(0)] * n, [np.empty(0)] * n)
+                                   np.zeros(n, int), [], [])
         truth = {"lat_deg": exact.lat_deg, "lon_deg": exact.lon_deg, "h_m": exact.h,
                  "error_m": horizontal_distance_m(ground.lat_deg, ground.lon_deg,
                                                   exact.lat_deg, exact.lon_deg)}
         notes.append("truth: exact first hit on the DEM")
+        if scn.method != "ellipsoid" and scn.target_h_m is not None:
+            ell = intersect_los_height(los, scn.target_h_m)
+            extra["series/ellipsoid_model/to_truth_m"] = horizontal_distance_m(
+                ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg)
+            notes.append(f"ellipsoid model at {scn.target_h_m:g} m compared with the truth too")
     enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
     k = np.arange(n)
     return LogSteps("flight", scn.name, {"time": ("duration", track.t), "frame": ("sequence", k)},
                     [f"frame {i}" for i in k], camera, track.pose, chain, row, col, los, ground, enu,
-                    truth=truth, terrain=terrain, notes=notes)
+                    truth=truth, terrain=terrain, notes=notes, extra_series=extra)
 
 
 def steps_from_records(path, camera: Camera | None = None, *, height_column: str | None = None,
