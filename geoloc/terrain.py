@@ -133,18 +133,19 @@ class TerrainHit:
 
 
 # --------------------------------------------------------------------------- helpers
-def _flat_los(los: LineOfSight):
+def _flat_los(los: LineOfSight, normalise: bool = True):
     o = np.asarray(los.origin_ecef, float)
     d = np.asarray(los.direction_ecef, float)
     st = np.asarray(los.status, np.uint8)
     shape = np.broadcast_shapes(o.shape[:-1], d.shape[:-1], st.shape)
     o = np.ascontiguousarray(np.broadcast_to(o, shape + (3,)).reshape(-1, 3))
-    d = np.broadcast_to(d, shape + (3,)).reshape(-1, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = np.ascontiguousarray(d / np.linalg.norm(d, axis=-1, keepdims=True))
+    d = np.ascontiguousarray(np.broadcast_to(d, shape + (3,)).reshape(-1, 3))
     st = np.broadcast_to(st, shape).reshape(-1).copy()
-    bad = ~(np.all(np.isfinite(o), axis=-1) & np.all(np.isfinite(d), axis=-1))
-    st[bad & (st == Status.OK)] = Status.INVALID_INPUT
+    if normalise:  # the exact kernel normalises and checks each ray itself
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        bad = ~(np.all(np.isfinite(o), axis=-1) & np.all(np.isfinite(d), axis=-1))
+        st[bad & (st == Status.OK)] = Status.INVALID_INPUT
     return shape, o, d, st
 
 
@@ -317,46 +318,21 @@ def _exact_tables(dem: DEM):
     return tab
 
 
-def _far_root(o, d, h):
-    """Far intersection of the ray with the inflated ellipsoid (a+h, a+h, b+h) [Q17 eq. 11].
-
-    geoloc.intersect returns the near root; the far one bounds the walk of a
-    grazing ray that passes its lowest point and climbs again.
-    """
-    scale = np.stack([A + h, A + h, B + h], axis=-1)
-    op, dp = o / scale, d / scale
-    qa = np.sum(dp * dp, -1)
-    qb = 2 * np.sum(op * dp, -1)
-    qc = np.sum(op * op, -1) - 1
-    with np.errstate(invalid="ignore"):
-        disc = qb * qb - 4 * qa * qc
-        return (-qb + np.sqrt(disc)) / (2 * qa)
-
-
 def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
     from . import terrain_numba as tn
 
     tab = _exact_tables(dem)
     n = len(o)
-    h_top = np.full(n, dem.max_height() + _MARGIN_M)
-    top = ray_inflated_ellipsoid(o, d, h_top)
-    s_start = np.where(top.status == Status.ORIGIN_BELOW, 0.0, top.s)
-    sky = (st == Status.OK) & (top.status == Status.SKY)
-    st[sky] = Status.SKY
-    st[(st == Status.OK) & ~np.isfinite(s_start)] = Status.INVALID_INPUT
-    floor = ray_inflated_ellipsoid(o, d, np.full(n, dem.min_height() - _MARGIN_M))
-    end_is_floor = floor.status == Status.OK
-    s_end = np.where(end_is_floor, floor.s, _far_root(o, d, h_top))
-    s_end = np.where(np.isfinite(s_end), s_end, s_start)
-    s_out = np.full(n, np.nan)
-    ncell = np.zeros(n, dtype=np.int64)
+    s_out = np.empty(n)
+    ncell = np.empty(n, dtype=np.int64)
     m = max_cells if trace_on else 0
     trace_s = np.full((n, m), np.nan)
     trace_ij = np.full((n, m, 2), -1, dtype=np.int64)
-    (tn.walk_parallel if parallel else tn.walk)(o, d, np.ascontiguousarray(np.nan_to_num(s_start)), np.ascontiguousarray(s_end),
-            end_is_floor, tab["hgt"], tab["cmax"], tab["cinv"], tab["binv"], tab["nodes"], tab["lat_n"], tab["lon_w"],
-            tab["dlat"], tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"],
-            surface == "triangles", s_out, st, ncell, trace_s, trace_ij)
+    (tn.walk_parallel if parallel else tn.walk)(
+        o, d, dem.max_height() + _MARGIN_M, dem.min_height() - _MARGIN_M,
+        tab["hgt"], tab["cmax"], tab["cinv"], tab["binv"], tab["nodes"], tab["lat_n"], tab["lon_w"],
+        tab["dlat"], tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"],
+        surface == "triangles", s_out, st, ncell, trace_s, trace_ij)
     out = o + s_out[:, None] * d
     return out, ncell, s_out, (trace_s, trace_ij)
 
@@ -402,7 +378,7 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
         raise ValueError(f"eps_h must be a positive number of metres, got {eps_h!r}")
     if not (np.isfinite(threshold) and threshold > 0):
         raise ValueError(f"threshold must be a positive number of metres, got {threshold!r}")
-    shape, o, d, st = _flat_los(los)
+    shape, o, d, st = _flat_los(los, normalise=method != "exact")
     n = len(o)
     tracer = _Tracer(n, trace)
     hidden = np.zeros(n, dtype=bool)

@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .ellipsoid import A, E2
+from .ellipsoid import A, B, E2
 from .status import Status
 
 _OK = int(Status.OK)
@@ -94,6 +94,29 @@ def geodetic_up(x, y, z):
 
 
 @njit(cache=True)
+def _roots(ox, oy, oz, dx, dy, dz, h):
+    """Near and far ray parameters on the ellipsoid (a+h, a+h, b+h) [Q17 eq. 10-11].
+
+    The compiled twin of :func:`geoloc.intersect.ray_inflated_ellipsoid` (which
+    returns the near root only); NaN, NaN when the line misses or the near root is
+    behind; ``inside`` when the origin is inside.
+    """
+    ia = 1.0 / ((A + h) * (A + h))
+    ib = 1.0 / ((B + h) * (B + h))
+    qa = (dx * dx + dy * dy) * ia + dz * dz * ib
+    qb = 2.0 * ((ox * dx + oy * dy) * ia + oz * dz * ib)
+    qc = (ox * ox + oy * oy) * ia + oz * oz * ib - 1.0
+    disc = qb * qb - 4.0 * qa * qc
+    inside = qc < 0.0
+    if disc < 0.0 or (qb >= 0.0 and not inside):
+        return np.nan, np.nan, inside
+    q = -0.5 * (qb - math.sqrt(disc))
+    near = min(q / qa, qc / q)
+    far = max(q / qa, qc / q)
+    return near, far, inside
+
+
+@njit(cache=True)
 def _wrap(lon, lon_west):
     """Longitude into the grid's window [lon_west - pi, lon_west + pi)."""
     return (lon - lon_west + math.pi) % (2.0 * math.pi) + lon_west - math.pi
@@ -152,14 +175,17 @@ def _plane_cross(px, py, sl, cl, dx, dy, skip_small):
 
 
 @njit(cache=True)
-def _tri(ox, oy, oz, dx, dy, dz, p0, p1, p2):
-    """Moller-Trumbore ray x triangle; the ray parameter or inf."""
-    e1x = p1[0] - p0[0]
-    e1y = p1[1] - p0[1]
-    e1z = p1[2] - p0[2]
-    e2x = p2[0] - p0[0]
-    e2y = p2[1] - p0[1]
-    e2z = p2[2] - p0[2]
+def _tri(ox, oy, oz, dx, dy, dz, nodes, i0, j0, i1, j1, i2, j2):
+    """Moller-Trumbore ray x triangle (nodes[i0, j0], nodes[i1, j1], nodes[i2, j2]); ray parameter or inf."""
+    p0x = nodes[i0, j0, 0]
+    p0y = nodes[i0, j0, 1]
+    p0z = nodes[i0, j0, 2]
+    e1x = nodes[i1, j1, 0] - p0x
+    e1y = nodes[i1, j1, 1] - p0y
+    e1z = nodes[i1, j1, 2] - p0z
+    e2x = nodes[i2, j2, 0] - p0x
+    e2y = nodes[i2, j2, 1] - p0y
+    e2z = nodes[i2, j2, 2] - p0z
     hx = dy * e2z - dz * e2y
     hy = dz * e2x - dx * e2z
     hz = dx * e2y - dy * e2x
@@ -167,9 +193,9 @@ def _tri(ox, oy, oz, dx, dy, dz, p0, p1, p2):
     if det == 0.0:
         return np.inf
     inv = 1.0 / det
-    sx = ox - p0[0]
-    sy = oy - p0[1]
-    sz = oz - p0[2]
+    sx = ox - p0x
+    sy = oy - p0y
+    sz = oz - p0z
     u = (sx * hx + sy * hy + sz * hz) * inv
     if u < -1e-12 or u > 1.0 + 1e-12:
         return np.inf
@@ -280,7 +306,7 @@ def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b
     return s
 
 
-def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat, dlon,
+def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat, dlon,
          tan_row, c_row, sin_col, cos_col, triangles, s_out, status, ncell, trace_s, trace_ij):
     """Exact first hit for each ray (see module docstring); fills s_out, status, ncell.
 
@@ -307,13 +333,31 @@ def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_
         dx = d[r, 0]
         dy = d[r, 1]
         dz = d[r, 2]
+        dn = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if not (dn > 0.0 and dn < np.inf) or not (abs(ox) + abs(oy) + abs(oz) < np.inf):
+            status[r] = _INVALID
+            continue
+        dx /= dn
+        dy /= dn
+        dz /= dn
+        # walk from the ellipsoid inflated to H_max + margin down to H_min - margin [Q17 eq. 11]
+        s0, s1, inside = _roots(ox, oy, oz, dx, dy, dz, h_top)
+        if inside:
+            s0 = 0.0
+        elif s0 != s0:
+            status[r] = _SKY
+            continue
+        f0, f1, finside = _roots(ox, oy, oz, dx, dy, dz, h_floor)
+        end_is_floor = not finside and f0 == f0
+        send = f0 if end_is_floor else s1
+        s_start_r = s0
         dxy2 = dx * dx + dy * dy
         dz2 = dz * dz
         oxd = ox * dx + oy * dy
         ozd = oz * dz
         oxy2 = ox * ox + oy * oy
         oz2 = oz * oz
-        s = s_start[r]
+        s = s_start_r
         lat, lon, h, nx, ny, nz = geodetic_up(ox + s * dx, oy + s * dy, oz + s * dz)
         lon = _wrap(lon, lon_w)
         g = nx * dx + ny * dy + nz * dz
@@ -331,7 +375,6 @@ def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_
         st = _LEFT
         came = -1  # boundary we entered through: 0 north, 1 south, 2 west, 3 east
         max_steps = 4 * (nr + nc) + 16  # a straight ray crosses each meridian/parallel at most twice
-        send = s_end[r]
         fail_bi = -1
         fail_bj = -1
         while True:
@@ -342,7 +385,7 @@ def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_
                 st = _LEFT
                 break
             if s > send:
-                st = _NOCONV if end_is_floor[r] else _SKY
+                st = _NOCONV if end_is_floor else _SKY
                 break
             px = ox + s * dx
             py = oy + s * dy
@@ -359,11 +402,11 @@ def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_
             if c < ex:
                 ex = c
                 via = 1
-            c = _plane_cross(px, py, sin_col[j], cos_col[j], dx, dy, tiny if came == 2 else 0.0)
+            c = _plane_cross(px, py, sin_col[j], cos_col[j], dx, dy, 0.0) if came != 2 else np.inf
             if c < ex:
                 ex = c
                 via = 2
-            c = _plane_cross(px, py, sin_col[j + 1], cos_col[j + 1], dx, dy, tiny if came == 3 else 0.0)
+            c = _plane_cross(px, py, sin_col[j + 1], cos_col[j + 1], dx, dy, 0.0) if came != 3 else np.inf
             if c < ex:
                 ex = c
                 via = 3
@@ -414,7 +457,7 @@ def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_
                 if clear:
                     k = ncell[r]
                     if k < mtrace:
-                        trace_s[r, k] = s
+                        trace_s[r, k] = s / dn
                         trace_ij[r, k, 0] = i
                         trace_ij[r, k, 1] = j
                     ncell[r] = k + 1
@@ -445,7 +488,7 @@ def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_
                 fail_bj = bj
             k = ncell[r]
             if k < mtrace:
-                trace_s[r, k] = s
+                trace_s[r, k] = s / dn
                 trace_ij[r, k, 0] = i
                 trace_ij[r, k, 1] = j
             ncell[r] = k + 1
@@ -466,8 +509,8 @@ def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_
                 sm = s_b
             if (qa * sm + qb) * sm + qc <= 0.0:
                 if triangles:
-                    t1 = _tri(ox, oy, oz, dx, dy, dz, nodes[i, j], nodes[i + 1, j], nodes[i + 1, j + 1])
-                    t2 = _tri(ox, oy, oz, dx, dy, dz, nodes[i, j], nodes[i + 1, j + 1], nodes[i, j + 1])
+                    t1 = _tri(ox, oy, oz, dx, dy, dz, nodes, i, j, i + 1, j, i + 1, j + 1)
+                    t2 = _tri(ox, oy, oz, dx, dy, dz, nodes, i, j, i + 1, j + 1, i, j + 1)
                     if t1 < best:
                         best = t1
                     if t2 < best:
@@ -495,10 +538,10 @@ def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_
                 st = _OK
                 break
             if s_b >= send:
-                st = _NOCONV if end_is_floor[r] else _SKY
+                st = _NOCONV if end_is_floor else _SKY
                 break
             if via < 0 or ex == np.inf:
-                st = _NOCONV if end_is_floor[r] else _SKY
+                st = _NOCONV if end_is_floor else _SKY
                 break
             s = s_b
             if via == 0:
@@ -518,7 +561,7 @@ def _walk(o, d, s_start, s_end, end_is_floor, hgt, cmax, cinv, binv, nodes, lat_
             st = _OK
         status[r] = st
         if st == _OK:
-            s_out[r] = best
+            s_out[r] = best / dn  # in units of the given direction vector
 
 
 #: Serial walk (prange runs as range).
