@@ -227,7 +227,7 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine:
 
 def nominal_point(model: ErrorModel, dem=None):
     """The error-free target (lat, lon, h) [rad, rad, m] and its status: y = f(x_1, ..., x_n)."""
-    lat, lon, h, st = evaluate(model, {"_n": np.zeros(1)}, dem=dem, dem_method=_method(model))
+    lat, lon, h, st = evaluate(model, {}, dem=dem, dem_method=_method(model))
     return float(lat[0]), float(lon[0]), float(h[0]), int(st[0])
 
 
