@@ -124,6 +124,8 @@ def load_scenario(records_path=None, record: str | int | None = None, camera_pat
         from . import terrain_link
 
         terrain_link.attach_dem(scn, dem_path)
+    else:
+        scn.dem_name = "none (no DEM): ellipsoid at each record's paper_height_m"
     return scn
 
 

@@ -142,7 +142,7 @@ class LimbApp:
                 sc.add_icosphere("/limb/tangent", radius=12.0, color=(255, 120, 0),
                                  position=self.w(tan.tangent_ecef), cast_shadow=False, receive_shadow=False)
                 sc.add_label("/limb/tangent/label",
-                             f"[L18] tangent: h = {float(tan.tangent_h) / 1e3:.3f} km", anchor="bottom-right")
+                             f"[L18] tangent: h = {float(tan.tangent_h) / 1e3:.3f} km", anchor="bottom-left")
                 sc.add_icosphere("/limb/exact", radius=9.0, color=(20, 220, 90),
                                  position=self.w(tan.exact_ecef), cast_shadow=False, receive_shadow=False)
                 sc.add_label("/limb/exact/label",
@@ -153,15 +153,17 @@ class LimbApp:
         self._text()
         if reset_camera:
             tp = self.w(tan.exact_ecef) if ok else np.zeros(3)
-            mid = 0.5 * (sp + tp)
             L = np.linalg.norm(sp - tp)
+            # Side view of the grazing line: spacecraft at the left edge, tangent left of the
+            # middle (the GUI panel covers the right third), a little from above.
+            aim = sp + 1.23 * (tp - sp)
+            side = np.cross(tp - sp, [0.0, 0.0, 1.0])
+            side /= max(np.linalg.norm(side), 1e-9)
             cam = self.server.initial_camera
             cam.up = (0.0, 0.0, 1.0)
             cam.near, cam.far = 1.0, 2.0e4
-            side = np.cross(tp - sp, [0.0, 0.0, 1.0])
-            side /= max(np.linalg.norm(side), 1e-9)
-            cam.position = tuple(mid + side * 0.9 * L + np.array([0, 0, 0.3 * L]))
-            cam.look_at = tuple(mid)
+            cam.position = tuple(aim + side * 1.1 * L + np.array([0, 0, 0.25 * L]))
+            cam.look_at = tuple(aim)
         self.last_update_s = time.perf_counter() - t0
 
     def _polyline(self, name, pts, color, thickness):
