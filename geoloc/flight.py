@@ -37,6 +37,10 @@ Scenario file (TOML, degrees and metres at this edge; e.g.
     method = "steps"                        # DEM method for the located point
     eps_h_m = 10.0                          # step of the descending method
     threshold_m = 10.0                      # threshold of the bisection
+    [montecarlo]                            # optional: CEP of every step [Q17 eq. 14-18]
+    error_model = "qiao2017_table1.toml"    # error sources of geoloc.errormodel (its nominal is replaced)
+    samples = 200
+    seed = 7
 
 The track is a geodesic on WGS-84 (pyproj's Karney solver, as in
 :mod:`geoloc.replay`); the heading at each step is the geodesic's forward
@@ -120,6 +124,9 @@ class FlightScenario:
     threshold_m: float
     row: float | None = None
     col: float | None = None
+    mc_model_path: Path | None = None
+    mc_samples: int = 0
+    mc_seed: int = 0
 
     @classmethod
     def from_toml(cls, path) -> "FlightScenario":
@@ -136,7 +143,7 @@ class FlightScenario:
     @classmethod
     def from_dict(cls, data: dict, base=Path("."), source: str = "scenario") -> "FlightScenario":
         base = Path(base)
-        top = {"name", "camera", "aircraft", "time", "scan", "terrain", "pixel", "kind"}
+        top = {"name", "camera", "aircraft", "time", "scan", "terrain", "pixel", "kind", "montecarlo"}
         _no_unknown(data, top, source)
         kind = data.get("kind", "flight_scan")
         if kind != "flight_scan":
@@ -146,6 +153,14 @@ class FlightScenario:
         sc = _table(data, "scan", source)
         te = data.get("terrain", {})
         px = data.get("pixel", {})
+        mc = data.get("montecarlo", {})
+        _no_unknown(mc, {"error_model", "samples", "seed"}, f"{source} [montecarlo]")
+        if mc and "error_model" not in mc:
+            raise ValueError(f"{source} [montecarlo] error_model: missing")
+        for key, lo, hi in (("samples", 2, 1_000_000), ("seed", 0, 2**63 - 1)):
+            v = mc.get(key, 200 if key == "samples" else 0)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise ValueError(f"{source} [montecarlo] {key} = {v!r}: must be an integer in [{lo}, {hi}]")
         _no_unknown(ac, {"start_lat_deg", "start_lon_deg", "h_m", "heading_deg", "speed_m_s",
                          "pitch_deg", "roll_deg", "roll_amplitude_deg", "roll_period_s"}, f"{source} [aircraft]")
         _no_unknown(tm, {"duration_s", "rate_hz"}, f"{source} [time]")
@@ -210,6 +225,9 @@ class FlightScenario:
             threshold_m=num(te, "threshold_m", 1e-4, 1e4, 10.0, "terrain"),
             row=num(px, "row", -1e7, 1e7, section="pixel") if "row" in px else None,
             col=num(px, "col", -1e7, 1e7, section="pixel") if "col" in px else None,
+            mc_model_path=(base / mc["error_model"]) if mc else None,
+            mc_samples=int(mc.get("samples", 200)) if mc else 0,
+            mc_seed=int(mc.get("seed", 0)) if mc else 0,
         )
         if scn.outer_max_deg < scn.outer_min_deg:
             raise ValueError(f"{source} [scan] outer_max_deg = {scn.outer_max_deg!r}: "
@@ -303,3 +321,48 @@ def simulate(scn: FlightScenario) -> FlightTrack:
     pose = Pose.from_deg(lat, lon, np.full(n, scn.h_m), heading, np.full(n, scn.pitch_deg), roll,
                          outer, np.full(n, scn.inner_deg))
     return FlightTrack(t, pose)
+
+
+def step_cep(track: FlightTrack, model, target_h_m: float, n: int, rng: np.random.Generator) -> dict:
+    """Monte Carlo CEP of every step: [Q17 eq. 14-18] with the step's pose as the nominal.
+
+    For each step the error model's nominal pose is replaced by the step's
+    (degrees at the model's edge), its target height by ``target_h_m`` (ellipsoid
+    model, with the model's own target-height error), its DEM removed, and
+    ``n`` samples are located by :func:`geoloc.montecarlo.run` (one vectorised
+    batch per step).
+
+    Parameters
+    ----------
+    track : FlightTrack
+    model : geoloc.errormodel.ErrorModel
+        Error sources (e.g. ``assets/scenarios/qiao2017_table1.toml``).
+    target_h_m : float
+    n : int
+        Samples per step.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    dict
+        ``cep_m`` ([Q17 eq. 18]) and ``cep50_empirical_m``, arrays (n_steps,).
+    """
+    from dataclasses import replace
+
+    from .montecarlo import run
+
+    p = track.pose
+    d = np.rad2deg
+    fields_deg = {"lat_deg": d(p.lat), "lon_deg": d(p.lon), "h_m": p.h, "heading_deg": d(p.heading),
+                  "pitch_deg": d(p.pitch), "roll_deg": d(p.roll), "gimbal_roll_deg": d(p.gimbal_roll),
+                  "gimbal_pitch_deg": d(p.gimbal_pitch)}
+    m = len(track)
+    arrays = {k: np.broadcast_to(np.asarray(v, float), (m,)) for k, v in fields_deg.items()}
+    base = replace(model.without_dem(), target_h_m=float(target_h_m))
+    cep = np.full(m, np.nan)
+    cep50 = np.full(m, np.nan)
+    for k in range(m):
+        mk = base.with_nominal(**{name: a[k] for name, a in arrays.items()})
+        st = run(mk, n, rng).stats
+        cep[k], cep50[k] = st["cep_m"], st["cep50_empirical_m"]
+    return {"cep_m": cep, "cep50_empirical_m": cep50}

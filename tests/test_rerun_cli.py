@@ -38,13 +38,32 @@ def _series(path, entity):
     return np.array(idx)[order], np.array(val)[order]
 
 
-def test_log_bundled_scenario_by_name(tmp_path, capsys):
+def short_scenario(tmp_path) -> Path:
+    """The bundled scan file, cut to 10 s at 1 Hz (11 steps, one sweep 10 -> 82 deg), paths made absolute."""
+    scen = Path(ASSETS) / "scenarios"
+    text = (scen / "flight_scan.toml").read_text()
+    text = text.replace('"../', f'"{scen.parent.as_posix()}/')
+    text = text.replace('error_model = "', f'error_model = "{scen.as_posix()}/')
+    text = text.replace("duration_s = 60.0", "duration_s = 10.0").replace("rate_hz = 4.0", "rate_hz = 1.0")
+    p = tmp_path / "short_scan.toml"
+    p.write_text(text)
+    return p
+
+
+def test_bundled_scenario_by_name():
+    from geoloc.commands.log import resolve_input
+
+    assert resolve_input("flight_scan") == Path(ASSETS) / "scenarios" / "flight_scan.toml"
+
+
+def test_log_scenario(tmp_path, capsys):
     out = tmp_path / "scan.rrd"
-    assert main(["log", "flight_scan", "--out", str(out)]) == 0
-    assert "241 steps (241 located)" in capsys.readouterr().out
+    assert main(["log", str(short_scenario(tmp_path)), "--out", str(out)]) == 0
+    assert "11 steps (11 located)" in capsys.readouterr().out
     k, roll = _series(out, "/series/gimbal/gimbal_roll_deg")
-    assert list(k) == list(range(241))
-    assert roll.max() == pytest.approx(82.0, abs=1e-12)
+    assert list(k) == list(range(11))
+    # one sweep of the whisk broom, closed form: 10 + 72 t / 10 deg for t = 0..10 s
+    np.testing.assert_allclose(roll, 10.0 + 7.2 * np.arange(11), atol=1e-12)
 
 
 def test_log_records_at_one_height(tmp_path):

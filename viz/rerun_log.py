@@ -27,6 +27,7 @@ Entities (all positions in the scene's ENU frame, metres):
 ``series/height/target_h_m``                ellipsoidal height of the located target
 ``series/error/*_m``                        horizontal error against truth / published
 ``series/ellipsoid_model/*_m``              the ellipsoid model's error (scan over a DEM)
+``series/cep/*_m``                          per-step Monte Carlo CEP (optional)
 ``series/dem/evaluations``                  DEM evaluations of each ray
 ``convergence/H_minus_h_m``                 BarChart of H_n - h_n over the iterations
 ``log/status``                              TextLog of steps without a ground point
@@ -97,9 +98,11 @@ def blueprint(steps: LogSteps) -> rrb.Blueprint:
     ]
     if steps.truth is not None or steps.published is not None:
         series.append(rrb.TimeSeriesView(origin="/series/error", name="Horizontal error [m]"))
-    if steps.extra_series:
+    if any(k.startswith("series/ellipsoid_model/") for k in steps.extra_series):
         series.append(rrb.TimeSeriesView(origin="/series/ellipsoid_model",
                                          name="Ellipsoid model: horizontal error [m]"))
+    if any(k.startswith("series/cep/") for k in steps.extra_series):
+        series.append(rrb.TimeSeriesView(origin="/series/cep", name="Monte Carlo CEP per step [m]"))
     if steps.terrain is not None:
         series.append(rrb.Horizontal(
             rrb.TimeSeriesView(origin="/series/dem", name="DEM evaluations per ray"),

@@ -213,6 +213,18 @@ def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogS
             extra["series/ellipsoid_model/to_truth_m"] = horizontal_distance_m(
                 ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg)
             notes.append(f"ellipsoid model at {scn.target_h_m:g} m compared with the truth too")
+    if scn.mc_model_path is not None:
+        from geoloc.errormodel import ErrorModel
+        from geoloc.flight import step_cep
+
+        if scn.target_h_m is None:
+            raise ValueError("[montecarlo] needs [terrain] target_h_m (the ellipsoid model's height)")
+        mc = step_cep(track, ErrorModel.from_toml(scn.mc_model_path), scn.target_h_m, scn.mc_samples,
+                      np.random.default_rng(scn.mc_seed))
+        extra["series/cep/cep_m"] = mc["cep_m"]
+        extra["series/cep/cep50_empirical_m"] = mc["cep50_empirical_m"]
+        notes.append(f"CEP: {scn.mc_samples} Monte Carlo samples per step, errors of "
+                     f"{scn.mc_model_path.name}, seed {scn.mc_seed}")
     enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
     k = np.arange(n)
     return LogSteps("flight", scn.name, {"time": ("duration", track.t), "frame": ("sequence", k)},
