@@ -281,3 +281,15 @@ def test_hop_by_hop_engine_equals_frame_chain(model):
     np.testing.assert_allclose(a[2][ok], b[2][ok], atol=1e-5, rtol=0)
     with pytest.raises(ValueError, match="engine"):
         mc.evaluate(big, errs, engine="gpu")
+
+
+def test_cli_no_located_sample_is_an_error_not_nan_json(tmp_path, capsys):
+    # outer gimbal at 95 deg with 18 km altitude: every line of sight points above
+    # the horizon (the horizon dip from 18 km is 4.3 deg)
+    text = SCEN.read_text().replace("gimbal_roll_deg = 50.0", "gimbal_roll_deg = 95.0")
+    scen = tmp_path / "sky.toml"
+    scen.write_text(text)
+    out = tmp_path / "stats.json"
+    assert main(["montecarlo", str(scen), "--samples", "50", "--out", str(out)]) == 1
+    assert "sky: 50" in capsys.readouterr().err
+    assert not out.exists()

@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from .. import montecarlo as mc
 from ..errormodel import ErrorModel
+from ..status import Status
 
 
 def register(sub) -> None:
@@ -116,14 +118,23 @@ def run(args) -> int:
     rng = np.random.default_rng(args.seed)
     if args.sweep is None:
         res = mc.run(model, args.samples, rng, chunk=args.chunk, progress=args.progress)
+        if res.stats["n_ok"] < 2:
+            st = np.bincount(res.status, minlength=len(Status))
+            why = ", ".join(f"{Status(k).name.lower()}: {int(c)}" for k, c in enumerate(st) if c)
+            print(f"geoloc montecarlo: fewer than 2 samples located ({why}); no statistics",
+                  file=sys.stderr)
+            return 1
         print(f"scenario {model.name}: N = {args.samples}, seed {args.seed}, "
               f"{'DEM ' + str(model.dem.path) if model.dem else 'ellipsoid model'}, "
               f"{res.seconds:.2f} s")
         print(format_stats(res.stats, res.nominal))
         if model.dem is None:
-            fo = mc.first_order(model)
-            print(f"first order      lat {fo.std_lat_deg:.6f} deg  lon {fo.std_lon_deg:.6f} deg  "
-                  f"h {fo.std_h_m:.2f} m  eq. 18 {fo.cep_m:.2f} m")
+            try:
+                fo = mc.first_order(model)
+                print(f"first order      lat {fo.std_lat_deg:.6f} deg  lon {fo.std_lon_deg:.6f} deg  "
+                      f"h {fo.std_h_m:.2f} m  eq. 18 {fo.cep_m:.2f} m")
+            except ValueError as e:  # the nominal geometry (or a step of it) has no ground point
+                print(f"first order      not available: {e}")
         if args.out:
             out = {k: float(res.stats[k]) for k in mc.STATS_KEYS}
             Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
