@@ -457,6 +457,8 @@ class Sweep:
     cep50_m: np.ndarray
     n_ok: np.ndarray
     title: str = ""
+    #: Published bounds drawn on the PNG: (angle_deg, cep_m, label) upper limits.
+    reference: tuple = ()
 
     def to_csv(self, path) -> None:
         """One row per angle and curve: angle, curve, cep_m, cep50_empirical_m, n_ok."""
@@ -478,6 +480,8 @@ class Sweep:
         for j, lab in enumerate(self.labels):
             ax.plot(self.angles_deg, self.cep_m[:, j], "-", color=colors[j], label=f"{lab} eq. 18")
             ax.plot(self.angles_deg, self.cep50_m[:, j], ":", color=colors[j], lw=1)
+        for k, (a, c, lab) in enumerate(self.reference):
+            ax.plot([a], [c], "rv", ms=8, label=lab if k == 0 else None)
         ax.set_xlabel("outer gimbal (frame roll) angle [deg]")
         ax.set_ylabel("CEP [m]  (solid: [Q17] eq. 18, dotted: empirical 50 %)")
         ax.set_title(self.title or "CEP against the outer frame angle")
@@ -539,7 +543,9 @@ def sweep_dem(model: ErrorModel, angles_deg, n: int, rng: np.random.Generator, d
         cep[i, 0], cep50[i, 0], nok[i, 0] = stt["cep_m"], stt["cep50_empirical_m"], stt["n_ok"]
         bar.update(n)
     bar.close()
-    return Sweep(angles, ["dem"], cep, cep50, nok, "[Q17] Fig. 10b: target on the DEM")
+    return Sweep(angles, ["dem"], cep, cep50, nok, "[Q17] Fig. 10b: target on the DEM",
+                 reference=((70.0, 50.0, "[Q17] upper bounds: < 50 m below 70 deg, < 180 m at 80 deg"),
+                            (80.0, 180.0, "")))
 
 
 # --------------------------------------------------------------------- helpers
