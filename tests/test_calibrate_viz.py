@@ -92,10 +92,14 @@ def test_app_calibration_with_a_scenario_like_app(server):
     scn = SimpleNamespace(records=pairs, camera=cam, enu=EnuFrame.from_deg(lat0, lon0, h00), source="x.csv")
     app = SimpleNamespace(server=server, scn=scn)
     cal = attach(app)
+    # the app's world unit is the km (viz.scene_geoloc.WORLD_SCALE) and its root /enu
+    from viz.scene_geoloc import ROOT, WORLD_SCALE
+
+    assert WORLD_SCALE == 1e-3 and cal.layer.name == f"{ROOT}/calibration"
     h = c("paper_height_m")
     truth = np.stack(pymap3d.geodetic2enu(c("truth_lat_deg"), c("truth_lon_deg"), h, lat0, lon0, h00), -1)
-    np.testing.assert_allclose(cal.layer.truth_handle.points, truth, atol=0.05)  # as above
-    after = np.array(cal.layer.handles["after"].points)
+    np.testing.assert_allclose(cal.layer.truth_handle.points / WORLD_SCALE, truth, atol=0.05)  # as above
+    after = np.array(cal.layer.handles["after"].points) / WORLD_SCALE
     assert np.linalg.norm(after[:, 1] - after[:, 0], axis=1).mean() / 20.0 < 8.0
     # the GUI drives the layer
     cal.dd_stage.value = "before"
@@ -105,7 +109,7 @@ def test_app_calibration_with_a_scenario_like_app(server):
     scn.enu = EnuFrame.from_deg(36.36, 78.87, 5000.0)
     cal.rebuild()
     truth2 = np.stack(pymap3d.geodetic2enu(c("truth_lat_deg"), c("truth_lon_deg"), h, 36.36, 78.87, 5000.0), -1)
-    np.testing.assert_allclose(cal.layer.truth_handle.points, truth2, atol=0.05)
+    np.testing.assert_allclose(cal.layer.truth_handle.points / WORLD_SCALE, truth2, atol=0.05)
     assert cal.layer.stage == "before" and cal.layer.exaggeration == 10.0
     assert not cal.layer.handles["after"].visible
     # vertical exaggeration as the scene's terrain: node scale (1, 1, v)

@@ -10,7 +10,11 @@ Geometry comes from the core only (:func:`geoloc.locate.locate`,
 --write-camera`` or :func:`geoloc.calibrate.calibrate_groups`.
 
 Conventions: ``docs/conventions.md``. Scene nodes (under ``name``, default
-``/calibration``): ``truth`` (points), ``before`` and ``after`` (segments).
+``/calibration``; ``/enu/calibration`` in the ``geoloc view`` app): ``truth``
+(points), ``before`` and ``after`` (segments). Coordinates are ENU metres times
+``world_scale`` (scene units per metre: 1e-3 in the app, whose world unit is
+the km); the vertical exaggeration is a node scale (1, 1, v) about the ENU
+origin, as the app's terrain.
 """
 
 from __future__ import annotations
@@ -97,12 +101,17 @@ class CalibrationLayer:
     exaggeration : float
         Arrow scale (> 0); the errors are ~50 m over a ~10 km scene.
     stage : {"before", "after", "both"}
+    world_scale : float
+        Scene units per metre (1: metres; ``viz.scene_geoloc.WORLD_SCALE`` = 1e-3
+        in the ``geoloc view`` app, whose world unit is the km).
     """
 
     def __init__(self, scene, geometry: ErrorGeometry, name: str = "/calibration",
-                 exaggeration: float = 20.0, stage: str = "both", thickness: float = 3.0):
+                 exaggeration: float = 20.0, stage: str = "both", thickness: float = 3.0,
+                 world_scale: float = 1.0):
         self.scene = scene
         self.geometry = geometry
+        self.world_scale = float(world_scale)
         self.name = name.rstrip("/")
         self.thickness = thickness
         self.exaggeration = self._check_exaggeration(exaggeration)
@@ -110,8 +119,8 @@ class CalibrationLayer:
         self.vertical = 1.0
         self.handles = {}
         self.truth_handle = scene.add_point_cloud(
-            f"{self.name}/truth", geometry.truth.astype(np.float32), COLORS["truth"],
-            point_size=60.0, point_shape="circle", precision="float32")
+            f"{self.name}/truth", (geometry.truth * self.world_scale).astype(np.float32), COLORS["truth"],
+            point_size=60.0 * self.world_scale, point_shape="circle", precision="float32")
         self._draw()
 
     @staticmethod
@@ -131,7 +140,7 @@ class CalibrationLayer:
 
     def _draw(self) -> None:
         for stage in self.geometry.computed:
-            seg = self.geometry.segments(stage, self.exaggeration)
+            seg = self.geometry.segments(stage, self.exaggeration) * self.world_scale
             visible = self.stage in (stage, "both")
             if stage in self.handles:
                 self.handles[stage].points = seg
@@ -236,9 +245,18 @@ class AppCalibration:
     surveyed truth and a ``paper_height_m`` (``geoloc.calibrate``, joint fit).
     """
 
-    def __init__(self, app, exaggeration: float = 20.0, stage: str = "both"):
+    def __init__(self, app, exaggeration: float = 20.0, stage: str = "both", world_scale=None,
+                 name=None):
         from geoloc.calibrate import HeightTarget, calibrate_groups
 
+        if world_scale is None or name is None:
+            try:  # the app's world unit (km) and scene root
+                from .scene_geoloc import ROOT, WORLD_SCALE
+            except ImportError:
+                ROOT, WORLD_SCALE = "", 1.0
+            world_scale = WORLD_SCALE if world_scale is None else world_scale
+            name = f"{ROOT}/calibration" if name is None else name
+        self.world_scale, self.name = float(world_scale), name
         self.app = app
         self.records = records_from_scenario(app.scn)
         self.heights = self.records.column("paper_height_m")
@@ -266,8 +284,9 @@ class AppCalibration:
         if "after" not in self.cameras and self.stage != "before":
             self.stage = "before"
         geom = error_geometry(self.records, self.app.scn.enu, self.heights, self.cameras)
-        self.layer = CalibrationLayer(self.app.server.scene, geom, exaggeration=self.exaggeration,
-                                      stage=self.stage)
+        self.layer = CalibrationLayer(self.app.server.scene, geom, name=self.name,
+                                      exaggeration=self.exaggeration, stage=self.stage,
+                                      world_scale=self.world_scale)
         self.layer.set_visible(self.visible)
         self.layer.set_vertical_exaggeration(self.vertical)
 
