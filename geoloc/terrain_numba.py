@@ -43,7 +43,7 @@ _INVALID = int(Status.INVALID_INPUT)
 BLOCK = 8
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, error_model="numpy", inline="always")
 def geodetic(x, y, z):
     """Scalar Vermeille (2002/2004) ECEF -> (lat, lon, h), as geoloc.ellipsoid.ecef_to_geodetic."""
     e4 = E2 * E2
@@ -53,7 +53,7 @@ def geodetic(x, y, z):
     q = (1.0 - E2) * z * z / (A * A)
     r = (p + q - e4) / 6.0
     s = e4 * p * q / (4.0 * r * r * r)
-    t = np.cbrt(1.0 + s + math.sqrt(s * (2.0 + s)))
+    t = math.pow(1.0 + s + math.sqrt(s * (2.0 + s)), 1.0 / 3.0)
     u = r * (1.0 + t + 1.0 / t)
     v = math.sqrt(u * u + e4 * q)
     w = E2 * (u + v - q) / (2.0 * v)
@@ -66,7 +66,7 @@ def geodetic(x, y, z):
     return lat, lon, h
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def geodetic_up(x, y, z):
     """Vermeille as :func:`geodetic`, plus the outward normal (cos phi cos lam, cos phi sin lam, sin phi).
 
@@ -79,7 +79,7 @@ def geodetic_up(x, y, z):
     q = (1.0 - E2) * z * z / (A * A)
     r = (p + q - e4) / 6.0
     s = e4 * p * q / (4.0 * r * r * r)
-    t = np.cbrt(1.0 + s + math.sqrt(s * (2.0 + s)))
+    t = math.pow(1.0 + s + math.sqrt(s * (2.0 + s)), 1.0 / 3.0)
     u = r * (1.0 + t + 1.0 / t)
     v = math.sqrt(u * u + e4 * q)
     w = E2 * (u + v - q) / (2.0 * v)
@@ -93,7 +93,7 @@ def geodetic_up(x, y, z):
     return lat, lon, h, cphi * x / rho, cphi * y / rho, z / dz
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _roots(ox, oy, oz, dx, dy, dz, h):
     """Near and far ray parameters on the ellipsoid (a+h, a+h, b+h) [Q17 eq. 10-11].
 
@@ -116,13 +116,13 @@ def _roots(ox, oy, oz, dx, dy, dz, h):
     return near, far, inside
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _wrap(lon, lon_west):
     """Longitude into the grid's window [lon_west - pi, lon_west + pi)."""
     return (lon - lon_west + math.pi) % (2.0 * math.pi) + lon_west - math.pi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _cone_cross(px, py, pz, dx, dy, dz, tanp, cpar, skip_small):
     """Smallest Delta > 0 with p + Delta d on the parallel cone (tan phi, c); inf if none."""
     zp = pz + cpar
@@ -160,7 +160,7 @@ def _cone_cross(px, py, pz, dx, dy, dz, tanp, cpar, skip_small):
     return best
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _plane_cross(px, py, sl, cl, dx, dy, skip_small):
     """Smallest Delta > 0 with p + Delta d on the meridian half-plane (sin, cos of lambda)."""
     den = -sl * dx + cl * dy
@@ -174,7 +174,7 @@ def _plane_cross(px, py, sl, cl, dx, dy, skip_small):
     return r
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _tri(ox, oy, oz, dx, dy, dz, nodes, i0, j0, i1, j1, i2, j2):
     """Moller-Trumbore ray x triangle (nodes[i0, j0], nodes[i1, j1], nodes[i2, j2]); ray parameter or inf."""
     p0x = nodes[i0, j0, 0]
@@ -211,13 +211,13 @@ def _tri(ox, oy, oz, dx, dy, dz, nodes, i0, j0, i1, j1, i2, j2):
     return t
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy", inline="always")
 def _bilin(hgt, i, j, u, v):
     return ((1.0 - v) * ((1.0 - u) * hgt[i, j] + u * hgt[i, j + 1])
             + v * ((1.0 - u) * hgt[i + 1, j] + u * hgt[i + 1, j + 1]))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b, lon_b, h_b,
                    hgt, i, j, lat_n, lon_w, dlat, dlon):
     """First root of h_ray(s) - bilinear(lat(s), lon(s)) on [sa, sb]; inf if none.
@@ -306,6 +306,61 @@ def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b
     return s
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _exit(px, py, pz, dx, dy, dz, rn, rs, cw, ce, tan_row, c_row, sin_col, cos_col,
+          sk_n, sk_s, sk_w, sk_e):
+    """Where the ray from p leaves the band between parallels rn (north), rs (south) and
+    meridians cw (west), ce (east): (Delta, via) with via 0 N, 1 S, 2 W, 3 E, -1 none.
+
+    The meridian planes are tried first (one division each); the sign of
+    z + c - rho tan(phi) (increasing with latitude) at that point says whether the
+    ray is still between the parallels, so at most one cone quadratic is solved.
+    sk_*: the skip distance for a root at the boundary the ray stands on; a
+    negative value leaves that meridian out (a line meets a plane once).
+    """
+    sp = np.inf
+    vp = -1
+    if sk_w >= 0.0:
+        c = _plane_cross(px, py, sin_col[cw], cos_col[cw], dx, dy, sk_w)
+        if c < sp:
+            sp = c
+            vp = 2
+    if sk_e >= 0.0:
+        c = _plane_cross(px, py, sin_col[ce], cos_col[ce], dx, dy, sk_e)
+        if c < sp:
+            sp = c
+            vp = 3
+    if sp < np.inf:
+        qx = px + sp * dx
+        qy = py + sp * dy
+        qz = pz + sp * dz
+        rho = math.sqrt(qx * qx + qy * qy)
+        fn = qz + c_row[rn] - rho * tan_row[rn]
+        fs = qz + c_row[rs] - rho * tan_row[rs]
+        if fn <= 0.0 and fs >= 0.0:
+            return sp, vp
+        if fn > 0.0:
+            c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[rn], c_row[rn], sk_n)
+            if c < sp:
+                return c, 0
+        else:
+            c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[rs], c_row[rs], sk_s)
+            if c < sp:
+                return c, 1
+        return sp, vp
+    ex = np.inf
+    via = -1
+    c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[rn], c_row[rn], sk_n)
+    if c < ex:
+        ex = c
+        via = 0
+    c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[rs], c_row[rs], sk_s)
+    if c < ex:
+        ex = c
+        via = 1
+    return ex, via
+
+
 def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat, dlon,
          tan_row, c_row, sin_col, cos_col, triangles, s_out, status, ncell, trace_s, trace_ij):
     """Exact first hit for each ray (see module docstring); fills s_out, status, ncell.
@@ -391,25 +446,10 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
             py = oy + s * dy
             pz = oz + s * dz
             # exit through the four exact boundaries
-            ex = np.inf
-            via = -1
             tiny = 1e-6
-            c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[i], c_row[i], tiny if came == 0 else 0.0)
-            if c < ex:
-                ex = c
-                via = 0
-            c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[i + 1], c_row[i + 1], tiny if came == 1 else 0.0)
-            if c < ex:
-                ex = c
-                via = 1
-            c = _plane_cross(px, py, sin_col[j], cos_col[j], dx, dy, 0.0) if came != 2 else np.inf
-            if c < ex:
-                ex = c
-                via = 2
-            c = _plane_cross(px, py, sin_col[j + 1], cos_col[j + 1], dx, dy, 0.0) if came != 3 else np.inf
-            if c < ex:
-                ex = c
-                via = 3
+            ex, via = _exit(px, py, pz, dx, dy, dz, i, i + 1, j, j + 1, tan_row, c_row, sin_col, cos_col,
+                            tiny if came == 0 else 0.0, tiny if came == 1 else 0.0,
+                            -1.0 if came == 2 else 0.0, -1.0 if came == 3 else 0.0)
             if ex < 0.0:
                 ex = 0.0
             s_b = s + ex
@@ -422,24 +462,8 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
                 i1 = min(i0 + BLOCK, nr - 1)
                 j0 = bj * BLOCK
                 j1 = min(j0 + BLOCK, nc - 1)
-                bx = np.inf
-                bvia = -1
-                c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[i0], c_row[i0], tiny)
-                if c < bx:
-                    bx = c
-                    bvia = 0
-                c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[i1], c_row[i1], tiny)
-                if c < bx:
-                    bx = c
-                    bvia = 1
-                c = _plane_cross(px, py, sin_col[j0], cos_col[j0], dx, dy, tiny)
-                if c < bx:
-                    bx = c
-                    bvia = 2
-                c = _plane_cross(px, py, sin_col[j1], cos_col[j1], dx, dy, tiny)
-                if c < bx:
-                    bx = c
-                    bvia = 3
+                bx, bvia = _exit(px, py, pz, dx, dy, dz, i0, i1, j0, j1, tan_row, c_row, sin_col, cos_col,
+                                 tiny, tiny, tiny, tiny)
                 ia = binv[bi, bj, 0]
                 clear = False
                 if bvia >= 0 and ia == ia:
@@ -565,6 +589,6 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
 
 
 #: Serial walk (prange runs as range).
-walk = njit(cache=True)(_walk)
+walk = njit(cache=True, error_model="numpy")(_walk)
 #: The same walk over rays on all cores (numba threads); identical results.
-walk_parallel = njit(cache=True, parallel=True)(_walk)
+walk_parallel = njit(cache=True, parallel=True, error_model="numpy")(_walk)
