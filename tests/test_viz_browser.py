@@ -2,7 +2,8 @@
 
 The page loads, the browser registers as a viser client (its WebGL canvas is
 up), the 3D render is not blank (pixel statistics), and typing a new aircraft
-height into the GUI moves the scene (server state, node positions and pixels).
+height into the GUI moves the scene (server state, node positions and pixels);
+the ``--export`` HTML file opens from file:// with no server.
 Screenshots (the browser's own renders) go to ``test-artifacts/``.
 
 Run alone: ``python -m pytest -q -m browser tests/test_viz_browser.py``.
@@ -64,7 +65,7 @@ def render(server, path, timeout=40.0, min_colours=20):
     cam = server.initial_camera
     t0 = time.monotonic()
     while True:
-        img = client.get_render(360, 540, position=cam.position, wxyz=look_at_wxyz(cam.position, cam.look_at),
+        img = client.get_render(300, 450, position=cam.position, wxyz=look_at_wxyz(cam.position, cam.look_at),
                                 fov=cam.fov, transport_format="jpeg", timeout=timeout)
         if n_colours(img) > min_colours or time.monotonic() - t0 > timeout:
             break
@@ -87,7 +88,7 @@ def test_viewer_in_headless_chromium(tmp_path):
         with playwright.sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, env=env, timeout=60000)
             try:
-                page = browser.new_page(viewport={"width": 960, "height": 600})
+                page = browser.new_page(viewport={"width": 800, "height": 520})
                 page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
                 # A client registers only once its 3D canvas is up (WebGL works).
                 wait_for(lambda: len(server.get_clients()) > 0, 40, "the browser to register")
@@ -114,7 +115,19 @@ def test_viewer_in_headless_chromium(tmp_path):
                 img1 = render(server, ARTIFACTS / "viz_after_height_change.png")
                 changed = np.abs(img1 - img0).max(axis=-1) > 30
                 assert changed.mean() > 0.002, changed.mean()
+
+                # --export: one HTML file that loads its embedded scene from file://, no server.
+                out = app.export(tmp_path / "scene.html", animate_steps=False)
+                page.close()  # software WebGL on 2 cores: render one page at a time
+                page2 = browser.new_page(viewport={"width": 640, "height": 400})
+                console = []
+                page2.on("console", lambda m: console.append(m.text))
+                page2.goto(out.as_uri(), timeout=40000)
+                page2.wait_for_selector("canvas", timeout=40000)
+                wait_for(lambda: any("Embedded data loaded" in m for m in console), 30,
+                         "the exported page to load its embedded scene")
             finally:
                 browser.close()
     finally:
         server.stop()
+

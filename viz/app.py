@@ -30,6 +30,20 @@ ANGLE_SLIDERS = (
     ("gimbal_pitch_deg", "gimbal pitch (deg)", -30.0, 30.0, 0.0001),
 )
 CUSTOM = "(custom pose)"
+LEGEND = """\
+- **red** ball: the chosen method's answer; **green**: the exact first hit;
+  **light blue**: the ellipsoid hit at H_max (where [Q17]'s steps start)
+- **yellow** line: line of sight; **orange**: image footprint (corner rays)
+- iterations: dots on the line of sight at H_n with a segment to the DEM
+  height h_n below, **blue** if H_n - h_n > 0 (above the terrain), **red** below;
+  **cyan**: bisection brackets
+- **violet**: published position [Q17]; **white**: surveyed; **pink**: error
+  vector computed -> surveyed (exaggerated, see Display)
+- frames at the aircraft: axes x red, y green, z blue; NED largest, then body,
+  outer gimbal, camera (Z = optical axis)
+- scene: East-North-Up at the target, world unit km; zoom with the wheel,
+  rotate with the left button, pan with the right
+"""
 
 
 def make_server(host: str = "127.0.0.1", port: int = 8080, verbose: bool = False) -> viser.ViserServer:
@@ -101,6 +115,8 @@ class GeolocApp:
             self.sl_step = gui.add_slider("iteration n", 0, 1, 1, 0, disabled=True)
             self.cb_all_steps.on_update(lambda _: self._on_display())
             self.sl_step.on_update(lambda _: self._on_display())
+        with gui.add_folder("Legend", expand_by_default=False):
+            gui.add_markdown(LEGEND)
         with gui.add_folder("Display"):
             d = self.view.disp
             self.sl_vexag = gui.add_slider("vertical exaggeration", 1.0, 10.0, 0.5, d.vertical_exaggeration)
@@ -108,7 +124,10 @@ class GeolocApp:
             self.sl_err = gui.add_slider("error vector exaggeration", 1.0, 100.0, 1.0, d.error_exaggeration)
             self.cb_frames = {f: gui.add_checkbox(f"frame {f}", True) for f in DRAWN_FRAMES}
             self.cb_terrain = gui.add_checkbox("terrain", True)
-            for h in (self.sl_vexag, self.sl_ac, self.sl_err, self.cb_terrain, *self.cb_frames.values()):
+            self.cb_labels = gui.add_checkbox("marker labels", d.marker_labels,
+                                              hint="Labels of the hit markers (they overlap until you zoom in)")
+            for h in (self.sl_vexag, self.sl_ac, self.sl_err, self.cb_terrain, self.cb_labels,
+                      *self.cb_frames.values()):
                 h.on_update(lambda _: self._on_display())
         with gui.add_folder("Teaching: the chain of 4x4 matrices", expand_by_default=False):
             hops0 = teaching.hops(self._chain0())
@@ -135,6 +154,7 @@ class GeolocApp:
         d.error_exaggeration = float(self.sl_err.value)
         d.frames_visible = {f: bool(cb.value) for f, cb in self.cb_frames.items()}
         d.terrain_visible = bool(self.cb_terrain.value)
+        d.marker_labels = bool(self.cb_labels.value)
         d.step = None if self.cb_all_steps.value else int(self.sl_step.value)
         hop = str(self.dd_hop.value)
         # Selecting a hop T_dst_src highlights the frame it maps from.
@@ -270,7 +290,7 @@ class GeolocApp:
             self.view.update(self.geometry)
             ser.insert_sleep(1.0)
         if path.suffix.lower() == ".html":
-            path.write_text(ser.as_html())
+            path.write_text(ser.as_html(dark_mode=True))
         else:
             path.write_bytes(ser.serialize())
         return path

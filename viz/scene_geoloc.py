@@ -77,6 +77,7 @@ class Display:
     frames_visible: dict = field(default_factory=lambda: {f: True for f in DRAWN_FRAMES})
     terrain_visible: bool = True
     highlight: str | None = None  # frame highlighted by the teaching panel
+    marker_labels: bool = False  # labels of the hit markers (they overlap at the default zoom)
 
     def z(self, p) -> np.ndarray:
         """Scene position (km) of ENU points (..., 3) [m]: Up multiplied by the exaggeration."""
@@ -114,12 +115,14 @@ class GeolocScene:
         W = WORLD_SCALE
         s.add_frame(ROOT, show_axes=False)
         s.add_frame("/enu/origin", axes_length=600.0 * W, axes_radius=25.0 * W, origin_radius=60.0 * W)
-        s.add_label("/enu/origin/label",
-                    "ENU origin",
-                    position=(0.0, 0.0, 0.0), anchor="top-right")
-        s.add_grid("/enu/grid", width=40000.0, height=40000.0, cell_size=1000.0, section_size=5000.0,
-                   plane="xy", cell_color=(120, 120, 120), section_color=(90, 90, 90),
-                   fade_distance=2e5, shadow_opacity=0.0, visible=self.scn.dem is None)
+        s.add_label("/enu/origin/label", "ENU origin", position=(0.0, 0.0, 0.0), anchor="top-right",
+                    visible=self.disp.marker_labels)
+        if self.scn.dem is None:  # a 1 km grid on the origin's level when there is no terrain
+            s.add_grid("/enu/grid", width=40000.0 * W, height=40000.0 * W, cell_size=1000.0 * W,
+                       section_size=5000.0 * W, plane="xy", cell_color=(120, 120, 120),
+                       section_color=(90, 90, 90), fade_distance=200.0, shadow_opacity=0.0)
+        else:
+            s.remove_by_name("/enu/grid")
         # Scale bar: 5 km along East with 1 km ticks, set 6 km south-west of the origin.
         x0 = np.array([-11000.0, -6000.0, 0.0])
         bar = np.array([[x0, x0 + [5000.0, 0, 0]]] + [[x0 + [x, 0, 0], x0 + [x, 0, 400.0]] for x in
@@ -158,7 +161,7 @@ class GeolocScene:
             return h
         return None
 
-    def _sphere(self, name, p, color, label=None, radius=None, anchor="bottom-left"):
+    def _sphere(self, name, p, color, label=None, radius=None, anchor="bottom-left", show_label=None):
         # Moving an existing node costs one small message; re-creating it costs a full one.
         r = (radius or self.disp.marker_radius_m) * WORLD_SCALE
         key = (r, tuple(int(c) for c in color))
@@ -178,6 +181,7 @@ class GeolocScene:
                 self._cache[name + "/label"] = (lh, anchor)
             elif lh.text != label:
                 lh.text = label
+            lh.visible = self.disp.marker_labels if show_label is None else show_label
         return h
 
     def _segments(self, name, pts, color, thickness=3.0):
@@ -270,7 +274,7 @@ class GeolocScene:
         self._sphere("/enu/iterations/current", it.on_los_enu[k], COLORS["above"] if above[k] else COLORS["below"],
                      f"{it.method} n={k}: H={it.H[k]:.1f} m, DEM h={it.h_dem[k]:.1f} m, "
                      f"H-h={it.H[k] - it.h_dem[k]:+.1f} m", radius=0.5 * d.marker_radius_m,
-                     anchor="center-left")
+                     anchor="center-left", show_label=d.step is not None or d.marker_labels)
 
     def _draw_record(self, g: Geometry) -> None:
         s, d = self.scene, self.disp

@@ -200,7 +200,7 @@ class LimbApp:
         path = Path(path)
         ser = self.server.get_scene_serializer()
         if path.suffix.lower() == ".html":
-            path.write_text(ser.as_html())
+            path.write_text(ser.as_html(dark_mode=True))
         else:
             path.write_bytes(ser.serialize())
         return path
