@@ -103,11 +103,9 @@ def blueprint(steps: LogSteps) -> rrb.Blueprint:
                                          name="Ellipsoid model: horizontal error [m]"))
     if any(k.startswith("series/cep/") for k in steps.extra_series):
         series.append(rrb.TimeSeriesView(origin="/series/cep", name="Monte Carlo CEP per step [m]"))
-    if steps.terrain is not None:
-        series.append(rrb.Horizontal(
-            rrb.TimeSeriesView(origin="/series/dem", name="DEM evaluations per ray"),
-            rrb.BarChartView(origin="/convergence", name="H_n - h_n per iteration [m]"),
-        ))
+    if steps.terrain is not None and steps.terrain.method != "ellipsoid":
+        series.append(rrb.TimeSeriesView(origin="/series/dem", name="DEM evaluations per ray"))
+        series.append(rrb.BarChartView(origin="/convergence", name="H_n - h_n per iteration [m]"))
     eye_position, eye_target = default_eye(steps)
     left = rrb.Vertical(
         rrb.Spatial3DView(origin="/world", name="Scene (local ENU, m)",
@@ -122,7 +120,7 @@ def blueprint(steps: LogSteps) -> rrb.Blueprint:
         row_shares=[3, 1],
     )
     return rrb.Blueprint(
-        rrb.Horizontal(left, rrb.Vertical(*series), column_shares=[3, 2]),
+        rrb.Horizontal(left, rrb.Grid(*series, grid_columns=2), column_shares=[1, 1]),
         rrb.TimePanel(timeline=main_timeline(steps), state="collapsed"),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),

@@ -1,0 +1,91 @@
+"""Screenshot a recording in rerun's web viewer, offline, in headless Chromium.
+
+How ``docs/img/rerun_viewer.png`` was made::
+
+    geoloc log flight_scan --out /tmp/scan.rrd
+    python examples/89_rerun_screenshot.py /tmp/scan.rrd docs/img/rerun_viewer.png --at 9
+
+(the picture shows t = 1 s: see ``--at`` below).
+
+It starts ``rerun --serve-web`` (the viewer's web assets are inside the rerun
+wheel: nothing is downloaded; the map view's tiles need a network and stay
+blank offline), opens the page in Debian's ``/usr/bin/chromium`` through
+playwright (never ``playwright install``), optionally clicks the time box and
+types ``--at`` seconds, and takes the screenshot. Best effort: under SwiftShader
+the viewer draws a frame every few seconds and egui does not always take the
+typed value as typed (asking for 9 s gave 1 s here), so look at the picture. WebGL runs on SwiftShader: on a
+2-core machine the page needs about a minute. HOME is pointed at a temporary
+folder (rerun and Chromium write under ~/.config).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("rrd", help="recording to show")
+    ap.add_argument("png", help="output screenshot")
+    ap.add_argument("--at", type=float, default=None, help="time to type into the time box [s], best effort (default: the end)")
+    ap.add_argument("--wait", type=float, default=30.0, help="seconds to let the viewer load (default 30)")
+    ap.add_argument("--width", type=int, default=1280)
+    ap.add_argument("--height", type=int, default=800)
+    a = ap.parse_args()
+    from playwright.sync_api import sync_playwright
+
+    home = tempfile.mkdtemp(prefix="geoloc_shot_")
+    env = dict(os.environ, HOME=home, XDG_CONFIG_HOME=f"{home}/.config", XDG_DATA_HOME=f"{home}/.local/share")
+    web, grpc = free_port(), free_port()
+    rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+    server = subprocess.Popen([rerun, "--serve-web", "--web-viewer-port", str(web), "--port", str(grpc),
+                               a.rrd], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        time.sleep(4)
+        url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy"
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS, env=env)
+            page = browser.new_page(viewport={"width": a.width, "height": a.height})
+            page.goto(url, timeout=60_000)
+            time.sleep(a.wait)
+            if a.at is not None:
+                # the time box at the right end of the (collapsed) time panel
+                page.mouse.click(a.width - 100, a.height - 14, click_count=3)
+                time.sleep(3)
+                page.keyboard.press("Control+A")
+                time.sleep(1)
+                page.keyboard.type(f"{a.at:g}")
+                page.keyboard.press("Enter")
+                time.sleep(12)
+            page.mouse.move(a.width // 2, 5)  # no hover tooltips in the picture
+            time.sleep(3)
+            page.screenshot(path=a.png, timeout=240_000)
+            browser.close()
+    finally:
+        server.terminate()
+        server.wait(timeout=20)
+        shutil.rmtree(home, ignore_errors=True)
+    print(f"wrote {a.png}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
