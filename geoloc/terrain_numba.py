@@ -43,7 +43,7 @@ _INVALID = int(Status.INVALID_INPUT)
 BLOCK = 8
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def geodetic(x, y, z):
     """Scalar Vermeille (2002/2004) ECEF -> (lat, lon, h), as geoloc.ellipsoid.ecef_to_geodetic."""
     e4 = E2 * E2
@@ -66,7 +66,7 @@ def geodetic(x, y, z):
     return lat, lon, h
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def geodetic_up(x, y, z):
     """Vermeille as :func:`geodetic`, plus the outward normal (cos phi cos lam, cos phi sin lam, sin phi).
 
@@ -93,7 +93,7 @@ def geodetic_up(x, y, z):
     return lat, lon, h, cphi * x / rho, cphi * y / rho, z / dz
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _roots(ox, oy, oz, dx, dy, dz, h):
     """Near and far ray parameters on the ellipsoid (a+h, a+h, b+h) [Q17 eq. 10-11].
 
@@ -174,7 +174,7 @@ def _plane_cross(px, py, sl, cl, dx, dy, skip_small):
     return r
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _tri(ox, oy, oz, dx, dy, dz, nodes, i0, j0, i1, j1, i2, j2):
     """Moller-Trumbore ray x triangle (nodes[i0, j0], nodes[i1, j1], nodes[i2, j2]); ray parameter or inf."""
     p0x = nodes[i0, j0, 0]
@@ -211,7 +211,7 @@ def _tri(ox, oy, oz, dx, dy, dz, nodes, i0, j0, i1, j1, i2, j2):
     return t
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy")
 def _bilin(hgt, i, j, u, v):
     return ((1.0 - v) * ((1.0 - u) * hgt[i, j] + u * hgt[i, j + 1])
             + v * ((1.0 - u) * hgt[i + 1, j] + u * hgt[i + 1, j + 1]))
