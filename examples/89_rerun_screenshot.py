@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -57,7 +58,8 @@ def main() -> int:
     web, grpc = free_port(), free_port()
     rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
     server = subprocess.Popen([rerun, "--serve-web", "--web-viewer-port", str(web), "--port", str(grpc),
-                               a.rrd], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                               a.rrd], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              start_new_session=True)  # its own process group: the wrapper starts the binary
     try:
         time.sleep(4)
         url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy"
@@ -80,7 +82,7 @@ def main() -> int:
             page.screenshot(path=a.png, timeout=240_000)
             browser.close()
     finally:
-        server.terminate()
+        os.killpg(server.pid, signal.SIGTERM)  # the wrapper and the viewer binary it started
         server.wait(timeout=20)
         shutil.rmtree(home, ignore_errors=True)
     print(f"wrote {a.png}")
