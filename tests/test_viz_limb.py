@@ -1,6 +1,5 @@
 """The limb scene and the ``geoloc view`` command line, in process (no browser)."""
 
-import math
 
 import numpy as np
 import pyproj

@@ -13,7 +13,6 @@ import viser.transforms as vtf
 
 from geoloc.camera import Camera
 from geoloc.dem import DEM
-from geoloc.ellipsoid import geodetic_to_ecef
 from geoloc.frames import FrameChain, Pose
 from geoloc.locate import line_of_sight
 from geoloc.assets import asset_path

@@ -93,4 +93,7 @@ def run(args) -> int:
     except KeyboardInterrupt:
         return 0
     finally:
-        server.stop()
+        try:
+            server.stop()
+        except KeyboardInterrupt:  # a second Ctrl+C while stopping
+            pass
