@@ -117,6 +117,27 @@ def _roots(ox, oy, oz, dx, dy, dz, h):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def latlon(x, y, z):
+    """Geodetic latitude and longitude by Bowring's one-step formula (no height).
+
+    B. R. Bowring, Survey Review 23(181):323-327, 1976: with the parametric
+    latitude theta from tan(theta) = a z / (b rho),
+    tan(phi) = (z + e'^2 b sin^3 theta) / (rho - e^2 a cos^3 theta).
+    Used only to find the cell under a point (error < 1e-9 rad for heights
+    -1 km..20 km, tested); heights come from :func:`geodetic`.
+    """
+    rho = math.sqrt(x * x + y * y)
+    za = z * A
+    rb = rho * B
+    q = math.sqrt(za * za + rb * rb)
+    st = za / q
+    ct = rb / q
+    ep2 = E2 / (1.0 - E2)
+    lat = math.atan2(z + ep2 * B * st * st * st, rho - E2 * A * ct * ct * ct)
+    return lat, math.atan2(y, x)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def _wrap(lon, lon_west):
     """Longitude into the grid's window [lon_west - pi, lon_west + pi)."""
     return (lon - lon_west + math.pi) % (2.0 * math.pi) + lon_west - math.pi
@@ -413,10 +434,11 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
         oxy2 = ox * ox + oy * oy
         oz2 = oz * oz
         s = s_start_r
-        lat, lon, h, nx, ny, nz = geodetic_up(ox + s * dx, oy + s * dy, oz + s * dz)
+        lat, lon = latlon(ox + s * dx, oy + s * dy, oz + s * dz)
         lon = _wrap(lon, lon_w)
-        g = nx * dx + ny * dy + nz * dz
-        geo_ok = True  # lat, lon, h, g hold the geodetic state at s
+        h = 0.0
+        g = 0.0
+        geo_ok = False  # lat, lon, h, g hold the geodetic state at s only when True
         fi = (lat_n - lat) / dlat
         fj = (lon - lon_w) / dlon
         i = int(math.floor(fi))
@@ -486,7 +508,7 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
                         trace_ij[r, k, 1] = j
                     ncell[r] = k + 1
                     s = s + bx
-                    la2, lo2, h2 = geodetic(ox + s * dx, oy + s * dy, oz + s * dz)
+                    la2, lo2 = latlon(ox + s * dx, oy + s * dy, oz + s * dz)
                     lo2 = _wrap(lo2, lon_w)
                     ii = min(max(int(math.floor((lat_n - la2) / dlat)), i0), i1 - 1)
                     jj = min(max(int(math.floor((lo2 - lon_w) / dlon)), j0), j1 - 1)
