@@ -115,6 +115,11 @@ class GeolocApp:
             self.sl_step = gui.add_slider("iteration n", 0, 1, 1, 0, disabled=True)
             self.cb_all_steps.on_update(lambda _: self._on_display())
             self.sl_step.on_update(lambda _: self._on_display())
+        with gui.add_folder("View"):
+            self.bt_overview = gui.add_button("overview: aircraft, frames, line of sight")
+            self.bt_target = gui.add_button("target: iterations and hits")
+            self.bt_overview.on_click(lambda _: self.view.move_clients(self.server, "overview"))
+            self.bt_target.on_click(lambda _: self.view.move_clients(self.server, "target"))
         with gui.add_folder("Legend", expand_by_default=False):
             gui.add_markdown(LEGEND)
         with gui.add_folder("Display"):
@@ -122,11 +127,12 @@ class GeolocApp:
             self.sl_vexag = gui.add_slider("vertical exaggeration", 1.0, 10.0, 0.5, d.vertical_exaggeration)
             self.sl_ac = gui.add_slider("aircraft display scale", 1.0, 300.0, 1.0, d.aircraft_scale)
             self.sl_err = gui.add_slider("error vector exaggeration", 1.0, 100.0, 1.0, d.error_exaggeration)
+            self.sl_marker = gui.add_slider("marker radius (m)", 10.0, 500.0, 10.0, d.marker_radius_m)
             self.cb_frames = {f: gui.add_checkbox(f"frame {f}", True) for f in DRAWN_FRAMES}
             self.cb_terrain = gui.add_checkbox("terrain", True)
             self.cb_labels = gui.add_checkbox("marker labels", d.marker_labels,
                                               hint="Labels of the hit markers (they overlap until you zoom in)")
-            for h in (self.sl_vexag, self.sl_ac, self.sl_err, self.cb_terrain, self.cb_labels,
+            for h in (self.sl_vexag, self.sl_ac, self.sl_err, self.sl_marker, self.cb_terrain, self.cb_labels,
                       *self.cb_frames.values()):
                 h.on_update(lambda _: self._on_display())
         with gui.add_folder("Teaching: the chain of 4x4 matrices", expand_by_default=False):
@@ -152,6 +158,7 @@ class GeolocApp:
         d.vertical_exaggeration = float(self.sl_vexag.value)
         d.aircraft_scale = float(self.sl_ac.value)
         d.error_exaggeration = float(self.sl_err.value)
+        d.marker_radius_m = float(self.sl_marker.value)
         d.frames_visible = {f: bool(cb.value) for f, cb in self.cb_frames.items()}
         d.terrain_visible = bool(self.cb_terrain.value)
         d.marker_labels = bool(self.cb_labels.value)

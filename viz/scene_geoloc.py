@@ -293,24 +293,46 @@ class GeolocScene:
                             position=d.z(tip), anchor="top-left")
 
     # ------------------------------------------------------------ camera
-    def set_initial_camera(self, server: viser.ViserServer) -> None:
-        """A side view showing the aircraft, the frames, the line of sight and the terrain at once."""
+    def camera_pose(self, kind: str = "overview"):
+        """(position, look_at) in scene units for a named view.
+
+        ``"overview"``: a side view showing the aircraft, the frames, the line of
+        sight and the terrain at once. ``"target"``: close to the hit, where the
+        iterations, brackets and hits are, from the same side.
+        """
         g, d = self.geometry, self.disp
         a = d.z(g.aircraft_enu)
         b = d.z(g.hit_enu if np.all(np.isfinite(g.hit_enu)) else g.aircraft_enu + 20e3 * g.los_dir_enu)
-        mid = 0.5 * (a + b)
         horiz = (b - a)[:2]
-        L = max(np.linalg.norm(b - a), 1.0)
-        u = horiz / max(np.linalg.norm(horiz), 1e-9)
+        L = max(np.linalg.norm(b - a), 1e-3)
+        u = np.r_[horiz / max(np.linalg.norm(horiz), 1e-9), 0.0]
         side = np.array([u[1], -u[0], 0.0])  # to the right of the ground track
+        up = np.array([0.0, 0.0, 1.0])
+        if kind == "target":
+            # The iterations span the last ~15 % of the line of sight above the hit.
+            aim = b + 0.08 * (a - b)
+            return aim + side * 0.4 * L + up * 0.15 * L - u * 0.1 * L, aim
+        mid = 0.5 * (a + b)
         # Step back to the right of the track and up; aim a little beyond the middle so the
         # scene sits left of the GUI panel.
-        up = np.array([0.0, 0.0, 1.0])
-        pos = mid + side * 0.7 * L + up * 0.55 * L - np.r_[u, 0] * 0.2 * L
-        mid = mid - side * 0.1 * L + np.r_[u, 0] * 0.1 * L - up * 0.12 * L
+        pos = mid + side * 0.7 * L + up * 0.55 * L - u * 0.2 * L
+        return pos, mid - side * 0.1 * L + u * 0.1 * L - up * 0.12 * L
+
+    def set_initial_camera(self, server: viser.ViserServer) -> None:
+        """Start new browsers on the overview (see :meth:`camera_pose`)."""
+        pos, aim = self.camera_pose("overview")
         cam = server.initial_camera
         cam.up = (0.0, 0.0, 1.0)
         cam.near = 0.02  # km (world units, see ROOT)
         cam.far = 1000.0
         cam.position = tuple(pos)
-        cam.look_at = tuple(mid)
+        cam.look_at = tuple(aim)
+
+    def move_clients(self, server: viser.ViserServer, kind: str) -> None:
+        """Move every connected browser's camera to a named view."""
+        pos, aim = self.camera_pose(kind)
+        for client in server.get_clients().values():
+            with client.atomic():
+                client.camera.up_direction = (0.0, 0.0, 1.0)
+                client.camera.look_at = tuple(aim)
+                client.camera.position = tuple(pos)
