@@ -5,6 +5,7 @@ import numpy as np
 import pyproj
 import pytest
 
+from geoloc.assets import asset_path
 from geoloc.cli import main
 from geoloc.ellipsoid import A, F
 from viz.app import make_server
@@ -96,3 +97,7 @@ def test_view_command_rejects_bad_arguments(capsys):
     assert "record = 'T9-9'" in err and "T3-1" in err
     assert main(["view", "--port", "70000", "--no-browser"]) == 2
     assert "port = 70000" in capsys.readouterr().err
+    # A DEM that does not cover the target (the SRTM tile is in Tennessee, T3-1 in Asia).
+    assert main(["view", "--dem", str(asset_path("dem", "srtm_jacksboro.tif")), "--export", "/dev/null"]) == 2
+    err = capsys.readouterr().err
+    assert "does not cover the target" in err and "srtm_jacksboro.tif" in err

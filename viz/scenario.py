@@ -120,10 +120,11 @@ def load_scenario(records_path=None, record: str | int | None = None, camera_pat
                    enu=enu_origin_for(info, inp), records=recs, record_index=idx,
                    use_dem=use_dem, source=records_path.name,
                    description=f"records {records_path}, camera {camera.name or camera_path}")
+    scn._user_dem = dem_path  # kept when another record is selected
     if use_dem:
         from . import terrain_link
 
-        terrain_link.attach_dem(scn, dem_path)
+        terrain_link.attach_dem(scn, dem_path, strict=dem_path is not None)
     else:
         scn.dem_name = "none (no DEM): ellipsoid at each record's paper_height_m"
     return scn
@@ -139,4 +140,4 @@ def select_record(scn: Scenario, idx: int) -> None:
     if scn.use_dem:
         from . import terrain_link
 
-        terrain_link.attach_dem(scn, None)
+        terrain_link.attach_dem(scn, getattr(scn, "_user_dem", None))

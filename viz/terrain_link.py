@@ -42,11 +42,13 @@ def dem_covers(path, lat_deg, lon_deg):
     return None
 
 
-def attach_dem(scn, path=None) -> None:
+def attach_dem(scn, path=None, strict: bool = False) -> None:
     """Open the DEM at ``path`` (default: a bundled one covering the scene origin) into ``scn.dem``.
 
     Bundled DEMs are orthometric (EGM96); :meth:`geoloc.dem.DEM.open` converts
-    them to ellipsoidal heights.
+    them to ellipsoidal heights. A DEM that does not cover the scene origin is
+    an error naming the path and bounds when ``strict`` (a DEM the user asked
+    for), else the scene falls back to the ellipsoid.
     """
     from .scenario import default_dem_path
 
@@ -61,6 +63,15 @@ def attach_dem(scn, path=None) -> None:
     if getattr(scn, "_dem_path", None) != str(path):
         scn.dem = _dem.DEM.open(path, datum="egm96")
         scn._dem_path = str(path)
+    w, s_, e, n = scn.dem.bounds_deg
+    if not (s_ <= lat <= n and w <= lon <= e):
+        msg = (f"dem = {path}: does not cover the target at {lat:.4f} N {lon:.4f} E "
+               f"(DEM bounds W {w:.4f} S {s_:.4f} E {e:.4f} N {n:.4f})")
+        if strict:
+            raise ValueError(msg)
+        scn.dem, scn._dem_path = None, None
+        scn.dem_name = f"none: {Path(path).name} does not cover this target (ellipsoid at paper_height_m)"
+        return
     scn.dem_name = f"{Path(path).name} (EGM96 heights + N)"
 
 
