@@ -8,8 +8,10 @@ Two surfaces of "height h_T":
 
 * ``"inflated"``: the paper's ellipsoid with semi-axes (a + h_T, b + h_T)
   [Q17 eq. 11]. Closed form (one quadratic), but it is not exactly the surface
-  of constant geodetic height: its geodetic height differs from h_T by up to
-  ~ e^2 h_T sin^2(2 phi) / 4 ... a few mm at 5 km, metres at 500 km.
+  of constant geodetic height: its geodetic height is low by about
+  1.4e-6 h_T sin^2(2 phi) (measured on nadir rays: 1.4 mm at h_T = 1 km,
+  7.2 mm at 5 km, 28 mm at 20 km, 14 cm at 100 km, 65 cm at 500 km, all at
+  45 deg latitude, and zero at the equator and the poles).
 * ``"geodetic"``: the exact surface of constant geodetic height h_T, by
   Newton iteration on s starting from the inflated answer
   (g(s) = h(O + s d) - h_T, g'(s) = n_up . d).
