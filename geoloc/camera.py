@@ -45,13 +45,13 @@ overrides in a subclass.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .status import Status
+from .tomlio import read_toml
 
 
 @dataclass(frozen=True)
@@ -122,12 +122,7 @@ class Camera:
     def from_toml(cls, path) -> "Camera":
         """Load a camera file; unknown keys and missing keys are errors naming the key."""
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"camera file not found: {path}") from None
-        except tomllib.TOMLDecodeError as e:
-            raise ValueError(f"camera file {path}: not valid TOML: {e}") from None
+        data = read_toml(path, "camera file")
         return cls.from_dict(data, source=str(path))
 
     @classmethod

@@ -45,7 +45,6 @@ vibration_roll_deg``           shock-absorber angular vibration between body and
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -53,6 +52,7 @@ import numpy as np
 
 from .camera import Camera
 from .frames import Pose
+from .tomlio import read_toml
 
 #: Pose fields of the [nominal] table, in Pose order, with their unit suffix.
 POSE_KEYS = ("lat_deg", "lon_deg", "h_m", "heading_deg", "pitch_deg", "roll_deg",
@@ -163,12 +163,7 @@ class ErrorModel:
     def from_toml(cls, path) -> "ErrorModel":
         """Load a scenario file; every bad key or value raises ``ValueError`` naming it."""
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"scenario file not found: {path}") from None
-        except tomllib.TOMLDecodeError as e:
-            raise ValueError(f"scenario file {path}: not valid TOML: {e}") from None
+        data = read_toml(path, "scenario file")
         return cls.from_dict(data, source=str(path), base_dir=path.parent)
 
     @classmethod

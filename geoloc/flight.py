@@ -50,7 +50,6 @@ azimuth there, so the nose follows the track. Conventions: ``docs/conventions.md
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -58,6 +57,7 @@ import numpy as np
 from pyproj import Geod
 
 from .frames import Pose
+from .tomlio import read_toml
 
 _GEOD = Geod(ellps="WGS84")
 
@@ -132,12 +132,7 @@ class FlightScenario:
     def from_toml(cls, path) -> "FlightScenario":
         """Load and validate a scenario file; errors name the key and the value."""
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"scenario file not found: {path}") from None
-        except tomllib.TOMLDecodeError as e:
-            raise ValueError(f"scenario file {path}: not valid TOML: {e}") from None
+        data = read_toml(path, "scenario file")
         return cls.from_dict(data, base=path.parent, source=str(path))
 
     @classmethod

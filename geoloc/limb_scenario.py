@@ -13,7 +13,6 @@ a rotation about Z by the Greenwich angle theta_g = theta_g0 + omega_E t
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import numpy as np
 from .ellipsoid import A
 from .limb import L18Chain, LimbTangent, limb_tangent, line_of_sight_l18
 from .rotations import rotate, rz
+from .tomlio import read_toml
 
 #: Earth's gravitational parameter GM [m^3/s^2] (WGS-84).
 GM = 3.986004418e14
@@ -221,8 +221,5 @@ def load_scenario(path) -> LimbScenario:
         Naming the field and value when the content is invalid.
     """
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as e:
-        raise ValueError(f"{path}: not valid TOML: {e}") from e
+    data = read_toml(path, "scenario file")
     return scenario_from_dict(data, source=str(path))

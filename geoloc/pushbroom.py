@@ -42,7 +42,6 @@ line time: Newton steps on the along-track angle residual
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -53,6 +52,7 @@ from . import rotations as rot
 from .ellipsoid import A, geodetic_to_ecef
 from .locate import GroundPoint, LineOfSight, intersect_los_height
 from .status import Status
+from .tomlio import read_toml
 
 #: Earth rotation rate [rad/s] (WGS-84 / IERS nominal value), used only to
 #: synthesise the orbit of a scenario (:func:`circular_orbit`).
@@ -555,12 +555,7 @@ class PushbroomSensor:
     @classmethod
     def from_toml(cls, path) -> "PushbroomSensor":
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"scenario file not found: {path}") from None
-        except tomllib.TOMLDecodeError as e:
-            raise ValueError(f"scenario file {path}: not valid TOML: {e}") from None
+        data = read_toml(path, "scenario file")
         return cls.from_dict(data, source=str(path))
 
 

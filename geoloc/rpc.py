@@ -32,7 +32,6 @@ staggered grid never used in the fit.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,6 +41,7 @@ from .camera import Camera
 from .frames import FrameChain, Pose
 from .locate import GroundPoint, ground_to_pixel, line_of_sight, locate
 from .status import Status
+from .tomlio import read_toml
 
 #: Names of the 20 RPC00B terms, in order (L = longitude, P = latitude, H = height).
 TERMS = ("1", "L", "P", "H", "LP", "LH", "PH", "LL", "PP", "HH",
@@ -645,12 +645,7 @@ def load_scenario(path) -> RPCScenario:
     from .pushbroom import PushbroomSensor
 
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"scenario file not found: {path}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ValueError(f"scenario file {path}: not valid TOML: {e}") from None
+    data = read_toml(path, "scenario file")
     src = str(path)
     kind = data.get("kind")
     if kind == "pushbroom":
