@@ -60,6 +60,16 @@ class EnuFrame:
     def from_deg(cls, lat0_deg, lon0_deg, h0_m=0.0) -> "EnuFrame":
         return cls(float(np.deg2rad(lat0_deg)), float(np.deg2rad(lon0_deg)), float(h0_m))
 
+    @classmethod
+    def scene_origin(cls, lat_deg, lon_deg, h_m) -> "EnuFrame":
+        """The 3D scenes' origin near a target: rounded to 0.001 deg and 100 m.
+
+        Readable when printed, and close enough that scene coordinates stay
+        within tens of km, where float32 steps are below 2 mm. The viser scene
+        and the rerun recordings share this rule so their ENU coordinates agree.
+        """
+        return cls.from_deg(round(float(lat_deg), 3), round(float(lon_deg), 3), round(float(h_m), -2))
+
     @property
     def origin_ecef(self) -> np.ndarray:
         return geodetic_to_ecef(self.lat0, self.lon0, self.h0)

@@ -144,8 +144,8 @@ class LogSteps:
 
 
 def enu_origin(lat_deg: float, lon_deg: float, h_m: float) -> EnuFrame:
-    """Scene origin near a target, rounded to 0.001 deg and 100 m (the viser scene's rule)."""
-    return EnuFrame.from_deg(round(float(lat_deg), 3), round(float(lon_deg), 3), round(float(h_m), -2))
+    """Scene origin near a target: :meth:`geoloc.enu.EnuFrame.scene_origin`, as in the viser scene."""
+    return EnuFrame.scene_origin(lat_deg, lon_deg, h_m)
 
 
 def load_camera(path=None) -> Camera:

@@ -52,17 +52,14 @@ def records_from_csv(path) -> list:
 
 
 def enu_origin_for(info: RecordInfo, inp: Inputs) -> EnuFrame:
-    """Scene origin near the target: the published position (else below the aircraft).
-
-    Rounded to 0.001 deg and 100 m so the printed origin is readable; scene
-    coordinates stay within tens of km, where float32 steps are below 2 mm.
-    """
+    """Scene origin near the target: the published position (else below the aircraft),
+    rounded by :meth:`geoloc.enu.EnuFrame.scene_origin`."""
     if np.isfinite(info.paper_lat_deg):
         lat, lon = info.paper_lat_deg, info.paper_lon_deg
         h = info.paper_height_m if np.isfinite(info.paper_height_m) else 0.0
     else:
         lat, lon, h = inp.lat_deg, inp.lon_deg, inp.target_h
-    return EnuFrame.from_deg(round(lat, 3), round(lon, 3), round(h, -2))
+    return EnuFrame.scene_origin(lat, lon, h)
 
 
 def default_dem_path(lat_deg: float, lon_deg: float) -> Path | None:
