@@ -26,6 +26,7 @@ Conventions: ``docs/conventions.md``.
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 from numba import njit, prange
@@ -126,6 +127,12 @@ def latlon(x, y, z):
     Used only to find the cell under a point (error < 1e-9 rad for heights
     -1 km..20 km, tested); heights come from :func:`geodetic`.
     """
+    return _lat_bowring(x, y, z), math.atan2(y, x)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _lat_bowring(x, y, z):
+    """The latitude of :func:`latlon` alone."""
     rho = math.sqrt(x * x + y * y)
     za = z * A
     rb = rho * B
@@ -133,8 +140,7 @@ def latlon(x, y, z):
     st = za / q
     ct = rb / q
     ep2 = E2 / (1.0 - E2)
-    lat = math.atan2(z + ep2 * B * st * st * st, rho - E2 * A * ct * ct * ct)
-    return lat, math.atan2(y, x)
+    return math.atan2(z + ep2 * B * st * st * st, rho - E2 * A * ct * ct * ct)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -195,18 +201,19 @@ def _plane_cross(px, py, sl, cl, dx, dy, skip_small):
     return r
 
 
-@njit(cache=True, error_model="numpy")
-def _tri(ox, oy, oz, dx, dy, dz, nodes, i0, j0, i1, j1, i2, j2):
-    """Moller-Trumbore ray x triangle (nodes[i0, j0], nodes[i1, j1], nodes[i2, j2]); ray parameter or inf."""
-    p0x = nodes[i0, j0, 0]
-    p0y = nodes[i0, j0, 1]
-    p0z = nodes[i0, j0, 2]
-    e1x = nodes[i1, j1, 0] - p0x
-    e1y = nodes[i1, j1, 1] - p0y
-    e1z = nodes[i1, j1, 2] - p0z
-    e2x = nodes[i2, j2, 0] - p0x
-    e2y = nodes[i2, j2, 1] - p0y
-    e2z = nodes[i2, j2, 2] - p0z
+@njit(cache=True, error_model="numpy", inline="always")
+def _tri(ox, oy, oz, dx, dy, dz, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z):
+    """Moller-Trumbore ray x triangle (p0, p1, p2); ray parameter or inf.
+
+    Scalars only: an array argument of an inlined helper costs a reference-count
+    increment and decrement (atomic) per call, which was a third of the walk's time.
+    """
+    e1x = p1x - p0x
+    e1y = p1y - p0y
+    e1z = p1z - p0z
+    e2x = p2x - p0x
+    e2y = p2y - p0y
+    e2z = p2z - p0z
     hx = dy * e2z - dz * e2y
     hy = dz * e2x - dx * e2z
     hz = dx * e2y - dy * e2x
@@ -232,15 +239,15 @@ def _tri(ox, oy, oz, dx, dy, dz, nodes, i0, j0, i1, j1, i2, j2):
     return t
 
 
-@njit(cache=True, error_model="numpy")
-def _bilin(hgt, i, j, u, v):
-    return ((1.0 - v) * ((1.0 - u) * hgt[i, j] + u * hgt[i, j + 1])
-            + v * ((1.0 - u) * hgt[i + 1, j] + u * hgt[i + 1, j + 1]))
+@njit(cache=True, error_model="numpy", inline="always")
+def _bilin(z00, z10, z01, z11, u, v):
+    return ((1.0 - v) * ((1.0 - u) * z00 + u * z10)
+            + v * ((1.0 - u) * z01 + u * z11))
 
 
 @njit(cache=True, error_model="numpy")
 def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b, lon_b, h_b,
-                   hgt, i, j, lat_n, lon_w, dlat, dlon):
+                   z00, z10, z01, z11, i, j, lat_n, lon_w, dlat, dlon):
     """First root of h_ray(s) - bilinear(lat(s), lon(s)) on [sa, sb]; inf if none.
 
     Model on the cell: (u, v) linear between the exact entry/exit grid
@@ -255,10 +262,6 @@ def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b
     vb = ((lat_n - i * dlat) - lat_b) / dlat
     du = ub - ua
     dv = vb - va
-    z00 = hgt[i, j]
-    z10 = hgt[i, j + 1]
-    z01 = hgt[i + 1, j]
-    z11 = hgt[i + 1, j + 1]
     B = z10 - z00
     C = z01 - z00
     D = z00 - z10 - z01 + z11
@@ -294,7 +297,7 @@ def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b
                     lo = _wrap(lo, lon_w)
                     u = (lo - (lon_w + j * dlon)) / dlon
                     v = ((lat_n - i * dlat) - la) / dlat
-                    if hh - _bilin(hgt, i, j, u, v) <= 0.0:
+                    if hh - _bilin(z00, z10, z01, z11, u, v) <= 0.0:
                         # a root in [0, tm]: bisect the model there, Newton below polishes
                         lo_t = 0.0
                         hi_t = tm
@@ -315,7 +318,7 @@ def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b
         lo = _wrap(lo, lon_w)
         u = (lo - (lon_w + j * dlon)) / dlon
         v = ((lat_n - i * dlat) - la) / dlat
-        res = hh - _bilin(hgt, i, j, u, v)
+        res = hh - _bilin(z00, z10, z01, z11, u, v)
         tt = (s - sa) / L
         slope = (c1 + 2.0 * c2 * tt) / L
         if slope >= 0.0:
@@ -328,10 +331,12 @@ def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _exit(px, py, pz, dx, dy, dz, rn, rs, cw, ce, tan_row, c_row, sin_col, cos_col,
+def _exit(px, py, pz, dx, dy, dz, tan_n, c_n, tan_s, c_s, sin_w, cos_w, sin_e, cos_e,
           sk_n, sk_s, sk_w, sk_e):
-    """Where the ray from p leaves the band between parallels rn (north), rs (south) and
-    meridians cw (west), ce (east): (Delta, via) with via 0 N, 1 S, 2 W, 3 E, -1 none.
+    """Where the ray from p leaves the band between the north and south parallels
+    (tan phi, c of each cone) and the west and east meridians (sin, cos of each
+    lambda): (Delta, via) with via 0 N, 1 S, 2 W, 3 E, -1 none. Scalars, not the
+    tables: see :func:`_tri`.
 
     The meridian planes are tried first (one division each); the sign of
     z + c - rho tan(phi) (increasing with latitude) at that point says whether the
@@ -342,12 +347,12 @@ def _exit(px, py, pz, dx, dy, dz, rn, rs, cw, ce, tan_row, c_row, sin_col, cos_c
     sp = np.inf
     vp = -1
     if sk_w >= 0.0:
-        c = _plane_cross(px, py, sin_col[cw], cos_col[cw], dx, dy, sk_w)
+        c = _plane_cross(px, py, sin_w, cos_w, dx, dy, sk_w)
         if c < sp:
             sp = c
             vp = 2
     if sk_e >= 0.0:
-        c = _plane_cross(px, py, sin_col[ce], cos_col[ce], dx, dy, sk_e)
+        c = _plane_cross(px, py, sin_e, cos_e, dx, dy, sk_e)
         if c < sp:
             sp = c
             vp = 3
@@ -356,26 +361,26 @@ def _exit(px, py, pz, dx, dy, dz, rn, rs, cw, ce, tan_row, c_row, sin_col, cos_c
         qy = py + sp * dy
         qz = pz + sp * dz
         rho = math.sqrt(qx * qx + qy * qy)
-        fn = qz + c_row[rn] - rho * tan_row[rn]
-        fs = qz + c_row[rs] - rho * tan_row[rs]
+        fn = qz + c_n - rho * tan_n
+        fs = qz + c_s - rho * tan_s
         if fn <= 0.0 and fs >= 0.0:
             return sp, vp
         if fn > 0.0:
-            c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[rn], c_row[rn], sk_n)
+            c = _cone_cross(px, py, pz, dx, dy, dz, tan_n, c_n, sk_n)
             if c < sp:
                 return c, 0
         else:
-            c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[rs], c_row[rs], sk_s)
+            c = _cone_cross(px, py, pz, dx, dy, dz, tan_s, c_s, sk_s)
             if c < sp:
                 return c, 1
         return sp, vp
     ex = np.inf
     via = -1
-    c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[rn], c_row[rn], sk_n)
+    c = _cone_cross(px, py, pz, dx, dy, dz, tan_n, c_n, sk_n)
     if c < ex:
         ex = c
         via = 0
-    c = _cone_cross(px, py, pz, dx, dy, dz, tan_row[rs], c_row[rs], sk_s)
+    c = _cone_cross(px, py, pz, dx, dy, dz, tan_s, c_s, sk_s)
     if c < ex:
         ex = c
         via = 1
@@ -392,7 +397,8 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
     cell's interval decides). binv is the same for blocks of BLOCK x BLOCK cells (their
     highest node): a block the ray crosses clear of it is skipped in one step (a
     two-level min/max hierarchy). trace_s / trace_ij have shape (n, m); m = 0 disables
-    the trace.
+    the trace. cmax is not read (cinv is NaN exactly where it is: no data); it stays
+    in the signature for the callers.
     """
     n = o.shape[0]
     nr = hgt.shape[0]
@@ -469,7 +475,8 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
             pz = oz + s * dz
             # exit through the four exact boundaries
             tiny = 1e-6
-            ex, via = _exit(px, py, pz, dx, dy, dz, i, i + 1, j, j + 1, tan_row, c_row, sin_col, cos_col,
+            ex, via = _exit(px, py, pz, dx, dy, dz, tan_row[i], c_row[i], tan_row[i + 1], c_row[i + 1],
+                            sin_col[j], cos_col[j], sin_col[j + 1], cos_col[j + 1],
                             tiny if came == 0 else 0.0, tiny if came == 1 else 0.0,
                             -1.0 if came == 2 else 0.0, -1.0 if came == 3 else 0.0)
             if ex < 0.0:
@@ -484,7 +491,8 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
                 i1 = min(i0 + BLOCK, nr - 1)
                 j0 = bj * BLOCK
                 j1 = min(j0 + BLOCK, nc - 1)
-                bx, bvia = _exit(px, py, pz, dx, dy, dz, i0, i1, j0, j1, tan_row, c_row, sin_col, cos_col,
+                bx, bvia = _exit(px, py, pz, dx, dy, dz, tan_row[i0], c_row[i0], tan_row[i1], c_row[i1],
+                                 sin_col[j0], cos_col[j0], sin_col[j1], cos_col[j1],
                                  tiny, tiny, tiny, tiny)
                 ia = binv[bi, bj, 0]
                 clear = False
@@ -508,10 +516,15 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
                         trace_ij[r, k, 1] = j
                     ncell[r] = k + 1
                     s = s + bx
-                    la2, lo2 = latlon(ox + s * dx, oy + s * dy, oz + s * dz)
-                    lo2 = _wrap(lo2, lon_w)
-                    ii = min(max(int(math.floor((lat_n - la2) / dlat)), i0), i1 - 1)
-                    jj = min(max(int(math.floor((lo2 - lon_w) / dlon)), j0), j1 - 1)
+                    # only the coordinate along the boundary crossed is needed (one atan2)
+                    ii = i0
+                    jj = j0
+                    if bvia <= 1:
+                        lo2 = _wrap(math.atan2(oy + s * dy, ox + s * dx), lon_w)
+                        jj = min(max(int(math.floor((lo2 - lon_w) / dlon)), j0), j1 - 1)
+                    else:
+                        la2 = _lat_bowring(ox + s * dx, oy + s * dy, oz + s * dz)
+                        ii = min(max(int(math.floor((lat_n - la2) / dlat)), i0), i1 - 1)
                     geo_ok = False
                     if bvia == 0:
                         i = i0 - 1
@@ -538,12 +551,12 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
                 trace_ij[r, k, 0] = i
                 trace_ij[r, k, 1] = j
             ncell[r] = k + 1
-            cm = cmax[i, j]
-            if cm != cm:
+            # cinv is NaN exactly where cmax is (no data): one table read instead of two
+            ia = cinv[i, j, 0]
+            if ia != ia:
                 st = _NODATA
                 break
             # skip test: min over [s, s_b] of F(s) = |P'(s)|^2 - 1 for the cell's inflated ellipsoid
-            ia = cinv[i, j, 0]
             ib = cinv[i, j, 1]
             qa = dxy2 * ia + dz2 * ib
             qb = 2.0 * (oxd * ia + ozd * ib)
@@ -555,8 +568,18 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
                 sm = s_b
             if (qa * sm + qb) * sm + qc <= 0.0:
                 if triangles:
-                    t1 = _tri(ox, oy, oz, dx, dy, dz, nodes, i, j, i + 1, j, i + 1, j + 1)
-                    t2 = _tri(ox, oy, oz, dx, dy, dz, nodes, i, j, i + 1, j + 1, i, j + 1)
+                    n0x = nodes[i, j, 0]  # the cell's nodes (i, j), (i+1, j), (i+1, j+1), then (i, j+1)
+                    n0y = nodes[i, j, 1]
+                    n0z = nodes[i, j, 2]
+                    n1x = nodes[i + 1, j, 0]
+                    n1y = nodes[i + 1, j, 1]
+                    n1z = nodes[i + 1, j, 2]
+                    n2x = nodes[i + 1, j + 1, 0]
+                    n2y = nodes[i + 1, j + 1, 1]
+                    n2z = nodes[i + 1, j + 1, 2]
+                    t1 = _tri(ox, oy, oz, dx, dy, dz, n0x, n0y, n0z, n1x, n1y, n1z, n2x, n2y, n2z)
+                    t2 = _tri(ox, oy, oz, dx, dy, dz, n0x, n0y, n0z, n2x, n2y, n2z,
+                              nodes[i, j + 1, 0], nodes[i, j + 1, 1], nodes[i, j + 1, 2])
                     if t1 < best:
                         best = t1
                     if t2 < best:
@@ -570,7 +593,8 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
                     lat_b, lon_b, h_b, nx, ny, nz = geodetic_up(ox + s_b * dx, oy + s_b * dy, oz + s_b * dz)
                     lon_b = _wrap(lon_b, lon_w)
                     t1 = _bilinear_cell(ox, oy, oz, dx, dy, dz, s, s_b, lat, lon, h, g,
-                                        lat_b, lon_b, h_b, hgt, i, j, lat_n, lon_w, dlat, dlon)
+                                        lat_b, lon_b, h_b, hgt[i, j], hgt[i, j + 1], hgt[i + 1, j],
+                                        hgt[i + 1, j + 1], i, j, lat_n, lon_w, dlat, dlon)
                     if t1 < best:
                         best = t1
                     lat = lat_b
@@ -610,7 +634,20 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
             s_out[r] = best / dn  # in units of the given direction vector
 
 
+def _renamed(fn, name):
+    """A copy of ``fn`` under another name, so that its numba cache file is its own.
+
+    numba names a cache file after the function's qualified name and line and keys
+    its index by signature only, not by the ``parallel`` flag: two dispatchers of
+    the same function share the file, and whichever compiled first was loaded by
+    the other (the "parallel" walk ran the serial code, or the reverse).
+    """
+    f = types.FunctionType(fn.__code__, fn.__globals__, name, fn.__defaults__, fn.__closure__)
+    f.__qualname__ = name
+    return f
+
+
 #: Serial walk (prange runs as range).
 walk = njit(cache=True, error_model="numpy")(_walk)
 #: The same walk over rays on all cores (numba threads); identical results.
-walk_parallel = njit(cache=True, parallel=True, error_model="numpy")(_walk)
+walk_parallel = njit(cache=True, parallel=True, error_model="numpy")(_renamed(_walk, "_walk_parallel"))
