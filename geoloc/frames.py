@@ -14,6 +14,7 @@ All functions take radians and broadcast over leading axes.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 
 import numpy as np
 
@@ -204,6 +205,11 @@ class Pose:
         return self
 
 
+def _rotate_T(R, v):
+    """R^T v for stacks of rotations (..., 3, 3) and vectors (..., 3)."""
+    return np.einsum("...ji,...j->...i", R, v)
+
+
 @dataclass(frozen=True)
 class Hop:
     """One hop of the chain: ``T`` maps homogeneous coordinates in ``src`` to ``dst``."""
@@ -241,19 +247,49 @@ class FrameChain:
 
     def __init__(self, pose: Pose, R_cam_inner=None, R_base_body=None):
         self.pose = pose
-        p = pose
-        self.R_ecef_ned = R_ecef_ned(p.lat, p.lon)
-        self.origin_ecef = geodetic_to_ecef(p.lat, p.lon, p.h)
-        self.R_ned_body = R_ned_body(p.heading, p.pitch, p.roll)
-        R_ob = R_outer_body(p.gimbal_roll)
-        if R_base_body is not None:
-            R_ob = R_ob @ np.asarray(R_base_body, float)
-        R_co = R_cam_outer(p.gimbal_pitch)
-        if R_cam_inner is not None:
-            R_co = np.asarray(R_cam_inner, float) @ R_co
-        self.R_body_outer = np.swapaxes(R_ob, -1, -2)
-        self.R_outer_cam = np.swapaxes(R_co, -1, -2)
-        self.hops = [
+        self.R_cam_inner = None if R_cam_inner is None else np.asarray(R_cam_inner, float)
+        self.R_base_body = None if R_base_body is None else np.asarray(R_base_body, float)
+
+    # The matrices are built on first use: a batch of a million rays that only
+    # needs its lines of sight (cam_to_ecef) never pays for 4x4 hops or for
+    # stacked 3x3 products, which cost ~0.2 s per product per million.
+    @cached_property
+    def R_ecef_ned(self) -> np.ndarray:
+        """NED -> ECEF at the aircraft [Q17 eq. 5]."""
+        return R_ecef_ned(self.pose.lat, self.pose.lon)
+
+    @cached_property
+    def origin_ecef(self) -> np.ndarray:
+        """The aircraft / optical centre in ECEF [Q17 eq. 4]."""
+        p = self.pose
+        return geodetic_to_ecef(p.lat, p.lon, p.h)
+
+    @cached_property
+    def R_ned_body(self) -> np.ndarray:
+        """Body -> NED [Q17 eq. 6, transposed]."""
+        p = self.pose
+        return R_ned_body(p.heading, p.pitch, p.roll)
+
+    @cached_property
+    def R_body_outer(self) -> np.ndarray:
+        """Outer gimbal -> body: (Rx(gimbal_roll) R_base_body)^T [Q17 eq. 7]."""
+        R_ob = R_outer_body(self.pose.gimbal_roll)
+        if self.R_base_body is not None:
+            R_ob = R_ob @ self.R_base_body
+        return np.swapaxes(R_ob, -1, -2)
+
+    @cached_property
+    def R_outer_cam(self) -> np.ndarray:
+        """Camera -> outer gimbal: (R_cam_inner Ry(gimbal_pitch))^T [Q17 eq. 7]."""
+        R_co = R_cam_outer(self.pose.gimbal_pitch)
+        if self.R_cam_inner is not None:
+            R_co = self.R_cam_inner @ R_co
+        return np.swapaxes(R_co, -1, -2)
+
+    @cached_property
+    def hops(self) -> list:
+        """ECEF <- NED <- body <- gimbal_outer <- cam as :class:`Hop` objects, outermost first."""
+        return [
             Hop("ecef", "ned", rot.transform(self.R_ecef_ned, self.origin_ecef),
                 "Q17 eq. 4-5", "local North-East-Down at the aircraft to Earth-centred Earth-fixed"),
             Hop("ned", "body", rot.transform(self.R_ned_body),
@@ -263,6 +299,41 @@ class FrameChain:
             Hop("gimbal_outer", "cam", rot.transform(self.R_outer_cam),
                 "Q17 eq. 7", "inner gimbal / camera (pitch about the outer gimbal Y axis; Z is the line of sight) to outer gimbal"),
         ]
+
+    def cam_to_ecef(self, v_cam) -> np.ndarray:
+        """Rotate camera-frame vectors (..., 3) to ECEF, hop by hop [Q17 eq. 9].
+
+        Equal to ``R_ecef_cam @ v`` but applies each elementary rotation to the
+        vector (transposed passive rotations, innermost first), which is several
+        times cheaper than forming the stacked matrix product for large batches.
+        """
+        p = self.pose
+        v = np.asarray(v_cam, float)
+        if self.R_cam_inner is not None:
+            v = _rotate_T(self.R_cam_inner, v)
+        v = rot.rotate_axis("y", p.gimbal_pitch, v, transpose=True)
+        v = rot.rotate_axis("x", p.gimbal_roll, v, transpose=True)
+        if self.R_base_body is not None:
+            v = _rotate_T(self.R_base_body, v)
+        v = rot.rotate_axis("x", p.roll, v, transpose=True)
+        v = rot.rotate_axis("y", p.pitch, v, transpose=True)
+        v = rot.rotate_axis("z", p.heading, v, transpose=True)
+        return rot.rotate(self.R_ecef_ned, v)
+
+    def ecef_to_cam(self, v_ecef) -> np.ndarray:
+        """Rotate ECEF vectors (..., 3) to the camera frame: the inverse of :meth:`cam_to_ecef`."""
+        p = self.pose
+        v = _rotate_T(self.R_ecef_ned, np.asarray(v_ecef, float))
+        v = rot.rotate_axis("z", p.heading, v)
+        v = rot.rotate_axis("y", p.pitch, v)
+        v = rot.rotate_axis("x", p.roll, v)
+        if self.R_base_body is not None:
+            v = rot.rotate(self.R_base_body, v)
+        v = rot.rotate_axis("x", p.gimbal_roll, v)
+        v = rot.rotate_axis("y", p.gimbal_pitch, v)
+        if self.R_cam_inner is not None:
+            v = rot.rotate(self.R_cam_inner, v)
+        return v
 
     @property
     def R_ecef_cam(self) -> np.ndarray:

@@ -78,7 +78,7 @@ def line_of_sight(pose: Pose, camera: Camera, row=None, col=None, *, chain: Fram
         col = c0 if col is None else col
     chain = chain if chain is not None else camera_chain(pose, camera)
     d_cam = camera.pixel_to_los(row, col)
-    d_ecef = rot.rotate(chain.R_ecef_cam, d_cam)
+    d_ecef = chain.cam_to_ecef(d_cam)
     o = chain.origin_ecef
     shape = np.broadcast_shapes(o.shape, d_ecef.shape)[:-1]
     o = np.broadcast_to(o, shape + (3,))
@@ -230,6 +230,5 @@ def ground_to_pixel(pose: Pose, camera: Camera, lat, lon, h, *, chain: FrameChai
 
     chain = chain if chain is not None else camera_chain(pose, camera)
     p = geodetic_to_ecef(lat, lon, h)
-    R_cam_ecef = np.swapaxes(chain.R_ecef_cam, -1, -2)
-    d_cam = rot.rotate(R_cam_ecef, p - chain.origin_ecef)
+    d_cam = chain.ecef_to_cam(p - chain.origin_ecef)
     return camera.los_to_pixel(d_cam)

@@ -129,3 +129,35 @@ def test_pose_validation_names_field_and_value():
         Pose.from_deg(np.nan, 80, 1000).validate()
     pose = Pose.from_deg([35, 91, 35], 80, 1000)
     assert list(pose.invalid_mask()) == [False, True, False]
+
+
+def test_hop_by_hop_rotation_equals_the_matrix_product():
+    rng = np.random.default_rng(5)
+    n = 200
+    pose = Pose.from_deg(rng.uniform(-89, 89, n), rng.uniform(-180, 180, n), 1e4, rng.uniform(-180, 180, n),
+                         rng.uniform(-30, 30, n), rng.uniform(-60, 60, n), rng.uniform(-90, 90, n),
+                         rng.uniform(-30, 30, n))
+    extra = Rotation.from_rotvec(rng.normal(0, 0.01, (2, n, 3))).as_matrix()
+    v = rng.normal(size=(n, 3))
+    for kw in ({}, {"R_cam_inner": extra[0], "R_base_body": extra[1]}):
+        chain = FrameChain(pose, **kw)
+        ref = np.einsum("nij,nj->ni", chain.R_ecef_cam, v)
+        assert np.allclose(chain.cam_to_ecef(v), ref, rtol=0, atol=EPS)
+        assert np.allclose(chain.ecef_to_cam(ref), v, rtol=0, atol=EPS)
+        # and the hops still compose to the same rotation
+        assert np.allclose(chain.T_ecef("cam")[..., :3, :3], chain.R_ecef_cam, atol=EPS)
+
+
+@pytest.mark.parametrize("axis,fn", [("x", rot.rx), ("y", rot.ry), ("z", rot.rz)])
+def test_rotate_axis_equals_the_matrix(axis, fn):
+    rng = np.random.default_rng(2)
+    a = rng.uniform(-np.pi, np.pi, 50)
+    v = rng.normal(size=(50, 3))
+    assert np.allclose(rot.rotate_axis(axis, a, v), np.einsum("nij,nj->ni", fn(a), v), atol=EPS)
+    assert np.allclose(rot.rotate_axis(axis, a, v, transpose=True),
+                       np.einsum("nji,nj->ni", fn(a), v), atol=EPS)
+    # one angle, many vectors, and one vector, many angles
+    assert rot.rotate_axis(axis, 0.3, v).shape == (50, 3)
+    assert rot.rotate_axis(axis, a, v[0]).shape == (50, 3)
+    with pytest.raises(ValueError, match="axis"):
+        rot.rotate_axis("w", 0.1, v)
