@@ -9,7 +9,8 @@
     [L23] claims 45.5 % fewer iterations for bisection than for steps.
 (b) Rays per second: the exact solver in triangle mode vs trimesh's ray cast
     (embree backend when embreex is installed) on the same rays and mesh, in the
-    same run, after warm-up (numba compiled, BVH built; build times printed apart).
+    same run, after warm-up (numba compiled, BVH built; build times printed apart),
+    the two called in turn (the machine's load swings within a minute).
     trimesh's embree cast runs on one thread (its wall and CPU times agree); the
     ``parallel`` exact row uses numba's threads (compare its wall column).
     The hits must be identical. Wall time and process CPU time are both printed;
@@ -46,6 +47,24 @@ def median_time(fn, repeat):
         ts.append(time.perf_counter() - t)
         cs.append(time.process_time() - c)
     return statistics.median(ts), statistics.median(cs)
+
+
+def median_times_alternating(fns, repeat):
+    """:func:`median_time` of each of ``fns``, called in turn within each repetition.
+
+    The load from other processes swings by tens of per cent within a minute on
+    this machine; alternating the calls gives the exact solver and trimesh the
+    same conditions, so that their ratio does not depend on when each ran.
+    """
+    ts = [[] for _ in fns]
+    cs = [[] for _ in fns]
+    for _ in range(repeat):
+        for k, fn in enumerate(fns):
+            t, c = time.perf_counter(), time.process_time()
+            fn()
+            ts[k].append(time.perf_counter() - t)
+            cs[k].append(time.process_time() - c)
+    return [(statistics.median(a), statistics.median(b)) for a, b in zip(ts, cs)]
 
 
 def main(argv=None):
@@ -110,8 +129,7 @@ def main(argv=None):
     def run_ex():
         return intersect_dem(los, dem, "exact", surface="triangles")
 
-    t_tm = median_time(run_tm, a.repeat)
-    t_ex = median_time(run_ex, a.repeat)
+    t_tm, t_ex = median_times_alternating((run_tm, run_ex), a.repeat)
     t_bl = median_time(lambda: intersect_dem(los, dem, "exact"), a.repeat)
     t_par = median_time(lambda: intersect_dem(los, dem, "exact", surface="triangles", parallel=True), a.repeat)
     loc, idx, _ = run_tm()

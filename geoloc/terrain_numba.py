@@ -391,7 +391,8 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
          tan_row, c_row, sin_col, cos_col, triangles, s_out, status, ncell, trace_s, trace_ij):
     """Exact first hit for each ray (see module docstring); fills s_out, status, ncell.
 
-    cinv[i, j] = (1/(a+H)^2, 1/(b+H)^2) of the ellipsoid inflated to H = cell max + margin:
+    cinv[i, j] = (1/(a+H)^2, 1/(b+H)^2) of the ellipsoid inflated to H = cell max + margin
+    (float32 rounded toward zero by the caller, i.e. a slightly larger ellipsoid):
     the ray's part in a cell is skipped when it stays outside that ellipsoid (the
     quadratic |P'(s)|^2 - 1 of [Q17 eq. 11] is convex in s, so its minimum on the
     cell's interval decides). binv is the same for blocks of BLOCK x BLOCK cells (their
@@ -404,6 +405,8 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
     nr = hgt.shape[0]
     nc = hgt.shape[1]
     mtrace = trace_s.shape[1]
+    # the start cell's fast path needs the grid within 0.4 rad of its west meridian
+    wide_ok = (nc - 1) * dlon < 0.4 and nr >= 2 and nc >= 2
     for r in prange(n):
         s_out[r] = np.nan
         ncell[r] = 0
@@ -440,20 +443,76 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
         oxy2 = ox * ox + oy * oy
         oz2 = oz * oz
         s = s_start_r
-        lat, lon = latlon(ox + s * dx, oy + s * dy, oz + s * dz)
-        lon = _wrap(lon, lon_w)
+        lat = 0.0
+        lon = 0.0
         h = 0.0
         g = 0.0
         geo_ok = False  # lat, lon, h, g hold the geodetic state at s only when True
-        fi = (lat_n - lat) / dlat
-        fj = (lon - lon_w) / dlon
-        i = int(math.floor(fi))
-        j = int(math.floor(fj))
-        # a start point on the last node line belongs to the last cell
-        if i == nr - 1 and fi - i < 1e-9:
-            i = nr - 2
-        if j == nc - 1 and fj - j < 1e-9:
-            j = nc - 2
+        # Start cell without atan2: a guess from tan(lon - lon_w) and the latitude on
+        # the ellipsoid (a few cells off at most), then corrected on the exact cell
+        # boundaries (the side of the meridian planes and parallel cones, as in the
+        # walk). Near the grid's edges, for a wide grid or a far guess: the atan2 path.
+        qx = ox + s * dx
+        qy = oy + s * dy
+        qz = oz + s * dz
+        i = -1
+        j = -1
+        fast = wide_ok
+        if fast:
+            den = cos_col[0] * qx + sin_col[0] * qy
+            num = cos_col[0] * qy - sin_col[0] * qx
+            fast = den > 0.0 and abs(num) < 0.5 * den
+        if fast:
+            u = num / den  # tan(lon - lon_w), |lon - lon_w| < 0.47 rad
+            j = min(max(int((u - u * u * u / 3.0) / dlon), 0), nc - 2)
+            rho = math.sqrt(qx * qx + qy * qy)
+            t = qz / (rho * (1.0 - E2))  # tan(lat) on the ellipsoid; ~e^2 h / a off above it
+            w = (t - tan_row[0]) / (1.0 + t * tan_row[0])  # tan(lat - lat_n)
+            fast = abs(w) < 0.5  # also False for NaN (on the axis)
+        if fast:
+            i = min(max(int(-(w - w * w * w / 3.0) / dlat), 0), nr - 2)
+            for _ in range(16):  # west of meridian j / east of j + 1: move
+                if cos_col[j] * qy - sin_col[j] * qx < 0.0:
+                    if j == 0:
+                        fast = False
+                        break
+                    j -= 1
+                elif cos_col[j + 1] * qy - sin_col[j + 1] * qx >= 0.0:
+                    if j == nc - 2:
+                        fast = False
+                        break
+                    j += 1
+                else:
+                    break
+            else:
+                fast = False
+            for _ in range(16):  # north of parallel i / on or south of i + 1: move
+                if qz + c_row[i] - rho * tan_row[i] > 0.0:
+                    if i == 0:
+                        fast = False
+                        break
+                    i -= 1
+                elif qz + c_row[i + 1] - rho * tan_row[i + 1] <= 0.0:
+                    if i == nr - 2:
+                        fast = False
+                        break
+                    i += 1
+                else:
+                    break
+            else:
+                fast = False
+        if not fast:
+            la0, lo0 = latlon(qx, qy, qz)
+            lo0 = _wrap(lo0, lon_w)
+            fi = (lat_n - la0) / dlat
+            fj = (lo0 - lon_w) / dlon
+            i = int(math.floor(fi))
+            j = int(math.floor(fj))
+            # a start point on the last node line belongs to the last cell
+            if i == nr - 1 and fi - i < 1e-9:
+                i = nr - 2
+            if j == nc - 1 and fj - j < 1e-9:
+                j = nc - 2
         best = np.inf
         st = _LEFT
         came = -1  # boundary we entered through: 0 north, 1 south, 2 west, 3 east
@@ -473,17 +532,7 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
             px = ox + s * dx
             py = oy + s * dy
             pz = oz + s * dz
-            # exit through the four exact boundaries
             tiny = 1e-6
-            ex, via = _exit(px, py, pz, dx, dy, dz, tan_row[i], c_row[i], tan_row[i + 1], c_row[i + 1],
-                            sin_col[j], cos_col[j], sin_col[j + 1], cos_col[j + 1],
-                            tiny if came == 0 else 0.0, tiny if came == 1 else 0.0,
-                            -1.0 if came == 2 else 0.0, -1.0 if came == 3 else 0.0)
-            if ex < 0.0:
-                ex = 0.0
-            s_b = s + ex
-            if s_b > send:
-                s_b = send if send > s else s
             bi = i // BLOCK
             bj = j // BLOCK
             if bi != fail_bi or bj != fail_bj:
@@ -516,15 +565,25 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
                         trace_ij[r, k, 1] = j
                     ncell[r] = k + 1
                     s = s + bx
-                    # only the coordinate along the boundary crossed is needed (one atan2)
+                    # only the coordinate along the boundary crossed is needed: the side of
+                    # the block's inner meridian planes (or parallel cones) the point is on,
+                    # read from the tables (no atan2, no geodetic latitude)
                     ii = i0
                     jj = j0
+                    qx = ox + s * dx
+                    qy = oy + s * dy
                     if bvia <= 1:
-                        lo2 = _wrap(math.atan2(oy + s * dy, ox + s * dx), lon_w)
-                        jj = min(max(int(math.floor((lo2 - lon_w) / dlon)), j0), j1 - 1)
+                        for m in range(j0 + 1, j1):
+                            if cos_col[m] * qy - sin_col[m] * qx < 0.0:  # west of meridian m
+                                break
+                            jj = m
                     else:
-                        la2 = _lat_bowring(ox + s * dx, oy + s * dy, oz + s * dz)
-                        ii = min(max(int(math.floor((lat_n - la2) / dlat)), i0), i1 - 1)
+                        qz = oz + s * dz
+                        rho = math.sqrt(qx * qx + qy * qy)
+                        for m in range(i0 + 1, i1):
+                            if qz + c_row[m] - rho * tan_row[m] >= 0.0:  # north of parallel m
+                                break
+                            ii = m
                     geo_ok = False
                     if bvia == 0:
                         i = i0 - 1
@@ -545,6 +604,17 @@ def _walk(o, d, h_top, h_floor, hgt, cmax, cinv, binv, nodes, lat_n, lon_w, dlat
                     continue
                 fail_bi = bi
                 fail_bj = bj
+            # exit through the cell's four exact boundaries (after the block test: a
+            # skipped block does not need it)
+            ex, via = _exit(px, py, pz, dx, dy, dz, tan_row[i], c_row[i], tan_row[i + 1], c_row[i + 1],
+                            sin_col[j], cos_col[j], sin_col[j + 1], cos_col[j + 1],
+                            tiny if came == 0 else 0.0, tiny if came == 1 else 0.0,
+                            -1.0 if came == 2 else 0.0, -1.0 if came == 3 else 0.0)
+            if ex < 0.0:
+                ex = 0.0
+            s_b = s + ex
+            if s_b > send:
+                s_b = send if send > s else s
             k = ncell[r]
             if k < mtrace:
                 trace_s[r, k] = s / dn

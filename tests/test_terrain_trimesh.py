@@ -32,3 +32,23 @@ def test_triangles_agree_with_trimesh_embree():
     err = np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1)
     assert err.max() < 0.05  # issue: <= 5 cm
     assert (hit.status[~ok] == Status.LEFT_DEM).all()
+
+
+def test_walk_cells_match_core_geodetic():
+    """Every cell the exact walk visits (start cell, cells after a block skip, steps) is the
+    cell under its entry point by the core's ECEF -> geodetic conversion: the kernel finds
+    them from plane/cone sides, not from latitudes and longitudes."""
+    dem = DEM.open(SRTM)
+    los = random_oblique_rays(dem, 400, np.random.default_rng(12), frame_angle_deg=(0.0, 85.0))
+    hit = intersect_dem(los, dem, "exact", surface="triangles", trace=True)
+    tr, g = hit.trace, dem.grid
+    fi = (np.deg2rad(g.lat_north_deg) - tr.lat) / np.deg2rad(g.dlat_deg)
+    fj = (tr.lon - np.deg2rad(g.lon_west_deg)) / np.deg2rad(g.dlon_deg)
+    valid = np.arange(tr.H.shape[1])[None, :] < tr.count[:, None]
+    assert valid.sum() > 2000  # enough entries, starts and block skips among them
+    # an entry point lies on the boundary it crossed: only the coordinate off the grid
+    # lines (by more than 1e-6 cell, i.e. 0.1 mm, far above float rounding) is decisive
+    for f, c in ((fi, tr.cell[..., 0]), (fj, tr.cell[..., 1])):
+        off = valid & (np.abs(f - np.round(f)) > 1e-6)
+        assert off.sum() > 1000
+        assert np.array_equal(np.floor(f[off]).astype(int), c[off])
