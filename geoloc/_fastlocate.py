@@ -19,6 +19,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from ._nbgeo import geodetic
 from .ellipsoid import A, B, E2
 from .status import Status
 
@@ -38,7 +39,6 @@ def locate_kernel(lat, lon, h, heading, pitch, roll, groll, gpitch, row, col, ta
                   f, i0, j0, ranges, out_lat, out_lon, out_h, out_ecef, out_s, out_o, out_d,
                   out_status):
     n = lat.shape[0]
-    e4 = E2 * E2
     for k in prange(n):
         ok = (_in(lat[k], ranges[0, 0], ranges[0, 1]) and _in(lon[k], ranges[1, 0], ranges[1, 1])
               and _in(h[k], ranges[2, 0], ranges[2, 1])
@@ -113,22 +113,7 @@ def locate_kernel(lat, lon, h, heading, pitch, roll, groll, gpitch, row, col, ta
             out_h[k] = math.nan
             continue
         # ECEF -> geodetic, Vermeille's closed form (as geoloc.ellipsoid.ecef_to_geodetic)
-        rho2 = px * px + py * py
-        rho = math.sqrt(rho2)
-        p = rho2 / (A * A)
-        q = (1.0 - E2) * pz * pz / (A * A)
-        r = (p + q - e4) / 6.0
-        s_ = e4 * p * q / (4.0 * r * r * r)
-        t = np.cbrt(1.0 + s_ + math.sqrt(s_ * (2.0 + s_)))
-        u = r * (1.0 + t + 1.0 / t)
-        v = math.sqrt(u * u + e4 * q)
-        w = E2 * (u + v - q) / (2.0 * v)
-        kk = math.sqrt(u + v + w * w) - w
-        d = kk * rho / (kk + E2)
-        dzz = math.sqrt(d * d + pz * pz)
-        out_lat[k] = 2.0 * math.atan2(pz, d + dzz)
-        out_lon[k] = math.atan2(py, px)
-        out_h[k] = (kk + E2 - 1.0) / kk * dzz
+        out_lat[k], out_lon[k], out_h[k] = geodetic(px, py, pz)
 
 
 def locate_fast(pose, camera, row, col, target_h):

@@ -31,6 +31,7 @@ import types
 import numpy as np
 from numba import njit, prange
 
+from ._nbgeo import geodetic, geodetic_up
 from .ellipsoid import A, B, E2
 from .status import Status
 
@@ -44,54 +45,6 @@ _INVALID = int(Status.INVALID_INPUT)
 BLOCK = 8
 
 
-@njit(cache=True, error_model="numpy")
-def geodetic(x, y, z):
-    """Scalar Vermeille (2002/2004) ECEF -> (lat, lon, h), as geoloc.ellipsoid.ecef_to_geodetic."""
-    e4 = E2 * E2
-    rho2 = x * x + y * y
-    rho = math.sqrt(rho2)
-    p = rho2 / (A * A)
-    q = (1.0 - E2) * z * z / (A * A)
-    r = (p + q - e4) / 6.0
-    s = e4 * p * q / (4.0 * r * r * r)
-    t = math.pow(1.0 + s + math.sqrt(s * (2.0 + s)), 1.0 / 3.0)
-    u = r * (1.0 + t + 1.0 / t)
-    v = math.sqrt(u * u + e4 * q)
-    w = E2 * (u + v - q) / (2.0 * v)
-    k = math.sqrt(u + v + w * w) - w
-    d = k * rho / (k + E2)
-    dz = math.hypot(d, z)
-    lat = 2.0 * math.atan2(z, d + dz)
-    h = (k + E2 - 1.0) / k * dz
-    lon = math.atan2(y, x)
-    return lat, lon, h
-
-
-@njit(cache=True, error_model="numpy")
-def geodetic_up(x, y, z):
-    """Vermeille as :func:`geodetic`, plus the outward normal (cos phi cos lam, cos phi sin lam, sin phi).
-
-    phi = atan2(z, d) in Vermeille's notation, so the normal needs no trigonometry.
-    """
-    e4 = E2 * E2
-    rho2 = x * x + y * y
-    rho = math.sqrt(rho2)
-    p = rho2 / (A * A)
-    q = (1.0 - E2) * z * z / (A * A)
-    r = (p + q - e4) / 6.0
-    s = e4 * p * q / (4.0 * r * r * r)
-    t = math.pow(1.0 + s + math.sqrt(s * (2.0 + s)), 1.0 / 3.0)
-    u = r * (1.0 + t + 1.0 / t)
-    v = math.sqrt(u * u + e4 * q)
-    w = E2 * (u + v - q) / (2.0 * v)
-    k = math.sqrt(u + v + w * w) - w
-    d = k * rho / (k + E2)
-    dz = math.hypot(d, z)
-    lat = 2.0 * math.atan2(z, d + dz)
-    h = (k + E2 - 1.0) / k * dz
-    lon = math.atan2(y, x)
-    cphi = d / dz
-    return lat, lon, h, cphi * x / rho, cphi * y / rho, z / dz
 
 
 @njit(cache=True, error_model="numpy")
