@@ -6,15 +6,13 @@ See ``docs/calibration.md`` and :mod:`geoloc.calibrate`.
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from ..assets import DEFAULT_RECORDS, asset_path
+from ..assets import asset_path
 from ..calibrate import MODELS, DemTarget, HeightTarget, calibrate_groups, resect_camera
-from ..records import load_records
-from .locate import load_camera
+from .locate import load_camera, load_records_reporting
 
 
 def register(sub) -> None:
@@ -108,11 +106,7 @@ def _fmt(v, spec=".2f"):
 
 
 def run(args) -> int:
-    records = load_records(args.records if args.records else asset_path(*DEFAULT_RECORDS))
-    for err in records.errors:
-        print(f"{records.path}: skipped {err}", file=sys.stderr)
-    if len(records) == 0:
-        raise ValueError(f"{records.path}: no valid record")
+    records = load_records_reporting(args.records)
     if args.exaggeration <= 0 or not np.isfinite(args.exaggeration):
         raise ValueError(f"--exaggeration = {args.exaggeration}: must be a finite number > 0")
     camera = load_camera(args.camera)

@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 
 import numpy as np
 
-from ..assets import DEFAULT_CAMERA, asset_path
+from ..assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from ..camera import Camera
 from ..frames import Pose
 from ..locate import intersect_los_height, line_of_sight
+from ..records import Records, load_records
 from ..status import Status, describe
 
 
@@ -51,6 +53,17 @@ def register(sub) -> None:
 
 def load_camera(path) -> Camera:
     return Camera.from_toml(path if path else asset_path(*DEFAULT_CAMERA))
+
+
+def load_records_reporting(path) -> Records:
+    """Records from ``path`` (default: the bundled flight test); each rejected row is
+    reported on stderr with its line, and no good row at all is an error."""
+    records = load_records(path if path else asset_path(*DEFAULT_RECORDS))
+    for err in records.errors:
+        print(f"{records.path}: skipped {err}", file=sys.stderr)
+    if len(records) == 0:
+        raise ValueError(f"{records.path}: no valid record")
+    return records
 
 
 def pose_from_args(args) -> Pose:

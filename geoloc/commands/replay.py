@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import sys
 
-from ..assets import DEFAULT_RECORDS, asset_path
-from ..records import load_records
 from ..replay import replay_at_height, summary_table, write_replay_csv
-from .locate import load_camera
+from .locate import load_camera, load_records_reporting
 
 
 def register(sub) -> None:
@@ -36,11 +33,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    records = load_records(args.records if args.records else asset_path(*DEFAULT_RECORDS))
-    for err in records.errors:
-        print(f"{records.path}: skipped {err}", file=sys.stderr)
-    if len(records) == 0:
-        raise ValueError(f"{records.path}: no valid record to replay")
+    records = load_records_reporting(args.records)
     camera = load_camera(args.camera)
     if args._terrain_hook is not None:
         result = args._terrain_hook(args, records, camera)
