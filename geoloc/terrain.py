@@ -291,14 +291,16 @@ def _exact_tables(dem: DEM):
     lon_w = np.deg2rad(g.lon_west_deg)
     dlat = np.deg2rad(g.dlat_deg)
     dlon = np.deg2rad(g.dlon_deg)
-    lat_rows = lat_n - dlat * np.arange(nr)
-    lon_cols = lon_w + dlon * np.arange(nc)
+    # node latitudes and longitudes as DEM.mesh has them: the cell boundaries below and
+    # the triangle nodes of the kernel (geodetic_to_ecef's operations on these tables
+    # give the mesh's vertices) come from the same numbers
+    lat_deg, lon_deg = dem.node_latlon_deg()
+    lat_rows, lon_cols = np.deg2rad(lat_deg[:, 0]), np.deg2rad(lon_deg[0, :])
+    rn = prime_vertical_radius(lat_rows)
+    row_geo = np.ascontiguousarray(np.stack([rn, np.cos(lat_rows), rn * (1.0 - E2), np.sin(lat_rows), lat_rows], -1))
     # parallel of geodetic latitude phi: z + R_N e^2 sin(phi) = rho tan(phi)
     tan_row = np.tan(lat_rows)
-    c_row = prime_vertical_radius(lat_rows) * E2 * np.sin(lat_rows)
-    v, _ = dem.mesh()
-    nodes = np.ascontiguousarray(v.reshape(nr, nc, 3))
-    nodes[~np.isfinite(hgt)] = np.nan
+    c_row = rn * E2 * np.sin(lat_rows)
     cmax = np.ascontiguousarray(dem.cell_max())
     # skip test of the walk: the ellipsoid inflated to the cell's highest node + margin
     # [Q17 eq. 11]; it departs from the constant-height surface by far less than the margin
@@ -319,7 +321,7 @@ def _exact_tables(dem: DEM):
     bmax[: nr - 1, : nc - 1] = cmax  # NaN (no data) propagates: such blocks are never skipped
     bmax = bmax.reshape(nbr, BLOCK, nbc, BLOCK).max(axis=(1, 3)) + _MARGIN_M
     binv = np.ascontiguousarray(np.stack([1 / (A + bmax) ** 2, 1 / (B + bmax) ** 2], -1))
-    tab = dict(hgt=hgt, cmax=cmax, cinv=cinv, binv=binv, nodes=nodes, lat_n=lat_n,
+    tab = dict(hgt=hgt, lon_col=lon_cols, cinv=cinv, binv=binv, row_geo=row_geo, lat_n=lat_n,
                lon_w=lon_w, dlat=dlat, dlon=dlon, tan_row=tan_row, c_row=c_row,
                sin_col=np.sin(lon_cols), cos_col=np.cos(lon_cols))
     dem._exact_tables = tab
@@ -327,22 +329,24 @@ def _exact_tables(dem: DEM):
 
 
 def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
+    """The compiled walk: (ECEF hit, cells visited, s, trace, (lat, lon, h, range)); NaN where no hit."""
     from . import terrain_numba as tn
 
     tab = _exact_tables(dem)
     n = len(o)
     s_out = np.empty(n)
+    p_out = np.empty((n, 3))
+    geo_out = np.empty((n, 4))
     ncell = np.empty(n, dtype=np.int64)
     m = max_cells if trace_on else 0
     trace_s = np.full((n, m), np.nan)
     trace_ij = np.full((n, m, 2), -1, dtype=np.int64)
     (tn.walk_parallel if parallel else tn.walk)(
         o, d, dem.max_height() + _MARGIN_M, dem.min_height() - _MARGIN_M,
-        tab["hgt"], tab["cmax"], tab["cinv"], tab["binv"], tab["nodes"], tab["lat_n"], tab["lon_w"],
+        tab["hgt"], tab["lon_col"], tab["cinv"], tab["binv"], tab["row_geo"], tab["lat_n"], tab["lon_w"],
         tab["dlat"], tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"],
-        surface == "triangles", s_out, st, ncell, trace_s, trace_ij)
-    out = o + s_out[:, None] * d
-    return out, ncell, s_out, (trace_s, trace_ij)
+        surface == "triangles", s_out, p_out, geo_out, st, ncell, trace_s, trace_ij)
+    return p_out, ncell, s_out, (trace_s, trace_ij), geo_out.T
 
 
 # --------------------------------------------------------------------------- front end
@@ -400,12 +404,12 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
         ok = st == Status.OK
         s_bis = np.sum((p - o) * d, -1)
         if dem.is_geographic:
-            _, _, s_first, _ = _exact(o, d, st.copy(), dem, "bilinear", False)
+            s_first = _exact(o, d, st.copy(), dem, "bilinear", False)[2]
         else:
             s_first = _first_sampled(o, d, dem)
         hidden = _hidden(o, d, s_bis, s_first, dem, ok)
     else:
-        p, evals, s, (ts, tij) = _exact(o, d, st, dem, surface, trace, parallel=parallel)
+        p, evals, s, (ts, tij), geo = _exact(o, d, st, dem, surface, trace, parallel=parallel)
         if trace:
             m = int(evals.max()) if n else 0
             m = min(m, ts.shape[1])
@@ -419,9 +423,12 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
                               np.full(shape + (m,), np.nan), tij.reshape(shape + (m, 2)),
                               np.minimum(evals, m).reshape(shape))
     ok = st == Status.OK
-    p = np.where(ok[:, None], p, np.nan)
-    lat, lon, h = ecef_to_geodetic(p)
-    rng = np.linalg.norm(p - o, axis=-1)
+    if method == "exact":  # the kernel converted its hits (NaN elsewhere)
+        lat, lon, h, rng = geo
+    else:
+        p = np.where(ok[:, None], p, np.nan)
+        lat, lon, h = ecef_to_geodetic(p)
+        rng = np.linalg.norm(p - o, axis=-1)
     r = lambda a: a.reshape(shape)  # noqa: E731
     return TerrainHit(r(lat), r(lon), r(h), p.reshape(shape + (3,)), r(rng), r(st), r(evals),
                       r(hidden & ok), method, surface, tr,
