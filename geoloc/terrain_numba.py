@@ -169,8 +169,9 @@ def _par_exit(tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, s, north):
     sq = math.sqrt(disc)
     sg = math.copysign(1.0, hb)
     qq = -(hb + sg * sq)
-    r0 = qq / qa  # qa r0 + hb = -sg sq
-    r1 = qc / qq  # qa r1 + hb = +sg sq
+    inv = 1.0 / (qq * qa)  # one division for both roots
+    r0 = qq * qq * inv  # = qq / qa: qa r0 + hb = -sg sq
+    r1 = qc * qa * inv  # = qc / qq: qa r1 + hb = +sg sq
     if ((sg * tanp) > 0.0) == north:  # G rises at r1
         rx = r1
         re = r0
@@ -232,7 +233,7 @@ def _geodetic_near(x, y, z, lat0, s0, c0, lon0, sl0, cl0):
         dl -= step
         if not abs(dl) < 2e-3:
             return np.nan, np.nan, np.nan
-        if abs(step) < 1e-14:
+        if abs(step) < 1e-9:  # Newton: the error left is ~ step^2 < 1e-18 rad
             d2 = dl * dl
             sd = dl * (1.0 - d2 * (1.0 / 6.0 - d2 / 120.0))
             cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 / 720.0))
@@ -560,7 +561,8 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
             bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
         bN, bN2 = _par_exit(tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
         bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
-        came = 4  # how the block was entered: 0 north side, 1 south side, 2 meridian, 4 start
+        came = 4  # how the block was entered: 0 north side, 1 south side, 2 meridian;
+        # 4: the cell (i, j) is known, 5: s is inside the block
         done = False
         while not done:
             if steps > max_steps:
@@ -581,22 +583,31 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
                 qc = oxy2 * ia + oz2 * ib - 1.0
                 clear = (((qa * s + 2.0 * hb) * s + qc > 0.0) and ((qa * e + 2.0 * hb) * e + qc > 0.0)
                          and not (qa * s < -hb and -hb < qa * e and hb * hb >= qa * qc))
+            if not clear and ia == ia:
+                # until the ray meets the block's inflated ellipsoid it is above all of the
+                # block's terrain: the cell walk starts there (the first root of F), not at
+                # the block's side (those cells would all be skipped, one step each)
+                if (qa * s + 2.0 * hb) * s + qc > 0.0:
+                    disc = hb * hb - qa * qc
+                    if disc > 0.0:
+                        s_in = qc / (math.sqrt(disc) - hb)  # the smaller root (hb < 0 here)
+                        if s_in > s:
+                            s = s_in if s_in < sx else sx
+                            came = 5
+                            geo_ok = False
             k = steps
             if not clear or k < mtrace:
                 # the cell at s: the coordinate along the side the block was entered by is
-                # the side of the block's inner meridian planes (or parallel cones) s is on
+                # known; the other is the side of the block's inner meridian planes (or
+                # parallel cones) s is on (both inside the block: came 5)
                 if came != 4:
                     qx = ox + s * dx
                     qy = oy + s * dy
-                    if came <= 1:
-                        i = i0 if came == 0 else i1 - 1
-                        j = j0
-                        for m in range(j0 + 1, j1):
-                            if cos_col[m] * qy - sin_col[m] * qx < 0.0:  # west of meridian m
-                                break
-                            j = m
+                    if came == 0:
+                        i = i0
+                    elif came == 1:
+                        i = i1 - 1
                     else:
-                        j = j0 if east else j1 - 1
                         qz = oz + s * dz
                         rho = math.sqrt(qx * qx + qy * qy)
                         i = i0
@@ -604,6 +615,14 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
                             if qz + c_row[m] - rho * tan_row[m] >= 0.0:  # north of parallel m
                                 break
                             i = m
+                    if came == 2:
+                        j = j0 if east else j1 - 1
+                    else:
+                        j = j0
+                        for m in range(j0 + 1, j1):
+                            if cos_col[m] * qy - sin_col[m] * qx < 0.0:  # west of meridian m
+                                break
+                            j = m
                     came = 4
                 if k < mtrace:
                     trace_s[r, k] = s * idn

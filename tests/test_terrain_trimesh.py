@@ -35,11 +35,11 @@ def test_triangles_agree_with_trimesh_embree():
 
 
 def test_walk_cells_match_core_geodetic():
-    """Every cell the exact walk visits (start cell, cells after a block skip, steps) is the
-    cell under its entry point by the core's ECEF -> geodetic conversion: the kernel finds
+    """Every cell the exact walk visits (start cell, cells after a block skip, the cell where
+    the ray meets a block's bounding ellipsoid, steps) is the cell under its entry point by the core's ECEF -> geodetic conversion: the kernel finds
     them from plane/cone sides, not from latitudes and longitudes."""
     dem = DEM.open(SRTM)
-    los = random_oblique_rays(dem, 400, np.random.default_rng(12), frame_angle_deg=(0.0, 85.0))
+    los = random_oblique_rays(dem, 700, np.random.default_rng(12), frame_angle_deg=(0.0, 85.0))
     hit = intersect_dem(los, dem, "exact", surface="triangles", trace=True)
     tr, g = hit.trace, dem.grid
     fi = (np.deg2rad(g.lat_north_deg) - tr.lat) / np.deg2rad(g.dlat_deg)
