@@ -196,14 +196,15 @@ def _geodetic_near(x, y, z, lat0, s0, c0, lon0, sl0, cl0):
     meridian lon0 (sin, cos sl0, cl0), e.g. a hit and the corner of its cell.
 
     lon = lon0 + atan(u), u = tan(lon - lon0) from the meridian's plane, by its series;
-    lat = lat0 + delta by Newton's method on the foot-of-normal condition
-    g = rho sin(phi) - z cos(phi) - e^2 R_N(phi) sin(phi) cos(phi) = 0 (from
-    x = (R_N + h) cos phi cos lambda, z = (R_N (1 - e^2) + h) sin phi), with sin and
-    cos of lat0 + delta from the tables and the series of delta, then
-    h = rho cos(phi) + z sin(phi) - a sqrt(1 - e^2 sin^2 phi). No libm call (the
-    closed form's atan2, atan2, pow and hypot were a tenth of the walk). Returns
-    NaN, NaN, NaN when the point is more than 2e-3 rad from the corner (the caller
-    then uses :func:`geodetic`).
+    lat = lat0 + delta, the root of the foot-of-normal condition
+    W(phi) (rho sin(phi) - z cos(phi)) - e^2 a sin(phi) cos(phi) = 0, W = sqrt(1 - e^2 sin^2 phi)
+    (R_N W = a; from x = (R_N + h) cos phi cos lambda, z = (R_N (1 - e^2) + h) sin phi),
+    by chord steps with the derivative at lat0 (the first step is Newton's; each
+    next one gains a factor |delta| <= a cell), sin and cos of lat0 + delta from the
+    tables and the series of delta; then h = rho cos(phi) + z sin(phi) - a W.
+    One division and no libm call (the closed form's atan2, atan2, pow and hypot
+    were a tenth of the walk). Returns NaN, NaN, NaN when the point is more than
+    2e-3 rad from the corner (the caller then uses :func:`geodetic`).
     """
     rho = math.sqrt(x * x + y * y)
     u = (cl0 * y - sl0 * x) / (cl0 * x + sl0 * y)
@@ -215,33 +216,29 @@ def _geodetic_near(x, y, z, lat0, s0, c0, lon0, sl0, cl0):
         lon -= 2.0 * math.pi
     elif lon <= -math.pi:
         lon += 2.0 * math.pi
-    dl = 0.0
+    w = math.sqrt(1.0 - E2 * s0 * s0)
+    f = rho * s0 - z * c0
+    g = w * f - E2 * A * s0 * c0
+    dg = -E2 * s0 * c0 / w * f + w * (rho * c0 + z * s0) - E2 * A * (c0 * c0 - s0 * s0)
+    idg = 1.0 / dg
+    dl = -g * idg
     sp = s0
     cp = c0
-    w2 = 1.0
-    for _ in range(6):
+    for _ in range(8):
+        if not abs(dl) < 2e-3:
+            return np.nan, np.nan, np.nan
         d2 = dl * dl
         sd = dl * (1.0 - d2 * (1.0 / 6.0 - d2 / 120.0))
         cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 / 720.0))
         sp = s0 * cd + c0 * sd
         cp = c0 * cd - s0 * sd
-        w2 = 1.0 - E2 * sp * sp
-        rn = A / math.sqrt(w2)
-        g = rho * sp - z * cp - E2 * rn * sp * cp
-        dg = rho * cp + z * sp - E2 * rn * ((cp * cp - sp * sp) + E2 * sp * sp * cp * cp / w2)
-        step = g / dg
+        w = math.sqrt(1.0 - E2 * sp * sp)
+        step = (w * (rho * sp - z * cp) - E2 * A * sp * cp) * idg
         dl -= step
-        if not abs(dl) < 2e-3:
-            return np.nan, np.nan, np.nan
-        if abs(step) < 1e-9:  # Newton: the error left is ~ step^2 < 1e-18 rad
-            d2 = dl * dl
-            sd = dl * (1.0 - d2 * (1.0 / 6.0 - d2 / 120.0))
-            cd = 1.0 - d2 * (0.5 - d2 * (1.0 / 24.0 - d2 / 720.0))
-            sp = s0 * cd + c0 * sd
-            cp = c0 * cd - s0 * sd
-            w2 = 1.0 - E2 * sp * sp
+        if abs(step) < 1e-13:  # the error left is ~ |delta| |step| < 1e-16 rad
             break
-    h = rho * cp + z * sp - A * math.sqrt(w2)
+    # h at the previous iterate: a latitude error e changes h by ~ R e^2 (< 1e-12 m)
+    h = rho * cp + z * sp - A * w
     return lat0 + dl, lon, h
 
 
