@@ -567,10 +567,10 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
                 break
             # ------------------------------------------------ block level
             sx = min(bN, bS, bM)
-            ia = binv[bi, bj, 0]
+            ia = binv[np.uint64(bi), np.uint64(bj), 0]
             clear = False
             if ia == ia:  # NaN: no data in the block, never skipped
-                ib = binv[bi, bj, 1]
+                ib = binv[np.uint64(bi), np.uint64(bj), 1]
                 e = sx if sx < send else send
                 # F(s) = qa s^2 + 2 hb s + qc = |P'(s)|^2 - 1 on the block's inflated
                 # ellipsoid is convex: clear iff F > 0 at both ends and at the vertex
@@ -699,12 +699,16 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
                     trace_ij[r, k, 1] = j
                 steps = k + 1
                 # cinv is NaN exactly where the cell has no data: one table read, not two
-                ia = cinv[i, j, 0]
+                # unsigned indices (i, j >= 0 here): numba then emits no negative-index
+                # wraparound on the table reads (+3 %)
+                ui = np.uint64(i)
+                uj = np.uint64(j)
+                ia = cinv[ui, uj, 0]
                 if ia != ia:
                     st = _NODATA
                     done = True
                     break
-                ib = cinv[i, j, 1]
+                ib = cinv[ui, uj, 1]
                 qa = dxy2 * ia + dz2 * ib
                 hb = oxd * ia + ozd * ib
                 qc = oxy2 * ia + oz2 * ib - 1.0
@@ -717,22 +721,22 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
                         # the cell's nodes (i, j), (i+1, j), (i+1, j+1), then (i, j+1), from the
                         # heights as geodetic_to_ecef computes them for DEM.mesh (same tables,
                         # same operations: the same vertices as the trimesh mesh)
-                        ra = row_geo[i, 0]
-                        ca = row_geo[i, 1]
-                        rba = row_geo[i, 2]
-                        sa = row_geo[i, 3]
-                        rb = row_geo[i + 1, 0]
-                        cb = row_geo[i + 1, 1]
-                        rbb = row_geo[i + 1, 2]
-                        sb = row_geo[i + 1, 3]
-                        cl0 = cos_col[j]
-                        sl0 = sin_col[j]
-                        cl1 = cos_col[j + 1]
-                        sl1 = sin_col[j + 1]
-                        h00 = hgt[i, j]
-                        h01 = hgt[i, j + 1]
-                        h10 = hgt[i + 1, j]
-                        h11 = hgt[i + 1, j + 1]
+                        ra = row_geo[ui, 0]
+                        ca = row_geo[ui, 1]
+                        rba = row_geo[ui, 2]
+                        sa = row_geo[ui, 3]
+                        rb = row_geo[ui + np.uint64(1), 0]
+                        cb = row_geo[ui + np.uint64(1), 1]
+                        rbb = row_geo[ui + np.uint64(1), 2]
+                        sb = row_geo[ui + np.uint64(1), 3]
+                        cl0 = cos_col[uj]
+                        sl0 = sin_col[uj]
+                        cl1 = cos_col[uj + np.uint64(1)]
+                        sl1 = sin_col[uj + np.uint64(1)]
+                        h00 = hgt[ui, uj]
+                        h01 = hgt[ui, uj + np.uint64(1)]
+                        h10 = hgt[ui + np.uint64(1), uj]
+                        h11 = hgt[ui + np.uint64(1), uj + np.uint64(1)]
                         n0x = (ra + h00) * ca * cl0
                         n0y = (ra + h00) * ca * sl0
                         n0z = (rba + h00) * sa
