@@ -561,7 +561,8 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
         came = 4  # how the block was entered: 0 north side, 1 south side, 2 meridian;
         # 4: the cell (i, j) is known, 5: s is inside the block
         done = False
-        while not done:
+        side = 0
+        while True:
             if steps > max_steps:
                 st = _NOCONV
                 break
@@ -632,221 +633,197 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
                     st = st_end
                     break
                 s = sx
-                if sx == bM:
-                    bj += dj
-                    if bj < 0 or bj >= nbc:
-                        st = _LEFT
-                        break
-                    j0 = bj * BLOCK
-                    j1 = min(j0 + BLOCK, nc - 1)
-                    jm = j1 if east else j0
-                    bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
-                    came = 2
-                elif sx == bN:
-                    bi -= 1
-                    if bi < 0:
-                        st = _LEFT
-                        break
-                    i1 = i0
-                    i0 = bi * BLOCK
-                    bS = bN2
-                    bS2 = np.inf
-                    bN, bN2 = _par_exit(tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
-                    came = 1
-                else:
-                    bi += 1
-                    if bi >= nbr:
-                        st = _LEFT
-                        break
-                    i0 = i1
-                    i1 = min(i0 + BLOCK, nr - 1)
-                    bN = bS2
-                    bN2 = np.inf
-                    bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
-                    came = 0
-                continue
-            # ------------------------------------------------ cell level, inside block (bi, bj)
-            cM = np.inf
-            if along:
-                if (j + 1 == j1) if east else (j == j0):
-                    cM = bM
-                else:
-                    jm = j + 1 if east else j
-                    cM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
-            if i == i0:
-                cN = bN
-                cN2 = bN2
+                side = 2 if sx == bM else (0 if sx == bN else 1)
             else:
-                cN, cN2 = _par_exit(tan_row[i], c_row[i], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
-            if i + 1 == i1:
-                cS = bS
-                cS2 = bS2
-            else:
-                cS, cS2 = _par_exit(tan_row[i + 1], c_row[i + 1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
-            while True:
-                if steps > max_steps:
-                    st = _NOCONV
-                    done = True
-                    break
-                cx = min(cN, cS, cM)
-                s_b = cx
-                if s_b > send:
-                    s_b = send if send > s else s
-                k = steps
-                if k < mtrace:
-                    trace_s[r, k] = s * idn
-                    trace_ij[r, k, 0] = i
-                    trace_ij[r, k, 1] = j
-                steps = k + 1
-                # cinv is NaN exactly where the cell has no data: one table read, not two
-                # unsigned indices (i, j >= 0 here): numba then emits no negative-index
-                # wraparound on the table reads (+3 %)
-                ui = np.uint64(i)
-                uj = np.uint64(j)
-                ia = cinv[ui, uj, 0]
-                if ia != ia:
-                    st = _NODATA
-                    done = True
-                    break
-                ib = cinv[ui, uj, 1]
-                qa = dxy2 * ia + dz2 * ib
-                hb = oxd * ia + ozd * ib
-                qc = oxy2 * ia + oz2 * ib - 1.0
-                if not (((qa * s + 2.0 * hb) * s + qc > 0.0) and ((qa * s_b + 2.0 * hb) * s_b + qc > 0.0)
-                        and not (qa * s < -hb and -hb < qa * s_b and hb * hb >= qa * qc)):
-                    px = ox + s * dx
-                    py = oy + s * dy
-                    pz = oz + s * dz
-                    if triangles:
-                        # the cell's nodes (i, j), (i+1, j), (i+1, j+1), then (i, j+1), from the
-                        # heights as geodetic_to_ecef computes them for DEM.mesh (same tables,
-                        # same operations: the same vertices as the trimesh mesh)
-                        ra = row_geo[ui, 0]
-                        ca = row_geo[ui, 1]
-                        rba = row_geo[ui, 2]
-                        sa = row_geo[ui, 3]
-                        rb = row_geo[ui + np.uint64(1), 0]
-                        cb = row_geo[ui + np.uint64(1), 1]
-                        rbb = row_geo[ui + np.uint64(1), 2]
-                        sb = row_geo[ui + np.uint64(1), 3]
-                        cl0 = cos_col[uj]
-                        sl0 = sin_col[uj]
-                        cl1 = cos_col[uj + np.uint64(1)]
-                        sl1 = sin_col[uj + np.uint64(1)]
-                        h00 = hgt[ui, uj]
-                        h01 = hgt[ui, uj + np.uint64(1)]
-                        h10 = hgt[ui + np.uint64(1), uj]
-                        h11 = hgt[ui + np.uint64(1), uj + np.uint64(1)]
-                        n0x = (ra + h00) * ca * cl0
-                        n0y = (ra + h00) * ca * sl0
-                        n0z = (rba + h00) * sa
-                        n1x = (rb + h10) * cb * cl0
-                        n1y = (rb + h10) * cb * sl0
-                        n1z = (rbb + h10) * sb
-                        n2x = (rb + h11) * cb * cl1
-                        n2y = (rb + h11) * cb * sl1
-                        n2z = (rbb + h11) * sb
-                        t1 = _tri(ox, oy, oz, dx, dy, dz, n0x, n0y, n0z, n1x, n1y, n1z, n2x, n2y, n2z)
-                        t2 = _tri(ox, oy, oz, dx, dy, dz, n0x, n0y, n0z, n2x, n2y, n2z,
-                                  (ra + h01) * ca * cl1, (ra + h01) * ca * sl1, (rba + h01) * sa)
-                        if t1 < best or t2 < best:
-                            best = min(t1, t2, best)
-                            hit_i = i
-                            hit_j = j
-                        geo_ok = False
-                    else:
-                        if not geo_ok:
-                            lat, lon, h, nx, ny, nz = geodetic_up(px, py, pz)
-                            lon = _wrap(lon, lon_w)
-                            g = nx * dx + ny * dy + nz * dz
-                        lat_b, lon_b, h_b, nx, ny, nz = geodetic_up(ox + s_b * dx, oy + s_b * dy, oz + s_b * dz)
-                        lon_b = _wrap(lon_b, lon_w)
-                        t1 = _bilinear_cell(ox, oy, oz, dx, dy, dz, s, s_b, lat, lon, h, g,
-                                            lat_b, lon_b, h_b, hgt[i, j], hgt[i, j + 1], hgt[i + 1, j],
-                                            hgt[i + 1, j + 1], i, j, lat_n, lon_w, dlat, dlon)
-                        if t1 < best:
-                            best = t1
-                            hit_i = i
-                            hit_j = j
-                        lat = lat_b
-                        lon = lon_b
-                        h = h_b
-                        g = nx * dx + ny * dy + nz * dz
-                        geo_ok = True
-                else:
-                    geo_ok = False
-                if best <= s_b + 1e-9:
-                    st = _OK
-                    done = True
-                    break
-                if s_b >= send or cx == np.inf:
-                    st = st_end
-                    done = True
-                    break
-                s = cx
-                if cx == cM:
-                    j += dj
-                    if j < j0 or j >= j1:  # into the next block
-                        bj += dj
-                        if bj < 0 or bj >= nbc:
-                            st = _LEFT
-                            done = True
-                            break
-                        j0 = bj * BLOCK
-                        j1 = min(j0 + BLOCK, nc - 1)
-                        jm = j1 if east else j0
-                        bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
-                        came = 2
-                        break
+                # ------------------------------------------------ cell level, inside block (bi, bj)
+                cM = np.inf
+                if along:
                     if (j + 1 == j1) if east else (j == j0):
                         cM = bM
                     else:
                         jm = j + 1 if east else j
                         cM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
-                elif cx == cN:
-                    i -= 1
-                    if i < i0:
-                        bi -= 1
-                        if bi < 0:
-                            st = _LEFT
-                            done = True
-                            break
-                        i1 = i0
-                        i0 = bi * BLOCK
-                        bS = bN2
-                        bS2 = np.inf
-                        bN, bN2 = _par_exit(tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
-                        came = 1
-                        break
-                    cS = cN2
-                    cS2 = np.inf
-                    if i == i0:
-                        cN = bN
-                        cN2 = bN2
-                    else:
-                        cN, cN2 = _par_exit(tan_row[i], c_row[i], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
+                if i == i0:
+                    cN = bN
+                    cN2 = bN2
                 else:
-                    i += 1
-                    if i >= i1:
-                        bi += 1
-                        if bi >= nbr:
-                            st = _LEFT
-                            done = True
-                            break
-                        i0 = i1
-                        i1 = min(i0 + BLOCK, nr - 1)
-                        bN = bS2
-                        bN2 = np.inf
-                        bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
-                        came = 0
+                    cN, cN2 = _par_exit(tan_row[i], c_row[i], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
+                if i + 1 == i1:
+                    cS = bS
+                    cS2 = bS2
+                else:
+                    cS, cS2 = _par_exit(tan_row[i + 1], c_row[i + 1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
+                while True:
+                    if steps > max_steps:
+                        st = _NOCONV
+                        done = True
                         break
-                    cN = cS2
-                    cN2 = np.inf
-                    if i + 1 == i1:
-                        cS = bS
-                        cS2 = bS2
+                    cx = min(cN, cS, cM)
+                    s_b = cx
+                    if s_b > send:
+                        s_b = send if send > s else s
+                    k = steps
+                    if k < mtrace:
+                        trace_s[r, k] = s * idn
+                        trace_ij[r, k, 0] = i
+                        trace_ij[r, k, 1] = j
+                    steps = k + 1
+                    # cinv is NaN exactly where the cell has no data: one table read, not two
+                    # unsigned indices (i, j >= 0 here): numba then emits no negative-index
+                    # wraparound on the table reads (+3 %)
+                    ui = np.uint64(i)
+                    uj = np.uint64(j)
+                    ia = cinv[ui, uj, 0]
+                    if ia != ia:
+                        st = _NODATA
+                        done = True
+                        break
+                    ib = cinv[ui, uj, 1]
+                    qa = dxy2 * ia + dz2 * ib
+                    hb = oxd * ia + ozd * ib
+                    qc = oxy2 * ia + oz2 * ib - 1.0
+                    if not (((qa * s + 2.0 * hb) * s + qc > 0.0) and ((qa * s_b + 2.0 * hb) * s_b + qc > 0.0)
+                            and not (qa * s < -hb and -hb < qa * s_b and hb * hb >= qa * qc)):
+                        px = ox + s * dx
+                        py = oy + s * dy
+                        pz = oz + s * dz
+                        if triangles:
+                            # the cell's nodes (i, j), (i+1, j), (i+1, j+1), then (i, j+1), from the
+                            # heights as geodetic_to_ecef computes them for DEM.mesh (same tables,
+                            # same operations: the same vertices as the trimesh mesh)
+                            ra = row_geo[ui, 0]
+                            ca = row_geo[ui, 1]
+                            rba = row_geo[ui, 2]
+                            sa = row_geo[ui, 3]
+                            rb = row_geo[ui + np.uint64(1), 0]
+                            cb = row_geo[ui + np.uint64(1), 1]
+                            rbb = row_geo[ui + np.uint64(1), 2]
+                            sb = row_geo[ui + np.uint64(1), 3]
+                            cl0 = cos_col[uj]
+                            sl0 = sin_col[uj]
+                            cl1 = cos_col[uj + np.uint64(1)]
+                            sl1 = sin_col[uj + np.uint64(1)]
+                            h00 = hgt[ui, uj]
+                            h01 = hgt[ui, uj + np.uint64(1)]
+                            h10 = hgt[ui + np.uint64(1), uj]
+                            h11 = hgt[ui + np.uint64(1), uj + np.uint64(1)]
+                            n0x = (ra + h00) * ca * cl0
+                            n0y = (ra + h00) * ca * sl0
+                            n0z = (rba + h00) * sa
+                            n1x = (rb + h10) * cb * cl0
+                            n1y = (rb + h10) * cb * sl0
+                            n1z = (rbb + h10) * sb
+                            n2x = (rb + h11) * cb * cl1
+                            n2y = (rb + h11) * cb * sl1
+                            n2z = (rbb + h11) * sb
+                            t1 = _tri(ox, oy, oz, dx, dy, dz, n0x, n0y, n0z, n1x, n1y, n1z, n2x, n2y, n2z)
+                            t2 = _tri(ox, oy, oz, dx, dy, dz, n0x, n0y, n0z, n2x, n2y, n2z,
+                                      (ra + h01) * ca * cl1, (ra + h01) * ca * sl1, (rba + h01) * sa)
+                            if t1 < best or t2 < best:
+                                best = min(t1, t2, best)
+                                hit_i = i
+                                hit_j = j
+                            geo_ok = False
+                        else:
+                            if not geo_ok:
+                                lat, lon, h, nx, ny, nz = geodetic_up(px, py, pz)
+                                lon = _wrap(lon, lon_w)
+                                g = nx * dx + ny * dy + nz * dz
+                            lat_b, lon_b, h_b, nx, ny, nz = geodetic_up(ox + s_b * dx, oy + s_b * dy, oz + s_b * dz)
+                            lon_b = _wrap(lon_b, lon_w)
+                            t1 = _bilinear_cell(ox, oy, oz, dx, dy, dz, s, s_b, lat, lon, h, g,
+                                                lat_b, lon_b, h_b, hgt[i, j], hgt[i, j + 1], hgt[i + 1, j],
+                                                hgt[i + 1, j + 1], i, j, lat_n, lon_w, dlat, dlon)
+                            if t1 < best:
+                                best = t1
+                                hit_i = i
+                                hit_j = j
+                            lat = lat_b
+                            lon = lon_b
+                            h = h_b
+                            g = nx * dx + ny * dy + nz * dz
+                            geo_ok = True
                     else:
-                        cS, cS2 = _par_exit(tan_row[i + 1], c_row[i + 1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
+                        geo_ok = False
+                    if best <= s_b + 1e-9:
+                        st = _OK
+                        done = True
+                        break
+                    if s_b >= send or cx == np.inf:
+                        st = st_end
+                        done = True
+                        break
+                    s = cx
+                    if cx == cM:
+                        j += dj
+                        if j < j0 or j >= j1:  # into the next block
+                            side = 2
+                            break
+                        if (j + 1 == j1) if east else (j == j0):
+                            cM = bM
+                        else:
+                            jm = j + 1 if east else j
+                            cM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
+                    elif cx == cN:
+                        i -= 1
+                        if i < i0:
+                            side = 0
+                            break
+                        cS = cN2
+                        cS2 = np.inf
+                        if i == i0:
+                            cN = bN
+                            cN2 = bN2
+                        else:
+                            cN, cN2 = _par_exit(tan_row[i], c_row[i], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
+                    else:
+                        i += 1
+                        if i >= i1:
+                            side = 1
+                            break
+                        cN = cS2
+                        cN2 = np.inf
+                        if i + 1 == i1:
+                            cS = bS
+                            cS2 = bS2
+                        else:
+                            cS, cS2 = _par_exit(tan_row[i + 1], c_row[i + 1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
+                if done:
+                    break
+            # ------------------------------------------------ into the next block, through
+            # side 0 (north), 1 (south) or 2 (the meridian ahead) of this one, at s
+            if side == 2:
+                bj += dj
+                if bj < 0 or bj >= nbc:
+                    st = _LEFT
+                    break
+                j0 = bj * BLOCK
+                j1 = min(j0 + BLOCK, nc - 1)
+                jm = j1 if east else j0
+                bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
+                came = 2
+            elif side == 0:
+                bi -= 1
+                if bi < 0:
+                    st = _LEFT
+                    break
+                i1 = i0
+                i0 = bi * BLOCK
+                bS = bN2
+                bS2 = np.inf
+                bN, bN2 = _par_exit(tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
+                came = 1
+            else:
+                bi += 1
+                if bi >= nbr:
+                    st = _LEFT
+                    break
+                i0 = i1
+                i1 = min(i0 + BLOCK, nr - 1)
+                bN = bS2
+                bN2 = np.inf
+                bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
+                came = 0
         ncell[r] = steps
         if best < np.inf and st != _OK:
             # a triangle sliver found beyond the last cell: still the first hit on the mesh

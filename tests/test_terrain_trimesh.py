@@ -1,4 +1,5 @@
-"""Exact solver in triangle mode vs trimesh's ray cast, 10 000 random rays on the real SRTM crop."""
+"""Exact solver in triangle mode vs trimesh's ray cast: 10 000 random rays on the real SRTM crop, and a
+DEM across the equator and the antimeridian."""
 
 from pathlib import Path
 
@@ -12,26 +13,54 @@ from geoloc.terrain import intersect_dem, random_oblique_rays
 SRTM = Path(__file__).resolve().parents[1] / "assets" / "dem" / "srtm_jacksboro.tif"
 
 
-def test_triangles_agree_with_trimesh_embree():
-    trimesh = pytest.importorskip("trimesh")
+def trimesh_first_hits(dem, los, hit):
+    """trimesh/embree's first hits on ``dem.to_trimesh()`` (same nodes, same diagonal split,
+    in a local ENU frame, float32-safe): which rays it hits, and how far each of those
+    hits is from ``hit``'s [m]."""
+    pytest.importorskip("trimesh")
     pytest.importorskip("embreex", reason="trimesh's embree backend (pip embreex); the pure-python "
                         "backend takes hours on 275 000 triangles")
     from trimesh.ray.ray_pyembree import RayMeshIntersector
 
-    dem = DEM.open(SRTM)
-    los = random_oblique_rays(dem, 10_000, np.random.default_rng(11), frame_angle_deg=(0.0, 82.0))
-    hit = intersect_dem(los, dem, "exact", surface="triangles")
-    m = dem.to_trimesh()  # same nodes, same diagonal split, in a local ENU frame (float32-safe)
+    m = dem.to_trimesh()
     fr = m.metadata["enu_frame"]
     loc, idx, _ = RayMeshIntersector(m).intersects_location(
         fr.from_ecef(los.origin_ecef), fr.vector_from_ecef(los.direction_ecef), multiple_hits=False)
-    ok = hit.status == Status.OK
-    hit_tm = np.zeros(len(ok), bool)
+    hit_tm = np.zeros(hit.status.shape, bool)
     hit_tm[idx] = True
+    return hit_tm, np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1)
+
+
+def test_triangles_agree_with_trimesh_embree():
+    dem = DEM.open(SRTM)
+    los = random_oblique_rays(dem, 10_000, np.random.default_rng(11), frame_angle_deg=(0.0, 82.0))
+    hit = intersect_dem(los, dem, "exact", surface="triangles")
+    hit_tm, err = trimesh_first_hits(dem, los, hit)
+    ok = hit.status == Status.OK
     assert np.array_equal(ok, hit_tm)  # the same rays hit
-    err = np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1)
     assert err.max() < 0.05  # issue: <= 5 cm
     assert (hit.status[~ok] == Status.LEFT_DEM).all()
+
+
+def test_across_equator_and_antimeridian_against_trimesh():
+    """A DEM whose rows include the equator (its parallel is the plane z = 0, a special
+    case of the walk) and whose columns cross 180 deg: triangle hits equal trimesh's ray
+    cast (issue: <= 5 cm; measured about 1e-7 m), rays in every direction."""
+    rng = np.random.default_rng(21)
+    n = 41
+    lat = 0.1 - 0.005 * np.arange(n)  # 0.1 .. -0.1 deg, row 20 on the equator
+    assert lat[20] == 0.0
+    dem = DEM.from_array(300.0 + 250.0 * rng.random((n, n)), 0.1, 179.9, 0.005, 0.005)
+    los = random_oblique_rays(dem, 3000, rng, frame_angle_deg=(0.0, 85.0), clearance_m=800.0, inner=0.8)
+    hit = intersect_dem(los, dem, "exact", surface="triangles")
+    hit_tm, err = trimesh_first_hits(dem, los, hit)
+    ok = hit.status == Status.OK
+    assert ok.sum() > 2000
+    assert np.array_equal(ok, hit_tm)
+    assert err.max() < 0.05
+    # the hits really are on both sides of both lines
+    assert (hit.lat[ok] > 0).any() and (hit.lat[ok] < 0).any()
+    assert (hit.lon[ok] > 0).any() and (hit.lon[ok] < 0).any()
 
 
 def test_walk_cells_match_core_geodetic():

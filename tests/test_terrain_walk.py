@@ -1,6 +1,6 @@
-"""The exact walk's outputs and corners: hit coordinates against the core's conversion,
-bilinear hits on the surface at grazing angles, a DEM across the equator and the
-antimeridian against trimesh."""
+"""The exact walk's outputs: hit coordinates against the core's conversion, bilinear
+hits on the surface at grazing angles (the equator / antimeridian case is in
+test_terrain_trimesh.py)."""
 
 from pathlib import Path
 
@@ -51,34 +51,3 @@ def test_bilinear_grazing_hits_lie_on_the_surface():
     res = np.abs(hit.h - dem.height(hit.lat, hit.lon))[ok]
     assert np.isfinite(res).all()
     assert res.max() < 1e-3
-
-
-def test_across_equator_and_antimeridian_against_trimesh():
-    """A DEM whose rows include the equator (its parallel is the plane z = 0, a special
-    case of the walk) and whose columns cross 180 deg: triangle hits equal trimesh's ray
-    cast (issue: <= 5 cm; measured about 1e-7 m), rays in every direction."""
-    pytest.importorskip("trimesh")
-    pytest.importorskip("embreex")
-    from trimesh.ray.ray_pyembree import RayMeshIntersector
-
-    rng = np.random.default_rng(21)
-    n = 41
-    lat = 0.1 - 0.005 * np.arange(n)  # 0.1 .. -0.1 deg, row 20 on the equator
-    assert lat[20] == 0.0
-    z = 300.0 + 250.0 * rng.random((n, n))
-    dem = DEM.from_array(z, 0.1, 179.9, 0.005, 0.005)
-    los = random_oblique_rays(dem, 3000, rng, frame_angle_deg=(0.0, 85.0), clearance_m=800.0, inner=0.8)
-    hit = intersect_dem(los, dem, "exact", surface="triangles")
-    m = dem.to_trimesh()
-    fr = m.metadata["enu_frame"]
-    loc, idx, _ = RayMeshIntersector(m).intersects_location(
-        fr.from_ecef(los.origin_ecef), fr.vector_from_ecef(los.direction_ecef), multiple_hits=False)
-    ok = hit.status == Status.OK
-    hit_tm = np.zeros(len(ok), bool)
-    hit_tm[idx] = True
-    assert ok.sum() > 2000
-    assert np.array_equal(ok, hit_tm)
-    assert np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1).max() < 0.05
-    # the hits really are on both sides of both lines
-    assert (hit.lat[ok] > 0).any() and (hit.lat[ok] < 0).any()
-    assert (hit.lon[ok] > 0).any() and (hit.lon[ok] < 0).any()
