@@ -398,7 +398,8 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
     quadratic |P'(s)|^2 - 1 of [Q17 eq. 11] is convex in s, so its minimum on the
     cell's interval decides). binv is the same for blocks (their highest node): a
     block the ray crosses clear of it is skipped in one step (a two-level min/max
-    hierarchy). row_geo[i] = (R_N, cos phi, R_N (1 - e^2), sin phi, phi) of node row i
+    hierarchy); in a block that is not, the cell walk starts where the ray meets the
+    block's ellipsoid (its first root), since every cell is clear above it. row_geo[i] = (R_N, cos phi, R_N (1 - e^2), sin phi, phi) of node row i
     and lon_col[j] the longitude of node column j: the triangle nodes are computed from
     the heights (a third of the memory of an ECEF node table, whose loads stalled the
     walk), and a hit's latitude and longitude from the corner of its cell
