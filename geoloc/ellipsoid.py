@@ -114,26 +114,36 @@ def ecef_to_geodetic(xyz):
         ellipsoidal height [m].
     """
     xyz = np.asarray(xyz, float)
-    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lat, lon, h, _, _, _ = vermeille(xyz[..., 0], xyz[..., 1], xyz[..., 2])
+    return lat, lon, h
+
+
+def vermeille(x, y, z):
+    """Vermeille's closed form on arrays or scalars: lat, lon, h and its d, sqrt(d^2 + z^2), rho.
+
+    The one body of :func:`ecef_to_geodetic` (numpy arrays) and of the compiled
+    per-point conversion in :mod:`geoloc._nbgeo` (numba compiles this function
+    for scalars): only numpy functions that numba supports, no error state.
+    """
     e4 = E2 * E2
     rho2 = x * x + y * y
     rho = np.sqrt(rho2)
     p = rho2 / (A * A)
     q = (1.0 - E2) * z * z / (A * A)
     r = (p + q - e4) / 6.0
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = e4 * p * q / (4.0 * r**3)
-        t = np.cbrt(1.0 + s + np.sqrt(s * (2.0 + s)))
-        u = r * (1.0 + t + 1.0 / t)
-        v = np.sqrt(u * u + e4 * q)
-        w = E2 * (u + v - q) / (2.0 * v)
-        k = np.sqrt(u + v + w * w) - w
-        d = k * rho / (k + E2)
-        dz = np.hypot(d, z)
-        lat = 2.0 * np.arctan2(z, d + dz)
-        h = (k + E2 - 1.0) / k * dz
+    s = e4 * p * q / (4.0 * r * r * r)
+    t = np.cbrt(1.0 + s + np.sqrt(s * (2.0 + s)))
+    u = r * (1.0 + t + 1.0 / t)
+    v = np.sqrt(u * u + e4 * q)
+    w = E2 * (u + v - q) / (2.0 * v)
+    k = np.sqrt(u + v + w * w) - w
+    d = k * rho / (k + E2)
+    dz = np.hypot(d, z)
+    lat = 2.0 * np.arctan2(z, d + dz)
+    h = (k + E2 - 1.0) / k * dz
     lon = np.arctan2(y, x)
-    return lat, lon, h
+    return lat, lon, h, d, dz, rho
 
 
 @dataclass(frozen=True)
