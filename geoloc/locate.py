@@ -89,8 +89,20 @@ def line_of_sight(pose: Pose, camera: Camera, row=None, col=None, *, chain: Fram
     return LineOfSight(o, d_ecef, status)
 
 
+class LatLonDeg:
+    """``lat_deg`` / ``lon_deg`` of a result whose ``lat``, ``lon`` are in radians."""
+
+    @property
+    def lat_deg(self):
+        return np.rad2deg(self.lat)
+
+    @property
+    def lon_deg(self):
+        return np.rad2deg(self.lon)
+
+
 @dataclass(frozen=True)
-class GroundPoint:
+class GroundPoint(LatLonDeg):
     """Result of a batch geolocation.
 
     Attributes
@@ -116,14 +128,6 @@ class GroundPoint:
     slant_range: np.ndarray
     status: np.ndarray
     los: LineOfSight
-
-    @property
-    def lat_deg(self):
-        return np.rad2deg(self.lat)
-
-    @property
-    def lon_deg(self):
-        return np.rad2deg(self.lon)
 
 
 def intersect_los_height(los: LineOfSight, target_h, surface: str = "inflated") -> GroundPoint:

@@ -30,7 +30,7 @@ import numpy as np
 from .dem import DEM
 from .ellipsoid import A, B, E2, ecef_to_geodetic, prime_vertical_radius
 from .intersect import ray_inflated_ellipsoid
-from .locate import LineOfSight, line_of_sight
+from .locate import LatLonDeg, LineOfSight, line_of_sight
 from .status import Status
 
 METHODS = ("steps", "bisect", "exact")
@@ -86,7 +86,7 @@ class TerrainTrace:
 
 
 @dataclass(frozen=True)
-class TerrainHit:
+class TerrainHit(LatLonDeg):
     """Result of :func:`intersect_dem`.
 
     Attributes
@@ -122,14 +122,6 @@ class TerrainHit:
     surface: str
     trace: TerrainTrace | None
     los: LineOfSight
-
-    @property
-    def lat_deg(self):
-        return np.rad2deg(self.lat)
-
-    @property
-    def lon_deg(self):
-        return np.rad2deg(self.lon)
 
 
 # --------------------------------------------------------------------------- helpers

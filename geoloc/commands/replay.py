@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 from ..replay import replay_at_height, summary_table, write_replay_csv
 from .locate import load_camera, load_records_reporting
 
