@@ -15,12 +15,7 @@ from geoloc.records import load_records
 RECORDS = Path(ASSETS) / "records" / "qiao2017_flight_tests.csv"
 
 
-@pytest.fixture(autouse=True)
-def home(tmp_path, monkeypatch):
-    """rerun writes under ~/.config and ~/.local/share: keep it in a temp dir."""
-    monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "home" / ".config"))
-    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "home" / ".local" / "share"))
+pytestmark = pytest.mark.usefixtures("rerun_home")  # rerun writes under ~: a temp dir
 
 
 def _series(path, entity):

@@ -8,7 +8,6 @@ same numbers (float32 where rerun stores float32), same time stamps.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -26,17 +25,6 @@ from geoloc.replay import replay_at_height
 SCENARIO = Path(ASSETS) / "scenarios" / "flight_scan.toml"
 RECORDS = Path(ASSETS) / "records" / "qiao2017_flight_tests.csv"
 CAMERA = Path(ASSETS) / "cameras" / "qiao2017.toml"
-
-
-@pytest.fixture(scope="module")
-def home(tmp_path_factory):
-    """rerun (and its analytics) write under ~/.config and ~/.local/share: keep them in a temp dir."""
-    d = tmp_path_factory.mktemp("home")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("HOME", str(d))
-        mp.setenv("XDG_CONFIG_HOME", str(d / ".config"))
-        mp.setenv("XDG_DATA_HOME", str(d / ".local" / "share"))
-        yield d
 
 
 def read_rrd(path):
@@ -91,7 +79,7 @@ def ellipsoid_scenario() -> FlightScenario:
 
 
 @pytest.fixture(scope="module")
-def flight(home, tmp_path_factory):
+def flight(rerun_home, tmp_path_factory):
     from viz.rerun_log import write
     from viz.rerun_model import steps_from_flight
 
@@ -103,7 +91,7 @@ def flight(home, tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def records(home, tmp_path_factory):
+def records(rerun_home, tmp_path_factory):
     from viz.rerun_log import write
     from viz.rerun_model import steps_from_records
 

@@ -33,34 +33,29 @@ def short_scenario() -> FlightScenario:
 
 
 @pytest.fixture(scope="module")
-def rec(tmp_path_factory):
-    d = tmp_path_factory.mktemp("home")
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("HOME", str(d))
-        mp.setenv("XDG_CONFIG_HOME", str(d / ".config"))
-        mp.setenv("XDG_DATA_HOME", str(d / ".local" / "share"))
-        from rerun.chunk import RrdReader
+def rec(rerun_home, tmp_path_factory):
+    from rerun.chunk import RrdReader
 
-        from viz.rerun_log import write
-        from viz.rerun_model import steps_from_flight
+    from viz.rerun_log import write
+    from viz.rerun_model import steps_from_flight
 
-        scn = short_scenario()
-        steps = steps_from_flight(scn)
-        out = tmp_path_factory.mktemp("rrd") / "terrain.rrd"
-        write(steps, out)
-        data = {}
-        for ch in RrdReader(out).stream():
-            b = ch.to_record_batch()
-            kind = "temporal" if "frame" in b.schema.names else "static"
-            ent = data.setdefault(ch.entity_path, {}).setdefault(kind, {})
-            for n in b.schema.names:
-                if n in ("rerun.controls.RowId", "log_time", "log_tick"):
-                    continue
-                col = b.column(n)
-                if str(col.type).startswith("duration"):
-                    col = col.cast("int64")
-                ent.setdefault(n, []).extend(col.to_pylist())
-        yield scn, steps, data
+    scn = short_scenario()
+    steps = steps_from_flight(scn)
+    out = tmp_path_factory.mktemp("rrd") / "terrain.rrd"
+    write(steps, out)
+    data = {}
+    for ch in RrdReader(out).stream():
+        b = ch.to_record_batch()
+        kind = "temporal" if "frame" in b.schema.names else "static"
+        ent = data.setdefault(ch.entity_path, {}).setdefault(kind, {})
+        for n in b.schema.names:
+            if n in ("rerun.controls.RowId", "log_time", "log_tick"):
+                continue
+            col = b.column(n)
+            if str(col.type).startswith("duration"):
+                col = col.cast("int64")
+            ent.setdefault(n, []).extend(col.to_pylist())
+    return scn, steps, data
 
 
 @pytest.fixture(scope="module")
