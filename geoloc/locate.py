@@ -15,7 +15,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import rotations as rot
 from .camera import Camera
 from .ellipsoid import ecef_to_geodetic
 from .frames import FrameChain, Pose

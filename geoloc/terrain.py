@@ -289,10 +289,11 @@ def _exact_tables(dem: DEM):
     lat_deg, lon_deg = dem.node_latlon_deg()
     lat_rows, lon_cols = np.deg2rad(lat_deg[:, 0]), np.deg2rad(lon_deg[0, :])
     rn = prime_vertical_radius(lat_rows)
-    row_geo = np.ascontiguousarray(np.stack([rn, np.cos(lat_rows), rn * (1.0 - E2), np.sin(lat_rows), lat_rows], -1))
+    sin_lat = np.sin(lat_rows)
+    row_geo = np.ascontiguousarray(np.stack([rn, np.cos(lat_rows), rn * (1.0 - E2), sin_lat, lat_rows], -1))
     # parallel of geodetic latitude phi: z + R_N e^2 sin(phi) = rho tan(phi)
     tan_row = np.tan(lat_rows)
-    c_row = rn * E2 * np.sin(lat_rows)
+    c_row = rn * E2 * sin_lat
     cmax = np.ascontiguousarray(dem.cell_max())
     # skip test of the walk: the ellipsoid inflated to the cell's highest node + margin
     # [Q17 eq. 11]; it departs from the constant-height surface by far less than the margin
