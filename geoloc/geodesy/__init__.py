@@ -1,0 +1,1 @@
+"""Geodesy: the ellipsoid, the geoid and local frames (docs/architecture.md)."""

@@ -1,0 +1,1 @@
+"""Inputs and outputs: files in and out of geoloc (docs/architecture.md)."""
