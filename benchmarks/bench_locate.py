@@ -20,10 +20,11 @@ import time
 import numpy as np
 from pymap3d.los import lookAtSpheroid
 
-from geoloc.camera import Camera
-from geoloc.frames import FrameChain, Pose
-from geoloc.locate import intersect_los_height, line_of_sight, locate
-from geoloc import rotations as rot
+from geoloc.frames import rotations as rot
+from geoloc.frames.chain import FrameChain, Pose
+from geoloc.locate import line_of_sight, locate
+from geoloc.sensors.camera import Camera
+from geoloc.surfaces.height import intersect_los_height
 
 
 def make_rays(n: int, rng: np.random.Generator):

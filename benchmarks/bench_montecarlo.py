@@ -1,11 +1,11 @@
-"""Benchmark of the vectorised Monte Carlo (geoloc.montecarlo) on the [Q17] Table 1-2 scenario.
+"""Benchmark of the vectorised Monte Carlo (geoloc.analysis.montecarlo) on the [Q17] Table 1-2 scenario.
 
 Goals (issue 4, medians on the 2-core machine):
 * N = 5000 with a DEM (target on the bundled ETOPO5 crop) <= 0.5 s;
 * 1 M samples on the ellipsoid <= 30 s.
 
 Peer, measured in the same run: the same Monte Carlo done by a per-sample
-Python loop (one :func:`geoloc.montecarlo.evaluate` call per sample, i.e. one
+Python loop (one :func:`geoloc.analysis.montecarlo.evaluate` call per sample, i.e. one
 scalar trip through the core chain per sample) over a subset of samples,
 scaled linearly to the full N. The final ``ratio:`` line is
 (peer time scaled to 1 M samples) / (vectorised time for 1 M samples), i.e. the
@@ -22,9 +22,9 @@ import time
 
 import numpy as np
 
-from geoloc import montecarlo as mc
+from geoloc.analysis import montecarlo as mc
+from geoloc.analysis.errormodel import ErrorModel
 from geoloc.assets import asset_path
-from geoloc.errormodel import ErrorModel
 
 
 def median_time(fn, repeat):
@@ -69,7 +69,7 @@ def main(argv=None):
     if dem is not None:
         t = time.perf_counter()
         mc.run(dmodel, 10, np.random.default_rng(0), dem=dem)
-        print(f"DEM warm-up (numba kernels of geoloc.terrain: compiled or loaded from cache): "
+        print(f"DEM warm-up (numba kernels of geoloc.surfaces.terrain: compiled or loaded from cache): "
               f"{time.perf_counter() - t:.2f} s, not counted")
         tdem, ts = median_time(lambda: mc.run(dmodel, 5000, np.random.default_rng(0), dem=dem), 5)
         print(f"DEM N = 5000: median {tdem:.3f} s over 5 runs "

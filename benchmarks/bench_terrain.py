@@ -28,10 +28,10 @@ from pathlib import Path
 
 import numpy as np
 
-from geoloc.dem import DEM
-from geoloc.ellipsoid import A
+from geoloc.geodesy.ellipsoid import A
 from geoloc.status import Status
-from geoloc.terrain import intersect_dem, random_oblique_rays
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 
 SRTM = Path(__file__).resolve().parents[1] / "assets" / "dem" / "srtm_jacksboro.tif"
 
@@ -103,7 +103,6 @@ def main(argv=None):
               f"bisect {np.median(np.abs(bi.h - ex.h)[both]):.2f} m")
 
     # ---------------------------------------------------------------- (b) rays per second
-    import trimesh
 
     t0 = time.perf_counter()
     mesh = dem.to_trimesh()

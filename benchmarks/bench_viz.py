@@ -5,7 +5,7 @@ line (vertex-coloured trimesh/GLB path over viser's plain ``add_mesh_simple``
 for the same mesh, measured in the same run).
 
 * Mesh: a synthetic 708 x 708-node DEM (1.0 M triangles) built by
-  :meth:`geoloc.dem.DEM.from_array` and :meth:`~geoloc.dem.DEM.to_trimesh` in
+  :meth:`geoloc.surfaces.dem.DEM.from_array` and :meth:`~geoloc.surfaces.dem.DEM.to_trimesh` in
   ENU, coloured by height, sent with ``add_mesh_trimesh`` (the viewer's path:
   GLB export + message queue) on a server with no browser attached: the
   server-side cost. Goal <= 3 s.
@@ -35,9 +35,9 @@ def median_time(fn, n):
 def main() -> None:
     import matplotlib
 
-    from geoloc.dem import DEM
-    from viz.app import GeolocApp, make_server
-    from viz.scenario import load_scenario
+    from geoloc.surfaces.dem import DEM
+    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.scenario import load_scenario
 
     server = make_server(port=0)
     n = 708  # 2 (n-1)^2 = 1 000 018 triangles

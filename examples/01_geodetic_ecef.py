@@ -3,7 +3,7 @@
 import numpy as np
 from pyproj import Transformer
 
-from geoloc.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
+from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
 
 lat_deg, lon_deg, h = 35.48, 80.97, 18000.0
 xyz = geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h)

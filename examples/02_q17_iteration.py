@@ -2,7 +2,11 @@
 
 import numpy as np
 
-from geoloc.ellipsoid import ecef_to_geodetic, ecef_to_geodetic_q17, geodetic_to_ecef
+from geoloc.geodesy.ellipsoid import (
+    ecef_to_geodetic,
+    ecef_to_geodetic_q17,
+    geodetic_to_ecef,
+)
 
 xyz = geodetic_to_ecef(np.deg2rad(35.577), np.deg2rad(80.849), 5083.5)
 exact_lat, _, exact_h = ecef_to_geodetic(xyz)

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from geoloc.frames import FrameChain, Pose, T_ecef_ned, T_ned_ecef_q17_factors
-from geoloc.rotations import invert
+from geoloc.frames.chain import FrameChain, Pose, T_ecef_ned, T_ned_ecef_q17_factors
+from geoloc.frames.rotations import invert
 
 np.set_printoptions(precision=4, suppress=True, linewidth=120)
 pose = Pose.from_deg(35.48, 80.97, 18000, heading_deg=45, pitch_deg=3.5, roll_deg=0,

@@ -1,8 +1,8 @@
 """05: replay the bundled [Q17] flight-test records at the paper's target heights."""
 
-from geoloc.camera import Camera
-from geoloc.records import load_records
-from geoloc.replay import replay_at_height, summary_table
+from geoloc.io.records import load_records
+from geoloc.sensors.camera import Camera
+from geoloc.workflows.replay import replay_at_height, summary_table
 
 records = load_records("assets/records/qiao2017_flight_tests.csv")
 camera = Camera.from_toml("assets/cameras/qiao2017.toml")

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from geoloc.geoid import egm96_undulation
+from geoloc.geodesy.geoid import egm96_undulation
 
 for name, lat_deg, lon_deg in [("Table 1 target [Q17]", 35.58, 80.85), ("0 N 0 E", 0.0, 0.0),
                                ("Jacksboro SRTM tile", 36.6, -84.25)]:

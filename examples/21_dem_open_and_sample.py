@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from geoloc.dem import DEM
 from geoloc.status import names
+from geoloc.surfaces.dem import DEM
 
 dem = DEM.open("assets/dem/srtm_jacksboro.tif")  # SRTM is orthometric: datum "egm96" (default)
 print(dem)

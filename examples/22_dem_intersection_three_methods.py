@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from geoloc.dem import DEM
 from geoloc.status import names
-from geoloc.terrain import intersect_dem, random_oblique_rays
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 
 dem = DEM.open("assets/dem/srtm_jacksboro.tif")
 los = random_oblique_rays(dem, 5, np.random.default_rng(4), frame_angle_deg=(60, 80))

@@ -3,8 +3,8 @@
 import numpy as np
 
 from geoloc import Camera, Pose
-from geoloc.dem import DEM
-from geoloc.terrain import locate_dem
+from geoloc.locate import locate_dem
+from geoloc.surfaces.dem import DEM
 
 dem = DEM.open("assets/dem/etopo5_flight_area.tif")  # ETOPO5 5' crop of the [Q17] flight area
 cam = Camera.from_toml("assets/cameras/qiao2017.toml")

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from geoloc.dem import DEM
-from geoloc.enu import EnuFrame
-from geoloc.locate import LineOfSight
-from geoloc.terrain import intersect_dem
+from geoloc.frames.enu import EnuFrame
+from geoloc.surfaces.base import LineOfSight
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import intersect_dem
 
 lon = 78.0 + 0.0005 * np.arange(121)
 profile = 300.0 * np.clip(1 - np.abs(lon - 78.02) / 0.0025, 0, None)  # a 300 m ridge on a 0 m floor

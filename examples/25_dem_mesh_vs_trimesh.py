@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from geoloc.dem import DEM
-from geoloc.terrain import intersect_dem, random_oblique_rays
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 
 dem = DEM.open("assets/dem/srtm_jacksboro.tif")
 los = random_oblique_rays(dem, 1000, np.random.default_rng(0))

@@ -16,9 +16,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from geoloc import montecarlo as mc
+from geoloc.analysis import montecarlo as mc
+from geoloc.analysis.errormodel import ERROR_SOURCES, ErrorModel
 from geoloc.assets import asset_path
-from geoloc.errormodel import ERROR_SOURCES, ErrorModel
 
 model = ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1.toml"))
 res = mc.run(model, 5000, np.random.default_rng(0))

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from geoloc import montecarlo as mc
+from geoloc.analysis import montecarlo as mc
+from geoloc.analysis.errormodel import ErrorModel
 from geoloc.assets import asset_path
-from geoloc.errormodel import ErrorModel
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else ".")
 out.mkdir(parents=True, exist_ok=True)

@@ -12,9 +12,9 @@ Run:  python examples/33_montecarlo_dem_vs_ellipsoid.py
 
 import numpy as np
 
-from geoloc import montecarlo as mc
+from geoloc.analysis import montecarlo as mc
+from geoloc.analysis.errormodel import ErrorModel
 from geoloc.assets import asset_path
-from geoloc.errormodel import ErrorModel
 
 ell = ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1.toml"))
 dem_model = ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1_dem.toml"))

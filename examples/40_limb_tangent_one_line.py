@@ -9,8 +9,8 @@ Run:  python examples/40_limb_tangent_one_line.py
 
 import numpy as np
 
-from geoloc.ellipsoid import geodetic_to_ecef, up_normal_ecef
-from geoloc.limb import limb_tangent
+from geoloc.geodesy.ellipsoid import geodetic_to_ecef, up_normal_ecef
+from geoloc.sensors.limb import limb_tangent
 
 lat, lon, h = np.radians(45.0), np.radians(10.0), 40e3
 p0 = geodetic_to_ecef(lat, lon, h)

@@ -6,10 +6,10 @@ quadratically; with max_iter too small the line gets status NO_CONVERGENCE.
 Run:  python examples/42_limb_newton_raphson.py
 """
 
-import numpy as np
 
-from geoloc.limb import limb_tangent, load_scenario
+from geoloc.sensors.limb import limb_tangent
 from geoloc.status import describe
+from geoloc.workflows.limb_scenario import load_scenario
 
 sc = load_scenario("assets/scenarios/tiangong2_limb.toml").with_frames(1)
 chain = sc.lines_of_sight()

@@ -5,7 +5,7 @@ point (lat, lon, h), in a horizontal direction of azimuth az there: their exact
 tangent height is h by construction (the point and the normal come from pyproj
 and the closed-form normal, not from geoloc). For each line the script prints
 
-* exact - h           : minimum geodetic height found by geoloc.limb, minus h (should be ~0)
+* exact - h           : minimum geodetic height found by geoloc.sensors.limb, minus h (should be ~0)
 * Da - h              : the virtual ellipsoid's Delta a taken as the height (the "usual" shortcut)
 * h_L18 - h           : the paper's limb height, eq. 21-26
 * h_geod(VE) - h      : exact geodetic height of the virtual-ellipsoid tangent point
@@ -18,8 +18,8 @@ Run:  python examples/43_limb_virtual_ellipsoid_error.py
 import numpy as np
 from pyproj import Transformer
 
-from geoloc.ellipsoid import meridian_radius
-from geoloc.limb import limb_tangent
+from geoloc.geodesy.ellipsoid import meridian_radius
+from geoloc.sensors.limb import limb_tangent
 
 to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
 

@@ -9,8 +9,8 @@ Run:  python examples/44_limb_scenario.py
 
 import numpy as np
 
-from geoloc.limb import load_scenario
 from geoloc.status import Status
+from geoloc.workflows.limb_scenario import load_scenario
 
 sc = load_scenario("assets/scenarios/tiangong2_limb.toml")
 chain, r = sc.solve()

@@ -11,9 +11,9 @@ import time
 
 import numpy as np
 
-from viz.app import GeolocApp, make_server
-from viz.scenario import load_scenario
-from viz.scene_geoloc import WORLD_SCALE
+from geoloc.viz.app import GeolocApp, make_server
+from geoloc.viz.scenario import load_scenario
+from geoloc.viz.scene_geoloc import WORLD_SCALE
 
 server = make_server(port=0)  # 127.0.0.1, a free port
 app = GeolocApp(server, load_scenario(record="T3-1"))

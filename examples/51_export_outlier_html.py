@@ -8,8 +8,8 @@ Same as ``geoloc view --record <label> --method steps --export outlier.html``.
 
 import numpy as np
 
-from viz.app import GeolocApp, make_server
-from viz.scenario import load_scenario
+from geoloc.viz.app import GeolocApp, make_server
+from geoloc.viz.scenario import load_scenario
 
 scn = load_scenario()
 errors = [info.paper_error_m for info, _ in scn.records]

@@ -6,8 +6,8 @@ minimum height and the Newton-Raphson iteration count, as the GUI slider would.
 """
 
 from geoloc.status import describe
-from viz.app import make_server
-from viz.scene_limb import LimbApp, load_limb
+from geoloc.viz.app import make_server
+from geoloc.viz.scene_limb import LimbApp, load_limb
 
 server = make_server(port=0)
 app = LimbApp(server, load_limb())

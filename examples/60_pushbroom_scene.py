@@ -6,7 +6,7 @@ Run: python examples/60_pushbroom_scene.py
 import numpy as np
 
 from geoloc.assets import asset_path
-from geoloc.pushbroom import PushbroomSensor
+from geoloc.sensors.pushbroom import PushbroomSensor
 
 s = PushbroomSensor.from_toml(asset_path("scenarios", "zy3_nadir.toml"))
 print(f"{s.name}: {s.rows} lines x {s.cols} detectors, line period {s.line_period_s * 1e3:.4f} ms")

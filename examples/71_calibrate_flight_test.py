@@ -15,11 +15,16 @@ from pathlib import Path
 
 import numpy as np
 
+from geoloc.analysis.calibrate import (
+    HeightTarget,
+    calibrate_groups,
+    error_vector_panels,
+    resect_camera,
+)
+from geoloc.analysis.errors import plot_error_vectors
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
-from geoloc.calibrate import HeightTarget, calibrate_groups, error_vector_panels, resect_camera
-from geoloc.camera import Camera
-from geoloc.errors_analysis import plot_error_vectors
-from geoloc.records import load_records
+from geoloc.io.records import load_records
+from geoloc.sensors.camera import Camera
 
 records = load_records(asset_path(*DEFAULT_RECORDS))
 camera = Camera.from_toml(asset_path(*DEFAULT_CAMERA))

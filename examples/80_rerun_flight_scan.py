@@ -6,9 +6,9 @@ Run from the repository root: ``python examples/80_rerun_flight_scan.py`` then
 
 import numpy as np
 
-from geoloc.flight import FlightScenario
-from viz.rerun_log import write
-from viz.rerun_model import steps_from_flight
+from geoloc.viz.rerun_log import write
+from geoloc.viz.rerun_model import steps_from_flight
+from geoloc.workflows.flight import FlightScenario
 
 scn = FlightScenario.from_toml("assets/scenarios/flight_scan.toml")
 steps = steps_from_flight(scn)

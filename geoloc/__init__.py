@@ -5,11 +5,17 @@ never the reverse. Conventions (frames, rotation order, units, angle names):
 ``docs/conventions.md``.
 """
 
-from .camera import Camera
-from .ellipsoid import ecef_to_geodetic, ecef_to_geodetic_q17, geodetic_to_ecef
-from .frames import FrameChain, Pose
-from .locate import GroundPoint, LineOfSight, ground_to_pixel, intersect_los_height, line_of_sight, locate
-from .status import Status
+from geoloc.frames.chain import FrameChain, Pose
+from geoloc.geodesy.ellipsoid import (
+    ecef_to_geodetic,
+    ecef_to_geodetic_q17,
+    geodetic_to_ecef,
+)
+from geoloc.locate import ground_to_pixel, line_of_sight, locate
+from geoloc.sensors.camera import Camera
+from geoloc.status import Status
+from geoloc.surfaces.base import GroundPoint, LineOfSight
+from geoloc.surfaces.height import intersect_los_height
 
 __all__ = [
     "Camera", "FrameChain", "GroundPoint", "LineOfSight", "Pose", "Status",

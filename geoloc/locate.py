@@ -3,7 +3,7 @@
 [Q17 section 2.2]: T'_E = C^ECEF_NED C^NED_AC C^AC_S T'_S (eq. 9), the target on
 the line from the optical centre O_E through T'_E (eq. 10), on the ellipsoid
 inflated to the target height (eq. 11), converted to geodetic coordinates
-(eq. 12-13; here by the closed form of :func:`geoloc.ellipsoid.ecef_to_geodetic`).
+(eq. 12-13; here by the closed form of :func:`geoloc.geodesy.ellipsoid.ecef_to_geodetic`).
 
 Conventions: ``docs/conventions.md``. Batch functions never raise for a bad ray:
 they return NaN and a :class:`geoloc.status.Status` code per ray.
@@ -11,15 +11,19 @@ they return NaN and a :class:`geoloc.status.Status` code per ray.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .camera import Camera
-from .ellipsoid import ecef_to_geodetic
-from .frames import FrameChain, Pose
-from .intersect import ray_at_height
-from .status import Status
+from geoloc.frames.chain import FrameChain, Pose
+from geoloc.sensors.camera import Camera
+from geoloc.status import Status
+from geoloc.surfaces.base import GroundPoint, LineOfSight
+from geoloc.surfaces.height import intersect_los_height
+
+if TYPE_CHECKING:
+    from geoloc.surfaces.dem import DEM
+    from geoloc.surfaces.terrain import TerrainHit
 
 
 def camera_chain(pose: Pose, camera: Camera) -> FrameChain:
@@ -29,25 +33,6 @@ def camera_chain(pose: Pose, camera: Camera) -> FrameChain:
     for a camera without them it is ``FrameChain(pose)``.
     """
     return FrameChain(pose, R_cam_inner=camera.R_cam_inner, R_base_body=camera.R_base_body)
-
-
-@dataclass(frozen=True)
-class LineOfSight:
-    """A batch of lines of sight in ECEF.
-
-    Attributes
-    ----------
-    origin_ecef : ndarray (..., 3)
-        Optical centre O_E [m].
-    direction_ecef : ndarray (..., 3)
-        Unit direction d_E.
-    status : ndarray (...) of uint8
-        INVALID_INPUT where the pose or pixel is not finite / out of range.
-    """
-
-    origin_ecef: np.ndarray
-    direction_ecef: np.ndarray
-    status: np.ndarray
 
 
 def line_of_sight(pose: Pose, camera: Camera, row=None, col=None, *, chain: FrameChain | None = None,
@@ -88,70 +73,6 @@ def line_of_sight(pose: Pose, camera: Camera, row=None, col=None, *, chain: Fram
     return LineOfSight(o, d_ecef, status)
 
 
-class LatLonDeg:
-    """``lat_deg`` / ``lon_deg`` of a result whose ``lat``, ``lon`` are in radians."""
-
-    @property
-    def lat_deg(self):
-        return np.rad2deg(self.lat)
-
-    @property
-    def lon_deg(self):
-        return np.rad2deg(self.lon)
-
-
-@dataclass(frozen=True)
-class GroundPoint(LatLonDeg):
-    """Result of a batch geolocation.
-
-    Attributes
-    ----------
-    lat, lon : ndarray
-        Geodetic latitude and longitude of the target [rad]; NaN where no hit.
-    h : ndarray
-        Ellipsoidal height of the target [m].
-    ecef : ndarray (..., 3)
-        Target in ECEF [m].
-    slant_range : ndarray
-        Distance from the optical centre [m].
-    status : ndarray of uint8
-        :class:`geoloc.status.Status` per ray.
-    los : LineOfSight
-        The line of sight used.
-    """
-
-    lat: np.ndarray
-    lon: np.ndarray
-    h: np.ndarray
-    ecef: np.ndarray
-    slant_range: np.ndarray
-    status: np.ndarray
-    los: LineOfSight
-
-
-def intersect_los_height(los: LineOfSight, target_h, surface: str = "inflated") -> GroundPoint:
-    """Intersect lines of sight with the surface of height ``target_h`` [Q17 eq. 10-13].
-
-    Parameters
-    ----------
-    los : LineOfSight
-    target_h : array_like
-        Target ellipsoidal height h_T [m], broadcasting.
-    surface : {"inflated", "geodetic"}
-        The paper's inflated ellipsoid (eq. 11) or the exact constant-height surface.
-
-    Returns
-    -------
-    GroundPoint
-    """
-    hit = ray_at_height(los.origin_ecef, los.direction_ecef, target_h, surface)
-    status = np.where(los.status != Status.OK, los.status, hit.status).astype(np.uint8)
-    ok = status == Status.OK
-    ecef = np.where(ok[..., None], hit.ecef, np.nan)
-    lat, lon, h = ecef_to_geodetic(ecef)
-    return GroundPoint(lat, lon, h, ecef, np.where(ok, hit.s, np.nan), status, los)
-
-
 def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
            surface: str = "inflated", chain: FrameChain | None = None,
            engine: str = "auto") -> GroundPoint:
@@ -173,7 +94,7 @@ def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
         Prebuilt chain (boresight / mounting rotations).
     engine : {"auto", "numpy", "numba"}
         ``"numpy"`` composes the :class:`FrameChain` matrices (the reference);
-        ``"numba"`` runs the fused kernel of :mod:`geoloc._fastlocate` (same
+        ``"numba"`` runs the fused kernel of :mod:`geoloc.sensors._fastlocate` (same
         mathematics, ~10x faster on large batches; inflated surface, no extra
         chain rotations, no camera boresight / mount, no lens distortion). ``"auto"`` picks numba for
         batches of 10 000 rays or more when it applies.
@@ -203,7 +124,7 @@ def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
         row = r0 if row is None else row
         col = c0 if col is None else col
     if engine == "numba" or (engine == "auto" and fast_ok and _batch_size(pose, row, col, target_h) >= 10_000):
-        from ._fastlocate import locate_fast
+        from geoloc.sensors._fastlocate import locate_fast
 
         lat, lon, h, ecef, s, status, o, d = locate_fast(pose, camera, row, col, target_h)
         los = LineOfSight(o, d, np.where(status == Status.INVALID_INPUT, status, Status.OK).astype(np.uint8))
@@ -229,9 +150,30 @@ def ground_to_pixel(pose: Pose, camera: Camera, lat, lon, h, *, chain: FrameChai
         1-based pixel coordinates; NaN where the point is behind the camera.
     status : ndarray of uint8
     """
-    from .ellipsoid import geodetic_to_ecef
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
     chain = chain if chain is not None else camera_chain(pose, camera)
     p = geodetic_to_ecef(lat, lon, h)
     d_cam = chain.ecef_to_cam(p - chain.origin_ecef)
     return camera.los_to_pixel(d_cam)
+
+
+def locate_dem(pose, camera, row=None, col=None, dem: DEM | None = None, method: str = "exact", *,
+               chain=None, **kwargs) -> TerrainHit:
+    """Geolocate pixels on a DEM: :func:`line_of_sight` then :func:`geoloc.surfaces.terrain.intersect_dem`.
+
+    Parameters
+    ----------
+    pose, camera, row, col, chain
+        As for :func:`geoloc.locate.locate`.
+    dem : geoloc.surfaces.dem.DEM
+    method : {"steps", "bisect", "exact"}
+    **kwargs
+        ``eps_h``, ``threshold``, ``surface``, ``trace``, ``max_iter``.
+    """
+    if dem is None:
+        raise ValueError("dem is required")
+    from geoloc.surfaces.terrain import intersect_dem
+
+    los = line_of_sight(pose, camera, row, col, chain=chain)
+    return intersect_dem(los, dem, method, **kwargs)

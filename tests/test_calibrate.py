@@ -14,16 +14,21 @@ import numpy as np
 import pytest
 from pyproj import Geod
 
+from geoloc.analysis.calibrate import (
+    HeightTarget,
+    calibrate_groups,
+    fit_mounting,
+    leave_one_out,
+    resect_camera,
+)
+from geoloc.analysis.errors import error_vectors, outlier_flags
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
-from geoloc.calibrate import (HeightTarget, calibrate_groups, fit_mounting, leave_one_out,
-                              resect_camera)
-from geoloc.camera import Camera
 from geoloc.cli import main
-from geoloc.enu import EnuFrame
-from geoloc.errors_analysis import error_vectors, outlier_flags
-from geoloc.frames import Pose
+from geoloc.frames.chain import Pose
+from geoloc.frames.enu import EnuFrame
+from geoloc.io.records import load_records
 from geoloc.locate import locate
-from geoloc.records import load_records
+from geoloc.sensors.camera import Camera
 
 GEOD = Geod(ellps="WGS84")
 COLUMNS = ["table", "point", "row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg",

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from pyproj import Geod
 
-from geoloc.camera import Camera
-from geoloc.frames import Pose
+from geoloc.frames.chain import Pose
 from geoloc.locate import ground_to_pixel, locate
+from geoloc.sensors.camera import Camera
 
 GEOD = Geod(ellps="WGS84")
 

@@ -1,4 +1,4 @@
-"""Calibration with targets on a DEM (geoloc.terrain.intersect_dem, exact method).
+"""Calibration with targets on a DEM (geoloc.surfaces.terrain.intersect_dem, exact method).
 
 Reference: a flat DEM at a constant ellipsoidal height is the constant-height
 surface, so the DEM path must reproduce the height path (surface="geodetic",
@@ -8,12 +8,12 @@ GEOMETRY.md section 3) — two independent intersection codes.
 import numpy as np
 import pytest
 
+from geoloc.analysis.calibrate import DemTarget, HeightTarget, calibrate_groups
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
-from geoloc.calibrate import DemTarget, HeightTarget, calibrate_groups
-from geoloc.camera import Camera
 from geoloc.cli import main
-from geoloc.dem import DEM
-from geoloc.records import load_records
+from geoloc.io.records import load_records
+from geoloc.sensors.camera import Camera
+from geoloc.surfaces.dem import DEM
 
 
 def test_flat_dem_equals_constant_height():

@@ -10,13 +10,13 @@ import pytest
 
 viser = pytest.importorskip("viser")
 
+from geoloc.analysis.calibrate import HeightTarget, calibrate_groups  # noqa: E402
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path  # noqa: E402
-from geoloc.calibrate import HeightTarget, calibrate_groups  # noqa: E402
-from geoloc.camera import Camera  # noqa: E402
-from geoloc.enu import EnuFrame  # noqa: E402
+from geoloc.frames.enu import EnuFrame  # noqa: E402
+from geoloc.io.records import load_records  # noqa: E402
 from geoloc.locate import locate  # noqa: E402
-from geoloc.records import load_records  # noqa: E402
-from viz.calibration_layer import add_error_vectors  # noqa: E402
+from geoloc.sensors.camera import Camera  # noqa: E402
+from geoloc.viz.calibration_layer import add_error_vectors  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -69,11 +69,11 @@ def test_error_vector_nodes(server):
 
 
 def test_app_calibration_with_a_scenario_like_app(server):
-    # A stand-in for viz.app.GeolocApp: server, scn.enu, scn.camera and
+    # A stand-in for geoloc.viz.app.GeolocApp: server, scn.enu, scn.camera and
     # scn.records as (info, inputs) pairs, as the viewer holds them.
     from types import SimpleNamespace
 
-    from viz.calibration_layer import attach
+    from geoloc.viz.calibration_layer import attach
 
     rec = load_records(asset_path(*DEFAULT_RECORDS))
     cam = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
@@ -92,8 +92,8 @@ def test_app_calibration_with_a_scenario_like_app(server):
     scn = SimpleNamespace(records=pairs, camera=cam, enu=EnuFrame.from_deg(lat0, lon0, h00), source="x.csv")
     app = SimpleNamespace(server=server, scn=scn)
     cal = attach(app)
-    # the app's world unit is the km (viz.scene_geoloc.WORLD_SCALE) and its root /enu
-    from viz.scene_geoloc import ROOT, WORLD_SCALE
+    # the app's world unit is the km (geoloc.viz.scene_geoloc.WORLD_SCALE) and its root /enu
+    from geoloc.viz.scene_geoloc import ROOT, WORLD_SCALE
 
     assert WORLD_SCALE == 1e-3 and cal.layer.name == f"{ROOT}/calibration"
     h = c("paper_height_m")

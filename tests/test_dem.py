@@ -1,4 +1,4 @@
-"""The DEM type (geoloc.dem): datum, bilinear sampling, bounds, no-data, CRS, meshes."""
+"""The DEM type (geoloc.surfaces.dem): datum, bilinear sampling, bounds, no-data, CRS, meshes."""
 
 from pathlib import Path
 
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import rasterio
 
-from geoloc.dem import DEM
-from geoloc.ellipsoid import geodetic_to_ecef
-from geoloc.geoid import egm96_undulation
+from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.status import Status
+from geoloc.surfaces.dem import DEM
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets" / "dem"
 SRTM = ASSETS / "srtm_jacksboro.tif"

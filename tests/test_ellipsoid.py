@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyproj import Transformer
 
-from geoloc.ellipsoid import (
+from geoloc.geodesy.ellipsoid import (
     A,
     B,
     ecef_to_geodetic,

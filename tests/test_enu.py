@@ -4,7 +4,8 @@ import numpy as np
 import pyproj
 import pytest
 
-from geoloc.enu import EnuFrame, R_ecef_enu
+from geoloc.frames.enu import EnuFrame
+from geoloc.geodesy.local import R_ecef_enu
 
 # PROJ's +proj=topocentric (geocentric -> local ENU); pure arithmetic, no grids.
 ORIGINS = [(36.3, 78.85, 4500.0), (-33.9, 151.2, 10.0), (0.0, 0.0, 0.0), (89.0, -170.0, 1000.0)]

@@ -4,9 +4,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from geoloc.camera import Camera
-from geoloc.frames import Pose
+from geoloc.frames.chain import Pose
 from geoloc.locate import locate
+from geoloc.sensors.camera import Camera
 from geoloc.status import Status
 
 CAM = Camera(166841.0, 1162.12, 1146.42, 2323, 2292)

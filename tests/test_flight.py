@@ -1,4 +1,4 @@
-"""The simulated flight (geoloc.flight): track checked with pyproj's inverse geodesic, scan in closed form."""
+"""The simulated flight (geoloc.workflows.flight): track checked with pyproj's inverse geodesic, scan in closed form."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from pyproj import Geod
 
 from geoloc.assets import ASSETS
-from geoloc.flight import FlightScenario, simulate, whisk_broom
+from geoloc.workflows.flight import FlightScenario, simulate, whisk_broom
 
 SCENARIO = Path(ASSETS) / "scenarios" / "flight_scan.toml"
 
@@ -101,9 +101,9 @@ def test_step_cep_reproduces_q17_table1_monte_carlo():
     for N = 5000 (ellipsoid model, terrain sigma 62.47 m); [Q17 eq. 18] turns them into
     a CEP, the reference here (computed from the published numbers, not by the code under test).
     """
-    from geoloc.ellipsoid import meridian_radius, prime_vertical_radius
-    from geoloc.errormodel import ErrorModel
-    from geoloc.flight import step_cep
+    from geoloc.analysis.errormodel import ErrorModel
+    from geoloc.geodesy.ellipsoid import meridian_radius, prime_vertical_radius
+    from geoloc.workflows.flight import step_cep
 
     d = _data()
     d["time"] = {"duration_s": 0.0, "rate_hz": 1.0}

@@ -8,19 +8,19 @@ from hypothesis import strategies as st
 from pyproj import Geod
 from scipy.spatial.transform import Rotation
 
-from geoloc import rotations as rot
-from geoloc.camera import Camera
-from geoloc.frames import (
+from geoloc.frames import rotations as rot
+from geoloc.frames.chain import (
     FRAMES,
     FrameChain,
     Pose,
     R_body_ned,
     R_cam_body,
-    R_ecef_ned,
     T_ecef_ned,
     T_ned_ecef_q17_factors,
 )
+from geoloc.geodesy.local import R_ecef_ned
 from geoloc.locate import locate
+from geoloc.sensors.camera import Camera
 
 GEOD = Geod(ellps="WGS84")
 angles = st.floats(-np.pi, np.pi, allow_nan=False)

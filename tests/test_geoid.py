@@ -1,11 +1,11 @@
-"""EGM96 undulation from the bundled grids (geoloc.geoid)."""
+"""EGM96 undulation from the bundled grids (geoloc.geodesy.geoid)."""
 
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from geoloc.geoid import GEOID_DIR, NodeGrid, egm96_undulation
+from geoloc.geodesy.geoid import GEOID_DIR, NodeGrid, egm96_undulation
 
 GTX = Path("/usr/share/proj/egm96_15.gtx")
 

@@ -1,6 +1,6 @@
 """Limb viewing [L18]: exact tangent vs constructed lines and pyproj, the virtual ellipsoid, statuses.
 
-Expected values come from outside geoloc.limb: pyproj (EPSG:4979 <-> EPSG:4978),
+Expected values come from outside geoloc.sensors.limb: pyproj (EPSG:4979 <-> EPSG:4978),
 lines built tangent to a known constant-height surface, the closed-form
 tangency of a scaled ellipsoid, and the matrices printed in [L18].
 """
@@ -13,7 +13,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyproj import Transformer
 
-from geoloc.limb import exact_tangent, l18_geodetic, limb_tangent, virtual_ellipsoid_tangent
+from geoloc.sensors.limb import (
+    exact_tangent,
+    l18_geodetic,
+    limb_tangent,
+    virtual_ellipsoid_tangent,
+)
 from geoloc.status import Status
 
 A = 6378137.0

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geoloc.limb import limb_tangent, line_of_sight_l18, load_scenario
-from geoloc.limb_scenario import scenario_from_dict
+from geoloc.sensors.limb import limb_tangent, line_of_sight_l18
 from geoloc.status import Status
+from geoloc.workflows.limb_scenario import load_scenario, scenario_from_dict
 
 A = 6378137.0
 GM = 3.986004418e14

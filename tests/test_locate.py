@@ -6,12 +6,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyproj import Transformer
 
-from geoloc.camera import Camera
-from geoloc.ellipsoid import A, B, geodetic_to_ecef
-from geoloc.frames import Pose
-from geoloc.intersect import ray_geodetic_height, ray_inflated_ellipsoid
+from geoloc.frames.chain import Pose
+from geoloc.geodesy.ellipsoid import A, B, geodetic_to_ecef
 from geoloc.locate import ground_to_pixel, locate
+from geoloc.sensors.camera import Camera
 from geoloc.status import Status
+from geoloc.surfaces.height import ray_geodetic_height, ray_inflated_ellipsoid
 
 TO_GEOD = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
 CAM = Camera(166841.0, (2323 + 1) / 2, (2292 + 1) / 2, 2323, 2292)

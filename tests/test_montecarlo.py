@@ -14,10 +14,10 @@ import pyproj
 import pytest
 from scipy import stats as sps
 
-from geoloc import montecarlo as mc
+from geoloc.analysis import montecarlo as mc
+from geoloc.analysis.errormodel import Distribution, ErrorModel
 from geoloc.assets import asset_path
 from geoloc.cli import main
-from geoloc.errormodel import Distribution, ErrorModel
 
 SCEN = asset_path("scenarios", "qiao2017_table1.toml")
 DEG = math.pi / 180.0

@@ -5,14 +5,15 @@ import math
 import numpy as np
 import pytest
 
-pytest.importorskip("geoloc.terrain")
+pytest.importorskip("geoloc.surfaces.terrain")
 
-from geoloc import montecarlo as mc  # noqa: E402
-from geoloc import reproduce as rp  # noqa: E402
+from geoloc.analysis import montecarlo as mc  # noqa: E402
+from geoloc.analysis.errormodel import ErrorModel  # noqa: E402
 from geoloc.assets import asset_path  # noqa: E402
 from geoloc.cli import main  # noqa: E402
-from geoloc.errormodel import ErrorModel  # noqa: E402
-from geoloc.locate import intersect_los_height, line_of_sight  # noqa: E402
+from geoloc.locate import line_of_sight  # noqa: E402
+from geoloc.surfaces.height import intersect_los_height
+from geoloc.workflows import reproduce as rp  # noqa: E402
 
 DEM_SCEN = asset_path("scenarios", "qiao2017_table1_dem.toml")
 

@@ -9,8 +9,8 @@ import pytest
 from pyproj import Transformer
 
 from geoloc.assets import asset_path
-from geoloc.ellipsoid import A, B
-from geoloc.pushbroom import GM_EARTH, OMEGA_EARTH, LookAngles, PushbroomSensor
+from geoloc.geodesy.ellipsoid import A, B
+from geoloc.sensors.pushbroom import GM_EARTH, OMEGA_EARTH, LookAngles, PushbroomSensor
 from geoloc.status import Status
 
 SCEN = tomllib.loads(asset_path("scenarios", "zy3_nadir.toml").read_text())

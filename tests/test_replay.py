@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
-from geoloc.camera import Camera
 from geoloc.cli import main
-from geoloc.records import load_records
-from geoloc.replay import horizontal_distance_m, replay_at_height
+from geoloc.geodesy.geodesic import horizontal_distance_m
+from geoloc.io.records import load_records
+from geoloc.sensors.camera import Camera
+from geoloc.workflows.replay import replay_at_height
 
 RECORDS = asset_path(*DEFAULT_RECORDS)
 CAMERA = asset_path(*DEFAULT_CAMERA)

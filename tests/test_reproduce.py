@@ -4,8 +4,8 @@ import json
 
 import pytest
 
-from geoloc import reproduce as rp
 from geoloc.cli import main
+from geoloc.workflows import reproduce as rp
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +53,7 @@ def test_cli_prints_paper_and_project_side_by_side(tmp_path, capsys):
 
 
 def test_cli_li2023(capsys):
-    pytest.importorskip("geoloc.terrain")
+    pytest.importorskip("geoloc.surfaces.terrain")
     assert main(["reproduce", "li2023", "--rays", "4", "--tolerances-m", "10"]) == 0
     text = capsys.readouterr().out
     assert "45.5 %" in text and "saving" in text

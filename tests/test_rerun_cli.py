@@ -10,7 +10,7 @@ import pytest
 
 from geoloc.assets import ASSETS
 from geoloc.cli import main
-from geoloc.records import load_records
+from geoloc.io.records import load_records
 
 RECORDS = Path(ASSETS) / "records" / "qiao2017_flight_tests.csv"
 
@@ -46,7 +46,7 @@ def short_scenario(tmp_path) -> Path:
 
 
 def test_bundled_scenario_by_name():
-    from geoloc.commands.log import resolve_input
+    from geoloc.cli.log import resolve_input
 
     assert resolve_input("flight_scan") == Path(ASSETS) / "scenarios" / "flight_scan.toml"
 
@@ -67,7 +67,7 @@ def test_log_records_at_one_height(tmp_path):
     k, h = _series(out, "/series/height/target_h_m")
     assert list(k) == list(range(20))
     # The inflated ellipsoid of [Q17 eq. 11] is within millimetres of the constant-height
-    # surface at 5 km (geoloc.intersect): 0.01 m.
+    # surface at 5 km (geoloc.surfaces.height): 0.01 m.
     np.testing.assert_allclose(h, 5000.0, atol=0.01)
 
 
@@ -98,8 +98,8 @@ def test_bad_input_is_named(argv, needle, capsys, tmp_path, monkeypatch):
 
 
 def test_serve_hosts_a_grpc_server(tmp_path):
-    from viz.rerun_log import write
-    from viz.rerun_model import steps_from_records
+    from geoloc.viz.rerun_log import write
+    from geoloc.viz.rerun_model import steps_from_records
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -1,8 +1,8 @@
 """Recordings read back with rerun's own reader (rerun.chunk.RrdReader) equal the core's numbers.
 
 Every expected value below is computed by calling the core directly
-(geoloc.locate, geoloc.frames, geoloc.enu, geoloc.replay, pyproj), not by
-viz.rerun_model, and compared with what the SDK reads from the written file:
+(geoloc.locate, geoloc.frames.chain, geoloc.frames.enu, geoloc.workflows.replay, pyproj), not by
+geoloc.viz.rerun_model, and compared with what the SDK reads from the written file:
 same numbers (float32 where rerun stores float32), same time stamps.
 """
 
@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 
 from geoloc.assets import ASSETS
-from geoloc.camera import Camera
-from geoloc.enu import EnuFrame
-from geoloc.flight import FlightScenario, simulate
-from geoloc.frames import FrameChain
+from geoloc.frames.chain import FrameChain
+from geoloc.frames.enu import EnuFrame
+from geoloc.io.records import load_records
 from geoloc.locate import locate
-from geoloc.records import load_records
-from geoloc.replay import replay_at_height
+from geoloc.sensors.camera import Camera
+from geoloc.workflows.flight import FlightScenario, simulate
+from geoloc.workflows.replay import replay_at_height
 
 SCENARIO = Path(ASSETS) / "scenarios" / "flight_scan.toml"
 RECORDS = Path(ASSETS) / "records" / "qiao2017_flight_tests.csv"
@@ -80,8 +80,8 @@ def ellipsoid_scenario() -> FlightScenario:
 
 @pytest.fixture(scope="module")
 def flight(rerun_home, tmp_path_factory):
-    from viz.rerun_log import write
-    from viz.rerun_model import steps_from_flight
+    from geoloc.viz.rerun_log import write
+    from geoloc.viz.rerun_model import steps_from_flight
 
     scn = ellipsoid_scenario()
     steps = steps_from_flight(scn)
@@ -92,8 +92,8 @@ def flight(rerun_home, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def records(rerun_home, tmp_path_factory):
-    from viz.rerun_log import write
-    from viz.rerun_model import steps_from_records
+    from geoloc.viz.rerun_log import write
+    from geoloc.viz.rerun_model import steps_from_records
 
     steps, errors = steps_from_records(RECORDS)
     out = tmp_path_factory.mktemp("rrd") / "records.rrd"
@@ -142,7 +142,7 @@ def test_flight_frame_hierarchy_equals_the_chain(flight):
     p = simulate(scn).pose
     chain = FrameChain(p)
     enu = steps.enu
-    # Aircraft position: geodetic -> ENU by geoloc.enu (not through the hop matrices).
+    # Aircraft position: geodetic -> ENU by geoloc.frames.enu (not through the hop matrices).
     ac = enu.from_geodetic(p.lat, p.lon, p.h)
     ned = data["/world/ned"]["temporal"]
     np.testing.assert_array_equal(np.array([r[0] for r in ned["Transform3D:translation"]]),

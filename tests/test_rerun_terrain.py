@@ -1,6 +1,6 @@
 """Terrain in the recording, read back with rerun.chunk.RrdReader: DEM mesh, evaluations, H_n - h_n.
 
-Expected values come from geoloc.terrain.intersect_dem and geoloc.dem.DEM called
+Expected values come from geoloc.surfaces.terrain.intersect_dem and geoloc.surfaces.dem.DEM called
 here directly, and from the closed-form rule of the descending steps [Q17 section 2.3].
 """
 
@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from geoloc.assets import ASSETS
-from geoloc.camera import Camera
-from geoloc.dem import DEM
-from geoloc.flight import FlightScenario, simulate
+from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.locate import line_of_sight
-from geoloc.replay import horizontal_distance_m
-from geoloc.terrain import intersect_dem
+from geoloc.sensors.camera import Camera
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import intersect_dem
+from geoloc.workflows.flight import FlightScenario, simulate
 
 SCENARIO = Path(ASSETS) / "scenarios" / "flight_scan.toml"
 DEM_PATH = Path(ASSETS) / "dem" / "etopo5_flight_area.tif"
@@ -36,8 +36,8 @@ def short_scenario() -> FlightScenario:
 def rec(rerun_home, tmp_path_factory):
     from rerun.chunk import RrdReader
 
-    from viz.rerun_log import write
-    from viz.rerun_model import steps_from_flight
+    from geoloc.viz.rerun_log import write
+    from geoloc.viz.rerun_model import steps_from_flight
 
     scn = short_scenario()
     steps = steps_from_flight(scn)
@@ -115,7 +115,7 @@ def test_truth_is_the_exact_hit_and_errors_match(rec, core):
     # 0.6 deg at 70 km).
     bound = 10.0 * np.tan(np.abs(p.gimbal_roll) + np.deg2rad(5.0))
     assert np.all(err <= bound)
-    from geoloc.locate import intersect_los_height
+    from geoloc.surfaces.height import intersect_los_height
 
     ell = intersect_los_height(line_of_sight(p, Camera.from_toml(CAMERA)), 5083.0)
     got = np.array([r[0] for r in _by(data["/series/ellipsoid_model/to_truth_m"])["Scalars:scalars"]])
@@ -160,7 +160,7 @@ def test_records_on_the_dem_by_bisection(rec, tmp_path):
     from rerun.chunk import RrdReader
 
     from geoloc.cli import main
-    from geoloc.records import load_records
+    from geoloc.io.records import load_records
 
     records = Path(ASSETS) / "records" / "qiao2017_flight_tests.csv"
     out = tmp_path / "rec_dem.rrd"
@@ -184,9 +184,9 @@ def test_records_on_the_dem_by_bisection(rec, tmp_path):
 
 
 def test_cep_series_is_the_core_monte_carlo(rec, core):
-    """The optional per-step CEP (scenario [montecarlo]) read back equals geoloc.flight.step_cep."""
-    from geoloc.errormodel import ErrorModel
-    from geoloc.flight import step_cep
+    """The optional per-step CEP (scenario [montecarlo]) read back equals geoloc.workflows.flight.step_cep."""
+    from geoloc.analysis.errormodel import ErrorModel
+    from geoloc.workflows.flight import step_cep
 
     scn, steps, data = rec
     ref = step_cep(simulate(scn), ErrorModel.from_toml(scn.mc_model_path), scn.target_h_m,

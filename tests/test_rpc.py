@@ -10,10 +10,16 @@ import rasterio
 from rasterio.transform import RPCTransformer
 
 from geoloc.assets import asset_path
-from geoloc.pushbroom import PushbroomSensor
-from geoloc.rpc import (RPCModel, fit_rpc, gdal_rpc_to_ground, load_scenario, read_rpc_geotiff,
-                        write_rpc_geotiff)
+from geoloc.sensors.pushbroom import PushbroomSensor
 from geoloc.status import Status
+from geoloc.workflows.rpc import (
+    RPCModel,
+    fit_rpc,
+    gdal_rpc_to_ground,
+    load_scenario,
+    read_rpc_geotiff,
+    write_rpc_geotiff,
+)
 
 
 @pytest.fixture(scope="module", params=["zy3_nadir", "qiao2017_frame"])

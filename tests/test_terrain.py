@@ -1,17 +1,17 @@
-"""Line of sight x DEM (geoloc.terrain): synthetic DEMs with independent answers, statuses, traces."""
+"""Line of sight x DEM (geoloc.surfaces.terrain): synthetic DEMs with independent answers, statuses, traces."""
 
 import numpy as np
 import pytest
 from scipy.interpolate import RegularGridInterpolator
 from scipy.optimize import brentq
 
-from geoloc.dem import DEM
-from geoloc.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
-from geoloc.enu import EnuFrame
-from geoloc.intersect import ray_geodetic_height
-from geoloc.locate import LineOfSight
+from geoloc.frames.enu import EnuFrame
+from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
 from geoloc.status import Status
-from geoloc.terrain import intersect_dem
+from geoloc.surfaces.base import LineOfSight
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.height import ray_geodetic_height
+from geoloc.surfaces.terrain import intersect_dem
 
 r = np.deg2rad
 
@@ -224,7 +224,7 @@ def test_batch_shape_and_trace():
 
 
 def test_scalar_vermeille_matches_core():
-    from geoloc.terrain_numba import geodetic, geodetic_up
+    from geoloc.surfaces.terrain_numba import geodetic, geodetic_up
 
     rng = np.random.default_rng(2)
     p = geodetic_to_ecef(r(rng.uniform(-89, 89, 50)), r(rng.uniform(-180, 180, 50)), rng.uniform(-400, 9e4, 50))
@@ -251,7 +251,7 @@ def test_bad_arguments():
 
 
 def test_bowring_latlon_for_cell_lookup():
-    from geoloc.terrain_numba import latlon
+    from geoloc.surfaces.terrain_numba import latlon
 
     rng = np.random.default_rng(5)
     lat = r(rng.uniform(-85, 85, 200))

@@ -1,4 +1,4 @@
-"""``geoloc locate --dem`` and ``geoloc replay --dem`` (options from geoloc.terrain_cli)."""
+"""``geoloc locate --dem`` and ``geoloc replay --dem`` (options from geoloc.cli.terrain_options)."""
 
 import csv
 import json
@@ -9,7 +9,7 @@ import pytest
 
 from geoloc import Camera, Pose, locate
 from geoloc.cli import main
-from geoloc.dem import DEM
+from geoloc.surfaces.dem import DEM
 
 ROOT = Path(__file__).resolve().parents[1]
 ETOPO = ROOT / "assets" / "dem" / "etopo5_flight_area.tif"

@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geoloc.dem import DEM
 from geoloc.status import Status
-from geoloc.terrain import intersect_dem, random_oblique_rays
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 
 SRTM = Path(__file__).resolve().parents[1] / "assets" / "dem" / "srtm_jacksboro.tif"
 

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from geoloc.dem import DEM
-from geoloc.ellipsoid import ecef_to_geodetic
+from geoloc.geodesy.ellipsoid import ecef_to_geodetic
 from geoloc.status import Status
-from geoloc.terrain import intersect_dem, random_oblique_rays
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets" / "dem"
 

@@ -76,8 +76,8 @@ def render(server, path, timeout=40.0, min_colours=20):
 
 def test_viewer_in_headless_chromium(tmp_path):
     playwright = pytest.importorskip("playwright.sync_api")
-    from viz.app import GeolocApp, make_server
-    from viz.scenario import load_scenario
+    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.scenario import load_scenario
 
     ARTIFACTS.mkdir(exist_ok=True)
     server = make_server(port=0)

@@ -7,10 +7,10 @@ import pytest
 
 from geoloc.assets import asset_path
 from geoloc.cli import main
-from geoloc.ellipsoid import A, F
-from viz.app import make_server
-from viz.scene_geoloc import WORLD_SCALE
-from viz.scene_limb import LimbApp, load_limb
+from geoloc.geodesy.ellipsoid import A, F
+from geoloc.viz.app import make_server
+from geoloc.viz.scene_geoloc import WORLD_SCALE
+from geoloc.viz.scene_limb import LimbApp, load_limb
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +55,7 @@ def test_limb_nodes_where_the_geometry_says(limb):
 
 def test_alpha_slider_raises_the_tangent(limb):
     h0 = float(limb.tan.exact_h)
-    limb.sl_alpha.value = 1.0  # alpha positive is upwards (geoloc.limb_scenario.alphas)
+    limb.sl_alpha.value = 1.0  # alpha positive is upwards (geoloc.workflows.limb_scenario.alphas)
     try:
         h1 = float(limb.tan.exact_h)
         # ~2 200 km to the tangent: 1 deg up raises it by ~2200 km * 0.0175 = 38 km, minus curvature.

@@ -11,15 +11,15 @@ import pyproj
 import pytest
 import viser.transforms as vtf
 
-from geoloc.camera import Camera
-from geoloc.dem import DEM
-from geoloc.frames import FrameChain, Pose
-from geoloc.locate import line_of_sight
 from geoloc.assets import asset_path
-from geoloc.terrain import intersect_dem
-from viz.app import GeolocApp, make_server
-from viz.scenario import load_scenario
-from viz.scene_geoloc import WORLD_SCALE
+from geoloc.frames.chain import FrameChain, Pose
+from geoloc.locate import line_of_sight
+from geoloc.sensors.camera import Camera
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import intersect_dem
+from geoloc.viz.app import GeolocApp, make_server
+from geoloc.viz.scenario import load_scenario
+from geoloc.viz.scene_geoloc import WORLD_SCALE
 
 # The first record of the bundled flight test (T3-1), as in the CSV.
 T31 = dict(lat=36.39895, lon=78.72927, h=17987.25, heading=30.0457, pitch=3.3903, roll=-0.0110,

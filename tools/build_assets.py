@@ -13,7 +13,7 @@ in its GeoTIFF tags, and ``assets/README.md`` repeats it.
 Grid registration: every source here is a grid of *nodes* (values at points).
 A node grid is written as a GeoTIFF whose pixel centres are the nodes
 (``AREA_OR_POINT=Area`` with the transform shifted by half a cell), which is
-what GDAL and :class:`geoloc.dem.DEM` assume when interpolating.
+what GDAL and :class:`geoloc.surfaces.dem.DEM` assume when interpolating.
 """
 
 from __future__ import annotations

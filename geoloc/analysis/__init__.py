@@ -1,0 +1,1 @@
+"""Analysis: error models, Monte Carlo, calibration and error reports (docs/architecture.md)."""

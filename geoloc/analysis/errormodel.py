@@ -1,0 +1,324 @@
+"""Error models for Monte Carlo geolocation analysis [Q17 section 3, Tables 1-2].
+
+An error model is a TOML file with a nominal geometry (aircraft pose, gimbal
+angles, camera, target pixel and height, optionally a DEM) and one
+distribution per error source. Degrees, micrometres and metres at this edge
+(``_deg``, ``_um``, ``_m`` suffixes); :meth:`ErrorModel.sample` returns radians
+and metres. Conventions: ``docs/conventions.md``; user guide:
+``docs/montecarlo.md``.
+
+File format (``assets/scenarios/qiao2017_table1.toml`` is a complete example)::
+
+    name = "..."
+    [camera]            # the keys of geoloc.sensors.camera.Camera (pixel_pitch_m needed
+                        # for the image-centre error in micrometres)
+    [nominal]           # lat_deg lon_deg h_m heading_deg pitch_deg roll_deg
+                        # gimbal_roll_deg gimbal_pitch_deg
+    [target]            # h_m (ellipsoidal), optional row/col (default CCD centre),
+                        # surface = "inflated" | "geodetic"
+    [errors]            # source = { dist = "normal", sigma = s } or
+                        #          { dist = "uniform", max = m }, optional bias = b
+    [dem]               # optional: path (relative to the file or assets/), datum,
+                        # method; replaces the target height by the terrain
+
+Error sources (all optional, missing means exactly zero):
+
+=============================  =====================================================
+``lat_deg lon_deg h_m``        aircraft position (POS) [Q17 Table 1]
+``heading_deg pitch_deg
+roll_deg``                     aircraft attitude (POS) [Q17 Table 1]
+``gimbal_roll_deg
+gimbal_pitch_deg``             gimbal encoders [Q17 Table 1]
+``image_centre_x_um
+image_centre_y_um``            image-centre position error on the CCD [Q17 Table 2];
+                               x along rows (i), y along columns (j) as in [Q17 eq. 8]
+``gimbal_nonorthogonality_deg`` inner (pitch) axis tilted towards the outer (roll) axis
+``collimation_deg``            line of sight not perpendicular to the inner axis
+``vibration_yaw_deg
+vibration_pitch_deg
+vibration_roll_deg``           shock-absorber angular vibration between body and
+                               gimbal base [Q17 Table 2]
+``target_h_m``                 target height uncertainty (terrain standard deviation)
+=============================  =====================================================
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.frames.chain import Pose
+from geoloc.sensors.camera import Camera
+from geoloc.tomlio import read_toml
+
+#: Pose fields of the [nominal] table, in Pose order, with their unit suffix.
+POSE_KEYS = ("lat_deg", "lon_deg", "h_m", "heading_deg", "pitch_deg", "roll_deg",
+             "gimbal_roll_deg", "gimbal_pitch_deg")
+
+#: Every error source the model knows, with a one-line meaning (docs and errors).
+ERROR_SOURCES = {
+    "lat_deg": "aircraft latitude (POS)",
+    "lon_deg": "aircraft longitude (POS)",
+    "h_m": "aircraft ellipsoidal height (POS)",
+    "heading_deg": "aircraft heading (POS)",
+    "pitch_deg": "aircraft pitch (POS)",
+    "roll_deg": "aircraft roll (POS)",
+    "gimbal_roll_deg": "outer gimbal encoder",
+    "gimbal_pitch_deg": "inner gimbal encoder",
+    "image_centre_x_um": "image-centre position error, x (rows)",
+    "image_centre_y_um": "image-centre position error, y (columns)",
+    "gimbal_nonorthogonality_deg": "inner/outer gimbal axes not orthogonal",
+    "collimation_deg": "line of sight not perpendicular to the inner gimbal axis",
+    "vibration_yaw_deg": "shock-absorber vibration, yaw",
+    "vibration_pitch_deg": "shock-absorber vibration, pitch",
+    "vibration_roll_deg": "shock-absorber vibration, roll",
+    "target_h_m": "target height (terrain standard deviation)",
+}
+
+DISTRIBUTIONS = ("normal", "uniform")
+
+
+@dataclass(frozen=True)
+class Distribution:
+    """One error source: ``bias + sigma * N(0, 1)`` or ``bias + U(-max, max)`` [Q17 eq. 15].
+
+    Attributes
+    ----------
+    dist : {"normal", "uniform"}
+    scale : float
+        sigma (normal) or the half-width ``max`` (uniform), in the source's edge unit.
+    bias : float
+        Constant offset added to every sample (edge unit); 0 by default.
+    """
+
+    dist: str
+    scale: float
+    bias: float = 0.0
+
+    @property
+    def std(self) -> float:
+        """Standard deviation: sigma, or max / sqrt(3) for the uniform distribution."""
+        return self.scale if self.dist == "normal" else self.scale / math.sqrt(3.0)
+
+    def draw(self, rng: np.random.Generator, shape) -> np.ndarray:
+        """Samples of this error (edge unit), shape ``shape``."""
+        if self.dist == "normal":
+            x = rng.standard_normal(shape) * self.scale
+        else:
+            x = rng.uniform(-self.scale, self.scale, shape)
+        return x + self.bias if self.bias else x
+
+
+@dataclass(frozen=True)
+class DemSpec:
+    """Optional terrain of the scenario: a DEM file replacing the target height."""
+
+    path: Path
+    datum: str = "egm96"
+    method: str | None = None
+
+
+@dataclass(frozen=True)
+class ErrorModel:
+    """Nominal geometry and error distributions of a Monte Carlo scenario.
+
+    Attributes
+    ----------
+    name : str
+    camera : Camera
+    nominal : dict
+        The [nominal] table: ``POSE_KEYS`` -> value (degrees, metres).
+    target_h_m : float
+        Nominal target ellipsoidal height [m].
+    row, col : float
+        Target pixel (1-based); the CCD centre by default.
+    surface : str
+        "inflated" [Q17 eq. 11] or "geodetic".
+    errors : dict
+        Source name -> :class:`Distribution`.
+    dem : DemSpec or None
+    sweep : dict
+        The optional [sweep] table (defaults of ``geoloc montecarlo --sweep``).
+    source : str
+        Where the model came from (for error messages).
+    """
+
+    name: str
+    camera: Camera
+    nominal: dict
+    target_h_m: float
+    row: float
+    col: float
+    surface: str = "inflated"
+    errors: dict = field(default_factory=dict)
+    dem: DemSpec | None = None
+    sweep: dict = field(default_factory=dict)
+    source: str = "error model"
+
+    # ------------------------------------------------------------ loading
+    @classmethod
+    def from_toml(cls, path) -> "ErrorModel":
+        """Load a scenario file; every bad key or value raises ``ValueError`` naming it."""
+        path = Path(path)
+        data = read_toml(path, "scenario file")
+        return cls.from_dict(data, source=str(path), base_dir=path.parent)
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "error model", base_dir=None) -> "ErrorModel":
+        """Build from the parsed TOML tables (see the module docstring)."""
+        allowed = {"name", "description", "reference", "camera", "nominal", "target", "errors",
+                   "dem", "sweep"}
+        _no_unknown(data, allowed, source)
+        for k in ("camera", "nominal", "target"):
+            if k not in data:
+                raise ValueError(f"{source}: missing table [{k}]")
+        camera = Camera.from_dict(dict(data["camera"]), source=f"{source} [camera]")
+
+        nom = data["nominal"]
+        _no_unknown(nom, set(POSE_KEYS), f"{source} [nominal]")
+        missing = [k for k in ("lat_deg", "lon_deg", "h_m") if k not in nom]
+        if missing:
+            raise ValueError(f"{source} [nominal]: missing key(s) {missing}")
+        nominal = {k: _number(nom.get(k, 0.0), f"{source} [nominal] {k}") for k in POSE_KEYS}
+        Pose.from_deg(*(nominal[k] for k in POSE_KEYS)).validate()
+
+        tgt = data["target"]
+        _no_unknown(tgt, {"h_m", "row", "col", "surface"}, f"{source} [target]")
+        if "h_m" not in tgt:
+            raise ValueError(f"{source} [target]: missing key 'h_m' (target ellipsoidal height)")
+        r0, c0 = camera.center_pixel
+        row = _number(tgt.get("row", r0), f"{source} [target] row")
+        col = _number(tgt.get("col", c0), f"{source} [target] col")
+        surface = tgt.get("surface", "inflated")
+        if surface not in ("inflated", "geodetic"):
+            raise ValueError(f"{source} [target] surface = {surface!r}: must be 'inflated' or 'geodetic'")
+
+        errors = {}
+        for name, spec in data.get("errors", {}).items():
+            where = f"{source} [errors] {name}"
+            if name not in ERROR_SOURCES:
+                raise ValueError(f"{where}: unknown error source; known: {sorted(ERROR_SOURCES)}")
+            errors[name] = _distribution(spec, where)
+        needs_pitch = any(errors.get(k) is not None for k in ("image_centre_x_um", "image_centre_y_um"))
+        if needs_pitch and camera.pixel_pitch_m is None:
+            raise ValueError(f"{source} [camera]: pixel_pitch_m is required for the image-centre "
+                             "error in micrometres")
+
+        dem = None
+        if "dem" in data:
+            d = data["dem"]
+            _no_unknown(d, {"path", "datum", "method"}, f"{source} [dem]")
+            if "path" not in d:
+                raise ValueError(f"{source} [dem]: missing key 'path'")
+            dem = DemSpec(_resolve(d["path"], base_dir), str(d.get("datum", "egm96")), d.get("method"))
+        return cls(str(data.get("name", Path(source).stem)), camera, nominal,
+                   _number(tgt["h_m"], f"{source} [target] h_m"), row, col, surface, errors, dem,
+                   dict(data.get("sweep", {})), source)
+
+    # ------------------------------------------------------------ use
+    def with_nominal(self, **changes) -> "ErrorModel":
+        """A copy with some nominal values changed (degrees / metres), e.g. ``gimbal_roll_deg=70``."""
+        _no_unknown(changes, set(POSE_KEYS), "with_nominal")
+        nominal = dict(self.nominal)
+        nominal.update({k: float(v) for k, v in changes.items()})
+        return _replace(self, nominal=nominal)
+
+    def with_error(self, name: str, dist: Distribution | None) -> "ErrorModel":
+        """A copy with one error source replaced (``None`` removes it)."""
+        if name not in ERROR_SOURCES:
+            raise ValueError(f"unknown error source {name!r}; known: {sorted(ERROR_SOURCES)}")
+        errors = dict(self.errors)
+        if dist is None:
+            errors.pop(name, None)
+        else:
+            errors[name] = dist
+        return _replace(self, errors=errors)
+
+    def without_dem(self) -> "ErrorModel":
+        return _replace(self, dem=None)
+
+    def nominal_pose(self) -> Pose:
+        """The nominal pose (radians)."""
+        return Pose.from_deg(*(self.nominal[k] for k in POSE_KEYS))
+
+    def std_si(self) -> dict:
+        """Standard deviation of every error source in SI units (radians, metres)."""
+        return {k: d.std * _to_si(k, self.camera) for k, d in self.errors.items()}
+
+    def sample(self, n: int, rng: np.random.Generator) -> dict:
+        """Draw ``n`` samples of every error source [Q17 eq. 15], in SI units.
+
+        Returns
+        -------
+        dict
+            Source name -> ndarray (n,) of errors in radians or metres (the
+            image-centre errors in pixels, keys ``image_centre_x_px`` /
+            ``image_centre_y_px``). Sources are drawn in a fixed order so a
+            seed gives the same samples whatever the file's key order.
+        """
+        out = {}
+        for name in ERROR_SOURCES:  # fixed order: reproducible for a seed
+            d = self.errors.get(name)
+            if d is None:
+                continue
+            key = name.replace("_um", "_px") if name.endswith("_um") else name
+            out[key] = d.draw(rng, (n,)) * _to_si(name, self.camera)
+        return out
+
+
+def _to_si(name: str, camera: Camera) -> float:
+    """Factor from a source's edge unit to SI (rad, m) or pixels for the image centre."""
+    if name.endswith("_deg"):
+        return math.pi / 180.0
+    if name.endswith("_um"):
+        return 1e-6 / camera.pixel_pitch_m  # micrometres on the CCD -> pixels
+    return 1.0
+
+
+def _replace(model: ErrorModel, **kw) -> ErrorModel:
+    from dataclasses import replace
+    return replace(model, **kw)
+
+
+def _no_unknown(table: dict, allowed: set, where: str) -> None:
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+
+
+def _number(v, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise ValueError(f"{where} = {v!r}: must be a finite number")
+    return float(v)
+
+
+def _distribution(spec, where: str) -> Distribution:
+    if not isinstance(spec, dict):
+        raise ValueError(f"{where} = {spec!r}: must be a table like "
+                         "{{ dist = \"normal\", sigma = 0.01 }}")
+    dist = spec.get("dist")
+    if dist not in DISTRIBUTIONS:
+        raise ValueError(f"{where} dist = {dist!r}: must be one of {list(DISTRIBUTIONS)}")
+    key = "sigma" if dist == "normal" else "max"
+    _no_unknown(spec, {"dist", key, "bias"}, where)
+    if key not in spec:
+        raise ValueError(f"{where}: a {dist} error needs '{key}'")
+    scale = _number(spec[key], f"{where} {key}")
+    if scale < 0:
+        raise ValueError(f"{where} {key} = {scale!r}: must be >= 0")
+    return Distribution(dist, scale, _number(spec.get("bias", 0.0), f"{where} bias"))
+
+
+def _resolve(p, base_dir) -> Path:
+    """A DEM path: absolute, relative to the scenario file, or relative to assets/."""
+    from geoloc.assets import ASSETS
+    p = Path(str(p))
+    if p.is_absolute():
+        return p
+    for base in ([Path(base_dir)] if base_dir is not None else []) + [ASSETS]:
+        if (base / p).exists():
+            return base / p
+    return (Path(base_dir) / p) if base_dir is not None else p

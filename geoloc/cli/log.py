@@ -1,0 +1,120 @@
+"""``geoloc log``: write a rerun recording (.rrd) of a simulated flight or of flight-test records.
+
+The core computes (``geoloc.workflows.flight``, ``geoloc.workflows.replay``, ``geoloc.surfaces.terrain``);
+``geoloc.viz.rerun_log`` writes. rerun is imported only when the verb runs, so the
+core stays free of it.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from pathlib import Path
+
+from geoloc.assets import ASSETS
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "log",
+        help="write a rerun recording (.rrd) of a simulated scan or of flight-test records",
+        description="Log a simulated flight (scenario TOML, e.g. assets/scenarios/flight_scan.toml, "
+        "or just its name 'flight_scan') or a flight-test records CSV (one time step per record) "
+        "to a rerun recording: aircraft pose and frame chain, line of sight and hits in the local "
+        "ENU frame of the 3D viewer, time series (attitude, gimbal angles, slant range, target "
+        "height, errors, DEM evaluations, H_n - h_n of the height iteration), map points and a "
+        "default layout. Open it with `rerun run.rrd` (or the web viewer: --serve).",
+    )
+    p.add_argument("input", metavar="SCENARIO_OR_RECORDS",
+                   help="scenario .toml (or the name of a bundled one) or records .csv")
+    p.add_argument("--out", default=None, help="output .rrd file (required unless --serve or --spawn)")
+    p.add_argument("--camera", default=None, help="camera TOML (default: the scenario's, else bundled qiao2017.toml)")
+    g = p.add_argument_group("records: target height (first given wins; default paper_height_m)")
+    g.add_argument("--dem", default=None, help="DEM GeoTIFF to intersect the lines of sight with")
+    g.add_argument("--dem-datum", choices=["egm96", "ellipsoid"], default="egm96",
+                   help="vertical datum of the DEM heights (default egm96: orthometric)")
+    g.add_argument("--method", choices=["steps", "bisect", "exact"], default="exact",
+                   help="DEM intersection method (default exact)")
+    g.add_argument("--eps-h", type=float, default=None, help="step of the descending method [m]")
+    g.add_argument("--threshold", type=float, default=None, help="threshold of the bisection [m]")
+    g.add_argument("--target-h-m", type=float, default=None, help="one target height for every record [m]")
+    g.add_argument("--height-column", default=None, help="column with each target's ellipsoidal height [m]")
+    g.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
+                   help="inflated ellipsoid of [Q17] eq. 11 (default) or the exact constant-height surface")
+    g = p.add_argument_group("viewer")
+    g.add_argument("--display-scale", type=float, default=200.0,
+                   help="scale of the aircraft mesh in the 3D view (default 200)")
+    g.add_argument("--serve", action="store_true",
+                   help="also serve the recording to the web viewer (bundled in the rerun wheel, "
+                   "works offline) and wait for Ctrl-C")
+    g.add_argument("--web-port", type=int, default=9090, help="web viewer port (default 9090)")
+    g.add_argument("--grpc-port", type=int, default=9876, help="gRPC server port (default 9876)")
+    g.add_argument("--spawn", action="store_true",
+                   help="also start the native rerun viewer (needs a display) and stream to it")
+    p.set_defaults(func=run)
+
+
+def resolve_input(text: str) -> Path:
+    """A path, or the name of a bundled scenario in assets/scenarios/."""
+    path = Path(text)
+    if path.exists():
+        return path
+    bundled = Path(ASSETS) / "scenarios" / f"{text}.toml"
+    if not path.suffix and bundled.exists():
+        return bundled
+    raise FileNotFoundError(f"input not found: {text} (neither a file nor a bundled scenario name)")
+
+
+def run(args) -> int:
+    if args.out is None and not (args.serve or args.spawn):
+        raise ValueError("--out is required unless --serve or --spawn is given")
+    if not args.display_scale > 0:
+        raise ValueError(f"--display-scale = {args.display_scale}: must be > 0")
+    path = resolve_input(args.input)
+    from geoloc.viz.rerun_log import serve_web, write  # rerun is imported here only
+    from geoloc.viz.rerun_model import (
+        load_camera,
+        steps_from_flight,
+        steps_from_records,
+    )
+
+    camera = load_camera(args.camera) if args.camera else None
+    if path.suffix.lower() == ".toml":
+        from geoloc.workflows.flight import FlightScenario
+
+        steps = steps_from_flight(FlightScenario.from_toml(path), camera)
+    elif path.suffix.lower() == ".csv":
+        steps, errors = steps_from_records(
+            path, camera, height_column=args.height_column, target_h_m=args.target_h_m,
+            surface=args.surface, dem_path=args.dem, dem_datum=args.dem_datum, method=args.method,
+            eps_h_m=args.eps_h, threshold_m=args.threshold)
+        for err in errors:
+            print(f"{path}: skipped {err}", file=sys.stderr)
+    else:
+        raise ValueError(f"input {path}: expected a scenario .toml or a records .csv")
+    rec = write(steps, args.out, display_scale=args.display_scale, serve=args.serve,
+                grpc_port=args.grpc_port, spawn=args.spawn)
+    ok = int((steps.ground.status == 0).sum())
+    if args.out:
+        print(f"wrote {args.out}: {len(steps)} steps ({ok} located) on timeline(s) "
+              f"{', '.join(steps.timelines)}")
+    if args.serve:
+        url = serve_web(args.grpc_port, args.web_port)
+        print(f"web viewer: {url}  (Ctrl-C to stop)", flush=True)
+    if args.serve or args.spawn:
+        # Stop cleanly on Ctrl-C and on SIGTERM, even when started in the background
+        # (a non-interactive shell starts background jobs with SIGINT ignored).
+        def _stop(signum, frame):
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGINT, _stop)
+        signal.signal(signal.SIGTERM, _stop)
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            rec.disconnect()
+    return 0

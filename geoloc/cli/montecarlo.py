@@ -1,0 +1,180 @@
+"""``geoloc montecarlo``: Monte Carlo error analysis of a scenario [Q17 section 3].
+
+Degrees and metres at this edge; see ``docs/montecarlo.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.analysis import montecarlo as mc
+from geoloc.analysis.errormodel import ErrorModel
+from geoloc.status import Status
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "montecarlo",
+        help="Monte Carlo error analysis of a scenario TOML (statistics, CEP, Fig. 10 sweeps)",
+        description="Sample every error source of a scenario file (nominal pose, gimbal angles, "
+        "camera, target, per-parameter distributions; see docs/montecarlo.md), locate the "
+        "target for every sample through the geolocation chain, and report the mean and "
+        "standard deviation of lat, lon, h, the CEP of [Q17] eq. 18 and the empirical 50 %% "
+        "radius. With --sweep, CEP against the outer gimbal angle ([Q17] Fig. 10) as CSV + PNG.",
+    )
+    p.add_argument("scenario", help="scenario TOML, e.g. assets/scenarios/qiao2017_table1.toml")
+    p.add_argument("--samples", type=int, default=5000, help="number of samples N (default 5000)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--out", default=None,
+                   help="statistics JSON (single run) or output folder (with --sweep)")
+    p.add_argument("--sweep", choices=["terrain", "dem", "both"], default=None,
+                   help="terrain: CEP vs gimbal roll for several terrain sigmas, ellipsoid model "
+                   "([Q17] Fig. 10a); dem: the same with the target on the scenario's DEM "
+                   "(Fig. 10b); both")
+    p.add_argument("--angles-deg", default=None,
+                   help="sweep angles START:STOP:STEP in degrees, STOP included "
+                   "(default: the scenario's [sweep] angles_deg, else 10:82:2)")
+    p.add_argument("--terrain-sigmas-m", default=None,
+                   help="comma-separated terrain standard deviations [m] for --sweep terrain "
+                   "(default: the scenario's [sweep] terrain_sigmas_m, else 10,20,...,100)")
+    p.add_argument("--dem", default=None,
+                   help="DEM file replacing the target height (overrides the scenario's [dem])")
+    p.add_argument("--dem-datum", default="egm96",
+                   help="vertical datum of --dem heights: egm96 (default) or ellipsoid")
+    p.add_argument("--no-dem", action="store_true",
+                   help="ignore the scenario's [dem] table (ellipsoid model with target_h_m)")
+    p.add_argument("--chunk", type=int, default=mc.CHUNK,
+                   help=f"samples per vectorised batch (memory bound; default {mc.CHUNK})")
+    p.add_argument("--progress", action="store_true", default=None,
+                   help="force the stderr progress line on (default: on when stderr is a terminal)")
+    p.add_argument("--no-progress", dest="progress", action="store_false", default=None,
+                   help="no progress line")
+    p.set_defaults(func=run)
+
+
+def parse_angles(text: str) -> np.ndarray:
+    """``"10:82:2"`` -> [10, 12, ..., 82]; a comma list is also accepted."""
+    try:
+        if ":" in text:
+            a, b, s = (float(x) for x in text.split(":"))
+            if s <= 0 or b < a:
+                raise ValueError
+            return np.round(np.arange(a, b + s / 2, s), 9)
+        return np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        raise ValueError(f"--angles-deg = {text!r}: expected START:STOP:STEP (STEP > 0, "
+                         "STOP >= START) or a comma-separated list of degrees") from None
+
+
+def _floats(text: str, name: str) -> np.ndarray:
+    try:
+        v = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        raise ValueError(f"{name} = {text!r}: expected comma-separated numbers") from None
+    if np.any(~np.isfinite(v)) or np.any(v < 0):
+        raise ValueError(f"{name} = {text!r}: values must be finite and >= 0")
+    return v
+
+
+def load_model(args) -> ErrorModel:
+    from dataclasses import replace
+
+    from geoloc.analysis.errormodel import DemSpec
+    model = ErrorModel.from_toml(args.scenario)
+    if args.no_dem:
+        model = model.without_dem()
+    if args.dem:
+        if not Path(args.dem).exists():
+            raise FileNotFoundError(f"--dem file not found: {args.dem}")
+        model = replace(model, dem=DemSpec(Path(args.dem), args.dem_datum,
+                                           model.dem.method if model.dem else None))
+    return model
+
+
+def format_stats(stats: dict, nominal=None) -> str:
+    lines = []
+    if nominal is not None:
+        lat, lon, h, _ = nominal
+        lines.append(f"nominal target   {math.degrees(lat):.6f} N  {math.degrees(lon):.6f} E  {h:.1f} m")
+    lines += [
+        f"mean             {stats['mean_lat_deg']:.6f} N  {stats['mean_lon_deg']:.6f} E  {stats['mean_h_m']:.1f} m",
+        f"std              lat {stats['std_lat_deg']:.6f} deg  lon {stats['std_lon_deg']:.6f} deg  "
+        f"h {stats['std_h_m']:.2f} m",
+        f"CEP [Q17 eq. 18] {stats['cep_m']:.2f} m   empirical 50 % radius {stats['cep50_empirical_m']:.2f} m",
+        f"samples          {stats['n_ok']} located, {stats['n_failed']} failed",
+    ]
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    if args.samples < 2:
+        raise ValueError(f"--samples = {args.samples}: must be >= 2")
+    model = load_model(args)
+    rng = np.random.default_rng(args.seed)
+    if args.sweep is None:
+        res = mc.run(model, args.samples, rng, chunk=args.chunk, progress=args.progress)
+        if res.stats["n_ok"] < 2:
+            st = np.bincount(res.status, minlength=len(Status))
+            why = ", ".join(f"{Status(k).name.lower()}: {int(c)}" for k, c in enumerate(st) if c)
+            print(f"geoloc montecarlo: fewer than 2 samples located ({why}); no statistics",
+                  file=sys.stderr)
+            return 1
+        print(f"scenario {model.name}: N = {args.samples}, seed {args.seed}, "
+              f"{'DEM ' + str(model.dem.path) if model.dem else 'ellipsoid model'}, "
+              f"{res.seconds:.2f} s")
+        print(format_stats(res.stats, res.nominal))
+        if model.dem is None:
+            try:
+                fo = mc.first_order(model)
+                print(f"first order      lat {fo.std_lat_deg:.6f} deg  lon {fo.std_lon_deg:.6f} deg  "
+                      f"h {fo.std_h_m:.2f} m  eq. 18 {fo.cep_m:.2f} m")
+            except ValueError as e:  # the nominal geometry (or a step of it) has no ground point
+                print(f"first order      not available: {e}")
+        if args.out:
+            out = {k: float(res.stats[k]) for k in mc.STATS_KEYS}
+            Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
+            print(f"wrote {args.out}")
+        return 0
+
+    sw = model.sweep
+    angles = parse_angles(args.angles_deg) if args.angles_deg else (
+        _sweep_angles(sw.get("angles_deg")) if "angles_deg" in sw else parse_angles("10:82:2"))
+    sigmas = _floats(args.terrain_sigmas_m, "--terrain-sigmas-m") if args.terrain_sigmas_m else (
+        np.asarray(sw.get("terrain_sigmas_m", np.arange(10.0, 101.0, 10.0)), float))
+    outdir = Path(args.out or "montecarlo_sweep")
+    outdir.mkdir(parents=True, exist_ok=True)
+    kinds = ["terrain", "dem"] if args.sweep == "both" else [args.sweep]
+    for kind in kinds:
+        if kind == "terrain":
+            s = mc.sweep_terrain_sigma(model, angles, sigmas, args.samples, rng, args.progress)
+            stem = "fig10a_terrain_sigma"
+        else:
+            if model.dem is None:
+                raise ValueError(f"--sweep dem: scenario {args.scenario} has no [dem] table; give --dem")
+            s = mc.sweep_dem(model, angles, args.samples, rng, progress=args.progress)
+            stem = "fig10b_dem"
+        s.to_csv(outdir / f"{stem}.csv")
+        s.to_png(outdir / f"{stem}.png")
+        print(f"{s.title}: wrote {outdir / (stem + '.csv')} and .png")
+        print(sweep_table(s))
+    return 0
+
+
+def _sweep_angles(v) -> np.ndarray:
+    if isinstance(v, list) and len(v) == 3:
+        return parse_angles(":".join(str(x) for x in v))
+    raise ValueError(f"[sweep] angles_deg = {v!r}: expected [start, stop, step]")
+
+
+def sweep_table(s: mc.Sweep, every: int = 1) -> str:
+    """Plain text: one line per angle, CEP (eq. 18) per curve."""
+    head = f"{'angle':>6} " + " ".join(f"{lab:>14}" for lab in s.labels)
+    lines = [head + "   (CEP [Q17 eq. 18], m)"]
+    for i in range(0, len(s.angles_deg), every):
+        lines.append(f"{s.angles_deg[i]:6.1f} " + " ".join(f"{v:14.1f}" for v in s.cep_m[i]))
+    return "\n".join(lines)

@@ -1,0 +1,75 @@
+"""Command-line DEM options shared by the verbs that can locate on terrain (locate, replay).
+
+``add_dem_options(parser)`` adds ``--dem FILE --method --dem-datum --eps-h
+--threshold --dem-surface``; giving ``--dem`` installs the verb's terrain hook
+(``args._terrain_hook``), so the verb's own code path is untouched without it.
+Degrees and metres at this edge (docs/conventions.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from geoloc.surfaces.terrain import METHODS, SURFACES, intersect_dem
+
+
+def _open_dem(args):
+    from geoloc.surfaces.dem import DEM
+
+    return DEM.open(args.dem, datum=args.dem_datum)
+
+
+def _solve(args, los):
+    return intersect_dem(los, _open_dem(args), args.method, eps_h=args.eps_h,
+                         threshold=args.threshold, surface=args.dem_surface)
+
+
+def locate_hook(args, los):
+    """``geoloc locate --dem``: returns (ground point, extra output fields)."""
+    hit = _solve(args, los)
+    extra = {"method": args.method, "dem_evaluations": int(hit.dem_evaluations)}
+    if args.method == "bisect":
+        extra["hidden"] = bool(hit.hidden)
+    return hit, extra
+
+
+def replay_hook(args, records, camera):
+    """``geoloc replay --dem``: locate every record on the DEM; adds status and dem_evaluations."""
+    from geoloc.workflows.replay import records_line_of_sight, result_from_ground
+
+    hit = _solve(args, records_line_of_sight(records, camera))
+    extra = {"status": hit.status, "dem_evaluations": hit.dem_evaluations.astype(np.int64)}
+    if args.method == "bisect":
+        extra["hidden"] = hit.hidden.astype(np.int64)
+    return result_from_ground(records, hit, extra)
+
+
+class _DemAction(argparse.Action):
+    def __init__(self, *a, hook=None, **k):
+        self.hook = hook
+        super().__init__(*a, **k)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        setattr(namespace, "_terrain_hook", self.hook)
+
+
+def add_dem_options(parser, hook) -> None:
+    """Add the DEM options to a verb's parser; ``hook`` runs the verb on the DEM."""
+    g = parser.add_argument_group("terrain (DEM)")
+    g.add_argument("--dem", metavar="FILE", default=None, action=_DemAction, hook=hook,
+                   help="DEM raster (GeoTIFF, ...): intersect the line of sight with the terrain instead "
+                   "of a target height, e.g. assets/dem/etopo5_flight_area.tif")
+    g.add_argument("--method", choices=METHODS, default="exact",
+                   help="steps: descending steps of [Q17]; bisect: halving of [L23]; "
+                   "exact: first visible hit, no threshold (default)")
+    g.add_argument("--dem-datum", choices=["egm96", "ellipsoid"], default="egm96",
+                   help="vertical datum of the DEM heights (default egm96: real DEMs are orthometric; "
+                   "N from the bundled EGM96 grid)")
+    g.add_argument("--eps-h", type=float, default=1.0, help="step of --method steps [m] (default 1)")
+    g.add_argument("--threshold", type=float, default=1.0,
+                   help="bisection stops when |H - h_DEM| < threshold [m] (default 1)")
+    g.add_argument("--dem-surface", choices=SURFACES, default="bilinear",
+                   help="exact method: bilinear cells (default) or two triangles per cell")

@@ -1,1 +1,0 @@
-"""Command-line verbs: each module defines ``register(subparsers)`` (see :mod:`geoloc.cli`)."""

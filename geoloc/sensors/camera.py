@@ -1,0 +1,253 @@
+"""Frame camera: pixel <-> line of sight [Q17 eq. 8, generalised].
+
+Conventions: ``docs/conventions.md``. Pixels are (row i, column j), 1-based as
+in [Q17] (pixel (1, 1) is the centre of the first pixel). In the camera frame S
+(Z_S the line of sight, at zero gimbal angles S coincides with the aircraft
+body frame), the line of sight through pixel (i, j) is
+
+    d_S = [i - i0, j0 - j, f]          (f in pixels)
+
+[Q17 eq. 8] with (i0, j0) = ((M+1)/2, (N+1)/2) and f = focal length / pixel
+pitch; here (i0, j0) is a principal point and f a focal length in pixels.
+
+Camera file (TOML), e.g. ``assets/cameras/qiao2017.toml``::
+
+    focal_length_px = 166841.0   # focal length / pixel pitch
+    principal_row = 1162.12      # i0, 1-based rows
+    principal_col = 1146.42      # j0, 1-based columns
+    rows = 2323                  # M
+    cols = 2292                  # N
+    pixel_pitch_m = 7.0e-6       # optional: gives the sensor size in metres
+    name = "..."                 # optional
+    boresight_deg = [0.0, 0.0, 0.0]  # optional: camera in the inner gimbal (R_cam_inner)
+    mount_deg = [0.0, 0.22, 0.0]     # optional: gimbal base in the aircraft body (R_base_body)
+
+The two optional calibration rotations (written by ``geoloc calibrate
+--write-camera``, see ``docs/calibration.md``) are three small angles
+(x, y, z) in degrees, each giving the passive rotation
+``rx(x) @ ry(y) @ rz(z)`` (``docs/conventions.md``):
+
+- ``boresight_deg``: ``R_cam_inner``, the camera (optical axes) relative to
+  the inner gimbal frame, ``v_cam = R_cam_inner @ v_inner``;
+- ``mount_deg``: ``R_base_body``, the gimbal base relative to the aircraft
+  body (POS) axes, ``v_base = R_base_body @ v_body``.
+
+They enter the frame chain of :class:`geoloc.frames.chain.FrameChain` exactly where
+its ``R_cam_inner`` / ``R_base_body`` hooks are; :func:`geoloc.locate.line_of_sight`
+and :func:`geoloc.locate.ground_to_pixel` apply them whenever they build the
+chain themselves. Absent (the default), the camera behaves as before.
+
+Lens distortion: none in [Q17]; :meth:`Camera.undistort` /
+:meth:`Camera.distort` are the hook (identity here) that a distortion model
+overrides in a subclass.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.status import Status
+from geoloc.tomlio import read_toml
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole frame camera.
+
+    Attributes
+    ----------
+    focal_length_px : float
+        Focal length in pixels (f / a of [Q17 eq. 8]).
+    principal_row, principal_col : float
+        Principal point (i0, j0), 1-based pixel coordinates.
+    rows, cols : int
+        Sensor size M x N in pixels.
+    pixel_pitch_m : float or None
+        Pixel pitch a [m]; optional, only for the sensor size in metres.
+    name : str
+        Free text.
+    boresight : tuple of 3 float or None
+        Angles (x, y, z) [rad] of ``R_cam_inner = rx(x) @ ry(y) @ rz(z)``,
+        the camera relative to the inner gimbal (file key ``boresight_deg``).
+    mount : tuple of 3 float or None
+        Angles (x, y, z) [rad] of ``R_base_body = rx(x) @ ry(y) @ rz(z)``,
+        the gimbal base relative to the aircraft body (file key ``mount_deg``).
+    """
+
+    focal_length_px: float
+    principal_row: float
+    principal_col: float
+    rows: int
+    cols: int
+    pixel_pitch_m: float | None = None
+    name: str = ""
+    boresight: tuple | None = None
+    mount: tuple | None = None
+
+    def __post_init__(self):
+        def bad(field, value, why):
+            raise ValueError(f"camera field {field} = {value!r}: {why}")
+
+        f = self.focal_length_px
+        if not (isinstance(f, (int, float)) and math.isfinite(f) and f > 0):
+            bad("focal_length_px", f, "must be a finite number > 0")
+        for k in ("principal_row", "principal_col"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+                bad(k, v, "must be a finite number")
+        for k in ("rows", "cols"):
+            v = getattr(self, k)
+            if not (isinstance(v, int) and not isinstance(v, bool) and v > 0):
+                bad(k, v, "must be a positive integer")
+        p = self.pixel_pitch_m
+        if p is not None and not (isinstance(p, (int, float)) and math.isfinite(p) and p > 0):
+            bad("pixel_pitch_m", p, "must be a finite number > 0 (metres)")
+        for k in ("boresight", "mount"):
+            v = getattr(self, k)
+            if v is None:
+                continue
+            ok = (isinstance(v, (tuple, list)) and len(v) == 3
+                  and all(isinstance(a, (int, float)) and not isinstance(a, bool)
+                          and math.isfinite(a) and abs(a) <= math.pi for a in v))
+            if not ok:
+                bad(k, v, "must be three finite angles in [-pi, pi] radians")
+            object.__setattr__(self, k, tuple(float(a) for a in v))
+
+    # ------------------------------------------------------------------ I/O
+    @classmethod
+    def from_toml(cls, path) -> "Camera":
+        """Load a camera file; unknown keys and missing keys are errors naming the key."""
+        path = Path(path)
+        data = read_toml(path, "camera file")
+        return cls.from_dict(data, source=str(path))
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "camera") -> "Camera":
+        known = {"focal_length_px", "principal_row", "principal_col", "rows", "cols",
+                 "pixel_pitch_m", "name", "boresight_deg", "mount_deg"}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(known)}")
+        missing = [k for k in ("focal_length_px", "principal_row", "principal_col", "rows", "cols")
+                   if k not in data]
+        if missing:
+            raise ValueError(f"{source}: missing key(s) {missing}")
+        data = dict(data)
+        for k in ("boresight", "mount"):
+            if f"{k}_deg" in data:
+                v = data.pop(f"{k}_deg")
+                if not (isinstance(v, list) and len(v) == 3
+                        and all(isinstance(a, (int, float)) and not isinstance(a, bool) for a in v)):
+                    raise ValueError(f"{source}: {k}_deg = {v!r}: must be a list of three numbers (degrees)")
+                data[k] = tuple(math.radians(a) for a in v)
+        return cls(**data)
+
+    def to_toml(self, path) -> None:
+        """Write the camera as TOML (the format of :meth:`from_toml`)."""
+        lines = []
+        for k, v in asdict(self).items():
+            if v is None or (k == "name" and not v):
+                continue
+            if k in ("boresight", "mount"):
+                lines.append(f"{k}_deg = [{', '.join(repr(math.degrees(a)) for a in v)}]")
+                continue
+            lines.append(f"{k} = {v!r}" if not isinstance(v, str) else f'{k} = "{v}"')
+        Path(path).write_text("\n".join(lines) + "\n")
+
+    # ------------------------------------------------------------ geometry
+    @staticmethod
+    def _rotation(angles):
+        from geoloc.frames.rotations import rx, ry, rz
+
+        if angles is None:
+            return None
+        x, y, z = angles
+        return rx(x) @ ry(y) @ rz(z)
+
+    @property
+    def R_cam_inner(self):
+        """Boresight rotation inner gimbal -> camera (3, 3), or None if the camera has none."""
+        return self._rotation(self.boresight)
+
+    @property
+    def R_base_body(self):
+        """Mounting rotation aircraft body -> gimbal base (3, 3), or None if the camera has none."""
+        return self._rotation(self.mount)
+
+    @property
+    def center_pixel(self) -> tuple[float, float]:
+        """CCD centre ((M+1)/2, (N+1)/2) in 1-based pixels [Q17 eq. 8]."""
+        return (self.rows + 1) / 2.0, (self.cols + 1) / 2.0
+
+    @property
+    def sensor_size_m(self) -> tuple[float, float] | None:
+        """Sensor height and width in metres, if the pixel pitch is known."""
+        if self.pixel_pitch_m is None:
+            return None
+        return self.rows * self.pixel_pitch_m, self.cols * self.pixel_pitch_m
+
+    def undistort(self, row, col):
+        """Distortion hook: measured pixel -> ideal pinhole pixel (identity: [Q17] has none)."""
+        return np.asarray(row, float), np.asarray(col, float)
+
+    def distort(self, row, col):
+        """Distortion hook: ideal pinhole pixel -> measured pixel (identity)."""
+        return np.asarray(row, float), np.asarray(col, float)
+
+    def pixel_to_los(self, row, col) -> np.ndarray:
+        """Unit line-of-sight direction in the camera frame S [Q17 eq. 8, generalised].
+
+        d_S = [i - i0, j0 - j, f] / |.|. Pixels outside the sensor are allowed
+        (the geometry is the same); :meth:`in_image` tells.
+
+        Parameters
+        ----------
+        row, col : array_like
+            1-based pixel coordinates (i, j), broadcasting.
+
+        Returns
+        -------
+        ndarray (..., 3)
+        """
+        i, j = self.undistort(row, col)
+        i, j = np.broadcast_arrays(i, j)
+        d = np.stack([i - self.principal_row, self.principal_col - j,
+                      np.full(i.shape, float(self.focal_length_px))], axis=-1)
+        return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+    def los_to_pixel(self, d_cam):
+        """Camera-frame direction -> pixel (the inverse of :meth:`pixel_to_los`).
+
+        Parameters
+        ----------
+        d_cam : array_like (..., 3)
+            Direction in the camera frame (any length).
+
+        Returns
+        -------
+        row, col : ndarray
+            1-based pixel coordinates; NaN where the direction is behind the
+            camera (z_S <= 0).
+        status : ndarray of uint8
+            OK or BEHIND_CAMERA.
+        """
+        d = np.asarray(d_cam, float)
+        z = d[..., 2]
+        behind = ~(z > 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            i = self.principal_row + self.focal_length_px * d[..., 0] / z
+            j = self.principal_col - self.focal_length_px * d[..., 1] / z
+        i = np.where(behind, np.nan, i)
+        j = np.where(behind, np.nan, j)
+        i, j = self.distort(i, j)
+        status = np.where(behind, Status.BEHIND_CAMERA, Status.OK).astype(np.uint8)
+        return i, j, status
+
+    def in_image(self, row, col) -> np.ndarray:
+        """True where (row, col) lies on the sensor: 0.5 <= i <= M + 0.5, same for j."""
+        row, col = np.asarray(row, float), np.asarray(col, float)
+        return (row >= 0.5) & (row <= self.rows + 0.5) & (col >= 0.5) & (col <= self.cols + 0.5)

@@ -1,0 +1,347 @@
+"""Digital elevation models on rasterio: bilinear heights above the WGS-84 ellipsoid.
+
+A :class:`DEM` is a grid of *nodes* (the raster's pixel centres) with
+bilinear interpolation between the four nodes of each cell (GEOMETRY.md
+section 4). Heights are converted once, node by node, to ellipsoidal heights:
+real DEMs are orthometric (``datum="egm96"``: h = H + N with the bundled EGM96
+grid, :func:`geoloc.geodesy.geoid.egm96_undulation`); synthetic ones may already be
+ellipsoidal (``datum="ellipsoid"``).
+
+Any CRS: query points are transformed from geodetic WGS-84 to the DEM's CRS
+with pyproj. The exact first-hit solver of :mod:`geoloc.surfaces.terrain` walks
+geographic cells and needs a geographic (lat/lon) DEM; the iterative solvers
+work with any CRS.
+
+Conventions: ``docs/conventions.md`` (radians inside; ``_deg`` only at edges).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+from geoloc.geodesy.geoid import NodeGrid, egm96_undulation
+from geoloc.status import Status
+
+DATUMS = ("egm96", "ellipsoid")
+
+
+def _check_datum(datum):
+    if datum not in DATUMS:
+        raise ValueError(f"datum must be one of {DATUMS}, got {datum!r}")
+
+
+class DEM:
+    """A DEM as a node grid of ellipsoidal heights with bilinear sampling.
+
+    Build with :meth:`open` (a raster file) or :meth:`from_array` (synthetic).
+
+    Attributes
+    ----------
+    grid : geoloc.geodesy.geoid.NodeGrid
+        Ellipsoidal node heights [m] (NaN = no data), in the DEM's CRS
+        coordinates (degrees for geographic CRS: ``lat_north_deg`` is the
+        y of row 0, ``lon_west_deg`` the x of column 0).
+    orthometric : ndarray or None
+        The heights as read (before adding N), for ``datum="egm96"``.
+    crs : pyproj.CRS
+        Horizontal CRS of the grid.
+    datum : {"egm96", "ellipsoid"}
+        Vertical datum of the source heights.
+    path : str or None
+        Source file.
+    """
+
+    def __init__(self, grid: NodeGrid, crs=None, datum="ellipsoid", orthometric=None, path=None):
+        import pyproj
+
+        _check_datum(datum)
+        self.grid = grid
+        self.crs = pyproj.CRS.from_user_input(crs if crs is not None else "EPSG:4326")
+        self.datum = datum
+        self.orthometric = orthometric
+        self.path = path
+        self.is_geographic = bool(self.crs.is_geographic)
+        self._to_crs = None
+        if not self.is_geographic:
+            self._to_crs = pyproj.Transformer.from_crs("EPSG:4326", self.crs, always_xy=True)
+            self._from_crs = pyproj.Transformer.from_crs(self.crs, "EPSG:4326", always_xy=True)
+        self._cell_max = None
+
+    # ------------------------------------------------------------------ building
+    @classmethod
+    def open(cls, path, datum="egm96", band: int = 1) -> "DEM":
+        """Read a north-up raster (GeoTIFF, any GDAL format) with rasterio.
+
+        Parameters
+        ----------
+        path : path-like
+            Raster file; its pixel centres are taken as the nodes.
+        datum : {"egm96", "ellipsoid"}
+            Vertical datum of the file's heights. Real DEMs (SRTM, ASTER,
+            ETOPO) are orthometric: "egm96" (the default) adds N.
+        band : int
+            Band to read.
+
+        Raises
+        ------
+        FileNotFoundError, ValueError
+            Missing file, rotated/south-up raster, missing CRS, bad datum.
+        """
+        import rasterio
+
+        _check_datum(datum)
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"DEM file not found: {path}")
+        with rasterio.open(path) as src:
+            t = src.transform
+            if t.b != 0 or t.d != 0 or t.e >= 0:
+                raise ValueError(f"DEM {path}: transform {tuple(t)[:6]} is not north-up")
+            if src.crs is None:
+                raise ValueError(f"DEM {path}: the file has no CRS")
+            v = src.read(band, masked=True).astype(float).filled(np.nan)
+            crs = src.crs.to_wkt()
+        grid = NodeGrid(v, t.f + t.e / 2, t.c + t.a / 2, -t.e, t.a, str(path))
+        return cls._with_datum(grid, crs, datum, str(path))
+
+    @classmethod
+    def from_array(cls, heights, lat_north_deg, lon_west_deg, dlat_deg, dlon_deg,
+                   datum="ellipsoid", nodata=None, crs="EPSG:4326") -> "DEM":
+        """A DEM from an array of node heights (row 0 north), e.g. synthetic terrain.
+
+        Parameters
+        ----------
+        heights : array_like (nrows, ncols)
+            Node heights [m]; at least 2 x 2.
+        lat_north_deg, lon_west_deg : float
+            Position of node (0, 0) [deg] (CRS units for a projected ``crs``).
+        dlat_deg, dlon_deg : float
+            Positive node spacings [deg]; rows go south, columns east.
+        datum : {"ellipsoid", "egm96"}
+            Vertical datum of ``heights``.
+        nodata : float, optional
+            Value marking missing nodes (NaN always does).
+        """
+        _check_datum(datum)
+        h = np.array(heights, dtype=float)
+        if h.ndim != 2 or min(h.shape) < 2:
+            raise ValueError(f"heights must be a 2-D array of at least 2 x 2 nodes, got shape {h.shape}")
+        for name, val in (("dlat_deg", dlat_deg), ("dlon_deg", dlon_deg)):
+            if not (np.isfinite(val) and val > 0):
+                raise ValueError(f"{name} must be a positive spacing, got {val!r}")
+        if nodata is not None:
+            h[h == nodata] = np.nan
+        grid = NodeGrid(h, float(lat_north_deg), float(lon_west_deg), float(dlat_deg), float(dlon_deg))
+        return cls._with_datum(grid, crs, datum, None)
+
+    @classmethod
+    def _with_datum(cls, grid, crs, datum, path):
+        dem = cls(grid, crs=crs, datum=datum, path=path)
+        if datum == "egm96":
+            lat_deg, lon_deg = dem.node_latlon_deg()
+            n = egm96_undulation(np.deg2rad(lat_deg), np.deg2rad(lon_deg))
+            ortho = grid.values
+            grid = NodeGrid(ortho + n, grid.lat_north_deg, grid.lon_west_deg,
+                            grid.dlat_deg, grid.dlon_deg, grid.path)
+            dem = cls(grid, crs=crs, datum=datum, orthometric=ortho, path=path)
+        return dem
+
+    # ------------------------------------------------------------------ geometry
+    @property
+    def shape(self) -> tuple:
+        """(nrows, ncols) of nodes."""
+        return self.grid.values.shape
+
+    def node_latlon_deg(self):
+        """Geodetic latitude and longitude [deg] of every node, each (nrows, ncols)."""
+        g = self.grid
+        nr, nc = self.shape
+        y = g.lat_north_deg - g.dlat_deg * np.arange(nr)
+        x = g.lon_west_deg + g.dlon_deg * np.arange(nc)
+        X, Y = np.meshgrid(x, y)
+        if self.is_geographic:
+            return Y, X
+        lon, lat = self._from_crs.transform(X, Y)
+        return np.asarray(lat), np.asarray(lon)
+
+    def _xy(self, lat, lon):
+        """Geodetic [rad] -> grid CRS coordinates (y, x)."""
+        lat_deg = np.rad2deg(np.asarray(lat, float))
+        lon_deg = np.rad2deg(np.asarray(lon, float))
+        if self.is_geographic:
+            g = self.grid
+            # bring the longitude to the grid's 360-degree window
+            lon_deg = (lon_deg - g.lon_west_deg + 180.0) % 360.0 + g.lon_west_deg - 180.0
+            return lat_deg, lon_deg
+        x, y = self._to_crs.transform(lon_deg, lat_deg)
+        return np.asarray(y), np.asarray(x)
+
+    @property
+    def bounds_deg(self) -> tuple:
+        """(west, south, east, north) [deg] of the node hull, where heights are defined.
+
+        For a projected CRS: the geodetic bounding box of the hull (pyproj
+        ``transform_bounds``).
+        """
+        g = self.grid
+        w, s, e, n = g.lon_west_deg, g.lat_south_deg, g.lon_east_deg, g.lat_north_deg
+        if self.is_geographic:
+            return (w, s, e, n)
+        return tuple(self._from_crs.transform_bounds(w, s, e, n))
+
+    # ------------------------------------------------------------------ sampling
+    def sample(self, lat, lon):
+        """Ellipsoidal height and status at geodetic points.
+
+        Parameters
+        ----------
+        lat, lon : array_like
+            Geodetic latitude and longitude [rad], broadcasting.
+
+        Returns
+        -------
+        h : ndarray
+            Bilinear ellipsoidal height [m]; NaN outside the node hull or
+            where a node of the cell has no data.
+        status : ndarray of uint8
+            OK, LEFT_DEM (outside), NODATA, or INVALID_INPUT (non-finite).
+        """
+        lat, lon = np.broadcast_arrays(np.asarray(lat, float), np.asarray(lon, float))
+        y, x = self._xy(lat, lon)
+        finite = np.isfinite(y) & np.isfinite(x)
+        inside = finite & self.grid.contains(y, x)
+        h = self.grid.interp(y, x)
+        status = np.full(lat.shape, Status.OK, dtype=np.uint8)
+        status[~finite] = Status.INVALID_INPUT
+        status[finite & ~inside] = Status.LEFT_DEM
+        status[inside & ~np.isfinite(h)] = Status.NODATA
+        return np.where(status == Status.OK, h, np.nan), status
+
+    def height(self, lat, lon):
+        """Bilinear ellipsoidal height [m] at geodetic (lat, lon) [rad]; NaN outside / no data."""
+        return self.sample(lat, lon)[0]
+
+    def _region_nodes(self, region):
+        v = self.grid.values
+        if region is None:
+            return v
+        w, s, e, n = (float(x) for x in region)
+        if not (w <= e and s <= n):
+            raise ValueError(f"region must be (west, south, east, north) in degrees, got {region!r}")
+        if not self.is_geographic:
+            xs, ys = self._to_crs.transform([w, e, w, e], [s, s, n, n])
+            w, e, s, n = min(xs), max(xs), min(ys), max(ys)
+        g = self.grid
+        r0, c0 = g.grid_coords(n, w)
+        r1, c1 = g.grid_coords(s, e)
+        nr, nc = v.shape
+        # nodes of every cell that touches the region: an upper/lower bound of the bilinear surface
+        i0, i1 = int(np.clip(np.floor(r0), 0, nr - 1)), int(np.clip(np.ceil(r1), 0, nr - 1))
+        j0, j1 = int(np.clip(np.floor(c0), 0, nc - 1)), int(np.clip(np.ceil(c1), 0, nc - 1))
+        return v[i0: i1 + 1, j0: j1 + 1]
+
+    def max_height(self, region=None) -> float:
+        """Highest ellipsoidal node height [m] (of the cells touching ``region``).
+
+        Bilinear cells never exceed their nodes, so this bounds the surface: it
+        is the H_max that starts the descending steps of [Q17 section 2.3].
+
+        Parameters
+        ----------
+        region : (west, south, east, north) in degrees, optional
+        """
+        return float(np.nanmax(self._region_nodes(region)))
+
+    def min_height(self, region=None) -> float:
+        """Lowest ellipsoidal node height [m] (of the cells touching ``region``)."""
+        return float(np.nanmin(self._region_nodes(region)))
+
+    def cell_max(self) -> np.ndarray:
+        """Per-cell maximum of the 4 node heights, (nrows-1, ncols-1); NaN if any node is missing."""
+        if self._cell_max is None:
+            v = self.grid.values
+            self._cell_max = np.maximum(np.maximum(v[:-1, :-1], v[:-1, 1:]), np.maximum(v[1:, :-1], v[1:, 1:]))
+        return self._cell_max
+
+    # ------------------------------------------------------------------ meshes
+    def mesh(self, stride: int = 1):
+        """Triangle mesh of the nodes in ECEF: two triangles per cell.
+
+        Each cell (i, j) with corners p00 = node(i, j), p10 = node(i, j+1)
+        (east), p01 = node(i+1, j) (south), p11 = node(i+1, j+1) is split along
+        the p00-p11 diagonal into (p00, p01, p11) and (p00, p11, p10), the
+        triangles the exact solver uses with ``surface="triangles"``. Cells
+        with a missing node are left out.
+
+        Returns
+        -------
+        vertices_ecef : ndarray (nrows * ncols, 3)
+            Node positions in ECEF [m] (missing nodes at height 0).
+        faces : ndarray (n_faces, 3) of int
+        """
+        if not (isinstance(stride, (int, np.integer)) and stride >= 1):
+            raise ValueError(f"stride must be a positive integer, got {stride!r}")
+        lat_deg, lon_deg = self.node_latlon_deg()
+        h = self.grid.values
+        lat_deg, lon_deg, h = (a[::stride, ::stride] for a in (lat_deg, lon_deg, h))
+        nr, nc = h.shape
+        v = geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), np.nan_to_num(h)).reshape(-1, 3)
+        idx = np.arange(nr * nc).reshape(nr, nc)
+        p00, p10, p01, p11 = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+        ok = np.isfinite(h)
+        good = (ok[:-1, :-1] & ok[:-1, 1:] & ok[1:, :-1] & ok[1:, 1:]).ravel()
+        f1 = np.stack([p00, p01, p11], axis=-1).reshape(-1, 3)[good]
+        f2 = np.stack([p00, p11, p10], axis=-1).reshape(-1, 3)[good]
+        faces = np.stack([f1, f2], axis=1).reshape(-1, 3)
+        return v, faces
+
+    def enu_frame(self, origin_lat=None, origin_lon=None, origin_h=0.0):
+        """A :class:`geoloc.frames.enu.EnuFrame` at the given origin (default: the DEM's centre, h 0)."""
+        from geoloc.frames.enu import EnuFrame
+
+        w, s, e, n = self.bounds_deg
+        lat0 = np.deg2rad(0.5 * (s + n)) if origin_lat is None else float(origin_lat)
+        lon0 = np.deg2rad(0.5 * (w + e)) if origin_lon is None else float(origin_lon)
+        return EnuFrame(lat0, lon0, float(origin_h))
+
+    def to_trimesh(self, stride: int = 1, origin_lat=None, origin_lon=None, origin_h=0.0,
+                   frame: str = "enu"):
+        """The :meth:`mesh` as a ``trimesh.Trimesh`` in a local ENU frame (or ECEF).
+
+        Use ENU for drawing (three.js and embree use float32: ECEF magnitudes
+        lose half a metre) and for ray casting with trimesh.
+
+        Parameters
+        ----------
+        stride : int
+            Take every ``stride``-th node.
+        origin_lat, origin_lon : float, optional
+            ENU origin [rad]; default the DEM's centre.
+        origin_h : float
+            ENU origin height [m].
+        frame : {"enu", "ecef"}
+
+        Returns
+        -------
+        trimesh.Trimesh
+            With ``metadata["enu_frame"]`` holding the :class:`EnuFrame` for "enu".
+        """
+        import trimesh
+
+        v, f = self.mesh(stride)
+        if frame == "enu":
+            fr = self.enu_frame(origin_lat, origin_lon, origin_h)
+            m = trimesh.Trimesh(fr.from_ecef(v), f, process=False)
+            m.metadata["enu_frame"] = fr
+            return m
+        if frame == "ecef":
+            return trimesh.Trimesh(v, f, process=False)
+        raise ValueError(f"frame must be 'enu' or 'ecef', got {frame!r}")
+
+    def __repr__(self):
+        w, s, e, n = self.bounds_deg
+        return (f"DEM({self.path or 'array'}, {self.shape[0]}x{self.shape[1]} nodes, "
+                f"W{w:.4f} S{s:.4f} E{e:.4f} N{n:.4f}, datum={self.datum})")

@@ -1,0 +1,461 @@
+"""Line of sight x DEM: three solvers behind one interface (GEOMETRY.md section 4).
+
+* ``"steps"``: the descending steps of [Q17 section 2.3]: H_0 = H_max (the
+  highest DEM node), locate the target on the ellipsoid inflated to H_n
+  [Q17 eq. 10-11], read the DEM height h_n there, and while H_n - h_n > 0 set
+  H_(n+1) = H_n - eps_h. The answer is the point at the first H_n below the
+  terrain; its height is within eps_h of the crossing.
+* ``"bisect"``: the halving search of [L23] on the target height between the
+  DEM's lowest and highest nodes: at the midpoint H compare H with the DEM
+  height under the line of sight, keep the half holding the sign change, stop
+  when |H - h| < threshold. At grazing angles it can return a crossing hidden
+  behind a ridge: ``TerrainHit.hidden`` flags those rays.
+* ``"exact"``: walk the DEM cells under the ray (exact cell boundaries, see
+  :mod:`geoloc.surfaces.terrain_numba`) from the height H_max down, skip cells whose
+  highest node is below a rigorous lower bound of the ray's height there, and
+  solve the cell's surface: the bilinear patch (root of the exact residual,
+  polished to 1e-7 m along the ray) or two planar triangles (Moller-Trumbore,
+  the same mesh as :meth:`geoloc.surfaces.dem.DEM.to_trimesh`). No threshold.
+
+Conventions: ``docs/conventions.md``. Batch functions return NaN and a
+:class:`geoloc.status.Status` per ray, never raise for a bad ray.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geoloc.geodesy.ellipsoid import E2, A, B, ecef_to_geodetic, prime_vertical_radius
+from geoloc.status import Status
+from geoloc.surfaces.base import LatLonDeg, LineOfSight
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.height import ray_inflated_ellipsoid
+
+METHODS = ("steps", "bisect", "exact")
+SURFACES = ("bilinear", "triangles")
+#: Margin [m] above H_max / below H_min where the exact walk starts / ends: the
+#: inflated ellipsoid of [Q17 eq. 11] departs from the constant-height surface
+#: by millimetres at these heights (geoloc.surfaces.height), far below 1 m.
+_MARGIN_M = 1.0
+
+
+@dataclass(frozen=True)
+class TerrainTrace:
+    """Iterations of a DEM solver, padded with NaN to the longest ray.
+
+    Attributes (``batch`` is the shape of the line-of-sight batch, ``m`` the
+    longest iteration count)
+    ----------
+    H : ndarray (batch + (m,))
+        Trial height H_n [m] (steps, bisection), or the ray's height where it
+        enters each visited cell (exact).
+    lat, lon : ndarray (batch + (m,))
+        Ground point on the line of sight at H_n [rad].
+    ecef : ndarray (batch + (m, 3))
+        The same point in ECEF [m].
+    h_dem : ndarray (batch + (m,))
+        DEM height h_n under that point [m].
+    lo, hi : ndarray (batch + (m,))
+        Bisection bracket [m] before each step (NaN for the other methods).
+    cell : ndarray (batch + (m, 2)) of int
+        Exact solver: (row, col) of each visited cell; -1 otherwise.
+    count : ndarray (batch) of int
+        Number of valid entries per ray.
+    """
+
+    method: str
+    H: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    ecef: np.ndarray
+    h_dem: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    cell: np.ndarray
+    count: np.ndarray
+
+    def ray(self, index=()):
+        """The trace of one ray as a dict of 1-D arrays (``index`` into the batch)."""
+        n = int(np.asarray(self.count)[index])
+        out = {}
+        for k in ("H", "lat", "lon", "ecef", "h_dem", "lo", "hi", "cell"):
+            out[k] = np.asarray(getattr(self, k))[index][:n]
+        return out
+
+
+@dataclass(frozen=True)
+class TerrainHit(LatLonDeg):
+    """Result of :func:`intersect_dem`.
+
+    Attributes
+    ----------
+    lat, lon, h : ndarray
+        Target geodetic latitude, longitude [rad] and ellipsoidal height [m];
+        NaN where no hit.
+    ecef : ndarray (..., 3)
+        Target in ECEF [m].
+    slant_range : ndarray
+        Distance from the optical centre [m].
+    status : ndarray of uint8
+        OK, SKY, LEFT_DEM, NODATA, ORIGIN_BELOW, INVALID_INPUT, NO_CONVERGENCE.
+    dem_evaluations : ndarray of int
+        DEM reads: heights evaluated (steps, bisection) or cells visited (exact).
+    hidden : ndarray of bool
+        Bisection only: the answer is not the first visible crossing (the
+        line of sight meets the terrain earlier and comes out again).
+    method, surface : str
+    trace : TerrainTrace or None
+    los : LineOfSight
+    """
+
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    ecef: np.ndarray
+    slant_range: np.ndarray
+    status: np.ndarray
+    dem_evaluations: np.ndarray
+    hidden: np.ndarray
+    method: str
+    surface: str
+    trace: TerrainTrace | None
+    los: LineOfSight
+
+
+# --------------------------------------------------------------------------- helpers
+def _flat_los(los: LineOfSight, normalise: bool = True):
+    o = np.asarray(los.origin_ecef, float)
+    d = np.asarray(los.direction_ecef, float)
+    st = np.asarray(los.status, np.uint8)
+    shape = np.broadcast_shapes(o.shape[:-1], d.shape[:-1], st.shape)
+    o = np.ascontiguousarray(np.broadcast_to(o, shape + (3,)).reshape(-1, 3))
+    d = np.ascontiguousarray(np.broadcast_to(d, shape + (3,)).reshape(-1, 3))
+    st = np.broadcast_to(st, shape).reshape(-1).copy()
+    if normalise:  # the exact kernel normalises and checks each ray itself
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        bad = ~(np.all(np.isfinite(o), axis=-1) & np.all(np.isfinite(d), axis=-1))
+        st[bad & (st == Status.OK)] = Status.INVALID_INPUT
+    return shape, o, d, st
+
+
+def _ground(dem: DEM, p):
+    lat, lon, h = ecef_to_geodetic(p)
+    hd, st = dem.sample(lat, lon)
+    return lat, lon, h, hd, st
+
+
+def _top_height(o, dem: DEM):
+    """H_0: the DEM's highest node, or just below the camera if it flies lower."""
+    h_cam = ecef_to_geodetic(o)[2]
+    return np.minimum(dem.max_height(), h_cam - 1e-3)
+
+
+class _Tracer:
+    def __init__(self, n, on):
+        self.on = on
+        self.rows = []  # (idx, H, lat, lon, ecef, h_dem, lo, hi)
+
+    def add(self, idx, H, lat, lon, ecef, hd, lo=None, hi=None):
+        if self.on:
+            nan = np.full(len(idx), np.nan)
+            self.rows.append((idx, H, lat, lon, ecef, hd, nan if lo is None else lo, nan if hi is None else hi))
+
+    def build(self, method, n, shape, count):
+        if not self.on:
+            return None
+        m = int(count.max()) if count.size else 0
+        H, lat, lon, hd, lo, hi = (np.full((n, m), np.nan) for _ in range(6))
+        ecef = np.full((n, m, 3), np.nan)
+        k = np.zeros(n, dtype=int)
+        for idx, *vals in self.rows:
+            kk = k[idx]
+            for arr, v in zip((H, lat, lon, ecef, hd, lo, hi), vals):
+                arr[idx, kk] = v
+            k[idx] += 1
+        cell = np.full((n, m, 2), -1, dtype=np.int64)
+        r = lambda a, extra=(): a.reshape(shape + (m,) + extra)  # noqa: E731
+        return TerrainTrace(method, r(H), r(lat), r(lon), r(ecef, (3,)), r(hd), r(lo), r(hi),
+                            r(cell, (2,)), count.reshape(shape))
+
+
+# --------------------------------------------------------------------------- steps [Q17]
+def _steps(o, d, st, dem, eps_h, tracer, max_iter):
+    n = len(o)
+    H = _top_height(o, dem)
+    out = np.full((n, 3), np.nan)
+    evals = np.zeros(n, dtype=np.int64)
+    active = st == Status.OK
+    n_max = max_iter or int(np.ceil((dem.max_height() - dem.min_height()) / eps_h)) + 3
+    for _ in range(n_max):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        hit = ray_inflated_ellipsoid(o[idx], d[idx], H[idx])  # [Q17 eq. 10-11]
+        lat, lon, hr, hd, sst = _ground(dem, hit.ecef)
+        evals[idx] += hit.status == Status.OK
+        tracer.add(idx, H[idx], lat, lon, hit.ecef, hd)
+        bad = hit.status != Status.OK
+        sst = np.where(bad, hit.status, sst)
+        stop_bad = sst != Status.OK
+        st[idx[stop_bad]] = sst[stop_bad]
+        below = ~stop_bad & (H[idx] - hd <= 0.0)
+        out[idx[below]] = hit.ecef[below]
+        active[idx[stop_bad | below]] = False
+        H[idx] -= eps_h
+    st[active] = Status.NO_CONVERGENCE
+    return out, evals
+
+
+# --------------------------------------------------------------------------- bisection [L23]
+def _bisect(o, d, st, dem, threshold, tracer, max_iter):
+    n = len(o)
+    hi = _top_height(o, dem)
+    lo = np.full(n, dem.min_height())
+    out = np.full((n, 3), np.nan)
+    evals = np.zeros(n, dtype=np.int64)
+    active = st == Status.OK
+    for _ in range(max_iter or 64):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        mid = 0.5 * (lo[idx] + hi[idx])
+        hit = ray_inflated_ellipsoid(o[idx], d[idx], mid)  # [Q17 eq. 10-11] at the midpoint
+        lat, lon, hr, hd, sst = _ground(dem, hit.ecef)
+        evals[idx] += hit.status == Status.OK
+        tracer.add(idx, mid, lat, lon, hit.ecef, hd, lo[idx].copy(), hi[idx].copy())
+        sst = np.where(hit.status != Status.OK, hit.status, sst)
+        stop_bad = sst != Status.OK
+        st[idx[stop_bad]] = sst[stop_bad]
+        diff = mid - hd
+        done = ~stop_bad & (np.abs(diff) < threshold)
+        out[idx[done]] = hit.ecef[done]
+        above = ~stop_bad & ~done & (diff > 0)
+        below = ~stop_bad & ~done & (diff <= 0)
+        hi[idx[above]] = mid[above]
+        lo[idx[below]] = mid[below]
+        active[idx[stop_bad | done]] = False
+    st[active] = Status.NO_CONVERGENCE
+    return out, evals
+
+
+def _hidden(o, d, s_bis, s_first, dem, ok):
+    """True where the ray comes back above the terrain between the first crossing and s_bis.
+
+    Samples every quarter of the smallest DEM cell along the ray (an emergence
+    narrower than that is not seen).
+    """
+    hidden = np.zeros(len(o), dtype=bool)
+    cand = np.flatnonzero(ok & np.isfinite(s_first) & (s_bis > s_first))
+    if cand.size == 0:
+        return hidden
+    g = dem.grid
+    cell_m = min(g.dlat_deg, g.dlon_deg) * (np.pi / 180 * A if dem.is_geographic else 1.0)
+    if dem.is_geographic:
+        cell_m *= np.cos(np.deg2rad(max(abs(g.lat_north_deg), abs(g.lat_south_deg))))
+    step = max(cell_m / 4.0, 0.01)
+    for r in cand:
+        ns = int(min(np.ceil((s_bis[r] - s_first[r]) / step), 20000))
+        s = np.linspace(s_first[r], s_bis[r], ns + 1)[1:-1]
+        if s.size == 0:
+            continue
+        p = o[r] + s[:, None] * d[r]
+        lat, lon, h = ecef_to_geodetic(p)
+        hd = dem.height(lat, lon)
+        hidden[r] = bool(np.any(h - hd > 0.0))
+    return hidden
+
+
+# --------------------------------------------------------------------------- exact
+def _exact_tables(dem: DEM):
+    tab = getattr(dem, "_exact_tables", None)
+    if tab is not None:
+        return tab
+    if not dem.is_geographic:
+        raise ValueError(f"method 'exact' needs a geographic (lat/lon) DEM, got CRS {dem.crs.name!r}: "
+                         "reproject the DEM to EPSG:4326, or use 'steps' / 'bisect'")
+    g = dem.grid
+    hgt = np.ascontiguousarray(g.values, dtype=float)
+    nr, nc = hgt.shape
+    lat_n = np.deg2rad(g.lat_north_deg)
+    lon_w = np.deg2rad(g.lon_west_deg)
+    dlat = np.deg2rad(g.dlat_deg)
+    dlon = np.deg2rad(g.dlon_deg)
+    # node latitudes and longitudes as DEM.mesh has them: the cell boundaries below and
+    # the triangle nodes of the kernel (geodetic_to_ecef's operations on these tables
+    # give the mesh's vertices) come from the same numbers
+    lat_deg, lon_deg = dem.node_latlon_deg()
+    lat_rows, lon_cols = np.deg2rad(lat_deg[:, 0]), np.deg2rad(lon_deg[0, :])
+    rn = prime_vertical_radius(lat_rows)
+    sin_lat = np.sin(lat_rows)
+    row_geo = np.ascontiguousarray(np.stack([rn, np.cos(lat_rows), rn * (1.0 - E2), sin_lat, lat_rows], -1))
+    # parallel of geodetic latitude phi: z + R_N e^2 sin(phi) = rho tan(phi)
+    tan_row = np.tan(lat_rows)
+    c_row = rn * E2 * sin_lat
+    cmax = np.ascontiguousarray(dem.cell_max())
+    # skip test of the walk: the ellipsoid inflated to the cell's highest node + margin
+    # [Q17 eq. 11]; it departs from the constant-height surface by far less than the margin
+    hs = cmax + _MARGIN_M
+    cinv64 = np.stack([1 / (A + hs) ** 2, 1 / (B + hs) ** 2], -1)
+    # float32 halves the table (2.2 MB -> 1.1 MB on the SRTM crop: its loads were the
+    # walk's largest stall); rounded toward zero (one float32 ulp, 1.2e-7 relative, is
+    # at most 0.4 m of height), i.e. to a larger ellipsoid, so that a skipped cell is
+    # still clear of the terrain: only more cells are tested, the hits do not change
+    cinv = cinv64.astype(np.float32)
+    up = cinv.astype(float) > cinv64
+    cinv[up] = np.nextafter(cinv[up], np.float32(0))
+    cinv = np.ascontiguousarray(cinv)
+    from geoloc.surfaces.terrain_numba import BLOCK
+
+    nbr, nbc = -(-(nr - 1) // BLOCK), -(-(nc - 1) // BLOCK)
+    bmax = np.full((nbr * BLOCK, nbc * BLOCK), -np.inf)
+    bmax[: nr - 1, : nc - 1] = cmax  # NaN (no data) propagates: such blocks are never skipped
+    bmax = bmax.reshape(nbr, BLOCK, nbc, BLOCK).max(axis=(1, 3)) + _MARGIN_M
+    binv = np.ascontiguousarray(np.stack([1 / (A + bmax) ** 2, 1 / (B + bmax) ** 2], -1))
+    tab = dict(hgt=hgt, lon_col=lon_cols, cinv=cinv, binv=binv, row_geo=row_geo, lat_n=lat_n,
+               lon_w=lon_w, dlat=dlat, dlon=dlon, tan_row=tan_row, c_row=c_row,
+               sin_col=np.sin(lon_cols), cos_col=np.cos(lon_cols))
+    dem._exact_tables = tab
+    return tab
+
+
+def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
+    """The compiled walk: (ECEF hit, cells visited, s, trace, (lat, lon, h, range)); NaN where no hit."""
+    from geoloc.surfaces import terrain_numba as tn
+
+    tab = _exact_tables(dem)
+    n = len(o)
+    s_out = np.empty(n)
+    p_out = np.empty((n, 3))
+    geo_out = np.empty((n, 4))
+    ncell = np.empty(n, dtype=np.int64)
+    m = max_cells if trace_on else 0
+    trace_s = np.full((n, m), np.nan)
+    trace_ij = np.full((n, m, 2), -1, dtype=np.int64)
+    (tn.walk_parallel if parallel else tn.walk)(
+        o, d, dem.max_height() + _MARGIN_M, dem.min_height() - _MARGIN_M,
+        tab["hgt"], tab["lon_col"], tab["cinv"], tab["binv"], tab["row_geo"], tab["lat_n"], tab["lon_w"],
+        tab["dlat"], tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"],
+        surface == "triangles", s_out, p_out, geo_out, st, ncell, trace_s, trace_ij)
+    return p_out, ncell, s_out, (trace_s, trace_ij), geo_out.T
+
+
+# --------------------------------------------------------------------------- front end
+def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: float = 1.0,
+                  threshold: float = 1.0, surface: str = "bilinear", trace: bool = False,
+                  max_iter: int | None = None, parallel: bool = False) -> TerrainHit:
+    """Intersect lines of sight with a DEM (GEOMETRY.md section 4).
+
+    Parameters
+    ----------
+    los : LineOfSight
+        Any batch shape (:func:`geoloc.locate.line_of_sight`).
+    dem : geoloc.surfaces.dem.DEM
+    method : {"steps", "bisect", "exact"}
+        [Q17 section 2.3] descending steps, [L23] bisection, or the exact first hit.
+    eps_h : float
+        Step of the descending method [m] (> 0).
+    threshold : float
+        Bisection stops when |H - h_DEM| < threshold [m] (> 0).
+    surface : {"bilinear", "triangles"}
+        Exact solver only: bilinear cells (what ``dem.height`` samples, used by
+        the iterative methods too) or two planar triangles per cell (the
+        :meth:`DEM.to_trimesh` mesh).
+    trace : bool
+        Record every iteration in ``TerrainHit.trace``.
+    max_iter : int, optional
+        Iteration limit of the iterative methods (default: enough to reach
+        the DEM's lowest node for steps, 64 halvings for bisection).
+    parallel : bool
+        Exact solver: spread the rays over all cores (numba threads).
+
+    Returns
+    -------
+    TerrainHit
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if surface not in SURFACES:
+        raise ValueError(f"surface must be one of {SURFACES}, got {surface!r}")
+    if not (np.isfinite(eps_h) and eps_h > 0):
+        raise ValueError(f"eps_h must be a positive number of metres, got {eps_h!r}")
+    if not (np.isfinite(threshold) and threshold > 0):
+        raise ValueError(f"threshold must be a positive number of metres, got {threshold!r}")
+    shape, o, d, st = _flat_los(los, normalise=method != "exact")
+    n = len(o)
+    tracer = _Tracer(n, trace)
+    hidden = np.zeros(n, dtype=bool)
+    tr = None
+    if method == "steps":
+        p, evals = _steps(o, d, st, dem, float(eps_h), tracer, max_iter)
+        tr = tracer.build(method, n, shape, evals)
+    elif method == "bisect":
+        p, evals = _bisect(o, d, st, dem, float(threshold), tracer, max_iter)
+        tr = tracer.build(method, n, shape, evals)
+        ok = st == Status.OK
+        s_bis = np.sum((p - o) * d, -1)
+        if dem.is_geographic:
+            s_first = _exact(o, d, st.copy(), dem, "bilinear", False)[2]
+        else:
+            s_first = _first_sampled(o, d, dem)
+        hidden = _hidden(o, d, s_bis, s_first, dem, ok)
+    else:
+        p, evals, s, (ts, tij), geo = _exact(o, d, st, dem, surface, trace, parallel=parallel)
+        if trace:
+            m = int(evals.max()) if n else 0
+            m = min(m, ts.shape[1])
+            ts, tij = ts[:, :m], tij[:, :m]
+            pe = o[:, None, :] + ts[..., None] * d[:, None, :]
+            lat, lon, H = ecef_to_geodetic(pe)
+            hd = dem.height(lat, lon)
+            tr = TerrainTrace(method, H.reshape(shape + (m,)), lat.reshape(shape + (m,)),
+                              lon.reshape(shape + (m,)), pe.reshape(shape + (m, 3)),
+                              hd.reshape(shape + (m,)), np.full(shape + (m,), np.nan),
+                              np.full(shape + (m,), np.nan), tij.reshape(shape + (m, 2)),
+                              np.minimum(evals, m).reshape(shape))
+    ok = st == Status.OK
+    if method == "exact":  # the kernel converted its hits (NaN elsewhere)
+        lat, lon, h, rng = geo
+    else:
+        p = np.where(ok[:, None], p, np.nan)
+        lat, lon, h = ecef_to_geodetic(p)
+        rng = np.linalg.norm(p - o, axis=-1)
+    r = lambda a: a.reshape(shape)  # noqa: E731
+    return TerrainHit(r(lat), r(lon), r(h), p.reshape(shape + (3,)), r(rng), r(st), r(evals),
+                      r(hidden & ok), method, surface, tr,
+                      los if isinstance(los, LineOfSight) else None)
+
+
+def _first_sampled(o, d, dem):
+    """First ray parameter below the terrain, sampled (non-geographic DEMs)."""
+    hit = intersect_dem(LineOfSight(o, d, np.zeros(len(o), np.uint8)), dem, "steps",
+                        eps_h=max(0.1, (dem.max_height() - dem.min_height()) / 2000))
+    return np.sum((hit.ecef - o) * d, -1)
+
+
+def random_oblique_rays(dem: DEM, n: int, rng: np.random.Generator, frame_angle_deg=(45.0, 82.0),
+                        clearance_m: float = 1500.0, inner: float = 0.5) -> LineOfSight:
+    """Random lines of sight over a DEM, for tests and benchmarks.
+
+    Each ray aims at a random point of the DEM's central ``inner`` fraction,
+    from a camera ``clearance_m`` above that point's terrain, with an
+    off-nadir (frame) angle uniform in ``frame_angle_deg`` and a uniform
+    azimuth. The aimed point need not be the first hit (terrain may occlude it).
+    """
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+    from geoloc.geodesy.local import R_ecef_enu
+
+    w, s, e, nn = dem.bounds_deg
+    cx, cy, hw, hh = 0.5 * (w + e), 0.5 * (s + nn), 0.5 * inner * (e - w), 0.5 * inner * (nn - s)
+    lat = np.deg2rad(rng.uniform(cy - hh, cy + hh, n))
+    lon = np.deg2rad(rng.uniform(cx - hw, cx + hw, n))
+    hT = dem.height(lat, lon)
+    off = np.deg2rad(rng.uniform(*frame_angle_deg, n))
+    az = rng.uniform(0, 2 * np.pi, n)
+    d_enu = np.stack([np.sin(az) * np.sin(off), np.cos(az) * np.sin(off), -np.cos(off)], -1)
+    d = np.einsum("...ij,...j->...i", R_ecef_enu(lat, lon), d_enu)
+    t = geodetic_to_ecef(lat, lon, hT)
+    o = t - (clearance_m / np.cos(off))[:, None] * d
+    return LineOfSight(o, d, np.zeros(n, np.uint8))

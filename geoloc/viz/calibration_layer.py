@@ -1,0 +1,339 @@
+"""Flight-test error vectors in the viser scene, before and after calibration (issue 8).
+
+Each record's error (computed minus surveyed truth) is drawn as a line segment
+from the truth point to ``truth + exaggeration * (computed - truth)``, in the
+scene's local ENU frame (:class:`geoloc.frames.enu.EnuFrame`, metres; three.js stores
+float32, hence the local origin). The truth is placed at the computed point's
+height (the records give no truth height), so the segments are horizontal.
+Geometry comes from the core only (:func:`geoloc.locate.locate`,
+:mod:`geoloc.frames.enu`); the calibrated camera is the one of ``geoloc calibrate
+--write-camera`` or :func:`geoloc.analysis.calibrate.calibrate_groups`.
+
+Conventions: ``docs/conventions.md``. Scene nodes (under ``name``, default
+``/calibration``; ``/enu/calibration`` in the ``geoloc view`` app): ``truth``
+(points), ``before`` and ``after`` (segments). Coordinates are ENU metres times
+``world_scale`` (scene units per metre: 1e-3 in the app, whose world unit is
+the km); the vertical exaggeration is a node scale (1, 1, v) about the ENU
+origin, as the app's terrain.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geoloc.frames.enu import EnuFrame
+from geoloc.io.records import Records
+from geoloc.locate import locate
+from geoloc.sensors.camera import Camera
+
+#: Segment colours (RGB 0-255): before red, after blue; truth markers white.
+COLORS = {"before": (220, 40, 40), "after": (40, 90, 230), "truth": (255, 255, 255)}
+STAGES = ("before", "after", "both")
+
+
+@dataclass
+class ErrorGeometry:
+    """Truth and computed positions in the scene's ENU frame [m].
+
+    Attributes
+    ----------
+    truth : ndarray (n, 3)
+    computed : dict
+        Stage name (``"before"``, ``"after"``) -> ndarray (n, 3); NaN rows for
+        records whose ray failed (they are not drawn).
+    labels : list of str
+    """
+
+    truth: np.ndarray
+    computed: dict
+    labels: list
+
+    def segments(self, stage: str, exaggeration: float) -> np.ndarray:
+        """Segments (m, 2, 3): truth -> truth + exaggeration * (computed - truth), failed rays dropped."""
+        c = self.computed[stage]
+        ok = np.all(np.isfinite(c), axis=1) & np.all(np.isfinite(self.truth), axis=1)
+        t = self.truth[ok]
+        return np.stack([t, t + exaggeration * (c[ok] - t)], axis=1)
+
+
+def error_geometry(records: Records, frame: EnuFrame, heights, cameras: dict,
+                   truth_prefix: str = "truth") -> ErrorGeometry:
+    """Locate every record with each camera (at ``heights``) and express all in ENU.
+
+    Parameters
+    ----------
+    records : Records
+        With ``{truth_prefix}_lat_deg`` / ``_lon_deg``.
+    frame : EnuFrame
+        The scene's origin.
+    heights : array_like
+        Target ellipsoidal height of each record [m] (e.g. ``paper_height_m``).
+    cameras : dict
+        Stage name -> Camera, e.g. ``{"before": nominal, "after": calibrated}``.
+    """
+    h = np.asarray(heights, float)
+    pose, row, col = records.pose(), records.column("row"), records.column("col")
+    computed, hh = {}, None
+    for stage, cam in cameras.items():
+        if not isinstance(cam, Camera):
+            raise ValueError(f"cameras[{stage!r}] = {cam!r}: must be a geoloc.sensors.camera.Camera")
+        g = locate(pose, cam, row, col, h)
+        computed[stage] = frame.from_ecef(g.ecef)
+        hh = g.h if hh is None else np.where(np.isfinite(hh), hh, g.h)
+    tlat = np.deg2rad(records.column(f"{truth_prefix}_lat_deg"))
+    tlon = np.deg2rad(records.column(f"{truth_prefix}_lon_deg"))
+    truth = frame.from_geodetic(tlat, tlon, h if hh is None else np.where(np.isfinite(hh), hh, h))
+    return ErrorGeometry(truth, computed, records.labels())
+
+
+class CalibrationLayer:
+    """Error-vector nodes in a viser scene with a before/after stage and an exaggeration.
+
+    Parameters
+    ----------
+    scene : viser.SceneApi
+        ``server.scene``.
+    geometry : ErrorGeometry
+    name : str
+        Parent node name.
+    exaggeration : float
+        Arrow scale (> 0); the errors are ~50 m over a ~10 km scene.
+    stage : {"before", "after", "both"}
+    world_scale : float
+        Scene units per metre (1: metres; ``geoloc.viz.scene_geoloc.WORLD_SCALE`` = 1e-3
+        in the ``geoloc view`` app, whose world unit is the km).
+    """
+
+    def __init__(self, scene, geometry: ErrorGeometry, name: str = "/calibration",
+                 exaggeration: float = 20.0, stage: str = "both", thickness: float = 3.0,
+                 world_scale: float = 1.0):
+        self.scene = scene
+        self.geometry = geometry
+        self.world_scale = float(world_scale)
+        self.name = name.rstrip("/")
+        self.thickness = thickness
+        self.exaggeration = self._check_exaggeration(exaggeration)
+        self.stage = self._check_stage(stage)
+        self.vertical = 1.0
+        self.handles = {}
+        self.truth_handle = scene.add_point_cloud(
+            f"{self.name}/truth", (geometry.truth * self.world_scale).astype(np.float32), COLORS["truth"],
+            point_size=60.0 * self.world_scale, point_shape="circle", precision="float32")
+        self._draw()
+
+    @staticmethod
+    def _check_exaggeration(x) -> float:
+        x = float(x)
+        if not (np.isfinite(x) and x > 0):
+            raise ValueError(f"exaggeration = {x}: must be a finite number > 0")
+        return x
+
+    def _check_stage(self, stage: str) -> str:
+        if stage not in STAGES:
+            raise ValueError(f"stage = {stage!r}: must be one of {STAGES}")
+        if stage != "both" and stage not in self.geometry.computed:
+            raise ValueError(f"stage = {stage!r}: no camera given for it "
+                             f"(have {sorted(self.geometry.computed)})")
+        return stage
+
+    def _draw(self) -> None:
+        for stage in self.geometry.computed:
+            seg = self.geometry.segments(stage, self.exaggeration) * self.world_scale
+            visible = self.stage in (stage, "both")
+            if stage in self.handles:
+                self.handles[stage].points = seg
+                self.handles[stage].visible = visible
+            else:
+                self.handles[stage] = self.scene.add_line_segments(
+                    f"{self.name}/{stage}", seg, COLORS.get(stage, (200, 200, 0)),
+                    thickness=self.thickness, thickness_units="screen", visible=visible)
+
+    def set_exaggeration(self, x: float) -> None:
+        """Rescale every vector (the truth end stays)."""
+        self.exaggeration = self._check_exaggeration(x)
+        self._draw()
+
+    def set_vertical_exaggeration(self, v: float) -> None:
+        """Scale the layer's U axis like the scene's terrain (node scale (1, 1, v) about the ENU origin)."""
+        v = float(v)
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"vertical exaggeration = {v}: must be a finite number > 0")
+        self.vertical = v
+        for h in (*self.handles.values(), self.truth_handle):
+            h.scale = (1.0, 1.0, v)
+
+    def set_stage(self, stage: str) -> None:
+        """Show ``"before"``, ``"after"`` or ``"both"``."""
+        self.stage = self._check_stage(stage)
+        self._draw()
+
+    def set_visible(self, visible: bool) -> None:
+        self.truth_handle.visible = bool(visible)
+        for stage, h in self.handles.items():
+            h.visible = bool(visible) and self.stage in (stage, "both")
+
+    def add_gui(self, gui, folder: str = "Calibration: error vectors"):
+        """GUI folder with a before/after/both dropdown and an exaggeration slider.
+
+        Returns the (dropdown, slider) handles.
+        """
+        with gui.add_folder(folder):
+            dd = gui.add_dropdown("show", list(STAGES), initial_value=self.stage)
+            sl = gui.add_slider("exaggeration", 1.0, 200.0, 1.0, self.exaggeration)
+
+        @dd.on_update
+        def _(_event) -> None:
+            self.set_stage(dd.value)
+
+        @sl.on_update
+        def _(_event) -> None:
+            self.set_exaggeration(sl.value)
+
+        return dd, sl
+
+
+def add_error_vectors(scene, records: Records, frame: EnuFrame, heights, camera_before: Camera,
+                      camera_after: Camera | None = None, **kw) -> CalibrationLayer:
+    """Add the error vectors of all records (before and, if given, after calibration) to a scene.
+
+    Parameters
+    ----------
+    scene : viser.SceneApi
+    records : Records
+    frame : EnuFrame
+        The scene's local ENU origin.
+    heights : array_like
+        Target height per record [m].
+    camera_before, camera_after : Camera
+        Nominal and calibrated cameras.
+    **kw
+        Passed to :class:`CalibrationLayer` (``exaggeration``, ``stage``, ``name``).
+    """
+    cams = {"before": camera_before}
+    if camera_after is not None:
+        cams["after"] = camera_after
+    return CalibrationLayer(scene, error_geometry(records, frame, heights, cams), **kw)
+
+
+# --------------------------------------------------------------------------- the geoloc view app
+def records_from_scenario(scn) -> Records:
+    """A :class:`geoloc.io.records.Records` from a viewer scenario's ``(RecordInfo, Inputs)`` list.
+
+    The flight (``table``) is the label's part before ``-`` (``T3-1`` -> ``T3``).
+    """
+    header = ["table", "point", "row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg",
+              "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg", "paper_height_m",
+              "truth_lat_deg", "truth_lon_deg"]
+    rows = []
+    for info, inp in scn.records:
+        table, _, point = info.label.partition("-")
+        vals = [inp.row, inp.col, inp.lat_deg, inp.lon_deg, inp.h_m, inp.heading_deg, inp.pitch_deg,
+                inp.roll_deg, inp.gimbal_roll_deg, inp.gimbal_pitch_deg, info.paper_height_m,
+                info.truth_lat_deg, info.truth_lon_deg]
+        rows.append(dict(zip(header, [table, point or table] +
+                             ["" if not np.isfinite(v) else repr(float(v)) for v in vals])))
+    return Records(getattr(scn, "source", "scenario"), header, rows,
+                   np.arange(2, len(rows) + 2), [])
+
+
+class AppCalibration:
+    """The calibration layer of a ``geoloc view`` app: fit once, redraw on a new ENU origin.
+
+    The "after" camera is one mounting rotation fitted to all records with a
+    surveyed truth and a ``paper_height_m`` (``geoloc.analysis.calibrate``, joint fit).
+    """
+
+    def __init__(self, app, exaggeration: float = 20.0, stage: str = "both", world_scale=None,
+                 name=None):
+        from geoloc.analysis.calibrate import HeightTarget, calibrate_groups
+
+        if world_scale is None or name is None:
+            try:  # the app's world unit (km) and scene root
+                from geoloc.viz.scene_geoloc import ROOT, WORLD_SCALE
+            except ImportError:
+                ROOT, WORLD_SCALE = "", 1.0
+            world_scale = WORLD_SCALE if world_scale is None else world_scale
+            name = f"{ROOT}/calibration" if name is None else name
+        self.world_scale, self.name = float(world_scale), name
+        self.app = app
+        self.records = records_from_scenario(app.scn)
+        self.heights = self.records.column("paper_height_m")
+        ok = (np.isfinite(self.heights) & np.isfinite(self.records.column("truth_lat_deg"))
+              & np.isfinite(self.records.column("truth_lon_deg")))
+        self.message = ""
+        self.layer = None
+        self.cameras = {"before": app.scn.camera}
+        if ok.sum() >= 2 and ok.all():
+            _, cams = calibrate_groups(self.records, app.scn.camera, HeightTarget(self.heights), "table",
+                                       joint=True)
+            self.cameras["after"] = cams["joint"]
+        else:
+            self.message = "calibration needs truth_lat/lon and paper_height_m on every record"
+        self.exaggeration, self.stage, self.visible, self.vertical = exaggeration, stage, True, 1.0
+        if ok.all():
+            self.rebuild()
+
+    def rebuild(self) -> None:
+        """(Re)draw in the app's current ENU frame (call after the origin moves)."""
+        if self.layer is not None:
+            self.exaggeration, self.stage = self.layer.exaggeration, self.layer.stage
+            for h in (*self.layer.handles.values(), self.layer.truth_handle):
+                h.remove()
+        if "after" not in self.cameras and self.stage != "before":
+            self.stage = "before"
+        geom = error_geometry(self.records, self.app.scn.enu, self.heights, self.cameras)
+        self.layer = CalibrationLayer(self.app.server.scene, geom, name=self.name,
+                                      exaggeration=self.exaggeration, stage=self.stage,
+                                      world_scale=self.world_scale)
+        self.layer.set_visible(self.visible)
+        self.layer.set_vertical_exaggeration(self.vertical)
+
+    def add_gui(self, gui, folder: str = "Calibration: error vectors of all records"):
+        """Folder with a show checkbox, a before/after/both dropdown and an exaggeration slider."""
+        with gui.add_folder(folder, expand_by_default=False):
+            self.cb_show = gui.add_checkbox("show", True)
+            stages = list(STAGES) if "after" in self.cameras else ["before"]
+            self.dd_stage = gui.add_dropdown("before / after calibration", stages,
+                                             initial_value=self.stage if self.stage in stages else stages[0])
+            self.sl_exag = gui.add_slider("exaggeration", 1.0, 200.0, 1.0, self.exaggeration)
+            if self.message:
+                gui.add_markdown(self.message)
+
+        @self.cb_show.on_update
+        def _(_e) -> None:
+            self.visible = bool(self.cb_show.value)
+            if self.layer is not None:
+                self.layer.set_visible(self.visible)
+
+        @self.dd_stage.on_update
+        def _(_e) -> None:
+            if self.layer is not None:
+                self.layer.set_stage(str(self.dd_stage.value))
+                self.layer.set_visible(self.visible)
+
+        @self.sl_exag.on_update
+        def _(_e) -> None:
+            if self.layer is not None:
+                self.layer.set_exaggeration(float(self.sl_exag.value))
+                self.layer.set_visible(self.visible)
+
+
+def attach(app) -> AppCalibration:
+    """Add the calibration layer and its GUI folder to a ``geoloc.viz.app.GeolocApp``.
+
+    Follows the app's vertical-exaggeration slider (``app.sl_vexag``) when it has one.
+    """
+    cal = AppCalibration(app)
+    cal.add_gui(app.server.gui)
+    slider = getattr(app, "sl_vexag", None)
+    if slider is not None:
+        def follow(_e=None) -> None:
+            cal.vertical = float(slider.value)
+            if cal.layer is not None:
+                cal.layer.set_vertical_exaggeration(cal.vertical)
+
+        slider.on_update(follow)
+        follow()
+    return cal

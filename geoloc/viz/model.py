@@ -1,0 +1,203 @@
+"""What the geolocation scene shows, computed by the core (no geometry here).
+
+:func:`compute` takes the editable inputs (pose, pixel, method) of a
+:class:`Scenario` and calls the core (:mod:`geoloc.frames.chain`, :mod:`geoloc.locate`,
+:mod:`geoloc.frames.enu`, and :mod:`geoloc.surfaces.terrain` / :mod:`geoloc.surfaces.dem` when a DEM is
+loaded) to get every point, frame and iteration, expressed in the scene's local
+ENU frame. The viewer only draws these numbers; the tests compare the scene
+nodes to independent core calls.
+
+Conventions: ``docs/conventions.md`` (degrees only in :class:`Inputs`, the edge).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from geoloc.frames import rotations as rot
+from geoloc.frames.chain import FRAMES, FrameChain, Pose
+from geoloc.frames.enu import EnuFrame
+from geoloc.locate import line_of_sight
+from geoloc.sensors.camera import Camera
+from geoloc.status import Status
+from geoloc.surfaces.base import GroundPoint
+from geoloc.surfaces.height import intersect_los_height
+
+#: Frames drawn at the aircraft (ECEF is the Earth's centre: only in the teaching panel).
+DRAWN_FRAMES = tuple(f for f in FRAMES if f != "ecef")
+
+
+@dataclass
+class Inputs:
+    """The editable inputs of the geolocation scene (degrees and metres: the GUI edge)."""
+
+    lat_deg: float
+    lon_deg: float
+    h_m: float
+    heading_deg: float = 0.0
+    pitch_deg: float = 0.0
+    roll_deg: float = 0.0
+    gimbal_roll_deg: float = 0.0
+    gimbal_pitch_deg: float = 0.0
+    row: float = 1162.0
+    col: float = 1146.5
+    method: str = "bisect"
+    eps_h: float = 20.0
+    threshold: float = 1.0
+    target_h: float = 0.0  # used when the scenario has no DEM
+
+    def pose(self) -> Pose:
+        return Pose.from_deg(self.lat_deg, self.lon_deg, self.h_m, self.heading_deg,
+                             self.pitch_deg, self.roll_deg, self.gimbal_roll_deg,
+                             self.gimbal_pitch_deg)
+
+    def replace(self, **kw) -> "Inputs":
+        return dataclasses.replace(self, **kw)
+
+
+@dataclass
+class RecordInfo:
+    """One flight-test record's reference positions (degrees, metres)."""
+
+    label: str
+    paper_lat_deg: float = np.nan
+    paper_lon_deg: float = np.nan
+    paper_height_m: float = np.nan
+    truth_lat_deg: float = np.nan
+    truth_lon_deg: float = np.nan
+    paper_error_m: float = np.nan
+
+
+@dataclass
+class FrameView:
+    """A frame of the chain in the scene: origin (ENU, m) and R_enu_frame."""
+
+    name: str
+    origin_enu: np.ndarray
+    R_enu_frame: np.ndarray
+
+
+@dataclass
+class IterationView:
+    """The iterations of a DEM method in ENU: H_n on the line of sight, the DEM below it."""
+
+    method: str
+    H: np.ndarray  # (n,) line-of-sight heights H_n [m]
+    h_dem: np.ndarray  # (n,) DEM heights h_n below [m]
+    on_los_enu: np.ndarray  # (n, 3) ground point of the line of sight at H_n
+    dem_enu: np.ndarray  # (n, 3) the same horizontal position at the DEM height
+    brackets_enu: np.ndarray | None = None  # (n, 2, 3) bisection bracket ends on the los
+
+
+@dataclass
+class Geometry:
+    """Everything the geolocation scene draws, in the scene's ENU frame [m]."""
+
+    chain: FrameChain
+    frames: dict
+    aircraft_enu: np.ndarray
+    R_enu_body: np.ndarray
+    los_dir_enu: np.ndarray
+    hit: GroundPoint  # the chosen method's answer (or the hit at the target height)
+    hit_enu: np.ndarray
+    hit_label: str
+    hmax: float | None = None
+    hit_hmax_enu: np.ndarray | None = None
+    exact_enu: np.ndarray | None = None
+    iterations: IterationView | None = None
+    footprint_enu: np.ndarray | None = None  # (4, 3) image corners on the ground
+    published_enu: np.ndarray | None = None
+    surveyed_enu: np.ndarray | None = None
+    status: int = Status.OK
+    message: str = ""
+    terrain_result: object = None
+
+
+@dataclass
+class Scenario:
+    """A scene's fixed data: camera, records, DEM, ENU origin, and initial inputs."""
+
+    name: str
+    camera: Camera
+    inputs: Inputs
+    enu: EnuFrame
+    records: list = field(default_factory=list)  # list of (RecordInfo, Inputs)
+    record_index: int | None = None
+    dem: object = None
+    dem_name: str = ""
+    use_dem: bool = True
+    description: str = ""
+    source: str = ""  # records file name, for the title
+
+
+def frame_views(chain: FrameChain, enu: EnuFrame) -> dict:
+    """Each drawn frame's origin and orientation in ENU, from ``chain.T_ecef(frame)``."""
+    out = {}
+    for name in DRAWN_FRAMES:
+        T = chain.T_ecef(name)
+        out[name] = FrameView(name, enu.from_ecef(T[:3, 3]), enu.R_enu_from(T[:3, :3]))
+    return out
+
+
+def _corner_footprint(pose, camera, chain, enu, h):
+    rows = np.array([0.5, 0.5, camera.rows + 0.5, camera.rows + 0.5])
+    cols = np.array([0.5, camera.cols + 0.5, camera.cols + 0.5, 0.5])
+    los = line_of_sight(pose, camera, rows, cols, chain=chain)
+    g = intersect_los_height(los, h)
+    return enu.from_ecef(g.ecef)
+
+
+def compute(scn: Scenario, inp: Inputs) -> Geometry:
+    """Run the core for the current inputs and express the result in the scene's ENU frame.
+
+    Raises
+    ------
+    ValueError
+        Naming the field and value when an input is out of range (the GUI shows it).
+    """
+    pose = inp.pose().validate()
+    cam = scn.camera
+    chain = FrameChain(pose)
+    enu = scn.enu
+    frames = frame_views(chain, enu)
+    los = line_of_sight(pose, cam, inp.row, inp.col, chain=chain)
+    aircraft = enu.from_ecef(los.origin_ecef)
+    d_enu = enu.vector_from_ecef(los.direction_ecef)
+    geo = dict(chain=chain, frames=frames, aircraft_enu=aircraft,
+               R_enu_body=frames["body"].R_enu_frame, los_dir_enu=d_enu)
+    if scn.dem is not None:
+        from geoloc.viz import terrain_link
+
+        geo.update(terrain_link.terrain_geometry(scn, inp, los))
+    else:
+        hit = intersect_los_height(los, inp.target_h)
+        geo.update(hit=hit, hit_enu=enu.from_ecef(hit.ecef),
+                   hit_label=f"hit at h = {inp.target_h:.1f} m")
+    g = Geometry(**geo)
+    g.status = int(g.hit.status)
+    if g.status == Status.OK:
+        g.footprint_enu = _corner_footprint(pose, cam, chain, enu, float(g.hit.h))
+    if scn.record_index is not None:
+        info = scn.records[scn.record_index][0]
+        if np.isfinite(info.paper_lat_deg):
+            g.published_enu = enu.from_geodetic(np.deg2rad(info.paper_lat_deg),
+                                                np.deg2rad(info.paper_lon_deg),
+                                                info.paper_height_m)
+        if np.isfinite(info.truth_lat_deg):
+            h_truth = info.paper_height_m
+            if scn.dem is not None:
+                from geoloc.viz import terrain_link
+
+                h_truth = terrain_link.dem_height(scn.dem, info.truth_lat_deg, info.truth_lon_deg)
+            g.surveyed_enu = enu.from_geodetic(np.deg2rad(info.truth_lat_deg),
+                                               np.deg2rad(info.truth_lon_deg), h_truth)
+    return g
+
+
+def T_enu_frame(g: Geometry, name: str) -> np.ndarray:
+    """4x4 of a drawn frame in the scene (ENU), for tests and the teaching panel."""
+    f = g.frames[name]
+    return rot.transform(f.R_enu_frame, f.origin_enu)

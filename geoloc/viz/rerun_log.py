@@ -1,0 +1,358 @@
+"""Write a rerun recording (``.rrd``) of a flight replay or a simulated scan.
+
+The numbers come from :mod:`geoloc.viz.rerun_model` (the core, in the scene's local
+ENU frame); this module only lays them out as rerun entities, on the
+timelines of the steps (``time`` in seconds and ``frame`` for a simulated
+flight, ``record`` for flight-test records), and adds a default blueprint.
+
+Entities (all positions in the scene's ENU frame, metres):
+
+==========================================  =============================================
+``world``                                   scene root, ENU, Z up (``ViewCoordinates``)
+``world/ned``                               Transform3D T_enu_ned: aircraft position, NED axes
+``world/ned/body``                          Transform3D T_ned_body [Q17 eq. 6]
+``world/ned/body/aircraft``                 the bundled aircraft mesh, scaled for display
+``world/ned/body/gimbal_outer``             Transform3D T_body_outer [Q17 eq. 7]
+``world/ned/body/gimbal_outer/cam``         Transform3D T_outer_cam [Q17 eq. 7] and a Pinhole
+``world/los``                               line of sight, aircraft -> located target
+``world/target``, ``world/truth``,          located, reference and published positions
+``world/published``
+``world/track``, ``world/footprint``        static: aircraft track and all located targets
+``world/dem``                               static DEM mesh (when a DEM is used)
+``world/iterations``                        H_n on the line of sight and the DEM below it
+``map/*``                                   the same points as GeoPoints (map view)
+``series/attitude/*_deg``                   heading, pitch, roll
+``series/gimbal/*_deg``                     outer (roll) and inner (pitch) gimbal angles
+``series/range/slant_range_m``              optical centre to located target
+``series/height/target_h_m``                ellipsoidal height of the located target
+``series/error/*_m``                        horizontal error against truth / published
+``series/ellipsoid_model/*_m``              the ellipsoid model's error (scan over a DEM)
+``series/cep/*_m``                          per-step Monte Carlo CEP (optional)
+``series/dem/evaluations``                  DEM evaluations of each ray
+``convergence/H_minus_h_m``                 BarChart of H_n - h_n over the iterations
+``log/status``                              TextLog of steps without a ground point
+==========================================  =============================================
+
+Rotations go in as 3x3 matrices (``Transform3D.mat3x3``), exactly the core's
+hop matrices; rerun stores them and positions as float32.
+Conventions: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import uuid
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from geoloc.assets import ASSETS
+from geoloc.status import Status, describe
+from geoloc.viz.rerun_model import LogSteps
+
+#: Axis length of each drawn frame [m] (distinct, so coinciding origins stay readable).
+AXIS_LENGTH_M = {"ned": 4000.0, "body": 3000.0, "gimbal_outer": 2200.0, "cam": 1500.0}
+#: Distance of the pinhole's image plane in the 3D view [m].
+IMAGE_PLANE_M = 3000.0
+#: Colours (RGBA).
+COLORS = {
+    "los": (255, 200, 40, 255),
+    "target": (255, 60, 60, 255),
+    "truth": (60, 220, 90, 255),
+    "published": (80, 160, 255, 255),
+    "track": (200, 200, 200, 255),
+    "footprint": (255, 140, 140, 255),
+    "aircraft": (235, 235, 240, 255),
+    "above": (255, 150, 40, 255),
+    "below": (70, 130, 255, 255),
+}
+
+
+def _index(steps: LogSteps, select=None) -> list:
+    cols = []
+    for name, (kind, values) in steps.timelines.items():
+        v = np.asarray(values)
+        if select is not None:
+            v = v[select]
+        if kind == "duration":
+            cols.append(rr.TimeColumn(name, duration=v.astype(float)))
+        else:
+            cols.append(rr.TimeColumn(name, sequence=v.astype(np.int64)))
+    return cols
+
+
+def main_timeline(steps: LogSteps) -> str:
+    """The timeline the viewer opens on: ``time`` for flights, ``record`` for records."""
+    return "time" if "time" in steps.timelines else next(iter(steps.timelines))
+
+
+def blueprint(steps: LogSteps) -> rrb.Blueprint:
+    """Default layout: 3D scene and map on the left, time series and convergence on the right."""
+    series = [
+        rrb.TimeSeriesView(origin="/series/attitude", name="Attitude [deg]"),
+        rrb.TimeSeriesView(origin="/series/gimbal", name="Gimbal angles [deg]"),
+        rrb.TimeSeriesView(origin="/series/range", name="Slant range [m]"),
+        rrb.TimeSeriesView(origin="/series/height", name="Target height [m]"),
+    ]
+    if steps.truth is not None or steps.published is not None:
+        series.append(rrb.TimeSeriesView(origin="/series/error", name="Horizontal error [m]"))
+    if any(k.startswith("series/ellipsoid_model/") for k in steps.extra_series):
+        series.append(rrb.TimeSeriesView(origin="/series/ellipsoid_model",
+                                         name="Ellipsoid model: horizontal error [m]"))
+    if any(k.startswith("series/cep/") for k in steps.extra_series):
+        series.append(rrb.TimeSeriesView(origin="/series/cep", name="Monte Carlo CEP per step [m]"))
+    if steps.terrain is not None and steps.terrain.method != "ellipsoid":
+        series.append(rrb.TimeSeriesView(origin="/series/dem", name="DEM evaluations per ray"))
+        series.append(rrb.BarChartView(origin="/convergence", name="H_n - h_n per iteration [m]"))
+    eye_position, eye_target = default_eye(steps)
+    left = rrb.Vertical(
+        rrb.Spatial3DView(origin="/world", name="Scene (local ENU, m)",
+                          eye_controls=rrb.archetypes.EyeControls3D(
+                              position=eye_position, look_target=eye_target, eye_up=[0.0, 0.0, 1.0]),
+                          line_grid=rrb.archetypes.LineGrid3D(visible=False)),
+        rrb.Horizontal(
+            rrb.MapView(origin="/map", name="Map (tiles need a network)", zoom=map_zoom(steps)),
+            rrb.TextDocumentView(origin="/info", name="About"),
+            column_shares=[2, 1],
+        ),
+        row_shares=[3, 1],
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(left, rrb.Grid(*series, grid_columns=2), column_shares=[1, 1]),
+        rrb.TimePanel(timeline=main_timeline(steps), state="collapsed"),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        collapse_panels=False,
+    )
+
+
+def default_eye(steps: LogSteps):
+    """3D view camera: behind and to the side of the track, above it, looking at the scene's middle.
+
+    The middle is halfway between the median aircraft position and the median target;
+    the eye stands back by 0.6 times the scene's extent, on the side away from the
+    line of sight and behind the aircraft, at 0.4 times the extent above the middle.
+    """
+    ac = steps.aircraft_enu
+    tgt = steps.target_enu
+    ok = np.all(np.isfinite(tgt), axis=-1)
+    a = np.median(ac, axis=0)
+    t = np.median(tgt[ok], axis=0) if np.any(ok) else a - np.array([0.0, 0.0, 10_000.0])
+    mid = 0.5 * (a + t)
+    pts = np.concatenate([ac, tgt[ok]])
+    extent = max(float(np.max(np.linalg.norm((pts - mid)[:, :2], axis=-1))), 5_000.0)
+    side = a[:2] - t[:2]
+    side = side / (np.linalg.norm(side) or 1.0)
+    psi = float(np.median(np.broadcast_to(steps.pose.heading, (len(steps),))))
+    fwd = np.array([np.sin(psi), np.cos(psi)])  # ENU (east, north) of the heading
+    back = 0.8 * side - 0.6 * fwd
+    back = back / (np.linalg.norm(back) or 1.0)
+    pos = mid + 0.6 * extent * np.r_[back, 0.0] + np.array([0.0, 0.0, 0.4 * extent])
+    return pos.tolist(), mid.tolist()
+
+
+def map_zoom(steps: LogSteps) -> float:
+    """Web-map zoom level that shows the aircraft and targets (tile width 360 deg / 2^zoom)."""
+    lat = np.concatenate([np.rad2deg(np.broadcast_to(steps.pose.lat, (len(steps),))), steps.ground.lat_deg])
+    lon = np.concatenate([np.rad2deg(np.broadcast_to(steps.pose.lon, (len(steps),))), steps.ground.lon_deg])
+    ext = max(np.nanmax(lat) - np.nanmin(lat), np.nanmax(lon) - np.nanmin(lon), 0.01)
+    return float(np.clip(np.log2(360.0 / ext) - 1.5, 2.0, 16.0))
+
+
+def _aircraft_mesh():
+    import trimesh
+
+    m = trimesh.load(Path(ASSETS) / "meshes" / "aircraft.ply", force="mesh")
+    return np.asarray(m.vertices, float), np.asarray(m.faces, np.uint32)
+
+
+def info_markdown(steps: LogSteps) -> str:
+    e = steps.enu
+    lines = [f"**{steps.name}**", "", *[f"- {n}" for n in steps.notes],
+             f"- camera: {steps.camera.name or 'unnamed'} (f = {steps.camera.focal_length_px:g} px)",
+             f"- scene origin (ENU): {np.rad2deg(e.lat0):.3f} N, {np.rad2deg(e.lon0):.3f} E, "
+             f"{e.h0:.0f} m (ellipsoidal); X east, Y north, Z up, metres",
+             f"- timelines: {', '.join(steps.timelines)}",
+             "", "Frames: world/ned (NED at the aircraft) / body / gimbal_outer / cam, "
+             "each a Transform3D equal to the core's hop ([Q17] eq. 4-7)."]
+    return "\n".join(lines)
+
+
+def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float = 200.0) -> None:
+    """Log every entity of a recording to ``rec`` (see the module docstring for the layout)."""
+    n = len(steps)
+    idx = _index(steps)
+    f32 = np.float32
+    rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log("info", rr.TextDocument(info_markdown(steps), media_type=rr.MediaType.MARKDOWN), static=True)
+
+    # ---------------------------------------------------------------- frames
+    T = steps.hop_transforms()
+    paths = {"ned": "world/ned", "body": "world/ned/body",
+             "gimbal_outer": "world/ned/body/gimbal_outer", "cam": "world/ned/body/gimbal_outer/cam"}
+    for name, path in paths.items():
+        Tn = np.broadcast_to(T[name], (n, 4, 4))
+        cols = {"mat3x3": Tn[:, :3, :3]}
+        if name == "ned":
+            cols["translation"] = Tn[:, :3, 3]
+        rec.send_columns(path, indexes=idx, columns=rr.Transform3D.columns(**cols))
+        rec.log(path, rr.TransformAxes3D(axis_length=AXIS_LENGTH_M[name]), static=True)
+    cam = steps.camera
+    rec.log(paths["cam"], rr.Pinhole(
+        focal_length=float(cam.focal_length_px), width=cam.cols, height=cam.rows,
+        # pixel (i, j) 1-based centre -> rerun's continuous (u, v) = (j - 0.5, i - 0.5)
+        principal_point=[cam.principal_col - 0.5, cam.principal_row - 0.5],
+        # camera frame of [Q17 eq. 8]: X towards increasing rows (down in the image),
+        # Y towards decreasing columns (left), Z the line of sight
+        camera_xyz=rr.ViewCoordinates.DLF, image_plane_distance=IMAGE_PLANE_M), static=True)
+    v, f = _aircraft_mesh()
+    rec.log("world/ned/body/aircraft", rr.Transform3D(scale=display_scale), static=True)
+    rec.log("world/ned/body/aircraft", rr.Mesh3D(vertex_positions=v, triangle_indices=f,
+                                                 albedo_factor=COLORS["aircraft"]), static=True)
+
+    # ------------------------------------------------------ points and lines
+    ac = steps.aircraft_enu
+    tgt = steps.target_enu
+    rec.log("world/track", rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=80.0),
+            static=True)
+    ok = np.all(np.isfinite(tgt), axis=-1)
+    rec.log("world/footprint", rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=150.0),
+            static=True)
+    # The line of sight ends at the target, or runs 200 km into the sky where there is none.
+    far = ac + 2.0e5 * steps.enu.vector_from_ecef(steps.los.direction_ecef)
+    end = np.where(ok[:, None], tgt, far)
+    rec.send_columns("world/los", indexes=idx, columns=rr.LineStrips3D.columns(
+        strips=list(np.stack([ac, end], axis=1).astype(f32))))
+    rec.log("world/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=60.0), static=True)
+    _points(rec, steps, "world/target", tgt, COLORS["target"], 500.0)
+    geo = {"target": (steps.ground.lat_deg, steps.ground.lon_deg)}
+    for key in ("truth", "published"):
+        ref = getattr(steps, key)
+        if ref is None:
+            continue
+        p = steps.enu.from_geodetic(np.deg2rad(ref["lat_deg"]), np.deg2rad(ref["lon_deg"]), ref["h_m"])
+        _points(rec, steps, f"world/{key}", p, COLORS[key], 400.0)
+        geo[key] = (ref["lat_deg"], ref["lon_deg"])
+
+    # ------------------------------------------------------------------- map
+    lat_ac, lon_ac = np.rad2deg(steps.pose.lat), np.rad2deg(steps.pose.lon)
+    lat_ac = np.broadcast_to(lat_ac, (n,))
+    lon_ac = np.broadcast_to(lon_ac, (n,))
+    rec.log("map/track", rr.GeoLineStrings(lat_lon=[np.c_[lat_ac, lon_ac]], colors=COLORS["track"],
+                                           radii=rr.Radius.ui_points(2.0)), static=True)
+    rec.send_columns("map/aircraft", indexes=idx,
+                     columns=rr.GeoPoints.columns(positions=np.c_[lat_ac, lon_ac]))
+    rec.log("map/aircraft", rr.GeoPoints.from_fields(colors=COLORS["aircraft"],
+                                                     radii=rr.Radius.ui_points(6.0)), static=True)
+    for key, (la, lo) in geo.items():
+        good = np.isfinite(la) & np.isfinite(lo)
+        if np.any(good):
+            rec.send_columns(f"map/{key}", indexes=_index(steps, good),
+                             columns=rr.GeoPoints.columns(positions=np.c_[la[good], lo[good]]))
+            rec.log(f"map/{key}", rr.GeoPoints.from_fields(colors=COLORS[key],
+                                                           radii=rr.Radius.ui_points(5.0)), static=True)
+
+    # ---------------------------------------------------------------- series
+    p = steps.pose
+    d = np.rad2deg
+    series = {
+        "series/attitude/heading_deg": d(p.heading), "series/attitude/pitch_deg": d(p.pitch),
+        "series/attitude/roll_deg": d(p.roll),
+        "series/gimbal/gimbal_roll_deg": d(p.gimbal_roll),
+        "series/gimbal/gimbal_pitch_deg": d(p.gimbal_pitch),
+        "series/range/slant_range_m": steps.ground.slant_range,
+        "series/height/target_h_m": steps.ground.h,
+    }
+    if steps.truth is not None:
+        series["series/error/to_truth_m"] = steps.truth["error_m"]
+    if steps.published is not None:
+        series["series/error/to_published_m"] = steps.published["error_m"]
+    series.update(steps.extra_series)
+    if steps.terrain is not None and steps.terrain.method != "ellipsoid":
+        series["series/dem/evaluations"] = steps.terrain.dem_evaluations.astype(float)
+    for path, values in series.items():
+        values = np.broadcast_to(np.asarray(values, float), (n,))
+        good = np.isfinite(values)  # a missing value is a gap, not a zero
+        if np.any(good):
+            rec.send_columns(path, indexes=_index(steps, good),
+                             columns=rr.Scalars.columns(scalars=values[good]))
+
+    # ------------------------------------------------------ status messages
+    st = np.asarray(steps.ground.status)
+    bad = st != Status.OK
+    if np.any(bad):
+        text = [f"{steps.labels[k]}: {describe(st[k])}" for k in np.flatnonzero(bad)]
+        rec.send_columns("log/status", indexes=_index(steps, bad),
+                         columns=rr.TextLog.columns(text=text, level=["WARN"] * len(text)))
+
+    if steps.terrain is not None:
+        from geoloc.viz.rerun_terrain import log_terrain
+
+        log_terrain(rec, steps, _index)
+
+
+def _points(rec, steps, path, pts, color, radius):
+    good = np.all(np.isfinite(pts), axis=-1)
+    if np.any(good):
+        rec.send_columns(path, indexes=_index(steps, good),
+                         columns=rr.Points3D.columns(positions=pts[good].astype(np.float32)))
+        rec.log(path, rr.Points3D.from_fields(colors=color, radii=radius), static=True)
+
+
+def recording_id(steps: LogSteps) -> str:
+    """A recording id fixed by the input's name and kind (re-runs replace, not add)."""
+    return str(uuid.uuid5(uuid.NAMESPACE_URL, f"geoloc:{steps.kind}:{steps.name}"))
+
+
+def write(steps: LogSteps, out, *, display_scale: float = 200.0, serve: bool = False,
+          grpc_port: int = 9876, spawn: bool = False) -> rr.RecordingStream:
+    """Write ``steps`` to the ``.rrd`` file ``out`` (and optionally serve it or spawn a viewer).
+
+    Parameters
+    ----------
+    steps : LogSteps
+    out : path-like or None
+        Output file; None for no file (only with ``serve`` or ``spawn``).
+    display_scale : float
+        Scale of the aircraft mesh in the 3D view (a 15 m aircraft is a speck at 20 km).
+    serve : bool
+        Also host a gRPC server (``rerun+http://127.0.0.1:PORT/proxy``) for viewers to
+        connect to; the caller keeps the process alive (see :func:`serve_web`).
+    grpc_port : int
+    spawn : bool
+        Also start the native viewer (the ``rerun`` executable of the wheel) and stream to it.
+
+    Returns
+    -------
+    rerun.RecordingStream
+        Flushed; disconnected when neither ``serve`` nor ``spawn`` is asked for.
+    """
+    rec = rr.RecordingStream("geoloc", recording_id=recording_id(steps))
+    sinks = []
+    if out is not None:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        sinks.append(rr.FileSink(str(out)))
+    if serve:
+        sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=grpc_port))
+    if spawn:
+        rr.spawn(port=grpc_port + 1 if serve else grpc_port, connect=False)
+        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{grpc_port + 1 if serve else grpc_port}/proxy"))
+    if not sinks:
+        raise ValueError("nothing to write to: give an output file, serve or spawn")
+    rec.set_sinks(*sinks, default_blueprint=blueprint(steps))
+    log_steps(rec, steps, display_scale=display_scale)
+    rec.flush()
+    if not (serve or spawn):
+        rec.disconnect()
+    return rec
+
+
+def serve_web(grpc_port: int = 9876, web_port: int = 9090) -> str:
+    """Host the web viewer (assets inside the rerun wheel, no network) connected to the gRPC server.
+
+    Returns the URL to open in a browser.
+    """
+    url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+    rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=url)
+    return f"http://127.0.0.1:{web_port}/?url={url}"

@@ -1,0 +1,299 @@
+"""What a rerun recording shows, computed by the core: one entry per time step.
+
+No rerun import here: this module runs the core (:mod:`geoloc.workflows.flight`,
+:mod:`geoloc.workflows.replay`, :mod:`geoloc.locate`, :mod:`geoloc.surfaces.terrain` when a DEM is
+given) and expresses every result in the scene's local East-North-Up frame
+(:mod:`geoloc.frames.enu`); :mod:`geoloc.viz.rerun_log` only writes these numbers. The tests
+read the recording back and compare it with these arrays.
+
+Scene origin: the convention of the viser scene (``geoloc.viz.scenario.enu_origin_for``):
+near the target of the first step (the published position if the records
+have one, else the located target), rounded to 0.001 deg and 100 m.
+Conventions: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.assets import ASSETS, DEFAULT_CAMERA
+from geoloc.frames import rotations as rot
+from geoloc.frames.chain import FrameChain, Pose
+from geoloc.frames.enu import EnuFrame
+from geoloc.geodesy.geodesic import horizontal_distance_m
+from geoloc.io.records import load_records
+from geoloc.locate import camera_chain, line_of_sight
+from geoloc.sensors.camera import Camera
+from geoloc.surfaces.base import GroundPoint, LineOfSight
+from geoloc.surfaces.height import intersect_los_height
+from geoloc.workflows.flight import FlightScenario, simulate
+from geoloc.workflows.replay import result_from_ground
+
+
+@dataclass
+class TerrainSteps:
+    """DEM results per step (present only when a DEM is used).
+
+    Attributes
+    ----------
+    method : str
+    dem : object
+        The :class:`geoloc.surfaces.dem.DEM` (for the static mesh).
+    dem_evaluations : ndarray (n,) of int
+    H : list of ndarray
+        Per step, the trial heights H_n of the iteration [m].
+    h_dem : list of ndarray
+        Per step, the DEM height h_n below the line of sight at H_n [m].
+    lat, lon, ecef : list of ndarray
+        Per step, the point of the line of sight at H_n [rad, rad; ECEF m].
+    """
+
+    method: str
+    dem: object
+    dem_path: str
+    dem_evaluations: np.ndarray
+    H: list
+    h_dem: list
+    lat: list = field(default_factory=list)
+    lon: list = field(default_factory=list)
+    ecef: list = field(default_factory=list)
+
+
+@dataclass
+class LogSteps:
+    """Every per-step quantity of a recording, SI units, radians, ENU metres.
+
+    Attributes
+    ----------
+    kind : {"flight", "records"}
+    name : str
+    timelines : dict
+        Timeline name -> ("duration", seconds) or ("sequence", int array).
+    labels : list of str
+    camera : Camera
+    pose : Pose
+        Batched, one entry per step.
+    chain : FrameChain
+    row, col : ndarray (n,)
+        Pixel of each line of sight (1-based).
+    los : LineOfSight
+    ground : GroundPoint
+        The located target of each step.
+    enu : EnuFrame
+        Scene origin.
+    truth : dict or None
+        ``lat_deg, lon_deg, h_m`` of the reference position (surveyed, or the
+        exact DEM hit in a simulation) and ``error_m`` (horizontal geodesic distance).
+    published : dict or None
+        ``lat_deg, lon_deg, error_m`` of the published computed position (records).
+    terrain : TerrainSteps or None
+    notes : list of str
+        Plain-text description of the inputs (for the recording's info panel).
+    extra_series : dict
+        Further scalar series, entity path -> (n,) array (e.g. the ellipsoid model's error).
+    """
+
+    kind: str
+    name: str
+    timelines: dict
+    labels: list
+    camera: Camera
+    pose: Pose
+    chain: FrameChain
+    row: np.ndarray
+    col: np.ndarray
+    los: LineOfSight
+    ground: GroundPoint
+    enu: EnuFrame
+    truth: dict | None = None
+    published: dict | None = None
+    terrain: TerrainSteps | None = None
+    notes: list = field(default_factory=list)
+    extra_series: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    # ---------------------------------------------------------- derived, ENU
+    @property
+    def aircraft_enu(self) -> np.ndarray:
+        """Aircraft (optical centre) in the scene, (n, 3) [m]."""
+        return self.enu.from_ecef(self.los.origin_ecef)
+
+    @property
+    def target_enu(self) -> np.ndarray:
+        """Located target in the scene, (n, 3) [m]; NaN where no hit."""
+        return self.enu.from_ecef(self.ground.ecef)
+
+    def hop_transforms(self) -> dict:
+        """4x4 transform of each entity of the frame hierarchy relative to its parent.
+
+        ``ned``: T_enu_ned = T_enu_ecef @ T_ecef_ned (the first hop of the chain,
+        re-expressed in the scene frame); ``body``, ``gimbal_outer``, ``cam``:
+        the chain's own hops T_ned_body, T_body_outer, T_outer_cam.
+        """
+        T_enu_ecef = rot.invert(rot.transform(self.enu.R_ecef_enu, self.enu.origin_ecef))
+        hops = {h.src: h.T for h in self.chain.hops}
+        return {
+            "ned": T_enu_ecef @ hops["ned"],
+            "body": hops["body"],
+            "gimbal_outer": hops["gimbal_outer"],
+            "cam": hops["cam"],
+        }
+
+
+def enu_origin(lat_deg: float, lon_deg: float, h_m: float) -> EnuFrame:
+    """Scene origin near a target: :meth:`geoloc.frames.enu.EnuFrame.scene_origin`, as in the viser scene."""
+    return EnuFrame.scene_origin(lat_deg, lon_deg, h_m)
+
+
+def load_camera(path=None) -> Camera:
+    """A camera TOML, default the bundled [Q17] flight-test camera."""
+    return Camera.from_toml(path if path else Path(ASSETS).joinpath(*DEFAULT_CAMERA))
+
+
+def _terrain(los: LineOfSight, dem_path, dem_datum: str, method: str, eps_h_m=None, threshold_m=None):
+    """Intersect with a DEM through :mod:`geoloc.surfaces.terrain`; returns (GroundPoint, TerrainSteps)."""
+    from geoloc.viz.rerun_terrain import dem_steps
+
+    return dem_steps(los, dem_path, dem_datum, method, eps_h_m, threshold_m)
+
+
+def _first_finite(lat, lon, h):
+    ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h)
+    if not np.any(ok):
+        raise ValueError("no step has a valid ground point: nothing to centre the scene on")
+    k = int(np.argmax(ok))
+    return lat[k], lon[k], h[k]
+
+
+def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogSteps:
+    """Simulate a scenario (:func:`geoloc.workflows.flight.simulate`) and geolocate every step.
+
+    The located target is the scenario's method: the ellipsoid inflated to
+    ``target_h_m`` [Q17 eq. 11], or a DEM method. With a DEM, the reference
+    ("truth") is the exact first hit on that DEM, so the error series shows
+    what the chosen method costs at each frame angle.
+    """
+    camera = camera if camera is not None else load_camera(scn.camera_path)
+    track = simulate(scn)
+    n = len(track)
+    row = np.full(n, camera.center_pixel[0] if scn.row is None else scn.row)
+    col = np.full(n, camera.center_pixel[1] if scn.col is None else scn.col)
+    chain = camera_chain(track.pose, camera)
+    los = line_of_sight(track.pose, camera, row, col, chain=chain)
+    terrain = None
+    truth = None
+    extra = {}
+    notes = [f"scenario: {scn.name}", f"{n} steps at {scn.rate_hz:g} Hz, "
+             f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
+             f"period {scn.scan_period_s:g} s"]
+    if scn.method == "ellipsoid":
+        ground = intersect_los_height(los, scn.target_h_m)
+        notes.append(f"located on the ellipsoid inflated to {scn.target_h_m:g} m [Q17 eq. 11]")
+    else:
+        ground, terrain = _terrain(los, scn.dem_path, scn.dem_datum, scn.method, scn.eps_h_m,
+                                   scn.threshold_m)
+        notes.append(f"located on {scn.dem_path.name} ({scn.dem_datum}) by '{scn.method}'")
+    if scn.dem_path is not None:
+        exact = ground if (terrain is not None and scn.method == "exact") else \
+            _terrain(los, scn.dem_path, scn.dem_datum, "exact")[0]
+        if terrain is None:
+            from geoloc.viz.rerun_terrain import open_dem
+
+            terrain = TerrainSteps("ellipsoid", open_dem(scn.dem_path, scn.dem_datum), str(scn.dem_path),
+                                   np.zeros(n, int), [], [])
+        truth = {"lat_deg": exact.lat_deg, "lon_deg": exact.lon_deg, "h_m": exact.h,
+                 "error_m": horizontal_distance_m(ground.lat_deg, ground.lon_deg,
+                                                  exact.lat_deg, exact.lon_deg)}
+        notes.append("truth: exact first hit on the DEM")
+        if scn.method != "ellipsoid" and scn.target_h_m is not None:
+            ell = intersect_los_height(los, scn.target_h_m)
+            extra["series/ellipsoid_model/to_truth_m"] = horizontal_distance_m(
+                ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg)
+            notes.append(f"ellipsoid model at {scn.target_h_m:g} m compared with the truth too")
+    if scn.mc_model_path is not None:
+        from geoloc.analysis.errormodel import ErrorModel
+        from geoloc.workflows.flight import step_cep
+
+        if scn.target_h_m is None:
+            raise ValueError("[montecarlo] needs [terrain] target_h_m (the ellipsoid model's height)")
+        mc = step_cep(track, ErrorModel.from_toml(scn.mc_model_path), scn.target_h_m, scn.mc_samples,
+                      np.random.default_rng(scn.mc_seed))
+        extra["series/cep/cep_m"] = mc["cep_m"]
+        extra["series/cep/cep50_empirical_m"] = mc["cep50_empirical_m"]
+        notes.append(f"CEP: {scn.mc_samples} Monte Carlo samples per step, errors of "
+                     f"{scn.mc_model_path.name}, seed {scn.mc_seed}")
+    enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
+    k = np.arange(n)
+    return LogSteps("flight", scn.name, {"time": ("duration", track.t), "frame": ("sequence", k)},
+                    [f"frame {i}" for i in k], camera, track.pose, chain, row, col, los, ground, enu,
+                    truth=truth, terrain=terrain, notes=notes, extra_series=extra)
+
+
+def steps_from_records(path, camera: Camera | None = None, *, height_column: str | None = None,
+                       target_h_m: float | None = None, surface: str = "inflated", dem_path=None,
+                       dem_datum: str = "egm96", method: str = "exact", eps_h_m=None,
+                       threshold_m=None) -> tuple[LogSteps, list]:
+    """Geolocate every record of a flight-test CSV: one time step per record.
+
+    Height source, first given wins: ``dem_path`` (method of :mod:`geoloc.surfaces.terrain`),
+    ``target_h_m`` (one height), ``height_column``, else ``paper_height_m`` if the
+    file has it. Errors are horizontal geodesic distances (:mod:`geoloc.workflows.replay`).
+
+    Returns
+    -------
+    LogSteps, list of RowError
+        The steps and the rows the loader rejected.
+    """
+    camera = camera if camera is not None else load_camera()
+    recs = load_records(path)
+    if len(recs) == 0:
+        raise ValueError(f"{path}: no valid record ({len(recs.errors)} rejected)")
+    pose = recs.pose()
+    row, col = recs.column("row"), recs.column("col")
+    chain = camera_chain(pose, camera)
+    los = line_of_sight(pose, camera, row, col, chain=chain)
+    terrain = None
+    notes = [f"records: {Path(path).name} ({len(recs)} records)"]
+    if dem_path is not None:
+        ground, terrain = _terrain(los, dem_path, dem_datum, method, eps_h_m, threshold_m)
+        notes.append(f"located on {Path(dem_path).name} ({dem_datum}) by '{method}'")
+    else:
+        if target_h_m is not None:
+            h = np.full(len(recs), float(target_h_m))
+            notes.append(f"located at one target height {target_h_m:g} m")
+        else:
+            col_name = height_column or ("paper_height_m" if recs.has("paper_height_m") else None)
+            if col_name is None:
+                raise ValueError(f"{path}: give a height column, a target height or a DEM "
+                                 "(no paper_height_m column to default to)")
+            h = recs.column(col_name)
+            bad = ~np.isfinite(h)
+            if np.any(bad):
+                raise ValueError(f"height column {col_name!r} is empty or not finite on line(s) "
+                                 f"{[int(x) for x in recs.lines[bad]]}")
+            notes.append(f"located at each record's {col_name}")
+        ground = intersect_los_height(los, h, surface)
+    res = result_from_ground(recs, ground)
+    truth = published = None
+    if recs.has("truth_lat_deg") and recs.has("truth_lon_deg"):
+        th = recs.column("truth_h_m") if recs.has("truth_h_m") else ground.h
+        truth = {"lat_deg": recs.column("truth_lat_deg"), "lon_deg": recs.column("truth_lon_deg"),
+                 "h_m": th, "error_m": res.error_to_truth_m}
+    if recs.has("paper_lat_deg") and recs.has("paper_lon_deg"):
+        published = {"lat_deg": recs.column("paper_lat_deg"), "lon_deg": recs.column("paper_lon_deg"),
+                     "error_m": res.error_to_paper_m}
+    if published is not None:
+        ph = recs.column("paper_height_m") if recs.has("paper_height_m") else ground.h
+        published["h_m"] = ph
+        enu = enu_origin(*_first_finite(published["lat_deg"], published["lon_deg"], ph))
+    else:
+        enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
+    steps = LogSteps("records", Path(path).name, {"record": ("sequence", np.arange(len(recs)))},
+                     recs.labels(), camera, pose, chain, row, col, los, ground, enu, truth=truth,
+                     published=published, terrain=terrain, notes=notes)
+    return steps, list(recs.errors)

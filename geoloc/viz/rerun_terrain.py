@@ -1,0 +1,160 @@
+"""Terrain in a rerun recording: the DEM mesh (static), DEM evaluations and H_n - h_n per ray.
+
+The numbers come from :func:`geoloc.surfaces.terrain.intersect_dem` with ``trace=True``
+(GEOMETRY.md section 4: descending steps of [Q17 section 2.3], bisection of
+[L23], exact first hit) and the mesh from :meth:`geoloc.surfaces.dem.DEM.to_trimesh`, in
+the scene's ENU frame. Entities:
+
+* ``world/dem``: Mesh3D, static, vertex colours by height, cropped to the area
+  around the aircraft and targets;
+* ``world/iterations/on_los``: the points of the line of sight at each H_n;
+  ``world/iterations/to_dem``: vertical segments from there to the DEM height h_n,
+  orange where H_n - h_n > 0 (still above the terrain), blue where below;
+* ``convergence/H_minus_h_m``: BarChart of H_n - h_n over the iterations n of the
+  current step's ray (scrub the time line to see each ray converge).
+
+Conventions: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from geoloc.surfaces.base import GroundPoint, LineOfSight
+from geoloc.viz.rerun_model import TerrainSteps
+
+#: Margin around the aircraft and targets kept of the DEM mesh [deg].
+CROP_MARGIN_DEG = 0.1
+
+
+def open_dem(path, datum: str = "egm96"):
+    """:meth:`geoloc.surfaces.dem.DEM.open` (heights made ellipsoidal with EGM96 for ``datum="egm96"``)."""
+    from geoloc.surfaces.dem import DEM
+
+    return DEM.open(path, datum=datum)
+
+
+def dem_steps(los: LineOfSight, dem_path, dem_datum: str = "egm96", method: str = "exact",
+              eps_h_m=None, threshold_m=None) -> tuple[GroundPoint, TerrainSteps]:
+    """Intersect every line of sight with a DEM; the hits as a GroundPoint and the per-ray trace.
+
+    Parameters
+    ----------
+    los : LineOfSight
+        One ray per step, shape (n,).
+    dem_path : path-like
+    dem_datum : {"egm96", "ellipsoid"}
+    method : {"steps", "bisect", "exact"}
+    eps_h_m, threshold_m : float, optional
+        Step / threshold of the iterative methods [m] (terrain's defaults if None).
+    """
+    from geoloc.surfaces.terrain import intersect_dem
+
+    dem = open_dem(dem_path, dem_datum)
+    kw = {}
+    if eps_h_m is not None:
+        kw["eps_h"] = float(eps_h_m)
+    if threshold_m is not None:
+        kw["threshold"] = float(threshold_m)
+    hit = intersect_dem(los, dem, method, trace=True, **kw)
+    ground = GroundPoint(hit.lat, hit.lon, hit.h, hit.ecef, hit.slant_range, hit.status, los)
+    n = len(hit.status)
+    tr = {"H": [], "h_dem": [], "lat": [], "lon": [], "ecef": []}
+    for k in range(n):
+        r = hit.trace.ray(k)
+        for key in tr:
+            tr[key].append(np.asarray(r[key], float))
+    return ground, TerrainSteps(method, dem, str(dem_path), np.asarray(hit.dem_evaluations),
+                                tr["H"], tr["h_dem"], tr["lat"], tr["lon"], tr["ecef"])
+
+
+def dem_mesh_enu(dem, enu, lat_range_deg, lon_range_deg, max_nodes: int = 250_000):
+    """The DEM's triangle mesh in the scene's ENU frame, cropped to a lat/lon box.
+
+    Returns
+    -------
+    vertices : ndarray (m, 3) [m], faces : ndarray (k, 3), heights : ndarray (m,) [m]
+        Heights are the nodes' ellipsoidal heights (for colouring).
+    """
+    nr, nc = dem.shape
+    stride = max(1, int(np.ceil(np.sqrt(nr * nc / max_nodes))))
+    m = dem.to_trimesh(stride, origin_lat=enu.lat0, origin_lon=enu.lon0, origin_h=enu.h0)
+    lat, lon = dem.node_latlon_deg()
+    lat, lon = lat[::stride, ::stride].ravel(), lon[::stride, ::stride].ravel()
+    h = dem.grid.values[::stride, ::stride].ravel()
+    inside = ((lat >= lat_range_deg[0]) & (lat <= lat_range_deg[1])
+              & (lon >= lon_range_deg[0]) & (lon <= lon_range_deg[1]))
+    faces = np.asarray(m.faces)
+    keep = np.any(inside[faces], axis=1)
+    faces = faces[keep]
+    used = np.unique(faces)
+    remap = np.full(len(lat), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return np.asarray(m.vertices)[used], remap[faces], h[used]
+
+
+def height_colors(h):
+    """RGBA uint8 per vertex from matplotlib's 'terrain' colour map (greens to browns), min..max of ``h``."""
+    from matplotlib import colormaps
+
+    lo, hi = np.nanmin(h), np.nanmax(h)
+    x = (h - lo) / (hi - lo) if hi > lo else np.zeros_like(h)
+    return (colormaps["terrain"](0.25 + 0.55 * x) * 255).astype(np.uint8)
+
+
+def log_terrain(rec, steps, index) -> None:
+    """Log the static DEM mesh and the per-ray iterations (``index(steps, mask)`` gives the time columns)."""
+    import rerun as rr
+
+    from geoloc.viz.rerun_log import COLORS
+
+    ter = steps.terrain
+    enu = steps.enu
+    n = len(steps)
+    lat = np.concatenate([np.broadcast_to(np.rad2deg(steps.pose.lat), (n,)), steps.ground.lat_deg])
+    lon = np.concatenate([np.broadcast_to(np.rad2deg(steps.pose.lon), (n,)), steps.ground.lon_deg])
+    if steps.truth is not None:
+        lat = np.concatenate([lat, steps.truth["lat_deg"]])
+        lon = np.concatenate([lon, steps.truth["lon_deg"]])
+    box_lat = (np.nanmin(lat) - CROP_MARGIN_DEG, np.nanmax(lat) + CROP_MARGIN_DEG)
+    box_lon = (np.nanmin(lon) - CROP_MARGIN_DEG, np.nanmax(lon) + CROP_MARGIN_DEG)
+    v, f, h = dem_mesh_enu(ter.dem, enu, box_lat, box_lon)
+    if len(f):
+        rec.log("world/dem", rr.Mesh3D(vertex_positions=v.astype(np.float32), triangle_indices=f,
+                                       vertex_colors=height_colors(h)), static=True)
+    if ter.method == "ellipsoid":
+        return
+    rec.log("world/iterations/on_los", rr.Points3D.from_fields(radii=120.0), static=True)
+    rec.log("world/iterations/to_dem", rr.LineStrips3D.from_fields(radii=40.0), static=True)
+    for k in range(n):
+        H, hd = ter.H[k], ter.h_dem[k]
+        good = np.isfinite(H) & np.isfinite(hd)
+        one = np.zeros(n, dtype=bool)
+        one[k] = True
+        idx = index(steps, one)
+        if not np.any(good):
+            continue
+        diff = (H - hd)[good]
+        rec.send_columns("convergence/H_minus_h_m", indexes=idx, columns=rr.BarChart.columns(values=diff))
+        r = steps_trace_points(steps, k)
+        colors = np.where((diff > 0)[:, None], np.array(COLORS["above"], np.uint8),
+                          np.array(COLORS["below"], np.uint8))
+        rec.send_columns("world/iterations/on_los", indexes=idx, columns=rr.Points3D.columns(
+            positions=r["on_los"].astype(np.float32), colors=colors).partition([len(diff)]))
+        strips = np.stack([r["on_los"], r["dem"]], axis=1).astype(np.float32)
+        rec.send_columns("world/iterations/to_dem", indexes=idx, columns=rr.LineStrips3D.columns(
+            strips=list(strips), colors=colors).partition([len(diff)]))
+
+
+def steps_trace_points(steps, k: int) -> dict:
+    """ENU points of ray ``k``'s iterations: on the line of sight at H_n, and on the DEM below (h_n).
+
+    ``on_los`` is the trace's own ECEF point; ``dem`` the same latitude and longitude
+    at the DEM height h_n that :func:`geoloc.surfaces.terrain.intersect_dem` read there.
+    """
+    ter = steps.terrain
+    H, hd = ter.H[k], ter.h_dem[k]
+    good = np.isfinite(H) & np.isfinite(hd)
+    lat, lon = ter.lat[k][good], ter.lon[k][good]
+    return {"on_los": steps.enu.from_ecef(ter.ecef[k][good]),
+            "dem": steps.enu.from_geodetic(lat, lon, hd[good])}

@@ -1,0 +1,139 @@
+"""Scenarios for the viewer: the bundled default and user-given records files.
+
+The default scenario (``geoloc view`` with no arguments) is the first [Q17]
+flight-test record (``assets/records/qiao2017_flight_tests.csv``, table T3,
+point 1, with the fitted camera ``assets/cameras/qiao2017.toml``) over the
+bundled terrain of the flight-test area (``assets/dem/``) when it is present,
+else over the ellipsoid inflated to the record's ``paper_height_m``.
+
+Conventions: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.assets import ASSETS, DEFAULT_CAMERA, DEFAULT_RECORDS
+from geoloc.frames.enu import EnuFrame
+from geoloc.io.records import load_records
+from geoloc.sensors.camera import Camera
+from geoloc.viz.model import Inputs, RecordInfo, Scenario
+
+
+def _num(row: dict, key: str) -> float:
+    v = row.get(key, "")
+    v = v.strip() if isinstance(v, str) else v
+    return float(v) if v not in ("", None) else np.nan
+
+
+def records_from_csv(path) -> list:
+    """Load a records CSV with :func:`geoloc.io.records.load_records`; return [(RecordInfo, Inputs)].
+
+    Bad rows are left out by the loader (their errors are on ``Records.errors``).
+    """
+    recs = load_records(path)
+    out = []
+    for label, row in zip(recs.labels(), recs.rows):
+        info = RecordInfo(label, _num(row, "paper_lat_deg"), _num(row, "paper_lon_deg"),
+                          _num(row, "paper_height_m"), _num(row, "truth_lat_deg"),
+                          _num(row, "truth_lon_deg"), _num(row, "paper_error_m"))
+        target_h = info.paper_height_m if np.isfinite(info.paper_height_m) else 0.0
+        inp = Inputs(_num(row, "ac_lat_deg"), _num(row, "ac_lon_deg"), _num(row, "ac_h_m"),
+                     _num(row, "heading_deg"), _num(row, "pitch_deg"), _num(row, "roll_deg"),
+                     _num(row, "gimbal_roll_deg"), _num(row, "gimbal_pitch_deg"),
+                     _num(row, "row"), _num(row, "col"), target_h=target_h)
+        out.append((info, inp))
+    if not out:
+        raise ValueError(f"records file {path}: no valid rows ({len(recs.errors)} rejected)")
+    return out
+
+
+def enu_origin_for(info: RecordInfo, inp: Inputs) -> EnuFrame:
+    """Scene origin near the target: the published position (else below the aircraft),
+    rounded by :meth:`geoloc.frames.enu.EnuFrame.scene_origin`."""
+    if np.isfinite(info.paper_lat_deg):
+        lat, lon = info.paper_lat_deg, info.paper_lon_deg
+        h = info.paper_height_m if np.isfinite(info.paper_height_m) else 0.0
+    else:
+        lat, lon, h = inp.lat_deg, inp.lon_deg, inp.target_h
+    return EnuFrame.scene_origin(lat, lon, h)
+
+
+def default_dem_path(lat_deg: float, lon_deg: float) -> Path | None:
+    """A bundled DEM in ``assets/dem/`` covering (lat, lon), preferring the finest; None if none."""
+    folder = Path(ASSETS) / "dem"
+    if not folder.is_dir():
+        return None
+    try:
+        from geoloc.surfaces.dem import DEM  # noqa: F401  (terrain support present?)
+    except ImportError:
+        return None
+    from geoloc.viz.terrain_link import dem_covers
+
+    best = None
+    for p in sorted(folder.glob("*.tif")):
+        cell = dem_covers(p, lat_deg, lon_deg)
+        if cell is not None and (best is None or cell < best[0]):
+            best = (cell, p)
+    return None if best is None else best[1]
+
+
+def load_scenario(records_path=None, record: str | int | None = None, camera_path=None,
+                  dem_path=None, use_dem: bool = True) -> Scenario:
+    """Build a geolocation scenario from a records file (default: the bundled [Q17] flight test).
+
+    Parameters
+    ----------
+    records_path : path-like, optional
+        Records CSV (columns of ``../shared/data/README.md``).
+    record : str or int, optional
+        Label (``T3-1``) or 0-based index of the record to open; default the first.
+    camera_path : path-like, optional
+        Camera TOML; default ``assets/cameras/qiao2017.toml``.
+    dem_path : path-like, optional
+        DEM GeoTIFF; default a bundled one covering the target, if any.
+    use_dem : bool
+        False to stay on the ellipsoid at each record's ``paper_height_m``.
+    """
+    records_path = Path(records_path) if records_path else Path(ASSETS).joinpath(*DEFAULT_RECORDS)
+    camera = Camera.from_toml(camera_path or Path(ASSETS).joinpath(*DEFAULT_CAMERA))
+    recs = records_from_csv(records_path)
+    idx = 0
+    if record is not None:
+        labels = [r[0].label for r in recs]
+        if isinstance(record, int) or str(record).isdigit():
+            idx = int(record)
+            if not 0 <= idx < len(recs):
+                raise ValueError(f"record = {record}: index out of range 0..{len(recs) - 1}")
+        elif record in labels:
+            idx = labels.index(record)
+        else:
+            raise ValueError(f"record = {record!r}: not in {records_path.name}; labels are {labels}")
+    info, inp = recs[idx]
+    scn = Scenario(name=f"{records_path.name} {info.label}", camera=camera, inputs=inp,
+                   enu=enu_origin_for(info, inp), records=recs, record_index=idx,
+                   use_dem=use_dem, source=records_path.name,
+                   description=f"records {records_path}, camera {camera.name or camera_path}")
+    scn._user_dem = dem_path  # kept when another record is selected
+    if use_dem:
+        from geoloc.viz import terrain_link
+
+        terrain_link.attach_dem(scn, dem_path, strict=dem_path is not None)
+    else:
+        scn.dem_name = "none (no DEM): ellipsoid at each record's paper_height_m"
+    return scn
+
+
+def select_record(scn: Scenario, idx: int) -> None:
+    """Load record ``idx`` into the scenario: its inputs, a new ENU origin, the DEM that covers it."""
+    info, inp = scn.records[idx]
+    scn.record_index = idx
+    scn.name = f"{scn.source} {info.label}"
+    scn.inputs = inp.replace()
+    scn.enu = enu_origin_for(info, inp)
+    if scn.use_dem:
+        from geoloc.viz import terrain_link
+
+        terrain_link.attach_dem(scn, getattr(scn, "_user_dem", None))

@@ -1,0 +1,337 @@
+"""The geolocation scene: draws a :class:`geoloc.viz.model.Geometry` into a viser scene.
+
+All coordinates come from the core through :func:`geoloc.viz.model.compute`, in the
+scene's local East-North-Up frame (metres, origin near the target; see
+:mod:`geoloc.frames.enu`). The only transformations here are for display: the vertical
+exaggeration multiplies the Up coordinate of every point (and scales the terrain
+node), and the aircraft and frame axes have a display size.
+
+Scene nodes (stable names, used by the tests and docs/viz.md), all under the
+root ``/enu``. The browser's world unit is the **kilometre** (:data:`WORLD_SCALE`:
+viser's own renders clip at 1000 units, and node scales do not propagate to
+children), so a node at ENU ``p`` metres sits at ``p / 1000`` (Up also times the
+vertical exaggeration):
+
+``/origin`` (+ ``/origin/label``), ``/grid``, ``/terrain``, ``/aircraft``
+(+ ``/aircraft/mesh``), ``/frames/{ned,body,gimbal_outer,cam}`` (+ ``/label``),
+``/frustum``, ``/los``, ``/los_beyond``, ``/hit/hmax``, ``/hit/result``,
+``/hit/exact`` (each + ``/label``), ``/iterations/{points,verticals,brackets,current}``,
+``/record/{published,surveyed,error}``.
+
+Conventions: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+import viser
+import viser.transforms as vtf
+
+from geoloc.assets import ASSETS
+from geoloc.viz.model import DRAWN_FRAMES, Geometry, Scenario
+
+#: Root node of the scene, and scene units per metre (the world unit is the km).
+ROOT = "/enu"
+WORLD_SCALE = 1e-3
+
+#: Axis length of each frame, in multiples of the aircraft display scale (nested so all show).
+FRAME_AXES = {"ned": 16.0, "body": 13.0, "gimbal_outer": 10.0, "cam": 7.5}
+FRAME_LABELS = {
+    "ned": "NED: N",
+    "body": "body: X nose",
+    "gimbal_outer": "outer gimbal: Y",
+    "cam": "camera: Z = line of sight",
+}
+#: Which axis tip carries each frame's label (0 = X, 1 = Y, 2 = Z): distinct tips, no overlap.
+LABEL_AXIS = {"ned": 0, "body": 0, "gimbal_outer": 1, "cam": 2}
+COLORS = {
+    "los": (255, 210, 0),
+    "los_beyond": (140, 120, 40),
+    "hmax": (0, 170, 255),
+    "result": (255, 40, 40),
+    "exact": (20, 220, 90),
+    "published": (180, 80, 255),
+    "surveyed": (255, 255, 255),
+    "error": (255, 90, 200),
+    "above": (60, 140, 255),  # H_n - h_n > 0: line of sight above the terrain
+    "below": (255, 80, 40),  # H_n - h_n < 0: below
+    "frustum": (255, 170, 60),
+    "bracket": (0, 230, 230),
+}
+
+
+@dataclass
+class Display:
+    """Display-only settings (no effect on the geometry)."""
+
+    vertical_exaggeration: float = 1.0
+    aircraft_scale: float = 200.0  # the 15 m mesh drawn 200x larger: ~3 km
+    error_exaggeration: float = 10.0
+    marker_radius_m: float = 220.0
+    step: int | None = None  # iteration shown (None: all)
+    frames_visible: dict = field(default_factory=lambda: {f: True for f in DRAWN_FRAMES})
+    terrain_visible: bool = True
+    highlight: str | None = None  # frame highlighted by the teaching panel
+    marker_labels: bool = False  # labels of the hit markers (they overlap at the default zoom)
+
+    def z(self, p) -> np.ndarray:
+        """Scene position (km) of ENU points (..., 3) [m]: Up multiplied by the exaggeration."""
+        p = np.asarray(p, float)
+        return p * (WORLD_SCALE * np.array([1.0, 1.0, self.vertical_exaggeration]))
+
+
+def load_aircraft_mesh() -> trimesh.Trimesh:
+    """The bundled aircraft mesh (body frame, metres), made by tools/make_aircraft_mesh.py."""
+    return trimesh.load(Path(ASSETS) / "meshes" / "aircraft.ply", force="mesh")
+
+
+def wxyz(R) -> np.ndarray:
+    """Quaternion (w, x, y, z) of a rotation matrix, for viser's node orientation."""
+    return vtf.SO3.from_matrix(np.asarray(R, float)).wxyz
+
+
+class GeolocScene:
+    """Owns the geolocation nodes of one viser scene and redraws them from a Geometry."""
+
+    def __init__(self, scene: viser.SceneApi, scn: Scenario, disp: Display | None = None):
+        self.scene = scene
+        self.scn = scn
+        self.disp = disp or Display()
+        self.geometry: Geometry | None = None
+        self.terrain_handle = None
+        self.aircraft_mesh = load_aircraft_mesh()
+        self.handles: dict = {}
+        self._cache: dict = {}  # node name -> (handle, creation key), see _alive
+
+    # ------------------------------------------------------------ static parts
+    def draw_static(self) -> None:
+        """Origin, grid and terrain: redrawn when the scenario (ENU origin, DEM) changes."""
+        s, enu = self.scene, self.scn.enu
+        W = WORLD_SCALE
+        s.add_frame(ROOT, show_axes=False)
+        s.add_frame("/enu/origin", axes_length=600.0 * W, axes_radius=25.0 * W, origin_radius=60.0 * W)
+        s.add_label("/enu/origin/label", "ENU origin", position=(0.0, 0.0, 0.0), anchor="top-right",
+                    visible=self.disp.marker_labels)
+        if self.scn.dem is None:  # a 1 km grid on the origin's level when there is no terrain
+            s.add_grid("/enu/grid", width=40000.0 * W, height=40000.0 * W, cell_size=1000.0 * W,
+                       section_size=5000.0 * W, plane="xy", cell_color=(120, 120, 120),
+                       section_color=(90, 90, 90), fade_distance=200.0, shadow_opacity=0.0)
+        else:
+            s.remove_by_name("/enu/grid")
+        # Scale bar: 5 km along East with 1 km ticks, set 6 km south-west of the origin.
+        x0 = np.array([-11000.0, -6000.0, 0.0])
+        bar = np.array([[x0, x0 + [5000.0, 0, 0]]] + [[x0 + [x, 0, 0], x0 + [x, 0, 400.0]] for x in
+                                                        (0.0, 1000.0, 2000.0, 3000.0, 4000.0, 5000.0)])
+        s.add_line_segments("/enu/scale_bar", (bar * W).astype(np.float32), (255, 255, 255), thickness=3.0,
+                            thickness_units="screen")
+        s.add_label("/enu/scale_bar/label", "5 km, ticks 1 km (East)", position=(x0 + [2500.0, 0.0, 400.0]) * W,
+                    anchor="bottom-center")
+        self.draw_terrain()
+        self.handles["aircraft"] = s.add_frame("/enu/aircraft", show_axes=False)
+        self.handles["aircraft_mesh"] = s.add_mesh_trimesh("/enu/aircraft/mesh", self.aircraft_mesh,
+                                                           scale=self.disp.aircraft_scale * W,
+                                                           cast_shadow=False, receive_shadow=False)
+
+    def _terrain_scale(self):
+        W = WORLD_SCALE
+        return (W, W, W * self.disp.vertical_exaggeration)
+
+    def draw_terrain(self) -> None:
+        if self.scn.dem is None:
+            self.terrain_handle = None
+            self.scene.remove_by_name("/enu/terrain")
+            return
+        from geoloc.viz import terrain_link
+
+        mesh = terrain_link.terrain_mesh(self.scn)
+        self.terrain_handle = self.scene.add_mesh_trimesh(
+            "/enu/terrain", mesh, scale=self._terrain_scale(),
+            visible=self.disp.terrain_visible, cast_shadow=False, receive_shadow=False)
+
+    # ------------------------------------------------------------ dynamic parts
+    def _alive(self, name, key):
+        """The cached handle of ``name`` if it still exists and was made with ``key``."""
+        h, k = self._cache.get(name, (None, None))
+        if h is not None and k == key and self.scene.get_handle_by_name(name) is h:
+            return h
+        return None
+
+    def _sphere(self, name, p, color, label=None, radius=None, anchor="bottom-left", show_label=None):
+        # Moving an existing node costs one small message; re-creating it costs a full one.
+        r = (radius or self.disp.marker_radius_m) * WORLD_SCALE
+        key = (r, tuple(int(c) for c in color))
+        h = self._alive(name, key)
+        if h is None:
+            h = self.scene.add_icosphere(name, radius=r, color=color, subdivisions=2,
+                                         position=self.disp.z(p), cast_shadow=False,
+                                         receive_shadow=False)
+            self._cache[name] = (h, key)
+        else:
+            h.position = self.disp.z(p)
+            h.visible = True
+        if label is not None:
+            lh = self._alive(name + "/label", anchor)
+            if lh is None:
+                lh = self.scene.add_label(name + "/label", label, position=(0.0, 0.0, 0.0), anchor=anchor)
+                self._cache[name + "/label"] = (lh, anchor)
+            elif lh.text != label:
+                lh.text = label
+            lh.visible = self.disp.marker_labels if show_label is None else show_label
+        return h
+
+    def _segments(self, name, pts, color, thickness=3.0):
+        pts = self.disp.z(np.asarray(pts, float).reshape(-1, 2, 3)).astype(np.float32)
+        colors = np.broadcast_to(np.asarray(color, np.uint8), pts.shape).copy()
+        key = (thickness, pts.shape)
+        h = self._alive(name, key)
+        if h is None:
+            h = self.scene.add_line_segments(name, pts, colors, thickness=thickness,
+                                             thickness_units="screen")
+            self._cache[name] = (h, key)
+        else:
+            h.points = pts
+            h.colors = colors
+        return h
+
+    def update(self, g: Geometry) -> None:
+        """Redraw every dynamic node from ``g`` (call inside ``server.atomic()``)."""
+        self.geometry = g
+        d, s = self.disp, self.scene
+        self.handles["aircraft"].position = d.z(g.aircraft_enu)
+        self.handles["aircraft"].wxyz = wxyz(g.R_enu_body)
+        self.handles["aircraft_mesh"].scale = d.aircraft_scale * WORLD_SCALE
+        if self.terrain_handle is not None:
+            self.terrain_handle.scale = self._terrain_scale()
+            self.terrain_handle.visible = d.terrain_visible
+        for name in DRAWN_FRAMES:
+            f = g.frames[name]
+            big = d.highlight == name
+            L = FRAME_AXES[name] * d.aircraft_scale * (1.4 if big else 1.0) * WORLD_SCALE
+            key = (L, big)
+            fh = self._alive(f"/enu/frames/{name}", key)
+            if fh is None:
+                fh = s.add_frame(f"/enu/frames/{name}", axes_length=L,
+                                 axes_radius=L * (0.05 if big else 0.02), origin_radius=L * 0.04,
+                                 position=d.z(f.origin_enu), wxyz=wxyz(f.R_enu_frame),
+                                 visible=d.frames_visible.get(name, True))
+                self._cache[f"/enu/frames/{name}"] = (fh, key)
+            else:
+                fh.position = d.z(f.origin_enu)
+                fh.wxyz = wxyz(f.R_enu_frame)
+                fh.visible = d.frames_visible.get(name, True)
+                continue
+            tip = np.zeros(3)
+            tip[LABEL_AXIS[name]] = L * 1.05
+            s.add_label(f"/enu/frames/{name}/label", ("> " if big else "") + FRAME_LABELS[name],
+                        position=tip, anchor="center-left")
+        # Line of sight: aircraft -> answer, then faintly on to the end of its usefulness.
+        ok = np.all(np.isfinite(g.hit_enu))
+        end = g.hit_enu if ok else g.aircraft_enu + 40e3 * g.los_dir_enu
+        self._segments("/enu/los", [g.aircraft_enu, end], COLORS["los"], 4.0)
+        beyond = end + 0.15 * np.linalg.norm(end - g.aircraft_enu) * g.los_dir_enu
+        self._segments("/enu/los_beyond", [end, beyond], COLORS["los_beyond"], 2.0)
+        if g.footprint_enu is not None and np.all(np.isfinite(g.footprint_enu)):
+            fp = g.footprint_enu
+            segs = [[g.aircraft_enu, c] for c in fp] + [[fp[i], fp[(i + 1) % 4]] for i in range(4)]
+            self._segments("/enu/frustum", segs, COLORS["frustum"], 1.5)
+        else:
+            s.remove_by_name("/enu/frustum")
+        self._sphere("/enu/hit/result", g.hit_enu if ok else g.aircraft_enu, COLORS["result"], g.hit_label)
+        s.get_handle_by_name("/enu/hit/result").visible = bool(ok)
+        if g.hit_hmax_enu is not None:
+            self._sphere("/enu/hit/hmax", g.hit_hmax_enu, COLORS["hmax"],
+                         f"ellipsoid hit at H_max = {g.hmax:.0f} m", radius=0.7 * d.marker_radius_m,
+                         anchor="center-right")
+        if g.exact_enu is not None and np.all(np.isfinite(g.exact_enu)):
+            self._sphere("/enu/hit/exact", g.exact_enu, COLORS["exact"], "exact first hit",
+                         radius=0.8 * d.marker_radius_m, anchor="top-right")
+        self._draw_iterations(g)
+        self._draw_record(g)
+
+    def _draw_iterations(self, g: Geometry) -> None:
+        s, d, it = self.scene, self.disp, g.iterations
+        if it is None or len(it.H) == 0:
+            for n in ("points", "verticals", "brackets", "current"):
+                s.remove_by_name(f"/enu/iterations/{n}")
+            return
+        n = len(it.H) if d.step is None else int(np.clip(d.step, 0, len(it.H) - 1)) + 1
+        above = (it.H - it.h_dem)[:n] > 0
+        cols = np.where(above[:, None], COLORS["above"], COLORS["below"]).astype(np.uint8)
+        s.add_point_cloud("/enu/iterations/points", d.z(it.on_los_enu[:n]).astype(np.float32), cols,
+                          point_size=0.6 * d.marker_radius_m * WORLD_SCALE, point_shape="circle",
+                          precision="float32")
+        segs = d.z(np.stack([it.on_los_enu[:n], it.dem_enu[:n]], 1)).astype(np.float32)
+        s.add_line_segments("/enu/iterations/verticals", segs, np.repeat(cols[:, None], 2, 1),
+                            thickness=2.5, thickness_units="screen")
+        if it.brackets_enu is not None:
+            self._segments("/enu/iterations/brackets", it.brackets_enu[:n], COLORS["bracket"], 6.0)
+        k = n - 1
+        self._sphere("/enu/iterations/current", it.on_los_enu[k], COLORS["above"] if above[k] else COLORS["below"],
+                     f"{it.method} n={k}: H={it.H[k]:.1f} m, DEM h={it.h_dem[k]:.1f} m, "
+                     f"H-h={it.H[k] - it.h_dem[k]:+.1f} m", radius=0.5 * d.marker_radius_m,
+                     anchor="center-left", show_label=d.step is not None or d.marker_labels)
+
+    def _draw_record(self, g: Geometry) -> None:
+        s, d = self.scene, self.disp
+        if g.published_enu is not None:
+            self._sphere("/enu/record/published", g.published_enu, COLORS["published"],
+                         "published [Q17]", radius=0.6 * d.marker_radius_m, anchor="top-left")
+        if g.surveyed_enu is not None:
+            self._sphere("/enu/record/surveyed", g.surveyed_enu, COLORS["surveyed"], "surveyed",
+                         radius=0.6 * d.marker_radius_m, anchor="bottom-right")
+            if np.all(np.isfinite(g.hit_enu)):
+                tip = g.hit_enu + d.error_exaggeration * (g.surveyed_enu - g.hit_enu)
+                self._segments("/enu/record/error", [g.hit_enu, tip], COLORS["error"], 5.0)
+                s.add_label("/enu/record/error/label",
+                            f"error x{d.error_exaggeration:g}: "
+                            f"{np.linalg.norm(g.surveyed_enu - g.hit_enu):.1f} m",
+                            position=d.z(tip), anchor="top-left")
+
+    # ------------------------------------------------------------ camera
+    def camera_pose(self, kind: str = "overview"):
+        """(position, look_at) in scene units for a named view.
+
+        ``"overview"``: a side view showing the aircraft, the frames, the line of
+        sight and the terrain at once. ``"target"``: close to the hit, where the
+        iterations, brackets and hits are, from the same side.
+        """
+        g, d = self.geometry, self.disp
+        a = d.z(g.aircraft_enu)
+        b = d.z(g.hit_enu if np.all(np.isfinite(g.hit_enu)) else g.aircraft_enu + 20e3 * g.los_dir_enu)
+        horiz = (b - a)[:2]
+        L = max(np.linalg.norm(b - a), 1e-3)
+        u = np.r_[horiz / max(np.linalg.norm(horiz), 1e-9), 0.0]
+        side = np.array([u[1], -u[0], 0.0])  # to the right of the ground track
+        up = np.array([0.0, 0.0, 1.0])
+        if kind == "target":
+            # The iterations span the last ~15 % of the line of sight above the hit.
+            aim = b + 0.08 * (a - b)
+            return aim + side * 0.4 * L + up * 0.15 * L - u * 0.1 * L, aim
+        mid = 0.5 * (a + b)
+        # Step back to the right of the track and up; aim a little beyond the middle so the
+        # scene sits left of the GUI panel.
+        pos = mid + side * 0.7 * L + up * 0.55 * L - u * 0.2 * L
+        return pos, mid - side * 0.1 * L + u * 0.1 * L - up * 0.12 * L
+
+    def set_initial_camera(self, server: viser.ViserServer) -> None:
+        """Start new browsers on the overview (see :meth:`camera_pose`)."""
+        pos, aim = self.camera_pose("overview")
+        cam = server.initial_camera
+        cam.up = (0.0, 0.0, 1.0)
+        cam.near = 0.02  # km (world units, see ROOT)
+        cam.far = 1000.0
+        cam.position = tuple(pos)
+        cam.look_at = tuple(aim)
+
+    def move_clients(self, server: viser.ViserServer, kind: str) -> None:
+        """Move every connected browser's camera to a named view."""
+        pos, aim = self.camera_pose(kind)
+        for client in server.get_clients().values():
+            with client.atomic():
+                client.camera.up_direction = (0.0, 0.0, 1.0)
+                client.camera.look_at = tuple(aim)
+                client.camera.position = tuple(pos)

@@ -1,0 +1,164 @@
+"""The viewer's link to the terrain core (:mod:`geoloc.surfaces.dem`, :mod:`geoloc.surfaces.terrain`).
+
+Kept in one module so the geolocation scene still works on the ellipsoid alone
+when the terrain core or a DEM is missing. Heights and meshes come from
+:class:`geoloc.surfaces.dem.DEM` (its bilinear surface, sampled; its ``to_trimesh`` in the
+scene's ENU frame); intersections and their iterations from
+:func:`geoloc.surfaces.terrain.intersect_dem`. Conventions: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+try:  # the terrain core is optional for the viewer
+    from geoloc.surfaces import dem as _dem
+except ImportError:  # pragma: no cover - depends on the checkout
+    _dem = None
+try:
+    from geoloc.surfaces import terrain as _terrain
+except ImportError:  # pragma: no cover
+    _terrain = None
+
+METHODS = ("steps", "bisect", "exact")
+#: Half width of the terrain drawn around the scene origin [m] (the scene spans ~20-30 km).
+WINDOW_M = 30e3
+#: Nodes per side of the drawn terrain: a resampling of the DEM's bilinear surface.
+MESH_NODES = 161
+
+
+def dem_covers(path, lat_deg, lon_deg):
+    """Node spacing [deg] of the GeoTIFF at ``path`` if its bounds contain (lat, lon), else None."""
+    import rasterio
+
+    with rasterio.open(path) as src:
+        if src.crs is None or not src.crs.is_geographic:
+            return None
+        b = src.bounds
+        if b.left <= lon_deg <= b.right and b.bottom <= lat_deg <= b.top:
+            return float(abs(src.res[0]))
+    return None
+
+
+def attach_dem(scn, path=None, strict: bool = False) -> None:
+    """Open the DEM at ``path`` (default: a bundled one covering the scene origin) into ``scn.dem``.
+
+    Bundled DEMs are orthometric (EGM96); :meth:`geoloc.surfaces.dem.DEM.open` converts
+    them to ellipsoidal heights. A DEM that does not cover the scene origin is
+    an error naming the path and bounds when ``strict`` (a DEM the user asked
+    for), else the scene falls back to the ellipsoid.
+    """
+    from geoloc.viz.scenario import default_dem_path
+
+    lat, lon = np.rad2deg(scn.enu.lat0), np.rad2deg(scn.enu.lon0)
+    if path is None:
+        path = default_dem_path(lat, lon)
+    if path is None or _dem is None:
+        scn.dem = None
+        scn.dem_name = ("none: ellipsoid at the record's paper_height_m"
+                        + ("" if _dem is not None else " (terrain core not available)"))
+        return
+    if getattr(scn, "_dem_path", None) != str(path):
+        scn.dem = _dem.DEM.open(path, datum="egm96")
+        scn._dem_path = str(path)
+    w, s_, e, n = scn.dem.bounds_deg
+    if not (s_ <= lat <= n and w <= lon <= e):
+        msg = (f"dem = {path}: does not cover the target at {lat:.4f} N {lon:.4f} E "
+               f"(DEM bounds W {w:.4f} S {s_:.4f} E {e:.4f} N {n:.4f})")
+        if strict:
+            raise ValueError(msg)
+        scn.dem, scn._dem_path = None, None
+        scn.dem_name = f"none: {Path(path).name} does not cover this target (ellipsoid at paper_height_m)"
+        return
+    scn.dem_name = f"{Path(path).name} (EGM96 heights + N)"
+
+
+def dem_height(dem, lat_deg, lon_deg) -> float:
+    """Ellipsoidal DEM height [m] at (lat, lon) [deg] (NaN outside)."""
+    return float(dem.height(np.deg2rad(lat_deg), np.deg2rad(lon_deg)))
+
+
+def terrain_mesh(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES):
+    """The DEM around the scene origin as a vertex-coloured trimesh in the scene's ENU frame.
+
+    The DEM's own bilinear surface (:meth:`geoloc.surfaces.dem.DEM.height`, what the
+    solvers intersect) is sampled on a ``nodes x nodes`` geographic grid
+    covering +-``window_m`` around the origin, clipped to the DEM, and turned
+    into a mesh by :meth:`geoloc.surfaces.dem.DEM.to_trimesh` in ``scn.enu``. Colours:
+    a hypsometric colour map of the height.
+    """
+    import matplotlib
+
+    dem, enu = scn.dem, scn.enu
+    lat0, lon0 = np.rad2deg(enu.lat0), np.rad2deg(enu.lon0)
+    dlat = np.rad2deg(window_m / 6.36e6)  # metres to degrees (display window only)
+    dlon = dlat / np.cos(enu.lat0)
+    w, s, e, n = dem.bounds_deg
+    north, south = min(lat0 + dlat, n), max(lat0 - dlat, s)
+    west, east = max(lon0 - dlon, w), min(lon0 + dlon, e)
+    lats = np.linspace(north, south, nodes)
+    lons = np.linspace(west, east, nodes)
+    LON, LAT = np.meshgrid(lons, lats)
+    H = dem.height(np.deg2rad(LAT), np.deg2rad(LON))
+    sub = _dem.DEM.from_array(H, north, west, (north - south) / (nodes - 1),
+                              (east - west) / (nodes - 1), datum="ellipsoid")
+    mesh = sub.to_trimesh(origin_lat=enu.lat0, origin_lon=enu.lon0, origin_h=enu.h0)
+    h = np.nan_to_num(H.ravel(), nan=np.nanmin(H))
+    lo, hi = np.nanmin(H), np.nanmax(H)
+    t = (h - lo) / max(hi - lo, 1.0)
+    rgba = matplotlib.colormaps["gist_earth"](0.2 + 0.7 * t)
+    mesh.visual.vertex_colors = (rgba * 255).astype(np.uint8)
+    return mesh
+
+
+def terrain_geometry(scn, inp, los) -> dict:
+    """Run the chosen terrain method on ``los`` (with its trace) and express it in ENU.
+
+    Returns the fields of :class:`geoloc.viz.model.Geometry` for the terrain: the
+    chosen method's hit, the exact first hit (for comparison), the ellipsoid
+    hit at H_max (the DEM's highest node, where [Q17]'s steps start), and the
+    iterations: each H_n with its ground point on the line of sight, the DEM
+    height h_n below it, and the bisection brackets as points on the line of sight.
+    """
+    from geoloc.status import describe
+    from geoloc.surfaces.height import intersect_los_height
+    from geoloc.viz.model import IterationView
+
+    enu, dem = scn.enu, scn.dem
+    hmax = dem.max_height()
+    out = {"hmax": hmax,
+           "hit_hmax_enu": enu.from_ecef(intersect_los_height(los, hmax).ecef)}
+    if _terrain is None:
+        hit = intersect_los_height(los, inp.target_h)
+        out.update(hit=hit, hit_enu=enu.from_ecef(hit.ecef),
+                   hit_label=f"hit at h = {inp.target_h:.1f} m (terrain solver not available)")
+        return out
+    hit = _terrain.intersect_dem(los, dem, inp.method, eps_h=inp.eps_h, threshold=inp.threshold,
+                                 trace=True)
+    exact = hit if inp.method == "exact" else _terrain.intersect_dem(los, dem, "exact")
+    names = {"steps": f"descending steps [Q17], eps_h {inp.eps_h:g} m",
+             "bisect": f"bisection [L23], threshold {inp.threshold:g} m",
+             "exact": "exact first hit"}
+    msg = f"{names[inp.method]}: {int(hit.dem_evaluations)} DEM evaluations"
+    if int(hit.status) != 0:
+        msg += f"; {describe(int(hit.status))}"
+    if bool(hit.hidden):
+        msg += "; **hidden**: the line of sight meets the terrain earlier (see the exact hit)"
+    if int(exact.status) == 0 and int(hit.status) == 0:
+        msg += f"; {float(np.linalg.norm(hit.ecef - exact.ecef)):.1f} m from the exact first hit"
+    it = None
+    if hit.trace is not None:
+        tr = hit.trace.ray()
+        on_los = enu.from_ecef(tr["ecef"])
+        below = enu.from_geodetic(tr["lat"], tr["lon"], tr["h_dem"])
+        brackets = None
+        if inp.method == "bisect" and len(tr["lo"]):
+            lo = intersect_los_height(los, tr["lo"]).ecef
+            hi = intersect_los_height(los, tr["hi"]).ecef
+            brackets = np.stack([enu.from_ecef(lo), enu.from_ecef(hi)], axis=1)
+        it = IterationView(inp.method, tr["H"], tr["h_dem"], on_los, below, brackets)
+    out.update(hit=hit, hit_enu=enu.from_ecef(hit.ecef), hit_label=names[inp.method].split(",")[0],
+               exact_enu=enu.from_ecef(exact.ecef), iterations=it, message=msg, terrain_result=hit)
+    return out

@@ -1,0 +1,1 @@
+"""Workflows: replay, paper reproductions, flight simulation and scenario files (docs/architecture.md)."""

@@ -1,0 +1,162 @@
+"""Flight-test replay: geolocate every record and measure it against published and surveyed positions.
+
+[Q17 section 4]: the records of Tables 3-4, each a pixel, the POS pose and the
+gimbal encoders, located here on the ellipsoid inflated to a target height (a
+height column) — the terrain variant lives in :mod:`geoloc.surfaces.terrain`. Distances
+are horizontal geodesic distances on WGS-84 (pyproj's Karney solver).
+Conventions: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.geodesy.geodesic import horizontal_distance_m
+from geoloc.io.records import Records
+from geoloc.locate import line_of_sight
+from geoloc.sensors.camera import Camera
+from geoloc.status import names
+from geoloc.surfaces.base import GroundPoint
+from geoloc.surfaces.height import intersect_los_height
+
+#: Columns the replay adds to every input row.
+OUTPUT_COLUMNS = ["lat_deg", "lon_deg", "h_m", "error_to_paper_m", "error_to_truth_m"]
+
+
+@dataclass
+class ReplayResult:
+    """Per-record results of a replay (arrays aligned with ``records.rows``)."""
+
+    records: Records
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    h_m: np.ndarray
+    status: np.ndarray
+    error_to_paper_m: np.ndarray
+    error_to_truth_m: np.ndarray
+    extra: dict  # further output columns, name -> array (e.g. DEM evaluations)
+
+    def columns(self) -> dict:
+        cols = {
+            "lat_deg": self.lat_deg,
+            "lon_deg": self.lon_deg,
+            "h_m": self.h_m,
+            "error_to_paper_m": self.error_to_paper_m,
+            "error_to_truth_m": self.error_to_truth_m,
+        }
+        cols.update(self.extra)
+        return cols
+
+
+def records_line_of_sight(records: Records, camera: Camera):
+    """The line of sight of every good record (pixel row/col through the record's chain)."""
+    return line_of_sight(records.pose(), camera, records.column("row"), records.column("col"))
+
+
+def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None = None) -> ReplayResult:
+    """Wrap ground points with the distances to the published and surveyed positions."""
+    lat, lon = ground.lat_deg, ground.lon_deg
+
+    def err(prefix):
+        if records.has(f"{prefix}_lat_deg") and records.has(f"{prefix}_lon_deg"):
+            return horizontal_distance_m(lat, lon, records.column(f"{prefix}_lat_deg"),
+                                         records.column(f"{prefix}_lon_deg"))
+        return np.full(len(records), np.nan)
+
+    return ReplayResult(records, lat, lon, ground.h, ground.status, err("paper"), err("truth"),
+                        dict(extra or {}))
+
+
+def replay_at_height(records: Records, camera: Camera, height_column: str | None = None,
+                     target_h: float | None = None, surface: str = "inflated") -> ReplayResult:
+    """Locate every record at a target height from a column, or one height for all.
+
+    Parameters
+    ----------
+    records : Records
+    camera : Camera
+    height_column : str, optional
+        Column with each target's ellipsoidal height [m] (e.g. ``paper_height_m``).
+    target_h : float, optional
+        One height for every record, if no column is given.
+    surface : {"inflated", "geodetic"}
+        [Q17 eq. 11] inflated ellipsoid or the exact constant-height surface.
+    """
+    if height_column is not None:
+        h = records.column(height_column)
+        bad = ~np.isfinite(h)
+        if np.any(bad):
+            rows = [int(n) for n in records.lines[bad]]
+            raise ValueError(f"height column {height_column!r} is empty or not finite on line(s) {rows}")
+    elif target_h is not None:
+        h = np.full(len(records), float(target_h))
+    else:
+        raise ValueError("give a height column or a target height")
+    ground = intersect_los_height(records_line_of_sight(records, camera), h, surface)
+    return result_from_ground(records, ground)
+
+
+def _nanmean(v) -> float:
+    v = np.asarray(v, float)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else float("nan")
+
+
+def _fmt(v, spec):
+    return "" if not np.isfinite(v) else format(float(v), spec)
+
+
+def write_replay_csv(path, result: ReplayResult) -> None:
+    """Write every input column of the good rows plus the replay's output columns."""
+    records = result.records
+    cols = result.columns()
+    header = list(records.header) + [c for c in cols if c not in records.header]
+    status = names(result.status)
+    with Path(path).open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for k, row in enumerate(records.rows):
+            out = dict(row)
+            for name, arr in cols.items():
+                v = arr[k]
+                if name in ("lat_deg", "lon_deg"):
+                    out[name] = _fmt(v, ".8f")
+                elif name == "status":
+                    out[name] = status[k]
+                elif isinstance(v, (int, np.integer)):
+                    out[name] = str(int(v))
+                else:
+                    out[name] = _fmt(v, ".3f")
+            w.writerow([out.get(c, "") for c in header])
+
+
+def summary_table(result: ReplayResult, group_column: str = "table") -> str:
+    """A plain-text table: one line per record, then per-group means and the RMS to the paper."""
+    r = result.records
+    labels = r.labels()
+    pub = r.column("paper_error_m") if r.has("paper_error_m") else np.full(len(r), np.nan)
+    lines = [f"{'record':<10} {'lat_deg':>11} {'lon_deg':>11} {'h_m':>9} {'status':>8} "
+             f"{'to_paper_m':>10} {'to_truth_m':>10} {'published_m':>11}"]
+    st = names(result.status)
+    for k in range(len(r)):
+        lines.append(
+            f"{labels[k]:<10} {_fmt(result.lat_deg[k], '11.5f'):>11} {_fmt(result.lon_deg[k], '11.5f'):>11} "
+            f"{_fmt(result.h_m[k], '9.1f'):>9} {st[k]:>8} {_fmt(result.error_to_paper_m[k], '10.2f'):>10} "
+            f"{_fmt(result.error_to_truth_m[k], '10.2f'):>10} {_fmt(pub[k], '11.3f'):>11}")
+    groups = r.text(group_column) if group_column in r.header else ["all"] * len(r)
+    lines.append("")
+    for g in sorted(set(groups)):
+        m = np.array([x == g for x in groups])
+        lines.append(
+            f"group {g}: n={int(m.sum())}, mean error to truth {_fmt(_nanmean(result.error_to_truth_m[m]), '.2f')} m "
+            f"(published {_fmt(_nanmean(pub[m]), '.2f')} m), "
+            f"RMS to published position {_fmt(np.sqrt(_nanmean(result.error_to_paper_m[m] ** 2)), '.2f')} m")
+    if np.any(np.isfinite(result.error_to_paper_m)):
+        lines.append(f"all: RMS distance to the published positions "
+                     f"{np.sqrt(_nanmean(result.error_to_paper_m ** 2)):.2f} m over "
+                     f"{int(np.isfinite(result.error_to_paper_m).sum())} records")
+    return "\n".join(lines)
