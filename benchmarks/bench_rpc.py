@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from geoloc.assets import asset_path
-from geoloc.workflows.rpc import fit_rpc, load_scenario
+from geoloc.workflows.rpc_scenario import fit_rpc, load_scenario
 
 
 def median_time(fn, repeat=5):

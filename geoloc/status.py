@@ -26,6 +26,8 @@ class Status(IntEnum):
     NO_CONVERGENCE = 6  #: an iteration did not converge within its limit
     HITS_EARTH = 7  #: limb viewing: the line of sight meets the Earth, there is no tangent point
     BEHIND_CAMERA = 8  #: ground -> pixel: the point is behind the camera
+    OUTSIDE_SENSOR = 9  #: the pixel (or the projected point) lies outside the sensor's rows and columns
+    OUTSIDE_DOMAIN = 10  #: the point is outside the model's validity domain (an RPC's offsets and scales)
 
 
 _TEXT = {
@@ -38,6 +40,8 @@ _TEXT = {
     Status.NO_CONVERGENCE: "iteration did not converge",
     Status.HITS_EARTH: "line of sight hits the Earth: no tangent point",
     Status.BEHIND_CAMERA: "point is behind the camera",
+    Status.OUTSIDE_SENSOR: "pixel is outside the sensor (rows 0.5..M+0.5, columns 0.5..N+0.5)",
+    Status.OUTSIDE_DOMAIN: "point is outside the model's validity domain (not extrapolated)",
 }
 
 

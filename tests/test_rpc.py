@@ -12,7 +12,7 @@ from rasterio.transform import RPCTransformer
 from geoloc.assets import asset_path
 from geoloc.sensors.pushbroom import PushbroomSensor
 from geoloc.status import Status
-from geoloc.workflows.rpc import (
+from geoloc.workflows.rpc_scenario import (
     RPCModel,
     fit_rpc,
     gdal_rpc_to_ground,

@@ -14,7 +14,7 @@ from geoloc.assets import asset_path
 from geoloc.geodesy.geoid import NodeGrid
 from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
-from geoloc.workflows.rpc import (
+from geoloc.workflows.rpc_scenario import (
     crosscheck_gdal_dem,
     dem_pixels,
     fit_rpc,
@@ -113,7 +113,7 @@ def test_gdal_own_vertical_shift_works_only_when_its_proj_has_the_geoid_grid(fra
     code = textwrap.dedent(f"""
         import json, numpy as np, rasterio
         from rasterio.transform import RPCTransformer
-        from geoloc.workflows.rpc import RPCModel
+        from geoloc.workflows.rpc_scenario import RPCModel
         m = RPCModel.from_rasterio(__import__("rasterio.rpc").rpc.RPC.from_gdal(json.loads({json.dumps(json.dumps(fit.model.to_gdal()))})))
         rows, cols = np.array({rows[:9].tolist()}), np.array({cols[:9].tolist()})
         opts = dict(RPC_DEM={str(sc.dem_path)!r}, RPC_DEM_SRS="EPSG:4326+5773",

@@ -1,0 +1,93 @@
+"""The sensor interface: pixels to lines of sight and ground points to pixels.
+
+Every sensor of geoloc (the frame camera on a gimbal, the pushbroom [L12], the
+RPC model, the [L18] limb instrument) offers the calls of :class:`Sensor`, so
+that locate, replay, Monte Carlo, calibration and both viewers work with any of
+them (``docs/architecture.md``). Pixels are 1-based pixel centres ``(row, col)``
+(``docs/conventions.md``, "Pixels").
+
+Batch calls never raise for a bad element: they return NaN and a
+:class:`geoloc.status.Status` per element. ``OUTSIDE_SENSOR`` marks a pixel off
+the sensor; its geometry is still computed, so a caller that wants the
+extrapolated ray can read it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping, Protocol, runtime_checkable
+
+import numpy as np
+
+from geoloc.status import Status
+from geoloc.surfaces.base import LineOfSight
+
+
+@dataclass(frozen=True)
+class PixelHit:
+    """Result of a batch ground -> pixel projection.
+
+    Attributes
+    ----------
+    row, col : ndarray
+        1-based pixel centre coordinates; NaN where the status says why not.
+    status : ndarray of uint8
+        OK, BEHIND_CAMERA, OUTSIDE_SENSOR (the pixel is computed but off the
+        sensor), OUTSIDE_DOMAIN (RPC), INVALID_INPUT, NO_CONVERGENCE.
+    """
+
+    row: np.ndarray
+    col: np.ndarray
+    status: np.ndarray
+
+    def __iter__(self):
+        # unpacks as (row, col, status), as ground_to_pixel returned before
+        return iter((self.row, self.col, self.status))
+
+
+@runtime_checkable
+class Sensor(Protocol):
+    """What every sensor offers (``docs/architecture.md``, "The Sensor interface")."""
+
+    rows: int
+    cols: int
+
+    @property
+    def params(self) -> Mapping[str, float]:
+        """Named parameters in SI units: what Monte Carlo may perturb and calibration fit."""
+
+    def with_params(self, **changes: float) -> "Sensor":
+        """A copy with some named parameters changed (unknown names are an error)."""
+
+    def line_of_sight(self, row, col, state: Any = None) -> LineOfSight:
+        """1-based pixels -> lines of sight in ECEF, batched, NaN + Status."""
+
+    def ground_to_pixel(self, lat, lon, h, state: Any = None) -> PixelHit:
+        """Geodetic points (radians, metres) -> 1-based pixels, batched, NaN + Status."""
+
+    def in_image(self, row, col) -> np.ndarray:
+        """True where the 1-based pixel lies on the sensor."""
+
+    def frames(self, state: Any = None):
+        """The sensor's frame graph for ``state`` (what the viewers draw)."""
+
+
+def in_sensor(row, col, rows: int, cols: int) -> np.ndarray:
+    """True where 0.5 <= row <= rows + 0.5 and 0.5 <= col <= cols + 0.5 (1-based pixel centres)."""
+    row, col = np.asarray(row, float), np.asarray(col, float)
+    with np.errstate(invalid="ignore"):
+        return (row >= 0.5) & (row <= rows + 0.5) & (col >= 0.5) & (col <= cols + 0.5)
+
+
+def flag_outside(status, row, col, rows: int, cols: int) -> np.ndarray:
+    """``status`` with OUTSIDE_SENSOR where an otherwise OK pixel lies off the sensor."""
+    status = np.asarray(status, np.uint8)
+    off = ~in_sensor(row, col, rows, cols) & np.isfinite(row) & np.isfinite(col)
+    return np.where((status == Status.OK) & off, np.uint8(Status.OUTSIDE_SENSOR), status).astype(np.uint8)
+
+
+def check_param_names(changes: Mapping[str, float], known: Mapping[str, float], what: str) -> None:
+    """Raise ValueError naming any parameter of ``changes`` that ``known`` does not have."""
+    unknown = sorted(set(changes) - set(known))
+    if unknown:
+        raise ValueError(f"{what} has no parameter(s) {unknown}; its parameters are {sorted(known)}")
