@@ -1,0 +1,1464 @@
+"""MISB ST 0601 (UAS Datalink Local Set) KLV metadata: decoder and encoder.
+
+Full-motion video from airborne cameras carries its pose and pointing metadata as
+SMPTE ST 336 KLV packets of the UAS Datalink Local Set, MISB ST 0601: a 16-byte
+universal key, a BER length and a local set of (tag, length, value) items, the
+last of which is a 16-bit checksum. This module reads those packets from raw
+``.klv`` / ``.bin`` files (concatenated packets), from MPEG-TS and other
+containers through PyAV, and writes them (:func:`encode_packet`, :func:`write_ts`).
+
+What is decoded: every item that matters for geolocation (platform attitude,
+sensor position, field of view, sensor-relative pointing, slant range, frame
+centre, image corners, target location and its error estimate), each with the
+standard's linear mapping and its reserved error / out-of-range value; see
+:data:`TAGS` and docs/klv.md. Decoded field names carry their unit, degrees and
+metres as in the standard (``platform_heading_deg``, ``sensor_true_altitude_m``):
+this is an edge of the package (docs/conventions.md: degrees only at the edges).
+Heights keep the datum the standard gives them: ``sensor_true_altitude_m``,
+``frame_center_elevation_m`` and ``target_location_elevation_m`` are above mean
+sea level (orthometric), ``sensor_ellipsoid_height_m`` (tag 75) and
+``frame_center_hae_m`` (tag 78) above the WGS-84 ellipsoid. Items of other tags
+are kept raw (tag number -> bytes) in :attr:`Packet.unknown`.
+
+Bad packets do not stop a read: a checksum mismatch, a truncated packet, a length
+running past the end, an item whose length is wrong for its type, or bytes that
+are no packet at all are reported as a :class:`KlvError` (byte offset of the
+packet's key in the file, and the reason) in the stream of results, and the scan
+resumes at the next key.
+
+Speed: packets of a stream mostly share one layout (the same items with the same
+lengths in the same order). The decoder walks the items of the first packet of
+each layout once and compiles the layout: two :class:`struct.Struct` (one to
+recognise the layout from its tag and length bytes, one to unpack every value)
+and a generated function that scales every value with its item's constants into
+one dict. A run of many complete packets is decoded as a batch with numpy (the
+packets gathered into one array, checksums summed and layouts matched for all at
+once, each item's column scaled at once); the results are the same Packets as one
+packet at a time, and a bad packet in the run goes to the per-packet path, which
+reports it. :func:`packets_to_columns` on raw bytes skips the Packets altogether.
+See docs/klv.md for figures.
+
+References: MISB ST 0601 (UAS Datalink Local Set; tag numbers, mappings and the
+example values of its item tables, Section 8 of ST 0601.11 and later), SMPTE ST
+336 (KLV coding: universal keys, BER lengths, BER-OID tags).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import struct
+import zlib
+from dataclasses import dataclass
+from fractions import Fraction
+from typing import BinaryIO, Iterable, Iterator
+
+import numpy as np
+
+__all__ = [
+    "UAS_LS_KEY",
+    "TAGS",
+    "TAG_BY_NUMBER",
+    "TAG_BY_NAME",
+    "TagSpec",
+    "Packet",
+    "KlvError",
+    "checksum",
+    "ber_length",
+    "ber_oid",
+    "iter_packets",
+    "read_klv_file",
+    "read_ts_klv",
+    "read_packets",
+    "decode_packet",
+    "decode_local_set",
+    "encode_packet",
+    "write_ts",
+    "packets_to_columns",
+]
+
+#: The 16-byte universal key of the UAS Datalink Local Set (MISB ST 0601, "UAS
+#: Datalink LS" key 06.0E.2B.34.02.0B.01.01.0E.01.03.01.01.00.00.00).
+UAS_LS_KEY = bytes.fromhex("060E2B34020B01010E01030101000000")
+
+#: Largest packet (value length) the scanner accepts; a longer BER length is taken
+#: as a corrupt length and reported, so a streaming read never buffers more.
+MAX_PACKET_LENGTH = 1 << 24
+
+OUT_OF_RANGE = "out of range"
+ERROR = "error"
+
+_CHECKSUM_TAG = 1
+
+
+@dataclass(frozen=True)
+class TagSpec:
+    """One item of the UAS Datalink Local Set (MISB ST 0601, the item's tag table).
+
+    Attributes
+    ----------
+    tag : int
+        Tag number (BER-OID coded in the packet; tags above 127 take two bytes).
+    name : str
+        Field name of the decoded value, with its unit (``_deg``, ``_m``, ``_us``).
+    title : str
+        The item's name in the standard.
+    kind : str
+        ``"uint"``: unsigned integer of ``size`` bytes mapped linearly onto
+        [lo, hi], value = lo + raw (hi - lo) / (2^(8 size) - 1).
+        ``"int"``: signed integer mapped onto the symmetric [lo, hi] = [-hi, hi],
+        value = raw (hi - lo) / (2^(8 size) - 2).
+        ``"u64"``, ``"u8"``: unsigned integers kept as int; ``"str"``: text (UTF-8).
+    size : int
+        Length of the value in bytes (0: variable, for text).
+    lo, hi : float
+        The mapped range (for ``uint`` and ``int``).
+    reserved : str
+        Meaning of the reserved most negative raw value of an ``int`` item
+        (-(2^(8 size - 1)): 0x8000, 0x80000000): ``"out of range"`` or ``"error"``;
+        empty where the standard reserves none. Decoded as NaN with this flag.
+    datum : str
+        Vertical datum of a height: ``"MSL"`` or ``"HAE"`` (WGS-84 ellipsoid).
+    """
+
+    tag: int
+    name: str
+    title: str
+    kind: str
+    size: int = 0
+    lo: float = 0.0
+    hi: float = 0.0
+    reserved: str = ""
+    datum: str = ""
+
+    @property
+    def step(self) -> float:
+        """Quantisation step (value of one raw count) of a mapped item."""
+        if self.kind == "uint":
+            return (self.hi - self.lo) / (2.0 ** (8 * self.size) - 1.0)
+        if self.kind == "int":
+            return (self.hi - self.lo) / (2.0 ** (8 * self.size) - 2.0)
+        return 1.0
+
+    @property
+    def sentinel(self) -> int | None:
+        """The reserved raw value, or None."""
+        return -(1 << (8 * self.size - 1)) if self.reserved else None
+
+    @property
+    def fmt(self) -> str:
+        """The :mod:`struct` code of the value (big-endian)."""
+        if self.kind == "str":
+            return "s"
+        code = {1: "b", 2: "h", 4: "i", 8: "q"}[self.size]
+        return code if self.kind == "int" else code.upper()
+
+
+def _u(tag, name, title, size, lo, hi, datum=""):
+    return TagSpec(tag, name, title, "uint", size, float(lo), float(hi), "", datum)
+
+
+def _s(tag, name, title, size, hi, reserved, datum=""):
+    return TagSpec(tag, name, title, "int", size, -float(hi), float(hi), reserved, datum)
+
+
+def _t(tag, name, title):
+    return TagSpec(tag, name, title, "str")
+
+
+_CORNERS = []
+for _i in range(4):
+    _CORNERS.append(_s(26 + 2 * _i, f"offset_corner_latitude_{_i + 1}_deg",
+                       f"Offset Corner Latitude Point {_i + 1}", 2, 0.075, ERROR))
+    _CORNERS.append(_s(27 + 2 * _i, f"offset_corner_longitude_{_i + 1}_deg",
+                       f"Offset Corner Longitude Point {_i + 1}", 2, 0.075, ERROR))
+_FULL_CORNERS = []
+for _i in range(4):
+    _FULL_CORNERS.append(_s(82 + 2 * _i, f"corner_latitude_{_i + 1}_deg",
+                            f"Corner Latitude Point {_i + 1} (Full)", 4, 90, ERROR))
+    _FULL_CORNERS.append(_s(83 + 2 * _i, f"corner_longitude_{_i + 1}_deg",
+                            f"Corner Longitude Point {_i + 1} (Full)", 4, 180, ERROR))
+
+#: The decoded items, in tag order (MISB ST 0601 tag tables). Offset corners
+#: (26-33) are offsets from the frame centre (23, 24); 82-89 are the full corners.
+#: Corner points 1-4 are upper left, upper right, lower right, lower left.
+TAGS: tuple[TagSpec, ...] = (
+    TagSpec(2, "precision_time_stamp_us", "Precision Time Stamp", "u64", 8),  # us since 1970 UTC
+    _t(3, "mission_id", "Mission ID"),
+    _t(4, "platform_tail_number", "Platform Tail Number"),
+    _u(5, "platform_heading_deg", "Platform Heading Angle", 2, 0, 360),
+    _s(6, "platform_pitch_deg", "Platform Pitch Angle", 2, 20, OUT_OF_RANGE),
+    _s(7, "platform_roll_deg", "Platform Roll Angle", 2, 50, OUT_OF_RANGE),
+    _t(10, "platform_designation", "Platform Designation"),
+    _t(11, "image_source_sensor", "Image Source Sensor"),
+    _t(12, "image_coordinate_system", "Image Coordinate System"),
+    _s(13, "sensor_latitude_deg", "Sensor Latitude", 4, 90, ERROR),
+    _s(14, "sensor_longitude_deg", "Sensor Longitude", 4, 180, ERROR),
+    _u(15, "sensor_true_altitude_m", "Sensor True Altitude", 2, -900, 19000, "MSL"),
+    _u(16, "sensor_horizontal_fov_deg", "Sensor Horizontal Field of View", 2, 0, 180),
+    _u(17, "sensor_vertical_fov_deg", "Sensor Vertical Field of View", 2, 0, 180),
+    _u(18, "sensor_relative_azimuth_deg", "Sensor Relative Azimuth Angle", 4, 0, 360),
+    _s(19, "sensor_relative_elevation_deg", "Sensor Relative Elevation Angle", 4, 180, ERROR),
+    _u(20, "sensor_relative_roll_deg", "Sensor Relative Roll Angle", 4, 0, 360),
+    _u(21, "slant_range_m", "Slant Range", 4, 0, 5e6),
+    _u(22, "target_width_m", "Target Width", 2, 0, 1e4),
+    _s(23, "frame_center_latitude_deg", "Frame Center Latitude", 4, 90, ERROR),
+    _s(24, "frame_center_longitude_deg", "Frame Center Longitude", 4, 180, ERROR),
+    _u(25, "frame_center_elevation_m", "Frame Center Elevation", 2, -900, 19000, "MSL"),
+    *_CORNERS,
+    _s(40, "target_location_latitude_deg", "Target Location Latitude", 4, 90, ERROR),
+    _s(41, "target_location_longitude_deg", "Target Location Longitude", 4, 180, ERROR),
+    _u(42, "target_location_elevation_m", "Target Location Elevation", 2, -900, 19000, "MSL"),
+    _u(45, "target_error_ce90_m", "Target Error Estimate - CE90", 2, 0, 4095),
+    _u(46, "target_error_le90_m", "Target Error Estimate - LE90", 2, 0, 4095),
+    TagSpec(65, "uas_ls_version", "UAS Datalink LS Version Number", "u8", 1),
+    _u(75, "sensor_ellipsoid_height_m", "Sensor Ellipsoid Height", 2, -900, 19000, "HAE"),
+    _u(78, "frame_center_hae_m", "Frame Center Height Above Ellipsoid", 2, -900, 19000, "HAE"),
+    *_FULL_CORNERS,
+    _s(90, "platform_pitch_full_deg", "Platform Pitch Angle (Full)", 4, 90, OUT_OF_RANGE),
+    _s(91, "platform_roll_full_deg", "Platform Roll Angle (Full)", 4, 90, OUT_OF_RANGE),
+)
+del _i
+
+#: Tag number -> :class:`TagSpec`.
+TAG_BY_NUMBER: dict[int, TagSpec] = {s.tag: s for s in TAGS}
+#: Field name -> :class:`TagSpec`.
+TAG_BY_NAME: dict[str, TagSpec] = {s.name: s for s in TAGS}
+
+_FIELD_RANK = {s.name: i for i, s in enumerate(TAGS)}
+_NUMERIC_SPECS = [s for s in TAGS if s.kind != "str"]
+_TEXT_SPECS = [s for s in TAGS if s.kind == "str"]
+
+
+# --------------------------------------------------------------------------- results
+
+
+class KlvError(ValueError):
+    """A bad packet or unreadable bytes, reported in the stream of results (and raised
+    by :func:`decode_packet`).
+
+    Attributes
+    ----------
+    offset : int or None
+        Byte offset of the packet's key in the file (of the first skipped byte for
+        bytes that are no packet). In a container read through PyAV: the demuxer's
+        byte position of the data packet that carried it (None if unknown).
+    reason : str
+        What is wrong.
+    pts : int or None
+        Presentation time stamp of the container packet (container reads only).
+    """
+
+    def __init__(self, offset: int | None, reason: str, pts: int | None = None):
+        super().__init__(offset, reason)
+        self.offset = offset
+        self.reason = reason
+        self.pts = pts
+
+    def __str__(self) -> str:
+        where = f"byte {self.offset}" if self.offset is not None else "unknown position"
+        if self.pts is not None:
+            where = f"pts {self.pts} ({where})"
+        return f"{where}: {self.reason}"
+
+    def __repr__(self) -> str:
+        return f"KlvError(offset={self.offset!r}, reason={self.reason!r}, pts={self.pts!r})"
+
+    def __eq__(self, other) -> bool:
+        return (isinstance(other, KlvError) and self.offset == other.offset
+                and self.reason == other.reason and self.pts == other.pts)
+
+    __hash__ = None
+
+
+@dataclass(eq=True, slots=True)
+class Packet:
+    """One decoded UAS Datalink Local Set packet.
+
+    Attributes
+    ----------
+    fields : dict
+        Decoded items by field name (see :data:`TAGS`): floats in the unit of the
+        name, ``precision_time_stamp_us`` and ``uas_ls_version`` as int, text as
+        str. A reserved (error / out-of-range) value is NaN, with its flag in
+        ``flags``. Absent items are absent.
+    offset : int or None
+        Byte offset of the packet's key in the file (container reads: the
+        demuxer's byte position of the data packet that carried it).
+    flags : dict
+        Field name -> ``"error"`` or ``"out of range"`` for reserved values.
+    unknown : dict
+        Tag number -> raw value bytes of the items not in :data:`TAGS`.
+    checksum : int or None
+        The packet's checksum item (tag 1), verified unless the read was asked not to.
+    pts : int or None
+        Presentation time stamp of the container packet (container reads only).
+    time_base : Fraction or None
+        Time base of ``pts`` [s].
+    """
+
+    fields: dict
+    offset: int | None = None
+    flags: dict | None = None
+    unknown: dict | None = None
+    checksum: int | None = None
+    pts: int | None = None
+    time_base: Fraction | None = None
+
+    def __getitem__(self, name: str):
+        return self.fields[name]
+
+    def get(self, name: str, default=None):
+        """``fields.get(name, default)``."""
+        return self.fields.get(name, default)
+
+    @property
+    def time_s(self) -> float | None:
+        """Presentation time [s] (container reads), else None."""
+        if self.pts is None or self.time_base is None:
+            return None
+        return float(self.pts * self.time_base)
+
+    def to_json(self) -> dict:
+        """A JSON-ready dict: offset (and pts, time_s), the fields (NaN as None),
+        then ``flags``, ``unknown`` (tag -> hex) and ``checksum`` where present."""
+        d: dict = {}
+        if self.offset is not None:
+            d["offset"] = self.offset
+        if self.pts is not None:
+            d["pts"] = self.pts
+            if self.time_base is not None:
+                d["time_s"] = self.time_s
+        f = self.fields
+        for k in sorted(f, key=_FIELD_RANK.get):
+            v = f[k]
+            d[k] = None if isinstance(v, float) and v != v else v
+        if self.flags:
+            d["flags"] = dict(self.flags)
+        if self.unknown:
+            d["unknown"] = {str(t): v.hex() for t, v in self.unknown.items()}
+        if self.checksum is not None:
+            d["checksum"] = f"0x{self.checksum:04X}"
+        return d
+
+
+class _Bad(Exception):
+    """A structural error inside one packet (its reason; the scanner adds the offset)."""
+
+
+# --------------------------------------------------------------------------- coding pieces
+
+
+def checksum(packet: bytes) -> int:
+    """The ST 0601 checksum (tag 1) of a packet.
+
+    A 16-bit running sum over every byte from the first byte of the key up to and
+    including the checksum item's tag and length bytes, each byte at an even index
+    (0, 2, ...) from the key's first byte added shifted left by 8 (MISB ST 0601,
+    Tag 1, reference algorithm ``bcc_16``: ``bcc += buf[i] << (8 * ((i + 1) % 2))``);
+    that is the sum of the big-endian 16-bit words, a trailing odd byte as the high
+    byte of a last word.
+
+    Parameters
+    ----------
+    packet : bytes
+        The whole packet: key, length, local set, ending with the 2 checksum bytes
+        (which are excluded from the sum).
+
+    Returns
+    -------
+    int
+        The checksum, 0..0xFFFF.
+    """
+    packet = bytes(packet)
+    end = len(packet) - 2
+    return ((_bytesum(packet[0:end:2]) << 8) + _bytesum(packet[1:end:2])) & 0xFFFF
+
+
+def _bytesum(b: bytes) -> int:
+    """Exact sum of the bytes of b.
+
+    zlib.adler32's low half is 1 + (sum of the bytes mod 65521): exact for up to 256
+    bytes (at most 65280), several times faster than ``sum(b)``.
+    """
+    if len(b) <= 256:
+        return (zlib.adler32(b) & 0xFFFF) - 1
+    return sum((zlib.adler32(b[i:i + 256]) & 0xFFFF) - 1 for i in range(0, len(b), 256))
+
+
+def ber_length(n: int) -> bytes:
+    """BER length (SMPTE ST 336): short form below 128, else 0x80 + count, then the
+    count of big-endian bytes."""
+    if n < 0:
+        raise ValueError(f"length {n} is negative")
+    if n < 128:
+        return bytes((n,))
+    m = (n.bit_length() + 7) // 8
+    return bytes((0x80 | m,)) + n.to_bytes(m, "big")
+
+
+def ber_oid(tag: int) -> bytes:
+    """BER-OID tag (SMPTE ST 336): 7 bits a byte, high bit set on every byte but the
+    last (tags above 127 take two bytes: 128 -> 0x81 0x00)."""
+    if tag < 1:
+        raise ValueError(f"tag {tag} is not a positive integer")
+    out = [tag & 0x7F]
+    tag >>= 7
+    while tag:
+        out.append(0x80 | (tag & 0x7F))
+        tag >>= 7
+    return bytes(reversed(out))
+
+
+# --------------------------------------------------------------------------- layouts
+
+
+class _Layout:
+    """A compiled local-set layout: the items (tag, lengths) of a packet in order.
+
+    ``hdr`` unpacks the tag and length bytes (the layout's signature, compared with
+    ``hdr_vals``); ``vals`` unpacks every value (tag and length bytes skipped).
+    """
+
+    def __init__(self, items, data, vs):
+        # items: list of (tag, item_start, value_start, length) with absolute positions.
+        hdr_fmt, val_fmt = [">"], [">"]
+        self.hdr_pos = []  # positions of tag/length bytes relative to the value start vs
+        self.vitems = []   # (spec or None, tag, value offset relative to vs, length)
+        p = vs
+        kinds = []
+        for tag, t0, v0, ln in items:
+            h = v0 - t0
+            hdr_fmt.append(f"{h}B{ln}x")
+            spec = TAG_BY_NUMBER.get(tag)
+            code = f"{ln}s" if (spec is None or spec.kind == "str" or tag == _CHECKSUM_TAG) else spec.fmt
+            if tag == _CHECKSUM_TAG:
+                code = "H"
+            val_fmt.append(f"{h}x{code}")
+            self.hdr_pos.extend(range(t0 - vs, v0 - vs))
+            self.vitems.append((spec, tag, v0 - vs, ln))
+            kinds.append((spec, tag))
+            p = v0 + ln
+        self.length = p - vs
+        self.hdr = struct.Struct("".join(hdr_fmt))
+        self.hdr_vals = self.hdr.unpack_from(data, vs)
+        self.vals = struct.Struct("".join(val_fmt))
+        self.hdr_pos = np.array(self.hdr_pos, dtype=np.intp)
+        self.hdr_arr = np.frombuffer(bytes(data[vs + int(i)] for i in self.hdr_pos), np.uint8) \
+            if len(self.hdr_pos) else np.zeros(0, np.uint8)
+
+        self.ck_idx = next((i for i, (_, tag) in enumerate(kinds) if tag == _CHECKSUM_TAG), None)
+        self.make = _compile_make(kinds)
+
+
+def _compile_make(kinds):
+    """Compile ``make(raws, offset) -> Packet`` for one layout.
+
+    The function is generated (as :func:`collections.namedtuple` does) so that each
+    value is converted by inline arithmetic with its item's constants and the fields
+    dict is built by one dict display: several times faster than a loop over items.
+    Only field names from :data:`TAGS`, float constants (``repr`` round-trips them
+    exactly) and integer tag numbers enter the source.
+    """
+    names = [f"r{i}" for i in range(len(kinds))]
+    # A repeated item: the last one wins, as in a dict.
+    entries, unknown, reserved = {}, {}, {}
+    ck = "None"
+    for r, (spec, tag) in zip(names, kinds):
+        if tag == _CHECKSUM_TAG:
+            ck = r
+        elif spec is None:
+            unknown[tag] = f"{tag!r}: {r}"
+        else:
+            reserved.pop(spec.name, None)
+            if spec.kind == "str":
+                entries[spec.name] = f"{spec.name!r}: str({r}, 'utf-8', 'replace')"
+            elif spec.kind == "uint":
+                entries[spec.name] = f"{spec.name!r}: {r} * {spec.step!r}" + (f" + {spec.lo!r}" if spec.lo else "")
+            elif spec.kind == "int":
+                entries[spec.name] = f"{spec.name!r}: {r} * {spec.step!r}"
+                if spec.reserved:
+                    reserved[spec.name] = (r, spec)
+            else:
+                entries[spec.name] = f"{spec.name!r}: {r}"
+    entries, unknown = list(entries.values()), list(unknown.values())
+    by_size = {2: [], 4: []}
+    for r, spec in reserved.values():
+        by_size[spec.size].append((r, spec))
+    lines = ["def make(raws, offset):"]
+    if names:
+        lines.append(f"    {', '.join(names)}, = raws")
+    lines.append(f"    fields = {{{', '.join(entries)}}}")
+    lines.append("    flags = {}")
+    for size, lst in by_size.items():
+        if not lst:
+            continue
+        sentinel = -(1 << (8 * size - 1))
+        lines.append(f"    if {sentinel} in ({', '.join(r for r, _ in lst)},):")
+        for r, spec in lst:
+            lines.append(f"        if {r} == {sentinel}:")
+            lines.append(f"            fields[{spec.name!r}] = nan")
+            lines.append(f"            flags[{spec.name!r}] = {spec.reserved!r}")
+    lines.append(f"    return Packet(fields, offset, flags, {{{', '.join(unknown)}}}, {ck})")
+    ns = {"Packet": Packet, "nan": math.nan}
+    exec("\n".join(lines), ns)
+    return ns["make"]
+
+
+def _walk(data, vs, ve):
+    """The items of the local set data[vs:ve]: list of (tag, item_start, value_start, length).
+
+    Raises _Bad for a tag or length running past the end or an invalid BER length.
+    """
+    items = []
+    p = vs
+    while p < ve:
+        t0 = p
+        tag = 0
+        while True:
+            if p >= ve:
+                raise _Bad(f"item at local-set byte {t0 - vs}: its tag runs past the end of the local set")
+            b = data[p]
+            p += 1
+            tag = (tag << 7) | (b & 0x7F)
+            if b < 0x80:
+                break
+            if p - t0 >= 4:
+                raise _Bad(f"item at local-set byte {t0 - vs}: tag longer than 4 bytes")
+        if p >= ve:
+            raise _Bad(f"tag {tag}: no length byte before the end of the local set")
+        b = data[p]
+        p += 1
+        if b < 0x80:
+            ln = b
+        else:
+            m = b & 0x7F
+            if m == 0 or m > 8:
+                raise _Bad(f"tag {tag}: invalid BER length byte 0x{b:02X}")
+            if p + m > ve:
+                raise _Bad(f"tag {tag}: its BER length runs past the end of the local set")
+            ln = int.from_bytes(data[p:p + m], "big")
+            p += m
+        if p + ln > ve:
+            raise _Bad(f"tag {tag}: length {ln} runs past the end of the local set ({ve - p} bytes left)")
+        items.append((tag, t0, p, ln))
+        p += ln
+    return items
+
+
+class _Decoder:
+    """Layout cache shared by every read (layouts depend on structure only)."""
+
+    MAX_PER_LENGTH = 8
+    MAX_LENGTHS = 512
+
+    def __init__(self):
+        self.layouts: dict[int, list[_Layout]] = {}
+
+    def layout(self, data, vs, ve, need_checksum) -> _Layout:
+        """The compiled layout of data[vs:ve] (cached), validating a new one."""
+        L = ve - vs
+        for lay in self.layouts.get(L, ()):
+            if lay.hdr.unpack_from(data, vs) == lay.hdr_vals:
+                if need_checksum and lay.ck_idx is None:
+                    break
+                return lay
+        items = _walk(data, vs, ve)
+        for n, (tag, t0, v0, ln) in enumerate(items):
+            spec = TAG_BY_NUMBER.get(tag)
+            if tag == _CHECKSUM_TAG:
+                if ln != 2:
+                    raise _Bad(f"tag 1 (Checksum) has length {ln}, expected 2")
+                if n != len(items) - 1:
+                    raise _Bad("tag 1 (Checksum) is not the last item of the local set")
+            elif spec is not None and spec.kind != "str" and ln != spec.size:
+                raise _Bad(f"tag {tag} ({spec.title}) has length {ln}, expected {spec.size}")
+        if need_checksum and (not items or items[-1][0] != _CHECKSUM_TAG):
+            raise _Bad("no checksum item (tag 1) at the end of the local set")
+        lay = _Layout(items, data, vs)
+        if len(self.layouts) >= self.MAX_LENGTHS:
+            self.layouts.clear()
+        lst = self.layouts.setdefault(L, [])
+        if len(lst) >= self.MAX_PER_LENGTH:
+            lst.pop(0)
+        lst.append(lay)
+        return lay
+
+    def decode(self, data, k, vs, ve, offset, verify) -> Packet:
+        """Decode the packet with key at data[k], local set data[vs:ve]; raises _Bad."""
+        if verify:
+            if ve - vs < 4 or data[ve - 4] != 1 or data[ve - 3] != 2:
+                raise _Bad("no checksum item (tag 1, length 2) at the end of the local set")
+            if ve - k <= 514:
+                calc = (((zlib.adler32(data[k:ve - 2:2]) & 0xFFFF) << 8)
+                        + (zlib.adler32(data[k + 1:ve - 2:2]) & 0xFFFF) - 257) & 0xFFFF
+            else:
+                calc = ((_bytesum(data[k:ve - 2:2]) << 8) + _bytesum(data[k + 1:ve - 2:2])) & 0xFFFF
+            stored = (data[ve - 2] << 8) | data[ve - 1]
+            if calc != stored:
+                raise _Bad(f"checksum mismatch: the packet says 0x{stored:04X}, its bytes sum to 0x{calc:04X}")
+        for lay in self.layouts.get(ve - vs, ()):
+            if lay.hdr.unpack_from(data, vs) == lay.hdr_vals and (lay.ck_idx is not None or not verify):
+                break
+        else:
+            lay = self.layout(data, vs, ve, verify)
+        return lay.make(lay.vals.unpack_from(data, vs), offset)
+
+
+_DECODER = _Decoder()
+
+
+# --------------------------------------------------------------------------- scanning
+
+
+class _ScanState:
+    __slots__ = ("garbage_from",)
+
+    def __init__(self, garbage_from):
+        # Absolute offset where bytes that are no packet started to be skipped
+        # (after a good packet or at the start), None right after a bad packet.
+        self.garbage_from = garbage_from
+
+
+def _scan(data, base, final, state, verify, start=0, max_length=MAX_PACKET_LENGTH, limit=None):
+    """Scan data[start:] for packets.
+
+    Returns (results, used): ``used`` is where the next scan must start (bytes before
+    it are done with). When not ``final``, the scan stops before a packet that may
+    continue in data not yet read; with a ``limit``, once it has that many results.
+    """
+    out = []
+    append = out.append
+    key = UAS_LS_KEY
+    find = data.find
+    n = len(data)
+    pos = start
+    dec = _DECODER
+    no_batch_before = start  # no batch decoding before this offset (a short run, a bad packet)
+    if limit is None:
+        limit = 1 << 62
+    while True:
+        if len(out) >= limit:
+            return out, pos
+        if data.startswith(key, pos):
+            k = pos
+        else:
+            k = find(key, pos)
+            if k < 0:
+                if final:
+                    g = state.garbage_from
+                    if g is not None and g < base + n:
+                        append(KlvError(g, f"{base + n - g} bytes at the end are not a UAS LS packet"))
+                    return out, n
+                return out, max(pos, n - (len(key) - 1))  # a key may straddle the next read
+        g = state.garbage_from
+        if g is not None and base + k > g:
+            append(KlvError(g, f"{base + k - g} bytes before the next UAS LS key are not a UAS LS packet"))
+            state.garbage_from = None
+        if k >= no_batch_before:
+            # Many complete packets in a row: decode them at once with numpy (the same
+            # results as one by one); the first bad one goes to the per-packet path.
+            ks, vss, Ls = _locate_run(data, k, n, _BATCH_MAX, max_length)
+            if len(ks) < _BATCH_MIN:
+                no_batch_before = vss[-1] + Ls[-1] if ks else k + 1
+            else:
+                res = _decode_batch(data, ks, vss, Ls, base, verify)
+                j = 0
+                for r in res:
+                    if r is None:
+                        break
+                    append(r)
+                    j += 1
+                if j:
+                    pos = vss[j - 1] + Ls[j - 1]
+                    state.garbage_from = base + pos
+                if j < len(res):
+                    no_batch_before = ks[j] + 1
+                continue
+        p = k + 16
+        if p >= n:
+            if not final:
+                return out, k
+            append(KlvError(base + k, "truncated: the data ends after the key, before the length"))
+            state.garbage_from = None
+            pos = k + 1
+            continue
+        b = data[p]
+        if b < 0x80:
+            L = b
+            vs = p + 1
+        else:
+            m = b & 0x7F
+            if m == 0 or m > 8:
+                append(KlvError(base + k, f"invalid BER length byte 0x{b:02X} after the key"))
+                state.garbage_from = None
+                pos = k + 1
+                continue
+            if p + 1 + m > n:
+                if not final:
+                    return out, k
+                append(KlvError(base + k, "truncated: the data ends inside the BER length"))
+                state.garbage_from = None
+                pos = k + 1
+                continue
+            L = int.from_bytes(data[p + 1:p + 1 + m], "big")
+            vs = p + 1 + m
+        if L > max_length:
+            append(KlvError(base + k, f"implausible length {L} (more than {max_length} bytes)"))
+            state.garbage_from = None
+            pos = k + 1
+            continue
+        ve = vs + L
+        if ve > n:
+            if not final:
+                return out, k
+            append(KlvError(base + k, f"truncated: the length says {L} bytes, only {n - vs} are left"))
+            state.garbage_from = None
+            pos = k + 1
+            continue
+        try:
+            pkt = dec.decode(data, k, vs, ve, base + k, verify)
+        except _Bad as e:
+            append(KlvError(base + k, str(e)))
+            state.garbage_from = None
+            pos = k + 1
+            continue
+        append(pkt)
+        pos = ve
+        state.garbage_from = base + ve
+
+
+def _iter_stream(f: BinaryIO, verify: bool, chunk_size: int, max_length: int) -> Iterator[Packet | KlvError]:
+    """Streaming scan of a binary file object: memory is bounded by a chunk plus one packet."""
+    buf = b""
+    base = 0
+    state = _ScanState(0)
+    eof = False
+    while True:
+        if not eof:
+            chunk = f.read(chunk_size)
+            if not chunk:
+                eof = True
+            else:
+                buf = buf + bytes(chunk) if buf else bytes(chunk)
+        out, used = _scan(buf, base, eof, state, verify, 0, max_length)
+        yield from out
+        if eof:
+            return
+        if used:
+            buf = buf[used:]
+            base += used
+
+
+def iter_packets(data, *, verify_checksum: bool = True, chunk_size: int = 1 << 20,
+                 max_length: int = MAX_PACKET_LENGTH) -> Iterator[Packet | KlvError]:
+    """Scan bytes or a binary file for UAS Datalink LS packets.
+
+    Each packet is found by its 16-byte key (:data:`UAS_LS_KEY`), its BER length read,
+    its checksum verified (MISB ST 0601 Tag 1) and its items decoded. A bad packet
+    (checksum mismatch, truncated, a length running past the end, an item whose
+    length is wrong for its type, no checksum item at the end) yields a
+    :class:`KlvError` with the byte offset of its key; the scan resumes at the next
+    key after that offset, so good packets are still returned. Bytes between packets
+    that are no packet yield one :class:`KlvError` at their first byte.
+
+    Parameters
+    ----------
+    data : bytes, bytearray, memoryview or binary file object
+        Concatenated packets. A file object (anything with ``read``) is read in
+        chunks of ``chunk_size`` bytes: memory stays bounded by a chunk and one packet.
+    verify_checksum : bool
+        Check each packet's checksum (and require the checksum item). Default True.
+    chunk_size : int
+        Read size for file objects [bytes].
+    max_length : int
+        A longer BER length is reported as corrupt.
+
+    Yields
+    ------
+    Packet or KlvError
+        In file order.
+    """
+    if hasattr(data, "read"):
+        yield from _iter_stream(data, verify_checksum, chunk_size, max_length)
+        return
+    if not isinstance(data, (bytes, bytearray)):
+        data = bytes(data)
+    state = _ScanState(0)
+    pos, n = 0, len(data)
+    while True:  # a few thousand results at a time: the caller may stop early
+        out, pos = _scan(data, 0, True, state, verify_checksum, pos, max_length, _BATCH_MAX)
+        yield from out
+        if pos >= n:
+            return
+
+
+def read_klv_file(path, *, verify_checksum: bool = True, chunk_size: int = 1 << 20) -> Iterator[Packet | KlvError]:
+    """Stream the packets of a raw KLV file (``.klv``, ``.bin``: concatenated packets).
+
+    Memory-bounded: the file is read in chunks (see :func:`iter_packets`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    verify_checksum : bool
+        Check each packet's checksum. Default True.
+    chunk_size : int
+        Read size [bytes].
+
+    Yields
+    ------
+    Packet or KlvError
+        In file order; offsets are byte offsets in the file.
+    """
+    with open(path, "rb") as f:
+        yield from _iter_stream(f, verify_checksum, chunk_size, MAX_PACKET_LENGTH)
+
+
+def _klv_stream(container, index):
+    data = [s for s in container.streams if s.type == "data"]
+    if index is not None:
+        for s in data:
+            if s.index == index:
+                return s
+        raise ValueError(f"stream {index} is not a data stream of the container "
+                         f"(data streams: {[s.index for s in data]})")
+    if not data:
+        raise ValueError("the container has no data (KLV) stream")
+    klv = [s for s in data if getattr(s, "name", None) in ("klv", "smpte_klv")]
+    return (klv or data)[0]
+
+
+def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None) -> Iterator[Packet | KlvError]:
+    """Stream the UAS LS packets of the KLV data stream of an MPEG-TS (or any container
+    FFmpeg demuxes), through PyAV.
+
+    Every data packet of the stream (``container.demux(stream)``; ``bytes(pkt)``) is
+    scanned like a raw file (one or more KLV packets each); empty ones are skipped.
+    Results carry the container packet's ``pts`` (and ``time_base``); their
+    ``offset`` is the demuxer's byte position of that packet (``pkt.pos``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file (``.ts``, ``.mpg``, ``.m2ts``, ``.mp4``, ...).
+    verify_checksum : bool
+        Check each packet's checksum. Default True.
+    stream : int or None
+        Index of the data stream; default: the first stream of codec ``klv``, else
+        the first data stream.
+
+    Yields
+    ------
+    Packet or KlvError
+    """
+    import av
+
+    try:
+        container = av.open(os.fspath(path))
+    except FileNotFoundError:
+        raise
+    except av.error.FFmpegError as e:
+        raise ValueError(f"{path}: PyAV cannot open it: {e}") from e
+    with container:
+        ds = _klv_stream(container, stream)
+        tb = ds.time_base
+        tb = Fraction(tb.numerator, tb.denominator) if tb is not None else None
+        for pkt in container.demux(ds):
+            b = bytes(pkt)
+            if not b:
+                continue
+            pos = pkt.pos if pkt.pos is not None and pkt.pos >= 0 else None
+            out, _ = _scan(b, 0, True, _ScanState(0), verify_checksum)
+            for r in out:
+                if isinstance(r, Packet):
+                    r.offset, r.pts, r.time_base = pos, pkt.pts, tb
+                else:
+                    r = KlvError(pos, r.reason, pkt.pts)
+                yield r
+
+
+_CONTAINER_SUFFIXES = {".ts", ".m2ts", ".mts", ".mpg", ".mpeg", ".mp4", ".mov", ".mkv", ".trp"}
+
+
+def read_packets(path, *, verify_checksum: bool = True) -> Iterator[Packet | KlvError]:
+    """Raw KLV files (``.klv``, ``.bin``, anything else) through :func:`read_klv_file`,
+    containers (``.ts``, ``.m2ts``, ``.mpg``, ``.mp4``, ``.mov``, ``.mkv``) through
+    :func:`read_ts_klv`."""
+    if os.path.splitext(os.fspath(path))[1].lower() in _CONTAINER_SUFFIXES:
+        return read_ts_klv(path, verify_checksum=verify_checksum)
+    return read_klv_file(path, verify_checksum=verify_checksum)
+
+
+def decode_packet(packet: bytes, *, verify_checksum: bool = True) -> Packet:
+    """Decode one complete packet (key, BER length, local set), as ``bytes(av_packet)``.
+
+    Parameters
+    ----------
+    packet : bytes
+        Exactly one UAS LS packet.
+    verify_checksum : bool
+        Check the checksum (MISB ST 0601 Tag 1). Default True.
+
+    Returns
+    -------
+    Packet
+        With ``offset`` 0.
+
+    Raises
+    ------
+    KlvError
+        For a bad packet (offset 0), or bytes after the packet.
+    """
+    data = bytes(packet)
+    if not data.startswith(UAS_LS_KEY):
+        raise KlvError(0, "does not start with the UAS Datalink LS key")
+    out, _ = _scan(data, 0, True, _ScanState(None), verify_checksum)
+    if not out:
+        raise KlvError(0, "no packet")
+    first = out[0]
+    if isinstance(first, KlvError):
+        raise first
+    if len(out) > 1 or first.offset != 0:
+        raise KlvError(0, f"{len(data) - _packet_end(data)} bytes after the packet")
+    return first
+
+
+def _packet_end(data: bytes) -> int:
+    b = data[16]
+    if b < 0x80:
+        return 17 + b
+    m = b & 0x7F
+    return 17 + m + int.from_bytes(data[17:17 + m], "big")
+
+
+def decode_local_set(value: bytes) -> Packet:
+    """Decode the items of a bare local set (the value of a packet, without key and
+    length). The checksum cannot be verified without the key and length bytes it
+    covers; a checksum item, if present, is returned as read.
+
+    Raises
+    ------
+    KlvError
+        For an item running past the end or of a length wrong for its type (offset:
+        the byte of the local set where the problem was found is in the reason).
+    """
+    data = bytes(value)
+    try:
+        lay = _DECODER.layout(data, 0, len(data), False)
+        return lay.make(lay.vals.unpack_from(data, 0), None)
+    except _Bad as e:
+        raise KlvError(None, str(e)) from None
+
+
+# --------------------------------------------------------------------------- encoding
+
+
+def _item_encoder(spec: TagSpec):
+    """``encode(value) -> bytes`` (tag, length, value) of one item, constants precomputed."""
+    tag = ber_oid(spec.tag)
+    where = f"(ST 0601 Tag {spec.tag})"
+    name = spec.name
+    if spec.kind == "str":
+        def enc(value):
+            b = value.encode("utf-8") if isinstance(value, str) else bytes(value)
+            if len(b) > 127:
+                raise ValueError(f"{name}: {len(b)} bytes of text, the standard allows at most 127 {where}")
+            return tag + bytes((len(b),)) + b
+        return enc
+    prefix = tag + bytes((spec.size,))
+    pack = struct.Struct(">" + spec.fmt).pack
+    if spec.kind in ("u64", "u8"):
+        top = (1 << (8 * spec.size)) - 1
+
+        def enc(value):
+            if isinstance(value, float):
+                if not value.is_integer():
+                    raise ValueError(f"{name} = {value!r} is not an integer {where}")
+                value = int(value)
+            v = int(value)
+            if not 0 <= v <= top:
+                raise ValueError(f"{name} = {v} does not fit {spec.size} unsigned bytes {where}")
+            return prefix + pack(v)
+        return enc
+    step, lo = spec.step, spec.lo
+    span = f"[{spec.lo:g}, {spec.hi:g}]"
+    if spec.kind == "uint":
+        top = (1 << (8 * spec.size)) - 1
+
+        def enc(value):
+            v = float(value)
+            if not math.isfinite(v):
+                raise ValueError(f"{name} = {v!r}: {where} reserves no error value, give a number in {span}")
+            raw = round((v - lo) / step)
+            if not 0 <= raw <= top:
+                raise ValueError(f"{name} = {v!r} is outside {span} {where}")
+            return prefix + pack(raw)
+        return enc
+    lim = (1 << (8 * spec.size - 1)) - 1
+    sentinel = prefix + pack(-lim - 1)
+    reserved = spec.reserved
+
+    def enc(value):
+        v = float(value)
+        if v != v:
+            if not reserved:
+                raise ValueError(f"{name} is NaN and {where} reserves no error value")
+            return sentinel
+        raw = round(v / step) if v - v == 0 else (lim + 1 if v > 0 else -lim - 1)
+        if not -lim <= raw <= lim:
+            if reserved == OUT_OF_RANGE:
+                return sentinel
+            raise ValueError(f"{name} = {v!r} is outside {span} {where}")
+        return prefix + pack(raw)
+    return enc
+
+
+def _first(t):
+    return t[0]
+
+
+#: Field name -> (tag, item encoder).
+_ENCODERS = {s.name: (s.tag, _item_encoder(s)) for s in TAGS}
+
+
+def encode_packet(fields: dict, *, unknown: dict | None = None, with_checksum: bool = True) -> bytes:
+    """Encode one UAS Datalink LS packet: the inverse of :func:`decode_packet`.
+
+    Values are quantised with the standard's mappings (see :data:`TAGS`): the result
+    decodes to within half a step (:attr:`TagSpec.step`) of each value. Items, raw
+    ones included, are written in tag order (so Precision Time Stamp, tag 2, first, as
+    the standard wants it), the checksum (tag 1) last.
+
+    Parameters
+    ----------
+    fields : dict
+        Field name (see :data:`TAGS`) -> value; None values are left out. NaN writes
+        the reserved value of a signed item (decoded as NaN with its flag); a value
+        beyond the range of an item whose reserved value means "out of range"
+        (platform pitch and roll, 6, 7, 90, 91) writes that value. Integer keys are
+        taken as raw items (tag -> bytes).
+    unknown : dict, optional
+        More raw items: tag number -> value bytes (e.g. :attr:`Packet.unknown`).
+    with_checksum : bool
+        Append the checksum item. Default True.
+
+    Returns
+    -------
+    bytes
+        The packet: key, BER length, local set.
+
+    Raises
+    ------
+    ValueError
+        For an unknown field name, or a value outside its item's range or type.
+    """
+    known = []
+    raw_items = dict(unknown) if unknown else {}
+    encoders = _ENCODERS
+    for name, value in fields.items():
+        if value is None:
+            continue
+        e = encoders.get(name)
+        if e is None:
+            if isinstance(name, int):
+                raw_items[name] = bytes(value)
+                continue
+            raise ValueError(f"unknown UAS LS field {name!r} (known: see geoloc.io.klv.TAGS)")
+        known.append((e[0], e[1](value)))
+    for t, v in raw_items.items():
+        if t != _CHECKSUM_TAG:
+            v = bytes(v)
+            known.append((t, ber_oid(t) + ber_length(len(v)) + v))
+    known.sort(key=_first)
+    body = b"".join([b for _, b in known])
+    if not with_checksum:
+        return UAS_LS_KEY + ber_length(len(body)) + body
+    head = UAS_LS_KEY + ber_length(len(body) + 4) + body + b"\x01\x02"
+    return head + checksum(head + b"\0\0").to_bytes(2, "big")
+
+
+def write_ts(path, packets: Iterable, *, rate: float = 30.0, pts: Iterable[int] | None = None,
+             time_base: Fraction = Fraction(1, 90000), video: bool = False,
+             video_size: tuple[int, int] = (64, 48)) -> int:
+    """Write a short MPEG-TS with a KLV data stream (and optionally a video stream), via PyAV.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Output file.
+    packets : iterable
+        Encoded packets (bytes), field dicts (encoded with :func:`encode_packet`) or
+        :class:`Packet` (re-encoded with their unknown items).
+    rate : float
+        Packets per second when ``pts`` is not given (packet i at i / rate s), and the
+        video frame rate.
+    pts : iterable of int, optional
+        Presentation time stamps in ``time_base``.
+    time_base : Fraction
+        Time base of the KLV stream's time stamps. Default 1/90000 s (MPEG-TS clock).
+    video : bool
+        Also write a grey MPEG-2 video stream, one frame per packet, for players that
+        want one. The muxer may then shift every time stamp by the video's start delay.
+    video_size : (int, int)
+        Width and height of the video [pixels].
+
+    Returns
+    -------
+    int
+        Number of KLV packets written.
+    """
+    import av
+
+    blobs = []
+    for p in packets:
+        if isinstance(p, (bytes, bytearray, memoryview)):
+            blobs.append(bytes(p))
+        elif isinstance(p, Packet):
+            blobs.append(encode_packet(p.fields, unknown=p.unknown))
+        else:
+            blobs.append(encode_packet(p))
+    if pts is None:
+        ts = [round(i / (rate * time_base)) for i in range(len(blobs))]
+    else:
+        ts = [int(t) for t in pts]
+        if len(ts) != len(blobs):
+            raise ValueError(f"{len(ts)} pts for {len(blobs)} packets")
+    with av.open(os.fspath(path), "w", format="mpegts") as out:
+        vs = None
+        if video:
+            vs = out.add_stream("mpeg2video", rate=Fraction(rate).limit_denominator(1001))
+            vs.width, vs.height = video_size
+            vs.pix_fmt = "yuv420p"
+            grey = np.full((video_size[1], video_size[0], 3), 128, np.uint8)
+        ds = out.add_data_stream(codec_name="klv")
+        for i, (b, t) in enumerate(zip(blobs, ts)):
+            if vs is not None:
+                frame = av.VideoFrame.from_ndarray(grey, format="rgb24")
+                frame.pts = i
+                for vp in vs.encode(frame):
+                    out.mux(vp)
+            pk = av.Packet(b)
+            pk.stream = ds
+            pk.time_base = time_base
+            pk.pts = pk.dts = t
+            out.mux(pk)
+        if vs is not None:
+            for vp in vs.encode():
+                out.mux(vp)
+    return len(blobs)
+
+
+# --------------------------------------------------------------------------- columns
+
+
+def _empty_columns(n: int) -> dict[str, np.ndarray]:
+    cols = {"offset": np.full(n, -1, np.int64), "pts": np.full(n, np.nan)}
+    for s in _NUMERIC_SPECS:
+        cols[s.name] = np.full(n, np.nan)
+    for s in _TEXT_SPECS:
+        cols[s.name] = np.full(n, None, dtype=object)
+    return cols
+
+
+def _columns_from_packets(packets) -> dict[str, np.ndarray]:
+    rows = [p for p in packets if isinstance(p, Packet)]
+    n = len(rows)
+    cols = _empty_columns(n)
+    cols["offset"][:] = [-1 if p.offset is None else p.offset for p in rows]
+    cols["pts"][:] = [np.nan if p.pts is None else p.pts for p in rows]
+    nan = math.nan
+    for s in _NUMERIC_SPECS:
+        name = s.name
+        cols[name][:] = [p.fields.get(name, nan) for p in rows]
+    for s in _TEXT_SPECS:
+        name = s.name
+        cols[name][:] = [p.fields.get(name) for p in rows]
+    return cols
+
+
+def packets_to_columns(packets, *, verify_checksum: bool = True) -> dict[str, np.ndarray]:
+    """Decoded packets as columns, for vectorised use.
+
+    Parameters
+    ----------
+    packets : iterable of Packet / KlvError, or bytes
+        Results of a read (errors are skipped), or raw concatenated packets: those
+        are decoded in groups of one layout with numpy at once (same results as
+        ``packets_to_columns(iter_packets(data))``, many times faster).
+    verify_checksum : bool
+        For raw bytes: check each packet's checksum. Default True.
+
+    Returns
+    -------
+    dict of str -> numpy.ndarray
+        One entry per good packet in each column: ``offset`` (int64, -1 if unknown),
+        ``pts`` (float, NaN if none), every numeric field of :data:`TAGS` (float64;
+        NaN where the item is absent or reserved; the time stamp in microseconds is
+        exact in float64 until the year 2255) and the text fields (object; None where
+        absent).
+    """
+    if isinstance(packets, (bytes, bytearray, memoryview)):
+        return _columns_from_bytes(bytes(packets), verify_checksum)
+    return _columns_from_packets(packets)
+
+
+_KEY_EVEN = sum(UAS_LS_KEY[0::2])
+_KEY_ODD = sum(UAS_LS_KEY[1::2])
+_BLOCK = 1 << 15
+
+
+def _be_ints(M, off, size, signed):
+    sub = np.ascontiguousarray(M[:, off:off + size])
+    return sub.view(f">{'i' if signed else 'u'}{size}")[:, 0]
+
+
+def _texts(M, off, ln):
+    if ln == 0:
+        return np.full(M.shape[0], "", dtype=object)
+    sub = np.ascontiguousarray(M[:, off:off + ln]).view(f"V{ln}")[:, 0]
+    uniq, inv = np.unique(sub, return_inverse=True)
+    dec = np.array([bytes(u).decode("utf-8", "replace") for u in uniq] + [None], dtype=object)[:-1]
+    return dec[inv.ravel()]
+
+
+def _raw_bytes(M, off, ln):
+    n = M.shape[0]
+    if ln == 0:
+        return [b""] * n
+    b = np.ascontiguousarray(M[:, off:off + ln]).tobytes()
+    return [b[i:i + ln] for i in range(0, n * ln, ln)]
+
+
+def _gather(arr, vs_rows, L):
+    """The local sets of packets starting at vs_rows, all of length L: an (n, L) uint8 array."""
+    return arr[vs_rows[:, None] + np.arange(L)]
+
+
+def _match_group(data, M, vs_rows, k0, L, verify):
+    """Checksums and layouts of the packets of one group (same local-set length L and
+    length-field size; the first has its key at k0).
+
+    Returns (ok, matches): ``ok`` marks the good packets; ``matches`` lists
+    (layout, row indices) covering them.
+    """
+    n = len(M)
+    ok = np.ones(n, bool)
+    if verify:
+        if L < 4:
+            return np.zeros(n, bool), []
+        vs0 = int(vs_rows[0])
+        lb = data[k0 + 16:vs0]
+        even = _KEY_EVEN + sum(lb[0::2])
+        odd = _KEY_ODD + sum(lb[1::2])
+        s = (vs0 - k0) % 2  # local-set byte 0 at an even index from the key: s = 0
+        se = M[:, s:L - 2:2].sum(axis=1, dtype=np.int64)
+        so = M[:, 1 - s:L - 2:2].sum(axis=1, dtype=np.int64)
+        calc = ((even + se) * 256 + odd + so) & 0xFFFF
+        stored = M[:, L - 2].astype(np.int64) * 256 + M[:, L - 1]
+        ok &= (calc == stored) & (M[:, L - 4] == 1) & (M[:, L - 3] == 2)
+    todo = ok.copy()
+    matches = []
+    while todo.any():
+        r = int(np.flatnonzero(todo)[0])
+        vs = int(vs_rows[r])
+        try:
+            lay = _DECODER.layout(data, vs, vs + L, verify)
+        except _Bad:
+            todo[r] = ok[r] = False
+            continue
+        if len(lay.hdr_pos):
+            match = todo & (M[:, lay.hdr_pos] == lay.hdr_arr).all(axis=1)
+        else:
+            match = todo.copy()
+        match[r] = True
+        todo &= ~match
+        matches.append((lay, np.flatnonzero(match)))
+    return ok, matches
+
+
+def _item_values(spec, Ms, off, ln):
+    """Decoded values of one item over rows Ms (numpy), and the reserved-value mask."""
+    if spec.kind == "str":
+        return _texts(Ms, off, ln), None
+    raw = _be_ints(Ms, off, spec.size, spec.kind == "int")
+    if spec.kind == "uint":
+        return (raw * spec.step + spec.lo if spec.lo else raw * spec.step), None
+    if spec.kind == "int":
+        val = raw * spec.step
+        mask = None
+        if spec.reserved:
+            mask = raw == spec.sentinel
+            if mask.any():
+                val[mask] = np.nan
+            else:
+                mask = None
+        return val, mask
+    return raw, None  # plain integers
+
+
+def _group_packets(lay, Ms, offsets):
+    """Packets (as the per-packet decoder makes them) of rows Ms of one layout."""
+    n = len(Ms)
+    names, cols, flagged, unknown = [], [], {}, {}
+    ck = None
+    for spec, tag, off, ln in lay.vitems:
+        if tag == _CHECKSUM_TAG:
+            ck = _be_ints(Ms, off, 2, False).tolist()
+        elif spec is None:
+            unknown[tag] = _raw_bytes(Ms, off, ln)
+        else:
+            val, mask = _item_values(spec, Ms, off, ln)
+            flagged.pop(spec.name, None)
+            if mask is not None:
+                flagged[spec.name] = (mask, spec.reserved)
+            if spec.name in names:  # a repeated item: the last one wins, in the first's place
+                cols[names.index(spec.name)] = val.tolist()
+            else:
+                names.append(spec.name)
+                cols.append(val.tolist())
+    rows = zip(*cols) if cols else [()] * n
+    cks = ck if ck is not None else [None] * n
+    mk = _row_maker(tuple(names))
+    out = [Packet(mk(vals), o, {}, {}, c) for vals, o, c in zip(rows, offsets, cks)]
+    if unknown:
+        tags = list(unknown)
+        for p, vals in zip(out, zip(*unknown.values())):
+            p.unknown = dict(zip(tags, vals))
+    for name, (mask, meaning) in flagged.items():
+        for j in np.flatnonzero(mask):
+            out[j].flags[name] = meaning
+    return out
+
+
+_ROW_MAKERS: dict[tuple, object] = {}
+
+
+def _row_maker(names: tuple):
+    """``make(values) -> dict`` for these field names: one dict display, compiled once
+    (a dict built at its final size, faster than ``dict(zip(names, values))``)."""
+    mk = _ROW_MAKERS.get(names)
+    if mk is None:
+        if len(_ROW_MAKERS) > 4096:
+            _ROW_MAKERS.clear()
+        assert all(n in _FIELD_RANK for n in names)  # only names of TAGS enter the source
+        args = [f"v{i}" for i in range(len(names))]
+        src = ["def make(values):"]
+        if names:
+            src.append(f"    {', '.join(args)}, = values")
+        src.append("    return {" + ", ".join(f"{n!r}: {a}" for n, a in zip(names, args)) + "}")
+        ns: dict = {}
+        exec("\n".join(src), ns)
+        mk = _ROW_MAKERS[names] = ns["make"]
+    return mk
+
+
+#: Fewest complete packets in a row that the scanner decodes as one batch.
+_BATCH_MIN = 16
+#: Most packets in a batch.
+_BATCH_MAX = 4096
+
+
+def _locate_run(data, pos, n, limit, max_length):
+    """Complete packets following one another from ``pos`` (key, then the next key right
+    after): lists of key offsets, local-set starts and lengths."""
+    ks, vss, Ls = [], [], []
+    key = UAS_LS_KEY
+    startswith = data.startswith
+    while len(ks) < limit and startswith(key, pos):
+        p = pos + 16
+        if p >= n:
+            break
+        b = data[p]
+        if b < 0x80:
+            L, vs = b, p + 1
+        else:
+            m = b & 0x7F
+            if m == 0 or m > 8 or p + 1 + m > n:
+                break
+            L, vs = int.from_bytes(data[p + 1:p + 1 + m], "big"), p + 1 + m
+        if L > max_length or vs + L > n:
+            break
+        ks.append(pos)
+        vss.append(vs)
+        Ls.append(L)
+        pos = vs + L
+    return ks, vss, Ls
+
+
+def _decode_batch(data, ks, vss, Ls, base, verify):
+    """Decode a run of packets with numpy, group by group. Returns the list of packets
+    (None for a bad one: the per-packet decoder then reports it)."""
+    ks = np.asarray(ks, np.int64)
+    vss = np.asarray(vss, np.int64)
+    Ls = np.asarray(Ls, np.int64)
+    arr = np.frombuffer(data, np.uint8)
+    res = [None] * len(ks)
+    gid = Ls * 32 + (vss - ks)
+    order = np.argsort(gid, kind="stable")
+    for rows in np.split(order, np.flatnonzero(np.diff(gid[order])) + 1):
+        L = int(Ls[rows[0]])
+        M = _gather(arr, vss[rows], L)
+        ok, matches = _match_group(data, M, vss[rows], int(ks[rows[0]]), L, verify)
+        for lay, sel in matches:
+            dst = rows[sel]
+            for j, p in zip(dst.tolist(), _group_packets(lay, M[sel], (ks[dst] + base).tolist())):
+                res[j] = p
+    return res
+
+
+def _columns_from_bytes(data: bytes, verify: bool) -> dict[str, np.ndarray]:
+    n = len(data)
+    key = UAS_LS_KEY
+    ks, vss, Ls = [], [], []
+    pos = 0
+    stop = None  # offset from which the exact scanner takes over
+    while True:
+        if not data.startswith(key, pos):
+            # Bytes that are no packet: skipped (the scanner reports them; columns keep
+            # good packets only), the scan goes on at the next key as the scanner's does.
+            pos = data.find(key, pos)
+            if pos < 0:
+                break
+        run = _locate_run(data, pos, n, 1 << 62, MAX_PACKET_LENGTH)
+        if not run[0]:
+            stop = pos  # an incomplete or odd packet here: the scanner decides
+            break
+        ks += run[0]
+        vss += run[1]
+        Ls += run[2]
+        pos = run[1][-1] + run[2][-1]
+    ks = np.array(ks, np.int64)
+    vss = np.array(vss, np.int64)
+    Ls = np.array(Ls, np.int64)
+    N = len(ks)
+    arr = np.frombuffer(data, np.uint8)
+    cols = _empty_columns(N)
+    cols["offset"][:] = ks
+    good = np.zeros(N, bool)
+    if N:
+        gid = Ls * 32 + (vss - ks)
+        order = np.argsort(gid, kind="stable")
+        for idx in np.split(order, np.flatnonzero(np.diff(gid[order])) + 1):
+            L = int(Ls[idx[0]])
+            for b0 in range(0, len(idx), _BLOCK):
+                rows = idx[b0:b0 + _BLOCK]
+                M = _gather(arr, vss[rows], L)
+                ok, matches = _match_group(data, M, vss[rows], int(ks[rows[0]]), L, verify)
+                good[rows] = ok
+                for lay, sel in matches:
+                    Ms, dst = M[sel], rows[sel]
+                    for spec, tag, off, ln in lay.vitems:
+                        if spec is not None and tag != _CHECKSUM_TAG:
+                            cols[spec.name][dst] = _item_values(spec, Ms, off, ln)[0]
+    bad = np.flatnonzero(~good)
+    cut = int(bad[0]) if len(bad) else N
+    if cut < N:
+        stop = int(ks[cut])
+    out = {name: c[:cut] for name, c in cols.items()}
+    if stop is not None:
+        rest, _ = _scan(data, 0, True, _ScanState(None), verify, stop)
+        tail = _columns_from_packets(rest)
+        out = {name: np.concatenate([out[name], tail[name]]) for name in out}
+    return out
