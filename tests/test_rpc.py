@@ -9,17 +9,13 @@ import pytest
 import rasterio
 from rasterio.transform import RPCTransformer
 
+from geoloc.analysis.rpc_fit import fit_rpc
 from geoloc.assets import asset_path
+from geoloc.io.rpc_gdal import gdal_rpc_to_ground, read_rpc_geotiff, write_rpc_geotiff
 from geoloc.sensors.pushbroom import PushbroomSensor
+from geoloc.sensors.rpc import RPCModel
 from geoloc.status import Status
-from geoloc.workflows.rpc_scenario import (
-    RPCModel,
-    fit_rpc,
-    gdal_rpc_to_ground,
-    load_scenario,
-    read_rpc_geotiff,
-    write_rpc_geotiff,
-)
+from geoloc.workflows.rpc_scenario import load_scenario
 
 
 @pytest.fixture(scope="module", params=["zy3_nadir", "qiao2017_frame"])

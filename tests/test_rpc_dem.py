@@ -10,17 +10,13 @@ import textwrap
 import numpy as np
 import pytest
 
+from geoloc.analysis.rpc_fit import fit_rpc
 from geoloc.assets import asset_path
 from geoloc.geodesy.geoid import NodeGrid
+from geoloc.io.rpc_gdal import write_ellipsoidal_dem
 from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
-from geoloc.workflows.rpc_scenario import (
-    crosscheck_gdal_dem,
-    dem_pixels,
-    fit_rpc,
-    load_scenario,
-    write_ellipsoidal_dem,
-)
+from geoloc.workflows.rpc_scenario import crosscheck_gdal_dem, dem_pixels, load_scenario
 
 _CASES = {}
 
@@ -55,6 +51,29 @@ def test_gdal_rpc_dem_agrees_with_exact_dem_intersection(case):
     assert cc.max_px < 2e-3
     # in metres too: 2e-3 px is 4 mm for ZY-3 (2.1 m pixels), < 1 mm for the aircraft camera
     assert cc.max_m < 0.01
+
+
+def test_gdal_failure_on_a_point_is_nan_not_inf(tmp_path_factory):
+    """Where GDAL's RPC_DEM inverse fails (the ground point is off the DEM), the answer is NaN,
+    as documented, and only for that point. rasterio 1.4 no longer raises there: it warns
+    (TransformWarning) and returns inf, which the code before this test passed on as inf."""
+    import warnings
+
+    from geoloc.io.rpc_gdal import gdal_rpc_to_ground
+
+    sc, fit, dem, ell, rows, cols = _case("zy3_nadir", tmp_path_factory)
+    # the image corners lie off the 30 km SRTM crop (the scene is 52 km wide); the centre is on it
+    r = np.array([1.0, rows[20], sc.sensor.rows, 1.0])
+    c = np.array([1.0, cols[20], sc.sensor.cols, sc.sensor.cols])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no TransformWarning leaks out either
+        lat, lon = gdal_rpc_to_ground(fit.model, r, c, dem_path=ell, height=0.0)
+    assert not np.isinf(lat).any() and not np.isinf(lon).any()
+    assert np.isnan(lat[[0, 2, 3]]).all() and np.isnan(lon[[0, 2, 3]]).all()
+    assert np.isfinite(lat[1]) and np.isfinite(lon[1])
+    # without a DEM nothing fails (constant height)
+    lat0, lon0 = gdal_rpc_to_ground(fit.model, r, c, height=500.0)
+    assert np.isfinite(lat0).all() and np.isfinite(lon0).all()
 
 
 def test_gdal_default_threshold_is_the_documented_0_1_pixel(case):
@@ -113,7 +132,7 @@ def test_gdal_own_vertical_shift_works_only_when_its_proj_has_the_geoid_grid(fra
     code = textwrap.dedent(f"""
         import json, numpy as np, rasterio
         from rasterio.transform import RPCTransformer
-        from geoloc.workflows.rpc_scenario import RPCModel
+        from geoloc.sensors.rpc import RPCModel
         m = RPCModel.from_rasterio(__import__("rasterio.rpc").rpc.RPC.from_gdal(json.loads({json.dumps(json.dumps(fit.model.to_gdal()))})))
         rows, cols = np.array({rows[:9].tolist()}), np.array({cols[:9].tolist()})
         opts = dict(RPC_DEM={str(sc.dem_path)!r}, RPC_DEM_SRS="EPSG:4326+5773",

@@ -1,138 +1,35 @@
-"""Rational polynomial (RPC) sensor models: fit, evaluate, write as GDAL metadata [L12 section 4.1].
+"""RPC scenarios: load one, fit its RPC, write it, cross-check GDAL's RPC_DEM; what ``geoloc rpc`` reports.
 
-Conventions: ``docs/conventions.md``; user guide ``docs/rpc.md``.
-
-An RPC maps geodetic (latitude P, longitude L, ellipsoidal height H) to the
-image: with normalised values ``Pn = (P - LAT_OFF) / LAT_SCALE`` (and the same
-for L, H, line and sample),
-
-    line_n = LINE_NUM(Ln, Pn, Hn) / LINE_DEN(Ln, Pn, Hn)
-    samp_n = SAMP_NUM(Ln, Pn, Hn) / SAMP_DEN(Ln, Pn, Hn)
-
-with four cubic polynomials of 20 terms each in the RPC00B order (the order
-GDAL uses): 1, L, P, H, LP, LH, PH, L^2, P^2, H^2, PLH, L^3, LP^2, LH^2, L^2P,
-P^3, PH^2, L^2H, P^2H, H^3. The two denominators' constant terms are 1, so a
-model has 4 x 20 - 2 = 78 free coefficients. [L12] reports ZY-3 RPCs fitted to
-the rigorous model better than 0.15 % of a pixel.
-
-Edge units of the format: degrees for P and L, metres above the WGS-84
-ellipsoid for H, and image coordinates with (0, 0) at the *centre* of the
-upper-left pixel (GDAL, ``alg/gdal_rpc.cpp``, adds 0.5 to reach its own
-corner-based pixel/line). So RPC line = row - 1 and RPC sample = col - 1
-with this project's 1-based (row, col).
-
-The fit is the terrain-independent one: a 3-D grid of ground points is made
-by intersecting the sensor's lines of sight for a grid of pixels with several
-surfaces of constant ellipsoidal height, and the coefficients are found by
-linear least squares on ``NUM - x * DEN' = x`` with the denominators' weights
-refined iteratively (Tao & Hu, PE&RS 67(12), 2001). Check points are a second,
-staggered grid never used in the fit.
+Conventions: ``docs/conventions.md``; user guide ``docs/rpc.md``. The pieces
+live in their layers: the RPC model and :class:`~geoloc.sensors.rpc.RPCSensor`
+in :mod:`geoloc.sensors.rpc`, the fit in :mod:`geoloc.analysis.rpc_fit`, the
+bias / affine adjustment in :mod:`geoloc.analysis.rpc_adjust`, GeoTIFF and
+GDAL I/O in :mod:`geoloc.io.rpc_gdal`. This module keeps the scenario file
+loader, the frame camera bound to one pose (:class:`FrameCameraSensor`), the
+DEM cross-check against GDAL and the report.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from geoloc.analysis.rpc_fit import fit_rpc
 from geoloc.frames.chain import FrameChain, Pose
+from geoloc.io.rpc_gdal import (
+    gdal_rpc_to_ground,
+    write_ellipsoidal_dem,
+    write_rpc_geotiff,
+)
 from geoloc.locate import ground_to_pixel, line_of_sight, locate
 from geoloc.sensors.camera import Camera
+from geoloc.sensors.rpc import RPCModel
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
 from geoloc.tomlio import read_toml
-
-#: Names of the 20 RPC00B terms, in order (L = longitude, P = latitude, H = height).
-TERMS = ("1", "L", "P", "H", "LP", "LH", "PH", "LL", "PP", "HH",
-         "PLH", "LLL", "LPP", "LHH", "LLP", "PPP", "PHH", "LLH", "PPH", "HHH")
-
-
-def rpc_terms(L, P, H):
-    """The 20 cubic terms of RPC00B for normalised (L, P, H), shape (..., 20)."""
-    L, P, H = np.broadcast_arrays(np.asarray(L, float), np.asarray(P, float), np.asarray(H, float))
-    one = np.ones_like(L)
-    return np.stack([one, L, P, H, L * P, L * H, P * H, L * L, P * P, H * H,
-                     P * L * H, L**3, L * P * P, L * H * H, L * L * P, P**3, P * H * H,
-                     L * L * H, P * P * H, H**3], axis=-1)
-
-
-@dataclass(frozen=True)
-class RPCModel:
-    """One RPC00B model (the 78 coefficients and 10 normalisation constants).
-
-    Offsets and scales are in the units of the format: degrees (lat, long),
-    metres (height), pixels with (0, 0) at the centre of the upper-left pixel
-    (line, samp). Coefficient arrays have 20 entries; ``line_den[0]`` and
-    ``samp_den[0]`` are 1.
-    """
-
-    line_off: float
-    samp_off: float
-    lat_off: float
-    long_off: float
-    height_off: float
-    line_scale: float
-    samp_scale: float
-    lat_scale: float
-    long_scale: float
-    height_scale: float
-    line_num: np.ndarray
-    line_den: np.ndarray
-    samp_num: np.ndarray
-    samp_den: np.ndarray
-    err_bias: float = -1.0
-    err_rand: float = -1.0
-
-    def normalise(self, lat, lon, h):
-        """Normalised (Ln, Pn, Hn) from latitude, longitude [rad] and height [m]."""
-        lat_deg, lon_deg = np.rad2deg(lat), np.rad2deg(lon)
-        dl = (lon_deg - self.long_off + 180.0) % 360.0 - 180.0  # the antimeridian, as GDAL
-        return (dl / self.long_scale, (lat_deg - self.lat_off) / self.lat_scale,
-                (np.asarray(h, float) - self.height_off) / self.height_scale)
-
-    def ground_to_pixel(self, lat, lon, h):
-        """Ground (lat, lon [rad], ellipsoidal h [m]) -> 1-based (row, col) by the RPC equations.
-
-        Returns
-        -------
-        row, col : ndarray
-        """
-        T = rpc_terms(*self.normalise(lat, lon, h))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            ln = np.einsum("...i,i->...", T, self.line_num) / np.einsum("...i,i->...", T, self.line_den)
-            sn = np.einsum("...i,i->...", T, self.samp_num) / np.einsum("...i,i->...", T, self.samp_den)
-        return ln * self.line_scale + self.line_off + 1.0, sn * self.samp_scale + self.samp_off + 1.0
-
-    # ------------------------------------------------------------ GDAL I/O
-    def to_gdal(self) -> dict:
-        """The GDAL "RPC" metadata domain (RFC 22) as a dict of strings."""
-        def f(v):
-            return f"{float(v):.15g}"
-
-        md = {k.upper(): f(getattr(self, k)) for k in (
-            "line_off", "samp_off", "lat_off", "long_off", "height_off",
-            "line_scale", "samp_scale", "lat_scale", "long_scale", "height_scale",
-            "err_bias", "err_rand")}
-        for k in ("line_num", "line_den", "samp_num", "samp_den"):
-            md[f"{k.upper()}_COEFF"] = " ".join(f(v) for v in getattr(self, k))
-        return md
-
-    def to_rasterio(self):
-        """A :class:`rasterio.rpc.RPC` (for ``dataset.rpcs = ...`` and ``RPCTransformer``)."""
-        from rasterio.rpc import RPC
-
-        return RPC.from_gdal(self.to_gdal())
-
-    @classmethod
-    def from_rasterio(cls, rpc) -> "RPCModel":
-        return cls(rpc.line_off, rpc.samp_off, rpc.lat_off, rpc.long_off, rpc.height_off,
-                   rpc.line_scale, rpc.samp_scale, rpc.lat_scale, rpc.long_scale, rpc.height_scale,
-                   np.asarray(rpc.line_num_coeff, float), np.asarray(rpc.line_den_coeff, float),
-                   np.asarray(rpc.samp_num_coeff, float), np.asarray(rpc.samp_den_coeff, float),
-                   -1.0 if rpc.err_bias is None else rpc.err_bias,
-                   -1.0 if rpc.err_rand is None else rpc.err_rand)
 
 
 # ------------------------------------------------------------------ sensors
@@ -169,298 +66,6 @@ class FrameCameraSensor:
 
     def in_image(self, row, col):
         return self.camera.in_image(row, col)
-
-
-# ---------------------------------------------------------------------- fit
-@dataclass(frozen=True)
-class RPCFit:
-    """Result of :func:`fit_rpc`.
-
-    Attributes
-    ----------
-    model : RPCModel
-    fit_rms_px, fit_max_px : float
-        Image distance (hypot of row and column error) between the RPC and the
-        rigorous model at the fit points: RMS and maximum [px].
-    check_rms_px, check_max_px : float
-        The same on the independent check points.
-    n_fit, n_check : int
-        Number of points.
-    check_residuals : ndarray (n_check, 2)
-        Row and column residuals (RPC minus rigorous) at the check points.
-    """
-
-    model: RPCModel
-    fit_rms_px: float
-    fit_max_px: float
-    check_rms_px: float
-    check_max_px: float
-    n_fit: int
-    n_check: int
-    check_residuals: np.ndarray = field(repr=False)
-
-
-def _grid_points(sensor, n_rows, n_cols, heights, staggered=False):
-    """Pixels on a regular grid spanning the image and the ground points at each height."""
-    if staggered:  # cell centres of the fit grid
-        fr = (np.arange(n_rows) + 0.5) / n_rows
-        fc = (np.arange(n_cols) + 0.5) / n_cols
-    else:
-        fr = np.linspace(0.0, 1.0, n_rows)
-        fc = np.linspace(0.0, 1.0, n_cols)
-    rows = 0.5 + fr * sensor.rows
-    cols = 0.5 + fc * sensor.cols
-    R, C, Hh = np.meshgrid(rows, cols, np.asarray(heights, float), indexing="ij")
-    g = sensor.locate(R.ravel(), C.ravel(), Hh.ravel())
-    ok = g.status == Status.OK
-    return R.ravel()[ok], C.ravel()[ok], g.lat[ok], g.lon[ok], g.h[ok], int(np.sum(~ok))
-
-
-def _solve_ratio(T, x, n_iter=4, ridge=1e-12):
-    """Least squares for NUM(T)/DEN(T) = x, DEN[0] = 1 (Tao & Hu 2001 iterative weights).
-
-    Linearised: T a - x (T' b') = x, with weights 1 / DEN(T)^2 from the previous
-    solution. Columns are scaled to unit norm and a tiny ridge (relative
-    1e-12) keeps the near-degenerate directions (a frame camera is almost a
-    ratio of linear forms) from blowing up the coefficients.
-    """
-    M = np.hstack([T, -x[:, None] * T[:, 1:]])
-    w = np.ones(len(x))
-    coef = None
-    for _ in range(n_iter):
-        Mw = M * w[:, None]
-        xw = x * w
-        scale = np.linalg.norm(Mw, axis=0)
-        scale[scale == 0] = 1.0
-        Ms = Mw / scale
-        # einsum, not BLAS: these products are tiny and a threaded BLAS on a loaded
-        # 2-core machine spends seconds spinning on them
-        N = np.einsum("ij,ik->jk", Ms, Ms)
-        lam = ridge * np.trace(N)  # unit columns: trace = number of unknowns >= the largest eigenvalue
-        A_ = N + lam * np.eye(Ms.shape[1])
-        sol = np.linalg.solve(A_, np.einsum("ij,i->j", Ms, xw)) / scale
-        coef = sol
-        den = 1.0 + np.einsum("ij,j->i", T[:, 1:], sol[20:])
-        w = 1.0 / np.abs(den)
-    num = coef[:20]
-    den = np.concatenate([[1.0], coef[20:]])
-    return num, den
-
-
-def fit_rpc(sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20, 6)) -> RPCFit:
-    """Fit the 78 RPC coefficients to a sensor model over a 3-D grid [L12 section 4.1].
-
-    Parameters
-    ----------
-    sensor : PushbroomSensor or FrameCameraSensor
-        Anything with ``rows``, ``cols``, ``locate(row, col, h)`` and
-        ``ground_to_pixel(lat, lon, h)``.
-    height_min, height_max : float
-        Ellipsoidal height range of the fit [m] (the terrain's range plus a margin).
-    grid : (int, int, int)
-        Fit points: pixel rows x pixel columns x height layers, spanning the
-        image edges and the height range. At least 39 points are needed per
-        image axis; the default (3087) is the usual generous choice.
-    check_grid : (int, int, int)
-        Check points: a staggered grid (cell centres of a grid this size, and
-        heights between the fit layers), never used in the fit.
-
-    Returns
-    -------
-    RPCFit
-    """
-    if not (math.isfinite(height_min) and math.isfinite(height_max) and height_max > height_min):
-        raise ValueError(f"height range [{height_min!r}, {height_max!r}] m must be finite and increasing")
-    for name, g in (("grid", grid), ("check_grid", check_grid)):
-        if len(g) != 3 or any((not isinstance(v, int)) or v < 2 for v in g):
-            raise ValueError(f"{name} = {g!r} must be 3 integers >= 2")
-    if grid[0] * grid[1] * grid[2] < 39:
-        raise ValueError(f"grid = {grid!r} gives fewer than the 39 points per axis the fit needs")
-    hs = np.linspace(height_min, height_max, grid[2])
-    r, c, lat, lon, h, lost = _grid_points(sensor, grid[0], grid[1], hs)
-    if lost or r.size < 39:
-        raise ValueError(f"{lost} fit-grid pixels have no ground point (rays missing the surface); "
-                         "check the sensor geometry and height range")
-    lat_deg, lon_deg = np.rad2deg(lat), np.rad2deg(lon)
-    lon_mid = np.rad2deg(np.arctan2(np.mean(np.sin(lon)), np.mean(np.cos(lon))))
-    dlon = (lon_deg - lon_mid + 180.0) % 360.0 - 180.0
-    lat_off = 0.5 * (lat_deg.max() + lat_deg.min())
-    long_off = lon_mid + 0.5 * (dlon.max() + dlon.min())
-    model0 = dict(
-        line_off=(sensor.rows - 1) / 2.0, samp_off=(sensor.cols - 1) / 2.0,
-        lat_off=lat_off, long_off=(long_off + 180.0) % 360.0 - 180.0,
-        height_off=0.5 * (height_min + height_max),
-        line_scale=sensor.rows / 2.0, samp_scale=sensor.cols / 2.0,
-        lat_scale=0.5 * (lat_deg.max() - lat_deg.min()),
-        long_scale=0.5 * (dlon.max() - dlon.min()),
-        height_scale=0.5 * (height_max - height_min),
-    )
-    tmp = RPCModel(**model0, line_num=np.zeros(20), line_den=np.eye(20)[0],
-                   samp_num=np.zeros(20), samp_den=np.eye(20)[0])
-    T = rpc_terms(*tmp.normalise(lat, lon, h))
-    ln = (r - 1.0 - model0["line_off"]) / model0["line_scale"]
-    sn = (c - 1.0 - model0["samp_off"]) / model0["samp_scale"]
-    lnum, lden = _solve_ratio(T, ln)
-    snum, sden = _solve_ratio(T, sn)
-    model = RPCModel(**model0, line_num=lnum, line_den=lden, samp_num=snum, samp_den=sden)
-
-    rr, cc = model.ground_to_pixel(lat, lon, h)
-    res_fit = np.hypot(rr - r, cc - c)
-    hs_c = height_min + (np.arange(check_grid[2]) + 0.5) / check_grid[2] * (height_max - height_min)
-    r2, c2, lat2, lon2, h2, _ = _grid_points(sensor, check_grid[0], check_grid[1], hs_c, staggered=True)
-    rr2, cc2 = model.ground_to_pixel(lat2, lon2, h2)
-    res = np.stack([rr2 - r2, cc2 - c2], axis=-1)
-    d = np.hypot(res[:, 0], res[:, 1])
-    return RPCFit(model, float(np.sqrt(np.mean(res_fit**2))), float(res_fit.max()),
-                  float(np.sqrt(np.mean(d**2))), float(d.max()), int(r.size), int(r2.size), res)
-
-
-# --------------------------------------------------------------- GeoTIFF I/O
-def write_rpc_geotiff(path, model: RPCModel, rows: int, cols: int, image=None) -> Path:
-    """Write a GeoTIFF carrying ``model`` as GDAL RPC metadata (the TIFF RPC tag).
-
-    Parameters
-    ----------
-    path : path-like
-    model : RPCModel
-    rows, cols : int
-        Image size (lines, samples).
-    image : ndarray (rows, cols) of uint16, optional
-        Pixel values. Without it the file is written sparse (no tile is
-        stored; readers see zeros), so a 24 576 x 24 576 scene costs ~150 kB.
-
-    Returns
-    -------
-    Path
-    """
-    import rasterio
-
-    path = Path(path)
-    profile = dict(driver="GTiff", width=int(cols), height=int(rows), count=1, dtype="uint16",
-                   tiled=True, blockxsize=256, blockysize=256, compress="deflate",
-                   SPARSE_OK=True)
-    import warnings
-
-    from rasterio.errors import NotGeoreferencedWarning
-
-    with warnings.catch_warnings():
-        # raised at creation, before the RPCs below are attached: not true of the file written
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(path, "w", **profile) as dst:
-            dst.rpcs = model.to_rasterio()
-            if image is not None:
-                dst.write(np.asarray(image, np.uint16), 1)
-    return path
-
-
-def read_rpc_geotiff(path) -> RPCModel:
-    """Read the RPC metadata of a raster back into an :class:`RPCModel`."""
-    import rasterio
-
-    with rasterio.open(path) as src:
-        if src.rpcs is None:
-            raise ValueError(f"{path}: no RPC metadata")
-        return RPCModel.from_rasterio(src.rpcs)
-
-
-# ------------------------------------------------------------------- GDAL
-def gdal_rpc_to_ground(model: RPCModel, row, col, *, dem_path=None, height=0.0,
-                       pixel_error_threshold=None, max_iterations=None, vdatum_shift=False):
-    """Pixel -> ground with GDAL's RPC transformer (through rasterio).
-
-    With ``dem_path`` the GDAL option ``RPC_DEM`` is set: GDAL then treats
-    ``height`` as an *offset above the DEM* (not an absolute height) and uses
-    the DEM's values as heights above the WGS-84 ellipsoid unless the DEM's
-    CRS has a vertical component and ``RPC_DEM_APPLY_VDATUM_SHIFT`` is on.
-    This function sets that option explicitly (``vdatum_shift``, default
-    off): give it a DEM whose values are already ellipsoidal (see
-    :func:`write_ellipsoidal_dem`).
-
-    Parameters
-    ----------
-    model : RPCModel
-    row, col : array_like
-        1-based pixels of this project (converted to rasterio's 0-based
-        indices with ``offset="center"``: GDAL pixel = col - 0.5, RPC sample = col - 1).
-    dem_path : path-like, optional
-        ``RPC_DEM``.
-    height : float
-        Height [m]: above the DEM with ``dem_path``, else ellipsoidal.
-    pixel_error_threshold : float, optional
-        ``RPC_PIXEL_ERROR_THRESHOLD`` (GDAL's default 0.1 pixel if None).
-    max_iterations : int, optional
-        ``RPC_MAX_ITERATIONS`` (GDAL's default 20 with a DEM, 10 without).
-
-    Returns
-    -------
-    lat, lon : ndarray
-        Radians; NaN where GDAL reports a failed transform.
-    """
-    import rasterio
-    from rasterio.transform import RPCTransformer
-
-    row = np.atleast_1d(np.asarray(row, float))
-    col = np.atleast_1d(np.asarray(col, float))
-    opts = {}
-    if dem_path is not None:
-        opts["RPC_DEM"] = str(dem_path)
-        opts["RPC_DEMINTERPOLATION"] = "bilinear"
-        opts["RPC_DEM_APPLY_VDATUM_SHIFT"] = "TRUE" if vdatum_shift else "FALSE"
-    if pixel_error_threshold is not None:
-        opts["RPC_PIXEL_ERROR_THRESHOLD"] = repr(float(pixel_error_threshold))
-    if max_iterations is not None:
-        opts["RPC_MAX_ITERATIONS"] = str(int(max_iterations))
-    zs = np.full(row.shape, float(height))
-    # the Env registers GDAL's drivers, which RPC_DEM needs to open its file
-    with rasterio.Env(), RPCTransformer(model.to_rasterio(), **opts) as tr:
-        lons, lats = [], []
-        for i in range(row.size):  # one call per point so that a failure only loses that point
-            try:
-                x, y = tr.xy(row[i] - 1.0, col[i] - 1.0, zs=zs[i], offset="center")
-            except Exception:  # rasterio raises on a failed GDAL transform
-                x, y = np.nan, np.nan
-            lons.append(float(x))
-            lats.append(float(y))
-    return np.deg2rad(np.asarray(lats)), np.deg2rad(np.asarray(lons))
-
-
-# ------------------------------------------------------- GDAL RPC_DEM check
-def write_ellipsoidal_dem(dem, path) -> Path:
-    """Write a geoloc DEM's *ellipsoidal* node heights as a plain EPSG:4326 GeoTIFF.
-
-    GDAL's RPC transformer uses ``RPC_DEM`` values as heights above the WGS-84
-    ellipsoid unless the DEM's CRS carries a vertical datum (and
-    ``RPC_DEM_APPLY_VDATUM_SHIFT`` is on, and its PROJ finds the geoid grid).
-    The bundled DEMs are orthometric (EGM96) with a 2-D CRS, so GDAL would use
-    H instead of h = H + N. This copy holds h (the nodes of
-    :class:`geoloc.surfaces.dem.DEM`, where N was added node by node), on the same
-    pixel-centre nodes, so GDAL's bilinear sampling equals the project's.
-
-    Parameters
-    ----------
-    dem : geoloc.surfaces.dem.DEM
-        A geographic (lat/lon) DEM.
-    path : path-like
-
-    Returns
-    -------
-    Path
-    """
-    import rasterio
-    from affine import Affine
-
-    if not dem.is_geographic:
-        raise ValueError(f"DEM {dem.path}: RPC_DEM copy needs a geographic (lat/lon) grid, got {dem.crs}")
-    g = dem.grid
-    v = np.asarray(g.values, float)
-    t = Affine(g.dlon_deg, 0.0, g.lon_west_deg - g.dlon_deg / 2, 0.0, -g.dlat_deg, g.lat_north_deg + g.dlat_deg / 2)
-    path = Path(path)
-    with rasterio.open(path, "w", driver="GTiff", width=v.shape[1], height=v.shape[0], count=1,
-                       dtype="float64", crs="EPSG:4326", transform=t, nodata=np.nan) as dst:
-        dst.write(v, 1)
-        dst.update_tags(VERTICAL_DATUM="WGS-84 ellipsoidal heights (h = H + N, EGM96)",
-                        SOURCE=str(dem.path))
-    return path
 
 
 @dataclass(frozen=True)
@@ -768,6 +373,5 @@ def rpc_report(scenario: RPCScenario, out_tif, *, gdal: bool = True, pixel_error
     return rep
 
 
-__all__ = ["TERMS", "DemCrossCheck", "FrameCameraSensor", "RPCFit", "RPCModel", "RPCScenario",
-           "crosscheck_gdal_dem", "dem_pixels", "fit_rpc", "gdal_rpc_to_ground", "load_scenario",
-           "read_rpc_geotiff", "rpc_report", "rpc_terms", "write_ellipsoidal_dem", "write_rpc_geotiff"]
+__all__ = ["DemCrossCheck", "FrameCameraSensor", "RPCScenario", "crosscheck_gdal_dem", "dem_pixels",
+           "load_scenario", "rpc_report"]
