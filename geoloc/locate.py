@@ -1,81 +1,118 @@
-"""Direct geolocation: pixel -> line of sight in ECEF -> ground point at a target height.
+"""Direct geolocation: pixel -> line of sight in ECEF -> ground point on a surface.
 
 [Q17 section 2.2]: T'_E = C^ECEF_NED C^NED_AC C^AC_S T'_S (eq. 9), the target on
 the line from the optical centre O_E through T'_E (eq. 10), on the ellipsoid
 inflated to the target height (eq. 11), converted to geodetic coordinates
 (eq. 12-13; here by the closed form of :func:`geoloc.geodesy.ellipsoid.ecef_to_geodetic`).
 
-Conventions: ``docs/conventions.md``. Batch functions never raise for a bad ray:
-they return NaN and a :class:`geoloc.status.Status` code per ray.
+Every call goes through a sensor (``docs/architecture.md``)::
+
+    locate(pose, sensor, row, col, target_h)  ==  surface.intersect(sensor.line_of_sight(row, col, pose))
+
+``sensor`` is a :class:`geoloc.sensors.frame.FrameSensor` or a first-phase
+:class:`geoloc.sensors.camera.Camera` (taken as its sensor: a pinhole on the
+[Q17] roll-pitch gimbal). Conventions: ``docs/conventions.md``. Batch functions
+never raise for a bad ray: they return NaN and a :class:`geoloc.status.Status`
+code per ray.
 """
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from geoloc.frames.chain import FrameChain, Pose
+from geoloc.sensors.base import PixelHit, check_outside, flag_outside
 from geoloc.sensors.camera import Camera
+from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint, LineOfSight
-from geoloc.surfaces.height import intersect_los_height
+from geoloc.surfaces.height import HeightSurface, intersect_los_height
 
 if TYPE_CHECKING:
     from geoloc.surfaces.dem import DEM
     from geoloc.surfaces.terrain import TerrainHit
 
 
-def camera_chain(pose: Pose, camera: Camera) -> FrameChain:
-    """The frame chain of ``pose`` with the camera's optional boresight and mounting rotations.
+@lru_cache(maxsize=64)
+def _camera_sensor(camera: Camera) -> FrameSensor:
+    return camera.to_sensor()
 
-    ``FrameChain(pose, R_cam_inner=camera.R_cam_inner, R_base_body=camera.R_base_body)``;
-    for a camera without them it is ``FrameChain(pose)``.
+
+def as_sensor(sensor) -> FrameSensor:
+    """A :class:`FrameSensor` for a sensor or a first-phase :class:`Camera` (cached)."""
+    if isinstance(sensor, FrameSensor):
+        return sensor
+    if isinstance(sensor, Camera):
+        return _camera_sensor(sensor)
+    raise ValueError(f"sensor = {sensor!r}: must be a FrameSensor or a Camera")
+
+
+def camera_chain(pose: Pose, camera: Camera) -> FrameChain:
+    """The [Q17] frame chain of ``pose`` with the camera's boresight and mounting rotations.
+
+    The paper's own form of the roll-pitch chain (:class:`FrameChain`, eq. 4-9,
+    with its 4x4 hops and the eq. 5 factors); the sensor's frame graph gives the
+    same rotations (``tests/test_sensors.py``).
     """
     return FrameChain(pose, R_cam_inner=camera.R_cam_inner, R_base_body=camera.R_base_body)
 
 
-def line_of_sight(pose: Pose, camera: Camera, row=None, col=None, *, chain: FrameChain | None = None,
-                  ) -> LineOfSight:
-    """Pixel (i, j) -> line of sight in ECEF [Q17 eq. 8-9].
+def _default_pixel(sensor, row, col):
+    r0, c0 = sensor.center_pixel
+    return (r0 if row is None else row), (c0 if col is None else col)
+
+
+def line_of_sight(pose: Pose, sensor, row=None, col=None, *, chain: FrameChain | None = None,
+                  outside: str = "flag") -> LineOfSight:
+    """Pixel (i, j) -> line of sight in ECEF [Q17 eq. 8-9, generalised to any gimbal and lens].
 
     Parameters
     ----------
     pose : Pose
-        Aircraft pose and gimbal angles (radians), any batch shape.
-    camera : Camera
-        The camera.
+        Platform pose and gimbal angles (radians), any batch shape.
+    sensor : FrameSensor or Camera
     row, col : array_like, optional
-        1-based pixel; default the CCD centre ((M+1)/2, (N+1)/2).
+        1-based pixel; default the image centre ((M+1)/2, (N+1)/2).
     chain : FrameChain, optional
-        A prebuilt chain for ``pose`` (to add boresight / mounting rotations);
-        default :func:`camera_chain` (which applies the camera's own
-        ``boresight`` / ``mount`` if it has them; a given chain replaces them).
+        A prebuilt [Q17] chain (roll-pitch pinhole only; Monte Carlo's
+        reference engine passes perturbed rotations this way).
+    outside : {"flag", "extrapolate"}
+        A pixel off the sensor gets status OUTSIDE_SENSOR (default), or its
+        ray through the lens model beyond the edge (``"extrapolate"``, for a
+        caller that reports such pixels itself).
 
     Returns
     -------
     LineOfSight
+        Status INVALID_INPUT for a bad pose or pixel, OUTSIDE_SENSOR for a
+        pixel off the sensor.
     """
-    if row is None or col is None:
-        r0, c0 = camera.center_pixel
-        row = r0 if row is None else row
-        col = c0 if col is None else col
-    chain = chain if chain is not None else camera_chain(pose, camera)
-    d_cam = camera.pixel_to_los(row, col)
-    d_ecef = chain.cam_to_ecef(d_cam)
+    check_outside(outside)
+    s = as_sensor(sensor)
+    row, col = _default_pixel(s, row, col)
+    if chain is None:
+        return s.line_of_sight(row, col, pose, outside=outside)
+    cam = sensor if isinstance(sensor, Camera) else None
+    if cam is None:
+        raise ValueError("chain= is only for a first-phase Camera (the [Q17] roll-pitch pinhole)")
+    d_ecef = chain.cam_to_ecef(cam.pixel_to_los(row, col))
     o = chain.origin_ecef
     shape = np.broadcast_shapes(o.shape, d_ecef.shape)[:-1]
-    o = np.broadcast_to(o, shape + (3,))
-    d_ecef = np.broadcast_to(d_ecef, shape + (3,))
-    bad = np.broadcast_to(pose.invalid_mask(), shape)
-    bad = bad | ~np.all(np.isfinite(d_ecef), axis=-1)
+    o, d_ecef = np.broadcast_to(o, shape + (3,)), np.broadcast_to(d_ecef, shape + (3,))
+    bad = np.broadcast_to(pose.invalid_mask(), shape) | ~np.all(np.isfinite(d_ecef), axis=-1)
     status = np.where(bad, Status.INVALID_INPUT, Status.OK).astype(np.uint8)
+    if outside == "flag":
+        r, c = np.broadcast_to(np.asarray(row, float), shape), np.broadcast_to(np.asarray(col, float), shape)
+        status = flag_outside(status, r, c, s.rows, s.cols)
     return LineOfSight(o, d_ecef, status)
 
 
-def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
+def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
            surface: str = "inflated", chain: FrameChain | None = None,
-           engine: str = "auto") -> GroundPoint:
+           engine: str = "auto", outside: str = "flag") -> GroundPoint:
     """Geolocate pixels at a known target height: the whole of [Q17 section 2.2].
 
     Vectorised: pose fields, pixels and ``target_h`` broadcast together.
@@ -83,27 +120,29 @@ def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
     Parameters
     ----------
     pose : Pose
-    camera : Camera
+    sensor : FrameSensor or Camera
     row, col : array_like, optional
-        1-based pixel; default the CCD centre.
+        1-based pixel; default the image centre.
     target_h : array_like
         Target ellipsoidal height [m].
     surface : {"inflated", "geodetic"}
-        See :func:`intersect_los_height`.
+        Kind of constant-height surface (:class:`geoloc.surfaces.height.HeightSurface`).
     chain : FrameChain, optional
-        Prebuilt chain (boresight / mounting rotations).
+        Prebuilt [Q17] chain (see :func:`line_of_sight`).
     engine : {"auto", "numpy", "numba"}
-        ``"numpy"`` composes the :class:`FrameChain` matrices (the reference);
-        ``"numba"`` runs the fused kernel of :mod:`geoloc.sensors._fastlocate` (same
-        mathematics, ~10x faster on large batches; inflated surface, no extra
-        chain rotations, no camera boresight / mount, no lens distortion). ``"auto"`` picks numba for
-        batches of 10 000 rays or more when it applies.
+        ``"numpy"`` is the reference path (lens and frame graph in numpy);
+        ``"numba"`` runs the fused kernel of :mod:`geoloc.sensors._fastlocate`
+        (same mathematics, any gimbal, lens, mount, boresight and lever arm;
+        inflated surface, no ``chain``). ``"auto"`` picks numba for batches of
+        10 000 rays or more on the inflated surface.
+    outside : {"flag", "extrapolate"}
+        See :func:`line_of_sight`.
 
     Returns
     -------
     GroundPoint
         NaN and a status where a ray looks at the sky, starts below the
-        target height or has invalid input.
+        target height, has invalid input or comes from a pixel off the sensor.
 
     Examples
     --------
@@ -115,22 +154,21 @@ def locate(pose: Pose, camera: Camera, row=None, col=None, target_h=0.0, *,
     """
     if engine not in ("auto", "numpy", "numba"):
         raise ValueError(f"engine must be 'auto', 'numpy' or 'numba', got {engine!r}")
-    fast_ok = (chain is None and surface == "inflated" and type(camera) is Camera
-               and camera.boresight is None and camera.mount is None)
+    check_outside(outside)
+    s = as_sensor(sensor)
+    fast_ok = chain is None and surface == "inflated"
     if engine == "numba" and not fast_ok:
-        raise ValueError("engine='numba' needs surface='inflated', no chain and a plain Camera")
-    if row is None or col is None:
-        r0, c0 = camera.center_pixel
-        row = r0 if row is None else row
-        col = c0 if col is None else col
+        raise ValueError("engine='numba' needs surface='inflated' and no chain")
+    row, col = _default_pixel(s, row, col)
     if engine == "numba" or (engine == "auto" and fast_ok and _batch_size(pose, row, col, target_h) >= 10_000):
         from geoloc.sensors._fastlocate import locate_fast
 
-        lat, lon, h, ecef, s, status, o, d = locate_fast(pose, camera, row, col, target_h)
-        los = LineOfSight(o, d, np.where(status == Status.INVALID_INPUT, status, Status.OK).astype(np.uint8))
-        return GroundPoint(lat, lon, h, ecef, s, status, los)
-    los = line_of_sight(pose, camera, row, col, chain=chain)
-    return intersect_los_height(los, target_h, surface)
+        lat, lon, h, ecef, rng, status, o, d = locate_fast(pose, s, row, col, target_h, outside=outside)
+        los_status = np.where(np.isin(status, (Status.INVALID_INPUT, Status.OUTSIDE_SENSOR)), status, Status.OK)
+        los = LineOfSight(o, d, los_status.astype(np.uint8))
+        return GroundPoint(lat, lon, h, ecef, rng, status, los)
+    los = line_of_sight(pose, sensor, row, col, chain=chain, outside=outside)
+    return HeightSurface(target_h, surface).intersect(los)
 
 
 def _batch_size(pose: Pose, *arrays) -> int:
@@ -138,42 +176,45 @@ def _batch_size(pose: Pose, *arrays) -> int:
     return int(np.prod(shape))
 
 
-def ground_to_pixel(pose: Pose, camera: Camera, lat, lon, h, *, chain: FrameChain | None = None):
-    """Ground point (geodetic) -> pixel: the inverse of :func:`locate`.
-
-    d_S = R_cam_ecef (P_E - O_E), then the pinhole projection of
-    :meth:`Camera.los_to_pixel`.
+def ground_to_pixel(pose: Pose, sensor, lat, lon, h, *, chain: FrameChain | None = None) -> PixelHit:
+    """Ground point (geodetic, radians and metres) -> 1-based pixel: the inverse of :func:`locate`.
 
     Returns
     -------
-    row, col : ndarray
-        1-based pixel coordinates; NaN where the point is behind the camera.
-    status : ndarray of uint8
+    PixelHit
+        ``row, col, status`` (it unpacks as that triple); NaN where the point
+        is behind the camera, OUTSIDE_SENSOR where it projects off the sensor.
     """
+    s = as_sensor(sensor)
+    if chain is None:
+        return s.ground_to_pixel(lat, lon, h, pose)
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
-    chain = chain if chain is not None else camera_chain(pose, camera)
     p = geodetic_to_ecef(lat, lon, h)
-    d_cam = chain.ecef_to_cam(p - chain.origin_ecef)
-    return camera.los_to_pixel(d_cam)
+    row, col, status = sensor.los_to_pixel(chain.ecef_to_cam(p - chain.origin_ecef))
+    return PixelHit(row, col, flag_outside(status, row, col, s.rows, s.cols))
 
 
-def locate_dem(pose, camera, row=None, col=None, dem: DEM | None = None, method: str = "exact", *,
+def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method: str = "exact", *,
                chain=None, **kwargs) -> TerrainHit:
     """Geolocate pixels on a DEM: :func:`line_of_sight` then :func:`geoloc.surfaces.terrain.intersect_dem`.
 
     Parameters
     ----------
-    pose, camera, row, col, chain
-        As for :func:`geoloc.locate.locate`.
+    pose, sensor, row, col, chain
+        As for :func:`locate`.
     dem : geoloc.surfaces.dem.DEM
     method : {"steps", "bisect", "exact"}
     **kwargs
         ``eps_h``, ``threshold``, ``surface``, ``trace``, ``max_iter``.
     """
-    if dem is None:
-        raise ValueError("dem is required")
     from geoloc.surfaces.terrain import intersect_dem
 
-    los = line_of_sight(pose, camera, row, col, chain=chain)
+    if dem is None:
+        raise ValueError("dem is required")
+    los = line_of_sight(pose, sensor, row, col, chain=chain)
     return intersect_dem(los, dem, method, **kwargs)
+
+
+__all__ = ["as_sensor", "camera_chain", "ground_to_pixel", "intersect_los_height", "line_of_sight",
+           "locate", "locate_dem"]

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.sensors.limb import limb_tangent, line_of_sight_l18
 from geoloc.status import Status
 from geoloc.workflows.limb_scenario import load_scenario, scenario_from_dict
@@ -188,3 +189,24 @@ def test_scenario_file_errors(tmp_path):
     bad.write_text("[orbit\n")
     with pytest.raises(ValueError, match="not valid TOML"):
         load_scenario(bad)
+
+
+def test_the_l18_chain_hands_surfaces_the_common_line_of_sight():
+    # the limb instrument's line of sight is the LineOfSight every surface takes: a ray
+    # built tangent-ish from 390 km, looking 20 deg below the local horizontal, meets the
+    # ellipsoid (the HeightSurface answer lies on the chain's own line)
+    from geoloc.surfaces.base import LineOfSight
+    from geoloc.surfaces.height import HeightSurface
+
+    p = geodetic_to_ecef(0.3, 1.1, 390e3)
+    up = p / np.linalg.norm(p)
+    east = np.cross([0.0, 0.0, 1.0], up)
+    east /= np.linalg.norm(east)
+    v = 7.6e3 * east
+    c = line_of_sight_l18(p, v, 0.0, 0.0, 0.0, np.deg2rad(-70.0), 0.0)
+    los = c.los
+    assert isinstance(los, LineOfSight) and int(los.status) == 0
+    hit = HeightSurface(0.0, "geodetic").intersect(los)
+    on_line = np.cross(hit.ecef - c.origin_ecef, c.direction_ecef)
+    # 1e-6 m off the line at 1e6 m range: float64 rounding
+    assert int(hit.status) == 0 and np.linalg.norm(on_line) < 1e-6

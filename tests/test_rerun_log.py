@@ -140,26 +140,32 @@ def test_flight_gimbal_series_is_the_whisk_broom_of_the_scenario(flight):
 def test_flight_frame_hierarchy_equals_the_chain(flight):
     scn, steps, out, data = flight
     p = simulate(scn).pose
-    chain = FrameChain(p)
+    chain = FrameChain(p)  # the paper's own chain [Q17 eq. 4-9]: an oracle for the sensor's graph
     enu = steps.enu
     # Aircraft position: geodetic -> ENU by geoloc.frames.enu (not through the hop matrices).
     ac = enu.from_geodetic(p.lat, p.lon, p.h)
-    ned = data["/world/ned"]["temporal"]
+    base = "/world/ned"
+    ned = data[base]["temporal"]
     np.testing.assert_array_equal(np.array([r[0] for r in ned["Transform3D:translation"]]),
                                   ac.astype(np.float32))
     R_enu_ned = enu.R_enu_from(chain.R_ecef_ned)
-    np.testing.assert_array_equal(mat3(ned["Transform3D:mat3x3"]), R_enu_ned.astype(np.float32))
-    for path, R in (("/world/ned/body", chain.R_ned_body),
-                    ("/world/ned/body/gimbal_outer", chain.R_body_outer),
-                    ("/world/ned/body/gimbal_outer/cam", chain.R_outer_cam)):
+    # 1 float32 ulp: the graph computes the same rotation as FrameChain in another order
+    np.testing.assert_allclose(mat3(ned["Transform3D:mat3x3"]), R_enu_ned, atol=1.2e-7)
+    paths = [f"{base}/body", f"{base}/body/gimbal_base", f"{base}/body/gimbal_base/gimbal_outer",
+             f"{base}/body/gimbal_base/gimbal_outer/gimbal_inner",
+             f"{base}/body/gimbal_base/gimbal_outer/gimbal_inner/cam"]
+    # the optical frame is [Q17]'s S turned about the line of sight (docs/conventions.md)
+    R_S_opt = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    want = [chain.R_ned_body, np.eye(3), chain.R_body_outer, chain.R_outer_cam, R_S_opt]
+    for path, R in zip(paths, want):
         got = mat3(data[path]["temporal"]["Transform3D:mat3x3"])
-        np.testing.assert_array_equal(got, R.astype(np.float32), err_msg=path)
+        np.testing.assert_allclose(got, np.broadcast_to(R, got.shape), atol=1.2e-7, err_msg=path)
     # Composed down the entity tree, the logged hops give the camera's attitude in ENU.
-    # 1e-6: four float32-rounded rotations (entries rounded by <= 6e-8), multiplied.
-    comp = (mat3(ned["Transform3D:mat3x3"]) @ mat3(data["/world/ned/body"]["temporal"]["Transform3D:mat3x3"])
-            @ mat3(data["/world/ned/body/gimbal_outer"]["temporal"]["Transform3D:mat3x3"])
-            @ mat3(data["/world/ned/body/gimbal_outer/cam"]["temporal"]["Transform3D:mat3x3"]))
-    np.testing.assert_allclose(comp, enu.R_enu_from(chain.R_ecef_cam), atol=1e-6)
+    # 1e-6: six float32-rounded rotations (entries rounded by <= 6e-8), multiplied.
+    comp = mat3(ned["Transform3D:mat3x3"])
+    for path in paths:
+        comp = comp @ mat3(data[path]["temporal"]["Transform3D:mat3x3"])
+    np.testing.assert_allclose(comp, enu.R_enu_from(chain.R_ecef_cam) @ R_S_opt, atol=1e-6)
 
 
 def test_flight_hits_and_los_equal_the_core(flight):
@@ -203,7 +209,7 @@ def test_flight_static_content_and_blueprint(flight):
     assert len(r.recordings()) == 1 and len(r.blueprints()) == 1
     assert data["/world"]["static"]["ViewCoordinates:xyz"]  # ENU, Z up
     cam = Camera.from_toml(CAMERA)
-    ph = data["/world/ned/body/gimbal_outer/cam"]["static"]
+    ph = data["/world/ned/body/gimbal_base/gimbal_outer/gimbal_inner/cam"]["static"]
     # The pinhole is the camera file's: f in pixels and sensor size (cols, rows).
     K = np.reshape(ph["Pinhole:image_from_camera"][0], (3, 3)).T
     assert K[0, 0] == np.float32(cam.focal_length_px) and K[1, 1] == np.float32(cam.focal_length_px)

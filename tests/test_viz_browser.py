@@ -131,3 +131,43 @@ def test_viewer_in_headless_chromium(tmp_path):
     finally:
         server.stop()
 
+
+
+def test_turret_sensor_in_headless_chromium(tmp_path):
+    # an azimuth-elevation turret with a Brown lens (the bundled sensor file): the page shows
+    # its own gimbal angles and frames, and the canvas renders the scene over the SRTM terrain
+    playwright = pytest.importorskip("playwright.sync_api")
+    from geoloc.assets import asset_path
+    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.scenario import load_scenario
+
+    ARTIFACTS.mkdir(exist_ok=True)
+    server = make_server(port=0)
+    try:
+        scn = load_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
+                            asset_path("sensors", "eo_turret.toml"))
+        app = GeolocApp(server, scn)
+        assert [k for k in app.num if k.startswith("angle:")] == ["angle:azimuth", "angle:elevation"]
+        env = {**os.environ, "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"),
+               "XDG_CACHE_HOME": str(tmp_path / "cache")}
+        with playwright.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, env=env, timeout=60000)
+            try:
+                page = browser.new_page(viewport={"width": 1100, "height": 700})
+                page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
+                wait_for(lambda: len(server.get_clients()) > 0, 40, "the browser to register")
+                page.wait_for_selector("text=eo_turret_flight.csv orbit1-5", timeout=20000)
+                page.wait_for_selector("text=azimuth (deg)", timeout=20000)
+                img = render(server, ARTIFACTS / "viz_turret_render.png")
+                assert n_colours(img) > 20
+                before = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
+                # a slider's value set from Python, as the GUI would (arrow keys also move the 3D camera)
+                app.num["angle:azimuth"].value = app.inputs.angles_deg["azimuth"] + 10.0
+                wait_for(lambda: np.linalg.norm(np.array(server.scene.get_handle_by_name(
+                    "/enu/hit/result").position) - before) > 0.3, 20, "a 10 deg azimuth change to move the hit")
+                time.sleep(2.0)
+                page.screenshot(path=str(ARTIFACTS / "viz_turret_page.png"))
+            finally:
+                browser.close()
+    finally:
+        server.stop()

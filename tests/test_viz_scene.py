@@ -168,8 +168,17 @@ def test_gui_pose_change_moves_the_line_of_sight(app):
 
 
 def test_teaching_panel_shows_the_core_matrices_and_highlights(app):
-    pose, _, _ = core_t31()
-    chain = FrameChain(pose)
+    pose, cam, _ = core_t31()
+    chain = cam.to_sensor().frames(pose)
+    # the sensor's graph walks the [Q17] chain: its frames sit where FrameChain (eq. 4-9) puts them
+    # (the optical "cam" frame is S turned 90 deg about the line of sight, conventions.md)
+    q17 = FrameChain(pose)
+    for f in ("ned", "body", "gimbal_outer"):
+        np.testing.assert_allclose(chain.T_ecef(f), q17.T_ecef(f), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(chain.T_ecef("cam")[:3, 2], q17.T_ecef("cam")[:3, 2], atol=1e-15)
+    assert [h.name for h in chain.hops] == ["T_ecef_ned", "T_ned_body", "T_body_gimbal_base",
+                                           "T_gimbal_base_gimbal_outer", "T_gimbal_outer_gimbal_inner",
+                                           "T_gimbal_inner_cam"]
     for hop in chain.hops:
         app.dd_hop.value = hop.name
         text = app.md_hop.content
@@ -220,3 +229,76 @@ def test_bad_input_is_reported_not_raised(app):
         app.dd_record.value = "T4-1"
         app.dd_record.value = "T3-1"
     assert app.error == ""
+
+
+def test_viewer_line_of_sight_keeps_the_camera_mount_and_boresight():
+    # A camera with a mount and a boresight: the scene's line of sight and hit must be the
+    # core's (line_of_sight applies both). The first-phase viewer built FrameChain(pose)
+    # and dropped them: with mount_deg = [0, 0.22, 0] its hit landed 51 m away.
+    import dataclasses
+
+    from geoloc.surfaces.height import intersect_los_height
+    from geoloc.viz import model
+
+    scn = load_scenario()
+    cam = dataclasses.replace(scn.camera, mount=(0.0, math.radians(0.22), 0.0),
+                              boresight=(math.radians(0.05), 0.0, math.radians(-0.1)))
+    scn = dataclasses.replace(scn, camera=cam, dem=None)
+    inp = scn.inputs.replace(target_h=4600.0)
+    g = model.compute(scn, inp)
+    pose = inp.pose()
+    los = line_of_sight(pose, cam, inp.row, inp.col)
+    want = intersect_los_height(los, 4600.0)
+    d_enu = scn.enu.vector_from_ecef(los.direction_ecef)
+    # 1e-12: the same float64 operations in another order; a dropped 0.22 deg mount is 4e-3
+    np.testing.assert_allclose(g.los_dir_enu, d_enu, atol=1e-12)
+    # 1 mm at 18 km slant: float64 rounding only (the bug was 51 m)
+    np.testing.assert_allclose(g.hit_enu, scn.enu.from_ecef(want.ecef), atol=1e-3)
+
+
+RIG_ANGLES = {"roll-pitch": {"gimbal_roll_deg": -30.0, "gimbal_pitch_deg": 4.0},
+              "azimuth-elevation": {"angles_deg": {"azimuth": 70.0, "elevation": -40.0}},
+              "azimuth-elevation-roll": {"angles_deg": {"azimuth": 250.0, "elevation": -35.0, "sensor_roll": 12.0}},
+              "yaw-pitch-roll": {"angles_deg": {"gimbal_yaw": 40.0}, "gimbal_pitch_deg": -70.0,
+                                 "gimbal_roll_deg": 2.0}}
+
+
+@pytest.mark.parametrize("preset", list(RIG_ANGLES))
+def test_viewer_and_rerun_lines_of_sight_equal_the_core_for_every_preset(preset, tmp_path):
+    # mount, boresight, lever arm and a distorted lens set: the scene's and the rerun
+    # recording's lines of sight are the core's, and the drawn frames are the sensor's graph
+    import dataclasses
+
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.sensors.gimbals import PRESETS
+    from geoloc.sensors.lenses import BrownLens
+    from geoloc.viz import model
+    from geoloc.viz.rerun_model import steps_from_records
+
+    lens = BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080,
+                     k1=-0.21, k2=0.07, p1=4e-4, p2=-2e-4, k3=-0.01)
+    mount = (0.0, 0.0, 0.0) if PRESETS[preset].earth_referenced else (2e-3, -1e-3, 4e-3)
+    s = FrameSensor(lens, PRESETS[preset], mount=mount, boresight=(1e-3, 2e-3, -3e-3), lever_arm_m=(1.5, 0.2, 0.7))
+    scn = load_scenario()
+    scn = dataclasses.replace(scn, camera=s, dem=None)
+    inp = scn.inputs.replace(h_m=3000.0, row=200.0, col=1500.0, target_h=500.0, **RIG_ANGLES[preset])
+    g = model.compute(scn, inp)
+    pose = inp.pose()
+    los = line_of_sight(pose, s, inp.row, inp.col)
+    np.testing.assert_allclose(g.los_dir_enu, scn.enu.vector_from_ecef(los.direction_ecef), atol=1e-12)
+    np.testing.assert_allclose(g.aircraft_enu, scn.enu.from_ecef(los.origin_ecef), atol=1e-6)
+    assert tuple(g.frames) == s.graph.frames[1:]
+    # rerun: a records file with this sensor's angle columns, replayed into a recording
+    cols = {"gimbal_roll_deg": inp.gimbal_roll_deg, "gimbal_pitch_deg": inp.gimbal_pitch_deg,
+            **{f"{k}_deg": v for k, v in inp.angles_deg.items()}}
+    names = ["row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg", "pitch_deg", "roll_deg",
+             *cols]
+    vals = [inp.row, inp.col, inp.lat_deg, inp.lon_deg, inp.h_m, inp.heading_deg, inp.pitch_deg, inp.roll_deg,
+            *cols.values()]
+    f = tmp_path / "rec.csv"
+    f.write_text(",".join(names) + "\n" + ",".join(repr(float(v)) for v in vals) + "\n")
+    steps, _ = steps_from_records(f, s, target_h_m=500.0)
+    np.testing.assert_allclose(steps.los.direction_ecef[0], los.direction_ecef, atol=1e-15)
+    np.testing.assert_allclose(steps.los.origin_ecef[0], los.origin_ecef, atol=1e-9)
+    paths = steps.entity_paths()
+    assert set(paths) == set(s.graph.frames[1:]) and paths["cam"].endswith("/cam")

@@ -1,9 +1,9 @@
 """Boresight / mounting calibration and camera resection from flight-test records.
 
-The idea is the on-orbit calibration of [L12 eq. 2] (GEOMETRY.md section 7): an
+The idea is the on-orbit calibration of [L12 eq. 2] (docs/method.md section 7): an
 exterior rotation, fitted by least squares to ground control, absorbs the
 mounting bias of the sensor; here it is applied to the aircraft gimbal camera of
-[Q17] (frame chain GEOMETRY.md section 2, [Q17 eq. 6-9]).
+[Q17] (frame chain docs/method.md section 2, [Q17 eq. 6-9]).
 
 Two places in the chain can hold the rotation (both are hooks of
 :class:`geoloc.frames.chain.FrameChain`, and both can be saved in the camera file,
@@ -107,9 +107,7 @@ class DemTarget:
 
 
 def _subset_pose(pose: Pose, idx) -> Pose:
-    shape = pose.shape
-    return Pose(*(np.broadcast_to(np.asarray(getattr(pose, f.name), float), shape)[idx]
-                  for f in dataclasses.fields(Pose)))
+    return pose.take(idx)
 
 
 @dataclass
@@ -124,7 +122,9 @@ class _Data:
     target: object
 
     def locate(self, camera: Camera, idx, target=None) -> GroundPoint:
-        los = line_of_sight(_subset_pose(self.pose, idx), camera, self.row[idx], self.col[idx])
+        # recorded image points: a pixel off the sensor is reported by the verb, not dropped here
+        los = line_of_sight(_subset_pose(self.pose, idx), camera, self.row[idx], self.col[idx],
+                            outside="extrapolate")
         return (target or self.target).ground(los, idx)
 
     def east_north(self, ground: GroundPoint, idx) -> np.ndarray:
@@ -392,7 +392,7 @@ def resect_camera(records: Records, camera: Camera, computed_prefix: str = "pape
     -------
     Resection
         ``rms_m`` is the RMS of the 2n residual components (east and north,
-        the "RMS misfit" of ``../shared/data/README.md``); ``rms_distance_m``
+        the "RMS misfit" of ``docs/records.md``); ``rms_distance_m``
         the RMS horizontal distance per record (sqrt 2 larger).
     """
     n = len(records)

@@ -39,6 +39,10 @@ vibration_pitch_deg
 vibration_roll_deg``           shock-absorber angular vibration between body and
                                gimbal base [Q17 Table 2]
 ``target_h_m``                 target height uncertainty (terrain standard deviation)
+``mount_{x,y,z}_deg
+boresight_{x,y,z}_deg``        the sensor's named mount / boresight parameters
+                               (``FrameSensor.params``), perturbed exactly: the
+                               sample's mount is the file's plus the draw
 =============================  =====================================================
 """
 
@@ -76,6 +80,13 @@ ERROR_SOURCES = {
     "vibration_pitch_deg": "shock-absorber vibration, pitch",
     "vibration_roll_deg": "shock-absorber vibration, roll",
     "target_h_m": "target height (terrain standard deviation)",
+    # the sensor's named parameters (geoloc.sensors.frame.FrameSensor.params), by their angle in degrees
+    "mount_x_deg": "sensor mount angle x (gimbal base in the body)",
+    "mount_y_deg": "sensor mount angle y",
+    "mount_z_deg": "sensor mount angle z",
+    "boresight_x_deg": "sensor boresight angle x (camera in the last gimbal frame)",
+    "boresight_y_deg": "sensor boresight angle y",
+    "boresight_z_deg": "sensor boresight angle z",
 }
 
 DISTRIBUTIONS = ("normal", "uniform")

@@ -21,13 +21,16 @@ chain, all samples in one vectorised call (no Python loop per sample):
 Statistics: mean and standard deviation of latitude, longitude and height, the
 paper's CEP [Q17 eq. 18] and the empirical 50 % radius (see :func:`statistics`
 and ``docs/montecarlo.md`` for why they differ), and a first-order propagation
-(the Jacobian of the chain) to check them.
+(the Jacobian of the chain) to check them. Samples are drawn and located one
+chunk at a time around :func:`evaluate`; beyond one chunk the statistics are
+streamed (:mod:`geoloc.analysis.streaming`), so any N runs in constant memory.
 
 Conventions: ``docs/conventions.md``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import time
@@ -36,26 +39,26 @@ from dataclasses import dataclass
 import numpy as np
 
 from geoloc.analysis.errormodel import POSE_KEYS, ErrorModel
-from geoloc.frames import chain as frames
+from geoloc.analysis.streaming import STATS_KEYS, StreamingStats
 from geoloc.frames import rotations as rot
 from geoloc.frames.chain import FrameChain, Pose
 from geoloc.geodesy.ellipsoid import (
-    geodetic_to_ecef,
     meridian_radius,
     prime_vertical_radius,
 )
-from geoloc.locate import line_of_sight
+from geoloc.locate import as_sensor, line_of_sight
+from geoloc.sensors.frame import small_rotation
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 from geoloc.surfaces.height import intersect_los_height
 
-#: Keys of ``geoloc montecarlo --out stats.json`` (the interface of issue 4).
-STATS_KEYS = ("mean_lat_deg", "mean_lon_deg", "mean_h_m", "std_lat_deg", "std_lon_deg",
-              "std_h_m", "cep_m", "cep50_empirical_m")
+# STATS_KEYS (imported above, defined beside the streamed statistics): the keys of
+# ``geoloc montecarlo --out stats.json`` (the interface of issue 4).
 
 _POSE_ERR = {k: k for k in POSE_KEYS}  # error source -> nominal key (same names)
 
-#: Default chunk of samples evaluated at once (memory: ~1.5 kB per sample in flight).
+#: Default chunk of samples evaluated at once (memory: ~1.5 kB per sample in flight);
+#: runs and sweeps larger than a chunk stream their statistics (constant memory).
 CHUNK = 100_000
 
 
@@ -89,7 +92,7 @@ class Progress:
         eta = el / frac - el if frac > 0 else float("nan")
         bar = "#" * int(30 * frac)
         self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% "
-                          f"{self.done}/{self.total}  {el:6.1f} s  eta {eta:6.1f} s")
+                          f"{self.done}/{self.total}  {_clock(el)} elapsed, {_clock(eta)} left ")
         self.stream.flush()
 
     def close(self) -> None:
@@ -98,8 +101,20 @@ class Progress:
             self.stream.flush()
 
 
+def _clock(seconds: float) -> str:
+    """``73.2`` -> ``"1m13s"``; ``"?"`` when unknown."""
+    if not math.isfinite(seconds):
+        return "?"
+    s = int(round(seconds))
+    if s < 60:
+        return f"{seconds:.1f}s" if seconds < 10 else f"{s}s"
+    if s < 3600:
+        return f"{s // 60}m{s % 60:02d}s"
+    return f"{s // 3600}h{s % 3600 // 60:02d}m"
+
+
 # --------------------------------------------------------------------- evaluation
-def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True):
+def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True, with_camera: bool = True):
     """Pose, chain and pixel of a batch of perturbed samples.
 
     Parameters
@@ -114,7 +129,8 @@ def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True
     pose : Pose
     chain : FrameChain
         (with ``build_chain=False``: the pair ``(R_cam_inner, R_base_body)``,
-        either may be None, for :func:`line_of_sight_hops`)
+        either may be None; ``with_camera=False`` leaves out the camera file's own
+        boresight and mount, which the sensor applies itself)
     row, col : ndarray
         Target pixel including the image-centre error.
     """
@@ -143,14 +159,30 @@ def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True
         R_eps = rot.rx(eps)
         R_cam_inner = R_eps if R_cam_inner is None else R_eps @ R_cam_inner
 
-    # the camera's own fixed boresight / mount (if its file has them) come first:
-    # v_cam = R_err_inner @ R_boresight @ v_inner, v_base = R_mount @ R_vib @ v_body
-    cam = model.camera
-    Rb, Rm = getattr(cam, "R_cam_inner", None), getattr(cam, "R_base_body", None)
-    if Rb is not None:
+    # the sensor's named mount / boresight parameters: the sample's angles are the file's plus
+    # the draw (exact: the drawn rotation replaces the file's)
+    sensor = as_sensor(model.camera)
+    drawn = {}
+    for which in ("mount", "boresight"):
+        draws = [errors.get(f"{which}_{a}_deg") for a in "xyz"]
+        if any(d is not None for d in draws):
+            base = getattr(sensor, which)
+            drawn[which] = small_rotation(tuple(b + _or(d, np.zeros(n)) for b, d in zip(base, draws)))
+    R_m_file, R_b_file = small_rotation(sensor.mount), small_rotation(sensor.boresight)
+    if with_camera:
+        # v_cam = R_err_inner @ R_boresight @ v_inner, v_base = R_mount @ R_vib @ v_body
+        Rb = drawn.get("boresight", R_b_file)
+        Rm = drawn.get("mount", R_m_file)
         R_cam_inner = Rb if R_cam_inner is None else R_cam_inner @ Rb
-    if Rm is not None:
         R_base_body = Rm if R_base_body is None else Rm @ R_base_body
+    else:
+        # the sensor applies its file's rotations itself: hand it what makes the same product
+        if "boresight" in drawn:
+            R_e = drawn["boresight"] @ R_b_file.T
+            R_cam_inner = R_e if R_cam_inner is None else R_cam_inner @ R_e
+        if "mount" in drawn:
+            R_e = R_m_file.T @ drawn["mount"]
+            R_base_body = R_e if R_base_body is None else R_e @ R_base_body
     row = model.row + _or(errors.get("image_centre_x_px"), 0.0)
     col = model.col + _or(errors.get("image_centre_y_px"), 0.0)
     row, col = np.broadcast_to(row, (n,)), np.broadcast_to(col, (n,))
@@ -161,31 +193,18 @@ def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True
 
 
 def line_of_sight_hops(pose: Pose, camera, row, col, R_cam_inner=None, R_base_body=None) -> LineOfSight:
-    """Line of sight of a batch, the vector rotated hop by hop (same result as the chain).
+    """Line of sight of a batch with per-sample rotations, through the camera's sensor.
 
-    d_E = R_ecef_ned R_ned_body R_body_outer R_outer_cam d_S [Q17 eq. 9], with
-    R_outer_cam = Ry(theta_p)^T R_cam_inner^T and R_body_outer = R_base_body^T Rx(theta_r)^T
-    as in :class:`geoloc.frames.chain.FrameChain`; applying each factor to the vector
-    (matrix-vector products) instead of multiplying the 3x3 matrices and building
-    the 4x4 hops halves the time for a million samples. The tests hold it equal
-    to :func:`geoloc.locate.line_of_sight` with a :class:`FrameChain`.
+    ``R_cam_inner`` and ``R_base_body`` are the whole (file + perturbation) boresight
+    and mount rotations of :class:`geoloc.frames.chain.FrameChain`; the sensor's
+    frame graph applies them as its per-sample ``R_bore_extra`` / ``R_base_extra``
+    (one chain order in the code: :mod:`geoloc.frames.graph`). The tests hold it
+    equal to :func:`geoloc.locate.line_of_sight` with a :class:`FrameChain`.
     """
-    def T(R):
-        return np.swapaxes(R, -1, -2)
-
-    v = camera.pixel_to_los(row, col)
-    if R_cam_inner is not None:
-        v = rot.rotate(T(R_cam_inner), v)
-    v = rot.rotate(T(frames.R_cam_outer(pose.gimbal_pitch)), v)
-    v = rot.rotate(T(frames.R_outer_body(pose.gimbal_roll)), v)
-    if R_base_body is not None:
-        v = rot.rotate(T(R_base_body), v)
-    v = rot.rotate(T(frames.R_body_ned(pose.heading, pose.pitch, pose.roll)), v)
-    v = rot.rotate(frames.R_ecef_ned(pose.lat, pose.lon), v)
-    o = geodetic_to_ecef(pose.lat, pose.lon, pose.h)
-    bad = pose.invalid_mask() | ~np.all(np.isfinite(v), axis=-1)
-    status = np.where(bad, Status.INVALID_INPUT, Status.OK).astype(np.uint8)
-    return LineOfSight(o, v, status)
+    s = dataclasses.replace(as_sensor(camera), mount=(0.0, 0.0, 0.0), boresight=(0.0, 0.0, 0.0),
+                            R_base_extra=R_base_body, R_bore_extra=R_cam_inner)
+    # the target pixel of an error model, not a recorded one: no off-sensor flag (as [Q17])
+    return s.line_of_sight(row, col, pose, outside="extrapolate")
 
 
 def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine: str = "hops"):
@@ -204,8 +223,9 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine:
         Method passed to :func:`geoloc.surfaces.terrain.intersect_dem`.
     engine : {"hops", "chain"}
         "chain" builds a batched :class:`geoloc.frames.chain.FrameChain` (the
-        reference); "hops" (default) rotates the vector hop by hop with the same
-        core rotations (:func:`line_of_sight_hops`), about twice as fast.
+        paper's form, the reference); "hops" (default) goes through the camera's
+        sensor (:class:`geoloc.sensors.frame.FrameSensor`) with per-sample mount and
+        boresight perturbations, rotating the vector hop by hop, about twice as fast.
 
     Returns
     -------
@@ -217,8 +237,9 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine:
         pose, chain, row, col = perturbed_geometry(model, errors)
         los = line_of_sight(pose, model.camera, row, col, chain=chain)
     elif engine == "hops":
-        pose, (Ri, Rb), row, col = perturbed_geometry(model, errors, build_chain=False)
-        los = line_of_sight_hops(pose, model.camera, row, col, Ri, Rb)
+        pose, (Ri, Rb), row, col = perturbed_geometry(model, errors, build_chain=False, with_camera=False)
+        s = dataclasses.replace(as_sensor(model.camera), R_base_extra=Rb, R_bore_extra=Ri)
+        los = s.line_of_sight(row, col, pose, outside="extrapolate")
     else:
         raise ValueError(f"engine must be 'hops' or 'chain', got {engine!r}")
     if dem is None:
@@ -305,68 +326,116 @@ class MonteCarloResult:
 
     Attributes
     ----------
-    lat, lon, h : ndarray (n,)
-        Located targets [rad, rad, m] (NaN where status is not OK).
-    status : ndarray (n,) of uint8
+    lat, lon, h : ndarray (n,) or None
+        Located targets [rad, rad, m] (NaN where status is not OK); None when
+        the run streamed its samples (``keep_samples=False``).
+    status : ndarray (n,) of uint8, or None
     stats : dict
-        :func:`statistics` of the samples.
+        :func:`statistics` of the samples (or the streamed equivalent,
+        :class:`geoloc.analysis.streaming.StreamingStats`).
     nominal : tuple
         Error-free target (lat, lon, h, status) [rad, rad, m].
     seconds : float
         Wall time of the sampling and location.
+    status_counts : ndarray of int
+        Samples per :class:`geoloc.status.Status` code.
+    streamed : bool
+        True when the statistics were streamed (more than one chunk, samples not kept).
     """
 
-    lat: np.ndarray
-    lon: np.ndarray
-    h: np.ndarray
-    status: np.ndarray
+    lat: np.ndarray | None
+    lon: np.ndarray | None
+    h: np.ndarray | None
+    status: np.ndarray | None
     stats: dict
     nominal: tuple
     seconds: float
+    status_counts: np.ndarray | None = None
+    streamed: bool = False
+
+
+#: Largest N whose samples :func:`run` keeps by default (25 bytes each: 50 MB).
+KEEP_MAX = 2_000_000
 
 
 def run(model: ErrorModel, n: int, rng: np.random.Generator, *, dem=None, chunk: int = CHUNK,
-        progress: bool | None = False) -> MonteCarloResult:
+        progress: bool | None = False, keep_samples: bool | None = None) -> MonteCarloResult:
     """Monte Carlo of ``n`` samples [Q17 eq. 14-15], vectorised in chunks of ``chunk``.
+
+    Memory is bounded by the chunk: each chunk is drawn, located by :func:`evaluate`
+    and folded into the statistics. With ``n <= chunk`` (one chunk) or kept
+    samples the statistics are :func:`statistics` of all samples, exactly; beyond
+    that without kept samples they are streamed
+    (:class:`geoloc.analysis.streaming.StreamingStats`: the same mean, standard
+    deviations and eq. 18 up to rounding, the empirical 50 % radius from a
+    histogram, about 1e-4 of it). The samples drawn are the same either way: a
+    seed gives the same sample sequence for a given chunk size.
 
     Parameters
     ----------
     model : ErrorModel
     n : int
-        Number of samples N (>= 2).
+        Number of samples N (>= 2); any size when the samples are not kept.
     rng : numpy.random.Generator
         Seeded generator; the samples depend on the seed and the chunk size.
     dem : geoloc.surfaces.dem.DEM, optional
         Terrain for the target (overrides the target-height error); if None and
         the model names a DEM, it is opened.
     chunk : int
-        Samples per vectorised call (memory bound).
+        Samples per vectorised call (the memory bound: about 1.5 kB per sample).
     progress : bool or None
-        Progress line on stderr (None: when stderr is a terminal).
+        Progress line with the time left on stderr (None: when stderr is a terminal).
+    keep_samples : bool or None
+        Keep every located sample in the result (``lat``, ``lon``, ...). None
+        (default): keep them when ``n <= KEEP_MAX``. True with a larger ``n`` is
+        refused (memory).
 
     Returns
     -------
     MonteCarloResult
     """
-    if not isinstance(n, (int, np.integer)) or n < 2:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         raise ValueError(f"samples = {n!r}: must be an integer >= 2")
-    if chunk < 1:
-        raise ValueError(f"chunk = {chunk!r}: must be >= 1")
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"chunk = {chunk!r}: must be an integer >= 1")
+    n, chunk = int(n), int(chunk)
+    keep = n <= KEEP_MAX if keep_samples is None else bool(keep_samples)
+    if keep and n > KEEP_MAX:
+        raise ValueError(f"samples = {n}: keeping more than {KEEP_MAX} samples is refused "
+                         f"({25 * n / 1e9:.1f} GB); stream them (keep_samples=False)")
     if dem is None and model.dem is not None:
         dem = open_dem(model)
     t0 = time.perf_counter()
-    lat, lon, h = np.empty(n), np.empty(n), np.empty(n)
-    st = np.empty(n, np.uint8)
+    if keep:
+        lat, lon, h = np.empty(n), np.empty(n), np.empty(n)
+        st = np.empty(n, np.uint8)
+    acc = None if keep or n <= chunk else StreamingStats()
+    counts = np.zeros(len(Status), np.int64)
+    one = None
     bar = Progress(n, f"montecarlo {model.name}", progress)
     for a in range(0, n, chunk):
         b = min(a + chunk, n)
-        lat[a:b], lon[a:b], h[a:b], st[a:b] = evaluate(model, model.sample(b - a, rng), dem,
-                                                       _method(model))
+        out = evaluate(model, model.sample(b - a, rng), dem, _method(model))
+        counts += np.bincount(out[3], minlength=len(Status))[:len(Status)]
+        if keep:
+            lat[a:b], lon[a:b], h[a:b], st[a:b] = out
+        elif acc is None:
+            one = out
+        else:
+            acc.add(*out)
         bar.update(b - a)
     bar.close()
+    if keep:
+        stats = statistics(lat, lon, h, st)
+    elif acc is None:
+        stats = statistics(*one)
+    else:
+        stats = acc.result()
     secs = time.perf_counter() - t0
-    return MonteCarloResult(lat, lon, h, st, statistics(lat, lon, h, st),
-                            nominal_point(model, dem), secs)
+    if not keep:
+        lat = lon = h = st = None
+    return MonteCarloResult(lat, lon, h, st, stats, nominal_point(model, dem), secs,
+                            status_counts=counts, streamed=acc is not None)
 
 
 def open_dem(model: ErrorModel):
@@ -498,14 +567,41 @@ class Sweep:
         plt.close(fig)
 
 
+def _sweep_point(ma: ErrorModel, n: int, c: int, draw, bar, dem=None, method=None,
+                 chunk: int = CHUNK) -> list:
+    """Statistics of ``c`` blocks of ``n`` samples at one sweep angle.
+
+    ``draw(k)`` returns the errors of ``k * c`` samples, block j holding samples
+    ``j*k .. (j+1)*k``. With ``n * c <= chunk`` one batch (the samples and numbers
+    of a single call); else ``chunk // c`` samples per block at a time, streamed
+    (:class:`geoloc.analysis.streaming.StreamingStats`), in constant memory.
+    """
+    if n * c <= chunk:
+        lat, lon, h, st = evaluate(ma, draw(n), dem, method)
+        bar.update(n * c)
+        return [statistics(lat[j * n:(j + 1) * n], lon[j * n:(j + 1) * n], h[j * n:(j + 1) * n],
+                           st[j * n:(j + 1) * n]) for j in range(c)]
+    accs = [StreamingStats() for _ in range(c)]
+    per = max(chunk // c, 1)
+    for a in range(0, n, per):
+        k = min(per, n - a)
+        lat, lon, h, st = evaluate(ma, draw(k), dem, method)
+        for j in range(c):
+            s = slice(j * k, (j + 1) * k)
+            accs[j].add(lat[s], lon[s], h[s], st[s])
+        bar.update(k * c)
+    return [acc.result() for acc in accs]
+
+
 def sweep_terrain_sigma(model: ErrorModel, angles_deg, sigmas_m, n: int, rng: np.random.Generator,
-                        progress: bool | None = False) -> Sweep:
+                        progress: bool | None = False, chunk: int = CHUNK) -> Sweep:
     """[Q17 Fig. 10a]: CEP against the outer gimbal angle for several terrain sigmas (ellipsoid).
 
     For each angle the nominal ``gimbal_roll_deg`` is replaced, and one
     vectorised batch of ``n * len(sigmas_m)`` samples is located, block j
     with the target height error ``sigmas_m[j] * N(0, 1)`` (the model's own
-    ``target_h_m`` error is replaced).
+    ``target_h_m`` error is replaced). A batch larger than ``chunk`` is split
+    and its statistics streamed (constant memory).
     """
     angles = np.asarray(angles_deg, float).ravel()
     sig = np.asarray(sigmas_m, float).ravel()
@@ -517,21 +613,21 @@ def sweep_terrain_sigma(model: ErrorModel, angles_deg, sigmas_m, n: int, rng: np
     bar = Progress(angles.size * c * n, "sweep fig10a", progress)
     for i, a in enumerate(angles):
         ma = m.with_nominal(gimbal_roll_deg=a)
-        errs = ma.sample(n * c, rng)
-        errs["target_h_m"] = rng.standard_normal(n * c) * np.repeat(sig, n)
-        lat, lon, h, st = evaluate(ma, errs)
-        for j in range(c):
-            s = slice(j * n, (j + 1) * n)
-            stt = statistics(lat[s], lon[s], h[s], st[s])
+
+        def draw(k, ma=ma):
+            errs = ma.sample(k * c, rng)
+            errs["target_h_m"] = rng.standard_normal(k * c) * np.repeat(sig, k)
+            return errs
+
+        for j, stt in enumerate(_sweep_point(ma, n, c, draw, bar, chunk=chunk)):
             cep[i, j], cep50[i, j], nok[i, j] = stt["cep_m"], stt["cep50_empirical_m"], stt["n_ok"]
-        bar.update(n * c)
     bar.close()
     return Sweep(angles, [f"sigma_h={s:g}m" for s in sig], cep, cep50, nok,
                  "[Q17] Fig. 10a: ellipsoid model, terrain standard deviation")
 
 
 def sweep_dem(model: ErrorModel, angles_deg, n: int, rng: np.random.Generator, dem=None,
-              progress: bool | None = False) -> Sweep:
+              progress: bool | None = False, chunk: int = CHUNK) -> Sweep:
     """[Q17 Fig. 10b]: CEP against the outer gimbal angle with the target on a DEM."""
     if dem is None:
         if model.dem is None:
@@ -544,10 +640,9 @@ def sweep_dem(model: ErrorModel, angles_deg, n: int, rng: np.random.Generator, d
     bar = Progress(angles.size * n, "sweep fig10b", progress)
     for i, a in enumerate(angles):
         ma = model.with_nominal(gimbal_roll_deg=a)
-        lat, lon, h, st = evaluate(ma, ma.sample(n, rng), dem, _method(model))
-        stt = statistics(lat, lon, h, st)
+        (stt,) = _sweep_point(ma, n, 1, lambda k, ma=ma: ma.sample(k, rng), bar, dem,
+                              _method(model), chunk)
         cep[i, 0], cep50[i, 0], nok[i, 0] = stt["cep_m"], stt["cep50_empirical_m"], stt["n_ok"]
-        bar.update(n)
     bar.close()
     return Sweep(angles, ["dem"], cep, cep50, nok, "[Q17] Fig. 10b: target on the DEM",
                  reference=((70.0, 50.0, "[Q17] upper bounds: < 50 m below 70 deg, < 180 m at 80 deg"),

@@ -6,6 +6,7 @@ See ``docs/calibration.md`` and :mod:`geoloc.analysis.calibrate`.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,15 @@ def register(sub) -> None:
     p.add_argument("records", nargs="?", default=None,
                    help="records CSV with truth_lat_deg/truth_lon_deg (default: the bundled "
                         "assets/records/qiao2017_flight_tests.csv)")
-    p.add_argument("--camera", default=None, help="camera TOML (default: bundled qiao2017.toml)")
+    from geoloc.cli.locate import add_sensor_option
+
+    add_sensor_option(p)
+    p.add_argument("--fit", default=None, metavar="NAMES",
+                   help="a sensor file's named parameters to fit, comma-separated (e.g. "
+                        "mount_x,mount_y,mount_z,fx,cx,cy,k1,lever_arm_x_m): the fit for any --sensor "
+                        "(the flight grouping, outliers and resection below are the first-phase camera's)")
+    p.add_argument("--write-sensor", default=None, metavar="FILE",
+                   help="with --fit: save the fitted sensor file (TOML)")
     t = p.add_mutually_exclusive_group()
     t.add_argument("--height-column", default=None,
                    help="column holding each target's ellipsoidal height [m], e.g. paper_height_m")
@@ -111,11 +120,71 @@ def _fmt(v, spec=".2f"):
     return "-" if v is None else format(v, spec)
 
 
+def _surface(args, records):
+    """The surface the targets lie on, for the sensor fit (one choice: geoloc.surfaces.terrain.surface_for)."""
+    from geoloc.surfaces.terrain import surface_for
+
+    if args.dem is not None:
+        from geoloc.surfaces.dem import DEM
+
+        return surface_for(dem=DEM.open(args.dem, datum=args.dem_datum)), f"dem:{args.dem}"
+    if args.height_column is not None:
+        h = records.column(args.height_column)
+        if not np.all(np.isfinite(h)):
+            raise ValueError(f"height column {args.height_column!r} is empty or not finite on line(s) "
+                             f"{[int(n) for n in records.lines[~np.isfinite(h)]]}")
+        return (lambda idx: surface_for(h[idx], kind=args.surface)), f"column:{args.height_column}"
+    if args.target_h_m is not None:
+        return surface_for(args.target_h_m, kind=args.surface), f"height:{args.target_h_m}"
+    raise ValueError("give --height-column (e.g. truth_h_m), --target-h-m or --dem")
+
+
+def run_sensor_fit(args, camera) -> int:
+    """``--fit NAMES``: least squares on any of the sensor's named parameters (geoloc.analysis.sensor_fit)."""
+    from geoloc.analysis.sensor_fit import fit_sensor_params
+    from geoloc.locate import as_sensor
+    from geoloc.sensors.sensor_file import sensor_to_toml
+    from geoloc.workflows.replay import outside_sensor_messages
+
+    sensor = as_sensor(camera)
+    records = load_records_reporting(args.records, sensor)
+    for msg in outside_sensor_messages(records, sensor):
+        print(f"geoloc calibrate: warning: {msg}", file=sys.stderr)
+    names = [n.strip() for n in args.fit.split(",") if n.strip()]
+    surface, label = _surface(args, records)
+    fit = fit_sensor_params(records, sensor, names, surface, truth_prefix=args.truth_prefix, loo=args.loo)
+    report = {"records": str(records.path), "sensor": str(args.camera), "target": label, **fit.report()}
+    print(f"{'parameter':<16} {'start':>14} {'fitted':>14} {'sd':>12}")
+    for n, e in report["parameters"].items():
+        print(f"{n:<16} {e['start']:>14.6f} {e['value']:>14.6f} {e['sd']:>12.6f} {e['unit']}")
+    line = f"RMS horizontal error to truth: before {fit.rms_before_m:.2f} m, after {fit.rms_after_m:.2f} m"
+    if fit.loo_errors_m is not None:
+        line += f", leave-one-out {report['rms_loo_m']:.2f} m"
+    print(line + f" ({len(records)} records, {fit.dof} degrees of freedom)")
+    report = _json_safe(report)
+    if args.out:
+        Path(args.out).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
+        print(f"wrote {args.out}")
+    if args.write_sensor:
+        sensor_to_toml(fit.sensor, args.write_sensor)
+        print(f"wrote the fitted sensor to {args.write_sensor}")
+    return 0
+
+
 def run(args) -> int:
-    records = load_records_reporting(args.records)
     if args.exaggeration <= 0 or not np.isfinite(args.exaggeration):
         raise ValueError(f"--exaggeration = {args.exaggeration}: must be a finite number > 0")
     camera = load_camera(args.camera)
+    if args.fit is not None:
+        return run_sensor_fit(args, camera)
+    if args.write_sensor:
+        raise ValueError("--write-sensor goes with --fit NAMES")
+    from geoloc.sensors.camera import Camera
+
+    if not isinstance(camera, Camera):
+        raise ValueError(f"--sensor {args.camera}: a sensor file is calibrated with --fit NAMES "
+                         "(e.g. --fit mount_x,mount_y,mount_z); the flight-grouped fit is the first-phase camera's")
+    records = load_records_reporting(args.records)
     target = _target(args, records)
     group = None if args.group_by.lower() == "none" else args.group_by
     report, cameras = calibrate_groups(

@@ -32,7 +32,9 @@ def register(sub) -> None:
                    "assets/records/qiao2017_flight_tests.csv)")
     p.add_argument("--record", default=None,
                    help="record to open: label such as T4-3, or 0-based index (default: the first)")
-    p.add_argument("--camera", default=None, help="camera TOML (default: assets/cameras/qiao2017.toml)")
+    from geoloc.cli.locate import add_sensor_option
+
+    add_sensor_option(p)
     p.add_argument("--dem", default=None,
                    help="DEM GeoTIFF (default: a bundled DEM covering the target, if any)")
     p.add_argument("--no-dem", action="store_true",
@@ -42,11 +44,14 @@ def register(sub) -> None:
     p.add_argument("--host", default="127.0.0.1",
                    help="interface to bind (default 127.0.0.1, this machine only; "
                    "0.0.0.0 exposes the viewer to the network)")
-    p.add_argument("--port", type=int, default=8080,
-                   help="port (default 8080; viser moves to the next free one if taken; 0 = any free)")
+    p.add_argument("--port", type=int, default=None,
+                   help="port (default 8080; viser moves to the next free one if taken; 0 = any free). "
+                   "With --export the scene is built on a private server on 127.0.0.1 at this "
+                   "port (default: any free one) that is stopped before the command returns")
     p.add_argument("--export", default=None, metavar="FILE",
-                   help="write a static recording and exit: FILE.html (self-contained, opens "
-                   "in a browser without a server) or FILE.viser (viser's playback format)")
+                   help="write a static recording and exit, printing only its name: FILE.html "
+                   "(self-contained, opens in a browser without a server, with a text panel naming "
+                   "the record, the hit and its error) or FILE.viser (viser's playback format)")
     p.add_argument("--no-browser", action="store_true", help="do not open a browser tab")
     p.set_defaults(func=run)
 
@@ -69,18 +74,15 @@ def build(args, server):
 
 
 def run(args) -> int:
+    if args.port is not None and not 0 <= args.port <= 65535:
+        raise ValueError(f"port = {args.port}: must be in 0..65535")
+    if args.export:
+        return _export(args)
     from geoloc.viz.app import make_server
 
-    if args.port < 0 or args.port > 65535:
-        raise ValueError(f"port = {args.port}: must be in 0..65535")
-    # An export needs no listener anyone could reach: a free local port.
-    server = make_server("127.0.0.1", 0) if args.export else make_server(args.host, args.port)
+    server = make_server(args.host, 8080 if args.port is None else args.port)
     try:
-        app = build(args, server)
-        if args.export:
-            path = app.export(args.export)
-            print(f"wrote {path}")
-            return 0
+        build(args, server)
         url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{server.get_port()}"
         print(f"geoloc view: {url}  (Ctrl+C to stop)", flush=True)
         if args.host not in ("127.0.0.1", "localhost", "::1"):
@@ -97,3 +99,35 @@ def run(args) -> int:
             server.stop()
         except KeyboardInterrupt:  # a second Ctrl+C while stopping
             pass
+
+
+def _export(args) -> int:
+    """Build the scene on a private local server, write the file, stop; print only the file's name.
+
+    viser prints a banner when a server starts and a line when it stops; neither
+    means anything to someone exporting a file, so both are swallowed (viser's
+    own output only: errors still reach stderr).
+    """
+    import contextlib
+    import io
+
+    from geoloc.assets import resolve_user_path
+    from geoloc.viz.app import make_server
+
+    for name in ("records", "camera", "dem"):
+        if getattr(args, name, None):
+            setattr(args, name, str(resolve_user_path(getattr(args, name))))
+    if args.host not in ("127.0.0.1", "localhost"):
+        print(f"geoloc view: note: --host {args.host} is not used by --export (no one connects "
+              "to an export's private server)", file=sys.stderr)
+    sink = io.StringIO()
+    with contextlib.redirect_stdout(sink):
+        server = make_server("127.0.0.1", 0 if args.port is None else args.port)
+        try:
+            app = build(args, server)
+            path = app.export(args.export)
+        finally:
+            server.stop()
+            time.sleep(0.05)  # viser's server thread prints its "stopped" line on its way out
+    print(f"wrote {path}")
+    return 0

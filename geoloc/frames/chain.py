@@ -111,6 +111,11 @@ class Pose:
         Aircraft attitude psi, theta, phi [rad] [Q17 eq. 6].
     gimbal_roll, gimbal_pitch : ndarray
         Outer (roll) and inner (pitch) gimbal encoder angles [rad] [Q17 eq. 7].
+    angles : dict of str -> ndarray
+        Any other named joint angles [rad] of the sensor's gimbal
+        (``azimuth``, ``elevation``, ``sensor_roll``, ``gimbal_yaw``, ...;
+        ``docs/conventions.md``, "Gimbal presets"). :meth:`angle` reads a joint
+        angle by name from here or from the two [Q17] fields.
     """
 
     lat: np.ndarray
@@ -121,6 +126,18 @@ class Pose:
     roll: np.ndarray = field(default_factory=lambda: np.array(0.0))
     gimbal_roll: np.ndarray = field(default_factory=lambda: np.array(0.0))
     gimbal_pitch: np.ndarray = field(default_factory=lambda: np.array(0.0))
+    angles: dict = field(default_factory=dict)
+
+    #: Valid range of every joint angle in ``angles`` [rad].
+    ANGLE_RANGE = (-2 * np.pi, 2 * np.pi)
+
+    def __post_init__(self):
+        # one home per angle: the [Q17] two live in their fields even when given by name
+        angles = dict(self.angles)
+        for k in ("gimbal_roll", "gimbal_pitch"):
+            if k in angles:
+                object.__setattr__(self, k, angles.pop(k))
+        object.__setattr__(self, "angles", angles)
 
     #: Valid ranges [rad or m] checked by :meth:`invalid_mask` / :meth:`validate`.
     RANGES = {
@@ -145,9 +162,14 @@ class Pose:
         roll_deg=0.0,
         gimbal_roll_deg=0.0,
         gimbal_pitch_deg=0.0,
+        angles_deg=None,
     ) -> "Pose":
-        """Build a Pose from degrees (the edge of the core) and metres."""
+        """Build a Pose from degrees (the edge of the core) and metres.
+
+        ``angles_deg`` maps joint angle names to degrees (``{"azimuth": 90}``).
+        """
         r = np.deg2rad
+        angles = {k: r(np.asarray(v, float)) for k, v in (angles_deg or {}).items()}
         return cls(
             r(np.asarray(lat_deg, float)),
             r(np.asarray(lon_deg, float)),
@@ -157,25 +179,62 @@ class Pose:
             r(np.asarray(roll_deg, float)),
             r(np.asarray(gimbal_roll_deg, float)),
             r(np.asarray(gimbal_pitch_deg, float)),
+            angles,
         )
+
+    #: The two joint angles [Q17] keeps as fields; every other one lives in ``angles``.
+    FIELD_ANGLES = ("gimbal_roll", "gimbal_pitch")
+
+    def angle(self, name: str) -> np.ndarray:
+        """The joint angle ``name`` [rad]; ValueError naming it (and those given) if absent."""
+        if name in self.angles:
+            return self.angles[name]
+        if name in self.FIELD_ANGLES:
+            return getattr(self, name)
+        given = sorted(set(self.angles) | set(self.FIELD_ANGLES))
+        raise ValueError(f"missing angle {name!r}: the pose has {given}")
+
+    def with_angles(self, **angles) -> "Pose":
+        """A copy with joint angles set by name [rad] (the [Q17] two go to their fields)."""
+        import dataclasses
+
+        fields_kw = {k: angles.pop(k) for k in list(angles) if k in self.FIELD_ANGLES}
+        return dataclasses.replace(self, angles={**self.angles, **angles}, **fields_kw)
+
+    def take(self, idx) -> "Pose":
+        """The samples ``idx`` of the batch (every field and angle broadcast to :attr:`shape` first)."""
+        shape = self.shape
+
+        def pick(v):
+            return np.broadcast_to(np.asarray(v, float), shape)[idx]
+
+        kw = {f.name: pick(getattr(self, f.name)) for f in fields(self) if f.name != "angles"}
+        return Pose(**kw, angles={k: pick(v) for k, v in self.angles.items()})
 
     @property
     def shape(self) -> tuple:
-        return np.broadcast_shapes(*(np.shape(getattr(self, f.name)) for f in fields(self)))
+        return np.broadcast_shapes(*(np.shape(getattr(self, f.name)) for f in fields(self)
+                                     if f.name != "angles"),
+                                   *(np.shape(v) for v in self.angles.values()))
+
+    def _checked(self):
+        """(name, value, (lo, hi)) for every range-checked field and joint angle."""
+        for name, rng in self.RANGES.items():
+            yield name, np.asarray(getattr(self, name), float), rng
+        for name, v in self.angles.items():
+            yield name, np.asarray(v, float), self.ANGLE_RANGE
 
     def invalid_mask(self) -> np.ndarray:
         """Boolean mask (shape :attr:`shape`) of samples with a NaN/inf or out-of-range field."""
         bad = np.zeros(self.shape, dtype=bool)
-        for name, (lo, hi) in self.RANGES.items():
-            v = np.asarray(getattr(self, name), float)
+        for _, v, (lo, hi) in self._checked():
             with np.errstate(invalid="ignore"):
                 bad = bad | ~np.isfinite(v) | (v < lo) | (v > hi)
         return bad
 
     def validate(self) -> "Pose":
         """Raise ``ValueError`` naming the first bad field and value; return self if valid."""
-        for name, (lo, hi) in self.RANGES.items():
-            v = np.asarray(getattr(self, name), float)
+        for name, v, (lo, hi) in self._checked():
             with np.errstate(invalid="ignore"):
                 bad = ~np.isfinite(v) | (v < lo) | (v > hi)
             if np.any(bad):

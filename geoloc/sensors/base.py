@@ -86,6 +86,15 @@ def flag_outside(status, row, col, rows: int, cols: int) -> np.ndarray:
     return np.where((status == Status.OK) & off, np.uint8(Status.OUTSIDE_SENSOR), status).astype(np.uint8)
 
 
+#: What a line-of-sight call does with a pixel off the sensor.
+OUTSIDE_MODES = ("flag", "extrapolate")
+
+
+def check_outside(outside: str) -> None:
+    if outside not in OUTSIDE_MODES:
+        raise ValueError(f"outside = {outside!r}: must be one of {OUTSIDE_MODES}")
+
+
 def check_param_names(changes: Mapping[str, float], known: Mapping[str, float], what: str) -> None:
     """Raise ValueError naming any parameter of ``changes`` that ``known`` does not have."""
     unknown = sorted(set(changes) - set(known))

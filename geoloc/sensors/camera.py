@@ -247,6 +247,21 @@ class Camera:
         status = np.where(behind, Status.BEHIND_CAMERA, Status.OK).astype(np.uint8)
         return i, j, status
 
+    def to_sensor(self):
+        """This camera as a :class:`geoloc.sensors.frame.FrameSensor`: a pinhole on the [Q17] ``roll-pitch`` gimbal.
+
+        The lens's principal point is (cx, cy) = (j0 - 1, i0 - 1) in OpenCV's
+        0-based pixels; mount and boresight carry over unchanged.
+        """
+        from geoloc.sensors.frame import FrameSensor
+        from geoloc.sensors.lenses import PinholeLens
+
+        f = float(self.focal_length_px)
+        lens = PinholeLens(fx=f, fy=f, cx=float(self.principal_col) - 1.0, cy=float(self.principal_row) - 1.0,
+                           width=int(self.cols), height=int(self.rows))
+        return FrameSensor(lens, mount=self.mount or (0.0, 0.0, 0.0), boresight=self.boresight or (0.0, 0.0, 0.0),
+                           name=self.name)
+
     def in_image(self, row, col) -> np.ndarray:
         """True where (row, col) lies on the sensor: 0.5 <= i <= M + 0.5, same for j."""
         row, col = np.asarray(row, float), np.asarray(col, float)

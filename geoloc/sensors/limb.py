@@ -1,7 +1,7 @@
 """Limb viewing: tangent height of a line of sight that misses the Earth [L18].
 
 Conventions (frames, units, names, status codes): ``docs/conventions.md``;
-method: GEOMETRY.md section 6 and ``docs/limb.md``. Radians and metres inside,
+method: docs/method.md section 6 and ``docs/limb.md``. Radians and metres inside,
 arrays ``(..., 3)`` broadcasting over leading axes (a slit of pixels times many
 frames is one call).
 
@@ -44,6 +44,7 @@ from geoloc.geodesy.ellipsoid import (
     up_normal_ecef,
 )
 from geoloc.status import Status
+from geoloc.surfaces.base import LineOfSight
 from geoloc.surfaces.height import ray_inflated_ellipsoid
 
 __all__ = [
@@ -114,6 +115,11 @@ class L18Chain:
     origin_ecef: np.ndarray
     direction_ecef: np.ndarray
     status: np.ndarray
+
+    @property
+    def los(self) -> LineOfSight:
+        """The chain's line of sight as the one type every sensor hands to surfaces."""
+        return LineOfSight(self.origin_ecef, self.direction_ecef, self.status)
 
 
 def orbital_frame_l18(position_ecef, velocity_ecef):

@@ -50,6 +50,7 @@ from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from geoloc.frames import rotations as rot
 from geoloc.geodesy.ellipsoid import A, geodetic_to_ecef
+from geoloc.sensors.base import PixelHit, check_outside, check_param_names, flag_outside
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint, LineOfSight
 from geoloc.surfaces.height import intersect_los_height
@@ -447,21 +448,50 @@ class PushbroomSensor:
         return centre, R_ecef_body @ self.R_cam_body.T
 
     # ------------------------------------------------------- image -> ground
-    def line_of_sight(self, row, col) -> LineOfSight:
+    # ------------------------------------------------------- the Sensor interface
+    #: Named parameters (SI): the lever arm and the line timing.
+    PARAMS = ("lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m", "t0_s", "line_period_s")
+
+    @property
+    def params(self) -> dict:
+        """Named parameters: lever arm [m] (body axes) and line timing [s] (``docs/architecture.md``)."""
+        la = self.lever_arm_body
+        return dict(zip(self.PARAMS, (float(la[0]), float(la[1]), float(la[2]), self.t0_s, self.line_period_s)))
+
+    def with_params(self, **changes) -> "PushbroomSensor":
+        import dataclasses
+
+        check_param_names(changes, self.params, "pushbroom sensor")
+        p = {**self.params, **{k: float(v) for k, v in changes.items()}}
+        return dataclasses.replace(self, lever_arm_body=np.array([p["lever_arm_x_m"], p["lever_arm_y_m"],
+                                                                  p["lever_arm_z_m"]]),
+                                   t0_s=p["t0_s"], line_period_s=p["line_period_s"])
+
+    def frames(self, state=None):
+        """A pushbroom's frames change line by line; the viewers draw it from its lines of sight (None)."""
+        return None
+
+    def line_of_sight(self, row, col, state=None, *, outside: str = "flag") -> LineOfSight:
         """Pixel (row i = line, column j = detector), 1-based -> line of sight in ECEF [L12 eq. 1].
+
+        ``state`` is unused (time and attitude come from the row).
 
         Returns
         -------
         LineOfSight
             Unit directions; status INVALID_INPUT for NaN pixels or lines
-            outside the orbit / attitude sample span.
+            outside the orbit / attitude sample span, OUTSIDE_SENSOR for a pixel
+            off the image (unless ``outside="extrapolate"``).
         """
+        check_outside(outside)
         row, col = np.broadcast_arrays(np.asarray(row, float), np.asarray(col, float))
         centre, R = self.exterior(self.line_time(row))
         d = rot.rotate(R, self.look.direction(col))
         d = d / np.linalg.norm(d, axis=-1, keepdims=True)
         bad = ~(np.all(np.isfinite(d), axis=-1) & np.all(np.isfinite(centre), axis=-1))
         status = np.where(bad, Status.INVALID_INPUT, Status.OK).astype(np.uint8)
+        if outside == "flag":
+            status = flag_outside(status, row, col, self.rows, self.cols)
         return LineOfSight(centre, d, status)
 
     def locate(self, row, col, target_h=0.0, surface: str = "geodetic") -> GroundPoint:
@@ -469,7 +499,7 @@ class PushbroomSensor:
         return intersect_los_height(self.line_of_sight(row, col), target_h, surface)
 
     # ------------------------------------------------------- ground -> image
-    def ground_to_pixel(self, lat, lon, h, tol_lines: float = 1e-6, max_iter: int = 30):
+    def ground_to_pixel(self, lat, lon, h, state=None, *, tol_lines: float = 1e-6, max_iter: int = 30) -> PixelHit:
         """Ground point -> (row, col) by iteration over the line time [L12 section 4.1].
 
         At a trial time t the point is expressed in the camera frame,
@@ -492,12 +522,11 @@ class PushbroomSensor:
 
         Returns
         -------
-        row, col : ndarray
-            1-based pixel (may lie outside the image: see :meth:`in_image`).
-        status : ndarray of uint8
-            OK; BEHIND_CAMERA (point above the camera's horizon plane);
-            INVALID_INPUT (NaN input or the solution leaves the sample span);
-            NO_CONVERGENCE.
+        PixelHit
+            ``row, col`` 1-based; ``status`` OK; OUTSIDE_SENSOR (the pixel is
+            given but lies off the image); BEHIND_CAMERA (point above the
+            camera's horizon plane); INVALID_INPUT (NaN input or the solution
+            leaves the sample span); NO_CONVERGENCE.
         """
         P = geodetic_to_ecef(lat, lon, h)
         shape = P.shape[:-1]
@@ -545,7 +574,7 @@ class PushbroomSensor:
             ok = status == Status.OK
         row = np.where(ok, self.row_of_time(t), np.nan)
         col = np.where(ok, col, np.nan)
-        return row, col, status
+        return PixelHit(row, col, flag_outside(status, row, col, self.rows, self.cols))
 
     # ---------------------------------------------------------- scenarios
     @classmethod

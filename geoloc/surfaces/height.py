@@ -193,3 +193,33 @@ def intersect_los_height(los: LineOfSight, target_h, surface: str = "inflated") 
     ecef = np.where(ok[..., None], hit.ecef, np.nan)
     lat, lon, h = ecef_to_geodetic(ecef)
     return GroundPoint(lat, lon, h, ecef, np.where(ok, hit.s, np.nan), status, los)
+
+
+#: Kinds of constant-height surface.
+HEIGHT_KINDS = ("inflated", "geodetic")
+
+
+class HeightSurface:
+    """A surface of constant ellipsoidal height: the [Q17] inflated ellipsoid or the exact one.
+
+    Parameters
+    ----------
+    h : array_like
+        Target ellipsoidal height [m], broadcasting against the lines of sight.
+    kind : {"inflated", "geodetic"}
+        ``"inflated"``: the ellipsoid with both semi-axes grown by h [Q17 eq. 11];
+        ``"geodetic"``: the exact surface of geodetic height h.
+    """
+
+    def __init__(self, h, kind: str = "inflated"):
+        if kind not in HEIGHT_KINDS:
+            raise ValueError(f"height surface kind = {kind!r}: must be one of {HEIGHT_KINDS}")
+        self.h = h
+        self.kind = kind
+
+    def intersect(self, los: LineOfSight) -> GroundPoint:
+        """The first crossing of each line of sight with the surface [Q17 eq. 10-13]."""
+        return intersect_los_height(los, self.h, self.kind)
+
+    def __repr__(self) -> str:
+        return f"HeightSurface(h={self.h!r}, kind={self.kind!r})"

@@ -16,7 +16,8 @@ import viser
 
 from geoloc.status import describe
 from geoloc.viz import teaching
-from geoloc.viz.model import DRAWN_FRAMES, Inputs, Scenario, compute
+from geoloc.locate import as_sensor
+from geoloc.viz.model import Inputs, Scenario, compute, drawn_frames
 from geoloc.viz.scenario import select_record
 from geoloc.viz.scene_geoloc import Display, GeolocScene
 
@@ -95,8 +96,8 @@ class GeolocApp:
                 "lon_deg": gui.add_number("longitude (deg)", i.lon_deg, min=-180.0, max=180.0, step=1e-5),
                 "h_m": gui.add_number("height (m, ellipsoidal)", i.h_m, min=0.0, max=1e5, step=0.01),
             }
-            for key, label, lo, hi, step in ANGLE_SLIDERS:
-                self.num[key] = gui.add_slider(label, lo, hi, step, getattr(i, key))
+            for key, label, lo, hi, step in self._angle_sliders():
+                self.num[key] = gui.add_slider(label, lo, hi, step, self._input_value(i, key))
             self.num["row"] = gui.add_number("pixel row i", i.row, step=0.01)
             self.num["col"] = gui.add_number("pixel column j", i.col, step=0.01)
             for h in self.num.values():
@@ -127,7 +128,7 @@ class GeolocApp:
             self.sl_ac = gui.add_slider("aircraft display scale", 1.0, 300.0, 1.0, d.aircraft_scale)
             self.sl_err = gui.add_slider("error vector exaggeration", 1.0, 100.0, 1.0, d.error_exaggeration)
             self.sl_marker = gui.add_slider("marker radius (m)", 10.0, 500.0, 10.0, d.marker_radius_m)
-            self.cb_frames = {f: gui.add_checkbox(f"frame {f}", True) for f in DRAWN_FRAMES}
+            self.cb_frames = {f: gui.add_checkbox(f"frame {f}", True) for f in drawn_frames(self.scn.camera)}
             self.cb_terrain = gui.add_checkbox("terrain", True)
             self.cb_labels = gui.add_checkbox("marker labels", d.marker_labels,
                                               hint="Labels of the hit markers (they overlap until you zoom in)")
@@ -143,14 +144,28 @@ class GeolocApp:
             self.md_q17 = gui.add_markdown("")
 
     def _chain0(self):
-        from geoloc.frames.chain import FrameChain
+        return as_sensor(self.scn.camera).frames(self.inputs.pose())
 
-        return FrameChain(self.inputs.pose())
+    def _angle_sliders(self):
+        """Attitude sliders, then one per joint angle of the sensor's gimbal (``angle:NAME`` keys)."""
+        out = list(ANGLE_SLIDERS[:3])
+        q17 = {row[0][:-4]: row for row in ANGLE_SLIDERS[3:]}
+        for name in as_sensor(self.scn.camera).angle_names:
+            # azimuths run 0..360 and some joints wind further: the whole valid range of a joint angle
+            out.append(q17.get(name, (f"angle:{name}", f"{name.replace('_', ' ')} (deg)", -360.0, 360.0, 0.0001)))
+        return out
+
+    @staticmethod
+    def _input_value(inp: Inputs, key: str) -> float:
+        if key.startswith("angle:"):
+            return float(inp.angles_deg.get(key[6:], 0.0))
+        return float(getattr(inp, key))
 
     def _read_inputs(self) -> Inputs:
-        vals = {k: float(h.value) for k, h in self.num.items()}
+        vals = {k: float(h.value) for k, h in self.num.items() if not k.startswith("angle:")}
+        angles = {k[6:]: float(h.value) for k, h in self.num.items() if k.startswith("angle:")}
         return self.inputs.replace(method=str(self.dd_method.value), eps_h=float(self.num_eps.value),
-                                   threshold=float(self.num_thr.value), **vals)
+                                   threshold=float(self.num_thr.value), angles_deg=angles, **vals)
 
     def _read_display(self) -> None:
         d = self.view.disp
@@ -173,7 +188,8 @@ class GeolocApp:
         self.inputs = self._read_inputs()
         if self.scn.record_index is not None and self.dd_record.value != CUSTOM:
             rec_inp = self.scn.records[self.scn.record_index][1]
-            if any(abs(getattr(self.inputs, k) - getattr(rec_inp, k)) > 1e-9 for k in self.num):
+            if any(abs(self._input_value(self.inputs, k) - self._input_value(rec_inp, k)) > 1e-9
+                   for k in self.num):
                 self._mute = True
                 self.dd_record.value = CUSTOM
                 self._mute = False
@@ -200,7 +216,7 @@ class GeolocApp:
         self._mute = True
         try:
             for k, h in self.num.items():
-                h.value = getattr(self.inputs, k)
+                h.value = self._input_value(self.inputs, k)
             label = self.scn.records[idx][0].label
             if self.dd_record.value != label:
                 self.dd_record.value = label
@@ -265,8 +281,12 @@ class GeolocApp:
                                                   info.truth_lon_deg))
                 e_p = float(horizontal_distance_m(hit.lat_deg, hit.lon_deg, info.paper_lat_deg,
                                                   info.paper_lon_deg))
-                lines.append(f"to surveyed: {e_t:.1f} m (published error {info.paper_error_m:.1f} m); "
-                             f"to published: {e_p:.1f} m")
+                text = f"to surveyed: {e_t:.1f} m (horizontal)"
+                if np.isfinite(info.paper_error_m):
+                    text += f" (published error {info.paper_error_m:.1f} m)"
+                if np.isfinite(e_p):
+                    text += f"; to published: {e_p:.1f} m"
+                lines.append(text)
         self.md_summary.content = "\n".join(lines)
         hop = str(self.dd_hop.value)
         hv = {h.key: h for h in teaching.hops(g.chain)}
@@ -296,7 +316,15 @@ class GeolocApp:
             self.view.update(self.geometry)
             ser.insert_sleep(1.0)
         if path.suffix.lower() == ".html":
-            path.write_text(ser.as_html(dark_mode=True))
+            from geoloc.viz.export_html import with_summary
+
+            # the serializer records the scene, not the GUI: the summary (record, hit,
+            # error to the surveyed point) goes into the page as a panel of its own
+            page = with_summary(ser.as_html(dark_mode=True), f"geoloc view: {self.scn.name}",
+                                self.md_summary.content,
+                                "Static export of geoloc view (no controls); "
+                                "the scene animates the terrain method's iterations.")
+            path.write_text(page)
         else:
             path.write_bytes(ser.serialize())
         return path

@@ -79,7 +79,7 @@ def error_geometry(records: Records, frame: EnuFrame, heights, cameras: dict,
     for stage, cam in cameras.items():
         if not isinstance(cam, Camera):
             raise ValueError(f"cameras[{stage!r}] = {cam!r}: must be a geoloc.sensors.camera.Camera")
-        g = locate(pose, cam, row, col, h)
+        g = locate(pose, cam, row, col, h, outside="extrapolate")  # recorded pixels (T4-3 is off the sensor)
         computed[stage] = frame.from_ecef(g.ecef)
         hh = g.h if hh is None else np.where(np.isfinite(hh), hh, g.h)
     tlat = np.deg2rad(records.column(f"{truth_prefix}_lat_deg"))

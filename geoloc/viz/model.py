@@ -18,16 +18,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geoloc.frames import rotations as rot
-from geoloc.frames.chain import FRAMES, FrameChain, Pose
+from geoloc.frames.chain import Pose
+from geoloc.frames.graph import BoundFrames
 from geoloc.frames.enu import EnuFrame
-from geoloc.locate import line_of_sight
+from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
 from geoloc.surfaces.height import intersect_los_height
 
-#: Frames drawn at the aircraft (ECEF is the Earth's centre: only in the teaching panel).
-DRAWN_FRAMES = tuple(f for f in FRAMES if f != "ecef")
+def drawn_frames(sensor) -> tuple:
+    """Frames drawn at the aircraft: the sensor's graph without ECEF (the Earth's centre:
+    only in the teaching panel)."""
+    return tuple(f for f in as_sensor(sensor).frames().frames if f != "ecef")
+
 
 
 @dataclass
@@ -48,11 +52,12 @@ class Inputs:
     eps_h: float = 20.0
     threshold: float = 1.0
     target_h: float = 0.0  # used when the scenario has no DEM
+    angles_deg: dict = field(default_factory=dict)  # other joint angles by name (azimuth, ...)
 
     def pose(self) -> Pose:
         return Pose.from_deg(self.lat_deg, self.lon_deg, self.h_m, self.heading_deg,
                              self.pitch_deg, self.roll_deg, self.gimbal_roll_deg,
-                             self.gimbal_pitch_deg)
+                             self.gimbal_pitch_deg, angles_deg=self.angles_deg)
 
     def replace(self, **kw) -> "Inputs":
         return dataclasses.replace(self, **kw)
@@ -96,7 +101,7 @@ class IterationView:
 class Geometry:
     """Everything the geolocation scene draws, in the scene's ENU frame [m]."""
 
-    chain: FrameChain
+    chain: BoundFrames
     frames: dict
     aircraft_enu: np.ndarray
     R_enu_body: np.ndarray
@@ -118,10 +123,10 @@ class Geometry:
 
 @dataclass
 class Scenario:
-    """A scene's fixed data: camera, records, DEM, ENU origin, and initial inputs."""
+    """A scene's fixed data: sensor (or first-phase camera), records, DEM, ENU origin, initial inputs."""
 
     name: str
-    camera: Camera
+    camera: Camera  # or a geoloc.sensors.frame.FrameSensor
     inputs: Inputs
     enu: EnuFrame
     records: list = field(default_factory=list)  # list of (RecordInfo, Inputs)
@@ -133,19 +138,20 @@ class Scenario:
     source: str = ""  # records file name, for the title
 
 
-def frame_views(chain: FrameChain, enu: EnuFrame) -> dict:
+def frame_views(chain: BoundFrames, enu: EnuFrame) -> dict:
     """Each drawn frame's origin and orientation in ENU, from ``chain.T_ecef(frame)``."""
     out = {}
-    for name in DRAWN_FRAMES:
+    for name in chain.graph.frames[1:]:
         T = chain.T_ecef(name)
         out[name] = FrameView(name, enu.from_ecef(T[:3, 3]), enu.R_enu_from(T[:3, :3]))
     return out
 
 
-def _corner_footprint(pose, camera, chain, enu, h):
-    rows = np.array([0.5, 0.5, camera.rows + 0.5, camera.rows + 0.5])
-    cols = np.array([0.5, camera.cols + 0.5, camera.cols + 0.5, 0.5])
-    los = line_of_sight(pose, camera, rows, cols, chain=chain)
+def _corner_footprint(pose, camera, enu, h):
+    s = as_sensor(camera)
+    rows = np.array([0.5, 0.5, s.rows + 0.5, s.rows + 0.5])
+    cols = np.array([0.5, s.cols + 0.5, s.cols + 0.5, 0.5])
+    los = line_of_sight(pose, camera, rows, cols)
     g = intersect_los_height(los, h)
     return enu.from_ecef(g.ecef)
 
@@ -160,10 +166,13 @@ def compute(scn: Scenario, inp: Inputs) -> Geometry:
     """
     pose = inp.pose().validate()
     cam = scn.camera
-    chain = FrameChain(pose)
+    # The sensor's own graph: mount, boresight, lever arm and whatever joints it has
+    # (the first-phase viewer built FrameChain(pose) here and lost the mount).
+    chain = as_sensor(cam).frames(pose)
     enu = scn.enu
     frames = frame_views(chain, enu)
-    los = line_of_sight(pose, cam, inp.row, inp.col, chain=chain)
+    # A pixel off the sensor is drawn (the ray extends the lens model) and flagged below.
+    los = line_of_sight(pose, cam, inp.row, inp.col, outside="extrapolate")
     aircraft = enu.from_ecef(los.origin_ecef)
     d_enu = enu.vector_from_ecef(los.direction_ecef)
     geo = dict(chain=chain, frames=frames, aircraft_enu=aircraft,
@@ -178,8 +187,14 @@ def compute(scn: Scenario, inp: Inputs) -> Geometry:
                    hit_label=f"hit at h = {inp.target_h:.1f} m")
     g = Geometry(**geo)
     g.status = int(g.hit.status)
-    if g.status == Status.OK:
-        g.footprint_enu = _corner_footprint(pose, cam, chain, enu, float(g.hit.h))
+    sensor = as_sensor(cam)
+    if g.status == Status.OK and not bool(sensor.in_image(inp.row, inp.col)):
+        g.status = int(Status.OUTSIDE_SENSOR)
+        g.message = (f"**pixel outside the sensor**: row {inp.row:g}, column {inp.col:g} "
+                     f"(the sensor has rows 1-{sensor.rows}, columns 1-{sensor.cols}); "
+                     "the line of sight extends the lens model beyond its edge. " + g.message)
+    if g.status in (Status.OK, Status.OUTSIDE_SENSOR):
+        g.footprint_enu = _corner_footprint(pose, cam, enu, float(g.hit.h))
     if scn.record_index is not None:
         info = scn.records[scn.record_index][0]
         if np.isfinite(info.paper_lat_deg):

@@ -12,8 +12,10 @@ Entities (all positions in the scene's ENU frame, metres):
 ``world/ned``                               Transform3D T_enu_ned: aircraft position, NED axes
 ``world/ned/body``                          Transform3D T_ned_body [Q17 eq. 6]
 ``world/ned/body/aircraft``                 the bundled aircraft mesh, scaled for display
-``world/ned/body/gimbal_outer``             Transform3D T_body_outer [Q17 eq. 7]
-``world/ned/body/gimbal_outer/cam``         Transform3D T_outer_cam [Q17 eq. 7] and a Pinhole
+``world/ned/body/gimbal_base``              Transform3D T_body_gimbal_base: mount and lever arm
+``world/ned/body/gimbal_base/<joints>``     Transform3D per gimbal joint (``gimbal_outer``,
+                                            ``gimbal_inner`` for [Q17] eq. 7; the sensor's own)
+``.../cam``                                 Transform3D to the optical frame and a Pinhole
 ``world/los``                               line of sight, aircraft -> located target
 ``world/target``, ``world/truth``,          located, reference and published positions
 ``world/published``
@@ -48,11 +50,13 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from geoloc.assets import ASSETS
+from geoloc.locate import as_sensor
 from geoloc.status import Status, describe
 from geoloc.viz.rerun_model import LogSteps
 
 #: Axis length of each drawn frame [m] (distinct, so coinciding origins stay readable).
-AXIS_LENGTH_M = {"ned": 4000.0, "body": 3000.0, "gimbal_outer": 2200.0, "cam": 1500.0}
+AXIS_LENGTH_M = {"ned": 4000.0, "body": 3000.0, "gimbal_base": 2600.0, "gimbal_outer": 2200.0,
+                 "gimbal_inner": 1800.0, "cam": 1500.0}
 #: Distance of the pinhole's image plane in the 3D view [m].
 IMAGE_PLANE_M = 3000.0
 #: Colours (RGBA).
@@ -170,12 +174,12 @@ def _aircraft_mesh():
 def info_markdown(steps: LogSteps) -> str:
     e = steps.enu
     lines = [f"**{steps.name}**", "", *[f"- {n}" for n in steps.notes],
-             f"- camera: {steps.camera.name or 'unnamed'} (f = {steps.camera.focal_length_px:g} px)",
+             f"- camera: {steps.camera.name or 'unnamed'} (fx = {as_sensor(steps.camera).lens.fx:g} px)",
              f"- scene origin (ENU): {np.rad2deg(e.lat0):.3f} N, {np.rad2deg(e.lon0):.3f} E, "
              f"{e.h0:.0f} m (ellipsoidal); X east, Y north, Z up, metres",
              f"- timelines: {', '.join(steps.timelines)}",
-             "", "Frames: world/ned (NED at the aircraft) / body / gimbal_outer / cam, "
-             "each a Transform3D equal to the core's hop ([Q17] eq. 4-7)."]
+             "", f"Frames: world/{' / '.join(steps.chain.frames[1:])}, "
+             "each a Transform3D equal to the hop of the sensor's frame graph ([Q17] eq. 4-7)."]
     return "\n".join(lines)
 
 
@@ -189,23 +193,21 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
 
     # ---------------------------------------------------------------- frames
     T = steps.hop_transforms()
-    paths = {"ned": "world/ned", "body": "world/ned/body",
-             "gimbal_outer": "world/ned/body/gimbal_outer", "cam": "world/ned/body/gimbal_outer/cam"}
+    paths = steps.entity_paths()
     for name, path in paths.items():
         Tn = np.broadcast_to(T[name], (n, 4, 4))
         cols = {"mat3x3": Tn[:, :3, :3]}
-        if name == "ned":
+        if name == "ned" or np.any(Tn[:, :3, 3]):
             cols["translation"] = Tn[:, :3, 3]
         rec.send_columns(path, indexes=idx, columns=rr.Transform3D.columns(**cols))
-        rec.log(path, rr.TransformAxes3D(axis_length=AXIS_LENGTH_M[name]), static=True)
-    cam = steps.camera
+        rec.log(path, rr.TransformAxes3D(axis_length=AXIS_LENGTH_M.get(name, 2000.0)), static=True)
+    lens = as_sensor(steps.camera).lens
     rec.log(paths["cam"], rr.Pinhole(
-        focal_length=float(cam.focal_length_px), width=cam.cols, height=cam.rows,
-        # pixel (i, j) 1-based centre -> rerun's continuous (u, v) = (j - 0.5, i - 0.5)
-        principal_point=[cam.principal_col - 0.5, cam.principal_row - 0.5],
-        # camera frame of [Q17 eq. 8]: X towards increasing rows (down in the image),
-        # Y towards decreasing columns (left), Z the line of sight
-        camera_xyz=rr.ViewCoordinates.DLF, image_plane_distance=IMAGE_PLANE_M), static=True)
+        focal_length=[float(lens.fx), float(lens.fy)], width=int(lens.width), height=int(lens.height),
+        # the lens's 0-based pixel centres (OpenCV's) -> rerun's continuous (u, v): +0.5
+        principal_point=[lens.cx + 0.5, lens.cy + 0.5],
+        # the optical frame of the lens: X right, Y down, Z the line of sight
+        camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=IMAGE_PLANE_M), static=True)
     v, f = _aircraft_mesh()
     rec.log("world/ned/body/aircraft", rr.Transform3D(scale=display_scale), static=True)
     rec.log("world/ned/body/aircraft", rr.Mesh3D(vertex_positions=v, triangle_indices=f,

@@ -21,11 +21,12 @@ import numpy as np
 
 from geoloc.assets import ASSETS, DEFAULT_CAMERA
 from geoloc.frames import rotations as rot
-from geoloc.frames.chain import FrameChain, Pose
+from geoloc.frames.chain import Pose
+from geoloc.frames.graph import BoundFrames
 from geoloc.frames.enu import EnuFrame
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import load_records
-from geoloc.locate import camera_chain, line_of_sight
+from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera
 from geoloc.surfaces.base import GroundPoint, LineOfSight
 from geoloc.surfaces.height import intersect_los_height
@@ -102,7 +103,7 @@ class LogSteps:
     labels: list
     camera: Camera
     pose: Pose
-    chain: FrameChain
+    chain: BoundFrames
     row: np.ndarray
     col: np.ndarray
     los: LineOfSight
@@ -129,20 +130,21 @@ class LogSteps:
         return self.enu.from_ecef(self.ground.ecef)
 
     def hop_transforms(self) -> dict:
-        """4x4 transform of each entity of the frame hierarchy relative to its parent.
+        """4x4 transform of each entity of the frame hierarchy relative to its parent, root side first.
 
-        ``ned``: T_enu_ned = T_enu_ecef @ T_ecef_ned (the first hop of the chain,
-        re-expressed in the scene frame); ``body``, ``gimbal_outer``, ``cam``:
-        the chain's own hops T_ned_body, T_body_outer, T_outer_cam.
+        ``ned``: T_enu_ned = T_enu_ecef @ T_ecef_ned (the first hop of the
+        sensor's frame graph, re-expressed in the scene frame); every other
+        frame: the graph's own hop T_parent_frame (mount, gimbal joints, camera).
         """
         T_enu_ecef = rot.invert(rot.transform(self.enu.R_ecef_enu, self.enu.origin_ecef))
-        hops = {h.src: h.T for h in self.chain.hops}
-        return {
-            "ned": T_enu_ecef @ hops["ned"],
-            "body": hops["body"],
-            "gimbal_outer": hops["gimbal_outer"],
-            "cam": hops["cam"],
-        }
+        return {h.src: (T_enu_ecef @ h.T if h.dst == "ecef" else h.T) for h in self.chain.all_hops}
+
+    def entity_paths(self) -> dict:
+        """Frame -> rerun entity path (``world/ned/body/...``), one per frame of the graph."""
+        out = {}
+        for j in self.chain.graph.joints:
+            out[j.child] = f"{out.get(j.parent, 'world')}/{j.child}"
+        return out
 
 
 def enu_origin(lat_deg: float, lon_deg: float, h_m: float) -> EnuFrame:
@@ -150,9 +152,11 @@ def enu_origin(lat_deg: float, lon_deg: float, h_m: float) -> EnuFrame:
     return EnuFrame.scene_origin(lat_deg, lon_deg, h_m)
 
 
-def load_camera(path=None) -> Camera:
-    """A camera TOML, default the bundled [Q17] flight-test camera."""
-    return Camera.from_toml(path if path else Path(ASSETS).joinpath(*DEFAULT_CAMERA))
+def load_camera(path=None):
+    """A sensor or first-phase camera TOML, default the bundled [Q17] flight-test camera."""
+    from geoloc.sensors.sensor_file import load_camera_or_sensor
+
+    return load_camera_or_sensor(path if path else Path(ASSETS).joinpath(*DEFAULT_CAMERA))
 
 
 def _terrain(los: LineOfSight, dem_path, dem_datum: str, method: str, eps_h_m=None, threshold_m=None):
@@ -183,8 +187,8 @@ def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogS
     n = len(track)
     row = np.full(n, camera.center_pixel[0] if scn.row is None else scn.row)
     col = np.full(n, camera.center_pixel[1] if scn.col is None else scn.col)
-    chain = camera_chain(track.pose, camera)
-    los = line_of_sight(track.pose, camera, row, col, chain=chain)
+    chain = as_sensor(camera).frames(track.pose)
+    los = line_of_sight(track.pose, camera, row, col)
     terrain = None
     truth = None
     extra = {}
@@ -250,13 +254,13 @@ def steps_from_records(path, camera: Camera | None = None, *, height_column: str
         The steps and the rows the loader rejected.
     """
     camera = camera if camera is not None else load_camera()
-    recs = load_records(path)
+    recs = load_records(path, angles=as_sensor(camera).angle_names)
     if len(recs) == 0:
         raise ValueError(f"{path}: no valid record ({len(recs.errors)} rejected)")
     pose = recs.pose()
     row, col = recs.column("row"), recs.column("col")
-    chain = camera_chain(pose, camera)
-    los = line_of_sight(pose, camera, row, col, chain=chain)
+    chain = as_sensor(camera).frames(pose)
+    los = line_of_sight(pose, camera, row, col, outside="extrapolate")  # recorded pixels
     terrain = None
     notes = [f"records: {Path(path).name} ({len(recs)} records)"]
     if dem_path is not None:

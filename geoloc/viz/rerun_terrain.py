@@ -1,7 +1,7 @@
 """Terrain in a rerun recording: the DEM mesh (static), DEM evaluations and H_n - h_n per ray.
 
 The numbers come from :func:`geoloc.surfaces.terrain.intersect_dem` with ``trace=True``
-(GEOMETRY.md section 4: descending steps of [Q17 section 2.3], bisection of
+(docs/method.md section 4: descending steps of [Q17 section 2.3], bisection of
 [L23], exact first hit) and the mesh from :meth:`geoloc.surfaces.dem.DEM.to_trimesh`, in
 the scene's ENU frame. Entities:
 

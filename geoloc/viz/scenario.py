@@ -18,7 +18,8 @@ import numpy as np
 from geoloc.assets import ASSETS, DEFAULT_CAMERA, DEFAULT_RECORDS
 from geoloc.frames.enu import EnuFrame
 from geoloc.io.records import load_records
-from geoloc.sensors.camera import Camera
+from geoloc.locate import as_sensor
+from geoloc.sensors.sensor_file import load_camera_or_sensor
 from geoloc.viz.model import Inputs, RecordInfo, Scenario
 
 
@@ -28,12 +29,15 @@ def _num(row: dict, key: str) -> float:
     return float(v) if v not in ("", None) else np.nan
 
 
-def records_from_csv(path) -> list:
+def records_from_csv(path, camera=None) -> list:
     """Load a records CSV with :func:`geoloc.io.records.load_records`; return [(RecordInfo, Inputs)].
 
-    Bad rows are left out by the loader (their errors are on ``Records.errors``).
+    The sensor's gimbal names the angle columns (``<angle>_deg``; default the
+    [Q17] gimbal's). Bad rows are left out by the loader (their errors are on
+    ``Records.errors``).
     """
-    recs = load_records(path)
+    names = as_sensor(camera).angle_names if camera is not None else ("gimbal_roll", "gimbal_pitch")
+    recs = load_records(path, angles=names)
     out = []
     for label, row in zip(recs.labels(), recs.rows):
         info = RecordInfo(label, _num(row, "paper_lat_deg"), _num(row, "paper_lon_deg"),
@@ -42,8 +46,11 @@ def records_from_csv(path) -> list:
         target_h = info.paper_height_m if np.isfinite(info.paper_height_m) else 0.0
         inp = Inputs(_num(row, "ac_lat_deg"), _num(row, "ac_lon_deg"), _num(row, "ac_h_m"),
                      _num(row, "heading_deg"), _num(row, "pitch_deg"), _num(row, "roll_deg"),
-                     _num(row, "gimbal_roll_deg"), _num(row, "gimbal_pitch_deg"),
-                     _num(row, "row"), _num(row, "col"), target_h=target_h)
+                     _num(row, "gimbal_roll_deg") if "gimbal_roll" in names else 0.0,
+                     _num(row, "gimbal_pitch_deg") if "gimbal_pitch" in names else 0.0,
+                     _num(row, "row"), _num(row, "col"), target_h=target_h,
+                     angles_deg={a: _num(row, f"{a}_deg") for a in names
+                                 if a not in ("gimbal_roll", "gimbal_pitch")})
         out.append((info, inp))
     if not out:
         raise ValueError(f"records file {path}: no valid rows ({len(recs.errors)} rejected)")
@@ -51,11 +58,13 @@ def records_from_csv(path) -> list:
 
 
 def enu_origin_for(info: RecordInfo, inp: Inputs) -> EnuFrame:
-    """Scene origin near the target: the published position (else below the aircraft),
+    """Scene origin near the target: the published position (else the surveyed one, else below the aircraft),
     rounded by :meth:`geoloc.frames.enu.EnuFrame.scene_origin`."""
     if np.isfinite(info.paper_lat_deg):
         lat, lon = info.paper_lat_deg, info.paper_lon_deg
         h = info.paper_height_m if np.isfinite(info.paper_height_m) else 0.0
+    elif np.isfinite(info.truth_lat_deg):
+        lat, lon, h = info.truth_lat_deg, info.truth_lon_deg, inp.target_h
     else:
         lat, lon, h = inp.lat_deg, inp.lon_deg, inp.target_h
     return EnuFrame.scene_origin(lat, lon, h)
@@ -87,19 +96,19 @@ def load_scenario(records_path=None, record: str | int | None = None, camera_pat
     Parameters
     ----------
     records_path : path-like, optional
-        Records CSV (columns of ``../shared/data/README.md``).
+        Records CSV (columns of ``docs/records.md``).
     record : str or int, optional
         Label (``T3-1``) or 0-based index of the record to open; default the first.
     camera_path : path-like, optional
-        Camera TOML; default ``assets/cameras/qiao2017.toml``.
+        Sensor TOML or first-phase camera TOML; default ``assets/cameras/qiao2017.toml``.
     dem_path : path-like, optional
         DEM GeoTIFF; default a bundled one covering the target, if any.
     use_dem : bool
         False to stay on the ellipsoid at each record's ``paper_height_m``.
     """
     records_path = Path(records_path) if records_path else Path(ASSETS).joinpath(*DEFAULT_RECORDS)
-    camera = Camera.from_toml(camera_path or Path(ASSETS).joinpath(*DEFAULT_CAMERA))
-    recs = records_from_csv(records_path)
+    camera = load_camera_or_sensor(camera_path or Path(ASSETS).joinpath(*DEFAULT_CAMERA))
+    recs = records_from_csv(records_path, camera)
     idx = 0
     if record is not None:
         labels = [r[0].label for r in recs]

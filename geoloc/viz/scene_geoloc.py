@@ -32,22 +32,32 @@ import viser
 import viser.transforms as vtf
 
 from geoloc.assets import ASSETS
-from geoloc.viz.model import DRAWN_FRAMES, Geometry, Scenario
+from geoloc.viz.model import Geometry, Scenario
 
 #: Root node of the scene, and scene units per metre (the world unit is the km).
 ROOT = "/enu"
 WORLD_SCALE = 1e-3
 
 #: Axis length of each frame, in multiples of the aircraft display scale (nested so all show).
-FRAME_AXES = {"ned": 16.0, "body": 13.0, "gimbal_outer": 10.0, "cam": 7.5}
+FRAME_AXES = {"ned": 16.0, "body": 13.0, "gimbal_base": 11.5, "gimbal_outer": 10.0, "gimbal_inner": 8.5,
+              "cam": 7.5}
 FRAME_LABELS = {
     "ned": "NED: N",
     "body": "body: X nose",
+    "gimbal_base": "gimbal base (mount): Z",
     "gimbal_outer": "outer gimbal: Y",
+    "gimbal_inner": "inner gimbal: X",
     "cam": "camera: Z = line of sight",
 }
 #: Which axis tip carries each frame's label (0 = X, 1 = Y, 2 = Z): distinct tips, no overlap.
-LABEL_AXIS = {"ned": 0, "body": 0, "gimbal_outer": 1, "cam": 2}
+LABEL_AXIS = {"ned": 0, "body": 0, "gimbal_base": 2, "gimbal_outer": 1, "gimbal_inner": 0, "cam": 2}
+
+
+def frame_style(name: str, index: int) -> tuple:
+    """(axis length in display units, label text, label axis) of a drawn frame; joints of
+    other gimbals get lengths between the body's and the camera's and a label on their Y tip."""
+    L = FRAME_AXES.get(name, max(7.5, 12.0 - 1.2 * index))
+    return L, FRAME_LABELS.get(name, f"{name.replace('_', ' ')}: Y"), LABEL_AXIS.get(name, 1)
 COLORS = {
     "los": (255, 210, 0),
     "los_beyond": (140, 120, 40),
@@ -73,7 +83,7 @@ class Display:
     error_exaggeration: float = 10.0
     marker_radius_m: float = 220.0
     step: int | None = None  # iteration shown (None: all)
-    frames_visible: dict = field(default_factory=lambda: {f: True for f in DRAWN_FRAMES})
+    frames_visible: dict = field(default_factory=dict)  # frame -> shown (default shown)
     terrain_visible: bool = True
     highlight: str | None = None  # frame highlighted by the teaching panel
     marker_labels: bool = False  # labels of the hit markers (they overlap at the default zoom)
@@ -207,10 +217,10 @@ class GeolocScene:
         if self.terrain_handle is not None:
             self.terrain_handle.scale = self._terrain_scale()
             self.terrain_handle.visible = d.terrain_visible
-        for name in DRAWN_FRAMES:
-            f = g.frames[name]
+        for index, (name, f) in enumerate(g.frames.items()):
             big = d.highlight == name
-            L = FRAME_AXES[name] * d.aircraft_scale * (1.4 if big else 1.0) * WORLD_SCALE
+            length, text, label_axis = frame_style(name, index)
+            L = length * d.aircraft_scale * (1.4 if big else 1.0) * WORLD_SCALE
             key = (L, big)
             fh = self._alive(f"/enu/frames/{name}", key)
             if fh is None:
@@ -225,8 +235,8 @@ class GeolocScene:
                 fh.visible = d.frames_visible.get(name, True)
                 continue
             tip = np.zeros(3)
-            tip[LABEL_AXIS[name]] = L * 1.05
-            s.add_label(f"/enu/frames/{name}/label", ("> " if big else "") + FRAME_LABELS[name],
+            tip[label_axis] = L * 1.05
+            s.add_label(f"/enu/frames/{name}/label", ("> " if big else "") + text,
                         position=tip, anchor="center-left")
         # Line of sight: aircraft -> answer, then faintly on to the end of its usefulness.
         ok = np.all(np.isfinite(g.hit_enu))

@@ -200,7 +200,11 @@ class LimbApp:
         path = Path(path)
         ser = self.server.get_scene_serializer()
         if path.suffix.lower() == ".html":
-            path.write_text(ser.as_html(dark_mode=True))
+            from geoloc.viz.export_html import with_summary
+
+            path.write_text(with_summary(ser.as_html(dark_mode=True), "geoloc view: limb",
+                                         self.md.content,
+                                         "Static export of geoloc view --scenario limb (no controls)."))
         else:
             path.write_bytes(ser.serialize())
         return path

@@ -1,6 +1,7 @@
-"""Teaching panel: the chain of 4x4 matrices of [Q17 eq. 4-9] for the current pose.
+"""Teaching panel: the chain of 4x4 matrices for the current pose, whatever the sensor's joints.
 
-Every matrix shown is the core's own (:class:`geoloc.frames.chain.FrameChain` hops and
+Every matrix shown is the core's own (the hops of the sensor's frame graph,
+:class:`geoloc.frames.graph.BoundFrames`, and
 :func:`geoloc.frames.chain.T_ned_ecef_q17_factors`); this module only formats them.
 Conventions: ``docs/conventions.md`` (``T_dst_src`` maps ``src`` coordinates to ``dst``).
 """
@@ -12,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geoloc.frames import rotations as rot
-from geoloc.frames.chain import FrameChain, T_ned_ecef_q17_factors
+from geoloc.frames.chain import T_ned_ecef_q17_factors
 
 Q17_FACTOR_NAMES = (
     "Tz(R_N + h): origin along D to the aircraft",
@@ -34,11 +35,11 @@ class HopView:
     description: str
 
 
-def hops(chain: FrameChain) -> list:
+def hops(chain) -> list:
     """The chain's hops, outermost first, plus the composed ECEF <- cam transform."""
     out = [HopView(h.name, h.dst, h.src, np.asarray(h.T), h.equation, h.description)
            for h in chain.hops]
-    out.append(HopView("T_ecef_cam", "ecef", "cam", chain.T_ecef("cam"), "Q17 eq. 9",
+    out.append(HopView("T_ecef_cam", "ecef", "cam", chain.T_ecef("cam"), "Q17 eq. 9, generalised",
                        "the whole chain: camera to ECEF (product of the hops above)"))
     return out
 
@@ -57,7 +58,7 @@ def hop_markdown(h: HopView) -> str:
             f"{h.description}\n\n```\n{fmt_matrix(h.T)}\n```\n")
 
 
-def q17_factors_markdown(chain: FrameChain) -> str:
+def q17_factors_markdown(chain) -> str:
     """The four factors of [Q17 eq. 5] and the check that their product equals the core's T_ned_ecef."""
     p = chain.pose
     factors = T_ned_ecef_q17_factors(p.lat, p.lon, p.h)
@@ -72,9 +73,10 @@ def q17_factors_markdown(chain: FrameChain) -> str:
     return "\n".join(parts)
 
 
-def chain_markdown(chain: FrameChain) -> str:
+def chain_markdown(chain) -> str:
     """The whole chain as Markdown: the order of the product, then every hop."""
-    head = ("`T_ecef_cam = T_ecef_ned @ T_ned_body @ T_body_gimbal_outer @ T_gimbal_outer_cam` "
-            "[Q17 eq. 9]: read right to left, a camera vector goes to the outer gimbal, "
-            "the body, NED and ECEF.\n")
+    names = [h.name for h in chain.hops]
+    inner = [h.dst for h in reversed(chain.hops)]
+    head = (f"`T_ecef_cam = {' @ '.join(names)}` [Q17 eq. 9, generalised]: read right to left, "
+            f"a camera vector goes to {', '.join(inner[:-1])} and {inner[-1]}.\n")
     return head + "\n".join(hop_markdown(h) for h in hops(chain))

@@ -17,9 +17,9 @@ import numpy as np
 
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import Records
-from geoloc.locate import line_of_sight
+from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera
-from geoloc.status import names
+from geoloc.status import Status, names
 from geoloc.surfaces.base import GroundPoint
 from geoloc.surfaces.height import intersect_los_height
 
@@ -53,13 +53,54 @@ class ReplayResult:
 
 
 def records_line_of_sight(records: Records, camera: Camera):
-    """The line of sight of every good record (pixel row/col through the record's chain)."""
-    return line_of_sight(records.pose(), camera, records.column("row"), records.column("col"))
+    """The line of sight of every good record (pixel row/col through the record's chain).
+
+    Recorded pixels off the sensor are extended through the lens model (the
+    replay flags them OUTSIDE_SENSOR and :func:`outside_sensor_messages` names
+    them), so one off-sensor record neither vanishes nor passes unnoticed.
+    """
+    return line_of_sight(records.pose(), camera, records.column("row"), records.column("col"),
+                         outside="extrapolate")
 
 
-def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None = None) -> ReplayResult:
-    """Wrap ground points with the distances to the published and surveyed positions."""
+def outside_sensor_mask(records: Records, camera) -> np.ndarray:
+    """True for the records whose pixel lies off the sensor."""
+    s = as_sensor(camera)
+    return ~s.in_image(records.column("row"), records.column("col"))
+
+
+def outside_sensor_messages(records: Records, camera) -> list:
+    """One message per record whose pixel is off the sensor: line, label, value and the sensor's size."""
+    s = as_sensor(camera)
+    row, col = records.column("row"), records.column("col")
+    labels = records.labels()
+    out = []
+    for k in np.flatnonzero(outside_sensor_mask(records, camera)):
+        what = []
+        if not 0.5 <= row[k] <= s.rows + 0.5:
+            what.append(f"row = {row[k]:g} (rows 1-{s.rows})")
+        if not 0.5 <= col[k] <= s.cols + 0.5:
+            what.append(f"col = {col[k]:g} (columns 1-{s.cols})")
+        out.append(f"line {records.lines[k]} ({labels[k]}): {' and '.join(what)} is outside the sensor; "
+                   "located by extending the lens model and flagged outside_sensor")
+    return out
+
+
+def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None = None,
+                       camera=None) -> ReplayResult:
+    """Wrap ground points with the distances to the published and surveyed positions.
+
+    With ``camera``, records whose pixel is off its sensor get status
+    OUTSIDE_SENSOR (their position is kept: see :func:`records_line_of_sight`).
+    """
     lat, lon = ground.lat_deg, ground.lon_deg
+    status = np.asarray(ground.status)
+    extra = dict(extra or {})
+    if camera is not None:
+        off = outside_sensor_mask(records, camera) & (status == Status.OK)
+        status = np.where(off, np.uint8(Status.OUTSIDE_SENSOR), status).astype(np.uint8)
+        if "status" in extra:
+            extra["status"] = status
 
     def err(prefix):
         if records.has(f"{prefix}_lat_deg") and records.has(f"{prefix}_lon_deg"):
@@ -67,8 +108,7 @@ def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None
                                          records.column(f"{prefix}_lon_deg"))
         return np.full(len(records), np.nan)
 
-    return ReplayResult(records, lat, lon, ground.h, ground.status, err("paper"), err("truth"),
-                        dict(extra or {}))
+    return ReplayResult(records, lat, lon, ground.h, status, err("paper"), err("truth"), extra)
 
 
 def replay_at_height(records: Records, camera: Camera, height_column: str | None = None,
@@ -97,7 +137,7 @@ def replay_at_height(records: Records, camera: Camera, height_column: str | None
     else:
         raise ValueError("give a height column or a target height")
     ground = intersect_los_height(records_line_of_sight(records, camera), h, surface)
-    return result_from_ground(records, ground)
+    return result_from_ground(records, ground, camera=camera)
 
 
 def _nanmean(v) -> float:
@@ -134,27 +174,35 @@ def write_replay_csv(path, result: ReplayResult) -> None:
             w.writerow([out.get(c, "") for c in header])
 
 
-def summary_table(result: ReplayResult, group_column: str = "table") -> str:
-    """A plain-text table: one line per record, then per-group means and the RMS to the paper."""
+def summary_table(result: ReplayResult, group_column: str = "table", rows: bool = True) -> str:
+    """A plain-text table: one line per record (if ``rows``), then per-group means and the RMS to the paper."""
     r = result.records
     labels = r.labels()
     pub = r.column("paper_error_m") if r.has("paper_error_m") else np.full(len(r), np.nan)
     lines = [f"{'record':<10} {'lat_deg':>11} {'lon_deg':>11} {'h_m':>9} {'status':>8} "
-             f"{'to_paper_m':>10} {'to_truth_m':>10} {'published_m':>11}"]
+             f"{'to_paper_m':>10} {'to_truth_m':>10} {'published_m':>11}"] if rows else []
     st = names(result.status)
-    for k in range(len(r)):
+    for k in range(len(r) if rows else 0):
         lines.append(
             f"{labels[k]:<10} {_fmt(result.lat_deg[k], '11.5f'):>11} {_fmt(result.lon_deg[k], '11.5f'):>11} "
             f"{_fmt(result.h_m[k], '9.1f'):>9} {st[k]:>8} {_fmt(result.error_to_paper_m[k], '10.2f'):>10} "
             f"{_fmt(result.error_to_truth_m[k], '10.2f'):>10} {_fmt(pub[k], '11.3f'):>11}")
     groups = r.text(group_column) if group_column in r.header else ["all"] * len(r)
-    lines.append("")
+    if rows:
+        lines.append("")
     for g in sorted(set(groups)):
         m = np.array([x == g for x in groups])
-        lines.append(
-            f"group {g}: n={int(m.sum())}, mean error to truth {_fmt(_nanmean(result.error_to_truth_m[m]), '.2f')} m "
-            f"(published {_fmt(_nanmean(pub[m]), '.2f')} m), "
-            f"RMS to published position {_fmt(np.sqrt(_nanmean(result.error_to_paper_m[m] ** 2)), '.2f')} m")
+        text = f"group {g}: n={int(m.sum())}"
+        if np.any(np.isfinite(result.error_to_truth_m[m])):
+            text += f", mean error to truth {_fmt(_nanmean(result.error_to_truth_m[m]), '.2f')} m"
+        if np.any(np.isfinite(pub[m])):
+            text += f" (published {_fmt(_nanmean(pub[m]), '.2f')} m)"
+        if np.any(np.isfinite(result.error_to_paper_m[m])):
+            text += f", RMS to published position {_fmt(np.sqrt(_nanmean(result.error_to_paper_m[m] ** 2)), '.2f')} m"
+        off = int(np.sum(m & (np.asarray(result.status) == Status.OUTSIDE_SENSOR)))
+        if off:
+            text += f"; {off} outside the sensor (located by extending the lens model)"
+        lines.append(text)
     if np.any(np.isfinite(result.error_to_paper_m)):
         lines.append(f"all: RMS distance to the published positions "
                      f"{np.sqrt(_nanmean(result.error_to_paper_m ** 2)):.2f} m over "

@@ -1,0 +1,168 @@
+"""The sensor file (TOML): ``[lens]``, ``[gimbal]``, ``[mount]``, ``[lever_arm]``, ``[boresight]``
+(and optionally ``[columns]``, the column map of its records: ``docs/columns.md``).
+
+Format: ``docs/sensor_format.md``. The smallest file that works::
+
+    [lens]
+    model = "pinhole"
+    fx = 1500.0
+    fy = 1500.0
+    cx = 640.0        # 1-based column of the principal point
+    cy = 480.0        # 1-based row
+    width = 1280
+    height = 960
+
+    [gimbal]
+    preset = "azimuth-elevation"
+
+The first-phase camera file (``focal_length_px``, ``principal_row``, ...) still
+loads, as a pinhole on the [Q17] ``roll-pitch`` gimbal. Unknown keys, bad
+values and missing keys are errors naming the key, the value and the file.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from geoloc.sensors.camera import Camera
+from geoloc.sensors.frame import FrameSensor
+from geoloc.sensors.gimbals import DEFAULT, PRESETS, gimbal_from_dict, gimbal_to_dict
+from geoloc.sensors.lenses import lens_from_dict, lens_to_dict
+from geoloc.tomlio import read_toml
+
+#: Top-level tables and keys of a sensor file.
+TABLES = ("lens", "gimbal", "mount", "boresight", "lever_arm")
+KEYS = ("name",)
+#: The optional table of a sensor (or first-phase camera) file that is not the sensor's: the
+#: column map of the records its flights come in (``docs/columns.md``; read by
+#: :func:`load_sensor_columns`, checked by ``geoloc.io.columns``, ignored by the sensor itself).
+COLUMNS_TABLE = "columns"
+
+
+def _angles(table: dict, what: str, source: str) -> tuple:
+    """``x_deg``, ``y_deg``, ``z_deg`` (each optional, default 0) -> radians."""
+    if not isinstance(table, dict):
+        raise ValueError(f"{source}: [{what}] must be a table of x_deg, y_deg, z_deg, got {table!r}")
+    unknown = sorted(set(table) - {"x_deg", "y_deg", "z_deg"})
+    if unknown:
+        raise ValueError(f"{source}: [{what}] unknown key(s) {unknown}; allowed: x_deg, y_deg, z_deg")
+    out = []
+    for k in ("x_deg", "y_deg", "z_deg"):
+        v = table.get(k, 0.0)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= 180):
+            raise ValueError(f"{source}: [{what}] {k} = {v!r}: must be a number of degrees in [-180, 180]")
+        out.append(math.radians(v))
+    return tuple(out)
+
+
+def _lever(table: dict, source: str) -> tuple:
+    if not isinstance(table, dict):
+        raise ValueError(f"{source}: [lever_arm] must be a table of x_m, y_m, z_m, got {table!r}")
+    unknown = sorted(set(table) - {"x_m", "y_m", "z_m"})
+    if unknown:
+        raise ValueError(f"{source}: [lever_arm] unknown key(s) {unknown}; allowed: x_m, y_m, z_m (body axes)")
+    out = []
+    for k in ("x_m", "y_m", "z_m"):
+        v = table.get(k, 0.0)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= 1e3):
+            raise ValueError(f"{source}: [lever_arm] {k} = {v!r}: must be a number of metres, |v| <= 1000")
+        out.append(float(v))
+    return tuple(out)
+
+
+def sensor_from_dict(data: dict, source: str = "sensor") -> FrameSensor:
+    """A :class:`FrameSensor` from the tables of a sensor file (or a first-phase camera file).
+
+    A ``[columns]`` table (the records' column map) is not the sensor's and is left out here."""
+    data = _without_columns(data, source)
+    if "lens" not in data:
+        if any(k in data for k in TABLES):
+            raise ValueError(f"{source}: missing table [lens]")
+        return Camera.from_dict(data, source=source).to_sensor()
+    unknown = sorted(set(data) - set(TABLES) - set(KEYS))
+    if unknown:
+        raise ValueError(f"{source}: unknown key(s) or table(s) {unknown}; allowed: "
+                         f"{['[' + t + ']' for t in TABLES] + list(KEYS)}")
+    name = data.get("name", "")
+    if not isinstance(name, str):
+        raise ValueError(f"{source}: name = {name!r}: must be a string")
+    lens = lens_from_dict(data["lens"], source=f"{source} [lens]")
+    gimbal = gimbal_from_dict(data["gimbal"], source) if "gimbal" in data else PRESETS[DEFAULT]
+    return FrameSensor(
+        lens, gimbal,
+        mount=_angles(data.get("mount", {}), "mount", source),
+        boresight=_angles(data.get("boresight", {}), "boresight", source),
+        lever_arm_m=_lever(data.get("lever_arm", {}), source),
+        name=name,
+    )
+
+
+def load_sensor(path) -> FrameSensor:
+    """Read a sensor file (or a first-phase camera file) by path."""
+    path = Path(path)
+    return sensor_from_dict(read_toml(path, "sensor file"), source=str(path))
+
+
+def load_camera_or_sensor(path) -> Camera | FrameSensor:
+    """A first-phase camera file stays a :class:`Camera` (every first-phase consumer takes it as
+    before); a sensor file (with ``[lens]``) becomes a :class:`FrameSensor`."""
+    path = Path(path)
+    data = _without_columns(read_toml(path, "sensor file"), str(path))
+    if "lens" not in data:
+        return Camera.from_dict(data, source=str(path))
+    return sensor_from_dict(data, source=str(path))
+
+
+def _without_columns(data: dict, source: str) -> dict:
+    if COLUMNS_TABLE not in data:
+        return data
+    if not isinstance(data[COLUMNS_TABLE], dict):
+        raise ValueError(f"{source}: [{COLUMNS_TABLE}] must be a table (canonical name = column), "
+                         f"got {data[COLUMNS_TABLE]!r}")
+    return {k: v for k, v in data.items() if k != COLUMNS_TABLE}
+
+
+def load_sensor_columns(path) -> dict | None:
+    """The ``[columns]`` table of a sensor (or first-phase camera) file, as read; None if it has none.
+
+    The table is the column map of the records CSV flown with this sensor
+    (``docs/columns.md``); ``geoloc.io.columns.ColumnMap.from_table`` checks it.
+    """
+    path = Path(path)
+    data = read_toml(path, "sensor file")
+    if COLUMNS_TABLE not in data:
+        return None
+    _without_columns(data, str(path))  # checks that it is a table
+    return data[COLUMNS_TABLE]
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    return repr(v)
+
+
+def sensor_to_toml(sensor: FrameSensor, path) -> None:
+    """Write a sensor file that :func:`load_sensor` reads back to the same sensor."""
+    lines = []
+    if sensor.name:
+        lines.append(f"name = {_toml_value(sensor.name)}\n")
+    tables = {
+        "lens": lens_to_dict(sensor.lens),
+        "gimbal": gimbal_to_dict(sensor.gimbal),
+        "mount": {f"{a}_deg": math.degrees(v) for a, v in zip("xyz", sensor.mount)},
+        "boresight": {f"{a}_deg": math.degrees(v) for a, v in zip("xyz", sensor.boresight)},
+        "lever_arm": {f"{a}_m": v for a, v in zip("xyz", sensor.lever_arm_m)},
+    }
+    for t, d in tables.items():
+        lines.append(f"[{t}]")
+        lines.extend(f"{k} = {_toml_value(v)}" for k, v in d.items())
+        lines.append("")
+    Path(path).write_text("\n".join(lines))

@@ -1,0 +1,48 @@
+"""The README's "Your own sensor" figures, pinned (regression guards; correctness of the
+chain itself is shown against pymap3d and FrameChain in test_sensors.py and test_gimbals.py)."""
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def geoloc(*args):
+    r = subprocess.run([sys.executable, "-m", "geoloc", *args], cwd=ROOT, capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return r.stdout
+
+
+def test_readme_turret_locate():
+    out = json.loads(geoloc("locate", "--sensor", "assets/sensors/eo_turret.toml", "--lat-deg", "36.6",
+                            "--lon-deg", "-84.25", "--h-m", "2500", "--heading-deg", "45", "--pitch-deg", "2",
+                            "--roll-deg", "1", "--angle", "azimuth=90", "--angle", "elevation=-30", "--dem",
+                            "assets/dem/srtm_jacksboro.tif", "--json"))
+    # the README prints 6 decimals of degrees and 2 of metres
+    assert out["lat_deg"] == pytest.approx(36.577575, abs=5e-7)
+    assert out["lon_deg"] == pytest.approx(-84.221019, abs=5e-7)
+    assert out["h_m"] == pytest.approx(343.26, abs=5e-3)
+    assert out["slant_range_m"] == pytest.approx(4191.87, abs=5e-3)
+
+
+@pytest.mark.parametrize("records,sensor,group,mean", [
+    ("eo_turret_flight.csv", "eo_turret.toml", "orbit1", 22.87),
+    ("drone_targets.csv", "drone_camera.toml", "survey1", 2.70),
+])
+def test_readme_sensor_replays(records, sensor, group, mean):
+    out = geoloc("replay", f"assets/records/{records}", "--sensor", f"assets/sensors/{sensor}",
+                 "--dem", "assets/dem/srtm_jacksboro.tif")
+    m = re.search(rf"group {group}: n=(\d+), mean error to truth ([0-9.]+) m", out)
+    assert m and float(m.group(2)) == pytest.approx(mean, abs=0.005)
+
+
+def test_readme_distortion_figures():
+    out = subprocess.run([sys.executable, "examples/11_sensor_drone_camera_distortion.py"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=300).stdout
+    assert "471.3 px away" in out and "moves the target 145.1 m" in out
