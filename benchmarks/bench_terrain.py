@@ -24,16 +24,16 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
 
+from geoloc.assets import asset_path
 from geoloc.geodesy.ellipsoid import A
 from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 
-SRTM = Path(__file__).resolve().parents[1] / "assets" / "dem" / "srtm_jacksboro.tif"
+SRTM = asset_path("dem", "srtm_jacksboro.tif")  # $GEOLOC_ASSETS, the package data or assets/
 
 
 def median_time(fn, repeat):

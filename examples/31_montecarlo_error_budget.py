@@ -1,4 +1,4 @@
-"""Which error source dominates? An error budget of the [Q17] Table 1-2 scenario (GEOMETRY.md section 5).
+"""Which error source dominates? An error budget of the [Q17] Table 1-2 scenario (docs/method.md section 5).
 
 Runs the full Monte Carlo (N = 5000, as in [Q17]), then the first-order
 propagation with one error source at a time, and prints each source's share of

@@ -1,4 +1,4 @@
-"""[Q17] Fig. 10a: CEP against the outer frame angle for terrain sigmas of 10-100 m (GEOMETRY.md section 5).
+"""[Q17] Fig. 10a: CEP against the outer frame angle for terrain sigmas of 10-100 m (docs/method.md section 5).
 
 Writes fig10a.csv and fig10a.png in the current folder (or the folder given as
 the first argument) and prints a few rows. Solid lines: [Q17] eq. 18; dotted:

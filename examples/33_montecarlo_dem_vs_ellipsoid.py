@@ -1,4 +1,4 @@
-"""Why a DEM helps: the [Q17] Table 1-2 Monte Carlo on the ellipsoid and on the terrain (GEOMETRY.md sections 4-5).
+"""Why a DEM helps: the [Q17] Table 1-2 Monte Carlo on the ellipsoid and on the terrain (docs/method.md sections 4-5).
 
 On the ellipsoid the target height is uncertain by the terrain's standard
 deviation (62.47 m), which slides the target along the line of sight; on a DEM

@@ -1,4 +1,4 @@
-"""How far is the [L18] virtual ellipsoid from the exact tangent height? (GEOMETRY.md section 6)
+"""How far is the [L18] virtual ellipsoid from the exact tangent height? (docs/method.md section 6)
 
 Lines are built tangent to the surface of constant geodetic height h at a known
 point (lat, lon, h), in a horizontal direction of azimuth az there: their exact

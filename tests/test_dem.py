@@ -35,7 +35,7 @@ def test_heights_at_nodes_are_orthometric_plus_n():
         z = src.read(1).astype(float)
         lon_deg, lat_deg = src.xy(100, 200)  # pixel centre = node, computed by rasterio
     h = dem.height(r(lat_deg), r(lon_deg))
-    # h = H + N (GEOMETRY.md section 4); 1e-6 m: only float rounding of the node position
+    # h = H + N (docs/method.md section 4); 1e-6 m: only float rounding of the node position
     assert h == pytest.approx(z[100, 200] + egm96_undulation(r(lat_deg), r(lon_deg)), abs=1e-6)
     ell = DEM.open(SRTM, datum="ellipsoid")
     assert ell.height(r(lat_deg), r(lon_deg)) == pytest.approx(z[100, 200], abs=1e-9)

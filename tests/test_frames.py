@@ -99,7 +99,7 @@ CAM = Camera(166841.0, 1162.0, 1146.5, 2323, 2292)
 
 
 def test_sign_check_gimbal_roll_minus_45_looks_right_of_track():
-    # GEOMETRY.md section 2: heading 30, gimbal roll -45 -> right of track, azimuth ~120 deg
+    # docs/method.md section 2: heading 30, gimbal roll -45 -> right of track, azimuth ~120 deg
     pose = Pose.from_deg(36.4, 78.73, 17987.0, 30.0, 0.0, 0.0, -45.0, 0.0)
     az = _azimuth_deg(pose, CAM)
     # level aircraft, zero gimbal pitch: the line of sight is exactly abeam, so the

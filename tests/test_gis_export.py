@@ -575,3 +575,15 @@ def test_unknown_format_names_it_and_the_allowed_ones(tmp_path, replay_csv, caps
     assert "'.shp'" in err and "gpkg" in err and ".czml" in err
     with pytest.raises(ValueError, match="dxf"):
         export({}, tmp_path / "a.gpkg", format="dxf")
+
+
+def test_replay_export_option_writes_the_same_points(tmp_path, replay_csv):
+    # `geoloc replay --export` writes the rows it computed, as `geoloc export` on its --out would
+    rows = csv_rows(replay_csv)
+    assert main(["replay", "--height-column", "paper_height_m", "--export", str(tmp_path / "r.gpkg")]) == 0
+    _, geoms, f = read_layer(tmp_path / "r.gpkg", "points")
+    assert len(geoms) == len(rows) == 20
+    for g, k in zip(geoms, f["row_index"]):
+        assert close(g[1][0][0], rows[k]["lon_deg"]) and close(g[1][0][1], rows[k]["lat_deg"])
+    _, tgeoms, tf = read_layer(tmp_path / "r.gpkg", "track")
+    assert tf["table"] == ["T3", "T4"]

@@ -19,7 +19,7 @@ TABLE1 = Pose.from_deg(35.48, 80.97, 18000.0, 45.0, 3.5, 0.0, 50.0, -2.6)
 
 
 def test_table1_nominal_point():
-    # GEOMETRY.md section 8: [Q17] reports 35.57709 N, 80.84918 E at h_T = 5083.5 m,
+    # docs/method.md section 8: [Q17] reports 35.57709 N, 80.84918 E at h_T = 5083.5 m,
     # published to 1e-5 deg, so agreement is checked to half of that.
     g = locate(TABLE1, CAM, target_h=5083.5)
     assert g.status == Status.OK

@@ -57,7 +57,7 @@ def test_rpc_evaluation_matches_gdal_term_order_and_pixel_convention():
 
 
 def test_frame_rpc_reproduces_the_q17_table1_target():
-    """GEOMETRY.md section 8: the CCD centre meets h_T = 5083.5 m at 35.577089 N, 80.849181 E.
+    """docs/method.md section 8: the CCD centre meets h_T = 5083.5 m at 35.577089 N, 80.849181 E.
 
     The RPC must send that point back to the CCD centre ((M+1)/2, (N+1)/2) = (1162, 1146.5)
     within the rounding of the published 1e-6 deg (0.11 m; the ground sample is ~0.12 m

@@ -90,7 +90,7 @@ def test_orthometric_dem_read_as_is_is_off_by_the_geoid(case):
 
     GDAL's answer is then where the line of sight crosses the surface H (the
     orthometric DEM), i.e. |N| above the true terrain: EGM96 N = -26.79 m at
-    35.58 N 80.85 E (shared/data/README.md); about -32 m in eastern Tennessee
+    35.58 N 80.85 E (docs/method.md section 4); about -32 m in eastern Tennessee
     (checked here against the project's geoid module with a 0.5 m band: N varies by
     less than that across either footprint).
     """

@@ -2,7 +2,7 @@
 
 Run once on a machine with the Debian packages ``proj-data`` and
 ``ferret-datasets`` and the ``matplotlib`` sample data (see
-``../shared/data/README.md``)::
+``assets/README.md``)::
 
     python tools/build_assets.py          # writes assets/dem/*.tif, assets/geoid/*.tif
 

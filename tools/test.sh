@@ -1,14 +1,19 @@
 #!/usr/bin/env bash
 # The README's test command: installs everything a fresh Debian machine lacks
-# (Debian chromium for the browser tests, a virtual environment with the
+# (Debian chromium and proj-data for the tests, a virtual environment with the
 # project and its test dependencies from the package registry) and runs pytest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-if ! command -v chromium >/dev/null 2>&1; then
+# Debian packages: chromium (browser tests) and proj-data (the full EGM96 15' grid, which
+# the geoid tests measure the bundled 30' copy against)
+PKGS=""
+command -v chromium >/dev/null 2>&1 || PKGS="$PKGS chromium"
+[ -f /usr/share/proj/egm96_15.gtx ] || PKGS="$PKGS proj-data"
+if [ -n "$PKGS" ]; then
     SUDO=""
     [ "$(id -u)" -eq 0 ] || SUDO="sudo"
     $SUDO apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq $PKGS >/dev/null
 fi
 VENV="${GEOLOC_VENV:-.venv}"
 [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"

@@ -27,8 +27,11 @@ def register(sub) -> None:
         "standard deviation of lat, lon, h, the CEP of [Q17] eq. 18 and the empirical 50 %% "
         "radius. With --sweep, CEP against the outer gimbal angle ([Q17] Fig. 10) as CSV + PNG.",
     )
-    p.add_argument("scenario", help="scenario TOML, e.g. assets/scenarios/qiao2017_table1.toml")
-    p.add_argument("--samples", type=int, default=5000, help="number of samples N (default 5000)")
+    p.add_argument("scenario", help="scenario TOML, e.g. assets/scenarios/qiao2017_table1.toml "
+                   "(a path starting with assets/ names the bundled file when it is not here)")
+    p.add_argument("--samples", type=sample_count, default=5000,
+                   help="number of samples N (default 5000; 1e9 is accepted: the samples are "
+                   "processed in chunks and their statistics streamed, in constant memory)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--out", default=None,
                    help="statistics JSON (single run) or output folder (with --sweep)")
@@ -51,10 +54,29 @@ def register(sub) -> None:
     p.add_argument("--chunk", type=int, default=mc.CHUNK,
                    help=f"samples per vectorised batch (memory bound; default {mc.CHUNK})")
     p.add_argument("--progress", action="store_true", default=None,
-                   help="force the stderr progress line on (default: on when stderr is a terminal)")
+                   help="force the stderr progress line (with the time left) on (default: on when "
+                   "stderr is a terminal)")
     p.add_argument("--no-progress", dest="progress", action="store_false", default=None,
                    help="no progress line")
     p.set_defaults(func=run)
+
+
+def sample_count(text: str) -> int:
+    """``"5000"``, ``"1e9"`` or ``"1_000_000"`` -> an int; argparse reports anything else."""
+    import argparse
+
+    t = str(text).strip().replace("_", "")
+    try:
+        v = int(t)
+    except ValueError:
+        try:
+            f = float(t)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number of samples") from None
+        if not math.isfinite(f) or f != int(f):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of samples") from None
+        v = int(f)
+    return v
 
 
 def parse_angles(text: str) -> np.ndarray:
@@ -85,13 +107,19 @@ def load_model(args) -> ErrorModel:
     from dataclasses import replace
 
     from geoloc.analysis.errormodel import DemSpec
-    model = ErrorModel.from_toml(args.scenario)
+    from geoloc.assets import resolve_user_path
+
+    scenario = resolve_user_path(args.scenario)
+    if not scenario.is_file():
+        raise FileNotFoundError(f"scenario file not found: {args.scenario}")
+    model = ErrorModel.from_toml(scenario)
     if args.no_dem:
         model = model.without_dem()
     if args.dem:
-        if not Path(args.dem).exists():
+        dem = resolve_user_path(args.dem)
+        if not dem.exists():
             raise FileNotFoundError(f"--dem file not found: {args.dem}")
-        model = replace(model, dem=DemSpec(Path(args.dem), args.dem_datum,
+        model = replace(model, dem=DemSpec(dem, args.dem_datum,
                                            model.dem.method if model.dem else None))
     return model
 
@@ -114,20 +142,32 @@ def format_stats(stats: dict, nominal=None) -> str:
 def run(args) -> int:
     if args.samples < 2:
         raise ValueError(f"--samples = {args.samples}: must be >= 2")
+    if args.chunk < 1:
+        raise ValueError(f"--chunk = {args.chunk}: must be >= 1")
     model = load_model(args)
+    if args.sweep in ("dem", "both") and model.dem is None:
+        # refuse before any work (and before writing Fig. 10a for --sweep both)
+        raise ValueError(f"--sweep {args.sweep}: scenario {args.scenario} has no [dem] table; "
+                         "give --dem FILE, use a scenario with a DEM (e.g. "
+                         "assets/scenarios/qiao2017_table1_dem.toml) or --sweep terrain")
     rng = np.random.default_rng(args.seed)
+    dem = mc.open_dem(model) if model.dem is not None else None  # a bad DEM fails here, named
     if args.sweep is None:
-        res = mc.run(model, args.samples, rng, chunk=args.chunk, progress=args.progress)
+        res = mc.run(model, args.samples, rng, dem=dem, chunk=args.chunk, progress=args.progress,
+                     keep_samples=False)
         if res.stats["n_ok"] < 2:
-            st = np.bincount(res.status, minlength=len(Status))
+            st = res.status_counts
             why = ", ".join(f"{Status(k).name.lower()}: {int(c)}" for k, c in enumerate(st) if c)
             print(f"geoloc montecarlo: fewer than 2 samples located ({why}); no statistics",
                   file=sys.stderr)
             return 1
         print(f"scenario {model.name}: N = {args.samples}, seed {args.seed}, "
+              f"{'streamed in chunks of ' + str(args.chunk) + ', ' if res.streamed else ''}"
               f"{'DEM ' + str(model.dem.path) if model.dem else 'ellipsoid model'}, "
               f"{res.seconds:.2f} s")
         print(format_stats(res.stats, res.nominal))
+        for w in res.stats.get("warnings", []):
+            print(f"warning: {w}", file=sys.stderr)
         if model.dem is None:
             try:
                 fo = mc.first_order(model)
@@ -151,12 +191,12 @@ def run(args) -> int:
     kinds = ["terrain", "dem"] if args.sweep == "both" else [args.sweep]
     for kind in kinds:
         if kind == "terrain":
-            s = mc.sweep_terrain_sigma(model, angles, sigmas, args.samples, rng, args.progress)
+            s = mc.sweep_terrain_sigma(model, angles, sigmas, args.samples, rng, args.progress,
+                                       chunk=args.chunk)
             stem = "fig10a_terrain_sigma"
         else:
-            if model.dem is None:
-                raise ValueError(f"--sweep dem: scenario {args.scenario} has no [dem] table; give --dem")
-            s = mc.sweep_dem(model, angles, args.samples, rng, progress=args.progress)
+            s = mc.sweep_dem(model, angles, args.samples, rng, dem=dem, progress=args.progress,
+                             chunk=args.chunk)
             stem = "fig10b_dem"
         s.to_csv(outdir / f"{stem}.csv")
         s.to_png(outdir / f"{stem}.png")

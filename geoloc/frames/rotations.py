@@ -1,7 +1,7 @@
 """Elementary passive rotations and 4x4 homogeneous transforms.
 
 Conventions: ``docs/conventions.md``. The rotations here are *passive*
-(GEOMETRY.md section 2): ``rx(a) @ v`` gives the coordinates, in a frame turned
+(docs/method.md section 2): ``rx(a) @ v`` gives the coordinates, in a frame turned
 by ``+a`` about X, of a vector whose coordinates were ``v``. So ``rx(a)`` is the
 transpose of the active (right-hand-rule) rotation matrix.
 

@@ -1,16 +1,26 @@
 """Digital elevation models on rasterio: bilinear heights above the WGS-84 ellipsoid.
 
 A :class:`DEM` is a grid of *nodes* (the raster's pixel centres) with
-bilinear interpolation between the four nodes of each cell (GEOMETRY.md
+bilinear interpolation between the four nodes of each cell (``docs/method.md``
 section 4). Heights are converted once, node by node, to ellipsoidal heights:
 real DEMs are orthometric (``datum="egm96"``: h = H + N with the bundled EGM96
 grid, :func:`geoloc.geodesy.geoid.egm96_undulation`); synthetic ones may already be
 ellipsoidal (``datum="ellipsoid"``).
 
-Any CRS: query points are transformed from geodetic WGS-84 to the DEM's CRS
-with pyproj. The exact first-hit solver of :mod:`geoloc.surfaces.terrain` walks
-geographic cells and needs a geographic (lat/lon) DEM; the iterative solvers
-work with any CRS.
+A raster covers half a pixel more than its node hull on each side; GDAL samples
+that band, and so does a DEM read with :meth:`DEM.open`: there the edge nodes'
+values continue (``NodeGrid.margin = 0.5``). The exact solver of
+:mod:`geoloc.surfaces.terrain` walks the cells between nodes, so its hits stay
+inside the node hull.
+
+Any CRS: :meth:`DEM.open` warps a raster in a projected CRS to a geographic
+(EPSG:4326) grid of about the same resolution, each new node the source's
+bilinear height at that point (``docs/terrain.md`` states the error this adds
+between the nodes), so that every solver, ``exact`` included, works on it.
+:meth:`DEM.from_array` and ``DEM.open(..., geographic=False)`` keep a projected
+grid: queries are then transformed from geodetic WGS-84 to the grid's CRS with
+pyproj; the iterative solvers work with it, the exact walk needs
+:meth:`DEM.to_geographic` first.
 
 Conventions: ``docs/conventions.md`` (radians inside; ``_deg`` only at edges).
 """
@@ -69,43 +79,115 @@ class DEM:
             self._to_crs = pyproj.Transformer.from_crs("EPSG:4326", self.crs, always_xy=True)
             self._from_crs = pyproj.Transformer.from_crs(self.crs, "EPSG:4326", always_xy=True)
         self._cell_max = None
+        #: The CRS of the file before :meth:`to_geographic` warped it (WKT), or None.
+        self.source_crs = None
 
     # ------------------------------------------------------------------ building
     @classmethod
-    def open(cls, path, datum="egm96", band: int = 1) -> "DEM":
+    def open(cls, path, datum="egm96", band: int = 1, geographic: bool = True) -> "DEM":
         """Read a north-up raster (GeoTIFF, any GDAL format) with rasterio.
 
         Parameters
         ----------
         path : path-like
-            Raster file; its pixel centres are taken as the nodes.
+            Raster file; its pixel centres are taken as the nodes, and the grid
+            is defined up to the raster's outer edge (half a pixel beyond the
+            outer nodes, the edge values continued there, as GDAL samples it).
         datum : {"egm96", "ellipsoid"}
             Vertical datum of the file's heights. Real DEMs (SRTM, ASTER,
             ETOPO) are orthometric: "egm96" (the default) adds N.
         band : int
             Band to read.
+        geographic : bool
+            A raster in a projected CRS is warped to a geographic grid
+            (:meth:`to_geographic`) unless this is False.
 
         Raises
         ------
-        FileNotFoundError, ValueError
-            Missing file, rotated/south-up raster, missing CRS, bad datum.
+        FileNotFoundError
+            No such file.
+        ValueError
+            A folder, a file GDAL cannot read, a raster without georeferencing
+            (no geotransform or no CRS), a rotated or south-up raster, a bad
+            datum or band. The message names the file and what is wrong.
         """
+        import warnings
+
         import rasterio
+        from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
         _check_datum(datum)
         path = Path(path)
+        if path.is_dir():
+            raise ValueError(f"DEM {path} is a folder, not a raster file: give the DEM file "
+                             "itself (e.g. a GeoTIFF)")
         if not path.is_file():
             raise FileNotFoundError(f"DEM file not found: {path}")
-        with rasterio.open(path) as src:
-            t = src.transform
-            if t.b != 0 or t.d != 0 or t.e >= 0:
-                raise ValueError(f"DEM {path}: transform {tuple(t)[:6]} is not north-up")
-            if src.crs is None:
-                raise ValueError(f"DEM {path}: the file has no CRS")
-            v = src.read(band, masked=True).astype(float).filled(np.nan)
-            crs = src.crs.to_wkt()
-        grid = NodeGrid(v, t.f + t.e / 2, t.c + t.a / 2, -t.e, t.a, str(path))
-        return cls._with_datum(grid, crs, datum, str(path))
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", NotGeoreferencedWarning)
+                with rasterio.open(path) as src:
+                    t, crs = src.transform, src.crs
+                    if crs is None and t.is_identity:
+                        raise ValueError(
+                            f"DEM {path} ({src.driver}) has no georeferencing: neither a "
+                            "geotransform nor a CRS; a DEM must say where its pixels are "
+                            "(e.g. a GeoTIFF, or a world file and .prj beside the image)")
+                    if crs is None:
+                        raise ValueError(f"DEM {path}: the file has no CRS (its geotransform "
+                                         "alone does not say which coordinates it uses)")
+                    if t.is_identity:
+                        raise ValueError(f"DEM {path}: the file has a CRS but no geotransform "
+                                         "(pixel positions unknown)")
+                    if t.b != 0 or t.d != 0:
+                        raise ValueError(f"DEM {path}: transform {tuple(t)[:6]} is rotated, "
+                                         "not north-up (warp it to a north-up grid, e.g. "
+                                         "gdalwarp)")
+                    if t.e >= 0:
+                        raise ValueError(f"DEM {path}: transform {tuple(t)[:6]} is south-up "
+                                         "(row 0 at the south edge), not north-up (flip it, "
+                                         "e.g. gdalwarp)")
+                    if not 1 <= band <= src.count:
+                        raise ValueError(f"DEM {path}: band {band} requested, the file has "
+                                         f"{src.count}")
+                    if min(src.height, src.width) < 2:
+                        raise ValueError(f"DEM {path}: {src.height} x {src.width} pixels; a DEM "
+                                         "needs at least 2 x 2")
+                    v = src.read(band, masked=True).astype(float).filled(np.nan)
+                    crs = crs.to_wkt()
+        except RasterioError as e:
+            raise ValueError(f"DEM {path}: not a raster that GDAL can read ({e})") from None
+        grid = NodeGrid(v, t.f + t.e / 2, t.c + t.a / 2, -t.e, t.a, str(path), margin=0.5)
+        source_crs = None
+        if geographic:
+            import pyproj
+
+            if not pyproj.CRS.from_user_input(crs).is_geographic:
+                source_crs = crs
+                grid, crs = _warp_to_geographic(grid, crs), "EPSG:4326"
+        dem = cls._with_datum(grid, crs, datum, str(path))
+        dem.source_crs = source_crs
+        return dem
+
+    def to_geographic(self) -> "DEM":
+        """This DEM on a geographic (EPSG:4326) grid; itself if it is geographic already.
+
+        The nodes form the north-up grid that ``rasterio.warp.calculate_default_transform``
+        chooses for the source's extent (about the source's resolution); each node's
+        height is the source's bilinear height at that point (orthometric heights are
+        warped and N added at the new nodes). Nodes outside the source footprint have
+        no data. Between nodes the result differs from the source by the change of
+        interpolation grid: measured in ``docs/terrain.md``.
+        """
+        if self.is_geographic:
+            return self
+        src = self.grid if self.orthometric is None else NodeGrid(
+            self.orthometric, self.grid.lat_north_deg, self.grid.lon_west_deg,
+            self.grid.dlat_deg, self.grid.dlon_deg, self.grid.path, self.grid.margin)
+        crs = self.crs.to_wkt()
+        dem = self._with_datum(_warp_to_geographic(src, crs), "EPSG:4326", self.datum, self.path)
+        dem.source_crs = crs
+        return dem
 
     @classmethod
     def from_array(cls, heights, lat_north_deg, lon_west_deg, dlat_deg, dlon_deg,
@@ -145,7 +227,7 @@ class DEM:
             n = egm96_undulation(np.deg2rad(lat_deg), np.deg2rad(lon_deg))
             ortho = grid.values
             grid = NodeGrid(ortho + n, grid.lat_north_deg, grid.lon_west_deg,
-                            grid.dlat_deg, grid.dlon_deg, grid.path)
+                            grid.dlat_deg, grid.dlon_deg, grid.path, grid.margin)
             dem = cls(grid, crs=crs, datum=datum, orthometric=ortho, path=path)
         return dem
 
@@ -192,6 +274,21 @@ class DEM:
             return (w, s, e, n)
         return tuple(self._from_crs.transform_bounds(w, s, e, n))
 
+    @property
+    def extent_deg(self) -> tuple:
+        """(west, south, east, north) [deg] where :meth:`sample` gives heights.
+
+        The node hull grown by ``grid.margin`` cells: for a raster read with
+        :meth:`open`, the raster's outer edges. Geodetic bounding box for a
+        projected CRS.
+        """
+        g = self.grid
+        mx, my = g.margin * g.dlon_deg, g.margin * g.dlat_deg
+        w, s, e, n = g.lon_west_deg - mx, g.lat_south_deg - my, g.lon_east_deg + mx, g.lat_north_deg + my
+        if self.is_geographic:
+            return (w, s, e, n)
+        return tuple(self._from_crs.transform_bounds(w, s, e, n))
+
     # ------------------------------------------------------------------ sampling
     def sample(self, lat, lon):
         """Ellipsoidal height and status at geodetic points.
@@ -204,7 +301,7 @@ class DEM:
         Returns
         -------
         h : ndarray
-            Bilinear ellipsoidal height [m]; NaN outside the node hull or
+            Bilinear ellipsoidal height [m]; NaN outside :attr:`extent_deg` or
             where a node of the cell has no data.
         status : ndarray of uint8
             OK, LEFT_DEM (outside), NODATA, or INVALID_INPUT (non-finite).
@@ -345,3 +442,39 @@ class DEM:
         w, s, e, n = self.bounds_deg
         return (f"DEM({self.path or 'array'}, {self.shape[0]}x{self.shape[1]} nodes, "
                 f"W{w:.4f} S{s:.4f} E{e:.4f} N{n:.4f}, datum={self.datum})")
+
+
+def _warp_to_geographic(grid: NodeGrid, crs_wkt: str) -> NodeGrid:
+    """A projected node grid resampled (bilinear) at the nodes of a geographic grid.
+
+    The geographic grid is the one GDAL would choose for the raster
+    (``calculate_default_transform``: same extent, about the same resolution);
+    each of its nodes (pixel centres) is transformed to the source CRS with pyproj
+    and the source grid's bilinear height read there; nodes outside the source's
+    extent have no data. The result has ``margin = 0.5`` like any opened raster.
+    """
+    import warnings
+
+    import pyproj
+    from rasterio.warp import calculate_default_transform
+
+    nr, nc = grid.values.shape
+    mx, my = grid.margin * grid.dlon_deg, grid.margin * grid.dlat_deg
+    left, right = grid.lon_west_deg - mx, grid.lon_east_deg + mx
+    bottom, top = grid.lat_south_deg - my, grid.lat_north_deg + my
+    # the raster's own extent and pixel count (margin 0: node hull plus half a cell)
+    w_px = nc - 1 + 2 * grid.margin if grid.margin else nc
+    h_px = nr - 1 + 2 * grid.margin if grid.margin else nr
+    with warnings.catch_warnings():  # rasterio 1.4's own use of Affine's "*" (its business)
+        warnings.simplefilter("ignore", PendingDeprecationWarning)
+        t, width, height = calculate_default_transform(
+            crs_wkt, "EPSG:4326", int(round(w_px)), int(round(h_px)), left, bottom, right, top)
+    lon = t.c + t.a * (np.arange(width) + 0.5)
+    lat = t.f + t.e * (np.arange(height) + 0.5)
+    LON, LAT = np.meshgrid(lon, lat)
+    tr = pyproj.Transformer.from_crs("EPSG:4326", pyproj.CRS.from_wkt(crs_wkt), always_xy=True)
+    x, y = tr.transform(LON, LAT)
+    x, y = np.asarray(x), np.asarray(y)
+    v = grid.interp(y, x)
+    v[~grid.contains(y, x)] = np.nan
+    return NodeGrid(v, float(lat[0]), float(lon[0]), float(-t.e), float(t.a), grid.path, margin=0.5)

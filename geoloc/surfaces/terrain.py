@@ -1,4 +1,4 @@
-"""Line of sight x DEM: three solvers behind one interface (GEOMETRY.md section 4).
+"""Line of sight x DEM: three solvers behind one interface (docs/method.md section 4).
 
 * ``"steps"``: the descending steps of [Q17 section 2.3]: H_0 = H_max (the
   highest DEM node), locate the target on the ellipsoid inflated to H_n
@@ -274,8 +274,9 @@ def _exact_tables(dem: DEM):
     if tab is not None:
         return tab
     if not dem.is_geographic:
-        raise ValueError(f"method 'exact' needs a geographic (lat/lon) DEM, got CRS {dem.crs.name!r}: "
-                         "reproject the DEM to EPSG:4326, or use 'steps' / 'bisect'")
+        raise ValueError(f"method 'exact' needs a geographic (lat/lon) grid, got CRS {dem.crs.name!r}: "
+                         "use dem.to_geographic() (DEM.open does it for a file unless "
+                         "geographic=False), or the 'steps' / 'bisect' methods")
     g = dem.grid
     hgt = np.ascontiguousarray(g.values, dtype=float)
     nr, nc = hgt.shape
@@ -346,7 +347,7 @@ def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
 def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: float = 1.0,
                   threshold: float = 1.0, surface: str = "bilinear", trace: bool = False,
                   max_iter: int | None = None, parallel: bool = False) -> TerrainHit:
-    """Intersect lines of sight with a DEM (GEOMETRY.md section 4).
+    """Intersect lines of sight with a DEM (docs/method.md section 4).
 
     Parameters
     ----------
@@ -459,3 +460,45 @@ def random_oblique_rays(dem: DEM, n: int, rng: np.random.Generator, frame_angle_
     t = geodetic_to_ecef(lat, lon, hT)
     o = t - (clearance_m / np.cos(off))[:, None] * d
     return LineOfSight(o, d, np.zeros(n, np.uint8))
+
+
+class DemSurface:
+    """A DEM as a surface: the first visible crossing of each line of sight (:func:`intersect_dem`).
+
+    Parameters
+    ----------
+    dem : geoloc.surfaces.dem.DEM
+    method : {"steps", "bisect", "exact"}
+        [Q17 section 2.3] descending steps, [L23] bisection, or the exact first hit.
+    dem_model : {"bilinear", "triangles"}
+        How the exact solver reads between nodes (``intersect_dem``'s ``surface=``).
+    **options
+        ``eps_h``, ``threshold``, ``trace``, ``max_iter``, ``parallel`` of :func:`intersect_dem`.
+    """
+
+    def __init__(self, dem: DEM, method: str = "exact", dem_model: str = "bilinear", **options):
+        if method not in METHODS:
+            raise ValueError(f"DEM method = {method!r}: must be one of {METHODS}")
+        self.dem, self.method, self.dem_model, self.options = dem, method, dem_model, options
+
+    def intersect(self, los: LineOfSight) -> TerrainHit:
+        return intersect_dem(los, self.dem, self.method, surface=self.dem_model, **self.options)
+
+    def __repr__(self) -> str:
+        return f"DemSurface({self.dem!r}, method={self.method!r}, dem_model={self.dem_model!r})"
+
+
+def surface_for(target_h=None, dem: DEM | None = None, *, method: str = "exact", kind: str = "inflated",
+                dem_model: str = "bilinear", **options):
+    """The one place the "constant height or DEM" choice is made: a DEM if given, else a height.
+
+    Returns a :class:`DemSurface` or a :class:`geoloc.surfaces.height.HeightSurface`;
+    ValueError when neither a DEM nor a target height is given.
+    """
+    from geoloc.surfaces.height import HeightSurface
+
+    if dem is not None:
+        return DemSurface(dem, method, dem_model, **options)
+    if target_h is None:
+        raise ValueError("give a DEM or a target height (ellipsoidal, metres)")
+    return HeightSurface(target_h, kind)

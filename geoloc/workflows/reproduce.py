@@ -6,7 +6,7 @@
 * :func:`li2023_report`: [L23] iteration saving of bisection on the target
   elevation against [Q17]'s descending steps.
 
-Every paper number printed here is quoted from the paper (GEOMETRY.md section 8);
+Every paper number printed here is quoted from the paper (docs/method.md section 8);
 every project number is computed at run time. Conventions: ``docs/conventions.md``.
 """
 
@@ -155,8 +155,10 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
     rms_all = float(np.sqrt(np.nanmean(rr.error_to_paper_m ** 2)))
     rep.numbers["flight_rms_to_paper_m"] = rms_all
     rep.add(f"   all: RMS distance to the published positions {rms_all:.2f} m (published coordinates "
-            "are rounded to 1e-5 deg, about 1 m); Table 5 (57-63 deg) is withheld from the copy, "
-            f"published mean {Q17_MEAN_ERROR['T5']} m", "")
+            "are rounded to 1e-5 deg, about 1 m)",
+            "   [Q17] Table 5, a third flight at roll gimbal angles of 57-63 deg, is not in the "
+            "bundled records (the copy of the paper they come from lacks that table); the paper's "
+            f"text gives its mean error to truth, {Q17_MEAN_ERROR['T5']} m", "")
 
     # 5. Fig. 10 trend
     angles = np.array([10.0, 30.0, 50.0, 63.0, 70.0, 80.0, 82.0])
