@@ -1,4 +1,9 @@
-"""``geoloc locate``: geolocate one pixel from the aircraft pose, gimbal angles and a camera."""
+"""``geoloc locate``: geolocate one pixel from the aircraft pose, gimbal angles and a sensor.
+
+Also the option groups the other verbs share: ``--sensor`` (alias ``--camera``),
+``--angle NAME=DEG``, and for the verbs that read records ``--columns FILE`` and
+``--altitude-datum`` (:func:`add_records_options`, :func:`records_from_args`).
+"""
 
 from __future__ import annotations
 
@@ -10,9 +15,12 @@ import numpy as np
 
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.frames.chain import Pose
+from geoloc.io.columns import DATUM_TEXT, DATUMS, ELLIPSOID_DATUM, ColumnMap, HeightSource, load_column_map
 from geoloc.io.records import Records, load_records
-from geoloc.locate import line_of_sight
+from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera
+from geoloc.sensors.frame import FrameSensor
+from geoloc.sensors.sensor_file import load_camera_or_sensor, load_sensor_columns
 from geoloc.status import Status, describe
 from geoloc.surfaces.height import intersect_los_height
 
@@ -28,18 +36,22 @@ def register(sub) -> None:
     g = p.add_argument_group("aircraft (POS)")
     g.add_argument("--lat-deg", type=float, required=True, help="aircraft geodetic latitude [deg]")
     g.add_argument("--lon-deg", type=float, required=True, help="aircraft longitude [deg, east +]")
-    g.add_argument("--h-m", type=float, required=True, help="aircraft ellipsoidal height [m]")
+    g.add_argument("--h-m", type=float, required=True,
+                   help="aircraft height [m]: ellipsoidal (WGS 84) unless --altitude-datum egm96 (MSL)")
+    add_altitude_datum_option(g, "--h-m")
     g.add_argument("--heading-deg", type=float, default=0.0, help="heading psi [deg] (default 0)")
     g.add_argument("--pitch-deg", type=float, default=0.0, help="pitch theta, nose up + [deg]")
     g.add_argument("--roll-deg", type=float, default=0.0, help="roll phi, right wing down + [deg]")
-    g = p.add_argument_group("gimbal and camera")
-    g.add_argument("--gimbal-roll-deg", type=float, default=0.0,
-                   help="outer gimbal (roll) angle [deg]; negative looks right of track")
-    g.add_argument("--gimbal-pitch-deg", type=float, default=0.0, help="inner gimbal (pitch) angle [deg]")
-    g.add_argument("--camera", default=None,
-                   help="camera TOML file (default: the bundled assets/cameras/qiao2017.toml)")
-    g.add_argument("--row", type=float, default=None, help="pixel row i, 1-based (default: CCD centre)")
-    g.add_argument("--col", type=float, default=None, help="pixel column j, 1-based (default: CCD centre)")
+    g = p.add_argument_group("gimbal and sensor")
+    g.add_argument("--gimbal-roll-deg", type=float, default=None,
+                   help="[Q17] outer gimbal (roll) angle [deg]; negative looks right of track")
+    g.add_argument("--gimbal-pitch-deg", type=float, default=None, help="[Q17] inner gimbal (pitch) angle [deg]")
+    add_angle_option(g)
+    add_sensor_option(g)
+    g.add_argument("--row", type=float, default=None,
+                   help="pixel row, 1-based pixel centres (default: the image centre)")
+    g.add_argument("--col", type=float, default=None,
+                   help="pixel column, 1-based pixel centres (default: the image centre)")
     g = p.add_argument_group("target")
     g.add_argument("--target-h-m", type=float, default=None,
                    help="target ellipsoidal height [m] (required unless a DEM is given)")
@@ -52,14 +64,100 @@ def register(sub) -> None:
     add_dem_options(p, locate_hook)
 
 
-def load_camera(path) -> Camera:
-    return Camera.from_toml(path if path else asset_path(*DEFAULT_CAMERA))
+def add_sensor_option(parser) -> None:
+    """``--sensor FILE`` (alias ``--camera``): a sensor file, or a first-phase camera file."""
+    parser.add_argument("--sensor", "--camera", dest="camera", default=None, metavar="FILE",
+                        help="sensor TOML ([lens], [gimbal], [mount], [lever_arm], [boresight]; "
+                        "docs/sensor_format.md) or a first-phase camera TOML "
+                        "(default: the bundled assets/cameras/qiao2017.toml)")
 
 
-def load_records_reporting(path) -> Records:
+def add_angle_option(parser) -> None:
+    """``--angle NAME=DEG`` (repeatable): the sensor gimbal's joint angles by name."""
+    parser.add_argument("--angle", action="append", default=[], metavar="NAME=DEG",
+                        help="a gimbal joint angle in degrees, by the name the sensor's gimbal gives it "
+                        "(e.g. --angle azimuth=90 --angle elevation=-30); repeat for each joint")
+
+
+def add_altitude_datum_option(parser, what: str = "the records' ac_h_m") -> None:
+    """``--altitude-datum ellipsoid|egm96``: the vertical datum of the aircraft heights."""
+    parser.add_argument("--altitude-datum", choices=list(DATUMS), default=None,
+                        help=f"vertical datum of the aircraft height ({what}): ellipsoid (WGS 84; the "
+                        "default, when not given) or egm96 (MSL, orthometric: made ellipsoidal with the "
+                        "bundled EGM96 grid, h = H + N); a column map's datum for ac_h_m wins")
+
+
+def add_columns_option(parser) -> None:
+    """``--columns FILE``: a column map for the records CSV (docs/columns.md)."""
+    parser.add_argument("--columns", default=None, metavar="MAP.toml",
+                        help="column map: the records CSV's own column names and units (deg/rad, m/ft, "
+                        "ellipsoid/egm96 heights, zero-/one-based pixels) onto the canonical columns "
+                        "(docs/columns.md); default: the sensor file's [columns] table, if any")
+
+
+def add_records_options(parser) -> None:
+    """The options of a verb that reads records: ``--columns`` and ``--altitude-datum``
+    (read them with :func:`records_from_args`)."""
+    add_columns_option(parser)
+    add_altitude_datum_option(parser)
+
+
+def parse_angles(items) -> dict:
+    """``["azimuth=90", ...]`` -> ``{"azimuth": 90.0}``; errors name the item."""
+    out = {}
+    for item in items or []:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or not name.isidentifier():
+            raise ValueError(f"--angle {item!r}: must be NAME=DEGREES, e.g. --angle azimuth=90")
+        try:
+            v = float(value)
+        except ValueError:
+            raise ValueError(f"--angle {item!r}: {value!r} is not a number of degrees") from None
+        if not math.isfinite(v):
+            raise ValueError(f"--angle {item!r}: {value!r} is not a finite number of degrees")
+        if name in out:
+            raise ValueError(f"--angle {name} is given twice")
+        out[name] = v
+    return out
+
+
+def load_camera(path) -> Camera | FrameSensor:
+    """The sensor of ``--sensor`` / ``--camera``: a first-phase camera file stays a :class:`Camera`
+    (every first-phase verb takes it as before), a sensor file becomes a :class:`FrameSensor`."""
+    return load_camera_or_sensor(path if path else asset_path(*DEFAULT_CAMERA))
+
+
+def _is_bundled_records(path) -> bool:
+    from pathlib import Path
+
+    try:
+        return Path(path).resolve() == asset_path(*DEFAULT_RECORDS).resolve()
+    except OSError:
+        return False
+
+
+def load_records_reporting(path, sensor=None, columns=None, altitude_datum=None) -> Records:
     """Records from ``path`` (default: the bundled flight test); each rejected row is
-    reported on stderr with its line, and no good row at all is an error."""
-    records = load_records(path if path else asset_path(*DEFAULT_RECORDS))
+    reported on stderr with its line, and no good row at all is an error. With
+    ``sensor``, its gimbal's angles are the required ``<angle>_deg`` columns.
+
+    ``columns`` is a column map (a :class:`~geoloc.io.columns.ColumnMap`, a
+    ``[columns]`` dict or a map file); ``altitude_datum`` the ``--altitude-datum``
+    (None: not stated; ellipsoidal, except that the bundled flight test's heights
+    are ellipsoidal by docs/records.md, which counts as stated). A column map's
+    datum for ``ac_h_m`` that differs from ``altitude_datum`` wins, with a note."""
+    angles = as_sensor(sensor).angle_names if sensor is not None else ("gimbal_roll", "gimbal_pitch")
+    path = path if path else asset_path(*DEFAULT_RECORDS)
+    source = "--altitude-datum"
+    if altitude_datum is None and columns is None and _is_bundled_records(path):
+        altitude_datum, source = "ellipsoid", "docs/records.md"
+    records = load_records(path, angles=angles, columns=columns, altitude_datum=altitude_datum,
+                           altitude_source=source)
+    alt = records.altitude
+    if altitude_datum is not None and alt.datum != altitude_datum:
+        print(f"{records.path}: note: --altitude-datum {altitude_datum} not used for ac_h_m: the "
+              f"{alt.stated} gives datum {alt.datum!r} for column {alt.column!r}", file=sys.stderr)
     for err in records.errors:
         print(f"{records.path}: skipped {err}", file=sys.stderr)
     if len(records) == 0:
@@ -67,20 +165,83 @@ def load_records_reporting(path) -> Records:
     return records
 
 
-def pose_from_args(args) -> Pose:
-    return Pose.from_deg(args.lat_deg, args.lon_deg, args.h_m, args.heading_deg, args.pitch_deg,
-                         args.roll_deg, args.gimbal_roll_deg, args.gimbal_pitch_deg).validate()
+def column_map_from_args(args) -> ColumnMap | None:
+    """The column map of ``--columns FILE``, else of the ``--sensor`` file's ``[columns]`` table, else None."""
+    from geoloc.assets import resolve_user_path
+
+    path = getattr(args, "columns", None)
+    if path:
+        return load_column_map(resolve_user_path(path))
+    sensor_path = getattr(args, "camera", None)
+    if sensor_path:
+        sensor_path = resolve_user_path(sensor_path)
+        table = load_sensor_columns(sensor_path)
+        if table is not None:
+            return ColumnMap.from_table(table, source=str(sensor_path))
+    return None
+
+
+def records_from_args(args, path, sensor) -> Records:
+    """:func:`load_records_reporting` with the verb's ``--columns`` (or the sensor file's
+    ``[columns]``) and ``--altitude-datum`` (options of :func:`add_records_options`)."""
+    return load_records_reporting(path, sensor, columns=column_map_from_args(args),
+                                  altitude_datum=getattr(args, "altitude_datum", None))
+
+
+def altitude_from_args(args) -> HeightSource:
+    """How ``--h-m`` is read: its datum and whether ``--altitude-datum`` stated it."""
+    return HeightSource.of_option(getattr(args, "altitude_datum", None), "--h-m")
+
+
+def ellipsoidal_h_from_args(args) -> float:
+    """``--h-m`` as an ellipsoidal height: + N (bundled EGM96) for ``--altitude-datum egm96``."""
+    if altitude_from_args(args).datum != "egm96":
+        return args.h_m
+    from geoloc.geodesy.geoid import egm96_undulation
+
+    for name in ("lat_deg", "lon_deg", "h_m"):
+        v = getattr(args, name)
+        if not math.isfinite(v):
+            raise ValueError(f"--{name.replace('_', '-')} {v}: not a finite number")
+    if abs(args.lat_deg) > 90.0:
+        raise ValueError(f"--lat-deg {args.lat_deg}: latitude must be in [-90, 90] deg")
+    n = float(egm96_undulation(math.radians(args.lat_deg), math.radians(args.lon_deg)))
+    return args.h_m + n
+
+
+def pose_from_args(args, sensor) -> Pose:
+    """The pose of the command line, with every joint angle the sensor's gimbal needs."""
+    angles = parse_angles(getattr(args, "angle", []))
+    for name in ("gimbal_roll", "gimbal_pitch"):
+        v = getattr(args, f"{name}_deg", None)
+        if v is not None:
+            if name in angles:
+                raise ValueError(f"--{name.replace('_', '-')}-deg and --angle {name}= both given")
+            angles[name] = v
+    need = as_sensor(sensor).angle_names
+    missing = [a for a in need if a not in angles and a not in ("gimbal_roll", "gimbal_pitch")]
+    if missing:
+        raise ValueError(f"missing angle(s) {missing}: the sensor's {as_sensor(sensor).gimbal.name} gimbal "
+                         f"needs {list(need)}; give --angle NAME=DEG for each")
+    unknown = sorted(set(angles) - set(need) - {"gimbal_roll", "gimbal_pitch"})
+    if unknown:
+        raise ValueError(f"--angle {unknown[0]}: the sensor's {as_sensor(sensor).gimbal.name} gimbal has no "
+                         f"such joint; its angles are {list(need)}")
+    q = {k: angles.pop(k, 0.0) for k in ("gimbal_roll", "gimbal_pitch")}
+    return Pose.from_deg(args.lat_deg, args.lon_deg, ellipsoidal_h_from_args(args), args.heading_deg, args.pitch_deg,
+                         args.roll_deg, q["gimbal_roll"], q["gimbal_pitch"], angles_deg=angles).validate()
 
 
 def run(args) -> int:
     camera = load_camera(args.camera)
-    pose = pose_from_args(args)
+    pose = pose_from_args(args, camera)
     for name in ("row", "col"):
         v = getattr(args, name)
         if v is not None and not math.isfinite(v):
             raise ValueError(f"{name} = {v} is not a finite pixel coordinate")
-    row = camera.center_pixel[0] if args.row is None else args.row
-    col = camera.center_pixel[1] if args.col is None else args.col
+    sensor = as_sensor(camera)
+    row = sensor.center_pixel[0] if args.row is None else args.row
+    col = sensor.center_pixel[1] if args.col is None else args.col
     los = line_of_sight(pose, camera, row, col)
     extra = {}
     if args._terrain_hook is not None:
@@ -102,6 +263,7 @@ def run(args) -> int:
         else:
             print(f"geoloc locate: {msg}")
         return 1
+    alt = altitude_from_args(args)
     out = {
         "lat_deg": float(ground.lat_deg),
         "lon_deg": float(ground.lon_deg),
@@ -110,6 +272,9 @@ def run(args) -> int:
         "row": float(row),
         "col": float(col),
         "status": "ok",
+        "h_datum": ELLIPSOID_DATUM,
+        "ac_h_m": float(pose.h) if np.ndim(pose.h) == 0 else float(np.ravel(pose.h)[0]),
+        "ac_h_datum_input": alt.describe(),
     }
     out.update(extra)
     if args.json:
@@ -120,4 +285,14 @@ def run(args) -> int:
         if "surface_difference_m" in out:
             print(f"inflated ellipsoid [Q17 eq. 11] vs exact constant-height surface: "
                   f"{out['surface_difference_m'] * 1000:.1f} mm apart")
+        print(_locate_datum_line(alt, args.h_m, out["ac_h_m"]))
     return 0
+
+
+def _locate_datum_line(alt: HeightSource, given: float, used: float) -> str:
+    if alt.datum == "egm96":
+        return (f"heights: aircraft --h-m {given:.2f} m read as {DATUM_TEXT['egm96']} (--altitude-datum), "
+                f"used as {used:.2f} m ellipsoidal (N = {used - given:+.2f} m, bundled EGM96); "
+                f"h is {ELLIPSOID_DATUM}")
+    how = "--altitude-datum" if alt.stated else "the default: not stated; --altitude-datum egm96 if it is MSL"
+    return f"heights: aircraft --h-m read as {ELLIPSOID_DATUM} ({how}); h is {ELLIPSOID_DATUM}"

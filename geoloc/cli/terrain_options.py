@@ -3,12 +3,15 @@
 ``add_dem_options(parser)`` adds ``--dem FILE --method --dem-datum --eps-h
 --threshold --dem-surface``; giving ``--dem`` installs the verb's terrain hook
 (``args._terrain_hook``), so the verb's own code path is untouched without it.
+The hooks warn when the DEM's datum and the aircraft heights' datum look mixed
+(:func:`warn_datums`).
 Degrees and metres at this edge (docs/conventions.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 import numpy as np
 
@@ -26,8 +29,23 @@ def _solve(args, los):
                          threshold=args.threshold, surface=args.dem_surface)
 
 
+def warn_datums(verb: str, dem_datum: str, height) -> list:
+    """Print (on stderr) and return the warnings of a DEM of ``dem_datum`` meeting aircraft heights
+    read as ``height`` (a :class:`geoloc.io.columns.HeightSource`): see
+    :func:`geoloc.io.columns.datum_warnings`."""
+    from geoloc.io.columns import datum_warnings
+
+    msgs = datum_warnings(dem_datum, height)
+    for m in msgs:
+        print(f"geoloc {verb}: warning: {m}", file=sys.stderr)
+    return msgs
+
+
 def locate_hook(args, los):
     """``geoloc locate --dem``: returns (ground point, extra output fields)."""
+    from geoloc.io.columns import HeightSource
+
+    warn_datums("locate", args.dem_datum, HeightSource.of_option(getattr(args, "altitude_datum", None)))
     hit = _solve(args, los)
     extra = {"method": args.method, "dem_evaluations": int(hit.dem_evaluations)}
     if args.method == "bisect":
@@ -39,11 +57,12 @@ def replay_hook(args, records, camera):
     """``geoloc replay --dem``: locate every record on the DEM; adds status and dem_evaluations."""
     from geoloc.workflows.replay import records_line_of_sight, result_from_ground
 
+    warn_datums("replay", args.dem_datum, records.altitude)
     hit = _solve(args, records_line_of_sight(records, camera))
     extra = {"status": hit.status, "dem_evaluations": hit.dem_evaluations.astype(np.int64)}
     if args.method == "bisect":
         extra["hidden"] = hit.hidden.astype(np.int64)
-    return result_from_ground(records, hit, extra)
+    return result_from_ground(records, hit, extra, camera=camera)
 
 
 class _DemAction(argparse.Action):

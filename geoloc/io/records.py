@@ -1,6 +1,6 @@
 """Flight-test records: load and validate a CSV with the columns of [Q17] Tables 3-4.
 
-Columns (degrees and metres at this edge; see ``../shared/data/README.md``):
+Columns (degrees and metres at this edge; see ``docs/records.md``):
 ``row, col, ac_lat_deg, ac_lon_deg, ac_h_m, heading_deg, pitch_deg, roll_deg,
 gimbal_roll_deg, gimbal_pitch_deg`` are required; ``table, point,
 paper_lat_deg, paper_lon_deg, paper_height_m, truth_lat_deg, truth_lon_deg,
@@ -8,6 +8,13 @@ paper_error_m`` and any other column are optional and carried through.
 
 Every field is validated (finite, in range). A bad row is reported with its
 line number, column and value, and left out; the good rows still run.
+
+Any other CSV loads through a column map (``columns=``, :mod:`geoloc.io.columns`,
+``docs/columns.md``): its own names and units (deg/rad, m/ft, ellipsoidal or
+EGM96/MSL heights, zero- or one-based pixels) become the canonical columns
+before validation; its own columns are carried through. Every height the
+records hold is ellipsoidal (WGS 84); the rows say so in an ``h_datum`` column,
+and how the aircraft heights were read in ``ac_h_datum_input``.
 Conventions: ``docs/conventions.md``.
 """
 
@@ -21,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.frames.chain import Pose
+from geoloc.io.columns import ColumnMap, HeightSource, as_column_map, plan_columns
 
 #: Required numeric columns and their valid ranges (inclusive).
 REQUIRED = {
@@ -35,6 +43,21 @@ REQUIRED = {
     "gimbal_roll_deg": (-180.0, 180.0),
     "gimbal_pitch_deg": (-180.0, 180.0),
 }
+
+#: The [Q17] gimbal's angles (the default sensor's); another sensor's joints name their own
+#: columns ``<angle>_deg`` (``azimuth_deg``, ``elevation_deg``, ...).
+Q17_ANGLES = ("gimbal_roll", "gimbal_pitch")
+
+#: Range of a joint-angle column [deg].
+ANGLE_RANGE_DEG = (-360.0, 360.0)
+
+
+def required_columns(angles=Q17_ANGLES) -> dict:
+    """The required columns for a sensor whose gimbal has joint ``angles``."""
+    base = {k: v for k, v in REQUIRED.items() if not (k.startswith("gimbal_") and k.endswith("_deg"))}
+    for a in angles:
+        base[f"{a}_deg"] = REQUIRED.get(f"{a}_deg", ANGLE_RANGE_DEG)
+    return base
 
 #: Optional numeric columns (may be empty) and their ranges.
 OPTIONAL = {
@@ -69,13 +92,24 @@ class Records:
     ----------
     path : str
     header : list of str
-        The file's columns, in order.
+        The rows' columns, in order: the file's (a column whose canonical name a
+        column map redefines is kept as ``<name>_input``), the canonical columns
+        a column map computes, then ``h_datum`` and ``ac_h_datum_input``.
     rows : list of dict
-        The good rows as text, exactly as read (for writing them back).
+        The good rows as text (the file's cells exactly as read, for writing them
+        back; computed canonical values as ``repr`` of the float).
     lines : ndarray of int
         1-based line number of each good row.
     errors : list of RowError
         One entry per rejected row.
+    angles : tuple of str
+        The sensor gimbal's joint angles.
+    source_header : list of str
+        The file's own header (``header`` if not given).
+    heights : dict
+        Height column -> :class:`~geoloc.io.columns.HeightSource`: how it was read
+        (column, unit, datum, who stated the datum). ``altitude`` is the aircraft's.
+    column_map : ColumnMap or None
     """
 
     path: str
@@ -83,6 +117,29 @@ class Records:
     rows: list
     lines: np.ndarray
     errors: list = field(default_factory=list)
+    angles: tuple = Q17_ANGLES
+    source_header: list = None
+    heights: dict = field(default_factory=dict)
+    column_map: ColumnMap | None = None
+
+    def __post_init__(self):
+        if self.source_header is None:
+            self.source_header = list(self.header)
+
+    @property
+    def altitude(self) -> HeightSource:
+        """How the aircraft heights (``ac_h_m``) were read (default: ellipsoidal, not stated)."""
+        return self.heights.get("ac_h_m", HeightSource())
+
+    def datum_summary(self) -> str:
+        """One line for a verb's summary: the aircraft heights' datum and what was done with it."""
+        return self.altitude.sentence()
+
+    def subset(self, idx) -> "Records":
+        """The records of the rows ``idx`` (same header, angles, datums; no errors)."""
+        idx = np.asarray(idx, dtype=int)
+        return Records(self.path, self.header, [self.rows[k] for k in idx], self.lines[idx], [],
+                       self.angles, self.source_header, dict(self.heights), self.column_map)
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -102,11 +159,13 @@ class Records:
         return name in self.header and any(r[name].strip() for r in self.rows)
 
     def pose(self) -> Pose:
-        """The aircraft poses of all good rows as one batched :class:`Pose`."""
+        """The aircraft poses of all good rows as one batched :class:`Pose` (with the joint angles)."""
         c = self.column
+        q17 = {a: c(f"{a}_deg") for a in Q17_ANGLES if f"{a}_deg" in self.header}
+        other = {a: c(f"{a}_deg") for a in self.angles if a not in Q17_ANGLES}
         return Pose.from_deg(c("ac_lat_deg"), c("ac_lon_deg"), c("ac_h_m"), c("heading_deg"),
-                             c("pitch_deg"), c("roll_deg"), c("gimbal_roll_deg"),
-                             c("gimbal_pitch_deg"))
+                             c("pitch_deg"), c("roll_deg"), q17.get("gimbal_roll", 0.0),
+                             q17.get("gimbal_pitch", 0.0), angles_deg=other)
 
     def labels(self) -> list:
         """Short row labels: ``table-point`` when those columns exist, else the line number."""
@@ -120,8 +179,9 @@ def _to_float(text: str) -> float:
     return float(text) if text else math.nan
 
 
-def load_records(path, required=REQUIRED, optional=OPTIONAL) -> Records:
-    """Read and validate a records CSV.
+def load_records(path, required=None, optional=OPTIONAL, angles=Q17_ANGLES, columns=None,
+                 altitude_datum=None, altitude_source="--altitude-datum") -> Records:
+    """Read and validate a records CSV (UTF-8, with or without a byte-order mark).
 
     Parameters
     ----------
@@ -129,51 +189,94 @@ def load_records(path, required=REQUIRED, optional=OPTIONAL) -> Records:
     required, optional : dict
         Column name -> (min, max) valid range. Required columns must exist in
         the header and hold a finite number in range in every good row;
-        optional ones, if present, may be empty.
+        optional ones, if present, may be empty. ``required`` defaults to
+        :func:`required_columns` of ``angles``.
+    angles : sequence of str
+        The sensor gimbal's joint angles (``FrameSensor.angle_names``): each
+        needs a column ``<angle>_deg``.
+    columns : ColumnMap, dict or path, optional
+        A column map (``docs/columns.md``): the file's names and units onto the
+        canonical columns, applied to each row before validation. A dict is a
+        ``[columns]`` table, a path a column-map file.
+    altitude_datum : {"ellipsoid", "egm96"}, optional
+        Vertical datum of the aircraft heights where the column map gives none
+        (None: ellipsoidal, the default, recorded as not stated). ``egm96`` (MSL)
+        heights are made ellipsoidal with the bundled EGM96 grid, h = H + N.
+    altitude_source : str
+        Who stated ``altitude_datum`` (messages, the ``ac_h_datum_input`` column).
 
     Returns
     -------
     Records
         The good rows and the list of :class:`RowError` for the rejected ones.
+        A row rejected for a mapped column names the file's column and value.
 
     Raises
     ------
     FileNotFoundError, ValueError
         If the file is missing, empty, or lacks a required column (the error
-        names the columns).
+        names the columns), or the column map does not fit the file or the
+        sensor (the error names the key and the value).
     """
     path = Path(path)
+    angles = tuple(angles)
+    required = required_columns(angles) if required is None else required
+    column_map = as_column_map(columns)
     if not path.exists():
         raise FileNotFoundError(f"records file not found: {path}")
-    with path.open(newline="") as fh:
+    # utf-8-sig: a spreadsheet's byte-order mark must not become part of the first column's name
+    with path.open(newline="", encoding="utf-8-sig") as fh:
         reader = csv.reader(fh)
         try:
-            header = [h.strip() for h in next(reader)]
+            source_header = [h.strip() for h in next(reader)]
         except StopIteration:
             raise ValueError(f"{path}: empty file, expected a header line") from None
-        missing = [c for c in required if c not in header]
-        if missing:
-            raise ValueError(f"{path}: missing required column(s) {missing}; header is {header}")
-        rows, lines, errors = [], [], []
+        plan = plan_columns(str(path), source_header, angles, column_map, altitude_datum, altitude_source,
+                            required=required)
+        rows, lines, raws, errors = [], [], [], []
         for cells in reader:
             line = reader.line_num
             if not cells or all(not c.strip() for c in cells):
                 continue
-            if len(cells) != len(header):
+            if len(cells) != len(source_header):
                 errors.append(RowError(line, "*", ",".join(cells),
-                                       f"has {len(cells)} fields, header has {len(header)}"))
+                                       f"has {len(cells)} fields, header has {len(source_header)}"))
                 continue
-            row = dict(zip(header, (c.strip() for c in cells)))
-            err = _check_row(row, line, required, optional)
+            raw = dict(zip(source_header, (c.strip() for c in cells)))
+            row, err = plan.apply(raw, line, len(rows))
             if err is not None:
-                errors.append(err)
+                errors.append(RowError(line, *err))
                 continue
             rows.append(row)
             lines.append(line)
-    return Records(str(path), header, rows, np.array(lines, dtype=int), errors)
+            raws.append(raw)
+    bad = plan.apply_datums(rows)
+    good_rows, good_lines = [], []
+    for k, (row, line, raw) in enumerate(zip(rows, lines, raws)):
+        err = (RowError(line, *bad[k]) if k in bad
+               else _check_row(row, line, required, optional, plan, raw))
+        if err is not None:
+            errors.append(err)
+            continue
+        good_rows.append(row)
+        good_lines.append(line)
+    errors.sort(key=lambda e: e.line)
+    return Records(str(path), plan.header, good_rows, np.array(good_lines, dtype=int), errors, angles,
+                   source_header, dict(plan.heights), column_map)
 
 
-def _check_row(row, line, required, optional):
+def _check_row(row, line, required, optional, plan=None, raw=None):
+    err = _check_canonical(row, line, required, optional)
+    if err is None or plan is None:
+        return err
+    src = plan.source_of(err.column)
+    if src is None:
+        return err
+    # the value was computed from the file's column: name that column and its text
+    return RowError(line, src, raw.get(src, ""), f"{err.message} (as {err.column} = {err.value})")
+
+
+def _check_canonical(row, line, required, optional):
     for name, (lo, hi) in list(required.items()) + list(optional.items()):
         if name not in row:
             continue
