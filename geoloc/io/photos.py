@@ -1,0 +1,826 @@
+"""Drone photos: EXIF and DJI's XMP (``drone-dji``) from JPEG and TIFF, and the sensor they describe.
+
+``docs/photos.md`` is the user's page; this docstring is the short version.
+
+What is read (:func:`read_photo` -> :class:`PhotoMeta`):
+
+* **EXIF** through Pillow (``Image.getexif``, ``get_ifd``): Make, Model and
+  Orientation (IFD0); PixelXDimension / PixelYDimension, FocalLength and
+  FocalLengthIn35mmFilm (Exif IFD); GPSLatitude(Ref), GPSLongitude(Ref),
+  GPSAltitude(Ref) (GPS IFD).
+* **XMP**: the packet of a JPEG's APP1 segment that starts with
+  ``http://ns.adobe.com/xap/1.0/\\0`` (read here segment by segment), or a TIFF's
+  tag 700, parsed with ``defusedxml.ElementTree`` (no DTDs, no entities). Every
+  ``drone-dji`` property (namespace ``http://www.dji.com/drone-dji/1.0/``) is
+  collected, whether DJI wrote it as an attribute of ``rdf:Description`` (what
+  the cameras do) or as a child element (what XMP editors often rewrite it to).
+  The fields used: GpsLatitude, GpsLongitude (and DJI's older spelling
+  GpsLongtitude), AbsoluteAltitude, RelativeAltitude, AltitudeType,
+  Gimbal{Yaw,Pitch,Roll}Degree, Flight{Yaw,Pitch,Roll}Degree,
+  CalibratedFocalLength, CalibratedOpticalCenterX/Y, DewarpData, DewarpFlag,
+  RtkFlag.
+* the **raster's own size** (Pillow's ``Image.size``, without decoding pixels).
+
+The sensor (:func:`sensor_from_photo`): a lens from the calibration tags on the
+earth-referenced ``yaw-pitch-roll`` gimbal preset (DJI's gimbal angles are in
+NED, z-y-x: ``docs/conventions.md``, "Gimbal presets"); the state
+(:func:`pose_from_photo`): a :class:`geoloc.frames.chain.Pose` at the photo's GPS
+position and height, the flight attitude as heading/pitch/roll and the angles
+``gimbal_yaw``, ``gimbal_pitch``, ``gimbal_roll``.
+
+Pixels. DJI's calibration is in pixels of the full-resolution image (EXIF
+PixelXDimension x PixelYDimension), with its origin at the top-left **corner** of
+the image: the "designed" optical centre DJI writes is exactly (W/2, H/2) (for
+example 2736, 1824 for 5472 x 3648), the centre of the picture, and DewarpData's
+cx, cy are offsets from that centre ("origin point: photo center"). So an OpenCV
+principal point (0-based pixel centres, as the lenses take it) is the DJI
+coordinate minus 0.5, and a 1-based project pixel is the DJI coordinate plus 0.5.
+A photo resized since it was taken keeps the full-resolution tags: the corner
+origin makes the scaling exact (x' = s x), see :func:`scale_lens`.
+
+Heights. DJI's AbsoluteAltitude is taken as EGM96 orthometric by default
+(``altitude_datum="egm96"``) and converted with the bundled EGM96 grid
+(h = H + N); ``altitude_datum="ellipsoid"`` takes it as WGS-84 ellipsoidal height
+(what DJI's RTK aircraft write). ``docs/photos.md`` gives the sources and why.
+
+Conventions: ``docs/conventions.md`` (degrees only at this edge, ``_deg`` names).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from geoloc.frames.chain import Pose
+from geoloc.geodesy.geoid import egm96_undulation
+from geoloc.sensors.frame import FrameSensor
+from geoloc.sensors.gimbals import PRESETS
+from geoloc.sensors.lenses import BrownLens, Lens, PinholeLens
+
+__all__ = [
+    "ALTITUDE_DATUMS",
+    "DJI_NS",
+    "GIMBAL_ANGLES",
+    "XMP_APP1_HEADER",
+    "DewarpData",
+    "PhotoMeta",
+    "PhotoTagError",
+    "camera_height",
+    "lens_from_photo",
+    "lens_source",
+    "parse_dewarp_data",
+    "parse_xmp",
+    "photo_columns",
+    "photo_sensor",
+    "pose_from_photo",
+    "read_photo",
+    "read_xmp_packet",
+    "scale_lens",
+    "sensor_from_photo",
+]
+
+#: DJI's XMP namespace.
+DJI_NS = "http://www.dji.com/drone-dji/1.0/"
+#: The signature that opens an APP1 segment holding the (standard) XMP packet of a JPEG.
+XMP_APP1_HEADER = b"http://ns.adobe.com/xap/1.0/\x00"
+_TIFF_NS = "http://ns.adobe.com/tiff/1.0/"
+_RDF_LI = "{http://www.w3.org/1999/02/22-rdf-syntax-ns#}li"
+#: Values of ``altitude_datum``: the vertical datum AbsoluteAltitude is taken in.
+ALTITUDE_DATUMS = ("egm96", "ellipsoid")
+#: The gimbal preset of a DJI photo and its angle names (docs/conventions.md, "Gimbal presets").
+GIMBAL_PRESET = "yaw-pitch-roll"
+GIMBAL_ANGLES = ("gimbal_yaw", "gimbal_pitch", "gimbal_roll")
+#: Diagonal of the 36 x 24 mm frame that FocalLengthIn35mmFilm refers to [mm].
+_DIAGONAL_35MM = math.hypot(36.0, 24.0)
+#: RtkFlag values of an RTK-corrected position (DJI: 32-49 float solution, 50 fixed).
+RTK_CORRECTED_MIN = 32
+
+# EXIF tag numbers (EXIF 2.32 / CIPA DC-008)
+_MAKE, _MODEL, _ORIENTATION = 0x010F, 0x0110, 0x0112
+_EXIF_IFD, _GPS_IFD = 0x8769, 0x8825
+_PIXEL_X, _PIXEL_Y, _FOCAL, _FOCAL_35 = 0xA002, 0xA003, 0x920A, 0xA405
+_GPS_LAT_REF, _GPS_LAT, _GPS_LON_REF, _GPS_LON, _GPS_ALT_REF, _GPS_ALT = 1, 2, 3, 4, 5, 6
+_XMP_TIFF_TAG = 700
+
+
+class PhotoTagError(ValueError):
+    """A photo lacks tags it needs; the message names the file and the tags.
+
+    Attributes
+    ----------
+    path : str
+    missing : tuple of str
+        The tags (or alternatives, ``"A or B"``) that are missing.
+    """
+
+    def __init__(self, path, missing, why: str = "cannot be geolocated"):
+        self.path = str(path)
+        self.missing = tuple(missing)
+        super().__init__(f"{Path(self.path).name}: {why}: missing tag(s) {', '.join(self.missing)} "
+                         f"(file {self.path})")
+
+
+@dataclass(frozen=True)
+class DewarpData:
+    """DJI's ``DewarpData``: ``"date;fx,fy,cx,cy,k1,k2,p1,p2,k3"`` (``docs/photos.md``).
+
+    Attributes
+    ----------
+    date : str
+        The calibration date (the part before ``;``), "" when absent.
+    fx, fy : float
+        Calibrated focal lengths [pixels of the full-resolution image].
+    cx, cy : float
+        **Offsets** of the principal point from the image centre (W/2, H/2)
+        [pixels of the full-resolution image]: DJI, "origin point: photo center".
+    k1, k2, p1, p2, k3 : float
+        Brown-Conrady coefficients in OpenCV's order and meaning.
+    k4, k5, k6 : float
+        The rational denominator (only in DJI's 12-value ``DewarpDataK6``); 0 otherwise.
+    """
+
+    date: str
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    k1: float
+    k2: float
+    p1: float
+    p2: float
+    k3: float
+    k4: float = 0.0
+    k5: float = 0.0
+    k6: float = 0.0
+
+    @property
+    def coefficients(self) -> dict:
+        return {k: getattr(self, k) for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")}
+
+    @property
+    def is_zero(self) -> bool:
+        """All values 0 (what some firmware writes when there is no calibration)."""
+        return not any((self.fx, self.fy, self.cx, self.cy, *self.coefficients.values()))
+
+
+def parse_dewarp_data(text: str, source: str = "DewarpData") -> DewarpData:
+    """Parse DJI's DewarpData string ``"[date;]fx,fy,cx,cy,k1,k2,p1,p2,k3"`` (or 12 values, to k6).
+
+    Raises
+    ------
+    ValueError
+        Not 9 or 12 numbers after the optional ``date;``; the message names
+        ``source`` and the value.
+    """
+    raw = str(text).strip()
+    date, _, values = raw.rpartition(";")
+    parts = [p.strip() for p in values.split(",") if p.strip()]
+    try:
+        nums = [float(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"{source} = {raw!r}: not numbers after the date (expected "
+                         "'date;fx,fy,cx,cy,k1,k2,p1,p2,k3')") from None
+    if len(nums) not in (9, 12) or not all(math.isfinite(v) for v in nums):
+        raise ValueError(f"{source} = {raw!r}: {len(nums)} values; expected 9 finite numbers "
+                         "'fx,fy,cx,cy,k1,k2,p1,p2,k3' (or 12, to k6) after 'date;'")
+    return DewarpData(date.strip(), *nums)
+
+
+@dataclass
+class PhotoMeta:
+    """What :func:`read_photo` found in a photo (degrees and metres: this is an edge).
+
+    Sizes: ``width`` x ``height`` is the raster as stored; ``exif_width`` x
+    ``exif_height`` the EXIF PixelXDimension x PixelYDimension (the size the
+    camera wrote, in which DJI's calibration tags are), ``None`` if absent.
+    Calibration values are as tagged (full-resolution pixels); ``scale_x``,
+    ``scale_y`` take them to the raster.
+    """
+
+    path: str
+    width: int
+    height: int
+    exif_width: int | None = None
+    exif_height: int | None = None
+    make: str | None = None
+    model: str | None = None
+    orientation: int | None = None
+    lat_deg: float | None = None
+    lon_deg: float | None = None
+    position_source: str = ""
+    absolute_altitude_m: float | None = None
+    relative_altitude_m: float | None = None
+    gps_altitude_m: float | None = None
+    altitude_source: str = ""
+    altitude_type: str | None = None
+    gimbal_yaw_deg: float | None = None
+    gimbal_pitch_deg: float | None = None
+    gimbal_roll_deg: float | None = None
+    flight_yaw_deg: float | None = None
+    flight_pitch_deg: float | None = None
+    flight_roll_deg: float | None = None
+    calibrated_focal_px: float | None = None
+    calibrated_center_x_px: float | None = None
+    calibrated_center_y_px: float | None = None
+    dewarp: DewarpData | None = None
+    dewarp_flag: int | None = None
+    rtk_flag: int | None = None
+    focal_mm: float | None = None
+    focal_35mm: float | None = None
+    xmp: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+    missing: tuple = ()
+
+    @property
+    def name(self) -> str:
+        return Path(self.path).name
+
+    @property
+    def full_width(self) -> int:
+        """Width of the image the calibration tags refer to: EXIF PixelXDimension, else the raster's."""
+        return self.exif_width or self.width
+
+    @property
+    def full_height(self) -> int:
+        return self.exif_height or self.height
+
+    @property
+    def scale_x(self) -> float:
+        """Raster pixels per full-resolution pixel along the columns (1 unless resized)."""
+        return self.width / self.full_width
+
+    @property
+    def scale_y(self) -> float:
+        return self.height / self.full_height
+
+    @property
+    def resized(self) -> bool:
+        return (self.width, self.height) != (self.full_width, self.full_height)
+
+    @property
+    def altitude_m(self) -> float | None:
+        """The camera's altitude as tagged: AbsoluteAltitude, else EXIF GPSAltitude."""
+        return self.absolute_altitude_m if self.absolute_altitude_m is not None else self.gps_altitude_m
+
+    @property
+    def rtk_corrected(self) -> bool:
+        """RtkFlag says RTK float or fixed (>= 32): DJI's RTK aircraft write ellipsoidal heights."""
+        return self.rtk_flag is not None and self.rtk_flag >= RTK_CORRECTED_MIN
+
+
+# --------------------------------------------------------------------------- XMP
+
+def _jpeg_xmp(fh, path) -> bytes | None:
+    """The standard XMP packet of a JPEG: walk the segments up to the image data (SOS), reading only them."""
+    name = Path(path).name
+    if fh.read(2) != b"\xff\xd8":
+        raise ValueError(f"{name}: not a JPEG file (no SOI marker) (file {path})")
+    while True:
+        pos = fh.tell()
+        b = fh.read(2)
+        if len(b) < 2:
+            return None
+        if b[0] != 0xFF:
+            raise ValueError(f"{name}: JPEG segment at byte {pos} does not start with 0xFF (file {path})")
+        marker = b[1]
+        while marker == 0xFF:  # fill bytes
+            nxt = fh.read(1)
+            if not nxt:
+                return None
+            marker = nxt[0]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:  # markers without a length
+            continue
+        if marker in (0xDA, 0xD9):  # start of scan / end of image: no more metadata
+            return None
+        raw = fh.read(2)
+        length = struct.unpack(">H", raw)[0] if len(raw) == 2 else 0
+        payload = fh.read(length - 2) if length >= 2 else b""
+        if length < 2 or len(payload) != length - 2:
+            raise ValueError(f"{name}: JPEG segment 0xFF{marker:02X} at byte {pos} has length {length}, "
+                             f"past the end of the file (file {path})")
+        if marker == 0xE1 and payload.startswith(XMP_APP1_HEADER):
+            return payload[len(XMP_APP1_HEADER):]
+
+
+def read_xmp_packet(path, image=None) -> bytes | None:
+    """The XMP packet of a JPEG (APP1 ``http://ns.adobe.com/xap/1.0/\\0``) or TIFF (tag 700); None if none.
+
+    ``image`` is an open Pillow image of ``path`` (for TIFF), opened here if not given.
+    """
+    p = Path(path)
+    with p.open("rb") as fh:
+        head = fh.read(2)
+        if head == b"\xff\xd8":
+            fh.seek(0)
+            return _jpeg_xmp(fh, path)
+    from PIL import Image
+
+    img = image if image is not None else Image.open(p)
+    try:
+        tags = getattr(img, "tag_v2", None)
+        v = tags.get(_XMP_TIFF_TAG) if tags is not None else img.info.get("xmp")
+    finally:
+        if image is None:
+            img.close()
+    if v is None:
+        return None
+    if isinstance(v, str):
+        return v.encode("utf-8")
+    if isinstance(v, (tuple, list)):  # BYTE arrays as a tuple of ints
+        return bytes(v)
+    return bytes(v)
+
+
+def _local(tag: str, ns: str) -> str | None:
+    prefix = "{" + ns + "}"
+    return tag[len(prefix):] if tag.startswith(prefix) else None
+
+
+def parse_xmp(packet: bytes, source: str = "XMP") -> tuple[dict, dict]:
+    """``drone-dji`` and ``tiff`` properties of an XMP packet: ``(dji, tiff)``, name -> text.
+
+    Both XMP forms are read: a property as an attribute of an element
+    (``drone-dji:GimbalYawDegree="+12.30"`` on ``rdf:Description``) and as a
+    child element (``<drone-dji:GimbalYawDegree>+12.30</drone-dji:GimbalYawDegree>``,
+    or an ``rdf:Alt``/``rdf:Seq`` whose first ``rdf:li`` holds the value).
+
+    Raises
+    ------
+    ValueError
+        The packet is not well-formed XML, or holds a DTD or entity declarations
+        (refused by defusedxml); the message names ``source``.
+    ImportError
+        defusedxml is not installed.
+    """
+    try:
+        from defusedxml import DefusedXmlException
+        from defusedxml import ElementTree as DET
+    except ImportError as e:  # pragma: no cover - a declared dependency
+        raise ImportError("reading XMP needs defusedxml: pip install defusedxml") from e
+    from xml.etree.ElementTree import ParseError
+
+    text = packet.rstrip(b"\x00 \t\r\n")
+    try:
+        root = DET.fromstring(text)
+    except DefusedXmlException as e:
+        raise ValueError(f"{source}: XMP packet refused ({type(e).__name__}: DTDs and entity "
+                         "declarations are not allowed in XMP)") from None
+    except ParseError as e:
+        raise ValueError(f"{source}: XMP packet is not well-formed XML ({e})") from None
+    out = {DJI_NS: {}, _TIFF_NS: {}}
+    for elem in root.iter():
+        for k, v in elem.attrib.items():
+            for ns, d in out.items():
+                name = _local(k, ns)
+                if name is not None:
+                    d.setdefault(name, v.strip())
+        if not isinstance(elem.tag, str):
+            continue
+        for ns, d in out.items():
+            name = _local(elem.tag, ns)
+            if name is None:
+                continue
+            li = next(elem.iter(_RDF_LI), None)
+            value = (li.text if li is not None else elem.text) or ""
+            if value.strip() or len(elem) == 0:
+                d.setdefault(name, value.strip())
+    return out[DJI_NS], out[_TIFF_NS]
+
+
+# --------------------------------------------------------------------------- EXIF
+
+def _rational(v) -> float:
+    if isinstance(v, tuple) and len(v) == 2:  # (numerator, denominator) from some writers
+        return float(v[0]) / float(v[1])
+    return float(v)
+
+
+def _text(v) -> str | None:
+    if v is None:
+        return None
+    if isinstance(v, bytes):
+        v = v.decode("ascii", "replace")
+    return str(v).strip("\x00 ").strip() or None
+
+
+def _gps_coordinate(value, ref, positive: str, negative: str, limit: float, name: str, path):
+    """EXIF GPS degrees-minutes-seconds and N/S (E/W) -> signed degrees (ValueError naming the tag)."""
+    try:
+        parts = [_rational(x) for x in value] if isinstance(value, (tuple, list)) else [_rational(value)]
+    except (TypeError, ValueError, ZeroDivisionError):
+        raise ValueError(f"{Path(path).name}: EXIF {name} = {value!r}: not degrees, minutes, seconds "
+                         f"(file {path})") from None
+    parts = (parts + [0.0, 0.0])[:3]
+    deg = parts[0] + parts[1] / 60.0 + parts[2] / 3600.0
+    r = (_text(ref) or positive).upper()[:1]
+    if r not in (positive, negative):
+        raise ValueError(f"{Path(path).name}: EXIF {name}Ref = {ref!r}: must be {positive!r} or "
+                         f"{negative!r} (file {path})")
+    deg = -deg if r == negative else deg
+    if not (math.isfinite(deg) and abs(deg) <= limit):
+        raise ValueError(f"{Path(path).name}: EXIF {name} = {deg!r} deg: out of range (file {path})")
+    return deg
+
+
+def _read_exif(img, path, notes) -> dict:
+    out = {}
+    try:
+        exif = img.getexif()
+    except Exception as e:  # noqa: BLE001 - a broken EXIF block must not hide the XMP
+        notes.append(f"EXIF not readable ({type(e).__name__}: {e}); using XMP only")
+        return out
+    out["make"] = _text(exif.get(_MAKE))
+    out["model"] = _text(exif.get(_MODEL))
+    o = exif.get(_ORIENTATION)
+    out["orientation"] = int(o) if isinstance(o, int) else None
+    sub = exif.get_ifd(_EXIF_IFD)
+    for key, tag in (("exif_width", _PIXEL_X), ("exif_height", _PIXEL_Y)):
+        v = sub.get(tag)
+        if v is not None:
+            try:
+                out[key] = int(v)
+            except (TypeError, ValueError):
+                notes.append(f"EXIF {'PixelXDimension' if tag == _PIXEL_X else 'PixelYDimension'} "
+                             f"= {v!r} ignored: not an integer")
+    for key, tag in (("focal_mm", _FOCAL), ("focal_35mm", _FOCAL_35)):
+        v = sub.get(tag)
+        if v is not None:
+            try:
+                f = _rational(v)
+                if math.isfinite(f) and f > 0:
+                    out[key] = f
+            except (TypeError, ValueError, ZeroDivisionError):
+                pass
+    gps = exif.get_ifd(_GPS_IFD)
+    if _GPS_LAT in gps and _GPS_LON in gps:
+        out["gps_lat_deg"] = _gps_coordinate(gps[_GPS_LAT], gps.get(_GPS_LAT_REF), "N", "S", 90.0,
+                                             "GPSLatitude", path)
+        out["gps_lon_deg"] = _gps_coordinate(gps[_GPS_LON], gps.get(_GPS_LON_REF), "E", "W", 180.0,
+                                             "GPSLongitude", path)
+    if _GPS_ALT in gps:
+        try:
+            alt = _rational(gps[_GPS_ALT])
+        except (TypeError, ValueError, ZeroDivisionError):
+            alt = float("nan")
+        ref = gps.get(_GPS_ALT_REF, 0)
+        ref = ref[0] if isinstance(ref, bytes) and ref else ref
+        if math.isfinite(alt):
+            out["gps_altitude_m"] = -alt if ref == 1 else alt
+    return out
+
+
+# --------------------------------------------------------------------------- reading
+
+def _number(dji: dict, key: str, notes: list) -> float | None:
+    if key not in dji:
+        return None
+    v = dji[key]
+    try:
+        x = float(v)
+    except ValueError:
+        notes.append(f"drone-dji:{key} = {v!r} ignored: not a number")
+        return None
+    if not math.isfinite(x):
+        notes.append(f"drone-dji:{key} = {v!r} ignored: not finite")
+        return None
+    return x
+
+
+def _integer(dji: dict, key: str, notes: list) -> int | None:
+    x = _number(dji, key, notes)
+    if x is None:
+        return None
+    if x != int(x):
+        notes.append(f"drone-dji:{key} = {dji[key]!r} ignored: not an integer")
+        return None
+    return int(x)
+
+
+#: The tags a photo must have to be geolocated (alternatives joined by "or").
+REQUIRED = {
+    "position": "drone-dji:GpsLatitude/GpsLongitude or EXIF GPSLatitude/GPSLongitude",
+    "altitude": "drone-dji:AbsoluteAltitude or EXIF GPSAltitude",
+    "gimbal_yaw_deg": "drone-dji:GimbalYawDegree",
+    "gimbal_pitch_deg": "drone-dji:GimbalPitchDegree",
+    "gimbal_roll_deg": "drone-dji:GimbalRollDegree",
+}
+
+
+def read_photo(path, *, require: bool = True) -> PhotoMeta:
+    """Read a drone photo's EXIF and DJI XMP (JPEG or TIFF).
+
+    Parameters
+    ----------
+    path : path-like
+    require : bool
+        Raise :class:`PhotoTagError` when a tag needed for geolocation (position,
+        altitude, the three gimbal angles: :data:`REQUIRED`) is missing. With
+        ``False`` the photo is returned and :attr:`PhotoMeta.missing` lists them.
+
+    Returns
+    -------
+    PhotoMeta
+        ``notes`` holds what a user should know: a resized photo (its
+        calibration will be scaled), tags that could not be parsed, a missing
+        flight attitude, position tags that disagree.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    PhotoTagError
+        Required tags missing (``require=True``); names the file and the tags.
+    ValueError
+        Not an image Pillow reads, a broken JPEG segment, XMP that is not
+        well-formed (or holds a DTD/entities), a bad tag value (message names the
+        file and the tag).
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"photo not found: {path}")
+    notes: list = []
+    with p.open("rb") as fh:
+        jpeg = fh.read(2) == b"\xff\xd8"
+    packet = read_xmp_packet(p) if jpeg else None  # a broken JPEG segment is named here, precisely
+    try:
+        img = Image.open(p)
+    except UnidentifiedImageError:
+        raise ValueError(f"{p.name}: not an image file Pillow can read (file {path})") from None
+    except OSError as e:
+        raise ValueError(f"{p.name}: Pillow cannot read it ({e}) (file {path})") from None
+    with img:
+        width, height = img.size
+        ex = _read_exif(img, path, notes)
+        if not jpeg:
+            packet = read_xmp_packet(p, img)
+    dji, tiff = parse_xmp(packet, f"{p.name}") if packet is not None else ({}, {})
+    if packet is None:
+        notes.append("no XMP packet (no drone-dji tags)")
+    elif not dji:
+        notes.append(f"XMP packet without drone-dji ({DJI_NS}) properties")
+
+    m = PhotoMeta(path=str(path), width=int(width), height=int(height), xmp=dict(dji), notes=notes)
+    m.exif_width, m.exif_height = ex.get("exif_width"), ex.get("exif_height")
+    m.make = ex.get("make") or tiff.get("Make")
+    m.model = ex.get("model") or tiff.get("Model")
+    m.orientation = ex.get("orientation")
+    m.focal_mm, m.focal_35mm = ex.get("focal_mm"), ex.get("focal_35mm")
+
+    # position: DJI's XMP (8 decimals) first, the EXIF GPS IFD otherwise
+    lat = _number(dji, "GpsLatitude", notes)
+    lon_key = "GpsLongitude" if "GpsLongitude" in dji else "GpsLongtitude"  # DJI's older spelling
+    lon = _number(dji, lon_key, notes)
+    if lat is not None and lon is not None:
+        if not (abs(lat) <= 90 and abs(lon) <= 180):
+            raise ValueError(f"{p.name}: drone-dji:GpsLatitude/{lon_key} = {lat!r}, {lon!r}: out of "
+                             f"range (file {path})")
+        m.lat_deg, m.lon_deg, m.position_source = lat, lon, f"drone-dji:GpsLatitude/{lon_key}"
+        if "gps_lat_deg" in ex:
+            d = max(abs(ex["gps_lat_deg"] - lat), abs(ex["gps_lon_deg"] - lon))
+            if d > 1e-5:
+                notes.append(f"EXIF GPS position differs from drone-dji's by {d:.2e} deg; using drone-dji's")
+    elif "gps_lat_deg" in ex:
+        m.lat_deg, m.lon_deg, m.position_source = ex["gps_lat_deg"], ex["gps_lon_deg"], "EXIF GPS"
+
+    m.absolute_altitude_m = _number(dji, "AbsoluteAltitude", notes)
+    m.relative_altitude_m = _number(dji, "RelativeAltitude", notes)
+    m.gps_altitude_m = ex.get("gps_altitude_m")
+    m.altitude_type = dji.get("AltitudeType") or None
+    if m.absolute_altitude_m is not None:
+        m.altitude_source = "drone-dji:AbsoluteAltitude"
+    elif m.gps_altitude_m is not None:
+        m.altitude_source = "EXIF GPSAltitude"
+        notes.append("no drone-dji:AbsoluteAltitude: using EXIF GPSAltitude (same datum question)")
+
+    for what in ("Gimbal", "Flight"):
+        for axis in ("Yaw", "Pitch", "Roll"):
+            setattr(m, f"{what.lower()}_{axis.lower()}_deg", _number(dji, f"{what}{axis}Degree", notes))
+    if all(getattr(m, f"flight_{a}_deg") is None for a in ("yaw", "pitch", "roll")):
+        if dji:
+            notes.append("no drone-dji:Flight{Yaw,Pitch,Roll}Degree: flight attitude taken as 0 "
+                         "(the earth-referenced gimbal does not depend on it)")
+    else:
+        for a in ("yaw", "pitch", "roll"):
+            if getattr(m, f"flight_{a}_deg") is None:
+                setattr(m, f"flight_{a}_deg", 0.0)
+                notes.append(f"no drone-dji:Flight{a.capitalize()}Degree: taken as 0")
+
+    m.calibrated_focal_px = _number(dji, "CalibratedFocalLength", notes)
+    m.calibrated_center_x_px = _number(dji, "CalibratedOpticalCenterX", notes)
+    m.calibrated_center_y_px = _number(dji, "CalibratedOpticalCenterY", notes)
+    if m.calibrated_focal_px is not None and m.calibrated_focal_px <= 0:
+        notes.append(f"drone-dji:CalibratedFocalLength = {m.calibrated_focal_px!r} ignored: not > 0")
+        m.calibrated_focal_px = None
+    for key in ("DewarpDataK6", "DewarpData"):  # the 12-value form (k4..k6) first where DJI writes both
+        if key in dji and dji[key].strip():
+            try:
+                d = parse_dewarp_data(dji[key], f"{p.name}: drone-dji:{key}")
+            except ValueError as e:
+                notes.append(f"{e}; ignored")
+                continue
+            if d.is_zero:
+                notes.append(f"drone-dji:{key} is all zeros: ignored")
+                continue
+            if d.fx <= 0 or d.fy <= 0:
+                notes.append(f"drone-dji:{key} focal lengths {d.fx!r}, {d.fy!r} not > 0: ignored")
+                continue
+            m.dewarp = d
+            break
+    m.dewarp_flag = _integer(dji, "DewarpFlag", notes)
+    m.rtk_flag = _integer(dji, "RtkFlag", notes)
+
+    # sizes: a raster smaller (or larger) than the size the camera wrote was resized since
+    if m.resized:
+        notes.append(f"resized photo: the raster is {m.width} x {m.height}, EXIF PixelXDimension x "
+                     f"PixelYDimension say {m.full_width} x {m.full_height}; the calibration tags (in "
+                     f"full-resolution pixels) are scaled by {m.scale_x:.6g} x {m.scale_y:.6g}")
+        if abs(m.scale_x - m.scale_y) > 0.01 * max(m.scale_x, m.scale_y):
+            notes.append("the two scales differ by more than 1 %: the photo may have been cropped, "
+                         "which scaling cannot undo (check the geolocation)")
+    if m.calibrated_center_x_px is not None and m.calibrated_center_y_px is not None:
+        cx, cy = 2 * m.calibrated_center_x_px, 2 * m.calibrated_center_y_px
+        if m.exif_width is None and (abs(cx - m.width) > 0.05 * m.width or abs(cy - m.height) > 0.05 * m.height):
+            notes.append(f"drone-dji:CalibratedOpticalCenterX/Y ({m.calibrated_center_x_px:g}, "
+                         f"{m.calibrated_center_y_px:g}) is far from the centre of the {m.width} x "
+                         f"{m.height} raster and EXIF PixelXDimension/PixelYDimension are absent: the "
+                         f"photo may have been resized from about {cx:.0f} x {cy:.0f} (not scaled here)")
+        elif m.dewarp is not None and (abs(cx - m.full_width) > 2 or abs(cy - m.full_height) > 2):
+            notes.append(f"drone-dji:CalibratedOpticalCenterX/Y ({m.calibrated_center_x_px:g}, "
+                         f"{m.calibrated_center_y_px:g}) is not the image centre ({m.full_width / 2:g}, "
+                         f"{m.full_height / 2:g}); DewarpData's offsets are taken from the image centre "
+                         "(DJI: 'origin point: photo center')")
+    if m.orientation not in (None, 1):
+        notes.append(f"EXIF Orientation = {m.orientation}: pixels are taken in the stored raster's "
+                     "orientation (rows and columns of the file, not of a rotated view)")
+
+    m.missing = tuple(REQUIRED[k] for k in REQUIRED if (
+        (k == "position" and m.lat_deg is None) or (k == "altitude" and m.altitude_m is None)
+        or (k.endswith("_deg") and getattr(m, k) is None)))
+    if m.missing and require:
+        raise PhotoTagError(path, m.missing)
+    return m
+
+
+# --------------------------------------------------------------------------- lens, sensor, pose
+
+def scale_lens(lens: Lens, width: int, height: int) -> Lens:
+    """``lens`` for the same image resampled to ``width`` x ``height`` pixels.
+
+    In coordinates whose origin is the image's top-left corner (OpenCV's u + 0.5)
+    a resampling is x' = s x exactly, so fx' = s fx and u0' + 0.5 = s (u0 + 0.5);
+    the distortion coefficients act on normalised coordinates and do not change.
+    """
+    sx, sy = width / lens.width, height / lens.height
+    return dataclasses.replace(lens, fx=lens.fx * sx, fy=lens.fy * sy, skew=lens.skew * sx,
+                               cx=(lens.cx + 0.5) * sx - 0.5, cy=(lens.cy + 0.5) * sy - 0.5,
+                               width=int(width), height=int(height))
+
+
+def lens_source(meta: PhotoMeta) -> str:
+    """Which tags the photo's lens comes from (written to every output row)."""
+    if meta.dewarp is not None:
+        return "pinhole (DewarpData, DewarpFlag=1: already undistorted)" if meta.dewarp_flag == 1 \
+            else "brown (DewarpData)"
+    if meta.calibrated_focal_px is not None:
+        return "pinhole (CalibratedFocalLength, CalibratedOpticalCenterX/Y)"
+    if meta.focal_35mm is not None:
+        return "pinhole (EXIF FocalLengthIn35mmFilm, approximate)"
+    return ""
+
+
+def lens_from_photo(meta: PhotoMeta) -> Lens:
+    """The photo's lens, in the raster's pixels (OpenCV convention, as the lenses take it).
+
+    * DewarpData (and DewarpFlag not 1): a :class:`BrownLens` with DewarpData's
+      fx, fy, k1, k2, p1, p2, k3 (k4..k6 from DewarpDataK6) and the principal
+      point at the image centre plus DewarpData's offsets cx, cy.
+    * DewarpFlag = 1 (the camera already removed the distortion, keeping the
+      camera matrix): a :class:`PinholeLens` with DewarpData's fx, fy and
+      principal point.
+    * no DewarpData: a pinhole with fx = fy = CalibratedFocalLength at
+      CalibratedOpticalCenterX/Y (the image centre if absent); without those, an
+      approximate pinhole from EXIF FocalLengthIn35mmFilm (35 mm equivalent by the
+      diagonal: f = f35 * diagonal / 43.27 mm) at the image centre.
+
+    DJI's pixel coordinates have their origin at the image's top-left corner
+    (module docstring): the OpenCV principal point is DJI's minus 0.5. The tags are
+    in pixels of the full-resolution image; a resized photo's lens is scaled to its
+    raster (:func:`scale_lens`).
+
+    Raises
+    ------
+    PhotoTagError
+        None of DewarpData, CalibratedFocalLength, FocalLengthIn35mmFilm.
+    """
+    W, H = meta.full_width, meta.full_height
+    kind, coeffs = PinholeLens, {}
+    if meta.dewarp is not None:
+        d = meta.dewarp
+        fx, fy, x0, y0 = d.fx, d.fy, W / 2.0 + d.cx, H / 2.0 + d.cy
+        if meta.dewarp_flag != 1:
+            kind, coeffs = BrownLens, d.coefficients
+    elif meta.calibrated_focal_px is not None:
+        fx = fy = meta.calibrated_focal_px
+        x0 = meta.calibrated_center_x_px if meta.calibrated_center_x_px is not None else W / 2.0
+        y0 = meta.calibrated_center_y_px if meta.calibrated_center_y_px is not None else H / 2.0
+    elif meta.focal_35mm is not None:
+        fx = fy = meta.focal_35mm * math.hypot(W, H) / _DIAGONAL_35MM
+        x0, y0 = W / 2.0, H / 2.0
+    else:
+        raise PhotoTagError(meta.path, (("drone-dji:DewarpData or drone-dji:CalibratedFocalLength or "
+                                         "EXIF FocalLengthIn35mmFilm"),),
+                            why="has no lens calibration (give a sensor file instead)")
+    full = kind(fx=fx, fy=fy, cx=x0 - 0.5, cy=y0 - 0.5, width=W, height=H, **coeffs)
+    return scale_lens(full, meta.width, meta.height) if meta.resized else full
+
+
+def sensor_from_photo(meta: PhotoMeta) -> FrameSensor:
+    """The photo's camera: :func:`lens_from_photo` on the earth-referenced ``yaw-pitch-roll`` preset."""
+    name = " ".join(s for s in (meta.make, meta.model) if s) or meta.name
+    return FrameSensor(lens=lens_from_photo(meta), gimbal=PRESETS[GIMBAL_PRESET],
+                       name=f"{name} ({lens_source(meta)})")
+
+
+def camera_height(meta: PhotoMeta, altitude_datum: str = "egm96") -> tuple[float, float]:
+    """The camera's ellipsoidal height [m] and the EGM96 undulation N [m] at the photo.
+
+    ``altitude_datum="egm96"``: AbsoluteAltitude (else EXIF GPSAltitude) is an
+    EGM96 orthometric height H and h = H + N; ``"ellipsoid"``: it is h already.
+    N is returned in both cases (it is what a wrong choice would cost).
+    """
+    if altitude_datum not in ALTITUDE_DATUMS:
+        raise ValueError(f"altitude_datum = {altitude_datum!r}: must be one of {ALTITUDE_DATUMS}")
+    missing = [REQUIRED["position"]] if meta.lat_deg is None else []
+    missing += [REQUIRED["altitude"]] if meta.altitude_m is None else []
+    if missing:
+        raise PhotoTagError(meta.path, missing)
+    n = float(egm96_undulation(math.radians(meta.lat_deg), math.radians(meta.lon_deg)))
+    h = meta.altitude_m + (n if altitude_datum == "egm96" else 0.0)
+    return h, n
+
+
+def pose_from_photo(meta: PhotoMeta, altitude_datum: str = "egm96") -> Pose:
+    """The photo's state: GPS position, ellipsoidal height (:func:`camera_height`), flight attitude, gimbal angles.
+
+    The flight yaw/pitch/roll become heading/pitch/roll (0 where not tagged); the
+    gimbal's ``angles_deg`` are ``gimbal_yaw``, ``gimbal_pitch``, ``gimbal_roll``
+    (earth-referenced, NED, z-y-x, as DJI writes them).
+    """
+    if meta.missing:
+        raise PhotoTagError(meta.path, meta.missing)
+    h, _ = camera_height(meta, altitude_datum)
+    return Pose.from_deg(meta.lat_deg, meta.lon_deg, h, meta.flight_yaw_deg or 0.0,
+                         meta.flight_pitch_deg or 0.0, meta.flight_roll_deg or 0.0,
+                         angles_deg={"gimbal_yaw": meta.gimbal_yaw_deg, "gimbal_pitch": meta.gimbal_pitch_deg,
+                                     "gimbal_roll": meta.gimbal_roll_deg})
+
+
+def photo_sensor(meta: PhotoMeta, sensor: FrameSensor | None = None) -> tuple[FrameSensor, str]:
+    """The sensor to locate ``meta``'s pixels with, and where its lens comes from.
+
+    Without ``sensor``: :func:`sensor_from_photo`. With one (a user's calibrated
+    sensor): it replaces the photo's lens; it must take the DJI angles
+    (:data:`GIMBAL_ANGLES`), and be the size of the raster, or of the
+    full-resolution image (then it is scaled to the raster, as the tags would be).
+
+    Raises
+    ------
+    TypeError
+        ``sensor`` is not a FrameSensor.
+    ValueError
+        The sensor's gimbal angles or size do not fit the photo (names both).
+    """
+    if sensor is None:
+        return sensor_from_photo(meta), lens_source(meta)
+    if not isinstance(sensor, FrameSensor):
+        raise TypeError(f"sensor = {sensor!r}: must be a FrameSensor (a frame camera)")
+    if set(sensor.angle_names) != set(GIMBAL_ANGLES):
+        raise ValueError(f"sensor {sensor.name or ''} uses the {sensor.gimbal.name} gimbal with angles "
+                         f"{list(sensor.angle_names)}; a DJI photo gives {list(GIMBAL_ANGLES)} in NED: "
+                         f"use the {GIMBAL_PRESET!r} preset ([gimbal] preset = \"{GIMBAL_PRESET}\")")
+    label = f"sensor file{' ' + sensor.name if sensor.name else ''}"
+    if (sensor.cols, sensor.rows) == (meta.width, meta.height):
+        return sensor, label
+    if (sensor.cols, sensor.rows) == (meta.full_width, meta.full_height):
+        return dataclasses.replace(sensor, lens=scale_lens(sensor.lens, meta.width, meta.height)), \
+            f"{label}, scaled to the resized raster"
+    raise ValueError(f"{meta.name}: the sensor is {sensor.cols} x {sensor.rows} pixels, the photo "
+                     f"{meta.width} x {meta.height} (full resolution {meta.full_width} x {meta.full_height})")
+
+
+def photo_columns(meta: PhotoMeta) -> dict:
+    """The photo's own fields as output columns (degrees, metres)."""
+    return {
+        "absolute_altitude_m": meta.absolute_altitude_m,
+        "relative_altitude_m": meta.relative_altitude_m,
+        "heading_deg": meta.flight_yaw_deg, "pitch_deg": meta.flight_pitch_deg,
+        "roll_deg": meta.flight_roll_deg,
+        "gimbal_yaw_deg": meta.gimbal_yaw_deg, "gimbal_pitch_deg": meta.gimbal_pitch_deg,
+        "gimbal_roll_deg": meta.gimbal_roll_deg,
+        "rtk_flag": meta.rtk_flag, "make": meta.make, "model": meta.model,
+    }

@@ -1,0 +1,394 @@
+"""Replay of drone photos: locate the targets picked in DJI photos and compare them with the truth.
+
+``geoloc replay PHOTOS... --targets T.csv [--dem DEM]`` (``docs/photos.md``). Each
+photo gives its own sensor and state (:mod:`geoloc.io.photos`: the lens from its
+calibration tags on the earth-referenced ``yaw-pitch-roll`` gimbal, the pose from
+its GPS position, altitude and angles); each target, a pixel of a photo, is
+located on the DEM (:class:`geoloc.surfaces.terrain.DemSurface`) or, without one,
+at its own surveyed height (``truth_h_m``) on the exact surface of that geodetic
+height. Errors to truth are horizontal geodesic distances on WGS-84.
+
+Nothing stops the run but a targets file that cannot be read or a run that cannot
+give any target a height: a photo without the needed tags is reported by name in
+the messages and its targets skipped; a target naming an image that was not given,
+or with a value that is not a number, is reported with its line and skipped.
+
+Conventions: ``docs/conventions.md`` (1-based pixel centres, ellipsoidal heights).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.geodesy.geodesic import horizontal_distance_m
+from geoloc.geodesy.geoid import egm96_undulation
+from geoloc.io.gis import EGM96_DATUM, ELLIPSOID_DATUM
+from geoloc.io.photos import (
+    ALTITUDE_DATUMS,
+    PhotoTagError,
+    camera_height,
+    photo_columns,
+    photo_sensor,
+    pose_from_photo,
+    read_photo,
+)
+from geoloc.status import Status, names
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.height import HeightSurface
+from geoloc.surfaces.terrain import DemSurface
+
+__all__ = ["OUTPUT_COLUMNS", "read_targets", "replay_photos", "summarize", "write_rows"]
+
+#: Columns of every output row, in this order (input columns the targets file adds follow).
+OUTPUT_COLUMNS = [
+    "image", "row", "col", "lat_deg", "lon_deg", "h_m", "h_datum", "status", "surface",
+    "slant_range_m", "truth_lat_deg", "truth_lon_deg", "truth_h_m", "error_to_truth_m",
+    "vertical_error_m", "sensor_lat_deg", "sensor_lon_deg", "sensor_h_m", "absolute_altitude_m",
+    "altitude_datum", "geoid_undulation_m", "relative_altitude_m", "heading_deg", "pitch_deg",
+    "roll_deg", "gimbal_yaw_deg", "gimbal_pitch_deg", "gimbal_roll_deg", "lens", "rtk_flag",
+    "make", "model",
+]
+#: Required columns of the targets file.
+TARGET_COLUMNS = ("image", "row", "col")
+#: Optional truth columns (heights ellipsoidal unless ``truth_h_datum="egm96"``).
+TRUTH_COLUMNS = ("truth_lat_deg", "truth_lon_deg", "truth_h_m")
+#: The camera's height above the DEM and RelativeAltitude (above take-off) disagreeing by more
+#: than this [m] gives a message: a datum mix-up (|N| is tens of metres) or a barometric altitude.
+ALTITUDE_CHECK_M = 30.0
+#: The datum names written in ``altitude_datum`` for each ``altitude_datum`` argument.
+_DATUM_TEXT = {"egm96": EGM96_DATUM, "ellipsoid": ELLIPSOID_DATUM}
+
+
+def read_targets(path) -> tuple[list, list, list]:
+    """Read a targets CSV: ``(targets, header, messages)``.
+
+    Each target is a dict with ``line`` (the file's line number), ``image``,
+    ``row``, ``col`` (floats, 1-based pixel centres), the truth columns present
+    (float or None) and every other column as text. A UTF-8 byte-order mark is
+    ignored. A line whose row/col/truth value is not a number is reported in
+    ``messages`` and left out.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        No header, a required column missing, a name repeated, or a half truth
+        position (only one of truth_lat_deg, truth_lon_deg).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"targets file not found: {path}")
+    with p.open(newline="", encoding="utf-8-sig") as fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header is None:
+            raise ValueError(f"targets file {path} is empty: it needs a header with {list(TARGET_COLUMNS)}")
+        header = [h.strip() for h in header]
+        dup = sorted({h for h in header if header.count(h) > 1})
+        if dup:
+            raise ValueError(f"targets file {path}: column(s) {dup} appear more than once in the header")
+        missing = [c for c in TARGET_COLUMNS if c not in header]
+        if missing:
+            raise ValueError(f"targets file {path}: column(s) {missing} missing (header: {header}); "
+                             f"a targets file has columns {list(TARGET_COLUMNS)} (1-based pixel centres) "
+                             f"and optionally {list(TRUTH_COLUMNS)}")
+        if ("truth_lat_deg" in header) != ("truth_lon_deg" in header):
+            raise ValueError(f"targets file {path}: give both truth_lat_deg and truth_lon_deg, or neither")
+        targets, messages = [], []
+        for values in reader:
+            line = reader.line_num
+            if not any(v.strip() for v in values):
+                continue
+            if len(values) > len(header):
+                messages.append(f"targets file {p.name} line {line}: {len(values)} fields, the header "
+                                f"has {len(header)}: skipped")
+                continue
+            rec = dict(zip(header, [v.strip() for v in values] + [""] * (len(header) - len(values))))
+            t, bad = {"line": line}, []
+            for k, v in rec.items():
+                if k in ("row", "col") or k in TRUTH_COLUMNS:
+                    if v == "" and k in TRUTH_COLUMNS:
+                        t[k] = None
+                        continue
+                    try:
+                        t[k] = float(v)
+                    except ValueError:
+                        t[k] = math.nan
+                    if not math.isfinite(t[k]):
+                        bad.append(f"{k} = {v!r} is not a finite number")
+                else:
+                    t[k] = v
+            if not rec["image"]:
+                bad.append("image is empty")
+            if bad:
+                messages.append(f"targets file {p.name} line {line}: {'; '.join(bad)}: skipped")
+                continue
+            targets.append(t)
+    return targets, header, messages
+
+
+def _photo_index(metas: dict) -> dict:
+    """Image names a target may use -> photo key: the file name, and the name without its extension."""
+    index = {}
+    for key in metas:
+        index.setdefault(key, key)
+        index.setdefault(key.lower(), key)
+        stem = Path(key).stem
+        index.setdefault(stem, key)
+        index.setdefault(stem.lower(), key)
+    return index
+
+
+def _resolve(image: str, index: dict):
+    name = Path(image.replace("\\", "/")).name
+    for k in (name, name.lower(), Path(name).stem, Path(name).stem.lower()):
+        if k in index:
+            return index[k]
+    return None
+
+
+def _open_dem(dem, dem_datum):
+    if dem is None or isinstance(dem, DEM):
+        return dem
+    return DEM.open(dem, datum=dem_datum)
+
+
+def replay_photos(photo_paths, targets_csv, sensor=None, dem=None, method="exact", *,
+                  altitude_datum: str = "egm96", truth_h_datum: str = "ellipsoid",
+                  dem_datum: str = "egm96"):
+    """Locate every target of ``targets_csv`` in its photo and compare it with its truth.
+
+    Parameters
+    ----------
+    photo_paths : iterable of path-like
+        JPEG or TIFF files with DJI's XMP and EXIF (:func:`geoloc.io.photos.read_photo`).
+    targets_csv : path-like
+        Columns ``image,row,col`` (the photo's file name, with or without its
+        extension; 1-based pixel centres) and optionally
+        ``truth_lat_deg,truth_lon_deg[,truth_h_m]``; other columns are copied.
+    sensor : FrameSensor, optional
+        Replaces every photo's own lens (a calibrated sensor file on the
+        ``yaw-pitch-roll`` gimbal), scaled to a resized raster.
+    dem : DEM or path-like, optional
+        Locate on this terrain (:class:`DemSurface`, ``method``); a path is
+        opened with ``DEM.open(path, datum=dem_datum)``. Without a DEM each
+        target is located at its ``truth_h_m``.
+    method : {"exact", "steps", "bisect"}
+        The DEM solver.
+    altitude_datum : {"egm96", "ellipsoid"}
+        Datum of the photos' AbsoluteAltitude (default EGM96 orthometric: DJI's
+        non-RTK aircraft; ``docs/photos.md``).
+    truth_h_datum : {"ellipsoid", "egm96"}
+        Datum of ``truth_h_m`` (default ellipsoidal, as every height in geoloc).
+    dem_datum : {"egm96", "ellipsoid"}
+        Datum of a DEM given as a path.
+
+    Returns
+    -------
+    rows : list of dict
+        One per located target, columns :data:`OUTPUT_COLUMNS` then the targets
+        file's other columns; heights ellipsoidal (``h_datum``), the camera
+        height's source datum in ``altitude_datum``.
+    messages : list of str
+        Photos skipped (by name, with the missing tags), targets skipped (by
+        line), notes on each photo (resized, RTK datum, altitude check), pixels
+        off the sensor.
+
+    Raises
+    ------
+    ValueError
+        A bad argument; a targets file that cannot be read; no DEM and no
+        ``truth_h_m`` column to give targets a height.
+    """
+    if altitude_datum not in ALTITUDE_DATUMS:
+        raise ValueError(f"altitude_datum = {altitude_datum!r}: must be one of {ALTITUDE_DATUMS}")
+    if truth_h_datum not in ALTITUDE_DATUMS:
+        raise ValueError(f"truth_h_datum = {truth_h_datum!r}: must be one of {ALTITUDE_DATUMS}")
+    surface_dem = _open_dem(dem, dem_datum)
+    if surface_dem is not None:
+        DemSurface(surface_dem, method)  # checks the method before any work
+    targets, header, messages = read_targets(targets_csv)
+    if surface_dem is None and "truth_h_m" not in header:
+        raise ValueError(f"no DEM and the targets file {targets_csv} has no truth_h_m column: give a DEM "
+                         "(--dem) or each target's height (truth_h_m, ellipsoidal unless its datum is "
+                         "given) so that the targets can be located")
+
+    # ---- the photos
+    photos, bad_photos = {}, {}
+    for path in photo_paths:
+        name = Path(path).name
+        if name in photos or name in bad_photos:
+            messages.append(f"{name}: a second photo with this file name ({path}) is ignored: targets "
+                            "name their photo by file name")
+            continue
+        try:
+            meta = read_photo(path)
+            s, lens = photo_sensor(meta, sensor)
+            pose = pose_from_photo(meta, altitude_datum)
+            h_cam, n = camera_height(meta, altitude_datum)
+        except PhotoTagError as e:
+            messages.append(f"{e}; its targets are skipped")
+            bad_photos[name] = str(e)
+            continue
+        except (ValueError, OSError) as e:
+            messages.append(f"{name}: skipped: {e}")
+            bad_photos[name] = str(e)
+            continue
+        messages.extend(f"{meta.name}: {note}" for note in meta.notes)
+        messages.extend(_datum_messages(meta, altitude_datum, h_cam, n, surface_dem))
+        photos[name] = {"meta": meta, "sensor": s, "lens": lens, "pose": pose, "h_cam": h_cam, "n": n}
+    index = _photo_index(photos)
+    bad_index = _photo_index(bad_photos)
+
+    # ---- the targets, photo by photo
+    by_photo, order = {}, []
+    skipped_bad = {}
+    for k, t in enumerate(targets):
+        key = _resolve(t["image"], index)
+        if key is None:
+            bad = _resolve(t["image"], bad_index)
+            if bad is not None:
+                skipped_bad[bad] = skipped_bad.get(bad, 0) + 1
+            else:
+                given = ", ".join(sorted(photos) + sorted(bad_photos)) or "none"
+                messages.append(f"targets file line {t['line']}: image {t['image']!r} is not among the "
+                                f"photos given ({given}): skipped")
+            continue
+        if surface_dem is None and t.get("truth_h_m") is None:
+            messages.append(f"targets file line {t['line']} ({t['image']}): no DEM and no truth_h_m: "
+                            "no height to locate the target at; skipped")
+            continue
+        by_photo.setdefault(key, []).append(k)
+        order.append(k)
+    for name, count in skipped_bad.items():
+        messages.append(f"{name}: {count} target(s) skipped (the photo could not be used)")
+
+    extra = [c for c in header if c not in TARGET_COLUMNS and c not in TRUTH_COLUMNS]
+    out = {}
+    for key, ks in by_photo.items():
+        out.update(_locate_photo(photos[key], [targets[k] for k in ks], ks, surface_dem, method,
+                                 altitude_datum, truth_h_datum, extra, messages))
+    return [out[k] for k in order], messages
+
+
+def _datum_messages(meta, altitude_datum, h_cam, n, dem) -> list:
+    out = []
+    if altitude_datum == "egm96" and (meta.rtk_corrected or (meta.altitude_type or "").lower() == "rtkalt"):
+        why = f"RtkFlag = {meta.rtk_flag}" if meta.rtk_corrected else f"AltitudeType = {meta.altitude_type}"
+        out.append(f"{meta.name}: {why} (an RTK-corrected position): DJI's RTK aircraft write "
+                   f"AbsoluteAltitude as a WGS-84 ellipsoidal height; it is taken here as EGM96 "
+                   f"(altitude_datum='egm96'), which adds N = {n:+.2f} m. If this aircraft writes "
+                   "ellipsoidal heights, use altitude_datum='ellipsoid' (--altitude-datum ellipsoid)")
+    if dem is not None and meta.relative_altitude_m is not None:
+        ground, st = dem.sample(np.array(math.radians(meta.lat_deg)), np.array(math.radians(meta.lon_deg)))
+        if int(st) == Status.OK and np.isfinite(ground):
+            above = h_cam - float(ground)
+            if abs(above - meta.relative_altitude_m) > ALTITUDE_CHECK_M:
+                out.append(
+                    f"{meta.name}: altitude check: the camera is {above:.1f} m above the DEM under it, "
+                    f"but RelativeAltitude (above the take-off point) is {meta.relative_altitude_m:.1f} m. "
+                    f"Check the altitude datum (AbsoluteAltitude taken as {_DATUM_TEXT[altitude_datum]}; "
+                    f"EGM96 N here is {n:+.2f} m), the DEM's datum, and whether AbsoluteAltitude is "
+                    "barometric (DJI's consumer aircraft); a take-off point at another ground height "
+                    "explains part of a difference")
+    return out
+
+
+def _locate_photo(ph, targets, ks, dem, method, altitude_datum, truth_h_datum, extra, messages) -> dict:
+    meta, s, pose = ph["meta"], ph["sensor"], ph["pose"]
+    row = np.array([t["row"] for t in targets])
+    col = np.array([t["col"] for t in targets])
+    truth = {c: np.array([np.nan if t.get(c) is None else t[c] for t in targets]) for c in TRUTH_COLUMNS}
+    if truth_h_datum == "egm96":
+        lat_t = np.where(np.isfinite(truth["truth_lat_deg"]), truth["truth_lat_deg"], meta.lat_deg)
+        lon_t = np.where(np.isfinite(truth["truth_lon_deg"]), truth["truth_lon_deg"], meta.lon_deg)
+        truth["truth_h_m"] = truth["truth_h_m"] + egm96_undulation(np.deg2rad(lat_t), np.deg2rad(lon_t))
+    los = s.line_of_sight(row, col, pose)
+    if dem is not None:
+        hit = DemSurface(dem, method).intersect(los)
+        surface = f"dem ({method})" + (f": {Path(dem.path).name}" if getattr(dem, "path", None) else "")
+    else:
+        hit = HeightSurface(truth["truth_h_m"], "geodetic").intersect(los)
+        surface = "truth_h_m (geodetic height)"
+    lat, lon = np.rad2deg(hit.lat), np.rad2deg(hit.lon)
+    err = horizontal_distance_m(lat, lon, truth["truth_lat_deg"], truth["truth_lon_deg"])
+    vert = hit.h - truth["truth_h_m"] if dem is not None else np.full(len(ks), np.nan)
+    st = names(hit.status)
+    for t, code in zip(targets, hit.status):
+        if code == Status.OUTSIDE_SENSOR:
+            messages.append(f"targets file line {t['line']} ({meta.name}): pixel row {t['row']:g}, col "
+                            f"{t['col']:g} is outside the {s.rows} x {s.cols} image (rows 0.5..{s.rows + 0.5:g}, "
+                            f"columns 0.5..{s.cols + 0.5:g}): not located")
+    common = {
+        "h_datum": ELLIPSOID_DATUM, "surface": surface,
+        "sensor_lat_deg": meta.lat_deg, "sensor_lon_deg": meta.lon_deg, "sensor_h_m": ph["h_cam"],
+        "altitude_datum": _DATUM_TEXT[altitude_datum], "geoid_undulation_m": ph["n"], "lens": ph["lens"],
+        **photo_columns(meta),
+    }
+    out = {}
+    for j, (k, t) in enumerate(zip(ks, targets)):
+        r = {c: None for c in OUTPUT_COLUMNS}
+        r.update(common)
+        r.update(image=t["image"], row=t["row"], col=t["col"], lat_deg=_f(lat[j]), lon_deg=_f(lon[j]),
+                 h_m=_f(hit.h[j]), status=str(st[j]), slant_range_m=_f(hit.slant_range[j]),
+                 truth_lat_deg=_f(truth["truth_lat_deg"][j]), truth_lon_deg=_f(truth["truth_lon_deg"][j]),
+                 truth_h_m=_f(truth["truth_h_m"][j]), error_to_truth_m=_f(err[j]),
+                 vertical_error_m=_f(vert[j]))
+        for c in extra:
+            r[c if c not in r else f"input_{c}"] = t.get(c, "")
+        out[k] = r
+    return out
+
+
+def _f(x):
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def _cell(v) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return "" if not math.isfinite(v) else repr(v)
+    return str(v)
+
+
+def write_rows(path, rows) -> None:
+    """Write the rows of :func:`replay_photos` to a CSV (empty cells for None/NaN; full float precision).
+
+    The columns are :data:`OUTPUT_COLUMNS` then any others in the order they
+    first appear; :func:`geoloc.io.gis.read_results` and ``geoloc export`` read it.
+    """
+    cols = [c for c in OUTPUT_COLUMNS]
+    for r in rows:
+        cols.extend(c for c in r if c not in cols)
+    with Path(path).open("w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for r in rows:
+            w.writerow([_cell(r.get(c)) for c in cols])
+
+
+def summarize(rows, messages=()) -> str:
+    """A few lines per photo: targets located, mean and largest error to truth, and the datums used."""
+    lines = []
+    images = dict.fromkeys(r["image"] for r in rows)
+    for image in images:
+        rs = [r for r in rows if r["image"] == image]
+        ok = [r for r in rs if r["status"] == "ok"]
+        errs = [r["error_to_truth_m"] for r in ok if r["error_to_truth_m"] is not None]
+        line = f"{image}: {len(ok)}/{len(rs)} targets located"
+        if errs:
+            line += f", error to truth mean {np.mean(errs):.2f} m, max {np.max(errs):.2f} m"
+        lines.append(line)
+    if rows:
+        r = rows[0]
+        lines.append(f"heights: {r['h_datum']}; camera AbsoluteAltitude taken as {r['altitude_datum']}")
+    if messages:
+        lines.append(f"{len(messages)} message(s)")
+    return "\n".join(lines)
