@@ -46,3 +46,19 @@ def test_readme_distortion_figures():
     out = subprocess.run([sys.executable, "examples/11_sensor_drone_camera_distortion.py"], cwd=ROOT,
                          capture_output=True, text=True, timeout=300).stdout
     assert "471.3 px away" in out and "moves the target 145.1 m" in out
+
+
+def test_bundled_paths_resolve_from_any_folder(tmp_path):
+    # the README's `assets/...` arguments name bundled files wherever the command runs
+    # (one rule in geoloc.cli.main for every verb's file options)
+    r = subprocess.run([sys.executable, "-m", "geoloc", "locate", "--sensor", "assets/sensors/eo_turret.toml",
+                        "--lat-deg", "36.6", "--lon-deg", "-84.25", "--h-m", "2500", "--heading-deg", "45",
+                        "--pitch-deg", "2", "--roll-deg", "1", "--angle", "azimuth=90", "--angle", "elevation=-30",
+                        "--dem", "assets/dem/srtm_jacksboro.tif", "--json"], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["lat_deg"] == pytest.approx(36.577575, abs=5e-7)
+    r = subprocess.run([sys.executable, "-m", "geoloc", "limb", "assets/scenarios/tiangong2_limb.toml", "--out",
+                        "limb.csv"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "limb.csv").is_file()

@@ -33,9 +33,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Options that name an input file: ``assets/...`` there means a bundled file wherever geoloc
+#: is installed (:func:`geoloc.assets.resolve_user_path`), so the README's commands run from any folder.
+PATH_OPTIONS = ("records", "camera", "dem", "scenario", "input", "columns", "targets", "inputs")
+
+
+def _resolve_paths(args) -> None:
+    from geoloc.assets import resolve_user_path
+
+    for name in PATH_OPTIONS:
+        v = getattr(args, name, None)
+        if isinstance(v, str):
+            setattr(args, name, str(resolve_user_path(v)))
+        elif isinstance(v, list) and all(isinstance(x, str) for x in v):
+            setattr(args, name, [str(resolve_user_path(x)) for x in v])
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    _resolve_paths(args)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
