@@ -15,7 +15,14 @@ import numpy as np
 
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.frames.chain import Pose
-from geoloc.io.columns import DATUM_TEXT, DATUMS, ELLIPSOID_DATUM, ColumnMap, HeightSource, load_column_map
+from geoloc.io.columns import (
+    DATUM_TEXT,
+    DATUMS,
+    ELLIPSOID_DATUM,
+    ColumnMap,
+    HeightSource,
+    load_column_map,
+)
 from geoloc.io.records import Records, load_records
 from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera

@@ -34,8 +34,8 @@ import numpy as np
 
 from geoloc.tomlio import read_toml
 
-#: Angle units and their conversion to degrees.
-ANGLE_UNITS = {"deg": 1.0, "rad": None}
+#: Angle units and their size in degrees (rad: converted with ``math.degrees``).
+ANGLE_UNITS = {"deg": 1.0, "rad": 180.0 / math.pi}
 #: Length units and their size in metres (ft: the international foot).
 LENGTH_UNITS = {"m": 1.0, "ft": 0.3048}
 #: Vertical datums of a height column.
@@ -67,6 +67,8 @@ H_DATUM_COLUMN = "h_datum"
 AC_H_DATUM_COLUMN = "ac_h_datum_input"
 #: Suffix of a file column renamed because the map redefines its (canonical) name.
 INPUT_SUFFIX = "_input"
+#: Who stated the aircraft heights' datum when only the file's own ``h_datum`` column did.
+FILE_STATED = "the file's h_datum column"
 
 _FIXED = TEXT_COLUMNS + PIXEL_COLUMNS + POSE_COLUMNS + TRUTH_COLUMNS + PAPER_COLUMNS
 _KEYS = {"text": {"column"}, "pixel": {"column", "pixel"}, "angle": {"column", "unit"},
@@ -123,14 +125,6 @@ class ColumnSpec:
     def kind(self) -> str:
         return column_kind(self.name)
 
-    def scale(self) -> float:
-        """Factor to the canonical unit (deg or m); pixel offset aside."""
-        if self.unit == "rad":
-            return 180.0 / math.pi
-        if self.unit in LENGTH_UNITS:
-            return LENGTH_UNITS[self.unit]
-        return 1.0
-
     def converts(self) -> bool:
         """True if the value changes on the way in (unit or pixel convention; the datum apart)."""
         return self.unit in ("rad", "ft") or self.pixel == "zero-based"
@@ -168,7 +162,7 @@ class ColumnMap:
         return len(self.specs)
 
     @classmethod
-    def from_table(cls, table, source: str = "column map") -> "ColumnMap":
+    def from_table(cls, table, source: str = "column map") -> ColumnMap:
         """From the ``[columns]`` table (a dict); errors name the key and the value."""
         where = f"{source} [columns]"
         if not isinstance(table, dict):
@@ -187,8 +181,8 @@ class ColumnMap:
                                  "table {column = ..., unit = ...}")
             unknown = sorted(set(entry) - _KEYS[kind])
             if unknown:
-                raise ValueError(f"{where}: {name} = {entry!r}: key(s) {unknown} not allowed for a "
-                                 f"{kind} column; allowed: {sorted(_KEYS[kind])}")
+                raise ValueError(f"{where}: {name} = {entry!r}: key(s) {unknown} not allowed for "
+                                 f"{name} (a column of kind {kind}); allowed: {sorted(_KEYS[kind])}")
             col = entry.get("column")
             if not isinstance(col, str) or not col.strip():
                 raise ValueError(f"{where}: {name}: column = {col!r}: must be the name of a column of the file")
@@ -256,7 +250,7 @@ class HeightSource:
 
     @classmethod
     def of_option(cls, datum: str | None, column: str = "--h-m",
-                  option: str = "--altitude-datum") -> "HeightSource":
+                  option: str = "--altitude-datum") -> HeightSource:
         """An aircraft height given on the command line: ``datum`` as ``option`` gave it (None: not given)."""
         if datum is not None and datum not in DATUMS:
             raise ValueError(f"{option} {datum!r}: use 'ellipsoid' or 'egm96' (MSL)")
@@ -265,7 +259,7 @@ class HeightSource:
     def describe(self) -> str:
         """Short form for an output cell: ``"egm96 (column map: Alt_ft, ft)"``."""
         how = self.stated or "default, not stated"
-        if self.column != self.name or self.unit != "m":
+        if (self.column != self.name and not self.column.startswith("--")) or self.unit != "m":
             how += f": {self.column}" + (f", {self.unit}" if self.unit != "m" else "")
         return f"{self.datum} ({how})"
 
@@ -386,14 +380,15 @@ class ColumnPlan:
         text = raw.get(H_DATUM_COLUMN, "")
         kind = _datum_of_text(text)
         if kind is None:
-            return (H_DATUM_COLUMN, text, f"is not a vertical datum: use {DATUM_TEXT['ellipsoid']!r} or "
-                    f"{DATUM_TEXT['egm96']!r}")
+            return (H_DATUM_COLUMN, text, (f"is not a vertical datum: use {DATUM_TEXT['ellipsoid']!r} or "
+                                           f"{DATUM_TEXT['egm96']!r}"))
         for name, src in self.heights.items():
             if src.datum != kind and raw.get(src.column, "").strip():
-                fix = ("--altitude-datum " + kind) if name == "ac_h_m" else f"datum = {kind!r} for {name} in the column map"
+                who = src.stated if src.stated not in ("", FILE_STATED) else "the default"
+                fix = (f"--altitude-datum {kind}" if name == "ac_h_m"
+                       else f"datum = {kind!r} for {name} in the column map")
                 return (H_DATUM_COLUMN, text,
-                        f"says {kind} but {name} is read as {src.datum} "
-                        f"({src.stated or 'default'}): pass {fix}, or correct the file")
+                        f"says {kind} but {name} is read as {src.datum} ({who}): pass {fix}, or correct the file")
         return None
 
     def apply_datums(self, rows: list) -> dict:
@@ -414,15 +409,13 @@ class ColumnPlan:
                 n[ok] = egm96_undulation(np.deg2rad(lat[ok]), np.deg2rad(lon[ok]))
             spec = self.specs[name]
             for j, k in enumerate(idx):
-                if rows[k] is None:
-                    continue
                 if math.isfinite(n[j]):
                     rows[k][name] = repr(float(H[j] + n[j]))
                 elif name != "ac_h_m" or ok[j]:
                     # (a bad aircraft position is reported on its own column by the validation)
                     errors[int(k)] = (spec.column, _text_of(rows[k], self, name),
-                                      f"egm96 height {name} needs a valid {lat_name}/{lon_name} in the row "
-                                      "to add the geoid undulation N")
+                                      (f"egm96 height {name} needs a valid {lat_name}/{lon_name} in the row "
+                                       "to add the geoid undulation N"))
         self._pending = {}
         return errors
 
@@ -497,14 +490,14 @@ def plan_columns(path, header: list, angles=(), column_map: ColumnMap | None = N
             heights[name] = HeightSource(name, col, "ellipsoid", (spec.unit if spec else None) or "m", "")
     file_h_datum = H_DATUM_COLUMN in header
     if file_h_datum and not heights["ac_h_m"].stated:
-        heights["ac_h_m"] = replace(heights["ac_h_m"], stated="the file's h_datum column")
+        heights["ac_h_m"] = replace(heights["ac_h_m"], stated=FILE_STATED)
     # renames: a file column that a computed canonical column replaces
     renamed = {}
-    for name in specs:
+    for name, spec in specs.items():
         if name in header:
             new = name + INPUT_SUFFIX
             if new in header:
-                raise ValueError(f"{column_map.source} [columns]: {name} = {specs[name].column!r} replaces the "
+                raise ValueError(f"{column_map.source} [columns]: {name} = {spec.column!r} replaces the "
                                  f"file's column {name!r}, which would be kept as {new!r}, but {path} already "
                                  f"has a column {new!r}")
             renamed[name] = new

@@ -135,7 +135,7 @@ class Records:
         """One line for a verb's summary: the aircraft heights' datum and what was done with it."""
         return self.altitude.sentence()
 
-    def subset(self, idx) -> "Records":
+    def subset(self, idx) -> Records:
         """The records of the rows ``idx`` (same header, angles, datums; no errors)."""
         idx = np.asarray(idx, dtype=int)
         return Records(self.path, self.header, [self.rows[k] for k in idx], self.lines[idx], [],
