@@ -560,9 +560,8 @@ def calibrate_groups(records: Records, camera: Camera, target, group_column: str
 
 
 def _sub_records(records: Records, idx) -> Records:
-    """A Records view of some rows (same header)."""
-    return Records(records.path, records.header, [records.rows[k] for k in idx],
-                   records.lines[np.asarray(idx)], [])
+    """A Records view of some rows (same header, angle columns and datums)."""
+    return records.subset(idx)
 
 
 def error_vector_panels(report: dict, records: Records, exaggeration: float = 1.0,
