@@ -7,7 +7,12 @@ import sys
 from pathlib import Path
 
 from geoloc.assets import DEFAULT_RECORDS, asset_path, resolve_user_path
-from geoloc.cli.locate import add_records_options, add_sensor_option, load_camera, records_from_args
+from geoloc.cli.locate import (
+    add_records_options,
+    add_sensor_option,
+    load_camera,
+    records_from_args,
+)
 from geoloc.workflows.replay import (
     outside_sensor_messages,
     replay_at_height,
@@ -23,10 +28,16 @@ def register(sub) -> None:
         description="Locate every record of a flight-test CSV (columns of [Q17] Tables 3-4) and write "
         "every input column plus lat_deg, lon_deg, h_m, error_to_paper_m, error_to_truth_m "
         "(horizontal geodesic distances in metres; empty where the input has no such column). "
-        "Bad rows are reported with their line number; the good rows still run.",
+        "Bad rows are reported with their line number; the good rows still run. "
+        "MISB ST 0601 KLV inputs (.klv, .bin, .ts, .mpg, .mp4): every packet's frame centre and corners "
+        "recomputed from its own pose and compared with the packet's, outliers flagged (docs/klv.md). "
+        "Drone photos with --targets: docs/photos.md.",
     )
-    p.add_argument("records", nargs="?", default=None,
-                   help="records CSV (default: the bundled assets/records/qiao2017_flight_tests.csv)")
+    p.add_argument("records", nargs="*", default=None, metavar="INPUT",
+                   help="records CSV (default: the bundled assets/records/qiao2017_flight_tests.csv); "
+                   "or MISB ST 0601 KLV: raw .klv/.bin or video .ts/.mpg/.mp4 (one or more files: each "
+                   "packet's frame centre and corners recomputed and compared, docs/klv.md); or drone "
+                   "photos .jpg/.jpeg/.tif/.tiff/.dng with --targets")
     add_sensor_option(p)
     add_records_options(p)
     p.add_argument("--height-column", default=None,
@@ -44,6 +55,8 @@ def register(sub) -> None:
     p.add_argument("--export", default=None, metavar="FILE",
                    help="also write the results to GIS: FILE.gpkg, .geojson, .kml or .czml "
                    "(points, truth, error vectors, track; docs/gis.md)")
+    p.add_argument("--targets", default=None, metavar="T.csv",
+                   help="drone photos: the targets to locate (columns image,row,col; optional truth columns)")
     p.set_defaults(func=run, _terrain_hook=None)
     from geoloc.cli.terrain_options import add_dem_options, replay_hook
 
@@ -62,6 +75,16 @@ def _same_file(a, b) -> bool:
 
 
 def run(args) -> int:
+    inputs = list(args.records or [])
+    kind = _input_kind(inputs)
+    if kind == "klv":
+        return _run_klv(args, inputs)
+    if kind == "photos":
+        return _run_photos(args, inputs)
+    if len(inputs) > 1:
+        raise ValueError(f"{len(inputs)} records files given ({', '.join(inputs)}): give one records CSV "
+                         "(several inputs are for KLV files or photos)")
+    args.records = inputs[0] if inputs else None
     records_path = (resolve_user_path(args.records) if args.records is not None
                     else asset_path(*DEFAULT_RECORDS))
     if args.out and _same_file(args.out, records_path):
@@ -104,3 +127,136 @@ def _export(args, result) -> None:
             write_replay_csv(csv_path, result)
         group = args.group_by if args.group_by in result.records.header else None
         print(export(read_results(csv_path), args.export, group_by=group))
+
+
+# --------------------------------------------------------------------------- KLV and photo inputs
+
+#: Drone photo suffixes (``geoloc.workflows.photo_replay``).
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".dng")
+
+
+def _input_kind(inputs) -> str:
+    """"klv", "photos" or "records" for the positional inputs (suffixes; a mix is an error)."""
+    from geoloc.workflows.klv_replay import is_klv_path
+
+    kinds = ["klv" if is_klv_path(x) else "photos" if Path(x).suffix.lower() in PHOTO_SUFFIXES else "records"
+             for x in inputs]
+    if len(set(kinds)) > 1:
+        raise ValueError("inputs of different kinds: " + ", ".join(f"{x} ({k})" for x, k in zip(inputs, kinds))
+                         + "; replay one kind at a time")
+    return kinds[0] if kinds else "records"
+
+
+def _reject_records_options(args, what: str) -> None:
+    for opt, why in (("height_column", "records CSVs"), ("target_h_m", "records CSVs"),
+                     ("columns", "records CSVs")):
+        if getattr(args, opt, None) is not None:
+            raise ValueError(f"--{opt.replace('_', '-')} is for {why}, not for {what}")
+
+
+def _run_klv(args, inputs) -> int:
+    """``geoloc replay FILE.klv|FILE.ts ...``: :func:`geoloc.workflows.klv_replay.replay_klv` per file."""
+    from geoloc.workflows.klv_replay import replay_klv, write_klv_csv
+
+    _reject_records_options(args, "KLV: each packet is intersected at its own frame-centre height "
+                            "(tag 78 HAE, else tag 25 MSL + EGM96 N), or with --dem")
+    if getattr(args, "altitude_datum", None) is not None:
+        print("geoloc replay: note: --altitude-datum is not used for KLV: MISB ST 0601 gives each height's "
+              "datum (tags 75, 78: ellipsoid; tags 15, 25: MSL, made ellipsoidal with EGM96)", file=sys.stderr)
+    paths = [resolve_user_path(x) for x in inputs]
+    if args.out and any(_same_file(args.out, p) for p in paths):
+        raise ValueError(f"--out {args.out} is an input file: refusing to overwrite it")
+    sensor = load_camera(str(resolve_user_path(args.camera))) if args.camera else None
+    dem = None
+    if args.dem:
+        from geoloc.surfaces.dem import DEM
+
+        dem = DEM.open(resolve_user_path(args.dem), datum=args.dem_datum)
+    replays = []
+    for path in paths:
+        r = replay_klv(path, dem=dem, sensor=sensor, method=args.method, dem_model=args.dem_surface,
+                       dem_options={"eps_h": args.eps_h, "threshold": args.threshold})
+        for e in r.errors:
+            print(f"geoloc replay: {path}: {e}", file=sys.stderr)
+        print(r.summary)
+        show = args.print_rows or (not args.out and len(r) <= ROWS_SHOWN)
+        if show and len(r):
+            print(_klv_rows_text(r))
+        replays.append(r)
+    n = sum(len(r) for r in replays)
+    if args.out and n:
+        write_klv_csv(args.out, replays)
+        print(f"wrote {n} rows to {args.out} (heights ellipsoidal, WGS 84: column h_datum; "
+              "*_msl_m columns mean sea level)")
+    if args.export and n:
+        import tempfile
+
+        from geoloc.io.gis import export, read_results
+
+        with tempfile.TemporaryDirectory() as tmp:
+            csv_path = args.out or str(Path(tmp) / "replay.csv")
+            if not args.out:
+                write_klv_csv(csv_path, replays)
+            print(export(read_results(csv_path), args.export, group_by="file" if len(paths) > 1 else None))
+    if n == 0:
+        print("geoloc replay: no good UAS LS packet", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _klv_rows_text(r) -> str:
+    """One line per packet: time, recomputed centre, status, error to the reported centre, outlier."""
+    c = r.columns
+    from geoloc.status import names
+
+    st = names(c["status"])
+    lines = [f"{'packet':>6} {'time_utc':<27} {'lat_deg':>11} {'lon_deg':>12} {'h_m (HAE)':>9} {'status':>13} "
+             f"{'centre_err_m':>12} {'corner_err_m':>12} outlier"]
+
+    def f(v, spec):
+        return format(float(v), spec) if v == v else ""
+
+    for k in range(len(r)):
+        lines.append(f"{c['packet'][k]:>6} {c['time_utc'][k]:<27} {f(c['lat_deg'][k], '11.6f'):>11} "
+                     f"{f(c['lon_deg'][k], '12.6f'):>12} {f(c['h_m'][k], '9.1f'):>9} {st[k]:>13} "
+                     f"{f(c['frame_center_error_m'][k], '12.3f'):>12} {f(c['corner_error_m'][k], '12.3f'):>12} "
+                     f"{'yes' if c['outlier'][k] else ''}")
+    return "\n".join(lines)
+
+
+def _run_photos(args, inputs) -> int:
+    """``geoloc replay PHOTOS... --targets T.csv``: :func:`geoloc.workflows.photo_replay.replay_photos`."""
+    from geoloc.workflows.photo_replay import replay_photos, write_rows
+
+    _reject_records_options(args, "drone photos")
+    if not args.targets:
+        raise ValueError("drone photos need --targets T.csv (columns image,row,col; optional truth columns)")
+    photos = [str(resolve_user_path(x)) for x in inputs]
+    if args.out and any(_same_file(args.out, p) for p in photos + [str(resolve_user_path(args.targets))]):
+        raise ValueError(f"--out {args.out} is an input file: refusing to overwrite it")
+    sensor = load_camera(str(resolve_user_path(args.camera))) if args.camera else None
+    dem = None
+    if args.dem:
+        from geoloc.surfaces.dem import DEM
+
+        dem = DEM.open(resolve_user_path(args.dem), datum=args.dem_datum)
+    extra = {"altitude_datum": args.altitude_datum} if getattr(args, "altitude_datum", None) else {}
+    rows, messages = replay_photos(photos, str(resolve_user_path(args.targets)), sensor=sensor, dem=dem,
+                                   method=args.method, **extra)
+    for m in messages:
+        print(f"geoloc replay: {m}", file=sys.stderr)
+    print(f"{len(rows)} targets located from {len(photos)} photos")
+    if args.out:
+        write_rows(args.out, rows)
+        print(f"wrote {len(rows)} rows to {args.out}")
+    if args.export and rows:
+        import tempfile
+
+        from geoloc.io.gis import export, read_results
+
+        with tempfile.TemporaryDirectory() as tmp:
+            csv_path = args.out or str(Path(tmp) / "replay.csv")
+            if not args.out:
+                write_rows(csv_path, rows)
+            print(export(read_results(csv_path), args.export, group_by=None))
+    return 0 if rows else 1

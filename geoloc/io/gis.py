@@ -43,7 +43,7 @@ EXTENSIONS = {".gpkg": "gpkg", ".geojson": "geojson", ".json": "geojson", ".kml"
 #: Layers, in the order they are written (every format writes all of them, empty or not).
 LAYERS = ("points", "truth", "reported", "error_vectors", "footprints", "track")
 #: Record id columns carried as text attributes when present.
-ID_COLUMNS = ("table", "point", "record", "image")
+ID_COLUMNS = ("table", "point", "record", "image", "packet")
 #: Columns :func:`read_results` keeps as text even when every value looks like a number.
 TEXT_COLUMNS = frozenset(ID_COLUMNS) | {"status", "method", "h_datum", "time_utc"}
 #: The datum of every geometry height in GPKG, GeoJSON and CZML.
@@ -474,6 +474,8 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
     targets = ([("truth", truth)] if truth is not None else []) + reported
     for name, p in targets:
         err = _num(table, f"error_to_{name}_m", n)
+        if err is None and name == "reported":  # a MISB KLV replay names it after the frame centre
+            err = _num(table, "frame_center_error_m", n)
         for k in range(n):
             coords, end_from = None, None
             if ok(comp, k) and ok(p, k):

@@ -1,0 +1,848 @@
+"""Replay of MISB ST 0601 KLV metadata: recompute each packet's frame centre and corners, compare.
+
+Every UAS Datalink LS packet (``geoloc.io.klv``) carries the platform's pose, the
+sensor's pointing and field of view, and what the platform itself computed from
+them: the frame centre (tags 23-25, 78) and the image corners (82-89, or the
+offsets 26-33). This module recomputes the frame centre and the four corners of
+every packet from the packet's own pose, through the sensor interface, and
+measures how far the platform's answer is from it (``docs/klv.md``, "Replay").
+
+The sensor (:func:`klv_sensor`): a :class:`geoloc.sensors.frame.FrameSensor` on
+the ``azimuth-elevation-roll`` gimbal preset (tags 18, 19, 20 are its angles
+``azimuth``, ``elevation``, ``sensor_roll``; ``docs/conventions.md``, "Gimbal
+presets") with a lens from the fields of view (tags 16, 17:
+:func:`geoloc.sensors.lenses.lens_from_fov`), principal point at the image
+centre. The image size comes from an optional sensor file (with its mount,
+boresight and lever arm), else a nominal 1920 x 1080: the corners depend only
+on the fields of view. The frame centre is the line of sight of the image
+centre ((M+1)/2, (N+1)/2), the corners are the image corners (rows 0.5 and
+M + 0.5, columns 0.5 and N + 0.5: the outer edges of the corner pixels, as
+1-based pixel centres count them; ``docs/conventions.md``, "Pixels").
+
+Per packet, the pose is
+
+* position: tags 13, 14 and the sensor height, tag 75 (HAE) when present, else
+  tag 15 (MSL) + N (the bundled EGM96 grid, :func:`geoloc.geodesy.geoid.egm96_undulation`);
+* attitude: tag 5 (heading), tag 90 (pitch, full range) else 6, tag 91 (roll,
+  full range) else 7, z-y-x from NED;
+* gimbal: tags 18, 19, 20; lens: tags 16, 17.
+
+Without a DEM every ray is intersected with the surface of constant geodetic
+height at the packet's own frame-centre height (tag 78, else tag 25 + N), so
+the comparison isolates the angles; with a DEM (:class:`geoloc.surfaces.terrain.DemSurface`),
+with the terrain. All packets are one batch: one :class:`geoloc.frames.chain.Pose`
+of angle arrays, one call for the frame centres and one for the four corners.
+
+Varying fields of view in one batch: one sensor serves every packet. Its lens is
+``lens_from_fov`` of the file's median fields of view, and packet i's corners are
+the pixels whose rays are those of ``lens_from_fov(hfov_i, vfov_i)``'s corners:
+for a pinhole, column c of the packet's lens and column
+c0 + (c - c0) tan(hfov_i / 2) / tan(hfov_ref / 2) of the reference lens have the
+same ray (exactly; the tests hold it to one sensor per packet). Those pixels may
+lie beyond the reference sensor's edge; they are located with
+``outside="extrapolate"``, which for a pinhole is exact.
+
+Outliers: a packet's frame-centre error e is flagged when
+``|e - median| > max(3.5 * 1.4826 * MAD, 1 m)`` over the file's compared packets
+(MAD the median absolute deviation from the median; 1.4826 MAD estimates the
+standard deviation of normal errors, so 3.5 of them is the usual modified
+z-score cut of Iglewicz and Hoaglin; the 1 m floor keeps a stream whose errors
+are all at the quantisation level, millimetres, from flagging noise).
+
+Distances are horizontal geodesic distances on WGS-84 (:mod:`geoloc.geodesy.geodesic`).
+Every height written is ellipsoidal (WGS-84) except the decoded MSL items,
+whose column names say ``_msl_``; the ``h_datum`` column states it per row.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.frames.chain import Pose
+from geoloc.geodesy.geodesic import horizontal_distance_m
+from geoloc.geodesy.geoid import egm96_undulation
+from geoloc.io.klv import (
+    TAG_BY_NAME,
+    KlvError,
+    Packet,
+    iter_packets,
+    packets_to_columns,
+    read_ts_klv,
+)
+from geoloc.locate import line_of_sight, locate
+from geoloc.sensors.frame import FrameSensor
+from geoloc.sensors.gimbals import PRESETS
+from geoloc.sensors.lenses import lens_from_fov
+from geoloc.status import Status, names
+
+__all__ = [
+    "CONTAINER_SUFFIXES",
+    "GIMBAL",
+    "H_DATUM",
+    "KLV_SUFFIXES",
+    "MIN_EXCESS_M",
+    "NOMINAL_SIZE",
+    "OUTLIER_K",
+    "RAW_SUFFIXES",
+    "KlvRead",
+    "KlvReplay",
+    "KlvSummary",
+    "is_klv_path",
+    "klv_sensor",
+    "outlier_mask",
+    "read_klv",
+    "replay_klv",
+    "write_klv_csv",
+]
+
+#: Raw KLV files (concatenated packets).
+RAW_SUFFIXES = (".klv", ".bin")
+#: Containers read through PyAV (``geoloc.io.klv.read_ts_klv``).
+CONTAINER_SUFFIXES = (".ts", ".m2ts", ".mts", ".mpg", ".mpeg", ".mp4", ".mov", ".mkv", ".trp")
+#: Every suffix the KLV replay takes.
+KLV_SUFFIXES = RAW_SUFFIXES + CONTAINER_SUFFIXES
+#: The gimbal preset whose angles are tags 18, 19, 20.
+GIMBAL = "azimuth-elevation-roll"
+#: Image size (width, height) [pixels] when no sensor file gives one.
+NOMINAL_SIZE = (1920, 1080)
+#: Outlier cut in robust standard deviations (1.4826 MAD).
+OUTLIER_K = 3.5
+#: Normal-consistency factor of the MAD.
+MAD_SCALE = 1.4826
+#: Smallest departure from the median flagged as an outlier [m].
+MIN_EXCESS_M = 1.0
+#: Tag 75 - tag 15 (or 78 - 25) may differ from N by this much before a datum warning [m]
+#: (two 0.3 m quantisation steps and the geoid grid's own error fit well inside).
+DATUM_CHECK_M = 3.0
+#: The datum of every height column without ``_msl_`` in its name.
+H_DATUM = "ellipsoid (WGS 84)"
+
+_TAG_TEXT = {name: f"tag {s.tag} ({s.title})" for name, s in TAG_BY_NAME.items()}
+
+
+def is_klv_path(path) -> bool:
+    """True for a file the KLV replay reads (``.klv``, ``.bin``, ``.ts``, ``.mpg``, ``.mp4``, ...)."""
+    return Path(str(path)).suffix.lower() in KLV_SUFFIXES
+
+
+# --------------------------------------------------------------------------- reading
+
+
+@dataclass
+class KlvRead:
+    """The good packets of one file as columns, and the bad ones.
+
+    Attributes
+    ----------
+    source : str
+        File name (or a label).
+    columns : dict
+        :func:`geoloc.io.klv.packets_to_columns` of the good packets.
+    errors : list of KlvError
+        The bad packets, in file order, with their byte offsets.
+    pts_s : ndarray
+        Container presentation time of each good packet [s] (NaN for raw KLV).
+    packet : ndarray of int
+        Each good packet's number in the file (0-based), bad packets counted: every
+        packet the scanner found a key for is one, stray bytes are none.
+    """
+
+    source: str
+    columns: dict
+    errors: list
+    pts_s: np.ndarray
+    packet: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.columns["offset"])
+
+
+def _tiles(data: bytes, offsets) -> bool:
+    """True when the packets at ``offsets`` (key offsets, file order) cover ``data``
+    end to end: then no byte was skipped and the scanner has nothing to report."""
+    ks = np.asarray(offsets, np.int64)
+    if len(ks) == 0:
+        return len(data) == 0
+    arr = np.frombuffer(data, np.uint8)
+    b = arr[ks + 16].astype(np.int64)
+    long = b >= 0x80
+    length = np.where(long, 0, b)
+    head = np.full(len(ks), 17, np.int64)
+    if long.any():
+        m = b[long] & 0x7F
+        kl = ks[long]
+        val = np.zeros(len(kl), np.int64)
+        for j in range(int(m.max())):
+            more = j < m
+            byte = arr[np.where(more, kl + 17 + j, 0)].astype(np.int64)
+            val = np.where(more, val * 256 + byte, val)
+        length[long] = val
+        head[long] = 17 + m
+    ends = ks + head + length
+    return bool(ks[0] == 0 and ends[-1] == len(data) and np.all(ks[1:] == ends[:-1]))
+
+
+def _is_stray(e: KlvError) -> bool:
+    """Bytes that are no packet (geoloc.io.klv reports them '... are not a UAS LS packet')."""
+    return e.reason.endswith("are not a UAS LS packet")
+
+
+def _from_results(results, source: str) -> KlvRead:
+    packets, errors, number = [], [], []
+    seq = 0
+    for r in results:
+        if isinstance(r, Packet):
+            packets.append(r)
+            number.append(seq)
+            seq += 1
+        elif isinstance(r, KlvError):
+            errors.append(r)
+            seq += 0 if _is_stray(r) else 1
+    cols = packets_to_columns(packets)
+    pts_s = np.array([np.nan if p.time_s is None else p.time_s for p in packets], float)
+    return KlvRead(source, cols, errors, pts_s, np.array(number, np.int64))
+
+
+def read_klv(source, *, verify_checksum: bool = True, fast: bool = True, label: str | None = None) -> KlvRead:
+    """Read the packets of a KLV file, an MPEG-TS (or other container), raw bytes or read results.
+
+    Parameters
+    ----------
+    source : path, bytes, or iterable of Packet / KlvError
+        A ``.klv`` / ``.bin`` file (concatenated packets), a container (``.ts``,
+        ``.mpg``, ``.mp4``, ...: its KLV data stream through PyAV), raw bytes, or
+        the results of a :mod:`geoloc.io.klv` read.
+    verify_checksum : bool
+        Check each packet's checksum (tag 1). Default True.
+    fast : bool
+        Raw bytes: decode with :func:`geoloc.io.klv.packets_to_columns` (numpy) and,
+        when the good packets do not cover the file end to end (a bad packet or
+        stray bytes), read again packet by packet to report the bad ones. False:
+        always packet by packet. Same results either way.
+    label : str, optional
+        Name used in messages (default: the file name).
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ValueError
+        A container PyAV cannot open, or one without a data stream.
+    """
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        return _read_bytes(bytes(source), label or "<bytes>", verify_checksum, fast)
+    if isinstance(source, (str, Path)) or hasattr(source, "__fspath__"):
+        p = Path(source)
+        if not p.exists():
+            raise FileNotFoundError(f"KLV file {str(source)!r} does not exist")
+        if not p.is_file():
+            raise FileNotFoundError(f"KLV path {str(source)!r} is not a file")
+        name = label or str(p)
+        if p.suffix.lower() in CONTAINER_SUFFIXES:
+            return _from_results(read_ts_klv(p, verify_checksum=verify_checksum), name)
+        return _read_bytes(p.read_bytes(), name, verify_checksum, fast)
+    return _from_results(list(source), label or "<packets>")
+
+
+def _read_bytes(data: bytes, source: str, verify: bool, fast: bool) -> KlvRead:
+    if fast:
+        cols = packets_to_columns(data, verify_checksum=verify)
+        if _tiles(data, cols["offset"]):
+            m = len(cols["offset"])
+            return KlvRead(source, cols, [], np.full(m, np.nan), np.arange(m, dtype=np.int64))
+    return _from_results(iter_packets(data, verify_checksum=verify), source)
+
+
+# --------------------------------------------------------------------------- the sensor
+
+
+def klv_sensor(hfov, vfov, base: FrameSensor | None = None) -> FrameSensor:
+    """The replay's sensor: ``lens_from_fov(hfov, vfov, width, height)`` on the
+    ``azimuth-elevation-roll`` preset, principal point at the image centre.
+
+    Parameters
+    ----------
+    hfov, vfov : float
+        Fields of view [rad], in (0, pi).
+    base : FrameSensor, optional
+        A sensor file's sensor: its image size, mount, boresight and lever arm are
+        kept, its lens is replaced (ST 0601 gives fields of view, no distortion), its
+        gimbal must be ``azimuth-elevation-roll`` or ``azimuth-elevation`` (the same
+        joints without the roll, which tag 20 then supplies). Default: a nominal
+        1920 x 1080 image and no mount, boresight or lever arm.
+
+    Raises
+    ------
+    ValueError
+        A base sensor on another gimbal (the message names it).
+    """
+    if base is None:
+        w, h = NOMINAL_SIZE
+        return FrameSensor(lens_from_fov(hfov, vfov, w, h), PRESETS[GIMBAL], name="MISB ST 0601 sensor")
+    if not isinstance(base, FrameSensor):
+        raise ValueError(f"sensor {base!r}: the KLV replay needs a sensor file ([lens], [gimbal] preset = "
+                         f"{GIMBAL!r}); a first-phase camera file has the [Q17] roll-pitch gimbal")
+    if base.gimbal.name not in (GIMBAL, "azimuth-elevation"):
+        raise ValueError(f"sensor {base.name or 'file'}: gimbal {base.gimbal.name!r}: MISB ST 0601's "
+                         f"sensor-relative angles (tags 18-20) are the {GIMBAL!r} preset; give a sensor "
+                         f"file with [gimbal] preset = {GIMBAL!r} (or 'azimuth-elevation')")
+    lens = lens_from_fov(hfov, vfov, base.cols, base.rows)
+    return dataclasses.replace(base, lens=lens, gimbal=PRESETS[GIMBAL])
+
+
+# --------------------------------------------------------------------------- outliers
+
+
+def outlier_mask(err, k: float = OUTLIER_K, min_excess_m: float = MIN_EXCESS_M):
+    """Robust outlier flags: ``|e - median| > max(k * 1.4826 * MAD, min_excess_m)``.
+
+    Parameters
+    ----------
+    err : array_like
+        Errors [m]; NaN entries are ignored (and never flagged).
+    k : float
+        Cut in robust standard deviations (default 3.5).
+    min_excess_m : float
+        Smallest departure flagged [m] (default 1).
+
+    Returns
+    -------
+    (mask, median, mad, threshold)
+        ``mask`` (bool, the shape of ``err``); the median, the MAD and the cut on
+        ``|e - median|`` [m] (NaN when no error is finite).
+    """
+    e = np.asarray(err, float)
+    ok = np.isfinite(e)
+    if not ok.any():
+        return np.zeros(e.shape, bool), math.nan, math.nan, math.nan
+    med = float(np.median(e[ok]))
+    mad = float(np.median(np.abs(e[ok] - med)))
+    thr = max(k * MAD_SCALE * mad, float(min_excess_m))
+    with np.errstate(invalid="ignore"):
+        mask = ok & (np.abs(e - med) > thr)
+    return mask, med, mad, thr
+
+
+# --------------------------------------------------------------------------- the replay
+
+
+@dataclass
+class KlvSummary:
+    """What one file's replay found (``str()`` prints it).
+
+    Counts are of good packets; ``outliers`` are file packet numbers (bad packets
+    counted, as the ``packet`` column); distances in metres (NaN when nothing was
+    compared); ``*_h_sources`` count the packets whose height came from each tag;
+    ``datum_warnings`` has one line per packet whose HAE and MSL items disagree with N.
+    """
+
+    source: str
+    packets: int
+    errors: list
+    status_counts: dict
+    invalid_reasons: dict
+    compared: int
+    median_m: float
+    p90_m: float
+    max_m: float
+    corner_compared: int
+    corner_median_m: float
+    corner_p90_m: float
+    outliers: list
+    outlier_median_m: float
+    outlier_threshold_m: float
+    sensor_h_sources: dict
+    reported_h_sources: dict
+    surface: str
+    datum_warnings: list
+    notes: list = field(default_factory=list)
+
+    def __str__(self) -> str:
+        L = [f"{self.source}: {self.packets} packets read, {len(self.errors)} bad packet(s) skipped"]
+        for e in self.errors[:20]:
+            L.append(f"  bad packet at {_where(e)}: {e.reason}")
+        if len(self.errors) > 20:
+            L.append(f"  ... and {len(self.errors) - 20} more bad packets")
+        L.append(f"  surface: {self.surface}")
+        L.append("  sensor height: " + _counts(self.sensor_h_sources))
+        L.append("  reported frame-centre height: " + _counts(self.reported_h_sources))
+        L.append("  status: " + (", ".join(f"{k} {v}" for k, v in self.status_counts.items()) or "no packet"))
+        for reason, count in self.invalid_reasons.items():
+            L.append(f"    invalid_input, {count} packet(s): {reason}")
+        if self.compared:
+            L.append(f"  frame-centre error (recomputed vs reported, horizontal): median {self.median_m:.3f} m, "
+                     f"90th percentile {self.p90_m:.3f} m, max {self.max_m:.3f} m over {self.compared} packets")
+        else:
+            L.append("  frame-centre error: no packet with both a reported and a recomputed frame centre")
+        if self.corner_compared:
+            L.append(f"  corner error (mean of the corners): median {self.corner_median_m:.3f} m, "
+                     f"90th percentile {self.corner_p90_m:.3f} m over {self.corner_compared} packets")
+        if self.compared:
+            L.append(f"  outliers (|error - median| > max({OUTLIER_K:g} x {MAD_SCALE} x MAD, {MIN_EXCESS_M:g} m) "
+                     f"= {self.outlier_threshold_m:.3f} m from the median {self.outlier_median_m:.3f} m): "
+                     f"{len(self.outliers)} packet(s)" + (f": {_ranges(self.outliers)}" if self.outliers else ""))
+        if self.datum_warnings:
+            L.append(f"  datum check: {len(self.datum_warnings)} packet(s) whose HAE and MSL heights do not differ "
+                     f"by the EGM96 N (within {DATUM_CHECK_M:g} m): one of the two is in the wrong datum")
+            for w in self.datum_warnings[:5]:
+                L.append(f"    {w}")
+            if len(self.datum_warnings) > 5:
+                L.append(f"    ... and {len(self.datum_warnings) - 5} more (column datum_warning)")
+        L += [f"  note: {n}" for n in self.notes]
+        L.append(f"  heights written: ellipsoidal, {H_DATUM} (column h_datum), except the decoded "
+                 "*_msl_m items (mean sea level)")
+        return "\n".join(L)
+
+
+def _where(e: KlvError) -> str:
+    where = f"byte {e.offset}" if e.offset is not None else "unknown position"
+    return f"pts {e.pts} ({where})" if e.pts is not None else where
+
+
+def _counts(d: dict) -> str:
+    return ", ".join(f"{k}: {v} packet(s)" for k, v in d.items() if v) or "none"
+
+
+def _ranges(idx) -> str:
+    """[1, 2, 3, 7] -> 'packets 1-3, 7'."""
+    idx = sorted(int(i) for i in idx)
+    parts, start, prev = [], None, None
+    for i in idx:
+        if start is None:
+            start = prev = i
+        elif i == prev + 1:
+            prev = i
+        else:
+            parts.append(f"{start}-{prev}" if prev > start else f"{start}")
+            start = prev = i
+    if start is not None:
+        parts.append(f"{start}-{prev}" if prev > start else f"{start}")
+    return "packets " + ", ".join(parts)
+
+
+@dataclass
+class KlvReplay:
+    """The replay of one file: a column per output field, the bad packets, the summary.
+
+    Attributes
+    ----------
+    columns : dict
+        Output column name -> array (one entry per good packet, file order); the
+        columns are listed in docs/klv.md ("Replay", "Output columns").
+    errors : list of KlvError
+    summary : KlvSummary
+    sensor : FrameSensor
+        The sensor used (reference fields of view).
+    """
+
+    columns: dict
+    errors: list
+    summary: KlvSummary
+    sensor: FrameSensor
+
+    def __len__(self) -> int:
+        return len(self.columns["packet"])
+
+    def rows(self) -> list:
+        """One dict per packet (NaN as None, status as its name)."""
+        keys = list(self.columns)
+        vals = [_pyvalues(k, self.columns[k]) for k in keys]
+        return [dict(zip(keys, r)) for r in zip(*vals)]
+
+    def write_csv(self, path) -> None:
+        """Write the rows to a CSV (``geoloc.io.gis.read_results`` reads it back)."""
+        write_klv_csv(path, [self])
+
+
+def _pyvalues(name, arr):
+    if name == "status" or name == "corner_status":
+        return list(names(arr))
+    a = np.asarray(arr)
+    if a.dtype.kind == "f":
+        return [None if v != v else v for v in a.tolist()]
+    return a.tolist()
+
+
+def _f(cols, name, n):
+    v = cols.get(name)
+    return np.full(n, np.nan) if v is None else np.asarray(v, float)
+
+
+def _undulation(lat_deg, lon_deg):
+    """EGM96 N [m] where lat/lon are finite, NaN elsewhere."""
+    lat, lon = np.asarray(lat_deg, float), np.asarray(lon_deg, float)
+    out = np.full(lat.shape, np.nan)
+    ok = np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90)
+    if ok.any():
+        out[ok] = egm96_undulation(np.deg2rad(lat[ok]), np.deg2rad(lon[ok]))
+    return out
+
+
+def _iso(time_us):
+    """Microseconds since 1970 UTC -> ISO 8601 strings ('' where NaN)."""
+    t = np.asarray(time_us, float)
+    out = np.full(t.shape, "", dtype=object)
+    ok = np.isfinite(t)
+    if ok.any():
+        s = np.datetime_as_string(t[ok].astype(np.int64).astype("datetime64[us]"), unit="us")
+        out[ok] = [x + "Z" for x in s.tolist()]
+    return out
+
+
+def _text(mask, yes, no=""):
+    out = np.full(mask.shape, no, dtype=object)
+    out[mask] = yes
+    return out
+
+
+def _append(notes, mask, text):
+    if mask.any():
+        notes[mask] = notes[mask] + text
+
+
+def replay_klv(source, *, dem=None, sensor: FrameSensor | None = None, method: str = "exact",
+               dem_model: str = "bilinear", dem_options: dict | None = None, verify_checksum: bool = True,
+               fast: bool = True, label: str | None = None) -> KlvReplay:
+    """Recompute every packet's frame centre and corners and compare with the packet's own.
+
+    Parameters
+    ----------
+    source : path, bytes, iterable of Packet / KlvError, or KlvRead
+        What :func:`read_klv` reads (a ``.klv`` / ``.bin`` file, an MPEG-TS, ...).
+    dem : geoloc.surfaces.dem.DEM, optional
+        Intersect with the terrain (``DemSurface(dem, method)``); default: with the
+        surface of constant geodetic height at each packet's frame-centre height
+        (tag 78, else tag 25 + EGM96 N).
+    sensor : FrameSensor, optional
+        A sensor file's sensor (image size, mount, boresight, lever arm; see
+        :func:`klv_sensor`).
+    method : {"exact", "bisect", "steps"}
+        DEM solver.
+    dem_model : {"bilinear", "triangles"}
+        How the exact solver reads between DEM nodes.
+    dem_options : dict, optional
+        More options of :class:`geoloc.surfaces.terrain.DemSurface` (``eps_h``, ``threshold``, ...).
+    verify_checksum, fast, label
+        See :func:`read_klv`.
+
+    Returns
+    -------
+    KlvReplay
+        One row per good packet; a packet lacking a needed tag has status
+        ``invalid_input`` and a ``note`` naming the tag, the others are located.
+    """
+    read = source if isinstance(source, KlvRead) else read_klv(source, verify_checksum=verify_checksum,
+                                                                 fast=fast, label=label)
+    return _replay(read, dem, sensor, method, dem_model, dem_options or {})
+
+
+def _replay(read: KlvRead, dem, base_sensor, method, dem_model, dem_options) -> KlvReplay:
+    from geoloc.surfaces.terrain import DemSurface
+
+    c = read.columns
+    n = len(read)
+    g = lambda name: _f(c, name, n)  # noqa: E731
+
+    # ---- position and heights (datums per tag)
+    lat_s, lon_s = g("sensor_latitude_deg"), g("sensor_longitude_deg")
+    h75, h15 = g("sensor_ellipsoid_height_m"), g("sensor_true_altitude_m")
+    n_s = _undulation(lat_s, lon_s)
+    from75 = np.isfinite(h75)
+    from15 = ~from75 & np.isfinite(h15) & np.isfinite(n_s)
+    h_s = np.where(from75, h75, np.where(from15, h15 + n_s, np.nan))
+    sensor_h_from = np.where(from75, "tag 75 (HAE)", np.where(from15, "tag 15 (MSL) + EGM96 N", ""))
+
+    fc_lat, fc_lon = g("frame_center_latitude_deg"), g("frame_center_longitude_deg")
+    h78, h25 = g("frame_center_hae_m"), g("frame_center_elevation_m")
+    has_fc = np.isfinite(fc_lat) & np.isfinite(fc_lon)
+    n_fc = _undulation(np.where(has_fc, fc_lat, lat_s), np.where(has_fc, fc_lon, lon_s))
+    from78 = np.isfinite(h78)
+    from25 = ~from78 & np.isfinite(h25) & np.isfinite(n_fc)
+    rep_h = np.where(from78, h78, np.where(from25, h25 + n_fc, np.nan))
+    rep_h_from = np.where(from78, "tag 78 (HAE)", np.where(from25, "tag 25 (MSL) + EGM96 N", ""))
+
+    # ---- attitude and pointing (full-range pitch and roll when present)
+    heading = g("platform_heading_deg")
+    p90, r91 = g("platform_pitch_full_deg"), g("platform_roll_full_deg")
+    pitch = np.where(np.isfinite(p90), p90, g("platform_pitch_deg"))
+    roll = np.where(np.isfinite(r91), r91, g("platform_roll_deg"))
+    az, el, sroll = (g("sensor_relative_azimuth_deg"), g("sensor_relative_elevation_deg"),
+                     g("sensor_relative_roll_deg"))
+    hfov, vfov = g("sensor_horizontal_fov_deg"), g("sensor_vertical_fov_deg")
+    with np.errstate(invalid="ignore"):
+        hfov_ok = np.isfinite(hfov) & (hfov > 0) & (hfov < 180)
+        vfov_ok = np.isfinite(vfov) & (vfov > 0) & (vfov < 180)
+
+    # ---- what each packet lacks
+    notes = np.full(n, "", dtype=object)
+    needs = [
+        (~np.isfinite(lat_s), _TAG_TEXT["sensor_latitude_deg"]),
+        (~np.isfinite(lon_s), _TAG_TEXT["sensor_longitude_deg"]),
+        (~np.isfinite(h_s), "tag 75 (Sensor Ellipsoid Height) or tag 15 (Sensor True Altitude)"),
+        (~np.isfinite(heading), _TAG_TEXT["platform_heading_deg"]),
+        (~np.isfinite(pitch), "tag 90 or tag 6 (Platform Pitch Angle)"),
+        (~np.isfinite(roll), "tag 91 or tag 7 (Platform Roll Angle)"),
+        (~np.isfinite(az), _TAG_TEXT["sensor_relative_azimuth_deg"]),
+        (~np.isfinite(el), _TAG_TEXT["sensor_relative_elevation_deg"]),
+    ]
+    if dem is None:
+        needs.append((~np.isfinite(rep_h), "tag 78 (Frame Center Height Above Ellipsoid) or tag 25 "
+                      "(Frame Center Elevation), the height to intersect at (or give a DEM)"))
+    # with a boresight the centre's ray turns with the sensor roll; without, it is the roll axis
+    centre_needs_roll = base_sensor is not None and any(getattr(base_sensor, "boresight", ()))
+    if centre_needs_roll:
+        needs.append((~np.isfinite(sroll), _TAG_TEXT["sensor_relative_roll_deg"]))
+    bad_c = np.zeros(n, bool)
+    for mask, text in needs:
+        bad_c |= mask
+        _append(notes, mask, f"{text}, ")
+    invalid_reasons = dict(Counter("missing " + s[:-2] for s in notes[bad_c].tolist()).most_common())
+    corner_needs = [(~hfov_ok, "tag 16 (Sensor Horizontal Field of View; absent, 0 or 180)"),
+                    (~vfov_ok, "tag 17 (Sensor Vertical Field of View; absent, 0 or 180)")]
+    if not centre_needs_roll:
+        corner_needs.append((~np.isfinite(sroll), _TAG_TEXT["sensor_relative_roll_deg"]))
+    knotes = np.full(n, "", dtype=object)
+    bad_k = bad_c.copy()
+    for mask, text in corner_needs:
+        bad_k |= mask
+        _append(knotes, mask & ~bad_c, f"{text}, ")
+    notes = np.array([("missing " + a[:-2] if a else "") + ("; " if a and b else "")
+                      + ("corners not computed: missing " + b[:-2] if b else "")
+                      for a, b in zip(notes.tolist(), knotes.tolist())] + [None], dtype=object)[:-1]
+
+    # ---- the sensor: lens from the median fields of view; packet i's corners scaled to it
+    hv = hfov_ok & vfov_ok
+    href = float(np.median(hfov[hv])) if hv.any() else 10.0
+    vref = float(np.median(vfov[hv])) if hv.any() else 10.0
+    sens = klv_sensor(math.radians(href), math.radians(vref), base_sensor)
+
+    def clean(v, bad, fill=0.0):
+        return np.where(bad | ~np.isfinite(v), fill, v)
+
+    pose_c = Pose.from_deg(clean(lat_s, bad_c), clean(lon_s, bad_c), clean(h_s, bad_c, 1000.0),
+                           clean(heading, bad_c), clean(pitch, bad_c), clean(roll, bad_c),
+                           angles_deg={"azimuth": clean(az, bad_c), "elevation": clean(el, bad_c, -45.0),
+                                       "sensor_roll": clean(sroll, bad_c)})
+    r0, c0 = sens.center_pixel
+    with np.errstate(invalid="ignore"):
+        sx = np.tan(np.deg2rad(clean(hfov, bad_k, href)) / 2) / math.tan(math.radians(href) / 2) * sens.cols / 2
+        sy = np.tan(np.deg2rad(clean(vfov, bad_k, vref)) / 2) / math.tan(math.radians(vref) / 2) * sens.rows / 2
+    k_rows = np.stack([r0 - sy, r0 - sy, r0 + sy, r0 + sy])  # upper left, upper right, lower right, lower left
+    k_cols = np.stack([c0 - sx, c0 + sx, c0 + sx, c0 - sx])
+    pose_k = pose_c.with_angles(sensor_roll=np.deg2rad(clean(sroll, bad_k)))
+
+    # ---- intersect: one call for the centres, one for the corners
+    if dem is None:
+        h_int = clean(rep_h, bad_c)
+        surface_text = ("each packet's own frame-centre height, ellipsoidal (tag 78 HAE; tag 25 MSL + EGM96 N "
+                        "where 78 is absent): the comparison isolates the angles")
+        gc = locate(pose_c, sens, target_h=h_int, surface="geodetic")
+        gk = locate(pose_k, sens, k_rows, k_cols, target_h=h_int[None, :], surface="geodetic",
+                    outside="extrapolate")
+    else:
+        surf = DemSurface(dem, method, dem_model, **dem_options)
+        src = getattr(dem, "path", None) or "DEM"
+        surface_text = (f"DEM {src} (heights {dem.datum}" + (" -> ellipsoidal with EGM96 N" if dem.datum == "egm96"
+                        else "") + f"), method {method}")
+        gc = surf.intersect(line_of_sight(pose_c, sens))
+        gk = surf.intersect(line_of_sight(pose_k, sens, k_rows, k_cols, outside="extrapolate"))
+
+    status = np.where(bad_c, np.uint8(Status.INVALID_INPUT), np.asarray(gc.status, np.uint8)).astype(np.uint8)
+    ok = status == Status.OK
+    lat = np.where(ok, np.rad2deg(gc.lat), np.nan)
+    lon = np.where(ok, np.rad2deg(gc.lon), np.nan)
+    h = np.where(ok, gc.h, np.nan)
+    rng = np.where(ok, gc.slant_range, np.nan)
+    kst = np.where(bad_k[None, :], np.uint8(Status.INVALID_INPUT), np.asarray(gk.status, np.uint8))
+    kok = kst == Status.OK
+    k_lat = np.where(kok, np.rad2deg(gk.lat), np.nan)
+    k_lon = np.where(kok, np.rad2deg(gk.lon), np.nan)
+    k_h = np.where(kok, gk.h, np.nan)
+    corner_status = np.zeros(n, np.uint8)
+    for j in (3, 2, 1, 0):  # the first corner's failure wins
+        corner_status = np.where(kst[j] != Status.OK, kst[j], corner_status)
+
+    # ---- reported corners: full (82-89) where both items are there, else offsets (26-33) + centre
+    rk_lat, rk_lon = np.full((4, n), np.nan), np.full((4, n), np.nan)
+    n_full = np.zeros(n, int)
+    n_off = np.zeros(n, int)
+    for j in range(4):
+        fl, fo = g(f"corner_latitude_{j + 1}_deg"), g(f"corner_longitude_{j + 1}_deg")
+        ol, oo = g(f"offset_corner_latitude_{j + 1}_deg"), g(f"offset_corner_longitude_{j + 1}_deg")
+        full = np.isfinite(fl) & np.isfinite(fo)
+        off = ~full & np.isfinite(ol) & np.isfinite(oo) & has_fc
+        rk_lat[j] = np.where(full, fl, np.where(off, fc_lat + ol, np.nan))
+        rk_lon[j] = np.where(full, fo, np.where(off, fc_lon + oo, np.nan))
+        n_full += full
+        n_off += off
+    rep_corners = np.full(n, "", dtype=object)
+    rep_corners[n_full == 4] = "tags 82-89 (full)"
+    rep_corners[n_off == 4] = "tags 26-33 (offsets from the frame centre)"
+    rep_corners[(n_full + n_off > 0) & (n_full != 4) & (n_off != 4)] = "partial"
+
+    # ---- errors
+    fc_err = horizontal_distance_m(lat, lon, fc_lat, fc_lon)
+    k_err = horizontal_distance_m(k_lat, k_lon, rk_lat, rk_lon)
+    k_cnt = np.isfinite(k_err).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corner_err = np.where(k_cnt > 0, np.nansum(k_err, axis=0) / np.maximum(k_cnt, 1), np.nan)
+    outlier, med, _mad, thr = outlier_mask(fc_err)
+
+    # ---- datum check: HAE - MSL should be N
+    datum_warn = np.full(n, "", dtype=object)
+    warnings = []
+    with np.errstate(invalid="ignore"):
+        dev_s = np.abs((h75 - h15) - n_s) > DATUM_CHECK_M
+        dev_f = np.abs((h78 - h25) - n_fc) > DATUM_CHECK_M
+    for k in np.flatnonzero(dev_s | dev_f):
+        parts = []
+        if dev_s[k]:
+            parts.append(f"tag 75 - tag 15 = {h75[k] - h15[k]:+.1f} m but EGM96 N = {n_s[k]:+.1f} m at the sensor")
+        if dev_f[k]:
+            parts.append(f"tag 78 - tag 25 = {h78[k] - h25[k]:+.1f} m but EGM96 N = {n_fc[k]:+.1f} m at the "
+                         "frame centre")
+        datum_warn[k] = "; ".join(parts)
+        warnings.append(f"packet {int(read.packet[k])} (byte {int(c['offset'][k])}): {datum_warn[k]}")
+
+    ts = g("precision_time_stamp_us")
+    cols = {
+        "file": np.full(n, Path(read.source).name, dtype=object),
+        "packet": np.asarray(read.packet, np.int64),
+        "offset": np.asarray(c["offset"], np.int64),
+        "pts_s": np.asarray(read.pts_s, float),
+        "time_utc": _iso(ts),
+        "time_s": ts / 1e6,
+        "sensor_lat_deg": lat_s,
+        "sensor_lon_deg": lon_s,
+        "sensor_h_m": h_s,
+        "sensor_h_from": sensor_h_from.astype(object),
+        "sensor_ellipsoid_height_m": h75,
+        "sensor_true_altitude_msl_m": h15,
+        "sensor_geoid_n_m": n_s,
+        "platform_heading_deg": heading,
+        "platform_pitch_deg": pitch,
+        "platform_roll_deg": roll,
+        "sensor_relative_azimuth_deg": az,
+        "sensor_relative_elevation_deg": el,
+        "sensor_relative_roll_deg": sroll,
+        "sensor_horizontal_fov_deg": hfov,
+        "sensor_vertical_fov_deg": vfov,
+        "slant_range_m": g("slant_range_m"),
+        "frame_center_hae_m": h78,
+        "frame_center_elevation_msl_m": h25,
+        "reported_lat_deg": fc_lat,
+        "reported_lon_deg": fc_lon,
+        "reported_h_m": rep_h,
+        "reported_h_from": rep_h_from.astype(object),
+    }
+    for j in range(4):
+        cols[f"reported_corner{j + 1}_lat_deg"] = rk_lat[j]
+        cols[f"reported_corner{j + 1}_lon_deg"] = rk_lon[j]
+    cols["reported_corners_from"] = rep_corners
+    cols.update({
+        "lat_deg": lat,
+        "lon_deg": lon,
+        "h_m": h,
+        "status": status,
+        "range_m": rng,
+        "frame_center_error_m": fc_err,
+    })
+    for j in range(4):
+        cols[f"corner{j + 1}_lat_deg"] = k_lat[j]
+        cols[f"corner{j + 1}_lon_deg"] = k_lon[j]
+        cols[f"corner{j + 1}_h_m"] = k_h[j]
+    cols.update({
+        "corner_status": corner_status,
+        "corner_error_m": corner_err,
+        "h_datum": np.full(n, H_DATUM, dtype=object),
+        "outlier": outlier.astype(np.int64),
+        "datum_warning": datum_warn,
+        "note": notes,
+    })
+
+    fin = np.isfinite(fc_err)
+    kfin = np.isfinite(corner_err)
+    counts = {s.name.lower(): int(np.sum(status == s)) for s in Status if np.any(status == s)}
+    summ_notes = []
+    if base_sensor is not None:
+        summ_notes.append(f"sensor file: image {sens.cols} x {sens.rows}, mount, boresight and lever arm "
+                          "used; its lens is replaced by each packet's fields of view (tags 16, 17)")
+    if dem is not None and fin.any():
+        dh = rep_h - h
+        okh = np.isfinite(dh)
+        if okh.any():
+            mdh = float(np.median(dh[okh]))
+            mn = float(np.nanmedian(n_fc[okh])) if np.isfinite(n_fc[okh]).any() else math.nan
+            text = f"reported frame-centre height minus the DEM's: median {mdh:+.2f} m"
+            if abs(mdh) > 5 and math.isfinite(mn) and abs(mdh + mn) < DATUM_CHECK_M:
+                text += (f", about -N ({-mn:+.1f} m): the reported heights look orthometric (MSL) where "
+                         "they should be ellipsoidal, or the DEM's datum is wrong (--dem-datum)")
+            summ_notes.append(text)
+    summary = KlvSummary(
+        source=read.source, packets=n, errors=list(read.errors), status_counts=counts,
+        invalid_reasons=invalid_reasons, compared=int(fin.sum()),
+        median_m=float(np.median(fc_err[fin])) if fin.any() else math.nan,
+        p90_m=float(np.percentile(fc_err[fin], 90)) if fin.any() else math.nan,
+        max_m=float(np.max(fc_err[fin])) if fin.any() else math.nan,
+        corner_compared=int(kfin.sum()),
+        corner_median_m=float(np.median(corner_err[kfin])) if kfin.any() else math.nan,
+        corner_p90_m=float(np.percentile(corner_err[kfin], 90)) if kfin.any() else math.nan,
+        outliers=read.packet[outlier].tolist(), outlier_median_m=med, outlier_threshold_m=thr,
+        sensor_h_sources={"tag 75 (HAE)": int(from75.sum()), "tag 15 (MSL) + EGM96 N": int(from15.sum())},
+        reported_h_sources={"tag 78 (HAE)": int(from78.sum()), "tag 25 (MSL) + EGM96 N": int(from25.sum())},
+        surface=surface_text, datum_warnings=warnings, notes=summ_notes)
+    return KlvReplay(cols, list(read.errors), summary, sens)
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _fmt_of(name: str) -> str:
+    if name.endswith(("lat_deg", "lon_deg")):
+        return "%.9f"
+    if name.endswith("_error_m"):
+        return "%.4f"
+    if name.endswith("_deg"):
+        return "%.7f"
+    if name in ("time_s", "pts_s"):
+        return "%.6f"
+    return "%.3f"
+
+
+def _column_text(name, arr) -> list:
+    if name in ("status", "corner_status"):
+        return list(names(arr))
+    a = np.asarray(arr)
+    if a.dtype == object:
+        return ["" if v is None else str(v) for v in a.tolist()]
+    if a.dtype.kind in "iub":
+        return [str(v) for v in a.tolist()]
+    fmt = _fmt_of(name)
+    out = [fmt % v for v in a.tolist()]
+    for k in np.flatnonzero(~np.isfinite(a)).tolist():
+        out[k] = ""
+    return out
+
+
+def write_klv_csv(path, replays) -> int:
+    """Write the rows of one or more replays (the same columns) to one CSV; returns the row count."""
+    replays = [replays] if isinstance(replays, KlvReplay) else list(replays)
+    if not replays:
+        raise ValueError("no replay to write")
+    header = list(replays[0].columns)
+    n = 0
+    with Path(path).open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for r in replays:
+            texts = [_column_text(k, r.columns[k]) for k in header]
+            w.writerows(zip(*texts))
+            n += len(r)
+    return n
