@@ -62,3 +62,14 @@ def test_bundled_paths_resolve_from_any_folder(tmp_path):
                         "limb.csv"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "limb.csv").is_file()
+
+
+def test_readme_klv_example_flight():
+    with_dem = geoloc("replay", "assets/klv/example_flight.klv", "--dem", "assets/dem/srtm_jacksboro.tif")
+    assert "299 packets read, 1 bad packet(s) skipped" in with_dem
+    assert "bad packet at byte 32400: checksum mismatch" in with_dem
+    assert "median 0.003 m, 90th percentile 0.004 m" in with_dem
+    assert "22 packet(s): packets 100-109, 200-204, 250-256" in with_dem
+    bare = geoloc("replay", "assets/klv/example_flight.klv")
+    assert "frame-centre error (recomputed vs reported, horizontal): median 0.091 m" in bare
+    assert re.search(r"corner error \(mean of the corners\): median 58\.\d+ m", bare)
