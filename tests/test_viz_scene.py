@@ -302,3 +302,18 @@ def test_viewer_and_rerun_lines_of_sight_equal_the_core_for_every_preset(preset,
     np.testing.assert_allclose(steps.los.origin_ecef[0], los.origin_ecef, atol=1e-9)
     paths = steps.entity_paths()
     assert set(paths) == set(s.graph.frames[1:]) and paths["cam"].endswith("/cam")
+
+
+def test_viewer_flags_a_pixel_outside_the_sensor():
+    # issue 15: row 99999 on a 2323-row sensor said "ok"; now the scene says so and why
+    import dataclasses
+
+    from geoloc.status import Status
+    from geoloc.viz import model
+
+    scn = dataclasses.replace(load_scenario(), dem=None)
+    g = model.compute(scn, scn.inputs.replace(row=99999.0, target_h=4600.0))
+    assert g.status == Status.OUTSIDE_SENSOR
+    assert "pixel outside the sensor" in g.message and "rows 1-2323" in g.message
+    inside = model.compute(scn, scn.inputs.replace(target_h=4600.0))
+    assert inside.status == Status.OK and "outside" not in inside.message
