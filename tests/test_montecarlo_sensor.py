@@ -61,3 +61,22 @@ def test_a_mount_sigma_spreads_the_points_as_the_same_gimbal_encoder_sigma(model
     # same draws (same seed, one source each): the same points to float64 rounding
     assert ra.stats["cep_m"] == pytest.approx(rb.stats["cep_m"], rel=1e-9)
     assert ra.stats["cep50_empirical_m"] == pytest.approx(rb.stats["cep50_empirical_m"], rel=1e-9)
+
+
+def test_lever_arm_draws_move_the_point_by_the_body_offset(model):
+    # at nadir-ish geometry a lever-arm draw shifts the optical centre and so the ground point by
+    # the same horizontal offset (to first order: the line of sight's direction is unchanged)
+    rng = np.random.default_rng(9)
+    n = 5
+    dx = rng.normal(0, 2.0, n)
+    lat0, lon0, _, _ = mc.evaluate(model, {"lever_arm_x_m": np.zeros(n)})
+    lat1, lon1, _, _ = mc.evaluate(model, {"lever_arm_x_m": dx})
+    s = as_sensor(model.camera)
+    pose = model.nominal_pose()
+    for k in range(n):
+        moved = s.with_params(lever_arm_x_m=s.params["lever_arm_x_m"] + dx[k])
+        g = locate(pose, moved, model.row, model.col, target_h=model.target_h_m, surface=model.surface)
+        assert float(g.lat) == pytest.approx(lat1[k], abs=1e-13) and float(g.lon) == pytest.approx(lon1[k], abs=1e-13)
+    assert np.all(np.abs(lat1 - lat0) + np.abs(lon1 - lon0) > 0)
+    with pytest.raises(ValueError, match="engine='hops'"):
+        mc.evaluate(model, {"lever_arm_x_m": dx}, engine="chain")

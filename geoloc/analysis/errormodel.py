@@ -40,9 +40,10 @@ vibration_roll_deg``           shock-absorber angular vibration between body and
                                gimbal base [Q17 Table 2]
 ``target_h_m``                 target height uncertainty (terrain standard deviation)
 ``mount_{x,y,z}_deg
-boresight_{x,y,z}_deg``        the sensor's named mount / boresight parameters
-                               (``FrameSensor.params``), perturbed exactly: the
-                               sample's mount is the file's plus the draw
+boresight_{x,y,z}_deg
+lever_arm_{x,y,z}_m``          the sensor's named mount / boresight / lever-arm
+                               parameters (``FrameSensor.params``), perturbed
+                               exactly: the sample's value is the file's plus the draw
 =============================  =====================================================
 """
 
@@ -87,6 +88,9 @@ ERROR_SOURCES = {
     "boresight_x_deg": "sensor boresight angle x (camera in the last gimbal frame)",
     "boresight_y_deg": "sensor boresight angle y",
     "boresight_z_deg": "sensor boresight angle z",
+    "lever_arm_x_m": "sensor lever arm x (forward, body axes)",
+    "lever_arm_y_m": "sensor lever arm y (right)",
+    "lever_arm_z_m": "sensor lever arm z (down)",
 }
 
 DISTRIBUTIONS = ("normal", "uniform")

@@ -234,11 +234,15 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine:
     status : ndarray (n,) of uint8
     """
     if engine == "chain":
+        if any(errors.get(f"lever_arm_{a}_m") is not None for a in "xyz"):
+            raise ValueError("lever_arm_*_m error sources need engine='hops' (the [Q17] chain has no lever arm)")
         pose, chain, row, col = perturbed_geometry(model, errors)
         los = line_of_sight(pose, model.camera, row, col, chain=chain)
     elif engine == "hops":
         pose, (Ri, Rb), row, col = perturbed_geometry(model, errors, build_chain=False, with_camera=False)
-        s = dataclasses.replace(as_sensor(model.camera), R_base_extra=Rb, R_bore_extra=Ri)
+        lever = [errors.get(f"lever_arm_{a}_m") for a in "xyz"]
+        extra = None if all(v is None for v in lever) else np.stack([_or(v, np.zeros(len(row))) for v in lever], -1)
+        s = dataclasses.replace(as_sensor(model.camera), R_base_extra=Rb, R_bore_extra=Ri, lever_extra_m=extra)
         los = s.line_of_sight(row, col, pose, outside="extrapolate")
     else:
         raise ValueError(f"engine must be 'hops' or 'chain', got {engine!r}")

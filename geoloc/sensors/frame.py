@@ -89,6 +89,8 @@ class FrameSensor:
     #: gimbal non-orthogonality), both before the fixed turn to the optical axes. None: identity.
     R_base_extra: np.ndarray | None = field(default=None, compare=False, repr=False)
     R_bore_extra: np.ndarray | None = field(default=None, compare=False, repr=False)
+    #: Per-sample lever-arm perturbation (..., 3) [m, body axes], for Monte Carlo. None: zero.
+    lever_extra_m: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         if not isinstance(self.lens, Lens):
@@ -215,8 +217,11 @@ class FrameSensor:
     def optical_centre_ecef(self, state) -> np.ndarray:
         """The optical centre in ECEF: the navigation reference plus the lever arm [m]."""
         o = geodetic_to_ecef(state.lat, state.lon, state.h)
-        if any(self.lever_arm_m):
-            o = o + self.graph.rotate_to_ecef(np.array(self.lever_arm_m), "body", state)
+        lever = np.array(self.lever_arm_m)
+        if self.lever_extra_m is not None:
+            lever = lever + np.asarray(self.lever_extra_m, float)
+        if np.any(lever):
+            o = o + self.graph.rotate_to_ecef(lever, "body", state)
         return o
 
     def cam_to_ecef(self, v_cam, state) -> np.ndarray:
