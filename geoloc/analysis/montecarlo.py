@@ -50,7 +50,6 @@ from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.frame import small_rotation
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
-from geoloc.surfaces.height import intersect_los_height
 
 # STATS_KEYS (imported above, defined beside the streamed statistics): the keys of
 # ``geoloc montecarlo --out stats.json`` (the interface of issue 4).
@@ -246,13 +245,12 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine:
         los = s.line_of_sight(row, col, pose, outside="extrapolate")
     else:
         raise ValueError(f"engine must be 'hops' or 'chain', got {engine!r}")
-    if dem is None:
-        h_t = model.target_h_m + _or(errors.get("target_h_m"), 0.0)
-        g = intersect_los_height(los, h_t, model.surface)
-    else:
-        from geoloc.surfaces.terrain import intersect_dem
-        kw = {} if dem_method is None else {"method": dem_method}
-        g = intersect_dem(los, dem, **kw)
+    from geoloc.surfaces.terrain import surface_for
+
+    # the one "height or DEM" choice (geoloc.surfaces.terrain.surface_for)
+    h_t = None if dem is not None else model.target_h_m + _or(errors.get("target_h_m"), 0.0)
+    kw = {} if dem_method is None else {"method": dem_method}
+    g = surface_for(h_t, dem, kind=model.surface, **kw).intersect(los)
     return g.lat, g.lon, g.h, np.asarray(g.status, np.uint8)
 
 

@@ -15,7 +15,7 @@ import sys
 
 import numpy as np
 
-from geoloc.surfaces.terrain import METHODS, SURFACES, intersect_dem
+from geoloc.surfaces.terrain import METHODS, SURFACES, surface_for
 
 
 def _open_dem(args):
@@ -25,8 +25,8 @@ def _open_dem(args):
 
 
 def _solve(args, los):
-    return intersect_dem(los, _open_dem(args), args.method, eps_h=args.eps_h,
-                         threshold=args.threshold, surface=args.dem_surface)
+    return surface_for(dem=_open_dem(args), method=args.method, dem_model=args.dem_surface,
+                       eps_h=args.eps_h, threshold=args.threshold).intersect(los)
 
 
 def warn_datums(verb: str, dem_datum: str, height) -> list:
