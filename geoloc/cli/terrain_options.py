@@ -1,7 +1,7 @@
 """Command-line DEM options shared by the verbs that can locate on terrain (locate, replay).
 
 ``add_dem_options(parser)`` adds ``--dem FILE --method --dem-datum --eps-h
---threshold --dem-surface``; giving ``--dem`` installs the verb's terrain hook
+--threshold --dem-model``; giving ``--dem`` installs the verb's terrain hook
 (``args._terrain_hook``), so the verb's own code path is untouched without it.
 The hooks warn when the DEM's datum and the aircraft heights' datum look mixed
 (:func:`warn_datums`).
@@ -90,5 +90,6 @@ def add_dem_options(parser, hook) -> None:
     g.add_argument("--eps-h", type=float, default=1.0, help="step of --method steps [m] (default 1)")
     g.add_argument("--threshold", type=float, default=1.0,
                    help="bisection stops when |H - h_DEM| < threshold [m] (default 1)")
-    g.add_argument("--dem-surface", choices=SURFACES, default="bilinear",
-                   help="exact method: bilinear cells (default) or two triangles per cell")
+    g.add_argument("--dem-model", "--dem-surface", dest="dem_surface", choices=SURFACES, default="bilinear",
+                   help="how the exact method reads between DEM nodes: bilinear cells (default) or two "
+                   "triangles per cell (--dem-surface is the same option's first-phase name)")

@@ -345,8 +345,8 @@ def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
 
 # --------------------------------------------------------------------------- front end
 def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: float = 1.0,
-                  threshold: float = 1.0, surface: str = "bilinear", trace: bool = False,
-                  max_iter: int | None = None, parallel: bool = False) -> TerrainHit:
+                  threshold: float = 1.0, dem_model: str = "bilinear", trace: bool = False,
+                  max_iter: int | None = None, parallel: bool = False, surface: str | None = None) -> TerrainHit:
     """Intersect lines of sight with a DEM (docs/method.md section 4).
 
     Parameters
@@ -360,10 +360,11 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
         Step of the descending method [m] (> 0).
     threshold : float
         Bisection stops when |H - h_DEM| < threshold [m] (> 0).
-    surface : {"bilinear", "triangles"}
-        Exact solver only: bilinear cells (what ``dem.height`` samples, used by
-        the iterative methods too) or two planar triangles per cell (the
-        :meth:`DEM.to_trimesh` mesh).
+    dem_model : {"bilinear", "triangles"}
+        How the exact solver reads between nodes: bilinear cells (what
+        ``dem.height`` samples, used by the iterative methods too) or two planar
+        triangles per cell (the :meth:`DEM.to_trimesh` mesh). (The word
+        *surface* is kept for what a line of sight meets: ``docs/architecture.md``.)
     trace : bool
         Record every iteration in ``TerrainHit.trace``.
     max_iter : int, optional
@@ -371,15 +372,21 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
         the DEM's lowest node for steps, 64 halvings for bisection).
     parallel : bool
         Exact solver: spread the rays over all cores (numba threads).
+    surface : str, optional
+        The first-phase name of ``dem_model`` (still accepted).
 
     Returns
     -------
     TerrainHit
     """
+    given = "surface" if surface is not None else "dem_model"  # the name the caller used, for errors
+    if surface is not None:
+        dem_model = surface
+    surface = dem_model
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if surface not in SURFACES:
-        raise ValueError(f"surface must be one of {SURFACES}, got {surface!r}")
+        raise ValueError(f"{given} must be one of {SURFACES}, got {surface!r}")
     if not (np.isfinite(eps_h) and eps_h > 0):
         raise ValueError(f"eps_h must be a positive number of metres, got {eps_h!r}")
     if not (np.isfinite(threshold) and threshold > 0):
@@ -471,7 +478,7 @@ class DemSurface:
     method : {"steps", "bisect", "exact"}
         [Q17 section 2.3] descending steps, [L23] bisection, or the exact first hit.
     dem_model : {"bilinear", "triangles"}
-        How the exact solver reads between nodes (``intersect_dem``'s ``surface=``).
+        How the exact solver reads between nodes (``intersect_dem``'s ``dem_model=``).
     **options
         ``eps_h``, ``threshold``, ``trace``, ``max_iter``, ``parallel`` of :func:`intersect_dem`.
     """
@@ -482,7 +489,7 @@ class DemSurface:
         self.dem, self.method, self.dem_model, self.options = dem, method, dem_model, options
 
     def intersect(self, los: LineOfSight) -> TerrainHit:
-        return intersect_dem(los, self.dem, self.method, surface=self.dem_model, **self.options)
+        return intersect_dem(los, self.dem, self.method, dem_model=self.dem_model, **self.options)
 
     def __repr__(self) -> str:
         return f"DemSurface({self.dem!r}, method={self.method!r}, dem_model={self.dem_model!r})"
