@@ -19,6 +19,7 @@ from functools import cached_property
 import numpy as np
 
 from geoloc.frames import rotations as rot
+from geoloc.frames.graph import Hop
 from geoloc.geodesy.ellipsoid import E2, geodetic_to_ecef, prime_vertical_radius
 from geoloc.geodesy.local import R_ecef_ned
 
@@ -254,19 +255,6 @@ def _rotate_T(R, v):
     return np.einsum("...ji,...j->...i", R, v)
 
 
-@dataclass(frozen=True)
-class Hop:
-    """One hop of the chain: ``T`` maps homogeneous coordinates in ``src`` to ``dst``."""
-
-    dst: str
-    src: str
-    T: np.ndarray
-    equation: str
-    description: str
-
-    @property
-    def name(self) -> str:
-        return f"T_{self.dst}_{self.src}"
 
 
 class FrameChain:

@@ -142,7 +142,7 @@ class Hop:
     T: np.ndarray
     equation: str
     description: str
-    joint: Joint
+    joint: Joint | None = None  # None for the [Q17] FrameChain's own hops
 
     @property
     def name(self) -> str:

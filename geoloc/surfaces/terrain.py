@@ -29,7 +29,7 @@ import numpy as np
 
 from geoloc.geodesy.ellipsoid import E2, A, B, ecef_to_geodetic, prime_vertical_radius
 from geoloc.status import Status
-from geoloc.surfaces.base import LatLonDeg, LineOfSight
+from geoloc.surfaces.base import GroundPoint, LineOfSight
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import ray_inflated_ellipsoid
 
@@ -86,42 +86,33 @@ class TerrainTrace:
 
 
 @dataclass(frozen=True)
-class TerrainHit(LatLonDeg):
-    """Result of :func:`intersect_dem`.
+class TerrainHit(GroundPoint):
+    """Result of :func:`intersect_dem`: a :class:`GroundPoint` (the one hit type) with the DEM's extras.
 
     Attributes
     ----------
-    lat, lon, h : ndarray
-        Target geodetic latitude, longitude [rad] and ellipsoidal height [m];
-        NaN where no hit.
-    ecef : ndarray (..., 3)
-        Target in ECEF [m].
-    slant_range : ndarray
-        Distance from the optical centre [m].
-    status : ndarray of uint8
-        OK, SKY, LEFT_DEM, NODATA, ORIGIN_BELOW, INVALID_INPUT, NO_CONVERGENCE.
+    lat, lon, h, ecef, slant_range, status, los
+        As :class:`geoloc.surfaces.base.GroundPoint`; status OK, SKY, LEFT_DEM,
+        NODATA, ORIGIN_BELOW, INVALID_INPUT, NO_CONVERGENCE, OUTSIDE_SENSOR.
     dem_evaluations : ndarray of int
         DEM reads: heights evaluated (steps, bisection) or cells visited (exact).
     hidden : ndarray of bool
         Bisection only: the answer is not the first visible crossing (the
         line of sight meets the terrain earlier and comes out again).
-    method, surface : str
+    method, dem_model : str
     trace : TerrainTrace or None
-    los : LineOfSight
     """
 
-    lat: np.ndarray
-    lon: np.ndarray
-    h: np.ndarray
-    ecef: np.ndarray
-    slant_range: np.ndarray
-    status: np.ndarray
-    dem_evaluations: np.ndarray
-    hidden: np.ndarray
-    method: str
-    surface: str
-    trace: TerrainTrace | None
-    los: LineOfSight
+    dem_evaluations: np.ndarray = None
+    hidden: np.ndarray = None
+    method: str = ""
+    dem_model: str = ""
+    trace: TerrainTrace | None = None
+
+    @property
+    def surface(self) -> str:
+        """The first-phase name of :attr:`dem_model`."""
+        return self.dem_model
 
 
 # --------------------------------------------------------------------------- helpers
@@ -431,9 +422,9 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
         lat, lon, h = ecef_to_geodetic(p)
         rng = np.linalg.norm(p - o, axis=-1)
     r = lambda a: a.reshape(shape)  # noqa: E731
-    return TerrainHit(r(lat), r(lon), r(h), p.reshape(shape + (3,)), r(rng), r(st), r(evals),
-                      r(hidden & ok), method, surface, tr,
-                      los if isinstance(los, LineOfSight) else None)
+    return TerrainHit(r(lat), r(lon), r(h), p.reshape(shape + (3,)), r(rng), r(st),
+                      los if isinstance(los, LineOfSight) else None,
+                      dem_evaluations=r(evals), hidden=r(hidden & ok), method=method, dem_model=surface, trace=tr)
 
 
 def _first_sampled(o, d, dem):
