@@ -60,3 +60,26 @@ def test_auto_engine_respects_camera_boresight():
     assert np.allclose(auto.ecef, ref.ecef, rtol=0, atol=1e-6)
     plain = locate(pose, CAM, target_h=5000.0)
     assert np.min(np.linalg.norm(auto.ecef - plain.ecef, axis=-1)) > 1.0
+
+
+def test_kernel_compiles_once_for_readonly_writable_and_every_preset():
+    # one signature whatever the caller hands in: read-only broadcast views, writable arrays,
+    # scalars, any gimbal preset or lens (the chain is data, not code)
+    from geoloc.sensors._fastlocate import locate_kernel
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.sensors.gimbals import PRESETS
+    from geoloc.sensors.lenses import BrownLens
+
+    n = 10_000
+    rng = np.random.default_rng(1)
+    pose = Pose.from_deg(rng.uniform(30, 40, n), 80.0, 18000.0, 45.0, 3.5, 0.0, 50.0, -2.6)
+    ro = np.broadcast_to(np.array(1162.0), (n,))  # read-only view
+    locate(pose, CAM, ro, np.full(n, 1146.0), target_h=5083.5, engine="numba")
+    locate(pose, CAM, np.full(n, 1162.0), 1146.0, target_h=np.full(n, 5083.5), engine="numba")
+    lens = BrownLens(fx=1000.0, fy=1000.0, cx=499.5, cy=499.5, width=1000, height=1000, k1=-0.1)
+    for preset in PRESETS:
+        s = FrameSensor(lens, PRESETS[preset], lever_arm_m=(1.0, 0.0, 0.0))
+        p = Pose.from_deg(rng.uniform(30, 40, n), 80.0, 1000.0, 10.0, 1.0, 1.0, 5.0, -70.0,
+                          angles_deg={a: 10.0 for a in s.angle_names if a not in ("gimbal_roll", "gimbal_pitch")})
+        locate(p, s, 500.0, 500.0, target_h=0.0, engine="numba")
+    assert len(locate_kernel.signatures) == 1, locate_kernel.signatures

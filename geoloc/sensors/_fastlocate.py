@@ -20,14 +20,22 @@ Why numba: the numpy path is bound by temporaries; see ``benchmarks/bench_locate
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
-from geoloc.geodesy._nbgeo import geodetic
-from geoloc.geodesy.ellipsoid import A, B, E2
+from geoloc import status as _status_module
+from geoloc.geodesy import _nbgeo
+from geoloc.geodesy._nbgeo import cached_njit, dependency_key, geodetic
+from geoloc.geodesy.ellipsoid import E2, A, B
+from geoloc.sensors import lenses as _lenses_module
 from geoloc.sensors.lenses import unproject_nb
 from geoloc.status import Status
+
+#: The kernel's cache key: the constants and the sources of every module whose compiled code it
+#: calls (numba keys a cache on the kernel's own source only, so a changed callee would go stale).
+KEY = dependency_key(_nbgeo, _status_module, _lenses_module, sys.modules[__name__])
 
 _OK = int(Status.OK)
 _SKY = int(Status.SKY)
@@ -38,12 +46,12 @@ _OUTSIDE = int(Status.OUTSIDE_SENSOR)
 _AXIS = {"x": 0, "y": 1, "z": 2}
 
 
-@njit(cache=True, inline="always")
+@cached_njit(KEY, inline="always")
 def _in(v, lo, hi):
     return math.isfinite(v) and lo <= v <= hi
 
 
-@njit(cache=True, inline="always")
+@cached_njit(KEY, inline="always")
 def _turn_back(axis, a, x, y, z):
     """The transpose of the passive elementary rotation about ``axis`` by ``a``, applied to (x, y, z)."""
     c, s = math.cos(a), math.sin(a)
@@ -54,7 +62,7 @@ def _turn_back(axis, a, x, y, z):
     return c * x - s * y, s * x + c * y, z
 
 
-@njit(cache=True, inline="always")
+@cached_njit(KEY, inline="always")
 def _mul_T(R, x, y, z):
     """R^T (x, y, z) for a 3x3 R."""
     return (R[0, 0] * x + R[1, 0] * y + R[2, 0] * z,
@@ -62,7 +70,7 @@ def _mul_T(R, x, y, z):
             R[0, 2] * x + R[1, 2] * y + R[2, 2] * z)
 
 
-@njit(cache=True, inline="always")
+@cached_njit(KEY, inline="always")
 def _body_to_ned(heading, pitch, roll, x, y, z):
     """(rx(roll) ry(pitch) rz(heading))^T (x, y, z) [Q17 eq. 6, transposed]."""
     x, y, z = _turn_back(0, roll, x, y, z)
@@ -70,7 +78,7 @@ def _body_to_ned(heading, pitch, roll, x, y, z):
     return _turn_back(2, heading, x, y, z)
 
 
-@njit(parallel=True, cache=True)
+@cached_njit(KEY, parallel=True)
 def locate_kernel(lat, lon, h, heading, pitch, roll, angles, row, col, target_h,
                   lens_code, lens_p, width, height, flag_off, axes, R_cam_last, has_mount, R_base_body, lever, earth_ref,
                   ranges, angle_lo, angle_hi, a_m, b_m, e2,
