@@ -136,3 +136,14 @@ def test_camera_toml_round_trip(tmp_path):
     cam.to_toml(tmp_path / "c.toml")
     assert Camera.from_toml(tmp_path / "c.toml") == cam
     assert cam.sensor_size_m == pytest.approx((2323 * 7e-6, 2292 * 7e-6))
+
+
+def test_geodetic_height_surface_reports_no_convergence_for_one_ray():
+    # one ray (0-d arrays) that the iteration is not allowed to finish: NaN and a status, no TypeError
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+    from geoloc.status import Status
+    from geoloc.surfaces.height import ray_geodetic_height
+
+    o = geodetic_to_ecef(0.6, 1.4, 18000.0)
+    hit = ray_geodetic_height(o, -o / np.linalg.norm(o), 100.0, max_iter=0)
+    assert int(hit.status) == Status.NO_CONVERGENCE and np.isnan(hit.s)

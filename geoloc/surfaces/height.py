@@ -156,8 +156,9 @@ def ray_geodetic_height(origin, direction, h, tol_m: float = 1e-6, max_iter: int
         p = o + s[..., None] * d
         resid = ecef_to_geodetic(p)[2] - hT
         still = active & ~(np.abs(resid) <= tol_m)
-        status[still] = Status.NO_CONVERGENCE
-        s[still] = np.nan
+        # np.where, not item assignment: for one ray these are 0-d arrays or numpy scalars
+        status = np.where(still, np.uint8(Status.NO_CONVERGENCE), status).astype(np.uint8)
+        s = np.where(still, np.nan, s)
     ok = status == Status.OK
     s = np.where(ok, s, np.nan)
     return EllipsoidHit(s, o + s[..., None] * d, status, iters)
