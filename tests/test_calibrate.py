@@ -1,7 +1,7 @@
 """Boresight / mounting calibration, resection and error decomposition (issue 8).
 
 Outside references: the published errors of [Q17] Tables 3-4 (``paper_error_m``),
-the camera derivation of ``../shared/data/README.md`` (f = 166 841.0 px,
+the camera derivation of ``docs/records.md`` (f = 166 841.0 px,
 i0 = 1162.12, j0 = 1146.42, RMS misfit 0.25 m), planted rotations in synthetic
 records, closed-form nadir geometry and pyproj's geodesic.
 """
@@ -58,6 +58,57 @@ def test_before_matches_published_errors(bundled, per_flight):
         assert e["mean_error_before_m"] == pytest.approx(pub[groups == g].mean(), abs=1.0)
 
 
+def test_readme_calibration_table(per_flight):
+    # README / docs/calibration.md, one rotation per flight: before 50.0 / 50.5 m, after
+    # 5.0 / 5.1 m, leave-one-out 5.9 / 5.9 m; the report example quotes T3's 50.015,
+    # 4.976, 5.927 m and sigma 4.09 m. Held to the printed digits (half a unit of the last).
+    g = per_flight[0]["groups"]
+    for name, before, after, loo in (("T3", 50.015, 4.976, 5.927), ("T4", 50.521, 5.056, 5.867)):
+        e = g[name]
+        assert e["mean_error_before_m"] == pytest.approx(before, abs=5e-4)
+        assert e["mean_error_after_m"] == pytest.approx(after, abs=5e-4)
+        assert e["mean_error_loo_m"] == pytest.approx(loo, abs=5e-4)
+    assert g["T3"]["sigma_m"] == pytest.approx(4.09, abs=5e-3)
+    # README: fitted per flight, "the pitch comes out at +0.29 +- 0.10 deg (T3) and
+    # +0.35 +- 0.10 deg (T4)", pitch and yaw "correlation above 0.99"
+    for name, y in (("T3", 0.29), ("T4", 0.35)):
+        assert g[name]["angles_deg"][1] == pytest.approx(y, abs=5e-3)
+        assert g[name]["angles_sd_deg"][1] == pytest.approx(0.10, abs=5e-3)
+        assert abs(g[name]["correlation"][1][2]) > 0.99
+
+
+def test_leave_one_out_never_sees_the_left_out_record(bundled, per_flight):
+    """Leave-one-out by hand, independently of ``leave_one_out``: for each T3 record k, fit
+    the nine others with ``fit_mounting``, locate k through the ordinary ``locate`` path
+    with that camera and measure pyproj's geodesic to k's truth. The report's figures must
+    be these (1 mm: the report rounds to 1e-3 m), and they must differ from what a fit that
+    keeps k would give (the in-sample error, T3: 4.98 m against 5.93 m), so a
+    leave-one-out that used the left-out record fails here."""
+    rec, cam = bundled
+    t = HeightTarget(rec.column("paper_height_m"))
+    groups = np.array(rec.text("table"))
+    idx = np.flatnonzero(groups == "T3")
+    loo, insample = [], []
+    kept = fit_mounting(rec, cam, t, idx=idx)
+    for k in idx:
+        fit = fit_mounting(rec, cam, t, idx=idx[idx != k])
+        for c, out in ((fit.camera, loo), (kept.camera, insample)):
+            g = locate(rec.pose(), c, rec.column("row"), rec.column("col"), rec.column("paper_height_m"))
+            out.append(GEOD.inv(float(g.lon_deg[k]), float(g.lat_deg[k]), rec.column("truth_lon_deg")[k],
+                                rec.column("truth_lat_deg")[k])[2])
+    e = per_flight[0]["groups"]["T3"]
+    by_label = {r["label"]: r for r in e["records"]}
+    labels = rec.labels()
+    for j, k in enumerate(idx):
+        assert by_label[labels[k]]["loo"]["distance_m"] == pytest.approx(loo[j], abs=1e-3)
+    assert e["mean_error_loo_m"] == pytest.approx(np.mean(loo), abs=1e-3)
+    assert np.mean(loo) == pytest.approx(5.927, abs=5e-4)
+    assert np.mean(insample) == pytest.approx(e["mean_error_after_m"], abs=1e-3)
+    assert np.mean(loo) - np.mean(insample) > 0.9
+    en, d = leave_one_out(rec, cam, t, idx=idx)
+    np.testing.assert_allclose(d, loo, atol=1e-6)
+
+
 def test_must_show_loo_per_flight_at_most_7_m(per_flight):
     # the issue's target: leave-one-out mean error <= 7 m per flight, from about 50 m
     report = per_flight[0]
@@ -93,12 +144,26 @@ def test_joint_mount_fit_separates_the_angles(bundled, per_flight):
                                     loo=True, joint=True)
     j = report["joint_fit"]
     assert max(j["angles_sd_deg"]) < 0.01
+    # README: "one pitch of the gimbal base, +0.220 +- 0.004 deg"; docs/calibration.md:
+    # x = -0.001 +- 0.002, z = 0.000 +- 0.004 deg. The angles to the printed digits; the
+    # sd of y one digit further (0.00410), since s^2 / m instead of s^2 / (m - p) gives
+    # 0.00394, which prints as 0.004 too (test_covariance_uses_m_minus_p_degrees_of_freedom).
+    assert j["angles_deg"][1] == pytest.approx(0.220, abs=5e-4)
+    assert j["angles_deg"][0] == pytest.approx(-0.001, abs=5e-4)
+    assert j["angles_deg"][2] == pytest.approx(0.000, abs=5e-4)
+    assert j["angles_sd_deg"][1] == pytest.approx(0.00410, abs=5e-6)
+    assert j["angles_sd_deg"][0] == pytest.approx(0.002, abs=5e-4)
+    assert j["angles_sd_deg"][2] == pytest.approx(0.004, abs=5e-4)
+    # README: leave-one-out with --joint 5.4 / 5.7 m; docs: after 5.1 / 5.3 m
+    for name, after, loo in (("T3", 5.1, 5.4), ("T4", 5.3, 5.7)):
+        assert report["groups"][name]["mean_error_after_m"] == pytest.approx(after, abs=0.05)
+        assert report["groups"][name]["mean_error_loo_m"] == pytest.approx(loo, abs=0.05)
     corr = np.array(j["correlation"], float)
     assert np.all(np.abs(corr[np.triu_indices(3, 1)]) < 0.3)
     assert all(e["mean_error_loo_m"] <= 7.0 for e in report["groups"].values())
     # the saved camera reproduces the after-errors through the ordinary locate path
     ground = locate(rec.pose(), cams["joint"], rec.column("row"), rec.column("col"),
-                    rec.column("paper_height_m"))
+                    rec.column("paper_height_m"), outside="extrapolate")  # T4-3: col 2308 > 2292
     d = GEOD.inv(ground.lon_deg, ground.lat_deg, rec.column("truth_lon_deg"), rec.column("truth_lat_deg"))[2]
     groups = np.array(rec.text("table"))
     for g, e in report["groups"].items():
@@ -106,7 +171,7 @@ def test_joint_mount_fit_separates_the_angles(bundled, per_flight):
 
 
 def test_resection_reproduces_the_bundled_camera(bundled):
-    # ../shared/data/README.md: f = 166841.0 px, i0 = 1162.12, j0 = 1146.42, RMS 0.25 m.
+    # docs/records.md: f = 166841.0 px, i0 = 1162.12, j0 = 1146.42, RMS 0.25 m.
     # Same least-squares optimum from a start 10 % off in f and 50 px off in the
     # principal point; tolerances are the README's printed rounding plus solver
     # termination (1 px in f is 0.5 % of its 208-px standard deviation).
@@ -174,6 +239,32 @@ def test_synthetic_fit_recovers_planted_rotation(tmp_path, model):
     # the line of sight (lever: pixel offset / f ~ 0.006 rad)
     if model == "camera":
         assert fit.angles_sd[2] > 20 * max(fit.angles_sd[:2])
+
+
+def test_covariance_uses_m_minus_p_degrees_of_freedom(bundled):
+    # cov = s^2 (J^T J)^-1 with s^2 = |r|^2 / (m - p) (module docstring): the reported sigma
+    # is that s, from the fit's own residuals (m = 2 n components, p = 3 angles); with
+    # s^2 / m it would be sqrt(37 / 40) = 3.8 % smaller
+    rec, cam = bundled
+    fit = fit_mounting(rec, cam, HeightTarget(rec.column("paper_height_m")))
+    r = fit.residual_m.ravel()
+    assert r.size == 40 and len(fit.names) == 3
+    assert fit.sigma_m == pytest.approx(math.sqrt(r @ r / (40 - 3)), rel=1e-12)
+    # and the angles' sd is s sqrt(diag (J^T J)^-1), J by central differences here: the
+    # residuals' Jacobian with respect to the three mount angles at the solution
+    from geoloc.analysis.calibrate import _camera_from_params, _records_data
+
+    data = _records_data(rec, HeightTarget(rec.column("paper_height_m")), "truth")
+    idx = np.arange(len(rec))
+
+    def res(p):
+        g = data.locate(_camera_from_params(cam, "mount", p, False, False), idx)
+        return data.east_north(g, idx).ravel()
+
+    h = 1e-7
+    J = np.stack([(res(fit.x + h * e) - res(fit.x - h * e)) / (2 * h) for e in np.eye(3)], -1)
+    sd = fit.sigma_m * np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
+    np.testing.assert_allclose(fit.angles_sd, sd, rtol=1e-3)  # finite differences: 1e-3
 
 
 def test_synthetic_uncertainty_has_nominal_coverage(tmp_path):

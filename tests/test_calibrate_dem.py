@@ -2,7 +2,7 @@
 
 Reference: a flat DEM at a constant ellipsoidal height is the constant-height
 surface, so the DEM path must reproduce the height path (surface="geodetic",
-GEOMETRY.md section 3) — two independent intersection codes.
+docs/method.md section 3) — two independent intersection codes.
 """
 
 import numpy as np

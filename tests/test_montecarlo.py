@@ -182,6 +182,60 @@ def test_statistics_circular_normal_cep50_and_eq18():
     assert s["cep50_empirical_m"] == pytest.approx(10 * math.sqrt(2 * math.log(2)), rel=0.01)
 
 
+# WGS-84 written out (not the module's constants): a = 6378137 m, 1/f = 298.257223563
+_A = 6378137.0
+_E2 = (2.0 - 1.0 / 298.257223563) / 298.257223563
+
+
+def _rn_rm(lat):
+    w2 = 1.0 - _E2 * math.sin(lat) ** 2
+    return _A / math.sqrt(w2), _A * (1.0 - _E2) / w2**1.5
+
+
+def test_eq18_radii_are_not_interchangeable():
+    # [Q17] eq. 18 weighs the latitude spread with R_M and the longitude spread with
+    # R_N cos(phi). Clouds spread along one axis make the two radii tell: at the equator
+    # R_N / R_M = 1 / (1 - e^2) = 1.0067, so swapping them moves CEP by 0.67 %; here it
+    # must equal the closed form to rounding (1e-9: the longitude offsets are taken modulo
+    # 2 pi, 7e-12 relative). The cloud is +-delta exactly, so its
+    # sample std is delta sqrt(n / (n - 1)) with no sampling error.
+    n, delta = 1000, 1e-5
+    pm = np.where(np.arange(n) % 2 == 0, delta, -delta)
+    k = math.sqrt(n / (n - 1))
+    rn0, rm0 = _rn_rm(0.0)
+    assert rn0 / rm0 - 1 > 6e-3
+    north = mc.statistics(pm, np.full(n, 0.3), np.zeros(n))  # along the meridian at the equator
+    assert north["cep_m"] == pytest.approx(delta * k * rm0, rel=1e-9)
+    east = mc.statistics(np.zeros(n), 0.3 + pm, np.zeros(n))  # along the equator
+    assert east["cep_m"] == pytest.approx(delta * k * rn0, rel=1e-9)
+    # at 60 deg and 5 km up: R_N cos(phi) and the target height in both terms
+    lat0, h0 = math.radians(60.0), 5000.0
+    rn, rm = _rn_rm(lat0)
+    e = mc.statistics(np.full(n, lat0), 0.3 + pm, np.full(n, h0))
+    assert e["cep_m"] == pytest.approx(delta * k * (rn + h0) * math.cos(lat0), rel=1e-9)
+    nn = mc.statistics(lat0 + pm, np.full(n, 0.3), np.full(n, h0))
+    assert nn["cep_m"] == pytest.approx(delta * k * (rm + h0), rel=1e-9)
+
+
+def test_first_order_eq18_weights_east_and_north_with_their_radii(model):
+    # Flying north with the gimbal rolled to the side, a target-height error moves the
+    # point east-west only: first_order's CEP must be eq. 18 of its own covariance with
+    # R_N for longitude and R_M for latitude (1e-9); R_N / R_M = 1.0044 at 35.6 deg, and
+    # the cloud is 100x longer east than north, so swapping them moves CEP by 0.44 %.
+    m = only(model.with_nominal(heading_deg=0.0, pitch_deg=0.0, roll_deg=0.0, gimbal_pitch_deg=0.0),
+             target_h_m=Distribution("normal", 62.47))
+    fo = mc.first_order(m)
+    lat0, _, h0, st = mc.nominal_point(m)
+    assert st == 0
+    rn, rm = _rn_rm(lat0)
+    s_lat, s_lon = math.sqrt(fo.cov[0, 0]), math.sqrt(fo.cov[1, 1])
+    east, north = s_lon * (rn + h0) * math.cos(lat0), s_lat * (rm + h0)
+    assert east > 100 * north
+    assert fo.cep_m == pytest.approx(math.hypot(east, north), rel=1e-9)
+    swapped = math.hypot(s_lon * (rm + h0) * math.cos(lat0), s_lat * (rn + h0))
+    assert abs(swapped / fo.cep_m - 1) > 4e-3
+
+
 def test_statistics_ignores_failed_samples_and_wraps_longitude():
     lat = np.radians([10.0, 10.0, 10.0, np.nan])
     lon = np.radians([179.9999, -179.9999, 179.9999, 0.0])

@@ -88,6 +88,21 @@ def test_cli_locate_json(capsys):
     assert out["status"] == "ok"
     # the two height surfaces differ by ~1 cm here (see test_locate)
     assert 1e-3 < out["surface_difference_m"] < 0.1
+    # README: {"lat_deg": 35.5770889, "lon_deg": 80.8491807, "h_m": 5083.49, ...}; "at 5 km the two
+    # [surfaces] differ by 6 mm in height and 1 cm in position"
+    assert round(out["lat_deg"], 7) == 35.5770889 and round(out["lon_deg"], 7) == 80.8491807
+    assert round(out["h_m"], 2) == 5083.49 and round((5083.5 - out["h_m"]) * 1e3) == 6
+    assert round(out["surface_difference_m"], 2) == 0.01
+    # independently: the point (pyproj's ECEF of it) lies on [Q17] eq. 11's ellipsoid inflated
+    # to 5083.5 m, semi-axes a + H and b + H with WGS-84's a and f written out (1e-11 of the
+    # quadratic is 0.03 mm; the geodetic surface, 6 mm away, gives 2e-9)
+    from pyproj import Transformer
+
+    x, y, z = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True).transform(
+        out["lon_deg"], out["lat_deg"], out["h_m"])
+    a = 6378137.0
+    b = a * (1 - 1 / 298.257223563)
+    assert (x * x + y * y) / (a + 5083.5) ** 2 + z * z / (b + 5083.5) ** 2 == pytest.approx(1.0, abs=1e-11)
 
 
 def test_cli_locate_sky_and_bad_angle(capsys):

@@ -28,9 +28,13 @@ def test_fit_residuals_on_check_points_both_sensors(fitted):
     """Issue 9: <= 0.01 px on check points; [L12] 4.1: ZY-3 RPCs fit "better than 0.15 % of a pixel"."""
     sc, f = fitted
     assert f.n_check >= 2000 and f.n_fit >= 3000
-    assert f.check_max_px <= 0.0015
-    assert f.check_rms_px <= 0.0015
-    assert f.fit_rms_px <= 0.0015
+    # the README's figures, rounded up one unit in their last printed digit (a deterministic fit:
+    # the margin is that rounding, nothing more). The frame camera's check max is measured 4.18e-5.
+    bounds = {"pushbroom": (7.5e-6, 6.6e-6, 1.5e-5), "frame": (1.7e-5, 1.7e-5, 4.2e-5)}
+    fit_rms, check_rms, check_max = bounds[sc.kind]
+    assert f.fit_rms_px <= fit_rms
+    assert f.check_rms_px <= check_rms
+    assert f.check_max_px <= check_max
 
 
 def test_rpc_evaluation_matches_gdal_term_order_and_pixel_convention():

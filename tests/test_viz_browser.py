@@ -23,10 +23,8 @@ FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-
          "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
 
-pytestmark = [
-    pytest.mark.browser,
-    pytest.mark.skipif(not Path(CHROMIUM).exists(), reason="Debian chromium not installed"),
-]
+# tools/test.sh installs Debian chromium: no skip for want of it (a missing browser fails loudly)
+pytestmark = [pytest.mark.browser]
 
 
 def wait_for(cond, timeout, what):
@@ -75,7 +73,7 @@ def render(server, path, timeout=40.0, min_colours=20):
 
 
 def test_viewer_in_headless_chromium(tmp_path):
-    playwright = pytest.importorskip("playwright.sync_api")
+    import playwright.sync_api as playwright  # a test dependency: installed, never skipped
     from geoloc.viz.app import GeolocApp, make_server
     from geoloc.viz.scenario import load_scenario
 
@@ -136,7 +134,7 @@ def test_viewer_in_headless_chromium(tmp_path):
 def test_turret_sensor_in_headless_chromium(tmp_path):
     # an azimuth-elevation turret with a Brown lens (the bundled sensor file): the page shows
     # its own gimbal angles and frames, and the canvas renders the scene over the SRTM terrain
-    playwright = pytest.importorskip("playwright.sync_api")
+    import playwright.sync_api as playwright  # a test dependency: installed, never skipped
     from geoloc.assets import asset_path
     from geoloc.viz.app import GeolocApp, make_server
     from geoloc.viz.scenario import load_scenario

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: WGS-84 semi-major axis a [m] (GEOMETRY.md section 1).
+#: WGS-84 semi-major axis a [m] (docs/method.md section 1).
 A = 6378137.0
 #: WGS-84 flattening f.
 F = 1.0 / 298.257223563

@@ -4,7 +4,9 @@ Why numba: the walk is a per-ray loop over a data-dependent number of cells
 (tens, with early exit at the first hit); in numpy it would be a masked loop
 over the longest ray with a dozen temporary arrays per step, about two orders
 of magnitude slower than the 1 M rays/s goal. The kernel is compiled once
-(``cache=True`` keeps the machine code in ``__pycache__``).
+(numba's disk cache keeps the machine code, keyed also on the ellipsoid constants and
+the modules the kernels take code from: :func:`geoloc.geodesy._nbgeo.cached_njit`), and
+once only: :func:`walk` always passes the same argument types.
 
 The kernel works in ECEF with the exact cell boundaries of a geographic grid:
 a meridian lambda = lambda_j is a plane through the Z axis, and a parallel
@@ -12,7 +14,7 @@ phi = phi_i of constant *geodetic* latitude is the cone
 
     z + R_N(phi) e^2 sin(phi) = rho tan(phi),   rho = sqrt(x^2 + y^2)
 
-(from x = (R_N + h) cos phi, z = (R_N (1 - e^2) + h) sin phi, GEOMETRY.md
+(from x = (R_N + h) cos phi, z = (R_N (1 - e^2) + h) sin phi, docs/method.md
 section 1), so the cell where the ray leaves the current one is found with one
 division per meridian and one quadratic per parallel, without approximation.
 The walk is a digital differential analyser on these boundaries (:func:`_walk`):
@@ -34,12 +36,15 @@ Conventions: ``docs/conventions.md``.
 from __future__ import annotations
 
 import math
+import sys
 import types
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
-from geoloc.geodesy._nbgeo import geodetic, geodetic_up
+from geoloc import status as _status_module
+from geoloc.geodesy import _nbgeo, ellipsoid
+from geoloc.geodesy._nbgeo import cached_njit, dependency_key, geodetic, geodetic_up
 from geoloc.geodesy.ellipsoid import E2, A, B
 from geoloc.status import Status
 
@@ -51,11 +56,15 @@ _NOCONV = int(Status.NO_CONVERGENCE)
 _INVALID = int(Status.INVALID_INPUT)
 #: Cells per side of a block of the min/max hierarchy.
 BLOCK = 8
+#: The cache key of this module's kernels (:func:`geoloc.geodesy._nbgeo.cached_njit`): they
+#: freeze A, B, E2, the status codes and the code of _nbgeo's conversions, so a change to
+#: any of those modules must compile them afresh, not load a stale cache.
+KEY = dependency_key(ellipsoid, _nbgeo, _status_module, sys.modules[__name__])
 
 
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def _roots(ox, oy, oz, dx, dy, dz, ia, ib):
     """Near and far ray parameters on the ellipsoid (a+h, a+h, b+h) [Q17 eq. 10-11].
 
@@ -77,7 +86,7 @@ def _roots(ox, oy, oz, dx, dy, dz, ia, ib):
     return near, far, inside
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def latlon(x, y, z):
     """Geodetic latitude and longitude by Bowring's one-step formula (no height).
 
@@ -90,7 +99,7 @@ def latlon(x, y, z):
     return _lat_bowring(x, y, z), math.atan2(y, x)
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def _lat_bowring(x, y, z):
     """The latitude of :func:`latlon` alone."""
     rho = math.sqrt(x * x + y * y)
@@ -103,13 +112,13 @@ def _lat_bowring(x, y, z):
     return math.atan2(z + ep2 * B * st * st * st, rho - E2 * A * ct * ct * ct)
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def _wrap(lon, lon_west):
     """Longitude into the grid's window [lon_west - pi, lon_west + pi)."""
     return (lon - lon_west + math.pi) % (2.0 * math.pi) + lon_west - math.pi
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def _mer_exit(sin_m, cos_m, ox, oy, dx, dy, s, east):
     """Ray parameter where the ray, inside a cell at s, crosses meridian m (sin, cos of
     lambda_m) eastward (``east``) or westward; s if rounding puts it behind; inf if never.
@@ -130,7 +139,7 @@ def _mer_exit(sin_m, cos_m, ox, oy, dx, dy, s, east):
     return r if r > s else s
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def _par_exit(tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, s, north):
     """(exit, again): where the ray, inside the row at s, next crosses the parallel
     (tan phi, c) northward (``north``) or southward, and where it crosses that parallel
@@ -190,7 +199,7 @@ def _par_exit(tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, s, north):
     return (rx if rx > s else s), np.inf
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def _geodetic_near(x, y, z, lat0, s0, c0, lon0, sl0, cl0):
     """ECEF -> (lat, lon, h) of a point near the parallel lat0 (sin, cos s0, c0) and the
     meridian lon0 (sin, cos sl0, cl0), e.g. a hit and the corner of its cell.
@@ -242,7 +251,7 @@ def _geodetic_near(x, y, z, lat0, s0, c0, lon0, sl0, cl0):
     return lat0 + dl, lon, h
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def _tri(ox, oy, oz, dx, dy, dz, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z):
     """Moller-Trumbore ray x triangle (p0, p1, p2); ray parameter or inf.
 
@@ -283,13 +292,13 @@ def _tri(ox, oy, oz, dx, dy, dz, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z):
     return tt / det
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def _bilin(z00, z10, z01, z11, u, v):
     return ((1.0 - v) * ((1.0 - u) * z00 + u * z10)
             + v * ((1.0 - u) * z01 + u * z11))
 
 
-@njit(cache=True, error_model="numpy", fastmath={"contract"})
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b, lon_b, h_b,
                    z00, z10, z01, z11, i, j, lat_n, lon_w, dlat, dlon):
     """First root of h_ray(s) - bilinear(lat(s), lon(s)) on [sa, sb]; inf if none.
@@ -863,7 +872,70 @@ def _renamed(fn, name):
     return f
 
 
-#: Serial walk (prange runs as range).
-walk = njit(cache=True, error_model="numpy", fastmath={"contract"})(_walk)
+#: The compiled serial walk (prange runs as range). Call :func:`walk`, which hands it the
+#: one signature it is compiled for.
+walk_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"})(_walk)
 #: The same walk over rays on all cores (numba threads); identical results.
-walk_parallel = njit(cache=True, parallel=True, error_model="numpy", fastmath={"contract"})(_renamed(_walk, "_walk_parallel"))
+walk_parallel_kernel = cached_njit(KEY, parallel=True, error_model="numpy", fastmath={"contract"})(
+    _renamed(_walk, "_walk_parallel"))
+
+# One signature per kernel. numba compiles a kernel once per distinct argument type, and
+# a read-only array is a type of its own: the origins and directions of a line-of-sight
+# batch are read-only views when they need no broadcast (np.broadcast_to) and fresh
+# writable arrays when they do, so the four combinations compiled the walk four times
+# on a cold cache (16 s each). Inputs are therefore always passed as read-only, C-ordered
+# views of the dtype below (a view: no copy), scalars as Python floats / bool, and the
+# outputs are checked to be writable C-ordered arrays of the dtype the kernel fills.
+_IN = (("o", np.float64, 2), ("d", np.float64, 2), ("hgt", np.float64, 2), ("lon_col", np.float64, 1),
+       ("cinv", np.float32, 3), ("binv", np.float64, 3), ("row_geo", np.float64, 2))
+_IN2 = (("tan_row", np.float64, 1), ("c_row", np.float64, 1), ("sin_col", np.float64, 1),
+        ("cos_col", np.float64, 1))
+_OUT = (("s_out", np.float64, 1), ("p_out", np.float64, 2), ("geo_out", np.float64, 2),
+        ("status", np.uint8, 1), ("ncell", np.int64, 1), ("trace_s", np.float64, 2),
+        ("trace_ij", np.int64, 3))
+
+
+def _readonly(name, a, dtype, ndim):
+    a = np.ascontiguousarray(a, dtype=dtype)
+    if a.ndim != ndim:
+        raise ValueError(f"walk: {name} must have {ndim} dimensions, got shape {a.shape}")
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+def _output(name, a, dtype, ndim):
+    if not (isinstance(a, np.ndarray) and a.dtype == dtype and a.ndim == ndim
+            and a.flags.c_contiguous and a.flags.writeable):
+        raise ValueError(f"walk: {name} must be a writable C-ordered {np.dtype(dtype).name} array "
+                         f"with {ndim} dimensions")
+    return a
+
+
+def _call(kernel, args):
+    (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w, dlat, dlon,
+     tan_row, c_row, sin_col, cos_col, triangles, *outs) = args
+    ins = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN, (o, d, hgt, lon_col, cinv, binv, row_geo))]
+    ins2 = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN2, (tan_row, c_row, sin_col, cos_col))]
+    outs = [_output(n, a, t, k) for (n, t, k), a in zip(_OUT, outs)]
+    o, d, hgt, lon_col, cinv, binv, row_geo = ins
+    kernel(o, d, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, row_geo, float(lat_n),
+           float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
+
+
+def walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w, dlat, dlon,
+         tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
+         trace_s, trace_ij):
+    """The exact first hit for each ray, serial: :func:`_walk` (its docstring) compiled once."""
+    _call(walk_kernel, (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w, dlat,
+                        dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out,
+                        status, ncell, trace_s, trace_ij))
+
+
+def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w, dlat, dlon,
+                  tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
+                  trace_s, trace_ij):
+    """As :func:`walk`, the rays spread over all cores (numba threads); identical results."""
+    _call(walk_parallel_kernel, (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
+                                 dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out,
+                                 geo_out, status, ncell, trace_s, trace_ij))
