@@ -48,7 +48,8 @@ def test_gdal_rpc_dem_agrees_with_exact_dem_intersection(case):
     sc, fit, dem, ell, rows, cols = case
     cc = crosscheck_gdal_dem(sc.sensor, fit.model, dem, ell, rows, cols)
     assert cc.row.size >= 40 and cc.n_failed == 0
-    assert cc.max_px < 2e-3
+    # the README's "GDAL vs exact, max" (1.0e-5 / 3.4e-5 px) rounded up one unit: deterministic inputs
+    assert cc.max_px <= {"pushbroom": 1.1e-5, "frame": 3.5e-5}[sc.kind]
     # in metres too: 2e-3 px is 4 mm for ZY-3 (2.1 m pixels), < 1 mm for the aircraft camera
     assert cc.max_m < 0.01
 
