@@ -40,35 +40,31 @@ KEYS = ("name",)
 COLUMNS_TABLE = "columns"
 
 
-def _angles(table: dict, what: str, source: str) -> tuple:
-    """``x_deg``, ``y_deg``, ``z_deg`` (each optional, default 0) -> radians."""
+def _triple(table: dict, what: str, source: str, suffix: str, bound: float, unit: str) -> tuple:
+    """``x<suffix>``, ``y<suffix>``, ``z<suffix>`` of a table (each optional, default 0), checked."""
+    keys = tuple(f"{a}{suffix}" for a in "xyz")
     if not isinstance(table, dict):
-        raise ValueError(f"{source}: [{what}] must be a table of x_deg, y_deg, z_deg, got {table!r}")
-    unknown = sorted(set(table) - {"x_deg", "y_deg", "z_deg"})
+        raise ValueError(f"{source}: [{what}] must be a table of {', '.join(keys)}, got {table!r}")
+    unknown = sorted(set(table) - set(keys))
     if unknown:
-        raise ValueError(f"{source}: [{what}] unknown key(s) {unknown}; allowed: x_deg, y_deg, z_deg")
+        raise ValueError(f"{source}: [{what}] unknown key(s) {unknown}; allowed: {', '.join(keys)}")
     out = []
-    for k in ("x_deg", "y_deg", "z_deg"):
+    for k in keys:
         v = table.get(k, 0.0)
-        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= 180):
-            raise ValueError(f"{source}: [{what}] {k} = {v!r}: must be a number of degrees in [-180, 180]")
-        out.append(math.radians(v))
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= bound):
+            raise ValueError(f"{source}: [{what}] {k} = {v!r}: must be a number of {unit}, |v| <= {bound:g}")
+        out.append(float(v))
     return tuple(out)
+
+
+def _angles(table: dict, what: str, source: str) -> tuple:
+    """``x_deg``, ``y_deg``, ``z_deg`` -> radians (mount, boresight)."""
+    return tuple(math.radians(v) for v in _triple(table, what, source, "_deg", 180.0, "degrees"))
 
 
 def _lever(table: dict, source: str) -> tuple:
-    if not isinstance(table, dict):
-        raise ValueError(f"{source}: [lever_arm] must be a table of x_m, y_m, z_m, got {table!r}")
-    unknown = sorted(set(table) - {"x_m", "y_m", "z_m"})
-    if unknown:
-        raise ValueError(f"{source}: [lever_arm] unknown key(s) {unknown}; allowed: x_m, y_m, z_m (body axes)")
-    out = []
-    for k in ("x_m", "y_m", "z_m"):
-        v = table.get(k, 0.0)
-        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and abs(v) <= 1e3):
-            raise ValueError(f"{source}: [lever_arm] {k} = {v!r}: must be a number of metres, |v| <= 1000")
-        out.append(float(v))
-    return tuple(out)
+    """``x_m``, ``y_m``, ``z_m`` in body axes (forward, right, down) -> metres."""
+    return _triple(table, "lever_arm", source, "_m", 1e3, "metres")
 
 
 def sensor_from_dict(data: dict, source: str = "sensor") -> FrameSensor:
