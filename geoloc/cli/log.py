@@ -91,8 +91,14 @@ def run(args) -> int:
             eps_h_m=args.eps_h, threshold_m=args.threshold)
         for err in errors:
             print(f"{path}: skipped {err}", file=sys.stderr)
+    elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):
+        from geoloc.viz.rerun_model import steps_from_klv
+
+        steps, errors = steps_from_klv(path, camera, dem_path=args.dem, dem_datum=args.dem_datum)
+        for err in errors:
+            print(f"{path}: skipped bad packet at byte {err.offset}: {err.reason}", file=sys.stderr)
     else:
-        raise ValueError(f"input {path}: expected a scenario .toml or a records .csv")
+        raise ValueError(f"input {path}: expected a scenario .toml, a records .csv or a MISB KLV file (.klv, .ts)")
     rec = write(steps, args.out, display_scale=args.display_scale, serve=args.serve,
                 grpc_port=args.grpc_port, spawn=args.spawn)
     ok = int((steps.ground.status == 0).sum())

@@ -301,3 +301,54 @@ def steps_from_records(path, camera: Camera | None = None, *, height_column: str
                      recs.labels(), camera, pose, chain, row, col, los, ground, enu, truth=truth,
                      published=published, terrain=terrain, notes=notes)
     return steps, list(recs.errors)
+
+
+def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96") -> tuple[LogSteps, list]:
+    """A MISB ST 0601 file replayed (:func:`geoloc.workflows.klv_replay.replay_klv`): one step per packet.
+
+    The recomputed frame centre is the target; the packet's own frame centre is the
+    "published" position, so ``series/error/to_published_m`` is the frame-centre
+    residual; the corner residual and the outlier flags are series too. Timelines:
+    ``time`` (the precision time stamp, seconds from the first packet) and ``packet``.
+
+    Returns
+    -------
+    LogSteps, list of KlvError
+    """
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+    from geoloc.workflows.klv_replay import replay_klv
+
+    from geoloc.viz.rerun_terrain import open_dem
+
+    dem = open_dem(dem_path, dem_datum) if dem_path is not None else None
+    r = replay_klv(path, dem=dem, sensor=camera)
+    c = r.columns
+    if len(r) == 0:
+        raise ValueError(f"{path}: no good packet ({len(r.errors)} bad)")
+    roll = np.nan_to_num(np.asarray(c["sensor_relative_roll_deg"], float))  # the corners need it, not the centre
+    pose = Pose.from_deg(c["sensor_lat_deg"], c["sensor_lon_deg"], c["sensor_h_m"], c["platform_heading_deg"],
+                         c["platform_pitch_deg"], c["platform_roll_deg"],
+                         angles_deg={"azimuth": c["sensor_relative_azimuth_deg"],
+                                     "elevation": c["sensor_relative_elevation_deg"], "sensor_roll": roll})
+    sensor = r.sensor
+    n = len(r)
+    row, col = np.full(n, (sensor.rows + 1) / 2), np.full(n, (sensor.cols + 1) / 2)
+    los = sensor.line_of_sight(row, col, pose)
+    lat, lon = (np.deg2rad(np.asarray(c[k], float)) for k in ("lat_deg", "lon_deg"))
+    h = np.asarray(c["h_m"], float)
+    status = np.asarray(c["status"], np.uint8)
+    ground = GroundPoint(lat, lon, h, geodetic_to_ecef(lat, lon, h), np.asarray(c["range_m"], float), status, los)
+    published = {"lat_deg": np.asarray(c["reported_lat_deg"], float), "lon_deg": np.asarray(c["reported_lon_deg"], float),
+                 "h_m": np.asarray(c["reported_h_m"], float), "error_m": np.asarray(c["frame_center_error_m"], float)}
+    t = np.asarray(c["time_s"], float)
+    t = t - np.nanmin(t) if np.any(np.isfinite(t)) else np.arange(n, dtype=float)
+    enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
+    notes = [f"MISB ST 0601: {Path(path).name}, {n} packets ({len(r.errors)} bad, skipped)",
+             "published = the packet's own frame centre (tags 23-25 / 78); target = recomputed",
+             f"outliers flagged: {int(np.sum(c['outlier']))}"]
+    extra = {"series/klv/corner_error_m": np.asarray(c["corner_error_m"], float),
+             "series/klv/outlier": np.asarray(c["outlier"], float)}
+    steps = LogSteps("klv", Path(path).name, {"time": ("duration", t), "packet": ("sequence", np.asarray(c["packet"]))},
+                     [f"packet {k}" for k in c["packet"]], sensor, pose, sensor.frames(pose), row, col, los, ground,
+                     enu, published=published, notes=notes, extra_series=extra)
+    return steps, list(r.errors)
