@@ -73,3 +73,9 @@ def test_readme_klv_example_flight():
     bare = geoloc("replay", "assets/klv/example_flight.klv")
     assert "frame-centre error (recomputed vs reported, horizontal): median 0.091 m" in bare
     assert re.search(r"corner error \(mean of the corners\): median 58\.\d+ m", bare)
+
+
+def test_readme_klv_example_video_replays_as_the_raw_file():
+    ts = geoloc("replay", "assets/klv/example_flight.ts")
+    assert "299 packets read, 1 bad packet(s) skipped" in ts
+    assert "median 0.091 m" in ts and "22 packet(s): packets 100-109, 200-204, 250-256" in ts
