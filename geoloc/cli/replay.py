@@ -226,7 +226,7 @@ def _klv_rows_text(r) -> str:
 
 def _run_photos(args, inputs) -> int:
     """``geoloc replay PHOTOS... --targets T.csv``: :func:`geoloc.workflows.photo_replay.replay_photos`."""
-    from geoloc.workflows.photo_replay import replay_photos, write_rows
+    from geoloc.workflows.photo_replay import replay_photos, summarize, write_rows
 
     _reject_records_options(args, "drone photos")
     if not args.targets:
@@ -245,7 +245,7 @@ def _run_photos(args, inputs) -> int:
                                    method=args.method, **extra)
     for m in messages:
         print(f"geoloc replay: {m}", file=sys.stderr)
-    print(f"{len(rows)} targets located from {len(photos)} photos")
+    print(summarize(rows, messages))
     if args.out:
         write_rows(args.out, rows)
         print(f"wrote {len(rows)} rows to {args.out}")
