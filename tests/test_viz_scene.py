@@ -317,3 +317,18 @@ def test_viewer_flags_a_pixel_outside_the_sensor():
     assert "pixel outside the sensor" in g.message and "rows 1-2323" in g.message
     inside = model.compute(scn, scn.inputs.replace(target_h=4600.0))
     assert inside.status == Status.OK and "outside" not in inside.message
+
+
+def test_viewer_opens_a_misb_klv_flight():
+    # `geoloc view --records FILE.klv`: one record per packet, the packet's frame centre as the
+    # published point; the example flight's centres were computed on the same SRTM crop, so the
+    # scene's exact hit lands on them (5 mm: the reported centre's quantisation in tags 23-24)
+    from geoloc.geodesy.geodesic import horizontal_distance_m
+    from geoloc.viz import model
+
+    scn = load_scenario(asset_path("klv", "example_flight.klv"), "packet 12")
+    assert len(scn.records) == 298 and scn.camera.gimbal.name == "azimuth-elevation-roll"
+    g = model.compute(scn, scn.inputs.replace(method="exact"))
+    info = scn.records[scn.record_index][0]
+    d = float(horizontal_distance_m(g.hit.lat_deg, g.hit.lon_deg, info.paper_lat_deg, info.paper_lon_deg))
+    assert g.status == 0 and d < 0.01

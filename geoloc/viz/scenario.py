@@ -57,6 +57,41 @@ def records_from_csv(path, camera=None) -> list:
     return out
 
 
+#: File suffixes read as MISB ST 0601 KLV (raw or in a video container).
+KLV_SUFFIXES = (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts")
+
+
+def records_from_klv(path, camera=None):
+    """A MISB ST 0601 file as viewer records: one per good packet, its own frame centre as the
+    published point. Returns (sensor, [(RecordInfo, Inputs)]) (:mod:`geoloc.workflows.klv_replay`)."""
+    from geoloc.workflows.klv_replay import replay_klv
+
+    r = replay_klv(path, sensor=camera)
+    c = r.columns
+    sensor = r.sensor
+    out = []
+    for k in range(len(r)):
+        def v(name):
+            x = c[name][k]
+            return float(x) if x is not None else np.nan
+
+        info = RecordInfo(f"packet {int(c['packet'][k])}", v("reported_lat_deg"), v("reported_lon_deg"),
+                          v("reported_h_m"), np.nan, np.nan, v("frame_center_error_m"))
+        roll = v("sensor_relative_roll_deg")
+        inp = Inputs(v("sensor_lat_deg"), v("sensor_lon_deg"), v("sensor_h_m"), v("platform_heading_deg"),
+                     v("platform_pitch_deg"), v("platform_roll_deg"), 0.0, 0.0,
+                     (sensor.rows + 1) / 2, (sensor.cols + 1) / 2,
+                     target_h=v("reported_h_m") if np.isfinite(v("reported_h_m")) else 0.0,
+                     angles_deg={"azimuth": v("sensor_relative_azimuth_deg"),
+                                 "elevation": v("sensor_relative_elevation_deg"),
+                                 "sensor_roll": roll if np.isfinite(roll) else 0.0})
+        if np.isfinite(inp.angles_deg["azimuth"]) and np.isfinite(inp.angles_deg["elevation"]):
+            out.append((info, inp))
+    if not out:
+        raise ValueError(f"{path}: no packet with a pose and sensor angles")
+    return sensor, out
+
+
 def enu_origin_for(info: RecordInfo, inp: Inputs) -> EnuFrame:
     """Scene origin near the target: the published position (else the surveyed one, else below the aircraft),
     rounded by :meth:`geoloc.frames.enu.EnuFrame.scene_origin`."""
@@ -107,8 +142,11 @@ def load_scenario(records_path=None, record: str | int | None = None, camera_pat
         False to stay on the ellipsoid at each record's ``paper_height_m``.
     """
     records_path = Path(records_path) if records_path else Path(ASSETS).joinpath(*DEFAULT_RECORDS)
-    camera = load_camera_or_sensor(camera_path or Path(ASSETS).joinpath(*DEFAULT_CAMERA))
-    recs = records_from_csv(records_path, camera)
+    if records_path.suffix.lower() in KLV_SUFFIXES:
+        camera, recs = records_from_klv(records_path, load_camera_or_sensor(camera_path) if camera_path else None)
+    else:
+        camera = load_camera_or_sensor(camera_path or Path(ASSETS).joinpath(*DEFAULT_CAMERA))
+        recs = records_from_csv(records_path, camera)
     idx = 0
     if record is not None:
         labels = [r[0].label for r in recs]
