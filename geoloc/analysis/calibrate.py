@@ -69,7 +69,7 @@ from geoloc.locate import line_of_sight
 from geoloc.sensors.camera import Camera
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
-from geoloc.surfaces.height import intersect_los_height
+from geoloc.surfaces.height import HeightSurface
 
 #: Calibration models: name -> the Camera field holding the rotation.
 MODELS = {"mount": "mount", "camera": "boresight"}
@@ -89,7 +89,7 @@ class HeightTarget:
         self.label = label
 
     def ground(self, los, idx) -> GroundPoint:
-        return intersect_los_height(los, self.heights[idx], self.surface)
+        return HeightSurface(self.heights[idx], self.surface).intersect(los)
 
 
 class DemTarget:
@@ -101,9 +101,9 @@ class DemTarget:
         self.label = label
 
     def ground(self, los, idx) -> GroundPoint:
-        from geoloc.surfaces.terrain import intersect_dem
+        from geoloc.surfaces.terrain import DemSurface
 
-        return intersect_dem(los, self.dem, method=self.method)
+        return DemSurface(self.dem, self.method).intersect(los)
 
 
 def _subset_pose(pose: Pose, idx) -> Pose:
