@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import viser
 
+from geoloc.locate import as_sensor
 from geoloc.status import describe
 from geoloc.viz import teaching
-from geoloc.locate import as_sensor
 from geoloc.viz.model import Inputs, Scenario, compute, drawn_frames
 from geoloc.viz.scenario import select_record
 from geoloc.viz.scene_geoloc import Display, GeolocScene

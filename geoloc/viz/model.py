@@ -19,13 +19,15 @@ import numpy as np
 
 from geoloc.frames import rotations as rot
 from geoloc.frames.chain import Pose
-from geoloc.frames.graph import BoundFrames
 from geoloc.frames.enu import EnuFrame
+from geoloc.frames.graph import BoundFrames
 from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
 from geoloc.surfaces.height import intersect_los_height
+from geoloc.viz.terrain_link import IterationView
+
 
 def drawn_frames(sensor) -> tuple:
     """Frames drawn at the aircraft: the sensor's graph without ECEF (the Earth's centre:
@@ -83,18 +85,6 @@ class FrameView:
     name: str
     origin_enu: np.ndarray
     R_enu_frame: np.ndarray
-
-
-@dataclass
-class IterationView:
-    """The iterations of a DEM method in ENU: H_n on the line of sight, the DEM below it."""
-
-    method: str
-    H: np.ndarray  # (n,) line-of-sight heights H_n [m]
-    h_dem: np.ndarray  # (n,) DEM heights h_n below [m]
-    on_los_enu: np.ndarray  # (n, 3) ground point of the line of sight at H_n
-    dem_enu: np.ndarray  # (n, 3) the same horizontal position at the DEM height
-    brackets_enu: np.ndarray | None = None  # (n, 2, 3) bisection bracket ends on the los
 
 
 @dataclass

@@ -53,6 +53,7 @@ from geoloc.assets import ASSETS
 from geoloc.locate import as_sensor
 from geoloc.status import Status, describe
 from geoloc.viz.rerun_model import LogSteps
+from geoloc.viz.rerun_style import COLORS
 
 #: Axis length of each drawn frame [m] (distinct, so coinciding origins stay readable).
 AXIS_LENGTH_M = {"ned": 4000.0, "body": 3000.0, "gimbal_base": 2600.0, "gimbal_outer": 2200.0,
@@ -60,19 +61,6 @@ AXIS_LENGTH_M = {"ned": 4000.0, "body": 3000.0, "gimbal_base": 2600.0, "gimbal_o
 #: Distance of the pinhole's image plane in the 3D view [m].
 IMAGE_PLANE_M = 3000.0
 #: Colours (RGBA).
-COLORS = {
-    "los": (255, 200, 40, 255),
-    "target": (255, 60, 60, 255),
-    "truth": (60, 220, 90, 255),
-    "published": (80, 160, 255, 255),
-    "track": (200, 200, 200, 255),
-    "footprint": (255, 140, 140, 255),
-    "aircraft": (235, 235, 240, 255),
-    "above": (255, 150, 40, 255),
-    "below": (70, 130, 255, 255),
-}
-
-
 def _index(steps: LogSteps, select=None) -> list:
     cols = []
     for name, (kind, values) in steps.timelines.items():

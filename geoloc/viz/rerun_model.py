@@ -22,45 +22,17 @@ import numpy as np
 from geoloc.assets import ASSETS, DEFAULT_CAMERA
 from geoloc.frames import rotations as rot
 from geoloc.frames.chain import Pose
-from geoloc.frames.graph import BoundFrames
 from geoloc.frames.enu import EnuFrame
+from geoloc.frames.graph import BoundFrames
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import load_records
 from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera
 from geoloc.surfaces.base import GroundPoint, LineOfSight
 from geoloc.surfaces.height import intersect_los_height
+from geoloc.viz.rerun_terrain import TerrainSteps, dem_steps, open_dem
 from geoloc.workflows.flight import FlightScenario, simulate
 from geoloc.workflows.replay import result_from_ground
-
-
-@dataclass
-class TerrainSteps:
-    """DEM results per step (present only when a DEM is used).
-
-    Attributes
-    ----------
-    method : str
-    dem : object
-        The :class:`geoloc.surfaces.dem.DEM` (for the static mesh).
-    dem_evaluations : ndarray (n,) of int
-    H : list of ndarray
-        Per step, the trial heights H_n of the iteration [m].
-    h_dem : list of ndarray
-        Per step, the DEM height h_n below the line of sight at H_n [m].
-    lat, lon, ecef : list of ndarray
-        Per step, the point of the line of sight at H_n [rad, rad; ECEF m].
-    """
-
-    method: str
-    dem: object
-    dem_path: str
-    dem_evaluations: np.ndarray
-    H: list
-    h_dem: list
-    lat: list = field(default_factory=list)
-    lon: list = field(default_factory=list)
-    ecef: list = field(default_factory=list)
 
 
 @dataclass
@@ -161,8 +133,6 @@ def load_camera(path=None):
 
 def _terrain(los: LineOfSight, dem_path, dem_datum: str, method: str, eps_h_m=None, threshold_m=None):
     """Intersect with a DEM through :mod:`geoloc.surfaces.terrain`; returns (GroundPoint, TerrainSteps)."""
-    from geoloc.viz.rerun_terrain import dem_steps
-
     return dem_steps(los, dem_path, dem_datum, method, eps_h_m, threshold_m)
 
 
@@ -206,8 +176,6 @@ def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogS
         exact = ground if (terrain is not None and scn.method == "exact") else \
             _terrain(los, scn.dem_path, scn.dem_datum, "exact")[0]
         if terrain is None:
-            from geoloc.viz.rerun_terrain import open_dem
-
             terrain = TerrainSteps("ellipsoid", open_dem(scn.dem_path, scn.dem_datum), str(scn.dem_path),
                                    np.zeros(n, int), [], [])
         truth = {"lat_deg": exact.lat_deg, "lon_deg": exact.lon_deg, "h_m": exact.h,
@@ -317,8 +285,6 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     """
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
     from geoloc.workflows.klv_replay import replay_klv
-
-    from geoloc.viz.rerun_terrain import open_dem
 
     dem = open_dem(dem_path, dem_datum) if dem_path is not None else None
     r = replay_klv(path, dem=dem, sensor=camera)

@@ -18,13 +18,43 @@ Conventions: ``docs/conventions.md``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from geoloc.surfaces.base import GroundPoint, LineOfSight
-from geoloc.viz.rerun_model import TerrainSteps
 
 #: Margin around the aircraft and targets kept of the DEM mesh [deg].
 CROP_MARGIN_DEG = 0.1
+
+
+@dataclass
+class TerrainSteps:
+    """DEM results per step (present only when a DEM is used).
+
+    Attributes
+    ----------
+    method : str
+    dem : object
+        The :class:`geoloc.surfaces.dem.DEM` (for the static mesh).
+    dem_evaluations : ndarray (n,) of int
+    H : list of ndarray
+        Per step, the trial heights H_n of the iteration [m].
+    h_dem : list of ndarray
+        Per step, the DEM height h_n below the line of sight at H_n [m].
+    lat, lon, ecef : list of ndarray
+        Per step, the point of the line of sight at H_n [rad, rad; ECEF m].
+    """
+
+    method: str
+    dem: object
+    dem_path: str
+    dem_evaluations: np.ndarray
+    H: list
+    h_dem: list
+    lat: list = field(default_factory=list)
+    lon: list = field(default_factory=list)
+    ecef: list = field(default_factory=list)
 
 
 def open_dem(path, datum: str = "egm96"):
@@ -106,7 +136,7 @@ def log_terrain(rec, steps, index) -> None:
     """Log the static DEM mesh and the per-ray iterations (``index(steps, mask)`` gives the time columns)."""
     import rerun as rr
 
-    from geoloc.viz.rerun_log import COLORS
+    from geoloc.viz.rerun_style import COLORS
 
     ter = steps.terrain
     enu = steps.enu

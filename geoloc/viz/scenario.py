@@ -21,6 +21,7 @@ from geoloc.io.records import load_records
 from geoloc.locate import as_sensor
 from geoloc.sensors.sensor_file import load_camera_or_sensor
 from geoloc.viz.model import Inputs, RecordInfo, Scenario
+from geoloc.viz.terrain_link import default_dem_path  # noqa: F401  (here since phase 1)
 
 
 def _num(row: dict, key: str) -> float:
@@ -103,25 +104,6 @@ def enu_origin_for(info: RecordInfo, inp: Inputs) -> EnuFrame:
     else:
         lat, lon, h = inp.lat_deg, inp.lon_deg, inp.target_h
     return EnuFrame.scene_origin(lat, lon, h)
-
-
-def default_dem_path(lat_deg: float, lon_deg: float) -> Path | None:
-    """A bundled DEM in ``assets/dem/`` covering (lat, lon), preferring the finest; None if none."""
-    folder = Path(ASSETS) / "dem"
-    if not folder.is_dir():
-        return None
-    try:
-        from geoloc.surfaces.dem import DEM  # noqa: F401  (terrain support present?)
-    except ImportError:
-        return None
-    from geoloc.viz.terrain_link import dem_covers
-
-    best = None
-    for p in sorted(folder.glob("*.tif")):
-        cell = dem_covers(p, lat_deg, lon_deg)
-        if cell is not None and (best is None or cell < best[0]):
-            best = (cell, p)
-    return None if best is None else best[1]
 
 
 def load_scenario(records_path=None, record: str | int | None = None, camera_path=None,

@@ -9,9 +9,12 @@ scene's ENU frame); intersections and their iterations from
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from geoloc.assets import ASSETS
 
 try:  # the terrain core is optional for the viewer
     from geoloc.surfaces import dem as _dem
@@ -27,6 +30,35 @@ METHODS = ("steps", "bisect", "exact")
 WINDOW_M = 30e3
 #: Nodes per side of the drawn terrain: a resampling of the DEM's bilinear surface.
 MESH_NODES = 161
+
+
+@dataclass
+class IterationView:
+    """The iterations of a DEM method in ENU: H_n on the line of sight, the DEM below it."""
+
+    method: str
+    H: np.ndarray  # (n,) line-of-sight heights H_n [m]
+    h_dem: np.ndarray  # (n,) DEM heights h_n below [m]
+    on_los_enu: np.ndarray  # (n, 3) ground point of the line of sight at H_n
+    dem_enu: np.ndarray  # (n, 3) the same horizontal position at the DEM height
+    brackets_enu: np.ndarray | None = None  # (n, 2, 3) bisection bracket ends on the los
+
+
+def default_dem_path(lat_deg: float, lon_deg: float) -> Path | None:
+    """A bundled DEM in ``assets/dem/`` covering (lat, lon), preferring the finest; None if none."""
+    folder = Path(ASSETS) / "dem"
+    if not folder.is_dir():
+        return None
+    try:
+        from geoloc.surfaces.dem import DEM  # noqa: F401  (terrain support present?)
+    except ImportError:
+        return None
+    best = None
+    for p in sorted(folder.glob("*.tif")):
+        cell = dem_covers(p, lat_deg, lon_deg)
+        if cell is not None and (best is None or cell < best[0]):
+            best = (cell, p)
+    return None if best is None else best[1]
 
 
 def dem_covers(path, lat_deg, lon_deg):
@@ -50,7 +82,6 @@ def attach_dem(scn, path=None, strict: bool = False) -> None:
     an error naming the path and bounds when ``strict`` (a DEM the user asked
     for), else the scene falls back to the ellipsoid.
     """
-    from geoloc.viz.scenario import default_dem_path
 
     lat, lon = np.rad2deg(scn.enu.lat0), np.rad2deg(scn.enu.lon0)
     if path is None:
@@ -124,7 +155,6 @@ def terrain_geometry(scn, inp, los) -> dict:
     """
     from geoloc.status import describe
     from geoloc.surfaces.height import intersect_los_height
-    from geoloc.viz.model import IterationView
 
     enu, dem = scn.enu, scn.dem
     hmax = dem.max_height()
