@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geoloc.analysis.errormodel import POSE_KEYS, ErrorModel
-from geoloc.analysis.streaming import STATS_KEYS, StreamingStats
+from geoloc.analysis.streaming import STATS_KEYS, StreamingStats, cep_eq18, summary
 from geoloc.frames import rotations as rot
 from geoloc.frames.chain import FrameChain, Pose
 from geoloc.geodesy.ellipsoid import (
@@ -303,20 +303,9 @@ def statistics(lat, lon, h, status=None) -> dict:
     m_lon = lon[0] + dlon.mean()
     s_lat, s_lon, s_h = lat.std(ddof=1), dlon.std(ddof=1), h.std(ddof=1)
     rn, rm = prime_vertical_radius(m_lat), meridian_radius(m_lat)
-    cep = math.hypot(s_lon * (rn + m_h) * math.cos(m_lat), s_lat * (rm + m_h))  # [Q17 eq. 18]
     east = (dlon - dlon.mean()) * (rn + m_h) * math.cos(m_lat)
     north = (lat - m_lat) * (rm + m_h)
-    cep50 = float(np.median(np.hypot(east, north)))
-    out = {
-        "mean_lat_deg": math.degrees(m_lat),
-        "mean_lon_deg": math.degrees((m_lon + np.pi) % (2 * np.pi) - np.pi),
-        "mean_h_m": float(m_h),
-        "std_lat_deg": math.degrees(s_lat),
-        "std_lon_deg": math.degrees(s_lon),
-        "std_h_m": float(s_h),
-        "cep_m": float(cep),
-        "cep50_empirical_m": cep50,
-    }
+    out = summary(m_lat, m_lon, m_h, s_lat, s_lon, s_h, float(np.median(np.hypot(east, north))))
     out.update(n_ok=int(n), n_failed=int((~ok).sum()))
     return out
 
@@ -508,9 +497,8 @@ def first_order(model: ErrorModel, rel_step: float = 0.1) -> FirstOrder:
     s_lat, s_lon, s_h = np.sqrt(np.diag(cov))
     lat0 = float(np.mean(lat))
     h0 = float(np.mean(h))
-    cep = math.hypot(s_lon * (prime_vertical_radius(lat0) + h0) * math.cos(lat0),
-                     s_lat * (meridian_radius(lat0) + h0))  # [Q17 eq. 18]
-    return FirstOrder(sources, J, cov, math.degrees(s_lat), math.degrees(s_lon), float(s_h), cep)
+    return FirstOrder(sources, J, cov, math.degrees(s_lat), math.degrees(s_lon), float(s_h),
+                      cep_eq18(s_lat, s_lon, lat0, h0))
 
 
 # --------------------------------------------------------------------- sweeps

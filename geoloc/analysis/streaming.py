@@ -48,6 +48,27 @@ BINS = 1024
 HALF_WIDTH_SIGMA = 8.0
 
 
+def cep_eq18(s_lat, s_lon, lat, h) -> float:
+    """[Q17 eq. 18]: sqrt((s_lon (R_N + h) cos phi)^2 + (s_lat (R_M + h))^2) [m] from standard
+    deviations of latitude and longitude [rad] about the mean latitude and height."""
+    return float(math.hypot(s_lon * (prime_vertical_radius(lat) + h) * math.cos(lat),
+                            s_lat * (meridian_radius(lat) + h)))
+
+
+def summary(m_lat, m_lon, m_h, s_lat, s_lon, s_h, cep50) -> dict:
+    """The :data:`STATS_KEYS` from means and standard deviations [rad, m] and an empirical 50 % radius."""
+    return {
+        "mean_lat_deg": math.degrees(m_lat),
+        "mean_lon_deg": math.degrees((m_lon + np.pi) % (2 * np.pi) - np.pi),
+        "mean_h_m": float(m_h),
+        "std_lat_deg": math.degrees(s_lat),
+        "std_lon_deg": math.degrees(s_lon),
+        "std_h_m": float(s_h),
+        "cep_m": cep_eq18(s_lat, s_lon, m_lat, m_h),
+        "cep50_empirical_m": cep50,
+    }
+
+
 class StreamingStats:
     """Mean, covariance, [Q17 eq. 18] CEP and empirical 50 % radius of samples fed in chunks.
 
@@ -230,19 +251,8 @@ class StreamingStats:
             return out
         m_lat, m_lon, m_h = self._mean_abs()
         s_lat, s_lon, s_h = np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
-        rn, rm = prime_vertical_radius(m_lat), meridian_radius(m_lat)
-        cep = math.hypot(s_lon * (rn + m_h) * math.cos(m_lat), s_lat * (rm + m_h))  # [Q17 eq. 18]
         r50, warn = self.cep50()
-        out.update({
-            "mean_lat_deg": math.degrees(m_lat),
-            "mean_lon_deg": math.degrees((m_lon + np.pi) % (2 * np.pi) - np.pi),
-            "mean_h_m": float(m_h),
-            "std_lat_deg": math.degrees(s_lat),
-            "std_lon_deg": math.degrees(s_lon),
-            "std_h_m": float(s_h),
-            "cep_m": float(cep),
-            "cep50_empirical_m": r50,
-        })
+        out.update(summary(m_lat, m_lon, m_h, s_lat, s_lon, s_h, r50))
         out["cov_neu_m2"] = self.covariance_neu_m2().tolist()
         out["cep50_method"] = "histogram"
         if warn:
