@@ -20,12 +20,13 @@ Run: python benchmarks/bench_klv.py [--packets N] [--repeat R] [--klvdata-packet
 """
 
 import argparse
-import statistics
 import time
 
 import numpy as np
 
 from geoloc.io.klv import TAGS, Packet, encode_packet, iter_packets, packets_to_columns
+
+from _timing import timed  # benchmarks/_timing.py (the script's folder is on sys.path)
 
 
 def make_packets(n, seed=0):
@@ -48,16 +49,6 @@ def make_packets(n, seed=0):
         f["uas_ls_version"] = 17
         blobs.append(encode_packet(f))
     return blobs
-
-
-def timed(fn, repeat):
-    walls, cpus, out = [], [], None
-    for _ in range(repeat):
-        c, w = time.process_time(), time.perf_counter()
-        out = fn()
-        walls.append(time.perf_counter() - w)
-        cpus.append(time.process_time() - c)
-    return statistics.median(walls), statistics.median(cpus), out
 
 
 def main():

@@ -28,7 +28,6 @@ Run: python benchmarks/bench_klv_replay.py [--packets N] [--repeat R] [--klvdata
 """
 
 import argparse
-import statistics
 import tempfile
 import time
 from pathlib import Path
@@ -37,6 +36,8 @@ import numpy as np
 
 from geoloc.io.klv import encode_packet
 from geoloc.workflows.klv_replay import read_klv, replay_klv, write_klv_csv
+
+from _timing import timed  # benchmarks/_timing.py (the script's folder is on sys.path)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -78,16 +79,6 @@ def make_packets(n, seed=0):
         f["uas_ls_version"] = 17
         blobs.append(encode_packet(f))
     return blobs
-
-
-def timed(fn, repeat):
-    walls, cpus, out = [], [], None
-    for _ in range(repeat):
-        c, w = time.process_time(), time.perf_counter()
-        out = fn()
-        walls.append(time.perf_counter() - w)
-        cpus.append(time.process_time() - c)
-    return statistics.median(walls), statistics.median(cpus), out
 
 
 def line(label, n, w, c, extra=""):

@@ -19,8 +19,6 @@ camera) and ``ratio turret: X`` = geoloc rays/s over pymap3d rays/s.
 from __future__ import annotations
 
 import argparse
-import statistics
-import time
 
 import numpy as np
 from pymap3d.los import lookAtSpheroid
@@ -35,6 +33,8 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import BrownLens
 from geoloc.surfaces.height import intersect_los_height
+
+from _timing import timed  # benchmarks/_timing.py (the script's folder is on sys.path)
 
 #: The turret: a Brown-distorted lens on an azimuth-elevation gimbal with a mount, a boresight and a lever arm.
 TURRET = FrameSensor(BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080,
@@ -76,26 +76,12 @@ def peer_inputs(pose: Pose, camera, rows, cols):
     return np.rad2deg(lat), np.rad2deg(lon), h, az, tilt
 
 
-def median_time(fn, repeat: int) -> tuple[float, object]:
-    """Median wall time [s] of ``repeat`` calls (and the last result); CPU time in ``median_time.cpu``."""
-    times, cpus, out = [], [], None
-    for _ in range(repeat):
-        t0, c0 = time.perf_counter(), time.process_time()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-        cpus.append(time.process_time() - c0)
-    median_time.cpu = statistics.median(cpus)
-    return statistics.median(times), out
-
-
 def compare(name, n, repeat, sensor, pose, rows, cols):
     """Time geoloc and pymap3d on the same rays; print both and return the wall-time ratio."""
     lat0, lon0, h0, az, tilt = peer_inputs(pose, sensor, rows, cols)
     locate(pose.take(slice(0, 10_000)), sensor, rows[:10_000], cols[:10_000], target_h=0.0)  # compile first
-    t_ours, g = median_time(lambda: locate(pose, sensor, rows, cols, target_h=0.0), repeat)
-    c_ours = median_time.cpu
-    t_peer, (plat, plon, prange) = median_time(lambda: lookAtSpheroid(lat0, lon0, h0, az, tilt), repeat)
-    c_peer = median_time.cpu
+    t_ours, c_ours, g = timed(lambda: locate(pose, sensor, rows, cols, target_h=0.0), repeat)
+    t_peer, c_peer, (plat, plon, prange) = timed(lambda: lookAtSpheroid(lat0, lon0, h0, az, tilt), repeat)
     ok = np.isfinite(g.lat) & np.isfinite(plat)
     dlat_m = np.abs(g.lat_deg[ok] - plat[ok]) * 111_000.0
     drange = np.abs(g.slant_range[ok] - prange[ok])
@@ -118,8 +104,8 @@ def main(argv=None) -> None:
     print(f"rays: {args.rays}, repeats: {args.repeat} (medians; the kernel uses both cores, so CPU > wall)")
     ratio = compare("q17 roll-pitch pinhole", args.rays, args.repeat, cam, pose, rows, cols)
     # the numpy reference path (lens and frame graph in numpy), for scale
-    t_los, los = median_time(lambda: line_of_sight(pose, cam, rows, cols), args.repeat)
-    t_hit, _ = median_time(lambda: intersect_los_height(los, 0.0), args.repeat)
+    t_los, _, los = timed(lambda: line_of_sight(pose, cam, rows, cols), args.repeat)
+    t_hit, _, _ = timed(lambda: intersect_los_height(los, 0.0), args.repeat)
     print(f"[q17 roll-pitch pinhole] numpy reference path: {t_los + t_hit:.3f} s  "
           f"{args.rays / (t_los + t_hit) / 1e6:.2f} M rays/s  "
           f"(line_of_sight {t_los:.3f} s + intersect/geodetic {t_hit:.3f} s)")

@@ -1,0 +1,17 @@
+"""Shared timing for the benchmarks: medians of wall and CPU time over repeated calls."""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+
+def timed(fn, repeat: int):
+    """(median wall time [s], median CPU time [s], last result) of ``repeat`` calls of ``fn``."""
+    walls, cpus, out = [], [], None
+    for _ in range(repeat):
+        c, w = time.process_time(), time.perf_counter()
+        out = fn()
+        walls.append(time.perf_counter() - w)
+        cpus.append(time.process_time() - c)
+    return statistics.median(walls), statistics.median(cpus), out
