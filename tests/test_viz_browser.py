@@ -9,6 +9,7 @@ Screenshots (the browser's own renders) go to ``test-artifacts/``.
 Run alone: ``python -m pytest -q -m browser tests/test_viz_browser.py``.
 """
 
+import contextlib
 import os
 import shutil
 import time
@@ -72,8 +73,30 @@ def render(server, path, timeout=40.0, min_colours=20):
     return img[..., :3].astype(float)
 
 
-def test_viewer_in_headless_chromium(tmp_path):
+@contextlib.contextmanager
+def chromium(tmp_path):
+    """Headless Debian chromium through playwright, its HOME/XDG folders in ``tmp_path``."""
     import playwright.sync_api as playwright  # a test dependency: installed, never skipped
+
+    env = {**os.environ, "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"),
+           "XDG_CACHE_HOME": str(tmp_path / "cache")}
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, env=env, timeout=60000)
+        try:
+            yield browser
+        finally:
+            browser.close()
+
+
+def open_viewer(browser, server, width, height):
+    """A page on the viewer, once the browser has registered as a client (its WebGL canvas is up)."""
+    page = browser.new_page(viewport={"width": width, "height": height})
+    page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
+    wait_for(lambda: len(server.get_clients()) > 0, 40, "the browser to register")
+    return page
+
+
+def test_viewer_in_headless_chromium(tmp_path):
     from geoloc.viz.app import GeolocApp, make_server
     from geoloc.viz.scenario import load_scenario
 
@@ -81,51 +104,42 @@ def test_viewer_in_headless_chromium(tmp_path):
     server = make_server(port=0)
     try:
         app = GeolocApp(server, load_scenario())
-        env = {**os.environ, "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"),
-               "XDG_CACHE_HOME": str(tmp_path / "cache")}
-        with playwright.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, env=env, timeout=60000)
-            try:
-                page = browser.new_page(viewport={"width": 800, "height": 520})
-                page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
-                # A client registers only once its 3D canvas is up (WebGL works).
-                wait_for(lambda: len(server.get_clients()) > 0, 40, "the browser to register")
-                page.wait_for_selector("canvas", timeout=20000)
-                img0 = render(server, ARTIFACTS / "viz_default.png")
-                # Not blank: a blank canvas is one flat colour. The default scene has
-                # dark sky, coloured terrain, yellow line of sight: many colours.
-                assert img0.std(axis=(0, 1)).max() > 10.0
-                assert n_colours(img0) > 20
-                # The summary panel reached the page.
-                page.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=20000)
+        with chromium(tmp_path) as browser:
+            page = open_viewer(browser, server, 800, 520)
+            page.wait_for_selector("canvas", timeout=20000)
+            img0 = render(server, ARTIFACTS / "viz_default.png")
+            # Not blank: a blank canvas is one flat colour. The default scene has
+            # dark sky, coloured terrain, yellow line of sight: many colours.
+            assert img0.std(axis=(0, 1)).max() > 10.0
+            assert n_colours(img0) > 20
+            # The summary panel reached the page.
+            page.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=20000)
 
-                # Type a new aircraft height into the GUI, as a user would.
-                before = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
-                box = page.get_by_label("height (m, ellipsoidal)")
-                box.fill("12000")
-                box.press("Enter")
-                wait_for(lambda: abs(app.inputs.h_m - 12000.0) < 1e-6, 20, "the height to reach the server")
-                hit = lambda: np.array(server.scene.get_handle_by_name("/enu/hit/result").position)  # noqa: E731
-                # A 6 km lower aircraft looking down at ~45 deg hits the ground km closer (scene unit: km).
-                wait_for(lambda: np.linalg.norm(hit() - before) > 1.0, 20, "the scene to update")
-                ac = np.array(server.scene.get_handle_by_name("/enu/aircraft").position) * 1e3  # km -> m
-                assert ac[2] == pytest.approx(12000.0 - app.scn.enu.h0, abs=50.0)  # ENU up ~ height
-                img1 = render(server, ARTIFACTS / "viz_after_height_change.png")
-                changed = np.abs(img1 - img0).max(axis=-1) > 30
-                assert changed.mean() > 0.002, changed.mean()
+            # Type a new aircraft height into the GUI, as a user would.
+            before = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
+            box = page.get_by_label("height (m, ellipsoidal)")
+            box.fill("12000")
+            box.press("Enter")
+            wait_for(lambda: abs(app.inputs.h_m - 12000.0) < 1e-6, 20, "the height to reach the server")
+            hit = lambda: np.array(server.scene.get_handle_by_name("/enu/hit/result").position)  # noqa: E731
+            # A 6 km lower aircraft looking down at ~45 deg hits the ground km closer (scene unit: km).
+            wait_for(lambda: np.linalg.norm(hit() - before) > 1.0, 20, "the scene to update")
+            ac = np.array(server.scene.get_handle_by_name("/enu/aircraft").position) * 1e3  # km -> m
+            assert ac[2] == pytest.approx(12000.0 - app.scn.enu.h0, abs=50.0)  # ENU up ~ height
+            img1 = render(server, ARTIFACTS / "viz_after_height_change.png")
+            changed = np.abs(img1 - img0).max(axis=-1) > 30
+            assert changed.mean() > 0.002, changed.mean()
 
-                # --export: one HTML file that loads its embedded scene from file://, no server.
-                out = app.export(tmp_path / "scene.html", animate_steps=False)
-                page.close()  # software WebGL on 2 cores: render one page at a time
-                page2 = browser.new_page(viewport={"width": 640, "height": 400})
-                console = []
-                page2.on("console", lambda m: console.append(m.text))
-                page2.goto(out.as_uri(), timeout=40000)
-                page2.wait_for_selector("canvas", timeout=40000)
-                wait_for(lambda: any("Embedded data loaded" in m for m in console), 30,
-                         "the exported page to load its embedded scene")
-            finally:
-                browser.close()
+            # --export: one HTML file that loads its embedded scene from file://, no server.
+            out = app.export(tmp_path / "scene.html", animate_steps=False)
+            page.close()  # software WebGL on 2 cores: render one page at a time
+            page2 = browser.new_page(viewport={"width": 640, "height": 400})
+            console = []
+            page2.on("console", lambda m: console.append(m.text))
+            page2.goto(out.as_uri(), timeout=40000)
+            page2.wait_for_selector("canvas", timeout=40000)
+            wait_for(lambda: any("Embedded data loaded" in m for m in console), 30,
+                     "the exported page to load its embedded scene")
     finally:
         server.stop()
 
@@ -134,7 +148,6 @@ def test_viewer_in_headless_chromium(tmp_path):
 def test_turret_sensor_in_headless_chromium(tmp_path):
     # an azimuth-elevation turret with a Brown lens (the bundled sensor file): the page shows
     # its own gimbal angles and frames, and the canvas renders the scene over the SRTM terrain
-    import playwright.sync_api as playwright  # a test dependency: installed, never skipped
     from geoloc.assets import asset_path
     from geoloc.viz.app import GeolocApp, make_server
     from geoloc.viz.scenario import load_scenario
@@ -146,26 +159,18 @@ def test_turret_sensor_in_headless_chromium(tmp_path):
                             asset_path("sensors", "eo_turret.toml"))
         app = GeolocApp(server, scn)
         assert [k for k in app.num if k.startswith("angle:")] == ["angle:azimuth", "angle:elevation"]
-        env = {**os.environ, "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"),
-               "XDG_CACHE_HOME": str(tmp_path / "cache")}
-        with playwright.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS, env=env, timeout=60000)
-            try:
-                page = browser.new_page(viewport={"width": 1100, "height": 700})
-                page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
-                wait_for(lambda: len(server.get_clients()) > 0, 40, "the browser to register")
-                page.wait_for_selector("text=eo_turret_flight.csv orbit1-5", timeout=20000)
-                page.wait_for_selector("text=azimuth (deg)", timeout=20000)
-                img = render(server, ARTIFACTS / "viz_turret_render.png")
-                assert n_colours(img) > 20
-                before = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
-                # a slider's value set from Python, as the GUI would (arrow keys also move the 3D camera)
-                app.num["angle:azimuth"].value = app.inputs.angles_deg["azimuth"] + 10.0
-                wait_for(lambda: np.linalg.norm(np.array(server.scene.get_handle_by_name(
-                    "/enu/hit/result").position) - before) > 0.3, 20, "a 10 deg azimuth change to move the hit")
-                time.sleep(2.0)
-                page.screenshot(path=str(ARTIFACTS / "viz_turret_page.png"))
-            finally:
-                browser.close()
+        with chromium(tmp_path) as browser:
+            page = open_viewer(browser, server, 1100, 700)
+            page.wait_for_selector("text=eo_turret_flight.csv orbit1-5", timeout=20000)
+            page.wait_for_selector("text=azimuth (deg)", timeout=20000)
+            img = render(server, ARTIFACTS / "viz_turret_render.png")
+            assert n_colours(img) > 20
+            before = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
+            # a slider's value set from Python, as the GUI would (arrow keys also move the 3D camera)
+            app.num["angle:azimuth"].value = app.inputs.angles_deg["azimuth"] + 10.0
+            wait_for(lambda: np.linalg.norm(np.array(server.scene.get_handle_by_name(
+                "/enu/hit/result").position) - before) > 0.3, 20, "a 10 deg azimuth change to move the hit")
+            time.sleep(2.0)
+            page.screenshot(path=str(ARTIFACTS / "viz_turret_page.png"))
     finally:
         server.stop()
