@@ -172,3 +172,208 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, truth_prefix:
     return SensorFit(names, p0, sol.x, sd, corr, fitted,
                      float(np.sqrt(np.mean(np.sum(r0 ** 2, -1)))), float(np.sqrt(np.mean(np.sum(r1 ** 2, -1)))),
                      np.linalg.norm(r1, axis=-1), loo_err, dof)
+
+
+# --------------------------------------------------------------------------- per flight
+def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column: str | None = "table",
+                      joint: bool = False, exclude_outliers: bool = False, loo: bool = False,
+                      truth_prefix: str = "truth", k_sigma: float = 3.5) -> tuple[dict, dict]:
+    """Per-flight errors before and after fitting ``names``, with outlier flags and leave-one-out.
+
+    The sensor-file counterpart of :func:`geoloc.analysis.calibrate.calibrate_groups`:
+    each flight (``group_column``) gets its own fit (or, with ``joint``, one fit to
+    all flights). Records are flagged as outliers by the robust rule of
+    :func:`geoloc.analysis.errors.outlier_flags` (distance from the flight's median
+    error vector over ``k_sigma`` robust sigmas) applied to the residuals of a first
+    fit with every record, and with ``exclude_outliers`` left out of a second fit
+    (they are still measured). ``outlier_before`` gives the flags against the
+    nominal sensor too, as the first-phase calibration reports them.
+
+    Returns
+    -------
+    report : dict
+        ``{"groups": {name: {"n", "n_used_in_fit", "rms_before_m", "rms_after_m",
+        "rms_loo_m", "parameters", "before", "after", "records"}}}`` (JSON-ready;
+        ``before`` / ``after`` are :func:`geoloc.analysis.errors.group_summary` dicts),
+        and ``"joint_fit"`` with ``joint``.
+    sensors : dict
+        The fitted sensor per group name (and ``"joint"``).
+    """
+    from geoloc.analysis.errors import error_vectors, group_labels, group_summary
+
+    groups = group_labels(records, group_column)
+    names_g = list(dict.fromkeys(groups))
+    all_idx = np.arange(len(records))
+    surf = surface if callable(surface) and not hasattr(surface, "intersect") else (lambda _i: surface)
+    pose_all = records.pose()
+    row_all, col_all = records.column("row"), records.column("col")
+
+    def measure(s, idx):
+        sub = records.subset(idx)
+        hit = _ground(s, pose_all.take(idx), row_all[idx], col_all[idx], surf(idx))
+        return error_vectors(sub, s, hit, groups[idx], truth_prefix)
+
+    before = measure(sensor, all_idx)
+    use = before.status == Status.OK
+    outlier_before = np.zeros(len(records), bool)
+    for g in names_g:
+        m = groups == g
+        outlier_before[np.flatnonzero(m)[group_summary(before, m, k_sigma)["outliers"]]] = True
+
+    def fit_all(use):
+        if joint:
+            jf = fit_sensor_params(records, sensor, names, surface, truth_prefix=truth_prefix,
+                                   idx=all_idx[use], loo=False)
+            return {g: jf for g in names_g}
+        fits = {}
+        for g in names_g:
+            idx = all_idx[(groups == g) & use]
+            if 2 * idx.size <= len(names):
+                raise ValueError(f"group {g!r}: {idx.size} usable record(s) cannot determine "
+                                 f"{len(names)} parameters ({', '.join(names)})")
+            fits[g] = fit_sensor_params(records, sensor, names, surface, truth_prefix=truth_prefix, idx=idx)
+        return fits
+
+    fits = fit_all(use)
+    # Outliers are judged against the model, not the nominal sensor: before a fit, the
+    # very error being calibrated (a mount of a few tenths of a degree) varies with the
+    # geometry by tens of metres and would be flagged. So: fit with every record, flag
+    # each flight's residuals by the robust rule, and (exclude_outliers) refit without them.
+    outlier = np.zeros(len(records), bool)
+    for g in names_g:
+        m = groups == g
+        first = measure(fits[g].sensor, all_idx[m])
+        outlier[np.flatnonzero(m)[group_summary(first, np.ones(m.sum(), bool), k_sigma)["outliers"]]] = True
+    if exclude_outliers and np.any(outlier):
+        use = use & ~outlier
+        fits = fit_all(use)
+    sensors = {"joint": fits[names_g[0]].sensor} if joint else {g: f.sensor for g, f in fits.items()}
+
+    loo_d = np.full(len(records), np.nan)
+    if loo:
+        for g in names_g:
+            for k in all_idx[groups == g]:
+                train = all_idx[use] if joint else all_idx[(groups == g) & use]
+                train = train[train != k]
+                f = fit_sensor_params(records, sensor, names, surface, truth_prefix=truth_prefix, idx=train)
+                loo_d[k] = float(measure(f.sensor, np.array([k])).distance_m[0])
+
+    def rnd(v, nd=4):
+        v = float(v)
+        return round(v, nd) if np.isfinite(v) else None
+
+    def rms(a):
+        a = np.asarray(a, float)
+        a = a[np.isfinite(a)]
+        return float(np.sqrt(np.mean(a ** 2))) if a.size else float("nan")
+
+    labels = records.labels()
+    report = {"parameters_fitted": list(names), "joint": joint, "exclude_outliers": exclude_outliers,
+              "outlier_rule": f"residual after a first fit with every record: distance from the flight's "
+                              f"median residual vector > {k_sigma} robust sigma (sigma = median distance / "
+                              "sqrt(2 ln 2), floor 0.5 m)",
+              "groups": {}}
+    for g in names_g:
+        m = groups == g
+        idx = all_idx[m]
+        after = measure(fits[g].sensor, idx)
+        entry = {
+            "n": int(m.sum()),
+            "n_used_in_fit": int((m & use).sum()),
+            "rms_before_m": rnd(rms(before.distance_m[m])),
+            "rms_after_m": rnd(rms(after.distance_m)),
+            "rms_loo_m": rnd(rms(loo_d[m])) if loo else None,
+            "mean_error_before_m": rnd(np.nanmean(before.distance_m[m])),
+            "mean_error_after_m": rnd(np.nanmean(after.distance_m)),
+            "parameters": fits[g].report()["parameters"],
+            "before": {k: (rnd(v) if isinstance(v, float) else v) for k, v in group_summary(before, m, k_sigma).items()},
+            "after": {k: (rnd(v) if isinstance(v, float) else v)
+                      for k, v in group_summary(after, np.ones(idx.size, bool), k_sigma).items()},
+            "records": [],
+        }
+        for j, k in enumerate(idx):
+            rec = {"label": labels[k], "line": int(records.lines[k]), "outlier": bool(outlier[k]),
+                   "outlier_before": bool(outlier_before[k]),
+                   "before": before.as_dict(k), "after": after.as_dict(j)}
+            if loo:
+                rec["loo_distance_m"] = rnd(loo_d[k])
+            entry["records"].append(rec)
+        report["groups"][g] = entry
+    if joint:
+        report["joint_fit"] = {**fits[names_g[0]].report(), "n": int(use.sum())}
+    return report, sensors
+
+
+@dataclass
+class SensorResection:
+    """Result of :func:`resect_sensor`: the fitted parameters, their uncertainties and the heights."""
+
+    fit: SensorFit
+    heights_m: np.ndarray
+    rms_m: float
+    success: bool
+
+    def report(self) -> dict:
+        return {**self.fit.report(), "rms_misfit_m": self.rms_m,
+                "heights_m": [round(float(h), 2) for h in self.heights_m], "converged": self.success}
+
+
+def resect_sensor(records: Records, sensor, names=("fx", "cx", "cy"), *, computed_prefix: str = "paper",
+                  initial_height_m: float = 0.0) -> SensorResection:
+    """Fit the named parameters (default focal length and principal point) to published positions.
+
+    The sensor-file counterpart of :func:`geoloc.analysis.calibrate.resect_camera`:
+    unknowns are the named parameters and each record's target height h_k;
+    equations are the (east, north) offsets between record k's line of sight at
+    h_k (the ellipsoid inflated to h_k, [Q17 eq. 8-11]) and its published
+    position ``{computed_prefix}_lat_deg`` / ``_lon_deg``. Since a focal length
+    and a height trade against each other only through the spread of slant
+    ranges, at least ``len(names) + 1`` records are needed (2n equations, n + p unknowns).
+
+    Returns
+    -------
+    SensorResection
+        ``rms_m`` is the RMS of the 2n residual components [m].
+    """
+    from geoloc.surfaces.height import HeightSurface
+
+    names = list(names)
+    unknown = sorted(set(names) - set(sensor.params))
+    if unknown:
+        raise ValueError(f"cannot fit {unknown}: the sensor's parameters are {sorted(sensor.params)}")
+    n, p = len(records), len(names)
+    if 2 * n < n + p + 1:
+        raise ValueError(f"resection of {p} parameters needs at least {p + 1} records, got {n}")
+    pose = records.pose()
+    row, col = records.column("row"), records.column("col")
+    tlat = np.deg2rad(records.column(f"{computed_prefix}_lat_deg"))
+    tlon = np.deg2rad(records.column(f"{computed_prefix}_lon_deg"))
+    if not np.all(np.isfinite(tlat) & np.isfinite(tlon)):
+        raise ValueError(f"{records.path}: every record needs {computed_prefix}_lat_deg and _lon_deg")
+    p0 = np.array([sensor.params[k] for k in names], float)
+    scale = np.where(np.abs(p0) > 0, np.abs(p0), 1.0)
+
+    def resid(x):
+        s = sensor.with_params(**dict(zip(names, p0 + x[:p] * scale)))
+        hit = _ground(s, pose, row, col, HeightSurface(x[p:] * 1000.0))  # heights in km inside the solver
+        return _enu_residuals(hit, tlat, tlon).ravel()
+
+    x0 = np.concatenate([np.zeros(p), np.full(n, initial_height_m / 1000.0)])
+    sol = least_squares(resid, x0, method="trf", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    m = sol.fun.size
+    cov = np.full((x0.size, x0.size), np.nan)
+    if m > x0.size:
+        try:
+            cov = float(sol.fun @ sol.fun) / (m - x0.size) * np.linalg.inv(sol.jac.T @ sol.jac)
+        except np.linalg.LinAlgError:
+            pass
+    sd = np.sqrt(np.diag(cov))[:p] * scale
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = (cov / np.outer(np.sqrt(np.diag(cov)), np.sqrt(np.diag(cov))))[:p, :p]
+    values = p0 + sol.x[:p] * scale
+    fitted = sensor.with_params(**dict(zip(names, values)))
+    r = sol.fun.reshape(-1, 2)
+    r0 = resid(x0).reshape(-1, 2)
+    fit = SensorFit(names, p0, values, sd, corr, fitted, float(np.sqrt(np.mean(np.sum(r0 ** 2, -1)))),
+                    float(np.sqrt(np.mean(np.sum(r ** 2, -1)))), np.linalg.norm(r, axis=-1), None, m - x0.size)
+    return SensorResection(fit, sol.x[p:] * 1000.0, float(np.sqrt(np.mean(r ** 2))), bool(sol.success))

@@ -40,7 +40,7 @@ def register(sub) -> None:
     p.add_argument("--fit", default=None, metavar="NAMES",
                    help="a sensor file's named parameters to fit, comma-separated (e.g. "
                         "mount_x,mount_y,mount_z,fx,cx,cy,k1,lever_arm_x_m): the fit for any --sensor "
-                        "(the flight grouping, outliers and resection below are the first-phase camera's)")
+                        "(flights from --group-by, outliers, --joint, --loo and --resect apply to it too)")
     p.add_argument("--write-sensor", default=None, metavar="FILE",
                    help="with --fit: save the fitted sensor file (TOML)")
     t = p.add_mutually_exclusive_group()
@@ -140,8 +140,15 @@ def _surface(args, records):
 
 
 def run_sensor_fit(args, camera) -> int:
-    """``--fit NAMES``: least squares on any of the sensor's named parameters (geoloc.analysis.sensor_fit)."""
-    from geoloc.analysis.sensor_fit import fit_sensor_params
+    """``--fit NAMES``: least squares on any of the sensor's named parameters, per flight.
+
+    Flights come from ``--group-by`` (default the ``table`` column when the records
+    have one, else one group); outliers are flagged on the residuals of a first fit
+    and left out with ``--exclude-outliers``; ``--joint`` fits one set for all
+    flights; ``--resect`` fits the same names to the published positions with
+    unknown target heights (:mod:`geoloc.analysis.sensor_fit`).
+    """
+    from geoloc.analysis.sensor_fit import fit_sensor_groups, resect_sensor
     from geoloc.locate import as_sensor
     from geoloc.sensors.sensor_file import sensor_to_toml
     from geoloc.workflows.replay import outside_sensor_messages
@@ -152,23 +159,52 @@ def run_sensor_fit(args, camera) -> int:
         print(f"geoloc calibrate: warning: {msg}", file=sys.stderr)
     names = [n.strip() for n in args.fit.split(",") if n.strip()]
     surface, label = _surface(args, records)
-    fit = fit_sensor_params(records, sensor, names, surface, truth_prefix=args.truth_prefix, loo=args.loo)
-    report = {"records": str(records.path), "sensor": str(args.camera), "target": label, **fit.report()}
-    print(f"{'parameter':<16} {'start':>14} {'fitted':>14} {'sd':>12}")
-    for n, e in report["parameters"].items():
-        print(f"{n:<16} {e['start']:>14.6f} {e['value']:>14.6f} {e['sd']:>12.6f} {e['unit']}")
-    line = f"RMS horizontal error to truth: before {fit.rms_before_m:.2f} m, after {fit.rms_after_m:.2f} m"
-    if fit.loo_errors_m is not None:
-        line += f", leave-one-out {report['rms_loo_m']:.2f} m"
-    print(line + f" ({len(records)} records, {fit.dof} degrees of freedom)")
+    group = args.group_by
+    if group.lower() == "none" or (group == "table" and "table" not in records.header):
+        group = None
+    rep, sensors = fit_sensor_groups(records, sensor, names, surface, group_column=group, joint=args.joint,
+                                     exclude_outliers=args.exclude_outliers, loo=args.loo,
+                                     truth_prefix=args.truth_prefix)
+    report = {"records": str(records.path), "sensor": str(args.camera), "target": label, **rep}
+    for g, e in rep["groups"].items():
+        line = (f"flight {g}: n={e['n']} (fit {e['n_used_in_fit']}), RMS horizontal error to truth: "
+                f"before {_fmt(e['rms_before_m'])} m, after {_fmt(e['rms_after_m'])} m")
+        if args.loo:
+            line += f", leave-one-out {_fmt(e['rms_loo_m'])} m"
+        print(line)
+        flagged = [r["label"] for r in e["records"] if r["outlier"]]
+        if flagged:
+            print(f"  outliers before the fit: {flagged}"
+                  + (" (left out)" if args.exclude_outliers else " (kept; --exclude-outliers leaves them out)"))
+        if not args.joint:
+            _print_parameters(e["parameters"])
+    if args.joint:
+        print(f"joint fit ({rep['joint_fit']['n']} records):")
+        _print_parameters(rep["joint_fit"]["parameters"])
+    if args.resect:
+        r = resect_sensor(records, sensor, names)
+        report["resection"] = r.report()
+        print(f"resection of {', '.join(names)} to the published positions (unknown target heights): "
+              f"RMS misfit {r.rms_m:.2f} m" + ("" if r.success else " (did not converge)"))
+        _print_parameters(report["resection"]["parameters"])
     report = _json_safe(report)
     if args.out:
         Path(args.out).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
         print(f"wrote {args.out}")
     if args.write_sensor:
-        sensor_to_toml(fit.sensor, args.write_sensor)
-        print(f"wrote the fitted sensor to {args.write_sensor}")
+        out = Path(args.write_sensor)
+        todo = ([(g, out) for g in sensors] if len(sensors) == 1 else
+                [(g, out.with_name(f"{out.stem}_{g}{out.suffix or '.toml'}")) for g in sensors])
+        for g, path in todo:
+            sensor_to_toml(sensors[g], path)
+            print(f"wrote the fitted sensor ({g}) to {path}")
     return 0
+
+
+def _print_parameters(params: dict) -> None:
+    print(f"  {'parameter':<16} {'start':>14} {'fitted':>14} {'sd':>12}")
+    for n, e in params.items():
+        print(f"  {n:<16} {e['start']:>14.6f} {e['value']:>14.6f} {e['sd']:>12.6f} {e['unit']}")
 
 
 def run(args) -> int:
