@@ -16,7 +16,7 @@ import numpy as np
 from geoloc.analysis.rpc_fit import fit_rpc
 from geoloc.assets import asset_path
 from geoloc.sensors.rpc import RPCSensor
-from geoloc.workflows.rpc_scenario import load_scenario
+from geoloc.workflows.scenario import load_scenario
 
 
 def median_time(fn, repeat=5):

@@ -7,7 +7,8 @@ import tempfile
 from pathlib import Path
 
 from geoloc.assets import asset_path
-from geoloc.workflows.rpc_scenario import load_scenario, rpc_report
+from geoloc.workflows.rpc_scenario import rpc_report
+from geoloc.workflows.scenario import load_scenario
 
 with tempfile.TemporaryDirectory() as tmp:
     for name in ("zy3_nadir", "qiao2017_frame"):

@@ -26,7 +26,8 @@ from geoloc.io.rpc_gdal import (
 from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.terrain import intersect_dem
-from geoloc.workflows.rpc_scenario import dem_pixels, load_scenario
+from geoloc.workflows.rpc_scenario import dem_pixels
+from geoloc.workflows.scenario import load_scenario
 
 sc = load_scenario(asset_path("scenarios", "zy3_nadir.toml"))
 fit = fit_rpc(sc.sensor, sc.height_min, sc.height_max, sc.grid, sc.check_grid)

@@ -25,7 +25,7 @@ from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import HeightSurface
 from geoloc.surfaces.terrain import DemSurface
-from geoloc.workflows.rpc_scenario import load_scenario
+from geoloc.workflows.scenario import load_scenario
 
 #: Round-trip tolerance per sensor [px]. Frame cameras and the pushbroom: the hit lies on the
 #: sensor's own ray, so only the lens inverse (1e-14 normalised) and the pushbroom's line-time

@@ -15,7 +15,7 @@ from geoloc.io.rpc_gdal import gdal_rpc_to_ground, read_rpc_geotiff, write_rpc_g
 from geoloc.sensors.pushbroom import PushbroomSensor
 from geoloc.sensors.rpc import RPCModel
 from geoloc.status import Status
-from geoloc.workflows.rpc_scenario import load_scenario
+from geoloc.workflows.scenario import load_scenario
 
 
 @pytest.fixture(scope="module", params=["zy3_nadir", "qiao2017_frame"])

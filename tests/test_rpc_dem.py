@@ -16,7 +16,8 @@ from geoloc.geodesy.geoid import NodeGrid
 from geoloc.io.rpc_gdal import write_ellipsoidal_dem
 from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
-from geoloc.workflows.rpc_scenario import crosscheck_gdal_dem, dem_pixels, load_scenario
+from geoloc.workflows.rpc_scenario import crosscheck_gdal_dem, dem_pixels
+from geoloc.workflows.scenario import load_scenario
 
 _CASES = {}
 

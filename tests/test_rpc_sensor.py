@@ -33,7 +33,8 @@ from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import intersect_los_height
 from geoloc.surfaces.terrain import intersect_dem
-from geoloc.workflows.rpc_scenario import dem_pixels, load_scenario
+from geoloc.workflows.rpc_scenario import dem_pixels
+from geoloc.workflows.scenario import load_scenario
 
 #: straight line vs the RPC's locus over |normalised height| <= 1: measured 2.6e-6 / 3.8e-5 px
 CHORD_TOL = {"zy3_nadir": 5e-6, "qiao2017_frame": 6e-5}

@@ -32,7 +32,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from geoloc.workflows.rpc_scenario import load_scenario, rpc_report
+    from geoloc.workflows.rpc_scenario import rpc_report
+    from geoloc.workflows.scenario import load_scenario
 
     thr = args.gdal_threshold_px
     if not (math.isfinite(thr) and thr > 0):

@@ -187,6 +187,10 @@ def scenario_from_dict(data: dict, source: str = "scenario") -> LimbScenario:
     for key, val in data.items():
         if key == "name" or key == "description":
             continue
+        if key == "kind":  # geoloc.workflows.scenario.load_scenario's dispatch key
+            if val != "limb":
+                raise ValueError(f"{source}: kind = {val!r}: this loader reads 'limb' scenarios")
+            continue
         if key not in known_sections:
             raise ValueError(f"{source}: unknown section or key {key!r}")
         for sub in val:

@@ -243,7 +243,7 @@ def _int_tuple(d, key, n, default, source):
     return tuple(v)
 
 
-def load_scenario(path) -> RPCScenario:
+def load_rpc_scenario(path) -> RPCScenario:
     """Read an RPC scenario file (``assets/scenarios/zy3_nadir.toml``, ``qiao2017_frame.toml``).
 
     Format: docs/rpc.md. Errors name the file, the table and the key.
@@ -374,4 +374,4 @@ def rpc_report(scenario: RPCScenario, out_tif, *, gdal: bool = True, pixel_error
 
 
 __all__ = ["DemCrossCheck", "FrameCameraSensor", "RPCScenario", "crosscheck_gdal_dem", "dem_pixels",
-           "load_scenario", "rpc_report"]
+           "load_rpc_scenario", "rpc_report"]
