@@ -144,7 +144,37 @@ def terrain_mesh(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES):
     return mesh
 
 
-def terrain_geometry(scn, inp, los) -> dict:
+def scene_surface(scn, inp, trace: bool = True):
+    """The surface the scene's line of sight meets: the one choice of :func:`geoloc.surfaces.terrain.surface_for`.
+
+    The scenario's DEM with the GUI's method, step and threshold (and the
+    iteration trace the scene draws), else the ellipsoid inflated to the
+    record's target height [Q17 eq. 11].
+    """
+    from geoloc.surfaces.terrain import surface_for
+
+    if scn.dem is None or _terrain is None:
+        return surface_for(inp.target_h)
+    return surface_for(dem=scn.dem, method=inp.method, eps_h=inp.eps_h, threshold=inp.threshold, trace=trace)
+
+
+def hit_geometry(scn, inp, los) -> dict:
+    """The hit fields of :class:`geoloc.viz.model.Geometry` on the scene's surface (:func:`scene_surface`).
+
+    On a DEM: :func:`terrain_geometry` (the method's hit, the exact first hit,
+    the iterations); on a constant height: its hit alone.
+    """
+    surface = scene_surface(scn, inp)
+    if hasattr(surface, "dem"):
+        return terrain_geometry(scn, inp, los, surface)
+    hit = surface.intersect(los)
+    label = f"hit at h = {inp.target_h:.1f} m"
+    if scn.dem is not None:  # a DEM without the terrain core
+        label += " (terrain solver not available)"
+    return dict(hit=hit, hit_enu=scn.enu.from_ecef(hit.ecef), hit_label=label)
+
+
+def terrain_geometry(scn, inp, los, surface=None) -> dict:
     """Run the chosen terrain method on ``los`` (with its trace) and express it in ENU.
 
     Returns the fields of :class:`geoloc.viz.model.Geometry` for the terrain: the
@@ -152,6 +182,8 @@ def terrain_geometry(scn, inp, los) -> dict:
     hit at H_max (the DEM's highest node, where [Q17]'s steps start), and the
     iterations: each H_n with its ground point on the line of sight, the DEM
     height h_n below it, and the bisection brackets as points on the line of sight.
+    ``surface`` is the scene's :class:`geoloc.surfaces.terrain.DemSurface` (default
+    :func:`scene_surface`).
     """
     from geoloc.status import describe
     from geoloc.surfaces.height import intersect_los_height
@@ -160,14 +192,9 @@ def terrain_geometry(scn, inp, los) -> dict:
     hmax = dem.max_height()
     out = {"hmax": hmax,
            "hit_hmax_enu": enu.from_ecef(intersect_los_height(los, hmax).ecef)}
-    if _terrain is None:
-        hit = intersect_los_height(los, inp.target_h)
-        out.update(hit=hit, hit_enu=enu.from_ecef(hit.ecef),
-                   hit_label=f"hit at h = {inp.target_h:.1f} m (terrain solver not available)")
-        return out
-    hit = _terrain.intersect_dem(los, dem, inp.method, eps_h=inp.eps_h, threshold=inp.threshold,
-                                 trace=True)
-    exact = hit if inp.method == "exact" else _terrain.intersect_dem(los, dem, "exact")
+    surface = scene_surface(scn, inp) if surface is None else surface
+    hit = surface.intersect(los)
+    exact = hit if inp.method == "exact" else _terrain.DemSurface(dem, "exact").intersect(los)
     names = {"steps": f"descending steps [Q17], eps_h {inp.eps_h:g} m",
              "bisect": f"bisection [L23], threshold {inp.threshold:g} m",
              "exact": "exact first hit"}
