@@ -73,6 +73,14 @@ TARGETS = [
             "east_north", "ground", "locate"), "the fit, its covariance and leave-one-out"),
     Target("montecarlo", "geoloc/analysis/montecarlo.py", ("tests/test_montecarlo.py",),
            ("statistics", "first_order"), "the statistics and CEP [Q17 eq. 18]"),
+    # the sensor model of the second phase
+    Target("local", "geoloc/geodesy/local.py", ("tests/test_local_frames.py", "tests/test_frames.py")),
+    Target("graph", "geoloc/frames/graph.py", ("tests/test_gimbals.py", "tests/test_sensors.py")),
+    Target("gimbals", "geoloc/sensors/gimbals.py", ("tests/test_gimbals.py", "tests/test_sensors.py")),
+    Target("frame", "geoloc/sensors/frame.py", ("tests/test_gimbals.py", "tests/test_sensors.py",
+                                                "tests/test_locate.py")),
+    Target("sensor_fit", "geoloc/analysis/sensor_fit.py", ("tests/test_sensor_fit.py",
+                                                          "tests/test_sensor_fit_groups.py")),
 ]
 
 _KEEP_BINARY = {("Add", "Sub"), ("Sub", "Add"), ("Mul", "Div"), ("Div", "Mul"), ("Pow", "Mul"),
