@@ -19,6 +19,7 @@ import numpy as np
 
 from geoloc.analysis import montecarlo as mc
 from geoloc.analysis.errormodel import ErrorModel
+from geoloc.workflows.scenario import load_scenario
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.sensors.camera import Camera
 
@@ -57,7 +58,7 @@ def _pct(ours, paper):
 
 
 def load_q17_model() -> ErrorModel:
-    return ErrorModel.from_toml(asset_path(*Q17_SCENARIO))
+    return load_scenario(asset_path(*Q17_SCENARIO), expect="montecarlo")
 
 
 def _terrain_available() -> bool:
@@ -115,7 +116,7 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
 
     # 3. Monte Carlo with the DEM
     if use_dem:
-        dmodel = ErrorModel.from_toml(asset_path(*Q17_DEM_SCENARIO))
+        dmodel = load_scenario(asset_path(*Q17_DEM_SCENARIO), expect="montecarlo")
         dres = mc.run(dmodel, samples, np.random.default_rng(seed), progress=progress)
         ds = dres.stats
         dlat, dlon, dh, _ = dres.nominal
@@ -214,7 +215,7 @@ def li2023_report(seed: int = 0, n_rays: int = 100, tolerances_m=(10.0, 2.0, 1.0
     from geoloc.workflows.replay import records_line_of_sight
 
     rep = Report()
-    dmodel = ErrorModel.from_toml(asset_path(*Q17_DEM_SCENARIO))
+    dmodel = load_scenario(asset_path(*Q17_DEM_SCENARIO), expect="montecarlo")
     dem = mc.open_dem(dmodel)
     rng = np.random.default_rng(seed)
     errs = dmodel.sample(n_rays, rng)
