@@ -65,6 +65,7 @@ from pathlib import Path
 
 import numpy as np
 
+from geoloc.analysis.accuracy import MAD_SCALE, MIN_EXCESS_M, OUTLIER_K, outlier_rule
 from geoloc.frames.chain import Pose
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.geodesy.geoid import egm96_undulation
@@ -95,6 +96,8 @@ __all__ = [
     "KlvReplay",
     "KlvSummary",
     "is_klv_path",
+    "klv_pose",
+    "klv_pose_deg",
     "klv_sensor",
     "outlier_mask",
     "read_klv",
@@ -112,12 +115,8 @@ KLV_SUFFIXES = RAW_SUFFIXES + CONTAINER_SUFFIXES
 GIMBAL = "azimuth-elevation-roll"
 #: Image size (width, height) [pixels] when no sensor file gives one.
 NOMINAL_SIZE = (1920, 1080)
-#: Outlier cut in robust standard deviations (1.4826 MAD).
-OUTLIER_K = 3.5
-#: Normal-consistency factor of the MAD.
-MAD_SCALE = 1.4826
-#: Smallest departure from the median flagged as an outlier [m].
-MIN_EXCESS_M = 1.0
+# The outlier rule's constants (OUTLIER_K = 3.5 robust sigmas, MAD_SCALE = 1.4826, MIN_EXCESS_M = 1 m)
+# live with the rule in geoloc.analysis.accuracy and are re-exported here.
 #: Tag 75 - tag 15 (or 78 - 25) may differ from N by this much before a datum warning [m]
 #: (two 0.3 m quantisation steps and the geoid grid's own error fit well inside).
 DATUM_CHECK_M = 3.0
@@ -297,20 +296,45 @@ def klv_sensor(hfov, vfov, base: FrameSensor | None = None) -> FrameSensor:
     return dataclasses.replace(base, lens=lens, gimbal=PRESETS[GIMBAL])
 
 
+# --------------------------------------------------------------------------- poses
+
+
+def klv_pose_deg(columns: dict, k: int | None = None) -> dict:
+    """The pose of each replayed packet from :attr:`KlvReplay.columns`, as keyword arguments in degrees.
+
+    Keys ``lat_deg, lon_deg, h_m`` (the sensor: tags 13, 14 and the ellipsoidal
+    height of tag 75, else tag 15 + N), ``heading_deg, pitch_deg, roll_deg``
+    (tag 5; 90 else 6; 91 else 7) and ``angles_deg`` (``azimuth``, ``elevation``,
+    ``sensor_roll``: tags 18, 19, 20; a missing sensor roll is 0, as only the
+    corners need it): the names of :meth:`geoloc.frames.chain.Pose.from_deg`
+    and of the viewer's ``Inputs``. With ``k``, packet ``k``'s values as floats.
+    """
+    def get(name):
+        v = np.asarray(columns[name], float)
+        return float(v[k]) if k is not None else v
+
+    roll = get("sensor_relative_roll_deg")
+    roll = (roll if math.isfinite(roll) else 0.0) if k is not None else np.nan_to_num(roll)
+    return {"lat_deg": get("sensor_lat_deg"), "lon_deg": get("sensor_lon_deg"), "h_m": get("sensor_h_m"),
+            "heading_deg": get("platform_heading_deg"), "pitch_deg": get("platform_pitch_deg"),
+            "roll_deg": get("platform_roll_deg"),
+            "angles_deg": {"azimuth": get("sensor_relative_azimuth_deg"),
+                           "elevation": get("sensor_relative_elevation_deg"), "sensor_roll": roll}}
+
+
+def klv_pose(columns: dict) -> Pose:
+    """Every replayed packet's pose as one batched :class:`geoloc.frames.chain.Pose` (:func:`klv_pose_deg`)."""
+    return Pose.from_deg(**klv_pose_deg(columns))
+
+
 # --------------------------------------------------------------------------- outliers
 
 
 def outlier_mask(err, k: float = OUTLIER_K, min_excess_m: float = MIN_EXCESS_M):
     """Robust outlier flags: ``|e - median| > max(k * 1.4826 * MAD, min_excess_m)``.
 
-    Parameters
-    ----------
-    err : array_like
-        Errors [m]; NaN entries are ignored (and never flagged).
-    k : float
-        Cut in robust standard deviations (default 3.5).
-    min_excess_m : float
-        Smallest departure flagged [m] (default 1).
+    The one rule of :func:`geoloc.analysis.accuracy.outlier_rule` (which the
+    accuracy report also uses); kept under this name for the KLV replay.
 
     Returns
     -------
@@ -318,16 +342,7 @@ def outlier_mask(err, k: float = OUTLIER_K, min_excess_m: float = MIN_EXCESS_M):
         ``mask`` (bool, the shape of ``err``); the median, the MAD and the cut on
         ``|e - median|`` [m] (NaN when no error is finite).
     """
-    e = np.asarray(err, float)
-    ok = np.isfinite(e)
-    if not ok.any():
-        return np.zeros(e.shape, bool), math.nan, math.nan, math.nan
-    med = float(np.median(e[ok]))
-    mad = float(np.median(np.abs(e[ok] - med)))
-    thr = max(k * MAD_SCALE * mad, float(min_excess_m))
-    with np.errstate(invalid="ignore"):
-        mask = ok & (np.abs(e - med) > thr)
-    return mask, med, mad, thr
+    return outlier_rule(err, k, min_excess_m)
 
 
 # --------------------------------------------------------------------------- the replay
