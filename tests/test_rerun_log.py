@@ -237,14 +237,26 @@ def test_records_one_step_per_record_with_core_errors(records):
     np.testing.assert_allclose(got, recs.column("paper_error_m"), atol=2.0)
 
 
+def flights(data, fmt, column):
+    """Rows of ``column`` of the per-flight entities ``fmt.format(T3)``, ``fmt.format(T4)`` in record order
+    (records of several flights have one entity tree per flight)."""
+    rec, val = [], []
+    for g in ("T3", "T4"):
+        t = data[fmt.format(g)]["temporal"]
+        rec += t["record"]
+        val += t[column]
+    order = np.argsort(rec, kind="stable")
+    return [val[i] for i in order]
+
+
 def test_records_geopoints_are_the_file_and_the_core(records):
     steps, out, data = records
     recs = load_records(RECORDS)
     for key, prefix in (("published", "paper"), ("truth", "truth")):
-        geo = np.array([r[0] for r in data[f"/map/{key}"]["temporal"]["GeoPoints:positions"]])
+        geo = np.array([r[0] for r in flights(data, "/map/{}/" + key, "GeoPoints:positions")])
         np.testing.assert_array_equal(geo, np.c_[recs.column(f"{prefix}_lat_deg"),
                                                  recs.column(f"{prefix}_lon_deg")])
-    ac = np.array([r[0] for r in data["/map/aircraft"]["temporal"]["GeoPoints:positions"]])
+    ac = np.array([r[0] for r in flights(data, "/map/{}/aircraft", "GeoPoints:positions")])
     pose = recs.pose()
     np.testing.assert_array_equal(ac, np.c_[np.rad2deg(pose.lat), np.rad2deg(pose.lon)])
     # and the file's degrees, up to one degree -> radian -> degree round trip (1e-12 deg)
@@ -253,10 +265,14 @@ def test_records_geopoints_are_the_file_and_the_core(records):
 
 
 def test_records_scene_origin_follows_the_viser_rule(records):
-    # Published position of the first record (T3-1: 36.33771 N, 78.85769 E, 4629.9 m),
+    # One origin per flight: the published position of each flight's first record
+    # (T3-1: 36.33771 N, 78.85769 E, 4629.9 m; T4-1: 35.57386 N, 80.87258 E, 5282.5 m),
     # rounded to 0.001 deg and 100 m.
     steps, out, data = records
     assert steps.enu == EnuFrame.from_deg(36.338, 78.858, 4600.0)
-    # The published point of T3-1 is then a few tens of metres from the origin.
-    pub = np.array(data["/world/published"]["temporal"]["Points3D:positions"][0][0])
-    assert np.linalg.norm(pub) < 100.0
+    assert steps.enus == {"T3": EnuFrame.from_deg(36.338, 78.858, 4600.0),
+                          "T4": EnuFrame.from_deg(35.574, 80.873, 5300.0)}
+    # The published point of each flight's first record is then a few tens of metres from its origin.
+    for g in ("T3", "T4"):
+        pub = np.array(data[f"/world/{g}/published"]["temporal"]["Points3D:positions"][0][0])
+        assert np.linalg.norm(pub) < 100.0

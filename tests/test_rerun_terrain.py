@@ -177,11 +177,15 @@ def test_records_on_the_dem_by_bisection(rec, tmp_path):
             continue
         if ch.entity_path == "/series/dem/evaluations":
             ev.update(zip(b.column("record").to_pylist(), [r[0] for r in b.column("Scalars:scalars").to_pylist()]))
-        if ch.entity_path == "/map/target":
+        if ch.entity_path in ("/map/T3/target", "/map/T4/target"):  # one map subtree per flight
             geo.update(zip(b.column("record").to_pylist(), [r[0] for r in b.column("GeoPoints:positions").to_pylist()]))
     assert sorted(ev) == list(range(20))
     np.testing.assert_array_equal([ev[k] for k in range(20)], hit.dem_evaluations.astype(float))
     np.testing.assert_array_equal([geo[k] for k in range(20)], np.c_[hit.lat_deg, hit.lon_deg])
+    # each flight's DEM mesh and iterations live under its own tree, in its own scene frame
+    ents = {ch.entity_path for ch in RrdReader(out).stream()}
+    assert {"/world/T3/dem", "/world/T4/dem", "/world/T3/iterations/on_los", "/world/T4/iterations/to_dem"} <= ents
+    assert "/world/dem" not in ents
 
 
 def test_cep_series_is_the_core_monte_carlo(rec, core):

@@ -12,6 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
 from geoloc.assets import ASSETS
 
 
@@ -22,9 +24,12 @@ def register(sub) -> None:
         description="Log a simulated flight (scenario TOML, e.g. assets/scenarios/flight_scan.toml, "
         "or just its name 'flight_scan') or a flight-test records CSV (one time step per record) "
         "to a rerun recording: aircraft pose and frame chain, line of sight and hits in the local "
-        "ENU frame of the 3D viewer, time series (attitude, gimbal angles, slant range, target "
-        "height, errors, DEM evaluations, H_n - h_n of the height iteration), map points and a "
-        "default layout. Open it with `rerun run.rrd` (or the web viewer: --serve).",
+        "ENU frame of the 3D viewer (one entity tree and origin per flight of a records file), time "
+        "series (heading; pitch and roll; gimbal angles, slant range, target height, errors and their "
+        "north/east/along/across components, outlier flags, errors before/after the per-flight mounting "
+        "calibration, DEM evaluations, H_n - h_n of the height iteration), record labels and outlier notes "
+        "in a log, an offline 2D target/truth plot, map points and a default layout whose 3D view follows "
+        "the current hit. Open it with `rerun run.rrd` (or the web viewer: --serve). See docs/rerun.md.",
     )
     p.add_argument("input", metavar="SCENARIO_OR_RECORDS",
                    help="scenario .toml (or the name of a bundled one) or records .csv")
@@ -42,6 +47,11 @@ def register(sub) -> None:
     g.add_argument("--height-column", default=None, help="column with each target's ellipsoidal height [m]")
     g.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
                    help="inflated ellipsoid of [Q17] eq. 11 (default) or the exact constant-height surface")
+    g.add_argument("--group-by", default="table",
+                   help="records: column naming each record's flight (default table; 'none' for one flight); "
+                   "each flight gets its own scene origin and entity tree")
+    g.add_argument("--no-calibration", action="store_true",
+                   help="records: do not fit and log the per-flight mounting calibration (before/after series)")
     g = p.add_argument_group("viewer")
     g.add_argument("--display-scale", type=float, default=200.0,
                    help="scale of the aircraft mesh in the 3D view (default 200)")
@@ -88,7 +98,8 @@ def run(args) -> int:
         steps, errors = steps_from_records(
             path, camera, height_column=args.height_column, target_h_m=args.target_h_m,
             surface=args.surface, dem_path=args.dem, dem_datum=args.dem_datum, method=args.method,
-            eps_h_m=args.eps_h, threshold_m=args.threshold)
+            eps_h_m=args.eps_h, threshold_m=args.threshold,
+            group_column=None if args.group_by == "none" else args.group_by, calibrate=not args.no_calibration)
         for err in errors:
             print(f"{path}: skipped {err}", file=sys.stderr)
     elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):
@@ -104,7 +115,14 @@ def run(args) -> int:
     ok = int((steps.ground.status == 0).sum())
     if args.out:
         print(f"wrote {args.out}: {len(steps)} steps ({ok} located) on timeline(s) "
-              f"{', '.join(steps.timelines)}")
+              f"{', '.join(steps.timelines)}" + (f"; flights {', '.join(steps.groups)}, one scene origin each"
+                                                 if steps.multi else ""))
+        if steps.outlier is not None and steps.outlier.any():
+            bad = [steps.labels[k] for k in np.flatnonzero(steps.outlier)]
+            print(f"outliers (median / MAD of the horizontal error to {steps.reference}, per flight): "
+                  f"{len(bad)}: {', '.join(bad[:20])}{' ...' if len(bad) > 20 else ''}")
+        if steps.calibration is not None:
+            print(steps.calibration["note"])
     if args.serve:
         url = serve_web(args.grpc_port, args.web_port)
         print(f"web viewer: {url}  (Ctrl-C to stop)", flush=True)

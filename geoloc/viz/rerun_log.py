@@ -5,6 +5,10 @@ ENU frame); this module only lays them out as rerun entities, on the
 timelines of the steps (``time`` in seconds and ``frame`` for a simulated
 flight, ``record`` for flight-test records), and adds a default blueprint.
 
+With several flights (records grouped by ``table``), every ``world/...``, ``map/...``
+and ``plot/...`` entity below is per flight (``world/T3/ned``, ``map/T4/track``), each
+in its own flight's scene frame; ``series/`` and ``log/`` stay shared.
+
 Entities (all positions in the scene's ENU frame, metres):
 
 ==========================================  =============================================
@@ -20,6 +24,9 @@ Entities (all positions in the scene's ENU frame, metres):
 ``world/target``, ``world/truth``,          located, reference and published positions
 ``world/published``
 ``world/track``, ``world/footprint``        static: aircraft track and all located targets
+``world/current``                           Transform3D at the current hit (the 3D eye tracks it)
+``plot/*``                                  offline 2D plot, (east, -north) metres: targets,
+                                            references, error arrows, outliers, current step
 ``world/dem``                               static DEM mesh (when a DEM is used)
 ``world/iterations``                        H_n on the line of sight and the DEM below it
 ``map/*``                                   the same points as GeoPoints (map view)
@@ -27,11 +34,15 @@ Entities (all positions in the scene's ENU frame, metres):
 ``series/gimbal/*_deg``                     outer (roll) and inner (pitch) gimbal angles
 ``series/range/slant_range_m``              optical centre to located target
 ``series/height/target_h_m``                ellipsoidal height of the located target
-``series/error/*_m``                        horizontal error against truth / published
+``series/error/*_m``                        horizontal error against truth / published, and
+                                            components north, east, up, along, across
+``series/outlier/flag``                     robust outlier flags (0 / 1)
+``series/calibration/*_m``                  error to truth before / after calibration
 ``series/ellipsoid_model/*_m``              the ellipsoid model's error (scan over a DEM)
 ``series/cep/*_m``                          per-step Monte Carlo CEP (optional)
 ``series/dem/evaluations``                  DEM evaluations of each ray
 ``convergence/H_minus_h_m``                 BarChart of H_n - h_n over the iterations
+``log/record``, ``log/outliers``            TextLog: each step's label; one note per outlier
 ``log/status``                              TextLog of steps without a ground point
 ==========================================  =============================================
 
@@ -79,37 +90,66 @@ def main_timeline(steps: LogSteps) -> str:
     return "time" if "time" in steps.timelines else next(iter(steps.timelines))
 
 
+#: Error component series (``series/error/<name>``) drawn together in one view.
+COMPONENT_SERIES = ("north_m", "east_m", "up_m", "along_m", "across_m")
+
+
+def _ts(origin, name, contents=None):
+    kw = {"contents": contents} if contents is not None else {}
+    return rrb.TimeSeriesView(origin=origin, name=name, **kw)
+
+
 def blueprint(steps: LogSteps) -> rrb.Blueprint:
-    """Default layout: 3D scene and map on the left, time series and convergence on the right."""
+    """Default layout: per flight a 3D scene following the current hit and a 2D target / truth plot
+    (tabs when there are several flights), the map, the record log; the time series on the right,
+    heading apart from pitch and roll."""
     series = [
-        rrb.TimeSeriesView(origin="/series/attitude", name="Attitude [deg]"),
-        rrb.TimeSeriesView(origin="/series/gimbal", name="Gimbal angles [deg]"),
-        rrb.TimeSeriesView(origin="/series/range", name="Slant range [m]"),
-        rrb.TimeSeriesView(origin="/series/height", name="Target height [m]"),
+        _ts("/series/attitude", "Heading [deg]", ["$origin/heading_deg"]),
+        _ts("/series/attitude", "Pitch and roll [deg]", ["$origin/pitch_deg", "$origin/roll_deg"]),
+        _ts("/series/gimbal", "Gimbal angles [deg]"),
+        _ts("/series/range", "Slant range [m]"),
+        _ts("/series/height", "Target height [m]"),
     ]
     if steps.truth is not None or steps.published is not None:
-        series.append(rrb.TimeSeriesView(origin="/series/error", name="Horizontal error [m]"))
+        series.append(_ts("/series/error", "Horizontal error [m]",
+                          ["$origin/to_truth_m", "$origin/to_published_m", "$origin/horizontal_m"]))
+    if steps.components is not None:
+        series.append(_ts("/series/error", f"Error components to {steps.reference} [m]",
+                          [f"$origin/{c}" for c in COMPONENT_SERIES]))
+        series.append(_ts("/series/outlier", "Outlier flags (1 = outlier)"))
+    if steps.calibration is not None:
+        series.append(_ts("/series/calibration", "Before / after calibration: error to truth [m]"))
+    if any(k.startswith("series/klv/") for k in steps.extra_series):
+        series.append(_ts("/series/klv", "KLV corner residual [m], outlier"))
     if any(k.startswith("series/ellipsoid_model/") for k in steps.extra_series):
-        series.append(rrb.TimeSeriesView(origin="/series/ellipsoid_model",
-                                         name="Ellipsoid model: horizontal error [m]"))
+        series.append(_ts("/series/ellipsoid_model", "Ellipsoid model: horizontal error [m]"))
     if any(k.startswith("series/cep/") for k in steps.extra_series):
-        series.append(rrb.TimeSeriesView(origin="/series/cep", name="Monte Carlo CEP per step [m]"))
+        series.append(_ts("/series/cep", "Monte Carlo CEP per step [m]"))
     if steps.terrain is not None and steps.terrain.method != "ellipsoid":
-        series.append(rrb.TimeSeriesView(origin="/series/dem", name="DEM evaluations per ray"))
+        series.append(_ts("/series/dem", "DEM evaluations per ray"))
         series.append(rrb.BarChartView(origin="/convergence", name="H_n - h_n per iteration [m]"))
-    eye_position, eye_target = default_eye(steps)
-    left = rrb.Vertical(
-        rrb.Spatial3DView(origin="/world", name="Scene (local ENU, m)",
-                          eye_controls=rrb.archetypes.EyeControls3D(
-                              position=eye_position, look_target=eye_target, eye_up=[0.0, 0.0, 1.0]),
-                          line_grid=rrb.archetypes.LineGrid3D(visible=False)),
-        rrb.Horizontal(
-            rrb.MapView(origin="/map", name="Map (tiles need a network)", zoom=map_zoom(steps)),
-            rrb.TextDocumentView(origin="/info", name="About"),
-            column_shares=[2, 1],
-        ),
-        row_shares=[3, 1],
-    )
+    views3d, views2d = [], []
+    for g in steps.groups:
+        root = "/" + steps.root(g)
+        title = f"{g}: " if steps.multi else ""
+        eye_position, eye_target = default_eye(steps, g)
+        views3d.append(rrb.Spatial3DView(
+            origin=root, name=f"{title}scene (local ENU, m), following the current hit",
+            eye_controls=rrb.archetypes.EyeControls3D(position=eye_position, look_target=eye_target,
+                                                      eye_up=[0.0, 0.0, 1.0], tracking_entity=f"{root}/current"),
+            line_grid=rrb.archetypes.LineGrid3D(visible=False)))
+        if steps.components is not None or steps.truth is not None or steps.published is not None:
+            views2d.append(rrb.Spatial2DView(origin="/" + steps.root(g, "plot"),
+                                             name=f"{title}targets and {steps.reference or 'reference'} "
+                                             "(east, north m; offline)"))
+    scene = views3d[0] if len(views3d) == 1 else rrb.Tabs(*views3d)
+    bottom = []
+    if views2d:
+        bottom.append(views2d[0] if len(views2d) == 1 else rrb.Tabs(*views2d))
+    bottom.append(rrb.Tabs(rrb.TextLogView(origin="/log", name="Records and annotations"),
+                           rrb.MapView(origin="/map", name="Map (tiles need a network)", zoom=map_zoom(steps)),
+                           rrb.TextDocumentView(origin="/info", name="About")))
+    left = rrb.Vertical(scene, rrb.Horizontal(*bottom), row_shares=[3, 2])
     return rrb.Blueprint(
         rrb.Horizontal(left, rrb.Grid(*series, grid_columns=2), column_shares=[1, 1]),
         rrb.TimePanel(timeline=main_timeline(steps), state="collapsed"),
@@ -119,15 +159,18 @@ def blueprint(steps: LogSteps) -> rrb.Blueprint:
     )
 
 
-def default_eye(steps: LogSteps):
+def default_eye(steps: LogSteps, group=None):
     """3D view camera: behind and to the side of the track, above it, looking at the scene's middle.
 
-    The middle is halfway between the median aircraft position and the median target;
-    the eye stands back by 0.6 times the scene's extent, on the side away from the
-    line of sight and behind the aircraft, at 0.4 times the extent above the middle.
+    The middle is halfway between the median aircraft position and the median target
+    (of flight ``group``, default the first); the eye stands back by 0.6 times the
+    scene's extent, on the side away from the line of sight and behind the aircraft,
+    at 0.4 times the extent above the middle.
     """
-    ac = steps.aircraft_enu
-    tgt = steps.target_enu
+    g = steps.groups[0] if group is None else group
+    m = steps.group_of == g
+    ac = steps.aircraft_enu[m]
+    tgt = steps.target_enu[m]
     ok = np.all(np.isfinite(tgt), axis=-1)
     a = np.median(ac, axis=0)
     t = np.median(tgt[ok], axis=0) if np.any(ok) else a - np.array([0.0, 0.0, 10_000.0])
@@ -136,7 +179,7 @@ def default_eye(steps: LogSteps):
     extent = max(float(np.max(np.linalg.norm((pts - mid)[:, :2], axis=-1))), 5_000.0)
     side = a[:2] - t[:2]
     side = side / (np.linalg.norm(side) or 1.0)
-    psi = float(np.median(np.broadcast_to(steps.pose.heading, (len(steps),))))
+    psi = float(np.median(np.broadcast_to(steps.pose.heading, (len(steps),))[m]))
     fwd = np.array([np.sin(psi), np.cos(psi)])  # ENU (east, north) of the heading
     back = 0.8 * side - 0.6 * fwd
     back = back / (np.linalg.norm(back) or 1.0)
@@ -160,90 +203,120 @@ def _aircraft_mesh():
 
 
 def info_markdown(steps: LogSteps) -> str:
-    e = steps.enu
     lines = [f"**{steps.name}**", "", *[f"- {n}" for n in steps.notes],
-             f"- camera: {steps.camera.name or 'unnamed'} (fx = {as_sensor(steps.camera).lens.fx:g} px)",
-             f"- scene origin (ENU): {np.rad2deg(e.lat0):.3f} N, {np.rad2deg(e.lon0):.3f} E, "
-             f"{e.h0:.0f} m (ellipsoidal); X east, Y north, Z up, metres",
-             f"- timelines: {', '.join(steps.timelines)}",
-             "", f"Frames: world/{' / '.join(steps.chain.frames[1:])}, "
-             "each a Transform3D equal to the hop of the sensor's frame graph ([Q17] eq. 4-7)."]
+             f"- camera: {steps.camera.name or 'unnamed'} (fx = {as_sensor(steps.camera).lens.fx:g} px)"]
+    for g in steps.groups:
+        e = steps.enu_for(g)
+        lines.append(f"- scene origin (ENU){' of ' + g if steps.multi else ''}: {np.rad2deg(e.lat0):.3f} N, "
+                     f"{np.rad2deg(e.lon0):.3f} E, {e.h0:.0f} m (ellipsoidal); X east, Y north, Z up, metres")
+    lines.append(f"- timelines: {', '.join(steps.timelines)}; each step's label is in the *Records* log")
+    if steps.components is not None:
+        lines.append(f"- error components: computed minus {steps.reference}, north / east / up in the "
+                     f"{steps.reference} point's local frame, along / across the local track (right +)")
+    lines += ["", f"Frames: {steps.root(steps.groups[0])}/{' / '.join(steps.chain.frames[1:])}, "
+              "each a Transform3D equal to the hop of the sensor's frame graph ([Q17] eq. 4-7)."]
+    if steps.multi:
+        lines.append("Each flight has its own entity tree (world/<flight>, plot/<flight>, map/<flight>) "
+                     "and scene origin: they are hundreds of km apart.")
     return "\n".join(lines)
 
 
 def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float = 200.0) -> None:
     """Log every entity of a recording to ``rec`` (see the module docstring for the layout)."""
     n = len(steps)
-    idx = _index(steps)
     f32 = np.float32
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log("info", rr.TextDocument(info_markdown(steps), media_type=rr.MediaType.MARKDOWN), static=True)
-
-    # ---------------------------------------------------------------- frames
     T = steps.hop_transforms()
     paths = steps.entity_paths()
-    for name, path in paths.items():
-        Tn = np.broadcast_to(T[name], (n, 4, 4))
-        cols = {"mat3x3": Tn[:, :3, :3]}
-        if name == "ned" or np.any(Tn[:, :3, 3]):
-            cols["translation"] = Tn[:, :3, 3]
-        rec.send_columns(path, indexes=idx, columns=rr.Transform3D.columns(**cols))
-        rec.log(path, rr.TransformAxes3D(axis_length=AXIS_LENGTH_M.get(name, 2000.0)), static=True)
     lens = as_sensor(steps.camera).lens
-    rec.log(paths["cam"], rr.Pinhole(
-        focal_length=[float(lens.fx), float(lens.fy)], width=int(lens.width), height=int(lens.height),
-        # the lens's 0-based pixel centres (OpenCV's) -> rerun's continuous (u, v): +0.5
-        principal_point=[lens.cx + 0.5, lens.cy + 0.5],
-        # the optical frame of the lens: X right, Y down, Z the line of sight
-        camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=IMAGE_PLANE_M), static=True)
-    v, f = _aircraft_mesh()
-    rec.log("world/ned/body/aircraft", rr.Transform3D(scale=display_scale), static=True)
-    rec.log("world/ned/body/aircraft", rr.Mesh3D(vertex_positions=v, triangle_indices=f,
-                                                 albedo_factor=COLORS["aircraft"]), static=True)
-
-    # ------------------------------------------------------ points and lines
-    ac = steps.aircraft_enu
-    tgt = steps.target_enu
-    rec.log("world/track", rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=80.0),
-            static=True)
-    ok = np.all(np.isfinite(tgt), axis=-1)
-    rec.log("world/footprint", rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=150.0),
-            static=True)
-    # The line of sight ends at the target, or runs 200 km into the sky where there is none.
-    far = ac + 2.0e5 * steps.enu.vector_from_ecef(steps.los.direction_ecef)
-    end = np.where(ok[:, None], tgt, far)
-    rec.send_columns("world/los", indexes=idx, columns=rr.LineStrips3D.columns(
-        strips=list(np.stack([ac, end], axis=1).astype(f32))))
-    rec.log("world/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=60.0), static=True)
-    _points(rec, steps, "world/target", tgt, COLORS["target"], 500.0)
-    geo = {"target": (steps.ground.lat_deg, steps.ground.lon_deg)}
+    v_mesh, f_mesh = _aircraft_mesh()
+    ac_all = steps.aircraft_enu
+    tgt_all = steps.target_enu
+    refs = {}
     for key in ("truth", "published"):
         ref = getattr(steps, key)
-        if ref is None:
-            continue
-        p = steps.enu.from_geodetic(np.deg2rad(ref["lat_deg"]), np.deg2rad(ref["lon_deg"]), ref["h_m"])
-        _points(rec, steps, f"world/{key}", p, COLORS[key], 400.0)
-        geo[key] = (ref["lat_deg"], ref["lon_deg"])
+        if ref is not None:
+            refs[key] = steps.geodetic_enu(ref["lat_deg"], ref["lon_deg"], ref["h_m"])
+    labels = np.asarray(steps.labels, dtype=object)
+    grp = steps.group_of
 
-    # ------------------------------------------------------------------- map
-    lat_ac, lon_ac = np.rad2deg(steps.pose.lat), np.rad2deg(steps.pose.lon)
-    lat_ac = np.broadcast_to(lat_ac, (n,))
-    lon_ac = np.broadcast_to(lon_ac, (n,))
-    rec.log("map/track", rr.GeoLineStrings(lat_lon=[np.c_[lat_ac, lon_ac]], colors=COLORS["track"],
-                                           radii=rr.Radius.ui_points(2.0)), static=True)
-    rec.send_columns("map/aircraft", indexes=idx,
-                     columns=rr.GeoPoints.columns(positions=np.c_[lat_ac, lon_ac]))
-    rec.log("map/aircraft", rr.GeoPoints.from_fields(colors=COLORS["aircraft"],
-                                                     radii=rr.Radius.ui_points(6.0)), static=True)
-    for key, (la, lo) in geo.items():
-        good = np.isfinite(la) & np.isfinite(lo)
-        if np.any(good):
-            rec.send_columns(f"map/{key}", indexes=_index(steps, good),
-                             columns=rr.GeoPoints.columns(positions=np.c_[la[good], lo[good]]))
-            rec.log(f"map/{key}", rr.GeoPoints.from_fields(colors=COLORS[key],
-                                                           radii=rr.Radius.ui_points(5.0)), static=True)
+    for g in steps.groups:
+        m = grp == g
+        idx = _index(steps, m)
+        root = steps.root(g)
+        if steps.multi:
+            rec.log(root, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
 
-    # ---------------------------------------------------------------- series
+        # ------------------------------------------------------------ frames
+        for name, path in paths.items():
+            path = root + path[len("world"):]
+            Tn = np.broadcast_to(T[name], (n, 4, 4))[m]
+            cols = {"mat3x3": Tn[:, :3, :3]}
+            if name == "ned" or np.any(Tn[:, :3, 3]):
+                cols["translation"] = Tn[:, :3, 3]
+            rec.send_columns(path, indexes=idx, columns=rr.Transform3D.columns(**cols))
+            rec.log(path, rr.TransformAxes3D(axis_length=AXIS_LENGTH_M.get(name, 2000.0)), static=True)
+        rec.log(root + paths["cam"][len("world"):], rr.Pinhole(
+            focal_length=[float(lens.fx), float(lens.fy)], width=int(lens.width), height=int(lens.height),
+            # the lens's 0-based pixel centres (OpenCV's) -> rerun's continuous (u, v): +0.5
+            principal_point=[lens.cx + 0.5, lens.cy + 0.5],
+            # the optical frame of the lens: X right, Y down, Z the line of sight
+            camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=IMAGE_PLANE_M), static=True)
+        body = root + paths["body"][len("world"):]
+        rec.log(f"{body}/aircraft", rr.Transform3D(scale=display_scale), static=True)
+        rec.log(f"{body}/aircraft", rr.Mesh3D(vertex_positions=v_mesh, triangle_indices=f_mesh,
+                                              albedo_factor=COLORS["aircraft"]), static=True)
+
+        # -------------------------------------------------- points and lines
+        ac, tgt = ac_all[m], tgt_all[m]
+        rec.log(f"{root}/track", rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=80.0),
+                static=True)
+        ok = np.all(np.isfinite(tgt), axis=-1)
+        rec.log(f"{root}/footprint", rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=150.0),
+                static=True)
+        # The line of sight ends at the target, or runs 200 km into the sky where there is none.
+        d_enu = steps.enu_for(g).vector_from_ecef(np.broadcast_to(steps.los.direction_ecef, (n, 3))[m])
+        end = np.where(ok[:, None], tgt, ac + 2.0e5 * d_enu)
+        rec.send_columns(f"{root}/los", indexes=idx, columns=rr.LineStrips3D.columns(
+            strips=list(np.stack([ac, end], axis=1).astype(f32))))
+        rec.log(f"{root}/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=60.0), static=True)
+        _points(rec, steps, f"{root}/target", tgt_all, COLORS["target"], 500.0, m, labels)
+        for key, p in refs.items():
+            _points(rec, steps, f"{root}/{key}", p, COLORS[key], 400.0, m)
+        # the entity the 3D view's eye tracks: a frame at the current hit (the last hit where a step has none)
+        cur = m & np.all(np.isfinite(tgt_all), axis=-1)
+        if np.any(cur):
+            rec.send_columns(f"{root}/current", indexes=_index(steps, cur),
+                             columns=rr.Transform3D.columns(translation=tgt_all[cur]))
+            rec.log(f"{root}/current", rr.TransformAxes3D(axis_length=300.0), static=True)
+
+        # ---------------------------------------------------- 2D plot, offline
+        _plot2d(rec, steps, g, m, refs, labels)
+
+        # --------------------------------------------------------------- map
+        mroot = steps.root(g, "map")
+        lat_ac = np.broadcast_to(np.rad2deg(steps.pose.lat), (n,))[m]
+        lon_ac = np.broadcast_to(np.rad2deg(steps.pose.lon), (n,))[m]
+        rec.log(f"{mroot}/track", rr.GeoLineStrings(lat_lon=[np.c_[lat_ac, lon_ac]], colors=COLORS["track"],
+                                                    radii=rr.Radius.ui_points(2.0)), static=True)
+        rec.send_columns(f"{mroot}/aircraft", indexes=idx,
+                         columns=rr.GeoPoints.columns(positions=np.c_[lat_ac, lon_ac]))
+        rec.log(f"{mroot}/aircraft", rr.GeoPoints.from_fields(colors=COLORS["aircraft"],
+                                                              radii=rr.Radius.ui_points(6.0)), static=True)
+        geo = {"target": (steps.ground.lat_deg, steps.ground.lon_deg)}
+        for key in refs:
+            ref = getattr(steps, key)
+            geo[key] = (np.asarray(ref["lat_deg"], float), np.asarray(ref["lon_deg"], float))
+        for key, (la, lo) in geo.items():
+            good = m & np.isfinite(la) & np.isfinite(lo)
+            if np.any(good):
+                rec.send_columns(f"{mroot}/{key}", indexes=_index(steps, good),
+                                 columns=rr.GeoPoints.columns(positions=np.c_[la[good], lo[good]]))
+                rec.log(f"{mroot}/{key}", rr.GeoPoints.from_fields(colors=COLORS[key],
+                                                                   radii=rr.Radius.ui_points(5.0)), static=True)
+
+    # -------------------------------------------------------------- series
     p = steps.pose
     d = np.rad2deg
     series = {
@@ -258,6 +331,14 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
         series["series/error/to_truth_m"] = steps.truth["error_m"]
     if steps.published is not None:
         series["series/error/to_published_m"] = steps.published["error_m"]
+    if steps.components is not None:
+        series["series/error/horizontal_m"] = steps.components["horizontal_m"]
+        for c in COMPONENT_SERIES:
+            series[f"series/error/{c}"] = steps.components[c]
+        series["series/outlier/flag"] = steps.outlier.astype(float)
+    if steps.calibration is not None:
+        for c in ("before_m", "after_m", "after_along_m", "after_across_m"):
+            series[f"series/calibration/{c}"] = steps.calibration[c]
     series.update(steps.extra_series)
     if steps.terrain is not None and steps.terrain.method != "ellipsoid":
         series["series/dem/evaluations"] = steps.terrain.dem_evaluations.astype(float)
@@ -267,6 +348,22 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
         if np.any(good):
             rec.send_columns(path, indexes=_index(steps, good),
                              columns=rr.Scalars.columns(scalars=values[good]))
+
+    # ------------------------------------------- labels and annotations
+    flag = steps.outlier if steps.outlier is not None else np.zeros(n, bool)
+    text = [f"{labels[k]}" + (f" ({grp[k]})" if steps.multi else "") + (" - outlier" if flag[k] else "")
+            for k in range(n)]
+    rec.send_columns("log/record", indexes=_index(steps), columns=rr.TextLog.columns(
+        text=text, level=["WARN" if f else "INFO" for f in flag]))
+    if np.any(flag):
+        hor = steps.components["horizontal_m"]
+        notes = []
+        for k in np.flatnonzero(flag):
+            mk = (grp == grp[k]) & np.isfinite(hor)
+            notes.append(f"{labels[k]}: outlier, horizontal error to {steps.reference} {hor[k]:.2f} m, "
+                         f"flight median {np.median(hor[mk]):.2f} m (median / MAD rule)")
+        rec.send_columns("log/outliers", indexes=_index(steps, flag),
+                         columns=rr.TextLog.columns(text=notes, level=["WARN"] * len(notes)))
 
     # ------------------------------------------------------ status messages
     st = np.asarray(steps.ground.status)
@@ -282,11 +379,54 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
         log_terrain(rec, steps, _index)
 
 
-def _points(rec, steps, path, pts, color, radius):
+def plot_east_north(steps: LogSteps, g, pts_enu) -> np.ndarray:
+    """(east, -north) of ENU points of flight ``g``: rerun's 2D view has y down, so north is up on screen."""
+    p = np.asarray(pts_enu, float)
+    return np.stack([p[..., 0], -p[..., 1]], axis=-1)
+
+
+def _plot2d(rec, steps: LogSteps, g, m, refs, labels) -> None:
+    """The offline 2D plot of flight ``g``: all targets and references (static), the error vectors
+    (reference -> computed), and the current step's pair (temporal); metres of the flight's ENU frame."""
+    root = steps.root(g, "plot")
+    tgt = steps.target_enu[m]
+    ok = np.all(np.isfinite(tgt), axis=-1)
+    lab = [str(x) for x in labels[m][ok]]
+    if not np.any(ok):
+        return
+    rec.log(f"{root}/targets", rr.Points2D(plot_east_north(steps, g, tgt[ok]), colors=COLORS["target"],
+                                           radii=2.0, labels=lab, show_labels=False), static=True)
+    if steps.outlier is not None and np.any(steps.outlier[m] & ok):
+        o = steps.outlier[m] & ok
+        rec.log(f"{root}/outliers", rr.Points2D(plot_east_north(steps, g, tgt[o]), colors=(255, 0, 255, 255),
+                                                radii=5.0, labels=[str(x) for x in labels[m][o]]), static=True)
+    ref_key = steps.reference or next(iter(refs), None)
+    for key, p in refs.items():
+        pk = p[m]
+        good = np.all(np.isfinite(pk), axis=-1)
+        rec.log(f"{root}/{key}", rr.Points2D(plot_east_north(steps, g, pk[good]), colors=COLORS[key], radii=2.0),
+                static=True)
+    if ref_key in refs:
+        r = refs[ref_key][m]
+        both = ok & np.all(np.isfinite(r), axis=-1)
+        o2 = plot_east_north(steps, g, r[both])
+        rec.log(f"{root}/errors", rr.Arrows2D(origins=o2, vectors=plot_east_north(steps, g, tgt[both]) - o2,
+                                              colors=COLORS["los"], radii=0.5), static=True)
+    cur = np.zeros(len(steps), bool)
+    cur[np.flatnonzero(m)[ok]] = True
+    rec.send_columns(f"{root}/current", indexes=_index(steps, cur), columns=rr.Points2D.columns(
+        positions=plot_east_north(steps, g, steps.target_enu[cur]), labels=lab))
+    rec.log(f"{root}/current", rr.Points2D.from_fields(colors=(255, 255, 255, 255), radii=4.0), static=True)
+
+
+def _points(rec, steps, path, pts, color, radius, mask=None, labels=None):
     good = np.all(np.isfinite(pts), axis=-1)
+    if mask is not None:
+        good &= mask
     if np.any(good):
+        kw = {"labels": [str(x) for x in np.asarray(labels, dtype=object)[good]]} if labels is not None else {}
         rec.send_columns(path, indexes=_index(steps, good),
-                         columns=rr.Points3D.columns(positions=pts[good].astype(np.float32)))
+                         columns=rr.Points3D.columns(positions=pts[good].astype(np.float32), **kw))
         rec.log(path, rr.Points3D.from_fields(colors=color, radii=radius), static=True)
 
 

@@ -8,7 +8,18 @@ read the recording back and compare it with these arrays.
 
 Scene origin: the convention of the viser scene (``geoloc.viz.scenario.enu_origin_for``):
 near the target of the first step (the published position if the records
-have one, else the located target), rounded to 0.001 deg and 100 m.
+have one, else the located target), rounded to 0.001 deg and 100 m. Records
+of several flights (the ``table`` column of [Q17]) get **one origin per
+flight** (:attr:`LogSteps.enus`), by the same rule on each flight's first step,
+and :mod:`geoloc.viz.rerun_log` gives each flight its own entity tree.
+
+Error analysis per step (:func:`add_error_analysis`): the error components of
+:func:`geoloc.analysis.accuracy.error_components` (computed minus the truth, else
+minus the published position; along / across the local track of
+:func:`geoloc.analysis.accuracy.track_azimuth_rad`), the robust outlier flags of
+:func:`geoloc.analysis.accuracy.robust_outliers` per flight, and for records with
+a surveyed truth the errors before and after the per-flight mounting calibration of
+:func:`geoloc.analysis.calibrate.calibrate_groups`.
 Conventions: ``docs/conventions.md``.
 """
 
@@ -67,6 +78,20 @@ class LogSteps:
         Plain-text description of the inputs (for the recording's info panel).
     extra_series : dict
         Further scalar series, entity path -> (n,) array (e.g. the ellipsoid model's error).
+    group : ndarray of str or None
+        Flight of each step (None: one flight); each flight has its own origin in ``enus``.
+    enus : dict or None
+        Flight -> scene origin (:class:`EnuFrame`); None: ``enu`` for every step.
+    components : dict or None
+        :func:`geoloc.analysis.accuracy.error_components` of each step against
+        ``reference`` (with ``along_m``, ``across_m``), and ``track_rad``.
+    reference : str
+        ``"truth"`` or ``"published"``: what ``components`` are measured against.
+    outlier : ndarray of bool or None
+        Robust outlier flags of the horizontal error, per flight.
+    calibration : dict or None
+        ``before_m``, ``after_m`` (horizontal error to truth before / after the per-flight
+        mounting fit), ``after_along_m``, ``after_across_m`` and ``note``.
     """
 
     kind: str
@@ -86,20 +111,70 @@ class LogSteps:
     terrain: TerrainSteps | None = None
     notes: list = field(default_factory=list)
     extra_series: dict = field(default_factory=dict)
+    group: np.ndarray | None = None
+    enus: dict | None = None
+    components: dict | None = None
+    reference: str = ""
+    outlier: np.ndarray | None = None
+    calibration: dict | None = None
 
     def __len__(self) -> int:
         return len(self.labels)
 
+    # ---------------------------------------------------------- flights
+    @property
+    def group_of(self) -> np.ndarray:
+        """Flight label of every step (``"all"`` without groups)."""
+        if self.group is None:
+            return np.array(["all"] * len(self), dtype=object)
+        return np.asarray(self.group, dtype=object)
+
+    @property
+    def groups(self) -> list:
+        """Flight labels in order of first appearance."""
+        return list(dict.fromkeys(self.group_of.tolist()))
+
+    @property
+    def multi(self) -> bool:
+        """More than one flight (then each has its own entity tree and origin)."""
+        return len(self.groups) > 1
+
+    def root(self, g: str, base: str = "world") -> str:
+        """Entity root of flight ``g``: ``world`` for one flight, ``world/<g>`` for several."""
+        return f"{base}/{g}" if self.multi else base
+
+    def enu_for(self, g: str) -> EnuFrame:
+        """Scene origin of flight ``g``."""
+        return self.enus[g] if self.enus else self.enu
+
+    def enu_of_step(self, k: int) -> EnuFrame:
+        return self.enu_for(self.group_of[k])
+
+    def _per_group(self, fn) -> np.ndarray:
+        """(n, 3) array filled flight by flight with ``fn(enu, mask)``."""
+        out = np.full((len(self), 3), np.nan)
+        grp = self.group_of
+        for g in self.groups:
+            m = grp == g
+            out[m] = fn(self.enu_for(g), m)
+        return out
+
     # ---------------------------------------------------------- derived, ENU
     @property
     def aircraft_enu(self) -> np.ndarray:
-        """Aircraft (optical centre) in the scene, (n, 3) [m]."""
-        return self.enu.from_ecef(self.los.origin_ecef)
+        """Aircraft (optical centre) in its flight's scene frame, (n, 3) [m]."""
+        o = np.broadcast_to(self.los.origin_ecef, (len(self), 3))
+        return self._per_group(lambda enu, m: enu.from_ecef(o[m]))
 
     @property
     def target_enu(self) -> np.ndarray:
-        """Located target in the scene, (n, 3) [m]; NaN where no hit."""
-        return self.enu.from_ecef(self.ground.ecef)
+        """Located target in its flight's scene frame, (n, 3) [m]; NaN where no hit."""
+        return self._per_group(lambda enu, m: enu.from_ecef(self.ground.ecef[m]))
+
+    def geodetic_enu(self, lat_deg, lon_deg, h_m) -> np.ndarray:
+        """Geodetic points (one per step) in their flight's scene frame, (n, 3) [m]."""
+        la, lo, h = (np.broadcast_to(np.asarray(v, float), (len(self),)) for v in (lat_deg, lon_deg, h_m))
+        return self._per_group(lambda enu, m: enu.from_geodetic(np.deg2rad(la[m]), np.deg2rad(lo[m]), h[m]))
 
     def hop_transforms(self) -> dict:
         """4x4 transform of each entity of the frame hierarchy relative to its parent, root side first.
@@ -108,7 +183,14 @@ class LogSteps:
         sensor's frame graph, re-expressed in the scene frame); every other
         frame: the graph's own hop T_parent_frame (mount, gimbal joints, camera).
         """
-        T_enu_ecef = rot.invert(rot.transform(self.enu.R_ecef_enu, self.enu.origin_ecef))
+        n = len(self)
+        T_enu_ecef = np.empty((n, 4, 4))
+        grp = self.group_of
+        for g in self.groups:
+            e = self.enu_for(g)
+            T_enu_ecef[grp == g] = rot.invert(rot.transform(e.R_ecef_enu, e.origin_ecef))
+        if not self.multi:
+            T_enu_ecef = T_enu_ecef[0]
         return {h.src: (T_enu_ecef @ h.T if h.dst == "ecef" else h.T) for h in self.chain.all_hops}
 
     def entity_paths(self) -> dict:
@@ -201,20 +283,25 @@ def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogS
                      f"{scn.mc_model_path.name}, seed {scn.mc_seed}")
     enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
     k = np.arange(n)
-    return LogSteps("flight", scn.name, {"time": ("duration", track.t), "frame": ("sequence", k)},
-                    [f"frame {i}" for i in k], camera, track.pose, chain, row, col, los, ground, enu,
-                    truth=truth, terrain=terrain, notes=notes, extra_series=extra)
+    steps = LogSteps("flight", scn.name, {"time": ("duration", track.t), "frame": ("sequence", k)},
+                     [f"frame {i}" for i in k], camera, track.pose, chain, row, col, los, ground, enu,
+                     truth=truth, terrain=terrain, notes=notes, extra_series=extra)
+    return add_error_analysis(steps)
 
 
 def steps_from_records(path, camera: Camera | None = None, *, height_column: str | None = None,
                        target_h_m: float | None = None, surface: str = "inflated", dem_path=None,
                        dem_datum: str = "egm96", method: str = "exact", eps_h_m=None,
-                       threshold_m=None) -> tuple[LogSteps, list]:
+                       threshold_m=None, group_column: str | None = "table",
+                       calibrate: bool = True) -> tuple[LogSteps, list]:
     """Geolocate every record of a flight-test CSV: one time step per record.
 
     Height source, first given wins: ``dem_path`` (method of :mod:`geoloc.surfaces.terrain`),
     ``target_h_m`` (one height), ``height_column``, else ``paper_height_m`` if the
     file has it. Errors are horizontal geodesic distances (:mod:`geoloc.workflows.replay`).
+    Flights: the ``group_column`` (default ``table``; ignored when absent), one scene
+    origin each. With a surveyed truth, a first-phase camera and a height (not a
+    DEM), ``calibrate`` adds the errors after the per-flight mounting fit.
 
     Returns
     -------
@@ -259,16 +346,109 @@ def steps_from_records(path, camera: Camera | None = None, *, height_column: str
     if recs.has("paper_lat_deg") and recs.has("paper_lon_deg"):
         published = {"lat_deg": recs.column("paper_lat_deg"), "lon_deg": recs.column("paper_lon_deg"),
                      "error_m": res.error_to_paper_m}
+    grp = None
+    if group_column is not None and group_column in recs.header:
+        grp = np.array(recs.text(group_column), dtype=object)
     if published is not None:
         ph = recs.column("paper_height_m") if recs.has("paper_height_m") else ground.h
         published["h_m"] = ph
-        enu = enu_origin(*_first_finite(published["lat_deg"], published["lon_deg"], ph))
+        olat, olon, oh = published["lat_deg"], published["lon_deg"], ph
     else:
-        enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
+        olat, olon, oh = ground.lat_deg, ground.lon_deg, ground.h
+    enus = None
+    if grp is not None:
+        enus = {}
+        for g in dict.fromkeys(grp.tolist()):
+            m = grp == g
+            enus[g] = enu_origin(*_first_finite(olat[m], olon[m], np.broadcast_to(oh, m.shape)[m]))
+        if len(enus) == 1:
+            grp, enus = None, None
+    enu = next(iter(enus.values())) if enus else enu_origin(*_first_finite(olat, olon, oh))
+    if grp is not None:
+        notes.append(f"flights ({group_column}): {', '.join(enus)}, each with its own scene origin")
     steps = LogSteps("records", Path(path).name, {"record": ("sequence", np.arange(len(recs)))},
                      recs.labels(), camera, pose, chain, row, col, los, ground, enu, truth=truth,
-                     published=published, terrain=terrain, notes=notes)
+                     published=published, terrain=terrain, notes=notes, group=grp, enus=enus)
+    if truth is not None:
+        truth["has_h"] = recs.has("truth_h_m")
+    add_error_analysis(steps, heading_deg=recs.column("heading_deg"))
+    if calibrate and truth is not None and dem_path is None and isinstance(camera, Camera):
+        steps.calibration = calibration_series(steps, recs, h, surface,
+                                               group_column if steps.group is not None else None)
+    elif calibrate and truth is not None:
+        steps.notes.append("calibration not logged: it needs a first-phase camera file and target heights "
+                           "(not a DEM or a sensor file)")
     return steps, list(recs.errors)
+
+
+def add_error_analysis(steps: LogSteps, heading_deg=None, outlier=None) -> LogSteps:
+    """Fill ``components``, ``reference`` and ``outlier`` of ``steps`` (see the module docstring).
+
+    The reference is the truth when there is one, else the published position;
+    its height is used only where it is known (a truth without ``truth_h_m``
+    gives horizontal components only). ``outlier``: flags to use instead of the
+    per-flight :func:`geoloc.analysis.accuracy.robust_outliers` of the horizontal error.
+    """
+    from geoloc.analysis.accuracy import (
+        error_components,
+        robust_outliers,
+        track_azimuth_rad,
+    )
+
+    ref, name = (steps.truth, "truth") if steps.truth is not None else (steps.published, "published")
+    if ref is None:
+        return steps
+    n = len(steps)
+    ac_lat = np.rad2deg(np.broadcast_to(steps.pose.lat, (n,)))
+    ac_lon = np.rad2deg(np.broadcast_to(steps.pose.lon, (n,)))
+    heading = np.deg2rad(heading_deg) if heading_deg is not None else np.broadcast_to(steps.pose.heading, (n,))
+    track = track_azimuth_rad(ac_lat, ac_lon, steps.group_of, heading)
+    ref_h = ref["h_m"] if ref.get("has_h", True) else np.full(n, np.nan)
+    comp = error_components(steps.ground.lat_deg, steps.ground.lon_deg, steps.ground.h, ref["lat_deg"],
+                            ref["lon_deg"], ref_h, track_heading_rad=track)
+    comp["track_rad"] = track
+    steps.components, steps.reference = comp, name
+    if outlier is None:
+        outlier = np.zeros(n, bool)
+        grp = steps.group_of
+        for g in steps.groups:
+            m = grp == g
+            outlier[m] = robust_outliers(comp["horizontal_m"][m])
+    steps.outlier = np.asarray(outlier, bool)
+    return steps
+
+
+def calibration_series(steps: LogSteps, recs, h, surface: str, group_column: str | None = None) -> dict:
+    """Errors to truth before and after the per-flight mounting fit (:func:`geoloc.analysis.calibrate.calibrate_groups`).
+
+    Each flight's records are located again with its calibrated camera, at the same
+    heights, and measured with :func:`geoloc.analysis.accuracy.error_components`
+    (horizontal, along and across the same track as before).
+    """
+    from geoloc.analysis.accuracy import error_components
+    from geoloc.analysis.calibrate import HeightTarget, calibrate_groups
+
+    grp = steps.group_of
+    report, cameras = calibrate_groups(recs, steps.camera, HeightTarget(np.broadcast_to(h, (len(recs),)), surface),
+                                       group_column)
+    n = len(steps)
+    after = {k: np.full(n, np.nan) for k in ("after_m", "after_along_m", "after_across_m")}
+    hh = np.broadcast_to(np.asarray(h, float), (n,))
+    for g in steps.groups:
+        idx = np.flatnonzero(grp == g)
+        cam = cameras[g]
+        los = line_of_sight(steps.pose.take(idx), cam, steps.row[idx], steps.col[idx], outside="extrapolate")
+        gp = intersect_los_height(los, hh[idx], surface)
+        c = error_components(gp.lat_deg, gp.lon_deg, gp.h, steps.truth["lat_deg"][idx], steps.truth["lon_deg"][idx],
+                             np.nan, track_heading_rad=steps.components["track_rad"][idx])
+        after["after_m"][idx] = c["horizontal_m"]
+        after["after_along_m"][idx] = c["along_m"]
+        after["after_across_m"][idx] = c["across_m"]
+    means = ", ".join(f"{g} {report['groups'][g]['mean_error_before_m']:.1f} -> "
+                      f"{report['groups'][g]['mean_error_after_m']:.1f} m" for g in steps.groups)
+    note = f"calibration (one mounting rotation per flight, in-sample): mean error to truth {means}"
+    steps.notes.append(note)
+    return {"before_m": steps.components["horizontal_m"].copy(), **after, "note": note, "report": report}
 
 
 def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96") -> tuple[LogSteps, list]:
@@ -284,18 +464,14 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     LogSteps, list of KlvError
     """
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
-    from geoloc.workflows.klv_replay import replay_klv
+    from geoloc.workflows.klv_replay import klv_pose, replay_klv
 
     dem = open_dem(dem_path, dem_datum) if dem_path is not None else None
     r = replay_klv(path, dem=dem, sensor=camera)
     c = r.columns
     if len(r) == 0:
         raise ValueError(f"{path}: no good packet ({len(r.errors)} bad)")
-    roll = np.nan_to_num(np.asarray(c["sensor_relative_roll_deg"], float))  # the corners need it, not the centre
-    pose = Pose.from_deg(c["sensor_lat_deg"], c["sensor_lon_deg"], c["sensor_h_m"], c["platform_heading_deg"],
-                         c["platform_pitch_deg"], c["platform_roll_deg"],
-                         angles_deg={"azimuth": c["sensor_relative_azimuth_deg"],
-                                     "elevation": c["sensor_relative_elevation_deg"], "sensor_roll": roll})
+    pose = klv_pose(c)
     sensor = r.sensor
     n = len(r)
     row, col = np.full(n, (sensor.rows + 1) / 2), np.full(n, (sensor.cols + 1) / 2)
@@ -317,4 +493,7 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     steps = LogSteps("klv", Path(path).name, {"time": ("duration", t), "packet": ("sequence", np.asarray(c["packet"]))},
                      [f"packet {k}" for k in c["packet"]], sensor, pose, sensor.frames(pose), row, col, los, ground,
                      enu, published=published, notes=notes, extra_series=extra)
+    # the replay's own flags (the same median / MAD rule, on its geodesic frame-centre residual)
+    add_error_analysis(steps, heading_deg=np.asarray(c["platform_heading_deg"], float),
+                       outlier=np.asarray(c["outlier"]).astype(bool))
     return steps, list(r.errors)

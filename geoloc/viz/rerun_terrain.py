@@ -6,7 +6,8 @@ The numbers come from :func:`geoloc.surfaces.terrain.intersect_dem` with ``trace
 the scene's ENU frame. Entities:
 
 * ``world/dem``: Mesh3D, static, vertex colours by height, cropped to the area
-  around the aircraft and targets;
+  around the aircraft and targets (records of several flights: ``world/<flight>/dem``
+  and ``world/<flight>/iterations``, each in its flight's scene frame);
 * ``world/iterations/on_los``: the points of the line of sight at each H_n;
   ``world/iterations/to_dem``: vertical segments from there to the DEM height h_n,
   orange where H_n - h_n > 0 (still above the terrain), blue where below;
@@ -139,23 +140,27 @@ def log_terrain(rec, steps, index) -> None:
     from geoloc.viz.rerun_style import COLORS
 
     ter = steps.terrain
-    enu = steps.enu
     n = len(steps)
-    lat = np.concatenate([np.broadcast_to(np.rad2deg(steps.pose.lat), (n,)), steps.ground.lat_deg])
-    lon = np.concatenate([np.broadcast_to(np.rad2deg(steps.pose.lon), (n,)), steps.ground.lon_deg])
-    if steps.truth is not None:
-        lat = np.concatenate([lat, steps.truth["lat_deg"]])
-        lon = np.concatenate([lon, steps.truth["lon_deg"]])
-    box_lat = (np.nanmin(lat) - CROP_MARGIN_DEG, np.nanmax(lat) + CROP_MARGIN_DEG)
-    box_lon = (np.nanmin(lon) - CROP_MARGIN_DEG, np.nanmax(lon) + CROP_MARGIN_DEG)
-    v, f, h = dem_mesh_enu(ter.dem, enu, box_lat, box_lon)
-    if len(f):
-        rec.log("world/dem", rr.Mesh3D(vertex_positions=v.astype(np.float32), triangle_indices=f,
-                                       vertex_colors=height_colors(h)), static=True)
+    grp = steps.group_of
+    for g in steps.groups:  # one mesh per flight, in that flight's scene frame (world/<flight>/dem)
+        m = grp == g
+        root = steps.root(g)
+        lat = np.concatenate([np.broadcast_to(np.rad2deg(steps.pose.lat), (n,))[m], steps.ground.lat_deg[m]])
+        lon = np.concatenate([np.broadcast_to(np.rad2deg(steps.pose.lon), (n,))[m], steps.ground.lon_deg[m]])
+        if steps.truth is not None:
+            lat = np.concatenate([lat, np.asarray(steps.truth["lat_deg"], float)[m]])
+            lon = np.concatenate([lon, np.asarray(steps.truth["lon_deg"], float)[m]])
+        box_lat = (np.nanmin(lat) - CROP_MARGIN_DEG, np.nanmax(lat) + CROP_MARGIN_DEG)
+        box_lon = (np.nanmin(lon) - CROP_MARGIN_DEG, np.nanmax(lon) + CROP_MARGIN_DEG)
+        v, f, h = dem_mesh_enu(ter.dem, steps.enu_for(g), box_lat, box_lon)
+        if len(f):
+            rec.log(f"{root}/dem", rr.Mesh3D(vertex_positions=v.astype(np.float32), triangle_indices=f,
+                                             vertex_colors=height_colors(h)), static=True)
+        if ter.method != "ellipsoid":
+            rec.log(f"{root}/iterations/on_los", rr.Points3D.from_fields(radii=120.0), static=True)
+            rec.log(f"{root}/iterations/to_dem", rr.LineStrips3D.from_fields(radii=40.0), static=True)
     if ter.method == "ellipsoid":
         return
-    rec.log("world/iterations/on_los", rr.Points3D.from_fields(radii=120.0), static=True)
-    rec.log("world/iterations/to_dem", rr.LineStrips3D.from_fields(radii=40.0), static=True)
     for k in range(n):
         H, hd = ter.H[k], ter.h_dem[k]
         good = np.isfinite(H) & np.isfinite(hd)
@@ -164,15 +169,16 @@ def log_terrain(rec, steps, index) -> None:
         idx = index(steps, one)
         if not np.any(good):
             continue
+        root = steps.root(grp[k])
         diff = (H - hd)[good]
         rec.send_columns("convergence/H_minus_h_m", indexes=idx, columns=rr.BarChart.columns(values=diff))
         r = steps_trace_points(steps, k)
         colors = np.where((diff > 0)[:, None], np.array(COLORS["above"], np.uint8),
                           np.array(COLORS["below"], np.uint8))
-        rec.send_columns("world/iterations/on_los", indexes=idx, columns=rr.Points3D.columns(
+        rec.send_columns(f"{root}/iterations/on_los", indexes=idx, columns=rr.Points3D.columns(
             positions=r["on_los"].astype(np.float32), colors=colors).partition([len(diff)]))
         strips = np.stack([r["on_los"], r["dem"]], axis=1).astype(np.float32)
-        rec.send_columns("world/iterations/to_dem", indexes=idx, columns=rr.LineStrips3D.columns(
+        rec.send_columns(f"{root}/iterations/to_dem", indexes=idx, columns=rr.LineStrips3D.columns(
             strips=list(strips), colors=colors).partition([len(diff)]))
 
 
@@ -186,5 +192,6 @@ def steps_trace_points(steps, k: int) -> dict:
     H, hd = ter.H[k], ter.h_dem[k]
     good = np.isfinite(H) & np.isfinite(hd)
     lat, lon = ter.lat[k][good], ter.lon[k][good]
-    return {"on_los": steps.enu.from_ecef(ter.ecef[k][good]),
-            "dem": steps.enu.from_geodetic(lat, lon, hd[good])}
+    enu = steps.enu_of_step(k)  # the step's flight's scene frame
+    return {"on_los": enu.from_ecef(ter.ecef[k][good]),
+            "dem": enu.from_geodetic(lat, lon, hd[good])}

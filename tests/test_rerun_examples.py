@@ -1,0 +1,35 @@
+"""The rerun examples this helper added, run as scripts with their printed figures checked.
+
+(``tests/test_examples.py::test_every_example_is_checked_somewhere`` looks for each example's file
+name in the ``test_*examples*.py`` modules: ``82_rerun_flight_test_debugger.py`` is run here;
+``72_accuracy_report.py`` is run by ``tests/test_report.py::test_example_72_prints_the_report``.)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+
+def test_example_82_prints_per_flight_figures(tmp_path):
+    import os
+    import re
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(root), HOME=str(tmp_path))
+    r = subprocess.run([sys.executable, str(root / "examples" / "82_rerun_flight_test_debugger.py"),
+                        str(tmp_path / "x.rrd")], cwd=root, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    got = re.findall(r"flight (T\d): origin ([0-9.]+) N ([0-9.]+) E .* along ([-+0-9.]+) m, across ([-+0-9.]+) m; "
+                     r"before ([0-9.]+) m, after calibration ([0-9.]+) m", r.stdout)
+    assert [g[0] for g in got] == ["T3", "T4"]
+    # origins 200 km apart, the first published points rounded (see test_rerun_log); docs/calibration.md:
+    # ~50 m before, 5.0 / 5.1 m after; the error is along track
+    assert got[0][1:3] == ("36.338", "78.858") and got[1][1:3] == ("35.574", "80.873")
+    for g, want_after in zip(got, (5.0, 5.1)):
+        assert float(g[3]) < -45 and abs(float(g[4])) < 2
+        assert 49 < float(g[5]) < 52 and float(g[6]) == pytest.approx(want_after, abs=0.1)
+    assert (tmp_path / "x.rrd").stat().st_size > 10_000
