@@ -24,6 +24,7 @@ from geoloc.sensors.lenses import (
     lens_from_opencv,
     lens_to_dict,
     project_nb,
+    unproject_map_nb,
     unproject_nb,
 )
 from geoloc.status import Status
@@ -468,3 +469,78 @@ def test_lens_dict_fov():
 def test_lens_dict_errors(data, pattern):
     with pytest.raises(ValueError, match=pattern):
         lens_from_dict(data, "sensor.toml")
+
+
+# --------------------------------------------------------------------------- the fast path's map
+def _nb_unproject_map_all(code, p, u, v):
+    out = np.empty((u.size, 3))
+    for i in range(u.size):
+        out[i, 0], out[i, 1], out[i, 2] = unproject_map_nb(code, p, u[i], v[i])
+    return out
+
+
+_nb_unproject_map_all = njit(_nb_unproject_map_all)
+
+
+@pytest.mark.parametrize("name", BROWN_LENSES)
+def test_map_unproject_equals_full_newton_and_opencv(name):
+    # the undistortion map + two Newton steps (the kernel's inverse) against the full iteration
+    # over a dense grid of the whole sensor, its edges and a margin off it (off the map: the
+    # full iteration), and against cv2.undistortPoints where OpenCV converged
+    lens = BROWN_LENSES[name]
+    p = lens.kernel_array()
+    assert p.size > len(PARAM_LAYOUT) and lens.kernel_array() is p  # built once, cached on the lens
+    u, v = sensor_grid(lens, 257, 193)
+    rng = np.random.default_rng(11)
+    u = np.concatenate([u, rng.uniform(-60, lens.width + 60, 4000), [np.nan, 1e9]])
+    v = np.concatenate([v, rng.uniform(-60, lens.height + 60, 4000), [0.0, 0.0]])
+    d_full = _nb_unproject_all(lens.code, lens.as_array(), u, v)
+    d_map = _nb_unproject_map_all(lens.code, np.array(p), u, v)
+    np.testing.assert_array_equal(np.isnan(d_map), np.isnan(d_full))
+    ok = ~np.isnan(d_full[:, 0])
+    # the same root: Newton's error after the second step is ~M e^2 with e ~1e-5 from the map,
+    # i.e. rounding; 1e-15 on unit vectors is ~5 ulps, 1e-12 px at these focal lengths
+    err = np.max(np.abs(d_map[ok] - d_full[ok]))
+    note(f"brown/{name} map + 2 Newton steps vs full Newton (unit vectors)", err)
+    assert err <= 1e-15
+    on = lens.in_image(u, v) & ok
+    xc, yc = cv_undistort(lens, u[on], v[on])
+    ur, vr = cv_project(lens, np.stack([xc, yc, np.ones_like(xc)], axis=-1))
+    conv = np.hypot(ur - u[on], vr - v[on]) < 1e-6
+    x, y = d_map[on, 0] / d_map[on, 2], d_map[on, 1] / d_map[on, 2]
+    assert np.max(np.hypot(lens.fx * (x - xc), lens.fy * (y - yc))[conv]) < 1e-4  # as the numpy path's test
+    # a plain as_array() vector (no map) is the full iteration exactly
+    np.testing.assert_array_equal(_nb_unproject_map_all(lens.code, lens.as_array(), u, v), d_full)
+
+
+# --------------------------------------------------------------------------- per-sample parameters
+def test_per_sample_parameters_equal_one_lens_per_sample():
+    # a lens whose parameters are arrays (Monte Carlo's draws) gives, element by element, what the
+    # scalar lens with that element's parameters gives (the oracle: one lens per sample), and a
+    # sample that is not a lens (fx <= 0, NaN) gives NaN / INVALID_INPUT, not an exception
+    rng = np.random.default_rng(12)
+    n = 40
+    draws = {"fx": MILD.fx + rng.normal(0, 5, n), "cy": MILD.cy + rng.normal(0, 2, n),
+             "k1": MILD.k1 + rng.normal(0, 0.01, n), "p2": MILD.p2 + rng.normal(0, 1e-4, n)}
+    draws["fx"][3] = -1.0
+    draws["cy"][5] = np.nan
+    batch = MILD.with_params(**draws)
+    assert batch.batched and not MILD.batched
+    u, v = rng.uniform(0, 1279, n), rng.uniform(0, 959, n)
+    d = batch.unproject(u, v)
+    dirs = random_dirs(MILD, n, rng, 0.8)
+    pu, pv, st = batch.project(dirs)
+    for k in range(n):
+        if k in (3, 5):
+            assert np.isnan(d[k]).all() and st[k] == Status.INVALID_INPUT and np.isnan(pu[k])
+            continue
+        one = MILD.with_params(**{name: float(a[k]) for name, a in draws.items()})
+        # the batch iterates until every sample's Newton step is < 1e-14, so a sample may take one
+        # step more than alone: rounding, 1e-15 on a unit vector (~5 ulps)
+        np.testing.assert_allclose(d[k], one.unproject(u[k], v[k]), rtol=0, atol=1e-15)
+        qu, qv, qs = one.project(dirs[k])
+        assert (pu[k], pv[k], st[k]) == (float(qu), float(qv), int(qs))
+    with pytest.raises(ValueError, match="per-sample"):
+        batch.as_array()
+    with pytest.raises(ValueError, match="lens field fx"):
+        MILD.with_params(fx=np.array(["a", "b"]))

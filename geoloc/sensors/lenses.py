@@ -57,6 +57,26 @@ parameter vector :meth:`Lens.as_array` (layout :data:`PARAM_LAYOUT`).
 The formulas live once, in the ``_*`` functions below that take arrays or
 scalars; numba compiles them for scalars.
 
+Undistortion map (the fast path's Brown inverse): :meth:`Lens.kernel_array` is
+:meth:`Lens.as_array` followed by a coarse map of the inverse over the sensor (as
+OpenCV's ``initUndistortRectifyMap``, but of normalised points; at most
+:data:`MAP_NODES` nodes a side, built once per lens by the full Newton inverse and
+cached on the lens). :func:`unproject_map_nb` interpolates the map bilinearly and
+refines the guess by two Newton steps; Newton converges quadratically, so from the
+map's ~1e-5 the second step leaves rounding only, the same root as the full
+iteration's to ~1e-16 (``tests/test_lenses.py`` holds it to :func:`unproject_nb`
+over the whole sensor). A pixel off the map, a guess the map does not have (a
+node where the inverse fails) or a second step above :data:`MAP_ACCEPT` falls back
+to the full iteration, so the result never depends on the map's accuracy.
+
+Per-sample parameters (Monte Carlo): every numeric field may be an array
+(``lens.with_params(cx=cx + draws)``); the numpy methods broadcast it over the
+batch, element by element. A sample whose parameters are not valid (fx or fy
+<= 0, a non-finite value) gives NaN directions (``unproject``) or
+``INVALID_INPUT`` (``project``) instead of an exception, as any batch function.
+Such a lens has no kernel vector (:meth:`Lens.as_array` refuses it): the fast
+path is for one lens.
+
 Status: ``project`` returns a :class:`geoloc.status.Status` per direction:
 ``OK``, ``BEHIND_CAMERA`` (z <= 0) or ``INVALID_INPUT`` (non-finite input).
 Like OpenCV, ``project`` does not flag directions far outside the field of view
@@ -91,6 +111,7 @@ __all__ = [
     "lens_from_opencv",
     "lens_to_dict",
     "project_nb",
+    "unproject_map_nb",
     "unproject_nb",
 ]
 
@@ -101,12 +122,23 @@ PINHOLE, BROWN, FISHEYE = 0, 1, 2  #: values of ``Lens.code``
 #: (indices 5, 6, 9, 10); unused slots are 0.
 PARAM_LAYOUT = ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
 _SLOT = {name: i for i, name in enumerate(PARAM_LAYOUT)}
+_N_SLOTS = len(PARAM_LAYOUT)
 
 _MAX_ITER = 50  # Newton iterations at most (5-8 are typical inside a sensor)
 _STEP_TOL = 1e-14  # stop when the Newton step (normalised coordinates / radians) is below this
 _ACCEPT_TOL = 1e-12  # converged if the last step is below this (Newton is quadratic: what is left is rounding)
 _TINY = 1e-300  # guards 0/0 at the optical axis (the ratio it guards is multiplied by 0 there)
 _HALF_PI = 0.5 * math.pi
+
+#: Most nodes a side of the undistortion map of :meth:`Lens.kernel_array` (64 x 64 x 2 floats:
+#: 64 kB, in cache however the pixels are scattered).
+MAP_NODES = 64
+#: Largest second Newton step (normalised) that :func:`unproject_map_nb` accepts. Newton's error
+#: after a step is about M e^2 with e the error before it and M = |f''| / 2|f'| (of order 1 inside a
+#: sensor): a second step below 1e-9 means the point after it is within ~1e-18 of the root, i.e.
+#: rounding. Larger (a poor guess): the full iteration decides.
+MAP_ACCEPT = 1e-9
+_HEADER = 5  # u0, v0, 1 / step, nodes along u, nodes along v (after the PARAM_LAYOUT slots)
 
 
 # ---------------------------------------------------------------------------
@@ -263,6 +295,44 @@ def unproject_nb(code, p, u, v):
     return _unit_nb(xt, yt)
 
 
+@njit(cache=True, error_model="numpy")
+def unproject_map_nb(code, p, u, v):
+    """:func:`unproject_nb` with the undistortion map of :meth:`Lens.kernel_array`, per element.
+
+    ``p`` is :meth:`Lens.kernel_array` (or a plain :meth:`Lens.as_array`, then this is
+    :func:`unproject_nb`). For a Brown lens inside the map: the bilinear guess, two Newton
+    steps, and the same fold tests as the full iteration (det J > 0, R > 0); elsewhere, or if
+    the second step is above :data:`MAP_ACCEPT`, the full iteration.
+    """
+    n0 = _N_SLOTS
+    if code == BROWN and p.shape[0] > n0:
+        xt, yt = _from_pixel_nb(p, u, v)
+        nu, nv = int(p[n0 + 3]), int(p[n0 + 4])
+        gu = (u - p[n0]) * p[n0 + 2]
+        gv = (v - p[n0 + 1]) * p[n0 + 2]
+        if 0.0 <= gu < nu - 1 and 0.0 <= gv < nv - 1:  # False for NaN
+            i, j = int(gv), int(gu)
+            fu, fv = gu - j, gv - i
+            k = n0 + _HEADER + 2 * (i * nu + j)
+            k2 = k + 2 * nu
+            x = ((1.0 - fv) * ((1.0 - fu) * p[k] + fu * p[k + 2])
+                 + fv * ((1.0 - fu) * p[k2] + fu * p[k2 + 2]))
+            y = ((1.0 - fv) * ((1.0 - fu) * p[k + 1] + fu * p[k + 3])
+                 + fv * ((1.0 - fu) * p[k2 + 1] + fu * p[k2 + 3]))
+            if math.isfinite(x) and math.isfinite(y):
+                xd, yd, radial, d_radial = _brown_distort_nb(p, x, y)
+                dx, dy, det = _brown_newton_step_nb(p, x, y, xd, yd, radial, d_radial, xt, yt)
+                x -= dx
+                y -= dy
+                xd, yd, radial, d_radial = _brown_distort_nb(p, x, y)
+                dx, dy, det = _brown_newton_step_nb(p, x, y, xd, yd, radial, d_radial, xt, yt)
+                x -= dx
+                y -= dy
+                if abs(dx) + abs(dy) <= MAP_ACCEPT and det > 0.0 and radial > 0.0:
+                    return _unit_nb(x, y)
+    return unproject_nb(code, p, u, v)
+
+
 # ---------------------------------------------------------------------------
 # Validation helpers
 
@@ -277,6 +347,18 @@ def _real(field, value, positive=False):
     if not (ok and math.isfinite(value) and (value > 0 or not positive)):
         raise _bad(field, value, "must be a finite number > 0" if positive else "must be a finite number")
     return value
+
+
+def _real_array(field, value):
+    """A per-sample parameter: a float64 array of real numbers (its elements' validity is per sample)."""
+    a = np.asarray(value)
+    if a.dtype == bool or not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        raise _bad(field, value, "must be a number or an array of numbers")
+    return a.astype(float)
+
+
+def _is_batch(value) -> bool:
+    return isinstance(value, (np.ndarray, list, tuple)) and np.ndim(value) > 0
 
 
 def _count(field, value):
@@ -322,10 +404,12 @@ class Lens:
     def __post_init__(self):
         if type(self) is Lens:
             raise TypeError("Lens is the common base; use PinholeLens, BrownLens or FisheyeLens")
-        for name in ("fx", "fy"):
-            object.__setattr__(self, name, _real(name, getattr(self, name), positive=True))
-        for name in ("cx", "cy", "skew", *self.coefficients):
-            object.__setattr__(self, name, _real(name, getattr(self, name)))
+        for name in ("fx", "fy", "cx", "cy", "skew", *self.coefficients):
+            value = getattr(self, name)
+            if _is_batch(value):  # per-sample parameters (Monte Carlo): validity is per element
+                object.__setattr__(self, name, _real_array(name, value))
+            else:
+                object.__setattr__(self, name, _real(name, value, positive=name in ("fx", "fy")))
         for name in ("width", "height"):
             object.__setattr__(self, name, _count(name, getattr(self, name)))
 
@@ -335,8 +419,17 @@ class Lens:
         """Named parameters: fx, fy, cx, cy, skew and the distortion coefficients."""
         return {name: getattr(self, name) for name in ("fx", "fy", "cx", "cy", "skew", *self.coefficients)}
 
+    @property
+    def batched(self) -> bool:
+        """True when some parameter is a per-sample array (see the module docstring)."""
+        return any(isinstance(v, np.ndarray) for v in self.params.values())
+
     def with_params(self, **changes) -> Lens:
-        """A copy with some of :attr:`params` changed (an unknown name raises ValueError)."""
+        """A copy with some of :attr:`params` changed (an unknown name raises ValueError).
+
+        A value may be an array (per-sample parameters, broadcasting over the batch of
+        :meth:`unproject` / :meth:`project`): how Monte Carlo perturbs the lens.
+        """
         unknown = sorted(set(changes) - set(self.params))
         if unknown:
             raise ValueError(f"{self.model} lens has no parameter(s) {unknown}; "
@@ -354,11 +447,64 @@ class Lens:
         return np.array([getattr(self, name) for name in self.coefficients], dtype=float)
 
     def as_array(self) -> np.ndarray:
-        """Parameter vector for :func:`project_nb` / :func:`unproject_nb` (layout :data:`PARAM_LAYOUT`)."""
+        """Parameter vector for :func:`project_nb` / :func:`unproject_nb` (layout :data:`PARAM_LAYOUT`).
+
+        Raises ValueError for a lens with per-sample parameters (the kernels take one lens).
+        """
+        if self.batched:
+            raise ValueError(f"{self.model} lens with per-sample parameter arrays has no kernel vector; "
+                             "use the numpy path (unproject / project)")
         p = np.zeros(len(PARAM_LAYOUT))
         for name, value in self.params.items():
             p[_SLOT[name]] = value
         return p
+
+    def kernel_array(self) -> np.ndarray:
+        """:meth:`as_array`, then (Brown) the undistortion map of :func:`unproject_map_nb`; cached.
+
+        Layout after the :data:`PARAM_LAYOUT` slots: u0, v0 (the map's first node, OpenCV
+        pixels), 1 / step (px), nodes along u, nodes along v, then the nodes' undistorted
+        normalised (x, y), row by row (NaN where the full inverse fails). The nodes run from
+        one step before the sensor's edge (u = -0.5) to one step past the far edge, at most
+        :data:`MAP_NODES` a side.
+        """
+        cached = self.__dict__.get("_kernel_array")
+        if cached is None:
+            cached = self.as_array()
+            if self.code == BROWN:
+                cached = np.concatenate([cached, self._undistort_map()])
+            cached.flags.writeable = False
+            self.__dict__["_kernel_array"] = cached  # frozen dataclass: cache beside the fields
+        return cached
+
+    def _undistort_map(self) -> np.ndarray:
+        step = max(self.width, self.height) / (MAP_NODES - 3)
+        nu = min(MAP_NODES, math.ceil((self.width + 2 * step) / step) + 1)
+        nv = min(MAP_NODES, math.ceil((self.height + 2 * step) / step) + 1)
+        u0, v0 = -0.5 - step, -0.5 - step
+        u, v = np.meshgrid(u0 + step * np.arange(nu), v0 + step * np.arange(nv))
+        d = self.unproject(u, v)
+        with np.errstate(all="ignore"):
+            xy = d[..., :2] / d[..., 2:]
+        return np.concatenate([[u0, v0, 1.0 / step, nu, nv], xy.reshape(-1)])
+
+    def _p(self):
+        """The :data:`PARAM_LAYOUT` slots for the numpy formulas: floats, or per-sample arrays."""
+        if not self.batched:
+            return self.as_array()
+        p = [0.0] * len(PARAM_LAYOUT)
+        for name, value in self.params.items():
+            p[_SLOT[name]] = value
+        return tuple(p)
+
+    def _invalid(self):
+        """Per-sample: True where the parameters are not a valid lens (False for a scalar lens)."""
+        if not self.batched:
+            return False
+        bad = ~(np.asarray(self.fx) > 0) | ~(np.asarray(self.fy) > 0)
+        for value in self.params.values():
+            bad = bad | ~np.isfinite(value)
+        return bad
 
     # -------------------------------------------------------------- geometry
     def project(self, dirs):
@@ -378,13 +524,14 @@ class Lens:
             ``Status.INVALID_INPUT`` (a non-finite component).
         """
         d = np.asarray(dirs, dtype=float)
-        finite = np.isfinite(d).all(axis=-1)
+        finite = np.isfinite(d).all(axis=-1) & ~self._invalid()
         front = finite & (d[..., 2] > 0)
-        p = self.as_array()
+        p = self._p()
         with np.errstate(all="ignore"):
             z = np.where(front, d[..., 2], np.nan)
             xd, yd = self._distort(p, d[..., 0] / z, d[..., 1] / z)
             u, v = _to_pixel(p, xd, yd)
+        u, v = np.where(front, u, np.nan), np.where(front, v, np.nan)
         status = np.where(front, Status.OK, np.where(finite, Status.BEHIND_CAMERA, Status.INVALID_INPUT))
         return u, v, status.astype(np.uint8)
 
@@ -402,11 +549,13 @@ class Lens:
             Unit directions; NaN where the inversion of the distortion does
             not converge to a valid point (see the module docstring).
         """
-        u, v = np.broadcast_arrays(np.asarray(u, dtype=float), np.asarray(v, dtype=float))
-        p = self.as_array()
+        bad = self._invalid()
+        u, v = np.broadcast_arrays(np.asarray(u, dtype=float), np.asarray(v, dtype=float), bad)[:2]
+        p = self._p()
         with np.errstate(all="ignore"):
             x, y, z = self._undistort(p, *_from_pixel(p, u, v))
-        return np.stack([x, y, z], axis=-1)
+        d = np.stack(np.broadcast_arrays(x, y, z), axis=-1)
+        return np.where(np.asarray(bad)[..., None], np.nan, d) if self.batched else d
 
     def in_image(self, u, v) -> np.ndarray:
         """True where (u, v) lies on the sensor: -0.5 <= u <= width - 0.5, -0.5 <= v <= height - 0.5."""
