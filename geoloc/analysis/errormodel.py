@@ -11,7 +11,9 @@ File format (``assets/scenarios/qiao2017_table1.toml`` is a complete example)::
 
     name = "..."
     [camera]            # the keys of geoloc.sensors.camera.Camera (pixel_pitch_m needed
-                        # for the image-centre error in micrometres)
+                        # for the image-centre error in micrometres), or the tables of a
+                        # sensor file ([camera.lens], [camera.gimbal] = roll-pitch,
+                        # [camera.mount], ...: docs/sensor_format.md), e.g. a Brown lens
     [nominal]           # lat_deg lon_deg h_m heading_deg pitch_deg roll_deg
                         # gimbal_roll_deg gimbal_pitch_deg
     [target]            # h_m (ellipsoidal), optional row/col (default CCD centre),
@@ -44,6 +46,13 @@ boresight_{x,y,z}_deg
 lever_arm_{x,y,z}_m``          the sensor's named mount / boresight / lever-arm
                                parameters (``FrameSensor.params``), perturbed
                                exactly: the sample's value is the file's plus the draw
+``fx_px fy_px``                the lens's focal lengths [px] (``FrameSensor.params``)
+``focal_length_px``            both focal lengths by the same draw (square pixels)
+``cx_px cy_px``                the lens's principal point (column, row) [px]
+``skew_px``                    the lens's skew K[0, 1] [px]
+``k1 k2 p1 p2 k3 k4 k5 k6``    the lens's distortion coefficients (Brown; a fisheye
+                               lens has k1..k4); each the lens's value plus the draw,
+                               per sample (``Lens.with_params`` with arrays)
 =============================  =====================================================
 """
 
@@ -57,6 +66,7 @@ import numpy as np
 
 from geoloc.frames.chain import Pose
 from geoloc.sensors.camera import Camera
+from geoloc.sensors.frame import FrameSensor
 from geoloc.tomlio import read_toml
 
 #: Pose fields of the [nominal] table, in Pose order, with their unit suffix.
@@ -91,6 +101,28 @@ ERROR_SOURCES = {
     "lever_arm_x_m": "sensor lever arm x (forward, body axes)",
     "lever_arm_y_m": "sensor lever arm y (right)",
     "lever_arm_z_m": "sensor lever arm z (down)",
+    # the lens's named parameters (geoloc.sensors.lenses.Lens.params), pixels or dimensionless
+    "fx_px": "lens focal length along the columns fx [px]",
+    "fy_px": "lens focal length along the rows fy [px]",
+    "focal_length_px": "lens focal length, fx and fy together [px]",
+    "cx_px": "lens principal point, column [px]",
+    "cy_px": "lens principal point, row [px]",
+    "skew_px": "lens skew K[0, 1] [px]",
+    "k1": "lens radial distortion k1",
+    "k2": "lens radial distortion k2",
+    "p1": "lens tangential distortion p1",
+    "p2": "lens tangential distortion p2",
+    "k3": "lens radial distortion k3",
+    "k4": "lens radial distortion k4 (Brown: rational denominator)",
+    "k5": "lens radial distortion k5 (rational denominator)",
+    "k6": "lens radial distortion k6 (rational denominator)",
+}
+
+#: Error source -> the lens parameters it moves (``Lens.params`` names; the draw adds to each).
+LENS_SOURCES = {
+    "fx_px": ("fx",), "fy_px": ("fy",), "focal_length_px": ("fx", "fy"),
+    "cx_px": ("cx",), "cy_px": ("cy",), "skew_px": ("skew",),
+    **{k: (k,) for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")},
 }
 
 DISTRIBUTIONS = ("normal", "uniform")
@@ -143,7 +175,9 @@ class ErrorModel:
     Attributes
     ----------
     name : str
-    camera : Camera
+    camera : Camera or FrameSensor
+        The [camera] table: a first-phase camera, or a sensor (a lens of any model on the
+        ``roll-pitch`` gimbal, whose two angles the [nominal] table gives).
     nominal : dict
         The [nominal] table: ``POSE_KEYS`` -> value (degrees, metres).
     target_h_m : float
@@ -162,7 +196,7 @@ class ErrorModel:
     """
 
     name: str
-    camera: Camera
+    camera: Camera | FrameSensor
     nominal: dict
     target_h_m: float
     row: float
@@ -190,7 +224,7 @@ class ErrorModel:
         for k in ("camera", "nominal", "target"):
             if k not in data:
                 raise ValueError(f"{source}: missing table [{k}]")
-        camera = Camera.from_dict(dict(data["camera"]), source=f"{source} [camera]")
+        camera = camera_from_table(data["camera"], f"{source} [camera]")
 
         nom = data["nominal"]
         _no_unknown(nom, set(POSE_KEYS), f"{source} [nominal]")
@@ -217,8 +251,9 @@ class ErrorModel:
             if name not in ERROR_SOURCES:
                 raise ValueError(f"{where}: unknown error source; known: {sorted(ERROR_SOURCES)}")
             errors[name] = _distribution(spec, where)
+        check_lens_sources(errors, camera, source)
         needs_pitch = any(errors.get(k) is not None for k in ("image_centre_x_um", "image_centre_y_um"))
-        if needs_pitch and camera.pixel_pitch_m is None:
+        if needs_pitch and getattr(camera, "pixel_pitch_m", None) is None:
             raise ValueError(f"{source} [camera]: pixel_pitch_m is required for the image-centre "
                              "error in micrometres")
 
@@ -250,7 +285,18 @@ class ErrorModel:
             errors.pop(name, None)
         else:
             errors[name] = dist
+        check_lens_sources(errors, self.camera, self.source)
         return _replace(self, errors=errors)
+
+    def with_camera(self, camera) -> "ErrorModel":
+        """A copy with another camera or sensor (``geoloc montecarlo --sensor FILE``).
+
+        The sensor must use the ``roll-pitch`` gimbal (the [nominal] table's two angles) and
+        have every lens parameter the error sources name.
+        """
+        check_camera(camera, self.source)
+        check_lens_sources(self.errors, camera, self.source)
+        return _replace(self, camera=camera)
 
     def without_dem(self) -> "ErrorModel":
         return _replace(self, dem=None)
@@ -284,13 +330,58 @@ class ErrorModel:
         return out
 
 
-def _to_si(name: str, camera: Camera) -> float:
-    """Factor from a source's edge unit to SI (rad, m) or pixels for the image centre."""
+def _to_si(name: str, camera) -> float:
+    """Factor from a source's edge unit to SI (rad, m) or pixels (image centre, lens)."""
     if name.endswith("_deg"):
         return math.pi / 180.0
     if name.endswith("_um"):
         return 1e-6 / camera.pixel_pitch_m  # micrometres on the CCD -> pixels
     return 1.0
+
+
+def camera_from_table(table, where: str):
+    """The [camera] table: a first-phase :class:`Camera`, or (with a ``lens`` table) a sensor."""
+    if not isinstance(table, dict):
+        raise ValueError(f"{where} = {table!r}: must be a table")
+    if "lens" not in table:
+        return Camera.from_dict(dict(table), source=where)
+    from geoloc.sensors.sensor_file import sensor_from_dict
+
+    sensor = sensor_from_dict(dict(table), source=where)
+    check_camera(sensor, where)
+    return sensor
+
+
+def check_camera(camera, where: str) -> None:
+    """A Monte Carlo camera: a :class:`Camera`, or a :class:`FrameSensor` on the roll-pitch gimbal."""
+    if isinstance(camera, Camera):
+        return
+    if not isinstance(camera, FrameSensor):
+        raise ValueError(f"{where}: camera {camera!r}: must be a Camera or a FrameSensor")
+    if tuple(camera.angle_names) != ("gimbal_roll", "gimbal_pitch"):
+        raise ValueError(f"{where}: gimbal = {camera.gimbal.name!r}: Monte Carlo's [nominal] table gives "
+                         "gimbal_roll_deg and gimbal_pitch_deg, so the sensor must use the roll-pitch gimbal")
+
+
+def lens_params(camera) -> dict:
+    """The lens's named parameters (``Lens.params``, OpenCV's 0-based cx, cy) of a camera or sensor."""
+    if isinstance(camera, Camera):
+        f = float(camera.focal_length_px)
+        return {"fx": f, "fy": f, "cx": camera.principal_col - 1.0, "cy": camera.principal_row - 1.0,
+                "skew": 0.0}
+    return dict(camera.lens.params)
+
+
+def check_lens_sources(errors: dict, camera, where: str) -> None:
+    """Every lens source must name a parameter of the camera's lens (k1 needs a distorted lens)."""
+    have = lens_params(camera)
+    for name in errors:
+        for p in LENS_SOURCES.get(name, ()):
+            if p not in have:
+                model = "pinhole" if isinstance(camera, Camera) else camera.lens.model
+                raise ValueError(f"{where} [errors] {name}: the camera's {model} lens has no parameter {p!r} "
+                                 f"(its parameters: {sorted(have)}); give a [camera.lens] table with a "
+                                 "lens model that has it, e.g. model = \"brown\"")
 
 
 def _replace(model: ErrorModel, **kw) -> ErrorModel:

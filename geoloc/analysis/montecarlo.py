@@ -16,6 +16,10 @@ chain, all samples in one vectorised call (no Python loop per sample):
   frame (it leaves the plane normal to the inner axis);
   both make ``R_cam_inner`` of :class:`geoloc.frames.chain.FrameChain`;
 * image-centre error: a pixel offset (micrometres / pixel pitch) on row and column;
+* the sensor's named parameters: mount, boresight and lever arm (per-sample rotations and
+  offsets of :class:`geoloc.sensors.frame.FrameSensor`), and the lens's (``fx_px``,
+  ``cx_px``, ``k1``, ...: a lens whose parameters are per-sample arrays,
+  :meth:`geoloc.sensors.lenses.Lens.with_params`, broadcasting over the chunk);
 * target height: the nominal height plus the terrain error, or a DEM.
 
 Statistics: mean and standard deviation of latitude, longitude and height, the
@@ -38,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from geoloc.analysis.errormodel import POSE_KEYS, ErrorModel
+from geoloc.analysis.errormodel import LENS_SOURCES, POSE_KEYS, ErrorModel
 from geoloc.analysis.streaming import STATS_KEYS, StreamingStats, cep_eq18, summary
 from geoloc.frames import rotations as rot
 from geoloc.frames.chain import FrameChain, Pose
@@ -191,6 +195,34 @@ def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True
     return pose, chain, row, col
 
 
+def perturbed_lens(lens, errors: dict):
+    """The lens with the samples' lens errors added: per-sample parameter arrays (or ``lens`` itself).
+
+    Parameters
+    ----------
+    lens : geoloc.sensors.lenses.Lens
+    errors : dict
+        Source -> ndarray (n,); the lens sources (:data:`geoloc.analysis.errormodel.LENS_SOURCES`,
+        pixels or dimensionless) add their draw to the lens's value; ``focal_length_px`` adds
+        the same draw to fx and fy.
+
+    Returns
+    -------
+    Lens
+        Its perturbed parameters are arrays (n,), broadcasting with the chunk's pixels and
+        poses (``Lens.unproject``); a sample whose draw makes no lens (fx <= 0) gets NaN and
+        ``INVALID_INPUT`` downstream.
+    """
+    changes = {}
+    for source, names in LENS_SOURCES.items():
+        d = errors.get(source)
+        if d is None:
+            continue
+        for name in names:
+            changes[name] = changes.get(name, getattr(lens, name)) + np.asarray(d, float)
+    return lens.with_params(**changes) if changes else lens
+
+
 def line_of_sight_hops(pose: Pose, camera, row, col, R_cam_inner=None, R_base_body=None) -> LineOfSight:
     """Line of sight of a batch with per-sample rotations, through the camera's sensor.
 
@@ -235,13 +267,19 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine:
     if engine == "chain":
         if any(errors.get(f"lever_arm_{a}_m") is not None for a in "xyz"):
             raise ValueError("lever_arm_*_m error sources need engine='hops' (the [Q17] chain has no lever arm)")
+        lens_drawn = sorted(k for k in errors if k in LENS_SOURCES)
+        if lens_drawn:
+            raise ValueError(f"lens error sources {lens_drawn} need engine='hops' (the chain's camera is "
+                             "one lens, not a batch)")
         pose, chain, row, col = perturbed_geometry(model, errors)
         los = line_of_sight(pose, model.camera, row, col, chain=chain)
     elif engine == "hops":
         pose, (Ri, Rb), row, col = perturbed_geometry(model, errors, build_chain=False, with_camera=False)
         lever = [errors.get(f"lever_arm_{a}_m") for a in "xyz"]
         extra = None if all(v is None for v in lever) else np.stack([_or(v, np.zeros(len(row))) for v in lever], -1)
-        s = dataclasses.replace(as_sensor(model.camera), R_base_extra=Rb, R_bore_extra=Ri, lever_extra_m=extra)
+        s = as_sensor(model.camera)
+        s = dataclasses.replace(s, lens=perturbed_lens(s.lens, errors), R_base_extra=Rb, R_bore_extra=Ri,
+                                lever_extra_m=extra)
         los = s.line_of_sight(row, col, pose, outside="extrapolate")
     else:
         raise ValueError(f"engine must be 'hops' or 'chain', got {engine!r}")

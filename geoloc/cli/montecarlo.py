@@ -33,6 +33,15 @@ def register(sub) -> None:
                    help="number of samples N (default 5000; 1e9 is accepted: the samples are "
                    "processed in chunks and their statistics streamed, in constant memory)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--sensor", "--camera", dest="sensor", default=None, metavar="FILE",
+                   help="sensor TOML (docs/sensor_format.md; a lens of any model on the roll-pitch "
+                   "gimbal) or first-phase camera TOML replacing the scenario's [camera] table")
+    p.add_argument("--error", action="append", default=[], metavar="SOURCE=DIST:VALUE",
+                   help="add or replace one error source of the scenario, in its [errors] unit: "
+                   "e.g. --error cx_px=normal:0.5 --error k1=normal:0.002 --error "
+                   "vibration_yaw_deg=uniform:0.01 (normal:SIGMA or uniform:MAX, optional :BIAS); "
+                   "lens sources: fx_px fy_px focal_length_px cx_px cy_px skew_px k1 k2 p1 p2 k3 k4 k5 k6; "
+                   "repeatable")
     p.add_argument("--out", default=None,
                    help="statistics JSON (single run) or output folder (with --sweep)")
     p.add_argument("--sweep", choices=["terrain", "dem", "both"], default=None,
@@ -93,6 +102,26 @@ def parse_angles(text: str) -> np.ndarray:
                          "STOP >= START) or a comma-separated list of degrees") from None
 
 
+def parse_error(text: str):
+    """``"cx_px=normal:0.5"`` / ``"k1=uniform:0.01:0.001"`` -> (source, Distribution), errors naming the text."""
+    from geoloc.analysis.errormodel import ERROR_SOURCES, Distribution
+
+    name, sep, spec = str(text).partition("=")
+    name = name.strip()
+    if not sep or name not in ERROR_SOURCES:
+        raise ValueError(f"--error {text!r}: expected SOURCE=DIST:VALUE with SOURCE one of {sorted(ERROR_SOURCES)}")
+    parts = spec.split(":")
+    try:
+        values = [float(x) for x in parts[1:]]
+    except ValueError:
+        values = []
+    if parts[0] not in ("normal", "uniform") or len(values) not in (1, 2) or not all(map(math.isfinite, values)) \
+            or values[0] < 0:
+        raise ValueError(f"--error {text!r}: expected {name}=normal:SIGMA or {name}=uniform:MAX "
+                         "(>= 0, in the source's unit), optionally :BIAS")
+    return name, Distribution(parts[0], values[0], values[1] if len(values) == 2 else 0.0)
+
+
 def _floats(text: str, name: str) -> np.ndarray:
     try:
         v = np.array([float(x) for x in text.split(",")])
@@ -113,6 +142,15 @@ def load_model(args) -> ErrorModel:
     if not scenario.is_file():
         raise FileNotFoundError(f"scenario file not found: {args.scenario}")
     model = ErrorModel.from_toml(scenario)
+    if getattr(args, "sensor", None):
+        from geoloc.sensors.sensor_file import load_camera_or_sensor
+
+        path = resolve_user_path(args.sensor)
+        if not path.is_file():
+            raise FileNotFoundError(f"--sensor file not found: {args.sensor}")
+        model = model.with_camera(load_camera_or_sensor(path))
+    for text in getattr(args, "error", []):
+        model = model.with_error(*parse_error(text))
     if args.no_dem:
         model = model.without_dem()
     if args.dem:
