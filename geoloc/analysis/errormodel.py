@@ -219,8 +219,10 @@ class ErrorModel:
     def from_dict(cls, data: dict, source: str = "error model", base_dir=None) -> "ErrorModel":
         """Build from the parsed TOML tables (see the module docstring)."""
         allowed = {"name", "description", "reference", "camera", "nominal", "target", "errors",
-                   "dem", "sweep"}
+                   "dem", "sweep", "kind"}
         _no_unknown(data, allowed, source)
+        if data.get("kind", "montecarlo") != "montecarlo":  # geoloc.workflows.scenario's dispatch key
+            raise ValueError(f"{source}: kind = {data['kind']!r}: this loader reads 'montecarlo' scenarios")
         for k in ("camera", "nominal", "target"):
             if k not in data:
                 raise ValueError(f"{source}: missing table [{k}]")

@@ -141,7 +141,9 @@ def load_model(args) -> ErrorModel:
     scenario = resolve_user_path(args.scenario)
     if not scenario.is_file():
         raise FileNotFoundError(f"scenario file not found: {args.scenario}")
-    model = ErrorModel.from_toml(scenario)
+    from geoloc.workflows.scenario import load_scenario
+
+    model = load_scenario(scenario, expect="montecarlo")
     if getattr(args, "sensor", None):
         from geoloc.sensors.sensor_file import load_camera_or_sensor
 
