@@ -54,6 +54,16 @@ def read(path, store=None):
 
 
 def scalars(data, path):
+    """(record, value) of a series; ``series/<rel>`` of a two-flight recording joins ``series/T3/<rel>``
+    and ``series/T4/<rel>`` (one entity per flight) in record order."""
+    if path not in data and path.startswith("/series/"):
+        parts = [scalars(data, path.replace("/series/", f"/series/{g}/", 1)) for g in FLIGHTS
+                 if path.replace("/series/", f"/series/{g}/", 1) in data]
+        if not parts:
+            raise KeyError(path)
+        k, v = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+        o = np.argsort(k, kind="stable")
+        return k[o], v[o]
     t = data[path]["temporal"]
     return np.array(t["record"]), np.array([r[0] for r in t["Scalars:scalars"]])
 
@@ -137,7 +147,7 @@ def test_error_components_equal_the_core_and_pymap3d(rec, core):
         # float64 series; the recording locates through its own batch call (line_of_sight on the whole
         # pose, then the surface), the replay through its own: last-bit differences, 4e-13 m seen; 1e-9 m
         np.testing.assert_allclose(v, comp[c], rtol=0, atol=1e-9)
-    assert "/series/error/up_m" not in data  # the survey gives no heights: no vertical component
+    assert not any(e.endswith("/error/up_m") for e in data)  # the survey gives no heights: no vertical component
     # outside the code: pymap3d about the truth at the computed height; 1e-6 m (float64 through ECEF)
     n, e, _ = pymap3d.geodetic2ned(res.lat_deg, res.lon_deg, res.h_m, recs.column("truth_lat_deg"),
                                    recs.column("truth_lon_deg"), res.h_m)
@@ -235,10 +245,16 @@ def test_blueprint_separates_heading_attitude_and_flights(rec):
                 "kind": s["ViewBlueprint:class_identifier"][0][0], "origin": s["ViewBlueprint:space_origin"][0][0],
                 "query": bp.get(f"{ent}/ViewContents", {}).get("static", {}).get("ViewContents:query", [[None]])[0],
                 "eye": bp.get(f"{ent}/EyeControls3D", {}).get("static", {})}
-    assert views["Heading [deg]"]["query"] == ["$origin/heading_deg"]
-    assert views["Heading [deg]"]["origin"] == "/series/attitude"
-    assert views["Pitch and roll [deg]"]["query"] == ["$origin/pitch_deg", "$origin/roll_deg"]
-    assert views["Error components to truth [m]"]["origin"] == "/series/error"
+    # every time-series view shows both flights, each from its own entity; heading apart from pitch / roll
+    assert views["Heading [deg]"]["query"] == ["/series/T3/attitude/heading_deg", "/series/T4/attitude/heading_deg"]
+    assert views["Heading [deg]"]["origin"] == "/series"
+    assert views["Pitch and roll [deg]"]["query"] == [f"/series/{g}/attitude/{a}_deg" for g in FLIGHTS
+                                                      for a in ("pitch", "roll")]
+    assert views["Error components to truth [m]"]["query"] == [f"/series/{g}/error/{c}_m" for g in FLIGHTS
+                                                               for c in ("north", "east", "along", "across")]
+    for v in views.values():
+        if v["kind"] == "TimeSeries":
+            assert v["origin"] == "/series" and {q.split("/")[2] for q in v["query"]} == set(FLIGHTS), v
     assert "Before / after calibration: error to truth [m]" in views
     assert "Outlier flags (1 = outlier)" in views
     assert views["Records and annotations"]["kind"] == "TextLog"
@@ -261,3 +277,30 @@ def test_klv_pose_is_the_replay_columns():
     one = klv_pose_deg(c, 3)
     assert one["lat_deg"] == float(c["sensor_lat_deg"][3]) and isinstance(one["angles_deg"]["sensor_roll"], float)
 
+
+
+def test_no_series_entity_has_rows_of_two_flights(rec, core):
+    """Each flight's series is its own entity (series/<flight>/...), so no plot line joins T3-10 to T4-1."""
+    from rerun.chunk import RrdReader
+
+    steps, out, data = rec
+    table = core[2]
+    series = [e for e in data if e.startswith("/series/") and "temporal" in data[e]]
+    assert len(series) == 2 * 19  # 19 quantities (attitude, gimbal, range, height, errors, flags, calibration)
+    for ent in series:
+        g = ent.split("/")[2]
+        assert g in FLIGHTS, ent
+        rows = data[ent]["temporal"]["record"]
+        # the rows of this entity are exactly its flight's records (the table column of the file)
+        assert rows == np.flatnonzero(table == g).tolist(), ent
+    # one colour per flight: the same quantity is drawn in a different hue for T3 and T4, named by flight
+    for rel in ("attitude/heading_deg", "error/along_m", "calibration/after_m"):
+        st = {g: data[f"/series/{g}/{rel}"]["static"] for g in FLIGHTS}
+        assert st["T3"]["SeriesLines:colors"] != st["T4"]["SeriesLines:colors"]
+        assert [st[g]["SeriesLines:names"][0][0] for g in FLIGHTS] == [f"{g} {rel.split('/')[1]}" for g in FLIGHTS]
+    # and the blueprint's time-series views exist (a check over an empty list proves nothing)
+    bp = read(out, store=RrdReader(out).blueprints()[0])
+    kinds = [d["static"]["ViewBlueprint:class_identifier"][0][0] for d in bp.values()
+             if "ViewBlueprint:class_identifier" in d.get("static", {})]
+    # heading; pitch and roll; gimbal; range; height; horizontal error; components; outliers; calibration
+    assert kinds.count("TimeSeries") == 9

@@ -52,6 +52,11 @@ def register(sub) -> None:
                    "each flight gets its own scene origin and entity tree")
     g.add_argument("--no-calibration", action="store_true",
                    help="records: do not fit and log the per-flight mounting calibration (before/after series)")
+    g.add_argument("--fit", default=None, metavar="NAMES",
+                   help="records: comma-separated sensor parameters to fit per flight for the before/after "
+                   "series (geoloc.analysis.sensor_fit, e.g. mount_x,mount_y,mount_z,boresight_z); default "
+                   "mount_x,mount_y,mount_z for a sensor file or a DEM, and the first-phase mounting "
+                   "calibration (geoloc calibrate) for a camera file with target heights")
     g = p.add_argument_group("viewer")
     g.add_argument("--display-scale", type=float, default=200.0,
                    help="scale of the aircraft mesh in the 3D view (default 200)")
@@ -74,6 +79,16 @@ def resolve_input(text: str) -> Path:
     if not path.suffix and bundled.exists():
         return bundled
     raise FileNotFoundError(f"input not found: {text} (neither a file nor a bundled scenario name)")
+
+
+def _fit_names(text):
+    """``--fit NAMES`` as a list (None when not given); an empty list is an error naming the option."""
+    if text is None:
+        return None
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise ValueError(f"--fit = {text!r}: name at least one sensor parameter (e.g. mount_x,mount_y,mount_z)")
+    return names
 
 
 def run(args) -> int:
@@ -99,7 +114,8 @@ def run(args) -> int:
             path, camera, height_column=args.height_column, target_h_m=args.target_h_m,
             surface=args.surface, dem_path=args.dem, dem_datum=args.dem_datum, method=args.method,
             eps_h_m=args.eps_h, threshold_m=args.threshold,
-            group_column=None if args.group_by == "none" else args.group_by, calibrate=not args.no_calibration)
+            group_column=None if args.group_by == "none" else args.group_by, calibrate=not args.no_calibration,
+            fit_names=_fit_names(args.fit))
         for err in errors:
             print(f"{path}: skipped {err}", file=sys.stderr)
     elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):

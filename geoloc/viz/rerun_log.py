@@ -7,7 +7,10 @@ flight, ``record`` for flight-test records), and adds a default blueprint.
 
 With several flights (records grouped by ``table``), every ``world/...``, ``map/...``
 and ``plot/...`` entity below is per flight (``world/T3/ned``, ``map/T4/track``), each
-in its own flight's scene frame; ``series/`` and ``log/`` stay shared.
+in its own flight's scene frame, and so is every time series (``series/T3/error/north_m``:
+no series has rows of two flights, so no plot line joins the last record of one flight
+to the first of the next; each view of the blueprint shows every flight, one hue per
+flight, :func:`series_styles`); ``log/`` stays shared.
 
 Entities (all positions in the scene's ENU frame, metres):
 
@@ -37,7 +40,8 @@ Entities (all positions in the scene's ENU frame, metres):
 ``series/error/*_m``                        horizontal error against truth / published, and
                                             components north, east, up, along, across
 ``series/outlier/flag``                     robust outlier flags (0 / 1)
-``series/calibration/*_m``                  error to truth before / after calibration
+``series/calibration/*_m``                  error to truth before / after calibration (the
+                                            mounting fit of a camera file, or the sensor fit)
 ``series/ellipsoid_model/*_m``              the ellipsoid model's error (scan over a DEM)
 ``series/cep/*_m``                          per-step Monte Carlo CEP (optional)
 ``series/dem/evaluations``                  DEM evaluations of each ray
@@ -64,11 +68,26 @@ from geoloc.assets import ASSETS
 from geoloc.locate import as_sensor
 from geoloc.status import Status, describe
 from geoloc.viz.rerun_model import LogSteps
-from geoloc.viz.rerun_style import COLORS
+from geoloc.viz.rerun_style import COLORS, series_color
 
 #: Axis length of each drawn frame [m] (distinct, so coinciding origins stay readable).
 AXIS_LENGTH_M = {"ned": 4000.0, "body": 3000.0, "gimbal_base": 2600.0, "gimbal_outer": 2200.0,
                  "gimbal_inner": 1800.0, "cam": 1500.0}
+#: Sizes in the 3D scene, in UI points: the eye follows the current hit from close by, where
+#: target, truth and published position are tens of metres apart, and also shows a whole
+#: flight from ~20 km; radii in metres (once 500 m) filled the close view with one sphere.
+SCENE_RADIUS_PT = {"track": rr.Radius.ui_points(2.0), "footprint": rr.Radius.ui_points(2.5),
+                   "los": rr.Radius.ui_points(1.5), "target": rr.Radius.ui_points(6.0),
+                   "reference": rr.Radius.ui_points(5.0)}
+#: Sizes in the 2D plot, in UI points (rr.Radius.ui_points): the targets of a flight spread over
+#: kilometres while their errors are tens of metres, so sizes in metres are either invisible or
+#: hide the arrows; UI points keep them readable at any zoom.
+PLOT_RADIUS_PT = {"point": rr.Radius.ui_points(3.0), "outlier": rr.Radius.ui_points(7.0),
+                  "arrow": rr.Radius.ui_points(1.0), "current": rr.Radius.ui_points(6.0)}
+#: Axis length of the frame at the current hit [m]. The 3D eye tracks that entity and, once it
+#: settles, frames its bounds: 300 m axes gave a close-up of nothing but the axes; ~1.5 km keeps
+#: the hit, its truth and the neighbouring targets in view.
+CURRENT_AXIS_M = 1500.0
 #: Distance of the pinhole's image plane in the 3D view [m].
 IMAGE_PLANE_M = 3000.0
 #: Colours (RGBA).
@@ -94,39 +113,97 @@ def main_timeline(steps: LogSteps) -> str:
 COMPONENT_SERIES = ("north_m", "east_m", "up_m", "along_m", "across_m")
 
 
-def _ts(origin, name, contents=None):
-    kw = {"contents": contents} if contents is not None else {}
-    return rrb.TimeSeriesView(origin=origin, name=name, **kw)
+def series_values(steps: LogSteps) -> dict:
+    """Every scalar time series, ``category/name`` (e.g. ``attitude/heading_deg``) -> (n,) values."""
+    p = steps.pose
+    d = np.rad2deg
+    series = {
+        "attitude/heading_deg": d(p.heading), "attitude/pitch_deg": d(p.pitch), "attitude/roll_deg": d(p.roll),
+        "gimbal/gimbal_roll_deg": d(p.gimbal_roll), "gimbal/gimbal_pitch_deg": d(p.gimbal_pitch),
+        "range/slant_range_m": steps.ground.slant_range,
+        "height/target_h_m": steps.ground.h,
+    }
+    if steps.truth is not None:
+        series["error/to_truth_m"] = steps.truth["error_m"]
+    if steps.published is not None:
+        series["error/to_published_m"] = steps.published["error_m"]
+    if steps.components is not None:
+        series["error/horizontal_m"] = steps.components["horizontal_m"]
+        for c in COMPONENT_SERIES:
+            series[f"error/{c}"] = steps.components[c]
+        series["outlier/flag"] = steps.outlier.astype(float)
+    if steps.calibration is not None:
+        for c in ("before_m", "after_m", "after_along_m", "after_across_m"):
+            series[f"calibration/{c}"] = steps.calibration[c]
+    for k, v in steps.extra_series.items():
+        series[k.removeprefix("series/")] = v
+    if steps.terrain is not None and steps.terrain.method != "ellipsoid":
+        series["dem/evaluations"] = steps.terrain.dem_evaluations.astype(float)
+    n = len(steps)
+    out = {}
+    for k, v in series.items():
+        v = np.broadcast_to(np.asarray(v, float), (n,))
+        if np.any(np.isfinite(v)):  # a series without any value is not logged
+            out[k] = v
+    return out
+
+
+def series_views(steps: LogSteps, present=None) -> list:
+    """The time-series views: ``(title, category, [names])``, only those with a logged series.
+
+    Heading has a view of its own (its tens of degrees would flatten pitch and roll).
+    """
+    present = series_values(steps) if present is None else present
+    spec = [("Heading [deg]", "attitude", ["heading_deg"]),
+            ("Pitch and roll [deg]", "attitude", ["pitch_deg", "roll_deg"]),
+            ("Gimbal angles [deg]", "gimbal", None), ("Slant range [m]", "range", None),
+            ("Target height [m]", "height", None),
+            ("Horizontal error [m]", "error", ["to_truth_m", "to_published_m", "horizontal_m"]),
+            (f"Error components to {steps.reference} [m]", "error", list(COMPONENT_SERIES)),
+            ("Outlier flags (1 = outlier)", "outlier", None),
+            ("Before / after calibration: error to truth [m]", "calibration", None),
+            ("KLV corner residual [m], outlier", "klv", None),
+            ("Ellipsoid model: horizontal error [m]", "ellipsoid_model", None),
+            ("Monte Carlo CEP per step [m]", "cep", None),
+            ("DEM evaluations per ray", "dem", None)]
+    out = []
+    for title, cat, names in spec:
+        have = [k.split("/", 1)[1] for k in present if k.split("/", 1)[0] == cat]
+        names = [x for x in (have if names is None else names) if x in have]
+        if names:
+            out.append((title, cat, names))
+    return out
+
+
+def series_styles(steps: LogSteps, present=None) -> dict:
+    """Entity -> (colour, legend name) of every series of a recording with several flights.
+
+    One hue per flight (:func:`geoloc.viz.rerun_style.series_color`), shaded per quantity
+    within a view; the legend names the flight. Empty for one flight (rerun's defaults).
+    """
+    if not steps.multi:
+        return {}
+    out = {}
+    for title, cat, names in series_views(steps, present):
+        for i, g in enumerate(steps.groups):
+            for k, name in enumerate(names):
+                out[steps.series_path(g, f"{cat}/{name}")] = (series_color(i, k, len(names)), f"{g} {name}")
+    return out
 
 
 def blueprint(steps: LogSteps) -> rrb.Blueprint:
     """Default layout: per flight a 3D scene following the current hit and a 2D target / truth plot
     (tabs when there are several flights), the map, the record log; the time series on the right,
-    heading apart from pitch and roll."""
-    series = [
-        _ts("/series/attitude", "Heading [deg]", ["$origin/heading_deg"]),
-        _ts("/series/attitude", "Pitch and roll [deg]", ["$origin/pitch_deg", "$origin/roll_deg"]),
-        _ts("/series/gimbal", "Gimbal angles [deg]"),
-        _ts("/series/range", "Slant range [m]"),
-        _ts("/series/height", "Target height [m]"),
-    ]
-    if steps.truth is not None or steps.published is not None:
-        series.append(_ts("/series/error", "Horizontal error [m]",
-                          ["$origin/to_truth_m", "$origin/to_published_m", "$origin/horizontal_m"]))
-    if steps.components is not None:
-        series.append(_ts("/series/error", f"Error components to {steps.reference} [m]",
-                          [f"$origin/{c}" for c in COMPONENT_SERIES]))
-        series.append(_ts("/series/outlier", "Outlier flags (1 = outlier)"))
-    if steps.calibration is not None:
-        series.append(_ts("/series/calibration", "Before / after calibration: error to truth [m]"))
-    if any(k.startswith("series/klv/") for k in steps.extra_series):
-        series.append(_ts("/series/klv", "KLV corner residual [m], outlier"))
-    if any(k.startswith("series/ellipsoid_model/") for k in steps.extra_series):
-        series.append(_ts("/series/ellipsoid_model", "Ellipsoid model: horizontal error [m]"))
-    if any(k.startswith("series/cep/") for k in steps.extra_series):
-        series.append(_ts("/series/cep", "Monte Carlo CEP per step [m]"))
+    heading apart from pitch and roll, each view showing every flight (one entity per flight)."""
+    series = []
+    for title, cat, names in series_views(steps):
+        if steps.multi:
+            series.append(rrb.TimeSeriesView(origin="/series", name=title, contents=[
+                "/" + steps.series_path(g, f"{cat}/{x}") for g in steps.groups for x in names]))
+        else:
+            series.append(rrb.TimeSeriesView(origin=f"/series/{cat}", name=title,
+                                             contents=[f"$origin/{x}" for x in names]))
     if steps.terrain is not None and steps.terrain.method != "ellipsoid":
-        series.append(_ts("/series/dem", "DEM evaluations per ray"))
         series.append(rrb.BarChartView(origin="/convergence", name="H_n - h_n per iteration [m]"))
     views3d, views2d = [], []
     for g in steps.groups:
@@ -270,26 +347,26 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
 
         # -------------------------------------------------- points and lines
         ac, tgt = ac_all[m], tgt_all[m]
-        rec.log(f"{root}/track", rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=80.0),
+        rec.log(f"{root}/track", rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=SCENE_RADIUS_PT["track"]),
                 static=True)
         ok = np.all(np.isfinite(tgt), axis=-1)
-        rec.log(f"{root}/footprint", rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=150.0),
+        rec.log(f"{root}/footprint", rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=SCENE_RADIUS_PT["footprint"]),
                 static=True)
         # The line of sight ends at the target, or runs 200 km into the sky where there is none.
         d_enu = steps.enu_for(g).vector_from_ecef(np.broadcast_to(steps.los.direction_ecef, (n, 3))[m])
         end = np.where(ok[:, None], tgt, ac + 2.0e5 * d_enu)
         rec.send_columns(f"{root}/los", indexes=idx, columns=rr.LineStrips3D.columns(
             strips=list(np.stack([ac, end], axis=1).astype(f32))))
-        rec.log(f"{root}/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=60.0), static=True)
-        _points(rec, steps, f"{root}/target", tgt_all, COLORS["target"], 500.0, m, labels)
+        rec.log(f"{root}/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=SCENE_RADIUS_PT["los"]), static=True)
+        _points(rec, steps, f"{root}/target", tgt_all, COLORS["target"], SCENE_RADIUS_PT["target"], m, labels)
         for key, p in refs.items():
-            _points(rec, steps, f"{root}/{key}", p, COLORS[key], 400.0, m)
+            _points(rec, steps, f"{root}/{key}", p, COLORS[key], SCENE_RADIUS_PT["reference"], m)
         # the entity the 3D view's eye tracks: a frame at the current hit (the last hit where a step has none)
         cur = m & np.all(np.isfinite(tgt_all), axis=-1)
         if np.any(cur):
             rec.send_columns(f"{root}/current", indexes=_index(steps, cur),
                              columns=rr.Transform3D.columns(translation=tgt_all[cur]))
-            rec.log(f"{root}/current", rr.TransformAxes3D(axis_length=300.0), static=True)
+            rec.log(f"{root}/current", rr.TransformAxes3D(axis_length=CURRENT_AXIS_M), static=True)
 
         # ---------------------------------------------------- 2D plot, offline
         _plot2d(rec, steps, g, m, refs, labels)
@@ -317,37 +394,19 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
                                                                    radii=rr.Radius.ui_points(5.0)), static=True)
 
     # -------------------------------------------------------------- series
-    p = steps.pose
-    d = np.rad2deg
-    series = {
-        "series/attitude/heading_deg": d(p.heading), "series/attitude/pitch_deg": d(p.pitch),
-        "series/attitude/roll_deg": d(p.roll),
-        "series/gimbal/gimbal_roll_deg": d(p.gimbal_roll),
-        "series/gimbal/gimbal_pitch_deg": d(p.gimbal_pitch),
-        "series/range/slant_range_m": steps.ground.slant_range,
-        "series/height/target_h_m": steps.ground.h,
-    }
-    if steps.truth is not None:
-        series["series/error/to_truth_m"] = steps.truth["error_m"]
-    if steps.published is not None:
-        series["series/error/to_published_m"] = steps.published["error_m"]
-    if steps.components is not None:
-        series["series/error/horizontal_m"] = steps.components["horizontal_m"]
-        for c in COMPONENT_SERIES:
-            series[f"series/error/{c}"] = steps.components[c]
-        series["series/outlier/flag"] = steps.outlier.astype(float)
-    if steps.calibration is not None:
-        for c in ("before_m", "after_m", "after_along_m", "after_across_m"):
-            series[f"series/calibration/{c}"] = steps.calibration[c]
-    series.update(steps.extra_series)
-    if steps.terrain is not None and steps.terrain.method != "ellipsoid":
-        series["series/dem/evaluations"] = steps.terrain.dem_evaluations.astype(float)
-    for path, values in series.items():
-        values = np.broadcast_to(np.asarray(values, float), (n,))
-        good = np.isfinite(values)  # a missing value is a gap, not a zero
-        if np.any(good):
-            rec.send_columns(path, indexes=_index(steps, good),
-                             columns=rr.Scalars.columns(scalars=values[good]))
+    # one entity per flight and series (series/<flight>/...): no plot line joins two flights
+    present = series_values(steps)
+    styles = series_styles(steps, present)
+    for rel, values in present.items():
+        for g in steps.groups:
+            path = steps.series_path(g, rel)
+            good = np.isfinite(values) & (grp == g)  # a missing value is a gap, not a zero
+            if not np.any(good):
+                continue
+            rec.send_columns(path, indexes=_index(steps, good), columns=rr.Scalars.columns(scalars=values[good]))
+            if path in styles:
+                color, name = styles[path]
+                rec.log(path, rr.SeriesLines(colors=[color], names=[name]), static=True)
 
     # ------------------------------------------- labels and annotations
     flag = steps.outlier if steps.outlier is not None else np.zeros(n, bool)
@@ -395,28 +454,28 @@ def _plot2d(rec, steps: LogSteps, g, m, refs, labels) -> None:
     if not np.any(ok):
         return
     rec.log(f"{root}/targets", rr.Points2D(plot_east_north(steps, g, tgt[ok]), colors=COLORS["target"],
-                                           radii=2.0, labels=lab, show_labels=False), static=True)
+                                           radii=PLOT_RADIUS_PT["point"], labels=lab, show_labels=False), static=True)
     if steps.outlier is not None and np.any(steps.outlier[m] & ok):
         o = steps.outlier[m] & ok
         rec.log(f"{root}/outliers", rr.Points2D(plot_east_north(steps, g, tgt[o]), colors=(255, 0, 255, 255),
-                                                radii=5.0, labels=[str(x) for x in labels[m][o]]), static=True)
+                                                radii=PLOT_RADIUS_PT["outlier"], labels=[str(x) for x in labels[m][o]]), static=True)
     ref_key = steps.reference or next(iter(refs), None)
     for key, p in refs.items():
         pk = p[m]
         good = np.all(np.isfinite(pk), axis=-1)
-        rec.log(f"{root}/{key}", rr.Points2D(plot_east_north(steps, g, pk[good]), colors=COLORS[key], radii=2.0),
+        rec.log(f"{root}/{key}", rr.Points2D(plot_east_north(steps, g, pk[good]), colors=COLORS[key], radii=PLOT_RADIUS_PT["point"]),
                 static=True)
     if ref_key in refs:
         r = refs[ref_key][m]
         both = ok & np.all(np.isfinite(r), axis=-1)
         o2 = plot_east_north(steps, g, r[both])
         rec.log(f"{root}/errors", rr.Arrows2D(origins=o2, vectors=plot_east_north(steps, g, tgt[both]) - o2,
-                                              colors=COLORS["los"], radii=0.5), static=True)
+                                              colors=COLORS["los"], radii=PLOT_RADIUS_PT["arrow"]), static=True)
     cur = np.zeros(len(steps), bool)
     cur[np.flatnonzero(m)[ok]] = True
     rec.send_columns(f"{root}/current", indexes=_index(steps, cur), columns=rr.Points2D.columns(
         positions=plot_east_north(steps, g, steps.target_enu[cur]), labels=lab))
-    rec.log(f"{root}/current", rr.Points2D.from_fields(colors=(255, 255, 255, 255), radii=4.0), static=True)
+    rec.log(f"{root}/current", rr.Points2D.from_fields(colors=(255, 255, 255, 255), radii=PLOT_RADIUS_PT["current"]), static=True)
 
 
 def _points(rec, steps, path, pts, color, radius, mask=None, labels=None):

@@ -18,8 +18,11 @@ Error analysis per step (:func:`add_error_analysis`): the error components of
 minus the published position; along / across the local track of
 :func:`geoloc.analysis.accuracy.track_azimuth_rad`), the robust outlier flags of
 :func:`geoloc.analysis.accuracy.robust_outliers` per flight, and for records with
-a surveyed truth the errors before and after the per-flight mounting calibration of
-:func:`geoloc.analysis.calibrate.calibrate_groups`.
+a surveyed truth the errors before and after a per-flight calibration: the mounting
+rotation of :func:`geoloc.analysis.calibrate.calibrate_groups` (first-phase camera file,
+target heights), else the named sensor parameters of
+:func:`geoloc.analysis.sensor_fit.fit_sensor_groups` (sensor files, DEM runs:
+:func:`sensor_fit_series`).
 Conventions: ``docs/conventions.md``.
 """
 
@@ -142,6 +145,15 @@ class LogSteps:
     def root(self, g: str, base: str = "world") -> str:
         """Entity root of flight ``g``: ``world`` for one flight, ``world/<g>`` for several."""
         return f"{base}/{g}" if self.multi else base
+
+    def series_path(self, g: str, rel: str) -> str:
+        """Entity of the time series ``rel`` (``attitude/heading_deg``) of flight ``g``.
+
+        ``series/<rel>`` for one flight; ``series/<g>/<rel>`` for several, so that no
+        series has rows of two flights and no plot line joins the last step of one flight
+        to the first of the next.
+        """
+        return f"series/{g}/{rel}" if self.multi else f"series/{rel}"
 
     def enu_for(self, g: str) -> EnuFrame:
         """Scene origin of flight ``g``."""
@@ -293,15 +305,20 @@ def steps_from_records(path, camera: Camera | None = None, *, height_column: str
                        target_h_m: float | None = None, surface: str = "inflated", dem_path=None,
                        dem_datum: str = "egm96", method: str = "exact", eps_h_m=None,
                        threshold_m=None, group_column: str | None = "table",
-                       calibrate: bool = True) -> tuple[LogSteps, list]:
+                       calibrate: bool = True, fit_names=None) -> tuple[LogSteps, list]:
     """Geolocate every record of a flight-test CSV: one time step per record.
 
     Height source, first given wins: ``dem_path`` (method of :mod:`geoloc.surfaces.terrain`),
     ``target_h_m`` (one height), ``height_column``, else ``paper_height_m`` if the
     file has it. Errors are horizontal geodesic distances (:mod:`geoloc.workflows.replay`).
     Flights: the ``group_column`` (default ``table``; ignored when absent), one scene
-    origin each. With a surveyed truth, a first-phase camera and a height (not a
-    DEM), ``calibrate`` adds the errors after the per-flight mounting fit.
+    origin each. With a surveyed truth, ``calibrate`` adds the errors after a per-flight
+    fit: a first-phase camera file with target heights (not a DEM) and no ``fit_names``
+    gets the mounting rotation of :func:`geoloc.analysis.calibrate.calibrate_groups`;
+    a sensor file, a DEM or given ``fit_names`` get
+    :func:`geoloc.analysis.sensor_fit.fit_sensor_groups` of ``fit_names`` (default
+    :data:`DEFAULT_FIT_NAMES`) on the same surface as the located targets
+    (:func:`geoloc.surfaces.terrain.surface_for`).
 
     Returns
     -------
@@ -372,13 +389,32 @@ def steps_from_records(path, camera: Camera | None = None, *, height_column: str
     if truth is not None:
         truth["has_h"] = recs.has("truth_h_m")
     add_error_analysis(steps, heading_deg=recs.column("heading_deg"))
-    if calibrate and truth is not None and dem_path is None and isinstance(camera, Camera):
-        steps.calibration = calibration_series(steps, recs, h, surface,
-                                               group_column if steps.group is not None else None)
-    elif calibrate and truth is not None:
-        steps.notes.append("calibration not logged: it needs a first-phase camera file and target heights "
-                           "(not a DEM or a sensor file)")
+    gcol = group_column if steps.group is not None else None
+    if calibrate and truth is not None:
+        if fit_names is None and dem_path is None and isinstance(camera, Camera):
+            steps.calibration = calibration_series(steps, recs, h, surface, gcol)
+        else:
+            from geoloc.surfaces.terrain import surface_for
+
+            if dem_path is not None:
+                kw = {}
+                if eps_h_m is not None:
+                    kw["eps_h"] = float(eps_h_m)
+                if threshold_m is not None:
+                    kw["threshold"] = float(threshold_m)
+                surf = surface_for(dem=terrain.dem, method=method, **kw)
+            else:
+                hh = np.broadcast_to(np.asarray(h, float), (len(recs),))
+
+                def surf(idx):  # per-record heights, as geoloc calibrate's --height-column
+                    return surface_for(hh[idx], kind=surface)
+            names = list(DEFAULT_FIT_NAMES if fit_names is None else fit_names)
+            steps.calibration = sensor_fit_series(steps, recs, names, surf, gcol)
     return steps, list(recs.errors)
+
+
+#: Parameters :func:`sensor_fit_series` fits by default (the sensor's mounting rotation).
+DEFAULT_FIT_NAMES = ("mount_x", "mount_y", "mount_z")
 
 
 def add_error_analysis(steps: LogSteps, heading_deg=None, outlier=None) -> LogSteps:
@@ -449,6 +485,52 @@ def calibration_series(steps: LogSteps, recs, h, surface: str, group_column: str
     note = f"calibration (one mounting rotation per flight, in-sample): mean error to truth {means}"
     steps.notes.append(note)
     return {"before_m": steps.components["horizontal_m"].copy(), **after, "note": note, "report": report}
+
+
+def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str | None = None) -> dict:
+    """Errors to truth before and after the per-flight fit of ``names`` (:func:`geoloc.analysis.sensor_fit.fit_sensor_groups`).
+
+    ``surface``: where the targets lie (a :class:`geoloc.surfaces.terrain.DemSurface`, a
+    height surface, or ``idx -> surface``), the one the steps were located on. Each
+    flight's records are located again with its fitted sensor on that surface, exactly
+    as ``fit_sensor_groups`` measures them: ``after_m`` is the horizontal geodesic
+    distance to the truth (:func:`geoloc.geodesy.geodesic.horizontal_distance_m`), and
+    ``after_along_m`` / ``after_across_m`` the components of
+    :func:`geoloc.analysis.accuracy.error_components` along the same track as before.
+    ``before_m`` is the same distance for the nominal sensor (the ``to_truth_m`` series).
+    """
+    from geoloc.analysis.accuracy import error_components
+    from geoloc.analysis.sensor_fit import fit_sensor_groups
+
+    sensor = as_sensor(steps.camera)
+    report, sensors = fit_sensor_groups(recs, sensor, names, surface, group_column=group_column)
+    surf = surface if callable(surface) and not hasattr(surface, "intersect") else (lambda _i: surface)
+    n = len(steps)
+    grp = steps.group_of
+    after = {k: np.full(n, np.nan) for k in ("after_m", "after_along_m", "after_across_m")}
+    tlat, tlon = np.asarray(steps.truth["lat_deg"], float), np.asarray(steps.truth["lon_deg"], float)
+    rep_groups = list(report["groups"])
+    for g, rg in zip(steps.groups, rep_groups):
+        idx = np.flatnonzero(grp == g)
+        los = line_of_sight(steps.pose.take(idx), sensors[rg], steps.row[idx], steps.col[idx],
+                            outside="extrapolate")
+        gp = surf(idx).intersect(los)
+        lat, lon = np.rad2deg(gp.lat), np.rad2deg(gp.lon)
+        after["after_m"][idx] = horizontal_distance_m(lat, lon, tlat[idx], tlon[idx])
+        c = error_components(lat, lon, gp.h, tlat[idx], tlon[idx], np.nan,
+                             track_heading_rad=steps.components["track_rad"][idx])
+        after["after_along_m"][idx] = c["along_m"]
+        after["after_across_m"][idx] = c["across_m"]
+    bad = ~np.isfinite(after["after_m"])
+    means = ", ".join(f"{g} {report['groups'][rg]['mean_error_before_m']:.1f} -> "
+                      f"{report['groups'][rg]['mean_error_after_m']:.1f} m" for g, rg in zip(steps.groups, rep_groups))
+    where = "on the DEM" if hasattr(surface, "dem") else "at the target heights"
+    note = (f"calibration: {', '.join(names)} fitted per flight (fit_sensor_groups, in-sample, {where}): "
+            f"mean error to truth {means}" + (f"; {int(bad.sum())} record(s) without a ground point after" if
+                                               np.any(bad) else ""))
+    steps.notes.append(note)
+    return {"before_m": np.asarray(steps.truth["error_m"], float).copy(), **after, "note": note,
+            "report": report, "names": list(names)}
 
 
 def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96") -> tuple[LogSteps, list]:
