@@ -1,7 +1,9 @@
 """Command-line DEM options shared by the verbs that can locate on terrain (locate, replay).
 
 ``add_dem_options(parser)`` adds ``--dem FILE --method --dem-datum --eps-h
---threshold --dem-model``; giving ``--dem`` installs the verb's terrain hook
+--threshold --dem-model --dem-cache-mb``; ``--dem`` is one raster, or a folder of
+tiles, a ``.vrt`` or a repeated ``--dem``: a :class:`geoloc.surfaces.mosaic.DemMosaic`
+(:func:`open_surface`). Giving ``--dem`` installs the verb's terrain hook
 (``args._terrain_hook``), so the verb's own code path is untouched without it.
 The hooks warn when the DEM's datum and the aircraft heights' datum look mixed
 (:func:`warn_datums`).
@@ -18,15 +20,60 @@ import numpy as np
 from geoloc.surfaces.terrain import METHODS, SURFACES, surface_for
 
 
-def _open_dem(args):
-    from geoloc.surfaces.dem import DEM
+def dem_sources(args):
+    """``--dem`` as given: one path (str) or, for a repeated ``--dem``, a list of paths."""
+    from geoloc.assets import resolve_user_path
 
-    return DEM.open(args.dem, datum=args.dem_datum)
+    d = args.dem
+    return [str(resolve_user_path(x)) for x in d] if isinstance(d, list) else str(resolve_user_path(d))
+
+
+def _mosaic_options(args) -> dict:
+    mb = getattr(args, "dem_cache_mb", 64.0)
+    if not (np.isfinite(mb) and mb > 0):
+        raise ValueError(f"--dem-cache-mb must be a positive number of MiB, got {mb!r}")
+    return {"cache_bytes": max(int(mb * 2**20), 2**16)}
+
+
+def open_dem_arg(args):
+    """``--dem``: a :class:`~geoloc.surfaces.dem.DEM` for one raster file, a
+    :class:`~geoloc.surfaces.mosaic.DemMosaic` for a folder, a ``.vrt`` or several files."""
+    from geoloc.surfaces.mosaic import open_dem_or_mosaic
+
+    return open_dem_or_mosaic(dem_sources(args), args.dem_datum, **_mosaic_options(args))
+
+
+def dem_for_workflow(args):
+    """``--dem`` as one in-memory :class:`~geoloc.surfaces.dem.DEM` (the KLV and photo workflows
+    build their own ``DemSurface``): a mosaic is read whole, within its region bound
+    (``--dem-cache-mb``), else a ValueError saying so."""
+    from geoloc.surfaces.mosaic import DemMosaic
+
+    dem = open_dem_arg(args)
+    if isinstance(dem, DemMosaic):
+        try:
+            return dem.to_dem()
+        except ValueError as e:
+            raise ValueError(f"--dem {args.dem}: {e}; KLV and photo replays read a mosaic whole: raise "
+                             "--dem-cache-mb, or cut the mosaic to the flight's area") from None
+    return dem
+
+
+def open_surface(args):
+    """The surface of the DEM options: ``DemSurface`` of one raster, or the mosaic itself."""
+    from geoloc.surfaces.mosaic import DemMosaic, open_dem_or_mosaic
+
+    src = dem_sources(args)
+    opts = {"eps_h": args.eps_h, "threshold": args.threshold}
+    dem = open_dem_or_mosaic(src, args.dem_datum, method=args.method, dem_model=args.dem_surface,
+                             **_mosaic_options(args), **opts)
+    if isinstance(dem, DemMosaic):
+        return dem  # a Surface itself: solves region by region within its memory bound
+    return surface_for(dem=dem, method=args.method, dem_model=args.dem_surface, **opts)
 
 
 def _solve(args, los):
-    return surface_for(dem=_open_dem(args), method=args.method, dem_model=args.dem_surface,
-                       eps_h=args.eps_h, threshold=args.threshold).intersect(los)
+    return open_surface(args).intersect(los)
 
 
 def warn_datums(verb: str, dem_datum: str, height) -> list:
@@ -71,7 +118,11 @@ class _DemAction(argparse.Action):
         super().__init__(*a, **k)
 
     def __call__(self, parser, namespace, values, option_string=None):
-        setattr(namespace, self.dest, values)
+        prev = getattr(namespace, self.dest, None) if getattr(namespace, "_terrain_hook", None) else None
+        if prev is None:
+            setattr(namespace, self.dest, values)  # one --dem: a path, as always
+        else:  # --dem repeated: the files of one mosaic
+            setattr(namespace, self.dest, (prev if isinstance(prev, list) else [prev]) + [values])
         setattr(namespace, "_terrain_hook", self.hook)
 
 
@@ -80,7 +131,12 @@ def add_dem_options(parser, hook) -> None:
     g = parser.add_argument_group("terrain (DEM)")
     g.add_argument("--dem", metavar="FILE", default=None, action=_DemAction, hook=hook,
                    help="DEM raster (GeoTIFF, ...): intersect the line of sight with the terrain instead "
-                   "of a target height, e.g. assets/dem/etopo5_flight_area.tif")
+                   "of a target height, e.g. assets/dem/etopo5_flight_area.tif; a folder of tiles, a GDAL "
+                   ".vrt, or --dem given several times is one mosaic, read in windows on demand "
+                   "(docs/scale.md)")
+    g.add_argument("--dem-cache-mb", type=float, default=64.0,
+                   help="DEM mosaic: bound of its tile cache and of one region it assembles [MiB] "
+                   "(default 64)")
     g.add_argument("--method", choices=METHODS, default="exact",
                    help="steps: descending steps of [Q17]; bisect: halving of [L23]; "
                    "exact: first visible hit, no threshold (default)")

@@ -79,6 +79,7 @@ class DEM:
             self._to_crs = pyproj.Transformer.from_crs("EPSG:4326", self.crs, always_xy=True)
             self._from_crs = pyproj.Transformer.from_crs(self.crs, "EPSG:4326", always_xy=True)
         self._cell_max = None
+        self._surface_range = None  # (lowest, highest) of the surface a window is cut from (from_grid)
         #: The CRS of the file before :meth:`to_geographic` warped it (WKT), or None.
         self.source_crs = None
 
@@ -220,6 +221,36 @@ class DEM:
         return cls._with_datum(grid, crs, datum, None)
 
     @classmethod
+    def from_grid(cls, grid: NodeGrid, crs="EPSG:4326", datum="egm96", path=None,
+                  height_range_m=None) -> "DEM":
+        """A DEM from a :class:`~geoloc.geodesy.geoid.NodeGrid` of heights as read (a window of a file).
+
+        The heights are converted to ellipsoidal node by node exactly as :meth:`open`
+        does (``datum="egm96"`` adds the bundled EGM96 N at each node), so a window
+        cut from a raster gives, node for node, the heights of the whole raster
+        opened with :meth:`open` (:mod:`geoloc.surfaces.mosaic` builds its regions so).
+
+        Parameters
+        ----------
+        height_range_m : (float, float), optional
+            (lowest, highest) ellipsoidal height [m] of the whole surface the window
+            is cut from: :meth:`min_height` / :meth:`max_height` without a region
+            return them (the H_max and H_min where the solvers start and stop), so
+            that a window gives the same hits as the whole surface. They must bound
+            the window's own nodes (ValueError otherwise).
+        """
+        _check_datum(datum)
+        dem = cls._with_datum(grid, crs, datum, None if path is None else str(path))
+        if height_range_m is not None:
+            lo, hi = (float(x) for x in height_range_m)
+            v = dem.grid.values
+            if np.isfinite(v).any() and not (lo <= np.nanmin(v) and np.nanmax(v) <= hi):
+                raise ValueError(f"height_range_m = {height_range_m!r} does not bound the window's nodes "
+                                 f"({np.nanmin(v):.3f} to {np.nanmax(v):.3f} m)")
+            dem._surface_range = (lo, hi)
+        return dem
+
+    @classmethod
     def _with_datum(cls, grid, crs, datum, path):
         dem = cls(grid, crs=crs, datum=datum, path=path)
         if datum == "egm96":
@@ -344,16 +375,22 @@ class DEM:
         """Highest ellipsoidal node height [m] (of the cells touching ``region``).
 
         Bilinear cells never exceed their nodes, so this bounds the surface: it
-        is the H_max that starts the descending steps of [Q17 section 2.3].
+        is the H_max that starts the descending steps of [Q17 section 2.3]. A
+        window built with ``from_grid(..., height_range_m=)`` returns the whole
+        surface's highest height when no region is given.
 
         Parameters
         ----------
         region : (west, south, east, north) in degrees, optional
         """
+        if region is None and self._surface_range is not None:
+            return self._surface_range[1]
         return float(np.nanmax(self._region_nodes(region)))
 
     def min_height(self, region=None) -> float:
         """Lowest ellipsoidal node height [m] (of the cells touching ``region``)."""
+        if region is None and self._surface_range is not None:
+            return self._surface_range[0]
         return float(np.nanmin(self._region_nodes(region)))
 
     def cell_max(self) -> np.ndarray:
