@@ -57,6 +57,14 @@ def register(sub) -> None:
                    "(points, truth, error vectors, track; docs/gis.md)")
     p.add_argument("--targets", default=None, metavar="T.csv",
                    help="drone photos: the targets to locate (columns image,row,col; optional truth columns)")
+    c = p.add_argument_group("campaigns (many inputs on dask.distributed, docs/scale.md)")
+    c.add_argument("--parquet-out", default=None, metavar="DIR",
+                   help="campaign: replay every input (files, or folders of KLV/TS files, photos, or a "
+                   "partitioned Parquet / CSVs of records) unit by unit and write the rows to DIR/part-*.parquet")
+    c.add_argument("--scheduler", default="local", metavar="ADDR",
+                   help="campaign: 'local' (a local dask cluster on 127.0.0.1, the default), 'none' (serial, "
+                   "this process), or a dask scheduler address such as tcp://10.0.0.5:8786")
+    c.add_argument("--workers", type=int, default=2, help="campaign: workers of the local cluster (default 2)")
     p.set_defaults(func=run, _terrain_hook=None)
     from geoloc.cli.terrain_options import add_dem_options, replay_hook
 
@@ -76,6 +84,8 @@ def _same_file(a, b) -> bool:
 
 def run(args) -> int:
     inputs = list(args.records or [])
+    if args.parquet_out or any(Path(x).is_dir() or Path(x).suffix.lower() in (".parquet", ".pq") for x in inputs):
+        return _run_campaign(args, inputs)
     kind = _input_kind(inputs)
     if kind == "klv":
         return _run_klv(args, inputs)
@@ -93,7 +103,6 @@ def run(args) -> int:
     camera = load_camera(str(resolve_user_path(args.camera)) if args.camera else None)
     records = records_from_args(args, str(records_path), camera)
     if args._terrain_hook is not None:
-        args.dem = str(resolve_user_path(args.dem))
         result = args._terrain_hook(args, records, camera)
     else:
         if args.height_column is None and args.target_h_m is None:
@@ -169,9 +178,9 @@ def _run_klv(args, inputs) -> int:
     sensor = load_camera(str(resolve_user_path(args.camera))) if args.camera else None
     dem = None
     if args.dem:
-        from geoloc.surfaces.dem import DEM
+        from geoloc.cli.terrain_options import dem_for_workflow
 
-        dem = DEM.open(resolve_user_path(args.dem), datum=args.dem_datum)
+        dem = dem_for_workflow(args)
     replays = []
     for path in paths:
         r = replay_klv(path, dem=dem, sensor=sensor, method=args.method, dem_model=args.dem_surface,
@@ -237,9 +246,9 @@ def _run_photos(args, inputs) -> int:
     sensor = load_camera(str(resolve_user_path(args.camera))) if args.camera else None
     dem = None
     if args.dem:
-        from geoloc.surfaces.dem import DEM
+        from geoloc.cli.terrain_options import dem_for_workflow
 
-        dem = DEM.open(resolve_user_path(args.dem), datum=args.dem_datum)
+        dem = dem_for_workflow(args)
     extra = {"altitude_datum": args.altitude_datum} if getattr(args, "altitude_datum", None) else {}
     rows, messages = replay_photos(photos, str(resolve_user_path(args.targets)), sensor=sensor, dem=dem,
                                    method=args.method, **extra)
@@ -260,3 +269,51 @@ def _run_photos(args, inputs) -> int:
                 write_rows(csv_path, rows)
             print(export(read_results(csv_path), args.export, group_by=None))
     return 0 if rows else 1
+
+
+# --------------------------------------------------------------------------- campaigns
+
+
+def _run_campaign(args, inputs) -> int:
+    """``geoloc replay INPUTS... --parquet-out DIR``: :func:`geoloc.workflows.campaign.run_campaign`."""
+    from geoloc.workflows.campaign import CampaignConfig, run_campaign
+
+    if not args.parquet_out:
+        raise ValueError(f"inputs {', '.join(inputs)}: a folder or a Parquet dataset is a campaign: give "
+                         "--parquet-out DIR (and --scheduler, --workers; docs/scale.md)")
+    if not inputs:
+        raise ValueError("--parquet-out: give the campaign's inputs (files or folders)")
+    for opt in ("out", "export"):
+        if getattr(args, opt, None):
+            raise ValueError(f"--{opt} is for one replay; a campaign writes Parquet parts (--parquet-out)")
+    paths = [str(resolve_user_path(x)) for x in inputs]
+    out = str(resolve_user_path(args.parquet_out))
+    if any(_same_file(out, p) for p in paths):
+        raise ValueError(f"--parquet-out {args.parquet_out} is an input: refusing to write into it")
+    dem = None
+    if args.dem:
+        from geoloc.cli.terrain_options import _mosaic_options, dem_sources
+
+        dem = dem_sources(args)
+    cfg = CampaignConfig(
+        sensor=str(resolve_user_path(args.camera)) if args.camera else None, dem=dem, dem_datum=args.dem_datum,
+        method=args.method, dem_model=args.dem_surface,
+        dem_options={"eps_h": args.eps_h, "threshold": args.threshold},
+        target_h_m=args.target_h_m, height_column=args.height_column,
+        altitude_datum=getattr(args, "altitude_datum", None) or "ellipsoid",
+        targets=str(resolve_user_path(args.targets)) if args.targets else None,
+        **({"dem_cache_bytes": _mosaic_options(args)["cache_bytes"]} if dem else {}))
+    if args.workers < 1:
+        raise ValueError(f"--workers {args.workers}: must be at least 1")
+
+    def report(u):
+        for m in u.messages:
+            print(f"geoloc replay: {m}", file=sys.stderr)
+
+    res = run_campaign(paths, out, cfg, scheduler=args.scheduler, workers=args.workers, on_unit=report)
+    for m in res.notes:
+        print(f"geoloc replay: note: {m}", file=sys.stderr)
+    print(res.summary())
+    for u in res.failed:
+        print(f"geoloc replay: failed unit: {u.source}", file=sys.stderr)
+    return 0 if res.rows else 1
