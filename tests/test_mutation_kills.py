@@ -408,3 +408,138 @@ def test_first_order_ignores_sources_of_zero_spread():
     a, b = mc.first_order(one), mc.first_order(both)
     assert b.sources == ["gimbal_roll_deg"] and np.isfinite(b.cep_m)
     assert b.cep_m == pytest.approx(a.cep_m, rel=1e-12)
+
+
+# ----------------------------------------------------------------- the sensor model (run 2)
+def _turret():
+    from geoloc.assets import asset_path
+    from geoloc.sensors.sensor_file import load_sensor
+
+    return load_sensor(asset_path("sensors", "eo_turret.toml"))
+
+
+def _turret_states():
+    return Pose.from_deg(np.array([36.6, -12.0]), np.array([-84.25, 170.0]), np.array([2500.0, 900.0]),
+                         np.array([45.0, -130.0]), np.array([2.0, -4.0]), np.array([1.0, 7.0]),
+                         angles_deg={"azimuth": np.array([90.0, 233.0]), "elevation": np.array([-30.0, -71.0])})
+
+
+def _R_ecef_ned_by_hand(lat, lon):
+    # columns: north, east, down in ECEF (the definition, written out)
+    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
+    n = np.stack([-sl * co, -sl * so, cl], -1)
+    e = np.stack([-so, co, np.zeros_like(lon)], -1)
+    d = np.stack([-cl * co, -cl * so, -sl], -1)
+    return np.stack([n, e, d], -1)
+
+
+def test_frame_graph_matrices_by_hand_for_a_batch_and_one_state():
+    from scipy.spatial.transform import Rotation
+
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+
+    s = _turret()
+    g = s.graph
+    st = _turret_states()
+    # NED -> ECEF and body -> NED (aerospace z-y-x: the active rotation of heading, pitch, roll)
+    R_en = _R_ecef_ned_by_hand(st.lat, st.lon)
+    R_nb = Rotation.from_euler("ZYX", np.stack([st.heading, st.pitch, st.roll], -1)).as_matrix()
+    np.testing.assert_allclose(g.R_ecef("ned", st), R_en, atol=1e-15)
+    np.testing.assert_allclose(g.R_ecef("body", st), R_en @ R_nb, atol=1e-15)
+    # the origin of NED is the geodetic position; the gimbal base adds the lever arm in body axes
+    o = geodetic_to_ecef(st.lat, st.lon, st.h)
+    T = g.T_ecef("gimbal_base", st)
+    assert T.shape == (2, 4, 4)
+    np.testing.assert_allclose(T[:, :3, 3], o + np.einsum("nij,j->ni", R_en @ R_nb, s.lever_arm_m), atol=1e-8)
+    # the whole chain's matrix applied to the optical axis is the vector path hop by hop
+    z = np.array([0.0, 0.0, 1.0])
+    np.testing.assert_allclose(g.R_ecef("cam", st) @ z, g.rotate_to_ecef(z, "cam", st), atol=1e-15)
+    # one state: (4, 4), not a broadcast of batches
+    one = Pose.from_deg(36.6, -84.25, 2500.0, 45.0, 2.0, 1.0, angles_deg={"azimuth": 90.0, "elevation": -30.0})
+    T1 = g.T_ecef("cam", one)
+    assert T1.shape == (4, 4)
+    np.testing.assert_allclose(T1, g.T_ecef("cam", st)[0], atol=1e-8)
+
+
+def test_hops_and_bound_frames_default_to_the_last_frame():
+    s = _turret()
+    st = Pose.from_deg(36.6, -84.25, 2500.0, 45.0, 2.0, 1.0, angles_deg={"azimuth": 90.0, "elevation": -30.0})
+    g = s.graph
+    assert g.frames[-1] == "cam"
+    hops = g.hops(st)
+    assert hops[0].dst == "ecef" and hops[-1].src == "cam"
+    b = s.frames(st)
+    assert b.leaf == "cam" and b.frames[-1] == "cam"
+    from geoloc.frames.graph import BoundFrames
+
+    assert BoundFrames(g, st, leaf="body").leaf == "body"
+    assert BoundFrames(g, st, leaf="body").frames == ("ecef", "ned", "body")
+
+
+def test_fixed_joints_take_stacks_of_rotations_and_refuse_reflections():
+    from scipy.spatial.transform import Rotation
+
+    from geoloc.frames.graph import Joint
+
+    Rs = Rotation.from_euler("xyz", [[0.1, 0.2, 0.3], [-0.4, 0.5, 1.0]]).as_matrix()  # R_child_parent
+    j = Joint("body", "base", "fixed", R=Rs)  # a stack (Monte Carlo's per-sample mounts)
+    v = np.array([[1.0, 2.0, 3.0], [-1.0, 0.5, 2.0]])
+    np.testing.assert_allclose(j.rotate_to_parent(v, None), np.einsum("nji,nj->ni", Rs, v), atol=1e-15)
+    np.testing.assert_allclose(j.rotate_to_child(j.rotate_to_parent(v, None), None), v, atol=1e-15)
+    with pytest.raises(ValueError, match="must be a 3x3 rotation matrix"):
+        Joint("body", "base", "fixed", R=np.diag([1.0, 1.0, -1.0]))  # a mirror, det -1
+    with pytest.raises(ValueError, match="must be a 3x3 rotation matrix"):
+        Joint("body", "base", "fixed", R=np.eye(3) * 1.01)
+
+
+def test_gimbal_refuses_what_is_not_a_rotation_and_is_immutable():
+    from scipy.spatial.transform import Rotation
+
+    from geoloc.sensors.gimbals import PRESETS, Gimbal, GimbalJoint, gimbal_from_dict
+
+    joint = (GimbalJoint("pan", "z", "pan"),)
+    for bad in (np.eye(4), np.diag([1.0, -1.0, 1.0]), np.eye(3) + 1e-9):
+        with pytest.raises(ValueError, match="R_opt_last must be a rotation matrix"):
+            Gimbal("g", joint, bad)
+    # proper rotations whose determinant rounds a little below 1 are rotations
+    rng = np.random.default_rng(0)
+    R = next(R for R in Rotation.random(200, random_state=1).as_matrix() if np.linalg.det(R) < 1.0)
+    assert Gimbal("g", joint, R).R_opt_last.shape == (3, 3)
+    del rng
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        PRESETS["azimuth-elevation"].name = "x"
+    with pytest.raises(ValueError, match=r"joints = \{'angle': 'pan'\}: must be a non-empty list"):
+        gimbal_from_dict({"joints": {"angle": "pan"}})
+    with pytest.raises(ValueError, match=r"joints\[0\] = 'pan': must be"):
+        gimbal_from_dict({"joints": ["pan"]})
+    with pytest.raises(ValueError, match=r"joints\[0\] = \{'angle': 'pan', 'axis': 'z', 'speed': 1\}: must be"):
+        gimbal_from_dict({"joints": [{"angle": "pan", "axis": "z", "speed": 1}]})
+
+
+def test_frame_sensor_centre_params_and_field_checks():
+    from geoloc.assets import asset_path
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.sensors.sensor_file import load_sensor
+
+    s = _turret()
+    assert s.center_pixel == ((s.rows + 1) / 2.0, (s.cols + 1) / 2.0) == (540.5, 960.5)  # 1080 x 1920
+    # lens parameters other than the principal point pass through with_params unchanged
+    assert s.with_params(fx=2000.0).params["fx"] == 2000.0
+    assert s.with_params(k1=-0.1).params["k1"] == -0.1
+    assert s.with_params(cx=700.0).params["cx"] == 700.0  # 1-based in, 1-based out
+    drone = load_sensor(asset_path("sensors", "drone_camera.toml"))
+    assert not {"mount_x", "mount_y", "mount_z"} & set(drone.params)  # earth-referenced: no mount
+    assert {"boresight_x", "lever_arm_z_m"} <= set(drone.params)
+    with pytest.raises(ValueError, match="mount"):
+        dataclasses.replace(s, mount=(0.1, 0.2))
+    with pytest.raises(ValueError, match=r"sensor field boresight = .*: angles must lie in \[-pi, pi\] rad"):
+        dataclasses.replace(s, boresight=(0.0, 4.0, 0.0))
+    assert isinstance(s, FrameSensor)
+
+
+def test_azimuth_just_below_north_is_zero_not_360():
+    from geoloc.geodesy.local import enu_to_aer_deg
+
+    # a point a hair west of north: atan2 gives 2 pi - 1e-300, which is 360.0 in degrees
+    az, el, r = enu_to_aer_deg(np.array([-1e-300, 1.0, 0.0]))
+    assert 0.0 <= float(az) < 360.0 and float(az) == 0.0
