@@ -17,19 +17,34 @@
     ~1e-7 m; embree's float32 edge test can differ on a ray that grazes an edge by
     micrometres, which the bench counts). Wall time and process CPU time are both printed;
     the last line ``ratio: X`` is exact rays per CPU second over trimesh's.
+(c) ``--size N`` (``--big``: N = 3601, one 1-arc-second SRTM tile; 1801 for a quicker
+    check): the same comparison on an N x N DEM made by resampling the crop bilinearly
+    over the same area plus seeded Gaussian roughness (3 m), ``--big-rays`` (100 000)
+    oblique rays: rays per CPU second of both, hits compared (with trimesh, and bit for
+    bit with the walk without its levels above the blocks), setup times (exact: tables;
+    trimesh: mesh + BVH) and memory (peak RSS over the process's RSS before the build,
+    from ru_maxrss; the exact tables are built first, so each peak is its own; numpy's
+    share of the exact one by tracemalloc too). Embree's 3601 mesh takes 70 s and 7.7 GB.
+
+    python benchmarks/bench_terrain.py --big            # (a), (b) and (c) at 3601
+    python benchmarks/bench_terrain.py --size 1801 --skip-small
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import resource
 import statistics
 import time
+import tracemalloc
 
 import numpy as np
 
 from geoloc.assets import asset_path
 from geoloc.geodesy.ellipsoid import A
 from geoloc.status import Status
+from geoloc.surfaces import terrain
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 
@@ -69,13 +84,125 @@ def median_times_alternating(fns, repeat):
     return [(statistics.median(a), statistics.median(b)) for a, b in zip(ts, cs)]
 
 
+def upsampled_dem(src: DEM, n: int, rng: np.random.Generator, roughness_m: float = 3.0) -> DEM:
+    """``src`` resampled bilinearly to n x n nodes over the same area, plus Gaussian
+    roughness (sigma ``roughness_m`` [m], drawn from ``rng``); heights ellipsoidal, as
+    ``src.grid.values`` are (DEM.open adds EGM96's undulation)."""
+    g = src.grid
+    z = np.asarray(g.values, float)
+    for axis in (0, 1):
+        m = z.shape[axis]
+        x = np.linspace(0.0, m - 1, n)
+        i = np.minimum(x.astype(int), m - 2)
+        w = (x - i).reshape((n, 1) if axis == 0 else (1, n))
+        z = np.take(z, i, axis) * (1 - w) + np.take(z, i + 1, axis) * w
+    z += rng.normal(0.0, roughness_m, z.shape)
+    return DEM.from_array(z, g.lat_north_deg, g.lon_west_deg, g.dlat_deg * (g.values.shape[0] - 1) / (n - 1),
+                          g.dlon_deg * (g.values.shape[1] - 1) / (n - 1), datum="ellipsoid")
+
+
+def _rss():
+    """The process's resident set size now [bytes] (/proc/self/statm)."""
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def _peak_rss():
+    """The process's peak resident set size so far [bytes] (ru_maxrss is in kB on Linux)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def big_case(n, rays, repeat, seed):
+    """(c): the exact walk against trimesh/embree on an n x n upsampled DEM."""
+    src = DEM.open(SRTM)
+    dem = upsampled_dem(src, n, np.random.default_rng(seed))
+    los = random_oblique_rays(dem, rays, np.random.default_rng(seed + 1), frame_angle_deg=(45.0, 82.0))
+    g = dem.grid
+    print(f"\n(c) {n} x {n} nodes ({(n - 1) ** 2 * 2 / 1e6:.0f} M triangles), the crop resampled plus 3 m "
+          f"roughness (seed {seed}), cell {g.dlat_deg * 3600:.2f} x {g.dlon_deg * 3600:.2f} arc seconds; "
+          f"{rays} rays, frame angle 45-82 deg")
+    # exact first: its peak is then its own (ru_maxrss only grows)
+    rss0 = _rss()
+    tracemalloc.start()
+    t0, c0 = time.perf_counter(), time.process_time()
+    terrain._exact_tables(dem)
+    t_tab, c_tab = time.perf_counter() - t0, time.process_time() - c0
+    intersect_dem(los, dem, "exact", surface="triangles")  # compiled code from the cache, one walk
+    t_first = time.perf_counter() - t0
+    _, tm_peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    mem_ex = _peak_rss() - rss0
+    # trimesh / embree
+    from trimesh.ray.ray_pyembree import RayMeshIntersector
+
+    rss1 = _rss()
+    t0, c0 = time.perf_counter(), time.process_time()
+    mesh = dem.to_trimesh()
+    fr = mesh.metadata["enu_frame"]
+    caster = RayMeshIntersector(mesh)
+    O = fr.from_ecef(los.origin_ecef)
+    D = fr.vector_from_ecef(los.direction_ecef)
+    caster.intersects_location(O[:10], D[:10], multiple_hits=False)  # builds the BVH
+    t_build, c_build = time.perf_counter() - t0, time.process_time() - c0
+    mem_tm = _peak_rss() - rss1
+
+    def run_tm():
+        return caster.intersects_location(O, D, multiple_hits=False)
+
+    def run_ex():
+        return intersect_dem(los, dem, "exact", surface="triangles")
+
+    (t_tm, t_ex) = median_times_alternating((run_tm, run_ex), repeat)
+    loc, idx, _ = run_tm()
+    hit = run_ex()
+    climb = terrain.CLIMB_FROM
+    try:
+        terrain.CLIMB_FROM = 10**6  # no level above the blocks: the two-level walk
+        two = intersect_dem(los, dem, "exact", surface="triangles")
+    finally:
+        terrain.CLIMB_FROM = climb
+    okx = hit.status == Status.OK
+    hit_tm = np.zeros(len(okx), bool)
+    hit_tm[idx] = True
+    diff = np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1)
+    n_two = int(np.sum((two.status != hit.status) | np.any(~((two.ecef == hit.ecef)
+                                                               | (np.isnan(two.ecef) & np.isnan(hit.ecef))), -1)))
+    print(f"setup: exact tables {t_tab:.2f} s wall ({c_tab:.2f} s CPU), first call with them {t_first:.2f} s; "
+          f"trimesh mesh + BVH {t_build:.2f} s wall ({c_build:.2f} s CPU); exact / trimesh "
+          f"{t_tab / t_build:.3f} (goal <= 0.1)")
+    print(f"memory (peak RSS over RSS before the build): exact {mem_ex / 1e6:,.0f} MB (numpy, tracemalloc: "
+          f"{tm_peak / 1e6:,.0f} MB), trimesh/embree {mem_tm / 1e6:,.0f} MB; exact / trimesh "
+          f"{mem_ex / max(mem_tm, 1):.3f} (goal <= 0.25)")
+    print(f"{'':28s} {'wall':>14s} {'per CPU second':>16s}")
+    for name, (tw, tc) in (("trimesh ray cast", t_tm), ("exact, triangles", t_ex)):
+        print(f"{name:28s} {rays / tw:9,.0f} rays/s {rays / tc:10,.0f} rays/s")
+    print(f"cells or nodes visited per ray: {hit.dem_evaluations.mean():.2f} "
+          f"(without the levels above the blocks {two.dem_evaluations.mean():.2f})")
+    print(f"same rays hit as trimesh: {np.array_equal(okx, hit_tm)} ({int((okx != hit_tm).sum())} differ); "
+          f"max |exact - trimesh| = {diff.max():.2e} m; rays more than 1 mm apart: {int((diff > 1e-3).sum())}")
+    print(f"rays whose status or hit differs from the two-level walk's (bit for bit): {n_two}")
+    print(f"big ratio (CPU time, exact triangles over trimesh; goal >= 1.5): {t_tm[1] / t_ex[1]:.2f}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rays", type=int, default=10_000)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--size", type=int, default=0, help="also run (c) on an N x N upsampled DEM")
+    ap.add_argument("--big", action="store_true", help="--size 3601 (one SRTM 1-arc-second tile)")
+    ap.add_argument("--big-rays", type=int, default=100_000)
+    ap.add_argument("--big-repeat", type=int, default=3)
+    ap.add_argument("--skip-small", action="store_true", help="only (c)")
     a = ap.parse_args(argv)
+    size = 3601 if a.big else a.size
+    if not a.skip_small:
+        small_case(a)
+    if size:
+        big_case(size, a.big_rays, a.big_repeat, a.seed)
 
+
+def small_case(a):
     dem = DEM.open(SRTM)
     los = random_oblique_rays(dem, a.rays, np.random.default_rng(a.seed), frame_angle_deg=(45.0, 82.0))
     g = dem.grid

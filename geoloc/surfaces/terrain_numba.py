@@ -19,7 +19,8 @@ section 1), so the cell where the ray leaves the current one is found with one
 division per meridian and one quadratic per parallel, without approximation.
 The walk is a digital differential analyser on these boundaries (:func:`_walk`):
 each crossing is computed once, when its boundary becomes a side of the ray's
-cell or block.
+cell or block; above the blocks a min/max hierarchy (all levels) lets it jump over
+large clear nodes.
 
 The hit's latitude, longitude and height are computed in the kernel from the
 corner of its cell (:func:`_geodetic_near`; Vermeille's closed form of
@@ -387,8 +388,8 @@ def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b
     return s
 
 
-def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w, dlat, dlon,
-          tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
+def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat,
+          dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
           trace_s, trace_ij):
     """Exact first hit for each ray (see module docstring); fills s_out, status, ncell,
     and for the hits p_out (ECEF [m]) and geo_out (latitude, longitude [rad], height
@@ -414,12 +415,24 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
     walk), and a hit's latitude and longitude from the corner of its cell
     (:func:`_geodetic_near`). cinv is NaN exactly where a cell has no data. trace_s /
     trace_ij have shape (n, m); m = 0 disables the trace.
+
+    Above the blocks, the min/max hierarchy (docs/terrain.md): hinv[hlev[l, 0] + a
+    hlev[l, 2] + b] is the (1/(a+H)^2, 1/(b+H)^2) pair of node (a, b) of level
+    k = hlev[l, 3] (2^k x 2^k blocks; hlev[l, 1:3] its rows and columns), for the
+    levels the walk climbs (none: the two-level walk). From a clear block the walk
+    climbs while the node holding it is clear of the ray from s to where the ray
+    leaves it, then jumps to that point of the largest clear node, into the block
+    beyond; the node that stopped the climb is not tested again while the ray is in
+    it. A jump lands on the block boundary crossing the block-by-block walk would
+    compute (same function, same absolute parameters), so the hits do not change.
     """
     n = o.shape[0]
     nr = hgt.shape[0]
     nc = hgt.shape[1]
     nbr = binv.shape[0]
     nbc = binv.shape[1]
+    nlev = hlev.shape[0]
+    climb = nlev > 0
     mtrace = trace_s.shape[1]
     # the start cell's fast path needs the grid within 0.4 rad of its west meridian
     wide_ok = (nc - 1) * dlon < 0.4 and nr >= 2 and nc >= 2
@@ -568,6 +581,7 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
             bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
         bN, bN2 = _par_exit(tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
         bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
+        failed = -1  # the last hierarchy node (its index in hinv) this ray found not clear
         came = 4  # how the block was entered: 0 north side, 1 south side, 2 meridian;
         # 4: the cell (i, j) is known, 5: s is inside the block
         done = False
@@ -642,6 +656,178 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
                 if sx >= send:
                     st = st_end
                     break
+                # ------------------------------------------------ climb the hierarchy: the
+                # largest node above this block that the ray crosses clear of (from s to
+                # where it leaves the node), then one jump to that node's side
+                glv = -1
+                if climb:
+                    gE = sx  # exit of the last clear node (first: this block)
+                    gN = bN
+                    gN2 = bN2
+                    gS = bS
+                    gS2 = bS2
+                    gM = bM
+                    gi0 = i0
+                    gi1 = i1
+                    gj0 = j0
+                    gj1 = j1
+                    gni = bi
+                    gnj = bj
+                    ended = False
+                    for lv in range(nlev):
+                        sh = hlev[lv, 3]
+                        ni = bi >> sh
+                        nj = bj >> sh
+                        hk = hlev[lv, 0] + ni * hlev[lv, 2] + nj
+                        if hk == failed:  # this ray found the node not clear before: not again
+                            break
+                        failed = hk
+                        ia = hinv[hk, 0]
+                        if ia != ia:  # no data under the node
+                            break
+                        ib = hinv[hk, 1]
+                        qa = dxy2 * ia + dz2 * ib
+                        hb = oxd * ia + ozd * ib
+                        qc = oxy2 * ia + oz2 * ib - 1.0
+                        # necessary: clear up to the smaller node's exit (no side computed yet)
+                        if not (((qa * s + 2.0 * hb) * s + qc > 0.0) and ((qa * gE + 2.0 * hb) * gE + qc > 0.0)
+                                and not (qa * s < -hb and -hb < qa * gE and hb * hb >= qa * qc)):
+                            break
+                        span = BLOCK << sh
+                        a0 = ni * span
+                        a1 = min(a0 + span, nr - 1)
+                        c0 = nj * span
+                        c1 = min(c0 + span, nc - 1)
+                        # the node's sides: a side it shares with the smaller node keeps its crossing
+                        if a0 == gi0:
+                            nN = gN
+                            nN2 = gN2
+                        else:
+                            nN, nN2 = _par_exit(tan_row[a0], c_row[a0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
+                        if a1 == gi1:
+                            nS = gS
+                            nS2 = gS2
+                        else:
+                            nS, nS2 = _par_exit(tan_row[a1], c_row[a1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
+                        nM = np.inf
+                        if along:
+                            if (c1 == gj1) if east else (c0 == gj0):
+                                nM = gM
+                            else:
+                                jm = c1 if east else c0
+                                nM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
+                        nE = min(nN, nS, nM)
+                        e = nE if nE < send else send
+                        if not (((qa * e + 2.0 * hb) * e + qc > 0.0)
+                                and not (qa * s < -hb and -hb < qa * e and hb * hb >= qa * qc)):
+                            break
+                        failed = -1
+                        glv = sh
+                        gE = nE
+                        gN = nN
+                        gN2 = nN2
+                        gS = nS
+                        gS2 = nS2
+                        gM = nM
+                        gi0 = a0
+                        gi1 = a1
+                        gj0 = c0
+                        gj1 = c1
+                        gni = ni
+                        gnj = nj
+                        if nE >= send:
+                            ended = True
+                            break
+                    if ended:
+                        st = st_end
+                        break
+                if glv >= 0:
+                    # into the block beyond the node's side, at s = its crossing: the block
+                    # along the side is found by the sides of the block lines at s
+                    s = gE
+                    side = 2 if gE == gM else (0 if gE == gN else 1)
+                    sh = glv
+                    qx = ox + s * dx
+                    qy = oy + s * dy
+                    if side == 2:
+                        bj = ((gnj + 1) << sh) if east else ((gnj << sh) - 1)
+                        if bj < 0 or bj >= nbc:
+                            st = _LEFT
+                            break
+                        qz = oz + s * dz
+                        rho = math.sqrt(qx * qx + qy * qy)
+                        lo_b = gni << sh  # the last block row whose north parallel s is south of
+                        hi_b = min(lo_b + (1 << sh), nbr)
+                        while hi_b - lo_b > 1:
+                            mid = (lo_b + hi_b) >> 1
+                            m = mid * BLOCK
+                            if qz + c_row[m] - rho * tan_row[m] >= 0.0:  # north of parallel m
+                                hi_b = mid
+                            else:
+                                lo_b = mid
+                        bi = lo_b
+                        i0 = bi * BLOCK
+                        i1 = min(i0 + BLOCK, nr - 1)
+                        j0 = bj * BLOCK
+                        j1 = min(j0 + BLOCK, nc - 1)
+                        if i0 == gi0:
+                            bN = gN
+                            bN2 = gN2
+                        else:
+                            bN, bN2 = _par_exit(tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
+                        if i1 == gi1:
+                            bS = gS
+                            bS2 = gS2
+                        else:
+                            bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
+                        jm = j1 if east else j0
+                        bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
+                        came = 2
+                    else:
+                        if side == 0:
+                            bi = (gni << sh) - 1
+                            if bi < 0:
+                                st = _LEFT
+                                break
+                        else:
+                            bi = (gni + 1) << sh
+                            if bi >= nbr:
+                                st = _LEFT
+                                break
+                        lo_b = gnj << sh  # the last block column whose west meridian s is east of
+                        hi_b = min(lo_b + (1 << sh), nbc)
+                        while hi_b - lo_b > 1:
+                            mid = (lo_b + hi_b) >> 1
+                            m = mid * BLOCK
+                            if cos_col[m] * qy - sin_col[m] * qx < 0.0:  # west of meridian m
+                                hi_b = mid
+                            else:
+                                lo_b = mid
+                        bj = lo_b
+                        j0 = bj * BLOCK
+                        j1 = min(j0 + BLOCK, nc - 1)
+                        if side == 0:
+                            i1 = gi0
+                            i0 = bi * BLOCK
+                            bS = gN2
+                            bS2 = np.inf
+                            bN, bN2 = _par_exit(tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
+                            came = 1
+                        else:
+                            i0 = gi1
+                            i1 = min(i0 + BLOCK, nr - 1)
+                            bN = gS2
+                            bN2 = np.inf
+                            bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
+                            came = 0
+                        bM = np.inf
+                        if along:
+                            if (j1 == gj1) if east else (j0 == gj0):
+                                bM = gM
+                            else:
+                                jm = j1 if east else j0
+                                bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
+                    continue
                 s = sx
                 side = 2 if sx == bM else (0 if sx == bN else 1)
             else:
@@ -887,7 +1073,8 @@ walk_parallel_kernel = cached_njit(KEY, parallel=True, error_model="numpy", fast
 # views of the dtype below (a view: no copy), scalars as Python floats / bool, and the
 # outputs are checked to be writable C-ordered arrays of the dtype the kernel fills.
 _IN = (("o", np.float64, 2), ("d", np.float64, 2), ("hgt", np.float64, 2), ("lon_col", np.float64, 1),
-       ("cinv", np.float32, 3), ("binv", np.float64, 3), ("row_geo", np.float64, 2))
+       ("cinv", np.float32, 3), ("binv", np.float64, 3), ("hinv", np.float64, 2), ("hlev", np.int64, 2),
+       ("row_geo", np.float64, 2))
 _IN2 = (("tan_row", np.float64, 1), ("c_row", np.float64, 1), ("sin_col", np.float64, 1),
         ("cos_col", np.float64, 1))
 _OUT = (("s_out", np.float64, 1), ("p_out", np.float64, 2), ("geo_out", np.float64, 2),
@@ -913,29 +1100,82 @@ def _output(name, a, dtype, ndim):
 
 
 def _call(kernel, args):
-    (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w, dlat, dlon,
+    (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
      tan_row, c_row, sin_col, cos_col, triangles, *outs) = args
-    ins = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN, (o, d, hgt, lon_col, cinv, binv, row_geo))]
+    ins = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN, (o, d, hgt, lon_col, cinv, binv, hinv, hlev,
+                                                               row_geo))]
     ins2 = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN2, (tan_row, c_row, sin_col, cos_col))]
     outs = [_output(n, a, t, k) for (n, t, k), a in zip(_OUT, outs)]
-    o, d, hgt, lon_col, cinv, binv, row_geo = ins
-    kernel(o, d, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, row_geo, float(lat_n),
+    o, d, hgt, lon_col, cinv, binv, hinv, hlev, row_geo = ins
+    kernel(o, d, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, hinv, hlev, row_geo, float(lat_n),
            float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
 
 
-def walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w, dlat, dlon,
+def walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
          tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
          trace_s, trace_ij):
     """The exact first hit for each ray, serial: :func:`_walk` (its docstring) compiled once."""
-    _call(walk_kernel, (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w, dlat,
-                        dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out,
+    _call(walk_kernel, (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w,
+                        dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out,
                         status, ncell, trace_s, trace_ij))
 
 
-def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w, dlat, dlon,
-                  tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
+def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat,
+                  dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
                   trace_s, trace_ij):
     """As :func:`walk`, the rays spread over all cores (numba threads); identical results."""
-    _call(walk_parallel_kernel, (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, row_geo, lat_n, lon_w,
-                                 dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out,
+    _call(walk_parallel_kernel, (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n,
+                                 lon_w, dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out,
                                  geo_out, status, ncell, trace_s, trace_ij))
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
+def _tile_keys(o, d, ia, ib, lat_n, lon_w, tile_lat, tile_lon, nt, keys):
+    """keys[r] = the tile (rows of ``nt`` tiles, serpentine) under the point where ray r
+    meets the ellipsoid with ia, ib = 1/(a+h)^2, 1/(b+h)^2 [Q17 eq. 10-11], under its
+    origin if it misses it; tiles of ``tile_lat`` x ``tile_lon`` rad from (lat_n, lon_w),
+    the outer ring for anything outside. An order key only (:func:`ray_order`): an
+    error moves a ray to another tile, never its hit."""
+    for r in range(o.shape[0]):
+        ox = o[r, 0]
+        oy = o[r, 1]
+        oz = o[r, 2]
+        dx = d[r, 0]
+        dy = d[r, 1]
+        dz = d[r, 2]
+        dn = math.sqrt(dx * dx + dy * dy + dz * dz)
+        s = 0.0
+        if dn > 0.0 and dn < np.inf:
+            s0, _, _ = _roots(ox, oy, oz, dx / dn, dy / dn, dz / dn, ia, ib)
+            if s0 == s0 and s0 > 0.0:
+                s = s0 / dn
+        px = ox + s * dx
+        py = oy + s * dy
+        pz = oz + s * dz
+        ti = 0
+        tj = 0
+        if abs(px) + abs(py) + abs(pz) < np.inf:
+            la, lo = latlon(px, py, pz)
+            fi = (lat_n - la) / tile_lat
+            fj = _wrap(lo - lon_w, 0.0) / tile_lon
+            ti = int(min(max(fi + 1.0, 0.0), nt - 1.0))
+            tj = int(min(max(fj + 1.0, 0.0), nt - 1.0))
+        if ti % 2 == 1:
+            tj = nt - 1 - tj
+        keys[r] = ti * nt + tj
+
+
+def ray_order(o, d, h_mid, lat_n, lon_w, dlat, dlon, tile_cells, nt):
+    """A permutation of the rays that visits the DEM tile by tile (``tile_cells`` cells
+    square, ``nt`` tiles a side with the outer ring), by the point where each ray meets
+    the height ``h_mid`` [m, ellipsoidal]: walked in this order, consecutive rays read
+    nearby parts of the cell and height tables (100 MB each on a 3601 x 3601 DEM).
+    Stable: rays in one tile keep their order. The order changes no hit."""
+    o = np.ascontiguousarray(o, dtype=np.float64)
+    d = np.ascontiguousarray(d, dtype=np.float64)
+    keys = np.empty(len(o), dtype=np.int64)
+    _tile_keys(o, d, 1.0 / (A + h_mid) ** 2, 1.0 / (B + h_mid) ** 2, float(lat_n), float(lon_w),
+               float(dlat * tile_cells), float(dlon * tile_cells), int(nt), keys)
+    # keys < nt^2 <= 65536 for the tile sizes used: a 16-bit stable sort is a radix sort
+    kt = np.uint16 if nt * nt <= 65536 else np.int64
+    return np.argsort(keys.astype(kt), kind="stable").astype(np.int64)
