@@ -44,19 +44,10 @@ def open_dem_arg(args):
 
 
 def dem_for_workflow(args):
-    """``--dem`` as one in-memory :class:`~geoloc.surfaces.dem.DEM` (the KLV and photo workflows
-    build their own ``DemSurface``): a mosaic is read whole, within its region bound
-    (``--dem-cache-mb``), else a ValueError saying so."""
-    from geoloc.surfaces.mosaic import DemMosaic
-
-    dem = open_dem_arg(args)
-    if isinstance(dem, DemMosaic):
-        try:
-            return dem.to_dem()
-        except ValueError as e:
-            raise ValueError(f"--dem {args.dem}: {e}; KLV and photo replays read a mosaic whole: raise "
-                             "--dem-cache-mb, or cut the mosaic to the flight's area") from None
-    return dem
+    """``--dem`` for the KLV and photo workflows, which build their own ``DemSurface``: one
+    :class:`~geoloc.surfaces.dem.DEM`, or the mosaic itself (``DemSurface`` then solves it region by
+    region within its memory bound, ``--dem-cache-mb``)."""
+    return open_dem_arg(args)
 
 
 def open_surface(args):

@@ -550,6 +550,8 @@ class DemSurface:
         self.dem, self.method, self.dem_model, self.options = dem, method, dem_model, options
 
     def intersect(self, los: LineOfSight) -> TerrainHit:
+        if hasattr(self.dem, "with_solver"):  # a geoloc.surfaces.mosaic.DemMosaic: region by region
+            return self.dem.with_solver(self.method, self.dem_model, **self.options).intersect(los)
         return intersect_dem(los, self.dem, self.method, dem_model=self.dem_model, **self.options)
 
     def __repr__(self) -> str:
@@ -566,6 +568,8 @@ def surface_for(target_h=None, dem: DEM | None = None, *, method: str = "exact",
     from geoloc.surfaces.height import HeightSurface
 
     if dem is not None:
+        if hasattr(dem, "with_solver"):  # a geoloc.surfaces.mosaic.DemMosaic is a surface itself
+            return dem.with_solver(method, dem_model, **options)
         return DemSurface(dem, method, dem_model, **options)
     if target_h is None:
         raise ValueError("give a DEM or a target height (ellipsoidal, metres)")
