@@ -6,14 +6,32 @@ Everything comes from the core: the line of sight from
 eq. 18-26 height, and the exact minimum geodetic height), surfaces from
 :func:`geoloc.geodesy.ellipsoid.geodetic_to_ecef`, positions in a local ENU frame
 (:mod:`geoloc.frames.enu`) at the foot of the exact tangent. The virtual ellipsoid of
-eq. 13 has the WGS-84 flattening and semi-major axis a + Delta a, so it is the
-WGS-84 ellipsoid scaled about the Earth's centre by (a + Delta a) / a: that is
-how its surface is drawn (with a display exaggeration of Delta a).
+eq. 13 has the WGS-84 flattening and semi-major axis a + Delta a.
+
+What the drawing exaggerates (issue 20: "exaggerate what differs"), display only:
+
+- **Delta a minus the limb height.** The virtual ellipsoid is a *scaled* WGS-84,
+  not a shell of constant height: it stands Delta a above the equator but only the
+  limb height h_T (metres less) at the tangent latitude. It is drawn at the
+  geodetic height ``H_k = H_V + (k - 1) (H_V - h_T - slope)`` above WGS-84
+  (:func:`drawn_virtual_height`), where ``H_V`` is its true height above each
+  foot point, ``h_T`` its height at the tangent point's foot and ``slope`` the
+  first-order (linear in latitude and longitude) part of ``H_V - h_T`` there.
+  The departure from a shell is exaggerated k times **about the tangent point**:
+  the drawn surface keeps the true one's height and slope at the tangent point,
+  so the drawn line of sight (the true one) stays tangent to it there.
+- **The tangent-point offset.** The [L18] tangent point T and the exact minimum
+  of the geodetic height X are a few tens of metres apart on the line; X is
+  drawn at ``T + k_off (X - T)``, on the line, and both markers are sized below
+  half the drawn separation (:func:`marker_radius_km`).
+
+A line of sight that meets the Earth (HITS_EARTH) is drawn from the spacecraft
+to its ground point ``earth_hit_ecef`` only, with a marker there.
 
 Scene nodes (under ``/limb``, world unit km like the geolocation scene):
 ``earth``, ``earth_section``, ``virtual``, ``virtual_section``, ``nr/iterate_<k>``,
 ``spacecraft`` (+ ``label``), ``velocity``, ``los``, ``tangent`` (+ ``label``),
-``exact`` (+ ``label``).
+``exact`` (+ ``label``), ``earth_hit`` (+ ``label``, when the line meets the Earth).
 
 Conventions: ``docs/conventions.md``.
 """
@@ -28,13 +46,68 @@ import viser
 
 from geoloc.assets import ASSETS
 from geoloc.frames.enu import EnuFrame
-from geoloc.geodesy.ellipsoid import A, ecef_to_geodetic, geodetic_to_ecef
+from geoloc.geodesy.ellipsoid import (
+    E2,
+    A,
+    F,
+    ecef_to_geodetic,
+    geodetic_to_ecef,
+    prime_vertical_radius,
+)
 from geoloc.sensors.limb import limb_tangent, line_of_sight_l18
-from geoloc.status import describe
+from geoloc.status import Status, describe
 from geoloc.viz.scene_geoloc import WORLD_SCALE
 from geoloc.workflows.limb_scenario import load_scenario
 
 DEFAULT_LIMB = ("scenarios", "tiangong2_limb.toml")
+#: Default exaggerations: the virtual ellipsoid's departure from a shell at the limb height
+#: (metres over thousands of km), and the tangent-point offset (tens of metres at 2000 km).
+SHAPE_EXAGGERATION = 1000.0
+OFFSET_EXAGGERATION = 600.0
+#: Marker radii [km] when nothing forces them smaller, and their share of a separation.
+MARKER_KM = {"tangent": 12.0, "exact": 9.0}
+MARKER_SHARE = 0.4
+
+
+def virtual_height(lat, lon, delta_a):
+    """Geodetic height above WGS-84 [m] of the eq. 13 virtual ellipsoid (a + Delta a, the WGS-84
+    flattening) along the normal of each foot point (lat, lon) [rad]: a closed-form quadratic.
+
+    The point ``((N + h) cos(lat) cos(lon), (N + h) cos(lat) sin(lon), (N (1 - e^2) + h) sin(lat))``
+    lies on ``(x^2 + y^2) / a1^2 + z^2 / b1^2 = 1`` with ``a1 = a + Delta a``, ``b1 = (1 - f) a1``.
+    """
+    lat = np.asarray(lat, float)
+    n = prime_vertical_radius(lat)
+    a2 = (A + delta_a) ** 2
+    b2 = ((1.0 - F) * (A + delta_a)) ** 2
+    c2, s2 = np.cos(lat) ** 2, np.sin(lat) ** 2
+    al = c2 / a2 + s2 / b2
+    be = 2.0 * n * (c2 / a2 + (1.0 - E2) * s2 / b2)
+    ga = n ** 2 * (c2 / a2 + (1.0 - E2) ** 2 * s2 / b2) - 1.0
+    return (-be + np.sqrt(be ** 2 - 4.0 * al * ga)) / (2.0 * al) + 0.0 * np.asarray(lon, float)
+
+
+def drawn_virtual_height(lat, lon, delta_a, lat_t, lon_t, k):
+    """Drawn height [m] of the virtual ellipsoid above WGS-84: its departure from a shell at the
+    tangent point's height exaggerated ``k`` times about the tangent point's foot (lat_t, lon_t).
+
+    ``H_k = H_V + (k - 1) (H_V - h_T - dH/dlat dlat - dH/dlon dlon)``: equal to the true
+    height ``H_V`` with the same slope at the tangent point (so a line tangent to the
+    virtual ellipsoid there is tangent to the drawing), ``H_V`` itself for k = 1.
+    """
+    d = 1e-5  # rad (64 m): central differences of a smooth height; error ~ d^2 x third derivative, ~1e-12 m/rad
+    h_t = virtual_height(lat_t, lon_t, delta_a)
+    g_lat = (virtual_height(lat_t + d, lon_t, delta_a) - virtual_height(lat_t - d, lon_t, delta_a)) / (2 * d)
+    g_lon = (virtual_height(lat_t, lon_t + d, delta_a) - virtual_height(lat_t, lon_t - d, delta_a)) / (2 * d)
+    dlon = (np.asarray(lon, float) - lon_t + np.pi) % (2 * np.pi) - np.pi
+    h_v = virtual_height(lat, lon, delta_a)
+    lin = g_lat * (np.asarray(lat, float) - lat_t) + g_lon * dlon
+    return h_v + (k - 1.0) * (h_v - h_t - lin)
+
+
+def marker_radius_km(kind: str, separation_km: float) -> float:
+    """A marker's radius [km]: its default, but below half the drawn separation it must show."""
+    return float(min(MARKER_KM[kind], MARKER_SHARE * separation_km))
 
 
 def load_limb(path=None):
@@ -49,7 +122,8 @@ class LimbApp:
         self.server, self.scn = server, scenario
         self.frame = 0
         self.alpha_deg = 0.0
-        self.exaggeration = 1.0
+        self.exaggeration = SHAPE_EXAGGERATION
+        self.offset_exaggeration = OFFSET_EXAGGERATION
         self.last_update_s = float("nan")
         gui = server.gui
         self.md = gui.add_markdown("")
@@ -57,8 +131,14 @@ class LimbApp:
             half = max(np.rad2deg(scenario.fov) / 2.0 * 3.0, 1.0)
             self.sl_alpha = gui.add_slider("view angle alpha (deg)", -half, half, 0.01, 0.0)
             self.sl_frame = gui.add_slider("frame", 0, max(scenario.n_frames - 1, 1), 1, 0)
-            self.sl_exag = gui.add_slider("Delta a exaggeration", 1.0, 20.0, 0.5, 1.0)
-            for h in (self.sl_alpha, self.sl_frame, self.sl_exag):
+            self.sl_exag = gui.add_slider(
+                "Delta a - limb height exaggeration", 1.0, 5000.0, 1.0, SHAPE_EXAGGERATION,
+                hint="The virtual ellipsoid's departure from a shell at the limb height, drawn this many "
+                     "times larger about the tangent point (the line stays tangent)")
+            self.sl_off = gui.add_slider(
+                "tangent offset exaggeration", 1.0, 2000.0, 1.0, OFFSET_EXAGGERATION,
+                hint="The exact minimum is drawn this many times farther from the [L18] tangent point, on the line")
+            for h in (self.sl_alpha, self.sl_frame, self.sl_exag, self.sl_off):
                 h.on_update(lambda _: self._on_gui())
         self.compute()
         self.draw(reset_camera=True)
@@ -77,13 +157,26 @@ class LimbApp:
         # The scene origin: on the ellipsoid below the exact tangent (or below the spacecraft).
         if not hasattr(self, "enu") or not ok:
             self.enu = EnuFrame(float(lat), float(lon), 0.0)
-        # Ground track of the line of sight on WGS-84 (h = 0 below each of its points).
-        s_end = 2.0 * float(self.tan.exact_s) if ok else 3.0e6
-        ss = np.linspace(0.0, s_end, 121)
+        # Ground track of the line of sight on WGS-84 (h = 0 below each of its points), sampled
+        # every 0.5 km within 50 km of the tangent point (where tangency is seen), coarser elsewhere.
+        hit = int(self.tan.status) == int(Status.HITS_EARTH)
+        if ok:
+            s_end = 2.0 * float(self.tan.exact_s)
+            st = float(self.tan.s)
+            ss = np.union1d(np.linspace(0.0, s_end, 121), np.clip(st + np.arange(-50e3, 50e3 + 1, 500.0), 0, s_end))
+        elif hit:
+            s_end = float(np.linalg.norm(self.tan.earth_hit_ecef - self.chain.origin_ecef))
+            ss = np.linspace(0.0, s_end, 121)
+        else:
+            s_end = 3.0e6
+            ss = np.linspace(0.0, s_end, 121)
+        self.section_s = ss
         pts = self.chain.origin_ecef + ss[:, None] * self.chain.direction_ecef
         la, lo, _ = ecef_to_geodetic(pts)
+        self.section_geodetic = (la, lo)
         self.section_ecef = geodetic_to_ecef(la, lo, np.zeros_like(la))
-        self.los_ecef = pts[[0, -1]]
+        # A line that meets the Earth stops there (issue 16): not drawn through the planet.
+        self.los_ecef = np.stack([pts[0], self.tan.earth_hit_ecef if hit else pts[-1]])
 
     # ------------------------------------------------------------ drawing
     def w(self, p_ecef) -> np.ndarray:
@@ -91,8 +184,26 @@ class LimbApp:
         return self.enu.from_ecef(p_ecef) * WORLD_SCALE
 
     def _virtual(self, p_ecef, delta_a):
-        # eq. 13: same flattening, a + Delta a: the WGS-84 surface scaled about the centre.
-        return np.asarray(p_ecef) * ((A + self.exaggeration * delta_a) / A)
+        # eq. 13: same flattening, a + Delta a: the WGS-84 surface scaled about the centre (true size).
+        return np.asarray(p_ecef) * ((A + delta_a) / A)
+
+    def drawn_virtual(self, lat, lon) -> np.ndarray:
+        """ECEF [m] of the drawn (exaggerated about the tangent point) virtual ellipsoid above
+        the foot points (lat, lon) [rad]; see :func:`drawn_virtual_height`."""
+        t = self.tan
+        lat_t, lon_t, _ = ecef_to_geodetic(t.tangent_ecef)
+        h = drawn_virtual_height(lat, lon, float(t.delta_a), float(lat_t), float(lon_t), self.exaggeration)
+        return geodetic_to_ecef(lat, lon, h)
+
+    def drawn_exact_ecef(self) -> np.ndarray:
+        """Where the exact minimum is drawn: ``T + k_off (X - T)``, on the line of sight."""
+        t = self.tan
+        return t.tangent_ecef + self.offset_exaggeration * (t.exact_ecef - t.tangent_ecef)
+
+    def marker_radii_km(self) -> dict:
+        """Radii of the tangent and exact-minimum markers [km], below half their drawn separation."""
+        sep_km = float(np.linalg.norm(self.drawn_exact_ecef() - self.tan.tangent_ecef)) * WORLD_SCALE
+        return {k: marker_radius_km(k, sep_km) for k in MARKER_KM}
 
     def draw(self, reset_camera: bool = False) -> None:
         t0 = time.perf_counter()
@@ -114,12 +225,11 @@ class LimbApp:
                                color=(40, 90, 170), side="double", cast_shadow=False, receive_shadow=False)
             self._polyline("/limb/earth_section", self.w(self.section_ecef), (120, 170, 255), 2.0)
             if ok:
-                da = float(tan.delta_a)
-                virt = self._virtual(earth.reshape(-1, 3), da)
+                virt = self.drawn_virtual(LA.reshape(-1), LO.reshape(-1))
                 sc.add_mesh_simple("/limb/virtual", self.w(virt).astype(np.float32), faces,
                                    color=(255, 170, 60), opacity=0.25, side="double",
                                    cast_shadow=False, receive_shadow=False)
-                self._polyline("/limb/virtual_section", self.w(self._virtual(self.section_ecef, da)),
+                self._polyline("/limb/virtual_section", self.w(self.drawn_virtual(*self.section_geodetic)),
                                (255, 170, 60), 3.0)
                 hist = np.asarray(tan.nr_delta_a_history).reshape(-1)
                 hist = hist[np.isfinite(hist)]
@@ -139,17 +249,28 @@ class LimbApp:
                           head_radius=15.0, head_length=40.0)
             self._polyline("/limb/los", self.w(self.los_ecef), (255, 210, 0), 3.0)
             if ok:
-                sc.add_icosphere("/limb/tangent", radius=12.0, color=(255, 120, 0),
+                r = self.marker_radii_km()
+                off_m = float(np.linalg.norm(tan.exact_ecef - tan.tangent_ecef))
+                sc.add_icosphere("/limb/tangent", radius=r["tangent"], color=(255, 120, 0),
                                  position=self.w(tan.tangent_ecef), cast_shadow=False, receive_shadow=False)
                 sc.add_label("/limb/tangent/label",
                              f"[L18] tangent: h = {float(tan.tangent_h) / 1e3:.3f} km", anchor="bottom-left")
-                sc.add_icosphere("/limb/exact", radius=9.0, color=(20, 220, 90),
-                                 position=self.w(tan.exact_ecef), cast_shadow=False, receive_shadow=False)
+                sc.add_icosphere("/limb/exact", radius=r["exact"], color=(20, 220, 90),
+                                 position=self.w(self.drawn_exact_ecef()), cast_shadow=False, receive_shadow=False)
                 sc.add_label("/limb/exact/label",
-                             f"exact minimum: h = {float(tan.exact_h) / 1e3:.3f} km", anchor="top-left")
+                             f"exact minimum: h = {float(tan.exact_h) / 1e3:.3f} km, {off_m:.1f} m along the "
+                             f"line from the tangent (drawn x{self.offset_exaggeration:g})", anchor="top-left")
+                sc.remove_by_name("/limb/earth_hit")
             else:
                 for n in ("tangent", "exact", "virtual", "virtual_section", "nr"):
                     sc.remove_by_name(f"/limb/{n}")
+                if int(tan.status) == int(Status.HITS_EARTH):
+                    sc.add_icosphere("/limb/earth_hit", radius=12.0, color=(255, 60, 60),
+                                     position=self.w(tan.earth_hit_ecef), cast_shadow=False, receive_shadow=False)
+                    sc.add_label("/limb/earth_hit/label", "the line of sight meets the Earth here: no tangent",
+                                 anchor="bottom-left")
+                else:
+                    sc.remove_by_name("/limb/earth_hit")
         self._text()
         if reset_camera:
             tp = self.w(tan.exact_ecef) if ok else np.zeros(3)
@@ -177,8 +298,15 @@ class LimbApp:
                  f"frame {self.frame}, alpha {self.alpha_deg:+.2f} deg; scene: local ENU at the exact "
                  f"tangent's foot, km  "]
         if int(t.status) == 0:
-            lines += [f"virtual ellipsoid Delta a = {float(t.delta_a) / 1e3:.3f} km after "
-                      f"{int(t.nr_iterations)} Newton-Raphson steps (eq. 17); drawn x{self.exaggeration:g}  ",
+            da, ht = float(t.delta_a), float(t.tangent_h_geodetic)
+            off_m = float(np.linalg.norm(t.exact_ecef - t.tangent_ecef))
+            lines += [f"virtual ellipsoid Delta a = {da / 1e3:.3f} km after "
+                      f"{int(t.nr_iterations)} Newton-Raphson steps (eq. 17)  ",
+                      f"Delta a - limb height = {da - ht:.2f} m: the virtual ellipsoid is a scaled WGS-84, "
+                      f"not a shell; its departure from a shell at the limb height is drawn "
+                      f"x{self.exaggeration:g} about the tangent point (tangency kept)  ",
+                      f"exact minimum {off_m:.1f} m along the line from the [L18] tangent point, "
+                      f"drawn x{self.offset_exaggeration:g}  ",
                       f"[L18] limb height {float(t.tangent_h) / 1e3:.3f} km, exact minimum "
                       f"{float(t.exact_h) / 1e3:.3f} km, difference {float(t.h_difference):+.2e} m  ",
                       "Newton-Raphson Delta a iterates (km): "
@@ -192,6 +320,7 @@ class LimbApp:
         self.alpha_deg = float(self.sl_alpha.value)
         self.frame = int(self.sl_frame.value)
         self.exaggeration = float(self.sl_exag.value)
+        self.offset_exaggeration = float(self.sl_off.value)
         self.compute()
         self.draw()
 
