@@ -247,6 +247,73 @@ def test_export_writes_static_recordings(app, tmp_path):
         assert {"GlbMessage", "IcosphereMessage", "FrameMessage", "LineSegmentsMessage"} <= kinds
 
 
+def test_labels_say_3d_or_horizontal_and_the_drawing_factor(app):
+    # issue 16: the 3D label and the panel's horizontal figure were both unlabelled
+    import re
+
+    geod = pyproj.Geod(ellps="WGS84")
+    ecef = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    info = app.scn.records[app.scn.record_index][0]
+    hit = app.geometry.hit
+    lat, lon, h = float(hit.lat_deg), float(hit.lon_deg), float(hit.h)
+    text = node(app, "/record/error/label").text
+    m = re.fullmatch(r"error vector \(3D, drawn x10\): ([\d.]+) m", text)
+    assert m, text
+    e3 = float(m.group(1))
+    # the surveyed point sits on the DEM (the records give no truth height): the DEM's
+    # ellipsoidal height there (geoloc.surfaces.dem, checked against rasterio in its own tests)
+    h_truth = float(app.scn.dem.height(math.radians(info.truth_lat_deg), math.radians(info.truth_lon_deg)))
+    d3 = np.linalg.norm(np.subtract(ecef.transform(lon, lat, h),
+                                    ecef.transform(info.truth_lon_deg, info.truth_lat_deg, h_truth)))
+    assert e3 == pytest.approx(d3, abs=0.051)  # PROJ's ECEF chord; the label rounds to 0.1 m
+    horiz = geod.inv(lon, lat, info.truth_lon_deg, info.truth_lat_deg)[2]
+    summary = app.md_summary.content
+    m2 = re.search(r"to surveyed: ([\d.]+) m \(horizontal\)", summary)
+    assert m2 and float(m2.group(1)) == pytest.approx(horiz, abs=0.06)  # pyproj's geodesic
+    # 3D = horizontal and vertical together (closed form over ~0.5 km): the geodesic is on the
+    # ellipsoid, the points ~4.6 km above it, where the same angle spans (1 + h/R) more metres
+    # (0.35 m here; R's choice between the meridian and normal radii: 3 mm); the normals tilt
+    # by 8e-5 rad over the distance, a few mm of the 70 m height difference
+    h_mean = 0.5 * (h + h_truth)
+    assert e3 == pytest.approx(math.hypot(horiz * (1 + h_mean / 6.371e6), h - h_truth), abs=0.1)
+    assert f"error vector to surveyed (3D, surveyed point on the terrain): {e3:.1f} m, drawn x10" in summary
+    # the aircraft's display scale, next to it and in the panel
+    assert node(app, "/aircraft/label").text == "aircraft drawn x200"
+    assert "aircraft drawn x200 (display only)" in summary
+    app.sl_ac.value = 50.0
+    try:
+        assert node(app, "/aircraft/label").text == "aircraft drawn x50"
+        assert "aircraft drawn x50" in app.md_summary.content
+        assert node(app, "/aircraft/mesh").scale == pytest.approx(50.0 * WORLD_SCALE)
+    finally:
+        app.sl_ac.value = 200.0
+
+
+def test_header_says_custom_pose_after_an_edit(app):
+    # issue 16: the header kept the old record's name after an edit
+    assert app.md_summary.content.startswith("**qiao2017_flight_tests.csv T3-1**")
+    app.num["h_m"].value = app.inputs.h_m + 100.0
+    try:
+        head = app.md_summary.content.splitlines()[0]
+        assert head == "**qiao2017_flight_tests.csv: custom pose (edited from record T3-1)**  "
+        assert "to surveyed" not in app.md_summary.content  # no record's truth for a custom pose
+    finally:
+        app.dd_record.value = "T4-1"
+        app.dd_record.value = "T3-1"
+    assert app.md_summary.content.startswith("**qiao2017_flight_tests.csv T3-1**")
+
+
+def test_export_html_carries_record_method_and_errors(app, tmp_path):
+    import re
+
+    page = app.export(tmp_path / "s.html", animate_steps=False).read_text()
+    panel = re.search(r'<div id="geoloc-summary"[^>]*>(.*?)</div>', page, re.S).group(1)
+    for text in ("qiao2017_flight_tests.csv T3-1", "method: bisection [L23], threshold 1 m",
+                 "to surveyed:", "(horizontal)", "error vector to surveyed (3D", "drawn x10",
+                 "aircraft drawn x200"):
+        assert text in panel, text
+
+
 def test_bad_input_is_reported_not_raised(app):
     app.num["h_m"].value = 1.0e9  # out of the Pose range
     try:

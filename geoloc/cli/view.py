@@ -53,20 +53,33 @@ def register(sub) -> None:
                    "(self-contained, opens in a browser without a server, with a text panel naming "
                    "the record, the hit and its error) or FILE.viser (viser's playback format)")
     p.add_argument("--no-browser", action="store_true", help="do not open a browser tab")
+    p.add_argument("--presenter", action="store_true",
+                   help="presenter mode: the first browser tab drives, the others follow read-only "
+                   "(scene, camera, disabled controls) until one presses 'take control'. Default: "
+                   "every tab has its own state")
+    p.add_argument("--max-clients", type=int, default=16, metavar="N",
+                   help="browser tabs served at once (default 16); a tab beyond is told the limit")
     p.set_defaults(func=run)
 
 
-def build(args, server):
-    """Build the app named by ``args`` on ``server``; returns the app object."""
+def build(args, server, serve: bool = False):
+    """Build the app named by ``args`` on ``server``; returns the app object.
+
+    ``serve``: the flight-test scene as a :class:`geoloc.viz.app.GeolocViewer` (a state per
+    tab, or ``--presenter``); otherwise a session on the server itself (the export's).
+    """
     scen = args.scenario
     if scen in ("flight-test", "qiao2017", "default"):
-        from geoloc.viz.app import GeolocApp
+        from geoloc.viz.app import GeolocApp, GeolocViewer
         from geoloc.viz.scenario import load_scenario
 
         scn = load_scenario(args.records, args.record, args.camera, args.dem,
                             use_dem=not args.no_dem)
         if args.method:
             scn.inputs = scn.inputs.replace(method=args.method)
+        if serve:
+            return GeolocViewer(server, scn, presenter=getattr(args, "presenter", False),
+                                max_clients=getattr(args, "max_clients", 16))
         return GeolocApp(server, scn)
     from geoloc.viz.scene_limb import LimbApp, load_limb
 
@@ -76,15 +89,20 @@ def build(args, server):
 def run(args) -> int:
     if args.port is not None and not 0 <= args.port <= 65535:
         raise ValueError(f"port = {args.port}: must be in 0..65535")
+    if args.max_clients < 1:
+        raise ValueError(f"max-clients = {args.max_clients}: must be >= 1")
     if args.export:
         return _export(args)
     from geoloc.viz.app import make_server
 
     server = make_server(args.host, 8080 if args.port is None else args.port)
     try:
-        build(args, server)
+        build(args, server, serve=True)
         url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{server.get_port()}"
-        print(f"geoloc view: {url}  (Ctrl+C to stop)", flush=True)
+        mode = ("presenter mode: the first tab drives, the others follow" if args.presenter
+                else "each browser tab has its own state")
+        print(f"geoloc view: {url}  ({mode}; at most {args.max_clients} tabs; Ctrl+C to stop)",
+              flush=True)
         if args.host not in ("127.0.0.1", "localhost", "::1"):
             print(f"warning: listening on {args.host}: anyone who can reach this machine can "
                   "open the viewer", file=sys.stderr)

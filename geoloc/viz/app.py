@@ -1,14 +1,72 @@
-"""The ``geoloc view`` application: a viser server with the scene and its GUI.
+"""The ``geoloc view`` application: viser sessions with the scene and its GUI.
 
-:class:`GeolocApp` wires the GUI controls (pose, gimbal, pixel, method, record,
-display) to :func:`geoloc.viz.model.compute` (the core) and :class:`geoloc.viz.scene_geoloc.GeolocScene`
-(drawing). :func:`make_server` starts viser on 127.0.0.1 by default.
-Conventions: ``docs/conventions.md``.
+A **session** (:class:`GeolocSession`) is one complete viewer state: a scenario
+(record, DEM, ENU origin), the inputs, the display settings, the drawn scene and
+the GUI that edits them. It wires the GUI controls (pose, gimbal, pixel, method,
+record, display) to :func:`geoloc.viz.model.compute` (the core) and
+:class:`geoloc.viz.scene_geoloc.GeolocScene` (drawing).
+
+Where sessions live:
+
+- :class:`GeolocViewer` (what ``geoloc view`` runs): by default **one session per
+  browser tab**, built on the client's own ``client.scene`` / ``client.gui`` when
+  it connects and dropped when it disconnects; with ``presenter=True`` one client
+  drives a session drawn on the shared ``server.scene`` and the others follow
+  read-only. ``max_clients`` caps the tabs served.
+- :class:`GeolocApp`: a session on the server itself (``server.scene`` /
+  ``server.gui``, shared by every tab): used by the static export, by scripts
+  and tests.
+
+:func:`make_server` starts viser on 127.0.0.1 by default.
+
+Session interface (stable: the layers of other modules attach to it)
+--------------------------------------------------------------------
+``session.scene``
+    the viser ``SceneApi`` the session draws on (``client.scene`` or ``server.scene``).
+``session.gui``
+    the viser ``GuiApi`` of its controls.
+``session.server``, ``session.client``
+    the ``ViserServer``; the ``ClientHandle`` of its tab (None for a server session).
+``session.scn``
+    its :class:`geoloc.viz.model.Scenario` (each tab has its own copy).
+``session.view``
+    its :class:`geoloc.viz.scene_geoloc.GeolocScene` (``.enu`` the scene's
+    :class:`geoloc.frames.enu.EnuFrame`, ``.disp`` the :class:`Display`).
+``session.geometry``
+    the last :class:`geoloc.viz.model.Geometry` drawn (None before the first).
+``session.inputs``
+    the current :class:`geoloc.viz.model.Inputs`.
+``session.load_record(idx)``
+    load record ``idx`` of ``scn.records`` (new ENU origin, DEM), redraw, frame it.
+``session.refresh(recompute=True)``
+    recompute through the core and redraw; then every ``on_refresh`` callback.
+``session.move_camera(kind)``
+    this tab's camera (a server session: every tab's) to ``"overview"``,
+    ``"target"`` or a ``(position, look_at)`` pair in scene units (km, ENU).
+``session.on_refresh(callback)``
+    ``callback(geometry)`` after each redraw (usable as a decorator).
+``session.on_record(callback)``
+    ``callback(idx)`` after a record is loaded and the ENU origin moved, before the redraw.
+``layers=(attach_fn, ...)``
+    constructor argument: each ``attach_fn(session)`` builds its GUI and scene parts
+    once the session has drawn its first frame; what it returns is kept in
+    ``session.layers`` (in order). Default :data:`DEFAULT_LAYERS`.
+
+A layer must not keep the session alive after it closes: register callbacks on the
+session (dropped by :meth:`GeolocSession.close`) or on the session's own GUI
+handles (dropped with the tab), never on the server.
+
+Conventions: ``docs/conventions.md``. User guide: ``docs/viz.md``.
 """
 
 from __future__ import annotations
 
+import copy
+import dataclasses
+import sys
+import threading
 import time
+import traceback
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +74,10 @@ import viser
 
 from geoloc.locate import as_sensor
 from geoloc.status import describe
-from geoloc.viz import teaching
+from geoloc.viz import calibration_layer, teaching
 from geoloc.viz.model import Inputs, Scenario, compute, drawn_frames
 from geoloc.viz.scenario import select_record
-from geoloc.viz.scene_geoloc import Display, GeolocScene
+from geoloc.viz.scene_geoloc import Display, GeolocScene, camera_pose_for
 
 #: (field, label, min, max, step) of the pose sliders, degrees.
 ANGLE_SLIDERS = (
@@ -30,6 +88,12 @@ ANGLE_SLIDERS = (
     ("gimbal_pitch_deg", "gimbal pitch (deg)", -30.0, 30.0, 0.0001),
 )
 CUSTOM = "(custom pose)"
+#: Browser tabs served at once by default (``--max-clients``).
+MAX_CLIENTS = 16
+#: The layers every session gets unless told otherwise (``attach_fn(session)`` each).
+DEFAULT_LAYERS = (calibration_layer.attach,)
+METHOD_NAMES = {"steps": "descending steps [Q17]", "bisect": "bisection [L23]",
+                "exact": "exact first hit (cell walk)"}
 LEGEND = """\
 - **red** ball: the chosen method's answer; **green**: the exact first hit;
   **light blue**: the ellipsoid hit at H_max (where [Q17]'s steps start)
@@ -38,7 +102,10 @@ LEGEND = """\
   height h_n below, **blue** if H_n - h_n > 0 (above the terrain), **red** below;
   **cyan**: bisection brackets
 - **violet**: published position [Q17]; **white**: surveyed; **pink**: error
-  vector computed -> surveyed (exaggerated, see Display)
+  vector computed -> surveyed, drawn longer than it is by the "error vector
+  exaggeration" factor (its label gives its true 3D length)
+- the aircraft is drawn larger than life by the "aircraft display scale"
+  factor (a 15 m aircraft is a speck at 20 km); frames scale with it
 - frames at the aircraft: axes x red, y green, z blue; NED largest, then body,
   outer gimbal, camera (Z = optical axis)
 - scene: East-North-Up at the target, world unit km; zoom with the wheel,
@@ -58,30 +125,145 @@ def make_server(host: str = "127.0.0.1", port: int = 8080, verbose: bool = False
     return server
 
 
-class GeolocApp:
-    """The geolocation scene with its GUI on one server."""
+def release_memory() -> None:
+    """Free the dropped sessions now and hand freed heap back to the OS.
 
-    def __init__(self, server: viser.ViserServer, scn: Scenario, disp: Display | None = None):
+    A session holds reference cycles (its GUI callbacks refer to it), so only the cyclic
+    collector frees it; and glibc keeps freed memory in the arenas of viser's callback
+    threads (32 of them) instead of returning it: measured over 120 tabs opened and closed,
+    RSS stayed 50 MB above idle after ``gc.collect()`` and fell back below idle after
+    ``malloc_trim(0)`` (``benchmarks/bench_viz_churn.py``).
+    """
+    import gc
+
+    gc.collect()
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc: nothing to trim
+        pass
+
+
+def _set_camera(client, pos, aim) -> None:
+    # viser moves look_at with the position (keeping the orientation): set the position
+    # first, then the point to look at
+    with client.atomic():
+        client.camera.up_direction = (0.0, 0.0, 1.0)
+        client.camera.position = tuple(float(x) for x in pos)
+        client.camera.look_at = tuple(float(x) for x in aim)
+
+
+class GeolocSession:
+    """One viewer state (scenario, inputs, display, scene, GUI); interface in the module docstring.
+
+    Parameters
+    ----------
+    server : viser.ViserServer
+    scn : Scenario
+        The scenario; with ``copy_scenario`` the session works on a copy, so
+        loading another record leaves ``scn`` (and other sessions) alone.
+    disp : Display, optional
+        Display settings (copied with ``copy_scenario``).
+    client : viser.ClientHandle, optional
+        The tab this session belongs to: it draws on ``client.scene`` and
+        ``client.gui`` unless ``scene`` / ``gui`` say otherwise. None: the server.
+    scene, gui : optional
+        Override where the session draws and where its controls go (presenter
+        mode: the shared ``server.scene`` with the driver's ``client.gui``).
+    layers : sequence of callables, optional
+        ``attach_fn(session)`` each; default :data:`DEFAULT_LAYERS`.
+    inputs : Inputs, optional
+        Start from these inputs instead of the scenario's (a presenter hand-over).
+    """
+
+    def __init__(self, server: viser.ViserServer, scn: Scenario, disp: Display | None = None, *,
+                 client=None, scene=None, gui=None, layers=None, inputs: Inputs | None = None,
+                 copy_scenario: bool = False):
         self.server = server
+        self.client = client
+        self.scene = scene if scene is not None else (client.scene if client is not None else server.scene)
+        self.gui = gui if gui is not None else (client.gui if client is not None else server.gui)
+        if copy_scenario:
+            scn = copy.copy(scn)
+            disp = dataclasses.replace(disp, frames_visible=dict(disp.frames_visible)) if disp else None
         self.scn = scn
-        self.view = GeolocScene(server.scene, scn, disp)
-        self.inputs: Inputs = scn.inputs.replace()
+        self.view = GeolocScene(self.scene, scn, disp)
+        self.inputs: Inputs = (inputs or scn.inputs).replace()
         self.geometry = None
         self.error: str = ""
         self.last_update_s = float("nan")
+        self.closed = False
         self._mute = False
+        self._lock = threading.RLock()
+        self._refresh_cbs: list = []
+        self._record_cbs: list = []
+        self.layers: list = []
+        self.calibration = None
         self._build_gui()
+        if inputs is not None:
+            self._sync_record_box()
         self.view.draw_static()
         self.refresh()
-        self.view.set_initial_camera(server)
-        # Issue 8: error vectors of all records, before/after a fitted mounting rotation.
-        from geoloc.viz.calibration_layer import attach as attach_calibration
+        if client is None:
+            self.view.set_initial_camera(server)
+        for attach in (DEFAULT_LAYERS if layers is None else layers):
+            obj = attach(self)
+            self.layers.append(obj)
+            if attach is calibration_layer.attach:
+                # Issue 8: error vectors of all records, before/after a fitted mounting rotation.
+                self.calibration = obj
 
-        self.calibration = attach_calibration(self)
+    # ------------------------------------------------------------ interface
+    def on_refresh(self, callback):
+        """Register ``callback(geometry)``, called after each redraw; returns it (a decorator)."""
+        self._refresh_cbs.append(callback)
+        return callback
+
+    def on_record(self, callback):
+        """Register ``callback(idx)``, called after record ``idx`` is loaded, before the redraw."""
+        self._record_cbs.append(callback)
+        return callback
+
+    def move_camera(self, kind) -> None:
+        """This tab's camera (a server session: every tab's) to a named view or a
+        ``(position, look_at)`` pair in scene units; see :meth:`GeolocScene.camera_pose`."""
+        if isinstance(kind, str):
+            if self.geometry is None:
+                return
+            pos, aim = self.view.camera_pose(kind)
+        else:
+            pos, aim = (np.asarray(v, float) for v in kind)
+            if pos.shape != (3,) or aim.shape != (3,):
+                raise ValueError(f"move_camera: kind = {kind!r}: 'overview', 'target' or a "
+                                 "(position, look_at) pair of 3-vectors")
+        clients = [self.client] if self.client is not None else list(self.server.get_clients().values())
+        for c in clients:
+            try:
+                _set_camera(c, pos, aim)
+            except Exception:  # a tab that left while we moved it: nothing to move
+                pass
+
+    def close(self) -> None:
+        """Drop callbacks and layers (the tab's GUI and scene go with its connection)."""
+        self.closed = True
+        for obj in self.layers:
+            if hasattr(obj, "close"):
+                try:
+                    obj.close()
+                except Exception:
+                    traceback.print_exc(file=sys.stderr)
+        self._refresh_cbs.clear()
+        self._record_cbs.clear()
+        self.layers.clear()
+        self.calibration = None
+
+    def _atomic(self):
+        return (self.client if self.client is not None else self.server).atomic()
 
     # ------------------------------------------------------------ GUI
     def _build_gui(self) -> None:
-        gui = self.server.gui
+        gui = self.gui
         self.md_summary = gui.add_markdown("")
         labels = [info.label for info, _ in self.scn.records]
         with gui.add_folder("Flight-test record"):
@@ -118,18 +300,22 @@ class GeolocApp:
         with gui.add_folder("View"):
             self.bt_overview = gui.add_button("overview: aircraft, frames, line of sight")
             self.bt_target = gui.add_button("target: iterations and hits")
-            self.bt_overview.on_click(lambda _: self.view.move_clients(self.server, "overview"))
-            self.bt_target.on_click(lambda _: self.view.move_clients(self.server, "target"))
+            self.bt_overview.on_click(lambda _: self.move_camera("overview"))
+            self.bt_target.on_click(lambda _: self.move_camera("target"))
         with gui.add_folder("Legend", expand_by_default=False):
             gui.add_markdown(LEGEND)
         with gui.add_folder("Display"):
             d = self.view.disp
             self.sl_vexag = gui.add_slider("vertical exaggeration", 1.0, 10.0, 0.5, d.vertical_exaggeration)
-            self.sl_ac = gui.add_slider("aircraft display scale", 1.0, 300.0, 1.0, d.aircraft_scale)
-            self.sl_err = gui.add_slider("error vector exaggeration", 1.0, 100.0, 1.0, d.error_exaggeration)
+            self.sl_ac = gui.add_slider("aircraft display scale", 1.0, 300.0, 1.0, d.aircraft_scale,
+                                        hint="The aircraft is drawn this many times its size (display only)")
+            self.sl_err = gui.add_slider("error vector exaggeration", 1.0, 100.0, 1.0, d.error_exaggeration,
+                                         hint="The error vector is drawn this many times its length; "
+                                         "its label gives the true length")
             self.sl_marker = gui.add_slider("marker radius (m)", 10.0, 500.0, 10.0, d.marker_radius_m)
-            self.cb_frames = {f: gui.add_checkbox(f"frame {f}", True) for f in drawn_frames(self.scn.camera)}
-            self.cb_terrain = gui.add_checkbox("terrain", True)
+            self.cb_frames = {f: gui.add_checkbox(f"frame {f}", d.frames_visible.get(f, True))
+                              for f in drawn_frames(self.scn.camera)}
+            self.cb_terrain = gui.add_checkbox("terrain", d.terrain_visible)
             self.cb_labels = gui.add_checkbox("marker labels", d.marker_labels,
                                               hint="Labels of the hit markers (they overlap until you zoom in)")
             for h in (self.sl_vexag, self.sl_ac, self.sl_err, self.sl_marker, self.cb_terrain, self.cb_labels,
@@ -181,87 +367,137 @@ class GeolocApp:
         # Selecting a hop T_dst_src highlights the frame it maps from.
         d.highlight = None if hop == "(none)" else self._hop_src.get(hop)
 
+    def _is_custom(self) -> bool:
+        """True when the inputs differ from the loaded record's pose and pixel."""
+        if self.scn.record_index is None:
+            return True
+        rec_inp = self.scn.records[self.scn.record_index][1]
+        return any(abs(self._input_value(self.inputs, k) - self._input_value(rec_inp, k)) > 1e-9
+                   for k in self.num)
+
+    def _sync_record_box(self) -> None:
+        if self._is_custom() and self.dd_record.value != CUSTOM:
+            self._mute = True
+            try:
+                self.dd_record.value = CUSTOM
+            finally:
+                self._mute = False
+
     # ------------------------------------------------------------ callbacks
     def _on_inputs(self) -> None:
-        if self._mute:
+        if self._mute or self.closed:
             return
-        self.inputs = self._read_inputs()
-        if self.scn.record_index is not None and self.dd_record.value != CUSTOM:
-            rec_inp = self.scn.records[self.scn.record_index][1]
-            if any(abs(self._input_value(self.inputs, k) - self._input_value(rec_inp, k)) > 1e-9
-                   for k in self.num):
-                self._mute = True
-                self.dd_record.value = CUSTOM
-                self._mute = False
-        self.refresh()
+        with self._lock:
+            self.inputs = self._read_inputs()
+            if self.dd_record.value != CUSTOM:
+                self._sync_record_box()
+            self.refresh()
 
     def _on_display(self) -> None:
-        if self._mute:
+        if self._mute or self.closed:
             return
-        self._read_display()
-        self.refresh(recompute=False)
+        with self._lock:
+            self._read_display()
+            self.refresh(recompute=False)
 
     def _on_record(self) -> None:
-        if self._mute or self.dd_record.value == CUSTOM:
+        if self._mute or self.closed or self.dd_record.value == CUSTOM:
             return
         labels = [info.label for info, _ in self.scn.records]
         self.load_record(labels.index(self.dd_record.value))
 
     def load_record(self, idx: int) -> None:
-        """Load record ``idx``: pose, pixel, new ENU origin and terrain, then redraw."""
-        select_record(self.scn, idx)
-        keep = self.inputs
-        self.inputs = self.scn.inputs.replace(method=keep.method, eps_h=keep.eps_h,
-                                              threshold=keep.threshold)
-        self._mute = True
+        """Load record ``idx``: pose, pixel, new ENU origin and terrain, redraw, and move
+        this tab's camera (a server session: every tab's) to frame the aircraft and target."""
+        with self._lock:
+            select_record(self.scn, idx)
+            keep = self.inputs
+            self.inputs = self.scn.inputs.replace(method=keep.method, eps_h=keep.eps_h,
+                                                  threshold=keep.threshold)
+            self._mute = True
+            try:
+                for k, h in self.num.items():
+                    h.value = self._input_value(self.inputs, k)
+                label = self.scn.records[idx][0].label
+                if self.dd_record.value != label:
+                    self.dd_record.value = label
+            finally:
+                self._mute = False
+            with self._atomic():
+                self.view.draw_static()
+                for cb in list(self._record_cbs):
+                    self._call(cb, idx)
+            self.refresh()
+            if self.client is None:
+                self.view.set_initial_camera(self.server)
+            self.move_camera("overview")
+
+    def _call(self, cb, arg) -> None:
         try:
-            for k, h in self.num.items():
-                h.value = self._input_value(self.inputs, k)
-            label = self.scn.records[idx][0].label
-            if self.dd_record.value != label:
-                self.dd_record.value = label
-        finally:
-            self._mute = False
-        with self.server.atomic():
-            self.view.draw_static()
-            if getattr(self, "calibration", None) is not None:
-                self.calibration.rebuild()  # the ENU origin moved with the record
-        self.refresh()
-        self.view.set_initial_camera(self.server)
+            cb(arg)
+        except Exception:  # a layer's bug must not take the viewer down: report it
+            print(f"geoloc view: error in a layer callback {getattr(cb, '__qualname__', cb)}:",
+                  file=sys.stderr)
+            traceback.print_exc(file=sys.stderr)
 
     # ------------------------------------------------------------ redraw
     def refresh(self, recompute: bool = True) -> None:
-        """Recompute with the core (unless only the display changed) and redraw; time it."""
-        t0 = time.perf_counter()
-        if recompute or self.geometry is None:
-            try:
-                self.geometry = compute(self.scn, self.inputs)
-                self.error = ""
-            except ValueError as e:
-                self.error = str(e)
-        g = self.geometry
-        if g is not None:
-            it = g.iterations
-            n = 0 if it is None else len(it.H)
-            self._mute = True
-            try:
-                self.sl_step.max = max(n - 1, 1)
-                self.sl_step.disabled = n == 0 or bool(self.cb_all_steps.value)
-                if self.sl_step.value > n - 1:
-                    self.sl_step.value = max(n - 1, 0)
-            finally:
-                self._mute = False
-            with self.server.atomic():
-                self.view.update(g)
-            self._update_text(g)
-        self.last_update_s = time.perf_counter() - t0
+        """Recompute with the core (unless only the display changed) and redraw; time it;
+        then call the ``on_refresh`` callbacks with the geometry."""
+        with self._lock:
+            t0 = time.perf_counter()
+            if recompute or self.geometry is None:
+                try:
+                    self.geometry = compute(self.scn, self.inputs)
+                    self.error = ""
+                except ValueError as e:
+                    self.error = str(e)
+            g = self.geometry
+            if g is not None:
+                it = g.iterations
+                n = 0 if it is None else len(it.H)
+                self._mute = True
+                try:
+                    self.sl_step.max = max(n - 1, 1)
+                    self.sl_step.disabled = n == 0 or bool(self.cb_all_steps.value)
+                    if self.sl_step.value > n - 1:
+                        self.sl_step.value = max(n - 1, 0)
+                finally:
+                    self._mute = False
+                with self._atomic():
+                    self.view.update(g)
+                self._update_text(g)
+            self.last_update_s = time.perf_counter() - t0
+            if g is not None:
+                for cb in list(self._refresh_cbs):
+                    self._call(cb, g)
+
+    def header(self) -> str:
+        """The panel's title: the records file and record, or a custom pose and where it came from."""
+        scn = self.scn
+        if scn.record_index is None:
+            return f"{scn.name} (custom pose)"
+        label = scn.records[scn.record_index][0].label
+        if self.dd_record.value == CUSTOM:
+            return f"{scn.source or scn.name}: custom pose (edited from record {label})"
+        return scn.name
 
     def _update_text(self, g) -> None:
         scn, enu = self.scn, self.scn.enu
-        lines = [f"**{scn.name}**  ",
+        d = self.view.disp
+        inp = self.inputs
+        if scn.dem is None:
+            method = f"method: hit at the target height {inp.target_h:.1f} m (ellipsoidal); no DEM"
+        else:
+            method = f"method: {METHOD_NAMES.get(inp.method, inp.method)}"
+            method += (f", eps_h {inp.eps_h:g} m" if inp.method == "steps" else
+                       f", threshold {inp.threshold:g} m" if inp.method == "bisect" else "")
+        lines = [f"**{self.header()}**  ",
                  f"terrain: {scn.dem_name}  ",
+                 method + "  ",
                  f"scene: local East-North-Up, origin {np.rad2deg(enu.lat0):.3f} N "
-                 f"{np.rad2deg(enu.lon0):.3f} E h {enu.h0:.0f} m; scale bar 5 km  "]
+                 f"{np.rad2deg(enu.lon0):.3f} E h {enu.h0:.0f} m; scale bar 5 km  ",
+                 f"aircraft drawn x{d.aircraft_scale:g} (display only)  "]
         if self.error:
             lines.append(f"\n**input error:** {self.error}")
         hit = g.hit
@@ -285,8 +521,12 @@ class GeolocApp:
                 if np.isfinite(info.paper_error_m):
                     text += f" (published error {info.paper_error_m:.1f} m)"
                 if np.isfinite(e_p):
-                    text += f"; to published: {e_p:.1f} m"
-                lines.append(text)
+                    text += f"; to published: {e_p:.1f} m (horizontal)"
+                lines.append(text + "  ")
+                if g.surveyed_enu is not None and np.all(np.isfinite(g.hit_enu)):
+                    e3 = float(np.linalg.norm(g.surveyed_enu - g.hit_enu))
+                    lines.append(f"error vector to surveyed (3D, surveyed point on the terrain): "
+                                 f"{e3:.1f} m, drawn x{d.error_exaggeration:g}  ")
         self.md_summary.content = "\n".join(lines)
         hop = str(self.dd_hop.value)
         hv = {h.key: h for h in teaching.hops(g.chain)}
@@ -294,12 +534,26 @@ class GeolocApp:
                                else teaching.chain_markdown(g.chain))
         self.md_q17.content = teaching.q17_factors_markdown(g.chain)
 
+
+class GeolocApp(GeolocSession):
+    """A session on the server itself (``server.scene`` / ``server.gui``): every tab shares it.
+
+    What the static export and scripts use; ``geoloc view`` serves a
+    :class:`GeolocViewer` (a session per tab) instead.
+    """
+
+    def __init__(self, server: viser.ViserServer, scn: Scenario, disp: Display | None = None, *,
+                 layers=None):
+        super().__init__(server, scn, disp, layers=layers)
+
     # ------------------------------------------------------------ export
     def export(self, path, animate_steps: bool = True) -> Path:
         """Write the current scene as a static recording: ``.viser`` or self-contained ``.html``.
 
         With ``animate_steps`` the recording then walks through the iterations
-        of the terrain method one by one (0.4 s each). GUI controls are not exported.
+        of the terrain method one by one (0.4 s each). GUI controls are not exported;
+        an ``.html`` page carries the summary panel's text (record, terrain, method,
+        hit, errors) instead.
         """
         path = Path(path)
         ser = self.server.get_scene_serializer()
@@ -318,9 +572,9 @@ class GeolocApp:
         if path.suffix.lower() == ".html":
             from geoloc.viz.export_html import with_summary
 
-            # the serializer records the scene, not the GUI: the summary (record, hit,
-            # error to the surveyed point) goes into the page as a panel of its own
-            page = with_summary(ser.as_html(dark_mode=True), f"geoloc view: {self.scn.name}",
+            # the serializer records the scene, not the GUI: the summary (record, method, hit,
+            # errors) goes into the page as a panel of its own
+            page = with_summary(ser.as_html(dark_mode=True), f"geoloc view: {self.header()}",
                                 self.md_summary.content,
                                 "Static export of geoloc view (no controls); "
                                 "the scene animates the terrain method's iterations.")
@@ -328,3 +582,241 @@ class GeolocApp:
         else:
             path.write_bytes(ser.serialize())
         return path
+
+
+class _FollowerPanel:
+    """A presenter-mode follower's GUI: a note, the presenter's panel text and values, read-only."""
+
+    def __init__(self, viewer: "GeolocViewer", client, driver: GeolocSession | None):
+        self.client = client
+        gui = client.gui
+        self.md_note = gui.add_markdown("")
+        self.bt_take = gui.add_button("take control", hint="Drive the scene; the presenter becomes a follower")
+        cid = client.client_id
+        self.bt_take.on_click(lambda _e: viewer.take_control(cid))
+        self.md_summary = gui.add_markdown("")
+        self.num = {}
+        if driver is not None:
+            with gui.add_folder("Presenter's inputs (read-only)"):
+                self.dd_record = gui.add_dropdown("record", list(driver.dd_record.options),
+                                                  initial_value=driver.dd_record.value, disabled=True)
+                for k, h in driver.num.items():
+                    self.num[k] = gui.add_number(h.label, float(h.value), disabled=True)
+        self.update(driver)
+
+    def update(self, driver: GeolocSession | None) -> None:
+        if driver is None:
+            return
+        who = driver.client.client_id if driver.client is not None else "?"
+        self.md_note.content = (f"**Presenter mode**: you follow tab #{who}, the presenter; the scene "
+                                "and the camera are theirs and the controls are read-only. Press "
+                                "\"take control\" to drive.")
+        self.md_summary.content = driver.md_summary.content
+        if self.num:
+            self.dd_record.value = driver.dd_record.value
+            for k, h in self.num.items():
+                if k in driver.num:
+                    h.value = float(driver.num[k].value)
+
+
+class GeolocViewer:
+    """What ``geoloc view`` serves: a session per browser tab, or presenter mode.
+
+    Parameters
+    ----------
+    server : viser.ViserServer
+    scn : Scenario
+        The scenario every new tab starts from (its default record): never modified.
+    presenter : bool
+        False (default): each tab gets its own :class:`GeolocSession` on its
+        ``client.scene`` / ``client.gui``, built on connect, dropped on
+        disconnect. True: the first tab to connect drives a session drawn on the
+        shared ``server.scene``; the others follow read-only (they see the
+        driver's scene and camera and a disabled copy of its inputs) until one
+        presses "take control"; when the driver leaves, the longest-connected
+        follower drives.
+    max_clients : int
+        Tabs served at once; a tab beyond gets a message saying the limit and
+        how to raise it (``--max-clients``), and a line on stderr.
+    layers : sequence of callables, optional
+        Passed to every session (default :data:`DEFAULT_LAYERS`).
+    """
+
+    #: What builds a tab's session (same arguments as :class:`GeolocSession`).
+    session_factory = GeolocSession
+
+    def __init__(self, server: viser.ViserServer, scn: Scenario, disp: Display | None = None, *,
+                 presenter: bool = False, max_clients: int = MAX_CLIENTS, layers=None):
+        if int(max_clients) != max_clients or max_clients < 1:
+            raise ValueError(f"max_clients = {max_clients!r}: must be a whole number >= 1")
+        self.server, self.scn, self.disp = server, scn, disp or Display()
+        self.presenter, self.max_clients, self.layers = bool(presenter), int(max_clients), layers
+        self.sessions: dict[int, GeolocSession] = {}  # per-tab mode: client id -> session
+        self.followers: dict[int, _FollowerPanel] = {}  # presenter mode
+        self.driver: GeolocSession | None = None
+        self.refused: set[int] = set()
+        self._lock = threading.RLock()
+        self._release_timer: threading.Timer | None = None
+        #: Seconds after the last tab closes before memory is released (a burst of closes: once).
+        self.release_delay_s = 0.5
+        self.set_initial_camera()
+        server.on_client_connect(self._on_connect)
+        server.on_client_disconnect(self._on_disconnect)
+
+    def set_initial_camera(self) -> None:
+        """New tabs open on the overview of the default record (server.initial_camera)."""
+        g = compute(self.scn, self.scn.inputs)
+        pos, aim = camera_pose_for(g, self.disp, "overview")
+        cam = self.server.initial_camera
+        cam.up = (0.0, 0.0, 1.0)
+        cam.near = 0.02  # km (world units)
+        cam.far = 1000.0
+        cam.position = tuple(pos)
+        cam.look_at = tuple(aim)
+
+    @property
+    def n_served(self) -> int:
+        return len(self.sessions) + len(self.followers) + (self.driver is not None)
+
+    def session_of(self, client_id: int) -> GeolocSession | None:
+        """The session of a tab (presenter mode: the driver's, for the driver)."""
+        if self.driver is not None and self.driver.client is not None \
+                and self.driver.client.client_id == client_id:
+            return self.driver
+        return self.sessions.get(client_id)
+
+    # ------------------------------------------------------------ connections
+    def _connected(self, client) -> bool:
+        return client.client_id in self.server.get_clients()
+
+    def _on_connect(self, client) -> None:
+        # Builds under the viewer's lock (one build at a time: the machine has few cores and a
+        # build is CPU bound). viser pops a leaving client from get_clients() before it runs
+        # the disconnect callbacks, so a tab that closed while its session was being built is
+        # seen below and its session dropped at once (else it would never be freed).
+        with self._lock:
+            if not self._connected(client):
+                return
+            if self.n_served >= self.max_clients:
+                self._refuse(client)
+                return
+            cid = client.client_id
+            if not self.presenter:
+                s = self.session_factory(self.server, self.scn, self.disp, client=client, layers=self.layers,
+                                  copy_scenario=True)
+                if self._connected(client):
+                    self.sessions[cid] = s
+                else:
+                    s.close()
+            elif self.driver is None:
+                self._make_driver(client, None)
+                if not self._connected(client):
+                    self._drop(client)
+            else:
+                self.followers[cid] = _FollowerPanel(self, client, self.driver)
+                self._follow_camera_of(self.driver.client)
+                if not self._connected(client):
+                    self.followers.pop(cid, None)
+
+    def _schedule_release(self) -> None:
+        if self._release_timer is not None:
+            self._release_timer.cancel()
+        self._release_timer = threading.Timer(self.release_delay_s, release_memory)
+        self._release_timer.daemon = True
+        self._release_timer.start()
+
+    def _on_disconnect(self, client) -> None:
+        try:
+            self._drop(client)
+        finally:
+            self._schedule_release()
+
+    def _drop(self, client) -> None:
+        cid = client.client_id
+        with self._lock:
+            self.refused.discard(cid)
+            s = self.sessions.pop(cid, None)
+            if s is not None:
+                s.close()
+            self.followers.pop(cid, None)
+            if self.driver is not None and self.driver.client is client:
+                old, self.driver = self.driver, None
+                old.close()
+                if self.followers:
+                    nxt = next(iter(self.followers))
+                    panel = self.followers.pop(nxt)
+                    self._make_driver(panel.client, old)
+                    self._mirror()
+
+    def _refuse(self, client) -> None:
+        self.refused.add(client.client_id)
+        n = self.max_clients
+        text = (f"This viewer serves at most **{n}** browser tabs at once (`--max-clients {n}`), "
+                f"and {self.n_served} are open. Close another tab and reload this page, or restart "
+                f"the server with a higher limit: `geoloc view --max-clients {2 * n}`.")
+        try:
+            with client.gui.add_modal("geoloc view: too many browser tabs"):
+                client.gui.add_markdown(text)
+            client.gui.add_markdown("**Not served:** " + text)
+        except Exception:  # it left already
+            pass
+        print(f"geoloc view: refused browser tab #{client.client_id}: {self.n_served} of "
+              f"--max-clients {n} already served (raise it with --max-clients)", file=sys.stderr,
+              flush=True)
+
+    # ------------------------------------------------------------ presenter mode
+    def _make_driver(self, client, old: GeolocSession | None) -> None:
+        """Build the driving session on ``client.gui`` and the shared scene, from ``old``'s state."""
+        if old is None:
+            self.driver = self.session_factory(self.server, self.scn, self.disp, client=client,
+                                        scene=self.server.scene, layers=self.layers, copy_scenario=True)
+        else:
+            self.driver = self.session_factory(self.server, old.scn, old.view.disp, client=client,
+                                        scene=self.server.scene, layers=self.layers,
+                                        inputs=old.inputs, copy_scenario=True)
+        self.driver.on_refresh(lambda _g: self._mirror())
+        cid = client.client_id
+        client.camera.on_update(lambda cam: self._on_driver_camera(cid, cam))
+
+    def take_control(self, client_id: int) -> None:
+        """Presenter mode: the follower ``client_id`` drives; the driver follows."""
+        with self._lock:
+            panel = self.followers.pop(client_id, None)
+            if panel is None or self.driver is None:
+                return
+            old = self.driver
+            old.close()
+            old_client = old.client
+            try:
+                old_client.gui.reset()
+            except Exception:
+                pass
+            panel.client.gui.reset()
+            self._make_driver(panel.client, old)
+            if old_client is not None and old_client.client_id in self.server.get_clients():
+                self.followers[old_client.client_id] = _FollowerPanel(self, old_client, self.driver)
+            self._mirror()
+
+    def _mirror(self) -> None:
+        for p in list(self.followers.values()):
+            try:
+                p.update(self.driver)
+            except Exception:  # a follower that left meanwhile
+                pass
+
+    def _on_driver_camera(self, cid: int, cam) -> None:
+        d = self.driver
+        if d is None or d.client is None or d.client.client_id != cid:
+            return  # an old driver's camera: not followed any more
+        self._follow_camera_of(d.client)
+
+    def _follow_camera_of(self, client) -> None:
+        # every driver camera message (the browser already rate-limits them): no throttle
+        # here, so the followers always end on the driver's last view
+        cam = client.camera
+        pos, aim = np.array(cam.position), np.array(cam.look_at)
+        for p in list(self.followers.values()):
+            try:
+                _set_camera(p.client, pos, aim)
+            except Exception:
+                pass

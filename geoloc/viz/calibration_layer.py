@@ -19,6 +19,8 @@ origin, as the app's terrain.
 
 from __future__ import annotations
 
+import collections
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,7 +96,7 @@ class CalibrationLayer:
     Parameters
     ----------
     scene : viser.SceneApi
-        ``server.scene``.
+        ``server.scene`` (or a session's ``scene``).
     geometry : ErrorGeometry
     name : str
         Parent node name.
@@ -238,6 +240,12 @@ def records_from_scenario(scn) -> Records:
                    np.arange(2, len(rows) + 2), [])
 
 
+#: Fitted cameras by (records list, sensor) of a scenario: every tab of a viewer shares the
+#: records and the sensor, so the fit runs once, not once per tab (0.3 s each).
+_FIT_CACHE: "collections.OrderedDict" = collections.OrderedDict()
+_FIT_LOCK = threading.Lock()
+
+
 class AppCalibration:
     """The calibration layer of a ``geoloc view`` app: fit once, redraw on a new ENU origin.
 
@@ -258,18 +266,32 @@ class AppCalibration:
             name = f"{ROOT}/calibration" if name is None else name
         self.world_scale, self.name = float(world_scale), name
         self.app = app
-        self.records = records_from_scenario(app.scn)
+        self.message = ""
+        self.layer = None
+        key = (id(app.scn.records), id(app.scn.camera))
+        with _FIT_LOCK:
+            hit = _FIT_CACHE.get(key)
+        if hit is not None and hit[0] is app.scn.records and hit[1] is app.scn.camera:
+            # the same records and sensor as another tab's session: the same fit
+            self.records, self.cameras = hit[2], dict(hit[3])
+        else:
+            self.records = records_from_scenario(app.scn)
+            self.cameras = {"before": app.scn.camera}
+            heights = self.records.column("paper_height_m")
+            ok = (np.isfinite(heights) & np.isfinite(self.records.column("truth_lat_deg"))
+                  & np.isfinite(self.records.column("truth_lon_deg")))
+            if ok.sum() >= 2 and ok.all():
+                _, cams = calibrate_groups(self.records, app.scn.camera, HeightTarget(heights), "table",
+                                           joint=True)
+                self.cameras["after"] = cams["joint"]
+            with _FIT_LOCK:
+                _FIT_CACHE[key] = (app.scn.records, app.scn.camera, self.records, dict(self.cameras))
+                while len(_FIT_CACHE) > 4:
+                    _FIT_CACHE.popitem(last=False)
         self.heights = self.records.column("paper_height_m")
         ok = (np.isfinite(self.heights) & np.isfinite(self.records.column("truth_lat_deg"))
               & np.isfinite(self.records.column("truth_lon_deg")))
-        self.message = ""
-        self.layer = None
-        self.cameras = {"before": app.scn.camera}
-        if ok.sum() >= 2 and ok.all():
-            _, cams = calibrate_groups(self.records, app.scn.camera, HeightTarget(self.heights), "table",
-                                       joint=True)
-            self.cameras["after"] = cams["joint"]
-        else:
+        if "after" not in self.cameras:
             self.message = "calibration needs truth_lat/lon and paper_height_m on every record"
         self.exaggeration, self.stage, self.visible, self.vertical = exaggeration, stage, True, 1.0
         if ok.all():
@@ -284,7 +306,7 @@ class AppCalibration:
         if "after" not in self.cameras and self.stage != "before":
             self.stage = "before"
         geom = error_geometry(self.records, self.app.scn.enu, self.heights, self.cameras)
-        self.layer = CalibrationLayer(self.app.server.scene, geom, name=self.name,
+        self.layer = CalibrationLayer(_scene_of(self.app), geom, name=self.name,
                                       exaggeration=self.exaggeration, stage=self.stage,
                                       world_scale=self.world_scale)
         self.layer.set_visible(self.visible)
@@ -320,13 +342,26 @@ class AppCalibration:
                 self.layer.set_visible(self.visible)
 
 
-def attach(app) -> AppCalibration:
-    """Add the calibration layer and its GUI folder to a ``geoloc.viz.app.GeolocApp``.
+def _scene_of(app):
+    """The scene a session draws on (``session.scene``; an older app object: its server's)."""
+    scene = getattr(app, "scene", None)
+    return scene if scene is not None else app.server.scene
 
-    Follows the app's vertical-exaggeration slider (``app.sl_vexag``) when it has one.
+
+def _gui_of(app):
+    gui = getattr(app, "gui", None)
+    return gui if gui is not None else app.server.gui
+
+
+def attach(app) -> AppCalibration:
+    """Add the calibration layer and its GUI folder to a viewer session
+    (``geoloc.viz.app.GeolocSession``: its ``scene`` and ``gui``; interface in ``geoloc.viz.app``).
+
+    Follows the session's vertical-exaggeration slider (``app.sl_vexag``) when it has one,
+    and redraws in the new ENU frame when the session loads another record (``on_record``).
     """
     cal = AppCalibration(app)
-    cal.add_gui(app.server.gui)
+    cal.add_gui(_gui_of(app))
     slider = getattr(app, "sl_vexag", None)
     if slider is not None:
         def follow(_e=None) -> None:
@@ -336,4 +371,6 @@ def attach(app) -> AppCalibration:
 
         slider.on_update(follow)
         follow()
+    if hasattr(app, "on_record"):
+        app.on_record(lambda _idx: cal.rebuild())  # the ENU origin moved with the record
     return cal

@@ -14,6 +14,7 @@ vertical exaggeration):
 
 ``/origin`` (+ ``/origin/label``), ``/grid``, ``/terrain``, ``/aircraft``
 (+ ``/aircraft/mesh``), ``/frames/{ned,body,gimbal_outer,cam}`` (+ ``/label``),
+(+ ``/aircraft/label``: "aircraft drawn xN", the display scale),
 ``/frustum``, ``/los``, ``/los_beyond``, ``/hit/hmax``, ``/hit/result``,
 ``/hit/exact`` (each + ``/label``), ``/iterations/{points,verticals,brackets,current}``,
 ``/record/{published,surveyed,error}``.
@@ -23,6 +24,9 @@ Conventions: ``docs/conventions.md``.
 
 from __future__ import annotations
 
+import collections
+import functools
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -94,9 +98,70 @@ class Display:
         return p * (WORLD_SCALE * np.array([1.0, 1.0, self.vertical_exaggeration]))
 
 
+def error_label(err_enu, exaggeration: float) -> str:
+    """Label of the error vector: its true 3D length and how much longer it is drawn."""
+    return f"error vector (3D, drawn x{exaggeration:g}): {float(np.linalg.norm(err_enu)):.1f} m"
+
+
+def camera_pose_for(g: Geometry, d: Display, kind: str = "overview"):
+    """(position, look_at) in scene units for a named view of geometry ``g``.
+
+    ``"overview"``: a side view showing the aircraft, the frames, the line of
+    sight and the terrain at once. ``"target"``: close to the hit, where the
+    iterations, brackets and hits are, from the same side.
+    """
+    if kind not in ("overview", "target"):
+        raise ValueError(f"camera view = {kind!r}: 'overview' or 'target'")
+    a = d.z(g.aircraft_enu)
+    b = d.z(g.hit_enu if np.all(np.isfinite(g.hit_enu)) else g.aircraft_enu + 20e3 * g.los_dir_enu)
+    horiz = (b - a)[:2]
+    L = max(np.linalg.norm(b - a), 1e-3)
+    u = np.r_[horiz / max(np.linalg.norm(horiz), 1e-9), 0.0]
+    side = np.array([u[1], -u[0], 0.0])  # to the right of the ground track
+    up = np.array([0.0, 0.0, 1.0])
+    if kind == "target":
+        # The iterations span the last ~15 % of the line of sight above the hit.
+        aim = b + 0.08 * (a - b)
+        return aim + side * 0.4 * L + up * 0.15 * L - u * 0.1 * L, aim
+    mid = 0.5 * (a + b)
+    # Step back to the right of the track and up; aim a little beyond the middle so the
+    # scene sits left of the GUI panel.
+    pos = mid + side * 0.7 * L + up * 0.55 * L - u * 0.2 * L
+    return pos, mid - side * 0.1 * L + u * 0.1 * L - up * 0.12 * L
+
+
+@functools.lru_cache(maxsize=1)
 def load_aircraft_mesh() -> trimesh.Trimesh:
-    """The bundled aircraft mesh (body frame, metres), made by tools/make_aircraft_mesh.py."""
+    """The bundled aircraft mesh (body frame, metres), made by tools/make_aircraft_mesh.py.
+
+    Loaded once and shared by every session (read only)."""
     return trimesh.load(Path(ASSETS) / "meshes" / "aircraft.ply", force="mesh")
+
+
+#: Terrain meshes by (DEM object, scene origin): every tab on the same record shares one
+#: (a few MB each; a handful of records at most are in use at once).
+_TERRAIN_CACHE: "collections.OrderedDict" = collections.OrderedDict()
+_TERRAIN_CACHE_SIZE = 4
+_TERRAIN_LOCK = threading.Lock()
+
+
+def terrain_mesh_cached(scn) -> trimesh.Trimesh:
+    """:func:`geoloc.viz.terrain_link.terrain_mesh` of ``scn``, shared between sessions."""
+    from geoloc.viz import terrain_link
+
+    enu = scn.enu
+    key = (id(scn.dem), float(enu.lat0), float(enu.lon0), float(enu.h0))
+    with _TERRAIN_LOCK:
+        hit = _TERRAIN_CACHE.get(key)
+        if hit is not None and hit[0] is scn.dem:
+            _TERRAIN_CACHE.move_to_end(key)
+            return hit[1]
+    mesh = terrain_link.terrain_mesh(scn)
+    with _TERRAIN_LOCK:
+        _TERRAIN_CACHE[key] = (scn.dem, mesh)
+        while len(_TERRAIN_CACHE) > _TERRAIN_CACHE_SIZE:
+            _TERRAIN_CACHE.popitem(last=False)
+    return mesh
 
 
 def wxyz(R) -> np.ndarray:
@@ -145,6 +210,12 @@ class GeolocScene:
         self.handles["aircraft_mesh"] = s.add_mesh_trimesh("/enu/aircraft/mesh", self.aircraft_mesh,
                                                            scale=self.disp.aircraft_scale * W,
                                                            cast_shadow=False, receive_shadow=False)
+        self.handles["aircraft_label"] = s.add_label("/enu/aircraft/label", self.aircraft_label(),
+                                                     position=(0.0, 0.0, 0.0), anchor="bottom-left")
+
+    def aircraft_label(self) -> str:
+        """The aircraft's label: it is drawn larger than life, by the display scale."""
+        return f"aircraft drawn x{self.disp.aircraft_scale:g}"
 
     def _terrain_scale(self):
         W = WORLD_SCALE
@@ -155,9 +226,7 @@ class GeolocScene:
             self.terrain_handle = None
             self.scene.remove_by_name("/enu/terrain")
             return
-        from geoloc.viz import terrain_link
-
-        mesh = terrain_link.terrain_mesh(self.scn)
+        mesh = terrain_mesh_cached(self.scn)
         self.terrain_handle = self.scene.add_mesh_trimesh(
             "/enu/terrain", mesh, scale=self._terrain_scale(),
             visible=self.disp.terrain_visible, cast_shadow=False, receive_shadow=False)
@@ -214,6 +283,9 @@ class GeolocScene:
         self.handles["aircraft"].position = d.z(g.aircraft_enu)
         self.handles["aircraft"].wxyz = wxyz(g.R_enu_body)
         self.handles["aircraft_mesh"].scale = d.aircraft_scale * WORLD_SCALE
+        lab = self.handles.get("aircraft_label")
+        if lab is not None and lab.text != self.aircraft_label():
+            lab.text = self.aircraft_label()
         if self.terrain_handle is not None:
             self.terrain_handle.scale = self._terrain_scale()
             self.terrain_handle.visible = d.terrain_visible
@@ -297,35 +369,13 @@ class GeolocScene:
                 tip = g.hit_enu + d.error_exaggeration * (g.surveyed_enu - g.hit_enu)
                 self._segments("/enu/record/error", [g.hit_enu, tip], COLORS["error"], 5.0)
                 s.add_label("/enu/record/error/label",
-                            f"error x{d.error_exaggeration:g}: "
-                            f"{np.linalg.norm(g.surveyed_enu - g.hit_enu):.1f} m",
+                            error_label(g.surveyed_enu - g.hit_enu, d.error_exaggeration),
                             position=d.z(tip), anchor="top-left")
 
     # ------------------------------------------------------------ camera
     def camera_pose(self, kind: str = "overview"):
-        """(position, look_at) in scene units for a named view.
-
-        ``"overview"``: a side view showing the aircraft, the frames, the line of
-        sight and the terrain at once. ``"target"``: close to the hit, where the
-        iterations, brackets and hits are, from the same side.
-        """
-        g, d = self.geometry, self.disp
-        a = d.z(g.aircraft_enu)
-        b = d.z(g.hit_enu if np.all(np.isfinite(g.hit_enu)) else g.aircraft_enu + 20e3 * g.los_dir_enu)
-        horiz = (b - a)[:2]
-        L = max(np.linalg.norm(b - a), 1e-3)
-        u = np.r_[horiz / max(np.linalg.norm(horiz), 1e-9), 0.0]
-        side = np.array([u[1], -u[0], 0.0])  # to the right of the ground track
-        up = np.array([0.0, 0.0, 1.0])
-        if kind == "target":
-            # The iterations span the last ~15 % of the line of sight above the hit.
-            aim = b + 0.08 * (a - b)
-            return aim + side * 0.4 * L + up * 0.15 * L - u * 0.1 * L, aim
-        mid = 0.5 * (a + b)
-        # Step back to the right of the track and up; aim a little beyond the middle so the
-        # scene sits left of the GUI panel.
-        pos = mid + side * 0.7 * L + up * 0.55 * L - u * 0.2 * L
-        return pos, mid - side * 0.1 * L + u * 0.1 * L - up * 0.12 * L
+        """(position, look_at) in scene units for a named view; see :func:`camera_pose_for`."""
+        return camera_pose_for(self.geometry, self.disp, kind)
 
     def set_initial_camera(self, server: viser.ViserServer) -> None:
         """Start new browsers on the overview (see :meth:`camera_pose`)."""
@@ -343,5 +393,6 @@ class GeolocScene:
         for client in server.get_clients().values():
             with client.atomic():
                 client.camera.up_direction = (0.0, 0.0, 1.0)
-                client.camera.look_at = tuple(aim)
+                # viser shifts look_at with the position: position first
                 client.camera.position = tuple(pos)
+                client.camera.look_at = tuple(aim)
