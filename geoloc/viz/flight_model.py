@@ -1,0 +1,609 @@
+"""A whole flight for the viewer: track, footprints, positions, residuals, outliers (no viser here).
+
+:func:`build` takes a viewer :class:`geoloc.viz.model.Scenario` (its ``records``,
+a list of ``(RecordInfo, Inputs)``) and computes, for every frame at once,
+
+* the **track**: the optical centre of each frame (``FrameSensor.line_of_sight``'s origin);
+* the **footprint**: the image outline (the four corner rays and ``edge_samples - 1``
+  more points on each edge), draped on the DEM (:class:`geoloc.surfaces.terrain.DemSurface`,
+  exact first hit) when the scenario has one, else on the surface of constant
+  ellipsoidal height at each record's target height
+  (:class:`geoloc.surfaces.height.HeightSurface`); both through
+  :func:`geoloc.surfaces.terrain.surface_for`. A footprint ray that leaves the DEM
+  falls back to the record's target height (so a footprint is never torn open);
+* the **frame centre** (the image centre's ray) and the **recomputed** position (the
+  record's pixel: the image centre for a KLV packet, the surveyed target's pixel
+  for a [Q17] record);
+* the **reported** (MISB frame centre, or [Q17]'s published) and the **truth**
+  (surveyed) positions when the records carry them;
+* the **residual** of each frame: recomputed vs truth when the truth is known, else
+  recomputed vs reported (its components north/east/up and along/across track from
+  :func:`geoloc.analysis.accuracy.error_components`), the robust outlier flags
+  (:func:`geoloc.analysis.accuracy.robust_outliers`, the KLV replay's own rule) and the frames
+  sorted by residual;
+* what a **run of outliers** looks like (:func:`diagnose`): the residuals of the run
+  fitted by three one-parameter faults, each linearised through the same sensor and
+  surface (a heading bias, a sensor-height offset, a timing offset between pose and
+  image), so the panel can say "a burst of yaw bias of +2.5 deg".
+
+Every line of sight of the flight is one batched ``line_of_sight`` call on one
+:class:`geoloc.frames.chain.Pose` of arrays (one sample per frame) and one
+``surface.intersect``; nothing loops over frames.
+
+Positions are also given in a fixed local East-North-Up frame (:attr:`FlightModel.enu`,
+:class:`geoloc.frames.enu.EnuFrame`, metres). Every height is ellipsoidal (WGS 84);
+the records' heights are ellipsoidal too (``docs/records.md``, ``docs/klv.md``).
+Conventions: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.analysis import accuracy
+from geoloc.frames.chain import Pose
+from geoloc.frames.enu import EnuFrame
+from geoloc.locate import as_sensor
+from geoloc.status import Status
+from geoloc.surfaces.height import HeightSurface
+from geoloc.surfaces.terrain import surface_for
+
+#: Points per image edge (its first corner included): 4 gives a ring of 16 points per footprint.
+EDGE_SAMPLES = 4
+#: Heights in this module and in :class:`FlightModel`.
+H_DATUM = "ellipsoid (WGS 84)"
+
+#: Finite-difference steps of the fault models (small enough to stay linear over a footprint,
+#: large enough to sit far above float64 round-off of ECEF coordinates: 1e-9 relative is 6 mm).
+HEADING_STEP_RAD = math.radians(0.5)
+HEIGHT_STEP_M = 10.0
+TIME_STEP_FRAMES = 1.0
+#: A fault model explains a run when it leaves less than this fraction of the run's residual
+#: norm unexplained (a pure one-parameter fault leaves only its linearisation error, a few %).
+EXPLAINED_FRACTION = 0.35
+
+#: What each fault kind looks like in the residuals (the panel prints it under each run).
+WHAT_IT_LOOKS_LIKE = {
+    "attitude": (
+        "**attitude (yaw) bias burst**: for a run of frames the error turns about the aircraft: it "
+        "lies across the line of sight (along the track when the turret looks sideways), its size is "
+        "ground range x bias angle, and it stops as suddenly as it started. Look at the heading "
+        "reference (magnetic vs true north, an INS realignment, a gimbal encoder slip)."),
+    "datum": (
+        "**height in the wrong datum**: a run of frames shares one vertical offset of the sensor "
+        "height, so the hits slide along the line of sight's ground track by dh / tan(depression); "
+        "dh close to the geoid undulation N means a mean-sea-level altitude written where an "
+        "ellipsoidal (HAE) one belongs, or the reverse."),
+    "timing": (
+        "**timing offset between metadata and frames**: the pose belongs to another instant, so the "
+        "error lies along the track and is proportional to the speed (speed x offset), plus the "
+        "attitude change over the offset (a turn's, and the frame-to-frame attitude noise: the run's "
+        "errors then scatter in size); the fitted offset is in frames (seconds at 1 Hz)."),
+    "unexplained": (
+        "**not one of the three simple faults**: neither a heading bias, a height offset nor a timing "
+        "offset explains this run; look at the frame's chain (mount, gimbal angles, lens) and its "
+        "iterations."),
+}
+
+
+@dataclass
+class FaultRun:
+    """A run of consecutive outlier frames and the fault that explains it best.
+
+    Attributes
+    ----------
+    first, last : int
+        Frame indices (inclusive) into the model.
+    kind : str
+        ``"attitude"``, ``"datum"``, ``"timing"`` or ``"unexplained"`` (keys of :data:`WHAT_IT_LOOKS_LIKE`).
+    value : float
+        The fitted parameter: heading bias [rad], sensor-height offset [m] or time offset
+        [frames] (the recorded pose is the true one at frame i + value: negative = stale).
+    unexplained : dict
+        Kind -> fraction of the run's residual norm each model leaves unexplained.
+    """
+
+    first: int
+    last: int
+    kind: str
+    value: float
+    unexplained: dict
+    labels: tuple = ()
+
+    def headline(self) -> str:
+        """One line: frames, kind and the fitted size in its unit."""
+        what = {"attitude": f"heading bias {math.degrees(self.value):+.2f} deg",
+                "datum": f"sensor height off by {self.value:+.1f} m",
+                "timing": (f"pose {abs(self.value):.2f} frame(s) stale (from an earlier instant than the image)"
+                           if self.value < 0 else f"pose {self.value:.2f} frame(s) ahead of the image"),
+                "unexplained": "no simple fault fits"}[self.kind]
+        span = self.labels[0] if self.first == self.last else f"{self.labels[0]} .. {self.labels[-1]}"
+        return f"{span} ({self.last - self.first + 1} frames): {what}"
+
+
+@dataclass
+class FlightModel:
+    """Every frame of a flight, as arrays (frame index first). Angles in radians, heights ellipsoidal.
+
+    ``*_enu`` arrays are in :attr:`enu` (metres); lat/lon in degrees (the edge: the table and
+    the panel show them); NaN where a ray failed (``status``) or a record has no such position.
+    """
+
+    labels: list
+    enu: EnuFrame
+    track_enu: np.ndarray  # (n, 3) optical centres
+    footprint_enu: np.ndarray  # (n, P, 3) image outline, ring order (corner 1, edge, corner 2, ...)
+    footprint_status: np.ndarray  # (n, P) Status of each outline ray (OK also for the height fallback)
+    corners_enu: np.ndarray  # (n, 4, 3) rows 0.5/M+0.5, cols 0.5/N+0.5 (top-left, top-right, ...)
+    corner_lat_deg: np.ndarray  # (n, 4)
+    corner_lon_deg: np.ndarray
+    corner_h_m: np.ndarray
+    centre_enu: np.ndarray  # (n, 3) the image centre's hit
+    recomputed_lat_deg: np.ndarray  # (n,) the record's pixel
+    recomputed_lon_deg: np.ndarray
+    recomputed_h_m: np.ndarray
+    recomputed_enu: np.ndarray
+    status: np.ndarray  # (n,) Status of the recomputed ray
+    reported_lat_deg: np.ndarray
+    reported_lon_deg: np.ndarray
+    reported_h_m: np.ndarray
+    reported_enu: np.ndarray
+    truth_lat_deg: np.ndarray
+    truth_lon_deg: np.ndarray
+    truth_h_m: np.ndarray
+    truth_enu: np.ndarray
+    reference: str  # "truth" or "reported": what the residual is measured against
+    residual_m: np.ndarray  # (n,) horizontal, recomputed vs reference
+    components: dict  # error_components(recomputed, reference): north_m, east_m, up_m, along_m, ...
+    outlier: np.ndarray  # (n,) bool, robust flags of residual_m
+    order: np.ndarray  # frame indices by residual, largest first, NaN last
+    track_heading_rad: np.ndarray  # (n,) direction of travel (from the track), for along/across
+    speed_m_per_frame: np.ndarray  # (n,)
+    surface: str
+    faults: list = field(default_factory=list)  # FaultRun, see diagnose()
+    notes: list = field(default_factory=list)
+    H_DATUM: str = H_DATUM
+    _report: object = None
+
+    def __len__(self) -> int:
+        return len(self.labels)
+
+    def top(self, n: int = 10) -> np.ndarray:
+        """The ``n`` frames of largest residual (indices), largest first."""
+        return self.order[:n]
+
+    def footprint_segments(self) -> np.ndarray:
+        """(n * P, 2, 3) line segments of every closed footprint outline, frame by frame."""
+        fp = self.footprint_enu
+        return np.stack([fp, np.roll(fp, -1, axis=1)], axis=2).reshape(-1, 2, 3)
+
+    def track_segments(self) -> np.ndarray:
+        """(n - 1, 2, 3) segments joining consecutive optical centres."""
+        return np.stack([self.track_enu[:-1], self.track_enu[1:]], axis=1)
+
+    def error_segments(self) -> np.ndarray:
+        """(n, 2, 3) recomputed -> reference (truth or reported) per frame."""
+        ref = self.truth_enu if self.reference == "truth" else self.reported_enu
+        return np.stack([self.recomputed_enu, ref], axis=1)
+
+    def report(self, pose=None):
+        """The accuracy report of the flight (:func:`geoloc.analysis.accuracy.accuracy_report`):
+        recomputed vs the reference (truth or reported), with the track, slant range and off-nadir
+        angle from each frame's optical centre; one group per flight (the label's part before ``-``
+        for [Q17] records, ``T3-1`` -> ``T3``; one group for a KLV file)."""
+        if getattr(self, "_report", None) is not None:
+            return self._report
+        ref = (self.truth_lat_deg, self.truth_lon_deg, self.truth_h_m) if self.reference == "truth" else \
+            (self.reported_lat_deg, self.reported_lon_deg, self.reported_h_m)
+        tlat, tlon, th = self.enu.to_geodetic(self.track_enu)
+        sight = accuracy.sight_geometry(np.degrees(tlat), np.degrees(tlon), th, self.recomputed_lat_deg,
+                                        self.recomputed_lon_deg, self.recomputed_h_m)
+        group = [lab.partition("-")[0] if "-" in lab else "flight" for lab in self.labels]
+        ok = self.status == Status.OK
+        nan = lambda a: np.where(ok, a, np.nan)
+        self._report = accuracy.accuracy_report(
+            nan(self.recomputed_lat_deg), nan(self.recomputed_lon_deg), nan(self.recomputed_h_m), *ref,
+            track_heading_rad=self.track_heading_rad, slant_range_m=sight["slant_range_m"],
+            off_nadir_rad=sight["off_nadir_rad"], group=group,
+            meta={"reference": f"recomputed vs {self.reference}", "surface": self.surface})
+        return self._report
+
+    def summary_markdown(self) -> str:
+        """The panel's accuracy lines: CEP, CE90, LE90, mean errors, bias, the slant-range model, warnings."""
+        r = self.report()
+        s = r.overall
+        f = lambda v, spec=".2f": "n/a" if v is None or not np.isfinite(v) else format(v, spec)
+        L = [f"**accuracy, recomputed vs {self.reference}** ({s['n']} frames; heights {H_DATUM})  ",
+             f"CEP {f(s['cep_m'])} m, CE90 {f(s['ce90_m'])} m, LE90 {f(s['le90_m'])} m  ",
+             f"mean abs. error: horizontal {f(s['mae_horizontal_m'])} m, vertical {f(s['mae_vertical_m'])} m  ",
+             (f"bias: N {f(s['bias_north_m'])}, E {f(s['bias_east_m'])}, U {f(s['bias_up_m'])}, "
+              f"along {f(s['bias_along_m'])}, across {f(s['bias_across_m'])} m  ")]
+        mdl = s.get("slant_range_model")
+        if mdl and mdl.get("n"):
+            L.append(f"horizontal error = {f(mdl['intercept_m'])} m + {f(mdl['m_per_m'] * 1e3, '.3f')} m per km "
+                     "of slant range  ")
+        L.append(f"robust outliers: {int(self.outlier.sum())} of {len(self)} frames (median / MAD rule)  ")
+        L += [f"**warning** {w}  " for w in r.warnings]
+        return "\n".join(L)
+
+    def fault_of(self, idx: int):
+        """The :class:`FaultRun` containing frame ``idx``, or None."""
+        for f in self.faults:
+            if f.first <= idx <= f.last:
+                return f
+        return None
+
+    def outlier_markdown(self, n: int = 12) -> str:
+        """A markdown table of the ``n`` largest residuals (frame, residual, components, flag, fault)."""
+        c = self.components
+        ref = "truth" if self.reference == "truth" else "reported"
+        lines = [f"frames by residual (recomputed vs {ref}, horizontal; along/across track; up)  ",
+                 "",
+                 "| # | frame | residual m | along m | across m | up m | flag | looks like |",
+                 "|---|---|---|---|---|---|---|---|"]
+        for rank, i in enumerate(self.top(n), 1):
+            f = self.fault_of(int(i))
+            lines.append(
+                f"| {rank} | {self.labels[i]} | {self.residual_m[i]:.1f} | {c['along_m'][i]:+.1f} | "
+                f"{c['across_m'][i]:+.1f} | {c['up_m'][i]:+.1f} | {'**outlier**' if self.outlier[i] else ''} | "
+                f"{f.kind if f is not None else ''} |")
+        return "\n".join(lines)
+
+    def faults_markdown(self) -> str:
+        """Each run of outliers with its fitted fault and what that fault looks like."""
+        if not self.faults:
+            return "no run of outliers: every residual is within the robust cut"
+        out = []
+        for f in self.faults:
+            out.append(f"- {f.headline()}  \n  {WHAT_IT_LOOKS_LIKE[f.kind]}")
+        return "\n".join(out)
+
+
+# --------------------------------------------------------------------------- inputs as arrays
+
+
+def records_pose(records) -> tuple:
+    """(Pose of arrays, row, col, target_h) of a Scenario's ``[(RecordInfo, Inputs)]`` (one sample each)."""
+    inps = [inp for _, inp in records]
+    a = lambda k: np.array([float(getattr(i, k)) for i in inps])
+    names = sorted({k for i in inps for k in i.angles_deg})
+    angles = {k: np.array([float(i.angles_deg.get(k, 0.0)) for i in inps]) for k in names}
+    pose = Pose.from_deg(a("lat_deg"), a("lon_deg"), a("h_m"), a("heading_deg"), a("pitch_deg"), a("roll_deg"),
+                         a("gimbal_roll_deg"), a("gimbal_pitch_deg"), angles_deg=angles)
+    return pose, a("row"), a("col"), a("target_h")
+
+
+def outline_pixels(sensor, edge_samples: int = EDGE_SAMPLES, fov_deg=None):
+    """Rows and columns of the image outline, ring order: top edge left to right, right edge down, ...
+
+    The outline is the sensor's outer edge (rows 0.5 and M + 0.5, columns 0.5 and
+    N + 0.5; ``docs/conventions.md``, "Pixels"). With ``fov_deg`` (n, 2) per-frame
+    horizontal / vertical fields of view (a zooming KLV sensor) the outline of frame i
+    is the pixels whose rays are those of ``lens_from_fov(hfov_i, vfov_i)``'s outline:
+    column c0 +- fx tan(hfov_i / 2) on the sensor's own pinhole (exact for a pinhole;
+    :mod:`geoloc.workflows.klv_replay`, "Varying fields of view").
+
+    Returns
+    -------
+    rows, cols : ndarray (P,) or (P, n)
+        P = 4 * edge_samples.
+    """
+    k = int(edge_samples)
+    if k < 1:
+        raise ValueError(f"edge_samples = {edge_samples}: must be >= 1")
+    t = np.arange(k) / k  # 0 .. 1 (exclusive): the first corner and k - 1 points along the edge
+    # unit square ring in (u = column fraction, v = row fraction), corners at 0/1
+    u = np.concatenate([t, np.ones(k), 1 - t, np.zeros(k)])
+    v = np.concatenate([np.zeros(k), t, np.ones(k), 1 - t])
+    M, N = sensor.rows, sensor.cols
+    if fov_deg is None:
+        return 0.5 + v * M, 0.5 + u * N
+    fov = np.radians(np.asarray(fov_deg, float))
+    lens = sensor.lens
+    r0, c0 = sensor.center_pixel
+    half_c = lens.fx * np.tan(fov[:, 0] / 2)  # (n,) columns from the centre to the edge
+    half_r = lens.fy * np.tan(fov[:, 1] / 2)
+    return r0 + (2 * v[:, None] - 1) * half_r, c0 + (2 * u[:, None] - 1) * half_c
+
+
+# --------------------------------------------------------------------------- the model
+
+
+def _surface(scn, target_h, method):
+    dem = scn.dem if getattr(scn, "use_dem", True) else None
+    return surface_for(target_h, dem, method=method), dem
+
+
+def _hit(surface, dem, los, target_h):
+    """Intersect; rays that leave the DEM (or find no data) fall back to the target height."""
+    g = surface.intersect(los)
+    lat, lon, h, ecef, st = g.lat, g.lon, g.h, g.ecef, np.asarray(g.status)
+    if dem is not None:
+        miss = (st == Status.LEFT_DEM) | (st == Status.NODATA)
+        if miss.any():
+            f = HeightSurface(np.broadcast_to(target_h, st.shape)).intersect(los)
+            lat, lon, h = (np.where(miss, b, a) for a, b in ((lat, f.lat), (lon, f.lon), (h, f.h)))
+            ecef = np.where(miss[..., None], f.ecef, ecef)
+            st = np.where(miss, f.status, st)
+    return lat, lon, h, ecef, st
+
+
+def _num(records, name) -> np.ndarray:
+    return np.array([float(getattr(info, name)) for info, _ in records])
+
+
+def _track_speed(track_enu):
+    """Horizontal velocity [m per frame] (ENU, central differences) and its norm."""
+    n = len(track_enu)
+    if n < 2:
+        return np.full((n, 3), np.nan), np.full(n, np.nan)
+    v = np.gradient(track_enu, axis=0)
+    return v, np.linalg.norm(v[:, :2], axis=1)
+
+
+def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: EnuFrame | None = None,
+          fov_deg=None, diagnose_faults: bool = True) -> FlightModel:
+    """Compute the whole flight of ``scn.records`` in one batch (see the module docstring).
+
+    Parameters
+    ----------
+    scn : geoloc.viz.model.Scenario
+        Its ``camera`` (a sensor or first-phase camera), ``records``, ``dem`` / ``use_dem``.
+    edge_samples : int
+        Outline points per image edge (the corner included).
+    method : {"exact", "bisect", "steps"}
+        DEM solver of the flight's rays (the current frame's own method stays the viewer's).
+    enu : EnuFrame, optional
+        The model's local frame; default ``scn.enu``.
+    fov_deg : array_like (n, 2), optional
+        Per-frame horizontal / vertical fields of view [deg] (a zooming KLV sensor); default
+        ``scn.frame_fov_deg`` when the scenario carries it, else the sensor's own lens.
+    diagnose_faults : bool
+        Fit the fault models to every run of outliers (:func:`diagnose`).
+
+    Returns
+    -------
+    FlightModel
+    """
+    recs = list(scn.records)
+    if not recs:
+        raise ValueError(f"scenario {scn.name!r}: no records: a flight needs at least one frame")
+    n = len(recs)
+    sensor = as_sensor(scn.camera)
+    enu = enu or scn.enu
+    if fov_deg is None:
+        fov_deg = getattr(scn, "frame_fov_deg", None)
+    if fov_deg is not None:
+        fov_deg = np.asarray(fov_deg, float)
+        if fov_deg.shape != (n, 2):
+            raise ValueError(f"fov_deg: shape {fov_deg.shape}, expected ({n}, 2) (one hfov, vfov per frame)")
+    pose, row, col, target_h = records_pose(recs)
+    surface, dem = _surface(scn, target_h, method)
+
+    # one batch: ring of P outline pixels, the image centre, the record's pixel; axis 0 the ray kind
+    rr, cc = outline_pixels(sensor, edge_samples, fov_deg)
+    rr = np.broadcast_to(rr.reshape(len(rr), -1), (len(rr), n))
+    cc = np.broadcast_to(cc.reshape(len(cc), -1), (len(cc), n))
+    r0, c0 = sensor.center_pixel
+    rows = np.concatenate([rr, np.full((1, n), r0), row[None]], axis=0)
+    cols = np.concatenate([cc, np.full((1, n), c0), col[None]], axis=0)
+    los = sensor.line_of_sight(rows, cols, pose, outside="extrapolate")
+    lat, lon, h, ecef, st = _hit(surface, dem, los, target_h)
+    P = rr.shape[0]
+    pts_enu = enu.from_ecef(ecef)  # (P + 2, n, 3)
+    track = enu.from_ecef(los.origin_ecef[0])
+    footprint = np.swapaxes(pts_enu[:P], 0, 1)  # (n, P, 3)
+    k = int(edge_samples)
+    corner_idx = np.arange(4) * k
+    lat_d, lon_d = np.degrees(lat), np.degrees(lon)
+
+    rec_lat, rec_lon, rec_h, rec_st = lat_d[-1], lon_d[-1], h[-1], st[-1]
+    rep_lat, rep_lon, rep_h = (_num(recs, x) for x in ("paper_lat_deg", "paper_lon_deg", "paper_height_m"))
+    t_lat, t_lon = _num(recs, "truth_lat_deg"), _num(recs, "truth_lon_deg")
+    # the records give no truth height: the truth sits on the DEM when there is one, else at the
+    # record's target height (the calibration layer does the same)
+    t_h = target_h.copy()
+    if dem is not None and np.isfinite(t_lat).any():
+        ok = np.isfinite(t_lat)
+        dh = dem.height(np.radians(t_lat[ok]), np.radians(t_lon[ok]))
+        t_h[ok] = np.where(np.isfinite(dh), dh, t_h[ok])
+    has_truth = np.isfinite(t_lat) & np.isfinite(t_lon)
+    reference = "truth" if has_truth.any() else "reported"
+    ref = (t_lat, t_lon, t_h) if reference == "truth" else (rep_lat, rep_lon, rep_h)
+    ref_h = np.where(np.isfinite(ref[2]), ref[2], rec_h)
+
+    _, speed = _track_speed(track)
+    # the local track azimuth (previous to next position; the heading where they nearly coincide)
+    heading = accuracy.track_azimuth_rad(np.degrees(pose.lat), np.degrees(pose.lon),
+                                         heading_rad=np.asarray(pose.heading, float))
+    comp = accuracy.error_components(rec_lat, rec_lon, rec_h, ref[0], ref[1], ref_h, track_heading_rad=heading)
+    comp = {k_: np.asarray(v, float) for k_, v in comp.items()}
+    residual = comp["horizontal_m"].copy()
+    residual[rec_st != Status.OK] = np.nan
+    outlier = np.asarray(accuracy.robust_outliers(residual), bool)
+    key = np.where(np.isfinite(residual), -residual, np.inf)
+    order = np.argsort(key, kind="stable")
+
+    def enu_of(la, lo, hh):
+        return enu.from_geodetic(np.radians(la), np.radians(lo), np.where(np.isfinite(hh), hh, 0.0))
+
+    desc = (f"DEM {getattr(scn, 'dem_name', '') or 'given'}, {method} first hit (outline rays off the DEM: "
+            "the record's target height)" if dem is not None else
+            "ellipsoid at each record's target height (no DEM)")
+    model = FlightModel(
+        labels=[info.label for info, _ in recs], enu=enu, track_enu=track, footprint_enu=footprint,
+        footprint_status=np.swapaxes(st[:P], 0, 1), corners_enu=footprint[:, corner_idx],
+        corner_lat_deg=lat_d[:P][corner_idx].T, corner_lon_deg=lon_d[:P][corner_idx].T,
+        corner_h_m=h[:P][corner_idx].T, centre_enu=pts_enu[P],
+        recomputed_lat_deg=rec_lat, recomputed_lon_deg=rec_lon, recomputed_h_m=rec_h,
+        recomputed_enu=pts_enu[-1], status=rec_st,
+        reported_lat_deg=rep_lat, reported_lon_deg=rep_lon, reported_h_m=rep_h,
+        reported_enu=enu_of(rep_lat, rep_lon, np.where(np.isfinite(rep_h), rep_h, target_h)),
+        truth_lat_deg=t_lat, truth_lon_deg=t_lon, truth_h_m=np.where(has_truth, t_h, np.nan),
+        truth_enu=enu_of(t_lat, t_lon, t_h), reference=reference, residual_m=residual,
+        components=comp, outlier=outlier, order=order, track_heading_rad=heading,
+        speed_m_per_frame=speed, surface=desc)
+    if diagnose_faults:
+        model.faults = diagnose(model, scn, pose=pose, row=row, col=col, target_h=target_h, method=method)
+    return model
+
+
+# --------------------------------------------------------------------------- what the outliers look like
+
+
+def outlier_runs(mask, max_gap: int = 1) -> list:
+    """(first, last) index pairs of runs of True in ``mask``, joining runs split by <= ``max_gap`` False."""
+    idx = np.flatnonzero(np.asarray(mask, bool))
+    if len(idx) == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(idx) > max_gap + 1)
+    starts = np.r_[idx[0], idx[breaks + 1]]
+    ends = np.r_[idx[breaks], idx[-1]]
+    return list(zip(starts.tolist(), ends.tolist()))
+
+
+def _pose_fields(pose: Pose, idx):
+    p = pose.take(idx)
+    return {k: np.asarray(getattr(p, k), float).copy() for k in ("lat", "lon", "h", "heading", "pitch", "roll")}, p
+
+
+def diagnose(model: FlightModel, scn, *, pose=None, row=None, col=None, target_h=None, method="exact") -> list:
+    """Fit each run of outliers with three one-parameter faults; the best explains the run.
+
+    For frames i of a run, with d_i the ENU residual (recomputed - reference) and J_i^k the change of
+    the recomputed point per unit of fault k (a finite difference through the same sensor and
+    surface), the least-squares size of fault k is p_k = sum(J . d) / sum(J . J) and its
+    unexplained fraction |d - p_k J| / |d| over the run. The faults:
+
+    * ``attitude``: heading + p [rad] (the attitude bias the brief's example plants);
+    * ``datum``: sensor height + p [m] (a height in the wrong datum shifts the whole run alike);
+    * ``timing``: position and attitude of the next (or the previous) frame with this frame's gimbal
+      angles, per frame of offset: pose and image from different instants (p < 0: a stale pose).
+      One-sided steps between recorded poses, so a stale pose's frame-to-frame attitude noise is
+      part of the model (a smooth rate would miss it: at 0.2 deg of attitude noise and 3 km of
+      range that is 10 m, as much as the 54 m/s orbit's own step).
+
+    The smallest unexplained fraction wins if below :data:`EXPLAINED_FRACTION`, else ``"unexplained"``.
+    """
+    runs = outlier_runs(model.outlier)
+    if not runs:
+        return []
+    if pose is None:
+        pose, row, col, target_h = records_pose(scn.records)
+    sensor = as_sensor(scn.camera)
+    n = len(model)
+    idx = np.concatenate([np.arange(a, b + 1) for a, b in runs])
+    ref = model.truth_enu if model.reference == "truth" else model.reported_enu
+    d = model.recomputed_enu[idx] - ref[idx]  # (m, 3)
+    base, p0 = _pose_fields(pose, idx)
+    # a timing offset puts the pose of another frame with this frame's gimbal angles: the
+    # neighbouring frames' poses (one frame later, one earlier), frame-to-frame attitude noise included
+    nxt, _ = _pose_fields(pose, np.clip(idx + 1, 0, n - 1))
+    prv, _ = _pose_fields(pose, np.clip(idx - 1, 0, n - 1))
+    variants = {
+        "attitude": {**base, "heading": base["heading"] + HEADING_STEP_RAD},
+        "datum": {**base, "h": base["h"] + HEIGHT_STEP_M},
+        "timing+": nxt,
+        "timing-": prv,
+    }
+    steps = {"attitude": HEADING_STEP_RAD, "datum": HEIGHT_STEP_M, "timing+": TIME_STEP_FRAMES,
+             "timing-": -TIME_STEP_FRAMES}
+    kinds = list(variants)
+    # one batch: the unperturbed pose and the variants, stacked on a leading axis
+    stack = {k: np.stack([base[k]] + [variants[v][k] for v in kinds]) for k in base}
+    shape = (len(kinds) + 1, len(idx))
+    angles = {a: np.broadcast_to(np.asarray(v, float), shape) for a, v in p0.angles.items()}
+    gr = np.broadcast_to(np.asarray(p0.gimbal_roll, float), shape)
+    gp = np.broadcast_to(np.asarray(p0.gimbal_pitch, float), shape)
+    pb = Pose(stack["lat"], stack["lon"], stack["h"], stack["heading"], stack["pitch"], stack["roll"], gr, gp,
+              angles=angles)
+    th = target_h[idx]
+    surface, dem = _surface(scn, th, method)
+    los = sensor.line_of_sight(row[idx], col[idx], pb, outside="extrapolate")
+    *_, ecef, _ = _hit(surface, dem, los, th)  # a failed variant is NaN: left out of its fit
+    pts = model.enu.from_ecef(ecef)  # (1 + kinds, m, 3)
+    J = {k: (pts[1 + j] - pts[0]) / steps[k] for j, k in enumerate(kinds)}
+    # the first frame has no earlier one (and the last no later one): its one-sided step is zero
+    J["timing+"][idx == n - 1] = np.nan
+    J["timing-"][idx == 0] = np.nan
+    out, pos = [], 0
+    for a, b in runs:
+        sl = slice(pos, pos + b - a + 1)
+        pos += b - a + 1
+        dd = d[sl]
+        ok = np.all(np.isfinite(dd), axis=1)
+        fits = {}
+        for k in kinds:
+            jj = J[k][sl]
+            good = ok & np.all(np.isfinite(jj), axis=1)
+            den = float(np.sum(jj[good] * jj[good]))
+            if not good.any() or den == 0.0:
+                fits[k] = (math.nan, math.inf)
+                continue
+            p = float(np.sum(jj[good] * dd[good])) / den
+            rest = np.linalg.norm(dd[good] - p * jj[good]) / max(np.linalg.norm(dd[good]), 1e-12)
+            fits[k] = (p, float(rest))
+        # the timing fault: the better of the two one-sided steps
+        tk = min(("timing+", "timing-"), key=lambda k: fits[k][1])
+        fits["timing"] = fits[tk]
+        named = ("attitude", "datum", "timing")
+        best = min(named, key=lambda k: fits[k][1])
+        kind = best if fits[best][1] < EXPLAINED_FRACTION else "unexplained"
+        out.append(FaultRun(a, b, kind, fits[best][0] if kind != "unexplained" else math.nan,
+                            {k: fits[k][1] for k in named}, tuple(model.labels[a:b + 1])))
+    return out
+
+
+# --------------------------------------------------------------------------- the first look
+
+
+def klv_fov_deg(path, labels) -> np.ndarray:
+    """(n, 2) horizontal / vertical fields of view [deg] of the KLV packets named by ``labels``
+    (``"packet N"``, as :func:`geoloc.viz.scenario.records_from_klv` names them; tags 16, 17)."""
+    from geoloc.workflows.klv_replay import read_klv
+
+    r = read_klv(path)
+    by_packet = {int(p): k for k, p in enumerate(r.packet)}
+    h = np.asarray(r.columns["sensor_horizontal_fov_deg"], float)
+    v = np.asarray(r.columns["sensor_vertical_fov_deg"], float)
+    rows = []
+    for lab in labels:
+        k = by_packet.get(int(str(lab).split()[-1]))
+        rows.append((h[k], v[k]) if k is not None else (np.nan, np.nan))
+    return np.array(rows, float)
+
+
+def _wrap_deg(a: float) -> float:
+    """An angle in degrees into [-180, 180)."""
+    return float((a + 180.0) % 360.0 - 180.0)
+
+
+def default_flight_path() -> Path:
+    """The bundled example flight: MISB ST 0601 KLV over the SRTM crop (``assets/klv/example_flight.klv``)."""
+    from geoloc.assets import ASSETS
+
+    return Path(ASSETS) / "klv" / "example_flight.klv"
+
+
+def default_flight_scenario(record=None):
+    """The viewer's first look: the bundled KLV example flight over the SRTM crop, its worst frame open.
+
+    Its planted faults (``tools/make_klv_example.py``, ``docs/klv.md``): a 2.5 deg heading-bias burst
+    (packets 100-109), MSL written in the HAE tag (200-204), a 1 s stale pose (250-256), one
+    corrupted packet (150, skipped by the reader and reported), one packet without sensor angles
+    (275, not a frame). The scenario carries each frame's fields of view (``frame_fov_deg``) so the
+    footprints follow the zoom. ``record`` (label or index) opens that frame first (default the first).
+    """
+    from geoloc.viz.scenario import load_scenario
+
+    path = default_flight_path()
+    scn = load_scenario(path, record)
+    # ST 0601 headings run 0..360 deg, the viewer's heading slider -180..180: the same angle, wrapped
+    scn.records = [(info, inp.replace(heading_deg=_wrap_deg(inp.heading_deg))) for info, inp in scn.records]
+    scn.inputs = scn.inputs.replace(heading_deg=_wrap_deg(scn.inputs.heading_deg))
+    scn.frame_fov_deg = klv_fov_deg(path, [info.label for info, _ in scn.records])
+    return scn
