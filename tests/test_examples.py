@@ -240,6 +240,34 @@ def test_51_export_outlier_html(tmp_path):
         np.testing.assert_allclose(pos[f"/enu/frames/{f}"][0][1], pos["/enu/aircraft"][0][1], atol=1e-12)
 
 
+def test_53_flight_debugger_scene():
+    # the bundled KLV flight's planted faults (tools/make_klv_example.py): a +2.5 deg heading
+    # burst, MSL in the HAE tag (-N = +30.6 m), a stale pose; the fitted fault sizes are
+    # checked against those plants in tests/test_viz_flight.py
+    out = run("53_flight_debugger_scene.py")
+    assert "298 frames" in out and "22 outliers" in out
+    assert "heading bias +2.4" in out and "sensor height off by +30." in out and "stale" in out
+
+
+def test_54_teaching_vector_through_chain():
+    out = run("54_teaching_vector_through_chain.py")
+    # the ECEF row of the ray is the core's line of sight, for both sensors (printed difference)
+    diffs = [float(v) for v in re.findall(r"max \|difference\| = (" + NUM + ")", out)]
+    assert len(diffs) == 2 and max(diffs) < 1e-12
+    # [Q17] has no lever arm: T_ecef_cam's translation is the aircraft's ECEF position (pyproj; printed to 1 mm)
+    xyz = floats(line_with(out, "T_ecef_cam translation").split(":")[1])
+    np.testing.assert_allclose(xyz, TO_ECEF.transform(78.72927, 36.39895, 17987.25), atol=1e-3)
+    # T3-1's ray in NED: azimuth ~120 deg (conventions.md sign check: right of track), looking down
+    n, e, d = floats(line_with(out, "  ned "))
+    assert math.degrees(math.atan2(e, n)) == pytest.approx(120.0, abs=2.0) and d > 0
+    # eq. 5's F1: the prime-vertical centre, R_N e^2 sin(phi) below the equator plane (closed form)
+    a, f = 6378137.0, 1 / 298.257223563
+    e2, phi = f * (2 - f), math.radians(36.39895)
+    rn = a / math.sqrt(1 - e2 * math.sin(phi) ** 2)
+    assert floats(line_with(out, "F1:").rsplit("origin", 1)[1])[2] == pytest.approx(-rn * e2 * math.sin(phi), abs=1e-3)
+    assert "angles the panel animates from 0: heading, pitch, roll, azimuth, elevation" in out
+
+
 def test_52_limb_scene():
     out = run("52_limb_scene.py")
     rows = [ln for ln in out.splitlines() if re.match(r"^\s+[-+]\d+\.\d\d\s", ln)]

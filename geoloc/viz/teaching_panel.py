@@ -1,0 +1,459 @@
+"""The teaching panel: a vector through the sensor's chain of frames, in the browser (issue 20).
+
+A layer on a ``geoloc view`` session (:func:`attach`). It walks the sensor's own
+frame graph (:class:`geoloc.frames.graph.BoundFrames`), so it works for every
+gimbal preset, and shows:
+
+- a vector (a pixel's ray, or any vector typed in any frame) as coordinates in
+  **every** frame of the chain, beside the hop's 4x4 matrix and the partial
+  products ``T_ecef_<frame>`` (numbers from :mod:`geoloc.viz.teaching`, which
+  takes them from the core);
+- the frames drawn **apart** in a row above the aircraft (they share one origin
+  at the aircraft), every axis labelled ``x <frame>``, ``y <frame>``,
+  ``z <frame>``, the vector drawn from each frame's origin with its coordinates
+  in that frame; the chosen hop ``T_dst_src`` highlights the source (magenta)
+  and the destination (cyan) frames;
+- ECEF as an inset globe (the Earth scaled to a few km, ECEF axes, the aircraft
+  marked, the vector drawn there too), with the [Q17] eq. 5 intermediate frames
+  when the hop is ``T_ecef_ned`` (only then is the factor block shown);
+- previous / next hop buttons, a "frame the aircraft" view, an aircraft-mesh
+  toggle, and "animate this angle from 0" (the chosen attitude or joint angle
+  runs from 0 to its value, so signs and directions can be seen).
+
+The session is what ``geoloc.viz.app`` hands its layers: ``.scene``, ``.gui``,
+``.scn``, ``.view`` (a :class:`geoloc.viz.scene_geoloc.GeolocScene`),
+``.geometry``, ``.inputs``, ``.refresh()``, ``.move_camera(...)``,
+``.on_refresh(cb)``; until every app has those, the fallbacks read
+``session.server``. The drawing is display only: the row of frames and the globe
+are placed for reading, and each frame keeps its true orientation.
+
+Scene nodes (under ``/enu/teach``, world unit km, placed at the aircraft):
+``frames/<frame>`` (+ ``/x``, ``/y``, ``/z``, ``/name``, ``/coords`` labels),
+``vector`` (arrows), ``highlight/src``, ``highlight/dst``, ``leader``,
+``globe`` (+ ``/earth``, ``/axes`` (+ labels), ``/aircraft``, ``/vector``,
+``/q17/<k>``).
+
+Conventions: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from geoloc.geodesy.ellipsoid import A
+from geoloc.locate import as_sensor
+from geoloc.viz import teaching
+from geoloc.viz.scene_geoloc import WORLD_SCALE, wxyz
+
+ROOT = "/enu/teach"
+#: Highlight colours (RGB): the hop's source and destination frames.
+HIGHLIGHT = {"src": (255, 0, 255), "dst": (0, 255, 255)}
+VECTOR_COLOR = (255, 210, 0)
+NONE = "(none)"
+PIXEL = "pixel ray (row, column)"
+TYPED = "typed vector"
+#: Frame size in metres per unit of the app's aircraft display scale (200 -> 1 km axes).
+UNIT_PER_SCALE_M = 5.0
+#: Row layout, in frame sizes: height of the row above the aircraft, gap between frames.
+LIFT, GAP = 4.0, 3.0
+#: Animation: steps and seconds per step.
+ANIM_STEPS, ANIM_DT_S = 30, 0.1
+
+
+def _scene(session):
+    return getattr(session, "scene", None) or session.server.scene
+
+
+def _gui(session):
+    return getattr(session, "gui", None) or session.server.gui
+
+
+class TeachingPanel:
+    """The vector-through-the-chain panel and its scene nodes on one session."""
+
+    def __init__(self, session):
+        self.session = session
+        self.scene = _scene(session)
+        self.gui = _gui(session)
+        self.sensor = as_sensor(session.scn.camera)
+        self.pose_override = None  # set while an animation runs
+        self.animating = False
+        self._lock = threading.Lock()
+        self._handles: dict = {}
+        self._mesh_visible = True
+        self.anim_steps, self.anim_dt_s = ANIM_STEPS, ANIM_DT_S
+        self._stop = threading.Event()
+        self._build_gui()
+        self._hook_refresh()
+        self.redraw()
+
+    # ------------------------------------------------------------ state
+    @property
+    def chain(self):
+        """The chain being shown: the session's, or the animation's pose."""
+        g = self.session.geometry
+        pose = self.pose_override if self.pose_override is not None else g.chain.pose
+        return self.sensor.frames(pose)
+
+    @property
+    def hop(self) -> str | None:
+        v = str(self.dd_hop.value)
+        return None if v == NONE else v
+
+    def vector(self, chain=None):
+        """(v, frame, description) of the vector shown."""
+        if str(self.dd_vec.value) == PIXEL:
+            r, c = float(self.num_row.value), float(self.num_col.value)
+            return teaching.pixel_ray_cam(self.sensor, r, c), "cam", f"the ray of pixel (row {r:g}, column {c:g})"
+        v = np.asarray(self.vec3.value, float)
+        return v, str(self.dd_frame.value), f"the vector ({v[0]:g}, {v[1]:g}, {v[2]:g}) given in `{self.dd_frame.value}`"
+
+    # ------------------------------------------------------------ GUI
+    def _build_gui(self) -> None:
+        gui, s = self.gui, self.session
+        chain = self.chain
+        self.hop_keys = [h.key for h in teaching.hops(chain)]
+        frames = list(teaching.chain_frames(chain))
+        with gui.add_folder("Teaching: a vector through the chain"):
+            self.dd_hop = gui.add_dropdown("teaching hop", [NONE] + self.hop_keys, initial_value="T_ned_body"
+                                           if "T_ned_body" in self.hop_keys else NONE,
+                                           hint="T_dst_src: source frame magenta, destination cyan")
+            self.bt_hops = gui.add_button_group("step hop", ["previous hop", "next hop"])
+            self.dd_vec = gui.add_dropdown("vector", [PIXEL, TYPED], initial_value=PIXEL)
+            inp = getattr(s, "inputs", None)
+            self.num_row = gui.add_number("ray row", float(getattr(inp, "row", self.sensor.center_pixel[0])),
+                                          step=0.5)
+            self.num_col = gui.add_number("ray column", float(getattr(inp, "col", self.sensor.center_pixel[1])),
+                                          step=0.5)
+            self.vec3 = gui.add_vector3("typed vector", (1.0, 0.0, 0.0), step=0.1)
+            self.dd_frame = gui.add_dropdown("typed in frame", frames,
+                                             initial_value="body" if "body" in frames else frames[1])
+            self.cb_show = gui.add_checkbox("show the frames row and globe", True)
+            self.cb_mesh = gui.add_checkbox("aircraft mesh", True, hint="The mesh hides the camera frame")
+            self.bt_frame = gui.add_button("frame the aircraft")
+            angles = list(teaching.animatable_angles(chain))
+            self.dd_angle = gui.add_dropdown("angle to animate", angles,
+                                             initial_value=angles[3] if len(angles) > 3 else angles[0])
+            self.bt_anim = gui.add_button("animate this angle from 0")
+            self.md_anim = gui.add_markdown("")
+            self.md_hop = gui.add_markdown("")
+            self.md_vec = gui.add_markdown("")
+            self.md_q17 = gui.add_markdown("")
+        for h in (self.dd_hop, self.dd_vec, self.num_row, self.num_col, self.vec3, self.dd_frame, self.cb_show):
+            h.on_update(lambda _: self.redraw())
+        self.bt_hops.on_click(lambda e: self.step_hop(-1 if e.target.value == "previous hop" else 1))
+        self.cb_mesh.on_update(lambda _: self.set_mesh(bool(self.cb_mesh.value)))
+        self.bt_frame.on_click(lambda _: self.frame_aircraft())
+        self.bt_anim.on_click(lambda _: self.animate(str(self.dd_angle.value), wait=False))
+
+    def _hook_refresh(self) -> None:
+        s = self.session
+        if hasattr(s, "on_refresh"):
+            s.on_refresh(lambda *_: self.redraw())
+            return
+        # Fallback until the app has on_refresh: wrap this instance's refresh.
+        orig = s.refresh
+
+        def refresh(*a, **k):
+            out = orig(*a, **k)
+            if getattr(self, "dd_hop", None) is not None:
+                self.redraw()
+            return out
+
+        s.refresh = refresh
+
+    def step_hop(self, k: int) -> None:
+        """Previous (-1) / next (+1) hop, wrapping; (none) goes to the first."""
+        keys = self.hop_keys
+        cur = self.hop
+        i = -1 if cur is None else keys.index(cur)
+        self.dd_hop.value = keys[(i + k) % len(keys)]
+
+    def set_mesh(self, visible: bool) -> None:
+        """Show or hide the app's aircraft mesh (it hides the frames at the aircraft)."""
+        self._mesh_visible = bool(visible)
+        h = getattr(self.session.view, "handles", {}).get("aircraft_mesh")
+        if h is not None:
+            h.visible = self._mesh_visible
+
+    # ------------------------------------------------------------ layout
+    def unit_km(self) -> float:
+        """Display size of one frame's axes, km (follows the app's aircraft display scale)."""
+        return UNIT_PER_SCALE_M * float(self.session.view.disp.aircraft_scale) * WORLD_SCALE
+
+    def layout(self, chain):
+        """Row positions (relative to the aircraft, km) of the frames and of the globe."""
+        g = self.session.geometry
+        U = self.unit_km()
+        d = np.asarray(g.los_dir_enu, float)
+        u = np.r_[d[:2], 0.0]
+        u = u / np.linalg.norm(u) if np.linalg.norm(u) > 1e-9 else np.array([1.0, 0.0, 0.0])
+        up = np.array([0.0, 0.0, 1.0])
+        frames = teaching.chain_frames(chain)
+        n = len(frames)
+        pos = {f: up * LIFT * U + u * (k - (n - 1) / 2.0) * GAP * U for k, f in enumerate(frames)}
+        globe = up * LIFT * U + u * (-(n - 1) / 2.0 * GAP - 3.2) * U
+        return pos, globe, u
+
+    # ------------------------------------------------------------ drawing
+    def redraw(self) -> None:
+        """Redraw the nodes and the text for the current chain (the session's, or the animation's)."""
+        with self._lock:
+            self._redraw()
+
+    def _redraw(self) -> None:
+        s = self.session
+        if s.geometry is None:
+            return
+        chain, sc = self.chain, self.scene
+        enu = s.scn.enu
+        disp = s.view.disp
+        hop = self.hop
+        dst, src = teaching.hop_frames(hop, chain) if hop else (None, None)
+        v, vframe, what = self.vector(chain)
+        coords = teaching.vector_in_frames(chain, v, vframe)
+        v_enu = enu.vector_from_ecef(coords["ecef"])
+        v_enu = v_enu / max(np.linalg.norm(v_enu), 1e-300)
+        U = self.unit_km()
+        pos, globe, _ = self.layout(chain)
+        aircraft = disp.z(enu.from_ecef(chain.T_ecef("body")[:3, 3]))
+        show = bool(self.cb_show.value)
+        sc.add_frame(ROOT, show_axes=False, position=aircraft, visible=show)
+        arrows = []
+        for index, f in enumerate(teaching.chain_frames(chain)):
+            T = chain.T_ecef(f)
+            R_enu_f = enu.R_enu_from(T[:3, :3])
+            role = "src" if f == src else "dst" if f == dst else None
+            big = role is not None
+            L = U * (1.25 if big else 1.0)
+            name = f"{ROOT}/frames/{f}"
+            key = (round(L, 9), big)
+            h = self._handles.get(name)
+            if h is None or h[1] != key:
+                fh = sc.add_frame(name, axes_length=L, axes_radius=L * (0.06 if big else 0.025),
+                                  origin_radius=L * 0.06, position=pos[f], wxyz=wxyz(R_enu_f))
+                for i, ax in enumerate("xyz"):
+                    tip = np.zeros(3)
+                    tip[i] = L * 1.08
+                    sc.add_label(f"{name}/{ax}", f"{ax} {f}", position=tip, anchor="center-left",
+                                 font_screen_scale=0.8)
+                self._handles[name] = (fh, key)
+            else:
+                fh = h[0]
+                fh.position, fh.wxyz = pos[f], wxyz(R_enu_f)
+            tag = {"src": "SOURCE ", "dst": "DESTINATION ", None: ""}[role]
+            where = " (origin: Earth's centre)" if f == "ecef" else ""
+            c = coords[f]
+            # name and coordinates below the frame, every other frame above it: they stay readable
+            z = -1.5 * U if index % 2 == 0 else 1.6 * U
+            anchor = "top-center" if index % 2 == 0 else "bottom-center"
+            self._label(f"{ROOT}/frames_name/{f}", f"{tag}{f}{where}", pos[f] + np.array([0, 0, z]), anchor)
+            self._label(f"{ROOT}/frames_coords/{f}", f"v = ({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:+.3f})",
+                        pos[f] + np.array([0, 0, z - 0.45 * U if index % 2 == 0 else z + 0.45 * U]), anchor)
+            arrows.append([pos[f], pos[f] + 1.1 * U * v_enu])
+            for r in ("src", "dst"):
+                if role == r:
+                    self._highlight(r, pos[f], 0.45 * U)
+        for r, fr in (("src", src), ("dst", dst)):
+            if fr is None:
+                sc.remove_by_name(f"{ROOT}/highlight/{r}")
+                self._handles.pop(f"{ROOT}/highlight/{r}", None)
+        sc.add_arrows(f"{ROOT}/vector", np.asarray(arrows, np.float32), VECTOR_COLOR,
+                      shaft_radius=0.03 * U, head_radius=0.08 * U, head_length=0.2 * U)
+        # a leader from the row down to the aircraft: the frames really share its origin
+        sc.add_line_segments(f"{ROOT}/leader", np.array([[[0, 0, 0], [0, 0, (LIFT - 1.2) * U]]], np.float32),
+                             (200, 200, 200), thickness=1.5, thickness_units="screen")
+        self._label(f"{ROOT}/leader/label", "frames drawn apart: all but ECEF sit at the aircraft",
+                    np.array([0, 0, 0.45 * LIFT * U]), "center-left")
+        self._draw_globe(chain, globe, U, coords, dst, src, hop == "T_ecef_ned")
+        self._text(chain, v, vframe, what, hop)
+        self.set_mesh(self._mesh_visible)
+
+    def _label(self, name, text, position, anchor):
+        h = self._handles.get(name)
+        if h is None or h[1] != anchor:
+            lh = self.scene.add_label(name, text, position=position, anchor=anchor, font_screen_scale=0.85)
+            self._handles[name] = (lh, anchor)
+        else:
+            lh = h[0]
+            lh.position = position
+            if lh.text != text:
+                lh.text = text
+        return lh
+
+    def _highlight(self, role, position, radius):
+        name = f"{ROOT}/highlight/{role}"
+        h = self._handles.get(name)
+        if h is None or h[1] != radius:
+            hh = self.scene.add_icosphere(name, radius=radius, color=HIGHLIGHT[role], subdivisions=2,
+                                          position=position, cast_shadow=False, receive_shadow=False,
+                                          material="toon3")
+            self._handles[name] = (hh, radius)
+        else:
+            h[0].position = position
+
+    def _draw_globe(self, chain, center, U, coords, dst, src, q17) -> None:
+        """The Earth scaled to radius 1.5 U about ``center``, ECEF axes, the aircraft and the vector."""
+        sc, enu = self.scene, self.session.scn.enu
+        R = 1.5 * U
+        k = R / A  # scene km per ECEF metre in the inset
+        R_enu_ecef = enu.R_enu_ecef
+        name = f"{ROOT}/globe"
+        sc.add_frame(name, show_axes=False, position=center)
+        if self._handles.get(name + "/earth", (None, None))[1] != R:
+            h = sc.add_icosphere(name + "/earth", radius=R, color=(30, 50, 150), subdivisions=3, opacity=0.55,
+                                 scale=(1.0, 1.0, 1.0), cast_shadow=False, receive_shadow=False)
+            self._handles[name + "/earth"] = (h, R)
+        big = dst == "ecef" or src == "ecef"
+        L = 1.6 * R
+        ax = sc.add_frame(name + "/axes", axes_length=L, axes_radius=L * (0.03 if big else 0.015),
+                          origin_radius=L * 0.03, wxyz=wxyz(R_enu_ecef))
+        for i, txt in enumerate(("X ecef (0 N, 0 E)", "Y ecef (0 N, 90 E)", "Z ecef (north pole)")):
+            tip = np.zeros(3)
+            tip[i] = L * 1.05
+            sc.add_label(name + f"/axes/{'xyz'[i]}", txt, position=tip, anchor="center-left",
+                         font_screen_scale=0.8)
+        del ax
+        p = chain.T_ecef("body")[:3, 3]
+        p_in = R_enu_ecef @ p * k
+        sc.add_icosphere(name + "/aircraft", radius=0.08 * U, color=(255, 40, 40), position=p_in,
+                         cast_shadow=False, receive_shadow=False)
+        sc.add_label(name + "/aircraft/label", "aircraft (its ECEF position; Earth to scale)", anchor="top-left",
+                     font_screen_scale=0.8)
+        ve = enu.vector_from_ecef(coords["ecef"])
+        ve = ve / max(np.linalg.norm(ve), 1e-300)
+        sc.add_arrows(name + "/vector", np.array([[p_in, p_in + 0.6 * U * ve]], np.float32), VECTOR_COLOR,
+                      shaft_radius=0.02 * U, head_radius=0.06 * U, head_length=0.15 * U)
+        # (the ECEF highlight stays on the row's ecef frame: a ball at the globe's centre would be hidden)
+        sc.remove_by_name(name + "/q17")
+        if q17:
+            for j, (txt, T) in enumerate(teaching.q17_intermediate_frames(chain)):
+                o = R_enu_ecef @ T[:3, 3] * k
+                Lq = 0.45 * U
+                sc.add_frame(name + f"/q17/{j}", axes_length=Lq, axes_radius=Lq * 0.04, origin_radius=Lq * 0.05,
+                             position=o, wxyz=wxyz(R_enu_ecef @ T[:3, :3]))
+                tip = np.zeros(3)
+                tip[j % 3] = Lq * 1.1
+                sc.add_label(name + f"/q17/{j}/label", txt.split(",")[0] if j < 3 else "NED", position=tip,
+                             anchor="center-left", font_screen_scale=0.75)
+            pv = R_enu_ecef @ teaching.q17_intermediate_frames(chain)[0][1][:3, 3] * k
+            sc.add_line_segments(name + "/q17/normal", np.array([[pv, p_in]], np.float32), (255, 255, 255),
+                                 thickness=1.5, thickness_units="screen")
+
+    def _text(self, chain, v, vframe, what, hop) -> None:
+        hv = {h.key: h for h in teaching.hops(chain)}
+        if hop in hv:
+            dst, src = hv[hop].dst, hv[hop].src
+            parts = [teaching.hop_markdown(hv[hop])]
+            for f in (dst, src):
+                if f != "ecef":
+                    parts.append(f"`T_ecef_{f}` (partial product):\n```\n{teaching.fmt_matrix(chain.T_ecef(f))}\n```\n")
+            self.md_hop.content = "\n".join(parts)
+        else:
+            self.md_hop.content = "Choose a hop: its source frame is drawn magenta, its destination cyan."
+        self.md_vec.content = teaching.vector_markdown(chain, v, vframe, hop, what=what)
+        if hop == "T_ecef_ned":
+            frames = "\n".join(f"- {t}" for t, _ in teaching.q17_intermediate_frames(chain))
+            self.md_q17.content = (teaching.q17_factors_markdown(chain)
+                                   + "\nIntermediate frames (drawn on the globe):\n" + frames + "\n")
+            self.md_q17.visible = True
+        else:
+            self.md_q17.content = ""
+            self.md_q17.visible = False
+
+    # ------------------------------------------------------------ camera
+    def camera_pose(self):
+        """(position, look_at) in scene km showing the row of frames, the globe and the aircraft."""
+        chain = self.chain
+        pos, globe, u = self.layout(chain)
+        g = self.session.geometry
+        aircraft = self.session.view.disp.z(g.aircraft_enu)
+        pts = np.array(list(pos.values()) + [globe])
+        lo, hi = pts.min(0), pts.max(0)
+        U = self.unit_km()
+        centre = aircraft + 0.5 * (lo + hi) - np.array([0, 0, 0.8 * U])
+        span = float(np.linalg.norm(hi - lo)) + 3.0 * U
+        side = np.array([u[1], -u[0], 0.0])
+        eye = centre + side * 0.7 * span + np.array([0.0, 0.0, 0.12 * span])
+        # aim right of the row's middle (as seen): the GUI panel covers the right of the page
+        right = np.cross(centre - eye, [0.0, 0.0, 1.0])
+        right /= max(np.linalg.norm(right), 1e-12)
+        return eye, centre + 0.2 * span * right
+
+    def frame_aircraft(self) -> None:
+        """Move the browsers' cameras to the aircraft (the wheel then zooms about it, not the ground hit)."""
+        eye, aim = self.camera_pose()
+        mc = getattr(self.session, "move_camera", None)
+        if mc is not None:
+            mc((eye, aim))
+            return
+        server = self.session.server
+        for client in server.get_clients().values():
+            with client.atomic():
+                client.camera.up_direction = (0.0, 0.0, 1.0)
+                client.camera.look_at = tuple(aim)
+                client.camera.position = tuple(eye)
+
+    # ------------------------------------------------------------ animation
+    def close(self) -> None:
+        """Stop a running animation (the session is closing)."""
+        self._stop.set()
+
+    def stop_animation(self) -> None:
+        """End a running animation now (the true pose is drawn again)."""
+        self._stop.set()
+
+    def animate(self, name: str, wait: bool = True, steps: int | None = None, dt_s: float | None = None):
+        """Run angle ``name`` from 0 to its value in ``steps`` steps of ``dt_s`` seconds.
+
+        Only this layer's drawing moves (the session's pose and its line of
+        sight stay); at the end the true pose is shown again. With ``wait``
+        False the animation runs in a thread (the GUI button), returned.
+        """
+        chain = self.session.geometry.chain
+        if name not in teaching.animatable_angles(chain):
+            raise ValueError(f"angle = {name!r}: not an angle of this chain; angles: "
+                             f"{list(teaching.animatable_angles(chain))}")
+        pose = chain.pose
+        target = teaching.pose_angle(pose, name)
+        steps = self.anim_steps if steps is None else int(steps)
+        dt_s = self.anim_dt_s if dt_s is None else float(dt_s)
+
+        self._stop.clear()
+
+        def run():
+            self.animating = True
+            try:
+                for k in range(steps + 1):
+                    if self._stop.is_set():
+                        break
+                    a = target * k / steps
+                    self.pose_override = teaching.pose_with_angle(pose, name, a)
+                    self.md_anim.content = (f"animating **{name}**: {np.rad2deg(a):+.2f} of "
+                                            f"{np.rad2deg(target):+.2f} deg")
+                    self.redraw()
+                    time.sleep(dt_s)
+            finally:
+                self.pose_override = None
+                self.md_anim.content = f"{name} = {np.rad2deg(target):+.2f} deg (animated from 0)"
+                self.redraw()
+                self.animating = False  # after the true pose is drawn again
+
+        if wait:
+            run()
+            return None
+        t = threading.Thread(target=run, daemon=True, name=f"teach-animate-{name}")
+        t.start()
+        return t
+
+
+def attach(session) -> TeachingPanel:
+    """Add the teaching panel (GUI folder and scene nodes) to a ``geoloc view`` session.
+
+    The app wires it with ``self.teaching_panel = teaching_panel.attach(self)``
+    after its own GUI and first refresh.
+    """
+    return TeachingPanel(session)
