@@ -37,7 +37,7 @@ def main() -> None:
 
     from geoloc.surfaces.dem import DEM
     from geoloc.viz.app import GeolocApp, make_server
-    from geoloc.viz.scenario import load_scenario
+    from geoloc.viz.scenario import load_view_scenario
 
     server = make_server(port=0)
     n = 708  # 2 (n-1)^2 = 1 000 018 triangles
@@ -65,7 +65,7 @@ def main() -> None:
     print(f"send 1 M-triangle DEM mesh, vertex colours (add_mesh_trimesh): median {t_tri:.3f} s (goal <= 3 s)")
     print(f"send 1 M-triangle DEM mesh, one colour (add_mesh_simple):     median {t_simple:.3f} s")
 
-    app = GeolocApp(server, load_scenario())
+    app = GeolocApp(server, load_view_scenario())
     for method in ("bisect", "steps", "exact"):
         app.dd_method.value = method
         lat = []

@@ -61,7 +61,7 @@ def camera_message(position=(0.0, 0.0, 10.0), look_at=(0.0, 0.0, 0.0), wxyz=(1.0
 
 #: Bytes that mark the end of a tab's session build in the stream (the calibration layer's
 #: GUI folder, the last default layer) and, for a bare viser server, the end of its backlog.
-BUILT = b"Calibration: error vectors"
+BUILT = b"Teaching: a vector through the chain"  # the GUI folder of the last default layer
 REPLAY_DONE = b"ReplayDoneMessage"
 
 
@@ -173,7 +173,7 @@ def main(n: int = 500) -> dict:
     import viser
 
     from geoloc.viz.app import make_server
-    from geoloc.viz.scenario import load_scenario
+    from geoloc.viz.scenario import load_view_scenario
 
     out = {}
     rss0 = rss_mb()
@@ -187,7 +187,7 @@ def main(n: int = 500) -> dict:
     # ---- ours
     server = make_server(port=0)
     try:
-        viewer = tracked_viewer(server, load_scenario(), max_clients=16)
+        viewer = tracked_viewer(server, load_view_scenario(), max_clients=16)
         refs = viewer.refs
         rss_built = settle()
         churn(server.get_port(), 20)  # warm-up: shared caches, numba, first GUI messages

@@ -9,7 +9,7 @@ Run:  python examples/41_limb_l18_chain.py
 import numpy as np
 
 from geoloc.sensors.limb import line_of_sight_l18
-from geoloc.workflows.limb_scenario import load_scenario
+from geoloc.workflows.scenario import load_scenario
 
 np.set_printoptions(precision=6, suppress=True)
 sc = load_scenario("assets/scenarios/tiangong2_limb.toml")

@@ -9,7 +9,7 @@ Run:  python examples/42_limb_newton_raphson.py
 
 from geoloc.sensors.limb import limb_tangent
 from geoloc.status import describe
-from geoloc.workflows.limb_scenario import load_scenario
+from geoloc.workflows.scenario import load_scenario
 
 sc = load_scenario("assets/scenarios/tiangong2_limb.toml").with_frames(1)
 chain = sc.lines_of_sight()

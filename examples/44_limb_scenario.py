@@ -10,7 +10,7 @@ Run:  python examples/44_limb_scenario.py
 import numpy as np
 
 from geoloc.status import Status
-from geoloc.workflows.limb_scenario import load_scenario
+from geoloc.workflows.scenario import load_scenario
 
 sc = load_scenario("assets/scenarios/tiangong2_limb.toml")
 chain, r = sc.solve()

@@ -12,11 +12,11 @@ import time
 import numpy as np
 
 from geoloc.viz.app import GeolocApp, make_server
-from geoloc.viz.scenario import load_scenario
+from geoloc.viz.scenario import load_view_scenario
 from geoloc.viz.scene_geoloc import WORLD_SCALE
 
 server = make_server(port=0)  # 127.0.0.1, a free port
-app = GeolocApp(server, load_scenario(record="T3-1"))
+app = GeolocApp(server, load_view_scenario(record="T3-1"))
 print(f"viewer at http://127.0.0.1:{server.get_port()}")
 print(app.md_summary.content.replace("  \n", "\n"))
 

@@ -9,15 +9,15 @@ Same as ``geoloc view --record <label> --method steps --export outlier.html``.
 import numpy as np
 
 from geoloc.viz.app import GeolocApp, make_server
-from geoloc.viz.scenario import load_scenario
+from geoloc.viz.scenario import load_view_scenario
 
-scn = load_scenario()
+scn = load_view_scenario()
 errors = [info.paper_error_m for info, _ in scn.records]
 worst = int(np.nanargmax(errors))
 label = scn.records[worst][0].label
 print(f"largest published error: {label}, {errors[worst]:.1f} m")
 
-scn = load_scenario(record=label)
+scn = load_view_scenario(record=label)
 scn.inputs = scn.inputs.replace(method="steps", eps_h=50.0)
 server = make_server(port=0)
 app = GeolocApp(server, scn)

@@ -13,7 +13,8 @@ import pytest
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.sensors.limb import limb_tangent, line_of_sight_l18
 from geoloc.status import Status
-from geoloc.workflows.limb_scenario import load_scenario, scenario_from_dict
+from geoloc.workflows.limb_scenario import scenario_from_dict
+from geoloc.workflows.scenario import load_scenario
 
 A = 6378137.0
 GM = 3.986004418e14

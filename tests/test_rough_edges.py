@@ -223,7 +223,7 @@ def test_view_export_is_quiet_honours_port_and_names_the_record(tmp_path, capfd,
 
     monkeypatch.setattr(app_mod, "make_server", spy)
     out = tmp_path / "x.html"
-    assert main(["view", "--export", str(out), "--record", "T4-3", "--port", "0"]) == 0
+    assert main(["view", "--scenario", "flight-test", "--export", str(out), "--record", "T4-3", "--port", "0"]) == 0
     cap = capfd.readouterr()
     # before: viser's banner (HTTP / Websocket on a random port) and "Server stopped"
     assert cap.out.strip() == f"wrote {out}"

@@ -105,12 +105,12 @@ def open_viewer(browser, server, width, height):
 
 def test_viewer_in_headless_chromium(tmp_path):
     from geoloc.viz.app import GeolocApp, make_server
-    from geoloc.viz.scenario import load_scenario
+    from geoloc.viz.scenario import load_view_scenario
 
     ARTIFACTS.mkdir(exist_ok=True)
     server = make_server(port=0)
     try:
-        app = GeolocApp(server, load_scenario())
+        app = GeolocApp(server, load_view_scenario())
         with chromium(tmp_path) as browser:
             page = open_viewer(browser, server, 800, 520)
             page.wait_for_selector("canvas", timeout=20000)
@@ -157,12 +157,12 @@ def test_turret_sensor_in_headless_chromium(tmp_path):
     # its own gimbal angles and frames, and the canvas renders the scene over the SRTM terrain
     from geoloc.assets import asset_path
     from geoloc.viz.app import GeolocApp, make_server
-    from geoloc.viz.scenario import load_scenario
+    from geoloc.viz.scenario import load_view_scenario
 
     ARTIFACTS.mkdir(exist_ok=True)
     server = make_server(port=0)
     try:
-        scn = load_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
+        scn = load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
                             asset_path("sensors", "eo_turret.toml"))
         app = GeolocApp(server, scn)
         assert [k for k in app.num if k.startswith("angle:")] == ["angle:azimuth", "angle:elevation"]
@@ -194,12 +194,12 @@ def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
     # issue 16 items 4-5: a state per tab, judged on each page's GUI text and on each browser's
     # own camera report; then a third tab over --max-clients 2 is told the limit
     from geoloc.viz.app import GeolocViewer, make_server
-    from geoloc.viz.scenario import load_scenario
+    from geoloc.viz.scenario import load_view_scenario
 
     ARTIFACTS.mkdir(exist_ok=True)
     server = make_server(port=0)
     try:
-        viewer = GeolocViewer(server, load_scenario(), max_clients=2)
+        viewer = GeolocViewer(server, load_view_scenario(), max_clients=2)
         with chromium(tmp_path, MULTI_TAB_FLAGS) as browser:
             # one tab at a time until each is up (software WebGL on a loaded 2-core machine)
             pa = open_viewer(browser, server, 480, 320)
@@ -248,12 +248,12 @@ def test_presenter_mode_in_chromium(tmp_path):
     # issue 20 item 2: the second tab follows the first: its controls are disabled, its panel
     # and camera follow the driver's (judged on the follower's page and its browser's camera)
     from geoloc.viz.app import GeolocViewer, make_server
-    from geoloc.viz.scenario import load_scenario
+    from geoloc.viz.scenario import load_view_scenario
 
     ARTIFACTS.mkdir(exist_ok=True)
     server = make_server(port=0)
     try:
-        viewer = GeolocViewer(server, load_scenario(), presenter=True)
+        viewer = GeolocViewer(server, load_view_scenario(), presenter=True)
         with chromium(tmp_path, MULTI_TAB_FLAGS) as browser:
             pa = open_viewer(browser, server, 480, 320)
             ida = next(iter(server.get_clients()))

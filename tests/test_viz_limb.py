@@ -186,7 +186,7 @@ def test_line_that_hits_the_earth_stops_there(limb):
 
 def test_view_command_exports_both_scenes(tmp_path, capsys):
     out = tmp_path / "flight.html"
-    assert main(["view", "--record", "T4-2", "--export", str(out)]) == 0
+    assert main(["view", "--scenario", "flight-test", "--record", "T4-2", "--export", str(out)]) == 0
     html = out.read_text()
     assert html.lstrip().lower().startswith("<!doctype html") and len(html) > 100_000
     out2 = tmp_path / "limb.viser"
@@ -196,12 +196,13 @@ def test_view_command_exports_both_scenes(tmp_path, capsys):
 
 
 def test_view_command_rejects_bad_arguments(capsys):
-    assert main(["view", "--record", "T9-9", "--export", "/dev/null"]) == 2
+    assert main(["view", "--scenario", "flight-test", "--record", "T9-9", "--export", "/dev/null"]) == 2
     err = capsys.readouterr().err
     assert "record = 'T9-9'" in err and "T3-1" in err
     assert main(["view", "--port", "70000", "--no-browser"]) == 2
     assert "port = 70000" in capsys.readouterr().err
     # A DEM that does not cover the target (the SRTM tile is in Tennessee, T3-1 in Asia).
-    assert main(["view", "--dem", str(asset_path("dem", "srtm_jacksboro.tif")), "--export", "/dev/null"]) == 2
+    assert main(["view", "--scenario", "flight-test", "--dem", str(asset_path("dem", "srtm_jacksboro.tif")),
+                 "--export", "/dev/null"]) == 2
     err = capsys.readouterr().err
     assert "does not cover the target" in err and "srtm_jacksboro.tif" in err

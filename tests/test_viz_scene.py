@@ -18,7 +18,7 @@ from geoloc.sensors.camera import Camera
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.terrain import intersect_dem
 from geoloc.viz.app import GeolocApp, make_server
-from geoloc.viz.scenario import load_scenario
+from geoloc.viz.scenario import load_view_scenario
 from geoloc.viz.scene_geoloc import WORLD_SCALE
 
 # The first record of the bundled flight test (T3-1), as in the CSV.
@@ -29,7 +29,7 @@ T31 = dict(lat=36.39895, lon=78.72927, h=17987.25, heading=30.0457, pitch=3.3903
 @pytest.fixture(scope="module")
 def app():
     server = make_server(port=0)
-    a = GeolocApp(server, load_scenario())
+    a = GeolocApp(server, load_view_scenario())
     yield a
     server.stop()
 
@@ -191,7 +191,9 @@ def test_teaching_panel_shows_the_core_matrices_and_highlights(app):
         assert node(app, f"/frames/{hop.src}/label").text.startswith("> ")
         assert node(app, f"/frames/{hop.src}").axes_radius == pytest.approx(
             0.05 * node(app, f"/frames/{hop.src}").axes_length)
-    assert "max |difference|" in app.md_q17.content
+        # [Q17] eq. 5's four factors are shown under T_ecef_ned and under no other hop
+        assert ("max |difference|" in app.md_q17.content) == (hop.name == "T_ecef_ned")
+    app.dd_hop.value = "T_ecef_ned"
     diff = float(app.md_q17.content.split("max |difference| = ")[1].split()[0])
     assert diff < 1e-6  # [Q17 eq. 5] four factors = direct form (float64 at 6.4e6 m)
     app.dd_hop.value = "(none)"
@@ -334,7 +336,7 @@ def test_viewer_line_of_sight_keeps_the_camera_mount_and_boresight():
     from geoloc.surfaces.height import intersect_los_height
     from geoloc.viz import model
 
-    scn = load_scenario()
+    scn = load_view_scenario()
     cam = dataclasses.replace(scn.camera, mount=(0.0, math.radians(0.22), 0.0),
                               boresight=(math.radians(0.05), 0.0, math.radians(-0.1)))
     scn = dataclasses.replace(scn, camera=cam, dem=None)
@@ -373,7 +375,7 @@ def test_viewer_and_rerun_lines_of_sight_equal_the_core_for_every_preset(preset,
                      k1=-0.21, k2=0.07, p1=4e-4, p2=-2e-4, k3=-0.01)
     mount = (0.0, 0.0, 0.0) if PRESETS[preset].earth_referenced else (2e-3, -1e-3, 4e-3)
     s = FrameSensor(lens, PRESETS[preset], mount=mount, boresight=(1e-3, 2e-3, -3e-3), lever_arm_m=(1.5, 0.2, 0.7))
-    scn = load_scenario()
+    scn = load_view_scenario()
     scn = dataclasses.replace(scn, camera=s, dem=None)
     inp = scn.inputs.replace(h_m=3000.0, row=200.0, col=1500.0, target_h=500.0, **RIG_ANGLES[preset])
     g = model.compute(scn, inp)
@@ -405,7 +407,7 @@ def test_viewer_flags_a_pixel_outside_the_sensor():
     from geoloc.status import Status
     from geoloc.viz import model
 
-    scn = dataclasses.replace(load_scenario(), dem=None)
+    scn = dataclasses.replace(load_view_scenario(), dem=None)
     g = model.compute(scn, scn.inputs.replace(row=99999.0, target_h=4600.0))
     assert g.status == Status.OUTSIDE_SENSOR
     assert "pixel outside the sensor" in g.message and "rows 1-2323" in g.message
@@ -420,7 +422,7 @@ def test_viewer_opens_a_misb_klv_flight():
     from geoloc.geodesy.geodesic import horizontal_distance_m
     from geoloc.viz import model
 
-    scn = load_scenario(asset_path("klv", "example_flight.klv"), "packet 12")
+    scn = load_view_scenario(asset_path("klv", "example_flight.klv"), "packet 12")
     assert len(scn.records) == 298 and scn.camera.gimbal.name == "azimuth-elevation-roll"
     g = model.compute(scn, scn.inputs.replace(method="exact"))
     info = scn.records[scn.record_index][0]

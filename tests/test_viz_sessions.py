@@ -21,7 +21,7 @@ import pymap3d
 import pytest
 
 from geoloc.viz.app import GeolocViewer, make_server
-from geoloc.viz.scenario import load_scenario
+from geoloc.viz.scenario import load_view_scenario
 from geoloc.viz.scene_geoloc import WORLD_SCALE
 
 # a tab that closes while its session is still being built makes viser warn about the messages
@@ -82,13 +82,17 @@ class FakeTab:
         self._thread.join(20)
 
 
-def open_tab(server, until=churn_mod.BUILT):
-    """(FakeTab, its viser client id)."""
+def open_tab(server, until=churn_mod.BUILT, viewer=None):
+    """(FakeTab, its viser client id); with ``viewer``, once the tab's session is registered
+    (the last layer's GUI reaches the tab a little before its build returns)."""
     before = set(server.get_clients())
     tab = FakeTab(server.get_port(), until)
     new = set(server.get_clients()) - before
     assert len(new) == 1, new
-    return tab, new.pop()
+    cid = new.pop()
+    if viewer is not None and until == churn_mod.BUILT:
+        wait_for(lambda: viewer.session_of(cid) is not None, 30, f"the session of tab {cid}")
+    return tab, cid
 
 
 def wait_for(cond, timeout, what):
@@ -130,10 +134,10 @@ def server():
 
 
 def test_two_tabs_keep_their_own_state(server):
-    scn = load_scenario()
+    scn = load_view_scenario()
     viewer = GeolocViewer(server, scn)
-    a, ida = open_tab(server)
-    b, idb = open_tab(server)
+    a, ida = open_tab(server, viewer=viewer)
+    b, idb = open_tab(server, viewer=viewer)
     try:
         sa, sb = viewer.session_of(ida), viewer.session_of(idb)
         assert sa is not sb and sa.scene is not sb.scene and sa.scn is not sb.scn
@@ -170,7 +174,7 @@ def test_two_tabs_keep_their_own_state(server):
         sa.num["h_m"].value = 15000.0
         assert sa.dd_record.value == "(custom pose)"
         assert "custom pose (edited from record T4-3)" in sa.md_summary.content  # header follows
-        c, idc = open_tab(server)
+        c, idc = open_tab(server, viewer=viewer)
         try:
             sc = viewer.session_of(idc)
             assert sc.dd_record.value == "T3-1" and sc.inputs.h_m == ib.h_m
@@ -184,8 +188,8 @@ def test_two_tabs_keep_their_own_state(server):
 
 
 def test_presenter_mode_followers_mirror_the_driver(server):
-    viewer = GeolocViewer(server, load_scenario(), presenter=True)
-    a, ida = open_tab(server)
+    viewer = GeolocViewer(server, load_view_scenario(), presenter=True)
+    a, ida = open_tab(server, viewer=viewer)
     b, idb = open_tab(server, until=b"take control")
     try:
         d = viewer.driver
@@ -219,8 +223,8 @@ def test_presenter_mode_followers_mirror_the_driver(server):
 
 
 def test_client_cap_tells_the_extra_tab_and_stderr(server, capfd):
-    viewer = GeolocViewer(server, load_scenario(), max_clients=1)
-    a, _ = open_tab(server)
+    viewer = GeolocViewer(server, load_view_scenario(), max_clients=1)
+    a, _ = open_tab(server, viewer=viewer)
     try:
         c, idc = open_tab(server, until=b"too many browser tabs")
         try:
@@ -238,7 +242,7 @@ def test_client_cap_tells_the_extra_tab_and_stderr(server, capfd):
 
 def test_connection_churn_frees_every_session_and_memory(server):
     # 60 tabs, 4 at a time, each connected, its session built, dropped (the benchmark does 500)
-    viewer = churn_mod.tracked_viewer(server, load_scenario())
+    viewer = churn_mod.tracked_viewer(server, load_view_scenario())
     port = server.get_port()
     churn_mod.churn(port, 8)  # warm-up: shared caches (terrain mesh, numba, calibration)
     churn_mod.wait_drained(server)

@@ -17,7 +17,7 @@ import numpy as np
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic
 from geoloc.sensors.limb import limb_tangent
 from geoloc.status import Status, describe
-from geoloc.workflows.limb_scenario import load_scenario
+from geoloc.workflows.scenario import load_scenario
 
 
 def register(sub) -> None:
@@ -102,7 +102,7 @@ _COLUMNS = [
 
 
 def _scenario(args) -> int:
-    sc = load_scenario(args.scenario)
+    sc = load_scenario(args.scenario, expect="limb")
     if args.frames is not None:
         if args.frames < 1:
             raise ValueError(f"--frames must be >= 1, got {args.frames}")

@@ -1,8 +1,10 @@
 """``geoloc view``: the interactive 3D scene in the browser (viser).
 
-With no arguments it opens the bundled default: the first [Q17] flight-test
-record over the bundled terrain, showing the aircraft, the gimbal frames, the
-line of sight, the iterations of the terrain method and the hit. The viewer
+With no arguments it opens the bundled example flight (MISB ST 0601 KLV over the
+SRTM crop, with planted faults) in the flight debugger: the track, footprints,
+outliers first, the accuracy panel, and the current frame's aircraft, gimbal
+frames, line of sight, terrain iterations and hit. ``--scenario flight-test``
+opens the [Q17] flight-test records. The viewer
 lives in the ``viz`` package (the core never imports viser). User guide:
 ``docs/viz.md``.
 """
@@ -17,18 +19,20 @@ import webbrowser
 def register(sub) -> None:
     p = sub.add_parser(
         "view",
-        help="open the interactive 3D scene in the browser (default: a bundled flight-test record)",
+        help="open the interactive 3D scene in the browser (default: the bundled example flight)",
         description="Start a local viser server with the 3D scene of a geolocation: aircraft, "
         "NED/body/gimbal/camera frames, frustum, line of sight, DEM mesh, the iterations of the "
         "terrain method, and the published and surveyed positions of a flight-test record. "
         "With --scenario limb: the TianGong-2 limb-viewing scene. Binds to 127.0.0.1 unless "
         "--host says otherwise.",
     )
-    p.add_argument("--scenario", default="flight-test",
-                   help="'flight-test' (default: the bundled [Q17] records), 'limb' (bundled "
-                   "TianGong-2 limb scenario) or a path to a limb scenario TOML")
+    p.add_argument("--scenario", default="flight",
+                   help="'flight' (default: the bundled MISB ST 0601 example flight over the SRTM crop, "
+                   "with its planted faults, in the flight debugger), 'flight-test' (the bundled [Q17] "
+                   "records), 'limb' (bundled TianGong-2 limb scenario) or a path to a limb scenario TOML")
     p.add_argument("--records", default=None,
-                   help="records CSV for the flight-test scene (default: the bundled "
+                   help="records CSV (or a MISB ST 0601 .klv/.ts file) for the flight scene (default: "
+                   "the bundled example flight; with --scenario flight-test the bundled "
                    "assets/records/qiao2017_flight_tests.csv)")
     p.add_argument("--record", default=None,
                    help="record to open: label such as T4-3, or 0-based index (default: the first)")
@@ -69,12 +73,19 @@ def build(args, server, serve: bool = False):
     tab, or ``--presenter``); otherwise a session on the server itself (the export's).
     """
     scen = args.scenario
-    if scen in ("flight-test", "qiao2017", "default"):
+    if scen in ("flight", "flight-test", "qiao2017", "default"):
         from geoloc.viz.app import GeolocApp, GeolocViewer
-        from geoloc.viz.scenario import load_scenario
+        from geoloc.viz.flight_model import default_flight_scenario
+        from geoloc.viz.scenario import load_view_scenario
 
-        scn = load_scenario(args.records, args.record, args.camera, args.dem,
-                            use_dem=not args.no_dem)
+        klv = args.records is not None and args.records.lower().endswith((".klv", ".bin", ".ts", ".mpg", ".mp4"))
+        if scen in ("flight", "default") and args.records is None or klv:
+            # the bundled MISB ST 0601 example flight (or the user's KLV), with each frame's fields of view
+            scn = default_flight_scenario(args.record, args.records, args.camera, args.dem,
+                                          use_dem=not args.no_dem)
+        else:
+            scn = load_view_scenario(args.records, args.record, args.camera, args.dem,
+                                     use_dem=not args.no_dem)
         if args.method:
             scn.inputs = scn.inputs.replace(method=args.method)
         if serve:

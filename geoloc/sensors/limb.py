@@ -23,7 +23,7 @@ Three pieces:
   bisection (it cannot diverge and cannot pick a wrong local minimum).
 
 Entry point for batches: :func:`limb_tangent`; scenario files:
-:func:`geoloc.workflows.limb_scenario.load_scenario` (``assets/scenarios/tiangong2_limb.toml``).
+:func:`geoloc.workflows.scenario.load_scenario` (``assets/scenarios/tiangong2_limb.toml``).
 """
 
 from __future__ import annotations

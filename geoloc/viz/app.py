@@ -74,7 +74,7 @@ import viser
 
 from geoloc.locate import as_sensor
 from geoloc.status import describe
-from geoloc.viz import calibration_layer, teaching
+from geoloc.viz import calibration_layer, flight_layer, teaching, teaching_panel
 from geoloc.viz.model import Inputs, Scenario, compute, drawn_frames
 from geoloc.viz.scenario import select_record
 from geoloc.viz.scene_geoloc import Display, GeolocScene, camera_pose_for
@@ -90,8 +90,16 @@ ANGLE_SLIDERS = (
 CUSTOM = "(custom pose)"
 #: Browser tabs served at once by default (``--max-clients``).
 MAX_CLIENTS = 16
-#: The layers every session gets unless told otherwise (``attach_fn(session)`` each).
-DEFAULT_LAYERS = (calibration_layer.attach,)
+
+
+def attach_flight(session):
+    """The flight debugger (:mod:`geoloc.viz.flight_layer`) when the scenario has a flight (2+ records)."""
+    return flight_layer.attach(session) if len(session.scn.records) > 1 else None
+
+
+#: The layers every session gets unless told otherwise (``attach_fn(session)`` each): the
+#: flight debugger, the calibration error vectors, the teaching panel.
+DEFAULT_LAYERS = (attach_flight, calibration_layer.attach, teaching_panel.attach)
 METHOD_NAMES = {"steps": "descending steps [Q17]", "bisect": "bisection [L23]",
                 "exact": "exact first hit (cell walk)"}
 LEGEND = """\
@@ -335,8 +343,11 @@ class GeolocSession:
     def _angle_sliders(self):
         """Attitude sliders, then one per joint angle of the sensor's gimbal (``angle:NAME`` keys)."""
         out = list(ANGLE_SLIDERS[:3])
-        q17 = {row[0][:-4]: row for row in ANGLE_SLIDERS[3:]}
-        for name in as_sensor(self.scn.camera).angle_names:
+        sensor = as_sensor(self.scn.camera)
+        # [Q17]'s gimbal ranges only for its roll-pitch gimbal: a DJI gimbal_pitch runs to -90
+        q17 = ({row[0][:-4]: row for row in ANGLE_SLIDERS[3:]}
+               if getattr(getattr(sensor, "gimbal", None), "name", "roll-pitch") == "roll-pitch" else {})
+        for name in sensor.angle_names:
             # azimuths run 0..360 and some joints wind further: the whole valid range of a joint angle
             out.append(q17.get(name, (f"angle:{name}", f"{name.replace('_', ' ')} (deg)", -360.0, 360.0, 0.0001)))
         return out
@@ -406,10 +417,16 @@ class GeolocSession:
         labels = [info.label for info, _ in self.scn.records]
         self.load_record(labels.index(self.dd_record.value))
 
-    def load_record(self, idx: int) -> None:
-        """Load record ``idx``: pose, pixel, new ENU origin and terrain, redraw, and move
-        this tab's camera (a server session: every tab's) to frame the aircraft and target."""
+    def load_record(self, idx: int, move_camera: bool = True) -> None:
+        """Load record ``idx``: pose, pixel, new ENU origin and terrain, redraw, and (``move_camera``)
+        move this tab's camera (a server session: every tab's) to frame the aircraft and target.
+
+        The static scene (origin, grid, terrain, aircraft mesh) is redrawn only when the
+        record's rounded ENU origin or its DEM differs from the last one's: the frames of
+        a flight share them, and a timeline step then updates only the moving parts.
+        """
         with self._lock:
+            before = self._static_key()
             select_record(self.scn, idx)
             keep = self.inputs
             self.inputs = self.scn.inputs.replace(method=keep.method, eps_h=keep.eps_h,
@@ -424,13 +441,21 @@ class GeolocSession:
             finally:
                 self._mute = False
             with self._atomic():
-                self.view.draw_static()
+                if self._static_key() != before:
+                    self.view.draw_static()
                 for cb in list(self._record_cbs):
                     self._call(cb, idx)
             self.refresh()
+            if not move_camera:
+                return
             if self.client is None:
                 self.view.set_initial_camera(self.server)
             self.move_camera("overview")
+
+    def _static_key(self) -> tuple:
+        """What the static scene depends on: the ENU origin and the DEM."""
+        e = self.scn.enu
+        return (float(e.lat0), float(e.lon0), float(e.h0), id(self.scn.dem))
 
     def _call(self, cb, arg) -> None:
         try:
@@ -532,7 +557,8 @@ class GeolocSession:
         hv = {h.key: h for h in teaching.hops(g.chain)}
         self.md_hop.content = (teaching.hop_markdown(hv[hop]) if hop in hv
                                else teaching.chain_markdown(g.chain))
-        self.md_q17.content = teaching.q17_factors_markdown(g.chain)
+        # [Q17] eq. 5's factors belong to T_ecef_ned only (issue 20): not under every hop
+        self.md_q17.content = teaching.q17_factors_markdown(g.chain) if hop == "T_ecef_ned" else ""
 
 
 class GeolocApp(GeolocSession):

@@ -589,7 +589,7 @@ def default_flight_path() -> Path:
     return Path(ASSETS) / "klv" / "example_flight.klv"
 
 
-def default_flight_scenario(record=None):
+def default_flight_scenario(record=None, path=None, camera_path=None, dem_path=None, use_dem: bool = True):
     """The viewer's first look: the bundled KLV example flight over the SRTM crop, its worst frame open.
 
     Its planted faults (``tools/make_klv_example.py``, ``docs/klv.md``): a 2.5 deg heading-bias burst
@@ -597,11 +597,13 @@ def default_flight_scenario(record=None):
     corrupted packet (150, skipped by the reader and reported), one packet without sensor angles
     (275, not a frame). The scenario carries each frame's fields of view (``frame_fov_deg``) so the
     footprints follow the zoom. ``record`` (label or index) opens that frame first (default the first).
+    ``path`` is another KLV file (``geoloc view --records FILE.klv``); ``camera_path``, ``dem_path``
+    and ``use_dem`` are those of :func:`geoloc.viz.scenario.load_view_scenario`.
     """
-    from geoloc.viz.scenario import load_scenario
+    from geoloc.viz.scenario import load_view_scenario
 
-    path = default_flight_path()
-    scn = load_scenario(path, record)
+    path = default_flight_path() if path is None else Path(path)
+    scn = load_view_scenario(path, record, camera_path, dem_path, use_dem=use_dem)
     # ST 0601 headings run 0..360 deg, the viewer's heading slider -180..180: the same angle, wrapped
     scn.records = [(info, inp.replace(heading_deg=_wrap_deg(inp.heading_deg))) for info, inp in scn.records]
     scn.inputs = scn.inputs.replace(heading_deg=_wrap_deg(scn.inputs.heading_deg))

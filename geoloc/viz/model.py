@@ -167,14 +167,10 @@ def compute(scn: Scenario, inp: Inputs) -> Geometry:
     d_enu = enu.vector_from_ecef(los.direction_ecef)
     geo = dict(chain=chain, frames=frames, aircraft_enu=aircraft,
                R_enu_body=frames["body"].R_enu_frame, los_dir_enu=d_enu)
-    if scn.dem is not None:
-        from geoloc.viz import terrain_link
+    from geoloc.viz import terrain_link
 
-        geo.update(terrain_link.terrain_geometry(scn, inp, los))
-    else:
-        hit = intersect_los_height(los, inp.target_h)
-        geo.update(hit=hit, hit_enu=enu.from_ecef(hit.ecef),
-                   hit_label=f"hit at h = {inp.target_h:.1f} m")
+    # the height-or-DEM choice: surfaces.terrain.surface_for, through terrain_link.scene_surface
+    geo.update(terrain_link.hit_geometry(scn, inp, los))
     g = Geometry(**geo)
     g.status = int(g.hit.status)
     sensor = as_sensor(cam)

@@ -65,7 +65,7 @@ KLV_SUFFIXES = (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts")
 def records_from_klv(path, camera=None):
     """A MISB ST 0601 file as viewer records: one per good packet, its own frame centre as the
     published point. Returns (sensor, [(RecordInfo, Inputs)]) (:mod:`geoloc.workflows.klv_replay`)."""
-    from geoloc.workflows.klv_replay import replay_klv
+    from geoloc.workflows.klv_replay import klv_pose_deg, replay_klv
 
     r = replay_klv(path, sensor=camera)
     c = r.columns
@@ -78,14 +78,11 @@ def records_from_klv(path, camera=None):
 
         info = RecordInfo(f"packet {int(c['packet'][k])}", v("reported_lat_deg"), v("reported_lon_deg"),
                           v("reported_h_m"), np.nan, np.nan, v("frame_center_error_m"))
-        roll = v("sensor_relative_roll_deg")
-        inp = Inputs(v("sensor_lat_deg"), v("sensor_lon_deg"), v("sensor_h_m"), v("platform_heading_deg"),
-                     v("platform_pitch_deg"), v("platform_roll_deg"), 0.0, 0.0,
-                     (sensor.rows + 1) / 2, (sensor.cols + 1) / 2,
-                     target_h=v("reported_h_m") if np.isfinite(v("reported_h_m")) else 0.0,
-                     angles_deg={"azimuth": v("sensor_relative_azimuth_deg"),
-                                 "elevation": v("sensor_relative_elevation_deg"),
-                                 "sensor_roll": roll if np.isfinite(roll) else 0.0})
+        pose = klv_pose_deg(c, k)
+        # ST 0601 headings run 0..360 deg, the viewer's heading slider -180..180: the same angle, wrapped
+        pose["heading_deg"] = (pose["heading_deg"] + 180.0) % 360.0 - 180.0
+        inp = Inputs(**pose, row=(sensor.rows + 1) / 2, col=(sensor.cols + 1) / 2,
+                     target_h=v("reported_h_m") if np.isfinite(v("reported_h_m")) else 0.0)
         if np.isfinite(inp.angles_deg["azimuth"]) and np.isfinite(inp.angles_deg["elevation"]):
             out.append((info, inp))
     if not out:
@@ -106,7 +103,7 @@ def enu_origin_for(info: RecordInfo, inp: Inputs) -> EnuFrame:
     return EnuFrame.scene_origin(lat, lon, h)
 
 
-def load_scenario(records_path=None, record: str | int | None = None, camera_path=None,
+def load_view_scenario(records_path=None, record: str | int | None = None, camera_path=None,
                   dem_path=None, use_dem: bool = True) -> Scenario:
     """Build a geolocation scenario from a records file (default: the bundled [Q17] flight test).
 

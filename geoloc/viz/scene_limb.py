@@ -57,7 +57,7 @@ from geoloc.geodesy.ellipsoid import (
 from geoloc.sensors.limb import limb_tangent, line_of_sight_l18
 from geoloc.status import Status, describe
 from geoloc.viz.scene_geoloc import WORLD_SCALE
-from geoloc.workflows.limb_scenario import load_scenario
+from geoloc.workflows.scenario import load_scenario
 
 DEFAULT_LIMB = ("scenarios", "tiangong2_limb.toml")
 #: Default exaggerations: the virtual ellipsoid's departure from a shell at the limb height
@@ -112,7 +112,7 @@ def marker_radius_km(kind: str, separation_km: float) -> float:
 
 def load_limb(path=None):
     """The limb scenario at ``path`` (default: the bundled TianGong-2-like one)."""
-    return load_scenario(path or Path(ASSETS).joinpath(*DEFAULT_LIMB))
+    return load_scenario(path or Path(ASSETS).joinpath(*DEFAULT_LIMB), expect="limb")
 
 
 class LimbApp:

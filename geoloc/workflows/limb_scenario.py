@@ -214,7 +214,7 @@ def scenario_from_dict(data: dict, source: str = "scenario") -> LimbScenario:
     return LimbScenario(name=str(data.get("name", source)), source=source, **kw)
 
 
-def load_scenario(path) -> LimbScenario:
+def load_limb_scenario(path) -> LimbScenario:
     """Read a limb scenario TOML file (e.g. ``assets/scenarios/tiangong2_limb.toml``).
 
     Raises
