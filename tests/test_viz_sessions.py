@@ -267,3 +267,37 @@ def test_connection_churn_frees_every_session_and_memory(server):
 def test_max_clients_is_checked():
     with pytest.raises(ValueError, match="max_clients = 0"):
         GeolocViewer(None, None, max_clients=0)
+
+
+def test_a_tab_switches_scenario_in_one_click_and_alone(server):
+    # issue 16: the [Q17] record stays one click away from the example flight (a "scenario" dropdown)
+    import gc
+    import weakref
+
+    from geoloc.viz.flight_model import default_flight_scenario
+
+    q17 = load_view_scenario()
+    viewer = GeolocViewer(server, q17, scenarios={"[Q17] flight test": q17,
+                                                  "example flight": default_flight_scenario})
+    a, ida = open_tab(server, viewer=viewer)
+    b, idb = open_tab(server, viewer=viewer)
+    try:
+        assert b"Open another bundled scenario in this tab" in a.stream()  # the dropdown's hint reached the tab
+        old = weakref.ref(viewer.session_of(ida))
+        client_a = server.get_clients()[ida]
+        viewer.switch(client_a, "example flight")  # what choosing it in the dropdown does
+        sa, sb = viewer.session_of(ida), viewer.session_of(idb)
+        assert sa.scn.name.startswith("example_flight.klv") and len(sa.scn.records) == 298
+        # the new session draws the KLV turret's own frames, at pymap3d's ENU of its aircraft
+        inp = sa.scn.records[sa.scn.record_index][1]
+        ac = np.asarray(sa.scene.get_handle_by_name("/enu/aircraft").position) / WORLD_SCALE
+        np.testing.assert_allclose(ac, pymap3d_enu(sa, inp.lat_deg, inp.lon_deg, inp.h_m), atol=1e-3)
+        # tab B did not move; tab A's old session is gone once collected
+        assert sb.scn.name.endswith("T3-1") and "T3-1" in sb.md_summary.content
+        gc.collect()
+        assert old() is None
+        viewer.switch(client_a, "[Q17] flight test")  # and back
+        assert viewer.session_of(ida).scn.name.endswith("T3-1")
+    finally:
+        a.close()
+        b.close()

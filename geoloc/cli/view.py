@@ -89,8 +89,15 @@ def build(args, server, serve: bool = False):
         if args.method:
             scn.inputs = scn.inputs.replace(method=args.method)
         if serve:
+            scenarios = None
+            if args.records is None and args.dem is None and args.camera is None:
+                # the two bundled scenarios, one click apart (the chosen one first)
+                flight = ("example flight (MISB ST 0601 KLV)",
+                          lambda: default_flight_scenario(use_dem=not args.no_dem))
+                q17 = ("[Q17] flight test", lambda: load_view_scenario(use_dem=not args.no_dem))
+                scenarios = dict([q17, flight] if scen in ("flight-test", "qiao2017") else [flight, q17])
             return GeolocViewer(server, scn, presenter=getattr(args, "presenter", False),
-                                max_clients=getattr(args, "max_clients", 16))
+                                max_clients=getattr(args, "max_clients", 16), scenarios=scenarios)
         return GeolocApp(server, scn)
     from geoloc.viz.scene_limb import LimbApp, load_limb
 

@@ -666,18 +666,28 @@ class GeolocViewer:
         how to raise it (``--max-clients``), and a line on stderr.
     layers : sequence of callables, optional
         Passed to every session (default :data:`DEFAULT_LAYERS`).
+    scenarios : dict, optional
+        Name -> scenario (or a callable building it) for a "scenario" dropdown on top of
+        each tab (per-tab mode): the first entry is ``scn``, the others one click away
+        (``geoloc view`` offers the example flight and the [Q17] flight test).
     """
 
     #: What builds a tab's session (same arguments as :class:`GeolocSession`).
     session_factory = GeolocSession
 
     def __init__(self, server: viser.ViserServer, scn: Scenario, disp: Display | None = None, *,
-                 presenter: bool = False, max_clients: int = MAX_CLIENTS, layers=None):
+                 presenter: bool = False, max_clients: int = MAX_CLIENTS, layers=None, scenarios=None):
         if int(max_clients) != max_clients or max_clients < 1:
             raise ValueError(f"max_clients = {max_clients!r}: must be a whole number >= 1")
         self.server, self.scn, self.disp = server, scn, disp or Display()
         self.presenter, self.max_clients, self.layers = bool(presenter), int(max_clients), layers
         self.sessions: dict[int, GeolocSession] = {}  # per-tab mode: client id -> session
+        #: Named scenarios a tab may switch between (a dropdown; per-tab mode), the first being ``scn``;
+        #: a value may be a callable building the scenario when first chosen.
+        self.scenarios: dict = dict(scenarios or {})
+        if self.scenarios:
+            self.scenarios[next(iter(self.scenarios))] = scn
+        self.tab_scenario: dict[int, str | None] = {}
         self.followers: dict[int, _FollowerPanel] = {}  # presenter mode
         self.driver: GeolocSession | None = None
         self.refused: set[int] = set()
@@ -728,12 +738,7 @@ class GeolocViewer:
                 return
             cid = client.client_id
             if not self.presenter:
-                s = self.session_factory(self.server, self.scn, self.disp, client=client, layers=self.layers,
-                                  copy_scenario=True)
-                if self._connected(client):
-                    self.sessions[cid] = s
-                else:
-                    s.close()
+                self._build_tab(client, next(iter(self.scenarios)) if self.scenarios else None)
             elif self.driver is None:
                 self._make_driver(client, None)
                 if not self._connected(client):
@@ -743,6 +748,46 @@ class GeolocViewer:
                 self._follow_camera_of(self.driver.client)
                 if not self._connected(client):
                     self.followers.pop(cid, None)
+
+    def _scenario(self, name):
+        """The scenario a tab starts from: the viewer's own, or the named alternative (built once)."""
+        if name is None:
+            return self.scn
+        sc = self.scenarios[name]
+        if callable(sc):
+            sc = self.scenarios[name] = sc()
+        return sc
+
+    def _build_tab(self, client, name) -> None:
+        """Build a tab's session on scenario ``name`` (a scenario dropdown on top when there are several)."""
+        cid = client.client_id
+        if len(self.scenarios) > 1:
+            dd = client.gui.add_dropdown("scenario", tuple(self.scenarios), initial_value=name,
+                                         hint="Open another bundled scenario in this tab")
+            dd.on_update(lambda _, c=client, d=dd: self.switch(c, str(d.value)))
+        s = self.session_factory(self.server, self._scenario(name), self.disp, client=client, layers=self.layers,
+                                 copy_scenario=True)
+        if self._connected(client):
+            self.sessions[cid] = s
+            self.tab_scenario[cid] = name
+        else:
+            s.close()
+
+    def switch(self, client, name: str) -> None:
+        """Open scenario ``name`` in this tab: its session is dropped and a new one built (one click)."""
+        with self._lock:
+            cid = client.client_id
+            if name not in self.scenarios or self.tab_scenario.get(cid) == name or not self._connected(client):
+                return
+            old = self.sessions.pop(cid, None)
+            if old is not None:
+                old.close()
+            client.gui.reset()
+            client.scene.reset()
+            self._build_tab(client, name)
+            s = self.sessions.get(cid)
+            if s is not None:
+                s.move_camera("overview")
 
     def _schedule_release(self) -> None:
         if self._release_timer is not None:
@@ -761,6 +806,7 @@ class GeolocViewer:
         cid = client.client_id
         with self._lock:
             self.refused.discard(cid)
+            self.tab_scenario.pop(cid, None)
             s = self.sessions.pop(cid, None)
             if s is not None:
                 s.close()
