@@ -1,0 +1,228 @@
+"""``geoloc ortho``: every pixel of one frame onto the terrain, as a GeoTIFF; a photo's orthophoto.
+
+The pose comes from the command line (the options of ``geoloc locate``), from one
+record of a records CSV (``--record LABEL --records CSV``) or from a DJI photo
+(``--photo JPG``: its sensor and pose, ``docs/photos.md``). The surface is a DEM
+(``--dem``; default a bundled DEM that covers the aircraft) or a constant height
+(``--target-h-m``). Writes ``--out FILE.tif`` (bands lat_deg, lon_deg, h_m, status on
+the image grid: :func:`geoloc.workflows.ortho.write_frame_geotiff`) and, for a photo,
+``--ortho-out FILE.tif --gsd-m M`` (:func:`geoloc.workflows.ortho.orthorectify`).
+Docs: ``docs/ortho.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+from geoloc.cli.locate import (
+    add_altitude_datum_option,
+    add_angle_option,
+    add_columns_option,
+    add_sensor_option,
+    load_camera,
+    pose_from_args,
+    records_from_args,
+)
+from geoloc.io.columns import ELLIPSOID_DATUM
+
+POSE_FIELDS = ("lat_deg", "lon_deg", "h_m")
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "ortho",
+        help="every pixel of a frame onto the DEM: per-pixel lat/lon/h GeoTIFF, and a photo's orthophoto",
+        description="Locate every pixel (or every --step-th) of one frame on the terrain in one call and "
+        "write the per-pixel latitude, longitude and ellipsoidal height (WGS 84) as a GeoTIFF on the "
+        "image grid, with a status band; for a drone photo also an orthorectified image (--ortho-out). "
+        "The pose: the aircraft options below (as geoloc locate), or --record LABEL [--records CSV], "
+        "or --photo JPG. Angles in degrees, heights in metres.",
+    )
+    g = p.add_argument_group("pose (as geoloc locate), or --record, or --photo")
+    g.add_argument("--lat-deg", type=float, default=None, help="aircraft geodetic latitude [deg]")
+    g.add_argument("--lon-deg", type=float, default=None, help="aircraft longitude [deg, east +]")
+    g.add_argument("--h-m", type=float, default=None,
+                   help="aircraft height [m]: ellipsoidal (WGS 84) unless --altitude-datum egm96 (MSL)")
+    add_altitude_datum_option(g, "--h-m, the records' ac_h_m or the photo's altitude")
+    g.add_argument("--heading-deg", type=float, default=0.0, help="heading psi [deg] (default 0)")
+    g.add_argument("--pitch-deg", type=float, default=0.0, help="pitch theta, nose up + [deg]")
+    g.add_argument("--roll-deg", type=float, default=0.0, help="roll phi, right wing down + [deg]")
+    g.add_argument("--gimbal-roll-deg", type=float, default=None, help="[Q17] outer gimbal (roll) angle [deg]")
+    g.add_argument("--gimbal-pitch-deg", type=float, default=None, help="[Q17] inner gimbal (pitch) angle [deg]")
+    add_angle_option(g)
+    add_sensor_option(g)
+    g.add_argument("--record", default=None, metavar="LABEL",
+                   help="take the pose from this record of --records (its label: table-point, e.g. T3-1, "
+                   "or 'line N')")
+    g.add_argument("--records", default=None, metavar="CSV",
+                   help="records CSV for --record (default: the bundled assets/records/qiao2017_flight_tests.csv)")
+    add_columns_option(g)
+    g.add_argument("--photo", default=None, metavar="JPG",
+                   help="a DJI photo: its own sensor (or --sensor's lens) and pose; enables --ortho-out")
+    o = p.add_argument_group("output")
+    o.add_argument("--out", required=True, metavar="FILE.tif",
+                   help="GeoTIFF on the image grid: bands lat_deg, lon_deg, h_m (ellipsoidal), status")
+    o.add_argument("--step", type=int, default=1, help="every Nth pixel in both directions (default 1: all)")
+    o.add_argument("--chunk", type=int, default=None,
+                   help="rays per call of the DEM solver (default 262144; memory is bounded by it)")
+    o.add_argument("--ortho-out", default=None, metavar="FILE.tif",
+                   help="with --photo: the orthorectified photo (RGB + alpha), north-up")
+    o.add_argument("--gsd-m", type=float, default=None, help="cell size of --ortho-out [m] (required with it)")
+    o.add_argument("--ortho-crs", default="geographic",
+                   help="grid of --ortho-out: geographic (EPSG:4326, default), utm (the zone of the "
+                   "footprint) or a CRS such as EPSG:32617")
+    o.add_argument("--serial", action="store_true",
+                   help="run the DEM solver on one core (default: all cores, numba threads); the same hits")
+    o.add_argument("--json", action="store_true", help="print a JSON summary")
+    t = p.add_argument_group("target surface without a DEM")
+    t.add_argument("--target-h-m", type=float, default=None,
+                   help="a constant target height [m, ellipsoidal] instead of a DEM")
+    t.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
+                   help="with --target-h-m: the inflated ellipsoid of [Q17] eq. 11 (default) or the exact "
+                   "constant-height surface")
+    p.set_defaults(func=run, _terrain_hook=None)
+    from geoloc.cli.terrain_options import add_dem_options
+
+    add_dem_options(p, None)
+
+
+def _bundled_dem(lat_deg: float, lon_deg: float):
+    """The finest bundled DEM (assets/dem/*.tif) whose bounds contain (lat, lon), or None."""
+    import rasterio
+
+    from geoloc.assets import asset_path
+
+    best = None
+    for path in sorted(Path(asset_path("dem")).glob("*.tif")):
+        with rasterio.open(path) as src:
+            b = src.bounds
+            if src.crs is not None and src.crs.is_geographic and b.left <= lon_deg <= b.right \
+                    and b.bottom <= lat_deg <= b.top:
+                if best is None or abs(src.res[0]) < best[0]:
+                    best = (abs(src.res[0]), path)
+    return None if best is None else best[1]
+
+
+def _pose(args):
+    """(sensor, pose, photo meta or None, where the pose came from)."""
+    from geoloc.locate import as_sensor
+
+    given = [name for name, on in (("--photo", args.photo), ("--record", args.record),
+                                   ("--lat-deg/--lon-deg/--h-m", any(getattr(args, k) is not None
+                                                                     for k in POSE_FIELDS))) if on]
+    if len(given) > 1:
+        raise ValueError(f"the pose is given twice ({' and '.join(given)}): use one of them")
+    if args.photo:
+        from geoloc.assets import resolve_user_path
+        from geoloc.io.photos import photo_sensor, pose_from_photo, read_photo
+        from geoloc.sensors.sensor_file import load_camera_or_sensor
+
+        path = resolve_user_path(args.photo)
+        meta = read_photo(path)
+        user = as_sensor(load_camera_or_sensor(args.camera)) if args.camera else None
+        sensor, lens = photo_sensor(meta, user)
+        pose = pose_from_photo(meta, args.altitude_datum or "egm96")
+        return sensor, pose, meta, f"photo {meta.name} (lens: {lens})"
+    camera = load_camera(args.camera)
+    sensor = as_sensor(camera)
+    if args.record:
+        records = records_from_args(args, args.records, camera)
+        labels = records.labels()
+        if args.record not in labels:
+            shown = ", ".join(labels[:12]) + (" ..." if len(labels) > 12 else "")
+            raise ValueError(f"--record {args.record!r}: no such record in {records.path} (labels: {shown})")
+        k = labels.index(args.record)
+        pose = records.subset([k]).pose().validate()
+        return sensor, pose, None, f"record {args.record} of {records.path} ({records.altitude.describe()})"
+    missing = [f"--{k.replace('_', '-')}" for k in POSE_FIELDS if getattr(args, k) is None]
+    if missing:
+        raise ValueError(f"no pose: give {', '.join(missing)} (or --record LABEL, or --photo JPG)")
+    return sensor, pose_from_args(args, camera), None, "command line"
+
+
+def _surface(args, pose):
+    import numpy as np
+
+    from geoloc.surfaces.dem import DEM
+    from geoloc.surfaces.height import HeightSurface
+    from geoloc.surfaces.terrain import DemSurface
+
+    if args.target_h_m is not None:
+        if args.dem:
+            raise ValueError("--dem and --target-h-m both given: the surface is one or the other")
+        if not math.isfinite(args.target_h_m):
+            raise ValueError(f"--target-h-m {args.target_h_m}: not a finite height")
+        return HeightSurface(args.target_h_m, args.surface), f"constant height {args.target_h_m:g} m ({args.surface})"
+    path = args.dem
+    if not path:
+        lat, lon = (float(np.rad2deg(np.ravel(v)[0])) for v in (pose.lat, pose.lon))
+        path = _bundled_dem(lat, lon)
+        if path is None:
+            raise ValueError(f"no --dem and no bundled DEM covers the aircraft at {lat:.5f}, {lon:.5f} deg: "
+                             "give --dem FILE or --target-h-m")
+    dem = DEM.open(path, datum=args.dem_datum)
+    return DemSurface(dem, args.method, args.dem_surface, eps_h=args.eps_h, threshold=args.threshold), \
+        f"DEM {Path(path).name} ({args.method}, {args.dem_surface}; its heights {args.dem_datum})"
+
+
+def run(args) -> int:
+    from geoloc.workflows.ortho import (
+        DEFAULT_CHUNK,
+        orthorectify,
+        read_photo_pixels,
+        write_frame_geotiff,
+    )
+
+    if isinstance(args.step, bool) or args.step < 1:
+        raise ValueError(f"--step {args.step}: must be a whole number of pixels >= 1")
+    chunk = DEFAULT_CHUNK if args.chunk is None else args.chunk
+    if chunk < 1:
+        raise ValueError(f"--chunk {chunk}: must be a whole number of rays >= 1")
+    if args.ortho_out and not args.photo:
+        raise ValueError("--ortho-out needs --photo (the image to orthorectify)")
+    if args.ortho_out and args.gsd_m is None:
+        raise ValueError("--ortho-out needs --gsd-m (the orthophoto's cell size in metres)")
+    if args.gsd_m is not None and not (math.isfinite(args.gsd_m) and args.gsd_m > 0):
+        raise ValueError(f"--gsd-m {args.gsd_m}: must be a positive number of metres")
+    out = Path(args.out)
+    if out.suffix.lower() not in (".tif", ".tiff"):
+        raise ValueError(f"--out {args.out}: must be a GeoTIFF (.tif)")
+    if not out.parent.exists():
+        raise ValueError(f"--out {args.out}: folder {out.parent} does not exist")
+    sensor, pose, meta, pose_from = _pose(args)
+    surface, surface_text = _surface(args, pose)
+    tags = {"pose": pose_from, "surface": surface_text, "sensor": getattr(sensor, "name", "") or "frame sensor"}
+    t0 = time.perf_counter()
+    info = write_frame_geotiff(out, sensor, pose, surface, step=args.step, chunk=chunk, tags=tags,
+                               parallel=not args.serial)
+    info["seconds"] = time.perf_counter() - t0
+    info.update(pose=pose_from, surface=surface_text, h_datum=ELLIPSOID_DATUM)
+    if args.ortho_out:
+        from geoloc.surfaces.terrain import DemSurface
+
+        if not isinstance(surface, DemSurface):
+            raise ValueError("--ortho-out needs a DEM (--dem or a bundled one), not --target-h-m")
+        image = read_photo_pixels(Path(meta.path))
+        info["ortho"] = orthorectify(image, sensor, pose, surface.dem, args.ortho_out, gsd_m=args.gsd_m,
+                                     crs=args.ortho_crs, chunk=chunk, tags={"photo": meta.name},
+                                     parallel=not args.serial)
+    if args.json:
+        print(json.dumps(info))
+    else:
+        n = info["shape"][0] * info["shape"][1]
+        counts = ", ".join(f"{k} {v}" for k, v in info["counts"].items())
+        print(f"{out}: {info['shape'][0]} x {info['shape'][1]} pixels (step {args.step}), {n} rays in "
+              f"{info['seconds']:.2f} s; {counts}")
+        print(f"pose: {pose_from}; surface: {surface_text}; h is {ELLIPSOID_DATUM}")
+        if "ortho" in info:
+            o = info["ortho"]
+            print(f"{o['path']}: orthophoto {o['width']} x {o['height']} cells of {o['gsd_m']:g} m ({o['crs']}), "
+                  f"{o['cells_seen']} seen, {o['cells_hidden']} hidden behind terrain")
+    bad = info["counts"].get("ok", 0) == 0
+    if bad:
+        print("geoloc ortho: warning: no pixel has a ground point", file=sys.stderr)
+    return 1 if bad else 0

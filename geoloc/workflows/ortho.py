@@ -1,0 +1,483 @@
+"""Whole frames: every pixel of a frame through the sensor onto a surface, and the orthophoto.
+
+* :func:`locate_frame` takes one pose and gives the ground point of every pixel (or
+  of every ``step``-th pixel in both directions) as a :class:`FrameGrid`: latitude,
+  longitude and ellipsoidal height (WGS 84) per pixel, float64, NaN and a
+  :class:`geoloc.status.Status` where a pixel has no ground point. It runs the
+  sensor's line of sight (compiled for a frame camera by
+  :mod:`geoloc.sensors._fastgrid`, else ``sensor.line_of_sight``) and the surface
+  (a DEM: :func:`geoloc.surfaces.terrain.intersect_dem`, ``"exact"``, in parallel)
+  chunk by chunk, so memory is the chunk's plus the answer's.
+* :func:`write_frame_geotiff` streams the same chunks into a GeoTIFF on the image
+  grid (bands ``lat_deg``, ``lon_deg``, ``h_m``, ``status``), so writing never holds
+  more than a chunk.
+* :func:`orthorectify` resamples a photo onto a geographic (or UTM) grid of a given
+  ground sample distance: an inverse map. Each output cell's ground point (its
+  centre at the DEM's height) goes through ``sensor.ground_to_pixel``; the cell is
+  kept only if the line of sight of that pixel meets the terrain *there* (not at a
+  nearer ridge: a hidden cell gets no colour instead of a ghost), and the photo is
+  sampled there bilinearly with OpenCV's ``remap``. ``docs/ortho.md`` says why this
+  and not GDAL's geolocation-array warp.
+
+Conventions: ``docs/conventions.md`` (1-based pixel centres, radians inside, heights
+ellipsoidal unless a datum says otherwise).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.io.columns import ELLIPSOID_DATUM
+from geoloc.status import Status
+from geoloc.surfaces.base import LineOfSight
+
+#: Default chunk [rays]: whole image rows of about this many pixels per call of the surface.
+#: 2^18 rays hold ~45 MB of temporaries in the exact DEM solver (about 170 bytes a ray).
+DEFAULT_CHUNK = 1 << 18
+
+#: Band names of the image-grid GeoTIFF, in order.
+BANDS = ("lat_deg", "lon_deg", "h_m", "status")
+
+
+@dataclass(frozen=True)
+class FrameGrid:
+    """Ground points of a frame's pixel grid (:func:`locate_frame`).
+
+    Attributes
+    ----------
+    lat, lon : ndarray (n_rows, n_cols), float64
+        Geodetic latitude and longitude [rad], WGS 84; NaN where no hit.
+    h : ndarray (n_rows, n_cols), float64
+        Height [m] in :attr:`h_datum` (ellipsoidal, WGS 84); NaN where no hit.
+    status : ndarray (n_rows, n_cols), uint8
+        :class:`geoloc.status.Status` per pixel.
+    rows, cols : ndarray (n_rows,), (n_cols,)
+        The 1-based pixel centres sampled (``1, 1 + step, ...``).
+    step : int
+    h_datum : str
+    """
+
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    status: np.ndarray
+    rows: np.ndarray
+    cols: np.ndarray
+    step: int = 1
+    h_datum: str = ELLIPSOID_DATUM
+
+    @property
+    def lat_deg(self) -> np.ndarray:
+        return np.rad2deg(self.lat)
+
+    @property
+    def lon_deg(self) -> np.ndarray:
+        return np.rad2deg(self.lon)
+
+    @property
+    def shape(self) -> tuple:
+        return self.lat.shape
+
+    def counts(self) -> dict:
+        """Pixels per status name (only the statuses that occur)."""
+        c = np.bincount(self.status.reshape(-1), minlength=len(Status))
+        return {Status(k).name.lower(): int(v) for k, v in enumerate(c) if v}
+
+
+# --------------------------------------------------------------------------- checks
+def _check_step(step) -> int:
+    if isinstance(step, bool) or not isinstance(step, (int, np.integer)) or step < 1:
+        raise ValueError(f"step = {step!r}: must be a whole number of pixels >= 1")
+    return int(step)
+
+
+def _check_chunk(chunk) -> int:
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"chunk = {chunk!r}: must be a whole number of rays >= 1")
+    return int(chunk)
+
+
+def frame_pixels(sensor, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """The 1-based pixel centres ``1, 1 + step, ...`` along the rows and the columns of ``sensor``."""
+    step = _check_step(step)
+    return (np.arange(1, int(sensor.rows) + 1, step, dtype=float),
+            np.arange(1, int(sensor.cols) + 1, step, dtype=float))
+
+
+def _as_sensor(sensor):
+    from geoloc.locate import as_sensor
+    from geoloc.sensors.camera import Camera
+
+    return as_sensor(sensor) if isinstance(sensor, Camera) else sensor
+
+
+def _as_surface(surface):
+    """A DEM becomes the exact parallel solver; a surface stays itself."""
+    from geoloc.surfaces.dem import DEM
+
+    if isinstance(surface, DEM):
+        from geoloc.surfaces.terrain import DemSurface
+
+        return DemSurface(surface, "exact")
+    if not hasattr(surface, "intersect"):
+        raise ValueError(f"surface = {surface!r}: must be a DEM or a surface (DemSurface, HeightSurface)")
+    return surface
+
+
+def _intersect(surface, los: LineOfSight, parallel: bool = True):
+    from geoloc.surfaces.terrain import DemSurface, intersect_dem
+
+    if isinstance(surface, DemSurface):
+        opts = dict(surface.options)
+        opts["parallel"] = bool(parallel)  # a frame is millions of rays: all cores, unless told otherwise
+        return intersect_dem(los, surface.dem, surface.method, dem_model=surface.dem_model, **opts)
+    return surface.intersect(los)
+
+
+def frame_line_of_sight(sensor, pose, rows, cols) -> LineOfSight:
+    """Lines of sight of the grid ``rows x cols`` (1-based, 1-D each): compiled for a frame camera
+    (:func:`geoloc.sensors._fastgrid.grid_line_of_sight`), else ``sensor.line_of_sight``."""
+    from geoloc.sensors import _fastgrid
+
+    if _fastgrid.supports(sensor):
+        return _fastgrid.grid_line_of_sight(sensor, pose, rows, cols)
+    R, C = np.meshgrid(np.asarray(rows, float), np.asarray(cols, float), indexing="ij")
+    return sensor.line_of_sight(R, C, pose)
+
+
+def iter_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHUNK, parallel: bool = True):
+    """Yield ``(i0, i1, lat, lon, h, status)`` for blocks of whole grid rows ``i0:i1`` (see :func:`locate_frame`)."""
+    sensor = _as_sensor(sensor)
+    surface = _as_surface(surface)
+    chunk = _check_chunk(chunk)
+    rows, cols = frame_pixels(sensor, step)
+    per = max(1, chunk // cols.size)
+    for i0 in range(0, rows.size, per):
+        i1 = min(rows.size, i0 + per)
+        los = frame_line_of_sight(sensor, pose, rows[i0:i1], cols)
+        hit = _intersect(surface, los, parallel)
+        yield (i0, i1, np.asarray(hit.lat, float), np.asarray(hit.lon, float), np.asarray(hit.h, float),
+               np.asarray(hit.status, np.uint8))
+
+
+def locate_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHUNK,
+                 parallel: bool = True) -> FrameGrid:
+    """Every pixel of one frame onto a surface, in one call.
+
+    Parameters
+    ----------
+    sensor : FrameSensor, Camera or any Sensor
+        A frame camera runs the compiled grid line of sight; other sensors their own
+        ``line_of_sight``.
+    pose : Pose
+        One state (batch size 1 for the compiled path).
+    surface : DEM, DemSurface or HeightSurface
+        A :class:`geoloc.surfaces.dem.DEM` is intersected with the exact solver
+        (``intersect_dem(los, dem, "exact", parallel=True)``); a ``DemSurface`` with
+        its own method and model, in parallel.
+    step : int
+        Every ``step``-th pixel in both directions, from pixel (1, 1).
+    chunk : int
+        Rays per call of the surface (rounded to whole image rows, at least one row):
+        the temporaries are bounded by the chunk, whatever the frame's size.
+    parallel : bool
+        The DEM solver on all cores (numba threads, the default) or on one (``False``:
+        the same hits; for a caller that spreads frames over processes itself).
+
+    Returns
+    -------
+    FrameGrid
+        Heights ellipsoidal (WGS 84); NaN + Status where a pixel has no ground point
+        (SKY, LEFT_DEM, NODATA, INVALID_INPUT for a bad pose, ...).
+
+    Raises
+    ------
+    ValueError
+        ``step`` or ``chunk`` not a whole number >= 1 (the message names it); a
+        surface that is neither a DEM nor a surface; a pose with more than one state
+        (compiled path).
+    """
+    sensor = _as_sensor(sensor)
+    rows, cols = frame_pixels(sensor, step)
+    shape = (rows.size, cols.size)
+    lat, lon, h = (np.empty(shape) for _ in range(3))
+    st = np.empty(shape, dtype=np.uint8)
+    for i0, i1, a, b, c, s in iter_frame(sensor, pose, surface, step=step, chunk=chunk, parallel=parallel):
+        lat[i0:i1], lon[i0:i1], h[i0:i1], st[i0:i1] = a, b, c, s
+    return FrameGrid(lat, lon, h, st, rows, cols, int(step))
+
+
+# --------------------------------------------------------------------------- GeoTIFF on the image grid
+def _status_legend() -> str:
+    return ", ".join(f"{int(s)}={s.name.lower()}" for s in Status)
+
+
+def write_frame_geotiff(path, sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHUNK,
+                        tags: dict | None = None, parallel: bool = True) -> dict:
+    """Locate a whole frame and write it as a 4-band float64 GeoTIFF on the image grid, chunk by chunk.
+
+    Bands: ``lat_deg``, ``lon_deg`` (WGS 84, degrees), ``h_m`` (ellipsoidal height
+    above WGS 84, metres), ``status`` (the :class:`geoloc.status.Status` code as a
+    number). NaN is the nodata value of the three coordinates (the status band is
+    never NaN). Output pixel (i, j) (0-based) is the sensor's pixel
+    ``(1 + i * step, 1 + j * step)`` (1-based centres), as the tags say; the file is
+    on the image grid, so it has no CRS or geotransform.
+
+    Returns
+    -------
+    dict
+        ``shape``, ``step``, ``counts`` (pixels per status), ``path``.
+    """
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    sensor = _as_sensor(sensor)
+    rows, cols = frame_pixels(sensor, step)
+    counts = np.zeros(len(Status), dtype=np.int64)
+    profile = dict(driver="GTiff", width=cols.size, height=rows.size, count=len(BANDS), dtype="float64",
+                   nodata=float("nan"), tiled=True, blockxsize=256, blockysize=256, compress="deflate",
+                   predictor=3, BIGTIFF="IF_SAFER")
+    all_tags = {"h_datum": ELLIPSOID_DATUM, "lat_lon_datum": "WGS 84 (geodetic)",
+                "pixel_convention": "1-based pixel centres (docs/conventions.md)", "row_first": "1",
+                "col_first": "1", "step": str(int(step)), "sensor_rows": str(sensor.rows),
+                "sensor_cols": str(sensor.cols), "status_codes": _status_legend(),
+                "software": "geoloc ortho (geoloc.workflows.ortho.write_frame_geotiff)"}
+    all_tags.update({k: str(v) for k, v in (tags or {}).items()})
+    descriptions = ("lat_deg: geodetic latitude, WGS 84 [deg]", "lon_deg: longitude, WGS 84, east + [deg]",
+                    f"h_m: height [m], {ELLIPSOID_DATUM}", "status: geoloc.status.Status code (0 = ok)")
+    path = Path(path)
+    with warnings.catch_warnings(), rasterio.Env():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)  # the image grid has no CRS by design
+        dst = rasterio.open(path, "w", **profile)
+    with dst:
+        dst.update_tags(**all_tags)
+        for b, (name, desc) in enumerate(zip(BANDS, descriptions), start=1):
+            dst.set_band_description(b, desc)
+            dst.update_tags(b, name=name, unit={"lat_deg": "deg", "lon_deg": "deg", "h_m": "m"}.get(name, ""),
+                            **({"datum": ELLIPSOID_DATUM} if name == "h_m" else {}))
+        for i0, i1, lat, lon, h, st in iter_frame(sensor, pose, surface, step=step, chunk=chunk,
+                                                  parallel=parallel):
+            win = rasterio.windows.Window(0, i0, cols.size, i1 - i0)
+            dst.write(np.rad2deg(lat), 1, window=win)
+            dst.write(np.rad2deg(lon), 2, window=win)
+            dst.write(h, 3, window=win)
+            dst.write(st.astype(np.float64), 4, window=win)
+            counts += np.bincount(st.reshape(-1), minlength=len(Status))
+    return {"path": str(path), "shape": [int(rows.size), int(cols.size)], "step": int(step),
+            "counts": {Status(k).name.lower(): int(v) for k, v in enumerate(counts) if v}}
+
+
+def read_frame_geotiff(path) -> FrameGrid:
+    """A :func:`write_frame_geotiff` file back as a :class:`FrameGrid` (for tests and users)."""
+    import warnings
+
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)  # the image grid has no CRS by design
+        with rasterio.open(path) as src:
+            lat, lon, h, st = src.read()
+            tags = src.tags()
+    step = int(tags.get("step", 1))
+    rows = 1.0 + step * np.arange(lat.shape[0], dtype=float)
+    cols = 1.0 + step * np.arange(lat.shape[1], dtype=float)
+    return FrameGrid(np.deg2rad(lat), np.deg2rad(lon), h, st.astype(np.uint8), rows, cols, step,
+                     tags.get("h_datum", ELLIPSOID_DATUM))
+
+
+# --------------------------------------------------------------------------- orthophoto
+def _utm_crs(lat_deg: float, lon_deg: float) -> str:
+    zone = int(math.floor((lon_deg + 180.0) / 6.0)) % 60 + 1
+    return f"EPSG:{(32600 if lat_deg >= 0 else 32700) + zone}"
+
+
+@dataclass(frozen=True)
+class OrthoGrid:
+    """The output grid of :func:`orthorectify`: a north-up raster in ``crs``."""
+
+    crs: str
+    transform: object  # affine.Affine: cell corner (0, 0) -> (x, y)
+    width: int
+    height: int
+    gsd_m: float
+
+
+def ortho_grid(frame: FrameGrid, gsd_m: float, crs: str = "geographic") -> OrthoGrid:
+    """The north-up grid of cell size ``gsd_m`` that covers the frame's ground points.
+
+    ``crs``: ``"geographic"`` (EPSG:4326, the cell ``gsd_m`` north-south and east-west
+    at the footprint's centre) or ``"utm"`` (the zone of the footprint's centre,
+    WGS 84), or any CRS string pyproj reads (its unit taken as metres).
+    """
+    from affine import Affine
+
+    if not (isinstance(gsd_m, (int, float)) and math.isfinite(gsd_m) and gsd_m > 0):
+        raise ValueError(f"gsd_m = {gsd_m!r}: must be a positive number of metres")
+    ok = frame.status == Status.OK
+    if not ok.any():
+        raise ValueError("the frame has no ground point (every pixel's status is not ok): nothing to orthorectify")
+    lat, lon = frame.lat_deg[ok], frame.lon_deg[ok]
+    lat0, lon0 = 0.5 * (lat.min() + lat.max()), 0.5 * (lon.min() + lon.max())
+    if crs == "geographic":
+        from geoloc.geodesy.ellipsoid import E2, A
+
+        s = math.sin(math.radians(lat0))
+        w = math.sqrt(1.0 - E2 * s * s)
+        m_per_deg_lat = math.radians(1.0) * A * (1.0 - E2) / w ** 3  # meridian radius of curvature
+        m_per_deg_lon = math.radians(1.0) * A / w * math.cos(math.radians(lat0))
+        dy, dx = gsd_m / m_per_deg_lat, gsd_m / m_per_deg_lon
+        x0, x1, y0, y1 = lon.min(), lon.max(), lat.min(), lat.max()
+        crs_out = "EPSG:4326"
+    else:
+        import pyproj
+
+        crs_out = _utm_crs(lat0, lon0) if crs == "utm" else pyproj.CRS.from_user_input(crs).to_string()
+        tr = pyproj.Transformer.from_crs("EPSG:4326", crs_out, always_xy=True)
+        x, y = tr.transform(lon, lat)
+        dx = dy = float(gsd_m)
+        x0, x1, y0, y1 = float(np.min(x)), float(np.max(x)), float(np.min(y)), float(np.max(y))
+    width = int(math.ceil((x1 - x0) / dx)) + 1
+    height = int(math.ceil((y1 - y0) / dy)) + 1
+    if width * height > 400_000_000:
+        raise ValueError(f"gsd_m = {gsd_m!r}: the orthophoto would be {width} x {height} cells; use a larger GSD")
+    return OrthoGrid(crs_out, Affine(dx, 0.0, x0 - 0.5 * dx, 0.0, -dy, y1 + 0.5 * dy), width, height, float(gsd_m))
+
+
+def _cell_geodetic(grid: OrthoGrid, i0: int, i1: int):
+    """Geodetic lat, lon [rad] of the centres of output rows i0:i1."""
+    jj, ii = np.meshgrid(np.arange(grid.width) + 0.5, np.arange(i0, i1) + 0.5)
+    t = grid.transform
+    x, y = t.a * jj + t.b * ii + t.c, t.d * jj + t.e * ii + t.f
+    if grid.crs == "EPSG:4326":
+        return np.deg2rad(y), np.deg2rad(x)
+    import pyproj
+
+    tr = pyproj.Transformer.from_crs(grid.crs, "EPSG:4326", always_xy=True)
+    lon, lat = tr.transform(x, y)
+    return np.deg2rad(lat), np.deg2rad(lon)
+
+
+def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str = "geographic",
+                 frame: FrameGrid | None = None, chunk: int = DEFAULT_CHUNK, visible_tol_m: float | None = None,
+                 tags: dict | None = None, parallel: bool = True) -> dict:
+    """Resample ``image`` onto a north-up grid (inverse map, occlusion-aware) and write a GeoTIFF.
+
+    Parameters
+    ----------
+    image : ndarray (bands, rows, cols) or (rows, cols)
+        The photo, the sensor's size (uint8 or float).
+    sensor, pose : the photo's sensor and state.
+    dem : DEM
+        The terrain; output cells are its bilinear height at their centres (ellipsoidal).
+    out_path : path-like
+        GeoTIFF: the image's bands then an alpha band (255 where the cell saw the photo).
+    gsd_m : float
+        Output cell size [m] (:func:`ortho_grid`).
+    crs : str
+        ``"geographic"`` (EPSG:4326), ``"utm"`` or a CRS string.
+    frame : FrameGrid, optional
+        The frame's ground points (to size the grid); computed with ``step`` 1 if not given.
+    visible_tol_m : float, optional
+        A cell is seen when its pixel's line of sight meets the terrain within this
+        distance of the cell's ground point; default a quarter of ``gsd_m`` (a nearer
+        ridge hides a cell by far more; the round trip ground -> pixel -> ground is
+        exact to micrometres, so the tolerance only separates "this cell" from "another").
+
+    Returns
+    -------
+    dict
+        ``path``, ``crs``, ``width``, ``height``, ``gsd_m``, ``transform`` (GDAL order),
+        ``cells_seen``, ``cells_hidden`` (in the photo but behind terrain).
+    """
+    import cv2
+    import rasterio
+
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+    from geoloc.surfaces.terrain import intersect_dem
+
+    sensor = _as_sensor(sensor)
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = img[None]
+    if img.ndim != 3 or img.shape[1:] != (sensor.rows, sensor.cols):
+        raise ValueError(f"image shape {np.shape(image)}: must be (bands, {sensor.rows}, {sensor.cols}) "
+                         f"(the sensor's rows and columns)")
+    chunk = _check_chunk(chunk)
+    if frame is None:
+        frame = locate_frame(sensor, pose, dem, step=max(1, min(sensor.rows, sensor.cols) // 400), chunk=chunk,
+                             parallel=parallel)
+    grid = ortho_grid(frame, gsd_m, crs)
+    tol = 0.25 * grid.gsd_m if visible_tol_m is None else float(visible_tol_m)
+    bands = img.shape[0]
+    src = [np.ascontiguousarray(b.astype(np.float32)) for b in img]
+    dtype = img.dtype if img.dtype in (np.uint8, np.uint16, np.float32) else np.float32
+    profile = dict(driver="GTiff", width=grid.width, height=grid.height, count=bands + 1, dtype=str(np.dtype(dtype)),
+                   crs=grid.crs, transform=grid.transform, tiled=True, blockxsize=256, blockysize=256,
+                   compress="deflate", photometric="RGB" if bands == 3 and dtype == np.uint8 else "MINISBLACK")
+    per = max(1, chunk // grid.width)
+    seen_total = hidden_total = 0
+    alpha_max = 255 if dtype == np.uint8 else (65535 if dtype == np.uint16 else 1.0)
+    all_tags = {"method": "inverse map: cell centre at the DEM height -> sensor.ground_to_pixel -> "
+                          "visibility (the pixel's line of sight meets the terrain there) -> cv2.remap bilinear",
+                "gsd_m": repr(grid.gsd_m), "visible_tol_m": repr(tol), "dem_height_datum": ELLIPSOID_DATUM,
+                "software": "geoloc ortho (geoloc.workflows.ortho.orthorectify)"}
+    all_tags.update({k: str(v) for k, v in (tags or {}).items()})
+    with rasterio.open(out_path, "w", **profile) as dst:
+        dst.update_tags(**all_tags)
+        for i0 in range(0, grid.height, per):
+            i1 = min(grid.height, i0 + per)
+            lat, lon = _cell_geodetic(grid, i0, i1)
+            h, st = dem.sample(lat, lon)
+            px = sensor.ground_to_pixel(lat, lon, h, pose)
+            inside = (st == Status.OK) & (px.status == Status.OK)
+            r, c = np.where(inside, px.row, np.nan), np.where(inside, px.col, np.nan)
+            seen = np.zeros(lat.shape, dtype=bool)
+            idx = np.flatnonzero(inside)
+            if idx.size:
+                los = sensor.line_of_sight(r.reshape(-1)[idx], c.reshape(-1)[idx], pose)
+                hit = intersect_dem(los, dem, "exact", parallel=bool(parallel))
+                p = geodetic_to_ecef(lat.reshape(-1)[idx], lon.reshape(-1)[idx], h.reshape(-1)[idx])
+                ok = (hit.status == Status.OK) & (np.linalg.norm(hit.ecef - p, axis=-1) <= tol)
+                seen.reshape(-1)[idx[ok]] = True
+                hidden_total += int(idx.size - ok.sum())
+            seen_total += int(seen.sum())
+            # OpenCV's 0-based pixel centres (u, v) = (col - 1, row - 1); unseen cells sample nothing
+            mx = np.where(seen, c - 1.0, -1e6).astype(np.float32)
+            my = np.where(seen, r - 1.0, -1e6).astype(np.float32)
+            win = rasterio.windows.Window(0, i0, grid.width, i1 - i0)
+            for b in range(bands):
+                v = cv2.remap(src[b], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+                dst.write(np.where(seen, v, 0).astype(dtype), b + 1, window=win)
+            dst.write(np.where(seen, alpha_max, 0).astype(dtype), bands + 1, window=win)
+        if bands == 3 and dtype == np.uint8:
+            from rasterio.enums import ColorInterp
+
+            dst.colorinterp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue, ColorInterp.alpha]
+        else:
+            from rasterio.enums import ColorInterp
+
+            dst.colorinterp = [ColorInterp.gray] * bands + [ColorInterp.alpha]
+    return {"path": str(out_path), "crs": grid.crs, "width": grid.width, "height": grid.height,
+            "gsd_m": grid.gsd_m, "transform": list(grid.transform.to_gdal()), "cells_seen": seen_total,
+            "cells_hidden": hidden_total}
+
+
+def read_photo_pixels(path) -> np.ndarray:
+    """A photo's pixels as (bands, rows, cols) uint8 (OpenCV reads the JPEG; BGR turned to RGB)."""
+    import cv2
+
+    a = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
+    if a is None:
+        raise ValueError(f"photo {path}: OpenCV cannot read its pixels")
+    if a.ndim == 2:
+        return a[None]
+    if a.shape[2] == 4:
+        a = a[:, :, :3]
+    return np.ascontiguousarray(a[:, :, ::-1].transpose(2, 0, 1))
