@@ -246,7 +246,10 @@ def test_53_flight_debugger_scene():
     # checked against those plants in tests/test_viz_flight.py
     out = run("53_flight_debugger_scene.py")
     assert "298 frames" in out and "22 outliers" in out
-    assert "heading bias +2.4" in out and "sensor height off by +30." in out and "stale" in out
+    # README "See it in 3D": the fitted faults and the clean frames' median residual, as printed
+    assert "(10 frames): heading bias +2.45 deg" in out and "(5 frames): sensor height off by +30.5 m" in out
+    assert "(7 frames): pose 0.97 frame(s) stale" in out
+    assert "the other 276 frames: median residual 2.4 mm" in out
 
 
 def test_54_teaching_vector_through_chain():

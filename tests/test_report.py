@@ -320,3 +320,17 @@ def test_example_72_prints_the_report(tmp_path):
     assert 45 < float(m.group(1)) < 55
     assert "likely datum mismatch" in r.stdout  # the planted +30 m shift
     assert (tmp_path / "report.html").exists()
+
+
+def test_readme_accuracy_table(replay_csv, capsys):
+    # README "Accuracy report": the table's digits (regression pins; the definitions are held to a
+    # direct computation in test_report_numbers_equal_a_direct_computation)
+    assert main(["report", str(replay_csv), "--ref-h-column", "paper_height_m", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    table = {"T3": (10, 50.71, 51.87, 50.05, -49.83, -0.59), "T4": (10, 49.79, 54.99, 50.56, -50.27, -0.60),
+             "all": (20, 50.25, 54.99, 50.31, -50.05, -0.59)}
+    for g, (n, cep, ce90, mae, along, across) in table.items():
+        e = d["overall"] if g == "all" else d["groups"][g]
+        got = (e["n"], e["cep_m"], e["ce90_m"], e["mae_horizontal_m"], e["bias_along_m"], e["bias_across_m"])
+        assert got[0] == n
+        np.testing.assert_allclose(got[1:], (cep, ce90, mae, along, across), atol=0.005)  # printed to 1 cm
