@@ -157,3 +157,22 @@ def test_calibrate_cli_groups_and_resects_a_sensor_file(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "resection of mount_x, mount_y, mount_z to the published positions" in text
     assert len(json.loads(out.read_text())["resection"]["heights_m"]) == 24
+
+
+def test_report_units_boundaries_and_an_exact_fit(tmp_path):
+    # (mutation run 2) the report converts start, value and sd to degrees; a fit with as many
+    # residuals as parameters has no degrees of freedom: NaN uncertainties, not a ZeroDivisionError
+    from geoloc.analysis.sensor_fit import fit_sensor_params
+
+    _, recs, nominal = make_flights(tmp_path, n=3, outlier_m=0.0)
+    one = recs.subset([0])
+    fit = fit_sensor_params(one, nominal, ["mount_y", "mount_z"], HeightSurface(300.0, "geodetic"))
+    assert fit.dof == 0 and np.all(np.isnan(fit.sd))
+    p = fit.report()["parameters"]["mount_y"]
+    assert p["start"] == pytest.approx(math.degrees(nominal.params["mount_y"]), abs=1e-12)  # -0.05 deg
+    assert p["unit"] == "deg"
+    # resection: p + 1 records are enough, p are not (2n equations for n heights + p parameters)
+    with pytest.raises(ValueError, match=r"resection of 3 parameters needs at least 4 records, got 3"):
+        resect_sensor(recs.subset([0, 1, 2]), nominal, ["fx", "cx", "cy"])
+    res = resect_sensor(recs.subset([0, 1, 2, 3]), nominal, ["fx", "cx", "cy"])
+    assert res.report()["heights_m"] == [round(float(h), 2) for h in res.heights_m]
