@@ -40,21 +40,9 @@ def register(sub) -> None:
         "a camera file and a target height give the target's latitude, longitude and height "
         "([Q17] eq. 4-13). Angles in degrees, heights ellipsoidal in metres.",
     )
-    g = p.add_argument_group("aircraft (POS)")
-    g.add_argument("--lat-deg", type=float, required=True, help="aircraft geodetic latitude [deg]")
-    g.add_argument("--lon-deg", type=float, required=True, help="aircraft longitude [deg, east +]")
-    g.add_argument("--h-m", type=float, required=True,
-                   help="aircraft height [m]: ellipsoidal (WGS 84) unless --altitude-datum egm96 (MSL)")
-    add_altitude_datum_option(g, "--h-m")
-    g.add_argument("--heading-deg", type=float, default=0.0, help="heading psi [deg] (default 0)")
-    g.add_argument("--pitch-deg", type=float, default=0.0, help="pitch theta, nose up + [deg]")
-    g.add_argument("--roll-deg", type=float, default=0.0, help="roll phi, right wing down + [deg]")
+    add_pose_options(p.add_argument_group("aircraft (POS)"), required=True)
     g = p.add_argument_group("gimbal and sensor")
-    g.add_argument("--gimbal-roll-deg", type=float, default=None,
-                   help="[Q17] outer gimbal (roll) angle [deg]; negative looks right of track")
-    g.add_argument("--gimbal-pitch-deg", type=float, default=None, help="[Q17] inner gimbal (pitch) angle [deg]")
-    add_angle_option(g)
-    add_sensor_option(g)
+    add_gimbal_options(g)
     g.add_argument("--row", type=float, default=None,
                    help="pixel row, 1-based pixel centres (default: the image centre)")
     g.add_argument("--col", type=float, default=None,
@@ -69,6 +57,28 @@ def register(sub) -> None:
     from geoloc.cli.terrain_options import add_dem_options, locate_hook
 
     add_dem_options(p, locate_hook)
+
+
+def add_pose_options(g, required: bool = True, datum_what: str = "--h-m") -> None:
+    """The aircraft's position and attitude (degrees, metres): ``--lat-deg`` ... ``--roll-deg``."""
+    d = {"required": True} if required else {"default": None}
+    g.add_argument("--lat-deg", type=float, **d, help="aircraft geodetic latitude [deg]")
+    g.add_argument("--lon-deg", type=float, **d, help="aircraft longitude [deg, east +]")
+    g.add_argument("--h-m", type=float, **d,
+                   help="aircraft height [m]: ellipsoidal (WGS 84) unless --altitude-datum egm96 (MSL)")
+    add_altitude_datum_option(g, datum_what)
+    g.add_argument("--heading-deg", type=float, default=0.0, help="heading psi [deg] (default 0)")
+    g.add_argument("--pitch-deg", type=float, default=0.0, help="pitch theta, nose up + [deg]")
+    g.add_argument("--roll-deg", type=float, default=0.0, help="roll phi, right wing down + [deg]")
+
+
+def add_gimbal_options(g) -> None:
+    """The gimbal's angles (the [Q17] pair, or ``--angle NAME=DEG``) and ``--sensor``."""
+    g.add_argument("--gimbal-roll-deg", type=float, default=None,
+                   help="[Q17] outer gimbal (roll) angle [deg]; negative looks right of track")
+    g.add_argument("--gimbal-pitch-deg", type=float, default=None, help="[Q17] inner gimbal (pitch) angle [deg]")
+    add_angle_option(g)
+    add_sensor_option(g)
 
 
 def add_sensor_option(parser) -> None:

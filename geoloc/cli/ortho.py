@@ -19,10 +19,9 @@ import time
 from pathlib import Path
 
 from geoloc.cli.locate import (
-    add_altitude_datum_option,
-    add_angle_option,
     add_columns_option,
-    add_sensor_option,
+    add_gimbal_options,
+    add_pose_options,
     load_camera,
     pose_from_args,
     records_from_args,
@@ -43,18 +42,8 @@ def register(sub) -> None:
         "or --photo JPG. Angles in degrees, heights in metres.",
     )
     g = p.add_argument_group("pose (as geoloc locate), or --record, or --photo")
-    g.add_argument("--lat-deg", type=float, default=None, help="aircraft geodetic latitude [deg]")
-    g.add_argument("--lon-deg", type=float, default=None, help="aircraft longitude [deg, east +]")
-    g.add_argument("--h-m", type=float, default=None,
-                   help="aircraft height [m]: ellipsoidal (WGS 84) unless --altitude-datum egm96 (MSL)")
-    add_altitude_datum_option(g, "--h-m, the records' ac_h_m or the photo's altitude")
-    g.add_argument("--heading-deg", type=float, default=0.0, help="heading psi [deg] (default 0)")
-    g.add_argument("--pitch-deg", type=float, default=0.0, help="pitch theta, nose up + [deg]")
-    g.add_argument("--roll-deg", type=float, default=0.0, help="roll phi, right wing down + [deg]")
-    g.add_argument("--gimbal-roll-deg", type=float, default=None, help="[Q17] outer gimbal (roll) angle [deg]")
-    g.add_argument("--gimbal-pitch-deg", type=float, default=None, help="[Q17] inner gimbal (pitch) angle [deg]")
-    add_angle_option(g)
-    add_sensor_option(g)
+    add_pose_options(g, required=False, datum_what="--h-m, the records' ac_h_m or the photo's altitude")
+    add_gimbal_options(g)
     g.add_argument("--record", default=None, metavar="LABEL",
                    help="take the pose from this record of --records (its label: table-point, e.g. T3-1, "
                    "or 'line N')")

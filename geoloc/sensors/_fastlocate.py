@@ -68,14 +68,19 @@ def _in(v, lo, hi):
 
 
 @cached_njit(KEY, inline="always")
-def _turn_back(axis, a, x, y, z):
-    """The transpose of the passive elementary rotation about ``axis`` by ``a``, applied to (x, y, z)."""
-    c, s = math.cos(a), math.sin(a)
+def _turn_back_cs(axis, c, s, x, y, z):
+    """:func:`_turn_back` with the angle's cosine and sine given."""
     if axis == 0:
         return x, c * y - s * z, s * y + c * z
     if axis == 1:
         return c * x + s * z, y, -s * x + c * z
     return c * x - s * y, s * x + c * y, z
+
+
+@cached_njit(KEY, inline="always")
+def _turn_back(axis, a, x, y, z):
+    """The transpose of the passive elementary rotation about ``axis`` by ``a``, applied to (x, y, z)."""
+    return _turn_back_cs(axis, math.cos(a), math.sin(a), x, y, z)
 
 
 @cached_njit(KEY, inline="always")
@@ -131,16 +136,6 @@ def sincos(a):
     if q == 2:
         return -s, -c
     return -c, s
-
-
-@cached_njit(KEY, inline="always")
-def _turn_back_cs(axis, c, s, x, y, z):
-    """:func:`_turn_back` with the angle's cosine and sine given."""
-    if axis == 0:
-        return x, c * y - s * z, s * y + c * z
-    if axis == 1:
-        return c * x + s * z, y, -s * x + c * z
-    return c * x - s * y, s * x + c * y, z
 
 
 @cached_njit(KEY, inline="always")
