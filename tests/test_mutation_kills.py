@@ -508,6 +508,8 @@ def test_gimbal_refuses_what_is_not_a_rotation_and_is_immutable():
     del rng
     with pytest.raises(dataclasses.FrozenInstanceError):
         PRESETS["azimuth-elevation"].name = "x"
+    with pytest.raises(dataclasses.FrozenInstanceError):  # its joints too: a preset is shared by every sensor
+        PRESETS["azimuth-elevation"].joints[0].axis = "x"
     with pytest.raises(ValueError, match=r"joints = \{'angle': 'pan'\}: must be a non-empty list"):
         gimbal_from_dict({"joints": {"angle": "pan"}})
     with pytest.raises(ValueError, match=r"joints\[0\] = 'pan': must be"):
