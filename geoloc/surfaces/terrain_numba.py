@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import math
 import sys
-import types
 
 import numpy as np
 from numba import prange
@@ -1045,25 +1044,10 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, l
 
 
 
-def _renamed(fn, name):
-    """A copy of ``fn`` under another name, so that its numba cache file is its own.
-
-    numba names a cache file after the function's qualified name and line and keys
-    its index by signature only, not by the ``parallel`` flag: two dispatchers of
-    the same function share the file, and whichever compiled first was loaded by
-    the other (the "parallel" walk ran the serial code, or the reverse).
-    """
-    f = types.FunctionType(fn.__code__, fn.__globals__, name, fn.__defaults__, fn.__closure__)
-    f.__qualname__ = name
-    return f
-
-
-#: The compiled serial walk (prange runs as range). Call :func:`walk`, which hands it the
-#: one signature it is compiled for.
-walk_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"})(_walk)
-#: The same walk over rays on all cores (numba threads); identical results.
-walk_parallel_kernel = cached_njit(KEY, parallel=True, error_model="numpy", fastmath={"contract"})(
-    _renamed(_walk, "_walk_parallel"))
+#: The compiled serial walk (prange runs as range), releasing the GIL so that
+#: :func:`walk_parallel` can run it on slices of the rays in threads. Call :func:`walk`,
+#: which hands it the one signature it is compiled for.
+walk_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(_walk)
 
 # One signature per kernel. numba compiles a kernel once per distinct argument type, and
 # a read-only array is a type of its own: the origins and directions of a line-of-sight
@@ -1122,11 +1106,36 @@ def walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, la
 
 def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat,
                   dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
-                  trace_s, trace_ij):
-    """As :func:`walk`, the rays spread over all cores (numba threads); identical results."""
-    _call(walk_parallel_kernel, (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n,
-                                 lon_w, dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out,
-                                 geo_out, status, ncell, trace_s, trace_ij))
+                  trace_s, trace_ij, threads=None):
+    """As :func:`walk`, the rays spread over all cores; identical results (each ray is walked alone).
+
+    The serial kernel runs on contiguous slices of the rays in threads (it releases the
+    GIL), rather than as a second, ``parallel=True`` compilation of the walk: numba's
+    parfor passes over the whole inlined walk took minutes of CPU on a cold cache, for
+    the same per-ray code. ``threads`` defaults to numba's thread count (the cores).
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    import numba
+
+    n = len(o)
+    k = max(1, min(int(threads or numba.config.NUMBA_NUM_THREADS), n // 256 or 1))
+    cuts = np.linspace(0, n, k + 1).astype(int)
+    per_ray = (o, d, s_out, p_out, geo_out, status, ncell, trace_s, trace_ij)
+
+    def part(a, b):
+        o_, d_, s_, p_, g_, st_, nc_, ts_, tij_ = (x[a:b] for x in per_ray)
+        _call(walk_kernel, (o_, d_, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w,
+                            dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_, p_, g_, st_, nc_,
+                            ts_, tij_))
+
+    if k == 1:
+        part(0, n)
+        return
+    with ThreadPoolExecutor(k) as pool:
+        for f in [pool.submit(part, a, b) for a, b in zip(cuts[:-1], cuts[1:])]:
+            f.result()
+
 
 
 @cached_njit(KEY, error_model="numpy", fastmath={"contract"})
