@@ -206,3 +206,30 @@ def test_view_command_rejects_bad_arguments(capsys):
                  "--export", "/dev/null"]) == 2
     err = capsys.readouterr().err
     assert "does not cover the target" in err and "srtm_jacksboro.tif" in err
+
+
+def test_exports_read_back_node_by_node(limb, tmp_path):
+    # issue 19: the limb scene's .viser and HTML exports decoded message by message: every marker
+    # at the live scene's position (float64 kept; the live positions are held to the core's
+    # geometry by test_limb_nodes_where_the_geometry_says), the meshes and the line of sight present
+    import base64
+    import re
+
+    from test_viz_scene import _decode_recording
+
+    p = limb.export(tmp_path / "limb.viser")
+    h = limb.export(tmp_path / "limb.html")
+    b64 = re.search(r'window\.__VISER_EMBED_DATA__="([^"]*)"', h.read_text()).group(1)
+    assert 'id="geoloc-summary"' in h.read_text() and "Newton-Raphson" in h.read_text()
+    for rec in (_decode_recording(p.read_bytes()), _decode_recording(base64.b64decode(b64))):
+        last, kinds = {}, {}
+        for _, m in rec["messages"]:
+            kinds.setdefault(m.get("type"), set()).add(m.get("name"))
+            if m.get("type") == "SetPositionMessage":
+                last[m["name"]] = np.asarray(m["position"], float)
+        for name in ("/limb/spacecraft", "/limb/tangent", "/limb/exact"):
+            live = np.asarray(limb.server.scene.get_handle_by_name(name).position, float)
+            np.testing.assert_array_equal(last[name], live, err_msg=name)
+        assert {"/limb/earth", "/limb/virtual"} <= kinds.get("MeshMessage", set())
+        assert {"/limb/spacecraft", "/limb/tangent", "/limb/exact"} <= kinds.get("IcosphereMessage", set())
+        assert kinds.get("LineSegmentsMessage")
