@@ -176,3 +176,19 @@ def test_report_units_boundaries_and_an_exact_fit(tmp_path):
         resect_sensor(recs.subset([0, 1, 2]), nominal, ["fx", "cx", "cy"])
     res = resect_sensor(recs.subset([0, 1, 2, 3]), nominal, ["fx", "cx", "cy"])
     assert res.report()["heights_m"] == [round(float(h), 2) for h in res.heights_m]
+
+
+def test_per_record_heights_rule_and_rounding(tmp_path):
+    # (mutation run 2, recheck) a callable surface gives each record its own height (the CLI's
+    # --height-column); the report names the 3.5-sigma rule and rounds distances to 0.1 mm
+    from geoloc.analysis.sensor_fit import fit_sensor_params
+
+    _, recs, nominal = make_flights(tmp_path, n=6, outlier_m=0.0)
+    h = recs.column("truth_h_m")
+    fit = fit_sensor_params(recs, nominal, NAMES, lambda idx: HeightSurface(h[idx], "geodetic"),
+                            idx=np.arange(6))  # flight A: its true mount
+    np.testing.assert_allclose(np.degrees(fit.values), MOUNTS["A"], atol=1e-7)
+    rep, _ = fit_sensor_groups(recs, nominal, NAMES, HeightSurface(300.0, "geodetic"))
+    assert "> 3.5 robust sigma" in rep["outlier_rule"]
+    d = rep["groups"]["A"]["rms_before_m"]
+    assert d == round(d, 4) and d != round(d, 3)  # 4 decimals (seeded: this value's fourth decimal is not 0)
