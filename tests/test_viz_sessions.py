@@ -301,3 +301,27 @@ def test_a_tab_switches_scenario_in_one_click_and_alone(server):
     finally:
         a.close()
         b.close()
+
+
+def test_limb_scene_keeps_a_state_per_tab(server):
+    # issue 16 / 20: the limb scene too gives each tab its own scene, GUI and camera
+    from geoloc.viz.scene_limb import LimbViewer, load_limb
+
+    viewer = LimbViewer(server, load_limb())
+    a, ida = open_tab(server, until=b"Limb viewing [L18]")
+    b, idb = open_tab(server, until=b"Limb viewing [L18]")
+    try:
+        wait_for(lambda: ida in viewer.apps and idb in viewer.apps, 30, "both tabs' limb scenes")
+        la, lb = viewer.apps[ida], viewer.apps[idb]
+        assert la.server.scene is not lb.server.scene
+        before_b = np.asarray(lb.server.scene.get_handle_by_name("/limb/tangent").position, float)
+        la.sl_alpha.value = 1.0  # tab A raises its line of sight (as its slider would)
+        wait_for(lambda: la.alpha_deg == 1.0, 20, "tab A's view angle")
+        assert lb.alpha_deg == 0.0 and float(lb.sl_alpha.value) == 0.0
+        np.testing.assert_array_equal(np.asarray(lb.server.scene.get_handle_by_name("/limb/tangent").position,
+                                                 float), before_b)
+        assert "alpha +1.00 deg" in la.md.content and "alpha +0.00 deg" in lb.md.content
+    finally:
+        a.close()
+        b.close()
+    wait_for(lambda: not viewer.apps, 20, "the closed tabs' scenes to be dropped")

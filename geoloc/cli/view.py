@@ -99,9 +99,11 @@ def build(args, server, serve: bool = False):
             return GeolocViewer(server, scn, presenter=getattr(args, "presenter", False),
                                 max_clients=getattr(args, "max_clients", 16), scenarios=scenarios)
         return GeolocApp(server, scn)
-    from geoloc.viz.scene_limb import LimbApp, load_limb
+    from geoloc.viz.scene_limb import LimbApp, LimbViewer, load_limb
 
-    return LimbApp(server, load_limb(None if scen == "limb" else scen))
+    limb = load_limb(None if scen == "limb" else scen)
+    # serving: a state per tab, as the flight scene; the export: one scene on the server
+    return LimbViewer(server, limb) if serve else LimbApp(server, limb)
 
 
 def run(args) -> int:

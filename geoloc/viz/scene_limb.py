@@ -116,7 +116,11 @@ def load_limb(path=None):
 
 
 class LimbApp:
-    """The limb scene with its GUI (frame, view angle alpha, Delta a exaggeration)."""
+    """The limb scene with its GUI (frame, view angle alpha, Delta a exaggeration).
+
+    ``server`` is a viser server (one state shared by every tab, and the export's), or a
+    tab's ``ClientHandle`` (its own scene, GUI and camera: :class:`LimbViewer`).
+    """
 
     def __init__(self, server: viser.ViserServer, scenario):
         self.server, self.scn = server, scenario
@@ -280,11 +284,18 @@ class LimbApp:
             aim = sp + 1.23 * (tp - sp)
             side = np.cross(tp - sp, [0.0, 0.0, 1.0])
             side /= max(np.linalg.norm(side), 1e-9)
-            cam = self.server.initial_camera
-            cam.up = (0.0, 0.0, 1.0)
-            cam.near, cam.far = 1.0, 2.0e4
-            cam.position = tuple(aim + side * 1.1 * L + np.array([0, 0, 0.25 * L]))
-            cam.look_at = tuple(aim)
+            pos = tuple(aim + side * 1.1 * L + np.array([0, 0, 0.25 * L]))
+            if hasattr(self.server, "initial_camera"):  # the server: every new tab's camera
+                cam = self.server.initial_camera
+                cam.up = (0.0, 0.0, 1.0)
+                cam.near, cam.far = 1.0, 2.0e4
+                cam.position, cam.look_at = pos, tuple(aim)
+            else:  # one tab (a viser ClientHandle): its own camera (position first: viser moves look_at)
+                cam = self.server.camera
+                cam.up_direction = (0.0, 0.0, 1.0)
+                cam.near, cam.far = 1.0, 2.0e4
+                cam.position = pos
+                cam.look_at = tuple(aim)
         self.last_update_s = time.perf_counter() - t0
 
     def _polyline(self, name, pts, color, thickness):
@@ -337,3 +348,32 @@ class LimbApp:
         else:
             path.write_bytes(ser.serialize())
         return path
+
+
+class LimbViewer:
+    """What ``geoloc view --scenario limb`` serves: one :class:`LimbApp` per browser tab.
+
+    Each tab gets its own scene, GUI and camera (its frame, view angle and exaggerations
+    are its own), built on connect and dropped on disconnect, as the flight scene's
+    sessions (:class:`geoloc.viz.app.GeolocViewer`).
+    """
+
+    def __init__(self, server: viser.ViserServer, scenario):
+        import threading
+
+        self.server, self.scn = server, scenario
+        self.apps: dict[int, LimbApp] = {}
+        self._lock = threading.Lock()
+        server.on_client_connect(self._on_connect)
+        server.on_client_disconnect(self._on_disconnect)
+
+    def _on_connect(self, client) -> None:
+        with self._lock:
+            app = LimbApp(client, self.scn)
+            if client.client_id in self.server.get_clients():
+                self.apps[client.client_id] = app
+
+    def _on_disconnect(self, client) -> None:
+        with self._lock:
+            self.apps.pop(client.client_id, None)
+
