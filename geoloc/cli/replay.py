@@ -178,9 +178,9 @@ def _run_klv(args, inputs) -> int:
     sensor = load_camera(str(resolve_user_path(args.camera))) if args.camera else None
     dem = None
     if args.dem:
-        from geoloc.cli.terrain_options import dem_for_workflow
+        from geoloc.cli.terrain_options import open_dem_arg
 
-        dem = dem_for_workflow(args)
+        dem = open_dem_arg(args)  # one DEM, or a mosaic (DemSurface solves it region by region)
     replays = []
     for path in paths:
         r = replay_klv(path, dem=dem, sensor=sensor, method=args.method, dem_model=args.dem_surface,
@@ -246,9 +246,9 @@ def _run_photos(args, inputs) -> int:
     sensor = load_camera(str(resolve_user_path(args.camera))) if args.camera else None
     dem = None
     if args.dem:
-        from geoloc.cli.terrain_options import dem_for_workflow
+        from geoloc.cli.terrain_options import open_dem_arg
 
-        dem = dem_for_workflow(args)
+        dem = open_dem_arg(args)  # one DEM, or a mosaic (DemSurface solves it region by region)
     extra = {"altitude_datum": args.altitude_datum} if getattr(args, "altitude_datum", None) else {}
     rows, messages = replay_photos(photos, str(resolve_user_path(args.targets)), sensor=sensor, dem=dem,
                                    method=args.method, **extra)

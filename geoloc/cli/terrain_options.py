@@ -43,13 +43,6 @@ def open_dem_arg(args):
     return open_dem_or_mosaic(dem_sources(args), args.dem_datum, **_mosaic_options(args))
 
 
-def dem_for_workflow(args):
-    """``--dem`` for the KLV and photo workflows, which build their own ``DemSurface``: one
-    :class:`~geoloc.surfaces.dem.DEM`, or the mosaic itself (``DemSurface`` then solves it region by
-    region within its memory bound, ``--dem-cache-mb``)."""
-    return open_dem_arg(args)
-
-
 def open_surface(args):
     """The surface of the DEM options: ``DemSurface`` of one raster, or the mosaic itself."""
     from geoloc.surfaces.mosaic import DemMosaic, open_dem_or_mosaic

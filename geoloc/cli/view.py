@@ -76,9 +76,9 @@ def build(args, server, serve: bool = False):
     if scen in ("flight", "flight-test", "qiao2017", "default"):
         from geoloc.viz.app import GeolocApp, GeolocViewer
         from geoloc.viz.flight_model import default_flight_scenario
-        from geoloc.viz.scenario import load_view_scenario
+        from geoloc.viz.scenario import KLV_SUFFIXES, load_view_scenario
 
-        klv = args.records is not None and args.records.lower().endswith((".klv", ".bin", ".ts", ".mpg", ".mp4"))
+        klv = args.records is not None and args.records.lower().endswith(KLV_SUFFIXES)
         if scen in ("flight", "default") and args.records is None or klv:
             # the bundled MISB ST 0601 example flight (or the user's KLV), with each frame's fields of view
             scn = default_flight_scenario(args.record, args.records, args.camera, args.dem,

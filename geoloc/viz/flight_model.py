@@ -577,11 +577,6 @@ def klv_fov_deg(path, labels) -> np.ndarray:
     return np.array(rows, float)
 
 
-def _wrap_deg(a: float) -> float:
-    """An angle in degrees into [-180, 180)."""
-    return float((a + 180.0) % 360.0 - 180.0)
-
-
 def default_flight_path() -> Path:
     """The bundled example flight: MISB ST 0601 KLV over the SRTM crop (``assets/klv/example_flight.klv``)."""
     from geoloc.assets import ASSETS
@@ -604,8 +599,6 @@ def default_flight_scenario(record=None, path=None, camera_path=None, dem_path=N
 
     path = default_flight_path() if path is None else Path(path)
     scn = load_view_scenario(path, record, camera_path, dem_path, use_dem=use_dem)
-    # ST 0601 headings run 0..360 deg, the viewer's heading slider -180..180: the same angle, wrapped
-    scn.records = [(info, inp.replace(heading_deg=_wrap_deg(inp.heading_deg))) for info, inp in scn.records]
-    scn.inputs = scn.inputs.replace(heading_deg=_wrap_deg(scn.inputs.heading_deg))
+    # (headings come wrapped into -180..180 from viz.scenario.records_from_klv, for the heading slider)
     scn.frame_fov_deg = klv_fov_deg(path, [info.label for info, _ in scn.records])
     return scn
