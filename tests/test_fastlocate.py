@@ -86,27 +86,21 @@ def test_kernel_compiles_once_for_readonly_writable_and_every_preset():
 
 
 # ----------------------------------------------------------------- the speed-ups, each against an outside oracle
-def test_sincos_equals_libm():
-    # one range reduction + fdlibm's polynomials against numpy's sin / cos (libm): an absolute
-    # error of 2.3e-16 is two ulps of 1 (0.5 ulp from each of the reduction and the polynomial)
-    from numba import njit
-
-    from geoloc.sensors._fastlocate import sincos
-
-    @njit
-    def run(a, s, c):
-        for k in range(a.size):
-            s[k], c[k] = sincos(a[k])
+def test_sincos_block_equals_libm():
+    # one range reduction + fdlibm's polynomials (sincos_lanes) against numpy's sin / cos (libm):
+    # an absolute error of 2.3e-16 is two ulps of 1 (0.5 ulp from each of the reduction and the
+    # polynomial); beyond 64 rad the block takes libm's own values
+    from geoloc.sensors._fastlocate import _sincos_block
 
     rng = np.random.default_rng(5)
     a = np.concatenate([rng.uniform(-64, 64, 200_000), rng.uniform(-1e-3, 1e-3, 1000),
                         np.arange(-80, 81) * np.pi / 4, [0.0, -0.0, 5e-324, 2 * np.pi, -2 * np.pi, 100.0, -1e5]])
     s, c = np.empty_like(a), np.empty_like(a)
-    run(a, s, c)
+    _sincos_block(a, s, c)
     assert np.max(np.abs(s - np.sin(a))) <= 2.3e-16
     assert np.max(np.abs(c - np.cos(a))) <= 2.3e-16
-    s1, c1 = np.empty(2), np.empty(2)
-    run(np.array([np.nan, np.inf]), s1, c1)
+    s1, c1 = np.empty(3), np.empty(3)
+    _sincos_block(np.array([np.nan, np.inf, -np.inf]), s1, c1)
     assert np.all(np.isnan(s1)) and np.all(np.isnan(c1))
 
 
@@ -177,3 +171,96 @@ def test_turret_kernel_equals_numpy_path_ray_for_ray():
         np.testing.assert_allclose(fast.los.origin_ecef[ok], ref.los.origin_ecef[ok], rtol=0, atol=1e-6)
     off = (rows < 0.5) | (rows > 1080.5) | (cols < 0.5) | (cols > 1920.5)
     assert np.sum(ok & off) > 100  # extrapolated: pixels off the sensor (and off the map) were compared too
+
+
+# ------------------------------------------------ the lane (SIMD) versions and their scalar fall-backs
+def test_lane_trigonometry_equals_libm():
+    # sincos_lanes, atan_lanes and atan2_lanes (selects instead of branches, so LLVM vectorises
+    # them) against numpy's sin, cos, arctan, arctan2 (libm). sincos: 2.3e-16 absolute as the
+    # branchy sincos above. atan: Cephes' rational form, peak relative error 1.8e-16 (its
+    # documentation), so 3.4e-16 relative = about 1.5 ulp; atan2 adds one rounding (pi/2 - r,
+    # pi - r): 4.5e-16 absolute on values up to pi.
+    from numba import njit
+
+    from geoloc.sensors._fastlocate import atan2_lanes, atan_lanes, sincos_lanes
+
+    @njit(error_model="numpy")  # as the kernel: atan2_lanes(0, 0) divides 0 by 0
+    def run(a, b, s, c, t, t2):
+        for k in range(a.size):
+            s[k], c[k] = sincos_lanes(a[k])
+            t[k] = atan_lanes(a[k])
+            t2[k] = atan2_lanes(a[k], b[k])
+
+    rng = np.random.default_rng(11)
+    a = np.concatenate([rng.uniform(-64, 64, 200_000), rng.uniform(-1e-3, 1e-3, 1000), 10.0 ** rng.uniform(-300, 300, 2000),
+                        np.arange(-80, 81) * np.pi / 4, [0.0, -0.0, 5e-324, 2.41421356237309504880, 0.66, -0.66]])
+    b = np.concatenate([rng.uniform(-64, 64, a.size - 7), [0.0, -1.0, 1.0, 0.0, -0.0, -3.0, 1e-300]])
+    s, c, t, t2 = (np.empty_like(a) for _ in range(4))
+    run(a, b, s, c, t, t2)
+    small = np.abs(a) <= 64
+    assert np.max(np.abs(s[small] - np.sin(a[small]))) <= 2.3e-16
+    assert np.max(np.abs(c[small] - np.cos(a[small]))) <= 2.3e-16
+    np.testing.assert_allclose(t, np.arctan(a), rtol=3.4e-16, atol=0)
+    np.testing.assert_allclose(t2, np.arctan2(a, b), rtol=0, atol=4.5e-16)
+    out = np.empty((4, 3))
+    run(np.array([np.nan, np.inf, -np.inf]), np.array([1.0, 1.0, 1.0]), *out)
+    assert np.all(np.isnan(out[0:2]))  # sin, cos of NaN and inf
+    assert np.isnan(out[2, 0]) and out[2, 1] == np.pi / 2 and out[2, 2] == -np.pi / 2
+
+
+def test_lane_geodetic_and_the_blocks_fall_backs_against_pyproj():
+    # geodetic_lanes (a series + Newton cube root, atan_lanes) against PROJ, tolerances as
+    # test_geodetic_fast_equals_pyproj; then _geodetic_block on the cases the lanes refuse
+    # (points on the polar axis: atan2(0, 0); a point deep inside the Earth: the cube root's
+    # argument beyond 1.1), which the block's scalar fall-back must still get right; and
+    # _sincos_block beyond 64 rad, where it must take libm's values.
+    import pyproj
+    from numba import njit
+
+    from geoloc.geodesy.ellipsoid import E2, A, B
+    from geoloc.sensors._fastlocate import (
+        _geodetic_block,
+        _sincos_block,
+        geodetic_fast,
+        geodetic_lanes,
+    )
+
+    @njit(error_model="numpy")  # as the kernel: a division by zero is inf / NaN, not an exception
+    def run(x, y, z, out, ok):
+        for k in range(x.size):
+            out[k, 0], out[k, 1], out[k, 2], ok[k] = geodetic_lanes(x[k], y[k], z[k], A, E2)
+
+    rng = np.random.default_rng(12)
+    n = 20_000
+    lat, lon, h = rng.uniform(-89.99, 89.99, n), rng.uniform(-180, 180, n), rng.uniform(-500, 1e6, n)
+    tr = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    x, y, z = (np.asarray(v) for v in tr.transform(lon, lat, h))
+    out, ok = np.empty((n, 3)), np.empty(n, dtype=np.bool_)
+    run(x, y, z, out, ok)
+    assert ok.all()
+    np.testing.assert_allclose(np.rad2deg(out[:, 0]), lat, rtol=0, atol=np.rad2deg(1e-14))
+    np.testing.assert_allclose(np.rad2deg(out[:, 1]), lon, rtol=0, atol=np.rad2deg(1e-14))
+    np.testing.assert_allclose(out[:, 2], h, rtol=0, atol=1e-7)
+
+    # on the polar axis the lanes' atan2(0, 0) is NaN; 6000 km below the surface Vermeille's cube
+    # root argument is 1.36 (beyond the series' range), where PROJ and Vermeille themselves part
+    # (the evolute region), so that lane is held to the scalar Vermeille it falls back to
+    hard = np.array([[0.0, 0.0, B + 100.0], [0.0, 0.0, -(B + 2500.0)], [3e5, 2e5, 1e5]])
+    m = len(hard)
+    cols = [np.ascontiguousarray(hard[:, i]) for i in range(3)]
+    lanes_out, lanes_ok = np.empty((m, 3)), np.empty(m, dtype=np.bool_)
+    run(*cols, lanes_out, lanes_ok)
+    assert not lanes_ok.any()  # every one of them is a case the lanes hand to the scalar code
+    la, lo, hh, good = np.empty(m), np.empty(m), np.empty(m), np.empty(m, dtype=np.bool_)
+    _geodetic_block(*cols, A, E2, np.zeros(m, np.uint8), la, lo, hh, good)
+    back = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(*hard[:2].T)
+    np.testing.assert_allclose(np.rad2deg(la[:2]), back[1], rtol=0, atol=np.rad2deg(1e-14))
+    np.testing.assert_allclose(np.rad2deg(lo[:2]), back[0], rtol=0, atol=np.rad2deg(1e-14))
+    np.testing.assert_allclose(hh[:2], back[2], rtol=0, atol=1e-7)
+    assert (la[2], lo[2], hh[2]) == geodetic_fast(*hard[2], A, E2)
+
+    a = np.array([100.0, -1e5, 3e7, 0.5])
+    s, c = np.empty(4), np.empty(4)
+    _sincos_block(a, s, c)
+    np.testing.assert_array_equal(s[:3], np.sin(a[:3]))  # libm's own values beyond 64 rad
+    np.testing.assert_array_equal(c[:3], np.cos(a[:3]))
