@@ -66,7 +66,7 @@ def _default_pixel(sensor, row, col):
 
 
 def line_of_sight(pose: Pose, sensor, row=None, col=None, *, chain: FrameChain | None = None,
-                  outside: str = "flag") -> LineOfSight:
+                  outside: str = "flag", engine: str = "auto") -> LineOfSight:
     """Pixel (i, j) -> line of sight in ECEF [Q17 eq. 8-9, generalised to any gimbal and lens].
 
     Parameters
@@ -83,6 +83,9 @@ def line_of_sight(pose: Pose, sensor, row=None, col=None, *, chain: FrameChain |
         A pixel off the sensor gets status OUTSIDE_SENSOR (default), or its
         ray through the lens model beyond the edge (``"extrapolate"``, for a
         caller that reports such pixels itself).
+    engine : {"auto", "numpy", "numba"}
+        See :meth:`geoloc.sensors.frame.FrameSensor.line_of_sight` (``"auto"``: the
+        compiled kernel for 10 000 rays or more); ignored with ``chain``.
 
     Returns
     -------
@@ -94,7 +97,7 @@ def line_of_sight(pose: Pose, sensor, row=None, col=None, *, chain: FrameChain |
     s = as_sensor(sensor)
     row, col = _default_pixel(s, row, col)
     if chain is None:
-        return s.line_of_sight(row, col, pose, outside=outside)
+        return s.line_of_sight(row, col, pose, outside=outside, engine=engine)
     cam = sensor if isinstance(sensor, Camera) else None
     if cam is None:
         raise ValueError("chain= is only for a first-phase Camera (the [Q17] roll-pitch pinhole)")
@@ -156,9 +159,12 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
         raise ValueError(f"engine must be 'auto', 'numpy' or 'numba', got {engine!r}")
     check_outside(outside)
     s = as_sensor(sensor)
-    fast_ok = chain is None and surface == "inflated"
+    from geoloc.sensors._fastlocate import serves
+
+    fast_ok = chain is None and surface == "inflated" and serves(s)
     if engine == "numba" and not fast_ok:
-        raise ValueError("engine='numba' needs surface='inflated' and no chain")
+        raise ValueError("engine='numba' needs surface='inflated', no chain, and a sensor the kernel serves "
+                         "(one lens, no per-sample perturbation)")
     row, col = _default_pixel(s, row, col)
     if engine == "numba" or (engine == "auto" and fast_ok and _batch_size(pose, row, col, target_h) >= 10_000):
         from geoloc.sensors._fastlocate import locate_fast
@@ -167,7 +173,8 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
         los_status = np.where(np.isin(status, (Status.INVALID_INPUT, Status.OUTSIDE_SENSOR)), status, Status.OK)
         los = LineOfSight(o, d, los_status.astype(np.uint8))
         return GroundPoint(lat, lon, h, ecef, rng, status, los)
-    los = line_of_sight(pose, sensor, row, col, chain=chain, outside=outside)
+    los = line_of_sight(pose, sensor, row, col, chain=chain, outside=outside,
+                        engine="numpy" if engine == "numpy" else "auto")
     return HeightSurface(target_h, surface).intersect(los)
 
 

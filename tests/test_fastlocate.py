@@ -264,3 +264,49 @@ def test_lane_geodetic_and_the_blocks_fall_backs_against_pyproj():
     _sincos_block(a, s, c)
     np.testing.assert_array_equal(s[:3], np.sin(a[:3]))  # libm's own values beyond 64 rad
     np.testing.assert_array_equal(c[:3], np.cos(a[:3]))
+
+
+def test_line_of_sight_auto_takes_the_kernel_and_equals_the_numpy_path():
+    # FrameSensor.line_of_sight on 10 000 rays or more runs the compiled kernel (the replays'
+    # and campaigns' lines of sight); it must equal the numpy reference path ray for ray,
+    # statuses included (tolerances as _compare); a sensor with a per-sample perturbation
+    # (Monte Carlo's lever_extra_m) is not the kernel's: auto keeps numpy, numba refuses.
+    import dataclasses
+
+    import pytest
+
+    from geoloc.sensors import _fastlocate
+
+    s = _turret()
+    rng = np.random.default_rng(13)
+    n = 12_000
+    pose = Pose.from_deg(rng.uniform(-60, 60, n), rng.uniform(-180, 180, n), rng.uniform(300, 8000, n),
+                         rng.uniform(-180, 180, n), rng.uniform(-8, 8, n), rng.uniform(-10, 10, n),
+                         angles_deg={"azimuth": rng.uniform(-360, 360, n), "elevation": rng.uniform(-90, -20, n)})
+    rows = rng.uniform(-20, 1100, n)
+    cols = rng.uniform(-20, 1940, n)
+    rows[:50] = np.nan
+    calls = []
+    real = _fastlocate.locate_kernel
+    _fastlocate.locate_kernel = lambda *a: (calls.append(1), real(*a))
+    try:
+        auto = s.line_of_sight(rows, cols, pose)
+    finally:
+        _fastlocate.locate_kernel = real
+    assert calls  # it really took the kernel
+    ref = s.line_of_sight(rows, cols, pose, engine="numpy")
+    assert np.array_equal(auto.status, ref.status)
+    assert {int(v) for v in np.unique(ref.status)} == {int(Status.OK), int(Status.OUTSIDE_SENSOR),
+                                                         int(Status.INVALID_INPUT)}
+    ok = ref.status == Status.OK
+    np.testing.assert_allclose(auto.direction_ecef[ok], ref.direction_ecef[ok], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(auto.origin_ecef[ok], ref.origin_ecef[ok], rtol=0, atol=1e-6)
+
+    perturbed = dataclasses.replace(s, lever_extra_m=rng.normal(0, 0.1, (n, 3)))
+    assert not perturbed.compiled
+    got = perturbed.line_of_sight(rows, cols, pose)  # auto: the numpy path, with the perturbation
+    lever = np.array(s.lever_arm_m) + perturbed.lever_extra_m
+    moved = np.linalg.norm(got.origin_ecef[ok] - ref.origin_ecef[ok], axis=-1)
+    np.testing.assert_allclose(moved, np.linalg.norm(lever - np.array(s.lever_arm_m), axis=-1)[ok], atol=1e-6)
+    with pytest.raises(ValueError, match="per-sample"):
+        locate(pose, perturbed, rows, cols, engine="numba")

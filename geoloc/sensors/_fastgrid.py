@@ -124,10 +124,9 @@ def R_ecef_cam(sensor, state) -> np.ndarray:
 def supports(sensor) -> bool:
     """True if :func:`grid_line_of_sight` serves ``sensor``: a FrameSensor with one (unbatched) lens
     and no per-sample Monte Carlo perturbations."""
-    from geoloc.sensors.frame import FrameSensor
+    from geoloc.sensors._fastlocate import serves
 
-    return (isinstance(sensor, FrameSensor) and not sensor.lens.batched and sensor.R_base_extra is None
-            and sensor.R_bore_extra is None and sensor.lever_extra_m is None)
+    return serves(sensor)
 
 
 def grid_line_of_sight(sensor, state, rows, cols) -> LineOfSight:

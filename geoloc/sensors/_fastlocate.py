@@ -518,6 +518,29 @@ def _lens_vector(lens) -> np.ndarray:
     return np.array(lens.kernel_array(), float)
 
 
+#: Batches of this many rays or more take the kernel when the caller lets it choose
+#: (``engine="auto"`` of :func:`geoloc.locate.locate` and ``FrameSensor.line_of_sight``):
+#: below it numba's call overhead and the argument checks are a larger share.
+AUTO_MIN_RAYS = 10_000
+
+
+def serves(sensor) -> bool:
+    """True if the kernel computes ``sensor`` exactly: a FrameSensor with one (unbatched) lens and
+    no per-sample Monte Carlo perturbation (``R_base_extra``, ``R_bore_extra``, ``lever_extra_m``)."""
+    return bool(getattr(sensor, "compiled", False))  # FrameSensor.compiled (no import: frame.py imports this)
+
+
+def line_of_sight_fast(pose, sensor, row, col, outside="flag"):
+    """:meth:`geoloc.sensors.frame.FrameSensor.line_of_sight` through :func:`locate_kernel`: (o, d, status).
+
+    The kernel's line of sight, with the statuses a line of sight has (INVALID_INPUT,
+    OUTSIDE_SENSOR, else OK; the kernel's hit on the ellipsoid is dropped).
+    """
+    _, _, _, _, _, status, o, d = locate_fast(pose, sensor, row, col, 0.0, outside=outside)
+    los_status = np.where((status == _INVALID) | (status == _OUTSIDE), status, np.uint8(_OK)).astype(np.uint8)
+    return o, d, los_status
+
+
 def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
     """Run :func:`locate_kernel` for a :class:`geoloc.sensors.frame.FrameSensor`; arrays shaped like the batch.
 
@@ -525,6 +548,9 @@ def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
     -------
     lat, lon, h, ecef, slant_range, status, origin_ecef, direction_ecef
     """
+    if not serves(sensor):
+        raise ValueError("the compiled kernel takes a FrameSensor with one lens and no per-sample "
+                         "perturbations; use engine='numpy'")
     names = sensor.angle_names
     angles = [pose.angle(a) for a in names]
     fields = [pose.lat, pose.lon, pose.h, pose.heading, pose.pitch, pose.roll, row, col, target_h, *angles]

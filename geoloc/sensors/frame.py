@@ -47,6 +47,15 @@ OWN_PARAMS = ("mount_x", "mount_y", "mount_z", "boresight_x", "boresight_y", "bo
               "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
 
 
+def _batch(state, row) -> int:
+    """Rays in the batch of ``state`` (a Pose) and the pixels; 0 for another kind of state."""
+    from geoloc.frames.chain import Pose
+
+    if not isinstance(state, Pose):
+        return 0
+    return int(np.prod(np.broadcast_shapes(state.shape, np.shape(row))))
+
+
 def small_rotation(angles) -> np.ndarray:
     """``rx(x) @ ry(y) @ rz(z)`` of three angles [rad] (mount and boresight, ``docs/conventions.md``)."""
     x, y, z = angles
@@ -127,6 +136,13 @@ class FrameSensor:
 
     def in_image(self, row, col) -> np.ndarray:
         return in_sensor(row, col, self.rows, self.cols)
+
+    @property
+    def compiled(self) -> bool:
+        """True if the compiled kernels (:mod:`geoloc.sensors._fastlocate`, ``_fastgrid``) serve this
+        sensor: one (unbatched) lens and no per-sample Monte Carlo perturbation."""
+        return (not self.lens.batched and self.R_base_extra is None and self.R_bore_extra is None
+                and self.lever_extra_m is None)
 
     @cached_property
     def R_base_body(self) -> np.ndarray:
@@ -231,15 +247,24 @@ class FrameSensor:
     def ecef_to_cam(self, v_ecef, state) -> np.ndarray:
         return self.graph.rotate_from_ecef(v_ecef, "cam", state)
 
-    def line_of_sight(self, row=None, col=None, state=None, *, outside: str = "flag") -> LineOfSight:
+    def line_of_sight(self, row=None, col=None, state=None, *, outside: str = "flag",
+                      engine: str = "auto") -> LineOfSight:
         """1-based pixels -> lines of sight in ECEF (batched; NaN + Status).
 
         Status: INVALID_INPUT (pose out of range, NaN pixel); OUTSIDE_SENSOR
         for a pixel off the rows/columns, unless ``outside="extrapolate"``
         (the ray through the lens model beyond the edge, status OK: for a
         caller that has warned about it, such as the replay of recorded pixels).
+
+        ``engine``: ``"numpy"`` is the reference path (lens, then the frame graph hop by
+        hop); ``"numba"`` the compiled kernel of :mod:`geoloc.sensors._fastlocate` (the same
+        mathematics; ``tests/test_fastlocate.py`` holds the two equal ray for ray); ``"auto"``
+        takes the kernel for batches of ``AUTO_MIN_RAYS`` (10 000) rays or more when it
+        serves this sensor (one lens, no per-sample perturbation).
         """
         check_outside(outside)
+        if engine not in ("auto", "numpy", "numba"):
+            raise ValueError(f"engine must be 'auto', 'numpy' or 'numba', got {engine!r}")
         if state is None:
             raise ValueError("a frame camera needs a state (a Pose with its gimbal angles)")
         self._check_state(state)
@@ -247,6 +272,11 @@ class FrameSensor:
         row = r0 if row is None else row
         col = c0 if col is None else col
         row, col = np.broadcast_arrays(np.asarray(row, float), np.asarray(col, float))
+        if engine != "numpy":
+            from geoloc.sensors import _fastlocate
+
+            if engine == "numba" or (_fastlocate.serves(self) and _batch(state, row) >= _fastlocate.AUTO_MIN_RAYS):
+                return LineOfSight(*_fastlocate.line_of_sight_fast(state, self, row, col, outside=outside))
         d_cam = self.lens.unproject(col - 1.0, row - 1.0)
         d = self.cam_to_ecef(d_cam, state)
         o = self.optical_centre_ecef(state)
