@@ -150,3 +150,116 @@ def test_cli_campaign(klv_folder, turret_parquet, tmp_path, capsys):
                  "--parquet-out", str(out2), "--workers", "2"]) == 0
     t = pa.concat_tables([pq.read_table(p) for p in sorted(out2.glob("*.parquet"))])
     assert t.num_rows == 24 and np.allclose(t.column("h_m").to_numpy()[np.arange(24) != 5], 600, atol=0.02)  # inflated [Q17 eq. 11]: mm
+
+
+# --------------------------------------------------------------------------- worker processes, malloc
+_FAULTS = r'''
+import resource, sys
+import numpy as np
+if sys.argv[1] == "tune":
+    from geoloc.workflows.campaign import set_malloc_thresholds
+    assert set_malloc_thresholds()
+def faults(n, nbytes=2**20):  # 1 MiB: above glibc's first mmap threshold (128 KiB), below numpy's hugepage size
+    f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    for _ in range(n):
+        a = np.ones(nbytes // 8)  # every page touched
+        del a
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
+faults(5)
+print(faults(50))
+'''
+
+
+def _minor_faults(mode: str, env: dict) -> int:
+    import os
+    import subprocess
+    import sys
+
+    e = {k: v for k, v in os.environ.items() if k != "MALLOC_TRIM_THRESHOLD_"} | env
+    out = subprocess.run([sys.executable, "-c", _FAULTS, mode], env=e, capture_output=True, text=True, check=True)
+    return int(out.stdout.split()[-1])
+
+
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="glibc malloc")
+def test_dask_malloc_environment_faults_every_array_and_the_tuning_undoes_it():
+    # Oracle: the kernel's minor page-fault counter (getrusage). 50 arrays of 1 MiB = 256 pages each.
+    pages = 2**20 // 4096
+    # as distributed starts its workers: each array a fresh mmap, all its pages faulted (the control:
+    # it shows the counter sees the effect; >= 40 of the 50 arrays, not all, for page-size noise)
+    assert _minor_faults("plain", {"MALLOC_TRIM_THRESHOLD_": "65536"}) >= 40 * pages
+    # the same environment after set_malloc_thresholds: the heap's pages are reused; at most 5 arrays'
+    # worth of faults (glibc's first extension of the heap and its own bookkeeping)
+    assert _minor_faults("tune", {"MALLOC_TRIM_THRESHOLD_": "65536"}) <= 5 * pages
+    assert _minor_faults("plain", {}) <= 5 * pages  # a plain process: glibc's dynamic threshold does the same
+
+
+def test_records_on_worker_processes_equal_serial(turret_parquet, tmp_path):
+    """The benchmark's configuration (worker processes, run_campaign's local cluster): the serial rows, and
+    in every worker the malloc thresholds set, no profiler, servers on 127.0.0.1."""
+    from dask.distributed import Client
+
+    from geoloc.workflows.campaign import local_cluster
+
+    cfg = CampaignConfig(sensor=str(SENSOR), dem=str(SRTM))
+    serial = run_campaign([turret_parquet], tmp_path / "serial", cfg, scheduler="none")
+    with local_cluster(2, 1, processes=True) as cl, Client(cl) as client:
+        dist = run_campaign([turret_parquet], tmp_path / "dask", cfg, scheduler=cl.scheduler_address)
+        assert_same_tables(serial.table(), dist.table())
+        assert not dist.failed and dist.rows == 24
+
+        def state(dask_worker):
+            import os
+            import resource
+
+            import numpy as np
+
+            from geoloc.workflows import campaign
+
+            f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+            for _ in range(50):
+                a = np.ones(2**17)  # 1 MiB, every page touched
+                del a
+            return (campaign._MALLOC["tuned"], "MALLOC_TRIM_THRESHOLD_" in os.environ,
+                    resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0, "profile" in dask_worker.periodic_callbacks)
+
+        states = client.run(state)
+        assert len(states) == 2 and all(a.startswith("tcp://127.0.0.1:") for a in states)
+        for tuned, env_set, faults, profiler in states.values():
+            assert tuned == env_set  # tuned wherever distributed set MALLOC_TRIM_THRESHOLD_ (its default)
+            assert faults <= 5 * 256  # kernel counter: 50 x 256 pages without the tuning (test above)
+            assert not profiler
+        # another scheduler's workers keep their numba setting (NUMBA_NUM_THREADS, default: every core)
+        import numba
+
+        assert {u.numba_threads for u in dist.units} == {numba.config.NUMBA_NUM_THREADS}
+    # run_campaign's own local cluster (worker processes): the same rows, and the cores shared out to the
+    # units' parallel kernels, 2 workers x 1 thread: cores // 2 numba threads each (not one per core each)
+    import os
+
+    local = run_campaign([turret_parquet], tmp_path / "local", cfg, scheduler="local", workers=2, processes=True)
+    assert_same_tables(serial.table(), local.table())
+    want = min(max(1, len(os.sched_getaffinity(0)) // 2), numba.config.NUMBA_NUM_THREADS)
+    assert [u.numba_threads for u in local.units] == [want] * 3
+
+
+def test_local_cluster_refuses_bad_sizes():
+    from geoloc.workflows.campaign import local_cluster
+
+    with pytest.raises(ValueError, match="workers must be a positive integer, got 0"):
+        local_cluster(0)
+    with pytest.raises(ValueError, match="threads_per_worker must be a positive integer, got 1.5"):
+        local_cluster(2, 1.5)
+
+
+def test_numba_threads_serial_is_the_units_and_restored(turret_parquet, tmp_path):
+    import numba
+
+    before = numba.get_num_threads()
+    cfg = CampaignConfig(sensor=str(SENSOR), dem=str(SRTM))
+    res = run_campaign([turret_parquet], tmp_path / "one", cfg, scheduler="none", numba_threads=1)
+    assert [u.numba_threads for u in res.units] == [1, 1, 1] and numba.get_num_threads() == before
+    auto = run_campaign([turret_parquet], tmp_path / "auto", cfg, scheduler="none")  # serial "auto": the caller's
+    assert {u.numba_threads for u in auto.units} == {before}
+    assert_same_tables(res.table(), auto.table())
+    with pytest.raises(ValueError, match="numba_threads must be 'auto', a positive integer or None, got 0"):
+        run_campaign([turret_parquet], tmp_path / "bad", cfg, scheduler="none", numba_threads=0)

@@ -36,6 +36,8 @@ Conventions: ``docs/conventions.md`` (degrees and metres at this edge).
 
 from __future__ import annotations
 
+import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -96,7 +98,8 @@ class CampaignConfig:
 
 @dataclass
 class UnitResult:
-    """What a unit hands back: where its rows went, how many, what went wrong, its CPU time."""
+    """What a unit hands back: where its rows went, how many, what went wrong, its CPU time (this
+    thread's), the numba threads it ran with."""
 
     index: int
     source: str
@@ -105,6 +108,7 @@ class UnitResult:
     messages: list
     failed: bool
     cpu_s: float
+    numba_threads: int = 0  # numba threads the unit's parallel kernels could use (0: numba not loaded)
 
 
 @dataclass
@@ -243,8 +247,121 @@ def _dem(cfg: CampaignConfig, whole: bool = False):
     return _cached(key, make)
 
 
-def run_unit(index: int, unit, kind: str, cfg: CampaignConfig, out_dir: str) -> UnitResult:
-    """Replay one unit and write its rows to ``out_dir/part-<index>.parquet``; never raises for a bad unit."""
+#: glibc ``mallopt`` parameters (malloc.h) and the values a worker process gets (see :func:`tune_worker_malloc`).
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+WORKER_MMAP_THRESHOLD = 32 * 2**20  # glibc's DEFAULT_MMAP_THRESHOLD_MAX on 64-bit: the dynamic threshold's ceiling
+WORKER_TRIM_THRESHOLD = 64 * 2**20  # twice that, as glibc's dynamic rule sets it (free heap kept at most 64 MiB)
+_MALLOC = {"tuned": None}  # per process: None (not looked at), True (mallopt done), False (left alone)
+
+
+def set_malloc_thresholds(mmap_threshold: int = WORKER_MMAP_THRESHOLD,
+                          trim_threshold: int = WORKER_TRIM_THRESHOLD) -> bool:
+    """Set this process's glibc malloc mmap and trim thresholds (``mallopt(3)``).
+
+    Parameters
+    ----------
+    mmap_threshold : int
+        Bytes: larger requests get their own ``mmap`` (M_MMAP_THRESHOLD; glibc caps it at 32 MiB).
+    trim_threshold : int
+        Bytes of free memory at the top of the heap before it is handed back (M_TRIM_THRESHOLD).
+
+    Returns
+    -------
+    bool
+        True if both were set; False where there is no glibc ``mallopt`` (not Linux, musl).
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):  # musl and others: no mallopt
+        return False
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    return bool(mallopt(M_MMAP_THRESHOLD, int(mmap_threshold))) and bool(mallopt(M_TRIM_THRESHOLD,
+                                                                                  int(trim_threshold)))
+
+
+def tune_worker_malloc() -> bool:
+    """Undo, in a dask worker *process*, what ``MALLOC_TRIM_THRESHOLD_`` does to numpy (once per process).
+
+    ``distributed`` starts worker processes with ``MALLOC_TRIM_THRESHOLD_=65536``
+    (its config ``distributed.nanny.pre-spawn-environ``, to hand freed memory back to
+    the OS). Setting any malloc threshold switches off glibc's dynamic mmap threshold
+    (``mallopt(3)``, M_MMAP_THRESHOLD: "dynamic adjustment ... is disabled if any of
+    M_TRIM_THRESHOLD, M_TOP_PAD, M_MMAP_THRESHOLD, or M_MMAP_MAX is set"), so every
+    array of 128 KiB or more is a fresh ``mmap``, its pages faulted in and zeroed by
+    the kernel on first touch and unmapped on free. A records unit allocates
+    hundreds of such arrays: in a worker it took about 5x the page faults, 3x the
+    system time and 1.4-1.55x the CPU of the same unit in a plain process with the
+    numpy line of sight, 1.10-1.20x with the compiled one (fewer temporaries;
+    ``benchmarks/bench_campaign.py --ab-malloc``). Here the thresholds are set to
+    where glibc's own dynamic rule would take them (mmap 32 MiB, its ceiling; trim
+    twice that), so a worker keeps at most 64 MiB of freed heap.
+
+    Only in a process that a dask worker runs in, that was spawned (not the caller's
+    own process: in-process thread workers are left alone) and that has
+    ``MALLOC_TRIM_THRESHOLD_`` in its environment; set ``GEOLOC_DASK_MALLOC=keep`` to
+    leave distributed's setting as it is.
+
+    Returns
+    -------
+    bool
+        Whether this process's thresholds were set (now or at an earlier call).
+    """
+    if _MALLOC["tuned"] is not None:
+        return _MALLOC["tuned"]
+    _MALLOC["tuned"] = False
+    if "MALLOC_TRIM_THRESHOLD_" not in os.environ or os.environ.get("GEOLOC_DASK_MALLOC") == "keep":
+        return False
+    import multiprocessing
+
+    if multiprocessing.parent_process() is None:
+        return False  # not a spawned worker process
+    try:
+        from distributed import get_worker
+
+        get_worker()
+    except (ImportError, ValueError):
+        return False
+    _MALLOC["tuned"] = set_malloc_thresholds()
+    return _MALLOC["tuned"]
+
+
+def _dictionary_columns(table) -> list:
+    """Columns worth Parquet dictionary pages: strings, dictionaries, small integers (source, h_datum,
+    status), not floats (pyarrow would try, then fall back: 3x the write time of a records part)."""
+    import pyarrow as pa
+
+    return [f.name for f in table.schema
+            if pa.types.is_dictionary(f.type) or pa.types.is_string(f.type) or pa.types.is_large_string(f.type)
+            or pa.types.is_boolean(f.type) or (pa.types.is_integer(f.type) and f.type.bit_width <= 16)]
+
+
+def run_unit(index: int, unit, kind: str, cfg: CampaignConfig, out_dir: str,
+             numba_threads: int | None = None) -> UnitResult:
+    """Replay one unit and write its rows to ``out_dir/part-<index>.parquet``; never raises for a bad unit.
+
+    ``numba_threads``: the threads this unit's parallel kernels may use (numba's setting
+    is per thread: this thread's, restored afterwards); None leaves numba's as it is.
+    """
+    tune_worker_malloc()
+    if not numba_threads:
+        return _run_unit(index, unit, kind, cfg, out_dir)
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(numba_threads), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        return _run_unit(index, unit, kind, cfg, out_dir)
+    finally:
+        numba.set_num_threads(before)
+
+
+def _run_unit(index, unit, kind, cfg, out_dir) -> UnitResult:
     import pyarrow.parquet as pq
 
     c0 = time.thread_time()
@@ -253,13 +370,18 @@ def run_unit(index: int, unit, kind: str, cfg: CampaignConfig, out_dir: str) -> 
         table, messages = {"records": _records_unit, "klv": _klv_unit, "photos": _photos_unit}[kind](unit, cfg)
     except Exception as e:  # a bad unit is reported and the campaign goes on
         return UnitResult(index, source, None, 0, [f"{source}: failed: {type(e).__name__}: {e}"], True,
-                          time.thread_time() - c0)
+                          time.thread_time() - c0, _threads_now())
     part = None
     if table.num_rows:
         part = str(Path(out_dir) / f"part-{index:05d}.parquet")
-        pq.write_table(table, part)
+        pq.write_table(table, part, use_dictionary=_dictionary_columns(table))
     return UnitResult(index, source, part, table.num_rows, messages, table.num_rows == 0 and kind == "klv",
-                      time.thread_time() - c0)
+                      time.thread_time() - c0, _threads_now())
+
+
+def _threads_now() -> int:
+    """This thread's numba threads (0 if numba is not loaded)."""
+    return int(sys.modules["numba"].get_num_threads()) if "numba" in sys.modules else 0
 
 
 def _read_table(path: str):
@@ -282,6 +404,13 @@ def _column(table, name, source):
     if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type)):
         raise ValueError(f"column {name!r} is {col.type}, not numbers")
     return pc.cast(col, pa.float64()).to_numpy(zero_copy_only=False)  # nulls -> NaN
+
+
+def _constant_column(text: str, n: int):
+    """n copies of one string as a dictionary column (indices into a one-word dictionary)."""
+    import pyarrow as pa
+
+    return pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, np.int32)), pa.array([text], pa.string()))
 
 
 def _records_unit(path: str, cfg: CampaignConfig):
@@ -349,9 +478,9 @@ def _records_unit(path: str, cfg: CampaignConfig):
     status[bad] = Status.INVALID_INPUT
     nan = lambda a: np.where(bad, np.nan, np.asarray(a, float))  # noqa: E731
     lat, lon = nan(hit.lat_deg), nan(hit.lon_deg)
-    out = {"source": pa.array(np.full(n, Path(path).name, dtype=object), pa.string()).dictionary_encode(),
+    out = {"source": _constant_column(Path(path).name, n),
            "row_index": np.arange(n, dtype=np.int64), "lat_deg": lat, "lon_deg": lon, "h_m": nan(hit.h),
-           "h_datum": pa.array(np.full(n, "ellipsoid (WGS 84)", dtype=object), pa.string()).dictionary_encode(),
+           "h_datum": _constant_column("ellipsoid (WGS 84)", n),
            "slant_range_m": nan(hit.slant_range), "status": status}
     if "truth_lat_deg" in table.column_names and "truth_lon_deg" in table.column_names:
         out["error_to_truth_m"] = horizontal_distance_m(lat, lon, _column(table, "truth_lat_deg", path),
@@ -415,9 +544,63 @@ def _photos_unit(paths, cfg: CampaignConfig):
 
 
 # --------------------------------------------------------------------------- running
+def local_cluster(workers: int = 2, threads_per_worker: int = 1, processes: bool = True):
+    """The ``dask.distributed.LocalCluster`` of ``scheduler="local"``: every server on 127.0.0.1.
+
+    ``workers`` worker processes (or, ``processes=False``, threads of this process) of
+    ``threads_per_worker`` threads each. Bound to 127.0.0.1: the worker processes' TCP
+    (``host``) and the HTTP servers (/health, metrics; dashboards, on a free port) of
+    the scheduler and of every worker, which distributed opens on all interfaces
+    otherwise, even for in-process workers. The workers' statistical profiler is off:
+    it samples the running thread's stack every 10 ms for a dashboard nobody is shown
+    (about 5 % of a worker's CPU on records units).
+
+    Parameters
+    ----------
+    workers : int
+        Workers (>= 1).
+    threads_per_worker : int
+        Threads of each worker (>= 1).
+    processes : bool
+        Worker processes (True) or threads of this process.
+
+    Returns
+    -------
+    dask.distributed.LocalCluster
+        Close it when done (it is a context manager).
+    """
+    import dask
+    from dask.distributed import LocalCluster
+
+    if not (isinstance(workers, (int, np.integer)) and workers >= 1):
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    if not (isinstance(threads_per_worker, (int, np.integer)) and threads_per_worker >= 1):
+        raise ValueError(f"threads_per_worker must be a positive integer, got {threads_per_worker!r}")
+    net = {"host": "127.0.0.1"} if processes else {}
+    with dask.config.set({"distributed.worker.profile.enabled": False}):  # the workers take this config along
+        return LocalCluster(n_workers=int(workers), threads_per_worker=int(threads_per_worker),
+                            processes=bool(processes), dashboard_address="127.0.0.1:0",
+                            worker_dashboard_address="127.0.0.1:0", **net)
+
+
+def worker_numba_threads(workers: int, threads_per_worker: int = 1) -> int:
+    """Numba threads for each unit on a local cluster: this process's cores // (workers x threads), >= 1.
+
+    The compiled kernels are parallel (the line of sight of ``FrameSensor.line_of_sight``
+    for 10 000 rays or more); left alone, numba gives every worker thread one thread per
+    core: 2 workers x 2 threads on 2 cores.
+    """
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    return max(1, cores // (int(workers) * int(threads_per_worker)))
+
+
 def run_campaign(inputs, out_dir, config: CampaignConfig | None = None, *, scheduler: str = "local",
                  workers: int = 2, processes: bool = True, threads_per_worker: int = 1,
-                 photos_per_unit: int = PHOTOS_PER_UNIT, on_unit=None) -> CampaignResult:
+                 photos_per_unit: int = PHOTOS_PER_UNIT, on_unit=None,
+                 numba_threads: int | str | None = "auto") -> CampaignResult:
     """Replay every unit of ``inputs`` (files or folders) and write Parquet parts to ``out_dir``.
 
     Parameters
@@ -435,6 +618,12 @@ def run_campaign(inputs, out_dir, config: CampaignConfig | None = None, *, sched
         The local cluster: worker processes (True) or threads of this process.
     on_unit : callable, optional
         Called with each :class:`UnitResult` as it completes (the CLI prints messages).
+    numba_threads : "auto", int or None
+        Threads for each unit's parallel kernels (the compiled line of sight).
+        "auto": on the local cluster this machine's cores shared out
+        (:func:`worker_numba_threads`: 1 for 2 workers on 2 cores), elsewhere
+        numba's own setting (a worker's ``NUMBA_NUM_THREADS``, or the caller's in
+        serial). An int: that many, at most ``NUMBA_NUM_THREADS``. None: numba's own.
 
     Returns
     -------
@@ -450,6 +639,10 @@ def run_campaign(inputs, out_dir, config: CampaignConfig | None = None, *, sched
                          "give an empty or new folder")
     if not (isinstance(workers, (int, np.integer)) and workers >= 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    if isinstance(numba_threads, str) and numba_threads == "auto":
+        numba_threads = worker_numba_threads(workers, threads_per_worker) if scheduler == "local" else None
+    elif not (numba_threads is None or (isinstance(numba_threads, (int, np.integer)) and numba_threads >= 1)):
+        raise ValueError(f"numba_threads must be 'auto', a positive integer or None, got {numba_threads!r}")
     if cfg.dem is not None:
         _dem(cfg)  # a bad DEM is one error here, not one per unit
     results = [None] * len(units)
@@ -462,25 +655,19 @@ def run_campaign(inputs, out_dir, config: CampaignConfig | None = None, *, sched
 
     if scheduler in SCHEDULERS_SERIAL:
         for k, u in enumerate(units):
-            done(run_unit(k, u, kind, cfg, str(out)))
+            done(run_unit(k, u, kind, cfg, str(out), numba_threads))
     else:
-        from dask.distributed import Client, LocalCluster, as_completed
+        from dask.distributed import Client, as_completed
 
         cluster = None
         if scheduler == "local":
-            # every server on 127.0.0.1: worker processes' TCP (host), and the HTTP servers
-            # (/health, metrics; dashboards) of the scheduler and of every worker, which
-            # distributed opens on all interfaces otherwise, even for in-process workers
-            net = {"host": "127.0.0.1"} if processes else {}
-            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=int(threads_per_worker),
-                                   processes=bool(processes), dashboard_address="127.0.0.1:0",
-                                   worker_dashboard_address="127.0.0.1:0", **net)
+            cluster = local_cluster(workers, threads_per_worker, processes)
             client = Client(cluster)
         else:
             client = Client(scheduler)
         try:
-            futs = [client.submit(run_unit, k, u, kind, cfg, str(out.resolve()), pure=False, key=f"unit-{k}")
-                    for k, u in enumerate(units)]
+            futs = [client.submit(run_unit, k, u, kind, cfg, str(out.resolve()), numba_threads, pure=False,
+                                  key=f"unit-{k}") for k, u in enumerate(units)]
             for f in as_completed(futs):
                 done(f.result())
         finally:
