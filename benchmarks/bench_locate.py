@@ -169,7 +169,7 @@ def main(argv=None) -> None:
     print(f"rays: {args.rays}, repeats: {args.repeat} (medians; the kernel uses both cores, so CPU > wall)")
     ratio = compare("q17 roll-pitch pinhole", args.rays, args.repeat, cam, pose, rows, cols)
     # the numpy reference path (lens and frame graph in numpy), for scale
-    t_los, _, los = timed(lambda: line_of_sight(pose, cam, rows, cols), args.repeat)
+    t_los, _, los = timed(lambda: line_of_sight(pose, cam, rows, cols, engine="numpy"), args.repeat)
     t_hit, _, _ = timed(lambda: intersect_los_height(los, 0.0), args.repeat)
     print(f"[q17 roll-pitch pinhole] numpy reference path: {t_los + t_hit:.3f} s  "
           f"{args.rays / (t_los + t_hit) / 1e6:.2f} M rays/s  "
