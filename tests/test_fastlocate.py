@@ -141,6 +141,14 @@ def _turret():
                        boresight=(1e-3, 2e-3, -3e-3), lever_arm_m=(1.5, 0.2, 0.7))
 
 
+def _turret_poses(rng, n, heading_deg):
+    """n random turret poses: anywhere within 60 deg of the equator, 300-8000 m, headings within
+    +-heading_deg, azimuth over two turns, elevation -90 to -20 deg."""
+    return Pose.from_deg(rng.uniform(-60, 60, n), rng.uniform(-180, 180, n), rng.uniform(300, 8000, n),
+                         rng.uniform(-heading_deg, heading_deg, n), rng.uniform(-8, 8, n), rng.uniform(-10, 10, n),
+                         angles_deg={"azimuth": rng.uniform(-360, 360, n), "elevation": rng.uniform(-90, -20, n)})
+
+
 def test_turret_kernel_equals_numpy_path_ray_for_ray():
     # the bench's second sensor: Brown lens through its undistortion map, az-el joints through
     # sincos, mount, boresight, lever arm sharing the attitude's trigonometry; pixels over the
@@ -149,9 +157,7 @@ def test_turret_kernel_equals_numpy_path_ray_for_ray():
     s = _turret()
     rng = np.random.default_rng(8)
     n = 30_000
-    pose = Pose.from_deg(rng.uniform(-60, 60, n), rng.uniform(-180, 180, n), rng.uniform(300, 8000, n),
-                         rng.uniform(-360, 360, n), rng.uniform(-8, 8, n), rng.uniform(-10, 10, n),
-                         angles_deg={"azimuth": rng.uniform(-360, 360, n), "elevation": rng.uniform(-90, -20, n)})
+    pose = _turret_poses(rng, n, heading_deg=360)
     rows = np.concatenate([rng.uniform(0.5, 1080.5, n - 400), rng.choice([0.5, 1080.5, -30.0, 1200.0], 400)])
     cols = np.concatenate([rng.uniform(0.5, 1920.5, n - 400), rng.uniform(-40, 1990, 400)])
     h = rng.uniform(-50, 200, n)
@@ -280,9 +286,7 @@ def test_line_of_sight_auto_takes_the_kernel_and_equals_the_numpy_path():
     s = _turret()
     rng = np.random.default_rng(13)
     n = 12_000
-    pose = Pose.from_deg(rng.uniform(-60, 60, n), rng.uniform(-180, 180, n), rng.uniform(300, 8000, n),
-                         rng.uniform(-180, 180, n), rng.uniform(-8, 8, n), rng.uniform(-10, 10, n),
-                         angles_deg={"azimuth": rng.uniform(-360, 360, n), "elevation": rng.uniform(-90, -20, n)})
+    pose = _turret_poses(rng, n, heading_deg=180)
     rows = rng.uniform(-20, 1100, n)
     cols = rng.uniform(-20, 1940, n)
     rows[:50] = np.nan

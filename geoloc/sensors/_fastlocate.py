@@ -55,14 +55,9 @@ from geoloc.geodesy._nbgeo import cached_njit, dependency_key, geodetic  # noqa:
 from geoloc.geodesy.ellipsoid import E2, A, B
 from geoloc.sensors import lenses as _lenses_module
 from geoloc.sensors.lenses import (
-    _HEADER,
     _N_SLOTS,
     BROWN,
-    MAP_ACCEPT,
-    _brown_distort_nb,
-    _brown_newton_step_nb,
-    _from_pixel_nb,
-    _unit_nb,
+    unproject_map_lanes,
     unproject_map_nb,
     unproject_nb,
 )
@@ -146,6 +141,15 @@ def geodetic_fast(x, y, z, a_m, e2):
     ``2 atan2(z, d + dz)`` (d + dz > 0 off the Earth's centre): the same values to a few ulps,
     held to ``ecef_to_geodetic`` by ``tests/test_fastlocate.py``.
     """
+    e4, rho, q, r, g = _vermeille_front(x, y, z, a_m, e2)
+    d, dz, h = _vermeille_back(np.cbrt(g), e4, rho, z, q, r, e2)
+    return 2.0 * math.atan(z / (d + dz)), math.atan2(y, x), h
+
+
+@cached_njit(KEY, inline="always", error_model="numpy")
+def _vermeille_front(x, y, z, a_m, e2):
+    """Vermeille's closed form up to its cube root's argument g = 1 + s + sqrt(s (2 + s)):
+    (e^4, rho, q, r, g) (:func:`geoloc.geodesy.ellipsoid.vermeille`)."""
     e4 = e2 * e2
     rho2 = x * x + y * y
     rho = math.sqrt(rho2)
@@ -153,17 +157,20 @@ def geodetic_fast(x, y, z, a_m, e2):
     q = (1.0 - e2) * z * z / (a_m * a_m)
     r = (p + q - e4) / 6.0
     s = e4 * p * q / (4.0 * r * r * r)
-    t = np.cbrt(1.0 + s + math.sqrt(s * (2.0 + s)))
+    return e4, rho, q, r, 1.0 + s + math.sqrt(s * (2.0 + s))
+
+
+@cached_njit(KEY, inline="always", error_model="numpy")
+def _vermeille_back(t, e4, rho, z, q, r, e2):
+    """Vermeille's closed form from the cube root t = cbrt(g) on: (d, sqrt(d^2 + z^2), h); the
+    latitude is then 2 atan(z / (d + dz)) (:func:`geoloc.geodesy.ellipsoid.vermeille`)."""
     u = r * (1.0 + t + 1.0 / t)
     v = math.sqrt(u * u + e4 * q)
     w = e2 * (u + v - q) / (2.0 * v)
     k = math.sqrt(u + v + w * w) - w
     d = k * rho / (k + e2)
     dz = math.sqrt(d * d + z * z)
-    lat = 2.0 * math.atan(z / (d + dz))
-    h = (k + e2 - 1.0) / k * dz
-    lon = math.atan2(y, x)
-    return lat, lon, h
+    return d, dz, (k + e2 - 1.0) / k * dz
 
 
 # Lane versions: the same mathematics with selects for branches, so that a loop over a block
@@ -249,69 +256,18 @@ def geodetic_lanes(x, y, z, a_m, e2):
     any point above a quarter of the Earth's radius below its surface). ``ok`` is False for
     g outside [1, 1.1] or a NaN; the kernel recomputes those lanes with :func:`geodetic_fast`.
     """
-    e4 = e2 * e2
-    rho2 = x * x + y * y
-    rho = math.sqrt(rho2)
-    p = rho2 / (a_m * a_m)
-    q = (1.0 - e2) * z * z / (a_m * a_m)
-    r = (p + q - e4) / 6.0
-    s = e4 * p * q / (4.0 * r * r * r)
-    g = 1.0 + s + math.sqrt(s * (2.0 + s))
+    e4, rho, q, r, g = _vermeille_front(x, y, z, a_m, e2)
     ok = (g >= 1.0) & (g <= 1.1)
     d1 = g - 1.0
     t = 1.0 + d1 * (1.0 / 3.0) - d1 * d1 * (1.0 / 9.0)
     t = (2.0 * t + g / (t * t)) * (1.0 / 3.0)
     t = (2.0 * t + g / (t * t)) * (1.0 / 3.0)
     t = t - (t * t * t - g) / (3.0 * t * t)
-    u = r * (1.0 + t + 1.0 / t)
-    v = math.sqrt(u * u + e4 * q)
-    w = e2 * (u + v - q) / (2.0 * v)
-    k = math.sqrt(u + v + w * w) - w
-    d = k * rho / (k + e2)
-    dz = math.sqrt(d * d + z * z)
+    d, dz, h = _vermeille_back(t, e4, rho, z, q, r, e2)
     lat = 2.0 * atan_lanes(z / (d + dz))
-    h = (k + e2 - 1.0) / k * dz
     lon = atan2_lanes(y, x)
     ok = ok & (not math.isnan(lon)) & (not math.isnan(lat)) & (not math.isnan(h))
     return lat, lon, h, ok
-
-
-@cached_njit(KEY, inline="always", error_model="numpy")
-def _unproject_map_lanes(p, u, v):
-    """:func:`geoloc.sensors.lenses.unproject_map_nb` for a Brown lens with its map, without branches.
-
-    The same bilinear guess and two Newton steps; ``ok`` is False where the map does not
-    cover the pixel or the steps do not meet the same acceptance tests (the kernel
-    recomputes those lanes with the full iteration). Lanes off the map read node (0, 0)
-    so that every lane's memory access stays inside the map.
-    """
-    n0 = _N_SLOTS
-    xt, yt = _from_pixel_nb(p, u, v)
-    nu, nv = int(p[n0 + 3]), int(p[n0 + 4])
-    gu = (u - p[n0]) * p[n0 + 2]
-    gv = (v - p[n0 + 1]) * p[n0 + 2]
-    inmap = (gu >= 0.0) & (gu < nu - 1) & (gv >= 0.0) & (gv < nv - 1)  # False for NaN
-    gu = gu if inmap else 0.0
-    gv = gv if inmap else 0.0
-    i, j = int(gv), int(gu)
-    fu, fv = gu - j, gv - i
-    k = n0 + _HEADER + 2 * (i * nu + j)
-    k2 = k + 2 * nu
-    x = ((1.0 - fv) * ((1.0 - fu) * p[k] + fu * p[k + 2])
-         + fv * ((1.0 - fu) * p[k2] + fu * p[k2 + 2]))
-    y = ((1.0 - fv) * ((1.0 - fu) * p[k + 1] + fu * p[k + 3])
-         + fv * ((1.0 - fu) * p[k2 + 1] + fu * p[k2 + 3]))
-    xd, yd, radial, d_radial = _brown_distort_nb(p, x, y)
-    dx, dy, det = _brown_newton_step_nb(p, x, y, xd, yd, radial, d_radial, xt, yt)
-    x -= dx
-    y -= dy
-    xd, yd, radial, d_radial = _brown_distort_nb(p, x, y)
-    dx, dy, det = _brown_newton_step_nb(p, x, y, xd, yd, radial, d_radial, xt, yt)
-    x -= dx
-    y -= dy
-    ok = inmap & (abs(dx) + abs(dy) <= MAP_ACCEPT) & (det > 0.0) & (radial > 0.0)
-    ux, uy, uz = _unit_nb(x, y)
-    return ux, uy, uz, ok
 
 
 @cached_njit(KEY, error_model="numpy")
@@ -349,7 +305,7 @@ def _unproject_block(code, p, row, col, x, y, z, good):
     """1-based pixels -> unit directions in the optical frame (OpenCV's 0-based u, v)."""
     if code == BROWN and p.shape[0] > _N_SLOTS:
         for i in range(row.shape[0]):
-            x[i], y[i], z[i], good[i] = _unproject_map_lanes(p, col[i] - 1.0, row[i] - 1.0)
+            x[i], y[i], z[i], good[i] = unproject_map_lanes(p, col[i] - 1.0, row[i] - 1.0)
         for i in range(row.shape[0]):
             if not good[i]:  # off the map or not converged in two steps: the full iteration
                 x[i], y[i], z[i] = unproject_nb(code, p, col[i] - 1.0, row[i] - 1.0)

@@ -111,6 +111,7 @@ __all__ = [
     "lens_from_opencv",
     "lens_to_dict",
     "project_nb",
+    "unproject_map_lanes",
     "unproject_map_nb",
     "unproject_nb",
 ]
@@ -295,41 +296,58 @@ def unproject_nb(code, p, u, v):
     return _unit_nb(xt, yt)
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def unproject_map_lanes(p, u, v):
+    """A Brown lens's inverse through its undistortion map, without branches: (x, y, z, ok).
+
+    ``p`` is :meth:`Lens.kernel_array` of a Brown lens. The bilinear guess from the map, two
+    Newton steps, and the fold tests of the full iteration (det J > 0, R > 0); ``ok`` is
+    False where the map does not cover the pixel, a node is NaN, or the second step is above
+    :data:`MAP_ACCEPT` (then the caller takes :func:`unproject_nb`). Selects instead of
+    branches, so a loop over pixels compiles to SIMD code; a pixel off the map reads node
+    (0, 0), so that every lane's memory access stays inside the map.
+    """
+    n0 = _N_SLOTS
+    xt, yt = _from_pixel_nb(p, u, v)
+    nu, nv = int(p[n0 + 3]), int(p[n0 + 4])
+    gu = (u - p[n0]) * p[n0 + 2]
+    gv = (v - p[n0 + 1]) * p[n0 + 2]
+    inmap = (gu >= 0.0) & (gu < nu - 1) & (gv >= 0.0) & (gv < nv - 1)  # False for NaN
+    gu = gu if inmap else 0.0
+    gv = gv if inmap else 0.0
+    i, j = int(gv), int(gu)
+    fu, fv = gu - j, gv - i
+    k = n0 + _HEADER + 2 * (i * nu + j)
+    k2 = k + 2 * nu
+    x = ((1.0 - fv) * ((1.0 - fu) * p[k] + fu * p[k + 2])
+         + fv * ((1.0 - fu) * p[k2] + fu * p[k2 + 2]))
+    y = ((1.0 - fv) * ((1.0 - fu) * p[k + 1] + fu * p[k + 3])
+         + fv * ((1.0 - fu) * p[k2 + 1] + fu * p[k2 + 3]))
+    xd, yd, radial, d_radial = _brown_distort_nb(p, x, y)
+    dx, dy, det = _brown_newton_step_nb(p, x, y, xd, yd, radial, d_radial, xt, yt)
+    x -= dx
+    y -= dy
+    xd, yd, radial, d_radial = _brown_distort_nb(p, x, y)
+    dx, dy, det = _brown_newton_step_nb(p, x, y, xd, yd, radial, d_radial, xt, yt)
+    x -= dx
+    y -= dy
+    ok = inmap & (abs(dx) + abs(dy) <= MAP_ACCEPT) & (det > 0.0) & (radial > 0.0)
+    ux, uy, uz = _unit_nb(x, y)
+    return ux, uy, uz, ok
+
+
 @njit(cache=True, error_model="numpy")
 def unproject_map_nb(code, p, u, v):
     """:func:`unproject_nb` with the undistortion map of :meth:`Lens.kernel_array`, per element.
 
     ``p`` is :meth:`Lens.kernel_array` (or a plain :meth:`Lens.as_array`, then this is
-    :func:`unproject_nb`). For a Brown lens inside the map: the bilinear guess, two Newton
-    steps, and the same fold tests as the full iteration (det J > 0, R > 0); elsewhere, or if
-    the second step is above :data:`MAP_ACCEPT`, the full iteration.
+    :func:`unproject_nb`). For a Brown lens inside the map: :func:`unproject_map_lanes`;
+    elsewhere, or where that refuses the pixel, the full iteration.
     """
-    n0 = _N_SLOTS
-    if code == BROWN and p.shape[0] > n0:
-        xt, yt = _from_pixel_nb(p, u, v)
-        nu, nv = int(p[n0 + 3]), int(p[n0 + 4])
-        gu = (u - p[n0]) * p[n0 + 2]
-        gv = (v - p[n0 + 1]) * p[n0 + 2]
-        if 0.0 <= gu < nu - 1 and 0.0 <= gv < nv - 1:  # False for NaN
-            i, j = int(gv), int(gu)
-            fu, fv = gu - j, gv - i
-            k = n0 + _HEADER + 2 * (i * nu + j)
-            k2 = k + 2 * nu
-            x = ((1.0 - fv) * ((1.0 - fu) * p[k] + fu * p[k + 2])
-                 + fv * ((1.0 - fu) * p[k2] + fu * p[k2 + 2]))
-            y = ((1.0 - fv) * ((1.0 - fu) * p[k + 1] + fu * p[k + 3])
-                 + fv * ((1.0 - fu) * p[k2 + 1] + fu * p[k2 + 3]))
-            if math.isfinite(x) and math.isfinite(y):
-                xd, yd, radial, d_radial = _brown_distort_nb(p, x, y)
-                dx, dy, det = _brown_newton_step_nb(p, x, y, xd, yd, radial, d_radial, xt, yt)
-                x -= dx
-                y -= dy
-                xd, yd, radial, d_radial = _brown_distort_nb(p, x, y)
-                dx, dy, det = _brown_newton_step_nb(p, x, y, xd, yd, radial, d_radial, xt, yt)
-                x -= dx
-                y -= dy
-                if abs(dx) + abs(dy) <= MAP_ACCEPT and det > 0.0 and radial > 0.0:
-                    return _unit_nb(x, y)
+    if code == BROWN and p.shape[0] > _N_SLOTS:
+        x, y, z, ok = unproject_map_lanes(p, u, v)
+        if ok:
+            return x, y, z
     return unproject_nb(code, p, u, v)
 
 
