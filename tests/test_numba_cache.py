@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.geodesy import _nbgeo, ellipsoid
+from geoloc.surfaces import terrain
 from geoloc.surfaces import terrain_numba as tn
 from geoloc.surfaces.base import LineOfSight
 from geoloc.surfaces.dem import DEM
@@ -72,10 +73,20 @@ def test_walk_compiles_once_for_every_kind_of_input():
             for method in ("exact", "bisect"):
                 intersect_dem(l_, d_, method)
             intersect_dem(l_, d_, "exact", surface="triangles", trace=True)
-    assert len(tn.walk_kernel.signatures) == 1, tn.walk_kernel.signatures
-    # the one signature takes read-only inputs (so writable ones never need a second)
-    sig = tn.walk_kernel.signatures[0]
-    assert not sig[0].mutable and not sig[1].mutable and sig[-7].mutable
+        # the climbing kernel too: these rays would not climb, and the 30 x 30 DEM has no level 5
+        climb, climb_from = terrain.CLIMB, terrain.CLIMB_FROM
+        terrain.CLIMB, terrain.CLIMB_FROM = "always", 1
+        try:
+            intersect_dem(los, d_, "exact", surface="triangles")
+            intersect_dem(ro, d_, "exact", surface="triangles", trace=True)
+        finally:
+            terrain.CLIMB, terrain.CLIMB_FROM = climb, climb_from
+    # each of the two compilations of the walk (with and without the climb) has one signature
+    for kernel in (tn.walk_kernel, tn.walk_flat_kernel):
+        assert len(kernel.signatures) == 1, kernel.signatures
+        # the one signature takes read-only inputs (so writable ones never need a second)
+        sig = kernel.signatures[0]
+        assert not sig[0].mutable and not sig[1].mutable and sig[-7].mutable
 
 
 def test_walk_refuses_outputs_it_cannot_fill():

@@ -123,8 +123,10 @@ def _without_hierarchy(dem, los, surface):
 @pytest.mark.parametrize("climb_from", [1, terrain.CLIMB_FROM])
 @pytest.mark.parametrize("kind", ["oblique", "grazing_and_edge"])
 def test_hits_with_the_hierarchy_equal_trimesh(rough600, kind, climb_from, monkeypatch):
-    """Every level in use (climb_from 1: from 2 x 2 blocks up) and the default."""
+    """Every level in use (climb_from 1: from 2 x 2 blocks up) and the default; the climbing
+    kernel forced (CLIMB "always") against the one compiled without the climb (no levels)."""
     monkeypatch.setattr(terrain, "CLIMB_FROM", climb_from)
+    monkeypatch.setattr(terrain, "CLIMB", "always")
     dem = rough600
     rng = np.random.default_rng(17)
     if kind == "oblique":
@@ -156,10 +158,11 @@ def test_hits_with_the_hierarchy_equal_trimesh(rough600, kind, climb_from, monke
             assert h1.dem_evaluations.mean() < (0.5 if climb_from == 1 else 0.9) * h0.dem_evaluations.mean()
 
 
-def test_hierarchy_with_a_trace_and_no_data(rough600):
+def test_hierarchy_with_a_trace_and_no_data(rough600, monkeypatch):
     """With a trace (the kernel then finds the cell at every step, jumps included) and with
     a hole of no data in the DEM (a node above it is never skipped): the statuses and hits
     equal the walk without the levels above the blocks."""
+    monkeypatch.setattr(terrain, "CLIMB", "always")
     z = np.array(rough600.grid.values, float)
     z[250:260, 300:330] = np.nan
     g = rough600.grid
@@ -189,3 +192,33 @@ def test_rays_from_beyond_an_edge_are_left_dem(rough600):
     assert ok.sum() > 50 and np.nanmax(err) < 1e-7  # NaN: the rays that left the DEM here
     h0 = _without_hierarchy(rough600, los, "triangles")
     assert np.array_equal(h0.status, hit.status)
+
+
+def test_auto_climbs_for_grazing_views_only(rough600, monkeypatch):
+    """terrain.climbs ("auto"): the oblique views of the benchmark (8-45 deg below the horizon)
+    cannot jump a level-CLIMB_FROM node and walk without the climb; grazing views (0.3-4 deg)
+    over the 600 x 600 DEM climb. Either way the hits are the climbing walk's, bit for bit."""
+    from geoloc.surfaces import terrain_numba as tn
+
+    monkeypatch.setattr(terrain, "CLIMB_FROM", 3)  # nodes of 64 cells: the 600-node DEM holds several
+    tab = terrain._exact_tables(rough600)
+    rng = np.random.default_rng(23)
+    oblique = random_oblique_rays(rough600, 3000, rng, frame_angle_deg=(45.0, 82.0))
+    grazing = _grazing_and_edge_rays(rough600, 3000, rng)
+    flat = lambda los: (los.origin_ecef.reshape(-1, 3), los.direction_ecef.reshape(-1, 3))
+    assert not terrain.climbs(*flat(oblique), tab)
+    assert terrain.climbs(*flat(grazing), tab)
+    used = []
+    real = tn._kernel_for
+    monkeypatch.setattr(tn, "_kernel_for", lambda hlev: (used.append(len(hlev)), real(hlev))[1])
+    for los in (oblique, grazing):
+        auto = intersect_dem(los, rough600, "exact", dem_model="triangles")
+        monkeypatch.setattr(terrain, "CLIMB", "always")
+        forced = intersect_dem(los, rough600, "exact", dem_model="triangles")
+        monkeypatch.setattr(terrain, "CLIMB", "auto")
+        assert np.array_equal(auto.status, forced.status)
+        assert np.array_equal(auto.ecef, forced.ecef, equal_nan=True)
+    assert used[0] == 0 and used[1] > 0 and used[2] > 0 and used[3] > 0  # oblique auto: no levels
+    monkeypatch.setattr(terrain, "CLIMB", "sometimes")
+    with pytest.raises(ValueError, match="sometimes"):
+        terrain.climbs(*flat(oblique), tab)

@@ -23,6 +23,7 @@ Conventions: ``docs/conventions.md``. Batch functions return NaN and a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -365,6 +366,44 @@ _SORT_MIN_BYTES = 4 << 20
 CLIMB_FROM = 5
 #: Side of the ground tiles of that order, in cells.
 _SORT_TILE = 64
+#: Whether the walk climbs the levels above the blocks: ``"auto"`` (where it can pay, see
+#: :func:`climbs`), ``"always"`` or ``"never"``. The hits are the same either way, bit for bit.
+CLIMB = "auto"
+#: ``"auto"`` climbs when the rays' median horizontal run through the DEM's height range is
+#: longer than this many nodes of level :data:`CLIMB_FROM`: a shorter run cannot jump a node.
+CLIMB_MIN_NODES = 2.0
+
+
+def climbs(o, d, tab) -> bool:
+    """Whether :func:`_exact` hands the walk its levels above the blocks (:data:`CLIMB`).
+
+    A ray crosses the DEM's height range (its lowest to its highest node, plus the margins)
+    over a horizontal run of (height range) / tan(depression). When the median run (of up
+    to 2048 of the rays) is shorter than :data:`CLIMB_MIN_NODES` nodes of level
+    :data:`CLIMB_FROM` (BLOCK x 2^CLIMB_FROM cells), no jump can pay for the climb's tests,
+    and the walk is the compiled variant without them (``walk_flat_kernel``), whose cell
+    walk is 4-10 % faster (docs/terrain.md). Oblique views (8-45 deg below the horizon from
+    1500 m, ``benchmarks/bench_terrain.py``) do not climb; grazing views over a large DEM do.
+    """
+    if CLIMB != "auto":
+        if CLIMB not in ("always", "never"):
+            raise ValueError(f"terrain.CLIMB must be 'auto', 'always' or 'never', got {CLIMB!r}")
+        return CLIMB == "always" and len(tab["hlev"]) >= CLIMB_FROM
+    if len(tab["hlev"]) < CLIMB_FROM or len(o) == 0:
+        return False
+    step = max(1, len(o) // 2048)
+    oo, dd = o[::step], d[::step]
+    up = oo / np.linalg.norm(oo, axis=-1, keepdims=True)  # geocentric: enough for an order of magnitude
+    sin_dep = -np.sum(dd * up, -1) / np.linalg.norm(dd, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        run_m = (tab["h_max"] - tab["h_min"] + 2 * _MARGIN_M) * np.sqrt(1.0 - sin_dep ** 2) / sin_dep
+    run_m = np.where(sin_dep > 0, run_m, np.inf)
+    lat_mid = tab["lat_n"] - 0.5 * tab["dlat"] * (tab["hgt"].shape[0] - 1)
+    cell_m = A * min(tab["dlat"], tab["dlon"] * math.cos(lat_mid))
+    from geoloc.surfaces.terrain_numba import BLOCK
+
+    span_m = BLOCK * 2 ** CLIMB_FROM * cell_m
+    return bool(np.nanmedian(run_m) > CLIMB_MIN_NODES * span_m)
 
 
 def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
@@ -390,7 +429,8 @@ def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
     trace_ij = np.full((n, m, 2), -1, dtype=np.int64)
     (tn.walk_parallel if parallel else tn.walk)(
         o, d, tab["h_max"] + _MARGIN_M, tab["h_min"] - _MARGIN_M,
-        tab["hgt"], tab["lon_col"], tab["cinv"], tab["binv"], tab["hinv"], tab["hlev"][CLIMB_FROM - 1:],
+        tab["hgt"], tab["lon_col"], tab["cinv"], tab["binv"], tab["hinv"],
+        tab["hlev"][CLIMB_FROM - 1:] if climbs(o, d, tab) else tab["hlev"][:0],
         tab["row_geo"], tab["lat_n"], tab["lon_w"],
         tab["dlat"], tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"],
         surface == "triangles", s_out, p_out, geo_out, st, ncell, trace_s, trace_ij)

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import sys
+import types
 
 import numpy as np
 from numba import prange
@@ -56,6 +57,10 @@ _NOCONV = int(Status.NO_CONVERGENCE)
 _INVALID = int(Status.INVALID_INPUT)
 #: Cells per side of a block of the min/max hierarchy.
 BLOCK = 8
+#: True in :data:`walk_kernel`, False in :data:`walk_flat_kernel` (the same source compiled
+#: with the climb above the blocks left out: numba reads a global as a constant, so LLVM
+#: drops that code and the cell walk compiles as tightly as the two-level walk did).
+_CLIMB = True
 #: The cache key of this module's kernels (:func:`geoloc.geodesy._nbgeo.cached_njit`): they
 #: freeze A, B, E2, the status codes and the code of _nbgeo's conversions, so a change to
 #: any of those modules must compile them afresh, not load a stale cache.
@@ -431,7 +436,7 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, l
     nbr = binv.shape[0]
     nbc = binv.shape[1]
     nlev = hlev.shape[0]
-    climb = nlev > 0
+    climb = nlev > 0 and _CLIMB  # _CLIMB: a constant to LLVM, which drops the climb (walk_flat_kernel)
     mtrace = trace_s.shape[1]
     # the start cell's fast path needs the grid within 0.4 rad of its west meridian
     wide_ok = (nc - 1) * dlon < 0.4 and nr >= 2 and nc >= 2
@@ -1049,6 +1054,28 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, l
 #: which hands it the one signature it is compiled for.
 walk_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(_walk)
 
+
+def _flat(fn, name):
+    """``fn`` under another name, reading its globals from a copy in which ``_CLIMB`` is False."""
+    g = dict(fn.__globals__)
+    g["_CLIMB"] = False
+    f = types.FunctionType(fn.__code__, g, name, fn.__defaults__, fn.__closure__)
+    f.__qualname__ = name
+    f.__module__ = fn.__module__
+    return f
+
+
+#: The same walk compiled without the climb above the blocks: what :func:`walk` runs when it
+#: is given no levels (``hlev`` empty). The climb's code alone, unused, made the cell walk
+#: 4-10 % slower (its registers and branches in the hot loop; docs/terrain.md); the hits
+#: are the same bit for bit (the hierarchy only decides what is skipped).
+walk_flat_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(
+    _flat(_walk, "_walk_flat"))
+
+
+def _kernel_for(hlev):
+    return walk_kernel if np.shape(hlev)[0] > 0 else walk_flat_kernel
+
 # One signature per kernel. numba compiles a kernel once per distinct argument type, and
 # a read-only array is a type of its own: the origins and directions of a line-of-sight
 # batch are read-only views when they need no broadcast (np.broadcast_to) and fresh
@@ -1098,8 +1125,9 @@ def _call(kernel, args):
 def walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
          tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
          trace_s, trace_ij):
-    """The exact first hit for each ray, serial: :func:`_walk` (its docstring) compiled once."""
-    _call(walk_kernel, (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w,
+    """The exact first hit for each ray, serial: :func:`_walk` (its docstring) compiled once;
+    :data:`walk_flat_kernel` when ``hlev`` is empty (no levels above the blocks to climb)."""
+    _call(_kernel_for(hlev), (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w,
                         dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out,
                         status, ncell, trace_s, trace_ij))
 
@@ -1125,7 +1153,7 @@ def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, ro
 
     def part(a, b):
         o_, d_, s_, p_, g_, st_, nc_, ts_, tij_ = (x[a:b] for x in per_ray)
-        _call(walk_kernel, (o_, d_, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w,
+        _call(_kernel_for(hlev), (o_, d_, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w,
                             dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_, p_, g_, st_, nc_,
                             ts_, tij_))
 

@@ -1,0 +1,104 @@
+"""The exact DEM walk alone, this tree's against git revision REV's, on the same rays and tables.
+
+    python benchmarks/bench_walk_ab.py REV [--size N] [--repeat K]
+
+``--size 0`` (default) is the bundled SRTM crop with 10 000 oblique rays; ``--size N``
+the crop resampled to N x N nodes plus 3 m roughness (as ``bench_terrain.py --size``) with
+100 000 rays, frame angle 45-82 deg. REV's ``geoloc/surfaces/terrain_numba.py`` is loaded
+from ``git show`` as a scratch module and compiled in this process (a cold compile: tens of
+seconds); both walks get this tree's tables (REV's walk without ``hinv``/``hlev`` if it
+predates the hierarchy). Three rows, calls in turn (the machine's load swings), medians of
+CPU time per ray, one thread: REV's walk; this tree's with the levels from
+``terrain.CLIMB_FROM`` (the climbing kernel); this tree's with none (``walk_flat_kernel``).
+Each row says whether its statuses and hits equal REV's bit for bit. Measures what the
+walk costs; ``bench_terrain.py`` compares it with embree.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import inspect
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_terrain import SRTM, upsampled_dem  # benchmarks/ is on sys.path when run as a script
+
+from geoloc.surfaces import terrain
+from geoloc.surfaces import terrain_numba as tn
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import _MARGIN_M, random_oblique_rays
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def old_module(rev: str):
+    src = subprocess.run(["git", "show", f"{rev}:geoloc/surfaces/terrain_numba.py"], cwd=ROOT, check=True,
+                         capture_output=True, text=True).stdout
+    path = Path(tempfile.mkdtemp(prefix="bench_walk_ab_")) / f"tn_{rev.replace('/', '_')}.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[path.stem] = mod  # dependency_key reads the module's file
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("rev")
+    ap.add_argument("--size", type=int, default=0)
+    ap.add_argument("--repeat", type=int, default=11)
+    a = ap.parse_args(argv)
+    import numba
+
+    numba.set_num_threads(1)
+    old = old_module(a.rev)
+    dem = DEM.open(SRTM) if a.size == 0 else upsampled_dem(DEM.open(SRTM), a.size, np.random.default_rng(0))
+    los = random_oblique_rays(dem, 10_000 if a.size == 0 else 100_000, np.random.default_rng(1),
+                              frame_angle_deg=(45.0, 82.0))
+    o = np.ascontiguousarray(los.origin_ecef.reshape(-1, 3))
+    d = np.ascontiguousarray(los.direction_ecef.reshape(-1, 3))
+    t = terrain._exact_tables(dem)
+    n = len(o)
+    head = (o, d, t["h_max"] + _MARGIN_M, t["h_min"] - _MARGIN_M, t["hgt"], t["lon_col"], t["cinv"], t["binv"])
+    tail = (t["row_geo"], t["lat_n"], t["lon_w"], t["dlat"], t["dlon"], t["tan_row"], t["c_row"], t["sin_col"],
+            t["cos_col"], True)
+    old_has_levels = "hinv" in inspect.signature(old.walk).parameters
+
+    def outs():
+        return (np.empty(n), np.empty((n, 3)), np.empty((n, 4)), np.zeros(n, np.uint8), np.empty(n, np.int64),
+                np.full((n, 0), np.nan), np.full((n, 0, 2), -1, np.int64))
+
+    def run(walk, hlev, levels_arg=True):
+        r = outs()
+        walk(*head, *((t["hinv"], hlev) if levels_arg else ()), *tail, *r)
+        return r
+
+    rows = {f"{a.rev}": lambda: run(old.walk, t["hlev"][terrain.CLIMB_FROM - 1:], old_has_levels),
+            "this tree, climbing": lambda: run(tn.walk, t["hlev"][terrain.CLIMB_FROM - 1:]),
+            "this tree, flat": lambda: run(tn.walk, t["hlev"][:0])}
+    for f in rows.values():  # compile (or load) first
+        f()
+    times = {k: [] for k in rows}
+    res = {}
+    for _ in range(a.repeat):
+        for k, f in rows.items():
+            c = time.process_time()
+            res[k] = f()
+            times[k].append(time.process_time() - c)
+    ref = res[a.rev]
+    print(f"{'DEM: crop' if a.size == 0 else f'DEM: {a.size} x {a.size}'}, {n} rays, {a.repeat} calls each in turn, "
+          "one thread, median CPU time")
+    for k in rows:
+        same = np.array_equal(res[k][3], ref[3]) and np.array_equal(res[k][1], ref[1], equal_nan=True)
+        print(f"{k:22s} {np.median(times[k]) * 1e9 / n:8.1f} ns a ray   "
+              f"{np.median(times[k]) / np.median(times[a.rev]):5.3f} of {a.rev}   identical: {same}")
+
+
+if __name__ == "__main__":
+    main()
