@@ -27,14 +27,13 @@ meaningful when other processes load the machine (both sides see the same load).
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import subprocess
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
-from _timing import timed  # benchmarks/_timing.py (the script's folder is on sys.path)
+from _revision import (
+    module_at,  # benchmarks/_revision.py (the script's folder is on sys.path)
+)
+from _timing import timed  # benchmarks/_timing.py
 from pymap3d.los import lookAtSpheroid
 
 from geoloc.frames import rotations as rot
@@ -108,17 +107,7 @@ def compare(name, n, repeat, sensor, pose, rows, cols):
 
 def _old_fastlocate(rev: str):
     """The ``geoloc/sensors/_fastlocate.py`` of git revision ``rev``, imported as a scratch module."""
-    root = Path(__file__).resolve().parents[1]
-    src = subprocess.run(["git", "show", f"{rev}:geoloc/sensors/_fastlocate.py"], cwd=root, check=True,
-                         capture_output=True, text=True).stdout
-    path = Path(tempfile.mkdtemp(prefix="bench_ab_")) / f"_fastlocate_{rev.replace('/', '_')}.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location(path.stem, path)
-    mod = importlib.util.module_from_spec(spec)
-    import sys
-    sys.modules[path.stem] = mod  # dependency_key reads the module's file
-    spec.loader.exec_module(mod)
-    return mod
+    return module_at(rev, "geoloc/sensors/_fastlocate.py")
 
 
 def ab(rev: str, n: int, repeat: int, rng) -> None:

@@ -17,35 +17,17 @@ walk costs; ``bench_terrain.py`` compares it with embree.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import inspect
-import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
-from bench_terrain import SRTM, upsampled_dem  # benchmarks/ is on sys.path when run as a script
+from _revision import module_at  # benchmarks/ is on sys.path when run as a script
+from bench_terrain import SRTM, upsampled_dem
 
 from geoloc.surfaces import terrain
 from geoloc.surfaces import terrain_numba as tn
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.terrain import _MARGIN_M, random_oblique_rays
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def old_module(rev: str):
-    src = subprocess.run(["git", "show", f"{rev}:geoloc/surfaces/terrain_numba.py"], cwd=ROOT, check=True,
-                         capture_output=True, text=True).stdout
-    path = Path(tempfile.mkdtemp(prefix="bench_walk_ab_")) / f"tn_{rev.replace('/', '_')}.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location(path.stem, path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[path.stem] = mod  # dependency_key reads the module's file
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def main(argv=None) -> None:
@@ -57,7 +39,7 @@ def main(argv=None) -> None:
     import numba
 
     numba.set_num_threads(1)
-    old = old_module(a.rev)
+    old = module_at(a.rev, "geoloc/surfaces/terrain_numba.py")
     dem = DEM.open(SRTM) if a.size == 0 else upsampled_dem(DEM.open(SRTM), a.size, np.random.default_rng(0))
     los = random_oblique_rays(dem, 10_000 if a.size == 0 else 100_000, np.random.default_rng(1),
                               frame_angle_deg=(45.0, 82.0))
