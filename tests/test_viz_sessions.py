@@ -209,7 +209,11 @@ def test_presenter_mode_followers_mirror_the_driver(server):
         # the driver moves its camera: the follower's follows
         a.send_camera((3.0, -40.0, 25.0), (1.0, 2.0, 3.0))
         cam_b = lambda: np.asarray(f.client.camera.position)  # noqa: E731
-        wait_for(lambda: np.allclose(cam_b(), (3.0, -40.0, 25.0)), 20, "the follower's camera")
+        # the follower's position and look-at are set one after the other (two messages): wait
+        # for both, or this thread can read the look-at in between (seen once in CI)
+        wait_for(lambda: np.allclose(cam_b(), (3.0, -40.0, 25.0))
+                 and np.allclose(f.client.camera.look_at, (1.0, 2.0, 3.0), rtol=0, atol=1e-9),
+                 20, "the follower's camera")
         np.testing.assert_allclose(f.client.camera.look_at, (1.0, 2.0, 3.0), atol=1e-9)
         # take control: B drives (from A's state), A follows
         viewer.take_control(idb)
