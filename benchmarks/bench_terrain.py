@@ -45,7 +45,7 @@ from geoloc.assets import asset_path
 from geoloc.geodesy.ellipsoid import A
 from geoloc.status import Status
 from geoloc.surfaces import terrain
-from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.dem import DEM, upsampled_dem
 from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 
 SRTM = asset_path("dem", "srtm_jacksboro.tif")  # $GEOLOC_ASSETS, the package data or assets/
@@ -82,23 +82,6 @@ def median_times_alternating(fns, repeat):
             ts[k].append(time.perf_counter() - t)
             cs[k].append(time.process_time() - c)
     return [(statistics.median(a), statistics.median(b)) for a, b in zip(ts, cs)]
-
-
-def upsampled_dem(src: DEM, n: int, rng: np.random.Generator, roughness_m: float = 3.0) -> DEM:
-    """``src`` resampled bilinearly to n x n nodes over the same area, plus Gaussian
-    roughness (sigma ``roughness_m`` [m], drawn from ``rng``); heights ellipsoidal, as
-    ``src.grid.values`` are (DEM.open adds EGM96's undulation)."""
-    g = src.grid
-    z = np.asarray(g.values, float)
-    for axis in (0, 1):
-        m = z.shape[axis]
-        x = np.linspace(0.0, m - 1, n)
-        i = np.minimum(x.astype(int), m - 2)
-        w = (x - i).reshape((n, 1) if axis == 0 else (1, n))
-        z = np.take(z, i, axis) * (1 - w) + np.take(z, i + 1, axis) * w
-    z += rng.normal(0.0, roughness_m, z.shape)
-    return DEM.from_array(z, g.lat_north_deg, g.lon_west_deg, g.dlat_deg * (g.values.shape[0] - 1) / (n - 1),
-                          g.dlon_deg * (g.values.shape[1] - 1) / (n - 1), datum="ellipsoid")
 
 
 def _rss():

@@ -22,11 +22,11 @@ import time
 
 import numpy as np
 from _revision import module_at  # benchmarks/ is on sys.path when run as a script
-from bench_terrain import SRTM, upsampled_dem
+from bench_terrain import SRTM
 
 from geoloc.surfaces import terrain
 from geoloc.surfaces import terrain_numba as tn
-from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.dem import DEM, upsampled_dem
 from geoloc.surfaces.terrain import _MARGIN_M, random_oblique_rays
 
 

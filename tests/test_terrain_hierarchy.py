@@ -14,7 +14,7 @@ from geoloc.geodesy.local import R_ecef_enu
 from geoloc.status import Status
 from geoloc.surfaces import terrain
 from geoloc.surfaces.base import LineOfSight
-from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.dem import DEM, upsampled_dem
 from geoloc.surfaces.terrain import _MARGIN_M, intersect_dem, random_oblique_rays
 from geoloc.surfaces.terrain_numba import BLOCK
 
@@ -22,18 +22,8 @@ from geoloc.surfaces.terrain_numba import BLOCK
 def _rough_dem(n, seed, roughness_m=3.0):
     """The bundled SRTM crop resampled bilinearly to n x n nodes over the same area, plus
     seeded Gaussian roughness (sigma ``roughness_m``): cells ~50 m at n = 600."""
-    src = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
-    g = src.grid
-    z = np.asarray(g.values, float)
-    for axis in (0, 1):
-        m = z.shape[axis]
-        x = np.linspace(0.0, m - 1, n)
-        i = np.minimum(x.astype(int), m - 2)
-        w = (x - i).reshape((n, 1) if axis == 0 else (1, n))
-        z = np.take(z, i, axis) * (1 - w) + np.take(z, i + 1, axis) * w
-    z = z + np.random.default_rng(seed).normal(0.0, roughness_m, z.shape)
-    return DEM.from_array(z, g.lat_north_deg, g.lon_west_deg, g.dlat_deg * (g.values.shape[0] - 1) / (n - 1),
-                          g.dlon_deg * (g.values.shape[1] - 1) / (n - 1), datum="ellipsoid")
+    return upsampled_dem(DEM.open(asset_path("dem", "srtm_jacksboro.tif")), n, np.random.default_rng(seed),
+                         roughness_m)
 
 
 def _decode(inv):

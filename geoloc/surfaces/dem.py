@@ -481,6 +481,26 @@ class DEM:
                 f"W{w:.4f} S{s:.4f} E{e:.4f} N{n:.4f}, datum={self.datum})")
 
 
+def upsampled_dem(src: DEM, n: int, rng: np.random.Generator, roughness_m: float = 3.0) -> DEM:
+    """``src`` resampled bilinearly to n x n nodes over the same area, plus Gaussian roughness.
+
+    A large synthetic DEM for tests and benchmarks (``benchmarks/bench_terrain.py --size``,
+    ``tests/test_terrain_hierarchy.py``): sigma ``roughness_m`` [m], drawn from ``rng``;
+    heights ellipsoidal, as ``src.grid.values`` are (``DEM.open`` adds EGM96's undulation).
+    """
+    g = src.grid
+    z = np.asarray(g.values, float)
+    for axis in (0, 1):
+        m = z.shape[axis]
+        x = np.linspace(0.0, m - 1, n)
+        i = np.minimum(x.astype(int), m - 2)
+        w = (x - i).reshape((n, 1) if axis == 0 else (1, n))
+        z = np.take(z, i, axis) * (1 - w) + np.take(z, i + 1, axis) * w
+    z += rng.normal(0.0, roughness_m, z.shape)
+    return DEM.from_array(z, g.lat_north_deg, g.lon_west_deg, g.dlat_deg * (g.values.shape[0] - 1) / (n - 1),
+                          g.dlon_deg * (g.values.shape[1] - 1) / (n - 1), datum="ellipsoid")
+
+
 def _warp_to_geographic(grid: NodeGrid, crs_wkt: str) -> NodeGrid:
     """A projected node grid resampled (bilinear) at the nodes of a geographic grid.
 
