@@ -8,6 +8,7 @@ formula of [Q17 eq. 8]; the ECEF end must equal the core's
 the prime-vertical radius written out here. Every gimbal preset is walked.
 """
 
+import contextlib
 import dataclasses
 import math
 import time
@@ -424,9 +425,10 @@ def _render(server, panel, path=None):
 
 # Timeouts are 60 s: on the shared 2-core machine (load ~10) the viewer's own page takes ~40 s to
 # show its GUI text, with or without this panel; each test takes ~30 s on an idle machine.
-@pytest.mark.browser
-def test_teaching_panel_hop_highlight_and_table_in_chromium(tmp_path):
-    from test_viz_browser import ARTIFACTS, chromium, open_viewer, wait_for
+@contextlib.contextmanager
+def _panel_app():
+    """(server, app, panel): the default scene on a viser server with the teaching panel alone."""
+    from test_viz_browser import ARTIFACTS
 
     from geoloc.viz import teaching_panel
     from geoloc.viz.app import GeolocApp, make_server
@@ -436,7 +438,16 @@ def test_teaching_panel_hop_highlight_and_table_in_chromium(tmp_path):
     server = make_server(port=0)
     try:
         app = GeolocApp(server, load_view_scenario(), layers=())  # the panel alone, attached below
-        p = teaching_panel.attach(app)
+        yield server, app, teaching_panel.attach(app)
+    finally:
+        server.stop()
+
+
+@pytest.mark.browser
+def test_teaching_panel_hop_highlight_and_table_in_chromium(tmp_path):
+    from test_viz_browser import ARTIFACTS, chromium, open_viewer, wait_for
+
+    with _panel_app() as (server, _app, p):
         p.dd_hop.value = "(none)"
         with chromium(tmp_path) as browser:
             page = open_viewer(browser, server, 1280, 800)
@@ -454,23 +465,13 @@ def test_teaching_panel_hop_highlight_and_table_in_chromium(tmp_path):
             for role in ("src", "dst"):
                 # highlight balls of 0.45 frame sizes: hundreds of pixels at this view, (almost) none before
                 assert _colour_pixels(img1, role) > 40 + 2 * _colour_pixels(img0, role), role
-    finally:
-        server.stop()
 
 
 @pytest.mark.browser
 def test_teaching_panel_animation_changes_the_scene_in_chromium(tmp_path):
     from test_viz_browser import ARTIFACTS, chromium, open_viewer, wait_for
 
-    from geoloc.viz import teaching_panel
-    from geoloc.viz.app import GeolocApp, make_server
-    from geoloc.viz.scenario import load_view_scenario
-
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
-        app = GeolocApp(server, load_view_scenario(), layers=())  # the panel alone, attached below
-        p = teaching_panel.attach(app)
+    with _panel_app() as (server, app, p):
         p.anim_steps, p.anim_dt_s = 120, 1.0  # up to 2 min: two renders (2-40 s each) while it runs, then stopped
         assert p.dd_angle.value == "gimbal_roll"  # the first joint angle: -45 deg at T3-1
         with chromium(tmp_path) as browser:
@@ -494,5 +495,3 @@ def test_teaching_panel_animation_changes_the_scene_in_chromium(tmp_path):
             q = np.asarray(server.scene.get_handle_by_name("/enu/teach/frames/gimbal_outer").wxyz)
             assert min(np.abs(q - wxyz(R)).max(), np.abs(q + wxyz(R)).max()) < 1e-9
             page.wait_for_selector("text=animated from 0", timeout=60000)
-    finally:
-        server.stop()
