@@ -205,6 +205,26 @@ def _par_exit(tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, s, north):
 
 
 @cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+def _par_exit_kept(same, kept, kept2, tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, s, north):
+    """:func:`_par_exit`, or (kept, kept2) when the parallel is one whose crossings are known
+    (``same``: a side shared with the node or block the ray is leaving keeps its crossing)."""
+    if same:
+        return kept, kept2
+    return _par_exit(tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, s, north)
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+def _mer_ahead_kept(along, same, kept, sin_m, cos_m, ox, oy, dx, dy, s, east):
+    """The crossing of the meridian ahead: inf if the line crosses none (``along`` False),
+    ``kept`` when that meridian is a shared side whose crossing is known, else :func:`_mer_exit`."""
+    if not along:
+        return np.inf
+    if same:
+        return kept
+    return _mer_exit(sin_m, cos_m, ox, oy, dx, dy, s, east)
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def _geodetic_near(x, y, z, lat0, s0, c0, lon0, sl0, cl0):
     """ECEF -> (lat, lon, h) of a point near the parallel lat0 (sin, cos s0, c0) and the
     meridian lon0 (sin, cos sl0, cl0), e.g. a hit and the corner of its cell.
@@ -703,23 +723,13 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, l
                         c0 = nj * span
                         c1 = min(c0 + span, nc - 1)
                         # the node's sides: a side it shares with the smaller node keeps its crossing
-                        if a0 == gi0:
-                            nN = gN
-                            nN2 = gN2
-                        else:
-                            nN, nN2 = _par_exit(tan_row[a0], c_row[a0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
-                        if a1 == gi1:
-                            nS = gS
-                            nS2 = gS2
-                        else:
-                            nS, nS2 = _par_exit(tan_row[a1], c_row[a1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
-                        nM = np.inf
-                        if along:
-                            if (c1 == gj1) if east else (c0 == gj0):
-                                nM = gM
-                            else:
-                                jm = c1 if east else c0
-                                nM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
+                        nN, nN2 = _par_exit_kept(a0 == gi0, gN, gN2, tan_row[a0], c_row[a0], oz, dz, dz2, dxy2,
+                                                 oxd, oxy2, s, True)
+                        nS, nS2 = _par_exit_kept(a1 == gi1, gS, gS2, tan_row[a1], c_row[a1], oz, dz, dz2, dxy2,
+                                                 oxd, oxy2, s, False)
+                        jm = c1 if east else c0
+                        nM = _mer_ahead_kept(along, (c1 == gj1) if east else (c0 == gj0), gM, sin_col[jm],
+                                             cos_col[jm], ox, oy, dx, dy, s, east)
                         nE = min(nN, nS, nM)
                         e = nE if nE < send else send
                         if not (((qa * e + 2.0 * hb) * e + qc > 0.0)
@@ -774,16 +784,10 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, l
                         i1 = min(i0 + BLOCK, nr - 1)
                         j0 = bj * BLOCK
                         j1 = min(j0 + BLOCK, nc - 1)
-                        if i0 == gi0:
-                            bN = gN
-                            bN2 = gN2
-                        else:
-                            bN, bN2 = _par_exit(tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
-                        if i1 == gi1:
-                            bS = gS
-                            bS2 = gS2
-                        else:
-                            bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
+                        bN, bN2 = _par_exit_kept(i0 == gi0, gN, gN2, tan_row[i0], c_row[i0], oz, dz, dz2, dxy2,
+                                                 oxd, oxy2, s, True)
+                        bS, bS2 = _par_exit_kept(i1 == gi1, gS, gS2, tan_row[i1], c_row[i1], oz, dz, dz2, dxy2,
+                                                 oxd, oxy2, s, False)
                         jm = j1 if east else j0
                         bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
                         came = 2
@@ -824,13 +828,9 @@ def _walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, l
                             bN2 = np.inf
                             bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
                             came = 0
-                        bM = np.inf
-                        if along:
-                            if (j1 == gj1) if east else (j0 == gj0):
-                                bM = gM
-                            else:
-                                jm = j1 if east else j0
-                                bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
+                        jm = j1 if east else j0
+                        bM = _mer_ahead_kept(along, (j1 == gj1) if east else (j0 == gj0), gM, sin_col[jm],
+                                             cos_col[jm], ox, oy, dx, dy, s, east)
                     continue
                 s = sx
                 side = 2 if sx == bM else (0 if sx == bN else 1)
