@@ -9,7 +9,7 @@ from test_terrain_trimesh import (
 )
 
 from geoloc.assets import asset_path
-from geoloc.geodesy.ellipsoid import A, geodetic_to_ecef
+from geoloc.geodesy.ellipsoid import A, B, geodetic_to_ecef
 from geoloc.geodesy.local import R_ecef_enu
 from geoloc.status import Status
 from geoloc.surfaces import terrain
@@ -212,3 +212,86 @@ def test_auto_climbs_for_grazing_views_only(rough600, monkeypatch):
     monkeypatch.setattr(terrain, "CLIMB", "sometimes")
     with pytest.raises(ValueError, match="sometimes"):
         terrain.climbs(*flat(oblique), tab)
+
+
+def test_walk_order_changes_no_hit(rough600, monkeypatch):
+    """The kernel walks the rays in ray_order's tile-by-tile order (reading each ray through
+    the order, writing its results in its own row): the statuses, hits, heights and steps
+    equal those of the walk in the given order, bit for bit, serial and on two threads;
+    the order is a permutation."""
+    from geoloc.surfaces import terrain_numba as tn
+
+    los = random_oblique_rays(rough600, 5000, np.random.default_rng(31), frame_angle_deg=(0.0, 82.0))
+    monkeypatch.setattr(terrain, "_SORT_MIN_RAYS", 10**9)
+    plain = intersect_dem(los, rough600, "exact", dem_model="triangles")
+    monkeypatch.setattr(terrain, "_SORT_MIN_RAYS", 1)
+    monkeypatch.setattr(terrain, "_SORT_MIN_BYTES", 0)  # the 600 x 600 tables are below the default
+    for parallel in (False, True):
+        got = intersect_dem(los, rough600, "exact", dem_model="triangles", parallel=parallel)
+        assert np.array_equal(got.status, plain.status)
+        assert np.array_equal(got.ecef, plain.ecef, equal_nan=True)
+        assert np.array_equal(got.h, plain.h, equal_nan=True)
+        assert np.array_equal(got.dem_evaluations, plain.dem_evaluations)
+    tab = terrain._exact_tables(rough600)
+    o, d = los.origin_ecef.reshape(-1, 3), los.direction_ecef.reshape(-1, 3)
+    order = tn.ray_order(o, d, 0.5 * (tab["h_max"] + tab["h_min"]), tab["lat_n"], tab["lon_w"], tab["dlat"],
+                         tab["dlon"], 64, -(-600 // 64) + 2)
+    assert np.array_equal(np.sort(order), np.arange(len(o)))
+
+
+def test_tile_keys_against_geodetic_tiles(rough600):
+    """ray_order's keys take the angles from the DEM's corner as their tangents (no atan2):
+    against tiles computed from the exact latitude and longitude (pyproj) of the point where
+    each ray meets the middle height, the tile row and column agree for all but the rays
+    within 1e-6 of a tile's width of a tile boundary (tan x - x ~ x^3/3 ~ 1e-7 of the
+    0.1-degree DEM), here none of 5000."""
+    import pyproj
+
+    from geoloc.surfaces import terrain_numba as tn
+
+    los = random_oblique_rays(rough600, 5000, np.random.default_rng(32), frame_angle_deg=(0.0, 82.0))
+    tab = terrain._exact_tables(rough600)
+    o = np.ascontiguousarray(los.origin_ecef.reshape(-1, 3))
+    d = np.ascontiguousarray(los.direction_ecef.reshape(-1, 3))
+    h_mid, cells = 0.5 * (tab["h_max"] + tab["h_min"]), 64
+    nt = -(-600 // cells) + 2
+    keys = np.empty(len(o), np.int64)
+    tn._tile_keys(o, d, 1.0 / (A + h_mid) ** 2, 1.0 / (B + h_mid) ** 2, np.tan(tab["lat_n"]),
+                  np.sin(tab["lon_w"]), np.cos(tab["lon_w"]), tab["dlat"] * cells, tab["dlon"] * cells, nt, keys)
+    # the point at height h_mid on each ray: pyproj's geodetic coordinates of the ray points,
+    # bisected on the ray parameter (the rays come down from 1500 m above the terrain)
+    ecef_to_lla = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    un = d / np.linalg.norm(d, axis=1, keepdims=True)
+    lo_s, hi_s = np.zeros(len(o)), np.full(len(o), 2e5)
+    for _ in range(60):
+        mid = 0.5 * (lo_s + hi_s)
+        p = o + mid[:, None] * un
+        _, _, hh = ecef_to_lla.transform(p[:, 0], p[:, 1], p[:, 2])
+        above = hh > h_mid
+        lo_s, hi_s = np.where(above, mid, lo_s), np.where(above, hi_s, mid)
+    p = o + hi_s[:, None] * un
+    lon, lat, _ = ecef_to_lla.transform(p[:, 0], p[:, 1], p[:, 2])
+    fi = (tab["lat_n"] - np.deg2rad(lat)) / (tab["dlat"] * cells)
+    fj = (np.deg2rad(lon) - tab["lon_w"]) / (tab["dlon"] * cells)
+    ti = np.clip(np.floor(fi + 1.0), 0, nt - 1).astype(int)
+    tj = np.clip(np.floor(fj + 1.0), 0, nt - 1).astype(int)
+    want = ti * nt + np.where(ti % 2 == 1, nt - 1 - tj, tj)
+    near_edge = (np.abs(fi - np.round(fi)) < 1e-6) | (np.abs(fj - np.round(fj)) < 1e-6)
+    assert np.array_equal(keys[~near_edge], want[~near_edge]) and near_edge.sum() == 0
+
+
+def test_walk_refuses_a_bad_order(rough600):
+    from geoloc.surfaces import terrain_numba as tn
+
+    tab = terrain._exact_tables(rough600)
+    o = np.array([[A + 2000.0, 0.0, 0.0]])
+    d = np.array([[-1.0, 0.0, 0.0]])
+    outs = (np.empty(1), np.empty((1, 3)), np.empty((1, 4)), np.zeros(1, np.uint8), np.empty(1, np.int64),
+            np.full((1, 0), np.nan), np.full((1, 0, 2), -1, np.int64))
+    args = (o, d, tab["h_max"] + _MARGIN_M, tab["h_min"] - _MARGIN_M, tab["hgt"], tab["lon_col"], tab["cinv"],
+            tab["binv"], tab["hinv"], tab["hlev"][:0], tab["row_geo"], tab["lat_n"], tab["lon_w"], tab["dlat"],
+            tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"], True, *outs)
+    for bad in (np.array([1]), np.array([-1]), np.zeros((1, 1), np.int64)):
+        with pytest.raises(ValueError, match="order"):
+            tn.walk(*args, order=bad)
+    tn.walk(*args, order=np.array([0]))  # a good one runs

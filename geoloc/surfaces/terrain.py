@@ -417,9 +417,6 @@ def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
         nt = -(-max(tab["hgt"].shape) // _SORT_TILE) + 2
         order = tn.ray_order(o, d, 0.5 * (tab["h_max"] + tab["h_min"]), tab["lat_n"], tab["lon_w"],
                              tab["dlat"], tab["dlon"], _SORT_TILE, nt)
-    st_in = st
-    if order is not None:
-        o, d, st = o[order], d[order], st[order]
     s_out = np.empty(n)
     p_out = np.empty((n, 3))
     geo_out = np.empty((n, 4))
@@ -433,14 +430,7 @@ def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
         tab["hlev"][CLIMB_FROM - 1:] if climbs(o, d, tab) else tab["hlev"][:0],
         tab["row_geo"], tab["lat_n"], tab["lon_w"],
         tab["dlat"], tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"],
-        surface == "triangles", s_out, p_out, geo_out, st, ncell, trace_s, trace_ij)
-    if order is not None:  # back to the caller's order
-        inv = np.empty_like(order)
-        inv[order] = np.arange(n)
-        p_out, ncell, s_out, geo_out = p_out[inv], ncell[inv], s_out[inv], geo_out[inv]
-        st_in[:] = st[inv]
-        if trace_on:
-            trace_s, trace_ij = trace_s[inv], trace_ij[inv]
+        surface == "triangles", s_out, p_out, geo_out, st, ncell, trace_s, trace_ij, order=order)
     return p_out, ncell, s_out, (trace_s, trace_ij), geo_out.T
 
 
