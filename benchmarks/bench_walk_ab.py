@@ -24,6 +24,7 @@ import numpy as np
 from _revision import module_at  # benchmarks/ is on sys.path when run as a script
 from bench_terrain import SRTM
 
+from geoloc.geodesy.ellipsoid import A, B
 from geoloc.surfaces import terrain
 from geoloc.surfaces import terrain_numba as tn
 from geoloc.surfaces.dem import DEM, upsampled_dem
@@ -47,7 +48,18 @@ def main(argv=None) -> None:
     d = np.ascontiguousarray(los.direction_ecef.reshape(-1, 3))
     t = terrain._exact_tables(dem)
     n = len(o)
-    head = (o, d, t["h_max"] + _MARGIN_M, t["h_min"] - _MARGIN_M, t["hgt"], t["lon_col"], t["cinv"], t["binv"])
+    head = (o, d, t["h_max"] + _MARGIN_M, t["h_floor"], t["hgt"], t["lon_col"], t["cinv"], t["binv"])
+    if dict((k, v) for k, v, _ in old._IN)["binv"] != np.float32:
+        # REV's walk reads absolute (1/(a+H)^2, 1/(b+H)^2): binv in float64, cinv float32 rounded
+        # toward zero (a larger ellipsoid), decoded from this tree's offsets (terrain._offsets32)
+        ref = np.array([1.0 / (A + t["h_floor"]) ** 2, 1.0 / (B + t["h_floor"]) ** 2])
+        c64 = ref + t["cinv"].astype(float)
+        c32 = c64.astype(np.float32)
+        up = c32.astype(float) > c64
+        c32[up] = np.nextafter(c32[up], np.float32(0))
+        old_head = head[:6] + (c32, ref + t["binv"].astype(float))
+    else:
+        old_head = head
     tail = (t["row_geo"], t["lat_n"], t["lon_w"], t["dlat"], t["dlon"], t["tan_row"], t["c_row"], t["sin_col"],
             t["cos_col"], True)
     old_has_levels = "hinv" in inspect.signature(old.walk).parameters
@@ -56,12 +68,12 @@ def main(argv=None) -> None:
         return (np.empty(n), np.empty((n, 3)), np.empty((n, 4)), np.zeros(n, np.uint8), np.empty(n, np.int64),
                 np.full((n, 0), np.nan), np.full((n, 0, 2), -1, np.int64))
 
-    def run(walk, hlev, levels_arg=True):
+    def run(walk, hlev, levels_arg=True, head=head):
         r = outs()
         walk(*head, *((t["hinv"], hlev) if levels_arg else ()), *tail, *r)
         return r
 
-    rows = {f"{a.rev}": lambda: run(old.walk, t["hlev"][terrain.CLIMB_FROM - 1:], old_has_levels),
+    rows = {f"{a.rev}": lambda: run(old.walk, t["hlev"][terrain.CLIMB_FROM - 1:], old_has_levels, old_head),
             "this tree, climbing": lambda: run(tn.walk, t["hlev"][terrain.CLIMB_FROM - 1:]),
             "this tree, flat": lambda: run(tn.walk, t["hlev"][:0])}
     for f in rows.values():  # compile (or load) first

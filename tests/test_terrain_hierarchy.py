@@ -288,10 +288,36 @@ def test_walk_refuses_a_bad_order(rough600):
     d = np.array([[-1.0, 0.0, 0.0]])
     outs = (np.empty(1), np.empty((1, 3)), np.empty((1, 4)), np.zeros(1, np.uint8), np.empty(1, np.int64),
             np.full((1, 0), np.nan), np.full((1, 0, 2), -1, np.int64))
-    args = (o, d, tab["h_max"] + _MARGIN_M, tab["h_min"] - _MARGIN_M, tab["hgt"], tab["lon_col"], tab["cinv"],
+    args = (o, d, tab["h_max"] + _MARGIN_M, tab["h_floor"], tab["hgt"], tab["lon_col"], tab["cinv"],
             tab["binv"], tab["hinv"], tab["hlev"][:0], tab["row_geo"], tab["lat_n"], tab["lon_w"], tab["dlat"],
             tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"], True, *outs)
     for bad in (np.array([1]), np.array([-1]), np.zeros((1, 1), np.int64)):
         with pytest.raises(ValueError, match="order"):
             tn.walk(*args, order=bad)
     tn.walk(*args, order=np.array([0]))  # a good one runs
+
+
+def test_table_offsets_are_conservative_and_tight():
+    """terrain._offsets32: the cell and block tables hold float32 offsets from the floor's
+    (1/(a+h_floor)^2, 1/(b+h_floor)^2). Added back in float64 (as the kernel does) they give
+    an ellipsoid never smaller than the one of H (a skipped cell stays clear: the decoded
+    height is >= H, in both semi-axes), and at most 2.5e-3 m larger for H up to 10 km above
+    the floor (rounded down plus one more float32 step: two steps of 1.2e-7 relative on
+    H - h_floor, 2.4e-3 m there); the absolute float32 form this replaced lost up to
+    0.4 m. NaN (no data) stays NaN."""
+    rng = np.random.default_rng(9)
+    h_floor = -431.0  # the Dead Sea shore, below the ellipsoid: offsets of both signs of H
+    H = np.concatenate([h_floor + rng.uniform(0.0, 10_000.0, 200_000), [h_floor + 1e-6, np.nan]])
+    inv64 = np.stack([1 / (A + H) ** 2, 1 / (B + H) ** 2], -1)
+    off = terrain._offsets32(inv64, h_floor)
+    assert off.dtype == np.float32
+    ref = np.array([1.0 / ((A + h_floor) * (A + h_floor)), 1.0 / ((B + h_floor) * (B + h_floor))])
+    dec = ref + off.astype(np.float64)
+    Ha = 1.0 / np.sqrt(dec[:, 0]) - A
+    Hb = 1.0 / np.sqrt(dec[:, 1]) - B
+    fin = ~np.isnan(H)
+    assert np.isnan(dec[~fin]).all()
+    # compared as squared reciprocals (exact in the test's float64): never a smaller ellipsoid
+    assert (dec[fin] <= inv64[fin]).all()
+    assert (Ha[fin] - H[fin]).max() < 2.5e-3 and (Hb[fin] - H[fin]).max() < 2.5e-3
+    assert (Ha[fin] - H[fin]).min() > -1e-6  # the sqrt's own rounding of a + H, ~1e-9 m

@@ -261,6 +261,30 @@ def _hidden(o, d, s_bis, s_first, dem, ok):
 
 
 # --------------------------------------------------------------------------- exact
+def _offsets32(inv64, h_floor):
+    """The walk's form of a table of (1/(a+H)^2, 1/(b+H)^2): float32 offsets from the floor's
+    (1/(a+h_floor)^2, 1/(b+h_floor)^2), which the kernel adds back in float64 (its
+    ``ia_floor``, ``ib_floor``: :func:`geoloc.surfaces.terrain_numba.walk`'s ``h_floor``).
+
+    float32 halves the table (100 MB instead of 200 on 3601 x 3601 nodes; its loads are
+    the walk's largest stall), and an offset keeps float32's relative precision on
+    H - h_floor: 2.4e-4 m at most on a 1 km range, where float32 of 1/(a+H)^2 itself lost
+    up to 0.4 m (a looser skip test: more cells tested for nothing). Rounded down, then
+    one float32 step further, i.e. to a slightly larger ellipsoid (by up to two steps,
+    2.4e-7 (H - h_floor)):
+    that step is far above the float64 rounding of the kernel's sum (~1e-16 relative),
+    so a skipped cell or block is clear of the terrain; the hits do not change. NaN (no
+    data) stays NaN.
+    """
+    ref = np.array([1.0 / ((A + h_floor) * (A + h_floor)), 1.0 / ((B + h_floor) * (B + h_floor))])
+    off = inv64 - ref
+    off32 = off.astype(np.float32)
+    up = off32.astype(float) > off
+    off32[up] = np.nextafter(off32[up], np.float32(-np.inf))
+    off32 = np.nextafter(off32, np.float32(-np.inf))
+    return np.ascontiguousarray(off32)
+
+
 def _exact_tables(dem: DEM):
     tab = getattr(dem, "_exact_tables", None)
     if tab is not None:
@@ -291,25 +315,18 @@ def _exact_tables(dem: DEM):
     # skip test of the walk: the ellipsoid inflated to the cell's highest node + margin
     # [Q17 eq. 11]; it departs from the constant-height surface by far less than the margin
     hs = cmax + _MARGIN_M
-    cinv64 = np.stack([1 / (A + hs) ** 2, 1 / (B + hs) ** 2], -1)
-    # float32 halves the table (2.2 MB -> 1.1 MB on the SRTM crop: its loads were the
-    # walk's largest stall); rounded toward zero (one float32 ulp, 1.2e-7 relative, is
-    # at most 0.4 m of height), i.e. to a larger ellipsoid, so that a skipped cell is
-    # still clear of the terrain: only more cells are tested, the hits do not change
-    cinv = cinv64.astype(np.float32)
-    up = cinv.astype(float) > cinv64
-    cinv[up] = np.nextafter(cinv[up], np.float32(0))
-    cinv = np.ascontiguousarray(cinv)
+    h_floor = dem.min_height() - _MARGIN_M  # where the walk ends: its ellipsoid is the tables' reference
+    cinv = _offsets32(np.stack([1 / (A + hs) ** 2, 1 / (B + hs) ** 2], -1), h_floor)
     from geoloc.surfaces.terrain_numba import BLOCK
 
     nbr, nbc = -(-(nr - 1) // BLOCK), -(-(nc - 1) // BLOCK)
     bmax = np.full((nbr * BLOCK, nbc * BLOCK), -np.inf)
     bmax[: nr - 1, : nc - 1] = cmax  # NaN (no data) propagates: such blocks are never skipped
     bmax = bmax.reshape(nbr, BLOCK, nbc, BLOCK).max(axis=(1, 3)) + _MARGIN_M
-    binv = np.ascontiguousarray(np.stack([1 / (A + bmax) ** 2, 1 / (B + bmax) ** 2], -1))
+    binv = _offsets32(np.stack([1 / (A + bmax) ** 2, 1 / (B + bmax) ** 2], -1), h_floor)
     hinv, hlev = _hierarchy(bmax)
     # the DEM's height range, once (a nanmax over 13 M nodes is 20 ms on a 3601 x 3601 DEM)
-    tab = dict(h_max=dem.max_height(), h_min=dem.min_height(), hgt=hgt, lon_col=lon_cols, cinv=cinv,
+    tab = dict(h_max=dem.max_height(), h_min=dem.min_height(), h_floor=h_floor, hgt=hgt, lon_col=lon_cols, cinv=cinv,
                binv=binv, hinv=hinv, hlev=hlev, row_geo=row_geo, lat_n=lat_n,
                lon_w=lon_w, dlat=dlat, dlon=dlon, tan_row=tan_row, c_row=c_row,
                sin_col=np.sin(lon_cols), cos_col=np.cos(lon_cols))
@@ -425,7 +442,7 @@ def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
     trace_s = np.full((n, m), np.nan)
     trace_ij = np.full((n, m, 2), -1, dtype=np.int64)
     (tn.walk_parallel if parallel else tn.walk)(
-        o, d, tab["h_max"] + _MARGIN_M, tab["h_min"] - _MARGIN_M,
+        o, d, tab["h_max"] + _MARGIN_M, tab["h_floor"],
         tab["hgt"], tab["lon_col"], tab["cinv"], tab["binv"], tab["hinv"],
         tab["hlev"][CLIMB_FROM - 1:] if climbs(o, d, tab) else tab["hlev"][:0],
         tab["row_geo"], tab["lat_n"], tab["lon_w"],

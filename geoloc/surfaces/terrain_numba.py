@@ -459,8 +459,10 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
     keeps its second root). The longitude runs one way along a straight line, so only
     the meridian ahead is tested.
 
-    cinv[i, j] = (1/(a+H)^2, 1/(b+H)^2) of the ellipsoid inflated to H = cell max + margin
-    (float32 rounded toward zero by the caller, i.e. a slightly larger ellipsoid):
+    cinv[i, j] = (1/(a+H)^2, 1/(b+H)^2) of the ellipsoid inflated to H = cell max + margin,
+    as float32 offsets from the floor's (1/(a+h_floor)^2, 1/(b+h_floor)^2), rounded by the
+    caller toward a slightly larger ellipsoid (:func:`geoloc.surfaces.terrain._offsets32`;
+    the tables are made for the ``h_floor`` they are walked with):
     the ray's part in a cell is skipped when it stays outside that ellipsoid (the
     quadratic |P'(s)|^2 - 1 of [Q17 eq. 11] is convex in s, so its minimum on the
     cell's interval decides). binv is the same for blocks (their highest node): a
@@ -656,10 +658,10 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
                 break
             # ------------------------------------------------ block level
             sx = min(bN, bS, bM)
-            ia = binv[np.uint64(bi), np.uint64(bj), 0]
+            ia = ia_floor + binv[np.uint64(bi), np.uint64(bj), 0]
             clear = False
             if ia == ia:  # NaN: no data in the block, never skipped
-                ib = binv[np.uint64(bi), np.uint64(bj), 1]
+                ib = ib_floor + binv[np.uint64(bi), np.uint64(bj), 1]
                 e = sx if sx < send else send
                 # F(s) = qa s^2 + 2 hb s + qc = |P'(s)|^2 - 1 on the block's inflated
                 # ellipsoid is convex: clear iff F > 0 at both ends and at the vertex
@@ -920,12 +922,12 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
                     # wraparound on the table reads (+3 %)
                     ui = np.uint64(i)
                     uj = np.uint64(j)
-                    ia = cinv[ui, uj, 0]
+                    ia = ia_floor + cinv[ui, uj, 0]
                     if ia != ia:
                         st = _NODATA
                         done = True
                         break
-                    ib = cinv[ui, uj, 1]
+                    ib = ib_floor + cinv[ui, uj, 1]
                     qa = dxy2 * ia + dz2 * ib
                     hb = oxd * ia + ozd * ib
                     qc = oxy2 * ia + oz2 * ib - 1.0
@@ -1131,7 +1133,7 @@ def _kernel_for(hlev):
 # views of the dtype below (a view: no copy), scalars as Python floats / bool, and the
 # outputs are checked to be writable C-ordered arrays of the dtype the kernel fills.
 _IN = (("o", np.float64, 2), ("d", np.float64, 2), ("hgt", np.float64, 2), ("lon_col", np.float64, 1),
-       ("cinv", np.float32, 3), ("binv", np.float64, 3), ("hinv", np.float64, 2), ("hlev", np.int64, 2),
+       ("cinv", np.float32, 3), ("binv", np.float32, 3), ("hinv", np.float64, 2), ("hlev", np.int64, 2),
        ("row_geo", np.float64, 2))
 _IN2 = (("tan_row", np.float64, 1), ("c_row", np.float64, 1), ("sin_col", np.float64, 1),
         ("cos_col", np.float64, 1))
