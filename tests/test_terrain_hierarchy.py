@@ -309,7 +309,7 @@ def test_table_offsets_are_conservative_and_tight():
     h_floor = -431.0  # the Dead Sea shore, below the ellipsoid: offsets of both signs of H
     H = np.concatenate([h_floor + rng.uniform(0.0, 10_000.0, 200_000), [h_floor + 1e-6, np.nan]])
     inv64 = np.stack([1 / (A + H) ** 2, 1 / (B + H) ** 2], -1)
-    off = terrain._offsets32(inv64, h_floor)
+    off = terrain._offsets32(inv64.copy(), h_floor)  # it overwrites its argument
     assert off.dtype == np.float32
     ref = np.array([1.0 / ((A + h_floor) * (A + h_floor)), 1.0 / ((B + h_floor) * (B + h_floor))])
     dec = ref + off.astype(np.float64)
