@@ -49,7 +49,7 @@ def main(argv=None) -> None:
     t = terrain._exact_tables(dem)
     n = len(o)
     head = (o, d, t["h_max"] + _MARGIN_M, t["h_floor"], t["hgt"], t["lon_col"], t["cinv"], t["binv"])
-    if dict((k, v) for k, v, _ in old._IN)["binv"] != np.float32:
+    if {k: v for k, v, _ in getattr(old, "_IN", ())}.get("binv", np.float64) != np.float32:
         # REV's walk reads absolute (1/(a+H)^2, 1/(b+H)^2): binv in float64, cinv float32 rounded
         # toward zero (a larger ellipsoid), decoded from this tree's offsets (terrain._offsets32)
         ref = np.array([1.0 / (A + t["h_floor"]) ** 2, 1.0 / (B + t["h_floor"]) ** 2])
