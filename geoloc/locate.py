@@ -166,7 +166,7 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
         raise ValueError("engine='numba' needs surface='inflated', no chain, and a sensor the kernel serves "
                          "(one lens, no per-sample perturbation)")
     row, col = _default_pixel(s, row, col)
-    if engine == "numba" or (engine == "auto" and fast_ok and _batch_size(pose, row, col, target_h) >= 10_000):
+    if engine == "numba" or (engine == "auto" and fast_ok and pose.batch_size(row, col, target_h) >= 10_000):
         from geoloc.sensors._fastlocate import locate_fast
 
         lat, lon, h, ecef, rng, status, o, d = locate_fast(pose, s, row, col, target_h, outside=outside)
@@ -176,11 +176,6 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
     los = line_of_sight(pose, sensor, row, col, chain=chain, outside=outside,
                         engine="numpy" if engine == "numpy" else "auto")
     return HeightSurface(target_h, surface).intersect(los)
-
-
-def _batch_size(pose: Pose, *arrays) -> int:
-    shape = np.broadcast_shapes(pose.shape, *(np.shape(a) for a in arrays))
-    return int(np.prod(shape))
 
 
 def ground_to_pixel(pose: Pose, sensor, lat, lon, h, *, chain: FrameChain | None = None) -> PixelHit:

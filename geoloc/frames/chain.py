@@ -218,6 +218,10 @@ class Pose:
                                      if f.name != "angles"),
                                    *(np.shape(v) for v in self.angles.values()))
 
+    def batch_size(self, *arrays) -> int:
+        """Samples in the broadcast of this batch with ``arrays`` (pixels, heights): the rays of a call."""
+        return int(np.prod(np.broadcast_shapes(self.shape, *(np.shape(a) for a in arrays))))
+
     def _checked(self):
         """(name, value, (lo, hi)) for every range-checked field and joint angle."""
         for name, rng in self.RANGES.items():

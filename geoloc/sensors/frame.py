@@ -34,6 +34,7 @@ from functools import cached_property
 import numpy as np
 
 from geoloc.frames import rotations as rot
+from geoloc.frames.chain import Pose
 from geoloc.frames.graph import BoundFrames, FrameGraph, Joint
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.sensors.base import PixelHit, check_outside, check_param_names, flag_outside, in_sensor
@@ -45,15 +46,6 @@ from geoloc.surfaces.base import LineOfSight
 #: Names of the sensor's own (non-lens) parameters, SI units (radians, metres).
 OWN_PARAMS = ("mount_x", "mount_y", "mount_z", "boresight_x", "boresight_y", "boresight_z",
               "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
-
-
-def _batch(state, row) -> int:
-    """Rays in the batch of ``state`` (a Pose) and the pixels; 0 for another kind of state."""
-    from geoloc.frames.chain import Pose
-
-    if not isinstance(state, Pose):
-        return 0
-    return int(np.prod(np.broadcast_shapes(state.shape, np.shape(row))))
 
 
 def small_rotation(angles) -> np.ndarray:
@@ -275,7 +267,8 @@ class FrameSensor:
         if engine != "numpy":
             from geoloc.sensors import _fastlocate
 
-            if engine == "numba" or (_fastlocate.serves(self) and _batch(state, row) >= _fastlocate.AUTO_MIN_RAYS):
+            if engine == "numba" or (self.compiled and isinstance(state, Pose)
+                                     and state.batch_size(row) >= _fastlocate.AUTO_MIN_RAYS):
                 return LineOfSight(*_fastlocate.line_of_sight_fast(state, self, row, col, outside=outside))
         d_cam = self.lens.unproject(col - 1.0, row - 1.0)
         d = self.cam_to_ecef(d_cam, state)
