@@ -262,19 +262,19 @@ def _hidden(o, d, s_bis, s_first, dem, ok):
 
 # --------------------------------------------------------------------------- exact
 def _offsets32(inv64, h_floor):
-    """The walk's form of a table of (1/(a+H)^2, 1/(b+H)^2) (``inv64``, overwritten): float32 offsets from the floor's
-    (1/(a+h_floor)^2, 1/(b+h_floor)^2), which the kernel adds back in float64 (its
-    ``ia_floor``, ``ib_floor``: :func:`geoloc.surfaces.terrain_numba.walk`'s ``h_floor``).
+    """The walk's form of a table of (1/(a+H)^2, 1/(b+H)^2) (``inv64``, overwritten): float32
+    offsets from the floor's (1/(a+h_floor)^2, 1/(b+h_floor)^2), which the kernel adds back
+    in float64 (its ``ia_floor``, ``ib_floor``, from :func:`geoloc.surfaces.terrain_numba.walk`'s
+    ``h_floor``: the tables are made for the floor they are walked with).
 
     float32 halves the table (100 MB instead of 200 on 3601 x 3601 nodes; its loads are
     the walk's largest stall), and an offset keeps float32's relative precision on
     H - h_floor: 2.4e-4 m at most on a 1 km range, where float32 of 1/(a+H)^2 itself lost
     up to 0.4 m (a looser skip test: more cells tested for nothing). Rounded down, then
     one float32 step further, i.e. to a slightly larger ellipsoid (by up to two steps,
-    2.4e-7 (H - h_floor)):
-    that step is far above the float64 rounding of the kernel's sum (~1e-16 relative),
-    so a skipped cell or block is clear of the terrain; the hits do not change. NaN (no
-    data) stays NaN.
+    2.4e-7 (H - h_floor)); that step is far above the float64 rounding of the kernel's sum
+    (~1e-16 relative), so a skipped cell or block is clear of the terrain and the hits do
+    not change. NaN (no data) stays NaN.
     """
     ref = np.array([1.0 / ((A + h_floor) * (A + h_floor)), 1.0 / ((B + h_floor) * (B + h_floor))])
     off = np.subtract(inv64, ref, out=inv64)  # in place, and compared without a float64 copy
