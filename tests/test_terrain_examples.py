@@ -29,6 +29,13 @@ def test_example_runs(path):
         # the mosaic of tiles gives the merged raster's hits (the roots are polished to 1e-7 m)
         assert "same status on every ray: True" in out
         assert float(re.search(r"merged raster: ([0-9.e+-]+) m", out).group(1)) < 1e-6
+    if path.name.startswith("28_"):
+        # docs/terrain.md, "Where embree and the walk differ": on every ray whose hits land
+        # apart, the referee finds the walk's (2 such rays here with embreex 2.17)
+        n = int(re.search(r"(\d+) hits more than 1 mm apart", out).group(1))
+        rays = [ln for ln in out.splitlines() if ln.startswith("ray ")]
+        assert n >= 1 and len(rays) == n
+        assert all("referee finds the walk's hit" in ln for ln in rays)
     if path.name.startswith("20_"):
         assert "N =  -26.79 m" in out and "N =   17.16 m" in out  # published EGM96 values
     if path.name.startswith("24_"):
