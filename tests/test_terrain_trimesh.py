@@ -113,7 +113,7 @@ def test_referee_closed_form():
     edges = [np.linalg.norm(P[(k + 2) % 3] - P[(k + 1) % 3]) for k in range(3)]
     ref = referee_first_hit(dem, C + 1000.0 * n, -n, (0, 5, 0, 6))
     assert ref.cell == (2, 3) and ref.nodes == nodes
-    # 1e-6 m: float64 rounding of these vertices and of C + 1000 n (~1e-12 relative of 6.4e6 m)
+    # 1e-6 m: float64 rounding of these vertices and of C + 1000 n (steps of 1e-9 m at 6.4e6 m)
     assert abs(ref.range_m - 1000.0) < 1e-6
     assert abs(ref.inside_m - two_area / (3.0 * max(edges))) < 1e-6  # centroid: a third of each height
     # 1 cm outside the edge p00-p11 (opposite p01), in the plane, along the edge's outward normal
