@@ -295,6 +295,13 @@ def test_walk_refuses_a_bad_order(rough600):
         with pytest.raises(ValueError, match="order"):
             tn.walk(*args, order=bad)
     tn.walk(*args, order=np.array([0]))  # a good one runs
+    # a cell or block table not in the kernel's float32 offset form is refused, not cast
+    # (a float64 table of the values themselves would be read as offsets: wrong skips)
+    for k in (6, 7):  # cinv, binv
+        bad_tab = list(args)
+        bad_tab[k] = args[k].astype(np.float64)
+        with pytest.raises(ValueError, match=("cinv", "binv")[k - 6] + " must be float32 offsets"):
+            tn.walk(*bad_tab)
 
 
 def test_table_offsets_are_conservative_and_tight():

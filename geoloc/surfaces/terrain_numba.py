@@ -1142,7 +1142,16 @@ _OUT = (("s_out", np.float64, 1), ("p_out", np.float64, 2), ("geo_out", np.float
         ("trace_ij", np.int64, 3))
 
 
+#: The tables the kernel reads as float32 offsets from the floor's ellipsoid
+#: (:func:`geoloc.surfaces.terrain._offsets32`): any other dtype is refused, not cast, since a
+#: table of the values themselves (the form before the offsets) would be read as offsets.
+_OFFSET_TABLES = ("cinv", "binv")
+
+
 def _readonly(name, a, dtype, ndim):
+    if name in _OFFSET_TABLES and np.asarray(a).dtype != dtype:
+        raise ValueError(f"walk: {name} must be float32 offsets from the floor's ellipsoid "
+                         f"(geoloc.surfaces.terrain._offsets32), got dtype {np.asarray(a).dtype}")
     a = np.ascontiguousarray(a, dtype=dtype)
     if a.ndim != ndim:
         raise ValueError(f"walk: {name} must have {ndim} dimensions, got shape {a.shape}")
