@@ -1180,7 +1180,7 @@ def _order(order, n):
     return order
 
 
-def _call(kernel, args, order=None):
+def _call(kernel, args, order=None, order_checked=False):
     (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
      tan_row, c_row, sin_col, cos_col, triangles, *outs) = args
     ins = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN, (o, d, hgt, lon_col, cinv, binv, hinv, hlev,
@@ -1188,7 +1188,8 @@ def _call(kernel, args, order=None):
     ins2 = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN2, (tan_row, c_row, sin_col, cos_col))]
     outs = [_output(n, a, t, k) for (n, t, k), a in zip(_OUT, outs)]
     o, d, hgt, lon_col, cinv, binv, hinv, hlev, row_geo = ins
-    order = _order(order, len(o))
+    # walk_parallel's slices of an order it has checked once: not scanned again per thread
+    order = np.ascontiguousarray(order, dtype=np.int64) if order_checked else _order(order, len(o))
     for (name, _, _), a in zip(_OUT, outs):
         if len(a) != len(o):
             raise ValueError(f"walk: {name} has {len(a)} rows for {len(o)} rays")
@@ -1229,7 +1230,7 @@ def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, ro
     def part(a, b):  # each thread a contiguous run of the order: disjoint rays, disjoint output rows
         _call(_kernel_for(hlev), (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w,
                             dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out,
-                            status, ncell, trace_s, trace_ij), order[a:b])
+                            status, ncell, trace_s, trace_ij), order[a:b], order_checked=True)
 
     if k == 1:
         part(0, n)
