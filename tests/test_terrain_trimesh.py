@@ -175,3 +175,17 @@ def test_where_embree_differs_the_referee_sides_with_the_walk():
     for k in np.random.default_rng(2).choice(np.nonzero(apart <= 1e-3)[0], 20, replace=False):
         r = idx[k]
         assert judge(dem, o[r], d[r], ecef[r], fr.to_ecef(loc[k]))[0] == "both"
+
+
+def test_referee_window_off_the_grid_is_still_a_window():
+    """window_around clips to the grid and keeps at least one cell, for points beyond it."""
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+    from geoloc.surfaces.referee import window_around
+
+    dem = DEM.from_array(np.full((5, 6), 100.0), 10.0, 20.0, 0.01, 0.01)
+    far = geodetic_to_ecef(np.deg2rad(9.0), np.deg2rad(21.0), 100.0)  # south-east, outside
+    r0, r1, c0, c1 = window_around(dem, [far], pad_cells=0)
+    assert (r0, r1, c0, c1) == (3, 4, 4, 5)
+    near = geodetic_to_ecef(np.deg2rad(9.985), np.deg2rad(20.015), 100.0)  # in cell (1, 1)
+    assert window_around(dem, [near], pad_cells=0) == (1, 2, 1, 2)
+    assert window_around(dem, [near], pad_cells=3) == (0, 4, 0, 5)

@@ -37,9 +37,9 @@ class RefereeHit:
     range_m : float
         Distance from the ray's origin to the hit along the unit direction [m]; inf for none.
     inside_m : float
-        Signed distance from the hit to the nearest edge of its triangle, in the
-        triangle's plane [m]: > 0 inside. For :func:`referee_triangle`, < 0 says how far
-        the ray passes outside that triangle. NaN for no hit.
+        In the triangle's plane [m]: > 0 inside, the distance from the hit to the line of
+        its nearest edge; < 0 outside (:func:`referee_triangle`), minus the distance to the
+        line of the edge the point lies furthest beyond. NaN for no hit.
     cell : tuple of int
         (row, column) of the hit's cell (its north-west node); (-1, -1) for none.
     nodes : tuple of (int, int)
@@ -120,10 +120,11 @@ def window_around(dem, points_ecef, pad_cells: int = 3):
     nr, nc = dem.shape
     fi = (g.lat_north_deg - np.asarray(lat)) / g.dlat_deg
     fj = (np.asarray(lon) - g.lon_west_deg) / g.dlon_deg
-    r0 = int(np.clip(np.floor(fi.min()) - pad_cells, 0, nr - 1))
-    r1 = int(np.clip(np.floor(fi.max()) + pad_cells + 1, 1, nr - 1))
-    c0 = int(np.clip(np.floor(fj.min()) - pad_cells, 0, nc - 1))
-    c1 = int(np.clip(np.floor(fj.max()) + pad_cells + 1, 1, nc - 1))
+    # at least one cell, even for points off the grid (cells 0 .. nr - 2 and 0 .. nc - 2)
+    r0 = int(np.clip(np.floor(fi.min()) - pad_cells, 0, nr - 2))
+    r1 = int(np.clip(np.floor(fi.max()) + pad_cells + 1, r0 + 1, nr - 1))
+    c0 = int(np.clip(np.floor(fj.min()) - pad_cells, 0, nc - 2))
+    c1 = int(np.clip(np.floor(fj.max()) + pad_cells + 1, c0 + 1, nc - 1))
     return r0, r1, c0, c1
 
 
