@@ -189,3 +189,19 @@ def test_referee_window_off_the_grid_is_still_a_window():
     near = geodetic_to_ecef(np.deg2rad(9.985), np.deg2rad(20.015), 100.0)  # in cell (1, 1)
     assert window_around(dem, [near], pad_cells=0) == (1, 2, 1, 2)
     assert window_around(dem, [near], pad_cells=3) == (0, 4, 0, 5)
+
+
+def test_referee_searches_a_window_in_bands_with_the_same_answer(monkeypatch):
+    """A window searched a few cells at a time (bounded memory) gives the hit the whole
+    window gives, on a rough DEM and a shallow ray that crosses many cells."""
+    from geoloc.surfaces import referee
+
+    rng = np.random.default_rng(8)
+    dem = DEM.from_array(300.0 + 40.0 * rng.random((30, 40)), 32.2, -98.3, 0.0005, 0.0006)
+    los = random_oblique_rays(dem, 40, rng, frame_angle_deg=(60.0, 85.0))
+    o, d = los.origin_ecef.reshape(-1, 3), los.direction_ecef.reshape(-1, 3)
+    whole = [referee.referee_first_hit(dem, o[k], d[k], (0, 29, 0, 39)) for k in range(len(o))]
+    assert sum(np.isfinite(h.range_m) for h in whole) > 30
+    monkeypatch.setattr(referee, "_BAND_CELLS", 7)  # bands of one row of 39 cells
+    banded = [referee.referee_first_hit(dem, o[k], d[k], (0, 29, 0, 39)) for k in range(len(o))]
+    assert banded == whole

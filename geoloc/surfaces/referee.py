@@ -27,6 +27,11 @@ import numpy as np
 
 _LD = np.longdouble
 
+#: Cells tested at a time by :func:`referee_first_hit`: a window is searched in bands of rows
+#: of at most this many cells, so its memory stays bounded (~1 kB a cell in flight) however
+#: large the window.
+_BAND_CELLS = 100_000
+
 
 @dataclass(frozen=True)
 class RefereeHit:
@@ -145,30 +150,39 @@ def referee_first_hit(dem, origin_ecef, direction_ecef, window) -> RefereeHit:
     -------
     RefereeHit
         ``range_m`` inf when no triangle of the window is hit. A hit exactly on an edge
-        counts (``inside_m`` 0).
+        counts (``inside_m`` 0); of two triangles hit at the same range (a ray through
+        their shared edge), either may be returned.
+
+    Notes
+    -----
+    The window is searched in bands of rows of at most :data:`_BAND_CELLS` cells, so the
+    memory stays bounded for any window; the time grows with its number of cells.
     """
     o, d = _unit_ray(origin_ecef, direction_ecef)
     r0, r1, c0, c1 = (int(x) for x in window)
     nr, nc = dem.shape
     if not (0 <= r0 < r1 <= nr - 1 and 0 <= c0 < c1 <= nc - 1):
         raise ValueError(f"referee: window must hold cells within the {nr - 1} x {nc - 1} grid of cells, got {window}")
-    rows, cols = np.meshgrid(np.arange(r0, r1 + 1), np.arange(c0, c1 + 1), indexing="ij")
-    P = _nodes_ecef(dem, rows, cols)
-    p00, p10, p01, p11 = P[:-1, :-1], P[:-1, 1:], P[1:, :-1], P[1:, 1:]  # 10: east, 01: south
     best = RefereeHit(np.inf, np.nan, (-1, -1), ())
-    for k, (a, b, c) in enumerate(((p00, p01, p11), (p00, p11, p10))):
-        t, inside = _moller_trumbore(o, d, a, b, c)
-        ok = np.isfinite(t) & (t > 0) & (inside >= 0)
-        if not ok.any():
-            continue
-        flat = np.where(ok, t, np.inf).ravel()
-        m = int(np.argmin(flat))
-        if flat[m] < best.range_m:
-            i, j = divmod(m, c1 - c0)
-            i += r0
-            j += c0
-            nodes = ((i, j), (i + 1, j), (i + 1, j + 1)) if k == 0 else ((i, j), (i + 1, j + 1), (i, j + 1))
-            best = RefereeHit(float(flat[m]), float(inside.ravel()[m]), (i, j), nodes)
+    band = max(1, _BAND_CELLS // (c1 - c0))
+    for b0 in range(r0, r1, band):  # rows of cells [b0, b1): nodes b0 .. b1
+        b1 = min(b0 + band, r1)
+        rows, cols = np.meshgrid(np.arange(b0, b1 + 1), np.arange(c0, c1 + 1), indexing="ij")
+        P = _nodes_ecef(dem, rows, cols)
+        p00, p10, p01, p11 = P[:-1, :-1], P[:-1, 1:], P[1:, :-1], P[1:, 1:]  # 10: east, 01: south
+        for k, (a, b, c) in enumerate(((p00, p01, p11), (p00, p11, p10))):
+            t, inside = _moller_trumbore(o, d, a, b, c)
+            ok = np.isfinite(t) & (t > 0) & (inside >= 0)
+            if not ok.any():
+                continue
+            flat = np.where(ok, t, np.inf).ravel()
+            m = int(np.argmin(flat))
+            if flat[m] < best.range_m:
+                i, j = divmod(m, c1 - c0)
+                i += b0
+                j += c0
+                nodes = ((i, j), (i + 1, j), (i + 1, j + 1)) if k == 0 else ((i, j), (i + 1, j + 1), (i, j + 1))
+                best = RefereeHit(float(flat[m]), float(inside.ravel()[m]), (i, j), nodes)
     return best
 
 
