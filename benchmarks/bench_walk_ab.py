@@ -24,7 +24,6 @@ import numpy as np
 from _revision import module_at  # benchmarks/ is on sys.path when run as a script
 from bench_terrain import SRTM
 
-from geoloc.geodesy.ellipsoid import A, B
 from geoloc.surfaces import terrain
 from geoloc.surfaces import terrain_numba as tn
 from geoloc.surfaces.dem import DEM, upsampled_dem
@@ -52,7 +51,7 @@ def main(argv=None) -> None:
     if {k: v for k, v, _ in getattr(old, "_IN", ())}.get("binv", np.float64) != np.float32:
         # REV's walk reads absolute (1/(a+H)^2, 1/(b+H)^2): binv in float64, cinv float32 rounded
         # toward zero (a larger ellipsoid), decoded from this tree's offsets (terrain._offsets32)
-        ref = np.array([1.0 / (A + t["h_floor"]) ** 2, 1.0 / (B + t["h_floor"]) ** 2])
+        ref = terrain._floor_inv(t["h_floor"])
         c64 = ref + t["cinv"].astype(float)
         c32 = c64.astype(np.float32)
         up = c32.astype(float) > c64
