@@ -22,6 +22,7 @@ walk to it (docs/terrain.md, "Where embree and the walk differ").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -57,10 +58,13 @@ class RefereeHit:
     nodes: tuple
 
 
-def _transformer():
+@lru_cache(maxsize=2)
+def _transformer(src="EPSG:4979", dst="EPSG:4978"):
+    """pyproj's WGS-84 geodetic -> ECEF (or back), made once: building one takes milliseconds,
+    and a window's bands and every judged ray use it."""
     from pyproj import Transformer
 
-    return Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    return Transformer.from_crs(src, dst, always_xy=True)
 
 
 def _nodes_ecef(dem, rows, cols):
@@ -113,14 +117,12 @@ def _moller_trumbore(o, d, a, b, c):
 def window_around(dem, points_ecef, pad_cells: int = 3):
     """The cells (row0, row1, col0, col1; half-open) spanning ``points_ecef`` (..., 3) plus
     ``pad_cells`` on each side, clipped to the grid. Latitude and longitude by pyproj."""
-    from pyproj import Transformer
-
     if not dem.is_geographic:
         raise ValueError(f"referee: window_around needs a geographic grid, got CRS {dem.crs.name!r}")
     p = np.asarray(points_ecef, float).reshape(-1, 3)
     if not np.all(np.isfinite(p)):
         raise ValueError(f"referee: window_around needs finite points, got {p.tolist()}")
-    lon, lat, _ = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(p[:, 0], p[:, 1], p[:, 2])
+    lon, lat, _ = _transformer("EPSG:4978", "EPSG:4979").transform(p[:, 0], p[:, 1], p[:, 2])
     g = dem.grid
     nr, nc = dem.shape
     fi = (g.lat_north_deg - np.asarray(lat)) / g.dlat_deg
