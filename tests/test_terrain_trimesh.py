@@ -15,10 +15,10 @@ from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 SRTM = Path(__file__).resolve().parents[1] / "assets" / "dem" / "srtm_jacksboro.tif"
 
 
-def trimesh_first_hits(dem, los, hit):
+def embree_cast(dem, los):
     """trimesh/embree's first hits on ``dem.to_trimesh()`` (same nodes, same diagonal split,
-    in a local ENU frame, float32-safe): which rays it hits, and how far each of those
-    hits is from ``hit``'s [m]."""
+    in a local ENU frame, float32-safe): the mesh, its ENU frame, and the cast's hit
+    points (ENU), ray indices and triangle indices."""
     if platform.machine() != "x86_64":  # the test extra installs embreex on x86_64 only
         pytest.importorskip("embreex", reason="trimesh's embree backend (pip embreex, x86_64); the "
                             "pure-python backend takes hours on 275 000 triangles")
@@ -27,8 +27,15 @@ def trimesh_first_hits(dem, los, hit):
 
     m = dem.to_trimesh()
     fr = m.metadata["enu_frame"]
-    loc, idx, _ = RayMeshIntersector(m).intersects_location(
+    loc, idx, tri = RayMeshIntersector(m).intersects_location(
         fr.from_ecef(los.origin_ecef), fr.vector_from_ecef(los.direction_ecef), multiple_hits=False)
+    return m, fr, loc, idx, tri
+
+
+def trimesh_first_hits(dem, los, hit):
+    """Which rays trimesh/embree hits (:func:`embree_cast`), and how far each of those hits
+    is from ``hit``'s [m]."""
+    _, fr, loc, idx, _ = embree_cast(dem, los)
     hit_tm = np.zeros(hit.status.shape, bool)
     hit_tm[idx] = True
     return hit_tm, np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1)
@@ -139,20 +146,13 @@ def test_where_embree_differs_the_referee_sides_with_the_walk():
     (pyproj vertices, every triangle around both hits) finds the walk's hit, and embree's
     triangle is one the ray misses, or lies beyond the walk's hit (it missed that one). On
     rays where the two agree, the referee agrees with both (it is not biased to the walk)."""
-    if platform.machine() != "x86_64":
-        pytest.importorskip("embreex", reason="trimesh's embree backend (x86_64 in the test extra)")
-    from trimesh.ray.ray_pyembree import RayMeshIntersector
-
     from geoloc.surfaces.dem import upsampled_dem
     from geoloc.surfaces.referee import judge, referee_triangle
 
     dem = upsampled_dem(DEM.open(SRTM), 401, np.random.default_rng(0))
     los = random_oblique_rays(dem, 100_000, np.random.default_rng(1), frame_angle_deg=(45.0, 82.0))
     hit = intersect_dem(los, dem, "exact", surface="triangles")
-    mesh = dem.to_trimesh()
-    fr = mesh.metadata["enu_frame"]
-    loc, idx, tri = RayMeshIntersector(mesh).intersects_location(
-        fr.from_ecef(los.origin_ecef), fr.vector_from_ecef(los.direction_ecef), multiple_hits=False)
+    mesh, fr, loc, idx, tri = embree_cast(dem, los)
     ok = hit.status == Status.OK
     hit_tm = np.zeros(ok.shape, bool)
     hit_tm[idx] = True
