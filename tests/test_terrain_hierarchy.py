@@ -214,6 +214,34 @@ def test_auto_climbs_for_grazing_views_only(rough600, monkeypatch):
         terrain.climbs(*flat(oblique), tab)
 
 
+def test_median_run_closed_form():
+    """terrain_numba.median_run, the figure terrain.climbs decides on: a ray from R u (u a unit
+    vector, the geocentric up) with direction cos(e) t - sin(e) u (t a unit vector normal to
+    u) descends at e, so it runs dh / tan(e) over a drop of dh; ascending and horizontal rays
+    run forever, a ray with NaN is left out; over more rays than m, m spread evenly (first
+    and last included)."""
+    from geoloc.surfaces import terrain_numba as tn
+
+    rng = np.random.default_rng(9)
+    u = rng.standard_normal((9, 3))
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    t = np.cross(u, rng.standard_normal(3))
+    t /= np.linalg.norm(t, axis=-1, keepdims=True)
+    e = np.deg2rad([1.0, 2.0, 5.0, 10.0, 30.0, 60.0, -5.0, 0.0, 45.0])
+    o = 6.4e6 * u
+    d = 3.0 * (np.cos(e)[:, None] * t - np.sin(e)[:, None] * u)  # not unit: the run is the same
+    d[8] = np.nan
+    dh = 700.0
+    runs = np.where(e > 0, dh / np.tan(np.where(e > 0, e, 1.0)), np.inf)[:8]
+    # 1e-9 relative: the dot products of 6.4e6 m vectors, rounding only
+    assert tn.median_run(o, d, dh, 256) == pytest.approx(np.median(runs), rel=1e-9)
+    assert tn.median_run(o[:2], d[:2], dh, 256) == pytest.approx(0.5 * (runs[0] + runs[1]), rel=1e-9)
+    # m = 3 of the 9: rays 0, 4 and 8 (8 has NaN): the median of rays 0 and 4
+    assert tn.median_run(o, d, dh, 3) == pytest.approx(0.5 * (runs[0] + runs[4]), rel=1e-9)
+    assert np.isnan(tn.median_run(o[8:], d[8:], dh, 256))
+    assert tn.median_run(o[6:8], d[6:8], dh, 256) == np.inf
+
+
 def test_walk_order_changes_no_hit(rough600, monkeypatch):
     """The kernel walks the rays in ray_order's tile-by-tile order (reading each ray through
     the order, writing its results in its own row): the statuses, hits, heights and steps

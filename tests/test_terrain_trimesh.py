@@ -177,6 +177,32 @@ def test_where_embree_differs_the_referee_sides_with_the_walk():
         assert judge(dem, o[r], d[r], ecef[r], fr.to_ecef(loc[k]))[0] == "both"
 
 
+def test_walk_on_a_dem_large_enough_to_prefetch_agrees_with_embree():
+    """On a DEM of PREFETCH_MIN_NODES nodes or more the walk prefetches a block's rows before
+    it walks the block cell by cell (a hint, terrain_numba._prefetch; smaller DEMs, as every
+    other test's, skip it). Against embree on such a DEM: the same rays hit, and each ray
+    whose hits are more than 1 mm apart is one where the referee finds the walk's hit."""
+    from geoloc.surfaces import terrain_numba as tn
+    from geoloc.surfaces.dem import upsampled_dem
+    from geoloc.surfaces.referee import judge
+
+    dem = upsampled_dem(DEM.open(SRTM), 760, np.random.default_rng(4))
+    assert dem.shape[0] * dem.shape[1] >= tn.PREFETCH_MIN_NODES
+    los = random_oblique_rays(dem, 20_000, np.random.default_rng(5), frame_angle_deg=(45.0, 82.0))
+    hit = intersect_dem(los, dem, "exact", surface="triangles")
+    _mesh, fr, loc, idx, _tri = embree_cast(dem, los)
+    ok = hit.status == Status.OK
+    hit_tm = np.zeros(ok.shape, bool)
+    hit_tm[idx] = True
+    assert ok.sum() > 15_000 and np.array_equal(ok, hit_tm)
+    apart = np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1)
+    o, d, ecef = los.origin_ecef.reshape(-1, 3), los.direction_ecef.reshape(-1, 3), hit.ecef.reshape(-1, 3)
+    for k in np.nonzero(apart > 1e-3)[0]:  # embree's float32 edge test (the test above)
+        r = idx[k]
+        assert judge(dem, o[r], d[r], ecef[r], fr.to_ecef(loc[k]))[0] == "a", r
+    assert np.median(apart) < 1e-6  # the rest: float64 rounding (1e-7 m, test_triangles_agree_...)
+
+
 def test_referee_window_off_the_grid_is_still_a_window():
     """window_around clips to the grid and keeps at least one cell, for points beyond it."""
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef

@@ -402,7 +402,7 @@ def climbs(o, d, tab) -> bool:
 
     A ray crosses the DEM's height range (its lowest to its highest node, plus the margins)
     over a horizontal run of (height range) / tan(depression). When the median run (of up
-    to 2048 of the rays) is shorter than :data:`CLIMB_MIN_NODES` nodes of level
+    to 256 of the rays) is shorter than :data:`CLIMB_MIN_NODES` nodes of level
     :data:`CLIMB_FROM` (BLOCK x 2^CLIMB_FROM cells), no jump can pay for the climb's tests,
     and the walk is the compiled variant without them (``walk_flat_kernel``), whose cell
     walk is 4-10 % faster (docs/terrain.md). Oblique views (8-45 deg below the horizon from
@@ -414,19 +414,17 @@ def climbs(o, d, tab) -> bool:
         return CLIMB == "always" and len(tab["hlev"]) >= CLIMB_FROM
     if len(tab["hlev"]) < CLIMB_FROM or len(o) == 0:
         return False
-    step = max(1, len(o) // 2048)
-    oo, dd = o[::step], d[::step]
-    up = oo / np.linalg.norm(oo, axis=-1, keepdims=True)  # geocentric: enough for an order of magnitude
-    sin_dep = -np.sum(dd * up, -1) / np.linalg.norm(dd, axis=-1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        run_m = (tab["h_max"] - tab["h_min"] + 2 * _MARGIN_M) * np.sqrt(1.0 - sin_dep ** 2) / sin_dep
-    run_m = np.where(sin_dep > 0, run_m, np.inf)
+    from geoloc.surfaces.terrain_numba import BLOCK, _readonly, median_run
+
+    # read-only float64 views, as the walk takes them: one compiled signature
+    run_m = median_run(_readonly("o", o, np.float64, 2), _readonly("d", d, np.float64, 2),
+                       float(tab["h_max"] - tab["h_min"] + 2 * _MARGIN_M), 256)
+    if math.isnan(run_m):  # no ray without NaN
+        return False
     lat_mid = tab["lat_n"] - 0.5 * tab["dlat"] * (tab["hgt"].shape[0] - 1)
     cell_m = A * min(tab["dlat"], tab["dlon"] * math.cos(lat_mid))
-    from geoloc.surfaces.terrain_numba import BLOCK
-
     span_m = BLOCK * 2 ** CLIMB_FROM * cell_m
-    return bool(np.nanmedian(run_m) > CLIMB_MIN_NODES * span_m)
+    return bool(run_m > CLIMB_MIN_NODES * span_m)
 
 
 def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
