@@ -28,9 +28,13 @@ def test_fit_residuals_on_check_points_both_sensors(fitted):
     """Issue 9: <= 0.01 px on check points; [L12] 4.1: ZY-3 RPCs fit "better than 0.15 % of a pixel"."""
     sc, f = fitted
     assert f.n_check >= 2000 and f.n_fit >= 3000
-    # the README's figures, rounded up one unit in their last printed digit (a deterministic fit:
-    # the margin is that rounding, nothing more). The frame camera's check max is measured 4.18e-5.
-    bounds = {"pushbroom": (7.5e-6, 6.6e-6, 1.5e-5), "frame": (1.7e-5, 1.7e-5, 4.2e-5)}
+    # the README's figures plus a tenth. The fit is deterministic on one machine, but residuals of
+    # 1e-5 px are a rounding floor (normal equations, ridge 1e-12), and the floor moves with the
+    # CPU's BLAS and SIMD kernels: pushbroom fit RMS 7.4e-6 on an AMD EPYC (OpenBLAS Haswell
+    # kernels), 7.61e-6 on an Intel Xeon (AVX-512 kernels), 7.51e-6 on that Xeon with
+    # OPENBLAS_CORETYPE=Haswell; frame check max 4.18e-5, 4.22e-5, 4.14e-5. The tenth covers that
+    # spread (3 %) three times over; a change to the fit itself moves them by far more.
+    bounds = {"pushbroom": (8.4e-6, 7.4e-6, 1.6e-5), "frame": (1.8e-5, 1.8e-5, 4.7e-5)}
     fit_rms, check_rms, check_max = bounds[sc.kind]
     assert f.fit_rms_px <= fit_rms
     assert f.check_rms_px <= check_rms
