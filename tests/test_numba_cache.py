@@ -81,8 +81,14 @@ def test_walk_compiles_once_for_every_kind_of_input():
             intersect_dem(ro, d_, "exact", surface="triangles", trace=True)
         finally:
             terrain.CLIMB, terrain.CLIMB_FROM = climb, climb_from
-    # each of the two compilations of the walk (with and without the climb) has one signature
-    for kernel in (tn.walk_kernel, tn.walk_flat_kernel):
+    # each compilation of the walk (with the climb, without it, without it for another block
+    # side: a DEM of 7.7 m cells takes blocks of 13) has one signature
+    fine = DEM.from_array(z32.astype(float), 36.1, 78.0, 7e-5, 7e-5)
+    assert terrain._exact_tables(fine)["block"] > tn.BLOCK
+    los = random_oblique_rays(fine, 20, rng)
+    intersect_dem(los, fine, "exact", surface="triangles")
+    intersect_dem(los, fine, "exact", trace=True)
+    for kernel in (tn.walk_kernel, tn.walk_flat_kernel, tn.walk_flat_block_kernel):
         assert len(kernel.signatures) == 1, kernel.signatures
         # the one signature takes read-only inputs (so writable ones never need a second)
         sig = kernel.signatures[0]

@@ -16,7 +16,6 @@ from geoloc.surfaces import terrain
 from geoloc.surfaces.base import LineOfSight
 from geoloc.surfaces.dem import DEM, upsampled_dem
 from geoloc.surfaces.terrain import _MARGIN_M, intersect_dem, random_oblique_rays
-from geoloc.surfaces.terrain_numba import BLOCK
 
 
 def _rough_dem(n, seed, roughness_m=3.0):
@@ -31,11 +30,17 @@ def _decode(inv):
     return 1.0 / np.sqrt(inv[..., 0]) - A
 
 
-def test_levels_are_the_maximum_over_their_cells():
+@pytest.mark.parametrize("block", [8, 12, 13])
+def test_levels_are_the_maximum_over_their_cells(block, monkeypatch):
     """Level k holds, for each 2^k x 2^k group of blocks, the highest DEM node of its cells:
     computed here straight from the heights with numpy slices (the nodes of rows r0..r1,
     columns c0..c1 bound the cells between them), with no data (NaN) propagating, on a DEM
-    whose sides are not multiples of the block (partial groups at the south and east)."""
+    whose sides are not multiples of the block (partial groups at the south and east);
+    for the blocks of 8 cells and two larger sides (terrain.block_cells: ~100 m of ground)."""
+    # the cells of this DEM are ~33 x 36 m (0.0003 x 0.0004 deg at 36.5 deg N): ground
+    # sizes that round to the wanted number of cells
+    cell_m = A * np.sqrt(np.deg2rad(0.0003) * np.deg2rad(0.0004) * np.cos(np.deg2rad(36.5)))
+    monkeypatch.setattr(terrain, "BLOCK_GROUND_M", block * cell_m)
     rng = np.random.default_rng(3)
     z = 300.0 + 80.0 * rng.standard_normal((203, 157))
     z[150, 40] = np.nan  # one missing node: its four cells, and every node above them
@@ -43,6 +48,8 @@ def test_levels_are_the_maximum_over_their_cells():
     tab = terrain._exact_tables(dem)
     hinv, hlev = tab["hinv"], tab["hlev"]
     nr, nc = z.shape
+    BLOCK = tab["block"]
+    assert BLOCK == block
     nbr, nbc = -(-(nr - 1) // BLOCK), -(-(nc - 1) // BLOCK)
     assert tab["binv"].shape[:2] == (nbr, nbc)
     assert hlev[-1, 1:3].tolist() == [1, 1]  # up to the one root node
@@ -200,7 +207,7 @@ def test_auto_climbs_for_grazing_views_only(rough600, monkeypatch):
     assert terrain.climbs(*flat(grazing), tab)
     used = []
     real = tn._kernel_for
-    monkeypatch.setattr(tn, "_kernel_for", lambda hlev: (used.append(len(hlev)), real(hlev))[1])
+    monkeypatch.setattr(tn, "_kernel_for", lambda hlev, block=tn.BLOCK: (used.append(len(hlev)), real(hlev, block))[1])
     for los in (oblique, grazing):
         auto = intersect_dem(los, rough600, "exact", dem_model="triangles")
         monkeypatch.setattr(terrain, "CLIMB", "always")
@@ -330,6 +337,77 @@ def test_walk_refuses_a_bad_order(rough600):
         bad_tab[k] = args[k].astype(np.float64)
         with pytest.raises(ValueError, match=("cinv", "binv")[k - 6] + " must be float32 offsets"):
             tn.walk(*bad_tab)
+    # a block side other than the one binv was made for is refused (it would read wrong blocks)
+    assert tab["block"] == 8
+    with pytest.raises(ValueError, match="binv has 75 x 75 blocks, but block = 12"):
+        tn.walk(*args, block=12)
+    for blk in (0, 17):
+        with pytest.raises(ValueError, match=f"blocks of {blk} cells"):
+            tn.walk(*args, block=blk)
+
+
+def test_block_index_without_a_division():
+    """The walk finds a cell's block as (i * ceil(2^28 / blk)) >> 28 instead of i // blk:
+    equal for every row or column index the walk takes (below 2^24) and every block side it
+    allows (1 to 16)."""
+    i = np.arange(1 << 24, dtype=np.int64)
+    for blk in range(1, 17):
+        assert np.array_equal((i * (((1 << 28) + blk - 1) // blk)) >> 28, i // blk), blk
+
+
+def test_block_cells_is_about_100_m_of_ground():
+    """terrain.block_cells: the cells per block side nearest to 100 m of ground (the cell's
+    side the geometric mean of its north-south and east-west sides), between 8 and 16."""
+    ang = lambda m: m / A  # a cell side in metres as an angle on the equator
+    assert terrain.block_cells(ang(8.6), ang(8.6), 0.0) == 12  # the 3601 x 3601 benchmark DEM
+    assert terrain.block_cells(ang(7.1), ang(7.1), 0.0) == 14  # 100 / 7.1 = 14.08
+    assert terrain.block_cells(ang(1.0), ang(1.0), 0.0) == 16  # at most 16
+    assert terrain.block_cells(ang(30.0), ang(30.0), 0.0) == 8  # a 1'' tile: at least 8
+    # at 60 deg N a cell of equal angles is half as wide: sqrt(10 x 5) m = 7.07 m -> 14
+    assert terrain.block_cells(ang(10.0), ang(10.0), np.deg2rad(60.0)) == 14
+    assert terrain.block_cells(0.0, ang(10.0), 0.0) == 8  # a degenerate grid: the least
+
+
+def test_larger_blocks_change_no_hit(monkeypatch):
+    """On a DEM of 7.7 m cells the walk takes blocks of 13 cells (terrain.block_cells); its
+    statuses, hits and heights are those of the walk over blocks of 8 cells, bit for bit
+    (a block only decides what is skipped), and the same rays hit as in trimesh/embree's
+    cast, at the same points but where the referee finds the walk's (embree's float32 test)."""
+    from test_terrain_trimesh import trimesh_first_hits
+
+    rng = np.random.default_rng(12)
+    n = 420
+    x = np.linspace(0, 6 * np.pi, n)
+    z = 300.0 + 40.0 * np.sin(x)[:, None] * np.cos(0.7 * x)[None, :] + 3.0 * rng.standard_normal((n, n))
+    step = np.rad2deg(7.7 / A)  # 7.7 m on the meridian
+    make = lambda: DEM.from_array(z, 36.5, -84.3, step, step / np.cos(np.deg2rad(36.5)))
+    dem13 = make()
+    los = random_oblique_rays(dem13, 6000, np.random.default_rng(13), frame_angle_deg=(0.0, 82.0))
+    assert terrain._exact_tables(dem13)["block"] == 13
+    hit13 = intersect_dem(los, dem13, "exact", dem_model="triangles")
+    monkeypatch.setattr(terrain, "BLOCK_GROUND_M", 0.0)
+    dem8 = make()
+    assert terrain._exact_tables(dem8)["block"] == 8
+    hit8 = intersect_dem(los, dem8, "exact", dem_model="triangles")
+    ok = hit8.status == Status.OK
+    assert ok.sum() > 3000
+    assert np.array_equal(hit13.status, hit8.status)
+    assert np.array_equal(hit13.ecef, hit8.ecef, equal_nan=True)
+    assert np.array_equal(hit13.h, hit8.h, equal_nan=True)
+    hit_tm, err = trimesh_first_hits(dem8, los, hit8)
+    assert np.array_equal(ok, hit_tm) and np.median(err) < 1e-8
+    # where embree's float32 test lands elsewhere (measured: 26 um on one ray of these), the
+    # extended-precision referee finds the walk's hit (docs/terrain.md, where embree differs)
+    from test_terrain_trimesh import embree_cast
+
+    from geoloc.surfaces.referee import judge
+
+    _mesh, fr, loc, idx, _tri = embree_cast(dem8, los)
+    apart = np.linalg.norm(fr.from_ecef(hit8.ecef[idx]) - loc, axis=-1)
+    o, d = los.origin_ecef.reshape(-1, 3), los.direction_ecef.reshape(-1, 3)
+    for k in np.nonzero(apart > 1e-7)[0]:
+        r = idx[k]
+        assert judge(dem8, o[r], d[r], hit8.ecef[r], fr.to_ecef(loc[k]))[0] in ("a", "both"), r
 
 
 def test_table_offsets_are_conservative_and_tight():

@@ -122,9 +122,10 @@ def _flat_los(los: LineOfSight, normalise: bool = True):
     d = np.asarray(los.direction_ecef, float)
     st = np.asarray(los.status, np.uint8)
     shape = np.broadcast_shapes(o.shape[:-1], d.shape[:-1], st.shape)
-    o = np.ascontiguousarray(np.broadcast_to(o, shape + (3,)).reshape(-1, 3))
-    d = np.ascontiguousarray(np.broadcast_to(d, shape + (3,)).reshape(-1, 3))
-    st = np.broadcast_to(st, shape).reshape(-1).copy()
+    # broadcast only what needs it (a 1-ray call spent a fifth of its time here)
+    o = np.ascontiguousarray((o if o.shape[:-1] == shape else np.broadcast_to(o, shape + (3,))).reshape(-1, 3))
+    d = np.ascontiguousarray((d if d.shape[:-1] == shape else np.broadcast_to(d, shape + (3,))).reshape(-1, 3))
+    st = (st if st.shape == shape else np.broadcast_to(st, shape)).reshape(-1).copy()
     if normalise:  # the exact kernel normalises and checks each ray itself
         with np.errstate(invalid="ignore", divide="ignore"):
             d = d / np.linalg.norm(d, axis=-1, keepdims=True)
@@ -300,7 +301,7 @@ def _exact_tables(dem: DEM):
                          "geographic=False), or the 'steps' / 'bisect' methods")
     g = dem.grid
     hgt = np.ascontiguousarray(g.values, dtype=float)
-    nr, nc = hgt.shape
+    nr = hgt.shape[0]
     lat_n = np.deg2rad(g.lat_north_deg)
     lon_w = np.deg2rad(g.lon_west_deg)
     dlat = np.deg2rad(g.dlat_deg)
@@ -324,26 +325,63 @@ def _exact_tables(dem: DEM):
     h_max, h_min = dem.max_height(), dem.min_height()
     h_floor = h_min - _MARGIN_M  # where the walk ends: its ellipsoid is the tables' reference
     cinv = _offsets32(np.stack([1 / (A + hs) ** 2, 1 / (B + hs) ** 2], -1), h_floor)
-    from geoloc.surfaces.terrain_numba import BLOCK
-
-    nbr, nbc = -(-(nr - 1) // BLOCK), -(-(nc - 1) // BLOCK)
-    bmax = np.full((nbr * BLOCK, nbc * BLOCK), -np.inf)
-    bmax[: nr - 1, : nc - 1] = cmax  # NaN (no data) propagates: such blocks are never skipped
-    bmax = bmax.reshape(nbr, BLOCK, nbc, BLOCK).max(axis=(1, 3)) + _MARGIN_M
-    binv = _offsets32(np.stack([1 / (A + bmax) ** 2, 1 / (B + bmax) ** 2], -1), h_floor)
-    hinv, hlev = _hierarchy(bmax)
+    block = block_cells(dlat, dlon, lat_n - 0.5 * dlat * (nr - 1))
+    binv, hinv, hlev = _block_tables(cmax, block, h_floor)
     tab = dict(h_max=h_max, h_min=h_min, h_floor=h_floor, hgt=hgt, lon_col=lon_cols, cinv=cinv,
-               binv=binv, hinv=hinv, hlev=hlev, row_geo=row_geo, lat_n=lat_n,
+               binv=binv, block=block, hinv=hinv, hlev=hlev, row_geo=row_geo, lat_n=lat_n,
                lon_w=lon_w, dlat=dlat, dlon=dlon, tan_row=tan_row, c_row=c_row,
                sin_col=np.sin(lon_cols), cos_col=np.cos(lon_cols))
+    for v in tab.values():  # read-only: shared by every call, and passed to the walk as they are
+        if isinstance(v, np.ndarray):
+            v.flags.writeable = False
     dem._exact_tables = tab
     return tab
 
 
+#: The ground a block of the walk spans, about [m] (:func:`block_cells`).
+BLOCK_GROUND_M = 100.0
+
+
+def block_cells(dlat, dlon, lat):
+    """Cells per side of the walk's blocks on a grid of ``dlat`` x ``dlon`` rad cells at
+    latitude ``lat``: the nearest to :data:`BLOCK_GROUND_M` metres of ground (the cell's side
+    taken as the geometric mean of its two), at least
+    :data:`geoloc.surfaces.terrain_numba.BLOCK` (8) and at most 16.
+
+    A block that is not clear is walked cell by cell from where the ray comes down to its
+    highest node, so larger blocks mean fewer block steps and more cells walked: the balance
+    is one of ground distances (how far a ray runs while it descends through the relief of a
+    block), not of cells. Measured, the walk alone, the same rays and hits
+    (docs/terrain.md, "The block side"): 8.6 m cells (the 3601 x 3601 benchmark DEM) 12
+    cells best (0.93 of the time with 8), 17 m cells 12 (0.97-0.98), 26 m cells (a 1''
+    tile) 8 (12 cells: 1.13), 31 m and the crop's 90 m cells 8 (12: 1.02).
+    """
+    from geoloc.surfaces.terrain_numba import BLOCK
+
+    cell_m = A * math.sqrt(abs(dlat) * abs(dlon) * abs(math.cos(lat)))
+    if not cell_m > 0:
+        return BLOCK
+    return int(min(max(round(BLOCK_GROUND_M / cell_m), BLOCK), 16))
+
+
+def _block_tables(cmax, block, h_floor):
+    """The walk's tables above the cells for blocks of ``block`` x ``block`` cells, from the
+    cell maxima ``cmax``: binv (float32 offsets from the floor's ellipsoid, as the cell
+    table) and the hierarchy above the blocks (:func:`_hierarchy`)."""
+    nr, nc = cmax.shape[0] + 1, cmax.shape[1] + 1
+    nbr, nbc = -(-(nr - 1) // block), -(-(nc - 1) // block)
+    bmax = np.full((nbr * block, nbc * block), -np.inf)
+    bmax[: nr - 1, : nc - 1] = cmax  # NaN (no data) propagates: such blocks are never skipped
+    bmax = bmax.reshape(nbr, block, nbc, block).max(axis=(1, 3)) + _MARGIN_M
+    binv = _offsets32(np.stack([1 / (A + bmax) ** 2, 1 / (B + bmax) ** 2], -1), h_floor)
+    hinv, hlev = _hierarchy(bmax)
+    return binv, hinv, hlev
+
+
 def hierarchy_levels(bmax):
     """The min/max hierarchy above the blocks: level k (k = 1, 2, ...) holds the highest
-    node of each 2^k x 2^k group of blocks (:data:`geoloc.surfaces.terrain_numba.BLOCK`
-    x 2^k cells), halving the rows and columns (rounded up) until one node is left.
+    node of each 2^k x 2^k group of blocks (block x 2^k cells, the block side of
+    :func:`block_cells`), halving the rows and columns (rounded up) until one node is left.
 
     ``bmax`` (blocks' highest node, no data NaN) is level 0; a group at the grid's
     south or east edge holds the blocks it has. NaN propagates: a node over a
@@ -403,7 +441,7 @@ def climbs(o, d, tab) -> bool:
     A ray crosses the DEM's height range (its lowest to its highest node, plus the margins)
     over a horizontal run of (height range) / tan(depression). When the median run (of up
     to 256 of the rays) is shorter than :data:`CLIMB_MIN_NODES` nodes of level
-    :data:`CLIMB_FROM` (BLOCK x 2^CLIMB_FROM cells), no jump can pay for the climb's tests,
+    :data:`CLIMB_FROM` (block x 2^CLIMB_FROM cells), no jump can pay for the climb's tests,
     and the walk is the compiled variant without them (``walk_flat_kernel``), whose cell
     walk is 4-10 % faster (docs/terrain.md). Oblique views (8-45 deg below the horizon from
     1500 m, ``benchmarks/bench_terrain.py``) do not climb; grazing views over a large DEM do.
@@ -414,7 +452,7 @@ def climbs(o, d, tab) -> bool:
         return CLIMB == "always" and len(tab["hlev"]) >= CLIMB_FROM
     if len(tab["hlev"]) < CLIMB_FROM or len(o) == 0:
         return False
-    from geoloc.surfaces.terrain_numba import BLOCK, _readonly, median_run
+    from geoloc.surfaces.terrain_numba import _readonly, median_run
 
     # read-only float64 views, as the walk takes them: one compiled signature
     run_m = median_run(_readonly("o", o, np.float64, 2), _readonly("d", d, np.float64, 2),
@@ -423,7 +461,7 @@ def climbs(o, d, tab) -> bool:
         return False
     lat_mid = tab["lat_n"] - 0.5 * tab["dlat"] * (tab["hgt"].shape[0] - 1)
     cell_m = A * min(tab["dlat"], tab["dlon"] * math.cos(lat_mid))
-    span_m = BLOCK * 2 ** CLIMB_FROM * cell_m
+    span_m = tab["block"] * 2 ** CLIMB_FROM * cell_m
     return bool(run_m > CLIMB_MIN_NODES * span_m)
 
 
@@ -451,7 +489,8 @@ def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
         tab["hlev"][CLIMB_FROM - 1:] if climbs(o, d, tab) else tab["hlev"][:0],
         tab["row_geo"], tab["lat_n"], tab["lon_w"],
         tab["dlat"], tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"],
-        surface == "triangles", s_out, p_out, geo_out, st, ncell, trace_s, trace_ij, order=order)
+        surface == "triangles", s_out, p_out, geo_out, st, ncell, trace_s, trace_ij, order=order,
+        block=tab["block"])
     return p_out, ncell, s_out, (trace_s, trace_ij), geo_out.T
 
 

@@ -59,7 +59,9 @@ _LEFT = int(Status.LEFT_DEM)
 _NODATA = int(Status.NODATA)
 _NOCONV = int(Status.NO_CONVERGENCE)
 _INVALID = int(Status.INVALID_INPUT)
-#: Cells per side of a block of the min/max hierarchy.
+#: Cells per side of a block of the min/max hierarchy, the least the tables use: the side is a
+#: property of the tables (``geoloc.surfaces.terrain.block_cells``: about 100 m of ground, at
+#: least this many cells) and reaches the walk as its ``blk`` argument.
 BLOCK = 8
 #: Nodes from which the walk prefetches a block's rows when it walks the block cell by cell
 #: (:func:`_prefetch`): 2^19, a cell table of 4 MB, the size from which the rays are also
@@ -70,6 +72,11 @@ PREFETCH_MIN_NODES = 1 << 19
 #: with the climb above the blocks left out: numba reads a global as a constant, so LLVM
 #: drops that code and the cell walk compiles as tightly as the two-level walk did).
 _CLIMB = True
+#: 0 in :data:`walk_kernel` and :data:`walk_flat_block_kernel` (the block side is the walk's
+#: ``blk`` argument); :data:`BLOCK` in :data:`walk_flat_kernel`, where LLVM then folds the side
+#: into the code as the walk had it before the side became an argument (the crop's walk was
+#: 1-3 % slower with the side read at run time).
+_FIXED_BLOCK = 0
 #: The cache key of this module's kernels (:func:`geoloc.geodesy._nbgeo.cached_njit`): they
 #: freeze A, B, E2, the status codes and the code of _nbgeo's conversions, so a change to
 #: any of those modules must compile them afresh, not load a stale cache.
@@ -451,7 +458,7 @@ def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b
     return s
 
 
-def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat,
+def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev, row_geo, lat_n, lon_w, dlat,
           dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
           trace_s, trace_ij):
     """Exact first hit for each ray (see module docstring); fills s_out, status, ncell,
@@ -459,7 +466,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
     [m], range [m]); NaN elsewhere.
 
     A two-level digital differential analyser on the exact cell boundaries: the ray
-    parameter where the ray next crosses each side of its block (BLOCK x BLOCK cells)
+    parameter where the ray next crosses each side of its block (blk x blk cells)
     and of its cell is kept, and a step recomputes only the side it crossed (one
     division for a meridian, one quadratic for a parallel; the parallel just crossed
     keeps its second root). The longitude runs one way along a straight line, so only
@@ -501,6 +508,8 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
     nbc = binv.shape[1]
     nlev = hlev.shape[0]
     climb = nlev > 0 and _CLIMB  # _CLIMB: a constant to LLVM, which drops the climb (walk_flat_kernel)
+    if _FIXED_BLOCK > 0:  # a constant too (walk_flat_kernel: the caller checked blk == _FIXED_BLOCK)
+        blk = _FIXED_BLOCK
     mtrace = trace_s.shape[1]
     # the start cell's fast path needs the grid within 0.4 rad of its west meridian
     wide_ok = (nc - 1) * dlon < 0.4 and nr >= 2 and nc >= 2
@@ -511,6 +520,10 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
     # the rows' prefetch pays where the tables outgrow the caches; on a small DEM (the crop:
     # 1 MB of cell table) the rows are already there and the hints cost 3 % of the walk
     fetch_rows = nr * nc >= PREFETCH_MIN_NODES
+    # i // blk as (i * bdiv) >> 28: exact for 1 <= blk <= 16 and 0 <= i < 2^24 (ceil(2^28 / blk),
+    # the reciprocal of a shift 4 bits longer than the numerator: checked for every such i in
+    # tests/test_terrain_hierarchy.py; _call refuses larger grids); a division was 1 % of the crop's walk
+    bdiv = ((1 << 28) + blk - 1) // blk
     max_steps = 4 * (nr + nc) + 16  # a straight ray crosses each meridian once, each parallel twice
     for q in prange(n):
         r = order[q]  # rays are walked in this order (ray_order: the DEM tile by tile)
@@ -644,12 +657,16 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
         steps = 0
         # the block and its sides; b* = next crossing of its north / south parallel or of
         # the meridian ahead, b*2 = the crossing after it of the same parallel
-        bi = i // BLOCK
-        bj = j // BLOCK
-        i0 = bi * BLOCK
-        i1 = min(i0 + BLOCK, nr - 1)
-        j0 = bj * BLOCK
-        j1 = min(j0 + BLOCK, nc - 1)
+        if _FIXED_BLOCK > 0:
+            bi = i // _FIXED_BLOCK  # a shift
+            bj = j // _FIXED_BLOCK
+        else:
+            bi = (i * bdiv) >> 28  # i // blk, without a division (exact: see bdiv)
+            bj = (j * bdiv) >> 28
+        i0 = bi * blk
+        i1 = min(i0 + blk, nr - 1)
+        j0 = bj * blk
+        j1 = min(j0 + blk, nc - 1)
         bM = np.inf
         if along:
             jm = j1 if east else j0
@@ -768,7 +785,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
                         if not (((qa * s + 2.0 * hb) * s + qc > 0.0) and ((qa * gE + 2.0 * hb) * gE + qc > 0.0)
                                 and not (qa * s < -hb and -hb < qa * gE and hb * hb >= qa * qc)):
                             break
-                        span = BLOCK << sh
+                        span = blk << sh
                         a0 = ni * span
                         a1 = min(a0 + span, nr - 1)
                         c0 = nj * span
@@ -825,16 +842,16 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
                         hi_b = min(lo_b + (1 << sh), nbr)
                         while hi_b - lo_b > 1:
                             mid = (lo_b + hi_b) >> 1
-                            m = mid * BLOCK
+                            m = mid * blk
                             if qz + c_row[m] - rho * tan_row[m] >= 0.0:  # north of parallel m
                                 hi_b = mid
                             else:
                                 lo_b = mid
                         bi = lo_b
-                        i0 = bi * BLOCK
-                        i1 = min(i0 + BLOCK, nr - 1)
-                        j0 = bj * BLOCK
-                        j1 = min(j0 + BLOCK, nc - 1)
+                        i0 = bi * blk
+                        i1 = min(i0 + blk, nr - 1)
+                        j0 = bj * blk
+                        j1 = min(j0 + blk, nc - 1)
                         bN, bN2 = _par_exit_kept(i0 == gi0, gN, gN2, tan_row[i0], c_row[i0], oz, dz, dz2, dxy2,
                                                  oxd, oxy2, s, True)
                         bS, bS2 = _par_exit_kept(i1 == gi1, gS, gS2, tan_row[i1], c_row[i1], oz, dz, dz2, dxy2,
@@ -857,24 +874,24 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
                         hi_b = min(lo_b + (1 << sh), nbc)
                         while hi_b - lo_b > 1:
                             mid = (lo_b + hi_b) >> 1
-                            m = mid * BLOCK
+                            m = mid * blk
                             if cos_col[m] * qy - sin_col[m] * qx < 0.0:  # west of meridian m
                                 hi_b = mid
                             else:
                                 lo_b = mid
                         bj = lo_b
-                        j0 = bj * BLOCK
-                        j1 = min(j0 + BLOCK, nc - 1)
+                        j0 = bj * blk
+                        j1 = min(j0 + blk, nc - 1)
                         if side == 0:
                             i1 = gi0
-                            i0 = bi * BLOCK
+                            i0 = bi * blk
                             bS = gN2
                             bS2 = np.inf
                             bN, bN2 = _par_exit(tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
                             came = 1
                         else:
                             i0 = gi1
-                            i1 = min(i0 + BLOCK, nr - 1)
+                            i1 = min(i0 + blk, nr - 1)
                             bN = gS2
                             bN2 = np.inf
                             bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
@@ -1056,8 +1073,8 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
                 if bj < 0 or bj >= nbc:
                     st = _LEFT
                     break
-                j0 = bj * BLOCK
-                j1 = min(j0 + BLOCK, nc - 1)
+                j0 = bj * blk
+                j1 = min(j0 + blk, nc - 1)
                 jm = j1 if east else j0
                 bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
                 came = 2
@@ -1067,7 +1084,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
                     st = _LEFT
                     break
                 i1 = i0
-                i0 = bi * BLOCK
+                i0 = bi * blk
                 bS = bN2
                 bS2 = np.inf
                 bN, bN2 = _par_exit(tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, True)
@@ -1078,7 +1095,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
                     st = _LEFT
                     break
                 i0 = i1
-                i1 = min(i0 + BLOCK, nr - 1)
+                i1 = min(i0 + blk, nr - 1)
                 bN = bS2
                 bN2 = np.inf
                 bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, False)
@@ -1114,10 +1131,12 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row
 walk_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(_walk)
 
 
-def _flat(fn, name):
-    """``fn`` under another name, reading its globals from a copy in which ``_CLIMB`` is False."""
+def _flat(fn, name, fixed_block=0):
+    """``fn`` under another name, reading its globals from a copy in which ``_CLIMB`` is False
+    (and ``_FIXED_BLOCK`` is ``fixed_block``)."""
     g = dict(fn.__globals__)
     g["_CLIMB"] = False
+    g["_FIXED_BLOCK"] = fixed_block
     f = types.FunctionType(fn.__code__, g, name, fn.__defaults__, fn.__closure__)
     f.__qualname__ = name
     f.__module__ = fn.__module__
@@ -1125,15 +1144,22 @@ def _flat(fn, name):
 
 
 #: The same walk compiled without the climb above the blocks: what :func:`walk` runs when it
-#: is given no levels (``hlev`` empty). The climb's code alone, unused, made the cell walk
-#: 4-10 % slower (its registers and branches in the hot loop; docs/terrain.md); the hits
-#: are the same bit for bit (the hierarchy only decides what is skipped).
+#: is given no levels (``hlev`` empty), with blocks of :data:`BLOCK` cells. The climb's code
+#: alone, unused, made the cell walk 4-10 % slower (its registers and branches in the hot loop;
+#: docs/terrain.md); the hits are the same bit for bit (the hierarchy only decides what is
+#: skipped).
 walk_flat_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(
-    _flat(_walk, "_walk_flat"))
+    _flat(_walk, "_walk_flat", BLOCK))
+#: The flat walk for tables of another block side (``terrain.block_cells``: 12 on a grid of
+#: 8.7 m cells), the side read at run time. Compiled on first use only.
+walk_flat_block_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(
+    _flat(_walk, "_walk_flat_block"))
 
 
-def _kernel_for(hlev):
-    return walk_kernel if np.shape(hlev)[0] > 0 else walk_flat_kernel
+def _kernel_for(hlev, block=BLOCK):
+    if np.shape(hlev)[0] > 0:
+        return walk_kernel
+    return walk_flat_kernel if int(block) == BLOCK else walk_flat_block_kernel
 
 # One signature per kernel. numba compiles a kernel once per distinct argument type, and
 # a read-only array is a type of its own: the origins and directions of a line-of-sight
@@ -1159,6 +1185,9 @@ _OFFSET_TABLES = ("cinv", "binv")
 
 
 def _readonly(name, a, dtype, ndim):
+    if (isinstance(a, np.ndarray) and a.dtype == dtype and a.ndim == ndim and not a.flags.writeable
+            and a.flags.c_contiguous):
+        return a  # already the kernel's form (the tables of terrain._exact_tables are kept so)
     if name in _OFFSET_TABLES and np.asarray(a).dtype != dtype:
         raise ValueError(f"walk: {name} must be float32 offsets from the floor's ellipsoid "
                          f"(geoloc.surfaces.terrain._offsets32), got dtype {np.asarray(a).dtype}")
@@ -1190,7 +1219,7 @@ def _order(order, n):
     return order
 
 
-def _call(kernel, args, order=None, order_checked=False):
+def _call(kernel, args, order=None, order_checked=False, block=BLOCK):
     (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
      tan_row, c_row, sin_col, cos_col, triangles, *outs) = args
     ins = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN, (o, d, hgt, lon_col, cinv, binv, hinv, hlev,
@@ -1203,24 +1232,38 @@ def _call(kernel, args, order=None, order_checked=False):
     for (name, _, _), a in zip(_OUT, outs):
         if len(a) != len(o):
             raise ValueError(f"walk: {name} has {len(a)} rows for {len(o)} rays")
-    kernel(o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, hinv, hlev, row_geo, float(lat_n),
+    block = int(block)
+    if max(hgt.shape) >= 1 << 24 or not 1 <= block <= 16:
+        raise ValueError(f"walk: a grid of {hgt.shape[0]} x {hgt.shape[1]} nodes with blocks of {block} cells: "
+                         "the walk takes fewer than 2^24 rows and columns and blocks of 1 to 16 cells")
+    want = (-(-(hgt.shape[0] - 1) // block), -(-(hgt.shape[1] - 1) // block))
+    if kernel is walk_flat_kernel and block != BLOCK:
+        raise ValueError(f"walk: walk_flat_kernel has blocks of {BLOCK} cells built in, got block = {block}")
+    if binv.shape[:2] != want:
+        # a block table made for another side would be read at the wrong blocks: refused
+        raise ValueError(f"walk: binv has {binv.shape[0]} x {binv.shape[1]} blocks, but block = {block} "
+                         f"on {hgt.shape[0]} x {hgt.shape[1]} nodes needs {want}: pass the block side the "
+                         "tables were made with (geoloc.surfaces.terrain._exact_tables: 'block')")
+    kernel(o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo, float(lat_n),
            float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
 
 
 def walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
          tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
-         trace_s, trace_ij, order=None):
+         trace_s, trace_ij, order=None, block=BLOCK):
     """The exact first hit for each ray, serial: :func:`_walk` (its docstring) compiled once;
     :data:`walk_flat_kernel` when ``hlev`` is empty (no levels above the blocks to climb).
-    ``order``: the rays to walk, in that order (default: all, in turn; :func:`ray_order`)."""
-    _call(_kernel_for(hlev), (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w,
-                        dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out,
-                        status, ncell, trace_s, trace_ij), order)
+    ``order``: the rays to walk, in that order (default: all, in turn; :func:`ray_order`).
+    ``block``: the cells per side of the blocks ``binv`` and ``hinv`` were made for (checked
+    against ``binv``'s shape)."""
+    _call(_kernel_for(hlev, block), (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n,
+                                   lon_w, dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out,
+                                   geo_out, status, ncell, trace_s, trace_ij), order, block=block)
 
 
 def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat,
                   dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
-                  trace_s, trace_ij, threads=None, order=None):
+                  trace_s, trace_ij, threads=None, order=None, block=BLOCK):
     """As :func:`walk`, the rays spread over all cores; identical results (each ray is walked alone).
 
     The serial kernel runs on contiguous slices of the order in threads (it releases the
@@ -1238,9 +1281,10 @@ def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, ro
     cuts = np.linspace(0, n, k + 1).astype(int)
 
     def part(a, b):  # each thread a contiguous run of the order: disjoint rays, disjoint output rows
-        _call(_kernel_for(hlev), (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w,
-                            dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out,
-                            status, ncell, trace_s, trace_ij), order[a:b], order_checked=True)
+        _call(_kernel_for(hlev, block), (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo,
+                                       lat_n, lon_w, dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles,
+                                       s_out, p_out, geo_out, status, ncell, trace_s, trace_ij), order[a:b],
+                                       order_checked=True, block=block)
 
     if k == 1:
         part(0, n)
