@@ -32,6 +32,19 @@ def embree_cast(dem, los):
     return m, fr, loc, idx, tri
 
 
+def walk_against_embree(dem, los):
+    """The walk's triangle hits and embree's cast of the same rays, once the same rays are
+    checked to hit: (hit, mesh, ENU frame, embree's hits, their ray indices, their triangles,
+    the distance between the two hits of each)."""
+    hit = intersect_dem(los, dem, "exact", surface="triangles")
+    mesh, fr, loc, idx, tri = embree_cast(dem, los)
+    ok = hit.status == Status.OK
+    hit_tm = np.zeros(ok.shape, bool)
+    hit_tm[idx] = True
+    assert np.array_equal(ok, hit_tm)  # the same rays hit
+    return hit, mesh, fr, loc, idx, tri, np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1)
+
+
 def trimesh_first_hits(dem, los, hit):
     """Which rays trimesh/embree hits (:func:`embree_cast`), and how far each of those hits
     is from ``hit``'s [m]."""
@@ -151,13 +164,7 @@ def test_where_embree_differs_the_referee_sides_with_the_walk():
 
     dem = upsampled_dem(DEM.open(SRTM), 401, np.random.default_rng(0))
     los = random_oblique_rays(dem, 100_000, np.random.default_rng(1), frame_angle_deg=(45.0, 82.0))
-    hit = intersect_dem(los, dem, "exact", surface="triangles")
-    mesh, fr, loc, idx, tri = embree_cast(dem, los)
-    ok = hit.status == Status.OK
-    hit_tm = np.zeros(ok.shape, bool)
-    hit_tm[idx] = True
-    assert np.array_equal(ok, hit_tm)  # the same rays hit
-    apart = np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1)
+    hit, mesh, fr, loc, idx, tri, apart = walk_against_embree(dem, los)
     bad = np.nonzero(apart > 1e-3)[0]
     # this DEM and seed were picked because embree errs on them (2 rays, measured with
     # embreex 2.17): if a later embree does not, pick another case rather than pass empty
@@ -189,13 +196,8 @@ def test_walk_on_a_dem_large_enough_to_prefetch_agrees_with_embree():
     dem = upsampled_dem(DEM.open(SRTM), 760, np.random.default_rng(4))
     assert dem.shape[0] * dem.shape[1] >= tn.PREFETCH_MIN_NODES
     los = random_oblique_rays(dem, 20_000, np.random.default_rng(5), frame_angle_deg=(45.0, 82.0))
-    hit = intersect_dem(los, dem, "exact", surface="triangles")
-    _mesh, fr, loc, idx, _tri = embree_cast(dem, los)
-    ok = hit.status == Status.OK
-    hit_tm = np.zeros(ok.shape, bool)
-    hit_tm[idx] = True
-    assert ok.sum() > 15_000 and np.array_equal(ok, hit_tm)
-    apart = np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1)
+    hit, _mesh, fr, loc, idx, _tri, apart = walk_against_embree(dem, los)
+    assert (hit.status == Status.OK).sum() > 15_000
     o, d, ecef = los.origin_ecef.reshape(-1, 3), los.direction_ecef.reshape(-1, 3), hit.ecef.reshape(-1, 3)
     for k in np.nonzero(apart > 1e-3)[0]:  # embree's float32 edge test (the test above)
         r = idx[k]
