@@ -10,9 +10,10 @@ seconds); both walks get this tree's tables (REV's walk without ``hinv``/``hlev`
 predates the hierarchy, and block tables of 8 cells if it predates the block side of
 ``terrain.block_cells``). The rays are walked in the order given, not in ``ray_order``'s
 (which REV may not take): on a large DEM that is slower than ``intersect_dem`` (0.82x on
-3601 x 3601), and a change that helps sorted rays may not show here. Three rows, calls in turn (the machine's load swings), medians of
-CPU time per ray, one thread: REV's walk; this tree's with the levels from
-``terrain.CLIMB_FROM`` (the climbing kernel); this tree's with none (``walk_flat_kernel``).
+3601 x 3601), and a change that helps sorted rays may not show here. Three rows, calls in
+turn (the machine's load swings), medians of CPU time per ray, one thread: REV's walk; this
+tree's with the levels from ``terrain.CLIMB_FROM`` (the climbing kernel); this tree's with
+none (``walk_flat_kernel``, or ``walk_flat_block_kernel`` for blocks other than 8 cells).
 Each row says whether its statuses and hits equal REV's bit for bit. Measures what the
 walk costs; ``bench_terrain.py`` compares it with embree.
 """

@@ -4,8 +4,9 @@ maximum over the DEM nodes, and its hits against trimesh/embree's ray cast on a 
 
 import numpy as np
 import pytest
-from test_terrain_trimesh import (
-    trimesh_first_hits,  # tests/ is on sys.path (no __init__)
+from test_terrain_trimesh import (  # tests/ is on sys.path (no __init__)
+    trimesh_first_hits,
+    walk_against_embree,
 )
 
 from geoloc.assets import asset_path
@@ -373,8 +374,6 @@ def test_larger_blocks_change_no_hit(monkeypatch):
     statuses, hits and heights are those of the walk over blocks of 8 cells, bit for bit
     (a block only decides what is skipped), and the same rays hit as in trimesh/embree's
     cast, at the same points but where the referee finds the walk's (embree's float32 test)."""
-    from test_terrain_trimesh import trimesh_first_hits
-
     rng = np.random.default_rng(12)
     n = 420
     x = np.linspace(0, 6 * np.pi, n)
@@ -394,16 +393,12 @@ def test_larger_blocks_change_no_hit(monkeypatch):
     assert np.array_equal(hit13.status, hit8.status)
     assert np.array_equal(hit13.ecef, hit8.ecef, equal_nan=True)
     assert np.array_equal(hit13.h, hit8.h, equal_nan=True)
-    hit_tm, err = trimesh_first_hits(dem8, los, hit8)
-    assert np.array_equal(ok, hit_tm) and np.median(err) < 1e-8
-    # where embree's float32 test lands elsewhere (measured: 26 um on one ray of these), the
-    # extended-precision referee finds the walk's hit (docs/terrain.md, where embree differs)
-    from test_terrain_trimesh import embree_cast
-
     from geoloc.surfaces.referee import judge
 
-    _mesh, fr, loc, idx, _tri = embree_cast(dem8, los)
-    apart = np.linalg.norm(fr.from_ecef(hit8.ecef[idx]) - loc, axis=-1)
+    _hit, _mesh, fr, loc, idx, _tri, apart = walk_against_embree(dem8, los)  # checks: the same rays hit
+    assert np.median(apart) < 1e-8
+    # where embree's float32 test lands elsewhere (measured: 26 um on one ray of these), the
+    # extended-precision referee finds the walk's hit (docs/terrain.md, where embree differs)
     o, d = los.origin_ecef.reshape(-1, 3), los.direction_ecef.reshape(-1, 3)
     for k in np.nonzero(apart > 1e-7)[0]:
         r = idx[k]

@@ -508,7 +508,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
     nbc = binv.shape[1]
     nlev = hlev.shape[0]
     climb = nlev > 0 and _CLIMB  # _CLIMB: a constant to LLVM, which drops the climb (walk_flat_kernel)
-    if _FIXED_BLOCK > 0:  # a constant too (walk_flat_kernel: the caller checked blk == _FIXED_BLOCK)
+    if _FIXED_BLOCK > 0:  # a constant too (walk_flat_kernel, which _kernel_for takes only for blk == BLOCK)
         blk = _FIXED_BLOCK
     mtrace = trace_s.shape[1]
     # the start cell's fast path needs the grid within 0.4 rad of its west meridian
@@ -1219,7 +1219,7 @@ def _order(order, n):
     return order
 
 
-def _call(kernel, args, order=None, order_checked=False, block=BLOCK):
+def _call(args, order=None, order_checked=False, block=BLOCK):
     (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
      tan_row, c_row, sin_col, cos_col, triangles, *outs) = args
     ins = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN, (o, d, hgt, lon_col, cinv, binv, hinv, hlev,
@@ -1237,14 +1237,12 @@ def _call(kernel, args, order=None, order_checked=False, block=BLOCK):
         raise ValueError(f"walk: a grid of {hgt.shape[0]} x {hgt.shape[1]} nodes with blocks of {block} cells: "
                          "the walk takes fewer than 2^24 rows and columns and blocks of 1 to 16 cells")
     want = (-(-(hgt.shape[0] - 1) // block), -(-(hgt.shape[1] - 1) // block))
-    if kernel is walk_flat_kernel and block != BLOCK:
-        raise ValueError(f"walk: walk_flat_kernel has blocks of {BLOCK} cells built in, got block = {block}")
     if binv.shape[:2] != want:
         # a block table made for another side would be read at the wrong blocks: refused
         raise ValueError(f"walk: binv has {binv.shape[0]} x {binv.shape[1]} blocks, but block = {block} "
                          f"on {hgt.shape[0]} x {hgt.shape[1]} nodes needs {want}: pass the block side the "
                          "tables were made with (geoloc.surfaces.terrain._exact_tables: 'block')")
-    kernel(o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo, float(lat_n),
+    _kernel_for(hlev, block)(o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo, float(lat_n),
            float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
 
 
@@ -1256,9 +1254,9 @@ def walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, la
     ``order``: the rays to walk, in that order (default: all, in turn; :func:`ray_order`).
     ``block``: the cells per side of the blocks ``binv`` and ``hinv`` were made for (checked
     against ``binv``'s shape)."""
-    _call(_kernel_for(hlev, block), (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n,
-                                   lon_w, dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out,
-                                   geo_out, status, ncell, trace_s, trace_ij), order, block=block)
+    _call((o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
+           tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell, trace_s, trace_ij),
+          order, block=block)
 
 
 def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat,
@@ -1281,10 +1279,9 @@ def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, ro
     cuts = np.linspace(0, n, k + 1).astype(int)
 
     def part(a, b):  # each thread a contiguous run of the order: disjoint rays, disjoint output rows
-        _call(_kernel_for(hlev, block), (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo,
-                                       lat_n, lon_w, dlat, dlon, tan_row, c_row, sin_col, cos_col, triangles,
-                                       s_out, p_out, geo_out, status, ncell, trace_s, trace_ij), order[a:b],
-                                       order_checked=True, block=block)
+        _call((o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
+               tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell, trace_s,
+               trace_ij), order[a:b], order_checked=True, block=block)
 
     if k == 1:
         part(0, n)
