@@ -16,7 +16,7 @@ PKG = Path(__file__).resolve().parents[1] / "geoloc"
 #: Module or package prefix -> layer (docs/architecture.md, "Layers and import direction").
 LAYERS = {
     "geoloc": 0,  # the package's own __init__ re-exports; checked separately below
-    "geoloc.status": 0, "geoloc.tomlio": 0, "geoloc.assets": 0, "geoloc.__main__": 8,
+    "geoloc.status": 0, "geoloc.tomlio": 0, "geoloc.assets": 0, "geoloc.userfiles": 0, "geoloc.__main__": 8,
     "geoloc.geodesy": 1,
     "geoloc.frames": 2,
     "geoloc.surfaces": 3,

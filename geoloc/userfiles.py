@@ -1,0 +1,222 @@
+"""The user's files: inputs noted while a command runs, outputs written atomically, never over an input.
+
+Three rules hold for every file geoloc writes (docs/architecture.md, "The user's
+files"):
+
+- **No output is one of the command's inputs.** While a command runs
+  (:func:`command_files`), every loader notes the files it opens
+  (:func:`note_input`); :func:`check_output` refuses a path that is the same file as
+  a noted input (by identity, :func:`os.path.samefile`: symlinks, hard links and
+  relative paths alike), a file of the bundled data, or a folder.
+- **An output is written whole or not at all.** :func:`atomic_path` yields a
+  temporary path in the output's folder, with the same suffix (GDAL, pyogrio and
+  matplotlib choose their format by it), and renames it into place with
+  :func:`os.replace` when the block ends without an exception; otherwise the
+  temporary file is removed and the old output, if any, is left as it was.
+- **An unwritable path is one clear line.** A missing folder, a folder that cannot
+  be written (probed by creating a file there, so it holds for root and read-only
+  mounts too) or a path whose parent is a file raise :class:`OutputRefused`, a
+  ``ValueError`` naming the option, the path and the reason.
+
+Outside a command (the Python API) nothing is noted, so :func:`atomic_path` only
+makes the write atomic: a script may read a file and write it back on purpose.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import os
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+__all__ = [
+    "OutputRefused",
+    "command_files",
+    "note_input",
+    "noted_inputs",
+    "check_output",
+    "check_output_dir",
+    "atomic_path",
+    "write_text",
+    "write_bytes",
+]
+
+
+class OutputRefused(ValueError):
+    """An output path that is an input, a folder, bundled data, or cannot be written."""
+
+
+#: The inputs noted by the command running in this context (None: no command runs).
+_INPUTS: contextvars.ContextVar = contextvars.ContextVar("geoloc_inputs", default=None)
+
+
+@contextlib.contextmanager
+def command_files(inputs=()) -> Iterator[list]:
+    """Note inputs for the duration of one command; yields the list of noted paths.
+
+    ``inputs`` are the command's declared inputs (its path options), noted at once;
+    loaders add the files they open with :func:`note_input`.
+    """
+    token = _INPUTS.set([])
+    try:
+        for p in inputs:
+            note_input(p)
+        yield _INPUTS.get()
+    finally:
+        _INPUTS.reset(token)
+
+
+def note_input(path) -> None:
+    """Note ``path`` (a file or folder the running command reads); a no-op outside a command."""
+    noted = _INPUTS.get()
+    if noted is None or path is None:
+        return
+    try:
+        p = Path(os.fspath(path))
+    except TypeError:  # an open file object, a URL object: nothing on disk to protect
+        return
+    if str(p).startswith(("udp://", "tcp://", "rtp://", "http://", "https://")):
+        return
+    if p not in noted:
+        noted.append(p)
+
+
+def noted_inputs() -> list:
+    """The inputs noted so far by the running command (empty outside a command)."""
+    return list(_INPUTS.get() or [])
+
+
+def _same(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:  # one of them does not exist (yet): it cannot be the other
+        return False
+
+
+def _bundled_root() -> Path | None:
+    from geoloc.assets import ASSETS
+
+    try:
+        return Path(ASSETS).resolve()
+    except OSError:
+        return None
+
+
+def _inside(p: Path, root: Path) -> bool:
+    try:
+        p.resolve().relative_to(root)
+        return True
+    except ValueError:
+        return False
+
+
+def _probe_folder(folder: Path, option: str, path) -> None:
+    """Raise OutputRefused unless a file can be created in ``folder``."""
+    where = f"{option} {path}" if option else str(path)
+    if not folder.exists():
+        raise OutputRefused(f"{where}: folder {folder} does not exist")
+    if not folder.is_dir():
+        raise OutputRefused(f"{where}: {folder} is a file, not a folder")
+    try:
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".geoloc-probe-"):
+            pass
+    except OSError as e:
+        raise OutputRefused(f"{where}: cannot write in folder {folder}: {e.strerror or e}") from None
+
+
+def check_output(path, option: str = "", *, inputs=None) -> Path:
+    """Refuse an output path that must not or cannot be written; returns it as a ``Path``.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The file to be written.
+    option : str
+        How the user named it (``"--out"``), for the message.
+    inputs : iterable of paths, optional
+        The inputs to compare with; default the running command's noted inputs.
+
+    Raises
+    ------
+    OutputRefused
+        ``path`` is one of the inputs, a file of the bundled data, an existing folder,
+        or its folder is missing or cannot be written.
+    """
+    p = Path(os.fspath(path))
+    where = f"{option} {path}" if option else str(path)
+    for q in (noted_inputs() if inputs is None else [Path(os.fspath(x)) for x in inputs]):
+        if _same(p, q):
+            same = "" if str(q) == str(path) else f" ({q})"
+            raise OutputRefused(f"{where} is an input of this command{same}: refusing to overwrite it; "
+                                "give another output path")
+    root = _bundled_root()
+    if root is not None and p.exists() and _inside(p, root):
+        raise OutputRefused(f"{where} is a file of geoloc's bundled data ({root}): refusing to overwrite it")
+    if p.is_dir():
+        raise OutputRefused(f"{where} is a folder: give a file name")
+    _probe_folder(p.parent if str(p.parent) else Path("."), option, path)
+    return p
+
+
+def check_output_dir(path, option: str = "", *, inputs=None) -> Path:
+    """Refuse an output folder that is an input, a file, bundled data, or cannot be made or written."""
+    p = Path(os.fspath(path))
+    where = f"{option} {path}" if option else str(path)
+    for q in (noted_inputs() if inputs is None else [Path(os.fspath(x)) for x in inputs]):
+        if _same(p, q):
+            raise OutputRefused(f"{where} is an input of this command: refusing to write into it")
+    root = _bundled_root()
+    if root is not None and _inside(p, root):
+        raise OutputRefused(f"{where} is inside geoloc's bundled data ({root}): refusing to write into it")
+    if p.exists() and not p.is_dir():
+        raise OutputRefused(f"{where} is a file, not a folder")
+    parent = p
+    while not parent.exists() and parent != parent.parent:  # the first existing ancestor is made into
+        parent = parent.parent
+    _probe_folder(parent, option, path)
+    return p
+
+
+@contextlib.contextmanager
+def atomic_path(path, option: str = "") -> Iterator[Path]:
+    """A temporary path beside ``path``, renamed onto it when the block succeeds.
+
+    The temporary file is in the same folder (so the rename is atomic) and keeps the
+    suffix (``out.tif`` -> ``.out.tif.geoloc-XXXX.tif``). On an exception it is
+    removed and ``path`` is untouched. :func:`check_output` is applied first.
+    """
+    p = check_output(path, option)
+    fd, tmp = tempfile.mkstemp(dir=p.parent if str(p.parent) else ".", prefix=f".{p.name}.geoloc-",
+                               suffix=p.suffix)
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        tmp.unlink()  # the writer creates it: its own default mode, and some libraries refuse a file
+        yield tmp
+        if not tmp.exists():
+            raise OutputRefused(f"{option + ' ' if option else ''}{path}: the writer produced no file")
+        os.replace(tmp, p)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            if tmp.is_dir():
+                import shutil
+
+                shutil.rmtree(tmp)
+            else:
+                tmp.unlink()
+
+
+def write_text(path, text: str, option: str = "", encoding: str = "utf-8") -> Path:
+    """Write ``text`` to ``path`` through :func:`atomic_path`."""
+    with atomic_path(path, option) as tmp:
+        tmp.write_text(text, encoding=encoding)
+    return Path(os.fspath(path))
+
+
+def write_bytes(path, data: bytes, option: str = "") -> Path:
+    """Write ``data`` to ``path`` through :func:`atomic_path`."""
+    with atomic_path(path, option) as tmp:
+        tmp.write_bytes(data)
+    return Path(os.fspath(path))
