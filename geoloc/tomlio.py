@@ -5,6 +5,8 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
+from geoloc.userfiles import note_input
+
 
 def read_toml(path, what: str = "scenario file") -> dict:
     """Parse a TOML file.
@@ -12,6 +14,7 @@ def read_toml(path, what: str = "scenario file") -> dict:
     Raises ``FileNotFoundError`` ("<what> not found: <path>") if it is missing and
     ``ValueError`` ("<what> <path>: not valid TOML: ...") if it does not parse.
     """
+    note_input(path)
     path = Path(path)
     try:
         return tomllib.loads(path.read_text())

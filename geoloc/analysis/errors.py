@@ -41,6 +41,7 @@ from geoloc.locate import ground_to_pixel
 from geoloc.sensors.camera import Camera
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
+from geoloc.userfiles import atomic_path
 
 _GEOD = Geod(ellps="WGS84")
 
@@ -291,5 +292,6 @@ def plot_error_vectors(path, panels, title: str = "") -> None:
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100)
     plt.close(fig)

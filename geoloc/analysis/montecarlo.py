@@ -54,6 +54,7 @@ from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.frame import small_rotation
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
+from geoloc.userfiles import atomic_path
 
 # STATS_KEYS (imported above, defined beside the streamed statistics): the keys of
 # ``geoloc montecarlo --out stats.json`` (the interface of issue 4).
@@ -565,7 +566,7 @@ class Sweep:
 
     def to_csv(self, path) -> None:
         """One row per angle and curve: angle, curve, cep_m, cep50_empirical_m, n_ok."""
-        with open(path, "w") as fh:
+        with atomic_path(path) as tmp, open(tmp, "w") as fh:
             fh.write("gimbal_roll_deg,curve,cep_m,cep50_empirical_m,n_ok\n")
             for i, a in enumerate(self.angles_deg):
                 for j, lab in enumerate(self.labels):
@@ -591,7 +592,8 @@ class Sweep:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7, ncol=2)
         fig.tight_layout()
-        fig.savefig(path)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp)
         plt.close(fig)
 
 

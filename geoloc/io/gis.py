@@ -24,6 +24,7 @@ Conventions: ``docs/conventions.md`` (degrees at this edge, heights in metres).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import html
 import importlib
@@ -33,6 +34,8 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import numpy as np
+
+from geoloc.userfiles import atomic_path, note_input, write_bytes
 
 #: Formats :func:`export` writes.
 FORMATS = ("gpkg", "geojson", "kml", "czml")
@@ -80,6 +83,7 @@ def read_results(path) -> dict:
     ValueError
         If the header repeats a name or a line has more fields than the header.
     """
+    note_input(path)
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"results file {str(path)!r} does not exist")
@@ -692,25 +696,28 @@ def _ogr_columns(layer):
 def _write_ogr(layers, paths, driver):
     raw = _require("pyogrio.raw", "pyogrio")
     written = []
-    for p in dict.fromkeys(paths.values()):
-        if Path(p).exists():
-            Path(p).unlink()
-    for name in LAYERS:
-        layer = layers[name]
-        z = layer.has_z()
-        geoms = np.empty(len(layer.features), dtype=object)
-        geoms[:] = [wkb(layer.geometry, f.coords, z) if f.coords else None for f in layer.features]
-        names, data, masks = _ogr_columns(layer)
-        desc = (f"{layer.description}. Heights: metres above the WGS 84 ellipsoid "
-                f"(h_datum = {ELLIPSOID_DATUM!r}).")
-        opts = {"DESCRIPTION": desc}
-        if driver == "GeoJSON":
-            opts.update({"RFC7946": "YES", "COORDINATE_PRECISION": "12"})
-        raw.write(str(paths[name]), geoms, data, names, field_mask=masks, layer=name, driver=driver,
-                  geometry_type=layer.geometry + (" Z" if z else ""),
-                  crs="EPSG:4979" if z else "EPSG:4326", layer_options=opts)
-        written.append(paths[name])
+    with contextlib.ExitStack() as stack:  # every file renamed into place once all its layers are in
+        tmp = {p: stack.enter_context(atomic_path(p)) for p in dict.fromkeys(paths.values())}
+        for name in LAYERS:
+            _write_ogr_layer(raw, layers[name], name, str(tmp[paths[name]]), driver)
+            written.append(paths[name])
     return list(dict.fromkeys(written))
+
+
+def _write_ogr_layer(raw, layer, name, path, driver) -> None:
+    """One layer into an OGR file (a GeoPackage takes several; GeoJSON one a file)."""
+    z = layer.has_z()
+    geoms = np.empty(len(layer.features), dtype=object)
+    geoms[:] = [wkb(layer.geometry, f.coords, z) if f.coords else None for f in layer.features]
+    names, data, masks = _ogr_columns(layer)
+    desc = (f"{layer.description}. Heights: metres above the WGS 84 ellipsoid "
+            f"(h_datum = {ELLIPSOID_DATUM!r}).")
+    opts = {"DESCRIPTION": desc}
+    if driver == "GeoJSON":
+        opts.update({"RFC7946": "YES", "COORDINATE_PRECISION": "12"})
+    raw.write(path, geoms, data, names, field_mask=masks, layer=name, driver=driver,
+              geometry_type=layer.geometry + (" Z" if z else ""),
+              crs="EPSG:4979" if z else "EPSG:4326", layer_options=opts)
 
 
 # --------------------------------------------------------------------------- KML
@@ -802,7 +809,7 @@ def _write_kml(layers, ctx, out):
         if missing:
             desc += f"; without a position ({len(missing)}): " + "; ".join(missing)
         folder.description = desc + "."
-    Path(out).write_bytes(_kml_schema_order(kml.kml(format=False)))
+    write_bytes(out, _kml_schema_order(kml.kml(format=False)))
     return out
 
 
@@ -943,5 +950,6 @@ def _write_czml(layers, ctx, out, epoch):
                     outline=True, outlineColor=C.Color(rgba=[255, 255, 0, 255]),
                     perPositionHeight=True if has_h else None,
                     heightReference=None if has_h else clamp), **common))
-    C.Document(packets=packets).save(str(out))
+    with atomic_path(out) as tmp:
+        C.Document(packets=packets).save(str(tmp))
     return out

@@ -55,6 +55,8 @@ from typing import BinaryIO, Iterable, Iterator
 
 import numpy as np
 
+from geoloc.userfiles import note_input
+
 __all__ = [
     "UAS_LS_KEY",
     "TAGS",
@@ -886,6 +888,7 @@ def read_packets(path, *, verify_checksum: bool = True) -> Iterator[Packet | Klv
     """Raw KLV files (``.klv``, ``.bin``, anything else) through :func:`read_klv_file`,
     containers (``.ts``, ``.m2ts``, ``.mpg``, ``.mp4``, ``.mov``, ``.mkv``) through
     :func:`read_ts_klv`."""
+    note_input(path)
     if os.path.splitext(os.fspath(path))[1].lower() in _CONTAINER_SUFFIXES:
         return read_ts_klv(path, verify_checksum=verify_checksum)
     return read_klv_file(path, verify_checksum=verify_checksum)

@@ -59,6 +59,7 @@ from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import BrownLens, Lens, PinholeLens
+from geoloc.userfiles import note_input
 
 __all__ = [
     "ALTITUDE_DATUMS",
@@ -538,6 +539,7 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
         well-formed (or holds a DTD/entities), a bad tag value (message names the
         file and the tag).
     """
+    note_input(path)
     from PIL import Image, UnidentifiedImageError
 
     p = Path(path)

@@ -29,6 +29,7 @@ import numpy as np
 
 from geoloc.frames.chain import Pose
 from geoloc.io.columns import ColumnMap, HeightSource, as_column_map, plan_columns
+from geoloc.userfiles import note_input
 
 #: Required numeric columns and their valid ranges (inclusive).
 REQUIRED = {
@@ -218,6 +219,7 @@ def load_records(path, required=None, optional=OPTIONAL, angles=Q17_ANGLES, colu
         names the columns), or the column map does not fit the file or the
         sensor (the error names the key and the value).
     """
+    note_input(path)
     path = Path(path)
     angles = tuple(angles)
     required = required_columns(angles) if required is None else required

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.sensors.rpc import RPCModel, RPCSensor
+from geoloc.userfiles import atomic_path, note_input
 
 
 # --------------------------------------------------------------- GeoTIFF I/O
@@ -47,7 +48,7 @@ def write_rpc_geotiff(path, model: RPCModel, rows: int, cols: int, image=None) -
     with warnings.catch_warnings():
         # raised at creation, before the RPCs below are attached: not true of the file written
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(path, "w", **profile) as dst:
+        with atomic_path(path) as tmp, rasterio.open(tmp, "w", **profile) as dst:
             dst.rpcs = model.to_rasterio()
             if image is not None:
                 dst.write(np.asarray(image, np.uint16), 1)
@@ -56,6 +57,7 @@ def write_rpc_geotiff(path, model: RPCModel, rows: int, cols: int, image=None) -
 
 def read_rpc_geotiff(path) -> RPCModel:
     """Read the RPC metadata of a raster back into an :class:`RPCModel`."""
+    note_input(path)
     import rasterio
 
     with rasterio.open(path) as src:
@@ -93,6 +95,7 @@ def read_rpc(path, rows: int | None = None, cols: int | None = None, **sensor_op
     -------
     RPCSensor
     """
+    note_input(path)
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning
 
@@ -231,8 +234,9 @@ def write_ellipsoidal_dem(dem, path) -> Path:
     v = np.asarray(g.values, float)
     t = Affine(g.dlon_deg, 0.0, g.lon_west_deg - g.dlon_deg / 2, 0.0, -g.dlat_deg, g.lat_north_deg + g.dlat_deg / 2)
     path = Path(path)
-    with rasterio.open(path, "w", driver="GTiff", width=v.shape[1], height=v.shape[0], count=1,
-                       dtype="float64", crs="EPSG:4326", transform=t, nodata=np.nan) as dst:
+    with atomic_path(path) as tmp, rasterio.open(tmp, "w", driver="GTiff", width=v.shape[1], height=v.shape[0],
+                                                 count=1, dtype="float64", crs="EPSG:4326", transform=t,
+                                                 nodata=np.nan) as dst:
         dst.write(v, 1)
         dst.update_tags(VERTICAL_DATUM="WGS-84 ellipsoidal heights (h = H + N, EGM96)",
                         SOURCE=str(dem.path))

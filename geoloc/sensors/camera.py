@@ -52,6 +52,7 @@ import numpy as np
 
 from geoloc.status import Status
 from geoloc.tomlio import read_toml
+from geoloc.userfiles import write_text
 
 
 @dataclass(frozen=True)
@@ -156,7 +157,7 @@ class Camera:
                 lines.append(f"{k}_deg = [{', '.join(repr(math.degrees(a)) for a in v)}]")
                 continue
             lines.append(f"{k} = {v!r}" if not isinstance(v, str) else f'{k} = "{v}"')
-        Path(path).write_text("\n".join(lines) + "\n")
+        write_text(path, "\n".join(lines) + "\n")
 
     # ------------------------------------------------------------ geometry
     @staticmethod

@@ -30,6 +30,7 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import DEFAULT, PRESETS, gimbal_from_dict, gimbal_to_dict
 from geoloc.sensors.lenses import lens_from_dict, lens_to_dict
 from geoloc.tomlio import read_toml
+from geoloc.userfiles import write_text
 
 #: Top-level tables and keys of a sensor file.
 TABLES = ("lens", "gimbal", "mount", "boresight", "lever_arm")
@@ -161,4 +162,4 @@ def sensor_to_toml(sensor: FrameSensor, path) -> None:
         lines.append(f"[{t}]")
         lines.extend(f"{k} = {_toml_value(v)}" for k, v in d.items())
         lines.append("")
-    Path(path).write_text("\n".join(lines))
+    write_text(path, "\n".join(lines))

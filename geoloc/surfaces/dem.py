@@ -34,6 +34,7 @@ import numpy as np
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.geodesy.geoid import NodeGrid, egm96_undulation
 from geoloc.status import Status
+from geoloc.userfiles import note_input
 
 DATUMS = ("egm96", "ellipsoid")
 
@@ -124,6 +125,7 @@ class DEM:
                              "itself (e.g. a GeoTIFF)")
         if not path.is_file():
             raise FileNotFoundError(f"DEM file not found: {path}")
+        note_input(path)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", NotGeoreferencedWarning)

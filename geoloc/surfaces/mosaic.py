@@ -61,6 +61,7 @@ from geoloc.geodesy.geoid import NodeGrid, egm96_undulation
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 from geoloc.surfaces.dem import DATUMS, DEM
+from geoloc.userfiles import note_input
 
 #: Default bound of the tile cache [bytes] (64 MiB: 2.2 M float64 nodes, a sixth of a 1'' SRTM tile).
 DEFAULT_CACHE_BYTES = 64 * 2**20
@@ -242,6 +243,7 @@ class DemMosaic:
         ref = None  # (path, crs, dlat, dlon, lat_n, lon_w)
         found = []
         for path in self.paths:
+            note_input(path)  # every tile is an input: no output may be written over one
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", NotGeoreferencedWarning)

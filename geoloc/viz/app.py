@@ -74,6 +74,7 @@ import viser
 
 from geoloc.locate import as_sensor
 from geoloc.status import describe
+from geoloc.userfiles import write_bytes, write_text
 from geoloc.viz import calibration_layer, flight_layer, teaching, teaching_panel
 from geoloc.viz.model import Inputs, Scenario, compute, drawn_frames
 from geoloc.viz.scenario import select_record
@@ -604,9 +605,9 @@ class GeolocApp(GeolocSession):
                                 self.md_summary.content,
                                 "Static export of geoloc view (no controls); "
                                 "the scene animates the terrain method's iterations.")
-            path.write_text(page)
+            write_text(path, page)
         else:
-            path.write_bytes(ser.serialize())
+            write_bytes(path, ser.serialize())
         return path
 
 

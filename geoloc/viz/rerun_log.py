@@ -57,6 +57,7 @@ Conventions: ``docs/conventions.md``.
 
 from __future__ import annotations
 
+import contextlib
 import uuid
 from pathlib import Path
 
@@ -67,6 +68,7 @@ import rerun.blueprint as rrb
 from geoloc.assets import ASSETS
 from geoloc.locate import as_sensor
 from geoloc.status import Status, describe
+from geoloc.userfiles import atomic_path
 from geoloc.viz.rerun_model import LogSteps
 from geoloc.viz.rerun_style import COLORS, series_color
 
@@ -517,10 +519,15 @@ def write(steps: LogSteps, out, *, display_scale: float = 200.0, serve: bool = F
     rerun.RecordingStream
         Flushed; disconnected when neither ``serve`` nor ``spawn`` is asked for.
     """
+    with contextlib.ExitStack() as stack:  # the .rrd is renamed into place once flushed
+        tmp = stack.enter_context(atomic_path(out)) if out is not None else None
+        return _write(steps, tmp, display_scale, serve, grpc_port, spawn)
+
+
+def _write(steps, out, display_scale, serve, grpc_port, spawn) -> rr.RecordingStream:
     rec = rr.RecordingStream("geoloc", recording_id=recording_id(steps))
     sinks = []
     if out is not None:
-        Path(out).parent.mkdir(parents=True, exist_ok=True)
         sinks.append(rr.FileSink(str(out)))
     if serve:
         sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=grpc_port))

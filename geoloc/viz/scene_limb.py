@@ -56,6 +56,7 @@ from geoloc.geodesy.ellipsoid import (
 )
 from geoloc.sensors.limb import limb_tangent, line_of_sight_l18
 from geoloc.status import Status, describe
+from geoloc.userfiles import write_bytes, write_text
 from geoloc.viz.scene_geoloc import WORLD_SCALE
 from geoloc.workflows.scenario import load_scenario
 
@@ -342,11 +343,10 @@ class LimbApp:
         if path.suffix.lower() == ".html":
             from geoloc.viz.export_html import with_summary
 
-            path.write_text(with_summary(ser.as_html(dark_mode=True), "geoloc view: limb",
-                                         self.md.content,
-                                         "Static export of geoloc view --scenario limb (no controls)."))
+            write_text(path, with_summary(ser.as_html(dark_mode=True), "geoloc view: limb", self.md.content,
+                                          "Static export of geoloc view --scenario limb (no controls)."))
         else:
-            path.write_bytes(ser.serialize())
+            write_bytes(path, ser.serialize())
         return path
 
 

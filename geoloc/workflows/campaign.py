@@ -364,6 +364,8 @@ def run_unit(index: int, unit, kind: str, cfg: CampaignConfig, out_dir: str,
 def _run_unit(index, unit, kind, cfg, out_dir) -> UnitResult:
     import pyarrow.parquet as pq
 
+    from geoloc.userfiles import atomic_path
+
     c0 = time.thread_time()
     source = unit if isinstance(unit, str) else f"{unit[0]} (+{len(unit) - 1} photos)"
     try:
@@ -374,7 +376,8 @@ def _run_unit(index, unit, kind, cfg, out_dir) -> UnitResult:
     part = None
     if table.num_rows:
         part = str(Path(out_dir) / f"part-{index:05d}.parquet")
-        pq.write_table(table, part, use_dictionary=_dictionary_columns(table))
+        with atomic_path(part) as tmp:  # a part is whole or absent: an interrupted campaign resumes cleanly
+            pq.write_table(table, tmp, use_dictionary=_dictionary_columns(table))
     return UnitResult(index, source, part, table.num_rows, messages, table.num_rows == 0 and kind == "klv",
                       time.thread_time() - c0, _threads_now())
 

@@ -82,6 +82,7 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import lens_from_fov
 from geoloc.status import Status, names
+from geoloc.userfiles import atomic_path
 
 __all__ = [
     "CONTAINER_SUFFIXES",
@@ -853,7 +854,7 @@ def write_klv_csv(path, replays) -> int:
         raise ValueError("no replay to write")
     header = list(replays[0].columns)
     n = 0
-    with Path(path).open("w", newline="") as fh:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         for r in replays:

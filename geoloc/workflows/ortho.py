@@ -34,6 +34,7 @@ import numpy as np
 from geoloc.io.columns import ELLIPSOID_DATUM
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
+from geoloc.userfiles import atomic_path
 
 #: Default chunk [rays]: whole image rows of about this many pixels per call of the surface.
 #: 2^18 rays hold ~45 MB of temporaries in the exact DEM solver (about 170 bytes a ray).
@@ -252,23 +253,24 @@ def write_frame_geotiff(path, sensor, pose, surface, *, step: int = 1, chunk: in
     descriptions = ("lat_deg: geodetic latitude, WGS 84 [deg]", "lon_deg: longitude, WGS 84, east + [deg]",
                     f"h_m: height [m], {ELLIPSOID_DATUM}", "status: geoloc.status.Status code (0 = ok)")
     path = Path(path)
-    with warnings.catch_warnings(), rasterio.Env():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)  # the image grid has no CRS by design
-        dst = rasterio.open(path, "w", **profile)
-    with dst:
-        dst.update_tags(**all_tags)
-        for b, (name, desc) in enumerate(zip(BANDS, descriptions), start=1):
-            dst.set_band_description(b, desc)
-            dst.update_tags(b, name=name, unit={"lat_deg": "deg", "lon_deg": "deg", "h_m": "m"}.get(name, ""),
-                            **({"datum": ELLIPSOID_DATUM} if name == "h_m" else {}))
-        for i0, i1, lat, lon, h, st in iter_frame(sensor, pose, surface, step=step, chunk=chunk,
-                                                  parallel=parallel):
-            win = rasterio.windows.Window(0, i0, cols.size, i1 - i0)
-            dst.write(np.rad2deg(lat), 1, window=win)
-            dst.write(np.rad2deg(lon), 2, window=win)
-            dst.write(h, 3, window=win)
-            dst.write(st.astype(np.float64), 4, window=win)
-            counts += np.bincount(st.reshape(-1), minlength=len(Status))
+    with atomic_path(path) as tmp:
+        with warnings.catch_warnings(), rasterio.Env():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)  # the image grid has no CRS by design
+            dst = rasterio.open(tmp, "w", **profile)
+        with dst:
+            dst.update_tags(**all_tags)
+            for b, (name, desc) in enumerate(zip(BANDS, descriptions), start=1):
+                dst.set_band_description(b, desc)
+                unit = {"lat_deg": "deg", "lon_deg": "deg", "h_m": "m"}.get(name, "")
+                dst.update_tags(b, name=name, unit=unit, **({"datum": ELLIPSOID_DATUM} if name == "h_m" else {}))
+            for i0, i1, lat, lon, h, st in iter_frame(sensor, pose, surface, step=step, chunk=chunk,
+                                                      parallel=parallel):
+                win = rasterio.windows.Window(0, i0, cols.size, i1 - i0)
+                dst.write(np.rad2deg(lat), 1, window=win)
+                dst.write(np.rad2deg(lon), 2, window=win)
+                dst.write(h, 3, window=win)
+                dst.write(st.astype(np.float64), 4, window=win)
+                counts += np.bincount(st.reshape(-1), minlength=len(Status))
     return {"path": str(path), "shape": [int(rows.size), int(cols.size)], "step": int(step),
             "counts": {Status(k).name.lower(): int(v) for k, v in enumerate(counts) if v}}
 
@@ -429,7 +431,7 @@ def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str =
                 "gsd_m": repr(grid.gsd_m), "visible_tol_m": repr(tol), "dem_height_datum": ELLIPSOID_DATUM,
                 "software": "geoloc ortho (geoloc.workflows.ortho.orthorectify)"}
     all_tags.update({k: str(v) for k, v in (tags or {}).items()})
-    with rasterio.open(out_path, "w", **profile) as dst:
+    with atomic_path(out_path) as tmp, rasterio.open(tmp, "w", **profile) as dst:
         dst.update_tags(**all_tags)
         for i0 in range(0, grid.height, per):
             i1 = min(grid.height, i0 + per)

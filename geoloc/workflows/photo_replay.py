@@ -40,6 +40,7 @@ from geoloc.status import Status, names
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import HeightSurface
 from geoloc.surfaces.terrain import DemSurface
+from geoloc.userfiles import atomic_path
 
 __all__ = ["OUTPUT_COLUMNS", "read_targets", "replay_photos", "summarize", "write_rows"]
 
@@ -367,7 +368,7 @@ def write_rows(path, rows) -> None:
     cols = [c for c in OUTPUT_COLUMNS]
     for r in rows:
         cols.extend(c for c in r if c not in cols)
-    with Path(path).open("w", newline="", encoding="utf-8") as fh:
+    with atomic_path(path) as tmp, tmp.open("w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
         w.writerow(cols)
         for r in rows:

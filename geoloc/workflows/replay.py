@@ -22,6 +22,7 @@ from geoloc.sensors.camera import Camera
 from geoloc.status import Status, names
 from geoloc.surfaces.base import GroundPoint
 from geoloc.surfaces.height import intersect_los_height
+from geoloc.userfiles import atomic_path
 
 #: Columns the replay adds to every input row.
 OUTPUT_COLUMNS = ["lat_deg", "lon_deg", "h_m", "error_to_paper_m", "error_to_truth_m"]
@@ -156,7 +157,7 @@ def write_replay_csv(path, result: ReplayResult) -> None:
     cols = result.columns()
     header = list(records.header) + [c for c in cols if c not in records.header]
     status = names(result.status)
-    with Path(path).open("w", newline="") as fh:
+    with atomic_path(path) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         for k, row in enumerate(records.rows):
