@@ -1,4 +1,4 @@
-"""``geoloc locate --dem`` and ``geoloc replay --dem`` (options from geoloc.cli.terrain_options)."""
+"""``geoloc locate --dem`` and ``geoloc replay --dem`` (options from geoloc.cli._options)."""
 
 import csv
 import json

@@ -15,7 +15,7 @@ import sys
 from geoloc import __version__
 
 #: Modules of this package that are helpers, not verbs.
-NOT_VERBS = {"terrain_options"}
+NOT_VERBS: set = set()
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -54,7 +54,7 @@ def register(sub) -> None:
                    help="inflated ellipsoid of [Q17] eq. 11 (default) or the exact constant-height surface")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
     p.set_defaults(func=run, _terrain_hook=None)
-    from geoloc.cli.terrain_options import add_dem_options, locate_hook
+    from geoloc.cli._options import add_dem_options, locate_hook
 
     add_dem_options(p, locate_hook)
 

@@ -74,7 +74,7 @@ def register(sub) -> None:
                    help="with --target-h-m: the inflated ellipsoid of [Q17] eq. 11 (default) or the exact "
                    "constant-height surface")
     p.set_defaults(func=run, _terrain_hook=None)
-    from geoloc.cli.terrain_options import add_dem_options
+    from geoloc.cli._options import add_dem_options
 
     add_dem_options(p, None)
 

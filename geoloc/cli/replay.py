@@ -66,7 +66,7 @@ def register(sub) -> None:
                    "this process), or a dask scheduler address such as tcp://10.0.0.5:8786")
     c.add_argument("--workers", type=int, default=2, help="campaign: workers of the local cluster (default 2)")
     p.set_defaults(func=run, _terrain_hook=None)
-    from geoloc.cli.terrain_options import add_dem_options, replay_hook
+    from geoloc.cli._options import add_dem_options, replay_hook
 
     add_dem_options(p, replay_hook)
 
@@ -178,7 +178,7 @@ def _run_klv(args, inputs) -> int:
     sensor = load_camera(str(resolve_user_path(args.camera))) if args.camera else None
     dem = None
     if args.dem:
-        from geoloc.cli.terrain_options import open_dem_arg
+        from geoloc.cli._options import open_dem_arg
 
         dem = open_dem_arg(args)  # one DEM, or a mosaic (DemSurface solves it region by region)
     replays = []
@@ -246,7 +246,7 @@ def _run_photos(args, inputs) -> int:
     sensor = load_camera(str(resolve_user_path(args.camera))) if args.camera else None
     dem = None
     if args.dem:
-        from geoloc.cli.terrain_options import open_dem_arg
+        from geoloc.cli._options import open_dem_arg
 
         dem = open_dem_arg(args)  # one DEM, or a mosaic (DemSurface solves it region by region)
     extra = {"altitude_datum": args.altitude_datum} if getattr(args, "altitude_datum", None) else {}
@@ -292,7 +292,7 @@ def _run_campaign(args, inputs) -> int:
         raise ValueError(f"--parquet-out {args.parquet_out} is an input: refusing to write into it")
     dem = None
     if args.dem:
-        from geoloc.cli.terrain_options import _mosaic_options, dem_sources
+        from geoloc.cli._options import _mosaic_options, dem_sources
 
         dem = dem_sources(args)
     cfg = CampaignConfig(
