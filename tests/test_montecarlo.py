@@ -298,7 +298,7 @@ def test_cli_stats_json_keys_and_values(tmp_path, capsys):
 
 def test_cli_sweep_writes_csv_and_png(tmp_path, capsys):
     assert main(["montecarlo", str(SCEN), "--sweep", "terrain", "--samples", "400",
-                 "--angles-deg", "10:70:60", "--terrain-sigmas-m", "10,100", "--out", str(tmp_path)]) == 0
+                 "--angles-deg", "10:70:60", "--terrain-sigmas-m", "10,100", "--out-dir", str(tmp_path)]) == 0
     rows = (tmp_path / "fig10a_terrain_sigma.csv").read_text().splitlines()
     assert rows[0] == "gimbal_roll_deg,curve,cep_m,cep50_empirical_m,n_ok"
     assert len(rows) == 1 + 2 * 2

@@ -38,7 +38,7 @@ def test_sweep_both_without_dem_refuses_before_writing_anything(tmp_path, capsys
     # before: Fig. 10a was written, then exit 2 on the missing [dem]
     out = tmp_path / "fig10"
     assert main(["montecarlo", str(SCEN), "--sweep", "both", "--samples", "50",
-                 "--angles-deg", "10:70:60", "--out", str(out)]) == 2
+                 "--angles-deg", "10:70:60", "--out-dir", str(out)]) == 2
     err = capsys.readouterr().err
     assert "has no [dem] table" in err and "qiao2017_table1_dem.toml" in err
     assert not out.exists() or not any(out.iterdir())
@@ -53,7 +53,7 @@ def test_readme_sweep_both_command_uses_a_scenario_with_a_dem(tmp_path, capsys):
     scen = re.search(r"assets/scenarios/(\S+\.toml)", cmds[0]).group(1)
     assert main(["montecarlo", str(asset_path("scenarios", scen)), "--sweep", "both",
                  "--samples", "60", "--angles-deg", "10:70:60", "--terrain-sigmas-m", "10",
-                 "--out", str(tmp_path)]) == 0
+                 "--out-dir", str(tmp_path)]) == 0
     assert {p.name for p in tmp_path.iterdir()} >= {"fig10a_terrain_sigma.csv", "fig10b_dem.csv"}
 
 

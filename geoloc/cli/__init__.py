@@ -33,34 +33,38 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-#: Options that name an input file: ``assets/...`` there means a bundled file wherever geoloc
-#: is installed (:func:`geoloc.assets.resolve_user_path`), so the README's commands run from any folder.
-PATH_OPTIONS = ("records", "camera", "dem", "scenario", "input", "columns", "targets", "inputs")
-
-
-def _resolve_paths(args) -> None:
-    from geoloc.assets import resolve_user_path
-
-    for name in PATH_OPTIONS:
-        v = getattr(args, name, None)
-        if isinstance(v, str):
-            setattr(args, name, str(resolve_user_path(v)))
-        elif isinstance(v, list) and all(isinstance(x, str) for x in v):
-            setattr(args, name, [str(resolve_user_path(x)) for x in v])
-
-
 def main(argv=None) -> int:
+    """Parse, check every output against every input (before anything runs), run the verb.
+
+    A refused output, a bad value or an unreadable or unwritable file is one line on
+    stderr and exit status 2 (docs/architecture.md, "The user's files").
+    """
+    from geoloc.cli._options import check_outputs
+    from geoloc.userfiles import command_files
+
     parser = build_parser()
     args = parser.parse_args(argv)
-    _resolve_paths(args)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     try:
-        return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError) as e:
-        print(f"geoloc {args.verb}: error: {e}", file=sys.stderr)
+        inputs = check_outputs(parser, args)
+        with command_files(inputs):
+            return int(args.func(args) or 0)
+    except (ValueError, OSError) as e:
+        print(f"geoloc {args.verb}: error: {_one_line(e)}", file=sys.stderr)
         return 2
+
+
+def _one_line(e: Exception) -> str:
+    """The error's message on one line; an OSError names its path and reason."""
+    if isinstance(e, OSError) and not isinstance(e, FileNotFoundError) and e.filename:
+        msg = f"{e.filename}: {e.strerror or e}"
+    elif isinstance(e, FileNotFoundError) and e.filename and not str(e).startswith(str(e.filename)):
+        msg = f"{e.filename}: no such file or folder"
+    else:
+        msg = str(e)
+    return " ".join(msg.split())
 
 
 if __name__ == "__main__":

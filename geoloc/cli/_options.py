@@ -1,6 +1,14 @@
-"""Command-line DEM options shared by the verbs that can locate on terrain (locate, replay).
+"""Options shared by the verbs: the path types every file option is declared with, and the DEM options.
 
-``add_dem_options(parser)`` adds ``--dem FILE --method --dem-datum --eps-h
+**Files.** Every option that names a file is declared with one of three argparse
+types, so that what a verb reads and writes is known from its declaration alone:
+:func:`input_path` (a file or folder it reads; ``assets/...`` names the bundled file
+where there is no such file here), :func:`output_path` (a file it writes) and
+:func:`output_dir` (a folder it writes files into). :func:`geoloc.cli.main` reads
+them (:func:`declared_files`) and checks every output against every input before
+the verb runs (docs/architecture.md, "The user's files").
+
+**DEM.** ``add_dem_options(parser)`` adds ``--dem FILE --method --dem-datum --eps-h
 --threshold --dem-model --dem-cache-mb``; ``--dem`` is one raster, or a folder of
 tiles, a ``.vrt`` or a repeated ``--dem``: a :class:`geoloc.surfaces.mosaic.DemMosaic`
 (:func:`open_surface`). Giving ``--dem`` installs the verb's terrain hook
@@ -20,12 +28,98 @@ import numpy as np
 from geoloc.surfaces.terrain import METHODS, SURFACES, surface_for
 
 
-def dem_sources(args):
-    """``--dem`` as given: one path (str) or, for a repeated ``--dem``, a list of paths."""
+# --------------------------------------------------------------------------- file options
+
+
+def input_path(text: str) -> str:
+    """argparse type of an option naming a file or folder the verb reads.
+
+    ``assets/...`` names the bundled file when there is no such file here
+    (:func:`geoloc.assets.resolve_user_path`), so the README's commands run anywhere.
+    """
     from geoloc.assets import resolve_user_path
 
-    d = args.dem
-    return [str(resolve_user_path(x)) for x in d] if isinstance(d, list) else str(resolve_user_path(d))
+    return str(resolve_user_path(text))
+
+
+def output_path(text: str) -> str:
+    """argparse type of an option naming a file the verb writes (checked before the verb runs)."""
+    return str(text)
+
+
+def output_dir(text: str) -> str:
+    """argparse type of an option naming a folder the verb writes files into."""
+    return str(text)
+
+
+#: The role of each path type, as :func:`declared_files` reports it.
+ROLES = {input_path: "input", output_path: "output", output_dir: "output_dir"}
+
+
+def chosen_parsers(parser, args) -> list:
+    """The parser and the sub-parsers ``args`` went through (``geoloc klv dump``: three)."""
+    out = [parser]
+    while True:
+        subs = [a for a in out[-1]._actions if isinstance(a, argparse._SubParsersAction)]
+        name = getattr(args, subs[0].dest, None) if subs else None
+        if not subs or name not in subs[0].choices:
+            return out
+        out.append(subs[0].choices[name])
+
+
+def declared_files(parser, args) -> tuple[list, list]:
+    """The inputs and outputs of a parsed command line, from its options' types.
+
+    Returns ``(inputs, outputs)``: ``inputs`` a list of paths, ``outputs`` a list of
+    ``(option, path, role)`` with ``role`` ``"output"`` or ``"output_dir"``.
+    """
+    inputs, outputs = [], []
+    for p in chosen_parsers(parser, args):
+        for a in p._actions:
+            role = ROLES.get(a.type)
+            v = getattr(args, a.dest, None) if role else None
+            if v is None:
+                continue
+            name = a.option_strings[0] if a.option_strings else a.metavar or a.dest
+            for x in (v if isinstance(v, list) else [v]):
+                if role == "input":
+                    inputs.append(x)
+                else:
+                    outputs.append((name, x, role))
+    return inputs, outputs
+
+
+def check_outputs(parser, args) -> list:
+    """Refuse, before the verb runs, an output that is an input or cannot be written; returns the inputs."""
+    from geoloc.userfiles import check_output, check_output_dir
+
+    inputs, outputs = declared_files(parser, args)
+    seen = {}
+    for name, path, role in outputs:
+        (check_output if role == "output" else check_output_dir)(path, name, inputs=inputs)
+        for other, q in seen.items():
+            if _same_path(path, q):
+                raise ValueError(f"{name} {path} and {other} {q} are the same file: give two paths")
+        seen[name] = path
+    return inputs
+
+
+def _same_path(a, b) -> bool:
+    import os
+    from pathlib import Path
+
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return Path(a).resolve() == Path(b).resolve()
+
+
+# --------------------------------------------------------------------------- DEM options
+
+
+def dem_sources(args):
+    """``--dem`` as given: one path (str) or, for a repeated ``--dem``, a list of paths."""
+    return list(args.dem) if isinstance(args.dem, list) else args.dem
 
 
 def _mosaic_options(args) -> dict:
@@ -113,7 +207,7 @@ class _DemAction(argparse.Action):
 def add_dem_options(parser, hook) -> None:
     """Add the DEM options to a verb's parser; ``hook`` runs the verb on the DEM."""
     g = parser.add_argument_group("terrain (DEM)")
-    g.add_argument("--dem", metavar="FILE", default=None, action=_DemAction, hook=hook,
+    g.add_argument("--dem", metavar="FILE", default=None, action=_DemAction, hook=hook, type=input_path,
                    help="DEM raster (GeoTIFF, ...): intersect the line of sight with the terrain instead "
                    "of a target height, e.g. assets/dem/etopo5_flight_area.tif; a folder of tiles, a GDAL "
                    ".vrt, or --dem given several times is one mosaic, read in windows on demand "

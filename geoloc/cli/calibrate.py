@@ -19,7 +19,9 @@ from geoloc.analysis.calibrate import (
     resect_camera,
 )
 from geoloc.assets import asset_path
+from geoloc.cli._options import input_path, output_path
 from geoloc.cli.locate import load_camera, load_records_reporting
+from geoloc.userfiles import write_text
 
 
 def register(sub) -> None:
@@ -31,7 +33,7 @@ def register(sub) -> None:
         "optionally focal length and principal point) by least squares, and report errors before, "
         "after and in leave-one-out cross-validation, as JSON. See docs/calibration.md.",
     )
-    p.add_argument("records", nargs="?", default=None,
+    p.add_argument("records", nargs="?", default=None, type=input_path,
                    help="records CSV with truth_lat_deg/truth_lon_deg (default: the bundled "
                         "assets/records/qiao2017_flight_tests.csv)")
     from geoloc.cli.locate import add_sensor_option
@@ -41,13 +43,13 @@ def register(sub) -> None:
                    help="a sensor file's named parameters to fit, comma-separated (e.g. "
                         "mount_x,mount_y,mount_z,fx,cx,cy,k1,lever_arm_x_m): the fit for any --sensor "
                         "(flights from --group-by, outliers, --joint, --loo and --resect apply to it too)")
-    p.add_argument("--write-sensor", default=None, metavar="FILE",
+    p.add_argument("--write-sensor", default=None, metavar="FILE", type=output_path,
                    help="with --fit: save the fitted sensor file (TOML)")
     t = p.add_mutually_exclusive_group()
     t.add_argument("--height-column", default=None,
                    help="column holding each target's ellipsoidal height [m], e.g. paper_height_m")
     t.add_argument("--target-h-m", type=float, default=None, help="one target height for every record [m]")
-    t.add_argument("--dem", default=None,
+    t.add_argument("--dem", default=None, type=input_path,
                    help="DEM raster: targets where the line of sight meets the terrain (geoloc.surfaces.terrain)")
     p.add_argument("--dem-datum", choices=["egm96", "ellipsoid"], default="egm96",
                    help="vertical datum of the DEM's heights (default egm96: orthometric)")
@@ -71,11 +73,11 @@ def register(sub) -> None:
                    help="also fit focal length and principal point to the published computed positions "
                         "(paper_lat_deg/paper_lon_deg) with unknown target heights: how the bundled "
                         "camera was derived")
-    p.add_argument("--out", default=None, help="write the JSON report here")
-    p.add_argument("--write-camera", default=None,
+    p.add_argument("--out", default=None, type=output_path, help="write the JSON report here")
+    p.add_argument("--write-camera", default=None, type=output_path,
                    help="save the calibrated camera (TOML); with several flights fitted separately, one "
                         "file per flight named STEM_<flight>.toml")
-    p.add_argument("--plot", default=None, help="matplotlib figure of the error vectors per flight (PNG)")
+    p.add_argument("--plot", default=None, type=output_path, help="matplotlib figure of the error vectors per flight (PNG)")
     p.add_argument("--exaggeration", type=float, default=1.0, help="arrow scale of --plot (default 1)")
     p.set_defaults(func=run)
 
@@ -189,7 +191,7 @@ def run_sensor_fit(args, camera) -> int:
         _print_parameters(report["resection"]["parameters"])
     report = _json_safe(report)
     if args.out:
-        Path(args.out).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
+        write_text(args.out, json.dumps(report, indent=2, allow_nan=False) + "\n", "--out")
         print(f"wrote {args.out}")
     if args.write_sensor:
         out = Path(args.write_sensor)
@@ -252,7 +254,7 @@ def run(args) -> int:
 
     report = _json_safe(report)
     if args.out:
-        Path(args.out).write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
+        write_text(args.out, json.dumps(report, indent=2, allow_nan=False) + "\n", "--out")
         print(f"wrote {args.out}")
     if args.write_camera:
         out = Path(args.write_camera)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from geoloc.cli._options import input_path, output_path
 from geoloc.io.gis import DEFAULT_EPOCH, EXTENSIONS, FORMATS, export, read_results
 
 
@@ -15,8 +16,8 @@ def register(sub) -> None:
         "(KML altitudes are above sea level). GeoJSON writes one file per layer: OUT.geojson (points) "
         "and OUT_<layer>.geojson. Rows without a position are kept (empty geometry) and listed.",
     )
-    p.add_argument("results", help="results CSV (e.g. from geoloc replay --out)")
-    p.add_argument("--out", required=True, help="output file (.gpkg, .geojson/.json, .kml, .czml)")
+    p.add_argument("results", type=input_path, help="results CSV (e.g. from geoloc replay --out)")
+    p.add_argument("--out", required=True, type=output_path, help="output file (.gpkg, .geojson/.json, .kml, .czml)")
     p.add_argument("--format", default=None,
                    help=f"one of {', '.join(FORMATS)} (default: from the extension of --out: "
                    f"{', '.join(EXTENSIONS)})")

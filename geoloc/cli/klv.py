@@ -11,8 +11,12 @@ printed. Exit code 0 if at least one good packet was decoded, else 1. Raw files
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
+from pathlib import Path
+
+from geoloc.cli._options import input_path, output_path
 
 
 def register(sub) -> None:
@@ -34,9 +38,9 @@ def register(sub) -> None:
         "packet) are reported on stderr with their byte offset and reason; the good packets "
         "around them are still printed. Exit code 0 if at least one packet was good, else 1.",
     )
-    d.add_argument("file", metavar="FILE",
+    d.add_argument("file", metavar="FILE", type=input_path,
                    help="raw KLV (.klv, .bin: concatenated packets) or a container (.ts, .m2ts, .mpg, .mp4)")
-    d.add_argument("--out", default=None, help="write the JSON lines to this file instead of stdout")
+    d.add_argument("--out", default=None, type=output_path, help="write the JSON lines to this file instead of stdout")
     d.add_argument("--no-checksum", action="store_true",
                    help="do not verify the checksums (tag 1), nor require them")
     d.set_defaults(func=run)
@@ -49,23 +53,19 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from geoloc.io.klv import KlvError, read_packets
+    from geoloc.io.klv import read_packets
 
+    from geoloc.userfiles import atomic_path
+
+    if Path(args.file).is_dir():
+        raise ValueError(f"{args.file} is a folder: give a .klv, .bin or .ts file")
     results = read_packets(args.file, verify_checksum=not args.no_checksum)
-    good = bad = 0
-    out = open(args.out, "w", encoding="utf-8") if args.out else sys.stdout
-    try:
-        for r in results:
-            if isinstance(r, KlvError):
-                bad += 1
-                print(f"geoloc klv: {args.file}: {r}", file=sys.stderr)
-                continue
-            good += 1
-            out.write(json.dumps(r.to_json(), ensure_ascii=False, allow_nan=False))
-            out.write("\n")
-    finally:
-        if out is not sys.stdout:
-            out.close()
+    with contextlib.ExitStack() as stack:
+        out = sys.stdout
+        if args.out:
+            tmp = stack.enter_context(atomic_path(args.out, "--out"))
+            out = stack.enter_context(tmp.open("w", encoding="utf-8"))
+        good, bad = _dump(args.file, results, out)
     if args.out:
         print(f"wrote {good} packets to {args.out}" + (f" ({bad} bad, see above)" if bad else ""),
               file=sys.stderr)
@@ -73,3 +73,19 @@ def run(args) -> int:
         print(f"geoloc klv: {args.file}: no good UAS LS packet", file=sys.stderr)
         return 1
     return 0
+
+
+def _dump(name, results, out) -> tuple[int, int]:
+    """Write each good packet as a JSON line to ``out``, report each bad one; returns (good, bad)."""
+    from geoloc.io.klv import KlvError
+
+    good = bad = 0
+    for r in results:
+        if isinstance(r, KlvError):
+            bad += 1
+            print(f"geoloc klv: {name}: {r}", file=sys.stderr)
+            continue
+        good += 1
+        out.write(json.dumps(r.to_json(), ensure_ascii=False, allow_nan=False))
+        out.write("\n")
+    return good, bad

@@ -14,9 +14,11 @@ import sys
 
 import numpy as np
 
+from geoloc.cli._options import input_path, output_path
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic
 from geoloc.sensors.limb import limb_tangent
 from geoloc.status import Status, describe
+from geoloc.userfiles import atomic_path
 from geoloc.workflows.scenario import load_scenario
 
 
@@ -30,8 +32,8 @@ def register(sub) -> None:
         "(orbit, attitude, slit; e.g. assets/scenarios/tiangong2_limb.toml) or one raw line "
         "of sight given in ECEF.",
     )
-    p.add_argument("scenario", nargs="?", default=None, help="limb scenario TOML file (see docs/limb.md)")
-    p.add_argument("--out", default=None, help="scenario mode: write one CSV row per frame and pixel here")
+    p.add_argument("scenario", nargs="?", default=None, type=input_path, help="limb scenario TOML file (see docs/limb.md)")
+    p.add_argument("--out", default=None, type=output_path, help="scenario mode: write one CSV row per frame and pixel here")
     p.add_argument("--frames", type=int, default=None, help="scenario mode: use only the first N frames")
     p.add_argument("--origin-ecef", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="raw mode: sensor position, ECEF [m]")
@@ -145,7 +147,7 @@ def _scenario(args) -> int:
                 return fmt.get(name, "{:.8f}").format(v)
             return str(v)
 
-        with open(args.out, "w", newline="") as fh:
+        with atomic_path(args.out, "--out") as tmp, open(tmp, "w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(_COLUMNS)
             for i in range(nf * npx):

@@ -13,6 +13,7 @@ import sys
 
 import numpy as np
 
+from geoloc.cli._options import input_path
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.frames.chain import Pose
 from geoloc.io.columns import (
@@ -83,7 +84,7 @@ def add_gimbal_options(g) -> None:
 
 def add_sensor_option(parser) -> None:
     """``--sensor FILE`` (alias ``--camera``): a sensor file, or a first-phase camera file."""
-    parser.add_argument("--sensor", "--camera", dest="camera", default=None, metavar="FILE",
+    parser.add_argument("--sensor", "--camera", dest="camera", default=None, metavar="FILE", type=input_path,
                         help="sensor TOML ([lens], [gimbal], [mount], [lever_arm], [boresight]; "
                         "docs/sensor_format.md) or a first-phase camera TOML "
                         "(default: the bundled assets/cameras/qiao2017.toml)")
@@ -106,7 +107,7 @@ def add_altitude_datum_option(parser, what: str = "the records' ac_h_m") -> None
 
 def add_columns_option(parser) -> None:
     """``--columns FILE``: a column map for the records CSV (docs/columns.md)."""
-    parser.add_argument("--columns", default=None, metavar="MAP.toml",
+    parser.add_argument("--columns", default=None, metavar="MAP.toml", type=input_path,
                         help="column map: the records CSV's own column names and units (deg/rad, m/ft, "
                         "ellipsoid/egm96 heights, zero-/one-based pixels) onto the canonical columns "
                         "(docs/columns.md); default: the sensor file's [columns] table, if any")
@@ -184,14 +185,11 @@ def load_records_reporting(path, sensor=None, columns=None, altitude_datum=None)
 
 def column_map_from_args(args) -> ColumnMap | None:
     """The column map of ``--columns FILE``, else of the ``--sensor`` file's ``[columns]`` table, else None."""
-    from geoloc.assets import resolve_user_path
-
     path = getattr(args, "columns", None)
     if path:
-        return load_column_map(resolve_user_path(path))
+        return load_column_map(path)
     sensor_path = getattr(args, "camera", None)
     if sensor_path:
-        sensor_path = resolve_user_path(sensor_path)
         table = load_sensor_columns(sensor_path)
         if table is not None:
             return ColumnMap.from_table(table, source=str(sensor_path))

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from geoloc.cli._options import input_path, output_path
 from geoloc.assets import ASSETS
 
 
@@ -31,12 +32,12 @@ def register(sub) -> None:
         "in a log, an offline 2D target/truth plot, map points and a default layout whose 3D view follows "
         "the current hit. Open it with `rerun run.rrd` (or the web viewer: --serve). See docs/rerun.md.",
     )
-    p.add_argument("input", metavar="SCENARIO_OR_RECORDS",
+    p.add_argument("input", metavar="SCENARIO_OR_RECORDS", type=input_path,
                    help="scenario .toml (or the name of a bundled one) or records .csv")
-    p.add_argument("--out", default=None, help="output .rrd file (required unless --serve or --spawn)")
-    p.add_argument("--camera", default=None, help="camera TOML (default: the scenario's, else bundled qiao2017.toml)")
+    p.add_argument("--out", default=None, type=output_path, help="output .rrd file (required unless --serve or --spawn)")
+    p.add_argument("--camera", default=None, type=input_path, help="camera TOML (default: the scenario's, else bundled qiao2017.toml)")
     g = p.add_argument_group("records: target height (first given wins; default paper_height_m)")
-    g.add_argument("--dem", default=None, help="DEM GeoTIFF to intersect the lines of sight with")
+    g.add_argument("--dem", default=None, type=input_path, help="DEM GeoTIFF to intersect the lines of sight with")
     g.add_argument("--dem-datum", choices=["egm96", "ellipsoid"], default="egm96",
                    help="vertical datum of the DEM heights (default egm96: orthometric)")
     g.add_argument("--method", choices=["steps", "bisect", "exact"], default="exact",

@@ -14,7 +14,9 @@ import numpy as np
 
 from geoloc.analysis import montecarlo as mc
 from geoloc.analysis.errormodel import ErrorModel
+from geoloc.cli._options import input_path, output_dir, output_path
 from geoloc.status import Status
+from geoloc.userfiles import check_output_dir, write_text
 
 
 def register(sub) -> None:
@@ -27,13 +29,13 @@ def register(sub) -> None:
         "standard deviation of lat, lon, h, the CEP of [Q17] eq. 18 and the empirical 50 %% "
         "radius. With --sweep, CEP against the outer gimbal angle ([Q17] Fig. 10) as CSV + PNG.",
     )
-    p.add_argument("scenario", help="scenario TOML, e.g. assets/scenarios/qiao2017_table1.toml "
+    p.add_argument("scenario", type=input_path, help="scenario TOML, e.g. assets/scenarios/qiao2017_table1.toml "
                    "(a path starting with assets/ names the bundled file when it is not here)")
     p.add_argument("--samples", type=sample_count, default=5000,
                    help="number of samples N (default 5000; 1e9 is accepted: the samples are "
                    "processed in chunks and their statistics streamed, in constant memory)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--sensor", "--camera", dest="sensor", default=None, metavar="FILE",
+    p.add_argument("--sensor", "--camera", dest="sensor", default=None, metavar="FILE", type=input_path,
                    help="sensor TOML (docs/sensor_format.md; a lens of any model on the roll-pitch "
                    "gimbal) or first-phase camera TOML replacing the scenario's [camera] table")
     p.add_argument("--error", action="append", default=[], metavar="SOURCE=DIST:VALUE",
@@ -42,8 +44,10 @@ def register(sub) -> None:
                    "vibration_yaw_deg=uniform:0.01 (normal:SIGMA or uniform:MAX, optional :BIAS); "
                    "lens sources: fx_px fy_px focal_length_px cx_px cy_px skew_px k1 k2 p1 p2 k3 k4 k5 k6; "
                    "repeatable")
-    p.add_argument("--out", default=None,
-                   help="statistics JSON (single run) or output folder (with --sweep)")
+    p.add_argument("--out", default=None, type=output_path,
+                   help="statistics JSON of a single run")
+    p.add_argument("--out-dir", default=None, type=output_dir,
+                   help="with --sweep: the folder of the sweep's CSV and PNG files (default montecarlo_sweep)")
     p.add_argument("--sweep", choices=["terrain", "dem", "both"], default=None,
                    help="terrain: CEP vs gimbal roll for several terrain sigmas, ellipsoid model "
                    "([Q17] Fig. 10a); dem: the same with the target on the scenario's DEM "
@@ -54,7 +58,7 @@ def register(sub) -> None:
     p.add_argument("--terrain-sigmas-m", default=None,
                    help="comma-separated terrain standard deviations [m] for --sweep terrain "
                    "(default: the scenario's [sweep] terrain_sigmas_m, else 10,20,...,100)")
-    p.add_argument("--dem", default=None,
+    p.add_argument("--dem", default=None, type=input_path,
                    help="DEM file replacing the target height (overrides the scenario's [dem])")
     p.add_argument("--dem-datum", default="egm96",
                    help="vertical datum of --dem heights: egm96 (default) or ellipsoid")
@@ -136,9 +140,7 @@ def load_model(args) -> ErrorModel:
     from dataclasses import replace
 
     from geoloc.analysis.errormodel import DemSpec
-    from geoloc.assets import resolve_user_path
-
-    scenario = resolve_user_path(args.scenario)
+    scenario = Path(args.scenario)
     if not scenario.is_file():
         raise FileNotFoundError(f"scenario file not found: {args.scenario}")
     from geoloc.workflows.scenario import load_scenario
@@ -147,7 +149,7 @@ def load_model(args) -> ErrorModel:
     if getattr(args, "sensor", None):
         from geoloc.sensors.sensor_file import load_camera_or_sensor
 
-        path = resolve_user_path(args.sensor)
+        path = Path(args.sensor)
         if not path.is_file():
             raise FileNotFoundError(f"--sensor file not found: {args.sensor}")
         model = model.with_camera(load_camera_or_sensor(path))
@@ -156,7 +158,7 @@ def load_model(args) -> ErrorModel:
     if args.no_dem:
         model = model.without_dem()
     if args.dem:
-        dem = resolve_user_path(args.dem)
+        dem = Path(args.dem)
         if not dem.exists():
             raise FileNotFoundError(f"--dem file not found: {args.dem}")
         model = replace(model, dem=DemSpec(dem, args.dem_datum,
@@ -184,6 +186,11 @@ def run(args) -> int:
         raise ValueError(f"--samples = {args.samples}: must be >= 2")
     if args.chunk < 1:
         raise ValueError(f"--chunk = {args.chunk}: must be >= 1")
+    if args.sweep and args.out:
+        raise ValueError(f"--out {args.out} is the statistics JSON of a single run; a sweep writes its CSV "
+                         "and PNG files into --out-dir DIR")
+    if args.out_dir and not args.sweep:
+        raise ValueError(f"--out-dir {args.out_dir} goes with --sweep; a single run writes --out FILE.json")
     model = load_model(args)
     if args.sweep in ("dem", "both") and model.dem is None:
         # refuse before any work (and before writing Fig. 10a for --sweep both)
@@ -217,7 +224,7 @@ def run(args) -> int:
                 print(f"first order      not available: {e}")
         if args.out:
             out = {k: float(res.stats[k]) for k in mc.STATS_KEYS}
-            Path(args.out).write_text(json.dumps(out, indent=2) + "\n")
+            write_text(args.out, json.dumps(out, indent=2) + "\n", "--out")
             print(f"wrote {args.out}")
         return 0
 
@@ -226,7 +233,7 @@ def run(args) -> int:
         _sweep_angles(sw.get("angles_deg")) if "angles_deg" in sw else parse_angles("10:82:2"))
     sigmas = _floats(args.terrain_sigmas_m, "--terrain-sigmas-m") if args.terrain_sigmas_m else (
         np.asarray(sw.get("terrain_sigmas_m", np.arange(10.0, 101.0, 10.0)), float))
-    outdir = Path(args.out or "montecarlo_sweep")
+    outdir = check_output_dir(args.out_dir or "montecarlo_sweep", "--out-dir")
     outdir.mkdir(parents=True, exist_ok=True)
     kinds = ["terrain", "dem"] if args.sweep == "both" else [args.sweep]
     for kind in kinds:

@@ -18,6 +18,7 @@ import sys
 import time
 from pathlib import Path
 
+from geoloc.cli._options import input_path, output_path
 from geoloc.cli.locate import (
     add_columns_option,
     add_gimbal_options,
@@ -47,18 +48,18 @@ def register(sub) -> None:
     g.add_argument("--record", default=None, metavar="LABEL",
                    help="take the pose from this record of --records (its label: table-point, e.g. T3-1, "
                    "or 'line N')")
-    g.add_argument("--records", default=None, metavar="CSV",
+    g.add_argument("--records", default=None, metavar="CSV", type=input_path,
                    help="records CSV for --record (default: the bundled assets/records/qiao2017_flight_tests.csv)")
     add_columns_option(g)
-    g.add_argument("--photo", default=None, metavar="JPG",
+    g.add_argument("--photo", default=None, metavar="JPG", type=input_path,
                    help="a DJI photo: its own sensor (or --sensor's lens) and pose; enables --ortho-out")
     o = p.add_argument_group("output")
-    o.add_argument("--out", required=True, metavar="FILE.tif",
+    o.add_argument("--out", required=True, metavar="FILE.tif", type=output_path,
                    help="GeoTIFF on the image grid: bands lat_deg, lon_deg, h_m (ellipsoidal), status")
     o.add_argument("--step", type=int, default=1, help="every Nth pixel in both directions (default 1: all)")
     o.add_argument("--chunk", type=int, default=None,
                    help="rays per call of the DEM solver (default 262144; memory is bounded by it)")
-    o.add_argument("--ortho-out", default=None, metavar="FILE.tif",
+    o.add_argument("--ortho-out", default=None, metavar="FILE.tif", type=output_path,
                    help="with --photo: the orthorectified photo (RGB + alpha), north-up")
     o.add_argument("--gsd-m", type=float, default=None, help="cell size of --ortho-out [m] (required with it)")
     o.add_argument("--ortho-crs", default="geographic",
@@ -106,11 +107,10 @@ def _pose(args):
     if len(given) > 1:
         raise ValueError(f"the pose is given twice ({' and '.join(given)}): use one of them")
     if args.photo:
-        from geoloc.assets import resolve_user_path
         from geoloc.io.photos import photo_sensor, pose_from_photo, read_photo
         from geoloc.sensors.sensor_file import load_camera_or_sensor
 
-        path = resolve_user_path(args.photo)
+        path = args.photo
         meta = read_photo(path)
         user = as_sensor(load_camera_or_sensor(args.camera)) if args.camera else None
         sensor, lens = photo_sensor(meta, user)
@@ -180,10 +180,13 @@ def run(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in (".tif", ".tiff"):
         raise ValueError(f"--out {args.out}: must be a GeoTIFF (.tif)")
-    if not out.parent.exists():
-        raise ValueError(f"--out {args.out}: folder {out.parent} does not exist")
     sensor, pose, meta, pose_from = _pose(args)
     surface, surface_text = _surface(args, pose)
+    if args.ortho_out:  # checked before the first output is written
+        from geoloc.surfaces.terrain import DemSurface
+
+        if not isinstance(surface, DemSurface):
+            raise ValueError("--ortho-out needs a DEM (--dem or a bundled one), not --target-h-m")
     tags = {"pose": pose_from, "surface": surface_text, "sensor": getattr(sensor, "name", "") or "frame sensor"}
     t0 = time.perf_counter()
     info = write_frame_geotiff(out, sensor, pose, surface, step=args.step, chunk=chunk, tags=tags,
@@ -191,10 +194,6 @@ def run(args) -> int:
     info["seconds"] = time.perf_counter() - t0
     info.update(pose=pose_from, surface=surface_text, h_datum=ELLIPSOID_DATUM)
     if args.ortho_out:
-        from geoloc.surfaces.terrain import DemSurface
-
-        if not isinstance(surface, DemSurface):
-            raise ValueError("--ortho-out needs a DEM (--dem or a bundled one), not --target-h-m")
         image = read_photo_pixels(Path(meta.path))
         info["ortho"] = orthorectify(image, sensor, pose, surface.dem, args.ortho_out, gsd_m=args.gsd_m,
                                      crs=args.ortho_crs, chunk=chunk, tags={"photo": meta.name},

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
-from geoloc.assets import DEFAULT_RECORDS, asset_path, resolve_user_path
+from geoloc.cli._options import input_path, output_dir, output_path
+from geoloc.assets import DEFAULT_RECORDS, asset_path
 from geoloc.cli.locate import (
     add_records_options,
     add_sensor_option,
@@ -33,7 +33,7 @@ def register(sub) -> None:
         "recomputed from its own pose and compared with the packet's, outliers flagged (docs/klv.md). "
         "Drone photos with --targets: docs/photos.md.",
     )
-    p.add_argument("records", nargs="*", default=None, metavar="INPUT",
+    p.add_argument("records", nargs="*", default=None, metavar="INPUT", type=input_path,
                    help="records CSV (default: the bundled assets/records/qiao2017_flight_tests.csv); "
                    "or MISB ST 0601 KLV: raw .klv/.bin or video .ts/.mpg/.mp4 (one or more files: each "
                    "packet's frame centre and corners recomputed and compared, docs/klv.md); or drone "
@@ -45,20 +45,20 @@ def register(sub) -> None:
     p.add_argument("--target-h-m", type=float, default=None, help="one target height for every record [m]")
     p.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
                    help="inflated ellipsoid of [Q17] eq. 11 (default) or the exact constant-height surface")
-    p.add_argument("--out", default=None,
+    p.add_argument("--out", default=None, type=output_path,
                    help="output CSV of every row (never the input file: refused)")
     p.add_argument("--print-rows", action="store_true",
                    help=f"print one line per record even with --out or more than {ROWS_SHOWN} "
                    "records (default: the per-record lines only without --out and for at most "
                    f"{ROWS_SHOWN} records; the per-flight summary always)")
     p.add_argument("--group-by", default="table", help="column that groups records into flights (default: table)")
-    p.add_argument("--export", default=None, metavar="FILE",
+    p.add_argument("--export", default=None, metavar="FILE", type=output_path,
                    help="also write the results to GIS: FILE.gpkg, .geojson, .kml or .czml "
                    "(points, truth, error vectors, track; docs/gis.md)")
-    p.add_argument("--targets", default=None, metavar="T.csv",
+    p.add_argument("--targets", default=None, metavar="T.csv", type=input_path,
                    help="drone photos: the targets to locate (columns image,row,col; optional truth columns)")
     c = p.add_argument_group("campaigns (many inputs on dask.distributed, docs/scale.md)")
-    c.add_argument("--parquet-out", default=None, metavar="DIR",
+    c.add_argument("--parquet-out", default=None, metavar="DIR", type=output_dir,
                    help="campaign: replay every input (files, or folders of KLV/TS files, photos, or a "
                    "partitioned Parquet / CSVs of records) unit by unit and write the rows to DIR/part-*.parquet")
     c.add_argument("--scheduler", default="local", metavar="ADDR",
@@ -75,13 +75,6 @@ def register(sub) -> None:
 ROWS_SHOWN = 50
 
 
-def _same_file(a, b) -> bool:
-    a, b = Path(a), Path(b)
-    if a.exists() and b.exists():
-        return os.path.samefile(a, b)
-    return a.resolve() == b.resolve()
-
-
 def run(args) -> int:
     inputs = list(args.records or [])
     if args.parquet_out or any(Path(x).is_dir() or Path(x).suffix.lower() in (".parquet", ".pq") for x in inputs):
@@ -95,12 +88,9 @@ def run(args) -> int:
         raise ValueError(f"{len(inputs)} records files given ({', '.join(inputs)}): give one records CSV "
                          "(several inputs are for KLV files or photos)")
     args.records = inputs[0] if inputs else None
-    records_path = (resolve_user_path(args.records) if args.records is not None
+    records_path = (args.records if args.records is not None
                     else asset_path(*DEFAULT_RECORDS))
-    if args.out and _same_file(args.out, records_path):
-        raise ValueError(f"--out {args.out} is the input records file: refusing to overwrite it; "
-                         "write the replay to another file")
-    camera = load_camera(str(resolve_user_path(args.camera)) if args.camera else None)
+    camera = load_camera(args.camera)
     records = records_from_args(args, str(records_path), camera)
     if args._terrain_hook is not None:
         result = args._terrain_hook(args, records, camera)
@@ -172,10 +162,8 @@ def _run_klv(args, inputs) -> int:
     if getattr(args, "altitude_datum", None) is not None:
         print("geoloc replay: note: --altitude-datum is not used for KLV: MISB ST 0601 gives each height's "
               "datum (tags 75, 78: ellipsoid; tags 15, 25: MSL, made ellipsoidal with EGM96)", file=sys.stderr)
-    paths = [resolve_user_path(x) for x in inputs]
-    if args.out and any(_same_file(args.out, p) for p in paths):
-        raise ValueError(f"--out {args.out} is an input file: refusing to overwrite it")
-    sensor = load_camera(str(resolve_user_path(args.camera))) if args.camera else None
+    paths = [Path(x) for x in inputs]
+    sensor = load_camera(args.camera) if args.camera else None
     dem = None
     if args.dem:
         from geoloc.cli._options import open_dem_arg
@@ -240,17 +228,15 @@ def _run_photos(args, inputs) -> int:
     _reject_records_options(args, "drone photos")
     if not args.targets:
         raise ValueError("drone photos need --targets T.csv (columns image,row,col; optional truth columns)")
-    photos = [str(resolve_user_path(x)) for x in inputs]
-    if args.out and any(_same_file(args.out, p) for p in photos + [str(resolve_user_path(args.targets))]):
-        raise ValueError(f"--out {args.out} is an input file: refusing to overwrite it")
-    sensor = load_camera(str(resolve_user_path(args.camera))) if args.camera else None
+    photos = list(inputs)
+    sensor = load_camera(args.camera) if args.camera else None
     dem = None
     if args.dem:
         from geoloc.cli._options import open_dem_arg
 
         dem = open_dem_arg(args)  # one DEM, or a mosaic (DemSurface solves it region by region)
     extra = {"altitude_datum": args.altitude_datum} if getattr(args, "altitude_datum", None) else {}
-    rows, messages = replay_photos(photos, str(resolve_user_path(args.targets)), sensor=sensor, dem=dem,
+    rows, messages = replay_photos(photos, args.targets, sensor=sensor, dem=dem,
                                    method=args.method, **extra)
     for m in messages:
         print(f"geoloc replay: {m}", file=sys.stderr)
@@ -286,22 +272,20 @@ def _run_campaign(args, inputs) -> int:
     for opt in ("out", "export"):
         if getattr(args, opt, None):
             raise ValueError(f"--{opt} is for one replay; a campaign writes Parquet parts (--parquet-out)")
-    paths = [str(resolve_user_path(x)) for x in inputs]
-    out = str(resolve_user_path(args.parquet_out))
-    if any(_same_file(out, p) for p in paths):
-        raise ValueError(f"--parquet-out {args.parquet_out} is an input: refusing to write into it")
+    paths = list(inputs)
+    out = args.parquet_out
     dem = None
     if args.dem:
         from geoloc.cli._options import _mosaic_options, dem_sources
 
         dem = dem_sources(args)
     cfg = CampaignConfig(
-        sensor=str(resolve_user_path(args.camera)) if args.camera else None, dem=dem, dem_datum=args.dem_datum,
+        sensor=args.camera, dem=dem, dem_datum=args.dem_datum,
         method=args.method, dem_model=args.dem_surface,
         dem_options={"eps_h": args.eps_h, "threshold": args.threshold},
         target_h_m=args.target_h_m, height_column=args.height_column,
         altitude_datum=getattr(args, "altitude_datum", None) or "ellipsoid",
-        targets=str(resolve_user_path(args.targets)) if args.targets else None,
+        targets=args.targets,
         **({"dem_cache_bytes": _mosaic_options(args)["cache_bytes"]} if dem else {}))
     if args.workers < 1:
         raise ValueError(f"--workers {args.workers}: must be at least 1")

@@ -26,6 +26,8 @@ from geoloc.analysis.accuracy import (
     sight_geometry,
     track_azimuth_rad,
 )
+from geoloc.cli._options import input_path, output_dir
+from geoloc.userfiles import atomic_path, write_text
 
 #: Reference prefixes tried by ``--reference auto``, in this order.
 AUTO_REFERENCES = ("truth", "reported", "paper")
@@ -46,7 +48,7 @@ def register(sub) -> None:
         "pixel radius, a linear error model in slant range and a datum warning. [Q17] eq. 18's radial RMS "
         "is a separate line. See docs/report.md.",
     )
-    p.add_argument("results", metavar="RESULTS.csv", help="output CSV of `geoloc replay --out`")
+    p.add_argument("results", metavar="RESULTS.csv", type=input_path, help="output CSV of `geoloc replay --out`")
     p.add_argument("--reference", default="auto", choices=["auto", *AUTO_REFERENCES],
                    help="reference positions: columns {ref}_lat_deg, {ref}_lon_deg (and {ref}_h_m); auto: the "
                    "first of truth, reported (KLV frame centre), paper with values")
@@ -56,10 +58,10 @@ def register(sub) -> None:
     p.add_argument("--group-by", default=None,
                    help="column grouping rows into flights (default: table, else file, else one group; "
                    "'none' for one group)")
-    p.add_argument("--camera", default=None,
+    p.add_argument("--camera", default=None, type=input_path,
                    help="camera/sensor file giving the image size for the pixel radius (default: the bundled "
                    "[Q17] camera for flight-test records; none for other inputs)")
-    p.add_argument("--out-dir", default=None, help="write PNG plots, report.json and report.html here")
+    p.add_argument("--out-dir", default=None, type=output_dir, help="write PNG plots, report.json and report.html here")
     p.add_argument("--json", action="store_true", help="print the numbers as JSON (instead of the table)")
     p.set_defaults(func=run)
 
@@ -219,7 +221,8 @@ def write_plots(rep: AccuracyReport, out_dir) -> list:
     def save(fig, name):
         p = out_dir / name
         fig.tight_layout()
-        fig.savefig(p, dpi=96)
+        with atomic_path(p) as tmp:
+            fig.savefig(tmp, dpi=96)
         plt.close(fig)
         paths.append(p)
 
@@ -328,7 +331,7 @@ def write_html(rep: AccuracyReport, pngs, path) -> Path:
         parts.append(f"<img alt='{html.escape(Path(p).stem)}' src='data:image/png;base64,{b64}'>")
     parts.append("<h2>Numbers (JSON)</h2><pre>" + html.escape(json.dumps(rep.to_dict(), indent=1)) + "</pre>")
     parts.append("</body></html>")
-    path.write_text("\n".join(parts), encoding="utf-8")
+    write_text(path, "\n".join(parts))
     return path
 
 
@@ -347,7 +350,7 @@ def run(args) -> int:
     if args.out_dir:
         out = Path(args.out_dir)
         pngs = write_plots(rep, out)
-        (out / "report.json").write_text(json.dumps(rep.to_dict(per_target=True), indent=1))
+        write_text(out / "report.json", json.dumps(rep.to_dict(per_target=True), indent=1))
         page = write_html(rep, pngs, out / "report.html")
         print(f"wrote {page}, report.json and {len(pngs)} PNG plot(s) to {out}",
               file=sys.stderr if args.json else sys.stdout)

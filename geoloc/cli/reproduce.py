@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from geoloc.cli._options import output_path
+from geoloc.userfiles import write_text
 from geoloc.workflows import reproduce as rp
 
 PAPERS = {
@@ -33,7 +35,7 @@ def register(sub) -> None:
     p.add_argument("--tolerances-m", default="10,2,1",
                    help="li2023: comma-separated height tolerances [m], step of the descending "
                    "method and bisection threshold (default 10,2,1)")
-    p.add_argument("--json", default=None, help="also write the key numbers to this JSON file")
+    p.add_argument("--json", default=None, type=output_path, help="also write the key numbers to this JSON file")
     p.set_defaults(func=run)
 
 
@@ -57,6 +59,6 @@ def run(args) -> int:
         rep = rp.li2023_report(seed=args.seed, n_rays=args.rays, tolerances_m=tols)
     print(rep.text())
     if args.json:
-        Path(args.json).write_text(json.dumps(rep.numbers, indent=2) + "\n")
+        write_text(args.json, json.dumps(rep.numbers, indent=2) + "\n", "--json")
         print(f"wrote {args.json}")
     return 0

@@ -9,6 +9,9 @@ import json
 import math
 from pathlib import Path
 
+from geoloc.cli._options import input_path, output_path
+from geoloc.userfiles import write_text
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -20,14 +23,14 @@ def register(subparsers) -> None:
             "independent check points, write the RPC as GDAL metadata into a GeoTIFF, and compare "
             "GDAL's RPC transformer with RPC_DEM against the project's exact DEM intersection."),
     )
-    p.add_argument("scenario", help="scenario TOML (e.g. assets/scenarios/zy3_nadir.toml)")
-    p.add_argument("--out", required=True, help="GeoTIFF to write (RPC tag, sparse pixels)")
-    p.add_argument("--report", help="JSON report to write (fit_rms_px, check_rms_px, check_max_px, "
+    p.add_argument("scenario", type=input_path, help="scenario TOML (e.g. assets/scenarios/zy3_nadir.toml)")
+    p.add_argument("--out", required=True, type=output_path, help="GeoTIFF to write (RPC tag, sparse pixels)")
+    p.add_argument("--report", type=output_path, help="JSON report to write (fit_rms_px, check_rms_px, check_max_px, "
                                     "gdal_vs_exact_max_px, ...)")
     p.add_argument("--no-gdal", action="store_true", help="skip the GDAL RPC_DEM cross-check")
     p.add_argument("--gdal-threshold-px", type=float, default=1e-6,
                    help="GDAL RPC_PIXEL_ERROR_THRESHOLD for the cross-check [px] (GDAL's default is 0.1)")
-    p.add_argument("--ellipsoidal-dem", help="keep the ellipsoidal-height DEM copy given to GDAL at this path")
+    p.add_argument("--ellipsoidal-dem", type=output_path, help="keep the ellipsoidal-height DEM copy given to GDAL at this path")
     p.set_defaults(func=run)
 
 
@@ -39,8 +42,6 @@ def run(args) -> int:
     if not (math.isfinite(thr) and thr > 0):
         raise ValueError(f"--gdal-threshold-px = {thr!r} must be a number > 0 (pixels)")
     out = Path(args.out)
-    if not out.parent.exists():
-        raise FileNotFoundError(f"--out {out}: folder {out.parent} does not exist")
     sc = load_scenario(args.scenario)
     rep = rpc_report(sc, out, gdal=not args.no_gdal, pixel_error_threshold=thr,
                      dem_copy=args.ellipsoidal_dem)
@@ -57,6 +58,6 @@ def run(args) -> int:
         print(f"  GDAL cross-check: {rep.get('gdal_note')}")
     print(f"  wrote {out}")
     if args.report:
-        Path(args.report).write_text(json.dumps(rep, indent=2) + "\n")
+        write_text(args.report, json.dumps(rep, indent=2) + "\n", "--report")
         print(f"  wrote {args.report}")
     return 0

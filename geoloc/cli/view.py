@@ -15,6 +15,8 @@ import sys
 import time
 import webbrowser
 
+from geoloc.cli._options import input_path, output_path
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -26,11 +28,11 @@ def register(sub) -> None:
         "With --scenario limb: the TianGong-2 limb-viewing scene. Binds to 127.0.0.1 unless "
         "--host says otherwise.",
     )
-    p.add_argument("--scenario", default="flight",
+    p.add_argument("--scenario", default="flight", type=input_path,
                    help="'flight' (default: the bundled MISB ST 0601 example flight over the SRTM crop, "
                    "with its planted faults, in the flight debugger), 'flight-test' (the bundled [Q17] "
                    "records), 'limb' (bundled TianGong-2 limb scenario) or a path to a limb scenario TOML")
-    p.add_argument("--records", default=None,
+    p.add_argument("--records", default=None, type=input_path,
                    help="records CSV (or a MISB ST 0601 .klv/.ts file) for the flight scene (default: "
                    "the bundled example flight; with --scenario flight-test the bundled "
                    "assets/records/qiao2017_flight_tests.csv)")
@@ -39,7 +41,7 @@ def register(sub) -> None:
     from geoloc.cli.locate import add_sensor_option
 
     add_sensor_option(p)
-    p.add_argument("--dem", default=None,
+    p.add_argument("--dem", default=None, type=input_path,
                    help="DEM GeoTIFF (default: a bundled DEM covering the target, if any)")
     p.add_argument("--no-dem", action="store_true",
                    help="no terrain: intersect at each record's paper_height_m")
@@ -52,7 +54,7 @@ def register(sub) -> None:
                    help="port (default 8080; viser moves to the next free one if taken; 0 = any free). "
                    "With --export the scene is built on a private server on 127.0.0.1 at this "
                    "port (default: any free one) that is stopped before the command returns")
-    p.add_argument("--export", default=None, metavar="FILE",
+    p.add_argument("--export", default=None, metavar="FILE", type=output_path,
                    help="write a static recording and exit, printing only its name: FILE.html "
                    "(self-contained, opens in a browser without a server, with a text panel naming "
                    "the record, the hit and its error) or FILE.viser (viser's playback format)")
@@ -71,6 +73,15 @@ def build(args, server, serve: bool = False):
 
     ``serve``: the flight-test scene as a :class:`geoloc.viz.app.GeolocViewer` (a state per
     tab, or ``--presenter``); otherwise a session on the server itself (the export's).
+    """
+    return app_factory(args, serve)(server)
+
+
+def app_factory(args, serve: bool = False):
+    """Load and check everything the scene needs (files, record, DEM); returns ``server -> app``.
+
+    ``geoloc view`` calls it before it starts a server, so a bad input is reported
+    and nothing is served.
     """
     scen = args.scenario
     if scen in ("flight", "flight-test", "qiao2017", "default"):
@@ -96,14 +107,15 @@ def build(args, server, serve: bool = False):
                           lambda: default_flight_scenario(use_dem=not args.no_dem))
                 q17 = ("[Q17] flight test", lambda: load_view_scenario(use_dem=not args.no_dem))
                 scenarios = dict([q17, flight] if scen in ("flight-test", "qiao2017") else [flight, q17])
-            return GeolocViewer(server, scn, presenter=getattr(args, "presenter", False),
-                                max_clients=getattr(args, "max_clients", 16), scenarios=scenarios)
-        return GeolocApp(server, scn)
+            return lambda server: GeolocViewer(server, scn, presenter=getattr(args, "presenter", False),
+                                               max_clients=getattr(args, "max_clients", 16),
+                                               scenarios=scenarios)
+        return lambda server: GeolocApp(server, scn)
     from geoloc.viz.scene_limb import LimbApp, LimbViewer, load_limb
 
     limb = load_limb(None if scen == "limb" else scen)
     # serving: a state per tab, as the flight scene; the export: one scene on the server
-    return LimbViewer(server, limb) if serve else LimbApp(server, limb)
+    return (lambda server: LimbViewer(server, limb)) if serve else (lambda server: LimbApp(server, limb))
 
 
 def run(args) -> int:
@@ -115,9 +127,10 @@ def run(args) -> int:
         return _export(args)
     from geoloc.viz.app import make_server
 
+    make_app = app_factory(args, serve=True)  # inputs read and checked before anything is served
     server = make_server(args.host, 8080 if args.port is None else args.port)
     try:
-        build(args, server, serve=True)
+        make_app(server)
         url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{server.get_port()}"
         mode = ("presenter mode: the first tab drives, the others follow" if args.presenter
                 else "each browser tab has its own state")
@@ -149,12 +162,8 @@ def _export(args) -> int:
     import contextlib
     import io
 
-    from geoloc.assets import resolve_user_path
     from geoloc.viz.app import make_server
 
-    for name in ("records", "camera", "dem"):
-        if getattr(args, name, None):
-            setattr(args, name, str(resolve_user_path(getattr(args, name))))
     if args.host not in ("127.0.0.1", "localhost"):
         print(f"geoloc view: note: --host {args.host} is not used by --export (no one connects "
               "to an export's private server)", file=sys.stderr)
