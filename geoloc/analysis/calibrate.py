@@ -93,17 +93,17 @@ class HeightTarget:
 
 
 class DemTarget:
-    """Targets on a DEM: :func:`geoloc.surfaces.terrain.intersect_dem` (the exact method)."""
+    """Targets on terrain: a DEM surface (any method, a mosaic too), or a DEM solved by ``method``."""
 
     def __init__(self, dem, method: str = "exact", label: str = "dem"):
-        self.dem = dem
-        self.method = method
+        from geoloc.surfaces.terrain import DemSurface
+
+        # a Surface (DemSurface, DemMosaic) as it is; a DEM raster gets the DEM surface of ``method``
+        self.surface = dem if hasattr(dem, "intersect") else DemSurface(dem, method)
         self.label = label
 
     def ground(self, los, idx) -> GroundPoint:
-        from geoloc.surfaces.terrain import DemSurface
-
-        return DemSurface(self.dem, self.method).intersect(los)
+        return self.surface.intersect(los)
 
 
 def _subset_pose(pose: Pose, idx) -> Pose:

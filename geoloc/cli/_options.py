@@ -114,6 +114,93 @@ def _same_path(a, b) -> bool:
         return Path(a).resolve() == Path(b).resolve()
 
 
+# --------------------------------------------------------------------------- sensor, pose, records
+
+
+def add_pose_options(g, required: bool = True, datum_what: str = "--h-m") -> None:
+    """The aircraft's position and attitude (degrees, metres): ``--lat-deg`` ... ``--roll-deg``."""
+    d = {"required": True} if required else {"default": None}
+    g.add_argument("--lat-deg", type=float, **d, help="aircraft geodetic latitude [deg]")
+    g.add_argument("--lon-deg", type=float, **d, help="aircraft longitude [deg, east +]")
+    g.add_argument("--h-m", type=float, **d,
+                   help="aircraft height [m]: ellipsoidal (WGS 84) unless --altitude-datum egm96 (MSL)")
+    add_altitude_datum_option(g, datum_what)
+    g.add_argument("--heading-deg", type=float, default=0.0, help="heading psi [deg] (default 0)")
+    g.add_argument("--pitch-deg", type=float, default=0.0, help="pitch theta, nose up + [deg]")
+    g.add_argument("--roll-deg", type=float, default=0.0, help="roll phi, right wing down + [deg]")
+
+
+def add_gimbal_options(g) -> None:
+    """The gimbal's angles (the [Q17] pair, or ``--angle NAME=DEG``) and ``--sensor``."""
+    g.add_argument("--gimbal-roll-deg", type=float, default=None,
+                   help="[Q17] outer gimbal (roll) angle [deg]; negative looks right of track")
+    g.add_argument("--gimbal-pitch-deg", type=float, default=None, help="[Q17] inner gimbal (pitch) angle [deg]")
+    add_angle_option(g)
+    add_sensor_option(g)
+
+
+def add_sensor_option(parser, help: str | None = None) -> None:
+    """``--sensor FILE`` (alias ``--camera``): a sensor file, or a first-phase camera file."""
+    parser.add_argument("--sensor", "--camera", dest="camera", default=None, metavar="FILE", type=input_path,
+                        help=help or "sensor TOML ([lens], [gimbal], [mount], [lever_arm], [boresight]; "
+                        "docs/sensor_format.md) or a first-phase camera TOML "
+                        "(default: the bundled assets/cameras/qiao2017.toml)")
+
+
+def add_angle_option(parser) -> None:
+    """``--angle NAME=DEG`` (repeatable): the sensor gimbal's joint angles by name."""
+    parser.add_argument("--angle", action="append", default=[], metavar="NAME=DEG",
+                        help="a gimbal joint angle in degrees, by the name the sensor's gimbal gives it "
+                        "(e.g. --angle azimuth=90 --angle elevation=-30); repeat for each joint")
+
+
+def add_altitude_datum_option(parser, what: str = "the records' ac_h_m") -> None:
+    """``--altitude-datum ellipsoid|egm96``: the vertical datum of the aircraft heights."""
+    from geoloc.io.columns import DATUMS
+
+    parser.add_argument("--altitude-datum", choices=list(DATUMS), default=None,
+                        help=f"vertical datum of the aircraft height ({what}): ellipsoid (WGS 84; the "
+                        "default, when not given) or egm96 (MSL, orthometric: made ellipsoidal with the "
+                        "bundled EGM96 grid, h = H + N); a column map's datum for ac_h_m wins")
+
+
+def add_columns_option(parser) -> None:
+    """``--columns FILE``: a column map for the records CSV (docs/columns.md)."""
+    parser.add_argument("--columns", default=None, metavar="MAP.toml", type=input_path,
+                        help="column map: the records CSV's own column names and units (deg/rad, m/ft, "
+                        "ellipsoid/egm96 heights, zero-/one-based pixels) onto the canonical columns "
+                        "(docs/columns.md); default: the sensor file's [columns] table, if any")
+
+
+def add_records_options(parser) -> None:
+    """The options of a verb that reads records: ``--columns`` and ``--altitude-datum``
+    (read them with :func:`records_from_args`)."""
+    add_columns_option(parser)
+    add_altitude_datum_option(parser)
+
+
+# --------------------------------------------------------------------------- target height
+
+
+def add_target_options(parser, *, height_column: bool = True) -> None:
+    """The target's height without a DEM: ``--target-h-m``, ``--height-column``, ``--surface``.
+
+    ``--surface`` is the kind of constant-height surface (docs/architecture.md:
+    the word *surface* is what a line of sight meets; this option chooses between
+    the two height surfaces, :class:`geoloc.surfaces.height.HeightSurface`).
+    """
+    g = parser.add_argument_group("target height (without a DEM)")
+    g.add_argument("--target-h-m", type=float, default=None,
+                   help="one target height for every ray [m above the WGS 84 ellipsoid]")
+    if height_column:
+        g.add_argument("--height-column", default=None,
+                       help="column holding each target's height [m above the WGS 84 ellipsoid], "
+                       "e.g. paper_height_m")
+    g.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
+                   help="with a height: the ellipsoid inflated by it, [Q17] eq. 11 (default), or the exact "
+                   "surface of constant geodetic height")
+
+
 # --------------------------------------------------------------------------- DEM options
 
 
@@ -204,26 +291,68 @@ class _DemAction(argparse.Action):
         setattr(namespace, "_terrain_hook", self.hook)
 
 
-def add_dem_options(parser, hook) -> None:
-    """Add the DEM options to a verb's parser; ``hook`` runs the verb on the DEM."""
+def one_height_source(args) -> None:
+    """Refuse two of ``--dem``, ``--height-column``, ``--target-h-m``: the targets lie on one of them."""
+    given = [opt for opt, dest in (("--dem", "dem"), ("--height-column", "height_column"),
+                                   ("--target-h-m", "target_h_m")) if getattr(args, dest, None) is not None]
+    if len(given) > 1:
+        raise ValueError(f"{' and '.join(given)} are both given: the targets lie on one of them")
+
+
+def one_dem_raster(args, verb: str):
+    """``--dem`` of a verb that draws or samples one raster: its path (None without ``--dem``).
+
+    A mosaic (a folder, a ``.vrt`` or a repeated ``--dem``) is refused with the option
+    named, rather than read as something else.
+    """
+    from pathlib import Path
+
+    if args.dem is None:
+        return None
+    if isinstance(args.dem, list) or Path(args.dem).is_dir() or str(args.dem).lower().endswith(".vrt"):
+        shown = ", ".join(args.dem) if isinstance(args.dem, list) else args.dem
+        what = "is a folder" if not isinstance(args.dem, list) and Path(args.dem).is_dir() else "is a mosaic"
+        raise ValueError(f"--dem {shown} {what}: geoloc {verb} reads one DEM raster, not a mosaic (geoloc "
+                         "replay, locate, ortho and calibrate take mosaics)")
+    return args.dem
+
+
+def add_dem_options(parser, hook=None, *, mosaic: bool = True, tolerances: bool = True, datum: bool = True,
+                    method_default: str | None = "exact", dem_help: str | None = None,
+                    method_help: str | None = None) -> None:
+    """The DEM options, declared here once for every verb that meets the terrain.
+
+    ``hook`` runs the verb on the DEM (``args._terrain_hook``). A verb declares only
+    what it honours, so an option it would ignore does not exist for it:
+    ``mosaic=False`` for a verb that reads one raster (no ``--dem-cache-mb``, no
+    ``--dem-model``; :func:`one_dem_raster` refuses a folder or a ``.vrt``),
+    ``tolerances=False`` for one that solves with the method's own defaults (no
+    ``--eps-h``, ``--threshold``, ``--dem-model``), ``datum=False`` for one that
+    reads every DEM as orthometric, EGM96 (no ``--dem-datum``). ``method_default=None``: the
+    verb's own default (a scenario's method) when ``--method`` is not given.
+    """
     g = parser.add_argument_group("terrain (DEM)")
     g.add_argument("--dem", metavar="FILE", default=None, action=_DemAction, hook=hook, type=input_path,
-                   help="DEM raster (GeoTIFF, ...): intersect the line of sight with the terrain instead "
-                   "of a target height, e.g. assets/dem/etopo5_flight_area.tif; a folder of tiles, a GDAL "
-                   ".vrt, or --dem given several times is one mosaic, read in windows on demand "
-                   "(docs/scale.md)")
-    g.add_argument("--dem-cache-mb", type=float, default=64.0,
-                   help="DEM mosaic: bound of its tile cache and of one region it assembles [MiB] "
-                   "(default 64)")
-    g.add_argument("--method", choices=METHODS, default="exact",
-                   help="steps: descending steps of [Q17]; bisect: halving of [L23]; "
+                   help=dem_help or "DEM raster (GeoTIFF, ...): intersect the line of sight with the terrain "
+                   "instead of a target height, e.g. assets/dem/etopo5_flight_area.tif"
+                   + ("; a folder of tiles, a GDAL .vrt, or --dem given several times is one mosaic, read in "
+                      "windows on demand (docs/scale.md)" if mosaic else ""))
+    if mosaic:
+        g.add_argument("--dem-cache-mb", type=float, default=64.0,
+                       help="DEM mosaic: bound of its tile cache and of one region it assembles [MiB] "
+                       "(default 64)")
+    g.add_argument("--method", choices=METHODS, default=method_default,
+                   help=method_help or "steps: descending steps of [Q17]; bisect: halving of [L23]; "
                    "exact: first visible hit, no threshold (default)")
-    g.add_argument("--dem-datum", choices=["egm96", "ellipsoid"], default="egm96",
-                   help="vertical datum of the DEM heights (default egm96: real DEMs are orthometric; "
-                   "N from the bundled EGM96 grid)")
-    g.add_argument("--eps-h", type=float, default=1.0, help="step of --method steps [m] (default 1)")
-    g.add_argument("--threshold", type=float, default=1.0,
-                   help="bisection stops when |H - h_DEM| < threshold [m] (default 1)")
-    g.add_argument("--dem-model", "--dem-surface", dest="dem_surface", choices=SURFACES, default="bilinear",
-                   help="how the exact method reads between DEM nodes: bilinear cells (default) or two "
-                   "triangles per cell (--dem-surface is the same option's first-phase name)")
+    if datum:
+        g.add_argument("--dem-datum", choices=["egm96", "ellipsoid"], default="egm96",
+                       help="vertical datum of the DEM heights (default egm96: real DEMs are orthometric; "
+                       "N from the bundled EGM96 grid)")
+    if tolerances:
+        g.add_argument("--eps-h", type=float, default=1.0, help="step of --method steps [m] (default 1)")
+        g.add_argument("--threshold", type=float, default=1.0,
+                       help="bisection stops when |H - h_DEM| < threshold [m] (default 1)")
+    if tolerances and mosaic:
+        g.add_argument("--dem-model", "--dem-surface", dest="dem_surface", choices=SURFACES, default="bilinear",
+                       help="how the exact method reads between DEM nodes: bilinear cells (default) or two "
+                       "triangles per cell (--dem-surface is the same option's first-phase name)")

@@ -19,7 +19,15 @@ from geoloc.analysis.calibrate import (
     resect_camera,
 )
 from geoloc.assets import asset_path
-from geoloc.cli._options import input_path, output_path
+from geoloc.cli._options import (
+    add_dem_options,
+    add_sensor_option,
+    add_target_options,
+    input_path,
+    one_height_source,
+    open_surface,
+    output_path,
+)
 from geoloc.cli.locate import load_camera, load_records_reporting
 from geoloc.userfiles import write_text
 
@@ -36,8 +44,6 @@ def register(sub) -> None:
     p.add_argument("records", nargs="?", default=None, type=input_path,
                    help="records CSV with truth_lat_deg/truth_lon_deg (default: the bundled "
                         "assets/records/qiao2017_flight_tests.csv)")
-    from geoloc.cli.locate import add_sensor_option
-
     add_sensor_option(p)
     p.add_argument("--fit", default=None, metavar="NAMES",
                    help="a sensor file's named parameters to fit, comma-separated (e.g. "
@@ -45,16 +51,8 @@ def register(sub) -> None:
                         "(flights from --group-by, outliers, --joint, --loo and --resect apply to it too)")
     p.add_argument("--write-sensor", default=None, metavar="FILE", type=output_path,
                    help="with --fit: save the fitted sensor file (TOML)")
-    t = p.add_mutually_exclusive_group()
-    t.add_argument("--height-column", default=None,
-                   help="column holding each target's ellipsoidal height [m], e.g. paper_height_m")
-    t.add_argument("--target-h-m", type=float, default=None, help="one target height for every record [m]")
-    t.add_argument("--dem", default=None, type=input_path,
-                   help="DEM raster: targets where the line of sight meets the terrain (geoloc.surfaces.terrain)")
-    p.add_argument("--dem-datum", choices=["egm96", "ellipsoid"], default="egm96",
-                   help="vertical datum of the DEM's heights (default egm96: orthometric)")
-    p.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
-                   help="with a height: [Q17] eq. 11 inflated ellipsoid (default) or exact constant height")
+    add_target_options(p)
+    add_dem_options(p)
     p.add_argument("--group-by", default="table",
                    help="column grouping records into flights (default: table; 'none' for one group)")
     p.add_argument("--model", choices=sorted(MODELS), default="mount",
@@ -83,13 +81,9 @@ def register(sub) -> None:
 
 
 def _target(args, records):
+    one_height_source(args)
     if args.dem is not None:
-        try:
-            from geoloc.surfaces.dem import DEM
-            from geoloc.surfaces.terrain import intersect_dem  # noqa: F401  (fails clearly if not available)
-        except ImportError as e:
-            raise ValueError(f"--dem {args.dem}: terrain intersection is not available ({e})") from None
-        return DemTarget(DEM.open(args.dem, datum=args.dem_datum), label=f"dem:{args.dem}")
+        return DemTarget(open_surface(args), label=f"dem:{args.dem}")
     if args.height_column is not None:
         h = records.column(args.height_column)
         bad = ~np.isfinite(h)
@@ -126,10 +120,9 @@ def _surface(args, records):
     """The surface the targets lie on, for the sensor fit (one choice: geoloc.surfaces.terrain.surface_for)."""
     from geoloc.surfaces.terrain import surface_for
 
+    one_height_source(args)
     if args.dem is not None:
-        from geoloc.surfaces.dem import DEM
-
-        return surface_for(dem=DEM.open(args.dem, datum=args.dem_datum)), f"dem:{args.dem}"
+        return open_surface(args), f"dem:{args.dem}"
     if args.height_column is not None:
         h = records.column(args.height_column)
         if not np.all(np.isfinite(h)):

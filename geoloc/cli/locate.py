@@ -1,8 +1,9 @@
 """``geoloc locate``: geolocate one pixel from the aircraft pose, gimbal angles and a sensor.
 
-Also the option groups the other verbs share: ``--sensor`` (alias ``--camera``),
-``--angle NAME=DEG``, and for the verbs that read records ``--columns FILE`` and
-``--altitude-datum`` (:func:`add_records_options`, :func:`records_from_args`).
+Also what the other verbs read from the shared options (declared in
+:mod:`geoloc.cli._options`): the sensor (:func:`load_camera`), the pose
+(:func:`pose_from_args`) and the records with their column map and datums
+(:func:`records_from_args`).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import sys
 
 import numpy as np
 
-from geoloc.cli._options import input_path
+from geoloc.cli._options import add_gimbal_options, add_pose_options, add_target_options
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.frames.chain import Pose
 from geoloc.io.columns import (
@@ -48,76 +49,12 @@ def register(sub) -> None:
                    help="pixel row, 1-based pixel centres (default: the image centre)")
     g.add_argument("--col", type=float, default=None,
                    help="pixel column, 1-based pixel centres (default: the image centre)")
-    g = p.add_argument_group("target")
-    g.add_argument("--target-h-m", type=float, default=None,
-                   help="target ellipsoidal height [m] (required unless a DEM is given)")
-    g.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
-                   help="inflated ellipsoid of [Q17] eq. 11 (default) or the exact constant-height surface")
+    add_target_options(p, height_column=False)
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
     p.set_defaults(func=run, _terrain_hook=None)
     from geoloc.cli._options import add_dem_options, locate_hook
 
     add_dem_options(p, locate_hook)
-
-
-def add_pose_options(g, required: bool = True, datum_what: str = "--h-m") -> None:
-    """The aircraft's position and attitude (degrees, metres): ``--lat-deg`` ... ``--roll-deg``."""
-    d = {"required": True} if required else {"default": None}
-    g.add_argument("--lat-deg", type=float, **d, help="aircraft geodetic latitude [deg]")
-    g.add_argument("--lon-deg", type=float, **d, help="aircraft longitude [deg, east +]")
-    g.add_argument("--h-m", type=float, **d,
-                   help="aircraft height [m]: ellipsoidal (WGS 84) unless --altitude-datum egm96 (MSL)")
-    add_altitude_datum_option(g, datum_what)
-    g.add_argument("--heading-deg", type=float, default=0.0, help="heading psi [deg] (default 0)")
-    g.add_argument("--pitch-deg", type=float, default=0.0, help="pitch theta, nose up + [deg]")
-    g.add_argument("--roll-deg", type=float, default=0.0, help="roll phi, right wing down + [deg]")
-
-
-def add_gimbal_options(g) -> None:
-    """The gimbal's angles (the [Q17] pair, or ``--angle NAME=DEG``) and ``--sensor``."""
-    g.add_argument("--gimbal-roll-deg", type=float, default=None,
-                   help="[Q17] outer gimbal (roll) angle [deg]; negative looks right of track")
-    g.add_argument("--gimbal-pitch-deg", type=float, default=None, help="[Q17] inner gimbal (pitch) angle [deg]")
-    add_angle_option(g)
-    add_sensor_option(g)
-
-
-def add_sensor_option(parser) -> None:
-    """``--sensor FILE`` (alias ``--camera``): a sensor file, or a first-phase camera file."""
-    parser.add_argument("--sensor", "--camera", dest="camera", default=None, metavar="FILE", type=input_path,
-                        help="sensor TOML ([lens], [gimbal], [mount], [lever_arm], [boresight]; "
-                        "docs/sensor_format.md) or a first-phase camera TOML "
-                        "(default: the bundled assets/cameras/qiao2017.toml)")
-
-
-def add_angle_option(parser) -> None:
-    """``--angle NAME=DEG`` (repeatable): the sensor gimbal's joint angles by name."""
-    parser.add_argument("--angle", action="append", default=[], metavar="NAME=DEG",
-                        help="a gimbal joint angle in degrees, by the name the sensor's gimbal gives it "
-                        "(e.g. --angle azimuth=90 --angle elevation=-30); repeat for each joint")
-
-
-def add_altitude_datum_option(parser, what: str = "the records' ac_h_m") -> None:
-    """``--altitude-datum ellipsoid|egm96``: the vertical datum of the aircraft heights."""
-    parser.add_argument("--altitude-datum", choices=list(DATUMS), default=None,
-                        help=f"vertical datum of the aircraft height ({what}): ellipsoid (WGS 84; the "
-                        "default, when not given) or egm96 (MSL, orthometric: made ellipsoidal with the "
-                        "bundled EGM96 grid, h = H + N); a column map's datum for ac_h_m wins")
-
-
-def add_columns_option(parser) -> None:
-    """``--columns FILE``: a column map for the records CSV (docs/columns.md)."""
-    parser.add_argument("--columns", default=None, metavar="MAP.toml", type=input_path,
-                        help="column map: the records CSV's own column names and units (deg/rad, m/ft, "
-                        "ellipsoid/egm96 heights, zero-/one-based pixels) onto the canonical columns "
-                        "(docs/columns.md); default: the sensor file's [columns] table, if any")
-
-
-def add_records_options(parser) -> None:
-    """The options of a verb that reads records: ``--columns`` and ``--altitude-datum``
-    (read them with :func:`records_from_args`)."""
-    add_columns_option(parser)
-    add_altitude_datum_option(parser)
 
 
 def parse_angles(items) -> dict:

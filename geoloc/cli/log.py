@@ -14,7 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
-from geoloc.cli._options import input_path, output_path
+from geoloc.cli._options import (
+    add_dem_options,
+    add_sensor_option,
+    add_target_options,
+    input_path,
+    one_dem_raster,
+    output_path,
+)
 from geoloc.assets import ASSETS
 
 
@@ -35,19 +42,11 @@ def register(sub) -> None:
     p.add_argument("input", metavar="SCENARIO_OR_RECORDS", type=input_path,
                    help="scenario .toml (or the name of a bundled one) or records .csv")
     p.add_argument("--out", default=None, type=output_path, help="output .rrd file (required unless --serve or --spawn)")
-    p.add_argument("--camera", default=None, type=input_path, help="camera TOML (default: the scenario's, else bundled qiao2017.toml)")
-    g = p.add_argument_group("records: target height (first given wins; default paper_height_m)")
-    g.add_argument("--dem", default=None, type=input_path, help="DEM GeoTIFF to intersect the lines of sight with")
-    g.add_argument("--dem-datum", choices=["egm96", "ellipsoid"], default="egm96",
-                   help="vertical datum of the DEM heights (default egm96: orthometric)")
-    g.add_argument("--method", choices=["steps", "bisect", "exact"], default="exact",
-                   help="DEM intersection method (default exact)")
-    g.add_argument("--eps-h", type=float, default=None, help="step of the descending method [m]")
-    g.add_argument("--threshold", type=float, default=None, help="threshold of the bisection [m]")
-    g.add_argument("--target-h-m", type=float, default=None, help="one target height for every record [m]")
-    g.add_argument("--height-column", default=None, help="column with each target's ellipsoidal height [m]")
-    g.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
-                   help="inflated ellipsoid of [Q17] eq. 11 (default) or the exact constant-height surface")
+    add_sensor_option(p)
+    add_target_options(p)
+    add_dem_options(p, mosaic=False)
+    g = p.add_argument_group("records (a records CSV's target height: --dem, --target-h-m or --height-column, "
+                             "first given wins; default paper_height_m)")
     g.add_argument("--group-by", default="table",
                    help="records: column naming each record's flight (default table; 'none' for one flight); "
                    "each flight gets its own scene origin and entity tree")
@@ -106,6 +105,7 @@ def run(args) -> int:
     )
 
     camera = load_camera(args.camera) if args.camera else None
+    dem = one_dem_raster(args, "log")  # the recording draws the DEM it samples
     if path.suffix.lower() == ".toml":
         from geoloc.workflows.flight import FlightScenario
 
@@ -113,7 +113,7 @@ def run(args) -> int:
     elif path.suffix.lower() == ".csv":
         steps, errors = steps_from_records(
             path, camera, height_column=args.height_column, target_h_m=args.target_h_m,
-            surface=args.surface, dem_path=args.dem, dem_datum=args.dem_datum, method=args.method,
+            surface=args.surface, dem_path=dem, dem_datum=args.dem_datum, method=args.method,
             eps_h_m=args.eps_h, threshold_m=args.threshold,
             group_column=None if args.group_by == "none" else args.group_by, calibrate=not args.no_calibration,
             fit_names=_fit_names(args.fit))
@@ -122,7 +122,7 @@ def run(args) -> int:
     elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):
         from geoloc.viz.rerun_model import steps_from_klv
 
-        steps, errors = steps_from_klv(path, camera, dem_path=args.dem, dem_datum=args.dem_datum)
+        steps, errors = steps_from_klv(path, camera, dem_path=dem, dem_datum=args.dem_datum)
         for err in errors:
             print(f"{path}: skipped bad packet at byte {err.offset}: {err.reason}", file=sys.stderr)
     else:

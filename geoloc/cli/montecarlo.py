@@ -14,7 +14,14 @@ import numpy as np
 
 from geoloc.analysis import montecarlo as mc
 from geoloc.analysis.errormodel import ErrorModel
-from geoloc.cli._options import input_path, output_dir, output_path
+from geoloc.cli._options import (
+    add_dem_options,
+    add_sensor_option,
+    input_path,
+    one_dem_raster,
+    output_dir,
+    output_path,
+)
 from geoloc.status import Status
 from geoloc.userfiles import check_output_dir, write_text
 
@@ -35,9 +42,8 @@ def register(sub) -> None:
                    help="number of samples N (default 5000; 1e9 is accepted: the samples are "
                    "processed in chunks and their statistics streamed, in constant memory)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--sensor", "--camera", dest="sensor", default=None, metavar="FILE", type=input_path,
-                   help="sensor TOML (docs/sensor_format.md; a lens of any model on the roll-pitch "
-                   "gimbal) or first-phase camera TOML replacing the scenario's [camera] table")
+    add_sensor_option(p, help="sensor TOML (docs/sensor_format.md; a lens of any model on the roll-pitch "
+                      "gimbal) or first-phase camera TOML replacing the scenario's [camera] table")
     p.add_argument("--error", action="append", default=[], metavar="SOURCE=DIST:VALUE",
                    help="add or replace one error source of the scenario, in its [errors] unit: "
                    "e.g. --error cx_px=normal:0.5 --error k1=normal:0.002 --error "
@@ -58,10 +64,10 @@ def register(sub) -> None:
     p.add_argument("--terrain-sigmas-m", default=None,
                    help="comma-separated terrain standard deviations [m] for --sweep terrain "
                    "(default: the scenario's [sweep] terrain_sigmas_m, else 10,20,...,100)")
-    p.add_argument("--dem", default=None, type=input_path,
-                   help="DEM file replacing the target height (overrides the scenario's [dem])")
-    p.add_argument("--dem-datum", default="egm96",
-                   help="vertical datum of --dem heights: egm96 (default) or ellipsoid")
+    add_dem_options(p, mosaic=False, tolerances=False, method_default=None,
+                    dem_help="DEM raster replacing the target height (overrides the scenario's [dem])",
+                    method_help="DEM method: steps [Q17], bisect [L23] or exact (default: the scenario's "
+                    "[dem] method, else exact)")
     p.add_argument("--no-dem", action="store_true",
                    help="ignore the scenario's [dem] table (ellipsoid model with target_h_m)")
     p.add_argument("--chunk", type=int, default=mc.CHUNK,
@@ -146,23 +152,27 @@ def load_model(args) -> ErrorModel:
     from geoloc.workflows.scenario import load_scenario
 
     model = load_scenario(scenario, expect="montecarlo")
-    if getattr(args, "sensor", None):
+    if getattr(args, "camera", None):
         from geoloc.sensors.sensor_file import load_camera_or_sensor
 
-        path = Path(args.sensor)
+        path = Path(args.camera)
         if not path.is_file():
-            raise FileNotFoundError(f"--sensor file not found: {args.sensor}")
+            raise FileNotFoundError(f"--sensor file not found: {args.camera}")
         model = model.with_camera(load_camera_or_sensor(path))
     for text in getattr(args, "error", []):
         model = model.with_error(*parse_error(text))
     if args.no_dem:
         model = model.without_dem()
-    if args.dem:
-        dem = Path(args.dem)
-        if not dem.exists():
-            raise FileNotFoundError(f"--dem file not found: {args.dem}")
-        model = replace(model, dem=DemSpec(dem, args.dem_datum,
-                                           model.dem.method if model.dem else None))
+    dem = one_dem_raster(args, "montecarlo")
+    if dem:
+        if not Path(dem).exists():
+            raise FileNotFoundError(f"--dem file not found: {dem}")
+        model = replace(model, dem=DemSpec(Path(dem), args.dem_datum, model.dem.method if model.dem else None))
+    if args.method is not None:
+        if model.dem is None:
+            raise ValueError(f"--method {args.method}: the scenario has no DEM (give --dem FILE or a scenario "
+                             "with a [dem] table)")
+        model = replace(model, dem=replace(model.dem, method=args.method))
     return model
 
 

@@ -18,15 +18,15 @@ import sys
 import time
 from pathlib import Path
 
-from geoloc.cli._options import input_path, output_path
-from geoloc.cli.locate import (
+from geoloc.cli._options import (
     add_columns_option,
     add_gimbal_options,
     add_pose_options,
-    load_camera,
-    pose_from_args,
-    records_from_args,
+    add_target_options,
+    input_path,
+    output_path,
 )
+from geoloc.cli.locate import load_camera, pose_from_args, records_from_args
 from geoloc.io.columns import ELLIPSOID_DATUM
 
 POSE_FIELDS = ("lat_deg", "lon_deg", "h_m")
@@ -68,12 +68,7 @@ def register(sub) -> None:
     o.add_argument("--serial", action="store_true",
                    help="run the DEM solver on one core (default: all cores, numba threads); the same hits")
     o.add_argument("--json", action="store_true", help="print a JSON summary")
-    t = p.add_argument_group("target surface without a DEM")
-    t.add_argument("--target-h-m", type=float, default=None,
-                   help="a constant target height [m, ellipsoidal] instead of a DEM")
-    t.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
-                   help="with --target-h-m: the inflated ellipsoid of [Q17] eq. 11 (default) or the exact "
-                   "constant-height surface")
+    add_target_options(p, height_column=False)
     p.set_defaults(func=run, _terrain_hook=None)
     from geoloc.cli._options import add_dem_options
 

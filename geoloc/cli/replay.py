@@ -5,14 +5,16 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from geoloc.cli._options import input_path, output_dir, output_path
-from geoloc.assets import DEFAULT_RECORDS, asset_path
-from geoloc.cli.locate import (
+from geoloc.cli._options import (
     add_records_options,
     add_sensor_option,
-    load_camera,
-    records_from_args,
+    add_target_options,
+    input_path,
+    output_dir,
+    output_path,
 )
+from geoloc.assets import DEFAULT_RECORDS, asset_path
+from geoloc.cli.locate import load_camera, records_from_args
 from geoloc.workflows.replay import (
     outside_sensor_messages,
     replay_at_height,
@@ -40,11 +42,7 @@ def register(sub) -> None:
                    "photos .jpg/.jpeg/.tif/.tiff/.dng with --targets")
     add_sensor_option(p)
     add_records_options(p)
-    p.add_argument("--height-column", default=None,
-                   help="column holding each target's ellipsoidal height [m], e.g. paper_height_m")
-    p.add_argument("--target-h-m", type=float, default=None, help="one target height for every record [m]")
-    p.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
-                   help="inflated ellipsoid of [Q17] eq. 11 (default) or the exact constant-height surface")
+    add_target_options(p)
     p.add_argument("--out", default=None, type=output_path,
                    help="output CSV of every row (never the input file: refused)")
     p.add_argument("--print-rows", action="store_true",

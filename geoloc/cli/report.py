@@ -26,7 +26,7 @@ from geoloc.analysis.accuracy import (
     sight_geometry,
     track_azimuth_rad,
 )
-from geoloc.cli._options import input_path, output_dir
+from geoloc.cli._options import add_sensor_option, input_path, output_dir
 from geoloc.userfiles import atomic_path, write_text
 
 #: Reference prefixes tried by ``--reference auto``, in this order.
@@ -58,9 +58,8 @@ def register(sub) -> None:
     p.add_argument("--group-by", default=None,
                    help="column grouping rows into flights (default: table, else file, else one group; "
                    "'none' for one group)")
-    p.add_argument("--camera", default=None, type=input_path,
-                   help="camera/sensor file giving the image size for the pixel radius (default: the bundled "
-                   "[Q17] camera for flight-test records; none for other inputs)")
+    add_sensor_option(p, help="camera/sensor file giving the image size for the pixel radius (default: the "
+                      "bundled [Q17] camera for flight-test records; none for other inputs)")
     p.add_argument("--out-dir", default=None, type=output_dir, help="write PNG plots, report.json and report.html here")
     p.add_argument("--json", action="store_true", help="print the numbers as JSON (instead of the table)")
     p.set_defaults(func=run)

@@ -15,7 +15,7 @@ import sys
 import time
 import webbrowser
 
-from geoloc.cli._options import input_path, output_path
+from geoloc.cli._options import add_dem_options, add_sensor_option, input_path, one_dem_raster, output_path
 
 
 def register(sub) -> None:
@@ -38,15 +38,12 @@ def register(sub) -> None:
                    "assets/records/qiao2017_flight_tests.csv)")
     p.add_argument("--record", default=None,
                    help="record to open: label such as T4-3, or 0-based index (default: the first)")
-    from geoloc.cli.locate import add_sensor_option
-
     add_sensor_option(p)
-    p.add_argument("--dem", default=None, type=input_path,
-                   help="DEM GeoTIFF (default: a bundled DEM covering the target, if any)")
+    add_dem_options(p, mosaic=False, tolerances=False, datum=False, method_default=None,
+                    dem_help="DEM GeoTIFF (default: a bundled DEM covering the target, if any)",
+                    method_help="terrain method shown first: steps, bisect or exact (default bisect)")
     p.add_argument("--no-dem", action="store_true",
                    help="no terrain: intersect at each record's paper_height_m")
-    p.add_argument("--method", choices=("steps", "bisect", "exact"), default=None,
-                   help="terrain method shown first (default bisect)")
     p.add_argument("--host", default="127.0.0.1",
                    help="interface to bind (default 127.0.0.1, this machine only; "
                    "0.0.0.0 exposes the viewer to the network)")
@@ -84,6 +81,7 @@ def app_factory(args, serve: bool = False):
     and nothing is served.
     """
     scen = args.scenario
+    dem = one_dem_raster(args, "view")
     if scen in ("flight", "flight-test", "qiao2017", "default"):
         from geoloc.viz.app import GeolocApp, GeolocViewer
         from geoloc.viz.flight_model import default_flight_scenario
@@ -92,10 +90,10 @@ def app_factory(args, serve: bool = False):
         klv = args.records is not None and args.records.lower().endswith(KLV_SUFFIXES)
         if scen in ("flight", "default") and args.records is None or klv:
             # the bundled MISB ST 0601 example flight (or the user's KLV), with each frame's fields of view
-            scn = default_flight_scenario(args.record, args.records, args.camera, args.dem,
+            scn = default_flight_scenario(args.record, args.records, args.camera, dem,
                                           use_dem=not args.no_dem)
         else:
-            scn = load_view_scenario(args.records, args.record, args.camera, args.dem,
+            scn = load_view_scenario(args.records, args.record, args.camera, dem,
                                      use_dem=not args.no_dem)
         if args.method:
             scn.inputs = scn.inputs.replace(method=args.method)
