@@ -1,5 +1,6 @@
 """The sensor file (TOML): ``[lens]``, ``[gimbal]``, ``[mount]``, ``[lever_arm]``, ``[boresight]``
-(and optionally ``[columns]``, the column map of its records: ``docs/columns.md``).
+(and optionally ``[columns]``, the column map of its records: ``docs/columns.md``, and
+``[uncertainty]``, its error budget: :mod:`geoloc.sensors.budget`).
 
 Format: ``docs/sensor_format.md``. The smallest file that works::
 
@@ -25,6 +26,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from geoloc.sensors.budget import ErrorBudget, budget_from_dict, budget_to_dict
 from geoloc.sensors.camera import Camera
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import DEFAULT, PRESETS, gimbal_from_dict, gimbal_to_dict
@@ -39,6 +41,10 @@ KEYS = ("name",)
 #: column map of the records its flights come in (``docs/columns.md``; read by
 #: :func:`load_sensor_columns`, checked by ``geoloc.io.columns``, ignored by the sensor itself).
 COLUMNS_TABLE = "columns"
+#: The optional error budget of a sensor (or first-phase camera) file: 1-sigma errors, checked
+#: against the sensor on load (:func:`geoloc.sensors.budget.budget_from_dict`), read by
+#: :func:`load_sensor_budget`.
+UNCERTAINTY_TABLE = "uncertainty"
 
 
 def _triple(table: dict, what: str, source: str, suffix: str, bound: float, unit: str) -> tuple:
@@ -71,8 +77,15 @@ def _lever(table: dict, source: str) -> tuple:
 def sensor_from_dict(data: dict, source: str = "sensor") -> FrameSensor:
     """A :class:`FrameSensor` from the tables of a sensor file (or a first-phase camera file).
 
-    A ``[columns]`` table (the records' column map) is not the sensor's and is left out here."""
+    A ``[columns]`` table (the records' column map) is not the sensor's and is left out here;
+    an ``[uncertainty]`` table is checked against the sensor (unknown keys and bad values are
+    errors naming them) and left out (:func:`budget_from_sensor_dict` reads it)."""
     data = _without_columns(data, source)
+    if UNCERTAINTY_TABLE in data:
+        rest = {k: v for k, v in data.items() if k != UNCERTAINTY_TABLE}
+        sensor = sensor_from_dict(rest, source)
+        budget_from_dict(data[UNCERTAINTY_TABLE], sensor, source)
+        return sensor
     if "lens" not in data:
         if any(k in data for k in TABLES):
             raise ValueError(f"{source}: missing table [lens]")
@@ -101,12 +114,29 @@ def load_sensor(path) -> FrameSensor:
     return sensor_from_dict(read_toml(path, "sensor file"), source=str(path))
 
 
+def budget_from_sensor_dict(data: dict, source: str = "sensor") -> ErrorBudget | None:
+    """The checked ``[uncertainty]`` table of a sensor file's tables; None if it has none."""
+    if UNCERTAINTY_TABLE not in data:
+        return None
+    rest = {k: v for k, v in _without_columns(data, source).items() if k != UNCERTAINTY_TABLE}
+    return budget_from_dict(data[UNCERTAINTY_TABLE], sensor_from_dict(rest, source), source)
+
+
+def load_sensor_budget(path) -> ErrorBudget | None:
+    """The error budget (``[uncertainty]``) of a sensor (or first-phase camera) file; None if it has none."""
+    path = Path(path)
+    return budget_from_sensor_dict(read_toml(path, "sensor file"), source=str(path))
+
+
 def load_camera_or_sensor(path) -> Camera | FrameSensor:
     """A first-phase camera file stays a :class:`Camera` (every first-phase consumer takes it as
     before); a sensor file (with ``[lens]``) becomes a :class:`FrameSensor`."""
     path = Path(path)
     data = _without_columns(read_toml(path, "sensor file"), str(path))
     if "lens" not in data:
+        if UNCERTAINTY_TABLE in data:  # checked against the camera's sensor, then left out
+            budget_from_sensor_dict(data, str(path))
+            data = {k: v for k, v in data.items() if k != UNCERTAINTY_TABLE}
         return Camera.from_dict(data, source=str(path))
     return sensor_from_dict(data, source=str(path))
 
@@ -146,8 +176,9 @@ def _toml_value(v) -> str:
     return repr(v)
 
 
-def sensor_to_toml(sensor: FrameSensor, path) -> None:
-    """Write a sensor file that :func:`load_sensor` reads back to the same sensor."""
+def sensor_to_toml(sensor: FrameSensor, path, budget: ErrorBudget | None = None) -> None:
+    """Write a sensor file that :func:`load_sensor` reads back to the same sensor (and
+    :func:`load_sensor_budget` to ``budget``, when given)."""
     lines = []
     if sensor.name:
         lines.append(f"name = {_toml_value(sensor.name)}\n")
@@ -158,6 +189,8 @@ def sensor_to_toml(sensor: FrameSensor, path) -> None:
         "boresight": {f"{a}_deg": math.degrees(v) for a, v in zip("xyz", sensor.boresight)},
         "lever_arm": {f"{a}_m": v for a, v in zip("xyz", sensor.lever_arm_m)},
     }
+    if budget is not None:
+        tables[UNCERTAINTY_TABLE] = budget_to_dict(budget)
     for t, d in tables.items():
         lines.append(f"[{t}]")
         lines.extend(f"{k} = {_toml_value(v)}" for k, v in d.items())
