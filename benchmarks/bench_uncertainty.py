@@ -1,0 +1,89 @@
+"""Predicted uncertainty per second (geoloc.analysis.uncertainty.propagate) against `locate` in the same run.
+
+Every point has its own pose and pixel (an azimuth-elevation turret with a Brown lens, a mount,
+a boresight and a lever arm, as bench_locate's), and a full budget: position, attitude, both
+joints, mount, boresight, lever arm, four lens parameters, time (with a velocity) and the
+surface's vertical error: 21 sources. ``propagate`` locates the points itself (the compiled
+line of sight and the surface), then builds the analytic Jacobian, the covariance, the ellipse
+and the exact CE90. ``locate`` is the compiled pixel -> ground path on the same rays.
+
+Run: ``python benchmarks/bench_uncertainty.py [--points N] [--repeat K] [--dem]``. Prints
+medians of wall and CPU time, points per second of each, and ``ratio: X`` = propagation points
+per CPU second over locate's rays per CPU second (the goal: >= 0.1), then the same in wall time.
+``--dem`` also times both on the bundled SRTM crop (exact DEM solver).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+from _timing import timed  # benchmarks/_timing.py
+
+from geoloc.analysis.uncertainty import propagate
+from geoloc.assets import asset_path
+from geoloc.frames.chain import Pose
+from geoloc.locate import locate
+from geoloc.sensors.budget import ErrorBudget
+from geoloc.sensors.frame import FrameSensor
+from geoloc.sensors.gimbals import PRESETS
+from geoloc.sensors.lenses import BrownLens
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.height import HeightSurface
+from geoloc.surfaces.terrain import DemSurface
+
+TURRET = FrameSensor(BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080,
+                               k1=-0.21, k2=0.07, p1=4e-4, p2=-2e-4, k3=-0.01),
+                     PRESETS["azimuth-elevation"], mount=(2e-3, -1e-3, 4e-3), boresight=(1e-3, 2e-3, -3e-3),
+                     lever_arm_m=(1.5, 0.2, 0.7), name="turret")
+BUDGET = ErrorBudget({"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.03, "pitch_deg": 0.02,
+                      "roll_deg": 0.02, "azimuth_deg": 0.01, "elevation_deg": 0.01, "mount_x_deg": 0.01,
+                      "mount_y_deg": 0.01, "mount_z_deg": 0.01, "boresight_x_deg": 0.01, "boresight_y_deg": 0.01,
+                      "boresight_z_deg": 0.01, "lever_arm_x_m": 0.05, "fx_px": 2.0, "cx_px": 0.5, "cy_px": 0.5,
+                      "k1": 0.001, "time_s": 0.005, "height_m": 10.0, "dem_m": 9.73})
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--points", type=int, default=100_000)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--dem", action="store_true", help="also on the SRTM crop")
+    a = ap.parse_args()
+    n = a.points
+    rng = np.random.default_rng(0)
+    pose = Pose.from_deg(rng.uniform(36.5, 36.68, n), rng.uniform(-84.35, -84.15, n), rng.uniform(2500, 4000, n),
+                         rng.uniform(0, 360, n), rng.uniform(-3, 3, n), rng.uniform(-5, 5, n),
+                         angles_deg={"azimuth": rng.uniform(0, 360, n), "elevation": rng.uniform(-90, -30, n)})
+    row, col = rng.uniform(1, 1080, n), rng.uniform(1, 1920, n)
+    vel = np.stack([rng.uniform(-60, 60, n), rng.uniform(-60, 60, n), np.zeros(n)], -1)
+    cases = [("ellipsoid", HeightSurface(500.0))]
+    if a.dem:
+        cases.append(("srtm dem", DemSurface(DEM.open(asset_path("dem", "srtm_jacksboro.tif")))))
+    print(f"{n} points, {len(BUDGET.sigmas) - 1} sources, {a.repeat} repeats (medians); 2 cores shared, "
+          "a loaded machine: the CPU ratio is the steadier figure")
+    for name, surf in cases:
+        if name == "ellipsoid":
+            def loc():
+                return locate(pose, TURRET, row, col, 500.0)
+        else:
+            def loc():
+                return surf.intersect(TURRET.line_of_sight(row, col, pose))
+
+        def prop():
+            return propagate(TURRET, pose, row, col, BUDGET, surface=surf, velocity_ned_m_s=vel)
+
+        loc(), prop()  # compile and warm
+        wl, cl, _ = timed(loc, a.repeat)
+        wp, cp, pu = timed(prop, a.repeat)
+        ok = float(np.mean(pu.status == 0))
+        print(f"[{name}] locate:    {wl * 1e3:8.1f} ms wall {cl * 1e3:8.1f} ms CPU  {n / wl:10.3g} rays/s wall  "
+              f"{n / cl:10.3g} rays/CPU s")
+        print(f"[{name}] propagate: {wp * 1e3:8.1f} ms wall {cp * 1e3:8.1f} ms CPU  {n / wp:10.3g} points/s wall  "
+              f"{n / cp:10.3g} points/CPU s  ({ok:.1%} located; median CE90 {np.nanmedian(pu.ce90_m):.1f} m)")
+        tag = "" if name == "ellipsoid" else " dem"
+        print(f"ratio{tag}: {cl / cp:.3f}")
+        print(f"ratio{tag} wall: {wl / wp:.3f}")
+
+
+if __name__ == "__main__":
+    main()

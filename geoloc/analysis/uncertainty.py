@@ -1,0 +1,674 @@
+"""Predicted uncertainty of every located point: first-order propagation of a sensor's error budget.
+
+For a batch of rays (pixels, poses) and a surface, :func:`propagate` gives each located point
+its 3x3 covariance in the local east-north-up frame at the hit, the horizontal error ellipse
+(1-sigma semi-axes and the major axis's azimuth), CE90 computed exactly for that ellipse
+(:func:`ce90`, not the circular approximation) and LE90 = 1.6449 sigma_up. The budget is the
+sensor file's ``[uncertainty]`` table (:class:`geoloc.sensors.budget.ErrorBudget`); the
+method and its check against Monte Carlo: ``docs/uncertainty.md``.
+
+The Jacobian, per ray, is analytic through the chain and the surface:
+
+* every angle of the chain (attitude, each gimbal joint, mount, boresight) turns the line of
+  sight about its joint's axis: with that axis ``a`` in ECEF, ``dD = a x D`` per radian
+  (and ``dO = a x L`` for the attitude, which turns the lever arm ``L`` too);
+* a platform displacement moves the origin along the local north, east or up and turns the
+  local NED frame (by ``-e / (R_M + h)`` per metre north, ``z / ((R_N + h) cos lat)`` east);
+* the lever arm moves the origin along the body axes; a lens parameter moves the optical
+  direction (central differences of the lens's ``unproject``, turned to ECEF);
+* a time-tag error is the platform displacement ``v dt`` (the velocity is the caller's);
+* the surface: the hit ``P = O + t D`` stays on the surface, linearised at the hit with its
+  normal ``m = u - g_e e - g_n n`` (``g`` the DEM's local slope there, zero on a constant
+  height); a change ``dO, dD`` and a vertical surface error ``dz`` move the hit by
+  ``dP = dO + t dD + D (dz - m.(dO + t dD)) / (m.D)``.
+
+``tests/test_uncertainty.py`` holds the analytic Jacobian to central differences of the whole
+``locate`` chain, and the predicted CE90 / LE90 to Monte Carlo (:func:`monte_carlo`) over
+nadir to 80 degrees off nadir, the ellipsoid and a DEM, and every gimbal preset.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from geoloc.frames import rotations as rot
+from geoloc.geodesy.ellipsoid import meridian_radius, prime_vertical_radius
+from geoloc.geodesy.local import R_ecef_enu, R_ecef_ned
+from geoloc.locate import as_sensor
+from geoloc.sensors.budget import LE90_PER_SIGMA, LENS_KEYS, ErrorBudget
+from geoloc.sensors.frame import small_rotation
+from geoloc.status import Status
+from geoloc.surfaces.base import LineOfSight
+
+DEG = math.pi / 180.0
+#: sqrt of the chi-square (2 dof) 0.9 quantile: the 90 % ellipse is the 1-sigma ellipse times this.
+ELLIPSE90_PER_SIGMA = math.sqrt(-2.0 * math.log(0.1))
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+# --------------------------------------------------------------------- CE90, exactly
+def _prob_inside(R, q, nodes=128):
+    """P(sqrt(X1^2 + q^2 X2^2) <= R), X1, X2 standard normal (vectorised over R, q).
+
+    With x = R sin(phi): P = 2 int_0^{pi/2} pdf(R sin phi) [2 Phi(R cos phi / q) - 1] R cos phi dphi,
+    a smooth integrand for every q in [0, 1] (Gauss-Legendre).
+    """
+    from scipy.special import ndtr
+
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    phi = (x + 1.0) * (math.pi / 4.0)
+    w = w * (math.pi / 4.0)
+    R = np.asarray(R, float)[..., None]
+    q = np.asarray(q, float)[..., None]
+    s, c = np.sin(phi), np.cos(phi)
+    with np.errstate(divide="ignore"):
+        inner = np.where(q > 0, 2.0 * ndtr(R * c / np.where(q > 0, q, 1.0)) - 1.0, 1.0)
+    pdf = np.exp(-0.5 * (R * s) ** 2) / math.sqrt(2.0 * math.pi)
+    return 2.0 * np.sum(w * pdf * inner * R * c, axis=-1)
+
+
+@lru_cache(maxsize=8)
+def _ce_table(p: float, n: int = 2001):
+    """(q, R_p(q)): the p-quantile of the radial error of an ellipse of semi-axes 1 and q."""
+    from scipy.special import ndtri
+
+    q = np.linspace(0.0, 1.0, n)
+    lo = np.full(n, ndtri(0.5 + p / 2.0))          # q = 0: a normal error along one line
+    hi = np.full(n, math.sqrt(-2.0 * math.log1p(-p)))  # q = 1: Rayleigh
+    lo, hi = lo * (1 - 1e-9), hi * (1 + 1e-9)
+    for _ in range(48):  # bisection: the bracket 0.5 wide -> 2e-15
+        mid = 0.5 * (lo + hi)
+        inside = _prob_inside(mid, q) >= p
+        hi, lo = np.where(inside, mid, hi), np.where(inside, lo, mid)
+    return q, 0.5 * (lo + hi)
+
+
+def ce90(major, minor, p: float = 0.9):
+    """The exact p-quantile of the horizontal radial error of a 2D normal error (default CE90).
+
+    Parameters
+    ----------
+    major, minor : array_like
+        1-sigma semi-axes of the error ellipse [m] (any order), broadcasting.
+    p : float
+        Probability (0.9: CE90; 0.5: CEP).
+
+    Returns
+    -------
+    ndarray
+        R with P(|e| <= R) = p for e ~ N(0, diag(major^2, minor^2)). Not the circular
+        approximation: R / major goes from 1.6449 (minor = 0, a normal error along one line) to
+        2.1460 (a circle, sqrt(-2 ln 0.1)). Computed by quadrature and bisection on a table of
+        the axis ratio (2001 nodes), linearly interpolated (error < 1e-7 of R; the tests hold it
+        to a direct solution and to 4 million normal draws).
+    """
+    a, b = np.broadcast_arrays(np.asarray(major, float), np.asarray(minor, float))
+    big, small = np.maximum(a, b), np.minimum(a, b)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q = np.where(big > 0, small / big, 0.0)
+    qt, rt = _ce_table(float(p))
+    return big * np.interp(q, qt, rt)
+
+
+def ellipse(cov_en):
+    """1-sigma error ellipse of (..., 2, 2) east-north covariances.
+
+    Returns
+    -------
+    major, minor : ndarray
+        Semi-axes [m] (sqrt of the eigenvalues).
+    azimuth_deg : ndarray
+        Azimuth of the major axis, clockwise from north, in [0, 180).
+    """
+    cov_en = np.asarray(cov_en, float)
+    a, b, c = cov_en[..., 0, 0], cov_en[..., 0, 1], cov_en[..., 1, 1]
+    mean, dif = 0.5 * (a + c), np.hypot(0.5 * (a - c), b)
+    major = np.sqrt(np.maximum(mean + dif, 0.0))
+    minor = np.sqrt(np.maximum(mean - dif, 0.0))
+    theta = 0.5 * np.arctan2(2.0 * b, a - c)  # from east, counter-clockwise
+    az = np.mod(90.0 - np.degrees(theta), 180.0)
+    return major, minor, az
+
+
+# --------------------------------------------------------------------- the result
+@dataclass
+class PointUncertainty:
+    """Predicted uncertainty of a batch of located points (every array over the batch's shape).
+
+    Attributes
+    ----------
+    lat, lon, h : ndarray
+        The located points [rad, rad, m ellipsoidal]; NaN where the status is not OK.
+    status : ndarray of uint8
+    cov_enu : ndarray (..., 3, 3)
+        Covariance of the point's error in east, north, up at the hit [m^2].
+    jacobian_enu : ndarray (..., 3, k)
+        d(east, north, up) / d(source), per the source's 1 sigma [m]: cov = J J^T.
+    sources : tuple of str
+        The budget keys of the Jacobian's columns.
+    ellipse_major_m, ellipse_minor_m : ndarray
+        1-sigma semi-axes of the horizontal error ellipse (the 90 % ellipse is 2.1460 times it).
+    ellipse_azimuth_deg : ndarray
+        Azimuth of the major axis, clockwise from north, [0, 180).
+    ce90_m, le90_m : ndarray
+        Exact CE90 of the ellipse (:func:`ce90`); LE90 = 1.6449 sigma_up.
+    terrain_rms_m : ndarray or None
+        On a DEM: the terrain's RMS departure [m] from the plane fitted over the point's
+        footprint (:func:`surface_normal`). Where it is a sizeable part of ``sigma_up`` the
+        terrain is not a plane where the errors put the point, and the first order is only a
+        guide (:attr:`linear`); zero on a constant height.
+    """
+
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    status: np.ndarray
+    cov_enu: np.ndarray
+    jacobian_enu: np.ndarray
+    sources: tuple
+    ellipse_major_m: np.ndarray
+    ellipse_minor_m: np.ndarray
+    ellipse_azimuth_deg: np.ndarray
+    ce90_m: np.ndarray
+    le90_m: np.ndarray
+    terrain_rms_m: np.ndarray | None = None
+    surface_sigma_m: float = 0.0
+    #: On a DEM: True where the ray passes within 2 sigma of the terrain away from its hit (a ridge
+    #: the errors may make it hit or clear: the point would jump; ``_grazing``).
+    grazing: np.ndarray | None = None
+
+    #: The first order is flagged as only a guide on a DEM where the terrain departs from its
+    #: footprint's plane by more than this fraction of the DEM's vertical sigma (RMS).
+    NONLINEAR_TERRAIN = 0.1
+
+    @property
+    def linear(self) -> np.ndarray:
+        """True where the first order holds: a constant height, or a DEM that is a plane over the
+        footprint to within ``NONLINEAR_TERRAIN`` of its vertical sigma (the grid of
+        ``tests/test_uncertainty.py``: every point under it within 5 % of Monte Carlo; the
+        two over it, 0.16 of sigma, 7 % off: hills the errors carry the point onto)."""
+        if self.terrain_rms_m is None:
+            return np.ones(np.shape(self.ce90_m), bool)
+        ref = self.surface_sigma_m if self.surface_sigma_m > 0 else np.sqrt(self.cov_enu[..., 2, 2])
+        rough = self.terrain_rms_m > self.NONLINEAR_TERRAIN * ref
+        return ~rough & ~(self.grazing if self.grazing is not None else False)
+
+    @property
+    def sigma_up_m(self) -> np.ndarray:
+        return np.sqrt(self.cov_enu[..., 2, 2])
+
+    def columns(self) -> dict:
+        """The replay CSV's columns: ``ce90_m le90_m ellipse_major_m ellipse_minor_m ellipse_azimuth_deg``."""
+        return {"ce90_m": self.ce90_m, "le90_m": self.le90_m, "ellipse_major_m": self.ellipse_major_m,
+                "ellipse_minor_m": self.ellipse_minor_m, "ellipse_azimuth_deg": self.ellipse_azimuth_deg}
+
+
+def summarise(cov_enu, lat, lon, h, status, jac, sources) -> PointUncertainty:
+    """A :class:`PointUncertainty` from covariances (NaN where the status is not OK)."""
+    bad = np.asarray(status) != Status.OK
+    cov = np.where(bad[..., None, None], np.nan, cov_enu)
+    major, minor, az = ellipse(cov[..., :2, :2])
+    return PointUncertainty(lat, lon, h, np.asarray(status, np.uint8), cov, jac, tuple(sources), major, minor, az,
+                            ce90(major, minor), LE90_PER_SIGMA * np.sqrt(cov[..., 2, 2]))
+
+
+# --------------------------------------------------------------------- the Jacobian
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _frames(s, pose, shape):
+    """R_ecef_<frame> (n, 3, 3) for every frame on the path to the camera, and the body."""
+    n = int(np.prod(shape))
+    out = {}
+    R = np.eye(3)
+    for j in s.graph.path("cam"):
+        R = R @ np.swapaxes(j.R_child_parent(pose), -1, -2)
+        out[j.child] = np.broadcast_to(R, shape + (3, 3)).reshape(n, 3, 3)
+    if "body" not in out:
+        out["body"] = np.broadcast_to(s.graph.R_ecef("body", pose), shape + (3, 3)).reshape(n, 3, 3)
+    return out
+
+
+def _flat(v, shape):
+    return np.broadcast_to(np.asarray(v, float), shape).reshape(-1)
+
+
+def _xyz_axes(angles):
+    """Axes (in the parent frame) of the three angles of ``rx(x) ry(y) rz(z)``, child = R parent.
+
+    ``v_parent = rz(z)^T ry(y)^T rx(x)^T v_child``: z turns about the parent's z, y about
+    ``rz(z)^T e_y``, x about ``rz(z)^T ry(y)^T e_x``.
+    """
+    x, y, z = angles
+    Rz, Ry = rot.rz(z), rot.ry(y)
+    return {"x": Rz.T @ Ry.T @ np.array([1.0, 0, 0]), "y": Rz.T @ np.array([0, 1.0, 0]), "z": np.array([0, 0, 1.0])}
+
+
+def chain_derivatives(sensor, pose, row, col, budget: ErrorBudget, velocity_ned_m_s=None):
+    """d(origin), d(direction) of each ray per 1 sigma of each budget source (ECEF, flat batch).
+
+    Returns
+    -------
+    sources : list of str
+    dO, dD : ndarray (n, 3, k)
+        Origin [m] and unit-direction change per the source's 1 sigma.
+    (O, D) : ndarray (n, 3)
+        The rays' origins and unit directions from the chain (the reference for ``dD``).
+    shape : tuple
+        The batch's shape.
+    """
+    s = as_sensor(sensor)
+    r0, c0 = s.center_pixel
+    row = r0 if row is None else row
+    col = c0 if col is None else col
+    shape = np.broadcast_shapes(pose.shape, np.shape(row), np.shape(col))
+    n = int(np.prod(shape))
+    Rs = _frames(s, pose, shape)
+    u = _flat(col, shape) - 1.0
+    v = _flat(row, shape) - 1.0
+    d_cam = _unit(s.lens.unproject(u, v))
+    R_cam = Rs["cam"]
+    D = np.einsum("nij,nj->ni", R_cam, d_cam)
+    lat, lon, h = (_flat(getattr(pose, k), shape) for k in ("lat", "lon", "h"))
+    lever = np.einsum("nij,j->ni", Rs["body"], np.array(s.lever_arm_m))
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+
+    O = geodetic_to_ecef(lat, lon, h) + lever
+    cols, names = [], []
+
+    def add(name, dO, dD, sigma):
+        names.append(name)
+        cols.append((np.broadcast_to(dO, (n, 3)) * sigma, np.broadcast_to(dD, (n, 3)) * sigma))
+
+    zero = np.zeros((n, 3))
+    attitude_turns_los = "body" in [j.child for j in s.graph.path("cam")]  # not an earth-referenced gimbal
+    # platform position: the origin moves, the local frame turns
+    Rn = R_ecef_ned(lat, lon)
+    e_n, e_e, e_u = Rn[..., 0], Rn[..., 1], -Rn[..., 2]
+    w_n = -e_e / (meridian_radius(lat) + h)[:, None]
+    w_e = np.array([0.0, 0.0, 1.0]) / ((prime_vertical_radius(lat) + h) * np.cos(lat))[:, None]
+    pos = {"north_m": (e_n + np.cross(w_n, lever), np.cross(w_n, D)),
+           "east_m": (e_e + np.cross(w_e, lever), np.cross(w_e, D)),
+           "up_m": (e_u, zero)}
+    for k, (dO, dD) in pos.items():
+        if budget.sigma(k) > 0:
+            add(k, dO, dD, budget.sigma(k))
+    dt = budget.sigma("time_s")
+    if dt > 0:
+        if velocity_ned_m_s is None:
+            raise ValueError(f"{budget.source}: [uncertainty] time_s = {dt:g} needs the platform's velocity "
+                             "(velocity_ned_m_s, north-east-down metres per second)")
+        vel = np.broadcast_to(np.asarray(velocity_ned_m_s, float), shape + (3,)).reshape(n, 3)
+        dO = sum(vel[:, [i]] * pos[k][0] for i, k in ((0, "north_m"), (1, "east_m"))) - vel[:, [2]] * e_u
+        dD = sum(vel[:, [i]] * pos[k][1] for i, k in ((0, "north_m"), (1, "east_m")))
+        add("time_s", dO, dD, dt)
+    # attitude: z-y-x from NED; the lever arm turns with the body
+    heading = _flat(pose.heading, shape)
+    axes = {"heading_deg": Rn[..., 2],
+            "pitch_deg": np.einsum("nij,nj->ni", Rn, np.stack([-np.sin(heading), np.cos(heading), 0 * heading], -1)),
+            "roll_deg": Rs["body"][..., 0]}
+    for k, a in axes.items():
+        if budget.sigma(k) > 0:
+            add(k, np.cross(a, lever), np.cross(a, D) if attitude_turns_los else zero, budget.sigma(k) * DEG)
+    # gimbal joints: each turns about its axis (the same in its parent and its own frame)
+    last = None
+    for j in s.graph.path("cam"):
+        if j.kind == "revolute":
+            last = j.child
+            k = f"{j.angle}_deg"
+            if budget.sigma(k) > 0:
+                a = Rs[j.child][..., _AXES[j.axis]]
+                add(k, zero, np.cross(a, D), budget.sigma(k) * DEG)
+    # mount (in the body), boresight (in the last joint frame)
+    for which, frame, angles in (("mount", "body", s.mount), ("boresight", last, s.boresight)):
+        ax = _xyz_axes(angles)
+        for c in "xyz":
+            k = f"{which}_{c}_deg"
+            if budget.sigma(k) > 0:
+                a = np.einsum("nij,j->ni", Rs[frame], ax[c])
+                add(k, zero, np.cross(a, D), budget.sigma(k) * DEG)
+    for i, c in enumerate("xyz"):
+        k = f"lever_arm_{c}_m"
+        if budget.sigma(k) > 0:
+            add(k, Rs["body"][..., i], zero, budget.sigma(k))
+    # lens: central differences of unproject over one sigma, turned to ECEF
+    for k, p in LENS_KEYS.items():
+        sig = budget.sigma(k)
+        if sig > 0:
+            base = s.lens.params[p]
+            dp = _unit(s.lens.with_params(**{p: base + sig}).unproject(u, v))
+            dm = _unit(s.lens.with_params(**{p: base - sig}).unproject(u, v))
+            add(k, zero, np.einsum("nij,nj->ni", R_cam, (dp - dm) / 2.0), 1.0)
+    if cols:
+        dO = np.stack([c[0] for c in cols], -1)
+        dD = np.stack([c[1] for c in cols], -1)
+    else:
+        dO = dD = np.zeros((n, 3, 0))
+    return names, dO, dD, (O, D), shape
+
+
+def _dem_height(dem, lat, lon, h, de, dn):
+    """The DEM at offsets (east, north) [m] from (lat, lon) (broadcasting)."""
+    dlat = dn / (meridian_radius(lat) + h)
+    dlon = de / ((prime_vertical_radius(lat) + h) * np.cos(lat))
+    return dem.height(lat + dlat, lon + dlon)
+
+
+#: Gauss-Hermite nodes and weights (probabilists', 5 per axis) of the footprint's slope fit.
+_GH_X, _GH_W = np.polynomial.hermite_e.hermegauss(5)
+
+
+def surface_normal(surface, lat, lon, h, cov_en=None, residual: bool = False):
+    """The surface's linearised normal ``m = u - g_e e - g_n n`` (ECEF, flat) at hits.
+
+    ``g`` is the DEM's slope (dh/d east, dh/d north); zero on a constant-height surface.
+    Without ``cov_en`` it is the slope of the DEM's bilinear surface at the hit (central
+    differences over +-1 m). With ``cov_en`` (..., 2, 2), the hit's predicted horizontal
+    covariance, it is the slope of the plane fitted to the DEM over that footprint, weighted
+    by the normal distribution (5 x 5 Gauss-Hermite nodes): the statistical linearisation,
+    the plane that best stands for the terrain where the errors put the point (``g = C^-1
+    E[delta h(delta)]`` for delta ~ N(0, C), by Stein's lemma).
+    """
+    Re = R_ecef_enu(lat, lon)
+    e, nn, u = Re[..., 0], Re[..., 1], Re[..., 2]
+    dem = getattr(surface, "dem", None)
+    if dem is None or not hasattr(dem, "height"):
+        return (u, np.zeros(len(u))) if residual else u
+    if cov_en is None:
+        g_n = (_dem_height(dem, lat, lon, h, 0.0, 1.0) - _dem_height(dem, lat, lon, h, 0.0, -1.0)) / 2.0
+        g_e = (_dem_height(dem, lat, lon, h, 1.0, 0.0) - _dem_height(dem, lat, lon, h, -1.0, 0.0)) / 2.0
+    else:
+        C = np.asarray(cov_en, float) + np.eye(2) * 1e-6  # a point footprint stays positive definite
+        L = np.linalg.cholesky(C)                          # (n, 2, 2)
+        z1, z2 = np.meshgrid(_GH_X, _GH_X, indexing="ij")
+        w = np.outer(_GH_W, _GH_W).ravel() / (2.0 * math.pi)
+        z = np.stack([z1.ravel(), z2.ravel()], -1)          # (25, 2)
+        delta = np.einsum("nij,kj->nki", L, z)              # (n, 25, 2) east, north [m]
+        H = _dem_height(dem, lat[:, None], lon[:, None], h[:, None], delta[..., 0], delta[..., 1])
+        ok = np.isfinite(H)
+        H0 = np.nansum(np.where(ok, H, 0.0) * w, -1) / np.maximum(np.sum(ok * w, -1), 1e-300)
+        Eh = np.einsum("nk,ki->ni", np.where(ok, H - H0[:, None], 0.0) * w, z)  # E[z (h - h0)]
+        g = np.einsum("nji,nj->ni", np.linalg.inv(L), Eh)   # C^-1 E[delta h] = L^-T E[z h]
+        g_e, g_n = g[:, 0], g[:, 1]
+        if residual:  # the terrain's RMS departure from the plane over the footprint
+            plane = H0[:, None] + np.einsum("nki,ni->nk", delta, g)
+            rms = np.sqrt(np.sum(np.where(ok, (H - plane) ** 2, 0.0) * w, -1) / np.maximum(np.sum(ok * w, -1), 1e-300))
+    g_n, g_e = np.nan_to_num(g_n), np.nan_to_num(g_e)  # at the DEM's edge: level
+    m = u - g_e[:, None] * e - g_n[:, None] * nn
+    if residual:
+        return m, (rms if cov_en is not None and dem is not None and hasattr(dem, "height") else np.zeros(len(m)))
+    return m
+
+
+#: Ranges (fractions of the hit's) where :func:`_grazing` looks for terrain close to the ray.
+_GRAZE_R = np.linspace(0.5, 1.5, 65)
+
+
+def _grazing(dem, lat, lon, h, D_enu, t, sig_t, free_up, sigma_dem):
+    """True where the ray passes within 2 sigma of the terrain away from its hit (a ridge it may hit
+    or clear when the errors move it: the hit would jump, which no first order describes).
+
+    Along the ray from half to one and a half times the hit's range, outside 3 sigma of the hit's
+    own range, the ray's clearance over the DEM (ENU at the hit, the Earth's curvature taken into
+    account) is compared with the clearance's sigma there: the ray's vertical sigma (the chain's
+    sources) and the DEM's own vertical error, which lifts the ridge too.
+    """
+    k = _GRAZE_R[None, :] * t[:, None]                         # (n, 65) ranges
+    dr = k - t[:, None]
+    e, nn, up = (dr * D_enu[:, [i]] for i in range(3))
+    R = meridian_radius(lat)[:, None] + h[:, None]
+    ray_h = h[:, None] + up + (e * e + nn * nn) / (2.0 * R)   # the ray's height above the ellipsoid (approx.)
+    ground = _dem_height(dem, lat[:, None], lon[:, None], h[:, None], e, nn)
+    # the ray's vertical sigma at range r: |u.(dO + r dD)| per source, linear in r between O and the hit
+    sig_v = np.sqrt(np.sum(free_up ** 2, -1)[:, None] * (k / t[:, None]) ** 2 + sigma_dem ** 2)
+    near = np.abs(dr) <= 3.0 * sig_t[:, None]
+    close = np.isfinite(ground) & ~near & (np.abs(ray_h - ground) < 2.0 * sig_v)
+    return np.any(close, -1)
+
+
+def surface_sigma_m(surface, budget: ErrorBudget) -> float:
+    """The budget's vertical sigma for this surface: ``dem_m`` (or its default) on a DEM, else ``height_m``."""
+    dem = getattr(surface, "dem", None)
+    if dem is not None or hasattr(surface, "with_solver"):
+        return budget.dem_sigma_m(dem)
+    return budget.sigma("height_m")
+
+
+def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = None, *, surface=None,
+              target_h=None, dem=None, velocity_ned_m_s=None, outside: str = "flag",
+              dem_method: str = "exact", dem_slope: str = "footprint",
+              footprint_iterations: int = 3) -> PointUncertainty:
+    """Locate a batch of pixels and predict each point's uncertainty (first order).
+
+    Parameters
+    ----------
+    sensor : FrameSensor or Camera
+    pose : Pose
+        Platform states (any batch shape, broadcasting with ``row``, ``col``).
+    row, col : array_like, optional
+        1-based pixels; default the image centre.
+    budget : ErrorBudget
+        1-sigma errors (the sensor file's ``[uncertainty]``).
+    surface : Surface, optional
+        A :class:`HeightSurface` or a :class:`DemSurface`; else built by
+        :func:`geoloc.surfaces.terrain.surface_for` from ``target_h`` / ``dem``.
+    velocity_ned_m_s : array_like (..., 3), optional
+        Platform velocity (north, east, down), needed when the budget has ``time_s``.
+    outside : {"flag", "extrapolate"}
+        As :meth:`FrameSensor.line_of_sight`.
+    dem_slope : {"footprint", "point"}
+        On a DEM: the slope of the plane fitted to the terrain over the point's predicted
+        footprint (default; :func:`surface_normal`, iterated ``footprint_iterations`` times
+        from the slope at the hit), or the slope at the hit itself (the strict first order,
+        which holds only where the terrain is a plane over the footprint).
+
+    Returns
+    -------
+    PointUncertainty
+        NaN and the status where a ray has no ground point.
+    """
+    if budget is None:
+        raise ValueError("propagate needs an error budget (the sensor file's [uncertainty] table)")
+    if dem_slope not in ("footprint", "point"):
+        raise ValueError(f"dem_slope = {dem_slope!r}: must be 'footprint' or 'point'")
+    s = as_sensor(sensor)
+    if surface is None:
+        from geoloc.surfaces.terrain import surface_for
+
+        surface = surface_for(target_h, dem, method=dem_method)
+    los = s.line_of_sight(row, col, pose, outside=outside)
+    hit = surface.intersect(los)
+    names, dO, dD, (O, D), shape = chain_derivatives(s, pose, row, col, budget, velocity_ned_m_s)
+    status = np.broadcast_to(hit.status, shape).reshape(-1)
+    lat, lon, h = (np.broadcast_to(getattr(hit, k), shape).reshape(-1) for k in ("lat", "lon", "h"))
+    P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
+    t = np.linalg.norm(P - O, axis=-1)
+    free = dO + t[:, None, None] * dD                        # the point carried along the old range
+    sz = surface_sigma_m(surface, budget)
+    if sz > 0:
+        names = names + ["dem_m" if getattr(surface, "dem", None) is not None else "height_m"]
+    Re = R_ecef_enu(lat, lon)
+    on_dem = getattr(surface, "dem", None) is not None and hasattr(surface.dem, "height")
+    cov_en = None
+    for _ in range(1 + (footprint_iterations if on_dem and dem_slope == "footprint" else 0)):
+        m = surface_normal(surface, lat, lon, h, cov_en if dem_slope == "footprint" else None)
+        mD = np.einsum("ni,ni->n", m, D)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            inv = np.where(mD < -1e-12, 1.0 / mD, np.nan)    # the ray must enter the surface
+        dP = free - D[:, :, None] * (np.einsum("ni,nik->nk", m, free) * inv[:, None])[:, None, :]
+        if sz > 0:
+            dP = np.concatenate([dP, (D * (sz * inv)[:, None])[:, :, None]], -1)
+        J = np.einsum("nji,njk->nik", Re, dP)                # ENU at the hit, per 1 sigma
+        cov = J @ np.swapaxes(J, -1, -2)
+        cov_en = np.where(np.isfinite(cov[:, :2, :2]), cov[:, :2, :2], 0.0)
+    terrain_rms = (surface_normal(surface, lat, lon, h, cov_en, residual=True)[1] if on_dem
+                   else np.zeros(len(lat)))
+    grazing = np.zeros(len(lat), bool)
+    if on_dem:
+        dt = -np.einsum("ni,nik->nk", m, free) * inv[:, None]
+        sig_t = np.sqrt(np.sum(dt * dt, -1) + (sz * inv) ** 2)
+        grazing = _grazing(surface.dem, lat, lon, h, np.einsum("nji,nj->ni", Re, D), t, sig_t,
+                           np.einsum("nj,njk->nk", Re[..., 2], free), sz)
+    r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
+    out = summarise(r(cov, (3, 3)), r(lat), r(lon), r(h), r(status), r(J, (3, J.shape[-1])), names)
+    out.terrain_rms_m = r(np.where(out.status.reshape(-1) == Status.OK, terrain_rms, np.nan))
+    out.surface_sigma_m = float(sz)
+    out.grazing = r(grazing & (out.status.reshape(-1) == Status.OK))
+    return out
+
+
+# --------------------------------------------------------------------- Monte Carlo of a budget
+def draw(budget: ErrorBudget, n: int, rng: np.random.Generator) -> dict:
+    """``n`` normal draws of every nonzero source (edge units), in a fixed order (reproducible)."""
+    keys = [k for k in sorted(budget.sigmas) if budget.sigma(k) > 0]
+    out = {k: rng.standard_normal(n) * budget.sigma(k) for k in keys}
+    if "dem_m" not in out and budget.dem_product is not None:
+        out["dem_m"] = rng.standard_normal(n) * budget.dem_sigma_m()
+    return out
+
+
+def monte_carlo(sensor, pose, row, col, budget: ErrorBudget, surface, n: int, rng: np.random.Generator,
+                velocity_ned_m_s=None, draws: dict | None = None):
+    """Monte Carlo of one ray's located point under the budget: the errors (east, north, up) [m].
+
+    Every source is drawn per sample and applied exactly (not linearised): the pose's
+    position (metres to degrees at the nominal point), attitude and joint angles; the mount
+    and boresight as the rotations of the drawn angles (``FrameSensor``'s per-sample
+    ``R_base_extra`` / ``R_bore_extra``), the lever arm; the lens's parameters per sample
+    (:func:`geoloc.analysis.montecarlo.perturbed_lens`); the time tag as ``v dt``; a constant
+    height's error as the sample's height; a DEM's as the DEM shifted by ``dz`` along the
+    hit's vertical (the ray's origin moved by ``-dz u``, the hit moved back).
+
+    Returns
+    -------
+    enu : ndarray (n, 3)
+        Each sample's point minus the error-free point, in ENU at the error-free point [m].
+    status : ndarray (n,) of uint8
+    """
+    from geoloc.analysis.montecarlo import perturbed_lens
+    from geoloc.frames.chain import Pose
+    from geoloc.geodesy.local import ecef_to_enu
+    from geoloc.surfaces.height import HeightSurface
+
+    s = as_sensor(sensor)
+    x = draws if draws is not None else draw(budget, n, rng)
+    g = lambda k: x.get(k, 0.0)  # noqa: E731
+    p0 = pose
+    lat0, lon0, h0 = (float(np.asarray(getattr(p0, k))) for k in ("lat", "lon", "h"))
+    dn, de, du = g("north_m"), g("east_m"), g("up_m")
+    if "time_s" in x:
+        if velocity_ned_m_s is None:
+            raise ValueError("time_s needs velocity_ned_m_s")
+        vn, ve, vd = np.asarray(velocity_ned_m_s, float)
+        dn, de, du = dn + vn * x["time_s"], de + ve * x["time_s"], du - vd * x["time_s"]
+    kw = dict(lat=lat0 + dn / (meridian_radius(lat0) + h0),
+              lon=lon0 + de / ((prime_vertical_radius(lat0) + h0) * math.cos(lat0)),
+              h=h0 + du)
+    for f in ("heading", "pitch", "roll"):
+        kw[f] = float(np.asarray(getattr(p0, f))) + g(f"{f}_deg") * DEG
+    angles = {a: float(np.asarray(p0.angle(a))) + g(f"{a}_deg") * DEG for a in s.angle_names}
+    kw = {k: np.broadcast_to(v, (n,)).astype(float) for k, v in kw.items()}
+    pose_s = Pose(**kw).with_angles(**{a: np.broadcast_to(v, (n,)).astype(float) for a, v in angles.items()})
+    extra = {}
+    mnt = [g(f"mount_{c}_deg") * DEG for c in "xyz"]
+    if any(np.any(v) for v in mnt):
+        m0 = small_rotation(s.mount)
+        extra["R_base_extra"] = m0.T @ small_rotation(tuple(b + np.broadcast_to(d, (n,)) for b, d in zip(s.mount, mnt)))
+    bst = [g(f"boresight_{c}_deg") * DEG for c in "xyz"]
+    if any(np.any(v) for v in bst):
+        b0 = small_rotation(s.boresight)
+        extra["R_bore_extra"] = small_rotation(tuple(b + np.broadcast_to(d, (n,)) for b, d in zip(s.boresight, bst))) @ b0.T
+    lev = [g(f"lever_arm_{c}_m") for c in "xyz"]
+    if any(np.any(v) for v in lev):
+        extra["lever_extra_m"] = np.stack([np.broadcast_to(v, (n,)) for v in lev], -1)
+    lens = perturbed_lens(s.lens, {k: v for k, v in x.items() if k in LENS_KEYS})
+    sp = dataclasses.replace(s, lens=lens, **extra)
+    rr, cc = np.broadcast_to(float(row), (n,)), np.broadcast_to(float(col), (n,))
+    los = sp.line_of_sight(rr, cc, pose_s, outside="extrapolate", engine="numpy")
+    nominal = surface.intersect(s.line_of_sight(float(row), float(col), p0, outside="extrapolate", engine="numpy"))
+    la, lo, hh = (float(np.asarray(getattr(nominal, k)).reshape(())) for k in ("lat", "lon", "h"))
+    dem = getattr(surface, "dem", None)
+    if dem is None:
+        hz = surface.h + g("height_m")
+        hit = HeightSurface(np.broadcast_to(hz, (n,)), surface.kind).intersect(los)
+        P = hit.ecef
+    else:
+        dz = np.broadcast_to(g("dem_m"), (n,))
+        up = R_ecef_enu(la, lo)[..., 2]
+        shifted = LineOfSight(los.origin_ecef - dz[:, None] * up, los.direction_ecef, los.status)
+        hit = surface.intersect(shifted)
+        P = hit.ecef + dz[:, None] * up
+    enu = ecef_to_enu(P, la, lo, hh)
+    return np.where((hit.status == Status.OK)[:, None], enu, np.nan), np.asarray(hit.status, np.uint8)
+
+
+def empirical_ce90_le90(enu, status=None):
+    """CE90 and LE90 of a sample of errors (ENU, metres): the 0.9 quantiles of the horizontal
+    distance and of |up| (numpy's linear percentile, as :mod:`geoloc.analysis.accuracy`)."""
+    enu = np.asarray(enu, float)
+    ok = np.all(np.isfinite(enu), axis=-1) if status is None else (np.asarray(status) == Status.OK)
+    e = enu[ok]
+    return float(np.percentile(np.hypot(e[:, 0], e[:, 1]), 90)), float(np.percentile(np.abs(e[:, 2]), 90))
+
+
+# --------------------------------------------------------------------- [Q17]'s error model as a budget
+def budget_from_error_model(model) -> ErrorBudget:
+    """The budget of a Monte Carlo error model (:class:`geoloc.analysis.errormodel.ErrorModel`).
+
+    Standard deviations carry over (a uniform error's is max / sqrt(3)); biases are left out.
+    Latitude and longitude errors become metres north and east at the nominal point; the
+    image-centre error (micrometres on the CCD, x along rows) becomes the principal point's
+    ``cy_px`` / ``cx_px``; the shock-absorber vibration (yaw, pitch, roll) is the mount's z, y, x
+    (exact for a camera without a mount, which [Q17]'s has not); the collimation error is the
+    boresight's x (a turn about the camera frame's X); the gimbal non-orthogonality (a turn
+    about the outer gimbal's Z, written in the inner frame: ``(-sin p, 0, cos p)`` for inner angle p)
+    is split onto the boresight's z and x, their correlation left out (at p = -2.6 deg it is
+    sin^2 p = 0.2 % of that term's variance); the target height's error is ``height_m``.
+    """
+    from geoloc.analysis.errormodel import LENS_SOURCES
+
+    std = {k: d.std for k, d in model.errors.items()}
+    nom = model.nominal
+    lat = math.radians(nom["lat_deg"])
+    out: dict = {}
+
+    def acc(k, s):
+        out[k] = math.hypot(out.get(k, 0.0), s)
+
+    for k, s in std.items():
+        if k == "lat_deg":
+            acc("north_m", s * DEG * (meridian_radius(lat) + nom["h_m"]))
+        elif k == "lon_deg":
+            acc("east_m", s * DEG * (prime_vertical_radius(lat) + nom["h_m"]) * math.cos(lat))
+        elif k == "h_m":
+            acc("up_m", s)
+        elif k in ("heading_deg", "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg"):
+            acc(k, s)
+        elif k == "image_centre_x_um":
+            acc("cy_px", s * 1e-6 / model.camera.pixel_pitch_m)
+        elif k == "image_centre_y_um":
+            acc("cx_px", s * 1e-6 / model.camera.pixel_pitch_m)
+        elif k.startswith("vibration_"):
+            acc({"yaw": "mount_z_deg", "pitch": "mount_y_deg", "roll": "mount_x_deg"}[k.split("_")[1]], s)
+        elif k == "collimation_deg":
+            acc("boresight_x_deg", s)
+        elif k == "gimbal_nonorthogonality_deg":
+            p = math.radians(nom["gimbal_pitch_deg"])
+            acc("boresight_z_deg", s * abs(math.cos(p)))
+            acc("boresight_x_deg", s * abs(math.sin(p)))
+        elif k == "target_h_m":
+            acc("height_m", s)
+        elif k in LENS_SOURCES and k != "focal_length_px":
+            acc(k, s)
+        elif k.startswith(("mount_", "boresight_", "lever_arm_")):
+            acc(k, s)
+        else:
+            raise ValueError(f"{model.source} [errors] {k}: no budget key for it (focal_length_px draws fx and fy "
+                             "together: give fx_px and fy_px)")
+    return ErrorBudget(out, None, model.source)
