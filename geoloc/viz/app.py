@@ -75,7 +75,7 @@ import viser
 from geoloc.locate import as_sensor
 from geoloc.status import describe
 from geoloc.userfiles import write_bytes, write_text
-from geoloc.viz import calibration_layer, flight_layer, teaching, teaching_panel
+from geoloc.viz import calibration_layer, flight_layer, image_layer, teaching, teaching_panel
 from geoloc.viz.model import Inputs, Scenario, compute, drawn_frames
 from geoloc.viz.scenario import select_record
 from geoloc.viz.scene_geoloc import Display, GeolocScene, camera_pose_for
@@ -99,8 +99,9 @@ def attach_flight(session):
 
 
 #: The layers every session gets unless told otherwise (``attach_fn(session)`` each): the
-#: flight debugger, the calibration error vectors, the teaching panel.
-DEFAULT_LAYERS = (attach_flight, calibration_layer.attach, teaching_panel.attach)
+#: flight debugger, the picture of the frame (when the scenario has images), the calibration
+#: error vectors, the teaching panel.
+DEFAULT_LAYERS = (attach_flight, image_layer.attach, calibration_layer.attach, teaching_panel.attach)
 METHOD_NAMES = {"steps": "descending steps [Q17]", "bisect": "bisection [L23]",
                 "exact": "exact first hit (cell walk)"}
 LEGEND = """\

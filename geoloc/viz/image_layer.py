@@ -1,0 +1,494 @@
+"""The picture in the scene: a layer showing each frame's image, and picking through it.
+
+:func:`attach` (a layer of :class:`geoloc.viz.app.GeolocSession`) is None unless the scenario
+has images (``scn.images``, an :class:`geoloc.io.images.ImageSource`; which image belongs to
+which record: :func:`geoloc.viz.picture_model.image_index`). It adds
+
+* the current frame's image **in its frustum** (scene node ``/enu/picture/frame``, a viser
+  image node in the camera's optical frame, at a chosen fraction of the range to the frame
+  centre, with an opacity), and a **2D image panel** (a "Picture" GUI folder) with a zoom;
+  the timeline (and the record dropdown) shows each frame's own image;
+* **pick a pixel**: click the panel's image (or type ``row, col`` into "picked pixel"), or click
+  the image in the frustum (the pixel is where the click's ray crosses the image's plane): the
+  scene draws that pixel's ray to its ground point (``/enu/picture/ray``, ``/enu/picture/hit``,
+  the method's iterates ``/enu/picture/iterations``) and the panel gives latitude, longitude,
+  height and its datum, slant range, status and the DEM evaluations;
+* **pick the terrain**: click the terrain in the scene: the point is marked
+  (``/enu/picture/ground``), its pixel is marked in the image (``ground_to_pixel``), or the panel
+  says "outside the frame" or "hidden behind terrain from this camera";
+* **marks in the image**: the reprojected surveyed truth and targets, the reported and the
+  recomputed frame centres, and the terrain horizon, so a fault shows in the picture itself.
+
+Every number comes from :mod:`geoloc.viz.picture_model` (sensor, surface, ``ground_to_pixel``);
+this module only draws and maps clicks to pixels. The panel's image is an HTML element whose
+click handler writes the clicked pixel into the "picked pixel" text box (viser's GUI image sends
+no clicks): the pick then reaches the server as a typed one would.
+Conventions: ``docs/conventions.md`` (1-based pixel centres); user guide: ``docs/viz.md``.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+import re
+import sys
+import threading
+import traceback
+
+import numpy as np
+
+from geoloc.status import Status
+from geoloc.viz import picture_model as pm
+from geoloc.viz.scene_geoloc import WORLD_SCALE, wxyz
+
+ROOT = "/enu/picture"
+#: Width of the panel's image [screen px] (the crop is scaled to it, nearest neighbour).
+PANEL_WIDTH = 560
+#: Largest side of the texture sent for the frustum [px] (the panel shows full resolution).
+TEXTURE_MAX = 640
+ZOOMS = (1, 2, 4, 8, 16, 32)
+#: RGB colours of the marks (the same in the scene and in the image).
+COLORS = {
+    "pick": (170, 255, 0),
+    "ground": (255, 140, 0),
+    "ground_hidden": (255, 40, 40),
+    "truth": (255, 255, 255),
+    "target": (255, 255, 255),
+    "reported": (180, 80, 255),
+    "recomputed": (255, 60, 60),
+    "horizon": (0, 230, 230),
+}
+_PIXEL_RE = re.compile(r"^\s*\(?\s*([-+0-9.eE]+)\s*[, ;]\s*([-+0-9.eE]+)\s*\)?\s*$")
+
+
+def parse_pixel(text: str):
+    """``"row, col"`` (or ``row col``) -> (row, col) floats; None for an empty or partial entry."""
+    m = _PIXEL_RE.match(text or "")
+    if not m:
+        return None
+    try:
+        r, c = float(m.group(1)), float(m.group(2))
+    except ValueError:
+        return None
+    return (r, c) if math.isfinite(r) and math.isfinite(c) else None
+
+
+def crop_window(rows: int, cols: int, zoom: int, centre=None):
+    """(first row, first col, n rows, n cols) of the panel's crop: 1/zoom of the image about
+    ``centre`` (row, col; default the image centre), kept inside the image."""
+    z = max(int(zoom), 1)
+    h, w = max(int(math.ceil(rows / z)), 1), max(int(math.ceil(cols / z)), 1)
+    rc, cc = centre if centre is not None else ((rows + 1) / 2, (cols + 1) / 2)
+    r1 = int(np.clip(int(round(rc - h / 2 + 0.5)), 1, rows - h + 1))
+    c1 = int(np.clip(int(round(cc - w / 2 + 0.5)), 1, cols - w + 1))
+    return r1, c1, h, w
+
+
+def _encode(img: np.ndarray, fmt: str = "JPEG") -> str:
+    import PIL.Image
+
+    buf = io.BytesIO()
+    im = PIL.Image.fromarray(img)
+    if fmt == "JPEG":
+        im.save(buf, "JPEG", quality=90)
+    else:
+        im.save(buf, "PNG")
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def draw_marks(img: np.ndarray, marks, to_xy, size: float) -> np.ndarray:
+    """Draw ``marks`` ((kind, row, col, label) each) into a copy of ``img`` (RGB uint8) at
+    ``to_xy(row, col)`` -> (x, y) image coordinates; crosses, circles and squares ``size`` px."""
+    import PIL.Image
+    import PIL.ImageDraw
+
+    im = PIL.Image.fromarray(np.ascontiguousarray(img[..., :3]))
+    d = PIL.ImageDraw.Draw(im)
+    s = max(float(size), 3.0)
+    w = max(int(round(s / 5)), 1)
+    for kind, r, c, label in marks:
+        if kind == "horizon":
+            xy = [to_xy(rr, cc) for rr, cc in zip(r, c)]
+            if len(xy) > 1:
+                d.line(xy, fill=COLORS["horizon"], width=w)
+            continue
+        if not (np.isfinite(r) and np.isfinite(c)):
+            continue
+        x, y = to_xy(r, c)
+        col = COLORS.get(kind.split()[0], (255, 255, 255))
+        if kind in ("pick",):  # crosshair with a gap: the pixel itself stays visible
+            for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+                d.line([(x + dx * s * 0.35, y + dy * s * 0.35), (x + dx * s * 1.6, y + dy * s * 1.6)],
+                       fill=col, width=w + 1)
+        elif kind.startswith("ground"):
+            d.ellipse([x - s, y - s, x + s, y + s], outline=col, width=w + 1)
+        elif kind in ("reported", "recomputed"):
+            d.rectangle([x - s, y - s, x + s, y + s], outline=col, width=w)
+        else:  # truth, targets: an X
+            d.line([(x - s, y - s), (x + s, y + s)], fill=col, width=w)
+            d.line([(x - s, y + s), (x + s, y - s)], fill=col, width=w)
+        if label:
+            d.text((x + s + 2, y - s - 2), label, fill=col)
+    return np.asarray(im)
+
+
+class ImageLayer:
+    """The picture of the current frame in one session (module docstring)."""
+
+    def __init__(self, session):
+        self.session = session
+        self.scene, self.gui, self.scn = session.scene, session.gui, session.scn
+        self.images = pm.images_of(self.scn)
+        self.closed = False
+        self._lock = threading.RLock()
+        self._mute = False
+        self.index = None  # record index shown
+        self.k = -1  # image index shown
+        self.image = None
+        self.sensor = None
+        self.pick: pm.PixelPick | None = None
+        self.ground: pm.GroundPick | None = None
+        self.marks: dict = {}
+        self.horizon = np.zeros((0, 2))
+        self.crop = None
+        self.plane = None  # (position (3,), R_enu_cam (3, 3), width, height) of the frustum image [scene units]
+        self.handles: dict = {}
+        self._build_gui()
+        session.on_refresh(lambda _g: self._safe(self.update))
+        self.scene.on_click()(self._on_scene_click)
+        self._safe(self.update)
+
+    # ------------------------------------------------------------ GUI
+    def _build_gui(self) -> None:
+        g = self.gui
+        head = getattr(self.session, "md_summary", None)
+        base = getattr(head, "order", None)
+        order = None if base is None else float(base) + 0.005
+        with g.add_folder("Picture", order=order):
+            self.md_legend = g.add_markdown(
+                "Click the image to locate a pixel; click the terrain to find its pixel. Marks: "
+                "**lime** +: picked pixel; **orange** o: picked terrain point; **white** x: surveyed truth "
+                "and targets; squares **violet** / **red**: reported / recomputed frame centre; "
+                "**cyan** line: terrain horizon")
+            self.html = g.add_html("")
+            self.sl_zoom = g.add_slider("zoom (x)", 0, len(ZOOMS) - 1, 1, 0,
+                                        hint="Zoom the panel's image about the picked pixel: 1, 2, 4, ... 32 x")
+            self.tx_pixel = g.add_text("picked pixel", "",
+                                       hint="row, col (1-based pixel centres): a click on the image writes it; "
+                                       "type one to locate it")
+            self.md_pick = g.add_markdown("")
+            self.md_ground = g.add_markdown("")
+            self.cb_frustum = g.add_checkbox("picture in the frustum", True)
+            self.sl_dist = g.add_slider("picture distance (x range)", 0.05, 1.0, 0.05, 0.35,
+                                        hint="Where the image sits along the frustum: a fraction of the range to "
+                                        "the frame centre")
+            self.sl_opacity = g.add_slider("picture opacity", 0.1, 1.0, 0.05, 1.0)
+            self.cb_marks = g.add_checkbox("marks: truth, targets, frame centres", True)
+            self.cb_horizon = g.add_checkbox("mark: terrain horizon", True)
+        self.sl_zoom.on_update(lambda _e: self._safe(self.redraw_images))
+        self.tx_pixel.on_update(lambda _e: self._on_pixel_text())
+        for h in (self.cb_frustum, self.sl_dist, self.sl_opacity, self.cb_marks, self.cb_horizon):
+            h.on_update(lambda _e: self._safe(self.redraw_images))
+
+    @property
+    def zoom(self) -> int:
+        return ZOOMS[int(np.clip(int(self.sl_zoom.value), 0, len(ZOOMS) - 1))]
+
+    def _safe(self, fn, *a):
+        if self.closed:
+            return None
+        try:
+            with self._lock:
+                return fn(*a)
+        except Exception:  # a layer's bug must not take the viewer down: report it
+            print("geoloc view: error in the picture layer:", file=sys.stderr)
+            traceback.print_exc(file=sys.stderr)
+            return None
+
+    # ------------------------------------------------------------ the frame
+    def update(self) -> None:
+        """Follow the session: its record's image and sensor, the marks; redraw."""
+        s = self.session
+        idx = s.scn.record_index
+        if idx != self.index:
+            self.index = idx
+            self.pick = self.ground = None
+            self._mute = True
+            try:
+                self.tx_pixel.value = ""
+            finally:
+                self._mute = False
+            self.md_pick.content = self.md_ground.content = ""
+        k = pm.image_index(s.scn, idx)
+        if k != self.k or self.image is None:
+            self.k = k
+            self.image = None if k < 0 else np.asarray(self.images.image(k))
+        if self.image is None:
+            self.sensor = None
+            self.html.content = "<p>no image for this record</p>"
+            self._hide(f"{ROOT}/frame")
+            return
+        M, N = self.image.shape[:2]
+        self.sensor = pm.frame_sensor(s.scn, idx, M, N)
+        self.marks = pm.image_marks(s.scn, idx, self.sensor, s.inputs)
+        self.horizon = pm.terrain_horizon(s.scn, s.inputs, self.sensor)
+        if self.pick is not None:  # the pose may have changed under the picked pixel
+            self.pick = pm.locate_pixel(s.scn, s.inputs, self.sensor, self.pick.row, self.pick.col)
+            self.md_pick.content = pm.pick_markdown(self.pick)
+        self.redraw_images()
+        self.draw_pick()
+
+    def _mark_list(self):
+        out = []
+        if self.cb_marks.value:
+            for name, (r, c, st) in self.marks.items():
+                if st in (Status.OK, Status.OUTSIDE_SENSOR):
+                    out.append((name, r, c, name))
+        if self.cb_horizon.value and len(self.horizon):
+            out.append(("horizon", self.horizon[:, 0], self.horizon[:, 1], None))
+        if self.ground is not None and self.ground.ok and np.isfinite(self.ground.row):
+            out.append(("ground" if self.ground.visible else "ground_hidden", self.ground.row, self.ground.col,
+                        None))
+        if self.pick is not None:
+            out.append(("pick", self.pick.row, self.pick.col, None))
+        return out
+
+    def redraw_images(self) -> None:
+        """The panel's crop (with the marks) and the frustum's texture and placement."""
+        if self.image is None:
+            return
+        import PIL.Image
+
+        M, N = self.image.shape[:2]
+        centre = (self.pick.row, self.pick.col) if self.pick is not None else None
+        r1, c1, h, w = self.crop = crop_window(M, N, self.zoom, centre)
+        crop = self.image[r1 - 1:r1 - 1 + h, c1 - 1:c1 - 1 + w, :3]
+        s = PANEL_WIDTH / w
+        H = max(int(round(h * s)), 1)
+        disp = np.asarray(PIL.Image.fromarray(np.ascontiguousarray(crop)).resize((PANEL_WIDTH, H),
+                                                                              PIL.Image.NEAREST))
+        marks = self._mark_list()
+        disp = draw_marks(disp, marks, lambda r, c: ((c - (c1 - 0.5)) * s, (r - (r1 - 0.5)) * s), 7.0)
+        self.html.content = self._panel_html(disp, r1, c1, h, w)
+        self._draw_frame(marks)
+
+    def _panel_html(self, disp, r1, c1, h, w) -> str:
+        uuid = self.tx_pixel._impl.uuid
+        # the click handler: the clicked position as a fraction of the shown crop -> the pixel
+        # (1-based centres: pixel k spans k - 0.5 .. k + 0.5), written into the "picked pixel"
+        # box as typing would (React reads the native value setter's 'input' event)
+        js = ("var b=this.getBoundingClientRect();"
+              "var x=(event.clientX-b.left)/b.width,y=(event.clientY-b.top)/b.height;"
+              f"var r=Math.floor({r1 - 0.5}+y*{h}+0.5),c=Math.floor({c1 - 0.5}+x*{w}+0.5);"
+              f"var l=document.querySelector('label[for=\"{uuid}\"]');if(!l)return;"
+              "var p=l.parentElement;while(p&&!p.querySelector('input'))p=p.parentElement;if(!p)return;"
+              "var i=p.querySelector('input');"
+              "Object.getOwnPropertyDescriptor(HTMLInputElement.prototype,'value').set.call(i,r+', '+c);"
+              "i.dispatchEvent(new Event('input',{bubbles:true}));")
+        M, N = self.image.shape[:2]
+        cap = (f"frame {self.k + 1} of {len(self.images)}: {N} x {M} px; shown rows {r1}-{r1 + h - 1}, "
+               f"columns {c1}-{c1 + w - 1} (zoom {self.zoom} x)")
+        return (f'<div style="padding:0 0.5em"><img id="geoloc-picture" alt="frame image" '
+                f'data-r1="{r1}" data-c1="{c1}" data-h="{h}" data-w="{w}" '
+                f'src="data:image/jpeg;base64,{_encode(disp)}" '
+                f'style="width:100%;display:block;cursor:crosshair;image-rendering:pixelated" '
+                f'onclick="{html.escape(js, quote=True)}">'
+                f'<div style="font-size:0.75em;opacity:0.8">{html.escape(cap)}</div></div>')
+
+    # ------------------------------------------------------------ the frustum image
+    def _hide(self, name) -> None:
+        h = self.handles.get(name)
+        if h is not None:
+            try:
+                h.visible = False
+            except Exception:
+                pass
+
+    def _draw_frame(self, marks) -> None:
+        s, g = self.session, self.session.geometry
+        if not self.cb_frustum.value or g is None or self.sensor is None:
+            self._hide(f"{ROOT}/frame")
+            self.plane = None
+            return
+        pose = s.inputs.pose()
+        sensor, enu, d = self.sensor, s.scn.enu, s.view.disp
+        T = sensor.frames(pose).T_ecef("cam")
+        R_enu_cam = enu.R_enu_from(T[:3, :3])
+        C_enu = enu.from_ecef(T[:3, 3])
+        M, N = sensor.rows, sensor.cols
+        # the image's outline rays, through the sensor, in the optical frame; on the plane z = D
+        rr = np.array([0.5, 0.5, M + 0.5, M + 0.5, (M + 1) / 2, (M + 1) / 2, 0.5, M + 0.5])
+        cc = np.array([0.5, N + 0.5, N + 0.5, 0.5, 0.5, N + 0.5, (N + 1) / 2, (N + 1) / 2])
+        los = sensor.line_of_sight(rr, cc, pose, outside="extrapolate")
+        v = los.direction_ecef @ T[:3, :3]  # R_cam_ecef @ d for each ray
+        centre = pm.locate_pixel(s.scn, s.inputs, sensor, *sensor.center_pixel)
+        rng = float(centre.hit.slant_range) if centre.ok else 5e3
+        D = float(self.sl_dist.value) * rng
+        p = D * v / v[:, 2:3]
+        x_left, x_right = p[4, 0], p[5, 0]
+        y_top, y_bottom = p[6, 1], p[7, 1]
+        width, height = x_right - x_left, y_bottom - y_top
+        mid_cam = np.array([(x_left + x_right) / 2, (y_top + y_bottom) / 2, D])
+        W = WORLD_SCALE
+        pos = d.z(C_enu) + W * (R_enu_cam @ mid_cam)
+        # the texture: the image (downscaled for transport) with its marks, alpha = opacity
+        import PIL.Image
+
+        f = min(1.0, TEXTURE_MAX / max(M, N))
+        tw, th = max(int(round(N * f)), 1), max(int(round(M * f)), 1)
+        tex = np.asarray(PIL.Image.fromarray(np.ascontiguousarray(self.image[..., :3])).resize((tw, th),
+                                                                                          PIL.Image.BILINEAR))
+        tex = draw_marks(tex, marks, lambda r, c: ((c - 0.5) * tw / N, (r - 0.5) * th / M), max(tw / 120, 3))
+        op = float(self.sl_opacity.value)
+        if op < 0.999:
+            tex = np.concatenate([tex, np.full(tex.shape[:2] + (1,), int(round(op * 255)), np.uint8)], axis=-1)
+        name = f"{ROOT}/frame"
+        self.handles[name] = self.scene.add_image(name, tex, float(width * W), float(height * W),
+                                                  format="png" if tex.shape[2] == 4 else "jpeg",
+                                                  position=tuple(pos), wxyz=tuple(wxyz(R_enu_cam)),
+                                                  cast_shadow=False, receive_shadow=False)
+        self.plane = (pos, R_enu_cam, width * W, height * W)
+
+    def pixel_on_frame(self, ray_origin, ray_direction):
+        """(row, col) where a ray of the browser (scene units) crosses the frustum image; None if it misses."""
+        if self.plane is None or self.sensor is None:
+            return None
+        pos, R, w, h = self.plane
+        o, dvec = np.asarray(ray_origin, float), np.asarray(ray_direction, float)
+        n = R[:, 2]
+        den = float(dvec @ n)
+        if abs(den) < 1e-12:
+            return None
+        t = float((pos - o) @ n) / den
+        if t <= 0:
+            return None
+        local = R.T @ (o + t * dvec - pos)
+        u, v = local[0] / w + 0.5, local[1] / h + 0.5
+        if not (0.0 <= u <= 1.0 and 0.0 <= v <= 1.0):
+            return None
+        M, N = self.sensor.rows, self.sensor.cols
+        # the pixel whose square holds the point (1-based centres)
+        return (float(np.clip(math.floor(0.5 + v * M + 0.5), 1, M)),
+                float(np.clip(math.floor(0.5 + u * N + 0.5), 1, N)))
+
+    # ------------------------------------------------------------ picking
+    def _on_pixel_text(self) -> None:
+        if self._mute or self.closed:
+            return
+        rc = parse_pixel(str(self.tx_pixel.value))
+        if rc is not None:
+            self._safe(self.pick_pixel, *rc)
+
+    def pick_pixel(self, row: float, col: float) -> pm.PixelPick | None:
+        """Locate pixel (row, col) of the current frame; draw its ray, hit and marks; fill the panel."""
+        with self._lock:
+            if self.sensor is None:
+                return None
+            s = self.session
+            self.pick = pm.locate_pixel(s.scn, s.inputs, self.sensor, row, col)
+            text = f"{row:g}, {col:g}"
+            if parse_pixel(str(self.tx_pixel.value)) != (row, col):
+                self._mute = True
+                try:
+                    self.tx_pixel.value = text
+                finally:
+                    self._mute = False
+            self.md_pick.content = pm.pick_markdown(self.pick)
+            self.redraw_images()
+            self.draw_pick()
+            return self.pick
+
+    def pick_ground(self, origin_scene, direction_scene) -> pm.GroundPick | None:
+        """A ray of the browser (scene units, vertical exaggeration included) on the terrain:
+        its ground point, that point's pixel in the frame and whether the camera sees it."""
+        with self._lock:
+            if self.sensor is None:
+                return None
+            s = self.session
+            k = WORLD_SCALE * np.array([1.0, 1.0, s.view.disp.vertical_exaggeration])
+            # the scene's display map is linear: the browser's ray, unscaled, is a ray in ENU metres
+            o_enu = np.asarray(origin_scene, float) / k
+            d_enu = np.asarray(direction_scene, float) / k
+            enu = s.scn.enu
+            o_ecef = enu.to_ecef(o_enu)
+            d_ecef = enu.R_ecef_enu @ (d_enu / np.linalg.norm(d_enu))
+            self.ground = pm.ground_pick(s.scn, s.inputs, self.sensor, o_ecef, d_ecef)
+            self.md_ground.content = pm.ground_markdown(self.ground)
+            self.redraw_images()
+            self.draw_pick()
+            return self.ground
+
+    def _on_scene_click(self, event) -> None:
+        s = self.session
+        if self.closed:
+            return
+        if s.client is not None and getattr(event, "client_id", s.client.client_id) != s.client.client_id:
+            return  # presenter mode: only the driver picks
+        px = self._safe(self.pixel_on_frame, event.ray_origin, event.ray_direction)
+        if px is not None:
+            self._safe(self.pick_pixel, *px)
+        else:
+            self._safe(self.pick_ground, event.ray_origin, event.ray_direction)
+
+    # ------------------------------------------------------------ the picks in the scene
+    def _line(self, name, pts, color, thickness=3.0):
+        d = self.session.view.disp
+        seg = d.z(np.asarray(pts, float).reshape(-1, 2, 3)).astype(np.float32)
+        self.handles[name] = self.scene.add_line_segments(name, seg, color, thickness=thickness,
+                                                          thickness_units="screen")
+
+    def _ball(self, name, p, color, radius_factor=0.8):
+        d = self.session.view.disp
+        self.handles[name] = self.scene.add_icosphere(name, radius=radius_factor * d.marker_radius_m * WORLD_SCALE,
+                                                      color=color, position=tuple(d.z(p)), cast_shadow=False,
+                                                      receive_shadow=False)
+
+    def draw_pick(self) -> None:
+        s = self.session
+        enu = s.scn.enu
+        names = (f"{ROOT}/ray", f"{ROOT}/hit", f"{ROOT}/iterations", f"{ROOT}/ground", f"{ROOT}/ground_ray")
+        shown = set()
+        p = self.pick
+        if p is not None:
+            a = enu.from_ecef(np.asarray(p.los.origin_ecef))
+            if p.ok:
+                b = enu.from_ecef(np.asarray(p.hit.ecef))
+            else:
+                b = a + 40e3 * enu.vector_from_ecef(np.asarray(p.los.direction_ecef))
+            self._line(f"{ROOT}/ray", [a, b], COLORS["pick"], 3.0)
+            shown.add(f"{ROOT}/ray")
+            if p.ok:
+                self._ball(f"{ROOT}/hit", b, COLORS["pick"])
+                shown.add(f"{ROOT}/hit")
+            if p.trace_ecef is not None and len(p.trace_ecef):
+                pts = s.view.disp.z(enu.from_ecef(p.trace_ecef)).astype(np.float32)
+                self.handles[f"{ROOT}/iterations"] = self.scene.add_point_cloud(
+                    f"{ROOT}/iterations", pts, COLORS["pick"],
+                    point_size=0.4 * s.view.disp.marker_radius_m * WORLD_SCALE, point_shape="circle",
+                    precision="float32")
+                shown.add(f"{ROOT}/iterations")
+        gp = self.ground
+        if gp is not None and gp.ok:
+            col = COLORS["ground"] if gp.visible or not gp.in_frame else COLORS["ground_hidden"]
+            gpt = enu.from_ecef(np.asarray(gp.hit.ecef))
+            self._ball(f"{ROOT}/ground", gpt, col)
+            shown.add(f"{ROOT}/ground")
+            if gp.in_frame and self.sensor is not None:
+                cam = enu.from_ecef(self.sensor.optical_centre_ecef(s.inputs.pose()))
+                self._line(f"{ROOT}/ground_ray", [cam, gpt], col, 1.5)
+                shown.add(f"{ROOT}/ground_ray")
+        for n in names:
+            if n not in shown:
+                self._hide(n)
+
+    def close(self) -> None:
+        self.closed = True
+
+
+def attach(session):
+    """The picture layer when the session's scenario has images (``scn.images``), else None."""
+    if pm.images_of(session.scn) is None:
+        return None
+    return ImageLayer(session)

@@ -1,0 +1,322 @@
+"""The picture of a frame, computed by the core (no viser here): its sensor, picked pixels, marks.
+
+What :mod:`geoloc.viz.image_layer` draws, as numbers the tests compare with independent
+core calls and with ``geoloc locate``:
+
+* :func:`frame_sensor`: the sensor through which record ``idx``'s image was taken, sized to the
+  image: the scenario's sensor, or for a zooming MISB ST 0601 sensor (``scn.frame_fov_deg``) the
+  frame's own ``lens_from_fov(hfov_i, vfov_i, cols, rows)`` on the same gimbal, mount and lever
+  arm (:func:`geoloc.workflows.klv_replay.klv_sensor`'s rule), or the sensor's lens scaled to a
+  resized image (:func:`geoloc.io.photos.scale_lens`);
+* :func:`locate_pixel`: a pixel's line of sight (``sensor.line_of_sight``) and its hit on the
+  scene's surface (:func:`geoloc.viz.terrain_link.scene_surface`: the DEM with the GUI's method,
+  or the record's constant height), with the DEM evaluations and the iteration trace;
+* :func:`ground_pick`: a ray of the browser (a click on the terrain) intersected with the same
+  surface (exact first hit), that ground point's pixel (``sensor.ground_to_pixel``) and whether
+  the camera sees it (the camera's ray to that pixel cast back through the surface: hidden when
+  it meets the terrain first);
+* :func:`image_marks`: the pixels of the surveyed truth and targets, of the reported frame
+  centre and of the recomputed one, reprojected through ``ground_to_pixel``;
+* :func:`terrain_horizon`: where in the image the rays stop meeting the terrain (per sampled
+  column, bisected to a pixel), through the surface as well.
+
+Pixels are 1-based pixel centres ``(row, col)`` (``docs/conventions.md``); heights are
+ellipsoidal (WGS 84), with the EGM96 orthometric height beside them where shown.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from geoloc.locate import as_sensor
+from geoloc.status import Status, describe
+from geoloc.surfaces.base import LineOfSight
+
+#: Height datum of every height in this module.
+H_DATUM = "ellipsoidal, WGS 84"
+#: A ground point is hidden from the camera when the camera's ray towards it meets the terrain
+#: this much nearer [m]: the exact solver's hits agree to millimetres (docs/terrain.md), the
+#: DEM's bilinear surface is continuous, so 1 m separates a true occluder from round-off.
+HIDDEN_TOLERANCE_M = 1.0
+
+
+def images_of(scn):
+    """The scenario's image source (:class:`geoloc.io.images.ImageSource`), or None."""
+    return getattr(scn, "images", None)
+
+
+def image_index(scn, idx) -> int:
+    """Index into ``scn.images`` of record ``idx``'s image; -1 when it has none.
+
+    ``scn.image_index`` (one per record) when the scenario says; else the nearest image by time
+    to ``scn.record_times_s[idx]`` (seconds on the stream clock, ``ImageSource.index_at``); else
+    the record's own index (one image per record, in order).
+    """
+    images = images_of(scn)
+    if images is None or idx is None:
+        return -1
+    table = getattr(scn, "image_index", None)
+    if table is not None:
+        k = int(np.asarray(table)[int(idx)])
+    else:
+        times = getattr(scn, "record_times_s", None)
+        if times is not None and np.isfinite(times[int(idx)]):
+            k = int(images.index_at(float(times[int(idx)])))
+        else:
+            k = int(idx)
+    return k if 0 <= k < len(images) else -1
+
+
+def frame_sensor(scn, idx, rows: int, cols: int):
+    """The sensor of record ``idx``'s image of ``rows`` x ``cols`` pixels (module docstring)."""
+    base = as_sensor(scn.camera)
+    fov = getattr(scn, "frame_fov_deg", None)
+    if fov is not None and idx is not None:
+        h, v = (float(x) for x in np.asarray(fov, float)[int(idx)])
+        if math.isfinite(h) and math.isfinite(v):
+            from geoloc.sensors.lenses import lens_from_fov
+
+            return dataclasses.replace(base, lens=lens_from_fov(math.radians(h), math.radians(v), cols, rows))
+    if (base.rows, base.cols) == (rows, cols):
+        return base
+    from geoloc.io.photos import scale_lens
+
+    return dataclasses.replace(base, lens=scale_lens(base.lens, cols, rows))
+
+
+@dataclass
+class PixelPick:
+    """A picked pixel and its ground point (angles in degrees: the panel's edge)."""
+
+    row: float
+    col: float
+    in_frame: bool
+    los: LineOfSight
+    hit: object  # GroundPoint (TerrainHit on a DEM)
+    method: str
+    iterations: int  # DEM evaluations (heights read, or cells visited by the exact walk)
+    trace_ecef: np.ndarray | None = None  # (n, 3) the method's iterates on the line of sight
+
+    @property
+    def ok(self) -> bool:
+        return int(self.hit.status) == Status.OK
+
+    def lat_deg(self) -> float:
+        return float(np.rad2deg(self.hit.lat))
+
+    def lon_deg(self) -> float:
+        return float(np.rad2deg(self.hit.lon))
+
+
+def locate_pixel(scn, inputs, sensor, row, col) -> PixelPick:
+    """Pixel ``(row, col)`` of ``sensor`` at the pose of ``inputs``, on the scene's surface."""
+    from geoloc.viz import terrain_link
+
+    pose = inputs.pose()
+    los = sensor.line_of_sight(float(row), float(col), pose)
+    surface = terrain_link.scene_surface(scn, inputs, trace=True)
+    hit = surface.intersect(los)
+    evals = int(np.asarray(getattr(hit, "dem_evaluations", 0)))
+    tr = getattr(hit, "trace", None)
+    trace = None
+    if tr is not None:
+        t = tr.ray()
+        trace = np.asarray(t["ecef"], float).reshape(-1, 3)
+    method = inputs.method if hasattr(surface, "dem") or scn.dem is not None else "constant height"
+    return PixelPick(float(row), float(col), bool(sensor.in_image(row, col)), los, hit, method, evals, trace)
+
+
+def pick_markdown(p: PixelPick, geoid=True) -> str:
+    """The panel's text for a picked pixel: latitude, longitude, height and datum, range, status."""
+    head = f"**pixel** row {p.row:g}, column {p.col:g}"
+    if not p.in_frame:
+        head += " (**outside the frame**)"
+    if not p.ok:
+        return head + f"  \n**no ground point**: {describe(int(p.hit.status))}"
+    lines = [head + "  ",
+             f"latitude **{p.lat_deg():.8f}** deg  ",
+             f"longitude **{p.lon_deg():.8f}** deg  ",
+             f"height **{float(p.hit.h):.2f} m** ({H_DATUM})"]
+    if geoid:
+        from geoloc.geodesy.geoid import egm96_undulation
+
+        n = float(egm96_undulation(float(p.hit.lat), float(p.hit.lon)))
+        lines[-1] += f", {float(p.hit.h) - n:.2f} m above EGM96 (MSL)"
+    lines[-1] += "  "
+    lines.append(f"slant range {float(p.hit.slant_range):.1f} m; status {describe(int(p.hit.status))}  ")
+    lines.append(f"surface: {p.method}; DEM evaluations {p.iterations}")
+    if bool(np.asarray(getattr(p.hit, "hidden", False))):
+        lines[-1] += "; **hidden**: the line of sight meets the terrain earlier"
+    return "\n".join(lines)
+
+
+@dataclass
+class GroundPick:
+    """A point of the terrain picked in the scene, and its pixel in the frame."""
+
+    hit: object  # GroundPoint of the browser's ray on the terrain
+    row: float
+    col: float
+    pixel_status: int  # Status of ground_to_pixel
+    in_frame: bool
+    visible: bool
+    occluder_range_m: float  # where the camera's ray meets the terrain first [m from the camera]
+    range_m: float  # camera to the picked point [m]
+
+    @property
+    def ok(self) -> bool:
+        return int(self.hit.status) == Status.OK
+
+    def verdict(self) -> str:
+        if not self.ok:
+            return f"no terrain along this ray: {describe(int(self.hit.status))}"
+        if self.pixel_status == Status.BEHIND_CAMERA or not self.in_frame:
+            return "outside the frame"
+        return "in the frame" if self.visible else "hidden behind terrain from this camera"
+
+
+def ground_pick(scn, inputs, sensor, origin_ecef, direction_ecef) -> GroundPick:
+    """The terrain point on a browser ray, its pixel, and whether the camera sees it.
+
+    The ray meets the scene's terrain at its exact first hit (on a scene without a DEM: the
+    record's constant height). Its pixel is ``sensor.ground_to_pixel``; it is in the frame
+    when that status is OK (``OUTSIDE_SENSOR``: computed, off the sensor; ``BEHIND_CAMERA``).
+    Visibility: the camera's line of sight through that pixel (extrapolated beyond the
+    sensor's edge if need be) is cast through the same surface; the point is hidden when that
+    ray meets the terrain more than :data:`HIDDEN_TOLERANCE_M` before it.
+    """
+    from geoloc.surfaces.terrain import surface_for
+
+    d = np.asarray(direction_ecef, float)
+    d = d / np.linalg.norm(d)
+    ray = LineOfSight(np.asarray(origin_ecef, float), d, np.zeros((), np.uint8))
+    dem = scn.dem if getattr(scn, "use_dem", True) else None
+    surface = surface_for(inputs.target_h, dem, method="exact")
+    hit = surface.intersect(ray)
+    nan = float("nan")
+    if int(hit.status) != Status.OK:
+        return GroundPick(hit, nan, nan, int(Status.INVALID_INPUT), False, False, nan, nan)
+    pose = inputs.pose()
+    px = sensor.ground_to_pixel(hit.lat, hit.lon, hit.h, pose)
+    st = int(px.status)
+    row, col = float(px.row), float(px.col)
+    in_frame = st == Status.OK
+    visible, occ, rng = False, nan, nan
+    if st in (Status.OK, Status.OUTSIDE_SENSOR):
+        los = sensor.line_of_sight(row, col, pose, outside="extrapolate")
+        rng = float(np.linalg.norm(np.asarray(hit.ecef) - np.asarray(los.origin_ecef)))
+        back = surface.intersect(los)
+        if int(back.status) == Status.OK:
+            occ = float(back.slant_range)
+            visible = occ > rng - HIDDEN_TOLERANCE_M
+        else:  # the camera's ray meets nothing before it: nothing hides the point
+            visible = True
+    return GroundPick(hit, row, col, st, in_frame, visible, occ, rng)
+
+
+def ground_markdown(g: GroundPick) -> str:
+    """The panel's text for a picked terrain point."""
+    if not g.ok:
+        return f"**terrain pick**: {g.verdict()}"
+    lines = [f"**terrain pick**: {float(np.rad2deg(g.hit.lat)):.7f} N, {float(np.rad2deg(g.hit.lon)):.7f} E, "
+             f"h {float(g.hit.h):.1f} m ({H_DATUM})  "]
+    if np.isfinite(g.row):
+        lines.append(f"pixel row {g.row:.2f}, column {g.col:.2f}: **{g.verdict()}**")
+    else:
+        lines.append(f"**{g.verdict()}** ({describe(g.pixel_status)})")
+    if np.isfinite(g.occluder_range_m) and not g.visible:
+        lines[-1] += (f"  \nthe camera's ray meets the terrain at {g.occluder_range_m:.0f} m, "
+                      f"{g.range_m - g.occluder_range_m:.0f} m before the point")
+    return "\n".join(lines)
+
+
+def image_marks(scn, idx, sensor, inputs) -> dict:
+    """Name -> (row, col, status) of the points reprojected into the frame (``ground_to_pixel``).
+
+    ``truth``: the record's surveyed position (on the DEM when there is one); ``reported``: the
+    record's reported frame centre (MISB tags 23-25 / 78, or [Q17]'s published point);
+    ``recomputed``: the image centre's own hit on the scene's surface (so its mark is the centre
+    pixel, drawn to compare with the reported one); and each of ``scn.targets``
+    (``(label, lat_deg, lon_deg, h_m)``, ellipsoidal heights; NaN height: on the DEM).
+    """
+    from geoloc.viz import terrain_link
+
+    pose = inputs.pose()
+    pts = {}
+    info = scn.records[int(idx)][0] if idx is not None and scn.records else None
+
+    def dem_h(lat, lon, h):
+        if scn.dem is not None and not np.isfinite(h):
+            return terrain_link.dem_height(scn.dem, lat, lon)
+        return h
+
+    if info is not None:
+        if np.isfinite(info.truth_lat_deg):
+            pts["truth"] = (info.truth_lat_deg, info.truth_lon_deg,
+                            dem_h(info.truth_lat_deg, info.truth_lon_deg, np.nan if scn.dem is not None
+                                  else info.paper_height_m))
+        if np.isfinite(info.paper_lat_deg):
+            h = info.paper_height_m if np.isfinite(info.paper_height_m) else np.nan
+            pts["reported"] = (info.paper_lat_deg, info.paper_lon_deg, dem_h(info.paper_lat_deg,
+                                                                             info.paper_lon_deg, h))
+    r0, c0 = sensor.center_pixel
+    centre = locate_pixel(scn, inputs, sensor, r0, c0)
+    if centre.ok:
+        pts["recomputed"] = (centre.lat_deg(), centre.lon_deg(), float(centre.hit.h))
+    for t in getattr(scn, "targets", ()) or ():
+        label, la, lo, h = t
+        pts[f"target {label}"] = (la, lo, dem_h(la, lo, h))
+    out = {}
+    for name, (la, lo, h) in pts.items():
+        if not np.all(np.isfinite([la, lo, h])):
+            continue
+        px = sensor.ground_to_pixel(np.deg2rad(la), np.deg2rad(lo), h, pose)
+        out[name] = (float(px.row), float(px.col), int(px.status))
+    return out
+
+
+def terrain_horizon(scn, inputs, sensor, n_cols: int = 33, n_rows: int = 24, refine: int = 8):
+    """(k, 2) (row, col) of the terrain's horizon in the frame: per sampled column, the
+    boundary between rays that meet the terrain and rays that do not (sky, or off the DEM),
+    bisected ``refine`` times between grid rows; empty when every sampled ray meets the terrain.
+
+    Every ray goes through ``sensor.line_of_sight`` and the scene's surface (exact first hit).
+    """
+    from geoloc.surfaces.terrain import surface_for
+
+    M, N = sensor.rows, sensor.cols
+    pose = inputs.pose()
+    dem = scn.dem if getattr(scn, "use_dem", True) else None
+    surface = surface_for(inputs.target_h, dem, method="exact")
+    rows = np.linspace(0.5, M + 0.5, n_rows)
+    cols = np.linspace(0.5, N + 0.5, n_cols)
+    R, C = np.meshgrid(rows, cols, indexing="ij")
+    ok = np.asarray(surface.intersect(sensor.line_of_sight(R, C, pose, outside="extrapolate")).status) == Status.OK
+    out = []
+    lo_r, hi_r, cc = [], [], []
+    for j in range(n_cols):
+        col_ok = ok[:, j]
+        if col_ok.all() or not col_ok.any():
+            continue
+        # the last row (from the top) that misses, followed by one that hits
+        k = np.flatnonzero(~col_ok[:-1] & col_ok[1:])
+        if len(k) == 0:
+            continue
+        lo_r.append(rows[k[-1]])
+        hi_r.append(rows[k[-1] + 1])
+        cc.append(cols[j])
+    if not cc:
+        return np.zeros((0, 2))
+    lo_r, hi_r, cc = (np.array(a, float) for a in (lo_r, hi_r, cc))
+    for _ in range(int(refine)):
+        mid = 0.5 * (lo_r + hi_r)
+        hit = np.asarray(surface.intersect(sensor.line_of_sight(mid, cc, pose, outside="extrapolate")).status) \
+            == Status.OK
+        hi_r = np.where(hit, mid, hi_r)
+        lo_r = np.where(hit, lo_r, mid)
+    out = np.stack([0.5 * (lo_r + hi_r), cc], axis=1)
+    return out
