@@ -4,7 +4,11 @@
 UAS Datalink LS packets at 1 Hz (raw KLV, concatenated packets) of an aircraft
 orbiting a point of the bundled terrain (``assets/dem/srtm_jacksboro.tif``) at
 2 900 m above the ellipsoid, 2.6 km from it, its turret tracking the point and
-zooming in twice. ``--ts FILE`` also writes the same packets as an MPEG-TS (PyAV).
+zooming in twice. ``--ts FILE`` also writes the same packets as an MPEG-TS (PyAV)
+with a rendered video stream beside them (STANAG 4609 layout: H.264 video + KLV
+data stream, frame i at packet i's time stamp); ``--no-video`` leaves it out.
+It also writes ``assets/klv/example_flight_targets.csv``: the surveyed targets
+painted on the ground as crosses.
 
 How each packet is made:
 
@@ -23,6 +27,15 @@ How each packet is made:
    terrain's effect on the corners;
 4. faults of the kinds users meet are planted, after step 3 (so the reported
    centres stay those of the true geometry): see :data:`FAULTS`.
+
+5. the video (``--ts``): frame i is rendered by geoloc itself
+   (:func:`geoloc.workflows.render.render_frame`: every pixel's exact hit on the
+   DEM, coloured from the hillshade with the surveyed targets painted as crosses)
+   from the *true* pose of step 1 as decoded, at 640 x 360, so the faults of step 4
+   show in the frames; and the video's own fault, :data:`VIDEO_FAULTS`: in frames
+   40-79 the video runs 1.5 s ahead of its metadata (frame i shows the scene of
+   time i + 1.5 s, the true pose linearly interpolated between packets), the KLV
+   packets being right.
 
 This is example data for the README, the docs and the viewer, and the test that the
 replay flags the planted packets and no others; the oracle tests of the chain are
@@ -77,6 +90,23 @@ FAULTS = {
     "missing_angles": (275, 275, "tags 18, 19, 20 (sensor-relative angles) left out"),
     "corrupted": (150, 150, "one byte of the packet flipped after encoding: checksum mismatch"),
 }
+
+#: Faults of the video alone (the KLV is right): name -> (first frame, last frame, seconds, what).
+#: Frame i has packet i's time stamp.
+VIDEO_FAULTS = {
+    "video_ahead": (40, 79, 1.5, "the video runs 1.5 s ahead of its metadata: frame i shows the scene of "
+                                 "metadata time i + 1.5 s (time_offset_s = -1.5 matches them)"),
+}
+#: Video frame size (width, height) [pixels], 16:9 as the packets' fields of view.
+VIDEO_SIZE = (640, 360)
+#: The surveyed targets, painted as crosses: (name, east, north) [m] from the centre of the DEM
+#: cell that holds the tracked point. All five lie inside that one cell (3'' SRTM: 74 m east-west,
+#: 93 m north-south here), 7 m or more from its edges: a cross across a cell edge would sit on a
+#: fold of the bilinear terrain, whose two sides foreshorten its arms differently.
+SURVEYED = (("T1", 0.0, 0.0), ("T2", 18.0, 22.0), ("T3", -18.0, 22.0), ("T4", -18.0, -22.0),
+            ("T5", 18.0, -22.0))
+CROSS_ARM_M, CROSS_WIDTH_M = 10.0, 3.0
+TARGETS_OUT = ROOT / "assets" / "klv" / "example_flight_targets.csv"
 
 POSE_FIELDS = ("platform_heading_deg", "platform_pitch_deg", "platform_roll_deg", "sensor_latitude_deg",
                "sensor_longitude_deg", "sensor_true_altitude_m", "sensor_ellipsoid_height_m",
@@ -181,12 +211,16 @@ def platform_answers(dem, decoded):
     return out
 
 
+def decoded_truth(dem) -> list:
+    """Step 1 and 2: the true fields of every packet as a reader of an unfaulted packet decodes them."""
+    rng = np.random.default_rng(SEED)
+    return [decode_packet(encode_packet(f)).fields for f in true_fields(dem, rng)]
+
+
 def make_packets(dem=None) -> list:
     """The 300 packets (bytes), faults planted."""
     dem = dem if dem is not None else DEM.open(DEM_PATH)
-    rng = np.random.default_rng(SEED)
-    truth = true_fields(dem, rng)
-    decoded = [decode_packet(encode_packet(f)).fields for f in truth]
+    decoded = decoded_truth(dem)
     answers = platform_answers(dem, decoded)
     fields = [{**d, **a} for d, a in zip(decoded, answers)]
     planted = [dict(f) for f in fields]
@@ -211,12 +245,105 @@ def make_packets(dem=None) -> list:
     return blobs
 
 
+# --------------------------------------------------------------------------- the video
+
+
+def surveyed_targets(dem) -> list:
+    """The surveyed targets: name, lat_deg, lon_deg, h_m (the DEM's height there, ellipsoidal WGS 84)."""
+    g = dem.grid
+    i = math.floor((g.lat_north_deg - TARGET[0]) / g.dlat_deg)
+    j = math.floor((TARGET[1] - g.lon_west_deg) / g.dlon_deg)
+    lat_t = math.radians(g.lat_north_deg - (i + 0.5) * g.dlat_deg)
+    lon_t = math.radians(g.lon_west_deg + (j + 0.5) * g.dlon_deg)
+    en = np.array([[e, n, 0.0] for _, e, n in SURVEYED])
+    lat, lon, _ = enu_to_geodetic(en, lat_t, lon_t, 0.0)
+    h = dem.height(lat, lon)
+    return [{"name": name, "lat_deg": round(math.degrees(a), 8), "lon_deg": round(math.degrees(b), 8),
+             "h_m": round(float(c), 3), "arm_m": CROSS_ARM_M, "width_m": CROSS_WIDTH_M}
+            for (name, _, _), a, b, c in zip(SURVEYED, lat, lon, h)]
+
+
+_ANGLES = ("platform_heading_deg", "platform_pitch_full_deg", "platform_roll_full_deg",
+           "sensor_relative_azimuth_deg", "sensor_relative_elevation_deg", "sensor_relative_roll_deg")
+_LINEAR = ("sensor_latitude_deg", "sensor_longitude_deg", "sensor_ellipsoid_height_m")
+
+
+def state_at(decoded, tau: float) -> dict:
+    """The true pose at fractional packet time ``tau`` [s from packet 0]: linear between packets
+    (angles along the shorter way), the fields of view of packet floor(tau)."""
+    i = min(int(math.floor(tau)), len(decoded) - 2)
+    f = tau - i
+    a, b = decoded[i], decoded[i + 1]
+    out = {k: a[k] for k in ("sensor_horizontal_fov_deg", "sensor_vertical_fov_deg")}
+    for k in _LINEAR:
+        out[k] = a[k] + f * (b[k] - a[k])
+    for k in _ANGLES:
+        out[k] = a[k] + f * ((b[k] - a[k] + 180.0) % 360.0 - 180.0)
+    return out
+
+
+def frame_content_times() -> np.ndarray:
+    """Time [s from packet 0] of the scene each frame shows (i, or i + 1.5 in the fault)."""
+    t = np.arange(N_PACKETS, dtype=float)
+    a, b, d, _ = VIDEO_FAULTS["video_ahead"]
+    t[a:b + 1] += d
+    return t
+
+
+def video_sensor_pose(st: dict):
+    """The video's sensor (lens_from_fov at VIDEO_SIZE, azimuth-elevation-roll) and pose for a state."""
+    w, h = VIDEO_SIZE
+    s = FrameSensor(lens_from_fov(math.radians(st["sensor_horizontal_fov_deg"]),
+                                  math.radians(st["sensor_vertical_fov_deg"]), w, h),
+                    PRESETS["azimuth-elevation-roll"])
+    p = Pose.from_deg(st["sensor_latitude_deg"], st["sensor_longitude_deg"], st["sensor_ellipsoid_height_m"],
+                      st["platform_heading_deg"], st["platform_pitch_full_deg"], st["platform_roll_full_deg"],
+                      angles_deg={"azimuth": st["sensor_relative_azimuth_deg"],
+                                  "elevation": st["sensor_relative_elevation_deg"],
+                                  "sensor_roll": st["sensor_relative_roll_deg"]})
+    return s, p
+
+
+def texture(dem):
+    from geoloc.workflows.render import Cross, ground_texture
+
+    return ground_texture(dem, [Cross(t["lat_deg"], t["lon_deg"], t["arm_m"], t["width_m"], t["name"])
+                                for t in surveyed_targets(dem)])
+
+
+def render_video(dem, frames=None, log=None):
+    """Yield the rendered frames (RGB uint8, VIDEO_SIZE), frame i from the true pose at its content time."""
+    from geoloc.workflows.render import render_frame
+
+    decoded = decoded_truth(dem)
+    tex = texture(dem)
+    times = frame_content_times()
+    for i in (range(N_PACKETS) if frames is None else frames):
+        s, p = video_sensor_pose(state_at(decoded, float(times[i])))
+        yield render_frame(s, p, dem, tex).image
+        if log and i % 25 == 0:
+            log(f"  frame {i}/{N_PACKETS}")
+
+
+def write_targets_csv(path, dem):
+    rows = surveyed_targets(dem)
+    lines = ["name,lat_deg,lon_deg,h_m,arm_m,width_m"] + [
+        f"{t['name']},{t['lat_deg']:.8f},{t['lon_deg']:.8f},{t['h_m']:.3f},{t['arm_m']},{t['width_m']}" for t in rows]
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(OUT), help=f"raw KLV output (default {OUT.relative_to(ROOT)})")
-    ap.add_argument("--ts", default=None, metavar="FILE", help="also write the packets as an MPEG-TS (1 Hz)")
+    ap.add_argument("--ts", default=None, metavar="FILE",
+                    help="also write the packets as an MPEG-TS (1 Hz) with the rendered video")
+    ap.add_argument("--no-video", action="store_true", help="the MPEG-TS without its video stream")
+    ap.add_argument("--targets", default=str(TARGETS_OUT), help="surveyed targets CSV output")
     args = ap.parse_args(argv)
-    blobs = make_packets()
+    dem = DEM.open(DEM_PATH)
+    blobs = make_packets(dem)
+    write_targets_csv(args.targets, dem)
+    print(f"wrote {len(SURVEYED)} surveyed targets to {args.targets}")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_bytes(b"".join(blobs))
@@ -224,8 +351,11 @@ def main(argv=None) -> int:
     if args.ts:
         from geoloc.io.klv import write_ts
 
-        write_ts(args.ts, blobs, rate=1.0)
-        print(f"wrote {len(blobs)} packets to {args.ts} (MPEG-TS, KLV data stream, 1 Hz)")
+        frames = None if args.no_video else render_video(dem, log=print)
+        write_ts(args.ts, blobs, rate=1.0, frames=frames, codec_options={"crf": 30})  # ~3 MB
+        what = "KLV data stream" if args.no_video else f"H.264 {VIDEO_SIZE[0]}x{VIDEO_SIZE[1]} + KLV data stream"
+        print(f"wrote {len(blobs)} packets to {args.ts} (MPEG-TS, {what}, 1 Hz; "
+              f"{Path(args.ts).stat().st_size} bytes)")
     return 0
 
 

@@ -1084,8 +1084,14 @@ def encode_packet(fields: dict, *, unknown: dict | None = None, with_checksum: b
 
 def write_ts(path, packets: Iterable, *, rate: float = 30.0, pts: Iterable[int] | None = None,
              time_base: Fraction = Fraction(1, 90000), video: bool = False,
-             video_size: tuple[int, int] = (64, 48)) -> int:
-    """Write a short MPEG-TS with a KLV data stream (and optionally a video stream), via PyAV.
+             video_size: tuple[int, int] = (64, 48), frames: Iterable | None = None,
+             codec: str = "libx264", codec_options: dict | None = None, gop: int = 10) -> int:
+    """Write an MPEG-TS with a KLV data stream (and optionally a video stream), via PyAV.
+
+    With ``frames`` the file has the STANAG 4609 layout: a video stream (H.264 by
+    default) and the KLV data stream (SMPTE 336M KLV, FFmpeg's ``klv`` codec: a
+    private PES stream with the ``KLVA`` registration descriptor), frame i carrying
+    packet i's time stamp, so both are on one clock (the container PTS).
 
     Parameters
     ----------
@@ -1106,6 +1112,17 @@ def write_ts(path, packets: Iterable, *, rate: float = 30.0, pts: Iterable[int] 
         want one. The muxer may then shift every time stamp by the video's start delay.
     video_size : (int, int)
         Width and height of the video [pixels].
+    frames : iterable of ndarray (rows, cols, 3) uint8, optional
+        One RGB picture per packet (array row 0 the top row), encoded with ``codec``
+        at the packet's time stamp (the video stream's time base is ``time_base``).
+        An iterable is consumed lazily, so a long video is never held in memory.
+    codec : str
+        FFmpeg encoder of ``frames``: ``libx264`` (default), ``mpeg2video``, ``mpeg4``, ...
+    codec_options : dict, optional
+        Encoder options (libx264 default: ``preset=medium``, ``crf=26``, no B-frames,
+        so that time stamps need no decoding delay).
+    gop : int
+        Key-frame interval of ``frames`` [frames].
 
     Returns
     -------
@@ -1130,14 +1147,42 @@ def write_ts(path, packets: Iterable, *, rate: float = 30.0, pts: Iterable[int] 
             raise ValueError(f"{len(ts)} pts for {len(blobs)} packets")
     with av.open(os.fspath(path), "w", format="mpegts") as out:
         vs = None
-        if video:
+        pictures = None
+        if frames is not None:
+            pictures = iter(frames)
+            first = next(pictures, None)
+            if first is None:
+                raise ValueError("frames: no picture given")
+            first = np.asarray(first)
+            if first.ndim != 3 or first.shape[2] != 3 or first.dtype != np.uint8:
+                raise ValueError(f"frames: each picture must be (rows, cols, 3) uint8 RGB, got "
+                                 f"{first.shape} {first.dtype}")
+            vs = out.add_stream(codec, rate=Fraction(rate).limit_denominator(1001))
+            vs.height, vs.width = first.shape[:2]
+            vs.pix_fmt = "yuv420p"
+            vs.time_base = time_base
+            vs.codec_context.time_base = time_base
+            vs.gop_size = int(gop)
+            opts = {"preset": "medium", "crf": "26", "bf": "0"} if codec == "libx264" else {}
+            opts.update(codec_options or {})
+            vs.options = {k: str(v) for k, v in opts.items()}
+            pictures = _chain_first(first, pictures)
+        elif video:
             vs = out.add_stream("mpeg2video", rate=Fraction(rate).limit_denominator(1001))
             vs.width, vs.height = video_size
             vs.pix_fmt = "yuv420p"
             grey = np.full((video_size[1], video_size[0], 3), 128, np.uint8)
         ds = out.add_data_stream(codec_name="klv")
         for i, (b, t) in enumerate(zip(blobs, ts)):
-            if vs is not None:
+            if pictures is not None:
+                pic = next(pictures, None)
+                if pic is None:
+                    raise ValueError(f"frames: {i} pictures for {len(blobs)} packets")
+                frame = av.VideoFrame.from_ndarray(np.ascontiguousarray(pic), format="rgb24")
+                frame.pts, frame.time_base = t, time_base
+                for vp in vs.encode(frame):
+                    out.mux(vp)
+            elif vs is not None:
                 frame = av.VideoFrame.from_ndarray(grey, format="rgb24")
                 frame.pts = i
                 for vp in vs.encode(frame):
@@ -1151,6 +1196,11 @@ def write_ts(path, packets: Iterable, *, rate: float = 30.0, pts: Iterable[int] 
             for vp in vs.encode():
                 out.mux(vp)
     return len(blobs)
+
+
+def _chain_first(first, rest):
+    yield first
+    yield from rest
 
 
 # --------------------------------------------------------------------------- columns
