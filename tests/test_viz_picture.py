@@ -1,10 +1,9 @@
 """The picture layer (issue 28 items 2-4): each frame's image in its frustum and in a panel,
 pixel picks located as ``geoloc locate`` locates them, terrain picks marked at their pixel.
 
-The images here are a test-only stand-in for :mod:`geoloc.io.images` (``FakeImages``, the
-agreed ``ImageSource`` protocol): frames of the bundled example flight rendered by casting
-every pixel's ray through the core onto the SRTM crop (height colours and a 200 m checker),
-small (135 x 240 px) so the test stays quick on 2 cores.
+The images here (:class:`geoloc.io.images.ArrayImages`) are frames of the bundled example
+flight rendered in the test by casting every pixel's ray through the core onto the SRTM crop
+(height colours and a 200 m checker), small (135 x 240 px) so the test stays quick on 2 cores.
 
 * no browser: the layer's pixel pick equals ``geoloc locate`` (a subprocess of the CLI, with the
   frame's own sensor written to a sensor file) to 1e-9 deg; a browser-like ray at a pixel's
@@ -26,29 +25,10 @@ import time
 import numpy as np
 import pytest
 
+from geoloc.io.images import ArrayImages
 from geoloc.status import Status
 
 ROWS, COLS = 135, 240
-
-
-class FakeImages:
-    """A test-only ImageSource (the protocol of geoloc.io.images): arrays in memory."""
-
-    def __init__(self, images, times_s=None):
-        self.images = [np.asarray(a, np.uint8) for a in images]
-        self.rows, self.cols = self.images[0].shape[:2]
-        self.times_s = np.full(len(self.images), np.nan) if times_s is None else np.asarray(times_s, float)
-
-    def __len__(self):
-        return len(self.images)
-
-    def image(self, index):
-        return self.images[index]
-
-    def index_at(self, t_s):
-        if not np.isfinite(self.times_s).any():
-            return -1
-        return int(np.nanargmin(np.abs(self.times_s - t_s)))
 
 
 def render_frame(scn, idx, rows=ROWS, cols=COLS):
@@ -78,7 +58,7 @@ def flight():
 
     scn = default_flight_scenario()
     n = 3
-    scn.images = FakeImages([render_frame(scn, i) for i in range(n)])
+    scn.images = ArrayImages([render_frame(scn, i) for i in range(n)])
     scn.image_index = np.r_[np.arange(n), np.full(len(scn.records) - n, -1)]
     return scn
 

@@ -601,4 +601,49 @@ def default_flight_scenario(record=None, path=None, camera_path=None, dem_path=N
     scn = load_view_scenario(path, record, camera_path, dem_path, use_dem=use_dem)
     # (headings come wrapped into -180..180 from viz.scenario.records_from_klv, for the heading slider)
     scn.frame_fov_deg = klv_fov_deg(path, [info.label for info, _ in scn.records])
+    targets = path.with_name(path.stem + "_targets.csv")
+    if targets.is_file():  # the surveyed targets painted in the rendered video (tools/make_klv_example.py)
+        scn.targets = read_targets(targets)
+    attach_video(scn, path.with_suffix(".ts") if path.suffix.lower() != ".ts" else path)
     return scn
+
+
+def read_targets(path) -> list:
+    """[(name, lat_deg, lon_deg, h_m)] of a targets CSV (columns ``name, lat_deg, lon_deg, h_m``;
+    heights ellipsoidal, WGS 84; an empty height: on the DEM)."""
+    import csv
+
+    out = []
+    with open(path, newline="") as f:
+        for k, row in enumerate(csv.DictReader(f), start=2):
+            try:
+                h = row.get("h_m", "")
+                out.append((row["name"], float(row["lat_deg"]), float(row["lon_deg"]),
+                            float(h) if h not in ("", None) else math.nan))
+            except (KeyError, ValueError) as e:
+                raise ValueError(f"{path}, line {k}: {e}: need name, lat_deg, lon_deg[, h_m]") from None
+    return out
+
+
+def attach_video(scn, ts_path) -> bool:
+    """Give ``scn`` the frames of the video in ``ts_path`` (an MPEG-TS with the KLV stream beside
+    its video, STANAG 4609): ``scn.images`` (:func:`geoloc.io.images.open_images`, decoded lazily)
+    and ``scn.record_times_s``, each record's KLV packet time stamp on the container clock, so a
+    record shows the frame nearest its packet (``ImageSource.index_at``). False (and the scenario
+    left without images) when the file is missing or has no video stream."""
+    from geoloc.io.images import open_images
+    from geoloc.workflows.klv_replay import read_klv
+
+    ts_path = Path(ts_path)
+    if not ts_path.is_file():
+        return False
+    try:
+        images = open_images(ts_path)
+        len(images)
+    except ValueError:  # a KLV-only transport stream: no pictures
+        return False
+    r = read_klv(ts_path)
+    pts = {int(p): float(t) for p, t in zip(r.packet, r.pts_s)}
+    scn.images = images
+    scn.record_times_s = np.array([pts.get(int(str(info.label).split()[-1]), np.nan) for info, _ in scn.records])
+    return True

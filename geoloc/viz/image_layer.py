@@ -187,6 +187,11 @@ class ImageLayer:
             self.sl_opacity = g.add_slider("picture opacity", 0.1, 1.0, 0.05, 1.0)
             self.cb_marks = g.add_checkbox("marks: truth, targets, frame centres", True)
             self.cb_horizon = g.add_checkbox("mark: terrain horizon", True)
+            self.cb_drape = g.add_checkbox("drape the frame on the terrain", False,
+                                           hint="The frame orthorectified (geoloc ortho: each ground cell's pixel "
+                                           "by ground_to_pixel, cells hidden from the camera left out) and laid "
+                                           "on the terrain as a texture")
+        self.cb_drape.on_update(lambda _e: self._safe(self.drape))
         self.sl_zoom.on_update(lambda _e: self._safe(self.redraw_images))
         self.tx_pixel.on_update(lambda _e: self._on_pixel_text())
         for h in (self.cb_frustum, self.sl_dist, self.sl_opacity, self.cb_marks, self.cb_horizon):
@@ -239,6 +244,7 @@ class ImageLayer:
             self.md_pick.content = pm.pick_markdown(self.pick)
         self.redraw_images()
         self.draw_pick()
+        self.drape()
 
     def _mark_list(self):
         out = []
@@ -373,6 +379,27 @@ class ImageLayer:
         return (float(np.clip(math.floor(0.5 + v * M + 0.5), 1, M)),
                 float(np.clip(math.floor(0.5 + u * N + 0.5), 1, N)))
 
+    # ------------------------------------------------------------ draping
+    def drape(self) -> None:
+        """The frame orthorectified (:func:`geoloc.workflows.ortho.orthorectify`) as a texture on a
+        mesh of the DEM over the ortho's extent (``/enu/picture/drape``), when the toggle is on."""
+        name = f"{ROOT}/drape"
+        s = self.session
+        if not self.cb_drape.value or self.image is None or s.scn.dem is None:
+            self._hide(name)
+            return
+        key = (self.index, self.k, s.inputs, s.view.disp.vertical_exaggeration)
+        if getattr(self, "_drape_key", None) == key and name in self.handles:
+            self.handles[name].visible = True
+            return
+        mesh, info = drape_mesh(s.scn, s.inputs, self.sensor, self.image, s.view.disp)
+        self.drape_info = info
+        if mesh is None:
+            self._hide(name)
+            return
+        self.handles[name] = self.scene.add_mesh_trimesh(name, mesh, cast_shadow=False, receive_shadow=False)
+        self._drape_key = key
+
     # ------------------------------------------------------------ picking
     def _on_pixel_text(self) -> None:
         if self._mute or self.closed:
@@ -457,7 +484,7 @@ class ImageLayer:
                 b = enu.from_ecef(np.asarray(p.hit.ecef))
             else:
                 b = a + 40e3 * enu.vector_from_ecef(np.asarray(p.los.direction_ecef))
-            self._line(f"{ROOT}/ray", [a, b], COLORS["pick"], 3.0)
+            self._line(f"{ROOT}/ray", [a, b], COLORS["pick"], 4.0)
             shown.add(f"{ROOT}/ray")
             if p.ok:
                 self._ball(f"{ROOT}/hit", b, COLORS["pick"])
@@ -485,6 +512,68 @@ class ImageLayer:
 
     def close(self) -> None:
         self.closed = True
+
+
+#: Lift of the draped frame above the DEM [m], display only (the depth test would otherwise let
+#: the terrain mesh, a coarser resampling of the DEM, poke through it).
+DRAPE_LIFT_M = 40.0
+#: Cells across the draped ortho (its ground sample follows) and mesh nodes per side.
+DRAPE_CELLS = 320
+DRAPE_NODES = 48
+
+
+def drape_mesh(scn, inputs, sensor, image, disp):
+    """(trimesh with the ortho as its texture, ortho info) of a frame; (None, info) if nothing is seen.
+
+    The ortho comes from :func:`geoloc.workflows.ortho.orthorectify` (written to a temporary
+    GeoTIFF, read back with rasterio): geographic cells, alpha 0 where the camera does not see
+    the cell. The mesh samples the DEM (``DEM.height``) on ``DRAPE_NODES`` x ``DRAPE_NODES``
+    nodes over the ortho's bounds, in the scene's ENU frame (display map ``disp.z``).
+    """
+    import tempfile
+    from pathlib import Path
+
+    import PIL.Image
+    import rasterio
+    import trimesh
+
+    from geoloc.workflows.ortho import locate_frame, orthorectify
+
+    pose = inputs.pose()
+    dem = scn.dem
+    frame = locate_frame(sensor, pose, dem, step=max(1, min(sensor.rows, sensor.cols) // 60))
+    with tempfile.TemporaryDirectory(prefix="geoloc-drape-") as d:
+        # a first grid at 1 m would be huge for a wide frame: size the cell from the frame's extent
+        probe = orthorectify(image.transpose(2, 0, 1), sensor, pose, dem, Path(d) / "probe.tif", gsd_m=50.0,
+                             frame=frame)
+        extent_m = 50.0 * max(probe["width"], probe["height"])
+        gsd = max(extent_m / DRAPE_CELLS, 0.25)
+        info = orthorectify(image.transpose(2, 0, 1), sensor, pose, dem, Path(d) / "ortho.tif", gsd_m=gsd,
+                            frame=frame)
+        with rasterio.open(info["path"]) as src:
+            rgba = np.moveaxis(src.read(), 0, -1)
+            T, w, h = src.transform, src.width, src.height
+    if info["cells_seen"] == 0:
+        return None, info
+    n = DRAPE_NODES
+    u = np.linspace(0.0, 1.0, n)
+    U, V = np.meshgrid(u, u)  # V = 0 at the raster's top row
+    lon = T.c + U * w * T.a
+    lat = T.f + V * h * T.e
+    H = dem.height(np.radians(lat), np.radians(lon))
+    H = np.where(np.isfinite(H), H, np.nanmean(H)) + DRAPE_LIFT_M
+    enu = scn.enu.from_geodetic(np.radians(lat), np.radians(lon), H)
+    verts = disp.z(enu).reshape(-1, 3)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, e = idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]
+    faces = np.concatenate([np.stack([a, e, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
+    uv = np.stack([U.reshape(-1), 1.0 - V.reshape(-1)], axis=1)  # glTF/trimesh: v up from the bottom row
+    mat = trimesh.visual.material.PBRMaterial(baseColorTexture=PIL.Image.fromarray(np.ascontiguousarray(rgba)),
+                                              alphaMode="BLEND", doubleSided=True, metallicFactor=0.0,
+                                              roughnessFactor=1.0)
+    mesh = trimesh.Trimesh(verts, faces, process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, material=mat)
+    return mesh, info
 
 
 def attach(session):
