@@ -338,6 +338,9 @@ def test_nadir_principal_point_is_below_the_camera(tmp_path):
     assert r["h_m"] == pytest.approx(h_dem, abs=1e-4)
     assert r["slant_range_m"] == pytest.approx(r["sensor_h_m"] - h_dem, abs=1e-3)
     assert r["lens"] == "brown (DewarpData)"
+    from test_mgrs import oracle  # pyproj's UTM and the standard's letters
+
+    assert r["mgrs"] == oracle(r["lat_deg"], r["lon_deg"])
 
 
 def test_nadir_image_top_points_along_gimbal_yaw(tmp_path):

@@ -228,17 +228,27 @@ def run(args) -> int:
         "ac_h_m": float(pose.h) if np.ndim(pose.h) == 0 else float(np.ravel(pose.h)[0]),
         "ac_h_datum_input": alt.describe(),
     }
+    out.update(_grid_reference(out["lat_deg"], out["lon_deg"]))
     out.update(extra)
     if args.json:
         print(json.dumps(out))
     else:
         print(f"lat {out['lat_deg']:.7f} deg  lon {out['lon_deg']:.7f} deg  h {out['h_m']:.2f} m"
               f"  (slant range {out['slant_range_m']:.1f} m)")
+        print(f"MGRS {out['mgrs']}  (USNG {out['usng']})")
         if "surface_difference_m" in out:
             print(f"inflated ellipsoid [Q17 eq. 11] vs exact constant-height surface: "
                   f"{out['surface_difference_m'] * 1000:.1f} mm apart")
         print(_locate_datum_line(alt, args.h_m, out["ac_h_m"]))
     return 0
+
+
+def _grid_reference(lat_deg: float, lon_deg: float) -> dict:
+    """``mgrs`` (1 m) and ``usng`` of the ground point (geoloc.io.mgrs_grid)."""
+    from geoloc.io.mgrs_grid import format_usng, latlon_to_mgrs
+
+    text = str(latlon_to_mgrs(lat_deg, lon_deg).text[()])
+    return {"mgrs": text, "usng": format_usng(text)}
 
 
 def _locate_datum_line(alt: HeightSource, given: float, used: float) -> str:

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.userfiles import atomic_path, note_input, write_bytes
 
 #: Formats :func:`export` writes.
@@ -432,10 +433,15 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
         return float(seconds[k]) if np.isfinite(seconds[k]) else None
 
     layers = {}
-    point_fields = fields + [("h_m", "real")]
+    # every point carries its MGRS reference (1 m, geoloc.io.mgrs_grid; None where it has no position)
+    point_fields = fields + [("h_m", "real"), ("mgrs", "text")]
+
+    def mgrs_of(p):
+        return [t or None for t in mgrs_column(p[0], p[1])] if p is not None else [None] * n
 
     # computed points
     comp = position("lat_deg", "lon_deg", ("h_m",))
+    comp_mgrs = mgrs_of(comp)
     lay = _Layer("points", "Point", point_fields)
     missing = []
     for k in range(n):
@@ -444,7 +450,8 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
         else:
             coords = None
             missing.append(k)
-        lay.features.append(_Feature(coords, row_attrs(k, h_m=_opt(comp[2][k]) if comp else None),
+        lay.features.append(_Feature(coords, row_attrs(k, h_m=_opt(comp[2][k]) if comp else None,
+                                                       mgrs=comp_mgrs[k]),
                                      labels[k], k, t_of(k)))
     lay.description = "computed ground points (lat_deg, lon_deg, h_m)"
     layers["points"] = lay
@@ -453,20 +460,22 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
     truth = position(*_TRUTH[1:])
     lay = _Layer("truth", "Point", point_fields)
     if truth is not None:
+        truth_mgrs = mgrs_of(truth)
         for k in range(n):
             coords = [(float(truth[1][k]), float(truth[0][k]), float(truth[2][k]))] if ok(truth, k) else None
-            lay.features.append(_Feature(coords, row_attrs(k, h_m=_opt(truth[2][k])),
+            lay.features.append(_Feature(coords, row_attrs(k, h_m=_opt(truth[2][k]), mgrs=truth_mgrs[k]),
                                          f"truth {labels[k]}", k, t_of(k)))
     lay.description = "surveyed (truth) positions (truth_lat_deg, truth_lon_deg, truth_h_m)"
     layers["truth"] = lay
 
     reported = [(name, position(lat, lon, hs)) for name, lat, lon, hs in _REPORTED]
     reported = [(name, p) for name, p in reported if p is not None]
-    lay = _Layer("reported", "Point", fields + [("source", "text"), ("h_m", "real")])
+    lay = _Layer("reported", "Point", fields + [("source", "text"), ("h_m", "real"), ("mgrs", "text")])
     for name, p in reported:
+        p_mgrs = mgrs_of(p)
         for k in range(n):
             coords = [(float(p[1][k]), float(p[0][k]), float(p[2][k]))] if ok(p, k) else None
-            lay.features.append(_Feature(coords, row_attrs(k, source=name, h_m=_opt(p[2][k])),
+            lay.features.append(_Feature(coords, row_attrs(k, source=name, h_m=_opt(p[2][k]), mgrs=p_mgrs[k]),
                                          f"{name} {labels[k]}", k, t_of(k)))
     lay.description = ("published (paper_*) and reported (reported_*, e.g. MISB KLV) positions; "
                        "attribute source says which")

@@ -77,6 +77,7 @@ from geoloc.io.klv import (
     packets_to_columns,
     read_ts_klv,
 )
+from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.locate import line_of_sight, locate
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
@@ -765,6 +766,7 @@ def _replay(read: KlvRead, dem, base_sensor, method, dem_model, dem_options) -> 
     cols.update({
         "lat_deg": lat,
         "lon_deg": lon,
+        "mgrs": np.array(mgrs_column(lat, lon), dtype=object),  # '' where no point (io.mgrs_grid)
         "h_m": h,
         "status": status,
         "range_m": rng,

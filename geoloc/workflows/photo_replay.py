@@ -27,6 +27,7 @@ import numpy as np
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.io.gis import EGM96_DATUM, ELLIPSOID_DATUM
+from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.io.photos import (
     ALTITUDE_DATUMS,
     PhotoTagError,
@@ -46,7 +47,7 @@ __all__ = ["OUTPUT_COLUMNS", "read_targets", "replay_photos", "summarize", "writ
 
 #: Columns of every output row, in this order (input columns the targets file adds follow).
 OUTPUT_COLUMNS = [
-    "image", "row", "col", "lat_deg", "lon_deg", "h_m", "h_datum", "status", "surface",
+    "image", "row", "col", "lat_deg", "lon_deg", "mgrs", "h_m", "h_datum", "status", "surface",
     "slant_range_m", "truth_lat_deg", "truth_lon_deg", "truth_h_m", "error_to_truth_m",
     "vertical_error_m", "sensor_lat_deg", "sensor_lon_deg", "sensor_h_m", "absolute_altitude_m",
     "altitude_datum", "geoid_undulation_m", "relative_altitude_m", "heading_deg", "pitch_deg",
@@ -332,11 +333,12 @@ def _locate_photo(ph, targets, ks, dem, method, altitude_datum, truth_h_datum, e
         **photo_columns(meta),
     }
     out = {}
+    mgrs = mgrs_column(lat, lon)  # '' where not located (geoloc.io.mgrs_grid)
     for j, (k, t) in enumerate(zip(ks, targets)):
         r = {c: None for c in OUTPUT_COLUMNS}
         r.update(common)
         r.update(image=t["image"], row=t["row"], col=t["col"], lat_deg=_f(lat[j]), lon_deg=_f(lon[j]),
-                 h_m=_f(hit.h[j]), status=str(st[j]), slant_range_m=_f(hit.slant_range[j]),
+                 mgrs=mgrs[j], h_m=_f(hit.h[j]), status=str(st[j]), slant_range_m=_f(hit.slant_range[j]),
                  truth_lat_deg=_f(truth["truth_lat_deg"][j]), truth_lon_deg=_f(truth["truth_lon_deg"][j]),
                  truth_h_m=_f(truth["truth_h_m"][j]), error_to_truth_m=_f(err[j]),
                  vertical_error_m=_f(vert[j]))

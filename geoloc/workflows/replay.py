@@ -17,6 +17,7 @@ import numpy as np
 
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import Records
+from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera
 from geoloc.status import Status, names
@@ -152,16 +153,23 @@ def _fmt(v, spec):
 
 
 def write_replay_csv(path, result: ReplayResult) -> None:
-    """Write every input column of the good rows plus the replay's output columns."""
+    """Write every input column of the good rows plus the replay's output columns (and ``mgrs``)."""
     records = result.records
     cols = result.columns()
-    header = list(records.header) + [c for c in cols if c not in records.header]
+    # the MGRS reference of each computed point beside its latitude and longitude
+    # (geoloc.io.mgrs_grid; '' where there is no point)
+    mgrs = mgrs_column(result.lat_deg, result.lon_deg)
+    new = [c for c in cols if c not in records.header]
+    if "mgrs" not in records.header:
+        new.insert(new.index("lon_deg") + 1 if "lon_deg" in new else len(new), "mgrs")
+    header = list(records.header) + new
     status = names(result.status)
     with atomic_path(path) as tmp, tmp.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(header)
         for k, row in enumerate(records.rows):
             out = dict(row)
+            out["mgrs"] = mgrs[k]
             for name, arr in cols.items():
                 v = arr[k]
                 if name in ("lat_deg", "lon_deg"):
