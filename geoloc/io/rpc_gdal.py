@@ -66,6 +66,111 @@ def read_rpc_geotiff(path) -> RPCModel:
         return RPCModel.from_rasterio(src.rpcs)
 
 
+# ------------------------------------------------------------------ NITF RPC00B
+#: The RPC00B TRE's text fields (STDI-0002 Appendix E): name -> (width, decimals) of the
+#: normalisation constants; every coefficient is +d.ddddddE+d (12 characters: 7 significant
+#: digits, a one-digit exponent, so |c| < 1e-9 is written as 0 by GDAL).
+RPC00B_FIELDS = {"line_off": (6, 0), "samp_off": (5, 0), "lat_off": (8, 4), "long_off": (9, 4),
+                 "height_off": (5, 0), "line_scale": (6, 0), "samp_scale": (5, 0), "lat_scale": (8, 4),
+                 "long_scale": (9, 4), "height_scale": (5, 0)}
+
+
+def rpc00b_renormalized(model: RPCModel) -> RPCModel:
+    """The same RPC with offsets and scales that the RPC00B TRE stores exactly.
+
+    RPC00B keeps LINE_OFF, SAMP_OFF, HEIGHT_OFF and the image and height scales as
+    whole numbers and the latitude / longitude offsets and scales to 1e-4 deg.
+    Rounding them alone (as GDAL does when it writes a NITF) moves the model:
+    a LINE_OFF of 12287.5 written as 12288 is half a pixel. Changing a
+    normalisation is an affine change of the normalised variables, under which
+    a cubic stays a cubic, so the same ratios are re-expressed exactly in the
+    rounded normalisation: the ground polynomials are refitted on 4 x 4 x 4
+    points of the new cube (exact: 64 points for 20 coefficients of a cubic),
+    the image side is ``num' = (num * S + (O - O') * den) / S'``, and both
+    polynomials are divided by the denominator's new constant term so it is 1.
+
+    The only loss left when writing is the coefficients' 7 significant digits.
+    """
+    from dataclasses import replace
+
+    from geoloc.sensors.rpc import rpc_terms
+
+    new = {}
+    for k, (_w, dec) in RPC00B_FIELDS.items():
+        v = float(getattr(model, k))
+        q = round(v, dec) if dec else float(round(v))
+        if k.endswith("scale") and q <= 0:
+            q = 10.0 ** -dec
+        new[k] = q
+    # ground side: old normalised (L, P, H) as affine functions of the new ones
+    g = np.linspace(-1.0, 1.0, 4)
+    Ln, Pn, Hn = (a.ravel() for a in np.meshgrid(g, g, g, indexing="ij"))
+
+    def old_of(axis, x):
+        return (x * new[f"{axis}_scale"] + new[f"{axis}_off"] - getattr(model, f"{axis}_off")) \
+            / getattr(model, f"{axis}_scale")
+
+    T_old = rpc_terms(old_of("long", Ln), old_of("lat", Pn), old_of("height", Hn))
+    T_new = rpc_terms(Ln, Pn, Hn)
+    coef = {}
+    for img, scale_k, off_k in (("line", "line_scale", "line_off"), ("samp", "samp_scale", "samp_off")):
+        num, den = getattr(model, f"{img}_num"), getattr(model, f"{img}_den")
+        S, O, S2, O2 = getattr(model, scale_k), getattr(model, off_k), new[scale_k], new[off_k]
+        num = (num * S + (O - O2) * den) / S2
+        num2 = np.linalg.lstsq(T_new, T_old @ num, rcond=None)[0]
+        den2 = np.linalg.lstsq(T_new, T_old @ den, rcond=None)[0]
+        c0 = den2[0]
+        coef[f"{img}_num"], coef[f"{img}_den"] = num2 / c0, den2 / c0
+        coef[f"{img}_den"][0] = 1.0
+    return replace(model, **new, **coef)
+
+
+def write_rpc_nitf(path, model: RPCModel, rows: int, cols: int, renormalize: bool = True) -> Path:
+    """Write a NITF 2.1 image whose RPC00B TRE carries ``model``, through GDAL (rasterio).
+
+    GDAL's NITF driver writes the RPC00B TRE from the "RPC" metadata domain when
+    it copies a dataset (CreateCopy), so the model goes on a temporary GeoTIFF
+    first; the side-car ``.aux.xml`` GDAL also writes (a full-precision copy of
+    the RPC, which readers would take instead of the TRE) is removed, so the
+    file alone carries the model. With ``renormalize`` (default) the offsets
+    and scales are first made ones RPC00B stores exactly
+    (:func:`rpc00b_renormalized`).
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.ntf`` to write.
+    model : RPCModel
+    rows, cols : int
+        Image size (a blank uint8 image; NITF has no sparse files, so keep it small
+        when the pixels do not matter: the RPC does not depend on the size).
+    renormalize : bool
+
+    Returns
+    -------
+    Path
+    """
+    import rasterio
+    import rasterio.shutil
+    from rasterio.errors import NotGeoreferencedWarning
+
+    path = Path(path)
+    m = rpc00b_renormalized(model) if renormalize else model
+    with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        src = os.path.join(tmp, "rpc.tif")
+        with rasterio.open(src, "w", driver="GTiff", width=int(cols), height=int(rows), count=1,
+                           dtype="uint8") as dst:
+            dst.rpcs = m.to_rasterio()
+        part = path.with_name(path.name + ".part.ntf")
+        with rasterio.Env(GDAL_PAM_ENABLED="NO"):
+            rasterio.shutil.copy(src, part, driver="NITF")
+        for side in (Path(str(part) + ".aux.xml"),):
+            side.unlink(missing_ok=True)
+        os.replace(part, path)
+    return path
+
+
 def _is_sidecar(path: Path) -> bool:
     n = path.name.upper()
     return n.endswith((".RPB", "_RPC.TXT"))
@@ -74,7 +179,7 @@ def _is_sidecar(path: Path) -> bool:
 def read_rpc(path, rows: int | None = None, cols: int | None = None, **sensor_options) -> RPCSensor:
     """An :class:`RPCSensor` from any source GDAL reads RPCs from, through rasterio.
 
-    * a raster with RPC metadata (a GeoTIFF's RPC tag, NITF, ...);
+    * a raster with RPC metadata (a GeoTIFF's RPC tag, a NITF's RPC00B TRE, ...);
     * a raster with a sidecar next to it: ``NAME.RPB`` (DigitalGlobe / Maxar)
       or ``NAME_RPC.TXT`` (GeoEye / Ikonos RPC00B text); GDAL finds these by
       the image's name and reports them in ``dataset.rpcs``;
@@ -243,4 +348,5 @@ def write_ellipsoidal_dem(dem, path) -> Path:
     return path
 
 
-__all__ = ["gdal_rpc_to_ground", "read_rpc", "read_rpc_geotiff", "write_ellipsoidal_dem", "write_rpc_geotiff"]
+__all__ = ["RPC00B_FIELDS", "gdal_rpc_to_ground", "read_rpc", "read_rpc_geotiff", "rpc00b_renormalized",
+           "write_ellipsoidal_dem", "write_rpc_geotiff", "write_rpc_nitf"]
