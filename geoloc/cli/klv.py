@@ -6,7 +6,11 @@ order; reserved error / out-of-range values as null with their ``flags``). Bad
 packets go to stderr with their offset and reason; the good ones are still
 printed. Exit code 0 if at least one good packet was decoded, else 1. Raw files
 (``.klv``, ``.bin``, anything else) are read in chunks; ``.ts``, ``.m2ts``,
-``.mpg``, ``.mp4``, ``.mov``, ``.mkv`` through PyAV. See docs/klv.md.
+``.mpg``, ``.mp4``, ``.mov``, ``.mkv`` through PyAV.
+
+``geoloc klv fix IN --out OUT [--dem DEM] [--sensor FILE]`` writes a copy of IN
+whose frame-centre and corner items are geoloc's replay of each packet
+(:func:`geoloc.workflows.klv_fix.fix_klv`). See docs/klv.md.
 """
 
 from __future__ import annotations
@@ -44,6 +48,28 @@ def register(sub) -> None:
     d.add_argument("--no-checksum", action="store_true",
                    help="do not verify the checksums (tag 1), nor require them")
     d.set_defaults(func=run)
+
+    f = actions.add_parser(
+        "fix",
+        help="write a copy whose frame-centre and corner tags are recomputed (checksums too)",
+        description="Write a copy of IN (raw KLV or an MPEG-TS) whose frame-centre tags (23-25, 78) and "
+        "corner tags (82-89 full, or 26-33 offsets) hold geoloc's replay of each packet (on --dem, with "
+        "the --sensor file's calibration), checksums recomputed. Every other byte of every packet, the "
+        "bad packets, and (containers) every other stream are copied as they are: a remux, no "
+        "re-encode. Packets that cannot be located are copied unchanged and listed (docs/klv.md).",
+    )
+    f.add_argument("file", metavar="IN", type=input_path,
+                   help="raw KLV (.klv, .bin) or a container (.ts, .m2ts, .mpg)")
+    f.add_argument("--out", required=True, type=output_path,
+                   help="the copy to write (the same kind of file; never IN)")
+    f.add_argument("--sensor", "--camera", dest="camera", default=None, metavar="FILE", type=input_path,
+                   help="sensor file (image size, mount, boresight, lever arm: e.g. a calibration written by "
+                   "geoloc calibrate --fit ... --write-sensor)")
+    f.add_argument("--no-checksum", action="store_true", help="do not verify the input's checksums")
+    from geoloc.cli._options import add_dem_options
+
+    add_dem_options(f, None)
+    f.set_defaults(func=run_fix)
 
     def usage(args) -> int:
         p.print_help(sys.stderr)
@@ -89,3 +115,23 @@ def _dump(name, results, out) -> tuple[int, int]:
         out.write(json.dumps(r.to_json(), ensure_ascii=False, allow_nan=False))
         out.write("\n")
     return good, bad
+
+
+def run_fix(args) -> int:
+    from geoloc.workflows.klv_fix import fix_klv
+
+    sensor = None
+    if args.camera:
+        from geoloc.cli.locate import load_camera
+
+        sensor = load_camera(args.camera)
+    dem = None
+    if args.dem:
+        from geoloc.cli._options import open_dem_arg
+
+        dem = open_dem_arg(args)
+    fix = fix_klv(args.file, args.out, dem=dem, sensor=sensor, method=args.method, dem_model=args.dem_surface,
+                  dem_options={"eps_h": args.eps_h, "threshold": args.threshold},
+                  verify_checksum=not args.no_checksum)
+    print(fix)
+    return 0 if fix.packets else 1

@@ -75,6 +75,9 @@ __all__ = [
     "decode_packet",
     "decode_local_set",
     "encode_packet",
+    "encode_value",
+    "local_set_items",
+    "replace_values",
     "write_ts",
     "packets_to_columns",
 ]
@@ -1080,6 +1083,107 @@ def encode_packet(fields: dict, *, unknown: dict | None = None, with_checksum: b
         return UAS_LS_KEY + ber_length(len(body)) + body
     head = UAS_LS_KEY + ber_length(len(body) + 4) + body + b"\x01\x02"
     return head + checksum(head + b"\0\0").to_bytes(2, "big")
+
+
+def encode_value(name: str, value) -> bytes:
+    """The value bytes of one item (no tag, no length), as :func:`encode_packet` writes them.
+
+    NaN gives the reserved value of an item that has one; ``ValueError`` (naming the
+    field, the value and the tag) for a value outside the item's range.
+    """
+    e = _ENCODERS.get(name)
+    if e is None:
+        raise ValueError(f"unknown UAS LS field {name!r} (known: see geoloc.io.klv.TAGS)")
+    b = e[1](value)
+    spec = TAG_BY_NAME[name]
+    return b[len(ber_oid(spec.tag)) + 1:]
+
+
+def local_set_items(packet: bytes) -> list:
+    """The items of one packet as ``(tag, start, end)``: the value of each is ``packet[start:end]``.
+
+    Parameters
+    ----------
+    packet : bytes
+        One complete packet (key, BER length, local set).
+
+    Raises
+    ------
+    KlvError
+        Offset 0: no UAS LS key, a length running past the end, or bytes after the packet.
+    """
+    data = bytes(packet)
+    if not data.startswith(UAS_LS_KEY) or len(data) < 17:
+        raise KlvError(0, "does not start with the UAS Datalink LS key")
+    end = _packet_end(data)
+    if end != len(data):
+        raise KlvError(0, f"the BER length says {end} bytes, the packet has {len(data)}")
+    b = data[16]
+    i = 17 if b < 0x80 else 17 + (b & 0x7F)
+    items = []
+    while i < end:
+        tag = 0
+        while True:  # BER-OID tag
+            if i >= end:
+                raise KlvError(0, f"item tag runs past the end at byte {i}")
+            t = data[i]
+            i += 1
+            tag = (tag << 7) | (t & 0x7F)
+            if t < 0x80:
+                break
+        if i >= end:
+            raise KlvError(0, f"tag {tag}: length runs past the end at byte {i}")
+        n = data[i]
+        i += 1
+        if n >= 0x80:
+            m = n & 0x7F
+            n = int.from_bytes(data[i:i + m], "big")
+            i += m
+        if i + n > end:
+            raise KlvError(0, f"tag {tag}: {n} bytes run past the end of the packet")
+        items.append((tag, i, i + n))
+        i += n
+    return items
+
+
+def replace_values(packet: bytes, values: dict) -> bytes:
+    """A copy of one packet with the values of some items replaced and the checksum recomputed.
+
+    Every other byte is kept: the key, the BER length, every other item (tag,
+    length and value), the order of the items. A new value must have its
+    item's length (the packet's length bytes are not rewritten), and the last
+    item must be the checksum (tag 1), which is recomputed (MISB ST 0601 Tag 1).
+
+    Parameters
+    ----------
+    packet : bytes
+        One complete packet.
+    values : dict
+        Tag number -> new value bytes (e.g. :func:`encode_value`). A tag the
+        packet does not have is an error: this adds no item.
+
+    Raises
+    ------
+    KlvError
+        The packet cannot be walked (see :func:`local_set_items`), or ends without a checksum.
+    ValueError
+        A tag is absent, or a value's length differs from the item's.
+    """
+    data = bytearray(packet)
+    items = local_set_items(data)
+    if not items or items[-1][0] != _CHECKSUM_TAG or items[-1][2] - items[-1][1] != 2:
+        raise KlvError(0, "the packet does not end with a checksum item (tag 1, 2 bytes)")
+    where = {t: (a, b) for t, a, b in items}
+    for tag, v in values.items():
+        if tag not in where:
+            raise ValueError(f"tag {tag} is not in the packet: replace_values adds no item")
+        a, b = where[tag]
+        v = bytes(v)
+        if len(v) != b - a:
+            raise ValueError(f"tag {tag}: {len(v)} new bytes for an item of {b - a}")
+        data[a:b] = v
+    data[-2:] = checksum(bytes(data)).to_bytes(2, "big")
+    return bytes(data)
 
 
 def write_ts(path, packets: Iterable, *, rate: float = 30.0, pts: Iterable[int] | None = None,
