@@ -130,9 +130,10 @@ def write_rpc_nitf(path, model: RPCModel, rows: int, cols: int, renormalize: boo
 
     GDAL's NITF driver writes the RPC00B TRE from the "RPC" metadata domain when
     it copies a dataset (CreateCopy), so the model goes on a temporary GeoTIFF
-    first; the side-car ``.aux.xml`` GDAL also writes (a full-precision copy of
-    the RPC, which readers would take instead of the TRE) is removed, so the
-    file alone carries the model. With ``renormalize`` (default) the offsets
+    first (GDAL's PAM is off for the copy, so no side-car ``.aux.xml`` holds a
+    full-precision copy of the RPC that readers would take instead of the TRE):
+    the file alone carries the model. Written through
+    :func:`geoloc.userfiles.atomic_path`. With ``renormalize`` (default) the offsets
     and scales are first made ones RPC00B stores exactly
     (:func:`rpc00b_renormalized`).
 
@@ -162,12 +163,10 @@ def write_rpc_nitf(path, model: RPCModel, rows: int, cols: int, renormalize: boo
         with rasterio.open(src, "w", driver="GTiff", width=int(cols), height=int(rows), count=1,
                            dtype="uint8") as dst:
             dst.rpcs = m.to_rasterio()
-        part = path.with_name(path.name + ".part.ntf")
-        with rasterio.Env(GDAL_PAM_ENABLED="NO"):
-            rasterio.shutil.copy(src, part, driver="NITF")
-        for side in (Path(str(part) + ".aux.xml"),):
-            side.unlink(missing_ok=True)
-        os.replace(part, path)
+        with atomic_path(path) as part:
+            with rasterio.Env(GDAL_PAM_ENABLED="NO"):
+                rasterio.shutil.copy(src, part, driver="NITF")
+            Path(str(part) + ".aux.xml").unlink(missing_ok=True)
     return path
 
 
