@@ -63,6 +63,9 @@ def register(sub) -> None:
     g.add_argument("--serve", action="store_true",
                    help="also serve the recording to the web viewer (bundled in the rerun wheel, "
                    "works offline) and wait for Ctrl-C")
+    g.add_argument("--host", default="127.0.0.1",
+                   help="address the web viewer and the gRPC server of --serve listen on (default "
+                   "127.0.0.1: this machine only; 0.0.0.0 exposes them to the network)")
     g.add_argument("--web-port", type=int, default=9090, help="web viewer port (default 9090)")
     g.add_argument("--grpc-port", type=int, default=9876, help="gRPC server port (default 9876)")
     g.add_argument("--spawn", action="store_true",
@@ -97,7 +100,7 @@ def run(args) -> int:
     if not args.display_scale > 0:
         raise ValueError(f"--display-scale = {args.display_scale}: must be > 0")
     path = resolve_input(args.input)
-    from geoloc.viz.rerun_log import serve_web, write  # rerun is imported here only
+    from geoloc.viz.rerun_log import exposure_note, serve_web, write  # rerun is imported here only
     from geoloc.viz.rerun_model import (
         load_camera,
         steps_from_flight,
@@ -128,7 +131,7 @@ def run(args) -> int:
     else:
         raise ValueError(f"input {path}: expected a scenario .toml, a records .csv or a MISB KLV file (.klv, .ts)")
     rec = write(steps, args.out, display_scale=args.display_scale, serve=args.serve,
-                grpc_port=args.grpc_port, spawn=args.spawn)
+                grpc_port=args.grpc_port, grpc_host=args.host, spawn=args.spawn)
     ok = int((steps.ground.status == 0).sum())
     if args.out:
         print(f"wrote {args.out}: {len(steps)} steps ({ok} located) on timeline(s) "
@@ -140,8 +143,12 @@ def run(args) -> int:
                   f"{len(bad)}: {', '.join(bad[:20])}{' ...' if len(bad) > 20 else ''}")
         if steps.calibration is not None:
             print(steps.calibration["note"])
+    viewer = None
     if args.serve:
-        url = serve_web(args.grpc_port, args.web_port)
+        note = exposure_note(args.host, (args.web_port, args.grpc_port))
+        if note:
+            print(note, file=sys.stderr, flush=True)
+        url, viewer = serve_web(args.grpc_port, args.web_port, host=args.host)
         print(f"web viewer: {url}  (Ctrl-C to stop)", flush=True)
     if args.serve or args.spawn:
         # Stop cleanly on Ctrl-C and on SIGTERM, even when started in the background
@@ -157,5 +164,8 @@ def run(args) -> int:
         except KeyboardInterrupt:
             pass
         finally:
+            if viewer is not None:
+                viewer.terminate()
+                viewer.wait(timeout=10)
             rec.disconnect()
     return 0

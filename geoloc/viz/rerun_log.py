@@ -58,6 +58,11 @@ Conventions: ``docs/conventions.md``.
 from __future__ import annotations
 
 import contextlib
+import socket
+import subprocess
+import sys
+import tempfile
+import time
 import uuid
 from pathlib import Path
 
@@ -497,7 +502,7 @@ def recording_id(steps: LogSteps) -> str:
 
 
 def write(steps: LogSteps, out, *, display_scale: float = 200.0, serve: bool = False,
-          grpc_port: int = 9876, spawn: bool = False) -> rr.RecordingStream:
+          grpc_port: int = 9876, grpc_host: str = "127.0.0.1", spawn: bool = False) -> rr.RecordingStream:
     """Write ``steps`` to the ``.rrd`` file ``out`` (and optionally serve it or spawn a viewer).
 
     Parameters
@@ -511,6 +516,9 @@ def write(steps: LogSteps, out, *, display_scale: float = 200.0, serve: bool = F
         Also host a gRPC server (``rerun+http://127.0.0.1:PORT/proxy``) for viewers to
         connect to; the caller keeps the process alive (see :func:`serve_web`).
     grpc_port : int
+    grpc_host : str
+        Bind address of that server (127.0.0.1 by default: this machine only; the SDK's
+        own default is 0.0.0.0).
     spawn : bool
         Also start the native viewer (the ``rerun`` executable of the wheel) and stream to it.
 
@@ -521,16 +529,16 @@ def write(steps: LogSteps, out, *, display_scale: float = 200.0, serve: bool = F
     """
     with contextlib.ExitStack() as stack:  # the .rrd is renamed into place once flushed
         tmp = stack.enter_context(atomic_path(out)) if out is not None else None
-        return _write(steps, tmp, display_scale, serve, grpc_port, spawn)
+        return _write(steps, tmp, display_scale, serve, grpc_port, grpc_host, spawn)
 
 
-def _write(steps, out, display_scale, serve, grpc_port, spawn) -> rr.RecordingStream:
+def _write(steps, out, display_scale, serve, grpc_port, grpc_host, spawn) -> rr.RecordingStream:
     rec = rr.RecordingStream("geoloc", recording_id=recording_id(steps))
     sinks = []
     if out is not None:
         sinks.append(rr.FileSink(str(out)))
     if serve:
-        sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=grpc_port))
+        sinks.append(rr.GrpcServerSink(bind_ip=grpc_host, port=grpc_port))
     if spawn:
         rr.spawn(port=grpc_port + 1 if serve else grpc_port, connect=False)
         sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{grpc_port + 1 if serve else grpc_port}/proxy"))
@@ -544,11 +552,82 @@ def _write(steps, out, display_scale, serve, grpc_port, spawn) -> rr.RecordingSt
     return rec
 
 
-def serve_web(grpc_port: int = 9876, web_port: int = 9090) -> str:
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+
+
+def exposure_note(host: str, ports) -> str | None:
+    """The warning printed when ``host`` is not a loopback address (None when it is)."""
+    if host in LOOPBACK_HOSTS or host.startswith("127."):
+        return None
+    where = "every interface" if host in ("0.0.0.0", "::", "") else host
+    return (f"warning: listening on {where} (ports {', '.join(str(p) for p in ports)}): anyone who "
+            f"can reach this machine can read the recording (no authentication)")
+
+
+def _url_host(host: str) -> str:
+    """The address a browser connects to for a server bound to ``host``."""
+    if host in ("0.0.0.0", "::", ""):
+        return socket.gethostname()
+    return f"[{host}]" if ":" in host else host
+
+
+def rerun_executable() -> str:
+    """The ``rerun`` binary of the installed rerun-cli wheel (what ``rerun`` on PATH runs)."""
+    import rerun_cli
+
+    exe = Path(rerun_cli.__file__).parent / ("rerun.exe" if sys.platform.startswith("win") else "rerun")
+    if not exe.exists():
+        raise FileNotFoundError(f"the rerun viewer binary is missing: {exe} (reinstall rerun-sdk)")
+    return str(exe)
+
+
+def serve_web(grpc_port: int = 9876, web_port: int = 9090, host: str = "127.0.0.1",
+              timeout_s: float = 20.0) -> tuple[str, subprocess.Popen]:
     """Host the web viewer (assets inside the rerun wheel, no network) connected to the gRPC server.
 
-    Returns the URL to open in a browser.
+    The SDK's ``rr.serve_web_viewer`` (rerun-sdk 0.41) has no bind address and listens on
+    0.0.0.0, so the viewer is served by the wheel's ``rerun`` CLI instead,
+    ``rerun --serve-web --bind HOST --web-viewer-port PORT URL``, which with a URL hosts
+    only the viewer's files and binds ``HOST`` alone.
+
+    Parameters
+    ----------
+    grpc_port : int
+        Port of the gRPC server of :func:`write` (``serve=True``) the viewer connects to.
+    web_port : int
+        Port of the web viewer's HTTP server.
+    host : str
+        Bind address of the HTTP server (127.0.0.1 by default: this machine only). Give the
+        same to :func:`write` (``grpc_host``): the browser connects to both.
+    timeout_s : float
+        How long to wait for the viewer to listen.
+
+    Returns
+    -------
+    url : str
+        The URL to open in a browser.
+    process : subprocess.Popen
+        The viewer's process: terminate it when done.
     """
-    url = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
-    rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=url)
-    return f"http://127.0.0.1:{web_port}/?url={url}"
+    grpc_url = f"rerun+http://{_url_host(host)}:{grpc_port}/proxy"
+    log = tempfile.TemporaryFile()
+    proc = subprocess.Popen(
+        [rerun_executable(), "--serve-web", "--bind", host, "--web-viewer-port", str(web_port), grpc_url],
+        stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
+    probe = "127.0.0.1" if host in ("0.0.0.0", "") else "::1" if host == "::" else host
+    deadline = time.monotonic() + timeout_s
+    while True:
+        if proc.poll() is not None:
+            log.seek(0)
+            tail = log.read().decode(errors="replace").strip().splitlines()[-3:]
+            raise RuntimeError(f"the rerun web viewer did not start on {host}:{web_port}: " + " | ".join(tail))
+        try:
+            with socket.create_connection((probe, web_port), timeout=0.5):
+                break
+        except OSError:
+            if time.monotonic() > deadline:
+                proc.terminate()
+                raise RuntimeError(f"the rerun web viewer did not listen on {host}:{web_port} within {timeout_s} s")
+            time.sleep(0.1)
+    log.close()
+    return f"http://{_url_host(host)}:{web_port}/?url={grpc_url}", proc
