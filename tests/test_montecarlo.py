@@ -217,6 +217,38 @@ def test_eq18_radii_are_not_interchangeable():
     assert nn["cep_m"] == pytest.approx(delta * k * (rm + h0), rel=1e-9)
 
 
+@pytest.mark.parametrize("lat0_deg, sigma_north_m, sigma_east_m", [
+    (60.0, 40.0, 3.0),  # long along the meridian
+    (60.0, 3.0, 40.0),  # long along the parallel
+    (-10.0, 25.0, 5.0),
+])
+def test_cep50_empirical_on_elongated_clouds_equals_enu_reference(lat0_deg, sigma_north_m, sigma_east_m):
+    # The empirical CEP50 is the median horizontal distance to the mean point. Reference:
+    # each sample's east and north in the tangent plane at the mean point, from pymap3d's
+    # geodetic2enu (not the module's radii). The cloud is 13x (8x) longer one way, so the
+    # median distance is mostly one component: R_N and R_M swapped (or the height left out)
+    # move it by (R_N - R_M) / R = 1.7e-3 at 60 deg, 6.5e-3 at 10 deg (asserted below).
+    # Tolerance 2e-6: tangent plane vs the module's curvilinear offsets differ at second
+    # order, (offset / R) tan(lat) ~ 1e-5 on the short component, whose share of the
+    # distance is (sigma_short / sigma_long)^2; measured 4e-8 to 2.3e-7 on these clouds.
+    pymap3d = pytest.importorskip("pymap3d")
+    rng = np.random.default_rng(35)
+    n, h0 = 20001, 5000.0
+    lat0 = math.radians(lat0_deg)
+    lat = lat0 + rng.normal(0.0, sigma_north_m / 6.38e6, n)
+    lon = 0.3 + rng.normal(0.0, sigma_east_m / (6.39e6 * math.cos(lat0)), n)
+    h = h0 + rng.normal(0.0, 1.0, n)  # 1 m of height spread: 1.6e-7 of the radii at most
+    s = mc.statistics(lat, lon, h)
+    e, nn, _ = pymap3d.geodetic2enu(lat, lon, h, lat.mean(), lon.mean(), h.mean(), deg=False)
+    ref = float(np.median(np.hypot(e, nn)))
+    assert s["cep50_empirical_m"] == pytest.approx(ref, rel=2e-6)
+    # the radii swapped: what the test must tell apart
+    rn, rm = _rn_rm(lat.mean())
+    de = (lon - lon.mean()) * (rm + h0) * math.cos(lat.mean())
+    dn = (lat - lat.mean()) * (rn + h0)
+    assert abs(float(np.median(np.hypot(de, dn))) / ref - 1) > 1e-3
+
+
 def test_first_order_eq18_weights_east_and_north_with_their_radii(model):
     # Flying north with the gimbal rolled to the side, a target-height error moves the
     # point east-west only: first_order's CEP must be eq. 18 of its own covariance with
