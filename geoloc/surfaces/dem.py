@@ -80,6 +80,7 @@ class DEM:
             self._to_crs = pyproj.Transformer.from_crs("EPSG:4326", self.crs, always_xy=True)
             self._from_crs = pyproj.Transformer.from_crs(self.crs, "EPSG:4326", always_xy=True)
         self._cell_max = None
+        self._has_data = None
         self._surface_range = None  # (lowest, highest) of the surface a window is cut from (from_grid)
         #: The CRS of the file before :meth:`to_geographic` warped it (WKT), or None.
         self.source_crs = None
@@ -394,6 +395,16 @@ class DEM:
         if region is None and self._surface_range is not None:
             return self._surface_range[0]
         return float(np.nanmin(self._region_nodes(region)))
+
+    @property
+    def has_data(self) -> bool:
+        """Whether any node has a height (False: the raster is all no-data, int16 nodata or NaN).
+
+        The solvers give such a DEM status NODATA for every ray that reaches it, rather than
+        starting from a NaN highest node (which read as SKY before issue 32)."""
+        if self._has_data is None:
+            self._has_data = bool(np.isfinite(self.grid.values).any())
+        return self._has_data
 
     def cell_max(self) -> np.ndarray:
         """Per-cell maximum of the 4 node heights, (nrows-1, ncols-1); NaN if any node is missing."""

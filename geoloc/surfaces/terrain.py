@@ -544,6 +544,8 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
         raise ValueError(f"threshold must be a positive number of metres, got {threshold!r}")
     shape, o, d, st = _flat_los(los, normalise=method != "exact")
     n = len(o)
+    if not dem.has_data:  # an all no-data raster: nothing to meet (its H_max is NaN: no start for any method)
+        return _no_terrain(los, shape, o, d, st, method, surface, trace)
     tracer = _Tracer(n, trace)
     hidden = np.zeros(n, dtype=bool)
     tr = None
@@ -585,6 +587,34 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
     return TerrainHit(r(lat), r(lon), r(h), p.reshape(shape + (3,)), r(rng), r(st),
                       los if isinstance(los, LineOfSight) else None,
                       dem_evaluations=r(evals), hidden=r(hidden & ok), method=method, dem_model=surface, trace=tr)
+
+
+#: Below any land or sea floor (the Challenger Deep is at about -10 935 m) [m, ellipsoidal
+#: within the geoid's +-110 m]: a ray that misses this ellipsoid points above every horizon.
+LOWEST_TERRAIN_M = -11_500.0
+
+
+def _no_terrain(los, shape, o, d, st, method, surface, trace):
+    """The hit of a DEM without a single height: NODATA for every ray still OK that comes down
+    to the ellipsoid inflated to :data:`LOWEST_TERRAIN_M` (no terrain lies lower); SKY above it
+    (issue 32: it was SKY for every ray, the NaN highest node failing every test)."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = d / np.linalg.norm(d, axis=-1, keepdims=True)  # (the exact method's rays come unnormalised)
+    bad = ~(np.all(np.isfinite(o), axis=-1) & np.all(np.isfinite(d), axis=-1))
+    st[bad & (st == Status.OK)] = Status.INVALID_INPUT
+    ok = np.flatnonzero(st == Status.OK)
+    down = ray_inflated_ellipsoid(o[ok], d[ok], np.full(len(ok), LOWEST_TERRAIN_M)).status == Status.OK
+    st[ok] = np.where(down, Status.NODATA, Status.SKY)
+    n = len(o)
+    nan = np.full(shape, np.nan)
+    tr = None
+    if trace:
+        e = np.full(shape + (0,), np.nan)
+        tr = TerrainTrace(method, e, e, e, np.full(shape + (0, 3), np.nan), e, e, e,
+                          np.full(shape + (0, 2), -1, dtype=np.int64), np.zeros(shape, dtype=np.int64))
+    return TerrainHit(nan, nan.copy(), nan.copy(), np.full(shape + (3,), np.nan), nan.copy(), st.reshape(shape),
+                      los if isinstance(los, LineOfSight) else None, dem_evaluations=np.zeros(shape, np.int64),
+                      hidden=np.zeros(shape, bool), method=method, dem_model=surface, trace=tr)
 
 
 def _first_sampled(o, d, dem):

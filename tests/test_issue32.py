@@ -1,0 +1,127 @@
+"""Issue 32: every input told the truth. One test (or a few) per item of the issue's list,
+each the bad input, the status or message expected (naming the file, the field, the value)
+and, where a batch is concerned, the good rows still produced. Each failed before its mend."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rasterio
+
+from geoloc.assets import asset_path
+from geoloc.cli import main
+from geoloc.frames.enu import EnuFrame
+from geoloc.status import Status
+from geoloc.surfaces.base import LineOfSight
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import intersect_dem
+
+ROOT = Path(__file__).resolve().parents[1]
+SRTM = asset_path("dem", "srtm_jacksboro.tif")
+DRONE = asset_path("records", "drone_targets.csv")
+DRONE_SENSOR = asset_path("sensors", "drone_camera.toml")
+TURRET = asset_path("sensors", "eo_turret.toml")
+TURRET_ARGS = ["locate", "--sensor", str(TURRET), "--lat-deg", "36.6", "--lon-deg", "-84.25", "--h-m", "2500",
+               "--heading-deg", "45", "--angle", "azimuth=90", "--angle", "elevation=-30"]
+METHODS = ("steps", "bisect", "exact")
+
+
+def _read_csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+# ------------------------------------------------------------------ an all-nodata DEM
+@pytest.fixture(scope="module")
+def empty_dems(tmp_path_factory):
+    """The bundled SRTM crop's grid with no data at all: int16 with its nodata value, and float NaN."""
+    d = tmp_path_factory.mktemp("empty_dems")
+    with rasterio.open(SRTM) as src:
+        prof, shape = src.profile.copy(), (src.height, src.width)
+    out = {}
+    prof.update(dtype="int16", nodata=-32768)
+    with rasterio.open(d / "int16.tif", "w", **prof) as dst:
+        dst.write(np.full(shape, -32768, np.int16), 1)
+    prof.update(dtype="float32", nodata=None)
+    with rasterio.open(d / "nan.tif", "w", **prof) as dst:
+        dst.write(np.full(shape, np.nan, np.float32), 1)
+    out["int16"], out["nan"] = d / "int16.tif", d / "nan.tif"
+    return out
+
+
+@pytest.mark.parametrize("kind", ["int16", "nan"])
+@pytest.mark.parametrize("method", METHODS)
+def test_all_nodata_dem_is_nodata_not_sky(empty_dems, kind, method, capsys):
+    # before: exact and bisect said "points above the horizon" / "invalid input" for a ray 30 deg
+    # down, steps "cannot convert float NaN to integer"
+    assert main(TURRET_ARGS + ["--dem", str(empty_dems[kind]), "--method", method]) == 1
+    err = capsys.readouterr().err
+    assert "DEM has no data where the line of sight meets it" in err, err
+    assert "NaN to integer" not in err and "horizon" not in err
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_all_nodata_dem_batch_statuses(method):
+    # a ray up stays SKY (it misses every ellipsoid), a NaN origin INVALID_INPUT, the rays down NODATA
+    dem = DEM.from_array(np.full((21, 21), np.nan), 36.1, 78.0, 0.01, 0.01)
+    fr = EnuFrame.from_deg(36.0, 78.1, 0.0)
+    o = fr.to_ecef(np.array([[0, 0, 3000.0], [0, 0, 3000.0], [np.nan, 0, 3000.0], [-2000, 3000, 3000.0]]))
+    d = np.einsum("ij,...j->...i", fr.R_ecef_enu, np.array([[0, 0, 1.0], [0, 0, -1.0], [0, 0, -1.0], [-1, 0, -0.1]]))
+    hit = intersect_dem(LineOfSight(o, d, np.zeros(4, np.uint8)), dem, method, trace=True)
+    assert list(hit.status) == [Status.SKY, Status.NODATA, Status.INVALID_INPUT, Status.NODATA]
+    assert np.isnan(hit.lat).all() and np.isnan(hit.ecef).all()
+    # the same DEM with data: the downward ray hits (the NODATA above is the missing data, not the geometry)
+    ok = intersect_dem(LineOfSight(o, d, np.zeros(4, np.uint8)),
+                       DEM.from_array(np.full((21, 21), 100.0), 36.1, 78.0, 0.01, 0.01), method)
+    assert ok.status[1] == Status.OK
+
+
+def test_all_nodata_dem_replay_rows_say_nodata(empty_dems, tmp_path, capsys):
+    # before: replay exited 0 with every row `sky`
+    out = tmp_path / "out.csv"
+    assert main(["replay", str(DRONE), "--sensor", str(DRONE_SENSOR), "--dem", str(empty_dems["int16"]),
+                 "--out", str(out)]) == 0
+    rows = _read_csv(out)
+    assert len(rows) == 20 and {r["status"] for r in rows} == {"nodata"}
+
+
+def test_mosaic_tile_without_data_is_nodata(empty_dems, tmp_path):
+    # a mosaic of the SRTM crop's west half with data and its east half all nodata: a ray
+    # down into the east half is NODATA (its region has no data at all), the west one hits
+    from geoloc.surfaces.mosaic import DemMosaic
+
+    with rasterio.open(SRTM) as src:
+        prof, v = src.profile.copy(), src.read(1)
+    half = v.shape[1] // 2
+    prof.update(nodata=-32768, width=half + 1)
+    from rasterio.windows import Window, transform as wtransform
+
+    for name, c0, fill in (("west.tif", 0, None), ("east.tif", half, -32768)):
+        with rasterio.open(SRTM) as src:
+            t = wtransform(Window(c0, 0, half + 1, v.shape[0]), src.transform)
+        block = v[:, c0: c0 + half + 1].copy()
+        if fill is not None:
+            block[:] = fill
+        with rasterio.open(tmp_path / name, "w", **{**prof, "transform": t, "width": block.shape[1]}) as dst:
+            dst.write(block, 1)
+    mos = DemMosaic.open(tmp_path, "egm96")
+    w, s, e, n = mos.bounds_deg
+    lat = np.deg2rad(0.5 * (s + n))
+    lon = np.deg2rad([w + 0.25 * (e - w), w + 0.75 * (e - w)])
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+
+    o = geodetic_to_ecef(np.full(2, lat), lon, np.full(2, 3000.0))
+    up = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.full(2, np.sin(lat))], -1)
+    hit = mos.intersect(LineOfSight(o, -up, np.zeros(2, np.uint8)))
+    assert list(hit.status) == [Status.OK, Status.NODATA]
+    # a mosaic with no data in any file is refused when opened, naming a file
+    for name in ("west.tif",):
+        (tmp_path / name).unlink()
+    with pytest.raises(ValueError, match=r"east\.tif.*has no data at all"):
+        DemMosaic.open(tmp_path, "egm96")
