@@ -45,9 +45,16 @@ _TEXT = {
 }
 
 
-def describe(code) -> str:
-    """Human-readable text for a status code."""
-    return _TEXT[Status(int(code))]
+def describe(code, rows: int | None = None, cols: int | None = None) -> str:
+    """Human-readable text for a status code.
+
+    ``rows`` and ``cols`` (the sensor's size, optional) fill OUTSIDE_SENSOR's span
+    ("rows 0.5..1080.5" rather than "rows 0.5..M+0.5").
+    """
+    text = _TEXT[Status(int(code))]
+    if rows is not None and cols is not None and int(code) == Status.OUTSIDE_SENSOR:
+        text = text.replace("M+0.5", f"{int(rows) + 0.5:g}").replace("N+0.5", f"{int(cols) + 0.5:g}")
+    return text
 
 
 def names(status) -> np.ndarray:

@@ -125,3 +125,69 @@ def test_mosaic_tile_without_data_is_nodata(empty_dems, tmp_path):
         (tmp_path / name).unlink()
     with pytest.raises(ValueError, match=r"east\.tif.*has no data at all"):
         DemMosaic.open(tmp_path, "egm96")
+
+
+# ------------------------------------------------------------------ a pixel far off the sensor
+def _drone_records(tmp_path, edits, name="drone.csv"):
+    """The bundled drone records with ``edits`` {(line index from 1, column): value}."""
+    with open(DRONE, newline="") as f:
+        rows = list(csv.reader(f))
+    for (k, col), v in edits.items():
+        rows[k][rows[0].index(col)] = v
+    p = tmp_path / name
+    with open(p, "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    return p
+
+
+def test_drone_target_far_off_the_sensor_is_outside_sensor_with_a_message(tmp_path, capsys):
+    # the drone camera has 3000 rows: row 3001 was outside_sensor with a message, row 9000
+    # (where the Brown model gives no ray) invalid_input, its message claiming it was located
+    recs = _drone_records(tmp_path, {(1, "row"): "3001", (2, "row"): "9000"})
+    out = tmp_path / "out.csv"
+    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300",
+                 "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "line 2 (survey1-1): row = 3001 (rows 1-3000) is outside the sensor; located by extending" in err
+    assert ("line 3 (survey1-2): row = 9000 (rows 1-3000) is outside the sensor; too far out for the lens "
+            "model to give a ray there: not located, flagged outside_sensor") in err
+    rows = _read_csv(out)
+    assert [r["status"] for r in rows[:3]] == ["outside_sensor", "outside_sensor", "ok"]
+    assert rows[1]["lat_deg"] == "" and rows[0]["lat_deg"] != ""
+    assert all(r["status"] == "ok" and r["lat_deg"] for r in rows[2:])  # the good rows still located
+
+
+@pytest.mark.parametrize("row", ["1081", "5000", "1e9"])
+def test_locate_far_off_the_sensor_names_its_size_on_stderr(row, capsys):
+    # before: 5000 and 1e9 said "invalid input"; 1081 "rows 0.5..M+0.5" with the letters unfilled; on stdout
+    assert main(TURRET_ARGS + ["--target-h-m", "300", "--row", row]) == 1
+    cap = capsys.readouterr()
+    assert cap.out == ""
+    assert "pixel is outside the sensor (rows 0.5..1080.5, columns 0.5..1920.5)" in cap.err, cap.err
+
+
+def test_line_of_sight_off_sensor_is_outside_sensor_in_both_engines():
+    # the numpy path and the compiled kernel agree: off the sensor first, then the lens's NaN
+    from geoloc.frames.chain import Pose
+    from geoloc.sensors.sensor_file import load_sensor
+
+    cam = load_sensor(DRONE_SENSOR)
+    pose = Pose.from_deg(36.6, -84.2, 500.0, angles_deg={"gimbal_yaw": 0.0, "gimbal_pitch": -60.0,
+                                                         "gimbal_roll": 0.0})
+    rows = np.array([1500.0, 3001.0, 9000.0, 1e9, np.nan])
+    for engine in ("numpy", "numba"):
+        los = cam.line_of_sight(rows, np.full(5, 2000.0), pose, engine=engine)
+        assert list(los.status) == [Status.OK, Status.OUTSIDE_SENSOR, Status.OUTSIDE_SENSOR,
+                                    Status.OUTSIDE_SENSOR, Status.INVALID_INPUT], engine
+
+
+# ------------------------------------------------------------------ replay --out without a DEM
+def test_replay_out_without_dem_has_a_status_column(tmp_path):
+    # before: no status column without --dem, so a row without a position was just blank.
+    # Record 1's aircraft put 200 m below a 300 m target height: origin_below
+    recs = _drone_records(tmp_path, {(1, "ac_h_m"): "100.0"})
+    out = tmp_path / "out.csv"
+    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300", "--out", str(out)]) == 0
+    rows = _read_csv(out)
+    assert rows[0]["status"] == "origin_below" and rows[0]["lat_deg"] == ""
+    assert {r["status"] for r in rows[1:]} == {"ok"} and all(r["lat_deg"] for r in rows[1:])

@@ -209,11 +209,11 @@ def run(args) -> int:
             extra["surface_difference_m"] = float(np.linalg.norm(ground.ecef - other.ecef))
     status = int(ground.status)
     if status != Status.OK:
-        msg = f"no ground point for pixel ({row:g}, {col:g}): {describe(status)}"
+        msg = f"no ground point for pixel ({row:g}, {col:g}): {describe(status, sensor.rows, sensor.cols)}"
         if args.json:
             print(json.dumps({"status": Status(status).name.lower(), "error": msg}))
         else:
-            print(f"geoloc locate: {msg}")
+            print(f"geoloc locate: {msg}", file=sys.stderr)
         return 1
     alt = altitude_from_args(args)
     out = {

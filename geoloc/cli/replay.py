@@ -96,7 +96,7 @@ def run(args) -> int:
         if args.height_column is None and args.target_h_m is None:
             raise ValueError("give --height-column (e.g. paper_height_m) or --target-h-m")
         result = replay_at_height(records, camera, args.height_column, args.target_h_m, args.surface)
-    for msg in outside_sensor_messages(records, camera):
+    for msg in outside_sensor_messages(records, camera, result.lat_deg):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
     rows = args.print_rows or (not args.out and len(records) <= ROWS_SHOWN)
     print(summary_table(result, args.group_by, rows=rows))

@@ -91,11 +91,12 @@ def grid_kernel(rows, cols, lens_code, lens_p, n_rows, n_cols, R, bad_state, out
             dz = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z
             k = i * nc + j
             out_d[k, 0], out_d[k, 1], out_d[k, 2] = dx, dy, dz
-            if bad_state or not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz)
-                                 and math.isfinite(r) and math.isfinite(c)):
+            if bad_state or not (math.isfinite(r) and math.isfinite(c)):
                 out_status[k] = _INVALID
             elif not (row_in and 0.5 <= c <= n_cols + 0.5):
-                out_status[k] = _OUTSIDE
+                out_status[k] = _OUTSIDE  # before the lens's NaN: off the sensor is the reason (issue 32)
+            elif not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz)):
+                out_status[k] = _INVALID
             else:
                 out_status[k] = _OK
 

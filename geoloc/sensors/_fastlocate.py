@@ -375,11 +375,13 @@ def _hit_block(sc, x, y, z, okv, h, target_h, row, col, flag_off, width, height,
         disc = qb * qb - 4.0 * qa * qc
         q = -0.5 * (qb - math.sqrt(disc))
         s1, s2 = q / qa, qc / q
-        ok = (okv[i] != 0.0) & math.isfinite(dx)
         r_, c_ = row[i], col[i]
+        # a finite pixel off the sensor is OUTSIDE_SENSOR even where the lens has no ray for it
+        # (a distortion model beyond its domain gives NaN): the first reason wins (issue 32)
+        given = (okv[i] != 0.0) & math.isfinite(r_) & math.isfinite(c_)
         inside = (not flag_off) | ((r_ >= 0.5) & (r_ <= height + 0.5) & (c_ >= 0.5) & (c_ <= width + 0.5))
-        status = (_INVALID if not ok else _OUTSIDE if not inside else _BELOW if qc < 0.0
-                  else _SKY if (disc < 0.0) | (qb >= 0.0) else _OK)
+        status = (_INVALID if not given else _OUTSIDE if not inside else _INVALID if not math.isfinite(dx)
+                  else _BELOW if qc < 0.0 else _SKY if (disc < 0.0) | (qb >= 0.0) else _OK)
         sol = min(s1, s2) if status == _OK else math.nan
         out_status[i] = status
         out_s[i] = sol

@@ -275,11 +275,12 @@ class FrameSensor:
         o = self.optical_centre_ecef(state)
         shape = np.broadcast_shapes(o.shape, d.shape)[:-1]
         o, d = np.broadcast_to(o, shape + (3,)), np.broadcast_to(d, shape + (3,))
-        bad = np.broadcast_to(state.invalid_mask(), shape) | ~np.all(np.isfinite(d), axis=-1)
-        status = np.where(bad, Status.INVALID_INPUT, Status.OK).astype(np.uint8)
-        if outside == "flag":
-            status = flag_outside(status, np.broadcast_to(row, shape), np.broadcast_to(col, shape),
-                                  self.rows, self.cols)
+        rb, cb = np.broadcast_to(row, shape), np.broadcast_to(col, shape)
+        given = ~np.broadcast_to(state.invalid_mask(), shape) & np.isfinite(rb) & np.isfinite(cb)
+        status = np.where(given, Status.OK, Status.INVALID_INPUT).astype(np.uint8)
+        if outside == "flag":  # before the lens's NaN: a distortion model gives none beyond its domain (issue 32)
+            status = flag_outside(status, rb, cb, self.rows, self.cols)
+        status[(status == Status.OK) & ~np.all(np.isfinite(d), axis=-1)] = Status.INVALID_INPUT
         return LineOfSight(o, d, status)
 
     def ground_to_pixel(self, lat, lon, h, state=None) -> PixelHit:

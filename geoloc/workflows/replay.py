@@ -71,8 +71,11 @@ def outside_sensor_mask(records: Records, camera) -> np.ndarray:
     return ~s.in_image(records.column("row"), records.column("col"))
 
 
-def outside_sensor_messages(records: Records, camera) -> list:
-    """One message per record whose pixel is off the sensor: line, label, value and the sensor's size."""
+def outside_sensor_messages(records: Records, camera, lat=None) -> list:
+    """One message per record whose pixel is off the sensor: line, label, value and the sensor's size.
+
+    ``lat`` (the replay's latitudes, optional) tells the records located by extending the lens
+    model from those too far out for it (a distortion model has no ray there: NaN)."""
     s = as_sensor(camera)
     row, col = records.column("row"), records.column("col")
     labels = records.labels()
@@ -83,8 +86,10 @@ def outside_sensor_messages(records: Records, camera) -> list:
             what.append(f"row = {row[k]:g} (rows 1-{s.rows})")
         if not 0.5 <= col[k] <= s.cols + 0.5:
             what.append(f"col = {col[k]:g} (columns 1-{s.cols})")
+        how = ("located by extending the lens model" if lat is None or np.isfinite(lat[k])
+               else "too far out for the lens model to give a ray there: not located")
         out.append(f"line {records.lines[k]} ({labels[k]}): {' and '.join(what)} is outside the sensor; "
-                   "located by extending the lens model and flagged outside_sensor")
+                   f"{how}, flagged outside_sensor")
     return out
 
 
@@ -99,7 +104,10 @@ def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None
     status = np.asarray(ground.status)
     extra = dict(extra or {})
     if camera is not None:
-        off = outside_sensor_mask(records, camera) & (status == Status.OK)
+        # a pixel far off the sensor has no ray through a distortion model (NaN: INVALID_INPUT
+        # from the line of sight); its reason is still that it is off the sensor (issue 32)
+        lens_nan = (status == Status.INVALID_INPUT) & ~np.broadcast_to(records.pose().invalid_mask(), status.shape)
+        off = outside_sensor_mask(records, camera) & ((status == Status.OK) | lens_nan)
         status = np.where(off, np.uint8(Status.OUTSIDE_SENSOR), status).astype(np.uint8)
         if "status" in extra:
             extra["status"] = status
@@ -156,6 +164,8 @@ def write_replay_csv(path, result: ReplayResult) -> None:
     """Write every input column of the good rows plus the replay's output columns (and ``mgrs``)."""
     records = result.records
     cols = result.columns()
+    # every row's status, with or without a DEM: a row without a position says why (issue 32)
+    cols.setdefault("status", result.status)
     # the MGRS reference of each computed point beside its latitude and longitude
     # (geoloc.io.mgrs_grid; '' where there is no point)
     mgrs = mgrs_column(result.lat_deg, result.lon_deg)
