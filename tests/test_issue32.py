@@ -191,3 +191,103 @@ def test_replay_out_without_dem_has_a_status_column(tmp_path):
     rows = _read_csv(out)
     assert rows[0]["status"] == "origin_below" and rows[0]["lat_deg"] == ""
     assert {r["status"] for r in rows[1:]} == {"ok"} and all(r["lat_deg"] for r in rows[1:])
+
+
+# ------------------------------------------------------------------ records CSVs: names, separators, bytes
+QIAO = asset_path("records", "qiao2017_flight_tests.csv")
+
+
+def _qiao_with(tmp_path, name, transform):
+    with open(QIAO, newline="") as f:
+        rows = list(csv.reader(f))
+    p = tmp_path / name
+    transform(rows, p)
+    return p
+
+
+def test_duplicate_column_names_are_refused_naming_column_and_file(tmp_path, capsys):
+    # before: a second `row` column (the row + 50) was used without a word: RMS 0.36 -> 72.83 m
+    def dup(rows, p):
+        rows[0].append("row")
+        for r in rows[1:]:
+            r.append(str(float(r[2]) + 50))
+        with open(p, "w", newline="") as f:
+            csv.writer(f).writerows(rows)
+
+    p = _qiao_with(tmp_path, "dup.csv", dup)
+    assert main(["replay", str(p), "--height-column", "paper_height_m"]) == 2
+    err = capsys.readouterr().err
+    assert f"{p}: duplicate column name(s): 'row' in columns 3, 19" in err, err
+    # trailing empty header cells (a spreadsheet's) are not duplicates: the file still replays
+    def blanks(rows, p):
+        with open(p, "w", newline="") as f:
+            csv.writer(f).writerows([r + ["", ""] for r in rows])
+
+    assert main(["replay", str(_qiao_with(tmp_path, "blank.csv", blanks)), "--height-column",
+                 "paper_height_m"]) == 0
+    assert "RMS distance to the published positions 0.36 m over 20 records" in capsys.readouterr().out
+
+
+def test_semicolon_csv_gets_a_hint(tmp_path, capsys):
+    def semi(rows, p):
+        with open(p, "w", newline="") as f:
+            csv.writer(f, delimiter=";").writerows(rows)
+
+    p = _qiao_with(tmp_path, "semi.csv", semi)
+    assert main(["replay", str(p), "--height-column", "paper_height_m"]) == 2
+    err = capsys.readouterr().err
+    assert "missing required column(s)" in err and "the header holds semicolons" in err
+    assert "comma-separated" in err and str(p) in err
+
+
+@pytest.fixture()
+def binary_file(tmp_path):
+    p = tmp_path / "photo.csv"
+    p.write_bytes(asset_path("photos", "DJI_0001.JPG").read_bytes()[:4096])
+    return p
+
+
+@pytest.mark.parametrize("verb", ["replay", "export", "report"])
+def test_binary_file_is_named(binary_file, tmp_path, verb, capsys):
+    # before (export, report): "'utf-8' codec can't decode byte 0xff ..." without the file's name
+    args = {"replay": ["replay", str(binary_file), "--target-h-m", "0"],
+            "export": ["export", str(binary_file), "--out", str(tmp_path / "x.gpkg")],
+            "report": ["report", str(binary_file)]}[verb]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert str(binary_file) in err and "not a text CSV (UTF-8)" in err and "binary file" in err, err
+    assert "codec" not in err
+
+
+def test_export_of_records_never_replayed_is_refused(tmp_path, capsys):
+    # before: exit 0 and six layers, every computed point an empty geometry
+    out = tmp_path / "x.gpkg"
+    assert main(["export", str(QIAO), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{QIAO}: no computed positions (columns lat_deg and lon_deg)" in err
+    assert "geoloc replay FILE --out results.csv" in err
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------ report: ranges
+def test_report_leaves_out_a_latitude_of_95_naming_line_and_column(tmp_path, capsys):
+    res = tmp_path / "res.csv"
+    assert main(["replay", str(DRONE), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM), "--out", str(res)]) == 0
+    rows = list(csv.reader(open(res, newline="")))
+    rows[3][rows[0].index("truth_lat_deg")] = "95"
+    bad = tmp_path / "res95.csv"
+    with open(bad, "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    capsys.readouterr()
+    assert main(["report", str(bad), "--json"]) == 0
+    cap = capsys.readouterr()
+    assert "res95.csv line 4: truth_lat_deg = '95' is out of range [-90, 90]: row left out" in cap.err
+    rep = json.loads(cap.out)
+    overall = rep["overall"]
+    # the 19 good rows still reported; before, the CE90 was 1 091 124 m over 20
+    assert overall["n"] == 19 and overall["ce90_m"] < 10.0
+    # the core refuses the value itself, naming the argument, index and value
+    from geoloc.analysis.accuracy import accuracy_report
+
+    with pytest.raises(ValueError, match=r"ref_lat_deg\[1\] = 95 is out of range \[-90, 90\]"):
+        accuracy_report([36.6, 36.6], [-84.2, -84.2], [300, 300], [36.6, 95.0], [-84.2, -84.2], [300, 300])

@@ -105,6 +105,48 @@ PERCENTILE_TEXT = ("numpy's default percentile (method='linear': linear interpol
                    "statistics, Hyndman-Fan definition 7)")
 
 
+# --------------------------------------------------------------------------- ranges
+
+#: Valid range of each kind of position value (inclusive): latitude [deg], longitude [deg]
+#: (0-360 accepted, as the records' columns), ellipsoidal height [m] (the records' aircraft
+#: range: below the deepest sea floor to beyond the Moon).
+POSITION_RANGES = {"lat": (-90.0, 90.0), "lon": (-180.0, 360.0), "h": (-1.2e4, 1.0e8)}
+
+
+def position_kind(name: str) -> str | None:
+    """``"lat"``, ``"lon"`` or ``"h"`` for a position column name (``*lat_deg``, ``*lon_deg``,
+    ``*h_m``, ``*height_m``), else None."""
+    if name.endswith("lat_deg"):
+        return "lat"
+    if name.endswith("lon_deg"):
+        return "lon"
+    if name.endswith("_h_m") or name == "h_m" or name.endswith("height_m"):
+        return "h"
+    return None
+
+
+def out_of_range(values, kind: str) -> np.ndarray:
+    """True where a finite value lies outside :data:`POSITION_RANGES` ``[kind]`` (NaN: missing, not out)."""
+    lo, hi = POSITION_RANGES[kind]
+    v = np.asarray(values, float)
+    return np.isfinite(v) & ((v < lo) | (v > hi))
+
+
+def _check_ranges(**named):
+    """ValueError naming the argument, the first index and value out of its range (issue 32:
+    a latitude of 95 gave a CE90 of 1 091 124 m without a word)."""
+    for name, v in named.items():
+        if v is None:
+            continue
+        kind = position_kind(name)
+        bad = np.flatnonzero(np.ravel(out_of_range(v, kind)))
+        if bad.size:
+            lo, hi = POSITION_RANGES[kind]
+            k = int(bad[0])
+            raise ValueError(f"{name}[{k}] = {float(np.ravel(np.asarray(v, float))[k]):g} is out of range "
+                             f"[{lo:g}, {hi:g}] ({bad.size} value(s) out of range)")
+
+
 # --------------------------------------------------------------------------- components
 
 
@@ -522,6 +564,12 @@ def accuracy_report(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *,
     meta : dict, optional
         Extra description merged into :attr:`AccuracyReport.meta` (e.g. the reference used).
 
+    Raises
+    ------
+    ValueError
+        A finite latitude, longitude or height outside :data:`POSITION_RANGES` (naming the
+        argument, the index and the value): the caller drops such rows first, saying which.
+
     Returns
     -------
     AccuracyReport
@@ -534,6 +582,8 @@ def accuracy_report(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *,
         ``by_off_nadir_deg``, ``by_pixel_radius_px`` (bins, when given) and
         ``slant_range_model``.
     """
+    _check_ranges(lat_deg=lat_deg, lon_deg=lon_deg, h_m=h_m, ref_lat_deg=ref_lat_deg, ref_lon_deg=ref_lon_deg,
+                  ref_h_m=ref_h_m)
     comp = error_components(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m,
                             track_heading_rad=track_heading_rad)
     comp = {k: np.ravel(v) for k, v in comp.items()}

@@ -73,22 +73,56 @@ def read_results(path) -> tuple:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"results file {path} does not exist")
-    with path.open(newline="") as fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None:
-            raise ValueError(f"results file {path} is empty: it needs a header (the output of geoloc replay --out)")
-        header = [h.strip() for h in header]
-        rows, messages = [], []
-        for line, values in enumerate(reader, start=2):
-            if not values or all(not v.strip() for v in values):
+    from geoloc.analysis.accuracy import POSITION_RANGES, out_of_range, position_kind
+    from geoloc.io.records import check_header
+
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            header, rows, messages = _read_rows(path, fh)
+    except UnicodeDecodeError as e:
+        raise ValueError(f"results file {path}: not a text CSV (UTF-8): byte 0x{e.object[e.start]:02x} cannot be "
+                         "decoded; is it a binary file?") from None
+    check_header(path, header)
+    # a position out of its range (latitude 95) leaves its row out, named (issue 32)
+    kept = []
+    for row in rows:
+        why = None
+        for name in header:
+            kind = position_kind(name)
+            text = row.get(name, "")
+            if kind is None or text == "":
                 continue
-            if len(values) != len(header):
-                messages.append(f"{path.name} line {line}: {len(values)} fields, header has {len(header)}: skipped")
-                continue
-            row = dict(zip(header, (v.strip() for v in values)))
-            row["_line"] = line
-            rows.append(row)
+            try:
+                bad = bool(out_of_range(float(text), kind))
+            except ValueError:
+                continue  # not a number: said (and treated as missing) where the column is read
+            if bad:
+                lo, hi = POSITION_RANGES[kind]
+                why = f"{path.name} line {row['_line']}: {name} = {text!r} is out of range [{lo:g}, {hi:g}]: row left out"
+                break
+        if why:
+            messages.append(why)
+        else:
+            kept.append(row)
+    return header, kept, messages
+
+
+def _read_rows(path, fh):
+    reader = csv.reader(fh)
+    header = next(reader, None)
+    if header is None:
+        raise ValueError(f"results file {path} is empty: it needs a header (the output of geoloc replay --out)")
+    header = [h.strip() for h in header]
+    rows, messages = [], []
+    for line, values in enumerate(reader, start=2):
+        if not values or all(not v.strip() for v in values):
+            continue
+        if len(values) != len(header):
+            messages.append(f"{path.name} line {line}: {len(values)} fields, header has {len(header)}: skipped")
+            continue
+        row = dict(zip(header, (v.strip() for v in values)))
+        row["_line"] = line
+        rows.append(row)
     return header, rows, messages
 
 

@@ -82,7 +82,8 @@ def read_results(path) -> dict:
     FileNotFoundError
         If ``path`` does not exist (the message names it).
     ValueError
-        If the header repeats a name or a line has more fields than the header.
+        If the header repeats a name or a line has more fields than the header, or the
+        file is not UTF-8 text (a binary file; the message names it).
     """
     note_input(path)
     p = Path(path)
@@ -90,6 +91,14 @@ def read_results(path) -> dict:
         raise FileNotFoundError(f"results file {str(path)!r} does not exist")
     if not p.is_file():
         raise FileNotFoundError(f"results path {str(path)!r} is not a file")
+    try:
+        return _read_results(path, p)
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: not a text CSV (UTF-8): byte 0x{e.object[e.start]:02x} cannot be decoded; "
+                         "is it a binary file?") from None
+
+
+def _read_results(path, p):
     with p.open(newline="", encoding="utf-8-sig") as fh:
         reader = csv.reader(fh)
         header = next(reader, None)
@@ -629,13 +638,22 @@ def export(table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH) 
     ------
     ValueError
         Unknown format (names it and the allowed ones), unknown group-by column,
-        unparseable h_datum or time.
+        unparseable h_datum or time, a table without computed positions (``lat_deg``,
+        ``lon_deg``: a records CSV that was never replayed).
     FileNotFoundError
         Missing input file or output folder.
     """
     fmt = resolve_format(format, out_path)
+    source = "the results table"
     if isinstance(table, (str, Path)):
+        source = str(table)
         table = read_results(table)
+    if table and not ("lat_deg" in table and "lon_deg" in table):
+        # a records CSV never replayed: six layers of empty geometries said nothing (issue 32)
+        hint = (" (it has the records' columns: replay it first, `geoloc replay FILE --out results.csv`, "
+                "then export results.csv)" if "ac_lat_deg" in table else "")
+        raise ValueError(f"{source}: no computed positions (columns lat_deg and lon_deg): not the results "
+                         f"of a replay{hint}")
     out = Path(out_path)
     if not out.parent.is_dir():
         raise FileNotFoundError(f"output folder {str(out.parent)!r} does not exist")
