@@ -291,3 +291,20 @@ def test_report_leaves_out_a_latitude_of_95_naming_line_and_column(tmp_path, cap
 
     with pytest.raises(ValueError, match=r"ref_lat_deg\[1\] = 95 is out of range \[-90, 90\]"):
         accuracy_report([36.6, 36.6], [-84.2, -84.2], [300, 300], [36.6, 95.0], [-84.2, -84.2], [300, 300])
+
+
+# ------------------------------------------------------------------ angle names the gimbal does not have
+@pytest.mark.parametrize("given, named", [
+    (["--gimbal-roll-deg", "40", "--angle", "elevation=-30"], "--gimbal-roll-deg 40"),  # before: ignored, exit 0
+    (["--angle", "tilt=-30"], "--angle tilt=-30"),  # before: "missing angle(s) ['elevation']", tilt unnamed
+])
+def test_angle_the_gimbal_has_not_is_named_with_the_gimbals_angles(given, named, capsys):
+    base = ["locate", "--sensor", str(TURRET), "--lat-deg", "36.6", "--lon-deg", "-84.25", "--h-m", "2500",
+            "--angle", "azimuth=90", "--target-h-m", "300"]
+    assert main(base + given) == 2
+    err = capsys.readouterr().err
+    assert (f"{named}: the sensor's azimuth-elevation gimbal has no angle" in err
+            and "its angles are ['azimuth', 'elevation']" in err), err
+    # the good call still locates
+    assert main(base + ["--angle", "elevation=-30", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["status"] == "ok"

@@ -163,22 +163,21 @@ def ellipsoidal_h_from_args(args) -> float:
 
 def pose_from_args(args, sensor) -> Pose:
     """The pose of the command line, with every joint angle the sensor's gimbal needs."""
+    from geoloc.sensors.base import check_angle_names
+
     angles = parse_angles(getattr(args, "angle", []))
+    given = {name: f"--angle {name}={v:g}" for name, v in angles.items()}
     for name in ("gimbal_roll", "gimbal_pitch"):
         v = getattr(args, f"{name}_deg", None)
         if v is not None:
             if name in angles:
                 raise ValueError(f"--{name.replace('_', '-')}-deg and --angle {name}= both given")
             angles[name] = v
-    need = as_sensor(sensor).angle_names
-    missing = [a for a in need if a not in angles and a not in ("gimbal_roll", "gimbal_pitch")]
-    if missing:
-        raise ValueError(f"missing angle(s) {missing}: the sensor's {as_sensor(sensor).gimbal.name} gimbal "
-                         f"needs {list(need)}; give --angle NAME=DEG for each")
-    unknown = sorted(set(angles) - set(need) - {"gimbal_roll", "gimbal_pitch"})
-    if unknown:
-        raise ValueError(f"--angle {unknown[0]}: the sensor's {as_sensor(sensor).gimbal.name} gimbal has no "
-                         f"such joint; its angles are {list(need)}")
+            given[name] = f"--{name.replace('_', '-')}-deg {v:g}"
+    s = as_sensor(sensor)
+    # before issue 32 --gimbal-roll-deg was ignored on a gimbal without it, and a misspelt
+    # --angle tilt=-30 was reported as the missing elevation
+    check_angle_names(given, s.angle_names, s.gimbal.name, defaults=("gimbal_roll", "gimbal_pitch"))
     q = {k: angles.pop(k, 0.0) for k in ("gimbal_roll", "gimbal_pitch")}
     return Pose.from_deg(args.lat_deg, args.lon_deg, ellipsoidal_h_from_args(args), args.heading_deg, args.pitch_deg,
                          args.roll_deg, q["gimbal_roll"], q["gimbal_pitch"], angles_deg=angles).validate()

@@ -95,6 +95,38 @@ def check_outside(outside: str) -> None:
         raise ValueError(f"outside = {outside!r}: must be one of {OUTSIDE_MODES}")
 
 
+def check_angle_names(given: Mapping[str, str], need, gimbal: str, defaults=()) -> None:
+    """Check the joint angles a caller gives against those a gimbal has (issue 32).
+
+    Parameters
+    ----------
+    given : mapping
+        Angle name -> how the caller gave it, for the message (e.g. ``"--angle tilt=-30"``).
+    need : sequence of str
+        The gimbal's joint angles (``FrameSensor.angle_names``).
+    gimbal : str
+        The gimbal's name.
+    defaults : sequence of str
+        Angles that may be left out (taken as 0).
+
+    Raises
+    ------
+    ValueError
+        An angle the gimbal does not have (first: a misspelt name explains a missing one),
+        naming it, how it was given and the gimbal's angles; then the angles missing.
+    """
+    need = list(need)
+    unknown = [a for a in given if a not in need]
+    if unknown:
+        more = f" (also unknown: {unknown[1:]})" if len(unknown) > 1 else ""
+        raise ValueError(f"{given[unknown[0]]}: the sensor's {gimbal} gimbal has no angle {unknown[0]!r}; "
+                         f"its angles are {need}{more}")
+    missing = [a for a in need if a not in given and a not in defaults]
+    if missing:
+        raise ValueError(f"missing angle(s) {missing}: the sensor's {gimbal} gimbal needs {need}; "
+                         "give each (--angle NAME=DEG on the command line)")
+
+
 def check_param_names(changes: Mapping[str, float], known: Mapping[str, float], what: str) -> None:
     """Raise ValueError naming any parameter of ``changes`` that ``known`` does not have."""
     unknown = sorted(set(changes) - set(known))
