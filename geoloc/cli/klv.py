@@ -62,12 +62,11 @@ def register(sub) -> None:
                    help="raw KLV (.klv, .bin) or a container (.ts, .m2ts, .mpg)")
     f.add_argument("--out", required=True, type=output_path,
                    help="the copy to write (the same kind of file; never IN)")
-    f.add_argument("--sensor", "--camera", dest="camera", default=None, metavar="FILE", type=input_path,
-                   help="sensor file (image size, mount, boresight, lever arm: e.g. a calibration written by "
-                   "geoloc calibrate --fit ... --write-sensor)")
-    f.add_argument("--no-checksum", action="store_true", help="do not verify the input's checksums")
-    from geoloc.cli._options import add_dem_options
+    from geoloc.cli._options import add_dem_options, add_sensor_option
 
+    add_sensor_option(f, help="sensor file (image size, mount, boresight, lever arm: e.g. a calibration "
+                      "written by geoloc calibrate --fit ... --write-sensor)")
+    f.add_argument("--no-checksum", action="store_true", help="do not verify the input's checksums")
     add_dem_options(f, None)
     f.set_defaults(func=run_fix)
 
