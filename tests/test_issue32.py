@@ -308,3 +308,49 @@ def test_angle_the_gimbal_has_not_is_named_with_the_gimbals_angles(given, named,
     # the good call still locates
     assert main(base + ["--angle", "elevation=-30", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["status"] == "ok"
+
+
+# ------------------------------------------------------------------ plausibility warnings
+def test_column_in_feet_mapped_without_unit_is_warned_and_flagged_by_its_errors(tmp_path, capsys):
+    # the drone records' heights in feet, in a column Alt_ft mapped without unit = "ft"
+    with open(DRONE, newline="") as f:
+        rows = list(csv.reader(f))
+    i = rows[0].index("ac_h_m")
+    rows[0][i] = "Alt_ft"
+    for r in rows[1:]:
+        r[i] = f"{float(r[i]) / 0.3048:.3f}"
+    recs = tmp_path / "drone_ft.csv"
+    with open(recs, "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    out = tmp_path / "out.csv"
+    args = ["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM), "--out", str(out)]
+    (tmp_path / "map.toml").write_text('[columns]\nac_h_m = "Alt_ft"\n')
+    assert main(args + ["--columns", str(tmp_path / "map.toml")]) == 0
+    err = capsys.readouterr().err
+    assert ("ac_h_m = 'Alt_ft': the column's name says feet but the map gives no unit, so it is read in "
+            "metres; write ac_h_m = {column = 'Alt_ft', unit = 'ft'}") in err, err
+    assert "line 2 (survey1-1): located 621 m from its truth, 47 % of its slant range (1320 m)" in err
+    assert "... and 15 more record(s) far from their truth" in err
+    # warnings only: the numbers are those of the heights as read (all ok)
+    assert {r["status"] for r in _read_csv(out)} == {"ok"}
+    # with its unit: no warning, and the README's 2.70 m mean error to truth
+    (tmp_path / "map_ft.toml").write_text('[columns]\nac_h_m = {column = "Alt_ft", unit = "ft"}\n')
+    assert main(args + ["--columns", str(tmp_path / "map_ft.toml")]) == 0
+    cap = capsys.readouterr()
+    assert "says feet" not in cap.err and "far from their truth" not in cap.err and "truth, " not in cap.err
+    assert "mean error to truth 2.70 m" in cap.out
+
+
+def test_camera_below_the_terrain_is_warned(tmp_path, capsys):
+    recs = _drone_records(tmp_path, {(1, "ac_h_m"): "150.0"})
+    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM)]) == 0
+    err = capsys.readouterr().err
+    assert "line 2 (survey1-1): the camera (ac_h_m = 150.0 m) is 141 m below the terrain under it (291.1 m" in err
+    assert err.count("warning: line") == 1  # one record, one warning (its error to truth not said twice)
+
+
+def test_bundled_records_give_no_plausibility_warning(capsys):
+    # the check is not a noise source: the bundled turret and drone flights are plausible
+    for recs, sensor in ((DRONE, DRONE_SENSOR), (asset_path("records", "eo_turret_flight.csv"), TURRET)):
+        assert main(["replay", str(recs), "--sensor", str(sensor), "--dem", str(SRTM)]) == 0
+        assert "warning: line" not in capsys.readouterr().err

@@ -270,11 +270,14 @@ def replay_hook(args, records, camera):
     from geoloc.workflows.replay import records_line_of_sight, result_from_ground
 
     warn_datums("replay", args.dem_datum, records.altitude)
-    hit = _solve(args, records_line_of_sight(records, camera))
+    surface = open_surface(args)
+    hit = surface.intersect(records_line_of_sight(records, camera))
     extra = {"status": hit.status, "dem_evaluations": hit.dem_evaluations.astype(np.int64)}
     if args.method == "bisect":
         extra["hidden"] = hit.hidden.astype(np.int64)
-    return result_from_ground(records, hit, extra, camera=camera)
+    result = result_from_ground(records, hit, extra, camera=camera)
+    result.terrain = getattr(surface, "dem", surface)  # a DEM, or the mosaic itself (plausibility warnings)
+    return result
 
 
 class _DemAction(argparse.Action):

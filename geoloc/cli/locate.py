@@ -115,6 +115,8 @@ def load_records_reporting(path, sensor=None, columns=None, altitude_datum=None)
               f"{alt.stated} gives datum {alt.datum!r} for column {alt.column!r}", file=sys.stderr)
     for err in records.errors:
         print(f"{records.path}: skipped {err}", file=sys.stderr)
+    for msg in records.warnings:
+        print(f"warning: {msg}", file=sys.stderr)
     if len(records) == 0:
         raise ValueError(f"{records.path}: no valid record")
     return records

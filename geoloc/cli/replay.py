@@ -17,6 +17,7 @@ from geoloc.assets import DEFAULT_RECORDS, asset_path
 from geoloc.cli.locate import load_camera, records_from_args
 from geoloc.workflows.replay import (
     outside_sensor_messages,
+    plausibility_warnings,
     replay_at_height,
     summary_table,
     write_replay_csv,
@@ -97,6 +98,8 @@ def run(args) -> int:
             raise ValueError("give --height-column (e.g. paper_height_m) or --target-h-m")
         result = replay_at_height(records, camera, args.height_column, args.target_h_m, args.surface)
     for msg in outside_sensor_messages(records, camera, result.lat_deg):
+        print(f"geoloc replay: warning: {msg}", file=sys.stderr)
+    for msg in plausibility_warnings(records, result, result.terrain):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
     rows = args.print_rows or (not args.out and len(records) <= ROWS_SHOWN)
     print(summary_table(result, args.group_by, rows=rows))

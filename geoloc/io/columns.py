@@ -326,6 +326,7 @@ class ColumnPlan:
     renamed: dict
     heights: dict
     file_h_datum: bool = False
+    warnings: list = field(default_factory=list)  #: :func:`unit_warnings` of the map
     _pending: dict = field(default_factory=dict)
 
     @property
@@ -432,6 +433,40 @@ def _text_of(row, plan, name):
     return row.get(plan.renamed.get(spec.column, spec.column), "")
 
 
+#: A file column's name that states a unit: feet, radians (a word or a ``_ft`` / ``(ft)`` part).
+_NAME_UNITS = {"ft": ("ft", "feet", "foot"), "rad": ("rad", "radian", "radians")}
+
+
+def _name_unit(column: str) -> str | None:
+    """The unit a column's name states (``"ft"``, ``"rad"``), else None: ``Alt_ft``, ``alt (ft)``,
+    ``AltitudeFeet``, ``yaw_rad``."""
+    import re
+
+    parts = [p.lower() for p in re.findall(r"[A-Z]?[a-z]+|[A-Z]+(?![a-z])|\d+", column)]
+    for unit, words in _NAME_UNITS.items():
+        if any(p in words for p in parts):
+            return unit
+    return None
+
+
+def unit_warnings(column_map: ColumnMap | None) -> list:
+    """Warnings for mapped columns whose name states a unit the map does not give (issue 32:
+    ``ac_h_m = "Alt_ft"`` read feet as metres, 41 km errors marked ok). A unit the map states
+    (even ``m``) is taken as meant."""
+    out = []
+    for name, spec in (column_map.specs.items() if column_map is not None else ()):
+        said = _name_unit(spec.column)
+        kind = spec.kind
+        if spec.unit is not None or said is None:
+            continue
+        if (said == "ft" and kind in ("length", "height")) or (said == "rad" and kind == "angle"):
+            canon = "metres" if said == "ft" else "degrees"
+            out.append(f"{column_map.source} [columns]: {name} = {spec.column!r}: the column's name says "
+                       f"{'feet' if said == 'ft' else 'radians'} but the map gives no unit, so it is read in "
+                       f"{canon}; write {name} = {{column = {spec.column!r}, unit = {said!r}}} if it is")
+    return out
+
+
 def plan_columns(path, header: list, angles=(), column_map: ColumnMap | None = None,
                  altitude_datum: str | None = None, altitude_source: str = "--altitude-datum",
                  required=()) -> ColumnPlan:
@@ -516,4 +551,5 @@ def plan_columns(path, header: list, angles=(), column_map: ColumnMap | None = N
     if missing:
         hint = " (a column map, --columns FILE or [columns] in the sensor file, maps your own names: docs/columns.md)"
         raise ValueError(f"{path}: missing required column(s) {missing}; header is {header}{hint}")
-    return ColumnPlan(str(path), list(header), out, specs, renamed, heights, file_h_datum)
+    return ColumnPlan(str(path), list(header), out, specs, renamed, heights, file_h_datum,
+                      warnings=unit_warnings(column_map))

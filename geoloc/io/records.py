@@ -122,6 +122,8 @@ class Records:
     source_header: list = None
     heights: dict = field(default_factory=dict)
     column_map: ColumnMap | None = None
+    #: Plausibility warnings of the loading (a mapped column named in feet without its unit, ...).
+    warnings: list = field(default_factory=list)
 
     def __post_init__(self):
         if self.source_header is None:
@@ -140,7 +142,7 @@ class Records:
         """The records of the rows ``idx`` (same header, angles, datums; no errors)."""
         idx = np.asarray(idx, dtype=int)
         return Records(self.path, self.header, [self.rows[k] for k in idx], self.lines[idx], [],
-                       self.angles, self.source_header, dict(self.heights), self.column_map)
+                       self.angles, self.source_header, dict(self.heights), self.column_map, list(self.warnings))
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -303,7 +305,7 @@ def _read_records(path, fh, angles, required, optional, column_map, altitude_dat
         good_lines.append(line)
     errors.sort(key=lambda e: e.line)
     return Records(str(path), plan.header, good_rows, np.array(good_lines, dtype=int), errors, angles,
-                   source_header, dict(plan.heights), column_map)
+                   source_header, dict(plan.heights), column_map, list(plan.warnings))
 
 
 def _check_row(row, line, required, optional, plan=None, raw=None):

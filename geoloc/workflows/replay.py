@@ -41,6 +41,7 @@ class ReplayResult:
     error_to_paper_m: np.ndarray
     error_to_truth_m: np.ndarray
     extra: dict  # further output columns, name -> array (e.g. DEM evaluations)
+    terrain: object = None  # the DEM (or mosaic) located on, if any: for plausibility_warnings
 
     def columns(self) -> dict:
         cols = {
@@ -119,6 +120,66 @@ def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None
         return np.full(len(records), np.nan)
 
     return ReplayResult(records, lat, lon, ground.h, status, err("paper"), err("truth"), extra)
+
+
+#: Plausibility: a located point farther from its truth than this fraction of its slant range
+#: (and than :data:`IMPLAUSIBLE_ERROR_M`) is warned about. A pointing error of 0.05 rad (2.9 deg)
+#: is far beyond any gimbal's encoders and calibration; a height in feet read as metres (x 3.28)
+#: or a datum mix-up gives errors of that order of the range (issue 32: 41 km errors, all `ok`).
+IMPLAUSIBLE_ERROR_FRACTION = 0.05
+IMPLAUSIBLE_ERROR_M = 50.0
+#: The camera counts as below the terrain under it when lower than the DEM by this much [m]
+#: (a DEM's own error is a few metres to tens of metres: SRTM 16 m LE90).
+BELOW_TERRAIN_M = 30.0
+
+
+def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, limit: int = 5) -> list:
+    """Warnings for records whose numbers cannot be right, without changing them (issue 32).
+
+    - the camera below the terrain under it (``terrain``: a DEM or DEM mosaic, whose
+      ``sample(lat, lon)`` gives ellipsoidal heights), by more than :data:`BELOW_TERRAIN_M`;
+    - a located point farther from its truth than :data:`IMPLAUSIBLE_ERROR_FRACTION` of the
+      slant range (a height in feet read as metres, a datum or a sensor mixed up).
+
+    Each names the line, the record and the values; at most ``limit`` lines per kind, then
+    a count. Heights are ellipsoidal (WGS 84), as everywhere in the records.
+    """
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+
+    out = []
+    labels = records.labels()
+    c = records.column
+    ac_lat, ac_lon, ac_h = c("ac_lat_deg"), c("ac_lon_deg"), c("ac_h_m")
+
+    def add(kind, idx, text):
+        for k in idx[:limit]:
+            out.append(f"line {records.lines[k]} ({labels[k]}): {text(k)}")
+        if len(idx) > limit:
+            out.append(f"... and {len(idx) - limit} more record(s) {kind}")
+
+    below = np.zeros(0, int)
+    if terrain is not None:
+        ht, _ = terrain.sample(np.deg2rad(ac_lat), np.deg2rad(ac_lon))
+        with np.errstate(invalid="ignore"):
+            below = np.flatnonzero(ac_h < ht - BELOW_TERRAIN_M)
+        add("with the camera below the terrain", below,
+            lambda k: f"the camera (ac_h_m = {ac_h[k]:.1f} m) is {ht[k] - ac_h[k]:.0f} m below the terrain under "
+            f"it ({ht[k]:.1f} m, the DEM), heights ellipsoidal: a height in the wrong datum or unit "
+            "(MSL read as ellipsoidal, feet as metres), or above the ground instead of the ellipsoid?")
+    err = np.asarray(result.error_to_truth_m, float)
+    if np.isfinite(err).any():
+        p_cam = geodetic_to_ecef(np.deg2rad(ac_lat), np.deg2rad(ac_lon), ac_h)
+        p_hit = geodetic_to_ecef(np.deg2rad(result.lat_deg), np.deg2rad(result.lon_deg), result.h_m)
+        slant = np.linalg.norm(p_hit - p_cam, axis=-1)
+        with np.errstate(invalid="ignore"):
+            far = (err > IMPLAUSIBLE_ERROR_FRACTION * slant) & (err > IMPLAUSIBLE_ERROR_M)
+        far[below] = False  # said already: the camera is below the terrain
+        far = np.flatnonzero(far)
+        add("far from their truth", far,
+            lambda k: f"located {err[k]:.0f} m from its truth, {100 * err[k] / slant[k]:.0f} % of its slant range "
+            f"({slant[k]:.0f} m): implausible for a pointing error; a height or angle in the wrong unit or "
+            "datum, or the wrong sensor?")
+    return out
 
 
 def replay_at_height(records: Records, camera: Camera, height_column: str | None = None,
