@@ -354,3 +354,69 @@ def test_bundled_records_give_no_plausibility_warning(capsys):
     for recs, sensor in ((DRONE, DRONE_SENSOR), (asset_path("records", "eo_turret_flight.csv"), TURRET)):
         assert main(["replay", str(recs), "--sensor", str(sensor), "--dem", str(SRTM)]) == 0
         assert "warning: line" not in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ a drone photo written by GDAL
+PHOTO = asset_path("photos", "DJI_0001.JPG")
+
+
+def _gdal_copy(dst_path, factor):
+    """A resized TIFF copy of the bundled photo written by GDAL through rasterio, its EXIF items
+    and its XMP domain copied the way a script does (and public test sets come): GDAL stores
+    the XMP tag as ``xml:XMP=<?xpacket ...`` and the EXIF items in its GDAL_METADATA tag."""
+    import warnings
+
+    from rasterio.enums import Resampling
+    from rasterio.errors import NotGeoreferencedWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        with rasterio.open(PHOTO) as src:
+            w, h = src.width // factor, src.height // factor
+            data = src.read(out_shape=(src.count, h, w), resampling=Resampling.average)
+            with rasterio.open(dst_path, "w", driver="GTiff", width=w, height=h, count=src.count,
+                               dtype=data.dtype) as dst:
+                dst.write(data)
+                dst.update_tags(**src.tags())
+                dst.update_tags(ns="xml:XMP", **src.tags(ns="xml:XMP"))
+    return w, h
+
+
+def test_gdal_tiff_copy_replays_as_the_jpeg(tmp_path, capsys):
+    # before: "XMP packet is not well-formed XML"; with that mended, the TIFF's EXIF size was not
+    # read, the lens not scaled to the raster: pixels off the axis ~95 m away (issue 32)
+    from geoloc.io.photos import lens_from_photo, read_photo
+
+    tif = tmp_path / "DJI_0001.tif"
+    w, h = _gdal_copy(tif, 4)
+    assert tif.read_bytes().find(b"xml:XMP=<?xpacket") > 0  # the form this test is about
+    m = read_photo(tif)
+    assert (m.width, m.height, m.full_width, m.full_height) == (w, h, 800, 600) and m.resized
+    with open(asset_path("photos", "targets.csv"), newline="") as f:
+        targets = list(csv.DictReader(f))
+    lens = lens_from_photo(read_photo(PHOTO))
+    off_axis_deg = [np.degrees(np.arctan(np.hypot(float(t["col"]) - 1 - lens.cx, float(t["row"]) - 1 - lens.cy)
+                                         / lens.fx)) for t in targets]
+    assert min(off_axis_deg) < 1.0 and max(off_axis_deg) > 15.0  # on and off the optical axis
+    # the same targets at the resized raster's pixels: DJI's corner origin scales exactly,
+    # 1-based centre r -> (r - 0.5) / 4 + 0.5
+    tt = tmp_path / "targets.csv"
+    with open(tt, "w", newline="") as f:
+        wr = csv.writer(f)
+        wr.writerow(["image", "row", "col"])
+        for t in targets:
+            wr.writerow([PHOTO.name, t["row"], t["col"]])
+            wr.writerow([tif.name, (float(t["row"]) - 0.5) / 4 + 0.5, (float(t["col"]) - 0.5) / 4 + 0.5])
+    out = tmp_path / "out.csv"
+    assert main(["replay", str(PHOTO), str(tif), "--targets", str(tt), "--dem", str(SRTM), "--out", str(out)]) == 0
+    rows = _read_csv(out)
+    jpg = [r for r in rows if r["image"] == PHOTO.name]
+    tiff = [r for r in rows if r["image"] == tif.name]
+    assert len(jpg) == len(tiff) == len(targets) and {r["status"] for r in rows} == {"ok"}
+    for a, b in zip(jpg, tiff):
+        # the scale 1/4 is a power of two, so the scaled lens is the full one to the last bit
+        # but for its principal point's (u0 + 0.5) / 4 - 0.5; the lens's Newton inversion and
+        # the walk converge to ~1e-12 of a degree. 1e-9 deg is 0.1 mm on the ground; an unscaled
+        # lens moves the off-axis points by tens of metres
+        assert float(b["lat_deg"]) == pytest.approx(float(a["lat_deg"]), abs=1e-9)
+        assert float(b["lon_deg"]) == pytest.approx(float(a["lon_deg"]), abs=1e-9)

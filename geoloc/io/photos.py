@@ -340,6 +340,26 @@ def _local(tag: str, ns: str) -> str | None:
     return tag[len(prefix):] if tag.startswith(prefix) else None
 
 
+def xmp_element(packet: bytes) -> bytes:
+    """The ``<x:xmpmeta ...>...</x:xmpmeta>`` element of an XMP packet, located by its name.
+
+    What stands around it is not XML for a parser: the ``<?xpacket?>`` wrapper is fine, but
+    GDAL writes a TIFF's XMP tag from its ``xml:XMP`` metadata domain as
+    ``xml:XMP=<?xpacket ...`` when a program copies that domain as key=value items (as
+    rasterio's ``update_tags(ns="xml:XMP", **src.tags(ns="xml:XMP"))`` does), and some
+    writers pad with NULs. Readers such as OpenSfM's locate the packet the same way (by its
+    element). A packet without the element (``x:xapmeta`` of old writers, a bare
+    ``rdf:RDF``) is returned as it is, trailing NULs and blanks stripped (issue 32).
+    """
+    start = packet.find(b"<x:xmpmeta")
+    end = packet.rfind(b"</x:xmpmeta>")
+    # a DTD before it stays, for defusedxml to refuse by name (cut off, its entities would
+    # read as merely undefined)
+    if start >= 0 and end > start and b"<!" not in packet[:start]:
+        return packet[start:end + len(b"</x:xmpmeta>")]
+    return packet.rstrip(b"\x00 \t\r\n")
+
+
 def parse_xmp(packet: bytes, source: str = "XMP") -> tuple[dict, dict]:
     """``drone-dji`` and ``tiff`` properties of an XMP packet: ``(dji, tiff)``, name -> text.
 
@@ -363,7 +383,7 @@ def parse_xmp(packet: bytes, source: str = "XMP") -> tuple[dict, dict]:
         raise ImportError("reading XMP needs defusedxml: pip install defusedxml") from e
     from xml.etree.ElementTree import ParseError
 
-    text = packet.rstrip(b"\x00 \t\r\n")
+    text = xmp_element(packet)
     try:
         root = DET.fromstring(text)
     except DefusedXmlException as e:
@@ -426,6 +446,47 @@ def _gps_coordinate(value, ref, positive: str, negative: str, limit: float, name
     return deg
 
 
+#: TIFF tag where GDAL keeps the metadata items a TIFF has no tag for (GDAL_METADATA, XML).
+_GDAL_METADATA_TAG = 42112
+#: GDAL's names of the EXIF items read from its metadata, and their EXIF tags.
+_GDAL_EXIF_NAMES = {"EXIF_PixelXDimension": _PIXEL_X, "EXIF_PixelYDimension": _PIXEL_Y,
+                    "EXIF_FocalLength": _FOCAL, "EXIF_FocalLengthIn35mmFilm": _FOCAL_35}
+
+
+def _gdal_exif(img, notes) -> dict:
+    """EXIF tag -> value of the ``EXIF_*`` items of a TIFF's GDAL_METADATA tag (42112).
+
+    GDAL reads a photo's EXIF directory as metadata items ``EXIF_PixelXDimension``, ...;
+    a TIFF it writes from them (a resized copy of a drone photo, as public test sets are
+    shipped) holds them in its GDAL_METADATA XML, not in an EXIF directory (GDAL 3.10),
+    so that PixelXDimension/PixelYDimension (the full size the calibration is in) are read
+    from there (issue 32). Values are GDAL's text (``(3.6)`` for a rational)."""
+    tags = getattr(img, "tag_v2", None)
+    raw = tags.get(_GDAL_METADATA_TAG) if tags is not None else None
+    if not raw:
+        return {}
+    from xml.etree.ElementTree import ParseError
+
+    from defusedxml import DefusedXmlException
+    from defusedxml import ElementTree as DET
+
+    try:
+        root = DET.fromstring(raw.encode("utf-8") if isinstance(raw, str) else bytes(raw))
+    except (ParseError, DefusedXmlException) as e:
+        notes.append(f"GDAL_METADATA tag not readable ({type(e).__name__}): its EXIF items ignored")
+        return {}
+    out = {}
+    for item in root.iter("Item"):
+        tag = _GDAL_EXIF_NAMES.get(item.get("name", ""))
+        if tag is not None and item.get("band") is None and item.text:
+            text = item.text.strip().strip("()")
+            try:
+                out[tag] = int(text) if tag in (_PIXEL_X, _PIXEL_Y) else float(text)
+            except ValueError:
+                out[tag] = text  # named as not an integer below
+    return out
+
+
 def _read_exif(img, path, notes) -> dict:
     out = {}
     try:
@@ -437,7 +498,9 @@ def _read_exif(img, path, notes) -> dict:
     out["model"] = _text(exif.get(_MODEL))
     o = exif.get(_ORIENTATION)
     out["orientation"] = int(o) if isinstance(o, int) else None
-    sub = exif.get_ifd(_EXIF_IFD)
+    sub = dict(exif.get_ifd(_EXIF_IFD))
+    for tag, v in _gdal_exif(img, notes).items():  # a TIFF written by GDAL: its GDAL_METADATA items
+        sub.setdefault(tag, v)
     for key, tag in (("exif_width", _PIXEL_X), ("exif_height", _PIXEL_Y)):
         v = sub.get(tag)
         if v is not None:
