@@ -86,8 +86,11 @@ def make_app(scn, **kw):
     from geoloc.viz import image_layer
     from geoloc.viz.app import GeolocApp, make_server
 
+    import copy
+
     server = make_server(port=0)
-    app = GeolocApp(server, scn, layers=(image_layer.attach,), **kw)
+    # a copy: an app moves its scenario to the records it loads, and the module's scenario is shared
+    app = GeolocApp(server, copy.copy(scn), layers=(image_layer.attach,), **kw)
     return server, app, app.layers[0]
 
 
