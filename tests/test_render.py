@@ -13,7 +13,6 @@ Oracles:
   ground samples (the issue's criterion).
 """
 
-import importlib.util
 import math
 from pathlib import Path
 
@@ -29,6 +28,7 @@ from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.terrain import DemSurface
 from geoloc.workflows.render import Cross, find_marks, ground_texture, hillshade, read_crosses, render_frame
+from test_klv_replay import tool  # noqa: F401  (the fixture: tools/make_klv_example.py, loaded once)
 
 ROOT = Path(__file__).resolve().parents[1]
 DEM_PATH = ROOT / "assets" / "dem" / "srtm_jacksboro.tif"
@@ -36,18 +36,6 @@ TARGETS = ROOT / "assets" / "klv" / "example_flight_targets.csv"
 #: Frames of the example flight without a fault of the metadata or the video, one per zoom step
 #: and both sides of the orbit.
 CLEAN = (5, 90, 130, 180, 230, 295)
-
-
-def load_tool():
-    spec = importlib.util.spec_from_file_location("make_klv_example", ROOT / "tools" / "make_klv_example.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-@pytest.fixture(scope="module")
-def tool():
-    return load_tool()
 
 
 @pytest.fixture(scope="module")

@@ -14,10 +14,6 @@ import sys
 
 from geoloc import __version__
 
-#: Modules of this package that are helpers, not verbs.
-NOT_VERBS: set = set()
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="geoloc",
@@ -26,7 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"geoloc {__version__}")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
     for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_") or info.name in NOT_VERBS:
+        if info.name.startswith("_"):  # helpers (_options), not verbs
             continue
         module = importlib.import_module(f"{__name__}.{info.name}")
         module.register(sub)
