@@ -101,7 +101,7 @@ def test_fit_names_on_two_flights_at_target_heights(tmp_path):
     h = recs.column("paper_height_m")
     table = np.array(recs.text("table"), dtype=object)
     rep, _ = fit_sensor_groups(recs, as_sensor(Camera.from_toml(CAMERA)), ["mount_y", "mount_z"],
-                               lambda idx: surface_for(h[idx], kind="inflated"), group_column="table")
+                               surface_for(h, kind="inflated", per_record=True), group_column="table")
     for g in ("T3", "T4"):
         k, after = s[f"/series/{g}/calibration/after_m"]
         assert list(k) == np.flatnonzero(table == g).tolist()  # each flight's own entity

@@ -19,7 +19,7 @@ from geoloc.frames.chain import Pose
 from geoloc.io.records import load_records
 from geoloc.locate import locate
 from geoloc.sensors.sensor_file import load_sensor
-from geoloc.surfaces.height import HeightSurface
+from geoloc.surfaces.height import HeightSurface, PerRecordHeightSurface
 
 MOUNTS = {"A": (0.4, -0.25, 0.6), "B": (-0.3, 0.2, -0.5)}  # deg, per flight
 NAMES = ["mount_x", "mount_y", "mount_z"]
@@ -185,7 +185,7 @@ def test_per_record_heights_rule_and_rounding(tmp_path):
 
     _, recs, nominal = make_flights(tmp_path, n=6, outlier_m=0.0)
     h = recs.column("truth_h_m")
-    fit = fit_sensor_params(recs, nominal, NAMES, lambda idx: HeightSurface(h[idx], "geodetic"),
+    fit = fit_sensor_params(recs, nominal, NAMES, PerRecordHeightSurface(h, "geodetic"),
                             idx=np.arange(6))  # flight A: its true mount
     np.testing.assert_allclose(np.degrees(fit.values), MOUNTS["A"], atol=1e-7)
     rep, _ = fit_sensor_groups(recs, nominal, NAMES, HeightSurface(300.0, "geodetic"))

@@ -19,6 +19,7 @@ for any sensor file.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -26,6 +27,7 @@ from scipy.optimize import least_squares
 from geoloc.geodesy.local import R_ecef_ned
 from geoloc.io.records import Records
 from geoloc.status import Status
+from geoloc.surfaces.height import for_records
 
 #: Residual given to a record whose ray finds no ground point during the fit [m].
 FAILED_RESIDUAL_M = 1.0e4
@@ -110,10 +112,11 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, truth_prefix:
     sensor : FrameSensor (or any sensor with ``params`` / ``with_params``)
     names : sequence of str
         Parameters to fit (``sensor.params`` keys); unknown names are an error naming them.
-    surface : object with ``intersect(los)``, or a callable ``idx -> surface``
-        Where each record's target lies: :class:`geoloc.surfaces.height.HeightSurface`
-        (e.g. the truth heights) or :class:`geoloc.surfaces.terrain.DemSurface`. A callable
-        gets the record indices, for per-record heights.
+    surface : Surface
+        Where each record's target lies: a :class:`geoloc.surfaces.height.HeightSurface`,
+        a :class:`geoloc.surfaces.height.PerRecordHeightSurface` (e.g. the truth heights, one
+        per record: subsets take theirs, :func:`geoloc.surfaces.height.for_records`) or a
+        :class:`geoloc.surfaces.terrain.DemSurface`.
     idx : array of int, optional
         Records to use (default all).
     loo : bool
@@ -132,7 +135,7 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, truth_prefix:
     tlon_all = np.deg2rad(records.column(f"{truth_prefix}_lon_deg"))
     if not np.all(np.isfinite(tlat_all[idx]) & np.isfinite(tlon_all[idx])):
         raise ValueError(f"{records.path}: every record to fit needs {truth_prefix}_lat_deg and _lon_deg")
-    surf = surface if callable(surface) and not hasattr(surface, "intersect") else (lambda _i: surface)
+    surf = partial(for_records, surface)
     p0 = np.array([sensor.params[n] for n in names], float)
 
     def errors(s, ii):
@@ -204,7 +207,7 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column:
     groups = group_labels(records, group_column)
     names_g = list(dict.fromkeys(groups))
     all_idx = np.arange(len(records))
-    surf = surface if callable(surface) and not hasattr(surface, "intersect") else (lambda _i: surface)
+    surf = partial(for_records, surface)
     pose_all = records.pose()
     row_all, col_all = records.column("row"), records.column("col")
 

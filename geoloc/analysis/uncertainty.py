@@ -43,7 +43,7 @@ from geoloc.locate import as_sensor
 from geoloc.sensors.budget import LE90_PER_SIGMA, LENS_KEYS, ErrorBudget
 from geoloc.sensors.frame import small_rotation
 from geoloc.status import Status
-from geoloc.surfaces.base import LineOfSight
+from geoloc.surfaces.base import LineOfSight, terrain_of
 
 DEG = math.pi / 180.0
 #: sqrt of the chi-square (2 dof) 0.9 quantile: the 90 % ellipse is the 1-sigma ellipse times this.
@@ -435,7 +435,7 @@ def _grazing(dem, lat, lon, h, D_enu, t, sig_t, free_up, sigma_dem):
 def surface_sigma_m(surface, budget: ErrorBudget) -> float:
     """The budget's vertical sigma for this surface: ``dem_m`` (or its default) on a DEM, else ``height_m``."""
     dem = getattr(surface, "dem", None)
-    if dem is not None or hasattr(surface, "with_solver"):
+    if terrain_of(surface) is not None:
         return budget.dem_sigma_m(dem)
     return budget.sigma("height_m")
 

@@ -11,9 +11,9 @@ the verb runs (docs/architecture.md, "The user's files").
 **DEM.** ``add_dem_options(parser)`` adds ``--dem FILE --method --dem-datum --eps-h
 --threshold --dem-model --dem-cache-mb``; ``--dem`` is one raster, or a folder of
 tiles, a ``.vrt`` or a repeated ``--dem``: a :class:`geoloc.surfaces.mosaic.DemMosaic`
-(:func:`open_surface`). Giving ``--dem`` installs the verb's terrain hook
-(``args._terrain_hook``), so the verb's own code path is untouched without it.
-The hooks warn when the DEM's datum and the aircraft heights' datum look mixed
+(:func:`surface_from_args`, which also reads the target height options: the verb's one
+:class:`~geoloc.surfaces.base.Surface`, beside :func:`sensor_from_args`'s sensor).
+A verb on a DEM warns when the DEM's datum and the aircraft heights' datum look mixed
 (:func:`warn_datums`).
 Degrees and metres at this edge (docs/conventions.md).
 """
@@ -224,21 +224,63 @@ def open_dem_arg(args):
     return open_dem_or_mosaic(dem_sources(args), args.dem_datum, **_mosaic_options(args))
 
 
-def open_surface(args):
-    """The surface of the DEM options: ``DemSurface`` of one raster, or the mosaic itself."""
-    from geoloc.surfaces.mosaic import DemMosaic, open_dem_or_mosaic
+def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
+    """The :class:`~geoloc.surfaces.base.Surface` of the shared options: the verb's one ground.
 
-    src = dem_sources(args)
-    opts = {"eps_h": args.eps_h, "threshold": args.threshold}
-    dem = open_dem_or_mosaic(src, args.dem_datum, method=args.method, dem_model=args.dem_surface,
-                             **_mosaic_options(args), **opts)
-    if isinstance(dem, DemMosaic):
-        return dem  # a Surface itself: solves region by region within its memory bound
-    return surface_for(dem=dem, method=args.method, dem_model=args.dem_surface, **opts)
+    ``--dem`` (one raster: a :class:`~geoloc.surfaces.terrain.DemSurface` of ``--method``,
+    ``--dem-model``, ``--eps-h``, ``--threshold``; a folder, ``.vrt`` or repeated ``--dem``:
+    the :class:`~geoloc.surfaces.mosaic.DemMosaic` itself), else ``--height-column`` (a
+    :class:`~geoloc.surfaces.height.PerRecordHeightSurface` of ``records``), else
+    ``--target-h-m`` (a :class:`~geoloc.surfaces.height.HeightSurface`), each of the
+    ``--surface`` kind; two of them, or none, is an error naming the options.
+    The choice itself is :func:`geoloc.surfaces.terrain.surface_for`'s.
+    """
+    one_height_source(args)
+    kind = getattr(args, "surface", "inflated")
+    if getattr(args, "dem", None) is not None:
+        from geoloc.surfaces.mosaic import open_dem_or_mosaic
+
+        opts = {k: getattr(args, k) for k in ("eps_h", "threshold") if hasattr(args, k)}
+        model = {"dem_model": args.dem_surface} if hasattr(args, "dem_surface") else {}
+        mosaic = _mosaic_options(args) if hasattr(args, "dem_cache_mb") else {}
+        dem = open_dem_or_mosaic(dem_sources(args), args.dem_datum, method=args.method, **model, **mosaic, **opts)
+        return surface_for(dem=dem, method=args.method, **model, **opts)
+    column = getattr(args, "height_column", None)
+    if column is not None:
+        if records is None:
+            raise ValueError(f"--height-column {column}: this input has no records to read it from")
+        h = records.column(column)
+        bad = ~np.isfinite(h)
+        if np.any(bad):
+            raise ValueError(f"height column {column!r} is empty or not finite on line(s) "
+                             f"{[int(n) for n in records.lines[bad]]}")
+        return surface_for(h, kind=kind, per_record=True)
+    if getattr(args, "target_h_m", None) is not None:
+        return surface_for(args.target_h_m, kind=kind)
+    given = "--height-column (e.g. " + example + "), " if hasattr(args, "height_column") else ""
+    raise ValueError(f"give {given}--target-h-m or --dem")
+
+
+def sensor_from_args(args, *, default: bool = True):
+    """The sensor of ``--sensor`` / ``--camera``: the verb's one sensor, beside :func:`surface_from_args`.
+
+    A sensor file (with ``[lens]``) is a :class:`~geoloc.sensors.frame.FrameSensor`; a
+    first-phase camera file is still read as a :class:`~geoloc.sensors.camera.Camera`
+    (:func:`geoloc.sensors.sensor_file.load_camera_or_sensor`). Without the option: the
+    bundled [Q17] camera, or None with ``default=False`` (a verb whose input brings its
+    own sensor: KLV, photos).
+    """
+    from geoloc.assets import DEFAULT_CAMERA, asset_path
+    from geoloc.sensors.sensor_file import load_camera_or_sensor
+
+    path = getattr(args, "camera", None)
+    if not path and not default:
+        return None
+    return load_camera_or_sensor(path if path else asset_path(*DEFAULT_CAMERA))
 
 
 def _solve(args, los):
-    return open_surface(args).intersect(los)
+    return surface_from_args(args).intersect(los)
 
 
 def warn_datums(verb: str, dem_datum: str, height) -> list:
@@ -253,45 +295,14 @@ def warn_datums(verb: str, dem_datum: str, height) -> list:
     return msgs
 
 
-def locate_hook(args, los):
-    """``geoloc locate --dem``: returns (ground point, extra output fields)."""
-    from geoloc.io.columns import HeightSource
-
-    warn_datums("locate", args.dem_datum, HeightSource.of_option(getattr(args, "altitude_datum", None)))
-    hit = _solve(args, los)
-    extra = {"method": args.method, "dem_evaluations": int(hit.dem_evaluations)}
-    if args.method == "bisect":
-        extra["hidden"] = bool(hit.hidden)
-    return hit, extra
-
-
-def replay_hook(args, records, camera):
-    """``geoloc replay --dem``: locate every record on the DEM; adds status and dem_evaluations."""
-    from geoloc.workflows.replay import records_line_of_sight, result_from_ground
-
-    warn_datums("replay", args.dem_datum, records.altitude)
-    surface = open_surface(args)
-    hit = surface.intersect(records_line_of_sight(records, camera))
-    extra = {"status": hit.status, "dem_evaluations": hit.dem_evaluations.astype(np.int64)}
-    if args.method == "bisect":
-        extra["hidden"] = hit.hidden.astype(np.int64)
-    result = result_from_ground(records, hit, extra, camera=camera)
-    result.terrain = getattr(surface, "dem", surface)  # a DEM, or the mosaic itself (plausibility warnings)
-    return result
-
-
 class _DemAction(argparse.Action):
-    def __init__(self, *a, hook=None, **k):
-        self.hook = hook
-        super().__init__(*a, **k)
-
     def __call__(self, parser, namespace, values, option_string=None):
-        prev = getattr(namespace, self.dest, None) if getattr(namespace, "_terrain_hook", None) else None
+        prev = getattr(namespace, self.dest, None) if getattr(namespace, "_dem_given", False) else None
         if prev is None:
             setattr(namespace, self.dest, values)  # one --dem: a path, as always
         else:  # --dem repeated: the files of one mosaic
             setattr(namespace, self.dest, (prev if isinstance(prev, list) else [prev]) + [values])
-        setattr(namespace, "_terrain_hook", self.hook)
+        setattr(namespace, "_dem_given", True)
 
 
 def one_height_source(args) -> None:
@@ -320,12 +331,13 @@ def one_dem_raster(args, verb: str):
     return args.dem
 
 
-def add_dem_options(parser, hook=None, *, mosaic: bool = True, tolerances: bool = True, datum: bool = True,
+def add_dem_options(parser, *, mosaic: bool = True, tolerances: bool = True, datum: bool = True,
                     method_default: str | None = "exact", dem_help: str | None = None,
                     method_help: str | None = None) -> None:
     """The DEM options, declared here once for every verb that meets the terrain.
 
-    ``hook`` runs the verb on the DEM (``args._terrain_hook``). A verb declares only
+    The verb reads them with :func:`surface_from_args` (or, drawing one raster,
+    :func:`one_dem_raster`). A verb declares only
     what it honours, so an option it would ignore does not exist for it:
     ``mosaic=False`` for a verb that reads one raster (no ``--dem-cache-mb``, no
     ``--dem-model``; :func:`one_dem_raster` refuses a folder or a ``.vrt``),
@@ -335,7 +347,7 @@ def add_dem_options(parser, hook=None, *, mosaic: bool = True, tolerances: bool 
     verb's own default (a scenario's method) when ``--method`` is not given.
     """
     g = parser.add_argument_group("terrain (DEM)")
-    g.add_argument("--dem", metavar="FILE", default=None, action=_DemAction, hook=hook, type=input_path,
+    g.add_argument("--dem", metavar="FILE", default=None, action=_DemAction, type=input_path,
                    help=dem_help or "DEM raster (GeoTIFF, ...): intersect the line of sight with the terrain "
                    "instead of a target height, e.g. assets/dem/etopo5_flight_area.tif"
                    + ("; a folder of tiles, a GDAL .vrt, or --dem given several times is one mosaic, read in "

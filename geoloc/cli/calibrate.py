@@ -25,10 +25,11 @@ from geoloc.cli._options import (
     add_target_options,
     input_path,
     one_height_source,
-    open_surface,
+    sensor_from_args,
+    surface_from_args,
     output_path,
 )
-from geoloc.cli.locate import load_camera, load_records_reporting
+from geoloc.cli.locate import load_records_reporting
 from geoloc.userfiles import write_text
 
 
@@ -83,7 +84,7 @@ def register(sub) -> None:
 def _target(args, records):
     one_height_source(args)
     if args.dem is not None:
-        return DemTarget(open_surface(args), label=f"dem:{args.dem}")
+        return DemTarget(surface_from_args(args, records), label=f"dem:{args.dem}")
     if args.height_column is not None:
         h = records.column(args.height_column)
         bad = ~np.isfinite(h)
@@ -117,21 +118,10 @@ def _fmt(v, spec=".2f"):
 
 
 def _surface(args, records):
-    """The surface the targets lie on, for the sensor fit (one choice: geoloc.surfaces.terrain.surface_for)."""
-    from geoloc.surfaces.terrain import surface_for
-
-    one_height_source(args)
-    if args.dem is not None:
-        return open_surface(args), f"dem:{args.dem}"
-    if args.height_column is not None:
-        h = records.column(args.height_column)
-        if not np.all(np.isfinite(h)):
-            raise ValueError(f"height column {args.height_column!r} is empty or not finite on line(s) "
-                             f"{[int(n) for n in records.lines[~np.isfinite(h)]]}")
-        return (lambda idx: surface_for(h[idx], kind=args.surface)), f"column:{args.height_column}"
-    if args.target_h_m is not None:
-        return surface_for(args.target_h_m, kind=args.surface), f"height:{args.target_h_m}"
-    raise ValueError("give --height-column (e.g. truth_h_m), --target-h-m or --dem")
+    """The surface the targets lie on, for the sensor fit (:func:`geoloc.cli._options.surface_from_args`)."""
+    label = (f"dem:{args.dem}" if args.dem is not None else f"column:{args.height_column}"
+             if args.height_column is not None else f"height:{args.target_h_m}")
+    return surface_from_args(args, records, example="truth_h_m"), label
 
 
 def run_sensor_fit(args, camera) -> int:
@@ -205,7 +195,7 @@ def _print_parameters(params: dict) -> None:
 def run(args) -> int:
     if args.exaggeration <= 0 or not np.isfinite(args.exaggeration):
         raise ValueError(f"--exaggeration = {args.exaggeration}: must be a finite number > 0")
-    camera = load_camera(args.camera)
+    camera = sensor_from_args(args)
     if args.fit is not None:
         return run_sensor_fit(args, camera)
     if args.write_sensor:

@@ -67,7 +67,7 @@ def register(sub) -> None:
     add_sensor_option(f, help="sensor file (image size, mount, boresight, lever arm: e.g. a calibration "
                       "written by geoloc calibrate --fit ... --write-sensor)")
     f.add_argument("--no-checksum", action="store_true", help="do not verify the input's checksums")
-    add_dem_options(f, None)
+    add_dem_options(f)
     f.set_defaults(func=run_fix)
 
     def usage(args) -> int:
@@ -119,11 +119,9 @@ def _dump(name, results, out) -> tuple[int, int]:
 def run_fix(args) -> int:
     from geoloc.workflows.klv_fix import fix_klv
 
-    sensor = None
-    if args.camera:
-        from geoloc.cli.locate import load_camera
+    from geoloc.cli._options import sensor_from_args
 
-        sensor = load_camera(args.camera)
+    sensor = sensor_from_args(args, default=False)
     dem = None
     if args.dem:
         from geoloc.cli._options import open_dem_arg

@@ -1,7 +1,7 @@
 """``geoloc locate``: geolocate one pixel from the aircraft pose, gimbal angles and a sensor.
 
 Also what the other verbs read from the shared options (declared in
-:mod:`geoloc.cli._options`): the sensor (:func:`load_camera`), the pose
+:mod:`geoloc.cli._options`): the sensor (:func:`geoloc.cli._options.sensor_from_args`), the pose
 (:func:`pose_from_args`) and the records with their column map and datums
 (:func:`records_from_args`).
 """
@@ -14,8 +14,16 @@ import sys
 
 import numpy as np
 
-from geoloc.cli._options import add_gimbal_options, add_pose_options, add_target_options
-from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
+from geoloc.cli._options import (
+    add_dem_options,
+    add_gimbal_options,
+    add_pose_options,
+    add_target_options,
+    sensor_from_args,
+    surface_from_args,
+    warn_datums,
+)
+from geoloc.assets import DEFAULT_RECORDS, asset_path
 from geoloc.frames.chain import Pose
 from geoloc.io.columns import (
     DATUM_TEXT,
@@ -27,9 +35,7 @@ from geoloc.io.columns import (
 )
 from geoloc.io.records import Records, load_records
 from geoloc.locate import as_sensor, line_of_sight
-from geoloc.sensors.camera import Camera
-from geoloc.sensors.frame import FrameSensor
-from geoloc.sensors.sensor_file import load_camera_or_sensor, load_sensor_columns
+from geoloc.sensors.sensor_file import load_sensor_columns
 from geoloc.status import Status, describe
 from geoloc.surfaces.height import intersect_los_height
 
@@ -51,10 +57,8 @@ def register(sub) -> None:
                    help="pixel column, 1-based pixel centres (default: the image centre)")
     add_target_options(p, height_column=False)
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
-    p.set_defaults(func=run, _terrain_hook=None)
-    from geoloc.cli._options import add_dem_options, locate_hook
-
-    add_dem_options(p, locate_hook)
+    p.set_defaults(func=run)
+    add_dem_options(p)
 
 
 def parse_angles(items) -> dict:
@@ -75,12 +79,6 @@ def parse_angles(items) -> dict:
             raise ValueError(f"--angle {name} is given twice")
         out[name] = v
     return out
-
-
-def load_camera(path) -> Camera | FrameSensor:
-    """The sensor of ``--sensor`` / ``--camera``: a first-phase camera file stays a :class:`Camera`
-    (every first-phase verb takes it as before), a sensor file becomes a :class:`FrameSensor`."""
-    return load_camera_or_sensor(path if path else asset_path(*DEFAULT_CAMERA))
 
 
 def _is_bundled_records(path) -> bool:
@@ -186,7 +184,7 @@ def pose_from_args(args, sensor) -> Pose:
 
 
 def run(args) -> int:
-    camera = load_camera(args.camera)
+    camera = sensor_from_args(args)
     pose = pose_from_args(args, camera)
     for name in ("row", "col"):
         v = getattr(args, name)
@@ -197,12 +195,15 @@ def run(args) -> int:
     col = sensor.center_pixel[1] if args.col is None else args.col
     los = line_of_sight(pose, camera, row, col)
     extra = {}
-    if args._terrain_hook is not None:
-        ground, extra = args._terrain_hook(args, los)
+    if args.dem is not None:
+        warn_datums("locate", args.dem_datum, HeightSource.of_option(getattr(args, "altitude_datum", None)))
+    surface = surface_from_args(args)
+    ground = surface.intersect(los)
+    if args.dem is not None:
+        extra = {"method": args.method, "dem_evaluations": int(ground.dem_evaluations)}
+        if args.method == "bisect":
+            extra["hidden"] = bool(ground.hidden)
     else:
-        if args.target_h_m is None:
-            raise ValueError("--target-h-m is required (the target's ellipsoidal height in metres)")
-        ground = intersect_los_height(los, args.target_h_m, args.surface)
         other = intersect_los_height(los, args.target_h_m,
                                      "geodetic" if args.surface == "inflated" else "inflated")
         if int(other.status) == Status.OK:

@@ -21,6 +21,7 @@ from geoloc.cli._options import (
     input_path,
     one_dem_raster,
     output_path,
+    sensor_from_args,
 )
 from geoloc.assets import ASSETS
 
@@ -102,12 +103,11 @@ def run(args) -> int:
     path = resolve_input(args.input)
     from geoloc.viz.rerun_log import exposure_note, serve_web, write  # rerun is imported here only
     from geoloc.viz.rerun_model import (
-        load_camera,
         steps_from_flight,
         steps_from_records,
     )
 
-    camera = load_camera(args.camera) if args.camera else None
+    camera = sensor_from_args(args, default=False)
     dem = one_dem_raster(args, "log")  # the recording draws the DEM it samples
     if path.suffix.lower() == ".toml":
         from geoloc.workflows.flight import FlightScenario

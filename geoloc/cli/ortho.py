@@ -20,14 +20,18 @@ from pathlib import Path
 
 from geoloc.cli._options import (
     add_columns_option,
+    add_dem_options,
     add_gimbal_options,
     add_pose_options,
     add_target_options,
     input_path,
     output_path,
+    sensor_from_args,
+    surface_from_args,
 )
-from geoloc.cli.locate import load_camera, pose_from_args, records_from_args
+from geoloc.cli.locate import pose_from_args, records_from_args
 from geoloc.io.columns import ELLIPSOID_DATUM
+from geoloc.surfaces.base import terrain_of
 
 POSE_FIELDS = ("lat_deg", "lon_deg", "h_m")
 
@@ -69,10 +73,8 @@ def register(sub) -> None:
                    help="run the DEM solver on one core (default: all cores, numba threads); the same hits")
     o.add_argument("--json", action="store_true", help="print a JSON summary")
     add_target_options(p, height_column=False)
-    p.set_defaults(func=run, _terrain_hook=None)
-    from geoloc.cli._options import add_dem_options
-
-    add_dem_options(p, None)
+    p.set_defaults(func=run)
+    add_dem_options(p)
 
 
 def _bundled_dem(lat_deg: float, lon_deg: float):
@@ -103,15 +105,14 @@ def _pose(args):
         raise ValueError(f"the pose is given twice ({' and '.join(given)}): use one of them")
     if args.photo:
         from geoloc.io.photos import photo_sensor, pose_from_photo, read_photo
-        from geoloc.sensors.sensor_file import load_camera_or_sensor
 
         path = args.photo
         meta = read_photo(path)
-        user = as_sensor(load_camera_or_sensor(args.camera)) if args.camera else None
+        user = as_sensor(sensor_from_args(args)) if args.camera else None
         sensor, lens = photo_sensor(meta, user)
         pose = pose_from_photo(meta, args.altitude_datum or "egm96")
         return sensor, pose, meta, f"photo {meta.name} (lens: {lens})"
-    camera = load_camera(args.camera)
+    camera = sensor_from_args(args)
     sensor = as_sensor(camera)
     if args.record:
         records = records_from_args(args, args.records, camera)
@@ -129,28 +130,26 @@ def _pose(args):
 
 
 def _surface(args, pose):
+    """The surface of the shared options (:func:`geoloc.cli._options.surface_from_args`); without
+    ``--dem`` and ``--target-h-m``, the finest bundled DEM that covers the aircraft."""
     import numpy as np
-
-    from geoloc.surfaces.dem import DEM
-    from geoloc.surfaces.height import HeightSurface
-    from geoloc.surfaces.terrain import DemSurface
 
     if args.target_h_m is not None:
         if args.dem:
             raise ValueError("--dem and --target-h-m both given: the surface is one or the other")
         if not math.isfinite(args.target_h_m):
             raise ValueError(f"--target-h-m {args.target_h_m}: not a finite height")
-        return HeightSurface(args.target_h_m, args.surface), f"constant height {args.target_h_m:g} m ({args.surface})"
-    path = args.dem
-    if not path:
+        return surface_from_args(args), f"constant height {args.target_h_m:g} m ({args.surface})"
+    if not args.dem:
         lat, lon = (float(np.rad2deg(np.ravel(v)[0])) for v in (pose.lat, pose.lon))
-        path = _bundled_dem(lat, lon)
-        if path is None:
+        args.dem = _bundled_dem(lat, lon)
+        if args.dem is None:
             raise ValueError(f"no --dem and no bundled DEM covers the aircraft at {lat:.5f}, {lon:.5f} deg: "
                              "give --dem FILE or --target-h-m")
-    dem = DEM.open(path, datum=args.dem_datum)
-    return DemSurface(dem, args.method, args.dem_surface, eps_h=args.eps_h, threshold=args.threshold), \
-        f"DEM {Path(path).name} ({args.method}, {args.dem_surface}; its heights {args.dem_datum})"
+        args.dem = str(args.dem)
+    shown = ", ".join(Path(p).name for p in args.dem) if isinstance(args.dem, list) else Path(args.dem).name
+    return surface_from_args(args), \
+        f"DEM {shown} ({args.method}, {args.dem_surface}; its heights {args.dem_datum})"
 
 
 def run(args) -> int:
@@ -178,9 +177,7 @@ def run(args) -> int:
     sensor, pose, meta, pose_from = _pose(args)
     surface, surface_text = _surface(args, pose)
     if args.ortho_out:  # checked before the first output is written
-        from geoloc.surfaces.terrain import DemSurface
-
-        if not isinstance(surface, DemSurface):
+        if terrain_of(surface) is None:
             raise ValueError("--ortho-out needs a DEM (--dem or a bundled one), not --target-h-m")
     tags = {"pose": pose_from, "surface": surface_text, "sensor": getattr(sensor, "name", "") or "frame sensor"}
     t0 = time.perf_counter()
@@ -190,7 +187,7 @@ def run(args) -> int:
     info.update(pose=pose_from, surface=surface_text, h_datum=ELLIPSOID_DATUM)
     if args.ortho_out:
         image = read_photo_pixels(Path(meta.path))
-        info["ortho"] = orthorectify(image, sensor, pose, surface.dem, args.ortho_out, gsd_m=args.gsd_m,
+        info["ortho"] = orthorectify(image, sensor, pose, terrain_of(surface), args.ortho_out, gsd_m=args.gsd_m,
                                      crs=args.ortho_crs, chunk=chunk, tags={"photo": meta.name},
                                      parallel=not args.serial)
     if args.json:

@@ -12,13 +12,16 @@ from geoloc.cli._options import (
     input_path,
     output_dir,
     output_path,
+    sensor_from_args,
+    surface_from_args,
+    warn_datums,
 )
 from geoloc.assets import DEFAULT_RECORDS, asset_path
-from geoloc.cli.locate import load_camera, records_from_args
+from geoloc.cli.locate import records_from_args
 from geoloc.workflows.replay import (
     outside_sensor_messages,
     plausibility_warnings,
-    replay_at_height,
+    replay_records,
     summary_table,
     write_replay_csv,
 )
@@ -64,10 +67,10 @@ def register(sub) -> None:
                    help="campaign: 'local' (a local dask cluster on 127.0.0.1, the default), 'none' (serial, "
                    "this process), or a dask scheduler address such as tcp://10.0.0.5:8786")
     c.add_argument("--workers", type=int, default=2, help="campaign: workers of the local cluster (default 2)")
-    p.set_defaults(func=run, _terrain_hook=None)
-    from geoloc.cli._options import add_dem_options, replay_hook
+    p.set_defaults(func=run)
+    from geoloc.cli._options import add_dem_options
 
-    add_dem_options(p, replay_hook)
+    add_dem_options(p)
 
 
 #: Without --out, records up to this many are printed one line each (more: the summary only).
@@ -89,14 +92,12 @@ def run(args) -> int:
     args.records = inputs[0] if inputs else None
     records_path = (args.records if args.records is not None
                     else asset_path(*DEFAULT_RECORDS))
-    camera = load_camera(args.camera)
+    camera = sensor_from_args(args)
     records = records_from_args(args, str(records_path), camera)
-    if args._terrain_hook is not None:
-        result = args._terrain_hook(args, records, camera)
-    else:
-        if args.height_column is None and args.target_h_m is None:
-            raise ValueError("give --height-column (e.g. paper_height_m) or --target-h-m")
-        result = replay_at_height(records, camera, args.height_column, args.target_h_m, args.surface)
+    surface = surface_from_args(args, records)
+    if args.dem is not None:
+        warn_datums("replay", args.dem_datum, records.altitude)
+    result = replay_records(records, camera, surface)
     for msg in outside_sensor_messages(records, camera, result.lat_deg):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
     for msg in plausibility_warnings(records, result, result.terrain):
@@ -164,7 +165,7 @@ def _run_klv(args, inputs) -> int:
         print("geoloc replay: note: --altitude-datum is not used for KLV: MISB ST 0601 gives each height's "
               "datum (tags 75, 78: ellipsoid; tags 15, 25: MSL, made ellipsoidal with EGM96)", file=sys.stderr)
     paths = [Path(x) for x in inputs]
-    sensor = load_camera(args.camera) if args.camera else None
+    sensor = sensor_from_args(args, default=False)
     dem = None
     if args.dem:
         from geoloc.cli._options import open_dem_arg
@@ -230,7 +231,7 @@ def _run_photos(args, inputs) -> int:
     if not args.targets:
         raise ValueError("drone photos need --targets T.csv (columns image,row,col; optional truth columns)")
     photos = list(inputs)
-    sensor = load_camera(args.camera) if args.camera else None
+    sensor = sensor_from_args(args, default=False)
     dem = None
     if args.dem:
         from geoloc.cli._options import open_dem_arg

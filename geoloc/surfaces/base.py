@@ -1,14 +1,18 @@
-"""What sensors hand to surfaces and surfaces hand back: lines of sight and ground points.
+"""What sensors hand to surfaces and surfaces hand back, and what a surface is.
 
 A sensor turns pixels into a :class:`LineOfSight` batch (ECEF origin, unit
-direction, a :class:`geoloc.status.Status` per ray); a surface turns it into a
-:class:`GroundPoint` batch. ``docs/architecture.md`` describes the two
-interfaces; ``docs/conventions.md`` the frames and units.
+direction, a :class:`geoloc.status.Status` per ray); a :class:`Surface` turns it
+into a :class:`GroundPoint` batch. A :class:`DemSource` is a DEM raster
+(:class:`geoloc.surfaces.dem.DEM`) or a mosaic of them
+(:class:`geoloc.surfaces.mosaic.DemMosaic`, which is a surface too:
+:func:`is_mosaic`). ``docs/architecture.md`` describes the interfaces;
+``docs/conventions.md`` the frames and units.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -71,3 +75,54 @@ class GroundPoint(LatLonDeg):
     slant_range: np.ndarray
     status: np.ndarray
     los: LineOfSight
+
+
+@runtime_checkable
+class Surface(Protocol):
+    """What a line of sight meets (docs/architecture.md, "The `Surface` interface").
+
+    ``intersect`` returns one :class:`GroundPoint` per ray, NaN and a
+    :class:`geoloc.status.Status` where there is no hit; it never raises for a bad ray.
+    Implementations: :class:`geoloc.surfaces.height.HeightSurface`,
+    :class:`geoloc.surfaces.height.PerRecordHeightSurface`,
+    :class:`geoloc.surfaces.terrain.DemSurface`, :class:`geoloc.surfaces.mosaic.DemMosaic`,
+    :class:`geoloc.surfaces.terrain.DemElseHeight`.
+    """
+
+    def intersect(self, los: LineOfSight) -> GroundPoint: ...
+
+
+@runtime_checkable
+class DemSource(Protocol):
+    """A DEM: one raster (:class:`geoloc.surfaces.dem.DEM`) or a mosaic of tiles
+    (:class:`geoloc.surfaces.mosaic.DemMosaic`).
+
+    Heights are ellipsoidal (WGS 84) once read: ``datum`` says what the file held
+    (``"egm96"``: orthometric, made ellipsoidal with h = H + N; ``"ellipsoid"``).
+    """
+
+    datum: str
+
+    @property
+    def bounds_deg(self) -> tuple: ...  # (west, south, east, north) [deg]
+
+    def height(self, lat, lon) -> np.ndarray: ...  # ellipsoidal height [m] at (lat, lon) [rad]; NaN off the data
+
+    def sample(self, lat, lon) -> np.ndarray: ...
+
+
+def is_mosaic(dem) -> bool:
+    """True for a DEM mosaic: a :class:`DemSource` that is a :class:`Surface` itself and solves
+    region by region within its memory bound (:class:`geoloc.surfaces.mosaic.DemMosaic`).
+
+    The one test for it; nothing else asks ``hasattr(dem, "with_solver")`` or ``"cache"``.
+    A DEM raster is a source and no surface; ``DemSurface`` a surface and no source.
+    """
+    return isinstance(dem, DemSource) and isinstance(dem, Surface)
+
+
+def terrain_of(surface):
+    """The :class:`DemSource` a surface reads (a DEM or a mosaic), or None for a height surface."""
+    if is_mosaic(surface):
+        return surface
+    return getattr(surface, "dem", None)

@@ -224,3 +224,39 @@ class HeightSurface:
 
     def __repr__(self) -> str:
         return f"HeightSurface(h={self.h!r}, kind={self.kind!r})"
+
+
+class PerRecordHeightSurface(HeightSurface):
+    """One target height per record (a records file's height column, e.g. ``paper_height_m``).
+
+    A :class:`HeightSurface` whose ``h`` is one ellipsoidal height per record, in
+    record order, so that the lines of sight of the records (shape ``(n,)``) meet
+    each its own height; :meth:`take` is the surface of a subset of the records
+    (leave-one-out, one flight), in the subset's order.
+
+    Parameters
+    ----------
+    h : array_like (n,)
+        Target ellipsoidal height of each record [m].
+    kind : {"inflated", "geodetic"}
+        As :class:`HeightSurface`.
+    """
+
+    def __init__(self, h, kind: str = "inflated"):
+        h = np.asarray(h, float)
+        if h.ndim != 1:
+            raise ValueError(f"per-record heights must be one height per record (1-D), got shape {h.shape}")
+        super().__init__(h, kind)
+
+    def take(self, idx) -> "PerRecordHeightSurface":
+        """The surface of the records ``idx`` (indices into this one's records)."""
+        return PerRecordHeightSurface(self.h[np.asarray(idx, int)], self.kind)
+
+    def __repr__(self) -> str:
+        return f"PerRecordHeightSurface({len(self.h)} heights, kind={self.kind!r})"
+
+
+def for_records(surface, idx):
+    """The surface of the records ``idx``: a per-record surface's :meth:`~PerRecordHeightSurface.take`,
+    any other surface itself (it is the same for every record)."""
+    return surface.take(idx) if isinstance(surface, PerRecordHeightSurface) else surface

@@ -30,7 +30,7 @@ import numpy as np
 
 from geoloc.geodesy.ellipsoid import E2, A, B, ecef_to_geodetic, prime_vertical_radius
 from geoloc.status import Status
-from geoloc.surfaces.base import GroundPoint, LineOfSight
+from geoloc.surfaces.base import GroundPoint, LineOfSight, is_mosaic
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import ray_inflated_ellipsoid
 
@@ -670,7 +670,7 @@ class DemSurface:
         self.dem, self.method, self.dem_model, self.options = dem, method, dem_model, options
 
     def intersect(self, los: LineOfSight) -> TerrainHit:
-        if hasattr(self.dem, "with_solver"):  # a geoloc.surfaces.mosaic.DemMosaic: region by region
+        if is_mosaic(self.dem):  # region by region, within the mosaic's memory bound
             return self.dem.with_solver(self.method, self.dem_model, **self.options).intersect(los)
         return intersect_dem(los, self.dem, self.method, dem_model=self.dem_model, **self.options)
 
@@ -678,19 +678,82 @@ class DemSurface:
         return f"DemSurface({self.dem!r}, method={self.method!r}, dem_model={self.dem_model!r})"
 
 
+class DemElseHeight:
+    """The DEM, and a height surface for the rays the DEM cannot serve.
+
+    A ray that leaves the DEM (``LEFT_DEM``) or meets no data (``NODATA``) on
+    ``dem_surface`` takes its crossing with ``height_surface`` instead (its status
+    then is that surface's); every other ray keeps the DEM's hit. The viewers'
+    flight footprint uses it, so a corner past the DEM's edge still has a point.
+
+    Parameters
+    ----------
+    dem_surface : DemSurface or geoloc.surfaces.mosaic.DemMosaic
+    height_surface : geoloc.surfaces.height.HeightSurface
+    """
+
+    #: The DEM's statuses that fall back to the height.
+    FALLBACK = (Status.LEFT_DEM, Status.NODATA)
+
+    def __init__(self, dem_surface, height_surface):
+        self.dem_surface, self.height_surface = dem_surface, height_surface
+
+    @property
+    def dem(self):
+        """The DEM source read (:func:`geoloc.surfaces.base.terrain_of`)."""
+        return self.dem_surface if is_mosaic(self.dem_surface) else self.dem_surface.dem
+
+    def intersect(self, los: LineOfSight) -> GroundPoint:
+        g = self.dem_surface.intersect(los)
+        st = np.asarray(g.status)
+        miss = np.isin(st, self.FALLBACK)
+        if not miss.any():
+            return g
+        f = self.height_surface.intersect(los)
+        lat, lon, h, rng = (np.where(miss, b, a) for a, b in ((g.lat, f.lat), (g.lon, f.lon), (g.h, f.h),
+                                                            (g.slant_range, f.slant_range)))
+        ecef = np.where(miss[..., None], f.ecef, g.ecef)
+        return GroundPoint(lat, lon, h, ecef, rng, np.where(miss, f.status, st).astype(np.uint8), g.los)
+
+    def __repr__(self) -> str:
+        return f"DemElseHeight({self.dem_surface!r}, {self.height_surface!r})"
+
+
 def surface_for(target_h=None, dem: DEM | None = None, *, method: str = "exact", kind: str = "inflated",
-                dem_model: str = "bilinear", **options):
+                dem_model: str = "bilinear", per_record: bool = False, else_height: bool = False, **options):
     """The one place the "constant height or DEM" choice is made: a DEM if given, else a height.
 
-    Returns a :class:`DemSurface` or a :class:`geoloc.surfaces.height.HeightSurface`;
-    ValueError when neither a DEM nor a target height is given.
-    """
-    from geoloc.surfaces.height import HeightSurface
+    Parameters
+    ----------
+    target_h : float or array_like, optional
+        Target ellipsoidal height [m]; with ``per_record``, one per record.
+    dem : DemSource, optional
+        A DEM raster or a mosaic.
+    method, dem_model, **options
+        The DEM solver (:class:`DemSurface`).
+    kind : {"inflated", "geodetic"}
+        The height surface's kind.
+    per_record : bool
+        ``target_h`` is one height per record: a
+        :class:`geoloc.surfaces.height.PerRecordHeightSurface`.
+    else_height : bool
+        With a DEM and a target height: :class:`DemElseHeight` (the height where the
+        DEM has no hit) instead of the DEM alone.
 
+    Returns
+    -------
+    Surface
+        ValueError when neither a DEM nor a target height is given.
+    """
+    from geoloc.surfaces.height import HeightSurface, PerRecordHeightSurface
+
+    height = None
+    if target_h is not None:
+        height = PerRecordHeightSurface(target_h, kind) if per_record else HeightSurface(target_h, kind)
     if dem is not None:
-        if hasattr(dem, "with_solver"):  # a geoloc.surfaces.mosaic.DemMosaic is a surface itself
-            return dem.with_solver(method, dem_model, **options)
-        return DemSurface(dem, method, dem_model, **options)
-    if target_h is None:
+        terrain = (dem.with_solver(method, dem_model, **options) if is_mosaic(dem)  # a surface itself
+                   else DemSurface(dem, method, dem_model, **options))
+        return DemElseHeight(terrain, height) if else_height and height is not None else terrain
+    if height is None:
         raise ValueError("give a DEM or a target height (ellipsoidal, metres)")
-    return HeightSurface(target_h, kind)
+    return height

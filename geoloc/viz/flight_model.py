@@ -10,7 +10,8 @@ a list of ``(RecordInfo, Inputs)``) and computes, for every frame at once,
   ellipsoidal height at each record's target height
   (:class:`geoloc.surfaces.height.HeightSurface`); both through
   :func:`geoloc.surfaces.terrain.surface_for`. A footprint ray that leaves the DEM
-  falls back to the record's target height (so a footprint is never torn open);
+  falls back to the record's target height (so a footprint is never torn open:
+  :class:`geoloc.surfaces.terrain.DemElseHeight`);
 * the **frame centre** (the image centre's ray) and the **recomputed** position (the
   record's pixel: the image centre for a KLV packet, the surveyed target's pixel
   for a [Q17] record);
@@ -49,7 +50,7 @@ from geoloc.frames.chain import Pose
 from geoloc.frames.enu import EnuFrame
 from geoloc.locate import as_sensor
 from geoloc.status import Status
-from geoloc.surfaces.height import HeightSurface
+from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.terrain import surface_for
 
 #: Points per image edge (its first corner included): 4 gives a ring of 16 points per footprint.
@@ -314,22 +315,14 @@ def outline_pixels(sensor, edge_samples: int = EDGE_SAMPLES, fov_deg=None):
 
 
 def _surface(scn, target_h, method):
+    """The footprint's surface: the DEM, else (off the DEM, or no data) each record's target height."""
     dem = scn.dem if getattr(scn, "use_dem", True) else None
-    return surface_for(target_h, dem, method=method), dem
+    return surface_for(target_h, dem, method=method, else_height=True)
 
 
-def _hit(surface, dem, los, target_h):
-    """Intersect; rays that leave the DEM (or find no data) fall back to the target height."""
+def _hit(surface, los):
     g = surface.intersect(los)
-    lat, lon, h, ecef, st = g.lat, g.lon, g.h, g.ecef, np.asarray(g.status)
-    if dem is not None:
-        miss = (st == Status.LEFT_DEM) | (st == Status.NODATA)
-        if miss.any():
-            f = HeightSurface(np.broadcast_to(target_h, st.shape)).intersect(los)
-            lat, lon, h = (np.where(miss, b, a) for a, b in ((lat, f.lat), (lon, f.lon), (h, f.h)))
-            ecef = np.where(miss[..., None], f.ecef, ecef)
-            st = np.where(miss, f.status, st)
-    return lat, lon, h, ecef, st
+    return g.lat, g.lon, g.h, g.ecef, np.asarray(g.status)
 
 
 def _num(records, name) -> np.ndarray:
@@ -382,7 +375,8 @@ def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: 
         if fov_deg.shape != (n, 2):
             raise ValueError(f"fov_deg: shape {fov_deg.shape}, expected ({n}, 2) (one hfov, vfov per frame)")
     pose, row, col, target_h = records_pose(recs)
-    surface, dem = _surface(scn, target_h, method)
+    surface = _surface(scn, target_h, method)
+    dem = terrain_of(surface)
 
     # one batch: ring of P outline pixels, the image centre, the record's pixel; axis 0 the ray kind
     rr, cc = outline_pixels(sensor, edge_samples, fov_deg)
@@ -392,7 +386,7 @@ def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: 
     rows = np.concatenate([rr, np.full((1, n), r0), row[None]], axis=0)
     cols = np.concatenate([cc, np.full((1, n), c0), col[None]], axis=0)
     los = sensor.line_of_sight(rows, cols, pose, outside="extrapolate")
-    lat, lon, h, ecef, st = _hit(surface, dem, los, target_h)
+    lat, lon, h, ecef, st = _hit(surface, los)
     P = rr.shape[0]
     pts_enu = enu.from_ecef(ecef)  # (P + 2, n, 3)
     track = enu.from_ecef(los.origin_ecef[0])
@@ -522,9 +516,9 @@ def diagnose(model: FlightModel, scn, *, pose=None, row=None, col=None, target_h
     pb = Pose(stack["lat"], stack["lon"], stack["h"], stack["heading"], stack["pitch"], stack["roll"], gr, gp,
               angles=angles)
     th = target_h[idx]
-    surface, dem = _surface(scn, th, method)
+    surface = _surface(scn, th, method)
     los = sensor.line_of_sight(row[idx], col[idx], pb, outside="extrapolate")
-    *_, ecef, _ = _hit(surface, dem, los, th)  # a failed variant is NaN: left out of its fit
+    *_, ecef, _ = _hit(surface, los)  # a failed variant is NaN: left out of its fit
     pts = model.enu.from_ecef(ecef)  # (1 + kinds, m, 3)
     J = {k: (pts[1 + j] - pts[0]) / steps[k] for j, k in enumerate(kinds)}
     # the first frame has no earlier one (and the last no later one): its one-sided step is zero

@@ -29,6 +29,7 @@ Conventions: ``docs/conventions.md``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +43,7 @@ from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import load_records
 from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera
-from geoloc.surfaces.base import GroundPoint, LineOfSight
+from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
 from geoloc.surfaces.height import intersect_los_height
 from geoloc.viz.rerun_terrain import TerrainSteps, dem_steps, open_dem
 from geoloc.workflows.flight import FlightScenario, simulate
@@ -403,11 +404,9 @@ def steps_from_records(path, camera: Camera | None = None, *, height_column: str
                 if threshold_m is not None:
                     kw["threshold"] = float(threshold_m)
                 surf = surface_for(dem=terrain.dem, method=method, **kw)
-            else:
-                hh = np.broadcast_to(np.asarray(h, float), (len(recs),))
-
-                def surf(idx):  # per-record heights, as geoloc calibrate's --height-column
-                    return surface_for(hh[idx], kind=surface)
+            else:  # per-record heights, as geoloc calibrate's --height-column
+                surf = surface_for(np.broadcast_to(np.asarray(h, float), (len(recs),)), kind=surface,
+                                   per_record=True)
             names = list(DEFAULT_FIT_NAMES if fit_names is None else fit_names)
             steps.calibration = sensor_fit_series(steps, recs, names, surf, gcol)
     return steps, list(recs.errors)
@@ -504,7 +503,9 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
 
     sensor = as_sensor(steps.camera)
     report, sensors = fit_sensor_groups(recs, sensor, names, surface, group_column=group_column)
-    surf = surface if callable(surface) and not hasattr(surface, "intersect") else (lambda _i: surface)
+    from geoloc.surfaces.height import for_records
+
+    surf = partial(for_records, surface)
     n = len(steps)
     grp = steps.group_of
     after = {k: np.full(n, np.nan) for k in ("after_m", "after_along_m", "after_across_m")}
@@ -524,7 +525,7 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
     bad = ~np.isfinite(after["after_m"])
     means = ", ".join(f"{g} {report['groups'][rg]['mean_error_before_m']:.1f} -> "
                       f"{report['groups'][rg]['mean_error_after_m']:.1f} m" for g, rg in zip(steps.groups, rep_groups))
-    where = "on the DEM" if hasattr(surface, "dem") else "at the target heights"
+    where = "on the DEM" if terrain_of(surface) is not None else "at the target heights"
     note = (f"calibration: {', '.join(names)} fitted per flight (fit_sensor_groups, in-sample, {where}): "
             f"mean error to truth {means}" + (f"; {int(bad.sum())} record(s) without a ground point after" if
                                                np.any(bad) else ""))

@@ -21,8 +21,8 @@ from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera
 from geoloc.status import Status, names
-from geoloc.surfaces.base import GroundPoint
-from geoloc.surfaces.height import intersect_los_height
+from geoloc.surfaces.base import GroundPoint, terrain_of
+from geoloc.surfaces.terrain import surface_for
 from geoloc.userfiles import atomic_path
 
 #: Columns the replay adds to every input row.
@@ -182,9 +182,39 @@ def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, 
     return out
 
 
+def replay_records(records: Records, sensor, surface) -> ReplayResult:
+    """Locate every record on ``surface``: the replay itself.
+
+    Parameters
+    ----------
+    records : Records
+    sensor : FrameSensor or Camera
+    surface : Surface
+        Where the targets lie (:func:`geoloc.surfaces.terrain.surface_for`; on the
+        command line :func:`geoloc.cli._options.surface_from_args`): a height, one
+        height per record, a DEM or a mosaic.
+
+    Returns
+    -------
+    ReplayResult
+        On a DEM, with the columns ``status``, ``dem_evaluations`` (and ``hidden``
+        for ``bisect``) and ``terrain`` (the DEM or mosaic, for :func:`plausibility_warnings`).
+    """
+    hit = surface.intersect(records_line_of_sight(records, sensor))
+    terrain = terrain_of(surface)
+    extra = {}
+    if terrain is not None:
+        extra = {"status": hit.status, "dem_evaluations": hit.dem_evaluations.astype(np.int64)}
+        if surface.method == "bisect":
+            extra["hidden"] = hit.hidden.astype(np.int64)
+    result = result_from_ground(records, hit, extra, camera=sensor)
+    result.terrain = terrain
+    return result
+
+
 def replay_at_height(records: Records, camera: Camera, height_column: str | None = None,
                      target_h: float | None = None, surface: str = "inflated") -> ReplayResult:
-    """Locate every record at a target height from a column, or one height for all.
+    """:func:`replay_records` at a target height from a column, or one height for all.
 
     Parameters
     ----------
@@ -195,7 +225,7 @@ def replay_at_height(records: Records, camera: Camera, height_column: str | None
     target_h : float, optional
         One height for every record, if no column is given.
     surface : {"inflated", "geodetic"}
-        [Q17 eq. 11] inflated ellipsoid or the exact constant-height surface.
+        [Q17 eq. 11] inflated ellipsoid or the exact constant-height surface (the kind).
     """
     if height_column is not None:
         h = records.column(height_column)
@@ -207,8 +237,7 @@ def replay_at_height(records: Records, camera: Camera, height_column: str | None
         h = np.full(len(records), float(target_h))
     else:
         raise ValueError("give a height column or a target height")
-    ground = intersect_los_height(records_line_of_sight(records, camera), h, surface)
-    return result_from_ground(records, ground, camera=camera)
+    return replay_records(records, camera, surface_for(h, kind=surface, per_record=True))
 
 
 def _nanmean(v) -> float:
