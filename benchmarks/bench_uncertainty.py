@@ -3,9 +3,10 @@
 Every point has its own pose and pixel (an azimuth-elevation turret with a Brown lens, a mount,
 a boresight and a lever arm, as bench_locate's), and a full budget: position, attitude, both
 joints, mount, boresight, lever arm, four lens parameters, time (with a velocity) and the
-surface's vertical error: 21 sources. ``propagate`` locates the points itself (the compiled
-line of sight and the surface), then builds the analytic Jacobian, the covariance, the ellipse
-and the exact CE90. ``locate`` is the compiled pixel -> ground path on the same rays.
+surface's vertical error: 21 sources. ``propagate`` locates the points itself (the fused locate
+kernel on the ellipsoid; the compiled line of sight and the DEM solver on a DEM), then builds the
+analytic Jacobian, the covariance, the ellipse and the exact CE90 in numba kernels
+(``geoloc.analysis._fastuncert``). ``locate`` is the compiled pixel -> ground path on the same rays.
 
 Run: ``python benchmarks/bench_uncertainty.py [--points N] [--repeat K] [--dem]``. Prints
 medians of wall and CPU time, points per second of each, and ``ratio: X`` = propagation points

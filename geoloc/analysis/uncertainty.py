@@ -22,6 +22,11 @@ The Jacobian, per ray, is analytic through the chain and the surface:
   height); a change ``dO, dD`` and a vertical surface error ``dz`` move the hit by
   ``dP = dO + t dD + D (dz - m.(dO + t dD)) / (m.D)``.
 
+The batch runs compiled (:mod:`geoloc.analysis._fastuncert`, ``engine="auto"``): a numba kernel
+for the chain's Jacobian per ray and one for the surface step, the covariance, the ellipse and
+CE90; the numpy path here is the reference they are held to.
+``benchmarks/bench_uncertainty.py`` times it against ``locate``.
+
 ``tests/test_uncertainty.py`` holds the analytic Jacobian to central differences of the whole
 ``locate`` chain, and the predicted CE90 / LE90 to Monte Carlo (:func:`monte_carlo`) over
 nadir to 80 degrees off nadir, the ellipsoid and a DEM, and every gimbal preset.
@@ -443,7 +448,7 @@ def surface_sigma_m(surface, budget: ErrorBudget) -> float:
 def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = None, *, surface=None,
               target_h=None, dem=None, velocity_ned_m_s=None, outside: str = "flag",
               dem_method: str = "exact", dem_slope: str = "footprint",
-              footprint_iterations: int = 3) -> PointUncertainty:
+              footprint_iterations: int = 3, engine: str = "auto") -> PointUncertainty:
     """Locate a batch of pixels and predict each point's uncertainty (first order).
 
     Parameters
@@ -467,6 +472,11 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
         footprint (default; :func:`surface_normal`, iterated ``footprint_iterations`` times
         from the slope at the hit), or the slope at the hit itself (the strict first order,
         which holds only where the terrain is a plane over the footprint).
+    engine : {"auto", "numba", "numpy"}
+        ``"numba"``: the compiled kernels of :mod:`geoloc.analysis._fastuncert` (the chain's
+        Jacobian per ray, the surface step, the ellipse and CE90; ``"auto"`` takes them for every
+        sensor they serve: one lens, no per-sample perturbation); ``"numpy"``: the reference path
+        (:func:`chain_derivatives`), which the tests hold the kernels to.
 
     Returns
     -------
@@ -477,24 +487,45 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
         raise ValueError("propagate needs an error budget (the sensor file's [uncertainty] table)")
     if dem_slope not in ("footprint", "point"):
         raise ValueError(f"dem_slope = {dem_slope!r}: must be 'footprint' or 'point'")
+    if engine not in ("auto", "numba", "numpy"):
+        raise ValueError(f"engine = {engine!r}: must be 'auto', 'numba' or 'numpy'")
     s = as_sensor(sensor)
     if surface is None:
         from geoloc.surfaces.terrain import surface_for
 
         surface = surface_for(target_h, dem, method=dem_method)
-    los = s.line_of_sight(row, col, pose, outside=outside)
-    hit = surface.intersect(los)
-    names, dO, dD, (O, D), shape = chain_derivatives(s, pose, row, col, budget, velocity_ned_m_s)
-    status = np.broadcast_to(hit.status, shape).reshape(-1)
-    lat, lon, h = (np.broadcast_to(getattr(hit, k), shape).reshape(-1) for k in ("lat", "lon", "h"))
-    P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
-    t = np.linalg.norm(P - O, axis=-1)
-    free = dO + t[:, None, None] * dD                        # the point carried along the old range
+    fast = engine == "numba" or (engine == "auto" and s.compiled)
+    if fast and not s.compiled:
+        raise ValueError("engine='numba' needs a sensor with one lens and no per-sample perturbation")
     sz = surface_sigma_m(surface, budget)
+    if row is None or col is None:
+        r0, c0 = s.center_pixel
+        row, col = (r0 if row is None else row), (c0 if col is None else col)
+    if fast:
+        from geoloc.analysis import _fastuncert as F
+
+        hit, shape, O, D = _locate_for(s, pose, row, col, surface, outside)
+        status = np.broadcast_to(hit.status, shape).reshape(-1)
+        lat, lon, h = (np.ascontiguousarray(np.broadcast_to(getattr(hit, k), shape).reshape(-1))
+                       for k in ("lat", "lon", "h"))
+        P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
+        t = np.sqrt(np.sum((P - O) ** 2, axis=-1))
+        names, free = _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t)
+    else:
+        los = s.line_of_sight(row, col, pose, outside=outside)
+        hit = surface.intersect(los)
+        names, dO, dD, (O, D), shape = chain_derivatives(s, pose, row, col, budget, velocity_ned_m_s)
+        status = np.broadcast_to(hit.status, shape).reshape(-1)
+        lat, lon, h = (np.broadcast_to(getattr(hit, k), shape).reshape(-1) for k in ("lat", "lon", "h"))
+        P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
+        t = np.linalg.norm(P - O, axis=-1)
+        free = dO + t[:, None, None] * dD                        # the point carried along the old range
     if sz > 0:
         names = names + ["dem_m" if getattr(surface, "dem", None) is not None else "height_m"]
-    Re = R_ecef_enu(lat, lon)
     on_dem = getattr(surface, "dem", None) is not None and hasattr(surface.dem, "height")
+    if fast and not on_dem:
+        return _surface_fast(F, free, D, np.zeros((0, 3)), lat, lon, h, status, sz, names, shape)
+    Re = R_ecef_enu(lat, lon)
     cov_en = None
     for _ in range(1 + (footprint_iterations if on_dem and dem_slope == "footprint" else 0)):
         m = surface_normal(surface, lat, lon, h, cov_en if dem_slope == "footprint" else None)
@@ -520,6 +551,108 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
     out.terrain_rms_m = r(np.where(out.status.reshape(-1) == Status.OK, terrain_rms, np.nan))
     out.surface_sigma_m = float(sz)
     out.grazing = r(grazing & (out.status.reshape(-1) == Status.OK))
+    return out
+
+
+# --------------------------------------------------------------------- the compiled engine
+def _locate_for(s, pose, row, col, surface, outside):
+    """The hits and the rays (flat origins and directions) for the compiled engine.
+
+    On the inflated constant height the fused locate kernel gives both in one pass; elsewhere the
+    compiled line of sight and the surface's own solver.
+    """
+    from geoloc.sensors._fastlocate import line_of_sight_fast, locate_fast
+    from geoloc.surfaces.base import GroundPoint
+
+    if getattr(surface, "kind", None) == "inflated" and getattr(surface, "dem", None) is None:
+        lat, lon, h, ecef, rng, st, o, d = locate_fast(pose, s, row, col, surface.h, outside=outside)
+        hit = GroundPoint(lat, lon, h, ecef, rng, st, None)
+    else:
+        o, d, los_st = line_of_sight_fast(pose, s, row, col, outside=outside)
+        hit = surface.intersect(LineOfSight(o, d, los_st))
+    shape = np.shape(o)[:-1]
+    return hit, shape, o.reshape(-1, 3), d.reshape(-1, 3)
+
+
+def _source_codes(s, budget: ErrorBudget):
+    """The budget's sources in :func:`chain_derivatives`'s order: names, kernel codes, SI sigmas."""
+    from geoloc.analysis import _fastuncert as F
+    from geoloc.sensors.lenses import PARAM_LAYOUT
+
+    names, codes, sig = [], [], []
+
+    def add(k, code, scale=1.0):
+        if budget.sigma(k) > 0:
+            names.append(k)
+            codes.append(code)
+            sig.append(budget.sigma(k) * scale)
+
+    add("north_m", F.SRC_NORTH)
+    add("east_m", F.SRC_EAST)
+    add("up_m", F.SRC_UP)
+    add("time_s", F.SRC_TIME)
+    add("heading_deg", F.SRC_HEADING, DEG)
+    add("pitch_deg", F.SRC_PITCH, DEG)
+    add("roll_deg", F.SRC_ROLL, DEG)
+    for j, joint in enumerate(s.gimbal.joints):
+        add(f"{joint.angle}_deg", F.SRC_JOINT + j, DEG)
+    for c, axis in enumerate("xyz"):
+        add(f"mount_{axis}_deg", F.SRC_MOUNT + c, DEG)
+    for c, axis in enumerate("xyz"):
+        add(f"boresight_{axis}_deg", F.SRC_BORE + c, DEG)
+    for c, axis in enumerate("xyz"):
+        add(f"lever_arm_{axis}_m", F.SRC_LEVER + c)
+    for k, p in LENS_KEYS.items():
+        add(k, F.SRC_LENS + PARAM_LAYOUT.index(p))
+    return names, np.array(codes, np.int64), np.array(sig, float)
+
+
+def _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t):
+    """:func:`chain_derivatives`'s ``dO + t dD`` (n, 3, k) through :func:`_fastuncert.chain_kernel`."""
+    from geoloc.analysis import _fastuncert as F
+    from geoloc.geodesy.ellipsoid import A, E2
+    from geoloc.sensors._fastlocate import _AXIS
+
+    names, codes, sig = _source_codes(s, budget)
+    n = int(np.prod(shape))
+    if "time_s" in names and velocity_ned_m_s is None:
+        raise ValueError(f"{budget.source}: [uncertainty] time_s = {budget.sigma('time_s'):g} needs the platform's "
+                         "velocity (velocity_ned_m_s, north-east-down metres per second)")
+    col = lambda v: np.ascontiguousarray(np.broadcast_to(np.asarray(v, float), shape).reshape(-1))  # noqa: E731
+    joints = s.gimbal.joints
+    ang = np.empty((n, len(joints)))
+    for j, joint in enumerate(joints):
+        ang[:, j] = np.broadcast_to(np.asarray(pose.angle(joint.angle), float), shape).reshape(-1)
+    vel = (np.zeros((1, 3)) if velocity_ned_m_s is None else
+           np.ascontiguousarray(np.broadcast_to(np.asarray(velocity_ned_m_s, float), shape + (3,)).reshape(n, 3)))
+    mx, bx = _xyz_axes(s.mount), _xyz_axes(s.boresight)
+    free = np.empty((n, 3, len(codes)))
+    F.chain_kernel(col(pose.lat), col(pose.lon), col(pose.h), col(pose.heading), col(pose.pitch), col(pose.roll),
+                   ang, np.ascontiguousarray(O), np.ascontiguousarray(D), np.ascontiguousarray(t), vel,
+                   np.array([_AXIS[j.axis] for j in joints], np.int64), np.ascontiguousarray(s.R_cam_last),
+                   np.ascontiguousarray(s.R_base_body), np.array(s.lever_arm_m, float),
+                   bool(s.gimbal.earth_referenced), np.array([mx[c] for c in "xyz"]),
+                   np.array([bx[c] for c in "xyz"]), int(s.lens.code), np.array(s.lens.as_array(), float),
+                   codes, sig, float(A), float(E2), free)
+    return names, free
+
+
+def _surface_fast(F, free, D, m, lat, lon, h, status, sz, names, shape):
+    """The surface step, covariance, ellipse, CE90 and LE90 through :func:`_fastuncert.surface_kernel`."""
+    n, k = free.shape[0], free.shape[2]
+    kk = k + (1 if sz > 0 else 0)
+    J, cov = np.empty((n, 3, kk)), np.empty((n, 3, 3))
+    major, minor, az, ce, le, inv = (np.empty(n) for _ in range(6))
+    qt, rt = _ce_table(0.9)
+    F.surface_kernel(free, np.ascontiguousarray(D), np.ascontiguousarray(m), lat, lon,
+                     np.ascontiguousarray(status, dtype=np.uint8), float(sz), float(len(qt) - 1), rt,
+                     LE90_PER_SIGMA, J, cov, major, minor, az, ce, le, inv)
+    r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
+    out = PointUncertainty(r(lat), r(lon), r(h), r(np.asarray(status, np.uint8)), r(cov, (3, 3)), r(J, (3, kk)),
+                           tuple(names), r(major), r(minor), r(az), r(ce), r(le))
+    out.terrain_rms_m = r(np.where(status == Status.OK, 0.0, np.nan))  # a constant height is a plane
+    out.surface_sigma_m = float(sz)
+    out.grazing = r(np.zeros(n, bool))
     return out
 
 

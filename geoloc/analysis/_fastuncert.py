@@ -1,0 +1,314 @@
+"""Compiled first-order propagation: the Jacobian of every ray's chain and surface in numba kernels.
+
+The same mathematics as the numpy reference path of :mod:`geoloc.analysis.uncertainty`
+(:func:`~geoloc.analysis.uncertainty.chain_derivatives` and the surface step of
+:func:`~geoloc.analysis.uncertainty.propagate`), written per ray so that a 100 000-frame flight
+costs one pass over memory instead of a few hundred temporary arrays
+(``benchmarks/bench_uncertainty.py``). ``tests/test_uncertainty.py`` holds the two engines equal
+column for column, for every gimbal preset and lens model.
+
+Two kernels:
+
+* :func:`chain_kernel`: per ray, the frames on the path to the camera (NED at the platform,
+  body, gimbal base, each joint), the turn of each angle source about its axis in ECEF
+  (``dD = a x D``, ``dO = a x L``), the platform's displacement with the turn of its local
+  frame, the lever arm and the time tag, all as in the reference; and each lens parameter by
+  implicit differentiation of the lens's closed-form projection ``pi(a, b; p) = pixel`` at the
+  ray's normalised point ``(a, b)``: ``d(a, b) = -[d pi / d(a, b)]^-1 d pi / dp`` (central
+  differences of :func:`geoloc.sensors.lenses.project_nb`, over +-1 sigma in ``p`` as the
+  reference's differences of ``unproject``, and +-1e-6 in ``(a, b)``: truncation ~1e-12 and
+  rounding ~1e-13 of the derivative), so every lens model is served without an iteration.
+  Output: the point carried along its old range, ``free = dO + t dD`` (ECEF, per 1 sigma).
+* :func:`surface_kernel`: the hit kept on the surface linearised by its normal ``m``,
+  ``dP = free - D (m . free) / (m . D)`` (and ``D dz / (m . D)`` for the surface's own vertical
+  error), turned to ENU at the hit; the covariance ``J J^T``, the 1-sigma ellipse (eigen
+  decomposition of the 2x2 block in closed form), CE90 from the table of
+  :func:`geoloc.analysis.uncertainty._ce_table` (linear interpolation on its uniform axis-ratio
+  grid, as ``np.interp``) and LE90.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import numpy as np
+from numba import prange
+
+from geoloc import status as _status_module
+from geoloc.geodesy._nbgeo import cached_njit, dependency_key
+from geoloc.sensors import lenses as _lenses_module
+from geoloc.sensors.lenses import project_nb
+from geoloc.status import Status
+
+#: The kernels' cache key: the constants and the sources of the modules whose code or constants they freeze.
+KEY = dependency_key(_status_module, _lenses_module, sys.modules[__name__])
+
+_OK = int(Status.OK)
+_BLOCK = 512
+
+# source codes of the chain kernel's columns
+SRC_NORTH, SRC_EAST, SRC_UP, SRC_TIME, SRC_HEADING, SRC_PITCH, SRC_ROLL = 0, 1, 2, 3, 4, 5, 6
+SRC_JOINT = 10   # + joint index
+SRC_MOUNT = 30   # + axis (x, y, z)
+SRC_BORE = 33    # + axis
+SRC_LEVER = 36   # + axis
+SRC_LENS = 40    # + PARAM_LAYOUT slot
+
+
+@cached_njit(KEY, inline="always")
+def _turn_back_cols(axis, c, s, R, out):
+    """out = R @ rot_axis(angle)^T (the passive elementary rotation's transpose), 3x3."""
+    for i in range(3):
+        x, y, z = R[i, 0], R[i, 1], R[i, 2]
+        # row i of R times rot^T is rot applied to that row: rot = turn_back with the angle negated
+        if axis == 0:
+            out[i, 0], out[i, 1], out[i, 2] = x, c * y + s * z, -s * y + c * z
+        elif axis == 1:
+            out[i, 0], out[i, 1], out[i, 2] = c * x - s * z, y, s * x + c * z
+        else:
+            out[i, 0], out[i, 1], out[i, 2] = c * x + s * y, -s * x + c * y, z
+
+
+@cached_njit(KEY, inline="always")
+def _matmul(A, B, out):
+    for i in range(3):
+        for k in range(3):
+            out[i, k] = A[i, 0] * B[0, k] + A[i, 1] * B[1, k] + A[i, 2] * B[2, k]
+
+
+@cached_njit(KEY, inline="always")
+def _matmul_T(A, B, out):
+    """out = A @ B^T."""
+    for i in range(3):
+        for k in range(3):
+            out[i, k] = A[i, 0] * B[k, 0] + A[i, 1] * B[k, 1] + A[i, 2] * B[k, 2]
+
+
+@cached_njit(KEY, inline="always")
+def _cross(a0, a1, a2, b0, b1, b2):
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@cached_njit(KEY, parallel=True, error_model="numpy")
+def chain_kernel(lat, lon, h, heading, pitch, roll, angles, O, D, t, vel,
+                 axes, R_cam_last, R_base_body, lever, earth_ref, mount_axes, bore_axes,
+                 lens_code, lens_p, codes, sigmas, a_m, e2, free):
+    """``free[i, :, k] = dO + t dD`` of ray ``i`` per 1 sigma of source ``codes[k]`` (ECEF, metres).
+
+    ``sigmas`` are in SI (radians, metres, seconds, pixels); ``mount_axes`` (body frame) and
+    ``bore_axes`` (last joint frame) are the axes of the three angles of ``rx ry rz``
+    (:func:`geoloc.analysis.uncertainty._xyz_axes`), one per row.
+    """
+    n = lat.shape[0]
+    nj = axes.shape[0]
+    ns = codes.shape[0]
+    nb = (n + _BLOCK - 1) // _BLOCK
+    for blk in prange(nb):
+        Rn = np.empty((3, 3))
+        Rb = np.empty((3, 3))
+        Rt = np.empty((3, 3))
+        Rt2 = np.empty((3, 3))
+        Rc = np.empty((3, 3))
+        Rj = np.empty((nj + 1, 3, 3))
+        pp = lens_p.copy()
+        for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
+            sp, cp = math.sin(lat[i]), math.cos(lat[i])
+            sl, cl = math.sin(lon[i]), math.cos(lon[i])
+            # R_ecef_ned: columns north, east, down
+            Rn[0, 0], Rn[1, 0], Rn[2, 0] = -sp * cl, -sp * sl, cp
+            Rn[0, 1], Rn[1, 1], Rn[2, 1] = -sl, cl, 0.0
+            Rn[0, 2], Rn[1, 2], Rn[2, 2] = -cp * cl, -cp * sl, -sp
+            # R_ecef_body = R_ecef_ned rz(heading)^T ry(pitch)^T rx(roll)^T
+            _turn_back_cols(2, math.cos(heading[i]), math.sin(heading[i]), Rn, Rt)
+            _turn_back_cols(1, math.cos(pitch[i]), math.sin(pitch[i]), Rt, Rt2)
+            _turn_back_cols(0, math.cos(roll[i]), math.sin(roll[i]), Rt2, Rb)
+            if earth_ref:
+                Rj[0] = Rn
+            else:
+                _matmul_T(Rb, R_base_body, Rt)   # R_ecef_base = R_ecef_body R_base_body^T
+                Rj[0] = Rt
+            for j in range(nj):
+                _turn_back_cols(axes[j], math.cos(angles[i, j]), math.sin(angles[i, j]), Rj[j], Rj[j + 1])
+            _matmul_T(Rj[nj], R_cam_last, Rc)    # R_ecef_cam
+            d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
+            L0 = Rb[0, 0] * lever[0] + Rb[0, 1] * lever[1] + Rb[0, 2] * lever[2]
+            L1 = Rb[1, 0] * lever[0] + Rb[1, 1] * lever[1] + Rb[1, 2] * lever[2]
+            L2 = Rb[2, 0] * lever[0] + Rb[2, 1] * lever[1] + Rb[2, 2] * lever[2]
+            ti = t[i]
+            w = 1.0 - e2 * sp * sp
+            rn_h = a_m / math.sqrt(w) + h[i]                 # prime vertical radius + h
+            rm_h = a_m * (1.0 - e2) / (w * math.sqrt(w)) + h[i]  # meridian radius + h
+            # the direction in the optical frame and its normalised point
+            c0 = Rc[0, 0] * d0 + Rc[1, 0] * d1 + Rc[2, 0] * d2
+            c1 = Rc[0, 1] * d0 + Rc[1, 1] * d1 + Rc[2, 1] * d2
+            c2 = Rc[0, 2] * d0 + Rc[1, 2] * d1 + Rc[2, 2] * d2
+            have_lens_jac = False
+            j11 = j12 = j21 = j22 = 0.0
+            a_n, b_n = c0 / c2, c1 / c2
+            for k in range(ns):
+                code = codes[k]
+                sg = sigmas[k]
+                o0 = o1 = o2 = 0.0
+                e0 = e1 = e2_ = 0.0
+                if code == SRC_NORTH or code == SRC_EAST or code == SRC_TIME:
+                    # north: origin along north, the NED frame turns by w_n = -east / (R_M + h)
+                    wn0, wn1, wn2 = -Rn[0, 1] / rm_h, -Rn[1, 1] / rm_h, 0.0
+                    # east: w_e = z / ((R_N + h) cos lat)
+                    we2 = 1.0 / (rn_h * cp)
+                    x0, x1, x2 = _cross(wn0, wn1, wn2, L0, L1, L2)
+                    y0, y1, y2 = _cross(wn0, wn1, wn2, d0, d1, d2)
+                    nO0, nO1, nO2 = Rn[0, 0] + x0, Rn[1, 0] + x1, Rn[2, 0] + x2
+                    x0, x1, x2 = _cross(0.0, 0.0, we2, L0, L1, L2)
+                    z0, z1, z2 = _cross(0.0, 0.0, we2, d0, d1, d2)
+                    eO0, eO1, eO2 = Rn[0, 1] + x0, Rn[1, 1] + x1, Rn[2, 1] + x2
+                    if code == SRC_NORTH:
+                        o0, o1, o2, e0, e1, e2_ = nO0, nO1, nO2, y0, y1, y2
+                    elif code == SRC_EAST:
+                        o0, o1, o2, e0, e1, e2_ = eO0, eO1, eO2, z0, z1, z2
+                    else:
+                        vn, ve, vd = vel[i, 0], vel[i, 1], vel[i, 2]
+                        o0 = vn * nO0 + ve * eO0 + vd * Rn[0, 2]   # -vd * up = vd * down
+                        o1 = vn * nO1 + ve * eO1 + vd * Rn[1, 2]
+                        o2 = vn * nO2 + ve * eO2 + vd * Rn[2, 2]
+                        e0, e1, e2_ = vn * y0 + ve * z0, vn * y1 + ve * z1, vn * y2 + ve * z2
+                elif code == SRC_UP:
+                    o0, o1, o2 = -Rn[0, 2], -Rn[1, 2], -Rn[2, 2]
+                elif code == SRC_LEVER or code == SRC_LEVER + 1 or code == SRC_LEVER + 2:
+                    c = code - SRC_LEVER
+                    o0, o1, o2 = Rb[0, c], Rb[1, c], Rb[2, c]
+                elif code < SRC_LENS:
+                    turns = True
+                    if code == SRC_HEADING:
+                        a0, a1, a2 = Rn[0, 2], Rn[1, 2], Rn[2, 2]
+                        turns = not earth_ref
+                    elif code == SRC_PITCH:
+                        sh, ch = math.sin(heading[i]), math.cos(heading[i])
+                        a0 = -sh * Rn[0, 0] + ch * Rn[0, 1]
+                        a1 = -sh * Rn[1, 0] + ch * Rn[1, 1]
+                        a2 = -sh * Rn[2, 0] + ch * Rn[2, 1]
+                        turns = not earth_ref
+                    elif code == SRC_ROLL:
+                        a0, a1, a2 = Rb[0, 0], Rb[1, 0], Rb[2, 0]
+                        turns = not earth_ref
+                    elif code < SRC_MOUNT:
+                        j = code - SRC_JOINT
+                        ax = axes[j]
+                        a0, a1, a2 = Rj[j + 1, 0, ax], Rj[j + 1, 1, ax], Rj[j + 1, 2, ax]
+                    elif code < SRC_BORE:
+                        v = mount_axes[code - SRC_MOUNT]
+                        a0 = Rb[0, 0] * v[0] + Rb[0, 1] * v[1] + Rb[0, 2] * v[2]
+                        a1 = Rb[1, 0] * v[0] + Rb[1, 1] * v[1] + Rb[1, 2] * v[2]
+                        a2 = Rb[2, 0] * v[0] + Rb[2, 1] * v[1] + Rb[2, 2] * v[2]
+                    else:
+                        v = bore_axes[code - SRC_BORE]
+                        R = Rj[nj]
+                        a0 = R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2]
+                        a1 = R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2]
+                        a2 = R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2]
+                    if code <= SRC_ROLL:  # the attitude turns the lever arm too
+                        o0, o1, o2 = _cross(a0, a1, a2, L0, L1, L2)
+                    if turns:
+                        e0, e1, e2_ = _cross(a0, a1, a2, d0, d1, d2)
+                else:
+                    # lens: d(a, b) = -J^-1 d pi/dp, J = d pi / d(a, b) at the ray's normalised point
+                    if not have_lens_jac:
+                        hh = 1e-6
+                        up_, vp_, _ = project_nb(lens_code, lens_p, a_n + hh, b_n, 1.0)
+                        um_, vm_, _ = project_nb(lens_code, lens_p, a_n - hh, b_n, 1.0)
+                        j11, j21 = (up_ - um_) / (2 * hh), (vp_ - vm_) / (2 * hh)
+                        up_, vp_, _ = project_nb(lens_code, lens_p, a_n, b_n + hh, 1.0)
+                        um_, vm_, _ = project_nb(lens_code, lens_p, a_n, b_n - hh, 1.0)
+                        j12, j22 = (up_ - um_) / (2 * hh), (vp_ - vm_) / (2 * hh)
+                        have_lens_jac = True
+                    slot = code - SRC_LENS
+                    base = lens_p[slot]
+                    pp[slot] = base + sg
+                    up_, vp_, _ = project_nb(lens_code, pp, a_n, b_n, 1.0)
+                    pp[slot] = base - sg
+                    um_, vm_, _ = project_nb(lens_code, pp, a_n, b_n, 1.0)
+                    pp[slot] = base
+                    du, dv = (up_ - um_) / 2.0, (vp_ - vm_) / 2.0
+                    det = j11 * j22 - j12 * j21
+                    da = -(j22 * du - j12 * dv) / det
+                    db = -(j11 * dv - j21 * du) / det
+                    # d unit(a, b, 1) = (I - u u^T) (da, db, 0) / |(a, b, 1)|, u the unit direction
+                    nrm = math.sqrt(a_n * a_n + b_n * b_n + 1.0)
+                    u0, u1, u2 = a_n / nrm, b_n / nrm, 1.0 / nrm
+                    dot = u0 * da + u1 * db
+                    q0, q1, q2 = (da - u0 * dot) / nrm, (db - u1 * dot) / nrm, -u2 * dot / nrm
+                    e0 = Rc[0, 0] * q0 + Rc[0, 1] * q1 + Rc[0, 2] * q2
+                    e1 = Rc[1, 0] * q0 + Rc[1, 1] * q1 + Rc[1, 2] * q2
+                    e2_ = Rc[2, 0] * q0 + Rc[2, 1] * q1 + Rc[2, 2] * q2
+                    sg = 1.0  # the differences were over +-1 sigma already
+                free[i, 0, k] = (o0 + ti * e0) * sg
+                free[i, 1, k] = (o1 + ti * e1) * sg
+                free[i, 2, k] = (o2 + ti * e2_) * sg
+
+
+@cached_njit(KEY, parallel=True, error_model="numpy")
+def surface_kernel(free, D, m, lat, lon, status, sz, qt_n, rt, le90_per_sigma,
+                   J, cov, major, minor, az, ce, le, inv_out):
+    """The hit kept on the surface (normal ``m``), turned to ENU; covariance, ellipse, CE90, LE90.
+
+    ``J`` has one more column than ``free`` when ``sz > 0`` (the surface's own vertical error).
+    ``m`` of no rows stands for the local up at every hit (a constant height).
+    ``inv_out`` gets ``1 / (m . D)`` (NaN where the ray does not enter the surface).
+    """
+    n = free.shape[0]
+    k = free.shape[2]
+    kk = J.shape[2]
+    nq = rt.shape[0]
+    for i in prange(n):
+        sp, cp = math.sin(lat[i]), math.cos(lat[i])
+        sl, cl = math.sin(lon[i]), math.cos(lon[i])
+        # ENU axes in ECEF
+        E0, E1, E2 = -sl, cl, 0.0
+        N0, N1, N2 = -sp * cl, -sp * sl, cp
+        U0, U1, U2 = cp * cl, cp * sl, sp
+        d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
+        if m.shape[0] == 0:  # a constant height: the local up
+            m0, m1, m2 = U0, U1, U2
+        else:
+            m0, m1, m2 = m[i, 0], m[i, 1], m[i, 2]
+        mD = m0 * d0 + m1 * d1 + m2 * d2
+        inv = 1.0 / mD if mD < -1e-12 else math.nan
+        if status[i] != _OK:
+            inv = math.nan
+        inv_out[i] = inv
+        c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+        for c in range(kk):
+            if c < k:
+                f0, f1, f2 = free[i, 0, c], free[i, 1, c], free[i, 2, c]
+                s = (m0 * f0 + m1 * f1 + m2 * f2) * inv
+                p0, p1, p2 = f0 - d0 * s, f1 - d1 * s, f2 - d2 * s
+            else:
+                s = sz * inv
+                p0, p1, p2 = d0 * s, d1 * s, d2 * s
+            je = E0 * p0 + E1 * p1 + E2 * p2
+            jn = N0 * p0 + N1 * p1 + N2 * p2
+            ju = U0 * p0 + U1 * p1 + U2 * p2
+            J[i, 0, c], J[i, 1, c], J[i, 2, c] = je, jn, ju
+            c00 += je * je
+            c01 += je * jn
+            c02 += je * ju
+            c11 += jn * jn
+            c12 += jn * ju
+            c22 += ju * ju
+        cov[i, 0, 0], cov[i, 0, 1], cov[i, 0, 2] = c00, c01, c02
+        cov[i, 1, 0], cov[i, 1, 1], cov[i, 1, 2] = c01, c11, c12
+        cov[i, 2, 0], cov[i, 2, 1], cov[i, 2, 2] = c02, c12, c22
+        mean = 0.5 * (c00 + c11)
+        dif = math.hypot(0.5 * (c00 - c11), c01)
+        a = math.sqrt(max(mean + dif, 0.0))
+        b = math.sqrt(max(mean - dif, 0.0))
+        major[i], minor[i] = a, b
+        theta = 0.5 * math.atan2(2.0 * c01, c00 - c11)
+        azd = (90.0 - math.degrees(theta)) % 180.0
+        az[i] = azd
+        q = b / a if a > 0 else 0.0
+        x = q * qt_n
+        j0 = min(int(x), nq - 2)
+        fr = x - j0
+        ce[i] = a * (rt[j0] + fr * (rt[j0 + 1] - rt[j0]))
+        le[i] = le90_per_sigma * math.sqrt(c22)
