@@ -1,12 +1,21 @@
 """Make the bundled drone-photo example: one synthetic DJI JPEG and its targets (seeded).
 
 ``python tools/make_photo_example.py`` writes ``assets/photos/DJI_0001.JPG`` (an
-800 x 600 grey image carrying EXIF and DJI's XMP as a Phantom 4 RTK-like camera
+800 x 600 picture carrying EXIF and DJI's XMP as a Phantom 4 RTK-like camera
 writes them) and ``assets/photos/targets.csv`` (five pixels with their surveyed
 truth). How: the truth is each pixel located on the bundled SRTM crop from the
 photo's *true* tags; the photo then carries tags with errors of the size real
 ones have (gimbal yaw +0.4 deg, pitch -0.2 deg, altitude +3 m), so the replay's
 errors to truth are what those errors cost. Example data, not a test oracle.
+
+The picture is rendered by geoloc from the *true* tags
+(:func:`geoloc.workflows.render.render_frame`: every pixel's exact hit on the DEM,
+coloured from the hillshade of the SRTM crop with a 0.0001 deg graticule and the five
+surveyed targets painted as red crosses, ``CROSS_ARM_M`` and ``CROSS_WIDTH_M``), so
+each cross sits on its target's pixel and the tags' errors show as the distance
+between a cross and the reprojection of its survey. The EXIF and XMP segments are
+those of the tags alone (the pixels do not enter them): the replay's figures do not
+depend on the picture.
 """
 
 from __future__ import annotations
@@ -25,6 +34,13 @@ OUT = ROOT / "assets" / "photos"
 DJI_NS = "http://www.dji.com/drone-dji/1.0/"
 W, H = 800, 600
 LAT, LON = 36.60, -84.23
+#: The painted targets: half-length and width of each bar [m] (about 12 x 3 px at the 0.25 m
+#: ground sample of the image centre).
+CROSS_ARM_M, CROSS_WIDTH_M = 3.0, 0.8
+#: Graticule spacing [deg] (about 11 m north-south): the SRTM relief is smooth at this scale.
+GRATICULE_DEG = 1e-4
+#: JPEG quality of the rendered picture.
+QUALITY = 85
 
 
 def xmp_packet(tags: dict) -> bytes:
@@ -64,9 +80,23 @@ def tags(alt, yaw, pitch):
             "DewarpFlag": "0", "RtkFlag": "0"}
 
 
-def write(path, alt, yaw, pitch):
-    Image.new("RGB", (W, H), (96, 120, 70)).save(path, exif=exif_block(alt), xmp=xmp_packet(tags(alt, yaw, pitch)),
-                                                  quality=60)
+def write(path, alt, yaw, pitch, image=None, quality=60):
+    """The JPEG with its EXIF and XMP; ``image`` (H, W, 3) uint8, default a flat grey-green."""
+    pic = Image.new("RGB", (W, H), (96, 120, 70)) if image is None else Image.fromarray(image)
+    pic.save(path, exif=exif_block(alt), xmp=xmp_packet(tags(alt, yaw, pitch)), quality=quality)
+
+
+def render(photo, dem, truths):
+    """The picture seen from ``photo``'s tags (the true ones), the ``truths`` painted as crosses."""
+    from geoloc.io.photos import photo_sensor, pose_from_photo, read_photo
+    from geoloc.workflows.render import Cross, ground_texture, render_frame
+
+    meta = read_photo(photo)
+    s, _ = photo_sensor(meta)
+    tex = ground_texture(dem, [Cross(la, lo, CROSS_ARM_M, CROSS_WIDTH_M, f"T{k + 1}")
+                               for k, (la, lo) in enumerate(truths)], graticule_deg=GRATICULE_DEG,
+                         graticule_width_m=0.15)
+    return render_frame(s, pose_from_photo(meta), dem, tex).image
 
 
 def main() -> None:
@@ -84,7 +114,8 @@ def main() -> None:
     assert all(r["status"] == "ok" for r in rows), (rows, msgs)
     tgt.write_text("image,row,col,truth_lat_deg,truth_lon_deg,truth_h_m\n" + "".join(
         f"DJI_0001.JPG,{r['row']},{r['col']},{r['lat_deg']:.8f},{r['lon_deg']:.8f},{r['h_m']:.2f}\n" for r in rows))
-    write(photo, alt + 3.0, 40.4, -60.2)  # what the photo says: a few tenths of a degree and metres off
+    image = render(photo, dem, [(r["lat_deg"], r["lon_deg"]) for r in rows])  # seen from the true tags
+    write(photo, alt + 3.0, 40.4, -60.2, image, QUALITY)  # what the photo says: tenths of a degree, metres off
     print(f"wrote {photo.relative_to(ROOT)} ({photo.stat().st_size} bytes) and {tgt.relative_to(ROOT)} "
           f"({len(rows)} targets)")
 
