@@ -352,7 +352,7 @@ def main(argv=None) -> int:
         from geoloc.io.klv import write_ts
 
         frames = None if args.no_video else render_video(dem, log=print)
-        write_ts(args.ts, blobs, rate=1.0, frames=frames, codec_options={"crf": 30})  # ~3 MB
+        write_ts(args.ts, blobs, rate=1.0, frames=frames, codec_options={"crf": 30})  # 2.3 MB
         what = "KLV data stream" if args.no_video else f"H.264 {VIDEO_SIZE[0]}x{VIDEO_SIZE[1]} + KLV data stream"
         print(f"wrote {len(blobs)} packets to {args.ts} (MPEG-TS, {what}, 1 Hz; "
               f"{Path(args.ts).stat().st_size} bytes)")

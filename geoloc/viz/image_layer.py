@@ -151,6 +151,7 @@ class ImageLayer:
         self.pick: pm.PixelPick | None = None
         self.ground: pm.GroundPick | None = None
         self.marks: dict = {}
+        self.found: pm.FoundMarks | None = None
         self.horizon = np.zeros((0, 2))
         self.crop = None
         self.plane = None  # (position (3,), R_enu_cam (3, 3), width, height) of the frustum image [scene units]
@@ -180,6 +181,7 @@ class ImageLayer:
                                        "type one to locate it")
             self.md_pick = g.add_markdown("")
             self.md_ground = g.add_markdown("")
+            self.md_found = g.add_markdown("")
             self.cb_frustum = g.add_checkbox("picture in the frustum", True)
             self.sl_dist = g.add_slider("picture distance (x range)", 0.05, 1.0, 0.05, 0.35,
                                         hint="Where the image sits along the frustum: a fraction of the range to "
@@ -232,12 +234,16 @@ class ImageLayer:
             self.image = None if k < 0 else np.asarray(self.images.image(k))
         if self.image is None:
             self.sensor = None
+            self.found = None
+            self.md_found.content = ""
             self.html.content = "<p>no image for this record</p>"
             self._hide(f"{ROOT}/frame")
             return
         M, N = self.image.shape[:2]
         self.sensor = pm.frame_sensor(s.scn, idx, M, N)
         self.marks = pm.image_marks(s.scn, idx, self.sensor, s.inputs)
+        self.found = pm.found_marks(s.scn, self.image, self.marks, self.sensor, s.inputs)
+        self.md_found.content = pm.found_markdown(self.found)
         self.horizon = pm.terrain_horizon(s.scn, s.inputs, self.sensor)
         if self.pick is not None:  # the pose may have changed under the picked pixel
             self.pick = pm.locate_pixel(s.scn, s.inputs, self.sensor, self.pick.row, self.pick.col)
