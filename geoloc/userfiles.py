@@ -41,6 +41,7 @@ __all__ = [
     "atomic_path",
     "write_text",
     "write_bytes",
+    "growing_path",
 ]
 
 
@@ -220,3 +221,34 @@ def write_bytes(path, data: bytes, option: str = "") -> Path:
     with atomic_path(path, option) as tmp:
         tmp.write_bytes(data)
     return Path(os.fspath(path))
+
+
+@contextlib.contextmanager
+def growing_path(path, option: str = "") -> Iterator[Path]:
+    """A file that grows while a command runs (a live journal), put in place when the command ends.
+
+    The journal grows beside ``path`` as ``STEM.partial.SUFFIX`` (``STEM.partial-2.SUFFIX``
+    if that exists: an earlier session's journal is never overwritten), so it can be read
+    while it grows and a crash leaves every row written so far; when the block ends
+    (normally, or by Ctrl-C) it is renamed onto ``path`` with :func:`os.replace`, so an
+    older ``path`` stays whole until the new one is complete. On any other exception the
+    partial file is left where it is. :func:`check_output` is applied to both names.
+    """
+    p = check_output(path, option)
+    parent = p.parent if str(p.parent) else Path(".")
+    k = 1
+    while True:
+        tmp = parent / f"{p.stem}.partial{'' if k == 1 else f'-{k}'}{p.suffix}"
+        if not tmp.exists():
+            break
+        k += 1
+    check_output(tmp, option)
+    try:
+        yield tmp
+    except KeyboardInterrupt:
+        if tmp.exists():
+            os.replace(tmp, p)
+        raise
+    if not tmp.exists():
+        raise OutputRefused(f"{option + ' ' if option else ''}{path}: the writer produced no file")
+    os.replace(tmp, p)

@@ -31,15 +31,60 @@ from geoloc.surfaces.terrain import METHODS, SURFACES, surface_for
 # --------------------------------------------------------------------------- file options
 
 
+class StreamUrl(str):
+    """A ``udp://HOST:PORT`` given where a file may be (``geoloc replay udp://...``): not a path,
+    so it is neither noted as an input nor compared with the outputs."""
+
+
 def input_path(text: str) -> str:
     """argparse type of an option naming a file or folder the verb reads.
 
     ``assets/...`` names the bundled file when there is no such file here
     (:func:`geoloc.assets.resolve_user_path`), so the README's commands run anywhere.
+    A ``udp://`` URL (a live stream, docs/live.md) is checked
+    (:func:`geoloc.io.live.parse_udp_url`) and returned as a :class:`StreamUrl`.
     """
     from geoloc.assets import resolve_user_path
 
+    if str(text).lower().startswith("udp://"):
+        from geoloc.io.live import parse_udp_url
+
+        try:
+            parse_udp_url(text)
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+        return StreamUrl(text)
     return str(resolve_user_path(text))
+
+
+def is_stream(value) -> bool:
+    """True for a :class:`StreamUrl` (or any ``udp://`` text)."""
+    return isinstance(value, str) and value.lower().startswith("udp://")
+
+
+def add_live_options(parser, record_flag: str = "--record") -> None:
+    """When to stop a live input (``udp://``) and where to record it: ``--duration``, ``--packets``,
+    ``--idle``, ``--record FILE.ts`` (docs/live.md)."""
+    g = parser.add_argument_group("live input (udp://HOST:PORT, docs/live.md)")
+    g.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="live: stop after S seconds (default: run until Ctrl-C, --packets or --idle)")
+    g.add_argument("--packets", type=int, default=None, metavar="N",
+                   help="live: stop after N KLV packets (good and bad)")
+    g.add_argument("--idle", type=float, default=None, metavar="S",
+                   help="live: stop when nothing arrived for S seconds after the first datagram")
+    g.add_argument(record_flag, dest="record_ts", default=None, metavar="FILE.ts", type=output_path,
+                   help="live: journal the raw stream, every datagram as it arrives, to this MPEG-TS "
+                   "(it grows as FILE.partial.ts and is renamed at the end; geoloc replay FILE.ts replays it)")
+
+
+def live_limits(args) -> dict:
+    """The stop conditions of :func:`add_live_options`, checked (a bad value names its option)."""
+    for opt, v in (("--duration", args.duration), ("--idle", args.idle)):
+        if v is not None and not v > 0:
+            raise ValueError(f"{opt} = {v}: must be > 0 seconds")
+    if args.packets is not None and args.packets < 1:
+        raise ValueError(f"--packets = {args.packets}: must be at least 1")
+    return {"duration_s": args.duration, "packets": args.packets, "idle_s": args.idle}
 
 
 def output_path(text: str) -> str:
@@ -82,6 +127,8 @@ def declared_files(parser, args) -> tuple[list, list]:
                 continue
             name = a.option_strings[0] if a.option_strings else a.metavar or a.dest
             for x in (v if isinstance(v, list) else [v]):
+                if role == "input" and is_stream(x):
+                    continue  # a network stream is no file
                 if role == "input":
                     inputs.append(x)
                 else:

@@ -43,10 +43,14 @@ def register(sub) -> None:
         "around them are still printed. Exit code 0 if at least one packet was good, else 1.",
     )
     d.add_argument("file", metavar="FILE", type=input_path,
-                   help="raw KLV (.klv, .bin: concatenated packets) or a container (.ts, .m2ts, .mpg, .mp4)")
+                   help="raw KLV (.klv, .bin: concatenated packets), a container (.ts, .m2ts, .mpg, .mp4), or a "
+                   "live MPEG-TS stream udp://HOST:PORT (docs/live.md)")
     d.add_argument("--out", default=None, type=output_path, help="write the JSON lines to this file instead of stdout")
     d.add_argument("--no-checksum", action="store_true",
                    help="do not verify the checksums (tag 1), nor require them")
+    from geoloc.cli._options import add_live_options
+
+    add_live_options(d)
     d.set_defaults(func=run)
 
     f = actions.add_parser(
@@ -80,8 +84,13 @@ def register(sub) -> None:
 def run(args) -> int:
     from geoloc.io.klv import read_packets
 
+    from geoloc.cli._options import is_stream
     from geoloc.userfiles import atomic_path
 
+    if is_stream(args.file):
+        return _run_live(args)
+    if getattr(args, "record_ts", None):
+        raise ValueError(f"--record is for a live input (udp://HOST:PORT); {args.file} is a file already")
     if Path(args.file).is_dir():
         raise ValueError(f"{args.file} is a folder: give a .klv, .bin or .ts file")
     results = read_packets(args.file, verify_checksum=not args.no_checksum)
@@ -100,7 +109,37 @@ def run(args) -> int:
     return 0
 
 
-def _dump(name, results, out) -> tuple[int, int]:
+def _run_live(args) -> int:
+    """``geoloc klv dump udp://HOST:PORT``: each packet printed as it arrives (docs/live.md)."""
+    from geoloc.cli._options import live_limits
+    from geoloc.io.live import LiveReceiver, receive
+    from geoloc.userfiles import atomic_path, growing_path
+
+    limits = live_limits(args)
+    rx = LiveReceiver(verify_checksum=not args.no_checksum)
+    print(f"geoloc klv: listening on {args.file}" + (" (Ctrl-C to stop)" if not any(limits.values()) else ""),
+          file=sys.stderr, flush=True)
+    with contextlib.ExitStack() as stack:
+        out = sys.stdout
+        if args.out:
+            tmp = stack.enter_context(atomic_path(args.out, "--out"))
+            out = stack.enter_context(tmp.open("w", encoding="utf-8"))
+        record = None
+        if args.record_ts:
+            rec = stack.enter_context(growing_path(args.record_ts, "--record"))
+            fh = stack.enter_context(rec.open("wb"))
+            record = fh.write
+        results = receive(args.file, receiver=rx, record=record, **limits)
+        good, bad = _dump(args.file, results, out, flush=True)
+    print(f"geoloc klv: {rx.stats.line()}", file=sys.stderr)
+    if args.out:
+        print(f"wrote {good} packets to {args.out}", file=sys.stderr)
+    if args.record_ts:
+        print(f"recorded {rx.stats.bytes} bytes to {args.record_ts}", file=sys.stderr)
+    return 0 if good else 1
+
+
+def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:
     """Write each good packet as a JSON line to ``out``, report each bad one; returns (good, bad)."""
     from geoloc.io.klv import KlvError
 
@@ -113,6 +152,8 @@ def _dump(name, results, out) -> tuple[int, int]:
         good += 1
         out.write(json.dumps(r.to_json(), ensure_ascii=False, allow_nan=False))
         out.write("\n")
+        if flush:
+            out.flush()
     return good, bad
 
 

@@ -59,6 +59,9 @@ def register(sub) -> None:
                    "(points, truth, error vectors, track; docs/gis.md)")
     p.add_argument("--targets", default=None, metavar="T.csv", type=input_path,
                    help="drone photos: the targets to locate (columns image,row,col; optional truth columns)")
+    from geoloc.cli._options import add_live_options
+
+    add_live_options(p)
     c = p.add_argument_group("campaigns (many inputs on dask.distributed, docs/scale.md)")
     c.add_argument("--parquet-out", default=None, metavar="DIR", type=output_dir,
                    help="campaign: replay every input (files, or folders of KLV/TS files, photos, or a "
@@ -78,7 +81,13 @@ ROWS_SHOWN = 50
 
 
 def run(args) -> int:
+    from geoloc.cli._options import is_stream
+
     inputs = list(args.records or [])
+    if any(is_stream(x) for x in inputs):
+        return _run_live(args, inputs)
+    if getattr(args, "record_ts", None):
+        raise ValueError("--record is for a live input (udp://HOST:PORT)")
     if args.parquet_out or any(Path(x).is_dir() or Path(x).suffix.lower() in (".parquet", ".pq") for x in inputs):
         return _run_campaign(args, inputs)
     kind = _input_kind(inputs)
@@ -199,6 +208,75 @@ def _run_klv(args, inputs) -> int:
             print(export(read_results(csv_path), args.export, group_by="file" if len(paths) > 1 else None))
     if n == 0:
         print("geoloc replay: no good UAS LS packet", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _run_live(args, inputs) -> int:
+    """``geoloc replay udp://HOST:PORT``: every packet located as it arrives, rows journalled (docs/live.md)."""
+    import contextlib
+
+    from geoloc.cli._options import live_limits
+    from geoloc.io.live import LiveReceiver, receive
+    from geoloc.userfiles import growing_path
+    from geoloc.workflows.live_replay import HEADER, LiveReplay
+
+    if len(inputs) != 1:
+        raise ValueError(f"{len(inputs)} inputs given ({', '.join(inputs)}): a live replay takes one udp:// stream")
+    for opt in ("parquet_out", "export", "targets"):
+        if getattr(args, opt, None):
+            raise ValueError(f"--{opt.replace('_', '-')} is not for a live stream; --out journals its rows")
+    _reject_records_options(args, "a live KLV stream (each packet at its own frame-centre height, or --dem)")
+    url = inputs[0]
+    limits = live_limits(args)
+    sensor = load_camera(args.camera) if args.camera else None
+    dem = None
+    if args.dem:
+        from geoloc.cli._options import open_dem_arg
+
+        dem = open_dem_arg(args)
+    rx = LiveReceiver()
+    with contextlib.ExitStack() as stack:
+        journal = record = None
+        if args.out:
+            part = stack.enter_context(growing_path(args.out, "--out"))
+            journal = stack.enter_context(part.open("w", newline=""))
+            print(f"geoloc replay: journalling rows to {part} (renamed {args.out} at the end)", file=sys.stderr)
+        if args.record_ts:
+            rec = stack.enter_context(growing_path(args.record_ts, "--record"))
+            fh = stack.enter_context(rec.open("wb"))
+            print(f"geoloc replay: recording the stream to {rec} (renamed {args.record_ts} at the end)",
+                  file=sys.stderr)
+
+            def record(b, fh=fh):
+                fh.write(b)
+        live = LiveReplay(url, dem=dem, sensor=sensor, method=args.method, dem_model=args.dem_surface,
+                          dem_options={"eps_h": args.eps_h, "threshold": args.threshold}, journal=journal,
+                          receiver=rx)
+        print(f"geoloc replay: listening on {url}" + ("" if any(limits.values()) else " (Ctrl-C to stop)"),
+              file=sys.stderr, flush=True)
+        print(HEADER, flush=True)
+
+        def batch(results):
+            r = live.add(results)
+            for e in results:
+                if not hasattr(e, "fields"):
+                    print(f"geoloc replay: {url}: {e}", file=sys.stderr)
+            if r is not None:
+                print(live.row_text(r), flush=True)
+            if args.record_ts:
+                fh.flush()
+
+        for _ in receive(url, receiver=rx, record=record, on_batch=batch, **limits):
+            pass
+    print(live.summary())
+    print(f"  stream: {rx.stats.line()}")
+    if args.out:
+        print(f"wrote {live.rows_total} rows to {args.out} (heights ellipsoidal, WGS 84: column h_datum)")
+    if args.record_ts:
+        print(f"recorded {rx.stats.bytes} bytes to {args.record_ts} (geoloc replay {args.record_ts} replays it)")
+    if live.rows_total == 0:
+        print("geoloc replay: no good UAS LS packet received", file=sys.stderr)
         return 1
     return 0
 

@@ -1,0 +1,167 @@
+"""The KLV replay of a live stream: each packet located as it arrives, journalled, a rolling window kept.
+
+:class:`LiveReplay` takes the results of :func:`geoloc.io.live.receive` (or of
+:class:`geoloc.io.live.LiveReceiver`) batch by batch and replays each batch exactly
+as :func:`geoloc.workflows.klv_replay.replay_klv` replays a file (the same sensor,
+surface, heights and columns: every packet is located from its own pose, so a
+packet's row does not depend on the others), numbering packets in arrival order
+(bad packets counted, as the file replay counts them). Two columns differ by
+nature: ``outlier`` is causal, the robust rule of
+:func:`geoloc.workflows.klv_replay.outlier_mask` over the window of packets
+received so far (a file's replay judges each packet against the whole file), and
+``file`` names the stream. A live row also has ``frame_pts_s``: the presentation
+time of the nearest video frame received (NaN without video).
+
+The journal (``journal``: a text file) gets the rows as CSV as they come, in the
+format of :func:`geoloc.workflows.klv_replay.write_klv_csv`, flushed after every
+batch. Memory: the rows of the last ``window`` packets (:attr:`LiveReplay.window`).
+"""
+
+from __future__ import annotations
+
+import csv
+
+from collections import deque
+
+import numpy as np
+
+from geoloc.io.klv import KlvError, Packet, packets_to_columns
+from geoloc.workflows.klv_replay import (
+    KlvRead,
+    KlvReplay,
+    _column_text,
+    _is_stray,
+    _replay,
+    outlier_mask,
+)
+
+__all__ = ["LiveReplay", "WINDOW"]
+
+#: Rows kept in memory (about 10 minutes at 30 Hz); the journal has them all.
+WINDOW = 18000
+
+
+class LiveReplay:
+    """Replay KLV results batch by batch (see the module docstring).
+
+    Parameters
+    ----------
+    label : str
+        The stream's name (the ``file`` column), e.g. its URL.
+    dem, sensor, method, dem_model, dem_options
+        As :func:`geoloc.workflows.klv_replay.replay_klv`.
+    journal : text file, optional
+        Where the CSV rows go as they come.
+    window : int
+        Rows kept in memory.
+    receiver : geoloc.io.live.LiveReceiver, optional
+        For ``frame_pts_s`` (the nearest video frame's time).
+    """
+
+    def __init__(self, label: str, *, dem=None, sensor=None, method: str = "exact", dem_model: str = "bilinear",
+                 dem_options: dict | None = None, journal=None, window: int = WINDOW, receiver=None):
+        self.label = str(label)
+        self.dem, self.sensor, self.method, self.dem_model = dem, sensor, method, dem_model
+        self.dem_options = dem_options or {}
+        self.journal = journal
+        self._writer = csv.writer(journal) if journal is not None else None
+        self._header = None
+        self.receiver = receiver
+        self.seq = 0  # packets seen (good and bad), arrival order
+        self.rows_total = 0
+        self.errors: deque = deque(maxlen=1000)
+        self.errors_total = 0
+        self.window: deque = deque(maxlen=int(window))  # one dict of column -> value per row
+        self._err: deque = deque(maxlen=int(window))  # frame-centre errors, for the causal outliers
+        self.last: KlvReplay | None = None
+
+    def add(self, results) -> KlvReplay | None:
+        """Replay one batch of :class:`Packet` / :class:`KlvError`; returns its replay (None: no good packet)."""
+        packets, number = [], []
+        errs = []
+        for r in results:
+            if isinstance(r, Packet):
+                packets.append(r)
+                number.append(self.seq)
+                self.seq += 1
+            elif isinstance(r, KlvError):
+                errs.append(r)
+                self.seq += 0 if _is_stray(r) else 1
+        self.errors.extend(errs)
+        self.errors_total += len(errs)
+        if not packets:
+            return None
+        pts_s = np.array([np.nan if p.time_s is None else p.time_s for p in packets], float)
+        read = KlvRead(self.label, packets_to_columns(packets), errs, pts_s, np.array(number, np.int64))
+        r = _replay(read, self.dem, self.sensor, self.method, self.dem_model, self.dem_options)
+        c = r.columns
+        n = len(r)
+        self._err.extend(np.asarray(c["frame_center_error_m"], float).tolist())
+        flags = outlier_mask(np.array(self._err, float))[0]
+        c["outlier"] = np.asarray(flags[-n:], np.int64)
+        fpts = np.full(n, np.nan)
+        rx = self.receiver
+        if rx is not None and rx.video:
+            for k, p in enumerate(packets):
+                v = rx.nearest_video_pts(p.pts)
+                if v is not None:
+                    fpts[k] = v / 90000.0
+        c["frame_pts_s"] = fpts
+        if self._writer is not None:
+            if self._header is None:
+                self._header = list(c)
+                self._writer.writerow(self._header)
+            texts = [_column_text(k, c[k]) for k in self._header]
+            self._writer.writerows(zip(*texts))
+            self.journal.flush()
+        keys = list(c)
+        for k in range(n):
+            self.window.append({name: c[name][k] for name in keys})
+        self.rows_total += n
+        self.last = r
+        return r
+
+    def columns(self) -> dict:
+        """The window's rows as columns (numpy arrays)."""
+        if not self.window:
+            return {}
+        keys = list(self.window[0])
+        return {k: np.array([row[k] for row in self.window]) for k in keys}
+
+    def summary(self) -> str:
+        """A few lines: rows, bad packets, the frame-centre error over the window."""
+        err = np.array(self._err, float)
+        fin = err[np.isfinite(err)]
+        L = [f"{self.label}: {self.rows_total} packets located, {self.errors_total} bad packet(s)"]
+        for e in list(self.errors)[:20]:
+            L.append(f"  bad packet at byte {e.offset} (pts {e.pts}): {e.reason}")
+        if len(fin):
+            L.append(f"  frame-centre error (recomputed vs reported, horizontal; last {len(err)} packets): median "
+                     f"{np.median(fin):.3f} m, 90th percentile {np.percentile(fin, 90):.3f} m, max "
+                     f"{np.max(fin):.3f} m")
+            out = int(np.sum(outlier_mask(err)[0]))
+            L.append(f"  outliers in that window (median / MAD rule): {out}")
+        else:
+            L.append("  frame-centre error: no packet compared" if self.rows_total else "  no packet located")
+        return "\n".join(L)
+
+    def row_text(self, r: KlvReplay) -> str:
+        """One line per packet of a batch: packet, time, recomputed centre, status, errors, outlier."""
+        from geoloc.status import names
+
+        c = r.columns
+        st = names(c["status"])
+
+        def f(v, spec):
+            return format(float(v), spec) if v == v else ""
+
+        return "\n".join(
+            f"{c['packet'][k]:>6} {c['time_utc'][k]:<27} {f(c['lat_deg'][k], '11.6f'):>11} "
+            f"{f(c['lon_deg'][k], '12.6f'):>12} {f(c['h_m'][k], '9.1f'):>9} {st[k]:>13} "
+            f"{f(c['frame_center_error_m'][k], '12.3f'):>12} {f(c['corner_error_m'][k], '12.3f'):>12} "
+            f"{'yes' if c['outlier'][k] else ''}" for k in range(len(r)))
+
+
+HEADER = (f"{'packet':>6} {'time_utc':<27} {'lat_deg':>11} {'lon_deg':>12} {'h_m (HAE)':>9} {'status':>13} "
+          f"{'centre_err_m':>12} {'corner_err_m':>12} outlier")
+
