@@ -41,18 +41,12 @@ def input_path(text: str) -> str:
 
     ``assets/...`` names the bundled file when there is no such file here
     (:func:`geoloc.assets.resolve_user_path`), so the README's commands run anywhere.
-    A ``udp://`` URL (a live stream, docs/live.md) is checked
-    (:func:`geoloc.io.live.parse_udp_url`) and returned as a :class:`StreamUrl`.
+    A ``udp://`` URL (a live stream, docs/live.md) is returned as a :class:`StreamUrl`
+    (the verb checks it: :func:`geoloc.io.live.parse_udp_url`, one line naming it).
     """
     from geoloc.assets import resolve_user_path
 
     if str(text).lower().startswith("udp://"):
-        from geoloc.io.live import parse_udp_url
-
-        try:
-            parse_udp_url(text)
-        except ValueError as e:
-            raise argparse.ArgumentTypeError(str(e)) from None
         return StreamUrl(text)
     return str(resolve_user_path(text))
 
@@ -77,8 +71,13 @@ def add_live_options(parser, record_flag: str = "--record") -> None:
                    "(it grows as FILE.partial.ts and is renamed at the end; geoloc replay FILE.ts replays it)")
 
 
-def live_limits(args) -> dict:
-    """The stop conditions of :func:`add_live_options`, checked (a bad value names its option)."""
+def live_limits(args, url=None) -> dict:
+    """The stop conditions of :func:`add_live_options`, checked (a bad value names its option), and
+    ``url`` checked (:func:`geoloc.io.live.parse_udp_url`)."""
+    if url is not None:
+        from geoloc.io.live import parse_udp_url
+
+        parse_udp_url(url)
     for opt, v in (("--duration", args.duration), ("--idle", args.idle)):
         if v is not None and not v > 0:
             raise ValueError(f"{opt} = {v}: must be > 0 seconds")

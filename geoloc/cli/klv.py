@@ -115,7 +115,7 @@ def _run_live(args) -> int:
     from geoloc.io.live import LiveReceiver, receive
     from geoloc.userfiles import atomic_path, growing_path
 
-    limits = live_limits(args)
+    limits = live_limits(args, args.file)
     rx = LiveReceiver(verify_checksum=not args.no_checksum)
     print(f"geoloc klv: listening on {args.file}" + (" (Ctrl-C to stop)" if not any(limits.values()) else ""),
           file=sys.stderr, flush=True)

@@ -228,7 +228,7 @@ def _run_live(args, inputs) -> int:
             raise ValueError(f"--{opt.replace('_', '-')} is not for a live stream; --out journals its rows")
     _reject_records_options(args, "a live KLV stream (each packet at its own frame-centre height, or --dem)")
     url = inputs[0]
-    limits = live_limits(args)
+    limits = live_limits(args, url)
     sensor = load_camera(args.camera) if args.camera else None
     dem = None
     if args.dem:

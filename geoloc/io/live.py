@@ -89,8 +89,9 @@ MAX_PES = {"klv": 1 << 20, "video": 8 << 20}
 VIDEO_WINDOW = 18000
 #: KLV packets kept in :attr:`LiveReceiver.window` (about 10 minutes at 30 Hz).
 PACKET_WINDOW = 18000
-#: A KLV clock going back by more than this is a restart of the sender [s].
-RESTART_BACK_S = 1.0
+#: A KLV clock going back by more than this is a restart of the sender [s] (two swapped datagrams
+#: at the start of a 1 Hz stream put a packet 1 s back: not a restart).
+RESTART_BACK_S = 5.0
 #: A datagram that does not continue its streams' counters waits at most this long for the one
 #: before it (two swapped datagrams are put back in order) [s].
 REORDER_S = 0.1
@@ -218,7 +219,8 @@ def open_socket(url: UdpUrl, rcvbuf: int = 4 << 20) -> socket.socket:
     """
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
     try:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        if url.multicast:  # several listeners may join one group; a unicast port is ours alone
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, int(rcvbuf))
         except OSError:
@@ -930,20 +932,32 @@ def receive(url, *, duration_s: float | None = None, packets: int | None = None,
 # --------------------------------------------------------------------------- the sender
 
 
-def _datagram_pts(data: bytes) -> int | None:
-    """The first PTS of a PES that starts in this datagram's TS packets (None if none)."""
+def _pes_pts_at(data: bytes) -> list:
+    """For each TS packet of ``data``: the PTS of the PES its payload belongs to (None if unknown)."""
+    out = []
+    cur: dict = {}
     for i in range(0, len(data) - TS_PACKET + 1, TS_PACKET):
-        if data[i] != 0x47 or not data[i + 1] & 0x40:
-            continue
+        pid = ((data[i + 1] & 0x1F) << 8) | data[i + 2]
         afc = (data[i + 3] >> 4) & 3
-        p = i + 4
-        if afc & 2:
-            p += 1 + data[p]
-        if not afc & 1 or p + 14 > i + TS_PACKET:
-            continue
-        if data[p:p + 3] == b"\x00\x00\x01" and data[p + 3] not in _NO_PES_HEADER_IDS and data[p + 7] & 0x80:
-            return _timestamp(data, p + 9)
-    return None
+        p = i + 4 + (1 + data[i + 4] if afc & 2 else 0)
+        if data[i] == 0x47 and data[i + 1] & 0x40 and afc & 1 and p + 14 <= i + TS_PACKET:
+            if data[p:p + 3] == b"\x00\x00\x01" and data[p + 3] not in _NO_PES_HEADER_IDS and data[p + 7] & 0x80:
+                cur[pid] = _timestamp(data, p + 9)
+            else:
+                cur[pid] = None
+        out.append(cur.get(pid) if afc & 1 else None)
+    return out
+
+
+def _datagram_times(data: bytes, per: int) -> list:
+    """Each datagram's send time on the PES clock: the earliest PTS of the PES it carries bytes of
+    (the rest of a PES leaves with its start, as a multiplexer sends it), None where it has none."""
+    at = _pes_pts_at(data)
+    out = []
+    for k in range(0, len(at), per):
+        ts = [t for t in at[k:k + per] if t is not None]
+        out.append(min(ts) if ts else None)
+    return out
 
 
 def datagrams_of(data: bytes, per: int = DATAGRAM_PACKETS) -> list[bytes]:
@@ -1007,7 +1021,7 @@ def send(source, url, *, speed: float | None = 1.0, per: int = DATAGRAM_PACKETS,
             k += 2
         else:
             k += 1
-    pts = [_datagram_pts(g) for g in grams]
+    pts = _datagram_times(data, per)
     own = sock is None
     if own:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
