@@ -64,6 +64,65 @@ _POSE_ERR = {k: k for k in POSE_KEYS}  # error source -> nominal key (same names
 #: Default chunk of samples evaluated at once (memory: ~1.5 kB per sample in flight);
 #: runs and sweeps larger than a chunk stream their statistics (constant memory).
 CHUNK = 100_000
+#: Bytes one sample in flight may take, the bound the chunk cap divides by. Measured (issue 32):
+#: 744 B/sample peak traced by ``tracemalloc`` on the [Q17] Table 1 scenario and 720 B on its DEM
+#: variant (chunks of 5e4 and 2e5), and 727 B/sample of peak RSS between ``--chunk 1e4`` and
+#: ``--chunk 1e6`` on the DEM scenario (310 MB -> 1013 MB); 2 kB leaves room for lens and
+#: sensor parameters perturbed per sample (a few more (n,) float64 arrays each).
+BYTES_PER_SAMPLE = 2000
+#: Share of the available memory one chunk may take (the rest: the interpreter, the DEM, the
+#: other processes of a shared machine).
+CHUNK_MEMORY_SHARE = 0.5
+#: Largest number of samples a run takes: at the ~1e5 samples/s measured on one core here,
+#: 1e12 samples run for about four months; beyond that no run ends (and ``--samples 1e20`` is a typo).
+MAX_SAMPLES = 10**12
+
+
+def available_memory_bytes() -> int:
+    """The memory a new allocation can take without swapping: Linux's ``MemAvailable``
+    (``/proc/meminfo``), else the free physical pages (``os.sysconf``), else 4 GiB."""
+    import os
+
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):
+        return 4 << 30
+
+
+def max_chunk(available_bytes: int | None = None) -> int:
+    """The largest chunk this machine holds: ``CHUNK_MEMORY_SHARE`` of the available memory
+    (:func:`available_memory_bytes`) over ``BYTES_PER_SAMPLE``, and never below ``CHUNK``'s
+    tenth (so a busy machine still runs the default's order of chunk)."""
+    avail = available_memory_bytes() if available_bytes is None else int(available_bytes)
+    return max(int(CHUNK_MEMORY_SHARE * avail // BYTES_PER_SAMPLE), CHUNK // 10)
+
+
+def check_samples_and_chunk(n, chunk, *, field_n: str = "samples", field_chunk: str = "chunk") -> tuple[int, int]:
+    """``(n, chunk)`` as ints, or ValueError naming the field and the value: ``n`` in
+    2..``MAX_SAMPLES``, ``chunk`` in 1..:func:`max_chunk` (the memory bound, issue 32:
+    ``--chunk 1e8`` grew to 7.2 GB and died)."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+        raise ValueError(f"{field_n} = {n!r}: must be an integer >= 2")
+    if n > MAX_SAMPLES:
+        raise ValueError(f"{field_n} = {n:.3g}: more than {MAX_SAMPLES:.0e} samples is refused (at about "
+                         f"1e5 samples a second that run would take {n / 1e5 / 86400 / 365.25:.3g} years)")
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"{field_chunk} = {chunk!r}: must be an integer >= 1")
+    cap = max_chunk()
+    if chunk > cap:
+        raise ValueError(f"{field_chunk} = {chunk}: a chunk that size needs about "
+                         f"{chunk * BYTES_PER_SAMPLE / 1e9:.3g} GB ({BYTES_PER_SAMPLE} bytes a sample), "
+                         f"more than {CHUNK_MEMORY_SHARE:.0%} of the {available_memory_bytes() / 1e9:.3g} GB "
+                         f"available; at most {cap} here (the samples stream through the chunks, so a smaller "
+                         f"chunk streams the same samples' statistics in constant memory)")
+    return int(n), int(chunk)
 
 
 class Progress:
@@ -424,11 +483,7 @@ def run(model: ErrorModel, n: int, rng: np.random.Generator, *, dem=None, chunk:
     -------
     MonteCarloResult
     """
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
-        raise ValueError(f"samples = {n!r}: must be an integer >= 2")
-    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
-        raise ValueError(f"chunk = {chunk!r}: must be an integer >= 1")
-    n, chunk = int(n), int(chunk)
+    n, chunk = check_samples_and_chunk(n, chunk)
     keep = n <= KEEP_MAX if keep_samples is None else bool(keep_samples)
     if keep and n > KEEP_MAX:
         raise ValueError(f"samples = {n}: keeping more than {KEEP_MAX} samples is refused "

@@ -70,8 +70,10 @@ def register(sub) -> None:
                     "[dem] method, else exact)")
     p.add_argument("--no-dem", action="store_true",
                    help="ignore the scenario's [dem] table (ellipsoid model with target_h_m)")
-    p.add_argument("--chunk", type=int, default=mc.CHUNK,
-                   help=f"samples per vectorised batch (memory bound; default {mc.CHUNK})")
+    p.add_argument("--chunk", type=sample_count, default=mc.CHUNK,
+                   help=f"samples per vectorised batch (memory bound; default {mc.CHUNK}; at most "
+                   f"{mc.CHUNK_MEMORY_SHARE:.0%} of the available memory at {mc.BYTES_PER_SAMPLE} bytes a "
+                   "sample, checked when the run starts)")
     p.add_argument("--progress", action="store_true", default=None,
                    help="force the stderr progress line (with the time left) on (default: on when "
                    "stderr is a terminal)")
@@ -192,10 +194,7 @@ def format_stats(stats: dict, nominal=None) -> str:
 
 
 def run(args) -> int:
-    if args.samples < 2:
-        raise ValueError(f"--samples = {args.samples}: must be >= 2")
-    if args.chunk < 1:
-        raise ValueError(f"--chunk = {args.chunk}: must be >= 1")
+    mc.check_samples_and_chunk(args.samples, args.chunk, field_n="--samples", field_chunk="--chunk")
     if args.sweep and args.out:
         raise ValueError(f"--out {args.out} is the statistics JSON of a single run; a sweep writes its CSV "
                          "and PNG files into --out-dir DIR")

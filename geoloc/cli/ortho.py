@@ -118,8 +118,10 @@ def _pose(args):
         records = records_from_args(args, args.records, camera)
         labels = records.labels()
         if args.record not in labels:
-            shown = ", ".join(labels[:12]) + (" ..." if len(labels) > 12 else "")
-            raise ValueError(f"--record {args.record!r}: no such record in {records.path} (labels: {shown})")
+            from geoloc.io.records import describe_labels
+
+            raise ValueError(f"--record {args.record!r}: no such record in {records.path} "
+                             f"({describe_labels(args.record, labels)})")
         k = labels.index(args.record)
         pose = records.subset([k]).pose().validate()
         return sensor, pose, None, f"record {args.record} of {records.path} ({records.altitude.describe()})"
@@ -179,6 +181,17 @@ def run(args) -> int:
     if args.ortho_out:  # checked before the first output is written
         if terrain_of(surface) is None:
             raise ValueError("--ortho-out needs a DEM (--dem or a bundled one), not --target-h-m")
+    image = None
+    if args.ortho_out:  # the photo's pixels read (and OpenCV found) before the first output is written
+        try:
+            import cv2  # noqa: F401
+        except ImportError as e:
+            raise ValueError(f"--ortho-out needs OpenCV ({e}); install it with "
+                             "`pip install opencv-python-headless` (a dependency of geoloc)") from None
+        image = read_photo_pixels(Path(meta.path))
+        if image.shape[1:] != (sensor.rows, sensor.cols):
+            raise ValueError(f"--photo {meta.path}: its pixels are {image.shape[2]} x {image.shape[1]}, "
+                             f"the sensor's {sensor.cols} x {sensor.rows}")
     tags = {"pose": pose_from, "surface": surface_text, "sensor": getattr(sensor, "name", "") or "frame sensor"}
     t0 = time.perf_counter()
     info = write_frame_geotiff(out, sensor, pose, surface, step=args.step, chunk=chunk, tags=tags,
@@ -186,7 +199,6 @@ def run(args) -> int:
     info["seconds"] = time.perf_counter() - t0
     info.update(pose=pose_from, surface=surface_text, h_datum=ELLIPSOID_DATUM)
     if args.ortho_out:
-        image = read_photo_pixels(Path(meta.path))
         info["ortho"] = orthorectify(image, sensor, pose, terrain_of(surface), args.ortho_out, gsd_m=args.gsd_m,
                                      crs=args.ortho_crs, chunk=chunk, tags={"photo": meta.name},
                                      parallel=not args.serial)

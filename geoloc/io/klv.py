@@ -821,16 +821,20 @@ def read_klv_file(path, *, verify_checksum: bool = True, chunk_size: int = 1 << 
         yield from _iter_stream(f, verify_checksum, chunk_size, MAX_PACKET_LENGTH)
 
 
-def _klv_stream(container, index):
+def _klv_stream(container, index, path=None):
+    where = f"{path}: " if path is not None else ""
     data = [s for s in container.streams if s.type == "data"]
     if index is not None:
         for s in data:
             if s.index == index:
                 return s
-        raise ValueError(f"stream {index} is not a data stream of the container "
+        raise ValueError(f"{where}stream {index} is not a data stream of the container "
                          f"(data streams: {[s.index for s in data]})")
     if not data:
-        raise ValueError("the container has no data (KLV) stream")
+        kinds = ", ".join(f"{s.type} ({s.codec_context.name if s.codec_context else '?'})"
+                          for s in container.streams) or "none"
+        raise ValueError(f"{where}the container has no data (KLV) stream (its streams: {kinds}), "
+                         "so it carries no MISB ST 0601 metadata to read")
     klv = [s for s in data if getattr(s, "name", None) in ("klv", "smpte_klv")]
     return (klv or data)[0]
 
@@ -867,7 +871,7 @@ def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None
     except av.error.FFmpegError as e:
         raise ValueError(f"{path}: PyAV cannot open it: {e}") from e
     with container:
-        ds = _klv_stream(container, stream)
+        ds = _klv_stream(container, stream, path)
         tb = ds.time_base
         tb = Fraction(tb.numerator, tb.denominator) if tb is not None else None
         for pkt in container.demux(ds):
@@ -886,13 +890,51 @@ def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None
 
 _CONTAINER_SUFFIXES = {".ts", ".m2ts", ".mts", ".mpg", ".mpeg", ".mp4", ".mov", ".mkv", ".trp"}
 
+#: Transport-stream packets checked by :func:`sniff_klv_file` (ISO/IEC 13818-1 2.4.3.2: every
+#: 188-byte packet starts with the sync byte 0x47; Blu-ray's M2TS puts a 4-byte time code first).
+_SNIFF_TS_PACKETS = 5
+
+
+def sniff_klv_file(path) -> str | None:
+    """What a file's first bytes say it is, whatever its name: ``"mpegts"`` (the sync byte
+    0x47 at every 188th byte, ISO/IEC 13818-1 2.4.3.2; or every 192nd after a 4-byte time
+    code, M2TS), ``"mp4"`` (an ISO BMFF ``ftyp`` box, ISO/IEC 14496-12 4.3), ``"matroska"``
+    (the EBML magic 1A 45 DF A3), ``"mpegps"`` (a pack start code 00 00 01 BA),
+    ``"klv"`` (a SMPTE 336M universal key, 06 0E 2B 34) or None (unknown: the suffix decides).
+
+    A ``.ts`` renamed ``.klv`` is thus read as the MPEG-TS it is (issue 32)."""
+    with open(path, "rb") as f:
+        head = f.read(192 * _SNIFF_TS_PACKETS)
+    for size, skip in ((188, 0), (192, 4)):
+        k = min(_SNIFF_TS_PACKETS, max(len(head) - skip, 0) // size)
+        if k >= 1 and all(head[skip + i * size] == 0x47 for i in range(k)) and (k >= 2 or len(head) == size):
+            return "mpegts"
+    if head[4:8] == b"ftyp":
+        return "mp4"
+    if head[:4] == b"\x1a\x45\xdf\xa3":
+        return "matroska"
+    if head[:4] == b"\x00\x00\x01\xba":
+        return "mpegps"
+    if head[:4] == b"\x06\x0e\x2b\x34":
+        return "klv"
+    return None
+
+
+def is_container_file(path) -> bool:
+    """True when ``path`` is read through PyAV (a container): by its bytes
+    (:func:`sniff_klv_file`) when they say, else by its suffix (``.ts``, ``.mpg``, ``.mp4``, ...)."""
+    kind = sniff_klv_file(path)
+    if kind is not None:
+        return kind != "klv"
+    return os.path.splitext(os.fspath(path))[1].lower() in _CONTAINER_SUFFIXES
+
 
 def read_packets(path, *, verify_checksum: bool = True) -> Iterator[Packet | KlvError]:
-    """Raw KLV files (``.klv``, ``.bin``, anything else) through :func:`read_klv_file`,
-    containers (``.ts``, ``.m2ts``, ``.mpg``, ``.mp4``, ``.mov``, ``.mkv``) through
-    :func:`read_ts_klv`."""
+    """Raw KLV files through :func:`read_klv_file`, containers (MPEG-TS, MP4, Matroska,
+    MPEG-PS) through :func:`read_ts_klv`; which is which is sniffed from the bytes
+    (:func:`is_container_file`), the suffix deciding only when the bytes do not say."""
     note_input(path)
-    if os.path.splitext(os.fspath(path))[1].lower() in _CONTAINER_SUFFIXES:
+    if is_container_file(path):
         return read_ts_klv(path, verify_checksum=verify_checksum)
     return read_klv_file(path, verify_checksum=verify_checksum)
 

@@ -238,6 +238,41 @@ def load_records(path, required=None, optional=OPTIONAL, angles=Q17_ANGLES, colu
                              "decoded; is it a binary file?") from None
 
 
+#: Labels a "no such record" message shows at most (issue 32: all 299 were listed).
+LABELS_SHOWN = 5
+
+
+def describe_labels(value, labels, shown: int = LABELS_SHOWN) -> str:
+    """A short account of ``labels`` for a message refusing ``value``: how many there are, the
+    first and last, and the few nearest ``value`` (by :func:`difflib.get_close_matches`, and for
+    labels ending in a number, those whose number is nearest), never the whole list.
+
+    ``describe_labels('packet 9999', ['packet 0', ..., 'packet 298'])`` ->
+    ``"299 records, 'packet 0' .. 'packet 298'; nearest: 'packet 298', 'packet 297', ..."``."""
+    import difflib
+    import re
+
+    labels = [str(x) for x in labels]
+    if not labels:
+        return "the file has no records"
+    text = f"{len(labels)} record{'s' if len(labels) != 1 else ''}"
+    if len(labels) <= shown:
+        return text + ": " + ", ".join(repr(x) for x in labels)
+    text += f", {labels[0]!r} .. {labels[-1]!r}"
+    value = str(value)
+    near = []
+    m = re.fullmatch(r"(.*?)(\d+)", value.strip())
+    if m:  # same prefix, nearest number
+        prefix, number = m.group(1), int(m.group(2))
+        numbered = [(abs(int(mm.group(2)) - number), i) for i, lab in enumerate(labels)
+                    if (mm := re.fullmatch(r"(.*?)(\d+)", lab)) and mm.group(1) == prefix]
+        near = [labels[i] for _, i in sorted(numbered)[:shown]]
+    for x in difflib.get_close_matches(value, labels, n=shown, cutoff=0.5):
+        if x not in near and len(near) < shown:
+            near.append(x)
+    return text + ("; nearest: " + ", ".join(repr(x) for x in near) if near else "")
+
+
 def check_header(path, header) -> None:
     """Refuse a CSV header with two columns of one name (ValueError naming the column, its
     positions and the file): a reader of rows as dicts keeps the last one without a word

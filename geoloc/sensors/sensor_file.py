@@ -87,8 +87,7 @@ def sensor_from_dict(data: dict, source: str = "sensor") -> FrameSensor:
         budget_from_dict(data[UNCERTAINTY_TABLE], sensor, source)
         return sensor
     if "lens" not in data:
-        if any(k in data for k in TABLES):
-            raise ValueError(f"{source}: missing table [lens]")
+        _refuse_sensor_without_lens(data, source)
         return Camera.from_dict(data, source=source).to_sensor()
     unknown = sorted(set(data) - set(TABLES) - set(KEYS))
     if unknown:
@@ -134,11 +133,23 @@ def load_camera_or_sensor(path) -> Camera | FrameSensor:
     path = Path(path)
     data = _without_columns(read_toml(path, "sensor file"), str(path))
     if "lens" not in data:
+        _refuse_sensor_without_lens(data, str(path))
         if UNCERTAINTY_TABLE in data:  # checked against the camera's sensor, then left out
             budget_from_sensor_dict(data, str(path))
             data = {k: v for k, v in data.items() if k != UNCERTAINTY_TABLE}
         return Camera.from_dict(data, source=str(path))
     return sensor_from_dict(data, source=str(path))
+
+
+def _refuse_sensor_without_lens(data: dict, source: str) -> None:
+    """A file with a sensor file's tables but no ``[lens]`` is a sensor file missing its lens,
+    not a first-phase camera file with unknown keys: say so (issue 32)."""
+    tables = [t for t in TABLES if t in data]
+    if tables:
+        raise ValueError(f"{source}: missing table [lens] (the file has "
+                         f"{', '.join('[' + t + ']' for t in tables)}, so it is a sensor file, and a "
+                         f"sensor file needs a [lens] table: model, fx, fy, cx, cy, width, height; "
+                         f"docs/sensor_format.md)")
 
 
 def _without_columns(data: dict, source: str) -> dict:

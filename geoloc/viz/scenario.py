@@ -136,7 +136,10 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
         elif record in labels:
             idx = labels.index(record)
         else:
-            raise ValueError(f"record = {record!r}: not in {records_path.name}; labels are {labels}")
+            from geoloc.io.records import describe_labels
+
+            raise ValueError(f"record = {record!r}: not in {records_path.name} "
+                             f"({describe_labels(record, labels)})")
     info, inp = recs[idx]
     scn = Scenario(name=f"{records_path.name} {info.label}", camera=camera, inputs=inp,
                    enu=enu_origin_for(info, inp), records=recs, record_index=idx,

@@ -36,7 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.geodesy.geoid import egm96_undulation
-from geoloc.io.klv import TAG_BY_NAME, KlvError, encode_value, iter_packets, local_set_items, replace_values
+from geoloc.io.klv import (TAG_BY_NAME, KlvError, encode_value, is_container_file, iter_packets, local_set_items,
+                          replace_values)
 from geoloc.status import Status, describe
 from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, read_klv, replay_klv
 
@@ -196,7 +197,7 @@ def _remux(src: Path, tmp: str, rw: _Rewriter, fix: KlvFix, verify: bool) -> Non
     from geoloc.io.klv import _klv_stream
 
     with av.open(os.fspath(src)) as inp:
-        klv = _klv_stream(inp, None)
+        klv = _klv_stream(inp, None, src)
         fmt = inp.format.name.split(",")[0]
         with av.open(tmp, "w", format=fmt) as out:
             streams = {}
@@ -260,8 +261,10 @@ def fix_klv(source, out, *, dem=None, sensor=None, method: str = "exact", dem_mo
     note_input(src)
     if dst.exists() and os.path.samefile(dst, src):
         raise ValueError(f"--out {dst} is the input: refusing to overwrite it")
-    container = src.suffix.lower() in CONTAINER_SUFFIXES
-    if container != (dst.suffix.lower() in CONTAINER_SUFFIXES):
+    container = is_container_file(src)  # by its bytes when they say (issue 32)
+    # the output is written in the input's format (its muxer, not its name); a lying suffix may stay
+    same_suffix = dst.suffix.lower() == src.suffix.lower()
+    if container != (dst.suffix.lower() in CONTAINER_SUFFIXES or (container and same_suffix)):
         raise ValueError(f"--out {dst.name}: write the same kind of file as the input {src.name} "
                          "(raw KLV to raw KLV, a container to a container)")
     read = read_klv(src, verify_checksum=verify_checksum)

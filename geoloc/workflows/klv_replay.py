@@ -73,9 +73,11 @@ from geoloc.io.klv import (
     TAG_BY_NAME,
     KlvError,
     Packet,
+    is_container_file,
     iter_packets,
     packets_to_columns,
     read_ts_klv,
+    sniff_klv_file,
 )
 from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.locate import line_of_sight, locate
@@ -129,8 +131,16 @@ _TAG_TEXT = {name: f"tag {s.tag} ({s.title})" for name, s in TAG_BY_NAME.items()
 
 
 def is_klv_path(path) -> bool:
-    """True for a file the KLV replay reads (``.klv``, ``.bin``, ``.ts``, ``.mpg``, ``.mp4``, ...)."""
-    return Path(str(path)).suffix.lower() in KLV_SUFFIXES
+    """True for a file the KLV replay reads: by its suffix (``.klv``, ``.bin``, ``.ts``, ``.mpg``,
+    ``.mp4``, ...), or, whatever its name, by its first bytes (an MPEG-TS's sync bytes, a raw
+    KLV's universal key: :func:`geoloc.io.klv.sniff_klv_file`; issue 32)."""
+    p = Path(str(path))
+    if p.suffix.lower() in KLV_SUFFIXES:
+        return True
+    try:
+        return p.is_file() and sniff_klv_file(p) in ("mpegts", "klv")  # not ftyp: a HEIC photo has one
+    except OSError:
+        return False
 
 
 # --------------------------------------------------------------------------- reading
@@ -246,7 +256,7 @@ def read_klv(source, *, verify_checksum: bool = True, fast: bool = True, label: 
         if not p.is_file():
             raise FileNotFoundError(f"KLV path {str(source)!r} is not a file")
         name = label or str(p)
-        if p.suffix.lower() in CONTAINER_SUFFIXES:
+        if is_container_file(p):  # by its bytes: a .ts renamed .klv is still an MPEG-TS
             return _from_results(read_ts_klv(p, verify_checksum=verify_checksum), name)
         return _read_bytes(p.read_bytes(), name, verify_checksum, fast)
     return _from_results(list(source), label or "<packets>")

@@ -61,6 +61,11 @@ TRUTH_COLUMNS = ("truth_lat_deg", "truth_lon_deg", "truth_h_m")
 #: The camera's height above the DEM and RelativeAltitude (above take-off) disagreeing by more
 #: than this [m] gives a message: a datum mix-up (|N| is tens of metres) or a barometric altitude.
 ALTITUDE_CHECK_M = 30.0
+#: A drone photo's camera higher than this above the DEM under it (or a RelativeAltitude above
+#: it) is warned about as implausible: DJI's firmware caps the flight altitude at 500 m above
+#: the take-off point and most countries' rules at 120 m above the ground, so a camera
+#: kilometres up is a height in the wrong unit or datum, or not a drone photo's position (issue 32).
+DRONE_MAX_HEIGHT_M = 1000.0
 #: The datum names written in ``altitude_datum`` for each ``altitude_datum`` argument.
 _DATUM_TEXT = {"egm96": EGM96_DATUM, "ellipsoid": ELLIPSOID_DATUM}
 
@@ -286,6 +291,21 @@ def _datum_messages(meta, altitude_datum, h_cam, n, dem) -> list:
                    f"AbsoluteAltitude as a WGS-84 ellipsoidal height; it is taken here as EGM96 "
                    f"(altitude_datum='egm96'), which adds N = {n:+.2f} m. If this aircraft writes "
                    "ellipsoidal heights, use altitude_datum='ellipsoid' (--altitude-datum ellipsoid)")
+    above_dem = None
+    if dem is not None:
+        ground, st = dem.sample(np.array(math.radians(meta.lat_deg)), np.array(math.radians(meta.lon_deg)))
+        if int(st) == Status.OK and np.isfinite(ground):
+            above_dem = h_cam - float(ground)
+    rel = meta.relative_altitude_m
+    if (above_dem is not None and above_dem > DRONE_MAX_HEIGHT_M) or (rel is not None and rel > DRONE_MAX_HEIGHT_M):
+        said = [f"the camera is {above_dem / 1000:.1f} km above the DEM under it (its altitude "
+                f"{meta.altitude_m:.1f} m taken as {_DATUM_TEXT[altitude_datum]})"] if above_dem is not None \
+            and above_dem > DRONE_MAX_HEIGHT_M else []
+        if rel is not None:
+            said.append(f"RelativeAltitude (above the take-off point) is {rel:.1f} m")
+        out.append(f"{meta.name}: warning: implausible for a drone: {'; '.join(said)}, while drones fly below "
+                   f"{DRONE_MAX_HEIGHT_M:.0f} m (DJI's firmware caps them at 500 m above take-off): a height in "
+                   "feet, a datum mix-up or a position not the drone's? The numbers are used as read")
     if dem is not None and meta.relative_altitude_m is not None:
         ground, st = dem.sample(np.array(math.radians(meta.lat_deg)), np.array(math.radians(meta.lon_deg)))
         if int(st) == Status.OK and np.isfinite(ground):
