@@ -47,3 +47,27 @@ def test_klv_log_series_are_the_replay_residuals(tmp_path, rerun_home):
     flagged = set(pk2[flag > 0.5].tolist())
     assert flagged == set(np.asarray(rep["packet"])[np.asarray(rep["outlier"]).astype(bool)].tolist())
     assert {100, 109, 200, 204, 250, 256} <= flagged and 150 not in pk2  # the planted faults; the bad packet
+
+
+def test_klv_log_honours_the_dem_method(tmp_path, rerun_home):
+    # `geoloc log FILE.klv --dem D --method steps` replays with that solver, as the records path
+    # does: the series are replay_klv's with method="steps", not the default exact walk's
+    from geoloc.surfaces.dem import DEM
+
+    dem_path = Path(ASSETS) / "dem" / "srtm_jacksboro.tif"
+    out = tmp_path / "klv_steps.rrd"
+    r = subprocess.run([sys.executable, "-m", "geoloc", "log", str(KLV), "--dem", str(dem_path), "--method", "steps",
+                        "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    dem = DEM.open(dem_path, datum="egm96")
+    steps = replay_klv(KLV, dem=dem, method="steps").columns
+    exact = replay_klv(KLV, dem=dem, method="exact").columns
+    pk, err = series(out, "/series/error/to_published_m")
+    want = dict(zip(steps["packet"], steps["frame_center_error_m"]))
+    other = dict(zip(exact["packet"], exact["frame_center_error_m"]))
+    w = np.asarray([want[p] for p in pk])
+    o = np.asarray([other[p] for p in pk])
+    ok = np.isfinite(w)
+    np.testing.assert_array_equal(err[ok], w[ok])
+    # the two solvers differ somewhere on this flight, so the equality above tells them apart
+    assert np.nanmax(np.abs(w - o)) > 1e-6

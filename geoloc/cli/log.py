@@ -125,7 +125,8 @@ def run(args) -> int:
     elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):
         from geoloc.viz.rerun_model import steps_from_klv
 
-        steps, errors = steps_from_klv(path, camera, dem_path=dem, dem_datum=args.dem_datum)
+        steps, errors = steps_from_klv(path, camera, dem_path=dem, dem_datum=args.dem_datum, method=args.method,
+                                       eps_h_m=args.eps_h, threshold_m=args.threshold)
         for err in errors:
             print(f"{path}: skipped bad packet at byte {err.offset}: {err.reason}", file=sys.stderr)
     else:

@@ -534,8 +534,12 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
             "report": report, "names": list(names)}
 
 
-def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96") -> tuple[LogSteps, list]:
+def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96", method: str = "exact",
+                   eps_h_m=None, threshold_m=None) -> tuple[LogSteps, list]:
     """A MISB ST 0601 file replayed (:func:`geoloc.workflows.klv_replay.replay_klv`): one step per packet.
+
+    ``method``, ``eps_h_m`` and ``threshold_m`` are the DEM solver and its tolerances, as
+    for the records path (``geoloc log --method``).
 
     The recomputed frame centre is the target; the packet's own frame centre is the
     "published" position, so ``series/error/to_published_m`` is the frame-centre
@@ -550,7 +554,12 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     from geoloc.workflows.klv_replay import klv_pose, replay_klv
 
     dem = open_dem(dem_path, dem_datum) if dem_path is not None else None
-    r = replay_klv(path, dem=dem, sensor=camera)
+    dem_options = {}
+    if eps_h_m is not None:
+        dem_options["eps_h"] = float(eps_h_m)
+    if threshold_m is not None:
+        dem_options["threshold"] = float(threshold_m)
+    r = replay_klv(path, dem=dem, sensor=camera, method=method, dem_options=dem_options or None)
     c = r.columns
     if len(r) == 0:
         raise ValueError(f"{path}: no good packet ({len(r.errors)} bad)")
