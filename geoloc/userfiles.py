@@ -89,11 +89,14 @@ def noted_inputs() -> list:
     return list(_INPUTS.get() or [])
 
 
-def _same(a: Path, b: Path) -> bool:
+def same_file(a, b) -> bool:
+    """Whether two paths name one file: by identity (symlinks, hard links, relative paths),
+    or, when one of them does not exist yet, by their resolved paths (two outputs to be
+    written to one place)."""
     try:
         return os.path.samefile(a, b)
-    except OSError:  # one of them does not exist (yet): it cannot be the other
-        return False
+    except OSError:
+        return Path(a).resolve() == Path(b).resolve()
 
 
 def _bundled_root() -> Path | None:
@@ -148,7 +151,7 @@ def check_output(path, option: str = "", *, inputs=None) -> Path:
     p = Path(os.fspath(path))
     where = f"{option} {path}" if option else str(path)
     for q in (noted_inputs() if inputs is None else [Path(os.fspath(x)) for x in inputs]):
-        if _same(p, q):
+        if same_file(p, q):
             same = "" if str(q) == str(path) else f" ({q})"
             raise OutputRefused(f"{where} is an input of this command{same}: refusing to overwrite it; "
                                 "give another output path")
@@ -166,7 +169,7 @@ def check_output_dir(path, option: str = "", *, inputs=None) -> Path:
     p = Path(os.fspath(path))
     where = f"{option} {path}" if option else str(path)
     for q in (noted_inputs() if inputs is None else [Path(os.fspath(x)) for x in inputs]):
-        if _same(p, q):
+        if same_file(p, q):
             raise OutputRefused(f"{where} is an input of this command: refusing to write into it")
     root = _bundled_root()
     if root is not None and _inside(p, root):

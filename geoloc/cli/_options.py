@@ -137,27 +137,17 @@ def declared_files(parser, args) -> tuple[list, list]:
 
 def check_outputs(parser, args) -> list:
     """Refuse, before the verb runs, an output that is an input or cannot be written; returns the inputs."""
-    from geoloc.userfiles import check_output, check_output_dir
+    from geoloc.userfiles import check_output, check_output_dir, same_file
 
     inputs, outputs = declared_files(parser, args)
     seen = {}
     for name, path, role in outputs:
         (check_output if role == "output" else check_output_dir)(path, name, inputs=inputs)
         for other, q in seen.items():
-            if _same_path(path, q):
+            if same_file(path, q):
                 raise ValueError(f"{name} {path} and {other} {q} are the same file: give two paths")
         seen[name] = path
     return inputs
-
-
-def _same_path(a, b) -> bool:
-    import os
-    from pathlib import Path
-
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return Path(a).resolve() == Path(b).resolve()
 
 
 # --------------------------------------------------------------------------- sensor, pose, records
