@@ -154,18 +154,28 @@ def test_video_units_and_the_nearest_frame(tmp_path):
 
 
 def _mangle(data, rng, loss=0.0, swap=0.0, dup=0.0):
+    """The file's datagrams, a fraction ``loss`` dropped, ``swap`` swapped with the next, ``dup`` repeated.
+
+    No swap within two datagrams of a loss: there the order of the swapped pair is not determined by
+    the 4-bit TS continuity counters (a video PID moves up to 7 a datagram and wraps at 16), and
+    raw UDP carries no sequence number (RTP would): such a pair is taken in arrival order and its
+    KLV packet may be lost (``TsDemuxer.feed_datagram``).
+    """
     grams = datagrams_of(data)
-    order = list(range(len(grams)))
+    n = len(grams)
+    drop = rng.random(n) < loss
+    near = np.convolve(drop, np.ones(5), "same") > 0  # within two datagrams of a loss
+    order = list(range(n))
     k = 0
-    while k < len(order) - 1:
-        if rng.random() < swap:
+    while k < n - 1:
+        if rng.random() < swap and not near[k] and not near[k + 1]:
             order[k], order[k + 1] = order[k + 1], order[k]
             k += 2
         else:
             k += 1
     seq, dropped = [], set()
     for k in order:
-        if rng.random() < loss:
+        if drop[k]:
             dropped.add(k)
             continue
         seq.append(grams[k])

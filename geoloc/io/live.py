@@ -425,7 +425,7 @@ class TsDemuxer:
         out: list[PesUnit] = []
         if self._held is not None:
             held, self._held = self._held[0], None
-            if self._gap(data) < self._gap(held):  # the one that was missing (or nearer it): it goes first
+            if self._first(data, held):  # the one that was missing (or nearer it): it goes first
                 out += self._datagram(data)
                 out += self._datagram(held)
                 return out
@@ -530,22 +530,49 @@ class TsDemuxer:
             out += self._datagram(held)
         return out
 
-    def _gap(self, data: bytes) -> int:
-        """TS packets missing before ``data`` on its PIDs (counter steps; 0: it continues every one)."""
-        cc = {}
+    def _counters(self, data: bytes):
+        """(first counter, packets) per PID of the payload packets of ``data``; None for a cut datagram."""
+        cc, count = {}, {}
         for i in range(0, len(data) - TS_PACKET + 1, TS_PACKET):
             if data[i] != 0x47:
-                return 0  # a cut datagram: nothing to gain by holding it
-            pid = ((data[i + 1] & 0x1F) << 8) | data[i + 2]
-            if pid in cc or not data[i + 3] & 0x10:
+                return None
+            if not data[i + 3] & 0x10:
                 continue
-            cc[pid] = data[i + 3] & 0x0F
-        gap = 0
-        for pid, c in cc.items():
-            last = self._cc.get(pid)
-            if last is not None:
-                gap += (c - last - 1) & 0x0F
-        return gap
+            pid = ((data[i + 1] & 0x1F) << 8) | data[i + 2]
+            count[pid] = count.get(pid, 0) + 1
+            if pid not in cc:
+                cc[pid] = data[i + 3] & 0x0F
+        return cc, count
+
+    def _gap(self, data: bytes) -> int:
+        """TS packets missing before ``data`` on its PIDs (counter steps; 0: it continues every one)."""
+        c = self._counters(data)
+        if c is None:
+            return 0  # a cut datagram: nothing to gain by holding it
+        return sum((v - self._cc[pid] - 1) & 0x0F for pid, v in c[0].items() if pid in self._cc)
+
+    def _first(self, data: bytes, held: bytes) -> bool:
+        """True when ``data`` (just come) goes before ``held`` (both do not continue the stream).
+
+        It does when it continues every counter, or when the slow PIDs both carry (at most
+        two packets in each: PAT, PMT, KLV) say it is nearer. The 4-bit counters wrap every
+        16 packets and a video PID moves up to 7 a datagram, so with a datagram lost next to
+        two swapped ones and only video in common, the order is not known: arrival order.
+        """
+        if self._gap(data) == 0:
+            return True
+        a, b = self._counters(data), self._counters(held)
+        if a is None or b is None:
+            return False
+        da = db = 0
+        common = False
+        for pid, v in a[0].items():
+            if pid in b[0] and pid in self._cc and a[1][pid] <= 2 and b[1][pid] <= 2:
+                last = self._cc[pid]
+                da += (v - last - 1) & 0x0F
+                db += (b[0][pid] - last - 1) & 0x0F
+                common = True
+        return common and da < db
 
     def _take(self, pid: int, cc: int, pkt: bytes, offset: int, out: list) -> None:
         """One TS packet in its order: PSI or PES assembly."""
@@ -985,7 +1012,9 @@ def send(source, url, *, speed: float | None = 1.0, per: int = DATAGRAM_PACKETS,
         TS packets per datagram (default 7).
     loss, reorder, duplicate : float
         For tests: the fraction of datagrams dropped, swapped with the next one, sent
-        twice (``rng`` draws them).
+        twice (``rng`` draws them). No swap within two datagrams of a drop (there raw
+        UDP's 4-bit TS counters cannot tell the pair's order, see
+        :meth:`TsDemuxer.feed_datagram`).
     rng : numpy.random.Generator, optional
 
     Returns
@@ -1011,11 +1040,12 @@ def send(source, url, *, speed: float | None = 1.0, per: int = DATAGRAM_PACKETS,
     drop = rng.random(n) < loss if loss else np.zeros(n, bool)
     swap = rng.random(n) < reorder if reorder else np.zeros(n, bool)
     dup = rng.random(n) < duplicate if duplicate else np.zeros(n, bool)
+    near = np.convolve(drop, np.ones(5), "same") > 0 if n else drop  # within two datagrams of a loss
     order = list(range(n))
     k = 0
     reordered = 0
     while k < n - 1:
-        if swap[k]:
+        if swap[k] and not near[k] and not near[k + 1]:
             order[k], order[k + 1] = order[k + 1], order[k]
             reordered += 1
             k += 2
