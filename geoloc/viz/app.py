@@ -123,6 +123,30 @@ LEGEND = """\
 """
 
 
+def dem_cell_m(dem) -> float:
+    """A DEM's cell size [m] (north-south; degrees at 111.32 km for a geographic grid), NaN if unknown."""
+    g = getattr(dem, "grid", None)
+    d = float(getattr(g, "dlat_deg", np.nan)) if g is not None else np.nan
+    return abs(d) * 111.32e3 if getattr(dem, "is_geographic", True) else abs(d)
+
+
+def coarse_dem_note(scn, inp, error_m: float, published_error_m: float) -> str:
+    """Why the error to the surveyed point exceeds the published one, when the DEM is coarse (cells
+    over 1 km): the panel says it where the numbers are (empty otherwise)."""
+    dem = getattr(scn, "dem", None)
+    if dem is None or not (np.isfinite(error_m) and np.isfinite(published_error_m)):
+        return ""
+    cell = dem_cell_m(dem)
+    if not (np.isfinite(cell) and cell > 1000.0 and error_m > 2.0 * published_error_m):
+        return ""
+    name = str(getattr(scn, "dem_name", "") or "the DEM").split(" (")[0]
+    return (f"**why {error_m:.0f} m, not the published {published_error_m:.0f} m**: the terrain here is "
+            f"{name}, cells of about {cell / 1e3:.0f} km ([Q17] used ASTER GDEM, 30 m cells); a coarse DEM "
+            "misplaces the terrain height by hundreds of metres, and at a gimbal roll of "
+            f"{abs(inp.gimbal_roll_deg):.0f} deg a height error moves the target about as much "
+            "horizontally. Without terrain (`--no-dem`) the published positions come back to 0.3 m")
+
+
 def make_server(host: str = "127.0.0.1", port: int = 8080, verbose: bool = False) -> viser.ViserServer:
     """A viser server bound to ``host`` (local only by default); ``port=0`` picks a free port."""
     server = viser.ViserServer(host=host, port=port, label="geoloc", verbose=verbose)
@@ -322,7 +346,9 @@ class GeolocSession:
             self.sl_err = gui.add_slider("error vector exaggeration", 1.0, 100.0, 1.0, d.error_exaggeration,
                                          hint="The error vector is drawn this many times its length; "
                                          "its label gives the true length")
-            self.sl_marker = gui.add_slider("marker radius (m)", 10.0, 500.0, 10.0, d.marker_radius_m)
+            self.sl_marker = gui.add_slider("marker radius (m)", 0.25, 500.0, 0.25, d.marker_radius_m,
+                                            hint="Radius of the hit markers; the flight layer sizes them "
+                                            "to the current frame's error")
             self.cb_frames = {f: gui.add_checkbox(f"frame {f}", d.frames_visible.get(f, True))
                               for f in drawn_frames(self.scn.camera)}
             self.cb_terrain = gui.add_checkbox("terrain", d.terrain_visible)
@@ -550,6 +576,9 @@ class GeolocSession:
                 if np.isfinite(e_p):
                     text += f"; to published: {e_p:.1f} m (horizontal)"
                 lines.append(text + "  ")
+                why = coarse_dem_note(scn, inp, e_t, info.paper_error_m)
+                if why:
+                    lines.append(why + "  ")
                 if g.surveyed_enu is not None and np.all(np.isfinite(g.hit_enu)):
                     e3 = float(np.linalg.norm(g.surveyed_enu - g.hit_enu))
                     lines.append(f"error vector to surveyed (3D, surveyed point on the terrain): "

@@ -47,8 +47,20 @@ COLORS = {
     "recomputed": (255, 60, 60),
     "truth": (255, 255, 255),
     "error": (255, 90, 200),
+    # every frame's error vector: a dimmer mauve than the current frame's bright pink one, so the
+    # one being looked at stands out (and a browser test can find it: red > 225 only for the bright one)
+    "errors": (165, 95, 145),
 }
 TOP_N = 12
+#: Marker radius at the current frame, as a fraction of its error (the error vector must stay visible
+#: between the two markers at every scale: 10 % leaves 80 % of the vector uncovered), within these
+#: bounds [m] (the upper one the session's default marker radius).
+FOCUS_FRACTION = 0.1
+FOCUS_RADIUS_M = (0.25, 220.0)
+#: The camera framing an error stands this many error lengths from it (the vector then spans about a
+#: third of the view at viser's 75 deg vertical field of view), at least FOCUS_MIN_DISTANCE_M.
+FOCUS_DISTANCE = 2.2
+FOCUS_MIN_DISTANCE_M = 60.0
 #: Display-only lift of the draped outlines above the terrain mesh [m], so the depth test does not
 #: hide lines that lie on it (the mesh resamples the DEM: it is tens of metres off between nodes).
 LIFT_M = {"footprints": 8.0, "current": 25.0}
@@ -146,13 +158,25 @@ class FlightLayer:
         err = m.error_segments()
         ok = np.all(np.isfinite(err), axis=(1, 2))
         if ok.any():
-            self.handles["errors"] = s.add_line_segments(f"{ROOT}/errors", f32(err[ok]), COLORS["error"],
-                                                         thickness=2.5, thickness_units="screen")
+            self.handles["errors"] = s.add_line_segments(f"{ROOT}/errors", f32(err[ok]), COLORS["errors"],
+                                                         thickness=1.5, thickness_units="screen")
         self.handles["current"] = s.add_line_segments(
             f"{ROOT}/current", np.zeros((P, 2, 3), np.float32), COLORS["current"], thickness=6.0,
             thickness_units="screen")
         self.handles["label"] = s.add_label(f"{ROOT}/current/label", "", position=(0.0, 0.0, 0.0),
                                             anchor="bottom-left")
+        # the current frame's error, drawn above everything around it (see focus()): the vector
+        # (lifted over the terrain mesh), stems down to the true points, two markers sized to the
+        # error, and a label with its length
+        z = np.zeros((1, 2, 3), np.float32)
+        self.focus_handles = {
+            "error": s.add_line_segments(f"{ROOT}/focus/error", z, COLORS["error"], thickness=7.0,
+                                         thickness_units="screen"),
+            "stems": s.add_line_segments(f"{ROOT}/focus/stems", np.zeros((2, 2, 3), np.float32),
+                                         COLORS["error"], thickness=1.5, thickness_units="screen"),
+        }
+        self._focus_key = None
+        self.focus_info: dict = {}
         self._place_root()
 
     def _place_root(self) -> None:
@@ -190,19 +214,122 @@ class FlightLayer:
         f = m.fault_of(idx)
         lab.text = (f"{m.labels[idx]}: residual {res:.1f} m" if np.isfinite(res) else m.labels[idx]) + \
             (f" ({f.kind})" if f is not None else "")
+        self.focus(idx)
+        # an error worth seeing has its own label (frame, length, fault) above its vector: the frame's
+        # label at the image centre would sit on the vector's start
+        lab.visible = not (self.focus_info and self.focus_info["error_m"] > 0.5)
         if hasattr(self, "md_frame"):
             self.md_frame.content = self._frame_text(idx)
         self.last_step_s = time.perf_counter() - t0
 
+    # ------------------------------------------------------------ the current frame's error
+    def reference_enu(self) -> np.ndarray:
+        m = self.model
+        return m.truth_enu if m.reference == "truth" else m.reported_enu
+
+    def error_m(self, idx: int) -> float:
+        """3D length [m] of frame ``idx``'s error vector (recomputed -> reference; NaN if unknown)."""
+        d = self.reference_enu()[idx] - self.model.recomputed_enu[idx]
+        return float(np.linalg.norm(d)) if np.all(np.isfinite(d)) else float("nan")
+
+    def focus_radius_m(self, idx: int) -> float:
+        """Marker radius [m] at frame ``idx``: :data:`FOCUS_FRACTION` of its error, within :data:`FOCUS_RADIUS_M`."""
+        e = self.error_m(idx)
+        lo, hi = FOCUS_RADIUS_M
+        return float(np.clip(FOCUS_FRACTION * e, lo, hi)) if np.isfinite(e) else hi
+
+    def _lift_m(self, pts_enu) -> float:
+        """Display lift [m] of the error vector over the session's terrain mesh (its cells' highest
+        nodes under the ends and the middle), plus a margin; 0 without a DEM."""
+        from geoloc.viz import terrain_link
+
+        scn = self.session.scn
+        if getattr(scn, "dem", None) is None or not getattr(self._disp(), "terrain_visible", True):
+            return None
+        F = self.model.enu
+        lat, lon, h = F.to_geodetic(np.asarray(pts_enu, float))
+        top = terrain_link.mesh_height_bound(scn, np.degrees(lat), np.degrees(lon))
+        gap = np.nanmax(np.r_[top - h, 0.0])
+        return float(gap) if np.isfinite(gap) else 0.0
+
+    def focus(self, idx: int) -> None:
+        """Draw frame ``idx``'s error vector (recomputed -> reference), lifted clear of the terrain
+        mesh with stems to the true points, its two markers sized to the error and its label."""
+        m, W, s = self.model, WORLD_SCALE, self.scene
+        a, b = m.recomputed_enu[idx], self.reference_enu()[idx]
+        fh = self.focus_handles
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            self.focus_info = {}
+            for h in fh.values():
+                h.visible = False
+            return
+        e = float(np.linalg.norm(b - a))
+        r = self.focus_radius_m(idx)
+        lift = self._lift_m(np.stack([a, b, 0.5 * (a + b)]))
+        up = np.array([0.0, 0.0, 1.0])
+        # above the mesh by a margin (2 m, and 2 markers' radii so the markers clear it too)
+        lift = 0.0 if lift is None else lift + 2.0 + 2.0 * r
+        v = np.array([1.0, 1.0, self._vexag()]) * W
+        a2, b2 = a + lift * up, b + lift * up
+        fh["error"].points = (np.array([[a2, b2]]) * v).astype(np.float32)
+        fh["stems"].points = (np.array([[a, a2], [b, b2]]) * v).astype(np.float32)
+        key = round(r, 4)
+        if key != self._focus_key or "recomputed" not in fh:
+            self._focus_key = key
+            fh["recomputed"] = s.add_icosphere(f"{ROOT}/focus/recomputed", radius=r * W, color=COLORS["recomputed"],
+                                               subdivisions=2, cast_shadow=False, receive_shadow=False)
+            fh["reference"] = s.add_icosphere(f"{ROOT}/focus/reference", radius=r * W,
+                                              color=COLORS["truth" if m.reference == "truth" else "reported"],
+                                              subdivisions=2, cast_shadow=False, receive_shadow=False)
+        fh["recomputed"].position = tuple(a2 * v)
+        fh["reference"].position = tuple(b2 * v)
+        text = self.error_text(idx)
+        mid = 0.5 * (a2 + b2) + up * max(0.35 * e, 3.0 * r)
+        if "label" not in fh:
+            fh["label"] = s.add_label(f"{ROOT}/focus/label", text, position=tuple(mid * v), anchor="bottom-center")
+        else:
+            fh["label"].position = tuple(mid * v)
+            if fh["label"].text != text:
+                fh["label"].text = text
+        for h in fh.values():
+            h.visible = True
+        self.focus_info = {"idx": idx, "a_enu": a2, "b_enu": b2, "error_m": e, "radius_m": r, "lift_m": lift,
+                           "label": text}
+
+    def error_text(self, idx: int) -> str:
+        """The error vector's label: its 3D length, what it joins, and the display lift if any."""
+        m = self.model
+        e = self.error_m(idx)
+        if not np.isfinite(e):
+            return ""
+        f = m.fault_of(idx)
+        kind = f" ({KIND_NAMES.get(f.kind, f.kind)} run)" if f is not None else ""
+        return f"{m.labels[idx]}{kind}: error {e:.1f} m, recomputed -> {m.reference}"
+
+    def focus_world(self):
+        """The lifted error vector's ends in the session's scene frame (km), for cameras and tests."""
+        if not self.focus_info:
+            return None
+        scene_enu, F = self.session.scn.enu, self.model.enu
+        v = np.array([1.0, 1.0, self._vexag()]) * WORLD_SCALE
+        return tuple(scene_enu.from_ecef(F.to_ecef(p)) * v for p in (self.focus_info["a_enu"],
+                                                                      self.focus_info["b_enu"]))
+
     def _frame_text(self, idx: int) -> str:
         m, c = self.model, self.model.components
         f = m.fault_of(idx)
-        text = (f"**{m.labels[idx]}** (frame {idx + 1} of {len(m)}): residual {m.residual_m[idx]:.2f} m "
+        text = (f"**{m.labels[idx]}** (timeline frame index {idx} of 0 .. {len(m) - 1}): residual "
+                f"{m.residual_m[idx]:.2f} m "
                 f"(recomputed vs {m.reference}, horizontal); along {c['along_m'][idx]:+.1f}, across "
                 f"{c['across_m'][idx]:+.1f}, up {c['up_m'][idx]:+.1f} m"
                 + (" **outlier**" if m.outlier[idx] else ""))
         if f is not None:
             text += f"  \nrun: {f.headline()}"
+        if self.focus_info.get("idx") == idx:
+            fi = self.focus_info
+            text += (f"  \n**pink vector**: {fi['label']}; markers {fi['radius_m']:.2g} m"
+                     + (f", drawn {fi['lift_m']:.0f} m above the terrain mesh (stems to the true points)"
+                        if fi["lift_m"] > 0 else ""))
         return text
 
     # ------------------------------------------------------------ GUI
@@ -220,15 +347,17 @@ class FlightLayer:
                 f"**{n} frames**, footprints on {m.surface.split(' (')[0]}. **magenta**: the current frame; "
                 "**red** outlines: outliers; **blue**: track; points **violet** / **red** / **white**: "
                 "reported / recomputed / truth; **pink**: error vectors (true length)")
-            self.sl_frame = g.add_slider("frame", 0, max(n - 1, 1), 1, 0, disabled=n < 2,
+            self.sl_frame = g.add_slider("frame index", 0, max(n - 1, 1), 1, 0, disabled=n < 2,
                                          hint="Scrub through the frames; each loads as the current record")
             self.bt_play = g.add_button("play", hint="Play / pause the timeline")
             self.num_fps = g.add_number("frames per second", 2.0, min=0.2, max=30.0, step=0.1)
+            self.cb_auto_markers = g.add_checkbox(
+                "markers sized to the error", True,
+                hint="The hit markers shrink to a tenth of the current frame's error so they never cover "
+                     "its error vector (pink, with its length)")
             self.md_frame = g.add_markdown("")
         with g.add_folder("Flight: outliers first", order=self._order(1)):
-            top = m.top(self.top_n)
-            self.top_idx = [int(i) for i in top]
-            self.opts = [f"{r}. {m.labels[i]} ({m.residual_m[i]:.1f} m)" for r, i in enumerate(self.top_idx, 1)]
+            self.top_idx, self.opts = goto_entries(m, self.top_n)
             self.dd_goto = g.add_dropdown("go to", [CHOOSE] + self.opts, initial_value=CHOOSE,
                                           hint="Jump the timeline and the camera to this frame")
             self.md_table = g.add_markdown(m.outlier_markdown(self.top_n))
@@ -263,10 +392,42 @@ class FlightLayer:
             takes_camera = False
         fn(idx, move_camera=False) if takes_camera else fn(idx)
 
+    def size_markers(self, idx: int, points: bool = False) -> None:
+        """The session's hit markers (and with ``points`` the flight's point clouds) sized to frame
+        ``idx``'s error (:meth:`focus_radius_m`), so they never cover its error vector."""
+        s, d = self.session, self._disp()
+        cb = getattr(self, "cb_auto_markers", None)
+        if d is None or (cb is not None and not cb.value):
+            return
+        r = self.focus_radius_m(idx)
+        changed = abs(float(getattr(d, "marker_radius_m", r)) - r) > 1e-9
+        d.marker_radius_m = r
+        sl = getattr(s, "sl_marker", None)
+        if sl is not None and abs(float(sl.value) - r) > 1e-9:
+            s._mute = True
+            try:
+                sl.value = r
+            finally:
+                s._mute = False
+        # every frame's points (viser draws a point about twice its size in world units across):
+        # a quarter of the current frame's markers, so the neighbours of a run stay off its vector
+        size = 0.5 * r * WORLD_SCALE if points else self.point_size
+        for name in ("centres", "reported", "recomputed", "truth"):
+            h = self.handles.get(name)
+            if h is not None:
+                h.point_size = size * (0.6 if name == "centres" else 1.0)
+        self._markers_changed = changed
+
     def go(self, idx: int, camera: bool = False) -> None:
-        """Frame ``idx``: load it into the session, move the highlight, sync the slider (and the camera)."""
+        """Frame ``idx``: load it into the session, move the highlight, sync the slider (and the camera:
+        framed on the frame's error, the markers sized to it)."""
         idx = int(np.clip(idx, 0, len(self.model) - 1))
+        self._markers_changed = False
+        self.size_markers(idx, points=camera)
+        loaded = self.session.scn.record_index == idx
         self._load(idx)
+        if loaded and self._markers_changed and hasattr(self.session, "refresh"):
+            self.session.refresh(recompute=False)
         self.highlight(idx)
         if int(self.sl_frame.value) != idx:
             self._mute = True
@@ -274,8 +435,16 @@ class FlightLayer:
                 self.sl_frame.value = idx
             finally:
                 self._mute = False
+        self.show_origin(not camera)
         if camera:
             self.move_camera_to(idx)
+
+    def show_origin(self, visible: bool) -> None:
+        """Show or hide the scene's ENU origin axes: 600 m cylinders at the rounded target position,
+        right where a framed error is (hidden while one is framed; "overview" shows them again)."""
+        h = self.scene.get_handle_by_name("/enu/origin") if hasattr(self.scene, "get_handle_by_name") else None
+        if h is not None and h.visible != visible:
+            h.visible = visible
 
     def camera_pose(self, idx: int):
         """(position, look_at) in scene units (km) framing frame ``idx``: its footprint from the aircraft's side."""
@@ -289,6 +458,25 @@ class FlightLayer:
 
         c = m.centre_enu[idx] if np.all(np.isfinite(m.centre_enu[idx])) else m.recomputed_enu[idx]
         aim, a = to_scene(c), to_scene(m.track_enu[idx])
+        ends = self.focus_world() if self.focus_info.get("idx") == idx else None
+        e = self.error_m(idx)
+        if ends is not None and np.isfinite(e) and e > 0.5:
+            # framed on the error: looking down steeply from the aircraft's side, the vector
+            # across the middle of the view
+            aim = 0.5 * (ends[0] + ends[1])
+            D = max(FOCUS_DISTANCE * e, FOCUS_MIN_DISTANCE_M) * WORLD_SCALE
+            horiz = (a - aim)[:2]
+            u = np.r_[horiz / max(np.linalg.norm(horiz), 1e-9), 0.0]
+            # from the side away from the aircraft (its line of sight, iterations and frames then
+            # lie beyond the error, above the view), across the vector (it runs left to right on
+            # screen, and its label, above its middle, stays off it)
+            u = -u
+            dv = (ends[1] - ends[0])[:2]
+            if np.linalg.norm(dv) > 0.2 * np.linalg.norm(ends[1] - ends[0]):
+                p = np.r_[-dv[1], dv[0], 0.0] / np.linalg.norm(dv)
+                u = p if p @ u >= 0 else -p
+            w = 0.55 * u + np.array([0.0, 0.0, 0.83])
+            return aim + D * w / np.linalg.norm(w), aim
         L = max(float(np.linalg.norm(a - aim)), 1e-3)
         horiz = (a - aim)[:2]
         u = np.r_[horiz / max(np.linalg.norm(horiz), 1e-9), 0.0]
@@ -358,6 +546,36 @@ class FlightLayer:
         """Stop the timeline (the session drops its callbacks; the tab's nodes go with it)."""
         self._playing = False
         self.closed = True
+
+
+KIND_NAMES = {"attitude": "heading bias", "datum": "height datum", "timing": "stale pose",
+              "unexplained": "unexplained"}
+
+
+def goto_entries(m: flight_model.FlightModel, top_n: int = TOP_N):
+    """(frame indices, option texts) of the "go to" dropdown: every flagged run, worst first, as
+    its worst frame then each of its frames (so every outlier is one choice away); without runs
+    the ``top_n`` largest residuals."""
+    idx, opts = [], []
+    runs = sorted(m.faults, key=lambda f: -np.nanmax(m.residual_m[f.first:f.last + 1]))
+    for r, f in enumerate(runs, 1):
+        frames = np.arange(f.first, f.last + 1)
+        worst = int(frames[np.nanargmax(m.residual_m[frames])])
+        span = m.labels[f.first] if f.first == f.last else f"{m.labels[f.first]} .. {m.labels[f.last]}"
+        idx.append(worst)
+        opts.append(f"run {r} ({KIND_NAMES.get(f.kind, f.kind)}, {span}): worst {m.labels[worst]}, "
+                    f"{m.residual_m[worst]:.1f} m")
+        for i in frames:
+            idx.append(int(i))
+            opts.append(f"  run {r}: {m.labels[i]} ({m.residual_m[i]:.1f} m)")
+    flagged = {int(i) for i in np.flatnonzero(m.outlier)}
+    rest = [int(i) for i in m.order if int(i) in flagged and int(i) not in idx]
+    if not runs:
+        rest = [int(i) for i in m.top(top_n) if np.isfinite(m.residual_m[int(i)])]
+    for k, i in enumerate(rest, 1):
+        idx.append(i)
+        opts.append(f"{k}. {m.labels[i]} ({m.residual_m[i]:.1f} m)")
+    return idx, opts
 
 
 def attach(session) -> FlightLayer:

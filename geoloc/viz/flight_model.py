@@ -213,20 +213,63 @@ class FlightModel:
             meta={"reference": f"recomputed vs {self.reference}", "surface": self.surface})
         return self._report
 
+    def error_model(self):
+        """The slant-range model of the horizontal error (``intercept_m + m_per_m * slant``) when it is
+        meaningful, else ``(None, why)``: only against truth (against the reported positions it
+        models an agreement, not an accuracy), from 5 frames or more, with a non-negative intercept
+        and slope (a negative intercept is no error at short range: a line through scatter), and
+        explaining the spread (rms of its residuals under 90 % of the errors' own spread)."""
+        if self.reference != "truth":
+            return None, "no truth in the records: no accuracy model"
+        mdl = self.report().overall.get("slant_range_model") or {}
+        n = int(mdl.get("n") or 0)
+        b, a, rms = (float(mdl.get(k, math.nan)) for k in ("intercept_m", "m_per_m", "rms_residual_m"))
+        h = self.residual_m[np.isfinite(self.residual_m)]
+        if n < 5 or not np.isfinite(b) or not np.isfinite(a):
+            return None, f"{n} frames: too few for an error model"
+        if b < 0:
+            return None, (f"the least-squares line in slant range has a negative intercept ({b:.1f} m + "
+                          f"{a * 1e3:.2f} m per km): a line through scatter, not an accuracy")
+        if a < 0:
+            return None, f"the errors shrink with slant range ({a * 1e3:.2f} m per km): no range model"
+        if len(h) > 1 and not rms < 0.9 * float(np.std(h)):
+            return None, "slant range does not explain the spread of the errors"
+        return mdl, ""
+
     def summary_markdown(self) -> str:
-        """The panel's accuracy lines: CEP, CE90, LE90, mean errors, bias, the slant-range model, warnings."""
+        """The accuracy panel: agreement with the reported positions, kept apart from accuracy against
+        truth (CEP, CE90, LE90, bias; the slant-range model only when :meth:`error_model` finds it
+        meaningful), the robust outliers and the report's warnings."""
         r = self.report()
         s = r.overall
         f = lambda v, spec=".2f": "n/a" if v is None or not np.isfinite(v) else format(v, spec)
-        L = [f"**accuracy, recomputed vs {self.reference}** ({s['n']} frames; heights {H_DATUM})  ",
-             f"CEP {f(s['cep_m'])} m, CE90 {f(s['ce90_m'])} m, LE90 {f(s['le90_m'])} m  ",
-             f"mean abs. error: horizontal {f(s['mae_horizontal_m'])} m, vertical {f(s['mae_vertical_m'])} m  ",
-             (f"bias: N {f(s['bias_north_m'])}, E {f(s['bias_east_m'])}, U {f(s['bias_up_m'])}, "
-              f"along {f(s['bias_along_m'])}, across {f(s['bias_across_m'])} m  ")]
-        mdl = s.get("slant_range_model")
-        if mdl and mdl.get("n"):
-            L.append(f"horizontal error = {f(mdl['intercept_m'])} m + {f(mdl['m_per_m'] * 1e3, '.3f')} m per km "
-                     "of slant range  ")
+        L = []
+        if self.reference == "truth":
+            L += [f"**accuracy against the surveyed truth** (recomputed vs truth, {s['n']} frames; heights "
+                  f"{H_DATUM})  ",
+                  f"CEP {f(s['cep_m'], '.1f')} m, CE90 {f(s['ce90_m'], '.1f')} m, LE90 {f(s['le90_m'], '.1f')} m  ",
+                  f"mean abs. error: horizontal {f(s['mae_horizontal_m'], '.1f')} m, vertical "
+                  f"{f(s['mae_vertical_m'], '.1f')} m  ",
+                  (f"bias: N {f(s['bias_north_m'], '.1f')}, E {f(s['bias_east_m'], '.1f')}, U "
+                   f"{f(s['bias_up_m'], '.1f')}, along {f(s['bias_along_m'], '.1f')}, across "
+                   f"{f(s['bias_across_m'], '.1f')} m  ")]
+            mdl, why = self.error_model()
+            L.append(f"error model: horizontal error = {mdl['intercept_m']:.1f} m + {mdl['m_per_m'] * 1e3:.2f} m "
+                     "per km of slant range  " if mdl is not None else f"error model: none ({why})  ")
+            rep = agreement(self.recomputed_lat_deg, self.recomputed_lon_deg, self.reported_lat_deg,
+                            self.reported_lon_deg)
+            if rep is not None:
+                L.append(f"agreement with the reported positions (not an accuracy): median {_length(rep[0])}, "
+                         f"90 % within {_length(rep[1])}, largest {_length(rep[2])}  ")
+        else:
+            h = self.residual_m[np.isfinite(self.residual_m)]
+            L.append(f"**agreement with the reported positions** (recomputed vs the positions the records "
+                     f"report, e.g. the MISB frame centre; {len(h)} frames)  ")
+            if len(h):
+                L.append(f"median {_length(np.median(h))}, 90 % within {_length(np.percentile(h, 90))}, largest "
+                         f"{_length(h.max())}; {int((h < 1.0).sum())} of {len(h)} frames within 1 m  ")
+            L.append("**accuracy: unknown**: the records carry no surveyed truth, so how far either position "
+                     "is from the ground truth cannot be said (no CEP, no error model)  ")
         L.append(f"robust outliers: {int(self.outlier.sum())} of {len(self)} frames (median / MAD rule)  ")
         L += [f"**warning** {w}  " for w in r.warnings]
         return "\n".join(L)
@@ -262,6 +305,26 @@ class FlightModel:
         for f in self.faults:
             out.append(f"- {f.headline()}  \n  {WHAT_IT_LOOKS_LIKE[f.kind]}")
         return "\n".join(out)
+
+
+def _length(v_m: float) -> str:
+    """A length with its unit chosen so it never reads 0.00: mm under 1 m, m above."""
+    if not np.isfinite(v_m):
+        return "n/a"
+    return f"{v_m * 1e3:.1f} mm" if abs(v_m) < 1.0 else f"{v_m:.1f} m"
+
+
+def agreement(lat_deg, lon_deg, ref_lat_deg, ref_lon_deg):
+    """(median, 90th percentile, largest) horizontal distance [m] between two sets of positions
+    (geodesics on WGS 84), or None when no pair is finite."""
+    from geoloc.geodesy.geodesic import horizontal_distance_m
+
+    a = [np.asarray(x, float) for x in (lat_deg, lon_deg, ref_lat_deg, ref_lon_deg)]
+    ok = np.all([np.isfinite(x) for x in a], axis=0)
+    if not ok.any():
+        return None
+    d = np.asarray(horizontal_distance_m(*(x[ok] for x in a)), float)
+    return float(np.median(d)), float(np.percentile(d, 90)), float(d.max())
 
 
 # --------------------------------------------------------------------------- inputs as arrays

@@ -219,3 +219,40 @@ def terrain_geometry(scn, inp, los, surface=None) -> dict:
     out.update(hit=hit, hit_enu=enu.from_ecef(hit.ecef), hit_label=names[inp.method].split(",")[0],
                exact_enu=enu.from_ecef(exact.ecef), iterations=it, message=msg, terrain_result=hit)
     return out
+
+
+def mesh_height_bound(scn, lat_deg, lon_deg, window_m: float = WINDOW_M, nodes: int = MESH_NODES):
+    """Highest node of the terrain mesh's grid cell under each point [m, ellipsoidal]: an upper
+    bound of the drawn terrain surface there (any triangulation of a cell lies below its highest
+    node). NaN outside the mesh or without a DEM.
+
+    The mesh (:func:`terrain_mesh`) resamples the DEM on a ``nodes x nodes`` grid (cells of a few
+    hundred metres), so between nodes it can lie tens of metres above the DEM's own surface, where
+    the hits are: a display that must not be hidden by the mesh is lifted above this bound.
+    """
+    lat = np.atleast_1d(np.asarray(lat_deg, float))
+    lon = np.atleast_1d(np.asarray(lon_deg, float))
+    dem = getattr(scn, "dem", None)
+    if dem is None:
+        return np.full(lat.shape, np.nan)
+    enu = scn.enu
+    lat0, lon0 = np.rad2deg(enu.lat0), np.rad2deg(enu.lon0)
+    dlat = np.rad2deg(window_m / 6.36e6)  # as terrain_mesh
+    dlon = dlat / np.cos(enu.lat0)
+    w, s, e, n = dem.bounds_deg
+    north, south = min(lat0 + dlat, n), max(lat0 - dlat, s)
+    west, east = max(lon0 - dlon, w), min(lon0 + dlon, e)
+    fi = (north - lat) / (north - south) * (nodes - 1)
+    fj = (lon - west) / (east - west) * (nodes - 1)
+    inside = (fi >= 0) & (fi <= nodes - 1) & (fj >= 0) & (fj <= nodes - 1)
+    fi, fj = np.clip(np.nan_to_num(fi), 0, nodes - 1), np.clip(np.nan_to_num(fj), 0, nodes - 1)
+    i0, j0 = np.floor(fi), np.floor(fj)
+    i1, j1 = np.minimum(i0 + 1, nodes - 1), np.minimum(j0 + 1, nodes - 1)
+    step_lat, step_lon = (north - south) / (nodes - 1), (east - west) / (nodes - 1)
+    best = np.full(lat.shape, -np.inf)
+    for ii in (i0, i1):
+        for jj in (j0, j1):
+            h = dem.height(np.deg2rad(north - ii * step_lat), np.deg2rad(west + jj * step_lon))
+            best = np.fmax(best, np.asarray(h, float))
+    best[~inside | ~np.isfinite(best)] = np.nan
+    return best
