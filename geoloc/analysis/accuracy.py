@@ -537,6 +537,12 @@ class AccuracyReport:
                 for b in bins:
                     L.append(f"| {_f(b['lo'], '.1f')} - {_f(b['hi'], '.1f')} | {b['n']} | {_f(b['median'])} | "
                              f"{_f(b.get('median2', math.nan))} |")
+        for g, s in self.rows():
+            b = s.get("budget")
+            if b:
+                L.append(f"\n{g}: {b['text']}")
+                if b.get("vertical"):
+                    L.append(f"{g}: {b['vertical']['text']}")
         if self.warnings:
             L.append("")
             L += [f"**warning** {w}" for w in self.warnings]

@@ -805,3 +805,88 @@ def budget_from_error_model(model) -> ErrorBudget:
             raise ValueError(f"{model.source} [errors] {k}: no budget key for it (focal_length_px draws fx and fy "
                              "together: give fx_px and fy_px)")
     return ErrorBudget(out, None, model.source)
+
+
+# --------------------------------------------------------------------- the budget judged by the data
+#: The Mahalanobis radius of the 90 % (99 %) ellipse: sqrt of the chi-square (2 dof) quantile.
+ELLIPSE99_PER_SIGMA = math.sqrt(-2.0 * math.log(0.01))
+
+
+def normalised_errors(east_m, north_m, major_m, minor_m, azimuth_deg):
+    """Each horizontal error's Mahalanobis distance in its own predicted ellipse (1-sigma units).
+
+    With the error's components along the major axis (azimuth clockwise from north) and the minor,
+    ``d^2 = (a / major)^2 + (b / minor)^2``: chi-square with 2 degrees of freedom when the budget
+    is right, so ``d <= 2.1460`` (:data:`ELLIPSE90_PER_SIGMA`) for 90 % of the points.
+    """
+    az = np.radians(np.asarray(azimuth_deg, float))
+    e, n = np.asarray(east_m, float), np.asarray(north_m, float)
+    along = e * np.sin(az) + n * np.cos(az)
+    across = e * np.cos(az) - n * np.sin(az)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.sqrt((along / np.asarray(major_m, float)) ** 2 + (across / np.maximum(minor_m, 1e-9 * np.asarray(major_m, float))) ** 2)
+
+
+def outside_ellipse(east_m, north_m, major_m, minor_m, azimuth_deg, p: float = 0.99):
+    """True where the horizontal error lies outside its own predicted ``p`` ellipse (default 99 %)."""
+    return normalised_errors(east_m, north_m, major_m, minor_m, azimuth_deg) > math.sqrt(-2.0 * math.log1p(-p))
+
+
+def budget_check(east_m, north_m, major_m, minor_m, azimuth_deg, up_m=None, le90_m=None,
+                 confidence: float = 0.99) -> dict:
+    """Judge a budget by its data: the share of truths inside their own predicted 90 % ellipse.
+
+    Parameters
+    ----------
+    east_m, north_m : array_like
+        Each point's horizontal error (computed minus truth) [m].
+    major_m, minor_m, azimuth_deg : array_like
+        Its predicted 1-sigma ellipse (:class:`PointUncertainty`, the replay CSV's columns).
+    up_m, le90_m : array_like, optional
+        Vertical error and predicted LE90 [m]: the same check on the vertical.
+    confidence : float
+        The binomial interval around 90 % that counts as "holds" (default 99 %: a right budget
+        is called wrong once in a hundred flights).
+
+    Returns
+    -------
+    dict
+        ``n``, ``inside_90`` (share), ``interval`` (the binomial ``confidence`` interval of the
+        share for n points if the budget is right), ``normalised`` (per point: d / 2.1460, the
+        error over its 90 % ellipse's radius in its direction; 1 = on the ellipse), ``factor``
+        (the scale that would put 90 % inside: the 90th percentile of d over 2.1460; > 1: the
+        errors are larger than predicted), ``verdict`` (``holds``, ``optimistic`` or
+        ``pessimistic``) and ``text``; with the vertical, ``vertical`` with the same keys for |up|
+        over LE90.
+    """
+    from scipy.stats import binom
+
+    d = normalised_errors(east_m, north_m, major_m, minor_m, azimuth_deg) / ELLIPSE90_PER_SIGMA
+    out = _judge(d, confidence, "horizontal errors inside their predicted 90 % ellipse", binom)
+    if up_m is not None and le90_m is not None:
+        v = np.abs(np.asarray(up_m, float)) / np.asarray(le90_m, float)
+        out["vertical"] = _judge(v, confidence, "vertical errors inside their predicted LE90", binom)
+    return out
+
+
+def _judge(r, confidence, what, binom) -> dict:
+    r = np.asarray(r, float)
+    ok = np.isfinite(r)
+    n = int(ok.sum())
+    if n == 0:
+        return {"n": 0, "inside_90": math.nan, "interval": [math.nan, math.nan], "normalised": r,
+                "factor": math.nan, "verdict": "no data", "text": f"budget check: no {what.split(' inside')[0]} "
+                "with a predicted uncertainty"}
+    share = float(np.mean(r[ok] <= 1.0))
+    lo, hi = (float(x) / n for x in binom.interval(confidence, n, 0.9))
+    factor = float(np.percentile(r[ok], 90))
+    if share < lo:
+        verdict, how = "optimistic", f"too optimistic: the errors are {factor:.2f}x the predicted"
+    elif share > hi:
+        verdict, how = "pessimistic", f"too pessimistic: the errors are {factor:.2f}x the predicted ({1 / factor:.2f}x smaller)"
+    else:
+        verdict, how = "holds", f"holds (errors {factor:.2f}x the predicted)"
+    text = (f"budget {how}: {share:.1%} of {n} {what} (a right budget: {lo:.1%}-{hi:.1%}, "
+            f"{confidence:.0%} binomial interval)")
+    return {"n": n, "inside_90": share, "interval": [lo, hi], "normalised": r, "factor": factor,
+            "verdict": verdict, "text": text}

@@ -23,6 +23,7 @@ from geoloc.workflows.replay import (
     plausibility_warnings,
     replay_records,
     summary_table,
+    uncertainty_columns,
     write_replay_csv,
 )
 
@@ -107,6 +108,12 @@ def run(args) -> int:
     if args.dem is not None:
         warn_datums("replay", args.dem_datum, records.altitude)
     result = replay_records(records, camera, surface)
+    budget = _budget(args)
+    if budget is not None:
+        cols, notes = uncertainty_columns(records, camera, surface, budget)
+        result.extra.update(cols)
+        for msg in notes:
+            print(f"geoloc replay: note: {msg}", file=sys.stderr)
     for msg in outside_sensor_messages(records, camera, result.lat_deg):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
     for msg in plausibility_warnings(records, result, result.terrain):
@@ -123,6 +130,14 @@ def run(args) -> int:
     if args.export:
         _export(args, result)
     return 0
+
+
+def _budget(args):
+    """The ``--sensor`` file's error budget (its ``[uncertainty]`` table), or None."""
+    from geoloc.sensors.sensor_file import load_sensor_budget
+
+    path = getattr(args, "camera", None)
+    return load_sensor_budget(path) if path else None
 
 
 def _export(args, result) -> None:

@@ -230,7 +230,40 @@ def report_from_csv(path, reference: str = "auto", ref_h_column: str | None = No
     }
     rep = accuracy_report(lat, lon, h, rlat, rlon, rh, track_heading_rad=track, slant_range_m=slant,
                           off_nadir_rad=off, pixel_radius_px=pix, group=group, meta=meta)
+    if all(c in header for c in BUDGET_COLUMNS):
+        add_budget_check(rep, *(col(c) for c in BUDGET_COLUMNS))
     return rep, messages
+
+
+#: The replay CSV's predicted-uncertainty columns the budget check reads (``geoloc replay`` with a
+#: sensor file's ``[uncertainty]``).
+BUDGET_COLUMNS = ("ellipse_major_m", "ellipse_minor_m", "ellipse_azimuth_deg", "le90_m")
+
+
+def add_budget_check(rep, major, minor, azimuth_deg, le90) -> None:
+    """The budget judged by the data (:func:`geoloc.analysis.uncertainty.budget_check`), overall and
+    per group, into ``rep``: ``overall["budget"]``, each group's, and the per-target
+    ``normalised_error`` (and ``normalised_vertical_error``) components."""
+    from geoloc.analysis.uncertainty import budget_check
+
+    c = rep.components
+    def check(m):
+        up = c["up_m"][m] if "up_m" in c else None
+        return budget_check(c["east_m"][m], c["north_m"][m], major[m], minor[m], azimuth_deg[m],
+                            up, le90[m] if up is not None else None)
+
+    allm = np.ones(len(major), bool)
+    b = check(allm)
+    c["normalised_error"] = b["normalised"]
+    if "vertical" in b:
+        c["normalised_vertical_error"] = b["vertical"]["normalised"]
+    strip = lambda d: {k: (strip(v) if isinstance(v, dict) else v) for k, v in d.items() if k != "normalised"}  # noqa: E731
+    rep.overall["budget"] = strip(b)
+    for g in rep.groups:
+        rep.groups[g]["budget"] = strip(check(rep.group == g))
+    rep.meta["budget_check"] = ("share of truths inside their own predicted 90 % ellipse (the replay's "
+                                "ellipse_* columns) against the binomial 99 % interval around 90 %; factor = "
+                                "90th percentile of error / its 90 % ellipse radius (geoloc.analysis.uncertainty)")
 
 
 def _short(lines) -> str:

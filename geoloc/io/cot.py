@@ -14,11 +14,17 @@ hierarchy, e.g. ``a-u-G``: atom, unknown affiliation, ground), ``uid``,
 mensurated from imagery); on ``point``: ``lat``, ``lon`` (WGS 84 degrees),
 ``hae`` (metres above the WGS 84 ellipsoid), ``ce`` and ``le`` (metres). The
 schema defines ``ce`` and ``le``, when they describe an error, as **one sigma**
-of a zero-mean normal distribution; unknown is ``9999999`` (the CoT
-convention). From a results table with predicted ``ce90_m`` / ``le90_m``
-columns they are ``CE90 / 2.1460`` (circular normal: CE90 = sqrt(2 ln 10)
-sigma) and ``LE90 / 1.6449`` (normal: LE90 = 1.6449 sigma); the CE90 / LE90
-themselves are in the remarks.
+of a zero-mean normal distribution (the ``point`` element's documentation in
+MITRE's Event.xsd: "If it is appropriate for the ce field to represent an error
+value ... the value will represent the one sigma point for a zero mean normal
+(Gaussian) distribution", and the same for ``le``); unknown is ``9999999`` (the
+CoT convention). We found no published source for reading them as CE90 / LE90,
+so we keep the schema's meaning. From a results table with predicted ``ce90_m`` /
+``le90_m`` columns (``geoloc replay`` with a sensor file's ``[uncertainty]``:
+the exact CE90 of each point's ellipse, :mod:`geoloc.analysis.uncertainty`)
+they are ``CE90 / 2.1460`` (the sigma of the circular normal error whose 90 %
+circle is that CE90: CE90 = sqrt(2 ln 10) sigma) and ``LE90 / 1.6449`` (normal:
+LE90 = 1.6449 sigma); the CE90 / LE90 themselves are in the remarks.
 
 ``time`` and ``start`` are when the events are made (TAK clients drop events
 whose ``stale`` has passed, so a replay of an old flight would never show);

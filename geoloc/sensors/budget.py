@@ -37,10 +37,13 @@ LE90_PER_SIGMA = 1.6448536269514722
 #: Published vertical accuracy of DEM products, as LE90 (90 % linear error) [m], and where it comes from.
 #: ``dem_product = NAME`` in a budget takes sigma = LE90 / 1.6449.
 DEM_PRODUCTS = {
-    "srtm": (16.0, "SRTM's specified absolute vertical accuracy, 16 m at 90 % (LE90): Farr et al. 2007, "
-                   "'The Shuttle Radar Topography Mission', Rev. Geophys. 45, RG2004 (the measured "
-                   "figures, 5.6-9.0 m by continent, are Rodriguez et al. 2006; the specification is the "
-                   "conservative default)"),
+    "srtm": (16.0, "SRTM's mission specification of absolute vertical accuracy, 16 m at 90 % (LE90; "
+                   "sigma 9.73 m): Farr et al. 2007, 'The Shuttle Radar Topography Mission', Rev. Geophys. "
+                   "45, RG2004, doi:10.1029/2005RG000183; the same 16 m / RMSE 9.73 m is quoted as the "
+                   "consensus figure by Mukul et al. 2017, Sci. Rep. 7, 41672. The errors measured against "
+                   "ground truth, as 90 % errors per continent, are Rodriguez et al. 2006, 'A global "
+                   "assessment of the SRTM performance', PE&RS 72(3), 249-260, doi:10.14358/PERS.72.3.249; "
+                   "the specification is kept as the conservative default"),
     "copernicus-glo30": (4.0, "Copernicus DEM GLO-30 product handbook: absolute vertical accuracy "
                               "< 4 m at 90 % (LE90)"),
 }

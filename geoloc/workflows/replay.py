@@ -212,6 +212,40 @@ def replay_records(records: Records, sensor, surface) -> ReplayResult:
     return result
 
 
+#: The replay CSV's predicted-uncertainty columns (written when the sensor file has an
+#: ``[uncertainty]`` table: :func:`uncertainty_columns`).
+UNCERTAINTY_COLUMNS = ["ce90_m", "le90_m", "ellipse_major_m", "ellipse_minor_m", "ellipse_azimuth_deg"]
+
+
+def uncertainty_columns(records: Records, sensor, surface, budget) -> tuple:
+    """Each record's predicted uncertainty (:func:`geoloc.analysis.uncertainty.propagate`) as the
+    replay CSV's columns: ``ce90_m le90_m ellipse_major_m ellipse_minor_m ellipse_azimuth_deg``.
+
+    Only for a sensor whose file has an ``[uncertainty]`` table: without one there is no budget to
+    propagate, and made-up defaults would print numbers that look measured. A ``time_s`` term needs
+    the platform's velocity, which flight records do not carry: it is left out, and said so.
+
+    Returns
+    -------
+    (dict, list of str)
+        The columns (NaN where a record has no point) and the messages to show.
+    """
+    from geoloc.analysis.uncertainty import propagate
+    from geoloc.sensors.budget import ErrorBudget
+
+    messages = []
+    if budget.sigma("time_s") > 0:
+        messages.append(f"{budget.source}: [uncertainty] time_s = {budget.sigma('time_s'):g} s left out of the "
+                        "predicted uncertainty (the records carry no platform velocity)")
+        budget = ErrorBudget({k: v for k, v in budget.sigmas.items() if k != "time_s"}, budget.dem_product,
+                             budget.source)
+    pu = propagate(sensor, records.pose(), records.column("row"), records.column("col"), budget,
+                   surface=surface, outside="extrapolate")
+    ok = np.asarray(pu.status) == Status.OK
+    cols = {k: np.where(ok, np.asarray(v, float), np.nan) for k, v in pu.columns().items()}
+    return cols, messages
+
+
 def replay_at_height(records: Records, camera: Camera, height_column: str | None = None,
                      target_h: float | None = None, surface: str = "inflated") -> ReplayResult:
     """:func:`replay_records` at a target height from a column, or one height for all.
