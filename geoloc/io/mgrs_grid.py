@@ -190,5 +190,15 @@ def mgrs_column(lat_deg, lon_deg, precision: int = 5) -> list:
     return [str(t) for t in latlon_to_mgrs(lat_deg, lon_deg, precision).text.ravel()]
 
 
+def mgrs_text(lat_deg, lon_deg, precision: int = 5) -> str:
+    """One point's references for a panel or a printed line: ``'MGRS 16SGF4866651490 (USNG 16S GF
+    48666 51490)'``, or ``'MGRS: none (<reason>)'`` where the point has none."""
+    r = latlon_to_mgrs(np.asarray([lat_deg], float), np.asarray([lon_deg], float), precision)
+    text = str(r.text.ravel()[0])
+    if not text:
+        return f"MGRS: none ({r.reason.ravel()[0]})"
+    return f"MGRS {text} (USNG {format_usng(text)})"
+
+
 __all__ = ["LatLonResult", "MgrsResult", "PRECISION_M", "format_usng", "latlon_to_mgrs", "mgrs_column",
-           "mgrs_to_latlon", "normalize_mgrs", "parse_mgrs"]
+           "mgrs_text", "mgrs_to_latlon", "normalize_mgrs", "parse_mgrs"]

@@ -72,6 +72,7 @@ from pathlib import Path
 import numpy as np
 import viser
 
+from geoloc.io.mgrs_grid import mgrs_text
 from geoloc.locate import as_sensor
 from geoloc.status import describe
 from geoloc.userfiles import write_bytes, write_text
@@ -557,6 +558,7 @@ class GeolocSession:
         if int(hit.status) == 0:
             lines.append(f"\n**{g.hit_label}**: {float(hit.lat_deg):.6f} N, {float(hit.lon_deg):.6f} E, "
                          f"h {float(hit.h):.1f} m, slant range {float(hit.slant_range) / 1e3:.2f} km  ")
+            lines.append(mgrs_text(float(hit.lat_deg), float(hit.lon_deg)) + "  ")  # issue 33
         else:
             lines.append(f"\n**no hit**: {describe(int(hit.status))}  ")
         if g.message:

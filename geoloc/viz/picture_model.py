@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from geoloc.io.mgrs_grid import mgrs_text
 from geoloc.locate import as_sensor
 from geoloc.status import Status, describe
 from geoloc.surfaces.base import LineOfSight
@@ -140,6 +141,7 @@ def pick_markdown(p: PixelPick, geoid=True) -> str:
     lines = [head + "  ",
              f"latitude **{p.lat_deg():.8f}** deg  ",
              f"longitude **{p.lon_deg():.8f}** deg  ",
+             mgrs_text(p.lat_deg(), p.lon_deg()) + "  ",  # issue 33
              f"height **{float(p.hit.h):.2f} m** ({H_DATUM})"]
     if geoid:
         from geoloc.geodesy.geoid import egm96_undulation
@@ -223,7 +225,8 @@ def ground_markdown(g: GroundPick) -> str:
     if not g.ok:
         return f"**terrain pick**: {g.verdict()}"
     lines = [f"**terrain pick**: {float(np.rad2deg(g.hit.lat)):.7f} N, {float(np.rad2deg(g.hit.lon)):.7f} E, "
-             f"h {float(g.hit.h):.1f} m ({H_DATUM})  "]
+             f"h {float(g.hit.h):.1f} m ({H_DATUM})  ",
+             mgrs_text(float(np.rad2deg(g.hit.lat)), float(np.rad2deg(g.hit.lon))) + "  "]  # issue 33
     if np.isfinite(g.row):
         lines.append(f"pixel row {g.row:.2f}, column {g.col:.2f}: **{g.verdict()}**")
     else:
