@@ -18,6 +18,7 @@ from geoloc.cli._options import (
 )
 from geoloc.assets import DEFAULT_RECORDS, asset_path
 from geoloc.cli.locate import records_from_args
+from geoloc.status import Status
 from geoloc.workflows.replay import (
     outside_sensor_messages,
     plausibility_warnings,
@@ -26,6 +27,7 @@ from geoloc.workflows.replay import (
     uncertainty_columns,
     write_replay_csv,
 )
+from geoloc.workflows.triangulation import TARGET_ID_COLUMN, summary_lines, triangulate_records
 
 
 def register(sub) -> None:
@@ -116,6 +118,10 @@ def run(args) -> int:
             print(f"geoloc replay: note: {msg}", file=sys.stderr)
     for msg in outside_sensor_messages(records, camera, result.lat_deg):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
+    if TARGET_ID_COLUMN in records.header:  # targets seen in several rows: their rays' intersection
+        for line in summary_lines(triangulate_records(records, camera, budget, result.h_m,
+                                                      result.status == Status.OK)):
+            print(line)
     for msg in plausibility_warnings(records, result, result.terrain):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
     rows = args.print_rows or (not args.out and len(records) <= ROWS_SHOWN)
