@@ -9,7 +9,7 @@ heights, full corners, slant range, time stamp; ~190 bytes each), then times
 - decode + replay: ``replay_klv(data)``, the frame centre and the four corners of every
   packet at the packet's own frame-centre height, errors to the reported ones,
   outliers (what ``geoloc replay FILE.klv`` does, without writing the CSV);
-- decode + replay on the DEM: ``replay_klv(data, dem=DEM)`` (exact solver);
+- decode + replay on the DEM: ``replay_klv(data, surface=surface_for(dem=DEM))`` (exact solver);
 - writing the CSV of the replay (``write_klv_csv``), once.
 
 Peers, measured in the same run:
@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.io.klv import encode_packet
+from geoloc.surfaces.terrain import surface_for
 from geoloc.workflows.klv_replay import read_klv, replay_klv, write_klv_csv
 
 from _timing import timed  # benchmarks/_timing.py (the script's folder is on sys.path)
@@ -105,7 +106,7 @@ def main():
     print(f"packets: {n}, {len(data) / n:.0f} bytes each, {len(data) / 1e6:.1f} MB "
           f"(encoded in {t_enc:.2f} s, {n / t_enc:,.0f} packets/s)")
     replay_klv(b"".join(blobs[:2000]))  # compile / warm the kernels outside the timings
-    replay_klv(b"".join(blobs[:2000]), dem=dem)
+    replay_klv(b"".join(blobs[:2000]), surface=surface_for(dem=dem))
 
     w, c, rd = timed(lambda: read_klv(data), args.repeat)
     assert len(rd) == n and not rd.errors
@@ -116,7 +117,7 @@ def main():
     ok = np.mean(r.columns["status"] == 0)
     print(f"    {ok:.1%} located; frame-centre error median {r.summary.median_m:.1f} m; "
           f"{len(r.summary.outliers)} outliers")
-    w, c, rdem = timed(lambda: replay_klv(data, dem=dem), args.repeat)
+    w, c, rdem = timed(lambda: replay_klv(data, surface=surface_for(dem=dem)), args.repeat)
     line("decode + replay (DEM, exact)", n, w, c)
     okd = np.mean(rdem.columns["status"] == 0)
     print(f"    {okd:.1%} located on the DEM")

@@ -23,6 +23,7 @@ from geoloc.cli import main
 from geoloc.io.klv import TAG_BY_NAME, decode_packet, encode_packet, iter_packets, local_set_items, write_ts
 from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import surface_for
 from geoloc.workflows.klv_fix import CENTRE_TAGS, FULL_CORNER_TAGS, OFFSET_CORNER_TAGS, fix_klv
 from geoloc.workflows.klv_replay import replay_klv
 
@@ -105,12 +106,12 @@ def klvdata_value(blob: bytes, tag: int) -> float:
 
 
 def test_fix_the_bundled_flight_on_the_dem(tmp_path, dem):
-    before = replay_klv(EXAMPLE, dem=dem)
+    before = replay_klv(EXAMPLE, surface=surface_for(dem=dem))
     c0 = before.columns
     faulted = np.isin(c0["packet"], FAULTED)
     assert np.all(c0["frame_center_error_m"][faulted] > 4.0)  # 5 m to 114 m before the fix
     out = tmp_path / "fixed.klv"
-    fix = fix_klv(EXAMPLE, out, dem=dem)
+    fix = fix_klv(EXAMPLE, out, surface=surface_for(dem=dem))
     assert fix.packets == 299 and fix.rewritten == 298 and len(fix.bad) == 1
     assert [k for k, _ in fix.unchanged] == [275]  # the packet without tags 18, 19
     assert fix.items[23] == fix.items[89] == 298
@@ -126,7 +127,7 @@ def test_fix_the_bundled_flight_on_the_dem(tmp_path, dem):
         assert abs(klvdata_value(blob, 78) - c0["h_m"][k]) <= TAG_BY_NAME["frame_center_hae_m"].step / 2
         assert abs(klvdata_value(blob, 88) - c0["corner4_lat_deg"][k]) <= TAG_BY_NAME["corner_latitude_4_deg"].step / 2
     # replaying the copy: every located packet's tags now agree to the quantisation, the faulted ones too
-    after = replay_klv(out, dem=dem)
+    after = replay_klv(out, surface=surface_for(dem=dem))
     c1 = after.columns
     ok = c1["status"] == Status.OK
     assert ok.sum() == 298 and len(after.errors) == 1
@@ -174,7 +175,7 @@ def test_ts_with_video_is_remuxed_and_the_video_left_alone(tmp_path, dem):
     s_in, p_in = _demux(ts)
     assert [t for t, _, _ in s_in] == ["video", "data"]
     out = tmp_path / "fixed.ts"
-    fix = fix_klv(ts, out, dem=dem)
+    fix = fix_klv(ts, out, surface=surface_for(dem=dem))
     assert fix.rewritten == len(blobs) and fix.other_packets > 0
     assert set(fix.items) == {23, 24, 25} | set(OFFSET_CORNER_TAGS)
     s_out, p_out = _demux(out)
@@ -186,15 +187,15 @@ def test_ts_with_video_is_remuxed_and_the_video_left_alone(tmp_path, dem):
     kout = [p for p in p_out if p[1] == "data"]
     assert [p[2:4] for p in kin] == [p[2:4] for p in kout]
     check_copy(b"".join(p[4] for p in kin), b"".join(p[4] for p in kout), set(range(len(blobs))))
-    after = replay_klv(out, dem=dem)
+    after = replay_klv(out, surface=surface_for(dem=dem))
     c = after.columns
     assert np.all(c["status"] == Status.OK)
     assert np.max(c["frame_center_error_m"]) <= CENTRE_BOUND_M
     assert np.max(c["corner_error_m"]) <= OFFSET_CORNER_BOUND_M
-    before = replay_klv(ts, dem=dem).columns["frame_center_error_m"]
+    before = replay_klv(ts, surface=surface_for(dem=dem)).columns["frame_center_error_m"]
     assert before[2:12].min() > 80  # packets 100-109: the heading fault
     # tag 25 (MSL) written as HAE - N at the new centre: the replay makes it HAE again the same way
-    assert np.max(np.abs(c["reported_h_m"] - replay_klv(ts, dem=dem).columns["h_m"])) <= \
+    assert np.max(np.abs(c["reported_h_m"] - replay_klv(ts, surface=surface_for(dem=dem)).columns["h_m"])) <= \
         TAG_BY_NAME["frame_center_elevation_m"].step / 2 + 1e-6
 
 
@@ -203,16 +204,16 @@ def test_a_calibration_is_applied(tmp_path, dem):
 
     sensor = load_camera_or_sensor(ROOT / "assets" / "sensors" / "eo_turret.toml")  # mount, boresight, lever arm
     out = tmp_path / "cal.klv"
-    fix_klv(EXAMPLE, out, dem=dem, sensor=sensor)
-    with_cal = replay_klv(out, dem=dem, sensor=sensor).columns
-    without = replay_klv(out, dem=dem).columns
+    fix_klv(EXAMPLE, out, surface=surface_for(dem=dem), sensor=sensor)
+    with_cal = replay_klv(out, surface=surface_for(dem=dem), sensor=sensor).columns
+    without = replay_klv(out, surface=surface_for(dem=dem)).columns
     ok = with_cal["status"] == Status.OK
     assert np.max(with_cal["frame_center_error_m"][ok]) <= CENTRE_BOUND_M
     # without the calibration the copy's centres are off by exactly what the calibration moves them
     # (the two replays of the input, with and without it), to the quantisation
     from geoloc.geodesy.geodesic import horizontal_distance_m
 
-    a, b = replay_klv(EXAMPLE, dem=dem, sensor=sensor).columns, replay_klv(EXAMPLE, dem=dem).columns
+    a, b = replay_klv(EXAMPLE, surface=surface_for(dem=dem), sensor=sensor).columns, replay_klv(EXAMPLE, surface=surface_for(dem=dem)).columns
     moved = horizontal_distance_m(a["lat_deg"], a["lon_deg"], b["lat_deg"], b["lon_deg"])
     assert np.median(moved[ok]) > 50 * CENTRE_BOUND_M  # 0.39 m: the mount, boresight and lever arm matter
     assert np.max(np.abs(without["frame_center_error_m"][ok] - moved[ok])) <= CENTRE_BOUND_M

@@ -44,6 +44,7 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import lens_from_fov
 from geoloc.status import Status
+from geoloc.surfaces.terrain import surface_for
 from geoloc.workflows import klv_replay
 from geoloc.workflows.klv_replay import (
     outlier_mask,
@@ -507,7 +508,7 @@ def test_bundled_example_is_what_the_tool_makes(tool, dem):
 
 @pytest.mark.parametrize("with_dem", [False, True])
 def test_example_flight_flags_the_planted_packets_and_no_others(tool, dem, with_dem):
-    r = replay_klv(EXAMPLE, dem=dem if with_dem else None)
+    r = replay_klv(EXAMPLE, surface=surface_for(dem=dem) if with_dem else None)
     c = r.columns
     # the corrupted packet: reported at its offset, the 299 others replayed
     a, _, _ = tool.FAULTS["corrupted"]

@@ -23,6 +23,7 @@ from geoloc.sensors.sensor_file import load_camera_or_sensor
 from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import HeightSurface
+from geoloc.surfaces.terrain import surface_for
 from geoloc.workflows.ortho import (
     frame_pixels,
     locate_frame,
@@ -238,7 +239,7 @@ def test_photo_target_lands_at_its_surveyed_position_in_the_orthophoto(tmp_path,
     gsd = 0.25
     frame = locate_frame(s, pose, dem, parallel=False)
     # `geoloc replay`'s answer for each surveyed target (the forward model: pixel -> ray -> DEM)
-    rows, _ = replay_photos([PHOTO], TARGETS, dem=dem)
+    rows, _ = replay_photos([PHOTO], TARGETS, surface=surface_for(dem=dem))
     assert len(rows) == 5
     for t in rows[:3]:
         # a marker photo: a disc of radius 2.5 px around the target pixel, orthorectified (inverse map)

@@ -35,6 +35,7 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import BrownLens, PinholeLens
 from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import surface_for
 from geoloc.workflows.photo_replay import (
     read_targets,
     replay_photos,
@@ -330,7 +331,7 @@ def test_nadir_principal_point_is_below_the_camera(tmp_path):
     col, row = 400 + 6.25 + 0.5, 300 - 4.75 + 0.5
     t = write_targets(tmp_path / "t.csv", [["nadir.jpg", row, col]])
     dem = _flat_dem(datum="egm96")
-    rows, _ = replay_photos([p], t, dem=dem)
+    rows, _ = replay_photos([p], t, surface=surface_for(dem=dem))
     (r,) = rows
     assert r["status"] == "ok" and r["h_datum"] == ELLIPSOID_DATUM
     assert r["lat_deg"] == pytest.approx(LAT, abs=1e-10) and r["lon_deg"] == pytest.approx(LON, abs=1e-10)
@@ -347,7 +348,7 @@ def test_nadir_image_top_points_along_gimbal_yaw(tmp_path):
     # at nadir the image's top is the gimbal yaw's direction: a pixel above the centre lies that way
     p = make_jpeg(tmp_path / "up.jpg", tags={"GimbalYawDegree": "+90.00"})  # image top = east
     t = write_targets(tmp_path / "t.csv", [["up.jpg", 100.5, 400.5], ["up.jpg", 300.5, 700.5]],)
-    rows, _ = replay_photos([p], t, dem=_flat_dem())
+    rows, _ = replay_photos([p], t, surface=surface_for(dem=_flat_dem()))
     assert rows[0]["lon_deg"] > LON and rows[0]["lat_deg"] == pytest.approx(LAT, abs=2e-6)
     assert rows[1]["lat_deg"] < LAT  # image right = south when the top is east
 
@@ -393,7 +394,7 @@ def test_resized_photo_locates_like_the_full_one(tmp_path):
     px = [(150.5, 600.5), (500.0, 80.0)]
     t = write_targets(tmp_path / "t.csv", [["full.jpg", r, c] for r, c in px]
                       + [["half.jpg", (r - 0.5) / 2 + 0.5, (c - 0.5) / 2 + 0.5] for r, c in px])
-    rows, msgs = replay_photos([full, half], t, dem=_flat_dem())
+    rows, msgs = replay_photos([full, half], t, surface=surface_for(dem=_flat_dem()))
     assert any("half.jpg: resized photo" in s and "400 x 300" in s for s in msgs)
     for a, b in zip(rows[:2], rows[2:]):
         assert b["lat_deg"] == pytest.approx(a["lat_deg"], abs=1e-10)
@@ -405,10 +406,10 @@ def test_user_sensor_overrides_the_lens(tmp_path):
     own = FrameSensor(BrownLens(fx=650.0, fy=650.0, cx=399.5, cy=299.5, width=W, height=H, k1=-0.1),
                       gimbal=PRESETS["yaw-pitch-roll"], name="calibrated")
     t = write_targets(tmp_path / "t.csv", [["s.jpg", 150.5, 200.5]])
-    rows, msgs = replay_photos([p], t, sensor=own, dem=_flat_dem())
+    rows, msgs = replay_photos([p], t, sensor=own, surface=surface_for(dem=_flat_dem()))
     assert rows[0]["lens"] == "sensor file calibrated, scaled to the resized raster"
     wrong = FrameSensor(own.lens, name="q17")  # the roll-pitch gimbal: not DJI's angles
-    rows, msgs = replay_photos([p], t, sensor=wrong, dem=_flat_dem())
+    rows, msgs = replay_photos([p], t, sensor=wrong, surface=surface_for(dem=_flat_dem()))
     assert rows == [] and any("s.jpg" in s and "yaw-pitch-roll" in s for s in msgs)
 
 
@@ -436,9 +437,9 @@ def test_altitude_datum_egm96_against_nga_test_value(tmp_path):
 def test_rtk_photo_warns_about_the_datum(tmp_path):
     p = make_jpeg(tmp_path / "rtk.jpg", tags={"RtkFlag": "50"})
     t = write_targets(tmp_path / "t.csv", [["rtk.jpg", 300.5, 400.5]])
-    _, msgs = replay_photos([p], t, dem=_flat_dem())
+    _, msgs = replay_photos([p], t, surface=surface_for(dem=_flat_dem()))
     assert any("rtk.jpg: RtkFlag = 50" in s and "altitude_datum='ellipsoid'" in s for s in msgs)
-    _, msgs = replay_photos([p], t, dem=_flat_dem(), altitude_datum="ellipsoid")
+    _, msgs = replay_photos([p], t, surface=surface_for(dem=_flat_dem()), altitude_datum="ellipsoid")
     assert not any("RtkFlag" in s for s in msgs)
 
 
@@ -447,9 +448,9 @@ def test_altitude_check_against_relative_altitude(tmp_path):
     # a DEM at 0 m puts the camera ~382 m above it: the check speaks
     p = make_jpeg(tmp_path / "chk.jpg")
     t = write_targets(tmp_path / "t.csv", [["chk.jpg", 300.5, 400.5]])
-    _, msgs = replay_photos([p], t, dem=_flat_dem())
+    _, msgs = replay_photos([p], t, surface=surface_for(dem=_flat_dem()))
     assert not any("altitude check" in s for s in msgs)
-    _, msgs = replay_photos([p], t, dem=_flat_dem(h=0.0))
+    _, msgs = replay_photos([p], t, surface=surface_for(dem=_flat_dem(h=0.0)))
     assert any("chk.jpg: altitude check" in s and "RelativeAltitude" in s for s in msgs)
 
 
@@ -466,7 +467,7 @@ def test_bad_photo_is_reported_and_skipped_others_run(tmp_path):
                       header="image,row,col,truth_lat_deg,truth_lon_deg")
     junk = tmp_path / "junk.jpg"
     junk.write_text("not an image")
-    rows, msgs = replay_photos([good, bad, junk], t, dem=_flat_dem())
+    rows, msgs = replay_photos([good, bad, junk], t, surface=surface_for(dem=_flat_dem()))
     assert [r["image"] for r in rows] == ["good.jpg", "good"]
     assert any(s.startswith("junk.jpg: skipped:") for s in msgs)
     assert rows[0]["status"] == "ok" and rows[0]["error_to_truth_m"] == pytest.approx(0.0, abs=1e-4)
@@ -506,7 +507,7 @@ def test_write_rows_reads_back_in_the_gis_reader(tmp_path):
     p = make_jpeg(tmp_path / "w.jpg", tags={"GimbalPitchDegree": "-60.00"})
     t = write_targets(tmp_path / "t.csv", [["w.jpg", 200.5, 300.5, "P7", 36.5201, -84.2101, 255.0]],
                       header="image,row,col,point,truth_lat_deg,truth_lon_deg,truth_h_m")
-    rows, msgs = replay_photos([p], t, dem=_flat_dem())
+    rows, msgs = replay_photos([p], t, surface=surface_for(dem=_flat_dem()))
     out = tmp_path / "out.csv"
     write_rows(out, rows)
     table = read_results(out)

@@ -27,6 +27,7 @@ from PIL import Image
 
 from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import surface_for
 from geoloc.workflows.photo_replay import replay_photos
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -110,7 +111,7 @@ def main() -> None:
     write(photo, alt, 40.0, -60.0)  # the true tags: locate the truth
     tgt = OUT / "targets.csv"
     tgt.write_text("image,row,col\n" + "".join(f"DJI_0001.JPG,{r},{c}\n" for r, c in pixels))
-    rows, msgs = replay_photos([photo], tgt, dem=dem)
+    rows, msgs = replay_photos([photo], tgt, surface=surface_for(dem=dem))
     assert all(r["status"] == "ok" for r in rows), (rows, msgs)
     tgt.write_text("image,row,col,truth_lat_deg,truth_lon_deg,truth_h_m\n" + "".join(
         f"DJI_0001.JPG,{r['row']},{r['col']},{r['lat_deg']:.8f},{r['lon_deg']:.8f},{r['h_m']:.2f}\n" for r in rows))

@@ -252,14 +252,6 @@ def _mosaic_options(args) -> dict:
     return {"cache_bytes": max(int(mb * 2**20), 2**16)}
 
 
-def open_dem_arg(args):
-    """``--dem``: a :class:`~geoloc.surfaces.dem.DEM` for one raster file, a
-    :class:`~geoloc.surfaces.mosaic.DemMosaic` for a folder, a ``.vrt`` or several files."""
-    from geoloc.surfaces.mosaic import open_dem_or_mosaic
-
-    return open_dem_or_mosaic(dem_sources(args), args.dem_datum, **_mosaic_options(args))
-
-
 def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
     """The :class:`~geoloc.surfaces.base.Surface` of the shared options: the verb's one ground.
 

@@ -158,18 +158,11 @@ def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:
 
 
 def run_fix(args) -> int:
+    from geoloc.cli._options import sensor_from_args, surface_from_args
     from geoloc.workflows.klv_fix import fix_klv
 
-    from geoloc.cli._options import sensor_from_args
-
     sensor = sensor_from_args(args, default=False)
-    dem = None
-    if args.dem:
-        from geoloc.cli._options import open_dem_arg
-
-        dem = open_dem_arg(args)
-    fix = fix_klv(args.file, args.out, dem=dem, sensor=sensor, method=args.method, dem_model=args.dem_surface,
-                  dem_options={"eps_h": args.eps_h, "threshold": args.threshold},
-                  verify_checksum=not args.no_checksum)
+    surface = surface_from_args(args) if args.dem else None  # else: each packet's own frame-centre height
+    fix = fix_klv(args.file, args.out, surface=surface, sensor=sensor, verify_checksum=not args.no_checksum)
     print(fix)
     return 0 if fix.packets else 1

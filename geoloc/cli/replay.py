@@ -196,15 +196,10 @@ def _run_klv(args, inputs) -> int:
               "datum (tags 75, 78: ellipsoid; tags 15, 25: MSL, made ellipsoidal with EGM96)", file=sys.stderr)
     paths = [Path(x) for x in inputs]
     sensor = sensor_from_args(args, default=False)
-    dem = None
-    if args.dem:
-        from geoloc.cli._options import open_dem_arg
-
-        dem = open_dem_arg(args)  # one DEM, or a mosaic (DemSurface solves it region by region)
+    surface = surface_from_args(args) if args.dem else None  # else: each packet's own frame-centre height
     replays = []
     for path in paths:
-        r = replay_klv(path, dem=dem, sensor=sensor, method=args.method, dem_model=args.dem_surface,
-                       dem_options={"eps_h": args.eps_h, "threshold": args.threshold})
+        r = replay_klv(path, surface=surface, sensor=sensor)
         for e in r.errors:
             print(f"geoloc replay: {path}: {e}", file=sys.stderr)
         print(r.summary)
@@ -331,14 +326,9 @@ def _run_photos(args, inputs) -> int:
         raise ValueError("drone photos need --targets T.csv (columns image,row,col; optional truth columns)")
     photos = list(inputs)
     sensor = sensor_from_args(args, default=False)
-    dem = None
-    if args.dem:
-        from geoloc.cli._options import open_dem_arg
-
-        dem = open_dem_arg(args)  # one DEM, or a mosaic (DemSurface solves it region by region)
+    surface = surface_from_args(args) if args.dem else None  # else: each target at its truth_h_m
     extra = {"altitude_datum": args.altitude_datum} if getattr(args, "altitude_datum", None) else {}
-    rows, messages = replay_photos(photos, args.targets, sensor=sensor, dem=dem,
-                                   method=args.method, **extra)
+    rows, messages = replay_photos(photos, args.targets, sensor=sensor, surface=surface, **extra)
     for m in messages:
         print(f"geoloc replay: {m}", file=sys.stderr)
     print(summarize(rows, messages))

@@ -553,13 +553,16 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
     from geoloc.workflows.klv_replay import klv_pose, replay_klv
 
+    from geoloc.surfaces.terrain import surface_for
+
     dem = open_dem(dem_path, dem_datum) if dem_path is not None else None
     dem_options = {}
     if eps_h_m is not None:
         dem_options["eps_h"] = float(eps_h_m)
     if threshold_m is not None:
         dem_options["threshold"] = float(threshold_m)
-    r = replay_klv(path, dem=dem, sensor=camera, method=method, dem_options=dem_options or None)
+    surface = surface_for(dem=dem, method=method, **dem_options) if dem is not None else None
+    r = replay_klv(path, surface=surface, sensor=camera)
     c = r.columns
     if len(r) == 0:
         raise ValueError(f"{path}: no good packet ({len(r.errors)} bad)")

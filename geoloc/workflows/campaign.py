@@ -234,7 +234,8 @@ def _dem(cfg: CampaignConfig, whole: bool = False):
     """The DEM (or mosaic) of the campaign, opened once per process; ``whole``: one in-memory DEM."""
     if cfg.dem is None:
         return None
-    from geoloc.surfaces.mosaic import DemMosaic, open_dem_or_mosaic
+    from geoloc.surfaces.base import is_mosaic
+    from geoloc.surfaces.mosaic import open_dem_or_mosaic
 
     key = ("dem", str(cfg.dem), cfg.dem_datum, cfg.method, cfg.dem_model, whole)
 
@@ -242,7 +243,7 @@ def _dem(cfg: CampaignConfig, whole: bool = False):
         d = open_dem_or_mosaic(cfg.dem if isinstance(cfg.dem, (str, Path)) else list(cfg.dem), cfg.dem_datum,
                                cache_bytes=cfg.dem_cache_bytes, method=cfg.method, dem_model=cfg.dem_model,
                                **cfg.dem_options)
-        return d.to_dem() if whole and isinstance(d, DemMosaic) else d
+        return d.to_dem() if whole and is_mosaic(d) else d
 
     return _cached(key, make)
 
@@ -425,8 +426,7 @@ def _records_unit(path: str, cfg: CampaignConfig):
     from geoloc.io.records import Q17_ANGLES, required_columns
     from geoloc.locate import as_sensor, line_of_sight
     from geoloc.status import Status
-    from geoloc.surfaces.height import HeightSurface
-    from geoloc.surfaces.terrain import DemSurface
+    from geoloc.surfaces.terrain import surface_for
 
     from geoloc.assets import DEFAULT_CAMERA, asset_path
     from geoloc.sensors.sensor_file import load_camera_or_sensor
@@ -463,14 +463,12 @@ def _records_unit(path: str, cfg: CampaignConfig):
                          q17.get("gimbal_pitch", 0.0), angles_deg=other)
     los = line_of_sight(pose, sensor, clean["row"], clean["col"], outside="extrapolate")
     dem = _dem(cfg)
-    if dem is not None:
-        surf = dem if hasattr(dem, "cache") else DemSurface(dem, cfg.method, cfg.dem_model, **cfg.dem_options)
-    elif cfg.height_column is not None:
-        surf = HeightSurface(_column(table, cfg.height_column, path), "inflated")
-    elif cfg.target_h_m is not None:
-        surf = HeightSurface(float(cfg.target_h_m), "inflated")
-    else:
+    if dem is None and cfg.height_column is None and cfg.target_h_m is None:
         raise ValueError("records need a DEM, a height column or a target height")
+    h = (None if dem is not None else _column(table, cfg.height_column, path) if cfg.height_column is not None
+         else float(cfg.target_h_m))
+    surf = surface_for(h, dem, method=cfg.method, dem_model=cfg.dem_model, per_record=np.ndim(h) == 1,
+                       **cfg.dem_options)
     hit = surf.intersect(los)
     status = np.asarray(hit.status, np.uint8).copy()
     off = ~s.in_image(clean["row"], clean["col"]) & (status == Status.OK)
@@ -513,10 +511,13 @@ def _arrow_columns(columns: dict, source: str):
 
 
 def _klv_unit(path: str, cfg: CampaignConfig):
+    from geoloc.surfaces.terrain import surface_for
     from geoloc.workflows.klv_replay import replay_klv
 
-    r = replay_klv(path, dem=_dem(cfg, whole=True), sensor=_sensor(cfg), method=cfg.method,
-                   dem_model=cfg.dem_model, dem_options=dict(cfg.dem_options))
+    dem = _dem(cfg, whole=True)
+    surface = None if dem is None else surface_for(dem=dem, method=cfg.method, dem_model=cfg.dem_model,
+                                                   **cfg.dem_options)
+    r = replay_klv(path, surface=surface, sensor=_sensor(cfg))
     messages = [f"{path}: {e}" for e in r.errors[:20]]
     if len(r.errors) > 20:
         messages.append(f"{path}: ... {len(r.errors) - 20} more bad packets")
@@ -532,8 +533,13 @@ def _photos_unit(paths, cfg: CampaignConfig):
 
     if cfg.targets is None:
         raise ValueError("drone photos need a targets file (targets=, --targets T.csv)")
-    rows, messages = replay_photos(list(paths), cfg.targets, sensor=_sensor(cfg), dem=_dem(cfg, whole=True),
-                                   method=cfg.method, altitude_datum=cfg.altitude_datum)
+    from geoloc.surfaces.terrain import surface_for
+
+    dem = _dem(cfg, whole=True)
+    surface = None if dem is None else surface_for(dem=dem, method=cfg.method, dem_model=cfg.dem_model,
+                                                   **cfg.dem_options)
+    rows, messages = replay_photos(list(paths), cfg.targets, sensor=_sensor(cfg), surface=surface,
+                                   altitude_datum=cfg.altitude_datum)
     # targets of the campaign's other photo units are not this unit's business
     messages = [m for m in messages if "is not among the photos given" not in m]
     if not rows:

@@ -230,8 +230,7 @@ def _remux(src: Path, tmp: str, rw: _Rewriter, fix: KlvFix, verify: bool) -> Non
                     out.mux(pkt)
 
 
-def fix_klv(source, out, *, dem=None, sensor=None, method: str = "exact", dem_model: str = "bilinear",
-            dem_options: dict | None = None, verify_checksum: bool = True) -> KlvFix:
+def fix_klv(source, out, *, surface=None, sensor=None, verify_checksum: bool = True) -> KlvFix:
     """Write a copy of a KLV stream whose frame-centre and corner items are geoloc's.
 
     Parameters
@@ -241,7 +240,7 @@ def fix_klv(source, out, *, dem=None, sensor=None, method: str = "exact", dem_mo
         (``.ts``, ``.m2ts``, ``.mpg``, ...) with a KLV data stream.
     out : path
         The copy to write (same kind as ``source``); never the input.
-    dem, sensor, method, dem_model, dem_options
+    surface, sensor
         As :func:`geoloc.workflows.klv_replay.replay_klv`: the terrain to intersect
         (default: each packet's own frame-centre height), and a sensor file's
         sensor (a calibration from ``geoloc calibrate --fit ... --write-sensor``:
@@ -268,7 +267,7 @@ def fix_klv(source, out, *, dem=None, sensor=None, method: str = "exact", dem_mo
         raise ValueError(f"--out {dst.name}: write the same kind of file as the input {src.name} "
                          "(raw KLV to raw KLV, a container to a container)")
     read = read_klv(src, verify_checksum=verify_checksum)
-    r = replay_klv(read, dem=dem, sensor=sensor, method=method, dem_model=dem_model, dem_options=dem_options)
+    r = replay_klv(read, surface=surface, sensor=sensor)
     fix = KlvFix(str(src), str(dst), packets=len(r), correction_m=np.asarray(r.columns["frame_center_error_m"]),
                  bad=[e for e in read.errors if not e.reason.endswith("are not a UAS LS packet")])
     rw = _Rewriter(r, fix)

@@ -85,6 +85,7 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import lens_from_fov
 from geoloc.status import Status, names
+from geoloc.surfaces.base import terrain_of
 from geoloc.userfiles import atomic_path
 
 __all__ = [
@@ -534,8 +535,7 @@ def _append(notes, mask, text):
         notes[mask] = notes[mask] + text
 
 
-def replay_klv(source, *, dem=None, sensor: FrameSensor | None = None, method: str = "exact",
-               dem_model: str = "bilinear", dem_options: dict | None = None, verify_checksum: bool = True,
+def replay_klv(source, *, surface=None, sensor: FrameSensor | None = None, verify_checksum: bool = True,
                fast: bool = True, label: str | None = None) -> KlvReplay:
     """Recompute every packet's frame centre and corners and compare with the packet's own.
 
@@ -543,19 +543,14 @@ def replay_klv(source, *, dem=None, sensor: FrameSensor | None = None, method: s
     ----------
     source : path, bytes, iterable of Packet / KlvError, or KlvRead
         What :func:`read_klv` reads (a ``.klv`` / ``.bin`` file, an MPEG-TS, ...).
-    dem : geoloc.surfaces.dem.DEM, optional
-        Intersect with the terrain (``DemSurface(dem, method)``); default: with the
-        surface of constant geodetic height at each packet's frame-centre height
-        (tag 78, else tag 25 + EGM96 N).
+    surface : Surface, optional
+        Where the lines of sight end: a DEM (:class:`geoloc.surfaces.terrain.DemSurface`,
+        a mosaic; :func:`geoloc.surfaces.terrain.surface_for`) or any surface; default:
+        the surface of constant geodetic height at each packet's own frame-centre
+        height (tag 78, else tag 25 + EGM96 N).
     sensor : FrameSensor, optional
         A sensor file's sensor (image size, mount, boresight, lever arm; see
         :func:`klv_sensor`).
-    method : {"exact", "bisect", "steps"}
-        DEM solver.
-    dem_model : {"bilinear", "triangles"}
-        How the exact solver reads between DEM nodes.
-    dem_options : dict, optional
-        More options of :class:`geoloc.surfaces.terrain.DemSurface` (``eps_h``, ``threshold``, ...).
     verify_checksum, fast, label
         See :func:`read_klv`.
 
@@ -567,12 +562,11 @@ def replay_klv(source, *, dem=None, sensor: FrameSensor | None = None, method: s
     """
     read = source if isinstance(source, KlvRead) else read_klv(source, verify_checksum=verify_checksum,
                                                                  fast=fast, label=label)
-    return _replay(read, dem, sensor, method, dem_model, dem_options or {})
+    return _replay(read, surface, sensor)
 
 
-def _replay(read: KlvRead, dem, base_sensor, method, dem_model, dem_options) -> KlvReplay:
-    from geoloc.surfaces.terrain import DemSurface
-
+def _replay(read: KlvRead, surface, base_sensor) -> KlvReplay:
+    terrain = terrain_of(surface)
     c = read.columns
     n = len(read)
     g = lambda name: _f(c, name, n)  # noqa: E731
@@ -619,7 +613,7 @@ def _replay(read: KlvRead, dem, base_sensor, method, dem_model, dem_options) -> 
         (~np.isfinite(az), _TAG_TEXT["sensor_relative_azimuth_deg"]),
         (~np.isfinite(el), _TAG_TEXT["sensor_relative_elevation_deg"]),
     ]
-    if dem is None:
+    if surface is None:
         needs.append((~np.isfinite(rep_h), "tag 78 (Frame Center Height Above Ellipsoid) or tag 25 "
                       "(Frame Center Elevation), the height to intersect at (or give a DEM)"))
     # with a boresight the centre's ray turns with the sensor roll; without, it is the roll axis
@@ -666,7 +660,7 @@ def _replay(read: KlvRead, dem, base_sensor, method, dem_model, dem_options) -> 
     pose_k = pose_c.with_angles(sensor_roll=np.deg2rad(clean(sroll, bad_k)))
 
     # ---- intersect: one call for the centres, one for the corners
-    if dem is None:
+    if surface is None:
         h_int = clean(rep_h, bad_c)
         surface_text = ("each packet's own frame-centre height, ellipsoidal (tag 78 HAE; tag 25 MSL + EGM96 N "
                         "where 78 is absent): the comparison isolates the angles")
@@ -674,12 +668,14 @@ def _replay(read: KlvRead, dem, base_sensor, method, dem_model, dem_options) -> 
         gk = locate(pose_k, sens, k_rows, k_cols, target_h=h_int[None, :], surface="geodetic",
                     outside="extrapolate")
     else:
-        surf = DemSurface(dem, method, dem_model, **dem_options)
-        src = getattr(dem, "path", None) or "DEM"
-        surface_text = (f"DEM {src} (heights {dem.datum}" + (" -> ellipsoidal with EGM96 N" if dem.datum == "egm96"
-                        else "") + f"), method {method}")
-        gc = surf.intersect(line_of_sight(pose_c, sens))
-        gk = surf.intersect(line_of_sight(pose_k, sens, k_rows, k_cols, outside="extrapolate"))
+        if terrain is not None:
+            src = getattr(terrain, "path", None) or "DEM"
+            surface_text = (f"DEM {src} (heights {terrain.datum}" + (" -> ellipsoidal with EGM96 N"
+                            if terrain.datum == "egm96" else "") + f"), method {surface.method}")
+        else:
+            surface_text = repr(surface)
+        gc = surface.intersect(line_of_sight(pose_c, sens))
+        gk = surface.intersect(line_of_sight(pose_k, sens, k_rows, k_cols, outside="extrapolate"))
 
     status = np.where(bad_c, np.uint8(Status.INVALID_INPUT), np.asarray(gc.status, np.uint8)).astype(np.uint8)
     ok = status == Status.OK
@@ -802,7 +798,7 @@ def _replay(read: KlvRead, dem, base_sensor, method, dem_model, dem_options) -> 
     if base_sensor is not None:
         summ_notes.append(f"sensor file: image {sens.cols} x {sens.rows}, mount, boresight and lever arm "
                           "used; its lens is replaced by each packet's fields of view (tags 16, 17)")
-    if dem is not None and fin.any():
+    if terrain is not None and fin.any():
         dh = rep_h - h
         okh = np.isfinite(dh)
         if okh.any():

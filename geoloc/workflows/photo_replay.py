@@ -38,9 +38,8 @@ from geoloc.io.photos import (
     read_photo,
 )
 from geoloc.status import Status, names
-from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
-from geoloc.surfaces.terrain import DemSurface
 from geoloc.userfiles import atomic_path
 
 __all__ = ["OUTPUT_COLUMNS", "read_targets", "replay_photos", "summarize", "write_rows"]
@@ -159,15 +158,8 @@ def _resolve(image: str, index: dict):
     return None
 
 
-def _open_dem(dem, dem_datum):
-    if dem is None or isinstance(dem, DEM):
-        return dem
-    return DEM.open(dem, datum=dem_datum)
-
-
-def replay_photos(photo_paths, targets_csv, sensor=None, dem=None, method="exact", *,
-                  altitude_datum: str = "egm96", truth_h_datum: str = "ellipsoid",
-                  dem_datum: str = "egm96"):
+def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
+                  altitude_datum: str = "egm96", truth_h_datum: str = "ellipsoid"):
     """Locate every target of ``targets_csv`` in its photo and compare it with its truth.
 
     Parameters
@@ -181,19 +173,15 @@ def replay_photos(photo_paths, targets_csv, sensor=None, dem=None, method="exact
     sensor : FrameSensor, optional
         Replaces every photo's own lens (a calibrated sensor file on the
         ``yaw-pitch-roll`` gimbal), scaled to a resized raster.
-    dem : DEM or path-like, optional
-        Locate on this terrain (:class:`DemSurface`, ``method``); a path is
-        opened with ``DEM.open(path, datum=dem_datum)``. Without a DEM each
-        target is located at its ``truth_h_m``.
-    method : {"exact", "steps", "bisect"}
-        The DEM solver.
+    surface : Surface, optional
+        Locate on this surface (a DEM's :class:`geoloc.surfaces.terrain.DemSurface` or a
+        mosaic: :func:`geoloc.surfaces.terrain.surface_for`). Without one each target
+        is located at its own ``truth_h_m`` (the surface of that geodetic height).
     altitude_datum : {"egm96", "ellipsoid"}
         Datum of the photos' AbsoluteAltitude (default EGM96 orthometric: DJI's
         non-RTK aircraft; ``docs/photos.md``).
     truth_h_datum : {"ellipsoid", "egm96"}
         Datum of ``truth_h_m`` (default ellipsoidal, as every height in geoloc).
-    dem_datum : {"egm96", "ellipsoid"}
-        Datum of a DEM given as a path.
 
     Returns
     -------
@@ -216,11 +204,9 @@ def replay_photos(photo_paths, targets_csv, sensor=None, dem=None, method="exact
         raise ValueError(f"altitude_datum = {altitude_datum!r}: must be one of {ALTITUDE_DATUMS}")
     if truth_h_datum not in ALTITUDE_DATUMS:
         raise ValueError(f"truth_h_datum = {truth_h_datum!r}: must be one of {ALTITUDE_DATUMS}")
-    surface_dem = _open_dem(dem, dem_datum)
-    if surface_dem is not None:
-        DemSurface(surface_dem, method)  # checks the method before any work
+    surface_dem = terrain_of(surface) if surface is not None else None  # the DEM the surface reads
     targets, header, messages = read_targets(targets_csv)
-    if surface_dem is None and "truth_h_m" not in header:
+    if surface is None and "truth_h_m" not in header:
         raise ValueError(f"no DEM and the targets file {targets_csv} has no truth_h_m column: give a DEM "
                          "(--dem) or each target's height (truth_h_m, ellipsoidal unless its datum is "
                          "given) so that the targets can be located")
@@ -266,7 +252,7 @@ def replay_photos(photo_paths, targets_csv, sensor=None, dem=None, method="exact
                 messages.append(f"targets file line {t['line']}: image {t['image']!r} is not among the "
                                 f"photos given ({given}): skipped")
             continue
-        if surface_dem is None and t.get("truth_h_m") is None:
+        if surface is None and t.get("truth_h_m") is None:
             messages.append(f"targets file line {t['line']} ({t['image']}): no DEM and no truth_h_m: "
                             "no height to locate the target at; skipped")
             continue
@@ -278,7 +264,7 @@ def replay_photos(photo_paths, targets_csv, sensor=None, dem=None, method="exact
     extra = [c for c in header if c not in TARGET_COLUMNS and c not in TRUTH_COLUMNS]
     out = {}
     for key, ks in by_photo.items():
-        out.update(_locate_photo(photos[key], [targets[k] for k in ks], ks, surface_dem, method,
+        out.update(_locate_photo(photos[key], [targets[k] for k in ks], ks, surface,
                                  altitude_datum, truth_h_datum, extra, messages))
     return [out[k] for k in order], messages
 
@@ -321,7 +307,7 @@ def _datum_messages(meta, altitude_datum, h_cam, n, dem) -> list:
     return out
 
 
-def _locate_photo(ph, targets, ks, dem, method, altitude_datum, truth_h_datum, extra, messages) -> dict:
+def _locate_photo(ph, targets, ks, on, altitude_datum, truth_h_datum, extra, messages) -> dict:
     meta, s, pose = ph["meta"], ph["sensor"], ph["pose"]
     row = np.array([t["row"] for t in targets])
     col = np.array([t["col"] for t in targets])
@@ -331,15 +317,17 @@ def _locate_photo(ph, targets, ks, dem, method, altitude_datum, truth_h_datum, e
         lon_t = np.where(np.isfinite(truth["truth_lon_deg"]), truth["truth_lon_deg"], meta.lon_deg)
         truth["truth_h_m"] = truth["truth_h_m"] + egm96_undulation(np.deg2rad(lat_t), np.deg2rad(lon_t))
     los = s.line_of_sight(row, col, pose)
-    if dem is not None:
-        hit = DemSurface(dem, method).intersect(los)
-        surface = f"dem ({method})" + (f": {Path(dem.path).name}" if getattr(dem, "path", None) else "")
+    dem = terrain_of(on) if on is not None else None
+    if on is not None:
+        hit = on.intersect(los)
+        surface = (f"dem ({on.method})" + (f": {Path(dem.path).name}" if getattr(dem, "path", None) else "")
+                   if dem is not None else repr(on))
     else:
         hit = HeightSurface(truth["truth_h_m"], "geodetic").intersect(los)
         surface = "truth_h_m (geodetic height)"
     lat, lon = np.rad2deg(hit.lat), np.rad2deg(hit.lon)
     err = horizontal_distance_m(lat, lon, truth["truth_lat_deg"], truth["truth_lon_deg"])
-    vert = hit.h - truth["truth_h_m"] if dem is not None else np.full(len(ks), np.nan)
+    vert = hit.h - truth["truth_h_m"] if on is not None else np.full(len(ks), np.nan)
     st = names(hit.status)
     for t, code in zip(targets, hit.status):
         if code == Status.OUTSIDE_SENSOR:

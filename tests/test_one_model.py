@@ -1,0 +1,127 @@
+"""One model of each thing (issue 31, item 2), read from the source like tests/test_layering.py.
+
+- A workflow or an analysis module does not open a DEM itself: it takes the
+  :class:`geoloc.surfaces.base.Surface` its caller built (on the command line,
+  ``geoloc.cli._options.surface_from_args``; in Python, ``surfaces.terrain.surface_for``).
+- A first-phase ``Camera`` is a file format: no module outside the file-format code
+  asks ``isinstance(x, Camera)``.
+- A mosaic is recognised by ``geoloc.surfaces.base.is_mosaic`` alone, not by its attributes.
+
+Each rule walks every module's syntax tree, so a new module is covered without
+editing this file; the KNOWN_* tables name what is still left to move and may only
+shrink (each entry says why it is still there).
+"""
+
+import ast
+from pathlib import Path
+
+PKG = Path(__file__).resolve().parents[1] / "geoloc"
+
+#: Calls that open a DEM file: ``DEM.open(...)``, ``DemMosaic.open(...)``, ``open_dem_or_mosaic(...)``.
+DEM_OPENERS = {("DEM", "open"), ("DemMosaic", "open"), (None, "open_dem_or_mosaic")}
+
+#: Workflow / analysis modules that still open a DEM, and why (may only shrink).
+KNOWN_DEM_OPENERS = {
+    # its config crosses to dask workers as paths; each worker process opens the DEM once
+    "geoloc.workflows.campaign",
+    # the Monte Carlo scenario file names its DEM (ErrorModel.dem): open_dem reads it
+    "geoloc.analysis.montecarlo",
+    # the RPC scenario file names its DEM
+    "geoloc.workflows.rpc_scenario",
+}
+
+#: Modules that are the first-phase camera file format (they may know the Camera type).
+CAMERA_FORMAT = {"geoloc.sensors.camera", "geoloc.sensors.sensor_file"}
+
+#: Modules still branching on ``isinstance(x, Camera)`` outside the file format (may only shrink).
+KNOWN_CAMERA_CHECKS = {
+    # as_sensor (a Camera's FrameSensor) and the chain= path of Monte Carlo's [Q17] reference engine
+    "geoloc.locate",
+    # the first-phase error model's camera fields (focal length, principal point as Camera fields)
+    "geoloc.analysis.errormodel",
+    # the first-phase calibrator (analysis.calibrate) runs on a Camera, the sensor fit on the rest
+    "geoloc.cli.calibrate",
+    "geoloc.viz.calibration_layer",
+    "geoloc.viz.rerun_model",
+    "geoloc.workflows.ortho",
+}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(PKG.parent).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def modules(*packages):
+    for path in sorted(PKG.rglob("*.py")):
+        mod = module_name(path)
+        if not packages or any(mod == p or mod.startswith(p + ".") for p in packages):
+            yield mod, ast.parse(path.read_text(), filename=str(path))
+
+
+def dem_opens(tree) -> list:
+    out = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Call):
+            continue
+        f = node.func
+        key = ((f.value.id if isinstance(f.value, ast.Name) else None, f.attr) if isinstance(f, ast.Attribute)
+               else (None, f.id) if isinstance(f, ast.Name) else None)
+        if key in DEM_OPENERS or (key is not None and (None, key[1]) in DEM_OPENERS):
+            out.append(node.lineno)
+    return out
+
+
+def camera_checks(tree) -> list:
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("isinstance",
+                                                                                            "issubclass"):
+            if len(node.args) == 2 and "Camera" in {n.id for n in ast.walk(node.args[1]) if isinstance(n, ast.Name)}:
+                out.append(node.lineno)
+    return out
+
+
+def mosaic_attribute_checks(tree) -> list:
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("hasattr", "getattr"):
+            if len(node.args) >= 2 and isinstance(node.args[1], ast.Constant) and node.args[1].value in (
+                    "with_solver", "cache"):
+                out.append(node.lineno)
+    return out
+
+
+def test_no_workflow_or_analysis_opens_a_dem_itself():
+    found = {mod: lines for mod, tree in modules("geoloc.workflows", "geoloc.analysis")
+             if (lines := dem_opens(tree))}
+    new = {m: v for m, v in found.items() if m not in KNOWN_DEM_OPENERS}
+    assert not new, f"these open a DEM themselves (take a Surface from the caller instead): {new}"
+    gone = KNOWN_DEM_OPENERS - set(found)
+    assert not gone, f"no longer open a DEM: remove them from KNOWN_DEM_OPENERS: {sorted(gone)}"
+
+
+def test_no_camera_type_check_outside_the_file_format():
+    found = {mod: lines for mod, tree in modules() if mod not in CAMERA_FORMAT and (lines := camera_checks(tree))}
+    new = {m: v for m, v in found.items() if m not in KNOWN_CAMERA_CHECKS}
+    assert not new, f"isinstance(..., Camera) outside the camera file format: {new}"
+    gone = KNOWN_CAMERA_CHECKS - set(found)
+    assert not gone, f"no longer check for a Camera: remove them from KNOWN_CAMERA_CHECKS: {sorted(gone)}"
+
+
+def test_a_mosaic_is_recognised_by_is_mosaic_only():
+    found = {mod: lines for mod, tree in modules() if (lines := mosaic_attribute_checks(tree))}
+    assert not found, f"recognise a mosaic with geoloc.surfaces.base.is_mosaic: {found}"
+
+
+def test_the_checks_find_planted_cases():
+    # each rule above must be able to fail
+    tree = ast.parse("from geoloc.surfaces.dem import DEM\n"
+                     "def f(p):\n"
+                     "    d = DEM.open(p)\n"
+                     "    m = open_dem_or_mosaic(p)\n"
+                     "    if isinstance(d, (Camera, int)): pass\n"
+                     "    return hasattr(m, 'with_solver')\n")
+    assert dem_opens(tree) == [3, 4]
+    assert camera_checks(tree) == [5]
+    assert mosaic_attribute_checks(tree) == [6]
