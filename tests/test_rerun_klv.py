@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.assets import ASSETS
+from geoloc.surfaces.terrain import surface_for
 from geoloc.workflows.klv_replay import replay_klv
 
 KLV = Path(ASSETS) / "klv" / "example_flight.klv"
@@ -60,8 +61,8 @@ def test_klv_log_honours_the_dem_method(tmp_path, rerun_home):
                         "--out", str(out)], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     dem = DEM.open(dem_path, datum="egm96")
-    steps = replay_klv(KLV, dem=dem, method="steps").columns
-    exact = replay_klv(KLV, dem=dem, method="exact").columns
+    steps = replay_klv(KLV, surface=surface_for(dem=dem, method="steps")).columns
+    exact = replay_klv(KLV, surface=surface_for(dem=dem, method="exact")).columns
     pk, err = series(out, "/series/error/to_published_m")
     want = dict(zip(steps["packet"], steps["frame_center_error_m"]))
     other = dict(zip(exact["packet"], exact["frame_center_error_m"]))

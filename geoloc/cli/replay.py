@@ -245,12 +245,8 @@ def _run_live(args, inputs) -> int:
     _reject_records_options(args, "a live KLV stream (each packet at its own frame-centre height, or --dem)")
     url = inputs[0]
     limits = live_limits(args, url)
-    sensor = load_camera(args.camera) if args.camera else None
-    dem = None
-    if args.dem:
-        from geoloc.cli._options import open_dem_arg
-
-        dem = open_dem_arg(args)
+    sensor = sensor_from_args(args, default=False)
+    surface = surface_from_args(args) if args.dem else None  # else: each packet's own frame-centre height
     rx = LiveReceiver()
     with contextlib.ExitStack() as stack:
         journal = record = None
@@ -266,9 +262,7 @@ def _run_live(args, inputs) -> int:
 
             def record(b, fh=fh):
                 fh.write(b)
-        live = LiveReplay(url, dem=dem, sensor=sensor, method=args.method, dem_model=args.dem_surface,
-                          dem_options={"eps_h": args.eps_h, "threshold": args.threshold}, journal=journal,
-                          receiver=rx)
+        live = LiveReplay(url, surface=surface, sensor=sensor, journal=journal, receiver=rx)
         print(f"geoloc replay: listening on {url}" + ("" if any(limits.values()) else " (Ctrl-C to stop)"),
               file=sys.stderr, flush=True)
         print(HEADER, flush=True)

@@ -48,8 +48,9 @@ class LiveReplay:
     ----------
     label : str
         The stream's name (the ``file`` column), e.g. its URL.
-    dem, sensor, method, dem_model, dem_options
-        As :func:`geoloc.workflows.klv_replay.replay_klv`.
+    surface, sensor
+        As :func:`geoloc.workflows.klv_replay.replay_klv` (default: each packet at its own
+        frame-centre height).
     journal : text file, optional
         Where the CSV rows go as they come.
     window : int
@@ -58,11 +59,10 @@ class LiveReplay:
         For ``frame_pts_s`` (the nearest video frame's time).
     """
 
-    def __init__(self, label: str, *, dem=None, sensor=None, method: str = "exact", dem_model: str = "bilinear",
-                 dem_options: dict | None = None, journal=None, window: int = WINDOW, receiver=None):
+    def __init__(self, label: str, *, surface=None, sensor=None, journal=None, window: int = WINDOW,
+                 receiver=None):
         self.label = str(label)
-        self.dem, self.sensor, self.method, self.dem_model = dem, sensor, method, dem_model
-        self.dem_options = dem_options or {}
+        self.surface, self.sensor = surface, sensor
         self.journal = journal
         self._writer = csv.writer(journal) if journal is not None else None
         self._header = None
@@ -93,7 +93,7 @@ class LiveReplay:
             return None
         pts_s = np.array([np.nan if p.time_s is None else p.time_s for p in packets], float)
         read = KlvRead(self.label, packets_to_columns(packets), errs, pts_s, np.array(number, np.int64))
-        r = _replay(read, self.dem, self.sensor, self.method, self.dem_model, self.dem_options)
+        r = _replay(read, self.surface, self.sensor)
         c = r.columns
         n = len(r)
         self._err.extend(np.asarray(c["frame_center_error_m"], float).tolist())
