@@ -72,7 +72,7 @@ def register(sub) -> None:
                    help="ignore the scenario's [dem] table (ellipsoid model with target_h_m)")
     p.add_argument("--chunk", type=sample_count, default=mc.CHUNK,
                    help=f"samples per vectorised batch (memory bound; default {mc.CHUNK}; at most "
-                   f"{mc.CHUNK_MEMORY_SHARE:.0%} of the available memory at {mc.BYTES_PER_SAMPLE} bytes a "
+                   f"{mc.CHUNK_MEMORY_SHARE * 100:.0f}%% of the available memory at {mc.BYTES_PER_SAMPLE} bytes a "
                    "sample, checked when the run starts)")
     p.add_argument("--progress", action="store_true", default=None,
                    help="force the stderr progress line (with the time left) on (default: on when "
