@@ -154,3 +154,31 @@ def test_replay_writes_the_predicted_columns_only_with_a_budget(tmp_path):
                      surface=HeightSurface(recs.column("paper_height_m")[k]))
     assert float(rows[0]["ce90_m"]) == pytest.approx(float(pu.ce90_m), abs=1e-3)  # written with 3 decimals
     assert float(rows[0]["ellipse_azimuth_deg"]) == pytest.approx(float(pu.ellipse_azimuth_deg), abs=1e-3)
+
+
+def test_klv_replay_predicts_beside_the_packets_own_tags_45_46(tmp_path):
+    """Nadir packets, a budget of platform position only and a height error: the closed forms are a
+    circular error of sigma (CE90 = sqrt(-2 ln 0.1) sigma, scipy's chi-square) and LE90 = 1.6449
+    sigma_h; the packet's own estimates (tags 45, 46) come back beside them, as klvdata reads them."""
+    import klvdata
+    from test_klv_replay import pose_fields, with_oracle
+
+    from geoloc.io.klv import encode_packet
+    from geoloc.workflows.klv_replay import replay_klv
+
+    pk = []
+    for i in range(3):
+        f = with_oracle(pose_fields(36.5 + 0.001 * i, -84.25, 3000.0, 30.0, 0.0, -90.0, i=i))[0]
+        f.update(target_error_ce90_m=25.0, target_error_le90_m=12.0)
+        pk.append(encode_packet(f))
+    path = tmp_path / "n.klv"
+    path.write_bytes(b"".join(pk))
+    independent = [p.MetadataList() for p in klvdata.StreamParser(path.read_bytes())]
+    assert float(independent[0][45][3]) == pytest.approx(25.0, abs=0.1)  # klvdata's own decoding of tag 45
+    r = replay_klv(path, budget=ErrorBudget({"north_m": 4.0, "east_m": 4.0, "height_m": 6.0}))
+    c = r.columns
+    np.testing.assert_allclose(c["reported_ce90_m"], 25.0, atol=0.1)  # tag 45's step: 4095 / 65535 m
+    np.testing.assert_allclose(c["reported_le90_m"], 12.0, atol=0.1)
+    # the platform's shift moves the hit by the same amount (the local frame's turn over 3 km: 5e-4)
+    np.testing.assert_allclose(c["ce90_m"], math.sqrt(sps.chi2.ppf(0.9, 2)) * 4.0, rtol=2e-3)
+    np.testing.assert_allclose(c["le90_m"], sps.norm.ppf(0.95) * 6.0, rtol=1e-6)

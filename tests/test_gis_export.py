@@ -207,7 +207,8 @@ def test_gpkg_layers_coordinates_and_attributes(tmp_path):
     assert s.format == "gpkg" and s.paths == [str(out)]
     layers = {name: gtype for name, gtype in pyogrio.list_layers(out)}
     assert layers == {"points": "Point Z", "truth": "Point Z", "reported": "Point Z",
-                      "error_vectors": "LineString Z", "footprints": "Polygon Z", "track": "LineString Z"}
+                      "error_vectors": "LineString Z", "footprints": "Polygon Z", "track": "LineString Z",
+                      "ellipses": "Polygon Z"}
 
     meta, geoms, f = read_layer(out, "points")
     assert meta["crs"] == "EPSG:4979"
@@ -587,3 +588,44 @@ def test_replay_export_option_writes_the_same_points(tmp_path, replay_csv):
         assert close(g[1][0][0], rows[k]["lon_deg"]) and close(g[1][0][1], rows[k]["lat_deg"])
     _, tgeoms, tf = read_layer(tmp_path / "r.gpkg", "track")
     assert tf["table"] == ["T3", "T4"]
+
+
+def test_predicted_ellipses_are_polygons_of_the_right_size_and_turn(tmp_path):
+    """The ``ellipses`` layer: the 90 % ellipse (the 1-sigma columns x sqrt(chi2(2, 0.9)), scipy)
+    measured with pyproj's geodesics: its area is pi a b (a 72-gon has 0.13 % less), the vertex
+    along the azimuth lies at the semi-major axis, the ring is counterclockwise; a row without
+    a point or without an ellipse has an empty geometry."""
+    from pyproj import Geod
+    from scipy.stats import chi2
+
+    t = synthetic()
+    t["ellipse_major_m"] = np.array([20.0, 8.0, 5.0, 30.0, nan])
+    t["ellipse_minor_m"] = np.array([5.0, 8.0, 5.0, 10.0, nan])
+    t["ellipse_azimuth_deg"] = np.array([30.0, 0.0, 0.0, 120.0, nan])
+    t["ce90_m"] = np.array([40.0, 17.2, 10.7, 70.0, nan])
+    out = tmp_path / "e.gpkg"
+    export(t, out)
+    _, geoms, f = read_layer(out, "ellipses")
+    assert geoms[2] is None and geoms[4] is None  # no position; no ellipse
+    g = Geod(ellps="WGS84")
+    r90 = math.sqrt(chi2.ppf(0.9, 2))
+    for k in (0, 1, 3):
+        ring = geoms[k][1][0]  # (kind, rings)
+        lon = [p[0] for p in ring]
+        lat = [p[1] for p in ring]
+        area, _ = g.polygon_area_perimeter(lon, lat)
+        a, b = r90 * t["ellipse_major_m"][k], r90 * t["ellipse_minor_m"][k]
+        n = len(ring) - 1
+        inscribed = math.pi * a * b * math.sin(2 * math.pi / n) / (2 * math.pi / n)
+        # the ring is at the point's height h, the geodesics on the ellipsoid: lengths shrink by
+        # R / (R + h) (R the Gaussian radius there; the direction's own radius differs by < 1e-5)
+        la = math.radians(t["lat_deg"][k])
+        w = 1 - 0.00669437999014 * math.sin(la) ** 2
+        R = 6378137.0 * math.sqrt(1 - 0.00669437999014) / w
+        sc = R / (R + t["h_m"][k])
+        assert area == pytest.approx(inscribed * sc * sc, rel=2e-5)  # > 0: counterclockwise
+        az, _, dist = g.inv(t["lon_deg"][k], t["lat_deg"][k], lon[0], lat[0])
+        assert dist == pytest.approx(a * sc, rel=1e-5)
+        assert (az - t["ellipse_azimuth_deg"][k] + 180) % 360 - 180 == pytest.approx(0.0, abs=1e-4)
+        assert all(abs(p[2] - t["h_m"][k]) < 1e-6 for p in ring)
+        assert f["semi_major_90_m"][k] == pytest.approx(a)

@@ -199,7 +199,7 @@ def _run_klv(args, inputs) -> int:
     surface = surface_from_args(args) if args.dem else None  # else: each packet's own frame-centre height
     replays = []
     for path in paths:
-        r = replay_klv(path, surface=surface, sensor=sensor)
+        r = replay_klv(path, surface=surface, sensor=sensor, budget=_budget(args))
         for e in r.errors:
             print(f"geoloc replay: {path}: {e}", file=sys.stderr)
         print(r.summary)

@@ -28,6 +28,7 @@ import contextlib
 import csv
 import html
 import importlib
+import math
 import struct
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
@@ -45,7 +46,9 @@ _ALIASES = {"gpkg": "gpkg", "geopackage": "gpkg", "geojson": "geojson", "json": 
 #: Output extensions and the format each implies.
 EXTENSIONS = {".gpkg": "gpkg", ".geojson": "geojson", ".json": "geojson", ".kml": "kml", ".czml": "czml"}
 #: Layers, in the order they are written (every format writes all of them, empty or not).
-LAYERS = ("points", "truth", "reported", "error_vectors", "footprints", "track")
+LAYERS = ("points", "truth", "reported", "error_vectors", "footprints", "track", "ellipses")
+#: Vertices of each predicted 90 % error ellipse's ring (the ``ellipses`` layer).
+ELLIPSE_VERTICES = 72
 #: Record id columns carried as text attributes when present.
 ID_COLUMNS = ("table", "point", "record", "image", "packet")
 #: Columns :func:`read_results` keeps as text even when every value looks like a number.
@@ -572,8 +575,48 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
     lay.description = "platform track (ac_* or sensor_* columns), one line per flight, ordered by time"
     layers["track"] = lay
 
+    layers["ellipses"] = _ellipse_layer(table, n, comp, ok, fields, row_attrs, labels, t_of)
     ctx = _Context(n, base, seconds, time_source, labels, status, missing)
     return layers, ctx
+
+
+def _ellipse_layer(table, n, comp, ok, fields, row_attrs, labels, t_of):
+    """Each computed point's predicted 90 % horizontal error ellipse as a polygon (the replay's
+    ``ellipse_major_m ellipse_minor_m ellipse_azimuth_deg`` columns, 1 sigma, scaled by 2.1460:
+    geoloc.analysis.uncertainty), its vertices at the point's height, counterclockwise."""
+    from geoloc.geodesy.local import enu_to_geodetic_deg
+
+    ell = [_num(table, c, n) for c in ("ellipse_major_m", "ellipse_minor_m", "ellipse_azimuth_deg")]
+    ce, le = _num(table, "ce90_m", n), _num(table, "le90_m", n)
+    lay = _Layer("ellipses", "Polygon", fields + [("ce90_m", "real"), ("le90_m", "real"),
+                                                  ("semi_major_90_m", "real"), ("semi_minor_90_m", "real"),
+                                                  ("azimuth_deg", "real")])
+    lay.description = ("predicted 90 % horizontal error ellipse of each computed point (the ellipse_* columns "
+                       "x 2.1460, chi-square 2 dof), at the point's height; counterclockwise")
+    if any(c is None for c in ell):
+        return lay
+    r90 = math.sqrt(-2.0 * math.log(0.1))
+    th = np.linspace(0.0, 2.0 * math.pi, ELLIPSE_VERTICES, endpoint=False)
+    for k in range(n):
+        a, b, az = (float(c[k]) for c in ell)
+        coords = None
+        if ok(comp, k) and all(np.isfinite((a, b, az))):
+            # major axis along the azimuth (clockwise from north), minor 90 degrees clockwise of it;
+            # from the major axis's end towards minus the minor: counterclockwise (RFC 7946)
+            A, Bm = r90 * a * np.cos(th), -r90 * b * np.sin(th)
+            sa, ca = math.sin(math.radians(az)), math.cos(math.radians(az))
+            e, nn = A * sa + Bm * ca, A * ca - Bm * sa
+            h0 = float(comp[2][k])
+            la, lo, _ = enu_to_geodetic_deg(np.stack([e, nn, np.zeros_like(e)], -1), float(comp[0][k]),
+                                            float(comp[1][k]), h0 if np.isfinite(h0) else 0.0)
+            pts = [(float(x), float(y), h0) for x, y in zip(lo, la)]
+            coords = pts + [pts[0]]
+        lay.features.append(_Feature(coords, row_attrs(k, ce90_m=_opt(ce[k]) if ce is not None else None,
+                                                       le90_m=_opt(le[k]) if le is not None else None,
+                                                       semi_major_90_m=_opt(r90 * a), semi_minor_90_m=_opt(r90 * b),
+                                                       azimuth_deg=_opt(az)),
+                                     f"ellipse {labels[k]}", k, t_of(k)))
+    return lay
 
 
 def _signed_area(pts) -> float:
@@ -751,7 +794,7 @@ def _write_ogr_layer(raw, layer, name, path, driver) -> None:
 
 _KML_COLORS = {  # aabbggrr
     "points": "ff0000ff", "truth": "ff00ff00", "reported": "ffff8800", "error_vectors": "ff00ffff",
-    "footprints": "ff00ffff", "track": "ffffffff",
+    "footprints": "ff00ffff", "track": "ffffffff", "ellipses": "ffff00ff",
 }
 
 
@@ -882,6 +925,7 @@ def _kml_schema_order(text: str) -> bytes:
 _CZML_COLORS = {
     "points": [255, 0, 0, 255], "truth": [0, 255, 0, 255], "reported": [0, 136, 255, 255],
     "error_vectors": [255, 255, 0, 255], "footprints": [255, 255, 0, 70], "track": [255, 255, 255, 255],
+    "ellipses": [255, 0, 255, 90],
 }
 
 

@@ -536,7 +536,7 @@ def _append(notes, mask, text):
 
 
 def replay_klv(source, *, surface=None, sensor: FrameSensor | None = None, verify_checksum: bool = True,
-               fast: bool = True, label: str | None = None) -> KlvReplay:
+               fast: bool = True, label: str | None = None, budget=None) -> KlvReplay:
     """Recompute every packet's frame centre and corners and compare with the packet's own.
 
     Parameters
@@ -553,6 +553,11 @@ def replay_klv(source, *, surface=None, sensor: FrameSensor | None = None, verif
         :func:`klv_sensor`).
     verify_checksum, fast, label
         See :func:`read_klv`.
+    budget : ErrorBudget, optional
+        The sensor file's ``[uncertainty]``: each frame centre's predicted uncertainty
+        (:func:`geoloc.analysis.uncertainty.propagate`) as ``ce90_m le90_m ellipse_*`` beside
+        the packet's own target error estimates, ``reported_ce90_m`` / ``reported_le90_m``
+        (MISB ST 0601 tags 45 and 46, Target Error Estimate CE90 / LE90).
 
     Returns
     -------
@@ -562,10 +567,26 @@ def replay_klv(source, *, surface=None, sensor: FrameSensor | None = None, verif
     """
     read = source if isinstance(source, KlvRead) else read_klv(source, verify_checksum=verify_checksum,
                                                                  fast=fast, label=label)
-    return _replay(read, surface, sensor)
+    return _replay(read, surface, sensor, budget)
 
 
-def _replay(read: KlvRead, surface, base_sensor) -> KlvReplay:
+def _klv_uncertainty(sens, pose, surface, budget, ok):
+    """The frame centres' predicted uncertainty columns (NaN where a packet has no centre).
+
+    The packets' lens is made from their fields of view (a pinhole), so a budget's distortion keys
+    (k1, ...) do not apply and are left out; ``time_s`` is left out too (velocity tags 79 / 80 are
+    not read)."""
+    from geoloc.analysis.uncertainty import propagate
+    from geoloc.sensors.budget import LENS_KEYS, ErrorBudget
+
+    keep = {k: v for k, v in budget.sigmas.items()
+            if k != "time_s" and not (k in LENS_KEYS and LENS_KEYS[k] not in sens.lens.params)}
+    pu = propagate(sens, pose, None, None, ErrorBudget(keep, budget.dem_product, budget.source), surface=surface)
+    good = ok & (np.asarray(pu.status) == Status.OK)
+    return {k: np.where(good, np.asarray(v, float), np.nan) for k, v in pu.columns().items()}
+
+
+def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
     terrain = terrain_of(surface)
     c = read.columns
     n = len(read)
@@ -782,6 +803,13 @@ def _replay(read: KlvRead, surface, base_sensor) -> KlvReplay:
         cols[f"corner{j + 1}_lat_deg"] = k_lat[j]
         cols[f"corner{j + 1}_lon_deg"] = k_lon[j]
         cols[f"corner{j + 1}_h_m"] = k_h[j]
+    if budget is not None:  # predicted beside the packet's own target error estimates (tags 45, 46)
+        from geoloc.surfaces.height import HeightSurface
+
+        unc_surface = HeightSurface(h_int, "geodetic") if surface is None else surface
+        cols["reported_ce90_m"] = g("target_error_ce90_m")
+        cols["reported_le90_m"] = g("target_error_le90_m")
+        cols.update(_klv_uncertainty(sens, pose_c, unc_surface, budget, ok))
     cols.update({
         "corner_status": corner_status,
         "corner_error_m": corner_err,
