@@ -116,6 +116,7 @@ def _run_live(args) -> int:
     from geoloc.userfiles import atomic_path, growing_path
 
     limits = live_limits(args, args.file)
+    sock = _bind(args.file)
     rx = LiveReceiver(verify_checksum=not args.no_checksum)
     print(f"geoloc klv: listening on {args.file}" + (" (Ctrl-C to stop)" if not any(limits.values()) else ""),
           file=sys.stderr, flush=True)
@@ -129,7 +130,7 @@ def _run_live(args) -> int:
             rec = stack.enter_context(growing_path(args.record_ts, "--record"))
             fh = stack.enter_context(rec.open("wb"))
             record = fh.write
-        results = receive(args.file, receiver=rx, record=record, **limits)
+        results = receive(args.file, receiver=rx, record=record, sock=sock, **limits)
         good, bad = _dump(args.file, results, out, flush=True)
     print(f"geoloc klv: {rx.stats.line()}", file=sys.stderr)
     if args.out:
@@ -137,6 +138,17 @@ def _run_live(args) -> int:
     if args.record_ts:
         print(f"recorded {rx.stats.bytes} bytes to {args.record_ts}", file=sys.stderr)
     return 0 if good else 1
+
+
+def _bind(url):
+    """The socket of ``url``, bound at once (the exposure of a non-loopback bind printed first)."""
+    from geoloc.io.live import exposure_note, open_socket, parse_udp_url
+
+    u = parse_udp_url(url)
+    note = exposure_note(u)
+    if note:
+        print(note, file=sys.stderr, flush=True)
+    return open_socket(u)
 
 
 def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:

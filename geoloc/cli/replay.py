@@ -245,6 +245,9 @@ def _run_live(args, inputs) -> int:
     _reject_records_options(args, "a live KLV stream (each packet at its own frame-centre height, or --dem)")
     url = inputs[0]
     limits = live_limits(args, url)
+    from geoloc.cli.klv import _bind
+
+    sock = _bind(url)  # bound before anything else: what is sent meanwhile waits in the kernel
     sensor = sensor_from_args(args, default=False)
     surface = surface_from_args(args) if args.dem else None  # else: each packet's own frame-centre height
     rx = LiveReceiver()
@@ -277,7 +280,7 @@ def _run_live(args, inputs) -> int:
             if args.record_ts:
                 fh.flush()
 
-        for _ in receive(url, receiver=rx, record=record, on_batch=batch, **limits):
+        for _ in receive(url, receiver=rx, record=record, on_batch=batch, sock=sock, **limits):
             pass
     print(live.summary())
     print(f"  stream: {rx.stats.line()}")

@@ -62,6 +62,17 @@ def register(sub) -> None:
                    "every tab has its own state")
     p.add_argument("--max-clients", type=int, default=16, metavar="N",
                    help="browser tabs served at once (default 16); a tab beyond is told the limit")
+    lv = p.add_argument_group("live (docs/live.md)")
+    lv.add_argument("--live", default=None, metavar="udp://HOST:PORT", type=input_path,
+                    help="follow a live MPEG-TS / MISB ST 0601 stream: the timeline grows as packets arrive, "
+                    "the view follows the latest frame until you scrub back ('live' returns), loss counts in "
+                    "a panel")
+    lv.add_argument("--journal", default=None, metavar="FILE.csv", type=output_path,
+                    help="live: journal every located packet's row to this CSV as it arrives (the columns "
+                    "of geoloc replay --out)")
+    from geoloc.cli._options import add_live_options
+
+    add_live_options(p, record_flag="--record-ts")
     p.set_defaults(func=run)
 
 
@@ -121,6 +132,11 @@ def run(args) -> int:
         raise ValueError(f"port = {args.port}: must be in 0..65535")
     if args.max_clients < 1:
         raise ValueError(f"max-clients = {args.max_clients}: must be >= 1")
+    if args.live:
+        return _run_live(args)
+    for opt in ("journal", "record_ts", "duration", "packets", "idle"):
+        if getattr(args, opt, None) is not None:
+            raise ValueError(f"--{opt.replace('_', '-')} is for --live udp://HOST:PORT")
     if args.export:
         return _export(args)
     from geoloc.viz.app import make_server
@@ -175,4 +191,74 @@ def _export(args) -> int:
             server.stop()
             time.sleep(0.05)  # viser's server thread prints its "stopped" line on its way out
     print(f"wrote {path}")
+    return 0
+
+
+def _run_live(args) -> int:
+    """``geoloc view --live udp://HOST:PORT``: :class:`geoloc.viz.live_view.LiveViewer` (docs/live.md)."""
+    import contextlib
+
+    from geoloc.cli._options import is_stream, live_limits
+    from geoloc.userfiles import growing_path
+
+    if not is_stream(args.live):
+        raise ValueError(f"--live {args.live}: give a stream, udp://HOST:PORT (a file opens with --records)")
+    if args.export:
+        raise ValueError("--export writes a static scene; --live follows a stream: give one of them")
+    limits = live_limits(args, args.live)
+    from geoloc.cli.klv import _bind
+
+    sock = _bind(args.live)  # before the viewer's imports: what is sent meanwhile waits in the kernel
+    sensor = None
+    if args.camera:
+        from geoloc.cli.locate import load_camera
+
+        sensor = load_camera(args.camera)
+    surface = None  # each packet at its own frame-centre height
+    if args.dem:
+        from geoloc.surfaces.dem import DEM
+        from geoloc.surfaces.terrain import surface_for
+
+        surface = surface_for(dem=DEM.open(one_dem_raster(args, "view")), method=args.method or "exact")
+    from geoloc.viz.app import make_server
+    from geoloc.viz.live_view import LiveFeed, LiveViewer
+
+    with contextlib.ExitStack() as stack:
+        journal = record = None
+        if args.journal:
+            part = stack.enter_context(growing_path(args.journal, "--journal"))
+            journal = stack.enter_context(part.open("w", newline=""))
+        if args.record_ts:
+            rec = stack.enter_context(growing_path(args.record_ts, "--record-ts"))
+            fh = stack.enter_context(rec.open("wb"))
+            record = fh.write
+        feed = LiveFeed(args.live, sensor=sensor, surface=surface, limits=limits,
+                        journal=journal, record=record, sock=sock)
+        server = make_server(args.host, 8080 if args.port is None else args.port)
+        viewer = None
+        try:
+            viewer = LiveViewer(server, feed, max_clients=args.max_clients)
+            feed.start()
+            url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{server.get_port()}"
+            print(f"geoloc view: {url}  (live: {args.live}; Ctrl+C to stop)", flush=True)
+            if args.host not in ("127.0.0.1", "localhost", "::1"):
+                print(f"warning: listening on {args.host}: anyone who can reach this machine can "
+                      "open the viewer", file=sys.stderr)
+            if not args.no_browser:
+                webbrowser.open(url)
+            while not feed.done:
+                time.sleep(0.2)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            if viewer is not None:
+                viewer.stop()
+            else:
+                feed.stop()
+            try:
+                server.stop()
+            except KeyboardInterrupt:
+                pass
+    print(feed.replay.summary())
+    print(f"  stream: {feed.rx.stats.line()}")
     return 0

@@ -790,7 +790,8 @@ class LiveReceiver:
         self.window: deque = deque(maxlen=int(window))
         self.video: deque = deque(maxlen=int(video_window))  # (pts, bytes or None, pid)
         self.keep_video_data = keep_video_data
-        self.first_datagram_s: float | None = None
+        self.first_datagram_s: float | None = None  # time.monotonic()
+        self.first_datagram_unix_s: float | None = None  # time.time(), to compare with other clocks
         self.last_datagram_s: float | None = None
         self._last_klv_pts: int | None = None
 
@@ -800,6 +801,7 @@ class LiveReceiver:
         st = self.stats
         if self.first_datagram_s is None:
             self.first_datagram_s = now
+            self.first_datagram_unix_s = time.time()
         elif now - self.last_datagram_s > STALL_S:
             st.stalls += 1
         self.last_datagram_s = now
@@ -874,7 +876,7 @@ def receive(url, *, duration_s: float | None = None, packets: int | None = None,
             record: Callable[[bytes], None] | None = None, receiver: LiveReceiver | None = None,
             on_batch: Callable[[list], None] | None = None, poll_s: float = 0.05,
             announce: Callable[[str], None] | None = None, stop: Callable[[], bool] | None = None,
-            ) -> Iterator[Packet | KlvError]:
+            sock: socket.socket | None = None) -> Iterator[Packet | KlvError]:
     """Listen on ``url`` and yield every KLV result as it is decoded.
 
     Parameters
@@ -897,16 +899,20 @@ def receive(url, *, duration_s: float | None = None, packets: int | None = None,
         Called with the exposure note of a non-loopback bind (default: print to stderr).
     stop : callable, optional
         Polled between datagrams: True stops the reception.
+    sock : socket.socket, optional
+        A socket already bound by :func:`open_socket` (bind early, so that nothing sent while
+        the caller starts up is lost: the kernel queues it); closed at the end.
 
     Stops on any of the conditions, on ``KeyboardInterrupt`` (then returns
     normally), or never when none is given.
     """
     u = url if isinstance(url, UdpUrl) else parse_udp_url(url)
     rx = receiver if receiver is not None else LiveReceiver()
-    note = exposure_note(u)
-    if note:
-        (announce or (lambda m: print(m, file=sys.stderr, flush=True)))(note)
-    sock = open_socket(u)
+    if sock is None:
+        note = exposure_note(u)
+        if note:
+            (announce or (lambda m: print(m, file=sys.stderr, flush=True)))(note)
+        sock = open_socket(u)
     sock.settimeout(poll_s)
     t0 = time.monotonic()
     got = 0
