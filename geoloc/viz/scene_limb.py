@@ -147,6 +147,21 @@ class LimbApp:
                 h.on_update(lambda _: self._on_gui())
         self.compute()
         self.draw(reset_camera=True)
+        # labels kept apart on this tab's screen (issue 34): after each redraw and camera move
+        from geoloc.viz.label_layout import LabelLayout
+
+        client = server if not hasattr(server, "get_clients") else None
+
+        def camera():
+            if client is not None:
+                return client.camera
+            tabs = list(server.get_clients().values())
+            return tabs[0].camera if tabs else None
+
+        self.labels = LabelLayout(server.scene, camera)
+        if client is not None:
+            client.camera.on_update(lambda _c: self.labels.schedule())
+        self.labels.schedule(0.05)
 
     # ------------------------------------------------------------ core
     def compute(self) -> None:
@@ -335,6 +350,7 @@ class LimbApp:
         self.offset_exaggeration = float(self.sl_off.value)
         self.compute()
         self.draw()
+        self.labels.schedule(0.05)
 
     def export(self, path) -> Path:
         """Write the scene as ``.viser`` or self-contained ``.html`` (see GeolocApp.export)."""

@@ -1,0 +1,166 @@
+"""No label covers another in the default views (issue 34), judged in headless Chromium.
+
+For the example flight, the [Q17] flight test, the EO turret and the limb scene, a real browser
+opens the viewer as ``geoloc view`` serves it; once its camera is reported, each shown label's
+screen box is computed here, independently of ``geoloc.viz.label_layout``:
+
+* its 3D point: the label node's position composed with its ancestors' poses (the scene the
+  browser renders, as the server holds it);
+* its pixel: a pinhole through the browser's reported camera (position, orientation, vertical
+  field of view, canvas size);
+* its size: the text measured by the browser itself (canvas ``measureText`` in viser's label font
+  stack at viser's 12 px em, ascent + descent for the line), plus viser's padding of 0.2 line
+  heights, placed by its anchor as viser's ``label/labelLayout.ts`` does.
+
+The test fails on any two boxes that overlap on the canvas.
+"""
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from test_viz_browser import ARTIFACTS, chromium, open_viewer, wait_for
+
+pytestmark = [pytest.mark.browser]
+
+FONT = '12px -apple-system, BlinkMacSystemFont, "Segoe UI", "Roboto", "Helvetica Neue", Arial, sans-serif'
+W, H = 1000, 640
+
+
+def _measure(page, texts):
+    return page.evaluate(
+        """([font, texts]) => { const c = document.createElement('canvas').getContext('2d'); c.font = font;
+        return texts.map(t => { const lines = t.split('\\n'); const m = c.measureText('Hg');
+          return [Math.max(...lines.map(l => c.measureText(l).width)),
+                  (m.fontBoundingBoxAscent + m.fontBoundingBoxDescent) * lines.length]; }); }""",
+        [FONT, list(texts)])
+
+
+def _pose(scene, name):
+    import viser.transforms as vtf
+
+    R, t = np.eye(3), np.zeros(3)
+    parts = [p for p in name.split("/") if p]
+    shown = True
+    for k in range(1, len(parts) + 1):
+        h = scene.get_handle_by_name("/" + "/".join(parts[:k]))
+        if h is None:
+            continue
+        shown = shown and bool(h.visible)
+        if k < len(parts):
+            t = t + R @ np.asarray(h.position, float)
+            R = R @ vtf.SO3(np.asarray(h.wxyz, float)).as_matrix()
+    return R, t, shown
+
+
+def boxes(page, scene, camera):
+    import viser
+    import viser.transforms as vtf
+
+    labels = []
+    for name, h in list(scene._handle_from_node_name.items()):
+        if not isinstance(h, viser.LabelHandle) or not h.text:
+            continue
+        R, t, shown = _pose(scene, name)
+        if shown:
+            labels.append((name, h.text, h.anchor, R @ np.asarray(h.position, float) + t))
+    if not labels:
+        return {}
+    sizes = _measure(page, [lab[1] for lab in labels])
+    Rc = vtf.SO3(np.asarray(camera.wxyz, float)).as_matrix()
+    f = 0.5 * H / math.tan(0.5 * camera.fov)
+    out = {}
+    for (name, text, anchor, p), (w, lh) in zip(labels, sizes):
+        pc = (p - np.asarray(camera.position, float)) @ Rc
+        if pc[2] <= 0:
+            continue
+        u, v = 0.5 * W + f * pc[0] / pc[2], 0.5 * H + f * pc[1] / pc[2]
+        pad = 0.2 * lh / max(text.count("\n") + 1, 1)
+        bw, bh = w + pad, lh + pad
+        vert, _, horiz = anchor.partition("-")
+        x0 = u if horiz == "left" else u - bw if horiz == "right" else u - bw / 2
+        y0 = v if vert == "top" else v - bh if vert == "bottom" else v - bh / 2
+        if x0 > W or y0 > H or x0 + bw < 0 or y0 + bh < 0:
+            continue  # off the canvas
+        out[name] = (x0, y0, x0 + bw, y0 + bh, text)
+    return out
+
+
+def overlaps(bx):
+    names = sorted(bx)
+    bad = []
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            A, B = bx[a], bx[b]
+            if A[0] < B[2] and B[0] < A[2] and A[1] < B[3] and B[1] < A[3]:
+                bad.append((A[4], B[4]))
+    return bad
+
+
+def _check(tmp_path, make_viewer, scene_of, name):
+    from geoloc.viz.app import make_server
+
+    ARTIFACTS.mkdir(exist_ok=True)
+    server = make_server(port=0)
+    try:
+        viewer = make_viewer(server)
+        with chromium(tmp_path) as browser:
+            page = open_viewer(browser, server, W, H)
+            cid, client = next(iter(server.get_clients().items()))
+            wait_for(lambda: scene_of(viewer, cid) is not None, 300, "the tab's scene to be built")
+            wait_for(lambda: client.camera.update_timestamp > 0 and client.camera.image_width == W, 60,
+                     "the browser's camera report")
+            scene = scene_of(viewer, cid)
+            t0, bad, bx = time.monotonic(), None, {}
+            while time.monotonic() - t0 < 40:
+                time.sleep(1.0)  # the layout runs 0.3 s after the camera settles
+                bx = boxes(page, scene, client.camera)
+                bad = overlaps(bx)
+                if not bad and bx:
+                    break
+            page.screenshot(path=str(ARTIFACTS / f"labels_{name}.png"))
+            assert bx, "no label on the canvas"
+            assert not bad, f"{name}: overlapping labels {bad}"
+    finally:
+        server.stop()
+
+
+def _tab_scene(viewer, cid):
+    s = viewer.session_of(cid)
+    return s.scene if s is not None and s.layers else None
+
+
+def test_example_flight_labels_do_not_overlap(tmp_path):
+    from geoloc.viz.app import GeolocViewer
+    from geoloc.viz.flight_model import default_flight_scenario
+
+    _check(tmp_path, lambda server: GeolocViewer(server, default_flight_scenario()), _tab_scene, "example_flight")
+
+
+def test_flight_test_labels_do_not_overlap(tmp_path):
+    from geoloc.viz.app import GeolocViewer
+    from geoloc.viz.scenario import load_view_scenario
+
+    _check(tmp_path, lambda server: GeolocViewer(server, load_view_scenario()), _tab_scene, "flight_test")
+
+
+def test_turret_labels_do_not_overlap(tmp_path):
+    from geoloc.assets import asset_path
+    from geoloc.viz.app import GeolocViewer
+    from geoloc.viz.scenario import load_view_scenario
+
+    scn = load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
+                             asset_path("sensors", "eo_turret.toml"))
+    _check(tmp_path, lambda server: GeolocViewer(server, scn), _tab_scene, "turret")
+
+
+def test_limb_labels_do_not_overlap(tmp_path):
+    from geoloc.viz.scene_limb import LimbViewer, load_limb
+
+    def scene_of(viewer, cid):
+        app = viewer.apps.get(cid)
+        return app.server.scene if app is not None else None
+
+    _check(tmp_path, lambda server: LimbViewer(server, load_limb()), scene_of, "limb")
