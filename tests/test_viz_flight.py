@@ -440,3 +440,27 @@ def test_at_each_planted_fault_the_error_vector_shows_on_the_canvas(tmp_path):
                 page.wait_for_selector(f"text=error {err:.1f} m", timeout=60000, state="attached")
     finally:
         server.stop()
+
+
+def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
+    # issue 34 item 6: the static page of an outlier says its residual, its error vector's length and
+    # the fault of its run (the planted datum run, 200-204), not only the record's header
+    import re
+
+    from geoloc.viz import flight_layer
+    from geoloc.viz.app import GeolocApp, make_server
+
+    server = make_server(port=0)
+    try:
+        app = GeolocApp(server, flight_model.default_flight_scenario(), layers=(flight_layer.attach,))
+        fl = app.layers[-1]
+        idx = fl.model.labels.index("packet 203")
+        fl.go(idx, camera=True)
+        page = app.export(tmp_path / "outlier.html", animate_steps=False).read_text()
+        panel = re.search(r'<div id="geoloc-summary"[^>]*>(.*?)</div>', page, re.S).group(1)
+        err = fl.error_m(idx)
+        for text in ("example_flight.klv packet 203", f"residual {fl.model.residual_m[idx]:.2f} m",
+                     f"error {err:.1f} m", "sensor height off by", "height in the wrong datum"):
+            assert text in panel, text
+    finally:
+        server.stop()

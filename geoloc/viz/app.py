@@ -634,8 +634,10 @@ class GeolocApp(GeolocSession):
 
             # the serializer records the scene, not the GUI: the summary (record, method, hit,
             # errors) goes into the page as a panel of its own
-            page = with_summary(ser.as_html(dark_mode=True), f"geoloc view: {self.header()}",
-                                self.md_summary.content,
+            # what the layers know of this record (the flight layer: its residual, error and fault)
+            extra = [obj.export_markdown() for obj in self.layers if hasattr(obj, "export_markdown")]
+            text = "\n\n".join([self.md_summary.content] + [t for t in extra if t])
+            page = with_summary(ser.as_html(dark_mode=True), f"geoloc view: {self.header()}", text,
                                 "Static export of geoloc view (no controls); "
                                 "the scene animates the terrain method's iterations.")
             write_text(path, page)

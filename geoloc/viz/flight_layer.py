@@ -121,6 +121,9 @@ class FlightLayer:
         self._follow_session()
         idx = session.scn.record_index
         self.highlight(0 if idx is None else int(idx))
+        # the first view orients: the whole flight, its worst runs marked (issue 34)
+        if len(self.model) > 1:
+            self.show_whole_flight(initial=True)
 
     # ------------------------------------------------------------ scene
     def _disp(self):
@@ -155,6 +158,24 @@ class FlightLayer:
                     f"{ROOT}/{name}", f32(pts[ok]), COLORS["centre" if name == "centres" else name],
                     point_size=self.point_size * (0.6 if name == "centres" else 1.0), point_shape="circle",
                     precision="float32")
+        # the flagged runs: their stretch of the track in red, thick, labelled with the fault
+        runs = sorted(m.faults, key=lambda f: -np.nanmax(m.residual_m[f.first:f.last + 1]))
+        segs, self.run_labels = [], []
+        for r, f in enumerate(runs, 1):
+            a, b = f.first, min(f.last + 1, len(m) - 1)
+            seg = np.stack([m.track_enu[a:b], m.track_enu[a + 1:b + 1]], axis=1) if b > a else \
+                np.stack([m.track_enu[a:a + 1], m.track_enu[a:a + 1] + [0.0, 0.0, 1.0]], axis=1)
+            segs.append(seg)
+        if segs:  # (the parent node before its labels: re-creating a node drops its children)
+            seg = np.concatenate(segs)
+            ok = np.all(np.isfinite(seg), axis=(1, 2))
+            self.handles["runs"] = s.add_line_segments(f"{ROOT}/runs", f32(seg[ok]), COLORS["footprint_outlier"],
+                                                       thickness=6.0, thickness_units="screen")
+        for r, f in enumerate(runs, 1):
+            mid = m.track_enu[(f.first + f.last) // 2]
+            what = f.headline().split(": ", 1)[-1]
+            self.run_labels.append(s.add_label(f"{ROOT}/run_labels/run{r}", f"run {r}: {what}",
+                                               position=tuple(f32(mid[None])[0]), anchor="bottom-center"))
         err = m.error_segments()
         ok = np.all(np.isfinite(err), axis=(1, 2))
         if ok.any():
@@ -291,10 +312,25 @@ class FlightLayer:
             fh["label"].position = tuple(mid * v)
             if fh["label"].text != text:
                 fh["label"].text = text
+        # a residual of millimetres (a frame that agrees) has nothing to show: the frame's own label says it
         for h in fh.values():
-            h.visible = True
+            h.visible = e > 0.5
         self.focus_info = {"idx": idx, "a_enu": a2, "b_enu": b2, "error_m": e, "radius_m": r, "lift_m": lift,
                            "label": text}
+
+    def export_markdown(self) -> str:
+        """The current frame's residual, error vector and fault (its run and what it looks like),
+        for the static export's text panel."""
+        if self.current is None:
+            return ""
+        m, idx = self.model, self.current
+        f = m.fault_of(idx)
+        text = self._frame_text(idx)
+        if f is not None:
+            text += "  \n" + flight_model.WHAT_IT_LOOKS_LIKE[f.kind]
+        elif m.faults:
+            text += "  \nflagged runs of this flight: " + "; ".join(x.headline() for x in m.faults)
+        return text
 
     def error_text(self, idx: int) -> str:
         """The error vector's label: its 3D length, what it joins, and the display lift if any."""
@@ -342,6 +378,7 @@ class FlightLayer:
     def _build_gui(self) -> None:
         g, m = self.gui, self.model
         n = len(m)
+        self.top_idx, self.opts = goto_entries(m, self.top_n)
         with g.add_folder("Flight", order=self._order(0)):
             self.md_head = g.add_markdown(
                 f"**{n} frames**, footprints on {m.surface.split(' (')[0]}. **magenta**: the current frame; "
@@ -349,6 +386,16 @@ class FlightLayer:
                 "reported / recomputed / truth; **pink**: error vectors (true length)")
             self.sl_frame = g.add_slider("frame index", 0, max(n - 1, 1), 1, 0, disabled=n < 2,
                                          hint="Scrub through the frames; each loads as the current record")
+            self.bt_whole = g.add_button("whole flight", hint="The camera on the whole flight: track, "
+                                         "footprints, the flagged runs in red")
+            worst = self.top_idx[0] if self.top_idx else None
+            self.bt_worst = g.add_button(
+                f"worst fault: {m.labels[worst]}" + (f" ({KIND_NAMES.get(m.fault_of(worst).kind)})"
+                                                      if m.fault_of(worst) is not None else "")
+                if worst is not None else "worst fault", disabled=worst is None,
+                hint="Jump to the frame of largest error, the camera framed on its error vector")
+            self.cb_follow = g.add_checkbox("camera follows the timeline", False,
+                                            hint="While the timeline moves, the camera moves with the aircraft")
             self.bt_play = g.add_button("play", hint="Play / pause the timeline")
             self.num_fps = g.add_number("frames per second", 2.0, min=0.2, max=30.0, step=0.1)
             self.cb_auto_markers = g.add_checkbox(
@@ -357,7 +404,6 @@ class FlightLayer:
                      "its error vector (pink, with its length)")
             self.md_frame = g.add_markdown("")
         with g.add_folder("Flight: outliers first", order=self._order(1)):
-            self.top_idx, self.opts = goto_entries(m, self.top_n)
             self.dd_goto = g.add_dropdown("go to", [CHOOSE] + self.opts, initial_value=CHOOSE,
                                           hint="Jump the timeline and the camera to this frame")
             self.md_table = g.add_markdown(m.outlier_markdown(self.top_n))
@@ -367,6 +413,8 @@ class FlightLayer:
             self.md_accuracy = g.add_markdown(m.summary_markdown())
         self.sl_frame.on_update(lambda _e: self._on_slider())
         self.bt_play.on_click(lambda _e: self.toggle_play())
+        self.bt_whole.on_click(lambda _e: self.show_whole_flight())
+        self.bt_worst.on_click(lambda _e: self.top_idx and self.go(self.top_idx[0], camera=True))
         self.dd_goto.on_update(lambda _e: self._on_goto())
 
     def _on_slider(self) -> None:
@@ -422,6 +470,7 @@ class FlightLayer:
         """Frame ``idx``: load it into the session, move the highlight, sync the slider (and the camera:
         framed on the frame's error, the markers sized to it)."""
         idx = int(np.clip(idx, 0, len(self.model) - 1))
+        before = self.current
         self._markers_changed = False
         self.size_markers(idx, points=camera)
         loaded = self.session.scn.record_index == idx
@@ -438,6 +487,30 @@ class FlightLayer:
         self.show_origin(not camera)
         if camera:
             self.move_camera_to(idx)
+        elif before is not None and before != idx and getattr(self, "cb_follow", None) is not None \
+                and self.cb_follow.value:
+            self.follow(before, idx)
+
+    def follow(self, old: int, new: int) -> None:
+        """Move the camera(s) by the aircraft's displacement from frame ``old`` to ``new`` (the view's
+        orientation and zoom kept): the aircraft stays where it was on screen."""
+        m = self.model
+        scene_enu, F = self.session.scn.enu, m.enu
+        v = np.array([1.0, 1.0, self._vexag()]) * WORLD_SCALE
+        d = (scene_enu.from_ecef(F.to_ecef(m.track_enu[new])) - scene_enu.from_ecef(F.to_ecef(m.track_enu[old]))) * v
+        if not np.all(np.isfinite(d)):
+            return
+        s = self.session
+        client = getattr(s, "client", None)
+        clients = [client] if client is not None else list(s.server.get_clients().values())
+        for c in clients:
+            try:
+                pos, aim = np.asarray(c.camera.position, float), np.asarray(c.camera.look_at, float)
+                with c.atomic():  # position first: viser moves look_at with it, then sets it exactly
+                    c.camera.position = tuple(pos + d)
+                    c.camera.look_at = tuple(aim + d)
+            except Exception:  # a tab that left
+                pass
 
     def show_origin(self, visible: bool) -> None:
         """Show or hide the scene's ENU origin axes: 600 m cylinders at the rounded target position,
@@ -476,13 +549,67 @@ class FlightLayer:
                 p = np.r_[-dv[1], dv[0], 0.0] / np.linalg.norm(dv)
                 u = p if p @ u >= 0 else -p
             w = 0.55 * u + np.array([0.0, 0.0, 0.83])
-            return aim + D * w / np.linalg.norm(w), aim
+            return shift_left_of_panel(aim + D * w / np.linalg.norm(w), aim)
         L = max(float(np.linalg.norm(a - aim)), 1e-3)
         horiz = (a - aim)[:2]
         u = np.r_[horiz / max(np.linalg.norm(horiz), 1e-9), 0.0]
         side = np.array([-u[1], u[0], 0.0])
         pos = aim + 0.55 * L * u + 0.25 * L * side + np.array([0.0, 0.0, 0.45 * L])
         return pos, aim
+
+    def whole_flight_pose(self):
+        """(position, look_at) in scene units (km) framing the whole flight: the track and every
+        footprint, from the south-east and above (about 50 deg down), the GUI panel on the right."""
+        m = self.model
+        scene_enu, F = self.session.scn.enu, m.enu
+        v = np.array([1.0, 1.0, self._vexag()]) * WORLD_SCALE
+        pts = np.concatenate([m.track_enu, m.footprint_enu.reshape(-1, 3)])
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        P = scene_enu.from_ecef(F.to_ecef(pts)) * v
+        lo, hi = P.min(axis=0), P.max(axis=0)
+        centre = 0.5 * (lo + hi)
+        radius = max(0.5 * float(np.linalg.norm(hi - lo)), 0.5)
+        # viser's 75 deg vertical field of view: a sphere of this radius fits at 1.25 radius / tan(37.5)
+        D = 1.25 * radius / np.tan(np.radians(37.5))
+        w = np.array([0.45, -0.55, 0.95])
+        pos = centre + D * w / np.linalg.norm(w)
+        return shift_left_of_panel(pos, centre)
+
+    def show_whole_flight(self, initial: bool = False) -> None:
+        """The camera on the whole flight (and, for a server session at the start, every new tab's)."""
+        pos, aim = self.whole_flight_pose()
+        s = self.session
+        self.size_markers(self.current if self.current is not None else 0, points=False)
+        # the aircraft drawn a tenth of the flight's extent (x200 makes a 3 km aircraft, as large as
+        # the example flight's orbit); its label and the panel say the scale
+        sl = getattr(s, "sl_ac", None)
+        if sl is not None:
+            m = self.model
+            ext = float(np.nanmax(np.ptp(np.nan_to_num(m.track_enu[:, :2]), axis=0)))
+            scale = float(np.clip(round(ext / 10.0 / 15.0), 1.0, float(sl.value)))
+            if scale != float(sl.value):
+                sl.value = scale
+        self.show_origin(True)
+        if initial and getattr(s, "client", None) is None and hasattr(s.server, "initial_camera"):
+            cam = s.server.initial_camera
+            cam.up = (0.0, 0.0, 1.0)
+            cam.position, cam.look_at = tuple(pos), tuple(aim)
+        self._move((pos, aim))
+
+    def _move(self, pose) -> None:
+        pos, aim = pose
+        s = self.session
+        if hasattr(s, "move_camera"):
+            try:
+                s.move_camera((pos, aim))
+                return
+            except (TypeError, ValueError):
+                pass
+        for client in s.server.get_clients().values():  # the older app: every tab
+            with client.atomic():
+                client.camera.up_direction = (0.0, 0.0, 1.0)
+                client.camera.position = tuple(pos)
+                client.camera.look_at = tuple(aim)
 
     def move_camera_to(self, idx: int) -> None:
         pos, aim = self.camera_pose(idx)
@@ -546,6 +673,24 @@ class FlightLayer:
         """Stop the timeline (the session drops its callbacks; the tab's nodes go with it)."""
         self._playing = False
         self.closed = True
+
+
+#: The GUI panel covers the right of the canvas: cameras framing something put it this fraction of
+#: its distance to the right of the view's centre line, so it shows left of the panel.
+PANEL_SHIFT = 0.25
+
+
+def shift_left_of_panel(pos, aim, k: float = PANEL_SHIFT):
+    """(position, look_at) moved together along the view's right vector by ``k`` times their distance:
+    what was aimed at appears left of the centre, clear of the GUI panel."""
+    pos, aim = np.asarray(pos, float), np.asarray(aim, float)
+    f = aim - pos
+    r = np.cross(f, [0.0, 0.0, 1.0])
+    n = np.linalg.norm(r)
+    if n < 1e-12:
+        return pos, aim
+    d = k * np.linalg.norm(f) * r / n
+    return pos + d, aim + d
 
 
 KIND_NAMES = {"attitude": "heading bias", "datum": "height datum", "timing": "stale pose",

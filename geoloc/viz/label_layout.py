@@ -8,7 +8,9 @@ markers of a hit) then cover each other. :func:`layout` takes the labels of a sc
 camera, computes each one's screen box (:func:`label_box`), and moves the ones that collide:
 it tries the other anchors at the same point, then steps the label along the screen's
 vertical, in label heights, and writes the new anchor and the 3D position that projects there
-(the point moved in the camera's image plane at its depth) into the label's node. Each label's
+(the point moved in the camera's image plane at its depth) into the label's node; a label with no
+free place near its point (a distant view of a few dozen labels at one aircraft) is hidden until a
+camera leaves it room, lowest priority first. Each label's
 own ("home") position and anchor are kept, so a layout for a new camera starts from them, and
 a position its owner sets anew becomes its new home.
 
@@ -108,13 +110,16 @@ def _shown(scene, name) -> bool:
     return True
 
 
-def scene_labels(scene):
-    """[(name, handle)] of the scene's label nodes that are shown (they and their ancestors visible)."""
+def scene_labels(scene, also=()):
+    """[(name, handle)] of the scene's label nodes that are shown (they and their ancestors visible);
+    the names in ``also`` count when only they themselves are hidden (hidden by the layout)."""
     import viser
 
     out = []
     for name, h in list(getattr(scene, "_handle_from_node_name", {}).items()):
-        if isinstance(h, viser.LabelHandle) and h.text and _shown(scene, name):
+        if not (isinstance(h, viser.LabelHandle) and h.text):
+            continue
+        if _shown(scene, name) or (name in also and _shown(scene, name.rsplit("/", 1)[0] or "/")):
             out.append((name, h))
     return out
 
@@ -150,6 +155,7 @@ class LabelLayout:
         self.priority = priority or (lambda name: 0)
         self.homes: dict = {}  # name -> (handle, home local position, home anchor, last set pos, anchor)
         self.moved: dict = {}
+        self.hidden: dict = {}  # name -> handle: labels hidden for want of room
         self.closed = False
         self._timer = None
         self._lock = threading.Lock()
@@ -201,7 +207,9 @@ class LabelLayout:
             self.last_layout_s = time.perf_counter() - t0
 
     def _run(self, cam, W, H) -> None:
-        labels = scene_labels(self.scene)
+        # labels we hid last time (no room) are candidates again, unless their owner re-created them
+        hidden = {n for n, h in self.hidden.items() if self.scene.get_handle_by_name(n) is h and not h.visible}
+        labels = scene_labels(self.scene, hidden)
         items = []
         for name, h in labels:
             _, home, anchor, *_ = self._home(name, h)
@@ -231,7 +239,14 @@ class LabelLayout:
                 if best:
                     break
             if best is None:
-                best = (anchor, 0.0, label_box(uv[0], uv[1], size, anchor))
+                # no room near its point: hidden until a camera leaves it some (no label covers another)
+                if h.visible:
+                    h.visible = False
+                self.hidden[name] = h
+                continue
+            if name in self.hidden:
+                self.hidden.pop(name)
+                h.visible = True
             a, dv, box = best
             placed.append(box)
             # the home point moved down the screen by dv pixels, at its depth
@@ -245,6 +260,12 @@ class LabelLayout:
             self.moved[name] = (a != anchor) or dv != 0.0
 
 
+def label_priority(name: str) -> int:
+    """Placement order: the current frame's error label keeps its place first, then the flagged
+    runs' labels, then the rest."""
+    return -2 if "/focus/" in name else -1 if "/run_labels/" in name else 0
+
+
 def attach(session) -> LabelLayout:
     """The label layout of a ``geoloc view`` session (a layer): after every redraw and camera move."""
     client = getattr(session, "client", None)
@@ -256,7 +277,7 @@ def attach(session) -> LabelLayout:
         clients = list(server.get_clients().values())
         return clients[0].camera if clients else None
 
-    lay = LabelLayout(session.scene, camera)
+    lay = LabelLayout(session.scene, camera, priority=label_priority)
     session.on_refresh(lambda _g: lay.schedule(0.05))
     if client is not None:
         client.camera.on_update(lambda _c: lay.schedule())

@@ -143,8 +143,13 @@ class LimbApp:
             self.sl_off = gui.add_slider(
                 "tangent offset exaggeration", 1.0, 2000.0, 1.0, OFFSET_EXAGGERATION,
                 hint="The exact minimum is drawn this many times farther from the [L18] tangent point, on the line")
+            self.cb_follow = gui.add_checkbox("camera follows the view angle", True,
+                                              hint="Re-frame the spacecraft and the tangent point when "
+                                                   "alpha or the frame changes (they move by hundreds of km)")
             for h in (self.sl_alpha, self.sl_frame, self.sl_exag, self.sl_off):
                 h.on_update(lambda _: self._on_gui())
+        with gui.add_folder("Legend"):
+            self.md_legend = gui.add_markdown("")
         self.compute()
         self.draw(reset_camera=True)
         # labels kept apart on this tab's screen (issue 34): after each redraw and camera move
@@ -292,6 +297,7 @@ class LimbApp:
                 else:
                     sc.remove_by_name("/limb/earth_hit")
         self._text()
+        self.md_legend.content = self.legend_markdown(ok)
         if reset_camera:
             tp = self.w(tan.exact_ecef) if ok else np.zeros(3)
             L = np.linalg.norm(sp - tp)
@@ -306,6 +312,13 @@ class LimbApp:
                 cam.up = (0.0, 0.0, 1.0)
                 cam.near, cam.far = 1.0, 2.0e4
                 cam.position, cam.look_at = pos, tuple(aim)
+                for c in list(self.server.get_clients().values()):  # and every open tab's
+                    try:
+                        with c.atomic():
+                            c.camera.position = pos
+                            c.camera.look_at = tuple(aim)
+                    except Exception:  # a tab that left
+                        pass
             else:  # one tab (a viser ClientHandle): its own camera (position first: viser moves look_at)
                 cam = self.server.camera
                 cam.up_direction = (0.0, 0.0, 1.0)
@@ -313,6 +326,25 @@ class LimbApp:
                 cam.position = pos
                 cam.look_at = tuple(aim)
         self.last_update_s = time.perf_counter() - t0
+
+    def legend_markdown(self, ok: bool) -> str:
+        """The legend of what this frame draws (the colours of :meth:`draw`), one line each."""
+        rows = [("blue", "the Earth: WGS-84 ellipsoid, h = 0 (a 30 x 30 deg patch); light blue line: its "
+                 "section under the line of sight")]
+        if ok:
+            rows += [("orange, translucent", f"the virtual ellipsoid of [L18] eq. 13 (same flattening, a + Delta a; "
+                      f"its departure from a shell drawn x{self.exaggeration:g}); orange line: its section"),
+                     ("blue to lilac lines", "the Newton-Raphson iterates of eq. 17 (their virtual ellipsoids' "
+                      "sections), converging onto the tangent one")]
+        rows += [("white ball and arrow", "the spacecraft and 60 s of its velocity"),
+                 ("yellow", "the line of sight")]
+        if ok:
+            rows += [("orange ball", "the [L18] tangent point (eq. 21-26)"),
+                     ("green ball", f"the exact minimum-height point (drawn x{self.offset_exaggeration:g} farther "
+                      "along the line)")]
+        elif int(self.tan.status) == int(Status.HITS_EARTH):
+            rows.append(("red ball", "where the line of sight meets the Earth (no tangent)"))
+        return "\n".join(f"- **{c}**: {w}" for c, w in rows) + "\n\nscene: local ENU at the exact tangent's foot, km"
 
     def _polyline(self, name, pts, color, thickness):
         pts = np.asarray(pts, np.float32)
@@ -344,12 +376,13 @@ class LimbApp:
         self.md.content = "\n".join(lines)
 
     def _on_gui(self) -> None:
+        moved = (float(self.sl_alpha.value), int(self.sl_frame.value)) != (self.alpha_deg, self.frame)
         self.alpha_deg = float(self.sl_alpha.value)
         self.frame = int(self.sl_frame.value)
         self.exaggeration = float(self.sl_exag.value)
         self.offset_exaggeration = float(self.sl_off.value)
         self.compute()
-        self.draw()
+        self.draw(reset_camera=moved and bool(self.cb_follow.value))
         self.labels.schedule(0.05)
 
     def export(self, path) -> Path:
