@@ -474,9 +474,11 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
         which holds only where the terrain is a plane over the footprint).
     engine : {"auto", "numba", "numpy"}
         ``"numba"``: the compiled kernels of :mod:`geoloc.analysis._fastuncert` (the chain's
-        Jacobian per ray, the surface step, the ellipse and CE90; ``"auto"`` takes them for every
-        sensor they serve: one lens, no per-sample perturbation); ``"numpy"``: the reference path
-        (:func:`chain_derivatives`), which the tests hold the kernels to.
+        Jacobian per ray, the surface step, the ellipse and CE90; ``"auto"`` takes them for
+        batches of 10 000 rays or more, as ``locate``, when they serve the sensor: one lens, no
+        per-sample perturbation; below that the first call's compile and numba's call overhead
+        outweigh them); ``"numpy"``: the reference path (:func:`chain_derivatives`), which the
+        tests hold the kernels to.
 
     Returns
     -------
@@ -494,7 +496,14 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
         from geoloc.surfaces.terrain import surface_for
 
         surface = surface_for(target_h, dem, method=dem_method)
-    fast = engine == "numba" or (engine == "auto" and s.compiled)
+    if engine == "auto" and s.compiled:
+        from geoloc.sensors._fastlocate import AUTO_MIN_RAYS
+
+        n_rays = int(np.prod(np.broadcast_shapes(pose.shape, np.shape(s.center_pixel[0] if row is None else row),
+                                                 np.shape(s.center_pixel[1] if col is None else col))))
+        fast = n_rays >= AUTO_MIN_RAYS
+    else:
+        fast = engine == "numba"
     if fast and not s.compiled:
         raise ValueError("engine='numba' needs a sensor with one lens and no per-sample perturbation")
     sz = surface_sigma_m(surface, budget)

@@ -76,7 +76,15 @@ from geoloc.io.mgrs_grid import mgrs_text
 from geoloc.locate import as_sensor
 from geoloc.status import describe
 from geoloc.userfiles import write_bytes, write_text
-from geoloc.viz import calibration_layer, flight_layer, image_layer, label_layout, teaching, teaching_panel
+from geoloc.viz import (
+    calibration_layer,
+    flight_layer,
+    image_layer,
+    label_layout,
+    teaching,
+    teaching_panel,
+    uncertainty_layer,
+)
 from geoloc.viz.model import Inputs, Scenario, compute, drawn_frames
 from geoloc.viz.scenario import select_record
 from geoloc.viz.scene_geoloc import Display, GeolocScene, camera_pose_for
@@ -101,9 +109,10 @@ def attach_flight(session):
 
 #: The layers every session gets unless told otherwise (``attach_fn(session)`` each): the
 #: flight debugger, the picture of the frame (when the scenario has images), the calibration
-#: error vectors, the teaching panel, and the label layout (labels kept apart on screen).
-DEFAULT_LAYERS = (attach_flight, image_layer.attach, calibration_layer.attach, teaching_panel.attach,
-                  label_layout.attach)
+#: error vectors, the predicted 90 % ellipse at the hit (issue 29), the teaching panel, and the
+#: label layout (labels kept apart on screen).
+DEFAULT_LAYERS = (attach_flight, image_layer.attach, calibration_layer.attach, uncertainty_layer.attach,
+                  teaching_panel.attach, label_layout.attach)
 METHOD_NAMES = {"steps": "descending steps [Q17]", "bisect": "bisection [L23]",
                 "exact": "exact first hit (cell walk)"}
 LEGEND = """\

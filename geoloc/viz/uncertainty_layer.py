@@ -1,0 +1,144 @@
+"""Predicted uncertainty in the scene: the 90 % error ellipse on the terrain at the hit (issue 29).
+
+:func:`attach` (a layer of :class:`geoloc.viz.app.GeolocSession`) draws, for the current record or
+pose, the predicted 90 % horizontal error ellipse of the located point
+(:func:`geoloc.analysis.uncertainty.propagate`: the sensor's error budget carried through the
+chain and the scene's surface) as a closed line draped on the terrain (each vertex at the DEM's
+height there; at the hit's height without a DEM), drawn at the error vectors' exaggeration so the
+actual error and its predicted ellipse are seen at one scale, scene node
+``/enu/uncertainty/ellipse``, and in
+a "Predicted uncertainty" GUI folder the predicted CE90 / LE90 beside the actual error: the
+distance from the located point to the surveyed truth (or the published point) and where it lies
+against its own ellipse (1 = on the 90 % ellipse).
+
+The budget is the scenario's (``scn.budget``, an :class:`geoloc.sensors.budget.ErrorBudget`);
+without one an illustrative budget (:func:`view_budget`) is used and the panel says so.
+Every number comes from the core; this module only draws. Conventions: ``docs/conventions.md``;
+the method: ``docs/uncertainty.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import traceback
+
+import numpy as np
+
+from geoloc.analysis.uncertainty import ELLIPSE90_PER_SIGMA, normalised_errors, propagate
+from geoloc.geodesy.local import enu_to_geodetic
+from geoloc.locate import as_sensor
+from geoloc.sensors.budget import ErrorBudget
+from geoloc.status import Status
+
+ROOT = "/enu/uncertainty"
+COLOR = (255, 0, 255)
+VERTICES = 96
+#: The drawn ellipse floats this much above the terrain [m] (the scene's mesh and the DEM's bilinear
+#: surface differ between nodes: a line exactly on the DEM dips in and out of the mesh).
+LIFT_M = 5.0
+
+
+def view_budget(sensor, on_dem: bool) -> ErrorBudget:
+    """The illustrative budget of a scenario without one: 2 m / 3 m of position, 0.05 deg of
+    heading, 0.03 deg of pitch, roll and every joint, and the surface's SRTM LE90 (or 10 m)."""
+    s = as_sensor(sensor)
+    b = {"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.05, "pitch_deg": 0.03, "roll_deg": 0.03}
+    b.update({f"{a}_deg": 0.03 for a in s.angle_names})
+    if on_dem:
+        return ErrorBudget(b, "srtm", "illustrative budget")
+    b["height_m"] = 10.0
+    return ErrorBudget(b, None, "illustrative budget")
+
+
+def ellipse_points_enu(scn, pu, enu, n: int = VERTICES, scale: float = 1.0) -> np.ndarray:
+    """The 90 % ellipse's vertices (n, 3) in the scene's ENU frame [m], draped on the scene's DEM;
+    ``scale`` draws it larger about the point (the display's error-vector exaggeration)."""
+    a, b = (float(v) * ELLIPSE90_PER_SIGMA * scale for v in (pu.ellipse_major_m, pu.ellipse_minor_m))
+    az = math.radians(float(pu.ellipse_azimuth_deg))
+    th = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    A, B = a * np.cos(th), -b * np.sin(th)
+    e = A * math.sin(az) + B * math.cos(az)
+    nn = A * math.cos(az) - B * math.sin(az)
+    lat0, lon0, h0 = (float(np.asarray(v)) for v in (pu.lat, pu.lon, pu.h))
+    lat, lon, h = enu_to_geodetic(np.stack([e, nn, np.zeros(n)], -1), lat0, lon0, h0)
+    if scn.dem is not None:
+        hd = np.asarray(scn.dem.height(lat, lon), float)
+        h = np.where(np.isfinite(hd), hd, h0)
+    else:
+        h = np.full(n, h0)
+    return enu.from_geodetic(lat, lon, h + LIFT_M)
+
+
+class UncertaintyLayer:
+    def __init__(self, session):
+        self.session = session
+        self.scene = session.scene
+        self.handle = None
+        self.pu = None
+        g = session.gui
+        with g.add_folder("Predicted uncertainty", expand_by_default=False):
+            self.cb_show = g.add_checkbox("90 % error ellipse at the hit", True)
+            self.md = g.add_markdown("")
+        self.cb_show.on_update(lambda _e: self._safe(self.update))
+        session.on_refresh(lambda _g: self._safe(self.update))
+        self._safe(self.update)
+
+    def _safe(self, fn, *a):
+        try:
+            return fn(*a)
+        except Exception:  # a layer must not take the session down: say it, keep going
+            traceback.print_exc(file=sys.stderr)
+            return None
+
+    def budget(self):
+        scn = self.session.scn
+        b = getattr(scn, "budget", None)
+        return (b, False) if b is not None else (view_budget(scn.camera, scn.dem is not None), True)
+
+    def update(self) -> None:
+        s = self.session
+        g = s.geometry
+        if self.handle is not None:
+            self.handle.remove()
+            self.handle = None
+        if g is None or g.status != Status.OK:
+            self.md.content = "no located point"
+            return
+        from geoloc.viz import terrain_link
+
+        budget, illustrative = self.budget()
+        inp = s.inputs
+        pu = propagate(s.scn.camera, inp.pose(), inp.row, inp.col, budget,
+                       surface=terrain_link.scene_surface(s.scn, inp, trace=False), outside="extrapolate")
+        self.pu = pu
+        if pu.status != Status.OK:
+            self.md.content = "no predicted uncertainty (the ray has no ground point)"
+            return
+        k = float(getattr(s.view.disp, "error_exaggeration", 1.0))  # the error vectors' scale: side by side
+        pts = ellipse_points_enu(s.scn, pu, s.scn.enu, scale=k)
+        if self.cb_show.value:
+            seg = np.stack([pts, np.roll(pts, -1, axis=0)], 1)
+            self.handle = self.scene.add_line_segments(f"{ROOT}/ellipse", s.view.disp.z(seg).astype(np.float32),
+                                                       COLOR, thickness=4.0, thickness_units="screen")
+        lines = [f"predicted **CE90 {float(pu.ce90_m):.1f} m**, **LE90 {float(pu.le90_m):.1f} m** "
+                 f"(90 % ellipse {float(pu.ellipse_major_m) * ELLIPSE90_PER_SIGMA:.1f} x "
+                 f"{float(pu.ellipse_minor_m) * ELLIPSE90_PER_SIGMA:.1f} m, major axis at "
+                 f"{float(pu.ellipse_azimuth_deg):.0f} deg; drawn x{k:g} as the error vectors)"]
+        ref, name = (g.surveyed_enu, "surveyed truth") if g.surveyed_enu is not None else (g.published_enu, "published point")
+        if ref is not None and np.all(np.isfinite(ref)) and np.all(np.isfinite(g.hit_enu)):
+            d = np.asarray(g.hit_enu, float) - np.asarray(ref, float)
+            r = float(normalised_errors(d[0], d[1], pu.ellipse_major_m, pu.ellipse_minor_m,
+                                        pu.ellipse_azimuth_deg)) / ELLIPSE90_PER_SIGMA
+            lines.append(f"actual error to the {name}: **{math.hypot(d[0], d[1]):.1f} m** horizontal, "
+                         f"{r:.2f} x its own 90 % ellipse ({'inside' if r <= 1 else 'outside'})")
+        if illustrative:
+            lines.append("_illustrative budget (the scenario's sensor has no [uncertainty] table): "
+                         "2 m / 3 m position, 0.05 deg heading, 0.03 deg attitude and joints, "
+                         + ("SRTM 16 m LE90_" if s.scn.dem is not None else "10 m height_"))
+        self.md.content = "  \n".join(lines)
+
+
+def attach(session):
+    """The predicted-uncertainty layer (every scenario with a frame sensor)."""
+    return UncertaintyLayer(session)

@@ -1,0 +1,87 @@
+"""The predicted 90 % error ellipse in the viewer (geoloc.viz.uncertainty_layer), and in headless Chromium.
+
+The drawn ellipse is held to its definition, measured in the scene: the vertices' horizontal
+distances from the hit span the 90 % semi-axes (the 1-sigma axes x sqrt(chi2(2, 0.9)), scipy)
+times the display's exaggeration; the panel quotes the propagation's CE90 and the distance to
+the surveyed truth the scene draws. In Chromium, a person opens the folder and unticks the
+checkbox: the ellipse leaves the scene. The render is kept as docs/img/viewer_uncertainty_ellipse.png.
+"""
+
+import math
+import re
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from test_viz_browser import ARTIFACTS, chromium, look_at_wxyz, n_colours, open_viewer, wait_for
+
+pytestmark = [pytest.mark.browser]
+
+
+def _layer(app):
+    return next(lay for lay in app.layers if type(lay).__name__ == "UncertaintyLayer")
+
+
+def test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse():
+    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.scene_geoloc import WORLD_SCALE
+    from geoloc.viz.scenario import load_view_scenario
+
+    server = make_server(port=0)
+    try:
+        app = GeolocApp(server, load_view_scenario())
+        lay = _layer(app)
+        pu = lay.pu
+        d = app.view.disp
+        seg = np.asarray(server.scene.get_handle_by_name("/enu/uncertainty/ellipse").points, float)
+        pts = seg[:, 0, :] / (WORLD_SCALE * np.array([1.0, 1.0, d.vertical_exaggeration]))  # back to ENU metres
+        hit = np.asarray(app.geometry.hit_enu, float)
+        r = np.hypot(pts[:, 0] - hit[0], pts[:, 1] - hit[1])
+        k = d.error_exaggeration
+        r90 = math.sqrt(chi2.ppf(0.9, 2))
+        # 96 vertices: the extremes are sampled within cos(pi / 96) of the axes (5e-4); float32 in km
+        assert r.max() == pytest.approx(r90 * float(pu.ellipse_major_m) * k, rel=1e-3)
+        assert r.min() == pytest.approx(r90 * float(pu.ellipse_minor_m) * k, rel=1e-3)
+        text = lay.md.content
+        assert f"CE90 {float(pu.ce90_m):.1f} m" in text
+        err = float(np.hypot(*(app.geometry.hit_enu - app.geometry.surveyed_enu)[:2]))
+        assert f"{err:.1f} m" in text and "illustrative budget" in text
+    finally:
+        server.stop()
+
+
+def test_a_person_hides_the_ellipse_in_chromium(tmp_path):
+    import PIL.Image
+
+    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.scenario import load_view_scenario
+
+    ARTIFACTS.mkdir(exist_ok=True)
+    server = make_server(port=0)
+    try:
+        app = GeolocApp(server, load_view_scenario())
+        with chromium(tmp_path) as browser:
+            page = open_viewer(browser, server, 1000, 640)
+            page.wait_for_selector("canvas", timeout=90000)
+            client = next(iter(server.get_clients().values()))
+            hit = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
+            pos = hit + np.array([0.6, -2.0, 2.4])  # km: 3 km off, looking down at the hit
+            img = None
+            for _ in range(40):
+                img = client.get_render(640, 960, position=tuple(pos), wxyz=look_at_wxyz(pos, hit), fov=0.9,
+                                        transport_format="png", timeout=60)
+                if n_colours(img) > 20:
+                    break
+            rgb = img[..., :3].astype(int)
+            magenta = (rgb[..., 0] > 180) & (rgb[..., 1] < 90) & (rgb[..., 2] > 180)
+            assert magenta.sum() > 200, magenta.sum()  # the ellipse's line is in the picture
+            PIL.Image.fromarray(img[..., :3]).save(ARTIFACTS / "viewer_uncertainty_ellipse.png")
+            page.get_by_text("Predicted uncertainty").click()
+            box = page.get_by_label("90 % error ellipse at the hit")
+            box.click()
+            wait_for(lambda: not _layer(app).cb_show.value, 30, "the checkbox to reach the server")
+            wait_for(lambda: _layer(app).handle is None, 30, "the ellipse to leave the scene")
+            assert re.search(r"CE90 \d+\.\d m", _layer(app).md.content)
+    finally:
+        server.stop()
