@@ -1,6 +1,16 @@
 """Fixtures shared by several test modules."""
 
+import os
+
 import pytest
+
+# geoloc caches its compiled kernels in the user's cache folder (geoloc.geodesy._nbgeo.cache_dir),
+# found from HOME: tests that start geoloc with HOME pointed at a temporary folder (for rerun,
+# Chromium) would compile every kernel afresh there. One cache for the whole session: numba reads
+# NUMBA_CACHE_DIR when it is imported, in this process and in every child (tests/test_first_run.py
+# takes it out for the probes that check the default).
+os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.environ.get("XDG_CACHE_HOME")
+                                                      or os.path.expanduser("~/.cache"), "geoloc", "numba"))
 
 
 @pytest.fixture(scope="module")

@@ -18,12 +18,27 @@ code or constants from, so that any change there compiles afresh (and the old
 entry stays, so switching back costs no compile). ``tests/test_numba_cache.py``
 edits a constant in a scratch copy of the package and checks that the compiled
 code follows.
+
+Where the cache lives (issue 32): numba's default puts it in ``__pycache__`` beside the
+sources, which ``pip install --upgrade`` / a reinstall deletes, so every reinstall paid the
+first-run compile again (48 s and 1 GB on 2 cores). geoloc's kernels are cached in
+:func:`cache_dir`: the user's ``NUMBA_CACHE_DIR`` when set, else a user cache folder
+(``$XDG_CACHE_HOME/geoloc/numba``, ``~/.cache/geoloc/numba``; ``~/Library/Caches`` on macOS,
+``%LOCALAPPDATA%`` on Windows), else (unwritable) numba's own places. The entries stay valid
+across a reinstall because numba stamps each index with a SHA-256 of the source file (not its
+time) and :func:`dependency_key` hashes the sources it depends on.
+
+The first compile says what is happening, once per process, on stderr
+(:data:`ANNOUNCE`): "compiling the terrain kernels once, about N s; cached in DIR".
+``geoloc warm`` (``tools/run.sh`` runs it) compiles them ahead of the first real call.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
 import sys
+import time
 from pathlib import Path
 
 from numba import njit
@@ -32,11 +47,56 @@ from geoloc.geodesy import ellipsoid
 from geoloc.geodesy.ellipsoid import vermeille
 
 try:  # numba's per-function cache; its index key is what we extend
+    from numba.core import config as _nb_config
+    from numba.core.caching import CompileResultCacheImpl as _CacheImpl
     from numba.core.caching import FunctionCache as _FunctionCache
+    from numba.core.caching import UserProvidedCacheLocator as _UserLocator
     from numba.core.dispatcher import Dispatcher as _Dispatcher
 except ImportError:  # pragma: no cover - a numba without it: compile without a disk cache
     _FunctionCache = None
     _Dispatcher = ()
+
+#: Say on stderr, once per process, that kernels are being compiled: True, False, or None
+#: (the default: when stderr is a terminal, or the environment sets GEOLOC_ANNOUNCE_COMPILE=1).
+ANNOUNCE: bool | None = None
+#: CPU seconds of the first ``geoloc locate --dem`` on a cold cache, 2 cores (issue 32: 43 s of
+#: user CPU, the terrain walk most of it; ``benchmarks/bench_first_run.py`` measures each verb):
+#: the announcement's "about N s" (wall time is that or more on a busy machine).
+FIRST_COMPILE_CPU_S = 45
+#: Compiles of this process: (kernel name, seconds) as they finish (``geoloc warm`` prints them).
+COMPILED: list = []
+_announced = False
+
+
+def cache_dir() -> Path:
+    """The folder geoloc's compiled kernels are cached in: ``NUMBA_CACHE_DIR`` when the user set
+    one, else the user's cache folder + ``geoloc/numba`` (XDG on Linux, ``~/Library/Caches`` on
+    macOS, ``%LOCALAPPDATA%`` on Windows): outside the installed package, so a reinstall keeps it."""
+    user = getattr(_nb_config, "CACHE_DIR", "") if _FunctionCache is not None else os.environ.get("NUMBA_CACHE_DIR", "")
+    if user:
+        return Path(user)
+    if sys.platform == "win32":
+        base = Path(os.environ.get("LOCALAPPDATA") or Path.home() / "AppData" / "Local")
+    elif sys.platform == "darwin":
+        base = Path.home() / "Library" / "Caches"
+    else:
+        base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    return base / "geoloc" / "numba"
+
+
+def _announce(name: str) -> None:
+    global _announced
+    if _announced:
+        return
+    on = ANNOUNCE
+    if on is None:
+        on = os.environ.get("GEOLOC_ANNOUNCE_COMPILE") == "1" or bool(getattr(sys.stderr, "isatty", lambda: False)())
+    if not on:
+        return
+    _announced = True
+    print(f"geoloc: compiling the terrain and camera kernels once (about {FIRST_COMPILE_CPU_S} s of CPU on "
+          f"2 cores, the first run only; `geoloc warm` does it ahead); cached in {cache_dir()}",
+          file=sys.stderr, flush=True)
 
 
 def dependency_key(*modules) -> str:
@@ -59,15 +119,52 @@ def dependency_key(*modules) -> str:
 
 
 if _FunctionCache is not None:
+    class _GeolocCacheLocator(_UserLocator):
+        """numba's user-folder locator pointed at :func:`cache_dir` (when ``NUMBA_CACHE_DIR`` is
+        not set: then numba's own locator serves it first). Unwritable: None, numba's next."""
+
+        def __init__(self, py_func, py_file):
+            self._py_file = py_file
+            self._lineno = py_func.__code__.co_firstlineno
+            self._cache_path = os.path.join(str(cache_dir()), self.get_suitable_cache_subpath(py_file))
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if _nb_config.CACHE_DIR:
+                return None
+            return super(_UserLocator, cls).from_function(py_func, py_file)
+
+    class _GeolocCacheImpl(_CacheImpl):
+        _locator_classes = [_UserLocator, _GeolocCacheLocator] + [
+            c for c in _CacheImpl._locator_classes if c is not _UserLocator]
+
     class _KeyedFunctionCache(_FunctionCache):
-        """numba's function cache with ``key`` appended to every index key."""
+        """numba's function cache with ``key`` appended to every index key, kept in
+        :func:`cache_dir`; a miss (a compile to come) is announced once (:data:`ANNOUNCE`)."""
+
+        _impl_class = _GeolocCacheImpl
 
         def __init__(self, py_func, key: str):
             super().__init__(py_func)
             self.dependency_key = key
+            self.kernel_name = py_func.__name__
+            self._t_miss = None
 
         def _index_key(self, sig, codegen):
             return super()._index_key(sig, codegen) + (self.dependency_key,)
+
+        def load_overload(self, sig, target_context):
+            got = super().load_overload(sig, target_context)
+            if got is None and self._enabled:
+                _announce(self.kernel_name)
+                self._t_miss = time.process_time()
+            return got
+
+        def save_overload(self, sig, data):
+            if self._t_miss is not None:
+                COMPILED.append((self.kernel_name, time.process_time() - self._t_miss))
+                self._t_miss = None
+            return super().save_overload(sig, data)
 else:  # pragma: no cover
     _KeyedFunctionCache = None
 

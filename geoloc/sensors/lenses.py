@@ -92,9 +92,11 @@ import numbers
 from dataclasses import dataclass
 from typing import ClassVar
 
-import numpy as np
-from numba import njit
+import sys
 
+import numpy as np
+
+from ..geodesy._nbgeo import cached_njit, dependency_key
 from ..status import Status
 
 __all__ = [
@@ -212,7 +214,10 @@ def _unit(x, y):
     return x / n, y / n, 1.0 / n
 
 
-_jit = njit(cache=True, inline="always", error_model="numpy")
+#: The lens kernels' cache key (this file's source: geoloc.geodesy._nbgeo.cached_njit), so that
+#: they are cached with the others in the user's cache folder, not in a __pycache__ a reinstall deletes.
+_KEY = dependency_key(sys.modules[__name__])
+_jit = cached_njit(_KEY, inline="always", error_model="numpy")
 _to_pixel_nb = _jit(_to_pixel)
 _from_pixel_nb = _jit(_from_pixel)
 _brown_distort_nb = _jit(_brown_distort)
@@ -223,7 +228,7 @@ _fisheye_direction_nb = _jit(_fisheye_direction)
 _unit_nb = _jit(_unit)
 
 
-@njit(cache=True, error_model="numpy")
+@cached_njit(_KEY, error_model="numpy")
 def project_nb(code, p, x, y, z):
     """Direction (x, y, z) in the optical frame -> pixel (u, v, ok), per element, for numba kernels.
 
@@ -258,7 +263,7 @@ def project_nb(code, p, x, y, z):
     return u, v, True
 
 
-@njit(cache=True, error_model="numpy")
+@cached_njit(_KEY, error_model="numpy")
 def unproject_nb(code, p, u, v):
     """Pixel (u, v) -> unit direction (x, y, z) in the optical frame, per element, for numba kernels.
 
@@ -296,7 +301,7 @@ def unproject_nb(code, p, u, v):
     return _unit_nb(xt, yt)
 
 
-@njit(cache=True, inline="always", error_model="numpy")
+@cached_njit(_KEY, inline="always", error_model="numpy")
 def unproject_map_lanes(p, u, v):
     """A Brown lens's inverse through its undistortion map, without branches: (x, y, z, ok).
 
@@ -336,7 +341,7 @@ def unproject_map_lanes(p, u, v):
     return ux, uy, uz, ok
 
 
-@njit(cache=True, error_model="numpy")
+@cached_njit(_KEY, error_model="numpy")
 def unproject_map_nb(code, p, u, v):
     """:func:`unproject_nb` with the undistortion map of :meth:`Lens.kernel_array`, per element.
 

@@ -1,0 +1,103 @@
+"""The first run of a fresh install: ``locate --dem``, ``replay`` and ``view`` on a cold
+numba cache, against the same call on the warm cache (the peer), in the same run.
+
+Each call runs in a new process (``python -m geoloc ...``) with ``NUMBA_CACHE_DIR`` set to a
+new empty folder (cold: numba compiles every kernel the call needs) and then again with that
+folder filled (warm). ``view`` counts until it serves (its "geoloc view: http://..." line),
+then is stopped. For each the child's wall time, CPU time (user + system, from
+``os.wait4``'s rusage, or /proc/PID/stat for the server still running) and peak RSS
+(``ru_maxrss`` / VmHWM). The issue's target (issue 32): the first call of each verb within
+10 s and 500 MB. ``geoloc warm`` (tools/run.sh) compiles them ahead of that first call.
+
+Run: ``python benchmarks/bench_first_run.py [--repeat N] [--only locate,replay,view]``
+(medians over N cold folders; about a minute per cold call on 2 cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import select
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+A = ROOT / "assets"
+CALLS = {
+    "locate": ["locate", "--sensor", str(A / "sensors/eo_turret.toml"), "--lat-deg", "36.6", "--lon-deg",
+               "-84.25", "--h-m", "2500", "--heading-deg", "45", "--angle", "azimuth=90", "--angle",
+               "elevation=-30", "--dem", str(A / "dem/srtm_jacksboro.tif")],
+    "replay": ["replay", str(A / "records/drone_targets.csv"), "--sensor", str(A / "sensors/drone_camera.toml"),
+               "--dem", str(A / "dem/srtm_jacksboro.tif")],
+    "view": ["view", "--no-browser", "--port", "0"],
+}
+CLK = os.sysconf("SC_CLK_TCK")
+
+
+def _env(cache: Path) -> dict:
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(ROOT)}
+    env.pop("GEOLOC_ANNOUNCE_COMPILE", None)
+    return env
+
+
+def run_once(verb: str, cache: Path) -> dict:
+    """One call in a new process: wall s, CPU s, peak RSS MB."""
+    cmd = [sys.executable, "-m", "geoloc", *CALLS[verb]]
+    t0 = time.perf_counter()
+    if verb != "view":
+        p = subprocess.Popen(cmd, env=_env(cache), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        _, status, ru = os.wait4(p.pid, 0)
+        wall = time.perf_counter() - t0
+        if os.waitstatus_to_exitcode(status) != 0:
+            raise RuntimeError(f"{verb}: exit {status}: {p.stderr.read().decode()[-400:]}")
+        return {"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "rss_mb": ru.ru_maxrss / 1024}
+    p = subprocess.Popen(cmd, env=_env(cache), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        line = ""
+        while "geoloc view: http" not in line:
+            if select.select([p.stdout], [], [], 600)[0] == [] or p.poll() is not None:
+                raise RuntimeError("view: did not serve")
+            line = p.stdout.readline()
+        wall = time.perf_counter() - t0
+        stat = Path(f"/proc/{p.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        cpu = (int(stat[11]) + int(stat[12])) / CLK  # utime, stime (fields 14, 15)
+        hwm = next(x for x in Path(f"/proc/{p.pid}/status").read_text().splitlines() if x.startswith("VmHWM"))
+        return {"wall": wall, "cpu": cpu, "rss_mb": int(hwm.split()[1]) / 1024}
+    finally:
+        p.terminate()
+        p.wait(30)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--only", default="locate,replay,view")
+    a = ap.parse_args(argv)
+    verbs = [v for v in a.only.split(",") if v]
+    print(f"first call on a cold numba cache vs warm (peer); {os.cpu_count()} cores; median of {a.repeat}")
+    print(f"{'call':8s} {'cold wall s':>11s} {'cold CPU s':>10s} {'cold RSS MB':>11s} {'warm wall s':>11s} "
+          f"{'warm CPU s':>10s} {'warm RSS MB':>11s} {'cold/warm wall':>14s}")
+    for verb in verbs:
+        cold, warm = [], []
+        for _ in range(a.repeat):
+            cache = Path(tempfile.mkdtemp(prefix="geoloc-bench-numba-"))
+            try:
+                cold.append(run_once(verb, cache))
+                warm.append(run_once(verb, cache))
+            finally:
+                shutil.rmtree(cache, ignore_errors=True)
+        m = {k: (statistics.median(x[k] for x in cold), statistics.median(x[k] for x in warm))
+             for k in ("wall", "cpu", "rss_mb")}
+        print(f"{verb:8s} {m['wall'][0]:11.1f} {m['cpu'][0]:10.1f} {m['rss_mb'][0]:11.0f} {m['wall'][1]:11.1f} "
+              f"{m['cpu'][1]:10.1f} {m['rss_mb'][1]:11.0f} {m['wall'][0] / m['wall'][1]:14.1f}", flush=True)
+    print("target (issue 32): cold within 10 s and 500 MB")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

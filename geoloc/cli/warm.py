@@ -1,0 +1,77 @@
+"""``geoloc warm``: compile the kernels the verbs use, once, ahead of their first call.
+
+numba compiles geoloc's terrain walk and camera chain the first time they run on a machine
+(about a minute of CPU on 2 cores, ~1 GB; issue 32) and caches them in the user's cache folder
+(:func:`geoloc.geodesy._nbgeo.cache_dir`), where a reinstall keeps them. ``tools/run.sh``
+runs this verb after installing, so the first ``locate``, ``replay`` or ``view`` starts in
+seconds. Each step runs the verb itself on the bundled data, its output swallowed, and
+prints what it compiled and how long it took. A warm cache makes every step a few seconds.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import sys
+import tempfile
+import time
+
+#: The steps: (what it compiles, the verb's arguments); paths under the bundled assets.
+STEPS = (
+    ("the terrain walk and the camera chain: geoloc locate --sensor eo_turret.toml --dem srtm_jacksboro.tif",
+     ["locate", "--sensor", "assets/sensors/eo_turret.toml", "--lat-deg", "36.6", "--lon-deg", "-84.25",
+      "--h-m", "2500", "--heading-deg", "45", "--angle", "azimuth=90", "--angle", "elevation=-30",
+      "--dem", "assets/dem/srtm_jacksboro.tif", "--json"]),
+    ("a records replay: geoloc replay drone_targets.csv --sensor drone_camera.toml --dem srtm_jacksboro.tif",
+     ["replay", "assets/records/drone_targets.csv", "--sensor", "assets/sensors/drone_camera.toml",
+      "--dem", "assets/dem/srtm_jacksboro.tif"]),
+    ("a KLV replay: geoloc replay example_flight.klv",
+     ["replay", "assets/klv/example_flight.klv"]),
+    ("the viewer's first scene: geoloc view --export (the scene geoloc view serves)",
+     ["view", "--export", "{tmp}/scene.html"]),
+)
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "warm",
+        help="compile the terrain and camera kernels once, ahead of the first locate / replay / view",
+        description="Run geoloc locate, replay and view once on the bundled data, output swallowed, so that "
+        "numba compiles their kernels now (about a minute of CPU on a 2-core machine, the first time only) "
+        "and caches them in the user's cache folder (NUMBA_CACHE_DIR if set, else ~/.cache/geoloc/numba), "
+        "where a reinstall keeps them. Prints each step and its time. tools/run.sh runs it.",
+    )
+    p.add_argument("--skip-view", action="store_true", help="leave out the viewer's scene (no viser server)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from geoloc.cli import main
+    from geoloc.geodesy import _nbgeo
+
+    print(f"geoloc warm: compiling what locate, replay and view need, once; cache: {_nbgeo.cache_dir()}",
+          flush=True)
+    t_all = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="geoloc-warm-") as tmp:
+        for what, argv in STEPS:
+            if args.skip_view and argv[0] == "view":
+                continue
+            argv = [a.replace("{tmp}", tmp) for a in argv]
+            print(f"  {what} ...", end="", flush=True)
+            n0 = len(_nbgeo.COMPILED)
+            w0, c0 = time.perf_counter(), time.process_time()
+            out, err = io.StringIO(), io.StringIO()
+            with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+                rc = main(argv)
+            wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+            new = _nbgeo.COMPILED[n0:]
+            said = f"compiled {len(new)} kernel(s)" if new else "already cached"
+            print(f" {said}, {wall:.1f} s ({cpu:.1f} s CPU)", flush=True)
+            if rc != 0:
+                tail = err.getvalue().strip().splitlines()[-1:] or ["(no message)"]
+                print(f"geoloc warm: step failed (exit {rc}): {tail[0]}", file=sys.stderr)
+                return rc
+    print(f"geoloc warm: done in {time.perf_counter() - t_all:.1f} s; the next runs start from the cache",
+          flush=True)
+    return 0
+
