@@ -10,7 +10,10 @@ packets 100-109 carry a heading 2.5 deg too large). Oracles here:
   nearest each packet's PTS, hashed, against the frame the viewer's scenario shows for it;
 * the KLV bytes of the file's data stream, against the raw ``.klv`` file;
 * the planted offset (1.5 s) and heading bias (2.5 deg), and the surveyed targets
-  (``assets/klv/example_flight_targets.csv``), with distances on the ground from pyproj's geodesic.
+  (``assets/klv/example_flight_targets.csv``), with distances on the ground from pyproj's geodesic;
+* ``geoloc log``'s recording read back with rerun's own ``RrdReader`` (images against PyAV's
+  frames, pinholes against klvdata's fields of view), and ``geoloc view --export --pixel``'s page
+  against ``geoloc locate`` and viser's recording decoded message by message.
 """
 
 from __future__ import annotations
@@ -220,3 +223,109 @@ def test_bundled_photo_is_rendered_with_the_targets_on_their_pixels():
     # painted from the true tags at each target's truth: the JPEG (quality 85, chroma at half
     # resolution) moves a 12 x 3 px cross's centroid by tenths of a pixel: 1 px
     assert d.max() < 1.0, d
+
+
+def test_geoloc_log_puts_each_frame_in_its_pinhole(tmp_path, monkeypatch, decoded):
+    # issue 28 item 7: `geoloc log FILE.ts` logs each packet's frame with its pinhole at the camera
+    # entity, so rerun's 3D view draws it in the frustum; read back with rerun's own RrdReader
+    import io
+
+    import klvdata
+    from PIL import Image
+    from rerun.chunk import RrdReader
+
+    from geoloc.cli import main
+
+    monkeypatch.setenv("HOME", str(tmp_path))  # rerun writes under ~/.config
+    out = tmp_path / "klv.rrd"
+    assert main(["log", str(TS), "--out", str(out)]) == 0
+    blobs, pins = {}, {}
+    for ch in RrdReader(str(out)).stream():
+        if not ch.entity_path.endswith("/cam"):
+            continue
+        b = ch.to_record_batch()
+        if "packet" not in b.schema.names:
+            continue
+        pk = b.column("packet").to_pylist()
+        if "EncodedImage:blob" in b.schema.names:
+            for k, v in zip(pk, b.column("EncodedImage:blob").to_pylist()):
+                blobs[k] = bytes(v[0])
+        if "Pinhole:image_from_camera" in b.schema.names:
+            for k, m, r in zip(pk, b.column("Pinhole:image_from_camera").to_pylist(),
+                               b.column("Pinhole:resolution").to_pylist()):
+                pins[k] = (np.array(m[0]), r[0])
+    good = sorted(set(range(300)) - {150})  # the corrupted packet is no step
+    assert sorted(blobs) == good and sorted(pins) == good
+    # the frame of packet k is the video's frame at packet k's PTS (frame k), JPEG-encoded: compare
+    # with PyAV's own decode (JPEG quality 85 moves pixels by a few grey levels on average)
+    import av
+
+    with av.open(str(TS)) as c:
+        want = {f.pts // 90000: f.to_ndarray(format="rgb24") for f in c.decode(c.streams.video[0])
+                if f.pts // 90000 in (0, 105, 299)}
+    for k, ref in want.items():
+        got = np.asarray(Image.open(io.BytesIO(blobs[k])).convert("RGB"))
+        assert got.shape == ref.shape and np.abs(got.astype(int) - ref).mean() < 3.0, k
+    # each pinhole from the packet's own fields of view (klvdata's decoding of tags 16 and 17) at the
+    # video's 640 x 360: f = (w / 2) / tan(hfov / 2), principal point at the centre; rerun stores
+    # float32 (relative 6e-8), the KLV's 16-bit FOV quantisation enters both sides alike
+    values = {i: v for i, v in enumerate(_klvdata_values(klvdata, KLV.read_bytes()))}
+    for k in (0, 105, 250, 299):
+        m, res = pins[k]
+        hfov, vfov = math.radians(float(values[k][16])), math.radians(float(values[k][17]))
+        assert res == [640.0, 360.0]
+        assert m[0] == pytest.approx(320 / math.tan(hfov / 2), rel=1e-6)
+        assert m[4] == pytest.approx(180 / math.tan(vfov / 2), rel=1e-6)
+        assert (m[6], m[7], m[8]) == (320.0, 180.0, 1.0)  # column-major: cx, cy, 1
+
+
+def _klvdata_values(klvdata, data: bytes) -> list:
+    """klvdata's decoding of every packet (tag -> value string), the corrupted one kept in place."""
+    out = []
+    for p in klvdata.StreamParser(data):
+        try:
+            out.append({tag: v[3] for tag, v in p.MetadataList().items()})
+        except Exception:  # the corrupted packet (its checksum): a placeholder keeps the numbering
+            out.append({})
+    return out
+
+
+def test_view_export_carries_the_picture_and_the_clicked_points(tmp_path, monkeypatch, flight):
+    # issue 28 item 7: `geoloc view --export FILE.html --pixel ROW,COL`: the page holds the frame
+    # (with its marks) and each picked pixel's numbers, equal to `geoloc locate`'s; the scene holds
+    # the frame's image node and the pick's ray, read back from viser's own recording
+    import base64
+    import io
+    import re
+
+    from PIL import Image
+
+    from geoloc.cli import main
+    from geoloc.viz import picture_model as pm
+    from test_viz_picture import locate_cli
+    from test_viz_scene import _decode_recording
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    out = tmp_path / "packet90.html"
+    picks = [(273.0, 310.0), (100.0, 500.0)]
+    assert main(["view", "--export", str(out), "--record", "packet 90"]
+                + sum((["--pixel", f"{r:g},{c:g}"] for r, c in picks), [])) == 0
+    page = out.read_text()
+    m = re.search(r'id="geoloc-export-picture"><img alt="frame image" data-rows="(\d+)" data-cols="(\d+)"'
+                  r'[^>]*src="data:image/jpeg;base64,([^"]+)"', page)
+    assert m and (int(m.group(1)), int(m.group(2))) == (360, 640)
+    img = np.asarray(Image.open(io.BytesIO(base64.b64decode(m.group(3)))).convert("RGB"))
+    assert img.shape[1] == 560 and img.std() > 3  # the panel's width; a picture, not a blank
+    lats = [float(x) for x in re.findall(r"latitude <b>([-0-9.]+)</b>", page)]
+    lons = [float(x) for x in re.findall(r"longitude <b>([-0-9.]+)</b>", page)]
+    assert len(lats) == len(lons) == 2
+    idx = _record(flight, 90)
+    inputs = flight.records[idx][1]
+    sensor = pm.frame_sensor(flight, idx, 360, 640)
+    for (r, c), la, lo in zip(picks, lats, lons):
+        ref = locate_cli(flight, sensor, inputs, r, c, tmp_path)
+        # the page prints 8 decimals: 5e-9 deg of rounding
+        assert la == pytest.approx(ref["lat_deg"], abs=1e-7) and lo == pytest.approx(ref["lon_deg"], abs=1e-7)
+    b64 = re.search(r'window\.__VISER_EMBED_DATA__="([^"]*)"', page).group(1)
+    names = {msg.get("name") for _, msg in _decode_recording(base64.b64decode(b64))["messages"]}
+    assert "/enu/picture/frame" in names and "/enu/picture/ray" in names, sorted(n for n in names if n)

@@ -51,6 +51,11 @@ def register(sub) -> None:
                    help="port (default 8080; viser moves to the next free one if taken; 0 = any free). "
                    "With --export the scene is built on a private server on 127.0.0.1 at this "
                    "port (default: any free one) that is stopped before the command returns")
+    p.add_argument("--pixel", action="append", default=None, metavar="ROW,COL",
+                   help="with --export: locate this pixel of the record's picture before exporting, as a "
+                   "click in the picture panel does (1-based pixel centres; repeat for several): its ray and "
+                   "hit are in the scene, the picture with its marks and each pixel's latitude, longitude, "
+                   "height and datum in the page")
     p.add_argument("--export", default=None, metavar="FILE", type=output_path,
                    help="write a static recording and exit, printing only its name: FILE.html "
                    "(self-contained, opens in a browser without a server, with a text panel naming "
@@ -137,6 +142,8 @@ def run(args) -> int:
     for opt in ("journal", "record_ts", "duration", "packets", "idle"):
         if getattr(args, opt, None) is not None:
             raise ValueError(f"--{opt.replace('_', '-')} is for --live udp://HOST:PORT")
+    if args.pixel and not args.export:
+        raise ValueError("--pixel is used with --export (in the browser, click the picture panel)")
     if args.export:
         return _export(args)
     from geoloc.viz.app import make_server
@@ -186,6 +193,7 @@ def _export(args) -> int:
         server = make_server("127.0.0.1", 0 if args.port is None else args.port)
         try:
             app = build(args, server)
+            _pick_pixels(app, args.pixel or ())
             path = app.export(args.export)
         finally:
             server.stop()
@@ -262,3 +270,17 @@ def _run_live(args) -> int:
     print(feed.replay.summary())
     print(f"  stream: {feed.rx.stats.line()}")
     return 0
+def _pick_pixels(app, values) -> None:
+    """``--pixel ROW,COL`` for an export: each located through the picture layer (a click's path)."""
+    if not values:
+        return
+    from geoloc.viz.image_layer import parse_pixel
+
+    layer = next((obj for obj in getattr(app, "layers", ()) if hasattr(obj, "pick_pixel")), None)
+    if layer is None or layer.sensor is None:
+        raise ValueError(f"--pixel {values[0]}: the record has no picture (a video or photo beside its metadata)")
+    for v in values:
+        rc = parse_pixel(str(v))
+        if rc is None:
+            raise ValueError(f"--pixel {v!r}: expected ROW,COL (1-based pixel centres, e.g. 180.5,320)")
+        layer.pick_pixel(*rc)

@@ -646,9 +646,11 @@ class GeolocApp(GeolocSession):
             # what the layers know of this record (the flight layer: its residual, error and fault)
             extra = [obj.export_markdown() for obj in self.layers if hasattr(obj, "export_markdown")]
             text = "\n\n".join([self.md_summary.content] + [t for t in extra if t])
+            # and what they show (the picture layer: the frame with its marks and picks)
+            extra_html = "".join(obj.export_html() for obj in self.layers if hasattr(obj, "export_html"))
             page = with_summary(ser.as_html(dark_mode=True), f"geoloc view: {self.header()}", text,
                                 "Static export of geoloc view (no controls); "
-                                "the scene animates the terrain method's iterations.")
+                                "the scene animates the terrain method's iterations.", extra_html)
             write_text(path, page)
         else:
             write_bytes(path, ser.serialize())

@@ -17,7 +17,11 @@ which record: :func:`geoloc.viz.picture_model.image_index`). It adds
   (``/enu/picture/ground``), its pixel is marked in the image (``ground_to_pixel``), or the panel
   says "outside the frame" or "hidden behind terrain from this camera";
 * **marks in the image**: the reprojected surveyed truth and targets, the reported and the
-  recomputed frame centres, and the terrain horizon, so a fault shows in the picture itself.
+  recomputed frame centres, and the terrain horizon, so a fault shows in the picture itself;
+  and the **painted marks** found in the frame against the targets' reprojection
+  (:func:`geoloc.viz.picture_model.found_marks`: agree / disagree, in pixels and degrees);
+* **export**: :meth:`ImageLayer.export_html` gives the frame with its marks and the picks' text
+  for ``geoloc view --export`` (which records the scene, not the GUI).
 
 Every number comes from :mod:`geoloc.viz.picture_model` (sensor, surface, ``ground_to_pixel``);
 this module only draws and maps clicks to pixels. The panel's image is an HTML element whose
@@ -49,6 +53,8 @@ PANEL_WIDTH = 560
 #: Largest side of the texture sent for the frustum [px] (the panel shows full resolution).
 TEXTURE_MAX = 640
 ZOOMS = (1, 2, 4, 8, 16, 32)
+#: Picks of one frame kept for an export (the scene shows the last one's ray).
+MAX_PICKS = 20
 #: RGB colours of the marks (the same in the scene and in the image).
 COLORS = {
     "pick": (170, 255, 0),
@@ -149,6 +155,7 @@ class ImageLayer:
         self.image = None
         self.sensor = None
         self.pick: pm.PixelPick | None = None
+        self.picks: list = []  # this frame's picks, oldest first (at most MAX_PICKS): what an export carries
         self.ground: pm.GroundPick | None = None
         self.marks: dict = {}
         self.found: pm.FoundMarks | None = None
@@ -222,6 +229,7 @@ class ImageLayer:
         if idx != self.index:
             self.index = idx
             self.pick = self.ground = None
+            self.picks = []
             self._mute = True
             try:
                 self.tx_pixel.value = ""
@@ -421,6 +429,7 @@ class ImageLayer:
                 return None
             s = self.session
             self.pick = pm.locate_pixel(s.scn, s.inputs, self.sensor, row, col)
+            self.picks = (self.picks + [self.pick])[-MAX_PICKS:]
             text = f"{row:g}, {col:g}"
             if parse_pixel(str(self.tx_pixel.value)) != (row, col):
                 self._mute = True
@@ -432,6 +441,34 @@ class ImageLayer:
             self.redraw_images()
             self.draw_pick()
             return self.pick
+
+    def export_html(self) -> str:
+        """The picture for a static export (``geoloc view --export``, which records the 3D scene
+        but not the GUI): the whole frame with its marks and the picked pixel as a JPEG, and the
+        panel's text (the pick's latitude, longitude, height and datum, range, status; the terrain
+        pick; the painted marks)."""
+        if self.image is None:
+            return ""
+        import PIL.Image
+
+        from geoloc.viz.export_html import markdown_to_html
+
+        M, N = self.image.shape[:2]
+        s = PANEL_WIDTH / N
+        disp = np.asarray(PIL.Image.fromarray(np.ascontiguousarray(self.image[..., :3])).resize(
+            (PANEL_WIDTH, max(int(round(M * s)), 1)), PIL.Image.BILINEAR))
+        marks = self._mark_list() + [("pick", p.row, p.col, None) for p in self.picks[:-1]]
+        disp = draw_marks(disp, marks, lambda r, c: ((c - 0.5) * s, (r - 0.5) * s), 7.0)
+        buf = io.BytesIO()
+        PIL.Image.fromarray(disp).save(buf, format="JPEG", quality=88)
+        b64 = base64.b64encode(buf.getvalue()).decode("ascii")
+        text = [pm.pick_markdown(p) for p in self.picks]
+        text += [t for t in (self.md_ground.content, self.md_found.content) if t]
+        cap = f"frame {self.k + 1} of {len(self.images)}: {N} x {M} px"
+        return (f'<div id="geoloc-export-picture"><img alt="frame image" data-rows="{M}" data-cols="{N}" '
+                f'style="width:100%;display:block;margin:6px 0" src="data:image/jpeg;base64,{b64}">'
+                f'<span style="opacity:0.7">{html.escape(cap)}</span><br>'
+                + "<br>".join(markdown_to_html(t) for t in text) + "</div>")
 
     def pick_ground(self, origin_scene, direction_scene) -> pm.GroundPick | None:
         """A ray of the browser (scene units, vertical exaggeration included) on the terrain:

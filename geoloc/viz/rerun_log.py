@@ -341,12 +341,16 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
                 cols["translation"] = Tn[:, :3, 3]
             rec.send_columns(path, indexes=idx, columns=rr.Transform3D.columns(**cols))
             rec.log(path, rr.TransformAxes3D(axis_length=AXIS_LENGTH_M.get(name, 2000.0)), static=True)
-        rec.log(root + paths["cam"][len("world"):], rr.Pinhole(
-            focal_length=[float(lens.fx), float(lens.fy)], width=int(lens.width), height=int(lens.height),
-            # the lens's 0-based pixel centres (OpenCV's) -> rerun's continuous (u, v): +0.5
-            principal_point=[lens.cx + 0.5, lens.cy + 0.5],
-            # the optical frame of the lens: X right, Y down, Z the line of sight
-            camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=IMAGE_PLANE_M), static=True)
+        cam = root + paths["cam"][len("world"):]
+        if steps.images is not None and np.any(np.asarray(steps.image_index)[m] >= 0):
+            log_images(rec, steps, cam, m)
+        else:
+            rec.log(cam, rr.Pinhole(
+                focal_length=[float(lens.fx), float(lens.fy)], width=int(lens.width), height=int(lens.height),
+                # the lens's 0-based pixel centres (OpenCV's) -> rerun's continuous (u, v): +0.5
+                principal_point=[lens.cx + 0.5, lens.cy + 0.5],
+                # the optical frame of the lens: X right, Y down, Z the line of sight
+                camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=IMAGE_PLANE_M), static=True)
         body = root + paths["body"][len("world"):]
         rec.log(f"{body}/aircraft", rr.Transform3D(scale=display_scale), static=True)
         rec.log(f"{body}/aircraft", rr.Mesh3D(vertex_positions=v_mesh, triangle_indices=f_mesh,
@@ -443,6 +447,54 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
         from geoloc.viz.rerun_terrain import log_terrain
 
         log_terrain(rec, steps, _index)
+
+
+#: JPEG quality of the frames logged with their pinhole (a 640 x 360 frame: ~30 kB).
+IMAGE_QUALITY = 85
+
+
+def log_images(rec: rr.RecordingStream, steps: LogSteps, cam: str, m) -> None:
+    """Each step's picture at the camera entity, with its own pinhole (issue 28 item 7).
+
+    Per step with an image: an ``EncodedImage`` (JPEG of ``steps.images.image(k)``) and a
+    ``Pinhole`` sized to that image, from the step's fields of view (``lens_from_fov`` of
+    ``steps.image_fov_deg``, the replay's sensor rule) or else the recording's lens scaled to the
+    image; so rerun's 3D view shows the frame in the camera's frustum at ``IMAGE_PLANE_M``.
+    """
+    import io
+    import math
+
+    import PIL.Image
+
+    from geoloc.io.photos import scale_lens
+    from geoloc.sensors.lenses import lens_from_fov
+
+    base = as_sensor(steps.camera).lens
+    idx = np.asarray(steps.image_index)
+    fov = steps.image_fov_deg
+    cache = {}
+    for k in np.flatnonzero(m & (idx >= 0)):
+        a = np.asarray(steps.images.image(int(idx[k])))
+        rows, cols = a.shape[:2]
+        hv = tuple(fov[k]) if fov is not None and np.all(np.isfinite(fov[k])) else None
+        key = (hv, rows, cols)
+        if key not in cache:
+            cache[key] = (lens_from_fov(math.radians(hv[0]), math.radians(hv[1]), cols, rows) if hv
+                          else scale_lens(base, cols, rows))
+        lens = cache[key]
+        for name, (kind, values) in steps.timelines.items():
+            v = values[k]
+            if kind == "duration":
+                rec.set_time(name, duration=float(v))
+            else:
+                rec.set_time(name, sequence=int(v))
+        rec.log(cam, rr.Pinhole(focal_length=[float(lens.fx), float(lens.fy)], width=int(cols), height=int(rows),
+                                principal_point=[lens.cx + 0.5, lens.cy + 0.5], camera_xyz=rr.ViewCoordinates.RDF,
+                                image_plane_distance=IMAGE_PLANE_M))
+        buf = io.BytesIO()
+        PIL.Image.fromarray(np.ascontiguousarray(a[..., :3])).save(buf, format="JPEG", quality=IMAGE_QUALITY)
+        rec.log(cam, rr.EncodedImage(contents=buf.getvalue(), media_type="image/jpeg"))
+    rec.reset_time()
 
 
 def plot_east_north(steps: LogSteps, g, pts_enu) -> np.ndarray:

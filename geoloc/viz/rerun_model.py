@@ -121,6 +121,11 @@ class LogSteps:
     reference: str = ""
     outlier: np.ndarray | None = None
     calibration: dict | None = None
+    #: Each step's picture (issue 28): an ImageSource, the image index of each step (-1: none) and
+    #: each step's fields of view [deg] (horizontal, vertical) for its pinhole at the image's size.
+    images: object = None
+    image_index: np.ndarray | None = None
+    image_fov_deg: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -591,4 +596,35 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     # the replay's own flags (the same median / MAD rule, on its geodesic frame-centre residual)
     add_error_analysis(steps, heading_deg=np.asarray(c["platform_heading_deg"], float),
                        outlier=np.asarray(c["outlier"]).astype(bool))
+    attach_klv_video(steps, path, np.asarray(c["packet"]),
+                     np.stack([np.asarray(c["sensor_horizontal_fov_deg"], float),
+                               np.asarray(c["sensor_vertical_fov_deg"], float)], -1))
     return steps, list(r.errors)
+
+
+def attach_klv_video(steps: LogSteps, path, packets, fov_deg) -> bool:
+    """Give a KLV recording its pictures: the video of the MPEG-TS ``path`` itself, or of the
+    ``.ts`` beside a ``.klv`` (STANAG 4609: video + KLV data stream), each step (packet number
+    ``packets[k]``) showing the frame nearest its packet's container time stamp. False (nothing
+    attached) without such a video."""
+    from geoloc.io.images import open_images
+    from geoloc.workflows.klv_replay import read_klv
+
+    p = Path(path)
+    ts = p if p.suffix.lower() != ".klv" else p.with_suffix(".ts")
+    if not ts.is_file():
+        return False
+    try:
+        images = open_images(ts)
+        len(images)
+    except ValueError:  # a KLV-only transport stream
+        return False
+    r = read_klv(ts)
+    pts = {int(k): float(t) for k, t in zip(r.packet, r.pts_s)}
+    idx = np.full(len(steps), -1, np.int64)
+    for k, pk in enumerate(packets):
+        t = pts.get(int(pk), np.nan)
+        if np.isfinite(t):
+            idx[k] = images.index_at(t)
+    steps.images, steps.image_index, steps.image_fov_deg = images, idx, np.asarray(fov_deg, float)
+    return bool(np.any(idx >= 0))

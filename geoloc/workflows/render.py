@@ -291,17 +291,20 @@ def find_marks(image: np.ndarray, *, min_excess: int = 60, min_pixels: int = 6):
     """
     import cv2
 
-    a = np.asarray(image).astype(np.int16)
-    red = a[..., 0] - np.maximum(a[..., 1], a[..., 2])
-    mask = (red > min_excess).astype(np.uint8)
+    a = np.ascontiguousarray(np.asarray(image)[..., :3], dtype=np.uint8)
+    r, g, b = cv2.split(a)
+    red = cv2.subtract(r, cv2.max(g, b))  # uint8, saturating: the redness where positive, else 0
+    mask = (red > min_excess).view(np.uint8)
     n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     keep = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= min_pixels]
     keep.sort(key=lambda k: -stats[k, cv2.CC_STAT_AREA])
-    w = np.where(mask > 0, red - min_excess, 0).astype(float)
-    rr, cc = np.indices(mask.shape, dtype=float)
-    out = []
-    for k in keep:
-        m = lab == k
-        wk = w[m]
-        out.append([np.dot(rr[m], wk) / wk.sum() + 1.0, np.dot(cc[m], wk) / wk.sum() + 1.0])
+    # the weighted centroids over the marked pixels only (a frame holds few), one bincount per sum
+    idx = np.flatnonzero(mask)
+    rr, cc = np.divmod(idx, mask.shape[1])
+    lk = lab.reshape(-1)[idx]
+    w = (red.reshape(-1)[idx] - min_excess).astype(float)
+    sw = np.bincount(lk, weights=w, minlength=n)
+    sr = np.bincount(lk, weights=w * rr, minlength=n)
+    sc = np.bincount(lk, weights=w * cc, minlength=n)
+    out = [[sr[k] / sw[k] + 1.0, sc[k] / sw[k] + 1.0] for k in keep]
     return np.array(out).reshape(-1, 2), np.array([stats[k, cv2.CC_STAT_AREA] for k in keep], int)
