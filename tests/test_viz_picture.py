@@ -270,7 +270,7 @@ def test_the_timeline_shows_each_frames_own_image(flight):
 def _panel_pixel_xy(page, r, c):
     """Screen position of pixel (r, c)'s centre in the panel's image (its crop read from the page)."""
     img = page.locator("#geoloc-picture")
-    box = img.bounding_box()
+    box = img.bounding_box(timeout=120000)  # 2 shared cores under load: a panel redraw can take long
     r1, c1, h, w = (float(img.get_attribute(k)) for k in ("data-r1", "data-c1", "data-h", "data-w"))
     return (box["x"] + (c - (c1 - 0.5)) / w * box["width"], box["y"] + (r - (r1 - 0.5)) / h * box["height"])
 
