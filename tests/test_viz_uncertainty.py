@@ -85,3 +85,27 @@ def test_a_person_hides_the_ellipse_in_chromium(tmp_path):
             assert re.search(r"CE90 \d+\.\d m", _layer(app).md.content)
     finally:
         server.stop()
+
+
+def test_flight_debugger_flags_frames_outside_their_own_99_percent_ellipse():
+    """The bundled flight's planted faults (a 2.5 deg heading burst, MSL in the ellipsoid tag, a
+    stale pose) put their frames tens of metres off the reported centres; with a budget of metres and hundredths of
+    a degree those frames are outside their own 99 % ellipse, the frames that agree to millimetres
+    are not."""
+    from geoloc.sensors.budget import ErrorBudget
+    from geoloc.viz import flight_model
+
+    scn = flight_model.default_flight_scenario()
+    names = flight_model.as_sensor(scn.camera).angle_names
+    b = {"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.05, "pitch_deg": 0.03, "roll_deg": 0.03}
+    b.update({f"{a}_deg": 0.03 for a in names})
+    scn.budget = ErrorBudget(b, "srtm")
+    m = flight_model.build(scn, diagnose_faults=False)
+    out = m.outside_ellipse99
+    assert out is not None and out.shape == m.residual_m.shape
+    big = np.isfinite(m.residual_m) & (m.residual_m > 50.0)
+    small = np.isfinite(m.residual_m) & (m.residual_m < 1.0)
+    assert big.sum() >= 5 and small.sum() > 200
+    assert np.all(out[big]) and not np.any(out[small])
+    assert "outside their own predicted 99 % ellipse" in m.summary_markdown()
+    assert "outside 99 %" in m.outlier_markdown()

@@ -166,6 +166,9 @@ class FlightModel:
     speed_m_per_frame: np.ndarray  # (n,)
     surface: str
     faults: list = field(default_factory=list)  # FaultRun, see diagnose()
+    #: (n,) bool, with the scenario's error budget: the residual lies outside its own predicted 99 %
+    #: ellipse (geoloc.analysis.uncertainty.outside_ellipse); None without a budget
+    outside_ellipse99: np.ndarray | None = None
     notes: list = field(default_factory=list)
     H_DATUM: str = H_DATUM
     _report: object = None
@@ -271,6 +274,9 @@ class FlightModel:
             L.append("**accuracy: unknown**: the records carry no surveyed truth, so how far either position "
                      "is from the ground truth cannot be said (no CEP, no error model)  ")
         L.append(f"robust outliers: {int(self.outlier.sum())} of {len(self)} frames (median / MAD rule)  ")
+        if self.outside_ellipse99 is not None:
+            L.append(f"outside their own predicted 99 % ellipse: {int(self.outside_ellipse99.sum())} of "
+                     f"{len(self)} frames (the sensor's error budget)  ")
         L += [f"**warning** {w}  " for w in r.warnings]
         return "\n".join(L)
 
@@ -293,9 +299,15 @@ class FlightModel:
             f = self.fault_of(int(i))
             lines.append(
                 f"| {rank} | {self.labels[i]} | {self.residual_m[i]:.1f} | {c['along_m'][i]:+.1f} | "
-                f"{c['across_m'][i]:+.1f} | {c['up_m'][i]:+.1f} | {'**outlier**' if self.outlier[i] else ''} | "
+                f"{c['across_m'][i]:+.1f} | {c['up_m'][i]:+.1f} | {self._flag(i)} | "
                 f"{f.kind if f is not None else ''} |")
         return "\n".join(lines)
+
+    def _flag(self, i) -> str:
+        flags = ["**outlier**"] if self.outlier[i] else []
+        if self.outside_ellipse99 is not None and self.outside_ellipse99[i]:
+            flags.append("outside 99 %")
+        return ", ".join(flags)
 
     def faults_markdown(self) -> str:
         """Each run of outliers with its fitted fault and what that fault looks like."""
@@ -504,9 +516,30 @@ def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: 
         truth_enu=enu_of(t_lat, t_lon, t_h), reference=reference, residual_m=residual,
         components=comp, outlier=outlier, order=order, track_heading_rad=heading,
         speed_m_per_frame=speed, surface=desc)
+    budget = getattr(scn, "budget", None)
+    if budget is not None:  # the second outlier rule: outside the frame's own predicted 99 % ellipse
+        model.outside_ellipse99 = outside_own_ellipse(sensor, pose, row, col, surface, budget, comp, residual)
     if diagnose_faults:
         model.faults = diagnose(model, scn, pose=pose, row=row, col=col, target_h=target_h, method=method)
     return model
+
+
+def outside_own_ellipse(sensor, pose, row, col, surface, budget, components, residual, p: float = 0.99):
+    """True for the frames whose residual lies outside their own predicted ``p`` ellipse (default 99 %).
+
+    The ellipse is the recomputed point's (:func:`geoloc.analysis.uncertainty.propagate` of the
+    budget, ``time_s`` left out: records carry no velocity); the residual's east and north are
+    ``components``'. Beside the robust rule, which compares a frame with the others, this one
+    compares it with what its own geometry and budget allow (a 40 m error at 80 degrees off
+    nadir may be normal, a 10 m error at nadir may not)."""
+    from geoloc.analysis.uncertainty import outside_ellipse, propagate
+    from geoloc.sensors.budget import ErrorBudget
+
+    b = ErrorBudget({k: v for k, v in budget.sigmas.items() if k != "time_s"}, budget.dem_product, budget.source)
+    pu = propagate(sensor, pose, row, col, b, surface=surface, outside="extrapolate")
+    out = outside_ellipse(components["east_m"], components["north_m"], pu.ellipse_major_m, pu.ellipse_minor_m,
+                          pu.ellipse_azimuth_deg, p)
+    return np.asarray(out & np.isfinite(residual) & (np.asarray(pu.status) == Status.OK), bool)
 
 
 # --------------------------------------------------------------------------- what the outliers look like

@@ -126,6 +126,7 @@ class Scenario:
     use_dem: bool = True
     description: str = ""
     source: str = ""  # records file name, for the title
+    budget: object = None  # the sensor's error budget (geoloc.sensors.budget.ErrorBudget), if known
 
 
 def frame_views(chain: BoundFrames, enu: EnuFrame) -> dict:

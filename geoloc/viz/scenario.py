@@ -146,6 +146,10 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
                    use_dem=use_dem, source=records_path.name,
                    description=f"records {records_path}, camera {camera.name or camera_path}")
     scn._user_dem = dem_path  # kept when another record is selected
+    if camera_path:  # the sensor file's [uncertainty] table: the predicted ellipses, the 99 % rule
+        from geoloc.sensors.sensor_file import load_sensor_budget
+
+        scn.budget = load_sensor_budget(camera_path)
     if use_dem:
         from geoloc.viz import terrain_link
 
