@@ -252,6 +252,19 @@ def test_53_flight_debugger_scene():
     assert "the other 276 frames: median residual 2.4 mm" in out
 
 
+def test_55_picture_time_offset():
+    # the bundled video's planted faults (tools/make_klv_example.py): frames 40-79 run 1.5 s ahead of
+    # their metadata (time_offset_s = -1.5); the crosses painted at the surveyed targets
+    # (assets/klv/example_flight_targets.csv). tests/test_video_example.py checks the same against
+    # PyAV's own decode and pyproj; here the example's printed figures
+    out = run("55_picture_time_offset.py")
+    assert "300 frames 640 x 360" in out and "5 painted crosses found" in out
+    d = float(re.search(r": ([0-9.]+) m from surveyed T", out).group(1))
+    assert d < 1.0  # 2 ground samples at zoom 12 deg are ~2 m; the crosses' centroids give ~0.3 m
+    fitted = float(re.search(r"fitted ([-+0-9.]+) s", out).group(1))
+    assert abs(fitted - (-1.5)) < 0.05  # the tolerance of tests/test_video_example.py
+
+
 def test_54_teaching_vector_through_chain():
     out = run("54_teaching_vector_through_chain.py")
     # the ECEF row of the ray is the core's line of sight, for both sensors (printed difference)
