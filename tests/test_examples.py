@@ -153,6 +153,26 @@ def test_31_montecarlo_error_budget():
     assert total[0] == pytest.approx(cep, rel=0.02)  # first order vs the Monte Carlo
 
 
+def test_34_predicted_uncertainty():
+    out = run("34_predicted_uncertainty.py")
+    ce, le = floats(line_with(out, "predicted:"))[1::2][:2]
+    mce, mle = floats(line_with(out, "Monte Carlo (4000)"))[2::2][:2]
+    # docs/uncertainty.md: within 5 % of Monte Carlo (4000 samples: the 90th percentile's sampling error ~2 %)
+    assert ce == pytest.approx(mce, rel=0.05) and le == pytest.approx(mle, rel=0.05)
+    major, minor = floats(line_with(out, "1-sigma ellipse"))[1:3]
+    assert minor <= major
+
+
+def test_35_triangulate_target():
+    out = run("35_triangulate_target.py")
+    ce = floats(line_with(out, "predicted:"))[1]
+    dist = floats(line_with(out, "distance from the target itself"))[0]
+    e, n, _u = floats(line_with(out, "error:"))
+    assert dist == pytest.approx(math.sqrt(e * e + n * n + _u * _u), abs=0.02)  # rounding of the printed parts
+    assert math.hypot(e, n) < 2.0 * ce  # one draw: inside twice its CE90 (a 1 in 10^4 event otherwise)
+    assert "likely DEM or datum error" in line_with(out, "DEM check")
+
+
 def test_32_fig10_cep_sweep(tmp_path):
     out = run("32_fig10_cep_sweep.py", tmp_path, cwd=tmp_path)
     rows = np.array([floats(ln) for ln in out.splitlines() if re.match(r"^\s+\d+\s", ln)])
