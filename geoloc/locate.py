@@ -18,15 +18,13 @@ code per ray.
 
 from __future__ import annotations
 
-from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from geoloc.frames.chain import FrameChain, Pose
-from geoloc.sensors.base import PixelHit, check_outside, flag_outside
-from geoloc.sensors.camera import Camera
-from geoloc.sensors.frame import FrameSensor
+from geoloc.frames.chain import Pose
+from geoloc.sensors.base import PixelHit, check_outside
+from geoloc.sensors.camera import as_sensor
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint, LineOfSight
 from geoloc.surfaces.height import HeightSurface, intersect_los_height
@@ -36,37 +34,13 @@ if TYPE_CHECKING:
     from geoloc.surfaces.terrain import TerrainHit
 
 
-@lru_cache(maxsize=64)
-def _camera_sensor(camera: Camera) -> FrameSensor:
-    return camera.to_sensor()
-
-
-def as_sensor(sensor) -> FrameSensor:
-    """A :class:`FrameSensor` for a sensor or a first-phase :class:`Camera` (cached)."""
-    if isinstance(sensor, FrameSensor):
-        return sensor
-    if isinstance(sensor, Camera):
-        return _camera_sensor(sensor)
-    raise ValueError(f"sensor = {sensor!r}: must be a FrameSensor or a Camera")
-
-
-def camera_chain(pose: Pose, camera: Camera) -> FrameChain:
-    """The [Q17] frame chain of ``pose`` with the camera's boresight and mounting rotations.
-
-    The paper's own form of the roll-pitch chain (:class:`FrameChain`, eq. 4-9,
-    with its 4x4 hops and the eq. 5 factors); the sensor's frame graph gives the
-    same rotations (``tests/test_sensors.py``).
-    """
-    return FrameChain(pose, R_cam_inner=camera.R_cam_inner, R_base_body=camera.R_base_body)
-
-
 def _default_pixel(sensor, row, col):
     r0, c0 = sensor.center_pixel
     return (r0 if row is None else row), (c0 if col is None else col)
 
 
-def line_of_sight(pose: Pose, sensor, row=None, col=None, *, chain: FrameChain | None = None,
-                  outside: str = "flag", engine: str = "auto") -> LineOfSight:
+def line_of_sight(pose: Pose, sensor, row=None, col=None, *, outside: str = "flag",
+                  engine: str = "auto") -> LineOfSight:
     """Pixel (i, j) -> line of sight in ECEF [Q17 eq. 8-9, generalised to any gimbal and lens].
 
     Parameters
@@ -76,16 +50,13 @@ def line_of_sight(pose: Pose, sensor, row=None, col=None, *, chain: FrameChain |
     sensor : FrameSensor or Camera
     row, col : array_like, optional
         1-based pixel; default the image centre ((M+1)/2, (N+1)/2).
-    chain : FrameChain, optional
-        A prebuilt [Q17] chain (roll-pitch pinhole only; Monte Carlo's
-        reference engine passes perturbed rotations this way).
     outside : {"flag", "extrapolate"}
         A pixel off the sensor gets status OUTSIDE_SENSOR (default), or its
         ray through the lens model beyond the edge (``"extrapolate"``, for a
         caller that reports such pixels itself).
     engine : {"auto", "numpy", "numba"}
         See :meth:`geoloc.sensors.frame.FrameSensor.line_of_sight` (``"auto"``: the
-        compiled kernel for 10 000 rays or more); ignored with ``chain``.
+        compiled kernel for 10 000 rays or more).
 
     Returns
     -------
@@ -96,26 +67,11 @@ def line_of_sight(pose: Pose, sensor, row=None, col=None, *, chain: FrameChain |
     check_outside(outside)
     s = as_sensor(sensor)
     row, col = _default_pixel(s, row, col)
-    if chain is None:
-        return s.line_of_sight(row, col, pose, outside=outside, engine=engine)
-    cam = sensor if isinstance(sensor, Camera) else None
-    if cam is None:
-        raise ValueError("chain= is only for a first-phase Camera (the [Q17] roll-pitch pinhole)")
-    d_ecef = chain.cam_to_ecef(cam.pixel_to_los(row, col))
-    o = chain.origin_ecef
-    shape = np.broadcast_shapes(o.shape, d_ecef.shape)[:-1]
-    o, d_ecef = np.broadcast_to(o, shape + (3,)), np.broadcast_to(d_ecef, shape + (3,))
-    bad = np.broadcast_to(pose.invalid_mask(), shape) | ~np.all(np.isfinite(d_ecef), axis=-1)
-    status = np.where(bad, Status.INVALID_INPUT, Status.OK).astype(np.uint8)
-    if outside == "flag":
-        r, c = np.broadcast_to(np.asarray(row, float), shape), np.broadcast_to(np.asarray(col, float), shape)
-        status = flag_outside(status, r, c, s.rows, s.cols)
-    return LineOfSight(o, d_ecef, status)
+    return s.line_of_sight(row, col, pose, outside=outside, engine=engine)
 
 
 def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
-           surface: str = "inflated", chain: FrameChain | None = None,
-           engine: str = "auto", outside: str = "flag") -> GroundPoint:
+           surface: str = "inflated", engine: str = "auto", outside: str = "flag") -> GroundPoint:
     """Geolocate pixels at a known target height: the whole of [Q17 section 2.2].
 
     Vectorised: pose fields, pixels and ``target_h`` broadcast together.
@@ -130,13 +86,11 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
         Target ellipsoidal height [m].
     surface : {"inflated", "geodetic"}
         Kind of constant-height surface (:class:`geoloc.surfaces.height.HeightSurface`).
-    chain : FrameChain, optional
-        Prebuilt [Q17] chain (see :func:`line_of_sight`).
     engine : {"auto", "numpy", "numba"}
         ``"numpy"`` is the reference path (lens and frame graph in numpy);
         ``"numba"`` runs the fused kernel of :mod:`geoloc.sensors._fastlocate`
         (same mathematics, any gimbal, lens, mount, boresight and lever arm;
-        inflated surface, no ``chain``). ``"auto"`` picks numba for batches of
+        inflated surface). ``"auto"`` picks numba for batches of
         10 000 rays or more on the inflated surface.
     outside : {"flag", "extrapolate"}
         See :func:`line_of_sight`.
@@ -161,9 +115,9 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
     s = as_sensor(sensor)
     from geoloc.sensors._fastlocate import serves
 
-    fast_ok = chain is None and surface == "inflated" and serves(s)
+    fast_ok = surface == "inflated" and serves(s)
     if engine == "numba" and not fast_ok:
-        raise ValueError("engine='numba' needs surface='inflated', no chain, and a sensor the kernel serves "
+        raise ValueError("engine='numba' needs surface='inflated' and a sensor the kernel serves "
                          "(one lens, no per-sample perturbation)")
     row, col = _default_pixel(s, row, col)
     if engine == "numba" or (engine == "auto" and fast_ok and pose.batch_size(row, col, target_h) >= 10_000):
@@ -173,12 +127,11 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
         los_status = np.where(np.isin(status, (Status.INVALID_INPUT, Status.OUTSIDE_SENSOR)), status, Status.OK)
         los = LineOfSight(o, d, los_status.astype(np.uint8))
         return GroundPoint(lat, lon, h, ecef, rng, status, los)
-    los = line_of_sight(pose, sensor, row, col, chain=chain, outside=outside,
-                        engine="numpy" if engine == "numpy" else "auto")
+    los = line_of_sight(pose, sensor, row, col, outside=outside, engine="numpy" if engine == "numpy" else "auto")
     return HeightSurface(target_h, surface).intersect(los)
 
 
-def ground_to_pixel(pose: Pose, sensor, lat, lon, h, *, chain: FrameChain | None = None) -> PixelHit:
+def ground_to_pixel(pose: Pose, sensor, lat, lon, h) -> PixelHit:
     """Ground point (geodetic, radians and metres) -> 1-based pixel: the inverse of :func:`locate`.
 
     Returns
@@ -187,23 +140,16 @@ def ground_to_pixel(pose: Pose, sensor, lat, lon, h, *, chain: FrameChain | None
         ``row, col, status`` (it unpacks as that triple); NaN where the point
         is behind the camera, OUTSIDE_SENSOR where it projects off the sensor.
     """
-    s = as_sensor(sensor)
-    if chain is None:
-        return s.ground_to_pixel(lat, lon, h, pose)
-    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
-
-    p = geodetic_to_ecef(lat, lon, h)
-    row, col, status = sensor.los_to_pixel(chain.ecef_to_cam(p - chain.origin_ecef))
-    return PixelHit(row, col, flag_outside(status, row, col, s.rows, s.cols))
+    return as_sensor(sensor).ground_to_pixel(lat, lon, h, pose)
 
 
-def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method: str = "exact", *,
-               chain=None, **kwargs) -> TerrainHit:
+def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method: str = "exact",
+               **kwargs) -> TerrainHit:
     """Geolocate pixels on a DEM: :func:`line_of_sight` then :func:`geoloc.surfaces.terrain.intersect_dem`.
 
     Parameters
     ----------
-    pose, sensor, row, col, chain
+    pose, sensor, row, col
         As for :func:`locate`.
     dem : geoloc.surfaces.dem.DEM
     method : {"steps", "bisect", "exact"}
@@ -214,9 +160,9 @@ def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method:
 
     if dem is None:
         raise ValueError("dem is required")
-    los = line_of_sight(pose, sensor, row, col, chain=chain)
+    los = line_of_sight(pose, sensor, row, col)
     return intersect_dem(los, dem, method, **kwargs)
 
 
-__all__ = ["as_sensor", "camera_chain", "ground_to_pixel", "intersect_los_height", "line_of_sight",
+__all__ = ["as_sensor", "ground_to_pixel", "intersect_los_height", "line_of_sight",
            "locate", "locate_dem"]

@@ -171,8 +171,6 @@ def test_lens_sources_are_checked_against_the_lens():
     with pytest.raises(ValueError, match="roll-pitch"):
         ErrorModel.from_dict({"camera": {"lens": LENS, "gimbal": {"preset": "azimuth-elevation"}},
                               "nominal": {"lat_deg": 0, "lon_deg": 0, "h_m": 1000}, "target": {"h_m": 0}})
-    with pytest.raises(ValueError, match="engine='hops'"):
-        mc.evaluate(_model(), {"cx_px": np.zeros(2)}, engine="chain")
     # the first-phase camera's pinhole takes the pinhole's sources
     q17 = ErrorModel.from_dict({"camera": {"focal_length_px": 1e4, "principal_row": 50.5, "principal_col": 50.5,
                                            "rows": 100, "cols": 100},

@@ -1,7 +1,7 @@
 """Monte Carlo through the sensor: the sensor's named mount / boresight parameters as error sources.
 
-Oracles: the paper's explicit chain (engine "chain": FrameChain with batched
-rotations) and ``FrameSensor.with_params`` run draw by draw (the named-parameter
+Oracles: the paper's explicit chain (tests/test_montecarlo.py's chain_reference: FrameChain
+with batched rotations) and ``FrameSensor.with_params`` run draw by draw (the named-parameter
 path of the sensor, not Monte Carlo's rotation algebra).
 """
 
@@ -16,6 +16,7 @@ from geoloc.analysis.errormodel import Distribution, ErrorModel
 from geoloc.assets import asset_path
 from geoloc.locate import as_sensor, locate
 from geoloc.status import Status
+from test_montecarlo import chain_reference
 
 
 @pytest.fixture(scope="module")
@@ -31,9 +32,9 @@ def test_mount_and_boresight_draws_equal_the_sensor_with_those_parameters(model)
     n = 6
     draws = {f"{w}_{a}_deg": np.deg2rad(rng.normal(0, 0.05, n)) for w in ("mount", "boresight") for a in "xyz"}
     errs = dict(draws)
-    lat_h, lon_h, h_h, st_h = mc.evaluate(model, errs, engine="hops")
-    lat_c, lon_c, _, st_c = mc.evaluate(model, errs, engine="chain")
-    # the two engines: the sensor's graph and the paper's chain with batched rotations
+    lat_h, lon_h, h_h, st_h = mc.evaluate(model, errs)
+    lat_c, lon_c, _, st_c = chain_reference(model, errs)
+    # the engine (the sensor's graph) and the reference (the paper's chain with batched rotations)
     np.testing.assert_allclose(lat_h, lat_c, rtol=0, atol=1e-13)
     np.testing.assert_allclose(lon_h, lon_c, rtol=0, atol=1e-13)
     # and each draw is the sensor with its named parameters moved by the draw
@@ -78,5 +79,3 @@ def test_lever_arm_draws_move_the_point_by_the_body_offset(model):
         g = locate(pose, moved, model.row, model.col, target_h=model.target_h_m, surface=model.surface)
         assert float(g.lat) == pytest.approx(lat1[k], abs=1e-13) and float(g.lon) == pytest.approx(lon1[k], abs=1e-13)
     assert np.all(np.abs(lat1 - lat0) + np.abs(lon1 - lon0) > 0)
-    with pytest.raises(ValueError, match="engine='hops'"):
-        mc.evaluate(model, {"lever_arm_x_m": dx}, engine="chain")

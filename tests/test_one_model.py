@@ -35,15 +35,12 @@ CAMERA_FORMAT = {"geoloc.sensors.camera", "geoloc.sensors.sensor_file"}
 
 #: Modules still branching on ``isinstance(x, Camera)`` outside the file format (may only shrink).
 KNOWN_CAMERA_CHECKS = {
-    # as_sensor (a Camera's FrameSensor) and the chain= path of Monte Carlo's [Q17] reference engine
-    "geoloc.locate",
     # the first-phase error model's camera fields (focal length, principal point as Camera fields)
     "geoloc.analysis.errormodel",
     # the first-phase calibrator (analysis.calibrate) runs on a Camera, the sensor fit on the rest
     "geoloc.cli.calibrate",
     "geoloc.viz.calibration_layer",
     "geoloc.viz.rerun_model",
-    "geoloc.workflows.ortho",
 }
 
 

@@ -76,7 +76,7 @@ def test_roll_pitch_pinhole_is_the_q17_chain_with_mount_and_boresight():
     rng = np.random.default_rng(11)
     pose = random_poses(rng, 2000, "roll-pitch")
     row, col = rng.uniform(1, cam.rows, 2000), rng.uniform(1, cam.cols, 2000)
-    ref = line_of_sight(pose, cam, row, col, chain=FrameChain(pose, cam.R_cam_inner, cam.R_base_body))
+    ref = cam.chain_line_of_sight(pose, row, col, chain=FrameChain(pose, cam.R_cam_inner, cam.R_base_body))
     got = cam.to_sensor().line_of_sight(row, col, pose)
     # 1e-15: unit vectors through the same rotations in another order (a few ulps)
     np.testing.assert_allclose(got.direction_ecef, ref.direction_ecef, rtol=0, atol=2e-15)

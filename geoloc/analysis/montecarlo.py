@@ -50,10 +50,9 @@ from geoloc.geodesy.ellipsoid import (
     meridian_radius,
     prime_vertical_radius,
 )
-from geoloc.locate import as_sensor, line_of_sight
+from geoloc.locate import as_sensor
 from geoloc.sensors.frame import small_rotation
 from geoloc.status import Status
-from geoloc.surfaces.base import LineOfSight
 from geoloc.userfiles import atomic_path
 
 # STATS_KEYS (imported above, defined beside the streamed statistics): the keys of
@@ -283,22 +282,7 @@ def perturbed_lens(lens, errors: dict):
     return lens.with_params(**changes) if changes else lens
 
 
-def line_of_sight_hops(pose: Pose, camera, row, col, R_cam_inner=None, R_base_body=None) -> LineOfSight:
-    """Line of sight of a batch with per-sample rotations, through the camera's sensor.
-
-    ``R_cam_inner`` and ``R_base_body`` are the whole (file + perturbation) boresight
-    and mount rotations of :class:`geoloc.frames.chain.FrameChain`; the sensor's
-    frame graph applies them as its per-sample ``R_bore_extra`` / ``R_base_extra``
-    (one chain order in the code: :mod:`geoloc.frames.graph`). The tests hold it
-    equal to :func:`geoloc.locate.line_of_sight` with a :class:`FrameChain`.
-    """
-    s = dataclasses.replace(as_sensor(camera), mount=(0.0, 0.0, 0.0), boresight=(0.0, 0.0, 0.0),
-                            R_base_extra=R_base_body, R_bore_extra=R_cam_inner)
-    # the target pixel of an error model, not a recorded one: no off-sensor flag (as [Q17])
-    return s.line_of_sight(row, col, pose, outside="extrapolate")
-
-
-def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine: str = "hops"):
+def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None):
     """Locate the target for a batch of perturbed samples [Q17 eq. 14].
 
     Parameters
@@ -312,11 +296,12 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine:
         target height is ``model.target_h_m + errors["target_h_m"]``.
     dem_method : str, optional
         Method passed to :func:`geoloc.surfaces.terrain.intersect_dem`.
-    engine : {"hops", "chain"}
-        "chain" builds a batched :class:`geoloc.frames.chain.FrameChain` (the
-        paper's form, the reference); "hops" (default) goes through the camera's
-        sensor (:class:`geoloc.sensors.frame.FrameSensor`) with per-sample mount and
-        boresight perturbations, rotating the vector hop by hop, about twice as fast.
+
+    The one engine: the camera's sensor (:class:`geoloc.sensors.frame.FrameSensor`) with
+    per-sample mount, boresight, lever-arm and lens perturbations, rotating the vector
+    hop by hop. The paper's batched :class:`geoloc.frames.chain.FrameChain` is the
+    reference the tests hold it to (:func:`perturbed_geometry` and
+    :meth:`geoloc.sensors.camera.Camera.chain_line_of_sight`).
 
     Returns
     -------
@@ -324,25 +309,13 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None, engine:
         Radians and metres; NaN where the status is not OK.
     status : ndarray (n,) of uint8
     """
-    if engine == "chain":
-        if any(errors.get(f"lever_arm_{a}_m") is not None for a in "xyz"):
-            raise ValueError("lever_arm_*_m error sources need engine='hops' (the [Q17] chain has no lever arm)")
-        lens_drawn = sorted(k for k in errors if k in LENS_SOURCES)
-        if lens_drawn:
-            raise ValueError(f"lens error sources {lens_drawn} need engine='hops' (the chain's camera is "
-                             "one lens, not a batch)")
-        pose, chain, row, col = perturbed_geometry(model, errors)
-        los = line_of_sight(pose, model.camera, row, col, chain=chain)
-    elif engine == "hops":
-        pose, (Ri, Rb), row, col = perturbed_geometry(model, errors, build_chain=False, with_camera=False)
-        lever = [errors.get(f"lever_arm_{a}_m") for a in "xyz"]
-        extra = None if all(v is None for v in lever) else np.stack([_or(v, np.zeros(len(row))) for v in lever], -1)
-        s = as_sensor(model.camera)
-        s = dataclasses.replace(s, lens=perturbed_lens(s.lens, errors), R_base_extra=Rb, R_bore_extra=Ri,
-                                lever_extra_m=extra)
-        los = s.line_of_sight(row, col, pose, outside="extrapolate")
-    else:
-        raise ValueError(f"engine must be 'hops' or 'chain', got {engine!r}")
+    pose, (Ri, Rb), row, col = perturbed_geometry(model, errors, build_chain=False, with_camera=False)
+    lever = [errors.get(f"lever_arm_{a}_m") for a in "xyz"]
+    extra = None if all(v is None for v in lever) else np.stack([_or(v, np.zeros(len(row))) for v in lever], -1)
+    s = as_sensor(model.camera)
+    s = dataclasses.replace(s, lens=perturbed_lens(s.lens, errors), R_base_extra=Rb, R_bore_extra=Ri,
+                            lever_extra_m=extra)
+    los = s.line_of_sight(row, col, pose, outside="extrapolate")
     from geoloc.surfaces.terrain import surface_for
 
     # the one "height or DEM" choice (geoloc.surfaces.terrain.surface_for)

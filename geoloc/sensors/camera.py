@@ -33,9 +33,14 @@ The two optional calibration rotations (written by ``geoloc calibrate
   body (POS) axes, ``v_base = R_base_body @ v_body``.
 
 They enter the frame chain of :class:`geoloc.frames.chain.FrameChain` exactly where
-its ``R_cam_inner`` / ``R_base_body`` hooks are; :func:`geoloc.locate.line_of_sight`
-and :func:`geoloc.locate.ground_to_pixel` apply them whenever they build the
-chain themselves. Absent (the default), the camera behaves as before.
+its ``R_cam_inner`` / ``R_base_body`` hooks are (:meth:`Camera.chain`). Absent (the
+default), the camera behaves as before.
+
+A camera is a file format: every consumer takes its :class:`geoloc.sensors.frame.FrameSensor`
+(:meth:`Camera.to_sensor`, a pinhole on the [Q17] roll-pitch gimbal). The paper's own
+form of the chain, :class:`FrameChain` with its 4x4 hops ([Q17] eq. 4-9), stays here
+as the reference the tests hold the sensor to: :meth:`Camera.chain` and
+:meth:`Camera.chain_line_of_sight` (the first-phase ``line_of_sight(..., chain=)``).
 
 Lens distortion: none in [Q17]; :meth:`Camera.undistort` /
 :meth:`Camera.distort` are the hook (identity here) that a distortion model
@@ -46,6 +51,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -263,7 +269,79 @@ class Camera:
         return FrameSensor(lens, mount=self.mount or (0.0, 0.0, 0.0), boresight=self.boresight or (0.0, 0.0, 0.0),
                            name=self.name)
 
+    def chain(self, pose):
+        """The [Q17] frame chain of ``pose`` with this camera's boresight and mounting rotations.
+
+        The paper's own form of the roll-pitch chain (:class:`geoloc.frames.chain.FrameChain`,
+        eq. 4-9, with its 4x4 hops and the eq. 5 factors); the sensor's frame graph gives the
+        same rotations (``tests/test_sensors.py``).
+        """
+        from geoloc.frames.chain import FrameChain
+
+        return FrameChain(pose, R_cam_inner=self.R_cam_inner, R_base_body=self.R_base_body)
+
+    def chain_line_of_sight(self, pose, row, col, chain=None, outside: str = "flag"):
+        """The [Q17] reference line of sight: pixel -> eq. 8 -> the :class:`FrameChain` (eq. 9).
+
+        Parameters
+        ----------
+        pose : geoloc.frames.chain.Pose
+        row, col : array_like
+            1-based pixels.
+        chain : FrameChain, optional
+            A prebuilt chain (Monte Carlo's reference passes one with batched, perturbed
+            rotations: :func:`geoloc.analysis.montecarlo.perturbed_geometry`); default
+            :meth:`chain` of ``pose``.
+        outside : {"flag", "extrapolate"}
+            A pixel off the sensor gets OUTSIDE_SENSOR, or its ray beyond the edge.
+
+        Returns
+        -------
+        geoloc.surfaces.base.LineOfSight
+        """
+        from geoloc.sensors.base import check_outside, flag_outside
+        from geoloc.surfaces.base import LineOfSight
+
+        check_outside(outside)
+        chain = self.chain(pose) if chain is None else chain
+        d_ecef = chain.cam_to_ecef(self.pixel_to_los(row, col))
+        o = chain.origin_ecef
+        shape = np.broadcast_shapes(o.shape, d_ecef.shape)[:-1]
+        o, d_ecef = np.broadcast_to(o, shape + (3,)), np.broadcast_to(d_ecef, shape + (3,))
+        bad = np.broadcast_to(pose.invalid_mask(), shape) | ~np.all(np.isfinite(d_ecef), axis=-1)
+        status = np.where(bad, Status.INVALID_INPUT, Status.OK).astype(np.uint8)
+        if outside == "flag":
+            r, c = np.broadcast_to(np.asarray(row, float), shape), np.broadcast_to(np.asarray(col, float), shape)
+            status = flag_outside(status, r, c, self.rows, self.cols)
+        return LineOfSight(o, d_ecef, status)
+
     def in_image(self, row, col) -> np.ndarray:
         """True where (row, col) lies on the sensor: 0.5 <= i <= M + 0.5, same for j."""
         row, col = np.asarray(row, float), np.asarray(col, float)
         return (row >= 0.5) & (row <= self.rows + 0.5) & (col >= 0.5) & (col <= self.cols + 0.5)
+
+
+@lru_cache(maxsize=64)
+def _camera_sensor(camera: Camera):
+    return camera.to_sensor()
+
+
+def as_sensor(sensor):
+    """The :class:`geoloc.sensors.frame.FrameSensor` of a frame sensor or a first-phase :class:`Camera`.
+
+    The one place a camera file's :class:`Camera` becomes its sensor (cached, so a
+    caller may ask for it at every call); :func:`geoloc.locate.as_sensor` is this.
+    ValueError for anything else.
+    """
+    from geoloc.sensors.frame import FrameSensor
+
+    if isinstance(sensor, FrameSensor):
+        return sensor
+    if isinstance(sensor, Camera):
+        return _camera_sensor(sensor)
+    raise ValueError(f"sensor = {sensor!r}: must be a FrameSensor or a Camera")
+
+
+def sensor_of(sensor):
+    """Any sensor as itself, a first-phase :class:`Camera` as its :class:`FrameSensor` (:func:`as_sensor`)."""
+    return _camera_sensor(sensor) if isinstance(sensor, Camera) else sensor

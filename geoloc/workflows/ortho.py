@@ -110,10 +110,9 @@ def frame_pixels(sensor, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _as_sensor(sensor):
-    from geoloc.locate import as_sensor
-    from geoloc.sensors.camera import Camera
+    from geoloc.sensors.camera import sensor_of
 
-    return as_sensor(sensor) if isinstance(sensor, Camera) else sensor
+    return sensor_of(sensor)
 
 
 def _as_surface(surface):

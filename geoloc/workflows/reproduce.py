@@ -223,7 +223,7 @@ def li2023_report(seed: int = 0, n_rays: int = 100, tolerances_m=(10.0, 2.0, 1.0
     errs["gimbal_roll_deg"] = errs.get("gimbal_roll_deg", 0.0) + np.radians(
         angles - dmodel.nominal["gimbal_roll_deg"])
     pose, chain, row, col = mc.perturbed_geometry(dmodel, errs)
-    los_a = line_of_sight(pose, dmodel.camera, row, col, chain=chain)
+    los_a = dmodel.camera.chain_line_of_sight(pose, row, col, chain=chain)  # the [Q17] chain, as the paper
     records = load_records(asset_path(*DEFAULT_RECORDS))
     los_b = records_line_of_sight(records, Camera.from_toml(asset_path(*DEFAULT_CAMERA)))
     from geoloc.surfaces.base import LineOfSight

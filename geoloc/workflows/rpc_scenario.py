@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.analysis.rpc_fit import fit_rpc
-from geoloc.frames.chain import FrameChain, Pose
+from geoloc.frames.chain import Pose
 from geoloc.io.rpc_gdal import (
     gdal_rpc_to_ground,
     write_ellipsoidal_dem,
@@ -43,7 +43,6 @@ class FrameCameraSensor:
 
     pose: Pose
     camera: Camera
-    chain: FrameChain | None = None
     name: str = ""
 
     @property
@@ -55,14 +54,14 @@ class FrameCameraSensor:
         return self.camera.cols
 
     def line_of_sight(self, row, col):
-        return line_of_sight(self.pose, self.camera, row, col, chain=self.chain)
+        return line_of_sight(self.pose, self.camera, row, col)
 
     def locate(self, row, col, target_h=0.0, surface: str = "geodetic") -> GroundPoint:
         """Exact constant-geodetic-height surface by default (RPC heights are geodetic)."""
-        return locate(self.pose, self.camera, row, col, target_h, surface=surface, chain=self.chain)
+        return locate(self.pose, self.camera, row, col, target_h, surface=surface)
 
     def ground_to_pixel(self, lat, lon, h):
-        return ground_to_pixel(self.pose, self.camera, lat, lon, h, chain=self.chain)
+        return ground_to_pixel(self.pose, self.camera, lat, lon, h)
 
     def in_image(self, row, col):
         return self.camera.in_image(row, col)
