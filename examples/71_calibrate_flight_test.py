@@ -16,7 +16,6 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.analysis.calibrate import (
-    HeightTarget,
     calibrate_groups,
     error_vector_panels,
     resect_camera,
@@ -25,13 +24,14 @@ from geoloc.analysis.errors import plot_error_vectors
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.io.records import load_records
 from geoloc.sensors.camera import Camera
+from geoloc.surfaces.height import PerRecordHeightSurface
 
 records = load_records(asset_path(*DEFAULT_RECORDS))
 camera = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
-target = HeightTarget(records.column("paper_height_m"))
+surface = PerRecordHeightSurface(records.column("paper_height_m"))  # each target at its height
 
 for model, joint in (("mount", False), ("mount", True), ("camera", False), ("camera", True)):
-    report, _ = calibrate_groups(records, camera, target, "table", model=model, joint=joint, loo=True)
+    report, _ = calibrate_groups(records, camera, surface, "table", model=model, joint=joint, loo=True)
     print(f"model {model!r}, {'one rotation for both flights' if joint else 'one rotation per flight'}:")
     for g, e in report["groups"].items():
         b = e["before"]

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from pyproj import Geod
 
+from geoloc.surfaces.height import PerRecordHeightSurface
 from geoloc.analysis.calibrate import (
-    HeightTarget,
     calibrate_groups,
     fit_mounting,
     leave_one_out,
@@ -44,7 +44,7 @@ def bundled():
 @pytest.fixture(scope="module")
 def per_flight(bundled):
     rec, cam = bundled
-    return calibrate_groups(rec, cam, HeightTarget(rec.column("paper_height_m")), "table", loo=True)
+    return calibrate_groups(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")), "table", loo=True)
 
 
 # ----------------------------------------------------------------- the bundled flight test
@@ -85,7 +85,7 @@ def test_leave_one_out_never_sees_the_left_out_record(bundled, per_flight):
     keeps k would give (the in-sample error, T3: 4.98 m against 5.93 m), so a
     leave-one-out that used the left-out record fails here."""
     rec, cam = bundled
-    t = HeightTarget(rec.column("paper_height_m"))
+    t = PerRecordHeightSurface(rec.column("paper_height_m"))
     groups = np.array(rec.text("table"))
     idx = np.flatnonzero(groups == "T3")
     loo, insample = [], []
@@ -140,7 +140,7 @@ def test_joint_mount_fit_separates_the_angles(bundled, per_flight):
     rec, cam = bundled
     for e in per_flight[0]["groups"].values():
         assert abs(e["correlation"][1][2]) > 0.99
-    report, cams = calibrate_groups(rec, cam, HeightTarget(rec.column("paper_height_m")), "table",
+    report, cams = calibrate_groups(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")), "table",
                                     loo=True, joint=True)
     j = report["joint_fit"]
     assert max(j["angles_sd_deg"]) < 0.01
@@ -230,7 +230,7 @@ def test_synthetic_fit_recovers_planted_rotation(tmp_path, model):
     planted = np.deg2rad([0.05, 0.22, -0.10])
     field = "mount" if model == "mount" else "boresight"
     rec = _synthetic(tmp_path, rng, Camera(**{**base.__dict__, field: tuple(planted)}), 3.0)
-    fit = fit_mounting(rec, base, HeightTarget(rec.column("paper_height_m")), model=model)
+    fit = fit_mounting(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")), model=model)
     assert fit.success
     z = (fit.angles - planted) / fit.angles_sd
     assert np.all(np.abs(z) < 3.0), (np.rad2deg(fit.angles), np.rad2deg(fit.angles_sd))
@@ -246,7 +246,7 @@ def test_covariance_uses_m_minus_p_degrees_of_freedom(bundled):
     # is that s, from the fit's own residuals (m = 2 n components, p = 3 angles); with
     # s^2 / m it would be sqrt(37 / 40) = 3.8 % smaller
     rec, cam = bundled
-    fit = fit_mounting(rec, cam, HeightTarget(rec.column("paper_height_m")))
+    fit = fit_mounting(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")))
     r = fit.residual_m.ravel()
     assert r.size == 40 and len(fit.names) == 3
     assert fit.sigma_m == pytest.approx(math.sqrt(r @ r / (40 - 3)), rel=1e-12)
@@ -254,7 +254,7 @@ def test_covariance_uses_m_minus_p_degrees_of_freedom(bundled):
     # residuals' Jacobian with respect to the three mount angles at the solution
     from geoloc.analysis.calibrate import _camera_from_params, _records_data
 
-    data = _records_data(rec, HeightTarget(rec.column("paper_height_m")), "truth")
+    data = _records_data(rec, PerRecordHeightSurface(rec.column("paper_height_m")), "truth")
     idx = np.arange(len(rec))
 
     def res(p):
@@ -278,7 +278,7 @@ def test_synthetic_uncertainty_has_nominal_coverage(tmp_path):
     for t in range(25):
         rec = _synthetic(tmp_path, rng, Camera(**{**base.__dict__, "mount": tuple(planted)}), 2.0, n=12,
                          name=f"s{t}.csv")
-        fit = fit_mounting(rec, base, HeightTarget(rec.column("paper_height_m")))
+        fit = fit_mounting(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")))
         hits.extend(np.abs(fit.angles - planted) < fit.angles_sd)
     assert abs(np.mean(hits) - 0.683) < 0.28
 
@@ -290,9 +290,9 @@ def test_noise_free_fit_is_exact(tmp_path):
     base = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
     planted = np.deg2rad([0.1, -0.2, 0.3])
     rec = _synthetic(tmp_path, rng, Camera(**{**base.__dict__, "mount": tuple(planted)}), 0.0, n=10)
-    fit = fit_mounting(rec, base, HeightTarget(rec.column("paper_height_m")))
+    fit = fit_mounting(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")))
     np.testing.assert_allclose(np.rad2deg(fit.angles), np.rad2deg(planted), atol=1e-7)
-    en, d = leave_one_out(rec, base, HeightTarget(rec.column("paper_height_m")))
+    en, d = leave_one_out(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")))
     # truth coordinates are written with 1e-10 deg (1e-5 m): LOO errors at that level
     assert np.all(d < 1e-3)
 
@@ -367,7 +367,7 @@ def test_blunder_is_flagged_and_can_be_excluded(tmp_path, bundled):
     path = tmp_path / "blunder.csv"
     path.write_text("\n".join(lines) + "\n")
     bad = load_records(path)
-    t = HeightTarget(bad.column("paper_height_m"))
+    t = PerRecordHeightSurface(bad.column("paper_height_m"))
     report, _ = calibrate_groups(bad, cam, t, "table")
     assert report["groups"]["T3"]["before"]["outliers"] == [2]
     assert report["groups"]["T4"]["before"]["outliers"] == []
@@ -423,7 +423,7 @@ def test_intrinsics_with_mount_from_both_sides(tmp_path):
     true = Camera(**{**base.__dict__, "mount": tuple(planted), "focal_length_px": base.focal_length_px * 1.02,
                      "principal_row": base.principal_row + 30.0, "principal_col": base.principal_col - 20.0})
     rec = _synthetic(tmp_path, rng, true, 0.0, n=20)
-    fit = fit_mounting(rec, base, HeightTarget(rec.column("paper_height_m")), fit_focal=True, fit_pp=True)
+    fit = fit_mounting(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")), fit_focal=True, fit_pp=True)
     rep = fit.report()
     assert rep["focal_length_px"] == pytest.approx(true.focal_length_px, abs=0.1)
     assert rep["principal_row"] == pytest.approx(true.principal_row, abs=0.01)

@@ -8,7 +8,9 @@ docs/method.md section 3) — two independent intersection codes.
 import numpy as np
 import pytest
 
-from geoloc.analysis.calibrate import DemTarget, HeightTarget, calibrate_groups
+from geoloc.surfaces.height import PerRecordHeightSurface
+from geoloc.surfaces.terrain import DemSurface
+from geoloc.analysis.calibrate import calibrate_groups
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.cli import main
 from geoloc.io.records import load_records
@@ -21,8 +23,8 @@ def test_flat_dem_equals_constant_height():
     cam = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
     # 0.05-deg nodes over both flight areas (35-37 N, 78-81.5 E), all at 5000 m
     dem = DEM.from_array(np.full((41, 71), 5000.0), 37.0, 78.0, 0.05, 0.05, datum="ellipsoid")
-    by_dem, _ = calibrate_groups(rec, cam, DemTarget(dem), "table", joint=True)
-    by_h, _ = calibrate_groups(rec, cam, HeightTarget(np.full(len(rec), 5000.0), "geodetic"), "table",
+    by_dem, _ = calibrate_groups(rec, cam, DemSurface(dem), "table", joint=True)
+    by_h, _ = calibrate_groups(rec, cam, PerRecordHeightSurface(np.full(len(rec), 5000.0), "geodetic"), "table",
                                joint=True)
     for g in ("T3", "T4"):
         a, b = by_dem["groups"][g], by_h["groups"][g]

@@ -331,18 +331,20 @@ def flight():
 
 
 def test_fit_refuses_too_few_records_with_the_count(flight):
-    from geoloc.analysis.calibrate import HeightTarget, fit_mounting
+    from geoloc.surfaces.height import PerRecordHeightSurface
+    from geoloc.analysis.calibrate import fit_mounting
 
     rec, cam = flight
     with pytest.raises(ValueError, match=r"1 record\(s\) give 2 equations for 3 parameters; need at least 2 records"):
-        fit_mounting(rec, cam, HeightTarget(rec.column("paper_height_m")), idx=[0])
+        fit_mounting(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")), idx=[0])
 
 
 def test_report_rounding_outlier_rule_and_loo_components(flight):
-    from geoloc.analysis.calibrate import HeightTarget, calibrate_groups, leave_one_out
+    from geoloc.surfaces.height import PerRecordHeightSurface
+    from geoloc.analysis.calibrate import calibrate_groups, leave_one_out
 
     rec, cam = flight
-    t = HeightTarget(rec.column("paper_height_m"))
+    t = PerRecordHeightSurface(rec.column("paper_height_m"))
     rep, _ = calibrate_groups(rec, cam, t, "table", loo=True)
     # the default outlier rule is 3.5 robust sigma (docs/calibration.md), and it says so
     assert "3.5 robust sigma" in rep["outlier_rule"]

@@ -35,8 +35,6 @@ CAMERA_FORMAT = {"geoloc.sensors.camera", "geoloc.sensors.sensor_file"}
 
 #: Modules still branching on ``isinstance(x, Camera)`` outside the file format (may only shrink).
 KNOWN_CAMERA_CHECKS = {
-    # the first-phase error model's camera fields (focal length, principal point as Camera fields)
-    "geoloc.analysis.errormodel",
     # the first-phase calibrator (analysis.calibrate) runs on a Camera, the sensor fit on the rest
     "geoloc.cli.calibrate",
     "geoloc.viz.calibration_layer",

@@ -191,14 +191,15 @@ def test_outlier_flags_as_series_and_annotations(rerun_home, tmp_path, rec, core
 
 
 def test_before_and_after_calibration(rec, core):
-    from geoloc.analysis.calibrate import HeightTarget, calibrate_groups
+    from geoloc.surfaces.height import PerRecordHeightSurface
+    from geoloc.analysis.calibrate import calibrate_groups
 
     steps, out, data = rec
     recs, res, table, comp = core
     _, before = scalars(data, "/series/calibration/before_m")
     _, after = scalars(data, "/series/calibration/after_m")
     np.testing.assert_allclose(before, comp["horizontal_m"], rtol=0, atol=1e-9)  # as the components above
-    report, _ = calibrate_groups(recs, Camera.from_toml(CAMERA), HeightTarget(recs.column("paper_height_m")), "table")
+    report, _ = calibrate_groups(recs, Camera.from_toml(CAMERA), PerRecordHeightSurface(recs.column("paper_height_m")), "table")
     for g in FLIGHTS:
         m = table == g
         # calibrate's own mean (pyproj's geodesic on the ellipsoid, rounded to 1 mm) and ours (tangent plane

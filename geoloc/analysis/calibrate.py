@@ -69,7 +69,7 @@ from geoloc.locate import line_of_sight
 from geoloc.sensors.camera import Camera
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
-from geoloc.surfaces.height import HeightSurface
+from geoloc.surfaces.height import PerRecordHeightSurface, for_records
 
 #: Calibration models: name -> the Camera field holding the rotation.
 MODELS = {"mount": "mount", "camera": "boresight"}
@@ -77,33 +77,6 @@ MODELS = {"mount": "mount", "camera": "boresight"}
 #: Residual [m] given to a record whose ray fails during the iterations (it
 #: pushes the solver back without a NaN).
 FAILED_RESIDUAL_M = 1.0e4
-
-
-# --------------------------------------------------------------------------- targets
-class HeightTarget:
-    """Targets on the ellipsoid inflated to a per-record height [Q17 eq. 10-11]."""
-
-    def __init__(self, heights, surface: str = "inflated", label: str = "heights"):
-        self.heights = np.asarray(heights, float)
-        self.surface = surface
-        self.label = label
-
-    def ground(self, los, idx) -> GroundPoint:
-        return HeightSurface(self.heights[idx], self.surface).intersect(los)
-
-
-class DemTarget:
-    """Targets on terrain: a DEM surface (any method, a mosaic too), or a DEM solved by ``method``."""
-
-    def __init__(self, dem, method: str = "exact", label: str = "dem"):
-        from geoloc.surfaces.terrain import DemSurface
-
-        # a Surface (DemSurface, DemMosaic) as it is; a DEM raster gets the DEM surface of ``method``
-        self.surface = dem if hasattr(dem, "intersect") else DemSurface(dem, method)
-        self.label = label
-
-    def ground(self, los, idx) -> GroundPoint:
-        return self.surface.intersect(los)
 
 
 def _subset_pose(pose: Pose, idx) -> Pose:
@@ -119,13 +92,13 @@ class _Data:
     col: np.ndarray
     ref_lat: np.ndarray  # reference (truth or published) position [rad]
     ref_lon: np.ndarray
-    target: object
+    surface: object  # where the targets lie (a Surface; per-record heights take their subset)
 
-    def locate(self, camera: Camera, idx, target=None) -> GroundPoint:
+    def locate(self, camera: Camera, idx, surface=None) -> GroundPoint:
         # recorded image points: a pixel off the sensor is reported by the verb, not dropped here
         los = line_of_sight(_subset_pose(self.pose, idx), camera, self.row[idx], self.col[idx],
                             outside="extrapolate")
-        return (target or self.target).ground(los, idx)
+        return for_records(self.surface if surface is None else surface, idx).intersect(los)
 
     def east_north(self, ground: GroundPoint, idx) -> np.ndarray:
         """(east, north) of computed minus reference, at the computed height, (n, 2) [m]."""
@@ -135,14 +108,14 @@ class _Data:
         return d[..., :2]
 
 
-def _records_data(records: Records, target, prefix: str) -> _Data:
+def _records_data(records: Records, surface, prefix: str) -> _Data:
     for c in (f"{prefix}_lat_deg", f"{prefix}_lon_deg"):
         if not records.has(c):
             raise ValueError(f"{records.path}: column {c!r} is missing or empty; calibration needs "
                              f"the surveyed position of each record")
     return _Data(records.pose(), records.column("row"), records.column("col"),
                  np.deg2rad(records.column(f"{prefix}_lat_deg")),
-                 np.deg2rad(records.column(f"{prefix}_lon_deg")), target)
+                 np.deg2rad(records.column(f"{prefix}_lon_deg")), surface)
 
 
 # --------------------------------------------------------------------------- parameters
@@ -288,7 +261,7 @@ def _fit(data: _Data, camera: Camera, idx, model: str, fit_focal: bool, fit_pp: 
                     bool(sol.success), str(sol.message), float(base.focal_length_px))
 
 
-def fit_mounting(records: Records, camera: Camera, target, idx=None, model: str = "mount",
+def fit_mounting(records: Records, camera: Camera, surface, idx=None, model: str = "mount",
                  fit_focal: bool = False, fit_pp: bool = False, truth_prefix: str = "truth") -> MountFit:
     """Fit the mounting (or boresight) rotation to records with surveyed truth.
 
@@ -298,8 +271,11 @@ def fit_mounting(records: Records, camera: Camera, target, idx=None, model: str 
         With ``{truth_prefix}_lat_deg`` / ``_lon_deg``.
     camera : Camera
         Starting camera (its existing rotation of the model is the start value).
-    target : HeightTarget or DemTarget
-        Where the lines of sight end (a height per record, or a DEM).
+    surface : Surface
+        Where the lines of sight end: a
+        :class:`geoloc.surfaces.height.PerRecordHeightSurface` (a height per record), a
+        :class:`geoloc.surfaces.height.HeightSurface`, a DEM's
+        :class:`geoloc.surfaces.terrain.DemSurface` or a mosaic.
     idx : array_like of int, optional
         Records to use (default all).
     model : {"mount", "camera"}
@@ -316,7 +292,7 @@ def fit_mounting(records: Records, camera: Camera, target, idx=None, model: str 
     ValueError
         If fewer records than needed (each gives 2 equations) or no truth columns.
     """
-    data = _records_data(records, target, truth_prefix)
+    data = _records_data(records, surface, truth_prefix)
     idx = np.arange(len(records)) if idx is None else np.asarray(idx)
     n_par = len(_param_names(model, fit_focal, fit_pp))
     if 2 * idx.size <= n_par:
@@ -325,7 +301,7 @@ def fit_mounting(records: Records, camera: Camera, target, idx=None, model: str 
     return _fit(data, camera, idx, model, fit_focal, fit_pp)
 
 
-def leave_one_out(records: Records, camera: Camera, target, idx=None, model: str = "mount",
+def leave_one_out(records: Records, camera: Camera, surface, idx=None, model: str = "mount",
                   fit_focal: bool = False, fit_pp: bool = False, truth_prefix: str = "truth"):
     """Leave-one-out cross-validation: fit without record k, then measure k.
 
@@ -336,7 +312,7 @@ def leave_one_out(records: Records, camera: Camera, target, idx=None, model: str
     distance : ndarray (n,)
         Its horizontal geodesic distance to the truth [m] (pyproj).
     """
-    data = _records_data(records, target, truth_prefix)
+    data = _records_data(records, surface, truth_prefix)
     idx = np.arange(len(records)) if idx is None else np.asarray(idx)
     out = np.full((idx.size, 2), np.nan)
     dist = np.full(idx.size, np.nan)
@@ -399,7 +375,7 @@ def resect_camera(records: Records, camera: Camera, computed_prefix: str = "pape
     if n < 3:
         raise ValueError(f"resection needs at least 3 records (n + 3 unknowns, 2n equations), got {n}")
     heights = np.full(n, float(initial_height_m))
-    data = _records_data(records, HeightTarget(heights), computed_prefix)
+    data = _records_data(records, PerRecordHeightSurface(heights), computed_prefix)
     idx = np.arange(n)
     f0 = camera.focal_length_px
 
@@ -409,8 +385,8 @@ def resect_camera(records: Records, camera: Camera, computed_prefix: str = "pape
                                    principal_col=camera.principal_col + f0 * p[2])
 
     def resid(p):
-        t = HeightTarget(p[3:] * 1000.0)  # heights in km inside the solver
-        g = data.locate(cam_of(p), idx, target=t)
+        t = PerRecordHeightSurface(p[3:] * 1000.0)  # heights in km inside the solver
+        g = data.locate(cam_of(p), idx, surface=t)
         r = data.east_north(g, idx)
         r[g.status != Status.OK] = FAILED_RESIDUAL_M
         return r.ravel()
@@ -433,7 +409,7 @@ def _round(v, nd=3):
     return round(v, nd) if np.isfinite(v) else None
 
 
-def calibrate_groups(records: Records, camera: Camera, target, group_column: str | None = "table",
+def calibrate_groups(records: Records, camera: Camera, surface, group_column: str | None = "table",
                      model: str = "mount", fit_focal: bool = False, fit_pp: bool = False,
                      loo: bool = False, joint: bool = False, exclude_outliers: bool = False,
                      truth_prefix: str = "truth", k_sigma: float = 3.5) -> tuple[dict, dict]:
@@ -441,7 +417,7 @@ def calibrate_groups(records: Records, camera: Camera, target, group_column: str
 
     Parameters
     ----------
-    records, camera, target
+    records, camera, surface
         As :func:`fit_mounting`.
     group_column : str or None
         Column naming each record's flight; one group ``"all"`` if None.
@@ -462,7 +438,7 @@ def calibrate_groups(records: Records, camera: Camera, target, group_column: str
         Calibrated camera per group name (and ``"joint"``).
     """
     groups = group_labels(records, group_column)
-    data = _records_data(records, target, truth_prefix)
+    data = _records_data(records, surface, truth_prefix)
     all_idx = np.arange(len(records))
     labels = records.labels()
     g0 = data.locate(camera, all_idx)

@@ -65,7 +65,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.frames.chain import Pose
-from geoloc.sensors.camera import Camera
+from geoloc.sensors.camera import Camera, as_sensor
 from geoloc.sensors.frame import FrameSensor
 from geoloc.tomlio import read_toml
 
@@ -355,23 +355,20 @@ def camera_from_table(table, where: str):
 
 
 def check_camera(camera, where: str) -> None:
-    """A Monte Carlo camera: a :class:`Camera`, or a :class:`FrameSensor` on the roll-pitch gimbal."""
-    if isinstance(camera, Camera):
-        return
-    if not isinstance(camera, FrameSensor):
-        raise ValueError(f"{where}: camera {camera!r}: must be a Camera or a FrameSensor")
-    if tuple(camera.angle_names) != ("gimbal_roll", "gimbal_pitch"):
-        raise ValueError(f"{where}: gimbal = {camera.gimbal.name!r}: Monte Carlo's [nominal] table gives "
+    """A Monte Carlo camera: a :class:`Camera`, or a :class:`FrameSensor`, on the roll-pitch gimbal
+    (a camera file's sensor is: :func:`geoloc.sensors.camera.as_sensor`)."""
+    try:
+        sensor = as_sensor(camera)
+    except ValueError:
+        raise ValueError(f"{where}: camera {camera!r}: must be a Camera or a FrameSensor") from None
+    if tuple(sensor.angle_names) != ("gimbal_roll", "gimbal_pitch"):
+        raise ValueError(f"{where}: gimbal = {sensor.gimbal.name!r}: Monte Carlo's [nominal] table gives "
                          "gimbal_roll_deg and gimbal_pitch_deg, so the sensor must use the roll-pitch gimbal")
 
 
 def lens_params(camera) -> dict:
     """The lens's named parameters (``Lens.params``, OpenCV's 0-based cx, cy) of a camera or sensor."""
-    if isinstance(camera, Camera):
-        f = float(camera.focal_length_px)
-        return {"fx": f, "fy": f, "cx": camera.principal_col - 1.0, "cy": camera.principal_row - 1.0,
-                "skew": 0.0}
-    return dict(camera.lens.params)
+    return dict(as_sensor(camera).lens.params)
 
 
 def check_lens_sources(errors: dict, camera, where: str) -> None:
@@ -380,7 +377,7 @@ def check_lens_sources(errors: dict, camera, where: str) -> None:
     for name in errors:
         for p in LENS_SOURCES.get(name, ()):
             if p not in have:
-                model = "pinhole" if isinstance(camera, Camera) else camera.lens.model
+                model = as_sensor(camera).lens.model
                 raise ValueError(f"{where} [errors] {name}: the camera's {model} lens has no parameter {p!r} "
                                  f"(its parameters: {sorted(have)}); give a [camera.lens] table with a "
                                  "lens model that has it, e.g. model = \"brown\"")

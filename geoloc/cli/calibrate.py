@@ -13,8 +13,6 @@ import numpy as np
 
 from geoloc.analysis.calibrate import (
     MODELS,
-    DemTarget,
-    HeightTarget,
     calibrate_groups,
     resect_camera,
 )
@@ -24,7 +22,6 @@ from geoloc.cli._options import (
     add_sensor_option,
     add_target_options,
     input_path,
-    one_height_source,
     sensor_from_args,
     surface_from_args,
     output_path,
@@ -81,23 +78,6 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _target(args, records):
-    one_height_source(args)
-    if args.dem is not None:
-        return DemTarget(surface_from_args(args, records), label=f"dem:{args.dem}")
-    if args.height_column is not None:
-        h = records.column(args.height_column)
-        bad = ~np.isfinite(h)
-        if np.any(bad):
-            raise ValueError(f"height column {args.height_column!r} is empty or not finite on line(s) "
-                             f"{[int(n) for n in records.lines[bad]]}")
-        return HeightTarget(h, args.surface, label=f"column:{args.height_column}")
-    if args.target_h_m is not None:
-        return HeightTarget(np.full(len(records), args.target_h_m), args.surface,
-                            label=f"height:{args.target_h_m}")
-    raise ValueError("give --height-column (e.g. paper_height_m), --target-h-m or --dem")
-
-
 def _json_safe(v):
     """NaN / inf -> None (JSON has no NaN), recursively; numpy scalars -> Python."""
     if isinstance(v, dict):
@@ -117,11 +97,11 @@ def _fmt(v, spec=".2f"):
     return "-" if v is None else format(v, spec)
 
 
-def _surface(args, records):
+def _surface(args, records, example: str = "paper_height_m"):
     """The surface the targets lie on, for the sensor fit (:func:`geoloc.cli._options.surface_from_args`)."""
     label = (f"dem:{args.dem}" if args.dem is not None else f"column:{args.height_column}"
              if args.height_column is not None else f"height:{args.target_h_m}")
-    return surface_from_args(args, records, example="truth_h_m"), label
+    return surface_from_args(args, records, example=example), label
 
 
 def run_sensor_fit(args, camera) -> int:
@@ -143,7 +123,7 @@ def run_sensor_fit(args, camera) -> int:
     for msg in outside_sensor_messages(records, sensor):
         print(f"geoloc calibrate: warning: {msg}", file=sys.stderr)
     names = [n.strip() for n in args.fit.split(",") if n.strip()]
-    surface, label = _surface(args, records)
+    surface, label = _surface(args, records, example="truth_h_m")
     group = args.group_by
     if group.lower() == "none" or (group == "table" and "table" not in records.header):
         group = None
@@ -206,14 +186,14 @@ def run(args) -> int:
         raise ValueError(f"--sensor {args.camera}: a sensor file is calibrated with --fit NAMES "
                          "(e.g. --fit mount_x,mount_y,mount_z); the flight-grouped fit is the first-phase camera's")
     records = load_records_reporting(args.records)
-    target = _target(args, records)
+    surface, label = _surface(args, records)
     group = None if args.group_by.lower() == "none" else args.group_by
     report, cameras = calibrate_groups(
-        records, camera, target, group, model=args.model, fit_focal=args.fit_focal,
+        records, camera, surface, group, model=args.model, fit_focal=args.fit_focal,
         fit_pp=args.fit_principal_point, loo=args.loo, joint=args.joint,
         exclude_outliers=args.exclude_outliers, truth_prefix=args.truth_prefix)
     report = {"records": str(records.path), "camera": str(args.camera or asset_path("cameras", "qiao2017.toml")),
-              "target": target.label, **report}
+              "target": label, **report}
     if args.resect:
         report["resection"] = resect_camera(records, camera).report()
 

@@ -250,7 +250,8 @@ class PerRecordHeightSurface(HeightSurface):
 
     def take(self, idx) -> "PerRecordHeightSurface":
         """The surface of the records ``idx`` (indices into this one's records)."""
-        return PerRecordHeightSurface(self.h[np.asarray(idx, int)], self.kind)
+        idx = np.asarray(idx)
+        return PerRecordHeightSurface(self.h[idx if idx.size else idx.astype(int)], self.kind)
 
     def __repr__(self) -> str:
         return f"PerRecordHeightSurface({len(self.h)} heights, kind={self.kind!r})"

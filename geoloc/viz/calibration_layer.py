@@ -255,7 +255,8 @@ class AppCalibration:
 
     def __init__(self, app, exaggeration: float = 20.0, stage: str = "both", world_scale=None,
                  name=None):
-        from geoloc.analysis.calibrate import HeightTarget, calibrate_groups
+        from geoloc.surfaces.height import PerRecordHeightSurface
+        from geoloc.analysis.calibrate import calibrate_groups
 
         if world_scale is None or name is None:
             try:  # the app's world unit (km) and scene root
@@ -281,7 +282,7 @@ class AppCalibration:
             ok = (np.isfinite(heights) & np.isfinite(self.records.column("truth_lat_deg"))
                   & np.isfinite(self.records.column("truth_lon_deg")))
             if ok.sum() >= 2 and ok.all():
-                _, cams = calibrate_groups(self.records, app.scn.camera, HeightTarget(heights), "table",
+                _, cams = calibrate_groups(self.records, app.scn.camera, PerRecordHeightSurface(heights), "table",
                                            joint=True)
                 self.cameras["after"] = cams["joint"]
             with _FIT_LOCK:

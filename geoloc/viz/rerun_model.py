@@ -397,21 +397,16 @@ def steps_from_records(path, camera: Camera | None = None, *, height_column: str
     add_error_analysis(steps, heading_deg=recs.column("heading_deg"))
     gcol = group_column if steps.group is not None else None
     if calibrate and truth is not None:
-        if fit_names is None and dem_path is None and isinstance(camera, Camera):
-            steps.calibration = calibration_series(steps, recs, h, surface, gcol)
-        else:
-            from geoloc.surfaces.terrain import surface_for
+        from geoloc.surfaces.terrain import surface_for
 
-            if dem_path is not None:
-                kw = {}
-                if eps_h_m is not None:
-                    kw["eps_h"] = float(eps_h_m)
-                if threshold_m is not None:
-                    kw["threshold"] = float(threshold_m)
-                surf = surface_for(dem=terrain.dem, method=method, **kw)
-            else:  # per-record heights, as geoloc calibrate's --height-column
-                surf = surface_for(np.broadcast_to(np.asarray(h, float), (len(recs),)), kind=surface,
-                                   per_record=True)
+        # the targets' surface: the DEM, else per-record heights (as geoloc calibrate's --height-column)
+        on_dem = dem_path is not None
+        kw = {k: float(v) for k, v in (("eps_h", eps_h_m), ("threshold", threshold_m)) if on_dem and v is not None}
+        surf = surface_for(None if on_dem else np.broadcast_to(np.asarray(h, float), (len(recs),)),
+                           terrain.dem if on_dem else None, method=method, kind=surface, per_record=True, **kw)
+        if fit_names is None and not on_dem and isinstance(camera, Camera):
+            steps.calibration = calibration_series(steps, recs, surf, gcol)
+        else:
             names = list(DEFAULT_FIT_NAMES if fit_names is None else fit_names)
             steps.calibration = sensor_fit_series(steps, recs, names, surf, gcol)
     return steps, list(recs.errors)
@@ -458,7 +453,7 @@ def add_error_analysis(steps: LogSteps, heading_deg=None, outlier=None) -> LogSt
     return steps
 
 
-def calibration_series(steps: LogSteps, recs, h, surface: str, group_column: str | None = None) -> dict:
+def calibration_series(steps: LogSteps, recs, surface, group_column: str | None = None) -> dict:
     """Errors to truth before and after the per-flight mounting fit (:func:`geoloc.analysis.calibrate.calibrate_groups`).
 
     Each flight's records are located again with its calibrated camera, at the same
@@ -466,19 +461,18 @@ def calibration_series(steps: LogSteps, recs, h, surface: str, group_column: str
     (horizontal, along and across the same track as before).
     """
     from geoloc.analysis.accuracy import error_components
-    from geoloc.analysis.calibrate import HeightTarget, calibrate_groups
+    from geoloc.analysis.calibrate import calibrate_groups
+    from geoloc.surfaces.height import for_records
 
     grp = steps.group_of
-    report, cameras = calibrate_groups(recs, steps.camera, HeightTarget(np.broadcast_to(h, (len(recs),)), surface),
-                                       group_column)
+    report, cameras = calibrate_groups(recs, steps.camera, surface, group_column)
     n = len(steps)
     after = {k: np.full(n, np.nan) for k in ("after_m", "after_along_m", "after_across_m")}
-    hh = np.broadcast_to(np.asarray(h, float), (n,))
     for g in steps.groups:
         idx = np.flatnonzero(grp == g)
         cam = cameras[g]
         los = line_of_sight(steps.pose.take(idx), cam, steps.row[idx], steps.col[idx], outside="extrapolate")
-        gp = intersect_los_height(los, hh[idx], surface)
+        gp = for_records(surface, idx).intersect(los)
         c = error_components(gp.lat_deg, gp.lon_deg, gp.h, steps.truth["lat_deg"][idx], steps.truth["lon_deg"][idx],
                              np.nan, track_heading_rad=steps.components["track_rad"][idx])
         after["after_m"][idx] = c["horizontal_m"]
@@ -495,7 +489,7 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
     """Errors to truth before and after the per-flight fit of ``names`` (:func:`geoloc.analysis.sensor_fit.fit_sensor_groups`).
 
     ``surface``: where the targets lie (a :class:`geoloc.surfaces.terrain.DemSurface`, a
-    height surface, or ``idx -> surface``), the one the steps were located on. Each
+    height surface, per-record heights), the one the steps were located on. Each
     flight's records are located again with its fitted sensor on that surface, exactly
     as ``fit_sensor_groups`` measures them: ``after_m`` is the horizontal geodesic
     distance to the truth (:func:`geoloc.geodesy.geodesic.horizontal_distance_m`), and
