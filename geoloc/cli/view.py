@@ -217,11 +217,9 @@ def _run_live(args) -> int:
     from geoloc.cli.klv import _bind
 
     sock = _bind(args.live)  # before the viewer's imports: what is sent meanwhile waits in the kernel
-    sensor = None
-    if args.camera:
-        from geoloc.cli.locate import load_camera
+    from geoloc.cli._options import sensor_from_args
 
-        sensor = load_camera(args.camera)
+    sensor = sensor_from_args(args, default=False)
     surface = None  # each packet at its own frame-centre height
     if args.dem:
         from geoloc.surfaces.dem import DEM
