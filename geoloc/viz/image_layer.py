@@ -159,6 +159,7 @@ class ImageLayer:
         self.ground: pm.GroundPick | None = None
         self.marks: dict = {}
         self.found: pm.FoundMarks | None = None
+        self.centre: pm.PixelPick | None = None  # the image centre's pick of the current update
         self.horizon = np.zeros((0, 2))
         self.crop = None
         self.plane = None  # (position (3,), R_enu_cam (3, 3), width, height) of the frustum image [scene units]
@@ -249,7 +250,9 @@ class ImageLayer:
             return
         M, N = self.image.shape[:2]
         self.sensor = pm.frame_sensor(s.scn, idx, M, N)
-        self.marks = pm.image_marks(s.scn, idx, self.sensor, s.inputs)
+        # the image centre's pick: the recomputed mark and the frustum picture's distance
+        self.centre = pm.locate_pixel(s.scn, s.inputs, self.sensor, *self.sensor.center_pixel)
+        self.marks = pm.image_marks(s.scn, idx, self.sensor, s.inputs, self.centre)
         self.found = pm.found_marks(s.scn, self.image, self.marks, self.sensor, s.inputs)
         self.md_found.content = pm.found_markdown(self.found)
         self.horizon = pm.terrain_horizon(s.scn, s.inputs, self.sensor)
@@ -343,7 +346,9 @@ class ImageLayer:
         cc = np.array([0.5, N + 0.5, N + 0.5, 0.5, 0.5, N + 0.5, (N + 1) / 2, (N + 1) / 2])
         los = sensor.line_of_sight(rr, cc, pose, outside="extrapolate")
         v = los.direction_ecef @ T[:3, :3]  # R_cam_ecef @ d for each ray
-        centre = pm.locate_pixel(s.scn, s.inputs, sensor, *sensor.center_pixel)
+        centre = self.centre
+        if centre is None:
+            centre = pm.locate_pixel(s.scn, s.inputs, sensor, *sensor.center_pixel)
         rng = float(centre.hit.slant_range) if centre.ok else 5e3
         D = float(self.sl_dist.value) * rng
         p = D * v / v[:, 2:3]

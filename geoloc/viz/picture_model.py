@@ -237,7 +237,7 @@ def ground_markdown(g: GroundPick) -> str:
     return "\n".join(lines)
 
 
-def image_marks(scn, idx, sensor, inputs) -> dict:
+def image_marks(scn, idx, sensor, inputs, centre: "PixelPick | None" = None) -> dict:
     """Name -> (row, col, status) of the points reprojected into the frame (``ground_to_pixel``).
 
     ``truth``: the record's surveyed position (on the DEM when there is one); ``reported``: the
@@ -266,8 +266,8 @@ def image_marks(scn, idx, sensor, inputs) -> dict:
             h = info.paper_height_m if np.isfinite(info.paper_height_m) else np.nan
             pts["reported"] = (info.paper_lat_deg, info.paper_lon_deg, dem_h(info.paper_lat_deg,
                                                                              info.paper_lon_deg, h))
-    r0, c0 = sensor.center_pixel
-    centre = locate_pixel(scn, inputs, sensor, r0, c0)
+    if centre is None:  # the image centre's pick (a caller that has it passes it)
+        centre = locate_pixel(scn, inputs, sensor, *sensor.center_pixel)
     if centre.ok:
         pts["recomputed"] = (centre.lat_deg(), centre.lon_deg(), float(centre.hit.h))
     for t in getattr(scn, "targets", ()) or ():
