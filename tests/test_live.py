@@ -406,3 +406,27 @@ def test_growing_journal_is_readable_while_it_grows_and_an_old_one_stays_whole(t
         assert part.name == "j.partial-2.csv"
         part.write_text("b\n")
     assert (tmp_path / "j.partial.csv").read_text() == "an earlier session's\n"
+
+
+def test_log_of_a_stream_is_the_files_recording(tmp_path, capsys, rerun_home):
+    """geoloc log udp://... --out: the frame-centre residual series of the stream's recording are the
+    file replay's, packet by packet (rerun's own reader)."""
+    from tests.test_rerun_klv import series
+
+    port = free_port()
+    url = f"udp://127.0.0.1:{port}"
+    out = tmp_path / "live.rrd"
+    th, res = _sender(TS, url, speed=50.0, start_delay_s=0.1)
+    rc = _run_cli(["log", url, "--out", str(out), "--packets", "300", "--duration", "60"])
+    th.join(10)
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    assert "299 steps" in cap.out
+    from geoloc.workflows.klv_replay import replay_klv
+
+    rep = replay_klv(TS).columns
+    pk, err = series(out, "/series/error/to_published_m")
+    want = dict(zip(rep["packet"], rep["frame_center_error_m"]))
+    # every packet with a residual (275 has no sensor angles: no residual, no point of the series)
+    assert sorted(pk.tolist()) == sorted(int(p) for p, e in want.items() if np.isfinite(e))
+    np.testing.assert_array_equal(err, np.asarray([want[p] for p in pk]))  # float64, as computed

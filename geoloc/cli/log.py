@@ -41,7 +41,9 @@ def register(sub) -> None:
         "the current hit. Open it with `rerun run.rrd` (or the web viewer: --serve). See docs/rerun.md.",
     )
     p.add_argument("input", metavar="SCENARIO_OR_RECORDS", type=input_path,
-                   help="scenario .toml (or the name of a bundled one) or records .csv")
+                   help="scenario .toml (or the name of a bundled one) or records .csv; or MISB ST 0601 KLV "
+                   "(.klv, .ts), or a live stream udp://HOST:PORT (received until --duration, --packets or "
+                   "--idle, then logged; docs/live.md)")
     p.add_argument("--out", default=None, type=output_path, help="output .rrd file (required unless --serve or --spawn)")
     add_sensor_option(p)
     add_target_options(p)
@@ -71,6 +73,9 @@ def register(sub) -> None:
     g.add_argument("--grpc-port", type=int, default=9876, help="gRPC server port (default 9876)")
     g.add_argument("--spawn", action="store_true",
                    help="also start the native rerun viewer (needs a display) and stream to it")
+    from geoloc.cli._options import add_live_options
+
+    add_live_options(p)
     p.set_defaults(func=run)
 
 
@@ -95,12 +100,51 @@ def _fit_names(text):
     return names
 
 
+#: Packets a live input keeps for the recording (the newest; ten minutes at 30 Hz).
+LIVE_WINDOW = 18000
+
+
+def _receive(args) -> list:
+    """``geoloc log udp://HOST:PORT``: the KLV results received until a stop condition (the newest
+    :data:`LIVE_WINDOW`), the raw stream journalled with ``--record``."""
+    import contextlib
+    from collections import deque
+
+    from geoloc.cli._options import live_limits
+    from geoloc.cli.klv import _bind
+    from geoloc.io.live import LiveReceiver, receive
+    from geoloc.userfiles import growing_path
+
+    limits = live_limits(args, args.input)
+    if not any(limits.values()) and not (args.serve or args.spawn):
+        print("geoloc log: receiving until Ctrl-C (--duration, --packets or --idle stop it), then logging",
+              file=sys.stderr, flush=True)
+    sock = _bind(args.input)
+    rx = LiveReceiver()
+    got: deque = deque(maxlen=LIVE_WINDOW)
+    with contextlib.ExitStack() as stack:
+        record = None
+        if args.record_ts:
+            rec = stack.enter_context(growing_path(args.record_ts, "--record"))
+            record = stack.enter_context(rec.open("wb")).write
+        print(f"geoloc log: listening on {args.input}", file=sys.stderr, flush=True)
+        got.extend(receive(args.input, receiver=rx, record=record, sock=sock, **limits))
+    print(f"geoloc log: {rx.stats.line()}", file=sys.stderr)
+    return list(got)
+
+
 def run(args) -> int:
     if args.out is None and not (args.serve or args.spawn):
         raise ValueError("--out is required unless --serve or --spawn is given")
     if not args.display_scale > 0:
         raise ValueError(f"--display-scale = {args.display_scale}: must be > 0")
-    path = resolve_input(args.input)
+    from geoloc.cli._options import is_stream
+
+    live = is_stream(args.input)
+    if not live and getattr(args, "record_ts", None):
+        raise ValueError("--record is for a live input (udp://HOST:PORT)")
+    results = _receive(args) if live else None
+    path = Path("live.ts") if live else resolve_input(args.input)
     from geoloc.viz.rerun_log import exposure_note, serve_web, write  # rerun is imported here only
     from geoloc.viz.rerun_model import (
         steps_from_flight,
@@ -125,8 +169,9 @@ def run(args) -> int:
     elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):
         from geoloc.viz.rerun_model import steps_from_klv
 
-        steps, errors = steps_from_klv(path, camera, dem_path=dem, dem_datum=args.dem_datum, method=args.method,
-                                       eps_h_m=args.eps_h, threshold_m=args.threshold)
+        steps, errors = steps_from_klv(results if live else path, camera, dem_path=dem, dem_datum=args.dem_datum,
+                                       method=args.method, eps_h_m=args.eps_h, threshold_m=args.threshold,
+                                       label=args.input if live else None)
         for err in errors:
             print(f"{path}: skipped bad packet at byte {err.offset}: {err.reason}", file=sys.stderr)
     else:

@@ -534,11 +534,12 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
 
 
 def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96", method: str = "exact",
-                   eps_h_m=None, threshold_m=None) -> tuple[LogSteps, list]:
+                   eps_h_m=None, threshold_m=None, label: str | None = None) -> tuple[LogSteps, list]:
     """A MISB ST 0601 file replayed (:func:`geoloc.workflows.klv_replay.replay_klv`): one step per packet.
 
     ``method``, ``eps_h_m`` and ``threshold_m`` are the DEM solver and its tolerances, as
-    for the records path (``geoloc log --method``).
+    for the records path (``geoloc log --method``). ``path`` may also be the results of a
+    read (:class:`geoloc.io.klv.Packet` / ``KlvError``, e.g. received live), named ``label``.
 
     The recomputed frame centre is the target; the packet's own frame centre is the
     "published" position, so ``series/error/to_published_m`` is the frame-centre
@@ -561,10 +562,10 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     if threshold_m is not None:
         dem_options["threshold"] = float(threshold_m)
     surface = surface_for(dem=dem, method=method, **dem_options) if dem is not None else None
-    r = replay_klv(path, surface=surface, sensor=camera)
+    r = replay_klv(path, surface=surface, sensor=camera, label=label)
     c = r.columns
     if len(r) == 0:
-        raise ValueError(f"{path}: no good packet ({len(r.errors)} bad)")
+        raise ValueError(f"{label or path}: no good packet ({len(r.errors)} bad)")
     pose = klv_pose(c)
     sensor = r.sensor
     n = len(r)
@@ -579,12 +580,13 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     t = np.asarray(c["time_s"], float)
     t = t - np.nanmin(t) if np.any(np.isfinite(t)) else np.arange(n, dtype=float)
     enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
-    notes = [f"MISB ST 0601: {Path(path).name}, {n} packets ({len(r.errors)} bad, skipped)",
+    name = label or Path(path).name
+    notes = [f"MISB ST 0601: {name}, {n} packets ({len(r.errors)} bad, skipped)",
              "published = the packet's own frame centre (tags 23-25 / 78); target = recomputed",
              f"outliers flagged: {int(np.sum(c['outlier']))}"]
     extra = {"series/klv/corner_error_m": np.asarray(c["corner_error_m"], float),
              "series/klv/outlier": np.asarray(c["outlier"], float)}
-    steps = LogSteps("klv", Path(path).name, {"time": ("duration", t), "packet": ("sequence", np.asarray(c["packet"]))},
+    steps = LogSteps("klv", name, {"time": ("duration", t), "packet": ("sequence", np.asarray(c["packet"]))},
                      [f"packet {k}" for k in c["packet"]], sensor, pose, sensor.frames(pose), row, col, los, ground,
                      enu, published=published, notes=notes, extra_series=extra)
     # the replay's own flags (the same median / MAD rule, on its geodesic frame-centre residual)
