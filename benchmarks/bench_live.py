@@ -9,9 +9,10 @@ packets: the bundled example flight's 299 good packets, cycled, each re-stamped
   and checksums, the rolling window), as the UDP path does, without the socket;
 - peer: ``geoloc.io.klv.read_ts_klv`` of the same bytes as a file (FFmpeg's
   MPEG-TS demuxer through PyAV, then the same KLV scanner);
-- ours over loopback once: a sender thread streaming the file as fast as it can
-  to udp://127.0.0.1 and ``geoloc.io.live.receive`` (kernel drops are counted, not
-  hidden).
+- ours over loopback once: a sender thread streaming the file to udp://127.0.0.1 at
+  ``--loopback-speed`` times real time (default 100: the hour in 36 s) and
+  ``geoloc.io.live.receive``; what the kernel drops is counted, not hidden (a sender
+  faster than the receiver, ``--loopback-speed 0``, overflows the socket buffer).
 
 Each of the first two is the median of ``--repeat`` runs (default 3), wall time
 (time.perf_counter) and CPU time (time.process_time); packets per second are of the
@@ -20,7 +21,7 @@ wall time, ``ratio: X`` = ours / peer. Memory: the resident set size (VmRSS of
 the end: the receiver keeps a window of 18 000 packets (10 minutes at 30 Hz), so it
 grows until the window is full and not after.
 
-Run: python benchmarks/bench_live.py [--hours H] [--repeat R] [--no-loopback]
+Run: python benchmarks/bench_live.py [--hours H] [--repeat R] [--no-loopback] [--loopback-speed X]
 """
 
 import argparse
@@ -74,14 +75,14 @@ def through_receiver(grams, marks=None):
     return got, rx
 
 
-def over_loopback(path: Path):
+def over_loopback(path: Path, speed):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     url = f"udp://127.0.0.1:{port}"
     rx = LiveReceiver()
     res = {}
-    th = threading.Thread(target=lambda: res.update(send(path, url, speed=None, start_delay_s=0.5)), daemon=True)
+    th = threading.Thread(target=lambda: res.update(send(path, url, speed=speed, start_delay_s=0.5)), daemon=True)
     t = time.perf_counter()
     th.start()
     n = sum(1 for _ in receive(url, receiver=rx, idle_s=1.0, duration_s=3600))
@@ -95,6 +96,7 @@ def main():
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-loopback", action="store_true")
+    ap.add_argument("--loopback-speed", type=float, default=100.0, help="x real time; 0: as fast as possible")
     args = ap.parse_args()
     n = int(round(args.hours * 3600 * RATE_HZ))
     with tempfile.TemporaryDirectory() as tmp:
@@ -126,8 +128,10 @@ def main():
         print(f"peer (read_ts_klv: PyAV/FFmpeg demux):  wall {w:7.2f} s  cpu {c:7.2f} s  {peer:10,.0f} packets/s")
         print(f"ratio: {ours / peer:.2f}")
         if not args.no_loopback:
-            got, wall, rx, res = over_loopback(path)
-            print(f"over loopback, sender as fast as it can: {got} of {n} packets in {wall:.1f} s "
+            speed = args.loopback_speed or None
+            got, wall, rx, res = over_loopback(path, speed)
+            print(f"over loopback, sender at {f'{speed:g}x real time' if speed else 'full speed'}: {got} of {n} "
+                  f"packets in {wall:.1f} s "
                   f"({got / max(wall, 1e-9):,.0f} packets/s); {rx.stats.line()}")
 
 

@@ -430,3 +430,18 @@ def test_log_of_a_stream_is_the_files_recording(tmp_path, capsys, rerun_home):
     # every packet with a residual (275 has no sensor angles: no residual, no point of the series)
     assert sorted(pk.tolist()) == sorted(int(p) for p, e in want.items() if np.isfinite(e))
     np.testing.assert_array_equal(err, np.asarray([want[p] for p in pk]))  # float64, as computed
+
+
+def test_klv_send_verb_waits_for_the_listener_and_streams_the_file(capsys):
+    port = free_port()
+    url = f"udp://127.0.0.1:{port}"
+    box = {}
+    th = threading.Thread(target=lambda: box.update(rc=_run_cli(["klv", "send", str(TS), url, "--speed", "50",
+                                                                 "--wait", "60"])), daemon=True)
+    th.start()
+    time.sleep(0.5)  # the sender is waiting: nothing is lost by listening late
+    rx = LiveReceiver()
+    got = list(receive(url, receiver=rx, idle_s=1.5, duration_s=120))
+    th.join(30)
+    assert box.get("rc") == 0
+    assert got == reference() and rx.stats.cc_errors == 0

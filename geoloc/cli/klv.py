@@ -74,6 +74,25 @@ def register(sub) -> None:
     add_dem_options(f)
     f.set_defaults(func=run_fix)
 
+    sd = actions.add_parser(
+        "send",
+        help="stream an MPEG-TS to udp://HOST:PORT, paced by its time stamps (a sender for live tests)",
+        description="Stream FILE (an MPEG-TS: video and MISB ST 0601 KLV) to udp://HOST:PORT as UDP "
+        "datagrams of 7 TS packets, each leaving at the time stamp of the PES it carries (--speed 1: real "
+        "time), as an aircraft's data link would; for trying geoloc view --live, replay and klv dump on "
+        "udp:// (docs/live.md). A multicast group is sent to with TTL 1 (this network segment only).",
+    )
+    sd.add_argument("file", metavar="FILE.ts", type=input_path, help="the transport stream, e.g. "
+                    "assets/klv/example_flight.ts")
+    sd.add_argument("url", metavar="udp://HOST:PORT", help="where to send (udp://127.0.0.1:5600: this machine)")
+    sd.add_argument("--speed", type=float, default=1.0, help="pace: 1 = real time (default), 10 = ten times faster")
+    sd.add_argument("--fast", action="store_true", help="as fast as possible (no pacing)")
+    sd.add_argument("--loop", type=int, default=1, metavar="N", help="send the file N times (default 1)")
+    sd.add_argument("--wait", type=float, default=0.0, metavar="S",
+                    help="first wait up to S seconds for a program on this machine to listen on the port "
+                    "(loopback or a local address), e.g. a geoloc replay udp:// started on the same line")
+    sd.set_defaults(func=run_send)
+
     def usage(args) -> int:
         p.print_help(sys.stderr)
         return 2
@@ -167,6 +186,36 @@ def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:
         if flush:
             out.flush()
     return good, bad
+
+
+def run_send(args) -> int:
+    from geoloc.io.live import parse_udp_url, send
+
+    url = parse_udp_url(args.url)
+    if not args.fast and not args.speed > 0:
+        raise ValueError(f"--speed {args.speed}: must be > 0 (or --fast)")
+    if args.loop < 1:
+        raise ValueError(f"--loop {args.loop}: must be at least 1")
+    if not Path(args.file).is_file():
+        raise FileNotFoundError(f"{args.file}: no such file")
+    from geoloc.userfiles import note_input
+
+    note_input(args.file)
+    if args.wait > 0:
+        import time
+
+        from geoloc.io.live import wait_for_listener
+
+        if not wait_for_listener(url, args.wait):
+            print(f"geoloc klv send: nothing listens on {url} after {args.wait:g} s: sending anyway",
+                  file=sys.stderr)
+        time.sleep(0.2)  # the listener binds, then starts up: give it a moment
+    total = 0
+    for _ in range(args.loop):
+        r = send(args.file, url, speed=None if args.fast else args.speed)
+        total += r["sent"]
+    print(f"sent {total} datagrams of {args.file} to {url}")
+    return 0
 
 
 def run_fix(args) -> int:

@@ -47,6 +47,7 @@ MISB ST 0601 (the UAS Datalink Local Set, :mod:`geoloc.io.klv`).
 from __future__ import annotations
 
 import argparse
+import errno
 import ipaddress
 import os
 import socket
@@ -68,6 +69,7 @@ __all__ = [
     "is_stream_url",
     "exposure_note",
     "open_socket",
+    "wait_for_listener",
     "PesUnit",
     "TsDemuxer",
     "LiveStats",
@@ -233,6 +235,28 @@ def open_socket(url: UdpUrl, rcvbuf: int = 4 << 20) -> socket.socket:
         sock.close()
         raise OSError(e.errno, f"{url}: cannot listen there: {e.strerror or e}") from None
     return sock
+
+
+def wait_for_listener(url, timeout_s: float) -> bool:
+    """Wait until a program of this machine listens on ``url``'s port (at most ``timeout_s``).
+
+    A unicast listener binds without ``SO_REUSEADDR`` (:func:`open_socket`), so a probe
+    bind on the same address fails once it is there. True when it is; False on timeout,
+    or for an address this machine cannot bind (not one of its own: nothing to probe).
+    """
+    u = url if isinstance(url, UdpUrl) else parse_udp_url(url)
+    t0 = time.monotonic()
+    while True:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            try:
+                s.bind((u.host, u.port))
+            except OSError as e:
+                if e.errno == errno.EADDRINUSE:
+                    return True
+                return False
+        if time.monotonic() - t0 >= timeout_s:
+            return False
+        time.sleep(0.05)
 
 
 # --------------------------------------------------------------------------- the demuxer
