@@ -171,7 +171,8 @@ def run(args) -> int:
 
         steps, errors = steps_from_klv(results if live else path, camera, dem_path=dem, dem_datum=args.dem_datum,
                                        method=args.method, eps_h_m=args.eps_h, threshold_m=args.threshold,
-                                       label=args.input if live else None)
+                                       label=args.input if live else None,
+                                       video=args.record_ts if live and args.record_ts else None)
         for err in errors:
             print(f"{path}: skipped bad packet at byte {err.offset}: {err.reason}", file=sys.stderr)
     else:

@@ -28,6 +28,8 @@ Conventions: ``docs/conventions.md``.
 
 from __future__ import annotations
 
+import os
+
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -534,12 +536,13 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
 
 
 def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96", method: str = "exact",
-                   eps_h_m=None, threshold_m=None, label: str | None = None) -> tuple[LogSteps, list]:
+                   eps_h_m=None, threshold_m=None, label: str | None = None, video=None) -> tuple[LogSteps, list]:
     """A MISB ST 0601 file replayed (:func:`geoloc.workflows.klv_replay.replay_klv`): one step per packet.
 
     ``method``, ``eps_h_m`` and ``threshold_m`` are the DEM solver and its tolerances, as
     for the records path (``geoloc log --method``). ``path`` may also be the results of a
-    read (:class:`geoloc.io.klv.Packet` / ``KlvError``, e.g. received live), named ``label``.
+    read (:class:`geoloc.io.klv.Packet` / ``KlvError``, e.g. received live), named ``label``;
+    ``video`` is then the MPEG-TS whose pictures to attach (a live session's ``--record``).
 
     The recomputed frame centre is the target; the packet's own frame centre is the
     "published" position, so ``series/error/to_published_m`` is the frame-centre
@@ -592,9 +595,12 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     # the replay's own flags (the same median / MAD rule, on its geodesic frame-centre residual)
     add_error_analysis(steps, heading_deg=np.asarray(c["platform_heading_deg"], float),
                        outlier=np.asarray(c["outlier"]).astype(bool))
-    attach_klv_video(steps, path, np.asarray(c["packet"]),
-                     np.stack([np.asarray(c["sensor_horizontal_fov_deg"], float),
-                               np.asarray(c["sensor_vertical_fov_deg"], float)], -1))
+    if video is None and isinstance(path, (str, os.PathLike)):
+        video = path
+    if video is not None:
+        attach_klv_video(steps, video, np.asarray(c["packet"]),
+                         np.stack([np.asarray(c["sensor_horizontal_fov_deg"], float),
+                                   np.asarray(c["sensor_vertical_fov_deg"], float)], -1))
     return steps, list(r.errors)
 
 
