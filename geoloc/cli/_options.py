@@ -25,7 +25,7 @@ import sys
 
 import numpy as np
 
-from geoloc.surfaces.terrain import METHODS, SURFACES, surface_for
+from geoloc.surfaces.terrain import DEM_MODELS, METHODS, surface_for
 
 
 # --------------------------------------------------------------------------- file options
@@ -269,7 +269,7 @@ def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
         from geoloc.surfaces.mosaic import open_dem_or_mosaic
 
         opts = {k: getattr(args, k) for k in ("eps_h", "threshold") if hasattr(args, k)}
-        model = {"dem_model": args.dem_surface} if hasattr(args, "dem_surface") else {}
+        model = {"dem_model": args.dem_model} if hasattr(args, "dem_model") else {}
         mosaic = _mosaic_options(args) if hasattr(args, "dem_cache_mb") else {}
         dem = open_dem_or_mosaic(dem_sources(args), args.dem_datum, method=args.method, **model, **mosaic, **opts)
         return surface_for(dem=dem, method=args.method, **model, **opts)
@@ -396,6 +396,6 @@ def add_dem_options(parser, *, mosaic: bool = True, tolerances: bool = True, dat
         g.add_argument("--threshold", type=float, default=1.0,
                        help="bisection stops when |H - h_DEM| < threshold [m] (default 1)")
     if tolerances and mosaic:
-        g.add_argument("--dem-model", "--dem-surface", dest="dem_surface", choices=SURFACES, default="bilinear",
+        g.add_argument("--dem-model", "--dem-surface", dest="dem_model", choices=DEM_MODELS, default="bilinear",
                        help="how the exact method reads between DEM nodes: bilinear cells (default) or two "
                        "triangles per cell (--dem-surface is the same option's first-phase name)")

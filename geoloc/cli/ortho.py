@@ -151,7 +151,7 @@ def _surface(args, pose):
         args.dem = str(args.dem)
     shown = ", ".join(Path(p).name for p in args.dem) if isinstance(args.dem, list) else Path(args.dem).name
     return surface_from_args(args), \
-        f"DEM {shown} ({args.method}, {args.dem_surface}; its heights {args.dem_datum})"
+        f"DEM {shown} ({args.method}, {args.dem_model}; its heights {args.dem_datum})"
 
 
 def run(args) -> int:

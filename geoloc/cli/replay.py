@@ -369,7 +369,7 @@ def _run_campaign(args, inputs) -> int:
         dem = dem_sources(args)
     cfg = CampaignConfig(
         sensor=args.camera, dem=dem, dem_datum=args.dem_datum,
-        method=args.method, dem_model=args.dem_surface,
+        method=args.method, dem_model=args.dem_model,
         dem_options={"eps_h": args.eps_h, "threshold": args.threshold},
         target_h_m=args.target_h_m, height_column=args.height_column,
         altitude_datum=getattr(args, "altitude_datum", None) or "ellipsoid",

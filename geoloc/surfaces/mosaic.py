@@ -215,14 +215,14 @@ class DemMosaic:
         import rasterio
         from rasterio.errors import NotGeoreferencedWarning, RasterioError
 
-        from geoloc.surfaces.terrain import METHODS, SURFACES
+        from geoloc.surfaces.terrain import DEM_MODELS, METHODS
 
         if datum not in DATUMS:
             raise ValueError(f"datum must be one of {DATUMS}, got {datum!r}")
         if method not in METHODS:
             raise ValueError(f"DEM method = {method!r}: must be one of {METHODS}")
-        if dem_model not in SURFACES:
-            raise ValueError(f"dem_model must be one of {SURFACES}, got {dem_model!r}")
+        if dem_model not in DEM_MODELS:
+            raise ValueError(f"dem_model must be one of {DEM_MODELS}, got {dem_model!r}")
         if options.get("trace"):
             raise ValueError("trace=True is not available on a DEM mosaic (the batch is solved in regions): "
                              "trace on a DEM from DemMosaic.region_dem")
@@ -346,7 +346,7 @@ class DemMosaic:
 
     def with_solver(self, method: str | None = None, dem_model: str | None = None, **options) -> "DemMosaic":
         """The same mosaic (files, cache, heights) solving with another method / dem_model / options."""
-        from geoloc.surfaces.terrain import METHODS, SURFACES
+        from geoloc.surfaces.terrain import DEM_MODELS, METHODS
 
         m = object.__new__(type(self))
         m.__dict__.update(self.__dict__)  # shares the tile cache and the open files (copy() would not)
@@ -355,8 +355,8 @@ class DemMosaic:
         m.options = {**self.options, **options}
         if m.method not in METHODS:
             raise ValueError(f"DEM method = {m.method!r}: must be one of {METHODS}")
-        if m.dem_model not in SURFACES:
-            raise ValueError(f"dem_model must be one of {SURFACES}, got {m.dem_model!r}")
+        if m.dem_model not in DEM_MODELS:
+            raise ValueError(f"dem_model must be one of {DEM_MODELS}, got {m.dem_model!r}")
         if m.options.get("trace"):
             raise ValueError("trace=True is not available on a DEM mosaic")
         return m

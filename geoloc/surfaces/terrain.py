@@ -35,7 +35,8 @@ from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import ray_inflated_ellipsoid
 
 METHODS = ("steps", "bisect", "exact")
-SURFACES = ("bilinear", "triangles")
+#: How the exact solver reads between DEM nodes (``dem_model``; never called a "surface").
+DEM_MODELS = ("bilinear", "triangles")
 #: Margin [m] above H_max / below H_min where the exact walk starts / ends: the
 #: inflated ellipsoid of [Q17 eq. 11] departs from the constant-height surface
 #: by millimetres at these heights (geoloc.surfaces.height), far below 1 m.
@@ -536,8 +537,8 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
     surface = dem_model
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    if surface not in SURFACES:
-        raise ValueError(f"{given} must be one of {SURFACES}, got {surface!r}")
+    if surface not in DEM_MODELS:
+        raise ValueError(f"{given} must be one of {DEM_MODELS}, got {surface!r}")
     if not (np.isfinite(eps_h) and eps_h > 0):
         raise ValueError(f"eps_h must be a positive number of metres, got {eps_h!r}")
     if not (np.isfinite(threshold) and threshold > 0):
