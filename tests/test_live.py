@@ -445,3 +445,71 @@ def test_klv_send_verb_waits_for_the_listener_and_streams_the_file(capsys):
     th.join(30)
     assert box.get("rc") == 0
     assert got == reference() and rx.stats.cc_errors == 0
+
+
+def _crc32_mpeg2_bitwise(data: bytes) -> int:
+    """CRC-32/MPEG-2 bit by bit (poly 0x04C11DB7, init 0xFFFFFFFF, no reflection): the referee."""
+    crc = 0xFFFFFFFF
+    for b in data:
+        for i in range(7, -1, -1):
+            bit = (b >> i) & 1
+            top = (crc >> 31) & 1
+            crc = (crc << 1) & 0xFFFFFFFF
+            if top ^ bit:
+                crc ^= 0x04C11DB7
+    return crc
+
+
+def _ts_packets(pid, payload, cc0=0, pusi_first=True):
+    """TS packets of ``payload`` on ``pid`` (stuffed by an adaptation field in the last)."""
+    out, k, cc = [], 0, cc0
+    while k < len(payload) or not out:
+        chunk = payload[k:k + 184]
+        k += 184
+        head = bytes([0x47, (0x40 if (pusi_first and not out) else 0) | (pid >> 8), pid & 0xFF])
+        if len(chunk) == 184:
+            out.append(head + bytes([0x10 | cc]) + chunk)
+        else:
+            stuff = 184 - len(chunk) - 1  # adaptation_field_length byte, then flags and 0xFF
+            af = bytes([stuff]) + (bytes([0x00]) + b"\xff" * (stuff - 1) if stuff else b"")
+            out.append(head + bytes([0x30 | cc]) + af + chunk)
+        cc = (cc + 1) & 0x0F
+    return out, cc
+
+
+def _section(table_id, body):
+    n = len(body) + 4 + 5  # the 5 bytes after the length, the body, the CRC
+    sec = bytes([table_id, 0xB0 | (n >> 8), n & 0xFF, 0x00, 0x01, 0xC1, 0x00, 0x00]) + body
+    return sec + _crc32_mpeg2_bitwise(sec).to_bytes(4, "big")
+
+
+def test_synchronous_metadata_carriage_is_read():
+    """Stream type 0x15 (metadata in PES, ISO/IEC 13818-1 2.12.4; MISB ST 1402 synchronous carriage):
+    each PES holds a metadata AU cell (5-byte header, then the KLV), built here by hand."""
+    from geoloc.io.klv import encode_packet
+
+    pk = [p for p in read_klv_file(KLV) if isinstance(p, Packet)][:20]
+    blobs = [encode_packet(p.fields, unknown=p.unknown) for p in pk]
+    assert crc32_mpeg2(b"123456789") == _crc32_mpeg2_bitwise(b"123456789")
+    pat = _section(0x00, bytes([0x00, 0x01, 0xE1, 0x00]))  # program 1 -> PMT PID 0x100
+    pmt = _section(0x02, bytes([0xFF, 0xFF, 0xF0, 0x00, 0x15, 0xE1, 0x01, 0xF0, 0x00]))  # 0x15 on PID 0x101
+    ts, cc = b"", 0
+    for i, b in enumerate(blobs):
+        if i % 5 == 0:
+            ts += _ts_packets(0, b"\x00" + pat, i // 5)[0][0] + _ts_packets(0x100, b"\x00" + pmt, i // 5)[0][0]
+        pts = 90000 * i + 1234
+        p = bytes([0x21 | ((pts >> 29) & 0x0E), (pts >> 22) & 0xFF, 0x01 | ((pts >> 14) & 0xFE), (pts >> 7) & 0xFF,
+                   0x01 | ((pts << 1) & 0xFE)])
+        cell = bytes([0x00, i & 0xFF, 0xDF]) + len(b).to_bytes(2, "big") + b
+        body = bytes([0x84, 0x80, 0x05]) + p + cell
+        pes = b"\x00\x00\x01\xfc" + len(body).to_bytes(2, "big") + body
+        packets, cc = _ts_packets(0x101, pes, cc)
+        ts += b"".join(packets)
+    rx = LiveReceiver()
+    out = []
+    for g in datagrams_of(ts):
+        out += rx.push(g)
+    out += rx.flush()
+    assert [r.fields for r in out] == [p.fields for p in pk]
+    assert [r.pts for r in out] == [90000 * i + 1234 for i in range(len(pk))]
+    assert rx.demux.streams[0x101] == ("klv", 0x15) and rx.stats.psi_errors == 0 and rx.stats.cc_errors == 0
