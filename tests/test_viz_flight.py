@@ -109,10 +109,11 @@ def klv_model():
 @pytest.fixture(scope="module")
 def replay_flags():
     from geoloc.surfaces.dem import DEM
+    from geoloc.surfaces.terrain import DemSurface
     from geoloc.workflows.klv_replay import replay_klv
 
-    r = replay_klv(ROOT / "assets" / "klv" / "example_flight.klv",
-                   dem=DEM.open(ROOT / "assets" / "dem" / "srtm_jacksboro.tif", datum="egm96"))
+    dem = DEM.open(ROOT / "assets" / "dem" / "srtm_jacksboro.tif", datum="egm96")
+    r = replay_klv(ROOT / "assets" / "klv" / "example_flight.klv", surface=DemSurface(dem))
     return r.summary.outliers
 
 
