@@ -310,12 +310,13 @@ def test_real_time_over_loopback(tmp_path):
         when.append(time.monotonic())
     th.join(10)
     assert got == want
-    # paced by the PTS: no packet later than its time stamp (0.3 s: thread scheduling on 2 busy cores), and
-    # the five seconds take five seconds (a datagram leaves with the earliest PES it carries bytes of, so
-    # a packet whose start shares a datagram with its predecessor's end may come one period early)
+    # paced by the PTS: no packet later than its time stamp (0.8 s: thread scheduling of the sender and the
+    # receiver on 2 cores shared with other jobs, load 10-18 seen), and the five seconds take five seconds
+    # (a datagram leaves with the earliest PES it carries bytes of, so a packet whose start shares a
+    # datagram with its predecessor's end may come one period early): a burst would fail the second
     dt = np.array(when) - when[0]
     pts_s = np.array([r.pts / 90000 for r in got]) - got[0].pts / 90000
-    assert np.all(dt <= pts_s + 0.3), (dt, pts_s)
+    assert np.all(dt <= pts_s + 0.8), (dt, pts_s)
     assert dt[-1] >= pts_s[-2] - 0.3, (dt, pts_s)
 
 
