@@ -458,8 +458,8 @@ class FlightLayer:
             finally:
                 s._mute = False
         # every frame's points (viser draws a point about twice its size in world units across):
-        # a quarter of the current frame's markers, so the neighbours of a run stay off its vector
-        size = 0.5 * r * WORLD_SCALE if points else self.point_size
+        # dots of a sixth of the current frame's markers, so the neighbours of a run stay off its vector
+        size = 0.15 * r * WORLD_SCALE if points else self.point_size
         for name in ("centres", "reported", "recomputed", "truth"):
             h = self.handles.get(name)
             if h is not None:
