@@ -42,13 +42,16 @@ def _canvas(page) -> np.ndarray:
     return np.asarray(PIL.Image.open(io.BytesIO(png)).convert("RGB"))
 
 
-def _settled(page, t0, timeout=240.0, same=2, gap_s=0.3):
-    """(seconds from t0 to the first of ``same`` + 1 identical canvas screenshots, image)."""
+def _settled(page, t0, timeout=240.0, same=2, gap_s=0.3, ready=lambda: True, min_colours=200):
+    """(seconds from t0 to the first of ``same`` + 1 identical canvas screenshots, image), counting
+    only once ``ready()`` (the tab's session is built) and the canvas shows a scene (``min_colours``
+    distinct colours: a blank or half-loaded canvas is flat)."""
     last, first_t, run = None, None, 0
     while time.perf_counter() - t0 < timeout:
         t = time.perf_counter()
         img = _canvas(page)
-        if last is not None and img.shape == last.shape and np.array_equal(img, last):
+        full = ready() and len(np.unique((img // 8).reshape(-1, 3), axis=0)) >= min_colours
+        if full and last is not None and img.shape == last.shape and np.array_equal(img, last):
             run += 1
             if run >= same:
                 return first_t - t0, img
@@ -88,12 +91,11 @@ def main(argv=None) -> int:
             # a first load warms the caches every tab shares (the flight model, the terrain mesh)
             for k in range(args.repeat + 1):
                 page = browser.new_page(viewport={"width": 1000, "height": 640})
-                before = set(server.get_clients())
+                before = set(built)
                 t0 = time.perf_counter()
                 page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=120000)
-                wait_for(lambda: len(set(built) - before) == 1, 300, "the tab's session")
+                dt, img = _settled(page, t0, ready=lambda: len(set(built) - before) == 1)
                 cid = (set(built) - before).pop()
-                dt, img = _settled(page, t0)
                 if k > 0:
                     view_s.append(dt)
                     peer_build.append(built[cid])

@@ -373,5 +373,7 @@ def attach(app) -> AppCalibration:
         slider.on_update(follow)
         follow()
     if hasattr(app, "on_record"):
-        app.on_record(lambda _idx: cal.rebuild())  # the ENU origin moved with the record
+        # the ENU origin moved with the record: redraw what was drawn (records without truth, as a
+        # KLV flight's, have no error vectors to draw, and a MISB sensor no Camera to fit)
+        app.on_record(lambda _idx: cal.rebuild() if cal.layer is not None else None)
     return cal
