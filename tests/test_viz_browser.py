@@ -279,6 +279,18 @@ def test_presenter_mode_in_chromium(tmp_path):
             cb = server.get_clients()[idb].camera
             wait_for(lambda: np.linalg.norm(np.array(cb.position) - want) < 0.05, 20,
                      "the follower's browser camera to follow the driver's")
+            # issue 34: the follower sees every folder of the presenter's panel (flight, outliers,
+            # accuracy, legend, teaching, ...), each with the presenter's text, read-only
+            from geoloc.viz.app import driver_folders
+
+            folders = [label for label, _ in driver_folders(viewer.driver)]
+            assert {"Flight", "Flight: accuracy", "Legend"} <= set(folders), folders
+            for label in folders:
+                wait_for(lambda: pb.get_by_text(label, exact=True).count() >= 1, 60,
+                         f"the follower's folder {label!r}")
+            panel = viewer.followers[idb]
+            for src, dst in panel.mirrors:
+                assert dst.content == src.content
             pb.screenshot(path=str(ARTIFACTS / "viz_presenter_follower.png"))
     finally:
         server.stop()

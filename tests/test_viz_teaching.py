@@ -495,3 +495,18 @@ def test_teaching_panel_animation_changes_the_scene_in_chromium(tmp_path):
             q = np.asarray(server.scene.get_handle_by_name("/enu/teach/frames/gimbal_outer").wxyz)
             assert min(np.abs(q - wxyz(R)).max(), np.abs(q + wxyz(R)).max()) < 1e-9
             page.wait_for_selector("text=animated from 0", timeout=60000)
+
+
+def test_one_hop_selector_and_an_animation_speed():
+    # issue 34 item 4: the session's "chain of 4x4 matrices" folder follows the teaching panel's one
+    # hop selector (its own hidden), and the sweep's duration is a control
+    with _panel_app() as (server, app, p):
+        assert app.dd_hop.visible is False
+        p.dd_hop.value = "T_ecef_ned"
+        assert app.dd_hop.value == "T_ecef_ned"
+        # [Q17] eq. 5's factors appear under T_ecef_ned only, in the session's folder too
+        assert app.md_q17.content != ""
+        p.dd_hop.value = "(none)"
+        assert app.dd_hop.value == "(none)" and app.md_q17.content == ""
+        p.num_anim_s.value = 6.0
+        assert p.anim_steps * p.anim_dt_s == pytest.approx(6.0)

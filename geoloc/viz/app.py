@@ -348,7 +348,7 @@ class GeolocSession:
             self.bt_overview.on_click(lambda _: self.move_camera("overview"))
             self.bt_target.on_click(lambda _: self.move_camera("target"))
         with gui.add_folder("Legend", expand_by_default=False):
-            gui.add_markdown(LEGEND)
+            self.md_legend = gui.add_markdown(LEGEND)
         with gui.add_folder("Display"):
             d = self.view.disp
             self.sl_vexag = gui.add_slider("vertical exaggeration", 1.0, 10.0, 0.5, d.vertical_exaggeration)
@@ -371,7 +371,8 @@ class GeolocSession:
         with gui.add_folder("Teaching: the chain of 4x4 matrices", expand_by_default=False):
             hops0 = teaching.hops(self._chain0())
             self._hop_src = {h.key: h.src for h in hops0}
-            self.dd_hop = gui.add_dropdown("hop", ["(none)"] + [h.key for h in hops0])
+            self.dd_hop = gui.add_dropdown("hop", ["(none)"] + [h.key for h in hops0],
+                                           hint="With the teaching panel: follows its 'teaching hop'")
             self.dd_hop.on_update(lambda _: self._on_display())
             self.md_hop = gui.add_markdown("")
             self.md_q17 = gui.add_markdown("")
@@ -657,6 +658,30 @@ class GeolocApp(GeolocSession):
         return path
 
 
+def driver_folders(session) -> list:
+    """[(folder label, [markdown handles])] of a session's panel, in order: every folder holding
+    text (the session's own and its layers'), for a presenter's followers to mirror."""
+    gui = session.gui
+    containers = getattr(gui, "_container_handle_from_uuid", {})
+    groups: dict = {}
+    objs = [session] + [o for o in session.layers if o is not None]
+    for obj in objs:
+        for v in list(vars(obj).values()):
+            if not isinstance(v, viser.GuiMarkdownHandle) or v is getattr(session, "md_summary", None):
+                continue
+            folder = containers.get(getattr(v._impl, "parent_container_id", None))
+            label = getattr(folder, "label", None)
+            if label:
+                groups.setdefault(label, []).append(v)
+    # the panel's own order (a folder's order value), then first seen
+    def order(item):
+        h = item[1][0]
+        f = containers.get(h._impl.parent_container_id)
+        return float(getattr(f, "order", 0.0) or 0.0)
+
+    return sorted(groups.items(), key=order)
+
+
 class _FollowerPanel:
     """A presenter-mode follower's GUI: a note, the presenter's panel text and values, read-only."""
 
@@ -669,12 +694,19 @@ class _FollowerPanel:
         self.bt_take.on_click(lambda _e: viewer.take_control(cid))
         self.md_summary = gui.add_markdown("")
         self.num = {}
+        self.mirrors: list = []  # (driver's markdown handle, ours)
         if driver is not None:
             with gui.add_folder("Presenter's inputs (read-only)"):
                 self.dd_record = gui.add_dropdown("record", list(driver.dd_record.options),
                                                   initial_value=driver.dd_record.value, disabled=True)
                 for k, h in driver.num.items():
                     self.num[k] = gui.add_number(h.label, float(h.value), disabled=True)
+            # every folder of the presenter's panel (the session's and its layers': flight,
+            # outliers, accuracy, legend, teaching, ...), its text mirrored read-only
+            for label, handles in driver_folders(driver):
+                with gui.add_folder(label, expand_by_default=False):
+                    for h in handles:
+                        self.mirrors.append((h, gui.add_markdown(h.content)))
         self.update(driver)
 
     def update(self, driver: GeolocSession | None) -> None:
@@ -685,6 +717,9 @@ class _FollowerPanel:
                                 "and the camera are theirs and the controls are read-only. Press "
                                 "\"take control\" to drive.")
         self.md_summary.content = driver.md_summary.content
+        for src, dst in self.mirrors:
+            if dst.content != src.content:
+                dst.content = src.content
         if self.num:
             self.dd_record.value = driver.dd_record.value
             for k, h in self.num.items():

@@ -111,6 +111,8 @@ class FlightLayer:
         self.current = None
         self.closed = False
         self._mute = False
+        self._pending = None
+        self._busy = threading.Lock()
         self._playing = False
         self._thread = None
         self._enu_key = None
@@ -418,9 +420,18 @@ class FlightLayer:
         self.dd_goto.on_update(lambda _e: self._on_goto())
 
     def _on_slider(self) -> None:
+        # coalesced: a drag sends many values; while one step runs only the latest waiting value is
+        # loaded next (the others would only queue scenes the browser has to draw and throw away)
         if self._mute or self.closed:
             return
-        self.go(int(self.sl_frame.value))
+        self._pending = int(self.sl_frame.value)
+        while self._pending is not None and self._busy.acquire(blocking=False):
+            try:
+                while self._pending is not None and not self.closed:
+                    idx, self._pending = self._pending, None
+                    self.go(idx)
+            finally:
+                self._busy.release()
 
     def _on_goto(self) -> None:
         if self._mute or self.closed or self.dd_goto.value == CHOOSE:

@@ -88,6 +88,10 @@ class TeachingPanel:
         self._stop = threading.Event()
         self._build_gui()
         self._hook_refresh()
+
+    def _set_anim_speed(self) -> None:
+        """The sweep takes "animation duration (s)": the same steps, each shorter or longer."""
+        self.anim_dt_s = float(self.num_anim_s.value) / max(int(self.anim_steps), 1)
         self.redraw()
 
     # ------------------------------------------------------------ state
@@ -137,6 +141,10 @@ class TeachingPanel:
             angles = list(teaching.animatable_angles(chain))
             self.dd_angle = gui.add_dropdown("angle to animate", angles,
                                              initial_value=angles[3] if len(angles) > 3 else angles[0])
+            self.num_anim_s = gui.add_slider("animation duration (s)", 0.5, 20.0, 0.5,
+                                             self.anim_steps * self.anim_dt_s,
+                                             hint="How long 'animate this angle from 0' takes to sweep the angle")
+            self.num_anim_s.on_update(lambda _: self._set_anim_speed())
             self.bt_anim = gui.add_button("animate this angle from 0")
             self.md_anim = gui.add_markdown("")
             self.md_hop = gui.add_markdown("")
@@ -454,6 +462,21 @@ def attach(session) -> TeachingPanel:
     """Add the teaching panel (GUI folder and scene nodes) to a ``geoloc view`` session.
 
     The app wires it with ``self.teaching_panel = teaching_panel.attach(self)``
-    after its own GUI and first refresh.
+    after its own GUI and first refresh. One hop selector (issue 34): the session's own
+    "Teaching: the chain of 4x4 matrices" folder then follows this panel's "teaching hop"
+    (its own dropdown hidden), so the two folders always show the same hop.
     """
-    return TeachingPanel(session)
+    panel = TeachingPanel(session)
+    own = getattr(session, "dd_hop", None)
+    if own is not None:
+        own.visible = False
+
+        def follow(_e=None) -> None:
+            v = str(panel.dd_hop.value)
+            target = v if v in own.options else own.options[0]
+            if own.value != target:
+                own.value = target
+
+        panel.dd_hop.on_update(follow)
+        follow()
+    return panel
