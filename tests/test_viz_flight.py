@@ -465,3 +465,20 @@ def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
             assert text in panel, text
     finally:
         server.stop()
+
+
+def test_one_legend_per_scenario_from_what_it_draws():
+    # issue 34: the KLV flight has reported centres and no truth (no "[Q17]", no "surveyed"), the [Q17]
+    # flight test its published and surveyed points, the turret its own gimbal frames (no "outer gimbal")
+    from geoloc.assets import asset_path
+    from geoloc.viz.app import legend_markdown
+    from geoloc.viz.scenario import load_view_scenario
+
+    klv = legend_markdown(flight_model.default_flight_scenario())
+    assert "reported position" in klv and "[Q17]" not in klv.replace("[Q17]'s steps", "")
+    assert "surveyed" not in klv and "bright pink" in klv and "outer gimbal" not in klv
+    q17 = legend_markdown(load_view_scenario())
+    assert "published position [Q17]" in q17 and "**white**: surveyed" in q17 and "outer gimbal" in q17
+    turret = legend_markdown(load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
+                                                asset_path("sensors", "eo_turret.toml")))
+    assert "gimbal azimuth" in turret and "gimbal elevation" in turret and "outer gimbal" not in turret

@@ -158,6 +158,43 @@ def coarse_dem_note(scn, inp, error_m: float, published_error_m: float) -> str:
             "horizontally. Without terrain (`--no-dem`) the published positions come back to 0.3 m")
 
 
+def legend_markdown(scn) -> str:
+    """The Legend folder of a scenario, written from what its scene draws: the markers its records
+    carry (a [Q17] published point, or a MISB reported frame centre; a surveyed point only with
+    truth), the frames of its own sensor by name, and the flight layer's colours for a flight."""
+    from geoloc.viz.scene_geoloc import frame_style
+
+    recs = [info for info, _ in scn.records]
+    has_truth = any(np.isfinite(i.truth_lat_deg) for i in recs)
+    has_paper = any(np.isfinite(i.paper_lat_deg) for i in recs)
+    q17 = has_truth  # a published point beside a surveyed one: [Q17]'s records; else a reported one
+    frames = drawn_frames(scn.camera)
+    names = ", ".join(frame_style(f, k)[1].split(":")[0] for k, f in enumerate(frames))
+    L = ["- **red** ball: the chosen method's answer; **green**: the exact first hit; **light blue**: "
+         "the ellipsoid hit at H_max (where [Q17]'s steps start)",
+         "- **yellow** line: line of sight; **orange**: image footprint (corner rays)",
+         "- iterations: dots on the line of sight at H_n with a segment to the DEM height h_n below, "
+         "**blue** if H_n - h_n > 0 (above the terrain), **red** below; **cyan**: bisection brackets"]
+    if has_paper:
+        pub = "published position" + (" [Q17]" if "qiao2017" in str(getattr(scn, "source", "")) else "")
+        L.append("- **violet**: " + (pub if q17 else
+                                     "reported position (the record's own, e.g. the MISB frame centre)"))
+    if has_truth:
+        L.append("- **white**: surveyed; **pink**: error vector computed -> surveyed, drawn longer than it "
+                 "is by the \"error vector exaggeration\" factor (its label gives its true 3D length)")
+    L += ["- the aircraft is drawn larger than life by the \"aircraft display scale\" factor; frames "
+          "scale with it",
+          f"- frames at the aircraft, largest first: {names}; axes x red, y green, z blue",
+          "- scene: East-North-Up at the target, world unit km; zoom with the wheel, rotate with the "
+          "left button, pan with the right"]
+    if len(recs) > 1:
+        L.append("- flight (every frame): **blue** track (flagged runs thick **red**, labelled with their "
+                 "fault); footprints **orange** (outliers **red**), the current one **magenta**; points "
+                 "**violet** / **red** / **white**: reported / recomputed / truth; **mauve**: every "
+                 "frame's error vector; **bright pink**: the current frame's, labelled with its length")
+    return "\n".join(L) + "\n"
+
+
 def make_server(host: str = "127.0.0.1", port: int = 8080, verbose: bool = False) -> viser.ViserServer:
     """A viser server bound to ``host`` (local only by default); ``port=0`` picks a free port."""
     server = viser.ViserServer(host=host, port=port, label="geoloc", verbose=verbose)
@@ -348,7 +385,7 @@ class GeolocSession:
             self.bt_overview.on_click(lambda _: self.move_camera("overview"))
             self.bt_target.on_click(lambda _: self.move_camera("target"))
         with gui.add_folder("Legend", expand_by_default=False):
-            self.md_legend = gui.add_markdown(LEGEND)
+            self.md_legend = gui.add_markdown(legend_markdown(self.scn))
         with gui.add_folder("Display"):
             d = self.view.disp
             self.sl_vexag = gui.add_slider("vertical exaggeration", 1.0, 10.0, 0.5, d.vertical_exaggeration)

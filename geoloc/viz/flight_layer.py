@@ -383,9 +383,8 @@ class FlightLayer:
         self.top_idx, self.opts = goto_entries(m, self.top_n)
         with g.add_folder("Flight", order=self._order(0)):
             self.md_head = g.add_markdown(
-                f"**{n} frames**, footprints on {m.surface.split(' (')[0]}. **magenta**: the current frame; "
-                "**red** outlines: outliers; **blue**: track; points **violet** / **red** / **white**: "
-                "reported / recomputed / truth; **pink**: error vectors (true length)")
+                f"**{n} frames**, footprints on {m.surface.split(' (')[0]}; {int(m.outlier.sum())} flagged in "
+                f"{len(m.faults)} run(s). Colours: the Legend folder")
             self.sl_frame = g.add_slider("frame index", 0, max(n - 1, 1), 1, 0, disabled=n < 2,
                                          hint="Scrub through the frames; each loads as the current record")
             self.bt_whole = g.add_button("whole flight", hint="The camera on the whole flight: track, "

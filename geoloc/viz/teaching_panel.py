@@ -88,11 +88,11 @@ class TeachingPanel:
         self._stop = threading.Event()
         self._build_gui()
         self._hook_refresh()
+        self.redraw()
 
     def _set_anim_speed(self) -> None:
         """The sweep takes "animation duration (s)": the same steps, each shorter or longer."""
         self.anim_dt_s = float(self.num_anim_s.value) / max(int(self.anim_steps), 1)
-        self.redraw()
 
     # ------------------------------------------------------------ state
     @property
