@@ -7,8 +7,8 @@ out only for a reason listed in ``NOT_RUN`` (a template naming the reader's own 
 of about an hour, a send to the LAN); the test fails when a listed command is no longer in
 the README, so the list cannot go stale. `geoloc view` is run until it says where it
 serves, then stopped. The output a block prints under a command (its `#   ` lines; "..."
-elides part of one) must appear in what the command printed: the figures the README
-quotes are the ones a reader gets.
+elides part of one) must appear in what the command printed or in a text file it wrote:
+the figures the README quotes are the ones a reader gets.
 """
 
 from __future__ import annotations
@@ -136,6 +136,18 @@ def _run_view(cmd: str, cwd: Path, env) -> str:
         p.wait(timeout=30)
 
 
+def _files(folder: Path) -> dict:
+    return {f: f.stat().st_mtime_ns for f in folder.rglob("*") if f.is_file()}
+
+
+def _text(path: Path, limit: int = 1 << 16) -> str:
+    """The first ``limit`` bytes of a text file, else nothing."""
+    try:
+        return "\n" + path.read_bytes()[:limit].decode("utf-8")
+    except (UnicodeDecodeError, OSError):
+        return ""
+
+
 @pytest.mark.parametrize("block", range(len(BLOCKS)), ids=lambda k: f"block{k + 1}")
 def test_readme_block_runs_from_an_empty_folder(block, tmp_path):
     _geoloc_exe()
@@ -143,6 +155,7 @@ def test_readme_block_runs_from_an_empty_folder(block, tmp_path):
     for cmd, printed in BLOCKS[block]:
         if cmd in NOT_RUN:
             continue
+        before = _files(tmp_path)
         if cmd.startswith("geoloc view "):
             out = _run_view(cmd, tmp_path, env)
         else:
@@ -154,7 +167,10 @@ def test_readme_block_runs_from_an_empty_folder(block, tmp_path):
                 assert r.returncode == 0, f"{cmd!r} exited {r.returncode}:\n{out[-3000:]}"
             else:
                 assert r.stdout.strip(), f"{cmd!r} printed nothing:\n{out[-3000:]}"
-        norm = re.sub(r"\s+", " ", out)
+        # what the README shows under a command is what it printed or the head of a text file
+        # it wrote (the CSV lines under `replay --out`)
+        written = [f for f, m in _files(tmp_path).items() if before.get(f) != m]
+        norm = re.sub(r"\s+", " ", out + "".join(_text(f) for f in sorted(written)))
         for want in printed:
             # "..." elides part of a line: the pieces around it must appear, in order
             pos = 0
