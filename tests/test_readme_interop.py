@@ -24,7 +24,7 @@ def test_readme_interop_section_runs_as_written(tmp_path):
     bash = re.search(r"```bash\n(.*?)```", sec, re.S).group(1)
     py = re.search(r"```py\n(.*?)```", sec, re.S).group(1)
     outs = {}
-    for line in bash.splitlines():
+    for line in bash.replace("\\\n", " ").splitlines():  # a command continued with a backslash
         cmd = line.split("#")[0].strip()
         if not cmd or "udp://" in cmd:  # the multicast send is tested on loopback in test_cot.py
             continue
