@@ -15,3 +15,12 @@ def timed(fn, repeat: int):
         walls.append(time.perf_counter() - w)
         cpus.append(time.process_time() - c)
     return statistics.median(walls), statistics.median(cpus), out
+
+
+def rss_mb() -> float:
+    """Resident set size of this process now [MiB] (Linux: /proc/self/status VmRSS)."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")

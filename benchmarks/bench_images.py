@@ -40,16 +40,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _timing import timed
+from _timing import rss_mb, timed
 
 
-def rss_mb() -> float:
-    """Resident set size of this process [MiB] (/proc/self/status VmRSS)."""
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 def write_video(path, n, size, fps, gop, preset="medium", crf=28, pattern=True):

@@ -36,18 +36,11 @@ from geoloc.assets import ASSETS
 from geoloc.io.klv import Packet, encode_packet, read_klv_file, read_ts_klv, write_ts
 from geoloc.io.live import LiveReceiver, datagrams_of, receive, send
 
-from _timing import timed  # benchmarks/_timing.py (the script's folder is on sys.path)
+from _timing import rss_mb, timed  # benchmarks/_timing.py (the script's folder is on sys.path)
 
 RATE_HZ = 30.0
 
 
-def rss_mb() -> float:
-    """Resident set size now [MB] (Linux /proc)."""
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 def make_ts(path: Path, n: int) -> int:

@@ -622,19 +622,7 @@ class FlightLayer:
                 client.camera.look_at = tuple(aim)
 
     def move_camera_to(self, idx: int) -> None:
-        pos, aim = self.camera_pose(idx)
-        s = self.session
-        if hasattr(s, "move_camera"):
-            try:
-                s.move_camera((pos, aim))
-                return
-            except (TypeError, ValueError):
-                pass
-        for client in s.server.get_clients().values():  # the older app: every tab
-            with client.atomic():
-                client.camera.up_direction = (0.0, 0.0, 1.0)
-                client.camera.look_at = tuple(aim)
-                client.camera.position = tuple(pos)
+        self._move(self.camera_pose(idx))
 
     def toggle_play(self) -> None:
         """Start or pause the timeline (a daemon thread steps ``frames per second``)."""
