@@ -953,21 +953,14 @@ def receive(url, *, duration_s: float | None = None, packets: int | None = None,
             try:
                 n = sock.recv_into(buf)
             except socket.timeout:
-                res = rx.tick()
-                if on_batch is not None and res:
-                    on_batch(res)
-                for r in res:
-                    yield r
-                    got += 1
-                    if packets is not None and got >= packets:
-                        return
-                continue
+                res = rx.tick()  # no datagram: what is due (a stalled stream's held packets)
             except InterruptedError:
                 continue
-            data = bytes(buf[:n])
-            if record is not None:
-                record(data)
-            res = rx.push(data)
+            else:
+                data = bytes(buf[:n])
+                if record is not None:
+                    record(data)
+                res = rx.push(data)
             if on_batch is not None and res:
                 on_batch(res)
             for r in res:
