@@ -18,6 +18,7 @@ code per ray.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -143,6 +144,53 @@ def ground_to_pixel(pose: Pose, sensor, lat, lon, h) -> PixelHit:
     return as_sensor(sensor).ground_to_pixel(lat, lon, h, pose)
 
 
+#: A ground point is hidden from the camera when the camera's ray towards it meets the surface
+#: this much nearer [m]: the exact solver's hits agree to millimetres (docs/terrain.md), the
+#: DEM's bilinear surface is continuous, so 1 m separates a true occluder from round-off.
+HIDDEN_TOLERANCE_M = 1.0
+
+
+@dataclass(frozen=True)
+class PointView:
+    """How a camera sees one ground point (:func:`point_view`)."""
+
+    row: float
+    col: float
+    pixel_status: int  # Status of ground_to_pixel: OK, OUTSIDE_SENSOR, BEHIND_CAMERA, ...
+    visible: bool  # nothing on the surface in front of it (False where no pixel was found)
+    occluder_range_m: float  # where the pixel's line of sight meets the surface first [m], NaN if nowhere
+    range_m: float  # camera to the point [m]
+
+
+def point_view(sensor, state, lat, lon, h, surface) -> PointView:
+    """The pixel that sees one ground point, and whether the surface hides it from the camera.
+
+    The pixel is ``sensor.ground_to_pixel`` (radians, metres ellipsoidal). Where it is in the
+    frame or off its edge (``OUTSIDE_SENSOR``), the line of sight through that pixel
+    (extrapolated beyond the edge) is cast through ``surface``: the point is hidden when the
+    ray meets the surface more than :data:`HIDDEN_TOLERANCE_M` before it. Used by the
+    viewer's terrain pick and by ``geoloc pixel``.
+    """
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+
+    px = sensor.ground_to_pixel(np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float), state)
+    st = int(np.asarray(px.status))
+    row, col = float(np.asarray(px.row)), float(np.asarray(px.col))
+    nan = float("nan")
+    visible, occ, rng = False, nan, nan
+    if st in (Status.OK, Status.OUTSIDE_SENSOR):
+        los = sensor.line_of_sight(row, col, state, outside="extrapolate")
+        rng = float(np.linalg.norm(geodetic_to_ecef(float(lat), float(lon), float(h))
+                                   - np.asarray(los.origin_ecef)))
+        back = surface.intersect(los)
+        if int(np.asarray(back.status)) == Status.OK:
+            occ = float(back.slant_range)
+            visible = occ > rng - HIDDEN_TOLERANCE_M
+        else:  # the camera's ray meets nothing before it: nothing hides the point
+            visible = True
+    return PointView(row, col, st, visible, occ, rng)
+
+
 def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method: str = "exact",
                **kwargs) -> TerrainHit:
     """Geolocate pixels on a DEM: :func:`line_of_sight` then :func:`geoloc.surfaces.terrain.intersect_dem`.
@@ -164,5 +212,5 @@ def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method:
     return intersect_dem(los, dem, method, **kwargs)
 
 
-__all__ = ["as_sensor", "ground_to_pixel", "intersect_los_height", "line_of_sight",
-           "locate", "locate_dem"]
+__all__ = ["HIDDEN_TOLERANCE_M", "PointView", "as_sensor", "ground_to_pixel", "intersect_los_height",
+           "line_of_sight", "locate", "locate_dem", "point_view"]

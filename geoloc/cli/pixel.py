@@ -5,15 +5,14 @@ The ground point is given as latitude and longitude or as an MGRS / USNG referen
 height given or read from the DEM. The sensor and its pose are those of ``geoloc locate``.
 The answer is the sensor's ``ground_to_pixel`` (docs/architecture.md, "The Sensor
 interface") and a verdict: in the frame, outside the frame, behind the camera, or, with a
-DEM, hidden behind terrain (the line of sight through that pixel meets the terrain more
-than ``HIDDEN_TOLERANCE_M`` before the point).
+DEM, hidden behind terrain (:func:`geoloc.locate.point_view`, the viewer's rule: the line of
+sight through that pixel meets the terrain more than 1 m before the point).
 """
 
 from __future__ import annotations
 
 import json
 import math
-import sys
 
 import numpy as np
 
@@ -24,13 +23,11 @@ from geoloc.cli._options import (
     sensor_from_args,
     surface_from_args,
 )
+from geoloc.cli.locate import pose_from_args
 from geoloc.io.columns import ELLIPSOID_DATUM
+from geoloc.io.mgrs_grid import mgrs_text, parse_mgrs
+from geoloc.locate import as_sensor, point_view
 from geoloc.status import Status, describe
-
-#: the same rule as the viewer's terrain pick (geoloc.viz.picture_model): a ray that meets
-#: the terrain more than this before the point does not see it [m]; it covers the exact
-#: walk's hit tolerance and the DEM's bilinear reading of the point's own height
-HIDDEN_TOLERANCE_M = 2.0
 
 
 def register(sub) -> None:
@@ -61,8 +58,6 @@ def point_from_args(args) -> tuple[float, float, str]:
     if args.mgrs is not None and has_ll:
         raise ValueError("give the ground point once: --mgrs or --point-lat-deg/--point-lon-deg, not both")
     if args.mgrs is not None:
-        from geoloc.io.mgrs_grid import parse_mgrs
-
         lat, lon = parse_mgrs(args.mgrs)
         return lat, lon, f"MGRS {args.mgrs}"
     if args.point_lat_deg is None or args.point_lon_deg is None:
@@ -77,12 +72,7 @@ def point_from_args(args) -> tuple[float, float, str]:
 
 
 def run(args) -> int:
-    from geoloc.cli.locate import pose_from_args
-
-    sensor = sensor_from_args(args)
-    from geoloc.locate import as_sensor
-
-    sensor = as_sensor(sensor)
+    sensor = as_sensor(sensor_from_args(args))
     pose = pose_from_args(args, sensor)
     lat_deg, lon_deg, given = point_from_args(args)
     lat, lon = math.radians(lat_deg), math.radians(lon_deg)
@@ -103,18 +93,14 @@ def run(args) -> int:
         h_from = "the DEM"
     else:
         raise ValueError("the ground point's height: give --point-h-m H (ellipsoidal) or --dem FILE")
-    px = sensor.ground_to_pixel(np.asarray(lat), np.asarray(lon), np.asarray(h), pose)
-    st = int(np.asarray(px.status))
-    row, col = float(np.asarray(px.row)), float(np.asarray(px.col))
-    visible, occluder = None, float("nan")
-    if st == Status.OK and surface is not None:
-        from geoloc.geodesy.ellipsoid import geodetic_to_ecef
-
-        los = sensor.line_of_sight(np.asarray(row), np.asarray(col), pose)
-        rng = float(np.linalg.norm(geodetic_to_ecef(lat, lon, h) - np.asarray(los.origin_ecef)))
-        back = surface.intersect(los)
-        visible = int(np.asarray(back.status)) != Status.OK or float(back.slant_range) > rng - HIDDEN_TOLERANCE_M
-        occluder = float(back.slant_range) if int(np.asarray(back.status)) == Status.OK else occluder
+    if surface is not None:
+        v = point_view(sensor, pose, lat, lon, h, surface)
+        st, row, col, occluder = v.pixel_status, v.row, v.col, v.occluder_range_m
+        visible = v.visible if st == Status.OK else None
+    else:
+        px = sensor.ground_to_pixel(np.asarray(lat), np.asarray(lon), np.asarray(h), pose)
+        st, row, col = int(np.asarray(px.status)), float(np.asarray(px.row)), float(np.asarray(px.col))
+        visible, occluder = None, float("nan")
     if st == Status.BEHIND_CAMERA:
         verdict = "behind the camera"
     elif st == Status.OUTSIDE_SENSOR:
@@ -125,12 +111,10 @@ def run(args) -> int:
         verdict = "hidden behind terrain from this camera"
     else:
         verdict = "in the frame" + ("" if visible else " (no DEM: not checked for terrain in the way)")
-    from geoloc.io.mgrs_grid import mgrs_text
-
     out = {"row": row, "col": col, "status": Status(st).name.lower(), "verdict": verdict,
            "lat_deg": lat_deg, "lon_deg": lon_deg, "h_m": h, "h_datum": ELLIPSOID_DATUM, "h_from": h_from,
            "given": given, "visible": visible}
-    if math.isfinite(occluder):
+    if visible is not None and math.isfinite(occluder):
         out["occluder_range_m"] = occluder
     if args.json:
         print(json.dumps(out))
@@ -140,5 +124,5 @@ def run(args) -> int:
               f"{mgrs_text(lat_deg, lon_deg)}")
         if visible is False:
             print(f"the line of sight through that pixel meets the terrain {occluder:.0f} m from the camera, "
-                  f"before the point", file=sys.stdout)
+                  f"before the point")
     return 0 if st == Status.OK and visible is not False else 1

@@ -33,16 +33,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from geoloc.io.mgrs_grid import mgrs_text
-from geoloc.locate import as_sensor
+from geoloc.locate import as_sensor, point_view
 from geoloc.status import Status, describe
 from geoloc.surfaces.base import LineOfSight
 
 #: Height datum of every height in this module.
 H_DATUM = "ellipsoidal, WGS 84"
-#: A ground point is hidden from the camera when the camera's ray towards it meets the terrain
-#: this much nearer [m]: the exact solver's hits agree to millimetres (docs/terrain.md), the
-#: DEM's bilinear surface is continuous, so 1 m separates a true occluder from round-off.
-HIDDEN_TOLERANCE_M = 1.0
 
 
 def images_of(scn):
@@ -187,9 +183,10 @@ def ground_pick(scn, inputs, sensor, origin_ecef, direction_ecef) -> GroundPick:
     The ray meets the scene's terrain at its exact first hit (on a scene without a DEM: the
     record's constant height). Its pixel is ``sensor.ground_to_pixel``; it is in the frame
     when that status is OK (``OUTSIDE_SENSOR``: computed, off the sensor; ``BEHIND_CAMERA``).
-    Visibility: the camera's line of sight through that pixel (extrapolated beyond the
-    sensor's edge if need be) is cast through the same surface; the point is hidden when that
-    ray meets the terrain more than :data:`HIDDEN_TOLERANCE_M` before it.
+    Visibility is :func:`geoloc.locate.point_view`'s: the camera's line of sight through that
+    pixel (extrapolated beyond the sensor's edge if need be) is cast through the same surface;
+    the point is hidden when that ray meets the terrain more than :data:`geoloc.locate.HIDDEN_TOLERANCE_M`
+    before it.
     """
     from geoloc.surfaces.terrain import surface_for
 
@@ -202,22 +199,9 @@ def ground_pick(scn, inputs, sensor, origin_ecef, direction_ecef) -> GroundPick:
     nan = float("nan")
     if int(hit.status) != Status.OK:
         return GroundPick(hit, nan, nan, int(Status.INVALID_INPUT), False, False, nan, nan)
-    pose = inputs.pose()
-    px = sensor.ground_to_pixel(hit.lat, hit.lon, hit.h, pose)
-    st = int(px.status)
-    row, col = float(px.row), float(px.col)
-    in_frame = st == Status.OK
-    visible, occ, rng = False, nan, nan
-    if st in (Status.OK, Status.OUTSIDE_SENSOR):
-        los = sensor.line_of_sight(row, col, pose, outside="extrapolate")
-        rng = float(np.linalg.norm(np.asarray(hit.ecef) - np.asarray(los.origin_ecef)))
-        back = surface.intersect(los)
-        if int(back.status) == Status.OK:
-            occ = float(back.slant_range)
-            visible = occ > rng - HIDDEN_TOLERANCE_M
-        else:  # the camera's ray meets nothing before it: nothing hides the point
-            visible = True
-    return GroundPick(hit, row, col, st, in_frame, visible, occ, rng)
+    v = point_view(sensor, inputs.pose(), hit.lat, hit.lon, hit.h, surface)
+    return GroundPick(hit, v.row, v.col, v.pixel_status, v.pixel_status == Status.OK, v.visible,
+                      v.occluder_range_m, v.range_m)
 
 
 def ground_markdown(g: GroundPick) -> str:
