@@ -35,19 +35,14 @@ from collections import deque
 import numpy as np
 
 from geoloc.frames.enu import EnuFrame
+from geoloc.viz.flight_layer import COLORS as FLIGHT_COLORS
 from geoloc.viz.scene_geoloc import WORLD_SCALE
 
 ROOT = "/live"
-COLORS = {
-    "track": (90, 200, 255),
-    "footprint": (205, 150, 70),
-    "footprint_outlier": (235, 50, 50),
-    "current": (255, 0, 255),
-    "recomputed": (255, 60, 60),
-    "reported": (180, 80, 255),
-    "los": (255, 230, 0),
-    "aircraft": (255, 255, 255),
-}
+#: The flight debugger's colours for what both draw (one legend), and the live view's own
+COLORS = {**{k: FLIGHT_COLORS[k] for k in ("track", "footprint", "footprint_outlier", "current", "recomputed",
+                                           "reported")},
+          "los": (255, 230, 0), "aircraft": (255, 255, 255)}
 #: Frames drawn in the scene (the newest): bounds the messages sent to a browser.
 SCENE_FRAMES = 2000
 #: Tabs are updated at most this often [s] (the current frame, the slider, the texts) ...
