@@ -31,6 +31,8 @@ import weakref
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _timing import rss_mb  # noqa: E402  (benchmarks/_timing.py, beside this file)
 
 #: A client waits at most this long for its tab's messages (bounded time per client).
 CLIENT_TIMEOUT_S = 60.0
@@ -38,13 +40,6 @@ CLIENT_TIMEOUT_S = 60.0
 QUIET_S = 0.25
 
 
-def rss_mb() -> float:
-    """Resident set size of this process [MB], from /proc (Linux)."""
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 def camera_message(position=(0.0, 0.0, 10.0), look_at=(0.0, 0.0, 0.0), wxyz=(1.0, 0.0, 0.0, 0.0)) -> bytes:
