@@ -219,6 +219,8 @@ TAGS: tuple[TagSpec, ...] = (
     TagSpec(65, "uas_ls_version", "UAS Datalink LS Version Number", "u8", 1),
     _u(75, "sensor_ellipsoid_height_m", "Sensor Ellipsoid Height", 2, -900, 19000, "HAE"),
     _u(78, "frame_center_hae_m", "Frame Center Height Above Ellipsoid", 2, -900, 19000, "HAE"),
+    _s(79, "sensor_north_velocity_m_s", "Sensor North Velocity", 2, 327, OUT_OF_RANGE),
+    _s(80, "sensor_east_velocity_m_s", "Sensor East Velocity", 2, 327, OUT_OF_RANGE),
     *_FULL_CORNERS,
     _s(90, "platform_pitch_full_deg", "Platform Pitch Angle (Full)", 4, 90, OUT_OF_RANGE),
     _s(91, "platform_roll_full_deg", "Platform Roll Angle (Full)", 4, 90, OUT_OF_RANGE),

@@ -570,20 +570,107 @@ def replay_klv(source, *, surface=None, sensor: FrameSensor | None = None, verif
     return _replay(read, surface, sensor, budget)
 
 
-def _klv_uncertainty(sens, pose, surface, budget, ok):
-    """The frame centres' predicted uncertainty columns (NaN where a packet has no centre).
+#: The largest gap between two packets [s] across which a velocity is differenced: beyond it the
+#: platform may have turned, and a chord is no velocity.
+VELOCITY_MAX_GAP_S = 5.0
+
+
+def platform_velocity_ned(lat_deg, lon_deg, h_m, time_s, north_m_s=None, east_m_s=None):
+    """Each packet's platform velocity (north, east, down) [m/s], and where it comes from.
+
+    MISB ST 0601 carries the horizontal velocity (tag 79 Sensor North Velocity, tag 80 Sensor
+    East Velocity, +/-327 m/s) and no vertical one. Where a packet has both tags they give north
+    and east; every other component is the central difference of the neighbouring packets'
+    positions (ECEF, WGS 84) over their time stamps (tag 2), rotated into the packet's NED frame
+    (one-sided at the ends and beside a gap). Two packets more than
+    :data:`VELOCITY_MAX_GAP_S` apart, or with a time stamp that does not increase, are not
+    differenced.
+
+    Tag 13/14's quantisation (4.2e-8 deg, 5 mm) over a 1/30 s step is a 0.14 m/s velocity
+    noise: times a time-tag error of milliseconds, sub-millimetre.
+
+    Parameters
+    ----------
+    lat_deg, lon_deg, h_m, time_s : array_like (n,)
+        The sensor's position (h ellipsoidal) and time stamp; NaN where a packet lacks one.
+    north_m_s, east_m_s : array_like (n,), optional
+        Tags 79 and 80 (NaN where absent).
+
+    Returns
+    -------
+    (ndarray (n, 3), ndarray (n,) of str)
+        The velocity (NaN rows where it cannot be known) and ``"tags 79, 80"``,
+        ``"differenced"`` or ``""`` per packet.
+    """
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+    from geoloc.geodesy.local import R_ecef_ned
+
+    lat = np.deg2rad(np.asarray(lat_deg, float))
+    lon = np.deg2rad(np.asarray(lon_deg, float))
+    h = np.asarray(h_m, float)
+    t = np.asarray(time_s, float)
+    n = lat.shape[0]
+    X = np.asarray(geodetic_to_ecef(lat, lon, h), float).reshape(n, 3)
+    good = np.isfinite(X).all(axis=1) & np.isfinite(t)
+    idx = np.flatnonzero(good)
+    v_ecef = np.full((n, 3), np.nan)
+    if idx.size >= 2:
+        dt = np.diff(t[idx])
+        link = (dt > 0) & (dt <= VELOCITY_MAX_GAP_S)  # between idx[j] and idx[j + 1]
+        prev_ok = np.r_[False, link]
+        next_ok = np.r_[link, False]
+        lo = np.where(prev_ok, np.r_[0, np.arange(idx.size - 1)], np.arange(idx.size))
+        hi = np.where(next_ok, np.r_[np.arange(1, idx.size), idx.size - 1], np.arange(idx.size))
+        a, b = idx[lo], idx[hi]
+        span = t[b] - t[a]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = (X[b] - X[a]) / span[:, None]
+        v[span <= 0] = np.nan
+        v_ecef[idx] = v
+    R = np.asarray(R_ecef_ned(np.where(np.isfinite(lat), lat, 0.0), np.where(np.isfinite(lon), lon, 0.0)))
+    v_ned = np.einsum("nji,nj->ni", R, v_ecef)  # R_ecef_ned maps NED to ECEF: its transpose back
+    from_tags = np.zeros(n, bool)
+    if north_m_s is not None and east_m_s is not None:
+        vn, ve = np.asarray(north_m_s, float), np.asarray(east_m_s, float)
+        from_tags = np.isfinite(vn) & np.isfinite(ve)
+        v_ned[from_tags, 0] = vn[from_tags]
+        v_ned[from_tags, 1] = ve[from_tags]
+    known = np.isfinite(v_ned).all(axis=1)
+    src = np.where(from_tags & known, "tags 79, 80", np.where(known, "differenced", ""))
+    return v_ned, src.astype(object)
+
+
+def _klv_uncertainty(sens, pose, surface, budget, ok, velocity_ned_m_s=None):
+    """The frame centres' predicted uncertainty columns (NaN where a packet has no centre), and
+    the messages to show.
 
     The packets' lens is made from their fields of view (a pinhole), so a budget's distortion keys
-    (k1, ...) do not apply and are left out; ``time_s`` is left out too (velocity tags 79 / 80 are
-    not read)."""
+    (k1, ...) do not apply and are left out. A ``time_s`` term moves the platform by its velocity
+    (:func:`platform_velocity_ned`); a packet whose velocity cannot be known gets no time term,
+    and the messages count them."""
     from geoloc.analysis.uncertainty import propagate
     from geoloc.sensors.budget import LENS_KEYS, ErrorBudget
 
+    messages = []
     keep = {k: v for k, v in budget.sigmas.items()
-            if k != "time_s" and not (k in LENS_KEYS and LENS_KEYS[k] not in sens.lens.params)}
-    pu = propagate(sens, pose, None, None, ErrorBudget(keep, budget.dem_product, budget.source), surface=surface)
+            if not (k in LENS_KEYS and LENS_KEYS[k] not in sens.lens.params)}
+    vel = None
+    if budget.sigma("time_s") > 0:
+        known = np.isfinite(velocity_ned_m_s).all(axis=1) if velocity_ned_m_s is not None else np.zeros(len(ok), bool)
+        if not known.any():
+            keep.pop("time_s", None)
+            messages.append(f"{budget.source}: [uncertainty] time_s = {budget.sigma('time_s'):g} s left out of the "
+                            "predicted uncertainty: no packet has a velocity (tags 79, 80, or a neighbour to "
+                            "difference)")
+        else:
+            vel = np.where(known[:, None], velocity_ned_m_s, 0.0)
+            if (~known & ok).any():
+                messages.append(f"{budget.source}: [uncertainty] time_s left out for {int(np.sum(~known & ok))} "
+                                "packet(s) whose velocity cannot be known")
+    pu = propagate(sens, pose, None, None, ErrorBudget(keep, budget.dem_product, budget.source), surface=surface,
+                   velocity_ned_m_s=vel)
     good = ok & (np.asarray(pu.status) == Status.OK)
-    return {k: np.where(good, np.asarray(v, float), np.nan) for k, v in pu.columns().items()}
+    return {k: np.where(good, np.asarray(v, float), np.nan) for k, v in pu.columns().items()}, messages
 
 
 def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
@@ -803,13 +890,28 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
         cols[f"corner{j + 1}_lat_deg"] = k_lat[j]
         cols[f"corner{j + 1}_lon_deg"] = k_lon[j]
         cols[f"corner{j + 1}_h_m"] = k_h[j]
+    unc_messages = []
     if budget is not None:  # predicted beside the packet's own target error estimates (tags 45, 46)
         from geoloc.surfaces.height import HeightSurface
 
         unc_surface = HeightSurface(h_int, "geodetic") if surface is None else surface
         cols["reported_ce90_m"] = g("target_error_ce90_m")
         cols["reported_le90_m"] = g("target_error_le90_m")
-        cols.update(_klv_uncertainty(sens, pose_c, unc_surface, budget, ok))
+        vel = None
+        if budget.sigma("time_s") > 0:
+            vel, vel_from = platform_velocity_ned(lat_s, lon_s, h_s, ts / 1e6, g("sensor_north_velocity_m_s"),
+                                                  g("sensor_east_velocity_m_s"))
+        ucols, unc_messages = _klv_uncertainty(sens, pose_c, unc_surface, budget, ok, vel)
+        cols.update(ucols)
+        if vel is not None:
+            for j, axis in enumerate(("north", "east", "down")):
+                cols[f"velocity_{axis}_m_s"] = vel[:, j]
+            cols["velocity_from"] = vel_from
+            used = ok & (vel_from != "")
+            unc_messages.append(f"time_s = {budget.sigma('time_s'):g} s propagated with the platform's velocity: "
+                                f"tags 79, 80 for {int(np.sum(used & (vel_from == 'tags 79, 80')))} packet(s), "
+                                f"differenced positions for {int(np.sum(used & (vel_from == 'differenced')))} "
+                                "(column velocity_from)")
     cols.update({
         "corner_status": corner_status,
         "corner_error_m": corner_err,
@@ -822,7 +924,7 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
     fin = np.isfinite(fc_err)
     kfin = np.isfinite(corner_err)
     counts = {s.name.lower(): int(np.sum(status == s)) for s in Status if np.any(status == s)}
-    summ_notes = []
+    summ_notes = list(unc_messages)
     if base_sensor is not None:
         summ_notes.append(f"sensor file: image {sens.cols} x {sens.rows}, mount, boresight and lever arm "
                           "used; its lens is replaced by each packet's fields of view (tags 16, 17)")
