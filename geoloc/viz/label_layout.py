@@ -53,6 +53,13 @@ def label_size_px(text: str, em_px: float = EM_PX, char_em: float = CHAR_EM) -> 
     return w + pad, lh * len(lines) + pad
 
 
+def handle_size_px(h) -> tuple:
+    """(width, height) [px] of label handle ``h``'s rectangle at its own font scale
+    (viser draws a screen-space label at ``EM_PX * font_screen_scale`` px per em)."""
+    scale = float(getattr(h, "font_screen_scale", 1.0) or 1.0)
+    return label_size_px(h.text, em_px=EM_PX * scale)
+
+
 def label_box(u: float, v: float, size, anchor: str) -> np.ndarray:
     """Screen box (x0, y0, x1, y1) [px, y down] of a background rectangle ``size`` = (w, h) whose
     ``anchor`` ("top-left", "center-right", ...) sits at pixel (u, v); as viser's layoutLabel."""
@@ -124,7 +131,7 @@ def scene_labels(scene, also=()):
     return out
 
 
-def label_boxes(scene, camera, width: int, height: int, size_fn=label_size_px):
+def label_boxes(scene, camera, width: int, height: int, size_fn=None):
     """{name: (box, depth)} of the shown labels in front of ``camera`` (position, wxyz, fov)."""
     out = {}
     for name, h in scene_labels(scene):
@@ -133,7 +140,8 @@ def label_boxes(scene, camera, width: int, height: int, size_fn=label_size_px):
         uv, z, *_ = project(p, camera.position, camera.wxyz, camera.fov, width, height)
         if z[0] <= 0:
             continue
-        out[name] = (label_box(uv[0, 0], uv[0, 1], size_fn(h.text), h.anchor), float(z[0]))
+        size = handle_size_px(h) if size_fn is None else size_fn(h.text)
+        out[name] = (label_box(uv[0, 0], uv[0, 1], size, h.anchor), float(z[0]))
     return out
 
 
@@ -223,15 +231,17 @@ class LabelLayout:
         items.sort(key=lambda it: (it[0], it[1]))
         placed = []
         for _, name, h, home, anchor, R, t, uv, z, Rc, f in items:
-            size = label_size_px(h.text)
+            size = handle_size_px(h)
             best = None
             order = (anchor,) + tuple(a for a in ANCHORS if a != anchor)
+            # a label whose own place is on the canvas is moved only to places on the canvas
+            on = _inside(label_box(uv[0], uv[1], size, anchor), W, H)
             for step in range(0, 9):
                 for sgn in ((1,) if step == 0 else (-1, 1)):
                     dv = sgn * step * size[1]
                     for a in order:
                         box = label_box(uv[0], uv[1] + dv, size, a)
-                        if not any(overlap(box, b, GAP_PX) for b in placed):
+                        if (not on or _inside(box, W, H)) and not any(overlap(box, b, GAP_PX) for b in placed):
                             best = (a, dv, box)
                             break
                     if best:
@@ -258,6 +268,10 @@ class LabelLayout:
                 h.position = tuple(local)
             self.homes[name] = (h, home, anchor, np.asarray(h.position, float).copy(), str(h.anchor))
             self.moved[name] = (a != anchor) or dv != 0.0
+
+
+def _inside(box, W, H) -> bool:
+    return box[0] >= 0 and box[1] >= 0 and box[2] <= W and box[3] <= H
 
 
 def label_priority(name: str) -> int:

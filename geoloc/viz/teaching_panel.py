@@ -57,8 +57,18 @@ PIXEL = "pixel ray (row, column)"
 TYPED = "typed vector"
 #: Frame size in metres per unit of the app's aircraft display scale (200 -> 1 km axes).
 UNIT_PER_SCALE_M = 5.0
-#: Row layout, in frame sizes: height of the row above the aircraft, gap between frames.
-LIFT, GAP = 4.0, 3.0
+#: Row layout, in frame sizes U (a frame's axes are U long): the row's lower band above the
+#: aircraft, the upper band above the lower (frames alternate between the two, a zigzag, so the
+#: labels of neighbours never share a band), the least gap between neighbours.
+LIFT, ZIG, GAP_MIN = 8.0, 3.2, 1.6
+#: Frames are spaced by what they contain: the labels of frames in one band (every other
+#: frame) may not meet. Widths are in label characters, turned into U at the framing scale:
+#: "frame the aircraft" shows one U as :data:`PX_PER_U` CSS px, and a character of a label
+#: takes at most ``label_layout.CHAR_EM`` em of ``label_layout.EM_PX`` x font scale px.
+PX_PER_U = 36.0
+AXIS_FONT, TEXT_FONT = 0.8, 0.85
+#: Where the GUI panel covers the canvas: this many CSS px on its right side.
+PANEL_PX = 400.0
 #: Animation: steps and seconds per step.
 ANIM_STEPS, ANIM_DT_S = 30, 0.1
 
@@ -69,6 +79,44 @@ def _scene(session):
 
 def _gui(session):
     return getattr(session, "gui", None) or session.server.gui
+
+
+#: Gap between the globe's centre and the first frame (ECEF) [U]: its axes (2.4 U) and their
+#: labels ("X ecef (0 N, 0 E)", right of the tips) clear of the ECEF frame's.
+GLOBE_GAP = 4.0
+
+
+def label_u(n_chars: int, font: float) -> float:
+    """Width [U] of a label of ``n_chars`` characters at font scale ``font`` when one U is
+    :data:`PX_PER_U` px (the label layout's own estimate, padding included)."""
+    from geoloc.viz import label_layout
+
+    return label_layout.label_size_px("x" * int(n_chars), em_px=label_layout.EM_PX * font)[0] / PX_PER_U
+
+
+def frame_extent(frame: str, coords_chars: int = 24, tag_chars: int = 12) -> tuple:
+    """(left, right) extent [U] about its origin of what a row frame carries: its axes
+    (1.25 U when highlighted, tips labelled at 1.08 of that), the axis labels (anchored at the
+    tip's left, so they run right), and the name and coordinates labels centred under it."""
+    tip = 1.25 * 1.08
+    axis = tip + label_u(len(f"x {frame}"), AXIS_FONT)
+    name = len(frame) + tag_chars + (len(" (origin: Earth's centre)") if frame == "ecef" else 0)
+    text = 0.5 * label_u(max(coords_chars, name), TEXT_FONT)
+    return max(tip, text), max(axis, text)
+
+
+def row_offsets(frames) -> tuple:
+    """(x, z) [U] of the row's frames: x along the row from the first, z = 0 (lower band) or
+    :data:`ZIG` (upper band) alternately. Frames of one band are spaced so that their extents
+    (:func:`frame_extent`) keep 0.4 U apart; neighbours at least :data:`GAP_MIN`."""
+    ext = [frame_extent(f) for f in frames]
+    x = np.zeros(len(frames))
+    for k in range(1, len(frames)):
+        x[k] = x[k - 1] + GAP_MIN
+        if k >= 2:
+            x[k] = max(x[k], x[k - 2] + ext[k - 2][1] + ext[k][0] + 0.4)
+    z = np.where(np.arange(len(frames)) % 2 == 0, 0.0, ZIG)
+    return x, z
 
 
 class TeachingPanel:
@@ -193,7 +241,14 @@ class TeachingPanel:
         return UNIT_PER_SCALE_M * float(self.session.view.disp.aircraft_scale) * WORLD_SCALE
 
     def layout(self, chain):
-        """Row positions (relative to the aircraft, km) of the frames and of the globe."""
+        """Row positions (relative to the aircraft, km) of the frames and of the globe, and the
+        row's direction ``u``.
+
+        Spaced by what the frames carry (issue 34): frame k and frame k + 2 (one band) sit at
+        least their axes and their widest labels apart (:func:`row_offsets`), so a turret's
+        frames, which all sit at one optical centre, are fanned out over the row and their
+        labels do not collide.
+        """
         g = self.session.geometry
         U = self.unit_km()
         d = np.asarray(g.los_dir_enu, float)
@@ -201,9 +256,10 @@ class TeachingPanel:
         u = u / np.linalg.norm(u) if np.linalg.norm(u) > 1e-9 else np.array([1.0, 0.0, 0.0])
         up = np.array([0.0, 0.0, 1.0])
         frames = teaching.chain_frames(chain)
-        n = len(frames)
-        pos = {f: up * LIFT * U + u * (k - (n - 1) / 2.0) * GAP * U for k, f in enumerate(frames)}
-        globe = up * LIFT * U + u * (-(n - 1) / 2.0 * GAP - 3.2) * U
+        x, z = row_offsets(frames)
+        x = x - 0.5 * (x[0] + x[-1])
+        pos = {f: up * (LIFT + z[k]) * U + u * x[k] * U for k, f in enumerate(frames)}
+        globe = up * (LIFT + ZIG) * U + u * (x[0] - GLOBE_GAP) * U
         return pos, globe, u
 
     # ------------------------------------------------------------ drawing
@@ -247,7 +303,7 @@ class TeachingPanel:
                     tip = np.zeros(3)
                     tip[i] = L * 1.08
                     sc.add_label(f"{name}/{ax}", f"{ax} {f}", position=tip, anchor="center-left",
-                                 font_screen_scale=0.8)
+                                 font_screen_scale=AXIS_FONT)
                 self._handles[name] = (fh, key)
             else:
                 fh = h[0]
@@ -255,11 +311,12 @@ class TeachingPanel:
             tag = {"src": "SOURCE ", "dst": "DESTINATION ", None: ""}[role]
             where = " (origin: Earth's centre)" if f == "ecef" else ""
             c = coords[f]
-            # name and coordinates below the frame, every other frame above it: they stay readable
-            z = -1.5 * U if index % 2 == 0 else 1.6 * U
+            # name and coordinates below a frame of the lower band, above one of the upper band
+            # (past a tip label, so an axis pointing down or up leaves the name clear)
+            z = -1.75 * U if index % 2 == 0 else 1.75 * U
             anchor = "top-center" if index % 2 == 0 else "bottom-center"
             self._label(f"{ROOT}/frames_name/{f}", f"{tag}{f}{where}", pos[f] + np.array([0, 0, z]), anchor)
-            self._label(f"{ROOT}/frames_coords/{f}", f"v = ({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:+.3f})",
+            self._label(f"{ROOT}/frames_coords/{f}", f"({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:+.3f})",
                         pos[f] + np.array([0, 0, z - 0.45 * U if index % 2 == 0 else z + 0.45 * U]), anchor)
             arrows.append([pos[f], pos[f] + 1.1 * U * v_enu])
             for r in ("src", "dst"):
@@ -272,10 +329,11 @@ class TeachingPanel:
         sc.add_arrows(f"{ROOT}/vector", np.asarray(arrows, np.float32), VECTOR_COLOR,
                       shaft_radius=0.03 * U, head_radius=0.08 * U, head_length=0.2 * U)
         # a leader from the row down to the aircraft: the frames really share its origin
-        sc.add_line_segments(f"{ROOT}/leader", np.array([[[0, 0, 0], [0, 0, (LIFT - 1.2) * U]]], np.float32),
+        # (its caption under the row's lower band of texts, above the aircraft's own frame labels)
+        sc.add_line_segments(f"{ROOT}/leader", np.array([[[0, 0, 0], [0, 0, (LIFT - 3.0) * U]]], np.float32),
                              (200, 200, 200), thickness=1.5, thickness_units="screen")
         self._label(f"{ROOT}/leader/label", "frames drawn apart: all but ECEF sit at the aircraft",
-                    np.array([0, 0, 0.45 * LIFT * U]), "center-left")
+                    np.array([0, 0, (LIFT - 3.0) * U]), "top-center")
         self._draw_globe(chain, globe, U, coords, dst, src, hop == "T_ecef_ned")
         self._text(chain, v, vframe, what, hop)
         self.set_mesh(self._mesh_visible)
@@ -283,7 +341,7 @@ class TeachingPanel:
     def _label(self, name, text, position, anchor):
         h = self._handles.get(name)
         if h is None or h[1] != anchor:
-            lh = self.scene.add_label(name, text, position=position, anchor=anchor, font_screen_scale=0.85)
+            lh = self.scene.add_label(name, text, position=position, anchor=anchor, font_screen_scale=TEXT_FONT)
             self._handles[name] = (lh, anchor)
         else:
             lh = h[0]
@@ -329,7 +387,7 @@ class TeachingPanel:
         p_in = R_enu_ecef @ p * k
         sc.add_icosphere(name + "/aircraft", radius=0.08 * U, color=(255, 40, 40), position=p_in,
                          cast_shadow=False, receive_shadow=False)
-        sc.add_label(name + "/aircraft/label", "aircraft (its ECEF position; Earth to scale)", anchor="top-left",
+        sc.add_label(name + "/aircraft/label", "aircraft (Earth to scale)", anchor="top-left",
                      font_screen_scale=0.8)
         ve = enu.vector_from_ecef(coords["ecef"])
         ve = ve / max(np.linalg.norm(ve), 1e-300)
@@ -373,23 +431,47 @@ class TeachingPanel:
             self.md_q17.visible = False
 
     # ------------------------------------------------------------ camera
-    def camera_pose(self):
-        """(position, look_at) in scene km showing the row of frames, the globe and the aircraft."""
+    def camera_pose(self, width: int | None = None, height: int | None = None, fov_rad: float | None = None):
+        """(position, look_at) in scene km showing the row of frames and the globe face on.
+
+        The camera looks at the row square to it, from a distance at which one frame size is
+        :data:`PX_PER_U` CSS px on a ``width`` x ``height`` canvas of vertical field of view
+        ``fov_rad`` (default: the session's tab's camera, else 1280 x 800 at 75 deg), farther
+        when the row would not fit left of the GUI panel; the row's middle is put in the middle
+        of what the panel leaves free.
+        """
+        cam = self._camera()
+        W = float(width or getattr(cam, "image_width", 0) or 1280)
+        H = float(height or getattr(cam, "image_height", 0) or 800)
+        fov = float(fov_rad or getattr(cam, "fov", 0.0) or np.deg2rad(75.0))
         chain = self.chain
         pos, globe, u = self.layout(chain)
-        g = self.session.geometry
-        aircraft = self.session.view.disp.z(g.aircraft_enu)
-        pts = np.array(list(pos.values()) + [globe])
-        lo, hi = pts.min(0), pts.max(0)
+        aircraft = self.session.view.disp.z(self.session.geometry.aircraft_enu)
         U = self.unit_km()
-        centre = aircraft + 0.5 * (lo + hi) - np.array([0, 0, 0.8 * U])
-        span = float(np.linalg.norm(hi - lo)) + 3.0 * U
-        side = np.array([u[1], -u[0], 0.0])
-        eye = centre + side * 0.7 * span + np.array([0.0, 0.0, 0.12 * span])
-        # aim right of the row's middle (as seen): the GUI panel covers the right of the page
-        right = np.cross(centre - eye, [0.0, 0.0, 1.0])
-        right /= max(np.linalg.norm(right), 1e-12)
-        return eye, centre + 0.2 * span * right
+        pts = np.array(list(pos.values()) + [globe])
+        along = (pts - pts.mean(0)) @ u
+        # the globe's axes and labels on the left, the last frame's tip labels on the right
+        lo, hi = float(along.min()) - 5.5 * U, float(along.max()) + 3.5 * U
+        zs = pts[:, 2]
+        centre = aircraft + pts.mean(0) + u * (0.5 * (lo + hi))
+        centre[2] = aircraft[2] + 0.5 * (zs.min() - 3.4 * U + zs.max() + 2.6 * U)  # the texts below, above
+        f = 0.5 * H / np.tan(0.5 * fov)
+        free = max(W - PANEL_PX, 0.5 * W)
+        dist = max(f * U / PX_PER_U, f * (hi - lo) / (0.92 * free))
+        side = np.array([u[1], -u[0], 0.0])  # horizontal, square to the row; u points right on screen
+        eye = centre + side * dist * np.cos(0.12) + np.array([0.0, 0.0, dist * np.sin(0.12)])
+        # the row's middle at the middle of the free part: aim right of it by half the panel
+        shift = 0.5 * (W - free) * dist / f
+        return eye + u * shift, centre + u * shift
+
+    def _camera(self):
+        """The camera of the session's tab (a server session: its first tab's), or None."""
+        c = getattr(self.session, "client", None)
+        if c is None:
+            server = getattr(self.session, "server", None)
+            clients = list(server.get_clients().values()) if server is not None else []
+            c = clients[0] if clients else None
+        return getattr(c, "camera", None)
 
     def frame_aircraft(self) -> None:
         """Move the browsers' cameras to the aircraft (the wheel then zooms about it, not the ground hit)."""
