@@ -195,15 +195,18 @@ def test_presenter_mode_followers_mirror_the_driver(server):
     try:
         d = viewer.driver
         assert d.client.client_id == ida and d.scene is server.scene  # the shared scene
-        assert idb in viewer.followers and viewer.session_of(idb) is None
+        # "take control" reaches the tab while its panel is still being built: wait for the panel
+        # to be registered (a condition, not a sleep: under load the build takes seconds)
+        wait_for(lambda: idb in viewer.followers, 60, "the follower's panel")
+        assert viewer.session_of(idb) is None
         f = viewer.followers[idb]
         # the follower's copy of the inputs is read-only and shows the driver's values
         assert all(h.disabled for h in f.num.values()) and f.dd_record.disabled
         d.dd_record.value = "T4-3"
-        wait_for(lambda: f.dd_record.value == "T4-3", 20, "the follower's record box")
         _, inp = next(r for r in d.scn.records if r[0].label == "T4-3")
-        assert f.num["h_m"].value == pytest.approx(inp.h_m, abs=1e-9)
-        assert "T4-3" in f.md_summary.content
+        # the record box, the summary and the numbers are set one after the other: wait for all
+        wait_for(lambda: f.dd_record.value == "T4-3" and "T4-3" in f.md_summary.content
+                 and abs(f.num["h_m"].value - inp.h_m) < 1e-9, 60, "the follower's record, summary and height")
         # the follower sees the shared scene: the aircraft node at pymap3d's ENU of T4-3
         ac = np.asarray(server.scene.get_handle_by_name("/enu/aircraft").position) / WORLD_SCALE
         np.testing.assert_allclose(ac, pymap3d_enu(d, inp.lat_deg, inp.lon_deg, inp.h_m), atol=1e-3)
@@ -221,6 +224,55 @@ def test_presenter_mode_followers_mirror_the_driver(server):
         assert viewer.driver.client.client_id == idb and ida in viewer.followers
         assert viewer.driver.scn.name.endswith("T4-3")
         assert viewer.driver.inputs.h_m == pytest.approx(inp.h_m)
+    finally:
+        a.close()
+        b.close()
+    wait_for(lambda: viewer.driver is None and not viewer.followers, 20, "presenter state to clear")
+
+
+def test_presenter_switches_scenario_and_the_followers_follow(server):
+    # issue 34 item 6: in presenter mode the driver has the "scenario" dropdown; choosing another
+    # scenario rebuilds the shared scene on it and every follower's panel follows (read-only box,
+    # header, the new session's folders)
+    from geoloc.viz.app import driver_folders
+    from geoloc.viz.flight_model import default_flight_scenario
+
+    q17 = load_view_scenario()
+    viewer = GeolocViewer(server, q17, presenter=True,
+                          scenarios={"[Q17] flight test": q17, "example flight": default_flight_scenario})
+    a, ida = open_tab(server, viewer=viewer)
+    b, idb = open_tab(server, until=b"take control")
+    try:
+        wait_for(lambda: idb in viewer.followers, 60, "the follower's panel")
+        assert b"Present another bundled scenario" in a.stream()  # the driver's dropdown
+        f = viewer.followers[idb]
+        assert f.dd_scenario.disabled and f.dd_scenario.value == "[Q17] flight test"
+        assert len(viewer.driver.layers[0].model) == len(q17.records)  # the flight layer: [Q17]'s records
+        viewer.present("example flight")  # what choosing it in the driver's dropdown does
+        d, f = viewer.driver, viewer.followers[idb]
+        assert d.client.client_id == ida and d.scene is server.scene
+        assert d.scn.name.startswith("example_flight.klv") and len(d.scn.records) == 298
+        # the shared scene is the flight's: its aircraft node at pymap3d's ENU of its record
+        inp = d.scn.records[d.scn.record_index][1]
+        ac = np.asarray(server.scene.get_handle_by_name("/enu/aircraft").position) / WORLD_SCALE
+        np.testing.assert_allclose(ac, pymap3d_enu(d, inp.lat_deg, inp.lon_deg, inp.h_m), atol=1e-3)
+        assert len(d.layers[0].model) == 298 and server.scene.get_handle_by_name("/flight") is not None
+        # the follower: its box, header and folders are the new scenario's
+        assert f.dd_scenario.value == "example flight" and f.dd_scenario.disabled
+        assert f.md_summary.content == d.md_summary.content and "example_flight.klv" in f.md_summary.content
+        labels = [lab for lab, _ in driver_folders(d)]
+        assert "Flight" in labels and len(f.mirrors) == sum(len(h) for _, h in driver_folders(d))
+        for src, dst in f.mirrors:
+            assert dst.content == src.content
+        wait_for(lambda: b"example_flight.klv" in b.stream(), 30, "the new header in the follower's stream")
+        # the same name again does nothing; an unknown name neither
+        viewer.present("example flight")
+        viewer.present("nope")
+        assert viewer.driver is d
+        # a hand-over keeps the presented scenario
+        viewer.take_control(idb)
+        assert viewer.driver.client.client_id == idb and viewer.driver.scn.name.startswith("example_flight.klv")
+        assert viewer.followers[ida].dd_scenario.value == "example flight"
     finally:
         a.close()
         b.close()

@@ -729,6 +729,12 @@ class _FollowerPanel:
         self.bt_take = gui.add_button("take control", hint="Drive the scene; the presenter becomes a follower")
         cid = client.client_id
         self.bt_take.on_click(lambda _e: viewer.take_control(cid))
+        self.dd_scenario = None
+        if len(viewer.scenarios) > 1:  # the presenter's scenario, read-only (it follows theirs)
+            self.dd_scenario = gui.add_dropdown("scenario", tuple(viewer.scenarios),
+                                                initial_value=viewer.driver_scenario, disabled=True,
+                                                hint="The presenter's scenario (they switch it)")
+        self.viewer = viewer
         self.md_summary = gui.add_markdown("")
         self.num = {}
         self.mirrors: list = []  # (driver's markdown handle, ours)
@@ -754,6 +760,8 @@ class _FollowerPanel:
                                 "and the camera are theirs and the controls are read-only. Press "
                                 "\"take control\" to drive.")
         self.md_summary.content = driver.md_summary.content
+        if self.dd_scenario is not None and self.dd_scenario.value != self.viewer.driver_scenario:
+            self.dd_scenario.value = self.viewer.driver_scenario
         for src, dst in self.mirrors:
             if dst.content != src.content:
                 dst.content = src.content
@@ -787,8 +795,10 @@ class GeolocViewer:
         Passed to every session (default :data:`DEFAULT_LAYERS`).
     scenarios : dict, optional
         Name -> scenario (or a callable building it) for a "scenario" dropdown on top of
-        each tab (per-tab mode): the first entry is ``scn``, the others one click away
-        (``geoloc view`` offers the example flight and the [Q17] flight test).
+        each tab (per-tab mode; presenter mode: on the driver's panel, the followers showing
+        it read-only and following it, :meth:`present`): the first entry is ``scn``, the
+        others one click away (``geoloc view`` offers the example flight and the [Q17]
+        flight test).
     """
 
     #: What builds a tab's session (same arguments as :class:`GeolocSession`).
@@ -809,6 +819,8 @@ class GeolocViewer:
         self.tab_scenario: dict[int, str | None] = {}
         self.followers: dict[int, _FollowerPanel] = {}  # presenter mode
         self.driver: GeolocSession | None = None
+        #: Presenter mode: the scenario the driver presents (a name of ``scenarios``, or None).
+        self.driver_scenario: str | None = next(iter(self.scenarios)) if self.scenarios else None
         self.refused: set[int] = set()
         self._lock = threading.RLock()
         self._release_timer: threading.Timer | None = None
@@ -936,6 +948,10 @@ class GeolocViewer:
                 if self.followers:
                     nxt = next(iter(self.followers))
                     panel = self.followers.pop(nxt)
+                    try:
+                        panel.client.gui.reset()  # its follower panel goes; the driver's comes
+                    except Exception:
+                        pass
                     self._make_driver(panel.client, old)
                     self._mirror()
 
@@ -957,10 +973,17 @@ class GeolocViewer:
 
     # ------------------------------------------------------------ presenter mode
     def _make_driver(self, client, old: GeolocSession | None) -> None:
-        """Build the driving session on ``client.gui`` and the shared scene, from ``old``'s state."""
+        """Build the driving session on ``client.gui`` and the shared scene, from ``old``'s state
+        (None: the presented scenario's default record); with several scenarios a "scenario"
+        dropdown on top switches what is presented (:meth:`present`)."""
+        if len(self.scenarios) > 1:
+            dd = client.gui.add_dropdown("scenario", tuple(self.scenarios), initial_value=self.driver_scenario,
+                                         hint="Present another bundled scenario (the followers follow)")
+            dd.on_update(lambda _, d=dd: self.present(str(d.value)))
         if old is None:
-            self.driver = self.session_factory(self.server, self.scn, self.disp, client=client,
-                                        scene=self.server.scene, layers=self.layers, copy_scenario=True)
+            self.driver = self.session_factory(self.server, self._scenario(self.driver_scenario), self.disp,
+                                               client=client, scene=self.server.scene, layers=self.layers,
+                                               copy_scenario=True)
         else:
             self.driver = self.session_factory(self.server, old.scn, old.view.disp, client=client,
                                         scene=self.server.scene, layers=self.layers,
@@ -968,6 +991,33 @@ class GeolocViewer:
         self.driver.on_refresh(lambda _g: self._mirror())
         cid = client.client_id
         client.camera.on_update(lambda cam: self._on_driver_camera(cid, cam))
+
+    def present(self, name: str) -> None:
+        """Presenter mode: the driver presents scenario ``name`` (one click in its "scenario"
+        dropdown); the shared scene is rebuilt on it and every follower's panel follows (its
+        folders are the new session's)."""
+        with self._lock:
+            d = self.driver
+            if d is None or name not in self.scenarios or name == self.driver_scenario:
+                return
+            client = d.client
+            d.close()
+            self.driver = None
+            self.driver_scenario = name
+            try:
+                client.gui.reset()
+            except Exception:
+                pass
+            self.server.scene.reset()
+            self._make_driver(client, None)
+            for cid, panel in list(self.followers.items()):
+                try:
+                    panel.client.gui.reset()
+                    self.followers[cid] = _FollowerPanel(self, panel.client, self.driver)
+                except Exception:  # a follower that left meanwhile
+                    self.followers.pop(cid, None)
+            self.driver.move_camera("overview")
+            self._mirror()
 
     def take_control(self, client_id: int) -> None:
         """Presenter mode: the follower ``client_id`` drives; the driver follows."""
