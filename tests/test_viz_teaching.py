@@ -145,9 +145,12 @@ def test_every_preset_hop_by_hop(preset):
     assert teaching.animatable_angles(chain) == ("heading", "pitch", "roll") + names
     # the vector markdown lists every frame of the chain with its coordinates
     md = teaching.vector_markdown(chain, teaching.pixel_ray_cam(sensor, row, col), "cam", chain.hops[1].name)
+    dst, src = chain.hops[1].dst, chain.hops[1].src
     for f, v in got.items():
-        assert f"| {f} |" in md or f"| **{f}** |" in md
+        tag = " (dst)" if f == dst else " (src)" if f == src else ""
+        assert (f"| **{f}{tag}** |" if tag else f"| {f} |") in md  # the hop's frames tagged in their cell
         assert f"{v[0]:+.6f}" in md
+    assert f"**(src)** is the hop's **source** `{src}`, **(dst)** its **destination** `{dst}`" in md
 
 
 def test_partial_products_are_explicit_products_of_the_hops():
@@ -295,7 +298,7 @@ def test_panel_draws_every_frame_labelled_and_the_same_vector_in_each(panel):
         np.testing.assert_allclose(R @ c, d_enu, atol=1.5e-3, err_msg=f)
     # the table in the GUI has one row per frame
     for f in frames:
-        assert f"| {f} |" in p.md_vec.content or f"| **{f}** |" in p.md_vec.content
+        assert any(f"| {c} |" in p.md_vec.content for c in (f, f"**{f} (src)**", f"**{f} (dst)**"))
 
 
 def test_panel_highlights_source_and_destination_and_steps(panel):
@@ -426,8 +429,8 @@ def _render(server, panel, path=None):
 # Timeouts are 60 s: on the shared 2-core machine (load ~10) the viewer's own page takes ~40 s to
 # show its GUI text, with or without this panel; each test takes ~30 s on an idle machine.
 @contextlib.contextmanager
-def _panel_app():
-    """(server, app, panel): the default scene on a viser server with the teaching panel alone."""
+def _panel_app(kind="roll-pitch"):
+    """(server, app, panel): a scene (default [Q17]'s) on a viser server with the teaching panel alone."""
     from test_viz_browser import ARTIFACTS
 
     from geoloc.viz import teaching_panel
@@ -437,7 +440,8 @@ def _panel_app():
     ARTIFACTS.mkdir(exist_ok=True)
     server = make_server(port=0)
     try:
-        app = GeolocApp(server, load_view_scenario(), layers=())  # the panel alone, attached below
+        scn = load_view_scenario() if kind == "roll-pitch" else _scenario(kind)
+        app = GeolocApp(server, scn, layers=())  # the panel alone, attached below
         yield server, app, teaching_panel.attach(app)
     finally:
         server.stop()
@@ -477,7 +481,8 @@ def test_teaching_panel_animation_changes_the_scene_in_chromium(tmp_path):
         with chromium(tmp_path) as browser:
             page = open_viewer(browser, server, 1024, 640)
             page.wait_for_selector("canvas", timeout=60000)
-            page.get_by_role("button", name="animate this angle from 0").click()
+            # (2 min: on the shared 2-core machine at load 8 a click waited 30 s for the busy page)
+            page.get_by_role("button", name="animate this angle from 0").click(timeout=120000)
             wait_for(lambda: p.animating, 60, "the animation to start")
             page.wait_for_selector("text=animating gimbal_roll", timeout=60000)
             a = _render(server, p, ARTIFACTS / "teaching_anim_a.png")
@@ -495,6 +500,29 @@ def test_teaching_panel_animation_changes_the_scene_in_chromium(tmp_path):
             q = np.asarray(server.scene.get_handle_by_name("/enu/teach/frames/gimbal_outer").wxyz)
             assert min(np.abs(q - wxyz(R)).max(), np.abs(q + wxyz(R)).max()) < 1e-9
             page.wait_for_selector("text=animated from 0", timeout=60000)
+
+
+@pytest.mark.browser
+def test_teaching_table_fits_the_panel_in_chromium(tmp_path):
+    # issue 34 item 4: with a fifth column of tags, "destination" ran past the panel for the
+    # turret's long frame names (28 px at 1280 x 800 for T_gimbal_elevation_gimbal_roll_los);
+    # the hop's frames are now tagged in their own cell. Judged on the page: every cell of the
+    # table inside the table's container, as the browser lays them out.
+    from test_viz_browser import ARTIFACTS, chromium, open_viewer
+
+    with _panel_app("azimuth-elevation-roll") as (server, _app, p):
+        p.dd_hop.value = "T_gimbal_elevation_gimbal_roll_los"  # the longest names as source and destination
+        with chromium(tmp_path) as browser:
+            page = open_viewer(browser, server, 1280, 800)
+            page.wait_for_selector("text=gimbal_elevation (dst)", timeout=120000)
+            page.get_by_text("Coordinates of the ray of pixel").scroll_into_view_if_needed(timeout=120000)
+            over = page.evaluate("""() => [...document.querySelectorAll('table')].map(t => {
+                const box = t.parentElement.getBoundingClientRect();
+                return Math.max(...[...t.querySelectorAll('td, th')].map(c => c.getBoundingClientRect().right))
+                       - box.right; })""")
+            page.screenshot(path=str(ARTIFACTS / "teaching_table.png"))
+            assert over and max(over) <= 0.5, over  # sub-pixel layout rounding
+            assert page.get_by_text("gimbal_roll_los (src)").count() >= 1
 
 
 def test_one_hop_selector_and_an_animation_speed():

@@ -232,13 +232,17 @@ def vector_markdown(chain, v, frame: str, hop: str | None = None, point: bool = 
     coords = vector_in_frames(chain, v, frame, point)
     dst, src = hop_frames(hop, chain) if hop else (None, None)
     unit = " [m]" if point else " (unit-free direction)"
-    lines = [f"**Coordinates of {what} in every frame**{unit}, given in `{frame}`:\n",
-             "| frame | x | y | z | |", "|---|---:|---:|---:|---|"]
+    # four columns, the hop's frames tagged in their own cell: the table fits the GUI panel
+    # (a fifth column of tags overflowed it, issue 34)
+    roles = (f" **(src)** is the hop's **source** `{src}`, **(dst)** its **destination** `{dst}`."
+             if hop else "")
+    lines = [f"**Coordinates of {what} in every frame**{unit}, given in `{frame}`.{roles}\n",
+             "| frame | x | y | z |", "|---|---:|---:|---:|"]
     for f, c in coords.items():
-        mark = "destination" if f == dst else "source" if f == src else ""
+        mark = " (dst)" if f == dst else " (src)" if f == src else ""
         x, y, z = _fmt3(c, point)
-        name = f"**{f}**" if mark else f
-        lines.append(f"| {name} | {x} | {y} | {z} | {mark} |")
+        name = f"**{f}{mark}**" if mark else f
+        lines.append(f"| {name} | {x} | {y} | {z} |")
     if hop:
         a, b = coords[src], coords[dst]
         lines.append(f"\nCheck: `{hop}` @ ({', '.join(_fmt3(a, point))}) = "
