@@ -61,6 +61,8 @@ FOCUS_RADIUS_M = (0.25, 220.0)
 #: third of the view at viser's 75 deg vertical field of view), at least FOCUS_MIN_DISTANCE_M.
 FOCUS_DISTANCE = 2.2
 FOCUS_MIN_DISTANCE_M = 60.0
+#: Longest wait [s] for a browser to apply a timeline step before the player sends the next anyway.
+PLAY_ACK_TIMEOUT_S = 30.0
 #: Display-only lift of the draped outlines above the terrain mesh [m], so the depth test does not
 #: hide lines that lie on it (the mesh resamples the DEM: it is tens of metres off between nodes).
 LIFT_M = {"footprints": 8.0, "current": 25.0}
@@ -625,7 +627,12 @@ class FlightLayer:
         self._move(self.camera_pose(idx))
 
     def toggle_play(self) -> None:
-        """Start or pause the timeline (a daemon thread steps ``frames per second``)."""
+        """Start or pause the timeline (a daemon thread steps ``frames per second``).
+
+        Pause is immediate: the player sends a step only once the browsers have applied the
+        one before (:meth:`_caught_up`), so when pause is pressed at most the step already
+        sent is still to be drawn; nothing queued runs on after it.
+        """
         if self._playing:
             self._playing = False
             self.bt_play.label = "play"
@@ -634,6 +641,36 @@ class FlightLayer:
         self.bt_play.label = "pause"
         self._thread = threading.Thread(target=self._play, daemon=True, name="geoloc-flight-timeline")
         self._thread.start()
+
+    def _clients(self) -> list:
+        """The browsers that draw this session: its tab's, or (a server session) every tab."""
+        s = self.session
+        c = getattr(s, "client", None)
+        if c is not None:
+            return [c]
+        server = getattr(s, "server", None)
+        return list(server.get_clients().values()) if server is not None else []
+
+    def _caught_up(self, timeout_s: float = PLAY_ACK_TIMEOUT_S) -> bool:
+        """Wait until every browser of the session has applied the messages sent so far.
+
+        A round trip behind them: a localStorage read, which the browser answers from its
+        message handler in the order the messages came (viser's ``LocalStorageHandle.get_item``).
+        False when paused meanwhile or a browser left; a browser that does not answer in
+        ``timeout_s`` is let be (the next step goes anyway).
+        """
+        for c in self._clients():
+            while self._playing and not self.closed:
+                try:
+                    c.local_storage.get_item("geoloc-timeline-ack", timeout=min(timeout_s, 0.5))
+                    break
+                except TimeoutError:
+                    timeout_s -= 0.5
+                    if timeout_s <= 0:
+                        break
+                except (RuntimeError, AttributeError):  # the tab left (or an old viser)
+                    break
+        return self._playing and not self.closed
 
     def _play(self) -> None:
         while self._playing and not self.closed:
@@ -644,8 +681,14 @@ class FlightLayer:
             except (RuntimeError, KeyError, ValueError):  # the tab left (its handles are gone): stop
                 self._playing = False
                 break
+            # the browsers first draw this step (software WebGL can take seconds a frame): a
+            # player that ran ahead of them would leave steps queued that run on after pause
+            if not self._caught_up():
+                break
             dt = 1.0 / max(float(self.num_fps.value), 1e-3)
-            time.sleep(max(dt - (time.monotonic() - t0), 0.0))
+            end = t0 + dt
+            while self._playing and not self.closed and time.monotonic() < end:
+                time.sleep(min(0.05, max(end - time.monotonic(), 0.0)))
 
     # ------------------------------------------------------------ session hooks
     def _follow_session(self) -> None:
