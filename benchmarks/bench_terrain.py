@@ -145,7 +145,7 @@ def big_case(n, rays, repeat, seed):
     t0, c0 = time.perf_counter(), time.process_time()
     terrain._exact_tables(dem)
     t_tab, c_tab = time.perf_counter() - t0, time.process_time() - c0
-    intersect_dem(los, dem, "exact", surface="triangles")  # compiled code from the cache, one walk
+    intersect_dem(los, dem, "exact", dem_model="triangles")  # compiled code from the cache, one walk
     t_first = time.perf_counter() - t0
     _, tm_peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
@@ -168,7 +168,7 @@ def big_case(n, rays, repeat, seed):
         return caster.intersects_location(O, D, multiple_hits=False)
 
     def run_ex():
-        return intersect_dem(los, dem, "exact", surface="triangles")
+        return intersect_dem(los, dem, "exact", dem_model="triangles")
 
     (t_tm, t_ex) = median_times_alternating((run_tm, run_ex), repeat)
     loc, idx, tri = run_tm()
@@ -176,7 +176,7 @@ def big_case(n, rays, repeat, seed):
     climb = terrain.CLIMB_FROM
     try:
         terrain.CLIMB_FROM = 10**6  # no level above the blocks: the two-level walk
-        two = intersect_dem(los, dem, "exact", surface="triangles")
+        two = intersect_dem(los, dem, "exact", dem_model="triangles")
     finally:
         terrain.CLIMB_FROM = climb
     okx = hit.status == Status.OK
@@ -267,21 +267,21 @@ def small_case(a):
     caster.intersects_location(O[:10], D[:10], multiple_hits=False)  # builds the BVH
     t_build = time.perf_counter() - t0
     t0 = time.perf_counter()
-    intersect_dem(los, dem, "exact", surface="triangles")  # numba warm-up (cache) + tables
+    intersect_dem(los, dem, "exact", dem_model="triangles")  # numba warm-up (cache) + tables
     t_warm = time.perf_counter() - t0
 
     def run_tm():
         return caster.intersects_location(O, D, multiple_hits=False)
 
     def run_ex():
-        return intersect_dem(los, dem, "exact", surface="triangles")
+        return intersect_dem(los, dem, "exact", dem_model="triangles")
 
     t_tm, t_ex = median_times_alternating((run_tm, run_ex), a.repeat)
     t_bl = median_time(lambda: intersect_dem(los, dem, "exact"), a.repeat)
-    t_par = median_time(lambda: intersect_dem(los, dem, "exact", surface="triangles", parallel=True), a.repeat)
+    t_par = median_time(lambda: intersect_dem(los, dem, "exact", dem_model="triangles", parallel=True), a.repeat)
     loc, idx, tri = run_tm()
     hit = run_ex()
-    hit_par = intersect_dem(los, dem, "exact", surface="triangles", parallel=True)
+    hit_par = intersect_dem(los, dem, "exact", dem_model="triangles", parallel=True)
     try:
         import numba
 

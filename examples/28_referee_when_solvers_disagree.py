@@ -15,7 +15,7 @@ from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 
 dem = upsampled_dem(DEM.open("assets/dem/srtm_jacksboro.tif"), 401, np.random.default_rng(0))
 los = random_oblique_rays(dem, 100_000, np.random.default_rng(1), frame_angle_deg=(45.0, 82.0))
-hit = intersect_dem(los, dem, "exact", surface="triangles")
+hit = intersect_dem(los, dem, "exact", dem_model="triangles")
 mesh = dem.to_trimesh()  # local ENU frame
 fr = mesh.metadata["enu_frame"]
 loc, idx, tri = mesh.ray.intersects_location(fr.from_ecef(los.origin_ecef), fr.vector_from_ecef(los.direction_ecef),

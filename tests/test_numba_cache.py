@@ -72,13 +72,13 @@ def test_walk_compiles_once_for_every_kind_of_input():
         for l_ in (los, one, ro):
             for method in ("exact", "bisect"):
                 intersect_dem(l_, d_, method)
-            intersect_dem(l_, d_, "exact", surface="triangles", trace=True)
+            intersect_dem(l_, d_, "exact", dem_model="triangles", trace=True)
         # the climbing kernel too: these rays would not climb, and the 30 x 30 DEM has no level 5
         climb, climb_from = terrain.CLIMB, terrain.CLIMB_FROM
         terrain.CLIMB, terrain.CLIMB_FROM = "always", 1
         try:
-            intersect_dem(los, d_, "exact", surface="triangles")
-            intersect_dem(ro, d_, "exact", surface="triangles", trace=True)
+            intersect_dem(los, d_, "exact", dem_model="triangles")
+            intersect_dem(ro, d_, "exact", dem_model="triangles", trace=True)
         finally:
             terrain.CLIMB, terrain.CLIMB_FROM = climb, climb_from
     # each compilation of the walk (with the climb, without it, without it for another block
@@ -86,7 +86,7 @@ def test_walk_compiles_once_for_every_kind_of_input():
     fine = DEM.from_array(z32.astype(float), 36.1, 78.0, 7e-5, 7e-5)
     assert terrain._exact_tables(fine)["block"] > tn.BLOCK
     los = random_oblique_rays(fine, 20, rng)
-    intersect_dem(los, fine, "exact", surface="triangles")
+    intersect_dem(los, fine, "exact", dem_model="triangles")
     intersect_dem(los, fine, "exact", trace=True)
     for kernel in (tn.walk_kernel, tn.walk_flat_kernel, tn.walk_flat_block_kernel):
         assert len(kernel.signatures) == 1, kernel.signatures

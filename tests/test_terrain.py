@@ -120,7 +120,7 @@ def test_hill_exact(surface):
     aim = np.c_[rng.uniform(-1500, 1500, n), rng.uniform(-1500, 1500, n), np.full(n, 500.0)]
     o = aim - (2500 / np.cos(off))[:, None] * d
     los = rays_enu(fr, o, d)
-    hit = intersect_dem(los, dem, "exact", surface=surface)
+    hit = intersect_dem(los, dem, "exact", dem_model=surface)
     assert (hit.status == Status.OK).all()
     if surface == "bilinear":
         s_ref = np.array([reference_first_hit(los.origin_ecef[k], los.direction_ecef[k], f, 15000.0)
@@ -175,7 +175,7 @@ def test_ridge_in_front_of_valley_grazing():
     assert (bi.status == Status.OK).all()
     assert np.all(bi.h < 2.0)  # [L23]'s halving lands on the floor behind the ridge...
     assert bi.hidden.all()  # ...and is flagged
-    ex_tri = intersect_dem(los, dem, "exact", surface="triangles")
+    ex_tri = intersect_dem(los, dem, "exact", dem_model="triangles")
     assert np.all(ex_tri.h > 150)
 
 
@@ -290,8 +290,8 @@ def test_bad_arguments():
         intersect_dem(los, dem, "newton")
     with pytest.raises(ValueError, match="eps_h"):
         intersect_dem(los, dem, "steps", eps_h=0)
-    with pytest.raises(ValueError, match="surface"):
-        intersect_dem(los, dem, "exact", surface="quads")
+    with pytest.raises(ValueError, match="dem_model"):
+        intersect_dem(los, dem, "exact", dem_model="quads")
 
 
 def test_bowring_latlon_for_cell_lookup():

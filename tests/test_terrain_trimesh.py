@@ -36,7 +36,7 @@ def walk_against_embree(dem, los):
     """The walk's triangle hits and embree's cast of the same rays, once the same rays are
     checked to hit: (hit, mesh, ENU frame, embree's hits, their ray indices, their triangles,
     the distance between the two hits of each)."""
-    hit = intersect_dem(los, dem, "exact", surface="triangles")
+    hit = intersect_dem(los, dem, "exact", dem_model="triangles")
     mesh, fr, loc, idx, tri = embree_cast(dem, los)
     ok = hit.status == Status.OK
     hit_tm = np.zeros(ok.shape, bool)
@@ -57,7 +57,7 @@ def trimesh_first_hits(dem, los, hit):
 def test_triangles_agree_with_trimesh_embree():
     dem = DEM.open(SRTM)
     los = random_oblique_rays(dem, 10_000, np.random.default_rng(11), frame_angle_deg=(0.0, 82.0))
-    hit = intersect_dem(los, dem, "exact", surface="triangles")
+    hit = intersect_dem(los, dem, "exact", dem_model="triangles")
     hit_tm, err = trimesh_first_hits(dem, los, hit)
     ok = hit.status == Status.OK
     assert np.array_equal(ok, hit_tm)  # the same rays hit
@@ -78,7 +78,7 @@ def test_across_equator_and_antimeridian_against_trimesh():
     assert lat[20] == 0.0
     dem = DEM.from_array(300.0 + 250.0 * rng.random((n, n)), 0.1, 179.9, 0.005, 0.005)
     los = random_oblique_rays(dem, 3000, rng, frame_angle_deg=(0.0, 85.0), clearance_m=800.0, inner=0.8)
-    hit = intersect_dem(los, dem, "exact", surface="triangles")
+    hit = intersect_dem(los, dem, "exact", dem_model="triangles")
     hit_tm, err = trimesh_first_hits(dem, los, hit)
     ok = hit.status == Status.OK
     assert ok.sum() > 2000
@@ -95,7 +95,7 @@ def test_walk_cells_match_core_geodetic():
     them from plane/cone sides, not from latitudes and longitudes."""
     dem = DEM.open(SRTM)
     los = random_oblique_rays(dem, 700, np.random.default_rng(12), frame_angle_deg=(0.0, 85.0))
-    hit = intersect_dem(los, dem, "exact", surface="triangles", trace=True)
+    hit = intersect_dem(los, dem, "exact", dem_model="triangles", trace=True)
     tr, g = hit.trace, dem.grid
     fi = (np.deg2rad(g.lat_north_deg) - tr.lat) / np.deg2rad(g.dlat_deg)
     fj = (tr.lon - np.deg2rad(g.lon_west_deg)) / np.deg2rad(g.dlon_deg)

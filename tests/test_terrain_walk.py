@@ -25,7 +25,7 @@ def test_hit_coordinates_match_core_conversion(name, surface):
     3e-16 rad, 4e-9 m) and far below any use."""
     dem = DEM.open(ASSETS / f"{name}.tif")
     los = random_oblique_rays(dem, 5000, np.random.default_rng(5), frame_angle_deg=(0.0, 89.0), inner=1.0)
-    hit = intersect_dem(los, dem, "exact", surface=surface)
+    hit = intersect_dem(los, dem, "exact", dem_model=surface)
     ok = hit.status == Status.OK
     assert ok.sum() > 4000
     lat, lon, h = ecef_to_geodetic(hit.ecef)
@@ -108,7 +108,7 @@ def test_triangle_hits_across_the_antimeridian_equal_the_referee():
 
     dem, rng = _antimeridian_dem(35)
     los = random_oblique_rays(dem, 150, rng, frame_angle_deg=(0.0, 80.0), clearance_m=800.0, inner=0.8)
-    hit = intersect_dem(los, dem, "exact", surface="triangles")
+    hit = intersect_dem(los, dem, "exact", dem_model="triangles")
     ok = hit.status == Status.OK
     assert ok.sum() > 120 and _both_sides(hit.lon[ok])
     window = (0, dem.shape[0] - 1, 0, dem.shape[1] - 1)  # every cell
@@ -177,7 +177,7 @@ def test_bilinear_hits_across_the_antimeridian_equal_a_marched_reference():
     the surface within one 0.5 m step, unseen by the march; measured 1.5e-8 m."""
     dem, rng = _antimeridian_dem(36)
     los = random_oblique_rays(dem, 120, rng, frame_angle_deg=(0.0, 75.0), clearance_m=800.0, inner=0.8)
-    hit = intersect_dem(los, dem, "exact", surface="bilinear")
+    hit = intersect_dem(los, dem, "exact", dem_model="bilinear")
     ok = hit.status == Status.OK
     assert ok.sum() > 100 and _both_sides(hit.lon[ok])
     o = los.origin_ecef
@@ -198,7 +198,7 @@ def test_bilinear_hits_across_the_equator_and_antimeridian_lie_on_the_surface():
     n = 41
     dem = DEM.from_array(300.0 + 250.0 * rng.random((n, n)), 0.1, 179.9, 0.005, 0.005)
     los = random_oblique_rays(dem, 3000, rng, frame_angle_deg=(0.0, 85.0), clearance_m=800.0, inner=0.8)
-    hit = intersect_dem(los, dem, "exact", surface="bilinear")
+    hit = intersect_dem(los, dem, "exact", dem_model="bilinear")
     assert (hit.status == Status.OK).all()
     res = np.abs(hit.h - dem.height(hit.lat, hit.lon))
     assert res.max() < 1e-3

@@ -420,7 +420,7 @@ class DEM:
         Each cell (i, j) with corners p00 = node(i, j), p10 = node(i, j+1)
         (east), p01 = node(i+1, j) (south), p11 = node(i+1, j+1) is split along
         the p00-p11 diagonal into (p00, p01, p11) and (p00, p11, p10), the
-        triangles the exact solver uses with ``surface="triangles"``. Cells
+        triangles the exact solver uses with ``dem_model="triangles"``. Cells
         with a missing node are left out.
 
         Returns

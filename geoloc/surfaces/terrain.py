@@ -498,7 +498,7 @@ def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
 # --------------------------------------------------------------------------- front end
 def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: float = 1.0,
                   threshold: float = 1.0, dem_model: str = "bilinear", trace: bool = False,
-                  max_iter: int | None = None, parallel: bool = False, surface: str | None = None) -> TerrainHit:
+                  max_iter: int | None = None, parallel: bool = False) -> TerrainHit:
     """Intersect lines of sight with a DEM (docs/method.md section 4).
 
     Parameters
@@ -516,7 +516,7 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
         How the exact solver reads between nodes: bilinear cells (what
         ``dem.height`` samples, used by the iterative methods too) or two planar
         triangles per cell (the :meth:`DEM.to_trimesh` mesh). (The word
-        *surface* is kept for what a line of sight meets: ``docs/architecture.md``.)
+        *surface* means only what a line of sight meets: ``docs/architecture.md``.)
     trace : bool
         Record every iteration in ``TerrainHit.trace``.
     max_iter : int, optional
@@ -524,21 +524,15 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
         the DEM's lowest node for steps, 64 halvings for bisection).
     parallel : bool
         Exact solver: spread the rays over all cores (numba threads).
-    surface : str, optional
-        The first-phase name of ``dem_model`` (still accepted).
 
     Returns
     -------
     TerrainHit
     """
-    given = "surface" if surface is not None else "dem_model"  # the name the caller used, for errors
-    if surface is not None:
-        dem_model = surface
-    surface = dem_model
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    if surface not in DEM_MODELS:
-        raise ValueError(f"{given} must be one of {DEM_MODELS}, got {surface!r}")
+    if dem_model not in DEM_MODELS:
+        raise ValueError(f"dem_model must be one of {DEM_MODELS}, got {dem_model!r}")
     if not (np.isfinite(eps_h) and eps_h > 0):
         raise ValueError(f"eps_h must be a positive number of metres, got {eps_h!r}")
     if not (np.isfinite(threshold) and threshold > 0):
@@ -546,7 +540,7 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
     shape, o, d, st = _flat_los(los, normalise=method != "exact")
     n = len(o)
     if not dem.has_data:  # an all no-data raster: nothing to meet (its H_max is NaN: no start for any method)
-        return _no_terrain(los, shape, o, d, st, method, surface, trace)
+        return _no_terrain(los, shape, o, d, st, method, dem_model, trace)
     tracer = _Tracer(n, trace)
     hidden = np.zeros(n, dtype=bool)
     tr = None
@@ -564,7 +558,7 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
             s_first = _first_sampled(o, d, dem)
         hidden = _hidden(o, d, s_bis, s_first, dem, ok)
     else:
-        p, evals, s, (ts, tij), geo = _exact(o, d, st, dem, surface, trace, parallel=parallel)
+        p, evals, s, (ts, tij), geo = _exact(o, d, st, dem, dem_model, trace, parallel=parallel)
         if trace:
             m = int(evals.max()) if n else 0
             m = min(m, ts.shape[1])
@@ -587,7 +581,7 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
     r = lambda a: a.reshape(shape)  # noqa: E731
     return TerrainHit(r(lat), r(lon), r(h), p.reshape(shape + (3,)), r(rng), r(st),
                       los if isinstance(los, LineOfSight) else None,
-                      dem_evaluations=r(evals), hidden=r(hidden & ok), method=method, dem_model=surface, trace=tr)
+                      dem_evaluations=r(evals), hidden=r(hidden & ok), method=method, dem_model=dem_model, trace=tr)
 
 
 #: Below any land or sea floor (the Challenger Deep is at about -10 935 m) [m, ellipsoidal
@@ -595,7 +589,7 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
 LOWEST_TERRAIN_M = -11_500.0
 
 
-def _no_terrain(los, shape, o, d, st, method, surface, trace):
+def _no_terrain(los, shape, o, d, st, method, dem_model, trace):
     """The hit of a DEM without a single height: NODATA for every ray still OK that comes down
     to the ellipsoid inflated to :data:`LOWEST_TERRAIN_M` (no terrain lies lower); SKY above it
     (issue 32: it was SKY for every ray, the NaN highest node failing every test)."""
@@ -615,7 +609,7 @@ def _no_terrain(los, shape, o, d, st, method, surface, trace):
                           np.full(shape + (0, 2), -1, dtype=np.int64), np.zeros(shape, dtype=np.int64))
     return TerrainHit(nan, nan.copy(), nan.copy(), np.full(shape + (3,), np.nan), nan.copy(), st.reshape(shape),
                       los if isinstance(los, LineOfSight) else None, dem_evaluations=np.zeros(shape, np.int64),
-                      hidden=np.zeros(shape, bool), method=method, dem_model=surface, trace=tr)
+                      hidden=np.zeros(shape, bool), method=method, dem_model=dem_model, trace=tr)
 
 
 def _first_sampled(o, d, dem):
