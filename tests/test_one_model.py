@@ -87,6 +87,31 @@ def mosaic_attribute_checks(tree) -> list:
     return out
 
 
+#: Modules that still ask a surface for its ``.dem`` attribute (a mosaic has none): each asks
+#: :func:`geoloc.surfaces.base.terrain_of` instead once it is mended, and leaves this set.
+KNOWN_SURFACE_DEM_ASKS = {"geoloc.analysis.uncertainty"}
+
+
+def surface_dem_asks(tree) -> list:
+    """Lines that ask ``hasattr(x, "dem")``, or ``getattr(surface..., "dem")`` of a surface."""
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("hasattr", "getattr"):
+            if len(node.args) >= 2 and isinstance(node.args[1], ast.Constant) and node.args[1].value == "dem":
+                obj = node.args[0]
+                if node.func.id == "hasattr" or (isinstance(obj, ast.Name) and "surface" in obj.id):
+                    out.append(node.lineno)
+    return out
+
+
+def test_a_surface_is_asked_for_its_terrain_with_terrain_of():
+    found = {mod: lines for mod, tree in modules() if mod != "geoloc.surfaces.base" and (lines := surface_dem_asks(tree))}
+    new = {m: v for m, v in found.items() if m not in KNOWN_SURFACE_DEM_ASKS}
+    assert not new, f"ask geoloc.surfaces.base.terrain_of(surface), not its .dem (a mosaic has none): {new}"
+    gone = KNOWN_SURFACE_DEM_ASKS - set(found)
+    assert not gone, f"mended: remove them from KNOWN_SURFACE_DEM_ASKS: {sorted(gone)}"
+
+
 def test_no_workflow_or_analysis_opens_a_dem_itself():
     found = {mod: lines for mod, tree in modules("geoloc.workflows", "geoloc.analysis")
              if (lines := dem_opens(tree))}
@@ -116,7 +141,8 @@ def test_the_checks_find_planted_cases():
                      "    d = DEM.open(p)\n"
                      "    m = open_dem_or_mosaic(p)\n"
                      "    if isinstance(d, (Camera, int)): pass\n"
-                     "    return hasattr(m, 'with_solver')\n")
+                     "    return hasattr(m, 'with_solver') or hasattr(m, 'dem') or getattr(surface, 'dem', None)\n")
     assert dem_opens(tree) == [3, 4]
     assert camera_checks(tree) == [5]
     assert mosaic_attribute_checks(tree) == [6]
+    assert surface_dem_asks(tree) == [6, 6]

@@ -35,7 +35,7 @@ import numpy as np
 from geoloc.io.mgrs_grid import mgrs_text
 from geoloc.locate import as_sensor, point_view
 from geoloc.status import Status, describe
-from geoloc.surfaces.base import LineOfSight
+from geoloc.surfaces.base import LineOfSight, terrain_of
 
 #: Height datum of every height in this module.
 H_DATUM = "ellipsoidal, WGS 84"
@@ -123,7 +123,7 @@ def locate_pixel(scn, inputs, sensor, row, col) -> PixelPick:
     if tr is not None:
         t = tr.ray()
         trace = np.asarray(t["ecef"], float).reshape(-1, 3)
-    method = inputs.method if hasattr(surface, "dem") or scn.dem is not None else "constant height"
+    method = inputs.method if terrain_of(surface) is not None or scn.dem is not None else "constant height"
     return PixelPick(float(row), float(col), bool(sensor.in_image(row, col)), los, hit, method, evals, trace)
 
 

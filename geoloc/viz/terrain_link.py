@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.assets import ASSETS
+from geoloc.surfaces.base import terrain_of
 
 try:  # the terrain core is optional for the viewer
     from geoloc.surfaces import dem as _dem
@@ -165,7 +166,7 @@ def hit_geometry(scn, inp, los) -> dict:
     the iterations); on a constant height: its hit alone.
     """
     surface = scene_surface(scn, inp)
-    if hasattr(surface, "dem"):
+    if terrain_of(surface) is not None:
         return terrain_geometry(scn, inp, los, surface)
     hit = surface.intersect(los)
     label = f"hit at h = {inp.target_h:.1f} m"
