@@ -7,7 +7,7 @@ costs one pass over memory instead of a few hundred temporary arrays
 (``benchmarks/bench_uncertainty.py``). ``tests/test_uncertainty.py`` holds the two engines equal
 column for column, for every gimbal preset and lens model.
 
-Two kernels:
+Three kernels:
 
 * :func:`chain_kernel`: per ray, the frames on the path to the camera (NED at the platform,
   body, gimbal base, each joint), the turn of each angle source about its axis in ECEF
@@ -25,6 +25,11 @@ Two kernels:
   decomposition of the 2x2 block in closed form), CE90 from the table of
   :func:`geoloc.analysis.uncertainty._ce_table` (linear interpolation on its uniform axis-ratio
   grid, as ``np.interp``) and LE90.
+* :func:`dem_surface_kernel`: the same step on a geographic DEM, whose normal is the DEM's local
+  slope: at the hit, then the plane fitted over the predicted footprint (iterated), the terrain's
+  departure from it and the grazing test, reading the DEM's node grid itself (the bilinear
+  interpolation of :meth:`geoloc.geodesy.geoid.NodeGrid.interp`). The perturbed rays are never
+  walked through the DEM again: the plane carries them.
 """
 
 from __future__ import annotations
@@ -311,4 +316,236 @@ def surface_kernel(free, D, m, lat, lon, status, sz, qt_n, rt, le90_per_sigma,
         j0 = min(int(x), nq - 2)
         fr = x - j0
         ce[i] = a * (rt[j0] + fr * (rt[j0 + 1] - rt[j0]))
+        le[i] = le90_per_sigma * math.sqrt(c22)
+
+
+# --------------------------------------------------------------------- on a DEM
+@cached_njit(KEY, inline="always")
+def _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, lat, lon):
+    """:meth:`geoloc.surfaces.dem.DEM.height` of a geographic DEM at (lat, lon) [rad], scalar.
+
+    The bilinear interpolation of :meth:`geoloc.geodesy.geoid.NodeGrid.interp`: the longitude
+    brought to the grid's 360-degree window, NaN off the node hull grown by ``margin`` cells
+    (1e-9 cell tolerance), the position clamped to the hull inside that band, and a node without
+    data spoiling the point only where its weight is not zero.
+    """
+    lat_deg = math.degrees(lat)
+    lon_deg = math.degrees(lon)
+    if not (math.isfinite(lat_deg) and math.isfinite(lon_deg)):
+        return math.nan
+    lon_deg = (lon_deg - lon_west + 180.0) % 360.0 + lon_west - 180.0
+    r = (lat_north - lat_deg) / dlat
+    c = (lon_deg - lon_west) / dlon
+    nr, nc = Z.shape
+    tol = 1e-9 + margin
+    if r < -tol or r > nr - 1 + tol or c < -tol or c > nc - 1 + tol:
+        return math.nan
+    r = min(max(r, 0.0), nr - 1.0)
+    c = min(max(c, 0.0), nc - 1.0)
+    i = min(max(int(math.floor(r)), 0), nr - 2)
+    j = min(max(int(math.floor(c)), 0), nc - 2)
+    v = r - i
+    u = c - j
+    out = 0.0
+    w = (1.0 - u) * (1.0 - v)
+    if w != 0.0:
+        out += w * Z[i, j]
+    w = u * (1.0 - v)
+    if w != 0.0:
+        out += w * Z[i, j + 1]
+    w = (1.0 - u) * v
+    if w != 0.0:
+        out += w * Z[i + 1, j]
+    w = u * v
+    if w != 0.0:
+        out += w * Z[i + 1, j + 1]
+    return out
+
+
+@cached_njit(KEY, inline="always")
+def _step(free, i, D, m0, m1, m2, sz, E, N, U, Jo):
+    """The surface step of one ray for the normal ``m``: ``Jo`` (3, kk) in ENU, returns 1 / (m . D)
+    and the covariance's six entries (as :func:`surface_kernel`)."""
+    k = free.shape[2]
+    kk = Jo.shape[1]
+    d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
+    mD = m0 * d0 + m1 * d1 + m2 * d2
+    inv = 1.0 / mD if mD < -1e-12 else math.nan
+    c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+    for c in range(kk):
+        if c < k:
+            f0, f1, f2 = free[i, 0, c], free[i, 1, c], free[i, 2, c]
+            s = (m0 * f0 + m1 * f1 + m2 * f2) * inv
+            p0, p1, p2 = f0 - d0 * s, f1 - d1 * s, f2 - d2 * s
+        else:
+            s = sz * inv
+            p0, p1, p2 = d0 * s, d1 * s, d2 * s
+        je = E[0] * p0 + E[1] * p1 + E[2] * p2
+        jn = N[0] * p0 + N[1] * p1 + N[2] * p2
+        ju = U[0] * p0 + U[1] * p1 + U[2] * p2
+        Jo[0, c], Jo[1, c], Jo[2, c] = je, jn, ju
+        c00 += je * je
+        c01 += je * jn
+        c02 += je * ju
+        c11 += jn * jn
+        c12 += jn * ju
+        c22 += ju * ju
+    return inv, c00, c01, c02, c11, c12, c22
+
+
+@cached_njit(KEY, parallel=True, error_model="numpy")
+def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprint,
+                       Z, lat_north, lon_west, dlat, dlon, margin, a_m, e2,
+                       gh_x, gh_w, graze_r, qt_n, rt, le90_per_sigma,
+                       J, cov, major, minor, az, ce, le, rms, grazing):
+    """The surface step on a geographic DEM, per ray, as the numpy path of ``propagate``.
+
+    The normal ``m = u - g_e e - g_n n`` starts from the DEM's slope at the hit (central
+    differences over +-1 m east and north of the bilinear surface); with ``footprint`` it is then
+    refitted ``iterations`` times to the plane of the DEM over the predicted footprint (5 x 5
+    Gauss-Hermite nodes of N(0, C), ``g = L^-T E[z (h - h0)]``, ``C = L L^T`` the horizontal
+    covariance of the step before, :func:`geoloc.analysis.uncertainty.surface_normal`). The plane
+    is analytic: no perturbed ray is walked through the DEM again. Then the terrain's RMS
+    departure from the plane over the final footprint (``rms``) and the grazing test of
+    :func:`geoloc.analysis.uncertainty._grazing` (65 ranges from 0.5 to 1.5 times the hit's),
+    and the covariance, ellipse, CE90 and LE90 of :func:`surface_kernel`.
+    """
+    n = free.shape[0]
+    kk = J.shape[2]
+    nq = rt.shape[0]
+    ng = gh_x.shape[0]
+    nr_ = graze_r.shape[0]
+    for i in prange(n):
+        if status[i] != _OK:
+            for a in range(3):
+                for c in range(kk):
+                    J[i, a, c] = math.nan
+                for c in range(3):
+                    cov[i, a, c] = math.nan
+            major[i] = minor[i] = az[i] = ce[i] = le[i] = rms[i] = math.nan
+            grazing[i] = False
+            continue
+        sp, cp = math.sin(lat[i]), math.cos(lat[i])
+        sl, cl = math.sin(lon[i]), math.cos(lon[i])
+        E = (-sl, cl, 0.0)
+        N = (-sp * cl, -sp * sl, cp)
+        U = (cp * cl, cp * sl, sp)
+        w_ = 1.0 - e2 * sp * sp
+        mh = a_m * (1.0 - e2) / (w_ * math.sqrt(w_)) + h[i]   # meridian radius + h
+        nh = (a_m / math.sqrt(w_) + h[i]) * cp                # (prime vertical radius + h) cos lat
+        la, lo = lat[i], lon[i]
+        # the slope of the bilinear surface at the hit: central differences over +-1 m
+        g_n = (_grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + 1.0 / mh, lo)
+               - _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la - 1.0 / mh, lo)) / 2.0
+        g_e = (_grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la, lo + 1.0 / nh)
+               - _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la, lo - 1.0 / nh)) / 2.0
+        Jo = J[i]
+        n_fit = iterations + 1 if footprint else 1
+        c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+        m0 = m1 = m2 = inv = 0.0
+        # one more pass than the fits: the last footprint only measures the terrain's departure
+        for it in range(n_fit + 1):
+            if it > 0:
+                # the footprint's plane: C = cov_en (NaN -> 0) + 1e-6 I = L L^T
+                q00 = (c00 if math.isfinite(c00) else 0.0) + 1e-6
+                q01 = c01 if math.isfinite(c01) else 0.0
+                q11 = (c11 if math.isfinite(c11) else 0.0) + 1e-6
+                l11 = math.sqrt(q00)
+                l21 = q01 / l11
+                l22 = math.sqrt(q11 - l21 * l21)
+                sw = 0.0
+                sh = 0.0
+                for a in range(ng):
+                    for b in range(ng):
+                        de = l11 * gh_x[a]
+                        dn = l21 * gh_x[a] + l22 * gh_x[b]
+                        H = _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + dn / mh, lo + de / nh)
+                        if math.isfinite(H):
+                            w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
+                            sw += w
+                            sh += w * H
+                h0 = sh / max(sw, 1e-300)
+                eh0 = 0.0
+                eh1 = 0.0
+                for a in range(ng):
+                    for b in range(ng):
+                        de = l11 * gh_x[a]
+                        dn = l21 * gh_x[a] + l22 * gh_x[b]
+                        H = _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + dn / mh, lo + de / nh)
+                        if math.isfinite(H):
+                            w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
+                            eh0 += w * (H - h0) * gh_x[a]
+                            eh1 += w * (H - h0) * gh_x[b]
+                ge = eh0 / l11 - l21 / (l11 * l22) * eh1   # L^-T E[z (h - h0)]
+                gn = eh1 / l22
+                if it == n_fit:
+                    # the terrain's RMS departure from this plane over the footprint
+                    sr = 0.0
+                    for a in range(ng):
+                        for b in range(ng):
+                            de = l11 * gh_x[a]
+                            dn = l21 * gh_x[a] + l22 * gh_x[b]
+                            H = _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + dn / mh, lo + de / nh)
+                            if math.isfinite(H):
+                                w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
+                                dz = H - (h0 + de * ge + dn * gn)
+                                sr += w * dz * dz
+                    rms[i] = math.sqrt(sr / max(sw, 1e-300))
+                    break
+                g_e, g_n = ge, gn
+            if not math.isfinite(g_e):
+                g_e = 0.0   # at the DEM's edge: level
+            if not math.isfinite(g_n):
+                g_n = 0.0
+            m0 = U[0] - g_e * E[0] - g_n * N[0]
+            m1 = U[1] - g_e * E[1] - g_n * N[1]
+            m2 = U[2] - g_e * E[2] - g_n * N[2]
+            inv, c00, c01, c02, c11, c12, c22 = _step(free, i, D, m0, m1, m2, sz, E, N, U, Jo)
+        cov[i, 0, 0], cov[i, 0, 1], cov[i, 0, 2] = c00, c01, c02
+        cov[i, 1, 0], cov[i, 1, 1], cov[i, 1, 2] = c01, c11, c12
+        cov[i, 2, 0], cov[i, 2, 1], cov[i, 2, 2] = c02, c12, c22
+        # grazing: the ray within 2 sigma of the terrain away from its hit
+        k = free.shape[2]
+        st2 = 0.0
+        fu2 = 0.0
+        for c in range(k):
+            f0, f1, f2 = free[i, 0, c], free[i, 1, c], free[i, 2, c]
+            dt = -(m0 * f0 + m1 * f1 + m2 * f2) * inv
+            st2 += dt * dt
+            fu = U[0] * f0 + U[1] * f1 + U[2] * f2
+            fu2 += fu * fu
+        sig_t = math.sqrt(st2 + (sz * inv) ** 2)
+        d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
+        de_ = E[0] * d0 + E[1] * d1 + E[2] * d2
+        dn_ = N[0] * d0 + N[1] * d1 + N[2] * d2
+        du_ = U[0] * d0 + U[1] * d1 + U[2] * d2
+        ti = t[i]
+        gz = False
+        for q in range(nr_):
+            kr = graze_r[q] * ti
+            dr = kr - ti
+            if abs(dr) <= 3.0 * sig_t:
+                continue
+            e_, n_, u_ = dr * de_, dr * dn_, dr * du_
+            ray_h = h[i] + u_ + (e_ * e_ + n_ * n_) / (2.0 * mh)
+            ground = _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + n_ / mh, lo + e_ / nh)
+            if not math.isfinite(ground):
+                continue
+            sig_v = math.sqrt(fu2 * (kr / ti) ** 2 + sz * sz)
+            if abs(ray_h - ground) < 2.0 * sig_v:
+                gz = True
+                break
+        grazing[i] = gz
+        mean = 0.5 * (c00 + c11)
+        dif = math.hypot(0.5 * (c00 - c11), c01)
+        a_ = math.sqrt(max(mean + dif, 0.0))
+        b_ = math.sqrt(max(mean - dif, 0.0))
+        major[i], minor[i] = a_, b_
+        theta = 0.5 * math.atan2(2.0 * c01, c00 - c11)
+        az[i] = (90.0 - math.degrees(theta)) % 180.0
+        qq = b_ / a_ if a_ > 0 else 0.0
+        x = qq * qt_n
+        j0 = min(int(x), nq - 2)
+        fr = x - j0
+        ce[i] = a_ * (rt[j0] + fr * (rt[j0 + 1] - rt[j0]))
         le[i] = le90_per_sigma * math.sqrt(c22)

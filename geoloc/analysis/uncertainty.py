@@ -24,7 +24,9 @@ The Jacobian, per ray, is analytic through the chain and the surface:
 
 The batch runs compiled (:mod:`geoloc.analysis._fastuncert`, ``engine="auto"``): a numba kernel
 for the chain's Jacobian per ray and one for the surface step, the covariance, the ellipse and
-CE90; the numpy path here is the reference they are held to.
+CE90 (on a geographic DEM one that also fits the footprint's plane, the terrain's departure from
+it and the grazing test; a projected DEM or a mosaic takes the numpy surface step); the numpy
+path here is the reference they are held to.
 ``benchmarks/bench_uncertainty.py`` times it against ``locate``.
 
 ``tests/test_uncertainty.py`` holds the analytic Jacobian to central differences of the whole
@@ -534,6 +536,9 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
     on_dem = getattr(surface, "dem", None) is not None and hasattr(surface.dem, "height")
     if fast and not on_dem:
         return _surface_fast(F, free, D, np.zeros((0, 3)), lat, lon, h, status, sz, names, shape)
+    if fast and _compiled_dem(surface.dem):
+        return _dem_fast(F, free, D, t, surface.dem, lat, lon, h, status, sz, names, shape,
+                         footprint_iterations if dem_slope == "footprint" else 0, dem_slope == "footprint")
     Re = R_ecef_enu(lat, lon)
     cov_en = None
     for _ in range(1 + (footprint_iterations if on_dem and dem_slope == "footprint" else 0)):
@@ -662,6 +667,40 @@ def _surface_fast(F, free, D, m, lat, lon, h, status, sz, names, shape):
     out.terrain_rms_m = r(np.where(status == Status.OK, 0.0, np.nan))  # a constant height is a plane
     out.surface_sigma_m = float(sz)
     out.grazing = r(np.zeros(n, bool))
+    return out
+
+
+def _compiled_dem(dem) -> bool:
+    """True where :func:`_fastuncert.dem_surface_kernel` reads the DEM itself: one geographic grid."""
+    from geoloc.surfaces.dem import DEM
+
+    return isinstance(dem, DEM) and dem.is_geographic
+
+
+def _dem_fast(F, free, D, t, dem, lat, lon, h, status, sz, names, shape, iterations, footprint):
+    """The surface step on a DEM (slope, footprint plane, terrain RMS, grazing, covariance, ellipse,
+    CE90, LE90) through :func:`_fastuncert.dem_surface_kernel`: what the numpy path computes."""
+    from geoloc.geodesy.ellipsoid import A, E2
+
+    n, k = free.shape[0], free.shape[2]
+    kk = k + (1 if sz > 0 else 0)
+    J, cov = np.empty((n, 3, kk)), np.empty((n, 3, 3))
+    major, minor, az, ce, le, rms = (np.empty(n) for _ in range(6))
+    grazing = np.empty(n, np.bool_)
+    qt, rt = _ce_table(0.9)
+    g = dem.grid
+    F.dem_surface_kernel(np.ascontiguousarray(free), np.ascontiguousarray(D), np.ascontiguousarray(t, dtype=float),
+                         lat, lon, h, np.ascontiguousarray(status, dtype=np.uint8), float(sz), int(iterations),
+                         bool(footprint), np.ascontiguousarray(g.values, dtype=float), float(g.lat_north_deg),
+                         float(g.lon_west_deg), float(g.dlat_deg), float(g.dlon_deg), float(g.margin),
+                         float(A), float(E2), _GH_X, _GH_W, _GRAZE_R, float(len(qt) - 1), rt, LE90_PER_SIGMA,
+                         J, cov, major, minor, az, ce, le, rms, grazing)
+    r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
+    out = PointUncertainty(r(lat), r(lon), r(h), r(np.asarray(status, np.uint8)), r(cov, (3, 3)), r(J, (3, kk)),
+                           tuple(names), r(major), r(minor), r(az), r(ce), r(le))
+    out.terrain_rms_m = r(rms)
+    out.surface_sigma_m = float(sz)
+    out.grazing = r(grazing)
     return out
 
 
