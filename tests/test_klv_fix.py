@@ -247,3 +247,88 @@ def test_replace_values_keeps_every_other_byte():
         replace_values(blob, {82: b"\0\0\0\0"})
     with pytest.raises(ValueError, match="3 new bytes"):
         replace_values(blob, {23: b"\0\0\0"})
+
+
+BUDGET_TOML = """
+[uncertainty]
+north_m = 2.0
+east_m = 2.0
+up_m = 3.0
+heading_deg = 0.05
+pitch_deg = 0.02
+roll_deg = 0.02
+azimuth_deg = 0.03
+elevation_deg = 0.03
+dem_m = 9.73
+"""
+
+
+def test_a_budget_writes_the_predicted_ce90_le90_into_tags_45_46(tmp_path, dem, capsys):
+    """With the sensor file's [uncertainty] budget, tags 45 / 46 (Target Error Estimate CE90 / LE90)
+    get the replay's predicted CE90 / LE90: added before the checksum where a packet has none (the
+    bundled flight), rewritten in place where it has them; klvdata decodes them and every other item
+    as before."""
+    from geoloc.sensors.sensor_file import load_camera_or_sensor, load_sensor_budget
+
+    sfile = tmp_path / "turret.toml"
+    sfile.write_text((ROOT / "assets" / "sensors" / "eo_turret.toml").read_text() + BUDGET_TOML)
+    out = tmp_path / "fixed.klv"
+    assert main(["klv", "fix", str(EXAMPLE), "--out", str(out), "--dem", str(DEM_PATH), "--sensor", str(sfile)]) == 0
+    text = capsys.readouterr().out
+    assert "tags 45 / 46 hold the predicted CE90 / LE90" in text and "tag 45 added to 298" in text
+    sensor, budget = load_camera_or_sensor(sfile), load_sensor_budget(sfile)
+    ref = replay_klv(EXAMPLE, surface=surface_for(dem=dem), sensor=sensor, budget=budget).columns
+    ok = ref["status"] == Status.OK
+    assert ok.sum() == 298 and np.all(np.isfinite(ref["ce90_m"][ok]))
+    a, b = EXAMPLE.read_bytes(), out.read_bytes()
+    pa, pb = packets_of(a), packets_of(b)
+    assert len(pa) == len(pb) == 300  # klvdata's parser finds the bad packet too (packet numbers index both)
+    half = {t: TAG_BY_NAME[n].step / 2 + 1e-9 for t, n in ((45, "target_error_ce90_m"), (46, "target_error_le90_m"))}
+    for k in range(len(ref["packet"])):
+        n = int(ref["packet"][k])
+        x, y = pa[n][1], pb[n][1]
+        if not ok[k]:
+            assert x == y  # the packet that could not be located (275): copied as it was
+            continue
+        assert packet_checksum(y) == y[-2:], n
+        my = next(iter(klvdata.StreamParser(y))).MetadataList()
+        mx = next(iter(klvdata.StreamParser(x))).MetadataList()
+        assert set(my) == set(mx) | {45, 46}
+        for tag in mx:
+            if tag not in REWRITABLE and tag != 1:
+                assert mx[tag] == my[tag], (n, tag)
+        assert abs(float(my[45][3]) - ref["ce90_m"][k]) <= half[45], n
+        assert abs(float(my[46][3]) - ref["le90_m"][k]) <= half[46], n
+        assert local_set_items(y)[-1][0] == 1  # the checksum stays the last item
+    # a packet that has the tags already: rewritten in place (same length)
+    f = dict(next(p for p in iter_packets(a) if hasattr(p, "fields")).fields)
+    f.update(target_error_ce90_m=1000.0, target_error_le90_m=2000.0)
+    src, dst = tmp_path / "with.klv", tmp_path / "with_fixed.klv"
+    src.write_bytes(encode_packet(f))
+    fix = fix_klv(src, dst, surface=surface_for(dem=dem), sensor=sensor, budget=budget)
+    assert fix.items[45] == fix.items[46] == 1 and not fix.added
+    y = dst.read_bytes()
+    assert len(y) == src.stat().st_size and packet_checksum(y) == y[-2:]
+    back = replay_klv(dst, surface=surface_for(dem=dem), sensor=sensor, budget=budget).columns
+    assert abs(back["reported_ce90_m"][0] - back["ce90_m"][0]) <= half[45]
+    assert abs(back["reported_le90_m"][0] - back["le90_m"][0]) <= half[46]
+    # without a budget the tags are left alone
+    fix_klv(src, dst, surface=surface_for(dem=dem), sensor=sensor)
+    assert decode_packet(dst.read_bytes())["target_error_ce90_m"] == pytest.approx(1000.0, abs=half[45])
+
+
+def test_add_items_keeps_every_other_item():
+    from geoloc.io.klv import add_items, encode_value
+
+    blob = _offset_corner_packets(1)[0]
+    new = add_items(blob, {46: encode_value("target_error_le90_m", 7.5), 45: encode_value("target_error_ce90_m", 12.25)})
+    assert packet_checksum(new) == new[-2:]
+    old_items = local_set_items(blob)
+    new_items = local_set_items(new)
+    assert [t for t, _, _ in new_items] == [t for t, _, _ in old_items[:-1]] + [45, 46, 1]
+    for (t, a, b), (_, c, d) in zip(old_items[:-1], new_items):
+        assert blob[a:b] == new[c:d], t
+    m = next(iter(klvdata.StreamParser(new))).MetadataList()
+    assert float(m[45][3]) == pytest.approx(12.25, abs=0.032) and float(m[46][3]) == pytest.approx(7.5, abs=0.032)
+    with pytest.raises(ValueError, match="tag 23 is in the packet already"):
+        add_items(blob, {23: b"\0\0\0\0"})

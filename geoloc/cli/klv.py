@@ -58,7 +58,8 @@ def register(sub) -> None:
         help="write a copy whose frame-centre and corner tags are recomputed (checksums too)",
         description="Write a copy of IN (raw KLV or an MPEG-TS) whose frame-centre tags (23-25, 78) and "
         "corner tags (82-89 full, or 26-33 offsets) hold geoloc's replay of each packet (on --dem, with "
-        "the --sensor file's calibration), checksums recomputed. Every other byte of every packet, the "
+        "the --sensor file's calibration; with its [uncertainty] budget, tags 45 / 46 get the predicted CE90 / "
+        "LE90), checksums recomputed. Every other byte of every packet, the "
         "bad packets, and (containers) every other stream are copied as they are: a remux, no "
         "re-encode. Packets that cannot be located are copied unchanged and listed (docs/klv.md).",
     )
@@ -224,6 +225,11 @@ def run_fix(args) -> int:
 
     sensor = sensor_from_args(args, default=False)
     surface = surface_from_args(args) if args.dem else None  # else: each packet's own frame-centre height
-    fix = fix_klv(args.file, args.out, surface=surface, sensor=sensor, verify_checksum=not args.no_checksum)
+    path = getattr(args, "camera", None)
+    from geoloc.sensors.sensor_file import load_sensor_budget
+
+    budget = load_sensor_budget(path) if path else None  # its [uncertainty]: tags 45 / 46
+    fix = fix_klv(args.file, args.out, surface=surface, sensor=sensor, budget=budget,
+                  verify_checksum=not args.no_checksum)
     print(fix)
     return 0 if fix.packets else 1

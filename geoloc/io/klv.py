@@ -77,6 +77,7 @@ __all__ = [
     "encode_packet",
     "encode_value",
     "local_set_items",
+    "add_items",
     "replace_values",
     "write_ts",
     "packets_to_columns",
@@ -1188,6 +1189,38 @@ def local_set_items(packet: bytes) -> list:
         items.append((tag, i, i + n))
         i += n
     return items
+
+
+def add_items(packet: bytes, values: dict) -> bytes:
+    """A copy of one packet with new items inserted before its checksum (BER length and checksum redone).
+
+    The items the packet has, and their order, are kept byte for byte; the new ones (tag number
+    -> value bytes, e.g. :func:`encode_value`) go in tag order just before the checksum, which
+    stays the last item (MISB ST 0601 Tag 1: the checksum is the final item of the local set).
+    The packet's BER length is rewritten for the new length (its size may grow).
+
+    Raises
+    ------
+    KlvError
+        The packet cannot be walked (see :func:`local_set_items`), or ends without a checksum.
+    ValueError
+        A tag the packet already has (use :func:`replace_values`).
+    """
+    data = bytes(packet)
+    items = local_set_items(data)
+    if not items or items[-1][0] != _CHECKSUM_TAG or items[-1][2] - items[-1][1] != 2:
+        raise KlvError(0, "the packet does not end with a checksum item (tag 1, 2 bytes)")
+    have = {t for t, _, _ in items}
+    for tag in values:
+        if tag in have:
+            raise ValueError(f"tag {tag} is in the packet already: replace_values rewrites it")
+    b = data[16]
+    body0 = 17 if b < 0x80 else 17 + (b & 0x7F)
+    ck = items[-1][1] - 2  # the checksum item's tag and length bytes (01 02)
+    new = b"".join(ber_oid(t) + ber_length(len(v)) + bytes(v) for t, v in sorted(values.items()))
+    body = data[body0:ck] + new + b"\x01\x02"
+    head = UAS_LS_KEY + ber_length(len(body) + 2) + body
+    return head + checksum(head + b"\0\0").to_bytes(2, "big")
 
 
 def replace_values(packet: bytes, values: dict) -> bytes:

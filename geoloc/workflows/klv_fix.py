@@ -10,10 +10,16 @@ input whose frame-centre and corner items hold geoloc's answer:
 * 82-89 (full corners) from the recomputed corners; 26-33 (offset corners) as
   the corners minus the new centre (an offset beyond the item's +-0.075 deg is
   written as its reserved "error" value, and said);
+* with an error budget (the sensor file's ``[uncertainty]`` table), 45 and 46
+  (Target Error Estimate CE90 / LE90) from the predicted uncertainty of the
+  recomputed centre (:func:`geoloc.analysis.uncertainty.propagate`: CE90 of its
+  ellipse, LE90), added before the checksum to a packet that has neither;
 * the checksum (tag 1) recomputed.
 
 Only items the packet already has are rewritten, each in place (same length:
-every byte of the key, the BER length and the other items stays as it was).
+every byte of the key, the BER length and the other items stays as it was),
+except tags 45 and 46, which a budget adds where the packet has none (the BER
+length then grows; every other item stays as it was).
 A packet the replay could not locate (a missing tag, a ray to the sky) or a
 bad packet (checksum mismatch, truncated) is copied unchanged and reported.
 Raw ``.klv`` / ``.bin``: the bytes between packets are copied too. MPEG-TS
@@ -36,8 +42,8 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.geodesy.geoid import egm96_undulation
-from geoloc.io.klv import (TAG_BY_NAME, KlvError, encode_value, is_container_file, iter_packets, local_set_items,
-                          replace_values)
+from geoloc.io.klv import (TAG_BY_NAME, KlvError, add_items, encode_value, is_container_file, iter_packets,
+                          local_set_items, replace_values)
 from geoloc.status import Status, describe
 from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, read_klv, replay_klv
 
@@ -48,6 +54,8 @@ OFFSET_CORNER_TAGS = {26 + 2 * j + a: f"offset_corner_{'latitude' if a == 0 else
                       for j in range(4) for a in (0, 1)}
 FULL_CORNER_TAGS = {82 + 2 * j + a: f"corner_{'latitude' if a == 0 else 'longitude'}_{j + 1}_deg"
                     for j in range(4) for a in (0, 1)}
+#: Target Error Estimate CE90 / LE90 (MISB ST 0601 tags 45, 46): the replay's predicted column for each.
+ERROR_TAGS = {45: ("target_error_ce90_m", "ce90_m"), 46: ("target_error_le90_m", "le90_m")}
 
 
 @dataclass
@@ -64,12 +72,20 @@ class KlvFix:
     notes: list = field(default_factory=list)  # (packet number, text): items not rewritten in a rewritten packet
     other_packets: int = 0  # container: packets of other streams copied
     correction_m: np.ndarray | None = None  # per good packet: the frame-centre correction (replay error) [m]
+    budget_source: str = ""  # the [uncertainty] budget's file when tags 45 / 46 were written
+    added: dict = field(default_factory=dict)  # tag -> number of items added (packets without it)
 
     def __str__(self) -> str:
         lines = [f"{self.source}: {self.packets} packets read, {self.rewritten} rewritten, "
                  f"{len(self.unchanged)} left unchanged, {len(self.bad)} bad packet(s) copied as they were"]
         if self.items:
             lines.append("  items rewritten: " + ", ".join(f"tag {t}: {n}" for t, n in sorted(self.items.items())))
+        if self.budget_source:
+            n45, n46 = self.items.get(45, 0), self.items.get(46, 0)
+            add = ", ".join(f"tag {t} added to {n}" for t, n in sorted(self.added.items()) if n)
+            lines.append(f"  target error estimate: tags 45 / 46 hold the predicted CE90 / LE90 of the "
+                         f"[uncertainty] budget of {self.budget_source} ({n45} / {n46} packets"
+                         + (f"; {add} packet(s) that had none" if add else "") + ")")
         c = self.correction_m
         if c is not None and np.isfinite(c).any():
             f = c[np.isfinite(c)]
@@ -92,8 +108,9 @@ def _wrap(d):
     return (d + 180.0) % 360.0 - 180.0
 
 
-def _new_values(r: KlvReplay, k: int, tags: set, notes: list) -> dict:
-    """Tag -> value bytes for row k of the replay, for the tags the packet has."""
+def _new_values(r: KlvReplay, k: int, tags: set, notes: list, errors: bool = False) -> dict:
+    """Tag -> value bytes for row k of the replay, for the tags the packet has (and, with
+    ``errors``, tags 45 / 46 whether it has them or not)."""
     c = r.columns
     out = {}
 
@@ -114,6 +131,17 @@ def _new_values(r: KlvReplay, k: int, tags: set, notes: list) -> dict:
         if 25 in tags:
             n = float(egm96_undulation(math.radians(lat), math.radians(lon)))
             put(25, CENTRE_TAGS[25], h - n, "frame centre elevation, MSL")
+        if errors:
+            for t, (name, col) in ERROR_TAGS.items():
+                v = float(c[col][k])
+                if not math.isfinite(v):
+                    notes.append(f"tag {t}: no predicted {col[:-2].upper()} for this centre: left as it was")
+                elif v > TAG_BY_NAME[name].hi:  # 0..4095 m
+                    notes.append(f"tag {t}: predicted {col[:-2].upper()} {v:.0f} m is beyond the item's "
+                                 f"{TAG_BY_NAME[name].hi:g} m: written as {TAG_BY_NAME[name].hi:g} m")
+                    put(t, name, TAG_BY_NAME[name].hi, "target error estimate")
+                else:
+                    put(t, name, v, "target error estimate")
     if int(c["corner_status"][k]) == Status.OK:
         for j in range(4):
             klat, klon = float(c[f"corner{j + 1}_lat_deg"][k]), float(c[f"corner{j + 1}_lon_deg"][k])
@@ -146,8 +174,8 @@ def _why_unchanged(r: KlvReplay, k: int) -> str:
 class _Rewriter:
     """Rewrites good packets in file order against the replay's rows."""
 
-    def __init__(self, r: KlvReplay, fix: KlvFix):
-        self.r, self.fix, self.k = r, fix, 0
+    def __init__(self, r: KlvReplay, fix: KlvFix, errors: bool = False):
+        self.r, self.fix, self.k, self.errors = r, fix, 0, errors
         self.number = np.asarray(r.columns["packet"])
 
     def packet(self, blob: bytes) -> bytes:
@@ -157,7 +185,7 @@ class _Rewriter:
             raise RuntimeError("more good packets than replay rows: the stream changed while it was read")
         tags = {t for t, _, _ in local_set_items(blob)}
         notes = []
-        values = _new_values(self.r, k, tags, notes)
+        values = _new_values(self.r, k, tags, notes, self.errors)
         num = int(self.number[k])
         for text in notes:
             self.fix.notes.append((num, text))
@@ -168,7 +196,11 @@ class _Rewriter:
         for t in values:
             self.fix.items[t] = self.fix.items.get(t, 0) + 1
         self.fix.rewritten += 1
-        return replace_values(blob, values)
+        new = {t: v for t, v in values.items() if t not in tags}
+        for t in new:
+            self.fix.added[t] = self.fix.added.get(t, 0) + 1
+        out = replace_values(blob, {t: v for t, v in values.items() if t in tags})
+        return add_items(out, new) if new else out
 
 
 def _fix_bytes(data: bytes, rw: _Rewriter, verify: bool, raw: bool = False) -> bytes:
@@ -230,7 +262,7 @@ def _remux(src: Path, tmp: str, rw: _Rewriter, fix: KlvFix, verify: bool) -> Non
                     out.mux(pkt)
 
 
-def fix_klv(source, out, *, surface=None, sensor=None, verify_checksum: bool = True) -> KlvFix:
+def fix_klv(source, out, *, surface=None, sensor=None, budget=None, verify_checksum: bool = True) -> KlvFix:
     """Write a copy of a KLV stream whose frame-centre and corner items are geoloc's.
 
     Parameters
@@ -245,6 +277,10 @@ def fix_klv(source, out, *, surface=None, sensor=None, verify_checksum: bool = T
         (default: each packet's own frame-centre height), and a sensor file's
         sensor (a calibration from ``geoloc calibrate --fit ... --write-sensor``:
         mount, boresight, lever arm).
+    budget : ErrorBudget, optional
+        The sensor file's ``[uncertainty]`` table: tags 45 / 46 (Target Error Estimate CE90 /
+        LE90) get each recomputed centre's predicted CE90 / LE90 (the replay's ``ce90_m`` /
+        ``le90_m``), added where a packet has none; the report says so.
     verify_checksum : bool
         Bad checksums make bad packets (copied unchanged). Default True.
 
@@ -267,10 +303,11 @@ def fix_klv(source, out, *, surface=None, sensor=None, verify_checksum: bool = T
         raise ValueError(f"--out {dst.name}: write the same kind of file as the input {src.name} "
                          "(raw KLV to raw KLV, a container to a container)")
     read = read_klv(src, verify_checksum=verify_checksum)
-    r = replay_klv(read, surface=surface, sensor=sensor)
+    r = replay_klv(read, surface=surface, sensor=sensor, budget=budget)
     fix = KlvFix(str(src), str(dst), packets=len(r), correction_m=np.asarray(r.columns["frame_center_error_m"]),
-                 bad=[e for e in read.errors if not e.reason.endswith("are not a UAS LS packet")])
-    rw = _Rewriter(r, fix)
+                 bad=[e for e in read.errors if not e.reason.endswith("are not a UAS LS packet")],
+                 budget_source=(str(budget.source or "the sensor file") if budget is not None else ""))
+    rw = _Rewriter(r, fix, errors=budget is not None)
     with atomic_path(dst, "--out") as tmp:
         if container:
             _remux(src, str(tmp), rw, fix, verify_checksum)
@@ -281,4 +318,4 @@ def fix_klv(source, out, *, surface=None, sensor=None, verify_checksum: bool = T
     return fix
 
 
-__all__ = ["CENTRE_TAGS", "FULL_CORNER_TAGS", "KlvFix", "OFFSET_CORNER_TAGS", "fix_klv"]
+__all__ = ["CENTRE_TAGS", "ERROR_TAGS", "FULL_CORNER_TAGS", "KlvFix", "OFFSET_CORNER_TAGS", "fix_klv"]
