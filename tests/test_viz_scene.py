@@ -428,3 +428,63 @@ def test_viewer_opens_a_misb_klv_flight():
     info = scn.records[scn.record_index][0]
     d = float(horizontal_distance_m(g.hit.lat_deg, g.hit.lon_deg, info.paper_lat_deg, info.paper_lon_deg))
     assert g.status == 0 and d < 0.01
+
+
+def test_hillshade_lambert_on_planes_closed_form():
+    """A plane of slope angle a facing azimuth b under the sun (azimuth 315, elevation 45 deg):
+    brightness 0.45 + 0.55 cos(angle to the sun) / sin(45 deg) (Lambert's cosine law), flat ground 1."""
+    from geoloc.viz.terrain_link import hillshade
+
+    x, y = np.meshgrid(np.arange(5.0) * 100.0, np.arange(5.0) * 100.0)
+    i = np.arange(25).reshape(5, 5)
+    faces = np.concatenate([np.stack([i[:-1, :-1], i[:-1, 1:], i[1:, 1:]], -1).reshape(-1, 3),
+                            np.stack([i[:-1, :-1], i[1:, 1:], i[1:, :-1]], -1).reshape(-1, 3)])
+    el, az_sun = math.radians(45.0), math.radians(315.0)
+    sun = np.array([math.sin(az_sun) * math.cos(el), math.cos(az_sun) * math.cos(el), math.sin(el)])
+    # level; towards the sun (brighter); away (darker); across; steep away (in shadow: 0.45)
+    for slope_deg, facing_deg in ((0.0, 0.0), (20.0, 315.0), (20.0, 135.0), (30.0, 90.0), (60.0, 135.0)):
+        a, b = math.radians(slope_deg), math.radians(facing_deg)
+        # height falls towards the facing azimuth: z = -tan(a) (x sin b + y cos b)
+        z = -math.tan(a) * (x * math.sin(b) + y * math.cos(b))
+        v = np.stack([x.ravel(), y.ravel(), z.ravel()], -1)
+        n = np.array([math.sin(a) * math.sin(b), math.sin(a) * math.cos(b), math.cos(a)])
+        want = float(np.clip(0.45 + 0.55 * max(n @ sun, 0.0) / math.sin(el), 0.3, 1.3))
+        # either winding of the faces: normals are turned Up
+        for f in (faces, faces[:, ::-1]):
+            got = hillshade(v, f)
+            assert np.allclose(got, want, atol=1e-12), (slope_deg, facing_deg, got[:3], want)
+
+
+def test_terrain_is_sent_unlit_with_the_mesh_unchanged(app):
+    """The terrain node's GLB, read back by trimesh (an independent glTF reader), holds the same
+    vertices and faces as the mesh, and its one material is KHR_materials_unlit (the glTF 2.0
+    extension three.js draws as a MeshBasicMaterial)."""
+    import io
+    import json
+    import struct
+
+    import trimesh
+
+    from geoloc.viz.scene_geoloc import terrain_glb_cached, terrain_mesh_cached
+
+    scn = app.scn
+    glb, mesh = terrain_glb_cached(scn), terrain_mesh_cached(scn)
+    h = app.server.scene.get_handle_by_name("/enu/terrain")
+    assert h is not None and h.glb_data == glb
+    jlen, = struct.unpack_from("<I", glb, 12)
+    assert struct.unpack_from("<I", glb, 8)[0] == len(glb)
+    doc = json.loads(glb[20:20 + jlen])
+    assert "KHR_materials_unlit" in doc["extensionsUsed"]
+    assert [m["extensions"] for m in doc["materials"]] == [{"KHR_materials_unlit": {}}]
+    back = trimesh.load(io.BytesIO(glb), file_type="glb", force="mesh", process=False)
+    assert np.array_equal(np.asarray(back.faces), np.asarray(mesh.faces))
+    assert np.allclose(back.vertices, mesh.vertices, atol=0.0, rtol=1e-6)  # float32 in the file
+    # the colours (trimesh drops COLOR_0 once a material is set): the accessor read by hand (glTF 2.0
+    # 3.6: a buffer view into the binary chunk, which starts after the JSON chunk's 8-byte header)
+    prim = doc["meshes"][0]["primitives"][0]
+    acc = doc["accessors"][prim["attributes"]["COLOR_0"]]
+    view = doc["bufferViews"][acc["bufferView"]]
+    assert acc["componentType"] == 5121 and acc["type"] == "VEC4"  # unsigned bytes, RGBA
+    start = 20 + jlen + 8 + view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    rgba = np.frombuffer(glb, np.uint8, acc["count"] * 4, start).reshape(-1, 4)
+    assert np.array_equal(rgba, mesh.visual.vertex_colors)

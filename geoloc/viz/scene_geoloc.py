@@ -26,6 +26,9 @@ from __future__ import annotations
 
 import collections
 import functools
+import io
+import json
+import struct
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -145,8 +148,7 @@ _TERRAIN_CACHE_SIZE = 4
 _TERRAIN_LOCK = threading.Lock()
 
 
-def terrain_mesh_cached(scn) -> trimesh.Trimesh:
-    """:func:`geoloc.viz.terrain_link.terrain_mesh` of ``scn``, shared between sessions."""
+def _terrain_entry(scn):
     from geoloc.viz import terrain_link
 
     enu = scn.enu
@@ -155,13 +157,57 @@ def terrain_mesh_cached(scn) -> trimesh.Trimesh:
         hit = _TERRAIN_CACHE.get(key)
         if hit is not None and hit[0] is scn.dem:
             _TERRAIN_CACHE.move_to_end(key)
-            return hit[1]
+            return hit
     mesh = terrain_link.terrain_mesh(scn)
+    entry = (scn.dem, mesh, unlit_glb(mesh))
     with _TERRAIN_LOCK:
-        _TERRAIN_CACHE[key] = (scn.dem, mesh)
+        _TERRAIN_CACHE[key] = entry
         while len(_TERRAIN_CACHE) > _TERRAIN_CACHE_SIZE:
             _TERRAIN_CACHE.popitem(last=False)
-    return mesh
+    return entry
+
+
+def terrain_mesh_cached(scn) -> trimesh.Trimesh:
+    """:func:`geoloc.viz.terrain_link.terrain_mesh` of ``scn``, shared between sessions."""
+    return _terrain_entry(scn)[1]
+
+
+def terrain_glb_cached(scn) -> bytes:
+    """:func:`unlit_glb` of :func:`terrain_mesh_cached` (exported once, shared between sessions)."""
+    return _terrain_entry(scn)[2]
+
+
+def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
+    """Binary glTF of ``mesh`` with its material marked ``KHR_materials_unlit`` (glTF 2.0 extension:
+    three.js loads it as a ``MeshBasicMaterial``, vertex colours without lighting).
+
+    For the terrain, whose relief is baked into its colours (:func:`geoloc.viz.terrain_link.hillshade`):
+    in headless Chromium with software WebGL the lit material (physically based, with viser's default
+    environment map) over a 51 k-triangle terrain filling the canvas cost 1.9-2.6 s a frame, unlit
+    0.4-0.45 s, about what the scene costs without the terrain (issue 34, machine load 10-12;
+    a 161 or an 81 node grid made no difference: the cost is per pixel, not per triangle).
+    """
+    buf = io.BytesIO()
+    mesh.export(buf, file_type="glb")
+    b = buf.getvalue()
+    magic, version, _ = struct.unpack_from("<III", b, 0)
+    jlen, jtype = struct.unpack_from("<II", b, 12)
+    doc = json.loads(b[20:20 + jlen])
+    rest = b[20 + jlen:]
+    mats = doc.setdefault("materials", [])
+    if not mats:  # trimesh writes none for a vertex-coloured mesh
+        mats.append({"pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0]}})
+        for m in doc.get("meshes", []):
+            for p in m["primitives"]:
+                p["material"] = 0
+    for m in mats:
+        m.setdefault("extensions", {})["KHR_materials_unlit"] = {}
+    used = doc.setdefault("extensionsUsed", [])
+    if "KHR_materials_unlit" not in used:
+        used.append("KHR_materials_unlit")
+    j = json.dumps(doc, separators=(",", ":")).encode()
+    j += b" " * (-len(j) % 4)  # chunks are 4-byte aligned (glTF 2.0, GLB file format)
+    return struct.pack("<III", magic, version, 20 + len(j) + len(rest)) + struct.pack("<II", len(j), jtype) + j + rest
 
 
 def wxyz(R) -> np.ndarray:
@@ -226,9 +272,9 @@ class GeolocScene:
             self.terrain_handle = None
             self.scene.remove_by_name("/enu/terrain")
             return
-        mesh = terrain_mesh_cached(self.scn)
-        self.terrain_handle = self.scene.add_mesh_trimesh(
-            "/enu/terrain", mesh, scale=self._terrain_scale(),
+        # unlit, its relief baked into its colours: the cheap material in software WebGL (unlit_glb)
+        self.terrain_handle = self.scene.add_glb(
+            "/enu/terrain", terrain_glb_cached(self.scn), scale=self._terrain_scale(),
             visible=self.disp.terrain_visible, cast_shadow=False, receive_shadow=False)
 
     # ------------------------------------------------------------ dynamic parts
@@ -262,6 +308,24 @@ class GeolocScene:
             lh.visible = self.disp.marker_labels if show_label is None else show_label
         return h
 
+    def _points(self, name, pts, colors, point_size):
+        # as _segments: a step with as many points moves them (one update message) instead of
+        # re-creating the node (the browser rebuilds its geometry and material)
+        pts = self.disp.z(np.asarray(pts, float).reshape(-1, 3)).astype(np.float32)
+        colors = np.broadcast_to(np.asarray(colors, np.uint8), pts.shape).copy()
+        key = (float(point_size), pts.shape)
+        h = self._alive(name, key)
+        if h is None:
+            h = self.scene.add_point_cloud(name, pts, colors, point_size=point_size, point_shape="circle",
+                                           precision="float32")
+            self._cache[name] = (h, key)
+        else:
+            if not np.array_equal(h.points, pts):
+                h.points = pts
+            if not np.array_equal(h.colors, colors):
+                h.colors = colors
+        return h
+
     def _segments(self, name, pts, color, thickness=3.0):
         pts = self.disp.z(np.asarray(pts, float).reshape(-1, 2, 3)).astype(np.float32)
         colors = np.broadcast_to(np.asarray(color, np.uint8), pts.shape).copy()
@@ -272,8 +336,10 @@ class GeolocScene:
                                              thickness_units="screen")
             self._cache[name] = (h, key)
         else:
-            h.points = pts
-            h.colors = colors
+            if not np.array_equal(h.points, pts):
+                h.points = pts
+            if not np.array_equal(h.colors, colors):
+                h.colors = colors
         return h
 
     def update(self, g: Geometry) -> None:
@@ -343,12 +409,9 @@ class GeolocScene:
         n = len(it.H) if d.step is None else int(np.clip(d.step, 0, len(it.H) - 1)) + 1
         above = (it.H - it.h_dem)[:n] > 0
         cols = np.where(above[:, None], COLORS["above"], COLORS["below"]).astype(np.uint8)
-        s.add_point_cloud("/enu/iterations/points", d.z(it.on_los_enu[:n]).astype(np.float32), cols,
-                          point_size=0.6 * d.marker_radius_m * WORLD_SCALE, point_shape="circle",
-                          precision="float32")
-        segs = d.z(np.stack([it.on_los_enu[:n], it.dem_enu[:n]], 1)).astype(np.float32)
-        s.add_line_segments("/enu/iterations/verticals", segs, np.repeat(cols[:, None], 2, 1),
-                            thickness=2.5, thickness_units="screen")
+        self._points("/enu/iterations/points", it.on_los_enu[:n], cols, 0.6 * d.marker_radius_m * WORLD_SCALE)
+        self._segments("/enu/iterations/verticals", np.stack([it.on_los_enu[:n], it.dem_enu[:n]], 1),
+                       np.repeat(cols[:, None], 2, 1), 2.5)
         if it.brackets_enu is not None:
             self._segments("/enu/iterations/brackets", it.brackets_enu[:n], COLORS["bracket"], 6.0)
         k = n - 1
@@ -367,10 +430,17 @@ class GeolocScene:
                          radius=0.6 * d.marker_radius_m, anchor="bottom-right")
             if np.all(np.isfinite(g.hit_enu)):
                 tip = g.hit_enu + d.error_exaggeration * (g.surveyed_enu - g.hit_enu)
-                self._segments("/enu/record/error", [g.hit_enu, tip], COLORS["error"], 5.0)
-                s.add_label("/enu/record/error/label",
-                            error_label(g.surveyed_enu - g.hit_enu, d.error_exaggeration),
-                            position=d.z(tip), anchor="top-left")
+                eh = self._segments("/enu/record/error", [g.hit_enu, tip], COLORS["error"], 5.0)
+                text = error_label(g.surveyed_enu - g.hit_enu, d.error_exaggeration)
+                # (keyed on its parent: a re-created parent drops its children in the browser, while
+                # viser keeps their handles)
+                key = ("top-left", id(eh))
+                lh = self._alive("/enu/record/error/label", key)
+                if lh is None:
+                    lh = s.add_label("/enu/record/error/label", text, position=d.z(tip), anchor="top-left")
+                    self._cache["/enu/record/error/label"] = (lh, key)
+                else:
+                    lh.text, lh.position = text, d.z(tip)
 
     # ------------------------------------------------------------ camera
     def camera_pose(self, kind: str = "overview"):

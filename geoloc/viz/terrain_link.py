@@ -119,7 +119,8 @@ def terrain_mesh(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES):
     solvers intersect) is sampled on a ``nodes x nodes`` geographic grid
     covering +-``window_m`` around the origin, clipped to the DEM, and turned
     into a mesh by :meth:`geoloc.surfaces.dem.DEM.to_trimesh` in ``scn.enu``. Colours:
-    a hypsometric colour map of the height.
+    a hypsometric colour map of the height, shaded by :func:`hillshade` (the viewer draws the
+    terrain unlit: the relief is in the colours, see :func:`geoloc.viz.scene_geoloc.unlit_glb`).
     """
     import matplotlib
 
@@ -141,8 +142,40 @@ def terrain_mesh(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES):
     lo, hi = np.nanmin(H), np.nanmax(H)
     t = (h - lo) / max(hi - lo, 1.0)
     rgba = matplotlib.colormaps["gist_earth"](0.2 + 0.7 * t)
-    mesh.visual.vertex_colors = (rgba * 255).astype(np.uint8)
+    rgba[:, :3] *= hillshade(mesh.vertices, mesh.faces)[:, None]
+    mesh.visual.vertex_colors = (np.clip(rgba, 0.0, 1.0) * 255).astype(np.uint8)
     return mesh
+
+
+#: The sun of :func:`hillshade`: azimuth (clockwise from North) and elevation [deg], the cartographic
+#: convention (light from the north-west, 45 deg up: slopes facing it read as lit, relief as raised).
+SUN_AZ_EL_DEG = (315.0, 45.0)
+
+
+def hillshade(vertices_enu, faces, sun_az_el_deg=SUN_AZ_EL_DEG) -> np.ndarray:
+    """Brightness factor per vertex of an ENU height mesh under a fixed sun (display only).
+
+    Lambert's cosine ``max(n . s, 0)`` of the vertex normal ``n`` (area-weighted mean of the
+    adjacent faces' normals, turned to point Up) and the unit vector ``s`` to the sun, divided by
+    its value on flat ground (``sin(elevation)``), so that level terrain keeps its colour; mapped
+    to ``0.45 + 0.55 x`` and clipped to [0.3, 1.3] (slopes in shadow stay readable, lit ones do
+    not saturate). Baked into the vertex colours, it lets the browser draw the terrain unlit:
+    in software WebGL a lit, image-based-lighting material over the terrain costs most of a
+    frame (``benchmarks/bench_browser.py``).
+    """
+    v = np.asarray(vertices_enu, float)
+    f = np.asarray(faces, np.int64)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])  # length: twice the area
+    fn *= np.where(fn[:, 2:3] < 0.0, -1.0, 1.0)
+    n = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(n, f[:, k], fn)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    az, el = np.deg2rad(sun_az_el_deg[0]), np.deg2rad(sun_az_el_deg[1])
+    sun = np.array([np.sin(az) * np.cos(el), np.cos(az) * np.cos(el), np.sin(el)])
+    lam = np.maximum(n @ sun, 0.0) / np.sin(el)
+    lam[~np.isfinite(lam)] = 1.0
+    return np.clip(0.45 + 0.55 * lam, 0.3, 1.3)
 
 
 def scene_surface(scn, inp, trace: bool = True):

@@ -91,6 +91,10 @@ class UncertaintyLayer:
             traceback.print_exc(file=sys.stderr)
             return None
 
+    def _hide(self) -> None:
+        if self.handle is not None and self.handle.visible:
+            self.handle.visible = False
+
     def budget(self):
         scn = self.session.scn
         b = getattr(scn, "budget", None)
@@ -99,10 +103,8 @@ class UncertaintyLayer:
     def update(self) -> None:
         s = self.session
         g = s.geometry
-        if self.handle is not None:
-            self.handle.remove()
-            self.handle = None
         if g is None or g.status != Status.OK:
+            self._hide()
             self.md.content = "no located point"
             return
         from geoloc.viz import terrain_link
@@ -113,14 +115,24 @@ class UncertaintyLayer:
                        surface=terrain_link.scene_surface(s.scn, inp, trace=False), outside="extrapolate")
         self.pu = pu
         if pu.status != Status.OK:
+            self._hide()
             self.md.content = "no predicted uncertainty (the ray has no ground point)"
             return
         k = float(getattr(s.view.disp, "error_exaggeration", 1.0))  # the error vectors' scale: side by side
         pts = ellipse_points_enu(s.scn, pu, s.scn.enu, scale=k)
         if self.cb_show.value:
-            seg = np.stack([pts, np.roll(pts, -1, axis=0)], 1)
-            self.handle = self.scene.add_line_segments(f"{ROOT}/ellipse", s.view.disp.z(seg).astype(np.float32),
-                                                       COLOR, thickness=4.0, thickness_units="screen")
+            seg = s.view.disp.z(np.stack([pts, np.roll(pts, -1, axis=0)], 1)).astype(np.float32)
+            h = self.handle
+            if h is not None and self.scene.get_handle_by_name(f"{ROOT}/ellipse") is h and h.points.shape == seg.shape:
+                # a timeline step moves the ellipse (one update message), not a remove and an add
+                h.points = seg
+                h.visible = True
+            else:
+                self._hide()
+                self.handle = self.scene.add_line_segments(f"{ROOT}/ellipse", seg, COLOR, thickness=4.0,
+                                                           thickness_units="screen")
+        else:
+            self._hide()
         lines = [f"predicted **CE90 {float(pu.ce90_m):.1f} m**, **LE90 {float(pu.le90_m):.1f} m** "
                  f"(90 % ellipse {float(pu.ellipse_major_m) * ELLIPSE90_PER_SIGMA:.1f} x "
                  f"{float(pu.ellipse_minor_m) * ELLIPSE90_PER_SIGMA:.1f} m, major axis at "
