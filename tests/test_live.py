@@ -514,3 +514,61 @@ def test_synchronous_metadata_carriage_is_read():
     assert [r.fields for r in out] == [p.fields for p in pk]
     assert [r.pts for r in out] == [90000 * i + 1234 for i in range(len(pk))]
     assert rx.demux.streams[0x101] == ("klv", 0x15) and rx.stats.psi_errors == 0 and rx.stats.cc_errors == 0
+
+
+# a partial recording has no footer yet (rerun says so, and reads it by a whole-file scan): expected here
+@pytest.mark.filterwarnings("ignore:RRD file has no footer")
+def test_log_of_a_stream_grows_as_it_arrives_and_a_killed_session_keeps_it(tmp_path, rerun_home):
+    """geoloc log udp://... writes the .rrd as packets arrive: while the flight streams, the growing
+    OUT.partial.rrd reads back with rerun's own reader, and a session killed mid-flight (SIGKILL:
+    no clean-up at all) leaves every packet logged so far, their residuals those of the file's replay."""
+    import shutil
+    import subprocess
+    import sys
+
+    from geoloc.workflows.klv_replay import replay_klv
+    from tests.test_rerun_klv import series
+
+    port = free_port()
+    url = f"udp://127.0.0.1:{port}"
+    out = tmp_path / "live.rrd"
+    part = tmp_path / "live.partial.rrd"
+    root = Path(__file__).resolve().parents[1]
+    env = {**__import__("os").environ, "PYTHONPATH": str(root)}
+    proc = subprocess.Popen([sys.executable, "-m", "geoloc", "log", url, "--out", str(out), "--duration", "200"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        th, res = _sender(TS, url, speed=8.0)  # 298 s of flight in 37 s
+        want = dict(zip(*(replay_klv(TS).columns[k] for k in ("packet", "frame_center_error_m"))))
+        seen = []
+
+        def read_partial():  # a snapshot of the growing file, read as a viewer opening it would
+            snap = tmp_path / "snapshot.rrd"
+            shutil.copyfile(part, snap)
+            try:
+                return series(snap, "/series/error/to_published_m")
+            except Exception:  # the last message still being written: the next snapshot
+                return None
+
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 90:
+            got = read_partial() if part.exists() else None
+            if got is not None and len(got[0]):
+                seen.append(len(got[0]))
+            if len(seen) >= 2 and seen[-1] >= 60 and seen[-1] > seen[0]:
+                break
+            time.sleep(0.5)
+        assert len(seen) >= 2 and seen[-1] > seen[0] and seen[-1] >= 60, seen  # it grew while streaming
+        assert th.is_alive() and not out.exists()  # mid-flight: nothing renamed yet
+        proc.kill()  # SIGKILL: the recording is left as it was written
+        proc.wait(30)
+        assert th.is_alive()
+        pk, err = series(part, "/series/error/to_published_m")
+        # at least what the last snapshot had (the log flushes every second), less than the whole flight
+        assert seen[-1] <= len(pk) < 297, (seen, len(pk))
+        assert len(set(pk.tolist())) == len(pk)  # each packet once
+        np.testing.assert_array_equal(err, np.asarray([want[p] for p in pk]))  # the file replay's, exactly
+        th.join(60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()

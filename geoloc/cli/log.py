@@ -42,8 +42,8 @@ def register(sub) -> None:
     )
     p.add_argument("input", metavar="SCENARIO_OR_RECORDS", type=input_path,
                    help="scenario .toml (or the name of a bundled one) or records .csv; or MISB ST 0601 KLV "
-                   "(.klv, .ts), or a live stream udp://HOST:PORT (received until --duration, --packets or "
-                   "--idle, then logged; docs/live.md)")
+                   "(.klv, .ts), or a live stream udp://HOST:PORT (logged as it arrives, until --duration, --packets, "
+                   "--idle or Ctrl-C; docs/live.md)")
     p.add_argument("--out", default=None, type=output_path, help="output .rrd file (required unless --serve or --spawn)")
     add_sensor_option(p)
     add_target_options(p)
@@ -100,37 +100,83 @@ def _fit_names(text):
     return names
 
 
-#: Packets a live input keeps for the recording (the newest; ten minutes at 30 Hz).
-LIVE_WINDOW = 18000
+#: A live recording logs what arrived at most this often [s] (a batch of packets each time).
+LIVE_FLUSH_S = 1.0
 
 
-def _receive(args) -> list:
-    """``geoloc log udp://HOST:PORT``: the KLV results received until a stop condition (the newest
-    :data:`LIVE_WINDOW`), the raw stream journalled with ``--record``."""
+def _log_live(args, camera, dem) -> int:
+    """``geoloc log udp://HOST:PORT``: the recording written as the packets arrive
+    (:class:`geoloc.viz.rerun_log.LiveRecording`, flushed every :data:`LIVE_FLUSH_S`), the ``.rrd``
+    growing as ``OUT.partial.rrd`` until the session ends (then renamed onto ``--out``), so a
+    session killed mid-flight leaves every batch logged; the raw stream journalled with ``--record``."""
     import contextlib
-    from collections import deque
 
     from geoloc.cli._options import live_limits
     from geoloc.cli.klv import _bind
     from geoloc.io.live import LiveReceiver, receive
     from geoloc.userfiles import growing_path
+    from geoloc.viz.rerun_log import LiveRecording, exposure_note, serve_web
 
     limits = live_limits(args, args.input)
-    if not any(limits.values()) and not (args.serve or args.spawn):
-        print("geoloc log: receiving until Ctrl-C (--duration, --packets or --idle stop it), then logging",
-              file=sys.stderr, flush=True)
+    if not any(limits.values()):
+        print("geoloc log: logging until Ctrl-C (--duration, --packets or --idle stop it)", file=sys.stderr,
+              flush=True)
     sock = _bind(args.input)
     rx = LiveReceiver()
-    got: deque = deque(maxlen=LIVE_WINDOW)
     with contextlib.ExitStack() as stack:
+        out = stack.enter_context(growing_path(args.out, "--out")) if args.out else None
         record = None
         if args.record_ts:
-            rec = stack.enter_context(growing_path(args.record_ts, "--record"))
-            record = stack.enter_context(rec.open("wb")).write
-        print(f"geoloc log: listening on {args.input}", file=sys.stderr, flush=True)
-        got.extend(receive(args.input, receiver=rx, record=record, sock=sock, **limits))
+            rec_ts = stack.enter_context(growing_path(args.record_ts, "--record"))
+            record = stack.enter_context(rec_ts.open("wb")).write
+        live = LiveRecording(out, args.input, camera, dem_path=dem, dem_datum=args.dem_datum, method=args.method,
+                             eps_h_m=args.eps_h, threshold_m=args.threshold, display_scale=args.display_scale,
+                             serve=args.serve, grpc_port=args.grpc_port, grpc_host=args.host, spawn=args.spawn)
+        viewer = None
+        if args.serve:
+            note = exposure_note(args.host, (args.web_port, args.grpc_port))
+            if note:
+                print(note, file=sys.stderr, flush=True)
+        pending: list = []
+        last = [time.monotonic()]
+
+        def flush():
+            if pending:
+                live.add(pending)
+                pending.clear()
+            last[0] = time.monotonic()
+
+        def on_batch(res):
+            pending.extend(res)
+            if time.monotonic() - last[0] >= LIVE_FLUSH_S:
+                flush()
+
+        def _stop(signum, frame):
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGTERM, _stop)  # a killed session still ends its .rrd on what was logged
+        print(f"geoloc log: listening on {args.input}" + (f", logging to {out}" if out else ""), file=sys.stderr,
+              flush=True)
+        try:
+            for _ in receive(args.input, receiver=rx, record=record, sock=sock, on_batch=on_batch, **limits):
+                if args.serve and viewer is None and live.rec is not None:
+                    url, viewer = serve_web(args.grpc_port, args.web_port, host=args.host)
+                    print(f"web viewer: {url}", flush=True)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            flush()
+            live.close()
+            if viewer is not None:
+                viewer.terminate()
+                viewer.wait(timeout=10)
     print(f"geoloc log: {rx.stats.line()}", file=sys.stderr)
-    return list(got)
+    for err in live.errors:
+        print(f"{args.input}: skipped bad packet at byte {err.offset}: {err.reason}", file=sys.stderr)
+    if args.out:
+        print(f"wrote {args.out}: {live.steps_total} steps ({live.located_total} located) on timeline(s) "
+              f"{', '.join(live.timelines)}, logged as they arrived")
+    return 0
 
 
 def run(args) -> int:
@@ -143,8 +189,9 @@ def run(args) -> int:
     live = is_stream(args.input)
     if not live and getattr(args, "record_ts", None):
         raise ValueError("--record is for a live input (udp://HOST:PORT)")
-    results = _receive(args) if live else None
-    path = Path("live.ts") if live else resolve_input(args.input)
+    if live:
+        return _log_live(args, sensor_from_args(args, default=False), one_dem_raster(args, "log"))
+    path = resolve_input(args.input)
     from geoloc.viz.rerun_log import exposure_note, serve_web, write  # rerun is imported here only
     from geoloc.viz.rerun_model import (
         steps_from_flight,
@@ -169,10 +216,8 @@ def run(args) -> int:
     elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):
         from geoloc.viz.rerun_model import steps_from_klv
 
-        steps, errors = steps_from_klv(results if live else path, camera, dem_path=dem, dem_datum=args.dem_datum,
-                                       method=args.method, eps_h_m=args.eps_h, threshold_m=args.threshold,
-                                       label=args.input if live else None,
-                                       video=args.record_ts if live and args.record_ts else None)
+        steps, errors = steps_from_klv(path, camera, dem_path=dem, dem_datum=args.dem_datum,
+                                       method=args.method, eps_h_m=args.eps_h, threshold_m=args.threshold)
         for err in errors:
             print(f"{path}: skipped bad packet at byte {err.offset}: {err.reason}", file=sys.stderr)
     else:

@@ -683,3 +683,149 @@ def serve_web(grpc_port: int = 9876, web_port: int = 9090, host: str = "127.0.0.
             time.sleep(0.1)
     log.close()
     return f"http://{_url_host(host)}:{web_port}/?url={grpc_url}", proc
+
+
+class LiveRecording:
+    """A rerun recording written as a live stream arrives (``geoloc log udp://...``, issue 30).
+
+    Each :meth:`add` logs a batch of received KLV results (:class:`geoloc.io.klv.Packet` /
+    ``KlvError``) exactly as :func:`log_steps` logs a file's steps
+    (:func:`geoloc.viz.rerun_model.steps_from_klv`), on one scene origin (the first located
+    packet's, :func:`geoloc.viz.rerun_model.enu_origin`) and one clock (``time`` from the first
+    packet's time stamp), with the causal outlier flags of :mod:`geoloc.workflows.live_replay`
+    (the median / MAD rule over the packets received so far); the whole-flight drawings (the 3D
+    track and footprint, the map's track, the 2D plot's points and error vectors) are logged
+    again over the packets received (the newest ``window``). The sinks are flushed after each
+    batch, so the ``.rrd`` (or a connected viewer) holds every batch logged: a session killed
+    mid-flight leaves what arrived.
+
+    Parameters
+    ----------
+    out : path-like or None
+        The ``.rrd`` the recording streams to (None: only ``serve`` / ``spawn``).
+    label : str
+        The stream's name (its URL): the recording's name and id.
+    camera, dem_path, dem_datum, method, eps_h_m, threshold_m
+        As :func:`geoloc.viz.rerun_model.steps_from_klv`.
+    display_scale, serve, grpc_port, grpc_host, spawn
+        As :func:`write`.
+    """
+
+    def __init__(self, out, label: str, camera=None, *, dem_path=None, dem_datum: str = "egm96",
+                 method: str = "exact", eps_h_m=None, threshold_m=None, display_scale: float = 200.0,
+                 serve: bool = False, grpc_port: int = 9876, grpc_host: str = "127.0.0.1", spawn: bool = False,
+                 window: int = 18000):
+        from collections import deque
+
+        from geoloc.viz.rerun_model import open_dem
+
+        self.out, self.label, self.camera = out, str(label), camera
+        self.kw = dict(method=method, eps_h_m=eps_h_m, threshold_m=threshold_m)
+        self.dem = open_dem(dem_path, dem_datum) if dem_path is not None else None
+        self.display_scale = float(display_scale)
+        self.sinks = dict(serve=serve, grpc_port=grpc_port, grpc_host=grpc_host, spawn=spawn)
+        self.rec = None
+        self.enu = None
+        self.t0_s = None
+        self.steps_total = 0
+        self.located_total = 0
+        self.seq = 0  # packets received (good and bad, as the live replay numbers them)
+        self.errors: list = []
+        self._err: deque = deque(maxlen=int(window))  # frame-centre residuals, for the causal flags
+        self._acc: deque = deque(maxlen=int(window))  # per step: (aircraft, target, reported, label, flag)
+        self.timelines = ()
+
+    def _open(self, steps) -> None:
+        rec = rr.RecordingStream("geoloc", recording_id=recording_id(steps))
+        sinks = []
+        if self.out is not None:
+            sinks.append(rr.FileSink(str(self.out)))
+        s = self.sinks
+        if s["serve"]:
+            sinks.append(rr.GrpcServerSink(bind_ip=s["grpc_host"], port=s["grpc_port"]))
+        if s["spawn"]:
+            port = s["grpc_port"] + 1 if s["serve"] else s["grpc_port"]
+            rr.spawn(port=port, connect=False)
+            sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
+        if not sinks:
+            raise ValueError("nothing to write to: give an output file, serve or spawn")
+        rec.set_sinks(*sinks, default_blueprint=blueprint(steps))
+        self.rec = rec
+
+    def add(self, results) -> int:
+        """Log one batch (a list of results); returns the steps logged (0: no good packet in it)."""
+        from geoloc.io.klv import KlvError, Packet
+        from geoloc.viz.rerun_model import steps_from_klv
+        from geoloc.workflows.klv_replay import _is_stray, outlier_mask
+
+        results = list(results)
+        self.errors += [r for r in results if isinstance(r, KlvError)]
+        if not any(isinstance(r, Packet) for r in results):
+            return 0
+        if self.t0_s is None:
+            t = [r.fields.get("precision_time_stamp_us") for r in results if isinstance(r, Packet)]
+            t = np.asarray([np.nan if v is None else v / 1e6 for v in t], float)
+            self.t0_s = float(np.nanmin(t)) if np.any(np.isfinite(t)) else 0.0
+
+        def causal(err):  # the batch's residuals after those received before it (the live replay's rule)
+            self._err.extend(np.asarray(err, float).tolist())
+            return outlier_mask(np.array(self._err, float))[0][-len(err):] if len(err) else np.zeros(0, bool)
+
+        steps, _ = steps_from_klv(results, self.camera, dem=self.dem, label=self.label, enu=self.enu,
+                                  t0_s=self.t0_s, outlier=causal, first_packet=self.seq, **self.kw)
+        self.seq += sum(1 for r in results if isinstance(r, Packet) or (isinstance(r, KlvError) and not _is_stray(r)))
+        if self.enu is None:
+            self.enu = steps.enu
+        if self.rec is None:
+            self._open(steps)
+        log_steps(self.rec, steps, display_scale=self.display_scale)
+        n = len(steps)
+        ac, tgt = steps.aircraft_enu, steps.target_enu
+        pub = steps.geodetic_enu(steps.published["lat_deg"], steps.published["lon_deg"], steps.published["h_m"])
+        lat, lon = np.rad2deg(np.broadcast_to(steps.pose.lat, (n,))), np.rad2deg(np.broadcast_to(steps.pose.lon, (n,)))
+        flag = steps.outlier if steps.outlier is not None else np.zeros(n, bool)
+        for k in range(n):
+            self._acc.append((ac[k], tgt[k], pub[k], steps.labels[k], bool(flag[k]), lat[k], lon[k]))
+        self._log_whole_flight()
+        self.rec.flush()
+        self.steps_total += n
+        self.located_total += int((steps.ground.status == 0).sum())
+        self.timelines = tuple(steps.timelines)
+        return n
+
+    def _log_whole_flight(self) -> None:
+        """The static drawings of every packet received (the window): those :func:`log_steps` drew
+        for the batch alone (one flight: entity roots ``world``, ``map``, ``plot``)."""
+        rec, f32 = self.rec, np.float32
+        ac, tgt, pub, labels, flag, lat, lon = (np.asarray(x) for x in zip(*self._acc))
+        tgt, pub = tgt.astype(float), pub.astype(float)
+        flag = flag.astype(bool)
+        rec.log("world/track", rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"],
+                                               radii=SCENE_RADIUS_PT["track"]), static=True)
+        ok = np.all(np.isfinite(tgt), axis=-1)
+        rec.log("world/footprint", rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"],
+                                               radii=SCENE_RADIUS_PT["footprint"]), static=True)
+        rec.log("map/track", rr.GeoLineStrings(lat_lon=[np.c_[lat, lon]], colors=COLORS["track"],
+                                               radii=rr.Radius.ui_points(2.0)), static=True)
+        if not ok.any():
+            return
+        en = lambda p: np.stack([p[..., 0], -p[..., 1]], axis=-1)  # noqa: E731  (plot_east_north, one flight)
+        rec.log("plot/targets", rr.Points2D(en(tgt[ok]), colors=COLORS["target"], radii=PLOT_RADIUS_PT["point"],
+                                            labels=[str(x) for x in labels[ok]], show_labels=False), static=True)
+        o = flag & ok
+        if o.any():
+            rec.log("plot/outliers", rr.Points2D(en(tgt[o]), colors=(255, 0, 255, 255), radii=PLOT_RADIUS_PT["outlier"],
+                                                 labels=[str(x) for x in labels[o]]), static=True)
+        good = np.all(np.isfinite(pub), axis=-1)
+        rec.log("plot/published", rr.Points2D(en(pub[good]), colors=COLORS["published"],
+                                              radii=PLOT_RADIUS_PT["point"]), static=True)
+        both = ok & good
+        o2 = en(pub[both])
+        rec.log("plot/errors", rr.Arrows2D(origins=o2, vectors=en(tgt[both]) - o2, colors=COLORS["los"],
+                                           radii=PLOT_RADIUS_PT["arrow"]), static=True)
+
+    def close(self) -> None:
+        """Flush and disconnect (a served or spawned viewer keeps what it received)."""
+        if self.rec is not None:
+            self.rec.flush()
+            self.rec.disconnect()

@@ -536,13 +536,19 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
 
 
 def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96", method: str = "exact",
-                   eps_h_m=None, threshold_m=None, label: str | None = None, video=None) -> tuple[LogSteps, list]:
+                   eps_h_m=None, threshold_m=None, label: str | None = None, video=None, enu=None,
+                   t0_s: float | None = None, outlier=None, dem=None, first_packet: int = 0) -> tuple[LogSteps, list]:
     """A MISB ST 0601 file replayed (:func:`geoloc.workflows.klv_replay.replay_klv`): one step per packet.
 
     ``method``, ``eps_h_m`` and ``threshold_m`` are the DEM solver and its tolerances, as
     for the records path (``geoloc log --method``). ``path`` may also be the results of a
     read (:class:`geoloc.io.klv.Packet` / ``KlvError``, e.g. received live), named ``label``;
     ``video`` is then the MPEG-TS whose pictures to attach (a live session's ``--record``).
+    A live recording logs batch after batch on one scene and clock: ``enu`` (the scene origin),
+    ``t0_s`` (the precision time stamp of the ``time`` timeline's zero), ``outlier`` (a function
+    of the batch's frame-centre residuals giving its causal flags) and ``first_packet`` (the
+    batch's first packet number on the session's ``packet`` timeline) are then given, and ``dem``
+    (already open) for ``dem_path``.
 
     The recomputed frame centre is the target; the packet's own frame centre is the
     "published" position, so ``series/error/to_published_m`` is the frame-centre
@@ -558,7 +564,8 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
 
     from geoloc.surfaces.terrain import surface_for
 
-    dem = open_dem(dem_path, dem_datum) if dem_path is not None else None
+    if dem is None:
+        dem = open_dem(dem_path, dem_datum) if dem_path is not None else None
     dem_options = {}
     if eps_h_m is not None:
         dem_options["eps_h"] = float(eps_h_m)
@@ -581,8 +588,16 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     published = {"lat_deg": np.asarray(c["reported_lat_deg"], float), "lon_deg": np.asarray(c["reported_lon_deg"], float),
                  "h_m": np.asarray(c["reported_h_m"], float), "error_m": np.asarray(c["frame_center_error_m"], float)}
     t = np.asarray(c["time_s"], float)
-    t = t - np.nanmin(t) if np.any(np.isfinite(t)) else np.arange(n, dtype=float)
-    enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
+    if t0_s is None:
+        t = t - np.nanmin(t) if np.any(np.isfinite(t)) else np.arange(n, dtype=float)
+    else:
+        t = t - float(t0_s)
+    if enu is None:
+        enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
+    if outlier is not None:
+        c["outlier"] = np.asarray(outlier(np.asarray(c["frame_center_error_m"], float)), np.int64)
+    if first_packet:
+        c["packet"] = np.asarray(c["packet"], np.int64) + int(first_packet)
     name = label or Path(path).name
     notes = [f"MISB ST 0601: {name}, {n} packets ({len(r.errors)} bad, skipped)",
              "published = the packet's own frame centre (tags 23-25 / 78); target = recomputed",
