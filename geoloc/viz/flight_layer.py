@@ -420,6 +420,39 @@ class FlightLayer:
         self.bt_worst.on_click(lambda _e: self.top_idx and self.go(self.top_idx[0], camera=True))
         self.dd_goto.on_update(lambda _e: self._on_goto())
 
+    def set_model(self, model: flight_model.FlightModel, current: int | None = None) -> None:
+        """Show another model of the session's flight (a live flight that grew, its oldest frames
+        dropped): the batched nodes drawn again, the timeline's range, the outlier table, the "go to"
+        entries, the faults and the accuracy updated; the highlight on frame ``current`` (default
+        the current index, clipped). The session's records must already be the model's frames."""
+        self.model = model
+        n = len(model)
+        self._enu_key = None
+        self._draw()
+        self.top_idx, self.opts = goto_entries(model, self.top_n)
+        self._mute = True
+        try:
+            self.sl_frame.max = max(n - 1, 1)
+            self.sl_frame.disabled = n < 2
+            self.dd_goto.options = [CHOOSE] + self.opts
+            self.md_head.content = (
+                f"**{n} frames**, footprints on {model.surface.split(' (')[0]}; {int(model.outlier.sum())} "
+                f"flagged in {len(model.faults)} run(s). Colours: the Legend folder")
+            self.md_table.content = model.outlier_markdown(self.top_n)
+            self.md_faults.content = model.faults_markdown()
+            self.md_accuracy.content = model.summary_markdown()
+            worst = self.top_idx[0] if self.top_idx else None
+            f = model.fault_of(worst) if worst is not None else None
+            self.bt_worst.label = (f"worst fault: {model.labels[worst]}"
+                                   + (f" ({KIND_NAMES.get(f.kind)})" if f is not None else "")
+                                   if worst is not None else "worst fault")
+            self.bt_worst.disabled = worst is None
+        finally:
+            self._mute = False
+        idx = self.current if current is None else current
+        self.current = None
+        self.highlight(int(np.clip(0 if idx is None else idx, 0, n - 1)))
+
     def _on_slider(self) -> None:
         # coalesced: a drag sends many values; while one step runs only the latest waiting value is
         # loaded next (the others would only queue scenes the browser has to draw and throw away)

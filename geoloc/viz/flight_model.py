@@ -413,6 +413,69 @@ def _track_speed(track_enu):
     return v, np.linalg.norm(v[:, :2], axis=1)
 
 
+def _assessment(track, pose, rec_lat, rec_lon, rec_h, rec_st, ref_lat, ref_lon, ref_h) -> dict:
+    """What :func:`build` derives from the positions: speed, track heading, the residual's
+    components against the reference, the residual, the robust outlier flags and the order."""
+    _, speed = _track_speed(track)
+    # the local track azimuth (previous to next position; the heading where they nearly coincide)
+    heading = accuracy.track_azimuth_rad(np.degrees(pose.lat), np.degrees(pose.lon),
+                                         heading_rad=np.asarray(pose.heading, float))
+    comp = accuracy.error_components(rec_lat, rec_lon, rec_h, ref_lat, ref_lon, ref_h, track_heading_rad=heading)
+    comp = {k_: np.asarray(v, float) for k_, v in comp.items()}
+    residual = comp["horizontal_m"].copy()
+    residual[rec_st != Status.OK] = np.nan
+    outlier = np.asarray(accuracy.robust_outliers(residual), bool)
+    key = np.where(np.isfinite(residual), -residual, np.inf)
+    order = np.argsort(key, kind="stable")
+    return {"speed": speed, "heading": heading, "components": comp, "residual": residual, "outlier": outlier,
+            "order": order}
+
+
+#: FlightModel fields holding one entry per frame (frame index first): what :func:`extend` joins.
+PER_FRAME = ("track_enu", "footprint_enu", "footprint_status", "corners_enu", "corner_lat_deg", "corner_lon_deg",
+             "corner_h_m", "centre_enu", "recomputed_lat_deg", "recomputed_lon_deg", "recomputed_h_m",
+             "recomputed_enu", "status", "reported_lat_deg", "reported_lon_deg", "reported_h_m", "reported_enu",
+             "truth_lat_deg", "truth_lon_deg", "truth_h_m", "truth_enu")
+
+
+def extend(model: FlightModel | None, new: FlightModel, scn, keep: int | None = None,
+           diagnose_faults: bool = True) -> FlightModel:
+    """``model`` followed by the frames of ``new`` (a flight that grew: a live stream), the newest
+    ``keep`` kept, with everything that depends on the whole flight derived again over the result
+    exactly as :func:`build` derives it (speed, track heading, residual components, robust outlier
+    flags, order, the fault runs): the same model as :func:`build` of those frames at once.
+
+    Both models must share one ENU frame (``build(..., enu=model.enu)``) and one reference kind;
+    ``scn`` is the scenario whose ``records`` are the frames of the result (for :func:`diagnose`).
+    """
+    if model is None or len(model) == 0:
+        joined = {k: getattr(new, k) for k in PER_FRAME}
+        labels = list(new.labels)
+    else:
+        if new.enu != model.enu:
+            raise ValueError("extend: the new frames are in another ENU frame (build them with enu=model.enu)")
+        joined = {k: np.concatenate([getattr(model, k), getattr(new, k)]) for k in PER_FRAME}
+        labels = list(model.labels) + list(new.labels)
+    if keep is not None and len(labels) > keep:
+        joined = {k: v[-keep:] for k, v in joined.items()}
+        labels = labels[-keep:]
+    pose, row, col, target_h = records_pose(scn.records)
+    if len(scn.records) != len(labels):
+        raise ValueError(f"extend: scn has {len(scn.records)} records for {len(labels)} frames")
+    reference = "truth" if np.isfinite(joined["truth_lat_deg"]).any() else "reported"
+    pre = "truth" if reference == "truth" else "reported"
+    ref_h = np.where(np.isfinite(joined[f"{pre}_h_m"]), joined[f"{pre}_h_m"], joined["recomputed_h_m"])
+    a = _assessment(joined["track_enu"], pose, joined["recomputed_lat_deg"], joined["recomputed_lon_deg"],
+                    joined["recomputed_h_m"], joined["status"], joined[f"{pre}_lat_deg"], joined[f"{pre}_lon_deg"],
+                    ref_h)
+    m = FlightModel(labels=labels, enu=new.enu, **joined, reference=reference, residual_m=a["residual"],
+                    components=a["components"], outlier=a["outlier"], order=a["order"],
+                    track_heading_rad=a["heading"], speed_m_per_frame=a["speed"], surface=new.surface)
+    if diagnose_faults:
+        m.faults = diagnose(m, scn, pose=pose, row=row, col=col, target_h=target_h)
+    return m
+
+
 def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: EnuFrame | None = None,
           fov_deg=None, diagnose_faults: bool = True) -> FlightModel:
     """Compute the whole flight of ``scn.records`` in one batch (see the module docstring).
@@ -485,17 +548,9 @@ def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: 
     ref = (t_lat, t_lon, t_h) if reference == "truth" else (rep_lat, rep_lon, rep_h)
     ref_h = np.where(np.isfinite(ref[2]), ref[2], rec_h)
 
-    _, speed = _track_speed(track)
-    # the local track azimuth (previous to next position; the heading where they nearly coincide)
-    heading = accuracy.track_azimuth_rad(np.degrees(pose.lat), np.degrees(pose.lon),
-                                         heading_rad=np.asarray(pose.heading, float))
-    comp = accuracy.error_components(rec_lat, rec_lon, rec_h, ref[0], ref[1], ref_h, track_heading_rad=heading)
-    comp = {k_: np.asarray(v, float) for k_, v in comp.items()}
-    residual = comp["horizontal_m"].copy()
-    residual[rec_st != Status.OK] = np.nan
-    outlier = np.asarray(accuracy.robust_outliers(residual), bool)
-    key = np.where(np.isfinite(residual), -residual, np.inf)
-    order = np.argsort(key, kind="stable")
+    a = _assessment(track, pose, rec_lat, rec_lon, rec_h, rec_st, ref[0], ref[1], ref_h)
+    speed, heading, comp, residual, outlier, order = (a[k] for k in ("speed", "heading", "components",
+                                                                     "residual", "outlier", "order"))
 
     def enu_of(la, lo, hh):
         return enu.from_geodetic(np.radians(la), np.radians(lo), np.where(np.isfinite(hh), hh, 0.0))

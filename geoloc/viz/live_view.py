@@ -1,32 +1,36 @@
-"""``geoloc view --live udp://HOST:PORT``: the flight debugger following a flight as it flies.
+"""``geoloc view --live udp://HOST:PORT``: the flight debugger of ``geoloc view``, following a flight as it flies.
 
-A :class:`LiveFeed` (one per viewer, shared by its tabs) receives the stream on a
-thread (:func:`geoloc.io.live.receive`) and replays every batch of KLV packets as it
-arrives (:class:`geoloc.workflows.live_replay.LiveReplay`: each packet's frame centre
-and corners from its own pose, compared with the packet's own), keeping a rolling
-window of rows; with ``journal`` / ``record`` it journals the rows and the raw stream.
-With video in the stream it decodes the frames as they come (PyAV) and keeps the
-last few, so the current packet shows the nearest-timestamp picture.
+A :class:`LiveFeed` (one per viewer) receives the stream on a thread
+(:func:`geoloc.io.live.receive`) and replays every batch of KLV packets as it arrives
+(:class:`geoloc.workflows.live_replay.LiveReplay`); with ``journal`` / ``record`` it
+journals the rows and the raw stream. With video in the stream it decodes the pictures as
+they come (PyAV), keeps the newest (:class:`LiveImages`, an image source for the picture
+layer) and counts what the decoder saw (resolution changes, undecodable units).
 
-Each browser tab gets a :class:`LiveTab` (its own ``client.scene`` / ``client.gui``):
+A :class:`LiveFlight` (one per feed, shared by the tabs) turns the new packets into viewer
+records (:func:`geoloc.viz.scenario.records_from_columns`, as ``geoloc view FILE.ts``
+does) and grows the flight model with them (:func:`geoloc.viz.flight_model.build` of the
+new frames in the flight's fixed ENU frame, then :func:`geoloc.viz.flight_model.extend`:
+the outlier flags, order, fault runs and accuracy over the window, exactly as for a file),
+keeping the newest :data:`FLIGHT_WINDOW` frames (a rolling window: memory bounded; the
+journal on disk has them all).
 
-* the scene, in a local ENU frame at the first packet's frame centre (km, as the
-  rest of the viewer): the track, every frame's footprint (outliers red), the
-  recomputed (red) and reported (violet) frame centres, and the current frame's
-  footprint (magenta), line of sight and aircraft;
-* a **Live** folder: the timeline (a frame slider that grows as packets arrive),
-  "following the latest frame" until the user scrubs back, a **live** button that
-  returns to it, the current frame's text and (with video) its picture;
-* **Live: stream**: what arrived and what was lost (:meth:`geoloc.io.live.LiveStats.markdown`);
-* **Live: outliers first** and **Live: accuracy** over the window.
+Each browser tab gets a :class:`LiveTab`: a **Live** folder (following / scrubbed back,
+the **live** button, the current packet, what arrived and what was lost) and, from the
+first located packet on, the full flight debugger of ``geoloc view``: a
+:class:`geoloc.viz.app.GeolocSession` on the tab's ``client.scene`` / ``client.gui``
+with the default layers (the flight layer, the picture, the teaching panel, ...), its
+scenario's records replaced by the window as it grows
+(:meth:`geoloc.viz.flight_layer.FlightLayer.set_model`). The view follows the latest
+frame (its full chain, line of sight, iterations and picture) until the user scrubs back
+(the timeline, "go to", "worst fault", play or the record dropdown); **live** returns.
 
-The tabs are updated by one thread a few times a second; each update sends only
-what changed (the batched nodes when new packets came, the highlight otherwise).
 Heights ellipsoidal (WGS 84). Conventions: ``docs/conventions.md``; guide: ``docs/live.md``.
 """
 
 from __future__ import annotations
 
+import copy
 import sys
 import threading
 import time
@@ -34,29 +38,20 @@ from collections import deque
 
 import numpy as np
 
-from geoloc.frames.enu import EnuFrame
-from geoloc.viz.flight_layer import COLORS as FLIGHT_COLORS
-from geoloc.viz.scene_geoloc import WORLD_SCALE
-
-ROOT = "/live"
-#: The flight debugger's colours for what both draw (one legend), and the live view's own
-COLORS = {**{k: FLIGHT_COLORS[k] for k in ("track", "footprint", "footprint_outlier", "current", "recomputed",
-                                           "reported")},
-          "los": (255, 230, 0), "aircraft": (255, 255, 255)}
-#: Frames drawn in the scene (the newest): bounds the messages sent to a browser.
-SCENE_FRAMES = 2000
-#: Tabs are updated at most this often [s] (the current frame, the slider, the texts) ...
+#: Frames of the flight debugger's window (the newest): bounds memory and the batched nodes sent.
+FLIGHT_WINDOW = 1000
+#: Tabs are updated at most this often [s] (the followed frame, the texts) ...
 UPDATE_S = 0.2
-#: ... the batched nodes (track, footprints, points: all frames) and the tables at most this often [s] ...
+#: ... the flight's batched nodes and tables at most this often [s] (redrawn when frames came) ...
 DRAW_S = 1.0
-#: ... and the picture at most this often [s] (a JPEG each time).
-PICTURE_S = 0.5
+#: ... and the latest frame loaded (its chain, iterations, picture) at most this often [s]: a browser
+#: drawing in software WebGL on a busy machine falls minutes behind a stream it is sent every frame of
+FOLLOW_S = 1.0
 #: Decoded pictures kept (the newest), and their width [pixels].
 PICTURES = 64
 PICTURE_WIDTH = 480
-TOP_N = 10
-
-_LIFT_M = 8.0  # display only: outlines above the ground they lie on, so the depth test shows them
+#: Batches kept for the flight when nobody takes them.
+PENDING = 4096
 
 
 class LiveFeed:
@@ -102,15 +97,22 @@ class LiveFeed:
         self.decode_video = decode_video
         self.version = 0  # bumped by every batch with a located packet
         self.first_row_s: float | None = None  # time.monotonic() of the first located packet
+        self.sensor = sensor  # the replay's sensor (its default for the stream once a packet came)
         self.error: str = ""
         self.done = False
         self._lock = threading.Lock()
         self._stop = False
-        self._cols: dict = {}
+        self._pending: list = []  # the batches' columns not yet taken by the flight (take_batches)
         self._thread: threading.Thread | None = None
         self._decoder = None
         self._video_done = 0
-        self.pictures: deque = deque(maxlen=PICTURES)  # (pts, RGB uint8 array)
+        self.pictures: deque = deque(maxlen=PICTURES)  # (serial, pts [90 kHz], RGB uint8 array)
+        self.pictures_total = 0
+        #: (width, height) of the last decoded picture, the changes of it seen, and access units the
+        #: decoder refused (a sender that changes its resolution; a broken unit: the next key frame recovers)
+        self.video_size: tuple | None = None
+        self.resolution_changes = 0
+        self.decode_errors = 0
 
     def start(self) -> "LiveFeed":
         """Warm the replay up (its first call compiles; the first packet must not wait for it), then
@@ -160,12 +162,20 @@ class LiveFeed:
             self._decode()
         if r is None:
             return
-        cols = self.replay.columns()
         with self._lock:
-            self._cols = cols
+            if self.sensor is None:
+                self.sensor = r.sensor
+            self._pending.append(r.columns)
+            del self._pending[:-PENDING]  # nobody takes them (no tab yet): the newest only
             self.version += 1
             if self.first_row_s is None:
                 self.first_row_s = time.monotonic()
+
+    def take_batches(self) -> list:
+        """The columns of the batches replayed since the last call (oldest first)."""
+        with self._lock:
+            out, self._pending = self._pending, []
+            return out
 
     def _decode(self) -> None:
         """Decode the video access units that came since the last call (newest pictures kept)."""
@@ -189,300 +199,511 @@ class LiveFeed:
                 for pkt in self._decoder.parse(data):
                     pkt.pts = pts
                     for fr in self._decoder.decode(pkt):
+                        size = (int(fr.width), int(fr.height))
+                        if self.video_size is not None and size != self.video_size:
+                            self.resolution_changes += 1
+                        self.video_size = size
                         w = PICTURE_WIDTH
                         h = max(2, round(fr.height * w / max(fr.width, 1)) // 2 * 2)
                         img = fr.to_ndarray(format="rgb24", width=w, height=h)
-                        self.pictures.append((fr.pts if fr.pts is not None else pts, img))
+                        self.pictures.append((self.pictures_total, fr.pts if fr.pts is not None else pts, img))
+                        self.pictures_total += 1
         except (av.error.FFmpegError, ValueError) as e:  # a broken access unit: the next key frame recovers
+            self.decode_errors += 1
             self._decoder = None if "codec" in str(e).lower() else self._decoder
+
+    def video_markdown(self) -> str:
+        """The picture decoder's line of the stream panel ('' without video)."""
+        if self.video_size is None and not self.decode_errors:
+            return ""
+        w, h = self.video_size or (0, 0)
+        return (f"video {w} x {h} pixels; {self.resolution_changes} resolution change(s), "
+                f"{self.decode_errors} undecodable access unit(s)")
+
+    def stats_markdown(self) -> str:
+        """The stream panel: what arrived, what was lost, what the decoder saw, the feed's error."""
+        v = self.video_markdown()
+        return (self.rx.stats.markdown() + (f"\n\n{v}" if v else "")
+                + (f"\n\n**error**: {self.error}" if self.error else ""))
 
     def picture_at(self, pts_s: float):
         """The decoded picture nearest ``pts_s`` [s] (None without video)."""
-        if not self.pictures or not np.isfinite(pts_s):
-            return None
+        k = self.picture_index_at(pts_s)
+        return None if k < 0 else self.picture(k)
+
+    def picture_index_at(self, pts_s: float) -> int:
+        """Serial number of the decoded picture nearest ``pts_s`` [s]; -1 without one."""
+        pics = list(self.pictures)
+        if not pics or not np.isfinite(pts_s):
+            return -1
         t = pts_s * 90000.0
-        return min(list(self.pictures), key=lambda p: abs((p[0] if p[0] is not None else 0) - t))[1]
+        return min(pics, key=lambda p: abs((p[1] if p[1] is not None else 0) - t))[0]
+
+    def picture(self, serial: int):
+        """Picture ``serial`` (the oldest kept if it left the window); None before the first."""
+        pics = list(self.pictures)
+        if not pics:
+            return None
+        return min(pics, key=lambda p: abs(p[0] - serial))[2]
 
     def snapshot(self) -> tuple[int, dict]:
-        """(version, columns of the window) at one instant."""
+        """(version, columns of the replay's window) at one instant (made on demand: O(window))."""
         with self._lock:
-            return self.version, self._cols
+            return self.version, self.replay.columns()
 
 
-class LiveTab:
-    """One tab's live scene and GUI (see the module docstring)."""
+class LiveImages:
+    """A feed's decoded pictures as an image source (:class:`geoloc.io.images.ImageSource`) for the
+    picture layer: image ``k`` is the ``k``-th picture decoded since the start (only the newest
+    :data:`PICTURES` are kept: an older ``k`` gives the oldest kept); their times are the stream's
+    presentation times [s]. ``rows`` / ``cols`` are the newest picture's (decoded at
+    :data:`PICTURE_WIDTH` wide; the picture layer scales the lens to each image's own size)."""
 
-    def __init__(self, feed: LiveFeed, scene, gui, client=None):
+    def __init__(self, feed: LiveFeed):
         self.feed = feed
-        self.scene, self.gui, self.client = scene, gui, client
-        self.enu: EnuFrame | None = None
-        self.following = True
-        self.current = -1
-        self.version = -1
-        self.n = 0
-        self.cols: dict = {}
-        self.closed = False
-        self._mute = False
-        self._camera_set = False
-        self._nodes: dict = {}
-        self._drawn_s = -1e9
-        self._drawn_n = 0
-        self._picture_s = -1e9
-        self._build_gui()
 
-    # ------------------------------------------------------------ GUI
-    def _build_gui(self) -> None:
-        g = self.gui
-        self.md_title = g.add_markdown(f"**live: {self.feed.url}**: waiting for the first packet ...")
-        with g.add_folder("Live"):
-            self.md_follow = g.add_markdown("following the latest frame")
-            self.sl_frame = g.add_slider("frame", 0, 1, 1, 0, disabled=True,
-                                         hint="Scrub back through the frames received; 'live' returns")
-            self.bt_live = g.add_button("live", hint="Follow the latest frame again")
-            self.md_frame = g.add_markdown("")
-            self.img = None
-        with g.add_folder("Live: stream"):
-            self.md_stats = g.add_markdown(self.feed.rx.stats.markdown())
-        with g.add_folder("Live: outliers first"):
-            self.md_table = g.add_markdown("")
-        with g.add_folder("Live: accuracy"):
-            self.md_accuracy = g.add_markdown("")
-        self.sl_frame.on_update(self._on_slider)
-        self.bt_live.on_click(lambda _e: self.go_live())
+    def __len__(self) -> int:
+        return self.feed.pictures_total
 
-    def _on_slider(self, event=None) -> None:
-        # a person moved it (the event names a client); our own updates (client None) are not a scrub
-        if self.closed or self.n == 0 or (event is not None and getattr(event, "client", None) is None):
-            return
-        idx = int(self.sl_frame.value)
-        self.following = idx >= self.n - 1
-        self._follow_text()
-        self.highlight(idx)
+    @property
+    def times_s(self) -> np.ndarray:
+        return np.array([np.nan if p[1] is None else p[1] / 90000.0 for p in list(self.feed.pictures)])
 
-    def go_live(self) -> None:
-        """Follow the latest frame again (the **live** button)."""
-        self.following = True
-        self._follow_text()
-        if self.n:
-            self._set_slider(self.n - 1)
-            self.highlight(self.n - 1)
+    @property
+    def rows(self) -> int:
+        img = self.feed.picture(self.feed.pictures_total - 1)
+        return 0 if img is None else int(img.shape[0])
 
-    def _follow_text(self) -> None:
-        self.md_follow.content = ("following the latest frame" if self.following else
-                                  "**scrubbed back**: the timeline still grows; press **live** to follow again")
+    @property
+    def cols(self) -> int:
+        img = self.feed.picture(self.feed.pictures_total - 1)
+        return 0 if img is None else int(img.shape[1])
 
-    def _set_slider(self, idx: int) -> None:
-        self._mute = True
-        try:
-            if self.sl_frame.max != max(self.n - 1, 1):
-                self.sl_frame.max = max(self.n - 1, 1)
-            self.sl_frame.disabled = self.n < 2
-            if int(self.sl_frame.value) != idx:
-                self.sl_frame.value = idx
-        finally:
-            self._mute = False
-
-    # ------------------------------------------------------------ updates
-    def update(self) -> None:
-        """Bring the tab up to the feed: new frames drawn, the slider grown, the latest frame followed."""
-        if self.closed:
-            return
-        text = self.feed.rx.stats.markdown() + (f"\n\n**error**: {self.feed.error}" if self.feed.error else "")
-        if text != self.md_stats.content:
-            self.md_stats.content = text
-        version, cols = self.feed.snapshot()
-        if version == self.version or not cols:
-            return
-        self.version = version
-        self.cols = cols
-        self.n = len(cols["packet"])
-        if self.enu is None:
-            ok = np.isfinite(cols["lat_deg"])
-            k = int(np.argmax(ok)) if ok.any() else 0
-            la, lo, h = (cols["lat_deg"][k], cols["lon_deg"][k], cols["h_m"][k]) if ok.any() else \
-                (cols["sensor_lat_deg"][k], cols["sensor_lon_deg"][k], 0.0)
-            self.enu = EnuFrame.scene_origin(float(la), float(lo), float(h))
-        now = time.monotonic()
-        if now - self._drawn_s >= DRAW_S or self._drawn_n == 0:  # the batched nodes: at most once a DRAW_S
-            self._draw()
-            self._drawn_s, self._drawn_n = now, self.n
-            self.md_table.content = self._table()
-            self.md_accuracy.content = self._accuracy()
-        self.md_title.content = (f"**live: {self.feed.url}**: {self.n} frames in the window, "
-                                 f"{self.feed.replay.rows_total} located since the start")
-        if self.following or self.current < 0:
-            self._set_slider(self.n - 1)
-            self.highlight(self.n - 1)
-        else:
-            self._set_slider(min(self.current, self.n - 1))
-        if not self._camera_set:
-            self._camera_set = self._frame_camera()
-
-    def _enu(self, lat, lon, h):
-        lat, lon, h = (np.asarray(x, float) for x in (lat, lon, h))
-        return self.enu.from_geodetic(np.radians(lat), np.radians(lon), np.where(np.isfinite(h), h, 0.0))
-
-    def _pts(self):
-        c = self.cols
-        sl = slice(max(self.n - SCENE_FRAMES, 0), self.n)
-        track = self._enu(c["sensor_lat_deg"][sl], c["sensor_lon_deg"][sl], c["sensor_h_m"][sl])
-        rec = self._enu(c["lat_deg"][sl], c["lon_deg"][sl], c["h_m"][sl])
-        rep = self._enu(c["reported_lat_deg"][sl], c["reported_lon_deg"][sl], c["reported_h_m"][sl])
-        corners = np.stack([self._enu(c[f"corner{j}_lat_deg"][sl], c[f"corner{j}_lon_deg"][sl],
-                                      c[f"corner{j}_h_m"][sl]) for j in (1, 2, 3, 4)], axis=1)
-        return sl, track, rec, rep, corners
-
-    def _draw(self) -> None:
-        s, W = self.scene, WORLD_SCALE
-        sl, track, rec, rep, corners = self._pts()
-        out = np.asarray(self.cols["outlier"][sl], bool)
-        f32 = lambda a: (np.nan_to_num(np.asarray(a, float)) * W).astype(np.float32)  # noqa: E731
-        s.add_frame(ROOT, show_axes=False)
-        if len(track) > 1:
-            seg = np.stack([track[:-1], track[1:]], axis=1)
-            ok = np.all(np.isfinite(seg), axis=(1, 2))
-            if ok.any():
-                s.add_line_segments(f"{ROOT}/track", f32(seg[ok]), COLORS["track"], thickness=2.0,
-                                    thickness_units="screen")
-        ring = corners + np.array([0.0, 0.0, _LIFT_M])
-        seg = np.stack([ring, np.roll(ring, -1, axis=1)], axis=2).reshape(-1, 2, 3)
-        col = np.where(np.repeat(out, 4)[:, None], COLORS["footprint_outlier"], COLORS["footprint"]).astype(np.uint8)
-        ok = np.all(np.isfinite(seg), axis=(1, 2))
-        if ok.any():
-            s.add_line_segments(f"{ROOT}/footprints", f32(seg[ok]), np.repeat(col[ok, None], 2, axis=1),
-                                thickness=1.0, thickness_units="screen")
-        extent = np.nanmax(np.ptp(np.nan_to_num(track[:, :2]), axis=0)) if len(track) > 1 else 1e3
-        self.point_size = float(np.clip(extent / 150.0, 15.0, 400.0)) * W
-        for name, pts in (("recomputed", rec), ("reported", rep)):
-            ok = np.all(np.isfinite(pts), axis=1)
-            if ok.any():
-                s.add_point_cloud(f"{ROOT}/{name}", f32(pts[ok]), COLORS[name], point_size=self.point_size,
-                                  point_shape="circle", precision="float32")
-
-    def highlight(self, idx: int) -> None:
-        """Frame ``idx`` of the window: its footprint magenta, its line of sight, its text and picture."""
-        if self.n == 0:
-            return
-        idx = int(np.clip(idx, 0, self.n - 1))
-        self.current = idx
-        c, W = self.cols, WORLD_SCALE
-        corners = np.stack([self._enu(c[f"corner{j}_lat_deg"][idx], c[f"corner{j}_lon_deg"][idx],
-                                      c[f"corner{j}_h_m"][idx]) for j in (1, 2, 3, 4)])
-        ring = corners + np.array([0.0, 0.0, 2 * _LIFT_M])
-        seg = (np.nan_to_num(np.stack([ring, np.roll(ring, -1, axis=0)], axis=1)) * W).astype(np.float32)
-        ac = self._enu(c["sensor_lat_deg"][idx], c["sensor_lon_deg"][idx], c["sensor_h_m"][idx])
-        hit = self._enu(c["lat_deg"][idx], c["lon_deg"][idx], c["h_m"][idx])
-        los = (np.nan_to_num(np.stack([ac, np.where(np.isfinite(hit), hit, ac)])[None]) * W).astype(np.float32)
-        h = self._nodes
-        if not h:  # made once, then moved: a step sends a few numbers, not new nodes
-            h["current"] = self.scene.add_line_segments(f"{ROOT}/current", seg, COLORS["current"], thickness=6.0,
-                                                        thickness_units="screen")
-            h["aircraft"] = self.scene.add_icosphere(f"{ROOT}/aircraft", radius=self.point_size * 0.8,
-                                                     color=COLORS["aircraft"], position=tuple(los[0, 0]))
-            h["los"] = self.scene.add_line_segments(f"{ROOT}/los", los, COLORS["los"], thickness=3.0,
-                                                    thickness_units="screen")
-        else:
-            h["current"].points = seg
-            h["aircraft"].position = tuple(float(x) for x in los[0, 0])
-            h["los"].points = los
-        self.md_frame.content = self._frame_text(idx)
-        self._picture(idx)
-
-    def _picture(self, idx: int) -> None:
-        t = float(self.cols["frame_pts_s"][idx]) if "frame_pts_s" in self.cols else float("nan")
-        if not np.isfinite(t):
-            t = float(self.cols["pts_s"][idx])
-        now = time.monotonic()
-        if self.img is not None and now - self._picture_s < PICTURE_S:
-            return
-        img = self.feed.picture_at(t)
+    def image(self, index: int) -> np.ndarray:
+        img = self.feed.picture(int(index))
         if img is None:
-            return
-        self._picture_s = now
-        if self.img is None:
-            with self.gui.add_folder("Live: picture"):
-                self.img = self.gui.add_image(img, label="nearest video frame", format="jpeg")
-        else:
-            self.img.image = img
+            raise IndexError(f"image {index}: no picture decoded yet")
+        return img
 
-    def _frame_text(self, idx: int) -> str:
+    def index_at(self, t_s: float) -> int:
+        return self.feed.picture_index_at(t_s)
+
+
+class LiveFlight:
+    """The flight debugger's records and flight model of a feed, grown as packets arrive (module docstring).
+
+    Parameters
+    ----------
+    feed : LiveFeed
+    dem_path : path-like, optional
+        The scene's DEM (``--dem``); default a bundled one covering the first frame, as ``geoloc view``.
+    use_dem : bool
+        False: footprints on each packet's frame-centre height (``--no-dem``).
+    window : int
+        Frames kept (the newest).
+    """
+
+    def __init__(self, feed: LiveFeed, *, dem_path=None, use_dem: bool = True, window: int = FLIGHT_WINDOW):
+        self.feed = feed
+        self.dem_path, self.use_dem, self.window = dem_path, bool(use_dem), int(window)
+        self.base = None  # the scenario of the first frame: sensor, DEM, the flight's ENU frame
+        self.records: list = []
+        self.fov_deg = np.zeros((0, 2))
+        self.times_s = np.zeros(0)
+        self.rows: dict = {}  # the replay's own columns of the window's frames (the panel's text)
+        self.model = None
+        self.version = 0  # bumped when frames came
+        self.dropped = 0  # frames dropped off the window's start since the start
+        self.first_frame_s: float | None = None  # time.monotonic() when the first frame was modelled
+        self.last_build_s = float("nan")
+        self._lock = threading.RLock()
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    ROW_KEYS = ("packet", "time_utc", "pts_s", "frame_pts_s", "lat_deg", "lon_deg", "h_m", "status",
+                "frame_center_error_m", "corner_error_m", "outlier")
+
+    def _scenario(self, recs):
+        from geoloc.viz import terrain_link
+        from geoloc.viz.model import Scenario
+        from geoloc.viz.scenario import enu_origin_for
+
+        info, inp = recs[0]
+        url = self.feed.url
+        scn = Scenario(name=f"{url} {info.label}", camera=self.feed.sensor, inputs=inp,
+                       enu=enu_origin_for(info, inp), records=list(recs), record_index=0,
+                       use_dem=self.use_dem, source=url, description=f"live stream {url}")
+        scn._user_dem = self.dem_path
+        if self.use_dem:
+            terrain_link.attach_dem(scn, self.dem_path, strict=self.dem_path is not None)
+        else:
+            scn.dem_name = "none (no DEM): ellipsoid at each packet's frame-centre height"
+        if self.feed.decode_video:
+            scn.images = LiveImages(self.feed)
+        return scn
+
+    def update(self) -> bool:
+        """Take the feed's new batches into the window and the model; True when frames came."""
+        from geoloc.viz import flight_model
+        from geoloc.viz.scenario import records_from_columns
+
+        batches = self.feed.take_batches()
+        if not batches:
+            return False
+        keys = [k for k in batches[0] if all(k in b for b in batches)]
+        c = {k: np.concatenate([np.asarray(b[k]) for b in batches]) for k in keys}
+        recs, kept = records_from_columns(c, self.feed.sensor)
+        if not recs:
+            return False
+        kept = np.asarray(kept, int)
+        fov = np.stack([np.asarray(c["sensor_horizontal_fov_deg"], float)[kept],
+                        np.asarray(c["sensor_vertical_fov_deg"], float)[kept]], axis=1)
+        vt, pt = (np.asarray(c[k], float)[kept] for k in ("frame_pts_s", "pts_s"))
+        t0 = time.perf_counter()
+        with self._lock:
+            if self.base is None:
+                self.base = self._scenario(recs)
+            new_scn = copy.copy(self.base)
+            new_scn.records = recs
+            new = flight_model.build(new_scn, enu=self.base.enu, fov_deg=fov, diagnose_faults=False)
+            records = (self.records + recs)[-self.window:]
+            dropped = len(self.records) + len(recs) - len(records)
+            scn = copy.copy(self.base)
+            scn.records = records
+            self.model = flight_model.extend(self.model, new, scn, keep=self.window)
+            self.records = records
+            w = self.window
+            self.fov_deg = np.concatenate([self.fov_deg, fov])[-w:]
+            self.times_s = np.concatenate([self.times_s, np.where(np.isfinite(vt), vt, pt)])[-w:]
+            self.rows = {k: np.concatenate([self.rows.get(k, np.zeros(0, np.asarray(c[k]).dtype)),
+                                            np.asarray(c[k])[kept]])[-w:] for k in self.ROW_KEYS if k in c}
+            self.dropped += dropped
+            self.version += 1
+            if self.first_frame_s is None:
+                self.first_frame_s = time.monotonic()
+        self.last_build_s = time.perf_counter() - t0
+        return True
+
+    def scenario(self, idx: int | None = None):
+        """A scenario of the window (for a new tab's session), record ``idx`` (default the latest) loaded."""
+        from geoloc.viz.scenario import select_record
+
+        with self._lock:
+            scn = copy.copy(self.base)
+            scn.records = list(self.records)
+            scn.frame_fov_deg = self.fov_deg.copy()
+            scn.record_times_s = self.times_s.copy()
+            select_record(scn, len(self.records) - 1 if idx is None else idx)
+            return scn
+
+    def frame_text(self, idx: int) -> str:
+        """The Live folder's line for frame ``idx``: its packet, time, the replay's recomputed centre
+        and its agreement with the packet's own, the nearest video frame."""
         from geoloc.status import names
 
-        c = self.cols
-        f = lambda v, spec: "n/a" if not np.isfinite(float(v)) else format(float(v), spec)  # noqa: E731
+        c = self.rows
+        f = lambda v, spec: "n/a" if v is None or not np.isfinite(float(v)) else format(float(v), spec)  # noqa: E731
         st = names(np.asarray([c["status"][idx]]))[0]
-        text = (f"**packet {int(c['packet'][idx])}** (frame {idx + 1} of {self.n}), {c['time_utc'][idx]}, "
-                f"pts {f(c['pts_s'][idx], '.3f')} s  \nrecomputed frame centre {f(c['lat_deg'][idx], '.6f')}, "
-                f"{f(c['lon_deg'][idx], '.6f')}, h {f(c['h_m'][idx], '.1f')} m (ellipsoidal), {st}  \n"
-                f"vs the packet's own: {f(c['frame_center_error_m'][idx], '.2f')} m; corners "
-                f"{f(c['corner_error_m'][idx], '.2f')} m" + ("  \n**outlier**" if c["outlier"][idx] else ""))
+        text = (f"**packet {int(c['packet'][idx])}** (frame {idx + 1} of {len(self.records)}), "
+                f"{c['time_utc'][idx]}, pts {f(c['pts_s'][idx], '.3f')} s  \nrecomputed frame centre "
+                f"{f(c['lat_deg'][idx], '.6f')}, {f(c['lon_deg'][idx], '.6f')}, h {f(c['h_m'][idx], '.1f')} m "
+                f"(ellipsoidal), {st}; vs the packet's own: {f(c['frame_center_error_m'][idx], '.2f')} m"
+                + (" **outlier** (causal)" if c["outlier"][idx] else ""))
         vt = c.get("frame_pts_s")
         if vt is not None and np.isfinite(float(vt[idx])):
             text += f"  \nvideo frame at pts {float(vt[idx]):.3f} s"
         return text
 
-    def _table(self) -> str:
-        c = self.cols
-        err = np.asarray(c["frame_center_error_m"], float)
-        order = np.argsort(np.where(np.isfinite(err), -err, np.inf), kind="stable")[:TOP_N]
-        L = ["frames by frame-centre error (recomputed vs the packet's own, horizontal)  ", "",
-             "| # | packet | error m | corners m | flag |", "|---|---|---|---|---|"]
-        for r, i in enumerate(order, 1):
-            if not np.isfinite(err[i]):
-                break
-            L.append(f"| {r} | {int(c['packet'][i])} | {err[i]:.1f} | {float(c['corner_error_m'][i]):.1f} | "
-                     f"{'**outlier**' if c['outlier'][i] else ''} |")
-        return "\n".join(L)
 
-    def _accuracy(self) -> str:
-        c = self.cols
-        err = np.asarray(c["frame_center_error_m"], float)
-        fin = err[np.isfinite(err)]
-        if not len(fin):
-            return "no frame compared yet"
-        return (f"**frame centre, recomputed vs the packet's own** ({len(fin)} frames in the window; heights "
-                f"ellipsoidal)  \nmedian {np.median(fin):.2f} m, 90th percentile {np.percentile(fin, 90):.2f} m, "
-                f"max {np.max(fin):.2f} m  \nrobust outliers (causal median / MAD rule): "
-                f"{int(np.sum(np.asarray(c['outlier'], bool)))}")
+def _attach_later(session, attach) -> None:
+    obj = attach(session)
+    if obj is not None:
+        session.layers.append(obj)
 
-    def _frame_camera(self) -> bool:
-        if self.client is None:
-            return True
-        c = self.cols
-        i = self.n - 1
-        ac = self._enu(c["sensor_lat_deg"][i], c["sensor_lon_deg"][i], c["sensor_h_m"][i])
-        hit = self._enu(c["lat_deg"][i], c["lon_deg"][i], c["h_m"][i])
-        if not (np.all(np.isfinite(ac)) and np.all(np.isfinite(hit))):
-            return False
-        d = ac - hit
-        pos = (hit + 1.3 * d + np.array([0.3 * d[1], -0.3 * d[0], 0.2 * abs(d[2])])) * WORLD_SCALE
-        with self.client.atomic():
-            self.client.camera.up_direction = (0.0, 0.0, 1.0)
-            self.client.camera.position = tuple(float(x) for x in pos)
-            self.client.camera.look_at = tuple(float(x) for x in hit * WORLD_SCALE)
-        return True
+
+class LiveTab:
+    """One tab: the Live folder, then the flight debugger of ``geoloc view`` (module docstring)."""
+
+    def __init__(self, flight: LiveFlight, server, client):
+        self.flight, self.feed = flight, flight.feed
+        self.server, self.client = server, client
+        self.gui = client.gui if client is not None else server.gui
+        self.session = None
+        self.layer = None  # the session's FlightLayer (from the second frame on)
+        self.following = True
+        self.version = -1
+        self.dropped = 0
+        self.closed = False
+        self._drawn_s = self._followed_s = -1e9
+        #: time.time() when the first frame's text was sent, and when the debugger was built
+        self.first_text_unix_s: float | None = None
+        self.debugger_unix_s: float | None = None
+        self._build_gui()
+
+    # ------------------------------------------------------------ GUI
+    def _build_gui(self) -> None:
+        g = self.gui
+        with g.add_folder("Live", order=-100.0):
+            self.md_title = g.add_markdown(f"**live: {self.feed.url}**: waiting for the first packet ...")
+            self.md_follow = g.add_markdown("following the latest frame")
+            self.bt_live = g.add_button("live", hint="Follow the latest frame again")
+            self.md_frame = g.add_markdown("")
+        with g.add_folder("Live: stream", order=-99.0):
+            self.md_stats = g.add_markdown(self.feed.stats_markdown())
+        self.bt_live.on_click(lambda _e: self.go_live())
+
+    @property
+    def n(self) -> int:
+        return len(self.session.scn.records) if self.session is not None else 0
+
+    @property
+    def current(self) -> int:
+        """The frame shown (index into the window), -1 before the first."""
+        s = self.session
+        if s is None:
+            return -1
+        if self.layer is not None and self.layer.current is not None:
+            return int(self.layer.current)
+        return -1 if s.scn.record_index is None else int(s.scn.record_index)
+
+    def _follow_text(self) -> None:
+        self.md_follow.content = ("following the latest frame" if self.following else
+                                  "**scrubbed back**: the timeline still grows; press **live** to follow again")
+
+    def scrubbed(self, idx=None) -> None:
+        """A person moved through the flight (to frame ``idx`` if known): stop following, unless it is the latest."""
+        self.following = idx is not None and int(idx) >= self.n - 1
+        self._follow_text()
+
+    def go_live(self) -> None:
+        """Follow the latest frame again (the **live** button)."""
+        self.following = True
+        self._follow_text()
+        self._follow(force=True)
+
+    def _on_user(self, event, idx_fn=None) -> None:
+        if self.closed or getattr(event, "client", None) is None:  # our own updates: not a person
+            return
+        self.scrubbed(idx_fn() if idx_fn is not None else None)
+
+    def _hook(self, fl) -> None:
+        fl.sl_frame.on_update(lambda e: self._on_user(e, lambda: int(fl.sl_frame.value)))
+        fl.dd_goto.on_update(lambda e: self._on_user(e) if fl.dd_goto.value != flight_layer_choose() else None)
+        fl.bt_worst.on_click(lambda e: self._on_user(e))
+        fl.bt_play.on_click(lambda e: self._on_user(e))
+        if getattr(fl, "cb_follow", None) is not None:  # the camera moves with the aircraft while following
+            fl.cb_follow.value = True
+
+    # ------------------------------------------------------------ updates
+    def update(self) -> None:
+        """Bring the tab up to the flight: the session built (first frame) or grown, the latest followed."""
+        if self.closed:
+            return
+        text = self.feed.stats_markdown()
+        if text != self.md_stats.content:
+            self.md_stats.content = text
+        fl = self.flight
+        if fl.version != self.version and len(fl):
+            now = time.monotonic()
+            if self.session is None:
+                # the first located frame's text at once; the debugger (a second or so to build) after it
+                self.md_frame.content = fl.frame_text(len(fl) - 1)
+                self.first_text_unix_s = time.time()
+                self._flush()  # on its way before the build holds the interpreter for a second
+                self._build()
+                self.debugger_unix_s = time.time()
+            elif now - self._drawn_s >= DRAW_S:
+                self._grow()
+            if now - self._drawn_s >= DRAW_S:
+                self._drawn_s = now
+                self.md_title.content = (f"**live: {self.feed.url}**: {len(fl)} frames in the window, "
+                                         f"{self.feed.replay.rows_total} packets located since the start")
+        self._follow()
+        self.refresh_text()
+
+    def _flush(self) -> None:
+        try:
+            (self.client if self.client is not None else self.server).flush()
+        except Exception:  # a tab that left
+            pass
+
+    def _layers(self):
+        from geoloc.viz import app, flight_layer, image_layer
+
+        def attach_flight(session):
+            if len(session.scn.records) < 2:
+                return None
+            self.layer = flight_layer.FlightLayer(session, model=self.flight.model)
+            self._hook(self.layer)
+            return self.layer
+
+        out = []
+        for a in app.DEFAULT_LAYERS:
+            if a is app.attach_flight:
+                out.append(attach_flight)
+            elif a is image_layer.attach:
+                out.append(self._attach_images)
+            else:
+                out.append(a)
+        return tuple(out)
+
+    def _attach_images(self, session):
+        from geoloc.viz import image_layer
+
+        if not self.feed.pictures_total:  # no picture yet: attached when one is decoded
+            return None
+        self._images = image_layer.attach(session)
+        return self._images
+
+    def _build(self) -> None:
+        from geoloc.viz.app import GeolocSession
+
+        fl = self.flight
+        with fl._lock:
+            scn = fl.scenario()
+            self.version, self.dropped = fl.version, fl.dropped
+        self._images = None
+        s = GeolocSession(self.server, scn, client=self.client, layers=self._layers())
+        self.session = s
+        s.dd_record.on_update(lambda e: self._on_user(e, lambda: self._record_idx()))
+        if self.layer is None:  # one frame: the frame itself (the flight layer frames the whole flight)
+            s.move_camera("overview")
+
+    def _record_idx(self):
+        labels = [info.label for info, _ in self.session.scn.records]
+        v = self.session.dd_record.value
+        return labels.index(v) if v in labels else None
+
+    def _grow(self) -> None:
+        """The session's records and the flight layer's model replaced by the flight's window."""
+        from geoloc.viz import flight_layer
+        from geoloc.viz.app import CUSTOM
+
+        s, fl = self.session, self.flight
+        with s._lock, fl._lock:
+            shift = fl.dropped - self.dropped
+            self.version, self.dropped = fl.version, fl.dropped
+            n = len(fl.records)
+            cur = self.current
+            keep = n - 1 if self.following or cur < 0 else int(np.clip(cur - shift, 0, n - 1))
+            scn = s.scn
+            scn.records = list(fl.records)
+            scn.frame_fov_deg = fl.fov_deg.copy()
+            scn.record_times_s = fl.times_s.copy()
+            if scn.record_index is not None:
+                scn.record_index = int(np.clip(scn.record_index - shift, 0, n - 1))
+            labels = [info.label for info, _ in scn.records]
+            s._mute = True
+            try:
+                value = s.dd_record.value
+                s.dd_record.options = labels + [CUSTOM]
+                if value in labels or value == CUSTOM:
+                    s.dd_record.value = value
+            finally:
+                s._mute = False
+            if self.layer is None and n >= 2:
+                self.layer = flight_layer.FlightLayer(s, model=fl.model)
+                self._hook(self.layer)
+                s.layers.insert(0, self.layer)
+            elif self.layer is not None:
+                self.layer.set_model(fl.model, current=keep)
+            if getattr(self, "_images", None) is None and self.feed.pictures_total:
+                from geoloc.viz import image_layer
+
+                self._images = image_layer.attach(s)
+                if self._images is not None:
+                    s.layers.append(self._images)
+        if not self.following and self.layer is not None:
+            self.layer.go(keep)
+        elif self.following:  # the newest frame with the new window (not a second later)
+            self._follow(force=True)
+
+    def _follow(self, force: bool = False) -> None:
+        """On the latest frame while following: its full chain, the highlight, the picture, the text."""
+        s = self.session
+        if s is None or not (self.following or force):
+            return
+        now = time.monotonic()
+        if not force and now - self._followed_s < FOLLOW_S:
+            return
+        self._followed_s = now
+        n = self.n
+        if self.layer is not None:
+            if self.layer.current != n - 1 or s.scn.record_index != n - 1 or force:
+                self.layer.go(n - 1)
+        elif s.scn.record_index != n - 1:
+            s.load_record(n - 1, move_camera=False)
+
+    def refresh_text(self) -> None:
+        """The Live folder's frame line for the frame shown (after a scrub)."""
+        idx = self.current
+        if self.session is not None and 0 <= idx < min(self.n, len(self.flight.records)) \
+                and self.dropped == self.flight.dropped:  # (the same indices until the window slides)
+            text = self.flight.frame_text(idx)
+            if text != self.md_frame.content:
+                self.md_frame.content = text
 
     def close(self) -> None:
         self.closed = True
+        if self.session is not None:
+            self.session.close()
+
+
+def flight_layer_choose() -> str:
+    from geoloc.viz.flight_layer import CHOOSE
+
+    return CHOOSE
 
 
 class LiveViewer:
-    """The live viewer on a server: a :class:`LiveTab` per tab, all fed by one :class:`LiveFeed`.
+    """The live viewer on a server: one :class:`LiveFlight` of the feed, a :class:`LiveTab` per tab.
 
-    ``tabs`` maps client ids to tabs; :meth:`stop` ends the updates and the feed.
+    ``tabs`` maps client ids to tabs; :meth:`stop` ends the updates and the feed. ``dem_path`` and
+    ``use_dem`` are those of :class:`LiveFlight` (``--dem``, ``--no-dem``).
     """
 
-    def __init__(self, server, feed: LiveFeed, max_clients: int = 16):
+    def __init__(self, server, feed: LiveFeed, max_clients: int = 16, *, dem_path=None, use_dem: bool = True,
+                 window: int = FLIGHT_WINDOW, warm: bool = True):
         self.server = server
         self.feed = feed
+        self.flight = LiveFlight(feed, dem_path=dem_path, use_dem=use_dem, window=window)
         self.max_clients = int(max_clients)
         self.tabs: dict[int, LiveTab] = {}
         self._lock = threading.Lock()
         self._stop = False
+        if warm:
+            self.warm_up()
         server.on_client_connect(self._on_connect)
         server.on_client_disconnect(self._on_disconnect)
         self._thread = threading.Thread(target=self._run, daemon=True, name="geoloc-live-tabs")
         self._thread.start()
+
+    def warm_up(self) -> None:
+        """The bundled example's first packets through the debugger's path once (its compiled
+        kernels: the flight model's DEM rays, the frame's chain and iterations), so the first
+        packet of the stream does not wait for a compiler."""
+        from geoloc.assets import ASSETS
+        from geoloc.io.klv import Packet, read_klv_file
+        from geoloc.viz import flight_model
+        from geoloc.viz.model import compute
+        from geoloc.viz.scenario import records_from_columns
+        from geoloc.workflows.live_replay import LiveReplay
+
+        try:
+            packets = [p for p in read_klv_file(ASSETS / "klv" / "example_flight.klv") if isinstance(p, Packet)][:3]
+            r = LiveReplay("warm-up").add(packets)
+            recs, _ = records_from_columns(r.columns, r.sensor)
+            probe = LiveFlight(_WarmFeed(r.sensor), dem_path=self.flight.dem_path, use_dem=self.flight.use_dem)
+            scn = probe._scenario(recs)
+            flight_model.build(scn)
+            for method in ("exact", "bisect", "steps"):
+                compute(scn, scn.inputs.replace(method=method))
+            from geoloc.analysis.uncertainty import ce90
+
+            ce90(1.0, 0.5)  # the uncertainty layer's CE90 table (built once per process: seconds)
+        except Exception as e:  # a warm-up is an optimisation: say why it did not run, go on
+            print(f"geoloc view --live: warm-up skipped ({type(e).__name__}: {e})", file=sys.stderr)
 
     def _on_connect(self, client) -> None:
         with self._lock:
@@ -490,9 +711,7 @@ class LiveViewer:
                 client.gui.add_markdown(f"this viewer serves {self.max_clients} tabs at most (--max-clients)")
                 return
             client.scene.set_up_direction("+z")
-            tab = LiveTab(self.feed, client.scene, client.gui, client)
-            self.tabs[client.client_id] = tab
-        tab.update()
+            self.tabs[client.client_id] = LiveTab(self.flight, self.server, client)
 
     def _on_disconnect(self, client) -> None:
         with self._lock:
@@ -503,6 +722,11 @@ class LiveViewer:
     def _run(self) -> None:
         while not self._stop:
             t0 = time.monotonic()
+            try:
+                self.flight.update()
+            except Exception as e:  # a bug must not stop the stream: said on stderr and in the panel
+                self.feed.error = f"flight model: {type(e).__name__}: {e}"
+                print(f"geoloc view --live: {self.feed.error}", file=sys.stderr)
             with self._lock:
                 tabs = list(self.tabs.values())
             for tab in tabs:
@@ -510,10 +734,23 @@ class LiveViewer:
                     tab.update()
                 except Exception as e:  # a tab that left while we drew: dropped on its disconnect
                     if not tab.closed:
+                        import traceback
+
                         print(f"geoloc view --live: tab update: {type(e).__name__}: {e}", file=sys.stderr)
+                        traceback.print_exc(file=sys.stderr)
             time.sleep(max(UPDATE_S - (time.monotonic() - t0), 0.02))
 
     def stop(self) -> None:
         self._stop = True
-        self._thread.join(5)
+        self._thread.join(10)
         self.feed.stop()
+
+
+class _WarmFeed:
+    """What :meth:`LiveFlight._scenario` reads of a feed, for the warm-up."""
+
+    url = "warm-up"
+    decode_video = False
+
+    def __init__(self, sensor):
+        self.sensor = sensor

@@ -65,13 +65,23 @@ KLV_SUFFIXES = (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts")
 def records_from_klv(path, camera=None):
     """A MISB ST 0601 file as viewer records: one per good packet, its own frame centre as the
     published point. Returns (sensor, [(RecordInfo, Inputs)]) (:mod:`geoloc.workflows.klv_replay`)."""
-    from geoloc.workflows.klv_replay import klv_pose_deg, replay_klv
+    from geoloc.workflows.klv_replay import replay_klv
 
     r = replay_klv(path, sensor=camera)
-    c = r.columns
-    sensor = r.sensor
-    out = []
-    for k in range(len(r)):
+    out, _ = records_from_columns(r.columns, r.sensor)
+    if not out:
+        raise ValueError(f"{path}: no packet with a pose and sensor angles")
+    return r.sensor, out
+
+
+def records_from_columns(c, sensor) -> tuple[list, list]:
+    """([(RecordInfo, Inputs)], their row indices) of a KLV replay's columns
+    (:mod:`geoloc.workflows.klv_replay`, or a live replay's batch): one per packet with a pose and
+    sensor angles, labelled ``packet N``."""
+    from geoloc.workflows.klv_replay import klv_pose_deg
+
+    out, kept = [], []
+    for k in range(len(c["packet"])):
         def v(name):
             x = c[name][k]
             return float(x) if x is not None else np.nan
@@ -85,9 +95,8 @@ def records_from_klv(path, camera=None):
                      target_h=v("reported_h_m") if np.isfinite(v("reported_h_m")) else 0.0)
         if np.isfinite(inp.angles_deg["azimuth"]) and np.isfinite(inp.angles_deg["elevation"]):
             out.append((info, inp))
-    if not out:
-        raise ValueError(f"{path}: no packet with a pose and sensor angles")
-    return sensor, out
+            kept.append(k)
+    return out, kept
 
 
 def enu_origin_for(info: RecordInfo, inp: Inputs) -> EnuFrame:
