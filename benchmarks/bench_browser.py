@@ -13,7 +13,10 @@ session per tab, the default layers) on the bundled example flight. Measured, me
   screenshot that differs from the one before the step (target 1 s);
 * **peer**: the server's own compute time for the same things: building the tab's session (all
   its layers) and one step (``FlightLayer.go``), wall and CPU (``time.process_time`` of this
-  process, which runs the server; the browser's CPU is in its own processes).
+  process, which runs the server);
+* **browser CPU** beside each wall time: the CPU seconds (user + system, ``/proc/PID/stat``) of
+  Chromium's processes over the same interval, its GPU process (SwiftShader, where software WebGL
+  draws) apart: on 2 cores a wall time well above them is time spent waiting for a core.
 
 Screenshots of the canvas element are PNG (lossless), compared exactly.
 """
@@ -33,6 +36,35 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
+
+
+def _browser_cpu_s() -> tuple[float, float]:
+    """(CPU seconds of every Chromium process under this one, of its GPU process alone), from
+    ``/proc/PID/stat`` (utime + stime, fields 14-15, in clock ticks); Linux only, else NaN."""
+    try:
+        tick = os.sysconf("SC_CLK_TCK")
+        procs = {}
+        for d in os.listdir("/proc"):
+            if d.isdigit():
+                try:
+                    with open(f"/proc/{d}/stat") as f:
+                        st = f.read()
+                    with open(f"/proc/{d}/cmdline", "rb") as f:
+                        cmd = f.read()
+                except OSError:
+                    continue
+                rest = st[st.rindex(")") + 2:].split()  # after "pid (comm) "
+                procs[int(d)] = (int(rest[1]), (int(rest[11]) + int(rest[12])) / tick, cmd)
+    except (OSError, ValueError, AttributeError):
+        return float("nan"), float("nan")
+    mine, todo = set(), [os.getpid()]
+    while todo:
+        p = todo.pop()
+        kids = [c for c, (pp, _, _) in procs.items() if pp == p and c not in mine]
+        mine.update(kids)
+        todo += kids
+    chrome = [procs[c] for c in mine if b"chrom" in procs[c][2]]
+    return (sum(t for _, t, _ in chrome), sum(t for _, t, cmd in chrome if b"--type=gpu-process" in cmd))
 
 
 def _canvas(page) -> np.ndarray:
@@ -85,23 +117,27 @@ def main(argv=None) -> int:
         built[client.client_id] = (time.perf_counter() - w, time.process_time() - c)
 
     viewer._build_tab = timed_build
-    view_s, step_s, peer_build, peer_step = [], [], [], []
+    view_s, step_s, peer_build, peer_step, view_cpu, step_cpu = [], [], [], [], [], []
     try:
         with tempfile.TemporaryDirectory() as tmp, chromium(Path(tmp)) as browser:
             # a first load warms the caches every tab shares (the flight model, the terrain mesh)
             for k in range(args.repeat + 1):
                 page = browser.new_page(viewport={"width": 1000, "height": 640})
                 before = set(built)
+                cpu0 = _browser_cpu_s()
                 t0 = time.perf_counter()
                 page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=120000)
                 dt, img = _settled(page, t0, ready=lambda: len(set(built) - before) == 1)
+                cpu1 = _browser_cpu_s()
                 cid = (set(built) - before).pop()
                 if k > 0:
                     view_s.append(dt)
+                    view_cpu.append((cpu1[0] - cpu0[0], cpu1[1] - cpu0[1]))
                     peer_build.append(built[cid])
                 fl = viewer.session_of(cid).layers[0]
                 for j in range(args.steps if k > 0 else 0):
                     ref = img
+                    cpu0 = _browser_cpu_s()
                     w, c = time.perf_counter(), time.process_time()
                     fl.sl_frame.value = (int(fl.sl_frame.value) + 7) % len(fl.model)  # as the GUI would
                     peer_step.append((time.perf_counter() - w, time.process_time() - c))
@@ -110,6 +146,8 @@ def main(argv=None) -> int:
                         if not np.array_equal(img, ref) or time.perf_counter() - w > 120:
                             break
                     step_s.append(time.perf_counter() - w)
+                    cpu1 = _browser_cpu_s()
+                    step_cpu.append((cpu1[0] - cpu0[0], cpu1[1] - cpu0[1]))
                     _, img = _settled(page, time.perf_counter())
                 page.close()
     finally:
@@ -120,9 +158,13 @@ def main(argv=None) -> int:
     print(f"default view to a settled canvas: median {med(view_s):.2f} s wall over {len(view_s)} loads "
           f"(target 5 s); peer: the server builds the tab's session in {med(b[0] for b in peer_build):.2f} s "
           f"wall, {med(b[1] for b in peer_build):.2f} s CPU; ratio {med(view_s) / med(b[0] for b in peer_build):.1f}")
+    print(f"  browser CPU over it: {med(v[0] for v in view_cpu):.2f} s (GPU process "
+          f"{med(v[1] for v in view_cpu):.2f} s)")
     print(f"timeline step to the canvas: median {med(step_s):.2f} s wall over {len(step_s)} steps (target 1 s); "
           f"peer: the server's step {med(p[0] for p in peer_step) * 1e3:.0f} ms wall, "
           f"{med(p[1] for p in peer_step) * 1e3:.0f} ms CPU; ratio {med(step_s) / med(p[0] for p in peer_step):.0f}")
+    print(f"  browser CPU over it: {med(v[0] for v in step_cpu):.2f} s (GPU process "
+          f"{med(v[1] for v in step_cpu):.2f} s)")
     return 0
 
 
