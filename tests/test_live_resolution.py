@@ -98,13 +98,18 @@ def test_a_sender_that_changes_its_resolution_is_counted_in_the_panel(tmp_path):
         wait_for(lambda: tab._images is not None and tab._images.image is not None
                  and tab._images.image.shape[:2] == (272, 480), 10, "the last frame's picture")
         shapes.add(tab._images.image.shape[:2])
+        # and a person scrubbing back to a frame before the change gets its picture at the old size
+        tab.scrubbed(5)
+        tab.layer.go(5)
+        shapes.add(tab._images.image.shape[:2])
         assert sent["sent"] == feed.rx.stats.datagrams and feed.rx.stats.klv_packets == n
         assert tab.n == n and not feed.error, feed.error
         # FFmpeg's decoder followed the new size: counted once, the panel says it
         assert feed.video_size == SIZES[1] and feed.resolution_changes == 1 and feed.decode_errors == 0
         wait_for(lambda: "video 480 x 272 pixels; 1 resolution change(s), 0 undecodable" in tab.md_stats.content,
                  10, "the stream panel to report the change")
-        # the picture layer showed pictures of both sizes (decoded 480 wide: 480 x 360, then 480 x 272)
+        # the picture layer showed pictures of both sizes (decoded 480 wide: 480 x 360, then 480 x 272),
+        # following the stream and scrubbed back
         assert {(360, 480), (272, 480)} <= shapes, shapes
         # every frame located, before and after the change
         assert np.isfinite(tab.layer.model.residual_m).sum() == n

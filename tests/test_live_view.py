@@ -105,9 +105,9 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
             # the same machine's clock on both sides (time.time() and the page's Date.now()). The first
             # located frame (its packet, recomputed centre and agreement, in the Live folder) within 2 s, as
             # the issue asks; the debugger's session for it (its GUI, terrain mesh, the frame's chain and
-            # iterations) is built right after: 0.5 s on a quiet machine (tab.debugger_unix_s), 3 s with
-            # this 2-core machine's load at 8: 8 s is the bound that still catches a build gone wrong
-            assert first is not None and t_text < 2.0 and t_debugger < 8.0, (t_text, t_debugger)
+            # iterations) is built right after: 0.5 s on a quiet machine (tab.debugger_unix_s), 1.4-9.1 s
+            # on the page with this 2-core machine's load at 8-19: 15 s still catches a build gone wrong
+            assert first is not None and t_text < 2.0 and t_debugger < 15.0, (t_text, t_debugger)
             _shot(page, "live_first_frame")
 
             # the full debugger: its Flight timeline grows with the stream, and it follows the latest
@@ -146,7 +146,9 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
             # ... and presses "live": back to the newest packet, following again
             page.get_by_role("button", name="live", exact=True).click(no_wait_after=True, timeout=120000)
             wait_for(lambda: tab.following and tab.current == tab.n - 1, 20, "live to return to the latest")
-            wait_for(lambda: (_packet_on_page(page) or 0) >= int(feed.replay.rows_total) - 6, 20,
+            # the page shows the newest packet (within 4 s of stream: the follow step once a second, and a
+            # software-WebGL page's lag behind the server)
+            wait_for(lambda: (_packet_on_page(page) or 0) >= int(tab.flight.rows["packet"][-1]) - 12, 60,
                      "the page to show the latest packet")
             _shot(page, "live_after_live_button")
             # the example's heading-bias burst (packets 100-109) arrives: the outlier table, the faults and

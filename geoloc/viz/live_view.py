@@ -50,6 +50,10 @@ FOLLOW_S = 1.0
 #: Decoded pictures kept (the newest), and their width [pixels].
 PICTURES = 64
 PICTURE_WIDTH = 480
+#: A frame's picture is the kept one nearest its time stamp within this [s] (else none: scrubbed
+#: back beyond the pictures kept). A sender that restarts repeats its time stamps: a frame of an
+#: earlier pass can then get the picture of the same time stamp of the newest pass.
+PICTURE_GAP_S = 0.5
 #: Batches kept for the flight when nobody takes them.
 PENDING = 4096
 
@@ -231,13 +235,15 @@ class LiveFeed:
         k = self.picture_index_at(pts_s)
         return None if k < 0 else self.picture(k)
 
-    def picture_index_at(self, pts_s: float) -> int:
-        """Serial number of the decoded picture nearest ``pts_s`` [s]; -1 without one."""
+    def picture_index_at(self, pts_s: float, max_gap_s: float = PICTURE_GAP_S) -> int:
+        """Serial number of the decoded picture nearest ``pts_s`` [s]; -1 without one within
+        ``max_gap_s`` (a frame older than the pictures kept has none)."""
         pics = list(self.pictures)
         if not pics or not np.isfinite(pts_s):
             return -1
         t = pts_s * 90000.0
-        return min(pics, key=lambda p: abs((p[1] if p[1] is not None else 0) - t))[0]
+        best = min(pics, key=lambda p: abs((p[1] if p[1] is not None else 0) - t))
+        return best[0] if abs((best[1] or 0) - t) <= max_gap_s * 90000.0 else -1
 
     def picture(self, serial: int):
         """Picture ``serial`` (the oldest kept if it left the window); None before the first."""
@@ -488,10 +494,12 @@ class LiveTab:
         self.scrubbed(idx_fn() if idx_fn is not None else None)
 
     def _hook(self, fl) -> None:
-        fl.sl_frame.on_update(lambda e: self._on_user(e, lambda: int(fl.sl_frame.value)))
-        fl.dd_goto.on_update(lambda e: self._on_user(e) if fl.dd_goto.value != flight_layer_choose() else None)
-        fl.bt_worst.on_click(lambda e: self._on_user(e))
-        fl.bt_play.on_click(lambda e: self._on_user(e))
+        # before the layer's own callbacks: the following stops before the layer moves, so the
+        # follower cannot step to the latest frame between the person's move and our noticing it
+        _first(fl.sl_frame, lambda e: self._on_user(e, lambda: int(fl.sl_frame.value)))
+        _first(fl.dd_goto, lambda e: self._on_user(e) if fl.dd_goto.value != flight_layer_choose() else None)
+        _first(fl.bt_worst, lambda e: self._on_user(e))
+        _first(fl.bt_play, lambda e: self._on_user(e))
         if getattr(fl, "cb_follow", None) is not None:  # the camera moves with the aircraft while following
             fl.cb_follow.value = True
 
@@ -631,7 +639,10 @@ class LiveTab:
         n = self.n
         if self.layer is not None:
             if self.layer.current != n - 1 or s.scn.record_index != n - 1 or force:
-                self.layer.go(n - 1)
+                with s._lock:
+                    if not self.following:  # a person moved meanwhile
+                        return
+                    self.layer.go(n - 1)
         elif s.scn.record_index != n - 1:
             s.load_record(n - 1, move_camera=False)
 
@@ -648,6 +659,16 @@ class LiveTab:
         self.closed = True
         if self.session is not None:
             self.session.close()
+
+
+def _first(handle, cb) -> None:
+    """Register ``cb`` as the first of a GUI handle's update (or click) callbacks (viser runs them
+    in order); the public ``on_update`` (last) where its list is not there."""
+    cbs = getattr(getattr(handle, "_impl", None), "update_cb", None)
+    if isinstance(cbs, list):
+        cbs.insert(0, cb)
+    else:
+        handle.on_update(cb)
 
 
 def flight_layer_choose() -> str:
