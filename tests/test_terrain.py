@@ -292,6 +292,8 @@ def test_bad_arguments():
         intersect_dem(los, dem, "steps", eps_h=0)
     with pytest.raises(ValueError, match="dem_model"):
         intersect_dem(los, dem, "exact", dem_model="quads")
+    with pytest.raises(TypeError, match="surface"):  # the first-phase alias of dem_model is gone (issue 31)
+        intersect_dem(los, dem, "exact", surface="triangles")
 
 
 def test_bowring_latlon_for_cell_lookup():

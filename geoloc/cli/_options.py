@@ -396,6 +396,6 @@ def add_dem_options(parser, *, mosaic: bool = True, tolerances: bool = True, dat
         g.add_argument("--threshold", type=float, default=1.0,
                        help="bisection stops when |H - h_DEM| < threshold [m] (default 1)")
     if tolerances and mosaic:
-        g.add_argument("--dem-model", "--dem-surface", dest="dem_model", choices=DEM_MODELS, default="bilinear",
+        g.add_argument("--dem-model", dest="dem_model", choices=DEM_MODELS, default="bilinear",
                        help="how the exact method reads between DEM nodes: bilinear cells (default) or two "
-                       "triangles per cell (--dem-surface is the same option's first-phase name)")
+                       "triangles per cell")

@@ -466,7 +466,7 @@ def climbs(o, d, tab) -> bool:
     return bool(run_m > CLIMB_MIN_NODES * span_m)
 
 
-def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
+def _exact(o, d, st, dem, dem_model, trace_on, max_cells=4096, parallel=False):
     """The compiled walk: (ECEF hit, cells visited, s, trace, (lat, lon, h, range)); NaN where no hit."""
     from geoloc.surfaces import terrain_numba as tn
 
@@ -490,7 +490,7 @@ def _exact(o, d, st, dem, surface, trace_on, max_cells=4096, parallel=False):
         tab["hlev"][CLIMB_FROM - 1:] if climbs(o, d, tab) else tab["hlev"][:0],
         tab["row_geo"], tab["lat_n"], tab["lon_w"],
         tab["dlat"], tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"],
-        surface == "triangles", s_out, p_out, geo_out, st, ncell, trace_s, trace_ij, order=order,
+        dem_model == "triangles", s_out, p_out, geo_out, st, ncell, trace_s, trace_ij, order=order,
         block=tab["block"])
     return p_out, ncell, s_out, (trace_s, trace_ij), geo_out.T
 
