@@ -294,3 +294,45 @@ def test_presenter_mode_in_chromium(tmp_path):
             pb.screenshot(path=str(ARTIFACTS / "viz_presenter_follower.png"))
     finally:
         server.stop()
+
+
+def test_presenter_switches_scenario_in_chromium(tmp_path):
+    # issue 34 item 6: the presenter chooses another scenario in their "scenario" dropdown, as a
+    # person does (click the box, click the option); the follower's page shows the new scenario's
+    # header and folders and its own read-only box showing the presenter's choice
+    from geoloc.viz.app import GeolocViewer, make_server
+    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc.viz.scenario import load_view_scenario
+
+    ARTIFACTS.mkdir(exist_ok=True)
+    server = make_server(port=0)
+    try:
+        q17 = load_view_scenario()
+        viewer = GeolocViewer(server, q17, presenter=True,
+                              scenarios={"[Q17] flight test": q17, "example flight": default_flight_scenario})
+        with chromium(tmp_path, MULTI_TAB_FLAGS) as browser:
+            pa = open_viewer(browser, server, 800, 600)
+            ida = next(iter(server.get_clients()))
+            pa.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=120000, state="attached")
+            pb = browser.new_page(viewport={"width": 800, "height": 600})
+            pb.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
+            idb = _new_client(server, {ida})
+            pb.wait_for_selector("text=take control", timeout=120000, state="attached")
+            wait_for(lambda: idb in viewer.followers, 60, "the follower's panel")
+            assert pb.get_by_label("scenario").is_disabled()  # the follower's box is read-only
+            box = pa.get_by_label("scenario")
+            assert box.is_enabled()
+            box.click(timeout=120000)
+            pa.get_by_role("option", name="example flight").click(timeout=120000)
+            wait_for(lambda: viewer.driver is not None and viewer.driver.scn.name.startswith("example_flight.klv"),
+                     300, "the presented scenario to switch")
+            assert viewer.driver.client.client_id == ida
+            # the follower's page: the new header, the flight folders, its box on the presenter's choice
+            pb.wait_for_selector("text=example_flight.klv", timeout=120000, state="attached")
+            pb.wait_for_selector("text=Flight: outliers first", timeout=120000, state="attached")
+            wait_for(lambda: pb.get_by_label("scenario").input_value() == "example flight", 120,
+                     "the follower's scenario box")
+            assert pb.get_by_label("scenario").is_disabled()
+            pb.screenshot(path=str(ARTIFACTS / "viz_presenter_switched_follower.png"))
+    finally:
+        server.stop()
