@@ -9,7 +9,9 @@ gimbal preset, and shows:
   products ``T_ecef_<frame>`` (numbers from :mod:`geoloc.viz.teaching`, which
   takes them from the core);
 - the frames drawn **apart** in a row above the aircraft (they share one origin
-  at the aircraft), every axis labelled ``x <frame>``, ``y <frame>``,
+  at the aircraft), a zigzag spaced by what each frame carries (:func:`row_offsets`:
+  a turret's frames at one optical centre fanned out, their labels clear of each
+  other), every axis labelled ``x <frame>``, ``y <frame>``,
   ``z <frame>``, the vector drawn from each frame's origin with its coordinates
   in that frame; the chosen hop ``T_dst_src`` highlights the source (magenta)
   and the destination (cyan) frames;
