@@ -525,6 +525,34 @@ def test_teaching_table_fits_the_panel_in_chromium(tmp_path):
             assert page.get_by_text("gimbal_roll_los (src)").count() >= 1
 
 
+@pytest.mark.browser
+def test_animation_duration_is_typed_and_obeyed_in_chromium(tmp_path):
+    # issue 34 item 4: "animate this angle from 0" ran a fixed ~3 s; a person types a duration into
+    # the "animation duration (s)" box and the sweep takes that long
+    from test_viz_browser import chromium, open_viewer, wait_for
+
+    with _panel_app() as (server, _app, p):
+        with chromium(tmp_path) as browser:
+            page = open_viewer(browser, server, 1280, 800)
+            page.wait_for_selector("text=animation duration (s)", timeout=120000)
+            box = page.locator(f"[id='{p.num_anim_s._impl.uuid}'] ~ * input").first
+            runs = {}
+            for typed in (6.0, 1.0):
+                box.fill(f"{typed:g}", timeout=120000)
+                box.press("Enter")
+                wait_for(lambda: p.num_anim_s.value == typed, 60, "the typed duration to reach the server")
+                assert p.anim_steps * p.anim_dt_s == pytest.approx(typed)
+                n = p.anim_count
+                page.get_by_role("button", name="animate this angle from 0").click(timeout=120000)
+                wait_for(lambda: p.anim_count > n, 180, "the sweep to run and end")
+                runs[typed] = p.last_anim_s  # the server's wall time, start to the true pose redrawn
+                page.wait_for_selector("text=animated from 0", timeout=120000)
+            # the sweep is paced by the clock (step k at k / 30 of the duration): each run lasts its
+            # duration plus the last redraw or two (0.1-1 s at load 8); before, the steps slept the duration on top of 31 redraws (a typed 1 s took 7 s)
+            assert 6.0 <= runs[6.0] < 6.0 + 3.0, runs
+            assert 1.0 <= runs[1.0] < 1.0 + 3.0, runs
+
+
 def test_one_hop_selector_and_an_animation_speed():
     # issue 34 item 4: the session's "chain of 4x4 matrices" folder follows the teaching panel's one
     # hop selector (its own hidden), and the sweep's duration is a control

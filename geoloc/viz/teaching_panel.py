@@ -135,6 +135,8 @@ class TeachingPanel:
         self._handles: dict = {}
         self._mesh_visible = True
         self.anim_steps, self.anim_dt_s = ANIM_STEPS, ANIM_DT_S
+        #: Sweeps run so far and the wall time [s] of the last one (start to the true pose redrawn).
+        self.anim_count, self.last_anim_s = 0, float("nan")
         self._stop = threading.Event()
         self._build_gui()
         self._hook_refresh()
@@ -499,7 +501,8 @@ class TeachingPanel:
         self._stop.set()
 
     def animate(self, name: str, wait: bool = True, steps: int | None = None, dt_s: float | None = None):
-        """Run angle ``name`` from 0 to its value in ``steps`` steps of ``dt_s`` seconds.
+        """Run angle ``name`` from 0 to its value in ``steps`` steps of ``dt_s`` seconds
+        (step k drawn at k ``dt_s`` after the start, whatever a redraw takes).
 
         Only this layer's drawing moves (the session's pose and its line of
         sight stay); at the end the true pose is shown again. With ``wait``
@@ -518,20 +521,29 @@ class TeachingPanel:
 
         def run():
             self.animating = True
+            t0 = time.monotonic()
             try:
                 for k in range(steps + 1):
                     if self._stop.is_set():
                         break
+                    # paced by the clock: step k at t0 + k dt_s, so the sweep takes the duration
+                    # asked for however long a redraw takes (a step whose time has passed while
+                    # the one before was drawn is skipped; the last is always drawn)
+                    t_k = t0 + k * dt_s
+                    if dt_s > 0 and k < steps and time.monotonic() > t_k + dt_s:
+                        continue
+                    self._stop.wait(max(t_k - time.monotonic(), 0.0))
                     a = target * k / steps
                     self.pose_override = teaching.pose_with_angle(pose, name, a)
                     self.md_anim.content = (f"animating **{name}**: {np.rad2deg(a):+.2f} of "
                                             f"{np.rad2deg(target):+.2f} deg")
                     self.redraw()
-                    time.sleep(dt_s)
             finally:
                 self.pose_override = None
                 self.md_anim.content = f"{name} = {np.rad2deg(target):+.2f} deg (animated from 0)"
                 self.redraw()
+                self.last_anim_s = time.monotonic() - t0
+                self.anim_count += 1
                 self.animating = False  # after the true pose is drawn again
 
         if wait:
