@@ -7,13 +7,15 @@ import tempfile
 from pathlib import Path
 
 from geoloc.assets import asset_path
+from geoloc.surfaces.dem import DEM
 from geoloc.workflows.rpc_scenario import rpc_report
 from geoloc.workflows.scenario import load_scenario
 
 with tempfile.TemporaryDirectory() as tmp:
     for name in ("zy3_nadir", "qiao2017_frame"):
         sc = load_scenario(asset_path("scenarios", f"{name}.toml"))
-        rep = rpc_report(sc, Path(tmp) / f"{name}.tif")
+        dem = DEM.open(sc.dem_path, datum=sc.dem_datum)  # the DEM the scenario names
+        rep = rpc_report(sc, Path(tmp) / f"{name}.tif", dem)
         print(f"{name}:")
         print(f"  fit_rms_px           {rep['fit_rms_px']:.2e}")
         print(f"  check_rms_px         {rep['check_rms_px']:.2e}   check_max_px {rep['check_max_px']:.2e}")

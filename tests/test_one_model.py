@@ -26,8 +26,6 @@ KNOWN_DEM_OPENERS = {
     "geoloc.workflows.campaign",
     # the Monte Carlo scenario file names its DEM (ErrorModel.dem): open_dem reads it
     "geoloc.analysis.montecarlo",
-    # the RPC scenario file names its DEM
-    "geoloc.workflows.rpc_scenario",
 }
 
 #: Modules that are the first-phase camera file format (they may know the Camera type).

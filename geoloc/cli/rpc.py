@@ -43,7 +43,12 @@ def run(args) -> int:
         raise ValueError(f"--gdal-threshold-px = {thr!r} must be a number > 0 (pixels)")
     out = Path(args.out)
     sc = load_scenario(args.scenario)
-    rep = rpc_report(sc, out, gdal=not args.no_gdal, pixel_error_threshold=thr,
+    dem = None
+    if not args.no_gdal and sc.dem_path is not None:  # the scenario's DEM, opened here at the edge
+        from geoloc.surfaces.dem import DEM
+
+        dem = DEM.open(sc.dem_path, datum=sc.dem_datum)
+    rep = rpc_report(sc, out, dem, gdal=not args.no_gdal, pixel_error_threshold=thr,
                      dem_copy=args.ellipsoidal_dem)
     print(f"{sc.name}: {rep['rows']} x {rep['cols']} px, {rep['n_fit']} fit / {rep['n_check']} check points")
     print(f"  fit   RMS {rep['fit_rms_px']:.2e} px")

@@ -305,8 +305,8 @@ def load_rpc_scenario(path) -> RPCScenario:
                        dem_path, datum, cc)
 
 
-def rpc_report(scenario: RPCScenario, out_tif, *, gdal: bool = True, pixel_error_threshold: float = 1e-6,
-               dem_copy=None) -> dict:
+def rpc_report(scenario: RPCScenario, out_tif, dem=None, *, gdal: bool = True,
+               pixel_error_threshold: float = 1e-6, dem_copy=None) -> dict:
     """Fit, write and cross-check the RPC of a scenario: what ``geoloc rpc`` reports.
 
     Parameters
@@ -314,6 +314,10 @@ def rpc_report(scenario: RPCScenario, out_tif, *, gdal: bool = True, pixel_error
     scenario : RPCScenario
     out_tif : path-like
         GeoTIFF to write (RPC metadata, sparse pixels).
+    dem : geoloc.surfaces.dem.DEM, optional
+        The scenario's DEM (``scenario.dem_path`` with ``scenario.dem_datum``), opened
+        by the caller: a workflow does not open a DEM itself (``tests/test_one_model.py``).
+        Needed for the GDAL cross-check when the scenario has a ``[dem]``.
     gdal : bool
         Run the GDAL RPC_DEM cross-check (needs ``scenario.dem_path``).
     pixel_error_threshold : float
@@ -345,9 +349,10 @@ def rpc_report(scenario: RPCScenario, out_tif, *, gdal: bool = True, pixel_error
         rep["gdal_vs_exact_max_px"] = None
         rep["gdal_note"] = "skipped" if not gdal else "no [dem] in the scenario"
         return rep
-    from geoloc.surfaces.dem import DEM
-
-    dem = DEM.open(scenario.dem_path, datum=scenario.dem_datum)
+    if dem is None:
+        raise ValueError(f"scenario {scenario.name!r} names the DEM {scenario.dem_path}: pass it opened, "
+                         "rpc_report(scenario, out_tif, DEM.open(scenario.dem_path, datum=scenario.dem_datum)), "
+                         "or gdal=False")
     rows, cols = dem_pixels(s, dem, scenario.cross_check_grid)
     with tempfile.TemporaryDirectory() as tmp:
         ell = Path(dem_copy) if dem_copy is not None else Path(tmp) / "dem_ellipsoidal.tif"
