@@ -157,7 +157,22 @@ def triangulate(sensor, pose, row, col, budget: ErrorBudget | None = None, *, sh
     los = s.line_of_sight(row, col, pose, outside="extrapolate", engine="numpy")
     O = np.asarray(los.origin_ecef, float).reshape(-1, 3)
     D = np.asarray(los.direction_ecef, float).reshape(-1, 3)
-    ok = (np.asarray(los.status).reshape(-1) == Status.OK) & np.all(np.isfinite(D), -1)
+    ok = np.asarray(los.status).reshape(-1) == Status.OK
+    if budget is None:
+        return triangulate_rays(O, D, ok, min_angle_deg=min_angle_deg)
+    names, dO, dD, _, _ = chain_derivatives(s, pose, row, col, budget, velocity_ned_m_s)
+    return triangulate_rays(O, D, ok, names, dO, dD, shared=shared, min_angle_deg=min_angle_deg)
+
+
+def triangulate_rays(O, D, ok=None, names=None, dO=None, dD=None, *, shared=SHARED,
+                     min_angle_deg: float = 1.0) -> Triangulation:
+    """:func:`triangulate` from the rays themselves: origins ``O`` and unit directions ``D`` (n, 3)
+    in ECEF, and with a budget each ray's derivatives ``dO``, ``dD`` (n, 3, k) per 1 sigma of the
+    sources ``names`` (:func:`geoloc.analysis.uncertainty.chain_derivatives`, one frame's sensor
+    per ray if need be: the viewer's frames each have their own zoom)."""
+    O = np.asarray(O, float).reshape(-1, 3)
+    D = np.asarray(D, float).reshape(-1, 3)
+    ok = (np.ones(len(O), bool) if ok is None else np.asarray(ok, bool).reshape(-1)) & np.all(np.isfinite(D), -1)
     n = len(O)
     nan3 = np.full(3, np.nan)
     if ok.sum() < 2 or _spread_deg(D[ok]) < min_angle_deg:
@@ -165,12 +180,11 @@ def triangulate(sensor, pose, row, col, budget: ErrorBudget | None = None, *, sh
                              status=int(Status.INVALID_INPUT))
     X, _, _, _ = intersect_rays(O[ok], D[ok])
     out_res = np.full(n, np.nan)
-    if budget is None:
+    if names is None:
         X, res, _, _ = intersect_rays(O[ok], D[ok])
         out_res[ok] = res
         lat, lon, h = (float(v) for v in ecef_to_geodetic(X))
         return Triangulation(X, lat, lon, h, int(ok.sum()), out_res)
-    names, dO, dD, _, _ = chain_derivatives(s, pose, row, col, budget, velocity_ned_m_s)
     t = np.einsum("ni,ni->n", X - O, D)                           # range to the target along each ray
     free = (dO + t[:, None, None] * dD)[ok]                       # (m, 3, k): each ray's move at the target
     Dk = D[ok]

@@ -13,6 +13,14 @@ which record: :func:`geoloc.viz.picture_model.image_index`). It adds
   scene draws that pixel's ray to its ground point (``/enu/picture/ray``, ``/enu/picture/hit``,
   the method's iterates ``/enu/picture/iterations``) and the panel gives latitude, longitude,
   height and its datum, slant range, status and the DEM evaluations;
+* **one target in several frames**: each frame's last pick is one ray of a target, kept across
+  frames (the timeline) until "clear target rays"; from two frames on the rays are intersected
+  without any DEM (:func:`geoloc.viz.picture_model.triangulate_picks`, the least squares of
+  :mod:`geoloc.analysis.triangulate`, weighted by the scenario's budget or the illustrative one)
+  and the scene draws each ray meeting at the triangulated point (``/enu/picture/target/rays``,
+  ``.../point``), its 90 % ellipse (``.../ellipse``) and each ray's residual (``.../residuals``),
+  those two at the error vectors' exaggeration; the panel gives the position, covariance, CE90 /
+  LE90, each ray's residual and each frame's DEM hit against the intersection;
 * **pick the terrain**: click the terrain in the scene: the point is marked
   (``/enu/picture/ground``), its pixel is marked in the image (``ground_to_pixel``), or the panel
   says "outside the frame" or "hidden behind terrain from this camera";
@@ -65,6 +73,9 @@ COLORS = {
     "reported": (180, 80, 255),
     "recomputed": (255, 60, 60),
     "horizon": (0, 230, 230),
+    "target_rays": (255, 215, 0),      # one target's rays from several frames and their intersection
+    "residual": (255, 60, 160),        # each ray's residual, ray to the triangulated point
+    "target_ellipse": (255, 0, 255),   # the triangulated point's 90 % ellipse
 }
 _PIXEL_RE = re.compile(r"^\s*\(?\s*([-+0-9.eE]+)\s*[, ;]\s*([-+0-9.eE]+)\s*\)?\s*$")
 
@@ -157,6 +168,10 @@ class ImageLayer:
         self.pick: pm.PixelPick | None = None
         self.picks: list = []  # this frame's picks, oldest first (at most MAX_PICKS): what an export carries
         self.ground: pm.GroundPick | None = None
+        #: One target picked in several frames: record index -> (sensor, inputs, PixelPick), the
+        #: last pick of each frame; kept across frames until "clear target rays".
+        self.target: dict = {}
+        self.target_rays: pm.TargetRays | None = None
         self.marks: dict = {}
         self.found: pm.FoundMarks | None = None
         self.centre: pm.PixelPick | None = None  # the image centre's pick of the current update
@@ -180,7 +195,8 @@ class ImageLayer:
                 "Click the image to locate a pixel; click the terrain to find its pixel. Marks: "
                 "**lime** +: picked pixel; **orange** o: picked terrain point; **white** x: surveyed truth "
                 "and targets; squares **violet** / **red**: reported / recomputed frame centre; "
-                "**cyan** line: terrain horizon")
+                "**cyan** line: terrain horizon. Pick one target in several frames: its rays (**gold**) meet at "
+                "the triangulated point, with its 90 % ellipse (**magenta**) and residuals (**pink**)")
             self.html = g.add_html("")
             self.sl_zoom = g.add_slider("zoom (x)", 0, len(ZOOMS) - 1, 1, 0,
                                         hint="Zoom the panel's image about the picked pixel: 1, 2, 4, ... 32 x")
@@ -188,6 +204,10 @@ class ImageLayer:
                                        hint="row, col (1-based pixel centres): a click on the image writes it; "
                                        "type one to locate it")
             self.md_pick = g.add_markdown("")
+            self.md_target = g.add_markdown("")
+            self.bt_clear_target = g.add_button("clear target rays",
+                                                hint="Forget the picks of the other frames: the next pick starts "
+                                                "a new target (each frame's last pick is one of its rays)")
             self.md_ground = g.add_markdown("")
             self.md_found = g.add_markdown("")
             self.cb_frustum = g.add_checkbox("picture in the frustum", True)
@@ -202,6 +222,7 @@ class ImageLayer:
                                            "by ground_to_pixel, cells hidden from the camera left out) and laid "
                                            "on the terrain as a texture")
         self.cb_drape.on_update(lambda _e: self._safe(self.drape))
+        self.bt_clear_target.on_click(lambda _e: self._safe(self.clear_target))
         self.sl_zoom.on_update(lambda _e: self._safe(self.redraw_images))
         self.tx_pixel.on_update(lambda _e: self._on_pixel_text())
         for h in (self.cb_frustum, self.sl_dist, self.sl_opacity, self.cb_marks, self.cb_horizon):
@@ -259,6 +280,7 @@ class ImageLayer:
         if self.pick is not None:  # the pose may have changed under the picked pixel
             self.pick = pm.locate_pixel(s.scn, s.inputs, self.sensor, self.pick.row, self.pick.col)
             self.md_pick.content = pm.pick_markdown(self.pick)
+            self._add_to_target()
         self.redraw_images()
         self.draw_pick()
         self.drape()
@@ -443,9 +465,68 @@ class ImageLayer:
                 finally:
                     self._mute = False
             self.md_pick.content = pm.pick_markdown(self.pick)
+            self._add_to_target()
             self.redraw_images()
             self.draw_pick()
             return self.pick
+
+    # ------------------------------------------------------------ one target, several frames
+    def _budget(self):
+        from geoloc.viz.uncertainty_layer import view_budget
+
+        b = getattr(self.scn, "budget", None)
+        if b is not None:
+            return b, f"the scenario's budget ({b.source})" if b.source else "the scenario's budget"
+        return view_budget(self.scn.camera, self.scn.dem is not None), "illustrative budget"
+
+    def _add_to_target(self) -> None:
+        """The current frame's pick becomes its ray of the target; triangulate when two frames have one."""
+        import copy
+
+        s = self.session
+        if self.pick is None or self.index is None:
+            return
+        self.target[self.index] = (self.sensor, copy.deepcopy(s.inputs), self.pick)
+        budget, note = self._budget()
+        self.target_rays = pm.triangulate_picks(s.scn, self.target, budget, note)
+        self.md_target.content = pm.target_markdown(self.target_rays, len(self.target))
+        self.draw_target()
+
+    def clear_target(self) -> None:
+        self.target = {}
+        self.target_rays = None
+        self.md_target.content = ""
+        self.draw_target()
+
+    def draw_target(self) -> None:
+        """Each frame's ray of the target to just past the triangulated point, the point, its 90 %
+        ellipse and each ray's residual (ray to point), the last two at the error vectors' scale."""
+        s = self.session
+        enu = s.scn.enu
+        old = [n for n in self.handles if n.startswith(f"{ROOT}/target/")]
+        t = self.target_rays
+        shown = set()
+        if t is not None and t.tri.status == Status.OK:
+            X = enu.from_ecef(np.asarray(t.tri.ecef, float))
+            k = float(getattr(s.view.disp, "error_exaggeration", 1.0))
+            rays = []
+            for o, c in zip(t.origins, t.closest):
+                a = enu.from_ecef(o)
+                b = enu.from_ecef(c)
+                rays.append([a, a + 1.08 * (b - a)])
+            self._line(f"{ROOT}/target/rays", rays, COLORS["target_rays"], 2.5)
+            res = [[X, X + k * (enu.from_ecef(c) - X)] for c in t.closest]
+            self._line(f"{ROOT}/target/residuals", res, COLORS["residual"], 4.0)
+            self._ball(f"{ROOT}/target/point", X, COLORS["target_rays"], 1.0)
+            shown |= {f"{ROOT}/target/rays", f"{ROOT}/target/residuals", f"{ROOT}/target/point"}
+            if t.tri.cov_enu is not None and np.isfinite(t.tri.ellipse_major_m):
+                pts = pm.target_ellipse_enu(enu, t.tri, scale=k)
+                self._line(f"{ROOT}/target/ellipse", np.stack([pts, np.roll(pts, -1, axis=0)], 1),
+                           COLORS["target_ellipse"], 4.0)
+                shown.add(f"{ROOT}/target/ellipse")
+        for n in old + [f"{ROOT}/target/{x}" for x in ("rays", "residuals", "point", "ellipse")]:
+            if n not in shown:
+                self._hide(n)
 
     def export_html(self) -> str:
         """The picture for a static export (``geoloc view --export``, which records the 3D scene

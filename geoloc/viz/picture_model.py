@@ -361,3 +361,125 @@ def found_markdown(f: FoundMarks | None) -> str:
     return (f"**painted marks**: {len(f.found)} found for {len(f.predicted)} targets in the frame; their "
             f"centre lies **{math.hypot(dr, dc):.1f} px** ({f.angle_deg:.2f} deg; row {dr:+.1f}, "
             f"column {dc:+.1f}) from the targets' reprojection: {verdict}")
+
+
+# ------------------------------------------------------------------ one target in several frames
+@dataclass
+class TargetRays:
+    """A target picked in several frames and triangulated from its rays (no DEM).
+
+    ``frames`` are the record indices; ``origins``, ``directions`` each frame's line of sight
+    (ECEF); ``closest`` the point of each ray nearest the triangulated point (its residual's
+    foot); ``tri`` the :class:`geoloc.analysis.triangulate.Triangulation`; ``surface`` its
+    comparison with each frame's DEM hit (:func:`geoloc.analysis.triangulate.compare_with_surface`);
+    ``budget_note`` which budget gave the covariance.
+    """
+
+    frames: list
+    picks: list
+    origins: np.ndarray
+    directions: np.ndarray
+    closest: np.ndarray
+    tri: object
+    surface: dict
+    budget_note: str = ""
+
+
+def triangulate_picks(scn, frames: dict, budget=None, budget_note: str = "") -> TargetRays | None:
+    """The least-squares intersection of the rays of one target picked in several frames.
+
+    Parameters
+    ----------
+    frames : dict
+        Record index -> ``(sensor, inputs, PixelPick)``: each frame's own sensor (its zoom), its
+        platform state and the pick (whose ``los`` is the ray).
+    budget : ErrorBudget, optional
+        Gives each ray's weight and the covariance (:func:`geoloc.analysis.triangulate.triangulate_rays`:
+        the sensor's own keys shared by every frame, the rest independent per frame).
+
+    Returns
+    -------
+    TargetRays or None
+        None for fewer than two frames.
+    """
+    from geoloc.analysis.triangulate import compare_with_surface, triangulate_rays
+    from geoloc.analysis.uncertainty import chain_derivatives
+
+    if len(frames) < 2:
+        return None
+    keys = sorted(frames)
+    picks = [frames[k][2] for k in keys]
+    O = np.stack([np.asarray(p.los.origin_ecef, float).reshape(3) for p in picks])
+    D = np.stack([np.asarray(p.los.direction_ecef, float).reshape(3) for p in picks])
+    D = D / np.linalg.norm(D, axis=-1, keepdims=True)
+    ok = np.array([int(np.asarray(p.los.status)) in (Status.OK, Status.OUTSIDE_SENSOR) for p in picks])
+    tri = None
+    if budget is not None:
+        ders = [chain_derivatives(frames[k][0], frames[k][1].pose(), frames[k][2].row, frames[k][2].col,
+                                  budget) for k in keys]
+        if all(d[0] == ders[0][0] for d in ders):  # the same sources in every frame
+            dO = np.concatenate([d[1].reshape(1, 3, -1) for d in ders])
+            dD = np.concatenate([d[2].reshape(1, 3, -1) for d in ders])
+            tri = triangulate_rays(O, D, ok, ders[0][0], dO, dD)
+    if tri is None:
+        tri = triangulate_rays(O, D, ok)
+        budget_note = "no budget: no covariance"
+    X = np.asarray(tri.ecef, float)
+    t = np.einsum("ni,ni->n", X[None, :] - O, D)
+    closest = O + t[:, None] * D
+    surface = {}
+    if tri.status == Status.OK:
+        h = np.array([float(p.hit.h) if p.ok else np.nan for p in picks])
+        surface = compare_with_surface(tri, h, np.array([p.ok for p in picks]))
+    return TargetRays(keys, picks, O, D, closest, tri, surface, budget_note)
+
+
+def target_ellipse_enu(enu, tri, n: int = 72, scale: float = 1.0) -> np.ndarray:
+    """The triangulated point's 90 % horizontal ellipse (n, 3) in the scene's ENU frame [m], level at
+    the point's height (``scale`` enlarges it about the point, as the error vectors are drawn)."""
+    from geoloc.analysis.uncertainty import ELLIPSE90_PER_SIGMA
+    from geoloc.geodesy.local import enu_to_geodetic
+
+    a, b = (float(v) * ELLIPSE90_PER_SIGMA * scale for v in (tri.ellipse_major_m, tri.ellipse_minor_m))
+    az = math.radians(float(tri.ellipse_azimuth_deg))
+    th = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    A, B = a * np.cos(th), -b * np.sin(th)
+    e = A * math.sin(az) + B * math.cos(az)
+    nn = A * math.cos(az) - B * math.sin(az)
+    lat, lon, h = enu_to_geodetic(np.stack([e, nn, np.zeros(n)], -1), tri.lat, tri.lon, tri.h)
+    return enu.from_geodetic(lat, lon, h)
+
+
+def target_markdown(t: TargetRays | None, n_frames: int = 0) -> str:
+    """The panel's text for a target picked in several frames: the triangulated position, its
+    covariance, each ray's residual and the comparison with each frame's DEM hit."""
+    if t is None:
+        if n_frames == 1:
+            return ("**target rays**: 1 frame picked; pick the same target in another frame (move the "
+                    "timeline) to triangulate it")
+        return ""
+    tri = t.tri
+    head = f"**target rays**: {len(t.frames)} frames (records {', '.join(str(k + 1) for k in t.frames)})"
+    if tri.status != Status.OK:
+        return head + "  \nnot triangulated: fewer than two rays, or rays within 1 deg of each other"
+    lines = [head + "  ",
+             f"triangulated latitude **{tri.lat_deg:.8f}** deg, longitude **{tri.lon_deg:.8f}** deg, "
+             f"height **{tri.h:.2f} m** ({H_DATUM})  "]
+    if tri.cov_enu is not None:
+        c = tri.cov_enu
+        lines.append(f"CE90 **{tri.ce90_m:.2f} m**, LE90 **{tri.le90_m:.2f} m** ({t.budget_note})  ")
+        lines.append("covariance ENU [m^2]: "
+                     + "; ".join(" ".join(f"{c[i, j]:.3g}" for j in range(3)) for i in range(3)) + "  ")
+    elif t.budget_note:
+        lines.append(f"({t.budget_note})  ")
+    diff = t.surface.get("differences_m") if t.surface else None
+    for i, k in enumerate(t.frames):
+        p = t.picks[i]
+        s = f"record {k + 1}: pixel ({p.row:g}, {p.col:g}), ray residual **{tri.residual_m[i]:.2f} m**"
+        if diff is not None and np.isfinite(diff[i]):
+            s += f", DEM hit {float(p.hit.h):.1f} m: DEM minus triangulated {diff[i]:+.1f} m"
+        lines.append(s + "  ")
+    if t.surface and math.isfinite(t.surface.get("mean_m", math.nan)):
+        lines.append(f"DEM minus triangulated, mean **{t.surface['mean_m']:+.1f} m** (standard error "
+                     f"{t.surface['se_m']:.1f} m)" + (f"; **{t.surface['warning']}**" if t.surface["warning"] else ""))
+    return "\n".join(lines)
