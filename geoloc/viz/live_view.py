@@ -622,9 +622,9 @@ class LiveTab:
                 self._images = image_layer.attach(s)
                 if self._images is not None:
                     s.layers.append(self._images)
-        if not self.following and self.layer is not None:
-            self.layer.go(keep)
-        elif self.following:  # the newest frame with the new window (not a second later)
+        # scrubbed back: set_model kept the highlight on the frame shown, whose record the session still
+        # has (its index shifted with the window); a person's step that raced this one ends after it
+        if self.following:  # the newest frame with the new window (not a second later)
             self._follow(force=True)
 
     def _follow(self, force: bool = False) -> None:
