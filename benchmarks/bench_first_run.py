@@ -10,7 +10,7 @@ then is stopped. For each the child's wall time, CPU time (user + system, from
 10 s and 500 MB. ``geoloc warm`` (tools/run.sh) compiles them ahead of that first call.
 
 Run: ``python benchmarks/bench_first_run.py [--repeat N] [--only locate,replay,view]``
-(medians over N cold folders; about a minute per cold call on 2 cores).
+(medians over N cold folders; 15-30 s of CPU per cold call on 2 cores).
 """
 
 from __future__ import annotations

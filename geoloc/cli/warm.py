@@ -1,7 +1,7 @@
 """``geoloc warm``: compile the kernels the verbs use, once, ahead of their first call.
 
 numba compiles geoloc's terrain walk and camera chain the first time they run on a machine
-(about a minute of CPU on 2 cores, ~1 GB; issue 32) and caches them in the user's cache folder
+(15-30 s of CPU on 2 cores, under 500 MB; issue 32) and caches them in the user's cache folder
 (:func:`geoloc.geodesy._nbgeo.cache_dir`), where a reinstall keeps them. ``tools/run.sh``
 runs this verb after installing, so the first ``locate``, ``replay`` or ``view`` starts in
 seconds. Each step runs the verb itself on the bundled data, its output swallowed, and
@@ -37,7 +37,7 @@ def register(sub) -> None:
         "warm",
         help="compile the terrain and camera kernels once, ahead of the first locate / replay / view",
         description="Run geoloc locate, replay and view once on the bundled data, output swallowed, so that "
-        "numba compiles their kernels now (about a minute of CPU on a 2-core machine, the first time only) "
+        "numba compiles their kernels now (15-30 s of CPU on a 2-core machine, the first time only) "
         "and caches them in the user's cache folder (NUMBA_CACHE_DIR if set, else ~/.cache/geoloc/numba), "
         "where a reinstall keeps them. Prints each step and its time. tools/run.sh runs it.",
     )

@@ -21,7 +21,8 @@ code follows.
 
 Where the cache lives (issue 32): numba's default puts it in ``__pycache__`` beside the
 sources, which ``pip install --upgrade`` / a reinstall deletes, so every reinstall paid the
-first-run compile again (48 s and 1 GB on 2 cores). geoloc's kernels are cached in
+first-run compile again (48 s and 1 GB on 2 cores then; 15 s and 390 MB since the walk's
+helpers are no longer numba-inlined). geoloc's kernels are cached in
 :func:`cache_dir`: the user's ``NUMBA_CACHE_DIR`` when set, else a user cache folder
 (``$XDG_CACHE_HOME/geoloc/numba``, ``~/.cache/geoloc/numba``; ``~/Library/Caches`` on macOS,
 ``%LOCALAPPDATA%`` on Windows), else (unwritable) numba's own places. The entries stay valid
@@ -59,10 +60,11 @@ except ImportError:  # pragma: no cover - a numba without it: compile without a 
 #: Say on stderr, once per process, that kernels are being compiled: True, False, or None
 #: (the default: when stderr is a terminal, or the environment sets GEOLOC_ANNOUNCE_COMPILE=1).
 ANNOUNCE: bool | None = None
-#: CPU seconds of the first ``geoloc locate --dem`` on a cold cache, 2 cores (issue 32: 43 s of
-#: user CPU, the terrain walk most of it; ``benchmarks/bench_first_run.py`` measures each verb):
-#: the announcement's "about N s" (wall time is that or more on a busy machine).
-FIRST_COMPILE_CPU_S = 45
+#: CPU seconds of the first ``geoloc locate --dem`` on a cold cache, 2 cores (issue 32: 15 s,
+#: the terrain walk 12-14 s of it; 41-48 s while its helpers were numba-inlined;
+#: ``benchmarks/bench_first_run.py`` measures each verb): the announcement's "about N s"
+#: (wall time is that or more on a busy machine).
+FIRST_COMPILE_CPU_S = 15
 #: Compiles of this process: (kernel name, seconds) as they finish (``geoloc warm`` prints them).
 COMPILED: list = []
 _announced = False

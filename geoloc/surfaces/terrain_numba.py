@@ -27,6 +27,18 @@ corner of its cell (:func:`_geodetic_near`; Vermeille's closed form of
 :func:`geoloc.geodesy.ellipsoid.ecef_to_geodetic`, from :mod:`geoloc.geodesy._nbgeo`, where that
 does not apply); ``tests/test_terrain.py`` checks them against the core's.
 
+The helpers (:func:`_par_exit`, :func:`_mer_exit`, :func:`_tri`, ...) are ordinary compiled
+functions, not ``inline="always"``: numba's IR inlining put a copy of each into the walk's
+own IR before type inference, and the walk's first compile took 41-55 s of CPU and 1 GB
+(most of it numba's passes over that IR: SSA, rewrites, typing; LLVM 5 %); called, LLVM
+inlines them at the machine-code level all the same, and the first compile of the flat
+walk is 12-14 s and under 400 MB (issue 32, ``benchmarks/bench_first_run.py``). Measured
+against the inlined walk (crop, 10 000 rays, one thread, 21 calls in turn, a loaded
+machine): 0.95-1.02 of its time; the triangles' hits and statuses equal bit for bit, the
+bilinear hits within 9.1e-13 m along the ray (the FMAs LLVM forms differ where the code
+meets; the Newton polish stops at 1e-7 m). The climb's code is under ``if _CLIMB``, which
+numba prunes before typing in the flat kernels.
+
 ``fastmath={"contract"}`` only lets LLVM fuse a multiply and an add (FMA, one
 rounding instead of two): 10 % faster; hits move by at most 1e-7 m on grazing
 rays. No other fast-math flag: the walk relies on NaN and infinity.
@@ -115,7 +127,7 @@ def _prefetch(typingctx, arr, i, j):
     return nbtypes.void(arr, i, j), codegen
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _roots(ox, oy, oz, dx, dy, dz, ia, ib):
     """Near and far ray parameters on the ellipsoid (a+h, a+h, b+h) [Q17 eq. 10-11].
 
@@ -137,7 +149,7 @@ def _roots(ox, oy, oz, dx, dy, dz, ia, ib):
     return near, far, inside
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def latlon(x, y, z):
     """Geodetic latitude and longitude by Bowring's one-step formula (no height).
 
@@ -150,7 +162,7 @@ def latlon(x, y, z):
     return _lat_bowring(x, y, z), math.atan2(y, x)
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _lat_bowring(x, y, z):
     """The latitude of :func:`latlon` alone."""
     rho = math.sqrt(x * x + y * y)
@@ -163,13 +175,13 @@ def _lat_bowring(x, y, z):
     return math.atan2(z + ep2 * B * st * st * st, rho - E2 * A * ct * ct * ct)
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _wrap(lon, lon_west):
     """Longitude into the grid's window [lon_west - pi, lon_west + pi)."""
     return (lon - lon_west + math.pi) % (2.0 * math.pi) + lon_west - math.pi
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _mer_exit(sin_m, cos_m, ox, oy, dx, dy, s, east):
     """Ray parameter where the ray, inside a cell at s, crosses meridian m (sin, cos of
     lambda_m) eastward (``east``) or westward; s if rounding puts it behind; inf if never.
@@ -190,7 +202,7 @@ def _mer_exit(sin_m, cos_m, ox, oy, dx, dy, s, east):
     return r if r > s else s
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _par_exit(tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, s, north):
     """(exit, again): where the ray, inside the row at s, next crosses the parallel
     (tan phi, c) northward (``north``) or southward, and where it crosses that parallel
@@ -250,7 +262,7 @@ def _par_exit(tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, s, north):
     return (rx if rx > s else s), np.inf
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _par_exit_kept(same, kept, kept2, tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, s, north):
     """:func:`_par_exit`, or (kept, kept2) when the parallel is one whose crossings are known
     (``same``: a side shared with the node or block the ray is leaving keeps its crossing)."""
@@ -259,7 +271,7 @@ def _par_exit_kept(same, kept, kept2, tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, 
     return _par_exit(tanp, cpar, oz, dz, dz2, dxy2, oxd, oxy2, s, north)
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _mer_ahead_kept(along, same, kept, sin_m, cos_m, ox, oy, dx, dy, s, east):
     """The crossing of the meridian ahead: inf if the line crosses none (``along`` False),
     ``kept`` when that meridian is a shared side whose crossing is known, else :func:`_mer_exit`."""
@@ -270,7 +282,7 @@ def _mer_ahead_kept(along, same, kept, sin_m, cos_m, ox, oy, dx, dy, s, east):
     return _mer_exit(sin_m, cos_m, ox, oy, dx, dy, s, east)
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _geodetic_near(x, y, z, lat0, s0, c0, lon0, sl0, cl0):
     """ECEF -> (lat, lon, h) of a point near the parallel lat0 (sin, cos s0, c0) and the
     meridian lon0 (sin, cos sl0, cl0), e.g. a hit and the corner of its cell.
@@ -322,11 +334,11 @@ def _geodetic_near(x, y, z, lat0, s0, c0, lon0, sl0, cl0):
     return lat0 + dl, lon, h
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _tri(ox, oy, oz, dx, dy, dz, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z):
     """Moller-Trumbore ray x triangle (p0, p1, p2); ray parameter or inf.
 
-    Scalars only: an array argument of an inlined helper costs a reference-count
+    Scalars only: an array argument of a helper costs a reference-count
     increment and decrement (atomic) per call, which was a third of the walk's time.
     The barycentric tests (tolerance 1e-12) compare u det, v det and t det with |det|,
     so that a miss costs no division.
@@ -363,7 +375,7 @@ def _tri(ox, oy, oz, dx, dy, dz, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z):
     return tt / det
 
 
-@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _bilin(z00, z10, z01, z11, u, v):
     return ((1.0 - v) * ((1.0 - u) * z00 + u * z10)
             + v * ((1.0 - u) * z01 + u * z11))
@@ -507,7 +519,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
     nbr = binv.shape[0]
     nbc = binv.shape[1]
     nlev = hlev.shape[0]
-    climb = nlev > 0 and _CLIMB  # _CLIMB: a constant to LLVM, which drops the climb (walk_flat_kernel)
+    climb = nlev > 0 and _CLIMB  # _CLIMB False: numba prunes the climb before typing (the flat kernels)
     if _FIXED_BLOCK > 0:  # a constant too (walk_flat_kernel, which _kernel_for takes only for blk == BLOCK)
         blk = _FIXED_BLOCK
     mtrace = trace_s.shape[1]
@@ -752,7 +764,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                 # largest node above this block that the ray crosses clear of (from s to
                 # where it leaves the node), then one jump to that node's side
                 glv = -1
-                if climb:
+                if _CLIMB and climb:  # _CLIMB first: numba prunes the branch where it is False
                     gE = sx  # exit of the last clear node (first: this block)
                     gN = bN
                     gN2 = bN2
@@ -823,7 +835,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                     if ended:
                         st = st_end
                         break
-                if glv >= 0:
+                if _CLIMB and glv >= 0:
                     # into the block beyond the node's side, at s = its crossing: the block
                     # along the side is found by the sides of the block lines at s
                     s = gE
@@ -1351,15 +1363,10 @@ def ray_order(o, d, h_mid, lat_n, lon_w, dlat, dlon, tile_cells, nt):
 
 
 @cached_njit(KEY, error_model="numpy")
-def median_run(o, d, dh, m):
-    """The median, over up to ``m`` of the rays spread over the batch, of the horizontal run
-    over which a ray descends by ``dh`` metres: dh cot(depression), with the geocentric up
-    (an order of magnitude is all :func:`geoloc.surfaces.terrain.climbs` asks); a ray that
-    does not descend runs forever (inf), a ray with NaN in it is left out; NaN if none is
-    left. Compiled: the same in numpy cost 30-250 us a call, 1-5 % of a 10 000-ray crop walk."""
+def _runs(o, d, dh, m, run):
+    """Fills ``run[:c]`` with the runs :func:`median_run` takes the median of; returns c."""
     n = o.shape[0]
     k = min(n, m)
-    run = np.empty(k)
     c = 0
     for q in range(k):
         r = q if k == n else (q * (n - 1)) // (k - 1) if k > 1 else 0
@@ -1373,6 +1380,17 @@ def median_run(o, d, dh, m):
         else:
             run[c] = np.inf
         c += 1
-    if c == 0:
-        return np.nan
-    return np.median(run[:c])
+    return c
+
+
+def median_run(o, d, dh, m):
+    """The median, over up to ``m`` of the rays spread over the batch, of the horizontal run
+    over which a ray descends by ``dh`` metres: dh cot(depression), with the geocentric up
+    (an order of magnitude is all :func:`geoloc.surfaces.terrain.climbs` asks); a ray that
+    does not descend runs forever (inf), a ray with NaN in it is left out; NaN if none is
+    left. The runs are compiled (:func:`_runs`; in numpy they cost 30-250 us a call, 1-5 % of
+    a 10 000-ray crop walk), their median is numpy's (numba's ``np.median`` took 2-3 s of CPU
+    to compile on a cold cache, for at most 256 numbers: issue 32)."""
+    run = np.empty(max(0, min(len(o), int(m))))
+    c = _runs(o, d, float(dh), int(m), run)
+    return float(np.median(run[:c])) if c else math.nan
