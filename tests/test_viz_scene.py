@@ -487,4 +487,8 @@ def test_terrain_is_sent_unlit_with_the_mesh_unchanged(app):
     assert acc["componentType"] == 5121 and acc["type"] == "VEC4"  # unsigned bytes, RGBA
     start = 20 + jlen + 8 + view.get("byteOffset", 0) + acc.get("byteOffset", 0)
     rgba = np.frombuffer(glb, np.uint8, acc["count"] * 4, start).reshape(-1, 4)
-    assert np.array_equal(rgba, mesh.visual.vertex_colors)
+    # linear in the file (glTF 2.0 3.7.2.1), the mesh's sRGB colours through IEC 61966-2-1's curve
+    srgb = mesh.visual.vertex_colors[:, :3] / 255.0
+    lin = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4) * 255.0
+    assert np.abs(rgba[:, :3] - lin).max() <= 0.5 + 1e-9  # rounded to 8 bits
+    assert np.array_equal(rgba[:, 3], mesh.visual.vertex_colors[:, 3])

@@ -177,6 +177,13 @@ def terrain_glb_cached(scn) -> bytes:
     return _terrain_entry(scn)[2]
 
 
+def srgb_to_linear_u8(c) -> np.ndarray:
+    """8-bit sRGB colour values to 8-bit linear ones (IEC 61966-2-1's transfer function, inverted)."""
+    x = np.asarray(c, float) / 255.0
+    lin = np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+    return np.round(lin * 255.0).astype(np.uint8)
+
+
 def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
     """Binary glTF of ``mesh`` with its material marked ``KHR_materials_unlit`` (glTF 2.0 extension:
     three.js loads it as a ``MeshBasicMaterial``, vertex colours without lighting).
@@ -187,8 +194,14 @@ def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
     0.4-0.45 s, about what the scene costs without the terrain (issue 34, machine load 10-12;
     a 161 or an 81 node grid made no difference: the cost is per pixel, not per triangle).
     """
+    # glTF's COLOR_0 is linear (glTF 2.0, 3.7.2.1) and three.js converts it to sRGB on output: the
+    # colours (sRGB, as a colour map gives them) go in linearised, so the unlit terrain shows them
+    # as they are instead of washed out towards white
+    m = mesh.copy()
+    rgba = np.asarray(mesh.visual.vertex_colors, np.uint8)
+    m.visual.vertex_colors = np.concatenate([srgb_to_linear_u8(rgba[:, :3]), rgba[:, 3:]], axis=1)
     buf = io.BytesIO()
-    mesh.export(buf, file_type="glb")
+    m.export(buf, file_type="glb")
     b = buf.getvalue()
     magic, version, _ = struct.unpack_from("<III", b, 0)
     jlen, jtype = struct.unpack_from("<II", b, 12)
