@@ -15,6 +15,8 @@ against pymap3d in ``tests/test_local_frames.py``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
@@ -517,3 +519,16 @@ def aer_to_ecef_deg(az_deg, el_deg, srange, lat0_deg, lon0_deg, h0):
     """:func:`aer_to_ecef` with azimuth, elevation and the origin in degrees; ECEF [m] (..., 3)."""
     return aer_to_ecef(np.deg2rad(az_deg), np.deg2rad(el_deg), srange,
                        np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
+
+
+def ellipse_ring_enu(semi_major, semi_minor, azimuth_deg, n: int) -> np.ndarray:
+    """``n`` vertices (n, 3) of a horizontal ellipse in a local ENU frame [m], about its origin.
+
+    The major axis points along ``azimuth_deg`` (clockwise from north), the minor axis 90 degrees
+    clockwise of it; the ring starts at the major axis's end and runs towards minus the minor
+    axis: counterclockwise seen from above (RFC 7946's outer-ring order). Up is 0.
+    """
+    th = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    A, B = semi_major * np.cos(th), -semi_minor * np.sin(th)
+    sa, ca = math.sin(math.radians(azimuth_deg)), math.cos(math.radians(azimuth_deg))
+    return np.stack([A * sa + B * ca, A * ca - B * sa, np.zeros(n)], -1)

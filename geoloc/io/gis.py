@@ -584,7 +584,7 @@ def _ellipse_layer(table, n, comp, ok, fields, row_attrs, labels, t_of):
     """Each computed point's predicted 90 % horizontal error ellipse as a polygon (the replay's
     ``ellipse_major_m ellipse_minor_m ellipse_azimuth_deg`` columns, 1 sigma, scaled by 2.1460:
     geoloc.analysis.uncertainty), its vertices at the point's height, counterclockwise."""
-    from geoloc.geodesy.local import enu_to_geodetic_deg
+    from geoloc.geodesy.local import ellipse_ring_enu, enu_to_geodetic_deg
 
     ell = [_num(table, c, n) for c in ("ellipse_major_m", "ellipse_minor_m", "ellipse_azimuth_deg")]
     ce, le = _num(table, "ce90_m", n), _num(table, "le90_m", n)
@@ -596,19 +596,14 @@ def _ellipse_layer(table, n, comp, ok, fields, row_attrs, labels, t_of):
     if any(c is None for c in ell):
         return lay
     r90 = math.sqrt(-2.0 * math.log(0.1))
-    th = np.linspace(0.0, 2.0 * math.pi, ELLIPSE_VERTICES, endpoint=False)
     for k in range(n):
         a, b, az = (float(c[k]) for c in ell)
         coords = None
         if ok(comp, k) and all(np.isfinite((a, b, az))):
-            # major axis along the azimuth (clockwise from north), minor 90 degrees clockwise of it;
-            # from the major axis's end towards minus the minor: counterclockwise (RFC 7946)
-            A, Bm = r90 * a * np.cos(th), -r90 * b * np.sin(th)
-            sa, ca = math.sin(math.radians(az)), math.cos(math.radians(az))
-            e, nn = A * sa + Bm * ca, A * ca - Bm * sa
+            # counterclockwise (RFC 7946): geoloc.geodesy.local.ellipse_ring_enu
             h0 = float(comp[2][k])
-            la, lo, _ = enu_to_geodetic_deg(np.stack([e, nn, np.zeros_like(e)], -1), float(comp[0][k]),
-                                            float(comp[1][k]), h0 if np.isfinite(h0) else 0.0)
+            la, lo, _ = enu_to_geodetic_deg(ellipse_ring_enu(r90 * a, r90 * b, az, ELLIPSE_VERTICES),
+                                            float(comp[0][k]), float(comp[1][k]), h0 if np.isfinite(h0) else 0.0)
             pts = [(float(x), float(y), h0) for x, y in zip(lo, la)]
             coords = pts + [pts[0]]
         lay.features.append(_Feature(coords, row_attrs(k, ce90_m=_opt(ce[k]) if ce is not None else None,

@@ -438,15 +438,11 @@ def target_ellipse_enu(enu, tri, n: int = 72, scale: float = 1.0) -> np.ndarray:
     """The triangulated point's 90 % horizontal ellipse (n, 3) in the scene's ENU frame [m], level at
     the point's height (``scale`` enlarges it about the point, as the error vectors are drawn)."""
     from geoloc.analysis.uncertainty import ELLIPSE90_PER_SIGMA
-    from geoloc.geodesy.local import enu_to_geodetic
+    from geoloc.geodesy.local import ellipse_ring_enu, enu_to_geodetic
 
     a, b = (float(v) * ELLIPSE90_PER_SIGMA * scale for v in (tri.ellipse_major_m, tri.ellipse_minor_m))
-    az = math.radians(float(tri.ellipse_azimuth_deg))
-    th = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
-    A, B = a * np.cos(th), -b * np.sin(th)
-    e = A * math.sin(az) + B * math.cos(az)
-    nn = A * math.cos(az) - B * math.sin(az)
-    lat, lon, h = enu_to_geodetic(np.stack([e, nn, np.zeros(n)], -1), tri.lat, tri.lon, tri.h)
+    ring = ellipse_ring_enu(a, b, float(tri.ellipse_azimuth_deg), n)
+    lat, lon, h = enu_to_geodetic(ring, tri.lat, tri.lon, tri.h)
     return enu.from_geodetic(lat, lon, h)
 
 

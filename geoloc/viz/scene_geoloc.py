@@ -321,16 +321,13 @@ class GeolocScene:
             lh.visible = self.disp.marker_labels if show_label is None else show_label
         return h
 
-    def _points(self, name, pts, colors, point_size):
-        # as _segments: a step with as many points moves them (one update message) instead of
-        # re-creating the node (the browser rebuilds its geometry and material)
-        pts = self.disp.z(np.asarray(pts, float).reshape(-1, 3)).astype(np.float32)
-        colors = np.broadcast_to(np.asarray(colors, np.uint8), pts.shape).copy()
-        key = (float(point_size), pts.shape)
+    def _array_node(self, name, key, pts, colors, create):
+        """The node ``name`` showing ``pts`` in ``colors``: a step with as many points moves them (one
+        update message, only for what changed) instead of re-creating the node (the browser
+        rebuilds its geometry and material); ``create()`` makes it when ``key`` changed."""
         h = self._alive(name, key)
         if h is None:
-            h = self.scene.add_point_cloud(name, pts, colors, point_size=point_size, point_shape="circle",
-                                           precision="float32")
+            h = create()
             self._cache[name] = (h, key)
         else:
             if not np.array_equal(h.points, pts):
@@ -339,21 +336,17 @@ class GeolocScene:
                 h.colors = colors
         return h
 
+    def _points(self, name, pts, colors, point_size):
+        pts = self.disp.z(np.asarray(pts, float).reshape(-1, 3)).astype(np.float32)
+        colors = np.broadcast_to(np.asarray(colors, np.uint8), pts.shape).copy()
+        return self._array_node(name, (float(point_size), pts.shape), pts, colors, lambda: self.scene.add_point_cloud(
+            name, pts, colors, point_size=point_size, point_shape="circle", precision="float32"))
+
     def _segments(self, name, pts, color, thickness=3.0):
         pts = self.disp.z(np.asarray(pts, float).reshape(-1, 2, 3)).astype(np.float32)
         colors = np.broadcast_to(np.asarray(color, np.uint8), pts.shape).copy()
-        key = (thickness, pts.shape)
-        h = self._alive(name, key)
-        if h is None:
-            h = self.scene.add_line_segments(name, pts, colors, thickness=thickness,
-                                             thickness_units="screen")
-            self._cache[name] = (h, key)
-        else:
-            if not np.array_equal(h.points, pts):
-                h.points = pts
-            if not np.array_equal(h.colors, colors):
-                h.colors = colors
-        return h
+        return self._array_node(name, (thickness, pts.shape), pts, colors, lambda: self.scene.add_line_segments(
+            name, pts, colors, thickness=thickness, thickness_units="screen"))
 
     def update(self, g: Geometry) -> None:
         """Redraw every dynamic node from ``g`` (call inside ``server.atomic()``)."""

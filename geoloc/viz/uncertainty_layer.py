@@ -26,7 +26,7 @@ import traceback
 import numpy as np
 
 from geoloc.analysis.uncertainty import ELLIPSE90_PER_SIGMA, normalised_errors, propagate
-from geoloc.geodesy.local import enu_to_geodetic
+from geoloc.geodesy.local import ellipse_ring_enu, enu_to_geodetic
 from geoloc.locate import as_sensor
 from geoloc.sensors.budget import ErrorBudget
 from geoloc.status import Status
@@ -55,13 +55,8 @@ def ellipse_points_enu(scn, pu, enu, n: int = VERTICES, scale: float = 1.0) -> n
     """The 90 % ellipse's vertices (n, 3) in the scene's ENU frame [m], draped on the scene's DEM;
     ``scale`` draws it larger about the point (the display's error-vector exaggeration)."""
     a, b = (float(v) * ELLIPSE90_PER_SIGMA * scale for v in (pu.ellipse_major_m, pu.ellipse_minor_m))
-    az = math.radians(float(pu.ellipse_azimuth_deg))
-    th = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
-    A, B = a * np.cos(th), -b * np.sin(th)
-    e = A * math.sin(az) + B * math.cos(az)
-    nn = A * math.cos(az) - B * math.sin(az)
     lat0, lon0, h0 = (float(np.asarray(v)) for v in (pu.lat, pu.lon, pu.h))
-    lat, lon, h = enu_to_geodetic(np.stack([e, nn, np.zeros(n)], -1), lat0, lon0, h0)
+    lat, lon, h = enu_to_geodetic(ellipse_ring_enu(a, b, float(pu.ellipse_azimuth_deg), n), lat0, lon0, h0)
     if scn.dem is not None:
         hd = np.asarray(scn.dem.height(lat, lon), float)
         h = np.where(np.isfinite(hd), hd, h0)
