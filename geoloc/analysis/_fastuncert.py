@@ -261,62 +261,45 @@ def surface_kernel(free, D, m, lat, lon, status, sz, qt_n, rt, le90_per_sigma,
     ``inv_out`` gets ``1 / (m . D)`` (NaN where the ray does not enter the surface).
     """
     n = free.shape[0]
-    k = free.shape[2]
-    kk = J.shape[2]
-    nq = rt.shape[0]
     for i in prange(n):
         sp, cp = math.sin(lat[i]), math.cos(lat[i])
         sl, cl = math.sin(lon[i]), math.cos(lon[i])
         # ENU axes in ECEF
-        E0, E1, E2 = -sl, cl, 0.0
-        N0, N1, N2 = -sp * cl, -sp * sl, cp
-        U0, U1, U2 = cp * cl, cp * sl, sp
-        d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
+        E = (-sl, cl, 0.0)
+        N = (-sp * cl, -sp * sl, cp)
+        U = (cp * cl, cp * sl, sp)
         if m.shape[0] == 0:  # a constant height: the local up
-            m0, m1, m2 = U0, U1, U2
+            m0, m1, m2 = U[0], U[1], U[2]
         else:
             m0, m1, m2 = m[i, 0], m[i, 1], m[i, 2]
-        mD = m0 * d0 + m1 * d1 + m2 * d2
-        inv = 1.0 / mD if mD < -1e-12 else math.nan
-        if status[i] != _OK:
-            inv = math.nan
+        inv, c00, c01, c02, c11, c12, c22 = _step(free, i, D, m0, m1, m2, status[i] == _OK, sz, E, N, U, J[i])
         inv_out[i] = inv
-        c00 = c01 = c02 = c11 = c12 = c22 = 0.0
-        for c in range(kk):
-            if c < k:
-                f0, f1, f2 = free[i, 0, c], free[i, 1, c], free[i, 2, c]
-                s = (m0 * f0 + m1 * f1 + m2 * f2) * inv
-                p0, p1, p2 = f0 - d0 * s, f1 - d1 * s, f2 - d2 * s
-            else:
-                s = sz * inv
-                p0, p1, p2 = d0 * s, d1 * s, d2 * s
-            je = E0 * p0 + E1 * p1 + E2 * p2
-            jn = N0 * p0 + N1 * p1 + N2 * p2
-            ju = U0 * p0 + U1 * p1 + U2 * p2
-            J[i, 0, c], J[i, 1, c], J[i, 2, c] = je, jn, ju
-            c00 += je * je
-            c01 += je * jn
-            c02 += je * ju
-            c11 += jn * jn
-            c12 += jn * ju
-            c22 += ju * ju
-        cov[i, 0, 0], cov[i, 0, 1], cov[i, 0, 2] = c00, c01, c02
-        cov[i, 1, 0], cov[i, 1, 1], cov[i, 1, 2] = c01, c11, c12
-        cov[i, 2, 0], cov[i, 2, 1], cov[i, 2, 2] = c02, c12, c22
-        mean = 0.5 * (c00 + c11)
-        dif = math.hypot(0.5 * (c00 - c11), c01)
-        a = math.sqrt(max(mean + dif, 0.0))
-        b = math.sqrt(max(mean - dif, 0.0))
-        major[i], minor[i] = a, b
-        theta = 0.5 * math.atan2(2.0 * c01, c00 - c11)
-        azd = (90.0 - math.degrees(theta)) % 180.0
-        az[i] = azd
-        q = b / a if a > 0 else 0.0
-        x = q * qt_n
-        j0 = min(int(x), nq - 2)
-        fr = x - j0
-        ce[i] = a * (rt[j0] + fr * (rt[j0 + 1] - rt[j0]))
-        le[i] = le90_per_sigma * math.sqrt(c22)
+        _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov, major, minor, az, ce, le)
+
+
+@cached_njit(KEY, inline="always")
+def _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov, major, minor, az, ce, le):
+    """Row ``i`` of the outputs from the ENU covariance's six entries: ``cov``, the 1-sigma ellipse
+    (semi-axes, azimuth of the major axis clockwise from north), CE90 read from the table
+    ``rt`` at the axis ratio (exact for the ellipse, :func:`geoloc.analysis.uncertainty.ce90`) and
+    LE90."""
+    cov[i, 0, 0], cov[i, 0, 1], cov[i, 0, 2] = c00, c01, c02
+    cov[i, 1, 0], cov[i, 1, 1], cov[i, 1, 2] = c01, c11, c12
+    cov[i, 2, 0], cov[i, 2, 1], cov[i, 2, 2] = c02, c12, c22
+    mean = 0.5 * (c00 + c11)
+    dif = math.hypot(0.5 * (c00 - c11), c01)
+    a = math.sqrt(max(mean + dif, 0.0))
+    b = math.sqrt(max(mean - dif, 0.0))
+    major[i], minor[i] = a, b
+    theta = 0.5 * math.atan2(2.0 * c01, c00 - c11)
+    az[i] = (90.0 - math.degrees(theta)) % 180.0
+    q = b / a if a > 0 else 0.0
+    x = q * qt_n
+    nq = rt.shape[0]
+    j0 = min(int(x), nq - 2)
+    fr = x - j0
+    ce[i] = a * (rt[j0] + fr * (rt[j0 + 1] - rt[j0]))
+    le[i] = le90_per_sigma * math.sqrt(c22)
 
 
 # --------------------------------------------------------------------- on a DEM
@@ -363,14 +346,15 @@ def _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, lat, lon):
 
 
 @cached_njit(KEY, inline="always")
-def _step(free, i, D, m0, m1, m2, sz, E, N, U, Jo):
+def _step(free, i, D, m0, m1, m2, ok, sz, E, N, U, Jo):
     """The surface step of one ray for the normal ``m``: ``Jo`` (3, kk) in ENU, returns 1 / (m . D)
-    and the covariance's six entries (as :func:`surface_kernel`)."""
+    (NaN where the ray does not enter the surface or is not ``ok``: then every entry is NaN) and
+    the covariance's six entries."""
     k = free.shape[2]
     kk = Jo.shape[1]
     d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
     mD = m0 * d0 + m1 * d1 + m2 * d2
-    inv = 1.0 / mD if mD < -1e-12 else math.nan
+    inv = 1.0 / mD if (ok and mD < -1e-12) else math.nan
     c00 = c01 = c02 = c11 = c12 = c22 = 0.0
     for c in range(kk):
         if c < k:
@@ -412,7 +396,6 @@ def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprin
     """
     n = free.shape[0]
     kk = J.shape[2]
-    nq = rt.shape[0]
     ng = gh_x.shape[0]
     nr_ = graze_r.shape[0]
     for i in prange(n):
@@ -500,10 +483,7 @@ def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprin
             m0 = U[0] - g_e * E[0] - g_n * N[0]
             m1 = U[1] - g_e * E[1] - g_n * N[1]
             m2 = U[2] - g_e * E[2] - g_n * N[2]
-            inv, c00, c01, c02, c11, c12, c22 = _step(free, i, D, m0, m1, m2, sz, E, N, U, Jo)
-        cov[i, 0, 0], cov[i, 0, 1], cov[i, 0, 2] = c00, c01, c02
-        cov[i, 1, 0], cov[i, 1, 1], cov[i, 1, 2] = c01, c11, c12
-        cov[i, 2, 0], cov[i, 2, 1], cov[i, 2, 2] = c02, c12, c22
+            inv, c00, c01, c02, c11, c12, c22 = _step(free, i, D, m0, m1, m2, True, sz, E, N, U, Jo)
         # grazing: the ray within 2 sigma of the terrain away from its hit
         k = free.shape[2]
         st2 = 0.0
@@ -536,16 +516,4 @@ def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprin
                 gz = True
                 break
         grazing[i] = gz
-        mean = 0.5 * (c00 + c11)
-        dif = math.hypot(0.5 * (c00 - c11), c01)
-        a_ = math.sqrt(max(mean + dif, 0.0))
-        b_ = math.sqrt(max(mean - dif, 0.0))
-        major[i], minor[i] = a_, b_
-        theta = 0.5 * math.atan2(2.0 * c01, c00 - c11)
-        az[i] = (90.0 - math.degrees(theta)) % 180.0
-        qq = b_ / a_ if a_ > 0 else 0.0
-        x = qq * qt_n
-        j0 = min(int(x), nq - 2)
-        fr = x - j0
-        ce[i] = a_ * (rt[j0] + fr * (rt[j0 + 1] - rt[j0]))
-        le[i] = le90_per_sigma * math.sqrt(c22)
+        _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov, major, minor, az, ce, le)
