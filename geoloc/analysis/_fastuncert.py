@@ -423,6 +423,7 @@ def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprin
         g_e = (_grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la, lo + 1.0 / nh)
                - _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la, lo - 1.0 / nh)) / 2.0
         Jo = J[i]
+        Hf = np.empty(ng * ng)
         n_fit = iterations + 1 if footprint else 1
         c00 = c01 = c02 = c11 = c12 = c22 = 0.0
         m0 = m1 = m2 = inv = 0.0
@@ -443,6 +444,7 @@ def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprin
                         de = l11 * gh_x[a]
                         dn = l21 * gh_x[a] + l22 * gh_x[b]
                         H = _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + dn / mh, lo + de / nh)
+                        Hf[a * ng + b] = H  # the footprint's heights, read once per fit
                         if math.isfinite(H):
                             w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
                             sw += w
@@ -452,9 +454,7 @@ def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprin
                 eh1 = 0.0
                 for a in range(ng):
                     for b in range(ng):
-                        de = l11 * gh_x[a]
-                        dn = l21 * gh_x[a] + l22 * gh_x[b]
-                        H = _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + dn / mh, lo + de / nh)
+                        H = Hf[a * ng + b]
                         if math.isfinite(H):
                             w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
                             eh0 += w * (H - h0) * gh_x[a]
@@ -468,7 +468,7 @@ def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprin
                         for b in range(ng):
                             de = l11 * gh_x[a]
                             dn = l21 * gh_x[a] + l22 * gh_x[b]
-                            H = _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + dn / mh, lo + de / nh)
+                            H = Hf[a * ng + b]
                             if math.isfinite(H):
                                 w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
                                 dz = H - (h0 + de * ge + dn * gn)
