@@ -186,9 +186,12 @@ def test_turret_sensor_in_headless_chromium(tmp_path):
         server.stop()
 
 
-def _new_client(server, before, timeout=90):
+def _open_tab(browser, server, width, height, before, timeout=90):
+    """Another tab on the viewer: (its page, its client id, the one not in ``before``)."""
+    page = browser.new_page(viewport={"width": width, "height": height})
+    page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
     wait_for(lambda: len(set(server.get_clients()) - before) == 1, timeout, "the new tab to register")
-    return (set(server.get_clients()) - before).pop()
+    return page, (set(server.get_clients()) - before).pop()
 
 
 def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
@@ -206,9 +209,7 @@ def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
             pa = open_viewer(browser, server, 480, 320)
             ida = next(iter(server.get_clients()))
             pa.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=60000, state="attached")
-            pb = browser.new_page(viewport={"width": 480, "height": 320})
-            pb.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
-            idb = _new_client(server, {ida})
+            pb, idb = _open_tab(browser, server, 480, 320, {ida})
             pb.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=60000, state="attached")
             sa, sb = viewer.session_of(ida), viewer.session_of(idb)
             cam_b0 = np.array(server.get_clients()[idb].camera.position)
@@ -259,9 +260,7 @@ def test_presenter_mode_in_chromium(tmp_path):
             pa = open_viewer(browser, server, 480, 320)
             ida = next(iter(server.get_clients()))
             pa.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=60000, state="attached")
-            pb = browser.new_page(viewport={"width": 480, "height": 320})
-            pb.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
-            idb = _new_client(server, {ida})
+            pb, idb = _open_tab(browser, server, 480, 320, {ida})
             pb.wait_for_selector("text=take control", timeout=60000, state="attached")
             assert viewer.driver.client.client_id == ida and idb in viewer.followers
             follower_box = pb.get_by_label("height (m, ellipsoidal)")
@@ -315,9 +314,7 @@ def test_presenter_switches_scenario_in_chromium(tmp_path):
             pa = open_viewer(browser, server, 800, 600)
             ida = next(iter(server.get_clients()))
             pa.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=120000, state="attached")
-            pb = browser.new_page(viewport={"width": 800, "height": 600})
-            pb.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=40000)
-            idb = _new_client(server, {ida})
+            pb, idb = _open_tab(browser, server, 800, 600, {ida})
             pb.wait_for_selector("text=take control", timeout=120000, state="attached")
             wait_for(lambda: idb in viewer.followers, 60, "the follower's panel")
             assert pb.get_by_label("scenario").is_disabled()  # the follower's box is read-only
