@@ -268,13 +268,11 @@ def test_memory_stays_bounded_by_the_windows():
 
 
 def _bound(port: int) -> bool:
-    """True once someone listens on 127.0.0.1:port (the receiver binds without SO_REUSEADDR)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return True
-    return False
+    """True once someone listens on 127.0.0.1:port (io.live.listening: looking binds nothing, so
+    the receiver starting meanwhile never finds its port taken)."""
+    from geoloc.io.live import listening
+
+    return listening(f"udp://127.0.0.1:{port}")
 
 
 def _sender(path, url, **kw):
@@ -572,3 +570,42 @@ def test_log_of_a_stream_grows_as_it_arrives_and_a_killed_session_keeps_it(tmp_p
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_looking_for_a_listener_never_takes_its_port(monkeypatch):
+    """`klv send --wait` looks for the receiver while the receiver may be binding: the look must not
+    hold the port. A probe bind did, for an instant every 50 ms, and the README's
+    `geoloc klv send ... --wait 60 & geoloc replay udp://...` could fail "Address already in use"
+    (seen in the suite). /proc/net/udp is read instead; here a tight loop of looks runs beside
+    300 binds of the receiver's socket, and none fails."""
+    from geoloc.io.live import listening, open_socket, parse_udp_url, wait_for_listener
+
+    port = free_port()
+    url = parse_udp_url(f"udp://127.0.0.1:{port}")
+    assert listening(url) is False
+    stop = threading.Event()
+    looks = [0]
+
+    def look():
+        while not stop.is_set():
+            listening(url)
+            looks[0] += 1
+
+    th = threading.Thread(target=look, daemon=True)
+    th.start()
+    try:
+        for _ in range(300):
+            sock = open_socket(url)  # raises OSError if the port were held by a look
+            assert listening(url) is True
+            sock.close()
+    finally:
+        stop.set()
+        th.join(5)
+    assert looks[0] > 300  # the looks did run beside the binds
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # a listener on every address
+        s.bind(("0.0.0.0", port))
+        assert listening(url) is True
+
+    # an address that is not this machine's: nothing to wait for, False at once (no sleep)
+    monkeypatch.setattr("geoloc.io.live.time.sleep", lambda s: pytest.fail("waited for a foreign address"))
+    assert wait_for_listener("udp://192.0.2.1:5600", 30.0) is False

@@ -69,6 +69,7 @@ __all__ = [
     "is_stream_url",
     "exposure_note",
     "open_socket",
+    "listening",
     "wait_for_listener",
     "PesUnit",
     "TsDemuxer",
@@ -237,23 +238,70 @@ def open_socket(url: UdpUrl, rcvbuf: int = 4 << 20) -> socket.socket:
     return sock
 
 
+def _proc_udp_listening(host: str, port: int) -> bool | None:
+    """Whether a UDP socket of this machine is bound to ``host:port`` (or to any address on that
+    port), read from Linux's ``/proc/net/udp`` (local address as the native-order hex of the IPv4
+    address, a colon, the port in hex); None where that table cannot be read."""
+    try:
+        with open("/proc/net/udp", encoding="ascii") as fh:
+            lines = fh.read().splitlines()[1:]
+    except OSError:
+        return None
+    want = {f"{int.from_bytes(socket.inet_aton(host), sys.byteorder):08X}", "00000000"}
+    for line in lines:
+        parts = line.split()
+        if len(parts) > 1 and ":" in parts[1]:
+            addr, p = parts[1].split(":")
+            if int(p, 16) == port and addr.upper() in want:
+                return True
+    return False
+
+
+def listening(url) -> bool:
+    """True when a program of this machine listens on ``url``'s address and port.
+
+    Read from ``/proc/net/udp`` where there is one: looking never binds the port, so a
+    listener starting at that moment cannot find it taken (a probe bind would hold it for an
+    instant, and a receiver binding then fails with "Address already in use"). Elsewhere, a
+    probe bind: a unicast listener binds without ``SO_REUSEADDR`` (:func:`open_socket`), so
+    the probe fails once it is there.
+    """
+    u = url if isinstance(url, UdpUrl) else parse_udp_url(url)
+    seen = _proc_udp_listening(u.host, u.port)
+    if seen is not None:
+        return seen
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind((u.host, u.port))
+        except OSError as e:
+            return e.errno == errno.EADDRINUSE
+    return False
+
+
+def _own_address(host: str) -> bool:
+    """True when this machine can bind ``host`` (one of its own addresses, or a group), tried on
+    an ephemeral port so that no listener's port is touched."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind((host, 0))
+        except OSError:
+            return False
+    return True
+
+
 def wait_for_listener(url, timeout_s: float) -> bool:
     """Wait until a program of this machine listens on ``url``'s port (at most ``timeout_s``).
 
-    A unicast listener binds without ``SO_REUSEADDR`` (:func:`open_socket`), so a probe
-    bind on the same address fails once it is there. True when it is; False on timeout,
-    or for an address this machine cannot bind (not one of its own: nothing to probe).
+    True when it does (:func:`listening`, which never binds the port); False on timeout, or
+    at once for an address this machine cannot bind (not one of its own: nothing to look for).
     """
     u = url if isinstance(url, UdpUrl) else parse_udp_url(url)
+    if not _own_address(u.host):
+        return False
     t0 = time.monotonic()
     while True:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            try:
-                s.bind((u.host, u.port))
-            except OSError as e:
-                if e.errno == errno.EADDRINUSE:
-                    return True
-                return False
+        if listening(u):
+            return True
         if time.monotonic() - t0 >= timeout_s:
             return False
         time.sleep(0.05)
