@@ -4,6 +4,7 @@ Expected values are closed forms (flat-Earth tilt, composition of rotations abou
 one axis) and pyproj's geodesic, not the code under test.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -81,3 +82,37 @@ def test_mount_about_x_adds_to_gimbal_roll():
     # and ground_to_pixel inverts it with the same rotation (1e-6 px: rounding)
     i, j, st = ground_to_pixel(pose, _cam(mount=(b, 0.0, 0.0)), g1.lat, g1.lon, g1.h)
     assert (i, j) == (pytest.approx(1200.0, abs=1e-6), pytest.approx(800.0, abs=1e-6))
+
+
+# ----------------------------------------------------------------- a fitted sensor back as a camera file
+def test_camera_from_sensor_inverts_to_sensor(tmp_path):
+    # Camera -> FrameSensor -> Camera is the identity (the two conversions are each
+    # other's inverse: cx = j0 - 1, cy = i0 - 1 in 0-based lens pixels); zero angles
+    # stay absent from the file
+    from geoloc.sensors.camera import as_sensor, camera_from_sensor
+
+    for cam in (_cam(), _cam(mount=(0.001, -0.002, 0.003)), _cam(boresight=(0.0, 1e-4, 0.0), name="x"),
+                Camera(1500.0, 300.25, 400.75, 600, 800, pixel_pitch_m=5e-6)):
+        back = camera_from_sensor(as_sensor(cam), pixel_pitch_m=cam.pixel_pitch_m)
+        assert back == cam
+    p = tmp_path / "c.toml"
+    camera_from_sensor(as_sensor(_cam(mount=(0.0, 0.01, 0.0)))).to_toml(p)
+    text = p.read_text()
+    assert "mount_deg" in text and "boresight_deg" not in text
+
+
+def test_camera_from_sensor_refuses_what_a_camera_file_cannot_say():
+    from geoloc.assets import asset_path
+    from geoloc.sensors.camera import as_sensor, camera_from_sensor
+    from geoloc.sensors.gimbals import PRESETS
+    from geoloc.sensors.sensor_file import load_sensor
+
+    s = as_sensor(_cam())
+    for change, field in (({"fy": 100001.0}, "lens.fy"), ({"lever_arm_x_m": 0.5}, "lever_arm_m"),
+                          ({"skew": 0.1}, "lens.skew")):
+        with pytest.raises(ValueError, match=field.replace(".", r"\.")):
+            camera_from_sensor(s.with_params(**change))
+    with pytest.raises(ValueError, match="gimbal = 'azimuth-elevation'"):
+        camera_from_sensor(dataclasses.replace(s, gimbal=PRESETS["azimuth-elevation"]))
+    with pytest.raises(ValueError, match="lens = 'BrownLens'"):  # a distorted lens
+        camera_from_sensor(load_sensor(asset_path("sensors", "eo_turret.toml")))

@@ -192,3 +192,45 @@ def test_per_record_heights_rule_and_rounding(tmp_path):
     assert "> 3.5 robust sigma" in rep["outlier_rule"]
     d = rep["groups"]["A"]["rms_before_m"]
     assert d == round(d, 4) and d != round(d, 3)  # 4 decimals (seeded: this value's fourth decimal is not 0)
+
+
+def test_leave_one_out_vectors_and_mean_per_flight(tmp_path):
+    # the record's leave-one-out (east, north) is its vector against the fit of the others:
+    # B-1's survey is planted 60 m north of its true point, so computed - truth is ~60 m
+    # south (to the solver's tolerance and the 111 km/deg planting: 0.3 m); the mean is the
+    # mean of the per-record distances
+    _, recs, nominal = make_flights(tmp_path, n=8)
+    rep, _ = fit_sensor_groups(recs, nominal, NAMES, HeightSurface(300.0, "geodetic"), loo=True)
+    b = rep["groups"]["B"]
+    loo = b["records"][0]["loo"]
+    assert loo["north_m"] == pytest.approx(-60.0, abs=0.3) and abs(loo["east_m"]) < 0.3
+    assert loo["distance_m"] == b["records"][0]["loo_distance_m"]
+    assert b["mean_error_loo_m"] == pytest.approx(np.mean([r["loo_distance_m"] for r in b["records"]]), abs=1e-4)
+    rep, _ = fit_sensor_groups(recs, nominal, NAMES, HeightSurface(300.0, "geodetic"))
+    assert rep["groups"]["B"]["mean_error_loo_m"] is None and "loo" not in rep["groups"]["B"]["records"][0]
+
+
+def test_tied_focal_length_and_degenerate_pairs(tmp_path):
+    # "f" fits fx and fy as one focal length (a camera file's): planted on both, it is
+    # recovered (noise-free, 1e-6 px) and the fitted sensor keeps fx == fy; a sensor whose
+    # fx and fy differ has no "f" (the error lists what it has)
+    from geoloc.analysis.sensor_fit import fit_params, fit_sensor_params
+
+    nominal = load_sensor(asset_path("sensors", "eo_turret.toml"))
+    nominal = nominal.with_params(fy=nominal.params["fx"])
+    f_true = nominal.params["fx"] * 1.02
+    _, recs, _ = make_flights(tmp_path, n=10, outlier_m=0.0, true_params={"fx": f_true, "fy": f_true})
+    fit = fit_sensor_params(recs, nominal, ["f"], HeightSurface(300.0, "geodetic"))
+    assert fit.values[0] == pytest.approx(f_true, abs=1e-6)
+    assert fit.sensor.params["fx"] == fit.sensor.params["fy"] == fit.values[0]
+    assert fit.report()["parameters"]["f"]["unit"] == "px"
+    assert "f" not in fit_params(nominal.with_params(fy=1.0))
+    with pytest.raises(ValueError, match=r"cannot fit \['f'\]"):
+        fit_sensor_params(recs, nominal.with_params(fy=1.0), ["f"], HeightSurface(300.0, "geodetic"))
+    # a parameter fitted twice over (fx and the f that contains it) cannot be separated: the
+    # report lists the pair as degenerate (|correlation| > 0.99 or not determined)
+    fit = fit_sensor_params(recs, nominal, ["fx", "f"], HeightSurface(300.0, "geodetic"))
+    assert fit.report()["degenerate_pairs"] == [["fx", "f"]]
+    # and a well-posed fit has none
+    fit = fit_sensor_params(recs, nominal, ["mount_x", "f"], HeightSurface(300.0, "geodetic"))
+    assert fit.report()["degenerate_pairs"] == []

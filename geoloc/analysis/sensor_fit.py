@@ -11,9 +11,13 @@ the linearised least-squares ones, ``cov = s^2 (J^T J)^-1`` with
 ``s^2 = |r|^2 / (m - p)``; leave-one-out refits without each record in turn and
 reports that record's error against the fit it took no part in.
 
-The first-phase :mod:`geoloc.analysis.calibrate` (the [Q17] mount/boresight
-angles of a camera file, and camera resection) stays as it is; this module is
-for any sensor file.
+This is the one calibrator: a first-phase camera file is fitted as its sensor
+(:func:`geoloc.sensors.camera.as_sensor`: its ``mount_deg`` / ``boresight_deg`` are
+``mount_*`` / ``boresight_*``, its principal row / column ``cy`` / ``cx`` in 1-based
+pixels), its one focal length as the pseudo-parameter ``f`` (:data:`TIED`: fx and fy
+together), and written back with :func:`geoloc.sensors.camera.camera_from_sensor`.
+Camera resection (:func:`resect_sensor` of ``f, cx, cy``) is how the bundled camera of
+``assets/cameras/qiao2017.toml`` was derived.
 """
 
 from __future__ import annotations
@@ -31,6 +35,69 @@ from geoloc.surfaces.height import for_records
 
 #: Residual given to a record whose ray finds no ground point during the fit [m].
 FAILED_RESIDUAL_M = 1.0e4
+
+#: Pseudo-parameters: one fitted value for several of the sensor's parameters. ``f`` is a
+#: camera file's single focal length [px]: the lens's fx and fy together (offered when
+#: they are equal).
+TIED = {"f": ("fx", "fy")}
+
+#: |correlation| above which two fitted parameters are reported as not separable.
+DEGENERATE_CORRELATION = 0.99
+
+
+def fit_params(sensor) -> dict:
+    """The parameters :func:`fit_sensor_params` can fit: ``sensor.params`` and the :data:`TIED` ones."""
+    p = dict(sensor.params)
+    for t, parts in TIED.items():
+        if all(k in p for k in parts) and len({float(p[k]) for k in parts}) == 1:
+            p[t] = p[parts[0]]
+    return p
+
+
+def with_fit_params(sensor, values: dict):
+    """``sensor.with_params`` with the :data:`TIED` pseudo-parameters spread over their parts."""
+    out = {}
+    for k, v in values.items():
+        for part in TIED.get(k, (k,)):
+            out[part] = v
+    return sensor.with_params(**out)
+
+
+def _check_names(sensor, names) -> dict:
+    known = fit_params(sensor)
+    unknown = sorted(set(names) - set(known))
+    if unknown:
+        raise ValueError(f"cannot fit {unknown}: the sensor's parameters are {sorted(known)}")
+    return known
+
+
+def _covariance(jac, resid, n_params):
+    """Linearised covariance ``s^2 (J^T J)^-1``, ``s^2 = |r|^2 / (m - p)``; NaN where not determined.
+
+    The columns are scaled before inverting (the parameters mix radians, pixels and
+    metres); a scaled normal matrix with condition above 1e12 is numerically singular
+    and gives NaN ("not determined") rather than noise. Returns ``(cov, s2)``.
+    """
+    m = resid.size
+    dof = m - n_params
+    nan = np.full((n_params, n_params), np.nan)
+    if dof <= 0:
+        return nan, float("nan")
+    s2 = float(resid @ resid) / dof
+    JtJ = jac.T @ jac
+    d = np.sqrt(np.diag(JtJ))
+    if np.any(d == 0) or not np.all(np.isfinite(d)):
+        return nan, s2
+    A = JtJ / np.outer(d, d)
+    if np.linalg.cond(A) > 1e12:
+        return nan, s2
+    return s2 * np.linalg.inv(A) / np.outer(d, d), s2
+
+
+def degenerate_pairs(names, corr) -> list:
+    """Pairs of parameters the records cannot separate: |correlation| > 0.99, or not determined."""
+    return [[names[a], names[b]] for a in range(len(names)) for b in range(a + 1, len(names))
+            if not np.isfinite(corr[a, b]) or abs(corr[a, b]) > DEGENERATE_CORRELATION]
 
 
 @dataclass
@@ -51,6 +118,12 @@ class SensorFit:
         Per-record horizontal error after the fit.
     loo_errors_m : ndarray or None
         Per-record error of the fit without that record (leave-one-out).
+    residual_m : ndarray (n, 2)
+        (east, north) residual of each used record after the fit [m].
+    sigma_m : float
+        ``s``, the root of the residual variance factor (per component) [m].
+    success : bool
+        The solver's convergence flag.
     """
 
     names: list
@@ -65,17 +138,24 @@ class SensorFit:
     loo_errors_m: np.ndarray | None = None
     dof: int = 0
     extra: dict = field(default_factory=dict)
+    residual_m: np.ndarray | None = None
+    sigma_m: float = float("nan")
+    success: bool = True
 
     def report(self) -> dict:
         deg = {n: n.startswith(("mount_", "boresight_")) for n in self.names}
         conv = {n: (np.rad2deg(1.0) if deg[n] else 1.0) for n in self.names}
-        unit = {n: ("deg" if deg[n] else "m" if n.endswith("_m") else "px" if n in ("fx", "fy", "cx", "cy", "skew")
+        unit = {n: ("deg" if deg[n] else "m" if n.endswith("_m") else "px" if n in ("f", "fx", "fy", "cx", "cy", "skew")
                     else "") for n in self.names}
         out = {
             "parameters": {n: {"start": float(s * conv[n]), "value": float(v * conv[n]), "sd": float(d * conv[n]),
                                "unit": unit[n]} for n, s, v, d in zip(self.names, self.start, self.values, self.sd)},
             "correlation": np.round(self.correlation, 3).tolist(),
             "rms_before_m": self.rms_before_m, "rms_after_m": self.rms_after_m, "dof": self.dof,
+            "sigma_m": self.sigma_m, "converged": self.success,
+            # pairs the records cannot separate: their values are not meaningful one by one
+            # (e.g. the mount's pitch and yaw within one flight)
+            "degenerate_pairs": degenerate_pairs(self.names, self.correlation),
         }
         if self.loo_errors_m is not None:
             out["rms_loo_m"] = float(np.sqrt(np.nanmean(self.loo_errors_m ** 2)))
@@ -123,9 +203,7 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, truth_prefix:
         Also refit without each record (leave-one-out).
     """
     names = list(names)
-    unknown = sorted(set(names) - set(sensor.params))
-    if unknown:
-        raise ValueError(f"cannot fit {unknown}: the sensor's parameters are {sorted(sensor.params)}")
+    known = _check_names(sensor, names)
     if not names:
         raise ValueError("name at least one parameter to fit")
     idx = np.arange(len(records)) if idx is None else np.asarray(idx, int)
@@ -136,7 +214,7 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, truth_prefix:
     if not np.all(np.isfinite(tlat_all[idx]) & np.isfinite(tlon_all[idx])):
         raise ValueError(f"{records.path}: every record to fit needs {truth_prefix}_lat_deg and _lon_deg")
     surf = partial(for_records, surface)
-    p0 = np.array([sensor.params[n] for n in names], float)
+    p0 = np.array([known[n] for n in names], float)
 
     def errors(s, ii):
         hit = _ground(s, pose_all.take(ii), row_all[ii], col_all[ii], surf(ii))
@@ -144,24 +222,18 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, truth_prefix:
 
     def solve(ii):
         def resid(p):
-            return errors(sensor.with_params(**dict(zip(names, p))), ii).ravel()
+            return errors(with_fit_params(sensor, dict(zip(names, p))), ii).ravel()
 
         return least_squares(resid, p0, x_scale="jac", method="lm" if 2 * len(ii) >= len(names) else "trf",
                              xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * (len(names) + 1))
 
     r0 = errors(sensor, idx)
     sol = solve(idx)
-    fitted = sensor.with_params(**dict(zip(names, sol.x)))
+    fitted = with_fit_params(sensor, dict(zip(names, sol.x)))
     r1 = errors(fitted, idx)
     m, p = r1.size, len(names)
     dof = m - p
-    cov = np.full((p, p), np.nan)
-    if dof > 0:
-        s2 = float(sol.fun @ sol.fun) / dof
-        try:
-            cov = s2 * np.linalg.inv(sol.jac.T @ sol.jac)
-        except np.linalg.LinAlgError:
-            pass
+    cov, s2 = _covariance(sol.jac, sol.fun, p)
     sd = np.sqrt(np.diag(cov))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(sd, sd)
@@ -170,11 +242,12 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, truth_prefix:
         loo_err = np.full(len(idx), np.nan)
         for k in range(len(idx)):
             rest = np.delete(idx, k)
-            s_k = sensor.with_params(**dict(zip(names, solve(rest).x)))
+            s_k = with_fit_params(sensor, dict(zip(names, solve(rest).x)))
             loo_err[k] = float(np.linalg.norm(errors(s_k, idx[k:k + 1])))
     return SensorFit(names, p0, sol.x, sd, corr, fitted,
                      float(np.sqrt(np.mean(np.sum(r0 ** 2, -1)))), float(np.sqrt(np.mean(np.sum(r1 ** 2, -1)))),
-                     np.linalg.norm(r1, axis=-1), loo_err, dof)
+                     np.linalg.norm(r1, axis=-1), loo_err, dof, residual_m=r1,
+                     sigma_m=float(np.sqrt(s2)) if np.isfinite(s2) else float("nan"), success=bool(sol.success))
 
 
 # --------------------------------------------------------------------------- per flight
@@ -183,22 +256,24 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column:
                       truth_prefix: str = "truth", k_sigma: float = 3.5) -> tuple[dict, dict]:
     """Per-flight errors before and after fitting ``names``, with outlier flags and leave-one-out.
 
-    The sensor-file counterpart of :func:`geoloc.analysis.calibrate.calibrate_groups`:
-    each flight (``group_column``) gets its own fit (or, with ``joint``, one fit to
+    Each flight (``group_column``) gets its own fit (or, with ``joint``, one fit to
     all flights). Records are flagged as outliers by the robust rule of
     :func:`geoloc.analysis.errors.outlier_flags` (distance from the flight's median
     error vector over ``k_sigma`` robust sigmas) applied to the residuals of a first
     fit with every record, and with ``exclude_outliers`` left out of a second fit
     (they are still measured). ``outlier_before`` gives the flags against the
-    nominal sensor too, as the first-phase calibration reports them.
+    nominal sensor too.
 
     Returns
     -------
     report : dict
         ``{"groups": {name: {"n", "n_used_in_fit", "rms_before_m", "rms_after_m",
-        "rms_loo_m", "parameters", "before", "after", "records"}}}`` (JSON-ready;
-        ``before`` / ``after`` are :func:`geoloc.analysis.errors.group_summary` dicts),
-        and ``"joint_fit"`` with ``joint``.
+        "rms_loo_m", "mean_error_before_m", "mean_error_after_m", "mean_error_loo_m",
+        "parameters", "correlation", "sigma_m", "degenerate_pairs", "before", "after",
+        "records"}}}`` (JSON-ready; ``before`` / ``after`` are
+        :func:`geoloc.analysis.errors.group_summary` dicts; each record's ``loo`` holds
+        its leave-one-out ``east_m``, ``north_m``, ``distance_m``), and ``"joint_fit"``
+        with ``joint``.
     sensors : dict
         The fitted sensor per group name (and ``"joint"``).
     """
@@ -253,13 +328,16 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column:
     sensors = {"joint": fits[names_g[0]].sensor} if joint else {g: f.sensor for g, f in fits.items()}
 
     loo_d = np.full(len(records), np.nan)
+    loo_en = np.full((len(records), 2), np.nan)
     if loo:
         for g in names_g:
             for k in all_idx[groups == g]:
                 train = all_idx[use] if joint else all_idx[(groups == g) & use]
                 train = train[train != k]
                 f = fit_sensor_params(records, sensor, names, surface, truth_prefix=truth_prefix, idx=train)
-                loo_d[k] = float(measure(f.sensor, np.array([k])).distance_m[0])
+                ev = measure(f.sensor, np.array([k]))
+                loo_d[k] = float(ev.distance_m[0])
+                loo_en[k] = float(ev.east_m[0]), float(ev.north_m[0])
 
     def rnd(v, nd=4):
         v = float(v)
@@ -280,6 +358,7 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column:
         m = groups == g
         idx = all_idx[m]
         after = measure(fits[g].sensor, idx)
+        frep = fits[g].report()
         entry = {
             "n": int(m.sum()),
             "n_used_in_fit": int((m & use).sum()),
@@ -288,7 +367,8 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column:
             "rms_loo_m": rnd(rms(loo_d[m])) if loo else None,
             "mean_error_before_m": rnd(np.nanmean(before.distance_m[m])),
             "mean_error_after_m": rnd(np.nanmean(after.distance_m)),
-            "parameters": fits[g].report()["parameters"],
+            "mean_error_loo_m": rnd(np.nanmean(loo_d[m])) if loo else None,
+            **{k: frep[k] for k in ("parameters", "correlation", "sigma_m", "degenerate_pairs", "converged")},
             "before": {k: (rnd(v) if isinstance(v, float) else v) for k, v in group_summary(before, m, k_sigma).items()},
             "after": {k: (rnd(v) if isinstance(v, float) else v)
                       for k, v in group_summary(after, np.ones(idx.size, bool), k_sigma).items()},
@@ -300,6 +380,8 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column:
                    "before": before.as_dict(k), "after": after.as_dict(j)}
             if loo:
                 rec["loo_distance_m"] = rnd(loo_d[k])
+                rec["loo"] = {"east_m": rnd(loo_en[k, 0]), "north_m": rnd(loo_en[k, 1]),
+                              "distance_m": rnd(loo_d[k])}
             entry["records"].append(rec)
         report["groups"][g] = entry
     if joint:
@@ -325,8 +407,7 @@ def resect_sensor(records: Records, sensor, names=("fx", "cx", "cy"), *, compute
                   initial_height_m: float = 0.0) -> SensorResection:
     """Fit the named parameters (default focal length and principal point) to published positions.
 
-    The sensor-file counterpart of :func:`geoloc.analysis.calibrate.resect_camera`:
-    unknowns are the named parameters and each record's target height h_k;
+    Unknowns are the named parameters and each record's target height h_k;
     equations are the (east, north) offsets between record k's line of sight at
     h_k (the ellipsoid inflated to h_k, [Q17 eq. 8-11]) and its published
     position ``{computed_prefix}_lat_deg`` / ``_lon_deg``. Since a focal length
@@ -341,9 +422,7 @@ def resect_sensor(records: Records, sensor, names=("fx", "cx", "cy"), *, compute
     from geoloc.surfaces.height import HeightSurface
 
     names = list(names)
-    unknown = sorted(set(names) - set(sensor.params))
-    if unknown:
-        raise ValueError(f"cannot fit {unknown}: the sensor's parameters are {sorted(sensor.params)}")
+    known = _check_names(sensor, names)
     n, p = len(records), len(names)
     if 2 * n < n + p + 1:
         raise ValueError(f"resection of {p} parameters needs at least {p + 1} records, got {n}")
@@ -353,30 +432,62 @@ def resect_sensor(records: Records, sensor, names=("fx", "cx", "cy"), *, compute
     tlon = np.deg2rad(records.column(f"{computed_prefix}_lon_deg"))
     if not np.all(np.isfinite(tlat) & np.isfinite(tlon)):
         raise ValueError(f"{records.path}: every record needs {computed_prefix}_lat_deg and _lon_deg")
-    p0 = np.array([sensor.params[k] for k in names], float)
+    p0 = np.array([known[k] for k in names], float)
     scale = np.where(np.abs(p0) > 0, np.abs(p0), 1.0)
 
     def resid(x):
-        s = sensor.with_params(**dict(zip(names, p0 + x[:p] * scale)))
+        s = with_fit_params(sensor, dict(zip(names, p0 + x[:p] * scale)))
         hit = _ground(s, pose, row, col, HeightSurface(x[p:] * 1000.0))  # heights in km inside the solver
         return _enu_residuals(hit, tlat, tlon).ravel()
 
     x0 = np.concatenate([np.zeros(p), np.full(n, initial_height_m / 1000.0)])
     sol = least_squares(resid, x0, method="trf", x_scale="jac", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     m = sol.fun.size
-    cov = np.full((x0.size, x0.size), np.nan)
-    if m > x0.size:
-        try:
-            cov = float(sol.fun @ sol.fun) / (m - x0.size) * np.linalg.inv(sol.jac.T @ sol.jac)
-        except np.linalg.LinAlgError:
-            pass
+    cov, s2 = _covariance(sol.jac, sol.fun, x0.size)
     sd = np.sqrt(np.diag(cov))[:p] * scale
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = (cov / np.outer(np.sqrt(np.diag(cov)), np.sqrt(np.diag(cov))))[:p, :p]
     values = p0 + sol.x[:p] * scale
-    fitted = sensor.with_params(**dict(zip(names, values)))
+    fitted = with_fit_params(sensor, dict(zip(names, values)))
     r = sol.fun.reshape(-1, 2)
     r0 = resid(x0).reshape(-1, 2)
     fit = SensorFit(names, p0, values, sd, corr, fitted, float(np.sqrt(np.mean(np.sum(r0 ** 2, -1)))),
-                    float(np.sqrt(np.mean(np.sum(r ** 2, -1)))), np.linalg.norm(r, axis=-1), None, m - x0.size)
+                    float(np.sqrt(np.mean(np.sum(r ** 2, -1)))), np.linalg.norm(r, axis=-1), None, m - x0.size,
+                    residual_m=r, sigma_m=float(np.sqrt(s2)) if np.isfinite(s2) else float("nan"),
+                    success=bool(sol.success))
     return SensorResection(fit, sol.x[p:] * 1000.0, float(np.sqrt(np.mean(r ** 2))), bool(sol.success))
+
+
+def error_vector_panels(report: dict, records: Records, exaggeration: float = 1.0,
+                        truth_prefix: str = "truth") -> list:
+    """Panels for :func:`geoloc.analysis.errors.plot_error_vectors` from a :func:`fit_sensor_groups` report.
+
+    Truth positions are placed in the ENU frame at each flight's mean truth
+    (:class:`geoloc.frames.enu.EnuFrame`); arrows are the error vectors before (red),
+    after (blue) and left-one-out (green, when present).
+    """
+    from geoloc.frames.enu import EnuFrame
+
+    labels = records.labels()
+    lat = records.column(f"{truth_prefix}_lat_deg")
+    lon = records.column(f"{truth_prefix}_lon_deg")
+    index = {lab: k for k, lab in enumerate(labels)}
+    panels = []
+    for g, e in report["groups"].items():
+        ks = [index[r["label"]] for r in e["records"]]
+        frame = EnuFrame.from_deg(float(np.mean(lat[ks])), float(np.mean(lon[ks])), 0.0)
+        p = frame.from_geodetic(np.deg2rad(lat[ks]), np.deg2rad(lon[ks]), 0.0)
+
+        def comp(stage, c):
+            return [np.nan if (r.get(stage) or {}).get(c) is None else r[stage][c] for r in e["records"]]
+
+        vectors = [(f"before (mean {e['mean_error_before_m']:.1f} m)", comp("before", "east_m"),
+                    comp("before", "north_m"), "tab:red"),
+                   (f"after (mean {e['mean_error_after_m']:.1f} m)", comp("after", "east_m"),
+                    comp("after", "north_m"), "tab:blue")]
+        if e.get("mean_error_loo_m") is not None:
+            vectors.append((f"leave-one-out (mean {e['mean_error_loo_m']:.1f} m)", comp("loo", "east_m"),
+                            comp("loo", "north_m"), "tab:green"))
+        panels.append({"name": f"flight {g}", "east_m": p[:, 0], "north_m": p[:, 1], "vectors": vectors,
+                       "exaggeration": exaggeration, "labels": [r["label"] for r in e["records"]]})
+    return panels

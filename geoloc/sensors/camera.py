@@ -321,6 +321,52 @@ class Camera:
         return (row >= 0.5) & (row <= self.rows + 0.5) & (col >= 0.5) & (col <= self.cols + 0.5)
 
 
+def camera_from_sensor(sensor, pixel_pitch_m: float | None = None) -> Camera:
+    """The camera file of a :class:`geoloc.sensors.frame.FrameSensor`: the inverse of :meth:`Camera.to_sensor`.
+
+    How a fitted sensor is written back as a first-phase camera file
+    (``geoloc calibrate --write-camera``): the sensor must be what a camera file can
+    say, a distortion-free pinhole with ``fx == fy`` and no skew on the [Q17]
+    ``roll-pitch`` gimbal with no lever arm; anything else is a ValueError naming the
+    field and its value (write a sensor file instead). Zero mount / boresight angles
+    are left out of the file. ``pixel_pitch_m``: the input camera's, if it had one
+    (a sensor does not carry it).
+    """
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.sensors.gimbals import PRESETS
+    from geoloc.sensors.lenses import PinholeLens
+
+    def bad(field, value, why):
+        raise ValueError(f"sensor {sensor.name or 'frame camera'}: {field} = {value!r}: {why}; a camera file "
+                         "cannot hold it (write a sensor file, --write-sensor)")
+
+    if not isinstance(sensor, FrameSensor):
+        raise ValueError(f"sensor = {sensor!r}: only a FrameSensor can be written as a camera file")
+    lens = sensor.lens
+    if type(lens) is not PinholeLens:
+        bad("lens", type(lens).__name__, "a camera file is a distortion-free pinhole")
+    if float(lens.fx) != float(lens.fy):
+        bad("lens.fy", float(lens.fy), f"a camera file has one focal length (fx = {float(lens.fx)!r})")
+    if float(lens.skew) != 0.0:
+        bad("lens.skew", float(lens.skew), "a camera file has no skew")
+    q17 = PRESETS["roll-pitch"]
+    g = sensor.gimbal
+    if not (g is q17 or (g.joints == q17.joints and not g.earth_referenced
+                         and np.array_equal(g.R_opt_last, q17.R_opt_last))):
+        bad("gimbal", sensor.gimbal.name, "a camera file is on the [Q17] roll-pitch gimbal")
+    if any(float(v) != 0.0 for v in sensor.lever_arm_m):
+        bad("lever_arm_m", tuple(sensor.lever_arm_m), "a camera file has no lever arm")
+
+    def angles(v):
+        v = tuple(float(a) for a in v)
+        return None if all(a == 0.0 for a in v) else v
+
+    return Camera(focal_length_px=float(lens.fx), principal_row=float(lens.cy) + 1.0,
+                  principal_col=float(lens.cx) + 1.0, rows=int(lens.height), cols=int(lens.width),
+                  pixel_pitch_m=pixel_pitch_m, name=sensor.name, boresight=angles(sensor.boresight),
+                  mount=angles(sensor.mount))
+
+
 @lru_cache(maxsize=64)
 def _camera_sensor(camera: Camera):
     return camera.to_sensor()
