@@ -388,13 +388,15 @@ def test_cli_report_and_camera(tmp_path, capsys):
     rep = json.loads(out.read_text())
     for g in ("T3", "T4"):
         e = rep["groups"][g]
-        for key in ("n", "mean_error_before_m", "mean_error_after_m", "mean_error_loo_m", "angles_deg"):
+        for key in ("n", "mean_error_before_m", "mean_error_after_m", "mean_error_loo_m", "parameters"):
             assert key in e
         assert e["mean_error_loo_m"] is None  # --loo not given
         assert len(e["records"]) == 10 and "along_m" in e["records"][0]["before"]
+    assert list(rep["joint_fit"]["parameters"]) == ["mount_x", "mount_y", "mount_z"]  # --model mount
     cam = Camera.from_toml(camfile)
-    assert cam.mount is not None
-    np.testing.assert_allclose(np.rad2deg(cam.mount), rep["joint_fit"]["angles_deg"], rtol=1e-12)
+    assert cam.mount is not None and cam.boresight is None
+    np.testing.assert_allclose(np.rad2deg(cam.mount), [p["value"] for p in rep["joint_fit"]["parameters"].values()],
+                               rtol=1e-12)
     # the calibrated camera through the ordinary replay verb: ~5 m instead of ~50 m
     assert main(["replay", "--camera", str(camfile), "--height-column", "paper_height_m"]) == 0
     text = capsys.readouterr().out
@@ -443,5 +445,7 @@ def test_cli_flags_degenerate_parameters(tmp_path, capsys):
     assert "not separable" in capsys.readouterr().out
     rep = json.loads(out.read_text())
     for e in rep["groups"].values():
-        assert ["mount_x", "principal_col"] in e["degenerate_pairs"]
-        assert "focal_length_sd_px" in e and "principal_row_sd" in e
+        # the camera file's principal column is the sensor's cx (1-based), its focal length f
+        assert ["mount_x", "cx"] in e["degenerate_pairs"]
+        assert list(e["parameters"]) == ["mount_x", "mount_y", "mount_z", "f", "cy", "cx"]
+        assert e["parameters"]["f"]["unit"] == "px" and e["parameters"]["cy"]["unit"] == "px"

@@ -34,7 +34,6 @@ CAMERA_FORMAT = {"geoloc.sensors.camera", "geoloc.sensors.sensor_file"}
 #: Modules still branching on ``isinstance(x, Camera)`` outside the file format (may only shrink).
 KNOWN_CAMERA_CHECKS = {
     # the first-phase calibrator (analysis.calibrate) runs on a Camera, the sensor fit on the rest
-    "geoloc.cli.calibrate",
     "geoloc.viz.calibration_layer",
     "geoloc.viz.rerun_model",
 }

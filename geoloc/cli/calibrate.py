@@ -1,6 +1,9 @@
 """``geoloc calibrate``: error vectors, outliers and boresight / mounting calibration of flight-test records.
 
-See ``docs/calibration.md`` and :mod:`geoloc.analysis.calibrate`.
+One calibrator for every sensor, :mod:`geoloc.analysis.sensor_fit`: a first-phase camera
+file is fitted as its sensor (``--model`` / ``--fit-focal`` / ``--fit-principal-point``
+choose the parameters, ``--fit NAMES`` names them) and written back with
+``--write-camera``. See ``docs/calibration.md``.
 """
 
 from __future__ import annotations
@@ -11,11 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from geoloc.analysis.calibrate import (
-    MODELS,
-    calibrate_groups,
-    resect_camera,
-)
+from geoloc.analysis.sensor_fit import error_vector_panels, fit_sensor_groups, resect_sensor
 from geoloc.assets import asset_path
 from geoloc.cli._options import (
     add_dem_options,
@@ -28,6 +27,12 @@ from geoloc.cli._options import (
 )
 from geoloc.cli.locate import load_records_reporting
 from geoloc.userfiles import write_text
+
+#: ``--model``: the rotation each names (``Camera`` file keys ``mount_deg`` / ``boresight_deg``).
+MODELS = {"mount": ("mount_x", "mount_y", "mount_z"), "camera": ("boresight_x", "boresight_y", "boresight_z")}
+
+#: ``--resect`` without ``--fit``: the camera's focal length and principal point (row, column).
+RESECT_NAMES = ("f", "cy", "cx")
 
 
 def register(sub) -> None:
@@ -48,31 +53,37 @@ def register(sub) -> None:
                         "mount_x,mount_y,mount_z,fx,cx,cy,k1,lever_arm_x_m): the fit for any --sensor "
                         "(flights from --group-by, outliers, --joint, --loo and --resect apply to it too)")
     p.add_argument("--write-sensor", default=None, metavar="FILE", type=output_path,
-                   help="with --fit: save the fitted sensor file (TOML)")
+                   help="save the fitted sensor file (TOML); with several flights fitted separately, one "
+                        "file per flight named STEM_<flight>.toml")
     add_target_options(p)
     add_dem_options(p)
     p.add_argument("--group-by", default="table",
                    help="column grouping records into flights (default: table; 'none' for one group)")
-    p.add_argument("--model", choices=sorted(MODELS), default="mount",
-                   help="where the fitted rotation sits: 'mount' = gimbal base in the aircraft body "
-                        "(R_base_body, default), 'camera' = camera in the inner gimbal (R_cam_inner)")
+    p.add_argument("--model", choices=sorted(MODELS), default=None,
+                   help="without --fit: where the fitted rotation sits: 'mount' = gimbal base in the aircraft "
+                        "body (R_base_body, mount_x,mount_y,mount_z; default), 'camera' = camera in the inner "
+                        "gimbal (R_cam_inner, boresight_x,boresight_y,boresight_z)")
     p.add_argument("--joint", action="store_true",
                    help="fit one rotation to all flights together (default: one fit per flight)")
-    p.add_argument("--fit-focal", action="store_true", help="also fit the focal length")
-    p.add_argument("--fit-principal-point", action="store_true", help="also fit the principal point")
+    p.add_argument("--fit-focal", action="store_true",
+                   help="without --fit: also fit the focal length (f: the lens's fx and fy together)")
+    p.add_argument("--fit-principal-point", action="store_true",
+                   help="without --fit: also fit the principal point (cy, cx: row and column, 1-based)")
     p.add_argument("--loo", action="store_true", help="leave-one-out cross-validation per flight")
     p.add_argument("--exclude-outliers", action="store_true",
-                   help="leave records flagged as outliers (before calibration) out of the fit")
+                   help="leave records flagged as outliers (on the residuals of a first fit with every "
+                        "record) out of the fit")
     p.add_argument("--truth-prefix", default="truth",
                    help="columns {prefix}_lat_deg/{prefix}_lon_deg hold the surveyed truth (default truth)")
     p.add_argument("--resect", action="store_true",
-                   help="also fit focal length and principal point to the published computed positions "
-                        "(paper_lat_deg/paper_lon_deg) with unknown target heights: how the bundled "
-                        "camera was derived")
+                   help="also fit focal length and principal point (f, cy, cx; with --fit its names) to "
+                        "the published computed positions (paper_lat_deg/paper_lon_deg) with unknown target "
+                        "heights: how the bundled camera was derived")
     p.add_argument("--out", default=None, type=output_path, help="write the JSON report here")
     p.add_argument("--write-camera", default=None, type=output_path,
-                   help="save the calibrated camera (TOML); with several flights fitted separately, one "
-                        "file per flight named STEM_<flight>.toml")
+                   help="save the calibrated sensor as a first-phase camera file (TOML; a pinhole with "
+                        "fx = fy on the roll-pitch gimbal, else use --write-sensor); with several flights "
+                        "fitted separately, one file per flight named STEM_<flight>.toml")
     p.add_argument("--plot", default=None, type=output_path, help="matplotlib figure of the error vectors per flight (PNG)")
     p.add_argument("--exaggeration", type=float, default=1.0, help="arrow scale of --plot (default 1)")
     p.set_defaults(func=run)
@@ -94,7 +105,7 @@ def _json_safe(v):
 
 
 def _fmt(v, spec=".2f"):
-    return "-" if v is None else format(v, spec)
+    return "-" if v is None or not np.isfinite(v) else format(v, spec)
 
 
 def _surface(args, records, example: str = "paper_height_m"):
@@ -104,135 +115,116 @@ def _surface(args, records, example: str = "paper_height_m"):
     return surface_from_args(args, records, example=example), label
 
 
-def run_sensor_fit(args, camera) -> int:
-    """``--fit NAMES``: least squares on any of the sensor's named parameters, per flight.
+def fit_names(args) -> list:
+    """The parameters to fit: ``--fit NAMES``, else those of ``--model`` / ``--fit-focal`` / ``--fit-principal-point``."""
+    if args.fit is not None:
+        chosen = [o for o, v in (("--model", args.model is not None), ("--fit-focal", args.fit_focal),
+                                 ("--fit-principal-point", args.fit_principal_point)) if v]
+        if chosen:
+            raise ValueError(f"{', '.join(chosen)} choose the parameters without --fit; with --fit {args.fit} "
+                             "name them all (e.g. mount_x,mount_y,mount_z,f,cy,cx)")
+        names = [n.strip() for n in args.fit.split(",") if n.strip()]
+        if not names:
+            raise ValueError(f"--fit {args.fit!r}: name at least one parameter (e.g. mount_x,mount_y,mount_z)")
+        return names
+    names = list(MODELS[args.model or "mount"])
+    if args.fit_focal:
+        names.append("f")
+    if args.fit_principal_point:
+        names += ["cy", "cx"]
+    return names
+
+
+def _write_fitted(option: str, out, sensors: dict, joint: bool, write) -> None:
+    """One file, or with several flights fitted separately one ``STEM_<flight>`` file each."""
+    out = Path(out)
+    todo = ([(g, out) for g in sensors] if joint or len(sensors) == 1 else
+            [(g, out.with_name(f"{out.stem}_{g}{out.suffix or '.toml'}")) for g in sensors])
+    for g, path in todo:
+        write(sensors[g], path)
+        print(f"wrote the fitted {option} ({g}) to {path}")
+
+
+def run(args) -> int:
+    """Fit the parameters of :func:`fit_names` per flight (:func:`geoloc.analysis.sensor_fit.fit_sensor_groups`).
 
     Flights come from ``--group-by`` (default the ``table`` column when the records
     have one, else one group); outliers are flagged on the residuals of a first fit
     and left out with ``--exclude-outliers``; ``--joint`` fits one set for all
-    flights; ``--resect`` fits the same names to the published positions with
-    unknown target heights (:mod:`geoloc.analysis.sensor_fit`).
+    flights; ``--resect`` fits the focal length and principal point (or the ``--fit``
+    names) to the published positions with unknown target heights
+    (:func:`geoloc.analysis.sensor_fit.resect_sensor`).
     """
-    from geoloc.analysis.sensor_fit import fit_sensor_groups, resect_sensor
     from geoloc.locate import as_sensor
+    from geoloc.sensors.camera import camera_from_sensor
     from geoloc.sensors.sensor_file import sensor_to_toml
     from geoloc.workflows.replay import outside_sensor_messages
 
-    sensor = as_sensor(camera)
+    if args.exaggeration <= 0 or not np.isfinite(args.exaggeration):
+        raise ValueError(f"--exaggeration = {args.exaggeration}: must be a finite number > 0")
+    names = fit_names(args)
+    loaded = sensor_from_args(args)
+    sensor = as_sensor(loaded)
     records = load_records_reporting(args.records, sensor)
     for msg in outside_sensor_messages(records, sensor):
         print(f"geoloc calibrate: warning: {msg}", file=sys.stderr)
-    names = [n.strip() for n in args.fit.split(",") if n.strip()]
-    surface, label = _surface(args, records, example="truth_h_m")
+    surface, label = _surface(args, records, example="truth_h_m" if args.fit is not None else "paper_height_m")
     group = args.group_by
     if group.lower() == "none" or (group == "table" and "table" not in records.header):
         group = None
     rep, sensors = fit_sensor_groups(records, sensor, names, surface, group_column=group, joint=args.joint,
                                      exclude_outliers=args.exclude_outliers, loo=args.loo,
                                      truth_prefix=args.truth_prefix)
-    report = {"records": str(records.path), "sensor": str(args.camera), "target": label, **rep}
+    report = {"records": str(records.path), "sensor": str(args.camera or asset_path("cameras", "qiao2017.toml")),
+              "target": label, **rep}
     for g, e in rep["groups"].items():
-        line = (f"flight {g}: n={e['n']} (fit {e['n_used_in_fit']}), RMS horizontal error to truth: "
-                f"before {_fmt(e['rms_before_m'])} m, after {_fmt(e['rms_after_m'])} m")
+        line = (f"flight {g}: n={e['n']} (fit {e['n_used_in_fit']}), mean error to truth: "
+                f"before {_fmt(e['mean_error_before_m'])} m, after {_fmt(e['mean_error_after_m'])} m")
         if args.loo:
-            line += f", leave-one-out {_fmt(e['rms_loo_m'])} m"
-        print(line)
+            line += f", leave-one-out {_fmt(e['mean_error_loo_m'])} m"
+        rms = f"before {_fmt(e['rms_before_m'])}, after {_fmt(e['rms_after_m'])}"
+        print(line + f" (RMS {rms}" + (f", leave-one-out {_fmt(e['rms_loo_m'])}" if args.loo else "") + " m)")
         flagged = [r["label"] for r in e["records"] if r["outlier"]]
         if flagged:
             print(f"  outliers before the fit: {flagged}"
                   + (" (left out)" if args.exclude_outliers else " (kept; --exclude-outliers leaves them out)"))
         if not args.joint:
-            _print_parameters(e["parameters"])
+            _print_parameters(e["parameters"], e["degenerate_pairs"])
     if args.joint:
         print(f"joint fit ({rep['joint_fit']['n']} records):")
-        _print_parameters(rep["joint_fit"]["parameters"])
+        _print_parameters(rep["joint_fit"]["parameters"], rep["joint_fit"]["degenerate_pairs"])
     if args.resect:
-        r = resect_sensor(records, sensor, names)
+        rnames = names if args.fit is not None else list(RESECT_NAMES)
+        r = resect_sensor(records, sensor, rnames)
         report["resection"] = r.report()
-        print(f"resection of {', '.join(names)} to the published positions (unknown target heights): "
+        print(f"resection of {', '.join(rnames)} to the published positions (unknown target heights): "
               f"RMS misfit {r.rms_m:.2f} m" + ("" if r.success else " (did not converge)"))
-        _print_parameters(report["resection"]["parameters"])
+        _print_parameters(report["resection"]["parameters"], report["resection"]["degenerate_pairs"])
     report = _json_safe(report)
     if args.out:
         write_text(args.out, json.dumps(report, indent=2, allow_nan=False) + "\n", "--out")
         print(f"wrote {args.out}")
     if args.write_sensor:
-        out = Path(args.write_sensor)
-        todo = ([(g, out) for g in sensors] if len(sensors) == 1 else
-                [(g, out.with_name(f"{out.stem}_{g}{out.suffix or '.toml'}")) for g in sensors])
-        for g, path in todo:
-            sensor_to_toml(sensors[g], path)
-            print(f"wrote the fitted sensor ({g}) to {path}")
-    return 0
-
-
-def _print_parameters(params: dict) -> None:
-    print(f"  {'parameter':<16} {'start':>14} {'fitted':>14} {'sd':>12}")
-    for n, e in params.items():
-        print(f"  {n:<16} {e['start']:>14.6f} {e['value']:>14.6f} {e['sd']:>12.6f} {e['unit']}")
-
-
-def run(args) -> int:
-    if args.exaggeration <= 0 or not np.isfinite(args.exaggeration):
-        raise ValueError(f"--exaggeration = {args.exaggeration}: must be a finite number > 0")
-    camera = sensor_from_args(args)
-    if args.fit is not None:
-        return run_sensor_fit(args, camera)
-    if args.write_sensor:
-        raise ValueError("--write-sensor goes with --fit NAMES")
-    from geoloc.sensors.camera import Camera
-
-    if not isinstance(camera, Camera):
-        raise ValueError(f"--sensor {args.camera}: a sensor file is calibrated with --fit NAMES "
-                         "(e.g. --fit mount_x,mount_y,mount_z); the flight-grouped fit is the first-phase camera's")
-    records = load_records_reporting(args.records)
-    surface, label = _surface(args, records)
-    group = None if args.group_by.lower() == "none" else args.group_by
-    report, cameras = calibrate_groups(
-        records, camera, surface, group, model=args.model, fit_focal=args.fit_focal,
-        fit_pp=args.fit_principal_point, loo=args.loo, joint=args.joint,
-        exclude_outliers=args.exclude_outliers, truth_prefix=args.truth_prefix)
-    report = {"records": str(records.path), "camera": str(args.camera or asset_path("cameras", "qiao2017.toml")),
-              "target": label, **report}
-    if args.resect:
-        report["resection"] = resect_camera(records, camera).report()
-
-    print(f"{'flight':<8} {'n':>3} {'before_m':>9} {'after_m':>8} {'loo_m':>7}   angles_deg (x, y, z) +- sd")
-    for g, e in report["groups"].items():
-        ang = ", ".join(f"{a:+.4f}+-{_fmt(s, '.4f')}" for a, s in zip(e["angles_deg"], e["angles_sd_deg"]))
-        print(f"{g:<8} {e['n']:>3} {_fmt(e['mean_error_before_m']):>9} {_fmt(e['mean_error_after_m']):>8} "
-              f"{_fmt(e['mean_error_loo_m']):>7}   {ang}")
-        if e["degenerate_pairs"]:
-            print(f"         not separable with these records (|correlation| > 0.99): "
-                  f"{', '.join('/'.join(p) for p in e['degenerate_pairs'])}")
-        if e["before"]["outliers"]:
-            print(f"         outliers before calibration: "
-                  f"{[e['records'][k]['label'] for k in e['before']['outliers']]}")
-    if "resection" in report:
-        r = report["resection"]
-        print(f"resection: f = {r['focal_length_px']:.1f} +- {r['focal_length_sd_px']:.1f} px, "
-              f"i0 = {r['principal_row']:.2f} +- {r['principal_row_sd']:.2f}, "
-              f"j0 = {r['principal_col']:.2f} +- {r['principal_col_sd']:.2f}, "
-              f"RMS misfit {r['rms_misfit_m']:.2f} m")
-
-    report = _json_safe(report)
-    if args.out:
-        write_text(args.out, json.dumps(report, indent=2, allow_nan=False) + "\n", "--out")
-        print(f"wrote {args.out}")
+        _write_fitted("sensor", args.write_sensor, sensors, args.joint, sensor_to_toml)
     if args.write_camera:
-        out = Path(args.write_camera)
-        todo = ([("joint", out)] if args.joint else
-                [(g, out) for g in cameras] if len(cameras) == 1 else
-                [(g, out.with_name(f"{out.stem}_{g}{out.suffix or '.toml'}")) for g in cameras])
-        for g, path in todo:
-            cameras[g].to_toml(path)
-            print(f"wrote calibrated camera ({g}) to {path}")
+        # a sensor does not carry the pixel pitch: the input camera file's, if it gave one
+        pitch = getattr(loaded, "pixel_pitch_m", None)
+        _write_fitted("camera", args.write_camera, sensors, args.joint,
+                      lambda s, path: camera_from_sensor(s, pixel_pitch_m=pitch).to_toml(path))
     if args.plot:
-        from geoloc.analysis.calibrate import error_vector_panels
         from geoloc.analysis.errors import plot_error_vectors
 
         plot_error_vectors(args.plot, error_vector_panels(report, records, args.exaggeration),
-                           title=f"error vectors (computed - truth), model {args.model}"
+                           title=f"error vectors (computed - truth), {', '.join(names)}"
                                  + (", joint fit" if args.joint else ", one fit per flight"))
         print(f"wrote {args.plot}")
     return 0
+
+
+def _print_parameters(params: dict, degenerate=()) -> None:
+    print(f"  {'parameter':<16} {'start':>14} {'fitted':>14} {'sd':>12}")
+    for n, e in params.items():
+        print(f"  {n:<16} {e['start']:>14.6f} {e['value']:>14.6f} {_fmt(e['sd'], '.6f'):>12} {e['unit']}")
+    if degenerate:
+        print(f"  not separable with these records (|correlation| > 0.99): "
+              f"{', '.join('/'.join(p) for p in degenerate)}")
