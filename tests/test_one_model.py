@@ -84,9 +84,9 @@ def mosaic_attribute_checks(tree) -> list:
     return out
 
 
-#: Modules that still ask a surface for its ``.dem`` attribute (a mosaic has none): each asks
-#: :func:`geoloc.surfaces.base.terrain_of` instead once it is mended, and leaves this set.
-KNOWN_SURFACE_DEM_ASKS = {"geoloc.analysis.uncertainty"}
+#: Modules that still ask a surface for its ``.dem`` attribute (a mosaic has none): none left; a
+#: surface's terrain is :func:`geoloc.surfaces.base.terrain_of`.
+KNOWN_SURFACE_DEM_ASKS: set = set()
 
 
 def surface_dem_asks(tree) -> list:

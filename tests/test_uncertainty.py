@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 import pytest
+import pyproj
 from scipy import integrate, optimize
 from scipy import stats as sps
 
@@ -307,3 +308,68 @@ def test_q17_table1_standard_deviations_from_the_propagation():
     # error model's sources perturbed in the paper's frames): the budget's mapping is exact to 1e-4
     fo = mc.first_order(model)
     assert (s_lat, s_lon, su) == pytest.approx((fo.std_lat_deg, fo.std_lon_deg, fo.std_h_m), rel=1e-4)
+
+
+# ------------------------------------------------------------------ on a DEM mosaic
+def _plane_tiles(folder, slope):
+    """A terrain rising east at ``slope`` (metres per metre) as two GeoTIFF tiles split at 84.2 W, and
+    the same nodes as one raster. Heights linear in longitude: the bilinear DEM is that plane exactly."""
+    import rasterio
+
+    folder.mkdir()
+    d, lat0, lon0 = 2e-4, 36.48, -84.2                    # node spacing [deg], seam at lon0
+    _, _, m_per_deg = pyproj.Geod(ellps="WGS84").inv(lon0, lat0, lon0 + 1e-3, lat0)
+    k = slope * m_per_deg / 1e-3                          # metres per degree of longitude
+    lon = lon0 + d * np.arange(-50, 51)                   # 101 nodes, 1 km east-west
+    lat = lat0 + 0.005 - d * np.arange(51)                # 51 nodes, north to south
+    H = np.broadcast_to(300.0 + k * (lon - lon0), (len(lat), len(lon))).astype("float64")
+    prof = dict(driver="GTiff", count=1, dtype="float64", crs="EPSG:4326")
+
+    def write(p, c0, c1):
+        tr = rasterio.Affine.translation(lon[c0] - d / 2, lat[0] + d / 2) @ rasterio.Affine.scale(d, -d)
+        with rasterio.open(p, "w", height=len(lat), width=c1 - c0, transform=tr, **prof) as dst:
+            dst.write(H[:, c0:c1], 1)
+        return p
+
+    tiles = [write(folder / "west.tif", 0, 50), write(folder / "east.tif", 50, 101)]
+    return tiles, write(folder.parent / "merged.tif", 0, 101), (lambda lon_deg: 300.0 + k * (lon_deg - lon0))
+
+
+def test_on_a_mosaic_the_dem_error_moves_the_point_by_the_mosaic_slope(tmp_path):
+    # the DEM's vertical error dz moves the hit along the ray D by dz / (m . D), m = (-g_e, -g_n, 1)
+    # the terrain's normal in ENU (the first order at a plane): a closed form, with the plane's slope
+    # g_e from pymap3d (rise over east run between two of its points) and D in ENU from pymap3d
+    import pymap3d
+
+    from geoloc.surfaces.mosaic import DemMosaic
+
+    slope = 0.3
+    tiles, merged, H = _plane_tiles(tmp_path / "tiles", slope)
+    s = sensor_for("azimuth-elevation")
+    # 1300 m up, 838 m west of the seam, looking east 40 deg off nadir: the hit is near the seam
+    pose = Pose.from_deg(36.478, -84.2094, 1300.0, 90.0, 0.0, 0.0, angles_deg={"azimuth": 0.0, "elevation": -50.0})
+    b = ErrorBudget({"dem_m": 10.0, "heading_deg": 0.02})
+    mosaic = DemMosaic.open([str(p) for p in tiles], datum="ellipsoid", block=32)
+    on_mosaic = U.propagate(s, pose, None, None, b, surface=mosaic, dem_slope="point")
+    on_raster = U.propagate(s, pose, None, None, b, surface=DemSurface(DEM.open(merged, datum="ellipsoid")),
+                            dem_slope="point")
+    assert on_mosaic.status == Status.OK and on_mosaic.sources[-1] == "dem_m"
+
+    lat, lon = math.degrees(float(on_mosaic.lat)), math.degrees(float(on_mosaic.lon))
+    e, _, u = pymap3d.geodetic2enu(lat, lon + 1e-5, H(lon + 1e-5), lat, lon, H(lon))
+    g_e = u / e
+    los = s.line_of_sight(*s.center_pixel, pose)
+    D = np.array(pymap3d.ecef2enuv(*np.asarray(los.direction_ecef).reshape(3), lat, lon))
+    m = np.array([-g_e, 0.0, 1.0])
+    expected = 10.0 * D / (m @ D)
+    level = 10.0 * D / D[2]                               # what a surface without its terrain gives
+    got = np.asarray(on_mosaic.jacobian_enu)[..., -1].reshape(3)
+    # 1e-4 of 10 m: the hit (solved to under 1 mm on a 1.3 km range) and the flat ENU at the hit
+    # (metres over the Earth's radius, 1e-6) move it by far less; the level answer is 25 % off
+    np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-4 * 10.0)
+    assert np.max(np.abs(level - expected)) > 1.0
+    # the default footprint plane is the same plane: the same column
+    foot = U.propagate(s, pose, None, None, b, surface=mosaic)
+    np.testing.assert_allclose(np.asarray(foot.jacobian_enu)[..., -1].reshape(3), expected, rtol=1e-4, atol=1e-3)
+    # and the mosaic's answer is the one raster's, the same nodes (float rounding of the windows)
+    np.testing.assert_allclose(on_mosaic.cov_enu, on_raster.cov_enu, rtol=1e-9, atol=1e-9)

@@ -384,8 +384,8 @@ def surface_normal(surface, lat, lon, h, cov_en=None, residual: bool = False):
     """
     Re = R_ecef_enu(lat, lon)
     e, nn, u = Re[..., 0], Re[..., 1], Re[..., 2]
-    dem = getattr(surface, "dem", None)
-    if dem is None or not hasattr(dem, "height"):
+    dem = terrain_of(surface)
+    if dem is None:
         return (u, np.zeros(len(u))) if residual else u
     if cov_en is None:
         g_n = (_dem_height(dem, lat, lon, h, 0.0, 1.0) - _dem_height(dem, lat, lon, h, 0.0, -1.0)) / 2.0
@@ -409,7 +409,7 @@ def surface_normal(surface, lat, lon, h, cov_en=None, residual: bool = False):
     g_n, g_e = np.nan_to_num(g_n), np.nan_to_num(g_e)  # at the DEM's edge: level
     m = u - g_e[:, None] * e - g_n[:, None] * nn
     if residual:
-        return m, (rms if cov_en is not None and dem is not None and hasattr(dem, "height") else np.zeros(len(m)))
+        return m, (rms if cov_en is not None else np.zeros(len(m)))
     return m
 
 
@@ -441,8 +441,8 @@ def _grazing(dem, lat, lon, h, D_enu, t, sig_t, free_up, sigma_dem):
 
 def surface_sigma_m(surface, budget: ErrorBudget) -> float:
     """The budget's vertical sigma for this surface: ``dem_m`` (or its default) on a DEM, else ``height_m``."""
-    dem = getattr(surface, "dem", None)
-    if terrain_of(surface) is not None:
+    dem = terrain_of(surface)
+    if dem is not None:
         return budget.dem_sigma_m(dem)
     return budget.sigma("height_m")
 
@@ -531,13 +531,14 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
         P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
         t = np.linalg.norm(P - O, axis=-1)
         free = dO + t[:, None, None] * dD                        # the point carried along the old range
+    dem = terrain_of(surface)
+    on_dem = dem is not None
     if sz > 0:
-        names = names + ["dem_m" if getattr(surface, "dem", None) is not None else "height_m"]
-    on_dem = getattr(surface, "dem", None) is not None and hasattr(surface.dem, "height")
+        names = names + ["dem_m" if on_dem else "height_m"]
     if fast and not on_dem:
         return _surface_fast(F, free, D, np.zeros((0, 3)), lat, lon, h, status, sz, names, shape)
-    if fast and _compiled_dem(surface.dem):
-        return _dem_fast(F, free, D, t, surface.dem, lat, lon, h, status, sz, names, shape,
+    if fast and _compiled_dem(dem):
+        return _dem_fast(F, free, D, t, dem, lat, lon, h, status, sz, names, shape,
                          footprint_iterations if dem_slope == "footprint" else 0, dem_slope == "footprint")
     Re = R_ecef_enu(lat, lon)
     cov_en = None
@@ -558,7 +559,7 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
     if on_dem:
         dt = -np.einsum("ni,nik->nk", m, free) * inv[:, None]
         sig_t = np.sqrt(np.sum(dt * dt, -1) + (sz * inv) ** 2)
-        grazing = _grazing(surface.dem, lat, lon, h, np.einsum("nji,nj->ni", Re, D), t, sig_t,
+        grazing = _grazing(dem, lat, lon, h, np.einsum("nji,nj->ni", Re, D), t, sig_t,
                            np.einsum("nj,njk->nk", Re[..., 2], free), sz)
     r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
     out = summarise(r(cov, (3, 3)), r(lat), r(lon), r(h), r(status), r(J, (3, J.shape[-1])), names)
@@ -578,7 +579,7 @@ def _locate_for(s, pose, row, col, surface, outside):
     from geoloc.sensors._fastlocate import line_of_sight_fast, locate_fast
     from geoloc.surfaces.base import GroundPoint
 
-    if getattr(surface, "kind", None) == "inflated" and getattr(surface, "dem", None) is None:
+    if getattr(surface, "kind", None) == "inflated" and terrain_of(surface) is None:
         lat, lon, h, ecef, rng, st, o, d = locate_fast(pose, s, row, col, surface.h, outside=outside)
         hit = GroundPoint(lat, lon, h, ecef, rng, st, None)
     else:
@@ -774,8 +775,7 @@ def monte_carlo(sensor, pose, row, col, budget: ErrorBudget, surface, n: int, rn
     los = sp.line_of_sight(rr, cc, pose_s, outside="extrapolate", engine="numpy")
     nominal = surface.intersect(s.line_of_sight(float(row), float(col), p0, outside="extrapolate", engine="numpy"))
     la, lo, hh = (float(np.asarray(getattr(nominal, k)).reshape(())) for k in ("lat", "lon", "h"))
-    dem = getattr(surface, "dem", None)
-    if dem is None:
+    if terrain_of(surface) is None:
         hz = surface.h + g("height_m")
         hit = HeightSurface(np.broadcast_to(hz, (n,)), surface.kind).intersect(los)
         P = hit.ecef
