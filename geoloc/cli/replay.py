@@ -122,7 +122,7 @@ def run(args) -> int:
         for line in summary_lines(triangulate_records(records, camera, budget, result.h_m,
                                                       result.status == Status.OK)):
             print(line)
-    for msg in plausibility_warnings(records, result, result.terrain):
+    for msg in plausibility_warnings(records, result, result.terrain, sensor=camera):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
     rows = args.print_rows or (not args.out and len(records) <= ROWS_SHOWN)
     print(summary_table(result, args.group_by, rows=rows))

@@ -77,6 +77,10 @@ class FrameSensor:
     lever_arm_m : tuple of 3 float
         Optical centre minus navigation reference, body axes [m].
     name : str
+    platform : str
+        What carries the camera (the sensor file's ``platform``): a text that
+        :func:`geoloc.sensors.platform.is_drone` may recognise as a drone, for the
+        plausibility warnings; empty if not said.
     """
 
     lens: Lens
@@ -85,6 +89,7 @@ class FrameSensor:
     boresight: tuple = (0.0, 0.0, 0.0)
     lever_arm_m: tuple = (0.0, 0.0, 0.0)
     name: str = ""
+    platform: str = ""
     #: Per-sample perturbations (..., 3, 3), for Monte Carlo: ``v_base = R_mount @ R_base_extra @ v_body``
     #: (shock-absorber vibration) and ``v = R_bore_extra @ R_boresight @ v_last`` (collimation,
     #: gimbal non-orthogonality), both before the fixed turn to the optical axes. None: identity.

@@ -36,7 +36,7 @@ from geoloc.userfiles import write_text
 
 #: Top-level tables and keys of a sensor file.
 TABLES = ("lens", "gimbal", "mount", "boresight", "lever_arm")
-KEYS = ("name",)
+KEYS = ("name", "platform")
 #: The optional table of a sensor (or first-phase camera) file that is not the sensor's: the
 #: column map of the records its flights come in (``docs/columns.md``; read by
 #: :func:`load_sensor_columns`, checked by ``geoloc.io.columns``, ignored by the sensor itself).
@@ -96,6 +96,10 @@ def sensor_from_dict(data: dict, source: str = "sensor") -> FrameSensor:
     name = data.get("name", "")
     if not isinstance(name, str):
         raise ValueError(f"{source}: name = {name!r}: must be a string")
+    platform = data.get("platform", "")
+    if not isinstance(platform, str):
+        raise ValueError(f"{source}: platform = {platform!r}: must be a string (e.g. \"drone\", "
+                         "\"DJI Matrice 300 RTK\", \"King Air 350\"; docs/sensor_format.md)")
     lens = lens_from_dict(data["lens"], source=f"{source} [lens]")
     gimbal = gimbal_from_dict(data["gimbal"], source) if "gimbal" in data else PRESETS[DEFAULT]
     return FrameSensor(
@@ -104,6 +108,7 @@ def sensor_from_dict(data: dict, source: str = "sensor") -> FrameSensor:
         boresight=_angles(data.get("boresight", {}), "boresight", source),
         lever_arm_m=_lever(data.get("lever_arm", {}), source),
         name=name,
+        platform=platform,
     )
 
 
@@ -192,7 +197,11 @@ def sensor_to_toml(sensor: FrameSensor, path, budget: ErrorBudget | None = None)
     :func:`load_sensor_budget` to ``budget``, when given)."""
     lines = []
     if sensor.name:
-        lines.append(f"name = {_toml_value(sensor.name)}\n")
+        lines.append(f"name = {_toml_value(sensor.name)}")
+    if getattr(sensor, "platform", ""):
+        lines.append(f"platform = {_toml_value(sensor.platform)}")
+    if lines:
+        lines[-1] += "\n"
     tables = {
         "lens": lens_to_dict(sensor.lens),
         "gimbal": gimbal_to_dict(sensor.gimbal),

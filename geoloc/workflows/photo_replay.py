@@ -37,6 +37,7 @@ from geoloc.io.photos import (
     pose_from_photo,
     read_photo,
 )
+from geoloc.sensors.platform import DRONE_MAX_HEIGHT_M as _DRONE_MAX_HEIGHT_M, drone_height_hint
 from geoloc.status import Status, names
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
@@ -64,7 +65,8 @@ ALTITUDE_CHECK_M = 30.0
 #: it) is warned about as implausible: DJI's firmware caps the flight altitude at 500 m above
 #: the take-off point and most countries' rules at 120 m above the ground, so a camera
 #: kilometres up is a height in the wrong unit or datum, or not a drone photo's position (issue 32).
-DRONE_MAX_HEIGHT_M = 1000.0
+#: The one number of :mod:`geoloc.sensors.platform` (the records and KLV checks use it too).
+DRONE_MAX_HEIGHT_M = _DRONE_MAX_HEIGHT_M
 #: The datum names written in ``altitude_datum`` for each ``altitude_datum`` argument.
 _DATUM_TEXT = {"egm96": EGM96_DATUM, "ellipsoid": ELLIPSOID_DATUM}
 
@@ -289,9 +291,16 @@ def _datum_messages(meta, altitude_datum, h_cam, n, dem) -> list:
             and above_dem > DRONE_MAX_HEIGHT_M else []
         if rel is not None:
             said.append(f"RelativeAltitude (above the take-off point) is {rel:.1f} m")
+        if above_dem is not None and above_dem > DRONE_MAX_HEIGHT_M:
+            # the hint in the photo's own datum: the DEM height less the N added to the altitude
+            ground_file = h_cam - above_dem - (h_cam - meta.altitude_m)
+            field, hint = (f"{meta.altitude_source or 'altitude'} = {meta.altitude_m:g}",
+                           drone_height_hint(meta.altitude_m, ground_file))
+        else:
+            field, hint = f"RelativeAltitude = {rel:g}", drone_height_hint(rel, 0.0)
         out.append(f"{meta.name}: warning: implausible for a drone: {'; '.join(said)}, while drones fly below "
-                   f"{DRONE_MAX_HEIGHT_M:.0f} m (DJI's firmware caps them at 500 m above take-off): a height in "
-                   "feet, a datum mix-up or a position not the drone's? The numbers are used as read")
+                   f"{DRONE_MAX_HEIGHT_M:.0f} m (DJI's firmware caps them at 500 m above take-off): "
+                   f"{field}: {hint}; the numbers are used as read")
     if dem is not None and meta.relative_altitude_m is not None:
         ground, st = dem.sample(np.array(math.radians(meta.lat_deg)), np.array(math.radians(meta.lon_deg)))
         if int(st) == Status.OK and np.isfinite(ground):

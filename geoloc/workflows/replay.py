@@ -133,11 +133,32 @@ IMPLAUSIBLE_ERROR_M = 50.0
 BELOW_TERRAIN_M = 30.0
 
 
-def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, limit: int = 5) -> list:
+#: The records column that names each row's platform (:func:`geoloc.sensors.platform.is_drone`).
+PLATFORM_COLUMN = "platform"
+
+
+def drone_rows(records: Records, sensor=None) -> np.ndarray:
+    """True for the records whose platform is a drone: the row's ``platform`` column names one,
+    or (where the row has no such cell) the sensor file's ``platform`` does
+    (:func:`geoloc.sensors.platform.is_drone`; ``docs/records.md``, "Plausibility checks")."""
+    from geoloc.sensors.platform import is_drone
+
+    default = is_drone(getattr(sensor, "platform", ""))
+    if PLATFORM_COLUMN not in records.header:
+        return np.full(len(records), default)
+    return np.array([is_drone(t) if t.strip() else default for t in records.text(PLATFORM_COLUMN)], dtype=bool)
+
+
+def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, limit: int = 5,
+                          sensor=None) -> list:
     """Warnings for records whose numbers cannot be right, without changing them (issue 32).
 
     - the camera below the terrain under it (``terrain``: a DEM or DEM mosaic, whose
       ``sample(lat, lon)`` gives ellipsoidal heights), by more than :data:`BELOW_TERRAIN_M`;
+    - a drone's camera (:func:`drone_rows`: ``sensor``'s platform, a ``platform`` column) more
+      than :data:`~geoloc.sensors.platform.DRONE_MAX_HEIGHT_M` above the terrain under it (else
+      above the located point's height: the target's), or above
+      :data:`~geoloc.sensors.platform.DRONE_CEILING_M` anywhere;
     - a located point farther from its truth than :data:`IMPLAUSIBLE_ERROR_FRACTION` of the
       slant range (a height in feet read as metres, a datum or a sensor mixed up).
 
@@ -166,6 +187,11 @@ def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, 
             lambda k: f"the camera (ac_h_m = {ac_h[k]:.1f} m) is {ht[k] - ac_h[k]:.0f} m below the terrain under "
             f"it ({ht[k]:.1f} m, the DEM), heights ellipsoidal: a height in the wrong datum or unit "
             "(MSL read as ellipsoidal, feet as metres), or above the ground instead of the ellipsoid?")
+    ht_ok = None
+    if terrain is not None:
+        ht_ok = np.where(np.isfinite(ht), ht, np.nan)
+    drone_high = _drone_height_warnings(records, result, ht_ok, sensor)
+    add("too high for a drone", drone_high[0], drone_high[1])
     err = np.asarray(result.error_to_truth_m, float)
     if np.isfinite(err).any():
         p_cam = geodetic_to_ecef(np.deg2rad(ac_lat), np.deg2rad(ac_lon), ac_h)
@@ -180,6 +206,46 @@ def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, 
             f"({slant[k]:.0f} m): implausible for a pointing error; a height or angle in the wrong unit or "
             "datum, or the wrong sensor?")
     return out
+
+
+def _drone_height_warnings(records: Records, result: ReplayResult, ground, sensor):
+    """(indices, text of index) of the drone records too high for a drone: above the terrain
+    ``ground`` (None or NaN where unknown: the located point's height instead) by more than
+    DRONE_MAX_HEIGHT_M, or above DRONE_CEILING_M."""
+    from geoloc.sensors.platform import DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint
+
+    drone = drone_rows(records, sensor)
+    if not drone.any():
+        return np.zeros(0, int), None
+    ac_h = records.column("ac_h_m")
+    ref = np.asarray(result.h_m, float).copy()
+    what = np.full(len(records), "the target", dtype=object)
+    if ground is not None:
+        has = np.isfinite(ground)
+        ref = np.where(has, ground, ref)
+        what[has] = "the terrain under it"
+    with np.errstate(invalid="ignore"):
+        above = ac_h - ref
+        high = drone & ((above > DRONE_MAX_HEIGHT_M) | (ac_h > DRONE_CEILING_M))
+    src = records.altitude
+    field = "ac_h_m" if src.column in ("ac_h_m", "") or src.column not in records.header \
+        else f"{src.column} (read as ac_h_m, {src.unit}, {src.datum})"
+
+    def text(k):
+        cell = records.rows[k].get(src.column if field != "ac_h_m" else "ac_h_m", "").strip() or f"{ac_h[k]:.1f}"
+        known = np.isfinite(ref[k])
+        where = (f"{above[k] / 1000:.1f} km above {what[k]} ({ref[k]:.1f} m)" if known
+                 else f"above a drone's ceiling ({DRONE_CEILING_M:.0f} m)")
+        try:  # the hint in the file's own datum (an EGM96 column's value is H, ac_h_m is H + N)
+            value = float(cell)
+        except ValueError:
+            value = ac_h[k]
+        ref_file = ref[k] - (ac_h[k] - value) if known else None
+        return (f"{field} = {cell}: a drone's camera {where}, while drones fly below "
+                f"{DRONE_MAX_HEIGHT_M:.0f} m above the ground and {DRONE_CEILING_M:.0f} m above the sea: "
+                + drone_height_hint(value, ref_file, src.unit, "a height column in feet needs unit = 'ft' "
+                                   "in the column map (docs/columns.md)") + "; the row is used as read")
+    return np.flatnonzero(high), text
 
 
 def replay_records(records: Records, sensor, surface) -> ReplayResult:

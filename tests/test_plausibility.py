@@ -1,0 +1,161 @@
+"""Issue 32, "every input told the truth": a drone kilometres up is warned about.
+
+The rule (docs/records.md, "Plausibility checks"): a platform is a drone when the photo is a
+drone photo, or when the sensor file's ``platform``, a records ``platform`` cell or a KLV
+Platform Designation names one (geoloc.sensors.platform.DRONE_WORDS); a drone's camera more
+than 1000 m above the terrain (or the target) under it, or above 7000 m, is warned about with
+the line, the field and the value, and what it likely is. The rows still run as read.
+"""
+
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+from geoloc.assets import asset_path
+from geoloc.cli import main
+from geoloc.sensors.platform import DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, FOOT_M, is_drone
+from geoloc.sensors.sensor_file import load_sensor, sensor_from_dict, sensor_to_toml
+
+SRTM = asset_path("dem", "srtm_jacksboro.tif")
+DRONE = asset_path("records", "drone_targets.csv")
+DRONE_SENSOR = asset_path("sensors", "drone_camera.toml")
+Q17 = asset_path("records", "qiao2017_flight_tests.csv")
+PHOTO = asset_path("photos", "DJI_0001.JPG")
+TARGETS = asset_path("photos", "targets.csv")
+
+
+def _rows(path):
+    with open(path, newline="") as f:
+        return list(csv.reader(f))
+
+
+def _write(path, rows):
+    with open(path, "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    return path
+
+
+def _in_feet(tmp_path):
+    """The bundled drone records, ac_h_m in feet (x 1/0.3048, the international foot) under its metre name."""
+    rows = _rows(DRONE)
+    i = rows[0].index("ac_h_m")
+    for r in rows[1:]:
+        r[i] = f"{float(r[i]) / FOOT_M:.3f}"
+    return _write(tmp_path / "drone_ft.csv", rows), rows
+
+
+def test_the_numbers_of_the_rule():
+    # 120 m (EU 2019/947, FAA Part 107's 400 ft = 121.9 m) and DJI's 500 m firmware cap lie well under
+    # the threshold; 7000 m is the highest multirotor service ceiling (DJI Matrice 350 RTK)
+    assert 400 * FOOT_M < 500 < DRONE_MAX_HEIGHT_M == 1000.0 and DRONE_CEILING_M == 7000.0
+
+
+@pytest.mark.parametrize("text, drone", [
+    ("drone", True), ("DJI Matrice 300 RTK", True), ("Mavic 3E", True), ("quadcopter", True),
+    ("small UAV", True), ("Small_UAS", True), ("Parrot Anafi USA", True), ("sUAS", True),
+    ("MQ-9 Reaper UAV", False), ("RQ-4 Global Hawk", False), ("King Air 350", False), ("UAS", False),
+    ("", False), (None, False), ("androne", False),
+])
+def test_what_names_a_drone(text, drone):
+    assert is_drone(text) is drone
+
+
+def test_drone_records_at_their_height_give_no_warning(capsys):
+    # the bundled drone flight, about 130-300 m above the terrain (a drone's height): no warning,
+    # on the DEM and at the surveyed target heights
+    for extra in (["--dem", str(SRTM)], ["--height-column", "truth_h_m"]):
+        assert main(["replay", str(DRONE), "--sensor", str(DRONE_SENSOR)] + extra) == 0
+        err = capsys.readouterr().err
+        assert "drone" not in err and "warning: line" not in err, err
+
+
+def test_drone_records_in_feet_are_warned_naming_line_field_and_value(tmp_path, capsys):
+    recs, rows = _in_feet(tmp_path)
+    out = tmp_path / "out.csv"
+    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    # line 2: 425.3902335 m / 0.3048 = 1395.637 "m", over terrain at 291 m (the DEM): 1.1 km up
+    assert ("warning: line 2 (survey1-1): ac_h_m = 1395.637: a drone's camera 1.1 km above the terrain under "
+            "it (291.1 m), while drones fly below 1000 m above the ground and 7000 m above the sea: likely feet "
+            "read as metres (x 0.3048: 425.4 m, 134 m above it); a height column in feet needs unit = 'ft'") in err, err
+    assert "... and 15 more record(s) too high for a drone" in err  # every record: 5 shown, then a count
+    # a warning, not an error: every row located as read, status ok, in the batch output
+    got = _rows(out)
+    assert len(got) == len(rows) and {r[got[0].index("status")] for r in got[1:]} == {"ok"}
+    # at the targets' heights (no DEM) the reference is the target, said so
+    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--height-column", "truth_h_m"]) == 0
+    assert "line 2 (survey1-1): ac_h_m = 1395.637: a drone's camera 1.1 km above the target (287.4 m)" \
+        in capsys.readouterr().err
+
+
+def test_mapped_feet_column_names_the_files_column(tmp_path, capsys):
+    recs, rows = _in_feet(tmp_path)
+    rows[0][rows[0].index("ac_h_m")] = "Alt"
+    _write(recs, rows)
+    (tmp_path / "map.toml").write_text('[columns]\nac_h_m = "Alt"\n')
+    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM),
+                 "--columns", str(tmp_path / "map.toml")]) == 0
+    err = capsys.readouterr().err
+    assert "line 2 (survey1-1): Alt (read as ac_h_m, m, ellipsoid) = 1395.637: a drone's camera 1.1 km" in err, err
+    # with its unit the same file is plausible
+    (tmp_path / "map_ft.toml").write_text('[columns]\nac_h_m = {column = "Alt", unit = "ft"}\n')
+    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM),
+                 "--columns", str(tmp_path / "map_ft.toml")]) == 0
+    assert "too high for a drone" not in capsys.readouterr().err
+
+
+def test_q17_flight_at_18_km_is_not_a_drone(tmp_path, capsys):
+    # [Q17]'s aircraft at about 18 km with its own camera (no platform said): no drone warning
+    assert main(["replay", str(Q17), "--height-column", "paper_height_m"]) == 0
+    assert "drone" not in capsys.readouterr().err
+    # a platform column decides per row: a manned aircraft is none, a drone is warned
+    rows = _rows(Q17)
+    rows[0].append("platform")
+    for k, r in enumerate(rows[1:]):
+        r.append("King Air 350" if k else "DJI Matrice 300 RTK")
+    recs = _write(tmp_path / "q17_platform.csv", rows)
+    assert main(["replay", str(recs), "--height-column", "paper_height_m"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("a drone's camera") == 1 and "line 2 (T3-1): ac_h_m = " in err, err
+    # 17987.25 m over a target at 4629.9 m; as feet, 5482.5 m: a drone's height over the Tibetan plateau
+    assert ("ac_h_m = 17987.25: a drone's camera 13.4 km above the target (4629.9 m)" in err
+            and "likely feet read as metres (x 0.3048: 5482.5 m, 853 m above it)" in err), err
+
+
+def test_row_platform_overrides_the_sensor_files(tmp_path, capsys):
+    recs, rows = _in_feet(tmp_path)
+    rows[0].append("platform")
+    for k, r in enumerate(rows[1:]):
+        r.append("Cessna 208" if k else "")  # an empty cell: the sensor file's platform (drone)
+    _write(recs, rows)
+    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM)]) == 0
+    err = capsys.readouterr().err
+    assert err.count("a drone's camera") == 1 and "line 2 (survey1-1): ac_h_m = 1395.637" in err, err
+
+
+def test_sensor_file_platform_round_trip_and_error(tmp_path):
+    s = load_sensor(DRONE_SENSOR)
+    assert s.platform == "drone"
+    sensor_to_toml(s, tmp_path / "s.toml")
+    assert load_sensor(tmp_path / "s.toml").platform == "drone"
+    with pytest.raises(ValueError, match=r"x.toml: platform = 3: must be a string"):
+        sensor_from_dict({"lens": {"model": "pinhole", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0,
+                                   "width": 2, "height": 2}, "platform": 3}, "x.toml")
+
+
+def test_drone_photo_in_feet_is_warned_naming_the_tag(tmp_path, capsys):
+    b = PHOTO.read_bytes()
+    # AbsoluteAltitude 503.00 m (EGM96) as feet: 503.00 / 0.3048 = 1650.3; same length, the JPEG stays whole
+    up = tmp_path / PHOTO.name
+    up.write_bytes(b.replace(b'AbsoluteAltitude="+503.00"', b'AbsoluteAltitude="+1650.3"'))
+    out = tmp_path / "out.csv"
+    assert main(["replay", str(up), "--targets", str(TARGETS), "--dem", str(SRTM), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert ("DJI_0001.JPG: warning: implausible for a drone: the camera is 1.3 km above the DEM under it" in err
+            and "drone-dji:AbsoluteAltitude = 1650.3: likely feet read as metres (x 0.3048: 503.0 m" in err), err
+    rows = list(csv.DictReader(open(out)))
+    assert len(rows) == 5 and {r["status"] for r in rows} == {"ok"}
+    assert main(["replay", str(PHOTO), "--targets", str(TARGETS), "--dem", str(SRTM)]) == 0
+    assert "implausible for a drone" not in capsys.readouterr().err
