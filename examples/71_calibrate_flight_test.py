@@ -15,37 +15,41 @@ from pathlib import Path
 
 import numpy as np
 
-from geoloc.analysis.calibrate import (
-    calibrate_groups,
-    error_vector_panels,
-    resect_camera,
-)
 from geoloc.analysis.errors import plot_error_vectors
+from geoloc.analysis.sensor_fit import error_vector_panels, fit_sensor_groups, resect_sensor
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.io.records import load_records
+from geoloc.locate import as_sensor
 from geoloc.sensors.camera import Camera
 from geoloc.surfaces.height import PerRecordHeightSurface
 
 records = load_records(asset_path(*DEFAULT_RECORDS))
 camera = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
+sensor = as_sensor(camera)  # the camera file as its sensor: what the fit works on
 surface = PerRecordHeightSurface(records.column("paper_height_m"))  # each target at its height
+# the two places the rotation can sit (docs/calibration.md): the gimbal base, the camera head
+MODELS = {"mount": ["mount_x", "mount_y", "mount_z"], "camera": ["boresight_x", "boresight_y", "boresight_z"]}
 
 for model, joint in (("mount", False), ("mount", True), ("camera", False), ("camera", True)):
-    report, _ = calibrate_groups(records, camera, surface, "table", model=model, joint=joint, loo=True)
+    report, _ = fit_sensor_groups(records, sensor, MODELS[model], surface, group_column="table", joint=joint,
+                                  loo=True)
     print(f"model {model!r}, {'one rotation for both flights' if joint else 'one rotation per flight'}:")
     for g, e in report["groups"].items():
         b = e["before"]
-        ang = ", ".join(f"{a:+.3f}+-{s:.3f}" for a, s in zip(e["angles_deg"], e["angles_sd_deg"]))
+        ang = ", ".join(f"{p['value']:+.3f}+-{p['sd']:.3f}" for p in e["parameters"].values())
         print(f"  {g}: before {e['mean_error_before_m']:5.1f} m (bias along {b['bias_along_m']:+.1f} m, "
               f"cross {b['bias_cross_m']:+.1f} m), after {e['mean_error_after_m']:4.1f} m, "
               f"leave-one-out {e['mean_error_loo_m']:4.1f} m; angles (x, y, z) deg: {ang}")
     if model == "mount" and joint:
         figure_report = report
 
-r = resect_camera(records, Camera(150000.0, 1100.0, 1100.0, camera.rows, camera.cols))
-print(f"resection from the published positions: f = {r.camera.focal_length_px:.1f} +- {r.sd_focal_px:.0f} px, "
-      f"i0 = {r.camera.principal_row:.2f} +- {r.sd_principal_row:.2f}, "
-      f"j0 = {r.camera.principal_col:.2f} +- {r.sd_principal_col:.2f}, RMS misfit {r.rms_m:.2f} m "
+# focal length f and principal point (row i0 = cy, column j0 = cx) from a start 10 % off
+start = as_sensor(Camera(150000.0, 1100.0, 1100.0, camera.rows, camera.cols))
+r = resect_sensor(records, start, ["f", "cy", "cx"])
+f, i0, j0 = (r.report()["parameters"][k] for k in ("f", "cy", "cx"))
+print(f"resection from the published positions: f = {f['value']:.1f} +- {f['sd']:.0f} px, "
+      f"i0 = {i0['value']:.2f} +- {i0['sd']:.2f}, "
+      f"j0 = {j0['value']:.2f} +- {j0['sd']:.2f}, RMS misfit {r.rms_m:.2f} m "
       f"(bundled camera: 166841.0, 1162.12, 1146.42)")
 
 out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / "docs" / "figures" / "71_error_vectors.png"

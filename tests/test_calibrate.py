@@ -1,5 +1,8 @@
 """Boresight / mounting calibration, resection and error decomposition (issue 8).
 
+The calibrator is :mod:`geoloc.analysis.sensor_fit`, run on the camera file's sensor
+(``as_sensor``), as ``geoloc calibrate`` runs it.
+
 Outside references: the published errors of [Q17] Tables 3-4 (``paper_error_m``),
 the camera derivation of ``docs/records.md`` (f = 166 841.0 px,
 i0 = 1162.12, j0 = 1146.42, RMS misfit 0.25 m), planted rotations in synthetic
@@ -15,25 +18,38 @@ import pytest
 from pyproj import Geod
 
 from geoloc.surfaces.height import PerRecordHeightSurface
-from geoloc.analysis.calibrate import (
-    calibrate_groups,
-    fit_mounting,
-    leave_one_out,
-    resect_camera,
-)
+from geoloc.analysis.sensor_fit import fit_sensor_groups, fit_sensor_params, resect_sensor
 from geoloc.analysis.errors import error_vectors, outlier_flags
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.cli import main
 from geoloc.frames.chain import Pose
 from geoloc.frames.enu import EnuFrame
 from geoloc.io.records import load_records
-from geoloc.locate import locate
+from geoloc.locate import as_sensor, locate
 from geoloc.sensors.camera import Camera
 
 GEOD = Geod(ellps="WGS84")
 COLUMNS = ["table", "point", "row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg",
            "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg", "paper_height_m",
            "truth_lat_deg", "truth_lon_deg"]
+
+
+#: The rotation of each model (``geoloc calibrate --model``): gimbal base in the body, camera in the gimbal.
+MODELS = {"mount": ["mount_x", "mount_y", "mount_z"], "camera": ["boresight_x", "boresight_y", "boresight_z"]}
+MOUNT = MODELS["mount"]
+
+
+def mount_groups(rec, cam, surface, group, **kw):
+    """The per-flight mounting fit as ``geoloc calibrate`` runs it on a camera file."""
+    return fit_sensor_groups(rec, as_sensor(cam), MOUNT, surface, group_column=group, **kw)
+
+
+def fit_rotation(rec, cam, surface, idx=None, model="mount", names=()):
+    return fit_sensor_params(rec, as_sensor(cam), MODELS[model] + list(names), surface, idx=idx)
+
+
+def value_sd(params, name):
+    return params[name]["value"], params[name]["sd"]
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +60,7 @@ def bundled():
 @pytest.fixture(scope="module")
 def per_flight(bundled):
     rec, cam = bundled
-    return calibrate_groups(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")), "table", loo=True)
+    return mount_groups(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")), "table", loo=True)
 
 
 # ----------------------------------------------------------------- the bundled flight test
@@ -72,14 +88,15 @@ def test_readme_calibration_table(per_flight):
     # README: fitted per flight, "the pitch comes out at +0.29 +- 0.10 deg (T3) and
     # +0.35 +- 0.10 deg (T4)", pitch and yaw "correlation above 0.99"
     for name, y in (("T3", 0.29), ("T4", 0.35)):
-        assert g[name]["angles_deg"][1] == pytest.approx(y, abs=5e-3)
-        assert g[name]["angles_sd_deg"][1] == pytest.approx(0.10, abs=5e-3)
+        v, sd = value_sd(g[name]["parameters"], "mount_y")
+        assert v == pytest.approx(y, abs=5e-3)
+        assert sd == pytest.approx(0.10, abs=5e-3)
         assert abs(g[name]["correlation"][1][2]) > 0.99
 
 
 def test_leave_one_out_never_sees_the_left_out_record(bundled, per_flight):
-    """Leave-one-out by hand, independently of ``leave_one_out``: for each T3 record k, fit
-    the nine others with ``fit_mounting``, locate k through the ordinary ``locate`` path
+    """Leave-one-out by hand, independently of the report's loop: for each T3 record k, fit
+    the nine others with ``fit_sensor_params``, locate k through the ordinary ``locate`` path
     with that camera and measure pyproj's geodesic to k's truth. The report's figures must
     be these (1 mm: the report rounds to 1e-3 m), and they must differ from what a fit that
     keeps k would give (the in-sample error, T3: 4.98 m against 5.93 m), so a
@@ -89,10 +106,10 @@ def test_leave_one_out_never_sees_the_left_out_record(bundled, per_flight):
     groups = np.array(rec.text("table"))
     idx = np.flatnonzero(groups == "T3")
     loo, insample = [], []
-    kept = fit_mounting(rec, cam, t, idx=idx)
+    kept = fit_rotation(rec, cam, t, idx=idx)
     for k in idx:
-        fit = fit_mounting(rec, cam, t, idx=idx[idx != k])
-        for c, out in ((fit.camera, loo), (kept.camera, insample)):
+        fit = fit_rotation(rec, cam, t, idx=idx[idx != k])
+        for c, out in ((fit.sensor, loo), (kept.sensor, insample)):
             g = locate(rec.pose(), c, rec.column("row"), rec.column("col"), rec.column("paper_height_m"))
             out.append(GEOD.inv(float(g.lon_deg[k]), float(g.lat_deg[k]), rec.column("truth_lon_deg")[k],
                                 rec.column("truth_lat_deg")[k])[2])
@@ -105,8 +122,11 @@ def test_leave_one_out_never_sees_the_left_out_record(bundled, per_flight):
     assert np.mean(loo) == pytest.approx(5.927, abs=5e-4)
     assert np.mean(insample) == pytest.approx(e["mean_error_after_m"], abs=1e-3)
     assert np.mean(loo) - np.mean(insample) > 0.9
-    en, d = leave_one_out(rec, cam, t, idx=idx)
-    np.testing.assert_allclose(d, loo, atol=1e-6)
+    # fit_sensor_params' own leave-one-out (a third loop): the norm of the (east, north) vector
+    # at the target height, longer than the geodesic on the ellipsoid by (R + h) / R (h ~ 5 km:
+    # 8e-4, 5 mm at 6 m): 1e-3 relative
+    d = fit_sensor_params(rec, as_sensor(cam), MOUNT, t, idx=idx, loo=True).loo_errors_m
+    np.testing.assert_allclose(d, loo, rtol=1e-3)
 
 
 def test_must_show_loo_per_flight_at_most_7_m(per_flight):
@@ -140,20 +160,22 @@ def test_joint_mount_fit_separates_the_angles(bundled, per_flight):
     rec, cam = bundled
     for e in per_flight[0]["groups"].values():
         assert abs(e["correlation"][1][2]) > 0.99
-    report, cams = calibrate_groups(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")), "table",
+    report, cams = mount_groups(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")), "table",
                                     loo=True, joint=True)
     j = report["joint_fit"]
-    assert max(j["angles_sd_deg"]) < 0.01
+    angles = [j["parameters"][k]["value"] for k in MOUNT]
+    sds = [j["parameters"][k]["sd"] for k in MOUNT]
+    assert max(sds) < 0.01
     # README: "one pitch of the gimbal base, +0.220 +- 0.004 deg"; docs/calibration.md:
     # x = -0.001 +- 0.002, z = 0.000 +- 0.004 deg. The angles to the printed digits; the
     # sd of y one digit further (0.00410), since s^2 / m instead of s^2 / (m - p) gives
     # 0.00394, which prints as 0.004 too (test_covariance_uses_m_minus_p_degrees_of_freedom).
-    assert j["angles_deg"][1] == pytest.approx(0.220, abs=5e-4)
-    assert j["angles_deg"][0] == pytest.approx(-0.001, abs=5e-4)
-    assert j["angles_deg"][2] == pytest.approx(0.000, abs=5e-4)
-    assert j["angles_sd_deg"][1] == pytest.approx(0.00410, abs=5e-6)
-    assert j["angles_sd_deg"][0] == pytest.approx(0.002, abs=5e-4)
-    assert j["angles_sd_deg"][2] == pytest.approx(0.004, abs=5e-4)
+    assert angles[1] == pytest.approx(0.220, abs=5e-4)
+    assert angles[0] == pytest.approx(-0.001, abs=5e-4)
+    assert angles[2] == pytest.approx(0.000, abs=5e-4)
+    assert sds[1] == pytest.approx(0.00410, abs=5e-6)
+    assert sds[0] == pytest.approx(0.002, abs=5e-4)
+    assert sds[2] == pytest.approx(0.004, abs=5e-4)
     # README: leave-one-out with --joint 5.4 / 5.7 m; docs: after 5.1 / 5.3 m
     for name, after, loo in (("T3", 5.1, 5.4), ("T4", 5.3, 5.7)):
         assert report["groups"][name]["mean_error_after_m"] == pytest.approx(after, abs=0.05)
@@ -177,11 +199,12 @@ def test_resection_reproduces_the_bundled_camera(bundled):
     # termination (1 px in f is 0.5 % of its 208-px standard deviation).
     rec, cam = bundled
     start = Camera(150000.0, 1112.0, 1196.0, cam.rows, cam.cols)
-    r = resect_camera(rec, start)
+    r = resect_sensor(rec, as_sensor(start), ["f", "cy", "cx"])  # focal length, principal row i0, column j0
     assert r.success
-    assert r.camera.focal_length_px == pytest.approx(166841.0, abs=1.0)
-    assert r.camera.principal_row == pytest.approx(1162.12, abs=0.02)
-    assert r.camera.principal_col == pytest.approx(1146.42, abs=0.05)
+    f, i0, j0 = r.fit.values
+    assert f == pytest.approx(166841.0, abs=1.0)
+    assert i0 == pytest.approx(1162.12, abs=0.02)
+    assert j0 == pytest.approx(1146.42, abs=0.05)
     assert r.rms_m == pytest.approx(0.25, abs=0.01)
     # paper_height_m is the height where that camera's ray meets the published point:
     # the fitted heights agree to 0.1 m (0.25 m misfit over a ~1:1 slant).
@@ -230,15 +253,15 @@ def test_synthetic_fit_recovers_planted_rotation(tmp_path, model):
     planted = np.deg2rad([0.05, 0.22, -0.10])
     field = "mount" if model == "mount" else "boresight"
     rec = _synthetic(tmp_path, rng, Camera(**{**base.__dict__, field: tuple(planted)}), 3.0)
-    fit = fit_mounting(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")), model=model)
+    fit = fit_rotation(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")), model=model)
     assert fit.success
-    z = (fit.angles - planted) / fit.angles_sd
-    assert np.all(np.abs(z) < 3.0), (np.rad2deg(fit.angles), np.rad2deg(fit.angles_sd))
+    z = (fit.values - planted) / fit.sd
+    assert np.all(np.abs(z) < 3.0), (np.rad2deg(fit.values), np.rad2deg(fit.sd))
     assert fit.sigma_m == pytest.approx(3.0, rel=0.3)
     # and the camera's tilt angles are far better determined than its twist about
     # the line of sight (lever: pixel offset / f ~ 0.006 rad)
     if model == "camera":
-        assert fit.angles_sd[2] > 20 * max(fit.angles_sd[:2])
+        assert fit.sd[2] > 20 * max(fit.sd[:2])
 
 
 def test_covariance_uses_m_minus_p_degrees_of_freedom(bundled):
@@ -246,25 +269,26 @@ def test_covariance_uses_m_minus_p_degrees_of_freedom(bundled):
     # is that s, from the fit's own residuals (m = 2 n components, p = 3 angles); with
     # s^2 / m it would be sqrt(37 / 40) = 3.8 % smaller
     rec, cam = bundled
-    fit = fit_mounting(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")))
+    fit = fit_rotation(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")))
     r = fit.residual_m.ravel()
     assert r.size == 40 and len(fit.names) == 3
     assert fit.sigma_m == pytest.approx(math.sqrt(r @ r / (40 - 3)), rel=1e-12)
     # and the angles' sd is s sqrt(diag (J^T J)^-1), J by central differences here: the
     # residuals' Jacobian with respect to the three mount angles at the solution
-    from geoloc.analysis.calibrate import _camera_from_params, _records_data
+    from geoloc.analysis.sensor_fit import _enu_residuals, _ground
 
-    data = _records_data(rec, PerRecordHeightSurface(rec.column("paper_height_m")), "truth")
-    idx = np.arange(len(rec))
+    surf = PerRecordHeightSurface(rec.column("paper_height_m"))
+    sensor = as_sensor(cam)
+    tlat, tlon = np.deg2rad(rec.column("truth_lat_deg")), np.deg2rad(rec.column("truth_lon_deg"))
 
     def res(p):
-        g = data.locate(_camera_from_params(cam, "mount", p, False, False), idx)
-        return data.east_north(g, idx).ravel()
+        s = sensor.with_params(**dict(zip(MOUNT, p)))
+        return _enu_residuals(_ground(s, rec.pose(), rec.column("row"), rec.column("col"), surf), tlat, tlon).ravel()
 
     h = 1e-7
-    J = np.stack([(res(fit.x + h * e) - res(fit.x - h * e)) / (2 * h) for e in np.eye(3)], -1)
+    J = np.stack([(res(fit.values + h * e) - res(fit.values - h * e)) / (2 * h) for e in np.eye(3)], -1)
     sd = fit.sigma_m * np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
-    np.testing.assert_allclose(fit.angles_sd, sd, rtol=1e-3)  # finite differences: 1e-3
+    np.testing.assert_allclose(fit.sd, sd, rtol=1e-3)  # finite differences: 1e-3
 
 
 def test_synthetic_uncertainty_has_nominal_coverage(tmp_path):
@@ -278,8 +302,8 @@ def test_synthetic_uncertainty_has_nominal_coverage(tmp_path):
     for t in range(25):
         rec = _synthetic(tmp_path, rng, Camera(**{**base.__dict__, "mount": tuple(planted)}), 2.0, n=12,
                          name=f"s{t}.csv")
-        fit = fit_mounting(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")))
-        hits.extend(np.abs(fit.angles - planted) < fit.angles_sd)
+        fit = fit_rotation(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")))
+        hits.extend(np.abs(fit.values - planted) < fit.sd)
     assert abs(np.mean(hits) - 0.683) < 0.28
 
 
@@ -290,9 +314,10 @@ def test_noise_free_fit_is_exact(tmp_path):
     base = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
     planted = np.deg2rad([0.1, -0.2, 0.3])
     rec = _synthetic(tmp_path, rng, Camera(**{**base.__dict__, "mount": tuple(planted)}), 0.0, n=10)
-    fit = fit_mounting(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")))
-    np.testing.assert_allclose(np.rad2deg(fit.angles), np.rad2deg(planted), atol=1e-7)
-    en, d = leave_one_out(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")))
+    fit = fit_rotation(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")))
+    np.testing.assert_allclose(np.rad2deg(fit.values), np.rad2deg(planted), atol=1e-7)
+    d = fit_sensor_params(rec, as_sensor(base), MOUNT, PerRecordHeightSurface(rec.column("paper_height_m")),
+                          loo=True).loo_errors_m
     # truth coordinates are written with 1e-10 deg (1e-5 m): LOO errors at that level
     assert np.all(d < 1e-3)
 
@@ -368,11 +393,11 @@ def test_blunder_is_flagged_and_can_be_excluded(tmp_path, bundled):
     path.write_text("\n".join(lines) + "\n")
     bad = load_records(path)
     t = PerRecordHeightSurface(bad.column("paper_height_m"))
-    report, _ = calibrate_groups(bad, cam, t, "table")
+    report, _ = mount_groups(bad, cam, t, "table")
     assert report["groups"]["T3"]["before"]["outliers"] == [2]
     assert report["groups"]["T4"]["before"]["outliers"] == []
     assert report["groups"]["T3"]["records"][2]["outlier_before"]
-    clean, _ = calibrate_groups(bad, cam, t, "table", exclude_outliers=True)
+    clean, _ = mount_groups(bad, cam, t, "table", exclude_outliers=True)
     assert clean["groups"]["T3"]["n_used_in_fit"] == 9
     # without the blunder the other nine fit better
     assert clean["groups"]["T3"]["sigma_m"] < report["groups"]["T3"]["sigma_m"]
@@ -425,15 +450,16 @@ def test_intrinsics_with_mount_from_both_sides(tmp_path):
     true = Camera(**{**base.__dict__, "mount": tuple(planted), "focal_length_px": base.focal_length_px * 1.02,
                      "principal_row": base.principal_row + 30.0, "principal_col": base.principal_col - 20.0})
     rec = _synthetic(tmp_path, rng, true, 0.0, n=20)
-    fit = fit_mounting(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")), fit_focal=True, fit_pp=True)
-    rep = fit.report()
-    assert rep["focal_length_px"] == pytest.approx(true.focal_length_px, abs=0.1)
-    assert rep["principal_row"] == pytest.approx(true.principal_row, abs=0.01)
-    np.testing.assert_allclose(rep["angles_deg"][1:], np.rad2deg(planted[1:]), atol=1e-5)
-    names = rep["parameter_names"]
-    assert abs(rep["correlation"][names.index("mount_x")][names.index("principal_col")]) > 0.99
+    # f: the focal length (fx and fy together); cy, cx: the principal row and column (1-based)
+    fit = fit_rotation(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")), names=["f", "cy", "cx"])
+    par = fit.report()["parameters"]
+    assert par["f"]["value"] == pytest.approx(true.focal_length_px, abs=0.1)
+    assert par["cy"]["value"] == pytest.approx(true.principal_row, abs=0.01)
+    np.testing.assert_allclose([par["mount_y"]["value"], par["mount_z"]["value"]], np.rad2deg(planted[1:]), atol=1e-5)
+    names = fit.names
+    assert abs(fit.correlation[names.index("mount_x"), names.index("cx")]) > 0.99
     # and within its (large) uncertainty the degenerate pair is still right
-    assert abs(rep["principal_col"] - true.principal_col) < 3 * rep["principal_col_sd"] + 0.01
+    assert abs(par["cx"]["value"] - true.principal_col) < 3 * par["cx"]["sd"] + 0.01
 
 
 def test_cli_flags_degenerate_parameters(tmp_path, capsys):

@@ -10,22 +10,24 @@ import pytest
 
 from geoloc.surfaces.height import PerRecordHeightSurface
 from geoloc.surfaces.terrain import DemSurface
-from geoloc.analysis.calibrate import calibrate_groups
+from geoloc.analysis.sensor_fit import fit_sensor_groups
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.cli import main
 from geoloc.io.records import load_records
+from geoloc.locate import as_sensor
 from geoloc.sensors.camera import Camera
 from geoloc.surfaces.dem import DEM
 
 
 def test_flat_dem_equals_constant_height():
     rec = load_records(asset_path(*DEFAULT_RECORDS))
-    cam = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
+    cam = as_sensor(Camera.from_toml(asset_path(*DEFAULT_CAMERA)))
+    mount = ["mount_x", "mount_y", "mount_z"]
     # 0.05-deg nodes over both flight areas (35-37 N, 78-81.5 E), all at 5000 m
     dem = DEM.from_array(np.full((41, 71), 5000.0), 37.0, 78.0, 0.05, 0.05, datum="ellipsoid")
-    by_dem, _ = calibrate_groups(rec, cam, DemSurface(dem), "table", joint=True)
-    by_h, _ = calibrate_groups(rec, cam, PerRecordHeightSurface(np.full(len(rec), 5000.0), "geodetic"), "table",
-                               joint=True)
+    by_dem, _ = fit_sensor_groups(rec, cam, mount, DemSurface(dem), group_column="table", joint=True)
+    by_h, _ = fit_sensor_groups(rec, cam, mount, PerRecordHeightSurface(np.full(len(rec), 5000.0), "geodetic"),
+                                group_column="table", joint=True)
     for g in ("T3", "T4"):
         a, b = by_dem["groups"][g], by_h["groups"][g]
         # same geometry: metre-level errors agree to 1 cm (the DEM solver's
@@ -33,7 +35,8 @@ def test_flat_dem_equals_constant_height():
         assert a["mean_error_before_m"] == pytest.approx(b["mean_error_before_m"], abs=0.01)
         assert a["mean_error_after_m"] == pytest.approx(b["mean_error_after_m"], abs=0.01)
         # 1 cm over ~18 km slant range: 3e-5 deg
-        np.testing.assert_allclose(a["angles_deg"], b["angles_deg"], atol=3e-5)
+        np.testing.assert_allclose([a["parameters"][k]["value"] for k in mount],
+                                   [b["parameters"][k]["value"] for k in mount], atol=3e-5)
 
 
 def test_cli_dem_option(tmp_path, capsys):

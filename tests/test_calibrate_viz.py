@@ -12,11 +12,11 @@ import viser  # a dependency of the project (pyproject), so never a skip
 
 from geoloc.surfaces.height import PerRecordHeightSurface
 
-from geoloc.analysis.calibrate import calibrate_groups
+from geoloc.analysis.sensor_fit import fit_sensor_groups
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.frames.enu import EnuFrame
 from geoloc.io.records import load_records
-from geoloc.locate import locate
+from geoloc.locate import as_sensor, locate
 from geoloc.sensors.camera import Camera
 from geoloc.viz.calibration_layer import add_error_vectors
 
@@ -32,7 +32,8 @@ def test_error_vector_nodes(server):
     rec = load_records(asset_path(*DEFAULT_RECORDS))
     cam = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
     h = rec.column("paper_height_m")
-    _, cams = calibrate_groups(rec, cam, PerRecordHeightSurface(h), "table", joint=True)
+    _, cams = fit_sensor_groups(rec, as_sensor(cam), ["mount_x", "mount_y", "mount_z"], PerRecordHeightSurface(h),
+                                group_column="table", joint=True)
     lat0, lon0, h00 = 36.36, 78.87, 5000.0  # flight T3's area
     frame = EnuFrame.from_deg(lat0, lon0, h00)
     layer = add_error_vectors(server.scene, rec, frame, h, cam, cams["joint"], exaggeration=20.0)

@@ -32,11 +32,7 @@ KNOWN_DEM_OPENERS = {
 CAMERA_FORMAT = {"geoloc.sensors.camera", "geoloc.sensors.sensor_file"}
 
 #: Modules still branching on ``isinstance(x, Camera)`` outside the file format (may only shrink).
-KNOWN_CAMERA_CHECKS = {
-    # the first-phase calibrator (analysis.calibrate) runs on a Camera, the sensor fit on the rest
-    "geoloc.viz.calibration_layer",
-    "geoloc.viz.rerun_model",
-}
+KNOWN_CAMERA_CHECKS: set = set()
 
 
 def module_name(path: Path) -> str:

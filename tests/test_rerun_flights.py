@@ -2,7 +2,7 @@
 outliers, before/after calibration and the blueprint, all read back from the .rrd with rerun's reader.
 
 Oracles: pyproj (the flights' separation), pymap3d (``geodetic2ned`` for the components), the core called
-here directly (geoloc.workflows.replay, geoloc.analysis.accuracy, geoloc.analysis.calibrate) and the
+here directly (geoloc.workflows.replay, geoloc.analysis.accuracy, geoloc.analysis.sensor_fit) and the
 published calibration figures of docs/calibration.md.
 """
 
@@ -191,15 +191,20 @@ def test_outlier_flags_as_series_and_annotations(rerun_home, tmp_path, rec, core
 
 
 def test_before_and_after_calibration(rec, core):
+    from geoloc.analysis.sensor_fit import fit_sensor_groups
+    from geoloc.locate import as_sensor
     from geoloc.surfaces.height import PerRecordHeightSurface
-    from geoloc.analysis.calibrate import calibrate_groups
 
     steps, out, data = rec
     recs, res, table, comp = core
     _, before = scalars(data, "/series/calibration/before_m")
     _, after = scalars(data, "/series/calibration/after_m")
-    np.testing.assert_allclose(before, comp["horizontal_m"], rtol=0, atol=1e-9)  # as the components above
-    report, _ = calibrate_groups(recs, Camera.from_toml(CAMERA), PerRecordHeightSurface(recs.column("paper_height_m")), "table")
+    # the replay's error to truth (the to_truth_m series); the components' horizontal_m above is at
+    # the target height, longer by (R + h) / R (h ~ 5 km: 8e-4)
+    np.testing.assert_allclose(before, res.error_to_truth_m, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(before, comp["horizontal_m"], rtol=1e-3)
+    report, _ = fit_sensor_groups(recs, as_sensor(Camera.from_toml(CAMERA)), ["mount_x", "mount_y", "mount_z"],
+                                  PerRecordHeightSurface(recs.column("paper_height_m")), group_column="table")
     for g in FLIGHTS:
         m = table == g
         # calibrate's own mean (pyproj's geodesic on the ellipsoid, rounded to 1 mm) and ours (tangent plane

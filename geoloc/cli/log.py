@@ -58,8 +58,7 @@ def register(sub) -> None:
     g.add_argument("--fit", default=None, metavar="NAMES",
                    help="records: comma-separated sensor parameters to fit per flight for the before/after "
                    "series (geoloc.analysis.sensor_fit, e.g. mount_x,mount_y,mount_z,boresight_z); default "
-                   "mount_x,mount_y,mount_z for a sensor file or a DEM, and the first-phase mounting "
-                   "calibration (geoloc calibrate) for a camera file with target heights")
+                   "mount_x,mount_y,mount_z (the mounting calibration of geoloc calibrate)")
     g = p.add_argument_group("viewer")
     g.add_argument("--display-scale", type=float, default=200.0,
                    help="scale of the aircraft mesh in the 3D view (default 200)")

@@ -6,8 +6,8 @@ scene's local ENU frame (:class:`geoloc.frames.enu.EnuFrame`, metres; three.js s
 float32, hence the local origin). The truth is placed at the computed point's
 height (the records give no truth height), so the segments are horizontal.
 Geometry comes from the core only (:func:`geoloc.locate.locate`,
-:mod:`geoloc.frames.enu`); the calibrated camera is the one of ``geoloc calibrate
---write-camera`` or :func:`geoloc.analysis.calibrate.calibrate_groups`.
+:mod:`geoloc.frames.enu`); the calibrated sensor is the one of ``geoloc calibrate
+--write-camera`` / ``--write-sensor`` or :func:`geoloc.analysis.sensor_fit.fit_sensor_groups`.
 
 Conventions: ``docs/conventions.md``. Scene nodes (under ``name``, default
 ``/calibration``; ``/enu/calibration`` in the ``geoloc view`` app): ``truth``
@@ -28,7 +28,6 @@ import numpy as np
 from geoloc.frames.enu import EnuFrame
 from geoloc.io.records import Records
 from geoloc.locate import locate
-from geoloc.sensors.camera import Camera
 
 #: Segment colours (RGB 0-255): before red, after blue; truth markers white.
 COLORS = {"before": (220, 40, 40), "after": (40, 90, 230), "truth": (255, 255, 255)}
@@ -73,14 +72,13 @@ def error_geometry(records: Records, frame: EnuFrame, heights, cameras: dict,
     heights : array_like
         Target ellipsoidal height of each record [m] (e.g. ``paper_height_m``).
     cameras : dict
-        Stage name -> Camera, e.g. ``{"before": nominal, "after": calibrated}``.
+        Stage name -> sensor (a camera file's ``Camera`` or any sensor :func:`geoloc.locate.locate`
+        takes), e.g. ``{"before": nominal, "after": calibrated}``.
     """
     h = np.asarray(heights, float)
     pose, row, col = records.pose(), records.column("row"), records.column("col")
     computed, hh = {}, None
     for stage, cam in cameras.items():
-        if not isinstance(cam, Camera):
-            raise ValueError(f"cameras[{stage!r}] = {cam!r}: must be a geoloc.sensors.camera.Camera")
         g = locate(pose, cam, row, col, h, outside="extrapolate")  # recorded pixels (T4-3 is off the sensor)
         computed[stage] = frame.from_ecef(g.ecef)
         hh = g.h if hh is None else np.where(np.isfinite(hh), hh, g.h)
@@ -196,8 +194,8 @@ class CalibrationLayer:
         return dd, sl
 
 
-def add_error_vectors(scene, records: Records, frame: EnuFrame, heights, camera_before: Camera,
-                      camera_after: Camera | None = None, **kw) -> CalibrationLayer:
+def add_error_vectors(scene, records: Records, frame: EnuFrame, heights, camera_before,
+                      camera_after=None, **kw) -> CalibrationLayer:
     """Add the error vectors of all records (before and, if given, after calibration) to a scene.
 
     Parameters
@@ -208,8 +206,8 @@ def add_error_vectors(scene, records: Records, frame: EnuFrame, heights, camera_
         The scene's local ENU origin.
     heights : array_like
         Target height per record [m].
-    camera_before, camera_after : Camera
-        Nominal and calibrated cameras.
+    camera_before, camera_after : sensor
+        Nominal and calibrated sensors (or camera files' ``Camera``).
     **kw
         Passed to :class:`CalibrationLayer` (``exaggeration``, ``stage``, ``name``).
     """
@@ -240,6 +238,9 @@ def records_from_scenario(scn) -> Records:
                    np.arange(2, len(rows) + 2), [])
 
 
+#: What the app fits: the mounting rotation (the [Q17] installation error, docs/calibration.md).
+MOUNT_NAMES = ("mount_x", "mount_y", "mount_z")
+
 #: Fitted cameras by (records list, sensor) of a scenario: every tab of a viewer shares the
 #: records and the sensor, so the fit runs once, not once per tab (0.3 s each).
 _FIT_CACHE: "collections.OrderedDict" = collections.OrderedDict()
@@ -249,14 +250,16 @@ _FIT_LOCK = threading.Lock()
 class AppCalibration:
     """The calibration layer of a ``geoloc view`` app: fit once, redraw on a new ENU origin.
 
-    The "after" camera is one mounting rotation fitted to all records with a
-    surveyed truth and a ``paper_height_m`` (``geoloc.analysis.calibrate``, joint fit).
+    The "after" sensor is one mounting rotation (``mount_x``, ``mount_y``, ``mount_z``) fitted
+    to all records with a surveyed truth and a ``paper_height_m``
+    (:func:`geoloc.analysis.sensor_fit.fit_sensor_groups`, joint fit).
     """
 
     def __init__(self, app, exaggeration: float = 20.0, stage: str = "both", world_scale=None,
                  name=None):
+        from geoloc.analysis.sensor_fit import fit_sensor_groups
+        from geoloc.locate import as_sensor
         from geoloc.surfaces.height import PerRecordHeightSurface
-        from geoloc.analysis.calibrate import calibrate_groups
 
         if world_scale is None or name is None:
             try:  # the app's world unit (km) and scene root
@@ -282,9 +285,9 @@ class AppCalibration:
             ok = (np.isfinite(heights) & np.isfinite(self.records.column("truth_lat_deg"))
                   & np.isfinite(self.records.column("truth_lon_deg")))
             if ok.sum() >= 2 and ok.all():
-                _, cams = calibrate_groups(self.records, app.scn.camera, PerRecordHeightSurface(heights), "table",
-                                           joint=True)
-                self.cameras["after"] = cams["joint"]
+                _, fitted = fit_sensor_groups(self.records, as_sensor(app.scn.camera), MOUNT_NAMES,
+                                              PerRecordHeightSurface(heights), group_column="table", joint=True)
+                self.cameras["after"] = fitted["joint"]
             with _FIT_LOCK:
                 _FIT_CACHE[key] = (app.scn.records, app.scn.camera, self.records, dict(self.cameras))
                 while len(_FIT_CACHE) > 4:
@@ -374,6 +377,6 @@ def attach(app) -> AppCalibration:
         follow()
     if hasattr(app, "on_record"):
         # the ENU origin moved with the record: redraw what was drawn (records without truth, as a
-        # KLV flight's, have no error vectors to draw, and a MISB sensor no Camera to fit)
+        # KLV flight's, have no error vectors to draw)
         app.on_record(lambda _idx: cal.rebuild() if cal.layer is not None else None)
     return cal

@@ -18,11 +18,10 @@ Error analysis per step (:func:`add_error_analysis`): the error components of
 minus the published position; along / across the local track of
 :func:`geoloc.analysis.accuracy.track_azimuth_rad`), the robust outlier flags of
 :func:`geoloc.analysis.accuracy.robust_outliers` per flight, and for records with
-a surveyed truth the errors before and after a per-flight calibration: the mounting
-rotation of :func:`geoloc.analysis.calibrate.calibrate_groups` (first-phase camera file,
-target heights), else the named sensor parameters of
-:func:`geoloc.analysis.sensor_fit.fit_sensor_groups` (sensor files, DEM runs:
-:func:`sensor_fit_series`).
+a surveyed truth the errors before and after a per-flight calibration: the named
+sensor parameters (default the mounting rotation) of
+:func:`geoloc.analysis.sensor_fit.fit_sensor_groups`, for a camera file as for a
+sensor file (:func:`sensor_fit_series`).
 Conventions: ``docs/conventions.md``.
 """
 
@@ -321,12 +320,9 @@ def steps_from_records(path, camera: Camera | None = None, *, height_column: str
     file has it. Errors are horizontal geodesic distances (:mod:`geoloc.workflows.replay`).
     Flights: the ``group_column`` (default ``table``; ignored when absent), one scene
     origin each. With a surveyed truth, ``calibrate`` adds the errors after a per-flight
-    fit: a first-phase camera file with target heights (not a DEM) and no ``fit_names``
-    gets the mounting rotation of :func:`geoloc.analysis.calibrate.calibrate_groups`;
-    a sensor file, a DEM or given ``fit_names`` get
-    :func:`geoloc.analysis.sensor_fit.fit_sensor_groups` of ``fit_names`` (default
-    :data:`DEFAULT_FIT_NAMES`) on the same surface as the located targets
-    (:func:`geoloc.surfaces.terrain.surface_for`).
+    fit: :func:`geoloc.analysis.sensor_fit.fit_sensor_groups` of ``fit_names`` (default
+    :data:`DEFAULT_FIT_NAMES`, the mounting rotation) on the same surface as the located
+    targets (:func:`geoloc.surfaces.terrain.surface_for`).
 
     Returns
     -------
@@ -406,11 +402,8 @@ def steps_from_records(path, camera: Camera | None = None, *, height_column: str
         kw = {k: float(v) for k, v in (("eps_h", eps_h_m), ("threshold", threshold_m)) if on_dem and v is not None}
         surf = surface_for(None if on_dem else np.broadcast_to(np.asarray(h, float), (len(recs),)),
                            terrain.dem if on_dem else None, method=method, kind=surface, per_record=True, **kw)
-        if fit_names is None and not on_dem and isinstance(camera, Camera):
-            steps.calibration = calibration_series(steps, recs, surf, gcol)
-        else:
-            names = list(DEFAULT_FIT_NAMES if fit_names is None else fit_names)
-            steps.calibration = sensor_fit_series(steps, recs, names, surf, gcol)
+        names = list(DEFAULT_FIT_NAMES if fit_names is None else fit_names)
+        steps.calibration = sensor_fit_series(steps, recs, names, surf, gcol)
     return steps, list(recs.errors)
 
 
@@ -453,38 +446,6 @@ def add_error_analysis(steps: LogSteps, heading_deg=None, outlier=None) -> LogSt
             outlier[m] = robust_outliers(comp["horizontal_m"][m])
     steps.outlier = np.asarray(outlier, bool)
     return steps
-
-
-def calibration_series(steps: LogSteps, recs, surface, group_column: str | None = None) -> dict:
-    """Errors to truth before and after the per-flight mounting fit (:func:`geoloc.analysis.calibrate.calibrate_groups`).
-
-    Each flight's records are located again with its calibrated camera, at the same
-    heights, and measured with :func:`geoloc.analysis.accuracy.error_components`
-    (horizontal, along and across the same track as before).
-    """
-    from geoloc.analysis.accuracy import error_components
-    from geoloc.analysis.calibrate import calibrate_groups
-    from geoloc.surfaces.height import for_records
-
-    grp = steps.group_of
-    report, cameras = calibrate_groups(recs, steps.camera, surface, group_column)
-    n = len(steps)
-    after = {k: np.full(n, np.nan) for k in ("after_m", "after_along_m", "after_across_m")}
-    for g in steps.groups:
-        idx = np.flatnonzero(grp == g)
-        cam = cameras[g]
-        los = line_of_sight(steps.pose.take(idx), cam, steps.row[idx], steps.col[idx], outside="extrapolate")
-        gp = for_records(surface, idx).intersect(los)
-        c = error_components(gp.lat_deg, gp.lon_deg, gp.h, steps.truth["lat_deg"][idx], steps.truth["lon_deg"][idx],
-                             np.nan, track_heading_rad=steps.components["track_rad"][idx])
-        after["after_m"][idx] = c["horizontal_m"]
-        after["after_along_m"][idx] = c["along_m"]
-        after["after_across_m"][idx] = c["across_m"]
-    means = ", ".join(f"{g} {report['groups'][g]['mean_error_before_m']:.1f} -> "
-                      f"{report['groups'][g]['mean_error_after_m']:.1f} m" for g in steps.groups)
-    note = f"calibration (one mounting rotation per flight, in-sample): mean error to truth {means}"
-    steps.notes.append(note)
-    return {"before_m": steps.components["horizontal_m"].copy(), **after, "note": note, "report": report}
 
 
 def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str | None = None) -> dict:
