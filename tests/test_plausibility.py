@@ -159,3 +159,77 @@ def test_drone_photo_in_feet_is_warned_naming_the_tag(tmp_path, capsys):
     assert len(rows) == 5 and {r["status"] for r in rows} == {"ok"}
     assert main(["replay", str(PHOTO), "--targets", str(TARGETS), "--dem", str(SRTM)]) == 0
     assert "implausible for a drone" not in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ KLV: Platform Designation (tag 10)
+KLV = asset_path("klv", "example_flight.klv")
+
+
+def _klv(tmp_path, name, designation=None, sensor_above_m=None, n=12):
+    """The first ``n`` good packets of the bundled flight, re-encoded with a Platform Designation and
+    the sensor ``sensor_above_m`` above the packet's frame centre (tags 75 and 15 moved together)."""
+    from geoloc.io import klv
+
+    out = []
+    for p in klv.read_packets(KLV):
+        if isinstance(p, klv.KlvError) or "sensor_relative_azimuth_deg" not in p.fields:
+            continue
+        f = dict(p.fields)
+        if designation is not None:
+            f["platform_designation"] = designation
+        if sensor_above_m is not None:
+            dh = f["frame_center_hae_m"] + sensor_above_m - f["sensor_ellipsoid_height_m"]
+            f["sensor_ellipsoid_height_m"] += dh
+            f["sensor_true_altitude_m"] += dh
+        out.append(klv.encode_packet(f))
+        if len(out) == n:
+            break
+    path = tmp_path / name
+    path.write_bytes(b"".join(out))
+    return path
+
+
+def test_klv_drone_designation_kilometres_up_is_warned(tmp_path, capsys):
+    # the bundled flight: 2.4 km above its frame centres (2900.5 m HAE over 524.7 m), no designation: none
+    assert main(["replay", str(_klv(tmp_path, "plain.klv"))]) == 0
+    assert "too high for a drone" not in capsys.readouterr().out
+    # a non-drone designation (MISB ST 0601's own example, an MQ-1B): none
+    assert main(["replay", str(_klv(tmp_path, "mq1.klv", "MQ1-B"))]) == 0
+    assert "too high for a drone" not in capsys.readouterr().out
+    # a DJI drone at 120 m above its frame centres: none
+    assert main(["replay", str(_klv(tmp_path, "m300.klv", "DJI Matrice 300 RTK", 120.0))]) == 0
+    assert "too high for a drone" not in capsys.readouterr().out
+    # the same in feet: (524.7 + 120) / 0.3048 m, 1.6 km above the frame centre: warned, packet by packet
+    path = _klv(tmp_path, "m300_ft.klv", "DJI Matrice 300 RTK", None)
+    from geoloc.io import klv
+
+    ft = []
+    for p in klv.read_packets(path):
+        f = dict(p.fields)
+        f["sensor_ellipsoid_height_m"] = (f["frame_center_hae_m"] + 120.0) / FOOT_M
+        f.pop("sensor_true_altitude_m")
+        ft.append(klv.encode_packet(f))
+    path.write_bytes(b"".join(ft))
+    out_csv = tmp_path / "out.csv"
+    assert main(["replay", str(path), "--out", str(out_csv)]) == 0
+    out = capsys.readouterr().out
+    assert "warning: 12 packet(s) too high for a drone" in out, out
+    assert ("packet 0 (byte 0): tag 75 (Sensor Ellipsoid Height) = 2115.3 m: a drone's camera (Platform "
+            "Designation 'DJI Matrice 300 RTK') 1.6 km above the frame centre (tag 78) (524.7 m): likely feet "
+            "read as metres (x 0.3048: 644.7 m, 120 m above it)") in out, out
+    assert "... and 7 more" in out
+    rows = list(csv.DictReader(open(out_csv)))
+    assert len(rows) == 12 and {r["status"] for r in rows} == {"ok"}  # used as read
+
+
+def test_the_docs_list_the_rule_as_the_code_has_it():
+    from pathlib import Path
+
+    from geoloc.sensors.platform import DRONE_WORDS
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "records.md").read_text()
+    section = doc[doc.index("## Plausibility checks"):]
+    flat = " ".join(section.split())
+    for w in DRONE_WORDS:
+        assert f"`{w}`".lower() in flat.lower(), w
+    assert "1000 m above the terrain" in flat and "7000 m" in flat and "x 0.3048" in flat

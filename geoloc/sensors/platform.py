@@ -1,13 +1,13 @@
 """Which platform carries the camera: the rule that says "a drone" (issue 32, plausibility).
 
-A drone's camera flies low: a records row or a photo whose drone is kilometres
+A drone's camera flies low: a records row, a photo or a KLV packet whose drone is kilometres
 above the terrain under it holds a height in the wrong unit or datum, or is not a drone's.
-The warnings (``geoloc.workflows.replay.plausibility_warnings``, the photo replay)
+The warnings (``geoloc.workflows.replay.plausibility_warnings``, the photo and KLV replays)
 need to know that the platform is a drone; this module is the one rule for it:
 
 - a drone photo (EXIF/XMP the photo reader knows: every photo ``geoloc replay --targets`` takes);
 - a text that names a drone, by :data:`DRONE_WORDS`: the sensor file's ``platform`` key, a
-  records CSV's ``platform`` column.
+  records CSV's ``platform`` column, a KLV packet's Platform Designation (tag 10).
 
 "UAV" or "UAS" alone does not say drone: an MQ-9 or a Global Hawk is one and flies at
 15-18 km. Nothing is guessed from the lens: a sensor file gives its focal length in pixels,

@@ -69,6 +69,7 @@ from geoloc.analysis.accuracy import MAD_SCALE, MIN_EXCESS_M, OUTLIER_K, outlier
 from geoloc.frames.chain import Pose
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.geodesy.geoid import egm96_undulation
+from geoloc.sensors.platform import DRONE_CEILING_M, DRONE_MAX_HEIGHT_M
 from geoloc.io.klv import (
     TAG_BY_NAME,
     KlvError,
@@ -391,6 +392,9 @@ class KlvSummary:
     surface: str
     datum_warnings: list
     notes: list = field(default_factory=list)
+    #: One line per drone packet (Platform Designation, or the sensor file's ``platform``) whose
+    #: sensor is too high for a drone (:func:`_drone_height_warnings`, docs/records.md).
+    plausibility_warnings: list = field(default_factory=list)
 
     def __str__(self) -> str:
         L = [f"{self.source}: {self.packets} packets read, {len(self.errors)} bad packet(s) skipped"]
@@ -423,6 +427,14 @@ class KlvSummary:
                 L.append(f"    {w}")
             if len(self.datum_warnings) > 5:
                 L.append(f"    ... and {len(self.datum_warnings) - 5} more (column datum_warning)")
+        if self.plausibility_warnings:
+            L.append(f"  warning: {len(self.plausibility_warnings)} packet(s) too high for a drone "
+                     f"(over {DRONE_MAX_HEIGHT_M:g} m above the terrain or frame centre, or {DRONE_CEILING_M:g} m): "
+                     "used as read")
+            for w in self.plausibility_warnings[:5]:
+                L.append(f"    {w}")
+            if len(self.plausibility_warnings) > 5:
+                L.append(f"    ... and {len(self.plausibility_warnings) - 5} more")
         L += [f"  note: {n}" for n in self.notes]
         L.append(f"  heights written: ellipsoidal, {H_DATUM} (column h_datum), except the decoded "
                  "*_msl_m items (mean sea level)")
@@ -842,6 +854,9 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
         datum_warn[k] = "; ".join(parts)
         warnings.append(f"packet {int(read.packet[k])} (byte {int(c['offset'][k])}): {datum_warn[k]}")
 
+    plaus = _drone_height_warnings(read, base_sensor, terrain, lat_s, lon_s, h_s, h75, h15, from75, rep_h,
+                                   from78, h)
+
     ts = g("precision_time_stamp_us")
     cols = {
         "file": np.full(n, Path(read.source).name, dtype=object),
@@ -951,8 +966,52 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
         outliers=read.packet[outlier].tolist(), outlier_median_m=med, outlier_threshold_m=thr,
         sensor_h_sources={"tag 75 (HAE)": int(from75.sum()), "tag 15 (MSL) + EGM96 N": int(from15.sum())},
         reported_h_sources={"tag 78 (HAE)": int(from78.sum()), "tag 25 (MSL) + EGM96 N": int(from25.sum())},
-        surface=surface_text, datum_warnings=warnings, notes=summ_notes)
+        surface=surface_text, datum_warnings=warnings, notes=summ_notes, plausibility_warnings=plaus)
     return KlvReplay(cols, list(read.errors), summary, sens)
+
+
+def _drone_height_warnings(read: KlvRead, base_sensor, terrain, lat_s, lon_s, h_s, h75, h15, from75, rep_h,
+                           from78, h) -> list:
+    """One line per packet of a drone whose sensor is too high for a drone (issue 32).
+
+    A packet is a drone's when its Platform Designation (tag 10) names one, or, without a
+    designation, when the sensor file's ``platform`` does (:func:`geoloc.sensors.platform.is_drone`).
+    Too high: more than DRONE_MAX_HEIGHT_M above the terrain under the sensor (a DEM), else
+    above the reported frame centre (tags 78 / 25), else above the located point; or above
+    DRONE_CEILING_M. The rule and its numbers: docs/records.md, "Plausibility checks"."""
+    from geoloc.sensors.platform import drone_height_hint, is_drone
+
+    c, n = read.columns, len(read)
+    desig = c.get("platform_designation")
+    desig = [None] * n if desig is None else list(desig)
+    default = is_drone(getattr(base_sensor, "platform", ""))
+    drone = np.array([is_drone(d) if d else default for d in desig], dtype=bool)
+    if not drone.any():
+        return []
+    ref = np.where(np.isfinite(rep_h), rep_h, h)
+    what = np.where(np.isfinite(rep_h), np.where(from78, "the frame centre (tag 78)", "the frame centre (tag 25)"),
+                    "the located point").astype(object)
+    if terrain is not None:
+        ground, _ = terrain.sample(np.deg2rad(lat_s), np.deg2rad(lon_s))
+        ground = np.asarray(ground, float)
+        has = np.isfinite(ground)
+        ref = np.where(has, ground, ref)
+        what[has] = "the terrain under it (the DEM)"
+    with np.errstate(invalid="ignore"):
+        above = h_s - ref
+        high = drone & ((above > DRONE_MAX_HEIGHT_M) | (h_s > DRONE_CEILING_M))
+    out = []
+    for k in np.flatnonzero(high):
+        tag, value = ("tag 75 (Sensor Ellipsoid Height)", h75[k]) if from75[k] else \
+            ("tag 15 (Sensor True Altitude, MSL)", h15[k])
+        known = np.isfinite(ref[k])
+        where = (f"{above[k] / 1000:.1f} km above {what[k]} ({ref[k]:.1f} m)" if known
+                 else f"above a drone's ceiling ({DRONE_CEILING_M:.0f} m)")
+        said = f"Platform Designation {desig[k]!r}" if desig[k] else "the sensor file's platform"
+        hint = drone_height_hint(value, ref[k] - (h_s[k] - value) if known else None)
+        out.append(f"packet {int(read.packet[k])} (byte {int(c['offset'][k])}): {tag} = {value:.1f} m: a drone's "
+                   f"camera ({said}) {where}: {hint}")
+    return out
 
 
 # --------------------------------------------------------------------------- writing
