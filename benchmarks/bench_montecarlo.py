@@ -36,13 +36,13 @@ def median_time(fn, repeat):
     return st.median(ts), ts
 
 
-def per_sample_loop(model, n, rng, dem=None):
+def per_sample_loop(model, n, rng, surface=None):
     """The peer: one core call per sample (what a non-vectorised tool does)."""
     errs = model.sample(n, rng)
     out = np.empty((n, 3))
     for i in range(n):
         one = {k: v[i:i + 1] for k, v in errs.items()}
-        lat, lon, h, _ = mc.evaluate(model, one, dem, mc._method(model))
+        lat, lon, h, _ = mc.evaluate(model, one, surface)
         out[i] = lat[0], lon[0], h[0]
     return out
 
@@ -60,18 +60,20 @@ def main(argv=None):
     print(f"ellipsoid N = {n_big}: median {tbig:.2f} s over {rep} runs "
           f"({', '.join(f'{t:.2f}' for t in ts)}); goal <= 30 s for 1 M")
 
+    from geoloc.cli._options import surface_from_scenario
+
     try:
         dmodel = ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1_dem.toml"))
-        dem = mc.open_dem(dmodel)
+        dem = surface_from_scenario(dmodel)  # the scenario's [dem] table as a Surface, as the verb does
     except (ImportError, FileNotFoundError) as e:
         dmodel = dem = None
         print(f"DEM: not benchmarked ({e})")
     if dem is not None:
         t = time.perf_counter()
-        mc.run(dmodel, 10, np.random.default_rng(0), dem=dem)
+        mc.run(dmodel, 10, np.random.default_rng(0), surface=dem)
         print(f"DEM warm-up (numba kernels of geoloc.surfaces.terrain: compiled or loaded from cache): "
               f"{time.perf_counter() - t:.2f} s, not counted")
-        tdem, ts = median_time(lambda: mc.run(dmodel, 5000, np.random.default_rng(0), dem=dem), 5)
+        tdem, ts = median_time(lambda: mc.run(dmodel, 5000, np.random.default_rng(0), surface=dem), 5)
         print(f"DEM N = 5000: median {tdem:.3f} s over 5 runs "
               f"({', '.join(f'{t:.3f}' for t in ts)}); goal <= 0.5 s")
         n_peer = 100

@@ -9,7 +9,9 @@ from geoloc.analysis import montecarlo as mc
 from geoloc.analysis.errormodel import ErrorModel
 from geoloc.assets import asset_path
 from geoloc.cli import main
+from geoloc.cli._options import surface_from_scenario
 from geoloc.locate import line_of_sight
+from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import intersect_los_height
 from geoloc.workflows import reproduce as rp
 
@@ -22,12 +24,17 @@ def dmodel():
 
 
 @pytest.fixture(scope="module")
-def dem(dmodel):
-    return mc.open_dem(dmodel)
+def surface(dmodel):
+    return surface_from_scenario(dmodel)  # the scenario's [dem] table, opened once
 
 
-def test_dem_target_lies_on_the_nominal_line_of_sight(dmodel, dem):
-    lat, lon, h, st = mc.nominal_point(dmodel, dem)
+@pytest.fixture(scope="module")
+def dem(surface):
+    return terrain_of(surface)
+
+
+def test_dem_target_lies_on_the_nominal_line_of_sight(dmodel, surface, dem):
+    lat, lon, h, st = mc.nominal_point(dmodel, surface)
     assert st == 0
     # the DEM target must be where the same line of sight meets the ellipsoid
     # inflated to the target's own height (1e-3 m: the exact solver polishes to
@@ -42,10 +49,10 @@ def test_dem_target_lies_on_the_nominal_line_of_sight(dmodel, dem):
     assert abs(float(dem.height(lat, lon)) - h) < 0.1
 
 
-def test_dem_removes_the_height_uncertainty(dmodel, dem):
+def test_dem_removes_the_height_uncertainty(dmodel, surface):
     # [Q17] section 3.2: with the DEM the spread shrinks from 0.00048/0.00060 deg
     # and 62.3 m (ellipsoid, terrain sigma 62.47 m) to 0.00015/0.00013 deg, 3.58 m.
-    s = mc.run(dmodel, 2000, np.random.default_rng(0), dem=dem).stats
+    s = mc.run(dmodel, 2000, np.random.default_rng(0), surface=surface).stats
     assert s["n_failed"] == 0
     # Paper's DEM numbers are for ASTER GDEM (30 m); on the smooth ETOPO5 crop the
     # horizontal spread is the instrument part alone, of the same order: within a
@@ -55,9 +62,9 @@ def test_dem_removes_the_height_uncertainty(dmodel, dem):
     assert s["std_h_m"] < 10.0  # vs 62 m without the DEM
 
 
-def test_fig10b_paper_bounds_on_bundled_terrain(dmodel, dem):
+def test_fig10b_paper_bounds_on_bundled_terrain(dmodel, surface):
     # [Q17] Fig. 10b: CEP < 50 m for frame roll < 70 deg and < 180 m at 80 deg.
-    sw = mc.sweep_dem(dmodel, [60.0, 80.0], 1000, np.random.default_rng(1), dem=dem)
+    sw = mc.sweep_dem(dmodel, [60.0, 80.0], 1000, np.random.default_rng(1), surface=surface)
     assert sw.n_ok.min() == 1000
     assert sw.cep_m[0, 0] < 50.0
     assert sw.cep_m[1, 0] < 180.0
@@ -72,8 +79,23 @@ def test_cli_dem_sweep(tmp_path, capsys):
     assert (tmp_path / "fig10b_dem.png").read_bytes()[:4] == b"\x89PNG"
 
 
-def test_li2023_evaluation_counts_follow_closed_forms(dem):
-    rep = rp.li2023_report(seed=3, n_rays=8, tolerances_m=(10.0,))
+def test_a_model_naming_a_dem_is_not_run_without_its_surface(dmodel, surface, dem):
+    # no silent fall-back to the target height: the scenario's [dem] needs the caller's surface
+    with pytest.raises(ValueError, match=r"\[dem\] path = .*surface_from_scenario"):
+        mc.run(dmodel, 10, np.random.default_rng(0))
+    with pytest.raises(ValueError, match="needs the DEM's surface"):
+        mc.sweep_dem(dmodel, [60.0], 10, np.random.default_rng(0))
+    # the surface given is the one used: the nominal target is on the terrain (0.1 m: as above),
+    # while the model without its DEM puts it at the scenario's target height (0.05 m: the inflated
+    # ellipsoid of [Q17] eq. 11 departs from the constant geodetic height by millimetres at 5 km)
+    lat, lon, h, st = mc.run(dmodel, 50, np.random.default_rng(0), surface=surface).nominal
+    assert st == 0 and abs(float(dem.height(lat, lon)) - h) < 0.1
+    h_ell = mc.run(dmodel.without_dem(), 50, np.random.default_rng(0)).nominal[2]
+    assert h_ell == pytest.approx(dmodel.target_h_m, abs=0.05) and abs(h_ell - h) > 1.0
+
+
+def test_li2023_evaluation_counts_follow_closed_forms(surface, dem):
+    rep = rp.li2023_report(surface, seed=3, n_rays=8, tolerances_m=(10.0,))
     r = rep.numbers["tol_10"]
     assert r["n_ok"] == 8 + 20
     span = dem.max_height() - dem.min_height()

@@ -17,15 +17,14 @@ from pathlib import Path
 
 PKG = Path(__file__).resolve().parents[1] / "geoloc"
 
-#: Calls that open a DEM file: ``DEM.open(...)``, ``DemMosaic.open(...)``, ``open_dem_or_mosaic(...)``.
-DEM_OPENERS = {("DEM", "open"), ("DemMosaic", "open"), (None, "open_dem_or_mosaic")}
+#: Calls that open a DEM file: ``DEM.open(...)``, ``DemMosaic.open(...)``, ``open_dem_or_mosaic(...)``,
+#: and any ``open_dem(...)`` / ``x.open_dem(...)`` (a module's own wrapper of them).
+DEM_OPENERS = {("DEM", "open"), ("DemMosaic", "open"), (None, "open_dem_or_mosaic"), (None, "open_dem")}
 
 #: Workflow / analysis modules that still open a DEM, and why (may only shrink).
 KNOWN_DEM_OPENERS = {
     # its config crosses to dask workers as paths; each worker process opens the DEM once
     "geoloc.workflows.campaign",
-    # the Monte Carlo scenario file names its DEM (ErrorModel.dem): open_dem reads it
-    "geoloc.analysis.montecarlo",
 }
 
 #: Modules that are the first-phase camera file format (they may know the Camera type).
@@ -132,10 +131,10 @@ def test_the_checks_find_planted_cases():
     tree = ast.parse("from geoloc.surfaces.dem import DEM\n"
                      "def f(p):\n"
                      "    d = DEM.open(p)\n"
-                     "    m = open_dem_or_mosaic(p)\n"
+                     "    m = open_dem_or_mosaic(p); mc.open_dem(p)\n"
                      "    if isinstance(d, (Camera, int)): pass\n"
                      "    return hasattr(m, 'with_solver') or hasattr(m, 'dem') or getattr(surface, 'dem', None)\n")
-    assert dem_opens(tree) == [3, 4]
+    assert sorted(dem_opens(tree)) == [3, 4, 4]
     assert camera_checks(tree) == [5]
     assert mosaic_attribute_checks(tree) == [6]
     assert surface_dem_asks(tree) == [6, 6]

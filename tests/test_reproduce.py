@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from geoloc.cli import main
+from geoloc.cli._options import surface_from_scenario
 from geoloc.workflows import reproduce as rp
 
 
 @pytest.fixture(scope="module")
 def q17():
-    return rp.qiao2017_report(samples=5000, seed=0, sweep_samples=300, dem=False)
+    return rp.qiao2017_report(samples=5000, seed=0, sweep_samples=300)  # no surface: no DEM parts
 
 
 def test_nominal_point_is_the_papers(q17):
@@ -40,7 +41,8 @@ def test_flight_test_positions_and_errors(q17):
 
 @pytest.fixture(scope="module")
 def q17_dem():
-    return rp.qiao2017_report()  # the defaults of `geoloc reproduce qiao2017`
+    # the defaults of `geoloc reproduce qiao2017`: the DEM scenario's surface, opened by the caller
+    return rp.qiao2017_report(surface=surface_from_scenario(rp.load_q17_dem_model()))
 
 
 def test_reproduce_table_of_the_docs(q17_dem):
@@ -104,7 +106,7 @@ def test_cli_li2023(capsys):
 
 @pytest.fixture(scope="module")
 def l23():
-    return rp.li2023_report(seed=0, n_rays=100)
+    return rp.li2023_report(surface_from_scenario(rp.load_q17_dem_model()), seed=0, n_rays=100)
 
 
 def test_li2023_counts_match_the_readme(l23):

@@ -338,7 +338,7 @@ def test_readme_calibration_figure_comes_with_joint(capsys, tmp_path):
 def test_reproduce_says_plainly_what_table_5_is(capsys):
     from geoloc.workflows.reproduce import qiao2017_report
 
-    text = qiao2017_report(samples=200, sweep_samples=50, dem=False).text()
+    text = qiao2017_report(samples=200, sweep_samples=50).text()
     assert "withheld" not in text and "withheld" not in README
     line = next(ln for ln in text.splitlines() if "Table 5" in ln)
     assert "59.972" in line and "not in the bundled records" in line

@@ -282,7 +282,7 @@ def perturbed_lens(lens, errors: dict):
     return lens.with_params(**changes) if changes else lens
 
 
-def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None):
+def evaluate(model: ErrorModel, errors: dict, surface=None):
     """Locate the target for a batch of perturbed samples [Q17 eq. 14].
 
     Parameters
@@ -290,12 +290,12 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None):
     model : ErrorModel
     errors : dict
         Source -> ndarray (n,) in SI units; missing sources are zero.
-    dem : geoloc.surfaces.dem.DEM, optional
-        Terrain: the target is the first intersection of the line of sight with
-        the DEM (``target_h_m`` errors are then ignored); without it, the
-        target height is ``model.target_h_m + errors["target_h_m"]``.
-    dem_method : str, optional
-        Method passed to :func:`geoloc.surfaces.terrain.intersect_dem`.
+    surface : Surface, optional
+        The terrain its caller built once (:func:`geoloc.surfaces.terrain.surface_for`; for
+        the scenario's ``[dem]`` table, ``geoloc.cli._options.surface_from_scenario``): the
+        target is the line of sight's hit on it (``target_h_m`` errors are then ignored).
+        Without it, the target height is ``model.target_h_m + errors["target_h_m"]`` (the
+        model's ``kind`` of height surface).
 
     The one engine: the camera's sensor (:class:`geoloc.sensors.frame.FrameSensor`) with
     per-sample mount, boresight, lever-arm and lens perturbations, rotating the vector
@@ -316,18 +316,19 @@ def evaluate(model: ErrorModel, errors: dict, dem=None, dem_method=None):
     s = dataclasses.replace(s, lens=perturbed_lens(s.lens, errors), R_base_extra=Rb, R_bore_extra=Ri,
                             lever_extra_m=extra)
     los = s.line_of_sight(row, col, pose, outside="extrapolate")
-    from geoloc.surfaces.terrain import surface_for
+    _needs_surface(model, surface)
+    if surface is None:  # the one "height or DEM" choice (geoloc.surfaces.terrain.surface_for)
+        from geoloc.surfaces.terrain import surface_for
 
-    # the one "height or DEM" choice (geoloc.surfaces.terrain.surface_for)
-    h_t = None if dem is not None else model.target_h_m + _or(errors.get("target_h_m"), 0.0)
-    kw = {} if dem_method is None else {"method": dem_method}
-    g = surface_for(h_t, dem, kind=model.surface, **kw).intersect(los)
+        surface = surface_for(model.target_h_m + _or(errors.get("target_h_m"), 0.0), kind=model.surface)
+    g = surface.intersect(los)
     return g.lat, g.lon, g.h, np.asarray(g.status, np.uint8)
 
 
-def nominal_point(model: ErrorModel, dem=None):
-    """The error-free target (lat, lon, h) [rad, rad, m] and its status: y = f(x_1, ..., x_n)."""
-    lat, lon, h, st = evaluate(model, {}, dem=dem, dem_method=_method(model))
+def nominal_point(model: ErrorModel, surface=None):
+    """The error-free target (lat, lon, h) [rad, rad, m] and its status: y = f(x_1, ..., x_n),
+    on ``surface`` (as :func:`evaluate`)."""
+    lat, lon, h, st = evaluate(model, {}, surface)
     return float(lat[0]), float(lon[0]), float(h[0]), int(st[0])
 
 
@@ -420,7 +421,7 @@ class MonteCarloResult:
 KEEP_MAX = 2_000_000
 
 
-def run(model: ErrorModel, n: int, rng: np.random.Generator, *, dem=None, chunk: int = CHUNK,
+def run(model: ErrorModel, n: int, rng: np.random.Generator, *, surface=None, chunk: int = CHUNK,
         progress: bool | None = False, keep_samples: bool | None = None) -> MonteCarloResult:
     """Monte Carlo of ``n`` samples [Q17 eq. 14-15], vectorised in chunks of ``chunk``.
 
@@ -440,9 +441,10 @@ def run(model: ErrorModel, n: int, rng: np.random.Generator, *, dem=None, chunk:
         Number of samples N (>= 2); any size when the samples are not kept.
     rng : numpy.random.Generator
         Seeded generator; the samples depend on the seed and the chunk size.
-    dem : geoloc.surfaces.dem.DEM, optional
-        Terrain for the target (overrides the target-height error); if None and
-        the model names a DEM, it is opened.
+    surface : Surface, optional
+        The terrain for the target (overrides the target-height error), built once by the
+        caller (as :func:`evaluate`). Required when the model names a DEM (``[dem]``):
+        ``geoloc.cli._options.surface_from_scenario(model)`` builds it.
     chunk : int
         Samples per vectorised call (the memory bound: about 1.5 kB per sample).
     progress : bool or None
@@ -461,8 +463,6 @@ def run(model: ErrorModel, n: int, rng: np.random.Generator, *, dem=None, chunk:
     if keep and n > KEEP_MAX:
         raise ValueError(f"samples = {n}: keeping more than {KEEP_MAX} samples is refused "
                          f"({25 * n / 1e9:.1f} GB); stream them (keep_samples=False)")
-    if dem is None and model.dem is not None:
-        dem = open_dem(model)
     t0 = time.perf_counter()
     if keep:
         lat, lon, h = np.empty(n), np.empty(n), np.empty(n)
@@ -473,7 +473,7 @@ def run(model: ErrorModel, n: int, rng: np.random.Generator, *, dem=None, chunk:
     bar = Progress(n, f"montecarlo {model.name}", progress)
     for a in range(0, n, chunk):
         b = min(a + chunk, n)
-        out = evaluate(model, model.sample(b - a, rng), dem, _method(model))
+        out = evaluate(model, model.sample(b - a, rng), surface)
         counts += np.bincount(out[3], minlength=len(Status))[:len(Status)]
         if keep:
             lat[a:b], lon[a:b], h[a:b], st[a:b] = out
@@ -492,18 +492,16 @@ def run(model: ErrorModel, n: int, rng: np.random.Generator, *, dem=None, chunk:
     secs = time.perf_counter() - t0
     if not keep:
         lat = lon = h = st = None
-    return MonteCarloResult(lat, lon, h, st, stats, nominal_point(model, dem), secs,
+    return MonteCarloResult(lat, lon, h, st, stats, nominal_point(model, surface), secs,
                             status_counts=counts, streamed=acc is not None)
 
 
-def open_dem(model: ErrorModel):
-    """Open the model's DEM (:class:`geoloc.surfaces.dem.DEM`)."""
-    from geoloc.surfaces.dem import DEM
-    return DEM.open(model.dem.path, datum=model.dem.datum)
-
-
-def _method(model):
-    return None if model.dem is None else model.dem.method
+def _needs_surface(model: ErrorModel, surface) -> None:
+    """A model that names a DEM is run on the surface its caller built from it, never without."""
+    if surface is None and model.dem is not None:
+        raise ValueError(f"{model.source}: [dem] path = {model.dem.path}: Monte Carlo takes the surface "
+                         "built from it (surface=geoloc.cli._options.surface_from_scenario(model), or "
+                         "geoloc.surfaces.terrain.surface_for(dem=...)); model.without_dem() for the height")
 
 
 # --------------------------------------------------------------------- first order
@@ -625,8 +623,7 @@ class Sweep:
         plt.close(fig)
 
 
-def _sweep_point(ma: ErrorModel, n: int, c: int, draw, bar, dem=None, method=None,
-                 chunk: int = CHUNK) -> list:
+def _sweep_point(ma: ErrorModel, n: int, c: int, draw, bar, surface=None, chunk: int = CHUNK) -> list:
     """Statistics of ``c`` blocks of ``n`` samples at one sweep angle.
 
     ``draw(k)`` returns the errors of ``k * c`` samples, block j holding samples
@@ -635,7 +632,7 @@ def _sweep_point(ma: ErrorModel, n: int, c: int, draw, bar, dem=None, method=Non
     (:class:`geoloc.analysis.streaming.StreamingStats`), in constant memory.
     """
     if n * c <= chunk:
-        lat, lon, h, st = evaluate(ma, draw(n), dem, method)
+        lat, lon, h, st = evaluate(ma, draw(n), surface)
         bar.update(n * c)
         return [statistics(lat[j * n:(j + 1) * n], lon[j * n:(j + 1) * n], h[j * n:(j + 1) * n],
                            st[j * n:(j + 1) * n]) for j in range(c)]
@@ -643,7 +640,7 @@ def _sweep_point(ma: ErrorModel, n: int, c: int, draw, bar, dem=None, method=Non
     per = max(chunk // c, 1)
     for a in range(0, n, per):
         k = min(per, n - a)
-        lat, lon, h, st = evaluate(ma, draw(k), dem, method)
+        lat, lon, h, st = evaluate(ma, draw(k), surface)
         for j in range(c):
             s = slice(j * k, (j + 1) * k)
             accs[j].add(lat[s], lon[s], h[s], st[s])
@@ -684,13 +681,14 @@ def sweep_terrain_sigma(model: ErrorModel, angles_deg, sigmas_m, n: int, rng: np
                  "[Q17] Fig. 10a: ellipsoid model, terrain standard deviation")
 
 
-def sweep_dem(model: ErrorModel, angles_deg, n: int, rng: np.random.Generator, dem=None,
+def sweep_dem(model: ErrorModel, angles_deg, n: int, rng: np.random.Generator, surface=None,
               progress: bool | None = False, chunk: int = CHUNK) -> Sweep:
-    """[Q17 Fig. 10b]: CEP against the outer gimbal angle with the target on a DEM."""
-    if dem is None:
-        if model.dem is None:
-            raise ValueError(f"{model.source}: the DEM sweep needs a [dem] table or a DEM")
-        dem = open_dem(model)
+    """[Q17 Fig. 10b]: CEP against the outer gimbal angle with the target on a DEM: ``surface``,
+    built once by the caller (``geoloc.cli._options.surface_from_scenario(model)`` for the
+    scenario's ``[dem]`` table)."""
+    if surface is None:
+        raise ValueError(f"{model.source}: the DEM sweep needs the DEM's surface (surface=; "
+                         "geoloc.cli._options.surface_from_scenario(model) for a [dem] table)")
     angles = np.asarray(angles_deg, float).ravel()
     cep = np.full((angles.size, 1), np.nan)
     cep50 = np.full_like(cep, np.nan)
@@ -698,8 +696,7 @@ def sweep_dem(model: ErrorModel, angles_deg, n: int, rng: np.random.Generator, d
     bar = Progress(angles.size * n, "sweep fig10b", progress)
     for i, a in enumerate(angles):
         ma = model.with_nominal(gimbal_roll_deg=a)
-        (stt,) = _sweep_point(ma, n, 1, lambda k, ma=ma: ma.sample(k, rng), bar, dem,
-                              _method(model), chunk)
+        (stt,) = _sweep_point(ma, n, 1, lambda k, ma=ma: ma.sample(k, rng), bar, surface, chunk)
         cep[i, 0], cep50[i, 0], nok[i, 0] = stt["cep_m"], stt["cep50_empirical_m"], stt["n_ok"]
     bar.close()
     return Sweep(angles, ["dem"], cep, cep50, nok, "[Q17] Fig. 10b: target on the DEM",

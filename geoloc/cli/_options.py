@@ -289,6 +289,22 @@ def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
     raise ValueError(f"give {given}--target-h-m or --dem")
 
 
+def surface_from_scenario(model):
+    """The :class:`~geoloc.surfaces.base.Surface` of a Monte Carlo scenario's ``[dem]`` table
+    (``path``, ``datum``, ``method``), or None without one (the scenario's target height, with
+    its error, is then Monte Carlo's own per-sample height surface).
+
+    The same one opener and choice as :func:`surface_from_args`: ``open_dem_or_mosaic`` (a
+    raster, or a folder / ``.vrt`` of tiles) and :func:`geoloc.surfaces.terrain.surface_for`.
+    """
+    if model.dem is None:
+        return None
+    from geoloc.surfaces.mosaic import open_dem_or_mosaic
+
+    method = model.dem.method or "exact"
+    return surface_for(dem=open_dem_or_mosaic(model.dem.path, model.dem.datum, method=method), method=method)
+
+
 def sensor_from_args(args, *, default: bool = True):
     """The sensor of ``--sensor`` / ``--camera``: the verb's one sensor, beside :func:`surface_from_args`.
 

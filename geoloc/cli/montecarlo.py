@@ -21,6 +21,7 @@ from geoloc.cli._options import (
     one_dem_raster,
     output_dir,
     output_path,
+    surface_from_scenario,
 )
 from geoloc.status import Status
 from geoloc.userfiles import check_output_dir, write_text
@@ -207,9 +208,9 @@ def run(args) -> int:
                          "give --dem FILE, use a scenario with a DEM (e.g. "
                          "assets/scenarios/qiao2017_table1_dem.toml) or --sweep terrain")
     rng = np.random.default_rng(args.seed)
-    dem = mc.open_dem(model) if model.dem is not None else None  # a bad DEM fails here, named
+    surface = surface_from_scenario(model)  # a bad DEM fails here, named
     if args.sweep is None:
-        res = mc.run(model, args.samples, rng, dem=dem, chunk=args.chunk, progress=args.progress,
+        res = mc.run(model, args.samples, rng, surface=surface, chunk=args.chunk, progress=args.progress,
                      keep_samples=False)
         if res.stats["n_ok"] < 2:
             st = res.status_counts
@@ -251,7 +252,7 @@ def run(args) -> int:
                                        chunk=args.chunk)
             stem = "fig10a_terrain_sigma"
         else:
-            s = mc.sweep_dem(model, angles, args.samples, rng, dem=dem, progress=args.progress,
+            s = mc.sweep_dem(model, angles, args.samples, rng, surface=surface, progress=args.progress,
                              chunk=args.chunk)
             stem = "fig10b_dem"
         s.to_csv(outdir / f"{stem}.csv")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from geoloc.cli._options import output_path
+from geoloc.cli._options import output_path, surface_from_scenario
 from geoloc.userfiles import write_text
 from geoloc.workflows import reproduce as rp
 
@@ -44,8 +44,9 @@ def run(args) -> int:
         raise ValueError(f"--samples = {args.samples}, --sweep-samples = {args.sweep_samples}: "
                          "must be >= 2")
     if args.paper == "qiao2017":
-        rep = rp.qiao2017_report(args.samples, args.seed, args.sweep_samples,
-                                 dem=False if args.no_dem else None)
+        with_dem = not args.no_dem and rp.dem_scenario_available()
+        surface = surface_from_scenario(rp.load_q17_dem_model()) if with_dem else None
+        rep = rp.qiao2017_report(args.samples, args.seed, args.sweep_samples, surface=surface)
     else:
         if args.rays < 1:
             raise ValueError(f"--rays = {args.rays}: must be >= 1")
@@ -56,7 +57,8 @@ def run(args) -> int:
         if not tols or not all(t > 0 and t == t and t != float("inf") for t in tols):
             raise ValueError(f"--tolerances-m = {args.tolerances_m!r}: expected positive numbers "
                              "of metres, comma-separated")
-        rep = rp.li2023_report(seed=args.seed, n_rays=args.rays, tolerances_m=tols)
+        rep = rp.li2023_report(surface_from_scenario(rp.load_q17_dem_model()), seed=args.seed,
+                               n_rays=args.rays, tolerances_m=tols)
     print(rep.text())
     if args.json:
         write_text(args.json, json.dumps(rep.numbers, indent=2) + "\n", "--json")

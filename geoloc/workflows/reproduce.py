@@ -61,16 +61,22 @@ def load_q17_model() -> ErrorModel:
     return load_scenario(asset_path(*Q17_SCENARIO), expect="montecarlo")
 
 
-def _terrain_available() -> bool:
+def load_q17_dem_model() -> ErrorModel:
+    """The [Q17] Table 1-2 scenario with the target on the bundled ETOPO5 crop: its ``[dem]``
+    table names the DEM, which the caller opens once (``geoloc.cli._options.surface_from_scenario``)."""
+    return load_scenario(asset_path(*Q17_DEM_SCENARIO), expect="montecarlo")
+
+
+def dem_scenario_available() -> bool:
+    """True when the bundled DEM scenario is there (a trimmed install may leave it out)."""
     try:
-        import geoloc.surfaces.terrain  # noqa: F401
         return asset_path(*Q17_DEM_SCENARIO).exists()
-    except (ImportError, FileNotFoundError):
+    except FileNotFoundError:
         return False
 
 
 def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 2000,
-                    dem: bool | None = None, progress: bool | None = False) -> Report:
+                    surface=None, progress: bool | None = False) -> Report:
     """[Q17] side by side with the project.
 
     Parameters
@@ -80,14 +86,15 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
     seed : int
     sweep_samples : int
         Samples per point of the Fig. 10 trend.
-    dem : bool or None
-        Include the DEM parts (None: when :mod:`geoloc.surfaces.terrain` and the bundled
-        DEM scenario are available).
+    surface : Surface, optional
+        The DEM of :func:`load_q17_dem_model`'s ``[dem]`` table, built once by the caller
+        (``geoloc.cli._options.surface_from_scenario(load_q17_dem_model())``, as
+        ``geoloc reproduce qiao2017`` does): the DEM parts run on it; None skips them.
     """
     rep = Report()
     model = load_q17_model()
     rng = np.random.default_rng(seed)
-    use_dem = _terrain_available() if dem is None else dem
+    use_dem = surface is not None
 
     # 1. nominal point
     lat, lon, h, _ = mc.nominal_point(model)
@@ -116,8 +123,8 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
 
     # 3. Monte Carlo with the DEM
     if use_dem:
-        dmodel = load_scenario(asset_path(*Q17_DEM_SCENARIO), expect="montecarlo")
-        dres = mc.run(dmodel, samples, np.random.default_rng(seed), progress=progress)
+        dmodel = load_q17_dem_model()
+        dres = mc.run(dmodel, samples, np.random.default_rng(seed), surface=surface, progress=progress)
         ds = dres.stats
         dlat, dlon, dh, _ = dres.nominal
         rep.numbers.update({f"mcdem_{k}": v for k, v in ds.items()})
@@ -131,7 +138,8 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
                 f"   CEP [Q17 eq. 18] {ds['cep_m']:.1f} m, empirical 50 % radius "
                 f"{ds['cep50_empirical_m']:.1f} m; {ds['n_failed']} samples without a terrain hit", "")
     else:
-        rep.add("3. Monte Carlo with a DEM: skipped (geoloc.surfaces.terrain or the DEM scenario not available)", "")
+        rep.add("3. Monte Carlo with a DEM: skipped (no DEM surface given: --no-dem, or the bundled DEM "
+                "scenario is not installed)", "")
 
     # 4. flight test
     from geoloc.io.records import load_records
@@ -171,7 +179,7 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
             "   (a) ellipsoid model; paper: CEP grows with the angle and with the terrain sigma")
     dsw = None
     if use_dem:
-        dsw = mc.sweep_dem(dmodel, angles, sweep_samples, rng, progress=progress)
+        dsw = mc.sweep_dem(dmodel, angles, sweep_samples, rng, surface=surface, progress=progress)
         rep.numbers["fig10b_cep_m"] = dsw.cep_m[:, 0].tolist()
         head += f"{'DEM (b)':>12}"
     rep.add(head)
@@ -196,8 +204,11 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
 L23_SAVING_PCT = 45.5
 
 
-def li2023_report(seed: int = 0, n_rays: int = 100, tolerances_m=(10.0, 2.0, 1.0)) -> Report:
+def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0, 2.0, 1.0)) -> Report:
     """[L23] bisection on the target elevation against [Q17]'s descending steps.
+
+    ``surface`` is the DEM of :func:`load_q17_dem_model`'s ``[dem]`` table, built once by the
+    caller (``geoloc.cli._options.surface_from_scenario``); its raster is what every solver reads.
 
     Rays: the [Q17] Table 1-2 geometry with the outer gimbal angle spread
     uniformly over 10-80 deg (Table 1-2 errors sampled on top), plus the 20
@@ -211,12 +222,16 @@ def li2023_report(seed: int = 0, n_rays: int = 100, tolerances_m=(10.0, 2.0, 1.0
     from geoloc.geodesy.geodesic import horizontal_distance_m
     from geoloc.io.records import load_records
     from geoloc.locate import line_of_sight
+    from geoloc.surfaces.base import terrain_of
     from geoloc.surfaces.terrain import intersect_dem
     from geoloc.workflows.replay import records_line_of_sight
 
+    dem = terrain_of(surface)
+    if dem is None:
+        raise ValueError(f"li2023_report: surface = {surface!r} has no DEM; give the DEM scenario's surface "
+                         "(geoloc.cli._options.surface_from_scenario(load_q17_dem_model()))")
     rep = Report()
-    dmodel = load_scenario(asset_path(*Q17_DEM_SCENARIO), expect="montecarlo")
-    dem = mc.open_dem(dmodel)
+    dmodel = load_q17_dem_model()
     rng = np.random.default_rng(seed)
     errs = dmodel.sample(n_rays, rng)
     angles = rng.uniform(10.0, 80.0, n_rays)
