@@ -233,3 +233,17 @@ def test_the_docs_list_the_rule_as_the_code_has_it():
     for w in DRONE_WORDS:
         assert f"`{w}`".lower() in flat.lower(), w
     assert "1000 m above the terrain" in flat and "7000 m" in flat and "x 0.3048" in flat
+
+
+def test_locate_with_a_drone_sensor_kilometres_up_is_warned(capsys):
+    args = ["locate", "--sensor", str(DRONE_SENSOR), "--lat-deg", "36.6", "--lon-deg", "-84.2", "--angle",
+            "gimbal_yaw=0", "--angle", "gimbal_pitch=-90", "--angle", "gimbal_roll=0", "--target-h-m", "300"]
+    assert main(args + ["--h-m", "420"]) == 0  # 120 m above the target: none
+    err = capsys.readouterr().err
+    assert "a drone's camera" not in err, err
+    # 420 m written in feet: 420 / 0.3048 = 1377.95 "m"
+    assert main(args + ["--h-m", f"{420 / FOOT_M:.2f}", "--json"]) == 0
+    cap = capsys.readouterr()
+    assert ("geoloc locate: warning: --h-m = 1378.0 m: a drone's camera (the sensor file's platform 'drone') "
+            "1.1 km above the target (300.0 m)") in cap.err and "x 0.3048: 420.0 m, 120 m above it" in cap.err
+    assert '"status": "ok"' in cap.out  # the point is still given

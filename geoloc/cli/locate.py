@@ -232,6 +232,8 @@ def run(args) -> int:
     }
     out.update(_grid_reference(out["lat_deg"], out["lon_deg"]))
     out.update(extra)
+    for msg in _drone_height_warning(camera, pose, float(ground.h), surface, alt):
+        print(f"geoloc locate: warning: {msg}", file=sys.stderr)
     if args.json:
         print(json.dumps(out))
     else:
@@ -243,6 +245,30 @@ def run(args) -> int:
                   f"{out['surface_difference_m'] * 1000:.1f} mm apart")
         print(_locate_datum_line(alt, args.h_m, out["ac_h_m"]))
     return 0
+
+
+def _drone_height_warning(camera, pose, target_h: float, surface, alt) -> list:
+    """A drone sensor (its file's ``platform``) more than DRONE_MAX_HEIGHT_M above the terrain
+    under it (with a DEM) or the target, or above DRONE_CEILING_M: one warning (docs/records.md,
+    "Plausibility checks"); the point is still given as computed."""
+    from geoloc.sensors.platform import DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint, is_drone
+    from geoloc.surfaces.base import terrain_of
+
+    if not is_drone(getattr(camera, "platform", "")):
+        return []
+    h = float(np.ravel(pose.h)[0])
+    ref, what = target_h, "the target"
+    terrain = terrain_of(surface)
+    if terrain is not None:
+        g, _ = terrain.sample(np.ravel(pose.lat)[:1], np.ravel(pose.lon)[:1])
+        if np.isfinite(g[0]):
+            ref, what = float(g[0]), "the terrain under it"
+    if not (h - ref > DRONE_MAX_HEIGHT_M or h > DRONE_CEILING_M):
+        return []
+    return [f"{alt.column} = {h:.1f} m: a drone's camera (the sensor file's platform {camera.platform!r}) "
+            f"{(h - ref) / 1000:.1f} km above {what} ({ref:.1f} m), while drones fly below "
+            f"{DRONE_MAX_HEIGHT_M:.0f} m above the ground and {DRONE_CEILING_M:.0f} m above the sea: "
+            f"{drone_height_hint(h, ref)}; the point is computed as given"]
 
 
 def _grid_reference(lat_deg: float, lon_deg: float) -> dict:
