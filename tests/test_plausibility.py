@@ -17,6 +17,7 @@ from geoloc.assets import asset_path
 from geoloc.cli import main
 from geoloc.sensors.platform import DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, FOOT_M, is_drone
 from geoloc.sensors.sensor_file import load_sensor, sensor_from_dict, sensor_to_toml
+from geoloc.status import Status
 
 SRTM = asset_path("dem", "srtm_jacksboro.tif")
 DRONE = asset_path("records", "drone_targets.csv")
@@ -247,3 +248,24 @@ def test_locate_with_a_drone_sensor_kilometres_up_is_warned(capsys):
     assert ("geoloc locate: warning: --h-m = 1378.0 m: a drone's camera (the sensor file's platform 'drone') "
             "1.1 km above the target (300.0 m)") in cap.err and "x 0.3048: 420.0 m, 120 m above it" in cap.err
     assert '"status": "ok"' in cap.out  # the point is still given
+
+
+def test_campaign_units_say_the_drone_check(tmp_path):
+    # the scaled replay (docs/scale.md) gives the same check per unit: a count and the first row
+    from geoloc.workflows.campaign import CampaignConfig, run_campaign
+
+    recs, _ = _in_feet(tmp_path)
+    cfg = CampaignConfig(sensor=str(DRONE_SENSOR), dem=str(SRTM))
+    res = run_campaign([recs], tmp_path / "c", cfg, scheduler="none")
+    got = [m for m in res.messages if "too high" in m or "of a drone" in m]
+    assert len(got) == 1 and "20 row(s) of a drone more than 1000 m above" in got[0], res.messages
+    assert "first row 0 (ac_h_m = 1395.64: 1.1 km above the terrain under it (291.1 m))" in got[0], got
+    assert "likely feet read as metres (x 0.3048: 425.4 m" in got[0]
+    assert set(res.table().column("status").to_pylist()) == {Status.OK}  # every row ok: used as read
+    ok = run_campaign([DRONE], tmp_path / "ok", cfg, scheduler="none")
+    assert not [m for m in ok.messages if "of a drone" in m], ok.messages
+    # KLV: the packets of a drone kilometres up
+    res = run_campaign([_klv(tmp_path, "m300.klv", "DJI Matrice 300 RTK")], tmp_path / "k", CampaignConfig(),
+                       scheduler="none")
+    assert any("12 packet(s) too high for a drone, first packet 0 (byte 0): tag 75" in m for m in res.messages), \
+        res.messages

@@ -477,6 +477,7 @@ def _records_unit(path: str, cfg: CampaignConfig):
         messages.append(f"{path}: {int(off.sum())} row(s) with the pixel off the sensor, first row "
                         f"{int(np.flatnonzero(off)[0])}: located by extending the lens model, status outside_sensor")
     status[bad] = Status.INVALID_INPUT
+    messages += _drone_height_messages(path, table, sensor, dem, cols, h_ac, np.asarray(hit.h, float), bad)
     nan = lambda a: np.where(bad, np.nan, np.asarray(a, float))  # noqa: E731
     lat, lon = nan(hit.lat_deg), nan(hit.lon_deg)
     out = {"source": _constant_column(Path(path).name, n),
@@ -493,6 +494,40 @@ def _records_unit(path: str, cfg: CampaignConfig):
     for k, v in arrays.items():
         base = base.append_column(k, v)
     return base, messages
+
+
+def _drone_height_messages(path, table, sensor, dem, cols, h_ac, hit_h, bad) -> list:
+    """The records' drone check (``geoloc replay``'s, docs/records.md "Plausibility checks") for
+    one unit: a count and the first row, as the unit's other messages; the rows run as read."""
+    from geoloc.sensors.platform import DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint, is_drone
+
+    default = is_drone(getattr(sensor, "platform", ""))
+    if "platform" in table.column_names:
+        cells = table.column("platform").to_pylist()
+        drone = np.array([is_drone(t) if t not in (None, "") and str(t).strip() else default for t in cells], bool)
+    else:
+        drone = np.full(len(h_ac), default)
+    drone &= ~bad
+    if not drone.any():
+        return []
+    ref, what = hit_h.copy(), np.full(len(h_ac), "the target", dtype=object)
+    if dem is not None:
+        ground, _ = dem.sample(np.deg2rad(cols["ac_lat_deg"]), np.deg2rad(cols["ac_lon_deg"]))
+        has = np.isfinite(ground)
+        ref = np.where(has, ground, ref)
+        what[has] = "the terrain under it"
+    with np.errstate(invalid="ignore"):
+        high = drone & ((h_ac - ref > DRONE_MAX_HEIGHT_M) | (h_ac > DRONE_CEILING_M))
+    if not high.any():
+        return []
+    i = int(np.flatnonzero(high)[0])
+    v, known = float(cols["ac_h_m"][i]), bool(np.isfinite(ref[i]))
+    where = (f"{(h_ac[i] - ref[i]) / 1000:.1f} km above {what[i]} ({ref[i]:.1f} m)" if known
+             else f"above a drone's ceiling ({DRONE_CEILING_M:.0f} m)")
+    hint = drone_height_hint(v, ref[i] - (h_ac[i] - v) if known else None)
+    return [f"{path}: warning: {int(high.sum())} row(s) of a drone more than {DRONE_MAX_HEIGHT_M:.0f} m above the "
+            f"terrain or target (or {DRONE_CEILING_M:.0f} m), first row {i} (ac_h_m = {v:g}: {where}): {hint}; "
+            "used as read"]
 
 
 def _arrow_columns(columns: dict, source: str):
@@ -523,6 +558,9 @@ def _klv_unit(path: str, cfg: CampaignConfig):
         messages.append(f"{path}: ... {len(r.errors) - 20} more bad packets")
     if len(r) == 0:
         messages.append(f"{path}: no good UAS LS packet")
+    high = r.summary.plausibility_warnings
+    if high:
+        messages.append(f"{path}: warning: {len(high)} packet(s) too high for a drone, first {high[0]}")
     return _arrow_columns(r.columns, Path(path).name), messages
 
 
