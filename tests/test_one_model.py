@@ -21,10 +21,19 @@ PKG = Path(__file__).resolve().parents[1] / "geoloc"
 #: and any ``open_dem(...)`` / ``x.open_dem(...)`` (a module's own wrapper of them).
 DEM_OPENERS = {("DEM", "open"), ("DemMosaic", "open"), (None, "open_dem_or_mosaic"), (None, "open_dem")}
 
-#: Workflow / analysis modules that still open a DEM, and why (may only shrink).
+#: Modules read for DEM openers: the workflows and analysis, and the rerun recordings.
+DEM_OPENER_SCOPE = ("geoloc.workflows", "geoloc.analysis", "geoloc.viz.rerun_terrain", "geoloc.viz.rerun_model",
+                    "geoloc.viz.rerun_log")
+
+#: Modules in DEM_OPENER_SCOPE that still open a DEM, and why (may only shrink).
 KNOWN_DEM_OPENERS = {
     # its config crosses to dask workers as paths; each worker process opens the DEM once
     "geoloc.workflows.campaign",
+    # the rerun recordings draw one raster's mesh and its solver's trace (a mosaic keeps none), named
+    # by the flight scenario file or `geoloc log --dem`: each recording opens that raster once
+    # (DEM.open) and hands it down (rerun_terrain.dem_steps takes it opened)
+    "geoloc.viz.rerun_model",
+    "geoloc.viz.rerun_log",
 }
 
 #: Modules that are the first-phase camera file format (they may know the Camera type).
@@ -105,8 +114,7 @@ def test_a_surface_is_asked_for_its_terrain_with_terrain_of():
 
 
 def test_no_workflow_or_analysis_opens_a_dem_itself():
-    found = {mod: lines for mod, tree in modules("geoloc.workflows", "geoloc.analysis")
-             if (lines := dem_opens(tree))}
+    found = {mod: lines for mod, tree in modules(*DEM_OPENER_SCOPE) if (lines := dem_opens(tree))}
     new = {m: v for m, v in found.items() if m not in KNOWN_DEM_OPENERS}
     assert not new, f"these open a DEM themselves (take a Surface from the caller instead): {new}"
     gone = KNOWN_DEM_OPENERS - set(found)

@@ -203,3 +203,22 @@ def test_cep_series_is_the_core_monte_carlo(rec, core):
     # [Q17] Fig. 10a: the CEP grows with the frame angle (monotone over this one sweep 10 -> 82 deg).
     # Every 4th step (14 deg apart), well beyond the 5 % sampling noise of 200 samples.
     assert np.all(np.diff(ref["cep_m"][::4]) > 0)
+
+
+def test_the_recording_opens_its_dem_once(monkeypatch):
+    # method "steps" with a DEM: the located points, the exact truth and the mesh come from one raster,
+    # read once (it was read twice: once per solver)
+    from geoloc.viz import rerun_model
+
+    opened = []
+    real = DEM.open.__func__
+
+    def counting(cls, path, *a, **kw):
+        opened.append(Path(path).name)
+        return real(cls, path, *a, **kw)
+
+    monkeypatch.setattr(DEM, "open", classmethod(counting))
+    scn = short_scenario()
+    steps = rerun_model.steps_from_flight(scn)
+    assert opened == [DEM_PATH.name]
+    assert steps.terrain.method == "steps" and steps.terrain.dem_path == str(scn.dem_path)

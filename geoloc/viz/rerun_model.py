@@ -45,8 +45,9 @@ from geoloc.io.records import load_records
 from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.camera import Camera
 from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
+from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import intersect_los_height
-from geoloc.viz.rerun_terrain import TerrainSteps, dem_steps, open_dem
+from geoloc.viz.rerun_terrain import TerrainSteps, dem_steps
 from geoloc.workflows.flight import FlightScenario, simulate
 from geoloc.workflows.replay import result_from_ground
 
@@ -232,9 +233,9 @@ def load_camera(path=None):
     return load_camera_or_sensor(path if path else Path(ASSETS).joinpath(*DEFAULT_CAMERA))
 
 
-def _terrain(los: LineOfSight, dem_path, dem_datum: str, method: str, eps_h_m=None, threshold_m=None):
+def _terrain(los: LineOfSight, dem, method: str, eps_h_m=None, threshold_m=None):
     """Intersect with a DEM through :mod:`geoloc.surfaces.terrain`; returns (GroundPoint, TerrainSteps)."""
-    return dem_steps(los, dem_path, dem_datum, method, eps_h_m, threshold_m)
+    return dem_steps(los, dem, method, eps_h_m, threshold_m)
 
 
 def _first_finite(lat, lon, h):
@@ -263,6 +264,8 @@ def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogS
     terrain = None
     truth = None
     extra = {}
+    # the scenario's DEM, opened once: the located points, the exact truth and the mesh
+    dem = DEM.open(scn.dem_path, datum=scn.dem_datum) if scn.dem_path is not None else None
     notes = [f"scenario: {scn.name}", f"{n} steps at {scn.rate_hz:g} Hz, "
              f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
              f"period {scn.scan_period_s:g} s"]
@@ -270,14 +273,12 @@ def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogS
         ground = intersect_los_height(los, scn.target_h_m)
         notes.append(f"located on the ellipsoid inflated to {scn.target_h_m:g} m [Q17 eq. 11]")
     else:
-        ground, terrain = _terrain(los, scn.dem_path, scn.dem_datum, scn.method, scn.eps_h_m,
-                                   scn.threshold_m)
+        ground, terrain = _terrain(los, dem, scn.method, scn.eps_h_m, scn.threshold_m)
         notes.append(f"located on {scn.dem_path.name} ({scn.dem_datum}) by '{scn.method}'")
-    if scn.dem_path is not None:
-        exact = ground if (terrain is not None and scn.method == "exact") else \
-            _terrain(los, scn.dem_path, scn.dem_datum, "exact")[0]
+    if dem is not None:
+        exact = ground if (terrain is not None and scn.method == "exact") else _terrain(los, dem, "exact")[0]
         if terrain is None:
-            terrain = TerrainSteps("ellipsoid", open_dem(scn.dem_path, scn.dem_datum), str(scn.dem_path),
+            terrain = TerrainSteps("ellipsoid", dem, str(scn.dem_path),
                                    np.zeros(n, int), [], [])
         truth = {"lat_deg": exact.lat_deg, "lon_deg": exact.lon_deg, "h_m": exact.h,
                  "error_m": horizontal_distance_m(ground.lat_deg, ground.lon_deg,
@@ -340,7 +341,7 @@ def steps_from_records(path, camera: Camera | None = None, *, height_column: str
     terrain = None
     notes = [f"records: {Path(path).name} ({len(recs)} records)"]
     if dem_path is not None:
-        ground, terrain = _terrain(los, dem_path, dem_datum, method, eps_h_m, threshold_m)
+        ground, terrain = _terrain(los, DEM.open(dem_path, datum=dem_datum), method, eps_h_m, threshold_m)
         notes.append(f"located on {Path(dem_path).name} ({dem_datum}) by '{method}'")
     else:
         if target_h_m is not None:
@@ -526,7 +527,7 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     from geoloc.surfaces.terrain import surface_for
 
     if dem is None:
-        dem = open_dem(dem_path, dem_datum) if dem_path is not None else None
+        dem = DEM.open(dem_path, datum=dem_datum) if dem_path is not None else None
     dem_options = {}
     if eps_h_m is not None:
         dem_options["eps_h"] = float(eps_h_m)

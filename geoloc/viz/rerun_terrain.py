@@ -58,30 +58,23 @@ class TerrainSteps:
     ecef: list = field(default_factory=list)
 
 
-def open_dem(path, datum: str = "egm96"):
-    """:meth:`geoloc.surfaces.dem.DEM.open` (heights made ellipsoidal with EGM96 for ``datum="egm96"``)."""
-    from geoloc.surfaces.dem import DEM
-
-    return DEM.open(path, datum=datum)
-
-
-def dem_steps(los: LineOfSight, dem_path, dem_datum: str = "egm96", method: str = "exact",
-              eps_h_m=None, threshold_m=None) -> tuple[GroundPoint, TerrainSteps]:
+def dem_steps(los: LineOfSight, dem, method: str = "exact", eps_h_m=None,
+              threshold_m=None) -> tuple[GroundPoint, TerrainSteps]:
     """Intersect every line of sight with a DEM; the hits as a GroundPoint and the per-ray trace.
 
     Parameters
     ----------
     los : LineOfSight
         One ray per step, shape (n,).
-    dem_path : path-like
-    dem_datum : {"egm96", "ellipsoid"}
+    dem : geoloc.surfaces.dem.DEM
+        The one raster whose solver trace and mesh are drawn, opened once by the caller
+        (a mosaic solves region by region and keeps no trace).
     method : {"steps", "bisect", "exact"}
     eps_h_m, threshold_m : float, optional
         Step / threshold of the iterative methods [m] (terrain's defaults if None).
     """
     from geoloc.surfaces.terrain import intersect_dem
 
-    dem = open_dem(dem_path, dem_datum)
     kw = {}
     if eps_h_m is not None:
         kw["eps_h"] = float(eps_h_m)
@@ -95,7 +88,7 @@ def dem_steps(los: LineOfSight, dem_path, dem_datum: str = "egm96", method: str 
         r = hit.trace.ray(k)
         for key in tr:
             tr[key].append(np.asarray(r[key], float))
-    return ground, TerrainSteps(method, dem, str(dem_path), np.asarray(hit.dem_evaluations),
+    return ground, TerrainSteps(method, dem, str(dem.path), np.asarray(hit.dem_evaluations),
                                 tr["H"], tr["h_dem"], tr["lat"], tr["lon"], tr["ecef"])
 
 
