@@ -404,13 +404,19 @@ def test_animation_runs_the_angle_from_zero(panel):
 
 
 # ---------------------------------------------------------------- in headless Chromium
-def _colour_pixels(img, role):
-    """Pixels of a highlight colour (magenta source, cyan destination) whatever the shading."""
+def _colour_mask(img, role):
+    """Where a highlight colour (magenta source, cyan destination) is, whatever the shading."""
     r, g, b = (img[..., k].astype(int) for k in range(3))
     if role == "src":  # magenta, lit or shaded: red and blue high and alike, green 60 below both
-        return int(np.sum((r > 120) & (b > 120) & (abs(r - b) < 70) & (g < np.minimum(r, b) - 60)))
-    # cyan: green and blue high and alike, red 60 below both (the blue globe and the terrain are not)
-    return int(np.sum((g > 120) & (b > 120) & (abs(g - b) < 70) & (r < np.minimum(g, b) - 60)))
+        return (r > 120) & (b > 120) & (abs(r - b) < 70) & (g < np.minimum(r, b) - 60)
+    # cyan: green and blue high and alike, red 60 below both (the blue globe is not; the hillshaded
+    # terrain's teal band is, which is why the test counts only pixels that turned to the colour)
+    return (g > 120) & (b > 120) & (abs(g - b) < 70) & (r < np.minimum(g, b) - 60)
+
+
+def _new_colour_pixels(before, after, role):
+    """Pixels of a highlight colour in `after` that were not of it in `before` (same camera)."""
+    return int(np.sum(_colour_mask(after, role) & ~_colour_mask(before, role)))
 
 
 def _render(server, panel, path=None):
@@ -467,8 +473,10 @@ def test_teaching_panel_hop_highlight_and_table_in_chromium(tmp_path):
             page.wait_for_selector("text=T_ecef_body (partial product) >> visible=true", timeout=60000)
             img1 = _render(server, p, ARTIFACTS / "teaching_hop_render.png")
             for role in ("src", "dst"):
-                # highlight balls of 0.45 frame sizes: hundreds of pixels at this view, (almost) none before
-                assert _colour_pixels(img1, role) > 40 + 2 * _colour_pixels(img0, role), role
+                # highlight balls of 0.45 frame sizes: 100-150 pixels each at this 960x540 view (seen:
+                # 148 magenta, 103 cyan), drawn where there was none of the colour before; without the
+                # highlight no pixel turns to it (the same camera renders the same terrain), hence 40
+                assert _new_colour_pixels(img0, img1, role) > 40, role
 
 
 @pytest.mark.browser
