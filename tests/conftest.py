@@ -1,6 +1,7 @@
 """Fixtures shared by several test modules."""
 
 import os
+from pathlib import Path
 
 import pytest
 
@@ -23,3 +24,17 @@ def rerun_home(tmp_path_factory):
         mp.setenv("XDG_CONFIG_HOME", str(d / ".config"))
         mp.setenv("XDG_DATA_HOME", str(d / ".local" / "share"))
         yield d
+
+
+def pytest_collection_modifyitems(config, items):
+    """Every test of a module that opens headless Chromium runs on one pytest-xdist worker
+    (``tools/test.sh`` runs ``-n 2 --dist loadgroup``): two software-WebGL browsers at once on a
+    2-core machine made 60 s waits for the first view fail, while one browser beside one CPU-bound
+    worker holds. Without xdist the group mark is inert."""
+    opens_chromium: dict[str, bool] = {}
+    for item in items:
+        path = str(item.path)
+        if path not in opens_chromium:
+            opens_chromium[path] = "chromium(" in Path(path).read_text(encoding="utf-8")
+        if opens_chromium[path]:
+            item.add_marker(pytest.mark.xdist_group("chromium"))
