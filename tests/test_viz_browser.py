@@ -95,6 +95,19 @@ def chromium(tmp_path, extra_flags=()):
             browser.close()
 
 
+@contextlib.contextmanager
+def served():
+    """A viser server on a free loopback port (and the screenshot folder), stopped afterwards."""
+    from geoloc.viz.app import make_server
+
+    ARTIFACTS.mkdir(exist_ok=True)
+    server = make_server(port=0)
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
 def open_viewer(browser, server, width, height):
     """A page on the viewer, once the browser has registered as a client (its WebGL canvas is up)."""
     page = browser.new_page(viewport={"width": width, "height": height})
@@ -104,12 +117,10 @@ def open_viewer(browser, server, width, height):
 
 
 def test_viewer_in_headless_chromium(tmp_path):
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
     from geoloc.viz.scenario import load_view_scenario
 
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, load_view_scenario())
         with chromium(tmp_path) as browser:
             page = open_viewer(browser, server, 800, 520)
@@ -148,8 +159,6 @@ def test_viewer_in_headless_chromium(tmp_path):
             page2.wait_for_selector("canvas", timeout=40000)
             wait_for(lambda: any("Embedded data loaded" in m for m in console), 30,
                      "the exported page to load its embedded scene")
-    finally:
-        server.stop()
 
 
 
@@ -157,12 +166,10 @@ def test_turret_sensor_in_headless_chromium(tmp_path):
     # an azimuth-elevation turret with a Brown lens (the bundled sensor file): the page shows
     # its own gimbal angles and frames, and the canvas renders the scene over the SRTM terrain
     from geoloc.assets import asset_path
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
     from geoloc.viz.scenario import load_view_scenario
 
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
+    with served() as server:
         scn = load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
                             asset_path("sensors", "eo_turret.toml"))
         app = GeolocApp(server, scn)
@@ -182,8 +189,6 @@ def test_turret_sensor_in_headless_chromium(tmp_path):
                 "/enu/hit/result").position) - before) > 0.3, 20, "a 10 deg azimuth change to move the hit")
             time.sleep(2.0)
             page.screenshot(path=str(ARTIFACTS / "viz_turret_page.png"))
-    finally:
-        server.stop()
 
 
 def _open_tab(browser, server, width, height, before, timeout=90):
@@ -197,12 +202,10 @@ def _open_tab(browser, server, width, height, before, timeout=90):
 def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
     # issue 16 items 4-5: a state per tab, judged on each page's GUI text and on each browser's
     # own camera report; then a third tab over --max-clients 2 is told the limit
-    from geoloc.viz.app import GeolocViewer, make_server
+    from geoloc.viz.app import GeolocViewer
     from geoloc.viz.scenario import load_view_scenario
 
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
+    with served() as server:
         viewer = GeolocViewer(server, load_view_scenario(), max_clients=2)
         with chromium(tmp_path, MULTI_TAB_FLAGS) as browser:
             # one tab at a time until each is up (software WebGL on a loaded 2-core machine)
@@ -242,19 +245,15 @@ def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
             assert pc.locator("text=--max-clients 4").count() >= 1
             pc.screenshot(path=str(ARTIFACTS / "viz_client_cap.png"))
             assert len(viewer.sessions) == 2 and len(viewer.refused) == 1
-    finally:
-        server.stop()
 
 
 def test_presenter_mode_in_chromium(tmp_path):
     # issue 20 item 2: the second tab follows the first: its controls are disabled, its panel
     # and camera follow the driver's (judged on the follower's page and its browser's camera)
-    from geoloc.viz.app import GeolocViewer, make_server
+    from geoloc.viz.app import GeolocViewer
     from geoloc.viz.scenario import load_view_scenario
 
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
+    with served() as server:
         viewer = GeolocViewer(server, load_view_scenario(), presenter=True)
         with chromium(tmp_path, MULTI_TAB_FLAGS) as browser:
             pa = open_viewer(browser, server, 480, 320)
@@ -292,21 +291,17 @@ def test_presenter_mode_in_chromium(tmp_path):
             for src, dst in panel.mirrors:
                 assert dst.content == src.content
             pb.screenshot(path=str(ARTIFACTS / "viz_presenter_follower.png"))
-    finally:
-        server.stop()
 
 
 def test_presenter_switches_scenario_in_chromium(tmp_path):
     # issue 34 item 6: the presenter chooses another scenario in their "scenario" dropdown, as a
     # person does (click the box, click the option); the follower's page shows the new scenario's
     # header and folders and its own read-only box showing the presenter's choice
-    from geoloc.viz.app import GeolocViewer, make_server
+    from geoloc.viz.app import GeolocViewer
     from geoloc.viz.flight_model import default_flight_scenario
     from geoloc.viz.scenario import load_view_scenario
 
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
+    with served() as server:
         q17 = load_view_scenario()
         viewer = GeolocViewer(server, q17, presenter=True,
                               scenarios={"[Q17] flight test": q17, "example flight": default_flight_scenario})
@@ -332,5 +327,3 @@ def test_presenter_switches_scenario_in_chromium(tmp_path):
                      "the follower's scenario box")
             assert pb.get_by_label("scenario").is_disabled()
             pb.screenshot(path=str(ARTIFACTS / "viz_presenter_switched_follower.png"))
-    finally:
-        server.stop()

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_viz_browser import served
 
 from geoloc.frames.enu import EnuFrame
 from geoloc.sensors.frame import FrameSensor
@@ -193,7 +194,7 @@ def test_the_flight_test_panel_shows_no_negative_intercept_model_and_says_why_it
     # [Q17]'s 20 records on ETOPO5: accuracy against truth, with the slant-range line refused when its
     # intercept is negative (numpy's own polyfit of the horizontal errors on the slant ranges), and the
     # session's panel explaining 486 m against the published 51 m by the DEM's 9 km cells
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
     from geoloc.viz.scenario import load_view_scenario
 
     scn = load_view_scenario()
@@ -208,23 +209,19 @@ def test_the_flight_test_panel_shows_no_negative_intercept_model_and_says_why_it
     if intercept < 0:
         assert m.error_model()[0] is None and "negative intercept" in text
         assert "horizontal error =" not in text
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, scn, layers=())
         summary = app.md_summary.content
         # ETOPO5: 5 arc-minutes = 9.3 km north-south
         assert "cells of about 9 km" in summary and "published 51 m" in summary, summary
-    finally:
-        server.stop()
 
 
 # ------------------------------------------------------------------ the layer on a server (no browser)
 def test_timeline_moves_only_the_highlight():
     from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
 
-    server = make_server(port=0)
-    try:
+    with served() as server:
         scn = flight_model.default_flight_scenario()
         app = GeolocApp(server, scn, layers=(flight_layer.attach,))
         fl = app.layers[-1]
@@ -251,8 +248,6 @@ def test_timeline_moves_only_the_highlight():
         fl.dd_goto.value = fl.opts[0]
         assert app.scn.record_index == fl.top_idx[0] == int(fl.sl_frame.value)
         assert fl.model.outlier[fl.top_idx[0]]
-    finally:
-        server.stop()
 
 
 def test_example_53_prints_the_frames_and_the_top_outliers():
@@ -274,14 +269,12 @@ def _magenta(img):
 
 @pytest.mark.browser
 def test_scrubbing_the_timeline_moves_the_footprint_on_the_canvas(tmp_path):
-    from test_viz_browser import ARTIFACTS, chromium, look_at_wxyz, open_viewer
+    from test_viz_browser import ARTIFACTS, chromium, look_at_wxyz, open_viewer, served
 
     from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
 
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, flight_model.default_flight_scenario(), layers=(flight_layer.attach,))
         fl = app.layers[-1]
         app.sl_marker.value = 10.0  # the current record's hit markers (220 m balls) would cover the outline
@@ -320,19 +313,16 @@ def test_scrubbing_the_timeline_moves_the_footprint_on_the_canvas(tmp_path):
             # its pixels barely overlap, and its centroid moves by several pixels
             assert iou < 0.3, iou
             assert math.hypot(xb - xa, yb - ya) > 2.0
-    finally:
-        server.stop()
 
 
 @pytest.mark.browser
 def test_choosing_an_outlier_moves_the_browser_camera(tmp_path):
-    from test_viz_browser import chromium, open_viewer, wait_for
+    from test_viz_browser import chromium, open_viewer, served, wait_for
 
     from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
 
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, flight_model.default_flight_scenario(), layers=(flight_layer.attach,))
         fl = app.layers[-1]
         with chromium(tmp_path) as browser:
@@ -353,8 +343,6 @@ def test_choosing_an_outlier_moves_the_browser_camera(tmp_path):
                 raise AssertionError(f"target {pos}, before {before}, reported {reported[-3:]}")
             assert np.linalg.norm(pos - before) > 0.1  # km
             assert app.scn.record_index == fl.top_idx[0]
-    finally:
-        server.stop()
 
 
 def _pink(img):
@@ -382,14 +370,12 @@ def test_at_each_planted_fault_the_error_vector_shows_on_the_canvas(tmp_path):
     # the browser's camera frames the error, its pink vector's pixels are on the canvas between the
     # two markers (not covered by them, nor by the terrain mesh) and its length is in the page
     import PIL.Image
-    from test_viz_browser import ARTIFACTS, chromium, open_viewer, wait_for
+    from test_viz_browser import ARTIFACTS, chromium, open_viewer, served, wait_for
 
     from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
 
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, flight_model.default_flight_scenario(), layers=(flight_layer.attach,))
         fl = app.layers[-1]
         W_, H_ = 640, 420
@@ -439,8 +425,6 @@ def test_at_each_planted_fault_the_error_vector_shows_on_the_canvas(tmp_path):
                 assert f"error {err:.1f} m" in label
                 assert server.scene.get_handle_by_name("/flight/focus/label").text == label
                 page.wait_for_selector(f"text=error {err:.1f} m", timeout=60000, state="attached")
-    finally:
-        server.stop()
 
 
 def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
@@ -449,10 +433,9 @@ def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
     import re
 
     from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
 
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, flight_model.default_flight_scenario(), layers=(flight_layer.attach,))
         fl = app.layers[-1]
         idx = fl.model.labels.index("packet 203")
@@ -463,8 +446,6 @@ def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
         for text in ("example_flight.klv packet 203", f"residual {fl.model.residual_m[idx]:.2f} m",
                      f"error {err:.1f} m", "sensor height off by", "height in the wrong datum"):
             assert text in panel, text
-    finally:
-        server.stop()
 
 
 def test_one_legend_per_scenario_from_what_it_draws():

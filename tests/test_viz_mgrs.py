@@ -12,6 +12,7 @@ import re
 
 import numpy as np
 import pytest
+from test_viz_browser import served
 
 MGRS_RE = re.compile(r"MGRS (\d{1,2}[C-X][A-Z]{2}\d{10}) \(USNG (\d{1,2}[C-X]) ([A-Z]{2}) (\d{5}) (\d{5})\)")
 HIT_RE = re.compile(r"\*\*[^*]+\*\*: ([-0-9.]+) N, ([-0-9.]+) E")
@@ -47,11 +48,10 @@ def _check_reference(text, lat_deg, lon_deg, exact=True):
 
 
 def test_summary_panel_shows_mgrs_of_its_hit():
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
     from geoloc.viz.scenario import load_view_scenario
 
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, load_view_scenario())
         text = app.md_summary.content
         hit = HIT_RE.search(text)
@@ -61,8 +61,6 @@ def test_summary_panel_shows_mgrs_of_its_hit():
         g = float(app.geometry.hit.lat_deg), float(app.geometry.hit.lon_deg)
         assert abs(g[0] - lat) < 5e-7 and abs(g[1] - lon) < 5e-7
         _check_reference(text, *g)  # the hit itself: to the letter
-    finally:
-        server.stop()
 
 
 def test_pick_panels_show_mgrs():
@@ -79,13 +77,12 @@ def test_pick_panels_show_mgrs():
 
 @pytest.mark.browser
 def test_mgrs_in_the_panel_in_chromium(tmp_path):
-    from test_viz_browser import ARTIFACTS, chromium, open_viewer, wait_for
+    from test_viz_browser import ARTIFACTS, chromium, open_viewer, served, wait_for
 
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
     from geoloc.viz.scenario import load_view_scenario
 
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, load_view_scenario())
         with chromium(tmp_path) as browser:
             page = open_viewer(browser, server, 1000, 700)
@@ -110,5 +107,3 @@ def test_mgrs_in_the_panel_in_chromium(tmp_path):
             _check_reference(mg2, float(app.geometry.hit.lat_deg), float(app.geometry.hit.lon_deg))
             page.locator("text=MGRS").first.scroll_into_view_if_needed()
             page.screenshot(path=str(ARTIFACTS / "viz_mgrs_panel.png"))
-    finally:
-        server.stop()

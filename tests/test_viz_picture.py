@@ -24,6 +24,7 @@ import time
 
 import numpy as np
 import pytest
+from test_viz_browser import served
 
 from geoloc.io.images import ArrayImages
 from geoloc.status import Status
@@ -96,16 +97,13 @@ def make_app(scn, **kw):
 
 def test_scenario_without_images_gets_no_layer():
     from geoloc.viz import image_layer
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
     from geoloc.viz.scenario import load_view_scenario
 
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, load_view_scenario(), layers=(image_layer.attach,))
         assert app.layers == [None]
         assert server.scene.get_handle_by_name("/enu/picture/frame") is None
-    finally:
-        server.stop()
 
 
 def test_pixel_pick_equals_geoloc_locate(flight, tmp_path):

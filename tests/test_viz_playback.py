@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from test_viz_browser import ARTIFACTS, chromium, open_viewer, wait_for
+from test_viz_browser import ARTIFACTS, chromium, open_viewer, served, wait_for
 
 pytestmark = [pytest.mark.browser]
 
@@ -30,12 +30,10 @@ RECORDER = r"""() => {
 
 
 def test_pause_stops_the_display_where_it_was(tmp_path):
-    from geoloc.viz.app import GeolocViewer, make_server
+    from geoloc.viz.app import GeolocViewer
     from geoloc.viz.flight_model import default_flight_scenario
 
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
+    with served() as server:
         viewer = GeolocViewer(server, default_flight_scenario())
         with chromium(tmp_path) as browser:
             page = open_viewer(browser, server, 1280, 800)
@@ -66,5 +64,3 @@ def test_pause_stops_the_display_where_it_was(tmp_path):
             assert final == stop == fl.current
             assert 0 <= final - at_pause <= 2, (at_pause, final)
             assert re.search(rf"timeline frame index {final} ", page.locator("body").inner_text())
-    finally:
-        server.stop()

@@ -437,20 +437,16 @@ def _render(server, panel, path=None):
 @contextlib.contextmanager
 def _panel_app(kind="roll-pitch"):
     """(server, app, panel): a scene (default [Q17]'s) on a viser server with the teaching panel alone."""
-    from test_viz_browser import ARTIFACTS
+    from test_viz_browser import served
 
     from geoloc.viz import teaching_panel
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
     from geoloc.viz.scenario import load_view_scenario
 
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
+    with served() as server:
         scn = load_view_scenario() if kind == "roll-pitch" else _scenario(kind)
         app = GeolocApp(server, scn, layers=())  # the panel alone, attached below
         yield server, app, teaching_panel.attach(app)
-    finally:
-        server.stop()
 
 
 @pytest.mark.browser

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from test_viz_browser import ARTIFACTS, chromium, look_at_wxyz, n_colours, open_viewer, wait_for
+from test_viz_browser import ARTIFACTS, chromium, look_at_wxyz, n_colours, open_viewer, served, wait_for
 
 pytestmark = [pytest.mark.browser]
 
@@ -24,12 +24,11 @@ def _layer(app):
 
 
 def test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse():
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
     from geoloc.viz.scene_geoloc import WORLD_SCALE
     from geoloc.viz.scenario import load_view_scenario
 
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, load_view_scenario())
         lay = _layer(app)
         pu = lay.pu
@@ -47,19 +46,15 @@ def test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse():
         assert f"CE90 {float(pu.ce90_m):.1f} m" in text
         err = float(np.hypot(*(app.geometry.hit_enu - app.geometry.surveyed_enu)[:2]))
         assert f"{err:.1f} m" in text and "illustrative budget" in text
-    finally:
-        server.stop()
 
 
 def test_a_person_hides_the_ellipse_in_chromium(tmp_path):
     import PIL.Image
 
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc.viz.app import GeolocApp
     from geoloc.viz.scenario import load_view_scenario
 
-    ARTIFACTS.mkdir(exist_ok=True)
-    server = make_server(port=0)
-    try:
+    with served() as server:
         app = GeolocApp(server, load_view_scenario())
         with chromium(tmp_path) as browser:
             page = open_viewer(browser, server, 1000, 640)
@@ -85,8 +80,6 @@ def test_a_person_hides_the_ellipse_in_chromium(tmp_path):
             wait_for(lambda: _layer(app).handle is None or not _layer(app).handle.visible, 30,
                      "the ellipse to leave the scene")
             assert re.search(r"CE90 \d+\.\d m", _layer(app).md.content)
-    finally:
-        server.stop()
 
 
 def test_flight_debugger_flags_frames_outside_their_own_99_percent_ellipse():
