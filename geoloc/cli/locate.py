@@ -251,22 +251,21 @@ def _drone_height_warning(camera, pose, target_h: float, surface, alt) -> list:
     """A drone sensor (its file's ``platform``) more than DRONE_MAX_HEIGHT_M above the terrain
     under it (with a DEM) or the target, or above DRONE_CEILING_M: one warning (docs/records.md,
     "Plausibility checks"); the point is still given as computed."""
-    from geoloc.sensors.platform import DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint, is_drone
+    from geoloc.sensors.platform import (DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint, drone_height_where,
+                                         drone_too_high, is_drone)
     from geoloc.surfaces.base import terrain_of
 
     if not is_drone(getattr(camera, "platform", "")):
         return []
     h = float(np.ravel(pose.h)[0])
-    ref, what = target_h, "the target"
     terrain = terrain_of(surface)
-    if terrain is not None:
-        g, _ = terrain.sample(np.ravel(pose.lat)[:1], np.ravel(pose.lon)[:1])
-        if np.isfinite(g[0]):
-            ref, what = float(g[0]), "the terrain under it"
-    if not (h - ref > DRONE_MAX_HEIGHT_M or h > DRONE_CEILING_M):
+    ground = None if terrain is None else terrain.sample(np.ravel(pose.lat)[:1], np.ravel(pose.lon)[:1])[0][0]
+    high, ref, what = drone_too_high(h, target_h, ground)
+    if not high:
         return []
+    ref, what = float(ref), str(what)
     return [f"{alt.column} = {h:.1f} m: a drone's camera (the sensor file's platform {camera.platform!r}) "
-            f"{(h - ref) / 1000:.1f} km above {what} ({ref:.1f} m), while drones fly below "
+            f"{drone_height_where(h, ref, what)}, while drones fly below "
             f"{DRONE_MAX_HEIGHT_M:.0f} m above the ground and {DRONE_CEILING_M:.0f} m above the sea: "
             f"{drone_height_hint(h, ref)}; the point is computed as given"]
 

@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
+
 #: Words (case-insensitive, whole words) that make a platform text a drone: small multirotors
 #: and small fixed-wing UAS, and their makers' product names (DJI's Mavic, Phantom, Matrice,
 #: Inspire, Mini, Air; Autel's EVO; Parrot's Anafi; Skydio).
@@ -45,6 +47,50 @@ FOOT_M = 0.3048
 def is_drone(text) -> bool:
     """True if the platform ``text`` names a drone by :data:`DRONE_WORDS` (None, "": False)."""
     return bool(text) and _DRONE_RE.search(str(text)) is not None
+
+
+def drone_too_high(h_m, fallback_m, ground_m=None, fallback_what="the target",
+                   ground_what="the terrain under it"):
+    """Which drone camera heights cannot be a drone's (issue 32; docs/records.md, "Plausibility checks").
+
+    Parameters
+    ----------
+    h_m : array_like
+        The camera's height (m, in the datum of the others).
+    fallback_m : array_like
+        What it is judged against where there is no terrain: the target or the located point.
+    ground_m : array_like or None
+        The terrain under the camera (NaN where the DEM has none); None: no DEM.
+    fallback_what, ground_what : str or array_like
+        What the two references are, for the message.
+
+    Returns
+    -------
+    high : ndarray of bool
+        More than :data:`DRONE_MAX_HEIGHT_M` above the reference, or above :data:`DRONE_CEILING_M`.
+    ref_m : ndarray
+        The reference each height was judged against (NaN where neither is known).
+    what : ndarray of object
+        What that reference is.
+    """
+    h = np.asarray(h_m, float)
+    ref = np.array(np.broadcast_to(np.asarray(fallback_m, float), h.shape))
+    what = np.array(np.broadcast_to(np.asarray(fallback_what, dtype=object), h.shape))
+    if ground_m is not None:
+        g = np.broadcast_to(np.asarray(ground_m, float), h.shape)
+        has = np.isfinite(g)
+        ref[has] = g[has]
+        what[has] = ground_what
+    with np.errstate(invalid="ignore"):
+        high = (h - ref > DRONE_MAX_HEIGHT_M) | (h > DRONE_CEILING_M)
+    return high, ref, what
+
+
+def drone_height_where(h_m: float, ref_m: float, what: str) -> str:
+    """'1.1 km above the terrain under it (291.1 m)', or the ceiling where ``ref_m`` is unknown."""
+    if np.isfinite(ref_m):
+        return f"{(h_m - ref_m) / 1000:.1f} km above {what} ({ref_m:.1f} m)"
+    return f"above a drone's ceiling ({DRONE_CEILING_M:.0f} m)"
 
 
 def drone_height_hint(h_m: float, ref_m: float | None, unit: str = "m", advice: str = "") -> str:

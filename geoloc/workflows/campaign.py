@@ -499,7 +499,8 @@ def _records_unit(path: str, cfg: CampaignConfig):
 def _drone_height_messages(path, table, sensor, dem, cols, h_ac, hit_h, bad) -> list:
     """The records' drone check (``geoloc replay``'s, docs/records.md "Plausibility checks") for
     one unit: a count and the first row, as the unit's other messages; the rows run as read."""
-    from geoloc.sensors.platform import DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint, is_drone
+    from geoloc.sensors.platform import (DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint, drone_height_where,
+                                         drone_too_high, is_drone)
 
     default = is_drone(getattr(sensor, "platform", ""))
     if "platform" in table.column_names:
@@ -510,20 +511,14 @@ def _drone_height_messages(path, table, sensor, dem, cols, h_ac, hit_h, bad) -> 
     drone &= ~bad
     if not drone.any():
         return []
-    ref, what = hit_h.copy(), np.full(len(h_ac), "the target", dtype=object)
-    if dem is not None:
-        ground, _ = dem.sample(np.deg2rad(cols["ac_lat_deg"]), np.deg2rad(cols["ac_lon_deg"]))
-        has = np.isfinite(ground)
-        ref = np.where(has, ground, ref)
-        what[has] = "the terrain under it"
-    with np.errstate(invalid="ignore"):
-        high = drone & ((h_ac - ref > DRONE_MAX_HEIGHT_M) | (h_ac > DRONE_CEILING_M))
+    ground = None if dem is None else dem.sample(np.deg2rad(cols["ac_lat_deg"]), np.deg2rad(cols["ac_lon_deg"]))[0]
+    high, ref, what = drone_too_high(h_ac, hit_h, ground)
+    high &= drone
     if not high.any():
         return []
     i = int(np.flatnonzero(high)[0])
     v, known = float(cols["ac_h_m"][i]), bool(np.isfinite(ref[i]))
-    where = (f"{(h_ac[i] - ref[i]) / 1000:.1f} km above {what[i]} ({ref[i]:.1f} m)" if known
-             else f"above a drone's ceiling ({DRONE_CEILING_M:.0f} m)")
+    where = drone_height_where(h_ac[i], ref[i], what[i])
     hint = drone_height_hint(v, ref[i] - (h_ac[i] - v) if known else None)
     return [f"{path}: warning: {int(high.sum())} row(s) of a drone more than {DRONE_MAX_HEIGHT_M:.0f} m above the "
             f"terrain or target (or {DRONE_CEILING_M:.0f} m), first row {i} (ac_h_m = {v:g}: {where}): {hint}; "

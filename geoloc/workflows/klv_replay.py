@@ -979,7 +979,7 @@ def _drone_height_warnings(read: KlvRead, base_sensor, terrain, lat_s, lon_s, h_
     Too high: more than DRONE_MAX_HEIGHT_M above the terrain under the sensor (a DEM), else
     above the reported frame centre (tags 78 / 25), else above the located point; or above
     DRONE_CEILING_M. The rule and its numbers: docs/records.md, "Plausibility checks"."""
-    from geoloc.sensors.platform import drone_height_hint, is_drone
+    from geoloc.sensors.platform import drone_height_hint, drone_height_where, drone_too_high, is_drone
 
     c, n = read.columns, len(read)
     desig = c.get("platform_designation")
@@ -993,20 +993,16 @@ def _drone_height_warnings(read: KlvRead, base_sensor, terrain, lat_s, lon_s, h_
                     "the located point").astype(object)
     if terrain is not None:
         ground, _ = terrain.sample(np.deg2rad(lat_s), np.deg2rad(lon_s))
-        ground = np.asarray(ground, float)
-        has = np.isfinite(ground)
-        ref = np.where(has, ground, ref)
-        what[has] = "the terrain under it (the DEM)"
-    with np.errstate(invalid="ignore"):
-        above = h_s - ref
-        high = drone & ((above > DRONE_MAX_HEIGHT_M) | (h_s > DRONE_CEILING_M))
+    else:
+        ground = None
+    high, ref, what = drone_too_high(h_s, ref, ground, what, "the terrain under it (the DEM)")
+    high &= drone
     out = []
     for k in np.flatnonzero(high):
         tag, value = ("tag 75 (Sensor Ellipsoid Height)", h75[k]) if from75[k] else \
             ("tag 15 (Sensor True Altitude, MSL)", h15[k])
         known = np.isfinite(ref[k])
-        where = (f"{above[k] / 1000:.1f} km above {what[k]} ({ref[k]:.1f} m)" if known
-                 else f"above a drone's ceiling ({DRONE_CEILING_M:.0f} m)")
+        where = drone_height_where(h_s[k], ref[k], what[k])
         said = f"Platform Designation {desig[k]!r}" if desig[k] else "the sensor file's platform"
         hint = drone_height_hint(value, ref[k] - (h_s[k] - value) if known else None)
         out.append(f"packet {int(read.packet[k])} (byte {int(c['offset'][k])}): {tag} = {value:.1f} m: a drone's "

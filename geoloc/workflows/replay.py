@@ -212,21 +212,15 @@ def _drone_height_warnings(records: Records, result: ReplayResult, ground, senso
     """(indices, text of index) of the drone records too high for a drone: above the terrain
     ``ground`` (None or NaN where unknown: the located point's height instead) by more than
     DRONE_MAX_HEIGHT_M, or above DRONE_CEILING_M."""
-    from geoloc.sensors.platform import DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint
+    from geoloc.sensors.platform import (DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint,
+                                         drone_height_where, drone_too_high)
 
     drone = drone_rows(records, sensor)
     if not drone.any():
         return np.zeros(0, int), None
     ac_h = records.column("ac_h_m")
-    ref = np.asarray(result.h_m, float).copy()
-    what = np.full(len(records), "the target", dtype=object)
-    if ground is not None:
-        has = np.isfinite(ground)
-        ref = np.where(has, ground, ref)
-        what[has] = "the terrain under it"
-    with np.errstate(invalid="ignore"):
-        above = ac_h - ref
-        high = drone & ((above > DRONE_MAX_HEIGHT_M) | (ac_h > DRONE_CEILING_M))
+    high, ref, what = drone_too_high(ac_h, result.h_m, ground)
+    high &= drone
     src = records.altitude
     field = "ac_h_m" if src.column in ("ac_h_m", "") or src.column not in records.header \
         else f"{src.column} (read as ac_h_m, {src.unit}, {src.datum})"
@@ -234,8 +228,7 @@ def _drone_height_warnings(records: Records, result: ReplayResult, ground, senso
     def text(k):
         cell = records.rows[k].get(src.column if field != "ac_h_m" else "ac_h_m", "").strip() or f"{ac_h[k]:.1f}"
         known = np.isfinite(ref[k])
-        where = (f"{above[k] / 1000:.1f} km above {what[k]} ({ref[k]:.1f} m)" if known
-                 else f"above a drone's ceiling ({DRONE_CEILING_M:.0f} m)")
+        where = drone_height_where(ac_h[k], ref[k], what[k])
         try:  # the hint in the file's own datum (an EGM96 column's value is H, ac_h_m is H + N)
             value = float(cell)
         except ValueError:
