@@ -168,7 +168,9 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
             m = re.search(r"heading bias ([+-][\d.]+) deg", tab.layer.md_faults.content)
             assert m and abs(float(m.group(1)) - 2.5) < 0.2, tab.layer.md_faults.content  # planted +2.5 deg
             table = tab.layer.md_table.content
-            assert sum(f"| packet {p} |" in table for p in range(100, 110)) >= 8, table
+            # the feed loops the 300-packet file: a slow page may meet the burst's second pass (packets
+            # 400-409) too, which shares the 12-row table with the first; either pass counts
+            assert sum(any(f"| packet {p + 300 * k} |" in table for k in range(4)) for p in range(100, 110)) >= 8, table
             m = re.search(r"; (\d+) frames\)", tab.layer.md_accuracy.content)
             assert m and int(m.group(1)) > n_acc, (n_acc, tab.layer.md_accuracy.content)  # the panel grew
             wait_for(lambda: "heading bias" in page.locator("body").inner_text(), 30, "the faults on the page")
