@@ -37,7 +37,7 @@ from geoloc.io.photos import (
     pose_from_photo,
     read_photo,
 )
-from geoloc.sensors.platform import DRONE_MAX_HEIGHT_M as _DRONE_MAX_HEIGHT_M, drone_height_hint
+from geoloc.sensors.platform import DRONE_MAX_HEIGHT_M, drone_height_hint
 from geoloc.status import Status, names
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
@@ -61,12 +61,9 @@ TRUTH_COLUMNS = ("truth_lat_deg", "truth_lon_deg", "truth_h_m")
 #: The camera's height above the DEM and RelativeAltitude (above take-off) disagreeing by more
 #: than this [m] gives a message: a datum mix-up (|N| is tens of metres) or a barometric altitude.
 ALTITUDE_CHECK_M = 30.0
-#: A drone photo's camera higher than this above the DEM under it (or a RelativeAltitude above
-#: it) is warned about as implausible: DJI's firmware caps the flight altitude at 500 m above
-#: the take-off point and most countries' rules at 120 m above the ground, so a camera
-#: kilometres up is a height in the wrong unit or datum, or not a drone photo's position (issue 32).
-#: The one number of :mod:`geoloc.sensors.platform` (the records and KLV checks use it too).
-DRONE_MAX_HEIGHT_M = _DRONE_MAX_HEIGHT_M
+# A drone photo's camera more than geoloc.sensors.platform.DRONE_MAX_HEIGHT_M above the DEM under
+# it (or a RelativeAltitude above it) is warned about as implausible (issue 32): the records and
+# KLV checks use the same number.
 #: The datum names written in ``altitude_datum`` for each ``altitude_datum`` argument.
 _DATUM_TEXT = {"egm96": EGM96_DATUM, "ellipsoid": ELLIPSOID_DATUM}
 
@@ -293,7 +290,7 @@ def _datum_messages(meta, altitude_datum, h_cam, n, dem) -> list:
             said.append(f"RelativeAltitude (above the take-off point) is {rel:.1f} m")
         if above_dem is not None and above_dem > DRONE_MAX_HEIGHT_M:
             # the hint in the photo's own datum: the DEM height less the N added to the altitude
-            ground_file = h_cam - above_dem - (h_cam - meta.altitude_m)
+            ground_file = meta.altitude_m - above_dem
             field, hint = (f"{meta.altitude_source or 'altitude'} = {meta.altitude_m:g}",
                            drone_height_hint(meta.altitude_m, ground_file))
         else:
