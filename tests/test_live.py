@@ -153,6 +153,74 @@ def test_video_units_and_the_nearest_frame(tmp_path):
         assert v == min(vpts, key=lambda x: abs(x - p.pts))
 
 
+def _mux_late_klv(path, late: int, n: int = 30):
+    """A 30 Hz H.264 + KLV transport stream muxed by FFmpeg (PyAV), the KLV ``late`` 90 kHz ticks after
+    each frame (write_ts gives both one time stamp): frames at 3000 i, packets at 3000 i + late."""
+    import av
+    from fractions import Fraction
+
+    from geoloc.io.klv import encode_packet
+
+    pk = [p for p in read_klv_file(KLV) if isinstance(p, Packet)][:n]
+    tb = Fraction(1, 90000)
+    with av.open(str(path), "w", format="mpegts") as out:
+        vs = out.add_stream("libx264", rate=30)
+        vs.width, vs.height, vs.pix_fmt = 96, 64, "yuv420p"
+        vs.time_base = vs.codec_context.time_base = tb
+        vs.options = {"bf": "0", "preset": "ultrafast"}
+        ds = out.add_data_stream(codec_name="klv")
+        for i, p in enumerate(pk):
+            fr = av.VideoFrame.from_ndarray(np.full((64, 96, 3), 8 * i, np.uint8), format="rgb24")
+            fr.pts, fr.time_base = 3000 * i, tb
+            for vp in vs.encode(fr):
+                out.mux(vp)
+            a = av.Packet(encode_packet(p.fields, unknown=p.unknown))
+            a.stream, a.time_base = ds, tb
+            a.pts = a.dts = 3000 * i + late
+            out.mux(a)
+        for vp in vs.encode():
+            out.mux(vp)
+
+
+def _live_frame_pts(path) -> tuple[list, list]:
+    """(the live path's frame_pts_s of each packet, FFmpeg's nearest video frame to it [s]): the
+    datagrams fed one by one, each batch replayed as it completes (as `geoloc replay udp://` does)."""
+    from geoloc.workflows.live_replay import LiveReplay
+
+    rx = LiveReceiver()
+    live = LiveReplay("live", receiver=rx)
+    for k, g in enumerate(datagrams_of(Path(path).read_bytes())):
+        res = rx.push(g, now=k * 1e-3)
+        if res:
+            live.add(res)
+    res = rx.flush()
+    if res:
+        live.add(res)
+    return live.columns()["frame_pts_s"].tolist(), ffmpeg_nearest_frame_s(path)
+
+
+def ffmpeg_nearest_frame_s(path) -> list:
+    """For each good KLV packet of ``path``: the time [s] of FFmpeg's video frame nearest it."""
+    import av
+
+    with av.open(str(path)) as c:
+        vpts = sorted(p.pts for p in c.demux(c.streams.video[0]) if p.size)
+    return [min(vpts, key=lambda v: abs(v - r.pts)) / 90000 for r in reference(path) if isinstance(r, Packet)]
+
+
+def test_each_packet_is_bound_to_the_nearest_frame_as_it_arrives(tmp_path):
+    """The live path (a batch replayed when its datagram completes it, before the rest of the stream
+    has come) binds each packet to FFmpeg's nearest video frame: the bundled flight (frames and
+    packets on one clock; a video PES has no length, so a frame completes only at the next one's start,
+    after its KLV packet: its time is taken from its first TS packet) and packets 1/3 frame late."""
+    got, want = _live_frame_pts(TS)
+    assert len(got) == 299 and got == want  # the same division of the same integers: exact
+    path = tmp_path / "late.ts"
+    _mux_late_klv(path, 1000)
+    got, want = _live_frame_pts(path)
+    assert len(got) == 30 and got == want
+
+
 def _mangle(data, rng, loss=0.0, swap=0.0, dup=0.0):
     """The file's datagrams, a fraction ``loss`` dropped, ``swap`` swapped with the next, ``dup`` repeated.
 
@@ -350,6 +418,9 @@ def test_replay_of_the_stream_equals_the_files_and_its_journals_replay_alike(tmp
             # every column as written, bit for bit, but the file name; 'outlier' too on this flight
             assert not diff, (a["packet"], diff)
     assert set(live[0]) - set(rows[0]) == {"frame_pts_s"}
+    # each packet bound over the network to FFmpeg's nearest frame (%.6f s written: 0.5 us at most)
+    np.testing.assert_allclose([float(r["frame_pts_s"]) for r in live], ffmpeg_nearest_frame_s(TS), rtol=0,
+                               atol=1e-6)
 
 
 def test_klv_dump_of_a_stream_with_loss(tmp_path, capsys):

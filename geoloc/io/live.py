@@ -456,8 +456,12 @@ class TsDemuxer:
     """
 
     def __init__(self, stats: LiveStats | None = None, keep_video: bool = True, reorder: bool = True,
-                 reorder_s: float = 0.1):
+                 reorder_s: float = 0.1, video_window: int = VIDEO_WINDOW):
         self.stats = stats if stats is not None else LiveStats()
+        #: PTS of the video PES whose start (its header) arrived, newest last: a frame's time is known
+        #: from its first TS packet, while the PES itself (no length field) completes only at the next
+        #: frame's start, after the KLV packet of the same time has come
+        self.video_starts: deque = deque(maxlen=int(video_window))
         self.reorder = bool(reorder)
         self.reorder_s = float(reorder_s)
         self.keep_video = keep_video
@@ -687,6 +691,9 @@ class TsDemuxer:
             if len(payload) >= 6 and payload[:3] == b"\x00\x00\x01":
                 ln = (payload[4] << 8) | payload[5]
                 b.expected = 6 + ln if ln else 0
+                if kind == "video" and len(payload) >= 14 and payload[3] not in _NO_PES_HEADER_IDS \
+                        and payload[7] & 0x80 and payload[8] >= 5:
+                    self.video_starts.append(_timestamp(payload, 9))
             self._pes[pid] = b
         elif kind is None:
             return
@@ -857,7 +864,7 @@ class LiveReceiver:
                  video_window: int = VIDEO_WINDOW, keep_video_data: bool = True,
                  reorder: bool = True, reorder_s: float = REORDER_S):
         self.stats = LiveStats()
-        self.demux = TsDemuxer(self.stats, reorder=reorder, reorder_s=reorder_s)
+        self.demux = TsDemuxer(self.stats, reorder=reorder, reorder_s=reorder_s, video_window=video_window)
         self.verify = verify_checksum
         self.window: deque = deque(maxlen=int(window))
         self.video: deque = deque(maxlen=int(video_window))  # (pts, bytes or None, pid)
@@ -900,18 +907,25 @@ class LiveReceiver:
         return self._units(units + self.demux.flush())
 
     def nearest_video_pts(self, pts: int | None) -> int | None:
-        """The PTS of the video access unit nearest ``pts`` among those in the window (None if none)."""
-        if pts is None or not self.video:
+        """The PTS of the video frame nearest ``pts`` among those whose start arrived (None if none).
+
+        A frame counts from its first TS packet (its PES header has the PTS; :attr:`TsDemuxer.video_starts`),
+        not only once its access unit is complete (:attr:`video`): a video PES has no length, so it
+        completes at the next frame's start, and a KLV packet muxed beside its frame would otherwise be
+        bound to the frame before (180 of the bundled flight's 299 packets were).
+        """
+        if pts is None:
             return None
         best, dbest = None, None
-        for vp, _, _ in reversed(self.video):  # newest first: live packets bind to recent frames
-            if vp is None:
-                continue
-            d = abs(vp - pts)
-            if dbest is None or d < dbest:
-                best, dbest = vp, d
-            elif vp < pts and d > dbest:
-                break
+        for seq in (self.demux.video_starts, [u[0] for u in self.video]):
+            for vp in reversed(seq):  # newest first: live packets bind to recent frames
+                if vp is None:
+                    continue
+                d = abs(vp - pts)
+                if dbest is None or d < dbest:
+                    best, dbest = vp, d
+                elif vp < pts and d > dbest:
+                    break
         return best
 
     def _units(self, units) -> list:

@@ -1020,7 +1020,7 @@ def _fmt_of(name: str) -> str:
         return "%.4f"
     if name.endswith("_deg"):
         return "%.7f"
-    if name in ("time_s", "pts_s"):
+    if name in ("time_s", "pts_s", "frame_pts_s"):
         return "%.6f"
     return "%.3f"
 

@@ -101,7 +101,7 @@ class LiveReplay:
         c["outlier"] = np.asarray(flags[-n:], np.int64)
         fpts = np.full(n, np.nan)
         rx = self.receiver
-        if rx is not None and rx.video:
+        if rx is not None and (rx.video or rx.demux.video_starts):
             for k, p in enumerate(packets):
                 v = rx.nearest_video_pts(p.pts)
                 if v is not None:
