@@ -583,14 +583,15 @@ def outside_own_ellipse(sensor, pose, row, col, surface, budget, components, res
     """True for the frames whose residual lies outside their own predicted ``p`` ellipse (default 99 %).
 
     The ellipse is the recomputed point's (:func:`geoloc.analysis.uncertainty.propagate` of the
-    budget, ``time_s`` left out: records carry no velocity); the residual's east and north are
+    budget as the viewer carries it, :func:`geoloc.viz.uncertainty_layer.usable_budget`: ``time_s``
+    left out, records carry no velocity; lens keys the frames' lens lacks); the residual's east and north are
     ``components``'. Beside the robust rule, which compares a frame with the others, this one
     compares it with what its own geometry and budget allow (a 40 m error at 80 degrees off
     nadir may be normal, a 10 m error at nadir may not)."""
     from geoloc.analysis.uncertainty import outside_ellipse, propagate
-    from geoloc.sensors.budget import ErrorBudget
+    from geoloc.viz.uncertainty_layer import usable_budget
 
-    b = ErrorBudget({k: v for k, v in budget.sigmas.items() if k != "time_s"}, budget.dem_product, budget.source)
+    b, _ = usable_budget(budget, sensor)
     pu = propagate(sensor, pose, row, col, b, surface=surface, outside="extrapolate")
     out = outside_ellipse(components["east_m"], components["north_m"], pu.ellipse_major_m, pu.ellipse_minor_m,
                           pu.ellipse_azimuth_deg, p)

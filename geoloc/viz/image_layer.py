@@ -16,7 +16,8 @@ which record: :func:`geoloc.viz.picture_model.image_index`). It adds
 * **one target in several frames**: each frame's last pick is one ray of a target, kept across
   frames (the timeline) until "clear target rays"; from two frames on the rays are intersected
   without any DEM (:func:`geoloc.viz.picture_model.triangulate_picks`, the least squares of
-  :mod:`geoloc.analysis.triangulate`, weighted by the scenario's budget or the illustrative one)
+  :mod:`geoloc.analysis.triangulate`, weighted by the scenario's sensor file's ``[uncertainty]``
+  budget or the illustrative one: :func:`geoloc.viz.uncertainty_layer.scenario_budget`)
   and the scene draws each ray meeting at the triangulated point (``/enu/picture/target/rays``,
   ``.../point``), its 90 % ellipse (``.../ellipse``) and each ray's residual (``.../residuals``),
   those two at the error vectors' exaggeration; the panel gives the position, covariance, CE90 /
@@ -472,12 +473,12 @@ class ImageLayer:
 
     # ------------------------------------------------------------ one target, several frames
     def _budget(self):
-        from geoloc.viz.uncertainty_layer import view_budget
+        """(budget, note): the scenario's sensor file's, as this frame's sensor can carry it, else the
+        illustrative one (:func:`geoloc.viz.uncertainty_layer.scenario_budget`)."""
+        from geoloc.viz.uncertainty_layer import scenario_budget
 
-        b = getattr(self.scn, "budget", None)
-        if b is not None:
-            return b, f"the scenario's budget ({b.source})" if b.source else "the scenario's budget"
-        return view_budget(self.scn.camera, self.scn.dem is not None), "illustrative budget"
+        b, note, _ = scenario_budget(self.scn, self.sensor)
+        return b, note
 
     def _add_to_target(self) -> None:
         """The current frame's pick becomes its ray of the target; triangulate when two frames have one."""

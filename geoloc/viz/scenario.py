@@ -123,7 +123,10 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
     record : str or int, optional
         Label (``T3-1``) or 0-based index of the record to open; default the first.
     camera_path : path-like, optional
-        Sensor TOML or first-phase camera TOML; default ``assets/cameras/qiao2017.toml``.
+        Sensor TOML or first-phase camera TOML; default ``assets/cameras/qiao2017.toml`` (a KLV
+        file: the sensor made from its packets). Its ``[uncertainty]`` table, if any, becomes
+        ``Scenario.budget``: the viewer's predicted ellipse, the triangulated target's covariance
+        and the flight debugger's 99 % rule (``docs/uncertainty.md``).
     dem_path : path-like, optional
         DEM GeoTIFF; default a bundled one covering the target, if any.
     use_dem : bool
@@ -133,7 +136,8 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
     if records_path.suffix.lower() in KLV_SUFFIXES:
         camera, recs = records_from_klv(records_path, load_camera_or_sensor(camera_path) if camera_path else None)
     else:
-        camera = load_camera_or_sensor(camera_path or Path(ASSETS).joinpath(*DEFAULT_CAMERA))
+        camera_path = camera_path or Path(ASSETS).joinpath(*DEFAULT_CAMERA)
+        camera = load_camera_or_sensor(camera_path)
         recs = records_from_csv(records_path, camera)
     idx = 0
     if record is not None:
@@ -155,7 +159,7 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
                    use_dem=use_dem, source=records_path.name,
                    description=f"records {records_path}, camera {camera.name or camera_path}")
     scn._user_dem = dem_path  # kept when another record is selected
-    if camera_path:  # the sensor file's [uncertainty] table: the predicted ellipses, the 99 % rule
+    if camera_path:  # the sensor file's [uncertainty] table: the ellipse, the target's rays, the 99 % rule
         from geoloc.sensors.sensor_file import load_sensor_budget
 
         scn.budget = load_sensor_budget(camera_path)

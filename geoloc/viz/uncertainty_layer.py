@@ -11,8 +11,11 @@ a "Predicted uncertainty" GUI folder the predicted CE90 / LE90 beside the actual
 distance from the located point to the surveyed truth (or the published point) and where it lies
 against its own ellipse (1 = on the 90 % ellipse).
 
-The budget is the scenario's (``scn.budget``, an :class:`geoloc.sensors.budget.ErrorBudget`);
-without one an illustrative budget (:func:`view_budget`) is used and the panel says so.
+The budget is the scenario's sensor file's ``[uncertainty]`` table (``scn.budget``, read by
+:func:`geoloc.viz.scenario.load_view_scenario`), less what the viewer cannot carry, said in the
+panel (:func:`usable_budget`: ``time_s``, the records carry no velocity; lens keys the frame's lens
+lacks, a KLV frame's lens being made from its fields of view); without one an illustrative budget
+(:func:`view_budget`) is used and the panel says so (:func:`scenario_budget`).
 Every number comes from the core; this module only draws. Conventions: ``docs/conventions.md``;
 the method: ``docs/uncertainty.md``.
 """
@@ -28,7 +31,7 @@ import numpy as np
 from geoloc.analysis.uncertainty import ELLIPSE90_PER_SIGMA, normalised_errors, propagate
 from geoloc.geodesy.local import ellipse_ring_enu, enu_to_geodetic
 from geoloc.locate import as_sensor
-from geoloc.sensors.budget import ErrorBudget
+from geoloc.sensors.budget import LENS_KEYS, ErrorBudget
 from geoloc.status import Status
 
 ROOT = "/enu/uncertainty"
@@ -49,6 +52,37 @@ def view_budget(sensor, on_dem: bool) -> ErrorBudget:
         return ErrorBudget(b, "srtm", "illustrative budget")
     b["height_m"] = 10.0
     return ErrorBudget(b, None, "illustrative budget")
+
+
+def usable_budget(budget: ErrorBudget, sensor) -> tuple[ErrorBudget, list]:
+    """``budget`` less the keys the viewer cannot propagate for ``sensor``, and a note per key left out.
+
+    ``time_s`` moves the platform by its velocity, which the viewer's records do not carry (as
+    ``geoloc replay`` leaves it out); a lens key (``k1``, ``fx_px``, ...) of a parameter the frame's
+    lens does not have is the sensor file's lens's, not this frame's (a KLV frame's lens is made
+    from its fields of view: ``geoloc.workflows.klv_replay.klv_sensor``)."""
+    lens_params = as_sensor(sensor).lens.params
+    keep, notes = {}, []
+    for k, v in budget.sigmas.items():
+        if k == "time_s" and v > 0:
+            notes.append(f"time_s = {v:g} s left out (the records carry no platform velocity)")
+        elif k in LENS_KEYS and LENS_KEYS[k] not in lens_params:
+            notes.append(f"{k} = {v:g} left out (this frame's lens has no {LENS_KEYS[k]})")
+        else:
+            keep[k] = v
+    return ErrorBudget(keep, budget.dem_product, budget.source), notes
+
+
+def scenario_budget(scn, sensor=None) -> tuple[ErrorBudget, str, bool]:
+    """``(budget, note, illustrative)``: the budget the viewer propagates for ``sensor`` (default the
+    scenario's): the scenario's sensor file's (``scn.budget``) through :func:`usable_budget`, the
+    note naming the file and what was left out; else :func:`view_budget`'s, ``illustrative`` True."""
+    b = getattr(scn, "budget", None)
+    if b is None:
+        return view_budget(scn.camera, scn.dem is not None), "illustrative budget", True
+    b, notes = usable_budget(b, scn.camera if sensor is None else sensor)
+    note = f"the budget of {b.source}" + (f"; {'; '.join(notes)}" if notes else "")
+    return b, note, False
 
 
 def ellipse_points_enu(scn, pu, enu, n: int = VERTICES, scale: float = 1.0) -> np.ndarray:
@@ -91,9 +125,8 @@ class UncertaintyLayer:
             self.handle.visible = False
 
     def budget(self):
-        scn = self.session.scn
-        b = getattr(scn, "budget", None)
-        return (b, False) if b is not None else (view_budget(scn.camera, scn.dem is not None), True)
+        """``(budget, note, illustrative)`` (:func:`scenario_budget`)."""
+        return scenario_budget(self.session.scn)
 
     def update(self) -> None:
         s = self.session
@@ -104,7 +137,7 @@ class UncertaintyLayer:
             return
         from geoloc.viz import terrain_link
 
-        budget, illustrative = self.budget()
+        budget, note, illustrative = self.budget()
         inp = s.inputs
         pu = propagate(s.scn.camera, inp.pose(), inp.row, inp.col, budget,
                        surface=terrain_link.scene_surface(s.scn, inp, trace=False), outside="extrapolate")
@@ -143,6 +176,8 @@ class UncertaintyLayer:
             lines.append("_illustrative budget (the scenario's sensor has no [uncertainty] table): "
                          "2 m / 3 m position, 0.05 deg heading, 0.03 deg attitude and joints, "
                          + ("SRTM 16 m LE90_" if s.scn.dem is not None else "10 m height_"))
+        else:
+            lines.append(f"budget: {note}")
         self.md.content = "  \n".join(lines)
 
 

@@ -1,0 +1,142 @@
+"""The viewer reads the error budget from the scenario's sensor file (issue 29, items 4 and 6).
+
+A sensor file's ``[uncertainty]`` table (``geoloc view --sensor FILE``) is the budget of the
+viewer's predicted ellipse and of a target triangulated from picks in several frames; what the
+viewer cannot carry is left out and said so (``time_s``: the records carry no velocity; a lens
+key of a lens the frame does not have: a KLV frame's lens comes from its fields of view).
+
+The oracles are closed forms, not the code's output:
+
+* a budget of platform position only, sigma s north and east, over a level surface: the hit moves
+  with the platform, so the 1-sigma ellipse is the circle of radius s and CE90 is the Rayleigh
+  quantile s sqrt(chi2(2, 0.9)) (scipy);
+* a budget of platform position only, sigma s in north, east and up, independent per frame: each
+  ray is translated by an isotropic error, its miss across it has covariance s^2 I, and the
+  weighted least-squares point has covariance s^2 (sum_i P_i)^-1, P_i = I - d_i d_i^T the
+  projector across ray i, with d_i from pyproj's ECEF of the aircraft and of the target and
+  pymap3d's ENU at the target.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+from test_viz_browser import served
+
+from geoloc.assets import asset_path
+from geoloc.io.images import ArrayImages
+from geoloc.status import Status
+
+FRAMES = (0, 20, 40)
+
+
+def _with_budget(tmp_path, src, table: str):
+    p = tmp_path / "sensor_with_budget.toml"
+    p.write_text(open(src).read() + "\n[uncertainty]\n" + table)
+    return p
+
+
+def _layer(app, name):
+    return next(lay for lay in app.layers if type(lay).__name__ == name)
+
+
+def test_the_ellipse_is_the_sensor_files_budget(tmp_path):
+    from geoloc.viz.app import GeolocApp
+    from geoloc.viz.scene_geoloc import WORLD_SCALE
+    from geoloc.viz.scenario import load_view_scenario
+
+    s = 4.0
+    path = _with_budget(tmp_path, asset_path("cameras", "qiao2017.toml"),
+                        f"north_m = {s}\neast_m = {s}\ntime_s = 0.01\n")
+    scn = load_view_scenario(camera_path=path, use_dem=False)  # the ellipsoid at the record's height
+    assert scn.budget is not None and scn.budget.sigma("north_m") == s
+    with served() as server:
+        app = GeolocApp(server, scn)
+        lay = _layer(app, "UncertaintyLayer")
+        pu = lay.pu
+        assert pu is not None and pu.status == Status.OK
+        # The hit moves with the platform, except for the local frame turning with it (the attitude
+        # is to the local NED: 1 / R per metre, times the slant range, 8 km here: 1.3e-3) and the
+        # level surface's normal at the hit against the aircraft's (the same angle): 5e-3 covers both
+        assert float(pu.ellipse_major_m) == pytest.approx(s, rel=5e-3)
+        assert float(pu.ellipse_minor_m) == pytest.approx(s, rel=5e-3)
+        r90 = math.sqrt(chi2.ppf(0.9, 2))
+        assert float(pu.ce90_m) == pytest.approx(r90 * s, rel=5e-3)
+        # the drawn ellipse is that circle, at the error vectors' exaggeration
+        d = app.view.disp
+        seg = np.asarray(server.scene.get_handle_by_name("/enu/uncertainty/ellipse").points, float)
+        pts = seg[:, 0, :] / (WORLD_SCALE * np.array([1.0, 1.0, d.vertical_exaggeration]))
+        hit = np.asarray(app.geometry.hit_enu, float)
+        r = np.hypot(pts[:, 0] - hit[0], pts[:, 1] - hit[1])
+        # float32 scene coordinates in km: 1e-3 of a few tens of metres
+        np.testing.assert_allclose(r, r90 * s * d.error_exaggeration, rtol=1e-2)
+        text = lay.md.content
+        assert "illustrative" not in text and path.name in text
+        assert "time_s = 0.01 s left out" in text
+        assert f"CE90 {r90 * s:.1f} m" in text
+
+
+@pytest.fixture(scope="module")
+def orbit_with_budget(tmp_path_factory):
+    """The bundled example flight on the EO turret's sensor file, with a position-only budget."""
+    from test_viz_picture import render_frame
+
+    from geoloc.viz.flight_model import default_flight_scenario
+
+    path = _with_budget(tmp_path_factory.mktemp("budget"), asset_path("sensors", "eo_turret.toml"),
+                        "north_m = 3.0\neast_m = 3.0\nup_m = 3.0\nk1 = 0.001\ntime_s = 0.02\n")
+    scn = default_flight_scenario(camera_path=path)
+    scn.images = ArrayImages([render_frame(scn, i) for i in FRAMES])
+    idx = np.full(len(scn.records), -1)
+    idx[list(FRAMES)] = np.arange(len(FRAMES))
+    scn.image_index = idx
+    return scn, path
+
+
+def test_the_triangulated_target_takes_the_sensor_files_budget(orbit_with_budget):
+    import pymap3d
+    import pyproj
+    from test_viz_picture import make_app
+    from test_viz_triangulate import _pixel_of, _target
+
+    scn, path = orbit_with_budget
+    s = 3.0
+    server, app, layer = make_app(scn)
+    try:
+        g = _target(app, layer)
+        for k in FRAMES:
+            app.load_record(k, move_camera=False)
+            layer.pick_pixel(*_pixel_of(app, layer, g))
+        t = layer.target_rays
+        assert t is not None and t.tri.status == Status.OK and t.tri.cov_enu is not None
+        to_ecef = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+        P = np.zeros((3, 3))
+        for k in FRAMES:
+            inp = scn.records[k][1]
+            a = to_ecef.transform(inp.lon_deg, inp.lat_deg, inp.h_m)
+            v = np.array(pymap3d.ecef2enu(*a, g[0], g[1], g[2]))  # the target to the aircraft, ENU at G
+            v /= np.linalg.norm(v)
+            P += np.eye(3) - np.outer(v, v)
+        expected = s * s * np.linalg.inv(P)
+        # the rays start at the optical centre, a lever arm of 1.7 m from the aircraft's reference
+        # over ranges of kilometres (6e-4 rad), and the local frame turns with the platform's move
+        # (range / R, 5e-4): 2 % of the largest term covers both, the matrix's shape and size
+        np.testing.assert_allclose(t.tri.cov_enu, expected, atol=2e-2 * np.abs(expected).max())
+        text = layer.md_target.content
+        assert "illustrative" not in text and path.name in text
+        assert "k1 = 0.001 left out" in text and "time_s = 0.02 s left out" in text
+    finally:
+        server.stop()
+
+
+def test_without_a_table_the_viewer_says_its_budget_is_illustrative(tmp_path):
+    from geoloc.viz.scenario import load_view_scenario
+    from geoloc.viz.uncertainty_layer import scenario_budget
+
+    scn = load_view_scenario(use_dem=False)  # the bundled [Q17] camera file has no [uncertainty]
+    assert scn.budget is None
+    b, note, illustrative = scenario_budget(scn)
+    assert illustrative and note == "illustrative budget" and b.sigma("heading_deg") > 0
