@@ -66,6 +66,7 @@ import pyarrow.csv as pcsv
 import pyarrow.parquet as pq
 
 from geoloc.assets import asset_path
+from geoloc.surfaces.spec import SurfaceSpec
 from geoloc.workflows.campaign import (
     CampaignConfig,
     local_cluster,
@@ -176,7 +177,8 @@ def main():
                     help="also a cluster run with distributed's MALLOC_TRIM_THRESHOLD_ left in effect")
     a = ap.parse_args()
     cfg = CampaignConfig(sensor=str(asset_path("sensors", "eo_turret.toml")),
-                         dem=str(asset_path("dem", "srtm_jacksboro.tif")), carry_columns=False)
+                         surface=SurfaceSpec(dem=str(asset_path("dem", "srtm_jacksboro.tif"))),
+                         carry_columns=False)
     import numba
 
     cores = numba.config.NUMBA_NUM_THREADS

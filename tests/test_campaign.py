@@ -15,6 +15,7 @@ import pytest
 
 from geoloc.cli import main
 from geoloc.status import Status
+from geoloc.surfaces.spec import SurfaceSpec
 from geoloc.workflows.campaign import CampaignConfig, campaign_units, run_campaign
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,7 +90,7 @@ def turret_parquet(tmp_path_factory):
 
 
 def test_parquet_records_local_cluster_equals_serial(turret_parquet, tmp_path):
-    cfg = CampaignConfig(sensor=str(SENSOR), dem=str(SRTM))
+    cfg = CampaignConfig(sensor=str(SENSOR), surface=SurfaceSpec(dem=str(SRTM)))
     kind, units, _ = campaign_units([turret_parquet])
     assert kind == "records" and len(units) == 3
     serial = run_campaign([turret_parquet], tmp_path / "serial", cfg, scheduler="none")
@@ -111,7 +112,7 @@ def test_records_agree_with_one_file_replay_and_truth(turret_parquet, tmp_path):
     out = tmp_path / "one.csv"
     assert main(["replay", str(TURRET), "--sensor", str(SENSOR), "--dem", str(SRTM), "--out", str(out)]) == 0
     rows = list(csv.DictReader(out.open()))
-    res = run_campaign([turret_parquet], tmp_path / "c", CampaignConfig(sensor=str(SENSOR), dem=str(SRTM)),
+    res = run_campaign([turret_parquet], tmp_path / "c", CampaignConfig(sensor=str(SENSOR), surface=SurfaceSpec(dem=str(SRTM))),
                        scheduler="none")
     t = res.table()
     good = np.arange(24) != 5
@@ -150,6 +151,34 @@ def test_cli_campaign(klv_folder, turret_parquet, tmp_path, capsys):
                  "--parquet-out", str(out2), "--workers", "2"]) == 0
     t = pa.concat_tables([pq.read_table(p) for p in sorted(out2.glob("*.parquet"))])
     assert t.num_rows == 24 and np.allclose(t.column("h_m").to_numpy()[np.arange(24) != 5], 600, atol=0.02)  # inflated [Q17 eq. 11]: mm
+
+
+def test_the_campaign_surface_is_the_verbs_spec_and_crosses_to_workers(tmp_path):
+    """``replay --parquet-out``'s surface is ``surface_spec_from_args`` of its options (as every verb's);
+    it pickles, and a worker's build hits the rays where the one-file verb's surface does."""
+    import pickle
+
+    from geoloc.cli import build_parser
+    from geoloc.cli._options import surface_from_args, surface_spec_from_args
+    from geoloc.surfaces.base import LineOfSight
+
+    args = build_parser().parse_args(["replay", str(TURRET), "--dem", str(SRTM), "--dem", str(SRTM),
+                                      "--method", "bisect", "--threshold", "0.5", "--parquet-out", str(tmp_path)])
+    spec = surface_spec_from_args(args)
+    assert spec == SurfaceSpec(dem=(str(SRTM), str(SRTM)), method="bisect", eps_h=1.0, threshold=0.5,
+                               cache_bytes=64 * 2**20)
+    back = pickle.loads(pickle.dumps(CampaignConfig(surface=spec)))
+    assert back.surface == spec and hash(back.surface) == hash(spec)
+    # a ray down from 3 km over the DEM: the worker's build and the verb's own surface agree exactly
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+
+    lat, lon = np.deg2rad(36.59), np.deg2rad(-84.25)
+    o = np.asarray(geodetic_to_ecef(lat, lon, 3000.0), float)
+    los = LineOfSight(o[None], (-o / np.linalg.norm(o))[None], np.zeros(1, np.uint8))
+    a, b = back.surface.build().intersect(los), surface_from_args(args).intersect(los)
+    assert np.isfinite(a.h).all() and np.array_equal(a.h, b.h) and np.array_equal(a.lat, b.lat)
+    with pytest.raises(TypeError, match="SurfaceSpec"):
+        CampaignConfig(surface=back.surface.build())
 
 
 # --------------------------------------------------------------------------- worker processes, malloc
@@ -200,7 +229,7 @@ def test_records_on_worker_processes_equal_serial(turret_parquet, tmp_path):
 
     from geoloc.workflows.campaign import local_cluster
 
-    cfg = CampaignConfig(sensor=str(SENSOR), dem=str(SRTM))
+    cfg = CampaignConfig(sensor=str(SENSOR), surface=SurfaceSpec(dem=str(SRTM)))
     serial = run_campaign([turret_parquet], tmp_path / "serial", cfg, scheduler="none")
     with local_cluster(2, 1, processes=True) as cl, Client(cl) as client:
         dist = run_campaign([turret_parquet], tmp_path / "dask", cfg, scheduler=cl.scheduler_address)
@@ -255,7 +284,7 @@ def test_numba_threads_serial_is_the_units_and_restored(turret_parquet, tmp_path
     import numba
 
     before = numba.get_num_threads()
-    cfg = CampaignConfig(sensor=str(SENSOR), dem=str(SRTM))
+    cfg = CampaignConfig(sensor=str(SENSOR), surface=SurfaceSpec(dem=str(SRTM)))
     res = run_campaign([turret_parquet], tmp_path / "one", cfg, scheduler="none", numba_threads=1)
     assert [u.numba_threads for u in res.units] == [1, 1, 1] and numba.get_num_threads() == before
     auto = run_campaign([turret_parquet], tmp_path / "auto", cfg, scheduler="none")  # serial "auto": the caller's

@@ -27,8 +27,6 @@ DEM_OPENER_SCOPE = ("geoloc.workflows", "geoloc.analysis", "geoloc.viz.rerun_ter
 
 #: Modules in DEM_OPENER_SCOPE that still open a DEM, and why (may only shrink).
 KNOWN_DEM_OPENERS = {
-    # its config crosses to dask workers as paths; each worker process opens the DEM once
-    "geoloc.workflows.campaign",
     # the rerun recordings draw one raster's mesh and its solver's trace (a mosaic keeps none), named
     # by the flight scenario file or `geoloc log --dem`: each recording opens that raster once
     # (DEM.open) and hands it down (rerun_terrain.dem_steps takes it opened)

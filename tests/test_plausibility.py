@@ -252,10 +252,11 @@ def test_locate_with_a_drone_sensor_kilometres_up_is_warned(capsys):
 
 def test_campaign_units_say_the_drone_check(tmp_path):
     # the scaled replay (docs/scale.md) gives the same check per unit: a count and the first row
+    from geoloc.surfaces.spec import SurfaceSpec
     from geoloc.workflows.campaign import CampaignConfig, run_campaign
 
     recs, _ = _in_feet(tmp_path)
-    cfg = CampaignConfig(sensor=str(DRONE_SENSOR), dem=str(SRTM))
+    cfg = CampaignConfig(sensor=str(DRONE_SENSOR), surface=SurfaceSpec(dem=str(SRTM)))
     res = run_campaign([recs], tmp_path / "c", cfg, scheduler="none")
     got = [m for m in res.messages if "too high" in m or "of a drone" in m]
     assert len(got) == 1 and "20 row(s) of a drone more than 1000 m above" in got[0], res.messages

@@ -25,7 +25,7 @@ import sys
 
 import numpy as np
 
-from geoloc.surfaces.terrain import DEM_MODELS, METHODS, surface_for
+from geoloc.surfaces.terrain import DEM_MODELS, METHODS
 
 
 # --------------------------------------------------------------------------- file options
@@ -252,6 +252,31 @@ def _mosaic_options(args) -> dict:
     return {"cache_bytes": max(int(mb * 2**20), 2**16)}
 
 
+def surface_spec_from_args(args):
+    """The :class:`~geoloc.surfaces.spec.SurfaceSpec` of the shared options, by value (a campaign
+    sends it to its workers; :func:`surface_from_args` builds it here).
+
+    ``--dem`` (its mosaics, ``--dem-datum``, ``--method``, ``--dem-model``, ``--eps-h``,
+    ``--threshold``, ``--dem-cache-mb``), ``--target-h-m``, ``--height-column``, ``--surface``:
+    each as the verb declares it (an option it does not declare keeps the solver's default).
+    Two of ``--dem``, ``--height-column``, ``--target-h-m`` is an error naming them.
+    """
+    from geoloc.surfaces.spec import SurfaceSpec
+
+    one_height_source(args)
+    dem = getattr(args, "dem", None)
+    return SurfaceSpec(
+        dem=None if dem is None else (tuple(dem) if isinstance(dem, list) else dem),
+        dem_datum=getattr(args, "dem_datum", None) or "egm96",
+        method=getattr(args, "method", None) or "exact",
+        dem_model=getattr(args, "dem_model", None) or "bilinear",
+        eps_h=getattr(args, "eps_h", None), threshold=getattr(args, "threshold", None),
+        cache_bytes=_mosaic_options(args)["cache_bytes"] if dem is not None and hasattr(args, "dem_cache_mb")
+        else None,
+        target_h_m=getattr(args, "target_h_m", None), height_column=getattr(args, "height_column", None),
+        kind=getattr(args, "surface", None) or "inflated")
+
+
 def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
     """The :class:`~geoloc.surfaces.base.Surface` of the shared options: the verb's one ground.
 
@@ -261,19 +286,13 @@ def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
     :class:`~geoloc.surfaces.height.PerRecordHeightSurface` of ``records``), else
     ``--target-h-m`` (a :class:`~geoloc.surfaces.height.HeightSurface`), each of the
     ``--surface`` kind; two of them, or none, is an error naming the options.
-    The choice itself is :func:`geoloc.surfaces.terrain.surface_for`'s.
+    Built by :meth:`geoloc.surfaces.spec.SurfaceSpec.build` from :func:`surface_spec_from_args`
+    (the DEM opened by ``open_dem_or_mosaic``, the choice :func:`geoloc.surfaces.terrain.surface_for`'s).
     """
-    one_height_source(args)
-    kind = getattr(args, "surface", "inflated")
-    if getattr(args, "dem", None) is not None:
-        from geoloc.surfaces.mosaic import open_dem_or_mosaic
-
-        opts = {k: getattr(args, k) for k in ("eps_h", "threshold") if hasattr(args, k)}
-        model = {"dem_model": args.dem_model} if hasattr(args, "dem_model") else {}
-        mosaic = _mosaic_options(args) if hasattr(args, "dem_cache_mb") else {}
-        dem = open_dem_or_mosaic(dem_sources(args), args.dem_datum, method=args.method, **model, **mosaic, **opts)
-        return surface_for(dem=dem, method=args.method, **model, **opts)
-    column = getattr(args, "height_column", None)
+    spec = surface_spec_from_args(args)
+    if spec.dem is not None:
+        return spec.build()
+    column = spec.height_column
     if column is not None:
         if records is None:
             raise ValueError(f"--height-column {column}: this input has no records to read it from")
@@ -282,9 +301,9 @@ def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
         if np.any(bad):
             raise ValueError(f"height column {column!r} is empty or not finite on line(s) "
                              f"{[int(n) for n in records.lines[bad]]}")
-        return surface_for(h, kind=kind, per_record=True)
-    if getattr(args, "target_h_m", None) is not None:
-        return surface_for(args.target_h_m, kind=kind)
+        return spec.build(h)
+    if spec.target_h_m is not None:
+        return spec.build()
     given = "--height-column (e.g. " + example + "), " if hasattr(args, "height_column") else ""
     raise ValueError(f"give {given}--target-h-m or --dem")
 
@@ -294,15 +313,15 @@ def surface_from_scenario(model):
     (``path``, ``datum``, ``method``), or None without one (the scenario's target height, with
     its error, is then Monte Carlo's own per-sample height surface).
 
-    The same one opener and choice as :func:`surface_from_args`: ``open_dem_or_mosaic`` (a
-    raster, or a folder / ``.vrt`` of tiles) and :func:`geoloc.surfaces.terrain.surface_for`.
+    The same one way as :func:`surface_from_args`: a :class:`~geoloc.surfaces.spec.SurfaceSpec`
+    built (``open_dem_or_mosaic``: a raster, or a folder / ``.vrt`` of tiles; then
+    :func:`geoloc.surfaces.terrain.surface_for`).
     """
     if model.dem is None:
         return None
-    from geoloc.surfaces.mosaic import open_dem_or_mosaic
+    from geoloc.surfaces.spec import SurfaceSpec
 
-    method = model.dem.method or "exact"
-    return surface_for(dem=open_dem_or_mosaic(model.dem.path, model.dem.datum, method=method), method=method)
+    return SurfaceSpec(dem=str(model.dem.path), dem_datum=model.dem.datum, method=model.dem.method or "exact").build()
 
 
 def sensor_from_args(args, *, default: bool = True):

@@ -14,6 +14,7 @@ from geoloc.cli._options import (
     output_path,
     sensor_from_args,
     surface_from_args,
+    surface_spec_from_args,
     warn_datums,
 )
 from geoloc.assets import DEFAULT_RECORDS, asset_path
@@ -362,19 +363,10 @@ def _run_campaign(args, inputs) -> int:
             raise ValueError(f"--{opt} is for one replay; a campaign writes Parquet parts (--parquet-out)")
     paths = list(inputs)
     out = args.parquet_out
-    dem = None
-    if args.dem:
-        from geoloc.cli._options import _mosaic_options, dem_sources
-
-        dem = dem_sources(args)
     cfg = CampaignConfig(
-        sensor=args.camera, dem=dem, dem_datum=args.dem_datum,
-        method=args.method, dem_model=args.dem_model,
-        dem_options={"eps_h": args.eps_h, "threshold": args.threshold},
-        target_h_m=args.target_h_m, height_column=args.height_column,
+        sensor=args.camera, surface=surface_spec_from_args(args),
         altitude_datum=getattr(args, "altitude_datum", None) or "ellipsoid",
-        targets=args.targets,
-        **({"dem_cache_bytes": _mosaic_options(args)["cache_bytes"]} if dem else {}))
+        targets=args.targets)
     if args.workers < 1:
         raise ValueError(f"--workers {args.workers}: must be at least 1")
 

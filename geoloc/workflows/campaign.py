@@ -20,8 +20,9 @@ Every unit runs the same function (:func:`run_unit`) in the driver
 (its address). Each writes its rows to ``out_dir/part-NNNNN.parquet`` (NNNNN the
 unit's place in the campaign) and hands back only a small :class:`UnitResult`;
 a unit that fails (a corrupt file, a missing column) is reported with its file
-name and the others still run. Workers open the sensor and the DEM once per
-process, from their paths.
+name and the others still run. Workers load the sensor once per process, from its
+path, and build the surface once per process from the config's
+:class:`geoloc.surfaces.spec.SurfaceSpec` (the one way every verb builds its surface).
 
 Output columns, records units: the input columns (``carry_columns``), then
 ``source`` (the unit's file), ``row_index`` (0-based row of the unit),
@@ -44,6 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
+from geoloc.surfaces.spec import SurfaceSpec
+
 #: Photo suffixes (as ``geoloc replay``).
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".dng")
 #: Records suffixes.
@@ -55,45 +58,37 @@ SCHEDULERS_SERIAL = ("none", "serial")
 
 @dataclass(frozen=True)
 class CampaignConfig:
-    """What every unit needs (paths, not objects: workers open them once each).
+    """What every unit needs (paths and values, not objects: workers open them once each).
 
     Attributes
     ----------
     sensor : str or None
         Sensor (or first-phase camera) file; None: the workflow's default.
-    dem : str, list of str or None
-        ``--dem``: one raster, a folder of tiles, a ``.vrt`` or a list (a mosaic).
-    dem_datum : {"egm96", "ellipsoid"}
-    method, dem_model : str
-        DEM solver (:func:`geoloc.surfaces.terrain.intersect_dem`).
-    dem_options : dict
-        ``eps_h``, ``threshold``.
-    target_h_m : float or None
-        Records without a DEM: one ellipsoidal target height [m] for every record...
-    height_column : str or None
-        ... or a column of them.
+    surface : SurfaceSpec
+        The ground (``geoloc.cli._options.surface_spec_from_args`` on the command line):
+        ``SurfaceSpec(dem=...)`` (one raster, a folder of tiles, a ``.vrt`` or a tuple: a
+        mosaic, with its datum, method and tolerances), or, for records without a DEM,
+        ``SurfaceSpec(target_h_m=...)`` or ``SurfaceSpec(height_column=...)``. The default
+        names none: KLV units then use each packet's frame-centre height, photo units each
+        target's truth height.
     altitude_datum : {"ellipsoid", "egm96"}
         Records: datum of ``ac_h_m`` (egm96 adds the bundled EGM96 N).
     targets : str or None
         Photos: the targets CSV.
     carry_columns : bool
         Records: copy the input columns to the output.
-    dem_cache_bytes : int
-        Bound of a mosaic's tile cache.
     """
 
     sensor: str | None = None
-    dem: object = None
-    dem_datum: str = "egm96"
-    method: str = "exact"
-    dem_model: str = "bilinear"
-    dem_options: dict = field(default_factory=dict)
-    target_h_m: float | None = None
-    height_column: str | None = None
+    surface: SurfaceSpec = field(default_factory=SurfaceSpec)
     altitude_datum: str = "ellipsoid"
     targets: str | None = None
     carry_columns: bool = True
-    dem_cache_bytes: int = 64 * 2**20
+
+    def __post_init__(self):
+        if not isinstance(self.surface, SurfaceSpec):
+            raise TypeError(f"CampaignConfig.surface must be a geoloc.surfaces.spec.SurfaceSpec, got "
+                            f"{type(self.surface).__name__}")
 
 
 @dataclass
@@ -230,22 +225,12 @@ def _sensor(cfg: CampaignConfig, default=None):
     return _cached(("sensor", cfg.sensor), lambda: load_camera_or_sensor(cfg.sensor))
 
 
-def _dem(cfg: CampaignConfig, whole: bool = False):
-    """The DEM (or mosaic) of the campaign, opened once per process; ``whole``: one in-memory DEM."""
-    if cfg.dem is None:
+def _dem_surface(cfg: CampaignConfig, whole: bool = False):
+    """The campaign's DEM surface, built once per process from its spec (None without a DEM);
+    ``whole``: a mosaic read as one in-memory DEM (KLV and photo units, whose rays spread over the area)."""
+    if cfg.surface.dem is None:
         return None
-    from geoloc.surfaces.base import is_mosaic
-    from geoloc.surfaces.mosaic import open_dem_or_mosaic
-
-    key = ("dem", str(cfg.dem), cfg.dem_datum, cfg.method, cfg.dem_model, whole)
-
-    def make():
-        d = open_dem_or_mosaic(cfg.dem if isinstance(cfg.dem, (str, Path)) else list(cfg.dem), cfg.dem_datum,
-                               cache_bytes=cfg.dem_cache_bytes, method=cfg.method, dem_model=cfg.dem_model,
-                               **cfg.dem_options)
-        return d.to_dem() if whole and is_mosaic(d) else d
-
-    return _cached(key, make)
+    return _cached(("surface", cfg.surface, whole), lambda: cfg.surface.build(whole=whole))
 
 
 #: glibc ``mallopt`` parameters (malloc.h) and the values a worker process gets (see :func:`tune_worker_malloc`).
@@ -426,7 +411,7 @@ def _records_unit(path: str, cfg: CampaignConfig):
     from geoloc.io.records import Q17_ANGLES, required_columns
     from geoloc.locate import as_sensor, line_of_sight
     from geoloc.status import Status
-    from geoloc.surfaces.terrain import surface_for
+    from geoloc.surfaces.base import terrain_of
 
     from geoloc.assets import DEFAULT_CAMERA, asset_path
     from geoloc.sensors.sensor_file import load_camera_or_sensor
@@ -462,13 +447,12 @@ def _records_unit(path: str, cfg: CampaignConfig):
                          clean["pitch_deg"], clean["roll_deg"], q17.get("gimbal_roll", 0.0),
                          q17.get("gimbal_pitch", 0.0), angles_deg=other)
     los = line_of_sight(pose, sensor, clean["row"], clean["col"], outside="extrapolate")
-    dem = _dem(cfg)
-    if dem is None and cfg.height_column is None and cfg.target_h_m is None:
+    spec = cfg.surface
+    if spec.dem is None and spec.height_column is None and spec.target_h_m is None:
         raise ValueError("records need a DEM, a height column or a target height")
-    h = (None if dem is not None else _column(table, cfg.height_column, path) if cfg.height_column is not None
-         else float(cfg.target_h_m))
-    surf = surface_for(h, dem, method=cfg.method, dem_model=cfg.dem_model, per_record=np.ndim(h) == 1,
-                       **cfg.dem_options)
+    surf = (_dem_surface(cfg) if spec.dem is not None else spec.build(_column(table, spec.height_column, path))
+            if spec.height_column is not None else _cached(("surface", spec), spec.build))
+    dem = terrain_of(surf)
     hit = surf.intersect(los)
     status = np.asarray(hit.status, np.uint8).copy()
     off = ~s.in_image(clean["row"], clean["col"]) & (status == Status.OK)
@@ -541,13 +525,9 @@ def _arrow_columns(columns: dict, source: str):
 
 
 def _klv_unit(path: str, cfg: CampaignConfig):
-    from geoloc.surfaces.terrain import surface_for
     from geoloc.workflows.klv_replay import replay_klv
 
-    dem = _dem(cfg, whole=True)
-    surface = None if dem is None else surface_for(dem=dem, method=cfg.method, dem_model=cfg.dem_model,
-                                                   **cfg.dem_options)
-    r = replay_klv(path, surface=surface, sensor=_sensor(cfg))
+    r = replay_klv(path, surface=_dem_surface(cfg, whole=True), sensor=_sensor(cfg))
     messages = [f"{path}: {e}" for e in r.errors[:20]]
     if len(r.errors) > 20:
         messages.append(f"{path}: ... {len(r.errors) - 20} more bad packets")
@@ -566,12 +546,8 @@ def _photos_unit(paths, cfg: CampaignConfig):
 
     if cfg.targets is None:
         raise ValueError("drone photos need a targets file (targets=, --targets T.csv)")
-    from geoloc.surfaces.terrain import surface_for
-
-    dem = _dem(cfg, whole=True)
-    surface = None if dem is None else surface_for(dem=dem, method=cfg.method, dem_model=cfg.dem_model,
-                                                   **cfg.dem_options)
-    rows, messages = replay_photos(list(paths), cfg.targets, sensor=_sensor(cfg), surface=surface,
+    rows, messages = replay_photos(list(paths), cfg.targets, sensor=_sensor(cfg),
+                                   surface=_dem_surface(cfg, whole=True),
                                    altitude_datum=cfg.altitude_datum)
     # targets of the campaign's other photo units are not this unit's business
     messages = [m for m in messages if "is not among the photos given" not in m]
@@ -685,8 +661,8 @@ def run_campaign(inputs, out_dir, config: CampaignConfig | None = None, *, sched
         numba_threads = worker_numba_threads(workers, threads_per_worker) if scheduler == "local" else None
     elif not (numba_threads is None or (isinstance(numba_threads, (int, np.integer)) and numba_threads >= 1)):
         raise ValueError(f"numba_threads must be 'auto', a positive integer or None, got {numba_threads!r}")
-    if cfg.dem is not None:
-        _dem(cfg)  # a bad DEM is one error here, not one per unit
+    if cfg.surface.dem is not None:
+        _dem_surface(cfg)  # a bad DEM is one error here, not one per unit
     results = [None] * len(units)
     t0 = time.perf_counter()
 

@@ -1,0 +1,111 @@
+"""A surface as plain values: what :func:`geoloc.cli._options.surface_from_args` reads from
+the shared options, which a Dask campaign sends to its workers (docs/architecture.md,
+"The `Surface` interface").
+
+:meth:`SurfaceSpec.build` is the one way from a DEM's name to a
+:class:`~geoloc.surfaces.base.Surface`: it opens the DEM with
+:func:`geoloc.surfaces.mosaic.open_dem_or_mosaic` (one raster, or a folder, ``.vrt`` or
+list of tiles: a mosaic) and makes the "DEM or height" choice with
+:func:`geoloc.surfaces.terrain.surface_for`. Every verb and every campaign unit builds
+its surface through it, so a workflow never opens a DEM itself.
+Degrees and metres (docs/conventions.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from geoloc.surfaces.base import is_mosaic
+
+
+@dataclass(frozen=True)
+class SurfaceSpec:
+    """What a surface is made of, by value (hashable and picklable: a campaign's workers get it).
+
+    Attributes
+    ----------
+    dem : str, tuple of str or None
+        ``--dem``: one raster, a folder of tiles, a ``.vrt``, or several rasters (one mosaic).
+    dem_datum : {"egm96", "ellipsoid"}
+        Vertical datum of the DEM's heights.
+    method, dem_model : str
+        The DEM solver (:func:`geoloc.surfaces.terrain.intersect_dem`).
+    eps_h, threshold : float or None
+        The solver's tolerances [m]; None: the method's own default.
+    cache_bytes : int or None
+        A mosaic's tile cache bound [bytes]; None: the mosaic's default.
+    target_h_m : float or None
+        Without a DEM: one ellipsoidal target height [m] for every ray ...
+    height_column : str or None
+        ... or the column of the records holding one per record (``build(heights=...)``).
+    kind : {"inflated", "geodetic"}
+        The height surface's kind (:class:`geoloc.surfaces.height.HeightSurface`).
+    """
+
+    dem: str | tuple | None = None
+    dem_datum: str = "egm96"
+    method: str = "exact"
+    dem_model: str = "bilinear"
+    eps_h: float | None = None
+    threshold: float | None = None
+    cache_bytes: int | None = None
+    target_h_m: float | None = None
+    height_column: str | None = None
+    kind: str = "inflated"
+
+    def __post_init__(self):
+        d = self.dem
+        if isinstance(d, (list, tuple)):
+            d = tuple(str(x) for x in d)
+            d = d[0] if len(d) == 1 else d
+        elif d is not None:
+            d = str(d)
+        object.__setattr__(self, "dem", d)  # one path, or a tuple of them: hashable
+        if self.target_h_m is not None:
+            object.__setattr__(self, "target_h_m", float(self.target_h_m))
+
+    @property
+    def solver_options(self) -> dict:
+        """The tolerances that were given (``eps_h``, ``threshold``)."""
+        return {k: v for k, v in (("eps_h", self.eps_h), ("threshold", self.threshold)) if v is not None}
+
+    def build(self, heights=None, *, whole: bool = False):
+        """The :class:`~geoloc.surfaces.base.Surface`: the DEM if one is named, else the heights.
+
+        Parameters
+        ----------
+        heights : array_like, optional
+            With ``height_column``: the records' target heights, one per record [m, ellipsoidal]
+            (a :class:`~geoloc.surfaces.height.PerRecordHeightSurface`).
+        whole : bool
+            A mosaic read once as one in-memory DEM (its :meth:`~geoloc.surfaces.mosaic.DemMosaic.to_dem`):
+            for inputs whose rays spread over the whole area a packet or photo at a time.
+
+        Raises
+        ------
+        ValueError
+            Neither a DEM nor a height; or ``height_column`` without its ``heights``.
+        FileNotFoundError, ValueError
+            From the DEM's opener, naming the file.
+        """
+        from geoloc.surfaces.mosaic import open_dem_or_mosaic
+        from geoloc.surfaces.terrain import surface_for
+
+        if self.dem is not None:
+            mosaic = {} if self.cache_bytes is None else {"cache_bytes": int(self.cache_bytes)}
+            source = list(self.dem) if isinstance(self.dem, tuple) else Path(self.dem)
+            dem = open_dem_or_mosaic(source, self.dem_datum, method=self.method, dem_model=self.dem_model,
+                                     **mosaic, **self.solver_options)
+            if whole and is_mosaic(dem):
+                dem = dem.to_dem()
+            return surface_for(dem=dem, method=self.method, dem_model=self.dem_model, **self.solver_options)
+        if self.height_column is not None:
+            if heights is None:
+                raise ValueError(f"height column {self.height_column!r}: no records to read the heights from")
+            return surface_for(np.asarray(heights, float), kind=self.kind, per_record=True)
+        if self.target_h_m is not None:
+            return surface_for(self.target_h_m, kind=self.kind)
+        raise ValueError("give a DEM, a height column or a target height (ellipsoidal, metres)")
