@@ -1,7 +1,8 @@
 """Fixtures shared by several test modules."""
 
+import inspect
 import os
-from pathlib import Path
+import types
 
 import pytest
 
@@ -26,15 +27,75 @@ def rerun_home(tmp_path_factory):
         yield d
 
 
+#: Set for each test's run by pytest_runtest_setup: "1" in the Chromium group, "0" outside it;
+#: ``tests.test_viz_browser.chromium`` refuses to launch under "0" (a browser test the static
+#: look-up below missed would otherwise run beside another browser on the other worker).
+CHROMIUM_GROUP_ENV = "GEOLOC_CHROMIUM_GROUP"
+
+
+def _code_names(code):
+    """Global and attribute names a code object uses, with those of its nested functions,
+    lambdas and comprehensions."""
+    names = set(code.co_names)
+    for c in code.co_consts:
+        if isinstance(c, types.CodeType):
+            names |= _code_names(c)
+    return names
+
+
+def _opens_chromium(fn, seen) -> bool:
+    """Whether ``fn`` launches headless Chromium: it names ``chromium`` (tests/test_viz_browser.py's
+    launcher, imported at module level or inside the function), or calls a function of a test
+    module that does (a helper such as test_viz_labels' ``_check``), followed to any depth."""
+    fn = inspect.unwrap(fn)
+    if not isinstance(fn, types.FunctionType) or fn in seen:
+        return False
+    seen.add(fn)
+    names = _code_names(fn.__code__)
+    if "chromium" in names:
+        return True
+    for name in names:
+        obj = fn.__globals__.get(name)
+        if (isinstance(obj, types.FunctionType) and getattr(obj, "__name__", None) == "chromium"
+                and "test_viz_browser" in (obj.__module__ or "")):
+            return True  # imported under another name
+        mod = getattr(inspect.unwrap(obj), "__module__", None) if callable(obj) else None
+        if mod and mod.rpartition(".")[2].startswith(("test_", "conftest")) and _opens_chromium(obj, seen):
+            return True
+    return False
+
+
+def _item_opens_chromium(item) -> bool:
+    fns = [getattr(item, "function", None)]
+    info = getattr(item, "_fixtureinfo", None)
+    for defs in (info.name2fixturedefs.values() if info is not None else ()):
+        fns += [d.func for d in defs]
+    seen: set = set()
+    return any(f is not None and _opens_chromium(f, seen) for f in fns)
+
+
 def pytest_collection_modifyitems(config, items):
-    """Every test of a module that opens headless Chromium runs on one pytest-xdist worker
-    (``tools/test.sh`` runs ``-n 2 --dist loadgroup``): two software-WebGL browsers at once on a
-    2-core machine made 60 s waits for the first view fail, while one browser beside one CPU-bound
-    worker holds. Without xdist the group mark is inert."""
-    opens_chromium: dict[str, bool] = {}
+    """Every test that opens headless Chromium (its own code, a helper it calls or a fixture it
+    uses: ``_opens_chromium``) runs on one pytest-xdist worker (``tools/test.sh`` runs ``-n 2
+    --dist loadgroup``): two software-WebGL browsers at once on a 2-core machine made 60 s waits
+    for the first view fail, while one browser beside one CPU-bound worker holds. The other tests
+    of the same modules run on either worker. Those tests are also marked ``browser``
+    (``pytest -m browser`` runs them). Without xdist the group mark is inert."""
     for item in items:
-        path = str(item.path)
-        if path not in opens_chromium:
-            opens_chromium[path] = "chromium(" in Path(path).read_text(encoding="utf-8")
-        if opens_chromium[path]:
+        if _item_opens_chromium(item):
             item.add_marker(pytest.mark.xdist_group("chromium"))
+            item.add_marker(pytest.mark.browser)
+
+
+def in_chromium_group(item) -> bool:
+    return any(m.args[:1] == ("chromium",) for m in item.iter_markers("xdist_group"))
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    # before the item's fixtures: a module fixture that opened Chromium is caught too
+    os.environ[CHROMIUM_GROUP_ENV] = "1" if in_chromium_group(item) else "0"
+
+
+def pytest_sessionfinish(session):
+    os.environ.pop(CHROMIUM_GROUP_ENV, None)

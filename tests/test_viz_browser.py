@@ -84,6 +84,13 @@ def chromium(tmp_path, extra_flags=()):
     """Headless Debian chromium through playwright, its HOME/XDG folders in ``tmp_path``."""
     import playwright.sync_api as playwright  # a test dependency: installed, never skipped
 
+    # tests/conftest.py sets this for each test: "0" means its look-up did not see this test open
+    # Chromium, so under xdist it would run beside another browser (unset: not under pytest)
+    if os.environ.get("GEOLOC_CHROMIUM_GROUP") == "0":
+        raise AssertionError(
+            f"{os.environ.get('PYTEST_CURRENT_TEST', 'this test')} opens Chromium outside the xdist group "
+            "'chromium': tests/conftest.py's _opens_chromium did not find the call (name chromium, or "
+            "call it through a function of a test module)")
     env = {**os.environ, "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"),
            "XDG_CACHE_HOME": str(tmp_path / "cache")}
     with playwright.sync_playwright() as p:
