@@ -15,11 +15,11 @@ from geoloc.analysis.uncertainty import empirical_ce90_le90, monte_carlo, propag
 from geoloc.assets import asset_path
 from geoloc.frames.chain import Pose
 from geoloc.sensors.budget import ErrorBudget
-from geoloc.sensors.sensor_file import load_camera_or_sensor
+from geoloc.sensors.sensor_file import load_sensor
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.terrain import DemSurface
 
-sensor = load_camera_or_sensor(asset_path("sensors", "eo_turret.toml"))
+sensor = load_sensor(asset_path("sensors", "eo_turret.toml"))
 budget = ErrorBudget({"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.05, "pitch_deg": 0.02,
                       "roll_deg": 0.02, "azimuth_deg": 0.02, "elevation_deg": 0.02, "boresight_x_deg": 0.01,
                       "fx_px": 2.0}, dem_product="srtm")

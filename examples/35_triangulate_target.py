@@ -19,9 +19,9 @@ from geoloc.frames.chain import Pose
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef, meridian_radius, prime_vertical_radius
 from geoloc.geodesy.local import ecef_to_enu
 from geoloc.sensors.budget import ErrorBudget
-from geoloc.sensors.sensor_file import load_camera_or_sensor
+from geoloc.sensors.sensor_file import load_sensor
 
-sensor = load_camera_or_sensor(asset_path("sensors", "eo_turret.toml"))
+sensor = load_sensor(asset_path("sensors", "eo_turret.toml"))
 noise = {"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.05, "pitch_deg": 0.03, "roll_deg": 0.03,
          "azimuth_deg": 0.03, "elevation_deg": 0.03}
 lat0, lon0, h0 = math.radians(36.5), math.radians(-84.25), 400.0

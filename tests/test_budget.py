@@ -13,7 +13,6 @@ from scipy import stats as sps
 from geoloc.assets import asset_path
 from geoloc.sensors.budget import ErrorBudget
 from geoloc.sensors.sensor_file import (
-    load_camera_or_sensor,
     load_sensor,
     load_sensor_budget,
     sensor_to_toml,
@@ -69,11 +68,11 @@ def test_a_file_without_the_table_has_no_budget():
 def test_first_phase_camera_file_takes_a_budget_on_its_roll_pitch_gimbal(tmp_path):
     p = with_table(tmp_path, asset_path("cameras", "qiao2017.toml"), "gimbal_roll_deg = 0.006\nheading_deg = 0.02\n")
     assert load_sensor_budget(p).sigma("gimbal_roll_deg") == 0.006
-    load_camera_or_sensor(p)  # still a first-phase camera
+    load_sensor(p)  # a first-phase camera file, as its sensor
     with pytest.raises(ValueError, match="'k1'.*pinhole lens has no parameter 'k1'"):
-        load_camera_or_sensor(with_table(tmp_path, asset_path("cameras", "qiao2017.toml"), "k1 = 0.1\n", "k.toml"))
+        load_sensor(with_table(tmp_path, asset_path("cameras", "qiao2017.toml"), "k1 = 0.1\n", "k.toml"))
     with pytest.raises(ValueError, match="'azimuth_deg'.*roll-pitch gimbal's angles"):
-        load_camera_or_sensor(with_table(tmp_path, asset_path("cameras", "qiao2017.toml"), "azimuth_deg = 0.1\n", "b.toml"))
+        load_sensor(with_table(tmp_path, asset_path("cameras", "qiao2017.toml"), "azimuth_deg = 0.1\n", "b.toml"))
 
 
 @pytest.mark.parametrize("text, match", [

@@ -131,7 +131,7 @@ def test_replay_writes_the_predicted_columns_only_with_a_budget(tmp_path):
     from geoloc.assets import asset_path
     from geoloc.cli import main
     from geoloc.io.records import load_records
-    from geoloc.sensors.sensor_file import load_camera_or_sensor
+    from geoloc.sensors.sensor_file import load_sensor
     from geoloc.workflows.replay import UNCERTAINTY_COLUMNS
 
     cam = asset_path("cameras", "qiao2017.toml")
@@ -149,7 +149,7 @@ def test_replay_writes_the_predicted_columns_only_with_a_budget(tmp_path):
     k = 0
     p1 = Pose(pose.lat[k], pose.lon[k], pose.h[k], pose.heading[k], pose.pitch[k], pose.roll[k]).with_angles(
         **{a: pose.angle(a)[k] for a in ("gimbal_roll", "gimbal_pitch")})
-    pu = U.propagate(load_camera_or_sensor(cam), p1, recs.column("row")[k], recs.column("col")[k],
+    pu = U.propagate(load_sensor(cam), p1, recs.column("row")[k], recs.column("col")[k],
                      ErrorBudget({"north_m": 2.0, "heading_deg": 0.02, "gimbal_pitch_deg": 0.005, "height_m": 5.0}),
                      surface=HeightSurface(recs.column("paper_height_m")[k]))
     assert float(rows[0]["ce90_m"]) == pytest.approx(float(pu.ce90_m), abs=1e-3)  # written with 3 decimals

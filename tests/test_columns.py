@@ -26,7 +26,7 @@ from geoloc.io.columns import (
     load_column_map,
 )
 from geoloc.io.records import load_records
-from geoloc.sensors.sensor_file import load_camera_or_sensor, load_sensor_columns
+from geoloc.sensors.sensor_file import load_sensor, load_sensor_columns
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORDS = asset_path(*DEFAULT_RECORDS)
@@ -353,7 +353,7 @@ def test_columns_table_in_a_sensor_file(tmp_path, foreign, capsys):
     cam.write_text(CAMERA.read_text() + "\n" + MAP_TOML)  # a first-phase camera file + [columns]
     assert load_sensor_columns(cam) == _map_table()
     assert load_sensor_columns(CAMERA) is None
-    assert load_camera_or_sensor(cam).focal_length_px == 166841.0  # the camera itself is unchanged
+    assert load_sensor(cam).lens.fx == 166841.0  # the camera itself is unchanged
     out_s, out_m = tmp_path / "s.csv", tmp_path / "m.csv"
     _replay([str(log), "--sensor", str(cam), "--height-column", "paper_height_m", "--out", str(out_s)], capsys)
     _replay([str(log), "--columns", str(mapfile), "--height-column", "paper_height_m", "--out", str(out_m)],
@@ -371,7 +371,7 @@ def test_columns_table_in_a_sensor_file(tmp_path, foreign, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text(CAMERA.read_text() + '\ncolumns = "map.toml"\n')
     with pytest.raises(ValueError, match=r"\[columns\] must be a table"):
-        load_camera_or_sensor(bad)
+        load_sensor(bad)
 
 
 def test_columns_table_maps_a_turret_s_joint_angles(tmp_path, capsys):

@@ -200,9 +200,9 @@ def test_ts_with_video_is_remuxed_and_the_video_left_alone(tmp_path, dem):
 
 
 def test_a_calibration_is_applied(tmp_path, dem):
-    from geoloc.sensors.sensor_file import load_camera_or_sensor
+    from geoloc.sensors.sensor_file import load_sensor
 
-    sensor = load_camera_or_sensor(ROOT / "assets" / "sensors" / "eo_turret.toml")  # mount, boresight, lever arm
+    sensor = load_sensor(ROOT / "assets" / "sensors" / "eo_turret.toml")  # mount, boresight, lever arm
     out = tmp_path / "cal.klv"
     fix_klv(EXAMPLE, out, surface=surface_for(dem=dem), sensor=sensor)
     with_cal = replay_klv(out, surface=surface_for(dem=dem), sensor=sensor).columns
@@ -268,7 +268,7 @@ def test_a_budget_writes_the_predicted_ce90_le90_into_tags_45_46(tmp_path, dem, 
     get the replay's predicted CE90 / LE90: added before the checksum where a packet has none (the
     bundled flight), rewritten in place where it has them; klvdata decodes them and every other item
     as before."""
-    from geoloc.sensors.sensor_file import load_camera_or_sensor, load_sensor_budget
+    from geoloc.sensors.sensor_file import load_sensor, load_sensor_budget
 
     sfile = tmp_path / "turret.toml"
     sfile.write_text((ROOT / "assets" / "sensors" / "eo_turret.toml").read_text() + BUDGET_TOML)
@@ -276,7 +276,7 @@ def test_a_budget_writes_the_predicted_ce90_le90_into_tags_45_46(tmp_path, dem, 
     assert main(["klv", "fix", str(EXAMPLE), "--out", str(out), "--dem", str(DEM_PATH), "--sensor", str(sfile)]) == 0
     text = capsys.readouterr().out
     assert "tags 45 / 46 hold the predicted CE90 / LE90" in text and "tag 45 added to 298" in text
-    sensor, budget = load_camera_or_sensor(sfile), load_sensor_budget(sfile)
+    sensor, budget = load_sensor(sfile), load_sensor_budget(sfile)
     ref = replay_klv(EXAMPLE, surface=surface_for(dem=dem), sensor=sensor, budget=budget).columns
     ok = ref["status"] == Status.OK
     assert ok.sum() == 298 and np.all(np.isfinite(ref["ce90_m"][ok]))

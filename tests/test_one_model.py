@@ -3,8 +3,9 @@
 - A workflow or an analysis module does not open a DEM itself: it takes the
   :class:`geoloc.surfaces.base.Surface` its caller built (on the command line,
   ``geoloc.cli._options.surface_from_args``; in Python, ``surfaces.terrain.surface_for``).
-- A first-phase ``Camera`` is a file format: no module outside the file-format code
-  asks ``isinstance(x, Camera)``.
+- A first-phase ``Camera`` is a file format: a camera file loads as a ``FrameSensor``
+  (``sensors.sensor_file.load_sensor``), and no module outside the file-format code
+  asks ``isinstance(x, Camera)`` or imports ``Camera``.
 - A mosaic is recognised by ``geoloc.surfaces.base.is_mosaic`` alone, not by its attributes.
 
 Each rule walks every module's syntax tree, so a new module is covered without
@@ -39,6 +40,19 @@ CAMERA_FORMAT = {"geoloc.sensors.camera", "geoloc.sensors.sensor_file"}
 
 #: Modules still branching on ``isinstance(x, Camera)`` outside the file format (may only shrink).
 KNOWN_CAMERA_CHECKS: set = set()
+
+#: The package itself re-exports the camera file format's class for Python users (``from geoloc import
+#: Camera``; ``geoloc.locate``'s example builds one), which every function takes as its sensor (``as_sensor``).
+CAMERA_REEXPORT = {"geoloc"}
+
+#: Modules outside the file format that still import ``Camera`` (may only shrink; a camera or sensor
+#: file loads as a FrameSensor, ``sensors.sensor_file.load_sensor``).
+KNOWN_CAMERA_IMPORTS = {
+    # a Monte Carlo scenario's inline [camera] table is read as a Camera: the [Q17] FrameChain
+    # reference (Camera.chain_line_of_sight) of workflows.reproduce's [L23] comparison and of
+    # tests/test_montecarlo.py takes it from ErrorModel.camera
+    "geoloc.analysis.errormodel",
+}
 
 
 def module_name(path: Path) -> str:
@@ -127,6 +141,38 @@ def test_no_camera_type_check_outside_the_file_format():
     assert not gone, f"no longer check for a Camera: remove them from KNOWN_CAMERA_CHECKS: {sorted(gone)}"
 
 
+def camera_imports(tree, mod: str) -> list:
+    """Lines importing ``Camera`` (``from geoloc.sensors.camera import Camera``, ``from geoloc import Camera``)."""
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module in ("geoloc", "geoloc.sensors.camera", "geoloc.sensors"):
+            if any(a.name == "Camera" for a in node.names):
+                out.append(node.lineno)
+    return out
+
+
+def test_a_camera_file_loads_as_a_sensor_and_camera_is_imported_by_the_file_format_only(tmp_path):
+    found = {mod: lines for mod, tree in modules() if mod not in CAMERA_FORMAT | CAMERA_REEXPORT
+             and (lines := camera_imports(tree, mod))}
+    new = {m: v for m, v in found.items() if m not in KNOWN_CAMERA_IMPORTS}
+    assert not new, f"these import Camera outside the camera file format (load_sensor gives a FrameSensor): {new}"
+    gone = KNOWN_CAMERA_IMPORTS - set(found)
+    assert not gone, f"no longer import Camera: remove them from KNOWN_CAMERA_IMPORTS: {sorted(gone)}"
+    from geoloc.assets import asset_path
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.sensors.sensor_file import load_sensor
+
+    from geoloc.sensors.camera import Camera
+
+    path = asset_path("cameras", "qiao2017.toml")
+    cam = load_sensor(path)
+    assert type(cam) is FrameSensor and cam == Camera.from_toml(path).to_sensor() and cam.lens.fx == 166841.0
+    # the file's pixel pitch rides along (Monte Carlo's micrometre sources, calibrate --write-camera)
+    with_pitch = tmp_path / "pitch.toml"
+    with_pitch.write_text(path.read_text() + "\npixel_pitch_m = 7.0e-6\n")
+    assert cam.pixel_pitch_m is None and load_sensor(with_pitch).pixel_pitch_m == 7.0e-6
+
+
 def test_a_mosaic_is_recognised_by_is_mosaic_only():
     found = {mod: lines for mod, tree in modules() if (lines := mosaic_attribute_checks(tree))}
     assert not found, f"recognise a mosaic with geoloc.surfaces.base.is_mosaic: {found}"
@@ -139,8 +185,10 @@ def test_the_checks_find_planted_cases():
                      "    d = DEM.open(p)\n"
                      "    m = open_dem_or_mosaic(p); mc.open_dem(p)\n"
                      "    if isinstance(d, (Camera, int)): pass\n"
+                     "    from geoloc.sensors.camera import Camera\n"
                      "    return hasattr(m, 'with_solver') or hasattr(m, 'dem') or getattr(surface, 'dem', None)\n")
     assert sorted(dem_opens(tree)) == [3, 4, 4]
     assert camera_checks(tree) == [5]
-    assert mosaic_attribute_checks(tree) == [6]
-    assert surface_dem_asks(tree) == [6, 6]
+    assert camera_imports(tree, "geoloc.x") == [6]
+    assert mosaic_attribute_checks(tree) == [7]
+    assert surface_dem_asks(tree) == [7, 7]

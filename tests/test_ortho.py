@@ -19,7 +19,7 @@ from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
 from geoloc.io.records import load_records
 from geoloc.locate import as_sensor
 from geoloc.sensors._fastgrid import grid_line_of_sight
-from geoloc.sensors.sensor_file import load_camera_or_sensor
+from geoloc.sensors.sensor_file import load_sensor
 from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import HeightSurface
@@ -42,7 +42,7 @@ TARGETS = ASSETS / "photos" / "targets.csv"
 
 
 def _record(sensor_path, records_path, k=0):
-    s = as_sensor(load_camera_or_sensor(sensor_path))
+    s = as_sensor(load_sensor(sensor_path))
     rec = load_records(records_path, angles=s.angle_names)
     return s, rec, rec.subset([k]).pose()
 

@@ -23,7 +23,7 @@ from geoloc.sensors.camera import Camera
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import BrownLens, FisheyeLens, PinholeLens
-from geoloc.sensors.sensor_file import load_camera_or_sensor, load_sensor, sensor_from_dict, sensor_to_toml
+from geoloc.sensors.sensor_file import load_sensor, sensor_from_dict, sensor_to_toml
 from geoloc.status import Status
 
 MINIMAL = """\
@@ -212,10 +212,9 @@ def test_sensor_file_round_trip_and_errors(tmp_path):
 
 def test_first_phase_camera_file_is_the_q17_preset():
     path = asset_path(*DEFAULT_CAMERA)
-    cam = load_camera_or_sensor(path)
-    assert isinstance(cam, Camera)
-    s = load_sensor(path)
-    assert s == cam.to_sensor() and s.gimbal is PRESETS["roll-pitch"]
+    cam = Camera.from_toml(path)  # the file format's reader
+    s = load_sensor(path)  # a camera file loads as its sensor
+    assert type(s) is FrameSensor and s == cam.to_sensor() and s.gimbal is PRESETS["roll-pitch"]
     assert isinstance(sensor_from_dict({"lens": {"model": "fov", "hfov_deg": 60.0, "vfov_deg": 45.0,
                                                  "width": 640, "height": 480}}), FrameSensor)
 

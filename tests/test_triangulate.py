@@ -167,12 +167,12 @@ def test_replay_triangulates_a_target_id_column_and_flags_a_shifted_height(tmp_p
 
     from geoloc.assets import asset_path
     from geoloc.cli import main
-    from geoloc.sensors.sensor_file import load_camera_or_sensor
+    from geoloc.sensors.sensor_file import load_sensor
 
     sensor_file = tmp_path / "turret.toml"
     sensor_file.write_text(asset_path("sensors", "eo_turret.toml").read_text()
                            + "\n[uncertainty]\nnorth_m = 2.0\nheading_deg = 0.05\nelevation_deg = 0.03\n")
-    s = load_camera_or_sensor(sensor_file)
+    s = load_sensor(sensor_file)
     pose = orbit(10)
     row, col, st = s.ground_to_pixel(*TARGET, pose)
     assert np.all(st == Status.OK)

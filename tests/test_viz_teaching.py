@@ -23,7 +23,7 @@ from geoloc.assets import asset_path
 from geoloc.frames.chain import Pose
 from geoloc.locate import as_sensor
 from geoloc.sensors.gimbals import PRESETS
-from geoloc.sensors.sensor_file import load_camera_or_sensor
+from geoloc.sensors.sensor_file import load_sensor
 from geoloc.viz import teaching
 
 A_WGS84, F_WGS84 = 6378137.0, 1 / 298.257223563
@@ -67,7 +67,7 @@ def q17_pose():
 
 def test_q17_ray_in_every_frame_matches_scipy_and_pymap3d():
     pose = q17_pose()
-    sensor = as_sensor(load_camera_or_sensor(asset_path("cameras", "qiao2017.toml")))
+    sensor = as_sensor(load_sensor(asset_path("cameras", "qiao2017.toml")))
     chain = sensor.frames(pose)
     with open(asset_path("cameras", "qiao2017.toml"), "rb") as fh:
         cam = tomllib.load(fh)
@@ -93,9 +93,9 @@ def test_q17_ray_in_every_frame_matches_scipy_and_pymap3d():
 
 def _sensors():
     """Every gimbal preset: the three bundled files, plus azimuth-elevation-roll built from the turret."""
-    q17 = as_sensor(load_camera_or_sensor(asset_path("cameras", "qiao2017.toml")))
-    turret = as_sensor(load_camera_or_sensor(asset_path("sensors", "eo_turret.toml")))
-    drone = as_sensor(load_camera_or_sensor(asset_path("sensors", "drone_camera.toml")))
+    q17 = as_sensor(load_sensor(asset_path("cameras", "qiao2017.toml")))
+    turret = as_sensor(load_sensor(asset_path("sensors", "eo_turret.toml")))
+    drone = as_sensor(load_sensor(asset_path("sensors", "drone_camera.toml")))
     aer = dataclasses.replace(turret, gimbal=PRESETS["azimuth-elevation-roll"])
     return {"roll-pitch": (q17, None), "azimuth-elevation": (turret, "eo_turret.toml"),
             "yaw-pitch-roll": (drone, "drone_camera.toml"), "azimuth-elevation-roll": (aer, "eo_turret.toml")}
@@ -155,7 +155,7 @@ def test_every_preset_hop_by_hop(preset):
 
 def test_partial_products_are_explicit_products_of_the_hops():
     pose = q17_pose()
-    chain = as_sensor(load_camera_or_sensor(asset_path("cameras", "qiao2017.toml"))).frames(pose)
+    chain = as_sensor(load_sensor(asset_path("cameras", "qiao2017.toml"))).frames(pose)
     lat, lon = math.radians(T31["lat"]), math.radians(T31["lon"])
     # T_ecef_ned written out: columns N, E, D in ECEF (pymap3d), origin by pymap3d.geodetic2ecef
     cols = [ned_to_ecef_vec(e, lat, lon) for e in np.eye(3)]
@@ -183,7 +183,7 @@ def test_partial_products_are_explicit_products_of_the_hops():
 
 def test_q17_intermediate_frames():
     pose = q17_pose()
-    chain = as_sensor(load_camera_or_sensor(asset_path("cameras", "qiao2017.toml"))).frames(pose)
+    chain = as_sensor(load_sensor(asset_path("cameras", "qiao2017.toml"))).frames(pose)
     lat, lon = math.radians(T31["lat"]), math.radians(T31["lon"])
     rn = A_WGS84 / math.sqrt(1 - E2 * math.sin(lat) ** 2)
     (_, F1), (_, F2), (_, F3), (_, ned) = teaching.q17_intermediate_frames(chain)
@@ -203,9 +203,9 @@ def test_q17_intermediate_frames():
 
 def test_pose_with_angle_and_bad_input():
     pose = q17_pose()
-    chain = as_sensor(load_camera_or_sensor(asset_path("cameras", "qiao2017.toml"))).frames(pose)
+    chain = as_sensor(load_sensor(asset_path("cameras", "qiao2017.toml"))).frames(pose)
     p0 = teaching.pose_with_angle(pose, "gimbal_roll", 0.0)
-    c0 = as_sensor(load_camera_or_sensor(asset_path("cameras", "qiao2017.toml"))).frames(p0)
+    c0 = as_sensor(load_sensor(asset_path("cameras", "qiao2017.toml"))).frames(p0)
     # with the outer gimbal at 0 its frame is the base's (a closed-form case)
     np.testing.assert_allclose(c0.T_ecef("gimbal_outer")[:3, :3], c0.T_ecef("gimbal_base")[:3, :3], atol=TOL)
     assert teaching.pose_angle(pose, "heading") == pytest.approx(math.radians(T31["heading"]))

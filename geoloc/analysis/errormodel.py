@@ -254,10 +254,7 @@ class ErrorModel:
                 raise ValueError(f"{where}: unknown error source; known: {sorted(ERROR_SOURCES)}")
             errors[name] = _distribution(spec, where)
         check_lens_sources(errors, camera, source)
-        needs_pitch = any(errors.get(k) is not None for k in ("image_centre_x_um", "image_centre_y_um"))
-        if needs_pitch and getattr(camera, "pixel_pitch_m", None) is None:
-            raise ValueError(f"{source} [camera]: pixel_pitch_m is required for the image-centre "
-                             "error in micrometres")
+        check_pixel_pitch(errors, camera, f"{source} [camera]")
 
         dem = None
         if "dem" in data:
@@ -288,6 +285,7 @@ class ErrorModel:
         else:
             errors[name] = dist
         check_lens_sources(errors, self.camera, self.source)
+        check_pixel_pitch(errors, self.camera, f"{self.source} [camera]")
         return _replace(self, errors=errors)
 
     def with_camera(self, camera) -> "ErrorModel":
@@ -298,6 +296,7 @@ class ErrorModel:
         """
         check_camera(camera, self.source)
         check_lens_sources(self.errors, camera, self.source)
+        check_pixel_pitch(self.errors, camera, f"{self.source}: camera {getattr(camera, 'name', '') or camera!r}")
         return _replace(self, camera=camera)
 
     def without_dem(self) -> "ErrorModel":
@@ -339,6 +338,13 @@ def _to_si(name: str, camera) -> float:
     if name.endswith("_um"):
         return 1e-6 / camera.pixel_pitch_m  # micrometres on the CCD -> pixels
     return 1.0
+
+
+def check_pixel_pitch(errors: dict, camera, where: str) -> None:
+    """The image-centre errors in micrometres need the camera's ``pixel_pitch_m`` (a camera file's key)."""
+    needs_pitch = any(errors.get(k) is not None for k in ("image_centre_x_um", "image_centre_y_um"))
+    if needs_pitch and getattr(camera, "pixel_pitch_m", None) is None:
+        raise ValueError(f"{where}: pixel_pitch_m is required for the image-centre error in micrometres")
 
 
 def camera_from_table(table, where: str):

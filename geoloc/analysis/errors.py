@@ -38,7 +38,7 @@ from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.geodesy.local import R_ecef_enu
 from geoloc.io.records import Records
 from geoloc.locate import ground_to_pixel
-from geoloc.sensors.camera import Camera
+from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
 from geoloc.userfiles import atomic_path
@@ -113,7 +113,7 @@ def track_azimuths(records: Records, groups) -> np.ndarray:
     return out
 
 
-def error_vectors(records: Records, camera: Camera, ground: GroundPoint, groups=None,
+def error_vectors(records: Records, camera: FrameSensor, ground: GroundPoint, groups=None,
                   truth_prefix: str = "truth") -> ErrorVectors:
     """Decompose every record's error against its surveyed truth.
 
@@ -121,8 +121,8 @@ def error_vectors(records: Records, camera: Camera, ground: GroundPoint, groups=
     ----------
     records : Records
         Must have ``{truth_prefix}_lat_deg`` and ``{truth_prefix}_lon_deg``.
-    camera : Camera
-        The camera that computed ``ground`` (its boresight / mount included),
+    camera : FrameSensor
+        The sensor that computed ``ground`` (its boresight / mount included),
         for the pixel errors.
     ground : GroundPoint
         Computed positions, one per record (from a height column or a DEM).

@@ -327,19 +327,18 @@ def surface_from_scenario(model):
 def sensor_from_args(args, *, default: bool = True):
     """The sensor of ``--sensor`` / ``--camera``: the verb's one sensor, beside :func:`surface_from_args`.
 
-    A sensor file (with ``[lens]``) is a :class:`~geoloc.sensors.frame.FrameSensor`; a
-    first-phase camera file is still read as a :class:`~geoloc.sensors.camera.Camera`
-    (:func:`geoloc.sensors.sensor_file.load_camera_or_sensor`). Without the option: the
+    A sensor file, or a first-phase camera file, is a :class:`~geoloc.sensors.frame.FrameSensor`
+    (:func:`geoloc.sensors.sensor_file.load_sensor`). Without the option: the
     bundled [Q17] camera, or None with ``default=False`` (a verb whose input brings its
     own sensor: KLV, photos).
     """
     from geoloc.assets import DEFAULT_CAMERA, asset_path
-    from geoloc.sensors.sensor_file import load_camera_or_sensor
+    from geoloc.sensors.sensor_file import load_sensor
 
     path = getattr(args, "camera", None)
     if not path and not default:
         return None
-    return load_camera_or_sensor(path if path else asset_path(*DEFAULT_CAMERA))
+    return load_sensor(path if path else asset_path(*DEFAULT_CAMERA))
 
 
 def _solve(args, los):

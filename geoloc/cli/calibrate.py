@@ -155,7 +155,6 @@ def run(args) -> int:
     names) to the published positions with unknown target heights
     (:func:`geoloc.analysis.sensor_fit.resect_sensor`).
     """
-    from geoloc.locate import as_sensor
     from geoloc.sensors.camera import camera_from_sensor
     from geoloc.sensors.sensor_file import sensor_to_toml
     from geoloc.workflows.replay import outside_sensor_messages
@@ -163,8 +162,7 @@ def run(args) -> int:
     if args.exaggeration <= 0 or not np.isfinite(args.exaggeration):
         raise ValueError(f"--exaggeration = {args.exaggeration}: must be a finite number > 0")
     names = fit_names(args)
-    loaded = sensor_from_args(args)
-    sensor = as_sensor(loaded)
+    sensor = sensor_from_args(args)
     records = load_records_reporting(args.records, sensor)
     for msg in outside_sensor_messages(records, sensor):
         print(f"geoloc calibrate: warning: {msg}", file=sys.stderr)
@@ -207,10 +205,9 @@ def run(args) -> int:
     if args.write_sensor:
         _write_fitted("sensor", args.write_sensor, sensors, args.joint, sensor_to_toml)
     if args.write_camera:
-        # a sensor does not carry the pixel pitch: the input camera file's, if it gave one
-        pitch = getattr(loaded, "pixel_pitch_m", None)
+        # the fitted sensor carries the input camera file's pixel pitch, if it gave one
         _write_fitted("camera", args.write_camera, sensors, args.joint,
-                      lambda s, path: camera_from_sensor(s, pixel_pitch_m=pitch).to_toml(path))
+                      lambda s, path: camera_from_sensor(s).to_toml(path))
     if args.plot:
         from geoloc.analysis.errors import plot_error_vectors
 

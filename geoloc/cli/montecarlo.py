@@ -156,12 +156,12 @@ def load_model(args) -> ErrorModel:
 
     model = load_scenario(scenario, expect="montecarlo")
     if getattr(args, "camera", None):
-        from geoloc.sensors.sensor_file import load_camera_or_sensor
+        from geoloc.sensors.sensor_file import load_sensor
 
         path = Path(args.camera)
         if not path.is_file():
             raise FileNotFoundError(f"--sensor file not found: {args.camera}")
-        model = model.with_camera(load_camera_or_sensor(path))
+        model = model.with_camera(load_sensor(path))
     for text in getattr(args, "error", []):
         model = model.with_error(*parse_error(text))
     if args.no_dem:

@@ -267,7 +267,7 @@ class Camera:
         lens = PinholeLens(fx=f, fy=f, cx=float(self.principal_col) - 1.0, cy=float(self.principal_row) - 1.0,
                            width=int(self.cols), height=int(self.rows))
         return FrameSensor(lens, mount=self.mount or (0.0, 0.0, 0.0), boresight=self.boresight or (0.0, 0.0, 0.0),
-                           name=self.name)
+                           name=self.name, pixel_pitch_m=self.pixel_pitch_m)
 
     def chain(self, pose):
         """The [Q17] frame chain of ``pose`` with this camera's boresight and mounting rotations.
@@ -329,8 +329,8 @@ def camera_from_sensor(sensor, pixel_pitch_m: float | None = None) -> Camera:
     say, a distortion-free pinhole with ``fx == fy`` and no skew on the [Q17]
     ``roll-pitch`` gimbal with no lever arm; anything else is a ValueError naming the
     field and its value (write a sensor file instead). Zero mount / boresight angles
-    are left out of the file. ``pixel_pitch_m``: the input camera's, if it had one
-    (a sensor does not carry it).
+    are left out of the file. ``pixel_pitch_m``: default the sensor's own (a camera
+    file's sensor carries the file's pitch; a sensor file's has none).
     """
     from geoloc.sensors.frame import FrameSensor
     from geoloc.sensors.gimbals import PRESETS
@@ -363,7 +363,7 @@ def camera_from_sensor(sensor, pixel_pitch_m: float | None = None) -> Camera:
 
     return Camera(focal_length_px=float(lens.fx), principal_row=float(lens.cy) + 1.0,
                   principal_col=float(lens.cx) + 1.0, rows=int(lens.height), cols=int(lens.width),
-                  pixel_pitch_m=pixel_pitch_m, name=sensor.name, boresight=angles(sensor.boresight),
+                  pixel_pitch_m=sensor.pixel_pitch_m if pixel_pitch_m is None else pixel_pitch_m, name=sensor.name, boresight=angles(sensor.boresight),
                   mount=angles(sensor.mount))
 
 

@@ -81,6 +81,10 @@ class FrameSensor:
         What carries the camera (the sensor file's ``platform``): a text that
         :func:`geoloc.sensors.platform.is_drone` may recognise as a drone, for the
         plausibility warnings; empty if not said.
+    pixel_pitch_m : float or None
+        The detector's pixel pitch [m], where the file says it (a camera file's
+        ``pixel_pitch_m``): it turns error sources in micrometres on the CCD into pixels
+        (Monte Carlo, docs/montecarlo.md). Not geometry: sensors compare without it.
     """
 
     lens: Lens
@@ -90,6 +94,7 @@ class FrameSensor:
     lever_arm_m: tuple = (0.0, 0.0, 0.0)
     name: str = ""
     platform: str = ""
+    pixel_pitch_m: float | None = field(default=None, compare=False)
     #: Per-sample perturbations (..., 3, 3), for Monte Carlo: ``v_base = R_mount @ R_base_extra @ v_body``
     #: (shock-absorber vibration) and ``v = R_bore_extra @ R_boresight @ v_last`` (collimation,
     #: gimbal non-orthogonality), both before the fixed turn to the optical axes. None: identity.
@@ -105,6 +110,11 @@ class FrameSensor:
             raise ValueError(f"sensor field gimbal = {self.gimbal!r}: must be a Gimbal")
         for k in ("mount", "boresight", "lever_arm_m"):
             object.__setattr__(self, k, _three(k, getattr(self, k)))
+        p = self.pixel_pitch_m
+        if p is not None:
+            if isinstance(p, bool) or not (isinstance(p, (int, float)) and math.isfinite(p) and p > 0):
+                raise ValueError(f"sensor field pixel_pitch_m = {p!r}: must be a finite number > 0 (metres)")
+            object.__setattr__(self, "pixel_pitch_m", float(p))
         for k in ("mount", "boresight"):
             if any(abs(a) > math.pi for a in getattr(self, k)):
                 raise ValueError(f"sensor field {k} = {getattr(self, k)!r}: angles must lie in [-pi, pi] rad")

@@ -16,8 +16,9 @@ Format: ``docs/sensor_format.md``. The smallest file that works::
     [gimbal]
     preset = "azimuth-elevation"
 
-The first-phase camera file (``focal_length_px``, ``principal_row``, ...) still
-loads, as a pinhole on the [Q17] ``roll-pitch`` gimbal. Unknown keys, bad
+The first-phase camera file (``focal_length_px``, ``principal_row``, ...) loads as
+a :class:`FrameSensor` too, a pinhole on the [Q17] ``roll-pitch`` gimbal (the
+:class:`~geoloc.sensors.camera.Camera` class is that file's reader and writer). Unknown keys, bad
 values and missing keys are errors naming the key, the value and the file.
 """
 
@@ -113,7 +114,12 @@ def sensor_from_dict(data: dict, source: str = "sensor") -> FrameSensor:
 
 
 def load_sensor(path) -> FrameSensor:
-    """Read a sensor file (or a first-phase camera file) by path."""
+    """Read a sensor file, or a first-phase camera file, by path: a :class:`FrameSensor` either way.
+
+    A camera file (``focal_length_px``, ``principal_row``, ...; :class:`geoloc.sensors.camera.Camera`
+    is its reader and writer) is a pinhole on the [Q17] ``roll-pitch`` gimbal, with the file's
+    ``pixel_pitch_m``. Its ``[columns]`` and ``[uncertainty]`` tables are checked and left out
+    (:func:`load_sensor_columns`, :func:`load_sensor_budget`)."""
     path = Path(path)
     return sensor_from_dict(read_toml(path, "sensor file"), source=str(path))
 
@@ -130,20 +136,6 @@ def load_sensor_budget(path) -> ErrorBudget | None:
     """The error budget (``[uncertainty]``) of a sensor (or first-phase camera) file; None if it has none."""
     path = Path(path)
     return budget_from_sensor_dict(read_toml(path, "sensor file"), source=str(path))
-
-
-def load_camera_or_sensor(path) -> Camera | FrameSensor:
-    """A first-phase camera file stays a :class:`Camera` (every first-phase consumer takes it as
-    before); a sensor file (with ``[lens]``) becomes a :class:`FrameSensor`."""
-    path = Path(path)
-    data = _without_columns(read_toml(path, "sensor file"), str(path))
-    if "lens" not in data:
-        _refuse_sensor_without_lens(data, str(path))
-        if UNCERTAINTY_TABLE in data:  # checked against the camera's sensor, then left out
-            budget_from_sensor_dict(data, str(path))
-            data = {k: v for k, v in data.items() if k != UNCERTAINTY_TABLE}
-        return Camera.from_dict(data, source=str(path))
-    return sensor_from_dict(data, source=str(path))
 
 
 def _refuse_sensor_without_lens(data: dict, source: str) -> None:

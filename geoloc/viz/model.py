@@ -22,7 +22,7 @@ from geoloc.frames.chain import Pose
 from geoloc.frames.enu import EnuFrame
 from geoloc.frames.graph import BoundFrames
 from geoloc.locate import as_sensor, line_of_sight
-from geoloc.sensors.camera import Camera
+from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
 from geoloc.surfaces.height import intersect_los_height
@@ -116,7 +116,7 @@ class Scenario:
     """A scene's fixed data: sensor (or first-phase camera), records, DEM, ENU origin, initial inputs."""
 
     name: str
-    camera: Camera  # or a geoloc.sensors.frame.FrameSensor
+    camera: FrameSensor  # a sensor file's or a camera file's (sensor_file.load_sensor)
     inputs: Inputs
     enu: EnuFrame
     records: list = field(default_factory=list)  # list of (RecordInfo, Inputs)

@@ -43,7 +43,7 @@ from geoloc.frames.graph import BoundFrames
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import load_records
 from geoloc.locate import as_sensor, line_of_sight
-from geoloc.sensors.camera import Camera
+from geoloc.sensors.frame import FrameSensor
 from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import intersect_los_height
@@ -63,7 +63,7 @@ class LogSteps:
     timelines : dict
         Timeline name -> ("duration", seconds) or ("sequence", int array).
     labels : list of str
-    camera : Camera
+    camera : FrameSensor
     pose : Pose
         Batched, one entry per step.
     chain : FrameChain
@@ -104,7 +104,7 @@ class LogSteps:
     name: str
     timelines: dict
     labels: list
-    camera: Camera
+    camera: FrameSensor
     pose: Pose
     chain: BoundFrames
     row: np.ndarray
@@ -228,9 +228,9 @@ def enu_origin(lat_deg: float, lon_deg: float, h_m: float) -> EnuFrame:
 
 def load_camera(path=None):
     """A sensor or first-phase camera TOML, default the bundled [Q17] flight-test camera."""
-    from geoloc.sensors.sensor_file import load_camera_or_sensor
+    from geoloc.sensors.sensor_file import load_sensor
 
-    return load_camera_or_sensor(path if path else Path(ASSETS).joinpath(*DEFAULT_CAMERA))
+    return load_sensor(path if path else Path(ASSETS).joinpath(*DEFAULT_CAMERA))
 
 
 def _terrain(los: LineOfSight, dem, method: str, eps_h_m=None, threshold_m=None):
@@ -246,7 +246,7 @@ def _first_finite(lat, lon, h):
     return lat[k], lon[k], h[k]
 
 
-def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogSteps:
+def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None) -> LogSteps:
     """Simulate a scenario (:func:`geoloc.workflows.flight.simulate`) and geolocate every step.
 
     The located target is the scenario's method: the ellipsoid inflated to
@@ -309,7 +309,7 @@ def steps_from_flight(scn: FlightScenario, camera: Camera | None = None) -> LogS
     return add_error_analysis(steps)
 
 
-def steps_from_records(path, camera: Camera | None = None, *, height_column: str | None = None,
+def steps_from_records(path, camera: FrameSensor | None = None, *, height_column: str | None = None,
                        target_h_m: float | None = None, surface: str = "inflated", dem_path=None,
                        dem_datum: str = "egm96", method: str = "exact", eps_h_m=None,
                        threshold_m=None, group_column: str | None = "table",

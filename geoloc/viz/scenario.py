@@ -19,7 +19,7 @@ from geoloc.assets import ASSETS, DEFAULT_CAMERA, DEFAULT_RECORDS
 from geoloc.frames.enu import EnuFrame
 from geoloc.io.records import load_records
 from geoloc.locate import as_sensor
-from geoloc.sensors.sensor_file import load_camera_or_sensor
+from geoloc.sensors.sensor_file import load_sensor
 from geoloc.viz.model import Inputs, RecordInfo, Scenario
 from geoloc.viz.terrain_link import default_dem_path  # noqa: F401  (here since phase 1)
 
@@ -134,10 +134,10 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
     """
     records_path = Path(records_path) if records_path else Path(ASSETS).joinpath(*DEFAULT_RECORDS)
     if records_path.suffix.lower() in KLV_SUFFIXES:
-        camera, recs = records_from_klv(records_path, load_camera_or_sensor(camera_path) if camera_path else None)
+        camera, recs = records_from_klv(records_path, load_sensor(camera_path) if camera_path else None)
     else:
         camera_path = camera_path or Path(ASSETS).joinpath(*DEFAULT_CAMERA)
-        camera = load_camera_or_sensor(camera_path)
+        camera = load_sensor(camera_path)
         recs = records_from_csv(records_path, camera)
     idx = 0
     if record is not None:

@@ -220,9 +220,9 @@ def _cached(key, make):
 def _sensor(cfg: CampaignConfig, default=None):
     if cfg.sensor is None:
         return default
-    from geoloc.sensors.sensor_file import load_camera_or_sensor
+    from geoloc.sensors.sensor_file import load_sensor
 
-    return _cached(("sensor", cfg.sensor), lambda: load_camera_or_sensor(cfg.sensor))
+    return _cached(("sensor", cfg.sensor), lambda: load_sensor(cfg.sensor))
 
 
 def _dem_surface(cfg: CampaignConfig, whole: bool = False):
@@ -409,19 +409,18 @@ def _records_unit(path: str, cfg: CampaignConfig):
     from geoloc.frames.chain import Pose
     from geoloc.geodesy.geodesic import horizontal_distance_m
     from geoloc.io.records import Q17_ANGLES, required_columns
-    from geoloc.locate import as_sensor, line_of_sight
+    from geoloc.locate import line_of_sight
     from geoloc.status import Status
     from geoloc.surfaces.base import terrain_of
 
     from geoloc.assets import DEFAULT_CAMERA, asset_path
-    from geoloc.sensors.sensor_file import load_camera_or_sensor
+    from geoloc.sensors.sensor_file import load_sensor
 
     sensor = _sensor(cfg) if cfg.sensor else _cached(
-        ("sensor", "default"), lambda: load_camera_or_sensor(asset_path(*DEFAULT_CAMERA)))
-    s = as_sensor(sensor)
+        ("sensor", "default"), lambda: load_sensor(asset_path(*DEFAULT_CAMERA)))
     table = _read_table(path)
     n = table.num_rows
-    req = required_columns(s.angle_names)
+    req = required_columns(sensor.angle_names)
     cols = {k: _column(table, k, path) for k in req}
     messages = []
     bad = np.zeros(n, bool)
@@ -442,7 +441,7 @@ def _records_unit(path: str, cfg: CampaignConfig):
         raise ValueError(f"altitude_datum = {cfg.altitude_datum!r}: must be 'ellipsoid' or 'egm96'")
     clean = {k: np.where(bad, 0.0, v) for k, v in cols.items()}  # bad rows: a harmless pose, flagged below
     q17 = {a: clean[f"{a}_deg"] for a in Q17_ANGLES if f"{a}_deg" in clean}
-    other = {a: clean[f"{a}_deg"] for a in s.angle_names if a not in Q17_ANGLES}
+    other = {a: clean[f"{a}_deg"] for a in sensor.angle_names if a not in Q17_ANGLES}
     pose = Pose.from_deg(clean["ac_lat_deg"], clean["ac_lon_deg"], np.where(bad, 0.0, h_ac), clean["heading_deg"],
                          clean["pitch_deg"], clean["roll_deg"], q17.get("gimbal_roll", 0.0),
                          q17.get("gimbal_pitch", 0.0), angles_deg=other)
@@ -455,7 +454,7 @@ def _records_unit(path: str, cfg: CampaignConfig):
     dem = terrain_of(surf)
     hit = surf.intersect(los)
     status = np.asarray(hit.status, np.uint8).copy()
-    off = ~s.in_image(clean["row"], clean["col"]) & (status == Status.OK)
+    off = ~sensor.in_image(clean["row"], clean["col"]) & (status == Status.OK)
     status[off] = Status.OUTSIDE_SENSOR  # located by extending the lens model, flagged (as geoloc replay)
     if off.any():
         messages.append(f"{path}: {int(off.sum())} row(s) with the pixel off the sensor, first row "

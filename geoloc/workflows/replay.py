@@ -19,7 +19,7 @@ from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import Records
 from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.locate import as_sensor, line_of_sight
-from geoloc.sensors.camera import Camera
+from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status, names
 from geoloc.surfaces.base import GroundPoint, terrain_of
 from geoloc.surfaces.terrain import surface_for
@@ -55,7 +55,7 @@ class ReplayResult:
         return cols
 
 
-def records_line_of_sight(records: Records, camera: Camera):
+def records_line_of_sight(records: Records, camera: FrameSensor):
     """The line of sight of every good record (pixel row/col through the record's chain).
 
     Recorded pixels off the sensor are extended through the lens model (the
@@ -247,7 +247,7 @@ def replay_records(records: Records, sensor, surface) -> ReplayResult:
     Parameters
     ----------
     records : Records
-    sensor : FrameSensor or Camera
+    sensor : FrameSensor
     surface : Surface
         Where the targets lie (:func:`geoloc.surfaces.terrain.surface_for`; on the
         command line :func:`geoloc.cli._options.surface_from_args`): a height, one
@@ -305,14 +305,15 @@ def uncertainty_columns(records: Records, sensor, surface, budget) -> tuple:
     return cols, messages
 
 
-def replay_at_height(records: Records, camera: Camera, height_column: str | None = None,
+def replay_at_height(records: Records, camera: FrameSensor, height_column: str | None = None,
                      target_h: float | None = None, surface: str = "inflated") -> ReplayResult:
     """:func:`replay_records` at a target height from a column, or one height for all.
 
     Parameters
     ----------
     records : Records
-    camera : Camera
+    camera : FrameSensor
+        A sensor file's or a camera file's (:func:`geoloc.sensors.sensor_file.load_sensor`).
     height_column : str, optional
         Column with each target's ellipsoidal height [m] (e.g. ``paper_height_m``).
     target_h : float, optional

@@ -21,7 +21,7 @@ from geoloc.analysis import montecarlo as mc
 from geoloc.analysis.errormodel import ErrorModel
 from geoloc.workflows.scenario import load_scenario
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
-from geoloc.sensors.camera import Camera
+from geoloc.sensors.sensor_file import load_sensor
 
 #: Bundled scenario of [Q17] Tables 1-2 (ellipsoid model).
 Q17_SCENARIO = ("scenarios", "qiao2017_table1.toml")
@@ -146,7 +146,7 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
     from geoloc.workflows.replay import replay_at_height
 
     records = load_records(asset_path(*DEFAULT_RECORDS))
-    camera = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
+    camera = load_sensor(asset_path(*DEFAULT_CAMERA))
     rr = replay_at_height(records, camera, "paper_height_m")
     tables = records.text("table")
     rep.add("4. Flight test (Tables 3-4; fitted camera assets/cameras/qiao2017.toml, target at "
@@ -240,7 +240,7 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
     pose, chain, row, col = mc.perturbed_geometry(dmodel, errs)
     los_a = dmodel.camera.chain_line_of_sight(pose, row, col, chain=chain)  # the [Q17] chain, as the paper
     records = load_records(asset_path(*DEFAULT_RECORDS))
-    los_b = records_line_of_sight(records, Camera.from_toml(asset_path(*DEFAULT_CAMERA)))
+    los_b = records_line_of_sight(records, load_sensor(asset_path(*DEFAULT_CAMERA)))
     from geoloc.surfaces.base import LineOfSight
     los = LineOfSight(np.concatenate([los_a.origin_ecef, los_b.origin_ecef]),
                       np.concatenate([los_a.direction_ecef, los_b.direction_ecef]),

@@ -25,7 +25,8 @@ from geoloc.io.rpc_gdal import (
     write_rpc_geotiff,
 )
 from geoloc.locate import ground_to_pixel, line_of_sight, locate
-from geoloc.sensors.camera import Camera
+from geoloc.sensors.frame import FrameSensor
+from geoloc.sensors.sensor_file import load_sensor
 from geoloc.sensors.rpc import RPCModel
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
@@ -42,7 +43,7 @@ class FrameCameraSensor:
     """
 
     pose: Pose
-    camera: Camera
+    camera: FrameSensor  # a camera or sensor file's (sensor_file.load_sensor)
     name: str = ""
 
     @property
@@ -258,8 +259,8 @@ def load_rpc_scenario(path) -> RPCScenario:
     elif kind == "frame":
         cam_rel = data.get("camera")
         if not isinstance(cam_rel, str):
-            raise ValueError(f"{src}: camera = {cam_rel!r} must be the path of a camera file")
-        camera = Camera.from_toml(_resolve(cam_rel, path.parent, f"{src}: camera"))
+            raise ValueError(f"{src}: camera = {cam_rel!r} must be the path of a camera or sensor file")
+        camera = load_sensor(_resolve(cam_rel, path.parent, f"{src}: camera"))
         pose_d = data.get("pose")
         if not isinstance(pose_d, dict):
             raise ValueError(f"{src}: missing table [pose]")
