@@ -17,6 +17,7 @@ from scipy import stats as sps
 from geoloc.analysis import montecarlo as mc
 from geoloc.analysis.errormodel import Distribution, ErrorModel
 from geoloc.assets import asset_path
+from geoloc.sensors.camera import camera_from_sensor
 from geoloc.cli import main
 
 SCEN = asset_path("scenarios", "qiao2017_table1.toml")
@@ -159,7 +160,7 @@ def test_table2_rotations_act_about_their_axes(model, gp_deg):
     # image-centre error: 0.6 um / 7 um pitch along rows = a pitch-like rotation of
     # 0.6e-6 / f_m rad
     img = mc.first_order(only(m0, image_centre_x_um=Distribution("normal", 0.6)))
-    f_m = model.camera.focal_length_px * model.camera.pixel_pitch_m
+    f_m = model.camera.lens.fx * model.camera.pixel_pitch_m
     pitch_img = mc.first_order(only(m0, gimbal_pitch_deg=Distribution("normal", math.degrees(0.6e-6 / f_m))))
     assert img.cep_m == pytest.approx(pitch_img.cep_m, rel=1e-3)
     assert pitch.cep_m > 0
@@ -372,7 +373,7 @@ def chain_reference(model, errs):
     from geoloc.surfaces.height import HeightSurface
 
     pose, chain, row, col = mc.perturbed_geometry(model, errs)
-    los = model.camera.chain_line_of_sight(pose, row, col, chain=chain)
+    los = camera_from_sensor(model.camera).chain_line_of_sight(pose, row, col, chain=chain)  # the file's form
     g = HeightSurface(model.target_h_m + errs.get("target_h_m", 0.0), model.surface).intersect(los)
     return g.lat, g.lon, g.h, np.asarray(g.status, np.uint8)
 

@@ -53,7 +53,8 @@ def test_mount_and_boresight_draws_equal_the_sensor_with_those_parameters(model)
 def test_a_mount_sigma_spreads_the_points_as_the_same_gimbal_encoder_sigma(model):
     # a mount draw about the body's x axis at zero attitude errors acts as a gimbal-roll error
     # of the same size ([Q17]'s outer gimbal turns about body X too): equal spreads
-    base = dataclasses.replace(model, camera=dataclasses.replace(model.camera, mount=None, boresight=None),
+    base = dataclasses.replace(model, camera=dataclasses.replace(model.camera, mount=(0.0, 0.0, 0.0),
+                                                                         boresight=(0.0, 0.0, 0.0)),
                                errors={})
     a = dataclasses.replace(base, errors={"mount_x_deg": Distribution("normal", math.radians(0.01))})
     b = dataclasses.replace(base, errors={"gimbal_roll_deg": Distribution("normal", math.radians(0.01))})

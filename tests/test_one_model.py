@@ -46,13 +46,9 @@ KNOWN_CAMERA_CHECKS: set = set()
 CAMERA_REEXPORT = {"geoloc"}
 
 #: Modules outside the file format that still import ``Camera`` (may only shrink; a camera or sensor
-#: file loads as a FrameSensor, ``sensors.sensor_file.load_sensor``).
-KNOWN_CAMERA_IMPORTS = {
-    # a Monte Carlo scenario's inline [camera] table is read as a Camera: the [Q17] FrameChain
-    # reference (Camera.chain_line_of_sight) of workflows.reproduce's [L23] comparison and of
-    # tests/test_montecarlo.py takes it from ErrorModel.camera
-    "geoloc.analysis.errormodel",
-}
+#: file, or a Monte Carlo scenario's [camera] table, loads as a FrameSensor: ``sensor_file.load_sensor``,
+#: ``sensor_from_dict``): none left.
+KNOWN_CAMERA_IMPORTS: set = set()
 
 
 def module_name(path: Path) -> str:

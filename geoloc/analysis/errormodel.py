@@ -10,7 +10,7 @@ and metres. Conventions: ``docs/conventions.md``; user guide:
 File format (``assets/scenarios/qiao2017_table1.toml`` is a complete example)::
 
     name = "..."
-    [camera]            # the keys of geoloc.sensors.camera.Camera (pixel_pitch_m needed
+    [camera]            # the keys of a camera file (docs/camera_format.md; pixel_pitch_m needed
                         # for the image-centre error in micrometres), or the tables of a
                         # sensor file ([camera.lens], [camera.gimbal] = roll-pitch,
                         # [camera.mount], ...: docs/sensor_format.md), e.g. a Brown lens
@@ -65,7 +65,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.frames.chain import Pose
-from geoloc.sensors.camera import Camera, as_sensor
+from geoloc.sensors.camera import as_sensor
 from geoloc.sensors.frame import FrameSensor
 from geoloc.tomlio import read_toml
 
@@ -175,9 +175,10 @@ class ErrorModel:
     Attributes
     ----------
     name : str
-    camera : Camera or FrameSensor
-        The [camera] table: a first-phase camera, or a sensor (a lens of any model on the
-        ``roll-pitch`` gimbal, whose two angles the [nominal] table gives).
+    camera : FrameSensor
+        The [camera] table's sensor: a first-phase camera's keys (a pinhole, with its
+        ``pixel_pitch_m``) or a sensor file's tables (a lens of any model), on the
+        ``roll-pitch`` gimbal, whose two angles the [nominal] table gives.
     nominal : dict
         The [nominal] table: ``POSE_KEYS`` -> value (degrees, metres).
     target_h_m : float
@@ -196,7 +197,7 @@ class ErrorModel:
     """
 
     name: str
-    camera: Camera | FrameSensor
+    camera: FrameSensor
     nominal: dict
     target_h_m: float
     row: float
@@ -348,11 +349,10 @@ def check_pixel_pitch(errors: dict, camera, where: str) -> None:
 
 
 def camera_from_table(table, where: str):
-    """The [camera] table: a first-phase :class:`Camera`, or (with a ``lens`` table) a sensor."""
+    """The [camera] table's :class:`FrameSensor`: a camera file's keys or a sensor file's tables
+    (:func:`geoloc.sensors.sensor_file.sensor_from_dict`, the one reader of both)."""
     if not isinstance(table, dict):
         raise ValueError(f"{where} = {table!r}: must be a table")
-    if "lens" not in table:
-        return Camera.from_dict(dict(table), source=where)
     from geoloc.sensors.sensor_file import sensor_from_dict
 
     sensor = sensor_from_dict(dict(table), source=where)
@@ -361,8 +361,8 @@ def camera_from_table(table, where: str):
 
 
 def check_camera(camera, where: str) -> None:
-    """A Monte Carlo camera: a :class:`Camera`, or a :class:`FrameSensor`, on the roll-pitch gimbal
-    (a camera file's sensor is: :func:`geoloc.sensors.camera.as_sensor`)."""
+    """A Monte Carlo camera: a :class:`FrameSensor` on the roll-pitch gimbal (a first-phase
+    :class:`geoloc.sensors.camera.Camera` built in Python is taken as its sensor, ``as_sensor``)."""
     try:
         sensor = as_sensor(camera)
     except ValueError:

@@ -21,6 +21,7 @@ from geoloc.analysis import montecarlo as mc
 from geoloc.analysis.errormodel import ErrorModel
 from geoloc.workflows.scenario import load_scenario
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
+from geoloc.sensors.camera import camera_from_sensor
 from geoloc.sensors.sensor_file import load_sensor
 
 #: Bundled scenario of [Q17] Tables 1-2 (ellipsoid model).
@@ -238,7 +239,9 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
     errs["gimbal_roll_deg"] = errs.get("gimbal_roll_deg", 0.0) + np.radians(
         angles - dmodel.nominal["gimbal_roll_deg"])
     pose, chain, row, col = mc.perturbed_geometry(dmodel, errs)
-    los_a = dmodel.camera.chain_line_of_sight(pose, row, col, chain=chain)  # the [Q17] chain, as the paper
+    # the [Q17] chain, as the paper: the scenario camera's file form (exact: camera_from_sensor
+    # inverts to_sensor) on the batched FrameChain
+    los_a = camera_from_sensor(dmodel.camera).chain_line_of_sight(pose, row, col, chain=chain)
     records = load_records(asset_path(*DEFAULT_RECORDS))
     los_b = records_line_of_sight(records, load_sensor(asset_path(*DEFAULT_CAMERA)))
     from geoloc.surfaces.base import LineOfSight
