@@ -517,3 +517,69 @@ def test_write_rows_reads_back_in_the_gis_reader(tmp_path):
     assert np.isfinite(table["error_to_truth_m"][0]) and np.isfinite(table["vertical_error_m"][0])
     assert table["sensor_h_m"][0] == pytest.approx(rows[0]["sensor_h_m"])
     assert "w.jpg: 1/1 targets located" in summarize(rows, msgs)
+
+
+# --------------------------------------------------------------------------- one target in several photos
+
+def _photos_around(tmp_path, g_h, n=3, dist=150.0):
+    """``n`` nadir-free photos from around a ground point G = (LAT, LON, g_h), each looking near
+    it; the pixel that sees G in each, from the photo's own sensor and pose as read back."""
+    import pyproj
+
+    from geoloc.io.photos import pose_from_photo, read_photo, sensor_from_photo
+    from geoloc.status import Status
+
+    geod = pyproj.Geod(ellps="WGS84")
+    paths, pixels = [], []
+    for i in range(n):
+        az = 30.0 + 360.0 * i / n
+        lon, lat, back = geod.fwd(LON, LAT, az, dist)
+        h_cam = 412.6 + float(egm96_undulation(math.radians(lat), math.radians(lon)))  # AbsoluteAltitude, EGM96
+        pitch = -math.degrees(math.atan2(h_cam - g_h, dist))
+        tags = {"GpsLatitude": f"{lat:.8f}", "GpsLongitude": f"{lon:.8f}",
+                "GimbalYawDegree": f"{(back + 180) % 360 - 180:+.2f}", "GimbalPitchDegree": f"{pitch:+.2f}"}
+        p = make_jpeg(tmp_path / f"p{i}.jpg", tags=tags, exif=exif_block(lat=lat, lon=lon))
+        meta = read_photo(p)
+        px = sensor_from_photo(meta).ground_to_pixel(math.radians(LAT), math.radians(LON), g_h,
+                                                     pose_from_photo(meta))
+        assert int(np.asarray(px.status)) == Status.OK
+        paths.append(p)
+        pixels.append((float(np.asarray(px.row)), float(np.asarray(px.col))))
+    return paths, pixels
+
+
+def test_a_target_id_in_the_targets_file_is_triangulated_from_its_photos(tmp_path, capsys):
+    """Issue 29 item 6 for drone photos: the pixel that sees G in each of three photos, one
+    ``target_id``: the rays' intersection is G (pyproj's ECEF, not the code under test) to a
+    millimetre; a DEM 30 m above G is reported as a likely DEM or datum error (+30 m, the DEM's own
+    offset), a DEM through G is not."""
+    import pyproj
+
+    from geoloc.cli import main
+    from geoloc.status import Status
+
+    g_h = 250.0
+    paths, pixels = _photos_around(tmp_path, g_h)
+    rows = [[p.name, r, c, "G", g_h] for p, (r, c) in zip(paths, pixels)]
+    rows.append([paths[0].name, 300.5, 400.5, "alone", g_h])  # named once: not triangulated
+    t = write_targets(tmp_path / "t.csv", rows, header="image,row,col,target_id,truth_h_m")
+    G = np.array(pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True).transform(LON, LAT, g_h))
+    for offset, warned in ((30.0, True), (0.0, False)):
+        dem = DEM.from_array(np.full((41, 41), g_h + offset), LAT + 0.02, LON - 0.02, 0.001, 0.001)
+        found = []
+        out, _ = replay_photos(paths, t, surface=surface_for(dem=dem), targets_out=found)
+        assert len(out) == 4 and [r.target_id for r in found] == ["G"]
+        tri = found[0].tri
+        assert tri.status == Status.OK and tri.n_rays == 3
+        # each ray passes through G (ground_to_pixel's inversion: 1e-9 px over 200 m): they meet there
+        assert np.linalg.norm(np.asarray(tri.ecef) - G) < 1e-3
+        assert np.nanmax(tri.residual_m) < 1e-3
+        s = found[0].surface
+        # a level DEM: every photo's hit is at its height, the offset above G (the solver's 1e-3 m)
+        assert s["mean_m"] == pytest.approx(offset, abs=1e-2)
+        assert bool(s["warning"]) == warned and (not warned or "likely DEM or datum error" in s["warning"])
+    # the command line prints the target (located at truth_h_m: no DEM)
+    assert main(["replay", *map(str, paths), "--targets", str(t)]) == 0
+    text = capsys.readouterr().out
+    assert f"target G: {LAT:.7f} {LON:.7f} h {g_h:.1f} m" in text and "from 3 rays" in text
+    assert "target alone" not in text

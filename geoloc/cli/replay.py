@@ -326,10 +326,14 @@ def _run_photos(args, inputs) -> int:
     sensor = sensor_from_args(args, default=False)
     surface = surface_from_args(args) if args.dem else None  # else: each target at its truth_h_m
     extra = {"altitude_datum": args.altitude_datum} if getattr(args, "altitude_datum", None) else {}
-    rows, messages = replay_photos(photos, args.targets, sensor=sensor, surface=surface, **extra)
+    targets = []  # a target_id column: each target seen in several photos, triangulated
+    rows, messages = replay_photos(photos, args.targets, sensor=sensor, surface=surface, targets_out=targets,
+                                   **extra)
     for m in messages:
         print(f"geoloc replay: {m}", file=sys.stderr)
     print(summarize(rows, messages))
+    for line in summary_lines(targets):
+        print(line)
     if args.out:
         write_rows(args.out, rows)
         print(f"wrote {len(rows)} rows to {args.out}")

@@ -42,6 +42,7 @@ from geoloc.status import Status, names
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
 from geoloc.userfiles import atomic_path
+from geoloc.workflows.triangulation import TARGET_ID_COLUMN, triangulate_ids
 
 __all__ = ["OUTPUT_COLUMNS", "read_targets", "replay_photos", "summarize", "write_rows"]
 
@@ -158,7 +159,7 @@ def _resolve(image: str, index: dict):
 
 
 def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
-                  altitude_datum: str = "egm96", truth_h_datum: str = "ellipsoid"):
+                  altitude_datum: str = "egm96", truth_h_datum: str = "ellipsoid", targets_out: list | None = None):
     """Locate every target of ``targets_csv`` in its photo and compare it with its truth.
 
     Parameters
@@ -181,6 +182,12 @@ def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
         non-RTK aircraft; ``docs/photos.md``).
     truth_h_datum : {"ellipsoid", "egm96"}
         Datum of ``truth_h_m`` (default ellipsoidal, as every height in geoloc).
+    targets_out : list, optional
+        With a ``target_id`` column in the targets file: each target named in two rows or more
+        (seen in several photos) is triangulated from its photos' rays, without any DEM, and its
+        :class:`geoloc.workflows.triangulation.TargetResult` appended here (with a DEM, its
+        ``surface``: each photo's DEM hit against the intersection;
+        :func:`geoloc.workflows.triangulation.triangulate_ids`).
 
     Returns
     -------
@@ -265,7 +272,29 @@ def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
     for key, ks in by_photo.items():
         out.update(_locate_photo(photos[key], [targets[k] for k in ks], ks, surface,
                                  altitude_datum, truth_h_datum, extra, messages))
+    if targets_out is not None and TARGET_ID_COLUMN in header:
+        targets_out.extend(_triangulate_targets(photos, targets, by_photo, out, surface is not None))
     return [out[k] for k in order], messages
+
+
+def _triangulate_targets(photos, targets, by_photo, located, on_surface: bool) -> list:
+    """The targets named in several rows (``target_id``): each row's ray from its own photo."""
+    ks, O, D, ok = [], [], [], []
+    for key, kk in by_photo.items():
+        ph = photos[key]
+        los = ph["sensor"].line_of_sight(np.array([targets[k]["row"] for k in kk]),
+                                         np.array([targets[k]["col"] for k in kk]), ph["pose"])
+        ks.extend(kk)
+        O.append(np.asarray(los.origin_ecef, float).reshape(-1, 3))
+        D.append(np.asarray(los.direction_ecef, float).reshape(-1, 3))
+        ok.append(np.asarray(los.status).reshape(-1) == Status.OK)
+    if not ks:
+        return []
+    h = [located[k]["h_m"] if located[k]["h_m"] is not None else math.nan for k in ks]
+    return triangulate_ids([targets[k].get(TARGET_ID_COLUMN, "") for k in ks], np.concatenate(O),
+                           np.concatenate(D), np.concatenate(ok), [targets[k]["line"] for k in ks],
+                           np.array(h, float) if on_surface else None,
+                           [located[k]["status"] == "ok" for k in ks])
 
 
 def _datum_messages(meta, altitude_datum, h_cam, n, dem) -> list:

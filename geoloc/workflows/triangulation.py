@@ -1,7 +1,9 @@
 """Targets seen in several records: triangulate each one and check the surface against it.
 
-A records file (or a targets file read as records) with a ``target_id`` column names the same
-target in several rows (frames). :func:`triangulate_records` intersects each target's rays
+A records file with a ``target_id`` column names the same target in several rows (frames);
+so does a drone photos' targets file (``geoloc replay PHOTOS... --targets T.csv``: each row a
+pixel of one photo, :func:`triangulate_ids` from each photo's own ray, in
+:func:`geoloc.workflows.photo_replay.replay_photos`). :func:`triangulate_records` intersects each target's rays
 (:func:`geoloc.analysis.triangulate.triangulate`), gives its covariance when the sensor has an
 error budget, each ray's residual, and compares the intersection with each frame's hit on the
 surface the replay used (:func:`geoloc.analysis.triangulate.compare_with_surface`): a consistent
@@ -70,6 +72,49 @@ def triangulate_records(records: Records, sensor, budget=None, surface_h_m=None,
         if surface_h_m is not None and tri.status == Status.OK:
             ok = None if surface_ok is None else np.asarray(surface_ok)[idx]
             res.surface = compare_with_surface(tri, np.asarray(surface_h_m, float)[idx], ok)
+        out.append(res)
+    return out
+
+
+def triangulate_ids(ids, origins, directions, ok, lines, surface_h_m=None, surface_ok=None) -> list:
+    """Triangulate every target id named by two rays or more, from the rays themselves (each ray
+    from its own frame's sensor: drone photos each have theirs), without a budget.
+
+    Parameters
+    ----------
+    ids : sequence of str
+        Each ray's target id ('' for none).
+    origins, directions : array_like (n, 3)
+        The rays in ECEF [m] (:class:`geoloc.surfaces.base.LineOfSight`'s).
+    ok : array_like (n,) of bool
+        Rays that may be used.
+    lines : sequence of int
+        Each ray's line in its file (for the messages).
+    surface_h_m, surface_ok : array_like (n,), optional
+        Each ray's located height on the replay's surface and whether it was located: the
+        DEM / datum check (:func:`geoloc.analysis.triangulate.compare_with_surface`).
+
+    Returns
+    -------
+    list of TargetResult
+        In the order the ids first appear.
+    """
+    from geoloc.analysis.triangulate import triangulate_rays
+
+    O = np.asarray(origins, float).reshape(-1, 3)
+    D = np.asarray(directions, float).reshape(-1, 3)
+    ok = np.asarray(ok, bool).reshape(-1)
+    ids = [str(i).strip() for i in ids]
+    out = []
+    for tid in dict.fromkeys(i for i in ids if i):
+        idx = np.array([k for k, i in enumerate(ids) if i == tid])
+        if idx.size < 2:
+            continue
+        tri = triangulate_rays(O[idx], D[idx], ok[idx])
+        res = TargetResult(tid, idx, [int(lines[k]) for k in idx], tri)
+        if surface_h_m is not None and tri.status == Status.OK:
+            good = ok[idx] if surface_ok is None else ok[idx] & np.asarray(surface_ok, bool)[idx]
+            res.surface = compare_with_surface(tri, np.asarray(surface_h_m, float)[idx], good)
         out.append(res)
     return out
 
