@@ -26,14 +26,10 @@ DEM_OPENERS = {("DEM", "open"), ("DemMosaic", "open"), (None, "open_dem_or_mosai
 DEM_OPENER_SCOPE = ("geoloc.workflows", "geoloc.analysis", "geoloc.viz.rerun_terrain", "geoloc.viz.rerun_model",
                     "geoloc.viz.rerun_log")
 
-#: Modules in DEM_OPENER_SCOPE that still open a DEM, and why (may only shrink).
-KNOWN_DEM_OPENERS = {
-    # the rerun recordings draw one raster's mesh and its solver's trace (a mosaic keeps none), named
-    # by the flight scenario file or `geoloc log --dem`: each recording opens that raster once
-    # (DEM.open) and hands it down (rerun_terrain.dem_steps takes it opened)
-    "geoloc.viz.rerun_model",
-    "geoloc.viz.rerun_log",
-}
+#: Modules in DEM_OPENER_SCOPE that still open a DEM, and why (may only shrink): none left. The
+#: rerun recordings, which draw one raster's mesh and its solver's trace, open it once per recording
+#: through the one way, ``SurfaceSpec(dem=...).raster()`` (a mosaic refused by name).
+KNOWN_DEM_OPENERS: set = set()
 
 #: Modules that are the first-phase camera file format (they may know the Camera type).
 CAMERA_FORMAT = {"geoloc.sensors.camera", "geoloc.sensors.sensor_file"}
@@ -188,3 +184,22 @@ def test_the_checks_find_planted_cases():
     assert camera_imports(tree, "geoloc.x") == [6]
     assert mosaic_attribute_checks(tree) == [7]
     assert surface_dem_asks(tree) == [7, 7]
+
+
+def test_the_rerun_recordings_raster_comes_from_the_one_way(tmp_path):
+    """``SurfaceSpec.raster`` (the rerun recordings' DEM) is the raster ``build`` reads, and refuses a mosaic."""
+    import pytest
+    import rasterio
+
+    from geoloc.assets import asset_path
+    from geoloc.surfaces.dem import DEM
+    from geoloc.surfaces.spec import SurfaceSpec
+
+    path = asset_path("dem", "srtm_jacksboro.tif")
+    d = SurfaceSpec(dem=str(path), dem_datum="egm96").raster()
+    with rasterio.open(path) as ds:  # GDAL's own reading of the file: the node grid
+        assert isinstance(d, DEM) and d.shape == (ds.height, ds.width)
+    assert SurfaceSpec().raster() is None
+    for mosaic in (str(tmp_path), (str(path), str(path))):
+        with pytest.raises(ValueError, match="is a mosaic"):
+            SurfaceSpec(dem=mosaic).raster("--dem")

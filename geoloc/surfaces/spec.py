@@ -72,6 +72,20 @@ class SurfaceSpec:
         """The tolerances that were given (``eps_h``, ``threshold``)."""
         return {k: v for k, v in (("eps_h", self.eps_h), ("threshold", self.threshold)) if v is not None}
 
+    def raster(self, what: str = "--dem"):
+        """The one DEM raster the spec names (a :class:`~geoloc.surfaces.dem.DEM`), opened by
+        :meth:`build`; None without a DEM. For a consumer that draws or samples one raster (the
+        rerun recordings' mesh and solver trace): a mosaic (a folder, a ``.vrt``, several
+        files) is a ValueError naming ``what`` and the path."""
+        from geoloc.surfaces.base import terrain_of
+
+        if self.dem is None:
+            return None
+        if isinstance(self.dem, tuple) or Path(self.dem).is_dir() or self.dem.lower().endswith(".vrt"):
+            shown = ", ".join(self.dem) if isinstance(self.dem, tuple) else self.dem
+            raise ValueError(f"{what} {shown} is a mosaic: this reads one DEM raster, not a mosaic")
+        return terrain_of(self.build())
+
     def build(self, heights=None, *, whole: bool = False):
         """The :class:`~geoloc.surfaces.base.Surface`: the DEM if one is named, else the heights.
 

@@ -717,11 +717,11 @@ class LiveRecording:
                  window: int = 18000):
         from collections import deque
 
-        from geoloc.surfaces.dem import DEM
+        from geoloc.surfaces.spec import SurfaceSpec
 
         self.out, self.label, self.camera = out, str(label), camera
         self.kw = dict(method=method, eps_h_m=eps_h_m, threshold_m=threshold_m)
-        self.dem = DEM.open(dem_path, datum=dem_datum) if dem_path is not None else None  # once a session
+        self.dem = SurfaceSpec(dem=dem_path, dem_datum=dem_datum).raster()  # once a session
         self.display_scale = float(display_scale)
         self.sinks = dict(serve=serve, grpc_port=grpc_port, grpc_host=grpc_host, spawn=spawn)
         self.rec = None

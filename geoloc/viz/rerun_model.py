@@ -45,7 +45,7 @@ from geoloc.io.records import load_records
 from geoloc.locate import as_sensor, line_of_sight
 from geoloc.sensors.frame import FrameSensor
 from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
-from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.spec import SurfaceSpec
 from geoloc.surfaces.height import intersect_los_height
 from geoloc.viz.rerun_terrain import TerrainSteps, dem_steps
 from geoloc.workflows.flight import FlightScenario, simulate
@@ -265,7 +265,7 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None) ->
     truth = None
     extra = {}
     # the scenario's DEM, opened once: the located points, the exact truth and the mesh
-    dem = DEM.open(scn.dem_path, datum=scn.dem_datum) if scn.dem_path is not None else None
+    dem = SurfaceSpec(dem=scn.dem_path, dem_datum=scn.dem_datum).raster(f"{scn.name}: dem")
     notes = [f"scenario: {scn.name}", f"{n} steps at {scn.rate_hz:g} Hz, "
              f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
              f"period {scn.scan_period_s:g} s"]
@@ -341,7 +341,8 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
     terrain = None
     notes = [f"records: {Path(path).name} ({len(recs)} records)"]
     if dem_path is not None:
-        ground, terrain = _terrain(los, DEM.open(dem_path, datum=dem_datum), method, eps_h_m, threshold_m)
+        ground, terrain = _terrain(los, SurfaceSpec(dem=dem_path, dem_datum=dem_datum).raster(), method, eps_h_m,
+                                   threshold_m)
         notes.append(f"located on {Path(dem_path).name} ({dem_datum}) by '{method}'")
     else:
         if target_h_m is not None:
@@ -527,7 +528,7 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     from geoloc.surfaces.terrain import surface_for
 
     if dem is None:
-        dem = DEM.open(dem_path, datum=dem_datum) if dem_path is not None else None
+        dem = SurfaceSpec(dem=dem_path, dem_datum=dem_datum).raster()
     dem_options = {}
     if eps_h_m is not None:
         dem_options["eps_h"] = float(eps_h_m)
