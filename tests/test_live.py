@@ -196,6 +196,7 @@ def _live_frame_pts(path) -> tuple[list, list]:
     res = rx.flush()
     if res:
         live.add(res)
+    live.flush()
     return live.columns()["frame_pts_s"].tolist(), ffmpeg_nearest_frame_s(path)
 
 
@@ -212,13 +213,15 @@ def test_each_packet_is_bound_to_the_nearest_frame_as_it_arrives(tmp_path):
     """The live path (a batch replayed when its datagram completes it, before the rest of the stream
     has come) binds each packet to FFmpeg's nearest video frame: the bundled flight (frames and
     packets on one clock; a video PES has no length, so a frame completes only at the next one's start,
-    after its KLV packet: its time is taken from its first TS packet) and packets 1/3 frame late."""
+    after its KLV packet: its time is taken from its first TS packet), packets 1/3 frame late (nearest
+    the frame before) and 2/3 late (nearest the next frame, muxed after them: they wait for its start)."""
     got, want = _live_frame_pts(TS)
     assert len(got) == 299 and got == want  # the same division of the same integers: exact
-    path = tmp_path / "late.ts"
-    _mux_late_klv(path, 1000)
-    got, want = _live_frame_pts(path)
-    assert len(got) == 30 and got == want
+    for late in (1000, 2000):
+        path = tmp_path / f"late{late}.ts"
+        _mux_late_klv(path, late)
+        got, want = _live_frame_pts(path)
+        assert len(got) == 30 and got == want, late
 
 
 def _mangle(data, rng, loss=0.0, swap=0.0, dup=0.0):

@@ -283,6 +283,9 @@ def _run_live(args, inputs) -> int:
 
         for _ in receive(url, receiver=rx, record=record, on_batch=batch, sock=sock, **limits):
             pass
+        r = live.flush()  # the packets still waiting for their video frame
+        if r is not None:
+            print(live.row_text(r), flush=True)
     print(live.summary())
     print(f"  stream: {rx.stats.line()}")
     if args.out:

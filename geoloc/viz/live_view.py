@@ -154,6 +154,7 @@ class LiveFeed:
             for _ in receive(self.url, receiver=self.rx, record=self.record, on_batch=self._batch,
                              stop=lambda: self._stop, sock=self.sock, **self.limits):
                 pass
+            self._took(self.replay.flush())  # the packets still waiting for their video frame
         except Exception as e:  # a bind that fails, a bug: shown in the panel, never a dead viewer
             self.error = f"{type(e).__name__}: {e}"
             print(f"geoloc view --live: {self.error}", file=sys.stderr)
@@ -164,6 +165,10 @@ class LiveFeed:
         r = self.replay.add(results)
         if self.decode_video:
             self._decode()
+        self._took(r)
+
+    def _took(self, r) -> None:
+        """A replayed batch to the tabs (None: nothing was ready)."""
         if r is None:
             return
         with self._lock:

@@ -10,7 +10,13 @@ nature: ``outlier`` is causal, the robust rule of
 :func:`geoloc.workflows.klv_replay.outlier_mask` over the window of packets
 received so far (a file's replay judges each packet against the whole file), and
 ``file`` names the stream. A live row also has ``frame_pts_s``: the presentation
-time of the nearest video frame received (NaN without video).
+time of the nearest video frame (NaN without video). A muxer interleaves by time
+stamp, so a packet nearer the next frame than the last one comes before that
+frame: with video in the stream, a packet is replayed once a frame at or after
+its time has started (the next frame's first TS packet; at most
+:data:`BIND_WAIT_S` of the KLV clock), so that its frame is the nearest one, as
+in the file; the packets after it wait with it (the rows keep their order), and
+:meth:`LiveReplay.flush` replays the last ones at the end of the stream.
 
 The journal (``journal``: a text file) gets the rows as CSV as they come, in the
 format of :func:`geoloc.workflows.klv_replay.write_klv_csv`, flushed after every
@@ -39,6 +45,10 @@ __all__ = ["LiveReplay", "WINDOW"]
 
 #: Rows kept in memory (about 10 minutes at 30 Hz); the journal has them all.
 WINDOW = 18000
+#: A packet whose nearest video frame may still come (no frame at or after its time has started)
+#: waits for one until a packet this much later on the KLV clock has come [s] (video stopped,
+#: or far behind: it is then bound to the nearest frame there is).
+BIND_WAIT_S = 0.5
 
 
 class LiveReplay:
@@ -74,23 +84,56 @@ class LiveReplay:
         self.window: deque = deque(maxlen=int(window))  # one dict of column -> value per row
         self._err: deque = deque(maxlen=int(window))  # frame-centre errors, for the causal outliers
         self.last: KlvReplay | None = None
+        self._waiting: list = []  # (packet, number): their nearest frame may still come
+        self._errs: list = []  # bad packets since the last replay (its read's errors)
 
     def add(self, results) -> KlvReplay | None:
-        """Replay one batch of :class:`Packet` / :class:`KlvError`; returns its replay (None: no good packet)."""
-        packets, number = [], []
-        errs = []
+        """Replay one batch of :class:`Packet` / :class:`KlvError`; returns the replay of the packets
+        it made ready (None: none; see the module docstring on packets waiting for their frame)."""
         for r in results:
             if isinstance(r, Packet):
-                packets.append(r)
-                number.append(self.seq)
+                self._waiting.append((r, self.seq))
                 self.seq += 1
             elif isinstance(r, KlvError):
-                errs.append(r)
+                self._errs.append(r)
+                self.errors.append(r)
+                self.errors_total += 1
                 self.seq += 0 if _is_stray(r) else 1
-        self.errors.extend(errs)
-        self.errors_total += len(errs)
-        if not packets:
+        return self._replay_ready(self._ready())
+
+    def flush(self) -> KlvReplay | None:
+        """Replay the packets still waiting for their frame (the end of the stream)."""
+        return self._replay_ready(len(self._waiting))
+
+    def _ready(self) -> int:
+        """How many of the waiting packets (from the first) have their nearest frame known."""
+        rx = self.receiver
+        if not self._waiting:
+            return 0
+        if rx is None or not any(kind == "video" for kind, _ in rx.demux.streams.values()):
+            return len(self._waiting)  # no video stream: nothing to wait for
+        starts = rx.demux.video_starts
+        newest_frame = max((starts[-k] for k in range(1, min(len(starts), 8) + 1)), default=None)
+        newest_klv = self._waiting[-1][0].pts
+        n = 0
+        for p, _ in self._waiting:
+            if p.pts is None or newest_klv is None or newest_klv < p.pts:  # no clock, or it went back
+                n += 1
+            elif newest_frame is not None and newest_frame >= p.pts:  # any later frame is farther
+                n += 1
+            elif newest_klv - p.pts >= BIND_WAIT_S * 90000:  # the frame does not come: no more waiting
+                n += 1
+            else:
+                break
+        return n
+
+    def _replay_ready(self, n: int) -> KlvReplay | None:
+        if not n:
             return None
+        ready, self._waiting = self._waiting[:n], self._waiting[n:]
+        packets = [p for p, _ in ready]
+        number = [k for _, k in ready]
+        errs, self._errs = self._errs, []
         pts_s = np.array([np.nan if p.time_s is None else p.time_s for p in packets], float)
         read = KlvRead(self.label, packets_to_columns(packets), errs, pts_s, np.array(number, np.int64))
         r = _replay(read, self.surface, self.sensor)
