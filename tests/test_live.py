@@ -103,6 +103,79 @@ def test_binds_only_the_given_address_and_says_what_is_exposed():
     assert "multicast group 239.1.2.3" in exposure_note(parse_udp_url("udp://239.1.2.3:5600"))
 
 
+def _igmp_groups() -> set:
+    """(device, group) of this machine's multicast memberships, from Linux's /proc/net/igmp (each group
+    the little-endian hex of its IPv4 address, under its device's line)."""
+    try:
+        lines = Path("/proc/net/igmp").read_text().splitlines()[1:]
+    except OSError:
+        pytest.skip("no /proc/net/igmp to read the memberships from")
+    out, dev = set(), None
+    for line in lines:
+        f = line.split()
+        if not line[:1].isspace():
+            dev = f[1]
+        elif f:
+            out.add((dev, socket.inet_ntoa(bytes.fromhex(f[0])[::-1])))
+    return out
+
+
+def test_a_multicast_group_is_joined_only_when_given(capsys):
+    """A unicast URL joins no group; `klv dump udp://GROUP:PORT?iface=127.0.0.1` joins GROUP on loopback
+    only while it listens, says so, and gets the bundled flight sent to the group (out of loopback: the
+    datagrams never leave this machine) as FFmpeg reads the file."""
+    import json
+
+    port = free_port()
+    group = f"239.255.{port >> 8}.{port & 0xFF}"  # of this test's port: no other run's group
+    s = open_socket(parse_udp_url(f"udp://127.0.0.1:{port}"))
+    try:
+        assert not {g for g in _igmp_groups() if g[1] == group}
+    finally:
+        s.close()
+    url = f"udp://{group}:{port}?iface=127.0.0.1"
+    joined = []
+
+    def run():
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 60 and not joined:
+            joined.extend(g for g in _igmp_groups() if g[1] == group)
+            time.sleep(0.02)
+        send(TS, url, speed=50.0)
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    rc = _run_cli(["klv", "dump", url, "--idle", "1.5", "--duration", "60"])
+    th.join(30)
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    assert joined == [("lo", group)]  # on the interface asked, and no other
+    assert f"joining multicast group {group} on port {port} (interface 127.0.0.1)" in cap.err
+    assert [json.loads(x) for x in cap.out.splitlines()] == [r.to_json() for r in reference() if isinstance(r, Packet)]
+    assert not {g for g in _igmp_groups() if g[1] == group}  # left with the socket
+
+
+@pytest.mark.parametrize("verb", ["klv dump", "replay", "log", "view --live"])
+def test_a_bind_outside_loopback_says_what_it_exposes(verb, tmp_path, capsys, rerun_home):
+    """Each verb bound to udp://0.0.0.0:PORT (every interface: for half a second) prints what that
+    exposes before it listens; on 127.0.0.1 it prints no such note."""
+    port = free_port()
+    for host in ("0.0.0.0", "127.0.0.1"):
+        url = f"udp://{host}:{port}"
+        if verb == "view --live":
+            from geoloc.viz.live_view import LiveFeed
+
+            LiveFeed(url, limits={"duration_s": 0.5}).stop()  # binds, as `geoloc view --live` does first
+        else:
+            argv = verb.split() + [url, "--duration", "0.5"]
+            argv += ["--out", str(tmp_path / "x.rrd")] if verb == "log" else []
+            _run_cli(argv)  # nothing comes: the verb may say so and exit 1
+        err = capsys.readouterr().err
+        note = f"note: listening for UDP on every interface, port {port}"
+        assert (note in err) == (host == "0.0.0.0"), (host, err)
+        assert "Traceback" not in err
+
+
 def test_crc32_of_the_files_psi_sections_is_zero():
     # CRC-32/MPEG-2 check value of "123456789" is 0x0376E6E7 (the catalogue of parametrised CRCs)
     assert crc32_mpeg2(b"123456789") == 0x0376E6E7
@@ -379,6 +452,19 @@ def test_real_time_over_loopback(tmp_path):
         when.append(time.monotonic())
     th.join(10)
     assert got == want
+    # replayed one batch a packet, as the live replay takes them, the rows are the file replay's
+    from geoloc.workflows.klv_replay import replay_klv
+    from geoloc.workflows.live_replay import LiveReplay
+
+    live = LiveReplay("live", receiver=rx)
+    for r in got:
+        live.add([r])
+    live.flush()
+    rows, ref_rows = live.columns(), replay_klv(part).columns
+    assert len(rows["packet"]) == len(ref_rows["packet"]) == 6
+    for k, v in ref_rows.items():
+        if k != "file":
+            np.testing.assert_array_equal(rows[k], v, err_msg=k)  # the same code on the same packets
     # paced by the PTS: no packet later than its time stamp (0.8 s: thread scheduling of the sender and the
     # receiver on 2 cores shared with other jobs, load 10-18 seen), and the five seconds take five seconds
     # (a datagram leaves with the earliest PES it carries bytes of, so a packet whose start shares a

@@ -1088,7 +1088,7 @@ def send(source, url, *, speed: float | None = 1.0, per: int = DATAGRAM_PACKETS,
     source : path or bytes
         A ``.ts`` file (or its bytes).
     url : str or UdpUrl
-        Where to send (``udp://127.0.0.1:5600``; a multicast group with TTL 1).
+        Where to send (``udp://127.0.0.1:5600``; a multicast group with TTL 1, out of ``?iface=``).
     speed : float or None
         Pace: each datagram that starts a PES leaves at its PTS (from the first one)
         divided by ``speed``: 1 is real time, 10 ten times faster; None: as fast as
@@ -1142,6 +1142,8 @@ def send(source, url, *, speed: float | None = 1.0, per: int = DATAGRAM_PACKETS,
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
         if u.multicast:
             sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
+            if u.iface != "0.0.0.0":  # ?iface=: out of that interface (127.0.0.1: this machine only)
+                sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(u.iface))
     dest = (u.host, u.port)
     if start_delay_s:
         time.sleep(start_delay_s)
