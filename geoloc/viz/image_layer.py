@@ -472,12 +472,12 @@ class ImageLayer:
             return self.pick
 
     # ------------------------------------------------------------ one target, several frames
-    def _budget(self):
+    def _budget(self, velocity_known: bool = False):
         """(budget, note): the scenario's sensor file's, as this frame's sensor can carry it, else the
         illustrative one (:func:`geoloc.viz.uncertainty_layer.scenario_budget`)."""
         from geoloc.viz.uncertainty_layer import scenario_budget
 
-        b, note, _ = scenario_budget(self.scn, self.sensor)
+        b, note, _ = scenario_budget(self.scn, self.sensor, velocity_known)
         return b, note
 
     def _add_to_target(self) -> None:
@@ -487,9 +487,13 @@ class ImageLayer:
         s = self.session
         if self.pick is None or self.index is None:
             return
+        from geoloc.viz.uncertainty_layer import record_velocity
+
         self.target[self.index] = (self.sensor, copy.deepcopy(s.inputs), self.pick)
-        budget, note = self._budget()
-        self.target_rays = pm.triangulate_picks(s.scn, self.target, budget, note)
+        vel = {k: record_velocity(s.scn, k) for k in self.target}  # a KLV flight's: a time_s term
+        known = all(v is not None for v in vel.values())
+        budget, note = self._budget(known)
+        self.target_rays = pm.triangulate_picks(s.scn, self.target, budget, note, vel if known else None)
         self.md_target.content = pm.target_markdown(self.target_rays, len(self.target))
         self.draw_target()
 

@@ -127,6 +127,9 @@ class Scenario:
     description: str = ""
     source: str = ""  # records file name, for the title
     budget: object = None  # the sensor's error budget (geoloc.sensors.budget.ErrorBudget), if known
+    #: (n, 3) each record's platform velocity, north-east-down [m/s], NaN where unknown (a KLV
+    #: flight's: the KLV replay's, geoloc.workflows.klv_replay.platform_velocity_ned); None: no velocity
+    record_velocity_ned: object = None
 
 
 def frame_views(chain: BoundFrames, enu: EnuFrame) -> dict:

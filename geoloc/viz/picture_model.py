@@ -385,7 +385,8 @@ class TargetRays:
     budget_note: str = ""
 
 
-def triangulate_picks(scn, frames: dict, budget=None, budget_note: str = "") -> TargetRays | None:
+def triangulate_picks(scn, frames: dict, budget=None, budget_note: str = "", velocities: dict | None = None
+                      ) -> TargetRays | None:
     """The least-squares intersection of the rays of one target picked in several frames.
 
     Parameters
@@ -396,6 +397,9 @@ def triangulate_picks(scn, frames: dict, budget=None, budget_note: str = "") -> 
     budget : ErrorBudget, optional
         Gives each ray's weight and the covariance (:func:`geoloc.analysis.triangulate.triangulate_rays`:
         the sensor's own keys shared by every frame, the rest independent per frame).
+    velocities : dict, optional
+        Record index -> the platform's velocity (north, east, down) [m/s]: needed when the budget
+        has ``time_s``.
 
     Returns
     -------
@@ -416,7 +420,7 @@ def triangulate_picks(scn, frames: dict, budget=None, budget_note: str = "") -> 
     tri = None
     if budget is not None:
         ders = [chain_derivatives(frames[k][0], frames[k][1].pose(), frames[k][2].row, frames[k][2].col,
-                                  budget) for k in keys]
+                                  budget, None if velocities is None else velocities.get(k)) for k in keys]
         if all(d[0] == ders[0][0] for d in ders):  # the same sources in every frame
             dO = np.concatenate([d[1].reshape(1, 3, -1) for d in ders])
             dD = np.concatenate([d[2].reshape(1, 3, -1) for d in ders])

@@ -64,14 +64,24 @@ KLV_SUFFIXES = (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts")
 
 def records_from_klv(path, camera=None):
     """A MISB ST 0601 file as viewer records: one per good packet, its own frame centre as the
-    published point. Returns (sensor, [(RecordInfo, Inputs)]) (:mod:`geoloc.workflows.klv_replay`)."""
-    from geoloc.workflows.klv_replay import replay_klv
+    published point. Returns (sensor, [(RecordInfo, Inputs)], velocity): ``velocity`` (n, 3) is
+    each record's platform velocity, north-east-down [m/s] (NaN where unknown), as the KLV replay
+    takes it for a budget's ``time_s`` (:func:`geoloc.workflows.klv_replay.platform_velocity_ned`:
+    tags 79 / 80, else the packets' positions differenced over their time stamps)."""
+    from geoloc.workflows.klv_replay import klv_pose_deg, platform_velocity_ned, read_klv, replay_klv
 
-    r = replay_klv(path, sensor=camera)
-    out, _ = records_from_columns(r.columns, r.sensor)
+    read = read_klv(path)
+    r = replay_klv(read, sensor=camera)  # one row per packet read
+    c = r.columns
+    out, kept = records_from_columns(c, r.sensor)
     if not out:
         raise ValueError(f"{path}: no packet with a pose and sensor angles")
-    return r.sensor, out
+    pos = np.array([[klv_pose_deg(c, k)[f] for f in ("lat_deg", "lon_deg", "h_m")] for k in range(len(c["packet"]))],
+                   float).reshape(-1, 3)
+    tag = lambda name: np.asarray(read.columns[name], float) if name in read.columns else None  # noqa: E731
+    vel, _ = platform_velocity_ned(pos[:, 0], pos[:, 1], pos[:, 2], np.asarray(c["time_s"], float),
+                                   tag("sensor_north_velocity_m_s"), tag("sensor_east_velocity_m_s"))
+    return r.sensor, out, vel[kept]
 
 
 def records_from_columns(c, sensor) -> tuple[list, list]:
@@ -133,8 +143,9 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
         False to stay on the ellipsoid at each record's ``paper_height_m``.
     """
     records_path = Path(records_path) if records_path else Path(ASSETS).joinpath(*DEFAULT_RECORDS)
+    velocity = None
     if records_path.suffix.lower() in KLV_SUFFIXES:
-        camera, recs = records_from_klv(records_path, load_sensor(camera_path) if camera_path else None)
+        camera, recs, velocity = records_from_klv(records_path, load_sensor(camera_path) if camera_path else None)
     else:
         camera_path = camera_path or Path(ASSETS).joinpath(*DEFAULT_CAMERA)
         camera = load_sensor(camera_path)
@@ -159,6 +170,7 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
                    use_dem=use_dem, source=records_path.name,
                    description=f"records {records_path}, camera {camera.name or camera_path}")
     scn._user_dem = dem_path  # kept when another record is selected
+    scn.record_velocity_ned = velocity
     if camera_path:  # the sensor file's [uncertainty] table: the ellipse, the target's rays, the 99 % rule
         from geoloc.sensors.sensor_file import load_sensor_budget
 

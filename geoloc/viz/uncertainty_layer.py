@@ -13,7 +13,8 @@ against its own ellipse (1 = on the 90 % ellipse).
 
 The budget is the scenario's sensor file's ``[uncertainty]`` table (``scn.budget``, read by
 :func:`geoloc.viz.scenario.load_view_scenario`), less what the viewer cannot carry, said in the
-panel (:func:`usable_budget`: ``time_s``, the records carry no velocity; lens keys the frame's lens
+panel (:func:`usable_budget`: ``time_s`` where the record has no platform velocity, a records CSV;
+a KLV flight's records have theirs, ``Scenario.record_velocity_ned``; lens keys the frame's lens
 lacks, a KLV frame's lens being made from its fields of view); without one an illustrative budget
 (:func:`view_budget`) is used and the panel says so (:func:`scenario_budget`).
 Every number comes from the core; this module only draws. Conventions: ``docs/conventions.md``;
@@ -54,18 +55,19 @@ def view_budget(sensor, on_dem: bool) -> ErrorBudget:
     return ErrorBudget(b, None, "illustrative budget")
 
 
-def usable_budget(budget: ErrorBudget, sensor) -> tuple[ErrorBudget, list]:
+def usable_budget(budget: ErrorBudget, sensor, velocity_known: bool = False) -> tuple[ErrorBudget, list]:
     """``budget`` less the keys the viewer cannot propagate for ``sensor``, and a note per key left out.
 
-    ``time_s`` moves the platform by its velocity, which the viewer's records do not carry (as
-    ``geoloc replay`` leaves it out); a lens key (``k1``, ``fx_px``, ...) of a parameter the frame's
-    lens does not have is the sensor file's lens's, not this frame's (a KLV frame's lens is made
-    from its fields of view: ``geoloc.workflows.klv_replay.klv_sensor``)."""
+    ``time_s`` moves the platform by its velocity: without one (``velocity_known`` False: a records
+    CSV carries none) it is left out, as ``geoloc replay`` leaves it out; a lens key (``k1``,
+    ``fx_px``, ...) of a parameter the frame's lens does not have is the sensor file's lens's, not
+    this frame's (a KLV frame's lens is made from its fields of view:
+    ``geoloc.workflows.klv_replay.klv_sensor``)."""
     lens_params = as_sensor(sensor).lens.params
     keep, notes = {}, []
     for k, v in budget.sigmas.items():
-        if k == "time_s" and v > 0:
-            notes.append(f"time_s = {v:g} s left out (the records carry no platform velocity)")
+        if k == "time_s" and v > 0 and not velocity_known:
+            notes.append(f"time_s = {v:g} s left out (no platform velocity for this record)")
         elif k in LENS_KEYS and LENS_KEYS[k] not in lens_params:
             notes.append(f"{k} = {v:g} left out (this frame's lens has no {LENS_KEYS[k]})")
         else:
@@ -73,14 +75,27 @@ def usable_budget(budget: ErrorBudget, sensor) -> tuple[ErrorBudget, list]:
     return ErrorBudget(keep, budget.dem_product, budget.source), notes
 
 
-def scenario_budget(scn, sensor=None) -> tuple[ErrorBudget, str, bool]:
+def record_velocity(scn, index) -> np.ndarray | None:
+    """Record ``index``'s platform velocity (north, east, down) [m/s] (``Scenario.record_velocity_ned``,
+    a KLV flight's), or None where it is not known."""
+    v = getattr(scn, "record_velocity_ned", None)
+    if v is None or index is None or not 0 <= int(index) < len(v):
+        return None
+    v = np.asarray(v[int(index)], float)
+    return v if np.all(np.isfinite(v)) else None
+
+
+def scenario_budget(scn, sensor=None, velocity_known: bool = False) -> tuple[ErrorBudget, str, bool]:
     """``(budget, note, illustrative)``: the budget the viewer propagates for ``sensor`` (default the
     scenario's): the scenario's sensor file's (``scn.budget``) through :func:`usable_budget`, the
-    note naming the file and what was left out; else :func:`view_budget`'s, ``illustrative`` True."""
+    note naming the file and what was left out (``time_s`` kept with ``velocity_known``, and said
+    to move the platform by the record's velocity); else :func:`view_budget`'s, ``illustrative`` True."""
     b = getattr(scn, "budget", None)
     if b is None:
         return view_budget(scn.camera, scn.dem is not None), "illustrative budget", True
-    b, notes = usable_budget(b, scn.camera if sensor is None else sensor)
+    b, notes = usable_budget(b, scn.camera if sensor is None else sensor, velocity_known)
+    if b.sigma("time_s") > 0:
+        notes.append(f"time_s = {b.sigma('time_s'):g} s moves the platform by the packets' velocity")
     note = f"the budget of {b.source}" + (f"; {'; '.join(notes)}" if notes else "")
     return b, note, False
 
@@ -124,9 +139,9 @@ class UncertaintyLayer:
         if self.handle is not None and self.handle.visible:
             self.handle.visible = False
 
-    def budget(self):
+    def budget(self, velocity_known: bool = False):
         """``(budget, note, illustrative)`` (:func:`scenario_budget`)."""
-        return scenario_budget(self.session.scn)
+        return scenario_budget(self.session.scn, velocity_known=velocity_known)
 
     def update(self) -> None:
         s = self.session
@@ -137,10 +152,12 @@ class UncertaintyLayer:
             return
         from geoloc.viz import terrain_link
 
-        budget, note, illustrative = self.budget()
+        vel = record_velocity(s.scn, s.scn.record_index)
+        budget, note, illustrative = self.budget(vel is not None)
         inp = s.inputs
         pu = propagate(s.scn.camera, inp.pose(), inp.row, inp.col, budget,
-                       surface=terrain_link.scene_surface(s.scn, inp, trace=False), outside="extrapolate")
+                       surface=terrain_link.scene_surface(s.scn, inp, trace=False), outside="extrapolate",
+                       velocity_ned_m_s=vel if budget.sigma("time_s") > 0 else None)
         self.pu = pu
         if pu.status != Status.OK:
             self._hide()
