@@ -190,7 +190,7 @@ def run(args) -> int:
         v = getattr(args, name)
         if v is not None and not math.isfinite(v):
             raise ValueError(f"{name} = {v} is not a finite pixel coordinate")
-    sensor = as_sensor(camera)
+    sensor = camera  # sensor_from_args: a FrameSensor (a camera file's too)
     row = sensor.center_pixel[0] if args.row is None else args.row
     col = sensor.center_pixel[1] if args.col is None else args.col
     los = line_of_sight(pose, camera, row, col)

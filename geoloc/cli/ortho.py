@@ -96,8 +96,6 @@ def _bundled_dem(lat_deg: float, lon_deg: float):
 
 def _pose(args):
     """(sensor, pose, photo meta or None, where the pose came from)."""
-    from geoloc.locate import as_sensor
-
     given = [name for name, on in (("--photo", args.photo), ("--record", args.record),
                                    ("--lat-deg/--lon-deg/--h-m", any(getattr(args, k) is not None
                                                                      for k in POSE_FIELDS))) if on]
@@ -108,12 +106,11 @@ def _pose(args):
 
         path = args.photo
         meta = read_photo(path)
-        user = as_sensor(sensor_from_args(args)) if args.camera else None
+        user = sensor_from_args(args) if args.camera else None
         sensor, lens = photo_sensor(meta, user)
         pose = pose_from_photo(meta, args.altitude_datum or "egm96")
         return sensor, pose, meta, f"photo {meta.name} (lens: {lens})"
-    camera = sensor_from_args(args)
-    sensor = as_sensor(camera)
+    camera = sensor = sensor_from_args(args)  # a FrameSensor (a camera file's too)
     if args.record:
         records = records_from_args(args, args.records, camera)
         labels = records.labels()

@@ -26,7 +26,7 @@ from geoloc.cli._options import (
 from geoloc.cli.locate import pose_from_args
 from geoloc.io.columns import ELLIPSOID_DATUM
 from geoloc.io.mgrs_grid import mgrs_text, parse_mgrs
-from geoloc.locate import as_sensor, point_view
+from geoloc.locate import point_view
 from geoloc.status import Status, describe
 
 
@@ -72,7 +72,7 @@ def point_from_args(args) -> tuple[float, float, str]:
 
 
 def run(args) -> int:
-    sensor = as_sensor(sensor_from_args(args))
+    sensor = sensor_from_args(args)
     pose = pose_from_args(args, sensor)
     lat_deg, lon_deg, given = point_from_args(args)
     lat, lon = math.radians(lat_deg), math.radians(lon_deg)

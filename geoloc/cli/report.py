@@ -211,9 +211,8 @@ def report_from_csv(path, reference: str = "auto", ref_h_column: str | None = No
         import argparse
 
         from geoloc.cli._options import sensor_from_args
-        from geoloc.locate import as_sensor
 
-        s = as_sensor(sensor_from_args(argparse.Namespace(camera=camera)))
+        s = sensor_from_args(argparse.Namespace(camera=camera))
         r0, c0 = (s.rows + 1) / 2.0, (s.cols + 1) / 2.0
         pix = np.hypot(col("row") - r0, col("col") - c0)
     meta = {
