@@ -512,6 +512,29 @@ def test_replay_of_the_stream_equals_the_files_and_its_journals_replay_alike(tmp
                                atol=1e-6)
 
 
+def test_the_live_views_journals_replay_as_the_file(tmp_path, capsys):
+    """geoloc view --live udp://... --journal --record-ts (no browser: the feed journals with or without
+    a tab) at 50x: the journal's rows are the file replay's, the recorded .ts is the file's bytes."""
+    port = free_port()
+    url = f"udp://127.0.0.1:{port}"
+    out, rec = tmp_path / "view.csv", tmp_path / "view.ts"
+    th, res = _sender(TS, url, speed=50.0, start_delay_s=0.1)
+    rc = _run_cli(["view", "--live", url, "--journal", str(out), "--record-ts", str(rec), "--idle", "3",
+                   "--duration", "120", "--no-browser", "--port", str(free_port())])
+    th.join(10)
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    assert "299 packets located, 1 bad packet(s)" in cap.out
+    assert rec.read_bytes() == TS.read_bytes() and not list(tmp_path.glob("*.partial*"))
+    file_csv = tmp_path / "file.csv"
+    assert _run_cli(["replay", str(TS), "--out", str(file_csv)]) == 0
+    live, rows = list(csv.DictReader(out.open())), list(csv.DictReader(file_csv.open()))
+    assert len(live) == len(rows) == 299
+    for a, b in zip(live, rows):
+        diff = {k for k in b if k != "file" and a[k] != b[k]}
+        assert not diff, (a["packet"], diff)  # as written, but the stream's name
+
+
 def test_klv_dump_of_a_stream_with_loss(tmp_path, capsys):
     import json
 
