@@ -85,7 +85,7 @@ def test_mgrs_in_the_panel_in_chromium(tmp_path):
     with served() as server:
         app = GeolocApp(server, load_view_scenario())
         with chromium(tmp_path) as browser:
-            page = open_viewer(browser, server, 1000, 700)
+            page = open_viewer(browser, server, 800, 520)
             page.wait_for_selector("text=USNG", timeout=60000)
             mg = page.locator("text=MGRS").first.inner_text()
             # the position the same panel prints, read from the page too

@@ -36,7 +36,7 @@ def test_pause_stops_the_display_where_it_was(tmp_path):
     with served() as server:
         viewer = GeolocViewer(server, default_flight_scenario())
         with chromium(tmp_path) as browser:
-            page = open_viewer(browser, server, 1280, 800)
+            page = open_viewer(browser, server, 800, 520)
             cid = next(iter(server.get_clients()))
             wait_for(lambda: viewer.session_of(cid) is not None and viewer.session_of(cid).layers, 300,
                      "the tab's session")

@@ -456,7 +456,7 @@ def test_teaching_panel_hop_highlight_and_table_in_chromium(tmp_path):
     with _panel_app() as (server, _app, p):
         p.dd_hop.value = "(none)"
         with chromium(tmp_path) as browser:
-            page = open_viewer(browser, server, 1280, 800)
+            page = open_viewer(browser, server, 800, 520)
             page.wait_for_selector("canvas", timeout=60000)
             # the coordinates table reached the page's GUI text
             page.wait_for_selector("text=Coordinates of the ray of pixel", timeout=60000)
@@ -483,7 +483,7 @@ def test_teaching_panel_animation_changes_the_scene_in_chromium(tmp_path):
         p.anim_steps, p.anim_dt_s = 120, 1.0  # up to 2 min: two renders (2-40 s each) while it runs, then stopped
         assert p.dd_angle.value == "gimbal_roll"  # the first joint angle: -45 deg at T3-1
         with chromium(tmp_path) as browser:
-            page = open_viewer(browser, server, 1024, 640)
+            page = open_viewer(browser, server, 800, 520)
             page.wait_for_selector("canvas", timeout=60000)
             # (2 min: on the shared 2-core machine at load 8 a click waited 30 s for the busy page)
             page.get_by_role("button", name="animate this angle from 0").click(timeout=120000)
@@ -537,7 +537,7 @@ def test_animation_duration_is_typed_and_obeyed_in_chromium(tmp_path):
 
     with _panel_app() as (server, _app, p):
         with chromium(tmp_path) as browser:
-            page = open_viewer(browser, server, 1280, 800)
+            page = open_viewer(browser, server, 800, 520)
             page.wait_for_selector("text=animation duration (s)", timeout=120000)
             box = page.locator(f"[id='{p.num_anim_s._impl.uuid}'] ~ * input").first
             runs = {}

@@ -57,7 +57,7 @@ def test_a_person_hides_the_ellipse_in_chromium(tmp_path):
     with served() as server:
         app = GeolocApp(server, load_view_scenario())
         with chromium(tmp_path) as browser:
-            page = open_viewer(browser, server, 1000, 640)
+            page = open_viewer(browser, server, 800, 520)
             page.wait_for_selector("canvas", timeout=90000)
             client = next(iter(server.get_clients().values()))
             hit = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
