@@ -359,7 +359,7 @@ def test_panel_typed_vector_mesh_camera_and_refresh(panel):
     finally:
         del s.move_camera
     eye, aim = seen[0]
-    root = np.asarray(_node(p, "/enu/teach").position)
+    root = np.array(_node(p, "/enu/teach").position, float)  # a copy: the node is moved in place
     assert np.linalg.norm(aim - root) < 3.0 * 8 * p.unit_km()
     assert np.linalg.norm(eye - root) < 2.5 * 8 * 3.0 * p.unit_km()
     # the panel follows the session: a new aircraft height moves its root node (scene km)

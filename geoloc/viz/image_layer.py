@@ -393,10 +393,20 @@ class ImageLayer:
         if op < 0.999:
             tex = np.concatenate([tex, np.full(tex.shape[:2] + (1,), int(round(op * 255)), np.uint8)], axis=-1)
         name = f"{ROOT}/frame"
-        self.handles[name] = self.scene.add_image(name, tex, float(width * W), float(height * W),
-                                                  format="png" if tex.shape[2] == 4 else "jpeg",
-                                                  position=tuple(pos), wxyz=tuple(wxyz(R_enu_cam)),
-                                                  cast_shadow=False, receive_shadow=False)
+        fmt = "png" if tex.shape[2] == 4 else "jpeg"
+        h = self.handles.get(name)
+        if h is not None and self.scene.get_handle_by_name(name) is h and h.format == fmt:
+            # a step sends the new picture and pose to the node, which the browser keeps (issue 34)
+            h.image = tex
+            h.render_width, h.render_height = float(width * W), float(height * W)
+            h.position, h.wxyz = tuple(pos), tuple(wxyz(R_enu_cam))
+            if not h.visible:
+                h.visible = True
+        else:
+            self.handles[name] = self.scene.add_image(name, tex, float(width * W), float(height * W),
+                                                      format=fmt, position=tuple(pos),
+                                                      wxyz=tuple(wxyz(R_enu_cam)), cast_shadow=False,
+                                                      receive_shadow=False)
         self.plane = (pos, R_enu_cam, width * W, height * W)
 
     def pixel_on_frame(self, ray_origin, ray_direction):

@@ -289,7 +289,14 @@ class TeachingPanel:
         pos, globe, _ = self.layout(chain)
         aircraft = disp.z(enu.from_ecef(chain.T_ecef("body")[:3, 3]))
         show = bool(self.cb_show.value)
-        sc.add_frame(ROOT, show_axes=False, position=aircraft, visible=show)
+
+        def place_root(h):
+            h.position = aircraft
+            if h.visible != show:
+                h.visible = show
+
+        self._node(ROOT, None, lambda: sc.add_frame(ROOT, show_axes=False, position=aircraft, visible=show),
+                   place_root)
         arrows = []
         for index, f in enumerate(teaching.chain_frames(chain)):
             T = chain.T_ecef(f)
@@ -327,20 +334,41 @@ class TeachingPanel:
                 if role == r:
                     self._highlight(r, pos[f], 0.45 * U)
         for r, fr in (("src", src), ("dst", dst)):
-            if fr is None:
+            if fr is None and self._handles.pop(f"{ROOT}/highlight/{r}", None) is not None:
                 sc.remove_by_name(f"{ROOT}/highlight/{r}")
-                self._handles.pop(f"{ROOT}/highlight/{r}", None)
-        sc.add_arrows(f"{ROOT}/vector", np.asarray(arrows, np.float32), VECTOR_COLOR,
-                      shaft_radius=0.03 * U, head_radius=0.08 * U, head_length=0.2 * U)
+        self._arrows(f"{ROOT}/vector", np.asarray(arrows, np.float32), 0.03 * U, 0.08 * U, 0.2 * U)
         # a leader from the row down to the aircraft: the frames really share its origin
         # (its caption under the row's lower band of texts, above the aircraft's own frame labels)
-        sc.add_line_segments(f"{ROOT}/leader", np.array([[[0, 0, 0], [0, 0, (LIFT - 3.0) * U]]], np.float32),
-                             (200, 200, 200), thickness=1.5, thickness_units="screen")
+        self._node(f"{ROOT}/leader", U, lambda: sc.add_line_segments(
+            f"{ROOT}/leader", np.array([[[0, 0, 0], [0, 0, (LIFT - 3.0) * U]]], np.float32),
+            (200, 200, 200), thickness=1.5, thickness_units="screen"))
         self._label(f"{ROOT}/leader/label", "frames drawn apart: all but ECEF sit at the aircraft",
                     np.array([0, 0, (LIFT - 3.0) * U]), "top-center")
         self._draw_globe(chain, globe, U, coords, dst, src, hop == "T_ecef_ned")
         self._text(chain, v, vframe, what, hop)
         self.set_mesh(self._mesh_visible)
+
+    def _node(self, name, key, make, update=None):
+        """The node ``name``: made by ``make()`` the first time (or when its ``key``, what it was made
+        with, changed, or the scene lost it), else kept and handed to ``update(handle)``. A step then
+        moves nodes instead of re-creating them (issue 34: the browser rebuilds a re-created node)."""
+        h, k = self._handles.get(name, (None, None))
+        alive = h is not None and k == key and getattr(self.scene, "get_handle_by_name", lambda n: h)(name) is h
+        if not alive:
+            h = make()
+            self._handles[name] = (h, key)
+        elif update is not None:
+            update(h)
+        return h
+
+    def _arrows(self, name, points, shaft, head, head_length):
+        """Arrows ``points`` (N, 2, 3) made once per count and size, then only their points moved."""
+        def move(h):
+            h.points = points
+
+        return self._node(name, (points.shape, round(shaft, 12), round(head, 12), round(head_length, 12)),
+                          lambda: self.scene.add_arrows(name, points, VECTOR_COLOR, shaft_radius=shaft,
+                                                        head_radius=head, head_length=head_length), move)
 
     def _label(self, name, text, position, anchor):
         h = self._handles.get(name)
@@ -372,34 +400,54 @@ class TeachingPanel:
         k = R / A  # scene km per ECEF metre in the inset
         R_enu_ecef = enu.R_enu_ecef
         name = f"{ROOT}/globe"
-        sc.add_frame(name, show_axes=False, position=center)
-        if self._handles.get(name + "/earth", (None, None))[1] != R:
-            h = sc.add_icosphere(name + "/earth", radius=R, color=(30, 50, 150), subdivisions=3, opacity=0.55,
-                                 scale=(1.0, 1.0, 1.0), cast_shadow=False, receive_shadow=False)
-            self._handles[name + "/earth"] = (h, R)
+
+        def move_to(p):
+            def move(h):
+                h.position = p
+            return move
+
+        self._node(name, None, lambda: sc.add_frame(name, show_axes=False, position=center), move_to(center))
+        self._node(name + "/earth", R, lambda: sc.add_icosphere(
+            name + "/earth", radius=R, color=(30, 50, 150), subdivisions=3, opacity=0.55, scale=(1.0, 1.0, 1.0),
+            cast_shadow=False, receive_shadow=False))
         big = dst == "ecef" or src == "ecef"
         L = 1.6 * R
-        ax = sc.add_frame(name + "/axes", axes_length=L, axes_radius=L * (0.03 if big else 0.015),
-                          origin_radius=L * 0.03, wxyz=wxyz(R_enu_ecef))
-        for i, txt in enumerate(("X ecef (0 N, 0 E)", "Y ecef (0 N, 90 E)", "Z ecef (north pole)")):
-            tip = np.zeros(3)
-            tip[i] = L * 1.05
-            sc.add_label(name + f"/axes/{'xyz'[i]}", txt, position=tip, anchor="center-left",
-                         font_screen_scale=0.8)
-        del ax
+        q_axes = wxyz(R_enu_ecef)
+
+        def make_axes():
+            ax = sc.add_frame(name + "/axes", axes_length=L, axes_radius=L * (0.03 if big else 0.015),
+                              origin_radius=L * 0.03, wxyz=q_axes)
+            for i, txt in enumerate(("X ecef (0 N, 0 E)", "Y ecef (0 N, 90 E)", "Z ecef (north pole)")):
+                tip = np.zeros(3)
+                tip[i] = L * 1.05
+                sc.add_label(name + f"/axes/{'xyz'[i]}", txt, position=tip, anchor="center-left",
+                             font_screen_scale=0.8)
+            return ax
+
+        def turn(h):
+            h.wxyz = q_axes
+
+        self._node(name + "/axes", (round(L, 12), big), make_axes, turn)
         p = chain.T_ecef("body")[:3, 3]
         p_in = R_enu_ecef @ p * k
-        sc.add_icosphere(name + "/aircraft", radius=0.08 * U, color=(255, 40, 40), position=p_in,
-                         cast_shadow=False, receive_shadow=False)
-        sc.add_label(name + "/aircraft/label", "aircraft (Earth to scale)", anchor="top-left",
-                     font_screen_scale=0.8)
+
+        def make_aircraft():
+            h = sc.add_icosphere(name + "/aircraft", radius=0.08 * U, color=(255, 40, 40), position=p_in,
+                                 cast_shadow=False, receive_shadow=False)
+            sc.add_label(name + "/aircraft/label", "aircraft (Earth to scale)", anchor="top-left",
+                         font_screen_scale=0.8)
+            return h
+
+        self._node(name + "/aircraft", round(U, 12), make_aircraft, move_to(p_in))
         ve = enu.vector_from_ecef(coords["ecef"])
         ve = ve / max(np.linalg.norm(ve), 1e-300)
-        sc.add_arrows(name + "/vector", np.array([[p_in, p_in + 0.6 * U * ve]], np.float32), VECTOR_COLOR,
-                      shaft_radius=0.02 * U, head_radius=0.06 * U, head_length=0.15 * U)
+        self._arrows(name + "/vector", np.array([[p_in, p_in + 0.6 * U * ve]], np.float32), 0.02 * U, 0.06 * U,
+                     0.15 * U)
         # (the ECEF highlight stays on the row's ecef frame: a ball at the globe's centre would be hidden)
-        sc.remove_by_name(name + "/q17")
+        if self._handles.pop(name + "/q17", None) is not None or q17:
+            sc.remove_by_name(name + "/q17")
         if q17:
+            self._handles[name + "/q17"] = (None, None)
             for j, (txt, T) in enumerate(teaching.q17_intermediate_frames(chain)):
                 o = R_enu_ecef @ T[:3, 3] * k
                 Lq = 0.45 * U
