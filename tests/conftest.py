@@ -74,6 +74,7 @@ def _item_opens_chromium(item) -> bool:
     return any(f is not None and _opens_chromium(f, seen) for f in fns)
 
 
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist's own, which renames the grouped tests
 def pytest_collection_modifyitems(config, items):
     """Every test that opens headless Chromium (its own code, a helper it calls or a fixture it
     uses: ``_opens_chromium``) runs on one pytest-xdist worker (``tools/test.sh`` runs ``-n 2
@@ -95,6 +96,13 @@ def in_chromium_group(item) -> bool:
 def pytest_runtest_setup(item):
     # before the item's fixtures: a module fixture that opened Chromium is caught too
     os.environ[CHROMIUM_GROUP_ENV] = "1" if in_chromium_group(item) else "0"
+    if (in_chromium_group(item) and os.environ.get("PYTEST_XDIST_WORKER")
+            and item.config.getvalue("loadgroup") and not item.nodeid.endswith("@chromium")):
+        # pytest-xdist groups a test by renaming it NODEID@GROUP; when that rename does not take (pytest 9
+        # with xdist 3.8) the group's tests are spread over the workers and browsers run side by side
+        pytest.fail(f"{item.nodeid}: pytest-xdist did not put this test in its group 'chromium' (pytest "
+                    f"{pytest.__version__}; pyproject.toml's test extras pin the pytest that groups)",
+                    pytrace=False)
 
 
 def pytest_sessionfinish(session):
