@@ -122,8 +122,17 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
             wait_for(lambda: _picture_on_page(page) is not None, 60, "the live picture")
             k1 = _picture_on_page(page)
             wait_for(lambda: (_picture_on_page(page) or 0) >= k1 + 4, 30, "the picture to follow the stream")
-            want = feed.picture_index_at(float(tab.session.scn.record_times_s[tab.current]))
-            assert abs(tab._images.k - want) <= 8, (tab._images.k, want)  # pictures decoded between the reads
+            # read on the server, where the tab may be between two states: the looped sender's restart
+            # rebuilds the session, whose new picture layer shows nothing (k = -1) until its first frame
+            # is followed (seen once in a full suite: (-1, 95)). Within 8 pictures (those decoded between
+            # the two reads) at some instant of 20 s: a layer that never picks the nearest picture fails
+            def _picture_near():
+                images, idx = tab._images, tab.current
+                if images is None or not 0 <= idx < len(tab.session.scn.record_times_s):
+                    return None
+                want = feed.picture_index_at(float(tab.session.scn.record_times_s[idx]))
+                return (images.k, want) if want >= 0 and abs(images.k - want) <= 8 else None
+            wait_for(_picture_near, 20, "the picture layer on the picture nearest the followed frame")
             _shot(page, "live_following")
 
             m = re.search(r"; (\d+) frames\)", tab.layer.md_accuracy.content)  # the accuracy panel, so far
