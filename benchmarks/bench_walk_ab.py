@@ -1,6 +1,6 @@
 """The exact DEM walk alone, this tree's against git revision REV's, on the same rays and tables.
 
-    python benchmarks/bench_walk_ab.py REV [--size N] [--repeat K]
+    python benchmarks/bench_walk_ab.py REV [--size N] [--repeat K] [--dem-model bilinear]
 
 ``--size 0`` (default) is the bundled SRTM crop with 10 000 oblique rays; ``--size N``
 the crop resampled to N x N nodes plus 3 m roughness (as ``bench_terrain.py --size``) with
@@ -10,12 +10,15 @@ seconds); both walks get this tree's tables (REV's walk without ``hinv``/``hlev`
 predates the hierarchy, and block tables of 8 cells if it predates the block side of
 ``terrain.block_cells``). The rays are walked in the order given, not in ``ray_order``'s
 (which REV may not take): on a large DEM that is slower than ``intersect_dem`` (0.82x on
-3601 x 3601), and a change that helps sorted rays may not show here. Three rows, calls in
-turn (the machine's load swings), medians of CPU time per ray, one thread: REV's walk; this
-tree's with the levels from ``terrain.CLIMB_FROM`` (the climbing kernel); this tree's with
-none (``walk_flat_kernel``, or ``walk_flat_block_kernel`` for blocks other than 8 cells).
-Each row says whether its statuses and hits equal REV's bit for bit. Measures what the
-walk costs; ``bench_terrain.py`` compares it with embree.
+3601 x 3601), and a change that helps sorted rays may not show here. Four rows, calls in
+turn (the machine's load swings), medians of CPU time per ray, one thread: REV's walk (with
+the levels from ``terrain.CLIMB_FROM`` where it has them); REV's with none; this tree's with
+the levels (the climbing kernel), against REV's; this tree's with none (``walk_flat_kernel``,
+or ``walk_flat_block_kernel`` for blocks other than 8 cells), against REV's with none.
+Each row says whether its statuses and hits equal REV's bit for bit. ``--dem-model``: the
+cell model walked, ``triangles`` (default, as ``bench_terrain.py``) or ``bilinear`` (what
+``locate`` and ``replay`` use by default). Measures what the walk costs; ``bench_terrain.py``
+compares it with embree.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ def main(argv=None) -> None:
     ap.add_argument("rev")
     ap.add_argument("--size", type=int, default=0)
     ap.add_argument("--repeat", type=int, default=11)
+    ap.add_argument("--dem-model", choices=("triangles", "bilinear"), default="triangles")
     a = ap.parse_args(argv)
     import numba
 
@@ -72,7 +76,7 @@ def main(argv=None) -> None:
     else:
         old_head = head_old8
     tail = (t["row_geo"], t["lat_n"], t["lon_w"], t["dlat"], t["dlon"], t["tan_row"], t["c_row"], t["sin_col"],
-            t["cos_col"], True)
+            t["cos_col"], a.dem_model == "triangles")
     old_has_levels = "hinv" in inspect.signature(old.walk).parameters
 
     def outs():
@@ -87,6 +91,8 @@ def main(argv=None) -> None:
     blk = {"block": t["block"]}
     rows = {f"{a.rev}": lambda: run(old.walk, old_hlev[terrain.CLIMB_FROM - 1:], old_has_levels, old_head, old_hinv,
                                     **(blk if old_block else {})),
+            f"{a.rev}, flat": lambda: run(old.walk, old_hlev[:0], old_has_levels, old_head, old_hinv,
+                                          **(blk if old_block else {})),
             "this tree, climbing": lambda: run(tn.walk, t["hlev"][terrain.CLIMB_FROM - 1:], **blk),
             "this tree, flat": lambda: run(tn.walk, t["hlev"][:0], **blk)}
     for f in rows.values():  # compile (or load) first
@@ -99,13 +105,15 @@ def main(argv=None) -> None:
             res[k] = f()
             times[k].append(time.process_time() - c)
     ref = res[a.rev]
-    print(f"{'DEM: crop' if a.size == 0 else f'DEM: {a.size} x {a.size}'}, {n} rays, {a.repeat} calls each in turn, "
-          "one thread, median CPU time")
+    # each row against its peer: this tree's flat walk against REV's flat walk, the rest against REV's
+    peer = {"this tree, flat": f"{a.rev}, flat"}
+    print(f"{'DEM: crop' if a.size == 0 else f'DEM: {a.size} x {a.size}'}, {a.dem_model}, {n} rays, "
+          f"{a.repeat} calls each in turn, one thread, median CPU time")
     for k in rows:
         same = np.array_equal(res[k][3], ref[3]) and np.array_equal(res[k][1], ref[1], equal_nan=True)
+        p = peer.get(k, a.rev)
         print(f"{k:22s} {np.median(times[k]) * 1e9 / n:8.1f} ns a ray   "
-              f"{np.median(times[k]) / np.median(times[a.rev]):5.3f} of {a.rev}   identical: {same}")
-
+              f"{np.median(times[k]) / np.median(times[p]):5.3f} of {p:12s}   identical to {a.rev}: {same}")
 
 if __name__ == "__main__":
     main()
