@@ -15,10 +15,11 @@ turn (the machine's load swings), medians of CPU time per ray, one thread: REV's
 the levels from ``terrain.CLIMB_FROM`` where it has them); REV's with none; this tree's with
 the levels (the climbing kernel), against REV's; this tree's with none (``walk_flat_kernel``,
 or ``walk_flat_block_kernel`` for blocks other than 8 cells), against REV's with none.
-Each row says whether its statuses and hits equal REV's bit for bit. ``--dem-model``: the
-cell model walked, ``triangles`` (default, as ``bench_terrain.py``) or ``bilinear`` (what
-``locate`` and ``replay`` use by default). Measures what the walk costs; ``bench_terrain.py``
-compares it with embree.
+Each row says whether its statuses and hits equal REV's bit for bit, and if not, whether the
+statuses do and how far apart the hits are. ``--dem-model``: the cell model walked,
+``triangles`` (default, as ``bench_terrain.py``) or ``bilinear`` (what ``locate`` and
+``replay`` use by default). Measures what the walk costs; ``bench_terrain.py`` compares it
+with embree.
 """
 
 from __future__ import annotations
@@ -112,8 +113,14 @@ def main(argv=None) -> None:
     for k in rows:
         same = np.array_equal(res[k][3], ref[3]) and np.array_equal(res[k][1], ref[1], equal_nan=True)
         p = peer.get(k, a.rev)
+        diff = ""
+        if not same:  # how far from REV's: the statuses, and the largest hit apart (ECEF, m)
+            both = (res[k][3] == ref[3]) & np.isfinite(res[k][1][:, 0]) & np.isfinite(ref[1][:, 0])
+            dp = np.abs(res[k][1][both] - ref[1][both]).max() if both.any() else 0.0
+            diff = f" (statuses equal: {np.array_equal(res[k][3], ref[3])}, hits within {dp:.1e} m)"
         print(f"{k:22s} {np.median(times[k]) * 1e9 / n:8.1f} ns a ray   "
-              f"{np.median(times[k]) / np.median(times[p]):5.3f} of {p:12s}   identical to {a.rev}: {same}")
+              f"{np.median(times[k]) / np.median(times[p]):5.3f} of {p:12s}   identical to {a.rev}: {same}{diff}")
+
 
 if __name__ == "__main__":
     main()
