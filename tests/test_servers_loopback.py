@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import queue
 import re
-import selectors
 import signal
 import socket
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 
 import pytest
@@ -58,24 +59,39 @@ def is_loopback(ip: str) -> bool:
     return addr.is_loopback
 
 
+def _drain(stream, sink) -> None:
+    for line in iter(stream.readline, ""):
+        sink(line)
+
+
 def start(argv, env, ready: str, timeout_s: float = 240.0):
-    """Start ``argv``; return (process, the first stdout line matching ``ready``, stderr so far).
+    """Start ``argv``; return (process, the first stdout line matching ``ready``).
 
     The timeout covers a first run that compiles the numba kernels (about 50 s here) on a
-    busy 2-core machine.
+    busy 2-core machine. Both pipes are read by threads: a ``select`` on the pipe followed by
+    a buffered ``readline`` misses a line that came in the same chunk as the one before
+    (viser's banner and geoloc's line), and waited the whole timeout for it (seen in a full
+    suite); stderr is kept (``proc.err_lines``) so that a chatty process never blocks on it.
     """
     proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             env=env, text=True)
-    sel = selectors.DefaultSelector()
-    sel.register(proc.stdout, selectors.EVENT_READ)
+    lines: queue.Queue = queue.Queue()
+    proc.err_lines = []
+    proc.readers = [threading.Thread(target=_drain, args=(proc.stdout, lines.put), daemon=True),
+                    threading.Thread(target=_drain, args=(proc.stderr, proc.err_lines.append), daemon=True)]
+    for t in proc.readers:
+        t.start()
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise AssertionError(f"{argv} exited {proc.returncode}: {proc.stderr.read()[-2000:]}")
-        if sel.select(timeout=1.0):
-            line = proc.stdout.readline()
-            if re.search(ready, line):
-                return proc, line
+        try:
+            line = lines.get(timeout=1.0)
+        except queue.Empty:
+            if proc.poll() is not None:
+                proc.readers[1].join(5)
+                raise AssertionError(f"{argv} exited {proc.returncode}: {''.join(proc.err_lines)[-2000:]}")
+            continue
+        if re.search(ready, line):
+            return proc, line
     stop(proc)
     raise AssertionError(f"{argv} did not print {ready!r} within {timeout_s} s")
 
@@ -100,11 +116,9 @@ def stop(proc) -> str:
             k.kill()
         except psutil.NoSuchProcess:
             pass
-    try:
-        _, err = proc.communicate(timeout=10)
-    except (subprocess.TimeoutExpired, ValueError):
-        err = ""
-    return err or ""
+    for t in proc.readers:  # the pipes close with the process (and its children)
+        t.join(10)
+    return "".join(proc.err_lines)
 
 
 @pytest.fixture
