@@ -22,12 +22,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import select
+import queue
 import shutil
 import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -63,11 +64,17 @@ def run_once(verb: str, cache: Path) -> dict:
         return {"wall": wall, "cpu": ru.ru_utime + ru.ru_stime, "rss_mb": ru.ru_maxrss / 1024}
     p = subprocess.Popen(cmd, env=_env(cache), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
+        # a thread reads the lines: a select() on the pipe then a buffered readline() misses a line
+        # that came in one chunk with the one before (viser's banner, then geoloc's), and waited
+        # for the next output or the timeout (the 103.8 s "first view" of an earlier run)
+        lines: queue.Queue = queue.Queue()
+        threading.Thread(target=lambda: [lines.put(x) for x in iter(p.stdout.readline, "")], daemon=True).start()
         line = ""
         while "geoloc view: http" not in line:
-            if select.select([p.stdout], [], [], 600)[0] == [] or p.poll() is not None:
-                raise RuntimeError("view: did not serve")
-            line = p.stdout.readline()
+            try:
+                line = lines.get(timeout=600)
+            except queue.Empty:
+                raise RuntimeError("view: did not serve in 600 s") from None
         wall = time.perf_counter() - t0
         stat = Path(f"/proc/{p.pid}/stat").read_text().rsplit(")", 1)[1].split()
         cpu = (int(stat[11]) + int(stat[12])) / CLK  # utime, stime (fields 14, 15)
