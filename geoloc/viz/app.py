@@ -100,6 +100,9 @@ ANGLE_SLIDERS = (
 CUSTOM = "(custom pose)"
 #: Browser tabs served at once by default (``--max-clients``).
 MAX_CLIENTS = 16
+#: The ambient light that stands in for viser's environment map (:func:`configure_lighting`).
+AMBIENT_LIGHT = "/ambient_light"
+AMBIENT_INTENSITY = 1.0
 
 
 def attach_flight(session):
@@ -202,9 +205,21 @@ def make_server(host: str = "127.0.0.1", port: int = 8080, verbose: bool = False
     server.gui.configure_theme(dark_mode=True, control_width="large")
     # viser's default fog is tuned for scenes of a few metres; ours spans tens of km.
     server.scene.configure_fog(1.0, 1.0, enabled=False)
-    # Shadow maps over tens of km cost much and show little (and are slow in software WebGL).
-    server.scene.configure_default_lights(True, cast_shadow=False)
+    configure_lighting(server.scene)
     return server
+
+
+def configure_lighting(scene) -> None:
+    """The lights of a viewer scene (again after a ``scene.reset()``, which removes the ambient one).
+
+    Shadow maps over tens of km cost much and show little (and are slow in software WebGL). No
+    environment map (viser's client loads its "city" one unless told otherwise): with software
+    WebGL its decoding and prefiltering held the first view back, the canvas fading in only once
+    it was loaded (issue 34); an ambient light lifts the lit markers' shadowed sides instead.
+    """
+    scene.configure_default_lights(True, cast_shadow=False)
+    scene.configure_environment_map(None)
+    scene.add_light_ambient(AMBIENT_LIGHT, intensity=AMBIENT_INTENSITY)
 
 
 def release_memory() -> None:
@@ -1009,6 +1024,7 @@ class GeolocViewer:
             except Exception:
                 pass
             self.server.scene.reset()
+            configure_lighting(self.server.scene)
             self._make_driver(client, None)
             for cid, panel in list(self.followers.items()):
                 try:
