@@ -18,6 +18,7 @@ from geoloc.frames.enu import EnuFrame
 from geoloc.io.records import load_records
 from geoloc.locate import as_sensor, locate
 from geoloc.sensors.camera import Camera
+from geoloc.sensors.sensor_file import load_sensor
 from geoloc.viz.calibration_layer import add_error_vectors
 
 
@@ -79,7 +80,7 @@ def test_app_calibration_with_a_scenario_like_app(server):
     from geoloc.viz.calibration_layer import attach
 
     rec = load_records(asset_path(*DEFAULT_RECORDS))
-    cam = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
+    cam = load_sensor(asset_path(*DEFAULT_CAMERA))  # what the app's Scenario holds: a FrameSensor
     c = rec.column
     pairs = []
     for k, label in enumerate(rec.labels()):

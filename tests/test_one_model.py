@@ -165,6 +165,41 @@ def test_a_camera_file_loads_as_a_sensor_and_camera_is_imported_by_the_file_form
     assert cam.pixel_pitch_m is None and load_sensor(with_pitch).pixel_pitch_m == 7.0e-6
 
 
+#: The Python entrances where a first-phase ``Camera`` built in Python becomes its sensor
+#: (``as_sensor``, or ``sensor_of`` for any sensor kind); everything behind them holds a Sensor.
+#: Each is a function a user calls or an object a user builds (README, examples, docs):
+CAMERA_ENTRANCES = {
+    "geoloc.locate": "locate, line_of_sight, ground_to_pixel: the package's own API (geoloc.locate)",
+    "geoloc.analysis.uncertainty": "propagate and monte_carlo (docs/uncertainty.md, examples/34)",
+    "geoloc.analysis.triangulate": "triangulate (examples/35)",
+    "geoloc.analysis.errormodel": "ErrorModel and its with_camera (examples/31-33)",
+    "geoloc.workflows.ortho": "locate_frame, write_frame_geotiff, orthorectify (README, docs/ortho.md, examples/26)",
+    "geoloc.viz.model": "the viewer's Scenario, converted once in __post_init__",
+    "geoloc.viz.rerun_model": "steps_from_flight and steps_from_records (docs/rerun.md, examples/80-83)",
+}
+
+
+def sensor_conversions(tree) -> list:
+    """Lines calling ``as_sensor(...)`` or ``sensor_of(...)`` (by name or as an attribute)."""
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call):
+            f = node.func
+            name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else None
+            if name in ("as_sensor", "sensor_of"):
+                out.append(node.lineno)
+    return out
+
+
+def test_a_camera_becomes_a_sensor_only_at_the_python_entrances():
+    found = {mod: lines for mod, tree in modules() if (lines := sensor_conversions(tree))}
+    new = {m: v for m, v in found.items() if m not in CAMERA_ENTRANCES}
+    assert not new, ("as_sensor/sensor_of behind the Python entrances (what reaches here is a Sensor "
+                     f"already; convert where the object is built): {new}")
+    gone = set(CAMERA_ENTRANCES) - set(found)
+    assert not gone, f"no conversion left: remove them from CAMERA_ENTRANCES: {sorted(gone)}"
+
+
 def test_a_mosaic_is_recognised_by_is_mosaic_only():
     found = {mod: lines for mod, tree in modules() if (lines := mosaic_attribute_checks(tree))}
     assert not found, f"recognise a mosaic with geoloc.surfaces.base.is_mosaic: {found}"
@@ -178,12 +213,14 @@ def test_the_checks_find_planted_cases():
                      "    m = open_dem_or_mosaic(p); mc.open_dem(p)\n"
                      "    if isinstance(d, (Camera, int)): pass\n"
                      "    from geoloc.sensors.camera import Camera\n"
-                     "    return hasattr(m, 'with_solver') or hasattr(m, 'dem') or getattr(surface, 'dem', None)\n")
+                     "    return hasattr(m, 'with_solver') or hasattr(m, 'dem') or getattr(surface, 'dem', None)\n"
+                     "s = as_sensor(c); t = camera.sensor_of(c)\n")
     assert sorted(dem_opens(tree)) == [3, 4, 4]
     assert camera_checks(tree) == [5]
     assert camera_imports(tree, "geoloc.x") == [6]
     assert mosaic_attribute_checks(tree) == [7]
     assert surface_dem_asks(tree) == [7, 7]
+    assert sensor_conversions(tree) == [8, 8]
 
 
 def test_the_rerun_recordings_raster_comes_from_the_one_way(tmp_path):

@@ -208,6 +208,11 @@ class ErrorModel:
     sweep: dict = field(default_factory=dict)
     source: str = "error model"
 
+    def __post_init__(self):
+        # the one entrance for a Monte Carlo sensor: a first-phase Camera built in Python becomes
+        # its FrameSensor here (frozen: object.__setattr__), so the engine holds a Sensor only
+        object.__setattr__(self, "camera", _sensor(self.camera, self.source))
+
     # ------------------------------------------------------------ loading
     @classmethod
     def from_toml(cls, path) -> "ErrorModel":
@@ -295,6 +300,7 @@ class ErrorModel:
         The sensor must use the ``roll-pitch`` gimbal (the [nominal] table's two angles) and
         have every lens parameter the error sources name.
         """
+        camera = _sensor(camera, self.source)
         check_camera(camera, self.source)
         check_lens_sources(self.errors, camera, self.source)
         check_pixel_pitch(self.errors, camera, f"{self.source}: camera {getattr(camera, 'name', '') or camera!r}")
@@ -360,21 +366,26 @@ def camera_from_table(table, where: str):
     return sensor
 
 
-def check_camera(camera, where: str) -> None:
-    """A Monte Carlo camera: a :class:`FrameSensor` on the roll-pitch gimbal (a first-phase
-    :class:`geoloc.sensors.camera.Camera` built in Python is taken as its sensor, ``as_sensor``)."""
+def _sensor(camera, where: str) -> FrameSensor:
+    """A Python caller's camera as its :class:`FrameSensor` (a first-phase
+    :class:`geoloc.sensors.camera.Camera` through ``as_sensor``); ValueError naming it otherwise."""
     try:
-        sensor = as_sensor(camera)
+        return as_sensor(camera)
     except ValueError:
         raise ValueError(f"{where}: camera {camera!r}: must be a Camera or a FrameSensor") from None
+
+
+def check_camera(camera, where: str) -> None:
+    """A Monte Carlo camera: a :class:`FrameSensor` on the roll-pitch gimbal."""
+    sensor = _sensor(camera, where)
     if tuple(sensor.angle_names) != ("gimbal_roll", "gimbal_pitch"):
         raise ValueError(f"{where}: gimbal = {sensor.gimbal.name!r}: Monte Carlo's [nominal] table gives "
                          "gimbal_roll_deg and gimbal_pitch_deg, so the sensor must use the roll-pitch gimbal")
 
 
 def lens_params(camera) -> dict:
-    """The lens's named parameters (``Lens.params``, OpenCV's 0-based cx, cy) of a camera or sensor."""
-    return dict(as_sensor(camera).lens.params)
+    """The lens's named parameters (``Lens.params``, OpenCV's 0-based cx, cy) of a sensor."""
+    return dict(camera.lens.params)
 
 
 def check_lens_sources(errors: dict, camera, where: str) -> None:
@@ -383,7 +394,7 @@ def check_lens_sources(errors: dict, camera, where: str) -> None:
     for name in errors:
         for p in LENS_SOURCES.get(name, ()):
             if p not in have:
-                model = as_sensor(camera).lens.model
+                model = camera.lens.model
                 raise ValueError(f"{where} [errors] {name}: the camera's {model} lens has no parameter {p!r} "
                                  f"(its parameters: {sorted(have)}); give a [camera.lens] table with a "
                                  "lens model that has it, e.g. model = \"brown\"")

@@ -50,7 +50,6 @@ from geoloc.geodesy.ellipsoid import (
     meridian_radius,
     prime_vertical_radius,
 )
-from geoloc.locate import as_sensor
 from geoloc.sensors.frame import small_rotation
 from geoloc.status import Status
 from geoloc.userfiles import atomic_path
@@ -223,7 +222,7 @@ def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True
 
     # the sensor's named mount / boresight parameters: the sample's angles are the file's plus
     # the draw (exact: the drawn rotation replaces the file's)
-    sensor = as_sensor(model.camera)
+    sensor = model.camera
     drawn = {}
     for which in ("mount", "boresight"):
         draws = [errors.get(f"{which}_{a}_deg") for a in "xyz"]
@@ -312,7 +311,7 @@ def evaluate(model: ErrorModel, errors: dict, surface=None):
     pose, (Ri, Rb), row, col = perturbed_geometry(model, errors, build_chain=False, with_camera=False)
     lever = [errors.get(f"lever_arm_{a}_m") for a in "xyz"]
     extra = None if all(v is None for v in lever) else np.stack([_or(v, np.zeros(len(row))) for v in lever], -1)
-    s = as_sensor(model.camera)
+    s = model.camera
     s = dataclasses.replace(s, lens=perturbed_lens(s.lens, errors), R_base_extra=Rb, R_bore_extra=Ri,
                             lever_extra_m=extra)
     los = s.line_of_sight(row, col, pose, outside="extrapolate")

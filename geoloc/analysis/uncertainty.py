@@ -270,7 +270,7 @@ def chain_derivatives(sensor, pose, row, col, budget: ErrorBudget, velocity_ned_
     shape : tuple
         The batch's shape.
     """
-    s = as_sensor(sensor)
+    s = sensor  # a Sensor (propagate, monte_carlo and triangulate take a Python Camera too)
     r0, c0 = s.center_pixel
     row = r0 if row is None else row
     col = c0 if col is None else col

@@ -34,7 +34,7 @@ from geoloc.io.columns import (
     load_column_map,
 )
 from geoloc.io.records import Records, load_records
-from geoloc.locate import as_sensor, line_of_sight
+from geoloc.locate import line_of_sight
 from geoloc.sensors.sensor_file import load_sensor_columns
 from geoloc.status import Status, describe
 from geoloc.surfaces.height import intersect_los_height
@@ -100,7 +100,7 @@ def load_records_reporting(path, sensor=None, columns=None, altitude_datum=None)
     (None: not stated; ellipsoidal, except that the bundled flight test's heights
     are ellipsoidal by docs/records.md, which counts as stated). A column map's
     datum for ``ac_h_m`` that differs from ``altitude_datum`` wins, with a note."""
-    angles = as_sensor(sensor).angle_names if sensor is not None else ("gimbal_roll", "gimbal_pitch")
+    angles = sensor.angle_names if sensor is not None else ("gimbal_roll", "gimbal_pitch")
     path = path if path else asset_path(*DEFAULT_RECORDS)
     source = "--altitude-datum"
     if altitude_datum is None and columns is None and _is_bundled_records(path):
@@ -174,7 +174,7 @@ def pose_from_args(args, sensor) -> Pose:
                 raise ValueError(f"--{name.replace('_', '-')}-deg and --angle {name}= both given")
             angles[name] = v
             given[name] = f"--{name.replace('_', '-')}-deg {v:g}"
-    s = as_sensor(sensor)
+    s = sensor
     # before issue 32 --gimbal-roll-deg was ignored on a gimbal without it, and a misspelt
     # --angle tilt=-30 was reported as the missing elevation
     check_angle_names(given, s.angle_names, s.gimbal.name, defaults=("gimbal_roll", "gimbal_pitch"))

@@ -73,7 +73,6 @@ import numpy as np
 import viser
 
 from geoloc.io.mgrs_grid import mgrs_text
-from geoloc.locate import as_sensor
 from geoloc.status import describe
 from geoloc.userfiles import write_bytes, write_text
 from geoloc.viz import (
@@ -430,12 +429,12 @@ class GeolocSession:
             self.md_q17 = gui.add_markdown("")
 
     def _chain0(self):
-        return as_sensor(self.scn.camera).frames(self.inputs.pose())
+        return self.scn.camera.frames(self.inputs.pose())
 
     def _angle_sliders(self):
         """Attitude sliders, then one per joint angle of the sensor's gimbal (``angle:NAME`` keys)."""
         out = list(ANGLE_SLIDERS[:3])
-        sensor = as_sensor(self.scn.camera)
+        sensor = self.scn.camera
         # [Q17]'s gimbal ranges only for its roll-pitch gimbal: a DJI gimbal_pitch runs to -90
         q17 = ({row[0][:-4]: row for row in ANGLE_SLIDERS[3:]}
                if getattr(getattr(sensor, "gimbal", None), "name", "roll-pitch") == "roll-pitch" else {})

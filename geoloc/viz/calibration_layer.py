@@ -258,7 +258,6 @@ class AppCalibration:
     def __init__(self, app, exaggeration: float = 20.0, stage: str = "both", world_scale=None,
                  name=None):
         from geoloc.analysis.sensor_fit import fit_sensor_groups
-        from geoloc.locate import as_sensor
         from geoloc.surfaces.height import PerRecordHeightSurface
 
         if world_scale is None or name is None:
@@ -285,7 +284,7 @@ class AppCalibration:
             ok = (np.isfinite(heights) & np.isfinite(self.records.column("truth_lat_deg"))
                   & np.isfinite(self.records.column("truth_lon_deg")))
             if ok.sum() >= 2 and ok.all():
-                _, fitted = fit_sensor_groups(self.records, as_sensor(app.scn.camera), MOUNT_NAMES,
+                _, fitted = fit_sensor_groups(self.records, app.scn.camera, MOUNT_NAMES,
                                               PerRecordHeightSurface(heights), group_column="table", joint=True)
                 self.cameras["after"] = fitted["joint"]
             with _FIT_LOCK:

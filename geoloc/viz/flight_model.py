@@ -48,7 +48,6 @@ import numpy as np
 from geoloc.analysis import accuracy
 from geoloc.frames.chain import Pose
 from geoloc.frames.enu import EnuFrame
-from geoloc.locate import as_sensor
 from geoloc.status import Status
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.terrain import surface_for
@@ -504,7 +503,7 @@ def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: 
     if not recs:
         raise ValueError(f"scenario {scn.name!r}: no records: a flight needs at least one frame")
     n = len(recs)
-    sensor = as_sensor(scn.camera)
+    sensor = scn.camera
     enu = enu or scn.enu
     if fov_deg is None:
         fov_deg = getattr(scn, "frame_fov_deg", None)
@@ -640,7 +639,7 @@ def diagnose(model: FlightModel, scn, *, pose=None, row=None, col=None, target_h
         return []
     if pose is None:
         pose, row, col, target_h = records_pose(scn.records)
-    sensor = as_sensor(scn.camera)
+    sensor = scn.camera
     n = len(model)
     idx = np.concatenate([np.arange(a, b + 1) for a, b in runs])
     ref = model.truth_enu if model.reference == "truth" else model.reported_enu

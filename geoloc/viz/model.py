@@ -21,7 +21,7 @@ from geoloc.frames import rotations as rot
 from geoloc.frames.chain import Pose
 from geoloc.frames.enu import EnuFrame
 from geoloc.frames.graph import BoundFrames
-from geoloc.locate import as_sensor, line_of_sight
+from geoloc.locate import as_sensor, line_of_sight  # as_sensor: Scenario's entrance
 from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
@@ -32,7 +32,7 @@ from geoloc.viz.terrain_link import IterationView
 def drawn_frames(sensor) -> tuple:
     """Frames drawn at the aircraft: the sensor's graph without ECEF (the Earth's centre:
     only in the teaching panel)."""
-    return tuple(f for f in as_sensor(sensor).frames().frames if f != "ecef")
+    return tuple(f for f in sensor.frames().frames if f != "ecef")
 
 
 
@@ -131,6 +131,11 @@ class Scenario:
     #: flight's: the KLV replay's, geoloc.workflows.klv_replay.platform_velocity_ned); None: no velocity
     record_velocity_ned: object = None
 
+    def __post_init__(self):
+        # the viewer's one entrance for a sensor: a first-phase Camera built in Python becomes its
+        # FrameSensor here, so everything downstream holds a Sensor (docs/architecture.md)
+        self.camera = as_sensor(self.camera)
+
 
 def frame_views(chain: BoundFrames, enu: EnuFrame) -> dict:
     """Each drawn frame's origin and orientation in ENU, from ``chain.T_ecef(frame)``."""
@@ -142,7 +147,7 @@ def frame_views(chain: BoundFrames, enu: EnuFrame) -> dict:
 
 
 def _corner_footprint(pose, camera, enu, h):
-    s = as_sensor(camera)
+    s = camera
     rows = np.array([0.5, 0.5, s.rows + 0.5, s.rows + 0.5])
     cols = np.array([0.5, s.cols + 0.5, s.cols + 0.5, 0.5])
     los = line_of_sight(pose, camera, rows, cols)
@@ -162,7 +167,7 @@ def compute(scn: Scenario, inp: Inputs) -> Geometry:
     cam = scn.camera
     # The sensor's own graph: mount, boresight, lever arm and whatever joints it has
     # (the first-phase viewer built FrameChain(pose) here and lost the mount).
-    chain = as_sensor(cam).frames(pose)
+    chain = cam.frames(pose)
     enu = scn.enu
     frames = frame_views(chain, enu)
     # A pixel off the sensor is drawn (the ray extends the lens model) and flagged below.
@@ -177,7 +182,7 @@ def compute(scn: Scenario, inp: Inputs) -> Geometry:
     geo.update(terrain_link.hit_geometry(scn, inp, los))
     g = Geometry(**geo)
     g.status = int(g.hit.status)
-    sensor = as_sensor(cam)
+    sensor = cam
     if g.status == Status.OK and not bool(sensor.in_image(inp.row, inp.col)):
         g.status = int(Status.OUTSIDE_SENSOR)
         g.message = (f"**pixel outside the sensor**: row {inp.row:g}, column {inp.col:g} "

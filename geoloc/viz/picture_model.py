@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geoloc.io.mgrs_grid import mgrs_text
-from geoloc.locate import as_sensor, point_view
+from geoloc.locate import point_view
 from geoloc.status import Status, describe
 from geoloc.surfaces.base import LineOfSight, terrain_of
 
@@ -70,7 +70,7 @@ def image_index(scn, idx) -> int:
 
 def frame_sensor(scn, idx, rows: int, cols: int):
     """The sensor of record ``idx``'s image of ``rows`` x ``cols`` pixels (module docstring)."""
-    base = as_sensor(scn.camera)
+    base = scn.camera
     fov = getattr(scn, "frame_fov_deg", None)
     if fov is not None and idx is not None:
         h, v = (float(x) for x in np.asarray(fov, float)[int(idx)])

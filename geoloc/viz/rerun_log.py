@@ -71,7 +71,6 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from geoloc.assets import ASSETS
-from geoloc.locate import as_sensor
 from geoloc.status import Status, describe
 from geoloc.userfiles import atomic_path
 from geoloc.viz.rerun_model import LogSteps
@@ -288,7 +287,7 @@ def _aircraft_mesh():
 
 def info_markdown(steps: LogSteps) -> str:
     lines = [f"**{steps.name}**", "", *[f"- {n}" for n in steps.notes],
-             f"- camera: {steps.camera.name or 'unnamed'} (fx = {as_sensor(steps.camera).lens.fx:g} px)"]
+             f"- camera: {steps.camera.name or 'unnamed'} (fx = {steps.camera.lens.fx:g} px)"]
     for g in steps.groups:
         e = steps.enu_for(g)
         lines.append(f"- scene origin (ENU){' of ' + g if steps.multi else ''}: {np.rad2deg(e.lat0):.3f} N, "
@@ -313,7 +312,7 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
     rec.log("info", rr.TextDocument(info_markdown(steps), media_type=rr.MediaType.MARKDOWN), static=True)
     T = steps.hop_transforms()
     paths = steps.entity_paths()
-    lens = as_sensor(steps.camera).lens
+    lens = steps.camera.lens
     v_mesh, f_mesh = _aircraft_mesh()
     ac_all = steps.aircraft_enu
     tgt_all = steps.target_enu
@@ -469,7 +468,7 @@ def log_images(rec: rr.RecordingStream, steps: LogSteps, cam: str, m) -> None:
     from geoloc.io.photos import scale_lens
     from geoloc.sensors.lenses import lens_from_fov
 
-    base = as_sensor(steps.camera).lens
+    base = steps.camera.lens
     idx = np.asarray(steps.image_index)
     fov = steps.image_fov_deg
     cache = {}

@@ -42,7 +42,7 @@ from geoloc.frames.enu import EnuFrame
 from geoloc.frames.graph import BoundFrames
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import load_records
-from geoloc.locate import as_sensor, line_of_sight
+from geoloc.locate import as_sensor, line_of_sight  # as_sensor: the steps_from_* entrances
 from geoloc.sensors.frame import FrameSensor
 from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
 from geoloc.surfaces.spec import SurfaceSpec
@@ -254,12 +254,12 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None) ->
     ("truth") is the exact first hit on that DEM, so the error series shows
     what the chosen method costs at each frame angle.
     """
-    camera = camera if camera is not None else load_camera(scn.camera_path)
+    camera = as_sensor(camera if camera is not None else load_camera(scn.camera_path))  # a Python Camera too
     track = simulate(scn)
     n = len(track)
     row = np.full(n, camera.center_pixel[0] if scn.row is None else scn.row)
     col = np.full(n, camera.center_pixel[1] if scn.col is None else scn.col)
-    chain = as_sensor(camera).frames(track.pose)
+    chain = camera.frames(track.pose)
     los = line_of_sight(track.pose, camera, row, col)
     terrain = None
     truth = None
@@ -330,13 +330,13 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
     LogSteps, list of RowError
         The steps and the rows the loader rejected.
     """
-    camera = camera if camera is not None else load_camera()
-    recs = load_records(path, angles=as_sensor(camera).angle_names)
+    camera = as_sensor(camera if camera is not None else load_camera())  # a Python Camera too
+    recs = load_records(path, angles=camera.angle_names)
     if len(recs) == 0:
         raise ValueError(f"{path}: no valid record ({len(recs.errors)} rejected)")
     pose = recs.pose()
     row, col = recs.column("row"), recs.column("col")
-    chain = as_sensor(camera).frames(pose)
+    chain = camera.frames(pose)
     los = line_of_sight(pose, camera, row, col, outside="extrapolate")  # recorded pixels
     terrain = None
     notes = [f"records: {Path(path).name} ({len(recs)} records)"]
@@ -465,7 +465,7 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
     from geoloc.analysis.accuracy import error_components
     from geoloc.analysis.sensor_fit import fit_sensor_groups
 
-    sensor = as_sensor(steps.camera)
+    sensor = steps.camera
     report, sensors = fit_sensor_groups(recs, sensor, names, surface, group_column=group_column)
     from geoloc.surfaces.height import for_records
 

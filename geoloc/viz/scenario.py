@@ -18,7 +18,6 @@ import numpy as np
 from geoloc.assets import ASSETS, DEFAULT_CAMERA, DEFAULT_RECORDS
 from geoloc.frames.enu import EnuFrame
 from geoloc.io.records import load_records
-from geoloc.locate import as_sensor
 from geoloc.sensors.sensor_file import load_sensor
 from geoloc.viz.model import Inputs, RecordInfo, Scenario
 from geoloc.viz.terrain_link import default_dem_path  # noqa: F401  (here since phase 1)
@@ -37,7 +36,7 @@ def records_from_csv(path, camera=None) -> list:
     [Q17] gimbal's). Bad rows are left out by the loader (their errors are on
     ``Records.errors``).
     """
-    names = as_sensor(camera).angle_names if camera is not None else ("gimbal_roll", "gimbal_pitch")
+    names = camera.angle_names if camera is not None else ("gimbal_roll", "gimbal_pitch")
     recs = load_records(path, angles=names)
     out = []
     for label, row in zip(recs.labels(), recs.rows):

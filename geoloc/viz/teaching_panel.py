@@ -46,7 +46,6 @@ import time
 import numpy as np
 
 from geoloc.geodesy.ellipsoid import A
-from geoloc.locate import as_sensor
 from geoloc.viz import teaching
 from geoloc.viz.scene_geoloc import WORLD_SCALE, wxyz
 
@@ -128,7 +127,7 @@ class TeachingPanel:
         self.session = session
         self.scene = _scene(session)
         self.gui = _gui(session)
-        self.sensor = as_sensor(session.scn.camera)
+        self.sensor = session.scn.camera
         self.pose_override = None  # set while an animation runs
         self.animating = False
         self._lock = threading.Lock()

@@ -31,7 +31,6 @@ import numpy as np
 
 from geoloc.analysis.uncertainty import ELLIPSE90_PER_SIGMA, normalised_errors, propagate
 from geoloc.geodesy.local import ellipse_ring_enu, enu_to_geodetic
-from geoloc.locate import as_sensor
 from geoloc.sensors.budget import LENS_KEYS, ErrorBudget
 from geoloc.status import Status
 
@@ -46,9 +45,8 @@ LIFT_M = 5.0
 def view_budget(sensor, on_dem: bool) -> ErrorBudget:
     """The illustrative budget of a scenario without one: 2 m / 3 m of position, 0.05 deg of
     heading, 0.03 deg of pitch, roll and every joint, and the surface's SRTM LE90 (or 10 m)."""
-    s = as_sensor(sensor)
     b = {"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.05, "pitch_deg": 0.03, "roll_deg": 0.03}
-    b.update({f"{a}_deg": 0.03 for a in s.angle_names})
+    b.update({f"{a}_deg": 0.03 for a in sensor.angle_names})
     if on_dem:
         return ErrorBudget(b, "srtm", "illustrative budget")
     b["height_m"] = 10.0
@@ -63,7 +61,7 @@ def usable_budget(budget: ErrorBudget, sensor, velocity_known: bool = False) -> 
     ``fx_px``, ...) of a parameter the frame's lens does not have is the sensor file's lens's, not
     this frame's (a KLV frame's lens is made from its fields of view:
     ``geoloc.workflows.klv_replay.klv_sensor``)."""
-    lens_params = as_sensor(sensor).lens.params
+    lens_params = sensor.lens.params
     keep, notes = {}, []
     for k, v in budget.sigmas.items():
         if k == "time_s" and v > 0 and not velocity_known:

@@ -18,7 +18,7 @@ import numpy as np
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import Records
 from geoloc.io.mgrs_grid import mgrs_column
-from geoloc.locate import as_sensor, line_of_sight
+from geoloc.locate import line_of_sight
 from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status, names
 from geoloc.surfaces.base import GroundPoint, terrain_of
@@ -68,7 +68,7 @@ def records_line_of_sight(records: Records, camera: FrameSensor):
 
 def outside_sensor_mask(records: Records, camera) -> np.ndarray:
     """True for the records whose pixel lies off the sensor."""
-    s = as_sensor(camera)
+    s = camera
     return ~s.in_image(records.column("row"), records.column("col"))
 
 
@@ -77,7 +77,7 @@ def outside_sensor_messages(records: Records, camera, lat=None) -> list:
 
     ``lat`` (the replay's latitudes, optional) tells the records located by extending the lens
     model from those too far out for it (a distortion model has no ray there: NaN)."""
-    s = as_sensor(camera)
+    s = camera
     row, col = records.column("row"), records.column("col")
     labels = records.labels()
     out = []
