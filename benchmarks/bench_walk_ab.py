@@ -13,8 +13,8 @@ predates the hierarchy, and block tables of 8 cells if it predates the block sid
 3601 x 3601), and a change that helps sorted rays may not show here. Four rows, calls in
 turn (the machine's load swings), medians of CPU time per ray, one thread: REV's walk (with
 the levels from ``terrain.CLIMB_FROM`` where it has them); REV's with none; this tree's with
-the levels (the climbing kernel), against REV's; this tree's with none (``walk_flat_kernel``,
-or ``walk_flat_block_kernel`` for blocks other than 8 cells), against REV's with none.
+the levels (the climbing kernel), against REV's; this tree's with none (the ``"flat"`` walk of
+``terrain_numba.KERNELS``, ``"flat_block"`` for blocks other than 8 cells), against REV's with none.
 Each row says whether its statuses and hits equal REV's bit for bit, and if not, whether the
 statuses do and how far apart the hits are. ``--dem-model``: the cell model walked,
 ``triangles`` (default, as ``bench_terrain.py``) or ``bilinear`` (what ``locate`` and

@@ -208,7 +208,8 @@ def test_auto_climbs_for_grazing_views_only(rough600, monkeypatch):
     assert terrain.climbs(*flat(grazing), tab)
     used = []
     real = tn._kernel_for
-    monkeypatch.setattr(tn, "_kernel_for", lambda hlev, block=tn.BLOCK: (used.append(len(hlev)), real(hlev, block))[1])
+    monkeypatch.setattr(tn, "_kernel_for", lambda hlev, block=tn.BLOCK, triangles=False:
+                        (used.append(len(hlev)), real(hlev, block, triangles))[1])
     for los in (oblique, grazing):
         auto = intersect_dem(los, rough600, "exact", dem_model="triangles")
         monkeypatch.setattr(terrain, "CLIMB", "always")

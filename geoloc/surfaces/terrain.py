@@ -443,9 +443,10 @@ def climbs(o, d, tab) -> bool:
     over a horizontal run of (height range) / tan(depression). When the median run (of up
     to 256 of the rays) is shorter than :data:`CLIMB_MIN_NODES` nodes of level
     :data:`CLIMB_FROM` (block x 2^CLIMB_FROM cells), no jump can pay for the climb's tests,
-    and the walk is the compiled variant without them (``walk_flat_kernel``), whose cell
-    walk is 4-10 % faster (docs/terrain.md). Oblique views (8-45 deg below the horizon from
-    1500 m, ``benchmarks/bench_terrain.py``) do not climb; grazing views over a large DEM do.
+    and the walk is the compiled variant without them (a flat walk of
+    ``terrain_numba.KERNELS``), whose cell walk is 4-10 % faster (docs/terrain.md). Oblique
+    views (8-45 deg below the horizon from 1500 m, ``benchmarks/bench_terrain.py``) do not
+    climb; grazing views over a large DEM do.
     """
     if CLIMB != "auto":
         if CLIMB not in ("always", "never"):

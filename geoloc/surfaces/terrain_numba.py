@@ -92,15 +92,21 @@ BLOCK = 8
 #: walked in tile order (``terrain._SORT_MIN_BYTES``). Below it the tables stay in the caches
 #: and the hints only cost time (crop: 0.97 of the walk with them; 3601 x 3601: 1.28 without).
 PREFETCH_MIN_NODES = 1 << 19
-#: True in :data:`walk_kernel`, False in :data:`walk_flat_kernel` (the same source compiled
-#: with the climb above the blocks left out: numba reads a global as a constant, so LLVM
-#: drops that code and the cell walk compiles as tightly as the two-level walk did).
+#: True in the ``"climb"`` walks of :data:`KERNELS`, False in the flat ones (the same source
+#: compiled with the climb above the blocks left out: numba reads a global as a constant, so
+#: LLVM drops that code and the cell walk compiles as tightly as the two-level walk did).
 _CLIMB = True
-#: 0 in :data:`walk_kernel` and :data:`walk_flat_block_kernel` (the block side is the walk's
-#: ``blk`` argument); :data:`BLOCK` in :data:`walk_flat_kernel`, where LLVM then folds the side
+#: 0 in the ``"climb"`` and ``"flat_block"`` walks of :data:`KERNELS` (the block side is the
+#: walk's ``blk`` argument); :data:`BLOCK` in the ``"flat"`` ones, where LLVM then folds the side
 #: into the code as the walk had it before the side became an argument (the crop's walk was
 #: 1-3 % slower with the side read at run time).
 _FIXED_BLOCK = 0
+#: The cell model: each compiled walk is one model's (:data:`KERNELS`), so a call compiles the
+#: model it walks and not the other one (issue 32). ``_MODEL_ARG`` True (only in the plain
+#: Python :func:`_walk`): the ``triangles`` argument decides; False: ``_TRIANGLES`` does, a
+#: constant numba prunes the other model's branch on before typing.
+_MODEL_ARG = True
+_TRIANGLES = False
 #: The direction argument of :func:`_par_exit`: a float, not a bool, so that numba compiles the
 #: helper once (a constant True or False is typed as a literal of its own: two compiles of
 #: 0.4-0.6 s on a cold cache, issue 32); LLVM folds it where it inlines the helper.
@@ -526,7 +532,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
     nbc = binv.shape[1]
     nlev = hlev.shape[0]
     climb = nlev > 0 and _CLIMB  # _CLIMB False: numba prunes the climb before typing (the flat kernels)
-    if _FIXED_BLOCK > 0:  # a constant too (walk_flat_kernel, which _kernel_for takes only for blk == BLOCK)
+    if _FIXED_BLOCK > 0:  # a constant too (the "flat" walks, which _kernel_for takes only for blk == BLOCK)
         blk = _FIXED_BLOCK
     mtrace = trace_s.shape[1]
     # the start cell's fast path needs the grid within 0.4 rad of its west meridian
@@ -981,7 +987,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                         px = ox + s * dx
                         py = oy + s * dy
                         pz = oz + s * dz
-                        if triangles:
+                        if _TRIANGLES or (_MODEL_ARG and triangles):  # constants first: pruned
                             # the cell's nodes (i, j), (i+1, j), (i+1, j+1), then (i, j+1), from the
                             # heights as geodetic_to_ecef computes them for DEM.mesh (same tables,
                             # same operations: the same vertices as the trimesh mesh)
@@ -1143,41 +1149,41 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
 
 
 
-#: The compiled serial walk (prange runs as range), releasing the GIL so that
-#: :func:`walk_parallel` can run it on slices of the rays in threads. Call :func:`walk`,
-#: which hands it the one signature it is compiled for.
-walk_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(_walk)
-
-
-def _flat(fn, name, fixed_block=0):
-    """``fn`` under another name, reading its globals from a copy in which ``_CLIMB`` is False
-    (and ``_FIXED_BLOCK`` is ``fixed_block``)."""
+def _variant(fn, name, climb, fixed_block, triangles):
+    """``fn`` under another name, reading its globals from a copy in which ``_CLIMB`` is
+    ``climb``, ``_FIXED_BLOCK`` is ``fixed_block`` and the cell model is fixed to ``triangles``."""
     g = dict(fn.__globals__)
-    g["_CLIMB"] = False
-    g["_FIXED_BLOCK"] = fixed_block
+    g.update(_CLIMB=climb, _FIXED_BLOCK=fixed_block, _MODEL_ARG=False, _TRIANGLES=triangles)
     f = types.FunctionType(fn.__code__, g, name, fn.__defaults__, fn.__closure__)
     f.__qualname__ = name
     f.__module__ = fn.__module__
     return f
 
 
-#: The same walk compiled without the climb above the blocks: what :func:`walk` runs when it
-#: is given no levels (``hlev`` empty), with blocks of :data:`BLOCK` cells. The climb's code
-#: alone, unused, made the cell walk 4-10 % slower (its registers and branches in the hot loop;
+#: The compiled serial walks, keyed by (climb, block side, model), each releasing the GIL so that
+#: :func:`walk_parallel` can run it on slices of the rays in threads (prange runs as range).
+#: Call :func:`walk`, which picks one (:func:`_kernel_for`) and hands it the one signature it is
+#: compiled for; each is compiled on its first use only, so a call compiles one walk.
+#: ``"climb"``: with the climb above the blocks, the block side read at run time. ``"flat"``:
+#: without it, for blocks of :data:`BLOCK` cells (the side folded into the code); what
+#: :func:`walk` runs when it is given no levels (``hlev`` empty). The climb's code alone,
+#: unused, made the cell walk 4-10 % slower (its registers and branches in the hot loop;
 #: docs/terrain.md); the hits are the same bit for bit (the hierarchy only decides what is
-#: skipped).
-walk_flat_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(
-    _flat(_walk, "_walk_flat", BLOCK))
-#: The flat walk for tables of another block side (``terrain.block_cells``: 12 on a grid of
-#: 8.7 m cells), the side read at run time. Compiled on first use only.
-walk_flat_block_kernel = cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(
-    _flat(_walk, "_walk_flat_block"))
+#: skipped). ``"flat_block"``: the flat walk for tables of another block side
+#: (``terrain.block_cells``: 12 on a grid of 8.7 m cells), the side read at run time.
+#: The model, ``"bilinear"`` or ``"triangles"``: the other model's branch is left out (its
+#: code and its helpers, :func:`_bilinear_cell` or :func:`_tri`, are not compiled); the
+#: kernel's ``triangles`` argument is then not read.
+KERNELS = {
+    (kind, model): cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(
+        _variant(_walk, f"_walk_{kind}_{model}", kind == "climb", BLOCK if kind == "flat" else 0,
+                 model == "triangles"))
+    for kind in ("climb", "flat", "flat_block") for model in ("bilinear", "triangles")}
 
 
-def _kernel_for(hlev, block=BLOCK):
-    if np.shape(hlev)[0] > 0:
-        return walk_kernel
-    return walk_flat_kernel if int(block) == BLOCK else walk_flat_block_kernel
+def _kernel_for(hlev, block=BLOCK, triangles=False):
+    kind = "climb" if np.shape(hlev)[0] > 0 else "flat" if int(block) == BLOCK else "flat_block"
+    return KERNELS[kind, "triangles" if triangles else "bilinear"]
 
 # One signature per kernel. numba compiles a kernel once per distinct argument type, and
 # a read-only array is a type of its own: the origins and directions of a line-of-sight
@@ -1260,15 +1266,16 @@ def _call(args, order=None, order_checked=False, block=BLOCK):
         raise ValueError(f"walk: binv has {binv.shape[0]} x {binv.shape[1]} blocks, but block = {block} "
                          f"on {hgt.shape[0]} x {hgt.shape[1]} nodes needs {want}: pass the block side the "
                          "tables were made with (geoloc.surfaces.terrain._exact_tables: 'block')")
-    _kernel_for(hlev, block)(o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo, float(lat_n),
+    _kernel_for(hlev, block, triangles)(o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo, float(lat_n),
            float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
 
 
 def walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
          tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
          trace_s, trace_ij, order=None, block=BLOCK):
-    """The exact first hit for each ray, serial: :func:`_walk` (its docstring) compiled once;
-    :data:`walk_flat_kernel` when ``hlev`` is empty (no levels above the blocks to climb).
+    """The exact first hit for each ray, serial: :func:`_walk` (its docstring) compiled once
+    for the cell model (``triangles``) and the climb; a flat walk of :data:`KERNELS` when ``hlev``
+    is empty (no levels above the blocks to climb).
     ``order``: the rays to walk, in that order (default: all, in turn; :func:`ray_order`).
     ``block``: the cells per side of the blocks ``binv`` and ``hinv`` were made for (checked
     against ``binv``'s shape)."""
