@@ -18,7 +18,8 @@ import time
 
 #: The steps: (what it compiles, the verb's arguments); paths under the bundled assets.
 STEPS = (
-    ("the terrain walk and the camera chain: geoloc locate --sensor eo_turret.toml --dem srtm_jacksboro.tif",
+    ("the camera chain (the one-ray walk runs uncompiled): geoloc locate --sensor eo_turret.toml "
+     "--dem srtm_jacksboro.tif",
      ["locate", "--sensor", "assets/sensors/eo_turret.toml", "--lat-deg", "36.6", "--lon-deg", "-84.25",
       "--h-m", "2500", "--heading-deg", "45", "--angle", "azimuth=90", "--angle", "elevation=-30",
       "--dem", "assets/dem/srtm_jacksboro.tif", "--json"]),
@@ -27,7 +28,7 @@ STEPS = (
       "--dem", "assets/dem/srtm_jacksboro.tif"]),
     ("a KLV replay: geoloc replay example_flight.klv",
      ["replay", "assets/klv/example_flight.klv"]),
-    ("the viewer's first scene: geoloc view --export (the scene geoloc view serves)",
+    ("the terrain walk and the viewer's first scene: geoloc view --export (the scene geoloc view serves)",
      ["view", "--export", "{tmp}/scene.html"]),
 )
 

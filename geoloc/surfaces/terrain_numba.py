@@ -51,6 +51,13 @@ about 11.0 M after. Kernels split out of the walk (its start cell, a cell's two 
 a cell's bilinear step) saved little more (10.6 M) and made the walk 9-16 % slower: a kernel
 taking arrays pays their reference counts on every call.
 
+A small call is not compiled at all (:data:`PY_WALK_MAX_RAYS`: up to 64 rays over a DEM of
+modest size): :func:`walk` runs the same source uncompiled (:func:`_python_walk`, about 1 ms a
+ray on the bundled crop), so a one-ray ``geoloc locate --dem`` or a short ``replay`` starts in
+about 1.5 s of CPU on a cold cache instead of 15 s (issue 32). Its statuses and cells are the
+kernel's; its hits differ from the kernel's by the FMA rounding below (2.5e-8 m on the crop's
+300 oblique rays, bilinear; ``tests/test_terrain_python_walk.py`` holds them to 1e-6 m).
+
 ``fastmath={"contract"}`` only lets LLVM fuse a multiply and an add (FMA, one
 rounding instead of two): 10 % faster; hits move by at most 1e-7 m on grazing
 rays. No other fast-math flag: the walk relies on NaN and infinity.
@@ -1266,8 +1273,79 @@ def _call(args, order=None, order_checked=False, block=BLOCK):
         raise ValueError(f"walk: binv has {binv.shape[0]} x {binv.shape[1]} blocks, but block = {block} "
                          f"on {hgt.shape[0]} x {hgt.shape[1]} nodes needs {want}: pass the block side the "
                          "tables were made with (geoloc.surfaces.terrain._exact_tables: 'block')")
-    _kernel_for(hlev, block, triangles)(o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo, float(lat_n),
-           float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
+    kernel = _kernel_for(hlev, block, triangles)
+    kargs = (o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo,
+             float(lat_n), float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
+    if _python_ok(kernel, len(order), hgt.shape[0] + hgt.shape[1]):
+        _PY_WALKED[0] += len(order)
+        kept = [a[order].copy() for a in outs]  # status is read too: restored if the kernel must redo them
+        try:
+            # the scalars as numpy float64: a Python float plus a float32 table entry is float32
+            # under numpy 2's promotion; numba's (and numpy's float64 + float32) is float64
+            f64 = tuple(np.float64(a) if type(a) is float else a for a in kargs)
+            with np.errstate(all="ignore"):
+                _python_walk(kernel)(*f64)
+            return
+        except (ArithmeticError, ValueError, IndexError):
+            # where numba's float and integer semantics differ from Python's (int(nan), a
+            # sqrt of a negative, an index past an end): the compiled kernel walks them
+            for a, k in zip(outs, kept):
+                a[order] = k
+    kernel(*kargs)
+
+
+#: A call of at most this many rays, and at most :data:`PY_WALK_MAX_WORK` rays x (rows + columns)
+#: of the DEM, runs the walk's Python source (:func:`_python_walk`) instead of its compiled
+#: kernel while that kernel is not compiled in this process and the process has walked fewer
+#: than :data:`PY_WALK_BUDGET_RAYS` rays so: ``locate`` (one ray) and a short ``replay``
+#: compile nothing (issue 32: the compile is 12-15 s of CPU; the Python walk about 1 ms a ray
+#: on the bundled crop). The same code, run with numpy's float64 scalars: the statuses are the
+#: kernel's, the hits within the rounding of the multiply-adds LLVM fuses
+#: (``fastmath={"contract"}``; the bilinear polish stops at 1e-7 m anyway), checked in
+#: ``tests/test_terrain_python_walk.py``. 0: always compiled.
+PY_WALK_MAX_RAYS = 64
+#: Rays x (rows + columns): the most cells such a call could cross, bounded so that a grazing
+#: batch over a large DEM still takes the kernel (a straight ray crosses each node line once
+#: or twice; about 20 us a cell step in Python).
+PY_WALK_MAX_WORK = 1 << 16
+#: Rays a process walks uncompiled before it compiles (or loads) the kernel: a process making
+#: many small calls (a live feed, one ray a packet: about 50 us a call compiled, 1 ms not) pays
+#: about a second of Python walks, then runs compiled.
+PY_WALK_BUDGET_RAYS = 1024
+_PY_WALKED = [0]
+_PY_FUNCS: dict = {}
+
+
+def _python_ok(kernel, n, nodes):
+    """Whether a call of ``n`` rays over a DEM of ``nodes`` rows + columns walks uncompiled."""
+    return (n <= PY_WALK_MAX_RAYS and n * nodes <= PY_WALK_MAX_WORK and not kernel.signatures
+            and _PY_WALKED[0] + n <= PY_WALK_BUDGET_RAYS)
+
+
+def _python_walk(kernel):
+    """``kernel``'s Python function, with the compiled helpers it calls replaced by theirs
+    (recursively), ``prange`` by ``range`` and the prefetch hint by nothing: runs uncompiled."""
+    from numba.core.dispatcher import Dispatcher
+
+    def plain(f):
+        if f in _PY_FUNCS:
+            return _PY_FUNCS[f]
+        fn = getattr(f, "py_func", f)  # a kernel's Python function
+        g = dict(fn.__globals__)
+        out = types.FunctionType(fn.__code__, g, fn.__name__, fn.__defaults__, fn.__closure__)
+        _PY_FUNCS[f] = out
+        for name, v in list(g.items()):
+            if isinstance(v, Dispatcher):
+                g[name] = plain(v)
+        g["prange"] = range
+        g["_prefetch"] = _no_prefetch
+        return out
+
+    return plain(kernel)
+
+
+def _no_prefetch(arr, i, j):
+    return None
 
 
 def walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,

@@ -1,0 +1,113 @@
+"""The walk's Python source run uncompiled for a small call (terrain_numba.PY_WALK_MAX_RAYS,
+issue 32: a one-ray ``locate`` compiles nothing) against the compiled kernel on the same rays:
+oblique views of the bundled SRTM crop and rays that graze a rough DEM for kilometres, leave
+it across an edge or start outside it, both cell models, with and without the climb."""
+
+import numpy as np
+import pytest
+from test_terrain_hierarchy import _grazing_and_edge_rays, _rough_dem  # tests/ is on sys.path
+
+from geoloc.assets import asset_path
+from geoloc.surfaces import terrain
+from geoloc.surfaces import terrain_numba as tn
+from geoloc.surfaces.dem import DEM
+from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
+
+
+def _both(los, dem, model, monkeypatch, **kw):
+    """(Python walk's result, compiled kernel's result), the Python one checked to have run
+    without falling back to the kernel."""
+    ran = []
+    real = tn._python_walk
+
+    def spy(kernel):
+        f = real(kernel)
+        return lambda *a: (f(*a), ran.append(kernel))[0]
+
+    monkeypatch.setattr(tn, "_python_walk", spy)
+    monkeypatch.setattr(tn, "_python_ok", lambda kernel, n, nodes: True)
+    py = intersect_dem(los, dem, "exact", dem_model=model, **kw)
+    assert ran, "the Python walk fell back to the kernel"
+    monkeypatch.setattr(tn, "_python_ok", lambda kernel, n, nodes: False)
+    nb = intersect_dem(los, dem, "exact", dem_model=model, **kw)
+    return py, nb
+
+
+def _assert_same(py, nb):
+    assert np.array_equal(py.status, nb.status)
+    assert np.array_equal(py.dem_evaluations, nb.dem_evaluations)  # the same cells visited
+    # the same code; the kernel rounds once where LLVM fuses a multiply and an add (FMA,
+    # fastmath "contract"; the module docstring: hits move by at most 1e-7 m), Python twice.
+    # 1e-6 m: ten times that bound, and 5 orders of magnitude under a DEM cell (30-50 m)
+    assert np.allclose(py.ecef, nb.ecef, rtol=0.0, atol=1e-6, equal_nan=True)
+    assert np.allclose(py.slant_range, nb.slant_range, rtol=0.0, atol=1e-6, equal_nan=True)
+    assert np.allclose(py.lat, nb.lat, rtol=0.0, atol=1e-12, equal_nan=True)  # 1e-12 rad: 6 um
+
+
+@pytest.mark.parametrize("model", ["bilinear", "triangles"])
+def test_python_walk_matches_kernel_on_the_crop(model, monkeypatch):
+    dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
+    los = random_oblique_rays(dem, 300, np.random.default_rng(3), frame_angle_deg=(10.0, 82.0))
+    py, nb = _both(los, dem, model, monkeypatch, trace=True)
+    _assert_same(py, nb)
+    assert (nb.status == 0).sum() > 250  # most of them hit
+    # the traces too: where the ray entered each cell it stepped through (1e-6 m, as the hits)
+    assert np.allclose(py.trace.ecef, nb.trace.ecef, rtol=0.0, atol=1e-6, equal_nan=True)
+
+
+@pytest.mark.parametrize("climb", ["auto", "always"])
+def test_python_walk_matches_kernel_grazing_and_outside(climb, monkeypatch):
+    dem = _rough_dem(300, seed=7)
+    rng = np.random.default_rng(11)
+    monkeypatch.setattr(terrain, "CLIMB", climb)
+    monkeypatch.setattr(terrain, "CLIMB_FROM", 2)
+    for outside in (False, True):
+        los = _grazing_and_edge_rays(dem, 150, rng, outside=outside)
+        for model in ("bilinear", "triangles"):
+            py, nb = _both(los, dem, model, monkeypatch)
+            _assert_same(py, nb)
+
+
+def test_small_calls_walk_uncompiled_until_the_kernel_is_compiled_or_the_budget_spent(monkeypatch):
+    dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
+    kernel = tn._kernel_for(np.zeros((0, 4), np.int64), tn.BLOCK, False)
+    monkeypatch.setattr(tn, "_PY_WALKED", [0])  # other tests of this process walked some
+    assert tn._python_ok(type("K", (), {"signatures": []})(), 1, 2000)  # one ray, not compiled
+    assert not tn._python_ok(type("K", (), {"signatures": ["compiled"]})(), 1, 2000)  # compiled: used
+    assert not tn._python_ok(type("K", (), {"signatures": []})(), tn.PY_WALK_MAX_RAYS + 1, 10)
+    assert not tn._python_ok(type("K", (), {"signatures": []})(), 2, tn.PY_WALK_MAX_WORK)  # a large DEM
+    monkeypatch.setattr(tn, "_PY_WALKED", [tn.PY_WALK_BUDGET_RAYS])
+    assert not tn._python_ok(type("K", (), {"signatures": []})(), 1, 2000)  # the budget spent
+    # a small call compiles nothing (whatever this test process compiled before: no kernel)
+    used = []
+    real = tn._python_walk
+    monkeypatch.setattr(tn, "_PY_WALKED", [0])
+    monkeypatch.setattr(tn, "_python_walk", lambda k: (used.append(k), real(k))[1])
+    monkeypatch.setattr(tn, "_kernel_for", lambda hlev, block=tn.BLOCK, triangles=False: type(
+        "Uncompiled", (), {"signatures": [], "py_func": kernel.py_func, "__call__": None})())
+    hit = intersect_dem(random_oblique_rays(dem, 1, np.random.default_rng(5)), dem, "exact")
+    assert len(used) == 1 and hit.status[0] == 0 and tn._PY_WALKED[0] == 1
+
+
+def test_python_walk_failure_falls_back_to_the_kernel_with_the_inputs_restored(monkeypatch):
+    """Where Python's arithmetic raises (int(nan), a sqrt of a negative, an index past an end)
+    and numba's does not, the kernel walks the call: from the status the caller gave, not the
+    one the Python walk had half written."""
+    dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
+    los = random_oblique_rays(dem, 20, np.random.default_rng(9))
+    monkeypatch.setattr(tn, "_python_ok", lambda kernel, n, nodes: False)
+    nb = intersect_dem(los, dem, "exact")
+
+    def broken(kernel):
+        def run(*a):
+            status = a[-4]
+            status[:] = 99  # scribbled on, then a failure
+            a[-7][:] = -1.0
+            raise ValueError("math domain error")
+        return run
+
+    monkeypatch.setattr(tn, "_python_ok", lambda kernel, n, nodes: True)
+    monkeypatch.setattr(tn, "_python_walk", broken)
+    fb = intersect_dem(los, dem, "exact")
+    assert np.array_equal(fb.status, nb.status)
+    assert np.array_equal(fb.ecef, nb.ecef, equal_nan=True)
