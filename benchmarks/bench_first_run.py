@@ -12,6 +12,15 @@ then is stopped. For each the child's wall time, CPU time (user + system, from
 Run: ``python benchmarks/bench_first_run.py [--repeat N] [--only locate,replay,view]``
 (medians over N cold folders; 15-30 s of CPU per cold call on 2 cores).
 
+Measured 2026-12-03 (2 cores, load 1.7-2.7, medians of 3), after a call of up to 64 rays ran
+the walk uncompiled and the walk was compiled per cell model: cold locate 2.4 s wall, 2.2 s
+CPU, 217 MB; replay 2.6 s, 2.4 s, 217 MB; view 4.0 s, 3.1 s, 257 MB; warm 2.0 / 2.4 / 3.1 s
+CPU. ``view`` is counted until it serves, and it now serves before it walks more than one ray:
+the first scene a browser asks for compiles the walk (``geoloc view --export`` on a cold
+cache: 17.3 s of CPU, the walk's compile 10.8 s, 418 MB), which this does not measure. Before
+(main 2a78c8e, load 0.9-1.9): cold locate 19.1 s wall, 15.1 s CPU, 313 MB; replay 14.9 s,
+13.7 s, 314 MB; view 16.2 s, 15.2 s, 365 MB.
+
 Measured 2026-12-02 (2 cores at a load of 17-21, so wall times are 5-15x the CPU; one run
 each), after the walk's helpers stopped being numba-inlined: cold locate 15.0 s CPU, 386 MB;
 replay 16.7 s, 383 MB; view 18.0 s, 455 MB; warm 2.3 / 2.6 / 2.9 s CPU. Before: 41-48 s CPU
