@@ -9,15 +9,16 @@ then is stopped. For each the child's wall time, CPU time (user + system, from
 (``ru_maxrss`` / VmHWM). The issue's target (issue 32): the first call of each verb within
 10 s and 500 MB. ``geoloc warm`` (tools/run.sh) compiles them ahead of that first call.
 
-Run: ``python benchmarks/bench_first_run.py [--repeat N] [--only locate,replay,view]``
+Run: ``python benchmarks/bench_first_run.py [--repeat N] [--only locate,replay,view,scene]``
 (medians over N cold folders; 15-30 s of CPU per cold call on 2 cores).
 
 Measured 2026-12-03 (2 cores, load 1.7-2.7, medians of 3), after a call of up to 64 rays ran
 the walk uncompiled and the walk was compiled per cell model: cold locate 2.4 s wall, 2.2 s
 CPU, 217 MB; replay 2.6 s, 2.4 s, 217 MB; view 4.0 s, 3.1 s, 257 MB; warm 2.0 / 2.4 / 3.1 s
 CPU. ``view`` is counted until it serves, and it now serves before it walks more than one ray:
-the first scene a browser asks for compiles the walk (``geoloc view --export`` on a cold
-cache: 17.3 s of CPU, the walk's compile 10.8 s, 418 MB), which this does not measure. Before
+the first scene a browser asks for compiles the walk: the ``scene`` row, ``geoloc view
+--export`` (load 3.2-3.5, one run: cold 22.5 s wall, 17.8 s CPU, 419 MB; warm 9.7 s, 7.5 s
+CPU, 361 MB; the walk's compile 10.8 s of CPU). Before
 (main 2a78c8e, load 0.9-1.9): cold locate 19.1 s wall, 15.1 s CPU, 313 MB; replay 14.9 s,
 13.7 s, 314 MB; view 16.2 s, 15.2 s, 365 MB.
 
@@ -50,6 +51,10 @@ CALLS = {
     "replay": ["replay", str(A / "records/drone_targets.csv"), "--sensor", str(A / "sensors/drone_camera.toml"),
                "--dem", str(A / "dem/srtm_jacksboro.tif")],
     "view": ["view", "--no-browser", "--port", "0"],
+    # the scene a browser's first page asks for, built and written without a server: view counts
+    # until it serves, and it serves before it walks more than one ray (the scene's 792 + 5364 +
+    # 110 rays compile the walk)
+    "scene": ["view", "--export", "{cache}/scene.html"],
 }
 CLK = os.sysconf("SC_CLK_TCK")
 
@@ -62,7 +67,7 @@ def _env(cache: Path) -> dict:
 
 def run_once(verb: str, cache: Path) -> dict:
     """One call in a new process: wall s, CPU s, peak RSS MB."""
-    cmd = [sys.executable, "-m", "geoloc", *CALLS[verb]]
+    cmd = [sys.executable, "-m", "geoloc", *(a.replace("{cache}", str(cache)) for a in CALLS[verb])]
     t0 = time.perf_counter()
     if verb != "view":
         p = subprocess.Popen(cmd, env=_env(cache), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
@@ -97,7 +102,7 @@ def run_once(verb: str, cache: Path) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=1)
-    ap.add_argument("--only", default="locate,replay,view")
+    ap.add_argument("--only", default="locate,replay,view,scene")
     a = ap.parse_args(argv)
     verbs = [v for v in a.only.split(",") if v]
     print(f"first call on a cold numba cache vs warm (peer); {os.cpu_count()} cores; median of {a.repeat}")
