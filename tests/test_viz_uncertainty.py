@@ -91,7 +91,7 @@ def test_flight_debugger_flags_frames_outside_their_own_99_percent_ellipse():
     from geoloc.viz import flight_model
 
     scn = flight_model.default_flight_scenario()
-    names = flight_model.as_sensor(scn.camera).angle_names
+    names = scn.camera.angle_names  # the Scenario holds a FrameSensor
     b = {"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.05, "pitch_deg": 0.03, "roll_deg": 0.03}
     b.update({f"{a}_deg": 0.03 for a in names})
     scn.budget = ErrorBudget(b, "srtm")
