@@ -68,25 +68,23 @@ def test_python_walk_matches_kernel_grazing_and_outside(climb, monkeypatch):
             _assert_same(py, nb)
 
 
-def test_small_calls_walk_uncompiled_until_the_kernel_is_compiled_or_the_budget_spent(monkeypatch):
+def test_small_calls_walk_uncompiled_whatever_the_process_compiled(monkeypatch):
     dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
     kernel = tn._kernel_for(np.zeros((0, 4), np.int64), tn.BLOCK, False)
-    monkeypatch.setattr(tn, "_PY_WALKED", [0])  # other tests of this process walked some
-    assert tn._python_ok(type("K", (), {"signatures": []})(), 1, 2000)  # one ray, not compiled
-    assert not tn._python_ok(type("K", (), {"signatures": ["compiled"]})(), 1, 2000)  # compiled: used
-    assert not tn._python_ok(type("K", (), {"signatures": []})(), tn.PY_WALK_MAX_RAYS + 1, 10)
-    assert not tn._python_ok(type("K", (), {"signatures": []})(), 2, tn.PY_WALK_MAX_WORK)  # a large DEM
-    monkeypatch.setattr(tn, "_PY_WALKED", [tn.PY_WALK_BUDGET_RAYS])
-    assert not tn._python_ok(type("K", (), {"signatures": []})(), 1, 2000)  # the budget spent
-    # a small call compiles nothing (whatever this test process compiled before: no kernel)
+    assert tn._python_ok(kernel, 1, 2000)  # one ray
+    assert not tn._python_ok(kernel, tn.PY_WALK_MAX_RAYS + 1, 10)
+    assert not tn._python_ok(kernel, 2, tn.PY_WALK_MAX_WORK)  # a large DEM
+    # the choice is the call's, not the process's: compiled or not, the same bits
+    los = random_oblique_rays(dem, 12, np.random.default_rng(5))
     used = []
     real = tn._python_walk
-    monkeypatch.setattr(tn, "_PY_WALKED", [0])
     monkeypatch.setattr(tn, "_python_walk", lambda k: (used.append(k), real(k))[1])
-    monkeypatch.setattr(tn, "_kernel_for", lambda hlev, block=tn.BLOCK, triangles=False: type(
-        "Uncompiled", (), {"signatures": [], "py_func": kernel.py_func, "__call__": None})())
-    hit = intersect_dem(random_oblique_rays(dem, 1, np.random.default_rng(5)), dem, "exact")
-    assert len(used) == 1 and hit.status[0] == 0 and tn._PY_WALKED[0] == 1
+    first = intersect_dem(los, dem, "exact")
+    intersect_dem(random_oblique_rays(dem, 500, np.random.default_rng(6)), dem, "exact")  # compiles
+    assert kernel.signatures or tn._kernel_for(np.zeros((0, 4), np.int64), tn.BLOCK, False).signatures
+    again = intersect_dem(los, dem, "exact")
+    assert len(used) == 2 and np.array_equal(first.status, again.status) and first.status[0] == 0
+    assert np.array_equal(first.ecef, again.ecef, equal_nan=True)
 
 
 def test_python_walk_failure_falls_back_to_the_kernel_with_the_inputs_restored(monkeypatch):

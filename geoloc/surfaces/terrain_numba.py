@@ -1277,7 +1277,6 @@ def _call(args, order=None, order_checked=False, block=BLOCK):
     kargs = (o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo,
              float(lat_n), float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
     if _python_ok(kernel, len(order), hgt.shape[0] + hgt.shape[1]):
-        _PY_WALKED[0] += len(order)
         kept = [a[order].copy() for a in outs]  # status is read too: restored if the kernel must redo them
         try:
             # the scalars as numpy float64: a Python float plus a float32 table entry is float32
@@ -1296,30 +1295,27 @@ def _call(args, order=None, order_checked=False, block=BLOCK):
 
 #: A call of at most this many rays, and at most :data:`PY_WALK_MAX_WORK` rays x (rows + columns)
 #: of the DEM, runs the walk's Python source (:func:`_python_walk`) instead of its compiled
-#: kernel while that kernel is not compiled in this process and the process has walked fewer
-#: than :data:`PY_WALK_BUDGET_RAYS` rays so: ``locate`` (one ray) and a short ``replay``
+#: kernel, whatever the process compiled before: ``locate`` (one ray) and a short ``replay``
 #: compile nothing (issue 32: the compile is 12-15 s of CPU; the Python walk about 1 ms a ray
 #: on the bundled crop). The same code, run with numpy's float64 scalars: the statuses are the
 #: kernel's, the hits within the rounding of the multiply-adds LLVM fuses
 #: (``fastmath={"contract"}``; the bilinear polish stops at 1e-7 m anyway), checked in
-#: ``tests/test_terrain_python_walk.py``. 0: always compiled.
+#: ``tests/test_terrain_python_walk.py``. The choice is the call's alone (its rays and its DEM),
+#: never the process's history, so the same call gives the same bits in any process: a
+#: campaign's worker equals the serial run (tests/test_campaign.py), a viewer's step equals its
+#: first. A process making many one-ray calls (a live feed) pays about 1 ms a ray for that
+#: (about 50 us compiled). 0: always compiled.
 PY_WALK_MAX_RAYS = 64
 #: Rays x (rows + columns): the most cells such a call could cross, bounded so that a grazing
 #: batch over a large DEM still takes the kernel (a straight ray crosses each node line once
 #: or twice; about 20 us a cell step in Python).
 PY_WALK_MAX_WORK = 1 << 16
-#: Rays a process walks uncompiled before it compiles (or loads) the kernel: a process making
-#: many small calls (a live feed, one ray a packet: about 50 us a call compiled, 1 ms not) pays
-#: about a second of Python walks, then runs compiled.
-PY_WALK_BUDGET_RAYS = 1024
-_PY_WALKED = [0]
 _PY_FUNCS: dict = {}
 
 
 def _python_ok(kernel, n, nodes):
     """Whether a call of ``n`` rays over a DEM of ``nodes`` rows + columns walks uncompiled."""
-    return (n <= PY_WALK_MAX_RAYS and n * nodes <= PY_WALK_MAX_WORK and not kernel.signatures
-            and _PY_WALKED[0] + n <= PY_WALK_BUDGET_RAYS)
+    return n <= PY_WALK_MAX_RAYS and n * nodes <= PY_WALK_MAX_WORK
 
 
 def _python_walk(kernel):
