@@ -119,8 +119,9 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
                      "the latest frame loaded (its chain, line of sight, iterations)")
             # the picture panel is the live frame: it moves on as the view follows, and it is the picture
             # nearest the followed packet's time (the layer's own choice, against the feed's pictures)
-            wait_for(lambda: _picture_on_page(page) is not None, 60, "the live picture")
-            k1 = _picture_on_page(page)
+            seen = []  # the page read once per poll: it may move on between two reads
+            wait_for(lambda: seen.append(_picture_on_page(page)) or seen[-1] is not None, 60, "the live picture")
+            k1 = seen[-1]
             wait_for(lambda: (_picture_on_page(page) or 0) >= k1 + 4, 30, "the picture to follow the stream")
             # read on the server, where the tab may be between two states: the looped sender's restart
             # rebuilds the session, whose new picture layer shows nothing (k = -1) until its first frame
