@@ -109,10 +109,8 @@ _CLIMB = True
 #: 1-3 % slower with the side read at run time).
 _FIXED_BLOCK = 0
 #: The cell model: each compiled walk is one model's (:data:`KERNELS`), so a call compiles the
-#: model it walks and not the other one (issue 32). ``_MODEL_ARG`` True (only in the plain
-#: Python :func:`_walk`): the ``triangles`` argument decides; False: ``_TRIANGLES`` does, a
-#: constant numba prunes the other model's branch on before typing.
-_MODEL_ARG = True
+#: model it walks and not the other one (issue 32): ``_TRIANGLES`` is a constant numba prunes
+#: the other model's branch on before typing (the kernel's ``triangles`` argument is not read).
 _TRIANGLES = False
 #: The direction argument of :func:`_par_exit`: a float, not a bool, so that numba compiles the
 #: helper once (a constant True or False is typed as a literal of its own: two compiles of
@@ -994,7 +992,7 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                         px = ox + s * dx
                         py = oy + s * dy
                         pz = oz + s * dz
-                        if _TRIANGLES or (_MODEL_ARG and triangles):  # constants first: pruned
+                        if _TRIANGLES:  # a constant of the variant (KERNELS): pruned
                             # the cell's nodes (i, j), (i+1, j), (i+1, j+1), then (i, j+1), from the
                             # heights as geodetic_to_ecef computes them for DEM.mesh (same tables,
                             # same operations: the same vertices as the trimesh mesh)
@@ -1160,7 +1158,7 @@ def _variant(fn, name, climb, fixed_block, triangles):
     """``fn`` under another name, reading its globals from a copy in which ``_CLIMB`` is
     ``climb``, ``_FIXED_BLOCK`` is ``fixed_block`` and the cell model is fixed to ``triangles``."""
     g = dict(fn.__globals__)
-    g.update(_CLIMB=climb, _FIXED_BLOCK=fixed_block, _MODEL_ARG=False, _TRIANGLES=triangles)
+    g.update(_CLIMB=climb, _FIXED_BLOCK=fixed_block, _TRIANGLES=triangles)
     f = types.FunctionType(fn.__code__, g, name, fn.__defaults__, fn.__closure__)
     f.__qualname__ = name
     f.__module__ = fn.__module__
