@@ -60,7 +60,7 @@ def test_walk_compiles_once_for_every_kind_of_input(monkeypatch):
     # (one origin broadcast to many directions: a copy), the bisection's internal call
     # with normalised (writable) directions, triangles, a float32 DEM and a trace: one
     # signature, so a cold cache compiles the walk once (it compiled it four times)
-    monkeypatch.setattr(tn, "_python_ok", lambda kernel, n, nodes: False)  # small calls: uncompiled
+    monkeypatch.setattr(tn, "_python_ok", lambda n, nodes: False)  # small calls: uncompiled
     z32 = (300.0 + 200.0 * np.random.default_rng(0).random((30, 30))).astype(np.float32)
     dem32 = DEM.from_array(z32, 36.1, 78.0, 0.002, 0.002)
     dem = DEM.from_array(z32.astype(float), 36.1, 78.0, 0.002, 0.002)

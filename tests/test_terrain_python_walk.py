@@ -25,10 +25,10 @@ def _both(los, dem, model, monkeypatch, **kw):
         return lambda *a: (f(*a), ran.append(kernel))[0]
 
     monkeypatch.setattr(tn, "_python_walk", spy)
-    monkeypatch.setattr(tn, "_python_ok", lambda kernel, n, nodes: True)
+    monkeypatch.setattr(tn, "_python_ok", lambda n, nodes: True)
     py = intersect_dem(los, dem, "exact", dem_model=model, **kw)
     assert ran, "the Python walk fell back to the kernel"
-    monkeypatch.setattr(tn, "_python_ok", lambda kernel, n, nodes: False)
+    monkeypatch.setattr(tn, "_python_ok", lambda n, nodes: False)
     nb = intersect_dem(los, dem, "exact", dem_model=model, **kw)
     return py, nb
 
@@ -71,9 +71,9 @@ def test_python_walk_matches_kernel_grazing_and_outside(climb, monkeypatch):
 def test_small_calls_walk_uncompiled_whatever_the_process_compiled(monkeypatch):
     dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
     kernel = tn._kernel_for(np.zeros((0, 4), np.int64), tn.BLOCK, False)
-    assert tn._python_ok(kernel, 1, 2000)  # one ray
-    assert not tn._python_ok(kernel, tn.PY_WALK_MAX_RAYS + 1, 10)
-    assert not tn._python_ok(kernel, 2, tn.PY_WALK_MAX_WORK)  # a large DEM
+    assert tn._python_ok(1, 2000)  # one ray
+    assert not tn._python_ok(tn.PY_WALK_MAX_RAYS + 1, 10)
+    assert not tn._python_ok(2, tn.PY_WALK_MAX_WORK)  # a large DEM
     # the choice is the call's, not the process's: compiled or not, the same bits
     los = random_oblique_rays(dem, 12, np.random.default_rng(5))
     used = []
@@ -93,7 +93,7 @@ def test_python_walk_failure_falls_back_to_the_kernel_with_the_inputs_restored(m
     one the Python walk had half written."""
     dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
     los = random_oblique_rays(dem, 20, np.random.default_rng(9))
-    monkeypatch.setattr(tn, "_python_ok", lambda kernel, n, nodes: False)
+    monkeypatch.setattr(tn, "_python_ok", lambda n, nodes: False)
     nb = intersect_dem(los, dem, "exact")
 
     def broken(kernel):
@@ -104,7 +104,7 @@ def test_python_walk_failure_falls_back_to_the_kernel_with_the_inputs_restored(m
             raise ValueError("math domain error")
         return run
 
-    monkeypatch.setattr(tn, "_python_ok", lambda kernel, n, nodes: True)
+    monkeypatch.setattr(tn, "_python_ok", lambda n, nodes: True)
     monkeypatch.setattr(tn, "_python_walk", broken)
     fb = intersect_dem(los, dem, "exact")
     assert np.array_equal(fb.status, nb.status)

@@ -1274,7 +1274,7 @@ def _call(args, order=None, order_checked=False, block=BLOCK):
     kernel = _kernel_for(hlev, block, triangles)
     kargs = (o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo,
              float(lat_n), float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
-    if _python_ok(kernel, len(order), hgt.shape[0] + hgt.shape[1]):
+    if _python_ok(len(order), hgt.shape[0] + hgt.shape[1]):
         kept = [a[order].copy() for a in outs]  # status is read too: restored if the kernel must redo them
         try:
             # the scalars as numpy float64: a Python float plus a float32 table entry is float32
@@ -1311,7 +1311,7 @@ PY_WALK_MAX_WORK = 1 << 16
 _PY_FUNCS: dict = {}
 
 
-def _python_ok(kernel, n, nodes):
+def _python_ok(n, nodes):
     """Whether a call of ``n`` rays over a DEM of ``nodes`` rows + columns walks uncompiled."""
     return n <= PY_WALK_MAX_RAYS and n * nodes <= PY_WALK_MAX_WORK
 
