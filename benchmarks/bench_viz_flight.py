@@ -83,11 +83,9 @@ def main(argv=None) -> int:
         w_step, c_step, _ = timed(lambda: layer.go(int(next(idx))), 10)
 
         # peer: frame by frame, on a sample of frames, scaled to the flight
-        from geoloc.locate import as_sensor
-
-        sensor = as_sensor(scn.camera)
+        sensor = scn.camera  # the Scenario's FrameSensor
         pose, _, _, target_h = flight_model.records_pose(scn.records)
-        surface, dem = flight_model._surface(scn, target_h, "exact")
+        surface = flight_model._surface(scn, target_h, "exact")
         rr, cc = flight_model.outline_pixels(sensor, flight_model.EDGE_SAMPLES, scn.frame_fov_deg)
         sample = np.arange(0, len(m), max(len(m) // 100, 1))
 
@@ -95,7 +93,7 @@ def main(argv=None) -> int:
             for k in sample:
                 p = pose.take(np.array([k]))
                 los = sensor.line_of_sight(rr[:, k:k + 1], cc[:, k:k + 1], p, outside="extrapolate")
-                flight_model._hit(surface, dem, los, target_h[k])
+                flight_model._hit(surface, los)
 
         w_peer, c_peer, _ = timed(per_frame, 1)
         scale = len(m) / len(sample)

@@ -31,7 +31,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import timed
 
 from geoloc.io.records import load_records
-from geoloc.locate import as_sensor
 from geoloc.sensors.sensor_file import load_sensor
 from geoloc.status import Status
 from geoloc.surfaces.dem import DEM
@@ -57,7 +56,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--embree-rays", type=int, default=262144)
     args = ap.parse_args(argv)
-    sensor = as_sensor(load_sensor(ROOT / "assets" / "cameras" / "qiao2017.toml"))
+    sensor = load_sensor(ROOT / "assets" / "cameras" / "qiao2017.toml")
     pose = load_records(ROOT / "assets" / "records" / "qiao2017_flight_tests.csv").subset([0]).pose()
     dem = DEM.open(ROOT / "assets" / "dem" / "etopo5_flight_area.tif")
     n = sensor.rows * sensor.cols

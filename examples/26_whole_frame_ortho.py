@@ -17,7 +17,6 @@ import numpy as np
 
 from geoloc.io.photos import photo_sensor, pose_from_photo, read_photo
 from geoloc.io.records import load_records
-from geoloc.locate import as_sensor
 from geoloc.sensors.sensor_file import load_sensor
 from geoloc.surfaces.dem import DEM
 from geoloc.workflows.ortho import (
@@ -27,7 +26,7 @@ from geoloc.workflows.ortho import (
     write_frame_geotiff,
 )
 
-sensor = as_sensor(load_sensor("assets/cameras/qiao2017.toml"))
+sensor = load_sensor("assets/cameras/qiao2017.toml")  # a camera file loads as its FrameSensor
 pose = load_records("assets/records/qiao2017_flight_tests.csv").subset([0]).pose()  # T3-1
 dem = DEM.open("assets/dem/etopo5_flight_area.tif")  # heights EGM96, made ellipsoidal on reading
 

@@ -11,7 +11,6 @@ import numpy as np
 
 from geoloc.assets import asset_path
 from geoloc.frames.chain import Pose
-from geoloc.locate import as_sensor
 from geoloc.sensors.sensor_file import load_sensor
 from geoloc.viz import teaching
 
@@ -35,11 +34,11 @@ def show(title, sensor, pose, row, col):
     print()
 
 
-q17 = as_sensor(load_sensor(asset_path("cameras", "qiao2017.toml")))
+q17 = load_sensor(asset_path("cameras", "qiao2017.toml"))  # a camera file loads as its FrameSensor
 pose = Pose.from_deg(36.39895, 78.72927, 17987.25, 30.0457, 3.3903, -0.0110, -45.2273, -2.4880)
 show("[Q17] T3-1, roll-pitch gimbal", q17, pose, 526.0, 1550.0)
 
-turret = as_sensor(load_sensor(asset_path("sensors", "eo_turret.toml")))
+turret = load_sensor(asset_path("sensors", "eo_turret.toml"))
 pose = Pose.from_deg(36.65999, -84.24996, 2502.48, 89.93, 2.05, 1.48, angles_deg={"azimuth": 93.64, "elevation": -9.76})
 show("EO turret, azimuth-elevation gimbal", turret, pose, 598.32, 842.37)
 

@@ -21,11 +21,11 @@ from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
 from geoloc.io.records import load_records
 from geoloc.locate import as_sensor
 from geoloc.sensors.camera import Camera
+from geoloc.sensors.sensor_file import load_sensor
 from geoloc.surfaces.height import PerRecordHeightSurface
 
 records = load_records(asset_path(*DEFAULT_RECORDS))
-camera = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
-sensor = as_sensor(camera)  # the camera file as its sensor: what the fit works on
+sensor = load_sensor(asset_path(*DEFAULT_CAMERA))  # the camera file loads as its sensor: what the fit works on
 surface = PerRecordHeightSurface(records.column("paper_height_m"))  # each target at its height
 # the two places the rotation can sit (docs/calibration.md): the gimbal base, the camera head
 MODELS = {"mount": ["mount_x", "mount_y", "mount_z"], "camera": ["boresight_x", "boresight_y", "boresight_z"]}
@@ -44,7 +44,8 @@ for model, joint in (("mount", False), ("mount", True), ("camera", False), ("cam
         figure_report = report
 
 # focal length f and principal point (row i0 = cy, column j0 = cx) from a start 10 % off
-start = as_sensor(Camera(150000.0, 1100.0, 1100.0, camera.rows, camera.cols))
+# a Camera built in Python becomes its sensor through the one conversion, as_sensor
+start = as_sensor(Camera(150000.0, 1100.0, 1100.0, sensor.rows, sensor.cols))
 r = resect_sensor(records, start, ["f", "cy", "cx"])
 f, i0, j0 = (r.report()["parameters"][k] for k in ("f", "cy", "cx"))
 print(f"resection from the published positions: f = {f['value']:.1f} +- {f['sd']:.0f} px, "
