@@ -6,9 +6,10 @@ needs an iteration and is slow; the RPC replaces it. This measures both on the s
 (rigorous / bare RPC); it also times the RPC behind the Sensor interface
 (``RPCSensor``: domain check and statuses, and its lines of sight).
 
-Run: python benchmarks/bench_rpc.py
+Run: python benchmarks/bench_rpc.py [--points N]
 """
 
+import argparse
 import time
 
 import numpy as np
@@ -53,4 +54,6 @@ def main(n=100_000):
 
 
 if __name__ == "__main__":
-    main()
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--points", type=int, default=100_000, help="ground points (default 100 000)")
+    main(ap.parse_args().points)
