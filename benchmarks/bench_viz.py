@@ -1,10 +1,10 @@
 """Viewer speed: sending a 1 M-triangle DEM mesh, and slider-to-scene latency.
 
-Run: ``python benchmarks/bench_viz.py``. Prints medians and a final ``ratio:``
+Run: ``python benchmarks/bench_viz.py [--nodes N]``. Prints medians and a final ``ratio:``
 line (vertex-coloured trimesh/GLB path over viser's plain ``add_mesh_simple``
 for the same mesh, measured in the same run).
 
-* Mesh: a synthetic 708 x 708-node DEM (1.0 M triangles) built by
+* Mesh: a synthetic 708 x 708-node DEM (1.0 M triangles; ``--nodes N``: N x N) built by
   :meth:`geoloc.surfaces.dem.DEM.from_array` and :meth:`~geoloc.surfaces.dem.DEM.to_trimesh` in
   ENU, coloured by height, sent with ``add_mesh_trimesh`` (the viewer's path:
   GLB export + message queue) on a server with no browser attached: the
@@ -17,6 +17,7 @@ for the same mesh, measured in the same run).
 
 from __future__ import annotations
 
+import argparse
 import statistics
 import time
 
@@ -32,7 +33,10 @@ def median_time(fn, n):
     return statistics.median(ts)
 
 
-def main() -> None:
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--nodes", type=int, default=708, help="DEM nodes a side (default 708: 1.0 M triangles)")
+    a = ap.parse_args(argv)
     import matplotlib
 
     from geoloc.surfaces.dem import DEM
@@ -40,7 +44,7 @@ def main() -> None:
     from geoloc.viz.scenario import load_view_scenario
 
     server = make_server(port=0)
-    n = 708  # 2 (n-1)^2 = 1 000 018 triangles
+    n = a.nodes  # 2 (n-1)^2 triangles: 999 698 for 708
     y, x = np.mgrid[0:n, 0:n] / (n - 1)
     heights = 1000 + 400 * np.sin(6 * x) * np.cos(5 * y) + 80 * np.sin(40 * x * y)
     dem = DEM.from_array(heights, 36.5, 78.7, 0.3 / (n - 1), 0.3 / (n - 1), datum="ellipsoid")
@@ -62,8 +66,9 @@ def main() -> None:
     t_tri = median_time(send_trimesh, 3)
     t_simple = median_time(send_simple, 3)
     server.scene.remove_by_name("/bench")
-    print(f"send 1 M-triangle DEM mesh, vertex colours (add_mesh_trimesh): median {t_tri:.3f} s (goal <= 3 s)")
-    print(f"send 1 M-triangle DEM mesh, one colour (add_mesh_simple):     median {t_simple:.3f} s")
+    size = "1 M-triangle" if n == 708 else f"{len(mesh.faces):,}-triangle"
+    print(f"send {size} DEM mesh, vertex colours (add_mesh_trimesh): median {t_tri:.3f} s (goal <= 3 s for 1 M)")
+    print(f"send {size} DEM mesh, one colour (add_mesh_simple):     median {t_simple:.3f} s")
 
     app = GeolocApp(server, load_view_scenario())
     for method in ("bisect", "steps", "exact"):
