@@ -1,12 +1,13 @@
 """Whole frame: every pixel of the 2323 x 2292 [Q17] sensor (5.3 M rays) onto the DEM in one call.
 
-    .venv/bin/python benchmarks/bench_whole_frame.py [--repeat 3] [--embree-rays 262144]
+    .venv/bin/python benchmarks/bench_whole_frame.py [--repeat 3] [--embree-rays 262144] [--step K]
 
 The [Q17] camera (assets/cameras/qiao2017.toml) at record T3-1 of
 assets/records/qiao2017_flight_tests.csv over the bundled DEM that covers it
 (assets/dem/etopo5_flight_area.tif). Prints medians of wall and CPU time, rays/s,
 the peak of traced (numpy) memory of one call and its chunk, and two peers measured
-in the same run:
+in the same run (``--step K``: every K-th pixel in both directions, for a quick check; the
+figures are the whole frame's at the default, K = 1):
 
 * the numpy path: ``sensor.line_of_sight`` on the whole pixel grid, then the same
   exact DEM solver (``intersect_dem(..., "exact", parallel=True)``), in the same chunks;
@@ -40,9 +41,9 @@ from geoloc.workflows.ortho import DEFAULT_CHUNK, frame_pixels, locate_frame
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def numpy_frame(sensor, pose, dem, chunk=DEFAULT_CHUNK):
+def numpy_frame(sensor, pose, dem, chunk=DEFAULT_CHUNK, step=1):
     """The peer: numpy line of sight per block of rows, the same DEM solver."""
-    rows, cols = frame_pixels(sensor, 1)
+    rows, cols = frame_pixels(sensor, step)
     per = max(1, chunk // cols.size)
     out = np.empty((rows.size, cols.size))
     for i0 in range(0, rows.size, per):
@@ -55,31 +56,34 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--embree-rays", type=int, default=262144)
+    ap.add_argument("--step", type=int, default=1, help="every K-th pixel (default 1: the whole frame)")
     args = ap.parse_args(argv)
     sensor = load_sensor(ROOT / "assets" / "cameras" / "qiao2017.toml")
     pose = load_records(ROOT / "assets" / "records" / "qiao2017_flight_tests.csv").subset([0]).pose()
     dem = DEM.open(ROOT / "assets" / "dem" / "etopo5_flight_area.tif")
-    n = sensor.rows * sensor.cols
-    print(f"[Q17] sensor {sensor.rows} x {sensor.cols} = {n} rays, record T3-1, DEM {Path(dem.path).name}")
+    rows, cols = frame_pixels(sensor, args.step)
+    n = rows.size * cols.size
+    every = "" if args.step == 1 else f", pixel step {args.step}: {rows.size} x {cols.size}"
+    print(f"[Q17] sensor {sensor.rows} x {sensor.cols}{every} = {n} rays, record T3-1, DEM {Path(dem.path).name}")
     c0, w0 = time.process_time(), time.perf_counter()
     locate_frame(sensor, pose, dem, step=64)  # compile (or load the numba cache) outside the timing
     print(f"first call (compile or cache load): {time.perf_counter() - w0:.1f} s wall, "
           f"{time.process_time() - c0:.1f} s CPU")
 
-    wall, cpu, grid = timed(lambda: locate_frame(sensor, pose, dem), args.repeat)
+    wall, cpu, grid = timed(lambda: locate_frame(sensor, pose, dem, step=args.step), args.repeat)
     counts = grid.counts()
     print(f"locate_frame (compiled grid + exact DEM, parallel): wall {wall:.2f} s, CPU {cpu:.2f} s, "
           f"{n / wall / 1e6:.2f} M rays/s wall, {n / cpu / 1e6:.2f} M rays/s per CPU s; {counts}")
     tracemalloc.start()
-    locate_frame(sensor, pose, dem)
+    locate_frame(sensor, pose, dem, step=args.step)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     answer = sum(a.nbytes for a in (grid.lat, grid.lon, grid.h, grid.status))
     print(f"peak traced memory {peak / 1e6:.0f} MB: the answer {answer / 1e6:.0f} MB + "
           f"{(peak - answer) / 1e6:.0f} MB of temporaries for chunks of {DEFAULT_CHUNK} rays "
-          f"({DEFAULT_CHUNK // sensor.cols} image rows)")
+          f"({min(DEFAULT_CHUNK // cols.size, rows.size)} image rows)")
 
-    w_np, c_np, h_np = timed(lambda: numpy_frame(sensor, pose, dem), args.repeat)
+    w_np, c_np, h_np = timed(lambda: numpy_frame(sensor, pose, dem, step=args.step), args.repeat)
     same = np.array_equal(np.isnan(h_np), np.isnan(grid.h))
     dh = float(np.nanmax(np.abs(h_np - grid.h)))
     print(f"peer, numpy line of sight + the same solver: wall {w_np:.2f} s, CPU {c_np:.2f} s; "
@@ -93,7 +97,6 @@ def main(argv=None) -> int:
     from geoloc.workflows.ortho import frame_line_of_sight
 
     rng = np.random.default_rng(5)
-    rows, cols = frame_pixels(sensor, 1)
     k = min(args.embree_rays, n)
     los_all = frame_line_of_sight(sensor, pose, rows, cols)
     pick = rng.choice(n, k, replace=False)
