@@ -1,6 +1,8 @@
 """Speed and memory of the pictures (issue 28): frame switching, an hour of video, a frame's ortho.
 
-One command: ``python benchmarks/bench_images.py [--repeat 5] [--hour-s 3600]``.
+One command: ``python benchmarks/bench_images.py [--repeat 5] [--hour-s 3600] [--size 1280x720]``
+(``--size``: the switch video's and the ortho frame's pixels, for a quick check; the targets are
+720p's).
 
 Everything is synthetic and generated at run time in a temporary folder (nothing is bundled):
 
@@ -78,7 +80,7 @@ def write_video(path, n, size, fps, gop, preset="medium", crf=28, pattern=True):
             out.mux(p)
 
 
-def bench_switch(tmp, repeat):
+def bench_switch(tmp, repeat, size=(1280, 720)):
     import cv2
 
     from geoloc.io.images import open_images
@@ -88,8 +90,8 @@ def bench_switch(tmp, repeat):
 
     path = Path(tmp) / "v720.ts"
     t = time.perf_counter()
-    write_video(path, 300, (1280, 720), 30, 30, preset="ultrafast")
-    print(f"switch: wrote a 1280 x 720 H.264 video, 300 frames, gop 30 ({path.stat().st_size / 1e6:.1f} MB) "
+    write_video(path, 300, size, 30, 30, preset="ultrafast")
+    print(f"switch: wrote a {size[0]} x {size[1]} H.264 video, 300 frames, gop 30 ({path.stat().st_size / 1e6:.1f} MB) "
           f"in {time.perf_counter() - t:.1f} s")
     scn = default_flight_scenario()
     scn.images = open_images(path)
@@ -190,7 +192,7 @@ def bench_hour(tmp, hour_s):
           f"peak while decoding {peak:.0f} MiB, at the end {r3:.0f} MiB")
 
 
-def bench_ortho(tmp, repeat):
+def bench_ortho(tmp, repeat, size=(1280, 720)):
     import warnings
 
     import rasterio
@@ -206,10 +208,10 @@ def bench_ortho(tmp, repeat):
     scn = default_flight_scenario()
     idx = 10
     inputs = scn.records[idx][1]
-    sensor = pm.frame_sensor(scn, idx, 720, 1280)
+    sensor = pm.frame_sensor(scn, idx, size[1], size[0])
     pose = inputs.pose()
-    img = np.random.default_rng(0).integers(0, 255, (3, 720, 1280), dtype=np.uint8)
-    gsd = 1.0
+    img = np.random.default_rng(0).integers(0, 255, (3, size[1], size[0]), dtype=np.uint8)
+    gsd = 1280 / size[0]  # the frame's own ground sample: 1 m at 1280 pixels across
     frame = locate_frame(sensor, pose, scn.dem, step=8)
     out = Path(tmp) / "ortho.tif"
     orthorectify(img, sensor, pose, scn.dem, out, gsd_m=gsd, frame=frame)  # warm the compiled kernels
@@ -228,7 +230,7 @@ def bench_ortho(tmp, repeat):
 
     w_g, c_g, _ = timed(gdal, max(1, repeat // 2))
     del rasterio
-    print(f"ortho: 1280 x 720 frame at {gsd:g} m cells ({info['width']} x {info['height']}, "
+    print(f"ortho: {size[0]} x {size[1]} frame at {gsd:g} m cells ({info['width']} x {info['height']}, "
           f"{info['cells_seen']} seen, {info['cells_hidden']} hidden): median wall {w_o:.3f} s, CPU {c_o:.3f} s "
           f"(target <= 1 s); + frame grid at step 8: wall {w_f:.3f} s, CPU {c_f:.3f} s")
     print(f"ortho: peer GDAL warp with geolocation arrays (no occlusion test): median wall {w_g:.3f} s, "
@@ -240,15 +242,21 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--hour-s", type=float, default=3600.0, help="length of the long video [s]")
     ap.add_argument("--only", choices=("switch", "hour", "ortho"), default=None)
+    ap.add_argument("--size", default="1280x720", help="WxH of the switch video and the ortho frame")
     a = ap.parse_args(argv)
+    try:
+        size = tuple(int(v) for v in a.size.lower().split("x"))
+        assert len(size) == 2 and min(size) >= 16
+    except (ValueError, AssertionError):
+        ap.error(f"--size {a.size!r}: must be WIDTHxHEIGHT in pixels, each >= 16 (e.g. 1280x720)")
     print(f"2-core machine shared with other jobs: load average {os.getloadavg()[0]:.1f}")
     with tempfile.TemporaryDirectory(prefix="geoloc-bench-images-") as tmp:
         if a.only in (None, "hour"):  # first: its RSS at the start is the bare process's
             bench_hour(tmp, a.hour_s)
         if a.only in (None, "switch"):
-            bench_switch(tmp, a.repeat)
+            bench_switch(tmp, a.repeat, size)
         if a.only in (None, "ortho"):
-            bench_ortho(tmp, a.repeat)
+            bench_ortho(tmp, a.repeat, size)
     return 0
 
 
