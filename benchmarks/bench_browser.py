@@ -172,9 +172,10 @@ def main(argv=None) -> int:
                     w, c = time.perf_counter(), time.process_time()
                     fl.sl_frame.value = (int(fl.sl_frame.value) + 7) % len(fl.model)  # as the GUI would
                     peer_step.append((time.perf_counter() - w, time.process_time() - c))
-                    while len(_frames(page)) == seen and time.time() - t_step < 120:
-                        time.sleep(0.02)
                     fr = _frames(page)
+                    while len(fr) == seen and time.time() - t_step < 120:
+                        time.sleep(0.02)
+                        fr = _frames(page)
                     if len(fr) == seen:
                         raise RuntimeError("a timeline step did not reach the canvas within 120 s")
                     step_s.append(fr[seen][0] - t_step)  # the first frame that differs

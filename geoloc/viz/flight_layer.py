@@ -24,7 +24,6 @@ vertical exaggeration: a (1, 1, v) node scale, as the terrain. Conventions: ``do
 
 from __future__ import annotations
 
-import contextlib
 import inspect
 import threading
 import time
@@ -516,11 +515,9 @@ class FlightLayer:
         """Frame ``idx``: load it into the session, move the highlight, sync the slider (and the camera:
         framed on the frame's error, the markers sized to it).
 
-        One atomic batch (the session's ``_atomic``): viser's client applies queued messages in its
-        next frame, and a frame of the default view costs 0.5-0.7 s of software WebGL, so a step sent
-        in its three parts (the record, its redraw, the highlight) was drawn over several frames."""
-        atomic = getattr(self.session, "_atomic", None)
-        with (atomic() if atomic is not None else contextlib.nullcontext()):
+        One atomic batch (the session's ``_atomic``): the client applies the step's parts (the record,
+        its redraw, the highlight) together, not over several frames (docs/viz.md, bench_browser)."""
+        with self.session._atomic():
             self._go(idx, camera)
 
     def _go(self, idx: int, camera: bool) -> None:
