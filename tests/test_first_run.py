@@ -78,7 +78,7 @@ def test_geoloc_warm_prints_each_step(capsys):
     out = capsys.readouterr().out
     assert "geoloc warm: compiling what locate, replay and view need, once; cache:" in out
     for what in ("geoloc locate --sensor eo_turret.toml --dem srtm_jacksboro.tif", "geoloc replay drone_targets.csv",
-                 "geoloc replay example_flight.klv"):
+                 "geoloc replay example_flight.klv", "the terrain walk of a large batch: 20 000 rays"):
         line = next(x for x in out.splitlines() if what in x)
         assert ("already cached" in line or "compiled" in line) and "s CPU)" in line, line
     assert "geoloc view --export" not in out and "geoloc warm: done in" in out
@@ -89,3 +89,26 @@ def test_run_sh_warms_before_it_serves():
     warm = next(i for i, x in enumerate(text) if x.strip().startswith('"$VENV/bin/geoloc" warm'))
     view = next(i for i, x in enumerate(text) if "geoloc\" view" in x)
     assert warm < view
+
+
+PROBE_SCENE = r"""
+import json
+from geoloc.geodesy import _nbgeo
+from geoloc.viz.flight_model import build, default_flight_scenario
+m = build(default_flight_scenario())
+print(json.dumps({"frames": len(m), "compiled": [n for n, _ in _nbgeo.COMPILED]}))
+"""
+
+
+def test_the_viewers_first_scene_compiles_no_walk(tmp_path):
+    """Issue 32: the example flight's model (the first scene's 5364 footprint rays and 110 centre
+    and record rays) walks uncompiled on a cold cache: no walk kernel is compiled for it
+    (terrain_numba.PY_WALK_MAX_STEPS); bench_first_run.py times it."""
+    env = {k: v for k, v in os.environ.items() if k != "GEOLOC_ANNOUNCE_COMPILE"}
+    env.update(PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=str(tmp_path / "cold"))  # this tree, an empty cache
+    r = subprocess.run([sys.executable, "-c", PROBE_SCENE], cwd=tmp_path, env=env, capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    assert out["frames"] == 298
+    assert not [n for n in out["compiled"] if "walk" in n], out["compiled"]

@@ -18,8 +18,8 @@ def _scn(base, recs):
 
 
 def _close(x, y, k):
-    # a batch of up to 64 rays walks the terrain kernel's Python source (terrain_numba.PY_WALK_MAX_RAYS),
-    # a larger one the compiled kernel, whose fused multiply-adds round once where Python rounds twice:
+    # the flight model's batches walk the terrain kernel's Python source within a budget
+    # (terrain_numba.uncompiled_budget), a larger one the compiled kernel after its first rays, whose fused multiply-adds round once where Python rounds twice:
     # hits within 2.5e-8 m (tests/test_terrain_python_walk.py holds them to 1e-6 m). So the flight grown
     # in batches equals the one built at once to 1e-6 (metres, radians, degrees); integers and flags exactly
     x, y = np.asarray(x), np.asarray(y)

@@ -1,5 +1,6 @@
-"""The walk's Python source run uncompiled for a small call (terrain_numba.PY_WALK_MAX_RAYS,
-issue 32: a one-ray ``locate`` compiles nothing) against the compiled kernel on the same rays:
+"""The walk's Python source run uncompiled for a small call (terrain_numba.PY_WALK_MAX_RAYS), and
+for the first rays of a larger one within an uncompiled budget (issue 32: a one-ray ``locate``
+and the viewer's first scene compile nothing) against the compiled kernel on the same rays:
 oblique views of the bundled SRTM crop and rays that graze a rough DEM for kilometres, leave
 it across an edge or start outside it, both cell models, with and without the climb."""
 
@@ -85,6 +86,73 @@ def test_small_calls_walk_uncompiled_whatever_the_process_compiled(monkeypatch):
     again = intersect_dem(los, dem, "exact")
     assert len(used) == 2 and np.array_equal(first.status, again.status) and first.status[0] == 0
     assert np.array_equal(first.ecef, again.ecef, equal_nan=True)
+
+
+def _prefix_spy(monkeypatch):
+    """A list that receives (rays walked uncompiled, rays in the call) for each walk call."""
+    seen = []
+    real = tn._python_prefix
+
+    def spy(kernel, kargs, order, nodes):
+        k = real(kernel, kargs, order, nodes)
+        seen.append((k, len(order)))
+        return k
+    monkeypatch.setattr(tn, "_python_prefix", spy)
+    return seen
+
+
+def test_within_a_budget_the_start_uncompiled_while_the_projected_cost_fits(monkeypatch):
+    """uncompiled_budget: a call whose projected cost (cell steps plus PY_WALK_RAY_STEPS a ray)
+    fits walks uncompiled to its end; a larger one walks chunks of PY_WALK_MAX_RAYS while the
+    projection fits, then the kernel walks the rest; outside the block the same call is compiled
+    from its first ray. Either way the statuses and cells are the all-compiled walk's and the hits
+    within its FMA rounding (1e-6 m, as above)."""
+    dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
+    los = random_oblique_rays(dem, 1000, np.random.default_rng(21))
+    seen = _prefix_spy(monkeypatch)
+    nb = intersect_dem(los, dem, "exact")
+    assert seen == [(0, 1000)]  # no budget: compiled
+    steps = int(nb.dem_evaluations.sum())
+    cost = steps + tn.PY_WALK_RAY_STEPS * 1000
+    assert cost < tn.PY_WALK_MAX_STEPS  # 1000 oblique rays over the crop fit the default budget
+    seen.clear()
+    with tn.uncompiled_budget():
+        whole = intersect_dem(los, dem, "exact")
+    assert seen == [(1000, 1000)]
+    _assert_same(whole, nb)
+    # a budget of 3.5 chunks' cost: 1000 rays cost more, so the first chunk then the kernel
+    seen.clear()
+    with tn.uncompiled_budget(int(cost * 3.5 * tn.PY_WALK_MAX_RAYS / 1000)):
+        part = intersect_dem(los, dem, "exact")
+    assert seen == [(tn.PY_WALK_MAX_RAYS, 1000)]
+    _assert_same(part, nb)
+    # twice the call's cost: every chunk uncompiled (no chunk's prefix is twice the mean)
+    seen.clear()
+    with tn.uncompiled_budget(2 * cost):
+        intersect_dem(los, dem, "exact")
+    assert seen == [(1000, 1000)]
+    seen.clear()
+    intersect_dem(los, dem, "exact")  # the block closed: compiled again
+    assert seen == [(0, 1000)]
+
+
+def test_serial_and_threaded_walks_give_the_same_bits(monkeypatch):
+    """walk_parallel decides the uncompiled start once for the whole call, as walk does, so the
+    threads change nothing: bit for bit, for a call walked wholly uncompiled and for one whose
+    start only is (within a budget)."""
+    dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
+    for n in (2000, 30000):
+        los = random_oblique_rays(dem, n, np.random.default_rng(n))
+        seen = _prefix_spy(monkeypatch)
+        with tn.uncompiled_budget():
+            a = intersect_dem(los, dem, "exact", parallel=False)
+            b = intersect_dem(los, dem, "exact", parallel=True)
+        monkeypatch.undo()
+        assert seen[0] == seen[1] and len(seen) == 2, seen  # one decision, the same, each way
+        assert (seen[0][0] == n) == (n == 2000) and seen[0][0] >= tn.PY_WALK_MAX_RAYS
+        assert np.array_equal(a.status, b.status) and np.array_equal(a.dem_evaluations, b.dem_evaluations)
+        assert np.array_equal(a.ecef, b.ecef, equal_nan=True)
+        assert np.array_equal(a.slant_range, b.slant_range, equal_nan=True)
 
 
 def test_python_walk_failure_falls_back_to_the_kernel_with_the_inputs_restored(monkeypatch):

@@ -63,8 +63,9 @@ ANNOUNCE: bool | None = None
 #: CPU seconds of a first call that compiles the terrain walk on a cold cache, 2 cores (issue 32:
 #: 14-15 s for ``geoloc view``'s first scene: ``view --export`` cold 17.3 s of CPU in all, the
 #: flat bilinear walk's compile 10.8 s of it, 12-14 s before the walk was compiled per model,
-#: 41-48 s while its helpers were numba-inlined; a call of up to 64 rays, a one-ray
-#: ``locate --dem``, compiles no walk: ``terrain_numba.PY_WALK_MAX_RAYS``;
+#: 41-48 s while its helpers were numba-inlined; a small call (a one-ray ``locate --dem``, the
+#: viewer's first scene) compiles no walk: ``terrain_numba.PY_WALK_MAX_RAYS`` and
+#: ``terrain_numba.uncompiled_budget``;
 #: ``benchmarks/bench_first_run.py`` measures each verb): the announcement's "about N s"
 #: (wall time is that or more on a busy machine).
 FIRST_COMPILE_CPU_S = 15

@@ -52,11 +52,13 @@ a cell's bilinear step) saved little more (10.6 M) and made the walk 9-16 % slow
 taking arrays pays their reference counts on every call.
 
 A small call is not compiled at all (:data:`PY_WALK_MAX_RAYS`: up to 64 rays over a DEM of
-modest size): :func:`walk` runs the same source uncompiled (:func:`_python_walk`, about 1 ms a
-ray on the bundled crop), so a one-ray ``geoloc locate --dem`` or a short ``replay`` starts in
-about 1.5 s of CPU on a cold cache instead of 15 s (issue 32). Its statuses and cells are the
-kernel's; its hits differ from the kernel's by the FMA rounding below (2.5e-8 m on the crop's
-300 oblique rays, bilinear; ``tests/test_terrain_python_walk.py`` holds them to 1e-6 m).
+modest size): :func:`walk` runs the same source uncompiled (:func:`_python_walk`, about 70 us a
+ray and 5 us a cell step on the bundled crop), so a one-ray ``geoloc locate --dem`` or a short
+``replay`` starts in about 1 s of CPU on a cold cache instead of 15 s (issue 32). Within an
+:func:`uncompiled_budget` (the viewer's first scene) a larger call starts uncompiled too, while
+its projected cost fits. Its statuses and cells are the kernel's; its hits differ from the
+kernel's by the FMA rounding below (2.5e-8 m on the crop's 300 oblique rays, bilinear;
+``tests/test_terrain_python_walk.py`` holds them to 1e-6 m).
 
 ``fastmath={"contract"}`` only lets LLVM fuse a multiply and an add (FMA, one
 rounding instead of two): 10 % faster; hits move by at most 1e-7 m on grazing
@@ -67,6 +69,8 @@ Conventions: ``docs/conventions.md``.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import math
 import sys
 import types
@@ -1248,7 +1252,9 @@ def _order(order, n):
     return order
 
 
-def _call(args, order=None, order_checked=False, block=BLOCK):
+def _prepare(args, order=None, order_checked=False, block=BLOCK):
+    """(kernel, its arguments, the order, the DEM's rows + columns): ``args`` checked and put in the
+    kernel's form (:data:`_IN`, :data:`_OUT`), the kernel picked (:func:`_kernel_for`)."""
     (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
      tan_row, c_row, sin_col, cos_col, triangles, *outs) = args
     ins = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN, (o, d, hgt, lon_col, cinv, binv, hinv, hlev,
@@ -1274,46 +1280,125 @@ def _call(args, order=None, order_checked=False, block=BLOCK):
     kernel = _kernel_for(hlev, block, triangles)
     kargs = (o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo,
              float(lat_n), float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
-    if _python_ok(len(order), hgt.shape[0] + hgt.shape[1]):
-        kept = [a[order].copy() for a in outs]  # status is read too: restored if the kernel must redo them
-        try:
-            # the scalars as numpy float64: a Python float plus a float32 table entry is float32
-            # under numpy 2's promotion; numba's (and numpy's float64 + float32) is float64
-            f64 = tuple(np.float64(a) if type(a) is float else a for a in kargs)
-            with np.errstate(all="ignore"):
-                _python_walk(kernel)(*f64)
-            return
-        except (ArithmeticError, ValueError, IndexError):
-            # where numba's float and integer semantics differ from Python's (int(nan), a
-            # sqrt of a negative, an index past an end): the compiled kernel walks them
-            for a, k in zip(outs, kept):
-                a[order] = k
-    kernel(*kargs)
+    return kernel, kargs, order, hgt.shape[0] + hgt.shape[1]
+
+
+def _python_start(args, order=None, block=BLOCK) -> int:
+    """Walk the call's first rays uncompiled (:func:`_python_prefix`); how many of ``order``."""
+    return _python_prefix(*_prepare(args, order, True, block))
+
+
+def _call(args, order=None, order_checked=False, block=BLOCK, python=True):
+    """Walk ``order``'s rays: the start uncompiled where the call is small (:func:`_python_prefix`,
+    unless ``python`` is False), the rest by the compiled kernel."""
+    kernel, kargs, order, nodes = _prepare(args, order, order_checked, block)
+    start = _python_prefix(kernel, kargs, order, nodes) if python else 0
+    if start == 0:
+        kernel(*kargs)
+    elif start < len(order):
+        kernel(*kargs[:2], order[start:], *kargs[3:])
 
 
 #: A call of at most this many rays, and at most :data:`PY_WALK_MAX_WORK` rays x (rows + columns)
 #: of the DEM, runs the walk's Python source (:func:`_python_walk`) instead of its compiled
 #: kernel, whatever the process compiled before: ``locate`` (one ray) and a short ``replay``
-#: compile nothing (issue 32: the compile is 12-15 s of CPU; the Python walk about 1 ms a ray
-#: on the bundled crop). The same code, run with numpy's float64 scalars: the statuses are the
-#: kernel's, the hits within the rounding of the multiply-adds LLVM fuses
+#: compile nothing (issue 32: the compile is 5-15 s of CPU; the Python walk about 70 us a ray and
+#: 5 us a cell step on the bundled crop). The same code, run with numpy's float64 scalars: the
+#: statuses are the kernel's, the hits within the rounding of the multiply-adds LLVM fuses
 #: (``fastmath={"contract"}``; the bilinear polish stops at 1e-7 m anyway), checked in
-#: ``tests/test_terrain_python_walk.py``. The choice is the call's alone (its rays and its DEM),
-#: never the process's history, so the same call gives the same bits in any process: a
-#: campaign's worker equals the serial run (tests/test_campaign.py), a viewer's step equals its
-#: first. A process making many one-ray calls (a live feed) pays about 1 ms a ray for that
-#: (about 50 us compiled). 0: always compiled.
+#: ``tests/test_terrain_python_walk.py``. The choice is the call's alone (its rays, its DEM, and
+#: whether its caller opened an :func:`uncompiled_budget`), never the process's history, so the
+#: same call gives the same bits in any process: a campaign's worker equals the serial run
+#: (tests/test_campaign.py), a viewer's step equals its first, a whole frame is the same in any
+#: chunks (tests/test_ortho.py). A process making many one-ray calls (a live feed) pays about
+#: 0.1 ms a ray for that (about 50 us compiled). 0: always compiled.
 PY_WALK_MAX_RAYS = 64
 #: Rays x (rows + columns): the most cells such a call could cross, bounded so that a grazing
 #: batch over a large DEM still takes the kernel (a straight ray crosses each node line once
-#: or twice; about 20 us a cell step in Python).
+#: or twice; about 5-20 us a cell step in Python). Also the bound of a chunk under a budget.
 PY_WALK_MAX_WORK = 1 << 16
+#: The default of :func:`uncompiled_budget`: the uncompiled walk's cost, in cell steps (the
+#: walk's ``ncell``: block and cell boundaries crossed) plus :data:`PY_WALK_RAY_STEPS` a ray, that
+#: a larger call may take, projected from the rays walked so far. Fitted on the bundled crop
+#: (2000-ray oblique batches, grazing rays over a rough DEM; 2 cores, idle): 70 us a ray and 5 us
+#: a step, so 2^17 is about 0.65 s, a tenth of the compile or less.
+PY_WALK_MAX_STEPS = 1 << 17
+#: A ray's fixed cost in the uncompiled walk, in cell steps (70 us against 5 us, above).
+PY_WALK_RAY_STEPS = 14
+_BUDGET: contextvars.ContextVar = contextvars.ContextVar("geoloc_uncompiled_walk_budget", default=0)
 _PY_FUNCS: dict = {}
+
+
+@contextlib.contextmanager
+def uncompiled_budget(steps: int | None = None):
+    """Within this block, a walk larger than :data:`PY_WALK_MAX_RAYS` rays starts uncompiled too:
+    :data:`PY_WALK_MAX_RAYS` rays at a time (fewer over a DEM of many rows + columns:
+    :data:`PY_WALK_MAX_WORK`), while the cost of the rays walked so far (their cell steps plus
+    :data:`PY_WALK_RAY_STEPS` a ray), projected over the call, stays within ``steps`` (default
+    :data:`PY_WALK_MAX_STEPS`, about 0.65 s); the compiled kernel walks the rest.
+
+    For a one-off batch that would otherwise compile the walk on a cold cache (5-15 s of CPU)
+    though it walks in under a second uncompiled: the viewer's first scene, whose example flight
+    has 5364 footprint rays (:func:`geoloc.viz.flight_model.build`; issue 32). Not for a loop of
+    such calls in a warm process (a whole frame in chunks, a campaign): each would pay up to the
+    budget where the kernel takes milliseconds. The choice stays the call's (its rays, their order,
+    its DEM and this block: the steps counted are the walk's own), never the process's history
+    or the machine's speed; :func:`walk_parallel` makes it once for the whole call.
+    """
+    token = _BUDGET.set(PY_WALK_MAX_STEPS if steps is None else max(int(steps), 0))
+    try:
+        yield
+    finally:
+        _BUDGET.reset(token)
 
 
 def _python_ok(n, nodes):
     """Whether a call of ``n`` rays over a DEM of ``nodes`` rows + columns walks uncompiled."""
     return n <= PY_WALK_MAX_RAYS and n * nodes <= PY_WALK_MAX_WORK
+
+
+def _python_prefix(kernel, kargs, order, nodes) -> int:
+    """Walk ``order``'s rays uncompiled from its start: all of a small call (:func:`_python_ok`),
+    else, within an :func:`uncompiled_budget`, a chunk at a time while the cost projected over the
+    whole call (the cell steps so far plus :data:`PY_WALK_RAY_STEPS` a ray, per ray walked, times
+    the rays) stays within the budget. Returns how many rays of ``order`` it walked (0: none, the
+    kernel walks the call). Where Python's arithmetic raises and numba's does not (int(nan), a
+    sqrt of a negative, an index past an end) the chunk's outputs are restored and the kernel
+    walks the rest from there."""
+    n = len(order)
+    if n == 0:
+        return 0
+    budget = None
+    if _python_ok(n, nodes):
+        chunk = n
+    else:
+        budget = _BUDGET.get()
+        if not budget or nodes > PY_WALK_MAX_WORK:
+            return 0
+        chunk = max(1, min(PY_WALK_MAX_RAYS, PY_WALK_MAX_WORK // max(int(nodes), 1)))
+    outs = kargs[-7:]
+    ncell = outs[4]
+    # the scalars as numpy float64: a Python float plus a float32 table entry is float32
+    # under numpy 2's promotion; numba's (and numpy's float64 + float32) is float64
+    f64 = tuple(np.float64(a) if type(a) is float else a for a in kargs)
+    run = _python_walk(kernel)
+    done, steps = 0, 0
+    while done < n:
+        sub = order[done:done + chunk]
+        kept = [a[sub].copy() for a in outs]  # status is read too: restored if the kernel must redo them
+        try:
+            with np.errstate(all="ignore"):
+                run(*f64[:2], sub, *f64[3:])
+        except (ArithmeticError, ValueError, IndexError):
+            for a, k in zip(outs, kept):
+                a[sub] = k
+            return done
+        done += len(sub)
+        steps += int(ncell[sub].sum())
+        # the cost so far per ray walked, projected over the call's rays
+        if budget is not None and done < n and (steps + PY_WALK_RAY_STEPS * done) * n > budget * done:
+            return done
+    return done
 
 
 def _python_walk(kernel):
@@ -1371,14 +1456,23 @@ def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, ro
     import numba
 
     order = _order(order, len(o))
+    args = (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
+            tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell, trace_s, trace_ij)
     n = len(order)
     k = max(1, min(int(threads or numba.config.NUMBA_NUM_THREADS), n // 256 or 1))
+    if k == 1:  # one run: _call walks the start uncompiled where the call is small (serial's rule)
+        _call(args, order, order_checked=True, block=block)
+        return
+    # the uncompiled start decided once for the whole call, as the serial walk decides it (the same
+    # rays walked uncompiled whatever the thread count); the threads share the compiled rest
+    start = _python_start(args, order, block)
+    order = order[start:]
+    n = len(order)
+    k = max(1, min(k, n // 256 or 1))
     cuts = np.linspace(0, n, k + 1).astype(int)
 
     def part(a, b):  # each thread a contiguous run of the order: disjoint rays, disjoint output rows
-        _call((o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
-               tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell, trace_s,
-               trace_ij), order[a:b], order_checked=True, block=block)
+        _call(args, order[a:b], order_checked=True, block=block, python=False)
 
     if k == 1:
         part(0, n)
