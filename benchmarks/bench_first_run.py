@@ -12,6 +12,14 @@ then is stopped. For each the child's wall time, CPU time (user + system, from
 Run: ``python benchmarks/bench_first_run.py [--repeat N] [--only locate,replay,view,scene]``
 (medians over N cold folders; 15-30 s of CPU per cold call on 2 cores).
 
+Measured 2026-12-04 (2 cores, load 1.2-2.7, medians of 3), after the viewer's flight model
+walked uncompiled while its cost projected over the batch fits (``terrain_numba.uncompiled_budget``)
+and the picture's horizon became calls of 64 rays or fewer: cold locate 0.9 s wall, 1.1 s CPU, 300 MB; replay 0.9 s,
+1.1 s, 300 MB; view 1.3 s, 1.5 s, 359 MB; scene 3.1 s, 3.9 s, 445 MB; each the same warm (the
+scene's 5364 footprint rays walk uncompiled, 0.5-0.9 s, and nothing compiles). main cf216e5 in
+the same session: scene cold 8.0 s wall, 8.8 s CPU, 518 MB (the walk's compile), warm 3.1 s,
+3.9 s, 470 MB; locate cold 1.0 s, 1.2 s, 300 MB.
+
 Measured 2026-12-03 (2 cores, load 1.7-2.7, medians of 3), after a call of up to 64 rays ran
 the walk uncompiled and the walk was compiled per cell model: cold locate 2.4 s wall, 2.2 s
 CPU, 217 MB; replay 2.6 s, 2.4 s, 217 MB; view 4.0 s, 3.1 s, 257 MB; warm 2.0 / 2.4 / 3.1 s
@@ -53,7 +61,7 @@ CALLS = {
     "view": ["view", "--no-browser", "--port", "0"],
     # the scene a browser's first page asks for, built and written without a server: view counts
     # until it serves, and it serves before it walks more than one ray (the scene's 792 + 5364 +
-    # 110 rays compile the walk)
+    # 110 rays, which compiled the walk before they walked uncompiled)
     "scene": ["view", "--export", "{cache}/scene.html"],
 }
 CLK = os.sysconf("SC_CLK_TCK")

@@ -248,6 +248,60 @@ def test_marks_reproject_the_reported_centre_and_the_horizon_bounds_the_terrain(
         server.stop()
 
 
+def test_the_horizon_is_where_the_rays_reach_a_flat_dems_far_edge(flight):
+    """terrain_horizon against an oracle outside the DEM walk: over a flat DEM (h0 on the
+    ellipsoid, every node) whose far edge is in view, a ray meets the terrain iff it meets the
+    ellipsoid raised by h0 (closed-form quadratic) at a latitude and longitude inside the DEM
+    (pymap3d's ecef2geodetic). Each horizon point's ray half a pixel above lands outside, half a
+    pixel below inside (the bisection's 13 halvings of the frame: 0.02 px at 135 rows)."""
+    import copy
+
+    import pymap3d
+
+    from geoloc.surfaces.dem import DEM
+    from geoloc.viz import picture_model as pm
+
+    server, app, layer = make_app(flight)
+    try:
+        level = app.inputs.replace(angles_deg={**app.inputs.angles_deg, "elevation": -2.0})
+        pose = level.pose()
+        lat0, lon0 = np.degrees(pose.lat), np.degrees(pose.lon)
+        h0 = 300.0
+        # the frame's rays, 2 deg down on the turret, leave the aircraft 5-12 deg down to the NNE
+        # from 2.9 km: they meet a 300 m ground 12-29 km away. The DEM's north edge 20 km ahead
+        # (0.18 deg) crosses the frame; 0.6 deg (67 km) the other ways, out of view
+        d = 0.005
+        north, south, west, east = lat0 + 0.18, lat0 - 0.6, lon0 - 0.6, lon0 + 0.6
+        dem = DEM.from_array(np.full((round((north - south) / d) + 1, round((east - west) / d) + 1), h0),
+                             north, west, d, d)
+        south, east = north - d * (dem.shape[0] - 1), west + d * (dem.shape[1] - 1)
+        scn = copy.copy(app.scn)
+        scn.dem = dem
+        hz = pm.terrain_horizon(scn, level, layer.sensor)
+        assert len(hz) >= 20  # most of the 32 columns
+
+        a, b = 6378137.0 + h0, 6356752.314245179 + h0  # WGS 84 raised by h0 (a shell at h0 along
+        # the normal differs from this by < 1 mm at 300 m: e^2 h0 terms)
+
+        def inside(r, c):
+            los = layer.sensor.line_of_sight(r, c, pose, outside="extrapolate")
+            o = np.broadcast_to(los.origin_ecef, los.direction_ecef.shape).reshape(-1, 3)
+            u = los.direction_ecef.reshape(-1, 3)
+            u = u / np.linalg.norm(u, axis=1, keepdims=True)
+            w = np.array([1 / a**2, 1 / a**2, 1 / b**2])
+            A, B, C = np.sum(u * u * w, 1), 2 * np.sum(o * u * w, 1), np.sum(o * o * w, 1) - 1
+            disc = B * B - 4 * A * C
+            t = (-B - np.sqrt(np.where(disc >= 0, disc, np.nan))) / (2 * A)
+            p = o + t[:, None] * u
+            la, lo, _ = pymap3d.ecef2geodetic(p[:, 0], p[:, 1], p[:, 2])
+            return (disc >= 0) & (t > 0) & (la <= north) & (la >= south) & (lo >= west) & (lo <= east)
+
+        assert not inside(hz[:, 0] - 0.5, hz[:, 1]).any()
+        assert inside(hz[:, 0] + 0.5, hz[:, 1]).all()
+    finally:
+        server.stop()
+
+
 def test_the_timeline_shows_each_frames_own_image(flight):
     server, app, layer = make_app(flight)
     try:

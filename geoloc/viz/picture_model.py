@@ -266,12 +266,17 @@ def image_marks(scn, idx, sensor, inputs, centre: "PixelPick | None" = None) -> 
     return out
 
 
-def terrain_horizon(scn, inputs, sensor, n_cols: int = 33, n_rows: int = 24, refine: int = 8):
-    """(k, 2) (row, col) of the terrain's horizon in the frame: per sampled column, the
-    boundary between rays that meet the terrain and rays that do not (sky, or off the DEM),
-    bisected ``refine`` times between grid rows; empty when every sampled ray meets the terrain.
+def terrain_horizon(scn, inputs, sensor, n_cols: int = 32, refine: int = 13):
+    """(k, 2) (row, col) of the terrain's horizon in the frame: per sampled column whose top ray
+    misses the terrain (sky, or off the DEM) and whose bottom ray meets it, the row where the rays
+    start meeting it, bisected ``refine`` times between the two (the frame's height over
+    2^refine: 0.13 px for 1080 rows); empty when no column's top misses and bottom meets.
 
     Every ray goes through ``sensor.line_of_sight`` and the scene's surface (exact first hit).
+    The columns are bisected, not sampled on a grid of rows first: 2 ``n_cols`` rays, then
+    ``n_cols`` or fewer a halving, each call small enough to walk uncompiled (64 rays or fewer:
+    ``terrain_numba.PY_WALK_MAX_RAYS``), where a 33 x 24 grid's 792 rays compiled the walk on a
+    cold cache (issue 32).
     """
     from geoloc.surfaces.terrain import surface_for
 
@@ -279,34 +284,25 @@ def terrain_horizon(scn, inputs, sensor, n_cols: int = 33, n_rows: int = 24, ref
     pose = inputs.pose()
     dem = scn.dem if getattr(scn, "use_dem", True) else None
     surface = surface_for(inputs.target_h, dem, method="exact")
-    rows = np.linspace(0.5, M + 0.5, n_rows)
+
+    def meets(r, c):
+        return np.asarray(surface.intersect(sensor.line_of_sight(r, c, pose, outside="extrapolate")).status) \
+            == Status.OK
+
     cols = np.linspace(0.5, N + 0.5, n_cols)
-    R, C = np.meshgrid(rows, cols, indexing="ij")
-    ok = np.asarray(surface.intersect(sensor.line_of_sight(R, C, pose, outside="extrapolate")).status) == Status.OK
-    out = []
-    lo_r, hi_r, cc = [], [], []
-    for j in range(n_cols):
-        col_ok = ok[:, j]
-        if col_ok.all() or not col_ok.any():
-            continue
-        # the last row (from the top) that misses, followed by one that hits
-        k = np.flatnonzero(~col_ok[:-1] & col_ok[1:])
-        if len(k) == 0:
-            continue
-        lo_r.append(rows[k[-1]])
-        hi_r.append(rows[k[-1] + 1])
-        cc.append(cols[j])
-    if not cc:
+    top, bottom = 0.5, M + 0.5
+    ok = meets(np.repeat([top, bottom], n_cols), np.tile(cols, 2)).reshape(2, n_cols)
+    cand = ~ok[0] & ok[1]
+    if not cand.any():
         return np.zeros((0, 2))
-    lo_r, hi_r, cc = (np.array(a, float) for a in (lo_r, hi_r, cc))
+    cc = cols[cand]
+    lo_r, hi_r = np.full(len(cc), top), np.full(len(cc), bottom)  # lo misses, hi meets
     for _ in range(int(refine)):
         mid = 0.5 * (lo_r + hi_r)
-        hit = np.asarray(surface.intersect(sensor.line_of_sight(mid, cc, pose, outside="extrapolate")).status) \
-            == Status.OK
+        hit = meets(mid, cc)
         hi_r = np.where(hit, mid, hi_r)
         lo_r = np.where(hit, lo_r, mid)
-    out = np.stack([0.5 * (lo_r + hi_r), cc], axis=1)
-    return out
+    return np.stack([0.5 * (lo_r + hi_r), cc], axis=1)
 
 
 #: A pattern of painted marks further than this from its reprojection disagrees with the metadata [px]:
