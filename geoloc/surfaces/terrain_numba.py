@@ -114,7 +114,7 @@ _CLIMB = True
 _FIXED_BLOCK = 0
 #: The cell model: each compiled walk is one model's (:data:`KERNELS`), so a call compiles the
 #: model it walks and not the other one (issue 32): ``_TRIANGLES`` is a constant numba prunes
-#: the other model's branch on before typing (the kernel's ``triangles`` argument is not read).
+#: the other model's branch on before typing (:func:`walk`'s ``triangles`` picks the kernel).
 _TRIANGLES = False
 #: The direction argument of :func:`_par_exit`: a float, not a bool, so that numba compiles the
 #: helper once (a constant True or False is typed as a literal of its own: two compiles of
@@ -492,8 +492,7 @@ def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b
 
 
 def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev, row_geo, lat_n, lon_w, dlat,
-          dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
-          trace_s, trace_ij):
+          dlon, tan_row, c_row, sin_col, cos_col, s_out, p_out, geo_out, status, ncell, trace_s, trace_ij):
     """Exact first hit for each ray (see module docstring); fills s_out, status, ncell,
     and for the hits p_out (ECEF [m]) and geo_out (latitude, longitude [rad], height
     [m], range [m]); NaN elsewhere.
@@ -1181,8 +1180,8 @@ def _variant(fn, name, climb, fixed_block, triangles):
 #: skipped). ``"flat_block"``: the flat walk for tables of another block side
 #: (``terrain.block_cells``: 12 on a grid of 8.7 m cells), the side read at run time.
 #: The model, ``"bilinear"`` or ``"triangles"``: the other model's branch is left out (its
-#: code and its helpers, :func:`_bilinear_cell` or :func:`_tri`, are not compiled); the
-#: kernel's ``triangles`` argument is then not read.
+#: code and its helpers, :func:`_bilinear_cell` or :func:`_tri`, are not compiled);
+#: :func:`walk`'s ``triangles`` picks the kernel and is not passed to it.
 KERNELS = {
     (kind, model): cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(
         _variant(_walk, f"_walk_{kind}_{model}", kind == "climb", BLOCK if kind == "flat" else 0,
@@ -1279,7 +1278,7 @@ def _prepare(args, order=None, order_checked=False, block=BLOCK):
                          "tables were made with (geoloc.surfaces.terrain._exact_tables: 'block')")
     kernel = _kernel_for(hlev, block, triangles)
     kargs = (o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo,
-             float(lat_n), float(lon_w), float(dlat), float(dlon), *ins2, bool(triangles), *outs)
+             float(lat_n), float(lon_w), float(dlat), float(dlon), *ins2, *outs)
     return kernel, kargs, order, hgt.shape[0] + hgt.shape[1]
 
 
