@@ -19,6 +19,12 @@ session per tab, the default layers) on the bundled example flight. Measured, me
 
 The canvas is watched from inside the page (``PROBE``, every 50 ms): a Playwright screenshot of it
 costs 0.8 s in this browser, which the previous instrument added to every figure.
+
+``--groups``: where a frame's time goes, on one more tab without the probe (``COUNTER`` counts
+WebGL draw calls and their indices per animation frame): over ``--window`` seconds (6) of a still default view (viser
+renders on demand: a frame a second, the heartbeat), frames per second, draw calls and indices
+per frame and the GPU process's CPU seconds per frame, with nothing hidden and then with each
+node group hidden in turn (cumulative): ``/flight``, ``/enu/terrain``, the rest of ``/enu``.
 """
 
 from __future__ import annotations
@@ -122,10 +128,70 @@ def _screenshot_s(page) -> float:
     return time.perf_counter() - t
 
 
+#: Counts, per animation frame that drew, the WebGL draw calls and their indices (vertices for
+#: ``drawArrays``; times the instances for the instanced calls) into ``window.__geolocDraws``.
+COUNTER = """(() => {
+  const st = {frames: 0, draws: 0, prims: 0}; window.__geolocDraws = st;
+  let cur = 0;
+  for (const P of [WebGL2RenderingContext.prototype, WebGLRenderingContext.prototype]) {
+    for (const m of ['drawElements', 'drawArrays', 'drawElementsInstanced', 'drawArraysInstanced']) {
+      const f = P[m]; if (!f) continue;
+      P[m] = function(...a) {
+        st.draws++; cur++;
+        const inst = m.endsWith('Instanced') ? a[a.length - 1] : 1;
+        st.prims += (m.startsWith('drawElements') ? a[1] : a[2]) * inst;
+        return f.apply(this, a);
+      };
+    }
+  }
+  const raf = window.requestAnimationFrame.bind(window);
+  window.requestAnimationFrame = (cb) => raf((t) => { if (cur) { st.frames++; cur = 0; } cb(t); });
+})();"""
+
+
+def _census(browser, server, viewer, built, window_s=6.0) -> list:
+    """(label, frames/s, draws/frame, indices/frame, GPU-process CPU s/frame) over a still default
+    view, then with each node group hidden in turn (``--groups``)."""
+    page = browser.new_page(viewport={"width": 1000, "height": 640})
+    page.add_init_script(COUNTER)
+    before = set(built)
+    page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=120000)
+    t0 = time.time()
+    while len(set(built) - before) < 1 and time.time() - t0 < 120:
+        time.sleep(0.2)
+    api = viewer.session_of((set(built) - before).pop()).scene
+    time.sleep(10.0)  # the scene in and drawn (the default view settles in 3-7 s here)
+    names = sorted(api._handle_from_node_name)  # viser's node table (private: a benchmark only)
+    rows = []
+
+    def window(label):
+        s0 = page.evaluate("({...window.__geolocDraws})")
+        c0, w = _browser_cpu_s(), time.time()
+        time.sleep(window_s)
+        c1, dt = _browser_cpu_s(), time.time() - w
+        s1 = page.evaluate("({...window.__geolocDraws})")
+        fr = max(s1["frames"] - s0["frames"], 1)
+        rows.append((label, (s1["frames"] - s0["frames"]) / dt, (s1["draws"] - s0["draws"]) / fr,
+                     (s1["prims"] - s0["prims"]) / fr, (c1[1] - c0[1]) / fr))
+
+    window("nothing hidden")
+    for group, label in (("/flight", "/flight hidden"), ("/enu/terrain", "and /enu/terrain"),
+                         ("/enu", "and the rest of /enu")):
+        for n in names:  # the group's node and its children (a hidden parent hides its subtree)
+            if n == group or (n.startswith(group + "/") and n.count("/") == group.count("/") + 1):
+                api._handle_from_node_name[n].visible = False
+        window(label)
+    page.close()
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="page loads (default 3)")
     ap.add_argument("--steps", type=int, default=5, help="timeline steps per load (default 5)")
+    ap.add_argument("--groups", action="store_true",
+                    help="also: a frame's draw calls and GPU time with each node group hidden in turn")
+    ap.add_argument("--window", type=float, default=6.0, help="with --groups: seconds per measure (default 6)")
     args = ap.parse_args(argv)
 
     from test_viz_browser import chromium, wait_for
@@ -184,6 +250,7 @@ def main(argv=None) -> int:
                     dt_settle, seen = _settled(page, t_step, after=seen)
                     settle_s.append(dt_settle)
                 page.close()
+            census = _census(browser, server, viewer, built, args.window) if args.groups else []
     finally:
         server.stop()
     med = statistics.median
@@ -202,6 +269,11 @@ def main(argv=None) -> int:
           f"{med(v[1] for v in step_cpu):.2f} s)")
     print(f"instrument: the canvas probed in the page every {PROBE_MS} ms (about 10 ms a probe); one "
           f"Playwright screenshot of the canvas takes {med(shots):.2f} s, the previous instrument")
+    if census:
+        print("a still default view, frame by frame (viser draws on demand: its heartbeat is a frame a second):")
+        for label, fps, draws, prims, gpu in census:
+            print(f"  {label:24s} {fps:5.2f} frames/s, {draws:4.0f} draw calls and {prims:8.0f} indices a frame, "
+                  f"GPU process {gpu:.3f} s CPU a frame")
     return 0
 
 
