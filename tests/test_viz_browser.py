@@ -150,6 +150,10 @@ def test_viewer_in_headless_chromium(tmp_path):
             hit = lambda: np.array(server.scene.get_handle_by_name("/enu/hit/result").position)  # noqa: E731
             # A 6 km lower aircraft looking down at ~45 deg hits the ground km closer (scene unit: km).
             wait_for(lambda: np.linalg.norm(hit() - before) > 1.0, 20, "the scene to update")
+            # the hit moves part way through the update (GUI callback thread): wait for the rest of
+            # it (its labels) under the session's lock, so the render request queues after them
+            with app._lock:
+                pass
             ac = np.array(server.scene.get_handle_by_name("/enu/aircraft").position) * 1e3  # km -> m
             assert ac[2] == pytest.approx(12000.0 - app.scn.enu.h0, abs=50.0)  # ENU up ~ height
             img1 = render(server, ARTIFACTS / "viz_after_height_change.png")
