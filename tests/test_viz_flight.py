@@ -217,6 +217,33 @@ def test_the_flight_test_panel_shows_no_negative_intercept_model_and_says_why_it
 
 
 # ------------------------------------------------------------------ the layer on a server (no browser)
+def test_whole_flight_footprints_keep_the_corners_at_half_the_points():
+    """The whole flight's footprints, a level of detail (issue 34): every frame's outline through
+    every second outline point, its four corners among them (outline_pixels: corners at 0, k, 2k,
+    3k of 4k points), lifted by LIFT_M; the scene node holds exactly those segments (km)."""
+    from geoloc.viz import flight_layer
+    from geoloc.viz.app import GeolocApp
+
+    with served() as server:
+        scn = flight_model.default_flight_scenario()
+        app = GeolocApp(server, scn, layers=(flight_layer.attach,))
+        m = app.layers[-1].model
+        P = m.footprint_enu.shape[1]
+        assert P == 4 * flight_model.EDGE_SAMPLES and flight_model.EDGE_SAMPLES % flight_layer.FOOTPRINT_EVERY == 0
+        seg = m.footprint_segments(flight_layer.FOOTPRINT_EVERY)
+        keep = np.arange(0, P, flight_layer.FOOTPRINT_EVERY)
+        assert set(np.arange(0, P, flight_model.EDGE_SAMPLES)) <= set(keep)  # the corners
+        want = np.stack([m.footprint_enu[:, keep], m.footprint_enu[:, np.roll(keep, -1)]], axis=2).reshape(-1, 2, 3)
+        np.testing.assert_array_equal(seg, want)
+        ok = np.all(np.isfinite(want), axis=(1, 2))
+        got = np.array(server.scene.get_handle_by_name("/flight/footprints").points)
+        lifted = (want[ok] + [0.0, 0.0, flight_layer.LIFT_M["footprints"]]) * 1e-3
+        assert got.shape == lifted.shape == (ok.sum(), 2, 3) and ok.sum() > 0.9 * len(m) * P // 2
+        np.testing.assert_allclose(got, lifted, rtol=0, atol=1e-6)  # float32 km: under a millimetre
+        with pytest.raises(ValueError, match="must divide the 16 outline points"):
+            m.footprint_segments(3)
+
+
 def test_timeline_moves_only_the_highlight():
     from geoloc.viz import flight_layer
     from geoloc.viz.app import GeolocApp

@@ -492,3 +492,50 @@ def test_terrain_is_sent_unlit_with_the_mesh_unchanged(app):
     lin = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4) * 255.0
     assert np.abs(rgba[:, :3] - lin).max() <= 0.5 + 1e-9  # rounded to 8 bits
     assert np.array_equal(rgba[:, 3], mesh.visual.vertex_colors[:, 3])
+
+
+def test_terrain_mesh_level_of_detail_and_its_height_bound():
+    """The drawn terrain (issue 34, a level of detail): its nodes spaced as 1 + d / MESH_LOD_M at a
+    distance d from the scene origin, its vertices on the DEM's surface at their nodes, and
+    mesh_height_bound an upper bound of the drawn surface: checked by trimesh's ray casts (an
+    outside oracle) straight down onto the mesh at 2000 random points of the example flight."""
+    import trimesh
+
+    from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
+    from geoloc.viz import terrain_link as tl
+    from geoloc.viz.flight_model import default_flight_scenario
+
+    scn = default_flight_scenario()
+    lats, lons = tl.mesh_grid(scn)
+    n = tl.MESH_NODES
+    assert lats.shape == lons.shape == (n,) and np.all(np.diff(lats) < 0) and np.all(np.diff(lons) > 0)
+    w, s, e, nn = scn.dem.bounds_deg
+    assert (lats[0], lats[-1], lons[0], lons[-1]) == (min(nn, lats[0]), max(s, lats[-1]), max(w, lons[0]),
+                                                      min(e, lons[-1]))
+    # the spacing at each gap against the rule, from the gap's mid-point's distance to the origin:
+    # equal steps of F (r0 ln(1 + d / r0)) give dx = dF (1 + d / r0) to first order in the step
+    lat0 = np.degrees(scn.enu.lat0)
+    d_m = np.radians(np.abs(0.5 * (lats[1:] + lats[:-1]) - lat0)) * 6.36e6
+    dx = np.radians(-np.diff(lats)) * 6.36e6
+    ratio = dx / (1 + d_m / tl.MESH_LOD_M)
+    assert ratio.max() / ratio.min() < 1.05  # the second-order term: under 5 % at these steps
+    assert dx.max() > 3 * dx.min()  # coarse at the edge, fine at the origin
+    mesh = tl.terrain_mesh(scn)
+    assert len(mesh.vertices) == n * n and len(mesh.faces) == 2 * (n - 1) ** 2  # the crop has no holes
+    LON, LAT = np.meshgrid(lons, lats)
+    la, lo, h = ecef_to_geodetic(scn.enu.to_ecef(mesh.vertices))
+    assert np.allclose(h, scn.dem.height(np.radians(LAT), np.radians(LON)).ravel(), atol=1e-6)
+    assert np.allclose(np.degrees(la), LAT.ravel(), atol=1e-9) and np.allclose(np.degrees(lo), LON.ravel(), atol=1e-9)
+    # trimesh's ray casts down the local vertical onto the mesh, at random points in it
+    rng = np.random.default_rng(4)
+    pla = rng.uniform(lats[-1], lats[0], 2000)
+    plo = rng.uniform(lons[0], lons[-1], 2000)
+    top = scn.enu.from_ecef(geodetic_to_ecef(np.radians(pla), np.radians(plo), np.full(2000, 3000.0)))
+    bot = scn.enu.from_ecef(geodetic_to_ecef(np.radians(pla), np.radians(plo), np.full(2000, 0.0)))
+    d = (bot - top) / np.linalg.norm(bot - top, axis=1, keepdims=True)
+    loc, ray, _ = trimesh.ray.ray_triangle.RayMeshIntersector(mesh).intersects_location(top, d, multiple_hits=False)
+    assert len(ray) > 1990  # every ray meets the mesh (a few may slip between two triangles' edges)
+    _, _, h_mesh = ecef_to_geodetic(scn.enu.to_ecef(loc))
+    bound = tl.mesh_height_bound(scn, pla[ray], plo[ray])
+    # 1 mm: the ray cast's float64 round trip through ENU and ECEF, far under any relief
+    assert np.all(np.isfinite(bound)) and np.all(h_mesh <= bound + 1e-3), (h_mesh - bound).max()

@@ -66,6 +66,11 @@ PLAY_ACK_TIMEOUT_S = 30.0
 #: Display-only lift of the draped outlines above the terrain mesh [m], so the depth test does not
 #: hide lines that lie on it (the mesh resamples the DEM: it is tens of metres off between nodes).
 LIFT_M = {"footprints": 8.0, "current": 25.0}
+#: The whole flight's footprints through every second outline point (the corners kept: 8 segments
+#: a frame, the current frame's own outline all 16), a level of detail (issue 34): in software
+#: WebGL a frame's cost follows the segments drawn, and the example flight's 4768 segments cost
+#: 0.13 s of a 0.30 s frame (``benchmarks/bench_browser.py --groups``).
+FOOTPRINT_EVERY = 2
 CHOOSE = "(choose a frame)"
 
 _CACHE: dict = {}  # id(records) -> (records, model): one model per scenario, shared by every tab
@@ -147,9 +152,10 @@ class FlightLayer:
         if len(m) > 1:
             self.handles["track"] = s.add_line_segments(f"{ROOT}/track", f32(m.track_segments()), COLORS["track"],
                                                         thickness=2.0, thickness_units="screen")
-        seg = m.footprint_segments() + np.array([0.0, 0.0, LIFT_M["footprints"]])
-        P = m.footprint_enu.shape[1]
-        col = np.where(np.repeat(m.outlier, P)[:, None], COLORS["footprint_outlier"], COLORS["footprint"])
+        seg = m.footprint_segments(FOOTPRINT_EVERY) + np.array([0.0, 0.0, LIFT_M["footprints"]])
+        P = m.footprint_enu.shape[1]  # the current frame's outline: every point
+        col = np.where(np.repeat(m.outlier, P // FOOTPRINT_EVERY)[:, None], COLORS["footprint_outlier"],
+                       COLORS["footprint"])
         good = np.all(np.isfinite(seg), axis=(1, 2))
         self.handles["footprints"] = s.add_line_segments(
             f"{ROOT}/footprints", f32(seg[good]), np.repeat(col[good, None].astype(np.uint8), 2, axis=1),

@@ -179,9 +179,14 @@ class FlightModel:
         """The ``n`` frames of largest residual (indices), largest first."""
         return self.order[:n]
 
-    def footprint_segments(self) -> np.ndarray:
-        """(n * P, 2, 3) line segments of every closed footprint outline, frame by frame."""
-        fp = self.footprint_enu
+    def footprint_segments(self, every: int = 1) -> np.ndarray:
+        """(n * P / every, 2, 3) line segments of every closed footprint outline, frame by frame,
+        through every ``every``-th of its P outline points (the corners kept when ``every``
+        divides :data:`EDGE_SAMPLES`)."""
+        every = int(every)
+        if every < 1 or self.footprint_enu.shape[1] % every:
+            raise ValueError(f"every = {every}: must divide the {self.footprint_enu.shape[1]} outline points")
+        fp = self.footprint_enu[:, ::every]
         return np.stack([fp, np.roll(fp, -1, axis=1)], axis=2).reshape(-1, 2, 3)
 
     def track_segments(self) -> np.ndarray:

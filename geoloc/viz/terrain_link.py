@@ -29,8 +29,13 @@ except ImportError:  # pragma: no cover
 METHODS = ("steps", "bisect", "exact")
 #: Half width of the terrain drawn around the scene origin [m] (the scene spans ~20-30 km).
 WINDOW_M = 30e3
-#: Nodes per side of the drawn terrain: a resampling of the DEM's bilinear surface.
-MESH_NODES = 161
+#: Nodes per side of the drawn terrain: a resampling of the DEM's bilinear surface on a grid
+#: spaced by distance from the scene origin (:func:`mesh_grid`, a level of detail).
+MESH_NODES = 81
+#: The drawn terrain's node spacing grows as ``1 + d / MESH_LOD_M`` at a distance ``d`` [m] from
+#: the scene origin (:func:`mesh_grid`): 60 m at the origin and 300 m at 6 km over the bundled
+#: SRTM crop, where a uniform 161 x 161 grid had 75 m everywhere and 4 times the triangles.
+MESH_LOD_M = 1500.0
 
 
 @dataclass
@@ -112,32 +117,80 @@ def dem_height(dem, lat_deg, lon_deg) -> float:
     return float(dem.height(np.deg2rad(lat_deg), np.deg2rad(lon_deg)))
 
 
-def terrain_mesh(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES):
-    """The DEM around the scene origin as a vertex-coloured trimesh in the scene's ENU frame.
+def _lod_axis(a: float, b: float, c: float, n: int, r0: float) -> np.ndarray:
+    """``n`` coordinates from ``a`` to ``b`` spaced in proportion to ``1 + |x - c| / r0``: equal
+    steps of ``F(x) = sign(x - c) r0 ln(1 + |x - c| / r0)``, whose derivative is the inverse of
+    that spacing (``c`` clipped into the interval)."""
+    c = min(max(c, min(a, b)), max(a, b))
 
-    The DEM's own bilinear surface (:meth:`geoloc.surfaces.dem.DEM.height`, what the
-    solvers intersect) is sampled on a ``nodes x nodes`` geographic grid
-    covering +-``window_m`` around the origin, clipped to the DEM, and turned
-    into a mesh by :meth:`geoloc.surfaces.dem.DEM.to_trimesh` in ``scn.enu``. Colours:
-    a hypsometric colour map of the height, shaded by :func:`hillshade` (the viewer draws the
-    terrain unlit: the relief is in the colours, see :func:`geoloc.viz.scene_geoloc.unlit_glb`).
+    def F(x):
+        return np.sign(x - c) * r0 * np.log1p(np.abs(x - c) / r0)
+
+    y = np.linspace(F(a), F(b), n)
+    x = c + np.sign(y) * r0 * np.expm1(np.abs(y) / r0)
+    x[0], x[-1] = a, b  # the ends exactly
+    return x
+
+
+def mesh_grid(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES, lod_m: float = MESH_LOD_M):
+    """(latitudes [deg], north to south; longitudes [deg], west to east) of the drawn terrain's
+    ``nodes x nodes`` grid: +-``window_m`` around the scene origin, clipped to the DEM, the nodes
+    spaced as ``1 + d / lod_m`` at a distance ``d`` from the origin along each axis (a level of
+    detail: fine where the aircraft, the hit and the iterations are, coarse at the window's edge).
     """
-    import matplotlib
-
     dem, enu = scn.dem, scn.enu
     lat0, lon0 = np.rad2deg(enu.lat0), np.rad2deg(enu.lon0)
     dlat = np.rad2deg(window_m / 6.36e6)  # metres to degrees (display window only)
     dlon = dlat / np.cos(enu.lat0)
+    r_lat = np.rad2deg(lod_m / 6.36e6)
     w, s, e, n = dem.bounds_deg
     north, south = min(lat0 + dlat, n), max(lat0 - dlat, s)
     west, east = max(lon0 - dlon, w), min(lon0 + dlon, e)
-    lats = np.linspace(north, south, nodes)
-    lons = np.linspace(west, east, nodes)
+    return (_lod_axis(north, south, lat0, nodes, r_lat),
+            _lod_axis(west, east, lon0, nodes, r_lat / np.cos(enu.lat0)))
+
+
+def _grid_trimesh(lat_deg, lon_deg, H, enu):
+    """A trimesh of a (possibly unevenly spaced) grid of nodes in ``enu``: two triangles per cell,
+    split along the north-west to south-east diagonal as :meth:`geoloc.surfaces.dem.DEM.mesh`
+    splits its cells; cells with a missing node left out (missing nodes at height 0)."""
+    import trimesh
+
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+
+    LON, LAT = np.meshgrid(lon_deg, lat_deg)
+    v = enu.from_ecef(geodetic_to_ecef(np.deg2rad(LAT), np.deg2rad(LON), np.nan_to_num(H)).reshape(-1, 3))
+    nr, nc = H.shape
+    idx = np.arange(nr * nc).reshape(nr, nc)
+    p00, p10, p01, p11 = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    ok = np.isfinite(H)
+    good = (ok[:-1, :-1] & ok[:-1, 1:] & ok[1:, :-1] & ok[1:, 1:]).ravel()
+    f1 = np.stack([p00, p01, p11], axis=-1).reshape(-1, 3)[good]
+    f2 = np.stack([p00, p11, p10], axis=-1).reshape(-1, 3)[good]
+    return trimesh.Trimesh(v, np.stack([f1, f2], axis=1).reshape(-1, 3), process=False)
+
+
+def terrain_mesh(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES, lod_m: float = MESH_LOD_M):
+    """The DEM around the scene origin as a vertex-coloured trimesh in the scene's ENU frame.
+
+    The DEM's own bilinear surface (:meth:`geoloc.surfaces.dem.DEM.height`, what the
+    solvers intersect) is sampled on :func:`mesh_grid`'s ``nodes x nodes`` geographic grid
+    (+-``window_m`` around the origin, clipped to the DEM, spaced by distance from the origin)
+    and turned into two triangles a cell in ``scn.enu``. Colours:
+    a hypsometric colour map of the height, shaded by :func:`hillshade` (the viewer draws the
+    terrain unlit: the relief is in the colours, see :func:`geoloc.viz.scene_geoloc.unlit_glb`).
+
+    In software WebGL a frame's cost follows the triangles drawn (``benchmarks/bench_browser.py
+    --groups``): the terrain cost 0.16 s of a 0.36 s frame on a uniform 161 x 161 grid, 0.064 s
+    on 81 x 81 (issue 34).
+    """
+    import matplotlib
+
+    dem, enu = scn.dem, scn.enu
+    lats, lons = mesh_grid(scn, window_m, nodes, lod_m)
     LON, LAT = np.meshgrid(lons, lats)
     H = dem.height(np.deg2rad(LAT), np.deg2rad(LON))
-    sub = _dem.DEM.from_array(H, north, west, (north - south) / (nodes - 1),
-                              (east - west) / (nodes - 1), datum="ellipsoid")
-    mesh = sub.to_trimesh(origin_lat=enu.lat0, origin_lon=enu.lon0, origin_h=enu.h0)
+    mesh = _grid_trimesh(lats, lons, H, enu)
     h = np.nan_to_num(H.ravel(), nan=np.nanmin(H))
     lo, hi = np.nanmin(H), np.nanmax(H)
     t = (h - lo) / max(hi - lo, 1.0)
@@ -255,38 +308,31 @@ def terrain_geometry(scn, inp, los, surface=None) -> dict:
     return out
 
 
-def mesh_height_bound(scn, lat_deg, lon_deg, window_m: float = WINDOW_M, nodes: int = MESH_NODES):
+def mesh_height_bound(scn, lat_deg, lon_deg, window_m: float = WINDOW_M, nodes: int = MESH_NODES,
+                      lod_m: float = MESH_LOD_M):
     """Highest node of the terrain mesh's grid cell under each point [m, ellipsoidal]: an upper
     bound of the drawn terrain surface there (any triangulation of a cell lies below its highest
     node). NaN outside the mesh or without a DEM.
 
-    The mesh (:func:`terrain_mesh`) resamples the DEM on a ``nodes x nodes`` grid (cells of a few
-    hundred metres), so between nodes it can lie tens of metres above the DEM's own surface, where
-    the hits are: a display that must not be hidden by the mesh is lifted above this bound.
+    The mesh (:func:`terrain_mesh`) resamples the DEM on :func:`mesh_grid`'s nodes (cells of tens
+    to hundreds of metres), so between nodes it can lie tens of metres above the DEM's own
+    surface, where the hits are: a display that must not be hidden by the mesh is lifted above
+    this bound.
     """
     lat = np.atleast_1d(np.asarray(lat_deg, float))
     lon = np.atleast_1d(np.asarray(lon_deg, float))
     dem = getattr(scn, "dem", None)
     if dem is None:
         return np.full(lat.shape, np.nan)
-    enu = scn.enu
-    lat0, lon0 = np.rad2deg(enu.lat0), np.rad2deg(enu.lon0)
-    dlat = np.rad2deg(window_m / 6.36e6)  # as terrain_mesh
-    dlon = dlat / np.cos(enu.lat0)
-    w, s, e, n = dem.bounds_deg
-    north, south = min(lat0 + dlat, n), max(lat0 - dlat, s)
-    west, east = max(lon0 - dlon, w), min(lon0 + dlon, e)
-    fi = (north - lat) / (north - south) * (nodes - 1)
-    fj = (lon - west) / (east - west) * (nodes - 1)
-    inside = (fi >= 0) & (fi <= nodes - 1) & (fj >= 0) & (fj <= nodes - 1)
-    fi, fj = np.clip(np.nan_to_num(fi), 0, nodes - 1), np.clip(np.nan_to_num(fj), 0, nodes - 1)
-    i0, j0 = np.floor(fi), np.floor(fj)
-    i1, j1 = np.minimum(i0 + 1, nodes - 1), np.minimum(j0 + 1, nodes - 1)
-    step_lat, step_lon = (north - south) / (nodes - 1), (east - west) / (nodes - 1)
+    lats, lons = mesh_grid(scn, window_m, nodes, lod_m)
+    # the cell: rows run north to south (lats decreasing), columns west to east
+    inside = (lat <= lats[0]) & (lat >= lats[-1]) & (lon >= lons[0]) & (lon <= lons[-1])
+    i0 = np.clip(np.searchsorted(-lats, -np.nan_to_num(lat), side="right") - 1, 0, nodes - 2)
+    j0 = np.clip(np.searchsorted(lons, np.nan_to_num(lon), side="right") - 1, 0, nodes - 2)
     best = np.full(lat.shape, -np.inf)
-    for ii in (i0, i1):
-        for jj in (j0, j1):
-            h = dem.height(np.deg2rad(north - ii * step_lat), np.deg2rad(west + jj * step_lon))
+    for ii in (i0, i0 + 1):
+        for jj in (j0, j0 + 1):
+            h = dem.height(np.deg2rad(lats[ii]), np.deg2rad(lons[jj]))
             best = np.fmax(best, np.asarray(h, float))
     best[~inside | ~np.isfinite(best)] = np.nan
     return best
