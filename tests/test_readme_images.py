@@ -24,3 +24,29 @@ def test_every_readme_image_is_a_png_in_the_repository(link):
         assert im.format == "PNG", (link, im.format)
         # a real screenshot, not a placeholder or an icon: the README's smallest side is 640 px today
         assert min(im.size) >= 200, (link, im.size)
+
+
+@pytest.mark.xdist_group("chromium")  # a browser in a subprocess: tests/conftest.py cannot see it
+@pytest.mark.browser
+def test_the_screenshot_tool_makes_both_views(tmp_path):
+    """tools/make_viewer_screenshots.py, which made the two issue 34 pictures, still runs: both PNGs
+    at 1100 x 700, the second a different view (the camera on packet 100's error vector)."""
+    import os
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "make_viewer_screenshots.py"), "--out",
+                        str(tmp_path / "img")], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-4000:]
+    imgs = []
+    for name in ("viewer_first_view.png", "viewer_outlier_error.png"):
+        with PIL.Image.open(tmp_path / "img" / name) as im:
+            assert im.format == "PNG" and im.size == (1100, 700), (name, im.format, im.size)
+            imgs.append(np.asarray(im.convert("RGB"), float))
+    assert sorted(p.name for p in (tmp_path / "img").iterdir()) == ["viewer_first_view.png",
+                                                                    "viewer_outlier_error.png"]  # no temp left
+    # the 3D view (left of the panel) changed: the camera moved to the error
+    assert np.abs(imgs[0][:, :680] - imgs[1][:, :680]).mean() > 10.0
