@@ -434,16 +434,8 @@ class DEM:
         lat_deg, lon_deg = self.node_latlon_deg()
         h = self.grid.values
         lat_deg, lon_deg, h = (a[::stride, ::stride] for a in (lat_deg, lon_deg, h))
-        nr, nc = h.shape
         v = geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), np.nan_to_num(h)).reshape(-1, 3)
-        idx = np.arange(nr * nc).reshape(nr, nc)
-        p00, p10, p01, p11 = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-        ok = np.isfinite(h)
-        good = (ok[:-1, :-1] & ok[:-1, 1:] & ok[1:, :-1] & ok[1:, 1:]).ravel()
-        f1 = np.stack([p00, p01, p11], axis=-1).reshape(-1, 3)[good]
-        f2 = np.stack([p00, p11, p10], axis=-1).reshape(-1, 3)[good]
-        faces = np.stack([f1, f2], axis=1).reshape(-1, 3)
-        return v, faces
+        return v, grid_faces(np.isfinite(h))
 
     def enu_frame(self, origin_lat=None, origin_lon=None, origin_h=0.0):
         """A :class:`geoloc.frames.enu.EnuFrame` at the given origin (default: the DEM's centre, h 0)."""
@@ -492,6 +484,24 @@ class DEM:
         w, s, e, n = self.bounds_deg
         return (f"DEM({self.path or 'array'}, {self.shape[0]}x{self.shape[1]} nodes, "
                 f"W{w:.4f} S{s:.4f} E{e:.4f} N{n:.4f}, datum={self.datum})")
+
+
+def grid_faces(ok) -> np.ndarray:
+    """Two triangles per cell of a grid of nodes (row-major indices), :meth:`DEM.mesh`'s split.
+
+    Each cell (i, j) with corners p00 = node(i, j), p10 = node(i, j+1), p01 = node(i+1, j),
+    p11 = node(i+1, j+1) gives (p00, p01, p11) and (p00, p11, p10), the triangles of the exact
+    solver's ``dem_model="triangles"``; a cell with a node not ``ok`` (a missing height) is left
+    out. ``ok``: (rows, columns) bool. Returns (faces, 3) int node indices.
+    """
+    ok = np.asarray(ok, bool)
+    nr, nc = ok.shape
+    idx = np.arange(nr * nc).reshape(nr, nc)
+    p00, p10, p01, p11 = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
+    good = (ok[:-1, :-1] & ok[:-1, 1:] & ok[1:, :-1] & ok[1:, 1:]).ravel()
+    f1 = np.stack([p00, p01, p11], axis=-1).reshape(-1, 3)[good]
+    f2 = np.stack([p00, p11, p10], axis=-1).reshape(-1, 3)[good]
+    return np.stack([f1, f2], axis=1).reshape(-1, 3)
 
 
 def upsampled_dem(src: DEM, n: int, rng: np.random.Generator, roughness_m: float = 3.0) -> DEM:

@@ -160,14 +160,7 @@ def _grid_trimesh(lat_deg, lon_deg, H, enu):
 
     LON, LAT = np.meshgrid(lon_deg, lat_deg)
     v = enu.from_ecef(geodetic_to_ecef(np.deg2rad(LAT), np.deg2rad(LON), np.nan_to_num(H)).reshape(-1, 3))
-    nr, nc = H.shape
-    idx = np.arange(nr * nc).reshape(nr, nc)
-    p00, p10, p01, p11 = idx[:-1, :-1], idx[:-1, 1:], idx[1:, :-1], idx[1:, 1:]
-    ok = np.isfinite(H)
-    good = (ok[:-1, :-1] & ok[:-1, 1:] & ok[1:, :-1] & ok[1:, 1:]).ravel()
-    f1 = np.stack([p00, p01, p11], axis=-1).reshape(-1, 3)[good]
-    f2 = np.stack([p00, p11, p10], axis=-1).reshape(-1, 3)[good]
-    return trimesh.Trimesh(v, np.stack([f1, f2], axis=1).reshape(-1, 3), process=False)
+    return trimesh.Trimesh(v, _dem.grid_faces(np.isfinite(H)), process=False)
 
 
 def terrain_mesh(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES, lod_m: float = MESH_LOD_M):
