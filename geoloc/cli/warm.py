@@ -84,7 +84,7 @@ def run(args) -> int:
                 rc = argv() if callable(argv) else main([a.replace("{tmp}", tmp) for a in argv])
             wall, cpu = time.perf_counter() - w0, time.process_time() - c0
             new = _nbgeo.COMPILED[n0:]
-            said = f"compiled {len(new)} kernel(s)" if new else "already cached"
+            said = f"compiled {len(new)} kernel(s)" if new else "nothing to compile (cached, or not needed)"
             print(f" {said}, {wall:.1f} s ({cpu:.1f} s CPU)", flush=True)
             if rc != 0:
                 tail = err.getvalue().strip().splitlines()[-1:] or ["(no message)"]
