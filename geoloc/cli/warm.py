@@ -34,9 +34,9 @@ def _large_batch() -> int:
     return 0 if np.any(np.asarray(g.status) == 0) else 1
 
 
-#: The steps: (what it compiles, the verb's arguments or a function); paths under the bundled assets.
+#: The steps: (what it runs, the verb's arguments or a function); paths under the bundled assets.
 STEPS = (
-    ("the camera chain (the one-ray walk runs uncompiled): geoloc locate --sensor eo_turret.toml "
+    ("a one-ray locate (its walk uncompiled): geoloc locate --sensor eo_turret.toml "
      "--dem srtm_jacksboro.tif",
      ["locate", "--sensor", "assets/sensors/eo_turret.toml", "--lat-deg", "36.6", "--lon-deg", "-84.25",
       "--h-m", "2500", "--heading-deg", "45", "--angle", "azimuth=90", "--angle", "elevation=-30",
