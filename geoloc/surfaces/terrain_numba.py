@@ -1292,9 +1292,7 @@ def _call(args, order=None, order_checked=False, block=BLOCK, python=True):
     unless ``python`` is False), the rest by the compiled kernel."""
     kernel, kargs, order, nodes = _prepare(args, order, order_checked, block)
     start = _python_prefix(kernel, kargs, order, nodes) if python else 0
-    if start == 0:
-        kernel(*kargs)
-    elif start < len(order):
+    if start < len(order):
         kernel(*kargs[:2], order[start:], *kargs[3:])
 
 
@@ -1457,17 +1455,11 @@ def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, ro
     order = _order(order, len(o))
     args = (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
             tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell, trace_s, trace_ij)
-    n = len(order)
-    k = max(1, min(int(threads or numba.config.NUMBA_NUM_THREADS), n // 256 or 1))
-    if k == 1:  # one run: _call walks the start uncompiled where the call is small (serial's rule)
-        _call(args, order, order_checked=True, block=block)
-        return
     # the uncompiled start decided once for the whole call, as the serial walk decides it (the same
     # rays walked uncompiled whatever the thread count); the threads share the compiled rest
-    start = _python_start(args, order, block)
-    order = order[start:]
+    order = order[_python_start(args, order, block):]
     n = len(order)
-    k = max(1, min(k, n // 256 or 1))
+    k = max(1, min(int(threads or numba.config.NUMBA_NUM_THREADS), n // 256 or 1))
     cuts = np.linspace(0, n, k + 1).astype(int)
 
     def part(a, b):  # each thread a contiguous run of the order: disjoint rays, disjoint output rows
