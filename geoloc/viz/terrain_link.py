@@ -150,15 +150,15 @@ def mesh_grid(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES, lod_m: f
             _lod_axis(west, east, lon0, nodes, r_lat / np.cos(enu.lat0)))
 
 
-def _grid_trimesh(lat_deg, lon_deg, H, enu):
-    """A trimesh of a (possibly unevenly spaced) grid of nodes in ``enu``: two triangles per cell,
-    split along the north-west to south-east diagonal as :meth:`geoloc.surfaces.dem.DEM.mesh`
-    splits its cells; cells with a missing node left out (missing nodes at height 0)."""
+def _grid_trimesh(LAT, LON, H, enu):
+    """A trimesh of a (possibly unevenly spaced) grid of nodes (``LAT``, ``LON`` [deg], ``H`` [m]:
+    (rows, columns)) in ``enu``: two triangles per cell, split along the north-west to south-east
+    diagonal as :meth:`geoloc.surfaces.dem.DEM.mesh` splits its cells (``grid_faces``); cells with a
+    missing node left out (missing nodes at height 0)."""
     import trimesh
 
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
-    LON, LAT = np.meshgrid(lon_deg, lat_deg)
     v = enu.from_ecef(geodetic_to_ecef(np.deg2rad(LAT), np.deg2rad(LON), np.nan_to_num(H)).reshape(-1, 3))
     return trimesh.Trimesh(v, _dem.grid_faces(np.isfinite(H)), process=False)
 
@@ -183,7 +183,7 @@ def terrain_mesh(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES, lod_m
     lats, lons = mesh_grid(scn, window_m, nodes, lod_m)
     LON, LAT = np.meshgrid(lons, lats)
     H = dem.height(np.deg2rad(LAT), np.deg2rad(LON))
-    mesh = _grid_trimesh(lats, lons, H, enu)
+    mesh = _grid_trimesh(LAT, LON, H, enu)
     h = np.nan_to_num(H.ravel(), nan=np.nanmin(H))
     lo, hi = np.nanmin(H), np.nanmax(H)
     t = (h - lo) / max(hi - lo, 1.0)
