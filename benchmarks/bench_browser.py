@@ -196,8 +196,8 @@ def main(argv=None) -> int:
 
     from test_viz_browser import chromium, wait_for
 
-    from geoloc.viz.app import GeolocViewer, make_server
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.app import GeolocViewer, make_server
+    from geoloc_viz.flight_model import default_flight_scenario
 
     scn = default_flight_scenario()
     server = make_server(port=0)

@@ -84,9 +84,9 @@ def bench_switch(tmp, repeat, size=(1280, 720)):
     import cv2
 
     from geoloc.io.images import open_images
-    from geoloc.viz import image_layer
-    from geoloc.viz.app import GeolocApp, make_server
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz import image_layer
+    from geoloc_viz.app import GeolocApp, make_server
+    from geoloc_viz.flight_model import default_flight_scenario
 
     path = Path(tmp) / "v720.ts"
     t = time.perf_counter()
@@ -201,8 +201,8 @@ def bench_ortho(tmp, repeat, size=(1280, 720)):
     from rasterio.errors import NotGeoreferencedWarning
     from rasterio.warp import reproject
 
-    from geoloc.viz import picture_model as pm
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz import picture_model as pm
+    from geoloc_viz.flight_model import default_flight_scenario
     from geoloc.workflows.ortho import locate_frame, ortho_grid, orthorectify
 
     scn = default_flight_scenario()

@@ -40,8 +40,8 @@ def main(argv=None) -> None:
     import matplotlib
 
     from geoloc.surfaces.dem import DEM
-    from geoloc.viz.app import GeolocApp, make_server
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocApp, make_server
+    from geoloc_viz.scenario import load_view_scenario
 
     server = make_server(port=0)
     n = a.nodes  # 2 (n-1)^2 triangles: 999 698 for 708

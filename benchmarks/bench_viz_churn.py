@@ -1,7 +1,7 @@
 """Server memory under connection churn: ``python benchmarks/bench_viz_churn.py [N]``.
 
 Issue 20 item 5 (and issue 16 item 4): a ``geoloc view`` server (a
-:class:`geoloc.viz.app.GeolocViewer`, one session per tab) is connected to and
+:class:`geoloc_viz.app.GeolocViewer`, one session per tab) is connected to and
 dropped by ``N`` (default 500) clients over loopback, a few at a time. Each client
 speaks viser's own protocol over ``websockets`` (no browser): it opens the
 websocket with viser's subprotocol, sends one ``ViewerCameraMessage`` (what makes
@@ -149,7 +149,7 @@ class Peak:
 def tracked_viewer(*args, **kw):
     """A :class:`GeolocViewer` that keeps a weak reference to every session it builds (``.refs``),
     including those of tabs that closed while their session was being built."""
-    from geoloc.viz.app import GeolocSession, GeolocViewer
+    from geoloc_viz.app import GeolocSession, GeolocViewer
 
     refs = []
 
@@ -167,8 +167,8 @@ def tracked_viewer(*args, **kw):
 def main(n: int = 500) -> dict:
     import viser
 
-    from geoloc.viz.app import make_server
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import make_server
+    from geoloc_viz.scenario import load_view_scenario
 
     out = {}
     rss0 = rss_mb()

@@ -7,8 +7,8 @@ The flight is synthetic and seeded, from the bundled KLV example's sensor geomet
 small seeded pose perturbations (0.2 deg of heading, 5 m of position). Measured, medians of wall
 and CPU time:
 
-* **open**: :func:`geoloc.viz.flight_model.build` (all footprints, centres and residuals in one
-  batch) plus the layer's scene build (:class:`geoloc.viz.flight_layer.FlightLayer`) on a viser
+* **open**: :func:`geoloc_viz.flight_model.build` (all footprints, centres and residuals in one
+  batch) plus the layer's scene build (:class:`geoloc_viz.flight_layer.FlightLayer`) on a viser
   server with a simulated client (the scene messages are serialised as for a browser);
 * **step**: one timeline step, the layer's highlight update alone, and the whole step with the
   session's ``load_record`` (the current frame's chain, line of sight and DEM iterations);
@@ -28,7 +28,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import timed
 
-from geoloc.viz import flight_layer, flight_model
+from geoloc_viz import flight_layer, flight_model
 
 
 def synthetic_flight(n: int, seed: int = 20261201):
@@ -55,7 +55,7 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=10_000)
     ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args(argv)
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc_viz.app import GeolocApp, make_server
 
     scn = synthetic_flight(a.frames)
     server = make_server(port=0)

@@ -11,9 +11,9 @@ import time
 
 import numpy as np
 
-from geoloc.viz.app import GeolocApp, make_server
-from geoloc.viz.scenario import load_view_scenario
-from geoloc.viz.scene_geoloc import WORLD_SCALE
+from geoloc_viz.app import GeolocApp, make_server
+from geoloc_viz.scenario import load_view_scenario
+from geoloc_viz.scene_geoloc import WORLD_SCALE
 
 server = make_server(port=0)  # 127.0.0.1, a free port
 app = GeolocApp(server, load_view_scenario(record="T3-1"))

@@ -8,8 +8,8 @@ Same as ``geoloc view --record <label> --method steps --export outlier.html``.
 
 import numpy as np
 
-from geoloc.viz.app import GeolocApp, make_server
-from geoloc.viz.scenario import load_view_scenario
+from geoloc_viz.app import GeolocApp, make_server
+from geoloc_viz.scenario import load_view_scenario
 
 scn = load_view_scenario()
 errors = [info.paper_error_m for info, _ in scn.records]

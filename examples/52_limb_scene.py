@@ -11,8 +11,8 @@ import numpy as np
 import pyproj
 
 from geoloc.status import describe
-from geoloc.viz.app import make_server
-from geoloc.viz.scene_limb import LimbApp, load_limb
+from geoloc_viz.app import make_server
+from geoloc_viz.scene_limb import LimbApp, load_limb
 
 server = make_server(port=0)
 app = LimbApp(server, load_limb())

@@ -1,7 +1,7 @@
 """A whole flight for the viewer, built in Python: footprints, residuals, outliers, what they look like.
 
 The bundled example flight (MISB ST 0601 KLV over the SRTM crop, ``assets/klv/example_flight.klv``)
-in one batch (:func:`geoloc.viz.flight_model.build`): every frame's footprint on the DEM, its
+in one batch (:func:`geoloc_viz.flight_model.build`): every frame's footprint on the DEM, its
 recomputed frame centre against the reported one, the robust outlier flags, and the fault that
 best explains each run of outliers. ``geoloc view`` draws the same model (docs/flight_debugger.md).
 
@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from geoloc.viz.flight_model import build, default_flight_scenario
+from geoloc_viz.flight_model import build, default_flight_scenario
 
 scn = default_flight_scenario()
 t0 = time.perf_counter()

@@ -1,6 +1,6 @@
 """54: a vector through the chain: one pixel's ray in every frame, and the partial products.
 
-The teaching panel of ``geoloc view`` (``geoloc.viz.teaching_panel``) shows these numbers
+The teaching panel of ``geoloc view`` (``geoloc_viz.teaching_panel``) shows these numbers
 beside the 4x4 matrices; here they are printed for record T3-1 of [Q17] and for the
 bundled azimuth-elevation turret. The ray of a pixel starts in the optical frame ``cam``
 (the lens's back-projection); each hop ``T_dst_src`` of the sensor's frame graph turns it
@@ -12,7 +12,7 @@ import numpy as np
 from geoloc.assets import asset_path
 from geoloc.frames.chain import Pose
 from geoloc.sensors.sensor_file import load_sensor
-from geoloc.viz import teaching
+from geoloc_viz import teaching
 
 
 def show(title, sensor, pose, row, col):

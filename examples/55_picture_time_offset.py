@@ -16,8 +16,8 @@ Run: ``python examples/55_picture_time_offset.py``
 from pyproj import Geod
 
 from geoloc.io.images import open_images
-from geoloc.viz import picture_model as pm
-from geoloc.viz.flight_model import default_flight_scenario, read_targets
+from geoloc_viz import picture_model as pm
+from geoloc_viz.flight_model import default_flight_scenario, read_targets
 from geoloc.workflows.klv_replay import replay_klv
 from geoloc.workflows.render import find_marks
 from geoloc.workflows.video_sync import fit_klv_time_offset

@@ -6,8 +6,8 @@ Run from the repository root: ``python examples/80_rerun_flight_scan.py`` then
 
 import numpy as np
 
-from geoloc.viz.rerun_log import write
-from geoloc.viz.rerun_model import steps_from_flight
+from geoloc_viz.rerun_log import write
+from geoloc_viz.rerun_model import steps_from_flight
 from geoloc.workflows.flight import FlightScenario
 
 scn = FlightScenario.from_toml("assets/scenarios/flight_scan.toml")

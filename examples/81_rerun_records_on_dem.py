@@ -7,8 +7,8 @@ Run from the repository root; open ``/tmp/flight_test_dem.rrd`` with ``rerun``.
 
 import numpy as np
 
-from geoloc.viz.rerun_log import write
-from geoloc.viz.rerun_model import steps_from_records
+from geoloc_viz.rerun_log import write
+from geoloc_viz.rerun_model import steps_from_records
 
 records = "assets/records/qiao2017_flight_tests.csv"
 at_paper, _ = steps_from_records(records)  # paper_height_m

@@ -14,8 +14,8 @@ import sys
 
 import numpy as np
 
-from geoloc.viz.rerun_log import write
-from geoloc.viz.rerun_model import steps_from_records
+from geoloc_viz.rerun_log import write
+from geoloc_viz.rerun_model import steps_from_records
 
 out = sys.argv[1] if len(sys.argv) > 1 else "/tmp/flight_test_debugger.rrd"
 steps, _ = steps_from_records("assets/records/qiao2017_flight_tests.csv")

@@ -15,8 +15,8 @@ import sys
 
 import numpy as np
 
-from geoloc.viz.rerun_log import write
-from geoloc.viz.rerun_model import load_camera, steps_from_records
+from geoloc_viz.rerun_log import write
+from geoloc_viz.rerun_model import load_camera, steps_from_records
 
 out = sys.argv[1] if len(sys.argv) > 1 else "/tmp/turret_calibration.rrd"
 steps, _ = steps_from_records("assets/records/eo_turret_flight.csv", load_camera("assets/sensors/eo_turret.toml"),

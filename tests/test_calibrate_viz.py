@@ -19,7 +19,7 @@ from geoloc.io.records import load_records
 from geoloc.locate import as_sensor, locate
 from geoloc.sensors.camera import Camera
 from geoloc.sensors.sensor_file import load_sensor
-from geoloc.viz.calibration_layer import add_error_vectors
+from geoloc_viz.calibration_layer import add_error_vectors
 
 
 @pytest.fixture(scope="module")
@@ -73,11 +73,11 @@ def test_error_vector_nodes(server):
 
 
 def test_app_calibration_with_a_scenario_like_app(server):
-    # A stand-in for geoloc.viz.app.GeolocApp: server, scn.enu, scn.camera and
+    # A stand-in for geoloc_viz.app.GeolocApp: server, scn.enu, scn.camera and
     # scn.records as (info, inputs) pairs, as the viewer holds them.
     from types import SimpleNamespace
 
-    from geoloc.viz.calibration_layer import attach
+    from geoloc_viz.calibration_layer import attach
 
     rec = load_records(asset_path(*DEFAULT_RECORDS))
     cam = load_sensor(asset_path(*DEFAULT_CAMERA))  # what the app's Scenario holds: a FrameSensor
@@ -96,8 +96,8 @@ def test_app_calibration_with_a_scenario_like_app(server):
     scn = SimpleNamespace(records=pairs, camera=cam, enu=EnuFrame.from_deg(lat0, lon0, h00), source="x.csv")
     app = SimpleNamespace(server=server, scn=scn)
     cal = attach(app)
-    # the app's world unit is the km (geoloc.viz.scene_geoloc.WORLD_SCALE) and its root /enu
-    from geoloc.viz.scene_geoloc import ROOT, WORLD_SCALE
+    # the app's world unit is the km (geoloc_viz.scene_geoloc.WORLD_SCALE) and its root /enu
+    from geoloc_viz.scene_geoloc import ROOT, WORLD_SCALE
 
     assert WORLD_SCALE == 1e-3 and cal.layer.name == f"{ROOT}/calibration"
     h = c("paper_height_m")

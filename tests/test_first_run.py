@@ -94,7 +94,7 @@ def test_run_sh_warms_before_it_serves():
 PROBE_SCENE = r"""
 import json
 from geoloc.geodesy import _nbgeo
-from geoloc.viz.flight_model import build, default_flight_scenario
+from geoloc_viz.flight_model import build, default_flight_scenario
 m = build(default_flight_scenario())
 print(json.dumps({"frames": len(m), "compiled": [n for n, _ in _nbgeo.COMPILED]}))
 """

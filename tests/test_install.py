@@ -1,31 +1,39 @@
-"""The wheel works anywhere: build it, install it into a new virtual environment, run it elsewhere.
+"""Both wheels work anywhere: build them, install them into new virtual environments, run them elsewhere.
 
-Issue 15: a wheel used to hold only ``.py`` files, so an installed ``geoloc`` found none
-of its bundled data. Here:
+The core (``geoloc``, ``pip install .``) and the viewer (``geoloc-viz``, ``pip install ./viz``)
+are two packages (docs/architecture.md, "Two packages"). Here:
 
-1. the project's packaging files, ``geoloc/`` and ``assets/`` are copied to a temporary
-   folder (so a build never writes ``build/`` into the working tree) and the wheel is
-   built there, offline: ``pip wheel --no-deps --no-build-isolation`` (the build backend
-   is the running environment's setuptools, a test dependency);
-2. a new virtual environment (no pip in it, no access to the checkout) gets the wheel,
-   installed by this environment's pip (``pip --python``) with ``--no-deps``; the
-   dependencies (numpy, rasterio, numba, viser, ...) are *not* reinstalled: a ``.pth``
-   file added after the install points at this environment's site-packages. That
-   folder also holds this environment's editable ``geoloc``, but a ``.pth`` line only
-   appends a folder to ``sys.path`` (the editable finder's own ``.pth`` is not run), and
-   the wheel's ``geoloc`` comes first: the test checks it is the one imported;
-3. from a folder outside the repository, with ``GEOLOC_ASSETS`` unset, the new
+1. the project's packaging files, ``geoloc/``, ``viz/`` and ``assets/`` are copied to a
+   temporary folder (so a build never writes ``build/`` into the working tree) and both
+   wheels are built there, offline: ``pip wheel --no-deps --no-build-isolation`` (the build
+   backend is the running environment's setuptools, a test dependency);
+2. **the core alone, from the package registry**: a new virtual environment gets the core
+   wheel and the dependencies it declares, resolved by pip as a user's ``pip install .``
+   would (from the pip cache on a machine that ran the README's test command, so no large
+   download). None of the viewer's libraries, nor the extras', is importable there, and
+   ``locate``, ``replay``, ``report`` and ``export`` run; ``view`` and a video input each say
+   in one line what to install;
+3. **both wheels**: a second new environment (no pip in it, no access to the checkout) gets
+   both wheels, installed by this environment's pip (``pip --python``) with ``--no-deps``;
+   the dependencies (numpy, rasterio, numba, viser, ...) are *not* reinstalled: a ``.pth``
+   file added after the install points at this environment's site-packages. That folder
+   also holds this environment's editable ``geoloc``, but a ``.pth`` line only appends a
+   folder to ``sys.path`` (the editable finder's own ``.pth`` is not run), and the wheels'
+   packages come first: the test checks they are the ones imported;
+4. from a folder outside the repository, with ``GEOLOC_ASSETS`` unset, the second
    environment's ``geoloc`` command runs ``reproduce qiao2017``, ``replay`` on the bundled
-   records, ``replay`` on the bundled ETOPO5 DEM with the EGM96 datum, and
-   ``view --export``, and the outputs are checked against the figures the README gives.
+   records, ``replay`` on the bundled ETOPO5 DEM with the EGM96 datum, and ``view
+   --export``, and the outputs are checked against the figures the README gives.
 
 Marked ``install`` (``pytest -m install`` selects it, ``-m "not install"`` skips it); it
-runs in the normal suite (about 40 s on this machine).
+runs in the normal suite (about a minute on this machine).
 """
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -39,6 +47,8 @@ pytestmark = pytest.mark.install
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGING = ("pyproject.toml", "setup.py", "MANIFEST.in", "README.md")
+#: Libraries a core install must not have: the viewer's and the extras' (pyproject.toml)
+NOT_IN_CORE = ("viser", "rerun", "trimesh", "geoloc_viz", "av", "cv2", "dask", "distributed", "pyarrow")
 IGNORE = shutil.ignore_patterns("__pycache__", "*.pyc", "*.nbi", "*.nbc", "*.egg-info")
 
 
@@ -50,28 +60,53 @@ def _run(cmd, cwd, env=None, timeout=600):
 
 
 @pytest.fixture(scope="module")
-def wheel(tmp_path_factory):
+def wheels(tmp_path_factory):
+    """(core wheel, viewer wheel), built from a copy of the checkout."""
     base = tmp_path_factory.mktemp("wheel")
     src = base / "src"
     src.mkdir()
     for name in PACKAGING:
         shutil.copy2(ROOT / name, src / name)
-    shutil.copytree(ROOT / "geoloc", src / "geoloc", ignore=IGNORE)
-    shutil.copytree(ROOT / "assets", src / "assets", ignore=IGNORE)
-    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
-          "-q", "-w", base / "dist", src], cwd=base)
-    (whl,) = (base / "dist").glob("geoloc-*.whl")
-    return whl
+    for folder in ("geoloc", "assets", "viz"):
+        shutil.copytree(ROOT / folder, src / folder, ignore=IGNORE)
+    for where in (src, src / "viz"):
+        _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
+              "-q", "-w", base / "dist", where], cwd=base)
+    (core,) = (base / "dist").glob("geoloc-*.whl")
+    (viz,) = (base / "dist").glob("geoloc_viz-*.whl")
+    return core, viz
+
+
+def _clean_env(env_dir: Path, work: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in ("GEOLOC_ASSETS", "PYTHONPATH",
+                                                             "VIRTUAL_ENV", "PYTHONHOME")}
+    env["PATH"] = f"{env_dir / 'bin'}{os.pathsep}{env.get('PATH', '')}"
+    env["MPLBACKEND"] = "Agg"
+    return env
 
 
 @pytest.fixture(scope="module")
-def venv(wheel, tmp_path_factory):
+def core_venv(wheels, tmp_path_factory):
+    """The core wheel alone, its declared dependencies resolved by pip (a user's ``pip install .``)."""
+    base = tmp_path_factory.mktemp("core")
+    env_dir = base / "env"
+    _run([sys.executable, "-m", "venv", env_dir], cwd=base)
+    env = _clean_env(env_dir, base)
+    _run([env_dir / "bin" / "python", "-m", "pip", "install", "-q", wheels[0]], cwd=base, env=env,
+         timeout=900)
+    work = base / "elsewhere"
+    work.mkdir()
+    return dict(py=env_dir / "bin" / "python", bin=env_dir / "bin", work=work, env=env)
+
+
+@pytest.fixture(scope="module")
+def venv(wheels, tmp_path_factory):
     base = tmp_path_factory.mktemp("venv")
     env_dir = base / "env"
     _run([sys.executable, "-m", "venv", "--without-pip", env_dir], cwd=base)
     py = env_dir / "bin" / "python"
     _run([sys.executable, "-m", "pip", "--python", py, "install", "--no-deps", "--no-index", "-q",
-          wheel], cwd=base)
+          *wheels], cwd=base)
     purelib = _run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                    cwd=base).stdout.strip()
     # the dependencies: this environment's site-packages, appended after the wheel's own
@@ -79,32 +114,79 @@ def venv(wheel, tmp_path_factory):
     Path(purelib, "zz_geoloc_test_deps.pth").write_text("\n".join(sorted(deps)) + "\n")
     work = base / "elsewhere"  # outside the repository, no assets/ here
     work.mkdir()
-    env = {k: v for k, v in os.environ.items() if k not in ("GEOLOC_ASSETS", "PYTHONPATH",
-                                                             "VIRTUAL_ENV", "PYTHONHOME")}
-    env["PATH"] = f"{env_dir / 'bin'}{os.pathsep}{env.get('PATH', '')}"
-    env["MPLBACKEND"] = "Agg"
-    return dict(py=py, bin=env_dir / "bin", purelib=Path(purelib), work=work, env=env)
+    return dict(py=py, bin=env_dir / "bin", purelib=Path(purelib), work=work, env=_clean_env(env_dir, work))
 
 
 def geoloc(venv, *args, timeout=600):
     return _run([venv["bin"] / "geoloc", *args], cwd=venv["work"], env=venv["env"], timeout=timeout)
 
 
-def test_the_wheel_carries_the_data_and_the_type_marker(wheel):
-    names = set(zipfile.ZipFile(wheel).namelist())
+def test_the_wheels_carry_the_data_and_the_type_marker(wheels):
+    names = set(zipfile.ZipFile(wheels[0]).namelist())
     for f in (ROOT / "assets").rglob("*"):
         if f.is_file():
             assert f"geoloc/_assets/{f.relative_to(ROOT / 'assets').as_posix()}" in names, f
     assert "geoloc/py.typed" in names
-    assert any(n.startswith("geoloc/viz/") for n in names)
     tops = {n.split("/")[0] for n in names}
-    assert {t for t in tops if not t.endswith(".dist-info")} == {"geoloc"}  # one package, no viz/
-    assert not any(n.startswith(("assets/", "viz/", "tests/")) for n in names)
+    assert {t for t in tops if not t.endswith(".dist-info")} == {"geoloc"}  # the core alone, no viewer
+    assert not any(n.startswith(("assets/", "viz/", "geoloc_viz/", "tests/")) for n in names)
+    viz = zipfile.ZipFile(wheels[1])
+    assert {n.split("/")[0] for n in viz.namelist() if ".dist-info" not in n} == {"geoloc_viz"}
+    meta = viz.read(next(n for n in viz.namelist() if n.endswith(".dist-info/METADATA"))).decode()
+    requires = [line.split(": ", 1)[1] for line in meta.splitlines() if line.startswith("Requires-Dist: ")]
+    assert any(r.startswith("geoloc[mesh]==") for r in requires), requires  # the same release's core
+    assert {"viser", "rerun-sdk"} <= {re.split(r"[<>=\[ ;]", r)[0] for r in requires}
+    eps = viz.read(next(n for n in viz.namelist() if n.endswith(".dist-info/entry_points.txt"))).decode()
+    assert "[geoloc.verbs]" in eps and "view = geoloc_viz.cli.view" in eps and "log = geoloc_viz.cli.log" in eps
+
+
+def core(venv, *args):
+    return subprocess.run([str(venv["bin"] / "geoloc"), *map(str, args)], cwd=venv["work"],
+                          env=venv["env"], capture_output=True, text=True, timeout=600)
+
+
+def test_the_core_alone_has_none_of_the_viewers_libraries(core_venv):
+    code = ("import importlib.util as u; print(' '.join(m for m in %r if u.find_spec(m)))" % (NOT_IN_CORE,))
+    found = _run([core_venv["py"], "-c", code], cwd=core_venv["work"], env=core_venv["env"]).stdout.strip()
+    assert found == "", f"a core install brought {found}"
+
+
+def test_the_core_alone_locates_replays_reports_and_exports(core_venv):
+    # the README's one-pixel example: aircraft at 18 km, the target on the ellipsoid at 0 m
+    # the README's one-pixel example, Table 1 of [Q17]: 35.57709 N, 80.84918 E as published
+    r = core(core_venv, "locate", "--lat-deg", "35.48", "--lon-deg", "80.97", "--h-m", "18000",
+             "--heading-deg", "45", "--pitch-deg", "3.5", "--gimbal-roll-deg", "50",
+             "--gimbal-pitch-deg", "-2.6", "--target-h-m", "5083.5", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    # the paper prints 5 decimals: half a unit of the last one is the tolerance
+    assert abs(out["lat_deg"] - 35.57709) < 5e-6 and abs(out["lon_deg"] - 80.84918) < 5e-6, out
+    r = core(core_venv, "replay", "--height-column", "paper_height_m", "--out", "r.csv")
+    assert r.returncode == 0, r.stderr
+    assert "all: RMS distance to the published positions 0.36 m over 20 records" in r.stdout
+    r = core(core_venv, "report", "r.csv", "--out", "report")
+    assert r.returncode == 0, r.stderr
+    assert (core_venv["work"] / "report" / "report.html").is_file()
+    r = core(core_venv, "export", "r.csv", "--out", "r.gpkg")
+    assert r.returncode == 0, r.stderr
+    assert (core_venv["work"] / "r.gpkg").stat().st_size > 0
+
+
+def test_the_core_alone_names_what_to_install(core_venv):
+    r = core(core_venv, "view")
+    assert r.returncode == 2 and "pip install ./viz" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1  # one line, no traceback
+    r = core(core_venv, "log", "flight_scan", "--out", "x.rrd")
+    assert r.returncode == 2 and "pip install ./viz" in r.stderr, r.stderr
+    r = core(core_venv, "klv", "dump", "assets/klv/example_flight.ts")
+    assert r.returncode == 2 and "geoloc[video]" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert "view" in core(core_venv, "--help").stdout  # still listed
 
 
 def test_installed_package_reads_its_own_data(venv):
     code = (
-        "import geoloc, geoloc.assets as a, geoloc.viz, numpy as np;"
+        "import geoloc, geoloc.assets as a, geoloc_viz, numpy as np;"
         "from geoloc.geodesy.geoid import GEOID_DIR, egm96_undulation;"
         "print(geoloc.__file__); print(a.ASSETS); print(a.ASSETS_SOURCE); print(GEOID_DIR);"
         "print(round(float(egm96_undulation(np.deg2rad(35.58), np.deg2rad(80.85))), 2))"

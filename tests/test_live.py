@@ -163,7 +163,7 @@ def test_a_bind_outside_loopback_says_what_it_exposes(verb, tmp_path, capsys, re
     for host in ("0.0.0.0", "127.0.0.1"):
         url = f"udp://{host}:{port}"
         if verb == "view --live":
-            from geoloc.viz.live_view import LiveFeed
+            from geoloc_viz.live_view import LiveFeed
 
             LiveFeed(url, limits={"duration_s": 0.5}).stop()  # binds, as `geoloc view --live` does first
         else:

@@ -8,7 +8,7 @@ import copy
 
 import numpy as np
 
-from geoloc.viz import flight_model
+from geoloc_viz import flight_model
 
 
 def _scn(base, recs):

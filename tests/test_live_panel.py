@@ -21,8 +21,8 @@ from tests.test_viz_browser import wait_for
 
 def test_loss_and_a_restart_are_counted_in_the_panel_and_every_intact_packet_is_a_frame():
     from geoloc.io.live import send
-    from geoloc.viz.app import make_server
-    from geoloc.viz.live_view import LiveFeed, LiveTab, LiveViewer
+    from geoloc_viz.app import make_server
+    from geoloc_viz.live_view import LiveFeed, LiveTab, LiveViewer
 
     data = TS.read_bytes()
     spans = pes_datagrams(data, klv_pid(data))
@@ -58,7 +58,7 @@ def test_loss_and_a_restart_are_counted_in_the_panel_and_every_intact_packet_is_
         assert st.cc_errors > 0 and st.duplicates > 0 and st.restarts == 1 and st.stalls >= 1, st
         # the debugger has every one of them that makes a viewer record as a frame (the file view's rule:
         # packet 275 has no sensor angles, in both passes), and the panel says what happened
-        from geoloc.viz.scenario import records_from_columns
+        from geoloc_viz.scenario import records_from_columns
 
         frames = len(records_from_columns(feed.replay.columns(), feed.sensor)[0])
         assert want - 4 <= frames <= want, (frames, want)

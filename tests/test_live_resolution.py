@@ -65,8 +65,8 @@ def test_a_sender_that_changes_its_resolution_is_counted_in_the_panel(tmp_path):
     import av
 
     from geoloc.io.live import send
-    from geoloc.viz.app import make_server
-    from geoloc.viz.live_view import LiveFeed, LiveTab, LiveViewer
+    from geoloc_viz.app import make_server
+    from geoloc_viz.live_view import LiveFeed, LiveTab, LiveViewer
 
     path = tmp_path / "resize.ts"
     n = _stream_with_a_resolution_change(path)

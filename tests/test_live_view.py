@@ -64,8 +64,8 @@ def _sender(url, speed, loop=1):
 
 
 def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
-    from geoloc.viz.app import make_server
-    from geoloc.viz.live_view import LiveFeed, LiveViewer
+    from geoloc_viz.app import make_server
+    from geoloc_viz.live_view import LiveFeed, LiveViewer
 
     ARTIFACTS.mkdir(exist_ok=True)
     port = free_port()

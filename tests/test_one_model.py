@@ -1,4 +1,4 @@
-"""One model of each thing (issue 31, item 2), read from the source like tests/test_layering.py.
+"""One model of each thing (issue 31, item 2), read from the source like tests/test_architecture.py.
 
 - A workflow or an analysis module does not open a DEM itself: it takes the
   :class:`geoloc.surfaces.base.Surface` its caller built (on the command line,
@@ -17,14 +17,15 @@ import ast
 from pathlib import Path
 
 PKG = Path(__file__).resolve().parents[1] / "geoloc"
+VIZ = Path(__file__).resolve().parents[1] / "viz" / "geoloc_viz"  # the viewer package, read the same way
 
 #: Calls that open a DEM file: ``DEM.open(...)``, ``DemMosaic.open(...)``, ``open_dem_or_mosaic(...)``,
 #: and any ``open_dem(...)`` / ``x.open_dem(...)`` (a module's own wrapper of them).
 DEM_OPENERS = {("DEM", "open"), ("DemMosaic", "open"), (None, "open_dem_or_mosaic"), (None, "open_dem")}
 
 #: Modules read for DEM openers: the workflows and analysis, and the rerun recordings.
-DEM_OPENER_SCOPE = ("geoloc.workflows", "geoloc.analysis", "geoloc.viz.rerun_terrain", "geoloc.viz.rerun_model",
-                    "geoloc.viz.rerun_log")
+DEM_OPENER_SCOPE = ("geoloc.workflows", "geoloc.analysis", "geoloc_viz.rerun_terrain", "geoloc_viz.rerun_model",
+                    "geoloc_viz.rerun_log")
 
 #: Modules in DEM_OPENER_SCOPE that still open a DEM, and why (may only shrink): none left. The
 #: rerun recordings, which draw one raster's mesh and its solver's trace, open it once per recording
@@ -47,14 +48,19 @@ CAMERA_REEXPORT = {"geoloc"}
 KNOWN_CAMERA_IMPORTS: set = set()
 
 
-def module_name(path: Path) -> str:
-    parts = list(path.relative_to(PKG.parent).with_suffix("").parts)
+def module_name(path: Path, base: Path = PKG) -> str:
+    parts = list(path.relative_to(base.parent).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
 def modules(*packages):
-    for path in sorted(PKG.rglob("*.py")):
-        mod = module_name(path)
+    for base in (PKG, VIZ):
+        yield from _modules(base, packages)
+
+
+def _modules(base, packages):
+    for path in sorted(base.rglob("*.py")):
+        mod = module_name(path, base)
         if not packages or any(mod == p or mod.startswith(p + ".") for p in packages):
             yield mod, ast.parse(path.read_text(), filename=str(path))
 
@@ -174,8 +180,8 @@ CAMERA_ENTRANCES = {
     "geoloc.analysis.triangulate": "triangulate (examples/35)",
     "geoloc.analysis.errormodel": "ErrorModel and its with_camera (examples/31-33)",
     "geoloc.workflows.ortho": "locate_frame, write_frame_geotiff, orthorectify (README, docs/ortho.md, examples/26)",
-    "geoloc.viz.model": "the viewer's Scenario, converted once in __post_init__",
-    "geoloc.viz.rerun_model": "steps_from_flight and steps_from_records (docs/rerun.md, examples/80-83)",
+    "geoloc_viz.model": "the viewer's Scenario, converted once in __post_init__",
+    "geoloc_viz.rerun_model": "steps_from_flight and steps_from_records (docs/rerun.md, examples/80-83)",
 }
 
 

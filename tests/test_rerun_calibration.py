@@ -1,7 +1,7 @@
 """Before / after calibration in `geoloc log` for sensor files and DEM runs, read back from the .rrd.
 
 The logged errors after the fit must be the per-record after distances of
-``geoloc.analysis.sensor_fit.fit_sensor_groups`` called here directly (not through geoloc.viz), on the
+``geoloc.analysis.sensor_fit.fit_sensor_groups`` called here directly (not through geoloc_viz), on the
 same surface (``geoloc.surfaces.terrain.surface_for``): the bundled turret flight on the SRTM DEM, and
 the two [Q17] flights at their published heights with ``--fit``. The "before" errors are checked against
 pyproj's geodesic between the core's own located points (``geoloc.locate``) and the survey.
@@ -81,7 +81,7 @@ def test_sensor_file_on_a_dem_logs_fit_sensor_groups_after_errors(tmp_path, caps
     assert np.mean(before) == pytest.approx(22.87, abs=0.01)
     assert np.mean(after) < np.mean(before) - 0.5
     # outside the code: the "before" series is pyproj's geodesic from the DEM hit of each record's
-    # line of sight (the core's locate + surface, called here, not through geoloc.viz) to its survey
+    # line of sight (the core's locate + surface, called here, not through geoloc_viz) to its survey
     from geoloc.locate import line_of_sight
 
     los = line_of_sight(recs.pose(), sensor, recs.column("row"), recs.column("col"), outside="extrapolate")

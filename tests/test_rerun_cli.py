@@ -51,7 +51,7 @@ def short_scenario(tmp_path) -> Path:
 
 
 def test_bundled_scenario_by_name():
-    from geoloc.cli.log import resolve_input
+    from geoloc_viz.cli.log import resolve_input
 
     assert resolve_input("flight_scan") == Path(ASSETS) / "scenarios" / "flight_scan.toml"
 
@@ -106,8 +106,8 @@ def test_bad_input_is_named(argv, needle, capsys, tmp_path, monkeypatch):
 
 
 def test_serve_hosts_a_grpc_server(tmp_path):
-    from geoloc.viz.rerun_log import write
-    from geoloc.viz.rerun_model import steps_from_records
+    from geoloc_viz.rerun_log import write
+    from geoloc_viz.rerun_model import steps_from_records
 
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

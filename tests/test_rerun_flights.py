@@ -70,8 +70,8 @@ def scalars(data, path):
 
 @pytest.fixture(scope="module")
 def rec(rerun_home, tmp_path_factory):
-    from geoloc.viz.rerun_log import write
-    from geoloc.viz.rerun_model import steps_from_records
+    from geoloc_viz.rerun_log import write
+    from geoloc_viz.rerun_model import steps_from_records
 
     steps, _ = steps_from_records(RECORDS)
     out = tmp_path_factory.mktemp("rrd") / "q17.rrd"
@@ -81,7 +81,7 @@ def rec(rerun_home, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def core():
-    """The replay and the error components straight from the core (not through geoloc.viz)."""
+    """The replay and the error components straight from the core (not through geoloc_viz)."""
     recs = load_records(RECORDS)
     res = replay_at_height(recs, Camera.from_toml(CAMERA), "paper_height_m")
     table = np.array(recs.text("table"), dtype=object)
@@ -160,8 +160,8 @@ def test_error_components_equal_the_core_and_pymap3d(rec, core):
 
 
 def test_outlier_flags_as_series_and_annotations(rerun_home, tmp_path, rec, core):
-    from geoloc.viz.rerun_log import write
-    from geoloc.viz.rerun_model import steps_from_records
+    from geoloc_viz.rerun_log import write
+    from geoloc_viz.rerun_model import steps_from_records
 
     steps, out, data = rec
     _, _, table, comp = core

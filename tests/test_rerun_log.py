@@ -2,7 +2,7 @@
 
 Every expected value below is computed by calling the core directly
 (geoloc.locate, geoloc.frames.chain, geoloc.frames.enu, geoloc.workflows.replay, pyproj), not by
-geoloc.viz.rerun_model, and compared with what the SDK reads from the written file:
+geoloc_viz.rerun_model, and compared with what the SDK reads from the written file:
 same numbers (float32 where rerun stores float32), same time stamps.
 """
 
@@ -80,8 +80,8 @@ def ellipsoid_scenario() -> FlightScenario:
 
 @pytest.fixture(scope="module")
 def flight(rerun_home, tmp_path_factory):
-    from geoloc.viz.rerun_log import write
-    from geoloc.viz.rerun_model import steps_from_flight
+    from geoloc_viz.rerun_log import write
+    from geoloc_viz.rerun_model import steps_from_flight
 
     scn = ellipsoid_scenario()
     steps = steps_from_flight(scn)
@@ -92,8 +92,8 @@ def flight(rerun_home, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def records(rerun_home, tmp_path_factory):
-    from geoloc.viz.rerun_log import write
-    from geoloc.viz.rerun_model import steps_from_records
+    from geoloc_viz.rerun_log import write
+    from geoloc_viz.rerun_model import steps_from_records
 
     steps, errors = steps_from_records(RECORDS)
     out = tmp_path_factory.mktemp("rrd") / "records.rrd"

@@ -36,8 +36,8 @@ def short_scenario() -> FlightScenario:
 def rec(rerun_home, tmp_path_factory):
     from rerun.chunk import RrdReader
 
-    from geoloc.viz.rerun_log import write
-    from geoloc.viz.rerun_model import steps_from_flight
+    from geoloc_viz.rerun_log import write
+    from geoloc_viz.rerun_model import steps_from_flight
 
     scn = short_scenario()
     steps = steps_from_flight(scn)
@@ -208,7 +208,7 @@ def test_cep_series_is_the_core_monte_carlo(rec, core):
 def test_the_recording_opens_its_dem_once(monkeypatch):
     # method "steps" with a DEM: the located points, the exact truth and the mesh come from one raster,
     # read once (it was read twice: once per solver)
-    from geoloc.viz import rerun_model
+    from geoloc_viz import rerun_model
 
     opened = []
     real = DEM.open.__func__

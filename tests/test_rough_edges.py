@@ -212,7 +212,7 @@ def test_replay_with_out_prints_the_summary_not_every_row(tmp_path, capsys):
 
 # ------------------------------------------------------------------ view --export
 def test_view_export_is_quiet_honours_port_and_names_the_record(tmp_path, capfd, monkeypatch):
-    import geoloc.viz.app as app_mod
+    import geoloc_viz.app as app_mod
 
     seen = []
     real = app_mod.make_server

@@ -378,7 +378,7 @@ def test_klv_dump_of_a_folder_is_one_line(tmp_path, capsys):
 
 
 def test_view_reports_a_bad_input_before_it_serves(tmp_path, capsys, monkeypatch):
-    import geoloc.viz.app as app
+    import geoloc_viz.app as app
 
     def no_server(*a, **k):
         raise AssertionError("geoloc view started a server before checking its inputs")

@@ -60,7 +60,7 @@ def decoded():
 
 @pytest.fixture(scope="module")
 def flight():
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.flight_model import default_flight_scenario
 
     return default_flight_scenario()
 
@@ -82,7 +82,7 @@ def test_bundled_ts_is_h264_video_beside_the_same_klv_stream(decoded):
 
 
 def test_the_frame_drawn_for_each_packet_is_the_nearest_by_pts(decoded, flight):
-    from geoloc.viz import picture_model as pm
+    from geoloc_viz import picture_model as pm
 
     _, frames, klv = decoded
     fpts = np.array([p for p, _ in frames], float)
@@ -98,7 +98,7 @@ def test_the_frame_drawn_for_each_packet_is_the_nearest_by_pts(decoded, flight):
 
 
 def test_fitting_the_time_offset_on_the_timing_fault_recovers_it():
-    from geoloc.viz.flight_model import read_targets
+    from geoloc_viz.flight_model import read_targets
     from geoloc.workflows.klv_replay import replay_klv
     from geoloc.workflows.video_sync import fit_klv_time_offset
     from geoloc.io.images import open_images
@@ -122,7 +122,7 @@ def test_fitting_the_time_offset_on_the_timing_fault_recovers_it():
 
 def _ground_sample_m(scn, inputs, sensor, r, c, geod):
     """The larger of the ground distances between pixel (r, c)'s hit and its neighbours' (r+1, c), (r, c+1)."""
-    from geoloc.viz import picture_model as pm
+    from geoloc_viz import picture_model as pm
 
     p0 = pm.locate_pixel(scn, inputs, sensor, r, c)
     out = []
@@ -136,8 +136,8 @@ def _ground_sample_m(scn, inputs, sensor, r, c, geod):
 def test_a_painted_cross_clicked_in_a_clean_frame_lands_on_its_survey(flight, packet):
     from pyproj import Geod
 
-    from geoloc.viz import picture_model as pm
-    from geoloc.viz.flight_model import read_targets
+    from geoloc_viz import picture_model as pm
+    from geoloc_viz.flight_model import read_targets
     from geoloc.workflows.render import find_marks
 
     import dataclasses
@@ -168,7 +168,7 @@ def test_a_painted_cross_clicked_in_a_clean_frame_lands_on_its_survey(flight, pa
 def test_the_heading_bias_shows_in_the_frames_and_is_reported(flight):
     import dataclasses
 
-    from geoloc.viz import picture_model as pm
+    from geoloc_viz import picture_model as pm
 
     a, b, bias = HEADING_BIAS
     for packet in (a - 2, *range(a, b + 1), b + 2):
@@ -301,7 +301,7 @@ def test_view_export_carries_the_picture_and_the_clicked_points(tmp_path, monkey
     from PIL import Image
 
     from geoloc.cli import main
-    from geoloc.viz import picture_model as pm
+    from geoloc_viz import picture_model as pm
     from test_viz_picture import locate_cli
     from test_viz_scene import _decode_recording
 

@@ -105,7 +105,7 @@ def chromium(tmp_path, extra_flags=()):
 @contextlib.contextmanager
 def served():
     """A viser server on a free loopback port (and the screenshot folder), stopped afterwards."""
-    from geoloc.viz.app import make_server
+    from geoloc_viz.app import make_server
 
     ARTIFACTS.mkdir(exist_ok=True)
     server = make_server(port=0)
@@ -124,8 +124,8 @@ def open_viewer(browser, server, width, height):
 
 
 def test_viewer_in_headless_chromium(tmp_path):
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         app = GeolocApp(server, load_view_scenario())
@@ -177,8 +177,8 @@ def test_turret_sensor_in_headless_chromium(tmp_path):
     # an azimuth-elevation turret with a Brown lens (the bundled sensor file): the page shows
     # its own gimbal angles and frames, and the canvas renders the scene over the SRTM terrain
     from geoloc.assets import asset_path
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         scn = load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
@@ -213,8 +213,8 @@ def _open_tab(browser, server, width, height, before, timeout=90):
 def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
     # issue 16 items 4-5: a state per tab, judged on each page's GUI text and on each browser's
     # own camera report; then a third tab over --max-clients 2 is told the limit
-    from geoloc.viz.app import GeolocViewer
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocViewer
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         viewer = GeolocViewer(server, load_view_scenario(), max_clients=2)
@@ -261,8 +261,8 @@ def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
 def test_presenter_mode_in_chromium(tmp_path):
     # issue 20 item 2: the second tab follows the first: its controls are disabled, its panel
     # and camera follow the driver's (judged on the follower's page and its browser's camera)
-    from geoloc.viz.app import GeolocViewer
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocViewer
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         viewer = GeolocViewer(server, load_view_scenario(), presenter=True)
@@ -291,7 +291,7 @@ def test_presenter_mode_in_chromium(tmp_path):
                      "the follower's browser camera to follow the driver's")
             # issue 34: the follower sees every folder of the presenter's panel (flight, outliers,
             # accuracy, legend, teaching, ...), each with the presenter's text, read-only
-            from geoloc.viz.app import driver_folders
+            from geoloc_viz.app import driver_folders
 
             folders = [label for label, _ in driver_folders(viewer.driver)]
             assert {"Flight", "Flight: accuracy", "Legend"} <= set(folders), folders
@@ -308,9 +308,9 @@ def test_presenter_switches_scenario_in_chromium(tmp_path):
     # issue 34 item 6: the presenter chooses another scenario in their "scenario" dropdown, as a
     # person does (click the box, click the option); the follower's page shows the new scenario's
     # header and folders and its own read-only box showing the presenter's choice
-    from geoloc.viz.app import GeolocViewer
-    from geoloc.viz.flight_model import default_flight_scenario
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocViewer
+    from geoloc_viz.flight_model import default_flight_scenario
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         q17 = load_view_scenario()

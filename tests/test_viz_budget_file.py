@@ -49,9 +49,9 @@ def _layer(app, name):
 
 
 def test_the_ellipse_is_the_sensor_files_budget(tmp_path):
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.scene_geoloc import WORLD_SCALE
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scene_geoloc import WORLD_SCALE
+    from geoloc_viz.scenario import load_view_scenario
 
     s = 4.0
     path = _with_budget(tmp_path, asset_path("cameras", "qiao2017.toml"),
@@ -89,7 +89,7 @@ def orbit_with_budget(tmp_path_factory):
     """The bundled example flight on the EO turret's sensor file, with a position-only budget."""
     from test_viz_picture import render_frame
 
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.flight_model import default_flight_scenario
 
     path = _with_budget(tmp_path_factory.mktemp("budget"), asset_path("sensors", "eo_turret.toml"),
                         "north_m = 3.0\neast_m = 3.0\nup_m = 3.0\nk1 = 0.001\n")
@@ -161,8 +161,8 @@ def test_the_triangulated_target_takes_the_sensor_files_budget(orbit_with_budget
 
 
 def test_without_a_table_the_viewer_says_its_budget_is_illustrative(tmp_path):
-    from geoloc.viz.scenario import load_view_scenario
-    from geoloc.viz.uncertainty_layer import scenario_budget
+    from geoloc_viz.scenario import load_view_scenario
+    from geoloc_viz.uncertainty_layer import scenario_budget
 
     scn = load_view_scenario(use_dem=False)  # the bundled [Q17] camera file has no [uncertainty]
     assert scn.budget is None
@@ -176,7 +176,7 @@ def _velocity_enu(packet):
     geodesic (one-sided at the ends, as a central difference cannot be)."""
     import pyproj
 
-    from geoloc.viz.flight_model import default_flight_path
+    from geoloc_viz.flight_model import default_flight_path
     from geoloc.workflows.klv_replay import read_klv
 
     r = read_klv(default_flight_path())
@@ -195,8 +195,8 @@ def _velocity_enu(packet):
 def test_a_time_error_on_a_klv_flight_moves_the_point_along_the_track(tmp_path):
     import pyproj
 
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.flight_model import default_flight_path, default_flight_scenario
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.flight_model import default_flight_path, default_flight_scenario
     from geoloc.workflows.klv_replay import read_klv
 
     sig_t = 0.1

@@ -1,4 +1,4 @@
-"""The viewer as a whole-flight debugger (issue 16 items 1, 2, 5-7): geoloc.viz.flight_model / flight_layer.
+"""The viewer as a whole-flight debugger (issue 16 items 1, 2, 5-7): geoloc_viz.flight_model / flight_layer.
 
 Oracles from outside the code:
 
@@ -28,8 +28,8 @@ from geoloc.frames.enu import EnuFrame
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import lens_from_fov
-from geoloc.viz import flight_model
-from geoloc.viz.model import Inputs, RecordInfo, Scenario
+from geoloc_viz import flight_model
+from geoloc_viz.model import Inputs, RecordInfo, Scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -194,8 +194,8 @@ def test_the_flight_test_panel_shows_no_negative_intercept_model_and_says_why_it
     # [Q17]'s 20 records on ETOPO5: accuracy against truth, with the slant-range line refused when its
     # intercept is negative (numpy's own polyfit of the horizontal errors on the slant ranges), and the
     # session's panel explaining 486 m against the published 51 m by the DEM's 9 km cells
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scenario import load_view_scenario
 
     scn = load_view_scenario()
     m = flight_model.build(scn, diagnose_faults=False)
@@ -221,8 +221,8 @@ def test_whole_flight_footprints_keep_the_corners_at_half_the_points():
     """The whole flight's footprints, a level of detail (issue 34): every frame's outline through
     every second outline point, its four corners among them (outline_pixels: corners at 0, k, 2k,
     3k of 4k points), lifted by LIFT_M; the scene node holds exactly those segments (km)."""
-    from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp
+    from geoloc_viz import flight_layer
+    from geoloc_viz.app import GeolocApp
 
     with served() as server:
         scn = flight_model.default_flight_scenario()
@@ -245,8 +245,8 @@ def test_whole_flight_footprints_keep_the_corners_at_half_the_points():
 
 
 def test_timeline_moves_only_the_highlight():
-    from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp
+    from geoloc_viz import flight_layer
+    from geoloc_viz.app import GeolocApp
 
     with served() as server:
         scn = flight_model.default_flight_scenario()
@@ -298,8 +298,8 @@ def _magenta(img):
 def test_scrubbing_the_timeline_moves_the_footprint_on_the_canvas(tmp_path):
     from test_viz_browser import ARTIFACTS, chromium, look_at_wxyz, open_viewer, served
 
-    from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp
+    from geoloc_viz import flight_layer
+    from geoloc_viz.app import GeolocApp
 
     with served() as server:
         app = GeolocApp(server, flight_model.default_flight_scenario(), layers=(flight_layer.attach,))
@@ -346,8 +346,8 @@ def test_scrubbing_the_timeline_moves_the_footprint_on_the_canvas(tmp_path):
 def test_choosing_an_outlier_moves_the_browser_camera(tmp_path):
     from test_viz_browser import chromium, open_viewer, served, wait_for
 
-    from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp
+    from geoloc_viz import flight_layer
+    from geoloc_viz.app import GeolocApp
 
     with served() as server:
         app = GeolocApp(server, flight_model.default_flight_scenario(), layers=(flight_layer.attach,))
@@ -399,8 +399,8 @@ def test_at_each_planted_fault_the_error_vector_shows_on_the_canvas(tmp_path):
     import PIL.Image
     from test_viz_browser import ARTIFACTS, chromium, open_viewer, served, wait_for
 
-    from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp
+    from geoloc_viz import flight_layer
+    from geoloc_viz.app import GeolocApp
 
     with served() as server:
         app = GeolocApp(server, flight_model.default_flight_scenario(), layers=(flight_layer.attach,))
@@ -459,8 +459,8 @@ def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
     # the fault of its run (the planted datum run, 200-204), not only the record's header
     import re
 
-    from geoloc.viz import flight_layer
-    from geoloc.viz.app import GeolocApp
+    from geoloc_viz import flight_layer
+    from geoloc_viz.app import GeolocApp
 
     with served() as server:
         app = GeolocApp(server, flight_model.default_flight_scenario(), layers=(flight_layer.attach,))
@@ -479,8 +479,8 @@ def test_one_legend_per_scenario_from_what_it_draws():
     # issue 34: the KLV flight has reported centres and no truth (no "[Q17]", no "surveyed"), the [Q17]
     # flight test its published and surveyed points, the turret its own gimbal frames (no "outer gimbal")
     from geoloc.assets import asset_path
-    from geoloc.viz.app import legend_markdown
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import legend_markdown
+    from geoloc_viz.scenario import load_view_scenario
 
     klv = legend_markdown(flight_model.default_flight_scenario())
     assert "reported position" in klv and "[Q17]" not in klv.replace("[Q17]'s steps", "")

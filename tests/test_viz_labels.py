@@ -2,7 +2,7 @@
 
 For the example flight, the [Q17] flight test, the EO turret and the limb scene, a real browser
 opens the viewer as ``geoloc view`` serves it; once its camera is reported, each shown label's
-screen box is computed here, independently of ``geoloc.viz.label_layout``:
+screen box is computed here, independently of ``geoloc_viz.label_layout``:
 
 * its 3D point: the label node's position composed with its ancestors' poses (the scene the
   browser renders, as the server holds it);
@@ -105,7 +105,7 @@ def overlaps(bx):
 def _check(tmp_path, make_viewer, scene_of, name, act=None, size=(W, H), done=lambda bx: True):
     """Open the viewer, do ``act(page, viewer, cid)`` (a click) if given, and wait (40 s) for the
     shown labels' boxes to stop overlapping with ``done(boxes)`` true; returns the boxes."""
-    from geoloc.viz.app import make_server
+    from geoloc_viz.app import make_server
 
     ARTIFACTS.mkdir(exist_ok=True)
     server = make_server(port=0)
@@ -143,23 +143,23 @@ def _tab_scene(viewer, cid):
 
 
 def test_example_flight_labels_do_not_overlap(tmp_path):
-    from geoloc.viz.app import GeolocViewer
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.app import GeolocViewer
+    from geoloc_viz.flight_model import default_flight_scenario
 
     _check(tmp_path, lambda server: GeolocViewer(server, default_flight_scenario()), _tab_scene, "example_flight")
 
 
 def test_flight_test_labels_do_not_overlap(tmp_path):
-    from geoloc.viz.app import GeolocViewer
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocViewer
+    from geoloc_viz.scenario import load_view_scenario
 
     _check(tmp_path, lambda server: GeolocViewer(server, load_view_scenario()), _tab_scene, "flight_test")
 
 
 def test_turret_labels_do_not_overlap(tmp_path):
     from geoloc.assets import asset_path
-    from geoloc.viz.app import GeolocViewer
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocViewer
+    from geoloc_viz.scenario import load_view_scenario
 
     scn = load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
                              asset_path("sensors", "eo_turret.toml"))
@@ -167,7 +167,7 @@ def test_turret_labels_do_not_overlap(tmp_path):
 
 
 def test_limb_labels_do_not_overlap(tmp_path):
-    from geoloc.viz.scene_limb import LimbViewer, load_limb
+    from geoloc_viz.scene_limb import LimbViewer, load_limb
 
     def scene_of(viewer, cid):
         app = viewer.apps.get(cid)
@@ -182,7 +182,7 @@ def _turret(preset):
     from geoloc.assets import asset_path
     from geoloc.locate import as_sensor
     from geoloc.sensors.gimbals import PRESETS
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.scenario import load_view_scenario
 
     scn = load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
                              asset_path("sensors", "eo_turret.toml"))
@@ -199,8 +199,8 @@ def test_turret_teaching_row_labels_do_not_overlap(tmp_path, preset):
     # panel's own "frame the aircraft" button as a teacher would, none of the row's labels (axis
     # tips, names, coordinates, the caption) may cover another or be hidden for want of room, and
     # each lies on the canvas left of the GUI panel
-    from geoloc.viz.app import DEFAULT_LAYERS, GeolocViewer, attach_flight
-    from geoloc.viz.teaching_panel import PANEL_PX
+    from geoloc_viz.app import DEFAULT_LAYERS, GeolocViewer, attach_flight
+    from geoloc_viz.teaching_panel import PANEL_PX
 
     Wt, Ht = 1280, 800
     scn = _turret(preset)

@@ -8,9 +8,9 @@ import pytest
 from geoloc.assets import asset_path
 from geoloc.cli import main
 from geoloc.geodesy.ellipsoid import A, F
-from geoloc.viz.app import make_server
-from geoloc.viz.scene_geoloc import WORLD_SCALE
-from geoloc.viz.scene_limb import LimbApp, load_limb
+from geoloc_viz.app import make_server
+from geoloc_viz.scene_geoloc import WORLD_SCALE
+from geoloc_viz.scene_limb import LimbApp, load_limb
 
 
 @pytest.fixture(scope="module")

@@ -48,8 +48,8 @@ def _check_reference(text, lat_deg, lon_deg, exact=True):
 
 
 def test_summary_panel_shows_mgrs_of_its_hit():
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         app = GeolocApp(server, load_view_scenario())
@@ -65,7 +65,7 @@ def test_summary_panel_shows_mgrs_of_its_hit():
 
 def test_pick_panels_show_mgrs():
     from geoloc.io.mgrs_grid import mgrs_text
-    from geoloc.viz import picture_model as pm
+    from geoloc_viz import picture_model as pm
 
     # a point with no position (NaN) has no reference and says so instead of a made-up square
     assert mgrs_text(float("nan"), 0.0).startswith("MGRS: none (")
@@ -79,8 +79,8 @@ def test_pick_panels_show_mgrs():
 def test_mgrs_in_the_panel_in_chromium(tmp_path):
     from test_viz_browser import ARTIFACTS, chromium, open_viewer, served, wait_for
 
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         app = GeolocApp(server, load_view_scenario())

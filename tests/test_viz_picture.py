@@ -37,7 +37,7 @@ def render_frame(scn, idx, rows=ROWS, cols=COLS):
     import matplotlib
 
     from geoloc.surfaces.terrain import DemSurface
-    from geoloc.viz import picture_model as pm
+    from geoloc_viz import picture_model as pm
 
     sensor = pm.frame_sensor(scn, idx, rows, cols)
     R, C = np.mgrid[1:rows + 1, 1:cols + 1].astype(float)
@@ -55,7 +55,7 @@ def render_frame(scn, idx, rows=ROWS, cols=COLS):
 @pytest.fixture(scope="module")
 def flight():
     """The bundled example flight with images for its first three records."""
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.flight_model import default_flight_scenario
 
     scn = default_flight_scenario()
     n = 3
@@ -84,8 +84,8 @@ def locate_cli(scn, sensor, inputs, row, col, tmp_path):
 
 
 def make_app(scn, **kw):
-    from geoloc.viz import image_layer
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc_viz import image_layer
+    from geoloc_viz.app import GeolocApp, make_server
 
     import copy
 
@@ -96,9 +96,9 @@ def make_app(scn, **kw):
 
 
 def test_scenario_without_images_gets_no_layer():
-    from geoloc.viz import image_layer
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz import image_layer
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         app = GeolocApp(server, load_view_scenario(), layers=(image_layer.attach,))
@@ -184,8 +184,8 @@ def test_a_ridge_hides_a_point_and_the_verdict_says_so():
     # the plain, looks north 3 deg down: a point 1.5 km behind the ridge is in the frame, hidden
     from geoloc.frames.enu import EnuFrame
     from geoloc.surfaces.dem import DEM
-    from geoloc.viz import picture_model as pm
-    from geoloc.viz.model import Inputs, RecordInfo, Scenario
+    from geoloc_viz import picture_model as pm
+    from geoloc_viz.model import Inputs, RecordInfo, Scenario
     from geoloc.workflows.klv_replay import klv_sensor
 
     lat0, lon0 = 36.5, -84.2
@@ -220,7 +220,7 @@ def test_a_ridge_hides_a_point_and_the_verdict_says_so():
 
 
 def test_marks_reproject_the_reported_centre_and_the_horizon_bounds_the_terrain(flight):
-    from geoloc.viz import picture_model as pm
+    from geoloc_viz import picture_model as pm
 
     server, app, layer = make_app(flight)
     try:
@@ -259,7 +259,7 @@ def test_the_horizon_is_where_the_rays_reach_a_flat_dems_far_edge(flight):
     import pymap3d
 
     from geoloc.surfaces.dem import DEM
-    from geoloc.viz import picture_model as pm
+    from geoloc_viz import picture_model as pm
 
     server, app, layer = make_app(flight)
     try:

@@ -30,8 +30,8 @@ RECORDER = r"""() => {
 
 
 def test_pause_stops_the_display_where_it_was(tmp_path):
-    from geoloc.viz.app import GeolocViewer
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.app import GeolocViewer
+    from geoloc_viz.flight_model import default_flight_scenario
 
     with served() as server:
         viewer = GeolocViewer(server, default_flight_scenario())

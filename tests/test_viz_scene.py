@@ -17,9 +17,9 @@ from geoloc.locate import line_of_sight
 from geoloc.sensors.camera import Camera
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.terrain import intersect_dem
-from geoloc.viz.app import GeolocApp, make_server
-from geoloc.viz.scenario import load_view_scenario
-from geoloc.viz.scene_geoloc import WORLD_SCALE
+from geoloc_viz.app import GeolocApp, make_server
+from geoloc_viz.scenario import load_view_scenario
+from geoloc_viz.scene_geoloc import WORLD_SCALE
 
 # The first record of the bundled flight test (T3-1), as in the CSV.
 T31 = dict(lat=36.39895, lon=78.72927, h=17987.25, heading=30.0457, pitch=3.3903, roll=-0.0110,
@@ -334,7 +334,7 @@ def test_viewer_line_of_sight_keeps_the_camera_mount_and_boresight():
     import dataclasses
 
     from geoloc.surfaces.height import intersect_los_height
-    from geoloc.viz import model
+    from geoloc_viz import model
 
     scn = load_view_scenario()
     cam = dataclasses.replace(scn.camera, mount=(0.0, math.radians(0.22), 0.0),
@@ -368,8 +368,8 @@ def test_viewer_and_rerun_lines_of_sight_equal_the_core_for_every_preset(preset,
     from geoloc.sensors.frame import FrameSensor
     from geoloc.sensors.gimbals import PRESETS
     from geoloc.sensors.lenses import BrownLens
-    from geoloc.viz import model
-    from geoloc.viz.rerun_model import steps_from_records
+    from geoloc_viz import model
+    from geoloc_viz.rerun_model import steps_from_records
 
     lens = BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080,
                      k1=-0.21, k2=0.07, p1=4e-4, p2=-2e-4, k3=-0.01)
@@ -405,7 +405,7 @@ def test_viewer_flags_a_pixel_outside_the_sensor():
     import dataclasses
 
     from geoloc.status import Status
-    from geoloc.viz import model
+    from geoloc_viz import model
 
     scn = dataclasses.replace(load_view_scenario(), dem=None)
     g = model.compute(scn, scn.inputs.replace(row=99999.0, target_h=4600.0))
@@ -420,7 +420,7 @@ def test_viewer_opens_a_misb_klv_flight():
     # published point; the example flight's centres were computed on the same SRTM crop, so the
     # scene's exact hit lands on them (5 mm: the reported centre's quantisation in tags 23-24)
     from geoloc.geodesy.geodesic import horizontal_distance_m
-    from geoloc.viz import model
+    from geoloc_viz import model
 
     scn = load_view_scenario(asset_path("klv", "example_flight.klv"), "packet 12")
     assert len(scn.records) == 298 and scn.camera.gimbal.name == "azimuth-elevation-roll"
@@ -433,7 +433,7 @@ def test_viewer_opens_a_misb_klv_flight():
 def test_hillshade_lambert_on_planes_closed_form():
     """A plane of slope angle a facing azimuth b under the sun (azimuth 315, elevation 45 deg):
     brightness 0.45 + 0.55 cos(angle to the sun) / sin(45 deg) (Lambert's cosine law), flat ground 1."""
-    from geoloc.viz.terrain_link import hillshade
+    from geoloc_viz.terrain_link import hillshade
 
     x, y = np.meshgrid(np.arange(5.0) * 100.0, np.arange(5.0) * 100.0)
     i = np.arange(25).reshape(5, 5)
@@ -465,7 +465,7 @@ def test_terrain_is_sent_unlit_with_the_mesh_unchanged(app):
 
     import trimesh
 
-    from geoloc.viz.scene_geoloc import terrain_glb_cached, terrain_mesh_cached
+    from geoloc_viz.scene_geoloc import terrain_glb_cached, terrain_mesh_cached
 
     scn = app.scn
     glb, mesh = terrain_glb_cached(scn), terrain_mesh_cached(scn)
@@ -502,8 +502,8 @@ def test_terrain_mesh_level_of_detail_and_its_height_bound():
     import trimesh
 
     from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
-    from geoloc.viz import terrain_link as tl
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz import terrain_link as tl
+    from geoloc_viz.flight_model import default_flight_scenario
 
     scn = default_flight_scenario()
     lats, lons = tl.mesh_grid(scn)

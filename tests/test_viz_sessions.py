@@ -20,9 +20,9 @@ import numpy as np
 import pymap3d
 import pytest
 
-from geoloc.viz.app import GeolocViewer, make_server
-from geoloc.viz.scenario import load_view_scenario
-from geoloc.viz.scene_geoloc import WORLD_SCALE
+from geoloc_viz.app import GeolocViewer, make_server
+from geoloc_viz.scenario import load_view_scenario
+from geoloc_viz.scene_geoloc import WORLD_SCALE
 
 # a tab that closes while its session is still being built makes viser warn about the messages
 # queued for it after it left (they are dropped): expected here, where tabs come and go fast
@@ -234,8 +234,8 @@ def test_presenter_switches_scenario_and_the_followers_follow(server):
     # issue 34 item 6: in presenter mode the driver has the "scenario" dropdown; choosing another
     # scenario rebuilds the shared scene on it and every follower's panel follows (read-only box,
     # header, the new session's folders)
-    from geoloc.viz.app import driver_folders
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.app import driver_folders
+    from geoloc_viz.flight_model import default_flight_scenario
 
     q17 = load_view_scenario()
     viewer = GeolocViewer(server, q17, presenter=True,
@@ -331,7 +331,7 @@ def test_a_tab_switches_scenario_in_one_click_and_alone(server):
     import gc
     import weakref
 
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.flight_model import default_flight_scenario
 
     q17 = load_view_scenario()
     viewer = GeolocViewer(server, q17, scenarios={"[Q17] flight test": q17,
@@ -362,7 +362,7 @@ def test_a_tab_switches_scenario_in_one_click_and_alone(server):
 
 def test_limb_scene_keeps_a_state_per_tab(server):
     # issue 16 / 20: the limb scene too gives each tab its own scene, GUI and camera
-    from geoloc.viz.scene_limb import LimbViewer, load_limb
+    from geoloc_viz.scene_limb import LimbViewer, load_limb
 
     viewer = LimbViewer(server, load_limb())
     a, ida = open_tab(server, until=b"Limb viewing [L18]")

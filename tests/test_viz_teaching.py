@@ -1,4 +1,4 @@
-"""The teaching panel's numbers (geoloc.viz.teaching) and its layer (geoloc.viz.teaching_panel).
+"""The teaching panel's numbers (geoloc_viz.teaching) and its layer (geoloc_viz.teaching_panel).
 
 Oracles from outside the code: the frame-by-frame coordinates of a pixel's ray
 are recomputed here from the conventions page with scipy ``Rotation`` (elementary
@@ -24,7 +24,7 @@ from geoloc.frames.chain import Pose
 from geoloc.locate import as_sensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.sensor_file import load_sensor
-from geoloc.viz import teaching
+from geoloc_viz import teaching
 
 A_WGS84, F_WGS84 = 6378137.0, 1 / 298.257223563
 E2 = F_WGS84 * (2 - F_WGS84)
@@ -227,7 +227,7 @@ def test_pose_with_angle_and_bad_input():
 
 # ---------------------------------------------------------------- the panel on a live session
 def _scenario(kind):
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.scenario import load_view_scenario
 
     if kind == "roll-pitch":
         return load_view_scenario()
@@ -246,8 +246,8 @@ def _scenario(kind):
 
 @pytest.fixture(scope="module", params=["roll-pitch", "azimuth-elevation", "azimuth-elevation-roll", "yaw-pitch-roll"])
 def panel(request):
-    from geoloc.viz import teaching_panel
-    from geoloc.viz.app import GeolocApp, make_server
+    from geoloc_viz import teaching_panel
+    from geoloc_viz.app import GeolocApp, make_server
 
     server = make_server(port=0)
     app = GeolocApp(server, _scenario(request.param), layers=())  # the panel alone, attached below
@@ -330,7 +330,7 @@ def test_panel_highlights_source_and_destination_and_steps(panel):
 
 
 def teaching_panel_colors():
-    from geoloc.viz.teaching_panel import HIGHLIGHT
+    from geoloc_viz.teaching_panel import HIGHLIGHT
 
     return HIGHLIGHT
 
@@ -439,9 +439,9 @@ def _panel_app(kind="roll-pitch"):
     """(server, app, panel): a scene (default [Q17]'s) on a viser server with the teaching panel alone."""
     from test_viz_browser import served
 
-    from geoloc.viz import teaching_panel
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz import teaching_panel
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         scn = load_view_scenario() if kind == "roll-pitch" else _scenario(kind)
@@ -498,7 +498,7 @@ def test_teaching_panel_animation_changes_the_scene_in_chromium(tmp_path):
             changed = np.abs(a.astype(float) - b.astype(float)).max(axis=-1) > 40
             assert changed.mean() > 0.001, changed.mean()
             # ... and came back to the true pose: the joint's frame node where the session's chain puts it
-            from geoloc.viz.scene_geoloc import wxyz
+            from geoloc_viz.scene_geoloc import wxyz
 
             R = app.scn.enu.R_enu_from(app.geometry.chain.T_ecef("gimbal_outer")[:3, :3])
             q = np.asarray(server.scene.get_handle_by_name("/enu/teach/frames/gimbal_outer").wxyz)

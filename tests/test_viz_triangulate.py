@@ -32,7 +32,7 @@ FRAMES = (0, 20, 40)
 def orbit():
     from test_viz_picture import render_frame
 
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.flight_model import default_flight_scenario
 
     scn = default_flight_scenario()
     scn.images = ArrayImages([render_frame(scn, i) for i in FRAMES])
@@ -44,7 +44,7 @@ def orbit():
 
 def _target(app, layer):
     """G: record 21's image centre on the DEM (lat, lon [deg], h [m] ellipsoidal)."""
-    from geoloc.viz import picture_model as pm
+    from geoloc_viz import picture_model as pm
 
     app.load_record(FRAMES[1], move_camera=False)
     c = pm.locate_pixel(app.scn, app.inputs, layer.sensor, *layer.sensor.center_pixel)

@@ -1,4 +1,4 @@
-"""The predicted 90 % error ellipse in the viewer (geoloc.viz.uncertainty_layer), and in headless Chromium.
+"""The predicted 90 % error ellipse in the viewer (geoloc_viz.uncertainty_layer), and in headless Chromium.
 
 The drawn ellipse is held to its definition, measured in the scene: the vertices' horizontal
 distances from the hit span the 90 % semi-axes (the 1-sigma axes x sqrt(chi2(2, 0.9)), scipy)
@@ -24,9 +24,9 @@ def _layer(app):
 
 
 def test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse():
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.scene_geoloc import WORLD_SCALE
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scene_geoloc import WORLD_SCALE
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         app = GeolocApp(server, load_view_scenario())
@@ -51,8 +51,8 @@ def test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse():
 def test_a_person_hides_the_ellipse_in_chromium(tmp_path):
     import PIL.Image
 
-    from geoloc.viz.app import GeolocApp
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         app = GeolocApp(server, load_view_scenario())
@@ -88,7 +88,7 @@ def test_flight_debugger_flags_frames_outside_their_own_99_percent_ellipse():
     a degree those frames are outside their own 99 % ellipse, the frames that agree to millimetres
     are not."""
     from geoloc.sensors.budget import ErrorBudget
-    from geoloc.viz import flight_model
+    from geoloc_viz import flight_model
 
     scn = flight_model.default_flight_scenario()
     names = scn.camera.angle_names  # the Scenario holds a FrameSensor

@@ -36,9 +36,9 @@ def main(argv=None) -> int:
     from test_viz_browser import chromium, open_viewer, wait_for
     from test_viz_picture import _panel_pixel_xy
 
-    from geoloc.viz import image_layer
-    from geoloc.viz.app import GeolocApp, make_server
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz import image_layer
+    from geoloc_viz.app import GeolocApp, make_server
+    from geoloc_viz.flight_model import default_flight_scenario
     from geoloc.workflows.render import find_marks
 
     scn = default_flight_scenario()

@@ -33,8 +33,8 @@ def main(argv=None) -> int:
     from bench_browser import PROBE, _settled
     from test_viz_browser import chromium
 
-    from geoloc.viz.app import GeolocViewer, make_server
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.app import GeolocViewer, make_server
+    from geoloc_viz.flight_model import default_flight_scenario
 
     args.out.mkdir(parents=True, exist_ok=True)
     server = make_server(port=0)

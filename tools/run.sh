@@ -7,7 +7,7 @@ cd "$(dirname "$0")/.."
 VENV="${GEOLOC_VENV:-.venv}"
 [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
 "$VENV/bin/python" -m pip install -q --upgrade pip
-"$VENV/bin/python" -m pip install -q -e .
+"$VENV/bin/python" -m pip install -q -e . -e ./viz
 # numba compiles the terrain and camera kernels on a machine's first run (15-30 s of
 # CPU on 2 cores, once): do it here, saying so, so the viewer starts from the cache
 # (~/.cache/geoloc/numba, or NUMBA_CACHE_DIR; a reinstall keeps it). Seconds when warm.

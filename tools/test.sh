@@ -18,7 +18,7 @@ fi
 VENV="${GEOLOC_VENV:-.venv}"
 [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
 "$VENV/bin/python" -m pip install -q --upgrade pip
-"$VENV/bin/python" -m pip install -q -e ".[test]"
+"$VENV/bin/python" -m pip install -q -e ".[test]" -e ./viz
 # two workers (the machine's 2 cores); the tests that open Chromium share one of them
 # (tests/conftest.py), so the browser tests run one at a time beside the rest
 exec "$VENV/bin/python" -m pytest -n "${GEOLOC_TEST_WORKERS:-2}" --dist loadgroup "$@"

@@ -32,6 +32,7 @@ from geoloc.cli._options import (
 from geoloc.cli.locate import pose_from_args, records_from_args
 from geoloc.io.columns import ELLIPSOID_DATUM
 from geoloc.surfaces.base import terrain_of
+from geoloc.extras import require
 
 POSE_FIELDS = ("lat_deg", "lon_deg", "h_m")
 
@@ -180,11 +181,7 @@ def run(args) -> int:
             raise ValueError("--ortho-out needs a DEM (--dem or a bundled one), not --target-h-m")
     image = None
     if args.ortho_out:  # the photo's pixels read (and OpenCV found) before the first output is written
-        try:
-            import cv2  # noqa: F401
-        except ImportError as e:
-            raise ValueError(f"--ortho-out needs OpenCV ({e}); install it with "
-                             "`pip install opencv-python-headless` (a dependency of geoloc)") from None
+        require("cv2", "--ortho-out (a photo's pixels)")
         image = read_photo_pixels(Path(meta.path))
         if image.shape[1:] != (sensor.rows, sensor.cols):
             raise ValueError(f"--photo {meta.path}: its pixels are {image.shape[2]} x {image.shape[1]}, "

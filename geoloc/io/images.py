@@ -40,6 +40,7 @@ from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from geoloc.extras import require
 
 __all__ = ["ImageSource", "PhotoImage", "VideoFrames", "ArrayImages", "open_images",
            "nearest_index", "PHOTO_SUFFIXES", "VIDEO_SUFFIXES"]
@@ -268,7 +269,7 @@ class _Decoder:
     :class:`VideoFrames` views of a file (they differ only in their time offset)."""
 
     def __init__(self, path: Path, stream: int | None, cache_bytes: int):
-        import av
+        av = require("av", "reading video frames")
 
         self.path = path
         try:
@@ -317,7 +318,7 @@ class _Decoder:
         """Frame PTS in presentation order, and for each frame the decode time stamp of
         the key frame to seek to (the last key packet at or before its own packet in
         decode order); from the packets alone (``demux``), no pixel decoded."""
-        import av
+        av = require("av", "reading video frames")
 
         pts, seek = [], []
         key = None

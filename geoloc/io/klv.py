@@ -56,6 +56,7 @@ from typing import BinaryIO, Iterable, Iterator
 import numpy as np
 
 from geoloc.userfiles import note_input
+from geoloc.extras import require
 
 __all__ = [
     "UAS_LS_KEY",
@@ -865,7 +866,7 @@ def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None
     ------
     Packet or KlvError
     """
-    import av
+    av = require("av", "reading KLV from MPEG-TS video")
 
     try:
         container = av.open(os.fspath(path))
@@ -1310,7 +1311,7 @@ def write_ts(path, packets: Iterable, *, rate: float = 30.0, pts: Iterable[int] 
     int
         Number of KLV packets written.
     """
-    import av
+    av = require("av", "writing KLV into MPEG-TS video")
 
     blobs = []
     for p in packets:

@@ -35,6 +35,7 @@ from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.geodesy.geoid import NodeGrid, egm96_undulation
 from geoloc.status import Status
 from geoloc.userfiles import note_input
+from geoloc.extras import require
 
 DATUMS = ("egm96", "ellipsoid")
 
@@ -468,7 +469,7 @@ class DEM:
         trimesh.Trimesh
             With ``metadata["enu_frame"]`` holding the :class:`EnuFrame` for "enu".
         """
-        import trimesh
+        trimesh = require("trimesh", "the DEM as a triangle mesh (DEM.mesh)")
 
         v, f = self.mesh(stride)
         if frame == "enu":

@@ -1336,7 +1336,7 @@ def uncompiled_budget(steps: int | None = None):
 
     For a one-off batch that would otherwise compile the walk on a cold cache (5-15 s of CPU)
     though it walks in under a second uncompiled: the viewer's first scene, whose example flight
-    has 5364 footprint rays (:func:`geoloc.viz.flight_model.build`; issue 32). Not for a loop of
+    has 5364 footprint rays (:func:`geoloc_viz.flight_model.build`; issue 32). Not for a loop of
     such calls in a warm process (a whole frame in chunks, a campaign): each would pay up to the
     budget where the kernel takes milliseconds. The choice stays the call's (its rays, their order,
     its DEM and this block: the steps counted are the walk's own), never the process's history

@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.surfaces.spec import SurfaceSpec
+from geoloc.extras import require
 
 #: Photo suffixes (as ``geoloc replay``).
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".dng")
@@ -586,7 +587,7 @@ def local_cluster(workers: int = 2, threads_per_worker: int = 1, processes: bool
     dask.distributed.LocalCluster
         Close it when done (it is a context manager).
     """
-    import dask
+    dask = require("dask", "a campaign's local Dask cluster")
     from dask.distributed import LocalCluster
 
     if not (isinstance(workers, (int, np.integer)) and workers >= 1):
@@ -646,6 +647,7 @@ def run_campaign(inputs, out_dir, config: CampaignConfig | None = None, *, sched
     -------
     CampaignResult
     """
+    require("pyarrow", "a campaign (Parquet parts)")
     cfg = config or CampaignConfig()
     kind, units, notes = campaign_units(inputs, photos_per_unit, exclude=(cfg.targets,))
     out = Path(out_dir)
@@ -674,6 +676,7 @@ def run_campaign(inputs, out_dir, config: CampaignConfig | None = None, *, sched
         for k, u in enumerate(units):
             done(run_unit(k, u, kind, cfg, str(out), numba_threads))
     else:
+        require("distributed", "a campaign on Dask")
         from dask.distributed import Client, as_completed
 
         cluster = None

@@ -46,6 +46,7 @@ from geoloc.io.klv import (TAG_BY_NAME, KlvError, add_items, encode_value, is_co
                           local_set_items, replace_values)
 from geoloc.status import Status, describe
 from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, read_klv, replay_klv
+from geoloc.extras import require
 
 #: The items rewritten: tag -> field name.
 CENTRE_TAGS = {23: "frame_center_latitude_deg", 24: "frame_center_longitude_deg",

@@ -35,6 +35,7 @@ from geoloc.io.columns import ELLIPSOID_DATUM
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 from geoloc.userfiles import atomic_path
+from geoloc.extras import require
 
 #: Default chunk [rays]: whole image rows of about this many pixels per call of the surface.
 #: 2^18 rays hold ~45 MB of temporaries in the exact DEM solver (about 170 bytes a ray).
@@ -450,7 +451,7 @@ def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str =
         ``path``, ``crs``, ``width``, ``height``, ``gsd_m``, ``transform`` (GDAL order),
         ``cells_seen``, ``cells_hidden`` (in the photo but behind terrain).
     """
-    import cv2
+    cv2 = require("cv2", "an orthophoto from a photo's pixels")
     import rasterio
 
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
@@ -535,7 +536,7 @@ def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str =
 
 def read_photo_pixels(path) -> np.ndarray:
     """A photo's pixels as (bands, rows, cols) uint8 (OpenCV reads the JPEG; BGR turned to RGB)."""
-    import cv2
+    cv2 = require("cv2", "an orthophoto from a photo's pixels")
 
     a = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
     if a is None:

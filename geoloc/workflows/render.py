@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.status import Status
+from geoloc.extras import require
 
 __all__ = ["Cross", "GroundTexture", "ground_texture", "hillshade", "find_marks", "RenderedFrame", "read_crosses", "render_frame", "SKY_RGB", "HAZE_RGB",
            "CROSS_RGB"]

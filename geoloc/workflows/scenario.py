@@ -21,7 +21,7 @@ that needs one kind says so when given another (``expect=``), instead of
 failing on the first key it does not know.
 
 The viewer's scene (a records file, a record, a sensor and a DEM) is not a
-scenario file; it is built by ``geoloc.viz.scenario.load_view_scenario``.
+scenario file; it is built by ``geoloc_viz.scenario.load_view_scenario``.
 """
 
 from __future__ import annotations

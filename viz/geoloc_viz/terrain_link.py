@@ -171,7 +171,7 @@ def terrain_mesh(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES, lod_m
     (+-``window_m`` around the origin, clipped to the DEM, spaced by distance from the origin)
     and turned into two triangles a cell in ``scn.enu``. Colours:
     a hypsometric colour map of the height, shaded by :func:`hillshade` (the viewer draws the
-    terrain unlit: the relief is in the colours, see :func:`geoloc.viz.scene_geoloc.unlit_glb`).
+    terrain unlit: the relief is in the colours, see :func:`geoloc_viz.scene_geoloc.unlit_glb`).
 
     In software WebGL a frame's cost follows the triangles drawn (``benchmarks/bench_browser.py
     --groups``): the terrain cost 0.16 s of a 0.36 s frame on a uniform 161 x 161 grid, 0.064 s
@@ -239,7 +239,7 @@ def scene_surface(scn, inp, trace: bool = True):
 
 
 def hit_geometry(scn, inp, los) -> dict:
-    """The hit fields of :class:`geoloc.viz.model.Geometry` on the scene's surface (:func:`scene_surface`).
+    """The hit fields of :class:`geoloc_viz.model.Geometry` on the scene's surface (:func:`scene_surface`).
 
     On a DEM: :func:`terrain_geometry` (the method's hit, the exact first hit,
     the iterations); on a constant height: its hit alone.
@@ -257,7 +257,7 @@ def hit_geometry(scn, inp, los) -> dict:
 def terrain_geometry(scn, inp, los, surface=None) -> dict:
     """Run the chosen terrain method on ``los`` (with its trace) and express it in ENU.
 
-    Returns the fields of :class:`geoloc.viz.model.Geometry` for the terrain: the
+    Returns the fields of :class:`geoloc_viz.model.Geometry` for the terrain: the
     chosen method's hit, the exact first hit (for comparison), the ellipsoid
     hit at H_max (the DEM's highest node, where [Q17]'s steps start), and the
     iterations: each H_n with its ground point on the line of sight, the DEM

@@ -1,6 +1,6 @@
 """Predicted uncertainty in the scene: the 90 % error ellipse on the terrain at the hit (issue 29).
 
-:func:`attach` (a layer of :class:`geoloc.viz.app.GeolocSession`) draws, for the current record or
+:func:`attach` (a layer of :class:`geoloc_viz.app.GeolocSession`) draws, for the current record or
 pose, the predicted 90 % horizontal error ellipse of the located point
 (:func:`geoloc.analysis.uncertainty.propagate`: the sensor's error budget carried through the
 chain and the scene's surface) as a closed line draped on the terrain (each vertex at the DEM's
@@ -12,7 +12,7 @@ distance from the located point to the surveyed truth (or the published point) a
 against its own ellipse (1 = on the 90 % ellipse).
 
 The budget is the scenario's sensor file's ``[uncertainty]`` table (``scn.budget``, read by
-:func:`geoloc.viz.scenario.load_view_scenario`), less what the viewer cannot carry, said in the
+:func:`geoloc_viz.scenario.load_view_scenario`), less what the viewer cannot carry, said in the
 panel (:func:`usable_budget`: ``time_s`` where the record has no platform velocity, a records CSV;
 a KLV flight's records have theirs, ``Scenario.record_velocity_ned``; lens keys the frame's lens
 lacks, a KLV frame's lens being made from its fields of view); without one an illustrative budget
@@ -148,7 +148,7 @@ class UncertaintyLayer:
             self._hide()
             self.md.content = "no located point"
             return
-        from geoloc.viz import terrain_link
+        from geoloc_viz import terrain_link
 
         vel = record_velocity(s.scn, s.scn.record_index)
         budget, note, illustrative = self.budget(vel is not None)

@@ -8,9 +8,9 @@ they come (PyAV), keeps the newest (:class:`LiveImages`, an image source for the
 layer) and counts what the decoder saw (resolution changes, undecodable units).
 
 A :class:`LiveFlight` (one per feed, shared by the tabs) turns the new packets into viewer
-records (:func:`geoloc.viz.scenario.records_from_columns`, as ``geoloc view FILE.ts``
-does) and grows the flight model with them (:func:`geoloc.viz.flight_model.build` of the
-new frames in the flight's fixed ENU frame, then :func:`geoloc.viz.flight_model.extend`:
+records (:func:`geoloc_viz.scenario.records_from_columns`, as ``geoloc view FILE.ts``
+does) and grows the flight model with them (:func:`geoloc_viz.flight_model.build` of the
+new frames in the flight's fixed ENU frame, then :func:`geoloc_viz.flight_model.extend`:
 the outlier flags, order, fault runs and accuracy over the window, exactly as for a file),
 keeping the newest :data:`FLIGHT_WINDOW` frames (a rolling window: memory bounded; the
 journal on disk has them all).
@@ -18,10 +18,10 @@ journal on disk has them all).
 Each browser tab gets a :class:`LiveTab`: a **Live** folder (following / scrubbed back,
 the **live** button, the current packet, what arrived and what was lost) and, from the
 first located packet on, the full flight debugger of ``geoloc view``: a
-:class:`geoloc.viz.app.GeolocSession` on the tab's ``client.scene`` / ``client.gui``
+:class:`geoloc_viz.app.GeolocSession` on the tab's ``client.scene`` / ``client.gui``
 with the default layers (the flight layer, the picture, the teaching panel, ...), its
 scenario's records replaced by the window as it grows
-(:meth:`geoloc.viz.flight_layer.FlightLayer.set_model`). The view follows the latest
+(:meth:`geoloc_viz.flight_layer.FlightLayer.set_model`). The view follows the latest
 frame (its full chain, line of sight, iterations and picture) until the user scrubs back
 (the timeline, "go to", "worst fault", play or the record dropdown); **live** returns.
 
@@ -336,9 +336,9 @@ class LiveFlight:
                 "frame_center_error_m", "corner_error_m", "outlier")
 
     def _scenario(self, recs):
-        from geoloc.viz import terrain_link
-        from geoloc.viz.model import Scenario
-        from geoloc.viz.scenario import enu_origin_for
+        from geoloc_viz import terrain_link
+        from geoloc_viz.model import Scenario
+        from geoloc_viz.scenario import enu_origin_for
 
         info, inp = recs[0]
         url = self.feed.url
@@ -356,8 +356,8 @@ class LiveFlight:
 
     def update(self) -> bool:
         """Take the feed's new batches into the window and the model; True when frames came."""
-        from geoloc.viz import flight_model
-        from geoloc.viz.scenario import records_from_columns
+        from geoloc_viz import flight_model
+        from geoloc_viz.scenario import records_from_columns
 
         batches = self.feed.take_batches()
         if not batches:
@@ -398,7 +398,7 @@ class LiveFlight:
 
     def scenario(self, idx: int | None = None):
         """A scenario of the window (for a new tab's session), record ``idx`` (default the latest) loaded."""
-        from geoloc.viz.scenario import select_record
+        from geoloc_viz.scenario import select_record
 
         with self._lock:
             scn = copy.copy(self.base)
@@ -542,7 +542,7 @@ class LiveTab:
             pass
 
     def _layers(self):
-        from geoloc.viz import app, flight_layer, image_layer
+        from geoloc_viz import app, flight_layer, image_layer
 
         def attach_flight(session):
             if len(session.scn.records) < 2:
@@ -562,7 +562,7 @@ class LiveTab:
         return tuple(out)
 
     def _attach_images(self, session):
-        from geoloc.viz import image_layer
+        from geoloc_viz import image_layer
 
         if not self.feed.pictures_total:  # no picture yet: attached when one is decoded
             return None
@@ -570,7 +570,7 @@ class LiveTab:
         return self._images
 
     def _build(self) -> None:
-        from geoloc.viz.app import GeolocSession
+        from geoloc_viz.app import GeolocSession
 
         fl = self.flight
         with fl._lock:
@@ -590,8 +590,8 @@ class LiveTab:
 
     def _grow(self) -> None:
         """The session's records and the flight layer's model replaced by the flight's window."""
-        from geoloc.viz import flight_layer
-        from geoloc.viz.app import CUSTOM
+        from geoloc_viz import flight_layer
+        from geoloc_viz.app import CUSTOM
 
         s, fl = self.session, self.flight
         with s._lock, fl._lock:
@@ -622,7 +622,7 @@ class LiveTab:
             elif self.layer is not None:
                 self.layer.set_model(fl.model, current=keep)
             if getattr(self, "_images", None) is None and self.feed.pictures_total:
-                from geoloc.viz import image_layer
+                from geoloc_viz import image_layer
 
                 self._images = image_layer.attach(s)
                 if self._images is not None:
@@ -677,7 +677,7 @@ def _first(handle, cb) -> None:
 
 
 def flight_layer_choose() -> str:
-    from geoloc.viz.flight_layer import CHOOSE
+    from geoloc_viz.flight_layer import CHOOSE
 
     return CHOOSE
 
@@ -711,9 +711,9 @@ class LiveViewer:
         packet of the stream does not wait for a compiler."""
         from geoloc.assets import ASSETS
         from geoloc.io.klv import Packet, read_klv_file
-        from geoloc.viz import flight_model
-        from geoloc.viz.model import compute
-        from geoloc.viz.scenario import records_from_columns
+        from geoloc_viz import flight_model
+        from geoloc_viz.model import compute
+        from geoloc_viz.scenario import records_from_columns
         from geoloc.workflows.live_replay import LiveReplay
 
         try:

@@ -1,6 +1,6 @@
 """The picture of a frame, computed by the core (no viser here): its sensor, picked pixels, marks.
 
-What :mod:`geoloc.viz.image_layer` draws, as numbers the tests compare with independent
+What :mod:`geoloc_viz.image_layer` draws, as numbers the tests compare with independent
 core calls and with ``geoloc locate``:
 
 * :func:`frame_sensor`: the sensor through which record ``idx``'s image was taken, sized to the
@@ -9,7 +9,7 @@ core calls and with ``geoloc locate``:
   arm (:func:`geoloc.workflows.klv_replay.klv_sensor`'s rule), or the sensor's lens scaled to a
   resized image (:func:`geoloc.io.photos.scale_lens`);
 * :func:`locate_pixel`: a pixel's line of sight (``sensor.line_of_sight``) and its hit on the
-  scene's surface (:func:`geoloc.viz.terrain_link.scene_surface`: the DEM with the GUI's method,
+  scene's surface (:func:`geoloc_viz.terrain_link.scene_surface`: the DEM with the GUI's method,
   or the record's constant height), with the DEM evaluations and the iteration trace;
 * :func:`ground_pick`: a ray of the browser (a click on the terrain) intersected with the same
   surface (exact first hit), that ground point's pixel (``sensor.ground_to_pixel``) and whether
@@ -111,7 +111,7 @@ class PixelPick:
 
 def locate_pixel(scn, inputs, sensor, row, col) -> PixelPick:
     """Pixel ``(row, col)`` of ``sensor`` at the pose of ``inputs``, on the scene's surface."""
-    from geoloc.viz import terrain_link
+    from geoloc_viz import terrain_link
 
     pose = inputs.pose()
     los = sensor.line_of_sight(float(row), float(col), pose)
@@ -230,7 +230,7 @@ def image_marks(scn, idx, sensor, inputs, centre: "PixelPick | None" = None) -> 
     pixel, drawn to compare with the reported one); and each of ``scn.targets``
     (``(label, lat_deg, lon_deg, h_m)``, ellipsoidal heights; NaN height: on the DEM).
     """
-    from geoloc.viz import terrain_link
+    from geoloc_viz import terrain_link
 
     pose = inputs.pose()
     pts = {}

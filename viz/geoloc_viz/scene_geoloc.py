@@ -1,6 +1,6 @@
-"""The geolocation scene: draws a :class:`geoloc.viz.model.Geometry` into a viser scene.
+"""The geolocation scene: draws a :class:`geoloc_viz.model.Geometry` into a viser scene.
 
-All coordinates come from the core through :func:`geoloc.viz.model.compute`, in the
+All coordinates come from the core through :func:`geoloc_viz.model.compute`, in the
 scene's local East-North-Up frame (metres, origin near the target; see
 :mod:`geoloc.frames.enu`). The only transformations here are for display: the vertical
 exaggeration multiplies the Up coordinate of every point (and scales the terrain
@@ -39,7 +39,7 @@ import viser
 import viser.transforms as vtf
 
 from geoloc.assets import ASSETS
-from geoloc.viz.model import Geometry, Scenario
+from geoloc_viz.model import Geometry, Scenario
 
 #: Root node of the scene, and scene units per metre (the world unit is the km).
 ROOT = "/enu"
@@ -149,7 +149,7 @@ _TERRAIN_LOCK = threading.Lock()
 
 
 def _terrain_entry(scn):
-    from geoloc.viz import terrain_link
+    from geoloc_viz import terrain_link
 
     enu = scn.enu
     key = (id(scn.dem), float(enu.lat0), float(enu.lon0), float(enu.h0))
@@ -168,7 +168,7 @@ def _terrain_entry(scn):
 
 
 def terrain_mesh_cached(scn) -> trimesh.Trimesh:
-    """:func:`geoloc.viz.terrain_link.terrain_mesh` of ``scn``, shared between sessions."""
+    """:func:`geoloc_viz.terrain_link.terrain_mesh` of ``scn``, shared between sessions."""
     return _terrain_entry(scn)[1]
 
 
@@ -188,7 +188,7 @@ def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
     """Binary glTF of ``mesh`` with its material marked ``KHR_materials_unlit`` (glTF 2.0 extension:
     three.js loads it as a ``MeshBasicMaterial``, vertex colours without lighting).
 
-    For the terrain, whose relief is baked into its colours (:func:`geoloc.viz.terrain_link.hillshade`):
+    For the terrain, whose relief is baked into its colours (:func:`geoloc_viz.terrain_link.hillshade`):
     in headless Chromium with software WebGL the lit material (physically based, with viser's default
     environment map) over a 51 k-triangle terrain filling the canvas cost 1.9-2.6 s a frame, unlit
     0.4-0.45 s, about what the scene costs without the terrain (issue 34, machine load 10-12;

@@ -3,8 +3,8 @@
 A **session** (:class:`GeolocSession`) is one complete viewer state: a scenario
 (record, DEM, ENU origin), the inputs, the display settings, the drawn scene and
 the GUI that edits them. It wires the GUI controls (pose, gimbal, pixel, method,
-record, display) to :func:`geoloc.viz.model.compute` (the core) and
-:class:`geoloc.viz.scene_geoloc.GeolocScene` (drawing).
+record, display) to :func:`geoloc_viz.model.compute` (the core) and
+:class:`geoloc_viz.scene_geoloc.GeolocScene` (drawing).
 
 Where sessions live:
 
@@ -28,14 +28,14 @@ Session interface (stable: the layers of other modules attach to it)
 ``session.server``, ``session.client``
     the ``ViserServer``; the ``ClientHandle`` of its tab (None for a server session).
 ``session.scn``
-    its :class:`geoloc.viz.model.Scenario` (each tab has its own copy).
+    its :class:`geoloc_viz.model.Scenario` (each tab has its own copy).
 ``session.view``
-    its :class:`geoloc.viz.scene_geoloc.GeolocScene` (``.enu`` the scene's
+    its :class:`geoloc_viz.scene_geoloc.GeolocScene` (``.enu`` the scene's
     :class:`geoloc.frames.enu.EnuFrame`, ``.disp`` the :class:`Display`).
 ``session.geometry``
-    the last :class:`geoloc.viz.model.Geometry` drawn (None before the first).
+    the last :class:`geoloc_viz.model.Geometry` drawn (None before the first).
 ``session.inputs``
-    the current :class:`geoloc.viz.model.Inputs`.
+    the current :class:`geoloc_viz.model.Inputs`.
 ``session.load_record(idx)``
     load record ``idx`` of ``scn.records`` (new ENU origin, DEM), redraw, frame it.
 ``session.refresh(recompute=True)``
@@ -75,7 +75,7 @@ import viser
 from geoloc.io.mgrs_grid import mgrs_text
 from geoloc.status import describe
 from geoloc.userfiles import write_bytes, write_text
-from geoloc.viz import (
+from geoloc_viz import (
     calibration_layer,
     flight_layer,
     image_layer,
@@ -84,9 +84,9 @@ from geoloc.viz import (
     teaching_panel,
     uncertainty_layer,
 )
-from geoloc.viz.model import Inputs, Scenario, compute, drawn_frames
-from geoloc.viz.scenario import select_record
-from geoloc.viz.scene_geoloc import Display, GeolocScene, camera_pose_for
+from geoloc_viz.model import Inputs, Scenario, compute, drawn_frames
+from geoloc_viz.scenario import select_record
+from geoloc_viz.scene_geoloc import Display, GeolocScene, camera_pose_for
 
 #: (field, label, min, max, step) of the pose sliders, degrees.
 ANGLE_SLIDERS = (
@@ -105,7 +105,7 @@ AMBIENT_INTENSITY = 1.0
 
 
 def attach_flight(session):
-    """The flight debugger (:mod:`geoloc.viz.flight_layer`) when the scenario has a flight (2+ records)."""
+    """The flight debugger (:mod:`geoloc_viz.flight_layer`) when the scenario has a flight (2+ records)."""
     return flight_layer.attach(session) if len(session.scn.records) > 1 else None
 
 
@@ -164,7 +164,7 @@ def legend_markdown(scn) -> str:
     """The Legend folder of a scenario, written from what its scene draws: the markers its records
     carry (a [Q17] published point, or a MISB reported frame centre; a surveyed point only with
     truth), the frames of its own sensor by name, and the flight layer's colours for a flight."""
-    from geoloc.viz.scene_geoloc import frame_style
+    from geoloc_viz.scene_geoloc import frame_style
 
     recs = [info for info, _ in scn.records]
     has_truth = any(np.isfinite(i.truth_lat_deg) for i in recs)
@@ -381,7 +381,7 @@ class GeolocSession:
             for h in self.num.values():
                 h.on_update(lambda _: self._on_inputs())
         with gui.add_folder("Terrain method"):
-            from geoloc.viz import terrain_link
+            from geoloc_viz import terrain_link
 
             self.dd_method = gui.add_dropdown("method", terrain_link.METHODS, initial_value=i.method)
             self.num_eps = gui.add_number("eps_h steps (m)", i.eps_h, min=0.1, max=1000.0, step=0.1)
@@ -691,7 +691,7 @@ class GeolocApp(GeolocSession):
             self.view.update(self.geometry)
             ser.insert_sleep(1.0)
         if path.suffix.lower() == ".html":
-            from geoloc.viz.export_html import with_summary
+            from geoloc_viz.export_html import with_summary
 
             # the serializer records the scene, not the GUI: the summary (record, method, hit,
             # errors) goes into the page as a panel of its own

@@ -1,7 +1,7 @@
 """The viewer as a whole-flight debugger: a layer that attaches to a ``geoloc view`` session.
 
-:func:`attach` (``attach(session)``, a layer of :class:`geoloc.viz.app.GeolocSession`) draws the
-flight of the session's scenario (:func:`geoloc.viz.flight_model.build`, one batch for all
+:func:`attach` (``attach(session)``, a layer of :class:`geoloc_viz.app.GeolocSession`) draws the
+flight of the session's scenario (:func:`geoloc_viz.flight_model.build`, one batch for all
 frames) and adds a **Flight** GUI folder:
 
 * scene (one node each, batched): the track, every frame's footprint (outliers red), the
@@ -13,12 +13,12 @@ frames) and adds a **Flight** GUI folder:
 * the **outliers**: the frames sorted by residual as a markdown table, with the robust flags,
   and a "go to" dropdown that jumps the timeline and the camera (``session.move_camera``) to
   the chosen frame;
-* what the outlier runs look like (:func:`geoloc.viz.flight_model.diagnose`) and the flight's
+* what the outlier runs look like (:func:`geoloc_viz.flight_model.diagnose`) and the flight's
   **accuracy** (:mod:`geoloc.analysis.accuracy`).
 
 Scene nodes live under ``/flight``, a frame whose pose is the flight model's ENU frame in the
 session's scene frame (the session's ENU origin moves with the record: one node update, the
-children stay). World unit: the km, as the rest of the scene (:data:`geoloc.viz.scene_geoloc.WORLD_SCALE`);
+children stay). World unit: the km, as the rest of the scene (:data:`geoloc_viz.scene_geoloc.WORLD_SCALE`);
 vertical exaggeration: a (1, 1, v) node scale, as the terrain. Conventions: ``docs/conventions.md``.
 """
 
@@ -30,8 +30,8 @@ import time
 
 import numpy as np
 
-from geoloc.viz import flight_model
-from geoloc.viz.scene_geoloc import WORLD_SCALE, wxyz
+from geoloc_viz import flight_model
+from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
 
 ROOT = "/flight"
 #: Colours (RGB 0-255). The highlight is pure magenta: nothing else in the scene has it
@@ -272,7 +272,7 @@ class FlightLayer:
     def _lift_m(self, pts_enu) -> float:
         """Display lift [m] of the error vector over the session's terrain mesh (its cells' highest
         nodes under the ends and the middle), plus a margin; 0 without a DEM."""
-        from geoloc.viz import terrain_link
+        from geoloc_viz import terrain_link
 
         scn = self.session.scn
         if getattr(scn, "dem", None) is None or not getattr(self._disp(), "terrain_visible", True):

@@ -130,7 +130,7 @@ def log_terrain(rec, steps, index) -> None:
     """Log the static DEM mesh and the per-ray iterations (``index(steps, mask)`` gives the time columns)."""
     import rerun as rr
 
-    from geoloc.viz.rerun_style import COLORS
+    from geoloc_viz.rerun_style import COLORS
 
     ter = steps.terrain
     n = len(steps)

@@ -6,7 +6,7 @@ gimbal preset, and shows:
 
 - a vector (a pixel's ray, or any vector typed in any frame) as coordinates in
   **every** frame of the chain, beside the hop's 4x4 matrix and the partial
-  products ``T_ecef_<frame>`` (numbers from :mod:`geoloc.viz.teaching`, which
+  products ``T_ecef_<frame>`` (numbers from :mod:`geoloc_viz.teaching`, which
   takes them from the core);
 - the frames drawn **apart** in a row above the aircraft (they share one origin
   at the aircraft), a zigzag spaced by what each frame carries (:func:`row_offsets`:
@@ -22,8 +22,8 @@ gimbal preset, and shows:
   toggle, and "animate this angle from 0" (the chosen attitude or joint angle
   runs from 0 to its value, so signs and directions can be seen).
 
-The session is what ``geoloc.viz.app`` hands its layers: ``.scene``, ``.gui``,
-``.scn``, ``.view`` (a :class:`geoloc.viz.scene_geoloc.GeolocScene`),
+The session is what ``geoloc_viz.app`` hands its layers: ``.scene``, ``.gui``,
+``.scn``, ``.view`` (a :class:`geoloc_viz.scene_geoloc.GeolocScene`),
 ``.geometry``, ``.inputs``, ``.refresh()``, ``.move_camera(...)``,
 ``.on_refresh(cb)``; until every app has those, the fallbacks read
 ``session.server``. The drawing is display only: the row of frames and the globe
@@ -46,8 +46,8 @@ import time
 import numpy as np
 
 from geoloc.geodesy.ellipsoid import A
-from geoloc.viz import teaching
-from geoloc.viz.scene_geoloc import WORLD_SCALE, wxyz
+from geoloc_viz import teaching
+from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
 
 ROOT = "/enu/teach"
 #: Highlight colours (RGB): the hop's source and destination frames.
@@ -90,7 +90,7 @@ GLOBE_GAP = 4.0
 def label_u(n_chars: int, font: float) -> float:
     """Width [U] of a label of ``n_chars`` characters at font scale ``font`` when one U is
     :data:`PX_PER_U` px (the label layout's own estimate, padding included)."""
-    from geoloc.viz import label_layout
+    from geoloc_viz import label_layout
 
     return label_layout.label_size_px("x" * int(n_chars), em_px=label_layout.EM_PX * font)[0] / PX_PER_U
 

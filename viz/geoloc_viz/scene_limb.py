@@ -57,7 +57,7 @@ from geoloc.geodesy.ellipsoid import (
 from geoloc.sensors.limb import limb_tangent, line_of_sight_l18
 from geoloc.status import Status, describe
 from geoloc.userfiles import write_bytes, write_text
-from geoloc.viz.scene_geoloc import WORLD_SCALE
+from geoloc_viz.scene_geoloc import WORLD_SCALE
 from geoloc.workflows.scenario import load_scenario
 
 DEFAULT_LIMB = ("scenarios", "tiangong2_limb.toml")
@@ -153,7 +153,7 @@ class LimbApp:
         self.compute()
         self.draw(reset_camera=True)
         # labels kept apart on this tab's screen (issue 34): after each redraw and camera move
-        from geoloc.viz.label_layout import LabelLayout
+        from geoloc_viz.label_layout import LabelLayout
 
         client = server if not hasattr(server, "get_clients") else None
 
@@ -390,7 +390,7 @@ class LimbApp:
         path = Path(path)
         ser = self.server.get_scene_serializer()
         if path.suffix.lower() == ".html":
-            from geoloc.viz.export_html import with_summary
+            from geoloc_viz.export_html import with_summary
 
             write_text(path, with_summary(ser.as_html(dark_mode=True), "geoloc view: limb", self.md.content,
                                           "Static export of geoloc view --scenario limb (no controls)."))
@@ -404,7 +404,7 @@ class LimbViewer:
 
     Each tab gets its own scene, GUI and camera (its frame, view angle and exaggerations
     are its own), built on connect and dropped on disconnect, as the flight scene's
-    sessions (:class:`geoloc.viz.app.GeolocViewer`).
+    sessions (:class:`geoloc_viz.app.GeolocViewer`).
     """
 
     def __init__(self, server: viser.ViserServer, scenario):

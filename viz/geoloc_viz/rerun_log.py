@@ -1,6 +1,6 @@
 """Write a rerun recording (``.rrd``) of a flight replay or a simulated scan.
 
-The numbers come from :mod:`geoloc.viz.rerun_model` (the core, in the scene's local
+The numbers come from :mod:`geoloc_viz.rerun_model` (the core, in the scene's local
 ENU frame); this module only lays them out as rerun entities, on the
 timelines of the steps (``time`` in seconds and ``frame`` for a simulated
 flight, ``record`` for flight-test records), and adds a default blueprint.
@@ -73,8 +73,8 @@ import rerun.blueprint as rrb
 from geoloc.assets import ASSETS
 from geoloc.status import Status, describe
 from geoloc.userfiles import atomic_path
-from geoloc.viz.rerun_model import LogSteps
-from geoloc.viz.rerun_style import COLORS, series_color
+from geoloc_viz.rerun_model import LogSteps
+from geoloc_viz.rerun_style import COLORS, series_color
 
 #: Axis length of each drawn frame [m] (distinct, so coinciding origins stay readable).
 AXIS_LENGTH_M = {"ned": 4000.0, "body": 3000.0, "gimbal_base": 2600.0, "gimbal_outer": 2200.0,
@@ -184,7 +184,7 @@ def series_views(steps: LogSteps, present=None) -> list:
 def series_styles(steps: LogSteps, present=None) -> dict:
     """Entity -> (colour, legend name) of every series of a recording with several flights.
 
-    One hue per flight (:func:`geoloc.viz.rerun_style.series_color`), shaded per quantity
+    One hue per flight (:func:`geoloc_viz.rerun_style.series_color`), shaded per quantity
     within a view; the legend names the flight. Empty for one flight (rerun's defaults).
     """
     if not steps.multi:
@@ -443,7 +443,7 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
                          columns=rr.TextLog.columns(text=text, level=["WARN"] * len(text)))
 
     if steps.terrain is not None:
-        from geoloc.viz.rerun_terrain import log_terrain
+        from geoloc_viz.rerun_terrain import log_terrain
 
         log_terrain(rec, steps, _index)
 
@@ -689,8 +689,8 @@ class LiveRecording:
 
     Each :meth:`add` logs a batch of received KLV results (:class:`geoloc.io.klv.Packet` /
     ``KlvError``) exactly as :func:`log_steps` logs a file's steps
-    (:func:`geoloc.viz.rerun_model.steps_from_klv`), on one scene origin (the first located
-    packet's, :func:`geoloc.viz.rerun_model.enu_origin`) and one clock (``time`` from the first
+    (:func:`geoloc_viz.rerun_model.steps_from_klv`), on one scene origin (the first located
+    packet's, :func:`geoloc_viz.rerun_model.enu_origin`) and one clock (``time`` from the first
     packet's time stamp), with the causal outlier flags of :mod:`geoloc.workflows.live_replay`
     (the median / MAD rule over the packets received so far); the whole-flight drawings (the 3D
     track and footprint, the map's track, the 2D plot's points and error vectors) are logged
@@ -705,7 +705,7 @@ class LiveRecording:
     label : str
         The stream's name (its URL): the recording's name and id.
     camera, dem_path, dem_datum, method, eps_h_m, threshold_m
-        As :func:`geoloc.viz.rerun_model.steps_from_klv`.
+        As :func:`geoloc_viz.rerun_model.steps_from_klv`.
     display_scale, serve, grpc_port, grpc_host, spawn
         As :func:`write`.
     """
@@ -754,7 +754,7 @@ class LiveRecording:
     def add(self, results) -> int:
         """Log one batch (a list of results); returns the steps logged (0: no good packet in it)."""
         from geoloc.io.klv import KlvError, Packet
-        from geoloc.viz.rerun_model import steps_from_klv
+        from geoloc_viz.rerun_model import steps_from_klv
         from geoloc.workflows.klv_replay import _is_stray, outlier_mask
 
         results = list(results)

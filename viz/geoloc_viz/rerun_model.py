@@ -3,15 +3,15 @@
 No rerun import here: this module runs the core (:mod:`geoloc.workflows.flight`,
 :mod:`geoloc.workflows.replay`, :mod:`geoloc.locate`, :mod:`geoloc.surfaces.terrain` when a DEM is
 given) and expresses every result in the scene's local East-North-Up frame
-(:mod:`geoloc.frames.enu`); :mod:`geoloc.viz.rerun_log` only writes these numbers. The tests
+(:mod:`geoloc.frames.enu`); :mod:`geoloc_viz.rerun_log` only writes these numbers. The tests
 read the recording back and compare it with these arrays.
 
-Scene origin: the convention of the viser scene (``geoloc.viz.scenario.enu_origin_for``):
+Scene origin: the convention of the viser scene (``geoloc_viz.scenario.enu_origin_for``):
 near the target of the first step (the published position if the records
 have one, else the located target), rounded to 0.001 deg and 100 m. Records
 of several flights (the ``table`` column of [Q17]) get **one origin per
 flight** (:attr:`LogSteps.enus`), by the same rule on each flight's first step,
-and :mod:`geoloc.viz.rerun_log` gives each flight its own entity tree.
+and :mod:`geoloc_viz.rerun_log` gives each flight its own entity tree.
 
 Error analysis per step (:func:`add_error_analysis`): the error components of
 :func:`geoloc.analysis.accuracy.error_components` (computed minus the truth, else
@@ -47,7 +47,7 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
 from geoloc.surfaces.spec import SurfaceSpec
 from geoloc.surfaces.height import intersect_los_height
-from geoloc.viz.rerun_terrain import TerrainSteps, dem_steps
+from geoloc_viz.rerun_terrain import TerrainSteps, dem_steps
 from geoloc.workflows.flight import FlightScenario, simulate
 from geoloc.workflows.replay import result_from_ground
 

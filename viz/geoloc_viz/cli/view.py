@@ -84,7 +84,7 @@ def register(sub) -> None:
 def build(args, server, serve: bool = False):
     """Build the app named by ``args`` on ``server``; returns the app object.
 
-    ``serve``: the flight-test scene as a :class:`geoloc.viz.app.GeolocViewer` (a state per
+    ``serve``: the flight-test scene as a :class:`geoloc_viz.app.GeolocViewer` (a state per
     tab, or ``--presenter``); otherwise a session on the server itself (the export's).
     """
     return app_factory(args, serve)(server)
@@ -99,9 +99,9 @@ def app_factory(args, serve: bool = False):
     scen = args.scenario
     dem = one_dem_raster(args, "view")
     if scen in ("flight", "flight-test", "qiao2017", "default"):
-        from geoloc.viz.app import GeolocApp, GeolocViewer
-        from geoloc.viz.flight_model import default_flight_scenario
-        from geoloc.viz.scenario import KLV_SUFFIXES, load_view_scenario
+        from geoloc_viz.app import GeolocApp, GeolocViewer
+        from geoloc_viz.flight_model import default_flight_scenario
+        from geoloc_viz.scenario import KLV_SUFFIXES, load_view_scenario
 
         klv = args.records is not None and args.records.lower().endswith(KLV_SUFFIXES)
         if scen in ("flight", "default") and args.records is None or klv:
@@ -125,7 +125,7 @@ def app_factory(args, serve: bool = False):
                                                max_clients=getattr(args, "max_clients", 16),
                                                scenarios=scenarios)
         return lambda server: GeolocApp(server, scn)
-    from geoloc.viz.scene_limb import LimbApp, LimbViewer, load_limb
+    from geoloc_viz.scene_limb import LimbApp, LimbViewer, load_limb
 
     limb = load_limb(None if scen == "limb" else scen)
     # serving: a state per tab, as the flight scene; the export: one scene on the server
@@ -146,7 +146,7 @@ def run(args) -> int:
         raise ValueError("--pixel is used with --export (in the browser, click the picture panel)")
     if args.export:
         return _export(args)
-    from geoloc.viz.app import make_server
+    from geoloc_viz.app import make_server
 
     make_app = app_factory(args, serve=True)  # inputs read and checked before anything is served
     server = make_server(args.host, 8080 if args.port is None else args.port)
@@ -183,7 +183,7 @@ def _export(args) -> int:
     import contextlib
     import io
 
-    from geoloc.viz.app import make_server
+    from geoloc_viz.app import make_server
 
     if args.host not in ("127.0.0.1", "localhost"):
         print(f"geoloc view: note: --host {args.host} is not used by --export (no one connects "
@@ -203,7 +203,7 @@ def _export(args) -> int:
 
 
 def _run_live(args) -> int:
-    """``geoloc view --live udp://HOST:PORT``: :class:`geoloc.viz.live_view.LiveViewer` (docs/live.md)."""
+    """``geoloc view --live udp://HOST:PORT``: :class:`geoloc_viz.live_view.LiveViewer` (docs/live.md)."""
     import contextlib
 
     from geoloc.cli._options import is_stream, live_limits
@@ -226,8 +226,8 @@ def _run_live(args) -> int:
         from geoloc.surfaces.terrain import surface_for
 
         surface = surface_for(dem=DEM.open(one_dem_raster(args, "view")), method=args.method or "exact")
-    from geoloc.viz.app import make_server
-    from geoloc.viz.live_view import LiveFeed, LiveViewer
+    from geoloc_viz.app import make_server
+    from geoloc_viz.live_view import LiveFeed, LiveViewer
 
     with contextlib.ExitStack() as stack:
         journal = record = None
@@ -272,7 +272,7 @@ def _pick_pixels(app, values) -> None:
     """``--pixel ROW,COL`` for an export: each located through the picture layer (a click's path)."""
     if not values:
         return
-    from geoloc.viz.image_layer import parse_pixel
+    from geoloc_viz.image_layer import parse_pixel
 
     layer = next((obj for obj in getattr(app, "layers", ()) if hasattr(obj, "pick_pixel")), None)
     if layer is None or layer.sensor is None:

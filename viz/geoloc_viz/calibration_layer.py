@@ -102,7 +102,7 @@ class CalibrationLayer:
         Arrow scale (> 0); the errors are ~50 m over a ~10 km scene.
     stage : {"before", "after", "both"}
     world_scale : float
-        Scene units per metre (1: metres; ``geoloc.viz.scene_geoloc.WORLD_SCALE`` = 1e-3
+        Scene units per metre (1: metres; ``geoloc_viz.scene_geoloc.WORLD_SCALE`` = 1e-3
         in the ``geoloc view`` app, whose world unit is the km).
     """
 
@@ -262,7 +262,7 @@ class AppCalibration:
 
         if world_scale is None or name is None:
             try:  # the app's world unit (km) and scene root
-                from geoloc.viz.scene_geoloc import ROOT, WORLD_SCALE
+                from geoloc_viz.scene_geoloc import ROOT, WORLD_SCALE
             except ImportError:
                 ROOT, WORLD_SCALE = "", 1.0
             world_scale = WORLD_SCALE if world_scale is None else world_scale
@@ -358,7 +358,7 @@ def _gui_of(app):
 
 def attach(app) -> AppCalibration:
     """Add the calibration layer and its GUI folder to a viewer session
-    (``geoloc.viz.app.GeolocSession``: its ``scene`` and ``gui``; interface in ``geoloc.viz.app``).
+    (``geoloc_viz.app.GeolocSession``: its ``scene`` and ``gui``; interface in ``geoloc_viz.app``).
 
     Follows the session's vertical-exaggeration slider (``app.sl_vexag``) when it has one,
     and redraws in the new ENU frame when the session loads another record (``on_record``).

@@ -26,7 +26,7 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
 from geoloc.surfaces.height import intersect_los_height
-from geoloc.viz.terrain_link import IterationView
+from geoloc_viz.terrain_link import IterationView
 
 
 def drawn_frames(sensor) -> tuple:
@@ -176,7 +176,7 @@ def compute(scn: Scenario, inp: Inputs) -> Geometry:
     d_enu = enu.vector_from_ecef(los.direction_ecef)
     geo = dict(chain=chain, frames=frames, aircraft_enu=aircraft,
                R_enu_body=frames["body"].R_enu_frame, los_dir_enu=d_enu)
-    from geoloc.viz import terrain_link
+    from geoloc_viz import terrain_link
 
     # the height-or-DEM choice: surfaces.terrain.surface_for, through terrain_link.scene_surface
     geo.update(terrain_link.hit_geometry(scn, inp, los))
@@ -199,7 +199,7 @@ def compute(scn: Scenario, inp: Inputs) -> Geometry:
         if np.isfinite(info.truth_lat_deg):
             h_truth = info.paper_height_m
             if scn.dem is not None:
-                from geoloc.viz import terrain_link
+                from geoloc_viz import terrain_link
 
                 h_truth = terrain_link.dem_height(scn.dem, info.truth_lat_deg, info.truth_lon_deg)
             g.surveyed_enu = enu.from_geodetic(np.deg2rad(info.truth_lat_deg),

@@ -1,7 +1,7 @@
 """``geoloc log``: write a rerun recording (.rrd) of a simulated flight or of flight-test records.
 
 The core computes (``geoloc.workflows.flight``, ``geoloc.workflows.replay``, ``geoloc.surfaces.terrain``);
-``geoloc.viz.rerun_log`` writes. rerun is imported only when the verb runs, so the
+``geoloc_viz.rerun_log`` writes. rerun is imported only when the verb runs, so the
 core stays free of it.
 """
 
@@ -105,7 +105,7 @@ LIVE_FLUSH_S = 1.0
 
 def _log_live(args, camera, dem) -> int:
     """``geoloc log udp://HOST:PORT``: the recording written as the packets arrive
-    (:class:`geoloc.viz.rerun_log.LiveRecording`, flushed every :data:`LIVE_FLUSH_S`), the ``.rrd``
+    (:class:`geoloc_viz.rerun_log.LiveRecording`, flushed every :data:`LIVE_FLUSH_S`), the ``.rrd``
     growing as ``OUT.partial.rrd`` until the session ends (then renamed onto ``--out``), so a
     session killed mid-flight leaves every batch logged; the raw stream journalled with ``--record``."""
     import contextlib
@@ -114,7 +114,7 @@ def _log_live(args, camera, dem) -> int:
     from geoloc.cli.klv import _bind
     from geoloc.io.live import LiveReceiver, receive
     from geoloc.userfiles import growing_path
-    from geoloc.viz.rerun_log import LiveRecording, exposure_note, serve_web
+    from geoloc_viz.rerun_log import LiveRecording, exposure_note, serve_web
 
     limits = live_limits(args, args.input)
     if not any(limits.values()):
@@ -191,8 +191,8 @@ def run(args) -> int:
     if live:
         return _log_live(args, sensor_from_args(args, default=False), one_dem_raster(args, "log"))
     path = resolve_input(args.input)
-    from geoloc.viz.rerun_log import exposure_note, serve_web, write  # rerun is imported here only
-    from geoloc.viz.rerun_model import (
+    from geoloc_viz.rerun_log import exposure_note, serve_web, write  # rerun is imported here only
+    from geoloc_viz.rerun_model import (
         steps_from_flight,
         steps_from_records,
     )
@@ -213,7 +213,7 @@ def run(args) -> int:
         for err in errors:
             print(f"{path}: skipped {err}", file=sys.stderr)
     elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):
-        from geoloc.viz.rerun_model import steps_from_klv
+        from geoloc_viz.rerun_model import steps_from_klv
 
         steps, errors = steps_from_klv(path, camera, dem_path=dem, dem_datum=args.dem_datum,
                                        method=args.method, eps_h_m=args.eps_h, threshold_m=args.threshold)

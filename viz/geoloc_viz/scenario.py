@@ -19,8 +19,8 @@ from geoloc.assets import ASSETS, DEFAULT_CAMERA, DEFAULT_RECORDS
 from geoloc.frames.enu import EnuFrame
 from geoloc.io.records import load_records
 from geoloc.sensors.sensor_file import load_sensor
-from geoloc.viz.model import Inputs, RecordInfo, Scenario
-from geoloc.viz.terrain_link import default_dem_path  # noqa: F401  (here since phase 1)
+from geoloc_viz.model import Inputs, RecordInfo, Scenario
+from geoloc_viz.terrain_link import default_dem_path  # noqa: F401  (here since phase 1)
 
 
 def _num(row: dict, key: str) -> float:
@@ -175,7 +175,7 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
 
         scn.budget = load_sensor_budget(camera_path)
     if use_dem:
-        from geoloc.viz import terrain_link
+        from geoloc_viz import terrain_link
 
         terrain_link.attach_dem(scn, dem_path, strict=dem_path is not None)
     else:
@@ -191,6 +191,6 @@ def select_record(scn: Scenario, idx: int) -> None:
     scn.inputs = inp.replace()
     scn.enu = enu_origin_for(info, inp)
     if scn.use_dem:
-        from geoloc.viz import terrain_link
+        from geoloc_viz import terrain_link
 
         terrain_link.attach_dem(scn, getattr(scn, "_user_dem", None))

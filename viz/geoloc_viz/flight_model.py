@@ -1,6 +1,6 @@
 """A whole flight for the viewer: track, footprints, positions, residuals, outliers (no viser here).
 
-:func:`build` takes a viewer :class:`geoloc.viz.model.Scenario` (its ``records``,
+:func:`build` takes a viewer :class:`geoloc_viz.model.Scenario` (its ``records``,
 a list of ``(RecordInfo, Inputs)``) and computes, for every frame at once,
 
 * the **track**: the optical centre of each frame (``FrameSensor.line_of_sight``'s origin);
@@ -494,7 +494,7 @@ def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: 
 
     Parameters
     ----------
-    scn : geoloc.viz.model.Scenario
+    scn : geoloc_viz.model.Scenario
         Its ``camera`` (a sensor or first-phase camera), ``records``, ``dem`` / ``use_dem``.
     edge_samples : int
         Outline points per image edge (the corner included).
@@ -595,13 +595,13 @@ def outside_own_ellipse(sensor, pose, row, col, surface, budget, components, res
     """True for the frames whose residual lies outside their own predicted ``p`` ellipse (default 99 %).
 
     The ellipse is the recomputed point's (:func:`geoloc.analysis.uncertainty.propagate` of the
-    budget as the viewer carries it, :func:`geoloc.viz.uncertainty_layer.usable_budget`: ``time_s``
+    budget as the viewer carries it, :func:`geoloc_viz.uncertainty_layer.usable_budget`: ``time_s``
     left out, records carry no velocity; lens keys the frames' lens lacks); the residual's east and north are
     ``components``'. Beside the robust rule, which compares a frame with the others, this one
     compares it with what its own geometry and budget allow (a 40 m error at 80 degrees off
     nadir may be normal, a 10 m error at nadir may not)."""
     from geoloc.analysis.uncertainty import outside_ellipse, propagate
-    from geoloc.viz.uncertainty_layer import usable_budget
+    from geoloc_viz.uncertainty_layer import usable_budget
 
     b, _ = usable_budget(budget, sensor)
     pu = propagate(sensor, pose, row, col, b, surface=surface, outside="extrapolate")
@@ -721,7 +721,7 @@ def diagnose(model: FlightModel, scn, *, pose=None, row=None, col=None, target_h
 
 def klv_fov_deg(path, labels) -> np.ndarray:
     """(n, 2) horizontal / vertical fields of view [deg] of the KLV packets named by ``labels``
-    (``"packet N"``, as :func:`geoloc.viz.scenario.records_from_klv` names them; tags 16, 17)."""
+    (``"packet N"``, as :func:`geoloc_viz.scenario.records_from_klv` names them; tags 16, 17)."""
     from geoloc.workflows.klv_replay import read_klv
 
     r = read_klv(path)
@@ -751,9 +751,9 @@ def default_flight_scenario(record=None, path=None, camera_path=None, dem_path=N
     (275, not a frame). The scenario carries each frame's fields of view (``frame_fov_deg``) so the
     footprints follow the zoom. ``record`` (label or index) opens that frame first (default the first).
     ``path`` is another KLV file (``geoloc view --records FILE.klv``); ``camera_path``, ``dem_path``
-    and ``use_dem`` are those of :func:`geoloc.viz.scenario.load_view_scenario`.
+    and ``use_dem`` are those of :func:`geoloc_viz.scenario.load_view_scenario`.
     """
-    from geoloc.viz.scenario import load_view_scenario
+    from geoloc_viz.scenario import load_view_scenario
 
     path = default_flight_path() if path is None else Path(path)
     scn = load_view_scenario(path, record, camera_path, dem_path, use_dem=use_dem)

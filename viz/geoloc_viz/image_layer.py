@@ -1,8 +1,8 @@
 """The picture in the scene: a layer showing each frame's image, and picking through it.
 
-:func:`attach` (a layer of :class:`geoloc.viz.app.GeolocSession`) is None unless the scenario
+:func:`attach` (a layer of :class:`geoloc_viz.app.GeolocSession`) is None unless the scenario
 has images (``scn.images``, an :class:`geoloc.io.images.ImageSource`; which image belongs to
-which record: :func:`geoloc.viz.picture_model.image_index`). It adds
+which record: :func:`geoloc_viz.picture_model.image_index`). It adds
 
 * the current frame's image **in its frustum** (scene node ``/enu/picture/frame``, a viser
   image node in the camera's optical frame, at a chosen fraction of the range to the frame
@@ -15,9 +15,9 @@ which record: :func:`geoloc.viz.picture_model.image_index`). It adds
   height and its datum, slant range, status and the DEM evaluations;
 * **one target in several frames**: each frame's last pick is one ray of a target, kept across
   frames (the timeline) until "clear target rays"; from two frames on the rays are intersected
-  without any DEM (:func:`geoloc.viz.picture_model.triangulate_picks`, the least squares of
+  without any DEM (:func:`geoloc_viz.picture_model.triangulate_picks`, the least squares of
   :mod:`geoloc.analysis.triangulate`, weighted by the scenario's sensor file's ``[uncertainty]``
-  budget or the illustrative one: :func:`geoloc.viz.uncertainty_layer.scenario_budget`)
+  budget or the illustrative one: :func:`geoloc_viz.uncertainty_layer.scenario_budget`)
   and the scene draws each ray meeting at the triangulated point (``/enu/picture/target/rays``,
   ``.../point``), its 90 % ellipse (``.../ellipse``) and each ray's residual (``.../residuals``),
   those two at the error vectors' exaggeration; the panel gives the position, covariance, CE90 /
@@ -28,11 +28,11 @@ which record: :func:`geoloc.viz.picture_model.image_index`). It adds
 * **marks in the image**: the reprojected surveyed truth and targets, the reported and the
   recomputed frame centres, and the terrain horizon, so a fault shows in the picture itself;
   and the **painted marks** found in the frame against the targets' reprojection
-  (:func:`geoloc.viz.picture_model.found_marks`: agree / disagree, in pixels and degrees);
+  (:func:`geoloc_viz.picture_model.found_marks`: agree / disagree, in pixels and degrees);
 * **export**: :meth:`ImageLayer.export_html` gives the frame with its marks and the picks' text
   for ``geoloc view --export`` (which records the scene, not the GUI).
 
-Every number comes from :mod:`geoloc.viz.picture_model` (sensor, surface, ``ground_to_pixel``);
+Every number comes from :mod:`geoloc_viz.picture_model` (sensor, surface, ``ground_to_pixel``);
 this module only draws and maps clicks to pixels. The panel's image is an HTML element whose
 click handler writes the clicked pixel into the "picked pixel" text box (viser's GUI image sends
 no clicks): the pick then reaches the server as a typed one would.
@@ -53,8 +53,8 @@ import traceback
 import numpy as np
 
 from geoloc.status import Status
-from geoloc.viz import picture_model as pm
-from geoloc.viz.scene_geoloc import WORLD_SCALE, wxyz
+from geoloc_viz import picture_model as pm
+from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
 
 ROOT = "/enu/picture"
 #: Width of the panel's image [screen px] (the crop is scaled to it, nearest neighbour).
@@ -484,8 +484,8 @@ class ImageLayer:
     # ------------------------------------------------------------ one target, several frames
     def _budget(self, velocity_known: bool = False):
         """(budget, note): the scenario's sensor file's, as this frame's sensor can carry it, else the
-        illustrative one (:func:`geoloc.viz.uncertainty_layer.scenario_budget`)."""
-        from geoloc.viz.uncertainty_layer import scenario_budget
+        illustrative one (:func:`geoloc_viz.uncertainty_layer.scenario_budget`)."""
+        from geoloc_viz.uncertainty_layer import scenario_budget
 
         b, note, _ = scenario_budget(self.scn, self.sensor, velocity_known)
         return b, note
@@ -497,7 +497,7 @@ class ImageLayer:
         s = self.session
         if self.pick is None or self.index is None:
             return
-        from geoloc.viz.uncertainty_layer import record_velocity
+        from geoloc_viz.uncertainty_layer import record_velocity
 
         self.target[self.index] = (self.sensor, copy.deepcopy(s.inputs), self.pick)
         vel = {k: record_velocity(s.scn, k) for k in self.target}  # a KLV flight's: a time_s term
@@ -552,7 +552,7 @@ class ImageLayer:
             return ""
         import PIL.Image
 
-        from geoloc.viz.export_html import markdown_to_html
+        from geoloc_viz.export_html import markdown_to_html
 
         M, N = self.image.shape[:2]
         s = PANEL_WIDTH / N
