@@ -23,13 +23,16 @@ VIZ = Path(__file__).resolve().parents[1] / "viz" / "geoloc_viz"  # the viewer p
 #: and any ``open_dem(...)`` / ``x.open_dem(...)`` (a module's own wrapper of them).
 DEM_OPENERS = {("DEM", "open"), ("DemMosaic", "open"), (None, "open_dem_or_mosaic"), (None, "open_dem")}
 
-#: Modules read for DEM openers: the workflows and analysis, and the rerun recordings.
-DEM_OPENER_SCOPE = ("geoloc.workflows", "geoloc.analysis", "geoloc_viz.rerun_terrain", "geoloc_viz.rerun_model",
-                    "geoloc_viz.rerun_log")
+#: Modules read for DEM openers: every module of both packages but ``geoloc.surfaces``, where the
+#: openers live (``SurfaceSpec.build`` / ``.raster()`` is the one way from a DEM's name to a DEM).
+DEM_OPENER_SCOPE = ("geoloc.status", "geoloc.tomlio", "geoloc.assets", "geoloc.userfiles", "geoloc.extras",
+                    "geoloc.geodesy", "geoloc.frames", "geoloc.sensors", "geoloc.locate", "geoloc.io",
+                    "geoloc.analysis", "geoloc.workflows", "geoloc.cli", "geoloc_viz")
 
 #: Modules in DEM_OPENER_SCOPE that still open a DEM, and why (may only shrink): none left. The
-#: rerun recordings, which draw one raster's mesh and its solver's trace, open it once per recording
-#: through the one way, ``SurfaceSpec(dem=...).raster()`` (a mosaic refused by name).
+#: verbs (``geoloc rpc``, ``warm``, ``view``), the viewer's scene (``terrain_link``) and the rerun
+#: recordings, which draw one raster, open it through the one way, ``SurfaceSpec(dem=...).raster()``
+#: (a mosaic refused by name).
 KNOWN_DEM_OPENERS: set = set()
 
 #: Modules that are the first-phase camera file format (they may know the Camera type).
@@ -71,8 +74,12 @@ def dem_opens(tree) -> list:
         if not isinstance(node, ast.Call):
             continue
         f = node.func
-        key = ((f.value.id if isinstance(f.value, ast.Name) else None, f.attr) if isinstance(f, ast.Attribute)
-               else (None, f.id) if isinstance(f, ast.Name) else None)
+        if isinstance(f, ast.Attribute):  # x.open(...): x a name, or a module's attribute (_dem.DEM.open)
+            owner = f.value.id if isinstance(f.value, ast.Name) else (
+                f.value.attr if isinstance(f.value, ast.Attribute) else None)
+            key = (owner, f.attr)
+        else:
+            key = (None, f.id) if isinstance(f, ast.Name) else None
         if key in DEM_OPENERS or (key is not None and (None, key[1]) in DEM_OPENERS):
             out.append(node.lineno)
     return out
@@ -220,8 +227,9 @@ def test_the_checks_find_planted_cases():
                      "    if isinstance(d, (Camera, int)): pass\n"
                      "    from geoloc.sensors.camera import Camera\n"
                      "    return hasattr(m, 'with_solver') or hasattr(m, 'dem') or getattr(surface, 'dem', None)\n"
-                     "s = as_sensor(c); t = camera.sensor_of(c)\n")
-    assert sorted(dem_opens(tree)) == [3, 4, 4]
+                     "s = as_sensor(c); t = camera.sensor_of(c)\n"
+                     "e = _dem.DEM.open(p)\n")
+    assert sorted(dem_opens(tree)) == [3, 4, 4, 9]
     assert camera_checks(tree) == [5]
     assert camera_imports(tree, "geoloc.x") == [6]
     assert mosaic_attribute_checks(tree) == [7]

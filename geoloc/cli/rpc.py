@@ -11,6 +11,7 @@ from pathlib import Path
 
 from geoloc.cli._options import input_path, output_path
 from geoloc.userfiles import write_text
+from geoloc.surfaces.spec import SurfaceSpec
 
 
 def register(subparsers) -> None:
@@ -45,9 +46,7 @@ def run(args) -> int:
     sc = load_scenario(args.scenario)
     dem = None
     if not args.no_gdal and sc.dem_path is not None:  # the scenario's DEM, opened here at the edge
-        from geoloc.surfaces.dem import DEM
-
-        dem = DEM.open(sc.dem_path, datum=sc.dem_datum)
+        dem = SurfaceSpec(dem=sc.dem_path, dem_datum=sc.dem_datum).raster(f"{sc.name}: dem")
     rep = rpc_report(sc, out, dem, gdal=not args.no_gdal, pixel_error_threshold=thr,
                      dem_copy=args.ellipsoidal_dem)
     print(f"{sc.name}: {rep['rows']} x {rep['cols']} px, {rep['n_fit']} fit / {rep['n_check']} check points")

@@ -26,10 +26,10 @@ def _large_batch() -> int:
     import numpy as np
 
     from geoloc.assets import asset_path
-    from geoloc.surfaces.dem import DEM
+    from geoloc.surfaces.spec import SurfaceSpec
     from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
 
-    dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
+    dem = SurfaceSpec(dem=asset_path("dem", "srtm_jacksboro.tif")).raster()
     g = intersect_dem(random_oblique_rays(dem, 20000, np.random.default_rng(0)), dem, "exact")
     return 0 if np.any(np.asarray(g.status) == 0) else 1
 

@@ -742,7 +742,8 @@ def default_flight_path() -> Path:
     return Path(ASSETS) / "klv" / "example_flight.klv"
 
 
-def default_flight_scenario(record=None, path=None, camera_path=None, dem_path=None, use_dem: bool = True):
+def default_flight_scenario(record=None, path=None, camera_path=None, dem_path=None, use_dem: bool = True,
+                            dem_datum: str = "egm96"):
     """The viewer's first look: the bundled KLV example flight over the SRTM crop, its worst frame open.
 
     Its planted faults (``tools/make_klv_example.py``, ``docs/klv.md``): a 2.5 deg heading-bias burst
@@ -750,13 +751,13 @@ def default_flight_scenario(record=None, path=None, camera_path=None, dem_path=N
     corrupted packet (150, skipped by the reader and reported), one packet without sensor angles
     (275, not a frame). The scenario carries each frame's fields of view (``frame_fov_deg``) so the
     footprints follow the zoom. ``record`` (label or index) opens that frame first (default the first).
-    ``path`` is another KLV file (``geoloc view --records FILE.klv``); ``camera_path``, ``dem_path``
-    and ``use_dem`` are those of :func:`geoloc_viz.scenario.load_view_scenario`.
+    ``path`` is another KLV file (``geoloc view --records FILE.klv``); ``camera_path``, ``dem_path``,
+    ``use_dem`` and ``dem_datum`` are those of :func:`geoloc_viz.scenario.load_view_scenario`.
     """
     from geoloc_viz.scenario import load_view_scenario
 
     path = default_flight_path() if path is None else Path(path)
-    scn = load_view_scenario(path, record, camera_path, dem_path, use_dem=use_dem)
+    scn = load_view_scenario(path, record, camera_path, dem_path, use_dem=use_dem, dem_datum=dem_datum)
     # (headings come wrapped into -180..180 from viz.scenario.records_from_klv, for the heading slider)
     scn.frame_fov_deg = klv_fov_deg(path, [info.label for info, _ in scn.records])
     targets = path.with_name(path.stem + "_targets.csv")

@@ -312,11 +312,15 @@ class LiveFlight:
         False: footprints on each packet's frame-centre height (``--no-dem``).
     window : int
         Frames kept (the newest).
+    dem_datum : {"egm96", "ellipsoid"}
+        The vertical datum of the DEM file's heights (``--dem-datum``).
     """
 
-    def __init__(self, feed: LiveFeed, *, dem_path=None, use_dem: bool = True, window: int = FLIGHT_WINDOW):
+    def __init__(self, feed: LiveFeed, *, dem_path=None, use_dem: bool = True, window: int = FLIGHT_WINDOW,
+                 dem_datum: str = "egm96"):
         self.feed = feed
         self.dem_path, self.use_dem, self.window = dem_path, bool(use_dem), int(window)
+        self.dem_datum = dem_datum
         self.base = None  # the scenario of the first frame: sensor, DEM, the flight's ENU frame
         self.records: list = []
         self.fov_deg = np.zeros((0, 2))
@@ -345,7 +349,7 @@ class LiveFlight:
         scn = Scenario(name=f"{url} {info.label}", camera=self.feed.sensor, inputs=inp,
                        enu=enu_origin_for(info, inp), records=list(recs), record_index=0,
                        use_dem=self.use_dem, source=url, description=f"live stream {url}")
-        scn._user_dem = self.dem_path
+        scn._user_dem, scn.dem_datum = self.dem_path, self.dem_datum
         if self.use_dem:
             terrain_link.attach_dem(scn, self.dem_path, strict=self.dem_path is not None)
         else:
@@ -690,10 +694,11 @@ class LiveViewer:
     """
 
     def __init__(self, server, feed: LiveFeed, max_clients: int = 16, *, dem_path=None, use_dem: bool = True,
+                 dem_datum: str = "egm96",
                  window: int = FLIGHT_WINDOW, warm: bool = True):
         self.server = server
         self.feed = feed
-        self.flight = LiveFlight(feed, dem_path=dem_path, use_dem=use_dem, window=window)
+        self.flight = LiveFlight(feed, dem_path=dem_path, use_dem=use_dem, window=window, dem_datum=dem_datum)
         self.max_clients = int(max_clients)
         self.tabs: dict[int, LiveTab] = {}
         self._lock = threading.Lock()
@@ -720,7 +725,8 @@ class LiveViewer:
             packets = [p for p in read_klv_file(ASSETS / "klv" / "example_flight.klv") if isinstance(p, Packet)][:3]
             r = LiveReplay("warm-up").add(packets)
             recs, _ = records_from_columns(r.columns, r.sensor)
-            probe = LiveFlight(_WarmFeed(r.sensor), dem_path=self.flight.dem_path, use_dem=self.flight.use_dem)
+            probe = LiveFlight(_WarmFeed(r.sensor), dem_path=self.flight.dem_path, use_dem=self.flight.use_dem,
+                               dem_datum=self.flight.dem_datum)
             scn = probe._scenario(recs)
             flight_model.build(scn)
             for method in ("exact", "bisect", "steps"):

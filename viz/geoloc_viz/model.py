@@ -123,6 +123,7 @@ class Scenario:
     record_index: int | None = None
     dem: object = None
     dem_name: str = ""
+    dem_datum: str = "egm96"  # vertical datum of the DEM file's heights (bundled DEMs: EGM96)
     use_dem: bool = True
     description: str = ""
     source: str = ""  # records file name, for the title

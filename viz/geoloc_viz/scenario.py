@@ -122,7 +122,7 @@ def enu_origin_for(info: RecordInfo, inp: Inputs) -> EnuFrame:
 
 
 def load_view_scenario(records_path=None, record: str | int | None = None, camera_path=None,
-                  dem_path=None, use_dem: bool = True) -> Scenario:
+                  dem_path=None, use_dem: bool = True, dem_datum: str = "egm96") -> Scenario:
     """Build a geolocation scenario from a records file (default: the bundled [Q17] flight test).
 
     Parameters
@@ -169,6 +169,7 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
                    use_dem=use_dem, source=records_path.name,
                    description=f"records {records_path}, camera {camera.name or camera_path}")
     scn._user_dem = dem_path  # kept when another record is selected
+    scn.dem_datum = dem_datum
     scn.record_velocity_ned = velocity
     if camera_path:  # the sensor file's [uncertainty] table: the ellipse, the target's rays, the 99 % rule
         from geoloc.sensors.sensor_file import load_sensor_budget

@@ -16,15 +16,10 @@ import numpy as np
 
 from geoloc.assets import ASSETS
 from geoloc.surfaces.base import terrain_of
+from geoloc.surfaces.spec import SurfaceSpec
 
-try:  # the terrain core is optional for the viewer
-    from geoloc.surfaces import dem as _dem
-except ImportError:  # pragma: no cover - depends on the checkout
-    _dem = None
-try:
-    from geoloc.surfaces import terrain as _terrain
-except ImportError:  # pragma: no cover
-    _terrain = None
+from geoloc.surfaces import dem as _dem
+from geoloc.surfaces import terrain as _terrain
 
 METHODS = ("steps", "bisect", "exact")
 #: Half width of the terrain drawn around the scene origin [m] (the scene spans ~20-30 km).
@@ -83,8 +78,9 @@ def dem_covers(path, lat_deg, lon_deg):
 def attach_dem(scn, path=None, strict: bool = False) -> None:
     """Open the DEM at ``path`` (default: a bundled one covering the scene origin) into ``scn.dem``.
 
-    Bundled DEMs are orthometric (EGM96); :meth:`geoloc.surfaces.dem.DEM.open` converts
-    them to ellipsoidal heights. A DEM that does not cover the scene origin is
+    The file's heights are in ``scn.dem_datum`` (bundled DEMs: orthometric, EGM96;
+    ``geoloc view --dem-datum``); :meth:`geoloc.surfaces.spec.SurfaceSpec.raster` opens
+    it and converts them to ellipsoidal heights. A DEM that does not cover the scene origin is
     an error naming the path and bounds when ``strict`` (a DEM the user asked
     for), else the scene falls back to the ellipsoid.
     """
@@ -92,14 +88,14 @@ def attach_dem(scn, path=None, strict: bool = False) -> None:
     lat, lon = np.rad2deg(scn.enu.lat0), np.rad2deg(scn.enu.lon0)
     if path is None:
         path = default_dem_path(lat, lon)
-    if path is None or _dem is None:
+    if path is None:
         scn.dem = None
-        scn.dem_name = ("none: ellipsoid at the record's paper_height_m"
-                        + ("" if _dem is not None else " (terrain core not available)"))
+        scn.dem_name = "none: ellipsoid at the record's paper_height_m"
         return
-    if getattr(scn, "_dem_path", None) != str(path):
-        scn.dem = _dem.DEM.open(path, datum="egm96")
-        scn._dem_path = str(path)
+    datum = getattr(scn, "dem_datum", "egm96")
+    if getattr(scn, "_dem_path", None) != (str(path), datum):
+        scn.dem = SurfaceSpec(dem=path, dem_datum=datum).raster("--dem")  # the one way to a DEM
+        scn._dem_path = (str(path), datum)
     w, s_, e, n = scn.dem.bounds_deg
     if not (s_ <= lat <= n and w <= lon <= e):
         msg = (f"dem = {path}: does not cover the target at {lat:.4f} N {lon:.4f} E "
@@ -233,7 +229,7 @@ def scene_surface(scn, inp, trace: bool = True):
     """
     from geoloc.surfaces.terrain import surface_for
 
-    if scn.dem is None or _terrain is None:
+    if scn.dem is None:
         return surface_for(inp.target_h)
     return surface_for(dem=scn.dem, method=inp.method, eps_h=inp.eps_h, threshold=inp.threshold, trace=trace)
 

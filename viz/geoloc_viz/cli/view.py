@@ -39,7 +39,7 @@ def register(sub) -> None:
     p.add_argument("--record", default=None,
                    help="record to open: label such as T4-3, or 0-based index (default: the first)")
     add_sensor_option(p)
-    add_dem_options(p, mosaic=False, tolerances=False, datum=False, method_default=None,
+    add_dem_options(p, mosaic=False, tolerances=False, method_default=None,
                     dem_help="DEM GeoTIFF (default: a bundled DEM covering the target, if any)",
                     method_help="terrain method shown first: steps, bisect or exact (default bisect)")
     p.add_argument("--no-dem", action="store_true",
@@ -107,10 +107,10 @@ def app_factory(args, serve: bool = False):
         if scen in ("flight", "default") and args.records is None or klv:
             # the bundled MISB ST 0601 example flight (or the user's KLV), with each frame's fields of view
             scn = default_flight_scenario(args.record, args.records, args.camera, dem,
-                                          use_dem=not args.no_dem)
+                                          use_dem=not args.no_dem, dem_datum=args.dem_datum)
         else:
             scn = load_view_scenario(args.records, args.record, args.camera, dem,
-                                     use_dem=not args.no_dem)
+                                     use_dem=not args.no_dem, dem_datum=args.dem_datum)
         if args.method:
             scn.inputs = scn.inputs.replace(method=args.method)
         if serve:
@@ -222,10 +222,10 @@ def _run_live(args) -> int:
     sensor = sensor_from_args(args, default=False)
     surface = None  # each packet at its own frame-centre height
     if args.dem:
-        from geoloc.surfaces.dem import DEM
-        from geoloc.surfaces.terrain import surface_for
+        from geoloc.surfaces.spec import SurfaceSpec
 
-        surface = surface_for(dem=DEM.open(one_dem_raster(args, "view")), method=args.method or "exact")
+        surface = SurfaceSpec(dem=one_dem_raster(args, "view"), dem_datum=args.dem_datum,
+                              method=args.method or "exact").build()
     from geoloc_viz.app import make_server
     from geoloc_viz.live_view import LiveFeed, LiveViewer
 
@@ -243,7 +243,8 @@ def _run_live(args) -> int:
         server = make_server(args.host, 8080 if args.port is None else args.port)
         viewer = None
         try:
-            viewer = LiveViewer(server, feed, max_clients=args.max_clients)
+            viewer = LiveViewer(server, feed, max_clients=args.max_clients, dem_path=one_dem_raster(args, "view"),
+                                dem_datum=args.dem_datum)
             feed.start()
             url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{server.get_port()}"
             print(f"geoloc view: {url}  (live: {args.live}; Ctrl+C to stop)", flush=True)
