@@ -22,7 +22,7 @@ pose = Pose.from_deg(36.6, -84.25, 2500.0, heading_deg=45.0, pitch_deg=2.0, roll
                      angles_deg={"azimuth": 90.0, "elevation": -30.0})
 print(f"sensor: {sensor.name}; gimbal {sensor.gimbal.name}, angles {list(sensor.angle_names)}")
 
-centre = locate(pose, sensor, 540.5, 960.5, target_h=0.0, surface="geodetic")
+centre = locate(pose, sensor, 540.5, 960.5, target_h=0.0, height_kind="geodetic")
 print(f"principal point on the ellipsoid: {float(centre.lat_deg):.7f} N {float(centre.lon_deg):.7f} E, "
       f"slant range {float(centre.slant_range):.1f} m")
 
@@ -38,6 +38,6 @@ print(f"pymap3d lookAtSpheroid: {float(lat):.7f} N {float(lon):.7f} E; "
       f"difference {abs(float(rng) - float(centre.slant_range)):.1e} m in range")
 
 corners = locate(pose, sensor, np.array([0.5, 0.5, 1080.5, 1080.5]), np.array([0.5, 1920.5, 1920.5, 0.5]),
-                 target_h=0.0, surface="geodetic")
+                 target_h=0.0, height_kind="geodetic")
 for name, a, b in zip(("top left", "top right", "bottom right", "bottom left"), corners.lat_deg, corners.lon_deg):
     print(f"footprint {name:12s}: {a:.6f} N {b:.6f} E")

@@ -72,7 +72,7 @@ def line_of_sight(pose: Pose, sensor, row=None, col=None, *, outside: str = "fla
 
 
 def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
-           surface: str = "inflated", engine: str = "auto", outside: str = "flag") -> GroundPoint:
+           height_kind: str = "inflated", engine: str = "auto", outside: str = "flag") -> GroundPoint:
     """Geolocate pixels at a known target height: the whole of [Q17 section 2.2].
 
     Vectorised: pose fields, pixels and ``target_h`` broadcast together.
@@ -85,7 +85,7 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
         1-based pixel; default the image centre.
     target_h : array_like
         Target ellipsoidal height [m].
-    surface : {"inflated", "geodetic"}
+    height_kind : {"inflated", "geodetic"}
         Kind of constant-height surface (:class:`geoloc.surfaces.height.HeightSurface`).
     engine : {"auto", "numpy", "numba"}
         ``"numpy"`` is the reference path (lens and frame graph in numpy);
@@ -116,9 +116,9 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
     s = as_sensor(sensor)
     from geoloc.sensors._fastlocate import serves
 
-    fast_ok = surface == "inflated" and serves(s)
+    fast_ok = height_kind == "inflated" and serves(s)
     if engine == "numba" and not fast_ok:
-        raise ValueError("engine='numba' needs surface='inflated' and a sensor the kernel serves "
+        raise ValueError("engine='numba' needs height_kind='inflated' and a sensor the kernel serves "
                          "(one lens, no per-sample perturbation)")
     row, col = _default_pixel(s, row, col)
     if engine == "numba" or (engine == "auto" and fast_ok and pose.batch_size(row, col, target_h) >= 10_000):
@@ -129,7 +129,7 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
         los = LineOfSight(o, d, los_status.astype(np.uint8))
         return GroundPoint(lat, lon, h, ecef, rng, status, los)
     los = line_of_sight(pose, sensor, row, col, outside=outside, engine="numpy" if engine == "numpy" else "auto")
-    return HeightSurface(target_h, surface).intersect(los)
+    return HeightSurface(target_h, height_kind).intersect(los)
 
 
 def ground_to_pixel(pose: Pose, sensor, lat, lon, h) -> PixelHit:

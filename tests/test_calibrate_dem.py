@@ -1,7 +1,7 @@
 """Calibration with targets on a DEM (geoloc.surfaces.terrain.intersect_dem, exact method).
 
 Reference: a flat DEM at a constant ellipsoidal height is the constant-height
-surface, so the DEM path must reproduce the height path (surface="geodetic",
+surface, so the DEM path must reproduce the height path (height_kind="geodetic",
 docs/method.md section 3) — two independent intersection codes.
 """
 

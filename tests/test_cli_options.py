@@ -16,7 +16,7 @@ from geoloc.cli import build_parser
 CLI = Path(__file__).resolve().parents[1] / "geoloc" / "cli"
 
 SHARED = ("--dem", "--dem-datum", "--dem-cache-mb", "--method", "--eps-h", "--threshold", "--dem-model",
-          "--target-h-m", "--height-column", "--surface", "--sensor", "--camera", "--angle",
+          "--target-h-m", "--height-column", "--height-kind", "--sensor", "--camera", "--angle",
           "--altitude-datum", "--columns", "--lat-deg", "--lon-deg", "--h-m", "--heading-deg",
           "--gimbal-roll-deg", "--gimbal-pitch-deg")
 

@@ -251,7 +251,7 @@ def test_fov_scaling_equals_one_sensor_per_packet():
                                          "elevation": d["sensor_relative_elevation_deg"],
                                          "sensor_roll": d["sensor_relative_roll_deg"]})
         g = locate(pose, s, np.array([0.5, 0.5, 1080.5, 1080.5]), np.array([0.5, 1920.5, 1920.5, 0.5]),
-                   target_h=d["frame_center_hae_m"], surface="geodetic")
+                   target_h=d["frame_center_hae_m"], height_kind="geodetic")
         for j in range(4):
             dk = horizontal_distance_m(r.columns[f"corner{j + 1}_lat_deg"][i], r.columns[f"corner{j + 1}_lon_deg"][i],
                                        g.lat_deg[j], g.lon_deg[j])

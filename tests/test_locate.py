@@ -29,7 +29,7 @@ def test_table1_nominal_point():
 
 def test_inflated_versus_exact_constant_height():
     g1 = locate(TABLE1, CAM, target_h=5083.5)
-    g2 = locate(TABLE1, CAM, target_h=5083.5, surface="geodetic")
+    g2 = locate(TABLE1, CAM, target_h=5083.5, height_kind="geodetic")
     # exact surface: pyproj's geodetic height of the hit is h_T (PROJ's inverse is
     # good to 1e-6 m at this height, see test_ellipsoid)
     assert TO_GEOD.transform(*g2.ecef)[2] == pytest.approx(5083.5, abs=1e-5)

@@ -374,7 +374,7 @@ def chain_reference(model, errs):
 
     pose, chain, row, col = mc.perturbed_geometry(model, errs)
     los = camera_from_sensor(model.camera).chain_line_of_sight(pose, row, col, chain=chain)  # the file's form
-    g = HeightSurface(model.target_h_m + errs.get("target_h_m", 0.0), model.surface).intersect(los)
+    g = HeightSurface(model.target_h_m + errs.get("target_h_m", 0.0), model.height_kind).intersect(los)
     return g.lat, g.lon, g.h, np.asarray(g.status, np.uint8)
 
 
@@ -388,3 +388,19 @@ def test_cli_no_located_sample_is_an_error_not_nan_json(tmp_path, capsys):
     assert main(["montecarlo", str(scen), "--samples", "50", "--out", str(out)]) == 1
     assert "sky: 50" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_the_height_kind_key_and_its_older_name():
+    # [target] height_kind names the constant-height surface's kind; "surface" (its name before
+    # "surface" came to mean only what a line of sight meets) still reads the same, both is an error
+    import tomllib
+    data = tomllib.loads(SCEN.read_text())
+    assert data["target"]["height_kind"] == "inflated"
+    tgt = {k: v for k, v in data["target"].items() if k != "height_kind"}
+    for key in ("height_kind", "surface"):
+        m = ErrorModel.from_dict({**data, "target": {**tgt, key: "geodetic"}}, "scenario")
+        assert m.height_kind == "geodetic"
+    with pytest.raises(ValueError, match="not both height_kind and surface"):
+        ErrorModel.from_dict({**data, "target": {**tgt, "height_kind": "geodetic", "surface": "geodetic"}}, "s")
+    with pytest.raises(ValueError, match="surface = 'flat'"):
+        ErrorModel.from_dict({**data, "target": {**tgt, "surface": "flat"}}, "scenario")

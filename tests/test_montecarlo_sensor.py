@@ -43,7 +43,7 @@ def test_mount_and_boresight_draws_equal_the_sensor_with_those_parameters(model)
     for k in range(n):
         moved = s.with_params(**{f"{w}_{a}": s.params[f"{w}_{a}"] + draws[f"{w}_{a}_deg"][k]
                                  for w in ("mount", "boresight") for a in "xyz"})
-        g = locate(pose, moved, model.row, model.col, target_h=model.target_h_m, surface=model.surface)
+        g = locate(pose, moved, model.row, model.col, target_h=model.target_h_m, height_kind=model.height_kind)
         # 1e-13 rad = 0.6 um: the same rotations in another order
         assert float(g.lat) == pytest.approx(lat_h[k], abs=1e-13)
         assert float(g.lon) == pytest.approx(lon_h[k], abs=1e-13)
@@ -77,6 +77,6 @@ def test_lever_arm_draws_move_the_point_by_the_body_offset(model):
     pose = model.nominal_pose()
     for k in range(n):
         moved = s.with_params(lever_arm_x_m=s.params["lever_arm_x_m"] + dx[k])
-        g = locate(pose, moved, model.row, model.col, target_h=model.target_h_m, surface=model.surface)
+        g = locate(pose, moved, model.row, model.col, target_h=model.target_h_m, height_kind=model.height_kind)
         assert float(g.lat) == pytest.approx(lat1[k], abs=1e-13) and float(g.lon) == pytest.approx(lon1[k], abs=1e-13)
     assert np.all(np.abs(lat1 - lat0) + np.abs(lon1 - lon0) > 0)

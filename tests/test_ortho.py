@@ -166,7 +166,7 @@ def test_flat_surface_corners_agree_with_pymap3d_look_at_spheroid(tmp_path):
     step = 229
     assert main(["ortho", "--sensor", str(ASSETS / "sensors" / "drone_camera.toml"), "--record", "survey1-1",
                  "--records", str(ASSETS / "records" / "drone_targets.csv"), "--target-h-m", "0",
-                 "--surface", "geodetic", "--step", str(step), "--out", str(out)]) == 0
+                 "--height-kind", "geodetic", "--step", str(step), "--out", str(out)]) == 0
     grid = read_frame_geotiff(out)
     s, rec, pose = _record(ASSETS / "sensors" / "drone_camera.toml", ASSETS / "records" / "drone_targets.csv")
     assert (grid.status == Status.OK).all()  # 70 deg below the horizon: every pixel meets the ellipsoid

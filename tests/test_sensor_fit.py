@@ -33,7 +33,7 @@ def make_records(tmp_path, n=30, plant_m=0.0):
                          rng.uniform(1500, 3500, n), rng.uniform(-180, 180, n), rng.uniform(-3, 3, n),
                          rng.uniform(-5, 5, n), angles_deg={"azimuth": az, "elevation": el})
     row, col = rng.uniform(50, 1030, n), rng.uniform(50, 1870, n)
-    g = locate(pose, true, row, col, target_h=300.0, surface="geodetic")
+    g = locate(pose, true, row, col, target_h=300.0, height_kind="geodetic")
     tlat = g.lat_deg.copy()
     tlat[0] += plant_m / 111_000.0  # a surveyed point 'plant_m' metres off (north)
     f = tmp_path / "rec.csv"

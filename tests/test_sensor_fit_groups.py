@@ -46,7 +46,7 @@ def make_flights(tmp_path, n=12, outlier_m=60.0, heights=None, true_params=None,
                              rng.uniform(-5, 5, n), angles_deg={"azimuth": az, "elevation": el})
         row, col = rng.uniform(50, 1030, n), rng.uniform(50, 1870, n)
         h = np.full(n, 300.0) if heights is None else heights(rng, n)
-        g = locate(pose, true, row, col, target_h=h, surface="inflated" if heights else "geodetic")
+        g = locate(pose, true, row, col, target_h=h, height_kind="inflated" if heights else "geodetic")
         tlat = g.lat_deg.copy()
         if table == "B":
             tlat[0] += outlier_m / 111_000.0
@@ -144,7 +144,7 @@ def test_calibrate_cli_groups_and_resects_a_sensor_file(tmp_path, capsys):
     out = tmp_path / "rep.json"
     sensor = str(asset_path("sensors", "eo_turret.toml"))
     assert main(["calibrate", str(f), "--sensor", sensor, "--fit", ",".join(NAMES), "--target-h-m", "300",
-                 "--surface", "geodetic", "--exclude-outliers", "--out", str(out)]) == 0
+                 "--height-kind", "geodetic", "--exclude-outliers", "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "outliers before the fit: ['B-1'] (left out)" in text
     import json

@@ -133,7 +133,7 @@ def test_minimal_sensor_file_locates_as_pymap3d_look_at_spheroid(tmp_path):
     cmd = [sys.executable, "-m", "geoloc", "locate", "--sensor", str(f), "--lat-deg", "35.1",
            "--lon-deg", "-106.6", "--h-m", "1500", "--heading-deg", "20", "--pitch-deg", "0",
            "--roll-deg", "0", "--angle", "azimuth=90", "--angle", "elevation=-30", "--row", "480",
-           "--col", "640", "--target-h-m", "0", "--surface", "geodetic", "--json"]
+           "--col", "640", "--target-h-m", "0", "--height-kind", "geodetic", "--json"]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)

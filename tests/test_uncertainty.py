@@ -295,7 +295,7 @@ def test_q17_table1_standard_deviations_from_the_propagation():
     model = ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1.toml"))
     b = U.budget_from_error_model(model)
     pu = U.propagate(model.camera, model.nominal_pose(), model.row, model.col, b,
-                     surface=HeightSurface(model.target_h_m, model.surface), outside="extrapolate")
+                     surface=HeightSurface(model.target_h_m, model.height_kind), outside="extrapolate")
     lat, h = float(pu.lat), float(pu.h)
     se, sn, su = np.sqrt(np.diag(pu.cov_enu))
     s_lat = math.degrees(sn / (meridian_radius(lat) + h))

@@ -17,7 +17,7 @@ File format (``assets/scenarios/qiao2017_table1.toml`` is a complete example)::
     [nominal]           # lat_deg lon_deg h_m heading_deg pitch_deg roll_deg
                         # gimbal_roll_deg gimbal_pitch_deg
     [target]            # h_m (ellipsoidal), optional row/col (default CCD centre),
-                        # surface = "inflated" | "geodetic"
+                        # height_kind = "inflated" | "geodetic"
     [errors]            # source = { dist = "normal", sigma = s } or
                         #          { dist = "uniform", max = m }, optional bias = b
     [dem]               # optional: path (relative to the file or assets/), datum,
@@ -185,8 +185,10 @@ class ErrorModel:
         Nominal target ellipsoidal height [m].
     row, col : float
         Target pixel (1-based); the CCD centre by default.
-    surface : str
-        "inflated" [Q17 eq. 11] or "geodetic".
+    height_kind : str
+        "inflated" [Q17 eq. 11] or "geodetic": the kind of constant-height surface the target
+        is on (the file's ``[target] height_kind``; a file written before it was named so says
+        ``surface``, read the same).
     errors : dict
         Source name -> :class:`Distribution`.
     dem : DemSpec or None
@@ -202,7 +204,7 @@ class ErrorModel:
     target_h_m: float
     row: float
     col: float
-    surface: str = "inflated"
+    height_kind: str = "inflated"
     errors: dict = field(default_factory=dict)
     dem: DemSpec | None = None
     sweep: dict = field(default_factory=dict)
@@ -243,15 +245,19 @@ class ErrorModel:
         Pose.from_deg(*(nominal[k] for k in POSE_KEYS)).validate()
 
         tgt = data["target"]
-        _no_unknown(tgt, {"h_m", "row", "col", "surface"}, f"{source} [target]")
+        _no_unknown(tgt, {"h_m", "row", "col", "height_kind", "surface"}, f"{source} [target]")
         if "h_m" not in tgt:
             raise ValueError(f"{source} [target]: missing key 'h_m' (target ellipsoidal height)")
         r0, c0 = camera.center_pixel
         row = _number(tgt.get("row", r0), f"{source} [target] row")
         col = _number(tgt.get("col", c0), f"{source} [target] col")
-        surface = tgt.get("surface", "inflated")
-        if surface not in ("inflated", "geodetic"):
-            raise ValueError(f"{source} [target] surface = {surface!r}: must be 'inflated' or 'geodetic'")
+        if "height_kind" in tgt and "surface" in tgt:
+            raise ValueError(f"{source} [target]: give height_kind, not both height_kind and surface "
+                             "(its older name)")
+        key = "surface" if "surface" in tgt else "height_kind"  # a file of before the rename says surface
+        height_kind = tgt.get(key, "inflated")
+        if height_kind not in ("inflated", "geodetic"):
+            raise ValueError(f"{source} [target] {key} = {height_kind!r}: must be 'inflated' or 'geodetic'")
 
         errors = {}
         for name, spec in data.get("errors", {}).items():
@@ -270,7 +276,7 @@ class ErrorModel:
                 raise ValueError(f"{source} [dem]: missing key 'path'")
             dem = DemSpec(_resolve(d["path"], base_dir), str(d.get("datum", "egm96")), d.get("method"))
         return cls(str(data.get("name", Path(source).stem)), camera, nominal,
-                   _number(tgt["h_m"], f"{source} [target] h_m"), row, col, surface, errors, dem,
+                   _number(tgt["h_m"], f"{source} [target] h_m"), row, col, height_kind, errors, dem,
                    dict(data.get("sweep", {})), source)
 
     # ------------------------------------------------------------ use

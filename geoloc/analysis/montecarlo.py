@@ -319,7 +319,7 @@ def evaluate(model: ErrorModel, errors: dict, surface=None):
     if surface is None:  # the one "height or DEM" choice (geoloc.surfaces.terrain.surface_for)
         from geoloc.surfaces.terrain import surface_for
 
-        surface = surface_for(model.target_h_m + _or(errors.get("target_h_m"), 0.0), kind=model.surface)
+        surface = surface_for(model.target_h_m + _or(errors.get("target_h_m"), 0.0), kind=model.height_kind)
     g = surface.intersect(los)
     return g.lat, g.lon, g.h, np.asarray(g.status, np.uint8)
 

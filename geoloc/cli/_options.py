@@ -219,9 +219,9 @@ def add_records_options(parser) -> None:
 
 
 def add_target_options(parser, *, height_column: bool = True) -> None:
-    """The target's height without a DEM: ``--target-h-m``, ``--height-column``, ``--surface``.
+    """The target's height without a DEM: ``--target-h-m``, ``--height-column``, ``--height-kind``.
 
-    ``--surface`` is the kind of constant-height surface (docs/architecture.md:
+    ``--height-kind`` is the kind of constant-height surface (docs/architecture.md:
     the word *surface* is what a line of sight meets; this option chooses between
     the two height surfaces, :class:`geoloc.surfaces.height.HeightSurface`).
     """
@@ -232,7 +232,7 @@ def add_target_options(parser, *, height_column: bool = True) -> None:
         g.add_argument("--height-column", default=None,
                        help="column holding each target's height [m above the WGS 84 ellipsoid], "
                        "e.g. paper_height_m")
-    g.add_argument("--surface", choices=["inflated", "geodetic"], default="inflated",
+    g.add_argument("--height-kind", choices=["inflated", "geodetic"], default="inflated",
                    help="with a height: the ellipsoid inflated by it, [Q17] eq. 11 (default), or the exact "
                    "surface of constant geodetic height")
 
@@ -257,7 +257,7 @@ def surface_spec_from_args(args):
     sends it to its workers; :func:`surface_from_args` builds it here).
 
     ``--dem`` (its mosaics, ``--dem-datum``, ``--method``, ``--dem-model``, ``--eps-h``,
-    ``--threshold``, ``--dem-cache-mb``), ``--target-h-m``, ``--height-column``, ``--surface``:
+    ``--threshold``, ``--dem-cache-mb``), ``--target-h-m``, ``--height-column``, ``--height-kind``:
     each as the verb declares it (an option it does not declare keeps the solver's default).
     Two of ``--dem``, ``--height-column``, ``--target-h-m`` is an error naming them.
     """
@@ -274,7 +274,7 @@ def surface_spec_from_args(args):
         cache_bytes=_mosaic_options(args)["cache_bytes"] if dem is not None and hasattr(args, "dem_cache_mb")
         else None,
         target_h_m=getattr(args, "target_h_m", None), height_column=getattr(args, "height_column", None),
-        kind=getattr(args, "surface", None) or "inflated")
+        kind=getattr(args, "height_kind", None) or "inflated")
 
 
 def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
@@ -285,7 +285,7 @@ def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
     the :class:`~geoloc.surfaces.mosaic.DemMosaic` itself), else ``--height-column`` (a
     :class:`~geoloc.surfaces.height.PerRecordHeightSurface` of ``records``), else
     ``--target-h-m`` (a :class:`~geoloc.surfaces.height.HeightSurface`), each of the
-    ``--surface`` kind; two of them, or none, is an error naming the options.
+    ``--height-kind`` kind; two of them, or none, is an error naming the options.
     Built by :meth:`geoloc.surfaces.spec.SurfaceSpec.build` from :func:`surface_spec_from_args`
     (the DEM opened by ``open_dem_or_mosaic``, the choice :func:`geoloc.surfaces.terrain.surface_for`'s).
     """

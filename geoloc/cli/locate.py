@@ -205,7 +205,7 @@ def run(args) -> int:
             extra["hidden"] = bool(ground.hidden)
     else:
         other = intersect_los_height(los, args.target_h_m,
-                                     "geodetic" if args.surface == "inflated" else "inflated")
+                                     "geodetic" if args.height_kind == "inflated" else "inflated")
         if int(other.status) == Status.OK:
             # the paper's inflated ellipsoid vs the exact constant-height surface
             extra["surface_difference_m"] = float(np.linalg.norm(ground.ecef - other.ecef))

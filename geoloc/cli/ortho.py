@@ -139,7 +139,7 @@ def _surface(args, pose):
             raise ValueError("--dem and --target-h-m both given: the surface is one or the other")
         if not math.isfinite(args.target_h_m):
             raise ValueError(f"--target-h-m {args.target_h_m}: not a finite height")
-        return surface_from_args(args), f"constant height {args.target_h_m:g} m ({args.surface})"
+        return surface_from_args(args), f"constant height {args.target_h_m:g} m ({args.height_kind})"
     if not args.dem:
         lat, lon = (float(np.rad2deg(np.ravel(v)[0])) for v in (pose.lat, pose.lon))
         args.dem = _bundled_dem(lat, lon)

@@ -494,9 +494,9 @@ class PushbroomSensor:
             status = flag_outside(status, row, col, self.rows, self.cols)
         return LineOfSight(centre, d, status)
 
-    def locate(self, row, col, target_h=0.0, surface: str = "geodetic") -> GroundPoint:
+    def locate(self, row, col, target_h=0.0, height_kind: str = "geodetic") -> GroundPoint:
         """Pixel -> ground point at ellipsoidal height ``target_h`` (exact geodetic surface by default)."""
-        return intersect_los_height(self.line_of_sight(row, col), target_h, surface)
+        return intersect_los_height(self.line_of_sight(row, col), target_h, height_kind)
 
     # ------------------------------------------------------- ground -> image
     def ground_to_pixel(self, lat, lon, h, state=None, *, tol_lines: float = 1e-6, max_iter: int = 30) -> PixelHit:

@@ -502,13 +502,13 @@ class RPCSensor:
         return LineOfSight(np.where(keep[..., None], p[0], np.nan), np.where(keep[..., None], d, np.nan),
                            status.astype(np.uint8))
 
-    def locate(self, row, col, target_h=0.0, surface: str = "geodetic") -> GroundPoint:
+    def locate(self, row, col, target_h=0.0, height_kind: str = "geodetic") -> GroundPoint:
         """Pixel -> ground point at ellipsoidal height ``target_h`` through :meth:`line_of_sight`.
 
         (:meth:`ground_at_height` is the RPC's own inverse at a height; this is
         the straight line, the interface every other sensor offers.)
         """
-        return intersect_los_height(self.line_of_sight(row, col), target_h, surface)
+        return intersect_los_height(self.line_of_sight(row, col), target_h, height_kind)
 
     def frames(self, state=None):
         """None: an RPC has no frame graph.

@@ -164,16 +164,16 @@ def ray_geodetic_height(origin, direction, h, tol_m: float = 1e-6, max_iter: int
     return EllipsoidHit(s, o + s[..., None] * d, status, iters)
 
 
-def ray_at_height(origin, direction, h, surface: str = "inflated"):
+def ray_at_height(origin, direction, h, height_kind: str = "inflated"):
     """Dispatch to the inflated [Q17 eq. 11] or exact geodetic-height surface."""
-    if surface == "inflated":
+    if height_kind == "inflated":
         return ray_inflated_ellipsoid(origin, direction, h)
-    if surface == "geodetic":
+    if height_kind == "geodetic":
         return ray_geodetic_height(origin, direction, h)
-    raise ValueError(f"surface must be 'inflated' or 'geodetic', got {surface!r}")
+    raise ValueError(f"height_kind must be 'inflated' or 'geodetic', got {height_kind!r}")
 
 
-def intersect_los_height(los: LineOfSight, target_h, surface: str = "inflated") -> GroundPoint:
+def intersect_los_height(los: LineOfSight, target_h, height_kind: str = "inflated") -> GroundPoint:
     """Intersect lines of sight with the surface of height ``target_h`` [Q17 eq. 10-13].
 
     Parameters
@@ -181,14 +181,14 @@ def intersect_los_height(los: LineOfSight, target_h, surface: str = "inflated") 
     los : LineOfSight
     target_h : array_like
         Target ellipsoidal height h_T [m], broadcasting.
-    surface : {"inflated", "geodetic"}
+    height_kind : {"inflated", "geodetic"}
         The paper's inflated ellipsoid (eq. 11) or the exact constant-height surface.
 
     Returns
     -------
     GroundPoint
     """
-    hit = ray_at_height(los.origin_ecef, los.direction_ecef, target_h, surface)
+    hit = ray_at_height(los.origin_ecef, los.direction_ecef, target_h, height_kind)
     status = np.where(los.status != Status.OK, los.status, hit.status).astype(np.uint8)
     ok = status == Status.OK
     ecef = np.where(ok[..., None], hit.ecef, np.nan)

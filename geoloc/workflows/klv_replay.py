@@ -784,8 +784,8 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
         h_int = clean(rep_h, bad_c)
         surface_text = ("each packet's own frame-centre height, ellipsoidal (tag 78 HAE; tag 25 MSL + EGM96 N "
                         "where 78 is absent): the comparison isolates the angles")
-        gc = locate(pose_c, sens, target_h=h_int, surface="geodetic")
-        gk = locate(pose_k, sens, k_rows, k_cols, target_h=h_int[None, :], surface="geodetic",
+        gc = locate(pose_c, sens, target_h=h_int, height_kind="geodetic")
+        gk = locate(pose_k, sens, k_rows, k_cols, target_h=h_int[None, :], height_kind="geodetic",
                     outside="extrapolate")
     else:
         if terrain is not None:

@@ -306,7 +306,7 @@ def uncertainty_columns(records: Records, sensor, surface, budget) -> tuple:
 
 
 def replay_at_height(records: Records, camera: FrameSensor, height_column: str | None = None,
-                     target_h: float | None = None, surface: str = "inflated") -> ReplayResult:
+                     target_h: float | None = None, height_kind: str = "inflated") -> ReplayResult:
     """:func:`replay_records` at a target height from a column, or one height for all.
 
     Parameters
@@ -318,8 +318,8 @@ def replay_at_height(records: Records, camera: FrameSensor, height_column: str |
         Column with each target's ellipsoidal height [m] (e.g. ``paper_height_m``).
     target_h : float, optional
         One height for every record, if no column is given.
-    surface : {"inflated", "geodetic"}
-        [Q17 eq. 11] inflated ellipsoid or the exact constant-height surface (the kind).
+    height_kind : {"inflated", "geodetic"}
+        [Q17 eq. 11] inflated ellipsoid or the exact constant-height surface.
     """
     if height_column is not None:
         h = records.column(height_column)
@@ -331,7 +331,7 @@ def replay_at_height(records: Records, camera: FrameSensor, height_column: str |
         h = np.full(len(records), float(target_h))
     else:
         raise ValueError("give a height column or a target height")
-    return replay_records(records, camera, surface_for(h, kind=surface, per_record=True))
+    return replay_records(records, camera, surface_for(h, kind=height_kind, per_record=True))
 
 
 def _nanmean(v) -> float:

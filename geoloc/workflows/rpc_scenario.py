@@ -57,9 +57,9 @@ class FrameCameraSensor:
     def line_of_sight(self, row, col):
         return line_of_sight(self.pose, self.camera, row, col)
 
-    def locate(self, row, col, target_h=0.0, surface: str = "geodetic") -> GroundPoint:
+    def locate(self, row, col, target_h=0.0, height_kind: str = "geodetic") -> GroundPoint:
         """Exact constant-geodetic-height surface by default (RPC heights are geodetic)."""
-        return locate(self.pose, self.camera, row, col, target_h, surface=surface)
+        return locate(self.pose, self.camera, row, col, target_h, height_kind=height_kind)
 
     def ground_to_pixel(self, lat, lon, h):
         return ground_to_pixel(self.pose, self.camera, lat, lon, h)

@@ -310,7 +310,7 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None) ->
 
 
 def steps_from_records(path, camera: FrameSensor | None = None, *, height_column: str | None = None,
-                       target_h_m: float | None = None, surface: str = "inflated", dem_path=None,
+                       target_h_m: float | None = None, height_kind: str = "inflated", dem_path=None,
                        dem_datum: str = "egm96", method: str = "exact", eps_h_m=None,
                        threshold_m=None, group_column: str | None = "table",
                        calibrate: bool = True, fit_names=None) -> tuple[LogSteps, list]:
@@ -359,7 +359,7 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
                 raise ValueError(f"height column {col_name!r} is empty or not finite on line(s) "
                                  f"{[int(x) for x in recs.lines[bad]]}")
             notes.append(f"located at each record's {col_name}")
-        ground = intersect_los_height(los, h, surface)
+        ground = intersect_los_height(los, h, height_kind)
     res = result_from_ground(recs, ground)
     truth = published = None
     if recs.has("truth_lat_deg") and recs.has("truth_lon_deg"):
@@ -403,7 +403,7 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
         on_dem = dem_path is not None
         kw = {k: float(v) for k, v in (("eps_h", eps_h_m), ("threshold", threshold_m)) if on_dem and v is not None}
         surf = surface_for(None if on_dem else np.broadcast_to(np.asarray(h, float), (len(recs),)),
-                           terrain.dem if on_dem else None, method=method, kind=surface, per_record=True, **kw)
+                           terrain.dem if on_dem else None, method=method, kind=height_kind, per_record=True, **kw)
         names = list(DEFAULT_FIT_NAMES if fit_names is None else fit_names)
         steps.calibration = sensor_fit_series(steps, recs, names, surf, gcol)
     return steps, list(recs.errors)

@@ -206,7 +206,7 @@ def run(args) -> int:
     elif path.suffix.lower() == ".csv":
         steps, errors = steps_from_records(
             path, camera, height_column=args.height_column, target_h_m=args.target_h_m,
-            surface=args.surface, dem_path=dem, dem_datum=args.dem_datum, method=args.method,
+            height_kind=args.height_kind, dem_path=dem, dem_datum=args.dem_datum, method=args.method,
             eps_h_m=args.eps_h, threshold_m=args.threshold,
             group_column=None if args.group_by == "none" else args.group_by, calibrate=not args.no_calibration,
             fit_names=_fit_names(args.fit))
