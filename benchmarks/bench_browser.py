@@ -194,7 +194,7 @@ def main(argv=None) -> int:
     ap.add_argument("--window", type=float, default=6.0, help="with --groups: seconds per measure (default 6)")
     args = ap.parse_args(argv)
 
-    from test_viz_browser import chromium, wait_for
+    from test_viz_browser import chromium
 
     from geoloc_viz.app import GeolocViewer, make_server
     from geoloc_viz.flight_model import default_flight_scenario

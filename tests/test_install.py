@@ -43,7 +43,9 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.install
+# one worker builds the wheels and the two environments once (the fixtures are per module, so
+# tests spread over two xdist workers would each install them)
+pytestmark = [pytest.mark.install, pytest.mark.xdist_group("install")]
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGING = ("pyproject.toml", "setup.py", "MANIFEST.in", "README.md")

@@ -6,7 +6,6 @@ import sys
 from pathlib import Path
 
 import pytest
-from pymap3d.los import lookAtSpheroid
 
 ROOT = Path(__file__).resolve().parents[1]
 NUM = r"[-+]?[0-9]*\.?[0-9]+(?:e[-+]?[0-9]+)?"

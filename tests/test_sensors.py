@@ -18,7 +18,7 @@ from pymap3d.los import lookAtSpheroid
 
 from geoloc.assets import DEFAULT_CAMERA, asset_path
 from geoloc.frames.chain import FrameChain, Pose
-from geoloc.locate import ground_to_pixel, line_of_sight, locate
+from geoloc.locate import ground_to_pixel, locate
 from geoloc.sensors.camera import Camera
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS

@@ -329,7 +329,7 @@ def _panel_pixel_xy(page, r, c):
 
 @pytest.mark.browser
 def test_click_a_pixel_in_the_panel_and_the_terrain_in_chromium(flight, tmp_path):
-    from test_viz_browser import ARTIFACTS, chromium, look_at_wxyz, open_viewer, wait_for
+    from test_viz_browser import ARTIFACTS, chromium, open_viewer, wait_for
 
     ARTIFACTS.mkdir(exist_ok=True)
     server, app, layer = make_app(flight)

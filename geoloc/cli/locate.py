@@ -27,7 +27,6 @@ from geoloc.assets import DEFAULT_RECORDS, asset_path
 from geoloc.frames.chain import Pose
 from geoloc.io.columns import (
     DATUM_TEXT,
-    DATUMS,
     ELLIPSOID_DATUM,
     ColumnMap,
     HeightSource,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 from geoloc.cli._options import output_path, surface_from_scenario
 from geoloc.userfiles import write_text

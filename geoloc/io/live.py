@@ -54,7 +54,7 @@ import socket
 import sys
 import time
 from collections import deque
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from fractions import Fraction
 from typing import Callable, Iterator
 from urllib.parse import parse_qs, urlsplit

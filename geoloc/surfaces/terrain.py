@@ -601,7 +601,6 @@ def _no_terrain(los, shape, o, d, st, method, dem_model, trace):
     ok = np.flatnonzero(st == Status.OK)
     down = ray_inflated_ellipsoid(o[ok], d[ok], np.full(len(ok), LOWEST_TERRAIN_M)).status == Status.OK
     st[ok] = np.where(down, Status.NODATA, Status.SKY)
-    n = len(o)
     nan = np.full(shape, np.nan)
     tr = None
     if trace:

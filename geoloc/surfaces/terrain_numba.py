@@ -84,7 +84,7 @@ from numba.extending import intrinsic
 
 from geoloc import status as _status_module
 from geoloc.geodesy import _nbgeo, ellipsoid
-from geoloc.geodesy._nbgeo import cached_njit, dependency_key, geodetic, geodetic_up
+from geoloc.geodesy._nbgeo import cached_njit, dependency_key, geodetic_up
 from geoloc.geodesy.ellipsoid import E2, A, B
 from geoloc.status import Status
 

@@ -225,7 +225,7 @@ def _fix_bytes(data: bytes, rw: _Rewriter, verify: bool, raw: bool = False) -> b
 
 
 def _remux(src: Path, tmp: str, rw: _Rewriter, fix: KlvFix, verify: bool) -> None:
-    import av
+    av = require("av", "writing KLV back into MPEG-TS video")
 
     from geoloc.io.klv import _klv_stream
 

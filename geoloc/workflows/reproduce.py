@@ -222,7 +222,6 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
 
     from geoloc.geodesy.geodesic import horizontal_distance_m
     from geoloc.io.records import load_records
-    from geoloc.locate import line_of_sight
     from geoloc.surfaces.base import terrain_of
     from geoloc.surfaces.terrain import intersect_dem
     from geoloc.workflows.replay import records_line_of_sight

@@ -244,7 +244,7 @@ class GeolocScene:
     # ------------------------------------------------------------ static parts
     def draw_static(self) -> None:
         """Origin, grid and terrain: redrawn when the scenario (ENU origin, DEM) changes."""
-        s, enu = self.scene, self.scn.enu
+        s = self.scene
         W = WORLD_SCALE
         s.add_frame(ROOT, show_axes=False)
         s.add_frame("/enu/origin", axes_length=600.0 * W, axes_radius=25.0 * W, origin_radius=60.0 * W)
