@@ -476,8 +476,13 @@ def make_stream():
     shorter = bytearray(goods[6])  # 20 bytes less: the local set no longer ends with the checksum
     shorter[18] -= 20
     add(bytes(shorter), "checksum")
-    # An item of a wrong length for its type, with a valid checksum: heading as 3 bytes.
-    add(with_checksum(item("platform_heading_deg", "71 C2 00")), "tag 5 (Platform Heading Angle) has length 3, expected 2")
+    # An integer item longer than 8 bytes cannot be decoded at its length: heading as 9 bytes.
+    add(with_checksum(item("platform_heading_deg", "00" * 7 + "71 C2")),
+        "tag 5 (Platform Heading Angle) has length 9, expected 2")
+    # Heading in 3 bytes (a leading zero byte, as writers in the wild do): decoded at its
+    # length with the standard's step, the packet kept (docs/klv.md, "Encoders in the wild").
+    goods.append(with_checksum(item("platform_heading_deg", "00 71 C2")))
+    add(goods[-1], len(goods) - 1)
     add(goods[7], 7)
     add(goods[0][:-30], "truncated: the length says")  # truncated at the end
     return b"".join(parts), expect, goods
@@ -620,7 +625,7 @@ def test_columns_from_bytes_equal_columns_from_packets():
     for d in (clean, data, clean + data + clean, mixed, ST0601_17_PACKET * 3):
         assert_same_columns(klv.packets_to_columns(d), klv.packets_to_columns(klv.iter_packets(d)))
     cols = klv.packets_to_columns(data)
-    assert len(cols["offset"]) == 5 and np.isnan(cols["pts"]).all()
+    assert len(cols["offset"]) == 6 and np.isnan(cols["pts"]).all()
     assert list(cols["offset"]) == [o for o, w in expect if isinstance(w, int)]
     # A field absent from every packet is all NaN; reserved values are NaN too.
     sparse = klv.encode_packet({"platform_heading_deg": 1.0}) + klv.encode_packet({"platform_pitch_deg": math.nan})
@@ -748,7 +753,7 @@ def test_cli_dump_raw_file(tmp_path):
     path = tmp_path / "stream.bin"
     path.write_bytes(data)
     r = run_cli(path)
-    assert r.returncode == 0, r.stderr
+    assert r.returncode == 1, r.stderr  # some packets could not be decoded (docs/cli.md)
     lines = [json.loads(line) for line in r.stdout.splitlines()]
     good_expect = [(o, w) for o, w in expect if isinstance(w, int)]
     assert [d["offset"] for d in lines] == [o for o, _ in good_expect]
@@ -756,9 +761,17 @@ def test_cli_dump_raw_file(tmp_path):
         want = klv.decode_packet(goods[w]).fields
         for name, v in want.items():
             assert d[name] == v, name
-        assert list(d)[:2] == ["offset", "precision_time_stamp_us"]  # then tag order
+        if "precision_time_stamp_us" in want:
+            assert list(d)[:2] == ["offset", "precision_time_stamp_us"]  # then tag order
         assert d["checksum"] == "0x" + goods[w][-2:].hex().upper()
     errors = r.stderr.strip().splitlines()
+    # the heading in 3 bytes: one line for its kind, with its count and offset, at the end
+    quirks = [e for e in errors if ": quirk: " in e]
+    assert len(quirks) == 1 and "tag 5 (Platform Heading Angle) in 3 bytes" in quirks[0], quirks
+    assert "(1 packet, the first at byte 2233)" in quirks[0]
+    summary = errors[-1]
+    assert summary.endswith("6 packets decoded, 5 could not be (see above)"), summary
+    errors = [e for e in errors if ": quirk: " not in e and e != summary]
     bad_expect = [(o, w) for o, w in expect if not isinstance(w, int)]
     assert len(errors) == len(bad_expect)
     for line, (o, w) in zip(errors, bad_expect):
@@ -766,7 +779,7 @@ def test_cli_dump_raw_file(tmp_path):
     # --out writes the same lines to a file.
     out = tmp_path / "dump.jsonl"
     r2 = run_cli(path, "--out", out)
-    assert r2.returncode == 0 and r2.stdout == "" and out.read_text() == r.stdout
+    assert r2.returncode == 1 and r2.stdout == "" and out.read_text() == r.stdout
 
 
 def test_cli_dump_ts_and_exit_codes(tmp_path):
@@ -777,11 +790,11 @@ def test_cli_dump_ts_and_exit_codes(tmp_path):
     assert r.returncode == 0, r.stderr
     lines = [json.loads(line) for line in r.stdout.splitlines()]
     assert [d["pts"] for d in lines] == [0, 3000, 6000] and lines[1]["time_s"] == pytest.approx(3000 / 90000)
-    # No good packet: exit code 1, the reasons on stderr.
+    # No good packet: exit code 2 (bad input: nothing could be decoded), the reasons on stderr.
     junk = tmp_path / "junk.klv"
     junk.write_bytes(b"not klv at all" * 10)
     r = run_cli(junk)
-    assert r.returncode == 1 and r.stdout == ""
+    assert r.returncode == 2 and r.stdout == ""
     assert "byte 0: 140 bytes at the end are not a UAS LS packet" in r.stderr
     r = run_cli(tmp_path / "missing.klv")
     assert r.returncode == 2 and "missing.klv" in r.stderr

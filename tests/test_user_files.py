@@ -365,7 +365,8 @@ def test_declared_files_reads_the_types(tmp_path):
 def test_klv_dump_finds_the_bundled_file_from_any_folder(tmp_path, capsys, monkeypatch):
     # the README's command names assets/klv/...: from another folder it is the bundled file
     monkeypatch.chdir(tmp_path)
-    assert main(["klv", "dump", "assets/klv/example_flight.klv", "--out", "d.jsonl"]) == 0
+    # exit 1: the example flight's one planted bad checksum is a packet that could not be used
+    assert main(["klv", "dump", "assets/klv/example_flight.klv", "--out", "d.jsonl"]) == 1
     assert (tmp_path / "d.jsonl").read_text().count("\n") > 250
 
 

@@ -4,7 +4,11 @@
 a line (its byte offset, or pts for a container, then the decoded fields in tag
 order; reserved error / out-of-range values as null with their ``flags``). Bad
 packets go to stderr with their offset and reason; the good ones are still
-printed. Exit code 0 if at least one good packet was decoded, else 1. Raw files
+printed. A quirk of the writer that leaves the values unambiguous (an item at
+another length than the standard's, an EG 0104 universal set, ...) keeps the
+packet and is reported once per kind at the end, with a count and the first
+packet's offset. Exit code (docs/cli.md): 0 every packet decoded, 1 some could
+not be (each named on stderr), 2 none could (or bad usage). Raw files
 (``.klv``, ``.bin``, anything else) are read in chunks; ``.ts``, ``.m2ts``,
 ``.mpg``, ``.mp4``, ``.mov``, ``.mkv`` through PyAV.
 
@@ -40,7 +44,10 @@ def register(sub) -> None:
         "out-of-range values as null, named in 'flags'), raw unknown items as hex and the "
         "checksum. Bad packets (checksum mismatch, truncated, wrong lengths, bytes that are no "
         "packet) are reported on stderr with their byte offset and reason; the good packets "
-        "around them are still printed. Exit code 0 if at least one packet was good, else 1.",
+        "around them are still printed. A writer's quirk that leaves the values unambiguous (an item "
+        "at another length than the standard's, an EG 0104 universal set, a nested set that cannot be "
+        "read) keeps the packet and is reported once per kind, with a count and the first offset. "
+        "Exit code: 0 every packet decoded, 1 some could not be, 2 none could.",
     )
     d.add_argument("file", metavar="FILE", type=input_path,
                    help="raw KLV (.klv, .bin: concatenated packets), a container (.ts, .m2ts, .mpg, .mp4), or a "
@@ -123,8 +130,18 @@ def run(args) -> int:
     if args.out:
         print(f"wrote {good} packets to {args.out}" + (f" ({bad} bad, see above)" if bad else ""),
               file=sys.stderr)
+    return _status(args.file, good, bad)
+
+
+def _status(name, good: int, bad: int) -> int:
+    """The exit code of a dump: 0 every packet decoded, 1 some not, 2 none (docs/cli.md)."""
     if good == 0:
-        print(f"geoloc klv: {args.file}: no good UAS LS packet", file=sys.stderr)
+        what = f"{bad} packet{'s' if bad != 1 else ''} found, none could be decoded (see above)" if bad \
+            else "no UAS LS (MISB ST 0601) or EG 0104 packet in it"
+        print(f"geoloc klv: {name}: {what}", file=sys.stderr)
+        return 2
+    if bad:
+        print(f"geoloc klv: {name}: {good} packets decoded, {bad} could not be (see above)", file=sys.stderr)
         return 1
     return 0
 
@@ -157,7 +174,7 @@ def _run_live(args) -> int:
         print(f"wrote {good} packets to {args.out}", file=sys.stderr)
     if args.record_ts:
         print(f"recorded {rx.stats.bytes} bytes to {args.record_ts}", file=sys.stderr)
-    return 0 if good else 1
+    return 0 if good else 1  # a live stream's losses are the network's: counted above
 
 
 def _bind(url):
@@ -172,20 +189,30 @@ def _bind(url):
 
 
 def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:
-    """Write each good packet as a JSON line to ``out``, report each bad one; returns (good, bad)."""
-    from geoloc.io.klv import KlvError
+    """Write each good packet as a JSON line to ``out``, report each bad one; returns (good, bad).
+
+    Bytes that are no packet are reported but not counted as bad packets. The quirks of the
+    good packets are reported at the end, once per kind (:class:`geoloc.io.klv.QuirkTally`)."""
+    from geoloc.io.klv import KlvError, QuirkTally
 
     good = bad = 0
-    for r in results:
-        if isinstance(r, KlvError):
-            bad += 1
-            print(f"geoloc klv: {name}: {r}", file=sys.stderr)
-            continue
-        good += 1
-        out.write(json.dumps(r.to_json(), ensure_ascii=False, allow_nan=False))
-        out.write("\n")
-        if flush:
-            out.flush()
+    quirks = QuirkTally()
+    try:
+        for r in results:
+            if isinstance(r, KlvError):
+                if not r.reason.endswith("are not a UAS LS packet"):
+                    bad += 1
+                print(f"geoloc klv: {name}: {r}", file=sys.stderr)
+                continue
+            good += 1
+            quirks.add(r)
+            out.write(json.dumps(r.to_json(), ensure_ascii=False, allow_nan=False))
+            out.write("\n")
+            if flush:
+                out.flush()
+    finally:
+        for line in quirks.lines():
+            print(f"geoloc klv: {name}: quirk: {line}", file=sys.stderr)
     return good, bad
 
 

@@ -55,6 +55,7 @@ from typing import BinaryIO, Iterable, Iterator
 
 import numpy as np
 
+from geoloc.io.klv_sets import EG0104_KEY, SetError, decode_eg0104, decode_security, decode_vmti
 from geoloc.userfiles import note_input
 from geoloc.extras import require
 
@@ -82,6 +83,9 @@ __all__ = [
     "replace_values",
     "write_ts",
     "packets_to_columns",
+    "QuirkTally",
+    "EG0104_KEY",
+    "DERIVED_FIELDS",
 ]
 
 #: The 16-byte universal key of the UAS Datalink Local Set (MISB ST 0601, "UAS
@@ -234,7 +238,23 @@ TAG_BY_NUMBER: dict[int, TagSpec] = {s.tag: s for s in TAGS}
 #: Field name -> :class:`TagSpec`.
 TAG_BY_NAME: dict[str, TagSpec] = {s.name: s for s in TAGS}
 
+#: Fields decoded from the nested sets (ST 0102 security, tag 48; ST 0903 VMTI, tag 74) and
+#: the EG 0104 items with no ST 0601 tag: read-only (the encoder writes the nested sets back
+#: from their raw bytes in :attr:`Packet.unknown` and skips these names).
+DERIVED_FIELDS = (
+    "security_classification", "security_classifying_country", "security_sci_shi", "security_caveats",
+    "security_releasing_instructions", "security_version",
+    "vmti_system_name", "vmti_version", "vmti_targets_detected", "vmti_targets_reported",
+    "vmti_frame_width_px", "vmti_frame_height_px", "vmti_detections",
+    "eg0104_angle_to_north_deg", "eg0104_obliquity_angle_deg", "eg0104_sensor_roll_deg",
+)
 _FIELD_RANK = {s.name: i for i, s in enumerate(TAGS)}
+_FIELD_RANK.update({n: len(TAGS) + i for i, n in enumerate(DERIVED_FIELDS)})
+_RANK_LAST = len(_FIELD_RANK)
+
+
+def _rank(name):
+    return _FIELD_RANK.get(name, _RANK_LAST)
 _NUMERIC_SPECS = [s for s in TAGS if s.kind != "str"]
 _TEXT_SPECS = [s for s in TAGS if s.kind == "str"]
 
@@ -304,6 +324,11 @@ class Packet:
         Presentation time stamp of the container packet (container reads only).
     time_base : Fraction or None
         Time base of ``pts`` [s].
+    quirks : tuple of str
+        The ways this packet departs from the standard while its values stay
+        unambiguous (an item at another length than the standard's, an empty item,
+        an undecodable nested set, ...), one text per kind; a read tallies them with
+        :class:`QuirkTally` (docs/klv.md, "Encoders in the wild").
     """
 
     fields: dict
@@ -313,6 +338,7 @@ class Packet:
     checksum: int | None = None
     pts: int | None = None
     time_base: Fraction | None = None
+    quirks: tuple = ()
 
     def __getitem__(self, name: str):
         return self.fields[name]
@@ -339,7 +365,7 @@ class Packet:
             if self.time_base is not None:
                 d["time_s"] = self.time_s
         f = self.fields
-        for k in sorted(f, key=_FIELD_RANK.get):
+        for k in sorted(f, key=_rank):
             v = f[k]
             d[k] = None if isinstance(v, float) and v != v else v
         if self.flags:
@@ -422,11 +448,48 @@ def ber_oid(tag: int) -> bytes:
 # --------------------------------------------------------------------------- layouts
 
 
+_INT_CODES = {1: "b", 2: "h", 4: "i", 8: "q"}
+
+
+def _raw_code(spec: TagSpec, ln: int) -> str:
+    """The :mod:`struct` code of a numeric item given in ``ln`` bytes (``{ln}s`` for 3, 5, 6, 7:
+    converted by :func:`_ib`)."""
+    code = _INT_CODES.get(ln)
+    if code is None:
+        return f"{ln}s"
+    return code if spec.kind == "int" else code.upper()
+
+
+def _ib(b: bytes, signed: bool) -> int:
+    """A big-endian integer of any length (the items given in 3, 5, 6 or 7 bytes)."""
+    return int.from_bytes(b, "big", signed=signed)
+
+
+def _raw_bounds(spec: TagSpec) -> tuple[int, int]:
+    """The raw values the standard's length of a mapped item can hold (the sentinel excluded):
+    an item given in more bytes is in range only inside them (same step: docs/klv.md)."""
+    if spec.kind == "uint":
+        return 0, (1 << (8 * spec.size)) - 1
+    lim = (1 << (8 * spec.size - 1)) - 1
+    return -lim, lim
+
+
+def _length_quirk(spec: TagSpec, ln: int) -> str | None:
+    """The quirk text of a numeric item given in ``ln`` bytes (None at the standard's length)."""
+    if spec.kind == "str" or ln == spec.size:
+        return None
+    if ln == 0:
+        return f"tag {spec.tag} ({spec.title}) is empty (0 bytes): taken as absent"
+    return (f"tag {spec.tag} ({spec.title}) in {ln} bytes, the standard's {spec.size}: "
+            f"decoded at its length with the standard's step")
+
+
 class _Layout:
     """A compiled local-set layout: the items (tag, lengths) of a packet in order.
 
     ``hdr`` unpacks the tag and length bytes (the layout's signature, compared with
     ``hdr_vals``); ``vals`` unpacks every value (tag and length bytes skipped).
+    ``quirks`` are the layout's departures from the standard (items at other lengths).
     """
 
     def __init__(self, items, data, vs):
@@ -436,19 +499,27 @@ class _Layout:
         self.vitems = []   # (spec or None, tag, value offset relative to vs, length)
         p = vs
         kinds = []
+        quirks = []
         for tag, t0, v0, ln in items:
             h = v0 - t0
             hdr_fmt.append(f"{h}B{ln}x")
             spec = TAG_BY_NUMBER.get(tag)
-            code = f"{ln}s" if (spec is None or spec.kind == "str" or tag == _CHECKSUM_TAG) else spec.fmt
             if tag == _CHECKSUM_TAG:
                 code = "H"
+            elif spec is None or spec.kind == "str":
+                code = f"{ln}s"
+            else:
+                code = _raw_code(spec, ln) if ln else "0s"
+                q = _length_quirk(spec, ln)
+                if q is not None and q not in quirks:
+                    quirks.append(q)
             val_fmt.append(f"{h}x{code}")
             self.hdr_pos.extend(range(t0 - vs, v0 - vs))
             self.vitems.append((spec, tag, v0 - vs, ln))
-            kinds.append((spec, tag))
+            kinds.append((spec, tag, ln))
             p = v0 + ln
         self.length = p - vs
+        self.quirks = tuple(quirks)
         self.hdr = struct.Struct("".join(hdr_fmt))
         self.hdr_vals = self.hdr.unpack_from(data, vs)
         self.vals = struct.Struct("".join(val_fmt))
@@ -456,11 +527,18 @@ class _Layout:
         self.hdr_arr = np.frombuffer(bytes(data[vs + int(i)] for i in self.hdr_pos), np.uint8) \
             if len(self.hdr_pos) else np.zeros(0, np.uint8)
 
-        self.ck_idx = next((i for i, (_, tag) in enumerate(kinds) if tag == _CHECKSUM_TAG), None)
-        self.make = _compile_make(kinds)
+        self.ck_idx = next((i for i, (_, tag, _) in enumerate(kinds) if tag == _CHECKSUM_TAG), None)
+        self.nested = any(tag in _NESTED for _, tag, _ in kinds)
+        make = _compile_make(kinds, self.quirks)
+        if self.nested:
+            def make_nested(raws, offset, _make=make):
+                return _decode_nested(_make(raws, offset))
+            self.make = make_nested
+        else:
+            self.make = make
 
 
-def _compile_make(kinds):
+def _compile_make(kinds, quirks=()):
     """Compile ``make(raws, offset) -> Packet`` for one layout.
 
     The function is generated (as :func:`collections.namedtuple` does) so that each
@@ -468,48 +546,62 @@ def _compile_make(kinds):
     dict is built by one dict display: several times faster than a loop over items.
     Only field names from :data:`TAGS`, float constants (``repr`` round-trips them
     exactly) and integer tag numbers enter the source.
+
+    An item given at another length than the standard's is decoded at its length with
+    the standard's step (its leading bytes added or left out, as later ST 0601 versions
+    and the writers in the wild do: docs/klv.md); a value beyond what the standard's
+    length can hold is NaN, flagged ``"out of range"``. An empty numeric item is absent.
     """
     names = [f"r{i}" for i in range(len(kinds))]
     # A repeated item: the last one wins, as in a dict.
-    entries, unknown, reserved = {}, {}, {}
+    entries, unknown, reserved, ranged = {}, {}, {}, {}
     ck = "None"
-    for r, (spec, tag) in zip(names, kinds):
+    for r, (spec, tag, ln) in zip(names, kinds):
         if tag == _CHECKSUM_TAG:
             ck = r
         elif spec is None:
             unknown[tag] = f"{tag!r}: {r}"
         else:
             reserved.pop(spec.name, None)
+            ranged.pop(spec.name, None)
             if spec.kind == "str":
                 entries[spec.name] = f"{spec.name!r}: str({r}, 'utf-8', 'replace')"
-            elif spec.kind == "uint":
-                entries[spec.name] = f"{spec.name!r}: {r} * {spec.step!r}" + (f" + {spec.lo!r}" if spec.lo else "")
+                continue
+            if ln == 0:
+                entries.pop(spec.name, None)
+                continue
+            raw = r if ln in _INT_CODES else f"_ib({r}, {spec.kind == 'int'})"
+            if spec.kind == "uint":
+                entries[spec.name] = f"{spec.name!r}: {raw} * {spec.step!r}" + (f" + {spec.lo!r}" if spec.lo else "")
             elif spec.kind == "int":
-                entries[spec.name] = f"{spec.name!r}: {r} * {spec.step!r}"
+                entries[spec.name] = f"{spec.name!r}: {raw} * {spec.step!r}"
                 if spec.reserved:
-                    reserved[spec.name] = (r, spec)
+                    reserved[spec.name] = (raw, spec, -(1 << (8 * ln - 1)))
             else:
-                entries[spec.name] = f"{spec.name!r}: {r}"
+                entries[spec.name] = f"{spec.name!r}: {raw}"
+            if ln != spec.size and spec.kind in ("uint", "int"):
+                ranged[spec.name] = (raw, _raw_bounds(spec))
     entries, unknown = list(entries.values()), list(unknown.values())
-    by_size = {2: [], 4: []}
-    for r, spec in reserved.values():
-        by_size[spec.size].append((r, spec))
     lines = ["def make(raws, offset):"]
     if names:
         lines.append(f"    {', '.join(names)}, = raws")
     lines.append(f"    fields = {{{', '.join(entries)}}}")
     lines.append("    flags = {}")
-    for size, lst in by_size.items():
-        if not lst:
-            continue
-        sentinel = -(1 << (8 * size - 1))
+    by_sentinel: dict[int, list] = {}
+    for raw, spec, sentinel in reserved.values():
+        by_sentinel.setdefault(sentinel, []).append((raw, spec))
+    for sentinel, lst in by_sentinel.items():
         lines.append(f"    if {sentinel} in ({', '.join(r for r, _ in lst)},):")
         for r, spec in lst:
             lines.append(f"        if {r} == {sentinel}:")
             lines.append(f"            fields[{spec.name!r}] = nan")
             lines.append(f"            flags[{spec.name!r}] = {spec.reserved!r}")
-    lines.append(f"    return Packet(fields, offset, flags, {{{', '.join(unknown)}}}, {ck})")
-    ns = {"Packet": Packet, "nan": math.nan}
+    for name, (raw, (a, b)) in ranged.items():
+        lines.append(f"    if {name!r} not in flags and not {a} <= {raw} <= {b}:")
+        lines.append(f"        fields[{name!r}] = nan")
+        lines.append(f"        flags[{name!r}] = {OUT_OF_RANGE!r}")
+    lines.append(f"    return Packet(fields, offset, flags, {{{', '.join(unknown)}}}, {ck}, quirks=QUIRKS)")
+    ns = {"Packet": Packet, "nan": math.nan, "_ib": _ib, "QUIRKS": tuple(quirks)}
     exec("\n".join(lines), ns)
     return ns["make"]
 
@@ -555,6 +647,61 @@ def _walk(data, vs, ve):
     return items
 
 
+#: Nested local sets decoded into fields: ST 0601 tag -> (title, decoder).
+_NESTED = {48: ("Security Local Set, ST 0102", decode_security),
+           74: ("VMTI Local Set, ST 0903", decode_vmti)}
+
+
+def _decode_nested(p: Packet) -> Packet:
+    """Add the fields of the packet's nested sets (tags 48, 74; their raw bytes stay in
+    ``unknown``); a set that cannot be read is a quirk of the packet, which is kept."""
+    unknown = p.unknown
+    if not unknown:
+        return p
+    for tag, (title, dec) in _NESTED.items():
+        v = unknown.get(tag)
+        if not v:  # absent or empty (the standard's example packet has both sets empty)
+            continue
+        try:
+            p.fields.update(dec(v))
+        except SetError as e:
+            p.quirks = p.quirks + (f"tag {tag} ({title}) cannot be read ({e}): kept raw, its fields left out",)
+    return p
+
+
+class QuirkTally:
+    """The quirks of a read, one entry per kind: how many packets, and the first one's offset.
+
+    Feed it every result of a read (:meth:`add`); :meth:`lines` gives one line per kind
+    (``docs/klv.md``, "Encoders in the wild"), never one per packet.
+    """
+
+    def __init__(self):
+        self.kinds: dict[str, list] = {}
+
+    def add(self, result) -> None:
+        q = getattr(result, "quirks", None)
+        if not q:
+            return
+        for kind in q:
+            e = self.kinds.get(kind)
+            if e is None:
+                self.kinds[kind] = [1, result.offset]
+            else:
+                e[0] += 1
+
+    def __len__(self) -> int:
+        return len(self.kinds)
+
+    def lines(self) -> list[str]:
+        """``"<kind> (N packets, the first at byte X)"`` for each kind, in the order first seen."""
+        out = []
+        for kind, (n, off) in self.kinds.items():
+            where = f", the first at byte {off}" if off is not None else ""
+            out.append(f"{kind} ({n} packet{'s' if n != 1 else ''}{where})")
+        return out
+
+
 class _Decoder:
     """Layout cache shared by every read (layouts depend on structure only)."""
 
@@ -580,8 +727,9 @@ class _Decoder:
                     raise _Bad(f"tag 1 (Checksum) has length {ln}, expected 2")
                 if n != len(items) - 1:
                     raise _Bad("tag 1 (Checksum) is not the last item of the local set")
-            elif spec is not None and spec.kind != "str" and ln != spec.size:
-                raise _Bad(f"tag {tag} ({spec.title}) has length {ln}, expected {spec.size}")
+            elif spec is not None and spec.kind != "str" and ln > 8:
+                raise _Bad(f"tag {tag} ({spec.title}) has length {ln}, expected {spec.size}: an integer "
+                           "of more than 8 bytes cannot be decoded at its length")
         if need_checksum and (not items or items[-1][0] != _CHECKSUM_TAG):
             raise _Bad("no checksum item (tag 1) at the end of the local set")
         lay = _Layout(items, data, vs)
@@ -646,6 +794,7 @@ def _scan(data, base, final, state, verify, start=0, max_length=MAX_PACKET_LENGT
     no_batch_before = start  # no batch decoding before this offset (a short run, a bad packet)
     if limit is None:
         limit = 1 << 62
+    k104 = -1  # the next EG 0104 key at or after pos (n: none), looked for when pos passes it
     while True:
         if len(out) >= limit:
             return out, pos
@@ -653,6 +802,17 @@ def _scan(data, base, final, state, verify, start=0, max_length=MAX_PACKET_LENGT
             k = pos
         else:
             k = find(key, pos)
+            if k104 < pos:
+                k104 = find(EG0104_KEY, pos)
+                if k104 < 0:
+                    k104 = n
+            if k104 < n and (k < 0 or k104 < k):
+                r = _scan_eg0104(data, k104, n, base, final, state, max_length)
+                if r is None:  # may continue in data not yet read
+                    return out, k104
+                res, pos = r
+                append(res)
+                continue
             if k < 0:
                 if final:
                     g = state.garbage_from
@@ -735,6 +895,52 @@ def _scan(data, base, final, state, verify, start=0, max_length=MAX_PACKET_LENGT
         append(pkt)
         pos = ve
         state.garbage_from = base + ve
+
+
+_EG0104_QUIRK = ("EG 0104 Predator UAV Basic Universal Set (16-byte item keys, no checksum): "
+                 "read into the ST 0601 fields")
+
+
+def _scan_eg0104(data, k, n, base, final, state, max_length):
+    """The EG 0104 packet whose key is at data[k]: (Packet or KlvError, next position), or None
+    when it may continue past the data read so far (not ``final``)."""
+    g = state.garbage_from
+    pre = None
+    if g is not None and base + k > g:
+        pre = KlvError(g, f"{base + k - g} bytes before the next UAS LS key are not a UAS LS packet")
+    p = k + 16
+    if p >= n or (data[p] >= 0x80 and p + 1 + (data[p] & 0x7F) > n):
+        if not final:
+            return None
+        res = KlvError(base + k, "truncated: the EG 0104 packet ends before its length")
+        state.garbage_from = None
+        return (pre or res), (k if pre else k + 1)
+    b = data[p]
+    if b < 0x80:
+        L, vs = b, p + 1
+    else:
+        m = b & 0x7F
+        L, vs = (int.from_bytes(data[p + 1:p + 1 + m], "big") if 0 < m <= 8 else -1), p + 1 + m
+    if pre is not None:  # report the stray bytes first; the packet on the next call
+        state.garbage_from = None
+        return pre, k
+    if L < 0 or L > max_length:
+        state.garbage_from = None
+        return KlvError(base + k, f"EG 0104 packet: invalid BER length byte 0x{b:02X}"), k + 1
+    ve = vs + L
+    if ve > n:
+        if not final:
+            return None
+        state.garbage_from = None
+        return KlvError(base + k, f"truncated: the EG 0104 length says {L} bytes, only {n - vs} are left"), k + 1
+    try:
+        fields, _, quirks = decode_eg0104(data[vs:ve])
+    except SetError as e:
+        state.garbage_from = None
+        return KlvError(base + k, f"EG 0104 packet: {e}"), k + 1
+    state.garbage_from = base + ve
+    pkt = Packet(fields, base + k, {}, None, None, quirks=(_EG0104_QUIRK, *quirks))
+    return pkt, ve
 
 
 def _iter_stream(f: BinaryIO, verify: bool, chunk_size: int, max_length: int) -> Iterator[Packet | KlvError]:
@@ -1071,6 +1277,8 @@ def _first(t):
     return t[0]
 
 
+_DERIVED = frozenset(DERIVED_FIELDS)
+
 #: Field name -> (tag, item encoder).
 _ENCODERS = {s.name: (s.tag, _item_encoder(s)) for s in TAGS}
 
@@ -1114,6 +1322,8 @@ def encode_packet(fields: dict, *, unknown: dict | None = None, with_checksum: b
             continue
         e = encoders.get(name)
         if e is None:
+            if name in _DERIVED:
+                continue  # read from a nested set: written back from its raw bytes (unknown)
             if isinstance(name, int):
                 raw_items[name] = bytes(value)
                 continue
@@ -1445,8 +1655,16 @@ _BLOCK = 1 << 15
 
 
 def _be_ints(M, off, size, signed):
-    sub = np.ascontiguousarray(M[:, off:off + size])
-    return sub.view(f">{'i' if signed else 'u'}{size}")[:, 0]
+    """Big-endian integers of ``size`` bytes (1 to 8) at column ``off`` of the rows M."""
+    if size in _INT_CODES:
+        sub = np.ascontiguousarray(M[:, off:off + size])
+        return sub.view(f">{'i' if signed else 'u'}{size}")[:, 0]
+    v = np.zeros(M.shape[0], np.int64)
+    for j in range(size):
+        v = v * 256 + M[:, off + j]
+    if signed:
+        v = np.where(v >= 1 << (8 * size - 1), v - (1 << (8 * size)), v)
+    return v
 
 
 def _texts(M, off, ln):
@@ -1514,23 +1732,34 @@ def _match_group(data, M, vs_rows, k0, L, verify):
 
 
 def _item_values(spec, Ms, off, ln):
-    """Decoded values of one item over rows Ms (numpy), and the reserved-value mask."""
+    """Decoded values of one item over rows Ms (numpy), and its flags: a list of
+    (mask, meaning) for the reserved values and, at a length other than the standard's,
+    the values beyond what the standard's length holds (``"out of range"``)."""
     if spec.kind == "str":
-        return _texts(Ms, off, ln), None
-    raw = _be_ints(Ms, off, spec.size, spec.kind == "int")
+        return _texts(Ms, off, ln), []
+    raw = _be_ints(Ms, off, ln, spec.kind == "int")
+    flags = []
     if spec.kind == "uint":
-        return (raw * spec.step + spec.lo if spec.lo else raw * spec.step), None
-    if spec.kind == "int":
+        val = raw * spec.step + spec.lo if spec.lo else raw * spec.step
+    elif spec.kind == "int":
         val = raw * spec.step
-        mask = None
         if spec.reserved:
-            mask = raw == spec.sentinel
+            mask = raw == -(1 << (8 * ln - 1))
             if mask.any():
                 val[mask] = np.nan
-            else:
-                mask = None
-        return val, mask
-    return raw, None  # plain integers
+                flags.append((mask, spec.reserved))
+    else:
+        return raw, []  # plain integers
+    if ln != spec.size:
+        a, b = _raw_bounds(spec)
+        mask = (raw < a) | (raw > b)
+        for m, _ in flags:
+            mask &= ~m
+        if mask.any():
+            val = np.array(val, float)
+            val[mask] = np.nan
+            flags.append((mask, OUT_OF_RANGE))
+    return val, flags
 
 
 def _group_packets(lay, Ms, offsets):
@@ -1543,11 +1772,16 @@ def _group_packets(lay, Ms, offsets):
             ck = _be_ints(Ms, off, 2, False).tolist()
         elif spec is None:
             unknown[tag] = _raw_bytes(Ms, off, ln)
-        else:
-            val, mask = _item_values(spec, Ms, off, ln)
+        elif ln == 0 and spec.kind != "str":
+            if spec.name in names:  # an empty numeric item: absent (a repeated one is dropped too)
+                i = names.index(spec.name)
+                del names[i], cols[i]
             flagged.pop(spec.name, None)
-            if mask is not None:
-                flagged[spec.name] = (mask, spec.reserved)
+        else:
+            val, fl = _item_values(spec, Ms, off, ln)
+            flagged.pop(spec.name, None)
+            if fl:
+                flagged[spec.name] = fl
             if spec.name in names:  # a repeated item: the last one wins, in the first's place
                 cols[names.index(spec.name)] = val.tolist()
             else:
@@ -1556,14 +1790,18 @@ def _group_packets(lay, Ms, offsets):
     rows = zip(*cols) if cols else [()] * n
     cks = ck if ck is not None else [None] * n
     mk = _row_maker(tuple(names))
-    out = [Packet(mk(vals), o, {}, {}, c) for vals, o, c in zip(rows, offsets, cks)]
+    q = lay.quirks
+    out = [Packet(mk(vals), o, {}, {}, c, quirks=q) for vals, o, c in zip(rows, offsets, cks)]
     if unknown:
         tags = list(unknown)
         for p, vals in zip(out, zip(*unknown.values())):
             p.unknown = dict(zip(tags, vals))
-    for name, (mask, meaning) in flagged.items():
-        for j in np.flatnonzero(mask):
-            out[j].flags[name] = meaning
+    for name, fl in flagged.items():
+        for mask, meaning in fl:
+            for j in np.flatnonzero(mask):
+                out[j].flags[name] = meaning
+    if lay.nested:
+        out = [_decode_nested(p) for p in out]
     return out
 
 
@@ -1686,7 +1924,10 @@ def _columns_from_bytes(data: bytes, verify: bool) -> dict[str, np.ndarray]:
                     Ms, dst = M[sel], rows[sel]
                     for spec, tag, off, ln in lay.vitems:
                         if spec is not None and tag != _CHECKSUM_TAG:
-                            cols[spec.name][dst] = _item_values(spec, Ms, off, ln)[0]
+                            if ln == 0 and spec.kind != "str":
+                                cols[spec.name][dst] = None if spec.kind == "str" else np.nan
+                            else:
+                                cols[spec.name][dst] = _item_values(spec, Ms, off, ln)[0]
     bad = np.flatnonzero(~good)
     cut = int(bad[0]) if len(bad) else N
     if cut < N:
