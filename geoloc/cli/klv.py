@@ -84,14 +84,15 @@ def register(sub) -> None:
 
     sd = actions.add_parser(
         "send",
-        help="stream an MPEG-TS to udp://HOST:PORT, paced by its time stamps (a sender for live tests)",
-        description="Stream FILE (an MPEG-TS: video and MISB ST 0601 KLV) to udp://HOST:PORT as UDP "
+        help="stream an MPEG-TS (or a raw .klv) to udp://HOST:PORT, paced by its time stamps (a sender for live tests)",
+        description="Stream FILE (an MPEG-TS: video and MISB ST 0601 KLV; a raw .klv is first wrapped in an "
+        "MPEG-TS, its decodable packets in a KLVA data stream timed by their tag 2) to udp://HOST:PORT as UDP "
         "datagrams of 7 TS packets, each leaving at the time stamp of the PES it carries (--speed 1: real "
         "time), as an aircraft's data link would; for trying geoloc view --live, replay and klv dump on "
         "udp:// (docs/live.md). A multicast group is sent to with TTL 1 (this network segment only).",
     )
     sd.add_argument("file", metavar="FILE.ts", type=input_path, help="the transport stream, e.g. "
-                    "assets/klv/example_flight.ts")
+                    "assets/klv/example_flight.ts, or a raw KLV file (.klv, .bin)")
     sd.add_argument("url", metavar="udp://HOST:PORT", help="where to send (udp://127.0.0.1:5600: this machine)")
     sd.add_argument("--speed", type=float, default=1.0, help="pace: 1 = real time (default), 10 = ten times faster")
     sd.add_argument("--fast", action="store_true", help="as fast as possible (no pacing)")
@@ -238,11 +239,21 @@ def run_send(args) -> int:
             print(f"geoloc klv send: nothing listens on {url} after {args.wait:g} s: sending anyway",
                   file=sys.stderr)
         time.sleep(0.2)  # the listener binds, then starts up: give it a moment
+    from geoloc.io.klv import is_container_file
+
+    source, note = args.file, ""
+    if not is_container_file(args.file):
+        # raw KLV: a receiver demultiplexes a transport stream, so wrap the packets in one
+        from geoloc.io.live import klv_as_ts
+
+        source, n, bad = klv_as_ts(args.file)
+        note = (f" ({n} KLV packets in an MPEG-TS, stream type 0x06 KLVA"
+                + (f"; {bad} bad packets left out" if bad else "") + ")")
     total = 0
     for _ in range(args.loop):
-        r = send(args.file, url, speed=None if args.fast else args.speed)
+        r = send(source, url, speed=None if args.fast else args.speed)
         total += r["sent"]
-    print(f"sent {total} datagrams of {args.file} to {url}")
+    print(f"sent {total} datagrams of {args.file} to {url}{note}")
     return 0
 
 

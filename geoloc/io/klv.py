@@ -690,6 +690,16 @@ class QuirkTally:
             else:
                 e[0] += 1
 
+    def add_kind(self, kind: str, count: int, offset) -> None:
+        """``count`` packets of one kind, the first of them at ``offset`` (batch decoding)."""
+        e = self.kinds.get(kind)
+        if e is None:
+            self.kinds[kind] = [int(count), offset]
+        else:
+            e[0] += int(count)
+            if offset is not None and (e[1] is None or offset < e[1]):
+                e[1] = offset
+
     def __len__(self) -> int:
         return len(self.kinds)
 
@@ -1079,9 +1089,20 @@ def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None
     except FileNotFoundError:
         raise
     except av.error.FFmpegError as e:
+        if sniff_klv_file(path) == "mpegts":
+            yield from _read_ts_native(path, verify_checksum, str(e))
+            return
         raise ValueError(f"{path}: PyAV cannot open it: {e}") from e
     with container:
-        ds = _klv_stream(container, stream, path)
+        try:
+            ds = _klv_stream(container, stream, path)
+        except ValueError as e:
+            # FFmpeg found no data stream: a transport stream without PAT / PMT (or whose PMT does
+            # not declare its KLV) still has it, in PES found by their UAS LS / EG 0104 keys
+            if stream is not None or sniff_klv_file(path) != "mpegts":
+                raise
+            yield from _read_ts_native(path, verify_checksum, str(e))
+            return
         tb = ds.time_base
         tb = Fraction(tb.numerator, tb.denominator) if tb is not None else None
         for pkt in container.demux(ds):
@@ -1096,6 +1117,26 @@ def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None
                 else:
                     r = KlvError(pos, r.reason, pkt.pts)
                 yield r
+
+
+def _read_ts_native(path, verify_checksum: bool, why: str) -> Iterator[Packet | KlvError]:
+    """The KLV of an MPEG-TS through geoloc's own demultiplexer (:class:`geoloc.io.live.TsDemuxer`),
+    read in chunks: the PES of the PMT's KLV streams, or with no PAT / PMT those whose data starts
+    with a UAS LS or EG 0104 key. Raises ValueError(``why``) when it finds none either."""
+    from geoloc.io.live import LiveReceiver
+
+    rx = LiveReceiver(verify_checksum=verify_checksum, window=1, video_window=1, keep_video_data=False)
+    n = 0
+    with open(path, "rb") as f:
+        while True:
+            chunk = f.read(1 << 20)
+            res = rx.push_bytes(chunk) if chunk else rx.flush()
+            n += len(res)
+            yield from res
+            if not chunk:
+                break
+    if n == 0:
+        raise ValueError(why)
 
 
 _CONTAINER_SUFFIXES = {".ts", ".m2ts", ".mts", ".mpg", ".mpeg", ".mp4", ".mov", ".mkv", ".trp"}
@@ -1623,7 +1664,8 @@ def _columns_from_packets(packets) -> dict[str, np.ndarray]:
     return cols
 
 
-def packets_to_columns(packets, *, verify_checksum: bool = True) -> dict[str, np.ndarray]:
+def packets_to_columns(packets, *, verify_checksum: bool = True, quirks: QuirkTally | None = None
+                       ) -> dict[str, np.ndarray]:
     """Decoded packets as columns, for vectorised use.
 
     Parameters
@@ -1634,6 +1676,8 @@ def packets_to_columns(packets, *, verify_checksum: bool = True) -> dict[str, np
         ``packets_to_columns(iter_packets(data))``, many times faster).
     verify_checksum : bool
         For raw bytes: check each packet's checksum. Default True.
+    quirks : QuirkTally, optional
+        Where to count the quirks of the packets (:attr:`Packet.quirks`).
 
     Returns
     -------
@@ -1645,7 +1689,11 @@ def packets_to_columns(packets, *, verify_checksum: bool = True) -> dict[str, np
         absent).
     """
     if isinstance(packets, (bytes, bytearray, memoryview)):
-        return _columns_from_bytes(bytes(packets), verify_checksum)
+        return _columns_from_bytes(bytes(packets), verify_checksum, quirks)
+    if quirks is not None:
+        packets = list(packets)
+        for p in packets:
+            quirks.add(p)
     return _columns_from_packets(packets)
 
 
@@ -1881,7 +1929,7 @@ def _decode_batch(data, ks, vss, Ls, base, verify):
     return res
 
 
-def _columns_from_bytes(data: bytes, verify: bool) -> dict[str, np.ndarray]:
+def _columns_from_bytes(data: bytes, verify: bool, quirks: QuirkTally | None = None) -> dict[str, np.ndarray]:
     n = len(data)
     key = UAS_LS_KEY
     ks, vss, Ls = [], [], []
@@ -1910,6 +1958,7 @@ def _columns_from_bytes(data: bytes, verify: bool) -> dict[str, np.ndarray]:
     cols = _empty_columns(N)
     cols["offset"][:] = ks
     good = np.zeros(N, bool)
+    qrows = []  # (quirks, packet rows) of the layouts that have quirks
     if N:
         gid = Ls * 32 + (vss - ks)
         order = np.argsort(gid, kind="stable")
@@ -1922,6 +1971,8 @@ def _columns_from_bytes(data: bytes, verify: bool) -> dict[str, np.ndarray]:
                 good[rows] = ok
                 for lay, sel in matches:
                     Ms, dst = M[sel], rows[sel]
+                    if quirks is not None and lay.quirks:
+                        qrows.append((lay.quirks, dst))
                     for spec, tag, off, ln in lay.vitems:
                         if spec is not None and tag != _CHECKSUM_TAG:
                             if ln == 0 and spec.kind != "str":
@@ -1933,8 +1984,16 @@ def _columns_from_bytes(data: bytes, verify: bool) -> dict[str, np.ndarray]:
     if cut < N:
         stop = int(ks[cut])
     out = {name: c[:cut] for name, c in cols.items()}
+    for kinds, dst in qrows:  # the packets before the cut (the scanner counts the rest's)
+        dst = dst[dst < cut]
+        if len(dst):
+            for kind in kinds:
+                quirks.add_kind(kind, len(dst), int(ks[dst].min()))
     if stop is not None:
         rest, _ = _scan(data, 0, True, _ScanState(None), verify, stop)
+        if quirks is not None:
+            for r in rest:
+                quirks.add(r)
         tail = _columns_from_packets(rest)
         out = {name: np.concatenate([out[name], tail[name]]) for name in out}
     return out

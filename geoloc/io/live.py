@@ -59,7 +59,7 @@ from fractions import Fraction
 from typing import Callable, Iterator
 from urllib.parse import parse_qs, urlsplit
 
-from geoloc.io.klv import KlvError, Packet, _scan, _ScanState
+from geoloc.io.klv import EG0104_KEY, UAS_LS_KEY, KlvError, Packet, _scan, _ScanState
 
 __all__ = [
     "TS_PACKET",
@@ -681,9 +681,12 @@ class TsDemuxer:
                 if u is not None:
                     out.append(u)
             if kind is None:
-                # no PMT yet (joined mid-stream, or it was lost): a metadata / private stream PES is
-                # taken as KLV; the UAS LS key check in the scanner rejects anything else
-                if len(payload) >= 4 and payload[:3] == b"\x00\x00\x01" and payload[3] in _KLV_STREAM_IDS:
+                # no PMT yet (joined mid-stream, lost, or a stream written without PAT / PMT): a
+                # metadata / private stream PES is taken as KLV (the UAS LS key check in the scanner
+                # rejects anything else), and so is any PES whose data starts with a UAS LS or an
+                # EG 0104 key (directly, or after a metadata access-unit cell header)
+                if len(payload) >= 4 and payload[:3] == b"\x00\x00\x01" and \
+                        (payload[3] in _KLV_STREAM_IDS or _starts_with_klv(payload)):
                     self.streams[pid] = ("klv", 0)
                 else:
                     return
@@ -742,8 +745,9 @@ class TsDemuxer:
             if flags & 0x40 and len(h) >= 10:
                 dts = _timestamp(h, 5)
             body = data[9 + hlen:]
-        if kind == "klv" and stype == 0x15:
-            body = _metadata_cells(body)
+        if kind == "klv" and (stype == 0x15 or (stype == 0 and body[:4] != _KLV_PREFIX
+                                                 and body[5:9] == _KLV_PREFIX)):
+            body = _metadata_cells(body)  # synchronous metadata (or, with no PMT, cells before a key)
         if b.damaged:
             self.stats.damaged_pes += 1
         return PesUnit(kind, pid, stype, pts, dts, body, b.offset, b.damaged)
@@ -807,6 +811,20 @@ class TsDemuxer:
                 elif epid in self.streams and self.streams[epid][1] != 0:
                     del self.streams[epid]
                 k += 5 + eslen
+
+
+#: The first bytes of every SMPTE ST 336 universal key (UAS LS, EG 0104): 06 0E 2B 34.
+_KLV_PREFIX = b"\x06\x0e\x2b\x34"
+_KLV_KEYS = (UAS_LS_KEY, EG0104_KEY)
+
+
+def _starts_with_klv(payload: bytes) -> bool:
+    """True when a PES whose first bytes are ``payload`` carries KLV: its data (after the PES
+    header) starts with a UAS LS or EG 0104 key, directly or after a 5-byte metadata cell header."""
+    if len(payload) < 9 or payload[3] in _NO_PES_HEADER_IDS:
+        return False
+    body = payload[9 + payload[8]:]
+    return any(body.startswith(k, at) for k in _KLV_KEYS for at in (0, 5))
 
 
 def _registration(desc: bytes) -> bytes | None:
@@ -1076,6 +1094,47 @@ def datagrams_of(data: bytes, per: int = DATAGRAM_PACKETS) -> list[bytes]:
     """``data`` (a TS file's bytes) cut into datagrams of ``per`` TS packets."""
     size = per * TS_PACKET
     return [data[k:k + size] for k in range(0, len(data), size)]
+
+
+def klv_as_ts(path) -> tuple[bytes, int, int]:
+    """A raw KLV file (concatenated packets) as the MPEG-TS a receiver decodes: (TS bytes, packets
+    wrapped, packets left out).
+
+    Every packet the reader decodes (ST 0601 and EG 0104, quirks and all) goes byte for byte
+    into one PES of an asynchronous KLV stream (stream type 0x06, ``KLVA`` registration: MISB
+    ST 1402), written by :func:`geoloc.io.klv.write_ts`; packets the reader refuses (a bad
+    checksum, truncated) are left out, as a receiver would drop them. The PES time stamps are
+    the packets' Precision Time Stamps (tag 2) from the first, when every packet has one and
+    they never go back, else 30 a second, so ``send`` paces them as they were recorded.
+
+    Raises
+    ------
+    ValueError
+        No packet of the file can be decoded (nothing a receiver could use).
+    """
+    import tempfile
+
+    from geoloc.io.klv import Packet, _packet_end, read_klv_file, write_ts
+
+    data = open(os.fspath(path), "rb").read()
+    blobs, stamps, bad = [], [], 0
+    for r in read_klv_file(path):
+        if not isinstance(r, Packet):
+            bad += 0 if r.reason.endswith("are not a UAS LS packet") else 1
+            continue
+        blobs.append(data[r.offset:r.offset + _packet_end(data[r.offset:r.offset + 26])])
+        stamps.append(r.fields.get("precision_time_stamp_us"))
+    if not blobs:
+        raise ValueError(f"{path}: no packet of it can be decoded ({bad} bad): nothing a receiver could use "
+                         "(geoloc klv dump names what is wrong with each)")
+    pts = None
+    if all(isinstance(t, int) for t in stamps) and all(b >= a for a, b in zip(stamps, stamps[1:])):
+        pts = [(t - stamps[0]) * 9 // 100 for t in stamps]  # microseconds -> 90 kHz ticks
+    with tempfile.TemporaryDirectory(prefix="geoloc-klv-send-") as d:
+        ts = os.path.join(d, "klv.ts")
+        write_ts(ts, blobs, pts=pts)
+        with open(ts, "rb") as f:
+            return f.read(), len(blobs), bad
 
 
 def send(source, url, *, speed: float | None = 1.0, per: int = DATAGRAM_PACKETS, loss: float = 0.0,

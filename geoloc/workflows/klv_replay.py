@@ -74,6 +74,7 @@ from geoloc.io.klv import (
     TAG_BY_NAME,
     KlvError,
     Packet,
+    QuirkTally,
     is_container_file,
     iter_packets,
     packets_to_columns,
@@ -160,6 +161,9 @@ class KlvRead:
         :func:`geoloc.io.klv.packets_to_columns` of the good packets.
     errors : list of KlvError
         The bad packets, in file order, with their byte offsets.
+    quirks : list of str
+        The writer's quirks that left the values unambiguous, one line per kind with its
+        count and first offset (:class:`geoloc.io.klv.QuirkTally`, docs/klv.md).
     pts_s : ndarray
         Container presentation time of each good packet [s] (NaN for raw KLV).
     packet : ndarray of int
@@ -172,6 +176,7 @@ class KlvRead:
     errors: list
     pts_s: np.ndarray
     packet: np.ndarray
+    quirks: list = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.columns["offset"])
@@ -210,8 +215,10 @@ def _is_stray(e: KlvError) -> bool:
 def _from_results(results, source: str) -> KlvRead:
     packets, errors, number = [], [], []
     seq = 0
+    tally = QuirkTally()
     for r in results:
         if isinstance(r, Packet):
+            tally.add(r)
             packets.append(r)
             number.append(seq)
             seq += 1
@@ -220,7 +227,7 @@ def _from_results(results, source: str) -> KlvRead:
             seq += 0 if _is_stray(r) else 1
     cols = packets_to_columns(packets)
     pts_s = np.array([np.nan if p.time_s is None else p.time_s for p in packets], float)
-    return KlvRead(source, cols, errors, pts_s, np.array(number, np.int64))
+    return KlvRead(source, cols, errors, pts_s, np.array(number, np.int64), tally.lines())
 
 
 def read_klv(source, *, verify_checksum: bool = True, fast: bool = True, label: str | None = None) -> KlvRead:
@@ -266,10 +273,11 @@ def read_klv(source, *, verify_checksum: bool = True, fast: bool = True, label: 
 
 def _read_bytes(data: bytes, source: str, verify: bool, fast: bool) -> KlvRead:
     if fast:
-        cols = packets_to_columns(data, verify_checksum=verify)
+        tally = QuirkTally()
+        cols = packets_to_columns(data, verify_checksum=verify, quirks=tally)
         if _tiles(data, cols["offset"]):
             m = len(cols["offset"])
-            return KlvRead(source, cols, [], np.full(m, np.nan), np.arange(m, dtype=np.int64))
+            return KlvRead(source, cols, [], np.full(m, np.nan), np.arange(m, dtype=np.int64), tally.lines())
     return _from_results(iter_packets(data, verify_checksum=verify), source)
 
 
@@ -395,6 +403,8 @@ class KlvSummary:
     #: One line per drone packet (Platform Designation, or the sensor file's ``platform``) whose
     #: sensor is too high for a drone (:func:`_drone_height_warnings`, docs/records.md).
     plausibility_warnings: list = field(default_factory=list)
+    #: The writer's quirks that left the values unambiguous: one line per kind (count, first offset).
+    quirks: list = field(default_factory=list)
 
     def __str__(self) -> str:
         L = [f"{self.source}: {self.packets} packets read, {len(self.errors)} bad packet(s) skipped"]
@@ -402,6 +412,8 @@ class KlvSummary:
             L.append(f"  bad packet at {_where(e)}: {e.reason}")
         if len(self.errors) > 20:
             L.append(f"  ... and {len(self.errors) - 20} more bad packets")
+        for q in self.quirks:
+            L.append(f"  quirk: {q}")
         L.append(f"  surface: {self.surface}")
         L.append("  sensor height: " + _counts(self.sensor_h_sources))
         L.append("  reported frame-centre height: " + _counts(self.reported_h_sources))
@@ -966,7 +978,8 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
         outliers=read.packet[outlier].tolist(), outlier_median_m=med, outlier_threshold_m=thr,
         sensor_h_sources={"tag 75 (HAE)": int(from75.sum()), "tag 15 (MSL) + EGM96 N": int(from15.sum())},
         reported_h_sources={"tag 78 (HAE)": int(from78.sum()), "tag 25 (MSL) + EGM96 N": int(from25.sum())},
-        surface=surface_text, datum_warnings=warnings, notes=summ_notes, plausibility_warnings=plaus)
+        surface=surface_text, datum_warnings=warnings, notes=summ_notes, plausibility_warnings=plaus,
+        quirks=list(read.quirks))
     return KlvReplay(cols, list(read.errors), summary, sens)
 
 
