@@ -575,8 +575,8 @@ def _compile_make(kinds, quirks=()):
                 entries[spec.name] = f"{spec.name!r}: {raw} * {spec.step!r}" + (f" + {spec.lo!r}" if spec.lo else "")
             elif spec.kind == "int":
                 entries[spec.name] = f"{spec.name!r}: {raw} * {spec.step!r}"
-                if spec.reserved:
-                    reserved[spec.name] = (raw, spec, -(1 << (8 * ln - 1)))
+                if spec.reserved and ln >= spec.size:  # the standard's sentinel, sign-extended
+                    reserved[spec.name] = (raw, spec, -(1 << (8 * spec.size - 1)))
             else:
                 entries[spec.name] = f"{spec.name!r}: {raw}"
             if ln != spec.size and spec.kind in ("uint", "int"):
@@ -943,8 +943,12 @@ def _scan_eg0104(data, k, n, base, final, state, max_length):
             return None
         state.garbage_from = None
         return KlvError(base + k, f"truncated: the EG 0104 length says {L} bytes, only {n - vs} are left"), k + 1
+    body = data[vs:ve]
+    if UAS_LS_KEY in body or EG0104_KEY in body:  # no checksum: a length over the next key is the tell
+        state.garbage_from = None
+        return KlvError(base + k, "EG 0104 packet: its length runs over the next packet's key"), k + 1
     try:
-        fields, _, quirks = decode_eg0104(data[vs:ve])
+        fields, _, quirks = decode_eg0104(body)
     except SetError as e:
         state.garbage_from = None
         return KlvError(base + k, f"EG 0104 packet: {e}"), k + 1
@@ -1791,8 +1795,8 @@ def _item_values(spec, Ms, off, ln):
         val = raw * spec.step + spec.lo if spec.lo else raw * spec.step
     elif spec.kind == "int":
         val = raw * spec.step
-        if spec.reserved:
-            mask = raw == -(1 << (8 * ln - 1))
+        if spec.reserved and ln >= spec.size:  # the standard's sentinel, sign-extended
+            mask = raw == -(1 << (8 * spec.size - 1))
             if mask.any():
                 val[mask] = np.nan
                 flags.append((mask, spec.reserved))
