@@ -222,6 +222,47 @@ def test_quirks_are_counted_alike_by_the_batch_and_the_packet_decoders():
     np.testing.assert_allclose(cols["target_width_m"][3:43], 300.0, atol=spec.step / 2)
 
 
+def test_non_minimal_ber_lengths_are_read():
+    """A BER length in more bytes than it needs (82 00 04 for 4), as jmisb wrote some before its
+    issue 124: the same value, nothing to report."""
+    items = b"\x05\x82\x00\x02\x71\xc2" + item(13, raw_of(klv.TAG_BY_NUMBER[13], 36.3, 4))
+    head = KEY + b"\x83\x00\x00" + bytes((len(items) + 4,)) + items + b"\x01\x02"
+    words = head + (b"\0" if len(head) % 2 else b"")
+    ck = sum(int.from_bytes(words[i:i + 2], "big") for i in range(0, len(words), 2)) & 0xFFFF
+    p = head + ck.to_bytes(2, "big")
+    (ours,) = klv.iter_packets(p)
+    assert ours.quirks == () and ours["platform_heading_deg"] == pytest.approx(0x71C2 * 360 / 65535)
+    assert agree_with_klvdata(ours, klvdata_items(p)[0]) == 2
+
+
+def test_the_replay_of_a_quirky_older_stream_equals_the_standard_ones():
+    """An older writer's packets (no version tag 65, no time stamp, no HAE items: ST 0601's early
+    item set) with Target Width in 4 bytes: the replay reads every packet, says the quirk once,
+    and locates each frame centre as for the same packets written to the standard."""
+    from geoloc.workflows.klv_replay import replay_klv
+
+    base = dict(platform_heading_deg=90.0, platform_pitch_deg=1.0, platform_roll_deg=0.5,
+                sensor_latitude_deg=36.3, sensor_longitude_deg=-84.2, sensor_true_altitude_m=1500.0,
+                sensor_horizontal_fov_deg=10.0, sensor_vertical_fov_deg=6.0, sensor_relative_azimuth_deg=10.0,
+                sensor_relative_elevation_deg=-45.0, sensor_relative_roll_deg=0.0,
+                frame_center_latitude_deg=36.31, frame_center_longitude_deg=-84.19, frame_center_elevation_m=300.0)
+    spec = klv.TAG_BY_NUMBER[22]
+    std, quirky = [], []
+    for i in range(20):
+        f = dict(base, platform_heading_deg=90.0 + i)
+        body = klv.encode_packet(f, with_checksum=False)[17:]
+        std.append(packet(body + item(22, raw_of(spec, 150.0, 2))))
+        quirky.append(packet(body + item(22, raw_of(spec, 150.0, 4))))
+    a, b = replay_klv(b"".join(std)), replay_klv(b"".join(quirky))
+    assert len(a) == len(b) == 20 and not b.errors
+    assert [line for line in str(b.summary).splitlines() if "quirk" in line] == [
+        "  quirk: tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with the standard's "
+        f"step (20 packets, the first at byte 0)"]
+    for name in ("lat_deg", "lon_deg", "h_m", "frame_center_error_m"):
+        assert np.isfinite(a.columns[name]).all()
+        np.testing.assert_array_equal(a.columns[name], b.columns[name])
+
+
 def test_klv_dump_exit_codes():
     """Issue 47: `klv dump` of a file with no decodable packet exited 0. Now 0 all decoded,
     1 some not, 2 none."""
@@ -443,9 +484,12 @@ def _wild_packets(n=4, vmti=True):
     return out
 
 
-@pytest.mark.parametrize("layout", ["async", "sync", "programs", "no_psi_bd", "no_psi_fc", "no_psi_foreign_id"])
+@pytest.mark.parametrize("layout", ["async", "sync", "programs", "no_psi_bd", "no_psi_fc", "no_psi_foreign_id",
+                                    "async_type_sync_id"])
 def test_klv_in_transport_streams_as_multiplexers_write_them(tmp_path, layout):
-    kw = {"async": {}, "sync": {"sync": True}, "programs": {"programs": 2},
+    # async_type_sync_id: stream type 0x06 (KLVA) with the metadata stream id 0xFC, as jmisb wrote
+    # it before its issue 119
+    kw = {"async": {}, "sync": {"sync": True}, "programs": {"programs": 2}, "async_type_sync_id": {"stream_id": 0xFC},
           "no_psi_bd": {"psi": False}, "no_psi_fc": {"psi": False, "sync": True},
           "no_psi_foreign_id": {"psi": False, "stream_id": 0xC0}}[layout]
     pk = _wild_packets()

@@ -812,10 +812,11 @@ def _scan(data, base, final, state, verify, start=0, max_length=MAX_PACKET_LENGT
             k = pos
         else:
             k = find(key, pos)
-            if k104 < pos:
-                k104 = find(EG0104_KEY, pos)
+            if k104 < pos:  # an EG 0104 key before the next UAS LS key? (the search stops there)
+                stop = k if k >= 0 else n
+                k104 = find(EG0104_KEY, pos, stop)
                 if k104 < 0:
-                    k104 = n
+                    k104 = stop if k >= 0 else n
             if k104 < n and (k < 0 or k104 < k):
                 r = _scan_eg0104(data, k104, n, base, final, state, max_length)
                 if r is None:  # may continue in data not yet read
