@@ -640,3 +640,31 @@ def test_mutated_transport_streams_never_raise_and_keep_the_untouched_packets(da
     good = [r for r in res if isinstance(r, Packet)]
     want = [klv.decode_packet(b).fields for b in pk]
     assert len(good) >= 3 and all(r.fields in want for r in good)
+
+
+def test_klv_fix_rewrites_an_item_given_at_another_length(tmp_path):
+    """`klv fix` replaces the frame-centre items: one a writer gave in 4 bytes (tag 25) is
+    rewritten at the standard's 2 bytes (the packet's length redone), every other item kept."""
+    from geoloc.workflows.klv_fix import fix_klv
+
+    base = dict(platform_heading_deg=90.0, platform_pitch_deg=1.0, platform_roll_deg=0.5,
+                sensor_latitude_deg=36.3, sensor_longitude_deg=-84.2, sensor_true_altitude_m=1500.0,
+                sensor_horizontal_fov_deg=10.0, sensor_vertical_fov_deg=6.0, sensor_relative_azimuth_deg=10.0,
+                sensor_relative_elevation_deg=-45.0, sensor_relative_roll_deg=0.0,
+                frame_center_latitude_deg=36.31, frame_center_longitude_deg=-84.19)
+    spec = klv.TAG_BY_NUMBER[25]
+    pk = [packet(klv.encode_packet(dict(base, platform_heading_deg=90.0 + i), with_checksum=False)[17:]
+                 + item(25, raw_of(spec, 300.0, 4)) + item(22, raw_of(klv.TAG_BY_NUMBER[22], 80.0, 4)))
+          for i in range(5)]
+    src, out = tmp_path / "in.klv", tmp_path / "out.klv"
+    src.write_bytes(b"".join(pk))
+    fix = fix_klv(src, out)
+    assert fix.packets == 5 and fix.rewritten == 5
+    res = list(klv.read_klv_file(out))
+    assert all(isinstance(r, Packet) for r in res) and len(res) == 5
+    for r, b in zip(res, pk):
+        old = klv.decode_packet(b)
+        assert r.quirks == ("tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with "
+                            "the standard's step",)  # tag 25 now at the standard's length
+        assert r["target_width_m"] == old["target_width_m"] and r["platform_heading_deg"] == old["platform_heading_deg"]
+        assert np.isfinite(r["frame_center_elevation_m"])

@@ -1485,8 +1485,11 @@ def replace_values(packet: bytes, values: dict) -> bytes:
 
     Every other byte is kept: the key, the BER length, every other item (tag,
     length and value), the order of the items. A new value must have its
-    item's length (the packet's length bytes are not rewritten), and the last
-    item must be the checksum (tag 1), which is recomputed (MISB ST 0601 Tag 1).
+    item's length (the packet's length bytes are not rewritten), or, for an item a
+    writer gave at another length than the standard's, the standard's length: then
+    the item is rewritten at it and the packet's BER length redone (docs/klv.md,
+    "Encoders in the wild"). The last item must be the checksum (tag 1), which is
+    recomputed (MISB ST 0601 Tag 1).
 
     Parameters
     ----------
@@ -1508,14 +1511,24 @@ def replace_values(packet: bytes, values: dict) -> bytes:
     if not items or items[-1][0] != _CHECKSUM_TAG or items[-1][2] - items[-1][1] != 2:
         raise KlvError(0, "the packet does not end with a checksum item (tag 1, 2 bytes)")
     where = {t: (a, b) for t, a, b in items}
+    resized = False
     for tag, v in values.items():
         if tag not in where:
             raise ValueError(f"tag {tag} is not in the packet: replace_values adds no item")
         a, b = where[tag]
         v = bytes(v)
         if len(v) != b - a:
-            raise ValueError(f"tag {tag}: {len(v)} new bytes for an item of {b - a}")
+            spec = TAG_BY_NUMBER.get(tag)
+            if spec is None or spec.kind in ("str",) or len(v) != spec.size:
+                raise ValueError(f"tag {tag}: {len(v)} new bytes for an item of {b - a}")
+            resized = True  # a writer's item at another length: rewritten at the standard's
+            continue
         data[a:b] = v
+    if resized:
+        body = b"".join(ber_oid(t) + ber_length(len(v)) + v for t, v in
+                        ((t, bytes(values[t]) if t in values else bytes(data[a:b])) for t, a, b in items[:-1]))
+        head = UAS_LS_KEY + ber_length(len(body) + 4) + body + b"\x01\x02"
+        return head + checksum(head + b"\0\0").to_bytes(2, "big")
     data[-2:] = checksum(bytes(data)).to_bytes(2, "big")
     return bytes(data)
 
