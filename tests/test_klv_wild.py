@@ -668,3 +668,23 @@ def test_klv_fix_rewrites_an_item_given_at_another_length(tmp_path):
                             "the standard's step",)  # tag 25 now at the standard's length
         assert r["target_width_m"] == old["target_width_m"] and r["platform_heading_deg"] == old["platform_heading_deg"]
         assert np.isfinite(r["frame_center_elevation_m"])
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.binary(max_size=200), st.sampled_from(["vmti", "security", "eg0104"]))
+def test_the_set_decoders_raise_only_their_own_error(value, which):
+    """Random bytes into the nested-set and EG 0104 decoders: a value, or SetError (which the
+    reader turns into a quirk of the packet, or a bad EG 0104 packet with its offset)."""
+    from geoloc.io import klv_sets
+
+    dec = {"vmti": klv_sets.decode_vmti, "security": klv_sets.decode_security,
+           "eg0104": klv_sets.decode_eg0104}[which]
+    try:
+        dec(value)
+    except klv_sets.SetError:
+        pass
+    # the same bytes inside a packet never raise, and the packet is kept
+    tag = {"vmti": 74, "security": 48, "eg0104": 200}[which]
+    (p,) = klv.iter_packets(packet(item(5, b"\x71\xc2") + item(tag, value)))
+    assert isinstance(p, Packet) and p.unknown[tag] == value
+    json.dumps(p.to_json(), allow_nan=False)

@@ -21,10 +21,18 @@ sea level (orthometric), ``sensor_ellipsoid_height_m`` (tag 75) and
 are kept raw (tag number -> bytes) in :attr:`Packet.unknown`.
 
 Bad packets do not stop a read: a checksum mismatch, a truncated packet, a length
-running past the end, an item whose length is wrong for its type, or bytes that
-are no packet at all are reported as a :class:`KlvError` (byte offset of the
-packet's key in the file, and the reason) in the stream of results, and the scan
-resumes at the next key.
+running past the end, an integer item longer than 8 bytes, or bytes that are no
+packet at all are reported as a :class:`KlvError` (byte offset of the packet's key
+in the file, and the reason) in the stream of results, and the scan resumes at the
+next key.
+
+What writers in the wild do is read (docs/klv.md, "Encoders in the wild"): an
+integer item at another length than the standard's is decoded at its length with
+the standard's step, an empty numeric item is absent, the nested ST 0102 security
+(tag 48) and ST 0903 VMTI (tag 74) sets are decoded into fields
+(:mod:`geoloc.io.klv_sets`), and packets of the older EG 0104 universal set are found
+by their key and read into the same field names. Each such quirk is listed in
+:attr:`Packet.quirks` and tallied once per kind by :class:`QuirkTally`.
 
 Speed: packets of a stream mostly share one layout (the same items with the same
 lengths in the same order). The decoder walks the items of the first packet of
@@ -1187,7 +1195,8 @@ def is_container_file(path) -> bool:
 
 def read_packets(path, *, verify_checksum: bool = True) -> Iterator[Packet | KlvError]:
     """Raw KLV files through :func:`read_klv_file`, containers (MPEG-TS, MP4, Matroska,
-    MPEG-PS) through :func:`read_ts_klv`; which is which is sniffed from the bytes
+    MPEG-PS) through :func:`read_ts_klv` (an MPEG-TS in which FFmpeg finds no data stream
+    through geoloc's own demultiplexer); which is which is sniffed from the bytes
     (:func:`is_container_file`), the suffix deciding only when the bytes do not say."""
     note_input(path)
     if is_container_file(path):
