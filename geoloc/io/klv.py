@@ -63,6 +63,7 @@ from typing import BinaryIO, Iterable, Iterator
 
 import numpy as np
 
+from geoloc.io.klv_sets import UAS_LS_KEY as _UAS_LS_KEY
 from geoloc.io.klv_sets import EG0104_KEY, SetError, decode_eg0104, decode_security, decode_vmti
 from geoloc.userfiles import note_input
 from geoloc.extras import require
@@ -98,7 +99,7 @@ __all__ = [
 
 #: The 16-byte universal key of the UAS Datalink Local Set (MISB ST 0601, "UAS
 #: Datalink LS" key 06.0E.2B.34.02.0B.01.01.0E.01.03.01.01.00.00.00).
-UAS_LS_KEY = bytes.fromhex("060E2B34020B01010E01030101000000")
+UAS_LS_KEY = _UAS_LS_KEY
 
 #: Largest packet (value length) the scanner accepts; a longer BER length is taken
 #: as a corrupt length and reported, so a streaming read never buffers more.
@@ -952,8 +953,11 @@ def _scan_eg0104(data, k, n, base, final, state, max_length):
             return None
         state.garbage_from = None
         return KlvError(base + k, f"truncated: the EG 0104 length says {L} bytes, only {n - vs} are left"), k + 1
+    if not final and ve + 15 > n:
+        return None  # a key overlapping its end may be in the data not yet read
     body = data[vs:ve]
-    if UAS_LS_KEY in body or EG0104_KEY in body:  # no checksum: a length over the next key is the tell
+    # no checksum: a length running over (into) the next packet's key is the tell
+    if any(0 <= data.find(key, vs, ve + 15) < ve for key in (UAS_LS_KEY, EG0104_KEY)):
         state.garbage_from = None
         return KlvError(base + k, "EG 0104 packet: its length runs over the next packet's key"), k + 1
     try:
@@ -1133,19 +1137,31 @@ def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None
 
 
 def _read_ts_native(path, verify_checksum: bool, why: str) -> Iterator[Packet | KlvError]:
-    """The KLV of an MPEG-TS through geoloc's own demultiplexer (:class:`geoloc.io.live.TsDemuxer`),
+    """The KLV of an MPEG-TS through geoloc's own demultiplexer (:class:`geoloc.io.ts_demux.TsDemuxer`),
     read in chunks: the PES of the PMT's KLV streams, or with no PAT / PMT those whose data starts
-    with a UAS LS or EG 0104 key. Raises ValueError(``why``) when it finds none either."""
-    from geoloc.io.live import LiveReceiver
+    with a UAS LS or EG 0104 key. Results carry the offset of the TS packet that started their PES,
+    its pts and the 90 kHz time base (as the live receiver gives them). Raises ValueError(``why``)
+    when it finds none either."""
+    from geoloc.io.ts_demux import TsDemuxer
 
-    rx = LiveReceiver(verify_checksum=verify_checksum, window=1, video_window=1, keep_video_data=False)
+    dm = TsDemuxer(keep_video=False, reorder=False, video_window=1)
+    tb = Fraction(1, 90000)
     n = 0
     with open(path, "rb") as f:
         while True:
             chunk = f.read(1 << 20)
-            res = rx.push_bytes(chunk) if chunk else rx.flush()
-            n += len(res)
-            yield from res
+            units = dm.feed(chunk) if chunk else dm.flush()
+            for u in units:
+                if u.kind != "klv" or not u.data:
+                    continue
+                out, _ = _scan(u.data, 0, True, _ScanState(0), verify_checksum)
+                for r in out:
+                    if isinstance(r, Packet):
+                        r.offset, r.pts, r.time_base = u.offset, u.pts, tb
+                    else:
+                        r = KlvError(u.offset, r.reason, u.pts)
+                    n += 1
+                    yield r
             if not chunk:
                 break
     if n == 0:

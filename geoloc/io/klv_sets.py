@@ -31,6 +31,7 @@ from datetime import datetime, timezone
 __all__ = [
     "SetError",
     "EG0104_KEY",
+    "UAS_LS_KEY",
     "EG0104_ITEMS",
     "SECURITY_CLASSIFICATION",
     "decode_security",
@@ -48,6 +49,8 @@ class SetError(ValueError):
 
 #: The 16-byte key of the EG 0104 Predator UAV Basic Universal Set (MISB EG 0104.5).
 EG0104_KEY = bytes.fromhex("060E2B34020101010E01010201010000")
+#: The 16-byte key of the UAS Datalink Local Set (MISB ST 0601; :data:`geoloc.io.klv.UAS_LS_KEY`).
+UAS_LS_KEY = bytes.fromhex("060E2B34020B01010E01030101000000")
 
 #: ST 0102 tag 1: the classification enumeration (MISB ST 0102, Security Classification).
 SECURITY_CLASSIFICATION = {1: "UNCLASSIFIED", 2: "RESTRICTED", 3: "CONFIDENTIAL", 4: "SECRET",
@@ -108,6 +111,24 @@ _EG0104_BY_MASKED = {_mask(k): v for k, v in EG0104_ITEMS.items()}
 
 
 # --------------------------------------------------------------------------- BER pieces
+
+
+def ber_length(n: int) -> bytes:
+    """BER length (SMPTE ST 336): short form below 128, else 0x80 + count, then the bytes."""
+    if n < 128:
+        return bytes((n,))
+    m = (n.bit_length() + 7) // 8
+    return bytes((0x80 | m,)) + n.to_bytes(m, "big")
+
+
+def ber_oid(tag: int) -> bytes:
+    """BER-OID tag (SMPTE ST 336): 7 bits a byte, the high bit set on all but the last."""
+    out = [tag & 0x7F]
+    tag >>= 7
+    while tag:
+        out.append(0x80 | (tag & 0x7F))
+        tag >>= 7
+    return bytes(reversed(out))
 
 
 def _ber_length(data, p: int, end: int) -> tuple[int, int]:
@@ -263,8 +284,6 @@ def decode_vmti(value: bytes) -> dict:
 
 def encode_local_set(items) -> bytes:
     """A local set from (tag, value bytes) items (BER-OID tags, BER lengths): for tests and writers."""
-    from geoloc.io.klv import ber_length, ber_oid
-
     return b"".join(ber_oid(t) + ber_length(len(v)) + bytes(v) for t, v in items)
 
 
@@ -277,8 +296,6 @@ def encode_vmti(width: int, height: int, targets, *, system: str = "", version: 
     def num(rc):
         n = rc[1] + (rc[0] - 1) * width
         return n.to_bytes(max(1, (n.bit_length() + 7) // 8), "big")
-
-    from geoloc.io.klv import ber_length, ber_oid
 
     packs = []
     for tid, c, tl, br, conf in targets:
@@ -367,7 +384,5 @@ def decode_eg0104(value: bytes) -> tuple[dict, dict, list]:
 
 def encode_eg0104(items) -> bytes:
     """An EG 0104 packet from (universal key bytes, value bytes) items: key, BER length, items."""
-    from geoloc.io.klv import ber_length
-
     body = b"".join(bytes(k) + ber_length(len(v)) + bytes(v) for k, v in items)
     return EG0104_KEY + ber_length(len(body)) + body
