@@ -688,3 +688,17 @@ def test_the_set_decoders_raise_only_their_own_error(value, which):
     (p,) = klv.iter_packets(packet(item(5, b"\x71\xc2") + item(tag, value)))
     assert isinstance(p, Packet) and p.unknown[tag] == value
     json.dumps(p.to_json(), allow_nan=False)
+
+
+def test_filler_between_packets_is_named_a_few_times_then_counted(tmp_path):
+    """Bytes between every packet (a writer's stuffing): no packet is lost; `klv dump` names the
+    first three runs and counts the others in one line, instead of one line per packet."""
+    good = packet(item(5, b"\x71\xc2"))
+    path = tmp_path / "stuffed.klv"
+    path.write_bytes((good + b"\xff" * 7) * 50)
+    r = subprocess.run([sys.executable, "-m", "geoloc", "klv", "dump", str(path)], capture_output=True, text=True,
+                       cwd=ROOT, timeout=120)
+    assert r.returncode == 0 and len(r.stdout.splitlines()) == 50
+    err = r.stderr.splitlines()
+    assert len(err) == 4 and err[-1].endswith("and 47 more runs of bytes that are no UAS LS packet between "
+                                              "packets (no packet lost)")

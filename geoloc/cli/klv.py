@@ -189,6 +189,10 @@ def _bind(url):
     return open_socket(u)
 
 
+#: Runs of bytes between packets that are no packet, named one by one before they are only counted.
+STRAY_SHOWN = 3
+
+
 def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:
     """Write each good packet as a JSON line to ``out``, report each bad one; returns (good, bad).
 
@@ -196,12 +200,17 @@ def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:
     good packets are reported at the end, once per kind (:class:`geoloc.io.klv.QuirkTally`)."""
     from geoloc.io.klv import KlvError, QuirkTally
 
-    good = bad = 0
+    good = bad = stray = 0
     quirks = QuirkTally()
     try:
         for r in results:
             if isinstance(r, KlvError):
-                if not r.reason.endswith("are not a UAS LS packet"):
+                if r.reason.endswith("are not a UAS LS packet"):
+                    # filler between packets (no packet lost): the first few named, the rest counted
+                    stray += 1
+                    if stray > STRAY_SHOWN:
+                        continue
+                else:
                     bad += 1
                 print(f"geoloc klv: {name}: {r}", file=sys.stderr)
                 continue
@@ -212,6 +221,9 @@ def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:
             if flush:
                 out.flush()
     finally:
+        if stray > STRAY_SHOWN:
+            print(f"geoloc klv: {name}: and {stray - STRAY_SHOWN} more runs of bytes that are no UAS LS packet "
+                  "between packets (no packet lost)", file=sys.stderr)
         for line in quirks.lines():
             print(f"geoloc klv: {name}: quirk: {line}", file=sys.stderr)
     return good, bad
