@@ -668,6 +668,15 @@ def test_klv_fix_rewrites_an_item_given_at_another_length(tmp_path):
                             "the standard's step",)  # tag 25 now at the standard's length
         assert r["target_width_m"] == old["target_width_m"] and r["platform_heading_deg"] == old["platform_heading_deg"]
         assert np.isfinite(r["frame_center_elevation_m"])
+    # an EG 0104 packet among them is copied as it is, and said so
+    eg = eg0104_packet(0)
+    src.write_bytes(pk[0] + eg + pk[1])
+    fix = fix_klv(src, out)
+    assert fix.rewritten == 2 and any("EG 0104" in why for _, why in fix.unchanged)
+    data = out.read_bytes()
+    assert eg in data  # byte for byte
+    kinds = [type(r).__name__ for r in klv.read_klv_file(out)]
+    assert kinds == ["Packet"] * 3
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -42,8 +42,8 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.geodesy.geoid import egm96_undulation
-from geoloc.io.klv import (TAG_BY_NAME, KlvError, add_items, encode_value, is_container_file, iter_packets,
-                          local_set_items, replace_values)
+from geoloc.io.klv import (TAG_BY_NAME, UAS_LS_KEY, KlvError, add_items, encode_value, is_container_file,
+                          iter_packets, local_set_items, replace_values)
 from geoloc.status import Status, describe
 from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, read_klv, replay_klv
 from geoloc.extras import require
@@ -184,6 +184,9 @@ class _Rewriter:
         self.k += 1
         if k >= len(self.r):
             raise RuntimeError("more good packets than replay rows: the stream changed while it was read")
+        if not blob.startswith(UAS_LS_KEY):  # an EG 0104 universal set (docs/klv.md): no ST 0601 item to rewrite
+            self.fix.unchanged.append((int(self.number[k]), "an EG 0104 packet: klv fix rewrites ST 0601 items only"))
+            return blob
         tags = {t for t, _, _ in local_set_items(blob)}
         notes = []
         values = _new_values(self.r, k, tags, notes, self.errors)
