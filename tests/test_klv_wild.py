@@ -29,7 +29,7 @@ from klvdata.misb0102 import SecurityClassification
 
 import ts_builder as tb
 from geoloc.io import klv
-from geoloc.io.klv import KlvError, Packet, QuirkTally
+from geoloc.io.klv import Packet, QuirkTally
 from geoloc.io.klv_sets import EG0104_ITEMS, EG0104_KEY, encode_local_set
 from geoloc.io.live import LiveReceiver, klv_as_ts
 
@@ -257,7 +257,7 @@ def test_the_replay_of_a_quirky_older_stream_equals_the_standard_ones():
     assert len(a) == len(b) == 20 and not b.errors
     assert [line for line in str(b.summary).splitlines() if "quirk" in line] == [
         "  quirk: tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with the standard's "
-        f"step (20 packets, the first at byte 0)"]
+        "step (20 packets, the first at byte 0)"]
     for name in ("lat_deg", "lon_deg", "h_m", "frame_center_error_m"):
         assert np.isfinite(a.columns[name]).all()
         np.testing.assert_array_equal(a.columns[name], b.columns[name])

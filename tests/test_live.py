@@ -23,8 +23,6 @@ from geoloc.assets import ASSETS
 from geoloc.io.klv import KlvError, Packet, read_ts_klv, read_klv_file, write_ts
 from geoloc.io.live import (
     LiveReceiver,
-    TsDemuxer,
-    crc32_mpeg2,
     datagrams_of,
     exposure_note,
     open_socket,
@@ -32,6 +30,7 @@ from geoloc.io.live import (
     receive,
     send,
 )
+from geoloc.io.ts_demux import TsDemuxer, crc32_mpeg2
 
 TS = Path(ASSETS) / "klv" / "example_flight.ts"
 KLV = Path(ASSETS) / "klv" / "example_flight.klv"

@@ -54,26 +54,19 @@ import socket
 import sys
 import time
 from collections import deque
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from fractions import Fraction
 from typing import Callable, Iterator
 from urllib.parse import parse_qs, urlsplit
 
 from geoloc.io.klv import KlvError, Packet, _scan, _ScanState
-from geoloc.io.ts_demux import (  # the demultiplexer, re-exported here where it was first written
-    _KLV_STREAM_IDS,
+from geoloc.io.ts_demux import (  # the demultiplexer the receiver runs
     _NO_PES_HEADER_IDS,
-    _STREAM_TYPES_VIDEO,
-    MAX_PES,
     TS_PACKET,
     VIDEO_WINDOW,
     LiveStats,
-    PesUnit,
     TsDemuxer,
-    _metadata_cells,
-    _registration,
     _timestamp,
-    crc32_mpeg2,
 )
 
 __all__ = [
@@ -86,8 +79,6 @@ __all__ = [
     "open_socket",
     "listening",
     "wait_for_listener",
-    "PesUnit",
-    "TsDemuxer",
     "LiveStats",
     "LiveReceiver",
     "receive",

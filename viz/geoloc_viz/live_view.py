@@ -198,7 +198,7 @@ class LiveFeed:
         units = list(video)[-min(n_new, len(video)):]
         try:
             if self._decoder is None:
-                from geoloc.io.live import _STREAM_TYPES_VIDEO
+                from geoloc.io.ts_demux import _STREAM_TYPES_VIDEO
 
                 stype = self.rx.demux.streams.get(units[0][2], ("video", 0x1B))[1]
                 self._decoder = av.CodecContext.create(_STREAM_TYPES_VIDEO.get(stype, "h264"), "r")
