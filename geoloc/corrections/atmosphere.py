@@ -187,9 +187,7 @@ class StandardAtmosphere:
         """
         h = np.asarray(h_m, float)
         T, P = self.temperature_pressure(np.minimum(h, TOP_M))
-        t = T - 273.15
-        nm1 = standard_air_refractivity(self.wavelength_um) * P * (1.0 + 1e-8 * (0.601 - 0.00972 * t) * P) / (
-            96095.43 * (1.0 + 0.003661 * t))
+        nm1 = air_refractivity(P, T, self.wavelength_um)
         scale_h = R_AIR * T / G0  # the scale height RT/g at 86 km, 5.5 km
         above = h > TOP_M
         with np.errstate(over="ignore", invalid="ignore"):
@@ -237,6 +235,18 @@ def _refractivity_table(atm: StandardAtmosphere):
     eps = atm.refractivity(h)
     eps.setflags(write=False)
     return TABLE_H0_M, TABLE_STEP_M, eps
+
+
+def air_refractivity(p_pa, t_k, wavelength_um: float = WAVELENGTH_UM):
+    """n - 1 of dry air at pressure ``p_pa`` [Pa] and temperature ``t_k`` [K] [BD93 eq. 2-3].
+
+    (n - 1)_tp = (n - 1)_s p [1 + 1e-8 (0.601 - 0.00972 t) p] / (96095.43 (1 + 0.003661 t)),
+    t in degC; 2.7180e-4 at 20 degC, 101 325 Pa, 633 nm.
+    """
+    p = np.asarray(p_pa, float)
+    t = np.asarray(t_k, float) - 273.15
+    return standard_air_refractivity(wavelength_um) * p * (1.0 + 1e-8 * (0.601 - 0.00972 * t) * p) / (
+        96095.43 * (1.0 + 0.003661 * t))
 
 
 def standard_air_refractivity(wavelength_um: float = WAVELENGTH_UM) -> float:

@@ -216,9 +216,16 @@ def _correct_kernel(o, d, p, at_h, mode, h0, step, table, bottoms, values, bound
             out_shift[i] = math.nan
             continue
         dx, dy, dz = dx / dn, dy / dn, dz / dn
+        # the sphere osculates the ellipsoid at the ray's lower end: the hit, or the camera when
+        # it looks up at the hit (there the atmosphere the ray crosses is densest)
         lat, lon, hg, ux, uy, uz = geodetic_up(px, py, pz)
+        lat_o, lon_o, ho, uox, uoy, uoz = geodetic_up(ox, oy, oz)
+        if ho < hg:
+            ax, ay, az, ha, lat, ux, uy, uz = ox, oy, oz, ho, lat_o, uox, uoy, uoz
+        else:
+            ax, ay, az, ha = px, py, pz, hg
         R = _radius_along(lat, ux, uy, uz, dx, dy, dz)
-        cx, cy, cz = px - (R + hg) * ux, py - (R + hg) * uy, pz - (R + hg) * uz
+        cx, cy, cz = ax - (R + ha) * ux, ay - (R + ha) * uy, az - (R + ha) * uz
         ocx, ocy, ocz = ox - cx, oy - cy, oz - cz
         wp = ocx * dx + ocy * dy + ocz * dz
         fx, fy, fz = ocx - wp * dx, ocy - wp * dy, ocz - wp * dz
@@ -235,6 +242,8 @@ def _correct_kernel(o, d, p, at_h, mode, h0, step, table, bottoms, values, bound
             continue
         qg = math.sqrt(rg * rg - c0 * c0)
         wg = -qg if wq <= 0.0 else qg
+        if -1e-9 * rg < wp < 0.0 and wg > 0.0:
+            wp = 0.0  # a level look from the anchor itself: its foot, up to rounding
         rp = math.sqrt(wp * wp + c0 * c0)
         eps_p = _eps(rp - R, mode, h0, step, table, bottoms, values)
         if wg < wp or (wp < 0.0 < wg):
@@ -500,8 +509,9 @@ class Refraction:
         """
         shape, (o, d, p) = _as_rays(origin, direction, hit)
         if at_h is None:
-            at_h = ecef_to_geodetic(p)[2]
-        h = np.ascontiguousarray(np.broadcast_to(np.asarray(at_h, float), shape)).reshape(-1)
+            h = np.ascontiguousarray(ecef_to_geodetic(p)[2], float)
+        else:
+            h = np.ascontiguousarray(np.broadcast_to(np.asarray(at_h, float), shape)).reshape(-1)
         mode, h0, step, table, bottoms, values, bounds, top = self._profile()
         n = o.shape[0]
         hit_out = np.empty((n, 3))
@@ -644,6 +654,10 @@ class Refraction:
         pt = C + rt[:, None] * (np.cos(a_t)[:, None] * e1 + np.sin(a_t)[:, None] * d)
         h_rt = ecef_to_geodetic(pt)[2]
         st = np.where(finite, st, np.uint8(Status.INVALID_INPUT))
+        # a line through the Earth has no tangent point above it (its lowest point is not found)
+        inputs_ok = np.all(np.isfinite(o), axis=-1) & np.all(np.isfinite(d), axis=-1)
+        through = inputs_ok & ~(h_t >= 0.0)
+        st = np.where(through, np.uint8(Status.HITS_EARTH), st).astype(np.uint8)
         st = np.where((st == Status.OK) & (h_rt < 0.0), np.uint8(Status.HITS_EARTH), st).astype(np.uint8)
         st = np.where((st == Status.OK) & (h_t < 0.0), np.uint8(Status.HITS_EARTH), st).astype(np.uint8)
         good = st == Status.OK
