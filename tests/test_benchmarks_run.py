@@ -87,6 +87,11 @@ CASES = {
         ["--quick"],  # 1e4, 1e5, 1e6: the ratio needs two N >= 1e5
         [rf"^ +1000000 +streamed(?: +{N}){{6}}$",
          rf"ratio: {N}  \(flat = 1"], 300),
+    "bench_refraction.py": (
+        ["--rays", "2000", "--repeat", "1"],
+        [rf"^straight line x ellipsoid \(intersect_los_height\): .* {N} M rays/s cpu$",
+         rf"^the same \+ Refraction.correct: .* {N} M rays/s cpu$",
+         rf"^ratio: {N}  \(wall {N}\)$"], 120),
     "bench_rpc.py": (
         ["--points", "200"],
         [rf"^rigorous ground_to_pixel \(Newton on line time\): median {N} ms$",

@@ -79,7 +79,7 @@ _HITS = int(Status.HITS_EARTH)
 
 #: Gauss-Legendre nodes a panel of the ground-ray quadrature, and of the limb's (which
 #: integrates the whole angle, not a small difference, so it takes more).
-NODES = 8
+NODES = 6
 LIMB_NODES = 24
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(NODES)
 _GLL_X, _GLL_W = np.polynomial.legendre.leggauss(LIMB_NODES)
@@ -196,9 +196,19 @@ def _radius_along(lat, ux, uy, uz, dx, dy, dz):
     return 1.0 / (cn / M + (1.0 - cn) / N)
 
 
+@cached_njit(KEY, inline="always", error_model="numpy")
+def _nan_row(out_org, out_hit, out_dir, out_llh, out_shift, i):
+    for k in range(3):
+        out_org[i, k] = math.nan
+        out_hit[i, k] = math.nan
+        out_dir[i, k] = math.nan
+        out_llh[i, k] = math.nan
+    out_shift[i] = math.nan
+
+
 @cached_njit(KEY, parallel=True, error_model="numpy")
-def _correct_kernel(o, d, p, at_h, mode, h0, step, table, bottoms, values, bounds, top, gx, gw,
-                    out_hit, out_dir, out_shift, out_status):
+def _correct_kernel(o, d, p, at_h, llh_in, have_llh, mode, h0, step, table, bottoms, values, bounds, top, gx, gw,
+                    out_org, out_hit, out_dir, out_llh, out_shift, out_status):
     """Per ray: the bent ray's point and tangent at the sphere height ``at_h`` (see the module doc)."""
     n = o.shape[0]
     for i in prange(n):
@@ -210,20 +220,24 @@ def _correct_kernel(o, d, p, at_h, mode, h0, step, table, bottoms, values, bound
         bad = not (math.isfinite(ox + oy + oz + px + py + pz + at_h[i]) and math.isfinite(dn)) or dn == 0.0
         if bad:
             out_status[i] = _INVALID
-            for k in range(3):
-                out_hit[i, k] = math.nan
-                out_dir[i, k] = math.nan
-            out_shift[i] = math.nan
+            _nan_row(out_org, out_hit, out_dir, out_llh, out_shift, i)
             continue
         dx, dy, dz = dx / dn, dy / dn, dz / dn
         # the sphere osculates the ellipsoid at the ray's lower end: the hit, or the camera when
         # it looks up at the hit (there the atmosphere the ray crosses is densest)
-        lat, lon, hg, ux, uy, uz = geodetic_up(px, py, pz)
-        lat_o, lon_o, ho, uox, uoy, uoz = geodetic_up(ox, oy, oz)
-        if ho < hg:
-            ax, ay, az, ha, lat, ux, uy, uz = ox, oy, oz, ho, lat_o, uox, uoy, uoz
+        if have_llh:
+            lat, lon, hg = llh_in[i, 0], llh_in[i, 1], llh_in[i, 2]
+            cl = math.cos(lat)
+            ux, uy, uz = cl * math.cos(lon), cl * math.sin(lon), math.sin(lat)
         else:
-            ax, ay, az, ha = px, py, pz, hg
+            lat, lon, hg, ux, uy, uz = geodetic_up(px, py, pz)
+        ax, ay, az, ha = px, py, pz, hg
+        at_hit = True
+        if (ox - px) * ux + (oy - py) * uy + (oz - pz) * uz <= 0.0:  # the camera may be the lower end
+            lat_o, lon_o, ho, uox, uoy, uoz = geodetic_up(ox, oy, oz)
+            if ho < hg:
+                ax, ay, az, ha, lat, ux, uy, uz = ox, oy, oz, ho, lat_o, uox, uoy, uoz
+                at_hit = False
         R = _radius_along(lat, ux, uy, uz, dx, dy, dz)
         cx, cy, cz = ax - (R + ha) * ux, ay - (R + ha) * uy, az - (R + ha) * uz
         ocx, ocy, ocz = ox - cx, oy - cy, oz - cz
@@ -235,10 +249,7 @@ def _correct_kernel(o, d, p, at_h, mode, h0, step, table, bottoms, values, bound
         wq = (px - cx) * dx + (py - cy) * dy + (pz - cz) * dz
         if rg < c0:
             out_status[i] = _NOCONV  # the line never reaches that height
-            for k in range(3):
-                out_hit[i, k] = math.nan
-                out_dir[i, k] = math.nan
-            out_shift[i] = math.nan
+            _nan_row(out_org, out_hit, out_dir, out_llh, out_shift, i)
             continue
         qg = math.sqrt(rg * rg - c0 * c0)
         wg = -qg if wq <= 0.0 else qg
@@ -250,10 +261,7 @@ def _correct_kernel(o, d, p, at_h, mode, h0, step, table, bottoms, values, bound
             # the height is behind the camera, or the line passes its lowest point on the way
             # (an upward look at terrain past the line's foot): not served
             out_status[i] = _NOCONV
-            for k in range(3):
-                out_hit[i, k] = math.nan
-                out_dir[i, k] = math.nan
-            out_shift[i] = math.nan
+            _nan_row(out_org, out_hit, out_dir, out_llh, out_shift, i)
             continue
         qp = abs(wp)
         dth = _dtheta(c0, min(qp, qg), max(qp, qg), R, eps_p, mode, h0, step, table, bottoms, values,
@@ -286,6 +294,25 @@ def _correct_kernel(o, d, p, at_h, mode, h0, step, table, bottoms, values, bound
         out_dir[i, 0] = cosz * (ca * e1x + sa * dx) + sinz * (-sa * e1x + ca * dx)
         out_dir[i, 1] = cosz * (ca * e1y + sa * dy) + sinz * (-sa * e1y + ca * dy)
         out_dir[i, 2] = cosz * (ca * e1z + sa * dz) + sinz * (-sa * e1z + ca * dz)
+        # the line's origin, backed off from the bent point by the raw slant range; the bent point's
+        # geodetic coordinates
+        back = math.sqrt((ox - px) ** 2 + (oy - py) ** 2 + (oz - pz) ** 2)
+        for k in range(3):
+            out_org[i, k] = out_hit[i, k] - back * out_dir[i, k]
+        bx, by, bz = out_hit[i, 0], out_hit[i, 1], out_hit[i, 2]
+        if at_hit:
+            # the bent point lies at geodetic height at_h (to the sphere's third-order departure over
+            # the shift, 1e-9 m), so its latitude is closed-form: tan(lat) = z / (rho (1 - e2 N / (N + h))),
+            # N at the raw hit's latitude (the result moves by e2 h dN / (N + h)^2: 1e-11 rad for 400 m)
+            sl = math.sin(lat)
+            Nr = A / math.sqrt(1.0 - E2 * sl * sl)
+            rho = math.sqrt(bx * bx + by * by)
+            out_llh[i, 0] = math.atan2(bz, rho * (1.0 - E2 * Nr / (Nr + at_h[i])))
+            out_llh[i, 1] = math.atan2(by, bx)
+            out_llh[i, 2] = at_h[i]
+        else:
+            lat_b, lon_b, h_b, _, _, _ = geodetic_up(bx, by, bz)
+            out_llh[i, 0], out_llh[i, 1], out_llh[i, 2] = lat_b, lon_b, h_b
 
 
 # ---------------------------------------------------------------------------------------------
@@ -408,7 +435,10 @@ class RefractedLine:
     direction_ecef : ndarray (..., 3)
         Unit tangent of the bent ray at the height asked for.
     hit_ecef : ndarray (..., 3)
-        The bent ray's point at that height [m].
+        The bent ray's point at that height [m]: on a surface of that constant height, the
+        corrected ground point itself (no second intersection needed).
+    lat, lon, h : ndarray (...)
+        Its geodetic coordinates [rad, rad, m].
     shift_m : ndarray (...)
         Distance from the straight line's point at that height to the bent ray's [m].
     status : ndarray (...) of uint8
@@ -420,6 +450,9 @@ class RefractedLine:
     origin_ecef: np.ndarray
     direction_ecef: np.ndarray
     hit_ecef: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
     shift_m: np.ndarray
     status: np.ndarray
 
@@ -488,7 +521,7 @@ class Refraction:
         h0, step, table = atm.table()
         return 1.0 + np.interp(np.asarray(h_m, float), h0 + step * np.arange(table.size), table)
 
-    def correct(self, origin, direction, hit, at_h=None) -> RefractedLine:
+    def correct(self, origin, direction, hit, at_h=None, hit_llh=None) -> RefractedLine:
         """The bent ray near a raw hit, as a line to meet the surface with (Rugged's ``applyCorrection``).
 
         Parameters
@@ -502,28 +535,37 @@ class Refraction:
             end will do: it fixes the sphere of the stratification).
         at_h : array_like (...), optional
             Height at which to return the bent ray [m]; the raw hit's geodetic height by default.
+        hit_llh : tuple of array_like (...), optional
+            The raw hit's geodetic (lat, lon, h) [rad, rad, m] when the caller has them (a
+            ``GroundPoint``): saves converting ``hit`` again.
 
         Returns
         -------
         RefractedLine
         """
         shape, (o, d, p) = _as_rays(origin, direction, hit)
+        if hit_llh is not None:
+            llh = np.stack([np.broadcast_to(np.asarray(v, float), shape).reshape(-1) for v in hit_llh], axis=-1)
+        else:
+            llh = np.zeros((1, 3))
         if at_h is None:
-            h = np.ascontiguousarray(ecef_to_geodetic(p)[2], float)
+            h = np.ascontiguousarray(llh[:, 2] if hit_llh is not None else ecef_to_geodetic(p)[2], float)
         else:
             h = np.ascontiguousarray(np.broadcast_to(np.asarray(at_h, float), shape)).reshape(-1)
         mode, h0, step, table, bottoms, values, bounds, top = self._profile()
         n = o.shape[0]
+        org = np.empty((n, 3))
         hit_out = np.empty((n, 3))
         dir_out = np.empty((n, 3))
+        out_llh = np.empty((n, 3))
         shift = np.empty(n)
         status = np.empty(n, np.uint8)
-        _correct_kernel(o, d, p, h, mode, h0, step, table, bottoms, values, bounds, top, _GL_X, _GL_W,
-                        hit_out, dir_out, shift, status)
-        back = np.linalg.norm(o - p, axis=-1)[:, None]
-        org = hit_out - back * dir_out
+        _correct_kernel(o, d, p, h, llh, hit_llh is not None, mode, h0, step, table, bottoms, values, bounds, top, _GL_X, _GL_W,
+                        org, hit_out, dir_out, out_llh, shift, status)
         return RefractedLine(org.reshape(shape + (3,)), dir_out.reshape(shape + (3,)),
-                             hit_out.reshape(shape + (3,)), shift.reshape(shape), status.reshape(shape))
+                             hit_out.reshape(shape + (3,)), out_llh[:, 0].reshape(shape),
+                             out_llh[:, 1].reshape(shape), out_llh[:, 2].reshape(shape), shift.reshape(shape),
+                             status.reshape(shape))
 
     def locate(self, origin, direction, intersect, max_iter: int = 5, tol_m: float = 0.01):
         """Meet the bent ray with a surface: the raw hit, then :meth:`correct` to a fixed point.
