@@ -381,3 +381,101 @@ def test_correct_vectorises_and_flags_bad_rays():
     o2, down = look(LAT, LON, 18000.0, 0.0)
     nadir = STANDARD_REFRACTION.correct(o2, down, ray_geodetic_height(o2, down, 0.0).ecef)
     assert nadir.shift_m < 1e-6
+
+
+def test_lat_lon_h_of_the_corrected_point():
+    rng = np.random.default_rng(7)
+    o = geodetic_to_ecef(LAT, LON, 18000.0)
+    ds = np.array([look(LAT, LON, 18000.0, a, z)[1] for a, z in zip(rng.uniform(0, 80, 40), rng.uniform(0, 360, 40))])
+    raw = ray_geodetic_height(o, ds, 400.0).ecef
+    lat, lon, h = ecef_to_geodetic(raw)
+    a = STANDARD_REFRACTION.correct(o, ds, raw)
+    b = STANDARD_REFRACTION.correct(o, ds, raw, hit_llh=(lat, lon, h))
+    np.testing.assert_allclose(a.hit_ecef, b.hit_ecef, rtol=0, atol=1e-8)  # the normal by two routes: rounding
+    lat2, lon2, h2 = ecef_to_geodetic(b.hit_ecef)  # Vermeille's closed form, tested against pyproj
+    # 1e-12 rad = 6 um; the height is the one asked for, to the sphere's departure over the shift
+    np.testing.assert_allclose(b.lat, lat2, atol=1e-12)
+    np.testing.assert_allclose(b.lon, lon2, atol=1e-12)
+    np.testing.assert_allclose(b.h, h2, atol=1e-6)
+    np.testing.assert_allclose(b.h, 400.0, atol=1e-6)
+
+
+def test_looking_up_at_a_mountain():
+    # a camera at 500 m looking 1 deg above the horizon at a slope 40 km away: the bent ray
+    # (the sphere osculates at the camera, the lower end) against the ray trace
+    o, d = look(LAT, LON, 500.0, 91.0, azimuth_deg=200.0)
+    def intersect_up(o_, d_):  # the line's crossing of 1000 m on its way up
+        lo, hi = 0.0, 2e5
+        for _ in range(200):
+            s = 0.5 * (lo + hi)
+            if ecef_to_geodetic(o_ + s * d_ / np.linalg.norm(d_))[2] < 1000.0:
+                lo = s
+            else:
+                hi = s
+        return o_ + s * d_ / np.linalg.norm(d_), np.uint8(Status.OK)
+
+    raw, _ = intersect_up(o, d)
+    line = STANDARD_REFRACTION.correct(o, d, raw)
+    assert line.status == Status.OK
+    nfun = exact_n
+    dd = d / np.linalg.norm(d)
+
+    def rhs(s, y):
+        lat, lon, h = ecef_to_geodetic(y[:3])
+        return np.r_[y[3:] / nfun(h), (nfun(h + 0.5) - nfun(h - 0.5)) * up_normal_ecef(lat, lon)]
+
+    def reach(s, y):
+        return ecef_to_geodetic(y[:3])[2] - 1000.0
+
+    reach.terminal, reach.direction = True, 1
+    sol = solve_ivp(rhs, (0.0, 2e5), np.r_[o, nfun(500.0) * dd], method="DOP853", rtol=1e-12, atol=1e-7,
+                    events=reach, max_step=2000.0)
+    ref = sol.y_events[0][0][:3]
+    shift = np.linalg.norm(ref - raw)
+    assert shift > 5.0  # the ray climbs slower than the line: metres short of it
+    # 1e-4 of the shift (401 m: at 1 deg the crossing of 1000 m slides along the ray); measured
+    # 2.8 cm, 7e-5, as for the 80 deg look down
+    assert np.linalg.norm(line.hit_ecef - ref) < 1e-4 * shift
+
+
+def test_fixed_point_on_terrain():
+    # a hilly terrain h(lat, lon); the surface callable meets a line with it by bisection; the
+    # fixed point (the correction at the new hit's height) against the ray trace stopped on it
+    def terrain(lat, lon):
+        return 900.0 + 700.0 * np.sin((lat - LAT) * 3000.0) * np.cos((lon - LON) * 2500.0)
+
+    def intersect(o_, d_):
+        o_ = np.atleast_2d(o_)
+        d_ = np.atleast_2d(d_) / np.linalg.norm(np.atleast_2d(d_), axis=-1, keepdims=True)
+        out = np.empty_like(o_)
+        for i in range(len(o_)):
+            f = lambda s: ecef_to_geodetic(o_[i] + s * d_[i])[2] - terrain(*ecef_to_geodetic(o_[i] + s * d_[i])[:2])  # noqa: E731
+            s = np.linspace(0.0, 2e5, 20001)
+            vals = np.array([f(x) for x in s[::50]])
+            k = np.argmax(vals < 0) * 50
+            lo, hi = s[max(k - 50, 0)], s[k]
+            for _ in range(60):
+                mid = 0.5 * (lo + hi)
+                lo, hi = (mid, hi) if f(mid) > 0 else (lo, mid)
+            out[i] = o_[i] + hi * d_[i]
+        return out.reshape(np.shape(o_)), np.zeros(len(o_), np.uint8)
+
+    o, d = look(LAT, LON, 18000.0, 65.0, azimuth_deg=30.0)
+    hit, raw, st = STANDARD_REFRACTION.locate(o[None], d[None], intersect)
+    assert st[0] == Status.OK
+
+    def rhs(s, y):
+        lat, lon, h = ecef_to_geodetic(y[:3])
+        return np.r_[y[3:] / exact_n(h), (exact_n(h + 0.5) - exact_n(h - 0.5)) * up_normal_ecef(lat, lon)]
+
+    def ground(s, y):
+        lat, lon, h = ecef_to_geodetic(y[:3])
+        return h - terrain(lat, lon)
+
+    ground.terminal, ground.direction = True, -1
+    sol = solve_ivp(rhs, (0.0, 2e5), np.r_[o, exact_n(18000.0) * d], method="DOP853", rtol=1e-12,
+                    atol=1e-7, events=ground, max_step=500.0)
+    ref = sol.y_events[0][0][:3]
+    assert np.linalg.norm(ref - raw[0]) > 3.0
+    # 1 cm on a slope (the terrain's 0.3 rad/km slopes turn a height error into a larger shift)
+    assert np.linalg.norm(hit[0] - ref) < 0.01
