@@ -2,8 +2,8 @@
 
 - Aberration: the classical angle is atan(v/c) for a velocity across the line of sight (the
   Galilean sum c u + v); the relativistic one obeys cos(t') = (cos(t) + b) / (1 + b cos(t))
-  between the directions to the source and the velocity (e.g. Jackson, Classical
-  Electrodynamics, 3rd ed., eq. 11.32 with the source's direction), so sin(t') = b across it.
+  between the directions to the source and the velocity (the relativistic aberration of any
+  text on special relativity), so sin(t') = b across it.
 - Light-time: the ground turns by omega_E rho / c while the light crosses rho; the hit moves
   east by that angle times its distance from the axis, (N + h) cos(lat).
 - Rugged (src/test/java/org/orekit/rugged/api/RuggedTest.java, testLightTimeCorrection): 1.23-1.27 m

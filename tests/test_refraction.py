@@ -5,12 +5,12 @@ References, each written out here:
   temperature, pressure and density printed to 5-6 significant digits.
 - [BD93] Birch & Downs, Metrologia 30 (1993) 155: n - 1 = 2.7180e-4 for dry air at 20 degC,
   101 325 Pa, 633 nm (the value NIST's "Refractive index of air calculator", Edlen option, prints).
-- The classical photogrammetric refraction (flat Earth; e.g. Manual of Photogrammetry, ASPRS,
-  5th ed., section 3.5.2): the angle at the camera is tan(a) [mean(n) between ground and camera
+- The classical photogrammetric refraction (flat Earth; e.g. the ASPRS Manual of
+  Photogrammetry): the angle at the camera is tan(a) [mean(n) between ground and camera
   - n at the camera], written here with scipy.integrate.quad; and Bertram's fit of its
   coefficient K (ibid.), K = [2410 H/(H^2 - 6H + 250) - 2410 h/(h^2 - 6h + 250) (h/H)] 1e-6.
-- Astronomical refraction: Smart, Textbook on Spherical Astronomy (6th ed. 1977), section 47:
-  R = 58.16" tan z - 0.067" tan^3 z at 10 degC and 1013.25 hPa, scaled by P/T; Bennett,
+- Astronomical refraction: Smart, Textbook on Spherical Astronomy (6th ed. 1977), chapter on
+  refraction: R = 58.16" tan z - 0.067" tan^3 z at 10 degC and 1013.25 hPa, scaled by P/T; Bennett,
   J. Navigation 35 (1982) 255: R = cot(h + 7.31/(h + 4.4)) arcmin at 10 degC and 1010 hPa.
 - Orekit Rugged's tests: src/test/java/org/orekit/rugged/refraction/MultiLayerModelTest.java
   (testAlmostNadir, testDivingAngleChange, testNoOpRefraction, testReversedAtmosphere), whose

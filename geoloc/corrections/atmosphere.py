@@ -3,14 +3,14 @@
 Sources
 -------
 [USSA76] U.S. Standard Atmosphere, 1976. NOAA-S/T 76-1562, NOAA / NASA / USAF,
-    Washington D.C., October 1976. Part 1: the constants (section 1.2, Table 2),
-    the layers of the linear temperature-height profile below 86 km (Table 4),
+    Washington D.C., October 1976. Part 1: the constants, the layers of the linear
+    temperature-height profile below 86 km (Table 4),
     the geopotential height (eq. 18), the hydrostatic pressure in a layer
     (eq. 33a for a lapse rate, 33b for an isothermal layer), the density (eq. 42).
 [BD93] K. P. Birch and M. J. Downs, "An updated Edlen equation for the refractive
-    index of air", Metrologia 30 (1993) 155-162, eq. (2) (dispersion of standard
-    dry air, 15 degC, 101 325 Pa) and eq. (3) (its dependence on pressure and
-    temperature). Correction in Metrologia 31 (1994) 315 (the one used here).
+    index of air", Metrologia 30 (1993) 155-162: the dispersion of standard dry air
+    (15 degC, 101 325 Pa) and its dependence on pressure and temperature, as
+    corrected in Metrologia 31 (1994) 315.
 
 No package is used for the atmosphere: the well-kept ones (``ambiance``, ``fluids``)
 are not dependencies of geoloc, and the part needed here is the seven-layer table
@@ -28,7 +28,7 @@ from functools import lru_cache
 
 import numpy as np
 
-#: [USSA76] Table 2: standard gravity [m/s^2], the gas constant [J/(kmol K)], the mean
+#: [USSA76]'s constants: standard gravity [m/s^2], the gas constant [J/(kmol K)], the mean
 #: molecular weight of air below 86 km [kg/kmol], the Earth radius of eq. 18 [m].
 G0 = 9.80665
 R_STAR = 8.31432e3
@@ -41,7 +41,7 @@ R_AIR = R_STAR / M0
 #: gradient [K/m'], from the ground to the top of the linear profile at 84.852 km'.
 H_BASE = np.array([0.0, 11000.0, 20000.0, 32000.0, 47000.0, 51000.0, 71000.0, 84852.0])
 LAPSE = np.array([-6.5e-3, 0.0, 1.0e-3, 2.8e-3, 0.0, -2.8e-3, -2.0e-3])
-#: Sea-level temperature [K] and pressure [Pa] of [USSA76] (Table 2).
+#: Sea-level temperature [K] and pressure [Pa] of [USSA76].
 T_SEA = 288.15
 P_SEA = 101325.0
 
@@ -108,7 +108,7 @@ class StandardAtmosphere:
     Notes
     -----
     Water vapour is ignored: it lowers n - 1 by 3.7e-10 per pascal of vapour
-    pressure [BD93 eq. 5], 0.15 % of the dry refractivity at 1 kPa, a humid day.
+    pressure [BD93], 0.15 % of the dry refractivity at 1 kPa, a humid day.
     """
 
     ground_h_m: float = 0.0
@@ -177,7 +177,7 @@ class StandardAtmosphere:
 
     # -- the refractivity ------------------------------------------------------------------
     def refractivity(self, h_m):
-        """n - 1 of dry air at height ``h_m`` for this wavelength [BD93 eq. 2-3] (dimensionless).
+        """n - 1 of dry air at height ``h_m`` for this wavelength [BD93] (dimensionless).
 
         (n - 1)_s 1e8 = 8342.54 + 2406147 / (130 - s^2) + 15998 / (38.9 - s^2), s = 1/lambda
         [1/um], for standard air (15 degC, 101 325 Pa); then
@@ -238,7 +238,7 @@ def _refractivity_table(atm: StandardAtmosphere):
 
 
 def air_refractivity(p_pa, t_k, wavelength_um: float = WAVELENGTH_UM):
-    """n - 1 of dry air at pressure ``p_pa`` [Pa] and temperature ``t_k`` [K] [BD93 eq. 2-3].
+    """n - 1 of dry air at pressure ``p_pa`` [Pa] and temperature ``t_k`` [K] [BD93].
 
     (n - 1)_tp = (n - 1)_s p [1 + 1e-8 (0.601 - 0.00972 t) p] / (96095.43 (1 + 0.003661 t)),
     t in degC; 2.7180e-4 at 20 degC, 101 325 Pa, 633 nm.
@@ -250,7 +250,7 @@ def air_refractivity(p_pa, t_k, wavelength_um: float = WAVELENGTH_UM):
 
 
 def standard_air_refractivity(wavelength_um: float = WAVELENGTH_UM) -> float:
-    """(n - 1) of standard dry air (15 degC, 101 325 Pa) [BD93 eq. 2]: 2.7784e-4 at 0.55 um."""
+    """(n - 1) of standard dry air (15 degC, 101 325 Pa) [BD93]: 2.7784e-4 at 0.55 um."""
     s2 = 1.0 / wavelength_um**2
     return (8342.54 + 2406147.0 / (130.0 - s2) + 15998.0 / (38.9 - s2)) * 1e-8
 

@@ -22,8 +22,8 @@ direction tilted towards its velocity by about |v| sin(angle) / c: 25 microradia
 *apparent* direction u') is turned back into the direction the light came from in the
 inertial frame (u): classically as Rugged does, c u + v = k u' with |u| = 1 (Galilean
 addition of velocities), or exactly, by the Lorentz transformation of the photon's
-direction (special relativity; e.g. Jackson, Classical Electrodynamics, 3rd ed.,
-section 11.3, or any text's "relativistic aberration"):
+direction (special relativity; e.g. Jackson, Classical Electrodynamics, chapter 11,
+or any text's "relativistic aberration"):
 
     u = (u'_perp + gamma (u'_par - beta) v_hat) / (gamma (1 - beta u'_par)),   beta = |v| / c,
 
