@@ -58,6 +58,14 @@ def trace(o, d, h_target, nfun, limb=False):
     n' by a central difference over +-0.5 m of ``nfun``.
     """
     d = np.asarray(d, float) / np.linalg.norm(d)
+    if ecef_to_geodetic(o)[2] > 120e3:
+        # above 110 km n = 1 (the model's cut; USSA76's refractivity is below 2e-11 there): the
+        # ray is the straight line down to 120 km, where the integration starts
+        lo, hi = 0.0, np.linalg.norm(o)
+        for _ in range(100):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if ecef_to_geodetic(o + mid * d)[2] > 120e3 else (lo, mid)
+        o = o + lo * d
     n0 = nfun(ecef_to_geodetic(o)[2])
 
     def rhs(s, y):

@@ -487,10 +487,24 @@ class LimbRefraction:
     status: np.ndarray
 
 
+def _vecs(a, shape):
+    a = np.asarray(a, float)
+    full = shape + (3,)
+    if a.shape != full or not a.flags.c_contiguous or not a.flags.writeable:
+        a = np.array(np.broadcast_to(a, full), dtype=float, order="C")
+    return a.reshape(-1, 3)
+
+
+def _scalars(a, shape):
+    a = np.asarray(a, float)
+    if a.shape != shape or not a.flags.c_contiguous or not a.flags.writeable:
+        a = np.array(np.broadcast_to(a, shape), dtype=float, order="C")
+    return a.reshape(-1)
+
+
 def _as_rays(*arrays):
     shape = np.broadcast_shapes(*(np.shape(a)[:-1] for a in arrays))
-    return shape, [np.ascontiguousarray(np.broadcast_to(np.asarray(a, float), shape + (3,))).reshape(-1, 3)
-                   for a in arrays]
+    return shape, [_vecs(a, shape) for a in arrays]
 
 
 @dataclass(frozen=True)
@@ -507,7 +521,8 @@ class Refraction:
         atm = self.atmosphere
         if isinstance(atm, StandardAtmosphere):
             h0, step, table = atm.table()
-            bounds = np.ascontiguousarray(LAYER_TOPS_M[1:], float)
+            table = np.array(table)  # writable, as the kernels' one signature has it (44 kB)
+            bounds = np.array(LAYER_TOPS_M[1:], dtype=float)
             empty = np.zeros(1)
             return 0, h0, step, table, empty, empty, bounds, float(CUT_M)
         if isinstance(atm, Layers):
@@ -549,13 +564,13 @@ class Refraction:
         """
         shape, (o, d, p) = _as_rays(origin, direction, hit)
         if hit_llh is not None:
-            llh = np.stack([np.broadcast_to(np.asarray(v, float), shape).reshape(-1) for v in hit_llh], axis=-1)
+            llh = np.stack([_scalars(v, shape) for v in hit_llh], axis=-1)
         else:
             llh = np.zeros((1, 3))
         if at_h is None:
-            h = np.ascontiguousarray(llh[:, 2] if hit_llh is not None else ecef_to_geodetic(p)[2], float)
+            h = np.array(llh[:, 2] if hit_llh is not None else ecef_to_geodetic(p)[2], dtype=float, order="C")
         else:
-            h = np.ascontiguousarray(np.broadcast_to(np.asarray(at_h, float), shape)).reshape(-1)
+            h = _scalars(at_h, shape)
         mode, h0, step, table, bottoms, values, bounds, top = self._profile()
         n = o.shape[0]
         org = np.empty((n, 3))
@@ -691,8 +706,8 @@ class Refraction:
         out = np.empty((n, 3))
         finite = np.isfinite(c0) & np.isfinite(rp) & (wp < 0)
         c0k = np.where(finite, c0, R)
-        _limb_kernel(np.ascontiguousarray(c0k), np.ascontiguousarray(np.where(finite, rp, R + 1e6)), R,
-                     np.ascontiguousarray(np.where(finite, eps_p, 0.0)), mode, h0, step, table, bottoms, values,
+        _limb_kernel(np.array(c0k, dtype=float), np.array(np.where(finite, rp, R + 1e6), dtype=float),
+                     np.array(R, dtype=float), np.array(np.where(finite, eps_p, 0.0), dtype=float), mode, h0, step, table, bottoms, values,
                      bounds, top, _GLL_X, _GLL_W, out)
         rt, ang, st = out[:, 0], out[:, 1], out[:, 2].astype(np.uint8)
         a_p = np.arctan2(wp, c0)
