@@ -264,13 +264,13 @@ def test_limb_statuses():
     (18000.0, 30.0, 0.0, 0.003),
     (18000.0, 60.0, 0.0, 0.006),
     (18000.0, 70.0, 1500.0, 0.006),
-    (18000.0, 80.0, 0.0, 0.06),
+    (18000.0, 80.0, 0.0, 0.012),
     (700e3, 20.0, 0.0, 0.003),
     (700e3, 50.0, 300.0, 0.006),
 ])
 def test_against_an_independent_ray_trace(h_p, off_nadir, h_g, tol_m):
-    # tolerances: measured 0.8, 4.1, 1.3, 41, 0.3, 2.8 mm (1e-4 of the shift at 80 deg, 387 m), plus
-    # room; what remains is the model (a sphere for the ellipsoid's layers) and the ODE's step size
+    # tolerances: measured 0.4, 4.1, 5.2, 6.2, 0.3, 2.7 mm (6.2 mm of 387 m at 80 deg), with room for
+    # the trace's own reproducibility (2-4 mm: it moves that much when given the tabulated n)
     o, d = look(LAT, LON, h_p, off_nadir, azimuth_deg=53.0)
     hit, raw, st = STANDARD_REFRACTION.locate(o, d, at_height(h_g))
     assert st == Status.OK
