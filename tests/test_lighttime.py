@@ -144,3 +144,16 @@ def test_vectorised_and_nan():
     assert np.isnan(aberration(np.zeros(3), np.zeros(3))).all()
     pts = light_time_point(np.zeros((3, 3)), rng.normal(size=(3, 3)) * 1e6)
     assert pts.shape == (3, 3)
+
+
+def test_light_time_source_inverts_the_point():
+    from geoloc.corrections.lighttime import light_time_source
+
+    rng = np.random.default_rng(3)
+    lat, lon = rng.uniform(-1.2, 1.2, 20), rng.uniform(-3, 3, 20)
+    o = geodetic_to_ecef(lat, lon, 700e3)
+    g = geodetic_to_ecef(lat + rng.uniform(-0.05, 0.05, 20), lon + rng.uniform(-0.05, 0.05, 20), 100.0)
+    src = light_time_source(o, g)
+    # turning the source east by omega rho / c, rho its own range, gives the ground point back
+    np.testing.assert_allclose(light_time_point(o, src), g, rtol=0, atol=1e-8)
+    assert np.all(np.linalg.norm(src - g, axis=-1) > 0.1)  # metres apart before the correction

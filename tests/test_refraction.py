@@ -487,3 +487,11 @@ def test_fixed_point_on_terrain():
     assert np.linalg.norm(ref - raw[0]) > 3.0
     # 1 cm on a slope (the terrain's 0.3 rad/km slopes turn a height error into a larger shift)
     assert np.linalg.norm(hit[0] - ref) < 0.01
+
+
+def test_locate_passes_on_the_surface_status():
+    o, d = look(LAT, LON, 18000.0, 45.0)
+    sky = -d  # straight up
+    hit, raw, st = STANDARD_REFRACTION.locate(np.stack([o, o]), np.stack([d, sky]), at_height(0.0))
+    assert st[0] == Status.OK and st[1] == Status.SKY
+    assert np.isnan(hit[1]).all() and np.isfinite(hit[0]).all()

@@ -156,3 +156,18 @@ def light_time_line(origin_ecef, direction_ecef, hit_ecef):
     """
     ang = light_time_angle(origin_ecef, hit_ecef)
     return _rot_z(ang, _vec(origin_ecef)), _rot_z(ang, _vec(direction_ecef))
+
+
+def light_time_source(origin_ecef, ground_ecef, iterations: int = 3):
+    """Where an Earth-fixed ground point was when the light now reaching ``origin`` left it: aim there.
+
+    The inverse of :func:`light_time_point` (for ground to pixel): the point turned west by
+    omega_E rho / c, rho its range from the sensor, found by a fixed point on rho (each
+    step gains the factor omega_E rho / c ~ 2e-7; three are exact to rounding).
+    """
+    o = _vec(origin_ecef)
+    g = _vec(ground_ecef)
+    x = g
+    for _ in range(iterations):
+        x = _rot_z(-light_time_angle(o, x), g)
+    return x
