@@ -72,14 +72,16 @@ from geoloc.corrections.atmosphere import CUT_M, LAYER_TOPS_M, STANDARD, Standar
 from geoloc.geodesy import _nbgeo
 from geoloc.geodesy._nbgeo import cached_njit, dependency_key, geodetic_up
 from geoloc.geodesy.ellipsoid import A, E2, ecef_to_geodetic
+from geoloc import status as _status_module
 from geoloc.status import Status
 
-KEY = dependency_key(_nbgeo, sys.modules[__name__])
+#: The kernels' cache key: the WGS-84 constants and the sources of the modules whose code or
+#: constants they compile in (geodetic_up, the status codes, this file).
+KEY = dependency_key(_nbgeo, _status_module, sys.modules[__name__])
 
 _OK = int(Status.OK)
 _INVALID = int(Status.INVALID_INPUT)
 _NOCONV = int(Status.NO_CONVERGENCE)
-_HITS = int(Status.HITS_EARTH)
 
 #: Gauss-Legendre nodes a panel of the ground-ray quadrature, and of the limb's (which
 #: integrates the whole angle, not a small difference, so it takes more).
