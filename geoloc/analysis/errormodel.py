@@ -49,7 +49,7 @@ lever_arm_{x,y,z}_m``          the sensor's named mount / boresight / lever-arm
 ``fx_px fy_px``                the lens's focal lengths [px] (``FrameSensor.params``)
 ``focal_length_px``            both focal lengths by the same draw (square pixels)
 ``cx_px cy_px``                the lens's principal point (column, row) [px]
-``skew_px``                    the lens's skew K[0, 1] [px]
+``skew_px``                    the lens's skew ``K[0, 1]`` [px]
 ``k1 k2 p1 p2 k3 k4 k5 k6``    the lens's distortion coefficients (Brown; a fisheye
                                lens has k1..k4); each the lens's value plus the draw,
                                per sample (``Lens.with_params`` with arrays)

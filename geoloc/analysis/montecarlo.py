@@ -296,6 +296,8 @@ def evaluate(model: ErrorModel, errors: dict, surface=None):
         Without it, the target height is ``model.target_h_m + errors["target_h_m"]`` (the
         model's ``kind`` of height surface).
 
+    Notes
+    -----
     The one engine: the camera's sensor (:class:`geoloc.sensors.frame.FrameSensor`) with
     per-sample mount, boresight, lever-arm and lens perturbations, rotating the vector
     hop by hop. The paper's batched :class:`geoloc.frames.chain.FrameChain` is the

@@ -109,9 +109,9 @@ class Pose:
     lat, lon, h : ndarray
         Camera / aircraft origin, geodetic [rad, rad, m] (POS output).
     heading, pitch, roll : ndarray
-        Aircraft attitude psi, theta, phi [rad] [Q17 eq. 6].
+        Aircraft attitude psi, theta, phi [rad], [Q17 eq. 6].
     gimbal_roll, gimbal_pitch : ndarray
-        Outer (roll) and inner (pitch) gimbal encoder angles [rad] [Q17 eq. 7].
+        Outer (roll) and inner (pitch) gimbal encoder angles [rad], [Q17 eq. 7].
     angles : dict of str -> ndarray
         Any other named joint angles [rad] of the sensor's gimbal
         (``azimuth``, ``elevation``, ``sensor_roll``, ``gimbal_yaw``, ...;

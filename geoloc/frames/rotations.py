@@ -18,7 +18,7 @@ def _stack33(rows):
 
 
 def rx(a):
-    """Passive rotation about X: [[1,0,0],[0,c,s],[0,-s,c]] [Q17 eq. 6, 7]."""
+    """Passive rotation about X: [[1,0,0],[0,c,s],[0,-s,c]]; [Q17 eq. 6, 7]."""
     a = np.asarray(a, float)
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)
@@ -26,7 +26,7 @@ def rx(a):
 
 
 def ry(a):
-    """Passive rotation about Y: [[c,0,-s],[0,1,0],[s,0,c]] [Q17 eq. 6, 7]."""
+    """Passive rotation about Y: [[c,0,-s],[0,1,0],[s,0,c]]; [Q17 eq. 6, 7]."""
     a = np.asarray(a, float)
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)
@@ -34,7 +34,7 @@ def ry(a):
 
 
 def rz(a):
-    """Passive rotation about Z: [[c,s,0],[-s,c,0],[0,0,1]] [Q17 eq. 5, 6]."""
+    """Passive rotation about Z: [[c,s,0],[-s,c,0],[0,0,1]]; [Q17 eq. 5, 6]."""
     a = np.asarray(a, float)
     c, s = np.cos(a), np.sin(a)
     o, z = np.ones_like(a), np.zeros_like(a)

@@ -312,7 +312,7 @@ def enu_to_aer(p_enu):
     Returns
     -------
     az, el : ndarray, shape (...)
-        Azimuth in [0, 2 pi) and elevation in [-pi/2, pi/2] [rad].
+        Azimuth in [0, 2 pi) and elevation in [-pi/2, pi/2], in rad.
     srange : ndarray, shape (...)
         Slant range [m].
     """

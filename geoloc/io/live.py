@@ -458,6 +458,8 @@ def receive(url, *, duration_s: float | None = None, packets: int | None = None,
         A socket already bound by :func:`open_socket` (bind early, so that nothing sent while
         the caller starts up is lost: the kernel queues it); closed at the end.
 
+    Notes
+    -----
     Stops on any of the conditions, on ``KeyboardInterrupt`` (then returns
     normally), or never when none is given.
     """

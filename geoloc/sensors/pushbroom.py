@@ -350,7 +350,7 @@ class LookAngles:
         return out
 
     def direction(self, col):
-        """Camera-frame line of sight u = [tan psi_Y, tan psi_X, -1] [L12 eq. 1], shape (..., 3)."""
+        """Camera-frame line of sight u = [tan psi_Y, tan psi_X, -1], [L12 eq. 1], shape (..., 3)."""
         tx = self.tan_x(col)
         ty = self.tan_y(col)
         return np.stack([ty, tx, -np.ones_like(tx)], axis=-1)
