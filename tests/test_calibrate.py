@@ -75,7 +75,7 @@ def test_before_matches_published_errors(bundled, per_flight):
 
 
 def test_readme_calibration_table(per_flight):
-    # README / docs/calibration.md, one rotation per flight: before 50.0 / 50.5 m, after
+    # docs/tour_papers.md / docs/calibration.md, one rotation per flight: before 50.0 / 50.5 m, after
     # 5.0 / 5.1 m, leave-one-out 5.9 / 5.9 m; the report example quotes T3's 50.015,
     # 4.976, 5.927 m and sigma 4.09 m. Held to the printed digits (half a unit of the last).
     g = per_flight[0]["groups"]
@@ -85,7 +85,7 @@ def test_readme_calibration_table(per_flight):
         assert e["mean_error_after_m"] == pytest.approx(after, abs=5e-4)
         assert e["mean_error_loo_m"] == pytest.approx(loo, abs=5e-4)
     assert g["T3"]["sigma_m"] == pytest.approx(4.09, abs=5e-3)
-    # README: fitted per flight, "the pitch comes out at +0.29 +- 0.10 deg (T3) and
+    # docs/tour_papers.md: fitted per flight, "the pitch comes out at +0.29 +- 0.10 deg (T3) and
     # +0.35 +- 0.10 deg (T4)", pitch and yaw "correlation above 0.99"
     for name, y in (("T3", 0.29), ("T4", 0.35)):
         v, sd = value_sd(g[name]["parameters"], "mount_y")
@@ -166,7 +166,7 @@ def test_joint_mount_fit_separates_the_angles(bundled, per_flight):
     angles = [j["parameters"][k]["value"] for k in MOUNT]
     sds = [j["parameters"][k]["sd"] for k in MOUNT]
     assert max(sds) < 0.01
-    # README: "one pitch of the gimbal base, +0.220 +- 0.004 deg"; docs/calibration.md:
+    # docs/tour_papers.md: "one pitch of the gimbal base, +0.220 +- 0.004 deg"; docs/calibration.md:
     # x = -0.001 +- 0.002, z = 0.000 +- 0.004 deg. The angles to the printed digits; the
     # sd of y one digit further (0.00410), since s^2 / m instead of s^2 / (m - p) gives
     # 0.00394, which prints as 0.004 too (test_covariance_uses_m_minus_p_degrees_of_freedom).
@@ -176,7 +176,7 @@ def test_joint_mount_fit_separates_the_angles(bundled, per_flight):
     assert sds[1] == pytest.approx(0.00410, abs=5e-6)
     assert sds[0] == pytest.approx(0.002, abs=5e-4)
     assert sds[2] == pytest.approx(0.004, abs=5e-4)
-    # README: leave-one-out with --joint 5.4 / 5.7 m; docs: after 5.1 / 5.3 m
+    # docs/tour_papers.md: leave-one-out with --joint 5.4 / 5.7 m; docs: after 5.1 / 5.3 m
     for name, after, loo in (("T3", 5.1, 5.4), ("T4", 5.3, 5.7)):
         assert report["groups"][name]["mean_error_after_m"] == pytest.approx(after, abs=0.05)
         assert report["groups"][name]["mean_error_loo_m"] == pytest.approx(loo, abs=0.05)
@@ -195,7 +195,7 @@ def test_joint_mount_fit_separates_the_angles(bundled, per_flight):
 def test_resection_reproduces_the_bundled_camera(bundled):
     # docs/records.md: f = 166841.0 px, i0 = 1162.12, j0 = 1146.42, RMS 0.25 m.
     # Same least-squares optimum from a start 10 % off in f and 50 px off in the
-    # principal point; tolerances are the README's printed rounding plus solver
+    # principal point; tolerances are docs/tour_papers.md's printed rounding plus solver
     # termination (1 px in f is 0.5 % of its 208-px standard deviation).
     rec, cam = bundled
     start = Camera(150000.0, 1112.0, 1196.0, cam.rows, cam.cols)

@@ -32,7 +32,7 @@ WGS84_INV_F = 298.257223563
 WGS84_B = WGS84_A * (1.0 - 1.0 / WGS84_INV_F)
 WGS84_E2 = (2.0 - 1.0 / WGS84_INV_F) / WGS84_INV_F
 
-# 1 mm is the README's bar against PROJ's inverse (PROJ's own inverse is only that good,
+# 1 mm is docs/tour_cli.md's bar against PROJ's inverse (PROJ's own inverse is only that good,
 # see test_proj_inverse_drifts_with_height); angle errors are compared as distances.
 MM = 1e-3
 # Against PROJ's forward transform ours is exact to rounding: a few units in the last
@@ -80,7 +80,7 @@ def test_ecef_to_geodetic_matches_pyproj(lat, lon, h):
 @settings(max_examples=300, deadline=None)
 @given(lats, lons, heights)
 def test_ecef_to_geodetic_inverts_pyproj_forward(lat, lon, h):
-    # README: "ours stays at 1e-9 m against PROJ's exact forward transform", i.e. at the
+    # docs/tour_cli.md: "ours stays at 1e-9 m against PROJ's exact forward transform", i.e. at the
     # rounding of the ECEF coordinates themselves: 4 ulp of |r| (module docstring above)
     xyz = np.array(TO_ECEF.transform(lon, lat, h))
     tol = _ulp_tol(xyz)
@@ -93,10 +93,10 @@ def test_ecef_to_geodetic_inverts_pyproj_forward(lat, lon, h):
 
 
 def test_proj_inverse_drifts_with_height():
-    """README: PROJ's own inverse (EPSG:4978 -> 4979) drifts above 100 km, "1 mm at 325 km,
+    """docs/tour_cli.md: PROJ's own inverse (EPSG:4978 -> 4979) drifts above 100 km, "1 mm at 325 km,
     7.8 mm at 1000 km", while ours stays at rounding. Measured against PROJ's forward
     transform, worst over latitude (it peaks near 55 deg): 1.01 mm and 7.91 mm with the
-    PROJ of pyproj 3.7 (the README's 7.8 is this figure at a coarser latitude sampling).
+    PROJ of pyproj 3.7 (docs/tour_cli.md's 7.8 is this figure at a coarser latitude sampling).
     Held to 0.1 mm: a PROJ release that changes its inverse moves these."""
     lat = np.linspace(-89.9, 89.9, 3597)
     lon = np.full_like(lat, 10.0)

@@ -1,4 +1,4 @@
-"""The numbered examples run and print the figures the README and docs quote.
+"""The numbered examples run and print the figures the docs quote.
 
 Each example runs as a script (a subprocess, from the repository root unless it writes
 files, then from a temporary folder) and its key printed figures are parsed and
@@ -117,11 +117,11 @@ def test_05_replay_flight_test():
         assert float(r[-1]) == pytest.approx(float(published(r[0])["paper_error_m"]), abs=5e-4)
         assert abs(float(r[-2]) - float(r[-1])) < 2.0
         assert float(r[-3]) < 1.0
-    # README: "published positions come out at 0.36 m RMS", "45-56 m", and the group lines
+    # docs/tour_cli.md: "published positions come out at 0.36 m RMS", "45-56 m", and the group lines
     assert "all: RMS distance to the published positions 0.36 m over 20 records" in out
     to_truth = [float(r[-2]) for r in recs]
     assert 45.0 <= min(to_truth) and max(to_truth) <= 56.0
-    # the README's two group lines, verbatim; the published means are [Q17]'s 50.246 / 50.485
+    # docs/tour_cli.md's two group lines, verbatim; the published means are [Q17]'s 50.246 / 50.485
     assert ("group T3: n=10, mean error to truth 50.02 m (published 50.25 m), RMS to published position "
             "0.40 m") in out
     assert ("group T4: n=10, mean error to truth 50.52 m (published 50.49 m), RMS to published position "
@@ -202,7 +202,7 @@ def test_50_view_scene_in_python():
     d = GEOD.inv(lon, lat, float(truth["truth_lon_deg"]), float(truth["truth_lat_deg"]))[2]
     reported = floats(line_with(out, "to surveyed:"))[0]
     assert reported == pytest.approx(d, abs=0.2)  # pyproj on the printed 1e-6 deg
-    # README: "The default scene's error to the surveyed point is about 480 m"
+    # docs/tour_viewer.md: "The default scene's error to the surveyed point is about 480 m"
     assert abs(reported - 480.0) < 10.0
     assert "8 DEM evaluations" in out
     moved = [floats(ln.split("->")[1])[:3] for ln in out.splitlines() if ln.startswith("gimbal roll")]
@@ -266,7 +266,7 @@ def test_53_flight_debugger_scene():
     # checked against those plants in tests/test_viz_flight.py
     out = run("53_flight_debugger_scene.py")
     assert "298 frames" in out and "22 outliers" in out
-    # README "See it in 3D": the fitted faults and the clean frames' median residual, as printed
+    # docs/tour_viewer.md "See it in 3D": the fitted faults and the clean frames' median residual, as printed
     assert "(10 frames): heading bias +2.45 deg" in out and "(5 frames): sensor height off by +30.5 m" in out
     assert "(7 frames): pose 0.97 frame(s) stale" in out
     assert "the other 276 frames: median residual 2.4 mm" in out
@@ -311,7 +311,7 @@ def test_52_limb_scene():
     for ln in rows[1:]:
         alpha, h18, hx, diff, nr = floats(ln)
         assert diff == pytest.approx((h18 - hx) * 1e3, abs=1e-3)
-        assert abs(diff) < 9e-3  # README: the paper's limb height within 9 mm below 100 km
+        assert abs(diff) < 9e-3  # docs/tour_papers.md: the paper's limb height within 9 mm below 100 km
         assert 4 <= nr <= 5  # docs/limb.md: 4-5 Newton-Raphson steps on the scenario's lines
 
 
@@ -320,7 +320,7 @@ def test_71_calibrate_flight_test(tmp_path):
     out = run("71_calibrate_flight_test.py", tmp_path / "v.png", cwd=tmp_path)
     blocks = out.split("model '")
     per, joint = blocks[1], blocks[2]
-    # README table: one rotation per flight 50.0 -> 5.0 / 5.9 (T3), 50.5 -> 5.1 / 5.9 (T4);
+    # docs/tour_papers.md table: one rotation per flight 50.0 -> 5.0 / 5.9 (T3), 50.5 -> 5.1 / 5.9 (T4);
     # --joint leave-one-out 5.4 / 5.7; "+0.220 +- 0.004 deg"
     assert "T3: before  50.0 m" in per and "after  5.0 m, leave-one-out  5.9 m" in per
     assert "T4: before  50.5 m" in per and "after  5.1 m, leave-one-out  5.9 m" in per
@@ -356,4 +356,4 @@ def test_81_rerun_records_on_dem(tmp_path):
     mean_paper, mean_dem = floats(line_with(out, "mean error to truth"))[:2]
     # [Q17] Tables 3-4: 50.246 and 50.485 m per flight, so 50.37 m over both; 1 m rounding
     assert mean_paper == pytest.approx((50.246 + 50.485) / 2, abs=1.0)
-    assert mean_dem > 5 * mean_paper  # ETOPO5's 9 km cells: hundreds of metres (README)
+    assert mean_dem > 5 * mean_paper  # ETOPO5's 9 km cells: hundreds of metres (docs/tour_viewer.md)

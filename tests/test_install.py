@@ -23,7 +23,7 @@ are two packages (docs/architecture.md, "Two packages"). Here:
 4. from a folder outside the repository, with ``GEOLOC_ASSETS`` unset, the second
    environment's ``geoloc`` command runs ``reproduce qiao2017``, ``replay`` on the bundled
    records, ``replay`` on the bundled ETOPO5 DEM with the EGM96 datum, and ``view
-   --export``, and the outputs are checked against the figures the README gives.
+   --export``, and the outputs are checked against the figures the docs give.
 
 Marked ``install`` (``pytest -m install`` selects it, ``-m "not install"`` skips it); it
 runs in the normal suite (about a minute on this machine).
@@ -154,8 +154,8 @@ def test_the_core_alone_has_none_of_the_viewers_libraries(core_venv):
 
 
 def test_the_core_alone_locates_replays_reports_and_exports(core_venv):
-    # the README's one-pixel example: aircraft at 18 km, the target on the ellipsoid at 0 m
-    # the README's one-pixel example, Table 1 of [Q17]: 35.57709 N, 80.84918 E as published
+    # docs/tour_cli.md's one-pixel example: aircraft at 18 km, the target on the ellipsoid at 0 m
+    # docs/tour_cli.md's one-pixel example, Table 1 of [Q17]: 35.57709 N, 80.84918 E as published
     r = core(core_venv, "locate", "--lat-deg", "35.48", "--lon-deg", "80.97", "--h-m", "18000",
              "--heading-deg", "45", "--pitch-deg", "3.5", "--gimbal-roll-deg", "50",
              "--gimbal-pitch-deg", "-2.6", "--target-h-m", "5083.5", "--json")
@@ -212,7 +212,7 @@ def test_reproduce_qiao2017(venv):
 def test_replay_on_the_bundled_records(venv):
     text = geoloc(venv, "replay", "--height-column", "paper_height_m").stdout
     assert "T3-1 " in text and "all: RMS distance to the published positions 0.36 m over 20 records" in text
-    # the README's form, a path under assets/, from a folder that has none
+    # the docs' form, a path under assets/, from a folder that has none
     text = geoloc(venv, "replay", "assets/records/qiao2017_flight_tests.csv", "--camera",
                   "assets/cameras/qiao2017.toml", "--height-column", "paper_height_m",
                   "--out", "out.csv").stdout
@@ -223,7 +223,7 @@ def test_replay_on_the_bundled_records(venv):
 def test_dem_run_with_the_egm96_datum(venv):
     text = geoloc(venv, "replay", "--dem", "assets/dem/etopo5_flight_area.tif", "--dem-datum", "egm96",
                   "--method", "exact", "--out", "dem.csv").stdout
-    # README: over the ETOPO5 crop the targets land 521 m RMS from the paper's positions
+    # docs/tour_terrain.md: over the ETOPO5 crop the targets land 521 m RMS from the paper's positions
     assert "all: RMS distance to the published positions 521.1" in text
     rows = (venv["work"] / "dem.csv").read_text().splitlines()
     assert len(rows) == 21 and "dem_evaluations" in rows[0]

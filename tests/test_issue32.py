@@ -331,7 +331,7 @@ def test_column_in_feet_mapped_without_unit_is_warned_and_flagged_by_its_errors(
     assert "... and 15 more record(s) far from their truth" in err
     # warnings only: the numbers are those of the heights as read (all ok)
     assert {r["status"] for r in _read_csv(out)} == {"ok"}
-    # with its unit: no warning, and the README's 2.70 m mean error to truth
+    # with its unit: no warning, and docs/tour_sensors.md's 2.70 m mean error to truth
     (tmp_path / "map_ft.toml").write_text('[columns]\nac_h_m = {column = "Alt_ft", unit = "ft"}\n')
     assert main(args + ["--columns", str(tmp_path / "map_ft.toml")]) == 0
     cap = capsys.readouterr()

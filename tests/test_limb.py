@@ -181,7 +181,7 @@ def test_virtual_ellipsoid_identity_and_error_figures():
                 # ellipsoids); only rounding separates the two sides.
                 assert abs(r.tangent_h - r.delta_a * math.sqrt(1 - E2 * math.sin(r.tangent_lat) ** 2)) < 1e-6
                 out[(h, lat, az)] = (float(r.tangent_h - h), float(r.delta_a - h))
-    # docs/limb.md and the README quote: h_L18 - h = -8.7 mm worst at 100 km (45 deg,
+    # docs/limb.md and the docs/tour_papers.md quote: h_L18 - h = -8.7 mm worst at 100 km (45 deg,
     # east-west line), -3.2 mm at 60 km, and Delta a - h = +336 m at 100 km, 89 deg. The
     # values come from the independent evaluation below (the scaled-sphere tangency and
     # eq. 18-26 written out here), which the module must equal; the quoted figures are

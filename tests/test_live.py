@@ -756,7 +756,7 @@ def test_log_of_a_stream_grows_as_it_arrives_and_a_killed_session_keeps_it(tmp_p
 
 def test_looking_for_a_listener_never_takes_its_port(monkeypatch):
     """`klv send --wait` looks for the receiver while the receiver may be binding: the look must not
-    hold the port. A probe bind did, for an instant every 50 ms, and the README's
+    hold the port. A probe bind did, for an instant every 50 ms, and docs/tour_sensors.md's
     `geoloc klv send ... --wait 60 & geoloc replay udp://...` could fail "Address already in use"
     (seen in the suite). /proc/net/udp is read instead; here a tight loop of looks runs beside
     300 binds of the receiver's socket, and none fails."""

@@ -180,13 +180,14 @@ def test_a_camera_file_loads_as_a_sensor_and_camera_is_imported_by_the_file_form
 
 #: The Python entrances where a first-phase ``Camera`` built in Python becomes its sensor
 #: (``as_sensor``, or ``sensor_of`` for any sensor kind); everything behind them holds a Sensor.
-#: Each is a function a user calls or an object a user builds (README, examples, docs):
+#: Each is a function a user calls or an object a user builds (docs, examples):
 CAMERA_ENTRANCES = {
     "geoloc.locate": "locate, line_of_sight, ground_to_pixel: the package's own API (geoloc.locate)",
     "geoloc.analysis.uncertainty": "propagate and monte_carlo (docs/uncertainty.md, examples/34)",
     "geoloc.analysis.triangulate": "triangulate (examples/35)",
     "geoloc.analysis.errormodel": "ErrorModel and its with_camera (examples/31-33)",
-    "geoloc.workflows.ortho": "locate_frame, write_frame_geotiff, orthorectify (README, docs/ortho.md, examples/26)",
+    "geoloc.workflows.ortho": "locate_frame, write_frame_geotiff, orthorectify "
+                              "(docs/tour_terrain.md, docs/ortho.md, examples/26)",
     "geoloc_viz.model": "the viewer's Scenario, converted once in __post_init__",
     "geoloc_viz.rerun_model": "steps_from_flight and steps_from_records (docs/rerun.md, examples/80-83)",
 }

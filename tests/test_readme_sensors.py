@@ -1,5 +1,6 @@
-"""The README's "Your own sensor" figures, pinned (regression guards; correctness of the
-chain itself is shown against pymap3d and FrameChain in test_sensors.py and test_gimbals.py)."""
+"""The "Your own sensor" figures of docs/tour_sensors.md (the README's until issue 48), pinned
+(regression guards; correctness of the chain itself is shown against pymap3d and FrameChain in
+test_sensors.py and test_gimbals.py)."""
 
 import json
 import re
@@ -24,7 +25,7 @@ def test_readme_turret_locate():
                             "--lon-deg", "-84.25", "--h-m", "2500", "--heading-deg", "45", "--pitch-deg", "2",
                             "--roll-deg", "1", "--angle", "azimuth=90", "--angle", "elevation=-30", "--dem",
                             "assets/dem/srtm_jacksboro.tif", "--json"))
-    # the README prints 6 decimals of degrees and 2 of metres
+    # the docs/tour_sensors.md prints 6 decimals of degrees and 2 of metres
     assert out["lat_deg"] == pytest.approx(36.577575, abs=5e-7)
     assert out["lon_deg"] == pytest.approx(-84.221019, abs=5e-7)
     assert out["h_m"] == pytest.approx(343.26, abs=5e-3)
@@ -49,7 +50,7 @@ def test_readme_distortion_figures():
 
 
 def test_bundled_paths_resolve_from_any_folder(tmp_path):
-    # the README's `assets/...` arguments name bundled files wherever the command runs
+    # docs/tour_sensors.md's `assets/...` arguments name bundled files wherever the command runs
     # (one rule in geoloc.cli.main for every verb's file options)
     r = subprocess.run([sys.executable, "-m", "geoloc", "locate", "--sensor", "assets/sensors/eo_turret.toml",
                         "--lat-deg", "36.6", "--lon-deg", "-84.25", "--h-m", "2500", "--heading-deg", "45",

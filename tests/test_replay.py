@@ -88,7 +88,7 @@ def test_cli_locate_json(capsys):
     assert out["status"] == "ok"
     # the two height surfaces differ by ~1 cm here (see test_locate)
     assert 1e-3 < out["surface_difference_m"] < 0.1
-    # README: {"lat_deg": 35.5770889, "lon_deg": 80.8491807, "h_m": 5083.49, ...}; "at 5 km the two
+    # docs/tour_cli.md: {"lat_deg": 35.5770889, "lon_deg": 80.8491807, "h_m": 5083.49, ...}; "at 5 km the two
     # [surfaces] differ by 6 mm in height and 1 cm in position"
     assert round(out["lat_deg"], 7) == 35.5770889 and round(out["lon_deg"], 7) == 80.8491807
     assert round(out["h_m"], 2) == 5083.49 and round((5083.5 - out["h_m"]) * 1e3) == 6

@@ -323,7 +323,7 @@ def test_example_72_prints_the_report(tmp_path):
 
 
 def test_readme_accuracy_table(replay_csv, capsys):
-    # README "Accuracy report": the table's digits (regression pins; the definitions are held to a
+    # docs/tour_accuracy.md "Accuracy report": the table's digits (regression pins; the definitions are held to a
     # direct computation in test_report_numbers_equal_a_direct_computation)
     assert main(["report", str(replay_csv), "--ref-h-column", "paper_height_m", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)

@@ -46,7 +46,7 @@ def q17_dem():
 
 
 def test_reproduce_table_of_the_docs(q17_dem):
-    """docs/montecarlo.md's side-by-side table and the README's Table 1-2 row and Fig. 10b
+    """docs/montecarlo.md's side-by-side table and docs/tour_papers.md's Table 1-2 row and Fig. 10b
     sentence, at their printed digits, each beside its outside reference: [Q17]'s values
     (5 %), the first-order propagation (a different method: within 3 %, three sampling
     standard errors of a std at N = 5000), the paper's Fig. 10b bounds."""
@@ -60,7 +60,7 @@ def test_reproduce_table_of_the_docs(q17_dem):
         (0.000483, 0.000596, 62.1)
     assert (round(n["mc_cep_m"]), round(n["mc_cep50_empirical_m"])) == (76, 52)
     fo = mc.first_order(ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1.toml")))
-    # README's first-order row: 0.000487 deg, 0.000602 deg, 62.47 m
+    # docs/tour_papers.md's first-order row: 0.000487 deg, 0.000602 deg, 62.47 m
     assert (round(fo.std_lat_deg, 6), round(fo.std_lon_deg, 6), round(fo.std_h_m, 2)) == (0.000487, 0.000602, 62.47)
     for k, ref in (("mc_std_lat_deg", fo.std_lat_deg), ("mc_std_lon_deg", fo.std_lon_deg), ("mc_std_h_m", fo.std_h_m)):
         assert n[k] == pytest.approx(ref, rel=0.03)
@@ -110,7 +110,7 @@ def l23():
 
 
 def test_li2023_counts_match_the_readme(l23):
-    # README / docs/montecarlo.md: "bisection takes 7, 9 and 10 reads against 120, 590 and
+    # docs/tour_papers.md / docs/montecarlo.md: "bisection takes 7, 9 and 10 reads against 120, 590 and
     # 1180 for descending steps at tolerances of 10, 2 and 1 m" (the means 7.0 / 9.2 / 10.3
     # and 119.5 / 591.6 / 1181.8 at the printed digits), "no bisection answer was hidden".
     for tol, steps, bisect in ((10, 120, 7), (2, 590, 9), (1, 1180, 10)):

@@ -29,7 +29,10 @@ SCEN = asset_path("scenarios", "qiao2017_table1.toml")
 DEM_SCEN = asset_path("scenarios", "qiao2017_table1_dem.toml")
 SRTM = asset_path("dem", "srtm_jacksboro.tif")
 RECORDS = asset_path(*DEFAULT_RECORDS)
-README = (ROOT / "README.md").read_text()
+# the README's sections this file pins moved to the tour pages (issue 48: one README screen)
+TOUR_CLI = (ROOT / "docs" / "tour_cli.md").read_text(encoding="utf-8")
+TOUR_PAPERS = (ROOT / "docs" / "tour_papers.md").read_text(encoding="utf-8")
+DOCS = "\n".join(p.read_text(encoding="utf-8") for p in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))])
 r = np.deg2rad
 
 
@@ -45,8 +48,8 @@ def test_sweep_both_without_dem_refuses_before_writing_anything(tmp_path, capsys
 
 
 def test_readme_sweep_both_command_uses_a_scenario_with_a_dem(tmp_path, capsys):
-    cmds = [ln for ln in README.splitlines() if "--sweep both" in ln]
-    assert cmds, "the README shows --sweep both"
+    cmds = [ln for ln in TOUR_PAPERS.splitlines() if "--sweep both" in ln]
+    assert cmds, "docs/tour_papers.md shows --sweep both"
     for ln in cmds:
         scen = re.search(r"assets/scenarios/(\S+\.toml)", ln).group(1)
         assert "[dem]" in asset_path("scenarios", scen).read_text(), ln
@@ -205,7 +208,7 @@ def test_replay_with_out_prints_the_summary_not_every_row(tmp_path, capsys):
     assert main(["replay", str(many), "--height-column", "paper_height_m", "--out", str(out),
                  "--print-rows"]) == 0
     assert capsys.readouterr().out.count("T3-1 ") == 15
-    # the bundled 20 records without --out: the per-record table, as the README shows
+    # the bundled 20 records without --out: the per-record table, as docs/tour_cli.md shows
     assert main(["replay", "--height-column", "paper_height_m"]) == 0
     assert "T3-1 " in capsys.readouterr().out
 
@@ -306,10 +309,10 @@ def test_method_page_has_the_sections_the_code_cites():
             assert 1 <= int(m.group(1)) <= 8, (rel, m.group(0))
 
 
-# ------------------------------------------------------------------ README
+# ------------------------------------------------------------------ the README's tour pages
 def test_readme_gimbal_roll_ranges_are_the_records_own():
     rows = list(csv.DictReader(RECORDS.open()))
-    text = " ".join(README.split())
+    text = " ".join(TOUR_CLI.split())
     for table in ("T3", "T4"):
         g = [float(x["gimbal_roll_deg"]) for x in rows if x["table"] == table]
         lo, hi = min(g), max(g)
@@ -317,19 +320,19 @@ def test_readme_gimbal_roll_ranges_are_the_records_own():
             assert hi < 0 and f"{hi:.1f} to {lo:.1f} degrees" in text, (table, lo, hi)
         else:
             assert lo > 0 and f"{lo:.1f} to {hi:.1f} degrees" in text, (table, lo, hi)
-    assert "rolled 42-53 degrees" not in README
+    assert "rolled 42-53 degrees" not in DOCS
 
 
 def test_readme_calibration_figure_comes_with_joint(capsys, tmp_path):
-    # the +0.220 +- 0.004 deg pitch is the joint fit of both flights: the README's command for it
+    # the +0.220 +- 0.004 deg pitch is the joint fit of both flights: the page's command for it
     # must say --joint, and the command must print it
-    k = README.index("+0.220 +- 0.004 deg")
-    blocks = re.findall(r"```bash\n(.*?)```", README[:k], re.S)
+    k = TOUR_PAPERS.index("+0.220 +- 0.004 deg")
+    blocks = re.findall(r"```bash\n(.*?)```", TOUR_PAPERS[:k], re.S)
     assert "--joint" in blocks[-1].replace("\\\n", " ")
     assert main(["calibrate", str(RECORDS), "--height-column", "paper_height_m", "--group-by",
                  "table", "--joint"]) == 0
     # the joint fit's parameter table: "mount_y  start  fitted  sd deg", printed to 6 decimals;
-    # at the README's digits they are +0.220 and 0.004
+    # at the page's digits they are +0.220 and 0.004
     line = re.search(r"^  mount_y +(\S+) +(\S+) +(\S+) deg$", capsys.readouterr().out, re.M)
     assert line, "no mount_y line in the printed joint fit"
     assert f"{float(line[2]):+.3f} +- {float(line[3]):.3f} deg" == "+0.220 +- 0.004 deg"
@@ -339,14 +342,16 @@ def test_reproduce_says_plainly_what_table_5_is(capsys):
     from geoloc.workflows.reproduce import qiao2017_report
 
     text = qiao2017_report(samples=200, sweep_samples=50).text()
-    assert "withheld" not in text and "withheld" not in README
+    assert "withheld" not in text and "withheld" not in DOCS
     line = next(ln for ln in text.splitlines() if "Table 5" in ln)
     assert "59.972" in line and "not in the bundled records" in line
 
 
 def test_geoid_accuracy_statements_are_the_measured_ones():
     # before: "within about a metre" / "within 1 m" of the 15' grid; it is up to 3.9 m off
-    for rel in ("README.md", "docs/terrain.md", "assets/README.md", "geoloc/geodesy/geoid.py"):
+    # the README's terrain section is docs/tour_terrain.md since issue 48
+    for rel in ("README.md", "docs/tour_terrain.md", "docs/terrain.md", "assets/README.md",
+                "geoloc/geodesy/geoid.py"):
         text = (ROOT / rel).read_text()
         assert "within 1 m" not in text and "about a metre" not in text, rel
     for rel in ("docs/terrain.md", "assets/README.md", "geoloc/geodesy/geoid.py"):

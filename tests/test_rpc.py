@@ -28,7 +28,7 @@ def test_fit_residuals_on_check_points_both_sensors(fitted):
     """Issue 9: <= 0.01 px on check points; [L12] 4.1: ZY-3 RPCs fit "better than 0.15 % of a pixel"."""
     sc, f = fitted
     assert f.n_check >= 2000 and f.n_fit >= 3000
-    # the README's figures plus a tenth. The fit is deterministic on one machine, but residuals of
+    # docs/tour_papers.md's figures plus a tenth. The fit is deterministic on one machine, but residuals of
     # 1e-5 px are a rounding floor (normal equations, ridge 1e-12), and the floor moves with the
     # CPU's BLAS and SIMD kernels: pushbroom fit RMS 7.4e-6 on an AMD EPYC (OpenBLAS Haswell
     # kernels), 7.61e-6 on an Intel Xeon (AVX-512 kernels), 7.51e-6 on that Xeon with

@@ -49,7 +49,7 @@ def test_gdal_rpc_dem_agrees_with_exact_dem_intersection(case):
     sc, fit, dem, ell, rows, cols = case
     cc = crosscheck_gdal_dem(sc.sensor, fit.model, dem, ell, rows, cols)
     assert cc.row.size >= 40 and cc.n_failed == 0
-    # the README's "GDAL vs exact, max" (1.0-1.1e-5 / 3.4e-5 px) plus a tenth: deterministic on one
+    # docs/tour_papers.md's "GDAL vs exact, max" (1.0-1.1e-5 / 3.4e-5 px) plus a tenth: deterministic on one
     # machine, but the fitted RPC's rounding floor moves with the CPU's BLAS kernels
     # (tests/test_rpc.py: pushbroom 1.0e-5 on an AMD EPYC, 1.12e-5 on an Intel Xeon)
     assert cc.max_px <= {"pushbroom": 1.25e-5, "frame": 3.8e-5}[sc.kind]

@@ -1,6 +1,6 @@
 """Every server geoloc starts listens on loopback only, unless its expose flag is given.
 
-The house rule (docs/conventions.md, README): any server binds 127.0.0.1 unless a flag
+The house rule (docs/conventions.md, docs/tour_viewer.md): any server binds 127.0.0.1 unless a flag
 says otherwise. Each case starts the server the way a user does (a ``geoloc`` process, or
 the campaign's own ``local_cluster`` in a process of its own), then reads the listening
 sockets of that process and of every child it started (the rerun web viewer is a child

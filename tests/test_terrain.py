@@ -138,7 +138,7 @@ def test_hill_exact(surface):
         assert sorted(idx) == list(range(n))
         mine = frm.from_ecef(hit.ecef)[idx]
         # the same triangles in float64 on both sides: rounding only (measured 8e-10 m); the
-        # README's 7e-8 m for the embree comparison (test_terrain_trimesh.py) bounds it
+        # docs/tour_terrain.md's 7e-8 m for the embree comparison (test_terrain_trimesh.py) bounds it
         assert np.max(np.linalg.norm(mine - loc, axis=-1)) < 7e-8
 
 

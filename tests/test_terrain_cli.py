@@ -39,7 +39,7 @@ def test_replay_on_etopo5(tmp_path, method, capsys):
     g = locate(p, CAM, np.array([float(r["row"]) for r in rows]), np.array([float(r["col"]) for r in rows]),
                target_h=h, height_kind="geodetic", outside="extrapolate")
     assert np.max(np.abs(g.lat_deg - np.rad2deg(lat))) < 2e-7  # 2e-7 deg = 2 cm; CSV keeps 1e-8 deg
-    # README / docs/terrain.md, "what a 5' DEM costs": 521 m RMS from the paper's positions
+    # docs/tour_terrain.md / docs/terrain.md, "what a 5' DEM costs": 521 m RMS from the paper's positions
     # for all three methods (exact: median 460 m, max 883 m; mean h_ETOPO5 - paper height
     # +258 m, T3 -18 m, T4 +534 m; 1442 evaluations per record for steps, 10.6 for
     # bisection). Distances: pyproj's geodesic to the CSV's published position.

@@ -82,7 +82,7 @@ def test_example_runs(path):
         assert np.allclose(np.array(widths[1:]) / np.array(widths[:-1]), 0.5, atol=2e-3)  # halving
     if path.name.startswith("25_"):
         d = float(out.split("max difference ")[1].split()[0])
-        assert d < 7e-8  # README: triangle mode vs trimesh/embree "to 7e-8 m"
+        assert d < 7e-8  # docs/tour_terrain.md: triangle mode vs trimesh/embree "to 7e-8 m"
 
 
 def _nums(text):

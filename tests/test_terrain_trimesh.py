@@ -61,7 +61,7 @@ def test_triangles_agree_with_trimesh_embree():
     hit_tm, err = trimesh_first_hits(dem, los, hit)
     ok = hit.status == Status.OK
     assert np.array_equal(ok, hit_tm)  # the same rays hit
-    # README / docs/terrain.md: "to 7e-8 m" (measured 6.6e-8 m on these rays). trimesh
+    # docs/tour_terrain.md / docs/terrain.md: "to 7e-8 m" (measured 6.6e-8 m on these rays). trimesh
     # recomputes each hit in float64 on the triangle embree reports, the walk uses fused
     # multiply-adds: the two round differently, by that much and no more. No margin.
     assert err.max() < 7e-8

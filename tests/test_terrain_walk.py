@@ -55,7 +55,7 @@ def test_bilinear_grazing_hits_lie_on_the_surface():
 
 
 def test_readme_evaluations_per_ray_table():
-    """README / docs/terrain.md: DEM evaluations per ray on the bench's 10 000 rays (seed 0,
+    """docs/tour_terrain.md / docs/terrain.md: DEM evaluations per ray on the bench's 10 000 rays (seed 0,
     frame angle 45-82 deg, SRTM crop; ``python benchmarks/bench_terrain.py`` part (a)):
     counts, not timings, so deterministic. Exact: 6.3 cells or blocks visited per ray (a
     skip table that never skips gives dozens). Held to half a unit of the printed digit;

@@ -363,7 +363,7 @@ def test_declared_files_reads_the_types(tmp_path):
 
 
 def test_klv_dump_finds_the_bundled_file_from_any_folder(tmp_path, capsys, monkeypatch):
-    # the README's command names assets/klv/...: from another folder it is the bundled file
+    # docs/tour_sensors.md's command names assets/klv/...: from another folder it is the bundled file
     monkeypatch.chdir(tmp_path)
     # exit 1: the example flight's one planted bad checksum is a packet that could not be used
     assert main(["klv", "dump", "assets/klv/example_flight.klv", "--out", "d.jsonl"]) == 1
@@ -399,16 +399,17 @@ def test_ortho_refuses_ortho_out_without_a_dem_before_writing(tmp_path, capsys):
     assert not out.exists() and not ortho.exists()
 
 
-# --------------------------------------------------------------------------- the README from any folder
+# --------------------------------------------------------------------------- the docs from any folder
 
 
-def test_the_readme_python_block_runs_from_an_empty_folder(tmp_path):
+def test_the_docs_python_block_runs_from_an_empty_folder(tmp_path):
     import re
     import subprocess
     import sys
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", readme, re.S)
+    # the README's Python example, now on docs/tour_cli.md (issue 48: the README is one screen)
+    page = (Path(__file__).resolve().parents[1] / "docs" / "tour_cli.md").read_text(encoding="utf-8")
+    blocks = re.findall(r"```python\n(.*?)```", page, re.S)
     assert blocks
     for code in blocks:
         lines = code.rstrip().splitlines()
@@ -416,5 +417,5 @@ def test_the_readme_python_block_runs_from_an_empty_folder(tmp_path):
         code = "\n".join(lines[:-1] + [f"print(repr(({lines[-1]})))"])
         r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, r.stderr
-    # the README's first block is [Q17]'s T3 point 1; the paper prints 35.57709 N, 80.84918 E
+    # the page's first block is [Q17]'s T3 point 1; the paper prints 35.57709 N, 80.84918 E
     assert "35.5770" in r.stdout and "80.849" in r.stdout, r.stdout

@@ -1,5 +1,6 @@
-"""The README's pictures are there (issue 34's Done-when: screenshots of the first view and of an
-outlier with its error vector): every image the README links is a readable PNG in the repository."""
+"""The documentation's pictures are there (issue 34's Done-when: screenshots of the first view and of
+an outlier with its error vector; issue 48: the README shows one picture): every image the README
+or a docs page links is a readable PNG in the repository."""
 
 import re
 from pathlib import Path
@@ -8,21 +9,33 @@ import PIL.Image
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-LINKS = re.findall(r"!\[[^\]]*\]\(([^)\s]+)\)", (ROOT / "README.md").read_text(encoding="utf-8"))
+IMAGE = re.compile(r"!\[[^\]]*\]\(([^)\s]+)\)")
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+# (page, the link as written, the file it names): a link is relative to its page's folder
+LINKS = [(page, link, (page.parent / link).resolve())
+         for page in PAGES for link in IMAGE.findall(page.read_text(encoding="utf-8"))
+         if "://" not in link]
+
+
+def test_the_readme_shows_one_picture():
+    shown = IMAGE.findall((ROOT / "README.md").read_text(encoding="utf-8"))
+    assert len(shown) == 1, shown  # issue 48: "a picture", on one screen
+    assert shown[0].startswith("docs/img/"), shown
 
 
 def test_the_issue_34_screenshots_are_linked():
-    for name in ("docs/img/viewer_first_view.png", "docs/img/viewer_outlier_error.png"):
-        assert name in LINKS, f"README.md does not show {name}"
+    tour = (ROOT / "docs" / "tour_viewer.md").read_text(encoding="utf-8")
+    for name in ("img/viewer_first_view.png", "img/viewer_outlier_error.png"):
+        assert name in IMAGE.findall(tour), f"docs/tour_viewer.md does not show {name}"
 
 
-@pytest.mark.parametrize("link", LINKS)
-def test_every_readme_image_is_a_png_in_the_repository(link):
-    path = ROOT / link
-    assert path.is_file(), f"README.md links {link!r}, which is not in the repository"
+@pytest.mark.parametrize("page,link,path", LINKS,
+                         ids=[f"{p.relative_to(ROOT)}:{link}" for p, link, _ in LINKS])
+def test_every_docs_image_is_a_png_in_the_repository(page, link, path):
+    assert path.is_file(), f"{page.relative_to(ROOT)} links {link!r}, which is not in the repository"
     with PIL.Image.open(path) as im:
         assert im.format == "PNG", (link, im.format)
-        # a real screenshot, not a placeholder or an icon: the README's smallest side is 640 px today
+        # a real screenshot or figure, not a placeholder or an icon: the smallest side is 640 px today
         assert min(im.size) >= 200, (link, im.size)
 
 
