@@ -4,7 +4,8 @@ The pages' bash blocks are read here, not copied: each block's commands run in o
 one new empty folder (a later command may read what an earlier one wrote, as a reader's
 would), through the installed `geoloc` entry point, exactly as printed. The pages are
 ``PAGES``: the README and the pages its sections moved to (docs/install.md, docs/tour_*.md,
-docs/benchmarks.md). Any other docs page with `geoloc` commands in a bash block must be named
+docs/benchmarks.md), and the guides whose commands all run here (calibration.md, gis.md,
+sensors.md). Any other docs page with `geoloc` commands in a bash block must be named
 in ``PAGES_NOT_RUN`` with the reason, so a new page cannot slip out of this test unseen. A
 command is left out only for a reason listed in ``NOT_RUN`` (a template naming the reader's own
 files, a run of about an hour, a send to the LAN); the test fails when a listed command is no
@@ -30,17 +31,15 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
-# the README and the pages its sections moved to (issue 48: one README screen, the rest a site)
-PAGES = [ROOT / "README.md", DOCS / "install.md", *sorted(DOCS.glob("tour_*.md")), DOCS / "benchmarks.md"]
+# the README and the pages its sections moved to (issue 48: one README screen, the rest a site),
+# then the guides whose commands run here too
+PAGES = [ROOT / "README.md", DOCS / "install.md", *sorted(DOCS.glob("tour_*.md")), DOCS / "benchmarks.md",
+         DOCS / "calibration.md", DOCS / "gis.md", DOCS / "sensors.md"]
 # docs pages whose bash blocks are not run here yet -> why
 PAGES_NOT_RUN = {
-    "calibration.md": "not yet run as written; its command's figures are test_calibrate.py's",
-    "gis.md": "not yet run as written (it sends CoT over UDP); its figures are test_gis_export.py's and test_cot.py's",
     "live.md": "its commands are two terminals run at once (sender and receiver); test_live.py runs them together",
     "photos.md": "a template: DJI_0002.JPG and targets.csv are the reader's own (test_photos.py)",
     "scale.md": "templates: the reader's own tiles, flights and scheduler (test_mosaic.py, test_campaign.py)",
-    "sensors.md": "not yet run as written; the same commands in docs/tour_sensors.md are "
-                  "(and test_readme_sensors.py pins their figures)",
 }
 
 # command (as on the pages, continuations joined) -> why it is not run here
