@@ -52,7 +52,7 @@ WAVELENGTH_UM = 0.55
 
 
 def geopotential_height(h_m):
-    """Geopotential height H = r0 h / (r0 + h) [USSA76 eq. 18] [m'], from geometric height [m]."""
+    """Geopotential height H = r0 h / (r0 + h) (USSA76 eq. 18), in geopotential metres, from geometric height [m]."""
     h = np.asarray(h_m, float)
     return R0_EARTH * h / (R0_EARTH + h)
 
@@ -171,7 +171,7 @@ class StandardAtmosphere:
         return self.temperature_pressure(h_m)[1]
 
     def density(self, h_m):
-        """Density rho = P M0 / (R* T) [kg/m^3] [USSA76 eq. 42]."""
+        """Density rho = P M0 / (R* T) in kg/m^3, USSA76 eq. 42."""
         T, P = self.temperature_pressure(h_m)
         return P / (R_AIR * T)
 
@@ -238,7 +238,7 @@ def _refractivity_table(atm: StandardAtmosphere):
 
 
 def air_refractivity(p_pa, t_k, wavelength_um: float = WAVELENGTH_UM):
-    """n - 1 of dry air at pressure ``p_pa`` [Pa] and temperature ``t_k`` [K] [BD93].
+    """n - 1 of dry air at pressure ``p_pa`` [Pa] and temperature ``t_k`` [K], after [BD93].
 
     (n - 1)_tp = (n - 1)_s p [1 + 1e-8 (0.601 - 0.00972 t) p] / (96095.43 (1 + 0.003661 t)),
     t in degC; 2.7180e-4 at 20 degC, 101 325 Pa, 633 nm.
