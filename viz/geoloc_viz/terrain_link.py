@@ -93,9 +93,9 @@ def attach_dem(scn, path=None, strict: bool = False) -> None:
         scn.dem_name = "none: ellipsoid at the record's paper_height_m"
         return
     datum = getattr(scn, "dem_datum", "egm96")
-    if getattr(scn, "_dem_path", None) != (str(path), datum):
+    if (getattr(scn, "_dem_path", None), getattr(scn, "_dem_path_datum", None)) != (str(path), datum):
         scn.dem = SurfaceSpec(dem=path, dem_datum=datum).raster("--dem")  # the one way to a DEM
-        scn._dem_path = (str(path), datum)
+        scn._dem_path, scn._dem_path_datum = str(path), datum  # what is open, and in which datum
     w, s_, e, n = scn.dem.bounds_deg
     if not (s_ <= lat <= n and w <= lon <= e):
         msg = (f"dem = {path}: does not cover the target at {lat:.4f} N {lon:.4f} E "
