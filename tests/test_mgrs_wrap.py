@@ -61,3 +61,16 @@ def test_the_ends_of_the_accepted_range():
     assert list(r.text[:2]) == [oracle(0.5, 0.0)] * 2
     assert "[-360, 360]" in r.reason[2] and "360.000000001" in r.reason[2]
     assert mgrs_text(38.9, 181.0).startswith(f"MGRS {oracle(38.9, -179.0)} (USNG ")
+
+
+def test_precision_table_is_the_standards_square_sides():
+    """NGA.STND.0037: k digits per axis name a square of 10^(5 - k) m (5: 1 m ... 0: 100 km)."""
+    from geoloc.io.mgrs_grid import PRECISION_M
+
+    assert PRECISION_M == {k: 10.0 ** (5 - k) for k in range(6)}
+    full = oracle(38.9, -77.0)
+    for k in range(6):
+        assert latlon_to_mgrs(38.9, -77.0, precision=k).text[()] == full[:5] + full[5:5 + k] + full[10:10 + k]
+    for bad in (-1, 6):
+        with pytest.raises(ValueError, match="precision"):
+            latlon_to_mgrs(0.0, 0.0, precision=bad)

@@ -148,3 +148,24 @@ def test_resampled_picture_pixels_equal_opencv_on_the_pictures_grid(scn, rows, c
     np.testing.assert_allclose(px.col, col, atol=1e-6)
     # the frame's centre pixel is the picture's: (rows + 1) / 2, (cols + 1) / 2 in 1-based centres
     assert sensor.center_pixel == pytest.approx(((rows + 1) / 2, (cols + 1) / 2))
+
+
+def test_which_image_a_record_shows():
+    """``image_index``: the scenario's table when it has one, else the image nearest the record's
+    time (written out here: the smallest |t - t_k|), else the record's own index; -1 outside."""
+    from types import SimpleNamespace
+
+    from geoloc.io.images import ArrayImages
+
+    imgs = ArrayImages(np.zeros((3, 2, 2, 3), np.uint8), times_s=[0.0, 0.5, 1.0])
+    assert pm.image_index(SimpleNamespace(images=None), 0) == -1
+    assert pm.image_index(SimpleNamespace(images=imgs), None) == -1
+    table = SimpleNamespace(images=imgs, image_index=np.array([2, 0, -1, 3, 1]))
+    assert [pm.image_index(table, k) for k in range(5)] == [2, 0, -1, -1, 1]
+    times = np.array([0.1, 0.8, np.nan, 0.74, 0.26, 0.0])
+    timed = SimpleNamespace(images=imgs, record_times_s=times)
+    want = [int(np.argmin(np.abs(t - imgs.times_s))) if np.isfinite(t) else k for k, t in enumerate(times)]
+    assert want == [0, 2, 2, 1, 1, 0]
+    assert [pm.image_index(timed, k) for k in range(6)] == want
+    plain = SimpleNamespace(images=imgs)
+    assert [pm.image_index(plain, k) for k in range(4)] == [0, 1, 2, -1]

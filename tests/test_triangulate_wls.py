@@ -250,3 +250,82 @@ def test_dem_offset_scatter_term_and_the_frames_left_out():
     assert one["se_m"] == pytest.approx(2.0, rel=1e-12) and "1 frames" in one["warning"]
     none = T.compare_with_surface(tri, np.array([np.nan, np.nan]))
     assert math.isnan(none["mean_m"]) and math.isnan(none["se_m"]) and none["warning"] == ""
+
+
+@pytest.mark.parametrize("mean_m,sigma_up_m,warned", [
+    (35.0, 10.0, True),    # 3.5 standard errors: over 3 (a threshold of 4 would keep quiet)
+    (25.0, 10.0, False),   # 2.5 standard errors: under 3 (a threshold of 2 would warn)
+    (5.5, 0.1, True),      # 55 standard errors and over the 5 m floor (a 6 m floor would keep quiet)
+    (4.5, 0.1, False),     # under the 5 m floor (a 4 m floor would warn)
+    (-35.0, 10.0, True),   # below the triangulated point as well
+])
+def test_dem_offset_verdict_on_both_sides_of_each_threshold(mean_m, sigma_up_m, warned):
+    """Every frame the same difference (no scatter): the standard error is the up sigma alone,
+    and the verdict is |mean| > 3 se and |mean| > 5 m, as the docstring states."""
+    tri = _tri_with_cov(np.diag([1.0, 1.0, sigma_up_m ** 2]))
+    c = T.compare_with_surface(tri, tri.h + np.full(6, mean_m))
+    assert c["se_m"] == pytest.approx(sigma_up_m, rel=1e-12)
+    assert bool(c["warning"]) == warned, c
+
+
+@pytest.mark.parametrize("lat_deg,lon_deg", [(90.0, 0.0), (45.0, 0.0), (-90.0, 0.0)])
+def test_a_nadir_ray_along_any_axis_is_weighted_like_the_others(lat_deg, lon_deg):
+    """A ray straight down at a pole runs along the ECEF z axis, one at 45 N 0 E along (1, 0, 1):
+    directions that a basis across the ray must not be built from. With the other rays of unequal
+    quality, the point is still the textbook weighted least squares."""
+    X = np.array(_TO_ECEF.transform(lon_deg, lat_deg, 100.0))
+    lat, lon = math.radians(lat_deg), math.radians(lon_deg)
+    E = _enu_axes(lat, lon)
+    up = np.array([math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)])
+    rng = np.random.default_rng(9)
+    O = np.stack([X + 3000.0 * up, X + 5000.0 * (0.6 * E[0] + 0.8 * E[2]), X + 8000.0 * (-0.5 * E[1] + 0.866 * E[2])])
+    D = np.stack([-up, X - O[1] + rng.normal(0, 3, 3), X - O[2] + rng.normal(0, 3, 3)])
+    D /= np.linalg.norm(D, axis=-1, keepdims=True)
+    # the nadir exactly along the axis (cos(pi/2) = 6e-17 in floating point would leave it 1e-16 off)
+    axis = np.array([0.0, 0.0, 1.0]) if abs(lat_deg) == 90 else np.array([1.0, 0.0, 1.0]) / math.sqrt(2.0)
+    D[0] = -axis if lat_deg >= 0 else axis
+    assert np.all(np.cross(D[0], axis) == 0.0) and np.allclose(D[0], -up, atol=1e-15)
+    dO = np.zeros((3, 3, 3))
+    dD = np.zeros((3, 3, 3))
+    for i, (sp, sa) in enumerate([(0.5, 1e-3), (6.0, 2e-4), (2.0, 5e-4)]):
+        dO[i, :, 0] = sp * E[0] + 0.3 * sp * E[1]
+        w = np.cross(D[i], rng.normal(size=3))
+        dD[i, :, 1] = sa * w / np.linalg.norm(w)
+        w2 = np.cross(D[i], E[0])
+        dD[i, :, 2] = 2e-4 * w2 / np.linalg.norm(w2)
+    X_ref, cov_ecef, _, _, _ = _reference(O, D, dO, dD)
+    tri = T.triangulate_rays(O, D, None, NAMES, dO, dD)
+    assert tri.status == Status.OK and np.all(np.isfinite(tri.cov_enu))
+    assert np.linalg.norm(tri.ecef - X_ref) < 1e-3
+    # ENU at the point found (at a pole its longitude is that of the point, not of the pole)
+    plon, plat, _ = _TO_LLH.transform(*X_ref)
+    Ep = _enu_axes(math.radians(plat), math.radians(plon))
+    np.testing.assert_allclose(tri.cov_enu, Ep @ cov_ecef @ Ep.T, rtol=0, atol=1e-6 * np.abs(cov_ecef).max())
+    plain = T.triangulate_rays(O, D)
+    assert np.linalg.norm(plain.ecef - _wls(O, D)[0]) < 1e-3
+
+
+def test_two_rays_suffice_and_rays_within_the_minimum_angle_are_refused():
+    """Two rays whose directions are 1.5 deg apart: a point (the textbook one); 0.5 deg apart, or
+    with the minimum raised to 2 deg: INVALID_INPUT and NaN; no usable ray, or one: refused."""
+    O, D, dO, dD = _geometry()
+    lon, lat, _ = _TO_LLH.transform(*X_TRUE)
+    E = _enu_axes(math.radians(lat), math.radians(lon))
+    O2 = np.stack([X_TRUE + 5000.0 * E[2], X_TRUE + 5000.0 * (math.cos(math.radians(1.5)) * E[2]
+                                                              + math.sin(math.radians(1.5)) * E[0])])
+    D2 = X_TRUE + np.array([[0.0, 0.0, 0.0], [3.0, -2.0, 1.0]]) - O2
+    D2 /= np.linalg.norm(D2, axis=-1, keepdims=True)
+    ang = math.degrees(math.acos(float(D2[0] @ D2[1])))
+    assert 1.0 < ang < 2.0
+    two = T.triangulate_rays(O2, D2)
+    assert two.status == Status.OK and two.n_rays == 2
+    assert np.linalg.norm(two.ecef - _wls(O2, D2)[0]) < 1e-3
+    assert T.triangulate_rays(O2, D2, min_angle_deg=2.0).status == Status.INVALID_INPUT
+    O3 = np.stack([O2[0], X_TRUE + 5000.0 * (math.cos(math.radians(0.5)) * E[2] + math.sin(math.radians(0.5)) * E[0])])
+    D3 = X_TRUE - O3
+    narrow = T.triangulate_rays(O3, D3)
+    assert narrow.status == Status.INVALID_INPUT and np.all(np.isnan(narrow.ecef)) and math.isnan(narrow.h)
+    none = T.triangulate_rays(O, D, np.zeros(len(O), bool), NAMES, dO, dD)
+    assert none.status == Status.INVALID_INPUT and none.n_rays == 0 and np.all(np.isnan(none.residual_m))
+    one = T.triangulate_rays(O, D, np.eye(len(O), dtype=bool)[0], NAMES, dO, dD)
+    assert one.status == Status.INVALID_INPUT and one.n_rays == 1
