@@ -169,3 +169,34 @@ def test_which_image_a_record_shows():
     assert [pm.image_index(timed, k) for k in range(6)] == want
     plain = SimpleNamespace(images=imgs)
     assert [pm.image_index(plain, k) for k in range(4)] == [0, 1, 2, -1]
+
+
+def test_every_mark_of_a_record_against_opencv(scn):
+    """``image_marks`` on a scene without a DEM (heights as the record gives them): the surveyed
+    truth, the reported centre, each target, all at OpenCV's pixel; the recomputed centre at the
+    picture's centre pixel; a target without coordinates (listed first) left out, not the rest."""
+    import dataclasses
+
+    idx = 0
+    flat = copy.copy(scn)
+    flat.dem = None
+    info, inputs = scn.records[idx]
+    t1 = scn.targets[0]
+    info = dataclasses.replace(info, truth_lat_deg=t1[1], truth_lon_deg=t1[2])
+    flat.records = [(info, inputs)] + list(scn.records[1:])
+    flat.targets = [("X", float("nan"), float("nan"), 500.0)] + list(scn.targets)
+    hfov, vfov = (math.radians(float(x)) for x in scn.frame_fov_deg[idx])
+    K = np.array([[(COLS / 2) / math.tan(hfov / 2), 0.0, (COLS - 1) / 2],
+                  [0.0, (ROWS / 2) / math.tan(vfov / 2), (ROWS - 1) / 2],
+                  [0.0, 0.0, 1.0]])
+    sensor = pm.frame_sensor(flat, idx, ROWS, COLS)
+    marks = pm.image_marks(flat, idx, sensor, inputs)
+    named = {"truth": (info.truth_lat_deg, info.truth_lon_deg, info.paper_height_m),
+             "reported": (info.paper_lat_deg, info.paper_lon_deg, info.paper_height_m)}
+    named.update({f"target {t[0]}": (t[1], t[2], t[3]) for t in scn.targets})
+    assert set(marks) == set(named) | {"recomputed"}
+    row, col = _opencv_rowcol(_cam_vectors(scn, idx, list(named.values())), K)
+    for k, name in enumerate(named):
+        assert marks[name][:2] == pytest.approx((row[k], col[k]), abs=1e-6), name
+    # the image centre's own hit: its mark is the centre pixel (1e-3 px: the surface solver's tolerance)
+    assert marks["recomputed"][:2] == pytest.approx(((ROWS + 1) / 2, (COLS + 1) / 2), abs=1e-3)
