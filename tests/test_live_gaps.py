@@ -140,3 +140,141 @@ def test_a_repeated_counter_with_other_bytes_is_a_continuity_error_not_a_duplica
     good = [r.pts for r in out if isinstance(r, Packet)]
     assert rx.stats.duplicates == 0 and rx.stats.cc_errors >= 1
     assert set(good) >= set(pts[:4] + pts[5:])            # every PES the fake packet did not touch
+
+
+# ------------------------------------------------------------------ PMT, descriptors, video PES
+# From the mutation run on live.py: the PMT's elementary-stream loop, the registration descriptor
+# (ISO/IEC 13818-1 2.6.8: tag 5, length 4 or more, format_identifier; MISB ST 1402 asynchronous
+# carriage: stream type 0x06 with 'KLVA'), stuffing where a section would start (table_id 0xFF,
+# 2.4.4.4), video PES and their count, a padding PES (no PES header: Table 2-21's stream ids).
+
+def _pmt(entries):
+    """A PMT section (program 1, PCR PID 0x1FFF) of (stream_type, pid, ES descriptors) entries."""
+    body = bytes([0xFF, 0xFF, 0xF0, 0x00])
+    for stype, pid, desc in entries:
+        body += bytes([stype, 0xE0 | (pid >> 8), pid & 0xFF, 0xF0 | (len(desc) >> 8), len(desc) & 0xFF]) + desc
+    return _section(0x02, body)
+
+
+def _pes(stream_id, pts, payload, length=True):
+    hdr = bytes([0x84, 0x80, 0x05]) + _pts_bytes(pts)
+    body = hdr + payload
+    return b"\x00\x00\x01" + bytes([stream_id]) + (len(body).to_bytes(2, "big") if length else b"\x00\x00") + body
+
+
+def _psi_packets(pat_pmt):
+    pat = _section(0x00, bytes([0x00, 0x01, 0xE1, 0x00]))
+    return [_ts_packets(0, b"\x00" + pat)[0][0], _ts_packets(0x100, b"\x00" + pat_pmt)[0][0]]
+
+
+def test_asynchronous_klv_is_named_by_its_registration_descriptor_after_another_stream():
+    """PMT: an H.264 stream with a 3-byte descriptor first, then stream type 0x06 whose descriptors
+    are another one (tag 0x0A, 4 bytes) and then 'KLVA' (tag 5, length 4); a third entry of a
+    stream type the receiver does not take. Each stream is known by the PMT's entry, read in turn."""
+    pk = _klv_packets(4)
+    blobs = [encode_packet(p.fields, unknown=p.unknown) for p in pk]
+    pmt = _pmt([(0x1B, 0x102, bytes([0x28, 0x01, 0x4D])),
+                (0x06, 0x101, bytes([0x0A, 0x04]) + b"eng\x00" + bytes([0x05, 0x04]) + b"KLVA"),
+                (0x0F, 0x103, b"")])
+    seq = _psi_packets(pmt)
+    cc = 0
+    for i, b in enumerate(blobs):
+        p, cc = _ts_packets(0x101, _pes(0xBD, 90000 * (i + 1), b), cc)
+        seq += p
+    rx, out = _receive(b"".join(seq))
+    assert rx.demux.streams.get(0x101) == ("klv", 0x06)
+    assert rx.demux.streams.get(0x102) == ("video", 0x1B)
+    assert 0x103 not in rx.demux.streams
+    assert [r.fields for r in out] == [p.fields for p in pk] and rx.stats.psi_errors == 0
+
+
+def test_a_registration_other_than_klva_is_not_klv():
+    """Stream type 0x06 registered as another format ('ABCD'): not a KLV stream by the PMT."""
+    pmt = _pmt([(0x06, 0x101, bytes([0x05, 0x04]) + b"ABCD")])
+    rx, _ = _receive(b"".join(_psi_packets(pmt)))
+    assert 0x101 not in rx.demux.streams and rx.stats.psi_errors == 0
+
+
+def test_video_frames_are_counted_and_their_starts_timed_and_padding_is_not_a_frame():
+    """Three H.264 PES (no length, as video carries them) with their PTS, and a padding PES
+    (stream id 0xBE: no PES header, so no time) on the same PID: three frames, their PTS."""
+    pmt = _pmt([(0x1B, 0x102, b""), (0x15, 0x101, b"")])
+    seq = _psi_packets(pmt)
+    cc = 0
+    frames = [(0xE0, 3003 * k + 9000) for k in range(3)]
+    for k, (sid, pts) in enumerate(frames):
+        p, cc = _ts_packets(0x102, _pes(sid, pts, bytes([0, 0, 0, 1, 0x65]) + bytes(300), length=False), cc)
+        seq += p
+        if k == 1:  # a padding PES: 0xBE, then its length, then 0xFF bytes (no flags, no PTS)
+            pad = b"\x00\x00\x01\xbe" + (40).to_bytes(2, "big") + b"\xff" * 40
+            p, cc = _ts_packets(0x102, pad, cc)
+            seq += p
+    rx = LiveReceiver()
+    out = []
+    for g in datagrams_of(b"".join(seq)):
+        out += rx.push(g)
+    out += rx.flush()
+    assert [p for p in rx.demux.video_starts] == [pts for _, pts in frames]
+    assert rx.stats.video_units == len(frames) + 1  # the three frames and the padding PES, each a unit
+    assert [u[0] for u in rx.video if u[0] is not None] == [pts for _, pts in frames]
+
+
+def test_a_pes_header_too_short_for_its_flags_gives_no_time():
+    """A KLV PES whose header says 'PTS present' but is 4 bytes long (a PTS takes 5): no time
+    stamp rather than one read from the payload."""
+    pk = _klv_packets(2)
+    blobs = [encode_packet(p.fields, unknown=p.unknown) for p in pk]
+    pmt = _pmt([(0x06, 0x101, bytes([0x05, 0x04]) + b"KLVA")])
+    seq = _psi_packets(pmt)
+    good = _pes(0xBD, 90000, blobs[0])
+    short = bytes([0x84, 0x80, 0x04]) + _pts_bytes(180000)[:4]
+    bad = b"\x00\x00\x01\xbd" + (len(short) + len(blobs[1])).to_bytes(2, "big") + short + blobs[1]
+    cc = 0
+    for pes in (good, bad):
+        p, cc = _ts_packets(0x101, pes, cc)
+        seq += p
+    rx, out = _receive(b"".join(seq))
+    assert [r.pts for r in out] == [90000, None]
+    assert out[1].fields == pk[1].fields
+
+
+def test_stuffing_where_a_section_would_start_is_no_section():
+    """PID 0 packets of stuffing (pointer 0, then 0xFF to the end, 2.4.4.4), 23 of them: no
+    section, no PSI error; the PAT after them is read."""
+    stuff_first = bytes([0x47, 0x40, 0x00, 0x10]) + b"\x00" + b"\xff" * 183
+    more = [bytes([0x47, 0x00, 0x00, 0x10 | (k & 0x0F)]) + b"\xff" * 184 for k in range(1, 23)]
+    pmt = _pmt([(0x15, 0x101, b"")])
+    pat = _section(0x00, bytes([0x00, 0x01, 0xE1, 0x00]))
+    tail = [_ts_packets(0, b"\x00" + pat, cc0=23 & 0x0F)[0][0], _ts_packets(0x100, b"\x00" + pmt)[0][0]]
+    rx = LiveReceiver(reorder=False)
+    for g in datagrams_of(b"".join([stuff_first] + more + tail)):
+        rx.push(g)
+    assert rx.stats.psi_errors == 0 and rx.stats.cc_errors == 0
+    assert rx.demux.pmt_pids == {0x100} and rx.demux.streams.get(0x101) == ("klv", 0x15)
+
+
+def test_two_held_datagrams_whose_counters_tie_keep_their_arrival_order():
+    """``TsDemuxer._first``'s rule: a datagram goes before the held one only when the slow PIDs
+    they share say it is nearer. Here the PAT says the held one is nearer and the KLV PID says the
+    new one is, by the same count (2 steps each): no order is known, so arrival order."""
+    pk = _klv_packets(3)
+    blobs = [encode_packet(p.fields, unknown=p.unknown) for p in pk]
+    pat = _section(0x00, bytes([0x00, 0x01, 0xE1, 0x00]))
+    pmt = _pmt([(0x15, 0x101, b"")])
+
+    def pat_cc(cc):
+        return _ts_packets(0, b"\x00" + pat, cc0=cc)[0][0]
+
+    def klv(i, cc):
+        cell = bytes([0x00, i, 0xDF]) + len(blobs[i]).to_bytes(2, "big") + blobs[i]
+        return _ts_packets(0x101, _pes(0xFC, 90000 * (i + 1), cell), cc)[0]
+
+    first = [pat_cc(0), _ts_packets(0x100, b"\x00" + pmt)[0][0]] + klv(0, 0)      # KLV counters 0, 1
+    held = [pat_cc(1)] + klv(2, 4)                                                # PAT +0, KLV +2 missing
+    new = [pat_cc(3)] + klv(1, 2)                                                 # PAT +2 missing, KLV +0
+    rx = LiveReceiver()
+    out = []
+    for g in (first, held, new):
+        out += rx.push(b"".join(g))
+    out += rx.flush()
+    assert [r.pts for r in out] == [90000, 270000, 180000]
