@@ -170,21 +170,22 @@ def _psi_packets(pat_pmt):
 def test_asynchronous_klv_is_named_by_its_registration_descriptor_after_another_stream():
     """PMT: an H.264 stream with a 3-byte descriptor first, then stream type 0x06 whose descriptors
     are another one (tag 0x0A, 4 bytes) and then 'KLVA' (tag 5, length 4); a third entry of a
-    stream type the receiver does not take. Each stream is known by the PMT's entry, read in turn."""
+    stream type the receiver does not take. Each stream is known by the PMT's entry, read in turn
+    (PIDs whose low byte is not their high bits: 0x1F0, 0x0A5, 0x1234)."""
     pk = _klv_packets(4)
     blobs = [encode_packet(p.fields, unknown=p.unknown) for p in pk]
-    pmt = _pmt([(0x1B, 0x102, bytes([0x28, 0x01, 0x4D])),
-                (0x06, 0x101, bytes([0x0A, 0x04]) + b"eng\x00" + bytes([0x05, 0x04]) + b"KLVA"),
-                (0x0F, 0x103, b"")])
+    pmt = _pmt([(0x1B, 0x0A5, bytes([0x28, 0x01, 0x4D])),
+                (0x06, 0x1F0, bytes([0x0A, 0x04]) + b"eng\x00" + bytes([0x05, 0x04]) + b"KLVA"),
+                (0x0F, 0x1234, b"")])
     seq = _psi_packets(pmt)
     cc = 0
     for i, b in enumerate(blobs):
-        p, cc = _ts_packets(0x101, _pes(0xBD, 90000 * (i + 1), b), cc)
+        p, cc = _ts_packets(0x1F0, _pes(0xBD, 90000 * (i + 1), b), cc)
         seq += p
     rx, out = _receive(b"".join(seq))
-    assert rx.demux.streams.get(0x101) == ("klv", 0x06)
-    assert rx.demux.streams.get(0x102) == ("video", 0x1B)
-    assert 0x103 not in rx.demux.streams
+    assert rx.demux.streams.get(0x1F0) == ("klv", 0x06)
+    assert rx.demux.streams.get(0x0A5) == ("video", 0x1B)
+    assert 0x1234 not in rx.demux.streams
     assert [r.fields for r in out] == [p.fields for p in pk] and rx.stats.psi_errors == 0
 
 
@@ -278,3 +279,30 @@ def test_two_held_datagrams_whose_counters_tie_keep_their_arrival_order():
         out += rx.push(b"".join(g))
     out += rx.flush()
     assert [r.pts for r in out] == [90000, 270000, 180000]
+
+
+def test_a_datagram_nearer_by_its_two_packet_klv_pid_goes_first():
+    """Both datagrams carry three video packets (a fast PID: its counter says nothing after a
+    wrap) and a two-packet KLV PES (a slow PID: at most two packets, counted). The new one
+    continues the KLV counter, the held one is two steps on: the new one goes first."""
+    pk = _klv_packets(3)
+    blobs = [encode_packet(p.fields, unknown=p.unknown) for p in pk]
+    pmt = _pmt([(0x1B, 0x102, b""), (0x15, 0x101, b"")])
+
+    def klv(i, cc):
+        cell = bytes([0x00, i, 0xDF]) + len(blobs[i]).to_bytes(2, "big") + blobs[i]
+        return _ts_packets(0x101, _pes(0xFC, 90000 * (i + 1), cell), cc)[0]
+
+    def video(cc0):
+        return [bytes([0x47, 0x01, 0x02, 0x10 | ((cc0 + j) & 0x0F)]) + bytes(184) for j in range(3)]
+
+    first = _psi_packets(pmt) + klv(0, 0) + video(0)          # KLV 0, 1; video 0, 1, 2
+    held = klv(2, 4) + video(9)                              # KLV two steps on, video 6 on
+    new = klv(1, 2) + video(6)                               # KLV continues, video 3 on
+    assert len(b"".join(held)) == len(b"".join(new)) == 5 * 188
+    rx = LiveReceiver()
+    out = []
+    for g in (first, held, new):
+        out += rx.push(b"".join(g))
+    out += rx.flush()
+    assert [r.pts for r in out if isinstance(r, Packet)] == [90000, 180000, 270000]
