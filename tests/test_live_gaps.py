@@ -306,3 +306,20 @@ def test_a_datagram_nearer_by_its_two_packet_klv_pid_goes_first():
         out += rx.push(b"".join(g))
     out += rx.flush()
     assert [r.pts for r in out if isinstance(r, Packet)] == [90000, 180000, 270000]
+
+
+def test_a_video_pes_header_too_short_for_its_pts_starts_no_timed_frame():
+    """A video PES whose flags say 'PTS present' but whose header data is 4 bytes (a PTS takes 5):
+    no frame start with a time read from the payload; the well-formed frames around it keep theirs."""
+    pmt = _pmt([(0x1B, 0x102, b"")])
+    seq = _psi_packets(pmt)
+    cc = 0
+    short = b"\x00\x00\x01\xe0\x00\x00" + bytes([0x84, 0x80, 0x04]) + _pts_bytes(12345)[:4] + bytes(200)
+    for pes in (_pes(0xE0, 9000, bytes(200), length=False), short, _pes(0xE0, 12003, bytes(200), length=False)):
+        p, cc = _ts_packets(0x102, pes, cc)
+        seq += p
+    rx = LiveReceiver()
+    for g in datagrams_of(b"".join(seq)):
+        rx.push(g)
+    rx.flush()
+    assert list(rx.demux.video_starts) == [9000, 12003]
