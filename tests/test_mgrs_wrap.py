@@ -74,3 +74,16 @@ def test_precision_table_is_the_standards_square_sides():
     for bad in (-1, 6):
         with pytest.raises(ValueError, match="precision"):
             latlon_to_mgrs(0.0, 0.0, precision=bad)
+
+
+def test_references_the_grid_does_not_have_are_refused_in_a_batch():
+    """Well-formed references naming squares that do not exist (NGA.STND.0037): column A in zone
+    18 (zone set 3 has the columns S-Z), zone 32X (Svalbard has 31X, 33X, 35X, 37X only). Each gets
+    NaN, INVALID_INPUT and a reason naming it; the good reference between them is read."""
+    from geoloc.io.mgrs_grid import mgrs_to_latlon
+
+    good = oracle(38.9, -77.0)
+    r = mgrs_to_latlon(["18SAA1234", good, "32XMF12"])
+    assert r.status.tolist() == [Status.INVALID_INPUT, Status.OK, Status.INVALID_INPUT]
+    assert np.isnan(r.lat_deg[[0, 2]]).all() and np.isfinite(r.lat_deg[1])
+    assert "18SAA1234" in r.reason[0] and "32XMF12" in r.reason[2]
