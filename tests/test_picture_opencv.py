@@ -200,3 +200,40 @@ def test_every_mark_of_a_record_against_opencv(scn):
         assert marks[name][:2] == pytest.approx((row[k], col[k]), abs=1e-6), name
     # the image centre's own hit: its mark is the centre pixel (1e-3 px: the surface solver's tolerance)
     assert marks["recomputed"][:2] == pytest.approx(((ROWS + 1) / 2, (COLS + 1) / 2), abs=1e-3)
+
+
+def test_a_frame_missing_one_field_of_view_falls_back_to_the_sensors_lens(scn):
+    """A KLV frame whose vertical field of view is missing (NaN): not a zoom, the sensor's own
+    lens carried to the picture's grid (OpenCV's resize map), as for a frame without any."""
+    part = copy.copy(scn)
+    fov = np.array(scn.frame_fov_deg, float).copy()
+    fov[0, 1] = np.nan
+    part.frame_fov_deg = fov
+    sensor = pm.frame_sensor(part, 0, ROWS, COLS)
+    K = _resampled_K(scn.camera.lens, ROWS, COLS)
+    pts = _targets(scn)
+    row, col = _opencv_rowcol(_cam_vectors(scn, 0, pts), K)
+    ll = np.radians([(la, lo) for la, lo, _ in pts])
+    px = sensor.ground_to_pixel(ll[:, 0], ll[:, 1], np.array([h for *_, h in pts]), scn.records[0][1].pose())
+    np.testing.assert_allclose(px.row, row, atol=1e-6)
+    np.testing.assert_allclose(px.col, col, atol=1e-6)
+
+
+def test_a_click_without_a_dem_is_on_the_records_height_and_says_so(scn):
+    """No DEM: the click's ground point is on the record's constant target height (ellipsoidal),
+    OpenCV projects it back to the clicked pixel, and the panel names the surface."""
+    flat = copy.copy(scn)
+    flat.dem = None
+    inputs = scn.records[0][1]
+    hfov, vfov = (math.radians(float(x)) for x in scn.frame_fov_deg[0])
+    K = np.array([[(COLS / 2) / math.tan(hfov / 2), 0.0, (COLS - 1) / 2],
+                  [0.0, (ROWS / 2) / math.tan(vfov / 2), (ROWS - 1) / 2],
+                  [0.0, 0.0, 1.0]])
+    sensor = pm.frame_sensor(flat, 0, ROWS, COLS)
+    p = pm.locate_pixel(flat, inputs, sensor, 40.0, 100.0)
+    assert p.ok and p.method == "constant height"
+    assert float(p.hit.h) == pytest.approx(inputs.target_h, abs=1e-3)  # the surface's own tolerance
+    row, col = _opencv_rowcol(_cam_vectors(scn, 0, [(p.lat_deg(), p.lon_deg(), float(p.hit.h))]), K)
+    assert (row[0], col[0]) == pytest.approx((40.0, 100.0), abs=1e-3)
+    with_dem = pm.locate_pixel(scn, inputs, sensor, 40.0, 100.0)
+    assert with_dem.method == inputs.method and with_dem.iterations > 0
