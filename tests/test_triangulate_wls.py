@@ -72,6 +72,7 @@ def _geometry(seed=5):
         dO[i, :, 0] = POS_SIGMA[i] * u / np.linalg.norm(u)             # a position error, any direction
         w = np.cross(D[i], rng.normal(size=3))
         dD[i, :, 1] = ANG_SIGMA[i] * w / np.linalg.norm(w)             # an attitude error: the ray turns
+        dO[i, :, 1] = 0.3 * POS_SIGMA[i] * np.cross(w, u) / np.linalg.norm(np.cross(w, u))  # and its lever arm moves
         w2 = np.cross(D[i], E[2])
         dD[i, :, 2] = 3e-4 * w2 / np.linalg.norm(w2)                   # a mount bias: the same turn everywhere
     return O, D, dO, dD
@@ -268,11 +269,18 @@ def test_dem_offset_verdict_on_both_sides_of_each_threshold(mean_m, sigma_up_m, 
     assert bool(c["warning"]) == warned, c
 
 
-@pytest.mark.parametrize("lat_deg,lon_deg", [(90.0, 0.0), (45.0, 0.0), (-90.0, 0.0)])
+#: Nadir directions along simple ECEF axes (exact): where a ray straight down points along z,
+#: x, (+-1, 0, 1) or (0, +-1, 1) - the directions a basis across the ray could be built from.
+NADIR_AXES = {(90.0, 0.0): (0.0, 0.0, 1.0), (-90.0, 0.0): (0.0, 0.0, -1.0), (0.0, 0.0): (1.0, 0.0, 0.0),
+              (45.0, 0.0): (1.0, 0.0, 1.0), (45.0, 180.0): (-1.0, 0.0, 1.0), (45.0, 90.0): (0.0, 1.0, 1.0),
+              (45.0, -90.0): (0.0, -1.0, 1.0)}
+
+
+@pytest.mark.parametrize("lat_deg,lon_deg", list(NADIR_AXES))
 def test_a_nadir_ray_along_any_axis_is_weighted_like_the_others(lat_deg, lon_deg):
-    """A ray straight down at a pole runs along the ECEF z axis, one at 45 N 0 E along (1, 0, 1):
-    directions that a basis across the ray must not be built from. With the other rays of unequal
-    quality, the point is still the textbook weighted least squares."""
+    """A ray straight down at a pole runs along the ECEF z axis, at 0 N 0 E along x, at 45 N along
+    (+-1, 0, 1) or (0, +-1, 1): directions that a basis across the ray must not be built from.
+    With the other rays of unequal quality, the point is still the textbook weighted least squares."""
     X = np.array(_TO_ECEF.transform(lon_deg, lat_deg, 100.0))
     lat, lon = math.radians(lat_deg), math.radians(lon_deg)
     E = _enu_axes(lat, lon)
@@ -282,8 +290,9 @@ def test_a_nadir_ray_along_any_axis_is_weighted_like_the_others(lat_deg, lon_deg
     D = np.stack([-up, X - O[1] + rng.normal(0, 3, 3), X - O[2] + rng.normal(0, 3, 3)])
     D /= np.linalg.norm(D, axis=-1, keepdims=True)
     # the nadir exactly along the axis (cos(pi/2) = 6e-17 in floating point would leave it 1e-16 off)
-    axis = np.array([0.0, 0.0, 1.0]) if abs(lat_deg) == 90 else np.array([1.0, 0.0, 1.0]) / math.sqrt(2.0)
-    D[0] = -axis if lat_deg >= 0 else axis
+    axis = np.array(NADIR_AXES[(lat_deg, lon_deg)])
+    axis /= np.linalg.norm(axis)
+    D[0] = -axis
     assert np.all(np.cross(D[0], axis) == 0.0) and np.allclose(D[0], -up, atol=1e-15)
     dO = np.zeros((3, 3, 3))
     dD = np.zeros((3, 3, 3))
@@ -329,3 +338,18 @@ def test_two_rays_suffice_and_rays_within_the_minimum_angle_are_refused():
     assert none.status == Status.INVALID_INPUT and none.n_rays == 0 and np.all(np.isnan(none.residual_m))
     one = T.triangulate_rays(O, D, np.eye(len(O), dtype=bool)[0], NAMES, dO, dD)
     assert one.status == Status.INVALID_INPUT and one.n_rays == 1
+
+
+def test_dem_offset_at_exactly_three_standard_errors_or_five_metres_is_not_reported():
+    """The verdict is strict (|mean| > 3 SE and |mean| > 5 m): at exactly 3 SE (30 m, an up sigma
+    of 10 m, no scatter) or exactly 5 m, nothing; a metre more, the warning. Heights chosen so that
+    every difference is exact in floating point."""
+    def tri(sig2):
+        return T.Triangulation(X_TRUE, 0.6, -1.4, 400.0, 4, np.zeros(4), np.diag([1.0, 1.0, sig2]))
+
+    at = T.compare_with_surface(tri(100.0), np.full(5, 430.0))
+    assert at["mean_m"] == 30.0 and at["se_m"] == 10.0 and at["warning"] == ""
+    assert T.compare_with_surface(tri(100.0), np.full(5, 431.0))["warning"]
+    five = T.compare_with_surface(tri(0.25), np.full(5, 405.0))
+    assert five["mean_m"] == 5.0 and five["se_m"] == 0.5 and five["warning"] == ""
+    assert T.compare_with_surface(tri(0.25), np.full(5, 406.0))["warning"]
