@@ -323,3 +323,77 @@ def test_a_video_pes_header_too_short_for_its_pts_starts_no_timed_frame():
         rx.push(g)
     rx.flush()
     assert list(rx.demux.video_starts) == [9000, 12003]
+
+
+# ------------------------------------------------------------------ the second sample (seed 1)
+
+def test_klv_without_any_pmt_is_taken_by_its_stream_id_and_a_pes_completes_at_its_length():
+    """No PAT or PMT (joined mid-stream): a PES of stream id 0xFC (metadata_stream) is taken as KLV,
+    its stream type 0 ('taken before any PMT', PesUnit's docstring; 0x01 would be MPEG-1 video). A
+    PES with a length field is out as soon as its last byte came, not at the next PES start. A
+    packet whose whole payload is a start code prefix (00 00 01, no stream id) is ignored."""
+    pk = _klv_packets(2)
+    blobs = [encode_packet(p.fields, unknown=p.unknown) for p in pk]
+    rx = LiveReceiver()
+    stub = bytes([0x47, 0x41, 0x07, 0x30, 180, 0x00]) + b"\xff" * 179 + b"\x00\x00\x01"  # 3 payload bytes
+    assert len(stub) == 188
+    assert rx.push(stub) == []
+    first, cc = _ts_packets(0x1F0, _pes(0xFC, 90000, blobs[0]), 0)
+    got = rx.push(b"".join(first))
+    assert [r.pts for r in got] == [90000] and got[0].fields == pk[0].fields   # before any later packet
+    assert rx.demux.streams[0x1F0] == ("klv", 0)
+    second, _ = _ts_packets(0x1F0, _pes(0xFC, 180000, blobs[1]), cc)
+    assert [r.pts for r in rx.push(b"".join(second))] == [180000]
+    assert rx.stats.datagrams == 3
+
+
+def test_an_adaptation_only_packet_does_not_count_as_the_next_in_its_pid():
+    """A PID's packet with an adaptation field and no payload (adaptation_field_control '10')
+    repeats the counter (2.4.3.3: it does not increment): the datagram it leads still continues the
+    stream, taken at once, and the KLV PES around it come out in order, none damaged."""
+    pk = _klv_packets(3)
+    blobs = [encode_packet(p.fields, unknown=p.unknown) for p in pk]
+    pmt = _pmt([(0x15, 0x101, b"")])
+
+    def klv(i, cc):
+        cell = bytes([0x00, i, 0xDF]) + len(blobs[i]).to_bytes(2, "big") + blobs[i]
+        return _ts_packets(0x101, _pes(0xFC, 90000 * (i + 1), cell), cc)[0]
+
+    af_only = bytes([0x47, 0x01, 0x01, 0x20 | 1, 183, 0x00]) + b"\xff" * 182   # counter 1 again, no payload
+    grams = [_psi_packets(pmt) + klv(0, 0), [af_only] + klv(1, 2), klv(2, 4)]
+    rx = LiveReceiver()
+    per = [[r.pts for r in rx.push(b"".join(g))] for g in grams]
+    # each PES is out with its own datagram: the second datagram was not held back as out of order
+    assert per == [[90000], [180000], [270000]] and rx.flush() == []
+    assert rx.stats.cc_errors == 0 and rx.stats.damaged_pes == 0 and rx.stats.datagrams == 3
+
+
+def test_resyncs_damaged_pes_and_decoding_time_stamps_are_counted_and_read():
+    """Ten stray bytes between two packets of a continuous stream: one resync, ten bytes skipped.
+    A lost middle packet of a PES: one continuity error and one damaged PES. A video PES with PTS
+    and DTS (flags '11', 10 header bytes): both read (2.4.3.7)."""
+    pk = _klv_packets(3)
+    pmt = _pmt([(0x15, 0x101, b""), (0x1B, 0x102, b"")])
+    packets = _stream([90000 * (i + 1) for i in range(3)], pk)
+    rx = LiveReceiver()
+    ts = b"".join(packets[:3]) + bytes(range(1, 11)) + b"".join(packets[3:])
+    rx.push_bytes(ts)
+    assert rx.stats.resyncs == 1 and rx.stats.skipped_bytes == 10
+
+    klv = [i for i, p in enumerate(packets) if ((p[1] & 0x1F) << 8 | p[2]) == 0x101]
+    lossy = [p for i, p in enumerate(packets) if i != klv[3]]   # the second packet of the second PES
+    rx2, out = _receive(b"".join(lossy))
+    assert rx2.stats.cc_errors == 1 and rx2.stats.damaged_pes == 1
+    assert [r.pts for r in out if isinstance(r, Packet)] == [90000, 270000]
+
+    from geoloc.io.live import TsDemuxer
+
+    pts, dts = 93003, 90000
+    hdr = bytes([0x84, 0xC0, 0x0A]) + bytes([0x31 | ((pts >> 29) & 0x0E)]) + _pts_bytes(pts)[1:] \
+        + bytes([0x11 | ((dts >> 29) & 0x0E)]) + _pts_bytes(dts)[1:]
+    pes = b"\x00\x00\x01\xe0\x00\x00" + hdr + bytes(100)
+    d = TsDemuxer()
+    units = d.feed_datagram(b"".join(_psi_packets(pmt) + _ts_packets(0x102, pes, 0)[0]))
+    units += d.flush()
+    v = [u for u in units if u.kind == "video"]
+    assert [(u.pts, u.dts) for u in v] == [(pts, dts)]
