@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-COPY = ("geoloc", "tests", "assets", "examples")
+COPY = ("geoloc", "viz", "tests", "assets", "examples")
 #: The tests written from earlier runs' survivors run with every target.
 KILLS = "tests/test_mutation_kills.py"
 
@@ -105,7 +105,7 @@ TARGETS = [
            ("rpc00b_renormalized", "old_of", "write_rpc_nitf", "_is_sidecar", "read_rpc"), "the NITF RPC00B",
            kills=False),
     Target("klv_fix", "geoloc/workflows/klv_fix.py", ("tests/test_klv_fix.py",), kills=False),
-    Target("picture_model", "geoloc/viz/picture_model.py", ("tests/test_picture_opencv.py",),
+    Target("picture_model", "viz/geoloc_viz/picture_model.py", ("tests/test_picture_opencv.py",),
            ("frame_sensor", "image_index", "locate_pixel", "image_marks"), "the picture's sensor and its pixels",
            kills=False),
     Target("userfiles", "geoloc/userfiles.py", ("tests/test_user_files.py",), kills=False),
@@ -143,7 +143,8 @@ def _env(copy: Path):
     # NUMBA_BOUNDSCHECK: a mutant that makes the walk read beyond its tables raises IndexError
     # instead of reading garbage that may pass (the scratch copy's own cache holds only
     # bounds-checked code)
-    return dict(os.environ, PYTHONPATH=str(copy), NUMBA_CACHE_DIR=str(copy / ".numba_cache_boundscheck"),
+    # both packages of the copy (the core, and the viewer's geoloc_viz under viz/) before the installed ones
+    return dict(os.environ, PYTHONPATH=os.pathsep.join((str(copy), str(copy / "viz"))), NUMBA_CACHE_DIR=str(copy / ".numba_cache_boundscheck"),
                 NUMBA_BOUNDSCHECK="1", HOME=str(copy / ".home"), MPLBACKEND="Agg")
 
 

@@ -1,4 +1,4 @@
-"""The picture panel's pixels (geoloc.viz.picture_model) against OpenCV on the image's own grid.
+"""The picture panel's pixels (geoloc_viz.picture_model) against OpenCV on the image's own grid.
 
 Issue 50's gap: ``tests/test_viz_picture.py`` renders its frames through the panel's own sensor
 and compares the picks with that sensor, so a lens sized with rows and columns swapped agrees
@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 from pyproj import Transformer
 
-from geoloc.viz import picture_model as pm
+from geoloc_viz import picture_model as pm
 
 ROWS, COLS = 135, 240  # the picture's own grid: a 1080 x 1920 sensor shown at an eighth
 _TO_ECEF = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
@@ -39,7 +39,7 @@ _TO_ECEF = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
 
 @pytest.fixture(scope="module")
 def scn():
-    from geoloc.viz.flight_model import default_flight_scenario
+    from geoloc_viz.flight_model import default_flight_scenario
 
     return default_flight_scenario()
 

@@ -123,7 +123,7 @@ def locate_pixel(scn, inputs, sensor, row, col) -> PixelPick:
     if tr is not None:
         t = tr.ray()
         trace = np.asarray(t["ecef"], float).reshape(-1, 3)
-    method = inputs.method if terrain_of(surface) is not None or scn.dem is not None else "constant height"
+    method = inputs.method if terrain_of(surface) is not None else "constant height"
     return PixelPick(float(row), float(col), bool(sensor.in_image(row, col)), los, hit, method, evals, trace)
 
 
