@@ -43,7 +43,7 @@ def run(args) -> int:
     if not (math.isfinite(thr) and thr > 0):
         raise ValueError(f"--gdal-threshold-px = {thr!r} must be a number > 0 (pixels)")
     out = Path(args.out)
-    sc = load_scenario(args.scenario)
+    sc = load_scenario(args.scenario, expect=("pushbroom", "frame"))  # not a montecarlo, limb ... file
     dem = None
     if not args.no_gdal and sc.dem_path is not None:  # the scenario's DEM, opened here at the edge
         dem = SurfaceSpec(dem=sc.dem_path, dem_datum=sc.dem_datum).raster(f"{sc.name}: dem")
