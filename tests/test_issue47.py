@@ -37,3 +37,54 @@ def test_rpc_of_a_montecarlo_scenario_is_one_clear_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "montecarlo" in err and "'pushbroom' or 'frame'" in err, err
     assert not out.exists()
+
+
+# ------------------------------------------------------------------ Ctrl-C and a closed pipe
+#: Runs geoloc in a child whose first write of an output file, half done, is hit by a real SIGINT
+#: (sent by the process to itself: no timing, the handler runs as soon as os.kill returns).
+_INTERRUPTED_WRITE = """
+import os, pathlib, signal, sys
+real = pathlib.Path.write_text
+def half_then_ctrl_c(self, data, *a, **k):
+    real(self, data[: len(data) // 2], *a, **k)
+    os.kill(os.getpid(), signal.SIGINT)
+    return real(self, data, *a, **k)
+pathlib.Path.write_text = half_then_ctrl_c
+from geoloc.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_ctrl_c_is_one_line_exit_130_and_leaves_no_partial_file(tmp_path):
+    # before: a KeyboardInterrupt traceback, killed by SIGINT (return code -2)
+    out = tmp_path / "stats.json"
+    out.write_text("the old statistics\n")
+    p = subprocess.run([sys.executable, "-c", _INTERRUPTED_WRITE, "montecarlo", str(SCEN), "--samples", "20",
+                        "--seed", "0", "--out", str(out)], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert p.returncode == 130, p.stderr
+    assert p.stderr.strip().splitlines() == ["geoloc montecarlo: interrupted (Ctrl-C)"], p.stderr
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["stats.json"]  # no temporary file left
+    assert out.read_text() == "the old statistics\n"  # the earlier output whole
+
+
+def test_a_closed_pipe_ends_quietly_with_141():
+    # before: "BrokenPipeError: [Errno 32] Broken pipe" traceback(s) and exit 1 (or 120 at the last flush)
+    r, w = os.pipe()
+    os.close(r)  # the reader is gone before the first line: `geoloc klv dump ... | head -0`
+    try:
+        p = subprocess.run(GEOLOC + ["klv", "dump", str(asset_path("klv", "example_flight.klv"))], stdout=w,
+                           stderr=subprocess.PIPE, text=True, timeout=300)
+    finally:
+        os.close(w)
+    assert p.returncode == 141 and p.stderr == "", p.stderr
+
+
+def test_a_closed_pipe_after_the_first_line_ends_quietly():
+    # `geoloc replay ... | head -1`: the reader takes one line and goes
+    p = subprocess.Popen(GEOLOC + ["replay", "--height-column", "paper_height_m", "--print-rows"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = p.stdout.readline()
+    p.stdout.close()
+    err = p.stderr.read()
+    rc = p.wait(timeout=300)
+    assert first.startswith("record") and rc in (0, 141) and "Traceback" not in err and "Broken" not in err, err

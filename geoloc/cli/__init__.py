@@ -59,27 +59,84 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Exit status of a command that ends on Ctrl-C: 128 + SIGINT, as a shell reports it (docs/cli.md).
+EXIT_INTERRUPTED = 130
+
+#: Exit status of a command whose standard output was closed early (``geoloc ... | head -1``):
+#: 128 + SIGPIPE, what a shell reports for ``yes | head -1``'s ``yes`` (docs/cli.md).
+EXIT_BROKEN_PIPE = 141
+
+
 def main(argv=None) -> int:
     """Parse, check every output against every input (before anything runs), run the verb.
 
-    A refused output, a bad value or an unreadable or unwritable file is one line on
-    stderr and exit status 2 (docs/architecture.md, "The user's files").
+    Exit status (docs/cli.md): 0 all done; 1 the command ran but some records could not be
+    located (the summary says how many and why); 2 bad usage or input: a refused output, a
+    bad value or an unreadable or unwritable file is one line on stderr (docs/architecture.md,
+    "The user's files"); 130 Ctrl-C (one line, no partial output file: :func:`geoloc.userfiles.atomic_path`
+    removes its temporary file); 141 standard output closed by its reader (``| head -1``:
+    the command ends quietly).
     """
-    from geoloc.cli._options import check_outputs
-    from geoloc.userfiles import command_files
-
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
+    verb = "geoloc"
     try:
-        inputs = check_outputs(parser, args)
-        with command_files(inputs):
-            return int(args.func(args) or 0)
-    except (ValueError, OSError, MissingExtra) as e:
-        print(f"geoloc {args.verb}: error: {_one_line(e)}", file=sys.stderr)
-        return 2
+        from geoloc.cli._options import check_outputs
+        from geoloc.userfiles import command_files
+
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        verb = f"geoloc {args.verb}" if getattr(args, "verb", None) else "geoloc"
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 2
+        try:
+            inputs = check_outputs(parser, args)
+            with command_files(inputs):
+                code = int(args.func(args) or 0)
+            sys.stdout.flush()  # a closed pipe shows here, inside the handlers, not at exit
+            return code
+        except BrokenPipeError as e:
+            if _stdout_closed():
+                return _quiet_broken_pipe()
+            print(f"{verb}: error: {_one_line(e)}", file=sys.stderr)  # another pipe than stdout
+            return 2
+        except (ValueError, OSError, MissingExtra) as e:
+            print(f"{verb}: error: {_one_line(e)}", file=sys.stderr)
+            return 2
+    except KeyboardInterrupt:
+        nl = "\n" if sys.stderr.isatty() else ""  # after the terminal's "^C"
+        print(f"{nl}{verb}: interrupted (Ctrl-C)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # the usage or help text itself, into a closed pipe
+        if not _stdout_closed():
+            raise
+        return _quiet_broken_pipe()
+
+
+def _stdout_closed() -> bool:
+    """Whether standard output is a pipe (or socket) whose reader has gone (POLLERR on Linux)."""
+    import select
+
+    try:
+        fd = sys.stdout.fileno()
+        poll = select.poll()
+        poll.register(fd, select.POLLOUT)
+        return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # no real stdout (a test's capture): trust the error
+        return True
+
+
+def _quiet_broken_pipe() -> int:
+    """End quietly when the reader of standard output has gone (the recipe of the Python docs,
+    "Note on SIGPIPE"): what is still buffered goes to /dev/null, so the interpreter's last flush
+    does not print "Exception ignored ... BrokenPipeError"."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (AttributeError, OSError, ValueError):
+        pass
+    return EXIT_BROKEN_PIPE
 
 
 def _one_line(e: Exception) -> str:
