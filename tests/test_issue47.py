@@ -88,3 +88,45 @@ def test_a_closed_pipe_after_the_first_line_ends_quietly():
     err = p.stderr.read()
     rc = p.wait(timeout=300)
     assert first.startswith("record") and rc in (0, 141) and "Traceback" not in err and "Broken" not in err, err
+
+
+# ------------------------------------------------------------------ help texts
+def _parsers():
+    import argparse
+
+    from geoloc.cli import build_parser
+
+    todo, out = [("geoloc", build_parser())], []
+    while todo:
+        name, p = todo.pop()
+        out.append((name, p))
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                todo += [(f"{name} {k}", q) for k, q in a.choices.items()]
+    return out
+
+
+def test_no_help_text_shows_a_doubled_percent_sign():
+    # before: `geoloc montecarlo --help` printed "the empirical 50 %% radius" (a description is not %-formatted)
+    shown = {name: p.format_help() for name, p in _parsers()}
+    assert len(shown) > 15
+    assert [name for name, text in shown.items() if "%%" in text] == []
+
+
+def test_geoloc_help_names_every_action_of_a_verb_that_has_actions():
+    # before: `geoloc --help` said "klv ... dump the decoded packets" only (fix and send were not named)
+    import argparse
+
+    from geoloc.cli import build_parser
+
+    top = build_parser()
+    verbs = next(a for a in top._actions if isinstance(a, argparse._SubParsersAction))
+    helps = {c.dest: c.help for c in verbs._choices_actions}
+    checked = 0
+    for verb, p in verbs.choices.items():
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                missing = [k for k in a.choices if k not in helps[verb]]
+                assert missing == [], f"geoloc --help, {verb}: {helps[verb]!r} does not name {missing}"
+                checked += 1
+    assert checked >= 1  # klv

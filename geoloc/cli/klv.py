@@ -30,7 +30,8 @@ from geoloc.cli._options import input_path, output_path
 def register(sub) -> None:
     p = sub.add_parser(
         "klv",
-        help="MISB ST 0601 KLV metadata: dump the decoded packets of a .klv/.bin or .ts file",
+        help="MISB ST 0601 KLV metadata: dump the packets (JSON lines), fix a copy's frame-centre and "
+        "corner tags, send an MPEG-TS to udp://HOST:PORT",
         description="MISB ST 0601 (UAS Datalink Local Set) KLV metadata (docs/klv.md).",
     )
     actions = p.add_subparsers(dest="klv_action", metavar="ACTION")

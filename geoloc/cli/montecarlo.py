@@ -34,7 +34,7 @@ def register(sub) -> None:
         description="Sample every error source of a scenario file (nominal pose, gimbal angles, "
         "camera, target, per-parameter distributions; see docs/montecarlo.md), locate the "
         "target for every sample through the geolocation chain, and report the mean and "
-        "standard deviation of lat, lon, h, the CEP of [Q17] eq. 18 and the empirical 50 %% "
+        "standard deviation of lat, lon, h, the CEP of [Q17] eq. 18 and the empirical 50 % "
         "radius. With --sweep, CEP against the outer gimbal angle ([Q17] Fig. 10) as CSV + PNG.",
     )
     p.add_argument("scenario", type=input_path, help="scenario TOML, e.g. assets/scenarios/qiao2017_table1.toml "
