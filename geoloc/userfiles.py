@@ -13,6 +13,12 @@ files"):
   matplotlib choose their format by it), and renames it into place with
   :func:`os.replace` when the block ends without an exception; otherwise the
   temporary file is removed and the old output, if any, is left as it was.
+- **What is there is written through, not replaced.** An output that is a device
+  (``/dev/null``, ``/dev/full``), a FIFO or a socket is opened and written as it is; an
+  output that is a symlink is written atomically beside its target and renamed onto the
+  target, so the link stays. An existing regular output keeps its permission bits; a
+  read-only one (no write bit) is refused, even for root. A path that ends with ``/`` or
+  is a folder is refused: an output file needs a file name (docs/cli.md).
 - **An unwritable path is one clear line.** A missing folder, a folder that cannot
   be written (probed by creating a file there, so it holds for root and read-only
   mounts too) or a path whose parent is a file raise :class:`OutputRefused`, a
@@ -27,6 +33,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import Iterator
@@ -130,6 +137,25 @@ def _probe_folder(folder: Path, option: str, path) -> None:
         raise OutputRefused(f"{where}: cannot write in folder {folder}: {e.strerror or e}") from None
 
 
+def _kind(p: Path) -> str:
+    """``"missing"``, ``"file"``, ``"folder"`` or ``"special"`` (a device, FIFO or socket), following symlinks."""
+    try:
+        mode = os.stat(p).st_mode
+    except FileNotFoundError:
+        return "missing"
+    except OSError:
+        return "missing"  # a symlink loop, a path through a file: the folder probe names it
+    if stat.S_ISDIR(mode):
+        return "folder"
+    return "file" if stat.S_ISREG(mode) else "special"
+
+
+def write_target(path) -> Path:
+    """The file a write to ``path`` lands on: ``path`` itself, or a symlink's target (followed to the end)."""
+    p = Path(os.fspath(path))
+    return Path(os.path.realpath(p)) if p.is_symlink() else p
+
+
 def check_output(path, option: str = "", *, inputs=None) -> Path:
     """Refuse an output path that must not or cannot be written; returns it as a ``Path``.
 
@@ -145,11 +171,16 @@ def check_output(path, option: str = "", *, inputs=None) -> Path:
     Raises
     ------
     OutputRefused
-        ``path`` is one of the inputs, a file of the bundled data, an existing folder,
-        or its folder is missing or cannot be written.
+        ``path`` is one of the inputs, a file of the bundled data, an existing folder or
+        a path ending with ``/``, a read-only existing file (refused even for root, who
+        writes through permission bits), or its folder (a symlink's: its target's) is
+        missing or cannot be written. A device, FIFO or socket is not probed: it is
+        written through (:func:`atomic_path`), and a write that fails is one line then.
     """
     p = Path(os.fspath(path))
     where = f"{option} {path}" if option else str(path)
+    if str(os.fspath(path)) == STDOUT:
+        return p
     for q in (noted_inputs() if inputs is None else [Path(os.fspath(x)) for x in inputs]):
         if same_file(p, q):
             same = "" if str(q) == str(path) else f" ({q})"
@@ -158,10 +189,26 @@ def check_output(path, option: str = "", *, inputs=None) -> Path:
     root = _bundled_root()
     if root is not None and p.exists() and _inside(p, root):
         raise OutputRefused(f"{where} is a file of geoloc's bundled data ({root}): refusing to overwrite it")
-    if p.is_dir():
+    text = str(os.fspath(path))
+    kind = _kind(p)
+    if kind == "folder":
         raise OutputRefused(f"{where} is a folder: give a file name")
-    _probe_folder(p.parent if str(p.parent) else Path("."), option, path)
+    if text.endswith(("/", os.sep)) or (os.altsep and text.endswith(os.altsep)):
+        raise OutputRefused(f"{where} ends with '/', a folder's path: give a file name "
+                            f"(e.g. {text.rstrip('/' + os.sep)}/out{_suffix_hint(option)})")
+    if kind == "special":
+        return p  # written through (a device, a FIFO): nothing is replaced
+    target = write_target(p)
+    if kind == "file" and not (os.stat(target).st_mode & 0o222):
+        shown = "" if target == p else f" (the link's target {target})"
+        raise OutputRefused(f"{where}{shown} is read-only: refusing to replace it (make it writable, "
+                            "or give another output path)")
+    _probe_folder(target.parent if str(target.parent) else Path("."), option, path)
     return p
+
+
+def _suffix_hint(option: str) -> str:
+    return ".tif" if "ortho" in option else ".csv"
 
 
 def check_output_dir(path, option: str = "", *, inputs=None) -> Path:
@@ -188,12 +235,32 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
     """A temporary path beside ``path``, renamed onto it when the block succeeds.
 
     The temporary file is in the same folder (so the rename is atomic) and keeps the
-    suffix (``out.tif`` -> ``.out.tif.geoloc-XXXX.tif``). On an exception it is
-    removed and ``path`` is untouched. :func:`check_output` is applied first.
+    suffix (``out.tif`` -> ``.out.tif.geoloc-XXXX.tif``). On an exception (Ctrl-C too)
+    it is removed and ``path`` is untouched. :func:`check_output` is applied first.
+
+    What is already there decides how it is written (docs/cli.md): a symlink is written
+    beside its target and renamed onto the target (the link stays); a device, FIFO or
+    socket (``/dev/null``) is yielded itself, written through, never replaced; an existing
+    file's permission bits are given to the new file. ``"-"`` is standard output: the
+    block writes a temporary file whose bytes are then copied to standard output.
     """
     p = check_output(path, option)
-    fd, tmp = tempfile.mkstemp(dir=p.parent if str(p.parent) else ".", prefix=f".{p.name}.geoloc-",
-                               suffix=p.suffix)
+    if str(p) == STDOUT:
+        with _to_stdout(option) as tmp:
+            yield tmp
+        return
+    if _kind(p) == "special":
+        try:
+            yield p
+        except OSError as e:  # /dev/full: ENOSPC has no file name; give it the path
+            if e.filename is None and e.errno is not None:
+                raise OSError(e.errno, e.strerror or str(e), str(path)) from None
+            raise
+        return
+    target = write_target(p)
+    old_mode = stat.S_IMODE(os.stat(target).st_mode) if _kind(target) == "file" else None
+    folder = target.parent if str(target.parent) else Path(".")
+    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{target.name}.geoloc-", suffix=p.suffix)
     os.close(fd)
     tmp = Path(tmp)
     try:
@@ -201,7 +268,9 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
         yield tmp
         if not tmp.exists():
             raise OutputRefused(f"{option + ' ' if option else ''}{path}: the writer produced no file")
-        os.replace(tmp, p)
+        if old_mode is not None and tmp.is_file():
+            os.chmod(tmp, old_mode)
+        os.replace(tmp, target)
     finally:
         with contextlib.suppress(FileNotFoundError):
             if tmp.is_dir():
@@ -210,6 +279,52 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
                 shutil.rmtree(tmp)
             else:
                 tmp.unlink()
+
+
+#: The output path that means standard output (``--out -``).
+STDOUT = "-"
+
+#: Where ``--out -`` writes: the real standard output (binary), set by :func:`stdout_is_data`
+#: while a command's own messages go to stderr.
+_DATA_OUT: contextvars.ContextVar = contextvars.ContextVar("geoloc_data_out", default=None)
+
+
+@contextlib.contextmanager
+def stdout_is_data() -> Iterator[None]:
+    """While a command writes ``--out -``: its messages (``print``) go to stderr, so that standard
+    output carries the data alone; :func:`atomic_path` writes ``-`` to the real standard output."""
+    import sys
+
+    real = sys.stdout
+    token = _DATA_OUT.set(real)
+    sys.stdout = sys.stderr
+    try:
+        yield
+    finally:
+        sys.stdout = real
+        _DATA_OUT.reset(token)
+
+
+@contextlib.contextmanager
+def _to_stdout(option: str) -> Iterator[Path]:
+    """A temporary file whose bytes go to standard output when the block succeeds."""
+    import shutil
+    import sys
+
+    folder = Path(tempfile.mkdtemp(prefix="geoloc-stdout-"))
+    try:
+        tmp = folder / "out"
+        yield tmp
+        if not tmp.is_file():
+            raise OutputRefused(f"{option + ' ' if option else ''}-: the writer produced no single file "
+                                "to send to standard output")
+        out = _DATA_OUT.get() or sys.stdout
+        out.flush()
+        with tmp.open("rb") as fh:
+            shutil.copyfileobj(fh, out.buffer)
+        out.flush()
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 def write_text(path, text: str, option: str = "", encoding: str = "utf-8") -> Path:

@@ -130,3 +130,31 @@ def test_geoloc_help_names_every_action_of_a_verb_that_has_actions():
                 assert missing == [], f"geoloc --help, {verb}: {helps[verb]!r} does not name {missing}"
                 checked += 1
     assert checked >= 1  # klv
+
+
+# ------------------------------------------------------------------ --out -: standard output for text
+def test_out_dash_is_standard_output_for_a_csv_and_the_messages_go_to_stderr(tmp_path, capsys, monkeypatch):
+    # before: a file named "-" was written, and the summary went to stdout
+    monkeypatch.chdir(tmp_path)
+    assert main(["replay", "--height-column", "paper_height_m", "--out", "-"]) == 0
+    out, err = capsys.readouterr()
+    rows = list(csv.DictReader(out.splitlines()))
+    assert len(rows) == 20 and rows[0]["table"] == "T3" and float(rows[0]["lat_deg"]) == pytest.approx(36.3377, abs=1e-4)
+    assert "group T3" in err and "wrote 20 rows to -" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_out_dash_for_a_json_output(tmp_path, capsys, monkeypatch):
+    import json
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["montecarlo", str(SCEN), "--samples", "50", "--seed", "0", "--out", "-"]) == 0
+    out = capsys.readouterr().out
+    assert abs(json.loads(out)["mean_lat_deg"] - 35.57709) < 0.001  # [Q17] Table 2: the target at 35.57709 N
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_out_dash_for_a_binary_output_is_one_line(tmp_path, capsys):
+    assert main(["ortho", "--record", "T3-1", "--out", "-"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "standard output is for text outputs" in err, err

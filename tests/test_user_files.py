@@ -328,8 +328,8 @@ def test_klv_dump_interrupted_keeps_the_old_output(tmp_path, capsys, monkeypatch
         raise KeyboardInterrupt
 
     monkeypatch.setattr(verb, "_dump", half)
-    with pytest.raises(KeyboardInterrupt):
-        main(["klv", "dump", "assets/klv/example_flight.klv", "--out", str(out)])
+    assert main(["klv", "dump", "assets/klv/example_flight.klv", "--out", str(out)]) == 130  # docs/cli.md
+    assert capsys.readouterr().err.strip() == "geoloc klv dump: interrupted (Ctrl-C)"
     assert out.read_text() == "old\n" and sorted(os.listdir(tmp_path)) == ["dump.jsonl"]
 
 
@@ -419,3 +419,125 @@ def test_the_docs_python_block_runs_from_an_empty_folder(tmp_path):
         assert r.returncode == 0, r.stderr
     # the page's first block is [Q17]'s T3 point 1; the paper prints 35.57709 N, 80.84918 E
     assert "35.5770" in r.stdout and "80.849" in r.stdout, r.stdout
+
+
+# --------------------------------------------------------------------------- issue 47: the --out rules (docs/cli.md)
+
+
+def _text_type():
+    import geoloc.cli._options as o
+
+    return getattr(o, "text_output_path", None)  # (None before issue 47: the test then fails, not errors)
+
+
+def _file_outputs(binary_only=False):
+    text_output_path = _text_type()
+    out = []
+    for prefix, p in VERBS:
+        for a in p._actions:
+            if _role(a) == "output" and not (binary_only and a.type is text_output_path):
+                out.append(pytest.param(prefix, a.dest, id=f"{' '.join(prefix)}:{a.dest}"))
+    return out
+
+
+@pytest.mark.parametrize("prefix,out_dest", _file_outputs())
+def test_a_folder_path_with_a_trailing_slash_is_refused(prefix, out_dest, tmp_path, capsys):
+    # before: `--out results/` wrote a file named `results`
+    p = _parser(prefix)
+    line = Line(prefix, p, tmp_path)
+    line.set(_action(p, out_dest), f"{tmp_path}/results/")
+    rc, err = _run(line.argv(), capsys)
+    _assert_one_line_error(rc, err, "ends with '/'")
+    assert not (tmp_path / "results").exists()
+
+
+@pytest.mark.parametrize("prefix,out_dest", _file_outputs())
+def test_a_read_only_output_is_refused_even_for_root(prefix, out_dest, tmp_path, capsys):
+    # before: root replaced a file without a write bit (the rename needs only the folder's)
+    p = _parser(prefix)
+    line = Line(prefix, p, tmp_path)
+    ro = tmp_path / "kept.out"
+    ro.write_text("read-only results\n")
+    ro.chmod(0o444)
+    line.set(_action(p, out_dest), ro)
+    rc, err = _run(line.argv(), capsys)
+    _assert_one_line_error(rc, err, "is read-only")
+    assert ro.read_text() == "read-only results\n" and (ro.stat().st_mode & 0o777) == 0o444
+
+
+@pytest.mark.parametrize("prefix,out_dest", _file_outputs(binary_only=True))
+def test_standard_output_is_refused_for_a_binary_output(prefix, out_dest, tmp_path, capsys):
+    # `--out -`: one clear line where the file is binary (the text ones: tests/test_issue47.py)
+    p = _parser(prefix)
+    a = _action(p, out_dest)
+    line = Line(prefix, p, tmp_path)
+    line.set(a, "-")
+    rc, err = _run(line.argv(), capsys)
+    _assert_one_line_error(rc, err, "standard output is for text outputs")
+
+
+def test_the_text_outputs_are_those_of_text_formats():
+    # the options where `-` is standard output: CSV, JSON, JSON lines, TOML, and export's KML/CZML/CoT
+    text_output_path = _text_type()
+    text = {f"{' '.join(prefix)} {a.option_strings[0]}" for prefix, p in VERBS for a in p._actions
+            if a.type is text_output_path}
+    assert text == {"replay --out", "montecarlo --out", "limb --out", "klv dump --out", "calibrate --out",
+                    "calibrate --write-sensor", "calibrate --write-camera", "reproduce --json", "rpc --report",
+                    "export --out"}
+
+
+def test_a_symlink_output_is_written_through_and_kept(tmp_path):
+    target = tmp_path / "real" / "results.csv"
+    target.parent.mkdir()
+    target.write_text("old\n")
+    link = tmp_path / "link.csv"
+    link.symlink_to(target)
+    userfiles.write_text(link, "new\n")
+    assert link.is_symlink() and os.readlink(link) == str(target)  # the link kept
+    assert target.read_text() == "new\n"
+    assert sorted(os.listdir(target.parent)) == ["results.csv"] and sorted(os.listdir(tmp_path)) == ["link.csv", "real"]
+
+
+def test_a_dangling_symlink_output_creates_its_target(tmp_path):
+    target = tmp_path / "results.csv"
+    link = tmp_path / "link.csv"
+    link.symlink_to(target)
+    userfiles.write_text(link, "new\n")
+    assert link.is_symlink() and target.read_text() == "new\n"
+
+
+def test_a_fifo_output_is_written_through(tmp_path):
+    import threading
+
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()), daemon=True)
+    reader.start()
+    userfiles.write_text(fifo, "a,b\n1,2\n")
+    reader.join(timeout=60)
+    assert got == [b"a,b\n1,2\n"]
+    assert fifo.is_fifo() and sorted(os.listdir(tmp_path)) == ["pipe.csv"]
+
+
+def test_an_existing_output_keeps_its_permission_bits(tmp_path):
+    out = tmp_path / "shared.csv"
+    out.write_text("old\n")
+    out.chmod(0o640)
+    userfiles.write_text(out, "new\n")
+    assert out.read_text() == "new\n" and (out.stat().st_mode & 0o777) == 0o640
+
+
+def test_dev_null_and_dev_full_through_a_link_are_written_through(tmp_path, capsys):
+    # run as root, `--out /dev/null` was replaced by a regular file (the temp-file-and-rename rule
+    # applied to a device); a link to it here, so that the unfixed code replaces the link, not the device
+    for dev, rc_want in (("/dev/null", 0), ("/dev/full", 2)):
+        link = tmp_path / f"to_{Path(dev).name}.csv"
+        link.symlink_to(dev)
+        rc = main(["replay", "--height-column", "paper_height_m", "--out", str(link)])
+        err = capsys.readouterr().err
+        assert rc == rc_want, err
+        assert link.is_symlink() and Path(dev).is_char_device(), dev
+        if rc_want:
+            assert err.splitlines()[-1] == f"geoloc replay: error: {link}: No space left on device"
+    assert sorted(os.listdir(tmp_path)) == ["to_full.csv", "to_null.csv"]

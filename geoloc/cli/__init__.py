@@ -77,20 +77,26 @@ def main(argv=None) -> int:
     removes its temporary file); 141 standard output closed by its reader (``| head -1``:
     the command ends quietly).
     """
-    verb = "geoloc"
+    verb = prog = "geoloc"
     try:
-        from geoloc.cli._options import check_outputs
-        from geoloc.userfiles import command_files
+        import contextlib
+
+        from geoloc.cli._options import check_outputs, writes_stdout
+        from geoloc.userfiles import command_files, stdout_is_data
 
         parser = build_parser()
         args = parser.parse_args(argv)
         verb = f"geoloc {args.verb}" if getattr(args, "verb", None) else "geoloc"
+        from geoloc.cli._options import chosen_parsers
+
+        prog = chosen_parsers(parser, args)[-1].prog  # "geoloc klv dump"
         if not getattr(args, "func", None):
             parser.print_help()
             return 2
         try:
             inputs = check_outputs(parser, args)
-            with command_files(inputs):
+            data = stdout_is_data() if writes_stdout(parser, args) else contextlib.nullcontext()
+            with command_files(inputs), data:  # --out -: the messages go to stderr, the data to stdout
                 code = int(args.func(args) or 0)
             sys.stdout.flush()  # a closed pipe shows here, inside the handlers, not at exit
             return code
@@ -104,7 +110,7 @@ def main(argv=None) -> int:
             return 2
     except KeyboardInterrupt:
         nl = "\n" if sys.stderr.isatty() else ""  # after the terminal's "^C"
-        print(f"{nl}{verb}: interrupted (Ctrl-C)", file=sys.stderr)
+        print(f"{nl}{prog}: interrupted (Ctrl-C)", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # the usage or help text itself, into a closed pipe
         if not _stdout_closed():

@@ -91,13 +91,19 @@ def output_path(text: str) -> str:
     return str(text)
 
 
+def text_output_path(text: str) -> str:
+    """argparse type of an option naming a text file the verb writes (CSV, JSON, TOML, KML ...):
+    ``-`` is standard output there (docs/cli.md); elsewhere ``-`` is refused (a binary file)."""
+    return str(text)
+
+
 def output_dir(text: str) -> str:
     """argparse type of an option naming a folder the verb writes files into."""
     return str(text)
 
 
 #: The role of each path type, as :func:`declared_files` reports it.
-ROLES = {input_path: "input", output_path: "output", output_dir: "output_dir"}
+ROLES = {input_path: "input", output_path: "output", text_output_path: "output", output_dir: "output_dir"}
 
 
 def chosen_parsers(parser, args) -> list:
@@ -111,11 +117,12 @@ def chosen_parsers(parser, args) -> list:
         out.append(subs[0].choices[name])
 
 
-def declared_files(parser, args) -> tuple[list, list]:
+def declared_files(parser, args, *, types: bool = False) -> tuple[list, list]:
     """The inputs and outputs of a parsed command line, from its options' types.
 
     Returns ``(inputs, outputs)``: ``inputs`` a list of paths, ``outputs`` a list of
-    ``(option, path, role)`` with ``role`` ``"output"`` or ``"output_dir"``.
+    ``(option, path, role)`` with ``role`` ``"output"`` or ``"output_dir"`` (with
+    ``types=True``, ``(option, path, role, type)``: the option's argparse type).
     """
     inputs, outputs = [], []
     for p in chosen_parsers(parser, args):
@@ -131,20 +138,40 @@ def declared_files(parser, args) -> tuple[list, list]:
                 if role == "input":
                     inputs.append(x)
                 else:
-                    outputs.append((name, x, role))
+                    outputs.append((name, x, role, a.type) if types else (name, x, role))
     return inputs, outputs
 
 
-def check_outputs(parser, args) -> list:
-    """Refuse, before the verb runs, an output that is an input or cannot be written; returns the inputs."""
-    from geoloc.userfiles import check_output, check_output_dir, same_file
+def writes_stdout(parser, args) -> bool:
+    """Whether an output of this command line is ``-`` (standard output)."""
+    from geoloc.userfiles import STDOUT
 
-    inputs, outputs = declared_files(parser, args)
+    return any(path == STDOUT for _, path, _ in declared_files(parser, args)[1])
+
+
+def check_outputs(parser, args) -> list:
+    """Refuse, before the verb runs, an output that is an input or cannot be written; returns the inputs.
+
+    ``-`` (standard output) is taken once, by an option whose file is text (:func:`text_output_path`);
+    a binary output (GeoTIFF, GeoPackage, .rrd, MPEG-TS, PNG) given ``-`` is one clear error.
+    """
+    from geoloc.userfiles import STDOUT, check_output, check_output_dir, same_file
+
+    inputs, outputs = declared_files(parser, args, types=True)
     seen = {}
-    for name, path, role in outputs:
+    for name, path, role, kind in outputs:
+        if path == STDOUT:
+            if kind is not text_output_path:
+                raise ValueError(f"{name} -: standard output is for text outputs (CSV, JSON, KML ...); "
+                                 f"{name} writes a binary file: give a file name")
+            if STDOUT in seen.values():
+                other = next(k for k, v in seen.items() if v == STDOUT)
+                raise ValueError(f"{other} - and {name} -: only one output can go to standard output")
+            seen[name] = path
+            continue
         (check_output if role == "output" else check_output_dir)(path, name, inputs=inputs)
         for other, q in seen.items():
-            if same_file(path, q):
+            if q != STDOUT and same_file(path, q):
                 raise ValueError(f"{name} {path} and {other} {q} are the same file: give two paths")
         seen[name] = path
     return inputs

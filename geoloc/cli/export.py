@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from geoloc.cli._options import input_path, output_path
+from geoloc.cli._options import input_path, text_output_path
 from geoloc.io.cot import DEFAULT_HOW, DEFAULT_STALE_S, DEFAULT_TYPE, TAK_SA_MULTICAST
 from geoloc.io.gis import DEFAULT_EPOCH, EXTENSIONS, FORMATS, export, read_results
 
@@ -23,7 +23,7 @@ def register(sub) -> None:
         f"--cot udp://HOST:PORT sends them as UDP datagrams (TAK's SA multicast is {TAK_SA_MULTICAST}).",
     )
     p.add_argument("results", type=input_path, help="results CSV (e.g. from geoloc replay --out)")
-    p.add_argument("--out", default=None, type=output_path,
+    p.add_argument("--out", default=None, type=text_output_path,
                    help="output file (.gpkg, .geojson/.json, .kml, .czml, .cot); required unless --cot")
     p.add_argument("--format", default=None,
                    help=f"one of {', '.join(FORMATS + ('cot',))} (default: from the extension of --out: "

@@ -24,7 +24,7 @@ import json
 import sys
 from pathlib import Path
 
-from geoloc.cli._options import input_path, output_path
+from geoloc.cli._options import input_path, output_path, text_output_path
 
 
 def register(sub) -> None:
@@ -53,7 +53,7 @@ def register(sub) -> None:
     d.add_argument("file", metavar="FILE", type=input_path,
                    help="raw KLV (.klv, .bin: concatenated packets), a container (.ts, .m2ts, .mpg, .mp4), or a "
                    "live MPEG-TS stream udp://HOST:PORT (docs/live.md)")
-    d.add_argument("--out", default=None, type=output_path, help="write the JSON lines to this file instead of stdout")
+    d.add_argument("--out", default=None, type=text_output_path, help="write the JSON lines to this file instead of stdout")
     d.add_argument("--no-checksum", action="store_true",
                    help="do not verify the checksums (tag 1), nor require them")
     from geoloc.cli._options import add_live_options

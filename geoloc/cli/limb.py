@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from geoloc.cli._options import input_path, output_path
+from geoloc.cli._options import input_path, text_output_path
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic
 from geoloc.sensors.limb import limb_tangent
 from geoloc.status import Status, describe
@@ -33,7 +33,7 @@ def register(sub) -> None:
         "of sight given in ECEF.",
     )
     p.add_argument("scenario", nargs="?", default=None, type=input_path, help="limb scenario TOML file (see docs/limb.md)")
-    p.add_argument("--out", default=None, type=output_path, help="scenario mode: write one CSV row per frame and pixel here")
+    p.add_argument("--out", default=None, type=text_output_path, help="scenario mode: write one CSV row per frame and pixel here")
     p.add_argument("--frames", type=int, default=None, help="scenario mode: use only the first N frames")
     p.add_argument("--origin-ecef", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
                    help="raw mode: sensor position, ECEF [m]")

@@ -20,7 +20,7 @@ from geoloc.cli._options import (
     input_path,
     one_dem_raster,
     output_dir,
-    output_path,
+    text_output_path,
     surface_from_scenario,
 )
 from geoloc.status import Status
@@ -51,7 +51,7 @@ def register(sub) -> None:
                    "vibration_yaw_deg=uniform:0.01 (normal:SIGMA or uniform:MAX, optional :BIAS); "
                    "lens sources: fx_px fy_px focal_length_px cx_px cy_px skew_px k1 k2 p1 p2 k3 k4 k5 k6; "
                    "repeatable")
-    p.add_argument("--out", default=None, type=output_path,
+    p.add_argument("--out", default=None, type=text_output_path,
                    help="statistics JSON of a single run")
     p.add_argument("--out-dir", default=None, type=output_dir,
                    help="with --sweep: the folder of the sweep's CSV and PNG files (default montecarlo_sweep)")

@@ -13,6 +13,7 @@ from geoloc.cli._options import (
     output_dir,
     output_path,
     sensor_from_args,
+    text_output_path,
     surface_from_args,
     surface_spec_from_args,
     warn_datums,
@@ -51,7 +52,7 @@ def register(sub) -> None:
     add_sensor_option(p)
     add_records_options(p)
     add_target_options(p)
-    p.add_argument("--out", default=None, type=output_path,
+    p.add_argument("--out", default=None, type=text_output_path,
                    help="output CSV of every row (never the input file: refused)")
     p.add_argument("--print-rows", action="store_true",
                    help=f"print one line per record even with --out or more than {ROWS_SHOWN} "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from geoloc.cli._options import output_path, surface_from_scenario
+from geoloc.cli._options import surface_from_scenario, text_output_path
 from geoloc.userfiles import write_text
 from geoloc.workflows import reproduce as rp
 
@@ -34,7 +34,7 @@ def register(sub) -> None:
     p.add_argument("--tolerances-m", default="10,2,1",
                    help="li2023: comma-separated height tolerances [m], step of the descending "
                    "method and bisection threshold (default 10,2,1)")
-    p.add_argument("--json", default=None, type=output_path, help="also write the key numbers to this JSON file")
+    p.add_argument("--json", default=None, type=text_output_path, help="also write the key numbers to this JSON file")
     p.set_defaults(func=run)
 
 

@@ -9,7 +9,7 @@ import json
 import math
 from pathlib import Path
 
-from geoloc.cli._options import input_path, output_path
+from geoloc.cli._options import input_path, output_path, text_output_path
 from geoloc.userfiles import write_text
 from geoloc.surfaces.spec import SurfaceSpec
 
@@ -26,7 +26,7 @@ def register(subparsers) -> None:
     )
     p.add_argument("scenario", type=input_path, help="scenario TOML (e.g. assets/scenarios/zy3_nadir.toml)")
     p.add_argument("--out", required=True, type=output_path, help="GeoTIFF to write (RPC tag, sparse pixels)")
-    p.add_argument("--report", type=output_path, help="JSON report to write (fit_rms_px, check_rms_px, check_max_px, "
+    p.add_argument("--report", type=text_output_path, help="JSON report to write (fit_rms_px, check_rms_px, check_max_px, "
                                     "gdal_vs_exact_max_px, ...)")
     p.add_argument("--no-gdal", action="store_true", help="skip the GDAL RPC_DEM cross-check")
     p.add_argument("--gdal-threshold-px", type=float, default=1e-6,
