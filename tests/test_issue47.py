@@ -158,3 +158,49 @@ def test_out_dash_for_a_binary_output_is_one_line(tmp_path, capsys):
     assert main(["ortho", "--record", "T3-1", "--out", "-"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "standard output is for text outputs" in err, err
+
+
+# ------------------------------------------------------------------ geoloc export
+@pytest.fixture(scope="module")
+def results_csv(tmp_path_factory):
+    d = tmp_path_factory.mktemp("results")
+    out = d / "r.csv"
+    assert main(["replay", "--height-column", "paper_height_m", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize("content, needle", [(b"", "empty (no header line, no rows)"),
+                                             (b"table,point,lat_deg,lon_deg\n", "a header and no rows")])
+def test_export_of_an_empty_csv_is_one_line(tmp_path, capsys, content, needle):
+    # before: a 0-byte CSV made a GeoPackage of seven empty layers, exit 0
+    src, out = tmp_path / "empty.csv", tmp_path / "out.gpkg"
+    src.write_bytes(content)
+    assert main(["export", str(src), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and needle in err and str(src) in err, err
+    assert not out.exists()
+
+
+def test_export_takes_its_output_as_the_readme_writes_it(results_csv, tmp_path, capsys):
+    # the README: `geoloc export r.csv out.gpkg` (before: "unrecognized arguments: out.gpkg")
+    readme = (ROOT / "README.md").read_text()
+    assert "geoloc export r.csv out.gpkg" in readme
+    out = tmp_path / "out.gpkg"
+    assert main(["export", str(results_csv), str(out)]) == 0
+    from pyogrio import raw
+
+    assert len(raw.read(str(out), layer="points")[2]) == 20  # the 20 records of [Q17] Tables 3-4
+    assert main(["export", str(results_csv), str(tmp_path / "a.kml"), "--out", str(tmp_path / "b.kml")]) == 2
+    assert "two outputs given" in capsys.readouterr().err
+
+
+def test_export_to_standard_output(results_csv, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # (before: a file named "-" was written here)
+    assert main(["export", str(results_csv), "--out", "-", "--format", "kml"]) == 0
+    out, err = capsys.readouterr()
+    assert out.startswith("<?xml") and out.count("<Placemark") >= 20 and "wrote kml" in err
+    for fmt, needle in ((None, "give --format"), ("gpkg", "is a binary file"), ("geojson", "one file per layer")):
+        argv = ["export", str(results_csv), "--out", "-"] + (["--format", fmt] if fmt else [])
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and needle in err, err

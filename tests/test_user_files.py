@@ -479,11 +479,11 @@ def test_standard_output_is_refused_for_a_binary_output(prefix, out_dest, tmp_pa
 def test_the_text_outputs_are_those_of_text_formats():
     # the options where `-` is standard output: CSV, JSON, JSON lines, TOML, and export's KML/CZML/CoT
     text_output_path = _text_type()
-    text = {f"{' '.join(prefix)} {a.option_strings[0]}" for prefix, p in VERBS for a in p._actions
-            if a.type is text_output_path}
+    text = {f"{' '.join(prefix)} {a.option_strings[0] if a.option_strings else a.metavar}"
+            for prefix, p in VERBS for a in p._actions if a.type is text_output_path}
     assert text == {"replay --out", "montecarlo --out", "limb --out", "klv dump --out", "calibrate --out",
                     "calibrate --write-sensor", "calibrate --write-camera", "reproduce --json", "rpc --report",
-                    "export --out"}
+                    "export --out", "export OUT"}
 
 
 def test_a_symlink_output_is_written_through_and_kept(tmp_path):

@@ -23,8 +23,11 @@ def register(sub) -> None:
         f"--cot udp://HOST:PORT sends them as UDP datagrams (TAK's SA multicast is {TAK_SA_MULTICAST}).",
     )
     p.add_argument("results", type=input_path, help="results CSV (e.g. from geoloc replay --out)")
+    p.add_argument("output", nargs="?", default=None, metavar="OUT", type=text_output_path,
+                   help="output file (.gpkg, .geojson/.json, .kml, .czml, .cot), as --out")
     p.add_argument("--out", default=None, type=text_output_path,
-                   help="output file (.gpkg, .geojson/.json, .kml, .czml, .cot); required unless --cot")
+                   help="output file (.gpkg, .geojson/.json, .kml, .czml, .cot; '-': standard output, for "
+                   "KML, CZML and CoT); required unless --cot")
     p.add_argument("--format", default=None,
                    help=f"one of {', '.join(FORMATS + ('cot',))} (default: from the extension of --out: "
                    f"{', '.join(list(EXTENSIONS) + ['.cot'])})")
@@ -44,14 +47,31 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+#: Formats written as one text file, so that ``--out -`` (standard output) can take them.
+STDOUT_FORMATS = ("kml", "czml", "cot")
+
+
 def run(args) -> int:
+    if args.output is not None and args.out is not None and args.output != args.out:
+        raise ValueError(f"two outputs given ({args.output} and --out {args.out}): give one")
+    args.out = args.out if args.out is not None else args.output
+    if args.out == "-":
+        fmt = (args.format or "").strip().lower()
+        if not fmt:
+            raise ValueError("--out -: standard output has no extension to tell the format by: give --format "
+                             f"({', '.join(STDOUT_FORMATS)})")
+        if fmt not in STDOUT_FORMATS:
+            why = ("writes one file per layer" if fmt in ("geojson", "json") else "is a binary file")
+            raise ValueError(f"--out - --format {args.format}: {args.format} {why}; standard output takes "
+                             f"{', '.join(STDOUT_FORMATS)}: give a file name")
     is_cot = (args.format or "").strip().lower() == "cot" or (
         args.format is None and args.out is not None and Path(args.out).suffix.lower() == ".cot")
     if args.out is None and args.cot is None:
         raise ValueError("give --out FILE, or --cot udp://HOST:PORT to send Cursor-on-Target events")
     if not is_cot and args.cot is None:
         # the path, not a table read here: export's errors then name the file (issue 32)
-        print(export(args.results, args.out, args.format, group_by=args.group_by, epoch=args.epoch))
+        print(export(args.results, args.out, args.format, group_by=args.group_by, epoch=args.epoch,
+                     require_rows=True))
         return 0
     from geoloc.io.cot import cot_events, parse_udp_url, send_udp, write_cot
 
@@ -60,6 +80,9 @@ def run(args) -> int:
     if args.out is not None and not is_cot:
         raise ValueError(f"--cot sends Cursor-on-Target; --out {args.out} would need --format cot (or a .cot name)")
     table = read_results(args.results)
+    if not table or not len(next(iter(table.values()))):
+        raise ValueError(f"{args.results}: {'a header and no rows' if table else 'empty (no header line, no rows)'}"
+                         ": nothing to export")
     ev = cot_events(table, source=Path(args.results).stem, cot_type=args.cot_type, how=args.cot_how,
                     stale_s=args.cot_stale_s, epoch=args.epoch)
     for _, why in ev.skipped:

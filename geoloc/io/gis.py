@@ -646,7 +646,8 @@ def geojson_paths(out_path) -> dict:
     return {name: p if name == "points" else p.with_name(f"{p.stem}_{name}{p.suffix}") for name in LAYERS}
 
 
-def export(table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH) -> ExportSummary:
+def export(table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH,
+           require_rows: bool = False) -> ExportSummary:
     """Write a results table to GeoPackage, GeoJSON, KML or CZML.
 
     Parameters
@@ -665,6 +666,9 @@ def export(table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH) 
     epoch : str
         ISO 8601 time that ``time_s`` counts from, and the start of synthesized
         times (one second per row) when the table has no time column.
+    require_rows : bool
+        Refuse an empty table (a 0-byte file, a header without rows) instead of
+        writing valid empty layers (``geoloc export`` sets it: docs/cli.md).
 
     Returns
     -------
@@ -675,7 +679,8 @@ def export(table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH) 
     Raises
     ------
     ValueError
-        Unknown format (names it and the allowed ones), unknown group-by column,
+        An empty table with ``require_rows``, unknown format (names it and the allowed
+        ones), unknown group-by column,
         unparseable h_datum or time, a table without computed positions (``lat_deg``,
         ``lon_deg``: a records CSV that was never replayed).
     FileNotFoundError
@@ -686,6 +691,10 @@ def export(table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH) 
     if isinstance(table, (str, Path)):
         source = str(table)
         table = read_results(table)
+    if require_rows and not table:  # a 0-byte file: an empty GeoPackage said nothing (issue 47)
+        raise ValueError(f"{source}: empty (no header line, no rows): nothing to export")
+    if require_rows and not len(next(iter(table.values()))):
+        raise ValueError(f"{source}: a header and no rows: nothing to export")
     if table and not ("lat_deg" in table and "lon_deg" in table):
         # a records CSV never replayed: six layers of empty geometries said nothing (issue 32)
         hint = (" (it has the records' columns: replay it first, `geoloc replay FILE --out results.csv`, "
