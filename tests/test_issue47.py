@@ -204,3 +204,18 @@ def test_export_to_standard_output(results_csv, tmp_path, capsys, monkeypatch):
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and needle in err, err
+
+
+# ------------------------------------------------------------------ replay --group-by
+def test_replay_group_by_a_missing_column_names_the_columns(capsys):
+    # before: one group "all", exit 0
+    assert main(["replay", "--height-column", "paper_height_m", "--group-by", "NO_SUCH_COLUMN"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'NO_SUCH_COLUMN': no such column" in err, err
+    assert "table, point, row, col, ac_lat_deg" in err  # the bundled [Q17] records' header
+
+
+def test_replay_group_by_a_column_that_is_there(capsys):
+    assert main(["replay", "--height-column", "paper_height_m", "--group-by", "point"]) == 0
+    out = capsys.readouterr().out
+    assert "group 1: n=2" in out and "group 10: n=2" in out  # T3-k and T4-k share point k

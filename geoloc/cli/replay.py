@@ -58,7 +58,9 @@ def register(sub) -> None:
                    help=f"print one line per record even with --out or more than {ROWS_SHOWN} "
                    "records (default: the per-record lines only without --out and for at most "
                    f"{ROWS_SHOWN} records; the per-flight summary always)")
-    p.add_argument("--group-by", default="table", help="column that groups records into flights (default: table)")
+    p.add_argument("--group-by", default=None,
+                   help="records CSV: the column that groups records into flights (default: table, when there "
+                   "is one; a column that is not there is an error naming the columns there are)")
     p.add_argument("--export", default=None, metavar="FILE", type=output_path,
                    help="also write the results to GIS: FILE.gpkg, .geojson, .kml or .czml "
                    "(points, truth, error vectors, track; docs/gis.md)")
@@ -108,6 +110,10 @@ def run(args) -> int:
                     else asset_path(*DEFAULT_RECORDS))
     camera = sensor_from_args(args)
     records = records_from_args(args, str(records_path), camera)
+    if args.group_by is not None and args.group_by not in records.header:  # before: silently one group
+        raise ValueError(f"--group-by {args.group_by!r}: no such column in {records.path}; its columns: "
+                         f"{', '.join(records.header)}")
+    group_by = args.group_by or "table"
     surface = surface_from_args(args, records)
     if args.dem is not None:
         warn_datums("replay", args.dem_datum, records.altitude)
@@ -127,7 +133,7 @@ def run(args) -> int:
     for msg in plausibility_warnings(records, result, result.terrain, sensor=camera):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
     rows = args.print_rows or (not args.out and len(records) <= ROWS_SHOWN)
-    print(summary_table(result, args.group_by, rows=rows))
+    print(summary_table(result, group_by, rows=rows))
     print(records.datum_summary())
     if not rows and not args.out:
         print(f"({len(records)} records: per-record lines not printed; --out FILE writes them, "
@@ -136,7 +142,7 @@ def run(args) -> int:
         write_replay_csv(args.out, result)
         print(f"wrote {len(records)} rows to {args.out}")
     if args.export:
-        _export(args, result)
+        _export(args, result, group_by)
     return 0
 
 
@@ -148,7 +154,7 @@ def _budget(args):
     return load_sensor_budget(path) if path else None
 
 
-def _export(args, result) -> None:
+def _export(args, result, group_by) -> None:
     """``--export FILE``: the rows of ``--out`` (or of a temporary CSV) through geoloc.io.gis."""
     import tempfile
 
@@ -158,7 +164,7 @@ def _export(args, result) -> None:
         csv_path = args.out or str(Path(tmp) / "replay.csv")
         if not args.out:
             write_replay_csv(csv_path, result)
-        group = args.group_by if args.group_by in result.records.header else None
+        group = group_by if group_by in result.records.header else None
         print(export(read_results(csv_path), args.export, group_by=group))
 
 
@@ -182,7 +188,7 @@ def _input_kind(inputs) -> str:
 
 def _reject_records_options(args, what: str) -> None:
     for opt, why in (("height_column", "records CSVs"), ("target_h_m", "records CSVs"),
-                     ("columns", "records CSVs")):
+                     ("columns", "records CSVs"), ("group_by", "records CSVs")):
         if getattr(args, opt, None) is not None:
             raise ValueError(f"--{opt.replace('_', '-')} is for {why}, not for {what}")
 
