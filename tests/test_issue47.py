@@ -219,3 +219,32 @@ def test_replay_group_by_a_column_that_is_there(capsys):
     assert main(["replay", "--height-column", "paper_height_m", "--group-by", "point"]) == 0
     out = capsys.readouterr().out
     assert "group 1: n=2" in out and "group 10: n=2" in out  # T3-k and T4-k share point k
+
+
+# ------------------------------------------------------------------ every iteration bounded
+def _ramp_and_nadir_ray():
+    from geoloc.frames.enu import EnuFrame
+    from geoloc.surfaces.base import LineOfSight
+    from geoloc.surfaces.dem import DEM
+
+    # 1000 m of relief: a west-east ramp 0..1000 m over 0.2 deg, the aircraft at 2000 m over its middle
+    dem = DEM.from_array(np.tile(np.linspace(0.0, 1000.0, 21), (21, 1)), 36.1, 78.0, 0.01, 0.01)
+    frame = EnuFrame(np.deg2rad(36.0), np.deg2rad(78.1), 2000.0)
+    o = frame.to_ecef(np.zeros(3))
+    d = frame.R_ecef_enu @ np.array([0.0, 0.0, -1.0])  # straight down: meets the ramp at 500 m
+    return dem, LineOfSight(o[None], d[None], np.zeros(1, np.uint8))
+
+
+def test_the_descending_steps_stop_at_their_bound_with_no_convergence(monkeypatch):
+    # before: eps_h = 1e-7 over 1000 m of relief is 1e10 steps (hours: `locate --eps-h 1e-7` hung)
+    import geoloc.surfaces.terrain as terrain
+    from geoloc.status import Status
+
+    assert terrain.STEPS_MAX >= 19_784  # the Earth's relief (-10 935 m .. 8 849 m) at the default 1 m step
+    monkeypatch.setattr(terrain, "STEPS_MAX", 600)  # the bound, whatever its value, turns into a status
+    dem, los = _ramp_and_nadir_ray()
+    hit = terrain.intersect_dem(los, dem, "steps", eps_h=1e-7)
+    assert hit.status.tolist() == [Status.NO_CONVERGENCE] and np.isnan(hit.lat).all()
+    assert hit.dem_evaluations.tolist() == [600]
+    ok = terrain.intersect_dem(los, dem, "steps", eps_h=1.0)  # 500 steps from the top, 1000 m: under 600
+    assert ok.status.tolist() == [Status.OK] and abs(float(ok.h[0]) - 500.0) < 1.5  # ramp's middle; 1 m steps

@@ -176,13 +176,19 @@ class _Tracer:
 
 
 # --------------------------------------------------------------------------- steps [Q17]
+#: Bound of the descending steps of one call (without ``max_iter``): the Earth's relief, from the
+#: Challenger Deep (-10 935 m) to Everest (8 849 m), at the default 1 m step is 19 784 steps; a
+#: smaller ``eps_h`` that would need more stops there with NO_CONVERGENCE instead of iterating
+#: for hours (issue 47: ``--eps-h 1e-7`` over 600 m of relief is 6e9 steps).
+STEPS_MAX = 20_000
+
 def _steps(o, d, st, dem, eps_h, tracer, max_iter):
     n = len(o)
     H = _top_height(o, dem)
     out = np.full((n, 3), np.nan)
     evals = np.zeros(n, dtype=np.int64)
     active = st == Status.OK
-    n_max = max_iter or int(np.ceil((dem.max_height() - dem.min_height()) / eps_h)) + 3
+    n_max = max_iter or min(int(np.ceil((dem.max_height() - dem.min_height()) / eps_h)) + 3, STEPS_MAX)
     for _ in range(n_max):
         idx = np.flatnonzero(active)
         if idx.size == 0:
@@ -522,7 +528,8 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
         Record every iteration in ``TerrainHit.trace``.
     max_iter : int, optional
         Iteration limit of the iterative methods (default: enough to reach
-        the DEM's lowest node for steps, 64 halvings for bisection).
+        the DEM's lowest node for steps, at most :data:`STEPS_MAX`; 64 halvings
+        for bisection). A ray still searching at the limit gets NO_CONVERGENCE.
     parallel : bool
         Exact solver: spread the rays over all cores (numba threads).
 
