@@ -28,6 +28,7 @@ class Status(IntEnum):
     BEHIND_CAMERA = 8  #: ground -> pixel: the point is behind the camera
     OUTSIDE_SENSOR = 9  #: the pixel (or the projected point) lies outside the sensor's rows and columns
     OUTSIDE_DOMAIN = 10  #: the point is outside the model's validity domain (an RPC's offsets and scales)
+    BELOW_TERRAIN = 11  #: the camera is below the DEM's terrain under it (a wrong height or datum, a tunnel)
 
 
 _TEXT = {
@@ -42,6 +43,7 @@ _TEXT = {
     Status.BEHIND_CAMERA: "point is behind the camera",
     Status.OUTSIDE_SENSOR: "pixel is outside the sensor (rows 0.5..M+0.5, columns 0.5..N+0.5)",
     Status.OUTSIDE_DOMAIN: "point is outside the model's validity domain (not extrapolated)",
+    Status.BELOW_TERRAIN: "camera is below the terrain (DEM) under it: check its height and vertical datum",
 }
 
 

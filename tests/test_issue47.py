@@ -248,3 +248,107 @@ def test_the_descending_steps_stop_at_their_bound_with_no_convergence(monkeypatc
     assert hit.dem_evaluations.tolist() == [600]
     ok = terrain.intersect_dem(los, dem, "steps", eps_h=1.0)  # 500 steps from the top, 1000 m: under 600
     assert ok.status.tolist() == [Status.OK] and abs(float(ok.h[0]) - 500.0) < 1.5  # ramp's middle; 1 m steps
+
+
+# ------------------------------------------------------------------ an aircraft below the terrain
+@pytest.mark.parametrize("method", ["exact", "steps", "bisect"])
+@pytest.mark.parametrize("down", [True, False])
+def test_a_camera_below_the_terrain_gets_its_own_status(method, down):
+    # before: status ok and slant range 0 m (the walk met the terrain at the camera)
+    from geoloc.frames.enu import EnuFrame
+    from geoloc.status import Status, describe
+    from geoloc.surfaces.base import LineOfSight
+    from geoloc.surfaces.terrain import intersect_dem
+
+    dem, _ = _ramp_and_nadir_ray()  # the ramp is 500 m high at 78.1 E
+    frame = EnuFrame(np.deg2rad(36.0), np.deg2rad(78.1), 100.0)  # 400 m under it
+    o = frame.to_ecef(np.zeros(3))
+    d = frame.R_ecef_enu @ np.array([0.6, 0.0, -0.8 if down else 0.8])
+    hit = intersect_dem(LineOfSight(o[None], d[None], np.zeros(1, np.uint8)), dem, method)
+    assert hit.status.tolist() == [Status.BELOW_TERRAIN] and np.isnan(hit.slant_range).all()
+    assert "below the terrain" in describe(Status.BELOW_TERRAIN)
+    frame_above = EnuFrame(np.deg2rad(36.0), np.deg2rad(78.1), 600.0)  # 100 m above it: a hit, not this status
+    hit = intersect_dem(LineOfSight(frame_above.to_ecef(np.zeros(3))[None], d[None] * (1 if down else -1),
+                                    np.zeros(1, np.uint8)), dem, method)
+    assert hit.status.tolist() == [Status.OK] and hit.slant_range[0] > 50.0
+
+
+@pytest.mark.parametrize("mosaic", [False, True])
+def test_locate_below_the_terrain_says_so(mosaic, tmp_path, capsys):
+    import shutil
+
+    dem = SRTM
+    if mosaic:  # a folder of tiles: a DemMosaic
+        (tmp_path / "tiles").mkdir()
+        shutil.copy(SRTM, tmp_path / "tiles" / "a.tif")
+        dem = tmp_path / "tiles"
+    # the README's turret at 100 m (ellipsoidal): the SRTM terrain there is about 370 m
+    rc = main(["locate", "--sensor", str(TURRET), "--lat-deg", "36.6", "--lon-deg", "-84.25", "--h-m", "100",
+               "--angle", "azimuth=90", "--angle", "elevation=-30", "--dem", str(dem), "--json"])
+    import json
+
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 1 and out["status"] == "below_terrain" and "camera is below the terrain" in out["error"], out
+    assert "slant_range_m" not in out
+
+
+# ------------------------------------------------------------------ what a replay could not locate
+def test_replay_summary_says_which_records_were_not_located_and_exits_1(capsys):
+    # the turret's flight (Tennessee) over the ETOPO5 crop of [Q17]'s area (Tibet): no record can be
+    # located. Before: 24 rows of left_dem, a summary "group orbit1: n=24", no word, exit 0
+    rc = main(["replay", str(TURRET_CSV), "--sensor", str(TURRET), "--dem", str(ETOPO)])
+    out, err = capsys.readouterr()
+    assert rc == 1
+    assert "group orbit1: n=24; 24 not located" in out
+    assert ("not located: 24 of 24 records: 24 left_dem (line of sight left the DEM before meeting the terrain)"
+            in out)
+    # the DEM's bounds against the data's: ETOPO5 crop 76-83 E, 34-38 N; the flight near 84.25 W, 36.6 N
+    line = next(ln for ln in err.splitlines() if "does not cover" in ln)
+    assert "24 of 24 aircraft positions are outside it and 24 lines of sight left it" in line
+    assert "DEM W 75.9583 S 33.9583 E 83.0417 N 38.0417 deg" in line
+    assert "aircraft W -84.33" in line and "N 36.66" in line
+
+
+def test_replay_where_every_record_is_located_exits_0_without_those_words(capsys):
+    assert main(["replay", str(TURRET_CSV), "--sensor", str(TURRET), "--dem", str(SRTM)]) == 0
+    out, err = capsys.readouterr()
+    assert "not located" not in out and "does not cover" not in err
+
+
+# ------------------------------------------------------------------ progress of a long Monte Carlo
+def test_montecarlo_prints_a_progress_line_every_10_s_in_a_log(monkeypatch, capsys):
+    # before: 1e7 samples with --chunk 10 ran 36 minutes without a word when stderr was not a terminal.
+    # The clock is a fake one that advances 3 s at each reading (no timed test): 20 chunks, 10 s apart
+    # at most three chunks -> a line every 4 readings (12 s), the first after 10 s.
+    import geoloc.analysis.montecarlo as mc
+
+    t = iter(range(0, 10_000, 3))
+    monkeypatch.setattr(mc, "_now", lambda: float(next(t)))
+    assert main(["montecarlo", str(SCEN), "--samples", "2000", "--chunk", "100", "--seed", "0"]) == 0
+    out, err = capsys.readouterr()
+    lines = [ln for ln in err.splitlines() if ln.startswith("montecarlo qiao2017_table1: ")]
+    assert len(lines) == 5 and "\r" not in err, err  # readings at 3, 6, ..., 60 s: lines at 12, 24, 36, 48, 60
+    assert lines[0] == "montecarlo qiao2017_table1: 400/2000 (20.0%), 12s elapsed, 48s left"
+    assert lines[-1].startswith("montecarlo qiao2017_table1: 2000/2000 (100.0%)")
+    assert "elapsed" not in out
+
+
+def test_progress_is_a_bar_on_a_terminal_and_nothing_when_refused():
+    import io
+
+    import geoloc.analysis.montecarlo as mc
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty = Tty()
+    bar = mc.Progress(4, "x", stream=tty)
+    bar.update(2)
+    bar.close()
+    assert tty.getvalue().startswith("\rx [###############               ]  50.0% 2/4")
+    quiet = io.StringIO()
+    bar = mc.Progress(4, "x", enabled=False, stream=quiet)
+    bar.update(4)
+    bar.close()
+    assert quiet.getvalue() == ""

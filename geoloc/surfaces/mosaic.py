@@ -612,9 +612,10 @@ class DemMosaic:
             As on one merged raster: NaN and a status (SKY, LEFT_DEM, NODATA, ...)
             where there is no hit; ``trace`` is None.
         """
-        from geoloc.surfaces.terrain import TerrainHit, _flat_los, intersect_dem
+        from geoloc.surfaces.terrain import TerrainHit, _flat_los, below_terrain, intersect_dem
 
         shape, o, d, st = _flat_los(los, normalise=True)
+        below_terrain(o, st, self)  # a region's window may not hold the camera: asked of the whole mosaic
         n = len(o)
         lat, lon, h, rng = (np.full(n, np.nan) for _ in range(4))
         ecef = np.full((n, 3), np.nan)
@@ -670,7 +671,8 @@ class DemMosaic:
             origin = o[k:k + 1] + a * d[k:k + 1]
             hit = solve(np.array([k]), self.window_dem(*bx), origin)
             evals += int(hit.dem_evaluations[0])
-            if hit.status[0] in (Status.OK, Status.NODATA, Status.ORIGIN_BELOW, Status.INVALID_INPUT):
+            if hit.status[0] in (Status.OK, Status.NODATA, Status.ORIGIN_BELOW, Status.BELOW_TERRAIN,
+                                 Status.INVALID_INPUT):
                 break
             if hit.status[0] == Status.LEFT_DEM and evals == 0:
                 break  # it starts off the mosaic: LEFT_DEM, as the walk says on one raster

@@ -95,7 +95,8 @@ class TerrainHit(GroundPoint):
     ----------
     lat, lon, h, ecef, slant_range, status, los
         As :class:`geoloc.surfaces.base.GroundPoint`; status OK, SKY, LEFT_DEM,
-        NODATA, ORIGIN_BELOW, INVALID_INPUT, NO_CONVERGENCE, OUTSIDE_SENSOR.
+        NODATA, ORIGIN_BELOW, BELOW_TERRAIN (the camera under the terrain),
+        INVALID_INPUT, NO_CONVERGENCE, OUTSIDE_SENSOR.
     dem_evaluations : ndarray of int
         DEM reads: heights evaluated (steps, bisection) or cells visited (exact).
     hidden : ndarray of bool
@@ -139,6 +140,23 @@ def _ground(dem: DEM, p):
     lat, lon, h = ecef_to_geodetic(p)
     hd, st = dem.sample(lat, lon)
     return lat, lon, h, hd, st
+
+
+def below_terrain(o, st, dem) -> None:
+    """Set BELOW_TERRAIN (in place, in ``st``) for the rays still OK whose origin ``o`` (ECEF, (n, 3))
+    is below the DEM's height under it.
+
+    Such a ray meets the terrain at its origin: the walk answered the camera's own position
+    with a slant range of 0 m and status OK (issue 47). Where the DEM has no height under the
+    camera (outside it, no data) nothing is said here: the solver's own status stands.
+    """
+    ok = np.flatnonzero(st == Status.OK)
+    if ok.size == 0:
+        return
+    lat, lon, h = ecef_to_geodetic(o[ok])
+    hd, sst = dem.sample(lat, lon)
+    with np.errstate(invalid="ignore"):
+        st[ok[(sst == Status.OK) & (h < hd)]] = Status.BELOW_TERRAIN
 
 
 def _top_height(o, dem: DEM):
@@ -549,6 +567,7 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
     n = len(o)
     if not dem.has_data:  # an all no-data raster: nothing to meet (its H_max is NaN: no start for any method)
         return _no_terrain(los, shape, o, d, st, method, dem_model, trace)
+    below_terrain(o, st, dem)
     tracer = _Tracer(n, trace)
     hidden = np.zeros(n, dtype=bool)
     tr = None
