@@ -84,7 +84,7 @@ def test_all_nodata_dem_replay_rows_say_nodata(empty_dems, tmp_path, capsys):
     # before: replay exited 0 with every row `sky`
     out = tmp_path / "out.csv"
     assert main(["replay", str(DRONE), "--sensor", str(DRONE_SENSOR), "--dem", str(empty_dems["int16"]),
-                 "--out", str(out)]) == 0
+                 "--out", str(out)]) == 1  # issue 47: some records not located (docs/cli.md)
     rows = _read_csv(out)
     assert len(rows) == 20 and {r["status"] for r in rows} == {"nodata"}
 
@@ -144,7 +144,7 @@ def test_drone_target_far_off_the_sensor_is_outside_sensor_with_a_message(tmp_pa
     recs = _drone_records(tmp_path, {(1, "row"): "3001", (2, "row"): "9000"})
     out = tmp_path / "out.csv"
     assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300",
-                 "--out", str(out)]) == 0
+                 "--out", str(out)]) == 1  # issue 47: some records not located (docs/cli.md)
     err = capsys.readouterr().err
     assert "line 2 (survey1-1): row = 3001 (rows 1-3000) is outside the sensor; located by extending" in err
     assert ("line 3 (survey1-2): row = 9000 (rows 1-3000) is outside the sensor; too far out for the lens "
@@ -185,7 +185,7 @@ def test_replay_out_without_dem_has_a_status_column(tmp_path):
     # Record 1's aircraft put 200 m below a 300 m target height: origin_below
     recs = _drone_records(tmp_path, {(1, "ac_h_m"): "100.0"})
     out = tmp_path / "out.csv"
-    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300", "--out", str(out)]) == 0
+    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300", "--out", str(out)]) == 1  # issue 47: some records not located (docs/cli.md)
     rows = _read_csv(out)
     assert rows[0]["status"] == "origin_below" and rows[0]["lat_deg"] == ""
     assert {r["status"] for r in rows[1:]} == {"ok"} and all(r["lat_deg"] for r in rows[1:])
@@ -341,7 +341,7 @@ def test_column_in_feet_mapped_without_unit_is_warned_and_flagged_by_its_errors(
 
 def test_camera_below_the_terrain_is_warned(tmp_path, capsys):
     recs = _drone_records(tmp_path, {(1, "ac_h_m"): "150.0"})
-    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM)]) == 0
+    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM)]) == 1  # issue 47: some records not located (docs/cli.md)
     err = capsys.readouterr().err
     assert "line 2 (survey1-1): the camera (ac_h_m = 150.0 m) is 141 m below the terrain under it (291.1 m" in err
     assert err.count("warning: line") == 1  # one record, one warning (its error to truth not said twice)

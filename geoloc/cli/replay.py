@@ -22,6 +22,8 @@ from geoloc.assets import DEFAULT_RECORDS, asset_path
 from geoloc.cli.locate import records_from_args
 from geoloc.status import Status
 from geoloc.workflows.replay import (
+    dem_coverage_warning,
+    located,
     outside_sensor_messages,
     plausibility_warnings,
     replay_records,
@@ -132,6 +134,9 @@ def run(args) -> int:
             print(line)
     for msg in plausibility_warnings(records, result, result.terrain, sensor=camera):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
+    coverage = dem_coverage_warning(result)
+    if coverage:
+        print(f"geoloc replay: warning: {coverage}", file=sys.stderr)
     rows = args.print_rows or (not args.out and len(records) <= ROWS_SHOWN)
     print(summary_table(result, group_by, rows=rows))
     print(records.datum_summary())
@@ -143,7 +148,7 @@ def run(args) -> int:
         print(f"wrote {len(records)} rows to {args.out}")
     if args.export:
         _export(args, result, group_by)
-    return 0
+    return 0 if located(result).all() else 1  # docs/cli.md: 1 = some records could not be located
 
 
 def _budget(args):

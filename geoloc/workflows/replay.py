@@ -376,6 +376,50 @@ def write_replay_csv(path, result: ReplayResult) -> None:
             w.writerow([out.get(c, "") for c in header])
 
 
+def located(result: ReplayResult) -> np.ndarray:
+    """True for the records that have a ground point (OK, or OUTSIDE_SENSOR: located by extending
+    the lens model); False for the others (their status says why)."""
+    return np.isfinite(np.asarray(result.lat_deg, float)) & np.isfinite(np.asarray(result.lon_deg, float))
+
+
+def not_located_lines(result: ReplayResult) -> list:
+    """The summary's word on the records that could not be located: how many, and why, per status
+    (``[]`` when every record was located). docs/cli.md: such a replay exits with status 1."""
+    from geoloc.status import describe
+
+    lost = ~located(result)
+    if not lost.any():
+        return []
+    st = np.asarray(result.status)[lost]
+    why = "; ".join(f"{int(np.sum(st == c))} {Status(c).name.lower()} ({describe(c)})"
+                    for c in sorted(set(st.tolist())))
+    return [f"not located: {int(lost.sum())} of {len(lost)} records: {why}"]
+
+
+def dem_coverage_warning(result: ReplayResult) -> str | None:
+    """A warning when the DEM of a replay does not cover its records: how many aircraft positions
+    lie outside it and how many lines of sight left it, with the DEM's bounds and the data's
+    (west, south, east, north in degrees); None when it covers them (issue 47: it exited 0
+    without a word)."""
+    dem = result.terrain
+    r = result.records
+    if dem is None or not (r.has("ac_lat_deg") and r.has("ac_lon_deg")):
+        return None
+    lat, lon = r.column("ac_lat_deg"), r.column("ac_lon_deg")
+    w, so, e, n = dem.extent_deg
+    with np.errstate(invalid="ignore"):
+        outside = ~((lat >= so) & (lat <= n) & (lon >= w) & (lon <= e))
+    left = np.asarray(result.status) == Status.LEFT_DEM
+    if not (outside.any() or left.any()):
+        return None
+    fin = np.isfinite(lat) & np.isfinite(lon)
+    data = (f"W {np.min(lon[fin]):.4f} S {np.min(lat[fin]):.4f} E {np.max(lon[fin]):.4f} N {np.max(lat[fin]):.4f}"
+            if fin.any() else "no finite position")
+    return (f"the DEM does not cover the data: {int(outside.sum())} of {len(r)} aircraft positions are outside it "
+            f"and {int(left.sum())} lines of sight left it before meeting the terrain; DEM W {w:.4f} S {so:.4f} "
+            f"E {e:.4f} N {n:.4f} deg, aircraft {data} deg")
+
+
 def summary_table(result: ReplayResult, group_column: str = "table", rows: bool = True) -> str:
     """A plain-text table: one line per record (if ``rows``), then per-group means and the RMS to the paper."""
     r = result.records
@@ -404,7 +448,11 @@ def summary_table(result: ReplayResult, group_column: str = "table", rows: bool 
         off = int(np.sum(m & (np.asarray(result.status) == Status.OUTSIDE_SENSOR)))
         if off:
             text += f"; {off} outside the sensor (located by extending the lens model)"
+        lost = int(np.sum(m & ~located(result)))
+        if lost:
+            text += f"; {lost} not located"
         lines.append(text)
+    lines += not_located_lines(result)
     if np.any(np.isfinite(result.error_to_paper_m)):
         lines.append(f"all: RMS distance to the published positions "
                      f"{np.sqrt(_nanmean(result.error_to_paper_m ** 2)):.2f} m over "
