@@ -76,10 +76,10 @@ def register(sub) -> None:
                    f"{mc.CHUNK_MEMORY_SHARE * 100:.0f}%% of the available memory at {mc.BYTES_PER_SAMPLE} bytes a "
                    "sample, checked when the run starts)")
     p.add_argument("--progress", action="store_true", default=None,
-                   help="force the stderr progress line (with the time left) on (default: on when "
-                   "stderr is a terminal)")
+                   help="force the stderr progress bar (with the time left) on (default: the bar on a "
+                   "terminal; elsewhere, a log, a line every 10 s)")
     p.add_argument("--no-progress", dest="progress", action="store_false", default=None,
-                   help="no progress line")
+                   help="no progress at all")
     p.set_defaults(func=run)
 
 
