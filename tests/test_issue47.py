@@ -352,3 +352,30 @@ def test_progress_is_a_bar_on_a_terminal_and_nothing_when_refused():
     bar.update(4)
     bar.close()
     assert quiet.getvalue() == ""
+
+
+# ------------------------------------------------------------------ arguments checked before the work
+@pytest.mark.parametrize("crs, needle", [("EPSG:99999", "not a CRS that pyproj knows"),
+                                         ("EPSG:4269", "is not a projected CRS"),     # NAD83: degrees
+                                         ("EPSG:2227", "not metres")])                # California 3: US feet
+def test_ortho_crs_is_checked_before_any_pixel_is_located(crs, needle, tmp_path, capsys, monkeypatch):
+    # before: `--ortho-crs EPSG:99999` raised a CRSError traceback after the whole frame was located
+    import geoloc.workflows.ortho as wo
+
+    def no_work(*a, **k):
+        raise AssertionError("geoloc ortho located the frame before checking --ortho-crs")
+
+    monkeypatch.setattr(wo, "write_frame_geotiff", no_work)
+    out, ortho = tmp_path / "grid.tif", tmp_path / "ortho.tif"
+    rc = main(["ortho", "--photo", str(asset_path("photos", "DJI_0001.JPG")), "--dem", str(SRTM), "--out", str(out),
+               "--ortho-out", str(ortho), "--gsd-m", "5", "--ortho-crs", crs])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and f"--ortho-crs '{crs}'" in err and needle in err, err
+    assert not out.exists() and not ortho.exists()
+
+
+def test_check_crs_takes_the_words_and_projected_crs_in_metres():
+    from geoloc.cli._options import check_crs
+
+    for ok in ("geographic", "utm", "EPSG:32617", "+proj=utm +zone=17 +datum=WGS84 +units=m"):
+        assert check_crs("--x", ok) == ok

@@ -177,6 +177,34 @@ def check_outputs(parser, args) -> list:
     return inputs
 
 
+# --------------------------------------------------------------------------- values checked before any work
+
+
+def check_crs(option: str, value: str, words=("geographic", "utm")) -> str:
+    """A CRS option checked before the verb computes anything (issue 47: ``--ortho-crs EPSG:99999``
+    failed with a CRSError after the whole computation): one of ``words``, or a projected CRS in
+    metres that pyproj knows. Returns ``value``; raises ``ValueError`` naming the option, the value
+    and pyproj's reason."""
+    if value in words:
+        return value
+    import pyproj
+
+    try:
+        crs = pyproj.CRS.from_user_input(value)
+    except pyproj.exceptions.CRSError as e:
+        reason = " ".join(str(e).split())
+        raise ValueError(f"{option} {value!r}: not a CRS that pyproj knows ({reason}); give "
+                         f"{', '.join(words)} or a projected CRS such as EPSG:32617") from None
+    if not crs.is_projected:
+        raise ValueError(f"{option} {value!r} ({crs.name}) is not a projected CRS: its cells would be in "
+                         f"degrees, not metres; give {' or '.join(words)} or a projected CRS in metres")
+    units = {a.unit_name for a in crs.axis_info}
+    if not units <= {"metre", "meter"}:
+        raise ValueError(f"{option} {value!r} ({crs.name}): its unit is {', '.join(sorted(units))}, not metres; "
+                         "give a projected CRS in metres")
+    return value
+
+
 # --------------------------------------------------------------------------- sensor, pose, records
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from geoloc.cli._options import (
     add_columns_option,
+    check_crs,
     add_dem_options,
     add_gimbal_options,
     add_pose_options,
@@ -174,6 +175,10 @@ def run(args) -> int:
     out = Path(args.out)
     if out.suffix.lower() not in (".tif", ".tiff"):
         raise ValueError(f"--out {args.out}: must be a GeoTIFF (.tif)")
+    if args.ortho_out:  # before any pixel is located (issue 47: a bad CRS failed after all of them)
+        check_crs("--ortho-crs", args.ortho_crs)
+        if Path(args.ortho_out).suffix.lower() not in (".tif", ".tiff"):
+            raise ValueError(f"--ortho-out {args.ortho_out}: must be a GeoTIFF (.tif)")
     sensor, pose, meta, pose_from = _pose(args)
     surface, surface_text = _surface(args, pose)
     if args.ortho_out:  # checked before the first output is written
