@@ -379,3 +379,28 @@ def test_check_crs_takes_the_words_and_projected_crs_in_metres():
 
     for ok in ("geographic", "utm", "EPSG:32617", "+proj=utm +zone=17 +datum=WGS84 +units=m"):
         assert check_crs("--x", ok) == ok
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["replay", "--dem", str(ETOPO), "--export", "{tmp}/x.shp"], "--export {tmp}/x.shp: cannot tell the format"),
+    (["rpc", str(asset_path("scenarios", "zy3_nadir.toml")), "--out", "{tmp}/z.png", "--no-gdal"],
+     "--out {tmp}/z.png: must be a GeoTIFF"),
+    (["ortho", "--record", "T3-1", "--out", "{tmp}/grid.tif", "--photo", str(asset_path("photos", "DJI_0001.JPG")),
+      "--ortho-out", "{tmp}/o.png", "--gsd-m", "5"], "--ortho-out {tmp}/o.png: must be a GeoTIFF"),
+])
+def test_an_output_format_is_checked_before_the_work(argv, needle, tmp_path, capsys, monkeypatch):
+    # before: replay located every record, then refused x.shp; rpc wrote a GeoTIFF named z.png (exit 0)
+    import geoloc.cli.replay as cr
+    import geoloc.workflows.ortho as wo
+    import geoloc.workflows.rpc_scenario as wrpc
+
+    def no_work(*a, **k):
+        raise AssertionError("the verb computed before checking its output's format")
+
+    for mod, name in ((cr, "replay_records"), (wrpc, "rpc_report"), (wo, "write_frame_geotiff")):
+        monkeypatch.setattr(mod, name, no_work)
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    rc = main(argv)
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and needle.replace("{tmp}", str(tmp_path)) in err, err
+    assert list(tmp_path.iterdir()) == []

@@ -205,6 +205,31 @@ def check_crs(option: str, value: str, words=("geographic", "utm")) -> str:
     return value
 
 
+def check_suffix(option: str, path, suffixes=(".tif", ".tiff"), what: str = "a GeoTIFF") -> None:
+    """An output whose format is fixed, checked by its name before the verb computes anything
+    (``--out frame.png`` of a verb that writes a GeoTIFF). ``None`` and ``-`` pass (``-`` is
+    checked by :func:`check_outputs`)."""
+    from pathlib import Path
+
+    if path is None or path == "-":
+        return
+    if Path(path).suffix.lower() not in suffixes:
+        raise ValueError(f"{option} {path}: must be {what} ({', '.join(suffixes)})")
+
+
+def check_gis_output(option: str, path, format=None) -> None:
+    """A GIS export's format (:func:`geoloc.io.gis.resolve_format`), told from its name before any
+    work: ``replay --export x.shp`` failed only after every record was located."""
+    if path is None or path == "-":
+        return
+    from geoloc.io.gis import resolve_format
+
+    try:
+        resolve_format(format, path)
+    except ValueError as e:
+        raise ValueError(f"{option} {path}: {e}") from None
+
+
 # --------------------------------------------------------------------------- sensor, pose, records
 
 

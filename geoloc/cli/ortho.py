@@ -21,6 +21,7 @@ from pathlib import Path
 from geoloc.cli._options import (
     add_columns_option,
     check_crs,
+    check_suffix,
     add_dem_options,
     add_gimbal_options,
     add_pose_options,
@@ -173,12 +174,10 @@ def run(args) -> int:
     if args.gsd_m is not None and not (math.isfinite(args.gsd_m) and args.gsd_m > 0):
         raise ValueError(f"--gsd-m {args.gsd_m}: must be a positive number of metres")
     out = Path(args.out)
-    if out.suffix.lower() not in (".tif", ".tiff"):
-        raise ValueError(f"--out {args.out}: must be a GeoTIFF (.tif)")
+    check_suffix("--out", args.out)
     if args.ortho_out:  # before any pixel is located (issue 47: a bad CRS failed after all of them)
         check_crs("--ortho-crs", args.ortho_crs)
-        if Path(args.ortho_out).suffix.lower() not in (".tif", ".tiff"):
-            raise ValueError(f"--ortho-out {args.ortho_out}: must be a GeoTIFF (.tif)")
+        check_suffix("--ortho-out", args.ortho_out)
     sensor, pose, meta, pose_from = _pose(args)
     surface, surface_text = _surface(args, pose)
     if args.ortho_out:  # checked before the first output is written

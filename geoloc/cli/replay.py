@@ -92,6 +92,9 @@ ROWS_SHOWN = 50
 def run(args) -> int:
     from geoloc.cli._options import is_stream
 
+    from geoloc.cli._options import check_gis_output
+
+    check_gis_output("--export", args.export)  # before any record is located (issue 47)
     inputs = list(args.records or [])
     if any(is_stream(x) for x in inputs):
         return _run_live(args, inputs)

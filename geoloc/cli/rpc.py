@@ -9,7 +9,7 @@ import json
 import math
 from pathlib import Path
 
-from geoloc.cli._options import input_path, output_path, text_output_path
+from geoloc.cli._options import check_suffix, input_path, output_path, text_output_path
 from geoloc.userfiles import write_text
 from geoloc.surfaces.spec import SurfaceSpec
 
@@ -42,6 +42,8 @@ def run(args) -> int:
     thr = args.gdal_threshold_px
     if not (math.isfinite(thr) and thr > 0):
         raise ValueError(f"--gdal-threshold-px = {thr!r} must be a number > 0 (pixels)")
+    check_suffix("--out", args.out)  # the GeoTIFF's name, before the fit (issue 47)
+    check_suffix("--ellipsoidal-dem", args.ellipsoidal_dem)
     out = Path(args.out)
     sc = load_scenario(args.scenario, expect=("pushbroom", "frame"))  # not a montecarlo, limb ... file
     dem = None
