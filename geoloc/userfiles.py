@@ -352,6 +352,9 @@ def growing_path(path, option: str = "") -> Iterator[Path]:
     older ``path`` stays whole until the new one is complete. On any other exception the
     partial file is left where it is. :func:`check_output` is applied to both names.
     """
+    if str(os.fspath(path)) == STDOUT:
+        raise OutputRefused(f"{option + ' ' if option else ''}-: a live journal grows as a file (its rows are "
+                            "printed on standard output anyway): give a file name")
     p = check_output(path, option)
     parent = p.parent if str(p.parent) else Path(".")
     k = 1

@@ -541,3 +541,33 @@ def test_dev_null_and_dev_full_through_a_link_are_written_through(tmp_path, caps
         if rc_want:
             assert err.splitlines()[-1] == f"geoloc replay: error: {link}: No space left on device"
     assert sorted(os.listdir(tmp_path)) == ["to_full.csv", "to_null.csv"]
+
+
+def _leaf_argvs(tmp_path):
+    for prefix, p in _leaf_parsers(build_parser()):
+        if prefix:
+            yield " ".join(("geoloc",) + prefix), Line(prefix, p, tmp_path).argv()
+
+
+def test_ctrl_c_in_every_verb_is_one_line_and_130(tmp_path, capsys, monkeypatch):
+    # issue 47: Ctrl-C printed a KeyboardInterrupt traceback; main now ends every verb the same way
+    import contextlib
+
+    @contextlib.contextmanager
+    def ctrl_c(inputs=()):
+        raise KeyboardInterrupt
+        yield  # pragma: no cover
+
+    monkeypatch.setattr(userfiles, "command_files", ctrl_c)
+    argvs = list(_leaf_argvs(tmp_path))
+    assert len(argvs) >= 17  # every verb and klv's three actions
+    for prog, argv in argvs:
+        rc = main(argv)
+        err = capsys.readouterr().err
+        assert rc == 130 and err.strip().splitlines() == [f"{prog}: interrupted (Ctrl-C)"], (argv, err)
+
+
+def test_a_live_journal_to_standard_output_is_one_line(tmp_path):
+    with pytest.raises(userfiles.OutputRefused, match="a live journal grows as a file"):
+        with userfiles.growing_path("-", "--out"):
+            pass
