@@ -571,3 +571,20 @@ def test_a_live_journal_to_standard_output_is_one_line(tmp_path):
     with pytest.raises(userfiles.OutputRefused, match="a live journal grows as a file"):
         with userfiles.growing_path("-", "--out"):
             pass
+
+
+def test_a_closed_pipe_in_every_verb_ends_quietly_with_141(tmp_path, capsys, monkeypatch):
+    # issue 47: `geoloc klv dump FILE | head -1` died of BrokenPipeError; main ends every verb the same way
+    # (here stdout is pytest's capture, with no file descriptor: taken as the closed pipe; the real pipe:
+    # tests/test_issue47.py)
+    import contextlib
+
+    @contextlib.contextmanager
+    def closed_pipe(inputs=()):
+        raise BrokenPipeError(32, "Broken pipe")
+        yield  # pragma: no cover
+
+    monkeypatch.setattr(userfiles, "command_files", closed_pipe)
+    for prog, argv in _leaf_argvs(tmp_path):
+        rc = main(argv)
+        assert rc == 141 and capsys.readouterr().err == "", prog
