@@ -144,6 +144,15 @@ def test_out_dash_is_standard_output_for_a_csv_and_the_messages_go_to_stderr(tmp
     assert list(tmp_path.iterdir()) == []
 
 
+def test_out_dash_with_export_still_writes_the_gis_file(tmp_path, capsys, monkeypatch):
+    # --export re-read the --out CSV: with --out - it tried to read a file named "-"
+    monkeypatch.chdir(tmp_path)
+    assert main(["replay", "--height-column", "paper_height_m", "--out", "-", "--export", "r.kml"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("\n") == 21 and (tmp_path / "r.kml").read_text().count("<Placemark") >= 20
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["r.kml"]
+
+
 def test_out_dash_for_a_json_output(tmp_path, capsys, monkeypatch):
     import json
 

@@ -169,8 +169,9 @@ def _export(args, result, group_by) -> None:
     from geoloc.io.gis import export, read_results
 
     with tempfile.TemporaryDirectory() as tmp:
-        csv_path = args.out or str(Path(tmp) / "replay.csv")
-        if not args.out:
+        on_disk = args.out if args.out not in (None, "-") else None  # --out -: stdout, not re-readable
+        csv_path = on_disk or str(Path(tmp) / "replay.csv")
+        if not on_disk:
             write_replay_csv(csv_path, result)
         group = group_by if group_by in result.records.header else None
         print(export(read_results(csv_path), args.export, group_by=group))
@@ -234,8 +235,9 @@ def _run_klv(args, inputs) -> int:
         from geoloc.io.gis import export, read_results
 
         with tempfile.TemporaryDirectory() as tmp:
-            csv_path = args.out or str(Path(tmp) / "replay.csv")
-            if not args.out:
+            on_disk = args.out if args.out not in (None, "-") else None  # --out -: stdout, not re-readable
+            csv_path = on_disk or str(Path(tmp) / "replay.csv")
+            if not on_disk:
                 write_klv_csv(csv_path, replays)
             print(export(read_results(csv_path), args.export, group_by="file" if len(paths) > 1 else None))
     if n == 0:
@@ -361,8 +363,9 @@ def _run_photos(args, inputs) -> int:
         from geoloc.io.gis import export, read_results
 
         with tempfile.TemporaryDirectory() as tmp:
-            csv_path = args.out or str(Path(tmp) / "replay.csv")
-            if not args.out:
+            on_disk = args.out if args.out not in (None, "-") else None  # --out -: stdout, not re-readable
+            csv_path = on_disk or str(Path(tmp) / "replay.csv")
+            if not on_disk:
                 write_rows(csv_path, rows)
             print(export(read_results(csv_path), args.export, group_by=None))
     return 0 if rows else 1
