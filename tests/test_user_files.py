@@ -482,7 +482,7 @@ def test_the_text_outputs_are_those_of_text_formats():
     text = {f"{' '.join(prefix)} {a.option_strings[0] if a.option_strings else a.metavar}"
             for prefix, p in VERBS for a in p._actions if a.type is text_output_path}
     assert text == {"replay --out", "montecarlo --out", "limb --out", "klv dump --out", "calibrate --out",
-                    "calibrate --write-sensor", "calibrate --write-camera", "reproduce --json", "rpc --report",
+                    "reproduce --json", "rpc --report",
                     "export --out", "export OUT"}
 
 

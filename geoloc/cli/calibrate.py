@@ -53,7 +53,7 @@ def register(sub) -> None:
                    help="a sensor file's named parameters to fit, comma-separated (e.g. "
                         "mount_x,mount_y,mount_z,fx,cx,cy,k1,lever_arm_x_m): the fit for any --sensor "
                         "(flights from --group-by, outliers, --joint, --loo and --resect apply to it too)")
-    p.add_argument("--write-sensor", default=None, metavar="FILE", type=text_output_path,
+    p.add_argument("--write-sensor", default=None, metavar="FILE", type=output_path,
                    help="save the fitted sensor file (TOML); with several flights fitted separately, one "
                         "file per flight named STEM_<flight>.toml")
     add_target_options(p)
@@ -81,7 +81,7 @@ def register(sub) -> None:
                         "the published computed positions (paper_lat_deg/paper_lon_deg) with unknown target "
                         "heights: how the bundled camera was derived")
     p.add_argument("--out", default=None, type=text_output_path, help="write the JSON report here")
-    p.add_argument("--write-camera", default=None, type=text_output_path,
+    p.add_argument("--write-camera", default=None, type=output_path,
                    help="save the calibrated sensor as a first-phase camera file (TOML; a pinhole with "
                         "fx = fy on the roll-pitch gimbal, else use --write-sensor); with several flights "
                         "fitted separately, one file per flight named STEM_<flight>.toml")
