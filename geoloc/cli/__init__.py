@@ -81,14 +81,12 @@ def main(argv=None) -> int:
     try:
         import contextlib
 
-        from geoloc.cli._options import check_outputs, writes_stdout
+        from geoloc.cli._options import check_outputs, chosen_parsers, writes_stdout
         from geoloc.userfiles import command_files, stdout_is_data
 
         parser = build_parser()
         args = parser.parse_args(argv)
         verb = f"geoloc {args.verb}" if getattr(args, "verb", None) else "geoloc"
-        from geoloc.cli._options import chosen_parsers
-
         prog = chosen_parsers(parser, args)[-1].prog  # "geoloc klv dump"
         if not getattr(args, "func", None):
             parser.print_help()
