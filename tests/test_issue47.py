@@ -42,6 +42,7 @@ def test_rpc_of_a_montecarlo_scenario_is_one_clear_line(tmp_path, capsys):
 #: (sent by the process to itself: no timing, the handler runs as soon as os.kill returns).
 _INTERRUPTED_WRITE = """
 import os, pathlib, signal, sys
+signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal (a background job ignores SIGINT)
 real = pathlib.Path.write_text
 def half_then_ctrl_c(self, data, *a, **k):
     real(self, data[: len(data) // 2], *a, **k)
