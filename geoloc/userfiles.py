@@ -240,22 +240,20 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
 
     What is already there decides how it is written (docs/cli.md): a symlink is written
     beside its target and renamed onto the target (the link stays); a device, FIFO or
-    socket (``/dev/null``) is yielded itself, written through, never replaced; an existing
-    file's permission bits are given to the new file. ``"-"`` is standard output: the
-    block writes a temporary file whose bytes are then copied to standard output.
+    socket (``/dev/null``) is written through, never replaced: the block writes a
+    temporary file whose bytes are then copied into it (a library given the device's own
+    path may delete it and create a file: GDAL's GeoPackage driver does); an existing
+    file's permission bits are given to the new file. ``"-"`` is standard output, the
+    same way.
     """
     p = check_output(path, option)
     if str(p) == STDOUT:
-        with _to_stdout(option) as tmp:
+        with _through_temp(option, "-", "", _copy_to_stdout) as tmp:
             yield tmp
         return
-    if _kind(p) == "special":
-        try:
-            yield p
-        except OSError as e:  # /dev/full: ENOSPC has no file name; give it the path
-            if e.filename is None and e.errno is not None:
-                raise OSError(e.errno, e.strerror or str(e), str(path)) from None
-            raise
+    if _kind(p) == "special":  # copied in at the end: a library given the path itself may delete it first
+        with _through_temp(option, path, p.suffix, lambda fh: _copy_to_special(fh, p)) as tmp:
+            yield tmp
         return
     target = write_target(p)
     old_mode = stat.S_IMODE(os.stat(target).st_mode) if _kind(target) == "file" else None
@@ -306,25 +304,46 @@ def stdout_is_data() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _to_stdout(option: str) -> Iterator[Path]:
-    """A temporary file whose bytes go to standard output when the block succeeds."""
+def _through_temp(option: str, path, suffix: str, sink) -> Iterator[Path]:
+    """A temporary file (in a folder of its own, with ``suffix``) whose bytes ``sink(fh)`` copies
+    where they go when the block succeeds: standard output, a device, a FIFO."""
+    import shutil
+
+    folder = Path(tempfile.mkdtemp(prefix="geoloc-out-"))
+    try:
+        tmp = folder / f"out{suffix}"
+        yield tmp
+        if not tmp.is_file():
+            raise OutputRefused(f"{option + ' ' if option else ''}{path}: the writer produced no single file "
+                                "to copy there")
+        with tmp.open("rb") as fh:
+            sink(fh)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _copy_to_stdout(fh) -> None:
     import shutil
     import sys
 
-    folder = Path(tempfile.mkdtemp(prefix="geoloc-stdout-"))
+    out = _DATA_OUT.get() or sys.stdout
+    out.flush()
+    shutil.copyfileobj(fh, out.buffer)
+    out.flush()
+
+
+def _copy_to_special(fh, p: Path) -> None:
+    """Write the bytes through a device, FIFO or socket file, never replacing it (``/dev/full``: the
+    OSError names the path)."""
+    import shutil
+
     try:
-        tmp = folder / "out"
-        yield tmp
-        if not tmp.is_file():
-            raise OutputRefused(f"{option + ' ' if option else ''}-: the writer produced no single file "
-                                "to send to standard output")
-        out = _DATA_OUT.get() or sys.stdout
-        out.flush()
-        with tmp.open("rb") as fh:
-            shutil.copyfileobj(fh, out.buffer)
-        out.flush()
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
+        with open(p, "wb") as dst:
+            shutil.copyfileobj(fh, dst)
+    except OSError as e:
+        if e.filename is None and e.errno is not None:
+            raise OSError(e.errno, e.strerror or str(e), str(p)) from None
+        raise
 
 
 def write_text(path, text: str, option: str = "", encoding: str = "utf-8") -> Path:

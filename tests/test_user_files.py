@@ -415,7 +415,7 @@ def test_the_docs_python_block_runs_from_an_empty_folder(tmp_path):
         lines = code.rstrip().splitlines()
         # the block ends with the expression a reader looks at: print it
         code = "\n".join(lines[:-1] + [f"print(repr(({lines[-1]})))"])
-        r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, r.stderr
     # the page's first block is [Q17]'s T3 point 1; the paper prints 35.57709 N, 80.84918 E
     assert "35.5770" in r.stdout and "80.849" in r.stdout, r.stdout
@@ -588,3 +588,27 @@ def test_a_closed_pipe_in_every_verb_ends_quietly_with_141(tmp_path, capsys, mon
     for prog, argv in _leaf_argvs(tmp_path):
         rc = main(argv)
         assert rc == 141 and capsys.readouterr().err == "", prog
+
+
+def test_a_library_writer_into_a_fifo_does_not_replace_it(tmp_path, capsys):
+    # GDAL's GeoPackage driver, given the path of an existing file, deletes it and makes a new one:
+    # given a device or FIFO itself it replaced it (as root, /dev/null). The bytes are now copied in.
+    import threading
+
+    results = tmp_path / "r.csv"
+    assert main(["replay", "--height-column", "paper_height_m", "--out", str(results)]) == 0
+    fifo = tmp_path / "layers.gpkg"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()), daemon=True)
+    reader.start()
+    import subprocess
+    import sys
+
+    # in a child with a time limit: given the FIFO itself, SQLite waited on it forever
+    p = subprocess.run([sys.executable, "-m", "geoloc", "export", str(results), "--out", str(fifo)],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    reader.join(timeout=120)
+    assert fifo.is_fifo() and got and got[0].startswith(b"SQLite format 3\x00")  # a GeoPackage is SQLite
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["layers.gpkg", "r.csv"]
