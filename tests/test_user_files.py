@@ -467,7 +467,7 @@ def test_a_read_only_output_is_refused_even_for_root(prefix, out_dest, tmp_path,
 
 @pytest.mark.parametrize("prefix,out_dest", _file_outputs(binary_only=True))
 def test_standard_output_is_refused_for_a_binary_output(prefix, out_dest, tmp_path, capsys):
-    # `--out -`: one clear line where the file is binary (the text ones: tests/test_issue47.py)
+    # `--out -`: one clear line where the file is binary (the text ones: tests/test_cli_bad_inputs.py)
     p = _parser(prefix)
     a = _action(p, out_dest)
     line = Line(prefix, p, tmp_path)
@@ -576,7 +576,7 @@ def test_a_live_journal_to_standard_output_is_one_line(tmp_path):
 def test_a_closed_pipe_in_every_verb_ends_quietly_with_141(tmp_path, capsys, monkeypatch):
     # issue 47: `geoloc klv dump FILE | head -1` died of BrokenPipeError; main ends every verb the same way
     # (here stdout is pytest's capture, with no file descriptor: taken as the closed pipe; the real pipe:
-    # tests/test_issue47.py)
+    # tests/test_cli_bad_inputs.py)
     import contextlib
 
     @contextlib.contextmanager
