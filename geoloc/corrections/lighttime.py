@@ -90,14 +90,21 @@ def aberration(direction, velocity_inertial, relativistic: bool = False):
             vv = np.sum(v * v, axis=-1, keepdims=True)
             k = uv + np.sqrt(uv * uv - (vv - C_LIGHT**2))
             return (k * u - v) / C_LIGHT
-        speed = np.linalg.norm(v, axis=-1, keepdims=True)
-        beta = speed / C_LIGHT
-        vhat = np.where(speed > 0, v / np.where(speed > 0, speed, 1.0), 0.0)
-        gamma = 1.0 / np.sqrt(1.0 - beta * beta)
-        upar = np.sum(u * vhat, axis=-1, keepdims=True)
-        uperp = u - upar * vhat
-        out = (uperp + gamma * (upar - beta) * vhat) / (gamma * (1.0 - beta * upar))
-        return out / np.linalg.norm(out, axis=-1, keepdims=True)
+        return _lorentz(u, v, -1.0)
+
+
+def _lorentz(u, v, sign: float):
+    """The relativistic aberration of unit directions u by the velocity v, with beta = sign |v| / c:
+    u' = (u_perp + gamma (u_par + beta) v_hat) / (gamma (1 + beta u_par)), normalised
+    (:func:`aberration` with sign -1, its inverse :func:`apparent_direction` with +1)."""
+    speed = np.linalg.norm(v, axis=-1, keepdims=True)
+    beta = sign * speed / C_LIGHT
+    vhat = np.where(speed > 0, v / np.where(speed > 0, speed, 1.0), 0.0)
+    gamma = 1.0 / np.sqrt(1.0 - beta * beta)
+    upar = np.sum(u * vhat, axis=-1, keepdims=True)
+    uperp = u - upar * vhat
+    out = (uperp + gamma * (upar + beta) * vhat) / (gamma * (1.0 + beta * upar))
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 
 def apparent_direction(direction, velocity_inertial, relativistic: bool = False):
@@ -112,14 +119,7 @@ def apparent_direction(direction, velocity_inertial, relativistic: bool = False)
         if not relativistic:
             out = C_LIGHT * u + v
             return out / np.linalg.norm(out, axis=-1, keepdims=True)
-        speed = np.linalg.norm(v, axis=-1, keepdims=True)
-        beta = speed / C_LIGHT
-        vhat = np.where(speed > 0, v / np.where(speed > 0, speed, 1.0), 0.0)
-        gamma = 1.0 / np.sqrt(1.0 - beta * beta)
-        upar = np.sum(u * vhat, axis=-1, keepdims=True)
-        uperp = u - upar * vhat
-        out = (uperp + gamma * (upar + beta) * vhat) / (gamma * (1.0 + beta * upar))
-        return out / np.linalg.norm(out, axis=-1, keepdims=True)
+        return _lorentz(u, v, 1.0)
 
 
 def _rot_z(angle, x):

@@ -64,7 +64,7 @@ from typing import BinaryIO, Iterable, Iterator
 import numpy as np
 
 from geoloc.io.klv_sets import UAS_LS_KEY as _UAS_LS_KEY
-from geoloc.io.klv_sets import EG0104_KEY, SetError, decode_eg0104, decode_security, decode_vmti
+from geoloc.io.klv_sets import EG0104_KEY, SetError, ber_length, ber_oid, decode_eg0104, decode_security, decode_vmti
 from geoloc.userfiles import note_input
 from geoloc.extras import require
 
@@ -428,30 +428,6 @@ def _bytesum(b: bytes) -> int:
     if len(b) <= 256:
         return (zlib.adler32(b) & 0xFFFF) - 1
     return sum((zlib.adler32(b[i:i + 256]) & 0xFFFF) - 1 for i in range(0, len(b), 256))
-
-
-def ber_length(n: int) -> bytes:
-    """BER length (SMPTE ST 336): short form below 128, else 0x80 + count, then the
-    count of big-endian bytes."""
-    if n < 0:
-        raise ValueError(f"length {n} is negative")
-    if n < 128:
-        return bytes((n,))
-    m = (n.bit_length() + 7) // 8
-    return bytes((0x80 | m,)) + n.to_bytes(m, "big")
-
-
-def ber_oid(tag: int) -> bytes:
-    """BER-OID tag (SMPTE ST 336): 7 bits a byte, high bit set on every byte but the
-    last (tags above 127 take two bytes: 128 -> 0x81 0x00)."""
-    if tag < 1:
-        raise ValueError(f"tag {tag} is not a positive integer")
-    out = [tag & 0x7F]
-    tag >>= 7
-    while tag:
-        out.append(0x80 | (tag & 0x7F))
-        tag >>= 7
-    return bytes(reversed(out))
 
 
 # --------------------------------------------------------------------------- layouts

@@ -114,7 +114,10 @@ _EG0104_BY_MASKED = {_mask(k): v for k, v in EG0104_ITEMS.items()}
 
 
 def ber_length(n: int) -> bytes:
-    """BER length (SMPTE ST 336): short form below 128, else 0x80 + count, then the bytes."""
+    """BER length (SMPTE ST 336): short form below 128, else 0x80 + count, then the
+    count of big-endian bytes."""
+    if n < 0:
+        raise ValueError(f"length {n} is negative")
     if n < 128:
         return bytes((n,))
     m = (n.bit_length() + 7) // 8
@@ -122,7 +125,10 @@ def ber_length(n: int) -> bytes:
 
 
 def ber_oid(tag: int) -> bytes:
-    """BER-OID tag (SMPTE ST 336): 7 bits a byte, the high bit set on all but the last."""
+    """BER-OID tag (SMPTE ST 336): 7 bits a byte, high bit set on every byte but the
+    last (tags above 127 take two bytes: 128 -> 0x81 0x00)."""
+    if tag < 1:
+        raise ValueError(f"tag {tag} is not a positive integer")
     out = [tag & 0x7F]
     tag >>= 7
     while tag:
