@@ -62,6 +62,14 @@ class Target:
     kills: bool = True
 
 
+#: The tests of the live stream's demultiplexer and receiver (the targets ts_demux and live).
+LIVE_TESTS = ("tests/test_live_gaps.py", "tests/test_live.py::test_synchronous_metadata_carriage_is_read",
+              "tests/test_live.py::test_datagrams_and_chunks_decode_as_ffmpeg_reads_the_file",
+              "tests/test_live.py::test_lost_swapped_and_repeated_datagrams_every_intact_packet_used",
+              "tests/test_live.py::test_corrupt_cut_and_foreign_datagrams_are_counted_never_fatal",
+              "tests/test_live.py::test_a_stream_that_stops_and_restarts",
+              "tests/test_live.py::test_crc32_of_the_files_psi_sections_is_zero")
+
 TARGETS = [
     Target("ellipsoid", "geoloc/geodesy/ellipsoid.py", ("tests/test_ellipsoid.py",)),
     Target("rotations", "geoloc/frames/rotations.py", ("tests/test_frames.py", "tests/test_locate.py")),
@@ -88,17 +96,15 @@ TARGETS = [
     Target("triangulate", "geoloc/analysis/triangulate.py",
            ("tests/test_triangulate_wls.py", "tests/test_triangulate.py"), kills=False),
     Target("time_offset", "geoloc/analysis/time_offset.py", ("tests/test_video_example.py",), kills=False),
-    Target("live", "geoloc/io/live.py",
-           ("tests/test_live_gaps.py", "tests/test_live.py::test_synchronous_metadata_carriage_is_read",
-            "tests/test_live.py::test_datagrams_and_chunks_decode_as_ffmpeg_reads_the_file",
-            "tests/test_live.py::test_lost_swapped_and_repeated_datagrams_every_intact_packet_used",
-            "tests/test_live.py::test_corrupt_cut_and_foreign_datagrams_are_counted_never_fatal",
-            "tests/test_live.py::test_a_stream_that_stops_and_restarts",
-            "tests/test_live.py::test_crc32_of_the_files_psi_sections_is_zero"),
+    # the live stream: its demultiplexer (geoloc.io.ts_demux, which geoloc.io.klv reads a .ts with too)
+    # and its receiver (geoloc.io.live; not the sockets, the sender, the CLI), under the same tests
+    Target("ts_demux", "geoloc/io/ts_demux.py", LIVE_TESTS,
            ("crc32_mpeg2", "_crc32_table", "feed_datagram", "_datagram", "feed", "flush", "_feed", "_resync",
             "_packet", "expire", "_counters", "_gap", "_first", "_take", "_damage", "_finish", "_section",
-            "_try_section", "_registration", "_timestamp", "_metadata_cells", "push", "tick", "push_bytes",
-            "_units"), "the demultiplexer and the receiver (not the sockets, the sender, the CLI)", kills=False),
+            "_try_section", "_registration", "_timestamp", "_metadata_cells"),
+           "the MPEG-TS demultiplexer", kills=False),
+    Target("live", "geoloc/io/live.py", LIVE_TESTS, ("push", "tick", "push_bytes", "_units"),
+           "the receiver (not the sockets, the sender, the CLI)", kills=False),
     Target("mgrs_grid", "geoloc/io/mgrs_grid.py", ("tests/test_mgrs_wrap.py", "tests/test_mgrs.py"), kills=False),
     Target("cot", "geoloc/io/cot.py", ("tests/test_cot.py",), kills=False),
     Target("rpc_nitf", "geoloc/io/rpc_gdal.py", ("tests/test_rpc_nitf.py",),

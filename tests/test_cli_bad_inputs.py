@@ -190,9 +190,10 @@ def test_export_of_an_empty_csv_is_one_line(tmp_path, capsys, content, needle):
 
 
 def test_export_takes_its_output_as_the_readme_writes_it(results_csv, tmp_path, capsys):
-    # the README: `geoloc export r.csv out.gpkg` (before: "unrecognized arguments: out.gpkg")
-    readme = (ROOT / "README.md").read_text()
-    assert "geoloc export r.csv out.gpkg" in readme
+    # docs/tour_accuracy.md (the README's before it became one screen): `geoloc export r.csv out.gpkg`
+    # (before: "unrecognized arguments: out.gpkg")
+    page = (ROOT / "docs" / "tour_accuracy.md").read_text()
+    assert "geoloc export r.csv out.gpkg" in page
     out = tmp_path / "out.gpkg"
     assert main(["export", str(results_csv), str(out)]) == 0
     from pyogrio import raw

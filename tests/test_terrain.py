@@ -268,7 +268,7 @@ def test_batch_shape_and_trace():
 
 
 def test_scalar_vermeille_matches_core():
-    from geoloc.surfaces.terrain_numba import geodetic, geodetic_up
+    from geoloc.geodesy._nbgeo import geodetic, geodetic_up
 
     rng = np.random.default_rng(2)
     p = geodetic_to_ecef(r(rng.uniform(-89, 89, 50)), r(rng.uniform(-180, 180, 50)), rng.uniform(-400, 9e4, 50))
