@@ -289,7 +289,7 @@ def find_marks(image: np.ndarray, *, min_excess: int = 60, min_pixels: int = 6):
     symmetric blur) centred where it was. Returns an ``(n, 2)`` array (row, col),
     largest blob first, and the blobs' pixel counts.
     """
-    cv2 = require("cv2", "rendering frames over the DEM")
+    cv2 = require("cv2", "finding the marks painted in a frame")
 
     a = np.ascontiguousarray(np.asarray(image)[..., :3], dtype=np.uint8)
     r, g, b = cv2.split(a)
