@@ -45,6 +45,10 @@ CASES = {
         [rf"^one process, 1 thread .* wall +{N} s +CPU +{N} s .* {N} records/s",
          rf"^cluster 1 proc x 1 thr .* wall +{N} s +CPU +{N} s .* {N} records/s",
          rf"^ratio: {N} \(speed-up"], 300),
+    "bench_startup.py": (
+        ["--repeat", "1"],
+        [rf"^geoloc --help +wall {N} s  CPU {N} s$", rf"^one-pixel locate +wall {N} s  CPU {N} s$",
+         rf"^ratio geoloc --help / peer {N}x; one-pixel locate / peer {N}x$"], 120),
     "bench_first_run.py": (
         ["--only", "locate"],  # one cold numba cache, one warm: 5 s
         [rf"^locate(?: +{N}){{7}}$"], 300),

@@ -21,11 +21,29 @@ from geoloc.extras import VIEWER_INSTALL, MissingExtra
 
 #: The entry-point group through which another package adds verbs (name -> module).
 VERB_GROUP = "geoloc.verbs"
-#: Verbs the viewer package adds: listed even when it is not installed.
-VIEWER_VERBS = {
-    "view": "open the interactive 3D scene in the browser (needs the viewer package)",
-    "log": "write a rerun recording (.rrd) (needs the viewer package)",
+#: Each verb's one-line help: the one source of it (each verb's ``register`` reads it here), so
+#: ``geoloc --help`` lists the verbs without importing them (a verb imports only when it runs).
+VERB_HELP = {
+    "calibrate": "flight-test debugger: error vectors, outliers, mounting/boresight fit, resection",
+    "export": "write replay results to GeoPackage, GeoJSON, KML, CZML or Cursor-on-Target (TAK)",
+    "klv": "MISB ST 0601 KLV metadata: dump the packets (JSON lines), fix a copy's frame-centre and "
+           "corner tags, send an MPEG-TS to udp://HOST:PORT",
+    "limb": "limb viewing: tangent height of lines of sight ([L18] virtual ellipsoid + exact minimum)",
+    "locate": "geolocate one pixel (aircraft pose + gimbal angles + camera + target height)",
+    "montecarlo": "Monte Carlo error analysis of a scenario TOML (statistics, CEP, Fig. 10 sweeps)",
+    "ortho": "every pixel of a frame onto the DEM: per-pixel lat/lon/h GeoTIFF, and a photo's orthophoto",
+    "pixel": "which pixel sees a ground point (lat/lon or MGRS), and whether the camera sees it",
+    "replay": "replay flight-test records: locate each one and measure the errors",
+    "report": "accuracy report of a replay's output CSV: CEP, CE90, LE90, MAE, bias, plots, HTML",
+    "reproduce": "reproduce a paper's results: the published numbers and geoloc's side by side",
+    "rpc": "fit RPC coefficients to a sensor model, write GDAL RPC metadata, cross-check with GDAL RPC_DEM",
+    "warm": "compile the terrain and camera kernels once, ahead of the first locate / replay / view",
+    # the viewer package's verbs (entry points), listed even when it is not installed
+    "view": "open the interactive 3D scene in the browser (default: the bundled example flight)",
+    "log": "write a rerun recording (.rrd) of a simulated scan or of flight-test records",
 }
+#: Verbs the viewer package adds: listed even when it is not installed.
+VIEWER_VERBS = ("view", "log")
 
 
 def _verb_modules():
@@ -41,22 +59,42 @@ def _missing_viewer(args) -> int:
     print(f"geoloc {args.verb}: the viewer is not installed: {VIEWER_INSTALL}", file=sys.stderr)
     return 2
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None, *, lazy: bool = False) -> argparse.ArgumentParser:
+    """The ``geoloc`` parser.
+
+    Parameters
+    ----------
+    only : str, optional
+        With ``lazy``: the one verb whose module is imported and whose options are declared.
+    lazy : bool
+        Every other verb is listed by its :data:`VERB_HELP` line only, its module not imported
+        (``geoloc --help`` and ``geoloc VERB ...`` import one verb at most). False: every verb
+        whole (what the tests read each verb's options from).
+    """
     parser = argparse.ArgumentParser(
         prog="geoloc",
         description="Direct geolocation of ground targets from airborne and spaceborne cameras.",
     )
     parser.add_argument("--version", action="version", version=f"geoloc {__version__}")
     sub = parser.add_subparsers(dest="verb", metavar="VERB")
-    verbs = _verb_modules()
-    for name, module in verbs:
-        importlib.import_module(module).register(sub)
-    for name, help_text in VIEWER_VERBS.items():
-        if name not in dict(verbs):
-            p = sub.add_parser(name, help=help_text, add_help=False)
+    verbs = dict(_verb_modules())
+    for name in sorted(set(verbs) | set(VIEWER_VERBS)):
+        if name not in verbs:  # a viewer verb without the viewer installed
+            p = sub.add_parser(name, help=f"{VERB_HELP[name]} (needs the viewer: pip install ./viz)",
+                               add_help=False)
             p.add_argument("rest", nargs=argparse.REMAINDER)
             p.set_defaults(func=_missing_viewer)
+        elif lazy and name != only:
+            sub.add_parser(name, help=VERB_HELP.get(name))
+        else:
+            importlib.import_module(verbs[name]).register(sub)
     return parser
+
+
+def _verb_of(argv) -> str | None:
+    """The verb a command line names: its first word that is not an option (the top-level
+    options, ``--help`` and ``--version``, take no value)."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 #: Exit status of a command that ends on Ctrl-C: 128 + SIGINT, as a shell reports it (docs/cli.md).
@@ -79,18 +117,20 @@ def main(argv=None) -> int:
     """
     verb = prog = "geoloc"
     try:
+        argv = sys.argv[1:] if argv is None else list(argv)
+        parser = build_parser(_verb_of(argv), lazy=True)  # the one verb named is imported, no other
+        args = parser.parse_args(argv)
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 2
+
         import contextlib
 
         from geoloc.cli._options import check_outputs, chosen_parsers, writes_stdout
         from geoloc.userfiles import command_files, stdout_is_data
 
-        parser = build_parser()
-        args = parser.parse_args(argv)
         verb = f"geoloc {args.verb}" if getattr(args, "verb", None) else "geoloc"
         prog = chosen_parsers(parser, args)[-1].prog  # "geoloc klv dump"
-        if not getattr(args, "func", None):
-            parser.print_help()
-            return 2
         try:
             inputs = check_outputs(parser, args)
             data = stdout_is_data() if writes_stdout(parser, args) else contextlib.nullcontext()

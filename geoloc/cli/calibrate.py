@@ -28,6 +28,7 @@ from geoloc.cli._options import (
 )
 from geoloc.cli.locate import load_records_reporting
 from geoloc.userfiles import write_text
+from geoloc.cli import VERB_HELP
 
 #: ``--model``: the rotation each names (``Camera`` file keys ``mount_deg`` / ``boresight_deg``).
 MODELS = {"mount": ("mount_x", "mount_y", "mount_z"), "camera": ("boresight_x", "boresight_y", "boresight_z")}
@@ -39,7 +40,7 @@ RESECT_NAMES = ("f", "cy", "cx")
 def register(sub) -> None:
     p = sub.add_parser(
         "calibrate",
-        help="flight-test debugger: error vectors, outliers, mounting/boresight fit, resection",
+        help=VERB_HELP["calibrate"],
         description="Measure every record's error against its surveyed truth (north/east, along/cross "
         "track, image pixels), flag outliers per flight, fit a small mounting rotation (three angles, "
         "optionally focal length and principal point) by least squares, and report errors before, "

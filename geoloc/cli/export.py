@@ -8,12 +8,13 @@ from pathlib import Path
 from geoloc.cli._options import input_path, text_output_path
 from geoloc.io.cot import DEFAULT_HOW, DEFAULT_STALE_S, DEFAULT_TYPE, TAK_SA_MULTICAST
 from geoloc.io.gis import DEFAULT_EPOCH, EXTENSIONS, FORMATS, export, read_results
+from geoloc.cli import VERB_HELP
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "export",
-        help="write replay results to GeoPackage, GeoJSON, KML, CZML or Cursor-on-Target (TAK)",
+        help=VERB_HELP["export"],
         description="Write a results CSV (as `geoloc replay --out` writes it) to GIS layers: computed "
         "points, truth and reported points, error vectors, frame footprints and the platform track. "
         "GPKG/GeoJSON/CZML heights are above the WGS 84 ellipsoid; KML altitudes are EGM96 orthometric "

@@ -25,13 +25,13 @@ import sys
 from pathlib import Path
 
 from geoloc.cli._options import input_path, output_path, text_output_path
+from geoloc.cli import VERB_HELP
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "klv",
-        help="MISB ST 0601 KLV metadata: dump the packets (JSON lines), fix a copy's frame-centre and "
-        "corner tags, send an MPEG-TS to udp://HOST:PORT",
+        help=VERB_HELP["klv"],
         description="MISB ST 0601 (UAS Datalink Local Set) KLV metadata (docs/klv.md).",
     )
     actions = p.add_subparsers(dest="klv_action", metavar="ACTION")

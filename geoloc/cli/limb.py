@@ -20,12 +20,13 @@ from geoloc.sensors.limb import limb_tangent
 from geoloc.status import Status, describe
 from geoloc.userfiles import atomic_path
 from geoloc.workflows.scenario import load_scenario
+from geoloc.cli import VERB_HELP
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "limb",
-        help="limb viewing: tangent height of lines of sight ([L18] virtual ellipsoid + exact minimum)",
+        help=VERB_HELP["limb"],
         description="Tangent point and limb height of lines of sight that miss the Earth: the [L18] "
         "virtual ellipsoid of equal flattening (eq. 13-26, Newton-Raphson on eq. 17) and, "
         "independently, the minimum geodetic height along the line. Either a scenario TOML "

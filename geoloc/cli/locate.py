@@ -37,12 +37,13 @@ from geoloc.locate import line_of_sight
 from geoloc.sensors.sensor_file import load_sensor_columns
 from geoloc.status import Status, describe
 from geoloc.surfaces.height import intersect_los_height
+from geoloc.cli import VERB_HELP
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "locate",
-        help="geolocate one pixel (aircraft pose + gimbal angles + camera + target height)",
+        help=VERB_HELP["locate"],
         description="Geolocate one pixel: aircraft position and attitude, gimbal encoder angles, "
         "a camera file and a target height give the target's latitude, longitude and height "
         "([Q17] eq. 4-13). Angles in degrees, heights ellipsoidal in metres.",

@@ -25,12 +25,13 @@ from geoloc.cli._options import (
 )
 from geoloc.status import Status
 from geoloc.userfiles import check_output_dir, write_text
+from geoloc.cli import VERB_HELP
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "montecarlo",
-        help="Monte Carlo error analysis of a scenario TOML (statistics, CEP, Fig. 10 sweeps)",
+        help=VERB_HELP["montecarlo"],
         description="Sample every error source of a scenario file (nominal pose, gimbal angles, "
         "camera, target, per-parameter distributions; see docs/montecarlo.md), locate the "
         "target for every sample through the geolocation chain, and report the mean and "

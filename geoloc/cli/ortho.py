@@ -35,6 +35,7 @@ from geoloc.cli.locate import pose_from_args, records_from_args
 from geoloc.io.columns import ELLIPSOID_DATUM
 from geoloc.surfaces.base import terrain_of
 from geoloc.extras import require
+from geoloc.cli import VERB_HELP
 
 POSE_FIELDS = ("lat_deg", "lon_deg", "h_m")
 
@@ -42,7 +43,7 @@ POSE_FIELDS = ("lat_deg", "lon_deg", "h_m")
 def register(sub) -> None:
     p = sub.add_parser(
         "ortho",
-        help="every pixel of a frame onto the DEM: per-pixel lat/lon/h GeoTIFF, and a photo's orthophoto",
+        help=VERB_HELP["ortho"],
         description="Locate every pixel (or every --step-th) of one frame on the terrain in one call and "
         "write the per-pixel latitude, longitude and ellipsoidal height (WGS 84) as a GeoTIFF on the "
         "image grid, with a status band; for a drone photo also an orthorectified image (--ortho-out). "

@@ -28,12 +28,13 @@ from geoloc.io.columns import ELLIPSOID_DATUM
 from geoloc.io.mgrs_grid import mgrs_text, parse_mgrs
 from geoloc.locate import point_view
 from geoloc.status import Status, describe
+from geoloc.cli import VERB_HELP
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "pixel",
-        help="which pixel sees a ground point (lat/lon or MGRS), and whether the camera sees it",
+        help=VERB_HELP["pixel"],
         description="The inverse of `geoloc locate`: the pixel (1-based row, column) in which the "
         "sensor sees a ground point, given as --point-lat-deg/--point-lon-deg or --mgrs, at "
         "--point-h-m or at the DEM's height there; with a DEM, whether terrain hides it.",

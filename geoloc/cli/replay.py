@@ -32,12 +32,13 @@ from geoloc.workflows.replay import (
     write_replay_csv,
 )
 from geoloc.workflows.triangulation import TARGET_ID_COLUMN, summary_lines, triangulate_records
+from geoloc.cli import VERB_HELP
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "replay",
-        help="replay flight-test records: locate each one and measure the errors",
+        help=VERB_HELP["replay"],
         description="Locate every record of a flight-test CSV (columns of [Q17] Tables 3-4) and write "
         "every input column plus lat_deg, lon_deg, h_m, error_to_paper_m, error_to_truth_m "
         "(horizontal geodesic distances in metres; empty where the input has no such column). "

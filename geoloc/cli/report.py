@@ -28,6 +28,7 @@ from geoloc.analysis.accuracy import (
 )
 from geoloc.cli._options import add_sensor_option, input_path, output_dir
 from geoloc.userfiles import atomic_path, write_text
+from geoloc.cli import VERB_HELP
 
 #: Reference prefixes tried by ``--reference auto``, in this order.
 AUTO_REFERENCES = ("truth", "reported", "paper")
@@ -40,7 +41,7 @@ HEADING_COLUMNS = ("heading_deg", "platform_heading_deg")
 def register(sub) -> None:
     p = sub.add_parser(
         "report",
-        help="accuracy report of a replay's output CSV: CEP, CE90, LE90, MAE, bias, plots, HTML",
+        help=VERB_HELP["report"],
         description="Accuracy of the computed positions of a `geoloc replay --out` CSV against a reference: "
         "per flight and overall, CEP (50th percentile of horizontal errors), CE90 / LE90 (90th percentiles "
         "of horizontal / |vertical| errors; numpy's linear percentile), mean absolute errors, the mean bias "

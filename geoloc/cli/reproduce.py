@@ -7,6 +7,7 @@ import json
 from geoloc.cli._options import surface_from_scenario, text_output_path
 from geoloc.userfiles import write_text
 from geoloc.workflows import reproduce as rp
+from geoloc.cli import VERB_HELP
 
 PAPERS = {
     "qiao2017": "[Q17] Table 1 nominal point, Monte Carlo standard deviations (ellipsoid and DEM), "
@@ -19,7 +20,7 @@ PAPERS = {
 def register(sub) -> None:
     p = sub.add_parser(
         "reproduce",
-        help="reproduce a paper's results: the published numbers and geoloc's side by side",
+        help=VERB_HELP["reproduce"],
         description="Recompute the published results of a source paper with the project's "
         "code and print both side by side. " + "; ".join(f"{k}: {v}" for k, v in PAPERS.items()),
     )

@@ -12,12 +12,13 @@ from pathlib import Path
 from geoloc.cli._options import check_suffix, input_path, output_path, text_output_path
 from geoloc.userfiles import write_text
 from geoloc.surfaces.spec import SurfaceSpec
+from geoloc.cli import VERB_HELP
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "rpc",
-        help="fit RPC coefficients to a sensor model, write GDAL RPC metadata, cross-check with GDAL RPC_DEM",
+        help=VERB_HELP["rpc"],
         description=(
             "Fit the 78 RPC00B coefficients to the scenario's rigorous sensor model (pushbroom [L12] "
             "or the [Q17] frame camera) over a 3-D grid of ground points, report residuals on "

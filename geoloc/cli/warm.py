@@ -18,6 +18,7 @@ import io
 import sys
 import tempfile
 import time
+from geoloc.cli import VERB_HELP
 
 
 def _large_batch() -> int:
@@ -55,7 +56,7 @@ STEPS = (
 def register(sub) -> None:
     p = sub.add_parser(
         "warm",
-        help="compile the terrain and camera kernels once, ahead of the first locate / replay / view",
+        help=VERB_HELP["warm"],
         description="Run geoloc locate, replay and view once on the bundled data, output swallowed, so that "
         "numba compiles their kernels now (5-30 s of CPU on a 2-core machine, the first time only) "
         "and caches them in the user's cache folder (NUMBA_CACHE_DIR if set, else ~/.cache/geoloc/numba), "

@@ -24,12 +24,13 @@ from geoloc.cli._options import (
     sensor_from_args,
 )
 from geoloc.assets import ASSETS
+from geoloc.cli import VERB_HELP
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "log",
-        help="write a rerun recording (.rrd) of a simulated scan or of flight-test records",
+        help=VERB_HELP["log"],
         description="Log a simulated flight (scenario TOML, e.g. assets/scenarios/flight_scan.toml, "
         "or just its name 'flight_scan') or a flight-test records CSV (one time step per record) "
         "to a rerun recording: aircraft pose and frame chain, line of sight and hits in the local "

@@ -16,12 +16,13 @@ import time
 import webbrowser
 
 from geoloc.cli._options import add_dem_options, add_sensor_option, input_path, one_dem_raster, output_path
+from geoloc.cli import VERB_HELP
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "view",
-        help="open the interactive 3D scene in the browser (default: the bundled example flight)",
+        help=VERB_HELP["view"],
         description="Start a local viser server with the 3D scene of a geolocation: aircraft, "
         "NED/body/gimbal/camera frames, frustum, line of sight, DEM mesh, the iterations of the "
         "terrain method, and the published and surveyed positions of a flight-test record. "
