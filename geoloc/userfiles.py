@@ -141,10 +141,8 @@ def _kind(p: Path) -> str:
     """``"missing"``, ``"file"``, ``"folder"`` or ``"special"`` (a device, FIFO or socket), following symlinks."""
     try:
         mode = os.stat(p).st_mode
-    except FileNotFoundError:
+    except OSError:  # not there; or a symlink loop, a path through a file: the folder probe names it
         return "missing"
-    except OSError:
-        return "missing"  # a symlink loop, a path through a file: the folder probe names it
     if stat.S_ISDIR(mode):
         return "folder"
     return "file" if stat.S_ISREG(mode) else "special"

@@ -91,9 +91,7 @@ ROWS_SHOWN = 50
 
 
 def run(args) -> int:
-    from geoloc.cli._options import is_stream
-
-    from geoloc.cli._options import check_gis_output
+    from geoloc.cli._options import check_gis_output, is_stream
 
     check_gis_output("--export", args.export)  # before any record is located (issue 47)
     inputs = list(args.records or [])
@@ -151,7 +149,8 @@ def run(args) -> int:
         write_replay_csv(args.out, result)
         print(f"wrote {len(records)} rows to {args.out}")
     if args.export:
-        _export(args, result, group_by)
+        _export(args, lambda path: write_replay_csv(path, result),
+                group_by if group_by in result.records.header else None)
     return 0 if located(result).all() else 1  # docs/cli.md: 1 = some records could not be located
 
 
@@ -163,8 +162,9 @@ def _budget(args):
     return load_sensor_budget(path) if path else None
 
 
-def _export(args, result, group_by) -> None:
-    """``--export FILE``: the rows of ``--out`` (or of a temporary CSV) through geoloc.io.gis."""
+def _export(args, write_csv, group_by) -> None:
+    """``--export FILE``: the rows of ``--out`` (or, without a file there, of a temporary CSV that
+    ``write_csv(path)`` writes) through geoloc.io.gis; records, KLV and photos alike."""
     import tempfile
 
     from geoloc.io.gis import export, read_results
@@ -173,9 +173,8 @@ def _export(args, result, group_by) -> None:
         on_disk = args.out if args.out not in (None, "-") else None  # --out -: stdout, not re-readable
         csv_path = on_disk or str(Path(tmp) / "replay.csv")
         if not on_disk:
-            write_replay_csv(csv_path, result)
-        group = group_by if group_by in result.records.header else None
-        print(export(read_results(csv_path), args.export, group_by=group))
+            write_csv(csv_path)
+        print(export(read_results(csv_path), args.export, group_by=group_by))
 
 
 # --------------------------------------------------------------------------- KLV and photo inputs
@@ -231,16 +230,7 @@ def _run_klv(args, inputs) -> int:
         print(f"wrote {n} rows to {args.out} (heights ellipsoidal, WGS 84: column h_datum; "
               "*_msl_m columns mean sea level)")
     if args.export and n:
-        import tempfile
-
-        from geoloc.io.gis import export, read_results
-
-        with tempfile.TemporaryDirectory() as tmp:
-            on_disk = args.out if args.out not in (None, "-") else None  # --out -: stdout, not re-readable
-            csv_path = on_disk or str(Path(tmp) / "replay.csv")
-            if not on_disk:
-                write_klv_csv(csv_path, replays)
-            print(export(read_results(csv_path), args.export, group_by="file" if len(paths) > 1 else None))
+        _export(args, lambda path: write_klv_csv(path, replays), "file" if len(paths) > 1 else None)
     if n == 0:
         print("geoloc replay: no good UAS LS packet", file=sys.stderr)
         return 1
@@ -359,16 +349,7 @@ def _run_photos(args, inputs) -> int:
         write_rows(args.out, rows)
         print(f"wrote {len(rows)} rows to {args.out}")
     if args.export and rows:
-        import tempfile
-
-        from geoloc.io.gis import export, read_results
-
-        with tempfile.TemporaryDirectory() as tmp:
-            on_disk = args.out if args.out not in (None, "-") else None  # --out -: stdout, not re-readable
-            csv_path = on_disk or str(Path(tmp) / "replay.csv")
-            if not on_disk:
-                write_rows(csv_path, rows)
-            print(export(read_results(csv_path), args.export, group_by=None))
+        _export(args, lambda path: write_rows(path, rows), None)
     return 0 if rows else 1
 
 
