@@ -5,9 +5,11 @@ the line from the optical centre O_E through T'_E (eq. 10), on the ellipsoid
 inflated to the target height (eq. 11), converted to geodetic coordinates
 (eq. 12-13; here by the closed form of :func:`geoloc.geodesy.ellipsoid.ecef_to_geodetic`).
 
-Every call goes through a sensor (``docs/architecture.md``)::
+Every call goes through the location pipeline (:class:`geoloc.pipeline.Pipeline`,
+``docs/architecture.md``)::
 
-    locate(pose, sensor, row, col, target_h)  ==  surface.intersect(sensor.line_of_sight(row, col, pose))
+    locate(pose, sensor, row, col, target_h, corrections=c)
+        ==  Pipeline(sensor, HeightSurface(target_h), c).locate(row, col, pose)
 
 ``sensor`` is a :class:`geoloc.sensors.frame.FrameSensor` or a first-phase
 :class:`geoloc.sensors.camera.Camera` (taken as its sensor: a pinhole on the
@@ -24,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from geoloc.frames.chain import Pose
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.sensors.base import PixelHit, check_outside
 from geoloc.sensors.camera import as_sensor
 from geoloc.status import Status
@@ -72,7 +75,8 @@ def line_of_sight(pose: Pose, sensor, row=None, col=None, *, outside: str = "fla
 
 
 def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
-           height_kind: str = "inflated", engine: str = "auto", outside: str = "flag") -> GroundPoint:
+           height_kind: str = "inflated", engine: str = "auto", outside: str = "flag",
+           corrections: Corrections = NO_CORRECTIONS) -> GroundPoint:
     """Geolocate pixels at a known target height: the whole of [Q17 section 2.2].
 
     Vectorised: pose fields, pixels and ``target_h`` broadcast together.
@@ -95,6 +99,9 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
         10 000 rays or more on the inflated surface.
     outside : {"flag", "extrapolate"}
         See :func:`line_of_sight`.
+    corrections : Corrections
+        The line-of-sight corrections (:class:`geoloc.pipeline.Corrections`; none by default,
+        as the paper).
 
     Returns
     -------
@@ -110,30 +117,21 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
     >>> round(float(locate(pose, cam, target_h=5083.5).lat_deg), 5)
     35.57709
     """
-    if engine not in ("auto", "numpy", "numba"):
-        raise ValueError(f"engine must be 'auto', 'numpy' or 'numba', got {engine!r}")
     check_outside(outside)
     s = as_sensor(sensor)
-    from geoloc.sensors._fastlocate import serves
+    surface = HeightSurface(target_h, height_kind)
+    from geoloc.sensors import _fastlocate
 
-    fast_ok = height_kind == "inflated" and serves(s)
-    if engine == "numba" and not fast_ok:
+    if engine == "numba" and not (height_kind == "inflated" and _fastlocate.serves(s)):
         raise ValueError("engine='numba' needs height_kind='inflated' and a sensor the kernel serves "
                          "(one lens, no per-sample perturbation)")
     row, col = _default_pixel(s, row, col)
-    if engine == "numba" or (engine == "auto" and fast_ok and pose.batch_size(row, col, target_h) >= 10_000):
-        from geoloc.sensors._fastlocate import locate_fast
-
-        lat, lon, h, ecef, rng, status, o, d = locate_fast(pose, s, row, col, target_h, outside=outside)
-        los_status = np.where(np.isin(status, (Status.INVALID_INPUT, Status.OUTSIDE_SENSOR)), status, Status.OK)
-        los = LineOfSight(o, d, los_status.astype(np.uint8))
-        return GroundPoint(lat, lon, h, ecef, rng, status, los)
-    los = line_of_sight(pose, sensor, row, col, outside=outside, engine="numpy" if engine == "numpy" else "auto")
-    return HeightSurface(target_h, height_kind).intersect(los)
+    return Pipeline(s, surface, corrections).locate(row, col, pose, outside=outside, engine=engine)
 
 
-def ground_to_pixel(pose: Pose, sensor, lat, lon, h) -> PixelHit:
-    """Ground point (geodetic, radians and metres) -> 1-based pixel: the inverse of :func:`locate`.
+def ground_to_pixel(pose: Pose, sensor, lat, lon, h, corrections: Corrections = NO_CORRECTIONS) -> PixelHit:
+    """Ground point (geodetic, radians and metres) -> 1-based pixel: the inverse of :func:`locate`
+    (with the same ``corrections``: :meth:`geoloc.pipeline.Pipeline.ground_to_pixel`).
 
     Returns
     -------
@@ -141,7 +139,7 @@ def ground_to_pixel(pose: Pose, sensor, lat, lon, h) -> PixelHit:
         ``row, col, status`` (it unpacks as that triple); NaN where the point
         is behind the camera, OUTSIDE_SENSOR where it projects off the sensor.
     """
-    return as_sensor(sensor).ground_to_pixel(lat, lon, h, pose)
+    return Pipeline(as_sensor(sensor), None, corrections).ground_to_pixel(lat, lon, h, pose)
 
 
 #: A ground point is hidden from the camera when the camera's ray towards it meets the surface
@@ -162,27 +160,26 @@ class PointView:
     range_m: float  # camera to the point [m]
 
 
-def point_view(sensor, state, lat, lon, h, surface) -> PointView:
+def point_view(pipe: Pipeline, state, lat, lon, h) -> PointView:
     """The pixel that sees one ground point, and whether the surface hides it from the camera.
 
-    The pixel is ``sensor.ground_to_pixel`` (radians, metres ellipsoidal). Where it is in the
+    The pixel is ``pipe.ground_to_pixel`` (radians, metres ellipsoidal). Where it is in the
     frame or off its edge (``OUTSIDE_SENSOR``), the line of sight through that pixel
-    (extrapolated beyond the edge) is cast through ``surface``: the point is hidden when the
+    (extrapolated beyond the edge) is cast through the pipeline: the point is hidden when the
     ray meets the surface more than :data:`HIDDEN_TOLERANCE_M` before it. Used by the
     viewer's terrain pick and by ``geoloc pixel``.
     """
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
-    px = sensor.ground_to_pixel(np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float), state)
+    px = pipe.ground_to_pixel(np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float), state)
     st = int(np.asarray(px.status))
     row, col = float(np.asarray(px.row)), float(np.asarray(px.col))
     nan = float("nan")
     visible, occ, rng = False, nan, nan
     if st in (Status.OK, Status.OUTSIDE_SENSOR):
-        los = sensor.line_of_sight(row, col, state, outside="extrapolate")
+        back = pipe.locate(row, col, state, outside="extrapolate")
         rng = float(np.linalg.norm(geodetic_to_ecef(float(lat), float(lon), float(h))
-                                   - np.asarray(los.origin_ecef)))
-        back = surface.intersect(los)
+                                   - np.asarray(back.los.origin_ecef)))
         if int(np.asarray(back.status)) == Status.OK:
             occ = float(back.slant_range)
             visible = occ > rng - HIDDEN_TOLERANCE_M
@@ -191,9 +188,9 @@ def point_view(sensor, state, lat, lon, h, surface) -> PointView:
     return PointView(row, col, st, visible, occ, rng)
 
 
-def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method: str = "exact",
-               **kwargs) -> TerrainHit:
-    """Geolocate pixels on a DEM: :func:`line_of_sight` then :func:`geoloc.surfaces.terrain.intersect_dem`.
+def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method: str = "exact", *,
+               corrections: Corrections = NO_CORRECTIONS, **kwargs) -> TerrainHit:
+    """Geolocate pixels on a DEM: the pipeline with a :class:`geoloc.surfaces.terrain.DemSurface`.
 
     Parameters
     ----------
@@ -201,15 +198,18 @@ def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method:
         As for :func:`locate`.
     dem : geoloc.surfaces.dem.DEM
     method : {"steps", "bisect", "exact"}
+    corrections : Corrections
     **kwargs
-        ``eps_h``, ``threshold``, ``surface``, ``trace``, ``max_iter``.
+        ``dem_model``, ``eps_h``, ``threshold``, ``trace``, ``max_iter``.
     """
-    from geoloc.surfaces.terrain import intersect_dem
+    from geoloc.surfaces.terrain import DemSurface
 
     if dem is None:
         raise ValueError("dem is required")
-    los = line_of_sight(pose, sensor, row, col)
-    return intersect_dem(los, dem, method, **kwargs)
+    s = as_sensor(sensor)
+    row, col = _default_pixel(s, row, col)
+    dem_model = kwargs.pop("dem_model", "bilinear")
+    return Pipeline(s, DemSurface(dem, method, dem_model, **kwargs), corrections).locate(row, col, pose)
 
 
 __all__ = ["HIDDEN_TOLERANCE_M", "PointView", "as_sensor", "ground_to_pixel", "intersect_los_height",

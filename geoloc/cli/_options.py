@@ -421,8 +421,53 @@ def sensor_from_args(args, *, default: bool = True):
     return load_sensor(path if path else asset_path(*DEFAULT_CAMERA))
 
 
-def _solve(args, los):
-    return surface_from_args(args).intersect(los)
+# --------------------------------------------------------------------------- line-of-sight corrections
+
+
+def add_correction_options(parser) -> None:
+    """``--refraction {none,standard}``, ``--no-light-time``, ``--no-aberration`` (docs/refraction.md).
+
+    As in Orekit Rugged: refraction off unless asked for; light-time and aberration of light
+    on for a spaceborne sensor, each with a flag to turn it off (and ``--light-time`` to turn
+    light-time on for another sensor).
+    """
+    g = parser.add_argument_group("line-of-sight corrections (docs/refraction.md)")
+    g.add_argument("--refraction", choices=["none", "standard"], default=None,
+                   help="atmospheric refraction: none (default, as the papers) or standard (the ray bent "
+                   "through the U.S. Standard Atmosphere 1976)")
+    g.add_argument("--light-time", dest="light_time", action="store_true", default=None,
+                   help="the Earth's rotation while the light travels (default: on for a spaceborne sensor)")
+    g.add_argument("--no-light-time", dest="light_time", action="store_false",
+                   help="turn light-time off for a spaceborne sensor")
+    g.add_argument("--no-aberration", dest="aberration", action="store_false", default=None,
+                   help="turn aberration of light off for a spaceborne sensor (on by default there)")
+
+
+def corrections_from_args(args, sensor, settings: dict | None = None):
+    """The verb's :class:`geoloc.pipeline.Corrections` for ``sensor``: the options of
+    :func:`add_correction_options` over ``settings`` (a sensor or scenario file's
+    ``[corrections]`` table: ``refraction``, ``light_time``, ``aberration``), over the sensor's
+    defaults (:meth:`~geoloc.pipeline.Corrections.for_sensor`)."""
+    from geoloc.pipeline import Corrections
+
+    settings = dict(settings or {})
+    unknown = sorted(set(settings) - {"refraction", "light_time", "aberration"})
+    if unknown:
+        raise ValueError(f"[corrections] {unknown[0]!r}: not a correction; the keys are refraction, "
+                         "light_time, aberration")
+    for key in ("refraction", "light_time", "aberration"):
+        v = getattr(args, key, None)
+        if v is not None:
+            settings[key] = v
+    return Corrections.for_sensor(sensor, settings.get("refraction", "none"), settings.get("light_time"),
+                                  settings.get("aberration"))
+
+
+def pipeline_from_args(args, sensor, surface, settings: dict | None = None):
+    """The verb's one :class:`geoloc.pipeline.Pipeline`: its sensor, its surface and its corrections."""
+    from geoloc.pipeline import Pipeline
+
+    return Pipeline(sensor, surface, corrections_from_args(args, sensor, settings))
 
 
 def warn_datums(verb: str, dem_datum: str, height) -> list:

@@ -42,6 +42,9 @@ def register(sub) -> None:
                    help="raw mode: line-of-sight direction, ECEF (any length)")
     p.add_argument("--max-iter", type=int, default=20, help="Newton-Raphson step limit for eq. 17 (default 20)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    p.add_argument("--refraction", choices=["none", "standard"], default="none",
+                   help="standard: also the refracted tangent point, the ray bent through the U.S. Standard "
+                   "Atmosphere 1976 (refracted_tangent_h_m; default none, as [L18])")
     p.set_defaults(func=run)
 
 
@@ -50,6 +53,20 @@ def _num(x, nd=None):
     if not math.isfinite(x):
         return None
     return round(x, nd) if nd is not None else x
+
+
+def _refracted(args, origin, direction) -> dict:
+    """The refracted tangent point of limb rays (``--refraction standard``), as output columns;
+    {} when refraction is off. ``Refraction.limb``: n(r_t) r_t = n(r_p) c0 (docs/refraction.md)."""
+    if args.refraction == "none":
+        return {}
+    from geoloc.corrections.refraction import STANDARD_REFRACTION
+
+    r = STANDARD_REFRACTION.limb(origin, direction)
+    lat, lon, _ = ecef_to_geodetic(r.refracted_tangent_ecef)
+    return {"refracted_tangent_h_m": r.refracted_tangent_h_m, "refracted_tangent_lat_deg": np.degrees(lat),
+            "refracted_tangent_lon_deg": np.degrees(lon), "refraction_m": r.tangent_h_m - r.refracted_tangent_h_m,
+            "refraction_bending_rad": r.bending_rad}
 
 
 def _raw(args) -> int:
@@ -77,7 +94,10 @@ def _raw(args) -> int:
         "nr_residual": _num(r.nr_residual_history[int(r.nr_iterations)]),
         "tangent_range_m": _num(r.s, 3),
         "exact_tangent_range_m": _num(r.exact_s, 3),
+        "corrections": "refraction" if args.refraction != "none" else "none",
     }
+    for k, v in _refracted(args, o, d).items():
+        out[k] = _num(v, 9 if k.endswith("_deg") else 6)
     if st == Status.HITS_EARTH:
         lat, lon, _ = ecef_to_geodetic(r.earth_hit_ecef)
         out["earth_hit_lat_deg"] = _num(np.degrees(lat), 9)
@@ -91,6 +111,10 @@ def _raw(args) -> int:
         print(f"exact (min geodetic h): lat {out['exact_tangent_lat_deg']:.6f} deg"
               f"  lon {out['exact_tangent_lon_deg']:.6f} deg  h {out['exact_tangent_h_m']:.3f} m")
         print(f"difference (L18 - exact): {out['h_difference_m'] * 1e3:.3f} mm")
+        if out.get("refracted_tangent_h_m") is not None:
+            print(f"refracted (standard atmosphere): h {out['refracted_tangent_h_m']:.3f} m, "
+                  f"{out['refraction_m']:.3f} m below the straight line's; bent "
+                  f"{out['refraction_bending_rad'] * 1e3:.3f} mrad to the tangent point")
     if st != Status.OK:
         print(f"geoloc limb: {describe(st)}", file=sys.stderr)
         return 1
@@ -112,6 +136,8 @@ def _scenario(args) -> int:
         sc = sc.with_frames(min(args.frames, sc.n_frames))
     chain, r = sc.solve(max_iter=args.max_iter)
     nf, npx = r.shape
+    refr = {k: np.broadcast_to(v, (nf, npx)) for k, v in _refracted(args, chain.origin_ecef, chain.direction_ecef).items()}
+    columns = _COLUMNS + [k for k in refr if k != "refraction_bending_rad"]
     t = sc.times()
     alpha = np.degrees(sc.alphas())
     slat, slon, sh = ecef_to_geodetic(chain.origin_ecef[:, 0, :])
@@ -136,8 +162,10 @@ def _scenario(args) -> int:
             "exact_tangent_h_m": r.exact_h.ravel(),
             "h_difference_m": r.h_difference.ravel(),
             "tangent_range_m": r.s.ravel(),
+            **{k: v.ravel() for k, v in refr.items()},
         }
         fmt = {"time_s": "{:.3f}", "alpha_deg": "{:.5f}", "sat_h_m": "{:.3f}", "tangent_h_m": "{:.4f}",
+               "refracted_tangent_h_m": "{:.4f}", "refraction_m": "{:.4f}",
                "delta_a_m": "{:.4f}", "exact_tangent_h_m": "{:.4f}", "h_difference_m": "{:.6f}",
                "tangent_range_m": "{:.3f}"}
 
@@ -150,9 +178,9 @@ def _scenario(args) -> int:
 
         with atomic_path(args.out, "--out") as tmp, open(tmp, "w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(_COLUMNS)
+            w.writerow(columns)
             for i in range(nf * npx):
-                w.writerow([cell(c, cols[c][i]) for c in _COLUMNS])
+                w.writerow([cell(c, cols[c][i]) for c in columns])
     ok = r.status == Status.OK
     counts = {s.name.lower(): int(np.sum(r.status == s)) for s in Status if np.any(r.status == s)}
     summary = {
@@ -165,7 +193,14 @@ def _scenario(args) -> int:
         "max_abs_h_difference_m": _num(np.max(np.abs(r.h_difference[ok])), 6) if ok.any() else None,
         "max_nr_iterations": int(r.nr_iterations.max()),
         "out": args.out,
+        "corrections": "refraction" if refr else "none",
     }
+    if refr:
+        rh = refr["refracted_tangent_h_m"]
+        good = np.isfinite(rh)
+        summary["refracted_tangent_h_m_min"] = _num(np.min(rh[good]), 3) if good.any() else None
+        summary["refracted_tangent_h_m_max"] = _num(np.max(rh[good]), 3) if good.any() else None
+        summary["max_refraction_m"] = _num(np.max(refr["refraction_m"][good]), 3) if good.any() else None
     if args.json:
         print(json.dumps(summary))
     else:

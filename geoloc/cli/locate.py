@@ -8,6 +8,7 @@ Also what the other verbs read from the shared options (declared in
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import sys
@@ -15,10 +16,12 @@ import sys
 import numpy as np
 
 from geoloc.cli._options import (
+    add_correction_options,
     add_dem_options,
     add_gimbal_options,
     add_pose_options,
     add_target_options,
+    pipeline_from_args,
     sensor_from_args,
     surface_from_args,
     warn_datums,
@@ -33,10 +36,9 @@ from geoloc.io.columns import (
     load_column_map,
 )
 from geoloc.io.records import Records, load_records
-from geoloc.locate import line_of_sight
 from geoloc.sensors.sensor_file import load_sensor_columns
 from geoloc.status import Status, describe
-from geoloc.surfaces.height import intersect_los_height
+from geoloc.surfaces.height import HeightSurface
 from geoloc.cli import VERB_HELP
 
 
@@ -59,6 +61,7 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
     p.set_defaults(func=run)
     add_dem_options(p)
+    add_correction_options(p)
 
 
 def parse_angles(items) -> dict:
@@ -193,19 +196,19 @@ def run(args) -> int:
     sensor = camera  # sensor_from_args: a FrameSensor (a camera file's too)
     row = sensor.center_pixel[0] if args.row is None else args.row
     col = sensor.center_pixel[1] if args.col is None else args.col
-    los = line_of_sight(pose, camera, row, col)
     extra = {}
     if args.dem is not None:
         warn_datums("locate", args.dem_datum, HeightSource.of_option(getattr(args, "altitude_datum", None)))
     surface = surface_from_args(args)
-    ground = surface.intersect(los)
+    pipe = pipeline_from_args(args, sensor, surface)
+    ground = pipe.locate(row, col, pose)
     if args.dem is not None:
         extra = {"method": args.method, "dem_evaluations": int(ground.dem_evaluations)}
         if args.method == "bisect":
             extra["hidden"] = bool(ground.hidden)
     else:
-        other = intersect_los_height(los, args.target_h_m,
-                                     "geodetic" if args.height_kind == "inflated" else "inflated")
+        kind = "geodetic" if args.height_kind == "inflated" else "inflated"
+        other = dataclasses.replace(pipe, surface=HeightSurface(args.target_h_m, kind)).locate(row, col, pose)
         if int(other.status) == Status.OK:
             # the paper's inflated ellipsoid vs the exact constant-height surface
             extra["surface_difference_m"] = float(np.linalg.norm(ground.ecef - other.ecef))
@@ -229,6 +232,8 @@ def run(args) -> int:
         "h_datum": ELLIPSOID_DATUM,
         "ac_h_m": float(pose.h) if np.ndim(pose.h) == 0 else float(np.ravel(pose.h)[0]),
         "ac_h_datum_input": alt.describe(),
+        "corrections": pipe.corrections.label,
+        "refraction_m": float(ground.refraction_m),
     }
     out.update(_grid_reference(out["lat_deg"], out["lon_deg"]))
     out.update(extra)
@@ -244,7 +249,18 @@ def run(args) -> int:
             print(f"inflated ellipsoid [Q17 eq. 11] vs exact constant-height surface: "
                   f"{out['surface_difference_m'] * 1000:.1f} mm apart")
         print(_locate_datum_line(alt, args.h_m, out["ac_h_m"]))
+        print(_corrections_line(pipe.corrections, out["refraction_m"]))
     return 0
+
+
+def _corrections_line(corrections, refraction_m: float) -> str:
+    """The text output's line on the line-of-sight corrections (docs/refraction.md)."""
+    if corrections.refraction is None:
+        head = "corrections: none (a straight line of sight, as the papers)" if not corrections else \
+            f"corrections: {corrections.label}"
+        return head + "; --refraction standard bends it through the standard atmosphere"
+    return (f"corrections: {corrections.label}; refraction moved the point {refraction_m:.2f} m "
+            "(U.S. Standard Atmosphere 1976)")
 
 
 def _drone_height_warning(camera, pose, target_h: float, surface, alt) -> list:

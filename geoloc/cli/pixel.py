@@ -17,9 +17,11 @@ import math
 import numpy as np
 
 from geoloc.cli._options import (
+    add_correction_options,
     add_dem_options,
     add_gimbal_options,
     add_pose_options,
+    pipeline_from_args,
     sensor_from_args,
     surface_from_args,
 )
@@ -50,6 +52,7 @@ def register(sub) -> None:
                    help="height [m above the WGS 84 ellipsoid]; default with --dem: the DEM's height there")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
     add_dem_options(p)
+    add_correction_options(p)
     p.set_defaults(func=run)
 
 
@@ -94,12 +97,13 @@ def run(args) -> int:
         h_from = "the DEM"
     else:
         raise ValueError("the ground point's height: give --point-h-m H (ellipsoidal) or --dem FILE")
+    pipe = pipeline_from_args(args, sensor, surface)
     if surface is not None:
-        v = point_view(sensor, pose, lat, lon, h, surface)
+        v = point_view(pipe, pose, lat, lon, h)
         st, row, col, occluder = v.pixel_status, v.row, v.col, v.occluder_range_m
         visible = v.visible if st == Status.OK else None
     else:
-        px = sensor.ground_to_pixel(np.asarray(lat), np.asarray(lon), np.asarray(h), pose)
+        px = pipe.ground_to_pixel(np.asarray(lat), np.asarray(lon), np.asarray(h), pose)
         st, row, col = int(np.asarray(px.status)), float(np.asarray(px.row)), float(np.asarray(px.col))
         visible, occluder = None, float("nan")
     if st == Status.BEHIND_CAMERA:
@@ -114,7 +118,7 @@ def run(args) -> int:
         verdict = "in the frame" + ("" if visible else " (no DEM: not checked for terrain in the way)")
     out = {"row": row, "col": col, "status": Status(st).name.lower(), "verdict": verdict,
            "lat_deg": lat_deg, "lon_deg": lon_deg, "h_m": h, "h_datum": ELLIPSOID_DATUM, "h_from": h_from,
-           "given": given, "visible": visible}
+           "given": given, "visible": visible, "corrections": pipe.corrections.label}
     if visible is not None and math.isfinite(occluder):
         out["occluder_range_m"] = occluder
     if args.json:

@@ -6,9 +6,9 @@ is first met with the surface (the *raw hit*); :meth:`Refraction.correct` then r
 another straight line, the tangent of the bent ray where the bent ray reaches the raw
 hit's height, and the caller meets that line with the same surface. Near the raw hit
 the two agree to the ray's curvature (the tangent line is 3 cm off the bent ray 500 m of
-terrain relief away at 70 degrees, 10 cm along the ground); :meth:`Refraction.locate`
-repeats the step at the new hit's height until the height settles (the fixed point),
-and :meth:`Refraction.aim` inverts it (ground point -> the direction leaving the camera).
+terrain relief away at 70 degrees, 10 cm along the ground); the location pipeline
+(:class:`geoloc.pipeline.Pipeline`) repeats the step at the new hit's height until the
+height settles (the fixed point), and :meth:`Refraction.aim` inverts it (ground point -> the direction leaving the camera).
 
 The model
 ---------
@@ -587,49 +587,6 @@ class Refraction:
                              hit_out.reshape(shape + (3,)), out_llh[:, 0].reshape(shape),
                              out_llh[:, 1].reshape(shape), out_llh[:, 2].reshape(shape), shift.reshape(shape),
                              status.reshape(shape))
-
-    def locate(self, origin, direction, intersect, max_iter: int = 5, tol_m: float = 0.01):
-        """Meet the bent ray with a surface: the raw hit, then :meth:`correct` to a fixed point.
-
-        Parameters
-        ----------
-        origin, direction : array_like (..., 3)
-            Camera position and the direction leaving it, ECEF.
-        intersect : callable
-            ``intersect(origin, direction) -> (hit_ecef (..., 3), status (...))``: the surface
-            (a constant height, a DEM), NaN where there is no hit.
-        max_iter : int
-            At most this many corrections.
-        tol_m : float
-            Stop when a correction moves the hit by less than this [m].
-
-        Returns
-        -------
-        (hit_ecef, straight_hit_ecef, status) : the bent ray's hit, the raw one, and the status
-        (NO_CONVERGENCE where ``max_iter`` corrections did not settle).
-        """
-        o = np.asarray(origin, float)
-        d = np.asarray(direction, float)
-        raw, st = intersect(o, d)
-        raw = np.asarray(raw, float)
-        st = np.asarray(st).astype(np.uint8)
-        h = ecef_to_geodetic(raw)[2]
-        hit = raw
-        moving = np.ones(st.shape, bool)
-        for _ in range(max_iter):
-            line = self.correct(o, d, raw, at_h=h)
-            new, st2 = intersect(line.origin_ecef, line.direction_ecef)
-            new = np.asarray(new, float)
-            step = np.linalg.norm(new - hit, axis=-1)
-            ok = (st == Status.OK) & (line.status == Status.OK) & (np.asarray(st2) == Status.OK)
-            hit = np.where(ok[..., None], new, np.nan)
-            st = np.where(st != Status.OK, st, np.where(line.status != Status.OK, line.status, st2)).astype(np.uint8)
-            moving = ok & ~(step < tol_m)
-            if not np.any(moving):
-                break
-            h = ecef_to_geodetic(hit)[2]
-        st = np.where(moving, np.uint8(Status.NO_CONVERGENCE), st).astype(np.uint8)
-        return np.where((st == Status.OK)[..., None], hit, np.nan), raw, st
 
     def aim(self, origin, ground, max_iter: int = 8, tol_m: float = 1e-4):
         """The direction leaving the camera whose bent ray reaches ``ground``: the inverse of :meth:`correct`.

@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline, CubicSpline
@@ -361,6 +362,9 @@ class LookAngles:
 class PushbroomSensor:
     """Rigorous line-scanner model [L12 eq. 1-2] (see the module docstring).
 
+    A spaceborne sensor (:attr:`spaceborne`): light-time and aberration of light are on by
+    default in its location pipeline (:class:`geoloc.pipeline.Corrections`).
+
     Attributes
     ----------
     orbit : Orbit
@@ -391,6 +395,9 @@ class PushbroomSensor:
     R_cam_body: np.ndarray = field(default_factory=lambda: rot.rx(np.pi))
     lever_arm_body: np.ndarray = field(default_factory=lambda: np.zeros(3))
     name: str = ""
+
+    #: Light-time and aberration of light are on by default (geoloc.pipeline.Corrections.for_sensor).
+    spaceborne: ClassVar[bool] = True
 
     def __post_init__(self):
         if not (isinstance(self.rows, int) and self.rows > 0):
@@ -485,14 +492,16 @@ class PushbroomSensor:
         """
         check_outside(outside)
         row, col = np.broadcast_arrays(np.asarray(row, float), np.asarray(col, float))
-        centre, R = self.exterior(self.line_time(row))
+        t = self.line_time(row)
+        centre, R = self.exterior(t)
         d = rot.rotate(R, self.look.direction(col))
         d = d / np.linalg.norm(d, axis=-1, keepdims=True)
         bad = ~(np.all(np.isfinite(d), axis=-1) & np.all(np.isfinite(centre), axis=-1))
         status = np.where(bad, Status.INVALID_INPUT, Status.OK).astype(np.uint8)
         if outside == "flag":
             status = flag_outside(status, row, col, self.rows, self.cols)
-        return LineOfSight(centre, d, status)
+        # the orbit's velocity (the antenna's; the lever arm's rotation adds < 1 mm/s), for aberration
+        return LineOfSight(centre, d, status, velocity_ecef=self.orbit.state(t)[1])
 
     def locate(self, row, col, target_h=0.0, height_kind: str = "geodetic") -> GroundPoint:
         """Pixel -> ground point at ellipsoidal height ``target_h`` (exact geodetic surface by default)."""

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import ClassVar
 
 import numpy as np
 
@@ -284,6 +285,11 @@ class RPCSensor:
     tol_px: float = 1e-9
     max_iter: int = 30
     name: str = ""
+
+    #: An RPC is fitted to its maker's rigorous model, which already bent and moved the lines
+    #: of sight (refraction, light-time, aberration): no correction is applied on top of it
+    #: (:class:`geoloc.pipeline.Corrections` refuses one by name).
+    includes_corrections: ClassVar[bool] = True
 
     def __post_init__(self):
         if not isinstance(self.model, RPCModel):

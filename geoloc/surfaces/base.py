@@ -11,7 +11,7 @@ into a :class:`GroundPoint` batch. A :class:`DemSource` is a DEM raster
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -29,11 +29,16 @@ class LineOfSight:
         Unit direction d_E.
     status : ndarray (...) of uint8
         INVALID_INPUT where the pose or pixel is not finite / out of range.
+    velocity_ecef : ndarray (..., 3) or None
+        The optical centre's Earth-fixed velocity [m/s] where the sensor knows it (a
+        pushbroom's orbit, the limb chain's): what aberration of light needs
+        (:class:`geoloc.pipeline.Corrections`). None for a frame sensor's pose.
     """
 
     origin_ecef: np.ndarray
     direction_ecef: np.ndarray
     status: np.ndarray
+    velocity_ecef: np.ndarray | None = None
 
 
 class LatLonDeg:
@@ -65,7 +70,14 @@ class GroundPoint(LatLonDeg):
     status : ndarray of uint8
         :class:`geoloc.status.Status` per ray.
     los : LineOfSight
-        The line of sight used.
+        The line of sight used (the sensor's, as it gave it, when the point came through
+        :class:`geoloc.pipeline.Pipeline`).
+    corrections : tuple of str
+        The line-of-sight corrections applied (``geoloc.pipeline.CORRECTIONS``: ``"aberration"``,
+        ``"light_time"``, ``"refraction"``); empty for a surface met directly.
+    refraction_m : ndarray or None
+        How far atmospheric refraction moved each point [m] (0 where it is off, NaN where
+        there is no point); None for a surface met directly.
     """
 
     lat: np.ndarray
@@ -75,6 +87,8 @@ class GroundPoint(LatLonDeg):
     slant_range: np.ndarray
     status: np.ndarray
     los: LineOfSight
+    corrections: tuple = field(default=(), kw_only=True)
+    refraction_m: np.ndarray | None = field(default=None, kw_only=True)
 
 
 @runtime_checkable

@@ -212,6 +212,10 @@ class HeightSurface:
         ``"geodetic"``: the exact surface of geodetic height h.
     """
 
+    #: A point at the raw hit's height lies on it (the pipeline's refraction and light-time need
+    #: no second intersection: :class:`geoloc.pipeline.Pipeline`).
+    constant_height = True
+
     def __init__(self, h, kind: str = "inflated"):
         if kind not in HEIGHT_KINDS:
             raise ValueError(f"height surface kind = {kind!r}: must be one of {HEIGHT_KINDS}")

@@ -34,6 +34,7 @@ import numpy as np
 
 from geoloc.io.mgrs_grid import mgrs_text
 from geoloc.locate import point_view
+from geoloc.pipeline import Pipeline
 from geoloc.status import Status, describe
 from geoloc.surfaces.base import LineOfSight, terrain_of
 
@@ -199,7 +200,7 @@ def ground_pick(scn, inputs, sensor, origin_ecef, direction_ecef) -> GroundPick:
     nan = float("nan")
     if int(hit.status) != Status.OK:
         return GroundPick(hit, nan, nan, int(Status.INVALID_INPUT), False, False, nan, nan)
-    v = point_view(sensor, inputs.pose(), hit.lat, hit.lon, hit.h, surface)
+    v = point_view(Pipeline(sensor, surface), inputs.pose(), hit.lat, hit.lon, hit.h)
     return GroundPick(hit, v.row, v.col, v.pixel_status, v.pixel_status == Status.OK, v.visible,
                       v.occluder_range_m, v.range_m)
 

@@ -1,0 +1,352 @@
+"""The one location pipeline: sensor -> line-of-sight corrections -> surface, and back.
+
+Every computation of geoloc that turns a pixel into a ground point, or a ground point into
+a pixel, goes through a :class:`Pipeline` (``docs/architecture.md``, "The location
+pipeline")::
+
+    pipe = Pipeline(sensor, surface, Corrections.for_sensor(sensor, refraction="standard"))
+    hit = pipe.locate(row, col, state)              # GroundPoint, with .corrections, .refraction_m
+    hit = pipe.intersect(sensor_los)                # the same, from the sensor's lines of sight
+    px = pipe.ground_to_pixel(lat, lon, h, state)   # PixelHit: the inverse, the same corrections
+
+The order is Orekit Rugged's ``directLocation``: the sensor's line of sight (the direction
+as the moving sensor sees it, in the air at the platform), then aberration of light (the
+direction the light really came from, :func:`geoloc.corrections.lighttime.aberration`), then
+light-time (the Earth turned while the light travelled,
+:func:`geoloc.corrections.lighttime.light_time_line`), then the surface (the raw hit), then
+atmospheric refraction near the raw hit to a fixed point
+(:meth:`geoloc.corrections.refraction.Refraction.correct`). The inverse runs the same
+corrections backwards: :func:`~geoloc.corrections.lighttime.light_time_source`,
+:meth:`~geoloc.corrections.refraction.Refraction.aim`,
+:func:`~geoloc.corrections.lighttime.apparent_direction`, then the sensor's own
+``ground_to_pixel`` of a point along the apparent direction.
+
+The compiled engines are executors of the same pipeline, chosen by batch size
+(``engine="auto"``): the sensor's compiled line of sight (``FrameSensor.line_of_sight``),
+the fused chain-and-ellipsoid kernel (:mod:`geoloc.sensors._fastlocate`) for the raw hit on
+the inflated height surface, the DEM walk's kernel inside ``DemSurface``. Corrections run
+after them, the same for every executor; ``tests/test_pipeline_contract.py`` holds them
+equal ray for ray.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from geoloc.corrections.lighttime import (
+    aberration,
+    apparent_direction,
+    inertial_velocity,
+    light_time_angle,
+    light_time_source,
+)
+from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
+from geoloc.sensors.base import PixelHit, check_outside
+from geoloc.status import Status
+from geoloc.surfaces.base import GroundPoint, LineOfSight
+
+if TYPE_CHECKING:  # the refraction kernels import numba: loaded when refraction is asked for
+    from geoloc.corrections.refraction import Refraction
+
+#: The corrections, in the order the pipeline applies them.
+CORRECTIONS = ("aberration", "light_time", "refraction")
+#: ``--refraction`` choices: off (as the papers, and Rugged by default) or the U.S. Standard
+#: Atmosphere 1976 (:data:`geoloc.corrections.refraction.STANDARD_REFRACTION`).
+REFRACTION_MODELS = ("none", "standard")
+#: A ray whose refraction fixed point moves its hit by less than this is settled [m]: a tenth
+#: of the DEM solvers' own millimetre agreement is below every figure geoloc reports.
+REFRACTION_TOL_M = 1e-3
+#: At most this many refraction steps on a surface that is not of constant height (a DEM):
+#: each step gains the ratio of the terrain slope's effect to the shift (docs/refraction.md).
+REFRACTION_MAX_ITER = 6
+#: Batches of at least this many rays take the compiled executors (``engine="auto"``).
+COMPILED_MIN_RAYS = 10_000
+
+
+def _rot_z(angle, x):
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * x[..., 0] - s * x[..., 1], s * x[..., 0] + c * x[..., 1], x[..., 2]], axis=-1)
+
+
+@dataclass(frozen=True)
+class Corrections:
+    """Which line-of-sight corrections a pipeline applies.
+
+    Attributes
+    ----------
+    refraction : Refraction or None
+        Atmospheric refraction (:data:`geoloc.corrections.refraction.STANDARD_REFRACTION`:
+        the U.S. Standard Atmosphere 1976), or None: off.
+    light_time : bool
+        The Earth's rotation during the light's travel (needs only the range).
+    aberration : bool
+        Aberration of light by the platform's velocity (needs ``LineOfSight.velocity_ecef``).
+    """
+
+    refraction: Refraction | None = None
+    light_time: bool = False
+    aberration: bool = False
+
+    @classmethod
+    def for_sensor(cls, sensor, refraction: str | Refraction | None = "none", light_time: bool | None = None,
+                   aberration: bool | None = None) -> Corrections:
+        """Rugged's defaults for ``sensor``: refraction off unless asked for; light-time and
+        aberration on for a spaceborne sensor (``sensor.spaceborne``), off otherwise; an RPC
+        (``sensor.includes_corrections``) takes none.
+
+        Parameters
+        ----------
+        refraction : {"none", "standard"} or Refraction or None
+        light_time, aberration : bool, optional
+            None: the sensor's default.
+
+        Raises
+        ------
+        ValueError
+            An unknown refraction model, a correction asked of an RPC, or aberration asked of
+            a sensor whose lines of sight carry no velocity, each named.
+        """
+        from geoloc.corrections.refraction import STANDARD_REFRACTION, Refraction
+
+        if isinstance(refraction, str):
+            if refraction not in REFRACTION_MODELS:
+                raise ValueError(f"refraction = {refraction!r}: must be one of {list(REFRACTION_MODELS)}")
+            refraction = STANDARD_REFRACTION if refraction == "standard" else None
+        elif refraction is not None and not isinstance(refraction, Refraction):
+            raise ValueError(f"refraction = {refraction!r}: must be 'none', 'standard' or a Refraction")
+        space = bool(getattr(sensor, "spaceborne", False))
+        lt = space if light_time is None else bool(light_time)
+        ab = space if aberration is None else bool(aberration)
+        name = type(sensor).__name__
+        if getattr(sensor, "includes_corrections", False):
+            asked = [n for n, on in (("refraction", refraction is not None), ("light_time", lt),
+                                     ("aberration", ab)) if on]
+            if asked:
+                raise ValueError(f"{name}: an RPC is fitted to its maker's rigorous model, which already "
+                                 f"corrects the lines of sight; {asked[0]} cannot be applied on top of it "
+                                 "(use --refraction none)")
+        elif ab and not space:
+            raise ValueError(f"aberration = True: a {name}'s lines of sight carry no platform velocity "
+                             "(aberration of light is for spaceborne sensors; at aircraft speeds it is "
+                             "below 1 microradian)")
+        return cls(refraction, lt, ab)
+
+    @property
+    def names(self) -> tuple:
+        """The corrections on, in the pipeline's order (a subset of :data:`CORRECTIONS`)."""
+        on = {"aberration": self.aberration, "light_time": self.light_time,
+              "refraction": self.refraction is not None}
+        return tuple(n for n in CORRECTIONS if on[n])
+
+    @property
+    def label(self) -> str:
+        """``"aberration+light_time"``, ``"refraction"``, ... or ``"none"``: an output row's ``corrections``."""
+        return "+".join(self.names) or "none"
+
+    def __bool__(self) -> bool:
+        return bool(self.names)
+
+
+NO_CORRECTIONS = Corrections()
+
+
+def _constant_height(surface) -> bool:
+    """True for a surface of constant height (a point at the raw hit's height is on it)."""
+    return bool(getattr(surface, "constant_height", False))
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    """A sensor, its line-of-sight corrections and a surface: pixels to ground and back.
+
+    Parameters
+    ----------
+    sensor : Sensor
+        Any :class:`geoloc.sensors.base.Sensor` (frame, pushbroom, RPC).
+    surface : Surface
+        What the lines of sight meet (:class:`geoloc.surfaces.base.Surface`).
+    corrections : Corrections
+        Off by default (:meth:`Corrections.for_sensor` gives Rugged's defaults).
+    """
+
+    sensor: object
+    surface: object
+    corrections: Corrections = NO_CORRECTIONS
+
+    # ------------------------------------------------------------ pixel -> ground
+    def locate(self, row, col, state=None, *, outside: str = "flag", engine: str = "auto") -> GroundPoint:
+        """1-based pixels -> ground points, batched (NaN and a Status per ray).
+
+        Parameters
+        ----------
+        row, col : array_like
+        state : optional
+            The sensor's state (a frame sensor's ``Pose``).
+        outside : {"flag", "extrapolate"}
+        engine : {"auto", "numpy", "numba"}
+            The executor: ``"numpy"`` the reference; ``"numba"`` the compiled line of sight
+            (and, on the inflated height surface, the fused kernel for the raw hit);
+            ``"auto"`` the compiled ones for batches of :data:`COMPILED_MIN_RAYS` or more.
+        """
+        if engine not in ("auto", "numpy", "numba"):
+            raise ValueError(f"engine must be 'auto', 'numpy' or 'numba', got {engine!r}")
+        check_outside(outside)
+        fused = self._fused(row, col, state, engine)
+        if fused is not None:
+            lat, lon, h, ecef, rng, status, o, d = fused(outside)
+            los_status = np.where(np.isin(status, (Status.INVALID_INPUT, Status.OUTSIDE_SENSOR)), status,
+                                  Status.OK).astype(np.uint8)
+            los = LineOfSight(o, d, los_status)
+            raw = GroundPoint(lat, lon, h, ecef, rng, status, los)
+            return self._refract(los, los, raw)
+        # a frame sensor has a compiled line of sight; the others have one executor
+        kw = {"engine": engine} if hasattr(self.sensor, "compiled") else {}
+        los = self.sensor.line_of_sight(row, col, state, outside=outside, **kw)
+        return self.intersect(los)
+
+    def _fused(self, row, col, state, engine):
+        """The fused chain-and-ellipsoid kernel, when it serves this pipeline and batch, else None."""
+        from geoloc.sensors import _fastlocate
+        from geoloc.surfaces.height import HeightSurface
+
+        surf = self.surface
+        if engine == "numpy" or type(surf) is not HeightSurface or surf.kind != "inflated":
+            return None
+        if self.corrections.aberration or self.corrections.light_time or not _fastlocate.serves(self.sensor):
+            return None
+        if engine == "auto" and state.batch_size(row, col, surf.h) < COMPILED_MIN_RAYS:
+            return None
+        return lambda outside: _fastlocate.locate_fast(state, self.sensor, row, col, surf.h, outside=outside)
+
+    def intersect(self, los: LineOfSight) -> GroundPoint:
+        """The sensor's lines of sight -> ground points, through every correction of the pipeline.
+
+        ``los`` is what the sensor gives (the apparent direction in the air at the platform);
+        the returned :class:`GroundPoint` keeps it as ``los`` and says which corrections
+        were applied (``corrections``) and how far refraction moved each point
+        (``refraction_m``).
+        """
+        c = self.corrections
+        line = los
+        if c.aberration:
+            if los.velocity_ecef is None:
+                raise ValueError("aberration: the lines of sight carry no velocity (LineOfSight.velocity_ecef)")
+            v = inertial_velocity(los.origin_ecef, los.velocity_ecef)
+            d = aberration(los.direction_ecef, v)
+            line = LineOfSight(los.origin_ecef, d, los.status, los.velocity_ecef)
+        raw = self.surface.intersect(line)
+        if c.light_time:
+            angle = light_time_angle(line.origin_ecef, raw.ecef)
+            angle = np.where(np.isfinite(angle), angle, 0.0)
+            line = LineOfSight(_rot_z(angle, np.asarray(line.origin_ecef, float)),
+                               _rot_z(angle, np.asarray(line.direction_ecef, float)), line.status, los.velocity_ecef)
+            if _constant_height(self.surface):  # a surface of revolution: the hit turns with the line
+                ecef = _rot_z(angle, np.asarray(raw.ecef, float))
+                raw = dataclasses.replace(raw, ecef=ecef, lon=np.angle(np.exp(1j * (raw.lon + angle))))
+            else:
+                raw = self.surface.intersect(line)
+        return self._refract(los, line, raw)
+
+    def _refract(self, los: LineOfSight, line: LineOfSight, raw: GroundPoint) -> GroundPoint:
+        """Refraction near the raw hit (to a fixed point on a DEM), then the result's bookkeeping."""
+        c = self.corrections
+        ok_raw = np.asarray(raw.status) == Status.OK
+        if c.refraction is None:
+            shift = np.where(ok_raw, 0.0, np.nan)
+            return dataclasses.replace(raw, los=los, corrections=c.names, refraction_m=shift)
+        o = np.asarray(line.origin_ecef, float)
+        d = np.asarray(line.direction_ecef, float)
+        raw_ecef = np.asarray(raw.ecef, float)
+        bent = c.refraction.correct(o, d, raw_ecef, hit_llh=(raw.lat, raw.lon, raw.h))
+        if _constant_height(self.surface):
+            status = np.where(ok_raw, bent.status, raw.status).astype(np.uint8)
+            ok = status == Status.OK
+            ecef = np.where(ok[..., None], bent.hit_ecef, np.nan)
+            hit = dataclasses.replace(raw, ecef=ecef, lat=np.where(ok, bent.lat, np.nan),
+                                      lon=np.where(ok, bent.lon, np.nan), h=np.where(ok, bent.h, np.nan),
+                                      status=status)
+        else:
+            hit = self._refract_fixed_point(o, d, raw, bent)
+            status = np.asarray(hit.status)
+            ok = status == Status.OK
+        shift = np.where(ok, np.linalg.norm(np.asarray(hit.ecef) - raw_ecef, axis=-1), np.nan)
+        rng = np.where(ok, np.linalg.norm(np.asarray(hit.ecef) - np.asarray(los.origin_ecef, float), axis=-1), np.nan)
+        return dataclasses.replace(hit, slant_range=rng, los=los, corrections=c.names, refraction_m=shift)
+
+    def _refract_fixed_point(self, o, d, raw: GroundPoint, bent) -> GroundPoint:
+        """Meet the bent ray's tangent line with the surface, at the new hit's height, until it settles."""
+        refraction = self.corrections.refraction
+        ok_raw = np.asarray(raw.status) == Status.OK
+        hit = raw
+        moving = ok_raw
+        for _ in range(REFRACTION_MAX_ITER):
+            st = np.where(ok_raw, bent.status, raw.status).astype(np.uint8)
+            new = self.surface.intersect(LineOfSight(bent.origin_ecef, bent.direction_ecef, st))
+            step = np.linalg.norm(np.asarray(new.ecef) - np.asarray(hit.ecef), axis=-1)
+            hit = new
+            moving = (np.asarray(new.status) == Status.OK) & ~(step < REFRACTION_TOL_M)
+            if not np.any(moving):
+                break
+            bent = refraction.correct(o, d, np.asarray(raw.ecef), at_h=np.where(np.isfinite(new.h), new.h, raw.h))
+        status = np.where(moving, np.uint8(Status.NO_CONVERGENCE), np.asarray(hit.status)).astype(np.uint8)
+        status = np.where(ok_raw, status, np.asarray(raw.status)).astype(np.uint8)
+        ok = status == Status.OK
+        ecef = np.where(ok[..., None], hit.ecef, np.nan)
+        return dataclasses.replace(hit, ecef=ecef, lat=np.where(ok, hit.lat, np.nan),
+                                   lon=np.where(ok, hit.lon, np.nan), h=np.where(ok, hit.h, np.nan), status=status)
+
+    # ------------------------------------------------------------ ground -> pixel
+    def ground_to_pixel(self, lat, lon, h, state=None, *, max_iter: int = 4, tol_px: float = 1e-7) -> PixelHit:
+        """Geodetic points (radians, metres ellipsoidal) -> 1-based pixels: the inverse of :meth:`locate`.
+
+        With no correction it is the sensor's ``ground_to_pixel``. With corrections, each
+        point is turned into the point the sensor would see it at without them: light-time
+        (:func:`~geoloc.corrections.lighttime.light_time_source`), refraction
+        (:meth:`~geoloc.corrections.refraction.Refraction.aim`) and aberration
+        (:func:`~geoloc.corrections.lighttime.apparent_direction`) give the apparent
+        direction from the optical centre, and the sensor projects a point along it. A
+        sensor whose optical centre moves with the row (a pushbroom) repeats this from the
+        new pixel's centre until the pixel moves by less than ``tol_px`` (``max_iter``
+        times at most; the corrections change the row by a few lines at most).
+        """
+        c = self.corrections
+        px = self.sensor.ground_to_pixel(lat, lon, h, state)
+        if not c:
+            return px
+        ground = geodetic_to_ecef(lat, lon, h)
+        for _ in range(max_iter):
+            row = np.asarray(px.row, float)
+            col = np.asarray(px.col, float)
+            los = self.sensor.line_of_sight(np.where(np.isfinite(row), row, 0.0),
+                                            np.where(np.isfinite(col), col, 0.0), state, outside="extrapolate")
+            o = np.asarray(los.origin_ecef, float)
+            target = light_time_source(o, ground) if c.light_time else ground
+            if c.refraction is not None:
+                d, rst = c.refraction.aim(o, target)
+            else:
+                d = target - o
+                rst = np.zeros(np.shape(d)[:-1], np.uint8)
+            if c.aberration:
+                d = apparent_direction(d, inertial_velocity(o, los.velocity_ecef))
+            d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+            virtual = o + np.linalg.norm(target - o, axis=-1, keepdims=True) * d
+            vlat, vlon, vh = ecef_to_geodetic(virtual)
+            new = self.sensor.ground_to_pixel(vlat, vlon, vh, state)
+            bad = (np.asarray(rst) != Status.OK) & np.isfinite(np.asarray(new.row, float))
+            status = np.where(bad, np.uint8(Status.NO_CONVERGENCE), np.asarray(new.status)).astype(np.uint8)
+            new = PixelHit(np.where(bad, np.nan, new.row), np.where(bad, np.nan, new.col), status)
+            with np.errstate(invalid="ignore"):
+                moved = np.nanmax(np.abs(np.concatenate([np.ravel(np.asarray(new.row, float) - row),
+                                                         np.ravel(np.asarray(new.col, float) - col)])),
+                                  initial=0.0)
+            px = new
+            if moved < tol_px:
+                break
+        return px
+
+
+__all__ = ["COMPILED_MIN_RAYS", "CORRECTIONS", "Corrections", "NO_CORRECTIONS", "Pipeline", "REFRACTION_MODELS"]

@@ -1,0 +1,167 @@
+"""The location pipeline's corrections at the command line and in the API, against outside numbers.
+
+Oracles: the independent ray trace of tests/raytrace.py (the ray equation integrated with
+scipy, n of the geodetic height); pymap3d's ``lookAtSpheroid`` for the straight line; the
+geometry of a nadir view (a shift toward nadir shortens the ground distance from the
+aircraft's nadir point). The contract (every sensor x surface x correction x executor) is
+tests/test_contract.py.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+from pymap3d.los import lookAtSpheroid
+import pytest
+from raytrace import exact_n, trace  # tests/raytrace.py
+
+from geoloc import Camera, Pose
+from geoloc.cli import main
+from geoloc.corrections.refraction import STANDARD_REFRACTION
+from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+from geoloc.locate import ground_to_pixel, locate
+from geoloc.pipeline import Corrections, Pipeline
+from geoloc.sensors.camera import as_sensor
+from geoloc.status import Status
+from geoloc.surfaces.height import HeightSurface
+
+LAT, LON, H = 35.48, 80.97, 18000.0
+POSE_ARGS = ["--lat-deg", str(LAT), "--lon-deg", str(LON), "--h-m", str(H), "--heading-deg", "0",
+             "--pitch-deg", "0", "--roll-deg", "0", "--gimbal-roll-deg", "0"]
+
+
+def _locate_json(capsys, *extra):
+    assert main(["locate", *POSE_ARGS, "--target-h-m", "0", "--json", *extra]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_locate_refraction_from_18_km_grows_and_points_to_nadir(capsys):
+    """`geoloc locate --refraction standard` from 18 km at 30-70 deg off nadir (the [Q17] camera
+    looking along the gimbal pitch, north): the shift grows with the angle, the point moves
+    toward nadir, and it lands where the independent ray trace does."""
+    shifts = []
+    for angle in (30, 45, 60, 70):
+        # the principal point (the camera file's), so that the line of sight is the boresight
+        pp = ["--gimbal-pitch-deg", str(angle), "--row", "1162.12", "--col", "1146.42"]
+        straight = _locate_json(capsys, *pp)
+        bent = _locate_json(capsys, *pp, "--refraction", "standard")
+        assert straight["corrections"] == "none" and straight["refraction_m"] == 0.0
+        assert bent["corrections"] == "refraction"
+        p0 = geodetic_to_ecef(math.radians(straight["lat_deg"]), math.radians(straight["lon_deg"]), 0.0)
+        p1 = geodetic_to_ecef(math.radians(bent["lat_deg"]), math.radians(bent["lon_deg"]), 0.0)
+        # refraction_m is the distance the point moved, measured here from the two outputs (1 mm:
+        # the JSON's lat/lon carry 1e-15 deg, far below)
+        assert np.linalg.norm(p1 - p0) == pytest.approx(bent["refraction_m"], abs=1e-3)
+        # toward nadir: the bent point is nearer the aircraft's nadir point (both on h = 0)
+        nadir = geodetic_to_ecef(math.radians(LAT), math.radians(LON), 0.0)
+        assert np.linalg.norm(p1 - nadir) < np.linalg.norm(p0 - nadir)
+        # the independent trace: the camera's direction is the straight line's (pymap3d's
+        # lookAtSpheroid gives the same straight hit, to 1 mm: an outside check of the raw line)
+        tilt = angle  # gimbal pitch tilts the boresight from nadir toward north
+        lat_s, lon_s, _ = lookAtSpheroid(LAT, LON, H, 0.0, tilt)
+        assert np.linalg.norm(geodetic_to_ecef(math.radians(lat_s), math.radians(lon_s), 0.0) - p0) < 1e-3
+        o = geodetic_to_ecef(math.radians(LAT), math.radians(LON), H)
+        ref = trace(o, p0 - o, 0.0, exact_n)
+        # docs/refraction.md: the model is within 6.2 mm of the trace up to 80 deg; 1 cm here
+        assert np.linalg.norm(ref - p1) < 0.01, angle
+        shifts.append(bent["refraction_m"])
+    assert all(a < b for a, b in zip(shifts, shifts[1:])), shifts
+    # docs/refraction.md's published figures (rounded to the centimetre there)
+    np.testing.assert_allclose(shifts, [1.29, 3.38, 11.83, 41.22], atol=0.01)
+
+
+def test_locate_text_says_which_corrections(capsys):
+    assert main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0"]) == 0
+    assert "corrections: none" in capsys.readouterr().out
+    assert main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0",
+                 "--refraction", "standard"]) == 0
+    assert "refraction moved the point 11.83 m" in capsys.readouterr().out
+
+
+def test_aberration_on_a_frame_sensor_is_refused_by_name(capsys):
+    assert main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0", "--light-time"]) == 0
+    out = json.loads(main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0",
+                           "--light-time", "--json"]) == 0 and capsys.readouterr().out.splitlines()[-1])
+    assert out["corrections"] == "light_time"
+    cam = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
+    with pytest.raises(ValueError, match="no platform velocity"):
+        Corrections.for_sensor(cam, aberration=True)
+    with pytest.raises(ValueError, match="refraction = 'strong'"):
+        Corrections.for_sensor(cam, refraction="strong")
+
+
+def test_pixel_inverts_locate_with_refraction(capsys):
+    """`geoloc pixel --refraction standard` of `geoloc locate --refraction standard`'s point
+    gives back the pixel; without the correction it is off by the shift's worth of pixels."""
+    bent = _locate_json(capsys, "--gimbal-pitch-deg", "60", "--row", "400", "--col", "1800",
+                        "--refraction", "standard")
+    args = ["pixel", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--point-lat-deg", repr(bent["lat_deg"]),
+            "--point-lon-deg", repr(bent["lon_deg"]), "--point-h-m", "0", "--json"]
+    assert main([*args, "--refraction", "standard"]) == 0
+    back = json.loads(capsys.readouterr().out)
+    # Refraction.aim stops within 1e-4 m; a pixel is 0.2 m here (36 km / 166 841 px): 1e-3 px
+    assert back["row"] == pytest.approx(400.0, abs=1e-3) and back["col"] == pytest.approx(1800.0, abs=1e-3)
+    main(args)
+    plain = json.loads(capsys.readouterr().out)
+    assert abs(plain["row"] - 400.0) > 10.0  # 11.8 m at about 0.2 m a pixel along the line
+
+
+def test_api_locate_and_ground_to_pixel_take_corrections():
+    cam = Camera(166841.0, 1162.12, 1146.42, 2323, 2292)
+    pose = Pose.from_deg(LAT, LON, H, 0, 0, 0, 0, 70)
+    c = Corrections.for_sensor(as_sensor(cam), "standard")
+    g = locate(pose, cam, 1000.0, 900.0, 250.0, corrections=c, height_kind="geodetic")
+    assert g.corrections == ("refraction",) and g.refraction_m > 30.0
+    row, col, st = ground_to_pixel(pose, cam, g.lat, g.lon, g.h, corrections=c)
+    assert int(st) == Status.OK
+    assert float(row) == pytest.approx(1000.0, abs=1e-3) and float(col) == pytest.approx(900.0, abs=1e-3)
+    # the pipeline and the functional front are one path
+    p = Pipeline(as_sensor(cam), HeightSurface(250.0, "geodetic"), c).locate(1000.0, 900.0, pose)
+    np.testing.assert_array_equal(p.ecef, g.ecef)
+
+
+def _limb_ray(tangent_h):
+    """A ray from 400 km whose straight line grazes the ellipsoid's equator at tangent_h."""
+    r_t = 6378137.0 + tangent_h
+    r_p = 6378137.0 + 400e3
+    x = math.sqrt(r_p**2 - r_t**2)
+    return np.array([r_t, -x, 0.0]), np.array([0.0, 1.0, 0.0])
+
+
+@pytest.mark.parametrize("tangent_h", [5000.0, 15000.0])
+def test_limb_cli_prints_the_refracted_tangent_height(capsys, tangent_h):
+    o, d = _limb_ray(tangent_h)
+    args = ["limb", "--origin-ecef", *(repr(float(x)) for x in o), "--direction-ecef",
+            *(repr(float(x)) for x in d), "--json"]
+    assert main(args) == 0
+    plain = json.loads(capsys.readouterr().out)
+    assert "refracted_tangent_h_m" not in plain and plain["corrections"] == "none"
+    assert main([*args, "--refraction", "standard"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    # the straight-line tangent height is as before
+    assert out["exact_tangent_h_m"] == pytest.approx(plain["exact_tangent_h_m"], abs=1e-9)
+    assert out["exact_tangent_h_m"] == pytest.approx(tangent_h, abs=1e-3)
+    # the independent trace, stopped where the bent ray turns level: its height (0.2 m:
+    # docs/refraction.md, the limb model against the trace)
+    from geoloc.geodesy.ellipsoid import ecef_to_geodetic
+
+    ref = trace(o, d, 0.0, exact_n, limb=True)
+    assert out["refracted_tangent_h_m"] == pytest.approx(float(ecef_to_geodetic(ref)[2]), abs=0.2)
+    # hundreds of metres to kilometres below the straight tangent (issue 44)
+    assert out["refraction_m"] > 100.0
+
+
+def test_limb_scenario_csv_has_the_refracted_columns(tmp_path, capsys):
+    out = tmp_path / "limb.csv"
+    assert main(["limb", "assets/scenarios/tiangong2_limb.toml", "--frames", "2", "--refraction", "standard",
+                 "--json", "--out", str(out)]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["corrections"] == "refraction" and summary["max_refraction_m"] > 100.0
+    header = out.read_text().splitlines()[0].split(",")
+    assert {"refracted_tangent_h_m", "refraction_m"} <= set(header)
+
+
+def test_refraction_model_object_is_shared():
+    assert Corrections.for_sensor(None, "standard").refraction is STANDARD_REFRACTION
