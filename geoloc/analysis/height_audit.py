@@ -1,0 +1,596 @@
+"""Heights and conventions audited from the data: which convention fault a flight's metadata has (issue 45).
+
+A flight's metadata can disagree with itself in ways that follow a convention mix-up,
+not noise: heights above mean sea level read as ellipsoidal (or the reverse), the geoid
+applied with the wrong sign (about -2N), a height above the take-off point read as an
+absolute one, frame centres an encoder computed on a flat earth at 0 m, a time offset
+between the pose and the reported centres, a boresight bias. Each has a signature in
+three comparisons that only need the flight itself, a DEM and the geoid:
+
+* the platform's height against the terrain below it (DEM + EGM96 N);
+* the reported frame centre's elevation against the DEM there;
+* the frame centre recomputed from the angles (``sensor.line_of_sight`` then
+  ``surface.intersect``) against the reported one.
+
+The third is turned into numbers per record: the height at which the recomputed line of
+sight passes over the reported centre (two intersections with surfaces of constant
+geodetic height, interpolated along the ray's straight ground track), hence the platform
+height offset ``dh = h_over - DEM(reported)`` (a platform read ``dh`` too high sees the
+reported point ``dh`` above the terrain); the reported centre's pixel
+(``sensor.ground_to_pixel``), hence a boresight offset; the recomputed centre of record
+``k + s`` against the reported one of record ``k``, hence a shift in records. Each
+signature's candidate correction is then applied and the centres located again through
+``surface.intersect``: a fault is named when its correction cuts the median misfit by
+:data:`MODEL_GAIN` and its estimated offset matches the signature (within the stated
+uncertainty). The offset's uncertainty is the spread of the per-record offsets
+(:func:`median_uncertainty`).
+
+Heights are ellipsoidal (WGS 84) throughout unless a name says ``msl``; ``dh`` is the
+height as read minus the height the data imply (so MSL read as ellipsoidal is ``-N``).
+Conventions: ``docs/conventions.md``; the page: ``docs/height_audit.md``.
+
+Layer 6 (``analysis``): reads surfaces, sensors and records; no workflow, no viewer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from geoloc.analysis.accuracy import MAD_SCALE
+from geoloc.geodesy.geodesic import horizontal_distance_m
+from geoloc.geodesy.geoid import egm96_undulation
+from geoloc.geodesy.local import geodetic_to_enu
+from geoloc.status import Status
+from geoloc.surfaces.base import terrain_of
+from geoloc.surfaces.height import HeightSurface
+
+__all__ = ["Finding", "HeightAudit", "audit_flight", "audit_records", "audit_klv_columns", "median_uncertainty",
+           "FAULTS"]
+
+#: The fault kinds the audit names, and what each means.
+FAULTS = {
+    "msl_read_as_ellipsoidal": "heights above mean sea level (EGM96) read as ellipsoidal: too low by N",
+    "ellipsoidal_read_as_msl": "ellipsoidal heights read as mean sea level (N added again): off by +N",
+    "geoid_wrong_sign": "the geoid applied with the wrong sign (h = H - N): off by -2N",
+    "relative_height_read_as_absolute": "a height above the take-off point read as absolute: too low by the "
+                                        "take-off terrain's height",
+    "agl_read_as_absolute": "a height above the ground below read as absolute: too low by the terrain",
+    "flat_earth_frame_centre": "frame centres computed on a flat earth at h = 0 m, not on the terrain",
+    "time_offset": "the reported centres belong to other records: a constant time offset",
+    "boresight_bias": "a constant angular offset between the reported and the recomputed centres",
+    "height_offset": "a constant height offset that no datum convention explains",
+    "unexplained_misfit": "reported and recomputed centres disagree in a way no signature explains",
+}
+
+#: A median misfit (reported vs recomputed centre) below this [m] is a clean flight: the
+#: reported positions' own rounding (MISB ST 0601 tags 23-24: 4e-8 deg, 5 mm; [Q17]'s published
+#: five decimals: 0.8 m) and the DEM solver's tolerance (1 m by default) stay under it.
+ERROR_FLOOR_M = 2.0
+#: A signature's correction must cut the median misfit by at least this factor to be named:
+#: one that explains the data leaves the rounding and the DEM's noise; a wrong one (a height fault
+#: corrected as a boresight) leaves most of the misfit (measured: 0.3 to 0.9 of it).
+MODEL_GAIN = 3.0
+#: A height offset smaller than this [m] is not named: a DEM's own vertical error (SRTM: about
+#: 5 m RMS over gentle terrain, 16 m LE90) and the encoder's DEM differing from ours explain it.
+HEIGHT_FLOOR_M = 5.0
+#: Floor of a stated uncertainty [m]: the EGM96 grid's interpolation (0.15 m RMS where the 30'
+#: grid stands in for the 15' one; assets/README.md) and the exact solver's height tolerance.
+UNCERTAINTY_FLOOR_M = 0.5
+#: A height signature matches when the estimate is within this many stated uncertainties of it.
+MATCH_K = 3.0
+#: The largest record shift tried for a time offset (either way).
+MAX_SHIFT = 10
+#: A ray whose ground track moves less than this [m per m of height] says little about heights
+#: (off nadir by under 1.1 deg): its per-record height offset is left out.
+MIN_TRACK_SLOPE = 0.02
+#: The median of n values of spread sigma has a standard error of about 1.2533 sigma / sqrt(n)
+#: (normal errors, large n): sqrt(pi / 2).
+MEDIAN_SE = math.sqrt(math.pi / 2)
+
+
+def median_uncertainty(values) -> tuple:
+    """``(median, uncertainty, n)`` of the finite ``values``: the uncertainty is three standard
+    errors of the median, ``3 * 1.2533 * 1.4826 * MAD / sqrt(n)``, floored at
+    :data:`UNCERTAINTY_FLOOR_M` (a 99.7 % bound for normal per-record scatter)."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return math.nan, math.nan, 0
+    med = float(np.median(v))
+    mad = float(np.median(np.abs(v - med)))
+    u = 3.0 * MEDIAN_SE * MAD_SCALE * mad / math.sqrt(v.size)
+    return med, max(u, UNCERTAINTY_FLOOR_M), int(v.size)
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One convention fault found in a flight, with its estimated size.
+
+    Attributes
+    ----------
+    kind : str
+        A key of :data:`FAULTS`.
+    subject : str
+        What is wrong: ``"platform height"``, ``"frame-centre height"``, ``"frame centres"``,
+        ``"time"``, ``"pointing"``.
+    offset, uncertainty : float
+        The estimate and its stated uncertainty (``unit``); heights: as read minus as implied.
+    unit : str
+        ``"m"``, ``"records"`` or ``"mrad"``.
+    expected : float
+        The signature's own size (e.g. -N for MSL read as ellipsoidal); NaN when it has none.
+    expected_text : str
+        How ``expected`` is made (``"-N = +30.7 m"``).
+    records : int
+        The records the estimate rests on.
+    misfit_before_m, misfit_after_m : float
+        Median horizontal distance between reported and recomputed centres, before and after the
+        signature's correction (NaN for the height checks that do not recompute).
+    fix : str
+        The option or change that removes it.
+    """
+
+    kind: str
+    subject: str
+    offset: float
+    uncertainty: float
+    unit: str
+    expected: float = math.nan
+    expected_text: str = ""
+    records: int = 0
+    misfit_before_m: float = math.nan
+    misfit_after_m: float = math.nan
+    fix: str = ""
+    detail: str = ""
+
+    def line(self) -> str:
+        """One line: what, how big and how sure, what the signature says, the fix."""
+        spec = ".2f" if self.unit == "mrad" else ".1f"
+        text = (f"{self.subject}: {FAULTS[self.kind]}; estimated {format(self.offset, '+' + spec)} "
+                f"+/- {format(self.uncertainty, spec)} {self.unit} over {self.records} records")
+        if self.expected_text:
+            text += f" (signature {self.expected_text})"
+        if self.detail:
+            text += f"; {self.detail}"
+        if np.isfinite(self.misfit_before_m) and np.isfinite(self.misfit_after_m):
+            text += (f"; median misfit {self.misfit_before_m:.1f} m -> {self.misfit_after_m:.1f} m "
+                     "with it corrected")
+        if self.fix:
+            text += f"; fix: {self.fix}"
+        return text
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["meaning"] = FAULTS[self.kind]
+        d["text"] = self.line()
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+
+@dataclass
+class HeightAudit:
+    """What the audit of one flight found.
+
+    Attributes
+    ----------
+    source : str
+    findings : list of Finding
+        Empty for a flight whose heights and conventions agree with the DEM and the geoid.
+    checks : dict
+        The figures behind them (medians, uncertainties, counts; NaN where not measured).
+    columns : dict
+        Per-record arrays (``platform_agl_m``, ``fc_minus_dem_m``, ``misfit_m``,
+        ``height_over_reported_m``, ``platform_dh_m``, ``reported_drow_px``, ``reported_dcol_px``).
+    """
+
+    source: str
+    findings: list
+    checks: dict
+    columns: dict = field(default_factory=dict)
+
+    def lines(self) -> list:
+        """The audit as the replay prints it: a heading and one line per finding."""
+        c = self.checks
+        head = (f"height audit ({self.source}): platform {_f(c.get('platform_agl_median_m'))} m above the "
+                f"terrain (median), reported centres {_f(c.get('fc_minus_dem_median_m'), '+.1f')} m from the DEM, "
+                f"median misfit {_f(c.get('misfit_median_m'))} m over {c.get('records_compared', 0)} records, "
+                f"EGM96 N {_f(c.get('geoid_n_m'), '+.1f')} m")
+        if not self.findings:
+            return [head + ": no convention fault found"]
+        return [head + f": {len(self.findings)} finding(s)"] + [f"  {f.line()}" for f in self.findings]
+
+    def to_dict(self) -> dict:
+        """The findings and checks as plain values (JSON), for the report and the viewer."""
+        checks = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in self.checks.items()}
+        return {"source": self.source, "findings": [f.to_dict() for f in self.findings], "checks": checks}
+
+    def kinds(self) -> list:
+        return [f.kind for f in self.findings]
+
+
+def _f(v, spec=".1f") -> str:
+    return "n/a" if v is None or not np.isfinite(v) else format(float(v), spec)
+
+
+def _dist(lat_a, lon_a, lat_b, lon_b):
+    """Horizontal geodesic distance [m] between points given in radians (NaN in, NaN out)."""
+    return horizontal_distance_m(np.rad2deg(lat_a), np.rad2deg(lon_a), np.rad2deg(lat_b), np.rad2deg(lon_b))
+
+
+def _hit(surface, los):
+    """``(lat, lon, h)`` [rad, rad, m] of the hits, NaN where the status is not OK."""
+    g = surface.intersect(los)
+    ok = np.asarray(g.status) == Status.OK
+    return (np.where(ok, g.lat, np.nan), np.where(ok, g.lon, np.nan), np.where(ok, g.h, np.nan))
+
+
+def _mad(v) -> float:
+    v = np.asarray(v, float)
+    v = v[np.isfinite(v)]
+    return float(np.median(np.abs(v - np.median(v)))) if v.size else math.nan
+
+
+def _median(v) -> float:
+    v = np.asarray(v, float)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else math.nan
+
+
+#: The fix of each platform-height fault for a records CSV (``--altitude-datum``, docs/columns.md).
+RECORDS_FIXES = {
+    "msl_read_as_ellipsoidal": "--altitude-datum egm96 (or datum = \"egm96\" in the column map)",
+    "ellipsoidal_read_as_msl": "--altitude-datum ellipsoid (or datum = \"ellipsoid\" in the column map)",
+    "geoid_wrong_sign": "the heights hold H - N: give the MSL heights H with --altitude-datum egm96, "
+                        "or add 2N to the column",
+    "relative_height_read_as_absolute": "add the take-off point's ellipsoidal height to the height column "
+                                        "(a relative altitude is no absolute height)",
+    "agl_read_as_absolute": "add the terrain's ellipsoidal height to the height column (AGL is no absolute height)",
+    "flat_earth_frame_centre": "the reported centres are not on the terrain: compare with the replay's "
+                               "(--dem), not with the encoder's",
+    "frame_centre_msl_read_as_ellipsoidal": "the reported heights are MSL: add N (= the EGM96 undulation)",
+    "time_offset": "align the records (the reported centres are shifted)",
+    "boresight_bias": "calibrate the boresight (geoloc calibrate) or put it in the sensor file's [boresight]",
+}
+
+
+def audit_flight(pose, sensor, row, col, surface, reported_lat_deg, reported_lon_deg, reported_h_m=None, *,
+                 group=None, time_s=None, fixes=None, source: str = "flight",
+                 reported_name: str = "reported centre") -> HeightAudit:
+    """Audit one flight's heights and conventions against a DEM and the geoid.
+
+    Parameters
+    ----------
+    pose : Pose
+        The records' poses (n,), heights ellipsoidal as read.
+    sensor : Sensor
+        The sensor the records were located with.
+    row, col : array_like (n,)
+        The pixel of each reported centre (1-based; a frame centre is the image centre).
+    surface : Surface
+        A DEM surface (``surfaces.terrain.surface_for`` with a DEM, or a mosaic): the terrain.
+    reported_lat_deg, reported_lon_deg : array_like (n,)
+        The reported centres (a KLV packet's frame centre, a record's published or surveyed
+        position); NaN where a record has none.
+    reported_h_m : array_like (n,), optional
+        Their heights, ellipsoidal as read (NaN where none).
+    group : array_like (n,), optional
+        A flight label per record: a time shift pairs records of one group only.
+    time_s : array_like (n,), optional
+        Time stamps [s]: a record shift is also said in seconds.
+    fixes : dict, optional
+        Fault kind -> the fix to print (default :data:`RECORDS_FIXES`).
+    source, reported_name : str
+        How the flight and its reported centres are named in the lines.
+
+    Returns
+    -------
+    HeightAudit
+        ValueError when ``surface`` has no DEM (the audit compares with the terrain).
+    """
+    terrain = terrain_of(surface)
+    if terrain is None:
+        raise ValueError("the height audit compares heights with the terrain: it needs a DEM (--dem); "
+                         f"got {type(surface).__name__}")
+    fixes = dict(RECORDS_FIXES, **(fixes or {}))
+    row = np.atleast_1d(np.asarray(row, float))
+    n = row.shape[0]
+    col = np.broadcast_to(np.asarray(col, float), (n,))
+    shape = (n,)
+    lat_p = np.broadcast_to(np.asarray(pose.lat, float), shape)
+    lon_p = np.broadcast_to(np.asarray(pose.lon, float), shape)
+    h_p = np.broadcast_to(np.asarray(pose.h, float), shape)
+    rlat = np.deg2rad(np.broadcast_to(np.asarray(reported_lat_deg, float), shape))
+    rlon = np.deg2rad(np.broadcast_to(np.asarray(reported_lon_deg, float), shape))
+    rep_h = (np.full(shape, np.nan) if reported_h_m is None
+             else np.broadcast_to(np.asarray(reported_h_m, float), shape))
+    has_rep = np.isfinite(rlat) & np.isfinite(rlon)
+    fin_p = np.isfinite(lat_p) & np.isfinite(lon_p)
+
+    # ---- platform against the terrain below; the geoid at both ends
+    n_p = np.full(shape, np.nan)
+    n_p[fin_p] = egm96_undulation(lat_p[fin_p], lon_p[fin_p])
+    ground_p = np.full(shape, np.nan)
+    ground_p[fin_p] = terrain.height(lat_p[fin_p], lon_p[fin_p])
+    agl = h_p - ground_p
+    n_r = np.full(shape, np.nan)
+    dem_r = np.full(shape, np.nan)
+    n_r[has_rep] = egm96_undulation(rlat[has_rep], rlon[has_rep])
+    dem_r[has_rep] = terrain.height(rlat[has_rep], rlon[has_rep])
+    fc_dem = rep_h - dem_r
+    nbar = _median(n_p)
+
+    # ---- recomputed centres on the DEM, and the misfit
+    los = sensor.line_of_sight(row, col, pose, outside="extrapolate")
+    lat_c, lon_c, h_c = _hit(surface, los)
+    misfit = _dist(rlat, rlon, lat_c, lon_c)
+    raw = _median(misfit)
+
+    # ---- the height at which each ray passes over its reported centre
+    h_a = np.zeros(shape)
+    h_b = np.where(np.isfinite(dem_r), dem_r, 0.0)
+    h_b = np.where(np.abs(h_b - h_a) < 50.0, h_a + 50.0, h_b)  # a segment of 50 m at least
+    h_b = np.minimum(h_b, h_p - 1.0)  # below the platform, or the ray never gets there
+    la, lo_a, _ = _hit(HeightSurface(h_a, "geodetic"), los)
+    lb, lo_b, _ = _hit(HeightSurface(h_b, "geodetic"), los)
+    ref = (np.where(np.isfinite(lb), lb, 0.0), np.where(np.isfinite(lo_b), lo_b, 0.0))
+    A = geodetic_to_enu(la, lo_a, 0.0, ref[0], ref[1], 0.0)[..., :2]
+    B = geodetic_to_enu(lb, lo_b, 0.0, ref[0], ref[1], 0.0)[..., :2]
+    P = geodetic_to_enu(rlat, rlon, 0.0, ref[0], ref[1], 0.0)[..., :2]
+    AB = B - A
+    span = np.linalg.norm(AB, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = np.einsum("ni,ni->n", P - A, AB) / span ** 2
+        slope = span / np.abs(h_b - h_a)
+    h_over = np.where(slope >= MIN_TRACK_SLOPE, h_a + s * (h_b - h_a), np.nan)
+    dh = h_over - dem_r  # platform height as read minus as the reported centres imply
+
+    checks = {
+        "records": int(n), "records_compared": int(np.isfinite(misfit).sum()),
+        "geoid_n_m": nbar,
+        "platform_agl_median_m": _median(agl), "platform_below_terrain": int(np.sum(agl < 0)),
+        "fc_minus_dem_median_m": _median(fc_dem), "misfit_median_m": raw,
+        "height_over_reported_median_m": _median(h_over), "platform_dh_median_m": _median(dh),
+        "takeoff_terrain_m": float(ground_p[np.flatnonzero(np.isfinite(ground_p))[0]])
+        if np.isfinite(ground_p).any() else math.nan,
+    }
+    columns = {"platform_terrain_m": ground_p, "platform_agl_m": agl, "geoid_n_m": n_p,
+               "fc_minus_dem_m": fc_dem, "misfit_m": misfit, "height_over_reported_m": h_over,
+               "platform_dh_m": dh}
+    findings = []
+
+    # ---- the reported centres' own heights against the DEM
+    findings += _frame_centre_height(rep_h, dem_r, fc_dem, n_r, fixes, reported_name, checks)
+
+    # ---- the misfit: each signature's correction, located again
+    if np.isfinite(raw) and raw > ERROR_FLOOR_M:
+        models = {}
+        # platform height: the median offset taken off
+        d_hat, u_hat, n_dh = median_uncertainty(dh)
+        if np.isfinite(d_hat):
+            p2 = dataclasses.replace(pose, h=h_p - d_hat)
+            la2, lo2, _ = _hit(surface, sensor.line_of_sight(row, col, p2, outside="extrapolate"))
+            models["height"] = _median(_dist(rlat, rlon, la2, lo2))
+        # a height above the ground read as absolute: the terrain below added back
+        if np.isfinite(ground_p).any():
+            p3 = dataclasses.replace(pose, h=h_p + ground_p)
+            la3, lo3, _ = _hit(surface, sensor.line_of_sight(row, col, p3, outside="extrapolate"))
+            models["agl"] = _median(_dist(rlat, rlon, la3, lo3))
+        # flat earth: the centres on the ellipsoid at h = 0
+        la0, lo0, _ = _hit(HeightSurface(0.0, "geodetic"), los)
+        models["flat"] = _median(_dist(rlat, rlon, la0, lo0))
+        # boresight: the reported centres' pixels, their median offset applied
+        h_rep_px = np.where(np.isfinite(rep_h), rep_h, dem_r)
+        px = sensor.ground_to_pixel(rlat, rlon, h_rep_px, pose)
+        drow, dcol = np.asarray(px.row, float) - row, np.asarray(px.col, float) - col
+        columns.update(reported_drow_px=drow, reported_dcol_px=dcol)
+        dr_hat, dc_hat = _median(drow), _median(dcol)
+        if np.isfinite(dr_hat) and np.isfinite(dc_hat):
+            la4, lo4, _ = _hit(surface, sensor.line_of_sight(row + dr_hat, col + dc_hat, pose, outside="extrapolate"))
+            models["boresight"] = _median(_dist(rlat, rlon, la4, lo4))
+        # a shift of k records
+        best_s, best_m = 0, raw
+        grp = None if group is None else np.asarray(group)
+        for sh in range(-min(MAX_SHIFT, n // 3), min(MAX_SHIFT, n // 3) + 1):
+            if sh == 0:
+                continue
+            k = np.arange(max(0, -sh), min(n, n - sh))
+            same = np.ones(k.size, bool) if grp is None else grp[k] == grp[k + sh]
+            if same.sum() < max(3, n // 3):
+                continue
+            m = _median(_dist(rlat[k[same]], rlon[k[same]], lat_c[k[same] + sh], lon_c[k[same] + sh]))
+            if m < best_m:
+                best_s, best_m = sh, m
+        if best_s:
+            models["shift"] = best_m
+        checks.update({f"misfit_after_{k}_m": v for k, v in models.items()})
+        best = min(models, key=models.get) if models else None
+        if best is not None and models[best] * MODEL_GAIN <= raw:
+            after = models[best]
+            if best == "height":
+                findings.append(_height_finding(d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"],
+                                                ground_p, raw, after, fixes))
+            elif best == "agl":
+                g_med, g_u, g_n = median_uncertainty(-ground_p)
+                findings.append(Finding("agl_read_as_absolute", "platform height", d_hat, u_hat, "m", g_med,
+                                        f"-terrain below = {g_med:+.1f} m (median)", n_dh, raw, after,
+                                        fixes["agl_read_as_absolute"]))
+            elif best == "flat":
+                hm, hu, hn = median_uncertainty(h_over)
+                findings.append(Finding("flat_earth_frame_centre", "frame centres", hm, hu, "m", 0.0,
+                                        "the rays meet the reported centres at h ~ 0 m", hn, raw, after,
+                                        fixes["flat_earth_frame_centre"],
+                                        detail=f"terrain there {_median(dem_r):.0f} m (DEM, median)"))
+            elif best == "boresight":
+                findings.append(_boresight_finding(sensor, pose, row, col, drow, dcol, raw, after, fixes))
+            elif best == "shift":
+                dt = ""
+                if time_s is not None:
+                    step = _median(np.diff(np.asarray(time_s, float)))
+                    if np.isfinite(step):
+                        dt = f"{best_s * step:+.2f} s at {step:g} s per record"
+                findings.append(Finding("time_offset", "time", float(best_s), 0.5, "records", math.nan,
+                                        "", int(n), raw, best_m, fixes["time_offset"],
+                                        detail=(f"the {reported_name} of record k is the recomputed centre "
+                                                f"of record k {best_s:+d}" + (f" ({dt})" if dt else ""))))
+        else:
+            findings.append(Finding("unexplained_misfit", "frame centres", raw, math.nan, "m", math.nan, "",
+                                    checks["records_compared"], raw, models[best] if best else math.nan, "",
+                                    detail="best signature: " + (f"{best} ({models[best]:.1f} m)" if best else
+                                                                 "none")))
+    elif checks["platform_below_terrain"] > n // 2 and _median(agl) < -HEIGHT_FLOOR_M:
+        # no reported centres to fit: the platform under the terrain is all the data say
+        a_med, a_u, a_n = median_uncertainty(agl)
+        findings.append(Finding("relative_height_read_as_absolute", "platform height", a_med, a_u, "m",
+                                -checks["takeoff_terrain_m"], "the platform below the terrain", a_n,
+                                fix=fixes["relative_height_read_as_absolute"],
+                                detail="no reported centres: the offset is a bound (the height above the "
+                                       "terrain as read)"))
+    # one fault, one line: a flat earth seen in the heights and in the recomputation is one finding
+    flat = [f for f in findings if f.kind == "flat_earth_frame_centre"]
+    if len(flat) == 2:
+        findings.remove(flat[0])
+        findings[findings.index(flat[1])] = dataclasses.replace(
+            flat[1], detail=f"{flat[1].detail}; {flat[0].detail}")
+    return HeightAudit(source, findings, checks, columns)
+
+
+def _height_signatures(nbar, takeoff):
+    """``[(kind, expected dh, text)]`` of the platform-height signatures."""
+    return [("msl_read_as_ellipsoidal", -nbar, f"-N = {-nbar:+.1f} m"),
+            ("ellipsoidal_read_as_msl", nbar, f"+N = {nbar:+.1f} m"),
+            ("geoid_wrong_sign", -2 * nbar, f"-2N = {-2 * nbar:+.1f} m"),
+            ("relative_height_read_as_absolute", -takeoff, f"-take-off terrain = {-takeoff:+.1f} m")]
+
+
+def _height_finding(d_hat, u_hat, n_dh, nbar, takeoff, ground_p, raw, after, fixes) -> Finding:
+    """The platform-height finding: the closest signature within its uncertainty, else a plain offset."""
+    u_n = UNCERTAINTY_FLOOR_M  # N along a flight varies by decimetres: the grid's floor covers it
+    u_t = median_uncertainty(ground_p)[1] * math.sqrt(max(1, np.isfinite(ground_p).sum()))  # terrain spread
+    best = None
+    for kind, e, text in _height_signatures(nbar, takeoff):
+        u_e = u_t if kind.startswith("relative") else u_n
+        tol = MATCH_K * math.hypot(u_hat, u_e) / 3.0 + HEIGHT_FLOOR_M * (kind.startswith("relative"))
+        dist = abs(d_hat - e)
+        if np.isfinite(e) and dist <= max(tol, u_hat) and (best is None or dist < best[3]):
+            best = (kind, e, text, dist)
+    if best is None or abs(d_hat) < HEIGHT_FLOOR_M:
+        return Finding("height_offset", "platform height", d_hat, u_hat, "m", math.nan,
+                       f"N = {nbar:+.1f} m, take-off terrain {takeoff:.1f} m", n_dh, raw, after,
+                       "check the height column's datum and unit (docs/columns.md) and the DEM's (--dem-datum)")
+    kind, e, text, _ = best
+    return Finding(kind, "platform height", d_hat, u_hat, "m", e, text, n_dh, raw, after, fixes[kind])
+
+
+def _frame_centre_height(rep_h, dem_r, fc_dem, n_r, fixes, reported_name, checks) -> list:
+    """Findings from the reported centres' own heights against the DEM under them."""
+    d, u, m = median_uncertainty(fc_dem)
+    checks.update(fc_minus_dem_uncertainty_m=u, fc_compared=m)
+    if m == 0 or not np.isfinite(d) or abs(d) <= max(u, HEIGHT_FLOOR_M):
+        return []
+    nbar = _median(n_r)
+    h_med, h_u, _ = median_uncertainty(rep_h)
+    terrain = _median(dem_r)
+    # a flat earth: the heights themselves ~0 (ellipsoidal, or MSL 0 made ellipsoidal: N) over real terrain
+    for zero, text in ((0.0, "h = 0 m"), (nbar, f"MSL 0 m (h = N = {nbar:+.1f} m)")):
+        if abs(h_med - zero) <= max(h_u, UNCERTAINTY_FLOOR_M) and abs(terrain - zero) > HEIGHT_FLOOR_M:
+            return [Finding("flat_earth_frame_centre", "frame-centre height", d, u, "m", zero - terrain,
+                            f"reported heights {text} over terrain {terrain:.0f} m", m,
+                            fix=fixes["flat_earth_frame_centre"],
+                            detail=f"{reported_name} heights median {h_med:.1f} m")]
+    sigs = [("msl_read_as_ellipsoidal", -nbar, f"-N = {-nbar:+.1f} m"),
+            ("ellipsoidal_read_as_msl", nbar, f"+N = {nbar:+.1f} m"),
+            ("geoid_wrong_sign", -2 * nbar, f"-2N = {-2 * nbar:+.1f} m")]
+    fits = [(abs(d - e), k, e, t) for k, e, t in sigs if abs(d - e) <= MATCH_K * math.hypot(u, UNCERTAINTY_FLOOR_M) / 3.0
+            or abs(d - e) <= u]
+    if fits:
+        _, kind, e, text = min(fits)
+        fix = (fixes["frame_centre_msl_read_as_ellipsoidal"] if kind == "msl_read_as_ellipsoidal"
+               else f"the {reported_name} heights: {FAULTS[kind]}")
+        return [Finding(kind, "frame-centre height", d, u, "m", e, text, m, fix=fix)]
+    return [Finding("height_offset", "frame-centre height", d, u, "m", math.nan, f"N = {nbar:+.1f} m", m,
+                    detail=f"{reported_name} heights minus the DEM's; a DEM in another datum (--dem-datum)?")]
+
+
+def _boresight_finding(sensor, pose, row, col, drow, dcol, raw, after, fixes) -> Finding:
+    """The boresight finding: the median pixel offset turned into angles through the sensor's rays."""
+    dr, ur, nr = median_uncertainty(drow)
+    dc, uc, _ = median_uncertainty(dcol)
+    k = int(np.flatnonzero(np.isfinite(drow) & np.isfinite(dcol))[0])
+    p = pose.take(k) if hasattr(pose, "take") else pose
+
+    def angle(r, c):
+        a = np.asarray(sensor.line_of_sight(row[k], col[k], p, outside="extrapolate").direction_ecef, float).reshape(3)
+        b = np.asarray(sensor.line_of_sight(row[k] + r, col[k] + c, p, outside="extrapolate").direction_ecef,
+                       float).reshape(3)
+        return float(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b)))
+
+    a_row = math.copysign(angle(dr, 0.0), dr) * 1e3
+    a_col = math.copysign(angle(0.0, dc), dc) * 1e3
+    total = angle(dr, dc) * 1e3
+    per_px = angle(1.0, 0.0) * 1e3  # mrad per pixel: the pixel uncertainty in angle
+    # floor: half a pixel, the rounding of a recorded pixel (median_uncertainty's floor is in metres)
+    u = max(3.0 * MEDIAN_SE * MAD_SCALE * math.hypot(_mad(drow), _mad(dcol)) / math.sqrt(max(nr, 1)), 0.5) * per_px
+    return Finding("boresight_bias", "pointing", total, u, "mrad", math.nan, "", nr, raw, after,
+                   fixes["boresight_bias"],
+                   detail=f"the reported centres sit {dr:+.1f} px in rows ({a_row:+.2f} mrad) and {dc:+.1f} px in "
+                          f"columns ({a_col:+.2f} mrad) from the recomputed ones")
+
+
+def audit_records(records, sensor, surface, *, group_column: str = "table") -> HeightAudit:
+    """Audit a records CSV (:class:`geoloc.io.records.Records`): the reported centres are the
+    published positions (``paper_lat_deg``, ``paper_lon_deg``, ``paper_height_m``), else the
+    surveyed ones (``truth_*``)."""
+    ref = "paper" if records.has("paper_lat_deg") and records.has("paper_lon_deg") else "truth"
+    name = {"paper": "published position", "truth": "surveyed position"}[ref]
+    hcol = "paper_height_m" if ref == "paper" else "truth_h_m"
+    if not (records.has(f"{ref}_lat_deg") and records.has(f"{ref}_lon_deg")):
+        nan = np.full(len(records), np.nan)
+        lat_r = lon_r = h_r = nan
+    else:
+        lat_r, lon_r = records.column(f"{ref}_lat_deg"), records.column(f"{ref}_lon_deg")
+        h_r = records.column(hcol) if records.has(hcol) else None
+    group = records.text(group_column) if group_column in records.header else None
+    time_s = records.column("time_s") if records.has("time_s") else None
+    return audit_flight(records.pose(), sensor, records.column("row"), records.column("col"), surface,
+                        lat_r, lon_r, h_r, group=group, time_s=time_s, source=str(records.path),
+                        reported_name=name)
+
+
+#: The fixes of a KLV stream's faults: its datums are the standard's, the encoder is what is wrong.
+KLV_FIXES = {
+    "msl_read_as_ellipsoidal": "the encoder writes MSL into tag 75 (HAE): fix the encoder; meanwhile drop tag 75 "
+                               "so tag 15 + N is used (geoloc klv-fix)",
+    "ellipsoidal_read_as_msl": "the encoder writes HAE into tag 15 (MSL): fix the encoder",
+    "geoid_wrong_sign": "the encoder converts with h = H - N: fix the encoder's sign",
+    "relative_height_read_as_absolute": "the encoder writes the height above take-off as tag 15/75: fix the encoder",
+    "agl_read_as_absolute": "the encoder writes the height above ground as tag 15/75: fix the encoder",
+    "flat_earth_frame_centre": "the encoder's frame centres ignore the terrain (tags 23-25): trust the replay "
+                               "with --dem, not tags 23-25",
+    "frame_centre_msl_read_as_ellipsoidal": "the encoder writes MSL into tag 78 (HAE): fix the encoder",
+    "time_offset": "the frame centres lag or lead the pose: fix the encoder's timing",
+    "boresight_bias": "the encoder's boresight differs from the sensor file's: calibrate (geoloc calibrate)",
+}
+
+
+def audit_klv_columns(columns: dict, sensor, surface, source: str = "KLV") -> HeightAudit:
+    """Audit a KLV replay (:attr:`geoloc.workflows.klv_replay.KlvReplay.columns`, ``sensor``
+    the replay's): the reported centres are tags 23-24 (and 78 / 25 + N), the pixel the image centre."""
+    from geoloc.frames.chain import Pose
+
+    c = {k: np.asarray(v) for k, v in columns.items()}
+    f = lambda k: np.asarray(c[k], float)  # noqa: E731
+    ok = np.asarray(c["status"]) != Status.INVALID_INPUT
+    idx = np.flatnonzero(ok)
+    pose = Pose.from_deg(f("sensor_lat_deg")[idx], f("sensor_lon_deg")[idx], f("sensor_h_m")[idx],
+                         f("platform_heading_deg")[idx], f("platform_pitch_deg")[idx], f("platform_roll_deg")[idx],
+                         angles_deg={"azimuth": f("sensor_relative_azimuth_deg")[idx],
+                                     "elevation": f("sensor_relative_elevation_deg")[idx],
+                                     "sensor_roll": np.nan_to_num(f("sensor_relative_roll_deg")[idx])})
+    r0, c0 = sensor.center_pixel
+    m = idx.size
+    return audit_flight(pose, sensor, np.full(m, r0), np.full(m, c0), surface, f("reported_lat_deg")[idx],
+                        f("reported_lon_deg")[idx], f("reported_h_m")[idx], time_s=f("time_s")[idx],
+                        fixes=KLV_FIXES, source=source, reported_name="reported frame centre")
