@@ -67,6 +67,10 @@ def register(sub) -> None:
     p.add_argument("--export", default=None, metavar="FILE", type=output_path,
                    help="also write the results to GIS: FILE.gpkg, .geojson, .kml or .czml "
                    "(points, truth, error vectors, track; docs/gis.md)")
+    p.add_argument("--audit", action="store_true",
+                   help="with --dem: audit the flight's heights and conventions from the data (MSL read as "
+                   "ellipsoidal and the reverse, the geoid's sign, relative heights, flat-earth frame centres, "
+                   "a time offset, a boresight bias): one line per finding, docs/height_audit.md")
     p.add_argument("--targets", default=None, metavar="T.csv", type=input_path,
                    help="drone photos: the targets to locate (columns image,row,col; optional truth columns)")
     from geoloc.cli._options import add_live_options
@@ -94,6 +98,7 @@ def run(args) -> int:
     from geoloc.cli._options import check_gis_output, is_stream
 
     check_gis_output("--export", args.export)  # before any record is located (issue 47)
+    _audit_wanted(args)  # --audit without --dem: said before any record is located
     inputs = list(args.records or [])
     if any(is_stream(x) for x in inputs):
         return _run_live(args, inputs)
@@ -142,6 +147,10 @@ def run(args) -> int:
     rows = args.print_rows or (not args.out and len(records) <= ROWS_SHOWN)
     print(summary_table(result, group_by, rows=rows))
     print(records.datum_summary())
+    if _audit_wanted(args):
+        from geoloc.analysis.height_audit import audit_records
+
+        print("\n".join(audit_records(records, camera, surface, group_column=group_by).lines()))
     if not rows and not args.out:
         print(f"({len(records)} records: per-record lines not printed; --out FILE writes them, "
               "--print-rows prints them)")
@@ -152,6 +161,15 @@ def run(args) -> int:
         _export(args, lambda path: write_replay_csv(path, result),
                 group_by if group_by in result.records.header else None)
     return 0 if located(result).all() else 1  # docs/cli.md: 1 = some records could not be located
+
+
+def _audit_wanted(args) -> bool:
+    """``--audit``: True with a DEM; without one a clear error (the audit compares with the terrain)."""
+    if not getattr(args, "audit", False):
+        return False
+    if not getattr(args, "dem", None):
+        raise ValueError("--audit compares heights with the terrain: give a DEM with --dem")
+    return True
 
 
 def _budget(args):
@@ -220,6 +238,10 @@ def _run_klv(args, inputs) -> int:
         for e in r.errors:
             print(f"geoloc replay: {path}: {e}", file=sys.stderr)
         print(r.summary)
+        if _audit_wanted(args):
+            from geoloc.analysis.height_audit import audit_klv_columns
+
+            print("\n".join(audit_klv_columns(r.columns, r.sensor, surface, source=path.name).lines()))
         show = args.print_rows or (not args.out and len(r) <= ROWS_SHOWN)
         if show and len(r):
             print(_klv_rows_text(r))
