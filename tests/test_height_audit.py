@@ -255,3 +255,20 @@ def test_real_flight_tests_on_a_coarse_dem_name_no_convention():
     a = audit_records(records, sensor, SurfaceSpec(dem=str(ETOPO)).build())
     assert set(a.kinds()) <= {"height_offset"}, a.lines()
     assert a.checks["misfit_median_m"] > 100 and "none of the signatures" in a.lines()[0], a.lines()
+
+
+def test_report_audits_a_replay_csv(flight, tmp_path, capsys):
+    """`geoloc report --audit --dem` on a replay's --out CSV: the finding printed and in report.json."""
+    import json
+
+    p, out, rep_dir = tmp_path / "msl.csv", tmp_path / "replay.csv", tmp_path / "rep"
+    _write_records(p, flight["records"], flight["pose"].h - flight["n"], flight["lat"], flight["lon"], flight["h"])
+    assert main(["replay", str(p), "--sensor", str(SENSOR), "--dem", str(DEM), "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["report", str(out), "--sensor", str(SENSOR), "--dem", str(DEM), "--audit",
+                 "--out-dir", str(rep_dir)]) == 0
+    assert "fix: --altitude-datum egm96" in capsys.readouterr().out
+    audit = json.loads((rep_dir / "report.json").read_text())["meta"]["height_audit"]
+    (f,) = audit["findings"]
+    assert f["kind"] == "msl_read_as_ellipsoidal"
+    assert abs(f["offset"] - np.median(-flight["n"])) <= f["uncertainty"], f

@@ -63,7 +63,15 @@ def register(sub) -> None:
                       "bundled [Q17] camera for flight-test records; none for other inputs)")
     p.add_argument("--out-dir", default=None, type=output_dir, help="write PNG plots, report.json and report.html here")
     p.add_argument("--json", action="store_true", help="print the numbers as JSON (instead of the table)")
+    p.add_argument("--audit", action="store_true",
+                   help="with --dem: audit the flight's heights and conventions from the CSV's own poses and "
+                   "reported centres (records or KLV replays; docs/height_audit.md): one line per finding, "
+                   "and report.json's 'height_audit'")
     p.set_defaults(func=run)
+    from geoloc.cli._options import add_dem_options
+
+    add_dem_options(p, mosaic=False, tolerances=False, method_default="exact",
+                    dem_help="DEM raster for --audit (the one the replay used)")
 
 
 # --------------------------------------------------------------------------- reading
@@ -406,8 +414,50 @@ def write_html(rep: AccuracyReport, pngs, path) -> Path:
 # --------------------------------------------------------------------------- the verb
 
 
+def audit_from_csv(path, surface, camera=None):
+    """The height audit (:mod:`geoloc.analysis.height_audit`) of a replay output CSV: a records replay
+    (its pose columns, loaded as records with ``camera``'s angles; default the [Q17] camera) or a KLV
+    replay (``sensor_*`` / ``reported_*`` columns; the frame centre's ray needs no field of view)."""
+    import argparse
+
+    from geoloc.analysis.height_audit import audit_klv_columns, audit_records
+    from geoloc.cli._options import sensor_from_args
+
+    header, rows, _ = read_results(path)
+    if all(c in header for c in ("sensor_lat_deg", "reported_lat_deg", "sensor_relative_azimuth_deg")):
+        from geoloc.status import Status
+        from geoloc.workflows.klv_replay import klv_sensor
+
+        cols = {}
+        for name in header:
+            if name == "status":
+                cols[name] = np.array([Status[(r.get(name) or "invalid_input").upper()] for r in rows])
+            elif name not in ("file", "time_utc", "note", "mgrs"):
+                try:
+                    cols[name] = np.array([float(r[name]) if r.get(name, "") != "" else np.nan for r in rows])
+                except ValueError:
+                    continue
+        base = sensor_from_args(argparse.Namespace(camera=camera), default=False) if camera else None
+        sens = klv_sensor(math.radians(float(np.nanmedian(cols["sensor_horizontal_fov_deg"]))),
+                          math.radians(float(np.nanmedian(cols["sensor_vertical_fov_deg"]))), base)
+        return audit_klv_columns(cols, sens, surface, source=Path(path).name)
+    from geoloc.io.records import load_records
+
+    sensor = sensor_from_args(argparse.Namespace(camera=camera))
+    records = load_records(path, angles=sensor.angle_names)
+    return audit_records(records, sensor, surface)
+
+
 def run(args) -> int:
+    if args.audit and not args.dem:
+        raise ValueError("--audit compares heights with the terrain: give a DEM with --dem")
     rep, messages = report_from_csv(args.results, args.reference, args.ref_h_column, args.group_by, args.camera)
+    audit = None
+    if args.audit:
+        from geoloc.cli._options import surface_from_args
+
+        audit = audit_from_csv(args.results, surface_from_args(args), args.camera)
+        rep.meta["height_audit"] = audit.to_dict()
     for m in messages:
         print(f"geoloc report: {m}", file=sys.stderr)
     if args.json:
@@ -415,6 +465,8 @@ def run(args) -> int:
     else:
         print(rep.markdown())
         print(f"\nreference: {rep.meta['reference']}; heights ellipsoidal (WGS 84)")
+    if audit is not None:
+        print("\n".join(audit.lines()), file=sys.stderr if args.json else sys.stdout)
     if args.out_dir:
         out = Path(args.out_dir)
         pngs = write_plots(rep, out)
