@@ -55,6 +55,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from geoloc.frames.chain import Pose
+from geoloc.io.photo_makers import (
+    CONVENTIONS,
+    MAKERS,
+    MakerTags,
+    angles_namespace,
+    earth_gimbal_deg,
+    pick_maker,
+    xmp_properties,
+)
 from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
@@ -70,8 +79,10 @@ __all__ = [
     "PhotoMeta",
     "PhotoTagError",
     "camera_height",
+    "database_lens",
     "lens_from_photo",
     "lens_source",
+    "lens_uncertainty",
     "parse_dewarp_data",
     "parse_xmp",
     "photo_columns",
@@ -229,6 +240,8 @@ class PhotoMeta:
     dewarp: DewarpData | None = None
     dewarp_flag: int | None = None
     rtk_flag: int | None = None
+    calibrated_focal_y_px: float | None = None
+    maker: str = ""
     focal_mm: float | None = None
     focal_35mm: float | None = None
     xmp: dict = field(default_factory=dict)
@@ -360,7 +373,7 @@ def xmp_element(packet: bytes) -> bytes:
     return packet.rstrip(b"\x00 \t\r\n")
 
 
-def parse_xmp(packet: bytes, source: str = "XMP") -> tuple[dict, dict]:
+def parse_xmp(packet: bytes, source: str = "XMP", _with_root: bool = False) -> tuple[dict, dict]:
     """``drone-dji`` and ``tiff`` properties of an XMP packet: ``(dji, tiff)``, name -> text.
 
     Both XMP forms are read: a property as an attribute of an element
@@ -391,6 +404,10 @@ def parse_xmp(packet: bytes, source: str = "XMP") -> tuple[dict, dict]:
                          "declarations are not allowed in XMP)") from None
     except ParseError as e:
         raise ValueError(f"{source}: XMP packet is not well-formed XML ({e})") from None
+    return _dji_and_tiff(root) + (root,) if _with_root else _dji_and_tiff(root)
+
+
+def _dji_and_tiff(root) -> tuple[dict, dict]:
     out = {DJI_NS: {}, _TIFF_NS: {}}
     for elem in root.iter():
         for k, v in elem.attrib.items():
@@ -620,13 +637,29 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
         raise ValueError(f"{p.name}: Pillow cannot read it ({e}) (file {path})") from None
     with img:
         width, height = img.size
-        ex = _read_exif(img, path, notes)
+        try:
+            ex = _read_exif(img, path, notes)
+        except (TypeError, AttributeError, KeyError, IndexError, SyntaxError, struct.error) as e:
+            # Pillow's EXIF directory parsing fails on some multispectral TIFFs (issue 45: a
+            # MicaSense TIFF raised a TypeError here): the XMP still holds what is needed
+            notes.append(f"EXIF directories not readable by Pillow ({type(e).__name__}: {e}); "
+                         "using the XMP only")
+            ex = {}
         if not jpeg:
-            packet = read_xmp_packet(p, img)
-    dji, tiff = parse_xmp(packet, f"{p.name}") if packet is not None else ({}, {})
+            try:
+                packet = read_xmp_packet(p, img)
+            except (TypeError, AttributeError) as e:
+                raise ValueError(f"{p.name}: TIFF tag 700 (XMP) not readable ({type(e).__name__}: {e}) "
+                                 f"(file {path})") from None
+    if packet is not None:
+        dji, tiff, root = parse_xmp(packet, f"{p.name}", _with_root=True)
+        props = xmp_properties(root)
+    else:
+        dji, tiff, props = {}, {}, {}
+    maker = None if dji else pick_maker(props, ex.get("make") or tiff.get("Make"))
     if packet is None:
-        notes.append("no XMP packet (no drone-dji tags)")
-    elif not dji:
+        notes.append("no XMP packet (no drone-dji tags)" if maker is None else "no XMP packet")
+    elif not dji and maker is None:
         notes.append(f"XMP packet without drone-dji ({DJI_NS}) properties")
 
     m = PhotoMeta(path=str(path), width=int(width), height=int(height), xmp=dict(dji), notes=notes)
@@ -635,6 +668,20 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
     m.model = ex.get("model") or tiff.get("Model")
     m.orientation = ex.get("orientation")
     m.focal_mm, m.focal_35mm = ex.get("focal_mm"), ex.get("focal_35mm")
+    if maker is not None:
+        _read_maker(m, maker, props, ex, notes)
+        _size_notes(m, notes)
+        if m.missing and require:
+            raise PhotoTagError(path, m.missing)
+        return m
+    if not dji and (m.make or "").strip().lower() not in DJI_MAKES and m.make:
+        m.missing = (_unknown_maker_tags(),)
+        m.maker = m.make
+        if require:
+            raise PhotoTagError(path, m.missing, why=f"camera maker {m.make!r} (EXIF Make) is not one geoloc "
+                                "reads, and no known maker's XMP namespace is in the photo")
+        return m
+    m.maker = "DJI"
 
     # position: DJI's XMP (8 decimals) first, the EXIF GPS IFD otherwise
     lat = _number(dji, "GpsLatitude", notes)
@@ -699,14 +746,7 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
     m.dewarp_flag = _integer(dji, "DewarpFlag", notes)
     m.rtk_flag = _integer(dji, "RtkFlag", notes)
 
-    # sizes: a raster smaller (or larger) than the size the camera wrote was resized since
-    if m.resized:
-        notes.append(f"resized photo: the raster is {m.width} x {m.height}, EXIF PixelXDimension x "
-                     f"PixelYDimension say {m.full_width} x {m.full_height}; the calibration tags (in "
-                     f"full-resolution pixels) are scaled by {m.scale_x:.6g} x {m.scale_y:.6g}")
-        if abs(m.scale_x - m.scale_y) > 0.01 * max(m.scale_x, m.scale_y):
-            notes.append("the two scales differ by more than 1 %: the photo may have been cropped, "
-                         "which scaling cannot undo (check the geolocation)")
+    _size_notes(m, notes)
     if m.calibrated_center_x_px is not None and m.calibrated_center_y_px is not None:
         cx, cy = 2 * m.calibrated_center_x_px, 2 * m.calibrated_center_y_px
         if m.exif_width is None and (abs(cx - m.width) > 0.05 * m.width or abs(cy - m.height) > 0.05 * m.height):
@@ -719,9 +759,6 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
                          f"{m.calibrated_center_y_px:g}) is not the image centre ({m.full_width / 2:g}, "
                          f"{m.full_height / 2:g}); DewarpData's offsets are taken from the image centre "
                          "(DJI: 'origin point: photo center')")
-    if m.orientation not in (None, 1):
-        notes.append(f"EXIF Orientation = {m.orientation}: pixels are taken in the stored raster's "
-                     "orientation (rows and columns of the file, not of a rotated view)")
 
     m.missing = tuple(REQUIRED[k] for k in REQUIRED if (
         (k == "position" and m.lat_deg is None) or (k == "altitude" and m.altitude_m is None)
@@ -729,6 +766,135 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
     if m.missing and require:
         raise PhotoTagError(path, m.missing)
     return m
+
+
+def _size_notes(m: PhotoMeta, notes: list) -> None:
+    """Notes on a resized raster and a rotated view (every maker)."""
+    # sizes: a raster smaller (or larger) than the size the camera wrote was resized since
+    if m.resized:
+        notes.append(f"resized photo: the raster is {m.width} x {m.height}, EXIF PixelXDimension x "
+                     f"PixelYDimension say {m.full_width} x {m.full_height}; the calibration tags (in "
+                     f"full-resolution pixels) are scaled by {m.scale_x:.6g} x {m.scale_y:.6g}")
+        if abs(m.scale_x - m.scale_y) > 0.01 * max(m.scale_x, m.scale_y):
+            notes.append("the two scales differ by more than 1 %: the photo may have been cropped, "
+                         "which scaling cannot undo (check the geolocation)")
+    if m.orientation not in (None, 1):
+        notes.append(f"EXIF Orientation = {m.orientation}: pixels are taken in the stored raster's "
+                     "orientation (rows and columns of the file, not of a rotated view)")
+
+
+#: EXIF Make of DJI's cameras (Hasselblad: the L1D/L2D cameras of Mavic 2 Pro and Mavic 3).
+DJI_MAKES = ("dji", "hasselblad")
+
+
+def _unknown_maker_tags() -> str:
+    """The orientation tags looked for, every maker's (for the unknown maker's error)."""
+    looked = ["drone-dji:GimbalYawDegree/GimbalPitchDegree/GimbalRollDegree"]
+    for mk in MAKERS:
+        looked.append(f"{mk.name}: " + "/".join(mk.tag_names("yaw") + mk.tag_names("pitch") + mk.tag_names("roll")))
+    return "camera angles of a known maker (looked for " + "; ".join(looked) + ")"
+
+
+def _maker_number(d: dict, names, prefix: str, notes: list) -> tuple:
+    """The first of ``names`` in ``d`` as a float (``"a/b"`` rationals too): ``(value, name)``."""
+    for key in names:
+        if key not in d:
+            continue
+        text = d[key].strip()
+        try:
+            if "/" in text:
+                num, den = text.split("/", 1)
+                x = float(num) / float(den)
+            else:
+                x = float(text)
+        except (ValueError, ZeroDivisionError):
+            notes.append(f"{prefix}:{key} = {text!r} ignored: not a number")
+            continue
+        if not math.isfinite(x):
+            notes.append(f"{prefix}:{key} = {text!r} ignored: not finite")
+            continue
+        return x, key
+    return None, None
+
+
+def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: list) -> None:
+    """Fill ``m`` from a non-DJI maker's tags (:mod:`geoloc.io.photo_makers`)."""
+    m.maker = maker.name
+    own: dict = {}
+    for u in maker.namespaces:
+        for k, v in props.get(u, {}).items():
+            own.setdefault(k, v)
+    ang = angles_namespace(maker, props)
+    m.xmp = {**own, **ang}
+    pre = maker.prefix
+
+    lat, klat = _maker_number(own, maker.lat, pre, notes)
+    lon, klon = _maker_number(own, maker.lon, pre, notes)
+    if lat is not None and lon is not None:
+        if not (abs(lat) <= 90 and abs(lon) <= 180):
+            raise ValueError(f"{m.name}: {pre}:{klat}/{klon} = {lat!r}, {lon!r}: out of range (file {m.path})")
+        m.lat_deg, m.lon_deg, m.position_source = lat, lon, f"{pre}:{klat}/{klon}"
+    elif "gps_lat_deg" in ex:
+        m.lat_deg, m.lon_deg, m.position_source = ex["gps_lat_deg"], ex["gps_lon_deg"], "EXIF GPS"
+    alt, kalt = _maker_number(own, maker.altitude, pre, notes)
+    m.absolute_altitude_m = alt
+    m.relative_altitude_m, _ = _maker_number(own, maker.relative_altitude, pre, notes)
+    m.gps_altitude_m = ex.get("gps_altitude_m")
+    m.altitude_source = f"{pre}:{kalt}" if alt is not None else ("EXIF GPSAltitude" if m.gps_altitude_m is not None
+                                                                 else "")
+    if m.altitude_source:
+        notes.append(f"{maker.name}: altitude from {m.altitude_source}; its datum: {maker.altitude_datum}")
+
+    ang_pre = "Camera" if maker.convention == "pix4d-nadir" else pre
+    raw = {}
+    for which in ("yaw", "pitch", "roll"):
+        raw[which], _ = _maker_number(ang, getattr(maker, which), ang_pre, notes)
+    plat = {}
+    for which in ("platform_yaw", "platform_pitch", "platform_roll"):
+        plat[which], _ = _maker_number(ang if maker.convention == "platform-relative" else own,
+                                       getattr(maker, which), pre, notes)
+    scale = math.degrees(1.0) if maker.unit == "rad" else 1.0
+    if any(v is not None for v in plat.values()):
+        m.flight_yaw_deg, m.flight_pitch_deg, m.flight_roll_deg = (
+            (plat[k] or 0.0) * scale for k in ("platform_yaw", "platform_pitch", "platform_roll"))
+    missing = []
+    names = {"yaw": maker.tag_names("yaw"), "pitch": maker.tag_names("pitch"), "roll": maker.tag_names("roll")}
+    if maker.convention == "pix4d-nadir":
+        names = {k: [f"Camera:{t}" for t in getattr(maker, k)] for k in ("yaw", "pitch", "roll")}
+    for which in ("yaw", "pitch", "roll"):
+        if raw[which] is None:
+            missing.append(" or ".join(names[which]))
+    if maker.convention == "platform-relative":
+        for which in ("platform_yaw", "platform_pitch", "platform_roll"):
+            if plat[which] is None:
+                missing.append(" or ".join(maker.tag_names(which)))
+    if not missing:
+        y, p_, r = (raw[k] * scale for k in ("yaw", "pitch", "roll"))
+        platform = tuple(plat[k] * scale for k in ("platform_yaw", "platform_pitch", "platform_roll")) \
+            if maker.convention == "platform-relative" else None
+        m.gimbal_yaw_deg, m.gimbal_pitch_deg, m.gimbal_roll_deg = earth_gimbal_deg(maker.convention, y, p_, r,
+                                                                                   platform)
+        if maker.convention != "ned-horizon":
+            notes.append(f"{maker.name}: camera angles yaw {y:g}, pitch {p_:g}, roll {r:g} deg "
+                         f"({CONVENTIONS[maker.convention]}) are DJI's earth-referenced gimbal yaw "
+                         f"{m.gimbal_yaw_deg:.6g}, pitch {m.gimbal_pitch_deg:.6g}, roll {m.gimbal_roll_deg:.6g} deg")
+
+    fx, _ = _maker_number(own, maker.focal_x_px, pre, notes)
+    fy, _ = _maker_number(own, maker.focal_y_px, pre, notes)
+    if fx is not None and fx > 0:
+        m.calibrated_focal_px = fx
+        m.calibrated_focal_y_px = fy if fy is not None and fy > 0 else None
+        m.calibrated_center_x_px, _ = _maker_number(own, maker.center_x_px, pre, notes)
+        m.calibrated_center_y_px, _ = _maker_number(own, maker.center_y_px, pre, notes)
+        m.xmp["_calibration_tags"] = f"{pre}:{maker.focal_x_px[0]}"
+
+    miss = []
+    if m.lat_deg is None:
+        miss.append(" or ".join([f"{pre}:{maker.lat[0]}/{maker.lon[0]}"] if maker.lat else [])
+                    + (" or " if maker.lat else "") + "EXIF GPSLatitude/GPSLongitude")
+    if m.altitude_m is None:
+        miss.append((f"{pre}:{maker.altitude[0]} or " if maker.altitude else "") + "EXIF GPSAltitude")
+    m.missing = tuple(miss + missing)
 
 
 # --------------------------------------------------------------------------- lens, sensor, pose
@@ -746,13 +912,26 @@ def scale_lens(lens: Lens, width: int, height: int) -> Lens:
                                width=int(width), height=int(height))
 
 
+def database_lens(meta: PhotoMeta):
+    """The camera database's pinhole for the photo (:mod:`geoloc.io.camera_db`), or None."""
+    from geoloc.io.camera_db import db_lens, find_camera
+
+    entry = find_camera(meta.make, meta.model, meta.full_width, meta.full_height)
+    return db_lens(entry, meta.full_width, meta.full_height, meta.focal_mm) if entry is not None else None
+
+
 def lens_source(meta: PhotoMeta) -> str:
     """Which tags the photo's lens comes from (written to every output row)."""
     if meta.dewarp is not None:
         return "pinhole (DewarpData, DewarpFlag=1: already undistorted)" if meta.dewarp_flag == 1 \
             else "brown (DewarpData)"
     if meta.calibrated_focal_px is not None:
+        if meta.maker not in ("", "DJI"):
+            return f"pinhole ({meta.xmp.get('_calibration_tags', 'calibrated focal length')}, X/Y)"
         return "pinhole (CalibratedFocalLength, CalibratedOpticalCenterX/Y)"
+    db = database_lens(meta)
+    if db is not None:
+        return f"pinhole ({db.describe()})"
     if meta.focal_35mm is not None:
         return "pinhole (EXIF FocalLengthIn35mmFilm, approximate)"
     return ""
@@ -791,17 +970,38 @@ def lens_from_photo(meta: PhotoMeta) -> Lens:
             kind, coeffs = BrownLens, d.coefficients
     elif meta.calibrated_focal_px is not None:
         fx = fy = meta.calibrated_focal_px
+        if meta.calibrated_focal_y_px is not None:
+            fy = meta.calibrated_focal_y_px
         x0 = meta.calibrated_center_x_px if meta.calibrated_center_x_px is not None else W / 2.0
         y0 = meta.calibrated_center_y_px if meta.calibrated_center_y_px is not None else H / 2.0
+    elif (db := database_lens(meta)) is not None:
+        fx, fy, x0, y0 = db.fx, db.fy, W / 2.0, H / 2.0
     elif meta.focal_35mm is not None:
         fx = fy = meta.focal_35mm * math.hypot(W, H) / _DIAGONAL_35MM
         x0, y0 = W / 2.0, H / 2.0
     else:
         raise PhotoTagError(meta.path, (("drone-dji:DewarpData or drone-dji:CalibratedFocalLength or "
+                                         "a camera of the camera database (assets/cameras/drone_cameras.csv, "
+                                         f"EXIF Make/Model {meta.make!r}/{meta.model!r}) or "
                                          "EXIF FocalLengthIn35mmFilm"),),
                             why="has no lens calibration (give a sensor file instead)")
     full = kind(fx=fx, fy=fy, cx=x0 - 0.5, cy=y0 - 0.5, width=W, height=H, **coeffs)
     return scale_lens(full, meta.width, meta.height) if meta.resized else full
+
+
+def lens_uncertainty(meta: PhotoMeta) -> dict:
+    """The lens's 1-sigma errors as ``[uncertainty]`` keys (``fx_px``, ``fy_px``, raster pixels).
+
+    Only a lens from the camera database has a stated one (:mod:`geoloc.io.camera_db`: the nominal
+    focal length against a calibrated one, and its rounding); {} for calibrated lenses (the
+    maker states none) and for the approximate 35 mm lens (no stated precision).
+    """
+    if meta.dewarp is not None or meta.calibrated_focal_px is not None:
+        return {}
+    db = database_lens(meta)
+    if db is None:
+        return {}
+    return {"fx_px": db.sigma_fx * meta.scale_x, "fy_px": db.sigma_fy * meta.scale_y}
 
 
 def sensor_from_photo(meta: PhotoMeta) -> FrameSensor:
@@ -887,5 +1087,6 @@ def photo_columns(meta: PhotoMeta) -> dict:
         "roll_deg": meta.flight_roll_deg,
         "gimbal_yaw_deg": meta.gimbal_yaw_deg, "gimbal_pitch_deg": meta.gimbal_pitch_deg,
         "gimbal_roll_deg": meta.gimbal_roll_deg,
-        "rtk_flag": meta.rtk_flag, "make": meta.make, "model": meta.model,
+        "rtk_flag": meta.rtk_flag, "make": meta.make, "model": meta.model, "maker": meta.maker,
+        "lens_fx_sigma_px": lens_uncertainty(meta).get("fx_px"),
     }

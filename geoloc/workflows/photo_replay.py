@@ -52,8 +52,8 @@ OUTPUT_COLUMNS = [
     "slant_range_m", "truth_lat_deg", "truth_lon_deg", "truth_h_m", "error_to_truth_m",
     "vertical_error_m", "sensor_lat_deg", "sensor_lon_deg", "sensor_h_m", "absolute_altitude_m",
     "altitude_datum", "geoid_undulation_m", "relative_altitude_m", "heading_deg", "pitch_deg",
-    "roll_deg", "gimbal_yaw_deg", "gimbal_pitch_deg", "gimbal_roll_deg", "lens", "rtk_flag",
-    "make", "model",
+    "roll_deg", "gimbal_yaw_deg", "gimbal_pitch_deg", "gimbal_roll_deg", "lens", "lens_fx_sigma_px",
+    "rtk_flag", "make", "model", "maker",
 ]
 #: Required columns of the targets file.
 TARGET_COLUMNS = ("image", "row", "col")
