@@ -51,7 +51,7 @@ def register(sub) -> None:
                    help="records CSV (default: the bundled assets/records/qiao2017_flight_tests.csv); "
                    "or MISB ST 0601 KLV: raw .klv/.bin or video .ts/.mpg/.mp4 (one or more files: each "
                    "packet's frame centre and corners recomputed and compared, docs/klv.md); or drone "
-                   "photos .jpg/.jpeg/.tif/.tiff/.dng with --targets")
+                   "photos .jpg/.jpeg/.tif/.tiff/.dng with --targets; or DJI flight-log subtitles .srt (docs/photos.md)")
     add_sensor_option(p)
     add_records_options(p)
     add_target_options(p)
@@ -111,6 +111,8 @@ def run(args) -> int:
         return _run_klv(args, inputs)
     if kind == "photos":
         return _run_photos(args, inputs)
+    if kind == "srt":
+        return _run_srt(args, inputs)
     if len(inputs) > 1:
         raise ValueError(f"{len(inputs)} records files given ({', '.join(inputs)}): give one records CSV "
                          "(several inputs are for KLV files or photos)")
@@ -202,11 +204,11 @@ PHOTO_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".dng")
 
 
 def _input_kind(inputs) -> str:
-    """"klv", "photos" or "records" for the positional inputs (suffixes; a mix is an error)."""
+    """"klv", "photos", "srt" or "records" for the positional inputs (suffixes; a mix is an error)."""
     from geoloc.workflows.klv_replay import is_klv_path
 
-    kinds = ["klv" if is_klv_path(x) else "photos" if Path(x).suffix.lower() in PHOTO_SUFFIXES else "records"
-             for x in inputs]
+    kinds = ["klv" if is_klv_path(x) else "photos" if Path(x).suffix.lower() in PHOTO_SUFFIXES
+             else "srt" if Path(x).suffix.lower() == ".srt" else "records" for x in inputs]
     if len(set(kinds)) > 1:
         raise ValueError("inputs of different kinds: " + ", ".join(f"{x} ({k})" for x, k in zip(inputs, kinds))
                          + "; replay one kind at a time")
@@ -373,6 +375,27 @@ def _run_photos(args, inputs) -> int:
     if args.export and rows:
         _export(args, lambda path: write_rows(path, rows), None)
     return 0 if rows else 1
+
+
+def _run_srt(args, inputs) -> int:
+    """``geoloc replay FLIGHT.SRT ...``: DJI flight-log subtitles read as a flight
+    (:func:`geoloc.io.dji_srt.read_srt`); bad blocks reported by line; ``--out`` writes the records."""
+    from geoloc.io.dji_srt import SrtFlight, read_srt, write_srt_records
+
+    _reject_records_options(args, "DJI SRT flight logs")
+    flights = []
+    for path in inputs:
+        f = read_srt(path)
+        for line, msg in f.errors:
+            print(f"geoloc replay: {path} line {line}: {msg}: skipped", file=sys.stderr)
+        print(f.summary())
+        flights.append(f)
+    if args.out:
+        merged = SrtFlight(",".join(inputs), [r for f in flights for r in f.records], [])
+        n = write_srt_records(args.out, merged)
+        print(f"wrote {n} rows to {args.out} (ac_h_m ellipsoidal, WGS 84, from abs_alt taken as EGM96; "
+              "rel_alt above the take-off point)")
+    return 0
 
 
 # --------------------------------------------------------------------------- campaigns
