@@ -27,7 +27,7 @@ block's time code and date-time. Every other ``[key: value]`` is kept as text.
 
 A block that cannot be read (bad time code, a position that is not a number or out of range,
 no position) is reported with its line number and skipped; the good blocks are kept.
-``docs/records.md``, "DJI SRT flight logs", is the user's page.
+``docs/photos.md``, "DJI flight-log subtitles (.SRT)", is the user's page.
 """
 
 from __future__ import annotations

@@ -1,5 +1,10 @@
 """Drone photos: EXIF and DJI's XMP (``drone-dji``) from JPEG and TIFF, and the sensor they describe.
 
+Other makers (Skydio, Parrot, Pix4D ``Camera:`` tags of Autel and Sequoia, MicaSense, Teal) are
+read through their tables in :mod:`geoloc.io.photo_makers`, their angles turned into DJI's
+convention; a photo without calibration takes its lens from the camera database
+(:mod:`geoloc.io.camera_db`), with the focal length's 1-sigma (:func:`lens_uncertainty`).
+
 ``docs/photos.md`` is the user's page; this docstring is the short version.
 
 What is read (:func:`read_photo` -> :class:`PhotoMeta`):
