@@ -165,3 +165,43 @@ def test_limb_scenario_csv_has_the_refracted_columns(tmp_path, capsys):
 
 def test_refraction_model_object_is_shared():
     assert Corrections.for_sensor(None, "standard").refraction is STANDARD_REFRACTION
+
+
+def _replay_csv(tmp_path, name, *extra):
+    import csv
+
+    out = tmp_path / name
+    main(["replay", "--height-column", "paper_height_m", "--out", str(out), *extra])
+    return list(csv.DictReader(out.open()))
+
+
+def test_replay_rows_say_which_corrections_and_how_far(tmp_path, capsys):
+    """Every replay row names its corrections; refraction_m is the distance between the two runs'
+    points, measured here with pyproj's geodetic -> ECEF (1 mm: the CSV's 8 decimals of a degree are
+    1 mm, its heights 1 mm)."""
+    from pyproj import Transformer
+
+    plain = _replay_csv(tmp_path, "plain.csv")
+    bent = _replay_csv(tmp_path, "bent.csv", "--refraction", "standard")
+    capsys.readouterr()
+    to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    for a, b in zip(plain, bent):
+        assert a["corrections"] == "none" and float(a["refraction_m"]) == 0.0
+        assert b["corrections"] == "refraction"
+        pa = np.array(to_ecef.transform(float(a["lon_deg"]), float(a["lat_deg"]), float(a["h_m"])))
+        pb = np.array(to_ecef.transform(float(b["lon_deg"]), float(b["lat_deg"]), float(b["h_m"])))
+        assert np.linalg.norm(pb - pa) == pytest.approx(float(b["refraction_m"]), abs=2e-3)
+        assert float(b["refraction_m"]) > 0.5  # 18 km, 30-60 deg off nadir: metres
+
+
+def test_replay_says_once_when_refraction_left_off_matters(tmp_path, capsys):
+    """A budget whose CE90 is small beside refraction's metres: the summary says so, once."""
+    from geoloc.assets import DEFAULT_CAMERA, asset_path
+
+    cam = tmp_path / "cam.toml"
+    cam.write_text(asset_path(*DEFAULT_CAMERA).read_text() + "\n[uncertainty]\nnorth_m = 0.1\neast_m = 0.1\n")
+    _replay_csv(tmp_path, "plain.csv", "--sensor", str(cam))
+    err = capsys.readouterr().err
+    assert err.count("refraction is off, but the standard atmosphere would move") == 1
+    _replay_csv(tmp_path, "bent.csv", "--sensor", str(cam), "--refraction", "standard")
+    assert "refraction is off" not in capsys.readouterr().err

@@ -6,9 +6,11 @@ import sys
 from pathlib import Path
 
 from geoloc.cli._options import (
+    add_correction_options,
     add_records_options,
     add_sensor_option,
     add_target_options,
+    corrections_from_args,
     input_path,
     output_dir,
     output_path,
@@ -26,6 +28,7 @@ from geoloc.workflows.replay import (
     located,
     outside_sensor_messages,
     plausibility_warnings,
+    refraction_note,
     replay_records,
     summary_table,
     uncertainty_columns,
@@ -88,6 +91,7 @@ def register(sub) -> None:
     from geoloc.cli._options import add_dem_options
 
     add_dem_options(p)
+    add_correction_options(p)
 
 
 #: Without --out, records up to this many are printed one line each (more: the summary only).
@@ -128,13 +132,17 @@ def run(args) -> int:
     surface = surface_from_args(args, records)
     if args.dem is not None:
         warn_datums("replay", args.dem_datum, records.altitude)
-    result = replay_records(records, camera, surface)
+    corrections = corrections_from_args(args, camera)
+    result = replay_records(records, camera, surface, corrections)
     budget = _budget(args)
     if budget is not None:
         cols, notes = uncertainty_columns(records, camera, surface, budget)
         result.extra.update(cols)
         for msg in notes:
             print(f"geoloc replay: note: {msg}", file=sys.stderr)
+        note = refraction_note(records, camera, surface, corrections, result)
+        if note:
+            print(f"geoloc replay: note: {note}", file=sys.stderr)
     for msg in outside_sensor_messages(records, camera, result.lat_deg):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
     if TARGET_ID_COLUMN in records.header:  # targets seen in several rows: their rays' intersection

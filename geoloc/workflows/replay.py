@@ -18,6 +18,7 @@ from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import Records
 from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.locate import line_of_sight
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status, names
 from geoloc.surfaces.base import GroundPoint, terrain_of
@@ -240,8 +241,8 @@ def _drone_height_warnings(records: Records, result: ReplayResult, ground, senso
     return np.flatnonzero(high), text
 
 
-def replay_records(records: Records, sensor, surface) -> ReplayResult:
-    """Locate every record on ``surface``: the replay itself.
+def replay_records(records: Records, sensor, surface, corrections: Corrections = NO_CORRECTIONS) -> ReplayResult:
+    """Locate every record on ``surface`` through the location pipeline: the replay itself.
 
     Parameters
     ----------
@@ -251,16 +252,20 @@ def replay_records(records: Records, sensor, surface) -> ReplayResult:
         Where the targets lie (:func:`geoloc.surfaces.terrain.surface_for`; on the
         command line :func:`geoloc.cli._options.surface_from_args`): a height, one
         height per record, a DEM or a mosaic.
+    corrections : Corrections
+        The line-of-sight corrections (:class:`geoloc.pipeline.Corrections`; none by default).
 
     Returns
     -------
     ReplayResult
-        On a DEM, with the columns ``status``, ``dem_evaluations`` (and ``hidden``
-        for ``bisect``) and ``terrain`` (the DEM or mosaic, for :func:`plausibility_warnings`).
+        With the columns ``corrections`` (which were applied) and ``refraction_m`` (how far
+        refraction moved each point); on a DEM also ``status``, ``dem_evaluations`` (and
+        ``hidden`` for ``bisect``) and ``terrain`` (the DEM or mosaic, for
+        :func:`plausibility_warnings`).
     """
-    hit = surface.intersect(records_line_of_sight(records, sensor))
+    hit = Pipeline(sensor, surface, corrections).intersect(records_line_of_sight(records, sensor))
     terrain = terrain_of(surface)
-    extra = {}
+    extra = {"corrections": np.full(len(records), corrections.label, dtype=object), "refraction_m": hit.refraction_m}
     if terrain is not None:
         extra = {"status": hit.status, "dem_evaluations": hit.dem_evaluations.astype(np.int64)}
         if surface.method == "bisect":
@@ -302,6 +307,38 @@ def uncertainty_columns(records: Records, sensor, surface, budget) -> tuple:
     ok = np.asarray(pu.status) == Status.OK
     cols = {k: np.where(ok, np.asarray(v, float), np.nan) for k, v in pu.columns().items()}
     return cols, messages
+
+
+#: The summary notes refraction left off where it would move a point by more than this fraction
+#: of the point's predicted CE90 (issue 44: a tenth).
+REFRACTION_NOTE_FRACTION = 0.1
+
+
+def refraction_note(records: Records, sensor, surface, corrections: Corrections, result: ReplayResult):
+    """One line when refraction is off but would move points by more than a tenth of their CE90.
+
+    Only with a predicted CE90 (``ce90_m``, from the sensor's ``[uncertainty]`` budget): the
+    records are located again with the standard atmosphere and each shift is set against its
+    own CE90. None when refraction is on, there is no CE90, or no point moves that far.
+    """
+    import dataclasses
+
+    ce90 = result.extra.get("ce90_m")
+    if corrections.refraction is not None or ce90 is None:
+        return None
+    from geoloc.corrections.refraction import STANDARD_REFRACTION
+
+    bent = Pipeline(sensor, surface, dataclasses.replace(corrections, refraction=STANDARD_REFRACTION)).intersect(
+        records_line_of_sight(records, sensor))
+    shift = np.asarray(bent.refraction_m, float)
+    with np.errstate(invalid="ignore"):
+        big = shift > REFRACTION_NOTE_FRACTION * np.asarray(ce90, float)
+    if not big.any():
+        return None
+    k = int(np.nanargmax(np.where(big, shift, np.nan)))
+    return (f"refraction is off, but the standard atmosphere would move {int(big.sum())} of {len(records)} "
+            f"records by more than a tenth of their predicted CE90 (up to {shift[k]:.1f} m, line "
+            f"{records.lines[k]}, CE90 {float(np.asarray(ce90)[k]):.1f} m): --refraction standard applies it")
 
 
 def replay_at_height(records: Records, camera: FrameSensor, height_column: str | None = None,
@@ -369,6 +406,8 @@ def write_replay_csv(path, result: ReplayResult) -> None:
                     out[name] = _fmt(v, ".8f")
                 elif name == "status":
                     out[name] = status[k]
+                elif isinstance(v, str):
+                    out[name] = v
                 elif isinstance(v, (int, np.integer)):
                     out[name] = str(int(v))
                 else:
