@@ -121,7 +121,7 @@ class Corrections:
         space = bool(getattr(sensor, "spaceborne", False))
         lt = space if light_time is None else bool(light_time)
         ab = space if aberration is None else bool(aberration)
-        name = type(sensor).__name__
+        name = "frame sensor" if sensor is None else type(sensor).__name__
         if getattr(sensor, "includes_corrections", False):
             asked = [n for n, on in (("refraction", refraction is not None), ("light_time", lt),
                                      ("aberration", ab)) if on]

@@ -205,3 +205,29 @@ def test_replay_says_once_when_refraction_left_off_matters(tmp_path, capsys):
     assert err.count("refraction is off, but the standard atmosphere would move") == 1
     _replay_csv(tmp_path, "bent.csv", "--sensor", str(cam), "--refraction", "standard")
     assert "refraction is off" not in capsys.readouterr().err
+
+
+def test_klv_replay_carries_the_corrections(tmp_path, capsys):
+    """A KLV replay with --refraction standard: each frame centre moved by its refraction_m, the
+    distance between the two runs' centres (through pyproj, 2 mm: the CSV's precision)."""
+    import csv
+
+    from pyproj import Transformer
+
+    runs = {}
+    for name, extra in (("plain", []), ("bent", ["--refraction", "standard"])):
+        out = tmp_path / f"{name}.csv"
+        main(["replay", "assets/klv/example_flight.klv", "--out", str(out), *extra])
+        runs[name] = list(csv.DictReader(out.open()))
+    capsys.readouterr()
+    to_ecef = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    moved = 0
+    for a, b in zip(runs["plain"], runs["bent"]):
+        assert a["corrections"] == "none" and b["corrections"] == "refraction"
+        if a["status"] != "ok":
+            continue
+        pa = np.array(to_ecef.transform(float(a["lon_deg"]), float(a["lat_deg"]), float(a["h_m"])))
+        pb = np.array(to_ecef.transform(float(b["lon_deg"]), float(b["lat_deg"]), float(b["h_m"])))
+        assert np.linalg.norm(pb - pa) == pytest.approx(float(b["refraction_m"]), abs=2e-3)
+        moved += float(b["refraction_m"]) > 0.0
+    assert moved > 0

@@ -242,9 +242,10 @@ def _run_klv(args, inputs) -> int:
     paths = [Path(x) for x in inputs]
     sensor = sensor_from_args(args, default=False)
     surface = surface_from_args(args) if args.dem else None  # else: each packet's own frame-centre height
+    corrections = corrections_from_args(args, sensor)  # KLV comes from aircraft: refraction, light-time
     replays = []
     for path in paths:
-        r = replay_klv(path, surface=surface, sensor=sensor, budget=_budget(args))
+        r = replay_klv(path, surface=surface, sensor=sensor, budget=_budget(args), corrections=corrections)
         for e in r.errors:
             print(f"geoloc replay: {path}: {e}", file=sys.stderr)
         print(r.summary)
@@ -371,7 +372,7 @@ def _run_photos(args, inputs) -> int:
     extra = {"altitude_datum": args.altitude_datum} if getattr(args, "altitude_datum", None) else {}
     targets = []  # a target_id column: each target seen in several photos, triangulated
     rows, messages = replay_photos(photos, args.targets, sensor=sensor, surface=surface, targets_out=targets,
-                                   **extra)
+                                   corrections=corrections_from_args(args, sensor), **extra)
     for m in messages:
         print(f"geoloc replay: {m}", file=sys.stderr)
     print(summarize(rows, messages))

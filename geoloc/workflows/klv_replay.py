@@ -83,6 +83,7 @@ from geoloc.io.klv import (
 )
 from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.locate import line_of_sight, locate
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import lens_from_fov
@@ -560,7 +561,8 @@ def _append(notes, mask, text):
 
 
 def replay_klv(source, *, surface=None, sensor: FrameSensor | None = None, verify_checksum: bool = True,
-               fast: bool = True, label: str | None = None, budget=None) -> KlvReplay:
+               fast: bool = True, label: str | None = None, budget=None,
+               corrections: Corrections = NO_CORRECTIONS) -> KlvReplay:
     """Recompute every packet's frame centre and corners and compare with the packet's own.
 
     Parameters
@@ -582,6 +584,9 @@ def replay_klv(source, *, surface=None, sensor: FrameSensor | None = None, verif
         (:func:`geoloc.analysis.uncertainty.propagate`) as ``ce90_m le90_m ellipse_*`` beside
         the packet's own target error estimates, ``reported_ce90_m`` / ``reported_le90_m``
         (MISB ST 0601 tags 45 and 46, Target Error Estimate CE90 / LE90).
+    corrections : Corrections
+        The line-of-sight corrections of the location pipeline (:class:`geoloc.pipeline.Corrections`;
+        none by default): the rows say which (``corrections``) and ``refraction_m``.
 
     Returns
     -------
@@ -591,7 +596,7 @@ def replay_klv(source, *, surface=None, sensor: FrameSensor | None = None, verif
     """
     read = source if isinstance(source, KlvRead) else read_klv(source, verify_checksum=verify_checksum,
                                                                  fast=fast, label=label)
-    return _replay(read, surface, sensor, budget)
+    return _replay(read, surface, sensor, budget, corrections)
 
 
 #: The largest gap between two packets [s] across which a velocity is differenced: beyond it the
@@ -697,7 +702,7 @@ def _klv_uncertainty(sens, pose, surface, budget, ok, velocity_ned_m_s=None):
     return {k: np.where(good, np.asarray(v, float), np.nan) for k, v in pu.columns().items()}, messages
 
 
-def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
+def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corrections = NO_CORRECTIONS) -> KlvReplay:
     terrain = terrain_of(surface)
     c = read.columns
     n = len(read)
@@ -796,9 +801,9 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
         h_int = clean(rep_h, bad_c)
         surface_text = ("each packet's own frame-centre height, ellipsoidal (tag 78 HAE; tag 25 MSL + EGM96 N "
                         "where 78 is absent): the comparison isolates the angles")
-        gc = locate(pose_c, sens, target_h=h_int, height_kind="geodetic")
+        gc = locate(pose_c, sens, target_h=h_int, height_kind="geodetic", corrections=corrections)
         gk = locate(pose_k, sens, k_rows, k_cols, target_h=h_int[None, :], height_kind="geodetic",
-                    outside="extrapolate")
+                    outside="extrapolate", corrections=corrections)
     else:
         if terrain is not None:
             src = getattr(terrain, "path", None) or "DEM"
@@ -806,8 +811,9 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
                             if terrain.datum == "egm96" else "") + f"), method {surface.method}")
         else:
             surface_text = repr(surface)
-        gc = surface.intersect(line_of_sight(pose_c, sens))
-        gk = surface.intersect(line_of_sight(pose_k, sens, k_rows, k_cols, outside="extrapolate"))
+        pipe = Pipeline(sens, surface, corrections)
+        gc = pipe.intersect(line_of_sight(pose_c, sens))
+        gk = pipe.intersect(line_of_sight(pose_k, sens, k_rows, k_cols, outside="extrapolate"))
 
     status = np.where(bad_c, np.uint8(Status.INVALID_INPUT), np.asarray(gc.status, np.uint8)).astype(np.uint8)
     ok = status == Status.OK
@@ -912,6 +918,8 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None) -> KlvReplay:
         "status": status,
         "range_m": rng,
         "frame_center_error_m": fc_err,
+        "corrections": np.full(n, corrections.label, dtype=object),
+        "refraction_m": np.where(ok, np.asarray(gc.refraction_m, float), np.nan),
     })
     for j in range(4):
         cols[f"corner{j + 1}_lat_deg"] = k_lat[j]

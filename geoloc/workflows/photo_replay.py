@@ -37,6 +37,7 @@ from geoloc.io.photos import (
     pose_from_photo,
     read_photo,
 )
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.sensors.platform import DRONE_MAX_HEIGHT_M, drone_height_hint
 from geoloc.status import Status, names
 from geoloc.surfaces.base import terrain_of
@@ -50,7 +51,8 @@ __all__ = ["OUTPUT_COLUMNS", "read_targets", "replay_photos", "summarize", "writ
 OUTPUT_COLUMNS = [
     "image", "row", "col", "lat_deg", "lon_deg", "mgrs", "h_m", "h_datum", "status", "surface",
     "slant_range_m", "truth_lat_deg", "truth_lon_deg", "truth_h_m", "error_to_truth_m",
-    "vertical_error_m", "sensor_lat_deg", "sensor_lon_deg", "sensor_h_m", "absolute_altitude_m",
+    "vertical_error_m", "corrections", "refraction_m", "sensor_lat_deg", "sensor_lon_deg", "sensor_h_m",
+    "absolute_altitude_m",
     "altitude_datum", "geoid_undulation_m", "relative_altitude_m", "heading_deg", "pitch_deg",
     "roll_deg", "gimbal_yaw_deg", "gimbal_pitch_deg", "gimbal_roll_deg", "lens", "lens_fx_sigma_px",
     "rtk_flag", "make", "model", "maker",
@@ -159,7 +161,8 @@ def _resolve(image: str, index: dict):
 
 
 def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
-                  altitude_datum: str = "egm96", truth_h_datum: str = "ellipsoid", targets_out: list | None = None):
+                  altitude_datum: str = "egm96", truth_h_datum: str = "ellipsoid", targets_out: list | None = None,
+                  corrections: Corrections = NO_CORRECTIONS):
     """Locate every target of ``targets_csv`` in its photo and compare it with its truth.
 
     Parameters
@@ -188,6 +191,9 @@ def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
         :class:`geoloc.workflows.triangulation.TargetResult` appended here (with a DEM, its
         ``surface``: each photo's DEM hit against the intersection;
         :func:`geoloc.workflows.triangulation.triangulate_ids`).
+    corrections : Corrections
+        The location pipeline's line-of-sight corrections (:class:`geoloc.pipeline.Corrections`;
+        none by default); each row says which (``corrections``) and ``refraction_m``.
 
     Returns
     -------
@@ -271,7 +277,7 @@ def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
     out = {}
     for key, ks in by_photo.items():
         out.update(_locate_photo(photos[key], [targets[k] for k in ks], ks, surface,
-                                 altitude_datum, truth_h_datum, extra, messages))
+                                 altitude_datum, truth_h_datum, extra, messages, corrections))
     if targets_out is not None and TARGET_ID_COLUMN in header:
         targets_out.extend(_triangulate_targets(photos, targets, by_photo, out, surface is not None))
     return [out[k] for k in order], messages
@@ -342,7 +348,8 @@ def _datum_messages(meta, altitude_datum, h_cam, n, dem) -> list:
     return out
 
 
-def _locate_photo(ph, targets, ks, on, altitude_datum, truth_h_datum, extra, messages) -> dict:
+def _locate_photo(ph, targets, ks, on, altitude_datum, truth_h_datum, extra, messages,
+                  corrections: Corrections = NO_CORRECTIONS) -> dict:
     meta, s, pose = ph["meta"], ph["sensor"], ph["pose"]
     row = np.array([t["row"] for t in targets])
     col = np.array([t["col"] for t in targets])
@@ -353,16 +360,17 @@ def _locate_photo(ph, targets, ks, on, altitude_datum, truth_h_datum, extra, mes
         truth["truth_h_m"] = truth["truth_h_m"] + egm96_undulation(np.deg2rad(lat_t), np.deg2rad(lon_t))
     los = s.line_of_sight(row, col, pose)
     dem = terrain_of(on) if on is not None else None
-    if on is not None:
-        hit = on.intersect(los)
+    given = on is not None  # a surface given (else each target at its own truth height)
+    if given:
         surface = (f"dem ({on.method})" + (f": {Path(dem.path).name}" if getattr(dem, "path", None) else "")
                    if dem is not None else repr(on))
     else:
-        hit = HeightSurface(truth["truth_h_m"], "geodetic").intersect(los)
+        on = HeightSurface(truth["truth_h_m"], "geodetic")
         surface = "truth_h_m (geodetic height)"
+    hit = Pipeline(s, on, corrections).intersect(los)
     lat, lon = np.rad2deg(hit.lat), np.rad2deg(hit.lon)
     err = horizontal_distance_m(lat, lon, truth["truth_lat_deg"], truth["truth_lon_deg"])
-    vert = hit.h - truth["truth_h_m"] if on is not None else np.full(len(ks), np.nan)
+    vert = hit.h - truth["truth_h_m"] if given else np.full(len(ks), np.nan)
     st = names(hit.status)
     for t, code in zip(targets, hit.status):
         if code == Status.OUTSIDE_SENSOR:
@@ -384,7 +392,8 @@ def _locate_photo(ph, targets, ks, on, altitude_datum, truth_h_datum, extra, mes
                  mgrs=mgrs[j], h_m=_f(hit.h[j]), status=str(st[j]), slant_range_m=_f(hit.slant_range[j]),
                  truth_lat_deg=_f(truth["truth_lat_deg"][j]), truth_lon_deg=_f(truth["truth_lon_deg"][j]),
                  truth_h_m=_f(truth["truth_h_m"][j]), error_to_truth_m=_f(err[j]),
-                 vertical_error_m=_f(vert[j]))
+                 vertical_error_m=_f(vert[j]), corrections=corrections.label,
+                 refraction_m=_f(hit.refraction_m[j]))
         for c in extra:
             r[c if c not in r else f"input_{c}"] = t.get(c, "")
         out[k] = r
