@@ -1,13 +1,13 @@
-"""Rays per second of the refraction correction for 100 000 rays, against the straight-line locate in the same run.
+"""Rays per second of the location pipeline with refraction on, against the same pipeline with it off.
 
 Every ray has its own aircraft position (30-40 N, 75-85 E, 5-20 km) and its own
 direction (0-75 deg off nadir, any azimuth), as in a Monte Carlo run or a long replay.
-"Without": the straight line met with the ellipsoid at h = 0 and turned into
-latitude, longitude and height (``geoloc.surfaces.height.intersect_los_height``, the
-inflated surface of [Q17 eq. 11], then Vermeille). "With": the same, then
-``Refraction.correct`` from that raw hit, whose bent point at the raw hit's height is the
-corrected ground point on a constant-height surface (with its latitude, longitude and
-height). Both are timed on the same rays, alternately, medians of ``--repeat`` calls.
+Both go through ``geoloc.pipeline.Pipeline.intersect`` on the inflated surface at h = 0
+([Q17 eq. 11], then Vermeille), as every verb does. "Without": ``--refraction none``.
+"With": ``--refraction standard``: the same raw hit, then ``Refraction.correct`` from it,
+whose bent point at the raw hit's height is the corrected ground point on a
+constant-height surface (with its latitude, longitude and height), and the bookkeeping
+of the shift. Both are timed on the same rays, alternately, medians of ``--repeat`` calls.
 
 Run: ``python benchmarks/bench_refraction.py [--rays N] [--repeat K] [--threads T]``.
 Prints wall and CPU time of each, the machine's load, and last ``ratio: X  (wall Y)``:
@@ -27,11 +27,12 @@ import numpy as np
 from _timing import timed  # benchmarks/_timing.py (the script's folder is on sys.path)
 
 from geoloc.corrections.refraction import STANDARD_REFRACTION
+from geoloc.pipeline import Corrections, Pipeline
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.geodesy.local import R_ecef_ned
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
-from geoloc.surfaces.height import intersect_los_height
+from geoloc.surfaces.height import HeightSurface
 
 
 def make_rays(n: int, rng: np.random.Generator) -> LineOfSight:
@@ -45,14 +46,17 @@ def make_rays(n: int, rng: np.random.Generator) -> LineOfSight:
     return LineOfSight(o, d, np.zeros(n, np.uint8))
 
 
+SURFACE = HeightSurface(0.0)
+OFF = Pipeline(None, SURFACE, Corrections())
+ON = Pipeline(None, SURFACE, Corrections(refraction=STANDARD_REFRACTION))
+
+
 def straight(los):
-    return intersect_los_height(los, 0.0)
+    return OFF.intersect(los)
 
 
 def refracted(los):
-    g = intersect_los_height(los, 0.0)
-    line = STANDARD_REFRACTION.correct(los.origin_ecef, los.direction_ecef, g.ecef, hit_llh=(g.lat, g.lon, g.h))
-    return g, line
+    return ON.intersect(los)
 
 
 def main(argv=None) -> None:
@@ -77,19 +81,19 @@ def main(argv=None) -> None:
     load1 = os.getloadavg()
     (ws, cs), (wr, cr) = (np.median(np.array(runs[k]), axis=0) for k in ("straight", "refracted"))
     t0 = time.perf_counter()
-    g, line = refracted(los)
+    g = refracted(los)
     tc = time.perf_counter() - t0
-    ok = (g.status == Status.OK) & (line.status == Status.OK)
-    shift = line.shift_m[ok]
+    ok = g.status == Status.OK
+    shift = g.refraction_m[ok]
     n = args.rays
     print(f"rays: {n}, repeats: {args.repeat} (medians, alternating), load average {load0[0]:.2f} before, "
           f"{load1[0]:.2f} after")
     print(f"rays corrected: {int(ok.sum())}; shift median {np.median(shift):.2f} m, max {np.max(shift):.1f} m")
-    print(f"straight line x ellipsoid (intersect_los_height): wall {ws:.4f} s  cpu {cs:.4f} s  "
+    print(f"pipeline, --refraction none:     wall {ws:.4f} s  cpu {cs:.4f} s  "
           f"{n / ws / 1e6:.3f} M rays/s wall  {n / cs / 1e6:.3f} M rays/s cpu")
-    print(f"the same + Refraction.correct:                   wall {wr:.4f} s  cpu {cr:.4f} s  "
+    print(f"pipeline, --refraction standard: wall {wr:.4f} s  cpu {cr:.4f} s  "
           f"{n / wr / 1e6:.3f} M rays/s wall  {n / cr / 1e6:.3f} M rays/s cpu")
-    print(f"correction alone (difference of medians):        wall {wr - ws:.4f} s  cpu {cr - cs:.4f} s; "
+    print(f"refraction alone (difference):   wall {wr - ws:.4f} s  cpu {cr - cs:.4f} s; "
           f"one more call {tc:.4f} s wall")
     print("ratio is rays per CPU second with refraction over without (goal >= 0.5); wall in brackets")
     print(f"ratio: {cs / cr:.2f}  (wall {ws / wr:.2f})")

@@ -263,16 +263,18 @@ class Pipeline:
         raw_ecef = np.asarray(raw.ecef, float)
         bent = c.refraction.correct(o, d, raw_ecef, hit_llh=(raw.lat, raw.lon, raw.h))
         if _constant_height(self.surface):
+            # the bent point at the raw hit's height is on the surface; where the raw hit is NaN the
+            # correction is NaN too (INVALID_INPUT), and the raw hit's status is kept
             status = np.where(ok_raw, bent.status, raw.status).astype(np.uint8)
-            ok = status == Status.OK
-            ecef = np.where(ok[..., None], bent.hit_ecef, np.nan)
-            hit = dataclasses.replace(raw, ecef=ecef, lat=np.where(ok, bent.lat, np.nan),
-                                      lon=np.where(ok, bent.lon, np.nan), h=np.where(ok, bent.h, np.nan),
-                                      status=status)
-        else:
-            hit = self._refract_fixed_point(o, d, raw, bent)
-            status = np.asarray(hit.status)
-            ok = status == Status.OK
+            ecef = bent.hit_ecef
+            shift = bent.shift_m  # from the straight line's point at that height: the raw hit
+            rng = bent.range_m  # from the camera: line.origin_ecef is los.origin_ecef (light-time turns both)
+            if c.light_time:
+                rng = np.linalg.norm(ecef - np.asarray(los.origin_ecef, float), axis=-1)
+            return dataclasses.replace(raw, lat=bent.lat, lon=bent.lon, h=bent.h, ecef=ecef, status=status,
+                                       slant_range=rng, los=los, corrections=c.names, refraction_m=shift)
+        hit = self._refract_fixed_point(o, d, raw, bent)
+        ok = np.asarray(hit.status) == Status.OK
         shift = np.where(ok, np.linalg.norm(np.asarray(hit.ecef) - raw_ecef, axis=-1), np.nan)
         rng = np.where(ok, np.linalg.norm(np.asarray(hit.ecef) - np.asarray(los.origin_ecef, float), axis=-1), np.nan)
         return dataclasses.replace(hit, slant_range=rng, los=los, corrections=c.names, refraction_m=shift)

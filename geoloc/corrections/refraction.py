@@ -51,7 +51,7 @@ is within 0.4 / 1.4 / 4.1 / 5.2 / 6.2 mm of it from 18 km at 30 / 45 / 60 / 70 /
 off nadir (shifts of 1.3-387 m), within 3 mm from 700 km at 20-50 degrees, 28 mm of a
 401 m shift for a look 1 degree up; the limb's refracted tangent height within 0.2 m.
 Those millimetres are the trace's own reproducibility (its answer moves by 2-4 mm when
-it is given the tabulated n instead of the exact profile). The quadrature itself (6
+it is given the tabulated n instead of the exact profile). The quadrature itself (4
 nodes a panel) is within 1e-6 of the shift of a 64-node one (the floor is the table's
 linear interpolation). The model's own limits: the standard atmosphere is a yearly
 mid-latitude mean (the real refraction differs by the weather: 1 % per 3 K or per 10 hPa at the ground, more near
@@ -79,13 +79,19 @@ from geoloc.status import Status
 #: constants they compile in (geodetic_up, the status codes, this file).
 KEY = dependency_key(_nbgeo, _status_module, sys.modules[__name__])
 
+#: LLVM's fast-math flags that keep NaN and infinity semantics (no "nnan", "ninf": the kernel
+#: tests its input for NaN): fused multiply-adds, reassociation, reciprocals, approximate
+#: functions. The shifts move by below 1e-9 of themselves (tests/test_refraction.py holds the
+#: model to the independent trace and to Rugged's figures).
+FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
 _OK = int(Status.OK)
 _INVALID = int(Status.INVALID_INPUT)
 _NOCONV = int(Status.NO_CONVERGENCE)
 
 #: Gauss-Legendre nodes a panel of the ground-ray quadrature, and of the limb's (which
 #: integrates the whole angle, not a small difference, so it takes more).
-NODES = 6
+NODES = 4
 LIMB_NODES = 24
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(NODES)
 _GLL_X, _GLL_W = np.polynomial.legendre.leggauss(LIMB_NODES)
@@ -182,9 +188,10 @@ def _dtheta(c0, q_lo, q_hi, R, eps_p, mode, h0, step, table, bottoms, values, bo
 
 
 @cached_njit(KEY, inline="always", error_model="numpy")
-def _radius_along(lat, ux, uy, uz, dx, dy, dz):
-    """Radius of curvature of the ellipsoid's normal section along d's azimuth at latitude lat (Euler)."""
-    sl = math.sin(lat)
+def _radius_along(ux, uy, uz, dx, dy, dz):
+    """Radius of curvature of the ellipsoid's normal section along d's azimuth where the ellipsoid's
+    normal is u (Euler; sin(lat) = u_z)."""
+    sl = uz
     w2 = 1.0 - E2 * sl * sl
     N = A / math.sqrt(w2)
     M = A * (1.0 - E2) / (w2 * math.sqrt(w2))
@@ -209,11 +216,20 @@ def _nan_row(out_org, out_hit, out_dir, out_llh, out_shift, i):
         out_hit[i, k] = math.nan
         out_dir[i, k] = math.nan
         out_llh[i, k] = math.nan
-    out_shift[i] = math.nan
+    out_shift[i, 0] = math.nan
+    out_shift[i, 1] = math.nan
 
 
-@cached_njit(KEY, parallel=True, error_model="numpy")
-def _correct_kernel(o, d, p, at_h, llh_in, have_llh, mode, h0, step, table, bottoms, values, bounds, top, gx, gw,
+@cached_njit(KEY, error_model="numpy")
+def _finite_rows(o, d, p, h, out):
+    """out[i]: every coordinate of ray i finite (outside the fast-math kernel, which may fold the test)."""
+    for i in range(o.shape[0]):
+        out[i] = math.isfinite(o[i, 0] + o[i, 1] + o[i, 2] + d[i, 0] + d[i, 1] + d[i, 2]
+                               + p[i, 0] + p[i, 1] + p[i, 2] + h[i])
+
+
+@cached_njit(KEY, parallel=True, error_model="numpy", fastmath=FAST)
+def _correct_kernel(o, d, p, at_h, finite, lat_in, lon_in, h_in, have_llh, mode, h0, step, table, bottoms, values, bounds, top, gx, gw,
                     out_org, out_hit, out_dir, out_llh, out_shift, out_status):
     """Per ray: the bent ray's point and tangent at the sphere height ``at_h`` (see the module doc)."""
     n = o.shape[0]
@@ -223,7 +239,7 @@ def _correct_kernel(o, d, p, at_h, llh_in, have_llh, mode, h0, step, table, bott
         dx, dy, dz = d[i, 0], d[i, 1], d[i, 2]
         px, py, pz = p[i, 0], p[i, 1], p[i, 2]
         dn = math.sqrt(dx * dx + dy * dy + dz * dz)
-        bad = not (math.isfinite(ox + oy + oz + px + py + pz + at_h[i]) and math.isfinite(dn)) or dn == 0.0
+        bad = not finite[i] or dn == 0.0  # finite: tested outside (fast-math folds x - x to 0)
         if bad:
             out_status[i] = _INVALID
             _nan_row(out_org, out_hit, out_dir, out_llh, out_shift, i)
@@ -232,9 +248,13 @@ def _correct_kernel(o, d, p, at_h, llh_in, have_llh, mode, h0, step, table, bott
         # the sphere osculates the ellipsoid at the ray's lower end: the hit, or the camera when
         # it looks up at the hit (there the atmosphere the ray crosses is densest)
         if have_llh:
-            lat, lon, hg = llh_in[i, 0], llh_in[i, 1], llh_in[i, 2]
+            lat, lon, hg = lat_in[i], lon_in[i], h_in[i]
             cl = math.cos(lat)
-            ux, uy, uz = cl * math.cos(lon), cl * math.sin(lon), math.sin(lat)
+            rho_p = math.sqrt(px * px + py * py)  # cos and sin of the longitude from the point itself
+            if rho_p > 0.0:
+                ux, uy, uz = cl * px / rho_p, cl * py / rho_p, math.sin(lat)
+            else:
+                ux, uy, uz = cl * math.cos(lon), cl * math.sin(lon), math.sin(lat)
         else:
             lat, lon, hg, ux, uy, uz = geodetic_up(px, py, pz)
         ax, ay, az, ha = px, py, pz, hg
@@ -244,7 +264,7 @@ def _correct_kernel(o, d, p, at_h, llh_in, have_llh, mode, h0, step, table, bott
             if ho < hg:
                 ax, ay, az, ha, lat, ux, uy, uz = ox, oy, oz, ho, lat_o, uox, uoy, uoz
                 at_hit = False
-        R = _radius_along(lat, ux, uy, uz, dx, dy, dz)
+        R = _radius_along(ux, uy, uz, dx, dy, dz)
         cx, cy, cz = ax - (R + ha) * ux, ay - (R + ha) * uy, az - (R + ha) * uz
         ocx, ocy, ocz = ox - cx, oy - cy, oz - cz
         wp = ocx * dx + ocy * dy + ocz * dz
@@ -276,16 +296,21 @@ def _correct_kernel(o, d, p, at_h, llh_in, have_llh, mode, h0, step, table, bott
             e1x, e1y, e1z = fx / c0, fy / c0, fz / c0
         else:
             e1x, e1y, e1z = 0.0, 0.0, 0.0
-        a_s = math.atan2(wg, c0)
-        hm = a_s + 0.5 * dth
+        # the straight point's polar angle a_s (cos a_s = c0 / rg, sin a_s = wg / rg) turned by dth,
+        # written with sin and cos of dth / 2 only, and without the cancellation of
+        # cos(a_s + dth) - cos(a_s): cos dth - 1 = -2 sh^2, sin dth = 2 sh ch
+        ca_s, sa_s = c0 / rg, wg / rg
         sh = math.sin(0.5 * dth)
-        dcos = -2.0 * math.sin(hm) * sh
-        dsin = 2.0 * math.cos(hm) * sh
+        ch = math.cos(0.5 * dth)
+        cm1 = -2.0 * sh * sh
+        sd = 2.0 * sh * ch
+        dcos = ca_s * cm1 - sa_s * sd
+        dsin = sa_s * cm1 + ca_s * sd
         # the straight point at at_h and the bent one
         sx, sy, sz = cx + c0 * e1x + wg * dx, cy + c0 * e1y + wg * dy, cz + c0 * e1z + wg * dz
         mx, my, mz = rg * (dcos * e1x + dsin * dx), rg * (dcos * e1y + dsin * dy), rg * (dcos * e1z + dsin * dz)
         out_hit[i, 0], out_hit[i, 1], out_hit[i, 2] = sx + mx, sy + my, sz + mz
-        out_shift[i] = math.sqrt(mx * mx + my * my + mz * mz)
+        out_shift[i, 0] = math.sqrt(mx * mx + my * my + mz * mz)
         # the bent ray's direction there: sin z = c / (n r), cos z = S / (n r)
         e_g = _eps(at_h[i], mode, h0, step, table, bottoms, values)
         n_g = 1.0 + e_g
@@ -294,8 +319,7 @@ def _correct_kernel(o, d, p, at_h, llh_in, have_llh, mode, h0, step, table, bott
         cosz = S_g / (n_g * rg)
         if wg < 0.0:
             cosz = -cosz
-        a_b = a_s + dth
-        ca, sa = math.cos(a_b), math.sin(a_b)
+        ca, sa = ca_s + dcos, sa_s + dsin  # cos and sin of the bent point's polar angle a_s + dth
         # e_r = ca e1 + sa d, e_t = -sa e1 + ca d
         out_dir[i, 0] = cosz * (ca * e1x + sa * dx) + sinz * (-sa * e1x + ca * dx)
         out_dir[i, 1] = cosz * (ca * e1y + sa * dy) + sinz * (-sa * e1y + ca * dy)
@@ -306,11 +330,12 @@ def _correct_kernel(o, d, p, at_h, llh_in, have_llh, mode, h0, step, table, bott
         for k in range(3):
             out_org[i, k] = out_hit[i, k] - back * out_dir[i, k]
         bx, by, bz = out_hit[i, 0], out_hit[i, 1], out_hit[i, 2]
+        out_shift[i, 1] = math.sqrt((bx - ox) ** 2 + (by - oy) ** 2 + (bz - oz) ** 2)
         if at_hit:
             # the bent point lies at geodetic height at_h (to the sphere's third-order departure over
             # the shift, 1e-9 m), so its latitude is closed-form: tan(lat) = z / (rho (1 - e2 N / (N + h))),
             # N at the raw hit's latitude (the result moves by e2 h dN / (N + h)^2: 1e-11 rad for 400 m)
-            sl = math.sin(lat)
+            sl = uz  # sin(lat) of the raw hit (the sphere's anchor: at_hit)
             Nr = A / math.sqrt(1.0 - E2 * sl * sl)
             rho = math.sqrt(bx * bx + by * by)
             out_llh[i, 0] = math.atan2(bz, rho * (1.0 - E2 * Nr / (Nr + at_h[i])))
@@ -447,6 +472,8 @@ class RefractedLine:
         Its geodetic coordinates [rad, rad, m].
     shift_m : ndarray (...)
         Distance from the straight line's point at that height to the bent ray's [m].
+    range_m : ndarray (...)
+        Distance from ``origin`` (the camera) to the bent ray's point [m].
     status : ndarray (...) of uint8
         OK; INVALID_INPUT (NaN input); NO_CONVERGENCE where the line never reaches the
         height, the height lies behind the camera, or the line passes its lowest point
@@ -461,6 +488,7 @@ class RefractedLine:
     h: np.ndarray
     shift_m: np.ndarray
     status: np.ndarray
+    range_m: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -566,11 +594,11 @@ class Refraction:
         """
         shape, (o, d, p) = _as_rays(origin, direction, hit)
         if hit_llh is not None:
-            llh = np.stack([_scalars(v, shape) for v in hit_llh], axis=-1)
+            lat_in, lon_in, h_in = (_scalars(v, shape) for v in hit_llh)
         else:
-            llh = np.zeros((1, 3))
+            lat_in = lon_in = h_in = np.zeros(1)
         if at_h is None:
-            h = np.array(llh[:, 2] if hit_llh is not None else ecef_to_geodetic(p)[2], dtype=float, order="C")
+            h = h_in if hit_llh is not None else np.array(ecef_to_geodetic(p)[2], dtype=float, order="C")
         else:
             h = _scalars(at_h, shape)
         mode, h0, step, table, bottoms, values, bounds, top = self._profile()
@@ -579,14 +607,16 @@ class Refraction:
         hit_out = np.empty((n, 3))
         dir_out = np.empty((n, 3))
         out_llh = np.empty((n, 3))
-        shift = np.empty(n)
+        shift = np.empty((n, 2))  # the shift, and the range from the origin to the bent point
         status = np.empty(n, np.uint8)
-        _correct_kernel(o, d, p, h, llh, hit_llh is not None, mode, h0, step, table, bottoms, values, bounds, top, _GL_X, _GL_W,
+        finite = np.empty(n, np.bool_)
+        _finite_rows(o, d, p, h, finite)
+        _correct_kernel(o, d, p, h, finite, lat_in, lon_in, h_in, hit_llh is not None, mode, h0, step, table, bottoms, values, bounds, top, _GL_X, _GL_W,
                         org, hit_out, dir_out, out_llh, shift, status)
         return RefractedLine(org.reshape(shape + (3,)), dir_out.reshape(shape + (3,)),
                              hit_out.reshape(shape + (3,)), out_llh[:, 0].reshape(shape),
-                             out_llh[:, 1].reshape(shape), out_llh[:, 2].reshape(shape), shift.reshape(shape),
-                             status.reshape(shape))
+                             out_llh[:, 1].reshape(shape), out_llh[:, 2].reshape(shape), shift[:, 0].reshape(shape),
+                             status.reshape(shape), shift[:, 1].reshape(shape))
 
     def aim(self, origin, ground, max_iter: int = 8, tol_m: float = 1e-4):
         """The direction leaving the camera whose bent ray reaches ``ground``: the inverse of :meth:`correct`.
