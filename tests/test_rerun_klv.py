@@ -38,7 +38,12 @@ def test_klv_log_series_are_the_replay_residuals(tmp_path, rerun_home):
                        text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert "skipped bad packet at byte 32400" in r.stderr and "299 steps" in r.stdout
-    rep = replay_klv(KLV).columns
+    # no --dem: the bundled SRTM crop covering the flight (the DEM `geoloc view` draws), exact walk
+    from geoloc.surfaces.spec import SurfaceSpec
+
+    srtm = Path(ASSETS) / "dem" / "srtm_jacksboro.tif"
+    assert f"DEM {srtm}" in r.stderr
+    rep = replay_klv(KLV, surface=SurfaceSpec(dem=srtm, method="exact").build()).columns
     pk, err = series(out, "/series/error/to_published_m")
     want = dict(zip(rep["packet"], rep["frame_center_error_m"]))
     ok = np.isfinite([want[p] for p in pk])

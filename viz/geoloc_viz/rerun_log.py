@@ -27,6 +27,8 @@ Entities (all positions in the scene's ENU frame, metres):
 ``world/target``, ``world/truth``,          located, reference and published positions
 ``world/published``
 ``world/track``, ``world/footprint``        static: aircraft track and all located targets
+``world/corners``, ``map/corners``          each step's image corners (a closed ring) on the
+                                            surface it was located on (KLV replays)
 ``world/current``                           Transform3D at the current hit (the 3D eye tracks it)
 ``plot/*``                                  offline 2D plot, (east, -north) metres: targets,
                                             references, error arrows, outliers, current step
@@ -34,7 +36,9 @@ Entities (all positions in the scene's ENU frame, metres):
 ``world/iterations``                        H_n on the line of sight and the DEM below it
 ``map/*``                                   the same points as GeoPoints (map view)
 ``series/attitude/*_deg``                   heading, pitch, roll
-``series/gimbal/*_deg``                     outer (roll) and inner (pitch) gimbal angles
+``series/gimbal/<joint>_deg``               the sensor's joint angles under its own names
+                                            (``gimbal_roll``, ``gimbal_pitch`` of [Q17];
+                                            ``azimuth``, ``elevation``, ``sensor_roll`` of MISB)
 ``series/range/slant_range_m``              optical centre to located target
 ``series/height/target_h_m``                ellipsoidal height of the located target
 ``series/error/*_m``                        horizontal error against truth / published, and
@@ -125,7 +129,9 @@ def series_values(steps: LogSteps) -> dict:
     d = np.rad2deg
     series = {
         "attitude/heading_deg": d(p.heading), "attitude/pitch_deg": d(p.pitch), "attitude/roll_deg": d(p.roll),
-        "gimbal/gimbal_roll_deg": d(p.gimbal_roll), "gimbal/gimbal_pitch_deg": d(p.gimbal_pitch),
+        # the sensor's own joints, by its names (azimuth, elevation, sensor_roll of a MISB turret;
+        # gimbal_roll, gimbal_pitch of the [Q17] gimbal): not the [Q17] fields of every pose
+        **{f"gimbal/{name}_deg": d(p.angle(name)) for name in steps.camera.angle_names},
         "range/slant_range_m": steps.ground.slant_range,
         "height/target_h_m": steps.ground.h,
     }
@@ -378,6 +384,9 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
                              columns=rr.Transform3D.columns(translation=tgt_all[cur]))
             rec.log(f"{root}/current", rr.TransformAxes3D(axis_length=CURRENT_AXIS_M), static=True)
 
+        if steps.corners is not None:
+            _log_corners(rec, steps, g, m)
+
         # ---------------------------------------------------- 2D plot, offline
         _plot2d(rec, steps, g, m, refs, labels)
 
@@ -536,6 +545,28 @@ def _plot2d(rec, steps: LogSteps, g, m, refs, labels) -> None:
     rec.log(f"{root}/current", rr.Points2D.from_fields(colors=(255, 255, 255, 255), radii=PLOT_RADIUS_PT["current"]), static=True)
 
 
+def _log_corners(rec, steps: LogSteps, g, m) -> None:
+    """Each step's image footprint (its four corners on the surface it was located on, a closed
+    ring) as ``world/corners`` (ENU, float32) and ``map/corners`` (latitude and longitude, float64)."""
+    c = steps.corners
+    lat, lon, h = (np.asarray(c[k], float) for k in ("lat_deg", "lon_deg", "h_m"))
+    good = m & np.all(np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h), axis=-1)
+    if not np.any(good):
+        return
+    idx = np.flatnonzero(good)
+    ring = np.r_[0, 1, 2, 3, 0]  # closed: upper left, upper right, lower right, lower left, upper left
+    enu = steps.enu_for(g).from_geodetic(np.deg2rad(lat[idx]), np.deg2rad(lon[idx]), h[idx])  # (k, 4, 3)
+    root, mroot = steps.root(g), steps.root(g, "map")
+    rec.send_columns(f"{root}/corners", indexes=_index(steps, good), columns=rr.LineStrips3D.columns(
+        strips=list(enu[:, ring].astype(np.float32))))
+    rec.log(f"{root}/corners", rr.LineStrips3D.from_fields(colors=COLORS["footprint"],
+                                                          radii=SCENE_RADIUS_PT["los"]), static=True)
+    rec.send_columns(f"{mroot}/corners", indexes=_index(steps, good), columns=rr.GeoLineStrings.columns(
+        line_strings=list(np.stack([lat[idx][:, ring], lon[idx][:, ring]], axis=-1))))
+    rec.log(f"{mroot}/corners", rr.GeoLineStrings.from_fields(colors=COLORS["footprint"],
+                                                             radii=rr.Radius.ui_points(1.5)), static=True)
+
+
 def _points(rec, steps, path, pts, color, radius, mask=None, labels=None):
     good = np.all(np.isfinite(pts), axis=-1)
     if mask is not None:
@@ -568,39 +599,125 @@ def write(steps: LogSteps, out, *, display_scale: float = 200.0, serve: bool = F
         connect to; the caller keeps the process alive (see :func:`serve_web`).
     grpc_port : int
     grpc_host : str
-        Bind address of that server (127.0.0.1 by default: this machine only; the SDK's
-        own default is 0.0.0.0).
+        Bind address of that server and of a spawned viewer (127.0.0.1 by default: this
+        machine only; the SDK's and the viewer's own default is 0.0.0.0).
     spawn : bool
-        Also start the native viewer (the ``rerun`` executable of the wheel) and stream to it.
+        Also open the native viewer (:func:`spawn_viewer`; it needs a display): on the written
+        file when there is one (the file is complete and closed first), else streamed to it.
 
     Returns
     -------
     rerun.RecordingStream
-        Flushed; disconnected when neither ``serve`` nor ``spawn`` is asked for.
+        Flushed; disconnected unless ``serve`` is asked for.
     """
-    with contextlib.ExitStack() as stack:  # the .rrd is renamed into place once flushed
+    if spawn:
+        require_display()
+    with contextlib.ExitStack() as stack:  # the .rrd is renamed into place once flushed and closed
         tmp = stack.enter_context(atomic_path(out)) if out is not None else None
-        return _write(steps, tmp, display_scale, serve, grpc_port, grpc_host, spawn)
+        rec = _write(steps, tmp, display_scale, serve, grpc_port, grpc_host,
+                     stream_port=(grpc_port + 1 if serve else grpc_port) if spawn and out is None else None)
+        if not serve:
+            rec.disconnect()
+    if spawn and out is not None:
+        spawn_viewer(grpc_host, grpc_port + 1 if serve else grpc_port, Path(out))
+    return rec
 
 
-def _write(steps, out, display_scale, serve, grpc_port, grpc_host, spawn) -> rr.RecordingStream:
+def _write(steps, out, display_scale, serve, grpc_port, grpc_host, stream_port=None) -> rr.RecordingStream:
     rec = rr.RecordingStream("geoloc", recording_id=recording_id(steps))
     sinks = []
     if out is not None:
         sinks.append(rr.FileSink(str(out)))
     if serve:
         sinks.append(rr.GrpcServerSink(bind_ip=grpc_host, port=grpc_port))
-    if spawn:
-        rr.spawn(port=grpc_port + 1 if serve else grpc_port, connect=False)
-        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{grpc_port + 1 if serve else grpc_port}/proxy"))
+    if stream_port is not None:  # --spawn without a file: stream to the viewer started here
+        sinks.append(rr.GrpcSink(spawn_viewer(grpc_host, stream_port)))
     if not sinks:
         raise ValueError("nothing to write to: give an output file, serve or spawn")
     rec.set_sinks(*sinks, default_blueprint=blueprint(steps))
     log_steps(rec, steps, display_scale=display_scale)
     rec.flush()
-    if not (serve or spawn):
-        rec.disconnect()
     return rec
+
+
+def has_display() -> bool:
+    """Whether a native window can open here: always on Windows and macOS; on Linux and the other
+    Unixes only with an X11 or Wayland display (``DISPLAY`` or ``WAYLAND_DISPLAY`` set)."""
+    import os
+
+    if sys.platform.startswith(("win", "darwin")):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+#: What ``--spawn`` says on a machine without a display (before anything is computed).
+NO_DISPLAY = ("--spawn opens rerun's native viewer window, which needs a display, and this session has "
+              "none (DISPLAY and WAYLAND_DISPLAY are unset, e.g. a headless server or an SSH session "
+              "without X forwarding): write the recording with --out FILE and open it where there is a "
+              "display (`rerun FILE`), or use --serve for the web viewer (a browser on this machine, or "
+              "through an SSH tunnel)")
+
+
+def require_display() -> None:
+    """ValueError (:data:`NO_DISPLAY`) when :func:`has_display` is false."""
+    if not has_display():
+        raise ValueError(NO_DISPLAY)
+
+
+def spawn_viewer(host: str, port: int, path=None, timeout_s: float = 20.0) -> str:
+    """Start the native viewer (the wheel's ``rerun`` binary) bound to ``host``, detached.
+
+    ``path``: the ``.rrd`` it opens; without one it listens for a stream on ``port`` (gRPC, bound
+    to ``host``: the binary's own default is 0.0.0.0) and the returned URL is where to send it.
+    rerun-sdk's ``rr.spawn`` is not used: it acts on the global recording (``rr.init``), which
+    these recordings never set ("Rerun is disabled - spawn() call ignored"), and it binds 0.0.0.0.
+
+    Returns
+    -------
+    str
+        The viewer's gRPC URL (``rerun+http://HOST:PORT/proxy``).
+
+    Raises
+    ------
+    ValueError
+        No display (:func:`require_display`).
+    RuntimeError
+        The viewer exited at once (its last lines of output quoted) or did not listen in time.
+    """
+    require_display()
+    cmd = [rerun_executable(), "--bind", host, "--port", str(port)]
+    if path is not None:
+        cmd.append(str(path))
+    log = tempfile.TemporaryFile()
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
+                            start_new_session=True)  # the viewer outlives `geoloc log`
+    url = f"rerun+http://{_url_host(host)}:{port}/proxy"
+    probe = "127.0.0.1" if host in ("0.0.0.0", "") else "::1" if host == "::" else host
+    deadline = time.monotonic() + (SPAWN_GRACE_S if path is not None else timeout_s)
+    while True:
+        if proc.poll() is not None:
+            if proc.returncode == 0 and path is not None:
+                return url  # a viewer that handed the file to one already running
+            log.seek(0)
+            tail = log.read().decode(errors="replace").strip().splitlines()[-3:]
+            raise RuntimeError(f"the rerun viewer exited at once (status {proc.returncode}): " + " | ".join(tail))
+        if path is not None:
+            if time.monotonic() > deadline:
+                return url  # still running after the grace period: the window is up
+            time.sleep(0.1)
+            continue
+        try:
+            with socket.create_connection((probe, port), timeout=0.5):
+                return url
+        except OSError:
+            if time.monotonic() > deadline:
+                proc.terminate()
+                raise RuntimeError(f"the rerun viewer did not listen on {host}:{port} within {timeout_s} s")
+            time.sleep(0.1)
+
+
+#: How long :func:`spawn_viewer` watches a viewer opened on a file for an immediate failure [s].
+SPAWN_GRACE_S = 2.0
 
 
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
@@ -744,8 +861,7 @@ class LiveRecording:
             sinks.append(rr.GrpcServerSink(bind_ip=s["grpc_host"], port=s["grpc_port"]))
         if s["spawn"]:
             port = s["grpc_port"] + 1 if s["serve"] else s["grpc_port"]
-            rr.spawn(port=port, connect=False)
-            sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
+            sinks.append(rr.GrpcSink(spawn_viewer(s["grpc_host"], port)))
         if not sinks:
             raise ValueError("nothing to write to: give an output file, serve or spawn")
         rec.set_sinks(*sinks, default_blueprint=blueprint(steps))

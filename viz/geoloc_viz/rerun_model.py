@@ -128,6 +128,10 @@ class LogSteps:
     images: object = None
     image_index: np.ndarray | None = None
     image_fov_deg: np.ndarray | None = None
+    #: Each step's image corners on the surface it was located on (a KLV replay's, issue 46):
+    #: ``lat_deg``, ``lon_deg``, ``h_m`` (ellipsoidal, WGS 84), each (n, 4), corners in ring
+    #: order (upper left, upper right, lower right, lower left); None: not computed.
+    corners: dict | None = None
 
     def __len__(self) -> int:
         return len(self.labels)
@@ -527,14 +531,18 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
 
     from geoloc.surfaces.terrain import surface_for
 
-    if dem is None:
-        dem = SurfaceSpec(dem=dem_path, dem_datum=dem_datum).raster()
-    dem_options = {}
-    if eps_h_m is not None:
-        dem_options["eps_h"] = float(eps_h_m)
-    if threshold_m is not None:
-        dem_options["threshold"] = float(threshold_m)
-    surface = surface_for(dem=dem, method=method, **dem_options) if dem is not None else None
+    # one surface for every ray (frame centres and corners), built as the core builds it:
+    # SurfaceSpec(...).build(), or for a DEM already open (a live session's) the same surface_for
+    spec = SurfaceSpec(dem=dem_path, dem_datum=dem_datum, method=method,
+                       eps_h=None if eps_h_m is None else float(eps_h_m),
+                       threshold=None if threshold_m is None else float(threshold_m))
+    if dem is not None:
+        surface = surface_for(dem=dem, method=method, **spec.solver_options)
+    elif dem_path is not None:
+        surface = spec.build()
+        dem = terrain_of(surface)  # the raster drawn as the mesh (one raster: the CLI refuses a mosaic)
+    else:
+        surface = None
     r = replay_klv(path, surface=surface, sensor=camera, label=label)
     c = r.columns
     if len(r) == 0:
@@ -567,9 +575,18 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
              f"outliers flagged: {int(np.sum(c['outlier']))}"]
     extra = {"series/klv/corner_error_m": np.asarray(c["corner_error_m"], float),
              "series/klv/outlier": np.asarray(c["outlier"], float)}
+    corners = {key: np.stack([np.asarray(c[f"corner{j + 1}_{key}"], float) for j in range(4)], axis=-1)
+               for key in ("lat_deg", "lon_deg", "h_m")}
+    terrain = None
+    if dem is not None:  # drawn as a mesh; the replay's solver keeps no per-ray trace ("ellipsoid": none)
+        terrain = TerrainSteps("ellipsoid", dem, str(getattr(dem, "path", dem_path)), np.zeros(n, int), [], [])
+        notes.append(f"frame centres and corners located on {Path(str(terrain.dem_path)).name} "
+                     f"(heights {getattr(dem, 'datum', dem_datum)}) by '{method}'")
+    else:
+        notes.append("no DEM: each packet located at its own frame-centre height (geodetic)")
     steps = LogSteps("klv", name, {"time": ("duration", t), "packet": ("sequence", np.asarray(c["packet"]))},
                      [f"packet {k}" for k in c["packet"]], sensor, pose, sensor.frames(pose), row, col, los, ground,
-                     enu, published=published, notes=notes, extra_series=extra)
+                     enu, published=published, terrain=terrain, notes=notes, extra_series=extra, corners=corners)
     # the replay's own flags (the same median / MAD rule, on its geodesic frame-centre residual)
     add_error_analysis(steps, heading_deg=np.asarray(c["platform_heading_deg"], float),
                        outlier=np.asarray(c["outlier"]).astype(bool))
@@ -580,6 +597,23 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
                          np.stack([np.asarray(c["sensor_horizontal_fov_deg"], float),
                                    np.asarray(c["sensor_vertical_fov_deg"], float)], -1))
     return steps, list(r.errors)
+
+
+def klv_default_dem(path):
+    """A bundled DEM covering a KLV file's scene (``None`` if none): the DEM ``geoloc view`` would
+    draw for it (:func:`geoloc_viz.terrain_link.default_dem_path` at the median reported frame
+    centre, else the median sensor position)."""
+    from geoloc.workflows.klv_replay import read_klv
+    from geoloc_viz.terrain_link import default_dem_path
+
+    c = read_klv(path).columns
+    for la, lo in (("frame_center_latitude_deg", "frame_center_longitude_deg"),
+                   ("sensor_latitude_deg", "sensor_longitude_deg")):
+        lat, lon = (np.asarray(c.get(k, []), float) for k in (la, lo))
+        ok = np.isfinite(lat) & np.isfinite(lon) if lat.shape == lon.shape else np.zeros(0, bool)
+        if ok.any():
+            return default_dem_path(float(np.median(lat[ok])), float(np.median(lon[ok])))
+    return None
 
 
 def attach_klv_video(steps: LogSteps, path, packets, fov_deg) -> bool:

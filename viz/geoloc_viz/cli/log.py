@@ -48,7 +48,12 @@ def register(sub) -> None:
     p.add_argument("--out", default=None, type=output_path, help="output .rrd file (required unless --serve or --spawn)")
     add_sensor_option(p)
     add_target_options(p)
-    add_dem_options(p, mosaic=False)
+    add_dem_options(p, mosaic=False, dem_help="DEM raster (GeoTIFF, ...): intersect the line of sight with "
+                    "the terrain instead of a target height, e.g. assets/dem/etopo5_flight_area.tif; a MISB KLV "
+                    "file's default: a bundled DEM covering its frame centres, as geoloc view draws it (--no-dem: none)")
+    p.add_argument("--no-dem", action="store_true",
+                   help="MISB KLV input: no DEM, even where a bundled one covers the flight (each packet is then "
+                   "located at its own frame-centre height)")
     g = p.add_argument_group("records (a records CSV's target height: --dem, --target-h-m or --height-column, "
                              "first given wins; default paper_height_m)")
     g.add_argument("--group-by", default="table",
@@ -72,7 +77,9 @@ def register(sub) -> None:
     g.add_argument("--web-port", type=int, default=9090, help="web viewer port (default 9090)")
     g.add_argument("--grpc-port", type=int, default=9876, help="gRPC server port (default 9876)")
     g.add_argument("--spawn", action="store_true",
-                   help="also start the native rerun viewer (needs a display) and stream to it")
+                   help="also open the native rerun viewer on the recording (on --out once written, else "
+                   "streamed to it), bound to --host like every port here; it needs a display: without one "
+                   "(DISPLAY / WAYLAND_DISPLAY unset) the verb refuses before computing, exit status 2")
     from geoloc.cli._options import add_live_options
 
     add_live_options(p)
@@ -184,6 +191,12 @@ def run(args) -> int:
         raise ValueError("--out is required unless --serve or --spawn is given")
     if not args.display_scale > 0:
         raise ValueError(f"--display-scale = {args.display_scale}: must be > 0")
+    if args.no_dem and args.dem is not None:
+        raise ValueError("--no-dem and --dem: give one of them")
+    if args.spawn:
+        from geoloc_viz.rerun_log import require_display
+
+        require_display()  # before anything is computed (a headless machine cannot open the window)
     from geoloc.cli._options import is_stream
 
     live = is_stream(args.input)
@@ -214,8 +227,12 @@ def run(args) -> int:
         for err in errors:
             print(f"{path}: skipped {err}", file=sys.stderr)
     elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):
-        from geoloc_viz.rerun_model import steps_from_klv
+        from geoloc_viz.rerun_model import klv_default_dem, steps_from_klv
 
+        if dem is None and not args.no_dem:
+            dem = klv_default_dem(path)  # the DEM `geoloc view` draws for this flight
+            if dem is not None:
+                print(f"geoloc log: DEM {dem} (bundled, covers the flight; --no-dem for none)", file=sys.stderr)
         steps, errors = steps_from_klv(path, camera, dem_path=dem, dem_datum=args.dem_datum,
                                        method=args.method, eps_h_m=args.eps_h, threshold_m=args.threshold)
         for err in errors:
@@ -242,7 +259,9 @@ def run(args) -> int:
             print(note, file=sys.stderr, flush=True)
         url, viewer = serve_web(args.grpc_port, args.web_port, host=args.host)
         print(f"web viewer: {url}  (Ctrl-C to stop)", flush=True)
-    if args.serve or args.spawn:
+    if args.spawn and not args.serve:
+        print("rerun viewer started" + (f" on {args.out}" if args.out else " (streamed)"), flush=True)
+    if args.serve:
         # Stop cleanly on Ctrl-C and on SIGTERM, even when started in the background
         # (a non-interactive shell starts background jobs with SIGINT ignored).
         def _stop(signum, frame):
