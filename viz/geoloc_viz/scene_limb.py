@@ -65,6 +65,14 @@ DEFAULT_LIMB = ("scenarios", "tiangong2_limb.toml")
 #: (metres over thousands of km), and the tangent-point offset (tens of metres at 2000 km).
 SHAPE_EXAGGERATION = 1000.0
 OFFSET_EXAGGERATION = 600.0
+#: The scene origin follows the foot of what the view is about once it is this far away [deg].
+RECENTRE_DEG = 5.0
+#: Camera near and far planes [km, scene units]: the nearest geometry is hundreds of km from
+#: the eye, the far side of the 30 x 30 deg Earth patch a few thousand.
+CAMERA_NEAR_KM, CAMERA_FAR_KM = 1.0, 2.0e4
+#: Least height of the camera above WGS-84, as a share of the spacecraft's distance to what it
+#: frames (:meth:`LimbApp.camera_pose`).
+CAMERA_CLEARANCE = 0.1
 #: Marker radii [km] when nothing forces them smaller, and their share of a separation.
 MARKER_KM = {"tangent": 12.0, "exact": 9.0}
 MARKER_SHARE = 0.4
@@ -104,6 +112,12 @@ def drawn_virtual_height(lat, lon, delta_a, lat_t, lon_t, k):
     h_v = virtual_height(lat, lon, delta_a)
     lin = g_lat * (np.asarray(lat, float) - lat_t) + g_lon * dlon
     return h_v + (k - 1.0) * (h_v - h_t - lin)
+
+
+def central_angle_deg(lat1, lon1, lat2, lon2) -> float:
+    """Angle [deg] between two directions given by latitude and longitude [rad] (spherical)."""
+    c = (np.sin(lat1) * np.sin(lat2) + np.cos(lat1) * np.cos(lat2) * np.cos(lon2 - lon1))
+    return float(np.rad2deg(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
 def marker_radius_km(kind: str, separation_km: float) -> float:
@@ -177,14 +191,20 @@ class LimbApp:
                                        np.deg2rad(self.alpha_deg))
         self.tan = limb_tangent(self.chain.origin_ecef, self.chain.direction_ecef)
         ok = int(self.tan.status) == 0
-        foot = self.tan.exact_ecef if ok else self.p
+        hit = int(self.tan.status) == int(Status.HITS_EARTH)
+        # What the view is about: the exact tangent, else the line down to where it meets the
+        # Earth (the middle of it), else the spacecraft; the Earth patch is drawn around its foot (issue 46: the patch stayed at
+        # frame 0's tangent and was out of sight ~95 deg of orbit later, at frame 600).
+        foot = (self.tan.exact_ecef if ok else 0.5 * (self.p + self.tan.earth_hit_ecef) if hit  # the whole
+                else self.p)                                                                # line's ground
         lat, lon, _ = ecef_to_geodetic(foot)
-        # The scene origin: on the ellipsoid below the exact tangent (or below the spacecraft).
-        if not hasattr(self, "enu") or not ok:
+        self.focus_latlon = (float(lat), float(lon))
+        # The scene origin: on the ellipsoid below that foot, moved only when the foot is more
+        # than RECENTRE_DEG away (a nudge of alpha keeps the scene where it is).
+        if not hasattr(self, "enu") or central_angle_deg(self.enu.lat0, self.enu.lon0, lat, lon) > RECENTRE_DEG:
             self.enu = EnuFrame(float(lat), float(lon), 0.0)
         # Ground track of the line of sight on WGS-84 (h = 0 below each of its points), sampled
         # every 0.5 km within 50 km of the tangent point (where tangency is seen), coarser elsewhere.
-        hit = int(self.tan.status) == int(Status.HITS_EARTH)
         if ok:
             s_end = 2.0 * float(self.tan.exact_s)
             st = float(self.tan.s)
@@ -236,8 +256,8 @@ class LimbApp:
         ok = int(tan.status) == 0
         with self.server.atomic():
             sc.add_frame("/limb", show_axes=False)
-            # Earth patch around the scene origin: 30 x 30 deg of WGS-84 at h = 0.
-            lat0, lon0 = np.rad2deg(self.enu.lat0), np.rad2deg(self.enu.lon0)
+            # Earth patch around the foot of what the view is about: 30 x 30 deg of WGS-84 at h = 0.
+            lat0, lon0 = np.rad2deg(self.focus_latlon)
             la = np.deg2rad(np.clip(np.linspace(lat0 - 15, lat0 + 15, 61), -89.9, 89.9))
             lo = np.deg2rad(np.linspace(lon0 - 15, lon0 + 15, 61))
             LO, LA = np.meshgrid(lo, la)
@@ -299,33 +319,65 @@ class LimbApp:
         self._text()
         self.md_legend.content = self.legend_markdown(ok)
         if reset_camera:
-            tp = self.w(tan.exact_ecef) if ok else np.zeros(3)
-            L = np.linalg.norm(sp - tp)
-            # Side view of the grazing line: spacecraft at the left edge, tangent left of the
-            # middle (the GUI panel covers the right third), a little from above.
-            aim = sp + 1.23 * (tp - sp)
-            side = np.cross(tp - sp, [0.0, 0.0, 1.0])
-            side /= max(np.linalg.norm(side), 1e-9)
-            pos = tuple(aim + side * 1.1 * L + np.array([0, 0, 0.25 * L]))
+            pos, aim, up = self.camera_pose()
             if hasattr(self.server, "initial_camera"):  # the server: every new tab's camera
                 cam = self.server.initial_camera
-                cam.up = (0.0, 0.0, 1.0)
-                cam.near, cam.far = 1.0, 2.0e4
-                cam.position, cam.look_at = pos, tuple(aim)
+                cam.up = tuple(up)
+                cam.near, cam.far = CAMERA_NEAR_KM, CAMERA_FAR_KM
+                cam.position, cam.look_at = tuple(pos), tuple(aim)
                 for c in list(self.server.get_clients().values()):  # and every open tab's
                     try:
                         with c.atomic():
-                            c.camera.position = pos
+                            c.camera.up_direction = tuple(up)
+                            c.camera.position = tuple(pos)
                             c.camera.look_at = tuple(aim)
                     except Exception:  # a tab that left
                         pass
             else:  # one tab (a viser ClientHandle): its own camera (position first: viser moves look_at)
                 cam = self.server.camera
-                cam.up_direction = (0.0, 0.0, 1.0)
-                cam.near, cam.far = 1.0, 2.0e4
-                cam.position = pos
+                cam.up_direction = tuple(up)
+                cam.near, cam.far = CAMERA_NEAR_KM, CAMERA_FAR_KM
+                cam.position = tuple(pos)
                 cam.look_at = tuple(aim)
         self.last_update_s = time.perf_counter() - t0
+
+    def camera_pose(self):
+        """Where the camera frames this frame's geometry: (position, look-at, up), scene km.
+
+        A side view of the line of sight from above the Earth, the spacecraft at the left edge
+        and the point of interest left of the middle (the GUI panel covers the right third): the
+        exact tangent, else the line's ground point when it meets the Earth, else the point
+        2000 km along the line. The camera stands 1.1 L to the side of the line and 0.25 L
+        above it (L: spacecraft to the point of interest), the side and "above" taken from the
+        local vertical there, and is lifted until it is at least ``CAMERA_CLEARANCE`` L above
+        WGS-84: an eye inside the Earth mesh (double-sided) sees one blue wall (issue 46).
+        """
+        tan = self.tan
+        ok = int(tan.status) == 0
+        hit = int(tan.status) == int(Status.HITS_EARTH)
+        sp_e = np.asarray(self.p, float)
+        if ok:
+            tp_e = np.asarray(tan.exact_ecef, float)
+        elif hit:
+            tp_e = np.asarray(tan.earth_hit_ecef, float)
+        else:
+            tp_e = sp_e + 2.0e6 * np.asarray(self.chain.direction_ecef, float)
+        aim_e = sp_e + 1.23 * (tp_e - sp_e)  # the point of interest left of the middle
+        L = float(np.linalg.norm(tp_e - sp_e))  # m
+        la, lo, _ = ecef_to_geodetic(aim_e)
+        up_e = geodetic_to_ecef(la, lo, 1.0) - geodetic_to_ecef(la, lo, 0.0)  # the local vertical at aim
+        up_e /= np.linalg.norm(up_e)
+        side_e = np.cross(tp_e - sp_e, up_e)
+        if np.linalg.norm(side_e) < 1e-6 * max(L, 1.0):  # a vertical line: any horizontal side
+            side_e = np.cross([0.0, 0.0, 1.0], up_e) if abs(up_e[2]) < 0.9 else np.cross([1.0, 0.0, 0.0], up_e)
+        side_e /= np.linalg.norm(side_e)
+        pos_e = aim_e + 1.1 * L * side_e + 0.25 * L * up_e
+        for _ in range(40):
+            if float(ecef_to_geodetic(pos_e)[2]) >= CAMERA_CLEARANCE * L:
+                break
+            pos_e = pos_e + 0.25 * L * up_e
+        up = self.enu.vector_from_ecef(up_e)
+        return self.w(pos_e), self.w(aim_e), up / np.linalg.norm(up)
 
     def legend_markdown(self, ok: bool) -> str:
         """The legend of what this frame draws (the colours of :meth:`draw`), one line each."""
