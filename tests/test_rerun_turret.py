@@ -162,3 +162,45 @@ def test_spawn_opens_the_viewer_on_the_written_file(tmp_path, monkeypatch, rerun
     assert argv == ["--bind", "127.0.0.1", "--port", "9876", str(out)]
     data = read(out)  # complete when the viewer opens it: the series of both flights (T3, T4)
     assert sum(k.endswith("/gimbal/gimbal_roll_deg") for k in data) == 2 and "/log/record" in data
+
+
+def test_turret_records_without_heights_use_the_bundled_dem(tmp_path, rerun_home):
+    # assets/records/eo_turret_flight.csv gives no target height: `geoloc log` locates it on the
+    # bundled SRTM crop (as `geoloc view` does) instead of refusing, logs the mesh, and the
+    # turret's joints under their names, equal to the file's columns (read here with csv)
+    import csv
+
+    records = Path(ASSETS) / "records" / "eo_turret_flight.csv"
+    sensor = Path(ASSETS) / "sensors" / "eo_turret.toml"
+    out = tmp_path / "turret_records.rrd"
+    r = subprocess.run([sys.executable, "-m", "geoloc", "log", str(records), "--sensor", str(sensor),
+                        "--no-calibration", "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert f"DEM {SRTM}" in r.stderr
+    data = read(out)
+    rows = list(csv.DictReader(records.open(newline="")))
+    for name in ("azimuth", "elevation"):
+        v = []
+        for b in data[f"/series/gimbal/{name}_deg"]:
+            if "record" in b.schema.names:
+                v += [x[0] for x in b.column("Scalars:scalars").to_pylist()]
+        # the file's degrees through rad2deg(deg2rad(x)): a few ulp
+        np.testing.assert_allclose(v, [float(row[f"{name}_deg"]) for row in rows], rtol=0, atol=1e-12)
+    assert any("Mesh3D:triangle_indices" in b.schema.names for b in data["/world/dem"])
+    # two records' targets against `geoloc locate --dem` of their pixels (the exact walk both ways)
+    pos = []
+    for b in data["/map/target"]:
+        if "record" in b.schema.names:
+            pos += list(zip(b.column("record").to_pylist(), b.column("GeoPoints:positions").to_pylist()))
+    target = dict(pos)
+    for k in (0, 13):
+        row = rows[k]
+        cmd = [sys.executable, "-m", "geoloc", "locate", "--json", "--sensor", str(sensor), "--dem", str(SRTM),
+               "--lat-deg", row["ac_lat_deg"], "--lon-deg", row["ac_lon_deg"], "--h-m", row["ac_h_m"],
+               "--altitude-datum", "ellipsoid", "--heading-deg", row["heading_deg"], "--pitch-deg", row["pitch_deg"],
+               "--roll-deg", row["roll_deg"], "--angle", f"azimuth={row['azimuth_deg']}",
+               "--angle", f"elevation={row['elevation_deg']}", "--row", row["row"], "--col", row["col"]]
+        got = json.loads(subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=True).stdout)
+        lat, lon = target[k][0]
+        # the same exact DEM walk from the same ray: well under 1 mm (float64 map positions)
+        assert horizontal_distance_m(lat, lon, got["lat_deg"], got["lon_deg"]) < 1e-3, k

@@ -616,6 +616,26 @@ def klv_default_dem(path):
     return None
 
 
+def records_default_dem(path, camera=None):
+    """A bundled DEM covering a records file's targets when the file gives no target height
+    (no ``paper_height_m`` column), else ``None``: the DEM ``geoloc view`` draws for it
+    (:func:`geoloc_viz.terrain_link.default_dem_path` at the median surveyed target, else the
+    median aircraft position)."""
+    from geoloc_viz.terrain_link import default_dem_path
+
+    camera = as_sensor(camera if camera is not None else load_camera())
+    recs = load_records(path, angles=camera.angle_names)
+    if len(recs) == 0 or recs.has("paper_height_m"):
+        return None
+    for la, lo in (("truth_lat_deg", "truth_lon_deg"), ("ac_lat_deg", "ac_lon_deg")):
+        if recs.has(la) and recs.has(lo):
+            lat, lon = recs.column(la), recs.column(lo)
+            ok = np.isfinite(lat) & np.isfinite(lon)
+            if ok.any():
+                return default_dem_path(float(np.median(lat[ok])), float(np.median(lon[ok])))
+    return None
+
+
 def attach_klv_video(steps: LogSteps, path, packets, fov_deg) -> bool:
     """Give a KLV recording its pictures: the video of the MPEG-TS ``path`` itself, or of the
     ``.ts`` beside a ``.klv`` (STANAG 4609: video + KLV data stream), each step (packet number

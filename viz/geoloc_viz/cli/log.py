@@ -49,11 +49,12 @@ def register(sub) -> None:
     add_sensor_option(p)
     add_target_options(p)
     add_dem_options(p, mosaic=False, dem_help="DEM raster (GeoTIFF, ...): intersect the line of sight with "
-                    "the terrain instead of a target height, e.g. assets/dem/etopo5_flight_area.tif; a MISB KLV "
-                    "file's default: a bundled DEM covering its frame centres, as geoloc view draws it (--no-dem: none)")
+                    "the terrain instead of a target height, e.g. assets/dem/etopo5_flight_area.tif; default for a MISB "
+                    "KLV file, and for records without any target height (no --target-h-m, --height-column or "
+                    "paper_height_m): a bundled DEM covering the flight, as geoloc view draws it (--no-dem: none)")
     p.add_argument("--no-dem", action="store_true",
-                   help="MISB KLV input: no DEM, even where a bundled one covers the flight (each packet is then "
-                   "located at its own frame-centre height)")
+                   help="no DEM, even where a bundled one covers the flight (a KLV packet is then located at "
+                   "its own frame-centre height; records need --target-h-m, --height-column or paper_height_m)")
     g = p.add_argument_group("records (a records CSV's target height: --dem, --target-h-m or --height-column, "
                              "first given wins; default paper_height_m)")
     g.add_argument("--group-by", default="table",
@@ -218,6 +219,13 @@ def run(args) -> int:
 
         steps = steps_from_flight(FlightScenario.from_toml(path), camera)
     elif path.suffix.lower() == ".csv":
+        if dem is None and not args.no_dem and args.target_h_m is None and args.height_column is None:
+            from geoloc_viz.rerun_model import records_default_dem
+
+            dem = records_default_dem(path, camera)  # no height in the file: the DEM `geoloc view` draws
+            if dem is not None:
+                print(f"geoloc log: DEM {dem} (bundled, covers the targets; the records give no "
+                      "target height)", file=sys.stderr)
         steps, errors = steps_from_records(
             path, camera, height_column=args.height_column, target_h_m=args.target_h_m,
             height_kind=args.height_kind, dem_path=dem, dem_datum=args.dem_datum, method=args.method,
