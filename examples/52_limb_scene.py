@@ -10,8 +10,10 @@ the drawn line), and where a line that meets the Earth stops.
 import numpy as np
 import pyproj
 
+from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.status import describe
 from geoloc_viz.app import make_server
+from geoloc_viz.scene_geoloc import WORLD_SCALE
 from geoloc_viz.scene_limb import LimbApp, load_limb
 
 server = make_server(port=0)
@@ -48,4 +50,16 @@ app.sl_alpha.value = -1.5
 lon, lat, h = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(*app.los_ecef[-1])
 print(f"alpha -1.5 deg: {describe(int(app.tan.status))}; the drawn line ends at h = {h:.1e} m "
       f"({lat:.3f} N, {lon:.3f} E)")
+
+# Where the camera stands (docs/limb.md, "Where the Earth and the camera go"): above the Earth,
+# which is drawn around what the frame is about, also when the line meets the Earth and at frame 600.
+for frame, alpha in ((0, -1.5), (600, 0.0), (600, -1.5)):
+    app.sl_frame.value, app.sl_alpha.value = frame, alpha
+    pos, aim, _ = app.camera_pose()
+    ecef = app.enu.to_ecef(np.asarray(pos) / WORLD_SCALE)  # scene km -> ENU m -> ECEF
+    _, _, h_cam = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(*ecef)
+    c = app.w(geodetic_to_ecef(*app.focus_latlon, 0.0))
+    f, dc = (aim - pos) / np.linalg.norm(aim - pos), (c - pos) / np.linalg.norm(c - pos)
+    print(f"frame {frame}, alpha {alpha:+.1f} deg: camera {h_cam / 1e3:.0f} km above WGS-84, the Earth "
+          f"patch's centre {np.rad2deg(np.arccos(f @ dc)):.1f} deg from the view axis")
 server.stop()
