@@ -18,6 +18,7 @@ from geoloc.analysis.rpc_fit import fit_rpc
 from geoloc.assets import asset_path
 from geoloc.sensors.rpc import RPCSensor
 from geoloc.workflows.scenario import load_scenario
+from geoloc.pipeline import at_height
 
 
 def median_time(fn, repeat=5):
@@ -35,7 +36,7 @@ def main(n=100_000):
     model = fit_rpc(s, sc.height_min, sc.height_max, sc.grid, sc.check_grid).model
     rng = np.random.default_rng(0)
     r0, c0 = rng.uniform(1, s.rows, n), rng.uniform(1, s.cols, n)
-    g = s.locate(r0, c0, rng.uniform(0, 1200, n))
+    g = at_height(s, r0, c0, rng.uniform(0, 1200, n))
     lat, lon, h = g.lat, g.lon, g.h
     t_rig = median_time(lambda: s.ground_to_pixel(lat, lon, h))
     t_rpc = median_time(lambda: model.ground_to_pixel(lat, lon, h))

@@ -152,6 +152,28 @@ class Corrections:
 
 
 NO_CORRECTIONS = Corrections()
+#: The keys of a sensor or scenario file's ``[corrections]`` table.
+TABLE_KEYS = ("refraction", "light_time", "aberration")
+
+
+def corrections_from_table(sensor, table, source: str = "[corrections]", **override) -> Corrections:
+    """A file's ``[corrections]`` table (``refraction = "none" | "standard"``, ``light_time`` and
+    ``aberration`` true or false), with the command line's ``override`` (None: not given) on top,
+    over the sensor's defaults (:meth:`Corrections.for_sensor`). Errors name ``source`` and the key."""
+    table = dict(table or {})
+    unknown = sorted(set(table) - set(TABLE_KEYS))
+    if unknown:
+        raise ValueError(f"{source}: {unknown[0]!r} is not a correction; the keys are {', '.join(TABLE_KEYS)}")
+    if "refraction" in table and table["refraction"] not in REFRACTION_MODELS:
+        raise ValueError(f"{source}: refraction = {table['refraction']!r} must be one of {list(REFRACTION_MODELS)}")
+    for key in ("light_time", "aberration"):
+        if key in table and not isinstance(table[key], bool):
+            raise ValueError(f"{source}: {key} = {table[key]!r} must be true or false")
+    for key, value in override.items():
+        if value is not None:
+            table[key] = value
+    return Corrections.for_sensor(sensor, table.get("refraction", "none"), table.get("light_time"),
+                                  table.get("aberration"))
 
 
 def _constant_height(surface) -> bool:
@@ -351,4 +373,15 @@ class Pipeline:
         return px
 
 
-__all__ = ["COMPILED_MIN_RAYS", "CORRECTIONS", "Corrections", "NO_CORRECTIONS", "Pipeline", "REFRACTION_MODELS"]
+def at_height(sensor, row, col, h, state=None, *, height_kind: str = "geodetic",
+              corrections: Corrections = NO_CORRECTIONS, outside: str = "flag") -> GroundPoint:
+    """Pixels of any sensor -> ground points at ellipsoidal height ``h``: the pipeline on a
+    :class:`geoloc.surfaces.height.HeightSurface` (the exact surface of constant geodetic height
+    by default, as an RPC's heights are)."""
+    from geoloc.surfaces.height import HeightSurface
+
+    return Pipeline(sensor, HeightSurface(h, height_kind), corrections).locate(row, col, state, outside=outside)
+
+
+__all__ = ["COMPILED_MIN_RAYS", "CORRECTIONS", "Corrections", "NO_CORRECTIONS", "Pipeline", "REFRACTION_MODELS",
+           "TABLE_KEYS", "at_height", "corrections_from_table"]

@@ -12,6 +12,7 @@ from geoloc.assets import asset_path
 from geoloc.geodesy.ellipsoid import A, B
 from geoloc.sensors.pushbroom import GM_EARTH, OMEGA_EARTH, LookAngles, PushbroomSensor
 from geoloc.status import Status
+from geoloc.pipeline import at_height
 
 SCEN = tomllib.loads(asset_path("scenarios", "zy3_nadir.toml").read_text())
 IFOV = 7.0e-6 / 1.7  # [L12] Table 2: 7 um pixels behind a 1700 mm lens
@@ -60,7 +61,7 @@ def test_centre_pixel_of_ideal_sensor_is_the_geocentric_nadir_point():
     """
     s = PushbroomSensor.from_dict(ideal())
     row, col = (s.rows + 1) / 2, (s.cols + 1) / 2
-    g = s.locate(row, col, 0.0)
+    g = at_height(s, row, col, 0.0)
     p, _ = s.orbit.state(0.0)
     phic = math.atan2(p[2], math.hypot(p[0], p[1]))
     re = A * B / math.sqrt((B * math.cos(phic)) ** 2 + (A * math.sin(phic)) ** 2)
@@ -81,7 +82,7 @@ def test_roll_sign_and_size_closed_form():
     d = ideal()
     d["attitude"]["roll_deg"] = 1.0
     s = PushbroomSensor.from_dict(d)
-    g0 = PushbroomSensor.from_dict(ideal()).locate((s.rows + 1) / 2, (s.cols + 1) / 2, 0.0)
+    g0 = at_height(PushbroomSensor.from_dict(ideal()), (s.rows + 1) / 2, (s.cols + 1) / 2, 0.0)
     row, col, st = s.ground_to_pixel(g0.lat, g0.lon, g0.h)
     assert st == Status.OK
     assert col == pytest.approx((s.cols + 1) / 2 + math.tan(math.radians(1.0)) / IFOV, abs=1e-5)
@@ -98,7 +99,7 @@ def test_along_track_look_angle_shifts_the_line():
     s1 = PushbroomSensor.from_dict(ideal(tan_psi_y_poly=[IFOV]))
     r = np.array([100.0, 12288.5, 24000.0])
     c = np.array([5.0, 12288.5, 24500.0])
-    g = s0.locate(r, c, 500.0)
+    g = at_height(s0, r, c, 500.0)
     r1, c1, st = s1.ground_to_pixel(g.lat, g.lon, g.h)
     assert np.all(st == Status.OK)
     assert np.allclose(r1 - r, -1.0, atol=0.01)
@@ -113,7 +114,7 @@ def test_ground_sample_distance_swath_and_field_of_view_match_l12(zy3):
     off the geocentric ray: relative effect 6e-6, plus the attitude < 0.03 deg).
     """
     r0, c0 = (zy3.rows + 1) / 2, (zy3.cols + 1) / 2
-    g = zy3.locate([r0, r0 + 1, r0, r0, r0], [c0, c0, c0 + 1, 1, zy3.cols], 300.0)
+    g = at_height(zy3, [r0, r0 + 1, r0, r0, r0], [c0, c0, c0 + 1, 1, zy3.cols], 300.0)
     e = g.ecef
     across = np.linalg.norm(e[2] - e[0])
     along = np.linalg.norm(e[1] - e[0])
@@ -131,7 +132,7 @@ def test_ground_to_pixel_inverts_locate(zy3):
     r = rng.uniform(0.5, zy3.rows + 0.5, 200)
     c = rng.uniform(0.5, zy3.cols + 0.5, 200)
     h = rng.uniform(-100, 2000, 200)
-    g = zy3.locate(r, c, h)
+    g = at_height(zy3, r, c, h)
     assert np.all(g.status == Status.OK)
     rr, cc, st = zy3.ground_to_pixel(g.lat, g.lon, g.h)
     assert np.all(st == Status.OK)

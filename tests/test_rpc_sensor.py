@@ -35,6 +35,7 @@ from geoloc.surfaces.height import intersect_los_height
 from geoloc.surfaces.terrain import intersect_dem
 from geoloc.workflows.rpc_scenario import dem_pixels
 from geoloc.workflows.scenario import load_scenario
+from geoloc.pipeline import at_height
 
 #: straight line vs the RPC's locus over |normalised height| <= 1: measured 2.6e-6 / 3.8e-5 px
 CHORD_TOL = {"zy3_nadir": 5e-6, "qiao2017_frame": 6e-5}
@@ -235,7 +236,7 @@ def test_with_params_moves_the_pixel_by_the_bias_exactly(zy3):
 
 def test_locate_is_the_line_of_sight_at_a_height(zy3):
     sc, fit, s = zy3
-    g = s.locate(np.array([10.0, 20000.0]), np.array([30.0, 5000.0]), 300.0)
+    g = at_height(s, np.array([10.0, 20000.0]), np.array([30.0, 5000.0]), 300.0)
     assert np.all(g.status == Status.OK) and np.allclose(g.h, 300.0, atol=1e-6)
 
 

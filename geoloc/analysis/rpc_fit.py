@@ -20,8 +20,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.sensors.rpc import RPCModel, rpc_terms
 from geoloc.status import Status
+from geoloc.surfaces.height import HeightSurface
 
 
 @dataclass(frozen=True)
@@ -52,7 +54,7 @@ class RPCFit:
     check_residuals: np.ndarray = field(repr=False)
 
 
-def grid_points(sensor, n_rows, n_cols, heights, staggered=False):
+def grid_points(sensor, n_rows, n_cols, heights, staggered=False, corrections: Corrections = NO_CORRECTIONS):
     """Pixels on a regular grid spanning the image and the ground points at each height.
 
     The grid runs from the image's outer edges (0.5 and rows + 0.5); with
@@ -69,7 +71,9 @@ def grid_points(sensor, n_rows, n_cols, heights, staggered=False):
     rows = 0.5 + fr * sensor.rows
     cols = 0.5 + fc * sensor.cols
     R, C, Hh = np.meshgrid(rows, cols, np.asarray(heights, float), indexing="ij")
-    g = sensor.locate(R.ravel(), C.ravel(), Hh.ravel())
+    # the rigorous model's ground points through the location pipeline, on the exact surfaces of
+    # constant geodetic height (an RPC's heights are geodetic)
+    g = Pipeline(sensor, HeightSurface(Hh.ravel(), "geodetic"), corrections).locate(R.ravel(), C.ravel())
     ok = g.status == Status.OK
     return R.ravel()[ok], C.ravel()[ok], g.lat[ok], g.lon[ok], g.h[ok], int(np.sum(~ok))
 
@@ -110,14 +114,16 @@ def solve_ratio(T, x, n_iter=4, ridge=1e-12):
     return num, den
 
 
-def fit_rpc(sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20, 6)) -> RPCFit:
+def fit_rpc(sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20, 6),
+            corrections: Corrections = NO_CORRECTIONS) -> RPCFit:
     """Fit the 78 RPC coefficients to a sensor model over a 3-D grid [L12 section 4.1].
 
     Parameters
     ----------
-    sensor : PushbroomSensor, FrameCameraSensor, RPCSensor, ...
-        Anything with ``rows``, ``cols`` and ``locate(row, col, h)`` (the
-        ground point of a pixel at an ellipsoidal height, a ``GroundPoint``).
+    sensor : Sensor
+        A rigorous sensor (``PushbroomSensor``, a frame sensor bound to its pose:
+        ``geoloc.workflows.rpc_scenario.FrameCameraSensor``; any ``Sensor`` whose state is
+        None), located through :class:`geoloc.pipeline.Pipeline`.
     height_min, height_max : float
         Ellipsoidal height range of the fit [m] (the terrain's range plus a margin).
     grid : (int, int, int)
@@ -127,6 +133,9 @@ def fit_rpc(sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20
     check_grid : (int, int, int)
         Check points: a staggered grid (cell centres of a grid this size, and
         heights between the fit layers), never used in the fit.
+    corrections : Corrections
+        The rigorous model's line-of-sight corrections (:class:`geoloc.pipeline.Corrections`):
+        the RPC then holds them, as a maker's RPC holds its own.
 
     Returns
     -------
@@ -140,7 +149,7 @@ def fit_rpc(sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20
     if grid[0] * grid[1] * grid[2] < 39:
         raise ValueError(f"grid = {grid!r} gives fewer than the 39 points per axis the fit needs")
     hs = np.linspace(height_min, height_max, grid[2])
-    r, c, lat, lon, h, lost = grid_points(sensor, grid[0], grid[1], hs)
+    r, c, lat, lon, h, lost = grid_points(sensor, grid[0], grid[1], hs, corrections=corrections)
     if lost or r.size < 39:
         raise ValueError(f"{lost} fit-grid pixels have no ground point (rays missing the surface); "
                          "check the sensor geometry and height range")
@@ -170,7 +179,8 @@ def fit_rpc(sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20
     rr, cc = model.ground_to_pixel(lat, lon, h)
     res_fit = np.hypot(rr - r, cc - c)
     hs_c = height_min + (np.arange(check_grid[2]) + 0.5) / check_grid[2] * (height_max - height_min)
-    r2, c2, lat2, lon2, h2, _ = grid_points(sensor, check_grid[0], check_grid[1], hs_c, staggered=True)
+    r2, c2, lat2, lon2, h2, _ = grid_points(sensor, check_grid[0], check_grid[1], hs_c, staggered=True,
+                                            corrections=corrections)
     rr2, cc2 = model.ground_to_pixel(lat2, lon2, h2)
     res = np.stack([rr2 - r2, cc2 - c2], axis=-1)
     d = np.hypot(res[:, 0], res[:, 1])

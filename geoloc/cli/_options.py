@@ -448,19 +448,9 @@ def corrections_from_args(args, sensor, settings: dict | None = None):
     :func:`add_correction_options` over ``settings`` (a sensor or scenario file's
     ``[corrections]`` table: ``refraction``, ``light_time``, ``aberration``), over the sensor's
     defaults (:meth:`~geoloc.pipeline.Corrections.for_sensor`)."""
-    from geoloc.pipeline import Corrections
+    from geoloc.pipeline import TABLE_KEYS, corrections_from_table
 
-    settings = dict(settings or {})
-    unknown = sorted(set(settings) - {"refraction", "light_time", "aberration"})
-    if unknown:
-        raise ValueError(f"[corrections] {unknown[0]!r}: not a correction; the keys are refraction, "
-                         "light_time, aberration")
-    for key in ("refraction", "light_time", "aberration"):
-        v = getattr(args, key, None)
-        if v is not None:
-            settings[key] = v
-    return Corrections.for_sensor(sensor, settings.get("refraction", "none"), settings.get("light_time"),
-                                  settings.get("aberration"))
+    return corrections_from_table(sensor, settings, **{k: getattr(args, k, None) for k in TABLE_KEYS})
 
 
 def pipeline_from_args(args, sensor, surface, settings: dict | None = None):

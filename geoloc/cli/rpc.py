@@ -53,6 +53,7 @@ def run(args) -> int:
     rep = rpc_report(sc, out, dem, gdal=not args.no_gdal, pixel_error_threshold=thr,
                      dem_copy=args.ellipsoidal_dem)
     print(f"{sc.name}: {rep['rows']} x {rep['cols']} px, {rep['n_fit']} fit / {rep['n_check']} check points")
+    print(f"  rigorous model's line-of-sight corrections (the RPC holds them): {rep['corrections']}")
     print(f"  fit   RMS {rep['fit_rms_px']:.2e} px")
     print(f"  check RMS {rep['check_rms_px']:.2e} px, max {rep['check_max_px']:.2e} px")
     if rep.get("gdal_vs_exact_max_px") is not None:

@@ -53,8 +53,7 @@ from geoloc.frames import rotations as rot
 from geoloc.geodesy.ellipsoid import A, geodetic_to_ecef
 from geoloc.sensors.base import PixelHit, check_outside, check_param_names, flag_outside
 from geoloc.status import Status
-from geoloc.surfaces.base import GroundPoint, LineOfSight
-from geoloc.surfaces.height import intersect_los_height
+from geoloc.surfaces.base import LineOfSight
 from geoloc.tomlio import read_toml
 
 #: Earth rotation rate [rad/s] (WGS-84 / IERS nominal value), used only to
@@ -502,10 +501,6 @@ class PushbroomSensor:
             status = flag_outside(status, row, col, self.rows, self.cols)
         # the orbit's velocity (the antenna's; the lever arm's rotation adds < 1 mm/s), for aberration
         return LineOfSight(centre, d, status, velocity_ecef=self.orbit.state(t)[1])
-
-    def locate(self, row, col, target_h=0.0, height_kind: str = "geodetic") -> GroundPoint:
-        """Pixel -> ground point at ellipsoidal height ``target_h`` (exact geodetic surface by default)."""
-        return intersect_los_height(self.line_of_sight(row, col), target_h, height_kind)
 
     # ------------------------------------------------------- ground -> image
     def ground_to_pixel(self, lat, lon, h, state=None, *, tol_lines: float = 1e-6, max_iter: int = 30) -> PixelHit:

@@ -42,8 +42,7 @@ import numpy as np
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.sensors.base import PixelHit, check_outside, check_param_names, flag_outside, in_sensor
 from geoloc.status import Status
-from geoloc.surfaces.base import GroundPoint, LineOfSight
-from geoloc.surfaces.height import intersect_los_height
+from geoloc.surfaces.base import LineOfSight
 
 #: Names of the 20 RPC00B terms, in order (L = longitude, P = latitude, H = height).
 TERMS = ("1", "L", "P", "H", "LP", "LH", "PH", "LL", "PP", "HH",
@@ -507,14 +506,6 @@ class RPCSensor:
             status = np.where(status == Status.OUTSIDE_SENSOR, np.uint8(Status.OK), status)
         return LineOfSight(np.where(keep[..., None], p[0], np.nan), np.where(keep[..., None], d, np.nan),
                            status.astype(np.uint8))
-
-    def locate(self, row, col, target_h=0.0, height_kind: str = "geodetic") -> GroundPoint:
-        """Pixel -> ground point at ellipsoidal height ``target_h`` through :meth:`line_of_sight`.
-
-        (:meth:`ground_at_height` is the RPC's own inverse at a height; this is
-        the straight line, the interface every other sensor offers.)
-        """
-        return intersect_los_height(self.line_of_sight(row, col), target_h, height_kind)
 
     def frames(self, state=None):
         """None: an RPC has no frame graph.

@@ -24,22 +24,22 @@ from geoloc.io.rpc_gdal import (
     write_ellipsoidal_dem,
     write_rpc_geotiff,
 )
-from geoloc.locate import ground_to_pixel, line_of_sight, locate
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline, corrections_from_table
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.sensor_file import load_sensor
 from geoloc.sensors.rpc import RPCModel
 from geoloc.status import Status
-from geoloc.surfaces.base import GroundPoint
 from geoloc.tomlio import read_toml
 
 
 # ------------------------------------------------------------------ sensors
 @dataclass(frozen=True)
 class FrameCameraSensor:
-    """The aircraft frame camera of [Q17] (one pose) seen as a generic sensor model.
+    """The aircraft frame camera of [Q17] bound to one pose: a sensor whose state is None.
 
-    Gives the interface the RPC fit uses (``rows``, ``cols``, ``line_of_sight``,
-    ``locate``, ``ground_to_pixel``) on top of :mod:`geoloc.locate`.
+    The :class:`~geoloc.sensors.base.Sensor` calls the RPC fit and the location pipeline use
+    (``rows``, ``cols``, ``line_of_sight``, ``ground_to_pixel``, ``in_image``), each the
+    frame sensor's at :attr:`pose`.
     """
 
     pose: Pose
@@ -54,15 +54,11 @@ class FrameCameraSensor:
     def cols(self) -> int:
         return self.camera.cols
 
-    def line_of_sight(self, row, col):
-        return line_of_sight(self.pose, self.camera, row, col)
+    def line_of_sight(self, row, col, state=None, *, outside: str = "flag"):
+        return self.camera.line_of_sight(row, col, self.pose, outside=outside)
 
-    def locate(self, row, col, target_h=0.0, height_kind: str = "geodetic") -> GroundPoint:
-        """Exact constant-geodetic-height surface by default (RPC heights are geodetic)."""
-        return locate(self.pose, self.camera, row, col, target_h, height_kind=height_kind)
-
-    def ground_to_pixel(self, lat, lon, h):
-        return ground_to_pixel(self.pose, self.camera, lat, lon, h)
+    def ground_to_pixel(self, lat, lon, h, state=None):
+        return self.camera.ground_to_pixel(lat, lon, h, self.pose)
 
     def in_image(self, row, col):
         return self.camera.in_image(row, col)
@@ -144,7 +140,8 @@ def dem_pixels(sensor, dem, grid=(12, 12), margin=0.05):
 
 
 def crosscheck_gdal_dem(sensor, model: RPCModel, dem, dem_path_for_gdal, row, col, *,
-                        pixel_error_threshold=1e-6, max_iterations=100) -> DemCrossCheck:
+                        pixel_error_threshold=1e-6, max_iterations=100,
+                        corrections: Corrections = NO_CORRECTIONS) -> DemCrossCheck:
     """Pixel -> ground by GDAL (RPC + ``RPC_DEM``) against the project's exact DEM intersection.
 
     The exact side intersects the rigorous line of sight with the DEM
@@ -172,10 +169,11 @@ def crosscheck_gdal_dem(sensor, model: RPCModel, dem, dem_path_for_gdal, row, co
         Pixels whose exact intersection fails (ray leaves the DEM) are dropped.
     """
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
-    from geoloc.surfaces.terrain import intersect_dem
+    from geoloc.surfaces.terrain import DemSurface
 
     row, col = np.broadcast_arrays(np.asarray(row, float).ravel(), np.asarray(col, float).ravel())
-    hit = intersect_dem(sensor.line_of_sight(row, col), dem, method="exact")
+    pipe = Pipeline(sensor, DemSurface(dem, "exact"), corrections)
+    hit = pipe.locate(row, col)
     ok = hit.status == Status.OK
     row, col = row[ok], col[ok]
     lat_e, lon_e, h_e, p_e = hit.lat[ok], hit.lon[ok], hit.h[ok], hit.ecef[ok]
@@ -183,7 +181,7 @@ def crosscheck_gdal_dem(sensor, model: RPCModel, dem, dem_path_for_gdal, row, co
                                       pixel_error_threshold=pixel_error_threshold,
                                       max_iterations=max_iterations)
     h_g = dem.height(lat_g, lon_g)
-    r_g, c_g, st = sensor.ground_to_pixel(lat_g, lon_g, h_g)
+    r_g, c_g, st = pipe.ground_to_pixel(lat_g, lon_g, h_g)
     err_px = np.where(st == Status.OK, np.hypot(r_g - row, c_g - col), np.nan)
     err_m = np.linalg.norm(geodetic_to_ecef(lat_g, lon_g, h_g) - p_e, axis=-1)
     opts = {"RPC_DEM": str(dem_path_for_gdal), "RPC_DEMINTERPOLATION": "bilinear",
@@ -211,6 +209,10 @@ class RPCScenario:
         ``"egm96"`` (orthometric DEM) or ``"ellipsoid"``.
     cross_check_grid : tuple of 2 int
         Pixels (rows x cols) compared with GDAL RPC_DEM.
+    corrections : Corrections
+        The rigorous model's line-of-sight corrections (the file's ``[corrections]`` table over
+        the sensor's defaults: light-time and aberration on for the pushbroom), which the
+        fitted RPC then holds.
     """
 
     name: str
@@ -223,6 +225,7 @@ class RPCScenario:
     dem_path: Path | None
     dem_datum: str
     cross_check_grid: tuple
+    corrections: Corrections = NO_CORRECTIONS
 
 
 def _resolve(rel: str, base: Path, field_name: str) -> Path:
@@ -302,8 +305,12 @@ def load_rpc_scenario(path) -> RPCScenario:
         if datum not in ("egm96", "ellipsoid"):
             raise ValueError(f"{src} [dem]: datum = {datum!r} must be 'egm96' or 'ellipsoid'")
         cc = _int_tuple(dem, "cross_check_grid", 2, [12, 12], f"{src} [dem]")
+    table = data.get("corrections", {})
+    if not isinstance(table, dict):
+        raise ValueError(f"{src}: corrections must be a table [corrections], got {table!r}")
+    corrections = corrections_from_table(sensor, table, f"{src} [corrections]")
     return RPCScenario(str(data.get("name", path.stem)), kind, sensor, hr[0], hr[1], grid, check,
-                       dem_path, datum, cc)
+                       dem_path, datum, cc, corrections)
 
 
 def rpc_report(scenario: RPCScenario, out_tif, dem=None, *, gdal: bool = True,
@@ -336,7 +343,8 @@ def rpc_report(scenario: RPCScenario, out_tif, dem=None, *, gdal: bool = True,
     import tempfile
 
     s = scenario.sensor
-    fit = fit_rpc(s, scenario.height_min, scenario.height_max, scenario.grid, scenario.check_grid)
+    fit = fit_rpc(s, scenario.height_min, scenario.height_max, scenario.grid, scenario.check_grid,
+                  corrections=scenario.corrections)
     write_rpc_geotiff(out_tif, fit.model, s.rows, s.cols)
     rep = {
         "scenario": scenario.name, "kind": scenario.kind, "image": str(out_tif),
@@ -345,6 +353,7 @@ def rpc_report(scenario: RPCScenario, out_tif, dem=None, *, gdal: bool = True,
         "n_fit": fit.n_fit, "n_check": fit.n_check,
         "fit_rms_px": fit.fit_rms_px, "fit_max_px": fit.fit_max_px,
         "check_rms_px": fit.check_rms_px, "check_max_px": fit.check_max_px,
+        "corrections": scenario.corrections.label,
     }
     if not gdal or scenario.dem_path is None:
         rep["gdal_vs_exact_max_px"] = None
@@ -359,12 +368,13 @@ def rpc_report(scenario: RPCScenario, out_tif, dem=None, *, gdal: bool = True,
         ell = Path(dem_copy) if dem_copy is not None else Path(tmp) / "dem_ellipsoidal.tif"
         write_ellipsoidal_dem(dem, ell)
         cc = crosscheck_gdal_dem(s, fit.model, dem, ell, rows, cols,
-                                 pixel_error_threshold=pixel_error_threshold)
+                                 pixel_error_threshold=pixel_error_threshold, corrections=scenario.corrections)
         cc_default = crosscheck_gdal_dem(s, fit.model, dem, ell, cc.row, cc.col,
-                                         pixel_error_threshold=None, max_iterations=None)
+                                         pixel_error_threshold=None, max_iterations=None,
+                                         corrections=scenario.corrections)
     # GDAL's default handling of the bundled file: orthometric values taken as ellipsoidal
     cc_raw = crosscheck_gdal_dem(s, fit.model, dem, scenario.dem_path, cc.row, cc.col,
-                                 pixel_error_threshold=pixel_error_threshold)
+                                 pixel_error_threshold=pixel_error_threshold, corrections=scenario.corrections)
     rep.update({
         "gdal_vs_exact_max_px": cc.max_px, "gdal_vs_exact_rms_px": cc.rms_px,
         "gdal_vs_exact_max_m": cc.max_m, "gdal_points": int(cc.row.size), "gdal_failed": cc.n_failed,
