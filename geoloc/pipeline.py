@@ -135,6 +135,14 @@ class Corrections:
                              "below 1 microradian)")
         return cls(refraction, lt, ab)
 
+    def overridden(self, sensor, refraction=None, light_time: bool | None = None,
+                   aberration: bool | None = None) -> Corrections:
+        """These corrections with the given settings changed (None: kept), checked for ``sensor``
+        as :meth:`for_sensor` checks them (a command line's flags over a file's table)."""
+        return Corrections.for_sensor(sensor, self.refraction if refraction is None else refraction,
+                                      self.light_time if light_time is None else light_time,
+                                      self.aberration if aberration is None else aberration)
+
     @property
     def names(self) -> tuple:
         """The corrections on, in the pipeline's order (a subset of :data:`CORRECTIONS`)."""

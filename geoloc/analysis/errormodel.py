@@ -65,6 +65,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.frames.chain import Pose
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, corrections_from_table
 from geoloc.sensors.camera import as_sensor
 from geoloc.sensors.frame import FrameSensor
 from geoloc.tomlio import read_toml
@@ -196,6 +197,9 @@ class ErrorModel:
         The optional [sweep] table (defaults of ``geoloc montecarlo --sweep``).
     source : str
         Where the model came from (for error messages).
+    corrections : Corrections
+        The line-of-sight corrections every sample is located with (the file's
+        ``[corrections]`` table; none by default, as [Q17]).
     """
 
     name: str
@@ -209,6 +213,7 @@ class ErrorModel:
     dem: DemSpec | None = None
     sweep: dict = field(default_factory=dict)
     source: str = "error model"
+    corrections: Corrections = NO_CORRECTIONS
 
     def __post_init__(self):
         # the one entrance for a Monte Carlo sensor: a first-phase Camera built in Python becomes
@@ -227,7 +232,7 @@ class ErrorModel:
     def from_dict(cls, data: dict, source: str = "error model", base_dir=None) -> "ErrorModel":
         """Build from the parsed TOML tables (see the module docstring)."""
         allowed = {"name", "description", "reference", "camera", "nominal", "target", "errors",
-                   "dem", "sweep", "kind"}
+                   "dem", "sweep", "kind", "corrections"}
         _no_unknown(data, allowed, source)
         if data.get("kind", "montecarlo") != "montecarlo":  # geoloc.workflows.scenario's dispatch key
             raise ValueError(f"{source}: kind = {data['kind']!r}: this loader reads 'montecarlo' scenarios")
@@ -275,9 +280,13 @@ class ErrorModel:
             if "path" not in d:
                 raise ValueError(f"{source} [dem]: missing key 'path'")
             dem = DemSpec(_resolve(d["path"], base_dir), str(d.get("datum", "egm96")), d.get("method"))
+        table = data.get("corrections", {})
+        if not isinstance(table, dict):
+            raise ValueError(f"{source}: corrections must be a table [corrections], got {table!r}")
+        corrections = corrections_from_table(camera, table, f"{source} [corrections]")
         return cls(str(data.get("name", Path(source).stem)), camera, nominal,
                    _number(tgt["h_m"], f"{source} [target] h_m"), row, col, height_kind, errors, dem,
-                   dict(data.get("sweep", {})), source)
+                   dict(data.get("sweep", {})), source, corrections)
 
     # ------------------------------------------------------------ use
     def with_nominal(self, **changes) -> "ErrorModel":

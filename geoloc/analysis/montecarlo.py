@@ -50,6 +50,7 @@ from geoloc.geodesy.ellipsoid import (
     meridian_radius,
     prime_vertical_radius,
 )
+from geoloc.pipeline import Pipeline
 from geoloc.sensors.frame import small_rotation
 from geoloc.status import Status
 from geoloc.userfiles import atomic_path
@@ -347,7 +348,7 @@ def evaluate(model: ErrorModel, errors: dict, surface=None):
         from geoloc.surfaces.terrain import surface_for
 
         surface = surface_for(model.target_h_m + _or(errors.get("target_h_m"), 0.0), kind=model.height_kind)
-    g = surface.intersect(los)
+    g = Pipeline(s, surface, model.corrections).intersect(los)
     return g.lat, g.lon, g.h, np.asarray(g.status, np.uint8)
 
 

@@ -30,6 +30,7 @@ from scipy.optimize import least_squares
 
 from geoloc.geodesy.local import R_ecef_ned
 from geoloc.io.records import Records
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.status import Status
 from geoloc.surfaces.height import for_records
 
@@ -174,14 +175,14 @@ def _enu_residuals(hit, truth_lat, truth_lon) -> np.ndarray:
     return out
 
 
-def _ground(sensor, pose, row, col, surface_of):
-    from geoloc.locate import line_of_sight
+def _ground(sensor, pose, row, col, surface_of, corrections: Corrections = NO_CORRECTIONS):
+    # through the location pipeline; recorded image points: off-sensor pixels extend the lens
+    # model (the verb reports them)
+    return Pipeline(sensor, surface_of, corrections).locate(row, col, pose, outside="extrapolate")
 
-    # recorded image points: off-sensor pixels extend the lens model (the verb reports them)
-    return surface_of.intersect(line_of_sight(pose, sensor, row, col, outside="extrapolate"))
 
-
-def fit_sensor_params(records: Records, sensor, names, surface, *, truth_prefix: str = "truth",
+def fit_sensor_params(records: Records, sensor, names, surface, *, corrections: Corrections = NO_CORRECTIONS,
+                      truth_prefix: str = "truth",
                       idx=None, loo: bool = False) -> SensorFit:
     """Least-squares fit of the named parameters of ``sensor`` to the records' surveyed truth.
 
@@ -220,7 +221,7 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, truth_prefix:
     p0 = np.array([known[n] for n in names], float)
 
     def errors(s, ii):
-        hit = _ground(s, pose_all.take(ii), row_all[ii], col_all[ii], surf(ii))
+        hit = _ground(s, pose_all.take(ii), row_all[ii], col_all[ii], surf(ii), corrections)
         return _enu_residuals(hit, tlat_all[ii], tlon_all[ii])
 
     def solve(ii):
@@ -254,7 +255,8 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, truth_prefix:
 
 
 # --------------------------------------------------------------------------- per flight
-def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column: str | None = "table",
+def fit_sensor_groups(records: Records, sensor, names, surface, *, corrections: Corrections = NO_CORRECTIONS,
+                      group_column: str | None = "table",
                       joint: bool = False, exclude_outliers: bool = False, loo: bool = False,
                       truth_prefix: str = "truth", k_sigma: float = 3.5) -> tuple[dict, dict]:
     """Per-flight errors before and after fitting ``names``, with outlier flags and leave-one-out.
@@ -291,7 +293,7 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column:
 
     def measure(s, idx):
         sub = records.subset(idx)
-        hit = _ground(s, pose_all.take(idx), row_all[idx], col_all[idx], surf(idx))
+        hit = _ground(s, pose_all.take(idx), row_all[idx], col_all[idx], surf(idx), corrections)
         return error_vectors(sub, s, hit, groups[idx], truth_prefix)
 
     before = measure(sensor, all_idx)
@@ -303,7 +305,7 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column:
 
     def fit_all(use):
         if joint:
-            jf = fit_sensor_params(records, sensor, names, surface, truth_prefix=truth_prefix,
+            jf = fit_sensor_params(records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix,
                                    idx=all_idx[use], loo=False)
             return {g: jf for g in names_g}
         fits = {}
@@ -312,7 +314,7 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column:
             if 2 * idx.size <= len(names):
                 raise ValueError(f"group {g!r}: {idx.size} usable record(s) cannot determine "
                                  f"{len(names)} parameters ({', '.join(names)})")
-            fits[g] = fit_sensor_params(records, sensor, names, surface, truth_prefix=truth_prefix, idx=idx)
+            fits[g] = fit_sensor_params(records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix, idx=idx)
         return fits
 
     fits = fit_all(use)
@@ -337,7 +339,7 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, group_column:
             for k in all_idx[groups == g]:
                 train = all_idx[use] if joint else all_idx[(groups == g) & use]
                 train = train[train != k]
-                f = fit_sensor_params(records, sensor, names, surface, truth_prefix=truth_prefix, idx=train)
+                f = fit_sensor_params(records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix, idx=train)
                 ev = measure(f.sensor, np.array([k]))
                 loo_d[k] = float(ev.distance_m[0])
                 loo_en[k] = float(ev.east_m[0]), float(ev.north_m[0])
@@ -406,7 +408,8 @@ class SensorResection:
                 "heights_m": [round(float(h), 2) for h in self.heights_m], "converged": self.success}
 
 
-def resect_sensor(records: Records, sensor, names=("fx", "cx", "cy"), *, computed_prefix: str = "paper",
+def resect_sensor(records: Records, sensor, names=("fx", "cx", "cy"), *, corrections: Corrections = NO_CORRECTIONS,
+                  computed_prefix: str = "paper",
                   initial_height_m: float = 0.0) -> SensorResection:
     """Fit the named parameters (default focal length and principal point) to published positions.
 
@@ -440,7 +443,7 @@ def resect_sensor(records: Records, sensor, names=("fx", "cx", "cy"), *, compute
 
     def resid(x):
         s = with_fit_params(sensor, dict(zip(names, p0 + x[:p] * scale)))
-        hit = _ground(s, pose, row, col, HeightSurface(x[p:] * 1000.0))  # heights in km inside the solver
+        hit = _ground(s, pose, row, col, HeightSurface(x[p:] * 1000.0), corrections)  # heights in km inside
         return _enu_residuals(hit, tlat, tlon).ravel()
 
     x0 = np.concatenate([np.zeros(p), np.full(n, initial_height_m / 1000.0)])

@@ -47,6 +47,7 @@ from geoloc.frames import rotations as rot
 from geoloc.geodesy.ellipsoid import meridian_radius, prime_vertical_radius
 from geoloc.geodesy.local import R_ecef_enu, R_ecef_ned
 from geoloc.locate import as_sensor
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.sensors.budget import LE90_PER_SIGMA, LENS_KEYS, ErrorBudget
 from geoloc.sensors.frame import small_rotation
 from geoloc.status import Status
@@ -450,7 +451,8 @@ def surface_sigma_m(surface, budget: ErrorBudget) -> float:
 def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = None, *, surface=None,
               target_h=None, dem=None, velocity_ned_m_s=None, outside: str = "flag",
               dem_method: str = "exact", dem_slope: str = "footprint",
-              footprint_iterations: int = 3, engine: str = "auto") -> PointUncertainty:
+              footprint_iterations: int = 3, engine: str = "auto",
+              corrections: Corrections = NO_CORRECTIONS) -> PointUncertainty:
     """Locate a batch of pixels and predict each point's uncertainty (first order).
 
     Parameters
@@ -481,6 +483,10 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
         per-sample perturbation; below that the first call's compile and numba's call overhead
         outweigh them); ``"numpy"``: the reference path (:func:`chain_derivatives`), which the
         tests hold the kernels to.
+    corrections : Corrections
+        The location pipeline's line-of-sight corrections (:class:`geoloc.pipeline.Corrections`):
+        the points are the corrected ones; the derivatives are the straight line's (refraction
+        changes a ray's direction by 1e-4 of itself at most, so its Jacobian by as little).
 
     Returns
     -------
@@ -515,7 +521,7 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
     if fast:
         from geoloc.analysis import _fastuncert as F
 
-        hit, shape, O, D = _locate_for(s, pose, row, col, surface, outside)
+        hit, shape, O, D = _locate_for(s, pose, row, col, surface, outside, corrections)
         status = np.broadcast_to(hit.status, shape).reshape(-1)
         lat, lon, h = (np.ascontiguousarray(np.broadcast_to(getattr(hit, k), shape).reshape(-1))
                        for k in ("lat", "lon", "h"))
@@ -524,7 +530,7 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
         names, free = _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t)
     else:
         los = s.line_of_sight(row, col, pose, outside=outside)
-        hit = surface.intersect(los)
+        hit = Pipeline(s, surface, corrections).intersect(los)
         names, dO, dD, (O, D), shape = chain_derivatives(s, pose, row, col, budget, velocity_ned_m_s)
         status = np.broadcast_to(hit.status, shape).reshape(-1)
         lat, lon, h = (np.broadcast_to(getattr(hit, k), shape).reshape(-1) for k in ("lat", "lon", "h"))
@@ -570,22 +576,14 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
 
 
 # --------------------------------------------------------------------- the compiled engine
-def _locate_for(s, pose, row, col, surface, outside):
-    """The hits and the rays (flat origins and directions) for the compiled engine.
-
-    On the inflated constant height the fused locate kernel gives both in one pass; elsewhere the
-    compiled line of sight and the surface's own solver.
-    """
-    from geoloc.sensors._fastlocate import line_of_sight_fast, locate_fast
-    from geoloc.surfaces.base import GroundPoint
-
-    if getattr(surface, "kind", None) == "inflated" and terrain_of(surface) is None:
-        lat, lon, h, ecef, rng, st, o, d = locate_fast(pose, s, row, col, surface.h, outside=outside)
-        hit = GroundPoint(lat, lon, h, ecef, rng, st, None)
-    else:
-        o, d, los_st = line_of_sight_fast(pose, s, row, col, outside=outside)
-        hit = surface.intersect(LineOfSight(o, d, los_st))
-    shape = np.shape(o)[:-1]
+def _locate_for(s, pose, row, col, surface, outside, corrections: Corrections = NO_CORRECTIONS):
+    """The hits and the rays (flat origins and directions) for the compiled engine: the location
+    pipeline's compiled executors (on the inflated constant height the fused locate kernel gives
+    both in one pass; elsewhere the compiled line of sight and the surface's own solver)."""
+    hit = Pipeline(s, surface, corrections).locate(row, col, pose, outside=outside, engine="numba")
+    o, d = np.asarray(hit.los.origin_ecef, float), np.asarray(hit.los.direction_ecef, float)
+    shape = np.broadcast_shapes(np.shape(o)[:-1], np.shape(d)[:-1], np.shape(hit.status))
+    o, d = np.broadcast_to(o, shape + (3,)), np.broadcast_to(d, shape + (3,))
     return hit, shape, o.reshape(-1, 3), d.reshape(-1, 3)
 
 
@@ -716,7 +714,7 @@ def draw(budget: ErrorBudget, n: int, rng: np.random.Generator) -> dict:
 
 
 def monte_carlo(sensor, pose, row, col, budget: ErrorBudget, surface, n: int, rng: np.random.Generator,
-                velocity_ned_m_s=None, draws: dict | None = None):
+                velocity_ned_m_s=None, draws: dict | None = None, corrections: Corrections = NO_CORRECTIONS):
     """Monte Carlo of one ray's located point under the budget: the errors (east, north, up) [m].
 
     Every source is drawn per sample and applied exactly (not linearised): the pose's
@@ -773,17 +771,18 @@ def monte_carlo(sensor, pose, row, col, budget: ErrorBudget, surface, n: int, rn
     sp = dataclasses.replace(s, lens=lens, **extra)
     rr, cc = np.broadcast_to(float(row), (n,)), np.broadcast_to(float(col), (n,))
     los = sp.line_of_sight(rr, cc, pose_s, outside="extrapolate", engine="numpy")
-    nominal = surface.intersect(s.line_of_sight(float(row), float(col), p0, outside="extrapolate", engine="numpy"))
+    nominal = Pipeline(s, surface, corrections).intersect(
+        s.line_of_sight(float(row), float(col), p0, outside="extrapolate", engine="numpy"))
     la, lo, hh = (float(np.asarray(getattr(nominal, k)).reshape(())) for k in ("lat", "lon", "h"))
     if terrain_of(surface) is None:
         hz = surface.h + g("height_m")
-        hit = HeightSurface(np.broadcast_to(hz, (n,)), surface.kind).intersect(los)
+        hit = Pipeline(sp, HeightSurface(np.broadcast_to(hz, (n,)), surface.kind), corrections).intersect(los)
         P = hit.ecef
     else:
         dz = np.broadcast_to(g("dem_m"), (n,))
         up = R_ecef_enu(la, lo)[..., 2]
         shifted = LineOfSight(los.origin_ecef - dz[:, None] * up, los.direction_ecef, los.status)
-        hit = surface.intersect(shifted)
+        hit = Pipeline(sp, surface, corrections).intersect(shifted)
         P = hit.ecef + dz[:, None] * up
     enu = ecef_to_enu(P, la, lo, hh)
     return np.where((hit.status == Status.OK)[:, None], enu, np.nan), np.asarray(hit.status, np.uint8)

@@ -443,14 +443,18 @@ def add_correction_options(parser) -> None:
                    help="turn aberration of light off for a spaceborne sensor (on by default there)")
 
 
-def corrections_from_args(args, sensor, settings: dict | None = None):
+def corrections_from_args(args, sensor, settings: dict | None = None, base=None):
     """The verb's :class:`geoloc.pipeline.Corrections` for ``sensor``: the options of
-    :func:`add_correction_options` over ``settings`` (a sensor or scenario file's
-    ``[corrections]`` table: ``refraction``, ``light_time``, ``aberration``), over the sensor's
-    defaults (:meth:`~geoloc.pipeline.Corrections.for_sensor`)."""
+    :func:`add_correction_options` over ``base`` (corrections a scenario already holds) or
+    ``settings`` (a sensor or scenario file's ``[corrections]`` table: ``refraction``,
+    ``light_time``, ``aberration``), over the sensor's defaults
+    (:meth:`~geoloc.pipeline.Corrections.for_sensor`)."""
     from geoloc.pipeline import TABLE_KEYS, corrections_from_table
 
-    return corrections_from_table(sensor, settings, **{k: getattr(args, k, None) for k in TABLE_KEYS})
+    flags = {k: getattr(args, k, None) for k in TABLE_KEYS}
+    if base is not None:
+        return base.overridden(sensor, **flags)
+    return corrections_from_table(sensor, settings, **flags)
 
 
 def pipeline_from_args(args, sensor, surface, settings: dict | None = None):

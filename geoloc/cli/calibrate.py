@@ -17,7 +17,9 @@ import numpy as np
 from geoloc.analysis.sensor_fit import error_vector_panels, fit_sensor_groups, resect_sensor
 from geoloc.assets import asset_path
 from geoloc.cli._options import (
+    add_correction_options,
     add_dem_options,
+    corrections_from_args,
     add_sensor_option,
     add_target_options,
     input_path,
@@ -59,6 +61,7 @@ def register(sub) -> None:
                         "file per flight named STEM_<flight>.toml")
     add_target_options(p)
     add_dem_options(p)
+    add_correction_options(p)
     p.add_argument("--group-by", default="table",
                    help="column grouping records into flights (default: table; 'none' for one group)")
     p.add_argument("--model", choices=sorted(MODELS), default=None,
@@ -172,11 +175,13 @@ def run(args) -> int:
     group = args.group_by
     if group.lower() == "none" or (group == "table" and "table" not in records.header):
         group = None
-    rep, sensors = fit_sensor_groups(records, sensor, names, surface, group_column=group, joint=args.joint,
+    corrections = corrections_from_args(args, sensor)
+    rep, sensors = fit_sensor_groups(records, sensor, names, surface, corrections=corrections,
+                                     group_column=group, joint=args.joint,
                                      exclude_outliers=args.exclude_outliers, loo=args.loo,
                                      truth_prefix=args.truth_prefix)
     report = {"records": str(records.path), "sensor": str(args.camera or asset_path("cameras", "qiao2017.toml")),
-              "target": label, **rep}
+              "target": label, "corrections": corrections.label, **rep}
     for g, e in rep["groups"].items():
         line = (f"flight {g}: n={e['n']} (fit {e['n_used_in_fit']}), mean error to truth: "
                 f"before {_fmt(e['mean_error_before_m'])} m, after {_fmt(e['mean_error_after_m'])} m")
@@ -195,7 +200,7 @@ def run(args) -> int:
         _print_parameters(rep["joint_fit"]["parameters"], rep["joint_fit"]["degenerate_pairs"])
     if args.resect:
         rnames = names if args.fit is not None else list(RESECT_NAMES)
-        r = resect_sensor(records, sensor, rnames)
+        r = resect_sensor(records, sensor, rnames, corrections=corrections)
         report["resection"] = r.report()
         print(f"resection of {', '.join(rnames)} to the published positions (unknown target heights): "
               f"RMS misfit {r.rms_m:.2f} m" + ("" if r.success else " (did not converge)"))

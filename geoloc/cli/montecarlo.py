@@ -15,7 +15,9 @@ import numpy as np
 from geoloc.analysis import montecarlo as mc
 from geoloc.analysis.errormodel import ErrorModel
 from geoloc.cli._options import (
+    add_correction_options,
     add_dem_options,
+    corrections_from_args,
     add_sensor_option,
     input_path,
     one_dem_raster,
@@ -66,6 +68,7 @@ def register(sub) -> None:
     p.add_argument("--terrain-sigmas-m", default=None,
                    help="comma-separated terrain standard deviations [m] for --sweep terrain "
                    "(default: the scenario's [sweep] terrain_sigmas_m, else 10,20,...,100)")
+    add_correction_options(p)
     add_dem_options(p, mosaic=False, tolerances=False, method_default=None,
                     dem_help="DEM raster replacing the target height (overrides the scenario's [dem])",
                     method_help="DEM method: steps [Q17], bisect [L23] or exact (default: the scenario's "
@@ -177,7 +180,8 @@ def load_model(args) -> ErrorModel:
             raise ValueError(f"--method {args.method}: the scenario has no DEM (give --dem FILE or a scenario "
                              "with a [dem] table)")
         model = replace(model, dem=replace(model.dem, method=args.method))
-    return model
+    # the scenario's [corrections] with --refraction / --light-time / --no-aberration on top
+    return replace(model, corrections=corrections_from_args(args, model.camera, base=model.corrections))
 
 
 def format_stats(stats: dict, nominal=None) -> str:
