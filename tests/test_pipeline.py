@@ -231,3 +231,21 @@ def test_klv_replay_carries_the_corrections(tmp_path, capsys):
         assert np.linalg.norm(pb - pa) == pytest.approx(float(b["refraction_m"]), abs=2e-3)
         moved += float(b["refraction_m"]) > 0.0
     assert moved > 0
+
+
+def test_whole_frame_grid_executor_agrees_with_the_pipeline_with_refraction():
+    """geoloc ortho's compiled grid of lines of sight is one more executor of the pipeline: with
+    refraction on, its points equal the numpy pipeline's pixel by pixel (1 mm, the contract's)."""
+    from geoloc.workflows.ortho import locate_frame
+
+    cam = as_sensor(Camera(1000.0, 240.5, 320.5, 480, 640))
+    pose = Pose.from_deg(LAT, LON, H, 20.0, 1.0, -2.0, 3.0, 55.0)
+    c = Corrections.for_sensor(cam, "standard")
+    grid = locate_frame(cam, pose, HeightSurface(300.0, "geodetic"), step=40, corrections=c)
+    R, C = np.meshgrid(grid.rows, grid.cols, indexing="ij")
+    ref = Pipeline(cam, HeightSurface(300.0, "geodetic"), c).locate(R, C, pose, engine="numpy")
+    ok = ref.status == Status.OK
+    assert ok.all()
+    p_grid = geodetic_to_ecef(grid.lat, grid.lon, grid.h)
+    assert np.max(np.linalg.norm(p_grid - ref.ecef, axis=-1)) < 1e-3
+    assert np.min(ref.refraction_m) > 1.0  # 18 km, 35-75 deg off nadir: metres

@@ -22,7 +22,9 @@ from geoloc.cli._options import (
     add_columns_option,
     check_crs,
     check_suffix,
+    add_correction_options,
     add_dem_options,
+    corrections_from_args,
     add_gimbal_options,
     add_pose_options,
     add_target_options,
@@ -79,6 +81,7 @@ def register(sub) -> None:
     add_target_options(p, height_column=False)
     p.set_defaults(func=run)
     add_dem_options(p)
+    add_correction_options(p)
 
 
 def _bundled_dem(lat_deg: float, lon_deg: float):
@@ -191,16 +194,18 @@ def run(args) -> int:
         if image.shape[1:] != (sensor.rows, sensor.cols):
             raise ValueError(f"--photo {meta.path}: its pixels are {image.shape[2]} x {image.shape[1]}, "
                              f"the sensor's {sensor.cols} x {sensor.rows}")
-    tags = {"pose": pose_from, "surface": surface_text, "sensor": getattr(sensor, "name", "") or "frame sensor"}
+    corrections = corrections_from_args(args, sensor)
+    tags = {"pose": pose_from, "surface": surface_text, "sensor": getattr(sensor, "name", "") or "frame sensor",
+            "corrections": corrections.label}
     t0 = time.perf_counter()
     info = write_frame_geotiff(out, sensor, pose, surface, step=args.step, chunk=chunk, tags=tags,
-                               parallel=not args.serial)
+                               parallel=not args.serial, corrections=corrections)
     info["seconds"] = time.perf_counter() - t0
-    info.update(pose=pose_from, surface=surface_text, h_datum=ELLIPSOID_DATUM)
+    info.update(pose=pose_from, surface=surface_text, h_datum=ELLIPSOID_DATUM, corrections=corrections.label)
     if args.ortho_out:
         info["ortho"] = orthorectify(image, sensor, pose, terrain_of(surface), args.ortho_out, gsd_m=args.gsd_m,
                                      crs=args.ortho_crs, chunk=chunk, tags={"photo": meta.name},
-                                     parallel=not args.serial)
+                                     parallel=not args.serial, corrections=corrections)
     if args.json:
         print(json.dumps(info))
     else:

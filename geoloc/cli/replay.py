@@ -424,10 +424,13 @@ def _run_campaign(args, inputs) -> int:
             raise ValueError(f"--{opt} is for one replay; a campaign writes Parquet parts (--parquet-out)")
     paths = list(inputs)
     out = args.parquet_out
+    from geoloc.sensors.sensor_file import load_sensor
+
     cfg = CampaignConfig(
         sensor=args.camera, surface=surface_spec_from_args(args),
         altitude_datum=getattr(args, "altitude_datum", None) or "ellipsoid",
-        targets=args.targets)
+        targets=args.targets,
+        corrections=corrections_from_args(args, load_sensor(args.camera) if args.camera else None))
     if args.workers < 1:
         raise ValueError(f"--workers {args.workers}: must be at least 1")
 

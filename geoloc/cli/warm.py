@@ -27,12 +27,34 @@ def _large_batch() -> int:
     import numpy as np
 
     from geoloc.assets import asset_path
+    from geoloc.pipeline import Pipeline
     from geoloc.surfaces.spec import SurfaceSpec
-    from geoloc.surfaces.terrain import intersect_dem, random_oblique_rays
+    from geoloc.surfaces.terrain import DemSurface, random_oblique_rays
 
     dem = SurfaceSpec(dem=asset_path("dem", "srtm_jacksboro.tif")).raster()
-    g = intersect_dem(random_oblique_rays(dem, 20000, np.random.default_rng(0)), dem, "exact")
+    g = Pipeline(None, DemSurface(dem, "exact")).intersect(random_oblique_rays(dem, 20000, np.random.default_rng(0)))
     return 0 if np.any(np.asarray(g.status) == 0) else 1
+
+
+def _refraction() -> int:
+    """The refraction kernels (``--refraction standard``): a ground ray through the pipeline, on a
+    height and on the DEM, and a limb ray (``geoloc limb --refraction standard``)."""
+    import numpy as np
+
+    from geoloc.assets import asset_path
+    from geoloc.corrections.refraction import STANDARD_REFRACTION
+    from geoloc.pipeline import Corrections, Pipeline
+    from geoloc.surfaces.height import HeightSurface
+    from geoloc.surfaces.spec import SurfaceSpec
+    from geoloc.surfaces.terrain import DemSurface, random_oblique_rays
+
+    dem = SurfaceSpec(dem=asset_path("dem", "srtm_jacksboro.tif")).raster()
+    los = random_oblique_rays(dem, 100, np.random.default_rng(0))
+    c = Corrections(refraction=STANDARD_REFRACTION)
+    ok = [np.any(np.asarray(Pipeline(None, surf, c).intersect(los).status) == 0)
+          for surf in (HeightSurface(300.0), DemSurface(dem, "exact"))]
+    limb = STANDARD_REFRACTION.limb(np.array([6378137.0 + 10e3, -2.3e6, 0.0]), np.array([0.0, 1.0, 0.0]))
+    return 0 if all(ok) and np.all(np.isfinite(limb.refracted_tangent_h_m)) else 1
 
 
 #: The steps: (what it runs, the verb's arguments or a function); paths under the bundled assets.
@@ -50,6 +72,7 @@ STEPS = (
     ("the viewer's first scene (its walk uncompiled): geoloc view --export (the scene geoloc view serves)",
      ["view", "--export", "{tmp}/scene.html"]),
     ("the terrain walk of a large batch: 20 000 rays over srtm_jacksboro.tif", _large_batch),
+    ("the refraction kernels: --refraction standard on a height, on the DEM, and a limb ray", _refraction),
 )
 
 

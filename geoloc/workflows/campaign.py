@@ -45,6 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.surfaces.spec import SurfaceSpec
 from geoloc.extras import require
 
@@ -78,6 +79,9 @@ class CampaignConfig:
         Photos: the targets CSV.
     carry_columns : bool
         Records: copy the input columns to the output.
+    corrections : Corrections
+        The location pipeline's line-of-sight corrections for every unit (plain values: it
+        pickles with the rest).
     """
 
     sensor: str | None = None
@@ -85,6 +89,7 @@ class CampaignConfig:
     altitude_datum: str = "ellipsoid"
     targets: str | None = None
     carry_columns: bool = True
+    corrections: Corrections = NO_CORRECTIONS
 
     def __post_init__(self):
         if not isinstance(self.surface, SurfaceSpec):
@@ -453,7 +458,7 @@ def _records_unit(path: str, cfg: CampaignConfig):
     surf = (_dem_surface(cfg) if spec.dem is not None else spec.build(_column(table, spec.height_column, path))
             if spec.height_column is not None else _cached(("surface", spec), spec.build))
     dem = terrain_of(surf)
-    hit = surf.intersect(los)
+    hit = Pipeline(sensor, surf, cfg.corrections).intersect(los)
     status = np.asarray(hit.status, np.uint8).copy()
     off = ~sensor.in_image(clean["row"], clean["col"]) & (status == Status.OK)
     status[off] = Status.OUTSIDE_SENSOR  # located by extending the lens model, flagged (as geoloc replay)
@@ -467,7 +472,8 @@ def _records_unit(path: str, cfg: CampaignConfig):
     out = {"source": _constant_column(Path(path).name, n),
            "row_index": np.arange(n, dtype=np.int64), "lat_deg": lat, "lon_deg": lon, "h_m": nan(hit.h),
            "h_datum": _constant_column("ellipsoid (WGS 84)", n),
-           "slant_range_m": nan(hit.slant_range), "status": status}
+           "slant_range_m": nan(hit.slant_range), "status": status,
+           "corrections": _constant_column(cfg.corrections.label, n), "refraction_m": nan(hit.refraction_m)}
     if "truth_lat_deg" in table.column_names and "truth_lon_deg" in table.column_names:
         out["error_to_truth_m"] = horizontal_distance_m(lat, lon, _column(table, "truth_lat_deg", path),
                                                         _column(table, "truth_lon_deg", path))
@@ -527,7 +533,7 @@ def _arrow_columns(columns: dict, source: str):
 def _klv_unit(path: str, cfg: CampaignConfig):
     from geoloc.workflows.klv_replay import replay_klv
 
-    r = replay_klv(path, surface=_dem_surface(cfg, whole=True), sensor=_sensor(cfg))
+    r = replay_klv(path, surface=_dem_surface(cfg, whole=True), sensor=_sensor(cfg), corrections=cfg.corrections)
     messages = [f"{path}: {e}" for e in r.errors[:20]]
     if len(r.errors) > 20:
         messages.append(f"{path}: ... {len(r.errors) - 20} more bad packets")
@@ -548,7 +554,7 @@ def _photos_unit(paths, cfg: CampaignConfig):
         raise ValueError("drone photos need a targets file (targets=, --targets T.csv)")
     rows, messages = replay_photos(list(paths), cfg.targets, sensor=_sensor(cfg),
                                    surface=_dem_surface(cfg, whole=True),
-                                   altitude_datum=cfg.altitude_datum)
+                                   altitude_datum=cfg.altitude_datum, corrections=cfg.corrections)
     # targets of the campaign's other photo units are not this unit's business
     messages = [m for m in messages if "is not among the photos given" not in m]
     if not rows:

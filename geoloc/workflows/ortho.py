@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.io.columns import ELLIPSOID_DATUM
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 from geoloc.userfiles import atomic_path
@@ -129,14 +130,14 @@ def _as_surface(surface):
     return surface
 
 
-def _intersect(surface, los: LineOfSight, parallel: bool = True):
-    from geoloc.surfaces.terrain import DemSurface, intersect_dem
+def _on_cores(surface, parallel: bool = True):
+    """The surface with its DEM solver on all cores (a frame is millions of rays), unless told otherwise."""
+    from geoloc.surfaces.terrain import DemSurface
 
     if isinstance(surface, DemSurface):
-        opts = dict(surface.options)
-        opts["parallel"] = bool(parallel)  # a frame is millions of rays: all cores, unless told otherwise
-        return intersect_dem(los, surface.dem, surface.method, dem_model=surface.dem_model, **opts)
-    return surface.intersect(los)
+        return DemSurface(surface.dem, surface.method, surface.dem_model,
+                          **{**surface.options, "parallel": bool(parallel)})
+    return surface
 
 
 def frame_line_of_sight(sensor, pose, rows, cols) -> LineOfSight:
@@ -150,23 +151,24 @@ def frame_line_of_sight(sensor, pose, rows, cols) -> LineOfSight:
     return sensor.line_of_sight(R, C, pose)
 
 
-def iter_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHUNK, parallel: bool = True):
+def iter_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHUNK, parallel: bool = True,
+               corrections: Corrections = NO_CORRECTIONS):
     """Yield ``(i0, i1, lat, lon, h, status)`` for blocks of whole grid rows ``i0:i1`` (see :func:`locate_frame`)."""
     sensor = _as_sensor(sensor)
-    surface = _as_surface(surface)
+    pipe = Pipeline(sensor, _on_cores(_as_surface(surface), parallel), corrections)
     chunk = _check_chunk(chunk)
     rows, cols = frame_pixels(sensor, step)
     per = max(1, chunk // cols.size)
     for i0 in range(0, rows.size, per):
         i1 = min(rows.size, i0 + per)
-        los = frame_line_of_sight(sensor, pose, rows[i0:i1], cols)
-        hit = _intersect(surface, los, parallel)
+        los = frame_line_of_sight(sensor, pose, rows[i0:i1], cols)  # the compiled grid executor
+        hit = pipe.intersect(los)
         yield (i0, i1, np.asarray(hit.lat, float), np.asarray(hit.lon, float), np.asarray(hit.h, float),
                np.asarray(hit.status, np.uint8))
 
 
 def locate_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHUNK,
-                 parallel: bool = True) -> FrameGrid:
+                 parallel: bool = True, corrections: Corrections = NO_CORRECTIONS) -> FrameGrid:
     """Every pixel of one frame onto a surface, in one call.
 
     Parameters
@@ -188,6 +190,8 @@ def locate_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_C
     parallel : bool
         The DEM solver on all cores (numba threads, the default) or on one (``False``:
         the same hits; for a caller that spreads frames over processes itself).
+    corrections : Corrections
+        The location pipeline's line-of-sight corrections (:class:`geoloc.pipeline.Corrections`).
 
     Returns
     -------
@@ -207,7 +211,8 @@ def locate_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_C
     shape = (rows.size, cols.size)
     lat, lon, h = (np.empty(shape) for _ in range(3))
     st = np.empty(shape, dtype=np.uint8)
-    for i0, i1, a, b, c, s in iter_frame(sensor, pose, surface, step=step, chunk=chunk, parallel=parallel):
+    for i0, i1, a, b, c, s in iter_frame(sensor, pose, surface, step=step, chunk=chunk, parallel=parallel,
+                                         corrections=corrections):
         lat[i0:i1], lon[i0:i1], h[i0:i1], st[i0:i1] = a, b, c, s
     return FrameGrid(lat, lon, h, st, rows, cols, int(step))
 
@@ -218,7 +223,8 @@ def _status_legend() -> str:
 
 
 def write_frame_geotiff(path, sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHUNK,
-                        tags: dict | None = None, parallel: bool = True) -> dict:
+                        tags: dict | None = None, parallel: bool = True,
+                        corrections: Corrections = NO_CORRECTIONS) -> dict:
     """Locate a whole frame and write it as a 4-band float64 GeoTIFF on the image grid, chunk by chunk.
 
     Bands: ``lat_deg``, ``lon_deg`` (WGS 84, degrees), ``h_m`` (ellipsoidal height
@@ -264,7 +270,7 @@ def write_frame_geotiff(path, sensor, pose, surface, *, step: int = 1, chunk: in
                 unit = {"lat_deg": "deg", "lon_deg": "deg", "h_m": "m"}.get(name, "")
                 dst.update_tags(b, name=name, unit=unit, **({"datum": ELLIPSOID_DATUM} if name == "h_m" else {}))
             for i0, i1, lat, lon, h, st in iter_frame(sensor, pose, surface, step=step, chunk=chunk,
-                                                      parallel=parallel):
+                                                      parallel=parallel, corrections=corrections):
                 win = rasterio.windows.Window(0, i0, cols.size, i1 - i0)
                 dst.write(np.rad2deg(lat), 1, window=win)
                 dst.write(np.rad2deg(lon), 2, window=win)
@@ -397,7 +403,7 @@ def _sample_cells(dem, grid: OrthoGrid, lat, lon):
     return np.where(status == Status.OK, out, np.nan), status
 
 
-def _project_cells(sensor, pose, lat, lon, h, p_ecef):
+def _project_cells(sensor, pose, lat, lon, h, p_ecef, corrections: Corrections = NO_CORRECTIONS):
     """``sensor.ground_to_pixel(lat, lon, h, pose)`` for a block of cells whose ECEF points
     ``p_ecef`` are known. For a :class:`~geoloc.sensors.frame.FrameSensor` at one pose the chain
     ECEF -> optical frame is one 3x3 matrix (the frame graph's ``T_ecef_cam``), applied once
@@ -406,9 +412,9 @@ def _project_cells(sensor, pose, lat, lon, h, p_ecef):
     from geoloc.sensors.base import PixelHit, flag_outside
     from geoloc.sensors.frame import FrameSensor
 
-    if not isinstance(sensor, FrameSensor) or np.ndim(pose.lat) != 0 or sensor.lever_extra_m is not None \
-            or bool(np.any(pose.invalid_mask())):
-        return sensor.ground_to_pixel(lat, lon, h, pose)
+    if corrections or not isinstance(sensor, FrameSensor) or np.ndim(pose.lat) != 0 \
+            or sensor.lever_extra_m is not None or bool(np.any(pose.invalid_mask())):
+        return Pipeline(sensor, None, corrections).ground_to_pixel(lat, lon, h, pose)
     R_ecef_cam = np.asarray(sensor.frames(pose).T_ecef("cam"), float)[:3, :3]
     o = np.asarray(sensor.optical_centre_ecef(pose), float).reshape(3)
     d_cam = (p_ecef - o) @ R_ecef_cam  # R_cam_ecef @ d for each point
@@ -421,7 +427,8 @@ def _project_cells(sensor, pose, lat, lon, h, p_ecef):
 
 def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str = "geographic",
                  frame: FrameGrid | None = None, chunk: int = DEFAULT_CHUNK, visible_tol_m: float | None = None,
-                 tags: dict | None = None, parallel: bool = True) -> dict:
+                 tags: dict | None = None, parallel: bool = True,
+                 corrections: Corrections = NO_CORRECTIONS) -> dict:
     """Resample ``image`` onto a north-up grid (inverse map, occlusion-aware) and write a GeoTIFF.
 
     Parameters
@@ -455,9 +462,11 @@ def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str =
     import rasterio
 
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
-    from geoloc.surfaces.terrain import intersect_dem
+    from geoloc.surfaces.terrain import DemSurface
 
     sensor = _as_sensor(sensor)
+    # a cell is seen when its pixel's line of sight, through the pipeline, first meets the DEM there
+    visibility = Pipeline(sensor, DemSurface(dem, "exact", parallel=bool(parallel)), corrections)
     img = np.asarray(image)
     if img.ndim == 2:
         img = img[None]
@@ -491,7 +500,7 @@ def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str =
             lat, lon = _cell_geodetic(grid, i0, i1)
             h, st = _sample_cells(dem, grid, lat, lon)
             p_all = geodetic_to_ecef(lat, lon, h)
-            px = _project_cells(sensor, pose, lat, lon, h, p_all)
+            px = _project_cells(sensor, pose, lat, lon, h, p_all, corrections)
             inside = (st == Status.OK) & (px.status == Status.OK)
             r, c = np.where(inside, px.row, np.nan), np.where(inside, px.col, np.nan)
             seen = np.zeros(lat.shape, dtype=bool)
@@ -501,14 +510,14 @@ def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str =
                 # cell's ground point (ground_to_pixel projects that point): built from the two
                 # points, it needs no unprojection through the lens
                 p = p_all.reshape(-1, 3)[idx]
-                if hasattr(sensor, "optical_centre_ecef"):
+                if hasattr(sensor, "optical_centre_ecef") and not corrections:
                     o = np.broadcast_to(np.asarray(sensor.optical_centre_ecef(pose), float).reshape(-1, 3)[0], p.shape)
                     dvec = p - o
                     los = LineOfSight(np.ascontiguousarray(o), dvec / np.linalg.norm(dvec, axis=-1, keepdims=True),
                                       np.zeros(len(idx), np.uint8))
                 else:
                     los = sensor.line_of_sight(r.reshape(-1)[idx], c.reshape(-1)[idx], pose)
-                hit = intersect_dem(los, dem, "exact", parallel=bool(parallel))
+                hit = visibility.intersect(los)
                 ok = (hit.status == Status.OK) & (np.linalg.norm(hit.ecef - p, axis=-1) <= tol)
                 seen.reshape(-1)[idx[ok]] = True
                 hidden_total += int(idx.size - ok.sum())

@@ -223,7 +223,8 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
     from geoloc.geodesy.geodesic import horizontal_distance_m
     from geoloc.io.records import load_records
     from geoloc.surfaces.base import terrain_of
-    from geoloc.surfaces.terrain import intersect_dem
+    from geoloc.pipeline import Pipeline
+    from geoloc.surfaces.terrain import DemSurface
     from geoloc.workflows.replay import records_line_of_sight
 
     dem = terrain_of(surface)
@@ -248,7 +249,9 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
                       np.concatenate([los_a.direction_ecef, los_b.direction_ecef]),
                       np.concatenate([los_a.status, los_b.status]))
     n = len(los.status)
-    exact = intersect_dem(los, dem, "exact")
+    # the paper's experiment is on the DEM solvers themselves: the same rays through the pipeline
+    # with each solver as its surface, no corrections (as [Q17] and [L23])
+    exact = Pipeline(None, DemSurface(dem, "exact")).intersect(los)
     rep.add("[L23] Li et al. 2023 -- bisection on the target elevation vs [Q17] descending steps", "",
             f"DEM: {dem.path} ({dem.shape[0]}x{dem.shape[1]} nodes, heights {dem.min_height():.0f}-"
             f"{dem.max_height():.0f} m); {n} rays: {n_rays} Table 1-2 rays with the outer gimbal "
@@ -259,9 +262,9 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
             f"{'bisect s':>9} {'max dist to exact m (steps/bisect)':>36} {'hidden':>7}")
     for tol in tolerances_m:
         t0 = time.perf_counter()
-        st = intersect_dem(los, dem, "steps", eps_h=tol)
+        st = Pipeline(None, DemSurface(dem, "steps", eps_h=tol)).intersect(los)
         t1 = time.perf_counter()
-        bi = intersect_dem(los, dem, "bisect", threshold=tol)
+        bi = Pipeline(None, DemSurface(dem, "bisect", threshold=tol)).intersect(los)
         t2 = time.perf_counter()
         ok = (st.status == 0) & (bi.status == 0) & (exact.status == 0)
         es, eb = st.dem_evaluations[ok].astype(float), bi.dem_evaluations[ok].astype(float)
