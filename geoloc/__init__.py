@@ -12,15 +12,16 @@ from geoloc.geodesy.ellipsoid import (
     geodetic_to_ecef,
 )
 from geoloc.locate import ground_to_pixel, line_of_sight, locate
+from geoloc.pipeline import Corrections, Pipeline
 from geoloc.sensors.camera import Camera
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint, LineOfSight
-from geoloc.surfaces.height import intersect_los_height
+from geoloc.surfaces.height import HeightSurface
 
 __all__ = [
-    "Camera", "FrameChain", "GroundPoint", "LineOfSight", "Pose", "Status",
-    "ecef_to_geodetic", "ecef_to_geodetic_q17", "geodetic_to_ecef",
-    "ground_to_pixel", "intersect_los_height", "line_of_sight", "locate",
+    "Camera", "Corrections", "FrameChain", "GroundPoint", "HeightSurface", "LineOfSight", "Pipeline", "Pose",
+    "Status", "ecef_to_geodetic", "ecef_to_geodetic_q17", "geodetic_to_ecef",
+    "ground_to_pixel", "line_of_sight", "locate",
 ]
 
 __version__ = "0.1.0"

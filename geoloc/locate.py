@@ -31,7 +31,7 @@ from geoloc.sensors.base import PixelHit, check_outside
 from geoloc.sensors.camera import as_sensor
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint, LineOfSight
-from geoloc.surfaces.height import HeightSurface, intersect_los_height
+from geoloc.surfaces.height import HeightSurface
 
 if TYPE_CHECKING:
     from geoloc.surfaces.dem import DEM
@@ -212,5 +212,5 @@ def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method:
     return Pipeline(s, DemSurface(dem, method, dem_model, **kwargs), corrections).locate(row, col, pose)
 
 
-__all__ = ["HIDDEN_TOLERANCE_M", "PointView", "as_sensor", "ground_to_pixel", "intersect_los_height",
+__all__ = ["HIDDEN_TOLERANCE_M", "PointView", "as_sensor", "ground_to_pixel",
            "line_of_sight", "locate", "locate_dem", "point_view"]

@@ -47,6 +47,7 @@ from geoloc.geodesy.local import geodetic_to_enu
 from geoloc.status import Status
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
+from geoloc.pipeline import Pipeline
 
 __all__ = ["Finding", "HeightAudit", "audit_flight", "audit_records", "audit_klv_columns", "median_uncertainty",
            "FAULTS"]
@@ -231,8 +232,9 @@ def _dist(lat_a, lon_a, lat_b, lon_b):
 
 
 def _hit(surface, los):
-    """``(lat, lon, h)`` [rad, rad, m] of the hits, NaN where the status is not OK."""
-    g = surface.intersect(los)
+    """``(lat, lon, h)`` [rad, rad, m] of the hits through the location pipeline (no correction: the
+    reported centres an encoder wrote are straight lines), NaN where the status is not OK."""
+    g = Pipeline(None, surface).intersect(los)
     ok = np.asarray(g.status) == Status.OK
     return (np.where(ok, g.lat, np.nan), np.where(ok, g.lon, np.nan), np.where(ok, g.h, np.nan))
 

@@ -407,8 +407,10 @@ def _hit(surface, los):
     compiled kernel."""
     from geoloc.surfaces.terrain_numba import uncompiled_budget
 
+    from geoloc.pipeline import Pipeline
+
     with uncompiled_budget():
-        g = surface.intersect(los)
+        g = Pipeline(None, surface).intersect(los)
     return g.lat, g.lon, g.h, g.ecef, np.asarray(g.status)
 
 

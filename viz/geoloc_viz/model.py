@@ -22,10 +22,11 @@ from geoloc.frames.chain import Pose
 from geoloc.frames.enu import EnuFrame
 from geoloc.frames.graph import BoundFrames
 from geoloc.locate import as_sensor, line_of_sight  # as_sensor: Scenario's entrance
+from geoloc.pipeline import Pipeline
 from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
-from geoloc.surfaces.height import intersect_los_height
+from geoloc.surfaces.height import HeightSurface
 from geoloc_viz.terrain_link import IterationView
 
 
@@ -151,8 +152,7 @@ def _corner_footprint(pose, camera, enu, h):
     s = camera
     rows = np.array([0.5, 0.5, s.rows + 0.5, s.rows + 0.5])
     cols = np.array([0.5, s.cols + 0.5, s.cols + 0.5, 0.5])
-    los = line_of_sight(pose, camera, rows, cols)
-    g = intersect_los_height(los, h)
+    g = Pipeline(as_sensor(camera), HeightSurface(h)).intersect(line_of_sight(pose, camera, rows, cols))
     return enu.from_ecef(g.ecef)
 
 

@@ -117,7 +117,7 @@ def locate_pixel(scn, inputs, sensor, row, col) -> PixelPick:
     pose = inputs.pose()
     los = sensor.line_of_sight(float(row), float(col), pose)
     surface = terrain_link.scene_surface(scn, inputs, trace=True)
-    hit = surface.intersect(los)
+    hit = Pipeline(sensor, surface).intersect(los)
     evals = int(np.asarray(getattr(hit, "dem_evaluations", 0)))
     tr = getattr(hit, "trace", None)
     trace = None
@@ -196,7 +196,7 @@ def ground_pick(scn, inputs, sensor, origin_ecef, direction_ecef) -> GroundPick:
     ray = LineOfSight(np.asarray(origin_ecef, float), d, np.zeros((), np.uint8))
     dem = scn.dem if getattr(scn, "use_dem", True) else None
     surface = surface_for(inputs.target_h, dem, method="exact")
-    hit = surface.intersect(ray)
+    hit = surface.intersect(ray)  # the browser's ray (not a line of sight): the surface alone
     nan = float("nan")
     if int(hit.status) != Status.OK:
         return GroundPick(hit, nan, nan, int(Status.INVALID_INPUT), False, False, nan, nan)
@@ -286,9 +286,10 @@ def terrain_horizon(scn, inputs, sensor, n_cols: int = 32, refine: int = 13):
     dem = scn.dem if getattr(scn, "use_dem", True) else None
     surface = surface_for(inputs.target_h, dem, method="exact")
 
+    pipe = Pipeline(sensor, surface)
+
     def meets(r, c):
-        return np.asarray(surface.intersect(sensor.line_of_sight(r, c, pose, outside="extrapolate")).status) \
-            == Status.OK
+        return np.asarray(pipe.locate(r, c, pose, outside="extrapolate").status) == Status.OK
 
     cols = np.linspace(0.5, N + 0.5, n_cols)
     top, bottom = 0.5, M + 0.5

@@ -43,10 +43,11 @@ from geoloc.frames.graph import BoundFrames
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import load_records
 from geoloc.locate import as_sensor, line_of_sight  # as_sensor: the steps_from_* entrances
+from geoloc.pipeline import Pipeline
 from geoloc.sensors.frame import FrameSensor
 from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
 from geoloc.surfaces.spec import SurfaceSpec
-from geoloc.surfaces.height import intersect_los_height
+from geoloc.surfaces.height import HeightSurface
 from geoloc_viz.rerun_terrain import TerrainSteps, dem_steps
 from geoloc.workflows.flight import FlightScenario, simulate
 from geoloc.workflows.replay import result_from_ground
@@ -274,7 +275,7 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None) ->
              f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
              f"period {scn.scan_period_s:g} s"]
     if scn.method == "ellipsoid":
-        ground = intersect_los_height(los, scn.target_h_m)
+        ground = Pipeline(None, HeightSurface(scn.target_h_m)).intersect(los)
         notes.append(f"located on the ellipsoid inflated to {scn.target_h_m:g} m [Q17 eq. 11]")
     else:
         ground, terrain = _terrain(los, dem, scn.method, scn.eps_h_m, scn.threshold_m)
@@ -289,7 +290,7 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None) ->
                                                   exact.lat_deg, exact.lon_deg)}
         notes.append("truth: exact first hit on the DEM")
         if scn.method != "ellipsoid" and scn.target_h_m is not None:
-            ell = intersect_los_height(los, scn.target_h_m)
+            ell = Pipeline(None, HeightSurface(scn.target_h_m)).intersect(los)
             extra["series/ellipsoid_model/to_truth_m"] = horizontal_distance_m(
                 ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg)
             notes.append(f"ellipsoid model at {scn.target_h_m:g} m compared with the truth too")
@@ -363,7 +364,7 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
                 raise ValueError(f"height column {col_name!r} is empty or not finite on line(s) "
                                  f"{[int(x) for x in recs.lines[bad]]}")
             notes.append(f"located at each record's {col_name}")
-        ground = intersect_los_height(los, h, height_kind)
+        ground = Pipeline(None, HeightSurface(h, height_kind)).intersect(los)
     res = result_from_ground(recs, ground)
     truth = published = None
     if recs.has("truth_lat_deg") and recs.has("truth_lon_deg"):
@@ -483,7 +484,7 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
         idx = np.flatnonzero(grp == g)
         los = line_of_sight(steps.pose.take(idx), sensors[rg], steps.row[idx], steps.col[idx],
                             outside="extrapolate")
-        gp = surf(idx).intersect(los)
+        gp = Pipeline(sensors[rg], surf(idx)).intersect(los)
         lat, lon = np.rad2deg(gp.lat), np.rad2deg(gp.lon)
         after["after_m"][idx] = horizontal_distance_m(lat, lon, tlat[idx], tlon[idx])
         c = error_components(lat, lon, gp.h, tlat[idx], tlon[idx], np.nan,

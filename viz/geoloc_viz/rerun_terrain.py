@@ -73,14 +73,15 @@ def dem_steps(los: LineOfSight, dem, method: str = "exact", eps_h_m=None,
     eps_h_m, threshold_m : float, optional
         Step / threshold of the iterative methods [m] (terrain's defaults if None).
     """
-    from geoloc.surfaces.terrain import intersect_dem
+    from geoloc.pipeline import Pipeline
+    from geoloc.surfaces.terrain import DemSurface
 
     kw = {}
     if eps_h_m is not None:
         kw["eps_h"] = float(eps_h_m)
     if threshold_m is not None:
         kw["threshold"] = float(threshold_m)
-    hit = intersect_dem(los, dem, method, trace=True, **kw)
+    hit = Pipeline(None, DemSurface(dem, method, trace=True, **kw)).intersect(los)
     ground = GroundPoint(hit.lat, hit.lon, hit.h, hit.ecef, hit.slant_range, hit.status, los)
     n = len(hit.status)
     tr = {"H": [], "h_dem": [], "lat": [], "lon": [], "ecef": []}

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.assets import ASSETS
+from geoloc.pipeline import Pipeline
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.spec import SurfaceSpec
 
@@ -243,7 +244,7 @@ def hit_geometry(scn, inp, los) -> dict:
     surface = scene_surface(scn, inp)
     if terrain_of(surface) is not None:
         return terrain_geometry(scn, inp, los, surface)
-    hit = surface.intersect(los)
+    hit = Pipeline(None, surface).intersect(los)
     label = f"hit at h = {inp.target_h:.1f} m"
     if scn.dem is not None:  # a DEM without the terrain core
         label += " (terrain solver not available)"
@@ -266,11 +267,13 @@ def terrain_geometry(scn, inp, los, surface=None) -> dict:
 
     enu, dem = scn.enu, scn.dem
     hmax = dem.max_height()
+    # the teaching drawing: where the straight line of sight crosses the heights the iteration
+    # tries (H_max, the bisection's brackets): the solver's own steps, not located points
     out = {"hmax": hmax,
            "hit_hmax_enu": enu.from_ecef(intersect_los_height(los, hmax).ecef)}
     surface = scene_surface(scn, inp) if surface is None else surface
-    hit = surface.intersect(los)
-    exact = hit if inp.method == "exact" else _terrain.DemSurface(dem, "exact").intersect(los)
+    hit = Pipeline(None, surface).intersect(los)
+    exact = hit if inp.method == "exact" else Pipeline(None, _terrain.DemSurface(dem, "exact")).intersect(los)
     names = {"steps": f"descending steps [Q17], eps_h {inp.eps_h:g} m",
              "bisect": f"bisection [L23], threshold {inp.threshold:g} m",
              "exact": "exact first hit"}
