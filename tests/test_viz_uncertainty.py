@@ -3,8 +3,12 @@
 The drawn ellipse is held to its definition, measured in the scene: the vertices' horizontal
 distances from the hit span the 90 % semi-axes (the 1-sigma axes x sqrt(chi2(2, 0.9)), scipy)
 times the display's exaggeration; the panel quotes the propagation's CE90 and the distance to
-the surveyed truth the scene draws. In Chromium, a person opens the folder and unticks the
-checkbox: the ellipse leaves the scene. The render is kept as docs/img/viewer_uncertainty_ellipse.png.
+the surveyed truth the scene draws. It is drawn at true size by default (issue 46: its semi-axes
+are the reported ones), in its own colour (not the flight's magenta), and enlarged only by its own
+control, whose factor the label on the drawing gives ("x10"). In Chromium, a person opens the
+folder, types 10 into "ellipse drawn x" (the label on the drawing then reads x10 and the drawn
+semi-axes are ten times the reported ones) and unticks the checkbox: the ellipse leaves the scene.
+The render is kept as docs/img/viewer_uncertainty_ellipse.png.
 """
 
 import math
@@ -23,25 +27,51 @@ def _layer(app):
     return next(lay for lay in app.layers if type(lay).__name__ == "UncertaintyLayer")
 
 
-def test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse():
-    from geoloc_viz.app import GeolocApp
+def drawn_semi_axes(server, app):
+    """The drawn ellipse's (major, minor) semi-axes [m], measured on its scene node about the hit."""
     from geoloc_viz.scene_geoloc import WORLD_SCALE
+
+    d = app.view.disp
+    seg = np.asarray(server.scene.get_handle_by_name("/enu/uncertainty/ellipse").points, float)
+    pts = seg[:, 0, :] / (WORLD_SCALE * np.array([1.0, 1.0, d.vertical_exaggeration]))  # back to ENU metres
+    hit = np.asarray(app.geometry.hit_enu, float)
+    r = np.hypot(pts[:, 0] - hit[0], pts[:, 1] - hit[1])
+    return r.max(), r.min()
+
+
+def reported_semi_axes(text):
+    """The panel's "90 % ellipse A x B m", as a person reads it."""
+    m = re.search(r"90 % ellipse (\d+\.\d) x (\d+\.\d) m", text)
+    return float(m.group(1)), float(m.group(2))
+
+
+def test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse():
+    from geoloc_viz import flight_layer, uncertainty_layer
+    from geoloc_viz.app import GeolocApp
     from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
         app = GeolocApp(server, load_view_scenario())
         lay = _layer(app)
         pu = lay.pu
-        d = app.view.disp
-        seg = np.asarray(server.scene.get_handle_by_name("/enu/uncertainty/ellipse").points, float)
-        pts = seg[:, 0, :] / (WORLD_SCALE * np.array([1.0, 1.0, d.vertical_exaggeration]))  # back to ENU metres
-        hit = np.asarray(app.geometry.hit_enu, float)
-        r = np.hypot(pts[:, 0] - hit[0], pts[:, 1] - hit[1])
-        k = d.error_exaggeration
         r90 = math.sqrt(chi2.ppf(0.9, 2))
-        # 96 vertices: the extremes are sampled within cos(pi / 96) of the axes (5e-4); float32 in km
-        assert r.max() == pytest.approx(r90 * float(pu.ellipse_major_m) * k, rel=1e-3)
-        assert r.min() == pytest.approx(r90 * float(pu.ellipse_minor_m) * k, rel=1e-3)
+        assert lay.scale == 1.0 and app.view.disp.error_exaggeration == 10.0  # not tied to the error vectors
+        for k in (1.0, 10.0):
+            lay.sl_scale.value = k
+            lay.update()
+            a, b = drawn_semi_axes(server, app)
+            # 96 vertices: the extremes are sampled within cos(pi / 96) of the axes (5e-4); float32 in km
+            assert a == pytest.approx(r90 * float(pu.ellipse_major_m) * k, rel=1e-3)
+            assert b == pytest.approx(r90 * float(pu.ellipse_minor_m) * k, rel=1e-3)
+            # the panel's semi-axes (0.1 m) times the label's factor are the drawn ones
+            A, B = reported_semi_axes(lay.md.content)
+            assert a == pytest.approx(k * A, abs=k * 0.05 + 1e-3 * a) and b == pytest.approx(k * B, abs=k * 0.05 + 1e-3 * b)
+            label = server.scene.get_handle_by_name("/enu/uncertainty/label")
+            assert label.visible and (("x10 " in label.text) if k == 10.0 else ("true size" in label.text))
+            assert f"CE90 {float(pu.ce90_m):.1f} m" in label.text
+        # one colour per meaning: not the flight layer's magenta current footprint
+        assert tuple(uncertainty_layer.COLOR) != tuple(flight_layer.COLORS["current"])
+        assert tuple(uncertainty_layer.COLOR) not in {tuple(c) for c in flight_layer.COLORS.values()}
         text = lay.md.content
         assert f"CE90 {float(pu.ce90_m):.1f} m" in text
         err = float(np.hypot(*(app.geometry.hit_enu - app.geometry.surveyed_enu)[:2]))
@@ -61,18 +91,46 @@ def test_a_person_hides_the_ellipse_in_chromium(tmp_path):
             page.wait_for_selector("canvas", timeout=90000)
             client = next(iter(server.get_clients().values()))
             hit = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
-            pos = hit + np.array([0.6, -2.0, 2.4])  # km: 3 km off, looking down at the hit
+            # km: 0.35 km off, looking down at the hit (the true-size ellipse is tens of metres across)
+            pos = hit + np.array([0.07, -0.2, 0.28])
             img = None
             for _ in range(40):
                 img = client.get_render(640, 960, position=tuple(pos), wxyz=look_at_wxyz(pos, hit), fov=0.9,
                                         transport_format="png", timeout=60)
                 if n_colours(img) > 20:
                     break
-            rgb = img[..., :3].astype(int)
-            magenta = (rgb[..., 0] > 180) & (rgb[..., 1] < 90) & (rgb[..., 2] > 180)
-            assert magenta.sum() > 200, magenta.sum()  # the ellipse's line is in the picture
             PIL.Image.fromarray(img[..., :3]).save(ARTIFACTS / "viewer_uncertainty_ellipse.png")
+            # at true size (45 x 35 m semi-axes for T3-1) the ellipse lies under the flight layer's
+            # markers at the hit (10 % of the 487 m error: 49 m radius): the label on it says what it is
+            # (viser draws labels on the canvas, not as page text: the label node the browser draws)
+            lab = server.scene.get_handle_by_name("/enu/uncertainty/label")
+            assert lab.visible and lab.text.startswith("90 % ellipse, true size (CE90")
             page.get_by_text("Predicted uncertainty").click()
+            # a person enlarges it: types 10 into the slider's number box
+            num = page.locator("xpath=//label[normalize-space()='ellipse drawn x']/ancestor::div"
+                               "[.//input[@inputmode='decimal']][1]//input[@inputmode='decimal']")
+            num.fill("10", timeout=60000)
+            num.press("Enter")
+            wait_for(lambda: _layer(app).scale == 10.0, 30, "the factor to reach the server")
+            wait_for(lambda: server.scene.get_handle_by_name("/enu/uncertainty/label").text.startswith(
+                "90 % ellipse, x10 (CE90"), 60, "the label x10 on the drawing")
+            a, b = drawn_semi_axes(server, app)
+            A, B = reported_semi_axes(page.get_by_text(re.compile(r"90 % ellipse \d")).first.inner_text())
+            # the page's semi-axes (0.1 m) times the label's factor are the drawn ones
+            assert a == pytest.approx(10 * A, abs=0.5 + 1e-3 * a) and b == pytest.approx(10 * B, abs=0.5 + 1e-3 * b)
+            pos = hit + np.array([0.6, -2.0, 2.4])  # km: 3 km off, looking down at the hit
+            for _ in range(40):
+                img = client.get_render(640, 960, position=tuple(pos), wxyz=look_at_wxyz(pos, hit), fov=0.9,
+                                        transport_format="png", timeout=60)
+                if n_colours(img) > 20:
+                    break
+            PIL.Image.fromarray(img[..., :3]).save(ARTIFACTS / "viewer_uncertainty_ellipse_x10.png")
+            rgb = img[..., :3].astype(int)
+            # COLOR (0, 200, 170) as the unlit line renders here: about (85, 205, 185); nothing else in
+            # the scene is within these bounds (the line of sight's light blue is (140, 220, 220))
+            teal = (abs(rgb[..., 0] - 85) < 25) & (abs(rgb[..., 1] - 205) < 20) & (abs(rgb[..., 2] - 185) < 20)
+            assert teal.sum() > 200, teal.sum()  # the ellipse's line (teal, x10) is in the picture
+            page.screenshot(path=str(ARTIFACTS / "viewer_uncertainty_ellipse_x10_page.png"))
             box = page.get_by_label("90 % error ellipse at the hit")
             box.click()
             wait_for(lambda: not _layer(app).cb_show.value, 30, "the checkbox to reach the server")

@@ -4,9 +4,10 @@
 pose, the predicted 90 % horizontal error ellipse of the located point
 (:func:`geoloc.analysis.uncertainty.propagate`: the sensor's error budget carried through the
 chain and the scene's surface) as a closed line draped on the terrain (each vertex at the DEM's
-height there; at the hit's height without a DEM), drawn at the error vectors' exaggeration so the
-actual error and its predicted ellipse are seen at one scale, scene node
-``/enu/uncertainty/ellipse``, and in
+height there; at the hit's height without a DEM), scene node ``/enu/uncertainty/ellipse``, in its
+own colour (:data:`COLOR`, teal: no other meaning has it), at true size by default; the panel's
+"ellipse drawn x" control enlarges it about the point, and the label on the drawing
+(``/enu/uncertainty/label``, at the end of the major axis) then says the factor ("x10"); and in
 a "Predicted uncertainty" GUI folder the predicted CE90 / LE90 beside the actual error: the
 distance from the located point to the surveyed truth (or the published point) and where it lies
 against its own ellipse (1 = on the 90 % ellipse).
@@ -35,7 +36,12 @@ from geoloc.sensors.budget import LENS_KEYS, ErrorBudget
 from geoloc.status import Status
 
 ROOT = "/enu/uncertainty"
-COLOR = (255, 0, 255)
+#: The predicted 90 % ellipse's colour, one meaning one colour (issue 46): not the flight layer's
+#: magenta current footprint, nor any other colour of the scene (``app.legend_markdown``).
+COLOR = (0, 200, 170)
+COLOR_NAME = "teal"
+#: The largest enlargement of the drawn ellipse the panel offers.
+SCALE_MAX = 100.0
 VERTICES = 96
 #: The drawn ellipse floats this much above the terrain [m] (the scene's mesh and the DEM's bilinear
 #: surface differ between nodes: a line exactly on the DEM dips in and out of the mesh).
@@ -121,8 +127,13 @@ class UncertaintyLayer:
         g = session.gui
         with g.add_folder("Predicted uncertainty", expand_by_default=False):
             self.cb_show = g.add_checkbox("90 % error ellipse at the hit", True)
+            self.sl_scale = g.add_slider("ellipse drawn x", 1.0, SCALE_MAX, 1.0, 1.0,
+                                         hint="Draw the ellipse this many times its size about the point "
+                                         "(display only); the label on the drawing gives the factor")
             self.md = g.add_markdown("")
+        self.label = None
         self.cb_show.on_update(lambda _e: self._safe(self.update))
+        self.sl_scale.on_update(lambda _e: self._safe(self.update))
         session.on_refresh(lambda _g: self._safe(self.update))
         self._safe(self.update)
 
@@ -133,9 +144,15 @@ class UncertaintyLayer:
             traceback.print_exc(file=sys.stderr)
             return None
 
+    @property
+    def scale(self) -> float:
+        """The drawn ellipse's enlargement (1: true size)."""
+        return float(np.clip(float(self.sl_scale.value), 1.0, SCALE_MAX))
+
     def _hide(self) -> None:
-        if self.handle is not None and self.handle.visible:
-            self.handle.visible = False
+        for h in (self.handle, self.label):
+            if h is not None and h.visible:
+                h.visible = False
 
     def budget(self, velocity_known: bool = False):
         """``(budget, note, illustrative)`` (:func:`scenario_budget`)."""
@@ -161,7 +178,7 @@ class UncertaintyLayer:
             self._hide()
             self.md.content = "no predicted uncertainty (the ray has no ground point)"
             return
-        k = float(getattr(s.view.disp, "error_exaggeration", 1.0))  # the error vectors' scale: side by side
+        k = self.scale
         pts = ellipse_points_enu(s.scn, pu, s.scn.enu, scale=k)
         if self.cb_show.value:
             seg = s.view.disp.z(np.stack([pts, np.roll(pts, -1, axis=0)], 1)).astype(np.float32)
@@ -174,12 +191,24 @@ class UncertaintyLayer:
                 self._hide()
                 self.handle = self.scene.add_line_segments(f"{ROOT}/ellipse", seg, COLOR, thickness=4.0,
                                                            thickness_units="screen")
+            # the label on the drawing: at the end of the major axis (the vertex farthest from the point)
+            c = s.scn.enu.from_geodetic(*(float(np.asarray(v)) for v in (pu.lat, pu.lon, pu.h)))
+            tip = pts[int(np.argmax(np.hypot(*(pts[:, :2] - c[:2]).T)))]
+            text = label_text(pu, k)
+            pos = tuple(float(v) for v in s.view.disp.z(tip))
+            lb = self.label
+            if lb is not None and self.scene.get_handle_by_name(f"{ROOT}/label") is lb:
+                lb.text, lb.position = text, pos
+                lb.visible = True
+            else:
+                self.label = self.scene.add_label(f"{ROOT}/label", text, position=pos, anchor="bottom-left")
         else:
             self._hide()
         lines = [f"predicted **CE90 {float(pu.ce90_m):.1f} m**, **LE90 {float(pu.le90_m):.1f} m** "
                  f"(90 % ellipse {float(pu.ellipse_major_m) * ELLIPSE90_PER_SIGMA:.1f} x "
                  f"{float(pu.ellipse_minor_m) * ELLIPSE90_PER_SIGMA:.1f} m, major axis at "
-                 f"{float(pu.ellipse_azimuth_deg):.0f} deg; drawn x{k:g} as the error vectors)"]
+                 f"{float(pu.ellipse_azimuth_deg):.0f} deg; "
+                 + ("drawn at true size)" if k == 1.0 else f"**drawn x{k:g}**, its label says so)")]
         ref, name = (g.surveyed_enu, "surveyed truth") if g.surveyed_enu is not None else (g.published_enu, "published point")
         if ref is not None and np.all(np.isfinite(ref)) and np.all(np.isfinite(g.hit_enu)):
             d = np.asarray(g.hit_enu, float) - np.asarray(ref, float)
@@ -194,6 +223,12 @@ class UncertaintyLayer:
         else:
             lines.append(f"budget: {note}")
         self.md.content = "  \n".join(lines)
+
+
+def label_text(pu, k: float) -> str:
+    """The label on the drawn ellipse: what it is, its factor when enlarged, and its CE90."""
+    size = "true size" if k == 1.0 else f"x{k:g}"
+    return f"90 % ellipse, {size} (CE90 {float(pu.ce90_m):.1f} m)"
 
 
 def attach(session):
