@@ -80,6 +80,7 @@ from geoloc_viz import (
     flight_layer,
     image_layer,
     label_layout,
+    share_layer,
     teaching,
     teaching_panel,
     uncertainty_layer,
@@ -111,10 +112,11 @@ def attach_flight(session):
 
 #: The layers every session gets unless told otherwise (``attach_fn(session)`` each): the
 #: flight debugger, the picture of the frame (when the scenario has images), the calibration
-#: error vectors, the predicted 90 % ellipse at the hit (issue 29), the teaching panel, and the
-#: label layout (labels kept apart on screen).
+#: error vectors, the predicted 90 % ellipse at the hit (issue 29), sending the picked point on
+#: (issue 46: MGRS, lat/lon/height, a ``geoloc locate`` line, a CoT event), the teaching panel, and
+#: the label layout (labels kept apart on screen).
 DEFAULT_LAYERS = (attach_flight, image_layer.attach, calibration_layer.attach, uncertainty_layer.attach,
-                  teaching_panel.attach, label_layout.attach)
+                  share_layer.attach, teaching_panel.attach, label_layout.attach)
 METHOD_NAMES = {"steps": "descending steps [Q17]", "bisect": "bisection [L23]",
                 "exact": "exact first hit (cell walk)"}
 LEGEND = """\
@@ -184,6 +186,8 @@ def legend_markdown(scn) -> str:
     if has_truth:
         L.append("- **white**: surveyed; **pink**: error vector computed -> surveyed, drawn longer than it "
                  "is by the \"error vector exaggeration\" factor (its label gives its true 3D length)")
+    L.append("- **teal** ring on the terrain: the predicted 90 % error ellipse of the located point, at "
+             "true size unless \"ellipse drawn x\" enlarges it (its label then says the factor, e.g. x10)")
     L += ["- the aircraft is drawn larger than life by the \"aircraft display scale\" factor; frames "
           "scale with it",
           f"- frames at the aircraft, largest first: {names}; axes x red, y green, z blue",

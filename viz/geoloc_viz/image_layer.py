@@ -76,7 +76,7 @@ COLORS = {
     "horizon": (0, 230, 230),
     "target_rays": (255, 215, 0),      # one target's rays from several frames and their intersection
     "residual": (255, 60, 160),        # each ray's residual, ray to the triangulated point
-    "target_ellipse": (255, 0, 255),   # the triangulated point's 90 % ellipse
+    "target_ellipse": (0, 200, 170),   # the triangulated point's 90 % ellipse: uncertainty_layer.COLOR (teal)
 }
 _PIXEL_RE = re.compile(r"^\s*\(?\s*([-+0-9.eE]+)\s*[, ;]\s*([-+0-9.eE]+)\s*\)?\s*$")
 
@@ -169,6 +169,11 @@ class ImageLayer:
         self.pick: pm.PixelPick | None = None
         self.picks: list = []  # this frame's picks, oldest first (at most MAX_PICKS): what an export carries
         self.ground: pm.GroundPick | None = None
+        #: Which pick was made last: "pixel", "ground" or None (what "Send the point on" sends);
+        #: the inputs (pose) of the last terrain pick, which is not recomputed when the pose changes.
+        self.last_pick: str | None = None
+        self.ground_inputs = None
+        self._pick_cbs: list = []
         #: One target picked in several frames: record index -> (sensor, inputs, PixelPick), the
         #: last pick of each frame; kept across frames until "clear target rays".
         self.target: dict = {}
@@ -197,7 +202,8 @@ class ImageLayer:
                 "**lime** +: picked pixel; **orange** o: picked terrain point; **white** x: surveyed truth "
                 "and targets; squares **violet** / **red**: reported / recomputed frame centre; "
                 "**cyan** line: terrain horizon. Pick one target in several frames: its rays (**gold**) meet at "
-                "the triangulated point, with its 90 % ellipse (**magenta**) and residuals (**pink**)")
+                "the triangulated point, with its 90 % ellipse (**teal**, as every 90 % ellipse) and residuals "
+                "(**pink**), both drawn at the error vector exaggeration")
             self.html = g.add_html("")
             self.sl_zoom = g.add_slider("zoom (x)", 0, len(ZOOMS) - 1, 1, 0,
                                         hint="Zoom the panel's image about the picked pixel: 1, 2, 4, ... 32 x")
@@ -252,6 +258,7 @@ class ImageLayer:
         if idx != self.index:
             self.index = idx
             self.pick = self.ground = None
+            self.last_pick = None
             self.picks = []
             self._mute = True
             try:
@@ -453,6 +460,18 @@ class ImageLayer:
         self._drape_key = key
 
     # ------------------------------------------------------------ picking
+    def on_pick(self, callback):
+        """Register ``callback(layer)``, called after each pixel or terrain pick; returns it."""
+        self._pick_cbs.append(callback)
+        return callback
+
+    def _emit_pick(self) -> None:
+        for cb in list(self._pick_cbs):
+            try:
+                cb(self)
+            except Exception:  # a listener's bug must not undo the pick
+                traceback.print_exc(file=sys.stderr)
+
     def _on_pixel_text(self) -> None:
         if self._mute or self.closed:
             return
@@ -479,6 +498,8 @@ class ImageLayer:
             self._add_to_target()
             self.redraw_images()
             self.draw_pick()
+            self.last_pick = "pixel"
+            self._emit_pick()
             return self.pick
 
     # ------------------------------------------------------------ one target, several frames
@@ -589,6 +610,11 @@ class ImageLayer:
             self.md_ground.content = pm.ground_markdown(self.ground)
             self.redraw_images()
             self.draw_pick()
+            import copy
+
+            self.ground_inputs = copy.deepcopy(s.inputs)
+            self.last_pick = "ground"
+            self._emit_pick()
             return self.ground
 
     def _on_scene_click(self, event) -> None:
@@ -656,6 +682,7 @@ class ImageLayer:
 
     def close(self) -> None:
         self.closed = True
+        self._pick_cbs.clear()
 
 
 #: Lift of the draped frame above the DEM [m], display only (the depth test would otherwise let
