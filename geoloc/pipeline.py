@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from geoloc import corrections as _corr
 from geoloc.corrections.lighttime import (
     aberration,
     apparent_direction,
@@ -56,7 +57,7 @@ if TYPE_CHECKING:  # the refraction kernels import numba: loaded when refraction
 CORRECTIONS = ("aberration", "light_time", "refraction")
 #: ``--refraction`` choices: off (as the papers, and Rugged by default) or the U.S. Standard
 #: Atmosphere 1976 (:data:`geoloc.corrections.refraction.STANDARD_REFRACTION`).
-REFRACTION_MODELS = ("none", "standard")
+REFRACTION_MODELS = _corr.REFRACTION_MODELS
 #: A ray whose refraction fixed point moves its hit by less than this is settled [m]: a tenth
 #: of the DEM solvers' own millimetre agreement is below every figure geoloc reports.
 REFRACTION_TOL_M = 1e-3
@@ -161,22 +162,14 @@ class Corrections:
 
 NO_CORRECTIONS = Corrections()
 #: The keys of a sensor or scenario file's ``[corrections]`` table.
-TABLE_KEYS = ("refraction", "light_time", "aberration")
+TABLE_KEYS = _corr.TABLE_KEYS
 
 
 def corrections_from_table(sensor, table, source: str = "[corrections]", **override) -> Corrections:
     """A file's ``[corrections]`` table (``refraction = "none" | "standard"``, ``light_time`` and
     ``aberration`` true or false), with the command line's ``override`` (None: not given) on top,
     over the sensor's defaults (:meth:`Corrections.for_sensor`). Errors name ``source`` and the key."""
-    table = dict(table or {})
-    unknown = sorted(set(table) - set(TABLE_KEYS))
-    if unknown:
-        raise ValueError(f"{source}: {unknown[0]!r} is not a correction; the keys are {', '.join(TABLE_KEYS)}")
-    if "refraction" in table and table["refraction"] not in REFRACTION_MODELS:
-        raise ValueError(f"{source}: refraction = {table['refraction']!r} must be one of {list(REFRACTION_MODELS)}")
-    for key in ("light_time", "aberration"):
-        if key in table and not isinstance(table[key], bool):
-            raise ValueError(f"{source}: {key} = {table[key]!r} must be true or false")
+    table = _corr.check_table(table or {}, source)
     for key, value in override.items():
         if value is not None:
             table[key] = value

@@ -249,3 +249,23 @@ def test_whole_frame_grid_executor_agrees_with_the_pipeline_with_refraction():
     p_grid = geodetic_to_ecef(grid.lat, grid.lon, grid.h)
     assert np.max(np.linalg.norm(p_grid - ref.ecef, axis=-1)) < 1e-3
     assert np.min(ref.refraction_m) > 1.0  # 18 km, 35-75 deg off nadir: metres
+
+
+def test_a_sensor_file_names_its_corrections(tmp_path, capsys):
+    """A sensor file's [corrections] table is the default of every verb that reads it; the command
+    line's option wins; a bad value is one clear error naming the file, the table and the key."""
+    from geoloc.assets import DEFAULT_CAMERA, asset_path
+
+    base = asset_path(*DEFAULT_CAMERA).read_text()
+    good = tmp_path / "bent.toml"
+    good.write_text(base + '\n[corrections]\nrefraction = "standard"\n')
+    args = ["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0", "--json", "--sensor", str(good)]
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out)["corrections"] == "refraction"
+    assert main([*args, "--refraction", "none"]) == 0
+    assert json.loads(capsys.readouterr().out)["corrections"] == "none"
+    bad = tmp_path / "bad.toml"
+    bad.write_text(base + '\n[corrections]\nrefraction = "tropical"\n')
+    assert main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0", "--sensor", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "bad.toml [corrections]: refraction = 'tropical'" in err and len(err.strip().splitlines()) == 1

@@ -454,6 +454,10 @@ def corrections_from_args(args, sensor, settings: dict | None = None, base=None)
     flags = {k: getattr(args, k, None) for k in TABLE_KEYS}
     if base is not None:
         return base.overridden(sensor, **flags)
+    if settings is None and getattr(args, "camera", None):  # the --sensor file's [corrections]
+        from geoloc.sensors.sensor_file import load_sensor_corrections
+
+        settings = load_sensor_corrections(args.camera)
     return corrections_from_table(sensor, settings, **flags)
 
 

@@ -34,6 +34,7 @@ from geoloc.sensors.gimbals import DEFAULT, PRESETS, gimbal_from_dict, gimbal_to
 from geoloc.sensors.lenses import lens_from_dict, lens_to_dict
 from geoloc.tomlio import read_toml
 from geoloc.userfiles import write_text
+from geoloc.corrections import check_table
 
 #: Top-level tables and keys of a sensor file.
 TABLES = ("lens", "gimbal", "mount", "boresight", "lever_arm")
@@ -46,6 +47,10 @@ COLUMNS_TABLE = "columns"
 #: against the sensor on load (:func:`geoloc.sensors.budget.budget_from_dict`), read by
 #: :func:`load_sensor_budget`.
 UNCERTAINTY_TABLE = "uncertainty"
+#: The optional line-of-sight corrections of a sensor file (``refraction``, ``light_time``,
+#: ``aberration``: docs/refraction.md), checked on load and read by :func:`load_sensor_corrections`;
+#: the location pipeline applies them (the command line's options on top).
+CORRECTIONS_TABLE = "corrections"
 
 
 def _triple(table: dict, what: str, source: str, suffix: str, bound: float, unit: str) -> tuple:
@@ -82,6 +87,9 @@ def sensor_from_dict(data: dict, source: str = "sensor") -> FrameSensor:
     an ``[uncertainty]`` table is checked against the sensor (unknown keys and bad values are
     errors naming them) and left out (:func:`budget_from_sensor_dict` reads it)."""
     data = _without_columns(data, source)
+    if CORRECTIONS_TABLE in data:
+        check_table(data[CORRECTIONS_TABLE], f"{source} [{CORRECTIONS_TABLE}]")
+        data = {k: v for k, v in data.items() if k != CORRECTIONS_TABLE}
     if UNCERTAINTY_TABLE in data:
         rest = {k: v for k, v in data.items() if k != UNCERTAINTY_TABLE}
         sensor = sensor_from_dict(rest, source)
@@ -170,6 +178,15 @@ def load_sensor_columns(path) -> dict | None:
         return None
     _without_columns(data, str(path))  # checks that it is a table
     return data[COLUMNS_TABLE]
+
+
+def load_sensor_corrections(path) -> dict | None:
+    """The checked ``[corrections]`` table of a sensor (or first-phase camera) file; None if it has none."""
+    path = Path(path)
+    data = read_toml(path, "sensor file")
+    if CORRECTIONS_TABLE not in data:
+        return None
+    return check_table(data[CORRECTIONS_TABLE], f"{path} [{CORRECTIONS_TABLE}]")
 
 
 def _toml_value(v) -> str:
