@@ -269,3 +269,30 @@ def test_a_sensor_file_names_its_corrections(tmp_path, capsys):
     assert main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0", "--sensor", str(bad)]) == 2
     err = capsys.readouterr().err
     assert "bad.toml [corrections]: refraction = 'tropical'" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_refraction_as_a_source_of_the_error_budget(engine):
+    """A budget's ``refraction = 0.1``: one more term, 0.1 of the refraction shift along the shift.
+    Alone, the predicted ellipse is a segment: its 1-sigma semi-major axis is 0.1 of the shift's
+    horizontal length, measured here with the independent ray trace, along the north-south line
+    the camera looks down (the semi-minor axis 0)."""
+    from geoloc.analysis.uncertainty import propagate
+    from geoloc.sensors.budget import ErrorBudget
+
+    cam = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
+    pose = Pose.from_deg(LAT, LON, H, 0, 0, 0, 0, 60)
+    pu = propagate(cam, pose, 1162.12, 1146.42, ErrorBudget({"refraction": 0.1}), target_h=0.0, engine=engine)
+    assert pu.sources[-1] == "refraction"
+    o = geodetic_to_ecef(math.radians(LAT), math.radians(LON), H)
+    lat_s, lon_s, _ = lookAtSpheroid(LAT, LON, H, 0.0, 60.0)
+    p0 = geodetic_to_ecef(math.radians(lat_s), math.radians(lon_s), 0.0)
+    ref = trace(o, p0 - o, 0.0, exact_n)
+    from pymap3d import ecef2enu
+
+    e, n, _ = ecef2enu(*ref, lat_s, lon_s, 0.0)
+    # 1e-3 m: the model is within 1 cm of the trace, a tenth of it here
+    assert float(pu.ellipse_major_m) == pytest.approx(0.1 * math.hypot(e, n), abs=1e-3)
+    assert float(pu.ellipse_minor_m) < 1e-6
+    assert float(pu.ellipse_azimuth_deg) % 180.0 == pytest.approx(0.0, abs=0.1) or \
+        float(pu.ellipse_azimuth_deg) % 180.0 == pytest.approx(180.0, abs=0.1)

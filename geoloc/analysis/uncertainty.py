@@ -541,11 +541,14 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
     on_dem = dem is not None
     if sz > 0:
         names = names + ["dem_m" if on_dem else "height_m"]
+    refraction = (s, pose, row, col, surface, budget, corrections, outside)
     if fast and not on_dem:
-        return _surface_fast(F, free, D, np.zeros((0, 3)), lat, lon, h, status, sz, names, shape)
+        return _with_refraction(_surface_fast(F, free, D, np.zeros((0, 3)), lat, lon, h, status, sz, names, shape),
+                                *refraction)
     if fast and _compiled_dem(dem):
-        return _dem_fast(F, free, D, t, dem, lat, lon, h, status, sz, names, shape,
-                         footprint_iterations if dem_slope == "footprint" else 0, dem_slope == "footprint")
+        return _with_refraction(_dem_fast(F, free, D, t, dem, lat, lon, h, status, sz, names, shape,
+                                          footprint_iterations if dem_slope == "footprint" else 0,
+                                          dem_slope == "footprint"), *refraction)
     Re = R_ecef_enu(lat, lon)
     cov_en = None
     for _ in range(1 + (footprint_iterations if on_dem and dem_slope == "footprint" else 0)):
@@ -572,7 +575,35 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
     out.terrain_rms_m = r(np.where(out.status.reshape(-1) == Status.OK, terrain_rms, np.nan))
     out.surface_sigma_m = float(sz)
     out.grazing = r(grazing & (out.status.reshape(-1) == Status.OK))
-    return out
+    return _with_refraction(out, *refraction)
+
+
+def _with_refraction(out: PointUncertainty, s, pose, row, col, surface, budget, corrections, outside):
+    """The budget's ``refraction`` source (a fraction of the standard atmosphere's shift, 1 sigma)
+    added to the points' covariance: the shift's vector (ENU at each point) times that fraction,
+    one more column of the Jacobian. The shift is the pipeline's own (the point located with and
+    without refraction, every other correction as given), so it holds on a DEM too."""
+    sig = budget.sigma("refraction")
+    if not sig > 0:
+        return out
+    from geoloc.corrections.refraction import STANDARD_REFRACTION
+
+    model = corrections.refraction if corrections.refraction is not None else STANDARD_REFRACTION
+    bent = Pipeline(s, surface, dataclasses.replace(corrections, refraction=model)).locate(
+        row, col, pose, outside=outside)
+    straight = Pipeline(s, surface, dataclasses.replace(corrections, refraction=None)).locate(
+        row, col, pose, outside=outside)
+    v = np.asarray(bent.ecef, float) - np.asarray(straight.ecef, float)
+    shape = np.shape(out.status)
+    v = np.broadcast_to(v, shape + (3,))
+    j = sig * np.einsum("...ji,...j->...i", R_ecef_enu(out.lat, out.lon), v)
+    j = np.where(np.isfinite(j), j, 0.0)
+    cov = out.cov_enu + j[..., :, None] * j[..., None, :]
+    jac = np.concatenate([np.broadcast_to(out.jacobian_enu, shape + np.shape(out.jacobian_enu)[-2:]), j[..., :, None]],
+                         axis=-1)
+    new = summarise(cov, out.lat, out.lon, out.h, out.status, jac, out.sources + ("refraction",))
+    new.terrain_rms_m, new.surface_sigma_m, new.grazing = out.terrain_rms_m, out.surface_sigma_m, out.grazing
+    return new
 
 
 # --------------------------------------------------------------------- the compiled engine

@@ -21,6 +21,7 @@ uses it: :mod:`geoloc.analysis.uncertainty`, ``docs/uncertainty.md``)::
     cx_px = 0.5
     height_m = 10.0          # a constant target height's vertical error [m]
     dem_m = 9.73             # a DEM's vertical error [m] (or dem_product = "srtm")
+    refraction = 0.05        # atmospheric refraction: a fraction of the standard atmosphere's shift
 
 This module is data and checking only (layer 4, beside the sensor file); the numbers'
 meaning in the geometry is :mod:`geoloc.analysis.uncertainty`'s.
@@ -68,6 +69,8 @@ FIXED_KEYS = {
     "time_s": "time tag [s] (the platform moves by its velocity times the error)",
     "height_m": "vertical error of a constant target height [m]",
     "dem_m": "vertical error of the DEM [m]",
+    "refraction": "atmospheric refraction, as a fraction of the standard atmosphere's shift (dimensionless; "
+                  "0.05 for a day's weather against the yearly mean, 1.0 for refraction left out)",
 }
 #: The sensor's own parameters (``FrameSensor.params``), degrees and metres at this edge.
 SENSOR_KEYS = {
