@@ -75,12 +75,13 @@ def register(sub) -> None:
                    help="raw KLV (.klv, .bin) or a container (.ts, .m2ts, .mpg)")
     f.add_argument("--out", required=True, type=output_path,
                    help="the copy to write (the same kind of file; never IN)")
-    from geoloc.cli._options import add_dem_options, add_sensor_option
+    from geoloc.cli._options import add_correction_options, add_dem_options, add_sensor_option
 
     add_sensor_option(f, help="sensor file (image size, mount, boresight, lever arm: e.g. a calibration "
                       "written by geoloc calibrate --fit ... --write-sensor)")
     f.add_argument("--no-checksum", action="store_true", help="do not verify the input's checksums")
     add_dem_options(f)
+    add_correction_options(f)
     f.set_defaults(func=run_fix)
 
     sd = actions.add_parser(
@@ -271,7 +272,7 @@ def run_send(args) -> int:
 
 
 def run_fix(args) -> int:
-    from geoloc.cli._options import sensor_from_args, surface_from_args
+    from geoloc.cli._options import corrections_from_args, sensor_from_args, surface_from_args
     from geoloc.workflows.klv_fix import fix_klv
 
     sensor = sensor_from_args(args, default=False)
@@ -281,6 +282,6 @@ def run_fix(args) -> int:
 
     budget = load_sensor_budget(path) if path else None  # its [uncertainty]: tags 45 / 46
     fix = fix_klv(args.file, args.out, surface=surface, sensor=sensor, budget=budget,
-                  verify_checksum=not args.no_checksum)
+                  verify_checksum=not args.no_checksum, corrections=corrections_from_args(args, sensor))
     print(fix)
     return 0 if fix.packets else 1

@@ -5,11 +5,19 @@ See docs/rpc.md. Degrees and metres at this edge.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
 
-from geoloc.cli._options import check_suffix, input_path, output_path, text_output_path
+from geoloc.cli._options import (
+    add_correction_options,
+    check_suffix,
+    corrections_from_args,
+    input_path,
+    output_path,
+    text_output_path,
+)
 from geoloc.userfiles import write_text
 from geoloc.surfaces.spec import SurfaceSpec
 from geoloc.cli import VERB_HELP
@@ -32,6 +40,7 @@ def register(subparsers) -> None:
     p.add_argument("--no-gdal", action="store_true", help="skip the GDAL RPC_DEM cross-check")
     p.add_argument("--gdal-threshold-px", type=float, default=1e-6,
                    help="GDAL RPC_PIXEL_ERROR_THRESHOLD for the cross-check [px] (GDAL's default is 0.1)")
+    add_correction_options(p)
     p.add_argument("--ellipsoidal-dem", type=output_path, help="keep the ellipsoidal-height DEM copy given to GDAL at this path")
     p.set_defaults(func=run)
 
@@ -47,6 +56,8 @@ def run(args) -> int:
     check_suffix("--ellipsoidal-dem", args.ellipsoidal_dem)
     out = Path(args.out)
     sc = load_scenario(args.scenario, expect=("pushbroom", "frame"))  # not a montecarlo, limb ... file
+    # the scenario's [corrections] with --refraction / --light-time / --no-aberration on top
+    sc = dataclasses.replace(sc, corrections=corrections_from_args(args, sc.sensor, base=sc.corrections))
     dem = None
     if not args.no_gdal and sc.dem_path is not None:  # the scenario's DEM, opened here at the edge
         dem = SurfaceSpec(dem=sc.dem_path, dem_datum=sc.dem_datum).raster(f"{sc.name}: dem")

@@ -266,7 +266,8 @@ def _remux(src: Path, tmp: str, rw: _Rewriter, fix: KlvFix, verify: bool) -> Non
                     out.mux(pkt)
 
 
-def fix_klv(source, out, *, surface=None, sensor=None, budget=None, verify_checksum: bool = True) -> KlvFix:
+def fix_klv(source, out, *, surface=None, sensor=None, budget=None, verify_checksum: bool = True,
+            corrections=None) -> KlvFix:
     """Write a copy of a KLV stream whose frame-centre and corner items are geoloc's.
 
     Parameters
@@ -307,7 +308,8 @@ def fix_klv(source, out, *, surface=None, sensor=None, budget=None, verify_check
         raise ValueError(f"--out {dst.name}: write the same kind of file as the input {src.name} "
                          "(raw KLV to raw KLV, a container to a container)")
     read = read_klv(src, verify_checksum=verify_checksum)
-    r = replay_klv(read, surface=surface, sensor=sensor, budget=budget)
+    r = replay_klv(read, surface=surface, sensor=sensor, budget=budget,
+                   **({} if corrections is None else {"corrections": corrections}))
     fix = KlvFix(str(src), str(dst), packets=len(r), correction_m=np.asarray(r.columns["frame_center_error_m"]),
                  bad=[e for e in read.errors if not e.reason.endswith("are not a UAS LS packet")],
                  budget_source=(str(budget.source or "the sensor file") if budget is not None else ""))
