@@ -25,6 +25,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -68,10 +69,29 @@ def test_judge_passes_a_kernel_against_itself():
     assert cpu.shape[1] == 2 and (cpu > 0).all()
 
 
+def test_a_stretch_of_load_on_one_side_passes_a_uniform_loss_fails():
+    g = _guard()
+    rng = np.random.default_rng(0)
+    old = 0.030 * (1 + 0.02 * rng.random(21))
+    # A vs A at load 3-10 (seen): a third of the new side's calls 17 % slower, one stretch
+    new = 0.030 * (1 + 0.02 * rng.random(21))
+    new[5:12] *= 1.17
+    cpu = np.stack([old, new], -1)
+    assert g.passes(cpu, 0.10)
+    # the median alone would have failed it had half the calls been hit; the fastest quarters pass it
+    new2 = new.copy()
+    new2[:11] *= 1.17
+    assert g.ratios(np.stack([old, new2], -1))[0] < 0.9 and g.passes(np.stack([old, new2], -1), 0.10)
+    # a real loss: every call 12 % slower, and 2x
+    for f in (1.12, 2.0):
+        assert not g.passes(np.stack([old, old * f * (1 + 0.02 * rng.random(21))], -1), 0.10)
+    assert g.passes(np.stack([old, old * 1.05], -1), 0.10)
+
+
 def test_measure_alternates_the_order():
     g = _guard()
     calls = []
-    g.measure(lambda: calls.append("old"), lambda: calls.append("new"), pairs=4)
+    g.measure(lambda: calls.append("old"), lambda: calls.append("new"), pairs=4, warm=0)
     assert calls == ["old", "new", "new", "old", "old", "new", "new", "old"]
 
 
