@@ -248,7 +248,11 @@ def run(args) -> int:
     if against is None:
         against, why = default_against()
         print(f"against {against}: {why}")
-    old_pkg, old_label = package_at(against)
+    try:
+        old_pkg, old_label = package_at(against)
+    except subprocess.CalledProcessError as e:  # no such revision (a shallow clone has no HEAD~1)
+        raise SystemExit(f"guard: cannot read {against!r}: {(e.stderr or b'').strip()[-300:]!r}; "
+                         "pass --against REV (fetch it first) or a folder holding geoloc/") from None
     if args.tree:
         new_pkg, new_label = package_at(args.tree)
     else:

@@ -26,7 +26,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 GUARD = ROOT / "benchmarks" / "guard.py"
@@ -112,13 +111,10 @@ def _run(args, tmp_path, timeout=600):
     return r, time.perf_counter() - t
 
 
-needs_git = pytest.mark.skipif(not (ROOT / ".git").exists(), reason="the guard copies the tree; a checkout is needed")
-
 #: The kernels the command runs here: one compiled (refraction), one numpy path (locate_numpy).
 FAST = ["--fast", "--only", "refraction,locate_numpy"]
 
 
-@needs_git
 def test_guard_passes_this_tree_against_itself(tmp_path):
     hist = tmp_path / "history.csv"
     # --confirm 2: a load spike must dip the pooled median of 27 pairs below 0.9 to fail A vs A
@@ -138,7 +134,6 @@ def test_guard_passes_this_tree_against_itself(tmp_path):
     assert all(r_["mode"] == "fast" and r_["verdict"] == "ok" and float(r_["load"]) >= 0 for r_ in rows)
 
 
-@needs_git
 def test_guard_fails_on_a_slowed_kernel(tmp_path):
     # a copy of this tree whose Refraction.correct (the wrapper of the compiled kernel) does its work twice
     tree = tmp_path / "slowed"
