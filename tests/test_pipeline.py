@@ -28,6 +28,7 @@ from geoloc.status import Status
 from geoloc.surfaces.height import HeightSurface
 
 LAT, LON, H = 35.48, 80.97, 18000.0
+ROOT_ASSETS = __import__("pathlib").Path(__file__).resolve().parents[1] / "assets" / "scenarios"
 POSE_ARGS = ["--lat-deg", str(LAT), "--lon-deg", str(LON), "--h-m", str(H), "--heading-deg", "0",
              "--pitch-deg", "0", "--roll-deg", "0", "--gimbal-roll-deg", "0"]
 
@@ -296,3 +297,76 @@ def test_refraction_as_a_source_of_the_error_budget(engine):
     assert float(pu.ellipse_minor_m) < 1e-6
     assert float(pu.ellipse_azimuth_deg) % 180.0 == pytest.approx(0.0, abs=0.1) or \
         float(pu.ellipse_azimuth_deg) % 180.0 == pytest.approx(180.0, abs=0.1)
+
+
+def _lorentz_source_direction(u_apparent, v_inertial):
+    """The light's direction for a sensor moving at v that sees it along u_apparent: the photon's
+    velocity transformed from the sensor's frame to the inertial one by the Lorentz boost (Jackson,
+    Classical Electrodynamics, 11.4: u_par = (u'_par - v) / (1 - v u'_par / c^2) for the motion
+    toward the scene, u_perp = u'_perp / (gamma (1 - v u'_par / c^2))), written out here."""
+    c = 299792458.0
+    u = np.asarray(u_apparent, float) / np.linalg.norm(u_apparent)
+    v = np.asarray(v_inertial, float)
+    s = np.linalg.norm(v)
+    n = v / s
+    g = 1.0 / math.sqrt(1.0 - (s / c) ** 2)
+    # the photon travels from the scene to the sensor: its velocity is -c u in both frames
+    w = -c * u
+    w_par = np.dot(w, n)
+    w_perp = w - w_par * n
+    den = 1.0 + s * w_par / c**2
+    w_in = ((w_par + s) * n + w_perp / g) / den
+    return -w_in / np.linalg.norm(w_in)
+
+
+def test_limb_scenario_with_aberration_against_the_lorentz_boost(tmp_path, capsys):
+    """A limb scenario with aberration on: each tangent height equals the exact tangent of the
+    direction turned by the Lorentz boost written above (the classical form the pipeline uses
+    differs by (v/c)^2 = 7e-10 rad: 1.5 mm at 2 200 km; 1 cm allowed); the bundled [L18] file
+    names aberration off, as the paper; light_time in a limb file is refused by name."""
+    from geoloc.corrections.lighttime import inertial_velocity
+    from geoloc.sensors.limb import limb_tangent
+    from geoloc.workflows.limb_scenario import load_limb_scenario
+
+    src = (ROOT_ASSETS / "tiangong2_limb.toml").read_text()
+    assert "aberration = false" in src
+    on = tmp_path / "on.toml"
+    on.write_text(src.replace("aberration = false", "aberration = true"))
+    sc = load_limb_scenario(on).with_frames(2)
+    chain, r = sc.solve()
+    off = load_limb_scenario(ROOT_ASSETS / "tiangong2_limb.toml").with_frames(2)
+    chain0, r0 = off.solve()
+    p, v = sc.state_ecef()
+    checked = 0
+    for f in range(2):
+        vi = inertial_velocity(p[f], v[f])
+        for k in range(0, sc.n_pixels, 7):
+            if r.status[f, k] != Status.OK:
+                continue
+            d = _lorentz_source_direction(chain0.direction_ecef[f, k], vi)
+            ref = limb_tangent(chain0.origin_ecef[f, k], d)
+            assert float(r.exact_h[f, k]) == pytest.approx(float(ref.exact_h), abs=0.01)
+            assert abs(float(r.exact_h[f, k]) - float(r0.exact_h[f, k])) > 1.0  # metres of tangent height
+            checked += 1
+    assert checked >= 8
+    bad = tmp_path / "bad.toml"
+    bad.write_text(src.replace("aberration = false", "light_time = true"))
+    assert main(["limb", str(bad), "--frames", "1"]) == 2
+    assert "light_time does not apply to a limb scenario" in capsys.readouterr().err
+
+
+def test_limb_raw_mode_takes_a_velocity(capsys):
+    o, d = _limb_ray(20000.0)
+    v = np.array([0.0, 7600.0, 0.0])
+    args = ["limb", "--origin-ecef", *(repr(float(x)) for x in o), "--direction-ecef",
+            *(repr(float(x)) for x in d), "--json"]
+    assert main([*args, "--velocity-ecef", *(repr(float(x)) for x in v)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    from geoloc.corrections.lighttime import inertial_velocity
+    from geoloc.sensors.limb import limb_tangent
+
+    ref = limb_tangent(o, _lorentz_source_direction(d, inertial_velocity(o, v)))
+    assert out["corrections"] == "aberration"
+    assert out["exact_tangent_h_m"] == pytest.approx(float(ref.exact_h), abs=0.01)
+    assert main([*args, "--velocity-ecef", *(repr(float(x)) for x in v), "--no-aberration"]) == 0
+    assert json.loads(capsys.readouterr().out)["exact_tangent_h_m"] == pytest.approx(20000.0, abs=1e-3)

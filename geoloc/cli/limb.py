@@ -8,6 +8,7 @@ metres at this edge; see :mod:`geoloc.sensors.limb`.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import sys
@@ -42,9 +43,14 @@ def register(sub) -> None:
                    help="raw mode: line-of-sight direction, ECEF (any length)")
     p.add_argument("--max-iter", type=int, default=20, help="Newton-Raphson step limit for eq. 17 (default 20)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
-    p.add_argument("--refraction", choices=["none", "standard"], default="none",
+    p.add_argument("--refraction", choices=["none", "standard"], default=None,
                    help="standard: also the refracted tangent point, the ray bent through the U.S. Standard "
-                   "Atmosphere 1976 (refracted_tangent_h_m; default none, as [L18])")
+                   "Atmosphere 1976 (refracted_tangent_h_m; default: the scenario's [corrections], else none)")
+    p.add_argument("--velocity-ecef", type=float, nargs=3, metavar=("VX", "VY", "VZ"), default=None,
+                   help="raw mode: the sensor's Earth-fixed velocity [m/s]: the line of sight is then turned by "
+                   "aberration of light (as for every spaceborne sensor; --no-aberration leaves it)")
+    p.add_argument("--no-aberration", action="store_true",
+                   help="leave aberration of light out (on by default in scenario mode and with --velocity-ecef)")
     p.set_defaults(func=run)
 
 
@@ -55,10 +61,15 @@ def _num(x, nd=None):
     return round(x, nd) if nd is not None else x
 
 
-def _refracted(args, origin, direction) -> dict:
+def _label(aberration: bool, refraction: str) -> str:
+    return "+".join(n for n, on in (("aberration", aberration), ("refraction", refraction == "standard")) if on) \
+        or "none"
+
+
+def _refracted(refraction: str, origin, direction) -> dict:
     """The refracted tangent point of limb rays (``--refraction standard``), as output columns;
     {} when refraction is off. ``Refraction.limb``: n(r_t) r_t = n(r_p) c0 (docs/refraction.md)."""
-    if args.refraction == "none":
+    if refraction in (None, "none"):
         return {}
     from geoloc.corrections.refraction import STANDARD_REFRACTION
 
@@ -78,6 +89,16 @@ def _raw(args) -> int:
         raise ValueError(f"--origin-ecef must be finite, got {args.origin_ecef}")
     if not np.all(np.isfinite(d)) or not np.any(d != 0):
         raise ValueError(f"--direction-ecef must be finite and non-zero, got {args.direction_ecef}")
+    aberrated = args.velocity_ecef is not None and not args.no_aberration
+    if args.velocity_ecef is not None:
+        v = np.array(args.velocity_ecef, float)
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"--velocity-ecef must be finite, got {args.velocity_ecef}")
+        if aberrated:
+            from geoloc.corrections.lighttime import aberration, inertial_velocity
+
+            d = aberration(d, inertial_velocity(o, v))
+    refraction = args.refraction or "none"
     r = limb_tangent(o, d, max_iter=args.max_iter)
     st = Status(int(r.status))
     out = {
@@ -94,9 +115,9 @@ def _raw(args) -> int:
         "nr_residual": _num(r.nr_residual_history[int(r.nr_iterations)]),
         "tangent_range_m": _num(r.s, 3),
         "exact_tangent_range_m": _num(r.exact_s, 3),
-        "corrections": "refraction" if args.refraction != "none" else "none",
+        "corrections": _label(aberrated, refraction),
     }
-    for k, v in _refracted(args, o, d).items():
+    for k, v in _refracted(refraction, o, d).items():
         out[k] = _num(v, 9 if k.endswith("_deg") else 6)
     if st == Status.HITS_EARTH:
         lat, lon, _ = ecef_to_geodetic(r.earth_hit_ecef)
@@ -134,9 +155,14 @@ def _scenario(args) -> int:
         if args.frames < 1:
             raise ValueError(f"--frames must be >= 1, got {args.frames}")
         sc = sc.with_frames(min(args.frames, sc.n_frames))
+    if args.velocity_ecef is not None:
+        raise ValueError("--velocity-ecef is for raw mode: a scenario's orbit gives the velocity")
+    sc = dataclasses.replace(sc, aberration=sc.aberration and not args.no_aberration,
+                             refraction=args.refraction or sc.refraction)
     chain, r = sc.solve(max_iter=args.max_iter)
     nf, npx = r.shape
-    refr = {k: np.broadcast_to(v, (nf, npx)) for k, v in _refracted(args, chain.origin_ecef, chain.direction_ecef).items()}
+    refr = {k: np.broadcast_to(v, (nf, npx))
+            for k, v in _refracted(sc.refraction, chain.origin_ecef, chain.direction_ecef).items()}
     columns = _COLUMNS + [k for k in refr if k != "refraction_bending_rad"]
     t = sc.times()
     alpha = np.degrees(sc.alphas())
@@ -193,7 +219,7 @@ def _scenario(args) -> int:
         "max_abs_h_difference_m": _num(np.max(np.abs(r.h_difference[ok])), 6) if ok.any() else None,
         "max_nr_iterations": int(r.nr_iterations.max()),
         "out": args.out,
-        "corrections": "refraction" if refr else "none",
+        "corrections": _label(sc.aberration, sc.refraction),
     }
     if refr:
         rh = refr["refracted_tangent_h_m"]

@@ -22,6 +22,7 @@ from geoloc.frames.rotations import rotate, rz
 from geoloc.geodesy.ellipsoid import A
 from geoloc.sensors.limb import L18Chain, LimbTangent, limb_tangent, line_of_sight_l18
 from geoloc.tomlio import read_toml
+from geoloc.corrections import check_table
 
 #: Earth's gravitational parameter GM [m^3/s^2] (WGS-84).
 GM = 3.986004418e14
@@ -57,6 +58,12 @@ class LimbScenario:
     n_pixels : int
     source : str
         Where the scenario was read from (for messages).
+    aberration : bool
+        Aberration of light by the orbit's velocity applied to the lines of sight (on by
+        default, as for every spaceborne sensor; the file's ``[corrections]`` table: the
+        bundled [L18] scenario turns it off, as the paper neglects it).
+    refraction : str
+        ``"none"`` or ``"standard"``: the refracted tangent points too (``geoloc limb``).
     """
 
     name: str
@@ -74,6 +81,8 @@ class LimbScenario:
     fov: float
     n_pixels: int
     source: str = "scenario"
+    aberration: bool = True
+    refraction: str = "none"
 
     def __post_init__(self):
         def bad(field, value, why):
@@ -140,10 +149,20 @@ class LimbScenario:
         return rotate(R, r_eci), rotate(R, v_eci - np.cross(omega, r_eci))
 
     def lines_of_sight(self) -> L18Chain:
-        """The [L18] chain for every frame and pixel, shape (n_frames, n_pixels)."""
+        """The [L18] chain for every frame and pixel, shape (n_frames, n_pixels); with
+        :attr:`aberration`, its directions are the light's (the apparent line of sight of the
+        chain turned back by the orbit's inertial velocity: :func:`geoloc.corrections.lighttime.aberration`)."""
         p, v = self.state_ecef()
-        return line_of_sight_l18(p[:, None, :], v[:, None, :], self.yaw, self.roll, self.pitch,
-                                 self.theta_mount, self.alphas()[None, :])
+        chain = line_of_sight_l18(p[:, None, :], v[:, None, :], self.yaw, self.roll, self.pitch,
+                                  self.theta_mount, self.alphas()[None, :])
+        if not self.aberration:
+            return chain
+        from dataclasses import replace
+
+        from geoloc.corrections.lighttime import aberration, inertial_velocity
+
+        d = aberration(chain.direction_ecef, inertial_velocity(p[:, None, :], v[:, None, :]))
+        return replace(chain, direction_ecef=np.where(np.isfinite(chain.direction_ecef), d, np.nan))
 
     def solve(self, **kwargs) -> tuple[L18Chain, LimbTangent]:
         """Lines of sight and their tangents (keyword arguments go to :func:`geoloc.sensors.limb.limb_tangent`)."""
@@ -185,7 +204,7 @@ def scenario_from_dict(data: dict, source: str = "scenario") -> LimbScenario:
         raise ValueError(f"{source}: expected a table, got {data!r}")
     known_sections = {s for s, _ in _FIELDS}
     for key, val in data.items():
-        if key == "name" or key == "description":
+        if key in ("name", "description", "corrections"):
             continue
         if key == "kind":  # geoloc.workflows.scenario.load_scenario's dispatch key
             if val != "limb":
@@ -197,6 +216,12 @@ def scenario_from_dict(data: dict, source: str = "scenario") -> LimbScenario:
             if (key, sub) not in _FIELDS:
                 raise ValueError(f"{source}: unknown key {key}.{sub}")
     kw = {}
+    table = check_table(data.get("corrections", {}), f"{source} [corrections]")
+    if "light_time" in table:
+        raise ValueError(f"{source} [corrections]: light_time does not apply to a limb scenario (no ground "
+                         "point: the tangent point's height does not change)")
+    kw["aberration"] = table.get("aberration", True)
+    kw["refraction"] = table.get("refraction", "none")
     for (section, key), (attr, deg, required) in _FIELDS.items():
         sec = data.get(section, {})
         if key not in sec:
