@@ -80,6 +80,7 @@ from geoloc_viz import (
     flight_layer,
     image_layer,
     label_layout,
+    refraction_layer,
     share_layer,
     teaching,
     teaching_panel,
@@ -112,11 +113,12 @@ def attach_flight(session):
 
 #: The layers every session gets unless told otherwise (``attach_fn(session)`` each): the
 #: flight debugger, the picture of the frame (when the scenario has images), the calibration
-#: error vectors, the predicted 90 % ellipse at the hit (issue 29), sending the picked point on
+#: error vectors, the predicted 90 % ellipse at the hit (issue 29), refraction and the bent ray
+#: (issue 44), sending the picked point on
 #: (issue 46: MGRS, lat/lon/height, a ``geoloc locate`` line, a CoT event), the teaching panel, and
 #: the label layout (labels kept apart on screen).
 DEFAULT_LAYERS = (attach_flight, image_layer.attach, calibration_layer.attach, uncertainty_layer.attach,
-                  share_layer.attach, teaching_panel.attach, label_layout.attach)
+                  refraction_layer.attach, share_layer.attach, teaching_panel.attach, label_layout.attach)
 METHOD_NAMES = {"steps": "descending steps [Q17]", "bisect": "bisection [L23]",
                 "exact": "exact first hit (cell walk)"}
 LEGEND = """\
@@ -188,6 +190,9 @@ def legend_markdown(scn) -> str:
                  "is by the \"error vector exaggeration\" factor (its label gives its true 3D length)")
     L.append("- **teal** ring on the terrain: the predicted 90 % error ellipse of the located point, at "
              "true size unless \"ellipse drawn x\" enlarges it (its label then says the factor, e.g. x10)")
+    L.append("- **lime** line (with refraction on, \"Refraction\" folder): the bent ray from the camera to "
+             "the located point, beside the straight line of sight (yellow, then ending at its own hit); its "
+             "offset drawn at true size unless \"bent ray drawn x\" enlarges it (its label then says x100)")
     L += ["- the aircraft is drawn larger than life by the \"aircraft display scale\" factor; frames "
           "scale with it",
           f"- frames at the aircraft, largest first: {names}; axes x red, y green, z blue",
@@ -625,6 +630,10 @@ class GeolocSession:
             lines.append(f"\n**{g.hit_label}**: {float(hit.lat_deg):.6f} N, {float(hit.lon_deg):.6f} E, "
                          f"h {float(hit.h):.1f} m, slant range {float(hit.slant_range) / 1e3:.2f} km  ")
             lines.append(mgrs_text(float(hit.lat_deg), float(hit.lon_deg)) + "  ")  # issue 33
+            if getattr(hit, "corrections", ()):  # issue 44: which corrections, and refraction's shift
+                shift = float(np.asarray(getattr(hit, "refraction_m", np.nan)))
+                lines.append(f"corrections: {'+'.join(hit.corrections)}"
+                             + (f"; refraction moved the point {shift:.3f} m  " if np.isfinite(shift) else "  "))
         else:
             lines.append(f"\n**no hit**: {describe(int(hit.status))}  ")
         if g.message:

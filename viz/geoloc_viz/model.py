@@ -22,12 +22,12 @@ from geoloc.frames.chain import Pose
 from geoloc.frames.enu import EnuFrame
 from geoloc.frames.graph import BoundFrames
 from geoloc.locate import as_sensor, line_of_sight  # as_sensor: Scenario's entrance
-from geoloc.pipeline import Pipeline
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint
 from geoloc.surfaces.height import HeightSurface
-from geoloc_viz.terrain_link import IterationView
+from geoloc_viz.terrain_link import BentRay, IterationView
 
 
 def drawn_frames(sensor) -> tuple:
@@ -110,6 +110,10 @@ class Geometry:
     status: int = Status.OK
     message: str = ""
     terrain_result: object = None
+    #: With refraction (``Scenario.corrections``): the straight line of sight's own hit on the
+    #: surface (the raw hit, where the yellow line ends) and the bent ray (:class:`BentRay`).
+    raw_hit_enu: np.ndarray | None = None
+    bent: BentRay | None = None
 
 
 @dataclass
@@ -129,6 +133,9 @@ class Scenario:
     description: str = ""
     source: str = ""  # records file name, for the title
     budget: object = None  # the sensor's error budget (geoloc.sensors.budget.ErrorBudget), if known
+    #: The line-of-sight corrections every located point of the scene goes through (the pipeline's;
+    #: ``geoloc view --refraction``, the "Refraction" folder): refraction off by default
+    corrections: Corrections = NO_CORRECTIONS
     #: (n, 3) each record's platform velocity, north-east-down [m/s], NaN where unknown (a KLV
     #: flight's: the KLV replay's, geoloc.workflows.klv_replay.platform_velocity_ned); None: no velocity
     record_velocity_ned: object = None

@@ -117,7 +117,7 @@ def locate_pixel(scn, inputs, sensor, row, col) -> PixelPick:
     pose = inputs.pose()
     los = sensor.line_of_sight(float(row), float(col), pose)
     surface = terrain_link.scene_surface(scn, inputs, trace=True)
-    hit = Pipeline(sensor, surface).intersect(los)
+    hit = Pipeline(sensor, surface, terrain_link.scene_corrections(scn)).intersect(los)
     evals = int(np.asarray(getattr(hit, "dem_evaluations", 0)))
     tr = getattr(hit, "trace", None)
     trace = None
@@ -200,7 +200,9 @@ def ground_pick(scn, inputs, sensor, origin_ecef, direction_ecef) -> GroundPick:
     nan = float("nan")
     if int(hit.status) != Status.OK:
         return GroundPick(hit, nan, nan, int(Status.INVALID_INPUT), False, False, nan, nan)
-    v = point_view(Pipeline(sensor, surface), inputs.pose(), hit.lat, hit.lon, hit.h)
+    from geoloc_viz.terrain_link import scene_corrections
+
+    v = point_view(Pipeline(sensor, surface, scene_corrections(scn)), inputs.pose(), hit.lat, hit.lon, hit.h)
     return GroundPick(hit, v.row, v.col, v.pixel_status, v.pixel_status == Status.OK, v.visible,
                       v.occluder_range_m, v.range_m)
 

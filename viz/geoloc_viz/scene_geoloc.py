@@ -385,6 +385,8 @@ class GeolocScene:
         # Line of sight: aircraft -> answer, then faintly on to the end of its usefulness.
         ok = np.all(np.isfinite(g.hit_enu))
         end = g.hit_enu if ok else g.aircraft_enu + 40e3 * g.los_dir_enu
+        if ok and g.raw_hit_enu is not None and np.all(np.isfinite(g.raw_hit_enu)):
+            end = g.raw_hit_enu  # refraction on: the straight line ends at its own hit; the bent ray beside it
         self._segments("/enu/los", [g.aircraft_enu, end], COLORS["los"], 4.0)
         beyond = end + 0.15 * np.linalg.norm(end - g.aircraft_enu) * g.los_dir_enu
         self._segments("/enu/los_beyond", [end, beyond], COLORS["los_beyond"], 2.0)

@@ -112,6 +112,11 @@ def locate_args(scn, p: SharedPoint, sensor_path) -> list:
             a += ["--eps-h", repr(float(p.inputs.eps_h))]
     else:
         a += ["--target-h-m", repr(float(p.inputs.target_h))]
+    c = getattr(scn, "corrections", None)  # the scene's line-of-sight corrections (the Refraction folder)
+    if c is not None and c.refraction is not None:
+        a += ["--refraction", "standard"]
+    if c is not None and c.light_time:
+        a += ["--light-time"]
     return a
 
 

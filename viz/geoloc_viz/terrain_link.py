@@ -244,11 +244,29 @@ def hit_geometry(scn, inp, los) -> dict:
     surface = scene_surface(scn, inp)
     if terrain_of(surface) is not None:
         return terrain_geometry(scn, inp, los, surface)
-    hit = Pipeline(None, surface).intersect(los)
+    hit = Pipeline(None, surface, scene_corrections(scn)).intersect(los)
     label = f"hit at h = {inp.target_h:.1f} m"
     if scn.dem is not None:  # a DEM without the terrain core
         label += " (terrain solver not available)"
-    return dict(hit=hit, hit_enu=scn.enu.from_ecef(hit.ecef), hit_label=label)
+    return dict(hit=hit, hit_enu=scn.enu.from_ecef(hit.ecef), hit_label=label, **bent_fields(scn, los, surface, hit))
+
+
+def scene_corrections(scn):
+    """The scene's line-of-sight corrections (``Scenario.corrections``; none on an older scenario)."""
+    from geoloc.pipeline import NO_CORRECTIONS
+
+    return getattr(scn, "corrections", None) or NO_CORRECTIONS
+
+
+def bent_fields(scn, los, surface, hit, raw=None) -> dict:
+    """With refraction on: the Geometry's ``raw_hit_enu`` (the straight line's own hit, through the
+    pipeline without corrections) and ``bent`` (:func:`bent_ray`); else nothing."""
+    c = scene_corrections(scn)
+    if c.refraction is None:
+        return {}
+    if raw is None:
+        raw = Pipeline(None, surface).intersect(los)
+    return {"raw_hit_enu": scn.enu.from_ecef(raw.ecef), "bent": bent_ray(los, raw, hit, c, scn.enu)}
 
 
 def terrain_geometry(scn, inp, los, surface=None) -> dict:
@@ -272,8 +290,9 @@ def terrain_geometry(scn, inp, los, surface=None) -> dict:
     out = {"hmax": hmax,
            "hit_hmax_enu": enu.from_ecef(intersect_los_height(los, hmax).ecef)}
     surface = scene_surface(scn, inp) if surface is None else surface
-    hit = Pipeline(None, surface).intersect(los)
-    exact = hit if inp.method == "exact" else Pipeline(None, _terrain.DemSurface(dem, "exact")).intersect(los)
+    corr = scene_corrections(scn)
+    hit = Pipeline(None, surface, corr).intersect(los)
+    exact = hit if inp.method == "exact" else Pipeline(None, _terrain.DemSurface(dem, "exact"), corr).intersect(los)
     names = {"steps": f"descending steps [Q17], eps_h {inp.eps_h:g} m",
              "bisect": f"bisection [L23], threshold {inp.threshold:g} m",
              "exact": "exact first hit"}
@@ -296,7 +315,8 @@ def terrain_geometry(scn, inp, los, surface=None) -> dict:
             brackets = np.stack([enu.from_ecef(lo), enu.from_ecef(hi)], axis=1)
         it = IterationView(inp.method, tr["H"], tr["h_dem"], on_los, below, brackets)
     out.update(hit=hit, hit_enu=enu.from_ecef(hit.ecef), hit_label=names[inp.method].split(",")[0],
-               exact_enu=enu.from_ecef(exact.ecef), iterations=it, message=msg, terrain_result=hit)
+               exact_enu=enu.from_ecef(exact.ecef), iterations=it, message=msg, terrain_result=hit,
+               **bent_fields(scn, los, scene_surface(scn, inp, trace=False), hit))
     return out
 
 
@@ -328,3 +348,67 @@ def mesh_height_bound(scn, lat_deg, lon_deg, window_m: float = WINDOW_M, nodes: 
             best = np.fmax(best, np.asarray(h, float))
     best[~inside | ~np.isfinite(best)] = np.nan
     return best
+
+
+#: Heights along the bent ray drawn between the hit and the camera.
+BENT_SAMPLES = 30
+
+
+@dataclass
+class BentRay:
+    """The refracted ray from the camera to the located point, in the scene's ENU frame [m].
+
+    ``bent_enu[k]`` and ``straight_enu[k]`` are the bent ray's and the straight line of sight's
+    points at the same geodetic height ``h_m[k]`` (ellipsoidal, WGS 84), from the camera (first)
+    down to the located point's height (last): the drawing multiplies their difference by its
+    exaggeration. ``shift_m``: how far refraction moved the located point (``GroundPoint.refraction_m``).
+    """
+
+    h_m: np.ndarray
+    bent_enu: np.ndarray
+    straight_enu: np.ndarray
+    shift_m: float
+    corrections: tuple
+
+    def drawn(self, exaggeration: float = 1.0) -> np.ndarray:
+        """(n, 3) the bent ray as drawn: its offset from the straight line times ``exaggeration``."""
+        return self.straight_enu + float(exaggeration) * (self.bent_enu - self.straight_enu)
+
+
+def bent_ray(los, raw_hit, hit, corrections, enu, n: int = BENT_SAMPLES) -> BentRay | None:
+    """The bent ray of a located point (:class:`BentRay`), or None without refraction or a hit.
+
+    ``raw_hit`` is the straight line's hit on the surface (what the pipeline refracts near:
+    it fixes the atmosphere's sphere), ``hit`` the pipeline's located point. Each sample is
+    :meth:`geoloc.corrections.refraction.Refraction.correct` at a height between the hit's and
+    the camera's (its ``hit_ecef``: the bent ray's point at that height); the last is at the
+    hit's own height, which on a DEM is the pipeline's fixed point (within its 1 mm).
+    """
+    from geoloc.geodesy.ellipsoid import ecef_to_geodetic
+    from geoloc.status import Status
+    from geoloc.surfaces.base import LineOfSight
+    from geoloc.surfaces.height import HeightSurface
+
+    ref = corrections.refraction
+    if ref is None or int(np.asarray(hit.status)) != Status.OK or int(np.asarray(raw_hit.status)) != Status.OK:
+        return None
+    o = np.asarray(los.origin_ecef, float).reshape(3)
+    d = np.asarray(los.direction_ecef, float).reshape(3)
+    h_cam = float(ecef_to_geodetic(o)[2])
+    h_hit = float(np.asarray(hit.h))
+    # heights from just below the camera down to the hit; the camera itself is where both start
+    H = np.linspace(h_hit, h_cam, n + 1)[::-1][1:]
+    line = ref.correct(np.broadcast_to(o, (len(H), 3)), np.broadcast_to(d, (len(H), 3)),
+                       np.broadcast_to(np.asarray(raw_hit.ecef, float).reshape(3), (len(H), 3)), at_h=H)
+    ok = np.asarray(line.status) == Status.OK
+    H = H[ok]
+    bent = np.asarray(line.hit_ecef, float)[ok]
+    # the straight line's points at the same heights: the pipeline without corrections, on the
+    # surfaces of those constant geodetic heights
+    rays = LineOfSight(np.broadcast_to(o, (len(H), 3)), np.broadcast_to(d, (len(H), 3)), np.zeros(len(H), np.uint8))
+    straight = np.asarray(Pipeline(None, HeightSurface(H, "geodetic")).intersect(rays).ecef, float)
+    H = np.concatenate([[h_cam], H])
+    bent = np.concatenate([o[None], bent])
+    straight = np.concatenate([o[None], straight])
+    return BentRay(H, enu.from_ecef(bent), enu.from_ecef(straight), float(np.asarray(hit.refraction_m)),
+                   tuple(hit.corrections))

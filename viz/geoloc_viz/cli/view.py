@@ -40,6 +40,9 @@ def register(sub) -> None:
     p.add_argument("--record", default=None,
                    help="record to open: label such as T4-3, or 0-based index (default: the first)")
     add_sensor_option(p)
+    from geoloc.cli._options import add_correction_options
+
+    add_correction_options(p)
     add_dem_options(p, mosaic=False, tolerances=False, method_default=None,
                     dem_help="DEM GeoTIFF (default: a bundled DEM covering the target, if any)",
                     method_help="terrain method shown first: steps, bisect or exact (default bisect)")
@@ -114,13 +117,15 @@ def app_factory(args, serve: bool = False):
                                      use_dem=not args.no_dem, dem_datum=args.dem_datum)
         if args.method:
             scn.inputs = scn.inputs.replace(method=args.method)
+        with_corrections = _corrections_setter(args)
+        with_corrections(scn)
         if serve:
             scenarios = None
             if args.records is None and args.dem is None and args.camera is None:
                 # the two bundled scenarios, one click apart (the chosen one first)
                 flight = ("example flight (MISB ST 0601 KLV)",
-                          lambda: default_flight_scenario(use_dem=not args.no_dem))
-                q17 = ("[Q17] flight test", lambda: load_view_scenario(use_dem=not args.no_dem))
+                          lambda: with_corrections(default_flight_scenario(use_dem=not args.no_dem)))
+                q17 = ("[Q17] flight test", lambda: with_corrections(load_view_scenario(use_dem=not args.no_dem)))
                 scenarios = dict([q17, flight] if scen in ("flight-test", "qiao2017") else [flight, q17])
             return lambda server: GeolocViewer(server, scn, presenter=getattr(args, "presenter", False),
                                                max_clients=getattr(args, "max_clients", 16),
@@ -129,8 +134,21 @@ def app_factory(args, serve: bool = False):
     from geoloc_viz.scene_limb import LimbApp, LimbViewer, load_limb
 
     limb = load_limb(None if scen == "limb" else scen)
+    limb.refraction = getattr(args, "refraction", None) == "standard"
     # serving: a state per tab, as the flight scene; the export: one scene on the server
     return (lambda server: LimbViewer(server, limb)) if serve else (lambda server: LimbApp(server, limb))
+
+
+def _corrections_setter(args):
+    """``scn -> scn`` with ``Scenario.corrections`` set from ``--refraction`` / ``--light-time`` over the
+    ``--sensor`` file's ``[corrections]`` table and the sensor's defaults (the core's option helper)."""
+    from geoloc.cli._options import corrections_from_args
+
+    def apply(scn):
+        scn.corrections = corrections_from_args(args, scn.camera)
+        return scn
+
+    return apply
 
 
 def run(args) -> int:
