@@ -238,9 +238,32 @@ def load_camera(path=None):
     return load_sensor(path if path else Path(ASSETS).joinpath(*DEFAULT_CAMERA))
 
 
-def _terrain(los: LineOfSight, dem, method: str, eps_h_m=None, threshold_m=None):
+def _terrain(los: LineOfSight, dem, method: str, eps_h_m=None, threshold_m=None, corrections=None):
     """Intersect with a DEM through :mod:`geoloc.surfaces.terrain`; returns (GroundPoint, TerrainSteps)."""
-    return dem_steps(los, dem, method, eps_h_m, threshold_m)
+    return dem_steps(los, dem, method, eps_h_m, threshold_m, corrections)
+
+
+def add_corrections(steps: LogSteps, corrections) -> LogSteps:
+    """Say the pipeline's line-of-sight corrections in the recording: a note naming them and, with
+    refraction, ``series/refraction_m`` (how far refraction moved each step's located point,
+    ``GroundPoint.refraction_m``) [m]."""
+    if corrections is None or not corrections:
+        return steps
+    names = [f"{n} (U.S. Standard Atmosphere 1976)" if n == "refraction" else n for n in corrections.names]
+    steps.notes.append("line-of-sight corrections (docs/refraction.md): " + ", ".join(names))
+    shift = getattr(steps.ground, "refraction_m", None)
+    if corrections.refraction is not None and shift is not None:
+        steps.extra_series["series/refraction_m"] = np.asarray(shift, float)
+        ok = np.isfinite(np.asarray(shift, float))
+        if np.any(ok):
+            steps.notes.append(f"refraction moved the located points {np.min(shift[ok]):.2f}-"
+                               f"{np.max(shift[ok]):.2f} m (series/refraction_m)")
+    return steps
+
+
+def _c(corrections) -> tuple:
+    """``Pipeline(sensor, surface, *_c(corrections))``: the corrections when given."""
+    return () if corrections is None else (corrections,)
 
 
 def _first_finite(lat, lon, h):
@@ -251,7 +274,7 @@ def _first_finite(lat, lon, h):
     return lat[k], lon[k], h[k]
 
 
-def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None) -> LogSteps:
+def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None, corrections=None) -> LogSteps:
     """Simulate a scenario (:func:`geoloc.workflows.flight.simulate`) and geolocate every step.
 
     The located target is the scenario's method: the ellipsoid inflated to
@@ -275,13 +298,14 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None) ->
              f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
              f"period {scn.scan_period_s:g} s"]
     if scn.method == "ellipsoid":
-        ground = Pipeline(None, HeightSurface(scn.target_h_m)).intersect(los)
+        ground = Pipeline(None, HeightSurface(scn.target_h_m), *_c(corrections)).intersect(los)
         notes.append(f"located on the ellipsoid inflated to {scn.target_h_m:g} m [Q17 eq. 11]")
     else:
-        ground, terrain = _terrain(los, dem, scn.method, scn.eps_h_m, scn.threshold_m)
+        ground, terrain = _terrain(los, dem, scn.method, scn.eps_h_m, scn.threshold_m, corrections)
         notes.append(f"located on {scn.dem_path.name} ({scn.dem_datum}) by '{scn.method}'")
     if dem is not None:
-        exact = ground if (terrain is not None and scn.method == "exact") else _terrain(los, dem, "exact")[0]
+        exact = (ground if (terrain is not None and scn.method == "exact")
+                 else _terrain(los, dem, "exact", corrections=corrections)[0])
         if terrain is None:
             terrain = TerrainSteps("ellipsoid", dem, str(scn.dem_path),
                                    np.zeros(n, int), [], [])
@@ -290,7 +314,7 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None) ->
                                                   exact.lat_deg, exact.lon_deg)}
         notes.append("truth: exact first hit on the DEM")
         if scn.method != "ellipsoid" and scn.target_h_m is not None:
-            ell = Pipeline(None, HeightSurface(scn.target_h_m)).intersect(los)
+            ell = Pipeline(None, HeightSurface(scn.target_h_m), *_c(corrections)).intersect(los)
             extra["series/ellipsoid_model/to_truth_m"] = horizontal_distance_m(
                 ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg)
             notes.append(f"ellipsoid model at {scn.target_h_m:g} m compared with the truth too")
@@ -311,14 +335,14 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None) ->
     steps = LogSteps("flight", scn.name, {"time": ("duration", track.t), "frame": ("sequence", k)},
                      [f"frame {i}" for i in k], camera, track.pose, chain, row, col, los, ground, enu,
                      truth=truth, terrain=terrain, notes=notes, extra_series=extra)
-    return add_error_analysis(steps)
+    return add_error_analysis(add_corrections(steps, corrections))
 
 
 def steps_from_records(path, camera: FrameSensor | None = None, *, height_column: str | None = None,
                        target_h_m: float | None = None, height_kind: str = "inflated", dem_path=None,
                        dem_datum: str = "egm96", method: str = "exact", eps_h_m=None,
                        threshold_m=None, group_column: str | None = "table",
-                       calibrate: bool = True, fit_names=None) -> tuple[LogSteps, list]:
+                       calibrate: bool = True, fit_names=None, corrections=None) -> tuple[LogSteps, list]:
     """Geolocate every record of a flight-test CSV: one time step per record.
 
     Height source, first given wins: ``dem_path`` (method of :mod:`geoloc.surfaces.terrain`),
@@ -347,7 +371,7 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
     notes = [f"records: {Path(path).name} ({len(recs)} records)"]
     if dem_path is not None:
         ground, terrain = _terrain(los, SurfaceSpec(dem=dem_path, dem_datum=dem_datum).raster(), method, eps_h_m,
-                                   threshold_m)
+                                   threshold_m, corrections)
         notes.append(f"located on {Path(dem_path).name} ({dem_datum}) by '{method}'")
     else:
         if target_h_m is not None:
@@ -364,7 +388,7 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
                 raise ValueError(f"height column {col_name!r} is empty or not finite on line(s) "
                                  f"{[int(x) for x in recs.lines[bad]]}")
             notes.append(f"located at each record's {col_name}")
-        ground = Pipeline(None, HeightSurface(h, height_kind)).intersect(los)
+        ground = Pipeline(None, HeightSurface(h, height_kind), *_c(corrections)).intersect(los)
     res = result_from_ground(recs, ground)
     truth = published = None
     if recs.has("truth_lat_deg") and recs.has("truth_lon_deg"):
@@ -397,6 +421,7 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
     steps = LogSteps("records", Path(path).name, {"record": ("sequence", np.arange(len(recs)))},
                      recs.labels(), camera, pose, chain, row, col, los, ground, enu, truth=truth,
                      published=published, terrain=terrain, notes=notes, group=grp, enus=enus)
+    add_corrections(steps, corrections)
     if truth is not None:
         truth["has_h"] = recs.has("truth_h_m")
     add_error_analysis(steps, heading_deg=recs.column("heading_deg"))
@@ -505,7 +530,8 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
 
 def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96", method: str = "exact",
                    eps_h_m=None, threshold_m=None, label: str | None = None, video=None, enu=None,
-                   t0_s: float | None = None, outlier=None, dem=None, first_packet: int = 0) -> tuple[LogSteps, list]:
+                   t0_s: float | None = None, outlier=None, dem=None, first_packet: int = 0,
+                   corrections=None) -> tuple[LogSteps, list]:
     """A MISB ST 0601 file replayed (:func:`geoloc.workflows.klv_replay.replay_klv`): one step per packet.
 
     ``method``, ``eps_h_m`` and ``threshold_m`` are the DEM solver and its tolerances, as
@@ -544,7 +570,8 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
         dem = terrain_of(surface)  # the raster drawn as the mesh (one raster: the CLI refuses a mosaic)
     else:
         surface = None
-    r = replay_klv(path, surface=surface, sensor=camera, label=label)
+    r = replay_klv(path, surface=surface, sensor=camera, label=label,
+                   **({} if corrections is None else {"corrections": corrections}))
     c = r.columns
     if len(r) == 0:
         raise ValueError(f"{label or path}: no good packet ({len(r.errors)} bad)")
@@ -556,7 +583,9 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     lat, lon = (np.deg2rad(np.asarray(c[k], float)) for k in ("lat_deg", "lon_deg"))
     h = np.asarray(c["h_m"], float)
     status = np.asarray(c["status"], np.uint8)
-    ground = GroundPoint(lat, lon, h, geodetic_to_ecef(lat, lon, h), np.asarray(c["range_m"], float), status, los)
+    shift = np.asarray(c["refraction_m"], float) if "refraction_m" in c else None
+    ground = GroundPoint(lat, lon, h, geodetic_to_ecef(lat, lon, h), np.asarray(c["range_m"], float), status, los,
+                         corrections=() if corrections is None else corrections.names, refraction_m=shift)
     published = {"lat_deg": np.asarray(c["reported_lat_deg"], float), "lon_deg": np.asarray(c["reported_lon_deg"], float),
                  "h_m": np.asarray(c["reported_h_m"], float), "error_m": np.asarray(c["frame_center_error_m"], float)}
     t = np.asarray(c["time_s"], float)
@@ -588,6 +617,7 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     steps = LogSteps("klv", name, {"time": ("duration", t), "packet": ("sequence", np.asarray(c["packet"]))},
                      [f"packet {k}" for k in c["packet"]], sensor, pose, sensor.frames(pose), row, col, los, ground,
                      enu, published=published, terrain=terrain, notes=notes, extra_series=extra, corners=corners)
+    add_corrections(steps, corrections)
     # the replay's own flags (the same median / MAD rule, on its geodesic frame-centre residual)
     add_error_analysis(steps, heading_deg=np.asarray(c["platform_heading_deg"], float),
                        outlier=np.asarray(c["outlier"]).astype(bool))

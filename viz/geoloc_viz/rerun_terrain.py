@@ -59,7 +59,7 @@ class TerrainSteps:
 
 
 def dem_steps(los: LineOfSight, dem, method: str = "exact", eps_h_m=None,
-              threshold_m=None) -> tuple[GroundPoint, TerrainSteps]:
+              threshold_m=None, corrections=None) -> tuple[GroundPoint, TerrainSteps]:
     """Intersect every line of sight with a DEM; the hits as a GroundPoint and the per-ray trace.
 
     Parameters
@@ -72,6 +72,9 @@ def dem_steps(los: LineOfSight, dem, method: str = "exact", eps_h_m=None,
     method : {"steps", "bisect", "exact"}
     eps_h_m, threshold_m : float, optional
         Step / threshold of the iterative methods [m] (terrain's defaults if None).
+    corrections : geoloc.pipeline.Corrections, optional
+        The pipeline's line-of-sight corrections (none by default); the hits keep
+        ``corrections`` and ``refraction_m``.
     """
     from geoloc.pipeline import Pipeline
     from geoloc.surfaces.terrain import DemSurface
@@ -81,8 +84,11 @@ def dem_steps(los: LineOfSight, dem, method: str = "exact", eps_h_m=None,
         kw["eps_h"] = float(eps_h_m)
     if threshold_m is not None:
         kw["threshold"] = float(threshold_m)
-    hit = Pipeline(None, DemSurface(dem, method, trace=True, **kw)).intersect(los)
-    ground = GroundPoint(hit.lat, hit.lon, hit.h, hit.ecef, hit.slant_range, hit.status, los)
+    from geoloc.pipeline import NO_CORRECTIONS
+
+    hit = Pipeline(None, DemSurface(dem, method, trace=True, **kw), corrections or NO_CORRECTIONS).intersect(los)
+    ground = GroundPoint(hit.lat, hit.lon, hit.h, hit.ecef, hit.slant_range, hit.status, los,
+                         corrections=hit.corrections, refraction_m=hit.refraction_m)
     n = len(hit.status)
     tr = {"H": [], "h_dem": [], "lat": [], "lon": [], "ecef": []}
     for k in range(n):

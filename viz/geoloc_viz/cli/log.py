@@ -47,6 +47,9 @@ def register(sub) -> None:
                    "--idle or Ctrl-C; docs/live.md)")
     p.add_argument("--out", default=None, type=output_path, help="output .rrd file (required unless --serve or --spawn)")
     add_sensor_option(p)
+    from geoloc.cli._options import add_correction_options
+
+    add_correction_options(p)
     add_target_options(p)
     add_dem_options(p, mosaic=False, dem_help="DEM raster (GeoTIFF, ...): intersect the line of sight with "
                     "the terrain instead of a target height, e.g. assets/dem/etopo5_flight_area.tif; default for a MISB "
@@ -187,6 +190,18 @@ def _log_live(args, camera, dem) -> int:
     return 0
 
 
+def _corrections(args, camera):
+    """The recording's line-of-sight corrections (``--refraction``, ``--light-time``, ``--no-aberration``
+    over the ``--sensor`` file's ``[corrections]`` table), or None when none is asked for anywhere
+    (then each input keeps its own default)."""
+    from geoloc.cli._options import corrections_from_args
+
+    asked = any(getattr(args, k, None) is not None for k in ("refraction", "light_time", "aberration"))
+    if not asked and not getattr(args, "camera", None):
+        return None
+    return corrections_from_args(args, camera)
+
+
 def run(args) -> int:
     if args.out is None and not (args.serve or args.spawn):
         raise ValueError("--out is required unless --serve or --spawn is given")
@@ -214,10 +229,11 @@ def run(args) -> int:
 
     camera = sensor_from_args(args, default=False)
     dem = one_dem_raster(args, "log")  # the recording draws the DEM it samples
+    corrections = _corrections(args, camera)
     if path.suffix.lower() == ".toml":
         from geoloc.workflows.flight import FlightScenario
 
-        steps = steps_from_flight(FlightScenario.from_toml(path), camera)
+        steps = steps_from_flight(FlightScenario.from_toml(path), camera, corrections=corrections)
     elif path.suffix.lower() == ".csv":
         if dem is None and not args.no_dem and args.target_h_m is None and args.height_column is None:
             from geoloc_viz.rerun_model import records_default_dem
@@ -231,7 +247,7 @@ def run(args) -> int:
             height_kind=args.height_kind, dem_path=dem, dem_datum=args.dem_datum, method=args.method,
             eps_h_m=args.eps_h, threshold_m=args.threshold,
             group_column=None if args.group_by == "none" else args.group_by, calibrate=not args.no_calibration,
-            fit_names=_fit_names(args.fit))
+            fit_names=_fit_names(args.fit), corrections=corrections)
         for err in errors:
             print(f"{path}: skipped {err}", file=sys.stderr)
     elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):
@@ -242,7 +258,8 @@ def run(args) -> int:
             if dem is not None:
                 print(f"geoloc log: DEM {dem} (bundled, covers the flight; --no-dem for none)", file=sys.stderr)
         steps, errors = steps_from_klv(path, camera, dem_path=dem, dem_datum=args.dem_datum,
-                                       method=args.method, eps_h_m=args.eps_h, threshold_m=args.threshold)
+                                       method=args.method, eps_h_m=args.eps_h, threshold_m=args.threshold,
+                                       corrections=corrections)
         for err in errors:
             print(f"{path}: skipped bad packet at byte {err.offset}: {err.reason}", file=sys.stderr)
     else:
