@@ -186,3 +186,29 @@ def test_a_person_turns_refraction_on_in_chromium(tmp_path):
                     break
             PIL.Image.fromarray(img[..., :3]).save(ARTIFACTS / "viz_refraction_x100.png")
             page.screenshot(path=str(ARTIFACTS / "viz_refraction_x100_page.png"))
+
+
+def test_limb_scene_marks_the_refracted_tangent_point():
+    """``--scenario limb --refraction standard``: the panel's refracted tangent height is ``geoloc limb
+    --origin-ecef ... --direction-ecef ... --refraction standard --json``'s for the scene's ray, and the
+    lime marker sits at the refracted tangent point, below the straight line's tangent point."""
+    from geoloc.cli import build_parser
+    from geoloc_viz.cli.view import app_factory
+
+    args = build_parser().parse_args(["view", "--scenario", "limb", "--refraction", "standard"])
+    with served() as server:
+        app = app_factory(args)(server)
+        o, d = (np.asarray(v, float).reshape(3) for v in (app.chain.origin_ecef, app.chain.direction_ecef))
+        argv = [sys.executable, "-m", "geoloc", "limb", "--origin-ecef", *(repr(float(x)) for x in o), "--direction-ecef",
+                *(repr(float(x)) for x in d), "--refraction", "standard", "--json"]
+        cli = json.loads(subprocess.run(argv, capture_output=True, text=True, check=True, timeout=300).stdout)
+        shown = float(re.search(r"refracted tangent \*\*h = (\d+\.\d) m\*\*", app.md.content).group(1))
+        assert abs(shown - cli["refracted_tangent_h_m"]) < 0.051  # printed to 0.1 m
+        assert cli["refracted_tangent_h_m"] < cli.get("tangent_h_m", cli.get("exact_tangent_h_m", np.inf))
+        refr = np.asarray(server.scene.get_handle_by_name("/limb/refracted").position, float)
+        tan = np.asarray(server.scene.get_handle_by_name("/limb/tangent").position, float)
+        want = app.w(np.asarray(app.lref.refracted_tangent_ecef).reshape(3))
+        assert np.allclose(refr, want, atol=1e-6)  # km: the node is the core's point
+        assert refr[2] < tan[2]  # lower than the straight line's tangent point (scene Up, km)
+        app.dd_refraction.value = "none"
+        wait_for(lambda: app.lref is None, 30, "refraction off")

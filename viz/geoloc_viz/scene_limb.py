@@ -75,6 +75,9 @@ CAMERA_NEAR_KM, CAMERA_FAR_KM = 1.0, 2.0e4
 CAMERA_CLEARANCE = 0.1
 #: Marker radii [km] when nothing forces them smaller, and their share of a separation.
 MARKER_KM = {"tangent": 12.0, "exact": 9.0}
+#: The refracted tangent point's marker [km] and colour (lime: the bent ray's colour in the flight scene).
+REFRACTED_MARKER_KM = 6.0
+REFRACTED_COLOR = (170, 255, 0)
 MARKER_SHARE = 0.4
 
 
@@ -137,12 +140,16 @@ class LimbApp:
     tab's ``ClientHandle`` (its own scene, GUI and camera: :class:`LimbViewer`).
     """
 
-    def __init__(self, server: viser.ViserServer, scenario):
+    def __init__(self, server: viser.ViserServer, scenario, refraction: bool = False):
         self.server, self.scn = server, scenario
         self.frame = 0
         self.alpha_deg = 0.0
         self.exaggeration = SHAPE_EXAGGERATION
         self.offset_exaggeration = OFFSET_EXAGGERATION
+        #: atmospheric refraction (``geoloc view --refraction standard``, the "refraction" box): the
+        #: refracted tangent point beside the straight line's (issue 44)
+        self.refraction = bool(refraction)
+        self.lref = None
         self.last_update_s = float("nan")
         gui = server.gui
         self.md = gui.add_markdown("")
@@ -157,6 +164,11 @@ class LimbApp:
             self.sl_off = gui.add_slider(
                 "tangent offset exaggeration", 1.0, 2000.0, 1.0, OFFSET_EXAGGERATION,
                 hint="The exact minimum is drawn this many times farther from the [L18] tangent point, on the line")
+            self.dd_refraction = gui.add_dropdown(
+                "refraction", ("none", "standard"), initial_value="standard" if self.refraction else "none",
+                hint="standard: the ray bent through the U.S. Standard Atmosphere 1976; its tangent point "
+                     "(lime) is drawn beside the straight line's")
+            self.dd_refraction.on_update(lambda _: self._on_gui())
             self.cb_follow = gui.add_checkbox("camera follows the view angle", True,
                                               hint="Re-frame the spacecraft and the tangent point when "
                                                    "alpha or the frame changes (they move by hundreds of km)")
@@ -191,6 +203,12 @@ class LimbApp:
                                        np.deg2rad(self.alpha_deg))
         self.tan = limb_tangent(self.chain.origin_ecef, self.chain.direction_ecef)
         ok = int(self.tan.status) == 0
+        self.lref = None
+        if self.refraction and ok:
+            from geoloc.corrections.refraction import STANDARD_REFRACTION
+
+            lr = STANDARD_REFRACTION.limb(self.chain.origin_ecef, self.chain.direction_ecef)
+            self.lref = lr if int(np.asarray(lr.status).reshape(-1)[0]) == Status.OK else None
         hit = int(self.tan.status) == int(Status.HITS_EARTH)
         # What the view is about: the exact tangent, else the line down to where it meets the
         # Earth (the middle of it), else the spacecraft; the Earth patch is drawn around its foot (issue 46: the patch stayed at
@@ -306,7 +324,20 @@ class LimbApp:
                              f"exact minimum: h = {float(tan.exact_h) / 1e3:.3f} km, {off_m:.1f} m along the "
                              f"line from the tangent (drawn x{self.offset_exaggeration:g})", anchor="top-left")
                 sc.remove_by_name("/limb/earth_hit")
+                if self.lref is not None:
+                    lr = self.lref
+                    drop = float(np.asarray(lr.tangent_h_m).reshape(-1)[0] - np.asarray(
+                        lr.refracted_tangent_h_m).reshape(-1)[0])
+                    sc.add_icosphere("/limb/refracted", radius=REFRACTED_MARKER_KM, color=REFRACTED_COLOR,
+                                     position=self.w(np.asarray(lr.refracted_tangent_ecef).reshape(3)),
+                                     cast_shadow=False, receive_shadow=False)
+                    sc.add_label("/limb/refracted/label",
+                                 f"refracted tangent: h = {self.refracted_h_m() / 1e3:.3f} km ({drop:.0f} m lower)",
+                                 anchor="top-right")
+                else:
+                    sc.remove_by_name("/limb/refracted")
             else:
+                sc.remove_by_name("/limb/refracted")
                 for n in ("tangent", "exact", "virtual", "virtual_section", "nr"):
                     sc.remove_by_name(f"/limb/{n}")
                 if int(tan.status) == int(Status.HITS_EARTH):
@@ -379,6 +410,12 @@ class LimbApp:
         up = self.enu.vector_from_ecef(up_e)
         return self.w(pos_e), self.w(aim_e), up / np.linalg.norm(up)
 
+    def refracted_h_m(self) -> float:
+        """The refracted tangent point's geodetic height [m, WGS 84 ellipsoid]; NaN without refraction."""
+        if self.lref is None:
+            return float("nan")
+        return float(np.asarray(self.lref.refracted_tangent_h_m).reshape(-1)[0])
+
     def legend_markdown(self, ok: bool) -> str:
         """The legend of what this frame draws (the colours of :meth:`draw`), one line each."""
         rows = [("blue", "the Earth: WGS-84 ellipsoid, h = 0 (a 30 x 30 deg patch); light blue line: its "
@@ -394,6 +431,9 @@ class LimbApp:
             rows += [("orange ball", "the [L18] tangent point (eq. 21-26)"),
                      ("green ball", f"the exact minimum-height point (drawn x{self.offset_exaggeration:g} farther "
                       "along the line)")]
+            if self.lref is not None:
+                rows.append(("lime ball", "the refracted tangent point: the lowest point of the ray bent through "
+                             "the U.S. Standard Atmosphere 1976 (true position)"))
         elif int(self.tan.status) == int(Status.HITS_EARTH):
             rows.append(("red ball", "where the line of sight meets the Earth (no tangent)"))
         return "\n".join(f"- **{c}**: {w}" for c, w in rows) + "\n\nscene: local ENU at the exact tangent's foot, km"
@@ -423,6 +463,16 @@ class LimbApp:
                       "Newton-Raphson Delta a iterates (km): "
                       + ", ".join(f"{x / 1e3:.3f}" for x in np.asarray(t.nr_delta_a_history).reshape(-1)
                                   if np.isfinite(x))]
+            if self.lref is not None:
+                lr = self.lref
+                h0 = float(np.asarray(lr.tangent_h_m).reshape(-1)[0])
+                hr = self.refracted_h_m()
+                lines += ["  ", f"refraction (U.S. Standard Atmosphere 1976): refracted tangent "
+                          f"**h = {hr:.1f} m** (WGS 84 ellipsoid), straight line's {h0:.1f} m: "
+                          f"{h0 - hr:.1f} m lower; bending "
+                          f"{float(np.asarray(lr.bending_rad).reshape(-1)[0]) * 1e3:.3f} mrad  "]
+            elif self.refraction:
+                lines.append("refraction: the bent ray has no tangent point here (it meets the Earth or ducts)  ")
         else:
             lines.append(f"no tangent: {describe(int(t.status))}")
         self.md.content = "\n".join(lines)
@@ -433,6 +483,7 @@ class LimbApp:
         self.frame = int(self.sl_frame.value)
         self.exaggeration = float(self.sl_exag.value)
         self.offset_exaggeration = float(self.sl_off.value)
+        self.refraction = str(self.dd_refraction.value) == "standard"
         self.compute()
         self.draw(reset_camera=moved and bool(self.cb_follow.value))
         self.labels.schedule(0.05)
@@ -459,10 +510,11 @@ class LimbViewer:
     sessions (:class:`geoloc_viz.app.GeolocViewer`).
     """
 
-    def __init__(self, server: viser.ViserServer, scenario):
+    def __init__(self, server: viser.ViserServer, scenario, refraction: bool = False):
         import threading
 
         self.server, self.scn = server, scenario
+        self.refraction = refraction
         self.apps: dict[int, LimbApp] = {}
         self._lock = threading.Lock()
         server.on_client_connect(self._on_connect)
@@ -470,7 +522,7 @@ class LimbViewer:
 
     def _on_connect(self, client) -> None:
         with self._lock:
-            app = LimbApp(client, self.scn)
+            app = LimbApp(client, self.scn, self.refraction)
             if client.client_id in self.server.get_clients():
                 self.apps[client.client_id] = app
 

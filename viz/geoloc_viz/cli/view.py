@@ -134,9 +134,9 @@ def app_factory(args, serve: bool = False):
     from geoloc_viz.scene_limb import LimbApp, LimbViewer, load_limb
 
     limb = load_limb(None if scen == "limb" else scen)
-    limb.refraction = getattr(args, "refraction", None) == "standard"
+    refr = getattr(args, "refraction", None) == "standard"  # the refracted tangent point beside the straight one
     # serving: a state per tab, as the flight scene; the export: one scene on the server
-    return (lambda server: LimbViewer(server, limb)) if serve else (lambda server: LimbApp(server, limb))
+    return (lambda server: LimbViewer(server, limb, refr)) if serve else (lambda server: LimbApp(server, limb, refr))
 
 
 def _corrections_setter(args):
