@@ -370,3 +370,13 @@ def test_limb_raw_mode_takes_a_velocity(capsys):
     assert out["exact_tangent_h_m"] == pytest.approx(float(ref.exact_h), abs=0.01)
     assert main([*args, "--velocity-ecef", *(repr(float(x)) for x in v), "--no-aberration"]) == 0
     assert json.loads(capsys.readouterr().out)["exact_tangent_h_m"] == pytest.approx(20000.0, abs=1e-3)
+
+
+def test_report_says_which_corrections_the_replay_applied(tmp_path, capsys):
+    rows = _replay_csv(tmp_path, "bent.csv", "--refraction", "standard")
+    assert main(["report", str(tmp_path / "bent.csv"), "--out-dir", str(tmp_path / "rep")]) == 0
+    capsys.readouterr()
+    meta = json.loads((tmp_path / "rep" / "report.json").read_text())["meta"]
+    assert meta["corrections"] == "refraction"
+    shifts = [float(r["refraction_m"]) for r in rows if r["refraction_m"]]
+    assert meta["refraction_m_max"] == pytest.approx(max(shifts), abs=1e-3)  # the CSV's 3 decimals

@@ -235,7 +235,16 @@ def report_from_csv(path, reference: str = "auto", ref_h_column: str | None = No
                   "(none)"),
         "pixel_radius": "hypot(row - (rows+1)/2, col - (cols+1)/2) of the camera's image size" if pix is not None
         else "(none)",
+        # the line-of-sight corrections the replay applied (its 'corrections' column), and how far
+        # refraction moved the points (its 'refraction_m'): residuals judged with it on and off
+        "corrections": ", ".join(sorted({r.get("corrections") or "none" for r in rows}))
+        if "corrections" in header else "(not stated: a replay before the corrections)",
     }
+    if "refraction_m" in header:
+        shift = col("refraction_m")
+        if np.isfinite(shift).any():
+            meta["refraction_m_median"] = float(np.nanmedian(shift))
+            meta["refraction_m_max"] = float(np.nanmax(shift))
     rep = accuracy_report(lat, lon, h, rlat, rlon, rh, track_heading_rad=track, slant_range_m=slant,
                           off_nadir_rad=off, pixel_radius_px=pix, group=group, meta=meta)
     if all(c in header for c in BUDGET_COLUMNS):
