@@ -324,6 +324,38 @@ class Pipeline:
         return dataclasses.replace(hit, ecef=ecef, lat=np.where(ok, hit.lat, np.nan),
                                    lon=np.where(ok, hit.lon, np.nan), h=np.where(ok, hit.h, np.nan), status=status)
 
+    def lines_near(self, los: LineOfSight, near_ecef) -> LineOfSight:
+        """The sensor's lines of sight, corrected, as straight lines near the points ``near_ecef``.
+
+        For a computation that meets the rays with something other than a surface (triangulation
+        meets them with each other): aberration turns each direction, light-time turns each line
+        by the Earth's rotation over the range to its point, and refraction replaces it by the
+        tangent of the bent ray where it reaches the point's geodetic height (its origin backed
+        off along it by the range). Without corrections, ``los`` itself.
+        """
+        c = self.corrections
+        if not c:
+            return los
+        o = np.asarray(los.origin_ecef, float)
+        d = np.asarray(los.direction_ecef, float)
+        p = np.asarray(near_ecef, float)
+        if c.aberration:
+            if los.velocity_ecef is None:
+                raise ValueError("aberration: the lines of sight carry no velocity (LineOfSight.velocity_ecef)")
+            d = aberration(d, inertial_velocity(o, los.velocity_ecef))
+        d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+        if c.light_time:
+            angle = light_time_angle(o, p)
+            o, d = _rot_z(angle, o), _rot_z(angle, d)
+        if c.refraction is None:
+            return LineOfSight(o, d, los.status, los.velocity_ecef)
+        t = np.einsum("...i,...i->...", p - o, d)
+        foot = o + t[..., None] * d  # the straight line's point nearest the given one
+        h = ecef_to_geodetic(p)[2]
+        bent = c.refraction.correct(o, d, foot, at_h=h)
+        status = np.where(np.asarray(los.status) == Status.OK, bent.status, los.status).astype(np.uint8)
+        return LineOfSight(bent.origin_ecef, bent.direction_ecef, status, los.velocity_ecef)
+
     # ------------------------------------------------------------ ground -> pixel
     def ground_to_pixel(self, lat, lon, h, state=None, *, max_iter: int = 4, tol_px: float = 1e-7) -> PixelHit:
         """Geodetic points (radians, metres ellipsoidal) -> 1-based pixels: the inverse of :meth:`locate`.

@@ -37,6 +37,7 @@ from geoloc.geodesy.ellipsoid import ecef_to_geodetic
 from geoloc.geodesy.local import R_ecef_enu
 from geoloc.sensors.budget import LE90_PER_SIGMA, LENS_KEYS, SENSOR_KEYS, ErrorBudget
 from geoloc.status import Status
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 
 #: Budget keys shared by every frame of one sensor (biases): the mount, boresight, lever arm and lens.
 SHARED = frozenset(SENSOR_KEYS) | frozenset(LENS_KEYS)
@@ -133,7 +134,8 @@ def intersect_rays(origins, directions, cov_across=None):
 
 
 def triangulate(sensor, pose, row, col, budget: ErrorBudget | None = None, *, shared=SHARED,
-                velocity_ned_m_s=None, min_angle_deg: float = 1.0) -> Triangulation:
+                velocity_ned_m_s=None, min_angle_deg: float = 1.0,
+                corrections: Corrections = NO_CORRECTIONS) -> Triangulation:
     """Locate one target from its pixels in several frames (``pose``, ``row``, ``col`` of shape (n,)).
 
     Parameters
@@ -150,6 +152,12 @@ def triangulate(sensor, pose, row, col, budget: ErrorBudget | None = None, *, sh
     min_angle_deg : float
         Rays must span at least this angle (the largest angle between two of them), else the
         point is only known along the rays: INVALID_INPUT.
+    corrections : Corrections
+        The location pipeline's line-of-sight corrections: the rays are met as they arrive near
+        the target (:meth:`geoloc.pipeline.Pipeline.lines_near`: the bent rays' tangents at its
+        height), the point found again from them until it moves less than 1 mm (three times at
+        most; each step gains the ratio of the point's move to the shift). The covariance keeps
+        the straight rays' derivatives (refraction changes them by 1e-4 of themselves).
     """
     from geoloc.locate import as_sensor
 
@@ -158,10 +166,26 @@ def triangulate(sensor, pose, row, col, budget: ErrorBudget | None = None, *, sh
     O = np.asarray(los.origin_ecef, float).reshape(-1, 3)
     D = np.asarray(los.direction_ecef, float).reshape(-1, 3)
     ok = np.asarray(los.status).reshape(-1) == Status.OK
-    if budget is None:
-        return triangulate_rays(O, D, ok, min_angle_deg=min_angle_deg)
-    names, dO, dD, _, _ = chain_derivatives(s, pose, row, col, budget, velocity_ned_m_s)
-    return triangulate_rays(O, D, ok, names, dO, dD, shared=shared, min_angle_deg=min_angle_deg)
+    extra = {}
+    if budget is not None:
+        names, dO, dD, _, _ = chain_derivatives(s, pose, row, col, budget, velocity_ned_m_s)
+        extra = dict(names=names, dO=dO, dD=dD, shared=shared)
+    tri = triangulate_rays(O, D, ok, min_angle_deg=min_angle_deg, **extra)
+    if corrections:
+        pipe = Pipeline(s, None, corrections)
+        for _ in range(3):
+            if tri.status != Status.OK:
+                break
+            lines = pipe.lines_near(los, np.broadcast_to(tri.ecef, np.shape(los.origin_ecef)))
+            Oc = np.asarray(lines.origin_ecef, float).reshape(-1, 3)
+            Dc = np.asarray(lines.direction_ecef, float).reshape(-1, 3)
+            okc = ok & (np.asarray(lines.status).reshape(-1) == Status.OK)
+            new = triangulate_rays(Oc, Dc, okc, min_angle_deg=min_angle_deg, **extra)
+            moved = float(np.linalg.norm(np.asarray(new.ecef) - np.asarray(tri.ecef)))
+            tri = new
+            if not moved > 1e-3:
+                break
+    return tri
 
 
 def triangulate_rays(O, D, ok=None, names=None, dO=None, dD=None, *, shared=SHARED,

@@ -147,7 +147,7 @@ def run(args) -> int:
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
     if TARGET_ID_COLUMN in records.header:  # targets seen in several rows: their rays' intersection
         for line in summary_lines(triangulate_records(records, camera, budget, result.h_m,
-                                                      result.status == Status.OK)):
+                                                      result.status == Status.OK, corrections=corrections)):
             print(line)
     for msg in plausibility_warnings(records, result, result.terrain, sensor=camera):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)

@@ -37,7 +37,7 @@ class TargetResult:
 
 
 def triangulate_records(records: Records, sensor, budget=None, surface_h_m=None, surface_ok=None,
-                        column: str = TARGET_ID_COLUMN) -> list:
+                        column: str = TARGET_ID_COLUMN, corrections=None) -> list:
     """Triangulate every target named in two rows or more of ``column``.
 
     Parameters
@@ -50,6 +50,9 @@ def triangulate_records(records: Records, sensor, budget=None, surface_h_m=None,
     surface_h_m, surface_ok : array_like (n,), optional
         Each record's located height on the replay's surface and whether it was located (the
         replay's ``h_m`` and status): the DEM / datum check.
+    corrections : Corrections, optional
+        The replay's line-of-sight corrections: the rays are met as they arrive near the target
+        (:func:`geoloc.analysis.triangulate.triangulate`).
     """
     if column not in records.header:
         return []
@@ -67,7 +70,8 @@ def triangulate_records(records: Records, sensor, budget=None, surface_h_m=None,
         if idx.size < 2:
             continue
         p = pose.take(idx)
-        tri = triangulate(sensor, p, row[idx], col[idx], budget)
+        tri = triangulate(sensor, p, row[idx], col[idx], budget,
+                          **({} if corrections is None else {"corrections": corrections}))
         res = TargetResult(tid, idx, [int(records.lines[k]) for k in idx], tri)
         if surface_h_m is not None and tri.status == Status.OK:
             ok = None if surface_ok is None else np.asarray(surface_ok)[idx]
