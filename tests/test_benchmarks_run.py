@@ -93,8 +93,8 @@ CASES = {
          rf"ratio: {N}  \(flat = 1"], 300),
     "bench_refraction.py": (
         ["--rays", "2000", "--repeat", "1"],
-        [rf"^straight line x ellipsoid \(intersect_los_height\): .* {N} M rays/s cpu$",
-         rf"^the same \+ Refraction.correct: .* {N} M rays/s cpu$",
+        [rf"^pipeline, --refraction none: .* {N} M rays/s cpu$",
+         rf"^pipeline, --refraction standard: .* {N} M rays/s cpu$",
          rf"^ratio: {N}  \(wall {N}\)$"], 120),
     "bench_rpc.py": (
         ["--points", "200"],

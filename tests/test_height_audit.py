@@ -28,7 +28,7 @@ SENSOR = ROOT / "assets" / "sensors" / "eo_turret.toml"
 RECORDS = ROOT / "assets" / "records" / "eo_turret_flight.csv"
 DEM = ROOT / "assets" / "dem" / "srtm_jacksboro.tif"
 KLV = ROOT / "assets" / "klv" / "example_flight.klv"
-QIAO = ROOT.parent / "shared" / "data" / "qiao2017_flight_tests.csv"
+QIAO = ROOT / "assets" / "records" / "qiao2017_flight_tests.csv"  # the bundled copy of [Q17]'s tables
 ETOPO = ROOT / "assets" / "dem" / "etopo5_flight_area.tif"
 
 
@@ -245,7 +245,6 @@ def test_the_klv_example_is_clean_and_tag_75_in_msl_is_named(klv):
     assert "tag 75" in f.fix
 
 
-@pytest.mark.skipif(not QIAO.is_file(), reason="needs /work/shared/data")
 def test_real_flight_tests_on_a_coarse_dem_name_no_convention():
     """[Q17]'s published positions (ASTER GDEM) against the bundled 5' ETOPO5: hundreds of metres
     apart in the Karakoram, and the audit says so as a misfit no signature explains, with no

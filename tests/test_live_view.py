@@ -100,8 +100,11 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
             print(f"first located frame on the page {t_text:.2f} s after the first datagram; "
                   f"the debugger's frame {t_debugger:.2f} s")
             tab = next(iter(viewer.tabs.values()))
-            print(f"server side: the first frame's line sent {tab.first_text_unix_s - first:.2f} s, the debugger "
-                  f"built {tab.debugger_unix_s - first:.2f} s after the first datagram")
+            def since(t):  # the server's stamps may still be unset when the page has drawn (a busy machine)
+                return "not yet" if t is None else f"{t - first:.2f} s"
+
+            print(f"server side: the first frame's line sent {since(tab.first_text_unix_s)}, the debugger "
+                  f"built {since(tab.debugger_unix_s)} after the first datagram")
             # the same machine's clock on both sides (time.time() and the page's Date.now()). The first
             # located frame (its packet, recomputed centre and agreement, in the Live folder) within 2 s, as
             # the issue asks; the debugger's session for it (its GUI, terrain mesh, the frame's chain and

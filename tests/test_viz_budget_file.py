@@ -70,14 +70,15 @@ def test_the_ellipse_is_the_sensor_files_budget(tmp_path):
         assert float(pu.ellipse_minor_m) == pytest.approx(s, rel=5e-3)
         r90 = math.sqrt(chi2.ppf(0.9, 2))
         assert float(pu.ce90_m) == pytest.approx(r90 * s, rel=5e-3)
-        # the drawn ellipse is that circle, at the error vectors' exaggeration
+        # the drawn ellipse is that circle, at its own drawing factor (true size by default, issue 46)
         d = app.view.disp
+        assert lay.scale == 1.0
         seg = np.asarray(server.scene.get_handle_by_name("/enu/uncertainty/ellipse").points, float)
         pts = seg[:, 0, :] / (WORLD_SCALE * np.array([1.0, 1.0, d.vertical_exaggeration]))
         hit = np.asarray(app.geometry.hit_enu, float)
         r = np.hypot(pts[:, 0] - hit[0], pts[:, 1] - hit[1])
         # float32 scene coordinates in km: 1e-3 of a few tens of metres
-        np.testing.assert_allclose(r, r90 * s * d.error_exaggeration, rtol=1e-2)
+        np.testing.assert_allclose(r, r90 * s * lay.scale, rtol=1e-2)
         text = lay.md.content
         assert "illustrative" not in text and path.name in text
         assert "time_s = 0.01 s left out" in text
