@@ -12,13 +12,17 @@ def read_toml(path, what: str = "scenario file") -> dict:
     """Parse a TOML file.
 
     Raises ``FileNotFoundError`` ("<what> not found: <path>") if it is missing and
-    ``ValueError`` ("<what> <path>: not valid TOML: ...") if it does not parse.
+    ``ValueError`` ("<what> <path>: not valid TOML: ...") if it does not parse or is not
+    UTF-8 text (issue 47's fuzzing: a binary file raised a bare ``UnicodeDecodeError``).
     """
     note_input(path)
     path = Path(path)
     try:
-        return tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise FileNotFoundError(f"{what} not found: {path}") from None
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{what} {path}: not valid TOML: byte 0x{e.object[e.start]:02x} at offset {e.start} "
+                         "is not UTF-8 text (a binary file?)") from None
     except tomllib.TOMLDecodeError as e:
         raise ValueError(f"{what} {path}: not valid TOML: {e}") from None

@@ -250,7 +250,7 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
             yield tmp
         return
     if _kind(p) == "special":  # copied in at the end: a library given the path itself may delete it first
-        with _through_temp(option, path, p.suffix, lambda fh: _copy_to_special(fh, p)) as tmp:
+        with _through_temp(option, path, p.suffix, lambda fh: _copy_to_special(fh, p)) as tmp, _naming(path):
             yield tmp
         return
     target = write_target(p)
@@ -261,9 +261,12 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
     tmp = Path(tmp)
     try:
         tmp.unlink()  # the writer creates it: its own default mode, and some libraries refuse a file
-        yield tmp
+        with _naming(path, folder):
+            yield tmp
         if not tmp.exists():
             raise OutputRefused(f"{option + ' ' if option else ''}{path}: the writer produced no file")
+        with _naming(path, folder):
+            _verify(tmp)
         if old_mode is not None and tmp.is_file():
             os.chmod(tmp, old_mode)
         os.replace(tmp, target)
@@ -275,6 +278,79 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
                 shutil.rmtree(tmp)
             else:
                 tmp.unlink()
+
+
+#: Free space under which a filesystem on which a writer failed is taken as full [bytes].
+FULL_BELOW = 256 * 1024
+
+
+def _fault_of(folder) -> int | None:
+    """``errno.EROFS`` or ``errno.ENOSPC`` when ``folder``'s filesystem is read-only or (nearly) full."""
+    import errno
+
+    try:
+        st = os.statvfs(folder)
+    except (OSError, AttributeError):
+        return None
+    if st.f_flag & getattr(os, "ST_RDONLY", 1):
+        return errno.EROFS
+    if st.f_bavail * st.f_frsize < FULL_BELOW:
+        return errno.ENOSPC
+    return None
+
+
+@contextlib.contextmanager
+def _naming(path, folder=None) -> Iterator[None]:
+    """The writer's failure as one line naming the output.
+
+    An OSError that names no file (``fh.write`` on a full disk: ``[Errno 28] No space left on
+    device``) is raised again naming the output. A library's own error (GDAL through pyogrio:
+    "Failed to commit transaction"; an unreadable raster, :func:`_verify`) when the output's
+    filesystem is full or read-only is that OSError (issue 47, the machine's faults)."""
+    import errno
+
+    try:
+        yield
+    except BrokenPipeError:
+        raise
+    except OSError as e:
+        vague = e.errno in (None, errno.EIO)
+        fault = _fault_of(folder) if folder is not None and vague else None
+        if fault is not None:
+            raise OSError(fault, os.strerror(fault), os.fspath(path)) from e
+        if e.filename is not None or e.errno is None:
+            raise
+        raise OSError(e.errno, e.strerror or str(e), os.fspath(path)) from None
+    except (RuntimeError, ValueError) as e:
+        fault = _fault_of(folder) if folder is not None and not isinstance(e, OutputRefused) else None
+        if fault is None:
+            raise
+        raise OSError(fault, os.strerror(fault), os.fspath(path)) from e
+
+
+#: Suffixes of the files GDAL writes (rasterio): opened once before they replace anything.
+GDAL_RASTERS = (".tif", ".tiff", ".ntf", ".nitf")
+
+
+def _verify(tmp: Path) -> None:
+    """Raise when a GDAL raster just written cannot be opened: on a full disk rasterio 1.4 closes a
+    GeoTIFF without an error (GDALClose's status is not looked at) and leaves a file of 0 bytes,
+    which replaced the old output (issue 47, found by writing on a full filesystem)."""
+    if tmp.suffix.lower() not in GDAL_RASTERS or not tmp.is_file():
+        return
+    import warnings
+
+    import rasterio
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)  # a frame grid has none
+            with rasterio.open(tmp):
+                pass
+    except rasterio.errors.RasterioError as e:
+        import errno
+
+        raise OSError(errno.EIO, f"the raster written cannot be read back ({e})") from None
 
 
 #: The output path that means standard output (``--out -``).

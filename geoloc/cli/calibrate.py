@@ -39,6 +39,11 @@ MODELS = {"mount": ("mount_x", "mount_y", "mount_z"), "camera": ("boresight_x", 
 RESECT_NAMES = ("f", "cy", "cx")
 
 
+#: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
+#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+EXAMPLE = "geoloc calibrate --height-column paper_height_m --out calibration.json --plot errors.png"
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "calibrate",

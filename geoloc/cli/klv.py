@@ -28,6 +28,13 @@ from geoloc.cli._options import input_path, output_path, text_output_path
 from geoloc.cli import VERB_HELP
 
 
+#: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
+#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+EXAMPLE = ("geoloc klv dump assets/klv/example_flight.klv --out packets.jsonl",
+           "geoloc klv fix assets/klv/example_flight.klv --out fixed.klv",
+           "geoloc klv send assets/klv/example_flight.ts udp://127.0.0.1:9 --fast")
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "klv",

@@ -24,6 +24,11 @@ from geoloc.workflows.scenario import load_scenario
 from geoloc.cli import VERB_HELP
 
 
+#: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
+#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+EXAMPLE = "geoloc limb assets/scenarios/tiangong2_limb.toml --frames 3 --out limb.csv"
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "limb",

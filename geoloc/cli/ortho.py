@@ -42,6 +42,11 @@ from geoloc.cli import VERB_HELP
 POSE_FIELDS = ("lat_deg", "lon_deg", "h_m")
 
 
+#: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
+#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+EXAMPLE = "geoloc ortho --record T3-1 --step 256 --out frame.tif"
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "ortho",

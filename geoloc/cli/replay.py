@@ -38,6 +38,11 @@ from geoloc.workflows.triangulation import TARGET_ID_COLUMN, summary_lines, tria
 from geoloc.cli import VERB_HELP
 
 
+#: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
+#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+EXAMPLE = "geoloc replay --height-column paper_height_m --out results.csv --export results.gpkg"
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "replay",
@@ -198,7 +203,9 @@ def _export(args, write_csv, group_by) -> None:
     from geoloc.io.gis import export, read_results
 
     with tempfile.TemporaryDirectory() as tmp:
-        on_disk = args.out if args.out not in (None, "-") else None  # --out -: stdout, not re-readable
+        # --out -: stdout, not re-readable; nor is a FIFO or a device (issue 47: `--out FIFO --export X`
+        # read its own FIFO back: "is not a file")
+        on_disk = args.out if args.out not in (None, "-") and Path(args.out).is_file() else None
         csv_path = on_disk or str(Path(tmp) / "replay.csv")
         if not on_disk:
             write_csv(csv_path)

@@ -17,6 +17,11 @@ PAPERS = {
 }
 
 
+#: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
+#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+EXAMPLE = "geoloc reproduce li2023 --rays 10 --json numbers.json"
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "reproduce",

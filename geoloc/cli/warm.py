@@ -76,6 +76,11 @@ STEPS = (
 )
 
 
+#: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
+#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+EXAMPLE = "geoloc warm --skip-view"
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "warm",

@@ -903,12 +903,18 @@ def _kml_schema_order(text: str) -> bytes:
     ET.register_namespace("gx", _GX_NS)
     root = ET.fromstring(text.encode("utf-8"))
     style_tags = {f"{{{_KML_NS}}}Style", f"{{{_KML_NS}}}StyleMap"}
+    # simplekml's ids are bare numbers from a counter of the whole process (a second KML written by
+    # the same process had other ids: issue 47, `export --out -` against `--out FILE`); the schema's
+    # xsd:ID must start with a letter: k1, k2, ... in the order of the document
+    ids = {}
     for el in root.iter():
-        # simplekml's ids are bare numbers; the schema's xsd:ID must start with a letter
         if "id" in el.attrib:
-            el.set("id", f"k{el.get('id')}")
+            ids.setdefault(el.get("id"), f"k{len(ids) + 1}")
+    for el in root.iter():
+        if "id" in el.attrib:
+            el.set("id", ids[el.get("id")])
         if el.tag == f"{{{_KML_NS}}}styleUrl" and el.text and el.text.startswith("#"):
-            el.text = f"#k{el.text[1:]}"
+            el.text = "#" + ids.get(el.text[1:], f"k{el.text[1:]}")
         if el.tag not in (f"{{{_KML_NS}}}Document", f"{{{_KML_NS}}}Folder"):
             continue
         styles = [c for c in el if c.tag in style_tags]

@@ -220,19 +220,28 @@ def read_rpc(path, rows: int | None = None, cols: int | None = None, **sensor_op
                 with rasterio.open(img, "w", driver="GTiff", width=1, height=1, count=1, dtype="uint8") as dst:
                     dst.write(np.zeros((1, 1, 1), np.uint8))
                 with rasterio.open(img) as src:
-                    rpcs = src.rpcs
+                    rpcs = _rpcs(src, path)
         if rpcs is None:
             raise ValueError(f"{path}: GDAL found no RPC in this file (not an RPB / RPC00B text file?)")
         return RPCSensor(RPCModel.from_rasterio(rpcs), int(rows), int(cols), **sensor_options)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         with rasterio.open(path) as src:
-            rpcs = src.rpcs
+            rpcs = _rpcs(src, path)
             size = (src.height, src.width)
     if rpcs is None:
         raise ValueError(f"{path}: no RPC metadata (no RPC tag, and no .RPB or _RPC.TXT beside it)")
     return RPCSensor(RPCModel.from_rasterio(rpcs), int(size[0] if rows is None else rows),
                      int(size[1] if cols is None else cols), **sensor_options)
+
+
+def _rpcs(src, path):
+    """``src.rpcs``, with a value rasterio cannot read named with the file (issue 47's fuzzing: a
+    coefficient ``+0.0d+00`` raised "could not convert string to float" naming nothing)."""
+    try:
+        return src.rpcs
+    except (ValueError, TypeError, KeyError) as e:
+        raise ValueError(f"{path}: RPC metadata that cannot be read: {e}") from None
 
 
 # ------------------------------------------------------------------- GDAL

@@ -625,6 +625,20 @@ def write(steps: LogSteps, out, *, display_scale: float = 200.0, serve: bool = F
 
 def _write(steps, out, display_scale, serve, grpc_port, grpc_host, stream_port=None) -> rr.RecordingStream:
     rec = rr.RecordingStream("geoloc", recording_id=recording_id(steps))
+    if out is not None and not (serve or spawn):
+        # a file alone: the recording is built in memory and written by Python, so that a full disk
+        # or a read-only folder is an OSError naming the file (issue 47: rerun's file-writer thread
+        # printed its own error lines, then flush() raised "File-writer thread shut down prematurely"
+        # or, in a process that had written recordings before, waited forever)
+        stream = rec.binary_stream()
+        rec.send_blueprint(blueprint(steps), make_active=False, make_default=True)
+        log_steps(rec, steps, display_scale=display_scale)
+        rec.flush()
+        data = stream.read(flush=True) or b""
+        rec.disconnect()
+        with open(out, "wb") as fh:
+            fh.write(data)
+        return rec
     sinks = []
     if out is not None:
         sinks.append(rr.FileSink(str(out)))

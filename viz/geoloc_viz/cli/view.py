@@ -19,6 +19,11 @@ from geoloc.cli._options import add_dem_options, add_sensor_option, input_path, 
 from geoloc.cli import VERB_HELP
 
 
+#: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
+#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+EXAMPLE = "geoloc view --no-browser --export scene.html"
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "view",
