@@ -134,7 +134,7 @@ def main(argv=None) -> int:
         try:
             inputs = check_outputs(parser, args)
             data = stdout_is_data() if writes_stdout(parser, args) else contextlib.nullcontext()
-            with command_files(inputs), data:  # --out -: the messages go to stderr, the data to stdout
+            with command_files(inputs), data, _warnings_as_lines(prog):  # --out -: messages to stderr
                 code = int(args.func(args) or 0)
             sys.stdout.flush()  # a closed pipe shows here, inside the handlers, not at exit
             return code
@@ -154,6 +154,29 @@ def main(argv=None) -> int:
         if not _stdout_closed():
             raise
         return _quiet_broken_pipe()
+
+
+def _warnings_as_lines(prog: str):
+    """geoloc's own warnings (a category defined in ``geoloc``: a DEM tile that cannot be read) as one
+    line each, ``geoloc VERB: warning: ...``; others as Python shows them."""
+    import contextlib
+    import warnings
+
+    @contextlib.contextmanager
+    def block():
+        with warnings.catch_warnings():
+            shown = warnings.showwarning
+
+            def show(message, category, filename, lineno, file=None, line=None):
+                if getattr(category, "__module__", "").startswith("geoloc"):
+                    print(f"{prog}: warning: {' '.join(str(message).split())}", file=sys.stderr)
+                else:
+                    shown(message, category, filename, lineno, file, line)
+
+            warnings.showwarning = show
+            yield
+
+    return block()
 
 
 def _stdout_closed() -> bool:

@@ -145,6 +145,10 @@ class _Source:
     ncols: int
 
 
+class DemTileWarning(UserWarning):
+    """A tile of a mosaic that cannot be read in part (truncated, corrupt): its cells are no data."""
+
+
 def mosaic_paths(source) -> list:
     """The raster files of ``source``: a folder (its rasters, sorted by name), one file, or a list."""
     if isinstance(source, (str, Path)):
@@ -383,13 +387,32 @@ class DemMosaic:
         s, b = self.sources[k], self.block
 
         def load():
+            from rasterio.errors import RasterioError
             from rasterio.windows import Window
 
             r0, c0 = bi * b, bj * b
             win = Window(c0, r0, min(b, s.ncols - c0), min(b, s.nrows - r0))
-            return self._dataset(k).read(s.band, window=win, masked=True).astype(float).filled(np.nan)
+            try:
+                return self._dataset(k).read(s.band, window=win, masked=True).astype(float).filled(np.nan)
+            except (RasterioError, OSError) as e:  # a truncated or corrupt tile (issue 47): no data there
+                self._unreadable(s.path, r0, c0, win, e)
+                return np.full((int(win.height), int(win.width)), np.nan)
 
         return self.cache.get((k, bi, bj), load)
+
+    def _unreadable(self, path, r0, c0, win, e) -> None:
+        """Note a block of a tile that GDAL cannot read; warn once per tile (:class:`DemTileWarning`:
+        ``geoloc`` prints it as one line). Its cells are no data: a ray that meets them is NODATA,
+        the others run (docs/cli.md, "Faults of the machine")."""
+        bad = self.__dict__.setdefault("unreadable", {})
+        first = path not in bad
+        bad.setdefault(path, []).append((r0, c0, int(win.height), int(win.width)))
+        if first:
+            reason = " ".join(str(e.__cause__ or e).split())[:200]  # rasterio: "Read failed. See previous ..."
+            warnings.warn(DemTileWarning(
+                f"DEM tile {path}: rows {r0}-{r0 + int(win.height) - 1}, columns {c0}-{c0 + int(win.width) - 1} "
+                f"cannot be read ({reason}); its unreadable cells are no data (a ray meeting them: status "
+                "nodata), the other tiles are used"), stacklevel=2)
 
     def _scan_heights(self):
         """Lowest and highest ellipsoidal node of the mosaic, block by block (memory: one block)."""
