@@ -508,3 +508,15 @@ def test_a_tolerance_no_solver_reaches_still_ends(leaf, tmp_path, monkeypatch, c
         signal.alarm(0)
         signal.signal(signal.SIGALRM, old)
     assert r.rc in (0, 1) and "Traceback" not in r.err, r.err
+
+
+def test_two_kml_exports_in_one_process_are_the_same_bytes(tmp_path, monkeypatch, capsysbinary):
+    # found by the `--out -` rule: simplekml numbers ids with a counter of the whole process, so the
+    # second KML a process wrote had other ids (k32 for k1) than the first
+    monkeypatch.chdir(tmp_path)
+    assert main(["replay", "--height-column", "paper_height_m", "--out", "r.csv"]) == 0
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        assert main(["export", "r.csv", "--out", f"{name}/x.kml"]) == 0
+    a, b = (tmp_path / "a" / "x.kml").read_bytes(), (tmp_path / "b" / "x.kml").read_bytes()
+    assert a == b and b'id="k1"' in a

@@ -374,9 +374,9 @@ def camera_from_table(table, where: str):
     (:func:`geoloc.sensors.sensor_file.sensor_from_dict`, the one reader of both)."""
     if not isinstance(table, dict):
         raise ValueError(f"{where} = {table!r}: must be a table")
-    from geoloc.sensors.sensor_file import sensor_from_dict
+    from geoloc.sensors.sensor_file import _naming_source, sensor_from_dict
 
-    sensor = sensor_from_dict(dict(table), source=where)
+    sensor = _naming_source(where, lambda: sensor_from_dict(dict(table), source=where))
     check_camera(sensor, where)
     return sensor
 

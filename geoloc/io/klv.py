@@ -1098,7 +1098,19 @@ def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None
             return
         tb = ds.time_base
         tb = Fraction(tb.numerator, tb.denominator) if tb is not None else None
-        for pkt in container.demux(ds):
+        packets = container.demux(ds)
+        pos = None
+        while True:
+            try:
+                pkt = next(packets)
+            except StopIteration:
+                break
+            except (IndexError, KeyError, ValueError, OSError, RuntimeError) as e:
+                # issue 47's fuzzing: on a damaged stream PyAV's demuxer raised IndexError ("list index
+                # out of range", a stream it had not announced); the packets read so far are kept
+                yield KlvError(pos, f"the container's demultiplexer stopped here ({type(e).__name__}: {e}); "
+                                    "the rest of the file is not read")
+                return
             b = bytes(pkt)
             if not b:
                 continue

@@ -638,6 +638,9 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
         img = Image.open(p)
     except UnidentifiedImageError:
         raise ValueError(f"{p.name}: not an image file Pillow can read (file {path})") from None
+    except Image.DecompressionBombError as e:  # issue 47's fuzzing: a header declaring 179 M pixels
+        raise ValueError(f"{p.name}: its header declares more pixels than Pillow opens, a damaged file? "
+                         f"({e}) (file {path})") from None
     except OSError as e:
         raise ValueError(f"{p.name}: Pillow cannot read it ({e}) (file {path})") from None
     with img:

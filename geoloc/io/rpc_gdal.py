@@ -224,11 +224,16 @@ def read_rpc(path, rows: int | None = None, cols: int | None = None, **sensor_op
         if rpcs is None:
             raise ValueError(f"{path}: GDAL found no RPC in this file (not an RPB / RPC00B text file?)")
         return RPCSensor(RPCModel.from_rasterio(rpcs), int(rows), int(cols), **sensor_options)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(path) as src:
-            rpcs = _rpcs(src, path)
-            size = (src.height, src.width)
+    from rasterio.errors import RasterioError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as src:
+                rpcs = _rpcs(src, path)
+                size = (src.height, src.width)
+    except RasterioError as e:  # issue 47's fuzzing: "Cannot read 400040 bytes for NITF header", no file named
+        raise ValueError(f"{path}: not a raster GDAL can read ({' '.join(str(e).split())})") from None
     if rpcs is None:
         raise ValueError(f"{path}: no RPC metadata (no RPC tag, and no .RPB or _RPC.TXT beside it)")
     return RPCSensor(RPCModel.from_rasterio(rpcs), int(size[0] if rows is None else rows),
@@ -240,8 +245,8 @@ def _rpcs(src, path):
     coefficient ``+0.0d+00`` raised "could not convert string to float" naming nothing)."""
     try:
         return src.rpcs
-    except (ValueError, TypeError, KeyError) as e:
-        raise ValueError(f"{path}: RPC metadata that cannot be read: {e}") from None
+    except (ValueError, TypeError, KeyError, IndexError) as e:  # an empty value: IndexError in rasterio
+        raise ValueError(f"{path}: RPC metadata that cannot be read: {type(e).__name__}: {e}") from None
 
 
 # ------------------------------------------------------------------- GDAL

@@ -23,6 +23,7 @@ PyYAML parses the YAML files.
 from __future__ import annotations
 
 import json
+import math
 import re
 from pathlib import Path
 
@@ -48,9 +49,11 @@ class _Bad(ValueError):
 
 def _text(path) -> str:
     try:
-        return Path(path).read_text()
+        return Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise FileNotFoundError(f"lens file not found: {path}") from None
+    except UnicodeDecodeError as e:  # issue 47's fuzzing: a bare UnicodeDecodeError naming no file
+        raise _Bad(path, f"not a text file (UTF-8): byte 0x{e.object[e.start]:02x} at offset {e.start}") from None
 
 
 # --------------------------------------------------------------------------- YAML / JSON parsing
@@ -96,7 +99,9 @@ def _number(path, key, value):
 
 
 def _integer(path, key, value):
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value) or value <= 0:
+    # NaN and inf first (issue 47's fuzzing: JSON's NaN raised "cannot convert float NaN to integer")
+    if (isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
+            or value != int(value) or value <= 0):
         raise _Bad(path, f"{key} = {value!r}: must be a positive integer")
     return int(value)
 

@@ -129,7 +129,18 @@ def load_sensor(path) -> FrameSensor:
     ``pixel_pitch_m``. Its ``[columns]`` and ``[uncertainty]`` tables are checked and left out
     (:func:`load_sensor_columns`, :func:`load_sensor_budget`)."""
     path = Path(path)
-    return sensor_from_dict(read_toml(path, "sensor file"), source=str(path))
+    return _naming_source(str(path), lambda: sensor_from_dict(read_toml(path, "sensor file"), source=str(path)))
+
+
+def _naming_source(source: str, build):
+    """``build()``, with a ValueError that does not name ``source`` (a first-phase camera's own check:
+    "camera field focal_length_px = nan: ...", found by issue 47's fuzzing) prefixed with it."""
+    try:
+        return build()
+    except ValueError as e:
+        if source in str(e):
+            raise
+        raise ValueError(f"{source}: {e}") from None
 
 
 def budget_from_sensor_dict(data: dict, source: str = "sensor") -> ErrorBudget | None:

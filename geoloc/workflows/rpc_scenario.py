@@ -258,7 +258,12 @@ def load_rpc_scenario(path) -> RPCScenario:
     src = str(path)
     kind = data.get("kind")
     if kind == "pushbroom":
-        sensor = PushbroomSensor.from_dict(data, source=src)
+        try:
+            sensor = PushbroomSensor.from_dict(data, source=src)
+        except ValueError as e:  # issue 47's fuzzing: the sensor's own checks ("tan_psi_x = ...") named no file
+            if src in str(e):
+                raise
+            raise ValueError(f"{src}: {e}") from None
     elif kind == "frame":
         cam_rel = data.get("camera")
         if not isinstance(cam_rel, str):

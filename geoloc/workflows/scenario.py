@@ -44,7 +44,7 @@ def scenario_kind(data: dict, source: str = "scenario") -> str:
     """The ``kind`` of a parsed scenario file: the key itself, else recognised from its tables."""
     kind = data.get("kind")
     if kind is not None:
-        if kind not in KINDS:
+        if not isinstance(kind, str) or kind not in KINDS:  # kind = [] raised "unhashable type" (fuzzing)
             raise ValueError(f"{source}: kind = {kind!r} is not a scenario kind; known: {sorted(KINDS)}")
         return kind
     tables = {k for k, v in data.items() if isinstance(v, dict)}
