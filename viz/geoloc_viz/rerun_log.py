@@ -625,7 +625,7 @@ def write(steps: LogSteps, out, *, display_scale: float = 200.0, serve: bool = F
 
 def _write(steps, out, display_scale, serve, grpc_port, grpc_host, stream_port=None) -> rr.RecordingStream:
     rec = rr.RecordingStream("geoloc", recording_id=recording_id(steps))
-    if out is not None and not (serve or spawn):
+    if out is not None and not serve:  # (--spawn with a file opens the written file afterwards)
         # a file alone: the recording is built in memory and written by Python, so that a full disk
         # or a read-only folder is an OSError naming the file (issue 47: rerun's file-writer thread
         # printed its own error lines, then flush() raised "File-writer thread shut down prematurely"
