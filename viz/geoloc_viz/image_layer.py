@@ -55,6 +55,7 @@ import numpy as np
 from geoloc.status import Status
 from geoloc_viz import picture_model as pm
 from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
+from geoloc_viz.layer_safety import call_safely
 
 ROOT = "/enu/picture"
 #: Width of the panel's image [screen px] (the crop is scaled to it, nearest neighbour).
@@ -240,15 +241,7 @@ class ImageLayer:
         return ZOOMS[int(np.clip(int(self.sl_zoom.value), 0, len(ZOOMS) - 1))]
 
     def _safe(self, fn, *a):
-        if self.closed:
-            return None
-        try:
-            with self._lock:
-                return fn(*a)
-        except Exception:  # a layer's bug must not take the viewer down: report it
-            print("geoloc view: error in the picture layer:", file=sys.stderr)
-            traceback.print_exc(file=sys.stderr)
-            return None
+        return None if self.closed else call_safely(fn, *a, what="the picture layer", lock=self._lock)
 
     # ------------------------------------------------------------ the frame
     def update(self) -> None:

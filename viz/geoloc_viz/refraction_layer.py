@@ -21,10 +21,9 @@ draws. Method: ``docs/refraction.md``.
 
 from __future__ import annotations
 
-import sys
-import traceback
 
 import numpy as np
+from geoloc_viz.layer_safety import call_safely
 
 ROOT = "/enu/refraction"
 #: The bent ray's colour, one meaning one colour: not the line of sight's yellow, the exact hit's
@@ -72,11 +71,7 @@ class RefractionLayer:
         self._safe(self.update)
 
     def _safe(self, fn, *a):
-        try:
-            return fn(*a)
-        except Exception:  # a layer must not take the session down: say it, keep going
-            traceback.print_exc(file=sys.stderr)
-            return None
+        return call_safely(fn, *a)
 
     @property
     def scale(self) -> float:

@@ -21,16 +21,15 @@ from __future__ import annotations
 import hashlib
 import html
 import math
-import sys
 import tempfile
 import threading
-import traceback
 from pathlib import Path
 
 import numpy as np
 
 from geoloc.status import Status
 from geoloc_viz import share as sh
+from geoloc_viz.layer_safety import call_safely
 
 #: Where the CoT event goes by default: this machine (TAK's multicast must be asked for).
 DEFAULT_COT_URL = "udp://127.0.0.1:6969"
@@ -113,15 +112,7 @@ class ShareLayer:
         self._safe(self.update)
 
     def _safe(self, fn, *a):
-        if self.closed:
-            return None
-        try:
-            with self._lock:
-                return fn(*a)
-        except Exception:  # a layer's bug must not take the viewer down: report it
-            print("geoloc view: error in the send-the-point layer:", file=sys.stderr)
-            traceback.print_exc(file=sys.stderr)
-            return None
+        return None if self.closed else call_safely(fn, *a, what="the send-the-point layer", lock=self._lock)
 
     # ------------------------------------------------------------ the point
     def _label(self) -> str:

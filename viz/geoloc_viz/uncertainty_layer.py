@@ -25,8 +25,6 @@ the method: ``docs/uncertainty.md``.
 from __future__ import annotations
 
 import math
-import sys
-import traceback
 
 import numpy as np
 
@@ -34,6 +32,7 @@ from geoloc.analysis.uncertainty import ELLIPSE90_PER_SIGMA, normalised_errors, 
 from geoloc.geodesy.local import ellipse_ring_enu, enu_to_geodetic
 from geoloc.sensors.budget import LENS_KEYS, ErrorBudget
 from geoloc.status import Status
+from geoloc_viz.layer_safety import call_safely
 
 ROOT = "/enu/uncertainty"
 #: The predicted 90 % ellipse's colour, one meaning one colour (issue 46): not the flight layer's
@@ -138,11 +137,7 @@ class UncertaintyLayer:
         self._safe(self.update)
 
     def _safe(self, fn, *a):
-        try:
-            return fn(*a)
-        except Exception:  # a layer must not take the session down: say it, keep going
-            traceback.print_exc(file=sys.stderr)
-            return None
+        return call_safely(fn, *a)
 
     @property
     def scale(self) -> float:
