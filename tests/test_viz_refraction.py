@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import re
 import subprocess
 import sys
@@ -119,6 +120,11 @@ def test_view_refraction_option_reaches_the_scene():
         assert abs(shift - bent_cli["refraction_m"]) < 1e-3
         assert "corrections: refraction; refraction moved the point" in app.md_summary.content
         bent, los = check_scene(server, app, bent_cli, straight_cli)
+        # the predicted ellipse sits on the corrected point (the CLI's, 1 mm), not the straight one
+        unc = next(lay for lay in app.layers if type(lay).__name__ == "UncertaintyLayer")
+        unc.update()
+        p_unc = ecef(math.degrees(float(unc.pu.lat)), math.degrees(float(unc.pu.lon)), float(unc.pu.h))
+        assert np.linalg.norm(p_unc - ecef(bent_cli["lat_deg"], bent_cli["lon_deg"], bent_cli["h_m"])) < 1e-3
         # the two ends are refraction_m apart (the CLI's two points, by PROJ)
         d_cli = np.linalg.norm(ecef(bent_cli["lat_deg"], bent_cli["lon_deg"], bent_cli["h_m"])
                                - ecef(straight_cli["lat_deg"], straight_cli["lon_deg"], straight_cli["h_m"]))

@@ -30,6 +30,7 @@ import numpy as np
 
 from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.status import Status
+from geoloc.pipeline import NO_CORRECTIONS
 
 #: The datum of every height of a shared point.
 H_DATUM = "ellipsoidal, WGS 84"
@@ -149,7 +150,8 @@ def predicted_90(scn, p: SharedPoint, surface, velocity=None, budget=None) -> tu
     if budget is None:
         budget, _, _ = scenario_budget(scn, p.sensor, velocity is not None)
     pu = propagate(p.sensor, p.inputs.pose(), p.row, p.col, budget, surface=surface, outside="extrapolate",
-                   velocity_ned_m_s=velocity if budget.sigma("time_s") > 0 else None)
+                   velocity_ned_m_s=velocity if budget.sigma("time_s") > 0 else None,
+                   corrections=getattr(scn, "corrections", NO_CORRECTIONS))
     if int(pu.status) != Status.OK:
         return float("nan"), float("nan")
     return float(pu.ce90_m), float(pu.le90_m)

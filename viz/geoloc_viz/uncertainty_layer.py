@@ -167,7 +167,8 @@ class UncertaintyLayer:
         inp = s.inputs
         pu = propagate(s.scn.camera, inp.pose(), inp.row, inp.col, budget,
                        surface=terrain_link.scene_surface(s.scn, inp, trace=False), outside="extrapolate",
-                       velocity_ned_m_s=vel if budget.sigma("time_s") > 0 else None)
+                       velocity_ned_m_s=vel if budget.sigma("time_s") > 0 else None,
+                       corrections=s.scn.corrections)  # the ellipse about the scene's (corrected) point
         self.pu = pu
         if pu.status != Status.OK:
             self._hide()
