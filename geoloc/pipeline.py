@@ -165,6 +165,25 @@ NO_CORRECTIONS = Corrections()
 TABLE_KEYS = _corr.TABLE_KEYS
 
 
+def refraction_model(name, ground: dict | None = None, source: str = "[corrections]"):
+    """The refraction of ``name`` (``"none"``, ``"standard"``, or a Refraction), its standard
+    atmosphere fitted to ``ground`` (``ground_h_m``, ``ground_p_pa``, ``ground_t_k``: a measured
+    ground pressure and temperature; ``StandardAtmosphere``) when given. Errors name ``source``."""
+    from geoloc.corrections.atmosphere import StandardAtmosphere
+    from geoloc.corrections.refraction import Refraction
+
+    ground = {k: float(v) for k, v in (ground or {}).items() if v is not None}
+    if not ground or not isinstance(name, str):
+        return name
+    if name != "standard":
+        raise ValueError(f"{source}: {', '.join(sorted(ground))} given, but refraction = {name!r}: the ground "
+                         "measurement fits the standard atmosphere (refraction = \"standard\")")
+    try:
+        return Refraction(StandardAtmosphere(**ground))
+    except ValueError as e:
+        raise ValueError(f"{source}: {e}") from None
+
+
 def corrections_from_table(sensor, table, source: str = "[corrections]", **override) -> Corrections:
     """A file's ``[corrections]`` table (``refraction = "none" | "standard"``, ``light_time`` and
     ``aberration`` true or false), with the command line's ``override`` (None: not given) on top,
@@ -173,8 +192,9 @@ def corrections_from_table(sensor, table, source: str = "[corrections]", **overr
     for key, value in override.items():
         if value is not None:
             table[key] = value
-    return Corrections.for_sensor(sensor, table.get("refraction", "none"), table.get("light_time"),
-                                  table.get("aberration"))
+    refraction = refraction_model(table.get("refraction", "none"), {k: table.get(k) for k in _corr.GROUND_KEYS},
+                                  source)
+    return Corrections.for_sensor(sensor, refraction, table.get("light_time"), table.get("aberration"))
 
 
 def _constant_height(surface) -> bool:
@@ -417,4 +437,4 @@ def at_height(sensor, row, col, h, state=None, *, height_kind: str = "geodetic",
 
 
 __all__ = ["COMPILED_MIN_RAYS", "CORRECTIONS", "Corrections", "NO_CORRECTIONS", "Pipeline", "REFRACTION_MODELS",
-           "TABLE_KEYS", "at_height", "corrections_from_table"]
+           "TABLE_KEYS", "at_height", "corrections_from_table", "refraction_model"]

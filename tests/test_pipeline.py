@@ -413,3 +413,33 @@ def test_triangulation_meets_the_bent_rays():
     assert np.linalg.norm(np.asarray(straight.ecef) - T) > 1.0
     print(f"triangulated {np.linalg.norm(np.asarray(bent.ecef) - T) * 1e3:.2f} mm from the target with refraction, "
           f"{np.linalg.norm(np.asarray(straight.ecef) - T):.2f} m without")
+
+
+def test_refraction_through_a_measured_ground(capsys):
+    """``--ground-p-pa`` / ``--ground-t-k`` fit the standard atmosphere to a measured ground (a warm,
+    low-pressure day: thinner air, a smaller shift). With a measured pressure alone the point
+    equals the independent ray trace through that atmosphere (1 cm, as for the standard one);
+    a measured temperature also steps the density at the tropopause (the model keeps the
+    standard temperatures above 11 km), which the trace's finite-difference gradient cannot
+    follow, so there the shift is held to the P / T scaling only. Without --refraction standard
+    the ground options are one clear error."""
+    from geoloc.corrections.atmosphere import StandardAtmosphere
+
+    pp = ["--gimbal-pitch-deg", "60", "--row", "1162.12", "--col", "1146.42"]
+    std = _locate_json(capsys, *pp, "--refraction", "standard")
+    low = _locate_json(capsys, *pp, "--refraction", "standard", "--ground-p-pa", "95000")
+    warm = _locate_json(capsys, *pp, "--refraction", "standard", "--ground-p-pa", "95000", "--ground-t-k", "308.15")
+    straight = _locate_json(capsys, *pp)
+    assert low["corrections"] == warm["corrections"] == "refraction"
+    # n - 1 at the ground scales with P / T: 0.937 (pressure) and 0.937 x 0.935 = 0.876 (both) of the
+    # standard's; the shift, which the upper air shares, less so
+    assert 0.90 * std["refraction_m"] < low["refraction_m"] < 0.99 * std["refraction_m"]
+    assert 0.85 * std["refraction_m"] < warm["refraction_m"] < low["refraction_m"]
+    atm = StandardAtmosphere(ground_p_pa=95000.0)
+    o = geodetic_to_ecef(math.radians(LAT), math.radians(LON), H)
+    p0 = geodetic_to_ecef(math.radians(straight["lat_deg"]), math.radians(straight["lon_deg"]), 0.0)
+    ref = trace(o, p0 - o, 0.0, lambda h: 1.0 + atm.refractivity(h))
+    p1 = geodetic_to_ecef(math.radians(low["lat_deg"]), math.radians(low["lon_deg"]), 0.0)
+    assert np.linalg.norm(ref - p1) < 0.01
+    assert main(["locate", *POSE_ARGS, *pp, "--target-h-m", "0", "--ground-p-pa", "95000"]) == 2
+    assert "ground_p_pa given, but refraction = 'none'" in capsys.readouterr().err

@@ -441,6 +441,13 @@ def add_correction_options(parser) -> None:
                    help="turn light-time off for a spaceborne sensor")
     g.add_argument("--no-aberration", dest="aberration", action="store_false", default=None,
                    help="turn aberration of light off for a spaceborne sensor (on by default there)")
+    g.add_argument("--ground-p-pa", dest="ground_p_pa", type=float, default=None, metavar="PA",
+                   help="with --refraction standard: the ground pressure measured [Pa] (the standard atmosphere "
+                   "fitted to it)")
+    g.add_argument("--ground-t-k", dest="ground_t_k", type=float, default=None, metavar="K",
+                   help="with --refraction standard: the ground temperature measured [K]")
+    g.add_argument("--ground-h-m", dest="ground_h_m", type=float, default=None, metavar="M",
+                   help="the height of that measurement [m] (default 0)")
 
 
 def corrections_from_args(args, sensor, settings: dict | None = None, base=None):
@@ -453,6 +460,13 @@ def corrections_from_args(args, sensor, settings: dict | None = None, base=None)
 
     flags = {k: getattr(args, k, None) for k in TABLE_KEYS}
     if base is not None:
+        from geoloc.corrections import GROUND_KEYS
+        from geoloc.pipeline import refraction_model
+
+        ground = {k: flags.pop(k) for k in GROUND_KEYS}
+        if flags["refraction"] is not None or any(v is not None for v in ground.values()):
+            name = flags["refraction"] or ("standard" if base.refraction is not None else "none")
+            flags["refraction"] = refraction_model(name, ground, "the command line")
         return base.overridden(sensor, **flags)
     if settings is None and getattr(args, "camera", None):  # the --sensor file's [corrections]
         from geoloc.sensors.sensor_file import load_sensor_corrections

@@ -9,8 +9,11 @@ layer call.
 
 from __future__ import annotations
 
+#: The ground measurement a standard atmosphere can be fitted to (``StandardAtmosphere``'s own
+#: parameters: the height of the measurement [m], pressure [Pa], temperature [K]).
+GROUND_KEYS = ("ground_h_m", "ground_p_pa", "ground_t_k")
 #: The keys of a ``[corrections]`` table.
-TABLE_KEYS = ("refraction", "light_time", "aberration")
+TABLE_KEYS = ("refraction", "light_time", "aberration") + GROUND_KEYS
 #: The refraction models a table or ``--refraction`` names: off, or the U.S. Standard Atmosphere 1976.
 REFRACTION_MODELS = ("none", "standard")
 
@@ -28,4 +31,8 @@ def check_table(table, source: str = "[corrections]") -> dict:
     for key in ("light_time", "aberration"):
         if key in table and not isinstance(table[key], bool):
             raise ValueError(f"{source}: {key} = {table[key]!r} must be true or false")
+    for key in GROUND_KEYS:
+        v = table.get(key)
+        if key in table and (isinstance(v, bool) or not isinstance(v, (int, float)) or v != v or abs(v) == float("inf")):
+            raise ValueError(f"{source}: {key} = {v!r} must be a finite number")
     return dict(table)
