@@ -38,14 +38,14 @@ def t3_1() -> dict:
         return next(csv.DictReader(fh))
 
 
-def cli_locate(refraction: str) -> dict:
+def cli_locate(refraction: str, method=("--method", "bisect", "--threshold", "1")) -> dict:
     """``geoloc locate`` of T3-1's pixel on the bundled DEM, bisection at 1 m (the scene's method)."""
     r = t3_1()
     pose = [f"--{k.replace('_', '-')}" if i == 0 else r[k] for k in
             ("heading_deg", "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg") for i in (0, 1)]
     argv = [sys.executable, "-m", "geoloc", "locate", "--lat-deg", r["ac_lat_deg"], "--lon-deg", r["ac_lon_deg"],
             "--h-m", r["ac_h_m"], *pose, "--row", r["row"], "--col", r["col"], "--dem", str(DEM),
-            "--method", "bisect", "--threshold", "1", "--refraction", refraction, "--json"]
+            *method, "--refraction", refraction, "--json"]
     out = subprocess.run(argv, capture_output=True, text=True, check=True, timeout=300)
     return json.loads(out.stdout)
 
@@ -218,3 +218,35 @@ def test_limb_scene_marks_the_refracted_tangent_point():
         assert refr[2] < tan[2]  # lower than the straight line's tangent point (scene Up, km)
         app.dd_refraction.value = "none"
         wait_for(lambda: app.lref is None, 30, "refraction off")
+
+
+def test_switching_refraction_relocates_the_whole_flight():
+    """The Refraction folder's switch reaches the flight debugger: every frame is located again
+    through the new pipeline. The current frame's point is `geoloc locate --method exact`'s (the
+    flight model's solver), with and without refraction (1 mm), and switching back gives the first
+    point again."""
+    from geoloc.cli import build_parser
+    from geoloc_viz.cli.view import app_factory
+
+    want = {r: cli_locate(r, ("--method", "exact")) for r in ("none", "standard")}
+    args = build_parser().parse_args(["view", "--scenario", "flight-test"])
+    with served() as server:
+        app = app_factory(args)(server)
+        fl = next(lay for lay in app.layers if type(lay).__name__ == "FlightLayer")
+        k = app.scn.record_index
+
+        def frame_point():
+            m = fl.model
+            return ecef(float(m.recomputed_lat_deg[k]), float(m.recomputed_lon_deg[k]), float(m.recomputed_h_m[k]))
+
+        def cli(r):
+            return ecef(want[r]["lat_deg"], want[r]["lon_deg"], want[r]["h_m"])
+
+        p0 = frame_point()
+        assert np.linalg.norm(p0 - cli("none")) < 1e-3
+        _layer(app).set_refraction("standard")
+        p1 = frame_point()
+        assert np.linalg.norm(p1 - cli("standard")) < 1e-3
+        assert np.linalg.norm(p1 - p0) > 1.0  # T3-1: 1.4 m
+        _layer(app).set_refraction("none")
+        assert np.linalg.norm(frame_point() - p0) < 1e-6

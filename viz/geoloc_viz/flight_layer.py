@@ -78,7 +78,9 @@ _CACHE: dict = {}  # id(records) -> (records, model): one model per scenario, sh
 
 def model_for(scn, **kw) -> flight_model.FlightModel:
     """The flight model of ``scn`` (built once per records list; tabs share their scenario's records)."""
-    key = (id(scn.records), id(getattr(scn, "dem", None)))
+    c = getattr(scn, "corrections", None)
+    # the scene's corrections are part of the model (each frame located through the pipeline with them)
+    key = (id(scn.records), id(getattr(scn, "dem", None)), None if c is None else (c.names, id(c.refraction)))
     hit = _CACHE.get(key)
     if hit is not None and hit[0] is scn.records:
         return hit[1]
@@ -425,6 +427,11 @@ class FlightLayer:
         self.bt_whole.on_click(lambda _e: self.show_whole_flight())
         self.bt_worst.on_click(lambda _e: self.top_idx and self.go(self.top_idx[0], camera=True))
         self.dd_goto.on_update(lambda _e: self._on_goto())
+
+    def rebuild(self) -> None:
+        """The model of the session's scenario as it is now (its corrections switched in the GUI):
+        every frame located again, drawn again (:meth:`set_model`)."""
+        self.set_model(model_for(self.session.scn))
 
     def set_model(self, model: flight_model.FlightModel, current: int | None = None) -> None:
         """Show another model of the session's flight (a live flight that grew, its oldest frames

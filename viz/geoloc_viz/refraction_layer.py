@@ -89,6 +89,10 @@ class RefractionLayer:
         if self.dd.value != model:
             self.dd.value = model
         s.refresh()  # every located point again, through the new pipeline (then update, via on_refresh)
+        for lay in getattr(s, "layers", ()):  # the whole flight too (the flight debugger's every frame)
+            rebuild = getattr(lay, "rebuild", None)
+            if rebuild is not None and not getattr(lay, "closed", False):
+                rebuild()
 
     def _hide(self) -> None:
         for h in (self.handle, self.label):
