@@ -34,7 +34,7 @@ import numpy as np
 
 from geoloc.io.mgrs_grid import mgrs_text
 from geoloc.locate import point_view
-from geoloc.pipeline import Pipeline
+from geoloc.pipeline import NO_CORRECTIONS, Pipeline
 from geoloc.status import Status, describe
 from geoloc.surfaces.base import LineOfSight, terrain_of
 
@@ -288,7 +288,7 @@ def terrain_horizon(scn, inputs, sensor, n_cols: int = 32, refine: int = 13):
     dem = scn.dem if getattr(scn, "use_dem", True) else None
     surface = surface_for(inputs.target_h, dem, method="exact")
 
-    pipe = Pipeline(sensor, surface)
+    pipe = Pipeline(sensor, surface, getattr(scn, "corrections", NO_CORRECTIONS))  # the scene's corrections
 
     def meets(r, c):
         return np.asarray(pipe.locate(r, c, pose, outside="extrapolate").status) == Status.OK
