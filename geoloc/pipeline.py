@@ -144,6 +144,23 @@ class Corrections:
                                       self.light_time if light_time is None else light_time,
                                       self.aberration if aberration is None else aberration)
 
+    def to_table(self) -> dict:
+        """The ``[corrections]`` table that :func:`corrections_from_table` reads back to these
+        corrections (a refraction through a ``StandardAtmosphere``: its ground measurement too)."""
+        from geoloc.corrections.atmosphere import StandardAtmosphere
+
+        table = {"refraction": "none" if self.refraction is None else "standard",
+                 "light_time": bool(self.light_time), "aberration": bool(self.aberration)}
+        atm = getattr(self.refraction, "atmosphere", None)
+        if self.refraction is not None and not isinstance(atm, StandardAtmosphere):
+            raise ValueError(f"refraction through {type(atm).__name__}: no [corrections] table names it")
+        if isinstance(atm, StandardAtmosphere):
+            for key in _corr.GROUND_KEYS:
+                v = getattr(atm, key)
+                if v is not None and not (key == "ground_h_m" and v == 0.0):
+                    table[key] = float(v)
+        return table
+
     @property
     def names(self) -> tuple:
         """The corrections on, in the pipeline's order (a subset of :data:`CORRECTIONS`)."""

@@ -443,3 +443,28 @@ def test_refraction_through_a_measured_ground(capsys):
     assert np.linalg.norm(ref - p1) < 0.01
     assert main(["locate", *POSE_ARGS, *pp, "--target-h-m", "0", "--ground-p-pa", "95000"]) == 2
     assert "ground_p_pa given, but refraction = 'none'" in capsys.readouterr().err
+
+
+def test_a_fitted_sensor_file_keeps_the_corrections_it_was_fitted_with(tmp_path, capsys):
+    """calibrate --refraction standard --write-sensor: the fitted file says refraction = "standard"
+    (the parameters absorbed the rest of the error with the bend taken out), so every verb that reads
+    it locates with it; Corrections.to_table reads back to the same corrections, a measured ground
+    included."""
+    from geoloc.corrections.atmosphere import StandardAtmosphere
+    from geoloc.corrections.refraction import Refraction
+    from geoloc.pipeline import corrections_from_table
+    from geoloc.sensors.sensor_file import load_sensor_corrections
+
+    out = tmp_path / "fitted.toml"
+    assert main(["calibrate", "--height-column", "paper_height_m", "--fit", "mount_x,mount_y", "--joint",
+                 "--refraction", "standard", "--write-sensor", str(out)]) == 0
+    capsys.readouterr()
+    assert load_sensor_corrections(out) == {"refraction": "standard", "light_time": False, "aberration": False}
+    assert main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0", "--json",
+                 "--sensor", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["corrections"] == "refraction"
+    cam = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
+    c = Corrections(refraction=Refraction(StandardAtmosphere(ground_h_m=250.0, ground_p_pa=95000.0)))
+    assert c.to_table() == {"refraction": "standard", "light_time": False, "aberration": False,
+                            "ground_h_m": 250.0, "ground_p_pa": 95000.0}
+    assert corrections_from_table(cam, c.to_table()) == c

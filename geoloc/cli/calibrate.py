@@ -215,7 +215,11 @@ def run(args) -> int:
         write_text(args.out, json.dumps(report, indent=2, allow_nan=False) + "\n", "--out")
         print(f"wrote {args.out}")
     if args.write_sensor:
-        _write_fitted("sensor", args.write_sensor, sensors, args.joint, sensor_to_toml)
+        # the fitted sensor carries the corrections it was fitted with (else, located without
+        # them, its parameters would be biased by the very shift they absorbed)
+        table = corrections.to_table()
+        _write_fitted("sensor", args.write_sensor, sensors, args.joint,
+                      lambda s, path: sensor_to_toml(s, path, corrections=table))
     if args.write_camera:
         # the fitted sensor carries the input camera file's pixel pitch, if it gave one
         _write_fitted("camera", args.write_camera, sensors, args.joint,

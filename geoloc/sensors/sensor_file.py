@@ -212,9 +212,11 @@ def _toml_value(v) -> str:
     return repr(v)
 
 
-def sensor_to_toml(sensor: FrameSensor, path, budget: ErrorBudget | None = None) -> None:
+def sensor_to_toml(sensor: FrameSensor, path, budget: ErrorBudget | None = None,
+                   corrections: dict | None = None) -> None:
     """Write a sensor file that :func:`load_sensor` reads back to the same sensor (and
-    :func:`load_sensor_budget` to ``budget``, when given)."""
+    :func:`load_sensor_budget` to ``budget``, :func:`load_sensor_corrections` to the
+    ``[corrections]`` table ``corrections``, when given)."""
     lines = []
     if sensor.name:
         lines.append(f"name = {_toml_value(sensor.name)}")
@@ -231,6 +233,8 @@ def sensor_to_toml(sensor: FrameSensor, path, budget: ErrorBudget | None = None)
     }
     if budget is not None:
         tables[UNCERTAINTY_TABLE] = budget_to_dict(budget)
+    if corrections is not None:
+        tables[CORRECTIONS_TABLE] = check_table(corrections, f"{path} [{CORRECTIONS_TABLE}]")
     for t, d in tables.items():
         lines.append(f"[{t}]")
         lines.extend(f"{k} = {_toml_value(v)}" for k, v in d.items())
