@@ -42,7 +42,8 @@ from geoloc.corrections.lighttime import (
     aberration,
     apparent_direction,
     inertial_velocity,
-    light_time_angle,
+    light_time_line,
+    light_time_point,
     light_time_source,
 )
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
@@ -66,11 +67,6 @@ REFRACTION_TOL_M = 1e-3
 REFRACTION_MAX_ITER = 6
 #: Batches of at least this many rays take the compiled executors (``engine="auto"``).
 COMPILED_MIN_RAYS = 10_000
-
-
-def _rot_z(angle, x):
-    c, s = np.cos(angle), np.sin(angle)
-    return np.stack([c * x[..., 0] - s * x[..., 1], s * x[..., 0] + c * x[..., 1], x[..., 2]], axis=-1)
 
 
 @dataclass(frozen=True)
@@ -255,9 +251,9 @@ class Pipeline:
         if engine not in ("auto", "numpy", "numba"):
             raise ValueError(f"engine must be 'auto', 'numpy' or 'numba', got {engine!r}")
         check_outside(outside)
-        fused = self._fused(row, col, state, engine)
+        fused = self._fused(row, col, state, engine, outside)
         if fused is not None:
-            lat, lon, h, ecef, rng, status, o, d = fused(outside)
+            lat, lon, h, ecef, rng, status, o, d = fused
             los_status = np.where(np.isin(status, (Status.INVALID_INPUT, Status.OUTSIDE_SENSOR)), status,
                                   Status.OK).astype(np.uint8)
             los = LineOfSight(o, d, los_status)
@@ -268,8 +264,8 @@ class Pipeline:
         los = self.sensor.line_of_sight(row, col, state, outside=outside, **kw)
         return self.intersect(los)
 
-    def _fused(self, row, col, state, engine):
-        """The fused chain-and-ellipsoid kernel, when it serves this pipeline and batch, else None."""
+    def _fused(self, row, col, state, engine, outside):
+        """The fused chain-and-ellipsoid kernel's results, when it serves this pipeline and batch, else None."""
         from geoloc.sensors import _fastlocate
         from geoloc.surfaces.height import HeightSurface
 
@@ -280,7 +276,7 @@ class Pipeline:
             return None
         if engine == "auto" and state.batch_size(row, col, surf.h) < COMPILED_MIN_RAYS:
             return None
-        return lambda outside: _fastlocate.locate_fast(state, self.sensor, row, col, surf.h, outside=outside)
+        return _fastlocate.locate_fast(state, self.sensor, row, col, surf.h, outside=outside)
 
     def intersect(self, los: LineOfSight) -> GroundPoint:
         """The sensor's lines of sight -> ground points, through every correction of the pipeline.
@@ -300,13 +296,13 @@ class Pipeline:
             line = LineOfSight(los.origin_ecef, d, los.status, los.velocity_ecef)
         raw = self.surface.intersect(line)
         if c.light_time:
-            angle = light_time_angle(line.origin_ecef, raw.ecef)
-            angle = np.where(np.isfinite(angle), angle, 0.0)
-            line = LineOfSight(_rot_z(angle, np.asarray(line.origin_ecef, float)),
-                               _rot_z(angle, np.asarray(line.direction_ecef, float)), line.status, los.velocity_ecef)
+            o = np.asarray(line.origin_ecef, float)
+            # a ray with no raw hit is not turned (its range taken as 0): it keeps its own status
+            hit = np.where(np.isfinite(raw.ecef), raw.ecef, o)
+            line = LineOfSight(*light_time_line(o, line.direction_ecef, hit), line.status, los.velocity_ecef)
             if _constant_height(self.surface):  # a surface of revolution: the hit turns with the line
-                ecef = _rot_z(angle, np.asarray(raw.ecef, float))
-                raw = dataclasses.replace(raw, ecef=ecef, lon=np.angle(np.exp(1j * (raw.lon + angle))))
+                ecef = light_time_point(o, raw.ecef)
+                raw = dataclasses.replace(raw, ecef=ecef, lon=np.arctan2(ecef[..., 1], ecef[..., 0]))
             else:
                 raw = self.surface.intersect(line)
         return self._refract(los, line, raw)
@@ -382,8 +378,7 @@ class Pipeline:
             d = aberration(d, inertial_velocity(o, los.velocity_ecef))
         d = d / np.linalg.norm(d, axis=-1, keepdims=True)
         if c.light_time:
-            angle = light_time_angle(o, p)
-            o, d = _rot_z(angle, o), _rot_z(angle, d)
+            o, d = light_time_line(o, d, p)
         if c.refraction is None:
             return LineOfSight(o, d, los.status, los.velocity_ecef)
         t = np.einsum("...i,...i->...", p - o, d)
