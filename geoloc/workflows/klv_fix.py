@@ -47,6 +47,7 @@ from geoloc.io.klv import (TAG_BY_NAME, UAS_LS_KEY, KlvError, add_items, encode_
 from geoloc.status import Status, describe
 from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, read_klv, replay_klv
 from geoloc.extras import require
+from geoloc.pipeline import NO_CORRECTIONS, Corrections
 
 #: The items rewritten: tag -> field name.
 CENTRE_TAGS = {23: "frame_center_latitude_deg", 24: "frame_center_longitude_deg",
@@ -267,7 +268,7 @@ def _remux(src: Path, tmp: str, rw: _Rewriter, fix: KlvFix, verify: bool) -> Non
 
 
 def fix_klv(source, out, *, surface=None, sensor=None, budget=None, verify_checksum: bool = True,
-            corrections=None) -> KlvFix:
+            corrections: Corrections = NO_CORRECTIONS) -> KlvFix:
     """Write a copy of a KLV stream whose frame-centre and corner items are geoloc's.
 
     Parameters
@@ -308,8 +309,7 @@ def fix_klv(source, out, *, surface=None, sensor=None, budget=None, verify_check
         raise ValueError(f"--out {dst.name}: write the same kind of file as the input {src.name} "
                          "(raw KLV to raw KLV, a container to a container)")
     read = read_klv(src, verify_checksum=verify_checksum)
-    r = replay_klv(read, surface=surface, sensor=sensor, budget=budget,
-                   **({} if corrections is None else {"corrections": corrections}))
+    r = replay_klv(read, surface=surface, sensor=sensor, budget=budget, corrections=corrections)
     fix = KlvFix(str(src), str(dst), packets=len(r), correction_m=np.asarray(r.columns["frame_center_error_m"]),
                  bad=[e for e in read.errors if not e.reason.endswith("are not a UAS LS packet")],
                  budget_source=(str(budget.source or "the sensor file") if budget is not None else ""))

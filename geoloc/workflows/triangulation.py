@@ -20,6 +20,7 @@ import numpy as np
 from geoloc.analysis.triangulate import Triangulation, compare_with_surface, triangulate
 from geoloc.io.records import Records
 from geoloc.status import Status
+from geoloc.pipeline import NO_CORRECTIONS, Corrections
 
 #: The column naming a target seen in several rows.
 TARGET_ID_COLUMN = "target_id"
@@ -37,7 +38,7 @@ class TargetResult:
 
 
 def triangulate_records(records: Records, sensor, budget=None, surface_h_m=None, surface_ok=None,
-                        column: str = TARGET_ID_COLUMN, corrections=None) -> list:
+                        column: str = TARGET_ID_COLUMN, corrections: Corrections = NO_CORRECTIONS) -> list:
     """Triangulate every target named in two rows or more of ``column``.
 
     Parameters
@@ -50,7 +51,7 @@ def triangulate_records(records: Records, sensor, budget=None, surface_h_m=None,
     surface_h_m, surface_ok : array_like (n,), optional
         Each record's located height on the replay's surface and whether it was located (the
         replay's ``h_m`` and status): the DEM / datum check.
-    corrections : Corrections, optional
+    corrections : Corrections
         The replay's line-of-sight corrections: the rays are met as they arrive near the target
         (:func:`geoloc.analysis.triangulate.triangulate`).
     """
@@ -70,8 +71,7 @@ def triangulate_records(records: Records, sensor, budget=None, surface_h_m=None,
         if idx.size < 2:
             continue
         p = pose.take(idx)
-        tri = triangulate(sensor, p, row[idx], col[idx], budget,
-                          **({} if corrections is None else {"corrections": corrections}))
+        tri = triangulate(sensor, p, row[idx], col[idx], budget, corrections=corrections)
         res = TargetResult(tid, idx, [int(records.lines[k]) for k in idx], tri)
         if surface_h_m is not None and tri.status == Status.OK:
             ok = None if surface_ok is None else np.asarray(surface_ok)[idx]

@@ -48,6 +48,7 @@ import numpy as np
 from geoloc.analysis import accuracy
 from geoloc.frames.chain import Pose
 from geoloc.frames.enu import EnuFrame
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.status import Status
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.terrain import surface_for
@@ -399,7 +400,7 @@ def _surface(scn, target_h, method):
     return surface_for(target_h, dem, method=method, else_height=True)
 
 
-def _hit(surface, los, corrections=None):
+def _hit(surface, los, corrections: Corrections = NO_CORRECTIONS):
     """The batch's hits: (lat, lon, h, ECEF, status). Walked under an uncompiled budget
     (``terrain_numba.uncompiled_budget``): the example flight's 5364 footprint rays walk in
     0.5-0.9 s uncompiled, where a cold cache would compile the walk for them (5-15 s of CPU before
@@ -407,10 +408,8 @@ def _hit(surface, los, corrections=None):
     compiled kernel."""
     from geoloc.surfaces.terrain_numba import uncompiled_budget
 
-    from geoloc.pipeline import Pipeline
-
     with uncompiled_budget():
-        g = Pipeline(None, surface, *(() if corrections is None else (corrections,))).intersect(los)
+        g = Pipeline(None, surface, corrections).intersect(los)
     return g.lat, g.lon, g.h, g.ecef, np.asarray(g.status)
 
 
@@ -538,7 +537,7 @@ def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: 
     rows = np.concatenate([rr, np.full((1, n), r0), row[None]], axis=0)
     cols = np.concatenate([cc, np.full((1, n), c0), col[None]], axis=0)
     los = sensor.line_of_sight(rows, cols, pose, outside="extrapolate")
-    lat, lon, h, ecef, st = _hit(surface, los, getattr(scn, "corrections", None))
+    lat, lon, h, ecef, st = _hit(surface, los, getattr(scn, "corrections", NO_CORRECTIONS))
     P = rr.shape[0]
     pts_enu = enu.from_ecef(ecef)  # (P + 2, n, 3)
     track = enu.from_ecef(los.origin_ecef[0])
@@ -684,7 +683,7 @@ def diagnose(model: FlightModel, scn, *, pose=None, row=None, col=None, target_h
     th = target_h[idx]
     surface = _surface(scn, th, method)
     los = sensor.line_of_sight(row[idx], col[idx], pb, outside="extrapolate")
-    *_, ecef, _ = _hit(surface, los, getattr(scn, "corrections", None))  # a failed variant is NaN: left out of its fit
+    *_, ecef, _ = _hit(surface, los, getattr(scn, "corrections", NO_CORRECTIONS))  # a failed variant is NaN: left out of its fit
     pts = model.enu.from_ecef(ecef)  # (1 + kinds, m, 3)
     J = {k: (pts[1 + j] - pts[0]) / steps[k] for j, k in enumerate(kinds)}
     # the first frame has no earlier one (and the last no later one): its one-sided step is zero

@@ -43,7 +43,7 @@ from geoloc.frames.graph import BoundFrames
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import load_records
 from geoloc.locate import as_sensor, line_of_sight  # as_sensor: the steps_from_* entrances
-from geoloc.pipeline import Pipeline
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.sensors.frame import FrameSensor
 from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
 from geoloc.surfaces.spec import SurfaceSpec
@@ -238,7 +238,7 @@ def load_camera(path=None):
     return load_sensor(path if path else Path(ASSETS).joinpath(*DEFAULT_CAMERA))
 
 
-def _terrain(los: LineOfSight, dem, method: str, eps_h_m=None, threshold_m=None, corrections=None):
+def _terrain(los: LineOfSight, dem, method: str, eps_h_m=None, threshold_m=None, corrections: Corrections = NO_CORRECTIONS):
     """Intersect with a DEM through :mod:`geoloc.surfaces.terrain`; returns (GroundPoint, TerrainSteps)."""
     return dem_steps(los, dem, method, eps_h_m, threshold_m, corrections)
 
@@ -247,7 +247,7 @@ def add_corrections(steps: LogSteps, corrections) -> LogSteps:
     """Say the pipeline's line-of-sight corrections in the recording: a note naming them and, with
     refraction, ``series/refraction_m`` (how far refraction moved each step's located point,
     ``GroundPoint.refraction_m``) [m]."""
-    if corrections is None or not corrections:
+    if not corrections:
         return steps
     names = [f"{n} (U.S. Standard Atmosphere 1976)" if n == "refraction" else n for n in corrections.names]
     steps.notes.append("line-of-sight corrections (docs/refraction.md): " + ", ".join(names))
@@ -261,11 +261,6 @@ def add_corrections(steps: LogSteps, corrections) -> LogSteps:
     return steps
 
 
-def _c(corrections) -> tuple:
-    """``Pipeline(sensor, surface, *_c(corrections))``: the corrections when given."""
-    return () if corrections is None else (corrections,)
-
-
 def _first_finite(lat, lon, h):
     ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h)
     if not np.any(ok):
@@ -274,7 +269,7 @@ def _first_finite(lat, lon, h):
     return lat[k], lon[k], h[k]
 
 
-def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None, corrections=None) -> LogSteps:
+def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None, corrections: Corrections = NO_CORRECTIONS) -> LogSteps:
     """Simulate a scenario (:func:`geoloc.workflows.flight.simulate`) and geolocate every step.
 
     The located target is the scenario's method: the ellipsoid inflated to
@@ -298,7 +293,7 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None, co
              f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
              f"period {scn.scan_period_s:g} s"]
     if scn.method == "ellipsoid":
-        ground = Pipeline(None, HeightSurface(scn.target_h_m), *_c(corrections)).intersect(los)
+        ground = Pipeline(None, HeightSurface(scn.target_h_m), corrections).intersect(los)
         notes.append(f"located on the ellipsoid inflated to {scn.target_h_m:g} m [Q17 eq. 11]")
     else:
         ground, terrain = _terrain(los, dem, scn.method, scn.eps_h_m, scn.threshold_m, corrections)
@@ -314,7 +309,7 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None, co
                                                   exact.lat_deg, exact.lon_deg)}
         notes.append("truth: exact first hit on the DEM")
         if scn.method != "ellipsoid" and scn.target_h_m is not None:
-            ell = Pipeline(None, HeightSurface(scn.target_h_m), *_c(corrections)).intersect(los)
+            ell = Pipeline(None, HeightSurface(scn.target_h_m), corrections).intersect(los)
             extra["series/ellipsoid_model/to_truth_m"] = horizontal_distance_m(
                 ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg)
             notes.append(f"ellipsoid model at {scn.target_h_m:g} m compared with the truth too")
@@ -342,7 +337,7 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
                        target_h_m: float | None = None, height_kind: str = "inflated", dem_path=None,
                        dem_datum: str = "egm96", method: str = "exact", eps_h_m=None,
                        threshold_m=None, group_column: str | None = "table",
-                       calibrate: bool = True, fit_names=None, corrections=None) -> tuple[LogSteps, list]:
+                       calibrate: bool = True, fit_names=None, corrections: Corrections = NO_CORRECTIONS) -> tuple[LogSteps, list]:
     """Geolocate every record of a flight-test CSV: one time step per record.
 
     Height source, first given wins: ``dem_path`` (method of :mod:`geoloc.surfaces.terrain`),
@@ -388,7 +383,7 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
                 raise ValueError(f"height column {col_name!r} is empty or not finite on line(s) "
                                  f"{[int(x) for x in recs.lines[bad]]}")
             notes.append(f"located at each record's {col_name}")
-        ground = Pipeline(None, HeightSurface(h, height_kind), *_c(corrections)).intersect(los)
+        ground = Pipeline(None, HeightSurface(h, height_kind), corrections).intersect(los)
     res = result_from_ground(recs, ground)
     truth = published = None
     if recs.has("truth_lat_deg") and recs.has("truth_lon_deg"):
@@ -531,7 +526,7 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
 def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96", method: str = "exact",
                    eps_h_m=None, threshold_m=None, label: str | None = None, video=None, enu=None,
                    t0_s: float | None = None, outlier=None, dem=None, first_packet: int = 0,
-                   corrections=None) -> tuple[LogSteps, list]:
+                   corrections: Corrections = NO_CORRECTIONS) -> tuple[LogSteps, list]:
     """A MISB ST 0601 file replayed (:func:`geoloc.workflows.klv_replay.replay_klv`): one step per packet.
 
     ``method``, ``eps_h_m`` and ``threshold_m`` are the DEM solver and its tolerances, as
@@ -570,8 +565,7 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
         dem = terrain_of(surface)  # the raster drawn as the mesh (one raster: the CLI refuses a mosaic)
     else:
         surface = None
-    r = replay_klv(path, surface=surface, sensor=camera, label=label,
-                   **({} if corrections is None else {"corrections": corrections}))
+    r = replay_klv(path, surface=surface, sensor=camera, label=label, corrections=corrections)
     c = r.columns
     if len(r) == 0:
         raise ValueError(f"{label or path}: no good packet ({len(r.errors)} bad)")
@@ -585,7 +579,7 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     status = np.asarray(c["status"], np.uint8)
     shift = np.asarray(c["refraction_m"], float) if "refraction_m" in c else None
     ground = GroundPoint(lat, lon, h, geodetic_to_ecef(lat, lon, h), np.asarray(c["range_m"], float), status, los,
-                         corrections=() if corrections is None else corrections.names, refraction_m=shift)
+                         corrections=corrections.names, refraction_m=shift)
     published = {"lat_deg": np.asarray(c["reported_lat_deg"], float), "lon_deg": np.asarray(c["reported_lon_deg"], float),
                  "h_m": np.asarray(c["reported_h_m"], float), "error_m": np.asarray(c["frame_center_error_m"], float)}
     t = np.asarray(c["time_s"], float)

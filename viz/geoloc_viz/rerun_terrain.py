@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from geoloc.pipeline import NO_CORRECTIONS, Corrections
 from geoloc.surfaces.base import GroundPoint, LineOfSight
 
 #: Margin around the aircraft and targets kept of the DEM mesh [deg].
@@ -59,7 +60,7 @@ class TerrainSteps:
 
 
 def dem_steps(los: LineOfSight, dem, method: str = "exact", eps_h_m=None,
-              threshold_m=None, corrections=None) -> tuple[GroundPoint, TerrainSteps]:
+              threshold_m=None, corrections: Corrections = NO_CORRECTIONS) -> tuple[GroundPoint, TerrainSteps]:
     """Intersect every line of sight with a DEM; the hits as a GroundPoint and the per-ray trace.
 
     Parameters
@@ -72,7 +73,7 @@ def dem_steps(los: LineOfSight, dem, method: str = "exact", eps_h_m=None,
     method : {"steps", "bisect", "exact"}
     eps_h_m, threshold_m : float, optional
         Step / threshold of the iterative methods [m] (terrain's defaults if None).
-    corrections : geoloc.pipeline.Corrections, optional
+    corrections : geoloc.pipeline.Corrections
         The pipeline's line-of-sight corrections (none by default); the hits keep
         ``corrections`` and ``refraction_m``.
     """
@@ -84,9 +85,7 @@ def dem_steps(los: LineOfSight, dem, method: str = "exact", eps_h_m=None,
         kw["eps_h"] = float(eps_h_m)
     if threshold_m is not None:
         kw["threshold"] = float(threshold_m)
-    from geoloc.pipeline import NO_CORRECTIONS
-
-    hit = Pipeline(None, DemSurface(dem, method, trace=True, **kw), corrections or NO_CORRECTIONS).intersect(los)
+    hit = Pipeline(None, DemSurface(dem, method, trace=True, **kw), corrections).intersect(los)
     ground = GroundPoint(hit.lat, hit.lon, hit.h, hit.ecef, hit.slant_range, hit.status, los,
                          corrections=hit.corrections, refraction_m=hit.refraction_m)
     n = len(hit.status)

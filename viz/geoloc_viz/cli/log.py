@@ -197,13 +197,10 @@ def _log_live(args, camera, dem) -> int:
 
 def _corrections(args, camera):
     """The recording's line-of-sight corrections (``--refraction``, ``--light-time``, ``--no-aberration``
-    over the ``--sensor`` file's ``[corrections]`` table), or None when none is asked for anywhere
-    (then each input keeps its own default)."""
+    over the ``--sensor`` file's ``[corrections]`` table, over the sensor's defaults; none for
+    the frame cameras this verb logs, unless asked)."""
     from geoloc.cli._options import corrections_from_args
 
-    asked = any(getattr(args, k, None) is not None for k in ("refraction", "light_time", "aberration"))
-    if not asked and not getattr(args, "camera", None):
-        return None
     return corrections_from_args(args, camera)
 
 
