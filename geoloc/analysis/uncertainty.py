@@ -582,18 +582,19 @@ def _with_refraction(out: PointUncertainty, s, pose, row, col, surface, budget, 
     """The budget's ``refraction`` source (a fraction of the standard atmosphere's shift, 1 sigma)
     added to the points' covariance: the shift's vector (ENU at each point) times that fraction,
     one more column of the Jacobian. The shift is the pipeline's own (the point located with and
-    without refraction, every other correction as given), so it holds on a DEM too."""
+    without refraction, every other correction as given), so it holds on a DEM too: ``out``'s
+    point is one of the two, the other is located here."""
     sig = budget.sigma("refraction")
     if not sig > 0:
         return out
     from geoloc.corrections.refraction import STANDARD_REFRACTION
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
-    model = corrections.refraction if corrections.refraction is not None else STANDARD_REFRACTION
-    bent = Pipeline(s, surface, dataclasses.replace(corrections, refraction=model)).locate(
-        row, col, pose, outside=outside)
-    straight = Pipeline(s, surface, dataclasses.replace(corrections, refraction=None)).locate(
-        row, col, pose, outside=outside)
-    v = np.asarray(bent.ecef, float) - np.asarray(straight.ecef, float)
+    on = corrections.refraction is not None
+    other = Pipeline(s, surface, dataclasses.replace(corrections, refraction=None if on else STANDARD_REFRACTION)
+                     ).locate(row, col, pose, outside=outside)
+    here = geodetic_to_ecef(out.lat, out.lon, out.h)
+    v = (here - np.asarray(other.ecef, float)) * (1.0 if on else -1.0)  # bent minus straight
     shape = np.shape(out.status)
     v = np.broadcast_to(v, shape + (3,))
     j = sig * np.einsum("...ji,...j->...i", R_ecef_enu(out.lat, out.lon), v)
