@@ -40,13 +40,6 @@ LAT, LON = np.deg2rad(35.0), np.deg2rad(80.0)
 ARCMIN = np.pi / (180 * 60)
 
 
-def at_height(h):
-    def intersect(o, d):
-        e = ray_geodetic_height(o, d, h)
-        return e.ecef, e.status
-    return intersect
-
-
 def locate(model, o, d, surface):
     """The location pipeline with refraction ``model`` only: (bent hit, straight hit, status).
 
