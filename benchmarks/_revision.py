@@ -84,7 +84,7 @@ def package_at(rev_or_dir: str) -> tuple[str, str]:
     ``CACHE``). Objects of the copy are its own classes: build each side's inputs with its own."""
     d = Path(rev_or_dir)
     if d.is_dir() and (d / "geoloc" / "__init__.py").is_file():
-        h = hashlib.sha256()
+        h = hashlib.sha256(str(ROOT).encode() + b"\0")  # the copy's assets link points into this checkout
         for f in sorted((d / "geoloc").rglob("*.py")):
             h.update(str(f.relative_to(d)).encode() + b"\0" + f.read_bytes())
         tag, label = "d" + h.hexdigest()[:12], f"folder {d}"
@@ -94,7 +94,8 @@ def package_at(rev_or_dir: str) -> tuple[str, str]:
     else:
         sha = subprocess.run(["git", "rev-parse", "--verify", f"{rev_or_dir}^{{commit}}"], cwd=ROOT, check=True,
                              capture_output=True, text=True).stdout.strip()
-        tag, label = "r" + sha[:12], sha[:12]
+        where = hashlib.sha256(str(ROOT).encode()).hexdigest()[:6]  # the copy's assets link points here
+        tag, label = f"r{sha[:12]}{where}", sha[:12]
 
         def fill(tmp):
             tar = subprocess.run(["git", "archive", "--format=tar", sha, "geoloc"], cwd=ROOT, check=True,
@@ -104,12 +105,26 @@ def package_at(rev_or_dir: str) -> tuple[str, str]:
     name = f"geoloc_{tag}"
     dest = CACHE / tag
     _install(dest, name, fill)
+    _link_assets(dest)
     os.utime(dest / ".complete")  # last used: _prune keeps the latest KEEP
     _prune()
     if str(dest) not in sys.path:
         sys.path.insert(0, str(dest))
     importlib.import_module(name)
     return name, label
+
+
+def _link_assets(dest: Path) -> None:
+    """Point the copy's ``assets`` at this checkout's, if it points anywhere else: the cache
+    outlives checkouts (a CI clone, a removed worktree), and a dangling link makes every kernel's
+    inputs unreadable. Replaced by rename, so a concurrent reader sees one link or the other."""
+    link = dest / "assets"
+    if link.is_symlink() and os.readlink(link) == str(ROOT / "assets"):
+        return
+    tmp = dest / f".assets.{os.getpid()}"
+    tmp.unlink(missing_ok=True)
+    tmp.symlink_to(ROOT / "assets")
+    os.replace(tmp, link)
 
 
 #: Copies kept in CACHE (the most recently used): a few revisions and folders, about 5 MB each

@@ -166,3 +166,19 @@ def test_plot_draws_the_history(tmp_path):
     assert out.stat().st_size > 1000
     svg = g._svg({"locate": [(0, 4e6, 1.0), (1, 8e6, 0.9)]}, ["d1", "d2"])
     assert svg.startswith("<svg") and svg.count("<polyline") == 1 and svg.rstrip().endswith("</svg>")
+
+
+def test_a_copy_whose_assets_link_dangles_is_pointed_back(tmp_path):
+    # the guard's cache outlives checkouts (CI's clone, a removed worktree): a copy made from a
+    # checkout since deleted had assets -> a missing folder, and every kernel of the old side was
+    # skipped for want of the geoid grid
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import _revision
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    (tmp_path / "assets").symlink_to(tmp_path / "gone" / "assets")
+    assert not (tmp_path / "assets").exists()
+    _revision._link_assets(tmp_path)
+    assert (tmp_path / "assets" / "geoid" / "egm96_flight_area.tif").is_file()
+    assert os.readlink(tmp_path / "assets") == str(ROOT / "assets")
