@@ -28,8 +28,9 @@ class build_py_with_assets(build_py):
         if getattr(self, "editable_mode", False):
             return
         if not SOURCE.is_dir():
-            raise FileNotFoundError(f"{SOURCE}: the bundled data folder is missing; "
-                                    "build from a whole checkout or sdist")
+            raise FileNotFoundError(
+                f"{SOURCE}: the bundled data folder is missing; build from a whole checkout or sdist"
+            )
         dst = Path(self.build_lib).joinpath(*TARGET)
         shutil.rmtree(dst, ignore_errors=True)  # no stale files from an earlier build
         shutil.copytree(SOURCE, dst, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))

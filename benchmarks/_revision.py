@@ -22,8 +22,9 @@ def module_at(rev: str, relpath: str):
     """``relpath`` (e.g. ``geoloc/sensors/_fastlocate.py``) as it is at git revision ``rev``, imported
     under a scratch name; numba compiles its kernels afresh in this process (their cache key reads
     the scratch file)."""
-    src = subprocess.run(["git", "show", f"{rev}:{relpath}"], cwd=ROOT, check=True,
-                         capture_output=True, text=True).stdout
+    src = subprocess.run(
+        ["git", "show", f"{rev}:{relpath}"], cwd=ROOT, check=True, capture_output=True, text=True
+    ).stdout
     path = Path(tempfile.mkdtemp(prefix="bench_ab_")) / f"{Path(relpath).stem}_{rev.replace('/', '_')}.py"
     path.write_text(src)
     spec = importlib.util.spec_from_file_location(path.stem, path)
@@ -36,8 +37,10 @@ def module_at(rev: str, relpath: str):
 #: Where whole copies of the package at other revisions are kept (``package_at``): one folder per
 #: commit (or per content of a folder), reused by the next run, so numba's cache of the copy's
 #: kernels (keyed on the copy's path, issue 32's cache_dir) stays warm after the first compile.
-CACHE = Path(os.environ.get("GEOLOC_GUARD_CACHE") or
-             Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "geoloc" / "guard")
+CACHE = Path(
+    os.environ.get("GEOLOC_GUARD_CACHE")
+    or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "geoloc" / "guard"
+)
 
 _FROM = re.compile(r"^(\s*)from geoloc(?=[.\s])", re.MULTILINE)
 _IMPORT = re.compile(r"^\s*import geoloc\b", re.MULTILINE)
@@ -92,16 +95,23 @@ def package_at(rev_or_dir: str) -> tuple[str, str]:
         def fill(tmp):
             shutil.copytree(d / "geoloc", tmp / "geoloc", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     else:
-        sha = subprocess.run(["git", "rev-parse", "--verify", f"{rev_or_dir}^{{commit}}"], cwd=ROOT, check=True,
-                             capture_output=True, text=True).stdout.strip()
+        sha = subprocess.run(
+            ["git", "rev-parse", "--verify", f"{rev_or_dir}^{{commit}}"],
+            cwd=ROOT,
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout.strip()
         where = hashlib.sha256(str(ROOT).encode()).hexdigest()[:6]  # the copy's assets link points here
         tag, label = f"r{sha[:12]}{where}", sha[:12]
 
         def fill(tmp):
-            tar = subprocess.run(["git", "archive", "--format=tar", sha, "geoloc"], cwd=ROOT, check=True,
-                                 capture_output=True).stdout
+            tar = subprocess.run(
+                ["git", "archive", "--format=tar", sha, "geoloc"], cwd=ROOT, check=True, capture_output=True
+            ).stdout
             with tarfile.open(fileobj=io.BytesIO(tar)) as t:
                 t.extractall(tmp, filter="data")
+
     name = f"geoloc_{tag}"
     dest = CACHE / tag
     _install(dest, name, fill)

@@ -57,7 +57,7 @@ def _browser_cpu_s() -> tuple[float, float]:
                         cmd = f.read()
                 except OSError:
                     continue
-                rest = st[st.rindex(")") + 2:].split()  # after "pid (comm) "
+                rest = st[st.rindex(")") + 2 :].split()  # after "pid (comm) "
                 procs[int(d)] = (int(rest[1]), (int(rest[11]) + int(rest[12])) / tick, cmd)
     except (OSError, ValueError, AttributeError):
         return float("nan"), float("nan")
@@ -78,7 +78,8 @@ def _browser_cpu_s() -> tuple[float, float]:
 #: About 10 ms a probe here; a Playwright screenshot of the canvas costs 0.8 s, so a wait by
 #: screenshots measured mostly itself (issue 34, stop 40).
 PROBE_MS = 50
-PROBE = """(() => {
+PROBE = (
+    """(() => {
   const frames = []; window.__geolocFrames = frames;
   const small = document.createElement('canvas'); small.width = 250; small.height = 160;
   let last = null;
@@ -100,7 +101,9 @@ PROBE = """(() => {
     setTimeout(probe, %d);
   }
   probe();
-})();""" % PROBE_MS
+})();"""
+    % PROBE_MS
+)
 
 
 def _frames(page) -> list:
@@ -171,12 +174,22 @@ def _census(browser, server, viewer, built, window_s=6.0) -> list:
         c1, dt = _browser_cpu_s(), time.time() - w
         s1 = page.evaluate("({...window.__geolocDraws})")
         fr = max(s1["frames"] - s0["frames"], 1)
-        rows.append((label, (s1["frames"] - s0["frames"]) / dt, (s1["draws"] - s0["draws"]) / fr,
-                     (s1["prims"] - s0["prims"]) / fr, (c1[1] - c0[1]) / fr))
+        rows.append(
+            (
+                label,
+                (s1["frames"] - s0["frames"]) / dt,
+                (s1["draws"] - s0["draws"]) / fr,
+                (s1["prims"] - s0["prims"]) / fr,
+                (c1[1] - c0[1]) / fr,
+            )
+        )
 
     window("nothing hidden")
-    for group, label in (("/flight", "/flight hidden"), ("/enu/terrain", "and /enu/terrain"),
-                         ("/enu", "and the rest of /enu")):
+    for group, label in (
+        ("/flight", "/flight hidden"),
+        ("/enu/terrain", "and /enu/terrain"),
+        ("/enu", "and the rest of /enu"),
+    ):
         for n in names:  # the group's node and its children (a hidden parent hides its subtree)
             if n == group or (n.startswith(group + "/") and n.count("/") == group.count("/") + 1):
                 api._handle_from_node_name[n].visible = False
@@ -189,8 +202,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="page loads (default 3)")
     ap.add_argument("--steps", type=int, default=5, help="timeline steps per load (default 5)")
-    ap.add_argument("--groups", action="store_true",
-                    help="also: a frame's draw calls and GPU time with each node group hidden in turn")
+    ap.add_argument(
+        "--groups",
+        action="store_true",
+        help="also: a frame's draw calls and GPU time with each node group hidden in turn",
+    )
     ap.add_argument("--window", type=float, default=6.0, help="with --groups: seconds per measure (default 6)")
     args = ap.parse_args(argv)
 
@@ -254,26 +270,38 @@ def main(argv=None) -> int:
     finally:
         server.stop()
     med = statistics.median
-    print(f"headless Chromium (software WebGL), 1000 x 640, example flight, {os.cpu_count()} cores, "
-          f"load {os.getloadavg()[0]:.1f}")
-    print(f"default view to a settled canvas: median {med(view_s):.2f} s wall over {len(view_s)} loads "
-          f"(target 5 s); peer: the server builds the tab's session in {med(b[0] for b in peer_build):.2f} s "
-          f"wall, {med(b[1] for b in peer_build):.2f} s CPU; ratio {med(view_s) / med(b[0] for b in peer_build):.1f}")
-    print(f"  browser CPU over it: {med(v[0] for v in view_cpu):.2f} s (GPU process "
-          f"{med(v[1] for v in view_cpu):.2f} s)")
-    print(f"timeline step to the canvas: median {med(step_s):.2f} s wall over {len(step_s)} steps (target 1 s), "
-          f"to a settled canvas {med(settle_s):.2f} s; "
-          f"peer: the server's step {med(p[0] for p in peer_step) * 1e3:.0f} ms wall, "
-          f"{med(p[1] for p in peer_step) * 1e3:.0f} ms CPU; ratio {med(step_s) / med(p[0] for p in peer_step):.0f}")
-    print(f"  browser CPU over it: {med(v[0] for v in step_cpu):.2f} s (GPU process "
-          f"{med(v[1] for v in step_cpu):.2f} s)")
-    print(f"instrument: the canvas probed in the page every {PROBE_MS} ms (about 10 ms a probe); one "
-          f"Playwright screenshot of the canvas takes {med(shots):.2f} s, the previous instrument")
+    print(
+        f"headless Chromium (software WebGL), 1000 x 640, example flight, {os.cpu_count()} cores, "
+        f"load {os.getloadavg()[0]:.1f}"
+    )
+    print(
+        f"default view to a settled canvas: median {med(view_s):.2f} s wall over {len(view_s)} loads "
+        f"(target 5 s); peer: the server builds the tab's session in {med(b[0] for b in peer_build):.2f} s "
+        f"wall, {med(b[1] for b in peer_build):.2f} s CPU; ratio {med(view_s) / med(b[0] for b in peer_build):.1f}"
+    )
+    print(
+        f"  browser CPU over it: {med(v[0] for v in view_cpu):.2f} s (GPU process {med(v[1] for v in view_cpu):.2f} s)"
+    )
+    print(
+        f"timeline step to the canvas: median {med(step_s):.2f} s wall over {len(step_s)} steps (target 1 s), "
+        f"to a settled canvas {med(settle_s):.2f} s; "
+        f"peer: the server's step {med(p[0] for p in peer_step) * 1e3:.0f} ms wall, "
+        f"{med(p[1] for p in peer_step) * 1e3:.0f} ms CPU; ratio {med(step_s) / med(p[0] for p in peer_step):.0f}"
+    )
+    print(
+        f"  browser CPU over it: {med(v[0] for v in step_cpu):.2f} s (GPU process {med(v[1] for v in step_cpu):.2f} s)"
+    )
+    print(
+        f"instrument: the canvas probed in the page every {PROBE_MS} ms (about 10 ms a probe); one "
+        f"Playwright screenshot of the canvas takes {med(shots):.2f} s, the previous instrument"
+    )
     if census:
         print("a still default view, frame by frame (viser draws on demand: its heartbeat is a frame a second):")
         for label, fps, draws, prims, gpu in census:
-            print(f"  {label:24s} {fps:5.2f} frames/s, {draws:4.0f} draw calls and {prims:8.0f} indices a frame, "
-                  f"GPU process {gpu:.3f} s CPU a frame")
+            print(
+                f"  {label:24s} {fps:5.2f} frames/s, {draws:4.0f} draw calls and {prims:8.0f} indices a frame, "
+                f"GPU process {gpu:.3f} s CPU a frame"
+            )
     return 0
 
 

@@ -75,15 +75,28 @@ from geoloc.workflows.campaign import (
     worker_numba_threads,
 )
 
-JITTER = {"ac_lat_deg": 1e-3, "ac_lon_deg": 1e-3, "ac_h_m": 20.0, "heading_deg": 0.2, "pitch_deg": 0.2,
-          "roll_deg": 0.2, "azimuth_deg": 0.2, "elevation_deg": 0.2, "row": 5.0, "col": 5.0}
+JITTER = {
+    "ac_lat_deg": 1e-3,
+    "ac_lon_deg": 1e-3,
+    "ac_h_m": 20.0,
+    "heading_deg": 0.2,
+    "pitch_deg": 0.2,
+    "roll_deg": 0.2,
+    "azimuth_deg": 0.2,
+    "elevation_deg": 0.2,
+    "row": 5.0,
+    "col": 5.0,
+}
 
 
 def make_dataset(folder: Path, n: int, partition: int, seed: int = 2026) -> int:
     """Write n synthetic records as Parquet partitions of ``partition`` rows; returns the partition count."""
     base = pcsv.read_csv(asset_path("records", "eo_turret_flight.csv"))
-    num = {c: base.column(c).to_numpy() for c in base.column_names
-           if pa.types.is_floating(base.column(c).type) or pa.types.is_integer(base.column(c).type)}
+    num = {
+        c: base.column(c).to_numpy()
+        for c in base.column_names
+        if pa.types.is_floating(base.column(c).type) or pa.types.is_integer(base.column(c).type)
+    }
     rng = np.random.default_rng(seed)
     k = 0
     for start in range(0, n, partition):
@@ -162,8 +175,17 @@ def cluster_run(tmp: Path, cfg, workers: int, r: int, tag: str):
         addrs = list(client.scheduler_info()["workers"])
         assert len(addrs) == workers, addrs
         for wk, addr in enumerate(addrs):
-            client.submit(run_unit, 100 + wk, str(warm[wk % len(warm)]), "records", cfg, str(warm_out), nt,
-                          workers=[addr], pure=False).result()
+            client.submit(
+                run_unit,
+                100 + wk,
+                str(warm[wk % len(warm)]),
+                "records",
+                cfg,
+                str(warm_out),
+                nt,
+                workers=[addr],
+                pure=False,
+            ).result()
         return run(tmp / "records.parquet", tmp, cfg, cl.scheduler_address, f"{tag}-{r}", nt, client)
 
 
@@ -173,21 +195,30 @@ def main():
     ap.add_argument("--partition", type=int, default=250_000)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=1)
-    ap.add_argument("--ab-malloc", action="store_true",
-                    help="also a cluster run with distributed's MALLOC_TRIM_THRESHOLD_ left in effect")
+    ap.add_argument(
+        "--ab-malloc",
+        action="store_true",
+        help="also a cluster run with distributed's MALLOC_TRIM_THRESHOLD_ left in effect",
+    )
     a = ap.parse_args()
-    cfg = CampaignConfig(sensor=str(asset_path("sensors", "eo_turret.toml")),
-                         surface=SurfaceSpec(dem=str(asset_path("dem", "srtm_jacksboro.tif"))),
-                         carry_columns=False)
+    cfg = CampaignConfig(
+        sensor=str(asset_path("sensors", "eo_turret.toml")),
+        surface=SurfaceSpec(dem=str(asset_path("dem", "srtm_jacksboro.tif"))),
+        carry_columns=False,
+    )
     import numba
 
     cores = numba.config.NUMBA_NUM_THREADS
-    print(f"load average {os.getloadavg()[0]:.2f} at the start; {os.cpu_count()} CPUs; numba threads "
-          f"{cores}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}")
+    print(
+        f"load average {os.getloadavg()[0]:.2f} at the start; {os.cpu_count()} CPUs; numba threads "
+        f"{cores}, OMP_NUM_THREADS={os.environ['OMP_NUM_THREADS']}"
+    )
     # (tag, scheduler, numba threads of each unit, malloc); the first is the peer of the ratio
-    sides = [("one process, 1 thread", "none", 1, None),
-             (f"one process, numba x{cores}", "none", cores, None),
-             (f"cluster {a.workers} proc x 1 thr", "local", None, None)]
+    sides = [
+        ("one process, 1 thread", "none", 1, None),
+        (f"one process, numba x{cores}", "none", cores, None),
+        (f"cluster {a.workers} proc x 1 thr", "local", None, None),
+    ]
     if a.ab_malloc:
         sides.append(("  same, dask malloc", "local", None, "keep"))
     with tempfile.TemporaryDirectory(prefix="geoloc_bench_campaign_") as tmp:
@@ -195,8 +226,10 @@ def main():
         t = time.perf_counter()
         parts = make_dataset(tmp / "records.parquet", a.records, a.partition)
         make_dataset(tmp / "warm.parquet", 2000, 1000)
-        print(f"{a.records:,} records in {parts} Parquet partitions of {a.partition:,} written in "
-              f"{time.perf_counter() - t:.1f} s")
+        print(
+            f"{a.records:,} records in {parts} Parquet partitions of {a.partition:,} written in "
+            f"{time.perf_counter() - t:.1f} s"
+        )
         for nt in (1, cores):  # this process's warm-up (untimed), each thread count
             run(tmp / "warm.parquet", tmp, cfg, "none", f"warm{nt}", nt)
         runs = {tag: [] for tag, *_ in sides}
@@ -221,15 +254,18 @@ def main():
             others = statistics.median(x[4] for x in rs)
             rows, nts = rs[0][3], sorted({t for x in rs for t in x[5]})
             figures[tag] = (rows / wall, cpu / rows)
-            print(f"{tag:<24} numba {'/'.join(map(str, nts))}  wall {wall:7.2f} s  CPU {cpu:7.2f} s (CPU/wall "
-                  f"{cpu / wall:4.2f}; units {unit:6.2f} s; system {sys_:5.2f} s)  {rows / wall:9,.0f} records/s  "
-                  f"{cpu / rows * 1e6:5.2f} us CPU/record  {flt / rows:5.2f} page faults/record  "
-                  f"other processes {others:4.2f} cores")
+            print(
+                f"{tag:<24} numba {'/'.join(map(str, nts))}  wall {wall:7.2f} s  CPU {cpu:7.2f} s (CPU/wall "
+                f"{cpu / wall:4.2f}; units {unit:6.2f} s; system {sys_:5.2f} s)  {rows / wall:9,.0f} records/s  "
+                f"{cpu / rows * 1e6:5.2f} us CPU/record  {flt / rows:5.2f} page faults/record  "
+                f"other processes {others:4.2f} cores"
+            )
         (one, cpu1), (two, _), (many, cpun) = list(figures.values())[:3]
-        print(f"CPU per record, cluster / one process (1 thread): {cpun / cpu1:.2f}; cluster over one process "
-              f"with numba x{cores}: {many / two:.2f}; load average {os.getloadavg()[0]:.2f} at the end")
-        print(f"ratio: {many / one:.2f} (speed-up: cluster records/s over one process, 1 thread, records/s, "
-              "same run)")
+        print(
+            f"CPU per record, cluster / one process (1 thread): {cpun / cpu1:.2f}; cluster over one process "
+            f"with numba x{cores}: {many / two:.2f}; load average {os.getloadavg()[0]:.2f} at the end"
+        )
+        print(f"ratio: {many / one:.2f} (speed-up: cluster records/s over one process, 1 thread, records/s, same run)")
 
 
 if __name__ == "__main__":

@@ -53,11 +53,33 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 A = ROOT / "assets"
 CALLS = {
-    "locate": ["locate", "--sensor", str(A / "sensors/eo_turret.toml"), "--lat-deg", "36.6", "--lon-deg",
-               "-84.25", "--h-m", "2500", "--heading-deg", "45", "--angle", "azimuth=90", "--angle",
-               "elevation=-30", "--dem", str(A / "dem/srtm_jacksboro.tif")],
-    "replay": ["replay", str(A / "records/drone_targets.csv"), "--sensor", str(A / "sensors/drone_camera.toml"),
-               "--dem", str(A / "dem/srtm_jacksboro.tif")],
+    "locate": [
+        "locate",
+        "--sensor",
+        str(A / "sensors/eo_turret.toml"),
+        "--lat-deg",
+        "36.6",
+        "--lon-deg",
+        "-84.25",
+        "--h-m",
+        "2500",
+        "--heading-deg",
+        "45",
+        "--angle",
+        "azimuth=90",
+        "--angle",
+        "elevation=-30",
+        "--dem",
+        str(A / "dem/srtm_jacksboro.tif"),
+    ],
+    "replay": [
+        "replay",
+        str(A / "records/drone_targets.csv"),
+        "--sensor",
+        str(A / "sensors/drone_camera.toml"),
+        "--dem",
+        str(A / "dem/srtm_jacksboro.tif"),
+    ],
     "view": ["view", "--no-browser", "--port", "0"],
     # the scene a browser's first page asks for, built and written without a server: view counts
     # until it serves, and it serves before it walks more than one ray (the scene's 792 + 5364 +
@@ -114,8 +136,10 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     verbs = [v for v in a.only.split(",") if v]
     print(f"first call on a cold numba cache vs warm (peer); {os.cpu_count()} cores; median of {a.repeat}")
-    print(f"{'call':8s} {'cold wall s':>11s} {'cold CPU s':>10s} {'cold RSS MB':>11s} {'warm wall s':>11s} "
-          f"{'warm CPU s':>10s} {'warm RSS MB':>11s} {'cold/warm wall':>14s}")
+    print(
+        f"{'call':8s} {'cold wall s':>11s} {'cold CPU s':>10s} {'cold RSS MB':>11s} {'warm wall s':>11s} "
+        f"{'warm CPU s':>10s} {'warm RSS MB':>11s} {'cold/warm wall':>14s}"
+    )
     for verb in verbs:
         cold, warm = [], []
         for _ in range(a.repeat):
@@ -125,10 +149,15 @@ def main(argv=None) -> int:
                 warm.append(run_once(verb, cache))
             finally:
                 shutil.rmtree(cache, ignore_errors=True)
-        m = {k: (statistics.median(x[k] for x in cold), statistics.median(x[k] for x in warm))
-             for k in ("wall", "cpu", "rss_mb")}
-        print(f"{verb:8s} {m['wall'][0]:11.1f} {m['cpu'][0]:10.1f} {m['rss_mb'][0]:11.0f} {m['wall'][1]:11.1f} "
-              f"{m['cpu'][1]:10.1f} {m['rss_mb'][1]:11.0f} {m['wall'][0] / m['wall'][1]:14.1f}", flush=True)
+        m = {
+            k: (statistics.median(x[k] for x in cold), statistics.median(x[k] for x in warm))
+            for k in ("wall", "cpu", "rss_mb")
+        }
+        print(
+            f"{verb:8s} {m['wall'][0]:11.1f} {m['cpu'][0]:10.1f} {m['rss_mb'][0]:11.0f} {m['wall'][1]:11.1f} "
+            f"{m['cpu'][1]:10.1f} {m['rss_mb'][1]:11.0f} {m['wall'][0] / m['wall'][1]:14.1f}",
+            flush=True,
+        )
     print("target (issue 32): cold within 10 s and 500 MB")
     return 0
 

@@ -45,8 +45,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import rss_mb, timed
 
 
-
-
 def write_video(path, n, size, fps, gop, preset="medium", crf=28, pattern=True):
     """An H.264 MPEG-TS of ``n`` frames ``size`` (w, h) at ``fps``: a gradient with a moving bar (and
     the frame number's bits as blocks, so every frame differs)."""
@@ -54,8 +52,9 @@ def write_video(path, n, size, fps, gop, preset="medium", crf=28, pattern=True):
 
     w, h = size
     yy, xx = np.mgrid[0:h, 0:w]
-    base = np.stack([(xx * 255 // max(w - 1, 1)), (yy * 255 // max(h - 1, 1)),
-                     np.full_like(xx, 96)], -1).astype(np.uint8)
+    base = np.stack([(xx * 255 // max(w - 1, 1)), (yy * 255 // max(h - 1, 1)), np.full_like(xx, 96)], -1).astype(
+        np.uint8
+    )
     with av.open(str(path), "w", format="mpegts") as out:
         vs = out.add_stream("libx264", rate=fps)
         vs.width, vs.height, vs.pix_fmt = w, h, "yuv420p"
@@ -65,12 +64,12 @@ def write_video(path, n, size, fps, gop, preset="medium", crf=28, pattern=True):
             img = base.copy()
             if pattern:
                 x = (i * 7) % w
-                img[:, x:x + max(w // 64, 2)] = 255
+                img[:, x : x + max(w // 64, 2)] = 255
             bits = [(i >> b) & 1 for b in range(17)]
             s = max(h // 24, 2)
             for b, on in enumerate(bits):
                 if on:
-                    img[:s, b * s:(b + 1) * s] = (255, 0, 0)
+                    img[:s, b * s : (b + 1) * s] = (255, 0, 0)
             fr = av.VideoFrame.from_ndarray(img, format="rgb24")
             fr.pts = i
             fr.time_base = Fraction(1, fps)
@@ -91,8 +90,10 @@ def bench_switch(tmp, repeat, size=(1280, 720)):
     path = Path(tmp) / "v720.ts"
     t = time.perf_counter()
     write_video(path, 300, size, 30, 30, preset="ultrafast")
-    print(f"switch: wrote a {size[0]} x {size[1]} H.264 video, 300 frames, gop 30 ({path.stat().st_size / 1e6:.1f} MB) "
-          f"in {time.perf_counter() - t:.1f} s")
+    print(
+        f"switch: wrote a {size[0]} x {size[1]} H.264 video, 300 frames, gop 30 ({path.stat().st_size / 1e6:.1f} MB) "
+        f"in {time.perf_counter() - t:.1f} s"
+    )
     scn = default_flight_scenario()
     scn.images = open_images(path)
     scn.image_index = np.arange(len(scn.records)) % len(scn.images)
@@ -135,14 +136,20 @@ def bench_switch(tmp, repeat, size=(1280, 720)):
 
     w_cv, c_cv, _ = timed(cv_seek, max(repeat, 15))
     cap.release()
-    print(f"switch, random record (a seek each), the picture layer's update: median wall {w_r * 1e3:.0f} ms, "
-          f"CPU {c_r * 1e3:.0f} ms (target <= 150 ms)")
+    print(
+        f"switch, random record (a seek each), the picture layer's update: median wall {w_r * 1e3:.0f} ms, "
+        f"CPU {c_r * 1e3:.0f} ms (target <= 150 ms)"
+    )
     print(f"switch, next record (playback): median wall {w_s * 1e3:.0f} ms, CPU {c_s * 1e3:.0f} ms")
-    print(f"  whole load_record (the session's redraw of the record + the layer): median wall "
-          f"{w_full * 1e3:.0f} ms, CPU {c_full * 1e3:.0f} ms")
-    print(f"  decode alone, random frame, no cache (VideoFrames.image): median wall {w_d * 1e3:.1f} ms, "
-          f"CPU {c_d * 1e3:.1f} ms; peer cv2.VideoCapture seek + read: wall {w_cv * 1e3:.1f} ms, "
-          f"CPU {c_cv * 1e3:.1f} ms; ratio peer / ours {w_cv / w_d:.2f}x (wall)")
+    print(
+        f"  whole load_record (the session's redraw of the record + the layer): median wall "
+        f"{w_full * 1e3:.0f} ms, CPU {c_full * 1e3:.0f} ms"
+    )
+    print(
+        f"  decode alone, random frame, no cache (VideoFrames.image): median wall {w_d * 1e3:.1f} ms, "
+        f"CPU {c_d * 1e3:.1f} ms; peer cv2.VideoCapture seek + read: wall {w_cv * 1e3:.1f} ms, "
+        f"CPU {c_cv * 1e3:.1f} ms; ratio peer / ours {w_cv / w_d:.2f}x (wall)"
+    )
 
 
 def bench_hour(tmp, hour_s):
@@ -157,8 +164,10 @@ def bench_hour(tmp, hour_s):
     t = time.perf_counter()
     write_video(long, n, size, fps, 250, preset="ultrafast", crf=35)
     write_video(short, 60 * fps, size, fps, 250, preset="ultrafast", crf=35)
-    print(f"hour: wrote {n} frames {size[0]} x {size[1]} at {fps} fps ({n / fps / 3600:.2f} h, "
-          f"{long.stat().st_size / 1e6:.1f} MB) and a one-minute cut in {time.perf_counter() - t:.0f} s")
+    print(
+        f"hour: wrote {n} frames {size[0]} x {size[1]} at {fps} fps ({n / fps / 3600:.2f} h, "
+        f"{long.stat().st_size / 1e6:.1f} MB) and a one-minute cut in {time.perf_counter() - t:.0f} s"
+    )
     with av.open(str(long)) as c:  # the peer for the index: PyAV's own demux of every packet
         t = time.perf_counter()
         n_pk = sum(1 for p in c.demux(c.streams.video[0]) if p.size)
@@ -166,7 +175,7 @@ def bench_hour(tmp, hour_s):
     r1 = rss_mb()
 
     def open_and_index(p):
-        s = open_images(p, cache_bytes=64 * 2 ** 20)
+        s = open_images(p, cache_bytes=64 * 2**20)
         len(s)  # builds the PTS index (packets demuxed, no pixel decoded)
         return s
 
@@ -182,14 +191,20 @@ def bench_hour(tmp, hour_s):
             peak = max(peak, rss_mb())
     t_dec = time.perf_counter() - t
     r3 = rss_mb()
-    print(f"hour: open + PTS index, one hour ({len(src)} frames): median wall {w_hr:.3f} s, CPU {c_hr:.3f} s; "
-          f"one minute: wall {w_min:.3f} s, CPU {c_min:.3f} s; peer PyAV demux of the hour's {n_pk} packets "
-          f"{t_demux:.3f} s")
-    print(f"hour: 400 frames spread over the hour decoded in {t_dec:.1f} s ({t_dec / 400 * 1e3:.0f} ms each, "
-          f"{src.frames_decoded} frames decoded), cache {src.cache_nbytes / 2 ** 20:.1f} MiB "
-          f"(bound {src.cache_bytes / 2 ** 20:.0f} MiB)")
-    print(f"hour: RSS at start {r0:.0f} MiB, after writing {r1:.0f} MiB, after opening {r2:.0f} MiB, "
-          f"peak while decoding {peak:.0f} MiB, at the end {r3:.0f} MiB")
+    print(
+        f"hour: open + PTS index, one hour ({len(src)} frames): median wall {w_hr:.3f} s, CPU {c_hr:.3f} s; "
+        f"one minute: wall {w_min:.3f} s, CPU {c_min:.3f} s; peer PyAV demux of the hour's {n_pk} packets "
+        f"{t_demux:.3f} s"
+    )
+    print(
+        f"hour: 400 frames spread over the hour decoded in {t_dec:.1f} s ({t_dec / 400 * 1e3:.0f} ms each, "
+        f"{src.frames_decoded} frames decoded), cache {src.cache_nbytes / 2**20:.1f} MiB "
+        f"(bound {src.cache_bytes / 2**20:.0f} MiB)"
+    )
+    print(
+        f"hour: RSS at start {r0:.0f} MiB, after writing {r1:.0f} MiB, after opening {r2:.0f} MiB, "
+        f"peak while decoding {peak:.0f} MiB, at the end {r3:.0f} MiB"
+    )
 
 
 def bench_ortho(tmp, repeat, size=(1280, 720)):
@@ -225,16 +240,27 @@ def bench_ortho(tmp, repeat, size=(1280, 720)):
     def gdal():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            reproject(img.astype(np.float32), dst, src_geoloc_array=geo, src_crs=CRS.from_epsg(4326),
-                      dst_transform=grid.transform, dst_crs=CRS.from_epsg(4326), resampling=Resampling.bilinear)
+            reproject(
+                img.astype(np.float32),
+                dst,
+                src_geoloc_array=geo,
+                src_crs=CRS.from_epsg(4326),
+                dst_transform=grid.transform,
+                dst_crs=CRS.from_epsg(4326),
+                resampling=Resampling.bilinear,
+            )
 
     w_g, c_g, _ = timed(gdal, max(1, repeat // 2))
     del rasterio
-    print(f"ortho: {size[0]} x {size[1]} frame at {gsd:g} m cells ({info['width']} x {info['height']}, "
-          f"{info['cells_seen']} seen, {info['cells_hidden']} hidden): median wall {w_o:.3f} s, CPU {c_o:.3f} s "
-          f"(target <= 1 s); + frame grid at step 8: wall {w_f:.3f} s, CPU {c_f:.3f} s")
-    print(f"ortho: peer GDAL warp with geolocation arrays (no occlusion test): median wall {w_g:.3f} s, "
-          f"CPU {c_g:.3f} s; ratio peer / ours {w_g / w_o:.2f}x (wall)")
+    print(
+        f"ortho: {size[0]} x {size[1]} frame at {gsd:g} m cells ({info['width']} x {info['height']}, "
+        f"{info['cells_seen']} seen, {info['cells_hidden']} hidden): median wall {w_o:.3f} s, CPU {c_o:.3f} s "
+        f"(target <= 1 s); + frame grid at step 8: wall {w_f:.3f} s, CPU {c_f:.3f} s"
+    )
+    print(
+        f"ortho: peer GDAL warp with geolocation arrays (no occlusion test): median wall {w_g:.3f} s, "
+        f"CPU {c_g:.3f} s; ratio peer / ours {w_g / w_o:.2f}x (wall)"
+    )
 
 
 def main(argv=None) -> int:

@@ -64,19 +64,24 @@ def main():
     t_enc = time.perf_counter() - t
     data = b"".join(blobs)
     n = len(blobs)
-    print(f"packets: {n}, {len(data) / n:.0f} bytes each, {len(data) / 1e6:.1f} MB "
-          f"(encoded in {t_enc:.2f} s, {n / t_enc:,.0f} packets/s)")
+    print(
+        f"packets: {n}, {len(data) / n:.0f} bytes each, {len(data) / 1e6:.1f} MB "
+        f"(encoded in {t_enc:.2f} s, {n / t_enc:,.0f} packets/s)"
+    )
 
     w, c, res = timed(lambda: list(iter_packets(data)), args.repeat)
     assert len(res) == n and all(isinstance(r, Packet) for r in res)
     ours = n / w
-    print(f"ours (iter_packets, dict per packet):   wall {w * 1e3:8.1f} ms  cpu {c * 1e3:8.1f} ms  "
-          f"{ours:12,.0f} packets/s")
+    print(
+        f"ours (iter_packets, dict per packet):   wall {w * 1e3:8.1f} ms  cpu {c * 1e3:8.1f} ms  "
+        f"{ours:12,.0f} packets/s"
+    )
     w, c, cols = timed(lambda: packets_to_columns(data), args.repeat)
     assert len(cols["offset"]) == n
     vec = n / w
-    print(f"ours (packets_to_columns, vectorised):  wall {w * 1e3:8.1f} ms  cpu {c * 1e3:8.1f} ms  "
-          f"{vec:12,.0f} packets/s")
+    print(
+        f"ours (packets_to_columns, vectorised):  wall {w * 1e3:8.1f} ms  cpu {c * 1e3:8.1f} ms  {vec:12,.0f} packets/s"
+    )
 
     import klvdata
 
@@ -91,8 +96,10 @@ def main():
     # Same values (first packet, a latitude): the two decoders agree.
     assert abs(float(kd[0][13][3]) - res[0]["sensor_latitude_deg"]) < 1e-9
     theirs = m / w
-    print(f"klvdata (StreamParser + MetadataList):  wall {w * 1e3:8.1f} ms  cpu {c * 1e3:8.1f} ms  "
-          f"{theirs:12,.0f} packets/s  ({m} packets)")
+    print(
+        f"klvdata (StreamParser + MetadataList):  wall {w * 1e3:8.1f} ms  cpu {c * 1e3:8.1f} ms  "
+        f"{theirs:12,.0f} packets/s  ({m} packets)"
+    )
     print(f"vectorised / klvdata: {vec / theirs:.1f}")
     print(f"ratio: {ours / theirs:.1f}")
 

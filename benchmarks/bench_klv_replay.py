@@ -62,13 +62,27 @@ def make_packets(n, seed=0):
     # aircraft pitches or banks: errors to find, as in real streams)
     fc_lat, fc_lon, rng_m = lookAtSpheroid(lat, lon, h, (heading + az) % 360, 90 + el)
     t0 = 1_700_000_000_000_000
-    cols = dict(platform_heading_deg=heading, platform_pitch_deg=pitch, platform_roll_deg=roll,
-                sensor_latitude_deg=lat, sensor_longitude_deg=lon, sensor_true_altitude_m=h + 30.6,
-                sensor_horizontal_fov_deg=hfov, sensor_vertical_fov_deg=vfov, sensor_relative_azimuth_deg=az,
-                sensor_relative_elevation_deg=el, sensor_relative_roll_deg=sroll, slant_range_m=rng_m,
-                frame_center_latitude_deg=fc_lat, frame_center_longitude_deg=fc_lon,
-                frame_center_elevation_m=np.full(n, 30.6), sensor_ellipsoid_height_m=h,
-                frame_center_hae_m=np.zeros(n), platform_pitch_full_deg=pitch, platform_roll_full_deg=roll)
+    cols = dict(
+        platform_heading_deg=heading,
+        platform_pitch_deg=pitch,
+        platform_roll_deg=roll,
+        sensor_latitude_deg=lat,
+        sensor_longitude_deg=lon,
+        sensor_true_altitude_m=h + 30.6,
+        sensor_horizontal_fov_deg=hfov,
+        sensor_vertical_fov_deg=vfov,
+        sensor_relative_azimuth_deg=az,
+        sensor_relative_elevation_deg=el,
+        sensor_relative_roll_deg=sroll,
+        slant_range_m=rng_m,
+        frame_center_latitude_deg=fc_lat,
+        frame_center_longitude_deg=fc_lon,
+        frame_center_elevation_m=np.full(n, 30.6),
+        sensor_ellipsoid_height_m=h,
+        frame_center_hae_m=np.zeros(n),
+        platform_pitch_full_deg=pitch,
+        platform_roll_full_deg=roll,
+    )
     for k in range(4):
         cols[f"corner_latitude_{k + 1}_deg"] = fc_lat + rng.normal(0, 0.003, n)
         cols[f"corner_longitude_{k + 1}_deg"] = fc_lon + rng.normal(0, 0.003, n)
@@ -103,8 +117,10 @@ def main():
     t_enc = time.perf_counter() - t
     data = b"".join(blobs)
     n = len(blobs)
-    print(f"packets: {n}, {len(data) / n:.0f} bytes each, {len(data) / 1e6:.1f} MB "
-          f"(encoded in {t_enc:.2f} s, {n / t_enc:,.0f} packets/s)")
+    print(
+        f"packets: {n}, {len(data) / n:.0f} bytes each, {len(data) / 1e6:.1f} MB "
+        f"(encoded in {t_enc:.2f} s, {n / t_enc:,.0f} packets/s)"
+    )
     replay_klv(b"".join(blobs[:2000]))  # compile / warm the kernels outside the timings
     replay_klv(b"".join(blobs[:2000]), surface=surface_for(dem=dem))
 
@@ -115,8 +131,10 @@ def main():
     assert len(r) == n
     ours = line("decode + replay (frame-centre height)", n, w, c)
     ok = np.mean(r.columns["status"] == 0)
-    print(f"    {ok:.1%} located; frame-centre error median {r.summary.median_m:.1f} m; "
-          f"{len(r.summary.outliers)} outliers")
+    print(
+        f"    {ok:.1%} located; frame-centre error median {r.summary.median_m:.1f} m; "
+        f"{len(r.summary.outliers)} outliers"
+    )
     w, c, rdem = timed(lambda: replay_klv(data, surface=surface_for(dem=dem)), args.repeat)
     line("decode + replay (DEM, exact)", n, w, c)
     okd = np.mean(rdem.columns["status"] == 0)
@@ -133,11 +151,19 @@ def main():
     from geoloc.locate import line_of_sight
 
     cc = r.columns
-    pose = Pose.from_deg(cc["sensor_lat_deg"], cc["sensor_lon_deg"], cc["sensor_h_m"], cc["platform_heading_deg"],
-                         cc["platform_pitch_deg"], cc["platform_roll_deg"],
-                         angles_deg={"azimuth": cc["sensor_relative_azimuth_deg"],
-                                     "elevation": cc["sensor_relative_elevation_deg"],
-                                     "sensor_roll": cc["sensor_relative_roll_deg"]})
+    pose = Pose.from_deg(
+        cc["sensor_lat_deg"],
+        cc["sensor_lon_deg"],
+        cc["sensor_h_m"],
+        cc["platform_heading_deg"],
+        cc["platform_pitch_deg"],
+        cc["platform_roll_deg"],
+        angles_deg={
+            "azimuth": cc["sensor_relative_azimuth_deg"],
+            "elevation": cc["sensor_relative_elevation_deg"],
+            "sensor_roll": cc["sensor_relative_roll_deg"],
+        },
+    )
     s = r.sensor
     rows = np.array([s.center_pixel[0], 0.5, 0.5, s.rows + 0.5, s.rows + 0.5])[:, None]
     colp = np.array([s.center_pixel[1], 0.5, s.cols + 0.5, s.cols + 0.5, 0.5])[:, None]

@@ -41,8 +41,6 @@ from _timing import rss_mb, timed  # benchmarks/_timing.py (the script's folder 
 RATE_HZ = 30.0
 
 
-
-
 def make_ts(path: Path, n: int) -> int:
     base = [p for p in read_klv_file(Path(ASSETS) / "klv" / "example_flight.klv") if isinstance(p, Packet)]
     t0 = base[0].fields["precision_time_stamp_us"]
@@ -98,8 +96,10 @@ def main():
         make_ts(path, n)
         data = path.read_bytes()
         grams = datagrams_of(data)
-        print(f"stream: {n} KLV packets at {RATE_HZ:g} Hz ({n / RATE_HZ / 3600:.2f} h), {len(data) / 1e6:.1f} MB, "
-              f"{len(grams)} datagrams (built in {time.perf_counter() - t:.1f} s)")
+        print(
+            f"stream: {n} KLV packets at {RATE_HZ:g} Hz ({n / RATE_HZ / 3600:.2f} h), {len(data) / 1e6:.1f} MB, "
+            f"{len(grams)} datagrams (built in {time.perf_counter() - t:.1f} s)"
+        )
 
         rss0 = rss_mb()
         marks = []
@@ -113,8 +113,10 @@ def main():
         w, c, (got, _) = timed(lambda: through_receiver(grams), args.repeat)
         assert got == n
         ours = n / w
-        print(f"ours (LiveReceiver.push per datagram):  wall {w:7.2f} s  cpu {c:7.2f} s  {ours:10,.0f} packets/s "
-              f"({ours / RATE_HZ:,.0f} x real time)")
+        print(
+            f"ours (LiveReceiver.push per datagram):  wall {w:7.2f} s  cpu {c:7.2f} s  {ours:10,.0f} packets/s "
+            f"({ours / RATE_HZ:,.0f} x real time)"
+        )
         w, c, res = timed(lambda: sum(1 for _ in read_ts_klv(path)), args.repeat)
         assert res == n
         peer = n / w
@@ -123,9 +125,11 @@ def main():
         if not args.no_loopback:
             speed = args.loopback_speed or None
             got, wall, rx, res = over_loopback(path, speed)
-            print(f"over loopback, sender at {f'{speed:g}x real time' if speed else 'full speed'}: {got} of {n} "
-                  f"packets in {wall:.1f} s "
-                  f"({got / max(wall, 1e-9):,.0f} packets/s); {rx.stats.line()}")
+            print(
+                f"over loopback, sender at {f'{speed:g}x real time' if speed else 'full speed'}: {got} of {n} "
+                f"packets in {wall:.1f} s "
+                f"({got / max(wall, 1e-9):,.0f} packets/s); {rx.stats.line()}"
+            )
 
 
 if __name__ == "__main__":

@@ -48,18 +48,39 @@ from geoloc.sensors.lenses import BrownLens
 from geoloc.surfaces.height import intersect_los_height
 
 #: The turret: a Brown-distorted lens on an azimuth-elevation gimbal with a mount, a boresight and a lever arm.
-TURRET = FrameSensor(BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080,
-                               k1=-0.21, k2=0.07, p1=4e-4, p2=-2e-4, k3=-0.01),
-                     PRESETS["azimuth-elevation"], mount=(2e-3, -1e-3, 4e-3), boresight=(1e-3, 2e-3, -3e-3),
-                     lever_arm_m=(1.5, 0.2, 0.7), name="turret")
+TURRET = FrameSensor(
+    BrownLens(
+        fx=2200.0,
+        fy=2195.0,
+        cx=959.5,
+        cy=539.5,
+        width=1920,
+        height=1080,
+        k1=-0.21,
+        k2=0.07,
+        p1=4e-4,
+        p2=-2e-4,
+        k3=-0.01,
+    ),
+    PRESETS["azimuth-elevation"],
+    mount=(2e-3, -1e-3, 4e-3),
+    boresight=(1e-3, 2e-3, -3e-3),
+    lever_arm_m=(1.5, 0.2, 0.7),
+    name="turret",
+)
 
 
 def make_rays(n: int, rng: np.random.Generator):
     cam = Camera(166841.0, 1162.12, 1146.42, 2323, 2292)
     pose = Pose.from_deg(
-        rng.uniform(30, 40, n), rng.uniform(75, 85, n), rng.uniform(5000, 20000, n),
-        rng.uniform(-180, 180, n), rng.uniform(-5, 5, n), rng.uniform(-5, 5, n),
-        rng.uniform(-60, 60, n), rng.uniform(-10, 10, n),
+        rng.uniform(30, 40, n),
+        rng.uniform(75, 85, n),
+        rng.uniform(5000, 20000, n),
+        rng.uniform(-180, 180, n),
+        rng.uniform(-5, 5, n),
+        rng.uniform(-5, 5, n),
+        rng.uniform(-60, 60, n),
+        rng.uniform(-10, 10, n),
     )
     rows = rng.uniform(1, cam.rows, n)
     cols = rng.uniform(1, cam.cols, n)
@@ -68,8 +89,12 @@ def make_rays(n: int, rng: np.random.Generator):
 
 def make_turret_rays(n: int, rng: np.random.Generator):
     pose = Pose.from_deg(
-        rng.uniform(30, 40, n), rng.uniform(75, 85, n), rng.uniform(500, 6000, n),
-        rng.uniform(-180, 180, n), rng.uniform(-5, 5, n), rng.uniform(-5, 5, n),
+        rng.uniform(30, 40, n),
+        rng.uniform(75, 85, n),
+        rng.uniform(500, 6000, n),
+        rng.uniform(-180, 180, n),
+        rng.uniform(-5, 5, n),
+        rng.uniform(-5, 5, n),
         angles_deg={"azimuth": rng.uniform(0, 360, n), "elevation": rng.uniform(-85, -25, n)},
     )
     return TURRET, pose, rng.uniform(1, TURRET.rows, n), rng.uniform(1, TURRET.cols, n)
@@ -96,12 +121,18 @@ def compare(name, n, repeat, sensor, pose, rows, cols):
     ok = np.isfinite(g.lat) & np.isfinite(plat)
     dlat_m = np.abs(g.lat_deg[ok] - plat[ok]) * 111_000.0
     drange = np.abs(g.slant_range[ok] - prange[ok])
-    print(f"[{name}] hits: geoloc {int(np.isfinite(g.lat).sum())}, pymap3d {int(np.isfinite(plat).sum())}, "
-          f"both {int(ok.sum())}; max |dlat| {dlat_m.max():.2e} m, max |d range| {drange.max():.2e} m")
-    print(f"[{name}] geoloc locate (full chain):  wall {t_ours:.3f} s  cpu {c_ours:.3f} s  "
-          f"{n / t_ours / 1e6:.2f} M rays/s")
-    print(f"[{name}] pymap3d lookAtSpheroid:      wall {t_peer:.3f} s  cpu {c_peer:.3f} s  "
-          f"{n / t_peer / 1e6:.2f} M rays/s")
+    print(
+        f"[{name}] hits: geoloc {int(np.isfinite(g.lat).sum())}, pymap3d {int(np.isfinite(plat).sum())}, "
+        f"both {int(ok.sum())}; max |dlat| {dlat_m.max():.2e} m, max |d range| {drange.max():.2e} m"
+    )
+    print(
+        f"[{name}] geoloc locate (full chain):  wall {t_ours:.3f} s  cpu {c_ours:.3f} s  "
+        f"{n / t_ours / 1e6:.2f} M rays/s"
+    )
+    print(
+        f"[{name}] pymap3d lookAtSpheroid:      wall {t_peer:.3f} s  cpu {c_peer:.3f} s  "
+        f"{n / t_peer / 1e6:.2f} M rays/s"
+    )
     return c_peer / c_ours, t_peer / t_ours
 
 
@@ -131,20 +162,27 @@ def ab(rev: str, n: int, repeat: int, rng) -> None:
         (wo, co), (wn, cn) = (np.median(np.array(out[k]), axis=0) for k in ("old", "new"))
         lo, ln = out["old_res"][0], out["new_res"][0]
         ok = np.isfinite(lo) & np.isfinite(ln)
-        print(f"[A/B {name}] kernel {rev}: wall {wo:.3f} s cpu {co:.3f} s | this tree: wall {wn:.3f} s "
-              f"cpu {cn:.3f} s | speed-up cpu {co / cn:.2f}x wall {wo / wn:.2f}x | "
-              f"max |d lat| {np.max(np.abs(lo[ok] - ln[ok])):.1e} rad")
+        print(
+            f"[A/B {name}] kernel {rev}: wall {wo:.3f} s cpu {co:.3f} s | this tree: wall {wn:.3f} s "
+            f"cpu {cn:.3f} s | speed-up cpu {co / cn:.2f}x wall {wo / wn:.2f}x | "
+            f"max |d lat| {np.max(np.abs(lo[ok] - ln[ok])):.1e} rad"
+        )
 
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rays", type=int, default=1_000_000)
     ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--ab", metavar="REV", default=None,
-                    help="only the A/B of the kernel: this tree's against git revision REV's")
-    ap.add_argument("--threads", type=int, default=None,
-                    help="numba threads for the kernel (default: numba's, one per core); 1 measures the "
-                    "kernel's own CPU cost without waits at the parallel loop's barrier")
+    ap.add_argument(
+        "--ab", metavar="REV", default=None, help="only the A/B of the kernel: this tree's against git revision REV's"
+    )
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="numba threads for the kernel (default: numba's, one per core); 1 measures the "
+        "kernel's own CPU cost without waits at the parallel loop's barrier",
+    )
     args = ap.parse_args(argv)
     if args.threads:
         import numba
@@ -160,11 +198,14 @@ def main(argv=None) -> None:
     # the numpy reference path (lens and frame graph in numpy), for scale
     t_los, _, los = timed(lambda: line_of_sight(pose, cam, rows, cols, engine="numpy"), args.repeat)
     t_hit, _, _ = timed(lambda: intersect_los_height(los, 0.0), args.repeat)
-    print(f"[q17 roll-pitch pinhole] numpy reference path: {t_los + t_hit:.3f} s  "
-          f"{args.rays / (t_los + t_hit) / 1e6:.2f} M rays/s  "
-          f"(line_of_sight {t_los:.3f} s + intersect/geodetic {t_hit:.3f} s)")
-    ratio_t = compare("turret: az-el, Brown, mount, boresight, lever arm", args.rays, args.repeat,
-                      *make_turret_rays(args.rays, rng))
+    print(
+        f"[q17 roll-pitch pinhole] numpy reference path: {t_los + t_hit:.3f} s  "
+        f"{args.rays / (t_los + t_hit) / 1e6:.2f} M rays/s  "
+        f"(line_of_sight {t_los:.3f} s + intersect/geodetic {t_hit:.3f} s)"
+    )
+    ratio_t = compare(
+        "turret: az-el, Brown, mount, boresight, lever arm", args.rays, args.repeat, *make_turret_rays(args.rays, rng)
+    )
     print("ratios are rays per CPU second (geoloc / pymap3d); wall in brackets")
     print(f"ratio: {ratio[0]:.2f}  (wall {ratio[1]:.2f})")
     print(f"ratio turret: {ratio_t[0]:.2f}  (wall {ratio_t[1]:.2f})")

@@ -41,7 +41,7 @@ def per_sample_loop(model, n, rng, surface=None):
     errs = model.sample(n, rng)
     out = np.empty((n, 3))
     for i in range(n):
-        one = {k: v[i:i + 1] for k, v in errs.items()}
+        one = {k: v[i : i + 1] for k, v in errs.items()}
         lat, lon, h, _ = mc.evaluate(model, one, surface)
         out[i] = lat[0], lon[0], h[0]
     return out
@@ -57,8 +57,10 @@ def main(argv=None):
     print(f"ellipsoid N = 5000: median {t5k:.3f} s over 5 runs")
 
     tbig, ts = median_time(lambda: mc.run(model, n_big, np.random.default_rng(0), progress=None), rep)
-    print(f"ellipsoid N = {n_big}: median {tbig:.2f} s over {rep} runs "
-          f"({', '.join(f'{t:.2f}' for t in ts)}); goal <= 30 s for 1 M")
+    print(
+        f"ellipsoid N = {n_big}: median {tbig:.2f} s over {rep} runs "
+        f"({', '.join(f'{t:.2f}' for t in ts)}); goal <= 30 s for 1 M"
+    )
 
     from geoloc.cli._options import surface_from_scenario
 
@@ -71,22 +73,27 @@ def main(argv=None):
     if dem is not None:
         t = time.perf_counter()
         mc.run(dmodel, 10, np.random.default_rng(0), surface=dem)
-        print(f"DEM warm-up (numba kernels of geoloc.surfaces.terrain: compiled or loaded from cache): "
-              f"{time.perf_counter() - t:.2f} s, not counted")
+        print(
+            f"DEM warm-up (numba kernels of geoloc.surfaces.terrain: compiled or loaded from cache): "
+            f"{time.perf_counter() - t:.2f} s, not counted"
+        )
         tdem, ts = median_time(lambda: mc.run(dmodel, 5000, np.random.default_rng(0), surface=dem), 5)
-        print(f"DEM N = 5000: median {tdem:.3f} s over 5 runs "
-              f"({', '.join(f'{t:.3f}' for t in ts)}); goal <= 0.5 s")
+        print(f"DEM N = 5000: median {tdem:.3f} s over 5 runs ({', '.join(f'{t:.3f}' for t in ts)}); goal <= 0.5 s")
         n_peer = 100
         tp, _ = median_time(lambda: per_sample_loop(dmodel, n_peer, np.random.default_rng(1), dem), 1)
-        print(f"DEM peer (per-sample loop): {tp / n_peer * 1e3:.2f} ms per sample -> "
-              f"{tp / n_peer * 5000:.1f} s for N = 5000 (speed-up {tp / n_peer * 5000 / tdem:.0f}x)")
+        print(
+            f"DEM peer (per-sample loop): {tp / n_peer * 1e3:.2f} ms per sample -> "
+            f"{tp / n_peer * 5000:.1f} s for N = 5000 (speed-up {tp / n_peer * 5000 / tdem:.0f}x)"
+        )
 
     n_peer = 500 if quick else 2000
     tp, _ = median_time(lambda: per_sample_loop(model, n_peer, np.random.default_rng(1)), 1)
     per = tp / n_peer
     peer_big = per * n_big
-    print(f"ellipsoid peer (per-sample Python loop over {n_peer} samples): {per * 1e6:.0f} us per "
-          f"sample -> {peer_big:.1f} s scaled to N = {n_big}")
+    print(
+        f"ellipsoid peer (per-sample Python loop over {n_peer} samples): {per * 1e6:.0f} us per "
+        f"sample -> {peer_big:.1f} s scaled to N = {n_big}"
+    )
     print(f"ratio: {peer_big / tbig:.1f}")
 
 

@@ -49,8 +49,9 @@ print(json.dumps(dict(n=n, peak_py=peak, maxrss_kb=resource.getrusage(resource.R
 
 
 def measure(n: int, keep: bool) -> dict:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(n), "1" if keep else "0"],
-                         check=True, capture_output=True, text=True)
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, str(n), "1" if keep else "0"], check=True, capture_output=True, text=True
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -64,24 +65,31 @@ def main(argv=None) -> int:
     ns = [n for n in (10_000, 100_000, 1_000_000, 10_000_000, 100_000_000) if n <= top]
     t0 = time.perf_counter()
     rows = []
-    print(f"{'N':>11} {'mode':>8} {'peak_py MB':>11} {'maxrss MB':>10} {'rss before MB':>14} "
-          f"{'cpu s':>8} {'wall s':>8} {'us/sample':>10}")
-    for mode in (["streamed", "kept"] if keep else ["streamed"]):
+    print(
+        f"{'N':>11} {'mode':>8} {'peak_py MB':>11} {'maxrss MB':>10} {'rss before MB':>14} "
+        f"{'cpu s':>8} {'wall s':>8} {'us/sample':>10}"
+    )
+    for mode in ["streamed", "kept"] if keep else ["streamed"]:
         for n in ns:
             if mode == "kept" and n > 2_000_000:  # montecarlo.KEEP_MAX: more is refused
                 continue
             r = measure(n, mode == "kept")
             rows.append((mode, r))
-            print(f"{n:>11} {mode:>8} {r['peak_py'] / 1e6:11.1f} {r['maxrss_kb'] / 1e3:10.1f} "
-                  f"{r['base_rss_kb'] / 1e3:14.1f} {r['cpu']:8.2f} {r['wall']:8.2f} "
-                  f"{r['wall'] / n * 1e6:10.2f}", flush=True)
+            print(
+                f"{n:>11} {mode:>8} {r['peak_py'] / 1e6:11.1f} {r['maxrss_kb'] / 1e3:10.1f} "
+                f"{r['base_rss_kb'] / 1e3:14.1f} {r['cpu']:8.2f} {r['wall']:8.2f} "
+                f"{r['wall'] / n * 1e6:10.2f}",
+                flush=True,
+            )
     st = [r for m, r in rows if m == "streamed"]
     big = [r for r in st if r["n"] >= 100_000]
     if len(big) >= 2:
         ratio = max(r["peak_py"] for r in big) / min(r["peak_py"] for r in big)
-        print(f"streamed peak_py, largest / smallest over N = {big[0]['n']}..{big[-1]['n']}: "
-              f"ratio: {ratio:.2f}  (flat = 1; the samples alone would grow "
-              f"{big[-1]['n'] / big[0]['n']:.0f}x)")
+        print(
+            f"streamed peak_py, largest / smallest over N = {big[0]['n']}..{big[-1]['n']}: "
+            f"ratio: {ratio:.2f}  (flat = 1; the samples alone would grow "
+            f"{big[-1]['n'] / big[0]['n']:.0f}x)"
+        )
     print(f"total {time.perf_counter() - t0:.0f} s")
     return 0
 

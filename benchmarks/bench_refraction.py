@@ -63,7 +63,9 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rays", type=int, default=100_000)
     ap.add_argument("--repeat", type=int, default=7)
-    ap.add_argument("--threads", type=int, default=None, help="numba threads for the correction (default: one per core)")
+    ap.add_argument(
+        "--threads", type=int, default=None, help="numba threads for the correction (default: one per core)"
+    )
     args = ap.parse_args(argv)
     if args.threads:
         import numba
@@ -86,15 +88,20 @@ def main(argv=None) -> None:
     ok = g.status == Status.OK
     shift = g.refraction_m[ok]
     n = args.rays
-    print(f"rays: {n}, repeats: {args.repeat} (medians, alternating), load average {load0[0]:.2f} before, "
-          f"{load1[0]:.2f} after")
+    print(
+        f"rays: {n}, repeats: {args.repeat} (medians, alternating), load average {load0[0]:.2f} before, "
+        f"{load1[0]:.2f} after"
+    )
     print(f"rays corrected: {int(ok.sum())}; shift median {np.median(shift):.2f} m, max {np.max(shift):.1f} m")
-    print(f"pipeline, --refraction none:     wall {ws:.4f} s  cpu {cs:.4f} s  "
-          f"{n / ws / 1e6:.3f} M rays/s wall  {n / cs / 1e6:.3f} M rays/s cpu")
-    print(f"pipeline, --refraction standard: wall {wr:.4f} s  cpu {cr:.4f} s  "
-          f"{n / wr / 1e6:.3f} M rays/s wall  {n / cr / 1e6:.3f} M rays/s cpu")
-    print(f"refraction alone (difference):   wall {wr - ws:.4f} s  cpu {cr - cs:.4f} s; "
-          f"one more call {tc:.4f} s wall")
+    print(
+        f"pipeline, --refraction none:     wall {ws:.4f} s  cpu {cs:.4f} s  "
+        f"{n / ws / 1e6:.3f} M rays/s wall  {n / cs / 1e6:.3f} M rays/s cpu"
+    )
+    print(
+        f"pipeline, --refraction standard: wall {wr:.4f} s  cpu {cr:.4f} s  "
+        f"{n / wr / 1e6:.3f} M rays/s wall  {n / cr / 1e6:.3f} M rays/s cpu"
+    )
+    print(f"refraction alone (difference):   wall {wr - ws:.4f} s  cpu {cr - cs:.4f} s; one more call {tc:.4f} s wall")
     print("ratio is rays per CPU second with refraction over without (goal >= 0.5); wall in brackets")
     print(f"ratio: {cs / cr:.2f}  (wall {ws / wr:.2f})")
 

@@ -20,9 +20,26 @@ import subprocess
 import sys
 import time
 
-LOCATE = ["locate", "--lat-deg", "35.48", "--lon-deg", "80.97", "--h-m", "18000", "--heading-deg", "45",
-          "--pitch-deg", "3.5", "--gimbal-roll-deg", "50", "--gimbal-pitch-deg", "-2.6",
-          "--target-h-m", "5083.5", "--json"]  # [Q17] Table 1, the docs' first example
+LOCATE = [
+    "locate",
+    "--lat-deg",
+    "35.48",
+    "--lon-deg",
+    "80.97",
+    "--h-m",
+    "18000",
+    "--heading-deg",
+    "45",
+    "--pitch-deg",
+    "3.5",
+    "--gimbal-roll-deg",
+    "50",
+    "--gimbal-pitch-deg",
+    "-2.6",
+    "--target-h-m",
+    "5083.5",
+    "--json",
+]  # [Q17] Table 1, the docs' first example
 CASES = {
     "geoloc --help": [sys.executable, "-m", "geoloc", "--help"],
     "one-pixel locate": [sys.executable, "-m", "geoloc", *LOCATE],
@@ -61,11 +78,14 @@ def main(argv=None) -> int:
         med[k] = wall
         print(f"{k:32s} wall {wall:.3f} s  CPU {cpu:.3f} s")
     peer = med["peer: python -c 'import numpy'"]
-    print(f"ratio geoloc --help / peer {med['geoloc --help'] / peer:.2f}x; "
-          f"one-pixel locate / peer {med['one-pixel locate'] / peer:.2f}x")
+    print(
+        f"ratio geoloc --help / peer {med['geoloc --help'] / peer:.2f}x; "
+        f"one-pixel locate / peer {med['one-pixel locate'] / peer:.2f}x"
+    )
     if args.importtime:
-        r = subprocess.run([sys.executable, "-X", "importtime", "-m", "geoloc", *LOCATE],
-                           capture_output=True, text=True)
+        r = subprocess.run(
+            [sys.executable, "-X", "importtime", "-m", "geoloc", *LOCATE], capture_output=True, text=True
+        )
         rows = [line.split("|") for line in r.stderr.splitlines() if line.startswith("import time:")][1:]
         rows = sorted(((int(c), n.strip()) for _, c, n in rows), reverse=True)[:10]
         print("slowest imports of the one-pixel locate (cumulative):")

@@ -120,13 +120,17 @@ def referee_report(dem, los, hit, mesh, loc, idx, tri):
             outside_mm.append(-theirs.inside_m * 1e3)
         elif np.isfinite(ref.range_m) and theirs.range_m > ref.range_m:
             beyond += 1
-    line = (f"rays more than 1 mm apart: {len(bad)} of {len(idx)} hits (max {diff.max():.2e} m); the referee "
-            f"(pyproj vertices, extended precision) finds the exact walk's hit on {verdicts['a']}, "
-            f"embree's on {verdicts['b']}, neither on {verdicts['neither']}")
+    line = (
+        f"rays more than 1 mm apart: {len(bad)} of {len(idx)} hits (max {diff.max():.2e} m); the referee "
+        f"(pyproj vertices, extended precision) finds the exact walk's hit on {verdicts['a']}, "
+        f"embree's on {verdicts['b']}, neither on {verdicts['neither']}"
+    )
     if len(bad):
-        line += (f"; embree's triangle: missed by the ray on {len(outside_mm)}"
-                 + (f" (by {min(outside_mm):.2f}-{max(outside_mm):.2f} mm)" if outside_mm else "")
-                 + f", beyond the walk's hit (embree missed that one) on {beyond}")
+        line += (
+            f"; embree's triangle: missed by the ray on {len(outside_mm)}"
+            + (f" (by {min(outside_mm):.2f}-{max(outside_mm):.2f} mm)" if outside_mm else "")
+            + f", beyond the walk's hit (embree missed that one) on {beyond}"
+        )
     return line
 
 
@@ -136,9 +140,11 @@ def big_case(n, rays, repeat, seed):
     dem = upsampled_dem(src, n, np.random.default_rng(seed))
     los = random_oblique_rays(dem, rays, np.random.default_rng(seed + 1), frame_angle_deg=(45.0, 82.0))
     g = dem.grid
-    print(f"\n(c) {n} x {n} nodes ({(n - 1) ** 2 * 2 / 1e6:.0f} M triangles), the crop resampled plus 3 m "
-          f"roughness (seed {seed}), cell {g.dlat_deg * 3600:.2f} x {g.dlon_deg * 3600:.2f} arc seconds; "
-          f"{rays} rays, frame angle 45-82 deg")
+    print(
+        f"\n(c) {n} x {n} nodes ({(n - 1) ** 2 * 2 / 1e6:.0f} M triangles), the crop resampled plus 3 m "
+        f"roughness (seed {seed}), cell {g.dlat_deg * 3600:.2f} x {g.dlon_deg * 3600:.2f} arc seconds; "
+        f"{rays} rays, frame angle 45-82 deg"
+    )
     # exact first: its peak is then its own (ru_maxrss only grows)
     rss0 = _rss()
     tracemalloc.start()
@@ -183,21 +189,33 @@ def big_case(n, rays, repeat, seed):
     hit_tm = np.zeros(len(okx), bool)
     hit_tm[idx] = True
     diff = np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1)
-    n_two = int(np.sum((two.status != hit.status) | np.any(~((two.ecef == hit.ecef)
-                                                               | (np.isnan(two.ecef) & np.isnan(hit.ecef))), -1)))
-    print(f"setup: exact tables {t_tab:.2f} s wall ({c_tab:.2f} s CPU), first call with them {t_first:.2f} s; "
-          f"trimesh mesh + BVH {t_build:.2f} s wall ({c_build:.2f} s CPU); exact / trimesh "
-          f"{t_tab / t_build:.3f} (goal <= 0.1)")
-    print(f"memory (peak RSS over RSS before the build): exact {mem_ex / 1e6:,.0f} MB (numpy, tracemalloc: "
-          f"{tm_peak / 1e6:,.0f} MB), trimesh/embree {mem_tm / 1e6:,.0f} MB; exact / trimesh "
-          f"{mem_ex / max(mem_tm, 1):.3f} (goal <= 0.25)")
+    n_two = int(
+        np.sum(
+            (two.status != hit.status)
+            | np.any(~((two.ecef == hit.ecef) | (np.isnan(two.ecef) & np.isnan(hit.ecef))), -1)
+        )
+    )
+    print(
+        f"setup: exact tables {t_tab:.2f} s wall ({c_tab:.2f} s CPU), first call with them {t_first:.2f} s; "
+        f"trimesh mesh + BVH {t_build:.2f} s wall ({c_build:.2f} s CPU); exact / trimesh "
+        f"{t_tab / t_build:.3f} (goal <= 0.1)"
+    )
+    print(
+        f"memory (peak RSS over RSS before the build): exact {mem_ex / 1e6:,.0f} MB (numpy, tracemalloc: "
+        f"{tm_peak / 1e6:,.0f} MB), trimesh/embree {mem_tm / 1e6:,.0f} MB; exact / trimesh "
+        f"{mem_ex / max(mem_tm, 1):.3f} (goal <= 0.25)"
+    )
     print(f"{'':28s} {'wall':>14s} {'per CPU second':>16s}")
     for name, (tw, tc) in (("trimesh ray cast", t_tm), ("exact, triangles", t_ex)):
         print(f"{name:28s} {rays / tw:9,.0f} rays/s {rays / tc:10,.0f} rays/s")
-    print(f"cells or nodes visited per ray: {hit.dem_evaluations.mean():.2f} "
-          f"(without the levels above the blocks {two.dem_evaluations.mean():.2f})")
-    print(f"same rays hit as trimesh: {np.array_equal(okx, hit_tm)} ({int((okx != hit_tm).sum())} differ); "
-          f"max |exact - trimesh| = {diff.max():.2e} m")
+    print(
+        f"cells or nodes visited per ray: {hit.dem_evaluations.mean():.2f} "
+        f"(without the levels above the blocks {two.dem_evaluations.mean():.2f})"
+    )
+    print(
+        f"same rays hit as trimesh: {np.array_equal(okx, hit_tm)} ({int((okx != hit_tm).sum())} differ); "
+        f"max |exact - trimesh| = {diff.max():.2e} m"
+    )
     print(f"rays whose status or hit differs from the two-level walk's (bit for bit): {n_two}")
     print(referee_report(dem, los, hit, mesh, loc, idx, tri))
     print(f"big ratio (CPU time, exact triangles over trimesh; goal >= 1.5): {t_tm[1] / t_ex[1]:.2f}")
@@ -227,9 +245,11 @@ def small_case(a):
     g = dem.grid
     lat_mid = np.deg2rad(0.5 * (g.lat_north_deg + g.lat_south_deg))
     cell_m = 0.5 * np.deg2rad(g.dlat_deg) * A + 0.5 * np.deg2rad(g.dlon_deg) * A * np.cos(lat_mid)
-    print(f"DEM {SRTM.name}: {dem.shape[0]} x {dem.shape[1]} nodes, cell ~ {cell_m:.1f} m, "
-          f"heights {dem.min_height():.0f}..{dem.max_height():.0f} m (ellipsoidal); {a.rays} rays, "
-          "frame angle 45-82 deg, camera 1500 m above the aimed point")
+    print(
+        f"DEM {SRTM.name}: {dem.shape[0]} x {dem.shape[1]} nodes, cell ~ {cell_m:.1f} m, "
+        f"heights {dem.min_height():.0f}..{dem.max_height():.0f} m (ellipsoidal); {a.rays} rays, "
+        "frame angle 45-82 deg, camera 1500 m above the aimed point"
+    )
 
     # ---------------------------------------------------------------- (a) evaluations per ray
     ex = intersect_dem(los, dem, "exact")
@@ -242,11 +262,13 @@ def small_case(a):
         bi = intersect_dem(los, dem, "bisect", threshold=thr)
         both = ok & (st.status == Status.OK) & (bi.status == Status.OK)
         ns, nb = st.dem_evaluations[both].mean(), bi.dem_evaluations[both].mean()
-        print(f"{frac:>4} cell ({thr:6.1f} m): steps {ns:7.2f}  bisect {nb:6.2f}  "
-              f"-> bisection {100 * (1 - nb / ns):5.1f} % fewer; "
-              f"bisection hidden (not the first crossing) on {bi.hidden[both].mean() * 100:.1f} % of rays; "
-              f"median |h - exact|: steps {np.median(np.abs(st.h - ex.h)[both]):.2f} m, "
-              f"bisect {np.median(np.abs(bi.h - ex.h)[both]):.2f} m")
+        print(
+            f"{frac:>4} cell ({thr:6.1f} m): steps {ns:7.2f}  bisect {nb:6.2f}  "
+            f"-> bisection {100 * (1 - nb / ns):5.1f} % fewer; "
+            f"bisection hidden (not the first crossing) on {bi.hidden[both].mean() * 100:.1f} % of rays; "
+            f"median |h - exact|: steps {np.median(np.abs(st.h - ex.h)[both]):.2f} m, "
+            f"bisect {np.median(np.abs(bi.h - ex.h)[both]):.2f} m"
+        )
 
     # ---------------------------------------------------------------- (b) rays per second
 
@@ -295,11 +317,17 @@ def small_case(a):
     print(f"\n(b) rays per second on {a.rays} rays (median of {a.repeat}); trimesh backend: {backend}")
     print(f"setup: trimesh mesh + BVH {t_build:.2f} s; exact first call (tables, compiled code) {t_warm:.2f} s")
     print(f"{'':28s} {'wall':>14s} {'per CPU second':>16s}")
-    for name, (tw, tc) in (("trimesh ray cast", t_tm), ("exact, triangles", t_ex),
-                           ("exact, triangles, parallel", t_par), ("exact, bilinear", t_bl)):
+    for name, (tw, tc) in (
+        ("trimesh ray cast", t_tm),
+        ("exact, triangles", t_ex),
+        ("exact, triangles, parallel", t_par),
+        ("exact, bilinear", t_bl),
+    ):
         print(f"{name:28s} {a.rays / tw:9,.0f} rays/s {a.rays / tc:10,.0f} rays/s")
-    print(f"same rays hit: {np.array_equal(okx, hit_tm)}; max |exact - trimesh| = {diff.max():.2e} m "
-          "(embree tests in float32: a ray that passes within millimetres of an edge can land elsewhere)")
+    print(
+        f"same rays hit: {np.array_equal(okx, hit_tm)}; max |exact - trimesh| = {diff.max():.2e} m "
+        "(embree tests in float32: a ray that passes within millimetres of an edge can land elsewhere)"
+    )
     same_par = np.array_equal(hit_par.status, hit.status) and np.array_equal(hit_par.ecef[okx], hit.ecef[okx])
     if backend.startswith("embree"):
         print(referee_report(dem, los, hit, mesh, loc, idx, tri))

@@ -33,15 +33,52 @@ from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import HeightSurface
 from geoloc.surfaces.terrain import DemSurface
 
-TURRET = FrameSensor(BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080,
-                               k1=-0.21, k2=0.07, p1=4e-4, p2=-2e-4, k3=-0.01),
-                     PRESETS["azimuth-elevation"], mount=(2e-3, -1e-3, 4e-3), boresight=(1e-3, 2e-3, -3e-3),
-                     lever_arm_m=(1.5, 0.2, 0.7), name="turret")
-BUDGET = ErrorBudget({"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.03, "pitch_deg": 0.02,
-                      "roll_deg": 0.02, "azimuth_deg": 0.01, "elevation_deg": 0.01, "mount_x_deg": 0.01,
-                      "mount_y_deg": 0.01, "mount_z_deg": 0.01, "boresight_x_deg": 0.01, "boresight_y_deg": 0.01,
-                      "boresight_z_deg": 0.01, "lever_arm_x_m": 0.05, "fx_px": 2.0, "cx_px": 0.5, "cy_px": 0.5,
-                      "k1": 0.001, "time_s": 0.005, "height_m": 10.0, "dem_m": 9.73})
+TURRET = FrameSensor(
+    BrownLens(
+        fx=2200.0,
+        fy=2195.0,
+        cx=959.5,
+        cy=539.5,
+        width=1920,
+        height=1080,
+        k1=-0.21,
+        k2=0.07,
+        p1=4e-4,
+        p2=-2e-4,
+        k3=-0.01,
+    ),
+    PRESETS["azimuth-elevation"],
+    mount=(2e-3, -1e-3, 4e-3),
+    boresight=(1e-3, 2e-3, -3e-3),
+    lever_arm_m=(1.5, 0.2, 0.7),
+    name="turret",
+)
+BUDGET = ErrorBudget(
+    {
+        "north_m": 2.0,
+        "east_m": 2.0,
+        "up_m": 3.0,
+        "heading_deg": 0.03,
+        "pitch_deg": 0.02,
+        "roll_deg": 0.02,
+        "azimuth_deg": 0.01,
+        "elevation_deg": 0.01,
+        "mount_x_deg": 0.01,
+        "mount_y_deg": 0.01,
+        "mount_z_deg": 0.01,
+        "boresight_x_deg": 0.01,
+        "boresight_y_deg": 0.01,
+        "boresight_z_deg": 0.01,
+        "lever_arm_x_m": 0.05,
+        "fx_px": 2.0,
+        "cx_px": 0.5,
+        "cy_px": 0.5,
+        "k1": 0.001,
+        "time_s": 0.005,
+        "height_m": 10.0,
+        "dem_m": 9.73,
+    }
+)
 
 
 def main() -> None:
@@ -52,21 +89,31 @@ def main() -> None:
     a = ap.parse_args()
     n = a.points
     rng = np.random.default_rng(0)
-    pose = Pose.from_deg(rng.uniform(36.5, 36.68, n), rng.uniform(-84.35, -84.15, n), rng.uniform(2500, 4000, n),
-                         rng.uniform(0, 360, n), rng.uniform(-3, 3, n), rng.uniform(-5, 5, n),
-                         angles_deg={"azimuth": rng.uniform(0, 360, n), "elevation": rng.uniform(-90, -30, n)})
+    pose = Pose.from_deg(
+        rng.uniform(36.5, 36.68, n),
+        rng.uniform(-84.35, -84.15, n),
+        rng.uniform(2500, 4000, n),
+        rng.uniform(0, 360, n),
+        rng.uniform(-3, 3, n),
+        rng.uniform(-5, 5, n),
+        angles_deg={"azimuth": rng.uniform(0, 360, n), "elevation": rng.uniform(-90, -30, n)},
+    )
     row, col = rng.uniform(1, 1080, n), rng.uniform(1, 1920, n)
     vel = np.stack([rng.uniform(-60, 60, n), rng.uniform(-60, 60, n), np.zeros(n)], -1)
     cases = [("ellipsoid", HeightSurface(500.0))]
     if a.dem:
         cases.append(("srtm dem", DemSurface(DEM.open(asset_path("dem", "srtm_jacksboro.tif")))))
-    print(f"{n} points, {len(BUDGET.sigmas) - 1} sources, {a.repeat} repeats (medians); 2 cores shared, "
-          "a loaded machine: the CPU ratio is the steadier figure")
+    print(
+        f"{n} points, {len(BUDGET.sigmas) - 1} sources, {a.repeat} repeats (medians); 2 cores shared, "
+        "a loaded machine: the CPU ratio is the steadier figure"
+    )
     for name, surf in cases:
         if name == "ellipsoid":
+
             def loc():
                 return locate(pose, TURRET, row, col, 500.0)
         else:
+
             def loc():
                 return surf.intersect(TURRET.line_of_sight(row, col, pose))
 
@@ -77,10 +124,14 @@ def main() -> None:
         wl, cl, _ = timed(loc, a.repeat)
         wp, cp, pu = timed(prop, a.repeat)
         ok = float(np.mean(pu.status == 0))
-        print(f"[{name}] locate:    {wl * 1e3:8.1f} ms wall {cl * 1e3:8.1f} ms CPU  {n / wl:10.3g} rays/s wall  "
-              f"{n / cl:10.3g} rays/CPU s")
-        print(f"[{name}] propagate: {wp * 1e3:8.1f} ms wall {cp * 1e3:8.1f} ms CPU  {n / wp:10.3g} points/s wall  "
-              f"{n / cp:10.3g} points/CPU s  ({ok:.1%} located; median CE90 {np.nanmedian(pu.ce90_m):.1f} m)")
+        print(
+            f"[{name}] locate:    {wl * 1e3:8.1f} ms wall {cl * 1e3:8.1f} ms CPU  {n / wl:10.3g} rays/s wall  "
+            f"{n / cl:10.3g} rays/CPU s"
+        )
+        print(
+            f"[{name}] propagate: {wp * 1e3:8.1f} ms wall {cp * 1e3:8.1f} ms CPU  {n / wp:10.3g} points/s wall  "
+            f"{n / cp:10.3g} points/CPU s  ({ok:.1%} located; median CE90 {np.nanmedian(pu.ce90_m):.1f} m)"
+        )
         tag = "" if name == "ellipsoid" else " dem"
         print(f"ratio{tag}: {cl / cp:.3f}")
         print(f"ratio{tag} wall: {wl / wp:.3f}")

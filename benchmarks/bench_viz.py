@@ -60,8 +60,12 @@ def main(argv=None) -> None:
 
     def send_simple():
         k[0] += 1
-        server.scene.add_mesh_simple(f"/bench/simple{k[0] % 2}", mesh.vertices.astype(np.float32),
-                                     mesh.faces.astype(np.uint32), color=(120, 160, 90))
+        server.scene.add_mesh_simple(
+            f"/bench/simple{k[0] % 2}",
+            mesh.vertices.astype(np.float32),
+            mesh.faces.astype(np.uint32),
+            color=(120, 160, 90),
+        )
 
     t_tri = median_time(send_trimesh, 3)
     t_simple = median_time(send_simple, 3)
@@ -77,8 +81,10 @@ def main(argv=None) -> None:
         for i in range(21):
             app.num["gimbal_roll_deg"].value = -45.0 + 0.1 * (i % 5)
             lat.append(app.last_update_s)
-        print(f"slider -> updated scene, method {method:6s}: median {1e3 * statistics.median(lat):.1f} ms, "
-              f"max {1e3 * max(lat):.1f} ms (goal <= 100 ms)")
+        print(
+            f"slider -> updated scene, method {method:6s}: median {1e3 * statistics.median(lat):.1f} ms, "
+            f"max {1e3 * max(lat):.1f} ms (goal <= 100 ms)"
+        )
     lat = []
     for i in range(21):
         app.sl_step.disabled = False

@@ -40,18 +40,25 @@ CLIENT_TIMEOUT_S = 60.0
 QUIET_S = 0.25
 
 
-
-
 def camera_message(position=(0.0, 0.0, 10.0), look_at=(0.0, 0.0, 0.0), wxyz=(1.0, 0.0, 0.0, 0.0)) -> bytes:
     """A browser's camera report (the first one registers the tab), msgpack-encoded as
     viser's client sends it (scene units)."""
     import msgspec.msgpack
 
-    return msgspec.msgpack.encode({
-        "type": "ViewerCameraMessage", "wxyz": [float(x) for x in wxyz],
-        "position": [float(x) for x in position], "fov": 1.3, "near": 0.02, "far": 1000.0,
-        "image_height": 480, "image_width": 640, "look_at": [float(x) for x in look_at],
-        "up_direction": [0.0, 0.0, 1.0]})
+    return msgspec.msgpack.encode(
+        {
+            "type": "ViewerCameraMessage",
+            "wxyz": [float(x) for x in wxyz],
+            "position": [float(x) for x in position],
+            "fov": 1.3,
+            "near": 0.02,
+            "far": 1000.0,
+            "image_height": 480,
+            "image_width": 640,
+            "look_at": [float(x) for x in look_at],
+            "up_direction": [0.0, 0.0, 1.0],
+        }
+    )
 
 
 #: Bytes that mark the end of a tab's session build in the stream (the calibration layer's
@@ -65,7 +72,7 @@ def decode_window(data: bytes) -> bytes:
     import zstandard
 
     n, c = int.from_bytes(data[:8], "little"), int.from_bytes(data[8:16], "little")
-    return zstandard.ZstdDecompressor().decompress(data[16:16 + c], max_output_size=n)
+    return zstandard.ZstdDecompressor().decompress(data[16 : 16 + c], max_output_size=n)
 
 
 async def one_client(port: int, until: bytes = BUILT, hold_s: float = 0.0) -> tuple:
@@ -76,8 +83,12 @@ async def one_client(port: int, until: bytes = BUILT, hold_s: float = 0.0) -> tu
 
     n = nbytes = 0
     seen = False
-    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=[f"viser-v{viser.__version__}"],
-                                  max_size=None, open_timeout=CLIENT_TIMEOUT_S) as ws:
+    async with websockets.connect(
+        f"ws://127.0.0.1:{port}",
+        subprotocols=[f"viser-v{viser.__version__}"],
+        max_size=None,
+        open_timeout=CLIENT_TIMEOUT_S,
+    ) as ws:
         await ws.send(camera_message())
         t0 = time.monotonic()
         while not seen and time.monotonic() - t0 < CLIENT_TIMEOUT_S:
@@ -196,12 +207,23 @@ def main(n: int = 500) -> dict:
         pk = peak.stop()
         after = settle()
         alive = sum(r() is not None for r in refs)
-        out = dict(rss_start=rss0, rss_built=rss_built, idle=idle, peak=pk, after=after,
-                   ratio=after / idle, alive=alive, built=len(refs), n=n, wall=wall,
-                   per_client_ours=statistics.median(t for t, _ in t_ours),
-                   per_client_bare=statistics.median(t for t, _ in t_bare),
-                   served=sum(ok for _, ok in t_ours), n_bare=len(t_bare),
-                   sessions_left=len(viewer.sessions))
+        out = dict(
+            rss_start=rss0,
+            rss_built=rss_built,
+            idle=idle,
+            peak=pk,
+            after=after,
+            ratio=after / idle,
+            alive=alive,
+            built=len(refs),
+            n=n,
+            wall=wall,
+            per_client_ours=statistics.median(t for t, _ in t_ours),
+            per_client_bare=statistics.median(t for t, _ in t_bare),
+            served=sum(ok for _, ok in t_ours),
+            n_bare=len(t_bare),
+            sessions_left=len(viewer.sessions),
+        )
     finally:
         server.stop()
     return out
@@ -212,17 +234,24 @@ if __name__ == "__main__":
     c0 = time.process_time()
     r = main(n)
     cpu = time.process_time() - c0
-    print(f"connection churn: {r['n']} clients over loopback, 4 at a time, each registering a tab "
-          f"(one GeolocSession) and dropping it")
+    print(
+        f"connection churn: {r['n']} clients over loopback, 4 at a time, each registering a tab "
+        f"(one GeolocSession) and dropping it"
+    )
     print(f"  RSS at start {r['rss_start']:.0f} MB, server + viewer built {r['rss_built']:.0f} MB")
     print(f"  idle (after a 20-client warm-up, gc)   {r['idle']:.0f} MB")
     print(f"  peak during the churn                  {r['peak']:.0f} MB")
-    print(f"  after the churn + gc                   {r['after']:.0f} MB  "
-          f"(after / idle = {r['ratio']:.3f}; goal <= 1.10)")
+    print(
+        f"  after the churn + gc                   {r['after']:.0f} MB  (after / idle = {r['ratio']:.3f}; goal <= 1.10)"
+    )
     print(f"  clients that saw their tab built: {r['served']} of {r['n']}")
-    print(f"  sessions built {r['built']} (with the warm-up), still alive after the churn {r['alive']} (goal 0); "
-          f"viewer.sessions left {r['sessions_left']}")
-    print(f"  one connect + session build + drop, median wall: ours {1e3 * r['per_client_ours']:.0f} ms, "
-          f"bare viser server {1e3 * r['per_client_bare']:.0f} ms ({r['n_bare']} clients) "
-          f"(ratio {r['per_client_ours'] / r['per_client_bare']:.1f}); churn {r['wall']:.0f} s wall, "
-          f"whole run {cpu:.0f} s CPU (this process)")
+    print(
+        f"  sessions built {r['built']} (with the warm-up), still alive after the churn {r['alive']} (goal 0); "
+        f"viewer.sessions left {r['sessions_left']}"
+    )
+    print(
+        f"  one connect + session build + drop, median wall: ours {1e3 * r['per_client_ours']:.0f} ms, "
+        f"bare viser server {1e3 * r['per_client_bare']:.0f} ms ({r['n_bare']} clients) "
+        f"(ratio {r['per_client_ours'] / r['per_client_bare']:.1f}); churn {r['wall']:.0f} s wall, "
+        f"whole run {cpu:.0f} s CPU (this process)"
+    )

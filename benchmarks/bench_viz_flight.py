@@ -41,9 +41,16 @@ def synthetic_flight(n: int, seed: int = 20261201):
         info, inp = base[k % len(base)]
         info = copy.copy(info)
         info.label = f"frame {k}"
-        recs.append((info, inp.replace(heading_deg=inp.heading_deg + rng.normal(0, 0.2),
-                                       lat_deg=inp.lat_deg + rng.normal(0, 5e-5),
-                                       lon_deg=inp.lon_deg + rng.normal(0, 5e-5))))
+        recs.append(
+            (
+                info,
+                inp.replace(
+                    heading_deg=inp.heading_deg + rng.normal(0, 0.2),
+                    lat_deg=inp.lat_deg + rng.normal(0, 5e-5),
+                    lon_deg=inp.lon_deg + rng.normal(0, 5e-5),
+                ),
+            )
+        )
         fovs.append(fov[k % len(base)])
     scn.records = recs
     scn.frame_fov_deg = np.array(fovs)
@@ -92,7 +99,7 @@ def main(argv=None) -> int:
         def per_frame():
             for k in sample:
                 p = pose.take(np.array([k]))
-                los = sensor.line_of_sight(rr[:, k:k + 1], cc[:, k:k + 1], p, outside="extrapolate")
+                los = sensor.line_of_sight(rr[:, k : k + 1], cc[:, k : k + 1], p, outside="extrapolate")
                 flight_model._hit(surface, los)
 
         w_peer, c_peer, _ = timed(per_frame, 1)
@@ -101,16 +108,21 @@ def main(argv=None) -> int:
     finally:
         server.stop()
     P = m.footprint_enu.shape[1]
-    print(f"flight: {len(m)} frames, {P} outline points each ({len(m) * (P + 2)} lines of sight), "
-          f"{int(m.outlier.sum())} outliers; 2-core machine shared with other jobs (loaded)")
-    print(f"open (model + scene build + serialise): median wall {w_open:.3f} s, CPU {c_open:.3f} s "
-          f"(target <= 3 s)")
+    print(
+        f"flight: {len(m)} frames, {P} outline points each ({len(m) * (P + 2)} lines of sight), "
+        f"{int(m.outlier.sum())} outliers; 2-core machine shared with other jobs (loaded)"
+    )
+    print(f"open (model + scene build + serialise): median wall {w_open:.3f} s, CPU {c_open:.3f} s (target <= 3 s)")
     print(f"timeline step, highlight only: median wall {w_hl * 1e3:.2f} ms, CPU {c_hl * 1e3:.2f} ms")
-    print(f"timeline step with load_record: median wall {w_step * 1e3:.1f} ms, CPU {c_step * 1e3:.1f} ms "
-          f"(target <= 100 ms)")
-    print(f"footprints batched (model, no diagnosis): wall {w_model:.3f} s, CPU {c_model:.3f} s; "
-          f"frame by frame (peer, {len(sample)} frames scaled x{scale:.0f}): wall {w_peer * scale:.3f} s, "
-          f"CPU {c_peer * scale:.3f} s; ratio peer / batch {w_peer * scale / w_model:.1f}x (wall)")
+    print(
+        f"timeline step with load_record: median wall {w_step * 1e3:.1f} ms, CPU {c_step * 1e3:.1f} ms "
+        f"(target <= 100 ms)"
+    )
+    print(
+        f"footprints batched (model, no diagnosis): wall {w_model:.3f} s, CPU {c_model:.3f} s; "
+        f"frame by frame (peer, {len(sample)} frames scaled x{scale:.0f}): wall {w_peer * scale:.3f} s, "
+        f"CPU {c_peer * scale:.3f} s; ratio peer / batch {w_peer * scale / w_model:.1f}x (wall)"
+    )
     return 0
 
 

@@ -50,8 +50,9 @@ def main(argv=None) -> None:
     numba.set_num_threads(1)
     old = module_at(a.rev, "geoloc/surfaces/terrain_numba.py")
     dem = DEM.open(SRTM) if a.size == 0 else upsampled_dem(DEM.open(SRTM), a.size, np.random.default_rng(0))
-    los = random_oblique_rays(dem, 10_000 if a.size == 0 else 100_000, np.random.default_rng(1),
-                              frame_angle_deg=(45.0, 82.0))
+    los = random_oblique_rays(
+        dem, 10_000 if a.size == 0 else 100_000, np.random.default_rng(1), frame_angle_deg=(45.0, 82.0)
+    )
     o = np.ascontiguousarray(los.origin_ecef.reshape(-1, 3))
     d = np.ascontiguousarray(los.direction_ecef.reshape(-1, 3))
     t = terrain._exact_tables(dem)
@@ -76,13 +77,30 @@ def main(argv=None) -> None:
         old_head = head_old8[:6] + (c32, ref + head_old8[7].astype(float))
     else:
         old_head = head_old8
-    tail = (t["row_geo"], t["lat_n"], t["lon_w"], t["dlat"], t["dlon"], t["tan_row"], t["c_row"], t["sin_col"],
-            t["cos_col"], a.dem_model == "triangles")
+    tail = (
+        t["row_geo"],
+        t["lat_n"],
+        t["lon_w"],
+        t["dlat"],
+        t["dlon"],
+        t["tan_row"],
+        t["c_row"],
+        t["sin_col"],
+        t["cos_col"],
+        a.dem_model == "triangles",
+    )
     old_has_levels = "hinv" in inspect.signature(old.walk).parameters
 
     def outs():
-        return (np.empty(n), np.empty((n, 3)), np.empty((n, 4)), np.zeros(n, np.uint8), np.empty(n, np.int64),
-                np.full((n, 0), np.nan), np.full((n, 0, 2), -1, np.int64))
+        return (
+            np.empty(n),
+            np.empty((n, 3)),
+            np.empty((n, 4)),
+            np.zeros(n, np.uint8),
+            np.empty(n, np.int64),
+            np.full((n, 0), np.nan),
+            np.full((n, 0, 2), -1, np.int64),
+        )
 
     def run(walk, hlev, levels_arg=True, head=head, hinv=t["hinv"], **kw):
         r = outs()
@@ -90,12 +108,21 @@ def main(argv=None) -> None:
         return r
 
     blk = {"block": t["block"]}
-    rows = {f"{a.rev}": lambda: run(old.walk, old_hlev[terrain.CLIMB_FROM - 1:], old_has_levels, old_head, old_hinv,
-                                    **(blk if old_block else {})),
-            f"{a.rev}, flat": lambda: run(old.walk, old_hlev[:0], old_has_levels, old_head, old_hinv,
-                                          **(blk if old_block else {})),
-            "this tree, climbing": lambda: run(tn.walk, t["hlev"][terrain.CLIMB_FROM - 1:], **blk),
-            "this tree, flat": lambda: run(tn.walk, t["hlev"][:0], **blk)}
+    rows = {
+        f"{a.rev}": lambda: run(
+            old.walk,
+            old_hlev[terrain.CLIMB_FROM - 1 :],
+            old_has_levels,
+            old_head,
+            old_hinv,
+            **(blk if old_block else {}),
+        ),
+        f"{a.rev}, flat": lambda: run(
+            old.walk, old_hlev[:0], old_has_levels, old_head, old_hinv, **(blk if old_block else {})
+        ),
+        "this tree, climbing": lambda: run(tn.walk, t["hlev"][terrain.CLIMB_FROM - 1 :], **blk),
+        "this tree, flat": lambda: run(tn.walk, t["hlev"][:0], **blk),
+    }
     for f in rows.values():  # compile (or load) first
         f()
     times = {k: [] for k in rows}
@@ -108,8 +135,10 @@ def main(argv=None) -> None:
     ref = res[a.rev]
     # each row against its peer: this tree's flat walk against REV's flat walk, the rest against REV's
     peer = {"this tree, flat": f"{a.rev}, flat"}
-    print(f"{'DEM: crop' if a.size == 0 else f'DEM: {a.size} x {a.size}'}, {a.dem_model}, {n} rays, "
-          f"{a.repeat} calls each in turn, one thread, median CPU time")
+    print(
+        f"{'DEM: crop' if a.size == 0 else f'DEM: {a.size} x {a.size}'}, {a.dem_model}, {n} rays, "
+        f"{a.repeat} calls each in turn, one thread, median CPU time"
+    )
     for k in rows:
         same = np.array_equal(res[k][3], ref[3]) and np.array_equal(res[k][1], ref[1], equal_nan=True)
         p = peer.get(k, a.rev)
@@ -118,8 +147,10 @@ def main(argv=None) -> None:
             both = (res[k][3] == ref[3]) & np.isfinite(res[k][1][:, 0]) & np.isfinite(ref[1][:, 0])
             dp = np.abs(res[k][1][both] - ref[1][both]).max() if both.any() else 0.0
             diff = f" (statuses equal: {np.array_equal(res[k][3], ref[3])}, hits within {dp:.1e} m)"
-        print(f"{k:22s} {np.median(times[k]) * 1e9 / n:8.1f} ns a ray   "
-              f"{np.median(times[k]) / np.median(times[p]):5.3f} of {p:12s}   identical to {a.rev}: {same}{diff}")
+        print(
+            f"{k:22s} {np.median(times[k]) * 1e9 / n:8.1f} ns a ray   "
+            f"{np.median(times[k]) / np.median(times[p]):5.3f} of {p:12s}   identical to {a.rev}: {same}{diff}"
+        )
 
 
 if __name__ == "__main__":

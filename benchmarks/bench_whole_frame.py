@@ -47,8 +47,8 @@ def numpy_frame(sensor, pose, dem, chunk=DEFAULT_CHUNK, step=1):
     per = max(1, chunk // cols.size)
     out = np.empty((rows.size, cols.size))
     for i0 in range(0, rows.size, per):
-        R, C = np.meshgrid(rows[i0:i0 + per], cols, indexing="ij")
-        out[i0:i0 + per] = intersect_dem(sensor.line_of_sight(R, C, pose), dem, "exact", parallel=True).h
+        R, C = np.meshgrid(rows[i0 : i0 + per], cols, indexing="ij")
+        out[i0 : i0 + per] = intersect_dem(sensor.line_of_sight(R, C, pose), dem, "exact", parallel=True).h
     return out
 
 
@@ -67,27 +67,35 @@ def main(argv=None) -> int:
     print(f"[Q17] sensor {sensor.rows} x {sensor.cols}{every} = {n} rays, record T3-1, DEM {Path(dem.path).name}")
     c0, w0 = time.process_time(), time.perf_counter()
     locate_frame(sensor, pose, dem, step=64)  # compile (or load the numba cache) outside the timing
-    print(f"first call (compile or cache load): {time.perf_counter() - w0:.1f} s wall, "
-          f"{time.process_time() - c0:.1f} s CPU")
+    print(
+        f"first call (compile or cache load): {time.perf_counter() - w0:.1f} s wall, "
+        f"{time.process_time() - c0:.1f} s CPU"
+    )
 
     wall, cpu, grid = timed(lambda: locate_frame(sensor, pose, dem, step=args.step), args.repeat)
     counts = grid.counts()
-    print(f"locate_frame (compiled grid + exact DEM, parallel): wall {wall:.2f} s, CPU {cpu:.2f} s, "
-          f"{n / wall / 1e6:.2f} M rays/s wall, {n / cpu / 1e6:.2f} M rays/s per CPU s; {counts}")
+    print(
+        f"locate_frame (compiled grid + exact DEM, parallel): wall {wall:.2f} s, CPU {cpu:.2f} s, "
+        f"{n / wall / 1e6:.2f} M rays/s wall, {n / cpu / 1e6:.2f} M rays/s per CPU s; {counts}"
+    )
     tracemalloc.start()
     locate_frame(sensor, pose, dem, step=args.step)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     answer = sum(a.nbytes for a in (grid.lat, grid.lon, grid.h, grid.status))
-    print(f"peak traced memory {peak / 1e6:.0f} MB: the answer {answer / 1e6:.0f} MB + "
-          f"{(peak - answer) / 1e6:.0f} MB of temporaries for chunks of {DEFAULT_CHUNK} rays "
-          f"({min(DEFAULT_CHUNK // cols.size, rows.size)} image rows)")
+    print(
+        f"peak traced memory {peak / 1e6:.0f} MB: the answer {answer / 1e6:.0f} MB + "
+        f"{(peak - answer) / 1e6:.0f} MB of temporaries for chunks of {DEFAULT_CHUNK} rays "
+        f"({min(DEFAULT_CHUNK // cols.size, rows.size)} image rows)"
+    )
 
     w_np, c_np, h_np = timed(lambda: numpy_frame(sensor, pose, dem, step=args.step), args.repeat)
     same = np.array_equal(np.isnan(h_np), np.isnan(grid.h))
     dh = float(np.nanmax(np.abs(h_np - grid.h)))
-    print(f"peer, numpy line of sight + the same solver: wall {w_np:.2f} s, CPU {c_np:.2f} s; "
-          f"ratio {w_np / wall:.2f}x wall, {c_np / cpu:.2f}x CPU; same NaNs {same}, max |dh| {dh:.1e} m")
+    print(
+        f"peer, numpy line of sight + the same solver: wall {w_np:.2f} s, CPU {c_np:.2f} s; "
+        f"ratio {w_np / wall:.2f}x wall, {c_np / cpu:.2f}x CPU; same NaNs {same}, max |dh| {dh:.1e} m"
+    )
 
     try:
         from trimesh.ray.ray_pyembree import RayMeshIntersector
@@ -115,10 +123,12 @@ def main(argv=None) -> int:
     w_e, c_e, (loc, idx, _) = timed(lambda: inter.intersects_location(oe, de, multiple_hits=False), args.repeat)
     err = np.linalg.norm(fr.from_ecef(hit.ecef[idx]) - loc, axis=-1).max() if len(idx) else float("nan")
     ok = int((hit.status == Status.OK).sum())
-    print(f"peer, trimesh/embree on {k} of the same rays (DEM mesh): wall {w_e:.3f} s, CPU {c_e:.3f} s "
-          f"({k / c_e / 1e6:.2f} M rays per CPU s); ours in triangle mode: wall {w_t:.3f} s, CPU {c_t:.3f} s "
-          f"({k / c_t / 1e6:.2f} M rays per CPU s); ratio {c_e / c_t:.2f}x per CPU s; hits {ok} vs {len(idx)}, "
-          f"max distance {err:.1e} m")
+    print(
+        f"peer, trimesh/embree on {k} of the same rays (DEM mesh): wall {w_e:.3f} s, CPU {c_e:.3f} s "
+        f"({k / c_e / 1e6:.2f} M rays per CPU s); ours in triangle mode: wall {w_t:.3f} s, CPU {c_t:.3f} s "
+        f"({k / c_t / 1e6:.2f} M rays per CPU s); ratio {c_e / c_t:.2f}x per CPU s; hits {ok} vs {len(idx)}, "
+        f"max distance {err:.1e} m"
+    )
     return 0
 
 

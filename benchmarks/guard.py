@@ -61,8 +61,24 @@ sys.path[:0] = [str(HERE), str(ROOT)]  # _revision; and this checkout's geoloc b
 from _revision import package_at  # noqa: E402  (benchmarks/_revision.py)
 
 HISTORY = HERE / "history.csv"
-FIELDS = ["date", "commit", "against", "kernel", "figure", "unit", "clock", "ratio", "q1", "q3", "low", "load",
-          "pairs", "threads", "mode", "verdict"]
+FIELDS = [
+    "date",
+    "commit",
+    "against",
+    "kernel",
+    "figure",
+    "unit",
+    "clock",
+    "ratio",
+    "q1",
+    "q3",
+    "low",
+    "load",
+    "pairs",
+    "threads",
+    "mode",
+    "verdict",
+]
 #: Default allowed loss: the issue's "a 10 % loss the day it lands".
 THRESHOLD = 0.10
 
@@ -70,10 +86,16 @@ THRESHOLD = 0.10
 #: the 2-core machine, 21 pairs: the median of 21 ratios moves by about 1-3 % between runs of
 #: A vs A at load 2 (its quartiles, printed, show it), well inside 10 %. Fast: 3-15 ms a call,
 #: 9 pairs: for CI, catches a 2x slowdown, not a 10 % one (the full run does).
-SIZES = {"full": {"locate": 200_000, "locate_numpy": 50_000, "dem_walk": 50_000, "refraction": 100_000,
-                  "uncertainty": 20_000},
-         "fast": {"locate": 20_000, "locate_numpy": 5_000, "dem_walk": 5_000, "refraction": 10_000,
-                  "uncertainty": 2_000}}
+SIZES = {
+    "full": {
+        "locate": 200_000,
+        "locate_numpy": 50_000,
+        "dem_walk": 50_000,
+        "refraction": 100_000,
+        "uncertainty": 20_000,
+    },
+    "fast": {"locate": 20_000, "locate_numpy": 5_000, "dem_walk": 5_000, "refraction": 10_000, "uncertainty": 2_000},
+}
 PAIRS = {"full": 21, "fast": 9}
 
 
@@ -87,6 +109,7 @@ class Case:
 
 def cases(pkg: str, mode: str) -> dict:
     """The kernels' calls built with the package imported as ``pkg`` (this tree's or the old copy)."""
+
     def M(name):
         return importlib.import_module(f"{pkg}.{name}")
 
@@ -94,26 +117,51 @@ def cases(pkg: str, mode: str) -> dict:
     out = {}
 
     def turret():
-        lens = M("sensors.lenses").BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080,
-                                              k1=-0.21, k2=0.07, p1=4e-4, p2=-2e-4, k3=-0.01)
-        return M("sensors.frame").FrameSensor(lens, M("sensors.gimbals").PRESETS["azimuth-elevation"],
-                                               mount=(2e-3, -1e-3, 4e-3), boresight=(1e-3, 2e-3, -3e-3),
-                                               lever_arm_m=(1.5, 0.2, 0.7), name="turret")
+        lens = M("sensors.lenses").BrownLens(
+            fx=2200.0,
+            fy=2195.0,
+            cx=959.5,
+            cy=539.5,
+            width=1920,
+            height=1080,
+            k1=-0.21,
+            k2=0.07,
+            p1=4e-4,
+            p2=-2e-4,
+            k3=-0.01,
+        )
+        return M("sensors.frame").FrameSensor(
+            lens,
+            M("sensors.gimbals").PRESETS["azimuth-elevation"],
+            mount=(2e-3, -1e-3, 4e-3),
+            boresight=(1e-3, 2e-3, -3e-3),
+            lever_arm_m=(1.5, 0.2, 0.7),
+            name="turret",
+        )
 
     def poses(n, seed=0):  # as bench_locate's turret rays
         rng = np.random.default_rng(seed)
         pose = M("frames.chain").Pose.from_deg(
-            rng.uniform(36.5, 36.68, n), rng.uniform(-84.35, -84.15, n), rng.uniform(2500, 4000, n),
-            rng.uniform(0, 360, n), rng.uniform(-3, 3, n), rng.uniform(-5, 5, n),
-            angles_deg={"azimuth": rng.uniform(0, 360, n), "elevation": rng.uniform(-90, -30, n)})
+            rng.uniform(36.5, 36.68, n),
+            rng.uniform(-84.35, -84.15, n),
+            rng.uniform(2500, 4000, n),
+            rng.uniform(0, 360, n),
+            rng.uniform(-3, 3, n),
+            rng.uniform(-5, 5, n),
+            angles_deg={"azimuth": rng.uniform(0, 360, n), "elevation": rng.uniform(-90, -30, n)},
+        )
         return pose, rng.uniform(1, 1080, n), rng.uniform(1, 1920, n), rng
 
     locate = M("locate").locate
     for name, engine in (("locate", "numba"), ("locate_numpy", "numpy")):
         n = sz[name]
         s, (pose, row, col, _) = turret(), poses(n)
-        out[name] = Case(lambda pose=pose, s=s, row=row, col=col, engine=engine:
-                         locate(pose, s, row, col, 500.0, engine=engine), n, "rays", lambda g: g.lat)
+        out[name] = Case(
+            lambda pose=pose, s=s, row=row, col=col, engine=engine: locate(pose, s, row, col, 500.0, engine=engine),
+            n,
+            "rays",
+            lambda g: g.lat,
+        )
 
     # the exact DEM walk on the bundled SRTM crop (bench_terrain's rays), triangles as bench_terrain
     n = sz["dem_walk"]
@@ -137,15 +185,36 @@ def cases(pkg: str, mode: str) -> dict:
     budget = M("sensors.budget").ErrorBudget(BUDGET)
     s, hs = turret(), M("surfaces.height").HeightSurface(500.0)
     propagate = M("analysis.uncertainty").propagate
-    out["uncertainty"] = Case(lambda: propagate(s, pose, row, col, budget, surface=hs, velocity_ned_m_s=vel),
-                              n, "points", lambda u: u.ce90_m)
+    out["uncertainty"] = Case(
+        lambda: propagate(s, pose, row, col, budget, surface=hs, velocity_ned_m_s=vel), n, "points", lambda u: u.ce90_m
+    )
     return out
 
 
-BUDGET = {"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.03, "pitch_deg": 0.02, "roll_deg": 0.02,
-          "azimuth_deg": 0.01, "elevation_deg": 0.01, "mount_x_deg": 0.01, "mount_y_deg": 0.01, "mount_z_deg": 0.01,
-          "boresight_x_deg": 0.01, "boresight_y_deg": 0.01, "boresight_z_deg": 0.01, "lever_arm_x_m": 0.05,
-          "fx_px": 2.0, "cx_px": 0.5, "cy_px": 0.5, "k1": 0.001, "time_s": 0.005, "height_m": 10.0, "dem_m": 9.73}
+BUDGET = {
+    "north_m": 2.0,
+    "east_m": 2.0,
+    "up_m": 3.0,
+    "heading_deg": 0.03,
+    "pitch_deg": 0.02,
+    "roll_deg": 0.02,
+    "azimuth_deg": 0.01,
+    "elevation_deg": 0.01,
+    "mount_x_deg": 0.01,
+    "mount_y_deg": 0.01,
+    "mount_z_deg": 0.01,
+    "boresight_x_deg": 0.01,
+    "boresight_y_deg": 0.01,
+    "boresight_z_deg": 0.01,
+    "lever_arm_x_m": 0.05,
+    "fx_px": 2.0,
+    "cx_px": 0.5,
+    "cy_px": 0.5,
+    "k1": 0.001,
+    "time_s": 0.005,
+    "height_m": 10.0,
+    "dem_m": 9.73,
+}
 
 
 def _rays(n):
@@ -153,8 +222,12 @@ def _rays(n):
     from geoloc.surfaces.dem import DEM
     from geoloc.surfaces.terrain import random_oblique_rays
 
-    return random_oblique_rays(DEM.open(ROOT / "assets" / "dem" / "srtm_jacksboro.tif"), n,
-                               np.random.default_rng(1), frame_angle_deg=(45.0, 82.0))
+    return random_oblique_rays(
+        DEM.open(ROOT / "assets" / "dem" / "srtm_jacksboro.tif"),
+        n,
+        np.random.default_rng(1),
+        frame_angle_deg=(45.0, 82.0),
+    )
 
 
 def _raw_hits(n):
@@ -168,8 +241,11 @@ def _raw_hits(n):
     lat, lon = np.deg2rad(rng.uniform(30, 40, n)), np.deg2rad(rng.uniform(75, 85, n))
     o = geodetic_to_ecef(lat, lon, rng.uniform(5000, 20000, n))
     a, z = np.deg2rad(rng.uniform(0, 75, n)), np.deg2rad(rng.uniform(0, 360, n))
-    d = np.einsum("...ij,...j->...i", R_ecef_ned(lat, lon),
-                  np.stack([np.sin(a) * np.cos(z), np.sin(a) * np.sin(z), np.cos(a)], axis=-1))
+    d = np.einsum(
+        "...ij,...j->...i",
+        R_ecef_ned(lat, lon),
+        np.stack([np.sin(a) * np.cos(z), np.sin(a) * np.sin(z), np.cos(a)], axis=-1),
+    )
     g = HeightSurface(0.0).intersect(LineOfSight(o, d, np.zeros(n, np.uint8)))
     return o, d, np.asarray(g.ecef, float), (np.asarray(g.lat), np.asarray(g.lon), np.asarray(g.h))
 
@@ -188,7 +264,7 @@ def measure(old, new, pairs: int, warm: int = 2):
         old(), new()
     cpu, wall, res = np.empty((pairs, 2)), np.empty((pairs, 2)), [None, None]
     for i in range(pairs):
-        for side in ((0, 1) if i % 2 == 0 else (1, 0)):
+        for side in (0, 1) if i % 2 == 0 else (1, 0):
             cpu[i, side], wall[i, side], res[side] = _once((old, new)[side])
     return cpu, wall, res
 
@@ -251,22 +327,27 @@ def run(args) -> int:
     try:
         old_pkg, old_label = package_at(against)
     except subprocess.CalledProcessError as e:  # no such revision (a shallow clone has no HEAD~1)
-        raise SystemExit(f"guard: cannot read {against!r}: {(e.stderr or b'').strip()[-300:]!r}; "
-                         "pass --against REV (fetch it first) or a folder holding geoloc/") from None
+        raise SystemExit(
+            f"guard: cannot read {against!r}: {(e.stderr or b'').strip()[-300:]!r}; "
+            "pass --against REV (fetch it first) or a folder holding geoloc/"
+        ) from None
     if args.tree:
         new_pkg, new_label = package_at(args.tree)
     else:
         new_pkg = "geoloc"
-        new_label = _git("rev-parse", "--short=12", "HEAD") + ("+dirty" if _git("status", "--porcelain", "--",
-                                                                                  "geoloc") else "")
+        new_label = _git("rev-parse", "--short=12", "HEAD") + (
+            "+dirty" if _git("status", "--porcelain", "--", "geoloc") else ""
+        )
     assert importlib.import_module(new_pkg).__file__, new_pkg
     only = [k.strip() for k in args.only.split(",")] if args.only else list(SIZES[mode])
     unknown = set(only) - set(SIZES[mode])
     if unknown:
         raise SystemExit(f"guard: unknown kernels {sorted(unknown)}; known: {list(SIZES[mode])}")
     load0 = _load()
-    print(f"old: {old_label} ({old_pkg}); new: {new_label} ({new_pkg}); {mode}, {pairs} pairs a kernel, calls "
-          f"alternating (ABBA), numba threads {numba.get_num_threads()}; load average {load0:.2f}")
+    print(
+        f"old: {old_label} ({old_pkg}); new: {new_label} ({new_pkg}); {mode}, {pairs} pairs a kernel, calls "
+        f"alternating (ABBA), numba threads {numba.get_num_threads()}; load average {load0:.2f}"
+    )
     new_cases = cases(new_pkg, mode)
     try:
         old_cases, old_err = cases(old_pkg, mode), None
@@ -292,26 +373,48 @@ def run(args) -> int:
         mc, mw = np.median(cpu, axis=0), np.median(wall, axis=0)
         a, b = (np.asarray(new.out(r), float).ravel() for r in reversed(res))
         both = np.isfinite(a) & np.isfinite(b)
-        same = "identical" if np.array_equal(a, b, equal_nan=True) else (
-            f"differ: max {np.max(np.abs(a[both] - b[both])) if both.any() else np.nan:.1e}, "
-            f"finite {int(np.isfinite(b).sum())} vs {int(np.isfinite(a).sum())}")
+        same = (
+            "identical"
+            if np.array_equal(a, b, equal_nan=True)
+            else (
+                f"differ: max {np.max(np.abs(a[both] - b[both])) if both.any() else np.nan:.1e}, "
+                f"finite {int(np.isfinite(b).sum())} vs {int(np.isfinite(a).sum())}"
+            )
+        )
         verdict = "ok" if ok else "FAIL"
         unit = f"{new.unit}/s"
-        print(f"{k:13s} {new.n:7d} {new.unit:6s} old {new.n / mc[0]:10.4g} /CPU s {new.n / mw[0]:10.4g} /s wall | "
-              f"new {new.n / mc[1]:10.4g} /CPU s {new.n / mw[1]:10.4g} /s wall | median CPU {mc[1] * 1e3:.2f} ms "
-              f"wall {mw[1] * 1e3:.2f} ms | load {la:.2f}-{lb:.2f} | outputs {same} | {len(cpu)} pairs | "
-              f"fastest quarters {low_ratio(cpu):.3f} | "
-              f"ratio CPU {rc:.3f} ({q1c:.3f}-{q3c:.3f}) wall {rw:.3f} ({q1w:.3f}-{q3w:.3f}) {verdict}")
+        print(
+            f"{k:13s} {new.n:7d} {new.unit:6s} old {new.n / mc[0]:10.4g} /CPU s {new.n / mw[0]:10.4g} /s wall | "
+            f"new {new.n / mc[1]:10.4g} /CPU s {new.n / mw[1]:10.4g} /s wall | median CPU {mc[1] * 1e3:.2f} ms "
+            f"wall {mw[1] * 1e3:.2f} ms | load {la:.2f}-{lb:.2f} | outputs {same} | {len(cpu)} pairs | "
+            f"fastest quarters {low_ratio(cpu):.3f} | "
+            f"ratio CPU {rc:.3f} ({q1c:.3f}-{q3c:.3f}) wall {rw:.3f} ({q1w:.3f}-{q3w:.3f}) {verdict}"
+        )
         if worst is None or rc < worst[1]:
             worst = (k, rc)
         if not ok:
             failed.append(k)
         for clock, m, r, q1, q3, m_t in (("cpu", mc, rc, q1c, q3c, cpu), ("wall", mw, rw, q1w, q3w, wall)):
-            rows.append({"date": date, "commit": new_label, "against": old_label, "kernel": k,
-                         "figure": f"{new.n / m[1]:.6g}", "unit": unit, "clock": clock, "ratio": f"{r:.4f}",
-                         "q1": f"{q1:.4f}", "q3": f"{q3:.4f}", "low": f"{low_ratio(m_t):.4f}",
-                         "load": f"{(la + lb) / 2:.2f}", "pairs": len(cpu),
-                         "threads": numba.get_num_threads(), "mode": mode, "verdict": verdict})
+            rows.append(
+                {
+                    "date": date,
+                    "commit": new_label,
+                    "against": old_label,
+                    "kernel": k,
+                    "figure": f"{new.n / m[1]:.6g}",
+                    "unit": unit,
+                    "clock": clock,
+                    "ratio": f"{r:.4f}",
+                    "q1": f"{q1:.4f}",
+                    "q3": f"{q3:.4f}",
+                    "low": f"{low_ratio(m_t):.4f}",
+                    "load": f"{(la + lb) / 2:.2f}",
+                    "pairs": len(cpu),
+                    "threads": numba.get_num_threads(),
+                    "mode": mode,
+                    "verdict": verdict,
+                }
+            )
     if rows and args.history:
         append_history(Path(args.history), rows)
         print(f"history: {len(rows)} rows appended to {args.history}")
@@ -319,10 +422,14 @@ def run(args) -> int:
         print("ratio: nan  (no kernel measured)")
         return 1
     lim = 1.0 - args.threshold
-    print("ratio is old CPU time over new, median of the pairs: below "
-          f"{lim:.2f} the new code lost more than {args.threshold:.0%}")
-    print(f"ratio: {worst[1]:.3f}  (worst of {len(rows) // 2} kernels: {worst[0]}; "
-          + (f"FAIL: {', '.join(failed)} lost more than {args.threshold:.0%})" if failed else "pass)"))
+    print(
+        "ratio is old CPU time over new, median of the pairs: below "
+        f"{lim:.2f} the new code lost more than {args.threshold:.0%}"
+    )
+    print(
+        f"ratio: {worst[1]:.3f}  (worst of {len(rows) // 2} kernels: {worst[0]}; "
+        + (f"FAIL: {', '.join(failed)} lost more than {args.threshold:.0%})" if failed else "pass)")
+    )
     return 1 if failed else 0
 
 
@@ -381,10 +488,12 @@ def _svg(series, runs) -> str:
     x = lambda i: m + (W - 2 * m) * (i / max(len(runs) - 1, 1))
     y = lambda r: H - m - (H - 2 * m) * (min(max(r, lo), hi) - lo) / (hi - lo)
     colours = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b"]
-    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}">',
-             f'<line x1="{m}" x2="{W - m}" y1="{y(1 - THRESHOLD):.1f}" y2="{y(1 - THRESHOLD):.1f}" stroke="red" '
-             'stroke-dasharray="4"/>',
-             f'<text x="4" y="{y(1.0) + 4:.1f}" font-size="10">1.0</text>']
+    parts = [
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}">',
+        f'<line x1="{m}" x2="{W - m}" y1="{y(1 - THRESHOLD):.1f}" y2="{y(1 - THRESHOLD):.1f}" stroke="red" '
+        'stroke-dasharray="4"/>',
+        f'<text x="4" y="{y(1.0) + 4:.1f}" font-size="10">1.0</text>',
+    ]
     for j, (k, pts) in enumerate(series.items()):
         c = colours[j % len(colours)]
         pl = " ".join(f"{x(i):.1f},{y(r):.1f}" for i, _, r in pts)
@@ -396,11 +505,19 @@ def _svg(series, runs) -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--against", default=None, metavar="REV|DIR",
-                    help="the code before the change: a git revision or a folder holding geoloc/ "
-                    "(default: HEAD if geoloc/ has changes not committed, else HEAD~1)")
-    ap.add_argument("--tree", default=None, metavar="REV|DIR",
-                    help="the new side from a revision or folder instead of this checkout (its own copy)")
+    ap.add_argument(
+        "--against",
+        default=None,
+        metavar="REV|DIR",
+        help="the code before the change: a git revision or a folder holding geoloc/ "
+        "(default: HEAD if geoloc/ has changes not committed, else HEAD~1)",
+    )
+    ap.add_argument(
+        "--tree",
+        default=None,
+        metavar="REV|DIR",
+        help="the new side from a revision or folder instead of this checkout (its own copy)",
+    )
     ap.add_argument("--fast", action="store_true", help="small calls and 9 pairs (CI: catches 2x, not 10 %%)")
     ap.add_argument("--only", default=None, help=f"comma-separated kernels among {list(SIZES['full'])}")
     ap.add_argument("--pairs", type=int, default=None, help="pairs of calls a kernel (default 21; --fast 9)")
@@ -409,8 +526,14 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="numba threads (default 1: CPU time is the work)")
     ap.add_argument("--history", default=str(HISTORY), help="CSV the figures are appended to")
     ap.add_argument("--no-history", dest="history", action="store_const", const=None)
-    ap.add_argument("--plot", nargs="?", const="", default=None, metavar="FILE",
-                    help="draw the history file (PNG with matplotlib, else SVG) and exit")
+    ap.add_argument(
+        "--plot",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="FILE",
+        help="draw the history file (PNG with matplotlib, else SVG) and exit",
+    )
     args = ap.parse_args(argv)
     if args.plot is not None:
         out = plot(Path(args.history or HISTORY), Path(args.plot) if args.plot else None)

@@ -63,64 +63,151 @@ class Target:
 
 
 #: The tests of the live stream's demultiplexer and receiver (the targets ts_demux and live).
-LIVE_TESTS = ("tests/test_live_gaps.py", "tests/test_live.py::test_synchronous_metadata_carriage_is_read",
-              "tests/test_live.py::test_datagrams_and_chunks_decode_as_ffmpeg_reads_the_file",
-              "tests/test_live.py::test_lost_swapped_and_repeated_datagrams_every_intact_packet_used",
-              "tests/test_live.py::test_corrupt_cut_and_foreign_datagrams_are_counted_never_fatal",
-              "tests/test_live.py::test_a_stream_that_stops_and_restarts",
-              "tests/test_live.py::test_crc32_of_the_files_psi_sections_is_zero")
+LIVE_TESTS = (
+    "tests/test_live_gaps.py",
+    "tests/test_live.py::test_synchronous_metadata_carriage_is_read",
+    "tests/test_live.py::test_datagrams_and_chunks_decode_as_ffmpeg_reads_the_file",
+    "tests/test_live.py::test_lost_swapped_and_repeated_datagrams_every_intact_packet_used",
+    "tests/test_live.py::test_corrupt_cut_and_foreign_datagrams_are_counted_never_fatal",
+    "tests/test_live.py::test_a_stream_that_stops_and_restarts",
+    "tests/test_live.py::test_crc32_of_the_files_psi_sections_is_zero",
+)
 
 TARGETS = [
     Target("ellipsoid", "geoloc/geodesy/ellipsoid.py", ("tests/test_ellipsoid.py",)),
     Target("rotations", "geoloc/frames/rotations.py", ("tests/test_frames.py", "tests/test_locate.py")),
     Target("chain", "geoloc/frames/chain.py", ("tests/test_frames.py", "tests/test_locate.py")),
     Target("height", "geoloc/surfaces/height.py", ("tests/test_locate.py", "tests/test_terrain.py")),
-    Target("terrain", "geoloc/surfaces/terrain.py",
-           ("tests/test_terrain.py", "tests/test_terrain_walk.py", "tests/test_terrain_trimesh.py"),
-           ("_flat_los", "_ground", "_top_height", "_steps", "_bisect", "_hidden", "_exact_tables", "_exact",
-            "intersect_dem", "_first_sampled"), "the DEM solvers"),
-    Target("montecarlo", "geoloc/analysis/montecarlo.py", ("tests/test_montecarlo.py",),
-           ("statistics", "first_order"), "the statistics and CEP [Q17 eq. 18]"),
+    Target(
+        "terrain",
+        "geoloc/surfaces/terrain.py",
+        ("tests/test_terrain.py", "tests/test_terrain_walk.py", "tests/test_terrain_trimesh.py"),
+        (
+            "_flat_los",
+            "_ground",
+            "_top_height",
+            "_steps",
+            "_bisect",
+            "_hidden",
+            "_exact_tables",
+            "_exact",
+            "intersect_dem",
+            "_first_sampled",
+        ),
+        "the DEM solvers",
+    ),
+    Target(
+        "montecarlo",
+        "geoloc/analysis/montecarlo.py",
+        ("tests/test_montecarlo.py",),
+        ("statistics", "first_order"),
+        "the statistics and CEP [Q17 eq. 18]",
+    ),
     # the sensor model of the second phase
     Target("local", "geoloc/geodesy/local.py", ("tests/test_local_frames.py", "tests/test_frames.py")),
     Target("graph", "geoloc/frames/graph.py", ("tests/test_gimbals.py", "tests/test_sensors.py")),
     Target("gimbals", "geoloc/sensors/gimbals.py", ("tests/test_gimbals.py", "tests/test_sensors.py")),
-    Target("frame", "geoloc/sensors/frame.py", ("tests/test_gimbals.py", "tests/test_sensors.py",
-                                                "tests/test_locate.py")),
+    Target(
+        "frame", "geoloc/sensors/frame.py", ("tests/test_gimbals.py", "tests/test_sensors.py", "tests/test_locate.py")
+    ),
     # the one calibrator (analysis/calibrate.py, the first-phase camera's, is gone: issue 31)
-    Target("sensor_fit", "geoloc/analysis/sensor_fit.py", ("tests/test_sensor_fit.py",
-                                                          "tests/test_sensor_fit_groups.py",
-                                                          "tests/test_calibrate.py")),
+    Target(
+        "sensor_fit",
+        "geoloc/analysis/sensor_fit.py",
+        ("tests/test_sensor_fit.py", "tests/test_sensor_fit_groups.py", "tests/test_calibrate.py"),
+    ),
     # the last phase (issue 50): the fastest test that covers each first (pytest -x stops there)
     Target("uncertainty", "geoloc/analysis/uncertainty.py", ("tests/test_uncertainty.py",), kills=False),
-    Target("triangulate", "geoloc/analysis/triangulate.py",
-           ("tests/test_triangulate_wls.py", "tests/test_triangulate.py"), kills=False),
+    Target(
+        "triangulate",
+        "geoloc/analysis/triangulate.py",
+        ("tests/test_triangulate_wls.py", "tests/test_triangulate.py"),
+        kills=False,
+    ),
     Target("time_offset", "geoloc/analysis/time_offset.py", ("tests/test_video_example.py",), kills=False),
     # the live stream: its demultiplexer (geoloc.io.ts_demux, which geoloc.io.klv reads a .ts with too)
     # and its receiver (geoloc.io.live; not the sockets, the sender, the CLI), under the same tests
-    Target("ts_demux", "geoloc/io/ts_demux.py", LIVE_TESTS,
-           ("crc32_mpeg2", "_crc32_table", "feed_datagram", "_datagram", "feed", "flush", "_feed", "_resync",
-            "_packet", "expire", "_counters", "_gap", "_first", "_take", "_damage", "_finish", "_section",
-            "_try_section", "_registration", "_timestamp", "_metadata_cells"),
-           "the MPEG-TS demultiplexer", kills=False),
-    Target("live", "geoloc/io/live.py", LIVE_TESTS, ("push", "tick", "push_bytes", "_units"),
-           "the receiver (not the sockets, the sender, the CLI)", kills=False),
+    Target(
+        "ts_demux",
+        "geoloc/io/ts_demux.py",
+        LIVE_TESTS,
+        (
+            "crc32_mpeg2",
+            "_crc32_table",
+            "feed_datagram",
+            "_datagram",
+            "feed",
+            "flush",
+            "_feed",
+            "_resync",
+            "_packet",
+            "expire",
+            "_counters",
+            "_gap",
+            "_first",
+            "_take",
+            "_damage",
+            "_finish",
+            "_section",
+            "_try_section",
+            "_registration",
+            "_timestamp",
+            "_metadata_cells",
+        ),
+        "the MPEG-TS demultiplexer",
+        kills=False,
+    ),
+    Target(
+        "live",
+        "geoloc/io/live.py",
+        LIVE_TESTS,
+        ("push", "tick", "push_bytes", "_units"),
+        "the receiver (not the sockets, the sender, the CLI)",
+        kills=False,
+    ),
     Target("mgrs_grid", "geoloc/io/mgrs_grid.py", ("tests/test_mgrs_wrap.py", "tests/test_mgrs.py"), kills=False),
     Target("cot", "geoloc/io/cot.py", ("tests/test_cot.py",), kills=False),
-    Target("rpc_nitf", "geoloc/io/rpc_gdal.py", ("tests/test_rpc_nitf.py",),
-           ("rpc00b_renormalized", "old_of", "write_rpc_nitf", "_is_sidecar", "read_rpc"), "the NITF RPC00B",
-           kills=False),
+    Target(
+        "rpc_nitf",
+        "geoloc/io/rpc_gdal.py",
+        ("tests/test_rpc_nitf.py",),
+        ("rpc00b_renormalized", "old_of", "write_rpc_nitf", "_is_sidecar", "read_rpc"),
+        "the NITF RPC00B",
+        kills=False,
+    ),
     Target("klv_fix", "geoloc/workflows/klv_fix.py", ("tests/test_klv_fix.py",), kills=False),
-    Target("picture_model", "viz/geoloc_viz/picture_model.py", ("tests/test_picture_opencv.py",),
-           ("frame_sensor", "image_index", "locate_pixel", "image_marks"), "the picture's sensor and its pixels",
-           kills=False),
+    Target(
+        "picture_model",
+        "viz/geoloc_viz/picture_model.py",
+        ("tests/test_picture_opencv.py",),
+        ("frame_sensor", "image_index", "locate_pixel", "image_marks"),
+        "the picture's sensor and its pixels",
+        kills=False,
+    ),
     Target("userfiles", "geoloc/userfiles.py", ("tests/test_user_files.py",), kills=False),
 ]
 
-_KEEP_BINARY = {("Add", "Sub"), ("Sub", "Add"), ("Mul", "Div"), ("Div", "Mul"), ("Pow", "Mul"),
-                ("FloorDiv", "Div"), ("Mod", "Mul")}
-_KEEP_COMPARE = {frozenset(p) for p in (("Lt", "LtE"), ("Gt", "GtE"), ("Lt", "Gt"), ("LtE", "GtE"),
-                                          ("Eq", "NotEq"), ("Is", "IsNot"), ("In", "NotIn"))}
+_KEEP_BINARY = {
+    ("Add", "Sub"),
+    ("Sub", "Add"),
+    ("Mul", "Div"),
+    ("Div", "Mul"),
+    ("Pow", "Mul"),
+    ("FloorDiv", "Div"),
+    ("Mod", "Mul"),
+}
+_KEEP_COMPARE = {
+    frozenset(p)
+    for p in (
+        ("Lt", "LtE"),
+        ("Gt", "GtE"),
+        ("Lt", "Gt"),
+        ("LtE", "GtE"),
+        ("Eq", "NotEq"),
+        ("Is", "IsNot"),
+        ("In", "NotIn"),
+    )
+}
 
 
 def keep_operator(name: str) -> bool:
@@ -150,8 +237,14 @@ def _env(copy: Path):
     # instead of reading garbage that may pass (the scratch copy's own cache holds only
     # bounds-checked code)
     # both packages of the copy (the core, and the viewer's geoloc_viz under viz/) before the installed ones
-    return dict(os.environ, PYTHONPATH=os.pathsep.join((str(copy), str(copy / "viz"))), NUMBA_CACHE_DIR=str(copy / ".numba_cache_boundscheck"),
-                NUMBA_BOUNDSCHECK="1", HOME=str(copy / ".home"), MPLBACKEND="Agg")
+    return dict(
+        os.environ,
+        PYTHONPATH=os.pathsep.join((str(copy), str(copy / "viz"))),
+        NUMBA_CACHE_DIR=str(copy / ".numba_cache_boundscheck"),
+        NUMBA_BOUNDSCHECK="1",
+        HOME=str(copy / ".home"),
+        MPLBACKEND="Agg",
+    )
 
 
 def make_copy(dest: Path):
@@ -175,7 +268,8 @@ def write_config(copy: Path, t: Target, timeout_s: float) -> Path:
         "excluded-modules = []\n"
         f'test-command = "{test_command(t)}"\n\n'
         "[cosmic-ray.distributor]\n"
-        'name = "local"\n')
+        'name = "local"\n'
+    )
     return cfg
 
 
@@ -207,8 +301,9 @@ def init_session(copy: Path, t: Target, sample: int, seed: int, timeout_s: float
             chosen = {it.job_id for it in run}
             skip += [it for it in eligible if it.job_id not in chosen]
         if skip:
-            db.set_multiple_results([it.job_id for it in skip],
-                                    WorkResult(worker_outcome=WorkerOutcome.SKIPPED, output="not run"))
+            db.set_multiple_results(
+                [it.job_id for it in skip], WorkResult(worker_outcome=WorkerOutcome.SKIPPED, output="not run")
+            )
     return cfg, db_path, len(items), len(eligible), len(run)
 
 
@@ -239,9 +334,17 @@ def collect(db_path: Path, t: Target, o: Outcome, copy: Path):
                 o.killed += 1
             elif r.test_outcome == TestOutcome.SURVIVED:
                 m = it.mutations[0]
-                o.survived.append(dict(line=m.start_pos[0], col=m.start_pos[1], operator=m.operator_name,
-                                       occurrence=m.occurrence, function=m.definition_name,
-                                       source=lines[m.start_pos[0] - 1].strip(), diff=r.diff or ""))
+                o.survived.append(
+                    dict(
+                        line=m.start_pos[0],
+                        col=m.start_pos[1],
+                        operator=m.operator_name,
+                        occurrence=m.occurrence,
+                        function=m.definition_name,
+                        source=lines[m.start_pos[0] - 1].strip(),
+                        diff=r.diff or "",
+                    )
+                )
             else:
                 o.incompetent += 1
         o.not_run = sum(1 for _ in db.pending_work_items)
@@ -261,8 +364,13 @@ def run_slot(copy: Path, targets, args, outcomes, deadline, lock):
         pristine = (copy / t.module).read_bytes()
         left = deadline - time.time()
         if left > 0:
-            p = subprocess.Popen([sys.executable, "-m", "cosmic_ray.cli", "exec", str(cfg), str(db_path)], cwd=copy,
-                                 env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            p = subprocess.Popen(
+                [sys.executable, "-m", "cosmic_ray.cli", "exec", str(cfg), str(db_path)],
+                cwd=copy,
+                env=env,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
             try:
                 p.wait(timeout=left)
             except subprocess.TimeoutExpired:  # over budget: what ran is reported, the rest "not run"
@@ -273,9 +381,12 @@ def run_slot(copy: Path, targets, args, outcomes, deadline, lock):
         collect(db_path, t, o, copy)
         with lock:
             outcomes.append(o)
-            print(f"[{t.name}] {o.killed} killed, {len(o.survived)} survived, {o.incompetent} incompetent, "
-                  f"{o.not_run} not run ({o.sampled} of {o.eligible} eligible, {o.generated} generated) "
-                  f"in {o.seconds:.0f} s", flush=True)
+            print(
+                f"[{t.name}] {o.killed} killed, {len(o.survived)} survived, {o.incompetent} incompetent, "
+                f"{o.not_run} not run ({o.sampled} of {o.eligible} eligible, {o.generated} generated) "
+                f"in {o.seconds:.0f} s",
+                flush=True,
+            )
 
 
 def recheck(args):
@@ -335,29 +446,36 @@ def select(args):
 
 
 def report(outcomes, elapsed, args) -> str:
-    out = [f"# cosmic-ray survivors ({time.strftime('%Y-%m-%d %H:%M')}, {elapsed / 60:.0f} min, "
-           f"--sample {args.sample} --seed {args.seed})", ""]
+    out = [
+        f"# cosmic-ray survivors ({time.strftime('%Y-%m-%d %H:%M')}, {elapsed / 60:.0f} min, "
+        f"--sample {args.sample} --seed {args.seed})",
+        "",
+    ]
     out.append("| target | generated | eligible | run | killed | survived | incompetent | not run |")
     out.append("|---|---|---|---|---|---|---|---|")
     order = {t.name: k for k, t in enumerate(TARGETS)}
     outcomes = sorted(outcomes, key=lambda o: order[o.target.name])
     for o in outcomes:
-        out.append(f"| {o.target.name} | {o.generated} | {o.eligible} | {o.sampled} | {o.killed} | "
-                   f"{len(o.survived)} | {o.incompetent} | {o.not_run} |")
+        out.append(
+            f"| {o.target.name} | {o.generated} | {o.eligible} | {o.sampled} | {o.killed} | "
+            f"{len(o.survived)} | {o.incompetent} | {o.not_run} |"
+        )
     for o in outcomes:
         for s in sorted(o.survived, key=lambda s: (s["line"], s["col"])):
             op = s["operator"].split("/", 1)[-1]
             out.append("")
-            out.append(f"- {o.target.module}:{s['line']} `{s['function']}` {op} #{s['occurrence']}: "
-                       f"`{s['source']}`")
-            diff = [ln for ln in s["diff"].splitlines() if ln.startswith(("+", "-")) and not ln.startswith(("+++", "---"))]
+            out.append(f"- {o.target.module}:{s['line']} `{s['function']}` {op} #{s['occurrence']}: `{s['source']}`")
+            diff = [
+                ln for ln in s["diff"].splitlines() if ln.startswith(("+", "-")) and not ln.startswith(("+++", "---"))
+            ]
             out.extend(f"      {ln}" for ln in diff)
     return "\n".join(out)
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--targets", default="", help="comma-separated: " + ",".join(t.name for t in TARGETS))
     ap.add_argument("--sample", type=int, default=60, help="mutants run per target, at random (0: all)")
     ap.add_argument("--seed", type=int, default=0)
@@ -367,8 +485,12 @@ def main(argv=None):
     ap.add_argument("--keep", action="store_true", help="keep the scratch folder (sessions, configs)")
     ap.add_argument("--out", type=Path, default=None, help="also write the report (markdown) here")
     ap.add_argument("--count", action="store_true", help="only count the mutants per target")
-    ap.add_argument("--recheck", type=Path, default=None,
-                    help="re-run the survivors kept in this scratch folder against the current tests")
+    ap.add_argument(
+        "--recheck",
+        type=Path,
+        default=None,
+        help="re-run the survivors kept in this scratch folder against the current tests",
+    )
     args = ap.parse_args(argv)
     try:
         import cosmic_ray  # noqa: F401

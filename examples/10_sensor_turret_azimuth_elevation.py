@@ -18,26 +18,45 @@ from geoloc.locate import locate
 from geoloc.sensors.sensor_file import load_sensor
 
 sensor = load_sensor(asset_path("sensors", "eo_turret.toml"))
-pose = Pose.from_deg(36.6, -84.25, 2500.0, heading_deg=45.0, pitch_deg=2.0, roll_deg=1.0,
-                     angles_deg={"azimuth": 90.0, "elevation": -30.0})
+pose = Pose.from_deg(
+    36.6,
+    -84.25,
+    2500.0,
+    heading_deg=45.0,
+    pitch_deg=2.0,
+    roll_deg=1.0,
+    angles_deg={"azimuth": 90.0, "elevation": -30.0},
+)
 print(f"sensor: {sensor.name}; gimbal {sensor.gimbal.name}, angles {list(sensor.angle_names)}")
 
 centre = locate(pose, sensor, 540.5, 960.5, target_h=0.0, height_kind="geodetic")
-print(f"principal point on the ellipsoid: {float(centre.lat_deg):.7f} N {float(centre.lon_deg):.7f} E, "
-      f"slant range {float(centre.slant_range):.1f} m")
+print(
+    f"principal point on the ellipsoid: {float(centre.lat_deg):.7f} N {float(centre.lon_deg):.7f} E, "
+    f"slant range {float(centre.slant_range):.1f} m"
+)
 
 # the same ray through pymap3d: azimuth and tilt in the NED frame at the optical centre
 o_lat, o_lon, o_h = ecef_to_geodetic(centre.los.origin_ecef)
 d = R_ecef_ned(o_lat, o_lon).T @ centre.los.direction_ecef
 az, tilt = np.degrees(np.arctan2(d[1], d[0])) % 360, np.degrees(np.arccos(d[2]))
 lat, lon, rng = lookAtSpheroid(np.degrees(o_lat), np.degrees(o_lon), o_h, az, tilt)
-print(f"line of sight: azimuth {az:.3f} deg, {tilt:.3f} deg from nadir "
-      f"(heading 45 + azimuth 90 = 135 and elevation -30 = 60 from nadir, turned by the "
-      f"aircraft's pitch and roll, the mount and the boresight)")
-print(f"pymap3d lookAtSpheroid: {float(lat):.7f} N {float(lon):.7f} E; "
-      f"difference {abs(float(rng) - float(centre.slant_range)):.1e} m in range")
+print(
+    f"line of sight: azimuth {az:.3f} deg, {tilt:.3f} deg from nadir "
+    f"(heading 45 + azimuth 90 = 135 and elevation -30 = 60 from nadir, turned by the "
+    f"aircraft's pitch and roll, the mount and the boresight)"
+)
+print(
+    f"pymap3d lookAtSpheroid: {float(lat):.7f} N {float(lon):.7f} E; "
+    f"difference {abs(float(rng) - float(centre.slant_range)):.1e} m in range"
+)
 
-corners = locate(pose, sensor, np.array([0.5, 0.5, 1080.5, 1080.5]), np.array([0.5, 1920.5, 1920.5, 0.5]),
-                 target_h=0.0, height_kind="geodetic")
+corners = locate(
+    pose,
+    sensor,
+    np.array([0.5, 0.5, 1080.5, 1080.5]),
+    np.array([0.5, 1920.5, 1920.5, 0.5]),
+    target_h=0.0,
+    height_kind="geodetic",
+)
 for name, a, b in zip(("top left", "top right", "bottom right", "bottom left"), corners.lat_deg, corners.lon_deg):
     print(f"footprint {name:12s}: {a:.6f} N {b:.6f} E")

@@ -15,5 +15,7 @@ d = fr.R_ecef_enu @ (np.array([1.0, 0.0, -0.12]) / np.linalg.norm([1.0, 0.0, -0.
 los = LineOfSight(fr.to_ecef([0, 0, 400.0]), d, np.uint8(0))
 for method in ("steps", "bisect", "exact"):
     hit = intersect_dem(los, dem, method, eps_h=1.0, threshold=1.0)
-    print(f"{method:6s} h = {float(hit.h):6.1f} m at {float(hit.slant_range):7.1f} m, "
-          f"{int(hit.dem_evaluations):3d} evaluations, hidden = {bool(hit.hidden)}")
+    print(
+        f"{method:6s} h = {float(hit.h):6.1f} m at {float(hit.slant_range):7.1f} m, "
+        f"{int(hit.dem_evaluations):3d} evaluations, hidden = {bool(hit.hidden)}"
+    )

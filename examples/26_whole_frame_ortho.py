@@ -32,10 +32,16 @@ dem = DEM.open("assets/dem/etopo5_flight_area.tif")  # heights EGM96, made ellip
 
 grid = locate_frame(sensor, pose, dem, step=8)
 print(f"frame grid {grid.shape[0]} x {grid.shape[1]} (step {grid.step}): {grid.counts()}")
-for name, (i, j) in {"top-left": (0, 0), "top-right": (0, -1), "bottom-left": (-1, 0),
-                     "bottom-right": (-1, -1)}.items():
-    print(f"  {name:12s} pixel ({grid.rows[i]:.0f}, {grid.cols[j]:.0f}): lat {grid.lat_deg[i, j]:.6f} deg "
-          f"lon {grid.lon_deg[i, j]:.6f} deg h {grid.h[i, j]:.1f} m ({grid.h_datum})")
+for name, (i, j) in {
+    "top-left": (0, 0),
+    "top-right": (0, -1),
+    "bottom-left": (-1, 0),
+    "bottom-right": (-1, -1),
+}.items():
+    print(
+        f"  {name:12s} pixel ({grid.rows[i]:.0f}, {grid.cols[j]:.0f}): lat {grid.lat_deg[i, j]:.6f} deg "
+        f"lon {grid.lon_deg[i, j]:.6f} deg h {grid.h[i, j]:.1f} m ({grid.h_datum})"
+    )
 
 with tempfile.TemporaryDirectory() as tmp:
     info = write_frame_geotiff(Path(tmp) / "frame.tif", sensor, pose, dem, step=8)
@@ -44,9 +50,10 @@ with tempfile.TemporaryDirectory() as tmp:
     meta = read_photo("assets/photos/DJI_0001.JPG")
     s, _ = photo_sensor(meta)
     srtm = DEM.open("assets/dem/srtm_jacksboro.tif")
-    o = orthorectify(read_photo_pixels(meta.path), s, pose_from_photo(meta), srtm, Path(tmp) / "ortho.tif",
-                     gsd_m=0.5)
+    o = orthorectify(read_photo_pixels(meta.path), s, pose_from_photo(meta), srtm, Path(tmp) / "ortho.tif", gsd_m=0.5)
     seen = o["cells_seen"] / (o["width"] * o["height"])
-    print(f"orthophoto {o['width']} x {o['height']} cells of {o['gsd_m']:g} m ({o['crs']}): "
-          f"{o['cells_seen']} seen ({100 * seen:.0f} %), {o['cells_hidden']} hidden behind terrain")
+    print(
+        f"orthophoto {o['width']} x {o['height']} cells of {o['gsd_m']:g} m ({o['crs']}): "
+        f"{o['cells_seen']} seen ({100 * seen:.0f} %), {o['cells_hidden']} hidden behind terrain"
+    )
     print(f"footprint diagonal {np.hypot(o['width'], o['height']) * o['gsd_m']:.0f} m")

@@ -33,14 +33,17 @@ with tempfile.TemporaryDirectory() as tmp:
                 with warnings.catch_warnings():  # rasterio 1.4's own Affine "*"
                     warnings.simplefilter("ignore", PendingDeprecationWarning)
                     t = src.window_transform(win)
-                with rasterio.open(Path(tmp) / f"tile_{i}{j}.tif", "w",
-                                   **dict(prof, height=win.height, width=win.width, transform=t)) as dst:
+                with rasterio.open(
+                    Path(tmp) / f"tile_{i}{j}.tif", "w", **dict(prof, height=win.height, width=win.width, transform=t)
+                ) as dst:
                     dst.write(src.read(1, window=win), 1)
 
     mosaic = DemMosaic.open(tmp, cache_bytes=256 * 1024, block=64, max_region_nodes=20_000)
     merged = DEM.open(srtm)
-    print(f"mosaic: {len(mosaic.paths)} tiles, {mosaic.shape[0]} x {mosaic.shape[1]} nodes, "
-          f"heights {mosaic.min_height():.2f} to {mosaic.max_height():.2f} m (ellipsoidal, EGM96 + N)")
+    print(
+        f"mosaic: {len(mosaic.paths)} tiles, {mosaic.shape[0]} x {mosaic.shape[1]} nodes, "
+        f"heights {mosaic.min_height():.2f} to {mosaic.max_height():.2f} m (ellipsoidal, EGM96 + N)"
+    )
     los = random_oblique_rays(merged, 2000, np.random.default_rng(27), inner=0.95)
     regions = []
     window_dem = mosaic.window_dem
@@ -52,5 +55,7 @@ with tempfile.TemporaryDirectory() as tmp:
     print(f"largest difference to the merged raster: {np.max(np.abs(a.ecef[ok] - b.ecef[ok])):.1e} m")
     print(f"regions assembled: {len(regions)} (at most {mosaic.max_region_nodes} nodes each)")
     c = mosaic.cache
-    print(f"tile cache: peak {c.peak_bytes} bytes of a {c.max_bytes}-byte bound, "
-          f"{c.misses} window reads, {c.hits} hits, {c.evictions} evictions")
+    print(
+        f"tile cache: peak {c.peak_bytes} bytes of a {c.max_bytes}-byte bound, "
+        f"{c.misses} window reads, {c.hits} hits, {c.evictions} evictions"
+    )

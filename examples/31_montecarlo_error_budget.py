@@ -23,8 +23,10 @@ from geoloc.assets import asset_path
 model = ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1.toml"))
 res = mc.run(model, 5000, np.random.default_rng(0))
 s = res.stats
-print(f"Monte Carlo N = 5000: std lat {s['std_lat_deg']:.5f} deg, lon {s['std_lon_deg']:.5f} deg, "
-      f"h {s['std_h_m']:.1f} m  ([Q17]: 0.00048, 0.00060, 62.3)")
+print(
+    f"Monte Carlo N = 5000: std lat {s['std_lat_deg']:.5f} deg, lon {s['std_lon_deg']:.5f} deg, "
+    f"h {s['std_h_m']:.1f} m  ([Q17]: 0.00048, 0.00060, 62.3)"
+)
 print(f"CEP eq. 18 {s['cep_m']:.1f} m, empirical 50 % radius {s['cep50_empirical_m']:.1f} m\n")
 
 total = mc.first_order(model).cep_m ** 2

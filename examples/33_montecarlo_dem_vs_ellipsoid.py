@@ -24,11 +24,15 @@ dem_model = ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1_dem.to
 dem = surface_for(dem=DEM.open(dem_model.dem.path, datum=dem_model.dem.datum))
 
 print(f"{'model':24} {'std lat deg':>12} {'std lon deg':>12} {'std h m':>8} {'CEP eq.18 m':>12} {'CEP50 m':>8}")
-for label, model, paper in (("ellipsoid, sigma 62.47 m", ell, (0.00048, 0.00060, 62.3)),
-                            ("DEM", dem_model, (0.00015, 0.00013, 3.58))):
+for label, model, paper in (
+    ("ellipsoid, sigma 62.47 m", ell, (0.00048, 0.00060, 62.3)),
+    ("DEM", dem_model, (0.00015, 0.00013, 3.58)),
+):
     s = mc.run(model, 5000, np.random.default_rng(0), surface=dem if model.dem else None).stats
-    print(f"{label:24} {s['std_lat_deg']:12.5f} {s['std_lon_deg']:12.5f} {s['std_h_m']:8.2f} "
-          f"{s['cep_m']:12.1f} {s['cep50_empirical_m']:8.1f}")
+    print(
+        f"{label:24} {s['std_lat_deg']:12.5f} {s['std_lon_deg']:12.5f} {s['std_h_m']:8.2f} "
+        f"{s['cep_m']:12.1f} {s['cep50_empirical_m']:8.1f}"
+    )
     print(f"{'  [Q17]':24} {paper[0]:12.5f} {paper[1]:12.5f} {paper[2]:8.2f}")
 
 angles = [20.0, 40.0, 60.0, 70.0, 75.0, 80.0]

@@ -20,17 +20,33 @@ from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.terrain import DemSurface
 
 sensor = load_sensor(asset_path("sensors", "eo_turret.toml"))
-budget = ErrorBudget({"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.05, "pitch_deg": 0.02,
-                      "roll_deg": 0.02, "azimuth_deg": 0.02, "elevation_deg": 0.02, "boresight_x_deg": 0.01,
-                      "fx_px": 2.0}, dem_product="srtm")
+budget = ErrorBudget(
+    {
+        "north_m": 2.0,
+        "east_m": 2.0,
+        "up_m": 3.0,
+        "heading_deg": 0.05,
+        "pitch_deg": 0.02,
+        "roll_deg": 0.02,
+        "azimuth_deg": 0.02,
+        "elevation_deg": 0.02,
+        "boresight_x_deg": 0.01,
+        "fx_px": 2.0,
+    },
+    dem_product="srtm",
+)
 surface = DemSurface(DEM.open(asset_path("dem", "srtm_jacksboro.tif")))
 pose = Pose.from_deg(36.50, -84.20, 3000.0, 0.0, 1.0, 0.5, angles_deg={"azimuth": 0.0, "elevation": -30.0})
 
 pu = propagate(sensor, pose, 540.5, 960.5, budget, surface=surface)
-print(f"located: {float(pu.lat) * 180 / np.pi:.6f} N {float(pu.lon) * 180 / np.pi:.6f} E "
-      f"h {float(pu.h):.1f} m (ellipsoidal)")
-print(f"1-sigma ellipse: {float(pu.ellipse_major_m):.2f} x {float(pu.ellipse_minor_m):.2f} m, "
-      f"major axis at {float(pu.ellipse_azimuth_deg):.1f} deg from north")
+print(
+    f"located: {float(pu.lat) * 180 / np.pi:.6f} N {float(pu.lon) * 180 / np.pi:.6f} E "
+    f"h {float(pu.h):.1f} m (ellipsoidal)"
+)
+print(
+    f"1-sigma ellipse: {float(pu.ellipse_major_m):.2f} x {float(pu.ellipse_minor_m):.2f} m, "
+    f"major axis at {float(pu.ellipse_azimuth_deg):.1f} deg from north"
+)
 print(f"predicted: CE90 {float(pu.ce90_m):.2f} m, LE90 {float(pu.le90_m):.2f} m")
 enu, st = monte_carlo(sensor, pose, 540.5, 960.5, budget, surface, 4000, np.random.default_rng(0))
 ce, le = empirical_ce90_le90(enu, st)

@@ -22,9 +22,13 @@ for name, d in (("north", north), ("east", east)):
     origin = p0 - 2.2e6 * d
     r = limb_tangent(origin, d)
     print(f"--- line due {name}; status {int(r.status)} (0 = OK)")
-    print(f"[L18] Delta a         {float(r.delta_a):12.3f} m   (not the height: the ellipsoid grows with equal flattening)")
+    print(
+        f"[L18] Delta a         {float(r.delta_a):12.3f} m   (not the height: the ellipsoid grows with equal flattening)"
+    )
     print(f"[L18] tangent lat/lon {float(r.tangent_lat_deg):.6f} {float(r.tangent_lon_deg):.6f} deg (eq. 18-19)")
     print(f"[L18] limb height     {float(r.tangent_h):12.4f} m   (eq. 21-26)")
-    print(f"exact tangent height  {float(r.exact_h):12.4f} m   at {float(r.exact_lat_deg):.6f} {float(r.exact_lon_deg):.6f} deg")
+    print(
+        f"exact tangent height  {float(r.exact_h):12.4f} m   at {float(r.exact_lat_deg):.6f} {float(r.exact_lon_deg):.6f} deg"
+    )
     print(f"difference L18-exact  {1e3 * float(r.h_difference):12.4f} mm")
     print(f"tangent points apart  {float(np.linalg.norm(r.tangent_ecef - r.exact_ecef)):12.1f} m")

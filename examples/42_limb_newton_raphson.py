@@ -6,7 +6,6 @@ quadratically; with max_iter too small the line gets status NO_CONVERGENCE.
 Run:  python examples/42_limb_newton_raphson.py
 """
 
-
 from geoloc.sensors.limb import limb_tangent
 from geoloc.status import describe
 from geoloc.workflows.scenario import load_scenario
@@ -22,5 +21,7 @@ for k in range(int(r.nr_iterations) + 1):
 print(f"status: {describe(r.status)}; limb height {float(r.tangent_h):.3f} m, exact {float(r.exact_h):.3f} m")
 
 r2 = limb_tangent(o, d, max_iter=2)
-print(f"with max_iter=2: status {describe(r2.status)} (nr: {describe(r2.nr_status)}, "
-      f"exact: {describe(r2.exact_status)}), limb height {float(r2.tangent_h)}")
+print(
+    f"with max_iter=2: status {describe(r2.status)} (nr: {describe(r2.nr_status)}, "
+    f"exact: {describe(r2.exact_status)}), limb height {float(r2.tangent_h)}"
+)

@@ -41,22 +41,30 @@ assert np.all(r.status == 0), r.status
 lat19_err_m = (r.tangent_lat - r.tangent_lat_geodetic) * meridian_radius(r.tangent_lat_geodetic)
 pos_err = np.linalg.norm(r.tangent_ecef - r.exact_ecef, axis=-1)
 
-print(f"{'lat':>5} {'h km':>6} {'az':>4} | {'exact-h m':>10} {'Da-h m':>9} {'hL18-h mm':>10} "
-      f"{'hgeod(VE)-h mm':>14} {'lat19 err m':>11} {'|VE-exact| m':>12}")
+print(
+    f"{'lat':>5} {'h km':>6} {'az':>4} | {'exact-h m':>10} {'Da-h m':>9} {'hL18-h mm':>10} "
+    f"{'hgeod(VE)-h mm':>14} {'lat19 err m':>11} {'|VE-exact| m':>12}"
+)
 for i, la in enumerate(lats):
     for j, hh in enumerate(heights):
         for k, a in enumerate(azims):
-            print(f"{la:5.0f} {hh / 1e3:6.0f} {a:4.0f} | {r.exact_h[i, j, k] - hh:10.1e} "
-                  f"{r.delta_a[i, j, k] - hh:9.2f} {1e3 * (r.tangent_h[i, j, k] - hh):10.3f} "
-                  f"{1e3 * (r.tangent_h_geodetic[i, j, k] - hh):14.3f} {lat19_err_m[i, j, k]:11.1f} "
-                  f"{pos_err[i, j, k]:12.1f}")
+            print(
+                f"{la:5.0f} {hh / 1e3:6.0f} {a:4.0f} | {r.exact_h[i, j, k] - hh:10.1e} "
+                f"{r.delta_a[i, j, k] - hh:9.2f} {1e3 * (r.tangent_h[i, j, k] - hh):10.3f} "
+                f"{1e3 * (r.tangent_h_geodetic[i, j, k] - hh):14.3f} {lat19_err_m[i, j, k]:11.1f} "
+                f"{pos_err[i, j, k]:12.1f}"
+            )
 
 print("\nworst case over latitude and azimuth, per tangent height:")
-print(f"{'h km':>6} | {'max|Da-h| m':>11} {'max|hL18-h| mm':>14} {'max|hgeod-h| mm':>15} "
-      f"{'max|lat19| m':>12} {'max|VE-exact| m':>15} {'max|exact-h| m':>14}")
+print(
+    f"{'h km':>6} | {'max|Da-h| m':>11} {'max|hL18-h| mm':>14} {'max|hgeod-h| mm':>15} "
+    f"{'max|lat19| m':>12} {'max|VE-exact| m':>15} {'max|exact-h| m':>14}"
+)
 for j, hh in enumerate(heights):
-    print(f"{hh / 1e3:6.0f} | {np.max(np.abs(r.delta_a[:, j] - hh)):11.2f} "
-          f"{1e3 * np.max(np.abs(r.tangent_h[:, j] - hh)):14.3f} "
-          f"{1e3 * np.max(np.abs(r.tangent_h_geodetic[:, j] - hh)):15.3f} "
-          f"{np.max(np.abs(lat19_err_m[:, j])):12.1f} {np.max(pos_err[:, j]):15.1f} "
-          f"{np.max(np.abs(r.exact_h[:, j] - hh)):14.1e}")
+    print(
+        f"{hh / 1e3:6.0f} | {np.max(np.abs(r.delta_a[:, j] - hh)):11.2f} "
+        f"{1e3 * np.max(np.abs(r.tangent_h[:, j] - hh)):14.3f} "
+        f"{1e3 * np.max(np.abs(r.tangent_h_geodetic[:, j] - hh)):15.3f} "
+        f"{np.max(np.abs(lat19_err_m[:, j])):12.1f} {np.max(pos_err[:, j]):15.1f} "
+        f"{np.max(np.abs(r.exact_h[:, j] - hh)):14.1e}"
+    )

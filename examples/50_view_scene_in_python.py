@@ -24,8 +24,10 @@ hit = lambda: np.asarray(server.scene.get_handle_by_name("/enu/hit/result").posi
 print("hit marker, ENU [m]:", np.round(hit(), 1))
 for roll in (-40.0, -50.0):
     app.num["gimbal_roll_deg"].value = roll  # same callback as the GUI slider
-    print(f"gimbal roll {roll:+.0f} deg -> hit ENU [m] {np.round(hit(), 1)}, "
-          f"scene updated in {1e3 * app.last_update_s:.0f} ms")
+    print(
+        f"gimbal roll {roll:+.0f} deg -> hit ENU [m] {np.round(hit(), 1)}, "
+        f"scene updated in {1e3 * app.last_update_s:.0f} ms"
+    )
 
 if "--wait" in sys.argv:
     try:

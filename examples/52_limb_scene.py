@@ -26,21 +26,26 @@ for alpha in (-1.2, -0.6, 0.0, 0.6, 1.2):
     if int(t.status) != 0:
         print(f"{alpha:+9.2f}  no tangent: {describe(int(t.status))}")
         continue
-    print(f"{alpha:+9.2f}  {float(t.tangent_h) / 1e3:8.3f}  {float(t.exact_h) / 1e3:10.3f}  "
-          f"{float(t.h_difference):+.1e}  {int(t.nr_iterations):3d}")
+    print(
+        f"{alpha:+9.2f}  {float(t.tangent_h) / 1e3:8.3f}  {float(t.exact_h) / 1e3:10.3f}  "
+        f"{float(t.h_difference):+.1e}  {int(t.nr_iterations):3d}"
+    )
 
 # What the drawing exaggerates (docs/limb.md): the virtual ellipsoid's departure from a shell
 # at the limb height, about the tangent point (the line stays tangent), and the tangent offset.
 app.sl_alpha.value = 0.0
 t = app.tan
 off_m = float(np.linalg.norm(t.exact_ecef - t.tangent_ecef))
-print(f"Delta a - limb height: {float(t.delta_a) - float(t.tangent_h_geodetic):.2f} m, "
-      f"drawn x{app.exaggeration:g}")
-print(f"exact minimum to [L18] tangent point: {off_m:.1f} m along the line, drawn x{app.offset_exaggeration:g} "
-      f"= {off_m * app.offset_exaggeration / 1e3:.1f} km")
+print(f"Delta a - limb height: {float(t.delta_a) - float(t.tangent_h_geodetic):.2f} m, drawn x{app.exaggeration:g}")
+print(
+    f"exact minimum to [L18] tangent point: {off_m:.1f} m along the line, drawn x{app.offset_exaggeration:g} "
+    f"= {off_m * app.offset_exaggeration / 1e3:.1f} km"
+)
 r = app.marker_radii_km()
-print(f"marker radii: tangent {r['tangent']:.2f} km, exact {r['exact']:.2f} km "
-      f"(below half the drawn separation, {off_m * app.offset_exaggeration / 2e3:.1f} km)")
+print(
+    f"marker radii: tangent {r['tangent']:.2f} km, exact {r['exact']:.2f} km "
+    f"(below half the drawn separation, {off_m * app.offset_exaggeration / 2e3:.1f} km)"
+)
 sec = app.drawn_virtual(*app.section_geodetic)
 o, d = np.asarray(app.chain.origin_ecef), np.asarray(app.chain.direction_ecef)
 r_ = sec - o
@@ -48,8 +53,9 @@ gap = np.linalg.norm(r_ - (r_ @ d)[:, None] * d, axis=1).min()
 print(f"drawn virtual ellipsoid to the line of sight: closest {gap:.1e} m (tangent)")
 app.sl_alpha.value = -1.5
 lon, lat, h = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(*app.los_ecef[-1])
-print(f"alpha -1.5 deg: {describe(int(app.tan.status))}; the drawn line ends at h = {h:.1e} m "
-      f"({lat:.3f} N, {lon:.3f} E)")
+print(
+    f"alpha -1.5 deg: {describe(int(app.tan.status))}; the drawn line ends at h = {h:.1e} m ({lat:.3f} N, {lon:.3f} E)"
+)
 
 # Where the camera stands (docs/limb.md, "Where the Earth and the camera go"): above the Earth,
 # which is drawn around what the frame is about, also when the line meets the Earth and at frame 600.
@@ -60,6 +66,8 @@ for frame, alpha in ((0, -1.5), (600, 0.0), (600, -1.5)):
     _, _, h_cam = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True).transform(*ecef)
     c = app.w(geodetic_to_ecef(*app.focus_latlon, 0.0))
     f, dc = (aim - pos) / np.linalg.norm(aim - pos), (c - pos) / np.linalg.norm(c - pos)
-    print(f"frame {frame}, alpha {alpha:+.1f} deg: camera {h_cam / 1e3:.0f} km above WGS-84, the Earth "
-          f"patch's centre {np.rad2deg(np.arccos(f @ dc)):.1f} deg from the view axis")
+    print(
+        f"frame {frame}, alpha {alpha:+.1f} deg: camera {h_cam / 1e3:.0f} km above WGS-84, the Earth "
+        f"patch's centre {np.rad2deg(np.arccos(f @ dc)):.1f} deg from the view axis"
+    )
 server.stop()

@@ -27,13 +27,16 @@ print(f"{int(m.outlier.sum())} outliers (robust median / MAD rule on the residua
 print("top outliers:")
 for i in m.top(5):
     c = m.components
-    print(f"  {m.labels[i]}: {m.residual_m[i]:.1f} m (along {c['along_m'][i]:+.1f} m, "
-          f"across {c['across_m'][i]:+.1f} m)")
+    print(
+        f"  {m.labels[i]}: {m.residual_m[i]:.1f} m (along {c['along_m'][i]:+.1f} m, across {c['across_m'][i]:+.1f} m)"
+    )
 print("runs of outliers and what they look like:")
 for f in m.faults:
     print(f"  {f.headline()}")
 ok = ~m.outlier & np.isfinite(m.residual_m)
 print(f"the other {int(ok.sum())} frames: median residual {np.median(m.residual_m[ok]) * 1e3:.1f} mm")
 w = np.linalg.norm(m.corners_enu[:, 1] - m.corners_enu[:, 0], axis=1)
-print(f"footprint width (top edge): {w.min():.0f} to {w.max():.0f} m as the turret zooms "
-      f"(largest heading-bias fit {max((math.degrees(f.value) for f in m.faults if f.kind == 'attitude'), default=0):+.2f} deg)")
+print(
+    f"footprint width (top edge): {w.min():.0f} to {w.max():.0f} m as the turret zooms "
+    f"(largest heading-bias fit {max((math.degrees(f.value) for f in m.faults if f.kind == 'attitude'), default=0):+.2f} deg)"
+)

@@ -39,8 +39,10 @@ r, c = found[0]
 p = pm.locate_pixel(scn, inputs, sensor, r, c)
 geod = Geod(ellps="WGS84")
 d, name = min((geod.inv(p.lon_deg(), p.lat_deg(), lo, la)[2], n) for n, la, lo, _ in targets)
-print(f"cross at pixel ({r:.1f}, {c:.1f}) -> {p.lat_deg():.7f} N {p.lon_deg():.7f} E, h {float(p.hit.h):.1f} m "
-      f"({pm.H_DATUM}): {d:.2f} m from surveyed {name}")
+print(
+    f"cross at pixel ({r:.1f}, {c:.1f}) -> {p.lat_deg():.7f} N {p.lon_deg():.7f} E, h {float(p.hit.h):.1f} m "
+    f"({pm.H_DATUM}): {d:.2f} m from surveyed {name}"
+)
 
 # 3. the timing fault: fit the offset from the crosses on frames 40-79
 pts = [(la, lo, h) for _, la, lo, h in targets]

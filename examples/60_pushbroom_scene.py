@@ -22,8 +22,10 @@ for r, c, la, lo in zip(rows, cols, g.lat_deg, g.lon_deg):
 # ground sample distance at the centre, across and along track
 r0, c0 = (s.rows + 1) / 2, (s.cols + 1) / 2
 e = at_height(s, [r0, r0, r0 + 1], [c0, c0 + 1, c0], 300.0).ecef
-print(f"ground sample: across {np.linalg.norm(e[1] - e[0]):.3f} m, along {np.linalg.norm(e[2] - e[0]):.3f} m"
-      " ([L12] Table 2: 2.1 m)")
+print(
+    f"ground sample: across {np.linalg.norm(e[1] - e[0]):.3f} m, along {np.linalg.norm(e[2] - e[0]):.3f} m"
+    " ([L12] Table 2: 2.1 m)"
+)
 
 # ground -> image: iteration over the line time
 row, col, st = s.ground_to_pixel(g.lat, g.lon, g.h)

@@ -19,8 +19,12 @@ with tempfile.TemporaryDirectory() as tmp:
         print(f"{name}:")
         print(f"  fit_rms_px           {rep['fit_rms_px']:.2e}")
         print(f"  check_rms_px         {rep['check_rms_px']:.2e}   check_max_px {rep['check_max_px']:.2e}")
-        print(f"  gdal_vs_exact_max_px {rep['gdal_vs_exact_max_px']:.2e}   ({rep['gdal_points']} pixels, "
-              f"RPC_PIXEL_ERROR_THRESHOLD 1e-6)")
+        print(
+            f"  gdal_vs_exact_max_px {rep['gdal_vs_exact_max_px']:.2e}   ({rep['gdal_points']} pixels, "
+            f"RPC_PIXEL_ERROR_THRESHOLD 1e-6)"
+        )
         print(f"  GDAL default threshold (0.1 px): max {rep['gdal_default_threshold_max_px']:.3f} px")
-        print(f"  orthometric DEM given to GDAL as-is: max {rep['gdal_orthometric_dem_max_px']:.3g} px "
-              f"({rep['gdal_orthometric_dem_max_m']:.1f} m)")
+        print(
+            f"  orthometric DEM given to GDAL as-is: max {rep['gdal_orthometric_dem_max_px']:.3g} px "
+            f"({rep['gdal_orthometric_dem_max_m']:.1f} m)"
+        )

@@ -36,16 +36,20 @@ dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))  # EGM96 heights, h = H 
 with tempfile.TemporaryDirectory() as tmp:
     tif = write_rpc_geotiff(Path(tmp) / "zy3.tif", fit.model, sc.sensor.rows, sc.sensor.cols)
     rpc = read_rpc(tif)  # an RPCSensor: rows and cols from the raster
-    print(f"RPC sensor from {tif.name}: {rpc.rows} x {rpc.cols} px, heights "
-          f"{rpc.model.height_off - rpc.model.height_scale:.0f} .. {rpc.model.height_off + rpc.model.height_scale:.0f} m")
+    print(
+        f"RPC sensor from {tif.name}: {rpc.rows} x {rpc.cols} px, heights "
+        f"{rpc.model.height_off - rpc.model.height_scale:.0f} .. {rpc.model.height_off + rpc.model.height_scale:.0f} m"
+    )
 
     # pixels whose ground lies on the DEM; the RPC's lines of sight through the exact DEM solver
     rows, cols = dem_pixels(rpc, dem, (12, 12))
     hit = intersect_dem(rpc.line_of_sight(rows, cols), dem, method="exact")
     ok = hit.status == Status.OK
     rows, cols = rows[ok], cols[ok]
-    print(f"{ok.sum()} of {ok.size} pixels meet the DEM; e.g. pixel ({rows[0]:.1f}, {cols[0]:.1f}) -> "
-          f"{hit.lat_deg[ok][0]:.6f} N {hit.lon_deg[ok][0]:.6f} E, h {hit.h[ok][0]:.2f} m")
+    print(
+        f"{ok.sum()} of {ok.size} pixels meet the DEM; e.g. pixel ({rows[0]:.1f}, {cols[0]:.1f}) -> "
+        f"{hit.lat_deg[ok][0]:.6f} N {hit.lon_deg[ok][0]:.6f} E, h {hit.h[ok][0]:.2f} m"
+    )
 
     # the line is a chord of the RPC's curved locus: project the hits back with the RPC
     back = rpc.ground_to_pixel(hit.lat[ok], hit.lon[ok], hit.h[ok])
@@ -53,13 +57,16 @@ with tempfile.TemporaryDirectory() as tmp:
 
     # GDAL on the same RPC, given an ellipsoidal-height copy of the DEM (docs/rpc.md, the two traps)
     ell = write_ellipsoidal_dem(dem, Path(tmp) / "dem_h.tif")
-    lat, lon = gdal_rpc_to_ground(rpc.model, rows, cols, dem_path=ell, height=0.0,
-                                  pixel_error_threshold=1e-6, max_iterations=100)
+    lat, lon = gdal_rpc_to_ground(
+        rpc.model, rows, cols, dem_path=ell, height=0.0, pixel_error_threshold=1e-6, max_iterations=100
+    )
     h = dem.height(lat, lon)
     g = rpc.ground_to_pixel(lat, lon, h)
     d_m = np.linalg.norm(geodetic_to_ecef(lat, lon, h) - hit.ecef[ok], axis=-1)
-    print(f"GDAL RPC_DEM vs RPC sensor: max {np.max(np.hypot(g.row - back.row, g.col - back.col)):.2e} px, "
-          f"{d_m.max():.2e} m (threshold 1e-6 px)")
+    print(
+        f"GDAL RPC_DEM vs RPC sensor: max {np.max(np.hypot(g.row - back.row, g.col - back.col)):.2e} px, "
+        f"{d_m.max():.2e} m (threshold 1e-6 px)"
+    )
 
     # out of the model's domain: refused, not extrapolated
     far = rpc.ground_to_pixel(np.deg2rad(rpc.model.lat_off + 5.0), np.deg2rad(rpc.model.long_off), 500.0)

@@ -31,15 +31,16 @@ surface = PerRecordHeightSurface(records.column("paper_height_m"))  # each targe
 MODELS = {"mount": ["mount_x", "mount_y", "mount_z"], "camera": ["boresight_x", "boresight_y", "boresight_z"]}
 
 for model, joint in (("mount", False), ("mount", True), ("camera", False), ("camera", True)):
-    report, _ = fit_sensor_groups(records, sensor, MODELS[model], surface, group_column="table", joint=joint,
-                                  loo=True)
+    report, _ = fit_sensor_groups(records, sensor, MODELS[model], surface, group_column="table", joint=joint, loo=True)
     print(f"model {model!r}, {'one rotation for both flights' if joint else 'one rotation per flight'}:")
     for g, e in report["groups"].items():
         b = e["before"]
         ang = ", ".join(f"{p['value']:+.3f}+-{p['sd']:.3f}" for p in e["parameters"].values())
-        print(f"  {g}: before {e['mean_error_before_m']:5.1f} m (bias along {b['bias_along_m']:+.1f} m, "
-              f"cross {b['bias_cross_m']:+.1f} m), after {e['mean_error_after_m']:4.1f} m, "
-              f"leave-one-out {e['mean_error_loo_m']:4.1f} m; angles (x, y, z) deg: {ang}")
+        print(
+            f"  {g}: before {e['mean_error_before_m']:5.1f} m (bias along {b['bias_along_m']:+.1f} m, "
+            f"cross {b['bias_cross_m']:+.1f} m), after {e['mean_error_after_m']:4.1f} m, "
+            f"leave-one-out {e['mean_error_loo_m']:4.1f} m; angles (x, y, z) deg: {ang}"
+        )
     if model == "mount" and joint:
         figure_report = report
 
@@ -48,15 +49,26 @@ for model, joint in (("mount", False), ("mount", True), ("camera", False), ("cam
 start = as_sensor(Camera(150000.0, 1100.0, 1100.0, sensor.rows, sensor.cols))
 r = resect_sensor(records, start, ["f", "cy", "cx"])
 f, i0, j0 = (r.report()["parameters"][k] for k in ("f", "cy", "cx"))
-print(f"resection from the published positions: f = {f['value']:.1f} +- {f['sd']:.0f} px, "
-      f"i0 = {i0['value']:.2f} +- {i0['sd']:.2f}, "
-      f"j0 = {j0['value']:.2f} +- {j0['sd']:.2f}, RMS misfit {r.rms_m:.2f} m "
-      f"(bundled camera: 166841.0, 1162.12, 1146.42)")
+print(
+    f"resection from the published positions: f = {f['value']:.1f} +- {f['sd']:.0f} px, "
+    f"i0 = {i0['value']:.2f} +- {i0['sd']:.2f}, "
+    f"j0 = {j0['value']:.2f} +- {j0['sd']:.2f}, RMS misfit {r.rms_m:.2f} m "
+    f"(bundled camera: 166841.0, 1162.12, 1146.42)"
+)
 
-out = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).resolve().parents[1] / "docs" / "figures" / "71_error_vectors.png"
+out = (
+    Path(sys.argv[1])
+    if len(sys.argv) > 1
+    else Path(__file__).resolve().parents[1] / "docs" / "figures" / "71_error_vectors.png"
+)
 out.parent.mkdir(parents=True, exist_ok=True)
-plot_error_vectors(out, error_vector_panels(figure_report, records, exaggeration=10.0),
-                   title="[Q17] flight test: error vectors (computed - truth), one mounting rotation for both flights")
+plot_error_vectors(
+    out,
+    error_vector_panels(figure_report, records, exaggeration=10.0),
+    title="[Q17] flight test: error vectors (computed - truth), one mounting rotation for both flights",
+)
 print(f"wrote {out}")
-print("max leave-one-out flight mean [m]:",
-      np.round(max(e["mean_error_loo_m"] for e in figure_report["groups"].values()), 2))
+print(
+    "max leave-one-out flight mean [m]:",
+    np.round(max(e["mean_error_loo_m"] for e in figure_report["groups"].values()), 2),
+)

@@ -41,11 +41,23 @@ pixel_radius = np.hypot(c("row") - (camera.rows + 1) / 2, c("col") - (camera.col
 
 
 def report(h_m):
-    return accuracy_report(res.lat_deg, res.lon_deg, h_m, c("truth_lat_deg"), c("truth_lon_deg"),
-                           c("paper_height_m"), track_heading_rad=track, slant_range_m=geom["slant_range_m"],
-                           off_nadir_rad=geom["off_nadir_rad"], pixel_radius_px=pixel_radius, group=flight,
-                           meta={"source": "qiao2017_flight_tests.csv (replayed at paper_height_m)",
-                                 "reference": "truth_lat_deg, truth_lon_deg, height paper_height_m"})
+    return accuracy_report(
+        res.lat_deg,
+        res.lon_deg,
+        h_m,
+        c("truth_lat_deg"),
+        c("truth_lon_deg"),
+        c("paper_height_m"),
+        track_heading_rad=track,
+        slant_range_m=geom["slant_range_m"],
+        off_nadir_rad=geom["off_nadir_rad"],
+        pixel_radius_px=pixel_radius,
+        group=flight,
+        meta={
+            "source": "qiao2017_flight_tests.csv (replayed at paper_height_m)",
+            "reference": "truth_lat_deg, truth_lon_deg, height paper_height_m",
+        },
+    )
 
 
 rep = report(res.h_m)
@@ -53,13 +65,19 @@ print(rep.markdown().split("\n\n")[0])
 o = rep.overall
 n, e, _ = pymap3d.geodetic2ned(res.lat_deg, res.lon_deg, res.h_m, c("truth_lat_deg"), c("truth_lon_deg"), res.h_m)
 direct = np.hypot(n, e)
-print(f"\nall: CEP {o['cep_m']:.2f} m, CE90 {o['ce90_m']:.2f} m (direct np.percentile of pymap3d's errors: "
-      f"direct {np.percentile(direct, 50):.2f} m, {np.percentile(direct, 90):.2f} m)")
-print(f"bias: along {o['bias_along_m']:+.2f} m, across {o['bias_across_m']:+.2f} m: the errors lie along the "
-      "track, the systematic offset the calibration (example 71) removes")
+print(
+    f"\nall: CEP {o['cep_m']:.2f} m, CE90 {o['ce90_m']:.2f} m (direct np.percentile of pymap3d's errors: "
+    f"direct {np.percentile(direct, 50):.2f} m, {np.percentile(direct, 90):.2f} m)"
+)
+print(
+    f"bias: along {o['bias_along_m']:+.2f} m, across {o['bias_across_m']:+.2f} m: the errors lie along the "
+    "track, the systematic offset the calibration (example 71) removes"
+)
 m = o["slant_range_model"]
-print(f"slant-range model: horizontal error = {m['intercept_m']:.1f} m + {m['m_per_m'] * 1000:.2f} m/km "
-      f"(n = {m['n']}; ranges 17-22 km only, so the slope is weakly determined)")
+print(
+    f"slant-range model: horizontal error = {m['intercept_m']:.1f} m + {m['m_per_m'] * 1000:.2f} m/km "
+    f"(n = {m['n']}; ranges 17-22 km only, so the slope is weakly determined)"
+)
 print(f"[Q17] eq. 18 radial RMS (spread about the mean error, not a CEP): {o['radial_rms_eq18_m']:.2f} m")
 
 shifted = report(res.h_m + 30.0)

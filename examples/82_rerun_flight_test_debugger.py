@@ -26,7 +26,9 @@ print(f"{len(steps)} records written to {out}")
 for g in steps.groups:
     m = steps.group_of == g
     e = steps.enu_for(g)
-    print(f"flight {g}: origin {np.rad2deg(e.lat0):.3f} N {np.rad2deg(e.lon0):.3f} E {e.h0:.0f} m; "
-          f"mean error along {c['along_m'][m].mean():+.1f} m, across {c['across_m'][m].mean():+.1f} m; "
-          f"before {cal['before_m'][m].mean():.1f} m, after calibration {cal['after_m'][m].mean():.1f} m; "
-          f"outliers {int(steps.outlier[m].sum())}")
+    print(
+        f"flight {g}: origin {np.rad2deg(e.lat0):.3f} N {np.rad2deg(e.lon0):.3f} E {e.h0:.0f} m; "
+        f"mean error along {c['along_m'][m].mean():+.1f} m, across {c['across_m'][m].mean():+.1f} m; "
+        f"before {cal['before_m'][m].mean():.1f} m, after calibration {cal['after_m'][m].mean():.1f} m; "
+        f"outliers {int(steps.outlier[m].sum())}"
+    )

@@ -19,14 +19,20 @@ from geoloc_viz.rerun_log import write
 from geoloc_viz.rerun_model import load_camera, steps_from_records
 
 out = sys.argv[1] if len(sys.argv) > 1 else "/tmp/turret_calibration.rrd"
-steps, _ = steps_from_records("assets/records/eo_turret_flight.csv", load_camera("assets/sensors/eo_turret.toml"),
-                              dem_path="assets/dem/srtm_jacksboro.tif", fit_names=["mount_x", "mount_y", "mount_z"])
+steps, _ = steps_from_records(
+    "assets/records/eo_turret_flight.csv",
+    load_camera("assets/sensors/eo_turret.toml"),
+    dem_path="assets/dem/srtm_jacksboro.tif",
+    fit_names=["mount_x", "mount_y", "mount_z"],
+)
 write(steps, out)
 
 cal = steps.calibration
 print(f"{len(steps)} records written to {out}")
-print(f"mean error to truth: before {np.mean(cal['before_m']):.2f} m, after {np.mean(cal['after_m']):.2f} m; "
-      f"worst after {np.max(cal['after_m']):.1f} m ({steps.labels[int(np.argmax(cal['after_m']))]})")
+print(
+    f"mean error to truth: before {np.mean(cal['before_m']):.2f} m, after {np.mean(cal['after_m']):.2f} m; "
+    f"worst after {np.max(cal['after_m']):.1f} m ({steps.labels[int(np.argmax(cal['after_m']))]})"
+)
 for g, e in cal["report"]["groups"].items():
     fitted = ", ".join(f"{k} {v['value']:+.3f} +- {v['sd']:.3f} deg" for k, v in e["parameters"].items())
     print(f"fitted mount ({g}): {fitted}")

@@ -31,9 +31,18 @@ import tempfile
 import time
 from pathlib import Path
 
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+]
 
 
 def free_port() -> int:
@@ -46,7 +55,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("rrd", help="recording to show")
     ap.add_argument("png", help="output screenshot")
-    ap.add_argument("--at", type=float, default=None, help="time to type into the time box [s], best effort (default: the end)")
+    ap.add_argument(
+        "--at", type=float, default=None, help="time to type into the time box [s], best effort (default: the end)"
+    )
     ap.add_argument("--wait", type=float, default=30.0, help="seconds to let the viewer load (default 30)")
     ap.add_argument("--width", type=int, default=1280)
     ap.add_argument("--height", type=int, default=800)
@@ -57,9 +68,13 @@ def main() -> int:
     env = dict(os.environ, HOME=home, XDG_CONFIG_HOME=f"{home}/.config", XDG_DATA_HOME=f"{home}/.local/share")
     web, grpc = free_port(), free_port()
     rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-    server = subprocess.Popen([rerun, "--serve-web", "--web-viewer-port", str(web), "--port", str(grpc),
-                               a.rrd], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              start_new_session=True)  # its own process group: the wrapper starts the binary
+    server = subprocess.Popen(
+        [rerun, "--serve-web", "--web-viewer-port", str(web), "--port", str(grpc), a.rrd],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )  # its own process group: the wrapper starts the binary
     try:
         time.sleep(4)
         url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy"

@@ -19,9 +19,21 @@ from geoloc.surfaces.base import GroundPoint, LineOfSight
 from geoloc.surfaces.height import HeightSurface
 
 __all__ = [
-    "Camera", "Corrections", "FrameChain", "GroundPoint", "HeightSurface", "LineOfSight", "Pipeline", "Pose",
-    "Status", "ecef_to_geodetic", "ecef_to_geodetic_q17", "geodetic_to_ecef",
-    "ground_to_pixel", "line_of_sight", "locate",
+    "Camera",
+    "Corrections",
+    "FrameChain",
+    "GroundPoint",
+    "HeightSurface",
+    "LineOfSight",
+    "Pipeline",
+    "Pose",
+    "Status",
+    "ecef_to_geodetic",
+    "ecef_to_geodetic_q17",
+    "geodetic_to_ecef",
+    "ground_to_pixel",
+    "line_of_sight",
+    "locate",
 ]
 
 __version__ = "0.1.0"

@@ -56,7 +56,8 @@ def asset_path(*parts: str) -> Path:
         raise FileNotFoundError(
             f"bundled asset not found: {p} (assets folder from {ASSETS_SOURCE}; the installation "
             f"is incomplete: reinstall geoloc, or set {ENV} to a folder laid out like the "
-            "repository's assets/)")
+            "repository's assets/)"
+        )
     return p
 
 

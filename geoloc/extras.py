@@ -53,4 +53,5 @@ def require(module: str, what: str) -> ModuleType:
         extra = extra_of(module)
         raise MissingExtra(
             f"{what} needs {module.split('.')[0]}, which is not installed: "
-            f"pip install 'geoloc[{extra}]' (or, from a clone, pip install '.[{extra}]')") from e
+            f"pip install 'geoloc[{extra}]' (or, from a clone, pip install '.[{extra}]')"
+        ) from e

@@ -43,8 +43,9 @@ def _default_pixel(sensor, row, col):
     return (r0 if row is None else row), (c0 if col is None else col)
 
 
-def line_of_sight(pose: Pose, sensor, row=None, col=None, *, outside: str = "flag",
-                  engine: str = "auto") -> LineOfSight:
+def line_of_sight(
+    pose: Pose, sensor, row=None, col=None, *, outside: str = "flag", engine: str = "auto"
+) -> LineOfSight:
     """Pixel (i, j) -> line of sight in ECEF [Q17 eq. 8-9, generalised to any gimbal and lens].
 
     Parameters
@@ -74,9 +75,18 @@ def line_of_sight(pose: Pose, sensor, row=None, col=None, *, outside: str = "fla
     return s.line_of_sight(row, col, pose, outside=outside, engine=engine)
 
 
-def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
-           height_kind: str = "inflated", engine: str = "auto", outside: str = "flag",
-           corrections: Corrections = NO_CORRECTIONS) -> GroundPoint:
+def locate(
+    pose: Pose,
+    sensor,
+    row=None,
+    col=None,
+    target_h=0.0,
+    *,
+    height_kind: str = "inflated",
+    engine: str = "auto",
+    outside: str = "flag",
+    corrections: Corrections = NO_CORRECTIONS,
+) -> GroundPoint:
     """Geolocate pixels at a known target height: the whole of [Q17 section 2.2].
 
     Vectorised: pose fields, pixels and ``target_h`` broadcast together.
@@ -123,8 +133,10 @@ def locate(pose: Pose, sensor, row=None, col=None, target_h=0.0, *,
     from geoloc.sensors import _fastlocate
 
     if engine == "numba" and not (height_kind == "inflated" and _fastlocate.serves(s)):
-        raise ValueError("engine='numba' needs height_kind='inflated' and a sensor the kernel serves "
-                         "(one lens, no per-sample perturbation)")
+        raise ValueError(
+            "engine='numba' needs height_kind='inflated' and a sensor the kernel serves "
+            "(one lens, no per-sample perturbation)"
+        )
     row, col = _default_pixel(s, row, col)
     return Pipeline(s, surface, corrections).locate(row, col, pose, outside=outside, engine=engine)
 
@@ -178,8 +190,9 @@ def point_view(pipe: Pipeline, state, lat, lon, h) -> PointView:
     visible, occ, rng = False, nan, nan
     if st in (Status.OK, Status.OUTSIDE_SENSOR):
         back = pipe.locate(row, col, state, outside="extrapolate")
-        rng = float(np.linalg.norm(geodetic_to_ecef(float(lat), float(lon), float(h))
-                                   - np.asarray(back.los.origin_ecef)))
+        rng = float(
+            np.linalg.norm(geodetic_to_ecef(float(lat), float(lon), float(h)) - np.asarray(back.los.origin_ecef))
+        )
         if int(np.asarray(back.status)) == Status.OK:
             occ = float(back.slant_range)
             visible = occ > rng - HIDDEN_TOLERANCE_M
@@ -188,8 +201,17 @@ def point_view(pipe: Pipeline, state, lat, lon, h) -> PointView:
     return PointView(row, col, st, visible, occ, rng)
 
 
-def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method: str = "exact", *,
-               corrections: Corrections = NO_CORRECTIONS, **kwargs) -> TerrainHit:
+def locate_dem(
+    pose,
+    sensor,
+    row=None,
+    col=None,
+    dem: DEM | None = None,
+    method: str = "exact",
+    *,
+    corrections: Corrections = NO_CORRECTIONS,
+    **kwargs,
+) -> TerrainHit:
     """Geolocate pixels on a DEM: the pipeline with a :class:`geoloc.surfaces.terrain.DemSurface`.
 
     Parameters
@@ -212,5 +234,13 @@ def locate_dem(pose, sensor, row=None, col=None, dem: DEM | None = None, method:
     return Pipeline(s, DemSurface(dem, method, dem_model, **kwargs), corrections).locate(row, col, pose)
 
 
-__all__ = ["HIDDEN_TOLERANCE_M", "PointView", "as_sensor", "ground_to_pixel",
-           "line_of_sight", "locate", "locate_dem", "point_view"]
+__all__ = [
+    "HIDDEN_TOLERANCE_M",
+    "PointView",
+    "as_sensor",
+    "ground_to_pixel",
+    "line_of_sight",
+    "locate",
+    "locate_dem",
+    "point_view",
+]

@@ -89,8 +89,13 @@ class Corrections:
     aberration: bool = False
 
     @classmethod
-    def for_sensor(cls, sensor, refraction: str | Refraction | None = "none", light_time: bool | None = None,
-                   aberration: bool | None = None) -> Corrections:
+    def for_sensor(
+        cls,
+        sensor,
+        refraction: str | Refraction | None = "none",
+        light_time: bool | None = None,
+        aberration: bool | None = None,
+    ) -> Corrections:
         """Rugged's defaults for ``sensor``: refraction off unless asked for; light-time and
         aberration on for a spaceborne sensor (``sensor.spaceborne``), off otherwise; an RPC
         (``sensor.includes_corrections``) takes none.
@@ -120,33 +125,45 @@ class Corrections:
         ab = space if aberration is None else bool(aberration)
         name = "frame sensor" if sensor is None else type(sensor).__name__
         if getattr(sensor, "includes_corrections", False):
-            asked = [n for n, on in (("refraction", refraction is not None), ("light_time", lt),
-                                     ("aberration", ab)) if on]
+            asked = [
+                n for n, on in (("refraction", refraction is not None), ("light_time", lt), ("aberration", ab)) if on
+            ]
             if asked:
-                raise ValueError(f"{name}: an RPC is fitted to its maker's rigorous model, which already "
-                                 f"corrects the lines of sight; {asked[0]} cannot be applied on top of it "
-                                 "(use --refraction none)")
+                raise ValueError(
+                    f"{name}: an RPC is fitted to its maker's rigorous model, which already "
+                    f"corrects the lines of sight; {asked[0]} cannot be applied on top of it "
+                    "(use --refraction none)"
+                )
         elif ab and not space:
-            raise ValueError(f"aberration = True: a {name}'s lines of sight carry no platform velocity "
-                             "(aberration of light is for spaceborne sensors; at aircraft speeds it is "
-                             "below 1 microradian)")
+            raise ValueError(
+                f"aberration = True: a {name}'s lines of sight carry no platform velocity "
+                "(aberration of light is for spaceborne sensors; at aircraft speeds it is "
+                "below 1 microradian)"
+            )
         return cls(refraction, lt, ab)
 
-    def overridden(self, sensor, refraction=None, light_time: bool | None = None,
-                   aberration: bool | None = None) -> Corrections:
+    def overridden(
+        self, sensor, refraction=None, light_time: bool | None = None, aberration: bool | None = None
+    ) -> Corrections:
         """These corrections with the given settings changed (None: kept), checked for ``sensor``
         as :meth:`for_sensor` checks them (a command line's flags over a file's table)."""
-        return Corrections.for_sensor(sensor, self.refraction if refraction is None else refraction,
-                                      self.light_time if light_time is None else light_time,
-                                      self.aberration if aberration is None else aberration)
+        return Corrections.for_sensor(
+            sensor,
+            self.refraction if refraction is None else refraction,
+            self.light_time if light_time is None else light_time,
+            self.aberration if aberration is None else aberration,
+        )
 
     def to_table(self) -> dict:
         """The ``[corrections]`` table that :func:`corrections_from_table` reads back to these
         corrections (a refraction through a ``StandardAtmosphere``: its ground measurement too)."""
         from geoloc.corrections.atmosphere import StandardAtmosphere
 
-        table = {"refraction": "none" if self.refraction is None else "standard",
-                 "light_time": bool(self.light_time), "aberration": bool(self.aberration)}
+        table = {
+            "refraction": "none" if self.refraction is None else "standard",
+            "light_time": bool(self.light_time),
+            "aberration": bool(self.aberration),
+        }
         atm = getattr(self.refraction, "atmosphere", None)
         if self.refraction is not None and not isinstance(atm, StandardAtmosphere):
             raise ValueError(f"refraction through {type(atm).__name__}: no [corrections] table names it")
@@ -160,8 +177,7 @@ class Corrections:
     @property
     def names(self) -> tuple:
         """The corrections on, in the pipeline's order (a subset of :data:`CORRECTIONS`)."""
-        on = {"aberration": self.aberration, "light_time": self.light_time,
-              "refraction": self.refraction is not None}
+        on = {"aberration": self.aberration, "light_time": self.light_time, "refraction": self.refraction is not None}
         return tuple(n for n in CORRECTIONS if on[n])
 
     @property
@@ -189,8 +205,10 @@ def refraction_model(name, ground: dict | None = None, source: str = "[correctio
     if not ground or not isinstance(name, str):
         return name
     if name != "standard":
-        raise ValueError(f"{source}: {', '.join(sorted(ground))} given, but refraction = {name!r}: the ground "
-                         "measurement fits the standard atmosphere (refraction = \"standard\")")
+        raise ValueError(
+            f"{source}: {', '.join(sorted(ground))} given, but refraction = {name!r}: the ground "
+            'measurement fits the standard atmosphere (refraction = "standard")'
+        )
     try:
         return Refraction(StandardAtmosphere(**ground))
     except ValueError as e:
@@ -205,8 +223,7 @@ def corrections_from_table(sensor, table, source: str = "[corrections]", **overr
     for key, value in override.items():
         if value is not None:
             table[key] = value
-    refraction = refraction_model(table.get("refraction", "none"), {k: table.get(k) for k in _corr.GROUND_KEYS},
-                                  source)
+    refraction = refraction_model(table.get("refraction", "none"), {k: table.get(k) for k in _corr.GROUND_KEYS}, source)
     return Corrections.for_sensor(sensor, refraction, table.get("light_time"), table.get("aberration"))
 
 
@@ -254,8 +271,9 @@ class Pipeline:
         fused = self._fused(row, col, state, engine, outside)
         if fused is not None:
             lat, lon, h, ecef, rng, status, o, d = fused
-            los_status = np.where(np.isin(status, (Status.INVALID_INPUT, Status.OUTSIDE_SENSOR)), status,
-                                  Status.OK).astype(np.uint8)
+            los_status = np.where(
+                np.isin(status, (Status.INVALID_INPUT, Status.OUTSIDE_SENSOR)), status, Status.OK
+            ).astype(np.uint8)
             los = LineOfSight(o, d, los_status)
             raw = GroundPoint(lat, lon, h, ecef, rng, status, los)
             return self._refract(los, los, raw)
@@ -327,8 +345,18 @@ class Pipeline:
             rng = bent.range_m  # from the camera: line.origin_ecef is los.origin_ecef (light-time turns both)
             if c.light_time:
                 rng = np.linalg.norm(ecef - np.asarray(los.origin_ecef, float), axis=-1)
-            return dataclasses.replace(raw, lat=bent.lat, lon=bent.lon, h=bent.h, ecef=ecef, status=status,
-                                       slant_range=rng, los=los, corrections=c.names, refraction_m=shift)
+            return dataclasses.replace(
+                raw,
+                lat=bent.lat,
+                lon=bent.lon,
+                h=bent.h,
+                ecef=ecef,
+                status=status,
+                slant_range=rng,
+                los=los,
+                corrections=c.names,
+                refraction_m=shift,
+            )
         hit = self._refract_fixed_point(o, d, raw, bent)
         ok = np.asarray(hit.status) == Status.OK
         shift = np.where(ok, np.linalg.norm(np.asarray(hit.ecef) - raw_ecef, axis=-1), np.nan)
@@ -354,8 +382,14 @@ class Pipeline:
         status = np.where(ok_raw, status, np.asarray(raw.status)).astype(np.uint8)
         ok = status == Status.OK
         ecef = np.where(ok[..., None], hit.ecef, np.nan)
-        return dataclasses.replace(hit, ecef=ecef, lat=np.where(ok, hit.lat, np.nan),
-                                   lon=np.where(ok, hit.lon, np.nan), h=np.where(ok, hit.h, np.nan), status=status)
+        return dataclasses.replace(
+            hit,
+            ecef=ecef,
+            lat=np.where(ok, hit.lat, np.nan),
+            lon=np.where(ok, hit.lon, np.nan),
+            h=np.where(ok, hit.h, np.nan),
+            status=status,
+        )
 
     def lines_near(self, los: LineOfSight, near_ecef) -> LineOfSight:
         """The sensor's lines of sight, corrected, as straight lines near the points ``near_ecef``.
@@ -410,8 +444,9 @@ class Pipeline:
         for _ in range(max_iter):
             row = np.asarray(px.row, float)
             col = np.asarray(px.col, float)
-            los = self.sensor.line_of_sight(np.where(np.isfinite(row), row, 0.0),
-                                            np.where(np.isfinite(col), col, 0.0), state, outside="extrapolate")
+            los = self.sensor.line_of_sight(
+                np.where(np.isfinite(row), row, 0.0), np.where(np.isfinite(col), col, 0.0), state, outside="extrapolate"
+            )
             o = np.asarray(los.origin_ecef, float)
             target = light_time_source(o, ground) if c.light_time else ground
             if c.refraction is not None:
@@ -429,17 +464,31 @@ class Pipeline:
             status = np.where(bad, np.uint8(Status.NO_CONVERGENCE), np.asarray(new.status)).astype(np.uint8)
             new = PixelHit(np.where(bad, np.nan, new.row), np.where(bad, np.nan, new.col), status)
             with np.errstate(invalid="ignore"):
-                moved = np.nanmax(np.abs(np.concatenate([np.ravel(np.asarray(new.row, float) - row),
-                                                         np.ravel(np.asarray(new.col, float) - col)])),
-                                  initial=0.0)
+                moved = np.nanmax(
+                    np.abs(
+                        np.concatenate(
+                            [np.ravel(np.asarray(new.row, float) - row), np.ravel(np.asarray(new.col, float) - col)]
+                        )
+                    ),
+                    initial=0.0,
+                )
             px = new
             if moved < tol_px:
                 break
         return px
 
 
-def at_height(sensor, row, col, h, state=None, *, height_kind: str = "geodetic",
-              corrections: Corrections = NO_CORRECTIONS, outside: str = "flag") -> GroundPoint:
+def at_height(
+    sensor,
+    row,
+    col,
+    h,
+    state=None,
+    *,
+    height_kind: str = "geodetic",
+    corrections: Corrections = NO_CORRECTIONS,
+    outside: str = "flag",
+) -> GroundPoint:
     """Pixels of any sensor -> ground points at ellipsoidal height ``h``: the pipeline on a
     :class:`geoloc.surfaces.height.HeightSurface` (the exact surface of constant geodetic height
     by default, as an RPC's heights are)."""
@@ -448,5 +497,15 @@ def at_height(sensor, row, col, h, state=None, *, height_kind: str = "geodetic",
     return Pipeline(sensor, HeightSurface(h, height_kind), corrections).locate(row, col, state, outside=outside)
 
 
-__all__ = ["COMPILED_MIN_RAYS", "CORRECTIONS", "Corrections", "NO_CORRECTIONS", "Pipeline", "REFRACTION_MODELS",
-           "TABLE_KEYS", "at_height", "corrections_from_table", "refraction_model"]
+__all__ = [
+    "COMPILED_MIN_RAYS",
+    "CORRECTIONS",
+    "Corrections",
+    "NO_CORRECTIONS",
+    "Pipeline",
+    "REFRACTION_MODELS",
+    "TABLE_KEYS",
+    "at_height",
+    "corrections_from_table",
+    "refraction_model",
+]

@@ -22,7 +22,9 @@ def read_toml(path, what: str = "scenario file") -> dict:
     except FileNotFoundError:
         raise FileNotFoundError(f"{what} not found: {path}") from None
     except UnicodeDecodeError as e:
-        raise ValueError(f"{what} {path}: not valid TOML: byte 0x{e.object[e.start]:02x} at offset {e.start} "
-                         "is not UTF-8 text (a binary file?)") from None
+        raise ValueError(
+            f"{what} {path}: not valid TOML: byte 0x{e.object[e.start]:02x} at offset {e.start} "
+            "is not UTF-8 text (a binary file?)"
+        ) from None
     except tomllib.TOMLDecodeError as e:
         raise ValueError(f"{what} {path}: not valid TOML: {e}") from None

@@ -179,11 +179,12 @@ def check_output(path, option: str = "", *, inputs=None) -> Path:
     where = f"{option} {path}" if option else str(path)
     if str(os.fspath(path)) == STDOUT:
         return p
-    for q in (noted_inputs() if inputs is None else [Path(os.fspath(x)) for x in inputs]):
+    for q in noted_inputs() if inputs is None else [Path(os.fspath(x)) for x in inputs]:
         if same_file(p, q):
             same = "" if str(q) == str(path) else f" ({q})"
-            raise OutputRefused(f"{where} is an input of this command{same}: refusing to overwrite it; "
-                                "give another output path")
+            raise OutputRefused(
+                f"{where} is an input of this command{same}: refusing to overwrite it; give another output path"
+            )
     root = _bundled_root()
     if root is not None and p.exists() and _inside(p, root):
         raise OutputRefused(f"{where} is a file of geoloc's bundled data ({root}): refusing to overwrite it")
@@ -192,15 +193,18 @@ def check_output(path, option: str = "", *, inputs=None) -> Path:
     if kind == "folder":
         raise OutputRefused(f"{where} is a folder: give a file name")
     if text.endswith(("/", os.sep)) or (os.altsep and text.endswith(os.altsep)):
-        raise OutputRefused(f"{where} ends with '/', a folder's path: give a file name "
-                            f"(e.g. {text.rstrip('/' + os.sep)}/out{_suffix_hint(option)})")
+        raise OutputRefused(
+            f"{where} ends with '/', a folder's path: give a file name "
+            f"(e.g. {text.rstrip('/' + os.sep)}/out{_suffix_hint(option)})"
+        )
     if kind == "special":
         return p  # written through (a device, a FIFO): nothing is replaced
     target = write_target(p)
     if kind == "file" and not (os.stat(target).st_mode & 0o222):
         shown = "" if target == p else f" (the link's target {target})"
-        raise OutputRefused(f"{where}{shown} is read-only: refusing to replace it (make it writable, "
-                            "or give another output path)")
+        raise OutputRefused(
+            f"{where}{shown} is read-only: refusing to replace it (make it writable, or give another output path)"
+        )
     _probe_folder(target.parent if str(target.parent) else Path("."), option, path)
     return p
 
@@ -213,7 +217,7 @@ def check_output_dir(path, option: str = "", *, inputs=None) -> Path:
     """Refuse an output folder that is an input, a file, bundled data, or cannot be made or written."""
     p = Path(os.fspath(path))
     where = f"{option} {path}" if option else str(path)
-    for q in (noted_inputs() if inputs is None else [Path(os.fspath(x)) for x in inputs]):
+    for q in noted_inputs() if inputs is None else [Path(os.fspath(x)) for x in inputs]:
         if same_file(p, q):
             raise OutputRefused(f"{where} is an input of this command: refusing to write into it")
     root = _bundled_root()
@@ -388,8 +392,9 @@ def _through_temp(option: str, path, suffix: str, sink) -> Iterator[Path]:
         tmp = folder / f"out{suffix}"
         yield tmp
         if not tmp.is_file():
-            raise OutputRefused(f"{option + ' ' if option else ''}{path}: the writer produced no single file "
-                                "to copy there")
+            raise OutputRefused(
+                f"{option + ' ' if option else ''}{path}: the writer produced no single file to copy there"
+            )
         with tmp.open("rb") as fh:
             sink(fh)
     finally:
@@ -446,8 +451,10 @@ def growing_path(path, option: str = "") -> Iterator[Path]:
     partial file is left where it is. :func:`check_output` is applied to both names.
     """
     if str(os.fspath(path)) == STDOUT:
-        raise OutputRefused(f"{option + ' ' if option else ''}-: a live journal grows as a file (its rows are "
-                            "printed on standard output anyway): give a file name")
+        raise OutputRefused(
+            f"{option + ' ' if option else ''}-: a live journal grows as a file (its rows are "
+            "printed on standard output anyway): give a file name"
+        )
     p = check_output(path, option)
     parent = p.parent if str(p.parent) else Path(".")
     k = 1

@@ -11,8 +11,10 @@ import pytest
 # Chromium) would compile every kernel afresh there. One cache for the whole session: numba reads
 # NUMBA_CACHE_DIR when it is imported, in this process and in every child (tests/test_first_run.py
 # takes it out for the probes that check the default).
-os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.environ.get("XDG_CACHE_HOME")
-                                                      or os.path.expanduser("~/.cache"), "geoloc", "numba"))
+os.environ.setdefault(
+    "NUMBA_CACHE_DIR",
+    os.path.join(os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "geoloc", "numba"),
+)
 
 
 @pytest.fixture(scope="module")
@@ -56,8 +58,11 @@ def _opens_chromium(fn, seen) -> bool:
         return True
     for name in names:
         obj = fn.__globals__.get(name)
-        if (isinstance(obj, types.FunctionType) and getattr(obj, "__name__", None) == "chromium"
-                and "test_viz_browser" in (obj.__module__ or "")):
+        if (
+            isinstance(obj, types.FunctionType)
+            and getattr(obj, "__name__", None) == "chromium"
+            and "test_viz_browser" in (obj.__module__ or "")
+        ):
             return True  # imported under another name
         mod = getattr(inspect.unwrap(obj), "__module__", None) if callable(obj) else None
         if mod and mod.rpartition(".")[2].startswith(("test_", "conftest")) and _opens_chromium(obj, seen):
@@ -68,7 +73,7 @@ def _opens_chromium(fn, seen) -> bool:
 def _item_opens_chromium(item) -> bool:
     fns = [getattr(item, "function", None)]
     info = getattr(item, "_fixtureinfo", None)
-    for defs in (info.name2fixturedefs.values() if info is not None else ()):
+    for defs in info.name2fixturedefs.values() if info is not None else ():
         fns += [d.func for d in defs]
     seen: set = set()
     return any(f is not None and _opens_chromium(f, seen) for f in fns)
@@ -96,13 +101,19 @@ def in_chromium_group(item) -> bool:
 def pytest_runtest_setup(item):
     # before the item's fixtures: a module fixture that opened Chromium is caught too
     os.environ[CHROMIUM_GROUP_ENV] = "1" if in_chromium_group(item) else "0"
-    if (in_chromium_group(item) and os.environ.get("PYTEST_XDIST_WORKER")
-            and item.config.getvalue("loadgroup") and not item.nodeid.endswith("@chromium")):
+    if (
+        in_chromium_group(item)
+        and os.environ.get("PYTEST_XDIST_WORKER")
+        and item.config.getvalue("loadgroup")
+        and not item.nodeid.endswith("@chromium")
+    ):
         # pytest-xdist groups a test by renaming it NODEID@GROUP; when that rename does not take (pytest 9
         # with xdist 3.8) the group's tests are spread over the workers and browsers run side by side
-        pytest.fail(f"{item.nodeid}: pytest-xdist did not put this test in its group 'chromium' (pytest "
-                    f"{pytest.__version__}; pyproject.toml's test extras pin the pytest that groups)",
-                    pytrace=False)
+        pytest.fail(
+            f"{item.nodeid}: pytest-xdist did not put this test in its group 'chromium' (pytest "
+            f"{pytest.__version__}; pyproject.toml's test extras pin the pytest that groups)",
+            pytrace=False,
+        )
 
 
 def pytest_sessionfinish(session):

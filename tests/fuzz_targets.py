@@ -34,10 +34,56 @@ ASSETS = ROOT / "assets"
 CORPUS = ROOT / "tests" / "data" / "fuzz"
 
 #: Tokens a mutation puts in place of a field of a text format: the values that break parsers.
-TOKENS = ["", "nan", "NaN", "inf", "-inf", "1e309", "-1e309", "-0", "0", "-1", "1e-320", "9" * 40,
-          "0x10", "1_0", "+", "-", ".", "e", '"', "'", ",", ";", "=", "[", "]", "{", "}", "[[", "#",
-          "\\", "\x00", "\ufeff", "é", "\u202e", "\r", "\n", "\t", "true", "false", "[]", "{}", '""',
-          "1979-05-27T07:32:00Z", "[lens]", "[columns]", "model", "brown", "x" * 300]
+TOKENS = [
+    "",
+    "nan",
+    "NaN",
+    "inf",
+    "-inf",
+    "1e309",
+    "-1e309",
+    "-0",
+    "0",
+    "-1",
+    "1e-320",
+    "9" * 40,
+    "0x10",
+    "1_0",
+    "+",
+    "-",
+    ".",
+    "e",
+    '"',
+    "'",
+    ",",
+    ";",
+    "=",
+    "[",
+    "]",
+    "{",
+    "}",
+    "[[",
+    "#",
+    "\\",
+    "\x00",
+    "\ufeff",
+    "é",
+    "\u202e",
+    "\r",
+    "\n",
+    "\t",
+    "true",
+    "false",
+    "[]",
+    "{}",
+    '""',
+    "1979-05-27T07:32:00Z",
+    "[lens]",
+    "[columns]",
+    "model",
+    "brown",
+    "x" * 300,
+]
 
 
 # --------------------------------------------------------------------------- mutations
@@ -51,13 +97,13 @@ def apply_byte_ops(seed: bytes, ops) -> bytes:
         if kind == "flip" and pos < len(b):
             b[pos] ^= 1 << (n % 8)
         elif kind == "set" and pos < len(b):
-            b[pos:pos + len(data)] = data
+            b[pos : pos + len(data)] = data
         elif kind == "insert":
             b[pos:pos] = data
         elif kind == "delete":
-            del b[pos:pos + n]
+            del b[pos : pos + n]
         elif kind == "dup":
-            b[pos:pos] = b[pos:pos + n]
+            b[pos:pos] = b[pos : pos + n]
         elif kind == "truncate":
             del b[pos:]
     return bytes(b)
@@ -66,8 +112,12 @@ def apply_byte_ops(seed: bytes, ops) -> bytes:
 def byte_mutations(seed: bytes, max_ops: int = 4, window: int | None = None):
     """Strategy: ``seed`` with a few byte mutations (within its first ``window`` bytes)."""
     span = len(seed) if window is None else min(window, len(seed))
-    op = st.tuples(st.sampled_from(["flip", "set", "insert", "delete", "dup", "truncate"]),
-                   st.integers(0, span), st.binary(min_size=1, max_size=8), st.integers(0, 64))
+    op = st.tuples(
+        st.sampled_from(["flip", "set", "insert", "delete", "dup", "truncate"]),
+        st.integers(0, span),
+        st.binary(min_size=1, max_size=8),
+        st.integers(0, 64),
+    )
     return st.lists(op, min_size=1, max_size=max_ops).map(lambda ops: apply_byte_ops(seed, ops))
 
 
@@ -104,10 +154,15 @@ def text_mutations(seed: str, max_ops: int = 3, lines=None):
     n = len(seed.split("\n"))
     lo, hi = lines if lines else (0, n - 1)
     token = st.one_of(st.sampled_from(TOKENS), st.text(max_size=12))
-    op = st.tuples(st.integers(lo, hi), st.integers(0, 40), token,
-                   st.sampled_from(["replace", "replace", "append", "line", "drop_line"]))
+    op = st.tuples(
+        st.integers(lo, hi),
+        st.integers(0, 40),
+        token,
+        st.sampled_from(["replace", "replace", "append", "line", "drop_line"]),
+    )
     return st.lists(op, min_size=1, max_size=max_ops).map(
-        lambda ops: apply_text_ops(seed, ops).encode("utf-8", "surrogatepass"))
+        lambda ops: apply_text_ops(seed, ops).encode("utf-8", "surrogatepass")
+    )
 
 
 def any_mutation(seed: bytes, text: bool, window: int | None = None):
@@ -126,9 +181,18 @@ class Finding(AssertionError):
 
 
 #: Library messages that name no file and no field: an error with only this to say is a finding.
-_BARE = ("codec can't decode", "invalid literal for int()", "could not convert string to float",
-         "list index out of range", "unpack requires", "NoneType", "not subscriptable",
-         "object has no attribute", "math domain error", "division by zero")
+_BARE = (
+    "codec can't decode",
+    "invalid literal for int()",
+    "could not convert string to float",
+    "list index out of range",
+    "unpack requires",
+    "NoneType",
+    "not subscriptable",
+    "object has no attribute",
+    "math domain error",
+    "division by zero",
+)
 
 
 def check_error(e: BaseException, names=()) -> None:
@@ -232,7 +296,7 @@ def run_ts(data: bytes) -> None:
     def live():  # the live demuxer, fed as datagrams of 7 TS packets
         d = TsDemuxer()
         for i in range(0, len(data), 1316):
-            d.feed_datagram(data[i:i + 1316])
+            d.feed_datagram(data[i : i + 1316])
         d.flush()
 
     expect_clear(live)
@@ -275,20 +339,25 @@ def _good_rows_kept(data: bytes, seed: bytes, r) -> None:
     for k in range(1, len(old)):
         if new[k] == old[k] and old[k].strip():
             if k + 1 not in loaded:
-                raise Finding(f"line {k + 1}, unchanged and good, was not loaded (errors: "
-                              f"{[str(e) for e in r.errors][:3]})")
+                raise Finding(
+                    f"line {k + 1}, unchanged and good, was not loaded (errors: {[str(e) for e in r.errors][:3]})"
+                )
 
 
 def column_map_seed() -> bytes:
-    return (b'[columns]\nac_lat_deg = "Latitude"\nac_lon_deg = "Longitude"\n'
-            b'ac_h_m = {column = "Alt_ft", unit = "ft", datum = "egm96"}\n'
-            b'heading_deg = {column = "Yaw", unit = "rad"}\nazimuth_deg = "TurretAz"\n'
-            b'row = "PixelY"\ncol = {column = "PixelX", pixel = "zero-based"}\n')
+    return (
+        b'[columns]\nac_lat_deg = "Latitude"\nac_lon_deg = "Longitude"\n'
+        b'ac_h_m = {column = "Alt_ft", unit = "ft", datum = "egm96"}\n'
+        b'heading_deg = {column = "Yaw", unit = "rad"}\nazimuth_deg = "TurretAz"\n'
+        b'row = "PixelY"\ncol = {column = "PixelX", pixel = "zero-based"}\n'
+    )
 
 
-_MAPPED_CSV = ("Latitude,Longitude,Alt_ft,Yaw,pitch_deg,roll_deg,TurretAz,elevation_deg,PixelY,PixelX\n"
-               "36.6,-84.25,8200,1.57,2.0,1.4,93.6,-9.7,598,842\n"
-               "36.61,-84.24,8210,1.58,2.0,1.4,93.7,-9.8,599,843\n")
+_MAPPED_CSV = (
+    "Latitude,Longitude,Alt_ft,Yaw,pitch_deg,roll_deg,TurretAz,elevation_deg,PixelY,PixelX\n"
+    "36.6,-84.25,8200,1.57,2.0,1.4,93.6,-9.7,598,842\n"
+    "36.61,-84.24,8210,1.58,2.0,1.4,93.7,-9.8,599,843\n"
+)
 
 
 def run_column_map(data: bytes) -> None:
@@ -302,8 +371,9 @@ def run_column_map(data: bytes) -> None:
         csv.write_text(_MAPPED_CSV)
         cmap = expect_clear(lambda: load_column_map(m), [m.name])
         if cmap is not None:
-            expect_clear(lambda: load_records(csv, angles=("azimuth", "elevation"), columns=cmap),
-                         [m.name, csv.name, "column"])
+            expect_clear(
+                lambda: load_records(csv, angles=("azimuth", "elevation"), columns=cmap), [m.name, csv.name, "column"]
+            )
 
     with tempfile.TemporaryDirectory(prefix="geoloc-fuzz-") as d:
         go(Path(d))
@@ -321,16 +391,20 @@ def run_sensor(data: bytes) -> None:
         if s is not None:
             import numpy as np
 
-            expect_clear(lambda: s.lens.project_undistorted(np.array([[0.0, 0.0, 1.0]]))
-                         if hasattr(s.lens, "project_undistorted") else None)
+            expect_clear(
+                lambda: (
+                    s.lens.project_undistorted(np.array([[0.0, 0.0, 1.0]]))
+                    if hasattr(s.lens, "project_undistorted")
+                    else None
+                )
+            )
         expect_clear(lambda: load_sensor_budget(p), [p.name])
         expect_clear(lambda: load_sensor_columns(p), [p.name])
 
     _in_file(data, "sensor.toml", go)
 
 
-SCENARIOS = ("qiao2017_table1.toml", "qiao2017_frame.toml", "tiangong2_limb.toml", "zy3_nadir.toml",
-             "flight_scan.toml")
+SCENARIOS = ("qiao2017_table1.toml", "qiao2017_frame.toml", "tiangong2_limb.toml", "zy3_nadir.toml", "flight_scan.toml")
 
 
 def scenario_seed(name: str) -> bytes:
@@ -382,13 +456,25 @@ def run_xmp(data: bytes) -> None:
 def rpc_seed() -> bytes:
     """An RPC00B text file (GeoEye / Ikonos ``NAME_rpc.txt``) of a well-formed model."""
     lines = []
-    vals = {"LINE_OFF": "+5000.0 pixels", "SAMP_OFF": "+5000.0 pixels", "LAT_OFF": "+36.5 degrees",
-            "LONG_OFF": "-84.2 degrees", "HEIGHT_OFF": "+500.0 meters", "LINE_SCALE": "+5000.0 pixels",
-            "SAMP_SCALE": "+5000.0 pixels", "LAT_SCALE": "+0.1 degrees", "LONG_SCALE": "+0.12 degrees",
-            "HEIGHT_SCALE": "+500.0 meters"}
+    vals = {
+        "LINE_OFF": "+5000.0 pixels",
+        "SAMP_OFF": "+5000.0 pixels",
+        "LAT_OFF": "+36.5 degrees",
+        "LONG_OFF": "-84.2 degrees",
+        "HEIGHT_OFF": "+500.0 meters",
+        "LINE_SCALE": "+5000.0 pixels",
+        "SAMP_SCALE": "+5000.0 pixels",
+        "LAT_SCALE": "+0.1 degrees",
+        "LONG_SCALE": "+0.12 degrees",
+        "HEIGHT_SCALE": "+500.0 meters",
+    }
     lines += [f"{k}: {v}" for k, v in vals.items()]
-    coef = {"LINE_NUM": [0.001, -0.02, -1.0, 0.0001], "LINE_DEN": [1.0, 0.0001],
-            "SAMP_NUM": [-0.002, 1.0, -0.01, 0.0002], "SAMP_DEN": [1.0, 0.0, 0.0002]}
+    coef = {
+        "LINE_NUM": [0.001, -0.02, -1.0, 0.0001],
+        "LINE_DEN": [1.0, 0.0001],
+        "SAMP_NUM": [-0.002, 1.0, -0.01, 0.0002],
+        "SAMP_DEN": [1.0, 0.0, 0.0002],
+    }
     for k, c in coef.items():
         c = (c + [0.0] * 20)[:20]
         lines += [f"{k}_COEFF_{i + 1}: {v:+.15e}" for i, v in enumerate(c)]
@@ -400,8 +486,7 @@ def run_rpc_text(data: bytes) -> None:
     from geoloc.io.rpc_gdal import read_rpc
     from geoloc.sensors.rpc import RPCModel
 
-    _in_file(data, "scene_RPC.TXT",
-             lambda p: expect_clear(lambda: read_rpc(p, rows=10000, cols=10000), [p.name]))
+    _in_file(data, "scene_RPC.TXT", lambda p: expect_clear(lambda: read_rpc(p, rows=10000, cols=10000), [p.name]))
     md = {}
     for line in data.decode("utf-8", "replace").splitlines():
         if ":" in line:
@@ -444,15 +529,15 @@ def run_nitf(data: bytes) -> None:
 
 LENS_SEEDS = {
     "opencv.yml": b"%YAML:1.0\n---\nimage_width: 1280\nimage_height: 960\ncamera_matrix: !!opencv-matrix\n"
-                  b"   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1.2104e+03, 0., 6.4130e+02, 0., 1.2045e+03, "
-                  b"4.7820e+02, 0., 0., 1. ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 5\n   cols: 1\n"
-                  b"   dt: d\n   data: [ -8.0e-02, 2.0e-02, 2e-4, -1e-4, -2.0e-03 ]\n",
+    b"   rows: 3\n   cols: 3\n   dt: d\n   data: [ 1.2104e+03, 0., 6.4130e+02, 0., 1.2045e+03, "
+    b"4.7820e+02, 0., 0., 1. ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 5\n   cols: 1\n"
+    b"   dt: d\n   data: [ -8.0e-02, 2.0e-02, 2e-4, -1e-4, -2.0e-03 ]\n",
     "cameras.txt": b"# CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n1 SIMPLE_PINHOLE 640 480 500.0 320.0 240.0\n"
-                   b"2 OPENCV 640 480 500.0 501.0 320.0 240.0 -0.2 0.04 1e-3 -5e-4\n"
-                   b"3 OPENCV_FISHEYE 848 800 285.0 285.7 425.1 400.8 -0.0073 0.044 -0.042 0.0078\n",
+    b"2 OPENCV 640 480 500.0 501.0 320.0 240.0 -0.2 0.04 1e-3 -5e-4\n"
+    b"3 OPENCV_FISHEYE 848 800 285.0 285.7 425.1 400.8 -0.0073 0.044 -0.042 0.0078\n",
     "camera_models.json": b'{"brown cam": {"projection_type": "brown", "width": 1200, "height": 1600, '
-                          b'"focal_x": 0.8, "focal_y": 0.81, "c_x": 0.01, "c_y": -0.02, "k1": -0.1, "k2": 0.02, '
-                          b'"k3": -0.001, "p1": 0.001, "p2": -0.0005}}',
+    b'"focal_x": 0.8, "focal_y": 0.81, "c_x": 0.01, "c_y": -0.02, "k1": -0.1, "k2": 0.02, '
+    b'"k3": -0.001, "p1": 0.001, "p2": -0.0005}}',
 }
 
 
@@ -488,19 +573,22 @@ def _scenario_target(name):
     return Target(f"scenario_{Path(name).stem}", lambda: scenario_seed(name), run_scenario, True, ".toml")
 
 
-TARGETS = {t.name: t for t in [
-    Target("klv", klv_seed, run_klv, False, ".klv"),
-    Target("ts", ts_seed, run_ts, False, ".ts"),
-    Target("csv", csv_seed, run_csv, True, ".csv"),
-    Target("column_map", column_map_seed, run_column_map, True, ".toml"),
-    Target("sensor", sensor_seed, run_sensor, True, ".toml"),
-    *[_scenario_target(n) for n in SCENARIOS],
-    Target("photo", photo_seed, run_photo, False, ".jpg", window=20000),
-    Target("xmp", xmp_seed, run_xmp, True, ".xmp"),
-    Target("rpc_text", rpc_seed, run_rpc_text, True, ".txt"),
-    Target("nitf", nitf_seed, run_nitf, False, ".ntf", window=2048),
-    *[_lens_target(n) for n in LENS_SEEDS],
-]}
+TARGETS = {
+    t.name: t
+    for t in [
+        Target("klv", klv_seed, run_klv, False, ".klv"),
+        Target("ts", ts_seed, run_ts, False, ".ts"),
+        Target("csv", csv_seed, run_csv, True, ".csv"),
+        Target("column_map", column_map_seed, run_column_map, True, ".toml"),
+        Target("sensor", sensor_seed, run_sensor, True, ".toml"),
+        *[_scenario_target(n) for n in SCENARIOS],
+        Target("photo", photo_seed, run_photo, False, ".jpg", window=20000),
+        Target("xmp", xmp_seed, run_xmp, True, ".xmp"),
+        Target("rpc_text", rpc_seed, run_rpc_text, True, ".txt"),
+        Target("nitf", nitf_seed, run_nitf, False, ".ntf", window=2048),
+        *[_lens_target(n) for n in LENS_SEEDS],
+    ]
+}
 
 
 def corpus_name(target: Target, data: bytes) -> Path:

@@ -54,8 +54,9 @@ def trace(o, d, h_target, nfun, limb=False):
     ev = level if limb else reach
     ev.terminal = True
     ev.direction = 1 if limb else -1
-    sol = solve_ivp(rhs, (0.0, 6e6), np.r_[o, n0 * d], method="DOP853", rtol=1e-12, atol=1e-7, events=ev,
-                    max_step=2000.0)
+    sol = solve_ivp(
+        rhs, (0.0, 6e6), np.r_[o, n0 * d], method="DOP853", rtol=1e-12, atol=1e-7, events=ev, max_step=2000.0
+    )
     assert sol.status == 1, sol.message
     return sol.y_events[0][0][:3]
 

@@ -41,8 +41,9 @@ def _section(text: str, heading: str) -> str:
 
 
 def _table_rows(section: str) -> list[list[str]]:
-    rows = [[c.strip() for c in line.strip().strip("|").split("|")]
-            for line in section.splitlines() if line.startswith("|")]
+    rows = [
+        [c.strip() for c in line.strip().strip("|").split("|")] for line in section.splitlines() if line.startswith("|")
+    ]
     return [r for r in rows[2:]]  # past the header and its rule
 
 
@@ -142,8 +143,7 @@ def upward_imports(g: dict, layers: dict) -> list:
             continue
         for dep in deps:
             if layer_of(dep, layers) > layer_of(mod, layers):
-                bad.append(f"{mod} (layer {layer_of(mod, layers)}) imports {dep} "
-                           f"(layer {layer_of(dep, layers)})")
+                bad.append(f"{mod} (layer {layer_of(mod, layers)}) imports {dep} (layer {layer_of(dep, layers)})")
     return sorted(bad)
 
 
@@ -173,8 +173,7 @@ def test_every_module_imports_only_downwards():
 def test_an_upward_import_is_caught():
     # the check must be able to fail: a core module reading the viewer, and a layer the page lost
     g = {"geoloc.surfaces.dem": {"geoloc_viz.app"}, "geoloc_viz.app": {"geoloc.surfaces.dem"}}
-    assert upward_imports(g, LAYERS) == [
-        "geoloc.surfaces.dem (layer 3) imports geoloc_viz.app (layer 9)"]
+    assert upward_imports(g, LAYERS) == ["geoloc.surfaces.dem (layer 3) imports geoloc_viz.app (layer 9)"]
     with pytest.raises(AssertionError, match="in no layer"):
         layer_of("geoloc.sensors.frame", {k: v for k, v in LAYERS.items() if k != "geoloc.sensors"})
 
@@ -229,7 +228,8 @@ def test_no_import_cycles():
     assert not core, f"import cycles in the core: {core}"
     viz = sorted(sorted(c) for c in cycles if c not in core)
     assert viz == sorted(sorted(c) for c in KNOWN_VIZ_CYCLES), (
-        f"viz cycles changed: {viz}; update KNOWN_VIZ_CYCLES (it may only shrink)")
+        f"viz cycles changed: {viz}; update KNOWN_VIZ_CYCLES (it may only shrink)"
+    )
 
 
 def test_cycle_finder_finds_a_planted_cycle():

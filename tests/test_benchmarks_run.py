@@ -35,109 +35,177 @@ N = r"-?\d[\d,]*(?:\.\d+)?(?:e[+-]?\d+)?"
 CASES = {
     "bench_browser.py": (
         ["--repeat", "1", "--steps", "1", "--groups", "--window", "2"],
-        [rf"^default view to a settled canvas: median {N} s wall over 1 loads .*; ratio {N}$",
-         rf"^timeline step to the canvas: median {N} s wall over 1 steps .*; ratio {N}$",
-         rf"^  nothing hidden +{N} frames/s, +{N} draw calls and +{N} indices a frame, GPU process {N} s CPU a frame$",
-         rf"^  and the rest of /enu +{N} frames/s, +{N} draw calls"], 600),
+        [
+            rf"^default view to a settled canvas: median {N} s wall over 1 loads .*; ratio {N}$",
+            rf"^timeline step to the canvas: median {N} s wall over 1 steps .*; ratio {N}$",
+            rf"^  nothing hidden +{N} frames/s, +{N} draw calls and +{N} indices a frame, GPU process {N} s CPU a frame$",
+            rf"^  and the rest of /enu +{N} frames/s, +{N} draw calls",
+        ],
+        600,
+    ),
     "bench_campaign.py": (
         # one worker: the same cluster path as the default two, 4 s less
         ["--records", "2000", "--partition", "1000", "--workers", "1"],
-        [rf"^one process, 1 thread .* wall +{N} s +CPU +{N} s .* {N} records/s",
-         rf"^cluster 1 proc x 1 thr .* wall +{N} s +CPU +{N} s .* {N} records/s",
-         rf"^ratio: {N} \(speed-up"], 300),
+        [
+            rf"^one process, 1 thread .* wall +{N} s +CPU +{N} s .* {N} records/s",
+            rf"^cluster 1 proc x 1 thr .* wall +{N} s +CPU +{N} s .* {N} records/s",
+            rf"^ratio: {N} \(speed-up",
+        ],
+        300,
+    ),
     "bench_startup.py": (
         ["--repeat", "1"],
-        [rf"^geoloc --help +wall {N} s  CPU {N} s$", rf"^one-pixel locate +wall {N} s  CPU {N} s$",
-         rf"^ratio geoloc --help / peer {N}x; one-pixel locate / peer {N}x$"], 120),
+        [
+            rf"^geoloc --help +wall {N} s  CPU {N} s$",
+            rf"^one-pixel locate +wall {N} s  CPU {N} s$",
+            rf"^ratio geoloc --help / peer {N}x; one-pixel locate / peer {N}x$",
+        ],
+        120,
+    ),
     "bench_first_run.py": (
         ["--only", "locate"],  # one cold numba cache, one warm: 5 s
-        [rf"^locate(?: +{N}){{7}}$"], 300),
+        [rf"^locate(?: +{N}){{7}}$"],
+        300,
+    ),
     "bench_images.py": (
         ["--repeat", "1", "--hour-s", "10", "--size", "320x180"],
-        [rf"^hour: open \+ PTS index, one hour .*median wall {N} s",
-         rf"^switch, random record .*median wall {N} ms, CPU {N} ms",
-         rf"^  decode alone, .*ratio peer / ours {N}x \(wall\)$",
-         rf"^ortho: 320 x 180 frame at {N} m cells .*median wall {N} s",
-         rf"^ortho: peer GDAL warp .*ratio peer / ours {N}x \(wall\)$"], 300),
+        [
+            rf"^hour: open \+ PTS index, one hour .*median wall {N} s",
+            rf"^switch, random record .*median wall {N} ms, CPU {N} ms",
+            rf"^  decode alone, .*ratio peer / ours {N}x \(wall\)$",
+            rf"^ortho: 320 x 180 frame at {N} m cells .*median wall {N} s",
+            rf"^ortho: peer GDAL warp .*ratio peer / ours {N}x \(wall\)$",
+        ],
+        300,
+    ),
     "bench_klv.py": (
         ["--packets", "200", "--repeat", "1", "--klvdata-packets", "50", "--klvdata-repeat", "1"],
-        [rf"^ours \(iter_packets, dict per packet\): .* {N} packets/s$",
-         rf"^klvdata \(StreamParser \+ MetadataList\): .* {N} packets/s",
-         rf"^ratio: {N}$"], 120),
+        [
+            rf"^ours \(iter_packets, dict per packet\): .* {N} packets/s$",
+            rf"^klvdata \(StreamParser \+ MetadataList\): .* {N} packets/s",
+            rf"^ratio: {N}$",
+        ],
+        120,
+    ),
     "bench_klv_replay.py": (
         ["--packets", "200", "--repeat", "1", "--klvdata-packets", "50", "--klvdata-repeat", "1"],
-        [rf"^decode \+ replay \(frame-centre height\) +wall +{N} ms .* {N} packets/s",
-         rf"^decode \+ replay \(DEM, exact\) +wall +{N} ms .* {N} packets/s",
-         rf"^klvdata decode only .* {N} packets/s",
-         rf"^ratio: {N}$"], 120),
+        [
+            rf"^decode \+ replay \(frame-centre height\) +wall +{N} ms .* {N} packets/s",
+            rf"^decode \+ replay \(DEM, exact\) +wall +{N} ms .* {N} packets/s",
+            rf"^klvdata decode only .* {N} packets/s",
+            rf"^ratio: {N}$",
+        ],
+        120,
+    ),
     "bench_live.py": (
         ["--hours", "0.002", "--repeat", "1"],  # 216 packets; over loopback at 100x real time
-        [rf"^ours \(LiveReceiver.push per datagram\): .* {N} packets/s",
-         rf"^peer \(read_ts_klv: PyAV/FFmpeg demux\): .* {N} packets/s$",
-         rf"^ratio: {N}$",
-         rf"^over loopback, .*: {N} of 216 packets in {N} s"], 120),
+        [
+            rf"^ours \(LiveReceiver.push per datagram\): .* {N} packets/s",
+            rf"^peer \(read_ts_klv: PyAV/FFmpeg demux\): .* {N} packets/s$",
+            rf"^ratio: {N}$",
+            rf"^over loopback, .*: {N} of 216 packets in {N} s",
+        ],
+        120,
+    ),
     "bench_locate.py": (
         ["--rays", "1000", "--repeat", "1"],
-        [rf"^\[q17 roll-pitch pinhole\] geoloc locate \(full chain\): .* {N} M rays/s$",
-         rf"^\[turret: .*\] geoloc locate \(full chain\): .* {N} M rays/s$",
-         rf"^ratio: {N}  \(wall {N}\)$",
-         rf"^ratio turret: {N}  \(wall {N}\)$"], 120),
+        [
+            rf"^\[q17 roll-pitch pinhole\] geoloc locate \(full chain\): .* {N} M rays/s$",
+            rf"^\[turret: .*\] geoloc locate \(full chain\): .* {N} M rays/s$",
+            rf"^ratio: {N}  \(wall {N}\)$",
+            rf"^ratio turret: {N}  \(wall {N}\)$",
+        ],
+        120,
+    ),
     "bench_montecarlo.py": (
         ["--quick"],
-        [rf"^ellipsoid N = 200000: median {N} s",
-         rf"^DEM N = 5000: median {N} s",
-         rf"^ratio: {N}$"], 300),
+        [rf"^ellipsoid N = 200000: median {N} s", rf"^DEM N = 5000: median {N} s", rf"^ratio: {N}$"],
+        300,
+    ),
     "bench_montecarlo_memory.py": (
         ["--quick"],  # 1e4, 1e5, 1e6: the ratio needs two N >= 1e5
-        [rf"^ +1000000 +streamed(?: +{N}){{6}}$",
-         rf"ratio: {N}  \(flat = 1"], 300),
+        [rf"^ +1000000 +streamed(?: +{N}){{6}}$", rf"ratio: {N}  \(flat = 1"],
+        300,
+    ),
     "bench_refraction.py": (
         ["--rays", "2000", "--repeat", "1"],
-        [rf"^pipeline, --refraction none: .* {N} M rays/s cpu$",
-         rf"^pipeline, --refraction standard: .* {N} M rays/s cpu$",
-         rf"^ratio: {N}  \(wall {N}\)$"], 120),
+        [
+            rf"^pipeline, --refraction none: .* {N} M rays/s cpu$",
+            rf"^pipeline, --refraction standard: .* {N} M rays/s cpu$",
+            rf"^ratio: {N}  \(wall {N}\)$",
+        ],
+        120,
+    ),
     "bench_rpc.py": (
         ["--points", "200"],
-        [rf"^rigorous ground_to_pixel \(Newton on line time\): median {N} ms$",
-         rf"^RPC ground_to_pixel: +median {N} ms$",
-         rf"^ratio: {N}$"], 120),
+        [
+            rf"^rigorous ground_to_pixel \(Newton on line time\): median {N} ms$",
+            rf"^RPC ground_to_pixel: +median {N} ms$",
+            rf"^ratio: {N}$",
+        ],
+        120,
+    ),
     "bench_terrain.py": (
         # (c) too, on a 60 x 60 resampled DEM
         ["--rays", "200", "--repeat", "1", "--size", "60", "--big-rays", "500", "--big-repeat", "1"],
-        [rf"^exact \(bilinear\): {N} cells or blocks visited per ray$",
-         rf"^trimesh ray cast +{N} rays/s +{N} rays/s$",
-         rf"^exact, triangles +{N} rays/s +{N} rays/s$",
-         rf"^ratio: {N}$",
-         rf"^big ratio \(CPU time, exact triangles over trimesh; goal >= 1.5\): {N}$"], 300),
+        [
+            rf"^exact \(bilinear\): {N} cells or blocks visited per ray$",
+            rf"^trimesh ray cast +{N} rays/s +{N} rays/s$",
+            rf"^exact, triangles +{N} rays/s +{N} rays/s$",
+            rf"^ratio: {N}$",
+            rf"^big ratio \(CPU time, exact triangles over trimesh; goal >= 1.5\): {N}$",
+        ],
+        300,
+    ),
     "bench_uncertainty.py": (
         ["--points", "200", "--repeat", "1", "--dem"],
-        [rf"^\[ellipsoid\] propagate: .* {N} points/s wall",
-         rf"^ratio: {N}$",
-         rf"^ratio dem: {N}$"], 300),
+        [rf"^\[ellipsoid\] propagate: .* {N} points/s wall", rf"^ratio: {N}$", rf"^ratio dem: {N}$"],
+        300,
+    ),
     "bench_viz.py": (
         ["--nodes", "20"],
-        [rf"^send 722-triangle DEM mesh, vertex colours \(add_mesh_trimesh\): median {N} s",
-         rf"^slider -> updated scene, method exact : median {N} ms",
-         rf"^ratio: {N}$"], 300),
+        [
+            rf"^send 722-triangle DEM mesh, vertex colours \(add_mesh_trimesh\): median {N} s",
+            rf"^slider -> updated scene, method exact : median {N} ms",
+            rf"^ratio: {N}$",
+        ],
+        300,
+    ),
     "bench_viz_churn.py": (
         ["4"],  # 4 clients after the fixed 20-client warm-up
-        [rf"^  after the churn \+ gc +{N} MB  \(after / idle = {N};",
-         rf"still alive after the churn {N} \(goal 0\)",
-         rf"median wall: ours {N} ms, bare viser server {N} ms .*\(ratio {N}\)"], 300),
+        [
+            rf"^  after the churn \+ gc +{N} MB  \(after / idle = {N};",
+            rf"still alive after the churn {N} \(goal 0\)",
+            rf"median wall: ours {N} ms, bare viser server {N} ms .*\(ratio {N}\)",
+        ],
+        300,
+    ),
     "bench_viz_flight.py": (
         ["--frames", "20", "--repeat", "1"],
-        [rf"^open \(model \+ scene build \+ serialise\): median wall {N} s",
-         rf"^timeline step with load_record: median wall {N} ms",
-         rf"ratio peer / batch {N}x \(wall\)$"], 300),
+        [
+            rf"^open \(model \+ scene build \+ serialise\): median wall {N} s",
+            rf"^timeline step with load_record: median wall {N} ms",
+            rf"ratio peer / batch {N}x \(wall\)$",
+        ],
+        300,
+    ),
     "bench_walk_ab.py": (
         ["HEAD", "--repeat", "1"],  # this tree's walk against HEAD's (compiled afresh: ~35 s)
-        [rf"^this tree, climbing +{N} ns a ray +{N} of HEAD +identical to HEAD: (?:True|False)",
-         rf"^this tree, flat +{N} ns a ray +{N} of HEAD, flat +identical to HEAD: (?:True|False)"], 600),
+        [
+            rf"^this tree, climbing +{N} ns a ray +{N} of HEAD +identical to HEAD: (?:True|False)",
+            rf"^this tree, flat +{N} ns a ray +{N} of HEAD, flat +identical to HEAD: (?:True|False)",
+        ],
+        600,
+    ),
     "bench_whole_frame.py": (
         ["--repeat", "1", "--step", "32", "--embree-rays", "1000"],
-        [rf"^locate_frame \(compiled grid \+ exact DEM, parallel\): wall {N} s, CPU {N} s, {N} M rays/s wall",
-         rf"^peer, numpy line of sight \+ the same solver: .*ratio {N}x wall, {N}x CPU",
-         rf"^peer, trimesh/embree on 1000 of the same rays .*ratio {N}x per CPU s"], 300),
+        [
+            rf"^locate_frame \(compiled grid \+ exact DEM, parallel\): wall {N} s, CPU {N} s, {N} M rays/s wall",
+            rf"^peer, numpy line of sight \+ the same solver: .*ratio {N}x wall, {N}x CPU",
+            rf"^peer, trimesh/embree on 1000 of the same rays .*ratio {N}x per CPU s",
+        ],
+        300,
+    ),
 }
 
 #: Opens headless Chromium: on the xdist worker of tests/conftest.py's Chromium group (conftest
@@ -153,10 +221,10 @@ def _params():
 
 
 def _run(args, tmp_path, timeout):
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-               MPLBACKEND="Agg")
-    return subprocess.run([sys.executable, *map(str, args)], cwd=tmp_path, env=env, capture_output=True,
-                          text=True, timeout=timeout)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]), MPLBACKEND="Agg")
+    return subprocess.run(
+        [sys.executable, *map(str, args)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=timeout
+    )
 
 
 @pytest.mark.parametrize("name", _params())
@@ -168,14 +236,17 @@ def test_benchmark_runs_at_a_tiny_size(name, tmp_path):
     cmd = f"python benchmarks/{name} {' '.join(args)}"
     assert r.returncode == 0, f"{cmd} exited {r.returncode}; stderr:\n{r.stderr[-6000:]}"
     missing = [p for p in patterns if not re.search(p, r.stdout, re.MULTILINE)]
-    assert not missing, (f"{cmd}: no line of its output matches {missing}\nstdout:\n{r.stdout[-6000:]}\n"
-                         f"stderr:\n{r.stderr[-3000:]}")
+    assert not missing, (
+        f"{cmd}: no line of its output matches {missing}\nstdout:\n{r.stdout[-6000:]}\nstderr:\n{r.stderr[-3000:]}"
+    )
 
 
 def test_every_benchmark_is_listed():
     found = {p.name for p in BENCH.glob("bench_*.py")}
-    assert found - set(CASES) == set(), (f"benchmarks {sorted(found - set(CASES))} are not run by "
-                                         "tests/test_benchmarks_run.py: add each to CASES with a tiny size")
+    assert found - set(CASES) == set(), (
+        f"benchmarks {sorted(found - set(CASES))} are not run by "
+        "tests/test_benchmarks_run.py: add each to CASES with a tiny size"
+    )
     assert set(CASES) - found == set(), f"CASES lists benchmarks that are gone: {sorted(set(CASES) - found)}"
 
 
@@ -197,10 +268,18 @@ def test_mutation_parses_and_its_targets_exist(tmp_path):
     assert r.returncode == 0 and "--targets" in r.stdout, r.stderr[-3000:]
     mut = _mutation()
     # a test may be named by its node id (file::function): the file exists and defines the function
-    missing = [(t.name, f) for t in mut.TARGETS for f in (t.module, *t.tests)
-               if not (ROOT / f.split("::")[0]).is_file()
-               or ("::" in f and not re.search(rf"^def {re.escape(f.split('::')[1])}\(",
-                                               (ROOT / f.split("::")[0]).read_text(), re.MULTILINE))]
+    missing = [
+        (t.name, f)
+        for t in mut.TARGETS
+        for f in (t.module, *t.tests)
+        if not (ROOT / f.split("::")[0]).is_file()
+        or (
+            "::" in f
+            and not re.search(
+                rf"^def {re.escape(f.split('::')[1])}\(", (ROOT / f.split("::")[0]).read_text(), re.MULTILINE
+            )
+        )
+    ]
     missing += [("kills", mut.KILLS)] if not (ROOT / mut.KILLS).is_file() else []
     assert not missing, f"benchmarks/mutation.py names files that are not in the tree: {missing}"
     for t in mut.TARGETS:  # the functions a target is restricted to are defined in its module

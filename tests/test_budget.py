@@ -30,7 +30,10 @@ def with_table(tmp_path, base, text, name="s.toml"):
 
 
 def test_every_kind_of_key_is_read_with_its_unit(tmp_path):
-    p = with_table(tmp_path, TURRET, """
+    p = with_table(
+        tmp_path,
+        TURRET,
+        """
 north_m = 2.0
 east_m = 2.5
 up_m = 3.0
@@ -48,7 +51,8 @@ cx_px = 0.5
 k1 = 0.001
 height_m = 10.0
 dem_product = "srtm"
-""")
+""",
+    )
     b = load_sensor_budget(p)
     assert b.sigma("north_m") == 2.0 and b.sigma("azimuth_deg") == 0.01 and b.sigma("k1") == 0.001
     assert b.sigma("roll_deg") == 0.03 and b.sigma("gimbal_roll_deg") == 0.0  # not this gimbal's
@@ -75,15 +79,18 @@ def test_first_phase_camera_file_takes_a_budget_on_its_roll_pitch_gimbal(tmp_pat
         load_sensor(with_table(tmp_path, asset_path("cameras", "qiao2017.toml"), "azimuth_deg = 0.1\n", "b.toml"))
 
 
-@pytest.mark.parametrize("text, match", [
-    ("nort_m = 1.0", "unknown key 'nort_m'"),
-    ("gimbal_roll_deg = 0.01", "unknown key 'gimbal_roll_deg'.*angles are \\['azimuth', 'elevation'\\]"),
-    ("focal_length_px = 1.0", "unknown key 'focal_length_px'"),
-    ("north_m = -1.0", "north_m = -1.0: must be a standard deviation >= 0"),
-    ("heading_deg = \"0.1\"", "heading_deg = '0.1'"),
-    ("dem_product = \"aster\"", "dem_product = 'aster'"),
-    ("dem_m = 3.0\ndem_product = \"srtm\"", "not both"),
-])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("nort_m = 1.0", "unknown key 'nort_m'"),
+        ("gimbal_roll_deg = 0.01", "unknown key 'gimbal_roll_deg'.*angles are \\['azimuth', 'elevation'\\]"),
+        ("focal_length_px = 1.0", "unknown key 'focal_length_px'"),
+        ("north_m = -1.0", "north_m = -1.0: must be a standard deviation >= 0"),
+        ('heading_deg = "0.1"', "heading_deg = '0.1'"),
+        ('dem_product = "aster"', "dem_product = 'aster'"),
+        ('dem_m = 3.0\ndem_product = "srtm"', "not both"),
+    ],
+)
 def test_bad_keys_and_values_are_refused_naming_them(tmp_path, text, match):
     with pytest.raises(ValueError, match=match):
         load_sensor(with_table(tmp_path, TURRET, text + "\n"))

@@ -23,9 +23,23 @@ from geoloc.status import Status
 from geoloc.surfaces.height import HeightSurface
 from test_uncertainty import TURRET
 
-BUDGET = ErrorBudget({"north_m": 3.0, "east_m": 3.0, "up_m": 4.0, "heading_deg": 0.1, "pitch_deg": 0.05,
-                      "roll_deg": 0.05, "azimuth_deg": 0.05, "elevation_deg": 0.05, "mount_z_deg": 0.02,
-                      "boresight_x_deg": 0.02, "fx_px": 3.0, "cx_px": 1.0, "height_m": 8.0})
+BUDGET = ErrorBudget(
+    {
+        "north_m": 3.0,
+        "east_m": 3.0,
+        "up_m": 4.0,
+        "heading_deg": 0.1,
+        "pitch_deg": 0.05,
+        "roll_deg": 0.05,
+        "azimuth_deg": 0.05,
+        "elevation_deg": 0.05,
+        "mount_z_deg": 0.02,
+        "boresight_x_deg": 0.02,
+        "fx_px": 3.0,
+        "cx_px": 1.0,
+        "height_m": 8.0,
+    }
+)
 N = 1500
 
 
@@ -42,13 +56,15 @@ def flight():
     surf = HeightSurface(500.0)
     err = np.full((N, 3), np.nan)
     for i in range(N):
-        pose = Pose.from_deg(lat[i], lon[i], 3000.0, hd[i], 1.0, -0.5,
-                             angles_deg={"azimuth": az[i], "elevation": el[i]})
+        pose = Pose.from_deg(
+            lat[i], lon[i], 3000.0, hd[i], 1.0, -0.5, angles_deg={"azimuth": az[i], "elevation": el[i]}
+        )
         enu, st = U.monte_carlo(TURRET, pose, row[i], col[i], BUDGET, surf, 1, rng)
         if st[0] == Status.OK:
             err[i] = -enu[0]  # computed (error-free record) minus truth (the drawn chain)
-    poses = Pose.from_deg(lat, lon, np.full(N, 3000.0), hd, np.full(N, 1.0), np.full(N, -0.5),
-                          angles_deg={"azimuth": az, "elevation": el})
+    poses = Pose.from_deg(
+        lat, lon, np.full(N, 3000.0), hd, np.full(N, 1.0), np.full(N, -0.5), angles_deg={"azimuth": az, "elevation": el}
+    )
     pu = U.propagate(TURRET, poses, row, col, BUDGET, surface=surf)
     ok = np.isfinite(err[:, 0]) & (pu.status == Status.OK)
     assert ok.mean() > 0.99
@@ -56,8 +72,15 @@ def flight():
 
 
 def _check(err, pu, ok, scale=1.0):
-    return U.budget_check(err[:, 0], err[:, 1], pu.ellipse_major_m[ok] * scale, pu.ellipse_minor_m[ok] * scale,
-                          pu.ellipse_azimuth_deg[ok], err[:, 2], pu.le90_m[ok] * scale)
+    return U.budget_check(
+        err[:, 0],
+        err[:, 1],
+        pu.ellipse_major_m[ok] * scale,
+        pu.ellipse_minor_m[ok] * scale,
+        pu.ellipse_azimuth_deg[ok],
+        err[:, 2],
+        pu.le90_m[ok] * scale,
+    )
 
 
 def test_ellipse_radius_is_the_chi_square_quantile():
@@ -74,8 +97,9 @@ def test_a_right_budget_holds_88_to_92_percent_of_the_truths(flight):
     assert 0.88 <= c["vertical"]["inside_90"] <= 0.92, c["vertical"]["text"]
     assert c["vertical"]["verdict"] == "holds"
     # the 99 % ellipse: about 1 % outside (binomial sigma 0.26 % at n = 1500: 3 sigma is 0.8 %)
-    out = U.outside_ellipse(err[:, 0], err[:, 1], pu.ellipse_major_m[ok], pu.ellipse_minor_m[ok],
-                            pu.ellipse_azimuth_deg[ok])
+    out = U.outside_ellipse(
+        err[:, 0], err[:, 1], pu.ellipse_major_m[ok], pu.ellipse_minor_m[ok], pu.ellipse_azimuth_deg[ok]
+    )
     assert 0.002 <= out.mean() <= 0.018
 
 
@@ -110,13 +134,39 @@ def test_report_says_whether_the_budget_holds(flight, tmp_path):
         p = tmp_path / f"r{scale}.csv"
         with p.open("w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(["lat_deg", "lon_deg", "h_m", "truth_lat_deg", "truth_lon_deg", "truth_h_m", "status",
-                        "ce90_m", "le90_m", "ellipse_major_m", "ellipse_minor_m", "ellipse_azimuth_deg"])
+            w.writerow(
+                [
+                    "lat_deg",
+                    "lon_deg",
+                    "h_m",
+                    "truth_lat_deg",
+                    "truth_lon_deg",
+                    "truth_h_m",
+                    "status",
+                    "ce90_m",
+                    "le90_m",
+                    "ellipse_major_m",
+                    "ellipse_minor_m",
+                    "ellipse_azimuth_deg",
+                ]
+            )
             for k in range(len(lat)):
-                w.writerow([f"{lat[k]:.10f}", f"{lon[k]:.10f}", f"{h[k]:.4f}", f"{np.degrees(tl[k]):.10f}",
-                            f"{np.degrees(tn[k]):.10f}", f"{th[k]:.4f}", "ok", f"{pu.ce90_m[ok][k] * scale:.4f}",
-                            f"{pu.le90_m[ok][k] * scale:.4f}", f"{pu.ellipse_major_m[ok][k] * scale:.4f}",
-                            f"{pu.ellipse_minor_m[ok][k] * scale:.4f}", f"{pu.ellipse_azimuth_deg[ok][k]:.4f}"])
+                w.writerow(
+                    [
+                        f"{lat[k]:.10f}",
+                        f"{lon[k]:.10f}",
+                        f"{h[k]:.4f}",
+                        f"{np.degrees(tl[k]):.10f}",
+                        f"{np.degrees(tn[k]):.10f}",
+                        f"{th[k]:.4f}",
+                        "ok",
+                        f"{pu.ce90_m[ok][k] * scale:.4f}",
+                        f"{pu.le90_m[ok][k] * scale:.4f}",
+                        f"{pu.ellipse_major_m[ok][k] * scale:.4f}",
+                        f"{pu.ellipse_minor_m[ok][k] * scale:.4f}",
+                        f"{pu.ellipse_azimuth_deg[ok][k]:.4f}",
+                    ]
+                )
         rep, _ = report_from_csv(p)
         b = rep.overall["budget"]
         assert b["verdict"] == verdict, b["text"]
@@ -136,8 +186,10 @@ def test_replay_writes_the_predicted_columns_only_with_a_budget(tmp_path):
 
     cam = asset_path("cameras", "qiao2017.toml")
     with_budget = tmp_path / "q.toml"
-    with_budget.write_text(cam.read_text() + "\n[uncertainty]\nnorth_m = 2.0\nheading_deg = 0.02\n"
-                           "gimbal_pitch_deg = 0.005\nheight_m = 5.0\n")
+    with_budget.write_text(
+        cam.read_text() + "\n[uncertainty]\nnorth_m = 2.0\nheading_deg = 0.02\n"
+        "gimbal_pitch_deg = 0.005\nheight_m = 5.0\n"
+    )
     for sensor, expect in ((cam, False), (with_budget, True)):
         out = tmp_path / f"{sensor.stem}.csv"
         assert main(["replay", "--sensor", str(sensor), "--height-column", "paper_height_m", "--out", str(out)]) == 0
@@ -148,10 +200,16 @@ def test_replay_writes_the_predicted_columns_only_with_a_budget(tmp_path):
     pose = recs.pose()
     k = 0
     p1 = Pose(pose.lat[k], pose.lon[k], pose.h[k], pose.heading[k], pose.pitch[k], pose.roll[k]).with_angles(
-        **{a: pose.angle(a)[k] for a in ("gimbal_roll", "gimbal_pitch")})
-    pu = U.propagate(load_sensor(cam), p1, recs.column("row")[k], recs.column("col")[k],
-                     ErrorBudget({"north_m": 2.0, "heading_deg": 0.02, "gimbal_pitch_deg": 0.005, "height_m": 5.0}),
-                     surface=HeightSurface(recs.column("paper_height_m")[k]))
+        **{a: pose.angle(a)[k] for a in ("gimbal_roll", "gimbal_pitch")}
+    )
+    pu = U.propagate(
+        load_sensor(cam),
+        p1,
+        recs.column("row")[k],
+        recs.column("col")[k],
+        ErrorBudget({"north_m": 2.0, "heading_deg": 0.02, "gimbal_pitch_deg": 0.005, "height_m": 5.0}),
+        surface=HeightSurface(recs.column("paper_height_m")[k]),
+    )
     assert float(rows[0]["ce90_m"]) == pytest.approx(float(pu.ce90_m), abs=1e-3)  # written with 3 decimals
     assert float(rows[0]["ellipse_azimuth_deg"]) == pytest.approx(float(pu.ellipse_azimuth_deg), abs=1e-3)
 

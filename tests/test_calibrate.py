@@ -29,9 +29,23 @@ from geoloc.locate import as_sensor, locate
 from geoloc.sensors.camera import Camera
 
 GEOD = Geod(ellps="WGS84")
-COLUMNS = ["table", "point", "row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg",
-           "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg", "paper_height_m",
-           "truth_lat_deg", "truth_lon_deg"]
+COLUMNS = [
+    "table",
+    "point",
+    "row",
+    "col",
+    "ac_lat_deg",
+    "ac_lon_deg",
+    "ac_h_m",
+    "heading_deg",
+    "pitch_deg",
+    "roll_deg",
+    "gimbal_roll_deg",
+    "gimbal_pitch_deg",
+    "paper_height_m",
+    "truth_lat_deg",
+    "truth_lon_deg",
+]
 
 
 #: The rotation of each model (``geoloc calibrate --model``): gimbal base in the body, camera in the gimbal.
@@ -111,8 +125,14 @@ def test_leave_one_out_never_sees_the_left_out_record(bundled, per_flight):
         fit = fit_rotation(rec, cam, t, idx=idx[idx != k])
         for c, out in ((fit.sensor, loo), (kept.sensor, insample)):
             g = locate(rec.pose(), c, rec.column("row"), rec.column("col"), rec.column("paper_height_m"))
-            out.append(GEOD.inv(float(g.lon_deg[k]), float(g.lat_deg[k]), rec.column("truth_lon_deg")[k],
-                                rec.column("truth_lat_deg")[k])[2])
+            out.append(
+                GEOD.inv(
+                    float(g.lon_deg[k]),
+                    float(g.lat_deg[k]),
+                    rec.column("truth_lon_deg")[k],
+                    rec.column("truth_lat_deg")[k],
+                )[2]
+            )
     e = per_flight[0]["groups"]["T3"]
     by_label = {r["label"]: r for r in e["records"]}
     labels = rec.labels()
@@ -160,8 +180,9 @@ def test_joint_mount_fit_separates_the_angles(bundled, per_flight):
     rec, cam = bundled
     for e in per_flight[0]["groups"].values():
         assert abs(e["correlation"][1][2]) > 0.99
-    report, cams = mount_groups(rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")), "table",
-                                    loo=True, joint=True)
+    report, cams = mount_groups(
+        rec, cam, PerRecordHeightSurface(rec.column("paper_height_m")), "table", loo=True, joint=True
+    )
     j = report["joint_fit"]
     angles = [j["parameters"][k]["value"] for k in MOUNT]
     sds = [j["parameters"][k]["sd"] for k in MOUNT]
@@ -184,8 +205,14 @@ def test_joint_mount_fit_separates_the_angles(bundled, per_flight):
     assert np.all(np.abs(corr[np.triu_indices(3, 1)]) < 0.3)
     assert all(e["mean_error_loo_m"] <= 7.0 for e in report["groups"].values())
     # the saved camera reproduces the after-errors through the ordinary locate path
-    ground = locate(rec.pose(), cams["joint"], rec.column("row"), rec.column("col"),
-                    rec.column("paper_height_m"), outside="extrapolate")  # T4-3: col 2308 > 2292
+    ground = locate(
+        rec.pose(),
+        cams["joint"],
+        rec.column("row"),
+        rec.column("col"),
+        rec.column("paper_height_m"),
+        outside="extrapolate",
+    )  # T4-3: col 2308 > 2292
     d = GEOD.inv(ground.lon_deg, ground.lat_deg, rec.column("truth_lon_deg"), rec.column("truth_lat_deg"))[2]
     groups = np.array(rec.text("table"))
     for g, e in report["groups"].items():
@@ -220,20 +247,38 @@ def _synthetic(tmp_path, rng, planted_cam, noise_m, n=20, name="syn.csv"):
         lat, lon = (35.49, 80.99) if left else (36.41, 78.74)
         heading = 45.0 if left else 30.0
         g_roll = rng.uniform(47, 53) if left else rng.uniform(-48, -42)
-        pose = Pose.from_deg(lat + rng.uniform(-0.01, 0.01), lon + rng.uniform(-0.01, 0.01),
-                             17987.0 + rng.normal(0, 0.3), heading + rng.normal(0, 0.1),
-                             3.5 + rng.normal(0, 0.1), rng.normal(0, 0.03), g_roll,
-                             -2.5 + rng.normal(0, 0.1))
+        pose = Pose.from_deg(
+            lat + rng.uniform(-0.01, 0.01),
+            lon + rng.uniform(-0.01, 0.01),
+            17987.0 + rng.normal(0, 0.3),
+            heading + rng.normal(0, 0.1),
+            3.5 + rng.normal(0, 0.1),
+            rng.normal(0, 0.03),
+            g_roll,
+            -2.5 + rng.normal(0, 0.1),
+        )
         i, j = rng.uniform(1, 2323), rng.uniform(1, 2292)
         h = rng.uniform(4600, 5400)
         g = locate(pose, planted_cam, i, j, h)
         frame = EnuFrame(float(g.lat), float(g.lon), h)
         tl, tn, _ = frame.to_geodetic(np.array([rng.normal(0, noise_m), rng.normal(0, noise_m), 0.0]))
-        rows.append(["T4" if left else "T3", k, f"{i:.6f}", f"{j:.6f}", *(
-            f"{math.degrees(float(v)):.10f}" for v in (pose.lat, pose.lon)), f"{float(pose.h):.4f}",
-            *(f"{math.degrees(float(v)):.8f}" for v in (pose.heading, pose.pitch, pose.roll,
-                                                       pose.gimbal_roll, pose.gimbal_pitch)),
-            f"{h:.4f}", f"{math.degrees(float(tl)):.10f}", f"{math.degrees(float(tn)):.10f}"])
+        rows.append(
+            [
+                "T4" if left else "T3",
+                k,
+                f"{i:.6f}",
+                f"{j:.6f}",
+                *(f"{math.degrees(float(v)):.10f}" for v in (pose.lat, pose.lon)),
+                f"{float(pose.h):.4f}",
+                *(
+                    f"{math.degrees(float(v)):.8f}"
+                    for v in (pose.heading, pose.pitch, pose.roll, pose.gimbal_roll, pose.gimbal_pitch)
+                ),
+                f"{h:.4f}",
+                f"{math.degrees(float(tl)):.10f}",
+                f"{math.degrees(float(tn)):.10f}",
+            ]
+        )
     path = tmp_path / name
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
@@ -300,8 +345,9 @@ def test_synthetic_uncertainty_has_nominal_coverage(tmp_path):
     planted = np.deg2rad([-0.03, 0.2, 0.08])
     hits = []
     for t in range(25):
-        rec = _synthetic(tmp_path, rng, Camera(**{**base.__dict__, "mount": tuple(planted)}), 2.0, n=12,
-                         name=f"s{t}.csv")
+        rec = _synthetic(
+            tmp_path, rng, Camera(**{**base.__dict__, "mount": tuple(planted)}), 2.0, n=12, name=f"s{t}.csv"
+        )
         fit = fit_rotation(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")))
         hits.extend(np.abs(fit.values - planted) < fit.sd)
     assert abs(np.mean(hits) - 0.683) < 0.28
@@ -316,8 +362,9 @@ def test_noise_free_fit_is_exact(tmp_path):
     rec = _synthetic(tmp_path, rng, Camera(**{**base.__dict__, "mount": tuple(planted)}), 0.0, n=10)
     fit = fit_rotation(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")))
     np.testing.assert_allclose(np.rad2deg(fit.values), np.rad2deg(planted), atol=1e-7)
-    d = fit_sensor_params(rec, as_sensor(base), MOUNT, PerRecordHeightSurface(rec.column("paper_height_m")),
-                          loo=True).loo_errors_m
+    d = fit_sensor_params(
+        rec, as_sensor(base), MOUNT, PerRecordHeightSurface(rec.column("paper_height_m")), loo=True
+    ).loo_errors_m
     # truth coordinates are written with 1e-10 deg (1e-5 m): LOO errors at that level
     assert np.all(d < 1e-3)
 
@@ -331,15 +378,15 @@ def _nadir_records(tmp_path, heading_deg):
     g = locate(Pose.from_deg(35.0, 80.0, 15000.0, heading_deg), cam, 1000.5, 1000.5, 5000.0)
     tlon, tlat, _ = GEOD.fwd(float(g.lon_deg), float(g.lat_deg), 0.0, 10.0)
     path = tmp_path / f"nadir{heading_deg}.csv"
-    path.write_text(",".join(COLUMNS) + "\n" +
-                    f"A,1,1000.5,1000.5,35.0,80.0,15000.0,{heading_deg},0,0,0,0,5000.0,"
-                    f"{tlat:.12f},{tlon:.12f}\n")
+    path.write_text(
+        ",".join(COLUMNS) + "\n" + f"A,1,1000.5,1000.5,35.0,80.0,15000.0,{heading_deg},0,0,0,0,5000.0,"
+        f"{tlat:.12f},{tlon:.12f}\n"
+    )
     rec = load_records(path)
     return rec, cam, locate(rec.pose(), cam, rec.column("row"), rec.column("col"), 5000.0)
 
 
-@pytest.mark.parametrize("heading, along, cross", [(0.0, -1.0, 0.0), (90.0, 0.0, 1.0),
-                                                   (180.0, 1.0, 0.0)])
+@pytest.mark.parametrize("heading, along, cross", [(0.0, -1.0, 0.0), (90.0, 0.0, 1.0), (180.0, 1.0, 0.0)])
 def test_decomposition_closed_form(tmp_path, heading, along, cross):
     # Truth 10 m NORTH of the computed point on the ellipsoid (pyproj); at the target
     # height h = 5000 m the same latitude step spans d = 10 (M + h) / M metres
@@ -406,9 +453,23 @@ def test_blunder_is_flagged_and_can_be_excluded(tmp_path, bundled):
 # ----------------------------------------------------------------- command line
 def test_cli_report_and_camera(tmp_path, capsys):
     out, camfile = tmp_path / "report.json", tmp_path / "cal.toml"
-    code = main(["calibrate", str(asset_path(*DEFAULT_RECORDS)), "--camera", str(asset_path(*DEFAULT_CAMERA)),
-                 "--height-column", "paper_height_m", "--group-by", "table", "--joint",
-                 "--out", str(out), "--write-camera", str(camfile)])
+    code = main(
+        [
+            "calibrate",
+            str(asset_path(*DEFAULT_RECORDS)),
+            "--camera",
+            str(asset_path(*DEFAULT_CAMERA)),
+            "--height-column",
+            "paper_height_m",
+            "--group-by",
+            "table",
+            "--joint",
+            "--out",
+            str(out),
+            "--write-camera",
+            str(camfile),
+        ]
+    )
     assert code == 0
     rep = json.loads(out.read_text())
     for g in ("T3", "T4"):
@@ -420,8 +481,9 @@ def test_cli_report_and_camera(tmp_path, capsys):
     assert list(rep["joint_fit"]["parameters"]) == ["mount_x", "mount_y", "mount_z"]  # --model mount
     cam = Camera.from_toml(camfile)
     assert cam.mount is not None and cam.boresight is None
-    np.testing.assert_allclose(np.rad2deg(cam.mount), [p["value"] for p in rep["joint_fit"]["parameters"].values()],
-                               rtol=1e-12)
+    np.testing.assert_allclose(
+        np.rad2deg(cam.mount), [p["value"] for p in rep["joint_fit"]["parameters"].values()], rtol=1e-12
+    )
     # the calibrated camera through the ordinary replay verb: ~5 m instead of ~50 m
     assert main(["replay", "--camera", str(camfile), "--height-column", "paper_height_m"]) == 0
     text = capsys.readouterr().out
@@ -447,8 +509,15 @@ def test_intrinsics_with_mount_from_both_sides(tmp_path):
     rng = np.random.default_rng(5)
     base = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
     planted = np.deg2rad([0.05, 0.2, -0.1])
-    true = Camera(**{**base.__dict__, "mount": tuple(planted), "focal_length_px": base.focal_length_px * 1.02,
-                     "principal_row": base.principal_row + 30.0, "principal_col": base.principal_col - 20.0})
+    true = Camera(
+        **{
+            **base.__dict__,
+            "mount": tuple(planted),
+            "focal_length_px": base.focal_length_px * 1.02,
+            "principal_row": base.principal_row + 30.0,
+            "principal_col": base.principal_col - 20.0,
+        }
+    )
     rec = _synthetic(tmp_path, rng, true, 0.0, n=20)
     # f: the focal length (fx and fy together); cy, cx: the principal row and column (1-based)
     fit = fit_rotation(rec, base, PerRecordHeightSurface(rec.column("paper_height_m")), names=["f", "cy", "cx"])
@@ -466,8 +535,20 @@ def test_cli_flags_degenerate_parameters(tmp_path, capsys):
     # One flight cannot separate the principal point from the mount angles (module
     # docstring): the report must say so, and stay valid JSON (no NaN).
     out = tmp_path / "r.json"
-    assert main(["calibrate", "--height-column", "paper_height_m", "--fit-focal", "--fit-principal-point",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                "--height-column",
+                "paper_height_m",
+                "--fit-focal",
+                "--fit-principal-point",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert "not separable" in capsys.readouterr().out
     rep = json.loads(out.read_text())
     for e in rep["groups"].values():

@@ -24,8 +24,9 @@ def _cam(**kw):
 
 
 def test_toml_round_trip_and_degrees(tmp_path):
-    cam = _cam(boresight=(math.radians(0.1), math.radians(-0.2), math.radians(0.3)),
-               mount=(0.0, math.radians(0.22), 0.0))
+    cam = _cam(
+        boresight=(math.radians(0.1), math.radians(-0.2), math.radians(0.3)), mount=(0.0, math.radians(0.22), 0.0)
+    )
     p = tmp_path / "c.toml"
     cam.to_toml(p)
     text = p.read_text()
@@ -47,8 +48,16 @@ def test_without_fields_the_file_is_unchanged(tmp_path):
 @pytest.mark.parametrize("value", [[1.0, 2.0], ["a", 0, 0], [0, 0, True]])
 def test_bad_file_value_names_the_key(tmp_path, value):
     with pytest.raises(ValueError, match="mount_deg"):
-        Camera.from_dict({"focal_length_px": 1e5, "principal_row": 1.0, "principal_col": 1.0,
-                          "rows": 2, "cols": 2, "mount_deg": value})
+        Camera.from_dict(
+            {
+                "focal_length_px": 1e5,
+                "principal_row": 1.0,
+                "principal_col": 1.0,
+                "rows": 2,
+                "cols": 2,
+                "mount_deg": value,
+            }
+        )
 
 
 def test_bad_field_names_the_field():
@@ -91,8 +100,12 @@ def test_camera_from_sensor_inverts_to_sensor(tmp_path):
     # stay absent from the file
     from geoloc.sensors.camera import as_sensor, camera_from_sensor
 
-    for cam in (_cam(), _cam(mount=(0.001, -0.002, 0.003)), _cam(boresight=(0.0, 1e-4, 0.0), name="x"),
-                Camera(1500.0, 300.25, 400.75, 600, 800, pixel_pitch_m=5e-6)):
+    for cam in (
+        _cam(),
+        _cam(mount=(0.001, -0.002, 0.003)),
+        _cam(boresight=(0.0, 1e-4, 0.0), name="x"),
+        Camera(1500.0, 300.25, 400.75, 600, 800, pixel_pitch_m=5e-6),
+    ):
         back = camera_from_sensor(as_sensor(cam), pixel_pitch_m=cam.pixel_pitch_m)
         assert back == cam
     p = tmp_path / "c.toml"
@@ -108,8 +121,11 @@ def test_camera_from_sensor_refuses_what_a_camera_file_cannot_say():
     from geoloc.sensors.sensor_file import load_sensor
 
     s = as_sensor(_cam())
-    for change, field in (({"fy": 100001.0}, "lens.fy"), ({"lever_arm_x_m": 0.5}, "lever_arm_m"),
-                          ({"skew": 0.1}, "lens.skew")):
+    for change, field in (
+        ({"fy": 100001.0}, "lens.fy"),
+        ({"lever_arm_x_m": 0.5}, "lever_arm_m"),
+        ({"skew": 0.1}, "lens.skew"),
+    ):
         with pytest.raises(ValueError, match=field.replace(".", r"\.")):
             camera_from_sensor(s.with_params(**change))
     with pytest.raises(ValueError, match="gimbal = 'azimuth-elevation'"):

@@ -26,8 +26,9 @@ def test_flat_dem_equals_constant_height():
     # 0.05-deg nodes over both flight areas (35-37 N, 78-81.5 E), all at 5000 m
     dem = DEM.from_array(np.full((41, 71), 5000.0), 37.0, 78.0, 0.05, 0.05, datum="ellipsoid")
     by_dem, _ = fit_sensor_groups(rec, cam, mount, DemSurface(dem), group_column="table", joint=True)
-    by_h, _ = fit_sensor_groups(rec, cam, mount, PerRecordHeightSurface(np.full(len(rec), 5000.0), "geodetic"),
-                                group_column="table", joint=True)
+    by_h, _ = fit_sensor_groups(
+        rec, cam, mount, PerRecordHeightSurface(np.full(len(rec), 5000.0), "geodetic"), group_column="table", joint=True
+    )
     for g in ("T3", "T4"):
         a, b = by_dem["groups"][g], by_h["groups"][g]
         # same geometry: metre-level errors agree to 1 cm (the DEM solver's
@@ -35,15 +36,26 @@ def test_flat_dem_equals_constant_height():
         assert a["mean_error_before_m"] == pytest.approx(b["mean_error_before_m"], abs=0.01)
         assert a["mean_error_after_m"] == pytest.approx(b["mean_error_after_m"], abs=0.01)
         # 1 cm over ~18 km slant range: 3e-5 deg
-        np.testing.assert_allclose([a["parameters"][k]["value"] for k in mount],
-                                   [b["parameters"][k]["value"] for k in mount], atol=3e-5)
+        np.testing.assert_allclose(
+            [a["parameters"][k]["value"] for k in mount], [b["parameters"][k]["value"] for k in mount], atol=3e-5
+        )
 
 
 def test_cli_dem_option(tmp_path, capsys):
     # the bundled ETOPO5 crop (9-km cells) runs end to end; its errors are
     # hundreds of metres (docs/calibration.md), far above the 50 m of the heights
-    code = main(["calibrate", "--dem", str(asset_path("dem", "etopo5_flight_area.tif")),
-                 "--group-by", "table", "--joint", "--out", str(tmp_path / "r.json")])
+    code = main(
+        [
+            "calibrate",
+            "--dem",
+            str(asset_path("dem", "etopo5_flight_area.tif")),
+            "--group-by",
+            "table",
+            "--joint",
+            "--out",
+            str(tmp_path / "r.json"),
+        ]
+    )
     assert code == 0
     out = capsys.readouterr().out
     assert "T3" in out and "T4" in out

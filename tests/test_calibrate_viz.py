@@ -33,8 +33,14 @@ def test_error_vector_nodes(server):
     rec = load_records(asset_path(*DEFAULT_RECORDS))
     cam = Camera.from_toml(asset_path(*DEFAULT_CAMERA))
     h = rec.column("paper_height_m")
-    _, cams = fit_sensor_groups(rec, as_sensor(cam), ["mount_x", "mount_y", "mount_z"], PerRecordHeightSurface(h),
-                                group_column="table", joint=True)
+    _, cams = fit_sensor_groups(
+        rec,
+        as_sensor(cam),
+        ["mount_x", "mount_y", "mount_z"],
+        PerRecordHeightSurface(h),
+        group_column="table",
+        joint=True,
+    )
     lat0, lon0, h00 = 36.36, 78.87, 5000.0  # flight T3's area
     frame = EnuFrame.from_deg(lat0, lon0, h00)
     layer = add_error_vectors(server.scene, rec, frame, h, cam, cams["joint"], exaggeration=20.0)
@@ -62,8 +68,11 @@ def test_error_vector_nodes(server):
     layer.set_stage("after")
     assert not layer.handles["before"].visible and layer.handles["after"].visible
     layer.set_exaggeration(5.0)
-    np.testing.assert_allclose(layer.handles["after"].points[:, 1] - layer.handles["after"].points[:, 0],
-                               (after[:, 1] - after[:, 0]) / 4.0, atol=0.01)
+    np.testing.assert_allclose(
+        layer.handles["after"].points[:, 1] - layer.handles["after"].points[:, 0],
+        (after[:, 1] - after[:, 0]) / 4.0,
+        atol=0.01,
+    )
     with pytest.raises(ValueError, match="exaggeration"):
         layer.set_exaggeration(0.0)
     with pytest.raises(ValueError, match="stage"):
@@ -84,13 +93,29 @@ def test_app_calibration_with_a_scenario_like_app(server):
     c = rec.column
     pairs = []
     for k, label in enumerate(rec.labels()):
-        info = SimpleNamespace(label=label, paper_height_m=c("paper_height_m")[k],
-                               truth_lat_deg=c("truth_lat_deg")[k], truth_lon_deg=c("truth_lon_deg")[k])
-        inp = SimpleNamespace(**{n: c(f)[k] for n, f in (
-            ("row", "row"), ("col", "col"), ("lat_deg", "ac_lat_deg"), ("lon_deg", "ac_lon_deg"),
-            ("h_m", "ac_h_m"), ("heading_deg", "heading_deg"), ("pitch_deg", "pitch_deg"),
-            ("roll_deg", "roll_deg"), ("gimbal_roll_deg", "gimbal_roll_deg"),
-            ("gimbal_pitch_deg", "gimbal_pitch_deg"))})
+        info = SimpleNamespace(
+            label=label,
+            paper_height_m=c("paper_height_m")[k],
+            truth_lat_deg=c("truth_lat_deg")[k],
+            truth_lon_deg=c("truth_lon_deg")[k],
+        )
+        inp = SimpleNamespace(
+            **{
+                n: c(f)[k]
+                for n, f in (
+                    ("row", "row"),
+                    ("col", "col"),
+                    ("lat_deg", "ac_lat_deg"),
+                    ("lon_deg", "ac_lon_deg"),
+                    ("h_m", "ac_h_m"),
+                    ("heading_deg", "heading_deg"),
+                    ("pitch_deg", "pitch_deg"),
+                    ("roll_deg", "roll_deg"),
+                    ("gimbal_roll_deg", "gimbal_roll_deg"),
+                    ("gimbal_pitch_deg", "gimbal_pitch_deg"),
+                )
+            }
+        )
         pairs.append((info, inp))
     lat0, lon0, h00 = 35.59, 80.87, 4900.0  # flight T4's area
     scn = SimpleNamespace(records=pairs, camera=cam, enu=EnuFrame.from_deg(lat0, lon0, h00), source="x.csv")

@@ -55,8 +55,7 @@ def test_klv_folder_local_cluster_equals_serial(klv_folder, tmp_path):
     def spy(unit):
         listening.extend(c.laddr.ip for c in psutil.Process().net_connections("inet") if c.status == "LISTEN")
 
-    dist = run_campaign([klv_folder], tmp_path / "dask", scheduler="local", workers=2, processes=False,
-                        on_unit=spy)
+    dist = run_campaign([klv_folder], tmp_path / "dask", scheduler="local", workers=2, processes=False, on_unit=spy)
     assert listening and set(listening) == {"127.0.0.1"}  # house rule: servers bind 127.0.0.1
     for r in (serial, dist):
         assert r.kind == "klv" and r.rows == 3 * 299  # 299 good packets per copy (docs/klv.md)
@@ -112,8 +111,12 @@ def test_records_agree_with_one_file_replay_and_truth(turret_parquet, tmp_path):
     out = tmp_path / "one.csv"
     assert main(["replay", str(TURRET), "--sensor", str(SENSOR), "--dem", str(SRTM), "--out", str(out)]) == 0
     rows = list(csv.DictReader(out.open()))
-    res = run_campaign([turret_parquet], tmp_path / "c", CampaignConfig(sensor=str(SENSOR), surface=SurfaceSpec(dem=str(SRTM))),
-                       scheduler="none")
+    res = run_campaign(
+        [turret_parquet],
+        tmp_path / "c",
+        CampaignConfig(sensor=str(SENSOR), surface=SurfaceSpec(dem=str(SRTM))),
+        scheduler="none",
+    )
     t = res.table()
     good = np.arange(24) != 5
     lat = np.array([float(r["lat_deg"]) for r in rows])
@@ -126,8 +129,12 @@ def test_records_agree_with_one_file_replay_and_truth(turret_parquet, tmp_path):
     # docs/sensors.md: mean error to the surveyed truth 22.87 m over the 24 records (pyproj geodesic)
     from pyproj import Geod
 
-    d = Geod(ellps="WGS84").inv(t.column("lon_deg").to_numpy()[good], t.column("lat_deg").to_numpy()[good],
-                                t.column("truth_lon_deg").to_numpy()[good], t.column("truth_lat_deg").to_numpy()[good])[2]
+    d = Geod(ellps="WGS84").inv(
+        t.column("lon_deg").to_numpy()[good],
+        t.column("lat_deg").to_numpy()[good],
+        t.column("truth_lon_deg").to_numpy()[good],
+        t.column("truth_lat_deg").to_numpy()[good],
+    )[2]
     assert np.allclose(d, t.column("error_to_truth_m").to_numpy()[good], atol=1e-6)
     e_all = np.array([float(r["error_to_truth_m"]) for r in rows])
     assert abs(d.mean() - e_all[good].mean()) < 1e-3 and round(e_all.mean(), 2) == 22.87  # CSV: 1 mm
@@ -147,10 +154,27 @@ def test_cli_campaign(klv_folder, turret_parquet, tmp_path, capsys):
     assert "--parquet-out" in capsys.readouterr().err
     # records with a target height instead of a DEM, and a local cluster from the command line
     out2 = tmp_path / "rec"
-    assert main(["replay", str(turret_parquet), "--sensor", str(SENSOR), "--target-h-m", "600",
-                 "--parquet-out", str(out2), "--workers", "2"]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                str(turret_parquet),
+                "--sensor",
+                str(SENSOR),
+                "--target-h-m",
+                "600",
+                "--parquet-out",
+                str(out2),
+                "--workers",
+                "2",
+            ]
+        )
+        == 0
+    )
     t = pa.concat_tables([pq.read_table(p) for p in sorted(out2.glob("*.parquet"))])
-    assert t.num_rows == 24 and np.allclose(t.column("h_m").to_numpy()[np.arange(24) != 5], 600, atol=0.02)  # inflated [Q17 eq. 11]: mm
+    assert t.num_rows == 24 and np.allclose(
+        t.column("h_m").to_numpy()[np.arange(24) != 5], 600, atol=0.02
+    )  # inflated [Q17 eq. 11]: mm
 
 
 def test_the_campaign_surface_is_the_verbs_spec_and_crosses_to_workers(tmp_path):
@@ -162,11 +186,26 @@ def test_the_campaign_surface_is_the_verbs_spec_and_crosses_to_workers(tmp_path)
     from geoloc.cli._options import surface_from_args, surface_spec_from_args
     from geoloc.surfaces.base import LineOfSight
 
-    args = build_parser().parse_args(["replay", str(TURRET), "--dem", str(SRTM), "--dem", str(SRTM),
-                                      "--method", "bisect", "--threshold", "0.5", "--parquet-out", str(tmp_path)])
+    args = build_parser().parse_args(
+        [
+            "replay",
+            str(TURRET),
+            "--dem",
+            str(SRTM),
+            "--dem",
+            str(SRTM),
+            "--method",
+            "bisect",
+            "--threshold",
+            "0.5",
+            "--parquet-out",
+            str(tmp_path),
+        ]
+    )
     spec = surface_spec_from_args(args)
-    assert spec == SurfaceSpec(dem=(str(SRTM), str(SRTM)), method="bisect", eps_h=1.0, threshold=0.5,
-                               cache_bytes=64 * 2**20)
+    assert spec == SurfaceSpec(
+        dem=(str(SRTM), str(SRTM)), method="bisect", eps_h=1.0, threshold=0.5, cache_bytes=64 * 2**20
+    )
     back = pickle.loads(pickle.dumps(CampaignConfig(surface=spec)))
     assert back.surface == spec and hash(back.surface) == hash(spec)
     # a ray down from 3 km over the DEM: the worker's build and the verb's own surface agree exactly
@@ -182,7 +221,7 @@ def test_the_campaign_surface_is_the_verbs_spec_and_crosses_to_workers(tmp_path)
 
 
 # --------------------------------------------------------------------------- worker processes, malloc
-_FAULTS = r'''
+_FAULTS = r"""
 import resource, sys
 import numpy as np
 if sys.argv[1] == "tune":
@@ -196,7 +235,7 @@ def faults(n, nbytes=2**20):  # 1 MiB: above glibc's first mmap threshold (128 K
     return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0
 faults(5)
 print(faults(50))
-'''
+"""
 
 
 def _minor_faults(mode: str, env: dict) -> int:
@@ -248,8 +287,12 @@ def test_records_on_worker_processes_equal_serial(turret_parquet, tmp_path):
             for _ in range(50):
                 a = np.ones(2**17)  # 1 MiB, every page touched
                 del a
-            return (campaign._MALLOC["tuned"], "MALLOC_TRIM_THRESHOLD_" in os.environ,
-                    resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0, "profile" in dask_worker.periodic_callbacks)
+            return (
+                campaign._MALLOC["tuned"],
+                "MALLOC_TRIM_THRESHOLD_" in os.environ,
+                resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0,
+                "profile" in dask_worker.periodic_callbacks,
+            )
 
         states = client.run(state)
         assert len(states) == 2 and all(a.startswith("tcp://127.0.0.1:") for a in states)

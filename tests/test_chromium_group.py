@@ -21,11 +21,11 @@ def test_the_group_holds_the_browser_tests_and_not_their_neighbours():
     # the labels tests open Chromium through the module's helper _check
     assert conftest._opens_chromium(test_viz_labels.test_limb_labels_do_not_overlap, set())
     assert conftest._opens_chromium(test_viz_uncertainty.test_a_person_hides_the_ellipse_in_chromium, set())
-    assert conftest._opens_chromium(test_viz_picture.test_click_a_pixel_in_the_panel_and_the_terrain_in_chromium,
-                                    set())
+    assert conftest._opens_chromium(test_viz_picture.test_click_a_pixel_in_the_panel_and_the_terrain_in_chromium, set())
     # the same modules' CPU-only tests run on either worker
     assert not conftest._opens_chromium(
-        test_viz_uncertainty.test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse, set())
+        test_viz_uncertainty.test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse, set()
+    )
     assert not conftest._opens_chromium(test_viz_picture.test_pixel_pick_equals_geoloc_locate, set())
 
 

@@ -58,8 +58,25 @@ def test_ctrl_c_is_one_line_exit_130_and_leaves_no_partial_file(tmp_path):
     # before: a KeyboardInterrupt traceback, killed by SIGINT (return code -2)
     out = tmp_path / "stats.json"
     out.write_text("the old statistics\n")
-    p = subprocess.run([sys.executable, "-c", _INTERRUPTED_WRITE, "montecarlo", str(SCEN), "--samples", "20",
-                        "--seed", "0", "--out", str(out)], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            _INTERRUPTED_WRITE,
+            "montecarlo",
+            str(SCEN),
+            "--samples",
+            "20",
+            "--seed",
+            "0",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        timeout=300,
+    )
     assert p.returncode == 130, p.stderr
     assert p.stderr.strip().splitlines() == ["geoloc montecarlo: interrupted (Ctrl-C)"], p.stderr
     assert sorted(x.name for x in tmp_path.iterdir()) == ["stats.json"]  # no temporary file left
@@ -71,8 +88,13 @@ def test_a_closed_pipe_ends_quietly_with_141():
     r, w = os.pipe()
     os.close(r)  # the reader is gone before the first line: `geoloc klv dump ... | head -0`
     try:
-        p = subprocess.run(GEOLOC + ["klv", "dump", str(asset_path("klv", "example_flight.klv"))], stdout=w,
-                           stderr=subprocess.PIPE, text=True, timeout=300)
+        p = subprocess.run(
+            GEOLOC + ["klv", "dump", str(asset_path("klv", "example_flight.klv"))],
+            stdout=w,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=300,
+        )
     finally:
         os.close(w)
     assert p.returncode == 141 and p.stderr == "", p.stderr
@@ -80,8 +102,12 @@ def test_a_closed_pipe_ends_quietly_with_141():
 
 def test_a_closed_pipe_after_the_first_line_ends_quietly():
     # `geoloc replay ... | head -1`: the reader takes one line and goes
-    p = subprocess.Popen(GEOLOC + ["replay", "--height-column", "paper_height_m", "--print-rows"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        GEOLOC + ["replay", "--height-column", "paper_height_m", "--print-rows"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     first = p.stdout.readline()
     p.stdout.close()
     err = p.stderr.read()
@@ -138,7 +164,9 @@ def test_out_dash_is_standard_output_for_a_csv_and_the_messages_go_to_stderr(tmp
     assert main(["replay", "--height-column", "paper_height_m", "--out", "-"]) == 0
     out, err = capsys.readouterr()
     rows = list(csv.DictReader(out.splitlines()))
-    assert len(rows) == 20 and rows[0]["table"] == "T3" and float(rows[0]["lat_deg"]) == pytest.approx(36.3377, abs=1e-4)
+    assert (
+        len(rows) == 20 and rows[0]["table"] == "T3" and float(rows[0]["lat_deg"]) == pytest.approx(36.3377, abs=1e-4)
+    )
     assert "group T3" in err and "wrote 20 rows to -" in err
     assert list(tmp_path.iterdir()) == []
 
@@ -177,8 +205,10 @@ def results_csv(tmp_path_factory):
     return out
 
 
-@pytest.mark.parametrize("content, needle", [(b"", "empty (no header line, no rows)"),
-                                             (b"table,point,lat_deg,lon_deg\n", "a header and no rows")])
+@pytest.mark.parametrize(
+    "content, needle",
+    [(b"", "empty (no header line, no rows)"), (b"table,point,lat_deg,lon_deg\n", "a header and no rows")],
+)
 def test_export_of_an_empty_csv_is_one_line(tmp_path, capsys, content, needle):
     # before: a 0-byte CSV made a GeoPackage of seven empty layers, exit 0
     src, out = tmp_path / "empty.csv", tmp_path / "out.gpkg"
@@ -277,8 +307,11 @@ def test_a_camera_below_the_terrain_gets_its_own_status(method, down):
     assert hit.status.tolist() == [Status.BELOW_TERRAIN] and np.isnan(hit.slant_range).all()
     assert "below the terrain" in describe(Status.BELOW_TERRAIN)
     frame_above = EnuFrame(np.deg2rad(36.0), np.deg2rad(78.1), 600.0)  # 100 m above it: a hit, not this status
-    hit = intersect_dem(LineOfSight(frame_above.to_ecef(np.zeros(3))[None], d[None] * (1 if down else -1),
-                                    np.zeros(1, np.uint8)), dem, method)
+    hit = intersect_dem(
+        LineOfSight(frame_above.to_ecef(np.zeros(3))[None], d[None] * (1 if down else -1), np.zeros(1, np.uint8)),
+        dem,
+        method,
+    )
     assert hit.status.tolist() == [Status.OK] and hit.slant_range[0] > 50.0
 
 
@@ -292,8 +325,26 @@ def test_locate_below_the_terrain_says_so(mosaic, tmp_path, capsys):
         shutil.copy(SRTM, tmp_path / "tiles" / "a.tif")
         dem = tmp_path / "tiles"
     # the README's turret at 100 m (ellipsoidal): the SRTM terrain there is about 370 m
-    rc = main(["locate", "--sensor", str(TURRET), "--lat-deg", "36.6", "--lon-deg", "-84.25", "--h-m", "100",
-               "--angle", "azimuth=90", "--angle", "elevation=-30", "--dem", str(dem), "--json"])
+    rc = main(
+        [
+            "locate",
+            "--sensor",
+            str(TURRET),
+            "--lat-deg",
+            "36.6",
+            "--lon-deg",
+            "-84.25",
+            "--h-m",
+            "100",
+            "--angle",
+            "azimuth=90",
+            "--angle",
+            "elevation=-30",
+            "--dem",
+            str(dem),
+            "--json",
+        ]
+    )
     import json
 
     out = json.loads(capsys.readouterr().out)
@@ -309,8 +360,7 @@ def test_replay_summary_says_which_records_were_not_located_and_exits_1(capsys):
     out, err = capsys.readouterr()
     assert rc == 1
     assert "group orbit1: n=24; 24 not located" in out
-    assert ("not located: 24 of 24 records: 24 left_dem (line of sight left the DEM before meeting the terrain)"
-            in out)
+    assert "not located: 24 of 24 records: 24 left_dem (line of sight left the DEM before meeting the terrain)" in out
     # the DEM's bounds against the data's: ETOPO5 crop 76-83 E, 34-38 N; the flight near 84.25 W, 36.6 N
     line = next(ln for ln in err.splitlines() if "does not cover" in ln)
     assert "24 of 24 aircraft positions are outside it and 24 lines of sight left it" in line
@@ -364,9 +414,14 @@ def test_progress_is_a_bar_on_a_terminal_and_nothing_when_refused():
 
 
 # ------------------------------------------------------------------ arguments checked before the work
-@pytest.mark.parametrize("crs, needle", [("EPSG:99999", "not a CRS that pyproj knows"),
-                                         ("EPSG:4269", "is not a projected CRS"),     # NAD83: degrees
-                                         ("EPSG:2227", "not metres")])                # California 3: US feet
+@pytest.mark.parametrize(
+    "crs, needle",
+    [
+        ("EPSG:99999", "not a CRS that pyproj knows"),
+        ("EPSG:4269", "is not a projected CRS"),  # NAD83: degrees
+        ("EPSG:2227", "not metres"),
+    ],
+)  # California 3: US feet
 def test_ortho_crs_is_checked_before_any_pixel_is_located(crs, needle, tmp_path, capsys, monkeypatch):
     # before: `--ortho-crs EPSG:99999` raised a CRSError traceback after the whole frame was located
     import geoloc.workflows.ortho as wo
@@ -376,8 +431,23 @@ def test_ortho_crs_is_checked_before_any_pixel_is_located(crs, needle, tmp_path,
 
     monkeypatch.setattr(wo, "write_frame_geotiff", no_work)
     out, ortho = tmp_path / "grid.tif", tmp_path / "ortho.tif"
-    rc = main(["ortho", "--photo", str(asset_path("photos", "DJI_0001.JPG")), "--dem", str(SRTM), "--out", str(out),
-               "--ortho-out", str(ortho), "--gsd-m", "5", "--ortho-crs", crs])
+    rc = main(
+        [
+            "ortho",
+            "--photo",
+            str(asset_path("photos", "DJI_0001.JPG")),
+            "--dem",
+            str(SRTM),
+            "--out",
+            str(out),
+            "--ortho-out",
+            str(ortho),
+            "--gsd-m",
+            "5",
+            "--ortho-crs",
+            crs,
+        ]
+    )
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and f"--ortho-crs '{crs}'" in err and needle in err, err
     assert not out.exists() and not ortho.exists()
@@ -390,13 +460,32 @@ def test_check_crs_takes_the_words_and_projected_crs_in_metres():
         assert check_crs("--x", ok) == ok
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["replay", "--dem", str(ETOPO), "--export", "{tmp}/x.shp"], "--export {tmp}/x.shp: cannot tell the format"),
-    (["rpc", str(asset_path("scenarios", "zy3_nadir.toml")), "--out", "{tmp}/z.png", "--no-gdal"],
-     "--out {tmp}/z.png: must be a GeoTIFF"),
-    (["ortho", "--record", "T3-1", "--out", "{tmp}/grid.tif", "--photo", str(asset_path("photos", "DJI_0001.JPG")),
-      "--ortho-out", "{tmp}/o.png", "--gsd-m", "5"], "--ortho-out {tmp}/o.png: must be a GeoTIFF"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["replay", "--dem", str(ETOPO), "--export", "{tmp}/x.shp"], "--export {tmp}/x.shp: cannot tell the format"),
+        (
+            ["rpc", str(asset_path("scenarios", "zy3_nadir.toml")), "--out", "{tmp}/z.png", "--no-gdal"],
+            "--out {tmp}/z.png: must be a GeoTIFF",
+        ),
+        (
+            [
+                "ortho",
+                "--record",
+                "T3-1",
+                "--out",
+                "{tmp}/grid.tif",
+                "--photo",
+                str(asset_path("photos", "DJI_0001.JPG")),
+                "--ortho-out",
+                "{tmp}/o.png",
+                "--gsd-m",
+                "5",
+            ],
+            "--ortho-out {tmp}/o.png: must be a GeoTIFF",
+        ),
+    ],
+)
 def test_an_output_format_is_checked_before_the_work(argv, needle, tmp_path, capsys, monkeypatch):
     # before: replay located every record, then refused x.shp; rpc wrote a GeoTIFF named z.png (exit 0)
     import geoloc.cli.replay as cr

@@ -15,10 +15,29 @@ from geoloc.cli import build_parser
 
 CLI = Path(__file__).resolve().parents[1] / "geoloc" / "cli"
 
-SHARED = ("--dem", "--dem-datum", "--dem-cache-mb", "--method", "--eps-h", "--threshold", "--dem-model",
-          "--target-h-m", "--height-column", "--height-kind", "--sensor", "--camera", "--angle",
-          "--altitude-datum", "--columns", "--lat-deg", "--lon-deg", "--h-m", "--heading-deg",
-          "--gimbal-roll-deg", "--gimbal-pitch-deg")
+SHARED = (
+    "--dem",
+    "--dem-datum",
+    "--dem-cache-mb",
+    "--method",
+    "--eps-h",
+    "--threshold",
+    "--dem-model",
+    "--target-h-m",
+    "--height-column",
+    "--height-kind",
+    "--sensor",
+    "--camera",
+    "--angle",
+    "--altitude-datum",
+    "--columns",
+    "--lat-deg",
+    "--lon-deg",
+    "--h-m",
+    "--heading-deg",
+    "--gimbal-roll-deg",
+    "--gimbal-pitch-deg",
+)
 
 
 def _declarations():
@@ -68,8 +87,22 @@ def test_calibrate_honours_the_dem_method(tmp_path):
     out = {}
     for m in ("exact", "steps"):
         o = tmp_path / f"{m}.json"
-        assert main(["calibrate", "--dem", "assets/dem/etopo5_flight_area.tif", "--method", m,
-                     "--eps-h", "50", "--out", str(o)]) == 0
+        assert (
+            main(
+                [
+                    "calibrate",
+                    "--dem",
+                    "assets/dem/etopo5_flight_area.tif",
+                    "--method",
+                    m,
+                    "--eps-h",
+                    "50",
+                    "--out",
+                    str(o),
+                ]
+            )
+            == 0
+        )
         out[m] = json.loads(o.read_text())
     assert json.dumps(out["exact"]) != json.dumps(out["steps"])
 
@@ -85,6 +118,7 @@ def test_a_mosaic_is_refused_where_one_raster_is_read(tmp_path, capsys):
     from geoloc.cli import main
 
     (tmp_path / "tiles").mkdir()
-    rc = main(["montecarlo", "assets/scenarios/qiao2017_table1.toml", "--dem", str(tmp_path / "tiles"),
-               "--samples", "10"])
+    rc = main(
+        ["montecarlo", "assets/scenarios/qiao2017_table1.toml", "--dem", str(tmp_path / "tiles"), "--samples", "10"]
+    )
     assert rc == 2 and "not a mosaic" in capsys.readouterr().err

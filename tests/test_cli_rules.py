@@ -59,7 +59,7 @@ def _examples() -> dict:
         if ex is None:
             continue
         setup = []
-        for cmd in ((ex,) if isinstance(ex, str) else ex):
+        for cmd in (ex,) if isinstance(ex, str) else ex:
             argv = shlex.split(cmd)
             assert argv[0] == "geoloc", cmd
             argv = argv[1:]
@@ -159,8 +159,10 @@ def _reference(leaf, tmp_path_factory, dash: str | None = None) -> dict:
 
 
 #: Outputs whose bytes differ from one run to the next, and why: compared by their magic number only.
-NOT_REPRODUCIBLE = {".rrd": "rerun stamps its chunks with the time of logging and random ids",
-                    ".gpkg": "GDAL writes the time of writing in gpkg_contents.last_change"}
+NOT_REPRODUCIBLE = {
+    ".rrd": "rerun stamps its chunks with the time of logging and random ids",
+    ".gpkg": "GDAL writes the time of writing in gpkg_contents.last_change",
+}
 
 
 def _same_output(path, got: bytes, ref: bytes) -> bool:
@@ -196,8 +198,9 @@ def test_every_verb_has_an_example():
 def test_every_output_option_of_the_examples_is_in_the_table():
     # the options an example leaves out are still covered by tests/test_user_files.py's refusals;
     # here, each verb that writes a file writes at least one in its example
-    writers = {leaf for leaf, p in LEAVES.items() if any(ROLES.get(a.type) in ("output", "output_dir")
-                                                         for a in p._actions)}
+    writers = {
+        leaf for leaf, p in LEAVES.items() if any(ROLES.get(a.type) in ("output", "output_dir") for a in p._actions)
+    }
     with_outputs = {leaf for leaf, (_s, argv) in EXAMPLES.items() if _outputs(argv)}
     # klv send writes nothing; view's --journal and live --record are live-only (docs/live.md)
     assert writers - with_outputs <= {("klv", "send")}, writers - with_outputs
@@ -248,8 +251,9 @@ def test_a_refused_output_stops_the_verb_before_it_starts(leaf, opt, tmp_path, m
 
 
 @pytest.mark.parametrize("leaf,opt", _cases(text_only=True))
-def test_out_dash_writes_standard_output_the_files_bytes(leaf, opt, tmp_path, tmp_path_factory, monkeypatch,
-                                                          capsysbinary):
+def test_out_dash_writes_standard_output_the_files_bytes(
+    leaf, opt, tmp_path, tmp_path_factory, monkeypatch, capsysbinary
+):
     ref = _reference(leaf, tmp_path_factory, dash=opt)
     argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
     before = set(os.listdir(tmp_path))
@@ -293,8 +297,9 @@ def test_out_dash_into_a_closed_pipe_ends_quietly_with_141(leaf, opt, tmp_path, 
 
 
 @pytest.mark.parametrize("leaf,opt", _cases())
-def test_a_symlink_stays_and_its_target_keeps_its_mode(leaf, opt, tmp_path, tmp_path_factory, monkeypatch,
-                                                        capsysbinary):
+def test_a_symlink_stays_and_its_target_keeps_its_mode(
+    leaf, opt, tmp_path, tmp_path_factory, monkeypatch, capsysbinary
+):
     ref = _reference(leaf, tmp_path_factory)
     argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
     real = tmp_path / "real"
@@ -394,8 +399,7 @@ def _old_output(tmp_path, leaf, opt):
 
 
 @pytest.mark.parametrize("leaf,opt", _cases())
-def test_ctrl_c_while_writing_is_one_line_130_and_the_old_output_stays(leaf, opt, tmp_path, monkeypatch,
-                                                                       capsysbinary):
+def test_ctrl_c_while_writing_is_one_line_130_and_the_old_output_stays(leaf, opt, tmp_path, monkeypatch, capsysbinary):
     argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
     old, intact = _old_output(tmp_path, leaf, opt)
     hits = _replace_raising(monkeypatch, old, KeyboardInterrupt())
@@ -445,8 +449,9 @@ def _fill(mnt: Path, leave: int) -> None:
 
 
 @pytest.mark.parametrize("leaf,opt", _cases())
-def test_a_disk_full_while_writing_keeps_the_old_output(leaf, opt, small_fs, tmp_path, tmp_path_factory,
-                                                        monkeypatch, capsysbinary):
+def test_a_disk_full_while_writing_keeps_the_old_output(
+    leaf, opt, small_fs, tmp_path, tmp_path_factory, monkeypatch, capsysbinary
+):
     ref = _reference(leaf, tmp_path_factory)
     argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
     old, intact = _old_output(small_fs, leaf, opt)
@@ -485,9 +490,13 @@ def test_a_folder_made_read_only_mid_run_is_one_line(leaf, opt, small_fs, tmp_pa
 
 
 def _dem_cases():
-    return [pytest.param(leaf, id=" ".join(leaf)) for leaf, (_s, argv) in sorted(EXAMPLES.items())
-            if any("--eps-h" in a.option_strings for a in LEAVES[leaf]._actions) and "--dem" in argv
-            or leaf in {("replay",), ("ortho",), ("calibrate",)}]
+    return [
+        pytest.param(leaf, id=" ".join(leaf))
+        for leaf, (_s, argv) in sorted(EXAMPLES.items())
+        if any("--eps-h" in a.option_strings for a in LEAVES[leaf]._actions)
+        and "--dem" in argv
+        or leaf in {("replay",), ("ortho",), ("calibrate",)}
+    ]
 
 
 @pytest.mark.parametrize("leaf", _dem_cases())

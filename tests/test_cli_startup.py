@@ -16,10 +16,12 @@ HEAVY = ("numba", "scipy", "pyproj", "rasterio", "matplotlib", "viser", "rerun")
 
 
 def _imported_after(argv) -> list:
-    code = ("import sys\nfrom geoloc.cli import main\n"
-            f"try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n"
-            "print(' '.join(sorted(m for m in sys.modules if m.startswith('geoloc.cli.')"
-            f" or any(m == h or m.startswith(h + '.') for h in {HEAVY!r}))))\n")
+    code = (
+        "import sys\nfrom geoloc.cli import main\n"
+        f"try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n"
+        "print(' '.join(sorted(m for m in sys.modules if m.startswith('geoloc.cli.')"
+        f" or any(m == h or m.startswith(h + '.') for h in {HEAVY!r}))))\n"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     return r.stdout.split("\n")[-2].split()

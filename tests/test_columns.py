@@ -39,6 +39,7 @@ PROJ_DATA_EGM96 = Path("/usr/share/proj/egm96_15.gtx")
 
 # --------------------------------------------------------------------------- reference N
 
+
 def reference_undulation(lat_deg, lon_deg):
     """EGM96 N [m] not from geoloc, and how it was obtained.
 
@@ -60,7 +61,8 @@ def reference_undulation(lat_deg, lon_deg):
         t = Transformer.from_pipeline(
             "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad "
             f"+step +proj=vgridshift +grids={PROJ_DATA_EGM96} +multiplier=1 "
-            "+step +proj=unitconvert +xy_in=rad +xy_out=deg")
+            "+step +proj=unitconvert +xy_in=rad +xy_out=deg"
+        )
         _, _, n = t.transform(lon, lat, np.zeros_like(lat))
         return np.asarray(n, float), f"PROJ vgridshift on {PROJ_DATA_EGM96}"
     import rasterio
@@ -72,21 +74,37 @@ def reference_undulation(lat_deg, lon_deg):
     c = (lon - (tr.c + tr.a / 2)) / tr.a
     i, j = np.floor(r).astype(int), np.floor(c).astype(int)
     v, u = r - i, c - j
-    n = ((1 - u) * (1 - v) * z[i, j] + u * (1 - v) * z[i, j + 1] + (1 - u) * v * z[i + 1, j]
-         + u * v * z[i + 1, j + 1])
+    n = (1 - u) * (1 - v) * z[i, j] + u * (1 - v) * z[i, j + 1] + (1 - u) * v * z[i + 1, j] + u * v * z[i + 1, j + 1]
     return n, "bundled egm96_flight_area.tif read with rasterio, bilinear in the test"
 
 
 # --------------------------------------------------------------------------- test data
+
 
 def _bundled_rows():
     with RECORDS.open(newline="") as fh:
         return list(csv.DictReader(fh))
 
 
-FOREIGN_HEADER = ["Flight", "Target", "PixelY", "PixelX", "Latitude", "Longitude", "Alt_ft", "Yaw",
-                  "Pitch", "Roll", "OuterGimbal", "InnerGimbal", "PubLat", "PubLon", "PubHeight_ft",
-                  "TruthLat", "TruthLon"]
+FOREIGN_HEADER = [
+    "Flight",
+    "Target",
+    "PixelY",
+    "PixelX",
+    "Latitude",
+    "Longitude",
+    "Alt_ft",
+    "Yaw",
+    "Pitch",
+    "Roll",
+    "OuterGimbal",
+    "InnerGimbal",
+    "PubLat",
+    "PubLon",
+    "PubHeight_ft",
+    "TruthLat",
+    "TruthLon",
+]
 
 MAP_TOML = """\
 [columns]
@@ -115,20 +133,27 @@ def foreign_rows():
     radians, zero-based pixel columns. The numbers are just numbers: what they mean is the map's."""
     out = []
     for r in _bundled_rows():
-        out.append({
-            "Flight": r["table"], "Target": r["point"], "PixelY": r["row"],
-            "PixelX": repr(float(r["col"]) - 1.0),
-            "Latitude": r["ac_lat_deg"], "Longitude": r["ac_lon_deg"],
-            "Alt_ft": f"{float(r['ac_h_m']) / FT:.3f}",
-            "Yaw": f"{math.radians(float(r['heading_deg'])):.12f}",
-            "Pitch": f"{math.radians(float(r['pitch_deg'])):.12f}",
-            "Roll": r["roll_deg"],
-            "OuterGimbal": f"{math.radians(float(r['gimbal_roll_deg'])):.12f}",
-            "InnerGimbal": r["gimbal_pitch_deg"],
-            "PubLat": r["paper_lat_deg"], "PubLon": r["paper_lon_deg"],
-            "PubHeight_ft": f"{float(r['paper_height_m']) / FT:.3f}",
-            "TruthLat": r["truth_lat_deg"], "TruthLon": r["truth_lon_deg"],
-        })
+        out.append(
+            {
+                "Flight": r["table"],
+                "Target": r["point"],
+                "PixelY": r["row"],
+                "PixelX": repr(float(r["col"]) - 1.0),
+                "Latitude": r["ac_lat_deg"],
+                "Longitude": r["ac_lon_deg"],
+                "Alt_ft": f"{float(r['ac_h_m']) / FT:.3f}",
+                "Yaw": f"{math.radians(float(r['heading_deg'])):.12f}",
+                "Pitch": f"{math.radians(float(r['pitch_deg'])):.12f}",
+                "Roll": r["roll_deg"],
+                "OuterGimbal": f"{math.radians(float(r['gimbal_roll_deg'])):.12f}",
+                "InnerGimbal": r["gimbal_pitch_deg"],
+                "PubLat": r["paper_lat_deg"],
+                "PubLon": r["paper_lon_deg"],
+                "PubHeight_ft": f"{float(r['paper_height_m']) / FT:.3f}",
+                "TruthLat": r["truth_lat_deg"],
+                "TruthLon": r["truth_lon_deg"],
+            }
+        )
     return out
 
 
@@ -139,20 +164,27 @@ def canonical_rows(foreign):
     n, _ = reference_undulation(lat, lon)
     out = []
     for k, r in enumerate(foreign):
-        out.append({
-            "table": r["Flight"], "point": r["Target"], "row": r["PixelY"],
-            "col": repr(float(r["PixelX"]) + 1.0),
-            "ac_lat_deg": r["Latitude"], "ac_lon_deg": r["Longitude"],
-            "ac_h_m": repr(float(r["Alt_ft"]) * FT + float(n[k])),
-            "heading_deg": repr(math.degrees(float(r["Yaw"]))),
-            "pitch_deg": repr(math.degrees(float(r["Pitch"]))),
-            "roll_deg": r["Roll"],
-            "gimbal_roll_deg": repr(math.degrees(float(r["OuterGimbal"]))),
-            "gimbal_pitch_deg": r["InnerGimbal"],
-            "paper_lat_deg": r["PubLat"], "paper_lon_deg": r["PubLon"],
-            "paper_height_m": repr(float(r["PubHeight_ft"]) * FT),
-            "truth_lat_deg": r["TruthLat"], "truth_lon_deg": r["TruthLon"],
-        })
+        out.append(
+            {
+                "table": r["Flight"],
+                "point": r["Target"],
+                "row": r["PixelY"],
+                "col": repr(float(r["PixelX"]) + 1.0),
+                "ac_lat_deg": r["Latitude"],
+                "ac_lon_deg": r["Longitude"],
+                "ac_h_m": repr(float(r["Alt_ft"]) * FT + float(n[k])),
+                "heading_deg": repr(math.degrees(float(r["Yaw"]))),
+                "pitch_deg": repr(math.degrees(float(r["Pitch"]))),
+                "roll_deg": r["Roll"],
+                "gimbal_roll_deg": repr(math.degrees(float(r["OuterGimbal"]))),
+                "gimbal_pitch_deg": r["InnerGimbal"],
+                "paper_lat_deg": r["PubLat"],
+                "paper_lon_deg": r["PubLon"],
+                "paper_height_m": repr(float(r["PubHeight_ft"]) * FT),
+                "truth_lat_deg": r["TruthLat"],
+                "truth_lon_deg": r["TruthLon"],
+            }
+        )
     return out
 
 
@@ -192,23 +224,31 @@ def _numbers(rows, name):
 
 # --------------------------------------------------------------------------- the map
 
+
 def test_foreign_csv_through_a_map_replays_as_the_canonical_csv(tmp_path, foreign, capsys):
     log, mapfile, rows = foreign
     canon = write_csv(tmp_path / "canon.csv", canonical_rows(rows))
     out_f, out_c = tmp_path / "f.csv", tmp_path / "c.csv"
-    cap = _replay([str(log), "--columns", str(mapfile), "--height-column", "paper_height_m",
-                   "--out", str(out_f)], capsys)
+    cap = _replay(
+        [str(log), "--columns", str(mapfile), "--height-column", "paper_height_m", "--out", str(out_f)], capsys
+    )
     assert "group T3" in cap.out and "group T4" in cap.out
     assert "read as egm96 (MSL, orthometric)" in cap.out and "h = H + N" in cap.out
-    _replay([str(canon), "--height-column", "paper_height_m", "--altitude-datum", "ellipsoid",
-             "--out", str(out_c)], capsys)
+    _replay(
+        [str(canon), "--height-column", "paper_height_m", "--altitude-datum", "ellipsoid", "--out", str(out_c)], capsys
+    )
     f, c = read_csv(out_f), read_csv(out_c)
     assert len(f) == len(c) == 20
     # N here and in geoloc differ by < 1 mm in the bundled 15' crop: the aircraft heights agree
     # to 2 mm, the ground points to 5e-8 deg (5 mm; the CSV keeps 1e-8 deg)
     assert np.max(np.abs(_numbers(f, "ac_h_m") - _numbers(c, "ac_h_m"))) < 2e-3
-    for name, tol in (("lat_deg", 5e-8), ("lon_deg", 5e-8), ("h_m", 2e-3), ("error_to_paper_m", 5e-3),
-                      ("error_to_truth_m", 5e-3)):
+    for name, tol in (
+        ("lat_deg", 5e-8),
+        ("lon_deg", 5e-8),
+        ("h_m", 2e-3),
+        ("error_to_paper_m", 5e-3),
+        ("error_to_truth_m", 5e-3),
+    ):
         np.testing.assert_allclose(_numbers(f, name), _numbers(c, name), atol=tol, rtol=0, err_msg=name)
     assert [r["table"] for r in f] == [r["table"] for r in c]
     # the user's own columns are carried through untouched, the canonical ones added
@@ -239,12 +279,13 @@ def test_load_records_applies_the_map_before_validation(foreign):
     log, mapfile, rows = foreign
     rec = load_records(log, columns=load_column_map(mapfile))
     assert len(rec) == 20 and rec.errors == []
-    np.testing.assert_allclose(rec.column("heading_deg"),
-                               [math.degrees(float(r["Yaw"])) for r in rows], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        rec.column("heading_deg"), [math.degrees(float(r["Yaw"])) for r in rows], rtol=0, atol=1e-12
+    )
     np.testing.assert_allclose(rec.column("col"), [float(r["PixelX"]) + 1 for r in rows], rtol=0, atol=0)
     assert rec.labels()[0] == "T3-1"
     assert rec.source_header == FOREIGN_HEADER
-    assert rec.header[:len(FOREIGN_HEADER)] == FOREIGN_HEADER
+    assert rec.header[: len(FOREIGN_HEADER)] == FOREIGN_HEADER
     assert rec.altitude == HeightSource("ac_h_m", "Alt_ft", "egm96", "ft", f"column map {mapfile}")
     # a dict (the [columns] table) works as well as the file
     import tomllib
@@ -278,17 +319,21 @@ def _map_table():
 
 # --------------------------------------------------------------------------- errors
 
-@pytest.mark.parametrize("entry, words", [
-    ({"altitude": "Alt_ft"}, ["altitude", "Alt_ft", "unknown canonical column"]),
-    ({"heading_deg": {"column": "Yaw", "unit": "grad"}}, ["heading_deg", "grad", "deg", "rad"]),
-    ({"ac_h_m": {"column": "Alt_ft", "unit": "yd"}}, ["ac_h_m", "yd", "ft"]),
-    ({"ac_h_m": {"column": "Alt_ft", "datum": "msl"}}, ["ac_h_m", "msl", "egm96", "ellipsoid"]),
-    ({"col": {"column": "PixelX", "pixel": "zero"}}, ["col", "zero", "zero-based", "one-based"]),
-    ({"heading_deg": {"column": "Yaw", "datum": "egm96"}}, ["heading_deg", "datum", "not allowed"]),
-    ({"row": {"column": "PixelY", "unit": "m"}}, ["row", "unit", "not allowed"]),
-    ({"roll_deg": 3}, ["roll_deg", "3"]),
-    ({"roll_deg": {"unit": "deg"}}, ["roll_deg", "column"]),
-])
+
+@pytest.mark.parametrize(
+    "entry, words",
+    [
+        ({"altitude": "Alt_ft"}, ["altitude", "Alt_ft", "unknown canonical column"]),
+        ({"heading_deg": {"column": "Yaw", "unit": "grad"}}, ["heading_deg", "grad", "deg", "rad"]),
+        ({"ac_h_m": {"column": "Alt_ft", "unit": "yd"}}, ["ac_h_m", "yd", "ft"]),
+        ({"ac_h_m": {"column": "Alt_ft", "datum": "msl"}}, ["ac_h_m", "msl", "egm96", "ellipsoid"]),
+        ({"col": {"column": "PixelX", "pixel": "zero"}}, ["col", "zero", "zero-based", "one-based"]),
+        ({"heading_deg": {"column": "Yaw", "datum": "egm96"}}, ["heading_deg", "datum", "not allowed"]),
+        ({"row": {"column": "PixelY", "unit": "m"}}, ["row", "unit", "not allowed"]),
+        ({"roll_deg": 3}, ["roll_deg", "3"]),
+        ({"roll_deg": {"unit": "deg"}}, ["roll_deg", "column"]),
+    ],
+)
 def test_bad_map_entries_name_the_key_and_the_value(entry, words):
     with pytest.raises(ValueError) as e:
         ColumnMap.from_table(entry, "m.toml")
@@ -323,12 +368,12 @@ def test_map_errors_against_the_file_and_the_sensor(foreign, tmp_path, capsys):
 
 def test_bad_rows_are_reported_by_line_and_the_good_ones_run(tmp_path, capsys):
     rows = foreign_rows()[:5]
-    rows[1]["Alt_ft"] = "high"            # line 3: not a number, named by the user's column
-    rows[2]["Yaw"] = "10"                 # line 4: 573 deg, out of range, named by the user's column
-    rows[3]["Latitude"] = "95"            # line 5: the aircraft's latitude (needed for N too)
+    rows[1]["Alt_ft"] = "high"  # line 3: not a number, named by the user's column
+    rows[2]["Yaw"] = "10"  # line 4: 573 deg, out of range, named by the user's column
+    rows[3]["Latitude"] = "95"  # line 5: the aircraft's latitude (needed for N too)
     p = write_csv(tmp_path / "log.csv", rows, FOREIGN_HEADER)
     with p.open("a") as fh:
-        fh.write("T9,1,2\n")             # line 7: too few fields
+        fh.write("T9,1,2\n")  # line 7: too few fields
     m = tmp_path / "map.toml"
     m.write_text(MAP_TOML)
     rec = load_records(p, columns=load_column_map(m))
@@ -347,6 +392,7 @@ def test_bad_rows_are_reported_by_line_and_the_good_ones_run(tmp_path, capsys):
 
 # --------------------------------------------------------------------------- sensor file [columns]
 
+
 def test_columns_table_in_a_sensor_file(tmp_path, foreign, capsys):
     log, mapfile, _ = foreign
     cam = tmp_path / "cam.toml"
@@ -356,8 +402,7 @@ def test_columns_table_in_a_sensor_file(tmp_path, foreign, capsys):
     assert load_sensor(cam).lens.fx == 166841.0  # the camera itself is unchanged
     out_s, out_m = tmp_path / "s.csv", tmp_path / "m.csv"
     _replay([str(log), "--sensor", str(cam), "--height-column", "paper_height_m", "--out", str(out_s)], capsys)
-    _replay([str(log), "--columns", str(mapfile), "--height-column", "paper_height_m", "--out", str(out_m)],
-            capsys)
+    _replay([str(log), "--columns", str(mapfile), "--height-column", "paper_height_m", "--out", str(out_m)], capsys)
     s, m = read_csv(out_s), read_csv(out_m)
     assert [r["lat_deg"] for r in s] == [r["lat_deg"] for r in m]
     assert s[0]["ac_h_datum_input"].startswith(f"egm96 (column map {cam}")
@@ -365,8 +410,20 @@ def test_columns_table_in_a_sensor_file(tmp_path, foreign, capsys):
     plain = tmp_path / "plain.toml"
     plain.write_text(MAP_TOML.replace('datum = "egm96"', 'datum = "ellipsoid"'))
     out_p = tmp_path / "p.csv"
-    _replay([str(log), "--sensor", str(cam), "--columns", str(plain), "--height-column", "paper_height_m",
-             "--out", str(out_p)], capsys)
+    _replay(
+        [
+            str(log),
+            "--sensor",
+            str(cam),
+            "--columns",
+            str(plain),
+            "--height-column",
+            "paper_height_m",
+            "--out",
+            str(out_p),
+        ],
+        capsys,
+    )
     assert read_csv(out_p)[0]["ac_h_datum_input"].startswith("ellipsoid (column map")
     bad = tmp_path / "bad.toml"
     bad.write_text(CAMERA.read_text() + '\ncolumns = "map.toml"\n')
@@ -377,15 +434,33 @@ def test_columns_table_in_a_sensor_file(tmp_path, foreign, capsys):
 def test_columns_table_maps_a_turret_s_joint_angles(tmp_path, capsys):
     """An azimuth-elevation turret's angles in radians under the user's names (sensor file [columns])."""
     sensor = tmp_path / "turret.toml"
-    sensor.write_text(EO_TURRET.read_text() + '\n[columns]\nazimuth_deg = {column = "TurretAz", unit = "rad"}\n'
-                      'elevation_deg = {column = "TurretEl", unit = "rad"}\nac_h_m = {column = "Alt", unit = "ft"}\n')
-    base = {"row": "540.5", "col": "960.5", "ac_lat_deg": "36.4", "ac_lon_deg": "78.7", "heading_deg": "30",
-            "pitch_deg": "1", "roll_deg": "-0.5"}
+    sensor.write_text(
+        EO_TURRET.read_text() + '\n[columns]\nazimuth_deg = {column = "TurretAz", unit = "rad"}\n'
+        'elevation_deg = {column = "TurretEl", unit = "rad"}\nac_h_m = {column = "Alt", unit = "ft"}\n'
+    )
+    base = {
+        "row": "540.5",
+        "col": "960.5",
+        "ac_lat_deg": "36.4",
+        "ac_lon_deg": "78.7",
+        "heading_deg": "30",
+        "pitch_deg": "1",
+        "roll_deg": "-0.5",
+    }
     angles = [(90.0, -40.0), (45.0, -60.0), (-20.0, -75.0)]
-    foreign = [{**base, "Alt": f"{3000.0 / FT:.4f}", "TurretAz": repr(math.radians(a)),
-                "TurretEl": repr(math.radians(e))} for a, e in angles]
-    canon = [{**base, "ac_h_m": repr(float(r["Alt"]) * FT), "azimuth_deg": repr(math.degrees(float(r["TurretAz"]))),
-              "elevation_deg": repr(math.degrees(float(r["TurretEl"])))} for r in foreign]
+    foreign = [
+        {**base, "Alt": f"{3000.0 / FT:.4f}", "TurretAz": repr(math.radians(a)), "TurretEl": repr(math.radians(e))}
+        for a, e in angles
+    ]
+    canon = [
+        {
+            **base,
+            "ac_h_m": repr(float(r["Alt"]) * FT),
+            "azimuth_deg": repr(math.degrees(float(r["TurretAz"]))),
+            "elevation_deg": repr(math.degrees(float(r["TurretEl"]))),
+        }
+        for r in foreign
+    ]
     pf, pc = write_csv(tmp_path / "f.csv", foreign), write_csv(tmp_path / "c.csv", canon)
     of, oc = tmp_path / "of.csv", tmp_path / "oc.csv"
     _replay([str(pf), "--sensor", str(sensor), "--target-h-m", "1200", "--out", str(of)], capsys)
@@ -397,6 +472,7 @@ def test_columns_table_maps_a_turret_s_joint_angles(tmp_path, capsys):
 
 
 # --------------------------------------------------------------------------- datums
+
 
 def test_altitude_datum_egm96_without_a_map(tmp_path, capsys):
     rows = _bundled_rows()[:4]
@@ -414,12 +490,30 @@ def test_altitude_datum_egm96_without_a_map(tmp_path, capsys):
     m = tmp_path / "m.toml"
     m.write_text('[columns]\nac_h_m = {column = "ac_h_m", datum = "ellipsoid"}\n')
     cap = _replay([str(p), "--columns", str(m), "--altitude-datum", "egm96", "--target-h-m", "4600"], capsys)
-    assert "--altitude-datum egm96 not used for ac_h_m" in cap.err and "read as ellipsoid (WGS 84) (column map" in cap.out
+    assert (
+        "--altitude-datum egm96 not used for ac_h_m" in cap.err and "read as ellipsoid (WGS 84) (column map" in cap.out
+    )
 
 
 def test_locate_altitude_datum(capsys):
-    base = ["locate", "--lat-deg", "35.48", "--lon-deg", "80.97", "--heading-deg", "45", "--pitch-deg", "3.5",
-            "--gimbal-roll-deg", "50", "--gimbal-pitch-deg", "-2.6", "--target-h-m", "5083.5", "--json"]
+    base = [
+        "locate",
+        "--lat-deg",
+        "35.48",
+        "--lon-deg",
+        "80.97",
+        "--heading-deg",
+        "45",
+        "--pitch-deg",
+        "3.5",
+        "--gimbal-roll-deg",
+        "50",
+        "--gimbal-pitch-deg",
+        "-2.6",
+        "--target-h-m",
+        "5083.5",
+        "--json",
+    ]
     n = float(reference_undulation(np.array([35.48]), np.array([80.97]))[0][0])
     assert main([*base, "--h-m", "18000", "--altitude-datum", "egm96"]) == 0
     msl = json.loads(capsys.readouterr().out)
@@ -433,8 +527,10 @@ def test_locate_altitude_datum(capsys):
     assert "read as egm96 (MSL, orthometric)" in capsys.readouterr().out
 
 
-WARN_DEFAULT = ("the DEM is orthometric (egm96) and the aircraft heights are taken as ellipsoidal (default): "
-                "if they are MSL, pass --altitude-datum egm96")
+WARN_DEFAULT = (
+    "the DEM is orthometric (egm96) and the aircraft heights are taken as ellipsoidal (default): "
+    "if they are MSL, pass --altitude-datum egm96"
+)
 
 
 def test_datum_warning_texts():
@@ -463,9 +559,26 @@ def test_datum_warnings_on_the_command_line(tmp_path, foreign, capsys):
     assert "geoloc replay: warning: the aircraft heights are MSL (egm96" in cap.err
     assert "check the DEM's vertical datum" in cap.err
     # locate: never stated -> warned; stated -> not
-    base = ["locate", "--lat-deg", "35.48", "--lon-deg", "80.97", "--h-m", "18000", "--heading-deg", "45",
-            "--pitch-deg", "3.5", "--gimbal-roll-deg", "50", "--gimbal-pitch-deg", "-2.6", "--dem", str(ETOPO),
-            "--json"]
+    base = [
+        "locate",
+        "--lat-deg",
+        "35.48",
+        "--lon-deg",
+        "80.97",
+        "--h-m",
+        "18000",
+        "--heading-deg",
+        "45",
+        "--pitch-deg",
+        "3.5",
+        "--gimbal-roll-deg",
+        "50",
+        "--gimbal-pitch-deg",
+        "-2.6",
+        "--dem",
+        str(ETOPO),
+        "--json",
+    ]
     assert main(base) == 0
     assert f"geoloc locate: warning: {WARN_DEFAULT}" in capsys.readouterr().err
     assert main([*base, "--altitude-datum", "ellipsoid"]) == 0
@@ -490,6 +603,7 @@ def test_h_datum_is_written_and_read_back(tmp_path, foreign, capsys):
     q = write_csv(tmp_path / "q.csv", rows)
     rec = load_records(q)
     assert list(rec.lines) == [2]
-    assert str(rec.errors[0]).startswith("line 3: h_datum = 'EGM96 geoid (orthometric)': says egm96 but ac_h_m "
-                                         "is read as ellipsoid (the default)")
+    assert str(rec.errors[0]).startswith(
+        "line 3: h_datum = 'EGM96 geoid (orthometric)': says egm96 but ac_h_m is read as ellipsoid (the default)"
+    )
     assert "--altitude-datum egm96" in str(rec.errors[0])

@@ -23,6 +23,7 @@ from geoloc.io.gis import read_results
 
 pytest.importorskip("takproto")
 import takproto.functions as takproto  # noqa: E402  (xml2message, xml2proto, parse_proto)
+
 etree = pytest.importorskip("lxml.etree")
 
 # The CoT 2.0 schema's requirements, written out: <event> holds one <point> and an optional
@@ -79,12 +80,13 @@ def _csv(path, rows, header):
 @pytest.fixture
 def results(tmp_path):
     """A results CSV with three located points (one with an EGM96 height, one with CE90/LE90) and one sky row."""
-    header = ["table", "point", "lat_deg", "lon_deg", "h_m", "h_datum", "status", "ce90_m", "le90_m",
-              "time_utc"]
-    rows = [["T1", "1", "36.60000001", "-84.25", "412.5", "", "ok", "12.5", "4.25", "2024-05-14T15:00:00Z"],
-            ["T1", "2", "-33.9", "18.4", "100.0", "EGM96", "ok", "", "", "2024-05-14T15:00:01Z"],
-            ["T1", "3", "", "", "", "", "sky", "", "", "2024-05-14T15:00:02Z"],
-            ["T1", "4", "89.9", "179.999", "", "", "ok", "3", "", "2024-05-14T15:00:03Z"]]
+    header = ["table", "point", "lat_deg", "lon_deg", "h_m", "h_datum", "status", "ce90_m", "le90_m", "time_utc"]
+    rows = [
+        ["T1", "1", "36.60000001", "-84.25", "412.5", "", "ok", "12.5", "4.25", "2024-05-14T15:00:00Z"],
+        ["T1", "2", "-33.9", "18.4", "100.0", "EGM96", "ok", "", "", "2024-05-14T15:00:01Z"],
+        ["T1", "3", "", "", "", "", "sky", "", "", "2024-05-14T15:00:02Z"],
+        ["T1", "4", "89.9", "179.999", "", "", "ok", "3", "", "2024-05-14T15:00:03Z"],
+    ]
     return _csv(tmp_path / "res.csv", rows, header)
 
 

@@ -63,8 +63,10 @@ def test_bracketed_form_keeps_good_blocks_and_reports_bad_lines(tmp_path):
     assert (r1.start_s, r1.end_s, r1.focal_len_mm, r1.datetime) == (0.0, 0.033, 24.0, "2023-06-01 10:11:12.345")
     assert (r3.gimbal_yaw_deg, r3.gimbal_pitch_deg, r3.gimbal_roll_deg) == (37.5, -45.0, 0.0)
     # block 2: its latitude is on the file's line 11; block 4's time code on line 20 (counted in NEW)
-    assert f.errors == [(11, "latitude = '36.52x' is not a number"),
-                        (20, "time code '00:00:00,1OO --> 00:00:00,133' is not 'HH:MM:SS,mmm --> HH:MM:SS,mmm'")]
+    assert f.errors == [
+        (11, "latitude = '36.52x' is not a number"),
+        (20, "time code '00:00:00,1OO --> 00:00:00,133' is not 'HH:MM:SS,mmm --> HH:MM:SS,mmm'"),
+    ]
     assert "2 bad block(s) skipped" in f.summary()
 
 
@@ -72,8 +74,7 @@ def test_old_gps_form_and_heights_written_with_their_datums(tmp_path):
     p = tmp_path / "DJI_0002.SRT"
     p.write_text(OLD)
     f = read_srt(p)
-    assert len(f) == 1 and f.errors == [(7, "no position: neither [latitude: ..] [longitude: ..] nor "
-                                            "GPS(lon,lat,alt)")]
+    assert len(f) == 1 and f.errors == [(7, "no position: neither [latitude: ..] [longitude: ..] nor GPS(lon,lat,alt)")]
     r = f.records[0]
     assert (r.lon_deg, r.lat_deg, r.abs_alt_m, r.rel_alt_m) == (-84.21, 36.52, 412.6, 100.2)
     out = tmp_path / "flight.csv"

@@ -33,8 +33,15 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 # the README and the pages its sections moved to (issue 48: one README screen, the rest a site),
 # then the guides whose commands run here too
-PAGES = [ROOT / "README.md", DOCS / "install.md", *sorted(DOCS.glob("tour_*.md")), DOCS / "benchmarks.md",
-         DOCS / "calibration.md", DOCS / "gis.md", DOCS / "sensors.md"]
+PAGES = [
+    ROOT / "README.md",
+    DOCS / "install.md",
+    *sorted(DOCS.glob("tour_*.md")),
+    DOCS / "benchmarks.md",
+    DOCS / "calibration.md",
+    DOCS / "gis.md",
+    DOCS / "sensors.md",
+]
 # docs pages whose bash blocks are not run here yet -> why
 PAGES_NOT_RUN = {
     "live.md": "its commands are two terminals run at once (sender and receiver); test_live.py runs them together",
@@ -45,16 +52,12 @@ PAGES_NOT_RUN = {
 
 # command (as on the pages, continuations joined) -> why it is not run here
 NOT_RUN = {
-    "geoloc replay my_log.csv --columns map.toml --sensor my_sensor.toml --target-h-m 300":
-        "a template: the reader's own log, map and sensor (the column maps are tested in test_columns.py)",
-    "geoloc locate ... --dem assets/dem/srtm_jacksboro.tif --method bisect --threshold 8":
-        "a template: '...' stands for the pose options of the commands above",
+    "geoloc replay my_log.csv --columns map.toml --sensor my_sensor.toml --target-h-m 300": "a template: the reader's own log, map and sensor (the column maps are tested in test_columns.py)",
+    "geoloc locate ... --dem assets/dem/srtm_jacksboro.tif --method bisect --threshold 8": "a template: '...' stands for the pose options of the commands above",
     "geoloc locate --dem tiles/ ...": "a template: the reader's own folder of tiles (test_mosaic.py)",
     "geoloc replay flights/ --parquet-out out/": "a template: the reader's own folder (test_campaign.py)",
-    "geoloc montecarlo assets/scenarios/qiao2017_table1.toml --samples 1e9 --progress":
-        "about an hour by design (the constant-memory claim is test_montecarlo_streaming.py's)",
-    "geoloc export frames.csv --cot udp://239.2.3.1:6969":
-        "sends to TAK's LAN multicast group; the same sender to loopback is test_cot.py's",
+    "geoloc montecarlo assets/scenarios/qiao2017_table1.toml --samples 1e9 --progress": "about an hour by design (the constant-memory claim is test_montecarlo_streaming.py's)",
+    "geoloc export frames.csv --cot udp://239.2.3.1:6969": "sends to TAK's LAN multicast group; the same sender to loopback is test_cot.py's",
 }
 
 
@@ -136,12 +139,14 @@ def _geoloc_exe():
 def _run_view(cmd: str, cwd: Path, env) -> str:
     """Start `geoloc view ...` on a free port and return its output once it serves."""
     import socket
+
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     args = shlex.split(cmd) + ["--port", str(port)]
-    p = subprocess.Popen(args, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                         text=True, start_new_session=True)
+    p = subprocess.Popen(
+        args, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+    )
     out = []
     try:
         deadline = time.monotonic() + 240
@@ -193,8 +198,7 @@ def test_docs_block_runs_from_an_empty_folder(block, tmp_path):
         if cmd.startswith("geoloc view "):
             out = _run_view(cmd, tmp_path, env)
         else:
-            r = subprocess.run(["bash", "-c", cmd], cwd=tmp_path, env=env, capture_output=True, text=True,
-                               timeout=900)
+            r = subprocess.run(["bash", "-c", cmd], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
             out = r.stdout + r.stderr
             assert "Traceback" not in out, f"{cmd!r}:\n{out[-3000:]}"
             if "|" not in cmd:  # `... | head -1` ends its writer by SIGPIPE, by design

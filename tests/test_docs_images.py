@@ -12,9 +12,12 @@ ROOT = Path(__file__).resolve().parents[1]
 IMAGE = re.compile(r"!\[[^\]]*\]\(([^)\s]+)\)")
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 # (page, the link as written, the file it names): a link is relative to its page's folder
-LINKS = [(page, link, (page.parent / link).resolve())
-         for page in PAGES for link in IMAGE.findall(page.read_text(encoding="utf-8"))
-         if "://" not in link]
+LINKS = [
+    (page, link, (page.parent / link).resolve())
+    for page in PAGES
+    for link in IMAGE.findall(page.read_text(encoding="utf-8"))
+    if "://" not in link
+]
 
 
 def test_the_readme_shows_one_picture():
@@ -29,8 +32,7 @@ def test_the_issue_34_screenshots_are_linked():
         assert name in IMAGE.findall(tour), f"docs/tour_viewer.md does not show {name}"
 
 
-@pytest.mark.parametrize("page,link,path", LINKS,
-                         ids=[f"{p.relative_to(ROOT)}:{link}" for p, link, _ in LINKS])
+@pytest.mark.parametrize("page,link,path", LINKS, ids=[f"{p.relative_to(ROOT)}:{link}" for p, link, _ in LINKS])
 def test_every_docs_image_is_a_png_in_the_repository(page, link, path):
     assert path.is_file(), f"{page.relative_to(ROOT)} links {link!r}, which is not in the repository"
     with PIL.Image.open(path) as im:
@@ -51,15 +53,23 @@ def test_the_screenshot_tool_makes_both_views(tmp_path):
     import numpy as np
 
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    r = subprocess.run([sys.executable, str(ROOT / "tools" / "make_viewer_screenshots.py"), "--out",
-                        str(tmp_path / "img")], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, str(ROOT / "tools" / "make_viewer_screenshots.py"), "--out", str(tmp_path / "img")],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr[-4000:]
     imgs = []
     for name in ("viewer_first_view.png", "viewer_outlier_error.png"):
         with PIL.Image.open(tmp_path / "img" / name) as im:
             assert im.format == "PNG" and im.size == (1100, 700), (name, im.format, im.size)
             imgs.append(np.asarray(im.convert("RGB"), float))
-    assert sorted(p.name for p in (tmp_path / "img").iterdir()) == ["viewer_first_view.png",
-                                                                    "viewer_outlier_error.png"]  # no temp left
+    assert sorted(p.name for p in (tmp_path / "img").iterdir()) == [
+        "viewer_first_view.png",
+        "viewer_outlier_error.png",
+    ]  # no temp left
     # the 3D view (left of the panel) changed: the camera moved to the error
     assert np.abs(imgs[0][:, :680] - imgs[1][:, :680]).mean() > 10.0

@@ -18,7 +18,7 @@ def _section():
     text = (ROOT / "docs" / "tour_sensors.md").read_text(encoding="utf-8")
     start = text.index("## MGRS, Cursor-on-Target, NITF RPCs, KLV written back")
     end = text.find("\n## ", start + 10)  # the next section, or the end of the page
-    return text[start:end if end >= 0 else len(text)]
+    return text[start : end if end >= 0 else len(text)]
 
 
 def test_docs_interop_section_runs_as_written(tmp_path):
@@ -32,8 +32,9 @@ def test_docs_interop_section_runs_as_written(tmp_path):
             continue
         argv = shlex.split(cmd)
         assert argv[0] == "geoloc", cmd
-        r = subprocess.run([sys.executable, "-m", "geoloc", *argv[1:]], cwd=tmp_path, capture_output=True,
-                           text=True, timeout=900)
+        r = subprocess.run(
+            [sys.executable, "-m", "geoloc", *argv[1:]], cwd=tmp_path, capture_output=True, text=True, timeout=900
+        )
         assert r.returncode == 0, (cmd, r.stderr[-2000:])
         outs[cmd] = r.stdout
     # the MGRS column sits after lon_deg, and its first row is the page's

@@ -38,7 +38,7 @@ def test_the_readme_names_the_one_docs_command():
 def _section(text: str, heading: str) -> str:
     start = text.index(heading)
     end = text.find("\n#", start + len(heading))
-    return text[start + len(heading):end if end >= 0 else len(text)].strip()
+    return text[start + len(heading) : end if end >= 0 else len(text)].strip()
 
 
 def test_the_install_paragraph_is_the_same_in_the_readme_and_the_docs():
@@ -47,8 +47,9 @@ def test_the_install_paragraph_is_the_same_in_the_readme_and_the_docs():
     # site) named rather than linked
     readme = _section(README, "### Installing the package elsewhere")
     docs = _section((ROOT / "docs" / "install.md").read_text(encoding="utf-8"), "## Installing the package elsewhere")
-    as_on_the_site = readme.replace("](docs/", "](").replace("[assets/README.md](assets/README.md)",
-                                                             "`assets/README.md`")
+    as_on_the_site = readme.replace("](docs/", "](").replace(
+        "[assets/README.md](assets/README.md)", "`assets/README.md`"
+    )
     assert as_on_the_site == docs
 
 
@@ -95,8 +96,14 @@ def _words(html: str) -> str:
 def test_the_site_builds_strict_from_the_sources(tmp_path):
     site = tmp_path / "site"
     env = dict(os.environ, NO_MKDOCS_2_WARNING="1")
-    r = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "mkdocs.yml"),
-                        "-d", str(site)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "-f", str(ROOT / "mkdocs.yml"), "-d", str(site)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     log = r.stdout + r.stderr
     assert r.returncode == 0, log[-4000:]
     assert "WARNING" not in log, log[-4000:]

@@ -44,6 +44,7 @@ ULPS = 4 * np.finfo(float).eps
 def _ulp_tol(xyz):
     return ULPS * float(np.linalg.norm(xyz))
 
+
 lats = st.floats(-90.0, 90.0, allow_nan=False)
 lons = st.floats(-180.0, 180.0, allow_nan=False)
 heights = st.floats(-10_000.0, 1.0e7, allow_nan=False)
@@ -183,8 +184,11 @@ def test_geodetic_to_ecef_closed_form_with_literal_constants():
     # [Q17 eq. 4] with WGS-84 written out, at the Table 1 aircraft (35.48 N, 80.97 E, 18 km)
     lat, lon, h = math.radians(35.48), math.radians(80.97), 18000.0
     rn = WGS84_A / math.sqrt(1 - WGS84_E2 * math.sin(lat) ** 2)
-    ref = [(rn + h) * math.cos(lat) * math.cos(lon), (rn + h) * math.cos(lat) * math.sin(lon),
-           (rn * (1 - WGS84_E2) + h) * math.sin(lat)]
+    ref = [
+        (rn + h) * math.cos(lat) * math.cos(lon),
+        (rn + h) * math.cos(lat) * math.sin(lon),
+        (rn * (1 - WGS84_E2) + h) * math.sin(lat),
+    ]
     np.testing.assert_allclose(geodetic_to_ecef(lat, lon, h), ref, rtol=0, atol=1e-8)
     # examples/01 prints these coordinates (pyproj agrees, test_geodetic_to_ecef_matches_pyproj)
     np.testing.assert_allclose(ref, [818401.683, 5149731.994, 3691808.776], atol=5e-4)

@@ -16,8 +16,7 @@ def test_from_ecef_matches_pyproj_topocentric(lat0, lon0, h0):
     frame = EnuFrame.from_deg(lat0, lon0, h0)
     geo = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
     x0, y0, z0 = geo.transform(lon0, lat0, h0)
-    topo = pyproj.Transformer.from_pipeline(
-        f"+proj=topocentric +ellps=WGS84 +X_0={x0!r} +Y_0={y0!r} +Z_0={z0!r}")
+    topo = pyproj.Transformer.from_pipeline(f"+proj=topocentric +ellps=WGS84 +X_0={x0!r} +Y_0={y0!r} +Z_0={z0!r}")
     rng = np.random.default_rng(6)
     p = np.array([x0, y0, z0]) + rng.normal(0, 30e3, (50, 3))
     e, n, u = topo.transform(p[:, 0], p[:, 1], p[:, 2])

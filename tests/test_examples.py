@@ -29,8 +29,14 @@ NUM = r"[-+]?[0-9]*\.?[0-9]+(?:e[-+]?[0-9]+)?"
 
 def run(name, *args, cwd=None, env=None, timeout=300):
     e = dict(os.environ, PYTHONPATH=str(ROOT), **(env or {}))
-    r = subprocess.run([sys.executable, str(EXAMPLES / name), *map(str, args)], cwd=cwd or ROOT, env=e,
-                       capture_output=True, text=True, timeout=timeout)
+    r = subprocess.run(
+        [sys.executable, str(EXAMPLES / name), *map(str, args)],
+        cwd=cwd or ROOT,
+        env=e,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     assert r.stdout.strip()
     return r.stdout
@@ -122,10 +128,8 @@ def test_05_replay_flight_test():
     to_truth = [float(r[-2]) for r in recs]
     assert 45.0 <= min(to_truth) and max(to_truth) <= 56.0
     # docs/tour_cli.md's two group lines, verbatim; the published means are [Q17]'s 50.246 / 50.485
-    assert ("group T3: n=10, mean error to truth 50.02 m (published 50.25 m), RMS to published position "
-            "0.40 m") in out
-    assert ("group T4: n=10, mean error to truth 50.52 m (published 50.49 m), RMS to published position "
-            "0.32 m") in out
+    assert ("group T3: n=10, mean error to truth 50.02 m (published 50.25 m), RMS to published position 0.40 m") in out
+    assert ("group T4: n=10, mean error to truth 50.52 m (published 50.49 m), RMS to published position 0.32 m") in out
     # and its first record line: 36.33771 78.85769 4629.9 ok 0.36 51.09 51.069
     assert recs[0] == ["T3-1", "36.33771", "78.85769", "4629.9", "ok", "0.36", "51.09", "51.069"]
 
@@ -139,8 +143,9 @@ def test_31_montecarlo_error_budget():
     cep, cep50 = floats(line_with(out, "CEP eq. 18"))[1::2][:2]
     # docs/montecarlo.md: "eq. 18 gives 76 m while half of the samples lie within 52 m"
     assert round(cep) == 76 and round(cep50) == 52
-    rows = [re.match(rf"^(\w+)\s+(?:normal sigma|uniform max)\s+{NUM}\s+({NUM})\s+({NUM})", ln)
-            for ln in out.splitlines()]
+    rows = [
+        re.match(rf"^(\w+)\s+(?:normal sigma|uniform max)\s+{NUM}\s+({NUM})\s+({NUM})", ln) for ln in out.splitlines()
+    ]
     rows = [(m.group(1), float(m.group(2)), float(m.group(3))) for m in rows if m]
     assert len(rows) == 16
     alone = np.array([r[1] for r in rows])
@@ -225,7 +230,7 @@ def read_viser_html(path):
     data = base64.b64decode(b64)
     inner = zstandard.ZstdDecompressor().decompress(data[8:], max_output_size=int.from_bytes(data[:8], "little"))
     n = int.from_bytes(inner[:8], "little")
-    return msgspec.msgpack.decode(inner[8:8 + n])
+    return msgspec.msgpack.decode(inner[8 : 8 + n])
 
 
 def test_51_export_outlier_html(tmp_path):

@@ -30,11 +30,26 @@ def _compare(pose, rows, cols, h):
 def test_random_batch_with_sky_invalid_and_below():
     rng = np.random.default_rng(3)
     n = 20_000
-    pose = Pose.from_deg(rng.uniform(-89, 89, n), rng.uniform(-180, 180, n), rng.uniform(-100, 40000, n),
-                         rng.uniform(-180, 180, n), rng.uniform(-20, 20, n), rng.uniform(-30, 30, n),
-                         rng.uniform(-100, 100, n), rng.uniform(-30, 30, n))
-    pose = Pose(np.where(rng.random(n) < 0.01, np.nan, pose.lat), pose.lon, pose.h, pose.heading,
-                pose.pitch, pose.roll, pose.gimbal_roll, pose.gimbal_pitch)
+    pose = Pose.from_deg(
+        rng.uniform(-89, 89, n),
+        rng.uniform(-180, 180, n),
+        rng.uniform(-100, 40000, n),
+        rng.uniform(-180, 180, n),
+        rng.uniform(-20, 20, n),
+        rng.uniform(-30, 30, n),
+        rng.uniform(-100, 100, n),
+        rng.uniform(-30, 30, n),
+    )
+    pose = Pose(
+        np.where(rng.random(n) < 0.01, np.nan, pose.lat),
+        pose.lon,
+        pose.h,
+        pose.heading,
+        pose.pitch,
+        pose.roll,
+        pose.gimbal_roll,
+        pose.gimbal_pitch,
+    )
     h = rng.uniform(-50, 6000, n)
     _compare(pose, rng.uniform(1, 2323, n), rng.uniform(1, 2292, n), h)
     st_ = locate(pose, CAM, rng.uniform(1, 2323, n), rng.uniform(1, 2292, n), target_h=h).status
@@ -43,8 +58,14 @@ def test_random_batch_with_sky_invalid_and_below():
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.floats(-89.9, 89.9), st.floats(-180, 180), st.floats(100, 1e6), st.floats(-180, 180),
-       st.floats(-80, 80), st.floats(-90, 90))
+@given(
+    st.floats(-89.9, 89.9),
+    st.floats(-180, 180),
+    st.floats(100, 1e6),
+    st.floats(-180, 180),
+    st.floats(-80, 80),
+    st.floats(-90, 90),
+)
 def test_single_rays(lat, lon, h, heading, groll, gpitch):
     pose = Pose.from_deg(lat, lon, h, heading, 2.0, -1.0, groll, gpitch)
     _compare(pose, 100.0, 2000.0, 0.0)
@@ -79,8 +100,17 @@ def test_kernel_compiles_once_for_readonly_writable_and_every_preset():
     lens = BrownLens(fx=1000.0, fy=1000.0, cx=499.5, cy=499.5, width=1000, height=1000, k1=-0.1)
     for preset in PRESETS:
         s = FrameSensor(lens, PRESETS[preset], lever_arm_m=(1.0, 0.0, 0.0))
-        p = Pose.from_deg(rng.uniform(30, 40, n), 80.0, 1000.0, 10.0, 1.0, 1.0, 5.0, -70.0,
-                          angles_deg={a: 10.0 for a in s.angle_names if a not in ("gimbal_roll", "gimbal_pitch")})
+        p = Pose.from_deg(
+            rng.uniform(30, 40, n),
+            80.0,
+            1000.0,
+            10.0,
+            1.0,
+            1.0,
+            5.0,
+            -70.0,
+            angles_deg={a: 10.0 for a in s.angle_names if a not in ("gimbal_roll", "gimbal_pitch")},
+        )
         locate(p, s, 500.0, 500.0, target_h=0.0, engine="numba")
     assert len(locate_kernel.signatures) == 1, locate_kernel.signatures
 
@@ -93,8 +123,14 @@ def test_sincos_block_equals_libm():
     from geoloc.sensors._fastlocate import _sincos_block
 
     rng = np.random.default_rng(5)
-    a = np.concatenate([rng.uniform(-64, 64, 200_000), rng.uniform(-1e-3, 1e-3, 1000),
-                        np.arange(-80, 81) * np.pi / 4, [0.0, -0.0, 5e-324, 2 * np.pi, -2 * np.pi, 100.0, -1e5]])
+    a = np.concatenate(
+        [
+            rng.uniform(-64, 64, 200_000),
+            rng.uniform(-1e-3, 1e-3, 1000),
+            np.arange(-80, 81) * np.pi / 4,
+            [0.0, -0.0, 5e-324, 2 * np.pi, -2 * np.pi, 100.0, -1e5],
+        ]
+    )
     s, c = np.empty_like(a), np.empty_like(a)
     _sincos_block(a, s, c)
     assert np.max(np.abs(s - np.sin(a))) <= 2.3e-16
@@ -135,18 +171,40 @@ def _turret():
     from geoloc.sensors.gimbals import PRESETS
     from geoloc.sensors.lenses import BrownLens
 
-    lens = BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080,
-                     k1=-0.21, k2=0.07, p1=4e-4, p2=-2e-4, k3=-0.01)
-    return FrameSensor(lens, PRESETS["azimuth-elevation"], mount=(2e-3, -1e-3, 4e-3),
-                       boresight=(1e-3, 2e-3, -3e-3), lever_arm_m=(1.5, 0.2, 0.7))
+    lens = BrownLens(
+        fx=2200.0,
+        fy=2195.0,
+        cx=959.5,
+        cy=539.5,
+        width=1920,
+        height=1080,
+        k1=-0.21,
+        k2=0.07,
+        p1=4e-4,
+        p2=-2e-4,
+        k3=-0.01,
+    )
+    return FrameSensor(
+        lens,
+        PRESETS["azimuth-elevation"],
+        mount=(2e-3, -1e-3, 4e-3),
+        boresight=(1e-3, 2e-3, -3e-3),
+        lever_arm_m=(1.5, 0.2, 0.7),
+    )
 
 
 def _turret_poses(rng, n, heading_deg):
     """n random turret poses: anywhere within 60 deg of the equator, 300-8000 m, headings within
     +-heading_deg, azimuth over two turns, elevation -90 to -20 deg."""
-    return Pose.from_deg(rng.uniform(-60, 60, n), rng.uniform(-180, 180, n), rng.uniform(300, 8000, n),
-                         rng.uniform(-heading_deg, heading_deg, n), rng.uniform(-8, 8, n), rng.uniform(-10, 10, n),
-                         angles_deg={"azimuth": rng.uniform(-360, 360, n), "elevation": rng.uniform(-90, -20, n)})
+    return Pose.from_deg(
+        rng.uniform(-60, 60, n),
+        rng.uniform(-180, 180, n),
+        rng.uniform(300, 8000, n),
+        rng.uniform(-heading_deg, heading_deg, n),
+        rng.uniform(-8, 8, n),
+        rng.uniform(-10, 10, n),
+        angles_deg={"azimuth": rng.uniform(-360, 360, n), "elevation": rng.uniform(-90, -20, n)},
+    )
 
 
 def test_turret_kernel_equals_numpy_path_ray_for_ray():
@@ -198,8 +256,15 @@ def test_lane_trigonometry_equals_libm():
             t2[k] = atan2_lanes(a[k], b[k])
 
     rng = np.random.default_rng(11)
-    a = np.concatenate([rng.uniform(-64, 64, 200_000), rng.uniform(-1e-3, 1e-3, 1000), 10.0 ** rng.uniform(-300, 300, 2000),
-                        np.arange(-80, 81) * np.pi / 4, [0.0, -0.0, 5e-324, 2.41421356237309504880, 0.66, -0.66]])
+    a = np.concatenate(
+        [
+            rng.uniform(-64, 64, 200_000),
+            rng.uniform(-1e-3, 1e-3, 1000),
+            10.0 ** rng.uniform(-300, 300, 2000),
+            np.arange(-80, 81) * np.pi / 4,
+            [0.0, -0.0, 5e-324, 2.41421356237309504880, 0.66, -0.66],
+        ]
+    )
     b = np.concatenate([rng.uniform(-64, 64, a.size - 7), [0.0, -1.0, 1.0, 0.0, -0.0, -3.0, 1e-300]])
     s, c, t, t2 = (np.empty_like(a) for _ in range(4))
     run(a, b, s, c, t, t2)
@@ -300,8 +365,11 @@ def test_line_of_sight_auto_takes_the_kernel_and_equals_the_numpy_path():
     assert calls  # it really took the kernel
     ref = s.line_of_sight(rows, cols, pose, engine="numpy")
     assert np.array_equal(auto.status, ref.status)
-    assert {int(v) for v in np.unique(ref.status)} == {int(Status.OK), int(Status.OUTSIDE_SENSOR),
-                                                         int(Status.INVALID_INPUT)}
+    assert {int(v) for v in np.unique(ref.status)} == {
+        int(Status.OK),
+        int(Status.OUTSIDE_SENSOR),
+        int(Status.INVALID_INPUT),
+    }
     ok = ref.status == Status.OK
     np.testing.assert_allclose(auto.direction_ecef[ok], ref.direction_ecef[ok], rtol=0, atol=1e-12)
     np.testing.assert_allclose(auto.origin_ecef[ok], ref.origin_ecef[ok], rtol=0, atol=1e-6)

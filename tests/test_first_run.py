@@ -77,8 +77,12 @@ def test_geoloc_warm_prints_each_step(capsys):
     assert main(["warm", "--skip-view"]) == 0
     out = capsys.readouterr().out
     assert "geoloc warm: compiling what locate, replay and view need, once; cache:" in out
-    for what in ("geoloc locate --sensor eo_turret.toml --dem srtm_jacksboro.tif", "geoloc replay drone_targets.csv",
-                 "geoloc replay example_flight.klv", "the terrain walk of a large batch: 20 000 rays"):
+    for what in (
+        "geoloc locate --sensor eo_turret.toml --dem srtm_jacksboro.tif",
+        "geoloc replay drone_targets.csv",
+        "geoloc replay example_flight.klv",
+        "the terrain walk of a large batch: 20 000 rays",
+    ):
         line = next(x for x in out.splitlines() if what in x)
         assert ("nothing to compile" in line or "compiled" in line) and "s CPU)" in line, line
     assert "geoloc view --export" not in out and "geoloc warm: done in" in out
@@ -87,7 +91,7 @@ def test_geoloc_warm_prints_each_step(capsys):
 def test_run_sh_warms_before_it_serves():
     text = (ROOT / "tools" / "run.sh").read_text().splitlines()
     warm = next(i for i, x in enumerate(text) if x.strip().startswith('"$VENV/bin/geoloc" warm'))
-    view = next(i for i, x in enumerate(text) if "geoloc\" view" in x)
+    view = next(i for i, x in enumerate(text) if 'geoloc" view' in x)
     assert warm < view
 
 
@@ -106,8 +110,9 @@ def test_the_viewers_first_scene_compiles_no_walk(tmp_path):
     (terrain_numba.PY_WALK_MAX_STEPS); bench_first_run.py times it."""
     env = {k: v for k, v in os.environ.items() if k != "GEOLOC_ANNOUNCE_COMPILE"}
     env.update(PYTHONPATH=str(ROOT), NUMBA_CACHE_DIR=str(tmp_path / "cold"))  # this tree, an empty cache
-    r = subprocess.run([sys.executable, "-c", PROBE_SCENE], cwd=tmp_path, env=env, capture_output=True, text=True,
-                       timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-c", PROBE_SCENE], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600
+    )
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout.strip().splitlines()[-1])
     assert out["frames"] == 298

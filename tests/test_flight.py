@@ -61,15 +61,18 @@ def test_right_side_is_negative_gimbal_roll():
     assert g.max() == pytest.approx(-10.0) and g.min() == pytest.approx(-82.0)
 
 
-@pytest.mark.parametrize("section, key, value, needle", [
-    ("aircraft", "h_m", float("nan"), "[aircraft] h_m = nan"),
-    ("aircraft", "start_lat_deg", 95.0, "[aircraft] start_lat_deg = 95.0"),
-    ("scan", "side", "up", "side = 'up'"),
-    ("scan", "outer_max_deg", 5.0, "outer_max_deg = 5.0"),
-    ("time", "rate_hz", "fast", "rate_hz = 'fast'"),
-    ("terrain", "method", "magic", "method = 'magic'"),
-    ("aircraft", "speed_kts", 300.0, "unknown key(s) ['speed_kts']"),
-])
+@pytest.mark.parametrize(
+    "section, key, value, needle",
+    [
+        ("aircraft", "h_m", float("nan"), "[aircraft] h_m = nan"),
+        ("aircraft", "start_lat_deg", 95.0, "[aircraft] start_lat_deg = 95.0"),
+        ("scan", "side", "up", "side = 'up'"),
+        ("scan", "outer_max_deg", 5.0, "outer_max_deg = 5.0"),
+        ("time", "rate_hz", "fast", "rate_hz = 'fast'"),
+        ("terrain", "method", "magic", "method = 'magic'"),
+        ("aircraft", "speed_kts", 300.0, "unknown key(s) ['speed_kts']"),
+    ],
+)
 def test_bad_fields_are_named(section, key, value, needle):
     d = copy.deepcopy(_data())
     d[section][key] = value
@@ -113,8 +116,10 @@ def test_step_cep_reproduces_q17_table1_monte_carlo():
     model = ErrorModel.from_toml(Path(ASSETS) / "scenarios" / "qiao2017_table1.toml")
     got = step_cep(simulate(s), model, 5083.5, 5000, np.random.default_rng(3))["cep_m"]
     lat, h = np.deg2rad(35.57709), 5083.5
-    ref = np.hypot(np.deg2rad(0.00060) * (prime_vertical_radius(lat) + h) * np.cos(lat),
-                   np.deg2rad(0.00048) * (meridian_radius(lat) + h))
+    ref = np.hypot(
+        np.deg2rad(0.00060) * (prime_vertical_radius(lat) + h) * np.cos(lat),
+        np.deg2rad(0.00048) * (meridian_radius(lat) + h),
+    )
     # 5 %: the sampling error of a standard deviation from 5000 samples is 1 % (1 / sqrt(2N)),
     # and the paper rounds its standard deviations to two digits (0.00048: +-1 %, 0.00060: +-0.8 %).
     assert got.shape == (1,)

@@ -52,8 +52,7 @@ def test_body_attitude_is_aerospace_zyx(heading, pitch, roll):
 def test_R_ecef_ned_matches_pymap3d(lat_deg, lon_deg):
     R = R_ecef_ned(np.deg2rad(lat_deg), np.deg2rad(lon_deg))
     for k, (n, e, d) in enumerate([(1, 0, 0), (0, 1, 0), (0, 0, 1)]):
-        ref = pymap3d.ned2ecef(n, e, d, lat_deg, lon_deg, 0.0) - np.array(
-            pymap3d.geodetic2ecef(lat_deg, lon_deg, 0.0))
+        ref = pymap3d.ned2ecef(n, e, d, lat_deg, lon_deg, 0.0) - np.array(pymap3d.geodetic2ecef(lat_deg, lon_deg, 0.0))
         assert np.allclose(R[:, k], ref, atol=1e-9)  # pymap3d subtracts 6e6-size numbers
     assert np.allclose(R @ R.T, np.eye(3), atol=EPS)
     assert np.linalg.det(R) == pytest.approx(1.0, abs=EPS)
@@ -134,9 +133,16 @@ def test_pose_validation_names_field_and_value():
 def test_hop_by_hop_rotation_equals_the_matrix_product():
     rng = np.random.default_rng(5)
     n = 200
-    pose = Pose.from_deg(rng.uniform(-89, 89, n), rng.uniform(-180, 180, n), 1e4, rng.uniform(-180, 180, n),
-                         rng.uniform(-30, 30, n), rng.uniform(-60, 60, n), rng.uniform(-90, 90, n),
-                         rng.uniform(-30, 30, n))
+    pose = Pose.from_deg(
+        rng.uniform(-89, 89, n),
+        rng.uniform(-180, 180, n),
+        1e4,
+        rng.uniform(-180, 180, n),
+        rng.uniform(-30, 30, n),
+        rng.uniform(-60, 60, n),
+        rng.uniform(-90, 90, n),
+        rng.uniform(-30, 30, n),
+    )
     extra = Rotation.from_rotvec(rng.normal(0, 0.01, (2, n, 3))).as_matrix()
     v = rng.normal(size=(n, 3))
     for kw in ({}, {"R_cam_inner": extra[0], "R_base_body": extra[1]}):
@@ -154,8 +160,7 @@ def test_rotate_axis_equals_the_matrix(axis, fn):
     a = rng.uniform(-np.pi, np.pi, 50)
     v = rng.normal(size=(50, 3))
     assert np.allclose(rot.rotate_axis(axis, a, v), np.einsum("nij,nj->ni", fn(a), v), atol=EPS)
-    assert np.allclose(rot.rotate_axis(axis, a, v, transpose=True),
-                       np.einsum("nji,nj->ni", fn(a), v), atol=EPS)
+    assert np.allclose(rot.rotate_axis(axis, a, v, transpose=True), np.einsum("nji,nj->ni", fn(a), v), atol=EPS)
     # one angle, many vectors, and one vector, many angles
     assert rot.rotate_axis(axis, 0.3, v).shape == (50, 3)
     assert rot.rotate_axis(axis, a, v[0]).shape == (50, 3)

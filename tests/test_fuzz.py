@@ -18,8 +18,12 @@ from hypothesis import HealthCheck, given, settings
 import fuzz_targets as F
 
 #: A few seconds per target on this machine (docs/testing.md: the suite's 15-minute goal).
-FEW = settings(max_examples=25, deadline=None, database=None,
-               suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+FEW = settings(
+    max_examples=25,
+    deadline=None,
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 
 
 def _given(target):
@@ -169,8 +173,9 @@ def test_a_binary_toml_file_is_a_clear_error(tmp_path):
             load(p)
 
 
-@pytest.mark.parametrize("line,needle", [("LINE_NUM_COEFF_1: +0.000000000000000d+00", "could not convert"),
-                                         ("SAMP_OFF: ", "IndexError")])
+@pytest.mark.parametrize(
+    "line,needle", [("LINE_NUM_COEFF_1: +0.000000000000000d+00", "could not convert"), ("SAMP_OFF: ", "IndexError")]
+)
 def test_an_rpc_text_value_rasterio_cannot_read_names_the_file(line, needle, tmp_path):
     # found: rasterio's "could not convert string to float" / IndexError (an empty value), naming no file
     import re
@@ -229,8 +234,10 @@ def test_a_pushbroom_scenario_whose_look_angles_fold_names_the_file(tmp_path):
         load_scenario(p)
 
 
-@pytest.mark.parametrize("line,key", [('camera = "../cameras/qiao2017.toml"', "camera"),
-                                      ('dem = "../dem/etopo5_flight_area.tif"', "[terrain] dem")])
+@pytest.mark.parametrize(
+    "line,key",
+    [('camera = "../cameras/qiao2017.toml"', "camera"), ('dem = "../dem/etopo5_flight_area.tif"', "[terrain] dem")],
+)
 def test_a_flight_scenario_path_that_is_a_number_is_a_clear_error(line, key, tmp_path):
     # found by the long run: camera = nan raised "unsupported operand type(s) for /: 'PosixPath' and 'float'"
     from geoloc.workflows.scenario import load_scenario
@@ -265,8 +272,14 @@ def test_a_montecarlo_camera_of_nan_focal_length_names_the_file(tmp_path):
     with pytest.raises(ValueError, match=r"table1\.toml \[camera\]: camera field focal_length_px = nan"):
         load_scenario(p)
     cam = tmp_path / "camera.toml"
-    cam.write_text(re.sub(r"(?m)^focal_length_px\s*=.*$", "focal_length_px = nan",
-                          (F.ASSETS / "cameras" / "qiao2017.toml").read_text(), count=1))
+    cam.write_text(
+        re.sub(
+            r"(?m)^focal_length_px\s*=.*$",
+            "focal_length_px = nan",
+            (F.ASSETS / "cameras" / "qiao2017.toml").read_text(),
+            count=1,
+        )
+    )
     with pytest.raises(ValueError, match=r"camera\.toml: camera field focal_length_px = nan"):
         load_sensor(cam)
 

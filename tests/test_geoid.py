@@ -51,7 +51,8 @@ def _proj_vgridshift(grids: str):
     return Transformer.from_pipeline(
         "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad "
         f"+step +proj=vgridshift +grids={grids} +multiplier=1 "
-        "+step +proj=unitconvert +xy_in=rad +xy_out=deg")
+        "+step +proj=unitconvert +xy_in=rad +xy_out=deg"
+    )
 
 
 def test_against_proj_reading_the_bundled_grids():
@@ -62,7 +63,7 @@ def test_against_proj_reading_the_bundled_grids():
     crops = ",".join(f"@{GEOID_DIR / n}" for n in ("egm96_flight_area.tif", "egm96_jacksboro.tif"))
     t = _proj_vgridshift(f"{crops},{GEOID_DIR / 'egm96_global_30min.tif'}")
     rng = np.random.default_rng(3)
-    for (s, n, w, e) in [(34.0, 38.0, 76.0, 83.0), (35.5, 37.5, -85.5, -83.0), (-89.0, 89.0, -180.0, 180.0)]:
+    for s, n, w, e in [(34.0, 38.0, 76.0, 83.0), (35.5, 37.5, -85.5, -83.0), (-89.0, 89.0, -180.0, 180.0)]:
         la, lo = rng.uniform(s, n, 300), rng.uniform(w, e, 300)
         ref = np.asarray(t.transform(lo, la, np.zeros(la.size))[2])
         ours = egm96_undulation(np.deg2rad(la), np.deg2rad(lo))

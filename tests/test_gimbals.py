@@ -24,8 +24,17 @@ LAT, LON = math.radians(40.0), math.radians(10.0)
 def centre_ray_ned(preset, heading_deg=0.0, pitch_deg=0.0, roll_deg=0.0, **angles_deg):
     s = FrameSensor(LENS, PRESETS[preset])
     q17 = {k: angles_deg.pop(k) for k in ("gimbal_roll", "gimbal_pitch") if k in angles_deg}
-    pose = Pose.from_deg(40.0, 10.0, 1000.0, heading_deg, pitch_deg, roll_deg,
-                         q17.get("gimbal_roll", 0.0), q17.get("gimbal_pitch", 0.0), angles_deg=angles_deg)
+    pose = Pose.from_deg(
+        40.0,
+        10.0,
+        1000.0,
+        heading_deg,
+        pitch_deg,
+        roll_deg,
+        q17.get("gimbal_roll", 0.0),
+        q17.get("gimbal_pitch", 0.0),
+        angles_deg=angles_deg,
+    )
     d = s.line_of_sight(400.5, 500.5, pose).direction_ecef  # the principal point
     return R_ecef_ned(LAT, LON).T @ d
 
@@ -44,24 +53,32 @@ def test_zero_angles_look_along_the_nose(preset):
 def test_azimuth_90_looks_along_the_right_wing():
     np.testing.assert_allclose(centre_ray_ned("azimuth-elevation", azimuth=90.0, elevation=0.0), E, atol=TOL)
     # clockwise seen from above: azimuth 45 is north-east, -90 (or 270) the left wing
-    np.testing.assert_allclose(centre_ray_ned("azimuth-elevation", azimuth=45.0, elevation=0.0),
-                               (N + E) / math.sqrt(2), atol=TOL)
+    np.testing.assert_allclose(
+        centre_ray_ned("azimuth-elevation", azimuth=45.0, elevation=0.0), (N + E) / math.sqrt(2), atol=TOL
+    )
     np.testing.assert_allclose(centre_ray_ned("azimuth-elevation", azimuth=270.0, elevation=0.0), -E, atol=TOL)
 
 
 def test_elevation_minus_90_looks_straight_down_and_positive_is_up():
     np.testing.assert_allclose(centre_ray_ned("azimuth-elevation", azimuth=0.0, elevation=-90.0), D, atol=TOL)
-    np.testing.assert_allclose(centre_ray_ned("azimuth-elevation", azimuth=0.0, elevation=30.0),
-                               [math.cos(math.radians(30)), 0, -math.sin(math.radians(30))], atol=TOL)
+    np.testing.assert_allclose(
+        centre_ray_ned("azimuth-elevation", azimuth=0.0, elevation=30.0),
+        [math.cos(math.radians(30)), 0, -math.sin(math.radians(30))],
+        atol=TOL,
+    )
     # azimuth first, then elevation about the turned axis: az 90, el -30 is east and down
-    np.testing.assert_allclose(centre_ray_ned("azimuth-elevation", azimuth=90.0, elevation=-30.0),
-                               [0, math.cos(math.radians(30)), math.sin(math.radians(30))], atol=TOL)
+    np.testing.assert_allclose(
+        centre_ray_ned("azimuth-elevation", azimuth=90.0, elevation=-30.0),
+        [0, math.cos(math.radians(30)), math.sin(math.radians(30))],
+        atol=TOL,
+    )
 
 
 def test_angles_follow_the_aircraft_attitude():
     # heading 90 (east): the nose looks east, azimuth 90 then looks south
-    np.testing.assert_allclose(centre_ray_ned("azimuth-elevation", heading_deg=90.0, azimuth=90.0,
-                                              elevation=0.0), -N, atol=TOL)
+    np.testing.assert_allclose(
+        centre_ray_ned("azimuth-elevation", heading_deg=90.0, azimuth=90.0, elevation=0.0), -N, atol=TOL
+    )
 
 
 def test_sensor_roll_turns_the_image_not_the_line_of_sight():
@@ -94,16 +111,21 @@ def test_earth_referenced_angles_ignore_the_aircraft_attitude():
     # DJI: gimbal yaw/pitch/roll in NED. Pitch -90 is straight down whatever the airframe does.
     a = dict(gimbal_yaw=0.0, gimbal_pitch=-90.0, gimbal_roll=0.0)
     np.testing.assert_allclose(centre_ray_ned("yaw-pitch-roll", **dict(a)), D, atol=TOL)
-    np.testing.assert_allclose(centre_ray_ned("yaw-pitch-roll", heading_deg=123.0, pitch_deg=8.0,
-                                              roll_deg=-15.0, **dict(a)), D, atol=TOL)
+    np.testing.assert_allclose(
+        centre_ray_ned("yaw-pitch-roll", heading_deg=123.0, pitch_deg=8.0, roll_deg=-15.0, **dict(a)), D, atol=TOL
+    )
     # yaw 90, pitch 0: east, whatever the heading
-    np.testing.assert_allclose(centre_ray_ned("yaw-pitch-roll", heading_deg=-60.0, gimbal_yaw=90.0,
-                                              gimbal_pitch=0.0, gimbal_roll=0.0), E, atol=TOL)
+    np.testing.assert_allclose(
+        centre_ray_ned("yaw-pitch-roll", heading_deg=-60.0, gimbal_yaw=90.0, gimbal_pitch=0.0, gimbal_roll=0.0),
+        E,
+        atol=TOL,
+    )
 
 
 def test_custom_gimbal_from_a_file_table_and_its_errors():
-    g = gimbal_from_dict({"name": "pan-tilt", "joints": [{"angle": "pan", "axis": "z"},
-                                                          {"angle": "tilt", "axis": "y"}]})
+    g = gimbal_from_dict(
+        {"name": "pan-tilt", "joints": [{"angle": "pan", "axis": "z"}, {"angle": "tilt", "axis": "y"}]}
+    )
     s = FrameSensor(LENS, g)
     assert s.angle_names == ("pan", "tilt")
     p = Pose.from_deg(40.0, 10.0, 1000.0, angles_deg={"pan": 90.0, "tilt": 0.0})

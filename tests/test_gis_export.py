@@ -40,6 +40,7 @@ nan = float("nan")
 
 # --------------------------------------------------------------------------- independent readers
 
+
 def parse_wkb(b: bytes):
     """(kind, list of rings/points) from ISO or extended (0x80000000 Z flag) WKB."""
     e = "<" if b[0] == 1 else ">"
@@ -51,13 +52,13 @@ def parse_wkb(b: bytes):
 
     def points(count):
         nonlocal off
-        out = [struct.unpack(e + "d" * dim, b[off + 8 * dim * i: off + 8 * dim * (i + 1)]) for i in range(count)]
+        out = [struct.unpack(e + "d" * dim, b[off + 8 * dim * i : off + 8 * dim * (i + 1)]) for i in range(count)]
         off += 8 * dim * count
         return out
 
     def count():
         nonlocal off
-        (c,) = struct.unpack(e + "I", b[off:off + 4])
+        (c,) = struct.unpack(e + "I", b[off : off + 4])
         off += 4
         return c
 
@@ -99,6 +100,7 @@ def kml_data(placemark):
 
 # --------------------------------------------------------------------------- tables
 
+
 def synthetic():
     """Two flights, a row without a position, times out of order, a clockwise footprint."""
     lat = np.array([36.1234567891, 36.2000000004, nan, 35.5, 35.6])
@@ -108,15 +110,23 @@ def synthetic():
         "table": ["F1", "F1", "F1", "F2", "F2"],
         "point": ["1", "2", "3", "1", "2"],
         "image": ["img-10", "img-11", "img-12", "img-20", "img-21"],
-        "time_utc": ["2024-05-01T10:00:02Z", "2024-05-01T10:00:00Z", "2024-05-01T10:00:01.5Z",
-                     "2024-05-01T11:00:00Z", "2024-05-01T11:00:04Z"],
-        "lat_deg": lat, "lon_deg": lon, "h_m": h,
+        "time_utc": [
+            "2024-05-01T10:00:02Z",
+            "2024-05-01T10:00:00Z",
+            "2024-05-01T10:00:01.5Z",
+            "2024-05-01T11:00:00Z",
+            "2024-05-01T11:00:04Z",
+        ],
+        "lat_deg": lat,
+        "lon_deg": lon,
+        "h_m": h,
         "status": ["ok", "ok", "sky", "ok", "no_convergence"],
         "method": ["exact", "exact", "exact", "bisect", "bisect"],
         "dem_evaluations": np.array([3, 5, nan, 7, 2]),
         "error_to_truth_m": np.array([12.5, 8.25, nan, 3.0, 4.0]),
         "error_to_paper_m": np.array([0.5, 0.25, nan, 0.125, 1.0]),
-        "truth_lat_deg": np.array([36.1235567891, 36.2001, 36.3, 35.5001, 35.6001]), "truth_lon_deg": np.array([78.1001, 78.2001, 78.3, 80.9877, 81.0001]),
+        "truth_lat_deg": np.array([36.1235567891, 36.2001, 36.3, 35.5001, 35.6001]),
+        "truth_lon_deg": np.array([78.1001, 78.2001, 78.3, 80.9877, 81.0001]),
         "truth_h_m": np.array([4601.0, 4701.0, 4800.0, 4801.0, 4901.0]),
         "paper_lat_deg": np.array([36.12346, 36.20001, 36.3, 35.50001, 35.60001]),
         "paper_lon_deg": np.array([78.10001, 78.20001, 78.3, 80.98766, 81.00001]),
@@ -148,8 +158,14 @@ def synthetic():
 def replay_csv(tmp_path_factory):
     """The bundled records replayed by the CLI: `python -m geoloc replay --height-column paper_height_m`."""
     d = tmp_path_factory.mktemp("replay")
-    r = subprocess.run([sys.executable, "-m", "geoloc", "replay", "--height-column", "paper_height_m",
-                        "--out", "out.csv"], cwd=d, capture_output=True, text=True, timeout=600, check=False)
+    r = subprocess.run(
+        [sys.executable, "-m", "geoloc", "replay", "--height-column", "paper_height_m", "--out", "out.csv"],
+        cwd=d,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+    )
     assert r.returncode == 0, r.stderr
     return d / "out.csv"
 
@@ -164,6 +180,7 @@ def close(a, b, tol=TOL_DEG):
 
 
 # --------------------------------------------------------------------------- read_results
+
 
 def test_read_results_types_bom_and_short_rows(tmp_path):
     p = tmp_path / "r.csv"
@@ -183,6 +200,7 @@ def test_read_results_missing_file_names_it(tmp_path):
 
 
 # --------------------------------------------------------------------------- GeoPackage
+
 
 def check_points(fields, geoms, t, lat_col, lon_col, h_col, rows=None):
     """Features of a point layer against the table: coordinates and h_m."""
@@ -206,9 +224,15 @@ def test_gpkg_layers_coordinates_and_attributes(tmp_path):
     s = export(t, out)
     assert s.format == "gpkg" and s.paths == [str(out)]
     layers = {name: gtype for name, gtype in pyogrio.list_layers(out)}
-    assert layers == {"points": "Point Z", "truth": "Point Z", "reported": "Point Z",
-                      "error_vectors": "LineString Z", "footprints": "Polygon Z", "track": "LineString Z",
-                      "ellipses": "Polygon Z"}
+    assert layers == {
+        "points": "Point Z",
+        "truth": "Point Z",
+        "reported": "Point Z",
+        "error_vectors": "LineString Z",
+        "footprints": "Polygon Z",
+        "track": "LineString Z",
+        "ellipses": "Polygon Z",
+    }
 
     meta, geoms, f = read_layer(out, "points")
     assert meta["crs"] == "EPSG:4979"
@@ -233,10 +257,22 @@ def test_gpkg_layers_coordinates_and_attributes(tmp_path):
     assert f["source"] == ["paper"] * 5 + ["reported"] * 5
     paper = [i for i, s_ in enumerate(f["source"]) if s_ == "paper"]
     rep = [i for i, s_ in enumerate(f["source"]) if s_ == "reported"]
-    check_points({"row_index": [f["row_index"][i] for i in paper]}, [geoms[i] for i in paper], t,
-                 "paper_lat_deg", "paper_lon_deg", "paper_height_m")
-    check_points({"row_index": [f["row_index"][i] for i in rep]}, [geoms[i] for i in rep], t,
-                 "reported_lat_deg", "reported_lon_deg", "reported_h_m")
+    check_points(
+        {"row_index": [f["row_index"][i] for i in paper]},
+        [geoms[i] for i in paper],
+        t,
+        "paper_lat_deg",
+        "paper_lon_deg",
+        "paper_height_m",
+    )
+    check_points(
+        {"row_index": [f["row_index"][i] for i in rep]},
+        [geoms[i] for i in rep],
+        t,
+        "reported_lat_deg",
+        "reported_lon_deg",
+        "reported_h_m",
+    )
     assert geoms[rep[1]] is None  # reported position missing on row 1
 
     _, geoms, f = read_layer(out, "error_vectors")
@@ -338,6 +374,7 @@ def test_status_codes_become_names(tmp_path):
 
 # --------------------------------------------------------------------------- GeoJSON
 
+
 def test_geojson_one_file_per_layer_rfc7946(tmp_path):
     t = synthetic()
     out = tmp_path / "r.geojson"
@@ -368,6 +405,7 @@ def test_geojson_one_file_per_layer_rfc7946(tmp_path):
 
 
 # --------------------------------------------------------------------------- KML
+
 
 def test_kml_structure_heights_and_times(tmp_path):
     t = synthetic()
@@ -401,7 +439,7 @@ def test_kml_structure_heights_and_times(tmp_path):
         assert d["h_datum"] == "ellipsoid (WGS 84)" and float(d["h_m"]) == t["h_m"][k]
         pt = pm.find(KML + "Point")
         assert pt.findtext(KML + "altitudeMode") == "absolute"
-        (lon, lat, alt), = kml_coords(pt.findtext(KML + "coordinates"))
+        ((lon, lat, alt),) = kml_coords(pt.findtext(KML + "coordinates"))
         assert close(lon, t["lon_deg"][k]) and close(lat, t["lat_deg"][k])
         n = N(lat, lon)
         assert 10 < abs(n) < 60  # the flight area has N of about -27 m
@@ -444,6 +482,7 @@ def test_kml_clamps_positions_without_height(tmp_path, replay_csv):
 
 
 # --------------------------------------------------------------------------- CZML
+
 
 def test_czml_document_clock_platform_and_points(tmp_path):
     t = synthetic()
@@ -509,6 +548,7 @@ def test_czml_synthesizes_time_and_says_so(tmp_path, replay_csv):
 
 # --------------------------------------------------------------------------- empty tables
 
+
 @pytest.mark.parametrize("fmt", ["gpkg", "geojson", "kml", "czml"])
 def test_empty_results_write_valid_empty_layers(tmp_path, fmt):
     header = "table,point,lat_deg,lon_deg,h_m,error_to_paper_m,error_to_truth_m\n"
@@ -538,10 +578,26 @@ def test_empty_results_write_valid_empty_layers(tmp_path, fmt):
 
 # --------------------------------------------------------------------------- command line
 
+
 def test_cli_end_to_end_on_the_bundled_replay(tmp_path, replay_csv, capsys):
     rows = csv_rows(replay_csv)
-    r = subprocess.run([sys.executable, "-m", "geoloc", "export", str(replay_csv), "--format", "gpkg",
-                        "--out", str(tmp_path / "q.gpkg")], capture_output=True, text=True, timeout=300, check=False)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "geoloc",
+            "export",
+            str(replay_csv),
+            "--format",
+            "gpkg",
+            "--out",
+            str(tmp_path / "q.gpkg"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert r.returncode == 0, r.stderr
     assert "points" in r.stdout and "20 features" in r.stdout and "rows without a computed position: 0" in r.stdout
     meta, geoms, f = read_layer(tmp_path / "q.gpkg", "points")

@@ -103,11 +103,16 @@ def test_default_against(monkeypatch):
 
 
 def _run(args, tmp_path, timeout=600):
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
-               MPLBACKEND="Agg")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]), MPLBACKEND="Agg")
     t = time.perf_counter()
-    r = subprocess.run([sys.executable, str(GUARD), *map(str, args)], cwd=tmp_path, env=env, capture_output=True,
-                       text=True, timeout=timeout)
+    r = subprocess.run(
+        [sys.executable, str(GUARD), *map(str, args)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
     return r, time.perf_counter() - t
 
 
@@ -130,7 +135,11 @@ def test_guard_passes_this_tree_against_itself(tmp_path):
     with hist.open() as f:
         rows = list(csv.DictReader(f))
     assert sorted((r_["kernel"], r_["clock"]) for r_ in rows) == [
-        ("locate_numpy", "cpu"), ("locate_numpy", "wall"), ("refraction", "cpu"), ("refraction", "wall")]
+        ("locate_numpy", "cpu"),
+        ("locate_numpy", "wall"),
+        ("refraction", "cpu"),
+        ("refraction", "wall"),
+    ]
     assert all(r_["mode"] == "fast" and r_["verdict"] == "ok" and float(r_["load"]) >= 0 for r_ in rows)
 
 
@@ -139,9 +148,11 @@ def test_guard_fails_on_a_slowed_kernel(tmp_path):
     tree = tmp_path / "slowed"
     shutil.copytree(ROOT / "geoloc", tree / "geoloc", ignore=shutil.ignore_patterns("__pycache__"))
     with (tree / "geoloc" / "corrections" / "refraction.py").open("a") as f:
-        f.write("\n\n_guard_correct = Refraction.correct\n\n\n"
-                "def _twice(self, *a, **k):\n    _guard_correct(self, *a, **k)\n    return _guard_correct(self, *a, **k)\n\n\n"
-                "Refraction.correct = _twice\n")
+        f.write(
+            "\n\n_guard_correct = Refraction.correct\n\n\n"
+            "def _twice(self, *a, **k):\n    _guard_correct(self, *a, **k)\n    return _guard_correct(self, *a, **k)\n\n\n"
+            "Refraction.correct = _twice\n"
+        )
     r, _ = _run([*FAST, "--against", ROOT, "--tree", tree, "--no-history"], tmp_path)
     assert r.returncode == 1, r.stdout + r.stderr[-3000:]
     lines = r.stdout.strip().splitlines()
@@ -150,17 +161,36 @@ def test_guard_fails_on_a_slowed_kernel(tmp_path):
     assert ratio < 0.8 and line.endswith("FAIL"), line  # 2x: about 0.5
     assert "outputs identical" in line  # the same numbers, twice the work
     assert next(x for x in lines if x.startswith("locate_numpy")).endswith(" ok")
-    assert re.match(rf"^ratio: {N}  \(worst of 2 kernels: refraction; FAIL: refraction lost more than 10%\)$",
-                    lines[-1]), lines[-1]
+    assert re.match(
+        rf"^ratio: {N}  \(worst of 2 kernels: refraction; FAIL: refraction lost more than 10%\)$", lines[-1]
+    ), lines[-1]
 
 
 def test_plot_draws_the_history(tmp_path):
     g = _guard()
     hist = tmp_path / "h.csv"
-    rows = [{"date": f"2026-12-0{i}T00:00:00Z", "commit": "c", "against": "a", "kernel": k, "figure": str(f * i),
-             "unit": "rays/s", "clock": c, "ratio": str(1.0 - 0.05 * i), "q1": "0.9", "q3": "1.1", "load": "1.0",
-             "pairs": 21, "threads": 1, "mode": "full", "verdict": "ok"}
-            for i in (1, 2, 3) for k, f in (("locate", 4e6), ("dem_walk", 1e6)) for c in ("cpu", "wall")]
+    rows = [
+        {
+            "date": f"2026-12-0{i}T00:00:00Z",
+            "commit": "c",
+            "against": "a",
+            "kernel": k,
+            "figure": str(f * i),
+            "unit": "rays/s",
+            "clock": c,
+            "ratio": str(1.0 - 0.05 * i),
+            "q1": "0.9",
+            "q3": "1.1",
+            "load": "1.0",
+            "pairs": 21,
+            "threads": 1,
+            "mode": "full",
+            "verdict": "ok",
+        }
+        for i in (1, 2, 3)
+        for k, f in (("locate", 4e6), ("dem_walk", 1e6))
+        for c in ("cpu", "wall")
+    ]
     g.append_history(hist, rows)
     out = g.plot(hist, tmp_path / "h.png")
     assert out.stat().st_size > 1000

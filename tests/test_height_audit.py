@@ -49,8 +49,7 @@ def reference_undulation(lat_deg, lon_deg):
     c = (lon - (tr.c + tr.a / 2)) / tr.a
     i, j = np.floor(r).astype(int), np.floor(c).astype(int)
     v, u = r - i, c - j
-    return ((1 - u) * (1 - v) * z[i, j] + u * (1 - v) * z[i, j + 1] + (1 - u) * v * z[i + 1, j]
-            + u * v * z[i + 1, j + 1])
+    return (1 - u) * (1 - v) * z[i, j] + u * (1 - v) * z[i, j + 1] + (1 - u) * v * z[i + 1, j] + u * v * z[i + 1, j + 1]
 
 
 @pytest.fixture(scope="module")
@@ -65,14 +64,32 @@ def flight():
     g = surface.intersect(sensor.line_of_sight(row, col, pose))
     assert np.all(g.status == 0)
     n_ref = reference_undulation(np.rad2deg(pose.lat), np.rad2deg(pose.lon))
-    return dict(sensor=sensor, records=records, surface=surface, pose=pose, row=row, col=col,
-                lat=np.rad2deg(g.lat), lon=np.rad2deg(g.lon), h=np.asarray(g.h), n=n_ref)
+    return dict(
+        sensor=sensor,
+        records=records,
+        surface=surface,
+        pose=pose,
+        row=row,
+        col=col,
+        lat=np.rad2deg(g.lat),
+        lon=np.rad2deg(g.lon),
+        h=np.asarray(g.h),
+        n=n_ref,
+    )
 
 
 def _audit(f, pose=None, lat=None, lon=None, h=None, sensor=None):
-    return audit_flight(f["pose"] if pose is None else pose, f["sensor"] if sensor is None else sensor,
-                        f["row"], f["col"], f["surface"], f["lat"] if lat is None else lat,
-                        f["lon"] if lon is None else lon, f["h"] if h is None else h, source="test")
+    return audit_flight(
+        f["pose"] if pose is None else pose,
+        f["sensor"] if sensor is None else sensor,
+        f["row"],
+        f["col"],
+        f["surface"],
+        f["lat"] if lat is None else lat,
+        f["lon"] if lon is None else lon,
+        f["h"] if h is None else h,
+        source="test",
+    )
 
 
 def _one(audit, kind):
@@ -92,8 +109,9 @@ PLATFORM_FAULTS = {
     "ellipsoidal_read_as_msl": lambda f: f["n"],  # h read as H, N added: h + N
     "geoid_wrong_sign": lambda f: -2 * f["n"],  # h = H - N: h - 2N
     # a height above the take-off point (the terrain under the first record) read as absolute
-    "relative_height_read_as_absolute": lambda f: -np.full(len(f["n"]), float(
-        f["surface"].dem.height(f["pose"].lat[0], f["pose"].lon[0]))),
+    "relative_height_read_as_absolute": lambda f: (
+        -np.full(len(f["n"]), float(f["surface"].dem.height(f["pose"].lat[0], f["pose"].lon[0])))
+    ),
 }
 
 
@@ -118,8 +136,9 @@ def test_agl_read_as_absolute_is_named(flight):
 
 
 def test_flat_earth_frame_centres_are_named(flight):
-    g0 = HeightSurface(0.0, "geodetic").intersect(flight["sensor"].line_of_sight(flight["row"], flight["col"],
-                                                                                flight["pose"]))
+    g0 = HeightSurface(0.0, "geodetic").intersect(
+        flight["sensor"].line_of_sight(flight["row"], flight["col"], flight["pose"])
+    )
     a = _audit(flight, lat=np.rad2deg(g0.lat), lon=np.rad2deg(g0.lon), h=np.zeros(len(flight["row"])))
     f = _one(a, "flat_earth_frame_centre")
     assert abs(f.offset - 0.0) <= f.uncertainty, f.line()  # the rays meet them at h = 0, planted
@@ -136,8 +155,12 @@ def test_frame_centre_heights_in_msl_are_named(flight):
 def test_a_time_offset_is_named_in_records(flight):
     k = 3
     pad = np.full(k, np.nan)
-    f = _one(_audit(flight, lat=np.r_[flight["lat"][k:], pad], lon=np.r_[flight["lon"][k:], pad],
-                    h=np.r_[flight["h"][k:], pad]), "time_offset")
+    f = _one(
+        _audit(
+            flight, lat=np.r_[flight["lat"][k:], pad], lon=np.r_[flight["lon"][k:], pad], h=np.r_[flight["h"][k:], pad]
+        ),
+        "time_offset",
+    )
     assert abs(f.offset - k) <= f.uncertainty and f.unit == "records", f.line()
 
 
@@ -156,8 +179,12 @@ def test_noisy_surveyed_truth_still_names_the_datum(flight):
     r = flight["records"]
     for kind, planted in (("msl_read_as_ellipsoidal", -flight["n"]), ("ellipsoidal_read_as_msl", flight["n"])):
         pose = dataclasses.replace(flight["pose"], h=flight["pose"].h + planted)
-        f = _one(_audit(flight, pose=pose, lat=r.column("truth_lat_deg"), lon=r.column("truth_lon_deg"),
-                        h=r.column("truth_h_m")), kind)
+        f = _one(
+            _audit(
+                flight, pose=pose, lat=r.column("truth_lat_deg"), lon=r.column("truth_lon_deg"), h=r.column("truth_h_m")
+            ),
+            kind,
+        )
         assert abs(f.offset - np.median(planted)) <= f.uncertainty, f.line()
     clean = _audit(flight, lat=r.column("truth_lat_deg"), lon=r.column("truth_lon_deg"), h=r.column("truth_h_m"))
     assert clean.findings == [], clean.lines()
@@ -176,8 +203,15 @@ def test_the_findings_are_data(flight):
 
 def test_the_audit_needs_a_dem(flight):
     with pytest.raises(ValueError, match="needs a DEM"):
-        audit_flight(flight["pose"], flight["sensor"], flight["row"], flight["col"], HeightSurface(0.0),
-                     flight["lat"], flight["lon"])
+        audit_flight(
+            flight["pose"],
+            flight["sensor"],
+            flight["row"],
+            flight["col"],
+            HeightSurface(0.0),
+            flight["lat"],
+            flight["lon"],
+        )
 
 
 def _write_records(path, records, ac_h_m, lat, lon, h):
@@ -187,8 +221,13 @@ def _write_records(path, records, ac_h_m, lat, lon, h):
         cols = [c for c in records.source_header]
         w.writerow(cols)
         for k, row in enumerate(records.rows):
-            out = dict(row, ac_h_m=repr(float(ac_h_m[k])), truth_lat_deg=repr(float(lat[k])),
-                       truth_lon_deg=repr(float(lon[k])), truth_h_m=repr(float(h[k])))
+            out = dict(
+                row,
+                ac_h_m=repr(float(ac_h_m[k])),
+                truth_lat_deg=repr(float(lat[k])),
+                truth_lon_deg=repr(float(lon[k])),
+                truth_h_m=repr(float(h[k])),
+            )
             w.writerow([out[c] for c in cols])
 
 
@@ -264,8 +303,10 @@ def test_report_audits_a_replay_csv(flight, tmp_path, capsys):
     _write_records(p, flight["records"], flight["pose"].h - flight["n"], flight["lat"], flight["lon"], flight["h"])
     assert main(["replay", str(p), "--sensor", str(SENSOR), "--dem", str(DEM), "--out", str(out)]) == 0
     capsys.readouterr()
-    assert main(["report", str(out), "--sensor", str(SENSOR), "--dem", str(DEM), "--audit",
-                 "--out-dir", str(rep_dir)]) == 0
+    assert (
+        main(["report", str(out), "--sensor", str(SENSOR), "--dem", str(DEM), "--audit", "--out-dir", str(rep_dir)])
+        == 0
+    )
     assert "fix: --altitude-datum egm96" in capsys.readouterr().out
     audit = json.loads((rep_dir / "report.json").read_text())["meta"]["height_audit"]
     (f,) = audit["findings"]

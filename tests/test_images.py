@@ -29,7 +29,7 @@ def frame_rgb(i: int) -> np.ndarray:
     a = np.zeros((H, W, 3), np.uint8)
     a[:, :, 0] = (3 * i) % 256
     for b in range(8):
-        a[40:60, 20 * b:20 * b + 20, 1] = 255 if (i >> b) & 1 else 0
+        a[40:60, 20 * b : 20 * b + 20, 1] = 255 if (i >> b) & 1 else 0
     a[:10, :10, 2] = 255  # top-left marker: pixel (1, 1) is array [0, 0]
     return a
 

@@ -51,8 +51,7 @@ IGNORE = shutil.ignore_patterns("__pycache__", "*.pyc", "*.nbi", "*.nbc", "*.egg
 
 
 def _run(cmd, cwd, env=None, timeout=600):
-    r = subprocess.run([str(c) for c in cmd], cwd=cwd, env=env, capture_output=True, text=True,
-                       timeout=timeout)
+    r = subprocess.run([str(c) for c in cmd], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
     assert r.returncode == 0, f"{' '.join(map(str, cmd))} failed ({r.returncode}):\n{r.stdout}\n{r.stderr}"
     return r
 
@@ -68,16 +67,29 @@ def wheels(tmp_path_factory):
     for folder in ("geoloc", "assets", "viz"):
         shutil.copytree(ROOT / folder, src / folder, ignore=IGNORE)
     for where in (src, src / "viz"):
-        _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index",
-              "-q", "-w", base / "dist", where], cwd=base)
+        _run(
+            [
+                sys.executable,
+                "-m",
+                "pip",
+                "wheel",
+                "--no-deps",
+                "--no-build-isolation",
+                "--no-index",
+                "-q",
+                "-w",
+                base / "dist",
+                where,
+            ],
+            cwd=base,
+        )
     (core,) = (base / "dist").glob("geoloc-*.whl")
     (viz,) = (base / "dist").glob("geoloc_viz-*.whl")
     return core, viz
 
 
 def _clean_env(env_dir: Path, work: Path) -> dict:
-    env = {k: v for k, v in os.environ.items() if k not in ("GEOLOC_ASSETS", "PYTHONPATH",
-                                                             "VIRTUAL_ENV", "PYTHONHOME")}
+    env = {k: v for k, v in os.environ.items() if k not in ("GEOLOC_ASSETS", "PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME")}
     env["PATH"] = f"{env_dir / 'bin'}{os.pathsep}{env.get('PATH', '')}"
     env["MPLBACKEND"] = "Agg"
     return env
@@ -90,8 +102,7 @@ def core_venv(wheels, tmp_path_factory):
     env_dir = base / "env"
     _run([sys.executable, "-m", "venv", env_dir], cwd=base)
     env = _clean_env(env_dir, base)
-    _run([env_dir / "bin" / "python", "-m", "pip", "install", "-q", wheels[0]], cwd=base, env=env,
-         timeout=900)
+    _run([env_dir / "bin" / "python", "-m", "pip", "install", "-q", wheels[0]], cwd=base, env=env, timeout=900)
     work = base / "elsewhere"
     work.mkdir()
     return dict(py=env_dir / "bin" / "python", bin=env_dir / "bin", work=work, env=env)
@@ -108,8 +119,7 @@ def venv(wheels, tmp_path_factory):
     work.mkdir()
     env = _clean_env(env_dir, work)
     _run([py, "-m", "pip", "install", "-q", *wheels], cwd=base, env=env, timeout=900)
-    purelib = _run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-                   cwd=base).stdout.strip()
+    purelib = _run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], cwd=base).stdout.strip()
     return dict(py=py, bin=env_dir / "bin", purelib=Path(purelib), work=work, env=env)
 
 
@@ -138,12 +148,18 @@ def test_the_wheels_carry_the_data_and_the_type_marker(wheels):
 
 
 def core(venv, *args):
-    return subprocess.run([str(venv["bin"] / "geoloc"), *map(str, args)], cwd=venv["work"],
-                          env=venv["env"], capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [str(venv["bin"] / "geoloc"), *map(str, args)],
+        cwd=venv["work"],
+        env=venv["env"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 def test_the_core_alone_has_none_of_the_viewers_libraries(core_venv):
-    code = ("import importlib.util as u; print(' '.join(m for m in %r if u.find_spec(m)))" % (NOT_IN_CORE,))
+    code = "import importlib.util as u; print(' '.join(m for m in %r if u.find_spec(m)))" % (NOT_IN_CORE,)
     found = _run([core_venv["py"], "-c", code], cwd=core_venv["work"], env=core_venv["env"]).stdout.strip()
     assert found == "", f"a core install brought {found}"
 
@@ -151,9 +167,27 @@ def test_the_core_alone_has_none_of_the_viewers_libraries(core_venv):
 def test_the_core_alone_locates_replays_reports_and_exports(core_venv):
     # docs/tour_cli.md's one-pixel example: aircraft at 18 km, the target on the ellipsoid at 0 m
     # docs/tour_cli.md's one-pixel example, Table 1 of [Q17]: 35.57709 N, 80.84918 E as published
-    r = core(core_venv, "locate", "--lat-deg", "35.48", "--lon-deg", "80.97", "--h-m", "18000",
-             "--heading-deg", "45", "--pitch-deg", "3.5", "--gimbal-roll-deg", "50",
-             "--gimbal-pitch-deg", "-2.6", "--target-h-m", "5083.5", "--json")
+    r = core(
+        core_venv,
+        "locate",
+        "--lat-deg",
+        "35.48",
+        "--lon-deg",
+        "80.97",
+        "--h-m",
+        "18000",
+        "--heading-deg",
+        "45",
+        "--pitch-deg",
+        "3.5",
+        "--gimbal-roll-deg",
+        "50",
+        "--gimbal-pitch-deg",
+        "-2.6",
+        "--target-h-m",
+        "5083.5",
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     # the paper prints 5 decimals: half a unit of the last one is the tolerance
@@ -208,16 +242,34 @@ def test_replay_on_the_bundled_records(venv):
     text = geoloc(venv, "replay", "--height-column", "paper_height_m").stdout
     assert "T3-1 " in text and "all: RMS distance to the published positions 0.36 m over 20 records" in text
     # the docs' form, a path under assets/, from a folder that has none
-    text = geoloc(venv, "replay", "assets/records/qiao2017_flight_tests.csv", "--camera",
-                  "assets/cameras/qiao2017.toml", "--height-column", "paper_height_m",
-                  "--out", "out.csv").stdout
+    text = geoloc(
+        venv,
+        "replay",
+        "assets/records/qiao2017_flight_tests.csv",
+        "--camera",
+        "assets/cameras/qiao2017.toml",
+        "--height-column",
+        "paper_height_m",
+        "--out",
+        "out.csv",
+    ).stdout
     assert "wrote 20 rows to out.csv" in text and "T3-1 " not in text
     assert len((venv["work"] / "out.csv").read_text().splitlines()) == 21
 
 
 def test_dem_run_with_the_egm96_datum(venv):
-    text = geoloc(venv, "replay", "--dem", "assets/dem/etopo5_flight_area.tif", "--dem-datum", "egm96",
-                  "--method", "exact", "--out", "dem.csv").stdout
+    text = geoloc(
+        venv,
+        "replay",
+        "--dem",
+        "assets/dem/etopo5_flight_area.tif",
+        "--dem-datum",
+        "egm96",
+        "--method",
+        "exact",
+        "--out",
+        "dem.csv",
+    ).stdout
     # docs/tour_terrain.md: over the ETOPO5 crop the targets land 521 m RMS from the paper's positions
     assert "all: RMS distance to the published positions 521.1" in text
     rows = (venv["work"] / "dem.csv").read_text().splitlines()

@@ -25,8 +25,23 @@ SRTM = asset_path("dem", "srtm_jacksboro.tif")
 DRONE = asset_path("records", "drone_targets.csv")
 DRONE_SENSOR = asset_path("sensors", "drone_camera.toml")
 TURRET = asset_path("sensors", "eo_turret.toml")
-TURRET_ARGS = ["locate", "--sensor", str(TURRET), "--lat-deg", "36.6", "--lon-deg", "-84.25", "--h-m", "2500",
-               "--heading-deg", "45", "--angle", "azimuth=90", "--angle", "elevation=-30"]
+TURRET_ARGS = [
+    "locate",
+    "--sensor",
+    str(TURRET),
+    "--lat-deg",
+    "36.6",
+    "--lon-deg",
+    "-84.25",
+    "--h-m",
+    "2500",
+    "--heading-deg",
+    "45",
+    "--angle",
+    "azimuth=90",
+    "--angle",
+    "elevation=-30",
+]
 METHODS = ("steps", "bisect", "exact")
 
 
@@ -75,16 +90,23 @@ def test_all_nodata_dem_batch_statuses(method):
     assert list(hit.status) == [Status.SKY, Status.NODATA, Status.INVALID_INPUT, Status.NODATA]
     assert np.isnan(hit.lat).all() and np.isnan(hit.ecef).all()
     # the same DEM with data: the downward ray hits (the NODATA above is the missing data, not the geometry)
-    ok = intersect_dem(LineOfSight(o, d, np.zeros(4, np.uint8)),
-                       DEM.from_array(np.full((21, 21), 100.0), 36.1, 78.0, 0.01, 0.01), method)
+    ok = intersect_dem(
+        LineOfSight(o, d, np.zeros(4, np.uint8)),
+        DEM.from_array(np.full((21, 21), 100.0), 36.1, 78.0, 0.01, 0.01),
+        method,
+    )
     assert ok.status[1] == Status.OK
 
 
 def test_all_nodata_dem_replay_rows_say_nodata(empty_dems, tmp_path, capsys):
     # before: replay exited 0 with every row `sky`
     out = tmp_path / "out.csv"
-    assert main(["replay", str(DRONE), "--sensor", str(DRONE_SENSOR), "--dem", str(empty_dems["int16"]),
-                 "--out", str(out)]) == 1  # issue 47: some records not located (docs/cli.md)
+    assert (
+        main(
+            ["replay", str(DRONE), "--sensor", str(DRONE_SENSOR), "--dem", str(empty_dems["int16"]), "--out", str(out)]
+        )
+        == 1
+    )  # issue 47: some records not located (docs/cli.md)
     rows = _read_csv(out)
     assert len(rows) == 20 and {r["status"] for r in rows} == {"nodata"}
 
@@ -103,7 +125,7 @@ def test_mosaic_tile_without_data_is_nodata(empty_dems, tmp_path):
     for name, c0, fill in (("west.tif", 0, None), ("east.tif", half, -32768)):
         with rasterio.open(SRTM) as src:
             t = wtransform(Window(c0, 0, half + 1, v.shape[0]), src.transform)
-        block = v[:, c0: c0 + half + 1].copy()
+        block = v[:, c0 : c0 + half + 1].copy()
         if fill is not None:
             block[:] = fill
         with rasterio.open(tmp_path / name, "w", **{**prof, "transform": t, "width": block.shape[1]}) as dst:
@@ -143,12 +165,15 @@ def test_drone_target_far_off_the_sensor_is_outside_sensor_with_a_message(tmp_pa
     # (where the Brown model gives no ray) invalid_input, its message claiming it was located
     recs = _drone_records(tmp_path, {(1, "row"): "3001", (2, "row"): "9000"})
     out = tmp_path / "out.csv"
-    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300",
-                 "--out", str(out)]) == 1  # issue 47: some records not located (docs/cli.md)
+    assert (
+        main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300", "--out", str(out)]) == 1
+    )  # issue 47: some records not located (docs/cli.md)
     err = capsys.readouterr().err
     assert "line 2 (survey1-1): row = 3001 (rows 1-3000) is outside the sensor; located by extending" in err
-    assert ("line 3 (survey1-2): row = 9000 (rows 1-3000) is outside the sensor; too far out for the lens "
-            "model to give a ray there: not located, flagged outside_sensor") in err
+    assert (
+        "line 3 (survey1-2): row = 9000 (rows 1-3000) is outside the sensor; too far out for the lens "
+        "model to give a ray there: not located, flagged outside_sensor"
+    ) in err
     rows = _read_csv(out)
     assert [r["status"] for r in rows[:3]] == ["outside_sensor", "outside_sensor", "ok"]
     assert rows[1]["lat_deg"] == "" and rows[0]["lat_deg"] != ""
@@ -170,13 +195,17 @@ def test_line_of_sight_off_sensor_is_outside_sensor_in_both_engines():
     from geoloc.sensors.sensor_file import load_sensor
 
     cam = load_sensor(DRONE_SENSOR)
-    pose = Pose.from_deg(36.6, -84.2, 500.0, angles_deg={"gimbal_yaw": 0.0, "gimbal_pitch": -60.0,
-                                                         "gimbal_roll": 0.0})
+    pose = Pose.from_deg(36.6, -84.2, 500.0, angles_deg={"gimbal_yaw": 0.0, "gimbal_pitch": -60.0, "gimbal_roll": 0.0})
     rows = np.array([1500.0, 3001.0, 9000.0, 1e9, np.nan])
     for engine in ("numpy", "numba"):
         los = cam.line_of_sight(rows, np.full(5, 2000.0), pose, engine=engine)
-        assert list(los.status) == [Status.OK, Status.OUTSIDE_SENSOR, Status.OUTSIDE_SENSOR,
-                                    Status.OUTSIDE_SENSOR, Status.INVALID_INPUT], engine
+        assert list(los.status) == [
+            Status.OK,
+            Status.OUTSIDE_SENSOR,
+            Status.OUTSIDE_SENSOR,
+            Status.OUTSIDE_SENSOR,
+            Status.INVALID_INPUT,
+        ], engine
 
 
 # ------------------------------------------------------------------ replay --out without a DEM
@@ -185,7 +214,9 @@ def test_replay_out_without_dem_has_a_status_column(tmp_path):
     # Record 1's aircraft put 200 m below a 300 m target height: origin_below
     recs = _drone_records(tmp_path, {(1, "ac_h_m"): "100.0"})
     out = tmp_path / "out.csv"
-    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300", "--out", str(out)]) == 1  # issue 47: some records not located (docs/cli.md)
+    assert (
+        main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300", "--out", str(out)]) == 1
+    )  # issue 47: some records not located (docs/cli.md)
     rows = _read_csv(out)
     assert rows[0]["status"] == "origin_below" and rows[0]["lat_deg"] == ""
     assert {r["status"] for r in rows[1:]} == {"ok"} and all(r["lat_deg"] for r in rows[1:])
@@ -216,13 +247,13 @@ def test_duplicate_column_names_are_refused_naming_column_and_file(tmp_path, cap
     assert main(["replay", str(p), "--height-column", "paper_height_m"]) == 2
     err = capsys.readouterr().err
     assert f"{p}: duplicate column name(s): 'row' in columns 3, 19" in err, err
+
     # trailing empty header cells (a spreadsheet's) are not duplicates: the file still replays
     def blanks(rows, p):
         with open(p, "w", newline="") as f:
             csv.writer(f).writerows([r + ["", ""] for r in rows])
 
-    assert main(["replay", str(_qiao_with(tmp_path, "blank.csv", blanks)), "--height-column",
-                 "paper_height_m"]) == 0
+    assert main(["replay", str(_qiao_with(tmp_path, "blank.csv", blanks)), "--height-column", "paper_height_m"]) == 0
     assert "RMS distance to the published positions 0.36 m over 20 records" in capsys.readouterr().out
 
 
@@ -248,9 +279,11 @@ def binary_file(tmp_path):
 @pytest.mark.parametrize("verb", ["replay", "export", "report"])
 def test_binary_file_is_named(binary_file, tmp_path, verb, capsys):
     # before (export, report): "'utf-8' codec can't decode byte 0xff ..." without the file's name
-    args = {"replay": ["replay", str(binary_file), "--target-h-m", "0"],
-            "export": ["export", str(binary_file), "--out", str(tmp_path / "x.gpkg")],
-            "report": ["report", str(binary_file)]}[verb]
+    args = {
+        "replay": ["replay", str(binary_file), "--target-h-m", "0"],
+        "export": ["export", str(binary_file), "--out", str(tmp_path / "x.gpkg")],
+        "report": ["report", str(binary_file)],
+    }[verb]
     assert main(args) == 2
     err = capsys.readouterr().err
     assert str(binary_file) in err and "not a text CSV (UTF-8)" in err and "binary file" in err, err
@@ -292,17 +325,35 @@ def test_report_leaves_out_a_latitude_of_95_naming_line_and_column(tmp_path, cap
 
 
 # ------------------------------------------------------------------ angle names the gimbal does not have
-@pytest.mark.parametrize("given, named", [
-    (["--gimbal-roll-deg", "40", "--angle", "elevation=-30"], "--gimbal-roll-deg 40"),  # before: ignored, exit 0
-    (["--angle", "tilt=-30"], "--angle tilt=-30"),  # before: "missing angle(s) ['elevation']", tilt unnamed
-])
+@pytest.mark.parametrize(
+    "given, named",
+    [
+        (["--gimbal-roll-deg", "40", "--angle", "elevation=-30"], "--gimbal-roll-deg 40"),  # before: ignored, exit 0
+        (["--angle", "tilt=-30"], "--angle tilt=-30"),  # before: "missing angle(s) ['elevation']", tilt unnamed
+    ],
+)
 def test_angle_the_gimbal_has_not_is_named_with_the_gimbals_angles(given, named, capsys):
-    base = ["locate", "--sensor", str(TURRET), "--lat-deg", "36.6", "--lon-deg", "-84.25", "--h-m", "2500",
-            "--angle", "azimuth=90", "--target-h-m", "300"]
+    base = [
+        "locate",
+        "--sensor",
+        str(TURRET),
+        "--lat-deg",
+        "36.6",
+        "--lon-deg",
+        "-84.25",
+        "--h-m",
+        "2500",
+        "--angle",
+        "azimuth=90",
+        "--target-h-m",
+        "300",
+    ]
     assert main(base + given) == 2
     err = capsys.readouterr().err
-    assert (f"{named}: the sensor's azimuth-elevation gimbal has no angle" in err
-            and "its angles are ['azimuth', 'elevation']" in err), err
+    assert (
+        f"{named}: the sensor's azimuth-elevation gimbal has no angle" in err
+        and "its angles are ['azimuth', 'elevation']" in err
+    ), err
     # the good call still locates
     assert main(base + ["--angle", "elevation=-30", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["status"] == "ok"
@@ -325,8 +376,10 @@ def test_column_in_feet_mapped_without_unit_is_warned_and_flagged_by_its_errors(
     (tmp_path / "map.toml").write_text('[columns]\nac_h_m = "Alt_ft"\n')
     assert main(args + ["--columns", str(tmp_path / "map.toml")]) == 0
     err = capsys.readouterr().err
-    assert ("ac_h_m = 'Alt_ft': the column's name says feet but the map gives no unit, so it is read in "
-            "metres; write ac_h_m = {column = 'Alt_ft', unit = 'ft'}") in err, err
+    assert (
+        "ac_h_m = 'Alt_ft': the column's name says feet but the map gives no unit, so it is read in "
+        "metres; write ac_h_m = {column = 'Alt_ft', unit = 'ft'}"
+    ) in err, err
     assert "line 2 (survey1-1): located 621 m from its truth, 47 % of its slant range (1320 m)" in err
     assert "... and 15 more record(s) far from their truth" in err
     # warnings only: the numbers are those of the heights as read (all ok)
@@ -341,7 +394,9 @@ def test_column_in_feet_mapped_without_unit_is_warned_and_flagged_by_its_errors(
 
 def test_camera_below_the_terrain_is_warned(tmp_path, capsys):
     recs = _drone_records(tmp_path, {(1, "ac_h_m"): "150.0"})
-    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM)]) == 1  # issue 47: some records not located (docs/cli.md)
+    assert (
+        main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM)]) == 1
+    )  # issue 47: some records not located (docs/cli.md)
     err = capsys.readouterr().err
     assert "line 2 (survey1-1): the camera (ac_h_m = 150.0 m) is 141 m below the terrain under it (291.1 m" in err
     assert err.count("warning: line") == 1  # one record, one warning (its error to truth not said twice)
@@ -372,8 +427,9 @@ def _gdal_copy(dst_path, factor):
         with rasterio.open(PHOTO) as src:
             w, h = src.width // factor, src.height // factor
             data = src.read(out_shape=(src.count, h, w), resampling=Resampling.average)
-            with rasterio.open(dst_path, "w", driver="GTiff", width=w, height=h, count=src.count,
-                               dtype=data.dtype) as dst:
+            with rasterio.open(
+                dst_path, "w", driver="GTiff", width=w, height=h, count=src.count, dtype=data.dtype
+            ) as dst:
                 dst.write(data)
                 dst.update_tags(**src.tags())
                 dst.update_tags(ns="xml:XMP", **src.tags(ns="xml:XMP"))
@@ -393,8 +449,10 @@ def test_gdal_tiff_copy_replays_as_the_jpeg(tmp_path, capsys):
     with open(asset_path("photos", "targets.csv"), newline="") as f:
         targets = list(csv.DictReader(f))
     lens = lens_from_photo(read_photo(PHOTO))
-    off_axis_deg = [np.degrees(np.arctan(np.hypot(float(t["col"]) - 1 - lens.cx, float(t["row"]) - 1 - lens.cy)
-                                         / lens.fx)) for t in targets]
+    off_axis_deg = [
+        np.degrees(np.arctan(np.hypot(float(t["col"]) - 1 - lens.cx, float(t["row"]) - 1 - lens.cy) / lens.fx))
+        for t in targets
+    ]
     assert min(off_axis_deg) < 1.0 and max(off_axis_deg) > 15.0  # on and off the optical axis
     # the same targets at the resized raster's pixels: DJI's corner origin scales exactly,
     # 1-based centre r -> (r - 0.5) / 4 + 0.5

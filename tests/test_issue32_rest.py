@@ -23,8 +23,23 @@ KLV_TS = asset_path("klv", "example_flight.ts")
 KLV_RAW = asset_path("klv", "example_flight.klv")
 PHOTO = asset_path("photos", "DJI_0001.JPG")
 TARGETS = asset_path("photos", "targets.csv")
-LOCATE = ["locate", "--lat-deg", "36.6", "--lon-deg", "-84.25", "--h-m", "2500", "--heading-deg", "45",
-          "--angle", "azimuth=90", "--angle", "elevation=-30", "--target-h-m", "300"]
+LOCATE = [
+    "locate",
+    "--lat-deg",
+    "36.6",
+    "--lon-deg",
+    "-84.25",
+    "--h-m",
+    "2500",
+    "--heading-deg",
+    "45",
+    "--angle",
+    "azimuth=90",
+    "--angle",
+    "elevation=-30",
+    "--target-h-m",
+    "300",
+]
 
 
 # ------------------------------------------------------------------ a. a sensor file without [lens]
@@ -34,9 +49,10 @@ def test_sensor_file_without_lens_says_lens_is_missing(tmp_path, capsys):
     assert "[lens]" not in no_lens and "[gimbal]" in no_lens
     p = tmp_path / "no_lens.toml"
     p.write_text(no_lens)
-    for verb in (["locate", "--sensor", str(p)] + LOCATE[1:],
-                 ["replay", str(asset_path("records", "eo_turret_flight.csv")), "--sensor", str(p),
-                  "--target-h-m", "300"]):
+    for verb in (
+        ["locate", "--sensor", str(p)] + LOCATE[1:],
+        ["replay", str(asset_path("records", "eo_turret_flight.csv")), "--sensor", str(p), "--target-h-m", "300"],
+    ):
         assert main(verb) == 2
         err = capsys.readouterr().err
         # before: "unknown key(s) ['boresight', 'gimbal', 'lever_arm', 'mount']; allowed: [...focal_length_px...]"
@@ -71,9 +87,11 @@ def ts_without_klv(tmp_path_factory):
 
 @pytest.mark.parametrize("verb", ["replay", "dump", "fix"])
 def test_ts_without_klv_names_the_file(ts_without_klv, tmp_path, verb, capsys):
-    args = {"replay": ["replay", str(ts_without_klv)],
-            "dump": ["klv", "dump", str(ts_without_klv)],
-            "fix": ["klv", "fix", str(ts_without_klv), "--out", str(tmp_path / "fixed.ts")]}[verb]
+    args = {
+        "replay": ["replay", str(ts_without_klv)],
+        "dump": ["klv", "dump", str(ts_without_klv)],
+        "fix": ["klv", "fix", str(ts_without_klv), "--out", str(tmp_path / "fixed.ts")],
+    }[verb]
     assert main(args) == 2
     err = capsys.readouterr().err
     # before: "the container has no data (KLV) stream" without the file's name
@@ -186,8 +204,21 @@ def test_montecarlo_samples_1e20_refused(capsys):
     err = capsys.readouterr().err
     assert "--samples = 1e+20: more than 1e+12 samples is refused" in err, err
     # a good run, with a chunk in scientific notation, still runs
-    assert main(["montecarlo", "assets/scenarios/qiao2017_table1.toml", "--samples", "3000",
-                 "--chunk", "1e3", "--seed", "1"]) == 0
+    assert (
+        main(
+            [
+                "montecarlo",
+                "assets/scenarios/qiao2017_table1.toml",
+                "--samples",
+                "3000",
+                "--chunk",
+                "1e3",
+                "--seed",
+                "1",
+            ]
+        )
+        == 0
+    )
     assert "3000 located, 0 failed" in capsys.readouterr().out
 
 
@@ -204,8 +235,26 @@ def test_ortho_without_opencv_writes_nothing(tmp_path, monkeypatch, capsys):
     # a plain install without cv2 (before: ModuleNotFoundError after --out was written)
     monkeypatch.setitem(sys.modules, "cv2", None)
     out, ortho = tmp_path / "grid.tif", tmp_path / "ortho.tif"
-    assert main(["ortho", "--photo", str(PHOTO), "--dem", str(SRTM), "--out", str(out), "--ortho-out", str(ortho),
-                 "--gsd-m", "2", "--step", "8"]) == 2
+    assert (
+        main(
+            [
+                "ortho",
+                "--photo",
+                str(PHOTO),
+                "--dem",
+                str(SRTM),
+                "--out",
+                str(out),
+                "--ortho-out",
+                str(ortho),
+                "--gsd-m",
+                "2",
+                "--step",
+                "8",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "--ortho-out (a photo's pixels) needs cv2" in err and "pip install 'geoloc[video]'" in err, err
     assert not out.exists() and not ortho.exists()
@@ -216,8 +265,11 @@ def test_drone_photo_kilometres_up_is_warned(tmp_path, capsys):
     b = PHOTO.read_bytes()
     assert b'AbsoluteAltitude="+503.00"' in b and b'RelativeAltitude="+150.00"' in b
     up = tmp_path / PHOTO.name  # the same photo 3 km higher (same-length XMP values: the JPEG stays whole)
-    up.write_bytes(b.replace(b'AbsoluteAltitude="+503.00"', b'AbsoluteAltitude="+3503.0"')
-                   .replace(b'RelativeAltitude="+150.00"', b'RelativeAltitude="+3150.0"'))
+    up.write_bytes(
+        b.replace(b'AbsoluteAltitude="+503.00"', b'AbsoluteAltitude="+3503.0"').replace(
+            b'RelativeAltitude="+150.00"', b'RelativeAltitude="+3150.0"'
+        )
+    )
     out = tmp_path / "out.csv"
     assert main(["replay", str(up), "--targets", str(TARGETS), "--dem", str(SRTM), "--out", str(out)]) == 0
     err = capsys.readouterr().err

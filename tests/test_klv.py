@@ -311,27 +311,45 @@ def test_standard_example_packet_st0601_17():
     assert p.checksum == 0x5802 and p.offset == 0 and not p.flags
     f = p.fields
     assert f["precision_time_stamp_us"] == 0x000459F4A6AA4AA8
-    assert datetime.fromtimestamp(f["precision_time_stamp_us"] / 1e6, timezone.utc).isoformat() \
+    assert (
+        datetime.fromtimestamp(f["precision_time_stamp_us"] / 1e6, timezone.utc).isoformat()
         == "2008-10-24T00:13:29.913000+00:00"
+    )
     assert f["mission_id"] == "MISSION01" and f["platform_designation"] == "MQ1-B"
     assert f["image_coordinate_system"] == "Geodetic WGS84" and f["uas_ls_version"] == 13
     expect = {  # the decoded values of the standard's example bytes
-        "platform_heading_deg": 159.97436484321355, "platform_pitch_deg": -0.4315317239906003,
-        "platform_roll_deg": 3.4058656575212867, "sensor_latitude_deg": 60.176822966978335,
-        "sensor_longitude_deg": 128.42675904204452, "sensor_true_altitude_m": 14190.719462882427,
-        "sensor_horizontal_fov_deg": 144.57129777981231, "sensor_vertical_fov_deg": 152.64362554360267,
-        "sensor_relative_azimuth_deg": 160.71921143697557, "sensor_relative_elevation_deg": -168.79232483394085,
-        "sensor_relative_roll_deg": 176.86543764939194, "slant_range_m": 68590.98329874477,
-        "target_width_m": 722.8198672465096, "frame_center_latitude_deg": -10.542388633146132,
-        "frame_center_longitude_deg": 29.157890122923018, "frame_center_elevation_m": 3216.0372320134275,
-        "offset_corner_latitude_1_deg": 0.013660084841456343, "offset_corner_longitude_1_deg": 0.0036599322489089632,
-        "offset_corner_latitude_3_deg": -0.011062196722312082, "offset_corner_longitude_4_deg": -0.01216086306344798,
-        "target_location_latitude_deg": -79.16385005189285, "target_location_longitude_deg": 166.40081296041646,
-        "target_location_elevation_m": 18389.04707408255, "target_error_ce90_m": 425.2151522087434,
-        "target_error_le90_m": 608.9230945296407, "sensor_ellipsoid_height_m": 14190.719462882427,
-        "frame_center_hae_m": 9.445334554054966, "corner_latitude_1_deg": -10.528728394084018,
-        "corner_longitude_1_deg": 29.161550416220702, "corner_latitude_4_deg": -10.541326436466223,
-        "corner_longitude_4_deg": 29.14572990925318, "platform_pitch_full_deg": -0.4315251020861441,
+        "platform_heading_deg": 159.97436484321355,
+        "platform_pitch_deg": -0.4315317239906003,
+        "platform_roll_deg": 3.4058656575212867,
+        "sensor_latitude_deg": 60.176822966978335,
+        "sensor_longitude_deg": 128.42675904204452,
+        "sensor_true_altitude_m": 14190.719462882427,
+        "sensor_horizontal_fov_deg": 144.57129777981231,
+        "sensor_vertical_fov_deg": 152.64362554360267,
+        "sensor_relative_azimuth_deg": 160.71921143697557,
+        "sensor_relative_elevation_deg": -168.79232483394085,
+        "sensor_relative_roll_deg": 176.86543764939194,
+        "slant_range_m": 68590.98329874477,
+        "target_width_m": 722.8198672465096,
+        "frame_center_latitude_deg": -10.542388633146132,
+        "frame_center_longitude_deg": 29.157890122923018,
+        "frame_center_elevation_m": 3216.0372320134275,
+        "offset_corner_latitude_1_deg": 0.013660084841456343,
+        "offset_corner_longitude_1_deg": 0.0036599322489089632,
+        "offset_corner_latitude_3_deg": -0.011062196722312082,
+        "offset_corner_longitude_4_deg": -0.01216086306344798,
+        "target_location_latitude_deg": -79.16385005189285,
+        "target_location_longitude_deg": 166.40081296041646,
+        "target_location_elevation_m": 18389.04707408255,
+        "target_error_ce90_m": 425.2151522087434,
+        "target_error_le90_m": 608.9230945296407,
+        "sensor_ellipsoid_height_m": 14190.719462882427,
+        "frame_center_hae_m": 9.445334554054966,
+        "corner_latitude_1_deg": -10.528728394084018,
+        "corner_longitude_1_deg": 29.161550416220702,
+        "corner_latitude_4_deg": -10.541326436466223,
+        "corner_longitude_4_deg": 29.14572990925318,
+        "platform_pitch_full_deg": -0.4315251020861441,
         "platform_roll_full_deg": 3.4058139815022304,
     }
     for name, v in expect.items():
@@ -360,21 +378,39 @@ def test_ber_coding():
 
 
 def test_reserved_values_are_nan_with_flags():
-    items = (item("platform_pitch_deg", "80 00") + item("sensor_latitude_deg", "80 00 00 00")
-             + item("offset_corner_latitude_1_deg", "80 00") + item("platform_roll_full_deg", "80 00 00 00")
-             + item("sensor_longitude_deg", "FF FF 80 00"))  # -32768 as int32 is a valid value
+    items = (
+        item("platform_pitch_deg", "80 00")
+        + item("sensor_latitude_deg", "80 00 00 00")
+        + item("offset_corner_latitude_1_deg", "80 00")
+        + item("platform_roll_full_deg", "80 00 00 00")
+        + item("sensor_longitude_deg", "FF FF 80 00")
+    )  # -32768 as int32 is a valid value
     p = klv.decode_packet(with_checksum(items))
     assert math.isnan(p["platform_pitch_deg"]) and math.isnan(p["sensor_latitude_deg"])
     assert math.isnan(p["offset_corner_latitude_1_deg"]) and math.isnan(p["platform_roll_full_deg"])
-    assert p.flags == {"platform_pitch_deg": "out of range", "sensor_latitude_deg": "error",
-                       "offset_corner_latitude_1_deg": "error", "platform_roll_full_deg": "out of range"}
+    assert p.flags == {
+        "platform_pitch_deg": "out of range",
+        "sensor_latitude_deg": "error",
+        "offset_corner_latitude_1_deg": "error",
+        "platform_roll_full_deg": "out of range",
+    }
     assert p["sensor_longitude_deg"] == pytest.approx(-32768 * 360 / (2**32 - 2))
     # The encoder writes the reserved values: NaN, and beyond the range where it means "out of range".
-    enc = klv.encode_packet({"platform_pitch_deg": 25.0, "platform_roll_deg": -60.0,
-                             "sensor_latitude_deg": math.nan, "platform_pitch_full_deg": math.inf})
+    enc = klv.encode_packet(
+        {
+            "platform_pitch_deg": 25.0,
+            "platform_roll_deg": -60.0,
+            "sensor_latitude_deg": math.nan,
+            "platform_pitch_full_deg": math.inf,
+        }
+    )
     q = klv.decode_packet(enc)
-    assert q.flags == {"platform_pitch_deg": "out of range", "platform_roll_deg": "out of range",
-                       "sensor_latitude_deg": "error", "platform_pitch_full_deg": "out of range"}
+    assert q.flags == {
+        "platform_pitch_deg": "out of range",
+        "platform_roll_deg": "out of range",
+        "sensor_latitude_deg": "error",
+        "platform_pitch_full_deg": "out of range",
+    }
     with pytest.raises(ValueError, match="sensor_latitude_deg = 95.0 is outside"):
         klv.encode_packet({"sensor_latitude_deg": 95.0})
     with pytest.raises(ValueError, match="platform_heading_deg"):
@@ -388,6 +424,7 @@ def test_reserved_values_are_nan_with_flags():
 
 # ----------------------------------------------------------------------------------------
 # klvdata, an independent decoder
+
 
 def klvdata_values(data: bytes) -> list[dict]:
     """klvdata's decoding of each packet: tag -> value string."""
@@ -433,8 +470,14 @@ def test_klvdata_on_our_encoded_packets():
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.data())
 def test_klvdata_agrees_on_random_values(data):
-    names = data.draw(st.lists(st.sampled_from([s.name for s in klv.TAGS if s.kind in ("uint", "int")]),
-                               min_size=1, max_size=12, unique=True))
+    names = data.draw(
+        st.lists(
+            st.sampled_from([s.name for s in klv.TAGS if s.kind in ("uint", "int")]),
+            min_size=1,
+            max_size=12,
+            unique=True,
+        )
+    )
     f = {}
     for n in names:
         s = klv.TAG_BY_NAME[n]
@@ -477,8 +520,10 @@ def make_stream():
     shorter[18] -= 20
     add(bytes(shorter), "checksum")
     # An integer item longer than 8 bytes cannot be decoded at its length: heading as 9 bytes.
-    add(with_checksum(item("platform_heading_deg", "00" * 7 + "71 C2")),
-        "tag 5 (Platform Heading Angle) has length 9, expected 2")
+    add(
+        with_checksum(item("platform_heading_deg", "00" * 7 + "71 C2")),
+        "tag 5 (Platform Heading Angle) has length 9, expected 2",
+    )
     # Heading in 3 bytes (a leading zero byte, as writers in the wild do): decoded at its
     # length with the standard's step, the packet kept (docs/klv.md, "Encoders in the wild").
     goods.append(with_checksum(item("platform_heading_deg", "00 71 C2")))
@@ -521,8 +566,14 @@ def test_more_bad_cases():
     res = list(klv.iter_packets(data))
     n = len(good)
     kinds = [(type(r).__name__, r.offset) for r in res]
-    assert kinds == [("Packet", 0), ("KlvError", n), ("Packet", n + 17), ("KlvError", 2 * n + 17),
-                     ("Packet", 2 * n + 33), ("KlvError", 3 * n + 33)]
+    assert kinds == [
+        ("Packet", 0),
+        ("KlvError", n),
+        ("Packet", n + 17),
+        ("KlvError", 2 * n + 17),
+        ("Packet", 2 * n + 33),
+        ("KlvError", 3 * n + 33),
+    ]
     assert "invalid BER length byte 0x80" in res[1].reason
     assert "9 bytes at the end are not a UAS LS packet" in res[5].reason
     # After the bare key the next packet's key is read as its length (0x06) and local
@@ -560,8 +611,11 @@ def assert_same_columns(a, b):
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.integers(0, 2**32 - 1), st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=6),
-       st.integers(1, 600))
+@given(
+    st.integers(0, 2**32 - 1),
+    st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=6),
+    st.integers(1, 600),
+)
 def test_corrupted_streams_read_alike_every_way(seed, flips, chunk):
     """Whatever the damage, chunked reads, whole-buffer reads and the vectorised columns agree."""
     blobs = random_stream(seed, 25)
@@ -572,8 +626,9 @@ def test_corrupted_streams_read_alike_every_way(seed, flips, chunk):
     whole = list(klv.iter_packets(data))
     chunked = list(klv.iter_packets(io.BytesIO(data), chunk_size=chunk))
     assert [(type(r), r.offset) for r in whole] == [(type(r), r.offset) for r in chunked]
-    assert [r.fields if isinstance(r, Packet) else r.reason for r in whole] == \
-        [r.fields if isinstance(r, Packet) else r.reason for r in chunked]
+    assert [r.fields if isinstance(r, Packet) else r.reason for r in whole] == [
+        r.fields if isinstance(r, Packet) else r.reason for r in chunked
+    ]
     assert_same_columns(klv.packets_to_columns(data), klv.packets_to_columns(whole))
     # A damaged byte spoils the packet it is in (at worst its neighbour too), no more.
     assert sum(isinstance(r, Packet) for r in whole) >= len(blobs) - 2 * len(flips)
@@ -594,12 +649,24 @@ def test_batch_decoding_equals_packet_by_packet(monkeypatch):
     blobs = []
     for i, b in enumerate(random_stream(10, 300)):
         if i % 7 == 0:  # reserved values
-            b = klv.encode_packet({"platform_pitch_deg": math.nan, "sensor_latitude_deg": math.nan,
-                                   "platform_roll_deg": 3.0, "mission_id": "M", 300: b"raw", 48: b""})
+            b = klv.encode_packet(
+                {
+                    "platform_pitch_deg": math.nan,
+                    "sensor_latitude_deg": math.nan,
+                    "platform_roll_deg": 3.0,
+                    "mission_id": "M",
+                    300: b"raw",
+                    48: b"",
+                }
+            )
         if i % 11 == 0:  # a repeated item (the last one wins) and a raw one
-            b = with_checksum(item("platform_heading_deg", "71 C2") + item("platform_pitch_deg", "80 00")
-                              + bytes.fromhex("08 01 93") + item("platform_heading_deg", "00 10")
-                              + item("platform_pitch_deg", "00 20"))
+            b = with_checksum(
+                item("platform_heading_deg", "71 C2")
+                + item("platform_pitch_deg", "80 00")
+                + bytes.fromhex("08 01 93")
+                + item("platform_heading_deg", "00 10")
+                + item("platform_pitch_deg", "00 20")
+            )
         blobs.append(b)
     data = b"".join(blobs)
     batched = list(klv.iter_packets(data))
@@ -637,6 +704,7 @@ def test_columns_from_bytes_equal_columns_from_packets():
 
 # ----------------------------------------------------------------------------------------
 # MPEG-TS through PyAV
+
 
 def test_ts_round_trip(tmp_path):
     rng = np.random.default_rng(11)
@@ -713,7 +781,8 @@ def spec_value(spec):
     if spec.kind == "u8":
         return st.integers(0, 255)
     return st.text(st.characters(codec="utf-8", exclude_categories=["Cs"]), max_size=30).filter(
-        lambda s: len(s.encode("utf-8")) <= 127)
+        lambda s: len(s.encode("utf-8")) <= 127
+    )
 
 
 packet_fields = st.fixed_dictionaries({}, optional={s.name: spec_value(s) for s in klv.TAGS})
@@ -744,8 +813,13 @@ def test_range_ends_and_steps(spec):
 
 
 def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "geoloc", "klv", "dump", *map(str, args)],
-                          capture_output=True, text=True, cwd=ROOT, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "geoloc", "klv", "dump", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
 
 
 def test_cli_dump_raw_file(tmp_path):

@@ -45,8 +45,9 @@ def half_step_m(lat_name, lon_name, lat_deg):
 CENTRE_BOUND_M = half_step_m("frame_center_latitude_deg", "frame_center_longitude_deg", 36.6)  # 4.5 mm
 FULL_CORNER_BOUND_M = half_step_m("corner_latitude_1_deg", "corner_longitude_1_deg", 36.6)
 # an offset corner is the centre (4-byte items) plus a 2-byte offset: both roundings add
-OFFSET_CORNER_BOUND_M = CENTRE_BOUND_M + half_step_m("offset_corner_latitude_1_deg",
-                                                     "offset_corner_longitude_1_deg", 36.6)
+OFFSET_CORNER_BOUND_M = CENTRE_BOUND_M + half_step_m(
+    "offset_corner_latitude_1_deg", "offset_corner_longitude_1_deg", 36.6
+)
 
 
 @pytest.fixture(scope="module")
@@ -133,28 +134,30 @@ def test_fix_the_bundled_flight_on_the_dem(tmp_path, dem):
     assert ok.sum() == 298 and len(after.errors) == 1
     assert np.nanmax(c1["frame_center_error_m"][ok]) <= CENTRE_BOUND_M
     assert np.nanmax(c1["corner_error_m"][ok]) <= FULL_CORNER_BOUND_M
-    print(f"after the fix: frame-centre error max {np.nanmax(c1['frame_center_error_m'][ok]) * 1000:.2f} mm "
-          f"(bound {CENTRE_BOUND_M * 1000:.2f}), on the faulted packets before: "
-          f"{np.min(c0['frame_center_error_m'][faulted]):.1f}-{np.max(c0['frame_center_error_m'][faulted]):.1f} m")
+    print(
+        f"after the fix: frame-centre error max {np.nanmax(c1['frame_center_error_m'][ok]) * 1000:.2f} mm "
+        f"(bound {CENTRE_BOUND_M * 1000:.2f}), on the faulted packets before: "
+        f"{np.min(c0['frame_center_error_m'][faulted]):.1f}-{np.max(c0['frame_center_error_m'][faulted]):.1f} m"
+    )
     # the heights: tag 78 the DEM hit's HAE, tag 25 that minus N at the new centre
     k = int(np.flatnonzero(c1["packet"] == 105)[0])
     assert abs(c1["frame_center_hae_m"][k] - c0["h_m"][k]) <= TAG_BY_NAME["frame_center_hae_m"].step / 2
-    assert abs(c1["frame_center_hae_m"][k] - c1["frame_center_elevation_msl_m"][k]
-               - c1["sensor_geoid_n_m"][k]) < 0.7  # N at the centre vs at the sensor (2.6 km apart) + 2 steps
+    assert (
+        abs(c1["frame_center_hae_m"][k] - c1["frame_center_elevation_msl_m"][k] - c1["sensor_geoid_n_m"][k]) < 0.7
+    )  # N at the centre vs at the sensor (2.6 km apart) + 2 steps
 
 
 def _offset_corner_packets(n=12, start=98):
     """Packets of the bundled flight (faulted 100-109 among them) re-encoded with offset corners (26-33)
     instead of full ones and without tag 78 (so tag 25, MSL, carries the centre's height)."""
     data = EXAMPLE.read_bytes()
-    good = [p for p in iter_packets(data) if hasattr(p, "fields")][start:start + n]
+    good = [p for p in iter_packets(data) if hasattr(p, "fields")][start : start + n]
     out = []
     for p in good:
         f = dict(p.fields)
         for j in range(1, 5):
             f[f"offset_corner_latitude_{j}_deg"] = f.pop(f"corner_latitude_{j}_deg") - f["frame_center_latitude_deg"]
-            f[f"offset_corner_longitude_{j}_deg"] = (f.pop(f"corner_longitude_{j}_deg")
-                                                     - f["frame_center_longitude_deg"])
+            f[f"offset_corner_longitude_{j}_deg"] = f.pop(f"corner_longitude_{j}_deg") - f["frame_center_longitude_deg"]
         f.pop("frame_center_hae_m")
         out.append(encode_packet(f))
     return out
@@ -195,8 +198,10 @@ def test_ts_with_video_is_remuxed_and_the_video_left_alone(tmp_path, dem):
     before = replay_klv(ts, surface=surface_for(dem=dem)).columns["frame_center_error_m"]
     assert before[2:12].min() > 80  # packets 100-109: the heading fault
     # tag 25 (MSL) written as HAE - N at the new centre: the replay makes it HAE again the same way
-    assert np.max(np.abs(c["reported_h_m"] - replay_klv(ts, surface=surface_for(dem=dem)).columns["h_m"])) <= \
-        TAG_BY_NAME["frame_center_elevation_m"].step / 2 + 1e-6
+    assert (
+        np.max(np.abs(c["reported_h_m"] - replay_klv(ts, surface=surface_for(dem=dem)).columns["h_m"]))
+        <= TAG_BY_NAME["frame_center_elevation_m"].step / 2 + 1e-6
+    )
 
 
 def test_a_calibration_is_applied(tmp_path, dem):
@@ -213,7 +218,10 @@ def test_a_calibration_is_applied(tmp_path, dem):
     # (the two replays of the input, with and without it), to the quantisation
     from geoloc.geodesy.geodesic import horizontal_distance_m
 
-    a, b = replay_klv(EXAMPLE, surface=surface_for(dem=dem), sensor=sensor).columns, replay_klv(EXAMPLE, surface=surface_for(dem=dem)).columns
+    a, b = (
+        replay_klv(EXAMPLE, surface=surface_for(dem=dem), sensor=sensor).columns,
+        replay_klv(EXAMPLE, surface=surface_for(dem=dem)).columns,
+    )
     moved = horizontal_distance_m(a["lat_deg"], a["lon_deg"], b["lat_deg"], b["lon_deg"])
     assert np.median(moved[ok]) > 50 * CENTRE_BOUND_M  # 0.39 m: the mount, boresight and lever arm matter
     assert np.max(np.abs(without["frame_center_error_m"][ok] - moved[ok])) <= CENTRE_BOUND_M
@@ -321,7 +329,9 @@ def test_add_items_keeps_every_other_item():
     from geoloc.io.klv import add_items, encode_value
 
     blob = _offset_corner_packets(1)[0]
-    new = add_items(blob, {46: encode_value("target_error_le90_m", 7.5), 45: encode_value("target_error_ce90_m", 12.25)})
+    new = add_items(
+        blob, {46: encode_value("target_error_le90_m", 7.5), 45: encode_value("target_error_ce90_m", 12.25)}
+    )
     assert packet_checksum(new) == new[-2:]
     old_items = local_set_items(blob)
     new_items = local_set_items(new)

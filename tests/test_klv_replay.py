@@ -98,13 +98,22 @@ def oracle_point(lat, lon, h, v_ned, delta):
     return float(la), float(lo)
 
 
-def pose_fields(lat, lon, h, heading, az, el, pitch=0.0, roll=0.0, sroll=0.0, hfov=8.0, vfov=4.5, i=0,
-                full=False):
-    f = {"precision_time_stamp_us": T0 + 1_000_000 * i, "platform_heading_deg": heading,
-         "platform_pitch_deg": pitch, "platform_roll_deg": roll, "sensor_latitude_deg": lat,
-         "sensor_longitude_deg": lon, "sensor_ellipsoid_height_m": h, "sensor_horizontal_fov_deg": hfov,
-         "sensor_vertical_fov_deg": vfov, "sensor_relative_azimuth_deg": az,
-         "sensor_relative_elevation_deg": el, "sensor_relative_roll_deg": sroll, "frame_center_hae_m": 0.0}
+def pose_fields(lat, lon, h, heading, az, el, pitch=0.0, roll=0.0, sroll=0.0, hfov=8.0, vfov=4.5, i=0, full=False):
+    f = {
+        "precision_time_stamp_us": T0 + 1_000_000 * i,
+        "platform_heading_deg": heading,
+        "platform_pitch_deg": pitch,
+        "platform_roll_deg": roll,
+        "sensor_latitude_deg": lat,
+        "sensor_longitude_deg": lon,
+        "sensor_ellipsoid_height_m": h,
+        "sensor_horizontal_fov_deg": hfov,
+        "sensor_vertical_fov_deg": vfov,
+        "sensor_relative_azimuth_deg": az,
+        "sensor_relative_elevation_deg": el,
+        "sensor_relative_roll_deg": sroll,
+        "frame_center_hae_m": 0.0,
+    }
     if full:
         f["platform_pitch_full_deg"] = pitch
         f["platform_roll_full_deg"] = roll
@@ -118,8 +127,14 @@ def with_oracle(fields, corners=True):
     d = dec(fields)
     pitch = d.get("platform_pitch_full_deg", d["platform_pitch_deg"])
     roll = d.get("platform_roll_full_deg", d["platform_roll_deg"])
-    args = (d["platform_heading_deg"], pitch, roll, d["sensor_relative_azimuth_deg"],
-            d["sensor_relative_elevation_deg"], d["sensor_relative_roll_deg"])
+    args = (
+        d["platform_heading_deg"],
+        pitch,
+        roll,
+        d["sensor_relative_azimuth_deg"],
+        d["sensor_relative_elevation_deg"],
+        d["sensor_relative_roll_deg"],
+    )
     delta = d["frame_center_hae_m"]
     lat, lon, h = d["sensor_latitude_deg"], d["sensor_longitude_deg"], d["sensor_ellipsoid_height_m"]
     centre = oracle_point(lat, lon, h, los_ned(*args), delta)
@@ -161,21 +176,37 @@ def check_against_oracle(r, expected, corner_expected=None):
 def test_level_aircraft_against_pymap3d():
     """Level aircraft: line of sight azimuth heading + sensor azimuth, tilt 90 + elevation."""
     rng = np.random.default_rng(1)
-    cases = [(36.6, -84.25, 2500.0, 30.0, 90.0, -30.0), (0.0, 0.0, 8000.0, 0.0, 0.0, -90.0),
-             (-33.9, 151.2, 1200.0, 359.0, 271.0, -15.0), (60.2, 179.99, 5000.0, 90.0, 0.0, -45.0),
-             (-75.0, -60.0, 3000.0, 200.0, 135.0, -60.0)]
+    cases = [
+        (36.6, -84.25, 2500.0, 30.0, 90.0, -30.0),
+        (0.0, 0.0, 8000.0, 0.0, 0.0, -90.0),
+        (-33.9, 151.2, 1200.0, 359.0, 271.0, -15.0),
+        (60.2, 179.99, 5000.0, 90.0, 0.0, -45.0),
+        (-75.0, -60.0, 3000.0, 200.0, 135.0, -60.0),
+    ]
     for _ in range(15):
-        cases.append((rng.uniform(-70, 70), rng.uniform(-180, 180), rng.uniform(500, 9000),
-                      rng.uniform(0, 360), rng.uniform(0, 360), rng.uniform(-85, -12)))
+        cases.append(
+            (
+                rng.uniform(-70, 70),
+                rng.uniform(-180, 180),
+                rng.uniform(500, 9000),
+                rng.uniform(0, 360),
+                rng.uniform(0, 360),
+                rng.uniform(-85, -12),
+            )
+        )
     packets, expected, kexp = [], [], []
     for i, (lat, lon, h, hdg, az, el) in enumerate(cases):
-        f, centre, ks = with_oracle(pose_fields(lat, lon, h, hdg, az, el, hfov=rng.uniform(1, 40),
-                                                vfov=rng.uniform(1, 30), i=i))
+        f, centre, ks = with_oracle(
+            pose_fields(lat, lon, h, hdg, az, el, hfov=rng.uniform(1, 40), vfov=rng.uniform(1, 30), i=i)
+        )
         # the oracle's direction is the hand rule: azimuth heading + az, tilt 90 + el
-        a2, b2, _ = lookAtSpheroid(f["sensor_latitude_deg"], f["sensor_longitude_deg"],
-                                   f["sensor_ellipsoid_height_m"] - f["frame_center_hae_m"],
-                                   (f["platform_heading_deg"] + f["sensor_relative_azimuth_deg"]) % 360,
-                                   90.0 + f["sensor_relative_elevation_deg"])
+        a2, b2, _ = lookAtSpheroid(
+            f["sensor_latitude_deg"],
+            f["sensor_longitude_deg"],
+            f["sensor_ellipsoid_height_m"] - f["frame_center_hae_m"],
+            (f["platform_heading_deg"] + f["sensor_relative_azimuth_deg"]) % 360,
+            90.0 + f["sensor_relative_elevation_deg"],
+        )
         assert horizontal_distance_m(a2, b2, *centre) < 1e-5  # the same rays (10 um: rounding at nadir)
         packets.append(f)
         expected.append(centre)
@@ -194,14 +225,30 @@ def test_attitude_and_sensor_roll_against_scipy_and_pymap3d():
         full = i % 2 == 0  # half the packets carry tags 90/91 (beyond +-20 / +-50 for some)
         pitch = rng.uniform(-35, 35) if full else rng.uniform(-19, 19)
         roll = rng.uniform(-70, 70) if full else rng.uniform(-45, 45)
-        f = pose_fields(rng.uniform(-60, 60), rng.uniform(-180, 180), rng.uniform(1500, 9000),
-                        rng.uniform(0, 360), rng.uniform(0, 360), rng.uniform(-89, -20), pitch, roll,
-                        sroll=rng.uniform(0, 360), hfov=rng.uniform(2, 30), vfov=rng.uniform(2, 20), i=i,
-                        full=full)
+        f = pose_fields(
+            rng.uniform(-60, 60),
+            rng.uniform(-180, 180),
+            rng.uniform(1500, 9000),
+            rng.uniform(0, 360),
+            rng.uniform(0, 360),
+            rng.uniform(-89, -20),
+            pitch,
+            roll,
+            sroll=rng.uniform(0, 360),
+            hfov=rng.uniform(2, 30),
+            vfov=rng.uniform(2, 20),
+            i=i,
+            full=full,
+        )
         d = dec(f)
-        v = los_ned(d["platform_heading_deg"], d.get("platform_pitch_full_deg", d["platform_pitch_deg"]),
-                    d.get("platform_roll_full_deg", d["platform_roll_deg"]), d["sensor_relative_azimuth_deg"],
-                    d["sensor_relative_elevation_deg"], d["sensor_relative_roll_deg"])
+        v = los_ned(
+            d["platform_heading_deg"],
+            d.get("platform_pitch_full_deg", d["platform_pitch_deg"]),
+            d.get("platform_roll_full_deg", d["platform_roll_deg"]),
+            d["sensor_relative_azimuth_deg"],
+            d["sensor_relative_elevation_deg"],
+            d["sensor_relative_roll_deg"],
+        )
         if v[2] < 0.35:  # keep lines of sight well below the horizon (the corners too)
             continue
         f2, centre, ks = with_oracle(f)
@@ -237,24 +284,47 @@ def test_fov_scaling_equals_one_sensor_per_packet():
     from geoloc.locate import locate
 
     fovs = [(2.0, 1.2), (10.0, 5.625), (30.0, 17.0), (55.0, 40.0)]
-    packets = [pose_fields(36.6, -84.25, 3000.0, 40.0 * i, 80.0, -50.0, 3.0, -8.0, 25.0, h, v, i=i)
-               for i, (h, v) in enumerate(fovs)]
+    packets = [
+        pose_fields(36.6, -84.25, 3000.0, 40.0 * i, 80.0, -50.0, 3.0, -8.0, 25.0, h, v, i=i)
+        for i, (h, v) in enumerate(fovs)
+    ]
     r = replay_klv(stream(packets))
     for i, f in enumerate(packets):
         d = dec(f)
-        s = FrameSensor(lens_from_fov(math.radians(d["sensor_horizontal_fov_deg"]),
-                                      math.radians(d["sensor_vertical_fov_deg"]), 1920, 1080),
-                        PRESETS["azimuth-elevation-roll"])
-        pose = Pose.from_deg(d["sensor_latitude_deg"], d["sensor_longitude_deg"], d["sensor_ellipsoid_height_m"],
-                             d["platform_heading_deg"], d["platform_pitch_deg"], d["platform_roll_deg"],
-                             angles_deg={"azimuth": d["sensor_relative_azimuth_deg"],
-                                         "elevation": d["sensor_relative_elevation_deg"],
-                                         "sensor_roll": d["sensor_relative_roll_deg"]})
-        g = locate(pose, s, np.array([0.5, 0.5, 1080.5, 1080.5]), np.array([0.5, 1920.5, 1920.5, 0.5]),
-                   target_h=d["frame_center_hae_m"], height_kind="geodetic")
+        s = FrameSensor(
+            lens_from_fov(
+                math.radians(d["sensor_horizontal_fov_deg"]), math.radians(d["sensor_vertical_fov_deg"]), 1920, 1080
+            ),
+            PRESETS["azimuth-elevation-roll"],
+        )
+        pose = Pose.from_deg(
+            d["sensor_latitude_deg"],
+            d["sensor_longitude_deg"],
+            d["sensor_ellipsoid_height_m"],
+            d["platform_heading_deg"],
+            d["platform_pitch_deg"],
+            d["platform_roll_deg"],
+            angles_deg={
+                "azimuth": d["sensor_relative_azimuth_deg"],
+                "elevation": d["sensor_relative_elevation_deg"],
+                "sensor_roll": d["sensor_relative_roll_deg"],
+            },
+        )
+        g = locate(
+            pose,
+            s,
+            np.array([0.5, 0.5, 1080.5, 1080.5]),
+            np.array([0.5, 1920.5, 1920.5, 0.5]),
+            target_h=d["frame_center_hae_m"],
+            height_kind="geodetic",
+        )
         for j in range(4):
-            dk = horizontal_distance_m(r.columns[f"corner{j + 1}_lat_deg"][i], r.columns[f"corner{j + 1}_lon_deg"][i],
-                                       g.lat_deg[j], g.lon_deg[j])
+            dk = horizontal_distance_m(
+                r.columns[f"corner{j + 1}_lat_deg"][i],
+                r.columns[f"corner{j + 1}_lon_deg"][i],
+                g.lat_deg[j],
+                g.lon_deg[j],
+            )
             assert dk < 1e-6
 
 
@@ -264,8 +334,7 @@ def test_fov_scaling_equals_one_sensor_per_packet():
 def test_planted_300_m_shift_is_the_only_outlier():
     packets = []
     for i in range(40):
-        f, _, _ = with_oracle(pose_fields(36.6 + 0.0005 * i, -84.25, 2800.0, 0.0, 90.0, -40.0, i=i),
-                              corners=False)
+        f, _, _ = with_oracle(pose_fields(36.6 + 0.0005 * i, -84.25, 2800.0, 0.0, 90.0, -40.0, i=i), corners=False)
         packets.append(f)
     packets[17]["frame_center_latitude_deg"] += 300.0 / 111_000.0  # 300 m north
     r = replay_klv(stream(packets))
@@ -293,8 +362,9 @@ def test_outlier_rule():
 
 
 def test_bad_packet_in_the_middle_reported_with_its_offset(tmp_path):
-    packets = [with_oracle(pose_fields(36.6, -84.25 + 0.001 * i, 2500.0, 10.0 * i, 90.0, -35.0, i=i))[0]
-               for i in range(12)]
+    packets = [
+        with_oracle(pose_fields(36.6, -84.25 + 0.001 * i, 2500.0, 10.0 * i, 90.0, -35.0, i=i))[0] for i in range(12)
+    ]
     blobs = [encode_packet(f) for f in packets]
     clean = replay_klv(b"".join(blobs))
     bad = bytearray(blobs[5])
@@ -353,8 +423,9 @@ def test_missing_tags_named_and_the_good_packets_run():
 
 
 def test_container_reads_same_as_raw(tmp_path):
-    packets = [with_oracle(pose_fields(36.6, -84.25, 2500.0 + 10 * i, 12.0 * i, 80.0, -40.0, i=i))[0]
-               for i in range(20)]
+    packets = [
+        with_oracle(pose_fields(36.6, -84.25, 2500.0 + 10 * i, 12.0 * i, 80.0, -40.0, i=i))[0] for i in range(20)
+    ]
     data = stream(packets)
     raw = replay_klv(data)
     ts = tmp_path / "clip.ts"
@@ -380,9 +451,11 @@ def proj_undulation(lat_deg, lon_deg):
     from pyproj import Transformer
 
     grids = f"@{GEOID_DIR / 'egm96_jacksboro.tif'},{GEOID_DIR / 'egm96_global_30min.tif'}"
-    t = Transformer.from_pipeline("+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad "
-                                  f"+step +proj=vgridshift +grids={grids} +multiplier=1 "
-                                  "+step +proj=unitconvert +xy_in=rad +xy_out=deg")
+    t = Transformer.from_pipeline(
+        "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad "
+        f"+step +proj=vgridshift +grids={grids} +multiplier=1 "
+        "+step +proj=unitconvert +xy_in=rad +xy_out=deg"
+    )
     return float(t.transform(lon_deg, lat_deg, 0.0)[2])
 
 
@@ -397,8 +470,9 @@ def test_msl_altitude_only_made_ellipsoidal_with_egm96():
     f["frame_center_elevation_m"] = 0.0 - n_s  # the ground point at h = 0 is 30.6 m above the geoid
     d = dec(f)
     h_s = d["sensor_true_altitude_m"] + n_s
-    v = los_ned(d["platform_heading_deg"], 0.0, 0.0, d["sensor_relative_azimuth_deg"],
-                d["sensor_relative_elevation_deg"], 0.0)
+    v = los_ned(
+        d["platform_heading_deg"], 0.0, 0.0, d["sensor_relative_azimuth_deg"], d["sensor_relative_elevation_deg"], 0.0
+    )
     # N at the frame centre: 4 km east of the sensor, from PROJ too
     la0, lo0 = oracle_point(lat, lon, h_s, v, 0.0)
     n_fc = proj_undulation(la0, lo0)
@@ -415,8 +489,12 @@ def test_msl_altitude_only_made_ellipsoidal_with_egm96():
     check_against_oracle(r, [centre])
     assert r.summary.sensor_h_sources["tag 15 (MSL) + EGM96 N"] == 1
     # ignoring N would have put the sensor 30.6 m low: tens of metres off at 30 deg depression
-    f_wrong = dict(d, sensor_ellipsoid_height_m=d["sensor_true_altitude_m"],
-                   frame_center_latitude_deg=centre[0], frame_center_longitude_deg=centre[1])
+    f_wrong = dict(
+        d,
+        sensor_ellipsoid_height_m=d["sensor_true_altitude_m"],
+        frame_center_latitude_deg=centre[0],
+        frame_center_longitude_deg=centre[1],
+    )
     r2 = replay_klv(encode_packet(f_wrong))
     assert r2.columns["frame_center_error_m"][0] > 40
     assert "tag 75 - tag 15 = +0.0 m but EGM96 N = -30.6 m" in r2.columns["datum_warning"][0]
@@ -448,13 +526,15 @@ def test_sensor_file_gives_size_mount_lever_arm(tmp_path):
     f = with_oracle(pose_fields(36.6, -84.25, 2500.0, 30.0, 90.0, -30.0, sroll=10.0))[0]
     ref = replay_klv(encode_packet(f))
     p = tmp_path / "s.toml"
-    p.write_text('[lens]\nmodel = "pinhole"\nfx = 900.0\nfy = 900.0\ncx = 640.5\ncy = 360.5\nwidth = 1280\n'
-                 'height = 720\n\n[gimbal]\npreset = "azimuth-elevation"\n')
+    p.write_text(
+        '[lens]\nmodel = "pinhole"\nfx = 900.0\nfy = 900.0\ncx = 640.5\ncy = 360.5\nwidth = 1280\n'
+        'height = 720\n\n[gimbal]\npreset = "azimuth-elevation"\n'
+    )
     r = replay_klv(encode_packet(f), sensor=load_sensor(p))
     assert (r.sensor.cols, r.sensor.rows) == (1280, 720)
     for k in ("lat_deg", "lon_deg", "corner1_lat_deg", "corner3_lon_deg"):
         assert r.columns[k][0] == pytest.approx(ref.columns[k][0], abs=1e-9)
-    p.write_text(p.read_text() + '\n[lever_arm]\nx_m = 0.0\ny_m = 0.0\nz_m = 50.0\n')
+    p.write_text(p.read_text() + "\n[lever_arm]\nx_m = 0.0\ny_m = 0.0\nz_m = 50.0\n")
     r = replay_klv(encode_packet(f), sensor=load_sensor(p))  # 50 m lower optical centre
     assert r.columns["frame_center_error_m"][0] == pytest.approx(50 / math.tan(math.radians(30)), rel=0.01)
     p.write_text(p.read_text().replace("azimuth-elevation", "roll-pitch"))
@@ -559,9 +639,22 @@ def test_csv_round_trip_through_gis_reader(tmp_path):
     assert t["time_utc"][0] == "2024-05-14T15:00:00.000000Z"
     with out.open() as fh:
         header = next(csv.reader(fh))
-    for name in ("reported_lat_deg", "reported_lon_deg", "reported_h_m", "sensor_lat_deg", "sensor_lon_deg",
-                 "sensor_h_m", "corner4_lon_deg", "time_s", "time_utc", "h_datum", "outlier",
-                 "corner_error_m", "sensor_true_altitude_msl_m", "frame_center_elevation_msl_m"):
+    for name in (
+        "reported_lat_deg",
+        "reported_lon_deg",
+        "reported_h_m",
+        "sensor_lat_deg",
+        "sensor_lon_deg",
+        "sensor_h_m",
+        "corner4_lon_deg",
+        "time_s",
+        "time_utc",
+        "h_datum",
+        "outlier",
+        "corner_error_m",
+        "sensor_true_altitude_msl_m",
+        "frame_center_elevation_msl_m",
+    ):
         assert name in header
 
 
@@ -590,8 +683,9 @@ def test_cli_replay_klv_out_and_export(tmp_path):
 
 
 def test_cli_replay_ts_with_dem_and_errors(tmp_path):
-    packets = [with_oracle(pose_fields(36.6, -84.25 + 0.0005 * i, 2500.0, 5.0 * i, 90.0, -35.0, i=i))[0]
-               for i in range(8)]
+    packets = [
+        with_oracle(pose_fields(36.6, -84.25 + 0.0005 * i, 2500.0, 5.0 * i, 90.0, -35.0, i=i))[0] for i in range(8)
+    ]
     ts = tmp_path / "clip.ts"
     write_ts(ts, [encode_packet(f) for f in packets], rate=2.0)
     p = run_cli("replay", str(ts), "--dem", str(DEM_PATH))

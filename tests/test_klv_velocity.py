@@ -32,8 +32,9 @@ def track(n, speed, az_deg, climb=0.0, dt=1.0, lat0=36.5, lon0=-84.25, h0=3000.0
 def test_tags_79_80_round_trip_as_klvdata_reads_them():
     import klvdata
 
-    pk = encode_packet({"precision_time_stamp_us": T0, "sensor_north_velocity_m_s": -12.34,
-                        "sensor_east_velocity_m_s": 250.0})
+    pk = encode_packet(
+        {"precision_time_stamp_us": T0, "sensor_north_velocity_m_s": -12.34, "sensor_east_velocity_m_s": 250.0}
+    )
     mine = decode_packet(pk).fields
     theirs = next(iter(klvdata.StreamParser(pk))).MetadataList()
     # int16 over +/-327 m/s: one step is 654 / 65534 = 0.00998 m/s, half a step after rounding
@@ -50,7 +51,7 @@ def test_differenced_velocity_follows_the_geodesic():
     # (M + h) / M northward and (N + h) / N eastward (meridian and prime-vertical radii, WGS 84)
     a, e2 = 6378137.0, 6.69437999014e-3
     w = 1 - e2 * np.sin(np.radians(lat)) ** 2
-    M, N = a * (1 - e2) / w ** 1.5, a / np.sqrt(w)
+    M, N = a * (1 - e2) / w**1.5, a / np.sqrt(w)
     # the chord of a 100 m step turns from its tangent by ~ s / R (1.6e-5 rad): 1e-3 m/s is 1.2x that
     np.testing.assert_allclose(v[:, 0], 50.0 * np.cos(np.radians(az)) * (M + h) / M, atol=1e-3)
     np.testing.assert_allclose(v[:, 1], 50.0 * np.sin(np.radians(az)) * (N + h) / N, atol=1e-3)
@@ -82,12 +83,21 @@ def _flight(tmp_path, n=8, speed=50.0, az=0.0, tags=None):
     lat, lon, h, t, _ = track(n, speed, az)
     pk = []
     for i in range(n):
-        f = {"precision_time_stamp_us": T0 + int(round(t[i] * 1e6)), "platform_heading_deg": az,
-             "platform_pitch_deg": 0.0, "platform_roll_deg": 0.0, "sensor_latitude_deg": lat[i],
-             "sensor_longitude_deg": lon[i], "sensor_ellipsoid_height_m": h[i],
-             "sensor_horizontal_fov_deg": 8.0, "sensor_vertical_fov_deg": 4.5,
-             "sensor_relative_azimuth_deg": 0.0, "sensor_relative_elevation_deg": -90.0,
-             "sensor_relative_roll_deg": 0.0, "frame_center_hae_m": 0.0}
+        f = {
+            "precision_time_stamp_us": T0 + int(round(t[i] * 1e6)),
+            "platform_heading_deg": az,
+            "platform_pitch_deg": 0.0,
+            "platform_roll_deg": 0.0,
+            "sensor_latitude_deg": lat[i],
+            "sensor_longitude_deg": lon[i],
+            "sensor_ellipsoid_height_m": h[i],
+            "sensor_horizontal_fov_deg": 8.0,
+            "sensor_vertical_fov_deg": 4.5,
+            "sensor_relative_azimuth_deg": 0.0,
+            "sensor_relative_elevation_deg": -90.0,
+            "sensor_relative_roll_deg": 0.0,
+            "frame_center_hae_m": 0.0,
+        }
         if tags:
             f.update(sensor_north_velocity_m_s=tags[0], sensor_east_velocity_m_s=tags[1])
         pk.append(encode_packet(f))

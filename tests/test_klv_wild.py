@@ -46,7 +46,7 @@ def packet(items: bytes) -> bytes:
     the 16-bit sum of the big-endian words from the key to the checksum's length byte."""
     head = KEY + klv.ber_length(len(items) + 4) + items + b"\x01\x02"
     words = head + (b"\0" if len(head) % 2 else b"")  # an odd last byte is the high byte of a word
-    s = sum(int.from_bytes(words[i:i + 2], "big") for i in range(0, len(words), 2)) & 0xFFFF
+    s = sum(int.from_bytes(words[i : i + 2], "big") for i in range(0, len(words), 2)) & 0xFFFF
     return head + s.to_bytes(2, "big")
 
 
@@ -74,6 +74,7 @@ def agree_with_klvdata(ours: Packet, theirs: dict) -> int:
             assert s == v, name
         elif spec.kind == "u64":
             from datetime import datetime
+
             assert abs(datetime.fromisoformat(s).timestamp() * 1e6 - v) < 2, name  # klvdata: float seconds
         elif isinstance(v, float) and math.isnan(v):
             # ours: out of what the standard's length holds, NaN flagged; klvdata maps it anyway,
@@ -107,10 +108,12 @@ def test_target_width_in_four_bytes_is_decoded_and_agrees_with_klvdata():
     spec = klv.TAG_BY_NUMBER[22]
     rows = []
     for i, width in enumerate([150.0, 722.82, 0.0, 9999.8]):
-        items = (item(2, (1_600_000_000_000_000 + i * 33_333).to_bytes(8, "big"))
-                 + item(5, raw_of(klv.TAG_BY_NUMBER[5], 159.97, 2))
-                 + item(13, raw_of(klv.TAG_BY_NUMBER[13], 36.3, 4))
-                 + item(22, raw_of(spec, width, 4)))
+        items = (
+            item(2, (1_600_000_000_000_000 + i * 33_333).to_bytes(8, "big"))
+            + item(5, raw_of(klv.TAG_BY_NUMBER[5], 159.97, 2))
+            + item(13, raw_of(klv.TAG_BY_NUMBER[13], 36.3, 4))
+            + item(22, raw_of(spec, width, 4))
+        )
         rows.append(packet(items))
     data = b"".join(rows)
     res = list(klv.iter_packets(data))
@@ -119,14 +122,17 @@ def test_target_width_in_four_bytes_is_decoded_and_agrees_with_klvdata():
     for r, t, width in zip(res, theirs, [150.0, 722.82, 0.0, 9999.8]):
         assert agree_with_klvdata(r, t) == 4
         assert abs(r["target_width_m"] - width) <= spec.step / 2  # the writer's value, to a half step
-        assert r.quirks == ("tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length "
-                            "with the standard's step",)
+        assert r.quirks == (
+            "tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with the standard's step",
+        )
     # once per kind: one line, the count, the first packet's offset
     tally = QuirkTally()
     for r in res:
         tally.add(r)
-    assert tally.lines() == ["tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with "
-                             "the standard's step (4 packets, the first at byte 0)"]
+    assert tally.lines() == [
+        "tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with "
+        "the standard's step (4 packets, the first at byte 0)"
+    ]
 
 
 def _domain(spec) -> tuple[int, int]:
@@ -180,8 +186,7 @@ def test_short_and_empty_items_and_the_limit_of_eight_bytes(tmp_path):
     """Leading zero bytes left out (tag 21 in 2 bytes, tag 65 in 2 with a leading zero), an empty
     tag 25 (taken as absent), a signed item in 1 byte: kept; a 9-byte integer: the packet dropped
     with its offset and reason."""
-    good = packet(item(21, (12345).to_bytes(2, "big")) + item(65, b"\x00\x0d") + item(25, b"")
-                  + item(19, b"\xfe"))
+    good = packet(item(21, (12345).to_bytes(2, "big")) + item(65, b"\x00\x0d") + item(25, b"") + item(19, b"\xfe"))
     bad = packet(item(5, bytes(7) + b"\x71\xc2"))
     path = tmp_path / "w.klv"
     path.write_bytes(good + bad + good)
@@ -194,8 +199,13 @@ def test_short_and_empty_items_and_the_limit_of_eight_bytes(tmp_path):
     assert agree_with_klvdata(p, klvdata_items(good)[0]) == 3
     assert res[1].offset == len(good) and "tag 5 (Platform Heading Angle) has length 9" in res[1].reason
     # the CLI: the dropped packet named (file, byte offset), each quirk once with its count, exit 1
-    r = subprocess.run([sys.executable, "-m", "geoloc", "klv", "dump", str(path)], capture_output=True,
-                       text=True, cwd=ROOT, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "geoloc", "klv", "dump", str(path)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
     assert r.returncode == 1, r.stderr
     err = r.stderr.splitlines()
     assert f"geoloc klv: {path}: byte {len(good)}: tag 5 (Platform Heading Angle) has length 9" in err[0]
@@ -216,9 +226,14 @@ def test_quirks_are_counted_alike_by_the_batch_and_the_packet_decoders():
     batch = QuirkTally()
     cols = klv.packets_to_columns(data, quirks=batch)
     assert len(cols["offset"]) == 49
-    assert by_packet.lines() == batch.lines() == [
-        "tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with the standard's step "
-        f"(45 packets, the first at byte {3 * len(plain)})"]
+    assert (
+        by_packet.lines()
+        == batch.lines()
+        == [
+            "tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with the standard's step "
+            f"(45 packets, the first at byte {3 * len(plain)})"
+        ]
+    )
     np.testing.assert_allclose(cols["target_width_m"][3:43], 300.0, atol=spec.step / 2)
 
 
@@ -228,7 +243,7 @@ def test_non_minimal_ber_lengths_are_read():
     items = b"\x05\x82\x00\x02\x71\xc2" + item(13, raw_of(klv.TAG_BY_NUMBER[13], 36.3, 4))
     head = KEY + b"\x83\x00\x00" + bytes((len(items) + 4,)) + items + b"\x01\x02"
     words = head + (b"\0" if len(head) % 2 else b"")
-    ck = sum(int.from_bytes(words[i:i + 2], "big") for i in range(0, len(words), 2)) & 0xFFFF
+    ck = sum(int.from_bytes(words[i : i + 2], "big") for i in range(0, len(words), 2)) & 0xFFFF
     p = head + ck.to_bytes(2, "big")
     (ours,) = klv.iter_packets(p)
     assert ours.quirks == () and ours["platform_heading_deg"] == pytest.approx(0x71C2 * 360 / 65535)
@@ -241,11 +256,22 @@ def test_the_replay_of_a_quirky_older_stream_equals_the_standard_ones():
     and locates each frame centre as for the same packets written to the standard."""
     from geoloc.workflows.klv_replay import replay_klv
 
-    base = dict(platform_heading_deg=90.0, platform_pitch_deg=1.0, platform_roll_deg=0.5,
-                sensor_latitude_deg=36.3, sensor_longitude_deg=-84.2, sensor_true_altitude_m=1500.0,
-                sensor_horizontal_fov_deg=10.0, sensor_vertical_fov_deg=6.0, sensor_relative_azimuth_deg=10.0,
-                sensor_relative_elevation_deg=-45.0, sensor_relative_roll_deg=0.0,
-                frame_center_latitude_deg=36.31, frame_center_longitude_deg=-84.19, frame_center_elevation_m=300.0)
+    base = dict(
+        platform_heading_deg=90.0,
+        platform_pitch_deg=1.0,
+        platform_roll_deg=0.5,
+        sensor_latitude_deg=36.3,
+        sensor_longitude_deg=-84.2,
+        sensor_true_altitude_m=1500.0,
+        sensor_horizontal_fov_deg=10.0,
+        sensor_vertical_fov_deg=6.0,
+        sensor_relative_azimuth_deg=10.0,
+        sensor_relative_elevation_deg=-45.0,
+        sensor_relative_roll_deg=0.0,
+        frame_center_latitude_deg=36.31,
+        frame_center_longitude_deg=-84.19,
+        frame_center_elevation_m=300.0,
+    )
     spec = klv.TAG_BY_NUMBER[22]
     std, quirky = [], []
     for i in range(20):
@@ -257,7 +283,8 @@ def test_the_replay_of_a_quirky_older_stream_equals_the_standard_ones():
     assert len(a) == len(b) == 20 and not b.errors
     assert [line for line in str(b.summary).splitlines() if "quirk" in line] == [
         "  quirk: tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with the standard's "
-        "step (20 packets, the first at byte 0)"]
+        "step (20 packets, the first at byte 0)"
+    ]
     for name in ("lat_deg", "lon_deg", "h_m", "frame_center_error_m"):
         assert np.isfinite(a.columns[name]).all()
         np.testing.assert_array_equal(a.columns[name], b.columns[name])
@@ -273,8 +300,13 @@ def test_klv_dump_exit_codes():
     def run(data, tmp):
         p = tmp / "x.klv"
         p.write_bytes(data)
-        return subprocess.run([sys.executable, "-m", "geoloc", "klv", "dump", str(p)], capture_output=True,
-                              text=True, cwd=ROOT, timeout=120)
+        return subprocess.run(
+            [sys.executable, "-m", "geoloc", "klv", "dump", str(p)],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=120,
+        )
 
     import tempfile
 
@@ -321,22 +353,33 @@ def test_eg0104_keys_are_the_us_keys_of_st0601s_table():
 # Values written from EG 0104.5's item table: angles, altitudes, ranges as IEEE floats (4 bytes),
 # latitudes and longitudes as doubles (8 bytes), the time stamp as microseconds (8 bytes), text.
 _EG = {
-    "platform_heading_deg": (">f", 159.97), "platform_pitch_full_deg": (">f", -0.43),
-    "platform_roll_full_deg": (">f", 3.41), "sensor_latitude_deg": (">d", 60.1768229669783),
-    "sensor_longitude_deg": (">d", 128.426759042045), "sensor_true_altitude_m": (">f", 14190.7),
-    "sensor_horizontal_fov_deg": (">f", 2.5), "sensor_vertical_fov_deg": (">f", 1.4),
-    "slant_range_m": (">f", 7500.25), "target_width_m": (">f", 722.8),
-    "frame_center_latitude_deg": (">d", 60.1121), "frame_center_longitude_deg": (">d", 128.4912),
-    "frame_center_elevation_m": (">f", 312.5), "corner_latitude_1_deg": (">d", 60.12),
-    "corner_longitude_4_deg": (">d", 128.48), "eg0104_angle_to_north_deg": (">f", 211.5),
+    "platform_heading_deg": (">f", 159.97),
+    "platform_pitch_full_deg": (">f", -0.43),
+    "platform_roll_full_deg": (">f", 3.41),
+    "sensor_latitude_deg": (">d", 60.1768229669783),
+    "sensor_longitude_deg": (">d", 128.426759042045),
+    "sensor_true_altitude_m": (">f", 14190.7),
+    "sensor_horizontal_fov_deg": (">f", 2.5),
+    "sensor_vertical_fov_deg": (">f", 1.4),
+    "slant_range_m": (">f", 7500.25),
+    "target_width_m": (">f", 722.8),
+    "frame_center_latitude_deg": (">d", 60.1121),
+    "frame_center_longitude_deg": (">d", 128.4912),
+    "frame_center_elevation_m": (">f", 312.5),
+    "corner_latitude_1_deg": (">d", 60.12),
+    "corner_longitude_4_deg": (">d", 128.48),
+    "eg0104_angle_to_north_deg": (">f", 211.5),
     "eg0104_obliquity_angle_deg": (">f", 35.25),
 }
 
 
 def eg0104_packet(i: int = 0, extra=()) -> bytes:
     key_of = {name: k for k, (name, _) in EG0104_ITEMS.items()}
-    items = [(key_of["precision_time_stamp_us"], (1_224_807_209_913_000 + i * 33_000).to_bytes(8, "big")),
-             (key_of["mission_id"], b"EPISODE 7"), (key_of["image_source_sensor"], b"EO Nose")]
+    items = [
+        (key_of["precision_time_stamp_us"], (1_224_807_209_913_000 + i * 33_000).to_bytes(8, "big")),
+        (key_of["mission_id"], b"EPISODE 7"),
+        (key_of["image_source_sensor"], b"EO Nose"),
+    ]
     items += [(key_of[n], struct.pack(f, v)) for n, (f, v) in _EG.items()]
     items += list(extra)
     body = b"".join(k + klv.ber_length(len(v)) + v for k, v in items)
@@ -373,8 +416,9 @@ def test_eg0104_packets_read_into_the_st0601_fields_beside_st0601_ones():
     small = list(klv.iter_packets(io.BytesIO(data), chunk_size=7))
     assert [type(r).__name__ for r in small] == kinds and small[3].fields == res[3].fields
     other_version[7] = 0x02
-    p = list(klv.iter_packets(EG0104_KEY + klv.ber_length(21) + bytes(other_version) + b"\x04"
-                              + struct.pack(">f", 1234.5)))
+    p = list(
+        klv.iter_packets(EG0104_KEY + klv.ber_length(21) + bytes(other_version) + b"\x04" + struct.pack(">f", 1234.5))
+    )
     assert p[0]["slant_range_m"] == 1234.5
 
 
@@ -411,6 +455,7 @@ def vmti_value(width: int, targets) -> bytes:
     """An ST 0903 VMTI Local Set written in the test from the standard's layout: tag 4 version,
     8 frame width, 9 frame height, 101 VTarget Series of (BER length, target id, items 1 centroid,
     2 and 3 the box corners as pixel numbers column + (row - 1) x width, 5 confidence)."""
+
     def tlv(tag, v):
         return bytes((tag,)) + bytes((len(v),)) + v
 
@@ -422,8 +467,16 @@ def vmti_value(width: int, targets) -> bytes:
     for tid, c, tl, br, conf in targets:
         pack = bytes((tid,)) + tlv(1, pixnum(*c)) + tlv(2, pixnum(*tl)) + tlv(3, pixnum(*br)) + tlv(5, bytes((conf,)))
         series += bytes((len(pack),)) + pack
-    return (tlv(4, b"\x05") + tlv(5, b"\x02") + tlv(6, b"\x02") + tlv(8, width.to_bytes(2, "big"))
-            + tlv(9, (720).to_bytes(2, "big")) + bytes((101,)) + klv.ber_length(len(series)) + series)
+    return (
+        tlv(4, b"\x05")
+        + tlv(5, b"\x02")
+        + tlv(6, b"\x02")
+        + tlv(8, width.to_bytes(2, "big"))
+        + tlv(9, (720).to_bytes(2, "big"))
+        + bytes((101,))
+        + klv.ber_length(len(series))
+        + series
+    )
 
 
 def test_vmti_detections_pixel_boxes():
@@ -456,7 +509,10 @@ def test_a_vmti_set_that_cannot_be_read_keeps_the_packet_once_per_kind():
     for r in res:
         tally.add(r)
     (line,) = tally.lines()
-    assert line.startswith("tag 74 (VMTI Local Set, ST 0903) cannot be read") and "(30 packets, the first at byte 0)" in line
+    assert (
+        line.startswith("tag 74 (VMTI Local Set, ST 0903) cannot be read")
+        and "(30 packets, the first at byte 0)" in line
+    )
 
 
 # --------------------------------------------------------------------------- transport streams
@@ -466,7 +522,7 @@ def _live(data: bytes, chunk: int = 1000) -> list:
     rx = LiveReceiver()
     out = []
     for k in range(0, len(data), chunk):
-        out += rx.push_bytes(data[k:k + chunk])
+        out += rx.push_bytes(data[k : k + chunk])
     return out + rx.flush()
 
 
@@ -475,23 +531,33 @@ def _wild_packets(n=4, vmti=True):
     (``vmti=False``: the same without it, for klvdata, which cannot read tag 74)."""
     out = []
     for i in range(n):
-        items = (item(2, (1_600_000_000_000_000 + i * 33_333).to_bytes(8, "big")) + item(3, b"M" * 100)
-                 + item(5, raw_of(klv.TAG_BY_NUMBER[5], 10.0 * i, 2))
-                 + item(22, raw_of(klv.TAG_BY_NUMBER[22], 150.0 + i, 4))
-                 + (item(74, vmti_value(1280, [(1, (360, 640), (350, 600), (371, 681), 90)])) if vmti else b"")
-                 + item(200, b"x" * 100))
+        items = (
+            item(2, (1_600_000_000_000_000 + i * 33_333).to_bytes(8, "big"))
+            + item(3, b"M" * 100)
+            + item(5, raw_of(klv.TAG_BY_NUMBER[5], 10.0 * i, 2))
+            + item(22, raw_of(klv.TAG_BY_NUMBER[22], 150.0 + i, 4))
+            + (item(74, vmti_value(1280, [(1, (360, 640), (350, 600), (371, 681), 90)])) if vmti else b"")
+            + item(200, b"x" * 100)
+        )
         out.append(packet(items))
     return out
 
 
-@pytest.mark.parametrize("layout", ["async", "sync", "programs", "no_psi_bd", "no_psi_fc", "no_psi_foreign_id",
-                                    "async_type_sync_id"])
+@pytest.mark.parametrize(
+    "layout", ["async", "sync", "programs", "no_psi_bd", "no_psi_fc", "no_psi_foreign_id", "async_type_sync_id"]
+)
 def test_klv_in_transport_streams_as_multiplexers_write_them(tmp_path, layout):
     # async_type_sync_id: stream type 0x06 (KLVA) with the metadata stream id 0xFC, as jmisb wrote
     # it before its issue 119
-    kw = {"async": {}, "sync": {"sync": True}, "programs": {"programs": 2}, "async_type_sync_id": {"stream_id": 0xFC},
-          "no_psi_bd": {"psi": False}, "no_psi_fc": {"psi": False, "sync": True},
-          "no_psi_foreign_id": {"psi": False, "stream_id": 0xC0}}[layout]
+    kw = {
+        "async": {},
+        "sync": {"sync": True},
+        "programs": {"programs": 2},
+        "async_type_sync_id": {"stream_id": 0xFC},
+        "no_psi_bd": {"psi": False},
+        "no_psi_fc": {"psi": False, "sync": True},
+        "no_psi_foreign_id": {"psi": False, "stream_id": 0xC0},
+    }[layout]
     pk = _wild_packets()
     assert all(len(b) > 184 for b in pk)  # each split across TS packets
     data = tb.stream(pk, **kw)
@@ -548,8 +614,9 @@ def test_klv_send_of_raw_klv_sends_what_the_receiver_decodes(tmp_path, capsys):
     url = f"udp://127.0.0.1:{free_port()}"
     sock = open_socket(parse_udp_url(url))
     box = {}
-    th = threading.Thread(target=lambda: box.update(res=list(receive(url, sock=sock, idle_s=1.0, duration_s=60))),
-                          daemon=True)
+    th = threading.Thread(
+        target=lambda: box.update(res=list(receive(url, sock=sock, idle_s=1.0, duration_s=60))), daemon=True
+    )
     th.start()
     assert main(["klv", "send", str(path), url, "--fast"]) == 0
     th.join(30)
@@ -605,7 +672,7 @@ def test_a_mutated_packet_never_raises_and_the_good_ones_around_it_are_kept(data
             b[k:k] = data.draw(st.binary(min_size=1, max_size=8))
         elif b:
             del b[k]
-    mutated = pk[:i] + [bytes(b)] + pk[i + 1:]
+    mutated = pk[:i] + [bytes(b)] + pk[i + 1 :]
     res = _consume(b"".join(mutated))
     good = [r for r in res if isinstance(r, Packet)]
     # every untouched packet is found at its offset with its values
@@ -633,7 +700,7 @@ def test_mutated_transport_streams_never_raise_and_keep_the_untouched_packets(da
     res = _live(bytes(ts), chunk=data.draw(st.sampled_from([188, 1316, 1000, 7])))
     rx = LiveReceiver()
     for g in range(0, len(ts), 1316):
-        rx.push(bytes(ts[g:g + 1316]), now=g / 1e6)
+        rx.push(bytes(ts[g : g + 1316]), now=g / 1e6)
     rx.flush()
     # a flipped byte damages at most the PES of that TS packet: the other three are decoded (a
     # broken PAT or PMT hides nothing: the PES are found by their stream id and key)
@@ -647,15 +714,30 @@ def test_klv_fix_rewrites_an_item_given_at_another_length(tmp_path):
     rewritten at the standard's 2 bytes (the packet's length redone), every other item kept."""
     from geoloc.workflows.klv_fix import fix_klv
 
-    base = dict(platform_heading_deg=90.0, platform_pitch_deg=1.0, platform_roll_deg=0.5,
-                sensor_latitude_deg=36.3, sensor_longitude_deg=-84.2, sensor_true_altitude_m=1500.0,
-                sensor_horizontal_fov_deg=10.0, sensor_vertical_fov_deg=6.0, sensor_relative_azimuth_deg=10.0,
-                sensor_relative_elevation_deg=-45.0, sensor_relative_roll_deg=0.0,
-                frame_center_latitude_deg=36.31, frame_center_longitude_deg=-84.19)
+    base = dict(
+        platform_heading_deg=90.0,
+        platform_pitch_deg=1.0,
+        platform_roll_deg=0.5,
+        sensor_latitude_deg=36.3,
+        sensor_longitude_deg=-84.2,
+        sensor_true_altitude_m=1500.0,
+        sensor_horizontal_fov_deg=10.0,
+        sensor_vertical_fov_deg=6.0,
+        sensor_relative_azimuth_deg=10.0,
+        sensor_relative_elevation_deg=-45.0,
+        sensor_relative_roll_deg=0.0,
+        frame_center_latitude_deg=36.31,
+        frame_center_longitude_deg=-84.19,
+    )
     spec = klv.TAG_BY_NUMBER[25]
-    pk = [packet(klv.encode_packet(dict(base, platform_heading_deg=90.0 + i), with_checksum=False)[17:]
-                 + item(25, raw_of(spec, 300.0, 4)) + item(22, raw_of(klv.TAG_BY_NUMBER[22], 80.0, 4)))
-          for i in range(5)]
+    pk = [
+        packet(
+            klv.encode_packet(dict(base, platform_heading_deg=90.0 + i), with_checksum=False)[17:]
+            + item(25, raw_of(spec, 300.0, 4))
+            + item(22, raw_of(klv.TAG_BY_NUMBER[22], 80.0, 4))
+        )
+        for i in range(5)
+    ]
     src, out = tmp_path / "in.klv", tmp_path / "out.klv"
     src.write_bytes(b"".join(pk))
     fix = fix_klv(src, out)
@@ -664,8 +746,9 @@ def test_klv_fix_rewrites_an_item_given_at_another_length(tmp_path):
     assert all(isinstance(r, Packet) for r in res) and len(res) == 5
     for r, b in zip(res, pk):
         old = klv.decode_packet(b)
-        assert r.quirks == ("tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with "
-                            "the standard's step",)  # tag 25 now at the standard's length
+        assert r.quirks == (
+            "tag 22 (Target Width) in 4 bytes, the standard's 2: decoded at its length with the standard's step",
+        )  # tag 25 now at the standard's length
         assert r["target_width_m"] == old["target_width_m"] and r["platform_heading_deg"] == old["platform_heading_deg"]
         assert np.isfinite(r["frame_center_elevation_m"])
     # an EG 0104 packet among them is copied as it is, and said so
@@ -686,8 +769,7 @@ def test_the_set_decoders_raise_only_their_own_error(value, which):
     reader turns into a quirk of the packet, or a bad EG 0104 packet with its offset)."""
     from geoloc.io import klv_sets
 
-    dec = {"vmti": klv_sets.decode_vmti, "security": klv_sets.decode_security,
-           "eg0104": klv_sets.decode_eg0104}[which]
+    dec = {"vmti": klv_sets.decode_vmti, "security": klv_sets.decode_security, "eg0104": klv_sets.decode_eg0104}[which]
     try:
         dec(value)
     except klv_sets.SetError:
@@ -705,9 +787,15 @@ def test_filler_between_packets_is_named_a_few_times_then_counted(tmp_path):
     good = packet(item(5, b"\x71\xc2"))
     path = tmp_path / "stuffed.klv"
     path.write_bytes((good + b"\xff" * 7) * 50)
-    r = subprocess.run([sys.executable, "-m", "geoloc", "klv", "dump", str(path)], capture_output=True, text=True,
-                       cwd=ROOT, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "geoloc", "klv", "dump", str(path)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
     assert r.returncode == 0 and len(r.stdout.splitlines()) == 50
     err = r.stderr.splitlines()
-    assert len(err) == 4 and err[-1].endswith("and 47 more runs of bytes that are no UAS LS packet between "
-                                              "packets (no packet lost)")
+    assert len(err) == 4 and err[-1].endswith(
+        "and 47 more runs of bytes that are no UAS LS packet between packets (no packet lost)"
+    )

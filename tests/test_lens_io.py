@@ -35,8 +35,9 @@ def write_filestorage(path, **items):
 # --------------------------------------------------------------------------- OpenCV FileStorage
 @pytest.mark.parametrize("ext", ["yml", "json"])
 def test_opencv_filestorage_brown(tmp_path, ext):
-    path = write_filestorage(tmp_path / f"calib.{ext}", image_width=640, image_height=480,
-                             camera_matrix=K, distortion_coefficients=D5)
+    path = write_filestorage(
+        tmp_path / f"calib.{ext}", image_width=640, image_height=480, camera_matrix=K, distortion_coefficients=D5
+    )
     for lens in (read_opencv_yaml(path), read_lens_file(path)):
         assert type(lens) is BrownLens
         np.testing.assert_array_equal(lens.K, K)  # OpenCV pixels are ours: unchanged
@@ -54,16 +55,23 @@ def test_opencv_filestorage_rational_and_alternative_keys(tmp_path):
 
 
 def test_opencv_filestorage_fisheye(tmp_path):
-    path = write_filestorage(tmp_path / "f.yml", image_width=848, image_height=800, camera_matrix=K,
-                             distortion_coefficients=D4, distortion_model="fisheye")
+    path = write_filestorage(
+        tmp_path / "f.yml",
+        image_width=848,
+        image_height=800,
+        camera_matrix=K,
+        distortion_coefficients=D4,
+        distortion_model="fisheye",
+    )
     lens = read_opencv_yaml(path)
     assert type(lens) is FisheyeLens and lens.dist_coeffs.tolist() == D4.ravel().tolist()
     assert read_opencv_yaml(path, model="fisheye") == lens
     with pytest.raises(ValueError, match=r"f\.yml: distortion_model = 'fisheye' contradicts model='brown'"):
         read_opencv_yaml(path, model="brown")
     # without the key, the caller says
-    path = write_filestorage(tmp_path / "g.yml", image_width=848, image_height=800, camera_matrix=K,
-                             distortion_coefficients=D4)
+    path = write_filestorage(
+        tmp_path / "g.yml", image_width=848, image_height=800, camera_matrix=K, distortion_coefficients=D4
+    )
     assert read_opencv_yaml(path, model="fisheye") == lens
     assert type(read_opencv_yaml(path)) is BrownLens  # 4 coefficients read as k1, k2, p1, p2
 
@@ -95,8 +103,13 @@ avg_reprojection_error: 2.1e-01
 
 
 def test_opencv_yaml_errors(tmp_path):
-    path = write_filestorage(tmp_path / "a.yml", image_width=640, image_height=480, camera_matrix=K,
-                             distortion_coefficients=np.zeros((1, 14)))
+    path = write_filestorage(
+        tmp_path / "a.yml",
+        image_width=640,
+        image_height=480,
+        camera_matrix=K,
+        distortion_coefficients=np.zeros((1, 14)),
+    )
     with pytest.raises(ValueError, match=r"a\.yml: .*14 values are not supported"):
         read_opencv_yaml(path)
     path = write_filestorage(tmp_path / "b.yml", image_width=640, image_height=480, distortion_coefficients=D5)
@@ -108,13 +121,16 @@ def test_opencv_yaml_errors(tmp_path):
     path = write_filestorage(tmp_path / "d.yml", image_width=640, image_height=480, camera_matrix=K[:2])
     with pytest.raises(ValueError, match=r"d\.yml: camera_matrix = .*expected 3x3"):
         read_opencv_yaml(path)
-    path = write_filestorage(tmp_path / "e.yml", image_width=640, image_height=480, camera_matrix=K,
-                             distortion_model="kb8")
+    path = write_filestorage(
+        tmp_path / "e.yml", image_width=640, image_height=480, camera_matrix=K, distortion_model="kb8"
+    )
     with pytest.raises(ValueError, match=r"e\.yml: distortion_model = 'kb8': not a supported"):
         read_opencv_yaml(path)
     path = tmp_path / "f.yml"
-    path.write_text("%YAML:1.0\ncamera_matrix: !!opencv-matrix\n  rows: 3\n  cols: 3\n  dt: d\n"
-                    "  data: [1, 0, 1, 0, 1, 1, 0, 0, x]\nimage_width: 4\nimage_height: 4\n")
+    path.write_text(
+        "%YAML:1.0\ncamera_matrix: !!opencv-matrix\n  rows: 3\n  cols: 3\n  dt: d\n"
+        "  data: [1, 0, 1, 0, 1, 1, 0, 0, x]\nimage_width: 4\nimage_height: 4\n"
+    )
     with pytest.raises(ValueError, match=r"f\.yml: camera_matrix = 'x': must be a number"):
         read_opencv_yaml(path)
     path.write_text("camera_matrix: [1, 2\n")
@@ -148,18 +164,21 @@ projection_matrix:
 """
 
 
-@pytest.mark.parametrize("model, coeffs, cls", [
-    ("plumb_bob", D5.ravel(), BrownLens),
-    ("rational_polynomial", D8.ravel(), BrownLens),
-    ("equidistant", D4.ravel(), FisheyeLens),
-])
+@pytest.mark.parametrize(
+    "model, coeffs, cls",
+    [
+        ("plumb_bob", D5.ravel(), BrownLens),
+        ("rational_polynomial", D8.ravel(), BrownLens),
+        ("equidistant", D4.ravel(), FisheyeLens),
+    ],
+)
 def test_ros_camera_info(tmp_path, model, coeffs, cls):
     path = tmp_path / "camera.yaml"
     path.write_text(ROS_YAML.format(model=model, n=len(coeffs), coeffs=", ".join(repr(float(c)) for c in coeffs)))
     for lens in (read_ros_camera_info(path), read_lens_file(path)):
         assert type(lens) is cls
         np.testing.assert_array_equal(lens.K, K)  # ROS pixels are OpenCV's: unchanged
-        assert lens.dist_coeffs[:len(coeffs)].tolist() == coeffs.tolist()
+        assert lens.dist_coeffs[: len(coeffs)].tolist() == coeffs.tolist()
         assert (lens.width, lens.height) == (640, 480)
 
 
@@ -199,8 +218,15 @@ def test_colmap_cameras(tmp_path):
     path.write_text(COLMAP_TXT)
     lenses = read_colmap_cameras(path)
     assert sorted(lenses) == [1, 2, 3, 4, 5, 6, 7]
-    assert [type(lenses[i]) for i in range(1, 8)] == [PinholeLens, PinholeLens, BrownLens, BrownLens,
-                                                      BrownLens, BrownLens, FisheyeLens]
+    assert [type(lenses[i]) for i in range(1, 8)] == [
+        PinholeLens,
+        PinholeLens,
+        BrownLens,
+        BrownLens,
+        BrownLens,
+        BrownLens,
+        FisheyeLens,
+    ]
     # COLMAP puts the centre of the top-left pixel at (0.5, 0.5): (320.0, 240.0) -> (319.5, 239.5)
     assert (lenses[1].cx, lenses[1].cy) == (319.5, 239.5)
     assert (lenses[1].fx, lenses[1].fy) == (500.0, 500.0)
@@ -224,15 +250,18 @@ def test_colmap_cameras(tmp_path):
     assert float(v) + 0.5 == pytest.approx(501.0 * (y + dv) + 240.0, abs=1e-9)
 
 
-@pytest.mark.parametrize("line, pattern", [
-    ("8 THIN_PRISM_FISHEYE 640 480 1 1 1 1 0 0 0 0 0 0 0 0", r"line 4: camera model 'THIN_PRISM_FISHEYE' is not"),
-    ("8 OPENCV 640 480 500 500 320 240 0.1", r"line 4: OPENCV takes 8 parameters"),
-    ("8 PINHOLE 640 480 500 abc 320 240", r"line 4: fy = 'abc': must be a number"),
-    ("8 PINHOLE 640 480.5 500 500 320 240", r"line 4: CAMERA_ID, WIDTH, HEIGHT = '8', '640', '480.5'"),
-    ("8 PINHOLE 640 480 -500 500 320 240", r"line 4: lens field fx = -500.0: must be a finite number > 0"),
-    ("1 PINHOLE 640 480 500 500 320 240", r"line 4: camera id 1 appears twice"),
-    ("8 PINHOLE 640", r"line 4: '8 PINHOLE 640': expected CAMERA_ID MODEL WIDTH HEIGHT"),
-])
+@pytest.mark.parametrize(
+    "line, pattern",
+    [
+        ("8 THIN_PRISM_FISHEYE 640 480 1 1 1 1 0 0 0 0 0 0 0 0", r"line 4: camera model 'THIN_PRISM_FISHEYE' is not"),
+        ("8 OPENCV 640 480 500 500 320 240 0.1", r"line 4: OPENCV takes 8 parameters"),
+        ("8 PINHOLE 640 480 500 abc 320 240", r"line 4: fy = 'abc': must be a number"),
+        ("8 PINHOLE 640 480.5 500 500 320 240", r"line 4: CAMERA_ID, WIDTH, HEIGHT = '8', '640', '480.5'"),
+        ("8 PINHOLE 640 480 -500 500 320 240", r"line 4: lens field fx = -500.0: must be a finite number > 0"),
+        ("1 PINHOLE 640 480 500 500 320 240", r"line 4: camera id 1 appears twice"),
+        ("8 PINHOLE 640", r"line 4: '8 PINHOLE 640': expected CAMERA_ID MODEL WIDTH HEIGHT"),
+    ],
+)
 def test_colmap_errors(tmp_path, line, pattern):
     path = tmp_path / "cameras.txt"
     path.write_text("# comment\n1 PINHOLE 640 480 500 500 320 240\n\n" + line + "\n")
@@ -243,16 +272,42 @@ def test_colmap_errors(tmp_path, line, pattern):
 # --------------------------------------------------------------------------- OpenSfM
 OPENSFM = {
     "v2 sony a7 1600 1200 perspective 0.85": {
-        "projection_type": "perspective", "width": 1600, "height": 1200, "focal": 0.85,
-        "k1": -0.05, "k2": 0.01, "focal_prior": 0.85,
+        "projection_type": "perspective",
+        "width": 1600,
+        "height": 1200,
+        "focal": 0.85,
+        "k1": -0.05,
+        "k2": 0.01,
+        "focal_prior": 0.85,
     },
     "brown cam": {
-        "projection_type": "brown", "width": 1200, "height": 1600, "focal_x": 0.8, "focal_y": 0.81,
-        "c_x": 0.01, "c_y": -0.02, "k1": -0.1, "k2": 0.02, "k3": -0.001, "p1": 1e-3, "p2": -5e-4,
+        "projection_type": "brown",
+        "width": 1200,
+        "height": 1600,
+        "focal_x": 0.8,
+        "focal_y": 0.81,
+        "c_x": 0.01,
+        "c_y": -0.02,
+        "k1": -0.1,
+        "k2": 0.02,
+        "k3": -0.001,
+        "p1": 1e-3,
+        "p2": -5e-4,
     },
     "fish": {"projection_type": "fisheye", "width": 848, "height": 800, "focal": 0.336, "k1": -0.01, "k2": 0.04},
-    "fish cv": {"projection_type": "fisheye_opencv", "width": 848, "height": 800, "focal_x": 0.336,
-                "focal_y": 0.337, "c_x": 0.001, "c_y": 0.0, "k1": -0.0073, "k2": 0.044, "k3": -0.042, "k4": 0.0078},
+    "fish cv": {
+        "projection_type": "fisheye_opencv",
+        "width": 848,
+        "height": 800,
+        "focal_x": 0.336,
+        "focal_y": 0.337,
+        "c_x": 0.001,
+        "c_y": 0.0,
+        "k1": -0.0073,
+        "k2": 0.044,
+        "k3": -0.042,
+        "k4": 0.0078,
+    },
     "default type": {"width": 640, "height": 480, "focal": 1.0},
 }
 
@@ -261,7 +316,7 @@ def opensfm_brown_pixel(cam, x, y):
     """OpenSfM's brown camera (docs "Geometric Models"), to normalised image coordinates,
     then to OpenCV pixels by OpenSfM's H = [[s, 0, (w-1)/2], [0, s, (h-1)/2], [0, 0, 1]]."""
     r2 = x * x + y * y
-    d = 1 + cam["k1"] * r2 + cam["k2"] * r2 ** 2 + cam["k3"] * r2 ** 3
+    d = 1 + cam["k1"] * r2 + cam["k2"] * r2**2 + cam["k3"] * r2**3
     xn = cam["focal_x"] * (d * x + 2 * cam["p1"] * x * y + cam["p2"] * (r2 + 2 * x * x)) + cam["c_x"]
     yn = cam["focal_y"] * (d * y + 2 * cam["p2"] * x * y + cam["p1"] * (r2 + 2 * y * y)) + cam["c_y"]
     s = max(cam["width"], cam["height"])
@@ -296,15 +351,27 @@ def test_opensfm_cameras(tmp_path):
     assert read_lens_file(path, camera="fish") == f
 
 
-@pytest.mark.parametrize("cam, pattern", [
-    ({"projection_type": "spherical", "width": 2, "height": 1}, r"camera 'c': projection_type = 'spherical' is not"),
-    ({"projection_type": "brown", "width": 640, "height": 480, "focal_x": 1.0},
-     r"camera 'c': missing key 'focal_y' of a brown camera"),
-    ({"projection_type": "fisheye", "width": 0, "height": 480, "focal": 1.0},
-     r"camera 'c': width = 0: must be a positive integer"),
-    ({"projection_type": "perspective", "width": 640, "height": 480, "focal": "one"},
-     r"camera 'c': focal = 'one': must be a number"),
-])
+@pytest.mark.parametrize(
+    "cam, pattern",
+    [
+        (
+            {"projection_type": "spherical", "width": 2, "height": 1},
+            r"camera 'c': projection_type = 'spherical' is not",
+        ),
+        (
+            {"projection_type": "brown", "width": 640, "height": 480, "focal_x": 1.0},
+            r"camera 'c': missing key 'focal_y' of a brown camera",
+        ),
+        (
+            {"projection_type": "fisheye", "width": 0, "height": 480, "focal": 1.0},
+            r"camera 'c': width = 0: must be a positive integer",
+        ),
+        (
+            {"projection_type": "perspective", "width": 640, "height": 480, "focal": "one"},
+            r"camera 'c': focal = 'one': must be a number",
+        ),
+    ],
+)
 def test_opensfm_errors(tmp_path, cam, pattern):
     path = tmp_path / "cameras.json"
     path.write_text(json.dumps({"c": cam}))

@@ -35,20 +35,37 @@ import cv2  # noqa: E402  (opencv-python-headless: a test dependency, never skip
 CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-14)
 ZERO3 = np.zeros(3)
 
-MILD = BrownLens(fx=1210.0, fy=1204.5, cx=641.3, cy=478.2, width=1280, height=960,
-                 k1=-0.08, k2=0.02, p1=2e-4, p2=-1e-4, k3=-0.002)
+MILD = BrownLens(
+    fx=1210.0, fy=1204.5, cx=641.3, cy=478.2, width=1280, height=960, k1=-0.08, k2=0.02, p1=2e-4, p2=-1e-4, k3=-0.002
+)
 # Strong barrel distortion: the corners are 52 deg off axis, 0.3 of the way short of the fold
 # of the polynomial (det J = 0 at r = 1.52, the corners undistort to r = 1.27).
-STRONG = BrownLens(fx=450.0, fy=450.0, cx=319.5, cy=239.5, width=640, height=480,
-                   k1=-0.35, k2=0.15, p1=1e-3, p2=-5e-4, k3=-0.03)
+STRONG = BrownLens(
+    fx=450.0, fy=450.0, cx=319.5, cy=239.5, width=640, height=480, k1=-0.35, k2=0.15, p1=1e-3, p2=-5e-4, k3=-0.03
+)
 # Rational model (cv2.CALIB_RATIONAL_MODEL), wide angle: the corners are 58 deg off axis.
-RATIONAL = BrownLens(fx=300.0, fy=301.0, cx=320.2, cy=239.1, width=640, height=480,
-                     k1=0.9, k2=0.25, p1=1e-3, p2=-5e-4, k3=0.005, k4=1.3, k5=0.45, k6=0.03)
+RATIONAL = BrownLens(
+    fx=300.0,
+    fy=301.0,
+    cx=320.2,
+    cy=239.1,
+    width=640,
+    height=480,
+    k1=0.9,
+    k2=0.25,
+    p1=1e-3,
+    p2=-5e-4,
+    k3=0.005,
+    k4=1.3,
+    k5=0.45,
+    k6=0.03,
+)
 # Equidistant fisheye with coefficients of the order of a calibrated Intel RealSense T265
 # lens: its 90 deg circle (180 deg field of view) has a radius of 400 px, inscribed in the
 # 800 px height, so the corners of the sensor lie beyond 90 deg.
-FISHEYE_180 = FisheyeLens(fx=285.0, fy=285.7, cx=424.6, cy=400.3, width=848, height=800,
-                          k1=-0.0073, k2=0.044, k3=-0.042, k4=0.0078)
+FISHEYE_180 = FisheyeLens(
+    fx=285.0, fy=285.7, cx=424.6, cy=400.3, width=848, height=800, k1=-0.0073, k2=0.044, k3=-0.042, k4=0.0078
+)
 
 BROWN_LENSES = {"mild": MILD, "strong": STRONG, "rational": RATIONAL}
 
@@ -167,8 +184,7 @@ def test_fisheye_unproject_over_whole_sensor():
     d = lens.unproject(u, v)
     # Pixels beyond the 90 deg circle have no direction in front of the camera: NaN, and only those.
     xd, yd = (u - lens.cx - lens.skew * (v - lens.cy) / lens.fy) / lens.fx, (v - lens.cy) / lens.fy
-    theta_d_90 = math.pi / 2 * (1 + sum(k * (math.pi / 2) ** (2 * i + 2)
-                                        for i, k in enumerate(lens.dist_coeffs)))
+    theta_d_90 = math.pi / 2 * (1 + sum(k * (math.pi / 2) ** (2 * i + 2) for i, k in enumerate(lens.dist_coeffs)))
     beyond = np.hypot(xd, yd) >= theta_d_90
     assert beyond.any() and not beyond.all()
     np.testing.assert_array_equal(np.isnan(d[:, 0]), beyond)
@@ -194,10 +210,18 @@ def test_fisheye_unproject_over_whole_sensor():
     assert err < 1e-4
 
 
-@pytest.mark.parametrize("lens", [MILD, STRONG, RATIONAL, FISHEYE_180,
-                                  PinholeLens(fx=800.0, fy=810.0, cx=300.2, cy=201.9, width=600, height=400,
-                                              skew=1.5),
-                                  STRONG.with_params(skew=2.0)], ids=lambda lens: lens.model)
+@pytest.mark.parametrize(
+    "lens",
+    [
+        MILD,
+        STRONG,
+        RATIONAL,
+        FISHEYE_180,
+        PinholeLens(fx=800.0, fy=810.0, cx=300.2, cy=201.9, width=600, height=400, skew=1.5),
+        STRONG.with_params(skew=2.0),
+    ],
+    ids=lambda lens: lens.model,
+)
 def test_round_trip_directions(lens):
     rng = np.random.default_rng(3)
     dirs = random_dirs(lens, 3000, rng, 0.7)
@@ -253,8 +277,7 @@ def test_fov_90_edge_pixel_is_45_degrees():
 
 def test_brown_closed_form_single_point():
     # x = 0.5, y = 0.25: r2 = 0.3125; R = 1 - 0.1 * 0.3125; tangential by hand
-    lens = BrownLens(fx=100.0, fy=200.0, cx=10.0, cy=20.0, width=50, height=50, skew=3.0,
-                     k1=-0.1, p1=0.01, p2=0.02)
+    lens = BrownLens(fx=100.0, fy=200.0, cx=10.0, cy=20.0, width=50, height=50, skew=3.0, k1=-0.1, p1=0.01, p2=0.02)
     x, y, r2 = 0.5, 0.25, 0.3125
     R = 1 - 0.1 * r2
     xd = x * R + 2 * 0.01 * x * y + 0.02 * (r2 + 2 * x * x)
@@ -283,9 +306,17 @@ def _nb_project_all(code, p, d):
     return u, v, ok
 
 
-@pytest.mark.parametrize("lens", [MILD, STRONG, RATIONAL, FISHEYE_180.with_params(skew=0.5),
-                                  PinholeLens(fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=640, height=480)],
-                         ids=lambda lens: lens.model)
+@pytest.mark.parametrize(
+    "lens",
+    [
+        MILD,
+        STRONG,
+        RATIONAL,
+        FISHEYE_180.with_params(skew=0.5),
+        PinholeLens(fx=500.0, fy=500.0, cx=319.5, cy=239.5, width=640, height=480),
+    ],
+    ids=lambda lens: lens.model,
+)
 def test_numba_kernels_equal_numpy_path(lens):
     u, v = sensor_grid(lens, 41, 31)
     u = np.concatenate([u, [np.nan, 1e9]])
@@ -294,8 +325,12 @@ def test_numba_kernels_equal_numpy_path(lens):
     d_nb = _nb_unproject_all(lens.code, lens.as_array(), u, v)
     np.testing.assert_array_equal(np.isnan(d_nb), np.isnan(d_np))
     np.testing.assert_allclose(d_nb, d_np, rtol=1e-12, atol=1e-15)
-    dirs = np.concatenate([random_dirs(lens, 500, np.random.default_rng(4), 0.8),
-                           [[0.0, 0.0, 1.0], [0.1, 0.1, -1.0], [0.1, 0.1, 0.0], [np.nan, 0.0, 1.0]]])
+    dirs = np.concatenate(
+        [
+            random_dirs(lens, 500, np.random.default_rng(4), 0.8),
+            [[0.0, 0.0, 1.0], [0.1, 0.1, -1.0], [0.1, 0.1, 0.0], [np.nan, 0.0, 1.0]],
+        ]
+    )
     uu, vv, status = lens.project(dirs)
     un, vn, ok = _nb_project_all(lens.code, lens.as_array(), dirs)
     np.testing.assert_array_equal(ok, status == Status.OK)
@@ -307,8 +342,21 @@ def test_numba_kernels_equal_numpy_path(lens):
 def test_as_array_layout():
     assert PARAM_LAYOUT == ("fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
     assert (PINHOLE, BROWN, FISHEYE) == (0, 1, 2)
-    assert RATIONAL.as_array().tolist() == [300.0, 301.0, 320.2, 239.1, 0.0, 0.9, 0.25, 1e-3, -5e-4,
-                                            0.005, 1.3, 0.45, 0.03]
+    assert RATIONAL.as_array().tolist() == [
+        300.0,
+        301.0,
+        320.2,
+        239.1,
+        0.0,
+        0.9,
+        0.25,
+        1e-3,
+        -5e-4,
+        0.005,
+        1.3,
+        0.45,
+        0.03,
+    ]
     f = FisheyeLens(fx=1.0, fy=2.0, cx=3.0, cy=4.0, width=5, height=6, skew=7.0, k1=8.0, k2=9.0, k3=10.0, k4=11.0)
     assert f.as_array().tolist() == [1.0, 2.0, 3.0, 4.0, 7.0, 8.0, 9.0, 0.0, 0.0, 10.0, 11.0, 0.0, 0.0]
     assert (PinholeLens.code, BrownLens.code, FisheyeLens.code) == (PINHOLE, BROWN, FISHEYE)
@@ -319,7 +367,12 @@ def test_params_with_params_K_dist_coeffs():
     assert list(STRONG.params) == ["fx", "fy", "cx", "cy", "skew", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"]
     assert list(FISHEYE_180.params) == ["fx", "fy", "cx", "cy", "skew", "k1", "k2", "k3", "k4"]
     assert list(PinholeLens(fx=1.0, fy=1.0, cx=0.0, cy=0.0, width=1, height=1).params) == [
-        "fx", "fy", "cx", "cy", "skew"]
+        "fx",
+        "fy",
+        "cx",
+        "cy",
+        "skew",
+    ]
     lens = STRONG.with_params(fx=451.0, k2=0.2)
     assert type(lens) is BrownLens and lens.fx == 451.0 and lens.k2 == 0.2 and lens.k1 == STRONG.k1
     assert STRONG.fx == 450.0  # frozen original untouched
@@ -337,16 +390,19 @@ def test_params_with_params_K_dist_coeffs():
         Lens(fx=1.0, fy=1.0, cx=0.0, cy=0.0, width=1, height=1)
 
 
-@pytest.mark.parametrize("field, value, message", [
-    ("fx", -3.0, "lens field fx = -3.0: must be a finite number > 0"),
-    ("fy", 0, "lens field fy = 0.0: must be a finite number > 0"),
-    ("cx", float("nan"), "lens field cx = nan: must be a finite number"),
-    ("skew", "1", "lens field skew = '1': must be a finite number"),
-    ("k3", float("inf"), "lens field k3 = inf: must be a finite number"),
-    ("width", 0, "lens field width = 0: must be a positive integer"),
-    ("height", 480.0, "lens field height = 480.0: must be a positive integer"),
-    ("width", True, "lens field width = True: must be a positive integer"),
-])
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("fx", -3.0, "lens field fx = -3.0: must be a finite number > 0"),
+        ("fy", 0, "lens field fy = 0.0: must be a finite number > 0"),
+        ("cx", float("nan"), "lens field cx = nan: must be a finite number"),
+        ("skew", "1", "lens field skew = '1': must be a finite number"),
+        ("k3", float("inf"), "lens field k3 = inf: must be a finite number"),
+        ("width", 0, "lens field width = 0: must be a positive integer"),
+        ("height", 480.0, "lens field height = 480.0: must be a positive integer"),
+        ("width", True, "lens field width = True: must be a positive integer"),
+    ],
+)
 def test_invalid_fields_name_field_and_value(field, value, message):
     args = {"fx": 500.0, "fy": 500.0, "cx": 319.5, "cy": 239.5, "width": 640, "height": 480}
     args[field] = value
@@ -410,8 +466,14 @@ def test_lens_from_opencv_calibration_round_trip():
         assert lens.in_image(u, v).all() and (status == Status.OK).all()
         objs.append(board.astype(np.float32))
         imgs.append(np.stack([u, v], axis=-1).astype(np.float32))
-    _, K, dist, _, _ = cv2.calibrateCamera(objs, imgs, (lens.width, lens.height), None, None,
-                                           criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12))
+    _, K, dist, _, _ = cv2.calibrateCamera(
+        objs,
+        imgs,
+        (lens.width, lens.height),
+        None,
+        None,
+        criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12),
+    )
     fitted = lens_from_opencv(K, dist, (lens.width, lens.height))
     # float32 image points (~3e-5 px rounding): the fit reproduces the pixels to ~1e-3 px
     u, v = sensor_grid(lens, 17, 13)
@@ -421,8 +483,20 @@ def test_lens_from_opencv_calibration_round_trip():
 
 # --------------------------------------------------------------------------- sensor file table
 def test_lens_dict_round_trip_and_one_based_pixels():
-    data = {"model": "brown", "fx": 450.0, "fy": 450.0, "cx": 320.5, "cy": 240.5, "width": 640, "height": 480,
-            "k1": -0.35, "k2": 0.15, "p1": 1e-3, "p2": -5e-4, "k3": -0.03}
+    data = {
+        "model": "brown",
+        "fx": 450.0,
+        "fy": 450.0,
+        "cx": 320.5,
+        "cy": 240.5,
+        "width": 640,
+        "height": 480,
+        "k1": -0.35,
+        "k2": 0.15,
+        "p1": 1e-3,
+        "p2": -5e-4,
+        "k3": -0.03,
+    }
     lens = lens_from_dict(data, "sensor.toml")
     assert lens == STRONG  # cx, cy 1-based in the file: 320.5 -> 319.5
     out = lens_to_dict(lens)
@@ -437,35 +511,59 @@ def test_lens_dict_round_trip_and_one_based_pixels():
 def test_lens_dict_fov():
     lens = lens_from_dict({"model": "fov", "hfov_deg": 90.0, "vfov_deg": 60, "width": 640, "height": 480}, "s")
     assert type(lens) is PinholeLens and lens.fx == pytest.approx(320.0) and (lens.cx, lens.cy) == (319.5, 239.5)
-    lens = lens_from_dict({"model": "fov", "hfov_deg": 90.0, "vfov_deg": 60, "width": 640, "height": 480,
-                           "cx": 300.0, "cy": 200.0}, "s")
+    lens = lens_from_dict(
+        {"model": "fov", "hfov_deg": 90.0, "vfov_deg": 60, "width": 640, "height": 480, "cx": 300.0, "cy": 200.0}, "s"
+    )
     assert (lens.cx, lens.cy) == (299.0, 199.0)
 
 
-@pytest.mark.parametrize("data, pattern", [
-    ({"fx": 1.0}, r"sensor\.toml: lens key model missing"),
-    ({"model": "kb8"}, r"sensor\.toml: lens key model = 'kb8'"),
-    ({"model": "pinhole", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4, "k1": 0.1},
-     r"sensor\.toml: lens key k1 = 0\.1: not a key of a pinhole lens"),
-    ({"model": "brown", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4, "focal": 3.0},
-     r"sensor\.toml: lens key focal = 3\.0: not a key of a brown lens"),
-    ({"model": "brown", "fx": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4},
-     r"sensor\.toml: lens key\(s\) \['fy'\] missing"),
-    ({"model": "fisheye", "fx": "500", "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4},
-     r"sensor\.toml: lens key fx = '500': must be a number"),
-    ({"model": "fisheye", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4.0, "height": 4},
-     r"sensor\.toml: lens key width = 4\.0: must be an integer"),
-    ({"model": "fisheye", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4, "k5": 0.0},
-     r"sensor\.toml: lens key k5 = 0\.0: not a key of a fisheye lens"),
-    ({"model": "brown", "fx": -3.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4},
-     r"sensor\.toml: lens field fx = -3\.0: must be a finite number > 0"),
-    ({"model": "fov", "hfov_deg": 190.0, "vfov_deg": 60.0, "width": 4, "height": 4},
-     r"sensor\.toml: lens key hfov_deg = 190\.0: must be a field of view in \(0, 180\) degrees"),
-    ({"model": "fov", "hfov_deg": 90.0, "vfov_deg": 60.0, "width": 4, "height": 4, "fx": 3.0},
-     r"sensor\.toml: lens key fx = 3\.0: not a key of a fov lens"),
-    ({"model": "pinhole", "fx": True, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4},
-     r"sensor\.toml: lens key fx = True: must be a number"),
-])
+@pytest.mark.parametrize(
+    "data, pattern",
+    [
+        ({"fx": 1.0}, r"sensor\.toml: lens key model missing"),
+        ({"model": "kb8"}, r"sensor\.toml: lens key model = 'kb8'"),
+        (
+            {"model": "pinhole", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4, "k1": 0.1},
+            r"sensor\.toml: lens key k1 = 0\.1: not a key of a pinhole lens",
+        ),
+        (
+            {"model": "brown", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4, "focal": 3.0},
+            r"sensor\.toml: lens key focal = 3\.0: not a key of a brown lens",
+        ),
+        (
+            {"model": "brown", "fx": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4},
+            r"sensor\.toml: lens key\(s\) \['fy'\] missing",
+        ),
+        (
+            {"model": "fisheye", "fx": "500", "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4},
+            r"sensor\.toml: lens key fx = '500': must be a number",
+        ),
+        (
+            {"model": "fisheye", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4.0, "height": 4},
+            r"sensor\.toml: lens key width = 4\.0: must be an integer",
+        ),
+        (
+            {"model": "fisheye", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4, "k5": 0.0},
+            r"sensor\.toml: lens key k5 = 0\.0: not a key of a fisheye lens",
+        ),
+        (
+            {"model": "brown", "fx": -3.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4},
+            r"sensor\.toml: lens field fx = -3\.0: must be a finite number > 0",
+        ),
+        (
+            {"model": "fov", "hfov_deg": 190.0, "vfov_deg": 60.0, "width": 4, "height": 4},
+            r"sensor\.toml: lens key hfov_deg = 190\.0: must be a field of view in \(0, 180\) degrees",
+        ),
+        (
+            {"model": "fov", "hfov_deg": 90.0, "vfov_deg": 60.0, "width": 4, "height": 4, "fx": 3.0},
+            r"sensor\.toml: lens key fx = 3\.0: not a key of a fov lens",
+        ),
+        (
+            {"model": "pinhole", "fx": True, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 4, "height": 4},
+            r"sensor\.toml: lens key fx = True: must be a number",
+        ),
+    ],
+)
 def test_lens_dict_errors(data, pattern):
     with pytest.raises(ValueError, match=pattern):
         lens_from_dict(data, "sensor.toml")
@@ -520,8 +618,12 @@ def test_per_sample_parameters_equal_one_lens_per_sample():
     # sample that is not a lens (fx <= 0, NaN) gives NaN / INVALID_INPUT, not an exception
     rng = np.random.default_rng(12)
     n = 40
-    draws = {"fx": MILD.fx + rng.normal(0, 5, n), "cy": MILD.cy + rng.normal(0, 2, n),
-             "k1": MILD.k1 + rng.normal(0, 0.01, n), "p2": MILD.p2 + rng.normal(0, 1e-4, n)}
+    draws = {
+        "fx": MILD.fx + rng.normal(0, 5, n),
+        "cy": MILD.cy + rng.normal(0, 2, n),
+        "k1": MILD.k1 + rng.normal(0, 0.01, n),
+        "p2": MILD.p2 + rng.normal(0, 1e-4, n),
+    }
     draws["fx"][3] = -1.0
     draws["cy"][5] = np.nan
     batch = MILD.with_params(**draws)

@@ -138,8 +138,9 @@ def test_vectorised_and_nan():
     for rel in (False, True):
         out = aberration(d, v, relativistic=rel)
         assert out.shape == (5, 7, 3)
-        np.testing.assert_allclose(apparent_direction(out, v, relativistic=rel),
-                                   d / np.linalg.norm(d, axis=-1, keepdims=True), atol=2e-15)
+        np.testing.assert_allclose(
+            apparent_direction(out, v, relativistic=rel), d / np.linalg.norm(d, axis=-1, keepdims=True), atol=2e-15
+        )
     assert np.isnan(aberration(np.array([np.nan, 0, 1.0]), np.zeros(3))).all()
     assert np.isnan(aberration(np.zeros(3), np.zeros(3))).all()
     pts = light_time_point(np.zeros((3, 3)), rng.normal(size=(3, 3)) * 1e6)

@@ -112,8 +112,9 @@ def _l18_by_hand(o, d):
     rho = math.hypot(p[0], p[1])
     lat_d, lon = math.atan2(p[2], (1 - E2) * rho), math.atan2(p[1], p[0])
     rn = A / math.sqrt(1 - E2 * math.sin(lat_d) ** 2)
-    foot = np.array([rn * math.cos(lat_d) * math.cos(lon), rn * math.cos(lat_d) * math.sin(lon),
-                     rn * (1 - E2) * math.sin(lat_d)])
+    foot = np.array(
+        [rn * math.cos(lat_d) * math.cos(lon), rn * math.cos(lat_d) * math.sin(lon), rn * (1 - E2) * math.sin(lat_d)]
+    )
     n = np.array([math.cos(lat_d) * math.cos(lon), math.cos(lat_d) * math.sin(lon), math.sin(lat_d)])
     return da, float((p - foot) @ n), p, lat_d
 
@@ -133,12 +134,19 @@ def test_docs_limb_tables_by_hand():
     lats = [0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 89.0]
     # 10 km, eq. 19 latitude: the docs print "33 m" for 33.53 m (truncated, not rounded);
     # held here to the correct rounding, "33.5" (docs/limb.md to be corrected)
-    rows = {10e3: ("+33.6", "-0.09", "33.5", "34"), 30e3: ("+101", "-0.79", "100", "101"),
-            60e3: ("+202", "-3.2", "200", "202"), 100e3: ("+336", "-8.7", "331", "336"),
-            300e3: ("+1 009", "-76", "962", "1 008"), 1000e3: ("+3 363", "-765", "2 903", "3 358")}
-    by_lat_60 = {"da": ["0.0", "13.5", "50.3", "100.7", "151.2", "188.3", "201.8"],
-                 "h18_mm": ["0.00", "-0.79", "-2.37", "-3.16", "-2.37", "-0.79", "-0.004"],
-                 "lat_m": ["0", "100", "173", "200", "173", "100", "7"]}
+    rows = {
+        10e3: ("+33.6", "-0.09", "33.5", "34"),
+        30e3: ("+101", "-0.79", "100", "101"),
+        60e3: ("+202", "-3.2", "200", "202"),
+        100e3: ("+336", "-8.7", "331", "336"),
+        300e3: ("+1 009", "-76", "962", "1 008"),
+        1000e3: ("+3 363", "-765", "2 903", "3 358"),
+    }
+    by_lat_60 = {
+        "da": ["0.0", "13.5", "50.3", "100.7", "151.2", "188.3", "201.8"],
+        "h18_mm": ["0.00", "-0.79", "-2.37", "-3.16", "-2.37", "-0.79", "-0.004"],
+        "lat_m": ["0", "100", "173", "200", "173", "100", "7"],
+    }
     for h, quoted in rows.items():
         cols = {"da": [], "h18_mm": [], "lat_m": [], "pos_m": []}
         for i, lat in enumerate(lats):
@@ -153,8 +161,12 @@ def test_docs_limb_tables_by_hand():
                 assert float(r.tangent_h) == pytest.approx(h18, abs=1e-6)
                 assert float(r.tangent_lat) == pytest.approx(lat_d, abs=1e-9)
                 assert np.linalg.norm(r.tangent_ecef - p) < 1e-6
-                for k, v in (("da", da - h), ("h18_mm", 1e3 * (h18 - h)), ("lat_m", (lat_d - lat_true) * rm),
-                             ("pos_m", float(np.linalg.norm(p - p0)))):
+                for k, v in (
+                    ("da", da - h),
+                    ("h18_mm", 1e3 * (h18 - h)),
+                    ("lat_m", (lat_d - lat_true) * rm),
+                    ("pos_m", float(np.linalg.norm(p - p0))),
+                ):
                     per_az[k].append(v)
             for k in cols:
                 cols[k].extend(per_az[k])
@@ -186,9 +198,11 @@ def test_virtual_ellipsoid_identity_and_error_figures():
     # values come from the independent evaluation below (the scaled-sphere tangency and
     # eq. 18-26 written out here), which the module must equal; the quoted figures are
     # these at their printed rounding.
-    for (h, lat, az), quoted_mm, quoted_da in (((100e3, 45.0, 90.0), -8.7, None),
-                                               ((60e3, 45.0, 90.0), -3.2, None),
-                                               ((100e3, 89.0, 0.0), None, 336.0)):
+    for (h, lat, az), quoted_mm, quoted_da in (
+        ((100e3, 45.0, 90.0), -8.7, None),
+        ((60e3, 45.0, 90.0), -3.2, None),
+        ((100e3, 89.0, 0.0), None, 336.0),
+    ):
         da, h18, _, _ = _l18_by_hand(*constructed_line(lat, 20.0, h, az, 2.5e6)[:2])
         assert out[(h, lat, az)][1] == pytest.approx(da - h, abs=1e-6)
         assert out[(h, lat, az)][0] == pytest.approx(h18 - h, abs=1e-6)
@@ -200,8 +214,7 @@ def test_virtual_ellipsoid_identity_and_error_figures():
         if quoted_da is not None:
             assert round(da - h) == quoted_da
             # "h (R_N / a - 1), up to 0.34 % of h near the poles"
-            assert (da - h) / h == pytest.approx(1 / math.sqrt(1 - E2 * math.sin(math.radians(lat)) ** 2) - 1,
-                                                 rel=1e-3)
+            assert (da - h) / h == pytest.approx(1 / math.sqrt(1 - E2 * math.sin(math.radians(lat)) ** 2) - 1, rel=1e-3)
     # At the equator both are exact (the equal-flattening ellipsoid is the parallel surface there).
     assert abs(out[(60e3, 0.0, 0.0)][0]) < 1e-6 and abs(out[(60e3, 0.0, 0.0)][1]) < 1e-6
 
@@ -239,8 +252,7 @@ def test_newton_raphson_matches_closed_form_tangency():
     assert np.all(np.abs(last) < 1e-12)
     # History starts at delta_a0 = 0 and ends at the answer; NaN after convergence.
     assert np.all(ve.delta_a_history[0] == 0.0)
-    np.testing.assert_array_equal(np.take_along_axis(ve.delta_a_history, ve.iterations[None], 0)[0],
-                                  ve.delta_a)
+    np.testing.assert_array_equal(np.take_along_axis(ve.delta_a_history, ve.iterations[None], 0)[0], ve.delta_a)
     assert np.isnan(ve.delta_a_history[-1]).all()
 
 
@@ -295,11 +307,17 @@ def test_hits_earth_and_grazing():
 def test_other_statuses():
     p = pyproj_point(10.0, 20.0, 390e3)
     up = p / np.linalg.norm(p)
-    r = limb_tangent(np.stack([p, p, p, p, pyproj_point(0, 0, -10.0)]),
-                     np.stack([up, [np.nan, 0, 0], [0, 0, 0], horizontal(10, 20, 0) + 0.01 * up,
-                               horizontal(0, 0, 0)]))
-    assert list(r.status) == [Status.BEHIND_CAMERA, Status.INVALID_INPUT, Status.INVALID_INPUT,
-                              Status.BEHIND_CAMERA, Status.ORIGIN_BELOW]
+    r = limb_tangent(
+        np.stack([p, p, p, p, pyproj_point(0, 0, -10.0)]),
+        np.stack([up, [np.nan, 0, 0], [0, 0, 0], horizontal(10, 20, 0) + 0.01 * up, horizontal(0, 0, 0)]),
+    )
+    assert list(r.status) == [
+        Status.BEHIND_CAMERA,
+        Status.INVALID_INPUT,
+        Status.INVALID_INPUT,
+        Status.BEHIND_CAMERA,
+        Status.ORIGIN_BELOW,
+    ]
     assert np.all(np.isnan(r.exact_h)) and np.all(np.isnan(r.tangent_h))
 
 

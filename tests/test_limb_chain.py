@@ -70,8 +70,8 @@ def test_equatorial_orbit_closed_form_tangent():
     c = line_of_sight_l18([r, 0, 0], [0, v, 0], math.radians(90.0), 0.0, 0.0, theta, alpha)
     # yaw 90 deg: body Y along track (b1 = +y here), so the view is forward and down.
     np.testing.assert_allclose(
-        c.direction_ecef,
-        np.stack([-np.cos(theta + alpha), np.sin(theta + alpha), 0 * alpha], -1), atol=1e-15)
+        c.direction_ecef, np.stack([-np.cos(theta + alpha), np.sin(theta + alpha), 0 * alpha], -1), atol=1e-15
+    )
     t = limb_tangent(c.origin_ecef, c.direction_ecef)
     h = r * np.sin(theta + alpha) - A
     ok = h > 0
@@ -102,8 +102,9 @@ def test_attitude_signs_follow_the_printed_matrices():
 
 def test_chain_invalid_and_broadcast():
     p = np.array([A + 4e5, 0, 0])
-    c = line_of_sight_l18(np.stack([p, p, [np.nan, 0, 0]]), np.stack([p, [0, 7e3, 0], [0, 7e3, 0]]),
-                          0.0, 0.0, 0.0, 1.2, 0.0)
+    c = line_of_sight_l18(
+        np.stack([p, p, [np.nan, 0, 0]]), np.stack([p, [0, 7e3, 0], [0, 7e3, 0]]), 0.0, 0.0, 0.0, 1.2, 0.0
+    )
     assert list(c.status) == [Status.INVALID_INPUT, Status.OK, Status.INVALID_INPUT]
     assert np.isnan(c.direction_ecef[0]).all()
     c = line_of_sight_l18(np.tile(p, (4, 1, 1)), [0, 7e3, 0], 0.0, 0.0, 0.0, 1.2, np.linspace(-0.02, 0.02, 7))

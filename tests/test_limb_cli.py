@@ -26,7 +26,16 @@ def tangent_line(lat, lon, h, az, dist=2.2e6):
 
 def test_raw_json(capsys):
     o, d = tangent_line(20.0, 30.0, 35e3, 60.0)
-    rc = main(["limb", "--origin-ecef", *(repr(float(x)) for x in o), "--direction-ecef", *(repr(float(x)) for x in d), "--json"])
+    rc = main(
+        [
+            "limb",
+            "--origin-ecef",
+            *(repr(float(x)) for x in o),
+            "--direction-ecef",
+            *(repr(float(x)) for x in d),
+            "--json",
+        ]
+    )
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and out["status"] == "ok"
     # The constructed line's minimum height is 35 km (1 mm: pyproj and float rounding).
@@ -42,11 +51,23 @@ def test_raw_json(capsys):
 
 def test_raw_text_and_hits_earth(capsys):
     o, d = tangent_line(-40.0, 170.0, 12e3, 0.0)
-    assert main(["limb", "--origin-ecef", *(repr(float(x)) for x in o), "--direction-ecef", *(repr(float(x)) for x in d)]) == 0
+    assert (
+        main(["limb", "--origin-ecef", *(repr(float(x)) for x in o), "--direction-ecef", *(repr(float(x)) for x in d)])
+        == 0
+    )
     text = capsys.readouterr().out
     assert "virtual ellipsoid" in text and "exact" in text and "12000.000 m" in text
     o, d = tangent_line(-40.0, 170.0, -2e3, 0.0)
-    rc = main(["limb", "--origin-ecef", *(repr(float(x)) for x in o), "--direction-ecef", *(repr(float(x)) for x in d), "--json"])
+    rc = main(
+        [
+            "limb",
+            "--origin-ecef",
+            *(repr(float(x)) for x in o),
+            "--direction-ecef",
+            *(repr(float(x)) for x in d),
+            "--json",
+        ]
+    )
     cap = capsys.readouterr()
     out = json.loads(cap.out)
     assert rc == 1 and out["status"] == "hits_earth" and out["exact_tangent_h_m"] is None

@@ -45,10 +45,10 @@ def free_port() -> int:
 def klv_pid(data: bytes) -> int:
     """The PID whose PES start with a metadata / private stream id (0xFC, 0xBD): the KLV stream."""
     for i in range(0, len(data), 188):
-        p = data[i:i + 188]
+        p = data[i : i + 188]
         if p[1] & 0x40 and (p[3] >> 4) & 1:
             k = 4 + (1 + p[4] if p[3] & 0x20 else 0)
-            if p[k:k + 3] == b"\x00\x00\x01" and p[k + 3] in (0xFC, 0xBD):
+            if p[k : k + 3] == b"\x00\x00\x01" and p[k + 3] in (0xFC, 0xBD):
                 return ((p[1] & 0x1F) << 8) | p[2]
     raise AssertionError("no KLV PES in the file")
 
@@ -57,7 +57,7 @@ def pes_datagrams(data: bytes, pid: int, per: int = 7) -> dict:
     """Byte offset of each PES start on ``pid`` -> the datagram indices holding its TS packets."""
     spans, cur = {}, None
     for i in range(0, len(data), 188):
-        p = data[i:i + 188]
+        p = data[i : i + 188]
         if ((p[1] & 0x1F) << 8 | p[2]) != pid or not (p[3] >> 4) & 1:
             continue
         if p[1] & 0x40:
@@ -81,9 +81,15 @@ def test_udp_urls_parse_and_bad_ones_are_named():
     m = parse_udp_url("udp://@239.1.2.3:5600?iface=127.0.0.1")
     assert (m.host, m.multicast, m.iface) == ("239.1.2.3", True, "127.0.0.1")
     assert parse_udp_url("udp://localhost:7").host == "127.0.0.1"
-    for bad, needle in (("udp://127.0.0.1", "port"), ("udp://127.0.0.1:70000", "port"), ("udp://:5600", "host"),
-                        ("udp://example.org:5600", "IPv4"), ("udp://127.0.0.1:5600?ttl=3", "ttl"),
-                        ("udp://10.0.0.1:5600?iface=127.0.0.1", "multicast"), ("tcp://1.2.3.4:5", "udp://")):
+    for bad, needle in (
+        ("udp://127.0.0.1", "port"),
+        ("udp://127.0.0.1:70000", "port"),
+        ("udp://:5600", "host"),
+        ("udp://example.org:5600", "IPv4"),
+        ("udp://127.0.0.1:5600?ttl=3", "ttl"),
+        ("udp://10.0.0.1:5600?iface=127.0.0.1", "multicast"),
+        ("tcp://1.2.3.4:5", "udp://"),
+    ):
         with pytest.raises(ValueError) as e:
             parse_udp_url(bad)
         assert bad in str(e.value) and needle in str(e.value), (bad, str(e.value))
@@ -199,7 +205,7 @@ def test_datagrams_and_chunks_decode_as_ffmpeg_reads_the_file():
         rx = LiveReceiver()
         out = []
         for k in range(0, len(data), chunk):
-            out += rx.push_bytes(data[k:k + chunk])
+            out += rx.push_bytes(data[k : k + chunk])
         assert out + rx.flush() == ref, chunk
 
 
@@ -403,7 +409,7 @@ def test_memory_stays_bounded_by_the_windows():
             rx.push(g)
     assert len(rx.window) == 50 and rx.stats.klv_packets == 3 * 299
     d = TsDemuxer()
-    d.feed_datagram(data[:188 * 7])
+    d.feed_datagram(data[: 188 * 7])
     assert len(d._pes) <= 4  # one open PES per PID at most
 
 
@@ -507,8 +513,7 @@ def test_replay_of_the_stream_equals_the_files_and_its_journals_replay_alike(tmp
             assert not diff, (a["packet"], diff)
     assert set(live[0]) - set(rows[0]) == {"frame_pts_s"}
     # each packet bound over the network to FFmpeg's nearest frame (%.6f s written: 0.5 us at most)
-    np.testing.assert_allclose([float(r["frame_pts_s"]) for r in live], ffmpeg_nearest_frame_s(TS), rtol=0,
-                               atol=1e-6)
+    np.testing.assert_allclose([float(r["frame_pts_s"]) for r in live], ffmpeg_nearest_frame_s(TS), rtol=0, atol=1e-6)
 
 
 def test_the_live_views_journals_replay_as_the_file(tmp_path, capsys):
@@ -518,8 +523,24 @@ def test_the_live_views_journals_replay_as_the_file(tmp_path, capsys):
     url = f"udp://127.0.0.1:{port}"
     out, rec = tmp_path / "view.csv", tmp_path / "view.ts"
     th, res = _sender(TS, url, speed=50.0, start_delay_s=0.1)
-    rc = _run_cli(["view", "--live", url, "--journal", str(out), "--record-ts", str(rec), "--idle", "3",
-                   "--duration", "120", "--no-browser", "--port", str(free_port())])
+    rc = _run_cli(
+        [
+            "view",
+            "--live",
+            url,
+            "--journal",
+            str(out),
+            "--record-ts",
+            str(rec),
+            "--idle",
+            "3",
+            "--duration",
+            "120",
+            "--no-browser",
+            "--port",
+            str(free_port()),
+        ]
+    )
     th.join(10)
     cap = capsys.readouterr()
     assert rc == 0, cap.err
@@ -539,8 +560,7 @@ def test_klv_dump_of_a_stream_with_loss(tmp_path, capsys):
 
     port = free_port()
     url = f"udp://127.0.0.1:{port}"
-    th, res = _sender(TS, url, speed=40.0, start_delay_s=0.1, loss=0.05, reorder=0.05,
-                      rng=np.random.default_rng(3))
+    th, res = _sender(TS, url, speed=40.0, start_delay_s=0.1, loss=0.05, reorder=0.05, rng=np.random.default_rng(3))
     rc = _run_cli(["klv", "dump", url, "--idle", "1.5", "--duration", "60"])
     th.join(10)
     cap = capsys.readouterr()
@@ -559,11 +579,13 @@ def test_klv_dump_of_a_stream_with_loss(tmp_path, capsys):
 
 
 def test_bad_urls_and_options_are_one_line(capsys):
-    for argv, needle in ((["klv", "dump", "udp://127.0.0.1"], "udp://127.0.0.1"),
-                         (["replay", "udp://127.0.0.1:99999"], "port"),
-                         (["replay", "udp://127.0.0.1:5600", "--packets", "0"], "--packets"),
-                         (["replay", "udp://127.0.0.1:5600", "--duration", "-1"], "--duration"),
-                         (["replay", str(TS), "--record", "/tmp/x.ts"], "--record")):
+    for argv, needle in (
+        (["klv", "dump", "udp://127.0.0.1"], "udp://127.0.0.1"),
+        (["replay", "udp://127.0.0.1:99999"], "port"),
+        (["replay", "udp://127.0.0.1:5600", "--packets", "0"], "--packets"),
+        (["replay", "udp://127.0.0.1:5600", "--duration", "-1"], "--duration"),
+        (["replay", str(TS), "--record", "/tmp/x.ts"], "--record"),
+    ):
         assert _run_cli(argv) == 2
         err = capsys.readouterr().err
         lines = [x for x in err.splitlines() if x.strip()]
@@ -617,8 +639,10 @@ def test_klv_send_verb_waits_for_the_listener_and_streams_the_file(capsys):
     port = free_port()
     url = f"udp://127.0.0.1:{port}"
     box = {}
-    th = threading.Thread(target=lambda: box.update(rc=_run_cli(["klv", "send", str(TS), url, "--speed", "50",
-                                                                 "--wait", "60"])), daemon=True)
+    th = threading.Thread(
+        target=lambda: box.update(rc=_run_cli(["klv", "send", str(TS), url, "--speed", "50", "--wait", "60"])),
+        daemon=True,
+    )
     th.start()
     time.sleep(0.5)  # the sender is waiting: nothing is lost by listening late
     rx = LiveReceiver()
@@ -645,7 +669,7 @@ def _ts_packets(pid, payload, cc0=0, pusi_first=True):
     """TS packets of ``payload`` on ``pid`` (stuffed by an adaptation field in the last)."""
     out, k, cc = [], 0, cc0
     while k < len(payload) or not out:
-        chunk = payload[k:k + 184]
+        chunk = payload[k : k + 184]
         k += 184
         head = bytes([0x47, (0x40 if (pusi_first and not out) else 0) | (pid >> 8), pid & 0xFF])
         if len(chunk) == 184:
@@ -679,8 +703,15 @@ def test_synchronous_metadata_carriage_is_read():
         if i % 5 == 0:
             ts += _ts_packets(0, b"\x00" + pat, i // 5)[0][0] + _ts_packets(0x100, b"\x00" + pmt, i // 5)[0][0]
         pts = 90000 * i + 1234
-        p = bytes([0x21 | ((pts >> 29) & 0x0E), (pts >> 22) & 0xFF, 0x01 | ((pts >> 14) & 0xFE), (pts >> 7) & 0xFF,
-                   0x01 | ((pts << 1) & 0xFE)])
+        p = bytes(
+            [
+                0x21 | ((pts >> 29) & 0x0E),
+                (pts >> 22) & 0xFF,
+                0x01 | ((pts >> 14) & 0xFE),
+                (pts >> 7) & 0xFF,
+                0x01 | ((pts << 1) & 0xFE),
+            ]
+        )
         cell = bytes([0x00, i & 0xFF, 0xDF]) + len(b).to_bytes(2, "big") + b
         body = bytes([0x84, 0x80, 0x05]) + p + cell
         pes = b"\x00\x00\x01\xfc" + len(body).to_bytes(2, "big") + body
@@ -715,8 +746,13 @@ def test_log_of_a_stream_grows_as_it_arrives_and_a_killed_session_keeps_it(tmp_p
     part = tmp_path / "live.partial.rrd"
     root = Path(__file__).resolve().parents[1]
     env = {**__import__("os").environ, "PYTHONPATH": str(root)}
-    proc = subprocess.Popen([sys.executable, "-m", "geoloc", "log", url, "--out", str(out), "--duration", "200"],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "geoloc", "log", url, "--out", str(out), "--duration", "200"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         th, res = _sender(TS, url, speed=8.0)  # 298 s of flight in 37 s
         want = dict(zip(*(replay_klv(TS).columns[k] for k in ("packet", "frame_center_error_m"))))

@@ -60,6 +60,6 @@ def test_a_window_keeps_the_newest_frames_derived_again():
     m = None
     for a, b in ((0, 100), (100, 180), (180, 260)):
         new = flight_model.build(_scn(scn, recs[a:b]), enu=scn.enu, fov_deg=fov[a:b], diagnose_faults=False)
-        m = flight_model.extend(m, new, _scn(scn, recs[max(b - keep, 0):b]), keep=keep)
+        m = flight_model.extend(m, new, _scn(scn, recs[max(b - keep, 0) : b]), keep=keep)
     want = flight_model.build(_scn(scn, recs[140:260]), fov_deg=fov[140:260])
     _same(m, want)

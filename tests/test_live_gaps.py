@@ -32,8 +32,15 @@ TICKS = 90000  # the PES clock [ticks per second]
 
 def _pts_bytes(pts: int) -> bytes:
     """The 5-byte PTS field ('0010', PTS[32..30], marker, PTS[29..15], marker, PTS[14..0], marker)."""
-    return bytes([0x21 | ((pts >> 29) & 0x0E), (pts >> 22) & 0xFF, 0x01 | ((pts >> 14) & 0xFE), (pts >> 7) & 0xFF,
-                  0x01 | ((pts << 1) & 0xFE)])
+    return bytes(
+        [
+            0x21 | ((pts >> 29) & 0x0E),
+            (pts >> 22) & 0xFF,
+            0x01 | ((pts >> 14) & 0xFE),
+            (pts >> 7) & 0xFF,
+            0x01 | ((pts << 1) & 0xFE),
+        ]
+    )
 
 
 def _stream(pts_list, packets):
@@ -68,14 +75,14 @@ def _receive(ts: bytes):
 
 def test_klv_time_going_back_without_and_with_a_restart():
     base = 1000 * TICKS
-    sec = [0, 1, 2, 3, 4, 2, 3, 4, 5, 6, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]   # back 2 s, back 5 s (not over)
+    sec = [0, 1, 2, 3, 4, 2, 3, 4, 5, 6, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11]  # back 2 s, back 5 s (not over)
     pts = [base + s * TICKS for s in sec]
-    pts += [pts[-1] - 5 * TICKS - 1]                      # back 5 s and one tick: a restart
+    pts += [pts[-1] - 5 * TICKS - 1]  # back 5 s and one tick: a restart
     pts += [pts[-1] + TICKS, pts[-1] + 2 * TICKS]
-    pts += [pts[-1] - 4 * TICKS - TICKS // 2]             # back 4.5 s: not a restart
-    pts += [pts[-1] - 20 * TICKS]                         # back 20 s: a restart
-    pts += [pts[-1] + 45]                                 # half a millisecond on
-    pts += [pts[-1] - 60]                                 # back 2/3 ms: not a restart
+    pts += [pts[-1] - 4 * TICKS - TICKS // 2]  # back 4.5 s: not a restart
+    pts += [pts[-1] - 20 * TICKS]  # back 20 s: a restart
+    pts += [pts[-1] + 45]  # half a millisecond on
+    pts += [pts[-1] - 60]  # back 2/3 ms: not a restart
     pk = _klv_packets(len(pts))
     rx, out = _receive(b"".join(_stream(pts, pk)))
     # every packet, in arrival order, with its own time stamp and fields: time going back drops nothing
@@ -113,14 +120,14 @@ def test_a_ts_packet_repeated_inside_a_datagram_is_dropped_once():
     for i, p in enumerate(packets):
         seq.append(p)
         if i in (first_of_4th, second_of_8th):
-            seq.append(p)                     # the same packet again, right after it (the same datagram)
+            seq.append(p)  # the same packet again, right after it (the same datagram)
     ts = b"".join(seq)
     # both copies of each repeated packet are in one 7-packet datagram
     for i in (first_of_4th, second_of_8th):
         j = seq.index(packets[i])
         assert j // 7 == (j + 1) // 7 and seq[j] == seq[j + 1]
     rx, out = _receive(ts)
-    assert [r.pts for r in out] == pts                    # each once, in order
+    assert [r.pts for r in out] == pts  # each once, in order
     assert [r.fields for r in out] == [p.fields for p in pk]
     assert rx.stats.duplicates == 2 and rx.stats.cc_errors == 0 and rx.stats.bad_packets == 0
 
@@ -132,14 +139,14 @@ def test_a_repeated_counter_with_other_bytes_is_a_continuity_error_not_a_duplica
     pk = _klv_packets(len(pts))
     packets = _stream(pts, pk)
     klv = [i for i, p in enumerate(packets) if ((p[1] & 0x1F) << 8 | p[2]) == 0x101]
-    k = klv[2 * 4 + 1]                                    # the second packet of the 5th PES
+    k = klv[2 * 4 + 1]  # the second packet of the 5th PES
     fake = bytearray(packets[k])
-    fake[-1] ^= 0xFF                                      # the same header and counter, another last byte
-    seq = packets[:k + 1] + [bytes(fake)] + packets[k + 1:]
+    fake[-1] ^= 0xFF  # the same header and counter, another last byte
+    seq = packets[: k + 1] + [bytes(fake)] + packets[k + 1 :]
     rx, out = _receive(b"".join(seq))
     good = [r.pts for r in out if isinstance(r, Packet)]
     assert rx.stats.duplicates == 0 and rx.stats.cc_errors >= 1
-    assert set(good) >= set(pts[:4] + pts[5:])            # every PES the fake packet did not touch
+    assert set(good) >= set(pts[:4] + pts[5:])  # every PES the fake packet did not touch
 
 
 # ------------------------------------------------------------------ PMT, descriptors, video PES
@@ -147,6 +154,7 @@ def test_a_repeated_counter_with_other_bytes_is_a_continuity_error_not_a_duplica
 # (ISO/IEC 13818-1 2.6.8: tag 5, length 4 or more, format_identifier; MISB ST 1402 asynchronous
 # carriage: stream type 0x06 with 'KLVA'), stuffing where a section would start (table_id 0xFF,
 # 2.4.4.4), video PES and their count, a padding PES (no PES header: Table 2-21's stream ids).
+
 
 def _pmt(entries):
     """A PMT section (program 1, PCR PID 0x1FFF) of (stream_type, pid, ES descriptors) entries."""
@@ -174,9 +182,13 @@ def test_asynchronous_klv_is_named_by_its_registration_descriptor_after_another_
     (PIDs whose low byte is not their high bits: 0x1F0, 0x0A5, 0x1234)."""
     pk = _klv_packets(4)
     blobs = [encode_packet(p.fields, unknown=p.unknown) for p in pk]
-    pmt = _pmt([(0x1B, 0x0A5, bytes([0x28, 0x01, 0x4D])),
-                (0x06, 0x1F0, bytes([0x0A, 0x04]) + b"eng\x00" + bytes([0x05, 0x04]) + b"KLVA"),
-                (0x0F, 0x1234, b"")])
+    pmt = _pmt(
+        [
+            (0x1B, 0x0A5, bytes([0x28, 0x01, 0x4D])),
+            (0x06, 0x1F0, bytes([0x0A, 0x04]) + b"eng\x00" + bytes([0x05, 0x04]) + b"KLVA"),
+            (0x0F, 0x1234, b""),
+        ]
+    )
     seq = _psi_packets(pmt)
     cc = 0
     for i, b in enumerate(blobs):
@@ -270,9 +282,9 @@ def test_two_held_datagrams_whose_counters_tie_keep_their_arrival_order():
         cell = bytes([0x00, i, 0xDF]) + len(blobs[i]).to_bytes(2, "big") + blobs[i]
         return _ts_packets(0x101, _pes(0xFC, 90000 * (i + 1), cell), cc)[0]
 
-    first = [pat_cc(0), _ts_packets(0x100, b"\x00" + pmt)[0][0]] + klv(0, 0)      # KLV counters 0, 1
-    held = [pat_cc(1)] + klv(2, 4)                                                # PAT +0, KLV +2 missing
-    new = [pat_cc(3)] + klv(1, 2)                                                 # PAT +2 missing, KLV +0
+    first = [pat_cc(0), _ts_packets(0x100, b"\x00" + pmt)[0][0]] + klv(0, 0)  # KLV counters 0, 1
+    held = [pat_cc(1)] + klv(2, 4)  # PAT +0, KLV +2 missing
+    new = [pat_cc(3)] + klv(1, 2)  # PAT +2 missing, KLV +0
     rx = LiveReceiver()
     out = []
     for g in (first, held, new):
@@ -296,9 +308,9 @@ def test_a_datagram_nearer_by_its_two_packet_klv_pid_goes_first():
     def video(cc0):
         return [bytes([0x47, 0x01, 0x02, 0x10 | ((cc0 + j) & 0x0F)]) + bytes(184) for j in range(3)]
 
-    first = _psi_packets(pmt) + klv(0, 0) + video(0)          # KLV 0, 1; video 0, 1, 2
-    held = klv(2, 4) + video(9)                              # KLV two steps on, video 6 on
-    new = klv(1, 2) + video(6)                               # KLV continues, video 3 on
+    first = _psi_packets(pmt) + klv(0, 0) + video(0)  # KLV 0, 1; video 0, 1, 2
+    held = klv(2, 4) + video(9)  # KLV two steps on, video 6 on
+    new = klv(1, 2) + video(6)  # KLV continues, video 3 on
     assert len(b"".join(held)) == len(b"".join(new)) == 5 * 188
     rx = LiveReceiver()
     out = []
@@ -327,6 +339,7 @@ def test_a_video_pes_header_too_short_for_its_pts_starts_no_timed_frame():
 
 # ------------------------------------------------------------------ the second sample (seed 1)
 
+
 def test_klv_without_any_pmt_is_taken_by_its_stream_id_and_a_pes_completes_at_its_length():
     """No PAT or PMT (joined mid-stream): a PES of stream id 0xFC (metadata_stream) is taken as KLV,
     its stream type 0 ('taken before any PMT', PesUnit's docstring; 0x01 would be MPEG-1 video). A
@@ -340,7 +353,7 @@ def test_klv_without_any_pmt_is_taken_by_its_stream_id_and_a_pes_completes_at_it
     assert rx.push(stub) == []
     first, cc = _ts_packets(0x1F0, _pes(0xFC, 90000, blobs[0]), 0)
     got = rx.push(b"".join(first))
-    assert [r.pts for r in got] == [90000] and got[0].fields == pk[0].fields   # before any later packet
+    assert [r.pts for r in got] == [90000] and got[0].fields == pk[0].fields  # before any later packet
     assert rx.demux.streams[0x1F0] == ("klv", 0)
     second, _ = _ts_packets(0x1F0, _pes(0xFC, 180000, blobs[1]), cc)
     assert [r.pts for r in rx.push(b"".join(second))] == [180000]
@@ -359,7 +372,7 @@ def test_an_adaptation_only_packet_does_not_count_as_the_next_in_its_pid():
         cell = bytes([0x00, i, 0xDF]) + len(blobs[i]).to_bytes(2, "big") + blobs[i]
         return _ts_packets(0x101, _pes(0xFC, 90000 * (i + 1), cell), cc)[0]
 
-    af_only = bytes([0x47, 0x01, 0x01, 0x20 | 1, 183, 0x00]) + b"\xff" * 182   # counter 1 again, no payload
+    af_only = bytes([0x47, 0x01, 0x01, 0x20 | 1, 183, 0x00]) + b"\xff" * 182  # counter 1 again, no payload
     grams = [_psi_packets(pmt) + klv(0, 0), [af_only] + klv(1, 2), klv(2, 4)]
     rx = LiveReceiver()
     per = [[r.pts for r in rx.push(b"".join(g))] for g in grams]
@@ -381,7 +394,7 @@ def test_resyncs_damaged_pes_and_decoding_time_stamps_are_counted_and_read():
     assert rx.stats.resyncs == 1 and rx.stats.skipped_bytes == 10
 
     klv = [i for i, p in enumerate(packets) if ((p[1] & 0x1F) << 8 | p[2]) == 0x101]
-    lossy = [p for i, p in enumerate(packets) if i != klv[3]]   # the second packet of the second PES
+    lossy = [p for i, p in enumerate(packets) if i != klv[3]]  # the second packet of the second PES
     rx2, out = _receive(b"".join(lossy))
     assert rx2.stats.cc_errors == 1 and rx2.stats.damaged_pes == 1
     assert [r.pts for r in out if isinstance(r, Packet)] == [90000, 270000]
@@ -389,8 +402,13 @@ def test_resyncs_damaged_pes_and_decoding_time_stamps_are_counted_and_read():
     from geoloc.io.live import TsDemuxer
 
     pts, dts = 93003, 90000
-    hdr = bytes([0x84, 0xC0, 0x0A]) + bytes([0x31 | ((pts >> 29) & 0x0E)]) + _pts_bytes(pts)[1:] \
-        + bytes([0x11 | ((dts >> 29) & 0x0E)]) + _pts_bytes(dts)[1:]
+    hdr = (
+        bytes([0x84, 0xC0, 0x0A])
+        + bytes([0x31 | ((pts >> 29) & 0x0E)])
+        + _pts_bytes(pts)[1:]
+        + bytes([0x11 | ((dts >> 29) & 0x0E)])
+        + _pts_bytes(dts)[1:]
+    )
     pes = b"\x00\x00\x01\xe0\x00\x00" + hdr + bytes(100)
     d = TsDemuxer()
     units = d.feed_datagram(b"".join(_psi_packets(pmt) + _ts_packets(0x102, pes, 0)[0]))

@@ -38,8 +38,7 @@ def test_loss_and_a_restart_are_counted_in_the_panel_and_every_intact_packet_is_
         feed.start()
         wait_for(lambda: _bound(port), 20, "the feed to listen")
         # pass 1: 5 % lost, 5 % swapped, 3 % repeated, at 20x (15 s); 3 s of silence; pass 2 clean
-        first = send(TS, url, speed=20.0, loss=0.05, reorder=0.05, duplicate=0.03,
-                     rng=np.random.default_rng(11))
+        first = send(TS, url, speed=20.0, loss=0.05, reorder=0.05, duplicate=0.03, rng=np.random.default_rng(11))
         time.sleep(3.0)
         send(TS, url, speed=20.0)
         dropped = set(first["dropped_index"])
@@ -53,8 +52,8 @@ def test_loss_and_a_restart_are_counted_in_the_panel_and_every_intact_packet_is_
         # the rows of pass 1 are exactly the intact packets, in order, decoded as FFmpeg reads the file
         # (the live replay's pts_s is the PES time stamp over 90 kHz: the same division, exact)
         pts = feed.replay.columns()["pts_s"]
-        assert pts[:len(intact)].tolist() == [r.pts / 90000 for r in intact]
-        assert pts[len(intact):].tolist() == [r.pts / 90000 for r in ref]
+        assert pts[: len(intact)].tolist() == [r.pts / 90000 for r in intact]
+        assert pts[len(intact) :].tolist() == [r.pts / 90000 for r in ref]
         assert st.cc_errors > 0 and st.duplicates > 0 and st.restarts == 1 and st.stalls >= 1, st
         # the debugger has every one of them that makes a viewer record as a frame (the file view's rule:
         # packet 275 has no sensor angles, in both passes), and the panel says what happened
@@ -62,13 +61,20 @@ def test_loss_and_a_restart_are_counted_in_the_panel_and_every_intact_packet_is_
 
         frames = len(records_from_columns(feed.replay.columns(), feed.sensor)[0])
         assert want - 4 <= frames <= want, (frames, want)
-        wait_for(lambda: tab.n == frames and tab.current == tab.n - 1, 60,
-                 f"the debugger on the last frame ({frames} frames)")
+        wait_for(
+            lambda: tab.n == frames and tab.current == tab.n - 1,
+            60,
+            f"the debugger on the last frame ({frames} frames)",
+        )
         wait_for(lambda: tab.md_stats.content == feed.stats_markdown(), 10, "the panel to be up to date")
         panel = tab.md_stats.content
-        for text in (f"{st.cc_errors} TS continuity errors", f"{st.duplicates} duplicates",
-                     f"{st.restarts} restarts", f"{st.stalls} stalls",
-                     f"{st.bad_packets} bad KLV packets"):
+        for text in (
+            f"{st.cc_errors} TS continuity errors",
+            f"{st.duplicates} duplicates",
+            f"{st.restarts} restarts",
+            f"{st.stalls} stalls",
+            f"{st.bad_packets} bad KLV packets",
+        ):
             assert text in panel, (text, panel)
     finally:
         viewer.stop()

@@ -27,7 +27,7 @@ TICKS = 9000  # 10 Hz on the 90 kHz clock
 def _stream_with_a_resolution_change(path) -> int:
     import av
 
-    pk = [p for p in read_klv_file(KLV) if isinstance(p, Packet)][:2 * N_EACH]
+    pk = [p for p in read_klv_file(KLV) if isinstance(p, Packet)][: 2 * N_EACH]
     with av.open(str(path), "w", format="mpegts") as out:
         vs = out.add_stream("libx264", rate=10)
         vs.width, vs.height = SIZES[0]
@@ -93,10 +93,18 @@ def test_a_sender_that_changes_its_resolution_is_counted_in_the_panel(tmp_path):
                 shapes.add(im.image.shape[:2])
             time.sleep(0.05)
         # the latest frame loaded (a follow step a second at most), its picture the new size
-        wait_for(lambda: tab.current == tab.n - 1 == n - 1 and tab.session.scn.record_index == n - 1, 60,
-                 "the debugger on the last frame")
-        wait_for(lambda: tab._images is not None and tab._images.image is not None
-                 and tab._images.image.shape[:2] == (272, 480), 10, "the last frame's picture")
+        wait_for(
+            lambda: tab.current == tab.n - 1 == n - 1 and tab.session.scn.record_index == n - 1,
+            60,
+            "the debugger on the last frame",
+        )
+        wait_for(
+            lambda: (
+                tab._images is not None and tab._images.image is not None and tab._images.image.shape[:2] == (272, 480)
+            ),
+            10,
+            "the last frame's picture",
+        )
         shapes.add(tab._images.image.shape[:2])
         # and a person scrubbing back to a frame before the change gets its picture at the old size
         tab.scrubbed(5)
@@ -106,8 +114,11 @@ def test_a_sender_that_changes_its_resolution_is_counted_in_the_panel(tmp_path):
         assert tab.n == n and not feed.error, feed.error
         # FFmpeg's decoder followed the new size: counted once, the panel says it
         assert feed.video_size == SIZES[1] and feed.resolution_changes == 1 and feed.decode_errors == 0
-        wait_for(lambda: "video 480 x 272 pixels; 1 resolution change(s), 0 undecodable" in tab.md_stats.content,
-                 10, "the stream panel to report the change")
+        wait_for(
+            lambda: "video 480 x 272 pixels; 1 resolution change(s), 0 undecodable" in tab.md_stats.content,
+            10,
+            "the stream panel to report the change",
+        )
         # the picture layer showed pictures of both sizes (decoded 480 wide: 480 x 360, then 480 x 272),
         # following the stream and scrubbed back
         assert {(360, 480), (272, 480)} <= shapes, shapes

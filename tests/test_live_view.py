@@ -58,9 +58,12 @@ def _shot(page, name):
 def _sender(url, speed, loop=1):
     root = Path(__file__).resolve().parents[1]
     env = {**os.environ, "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    return subprocess.Popen([sys.executable, "-m", "geoloc.io.live", "send", str(TS), url, "--speed", str(speed),
-                             "--loop", str(loop)],
-                            env=env, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-m", "geoloc.io.live", "send", str(TS), url, "--speed", str(speed), "--loop", str(loop)],
+        env=env,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
@@ -92,19 +95,25 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
                 }).observe(document.body, {subtree: true, childList: true, characterData: true});
             }""")
             proc = _sender(url, 3.0, loop=3)
-            page.wait_for_function("() => window.__first !== null && window.__debugger !== null", polling=100,
-                                   timeout=60000)
+            page.wait_for_function(
+                "() => window.__first !== null && window.__debugger !== null", polling=100, timeout=60000
+            )
             first = feed.rx.first_datagram_unix_s
             t_text = page.evaluate("() => window.__first") / 1e3 - first
             t_debugger = page.evaluate("() => window.__debugger") / 1e3 - first
-            print(f"first located frame on the page {t_text:.2f} s after the first datagram; "
-                  f"the debugger's frame {t_debugger:.2f} s")
+            print(
+                f"first located frame on the page {t_text:.2f} s after the first datagram; "
+                f"the debugger's frame {t_debugger:.2f} s"
+            )
             tab = next(iter(viewer.tabs.values()))
+
             def since(t):  # the server's stamps may still be unset when the page has drawn (a busy machine)
                 return "not yet" if t is None else f"{t - first:.2f} s"
 
-            print(f"server side: the first frame's line sent {since(tab.first_text_unix_s)}, the debugger "
-                  f"built {since(tab.debugger_unix_s)} after the first datagram")
+            print(
+                f"server side: the first frame's line sent {since(tab.first_text_unix_s)}, the debugger "
+                f"built {since(tab.debugger_unix_s)} after the first datagram"
+            )
             # the same machine's clock on both sides (time.time() and the page's Date.now()). The first
             # located frame (its packet, recomputed centre and agreement, in the Live folder) within 2 s, as
             # the issue asks; the debugger's session for it (its GUI, terrain mesh, the frame's chain and
@@ -118,14 +127,18 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
             n1 = _frames_on_page(page)
             wait_for(lambda: (_frames_on_page(page) or 0) >= n1 + 8, 60, "the timeline to keep growing")
             assert tab.following and tab.layer is not None
-            wait_for(lambda: tab.current == tab.n - 1 and tab.session.scn.record_index == tab.n - 1, 10,
-                     "the latest frame loaded (its chain, line of sight, iterations)")
+            wait_for(
+                lambda: tab.current == tab.n - 1 and tab.session.scn.record_index == tab.n - 1,
+                10,
+                "the latest frame loaded (its chain, line of sight, iterations)",
+            )
             # the picture panel is the live frame: it moves on as the view follows, and it is the picture
             # nearest the followed packet's time (the layer's own choice, against the feed's pictures)
             seen = []  # the page read once per poll: it may move on between two reads
             wait_for(lambda: seen.append(_picture_on_page(page)) or seen[-1] is not None, 60, "the live picture")
             k1 = seen[-1]
             wait_for(lambda: (_picture_on_page(page) or 0) >= k1 + 4, 30, "the picture to follow the stream")
+
             # read on the server, where the tab may be between two states: the looped sender's restart
             # rebuilds the session, whose new picture layer shows nothing (k = -1) until its first frame
             # is followed (seen once in a full suite: (-1, 95)). Within 8 pictures (those decoded between
@@ -136,6 +149,7 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
                     return None
                 want = feed.picture_index_at(float(tab.session.scn.record_times_s[idx]))
                 return (images.k, want) if want >= 0 and abs(images.k - want) <= 8 else None
+
             wait_for(_picture_near, 20, "the picture layer on the picture nearest the followed frame")
             _shot(page, "live_following")
 
@@ -143,8 +157,10 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
             n_acc = int(m.group(1)) if m else 0
             # a person scrubs back: types frame 3 into the timeline's number box (the box beside the slider
             # its label names; arrow keys on the slider would move the 3D camera too)
-            box = page.locator("xpath=//label[normalize-space()='frame index']/ancestor::div"
-                               "[.//input[@inputmode='decimal']][1]//input[@inputmode='decimal']")
+            box = page.locator(
+                "xpath=//label[normalize-space()='frame index']/ancestor::div"
+                "[.//input[@inputmode='decimal']][1]//input[@inputmode='decimal']"
+            )
             # while the view follows, the server moves that box once a second: a value typed just before
             # its update is overwritten before Enter (a person types it again): up to six tries (three
             # were not enough beside a loaded CPU: each fill and Enter is a round trip to a busy page)
@@ -156,8 +172,10 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
                     break
                 except AssertionError as e:
                     if attempt == 5:
-                        raise AssertionError(f"{e}: following {tab.following}, current {tab.current}, n {tab.n}, "
-                                             f"slider {tab.layer.sl_frame.value}") from None
+                        raise AssertionError(
+                            f"{e}: following {tab.following}, current {tab.current}, n {tab.n}, "
+                            f"slider {tab.layer.sl_frame.value}"
+                        ) from None
             n_then = tab.n
             wait_for(lambda: tab.n >= n_then + 5, 60, "the timeline to keep growing")
             assert tab.current == 3 and tab.session.scn.record_index == 3
@@ -171,13 +189,19 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
             wait_for(lambda: tab.following and tab.current == tab.n - 1, 20, "live to return to the latest")
             # the page shows the newest packet (within 4 s of stream: the follow step once a second, and a
             # software-WebGL page's lag behind the server)
-            wait_for(lambda: (_packet_on_page(page) or 0) >= int(tab.flight.rows["packet"][-1]) - 12, 60,
-                     "the page to show the latest packet")
+            wait_for(
+                lambda: (_packet_on_page(page) or 0) >= int(tab.flight.rows["packet"][-1]) - 12,
+                60,
+                "the page to show the latest packet",
+            )
             _shot(page, "live_after_live_button")
             # the example's heading-bias burst (packets 100-109) arrives: the outlier table, the faults and
             # the accuracy panel say it, fitted on the frames received so far as the file's debugger does
-            wait_for(lambda: tab.n >= 118 and "heading bias" in tab.layer.md_faults.content, 120,
-                     "the heading-bias run to be fitted live")
+            wait_for(
+                lambda: tab.n >= 118 and "heading bias" in tab.layer.md_faults.content,
+                120,
+                "the heading-bias run to be fitted live",
+            )
             m = re.search(r"heading bias ([+-][\d.]+) deg", tab.layer.md_faults.content)
             assert m and abs(float(m.group(1)) - 2.5) < 0.2, tab.layer.md_faults.content  # planted +2.5 deg
             table = tab.layer.md_table.content

@@ -103,14 +103,18 @@ def test_enu_and_ned_match_pymap3d(az, el, s, lat0, lon0, h0):
     enu = L.ecef_to_enu(xyz, lat0, lon0, h0)
     assert _dist(enu, pm.ecef2enu(x, y, z, lat0, lon0, h0, deg=False)) <= TOL_M
     assert _dist(L.enu_to_ecef(enu, lat0, lon0, h0), pm.enu2ecef(*enu, lat0, lon0, h0, deg=False)) <= TOL_M
-    assert _dist(L.geodetic_to_enu(lat, lon, h, lat0, lon0, h0),
-                 pm.geodetic2enu(lat, lon, h, lat0, lon0, h0, deg=False)) <= TOL_M
+    assert (
+        _dist(L.geodetic_to_enu(lat, lon, h, lat0, lon0, h0), pm.geodetic2enu(lat, lon, h, lat0, lon0, h0, deg=False))
+        <= TOL_M
+    )
 
     ned = L.ecef_to_ned(xyz, lat0, lon0, h0)
     assert _dist(ned, pm.ecef2ned(x, y, z, lat0, lon0, h0, deg=False)) <= TOL_M
     assert _dist(L.ned_to_ecef(ned, lat0, lon0, h0), pm.ned2ecef(*ned, lat0, lon0, h0, deg=False)) <= TOL_M
-    assert _dist(L.geodetic_to_ned(lat, lon, h, lat0, lon0, h0),
-                 pm.geodetic2ned(lat, lon, h, lat0, lon0, h0, deg=False)) <= TOL_M
+    assert (
+        _dist(L.geodetic_to_ned(lat, lon, h, lat0, lon0, h0), pm.geodetic2ned(lat, lon, h, lat0, lon0, h0, deg=False))
+        <= TOL_M
+    )
 
 
 # --- 2. against pymap3d: AER ----------------------------------------------------------
@@ -129,14 +133,15 @@ def test_aer_matches_pymap3d(az, el, s, lat0, lon0, h0):
     x, y, z = (float(c) for c in xyz)
 
     assert _dist(L.aer_to_enu(az, el, s), pm.aer2enu(az, el, s, deg=False)) <= TOL_M
-    assert _dist(L.aer_to_ecef(az, el, s, lat0, lon0, h0),
-                 pm.aer2ecef(az, el, s, lat0, lon0, h0, deg=False)) <= TOL_M
+    assert _dist(L.aer_to_ecef(az, el, s, lat0, lon0, h0), pm.aer2ecef(az, el, s, lat0, lon0, h0, deg=False)) <= TOL_M
 
     cases = {
         "enu_to_aer": (L.enu_to_aer(enu), pm.enu2aer(*(float(c) for c in enu), deg=False)),
         "ecef_to_aer": (L.ecef_to_aer(xyz, lat0, lon0, h0), pm.ecef2aer(x, y, z, lat0, lon0, h0, deg=False)),
-        "geodetic_to_aer": (L.geodetic_to_aer(lat, lon, h, lat0, lon0, h0),
-                            pm.geodetic2aer(lat, lon, h, lat0, lon0, h0, deg=False)),
+        "geodetic_to_aer": (
+            L.geodetic_to_aer(lat, lon, h, lat0, lon0, h0),
+            pm.geodetic2aer(lat, lon, h, lat0, lon0, h0, deg=False),
+        ),
     }
     for name, (ours, ref) in cases.items():
         assert max(_aer_gaps_m(ours, ref)) <= TOL_M, (name, _aer_gaps_m(ours, ref))
@@ -149,19 +154,19 @@ def test_aer_matches_pymap3d(az, el, s, lat0, lon0, h0):
 @settings(max_examples=400, deadline=None)
 @given(*aers, *origins)
 @example(0.3, -0.2, 1.0e6, POLE, 0.7, 5000.0)
-@example(1.0, math.pi / 2, 1.0e6, -POLE, 0.0, 100_000.0)   # straight up over the south pole
-@example(0.0, -math.pi / 2, 1.0e6, 1.05, 2.0, -10_000.0)   # 1000 km down at 60 deg N
+@example(1.0, math.pi / 2, 1.0e6, -POLE, 0.0, 100_000.0)  # straight up over the south pole
+@example(0.0, -math.pi / 2, 1.0e6, 1.05, 2.0, -10_000.0)  # 1000 km down at 60 deg N
 @example(2.5, 0.0, 1.0e6, 0.1, -math.pi, 0.0)
 def test_geodetic_outputs_match_pymap3d(az, el, s, lat0, lon0, h0):
     enu = L.aer_to_enu(az, el, s)
     ned = enu[[1, 0, 2]] * [1.0, 1.0, -1.0]
     cases = {
-        "enu_to_geodetic": (L.enu_to_geodetic(enu, lat0, lon0, h0),
-                            pm.enu2geodetic(*enu, lat0, lon0, h0, deg=False)),
-        "ned_to_geodetic": (L.ned_to_geodetic(ned, lat0, lon0, h0),
-                            pm.ned2geodetic(*ned, lat0, lon0, h0, deg=False)),
-        "aer_to_geodetic": (L.aer_to_geodetic(az, el, s, lat0, lon0, h0),
-                            pm.aer2geodetic(az, el, s, lat0, lon0, h0, deg=False)),
+        "enu_to_geodetic": (L.enu_to_geodetic(enu, lat0, lon0, h0), pm.enu2geodetic(*enu, lat0, lon0, h0, deg=False)),
+        "ned_to_geodetic": (L.ned_to_geodetic(ned, lat0, lon0, h0), pm.ned2geodetic(*ned, lat0, lon0, h0, deg=False)),
+        "aer_to_geodetic": (
+            L.aer_to_geodetic(az, el, s, lat0, lon0, h0),
+            pm.aer2geodetic(az, el, s, lat0, lon0, h0, deg=False),
+        ),
     }
     target_pm = np.array(pm.aer2ecef(az, el, s, lat0, lon0, h0, deg=False))
     for name, (ours, ref) in cases.items():
@@ -181,8 +186,14 @@ def test_geodetic_outputs_match_pymap3d(az, el, s, lat0, lon0, h0):
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.floats(0.0, 360.0, exclude_max=True), st.floats(-90.0, 90.0), srange_m,
-       st.floats(-90.0, 90.0), st.floats(-180.0, 180.0), h0_m)
+@given(
+    st.floats(0.0, 360.0, exclude_max=True),
+    st.floats(-90.0, 90.0),
+    srange_m,
+    st.floats(-90.0, 90.0),
+    st.floats(-180.0, 180.0),
+    h0_m,
+)
 @example(45.0, -30.0, 20_000.0, 35.48, 80.97, 18_000.0)
 def test_deg_front_ends_match_pymap3d_degrees(az_deg, el_deg, s, lat0_deg, lon0_deg, h0):
     enu = L.aer_to_enu_deg(az_deg, el_deg, s)
@@ -194,23 +205,39 @@ def test_deg_front_ends_match_pymap3d_degrees(az_deg, el_deg, s, lat0_deg, lon0_
     lat_deg, lon_deg, h = L.aer_to_geodetic_deg(az_deg, el_deg, s, lat0_deg, lon0_deg, h0)
     ref = pm.aer2geodetic(az_deg, el_deg, s, lat0_deg, lon0_deg, h0)
     own_err = _dist(pm.geodetic2ecef(*ref), xyz)
-    gap = _dist(geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h),
-                geodetic_to_ecef(np.deg2rad(ref[0]), np.deg2rad(ref[1]), ref[2]))
+    gap = _dist(
+        geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h),
+        geodetic_to_ecef(np.deg2rad(ref[0]), np.deg2rad(ref[1]), ref[2]),
+    )
     assert gap <= TOL_M + own_err + 1e-8  # + degree <-> radian rounding on both sides
 
     for ours, ref in [
         (L.enu_to_geodetic_deg(enu, lat0_deg, lon0_deg, h0), pm.enu2geodetic(*enu, lat0_deg, lon0_deg, h0)),
-        (L.ned_to_geodetic_deg(enu[[1, 0, 2]] * [1, 1, -1], lat0_deg, lon0_deg, h0),
-         pm.ned2geodetic(enu[1], enu[0], -enu[2], lat0_deg, lon0_deg, h0)),
+        (
+            L.ned_to_geodetic_deg(enu[[1, 0, 2]] * [1, 1, -1], lat0_deg, lon0_deg, h0),
+            pm.ned2geodetic(enu[1], enu[0], -enu[2], lat0_deg, lon0_deg, h0),
+        ),
     ]:
-        gap = _dist(geodetic_to_ecef(np.deg2rad(ours[0]), np.deg2rad(ours[1]), ours[2]),
-                    geodetic_to_ecef(np.deg2rad(ref[0]), np.deg2rad(ref[1]), ref[2]))
+        gap = _dist(
+            geodetic_to_ecef(np.deg2rad(ours[0]), np.deg2rad(ours[1]), ours[2]),
+            geodetic_to_ecef(np.deg2rad(ref[0]), np.deg2rad(ref[1]), ref[2]),
+        )
         assert gap <= TOL_M + own_err + 1e-8
 
-    assert _dist(L.geodetic_to_enu_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0),
-                 pm.geodetic2enu(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0)) <= TOL_M
-    assert _dist(L.geodetic_to_ned_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0),
-                 pm.geodetic2ned(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0)) <= TOL_M
+    assert (
+        _dist(
+            L.geodetic_to_enu_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0),
+            pm.geodetic2enu(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0),
+        )
+        <= TOL_M
+    )
+    assert (
+        _dist(
+            L.geodetic_to_ned_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0),
+            pm.geodetic2ned(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0),
+        )
+        <= TOL_M
+    )
 
     def to_rad(aer):
         return math.radians(aer[0]), math.radians(aer[1]), aer[2]
@@ -218,8 +245,10 @@ def test_deg_front_ends_match_pymap3d_degrees(az_deg, el_deg, s, lat0_deg, lon0_
     for ours, ref in [
         (L.enu_to_aer_deg(enu), pm.enu2aer(*(float(c) for c in enu))),
         (L.ecef_to_aer_deg(xyz, lat0_deg, lon0_deg, h0), pm.ecef2aer(*(float(c) for c in xyz), lat0_deg, lon0_deg, h0)),
-        (L.geodetic_to_aer_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0),
-         pm.geodetic2aer(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0)),
+        (
+            L.geodetic_to_aer_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0),
+            pm.geodetic2aer(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0),
+        ),
     ]:
         assert 0.0 <= ours[0] < 360.0
         # the last one goes through our geodetic (lat, lon, h) of the target: its
@@ -232,8 +261,9 @@ def test_deg_front_ends_match_pymap3d_degrees(az_deg, el_deg, s, lat0_deg, lon0_
 LAT0, LON0, H0 = math.radians(35.48), math.radians(80.97), 18_000.0
 
 
-@pytest.mark.parametrize("enu, az_deg", [((0, 1000, 0), 0.0), ((1000, 0, 0), 90.0),
-                                         ((0, -1000, 0), 180.0), ((-1000, 0, 0), 270.0)])
+@pytest.mark.parametrize(
+    "enu, az_deg", [((0, 1000, 0), 0.0), ((1000, 0, 0), 90.0), ((0, -1000, 0), 180.0), ((-1000, 0, 0), 270.0)]
+)
 def test_compass_points_on_the_tangent_plane(enu, az_deg):
     # on the tangent plane (u = 0) at 1000 m: azimuth the compass point, elevation 0, range 1000
     az, el, s = L.enu_to_aer(np.array(enu, float))
@@ -272,8 +302,7 @@ def test_straight_up_and_down(lat0, lon0):
     # the ECEF difference of two points 1000 m apart has ~1e-9 m of rounding across the
     # normal: el within 1e-12 rad of 90 deg (the azimuth is then meaningless)
     assert el == pytest.approx(math.pi / 2, abs=1e-11) and s == pytest.approx(1000.0, abs=1e-8)
-    np.testing.assert_allclose(L.geodetic_to_ned(lat0, lon0, H0 + 1000.0, lat0, lon0, H0),
-                               [0, 0, -1000], atol=1e-8)
+    np.testing.assert_allclose(L.geodetic_to_ned(lat0, lon0, H0 + 1000.0, lat0, lon0, H0), [0, 0, -1000], atol=1e-8)
     down = L.aer_to_geodetic(1.234, -math.pi / 2, 1000.0, lat0, lon0, H0)
     assert _geodetic_gap_m(down, (lat0, lon0, H0 - 1000.0)) <= 1e-8
     assert L.enu_to_aer(np.array([0.0, 0.0, 5.0])) == (0.0, math.pi / 2, 5.0)
@@ -353,7 +382,7 @@ def test_round_trips(az, el, s, lat0, lon0, h0):
 
 # --- 7. NaN in -> NaN out, per element ------------------------------------------------
 
-O = (0.6, 1.4, 500.0)                         # origin (rad, rad, m)
+O = (0.6, 1.4, 500.0)  # origin (rad, rad, m)
 O_DEG = (34.4, 80.2, 500.0)
 P_ECEF = geodetic_to_ecef(0.6001, 1.4001, 800.0)
 P_LOC = (300.0, -200.0, 50.0)
@@ -364,18 +393,30 @@ AER_DEG = (57.0, 11.0, 5000.0)
 
 #: function -> its arguments ("p" is a (3,) point, a number a scalar)
 CALLS = {
-    "ecef_to_enu": (P_ECEF, *O), "enu_to_ecef": (P_LOC, *O),
-    "geodetic_to_enu": (*GEO, *O), "enu_to_geodetic": (P_LOC, *O),
-    "ecef_to_ned": (P_ECEF, *O), "ned_to_ecef": (P_LOC, *O),
-    "geodetic_to_ned": (*GEO, *O), "ned_to_geodetic": (P_LOC, *O),
-    "enu_to_aer": (P_LOC,), "aer_to_enu": AER,
-    "geodetic_to_aer": (*GEO, *O), "aer_to_geodetic": (*AER, *O),
-    "ecef_to_aer": (P_ECEF, *O), "aer_to_ecef": (*AER, *O),
-    "geodetic_to_enu_deg": (*GEO_DEG, *O_DEG), "enu_to_geodetic_deg": (P_LOC, *O_DEG),
-    "geodetic_to_ned_deg": (*GEO_DEG, *O_DEG), "ned_to_geodetic_deg": (P_LOC, *O_DEG),
-    "enu_to_aer_deg": (P_LOC,), "aer_to_enu_deg": AER_DEG,
-    "geodetic_to_aer_deg": (*GEO_DEG, *O_DEG), "aer_to_geodetic_deg": (*AER_DEG, *O_DEG),
-    "ecef_to_aer_deg": (P_ECEF, *O_DEG), "aer_to_ecef_deg": (*AER_DEG, *O_DEG),
+    "ecef_to_enu": (P_ECEF, *O),
+    "enu_to_ecef": (P_LOC, *O),
+    "geodetic_to_enu": (*GEO, *O),
+    "enu_to_geodetic": (P_LOC, *O),
+    "ecef_to_ned": (P_ECEF, *O),
+    "ned_to_ecef": (P_LOC, *O),
+    "geodetic_to_ned": (*GEO, *O),
+    "ned_to_geodetic": (P_LOC, *O),
+    "enu_to_aer": (P_LOC,),
+    "aer_to_enu": AER,
+    "geodetic_to_aer": (*GEO, *O),
+    "aer_to_geodetic": (*AER, *O),
+    "ecef_to_aer": (P_ECEF, *O),
+    "aer_to_ecef": (*AER, *O),
+    "geodetic_to_enu_deg": (*GEO_DEG, *O_DEG),
+    "enu_to_geodetic_deg": (P_LOC, *O_DEG),
+    "geodetic_to_ned_deg": (*GEO_DEG, *O_DEG),
+    "ned_to_geodetic_deg": (P_LOC, *O_DEG),
+    "enu_to_aer_deg": (P_LOC,),
+    "aer_to_enu_deg": AER_DEG,
+    "geodetic_to_aer_deg": (*GEO_DEG, *O_DEG),
+    "aer_to_geodetic_deg": (*AER_DEG, *O_DEG),
+    "ecef_to_aer_deg": (P_ECEF, *O_DEG),
+    "aer_to_ecef_deg": (*AER_DEG, *O_DEG),
 }
 
 

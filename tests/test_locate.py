@@ -60,11 +60,18 @@ def test_batch_rays_to_the_sky_give_nan_and_a_reason():
 
 
 def test_batch_invalid_inputs_and_origin_below():
-    pose = Pose.from_deg([35.48, np.nan, 35.48, 35.48], 80.97, [18000.0, 18000.0, 18000.0, 100.0],
-                         45, [3.5, 3.5, 120.0, 3.5], 0, 50, -2.6)
+    pose = Pose.from_deg(
+        [35.48, np.nan, 35.48, 35.48],
+        80.97,
+        [18000.0, 18000.0, 18000.0, 100.0],
+        45,
+        [3.5, 3.5, 120.0, 3.5],
+        0,
+        50,
+        -2.6,
+    )
     g = locate(pose, CAM, target_h=5000.0)
-    assert list(g.status) == [Status.OK, Status.INVALID_INPUT, Status.INVALID_INPUT,
-                              Status.ORIGIN_BELOW]
+    assert list(g.status) == [Status.OK, Status.INVALID_INPUT, Status.INVALID_INPUT, Status.ORIGIN_BELOW]
     assert np.all(np.isnan(g.h[1:]))
 
 

@@ -52,7 +52,9 @@ def test_a_damaged_tile_gives_its_rays_nodata_and_the_others_still_run(how, tmp_
     # the damaged quarter: nodes from row r0 and column c0 on (the linspace cut of the 344 x 403 crop)
     r0, _, c0, _ = wins[3]
     g = merged.grid
-    in_bad = (a.lat_deg < g.lat_north_deg - g.dlat_deg * (r0 - 1)) & (a.lon_deg > g.lon_west_deg + g.dlon_deg * (c0 - 1))
+    in_bad = (a.lat_deg < g.lat_north_deg - g.dlat_deg * (r0 - 1)) & (
+        a.lon_deg > g.lon_west_deg + g.dlon_deg * (c0 - 1)
+    )
     assert in_bad.sum() > 50
     # each ray meets the good terrain exactly as on the one raster, or gets a status
     ok = (b.status == Status.OK) & (a.status == Status.OK)
@@ -84,8 +86,18 @@ def test_replay_on_a_mosaic_with_a_truncated_tile_is_one_warning_and_statuses(tm
     out = tmp_path / "r.csv"
     with warnings.catch_warnings():
         warnings.simplefilter("always")
-        rc = main(["replay", str(records), "--sensor",
-                   str(ROOT / "assets/sensors/eo_turret.toml"), "--dem", str(tmp_path / "t"), "--out", str(out)])
+        rc = main(
+            [
+                "replay",
+                str(records),
+                "--sensor",
+                str(ROOT / "assets/sensors/eo_turret.toml"),
+                "--dem",
+                str(tmp_path / "t"),
+                "--out",
+                str(out),
+            ]
+        )
     cap = capsys.readouterr()
     err = cap.err
     lines = [ln for ln in err.splitlines() if hit.name in ln]

@@ -71,22 +71,60 @@ EDGE = 1e-4  # deg, about 11 m: each side of a zone / band edge, well clear of r
 
 EDGE_POINTS = [
     # zone edges at mid latitude, both hemispheres, and the antimeridian
-    (38.9, -78.0 - EDGE), (38.9, -78.0 + EDGE), (-33.9, 18.0 - EDGE), (-33.9, 18.0 + EDGE),
-    (0.0, 180.0 - EDGE), (0.0, -180.0 + EDGE), (EDGE, 0.0), (-EDGE, -EDGE),
+    (38.9, -78.0 - EDGE),
+    (38.9, -78.0 + EDGE),
+    (-33.9, 18.0 - EDGE),
+    (-33.9, 18.0 + EDGE),
+    (0.0, 180.0 - EDGE),
+    (0.0, -180.0 + EDGE),
+    (EDGE, 0.0),
+    (-EDGE, -EDGE),
     # band edges (8 deg) and the equator
-    (8.0 - EDGE, 10.0), (8.0 + EDGE, 10.0), (-8.0 - EDGE, 10.0), (-8.0 + EDGE, 10.0),
-    (64.0 - EDGE, 20.0), (64.0 + EDGE, 20.0), (72.0 - EDGE, 20.0), (72.0 + EDGE, 20.0),
+    (8.0 - EDGE, 10.0),
+    (8.0 + EDGE, 10.0),
+    (-8.0 - EDGE, 10.0),
+    (-8.0 + EDGE, 10.0),
+    (64.0 - EDGE, 20.0),
+    (64.0 + EDGE, 20.0),
+    (72.0 - EDGE, 20.0),
+    (72.0 + EDGE, 20.0),
     # Norway: 32V is 3-12 E in 56-64 N; 31V is cut to 0-3 E
-    (60.0, 3.0 - EDGE), (60.0, 3.0 + EDGE), (60.0, 12.0 - EDGE), (60.0, 12.0 + EDGE),
-    (56.0 - EDGE, 5.0), (56.0 + EDGE, 5.0), (64.0 - EDGE, 5.0), (64.0 + EDGE, 5.0),
+    (60.0, 3.0 - EDGE),
+    (60.0, 3.0 + EDGE),
+    (60.0, 12.0 - EDGE),
+    (60.0, 12.0 + EDGE),
+    (56.0 - EDGE, 5.0),
+    (56.0 + EDGE, 5.0),
+    (64.0 - EDGE, 5.0),
+    (64.0 + EDGE, 5.0),
     # Svalbard: 31X 0-9, 33X 9-21, 35X 21-33, 37X 33-42 E in 72-84 N (32X, 34X, 36X do not exist)
-    (78.0, EDGE), (78.0, 9.0 - EDGE), (78.0, 9.0 + EDGE), (78.0, 21.0 - EDGE), (78.0, 21.0 + EDGE),
-    (78.0, 33.0 - EDGE), (78.0, 33.0 + EDGE), (78.0, 42.0 - EDGE), (78.0, 42.0 + EDGE),
-    (72.0 + EDGE, 10.0), (72.0 - EDGE, 10.0), (83.9, 30.0),
+    (78.0, EDGE),
+    (78.0, 9.0 - EDGE),
+    (78.0, 9.0 + EDGE),
+    (78.0, 21.0 - EDGE),
+    (78.0, 21.0 + EDGE),
+    (78.0, 33.0 - EDGE),
+    (78.0, 33.0 + EDGE),
+    (78.0, 42.0 - EDGE),
+    (78.0, 42.0 + EDGE),
+    (72.0 + EDGE, 10.0),
+    (72.0 - EDGE, 10.0),
+    (83.9, 30.0),
     # UTM / UPS limits: 84 N and 80 S, and the poles' caps on both sides of the 0 meridian
-    (84.0 - EDGE, 10.0), (84.0 + EDGE, 10.0), (-80.0 + EDGE, -60.0), (-80.0 - EDGE, -60.0),
-    (87.0, -EDGE), (87.0, EDGE), (87.0, -135.0), (87.0, 135.0), (89.99, 60.0),
-    (-85.0, -EDGE), (-85.0, EDGE), (-85.0, -45.0), (-85.0, 170.0), (-89.99, -100.0),
+    (84.0 - EDGE, 10.0),
+    (84.0 + EDGE, 10.0),
+    (-80.0 + EDGE, -60.0),
+    (-80.0 - EDGE, -60.0),
+    (87.0, -EDGE),
+    (87.0, EDGE),
+    (87.0, -135.0),
+    (87.0, 135.0),
+    (89.99, 60.0),
+    (-85.0, -EDGE),
+    (-85.0, EDGE),
+    (-85.0, -45.0),
+    (-85.0, 170.0),
+    (-89.99, -100.0),
 ]
 
 
@@ -173,9 +211,28 @@ def test_locate_json_has_mgrs_and_usng(capsys):
 
     from geoloc.cli import main
 
-    rc = main(["locate", "--lat-deg", "35.48", "--lon-deg", "80.97", "--h-m", "18000", "--heading-deg", "45",
-               "--pitch-deg", "3.5", "--gimbal-roll-deg", "50", "--gimbal-pitch-deg", "-2.6",
-               "--target-h-m", "5083.5", "--json"])
+    rc = main(
+        [
+            "locate",
+            "--lat-deg",
+            "35.48",
+            "--lon-deg",
+            "80.97",
+            "--h-m",
+            "18000",
+            "--heading-deg",
+            "45",
+            "--pitch-deg",
+            "3.5",
+            "--gimbal-roll-deg",
+            "50",
+            "--gimbal-pitch-deg",
+            "-2.6",
+            "--target-h-m",
+            "5083.5",
+            "--json",
+        ]
+    )
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["mgrs"] == oracle(out["lat_deg"], out["lon_deg"])
@@ -189,8 +246,21 @@ def test_replay_csv_has_mgrs_after_lon(tmp_path, capsys):
     from geoloc.cli import main
 
     out = tmp_path / "out.csv"
-    assert main(["replay", str(asset_path(*DEFAULT_RECORDS)), "--camera", str(asset_path(*DEFAULT_CAMERA)),
-                 "--height-column", "paper_height_m", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                str(asset_path(*DEFAULT_RECORDS)),
+                "--camera",
+                str(asset_path(*DEFAULT_CAMERA)),
+                "--height-column",
+                "paper_height_m",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     with out.open() as fh:
         reader = csv.DictReader(fh)
         rows = list(reader)

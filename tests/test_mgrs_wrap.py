@@ -26,12 +26,25 @@ def wrapped(lon):
 
 
 POINTS = [
-    (38.9, 181.0), (38.9, 359.5), (-33.9, -181.0), (10.0, -359.0), (0.5, 360.0), (-0.5, -360.0),
-    (60.0, -355.0),                         # Norway's 32V (5 E) reached through the wrap
-    (78.0, -350.0), (78.0, -340.0),         # Svalbard's 33X (10 E, 20 E)
-    (38.9, 180.0 + EDGE), (38.9, -180.0 - EDGE), (38.9, 360.0 - EDGE), (38.9, -360.0 + EDGE),
-    (38.9, 282.0 + EDGE), (38.9, 282.0 - EDGE),   # 78 W's zone edge seen as 282 E
-    (87.0, 225.0), (87.0, -225.0), (-85.0, -190.0), (-85.0, 315.0),   # the UPS caps, both sides
+    (38.9, 181.0),
+    (38.9, 359.5),
+    (-33.9, -181.0),
+    (10.0, -359.0),
+    (0.5, 360.0),
+    (-0.5, -360.0),
+    (60.0, -355.0),  # Norway's 32V (5 E) reached through the wrap
+    (78.0, -350.0),
+    (78.0, -340.0),  # Svalbard's 33X (10 E, 20 E)
+    (38.9, 180.0 + EDGE),
+    (38.9, -180.0 - EDGE),
+    (38.9, 360.0 - EDGE),
+    (38.9, -360.0 + EDGE),
+    (38.9, 282.0 + EDGE),
+    (38.9, 282.0 - EDGE),  # 78 W's zone edge seen as 282 E
+    (87.0, 225.0),
+    (87.0, -225.0),
+    (-85.0, -190.0),
+    (-85.0, 315.0),  # the UPS caps, both sides
 ]
 
 
@@ -70,7 +83,7 @@ def test_precision_table_is_the_standards_square_sides():
     assert PRECISION_M == {k: 10.0 ** (5 - k) for k in range(6)}
     full = oracle(38.9, -77.0)
     for k in range(6):
-        assert latlon_to_mgrs(38.9, -77.0, precision=k).text[()] == full[:5] + full[5:5 + k] + full[10:10 + k]
+        assert latlon_to_mgrs(38.9, -77.0, precision=k).text[()] == full[:5] + full[5 : 5 + k] + full[10 : 10 + k]
     for bad in (-1, 6):
         with pytest.raises(ValueError, match="precision"):
             latlon_to_mgrs(0.0, 0.0, precision=bad)

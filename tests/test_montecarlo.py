@@ -136,8 +136,7 @@ def test_uniform_vibration_roll_equals_gimbal_roll_of_same_std(model):
     b = mc.first_order(only(model, gimbal_roll_deg=Distribution("normal", m / math.sqrt(3))))
     # same axis, same std: equal to the finite-difference noise (1e-6 relative)
     assert a.cep_m == pytest.approx(b.cep_m, rel=1e-5)
-    s = mc.run(only(model, vibration_roll_deg=Distribution("uniform", m)), 20000,
-               np.random.default_rng(4)).stats
+    s = mc.run(only(model, vibration_roll_deg=Distribution("uniform", m)), 20000, np.random.default_rng(4)).stats
     assert s["cep_m"] == pytest.approx(a.cep_m, rel=0.03)  # 0.5 % sampling error
 
 
@@ -218,11 +217,14 @@ def test_eq18_radii_are_not_interchangeable():
     assert nn["cep_m"] == pytest.approx(delta * k * (rm + h0), rel=1e-9)
 
 
-@pytest.mark.parametrize("lat0_deg, sigma_north_m, sigma_east_m", [
-    (60.0, 40.0, 3.0),  # long along the meridian
-    (60.0, 3.0, 40.0),  # long along the parallel
-    (-10.0, 25.0, 5.0),
-])
+@pytest.mark.parametrize(
+    "lat0_deg, sigma_north_m, sigma_east_m",
+    [
+        (60.0, 40.0, 3.0),  # long along the meridian
+        (60.0, 3.0, 40.0),  # long along the parallel
+        (-10.0, 25.0, 5.0),
+    ],
+)
 def test_cep50_empirical_on_elongated_clouds_equals_enu_reference(lat0_deg, sigma_north_m, sigma_east_m):
     # The empirical CEP50 is the median horizontal distance to the mean point. Reference:
     # each sample's east and north in the tangent plane at the mean point, from pymap3d's
@@ -255,8 +257,10 @@ def test_first_order_eq18_weights_east_and_north_with_their_radii(model):
     # point east-west only: first_order's CEP must be eq. 18 of its own covariance with
     # R_N for longitude and R_M for latitude (1e-9); R_N / R_M = 1.0044 at 35.6 deg, and
     # the cloud is 100x longer east than north, so swapping them moves CEP by 0.44 %.
-    m = only(model.with_nominal(heading_deg=0.0, pitch_deg=0.0, roll_deg=0.0, gimbal_pitch_deg=0.0),
-             target_h_m=Distribution("normal", 62.47))
+    m = only(
+        model.with_nominal(heading_deg=0.0, pitch_deg=0.0, roll_deg=0.0, gimbal_pitch_deg=0.0),
+        target_h_m=Distribution("normal", 62.47),
+    )
     fo = mc.first_order(m)
     lat0, _, h0, st = mc.nominal_point(m)
     assert st == 0
@@ -292,17 +296,21 @@ def test_seed_reproducible(model):
 
 
 # ------------------------------------------------------------------ error model file
-@pytest.mark.parametrize("patch, needle", [
-    ({"errors": {"heading_deg": {"dist": "gauss", "sigma": 1}}}, "heading_deg dist = 'gauss'"),
-    ({"errors": {"heading_deg": {"dist": "normal", "sigma": -1}}}, "heading_deg sigma = -1"),
-    ({"errors": {"heading_deg": {"dist": "uniform", "sigma": 1}}}, "heading_deg"),
-    ({"errors": {"wind_deg": {"dist": "normal", "sigma": 1}}}, "wind_deg"),
-    ({"nominal": {"lat_deg": 95.0, "lon_deg": 0.0, "h_m": 1.0}}, "lat = 95"),
-    ({"target": {"h_m": "high"}}, "h_m = 'high'"),
-    ({"bogus": 1}, "bogus"),
-])
+@pytest.mark.parametrize(
+    "patch, needle",
+    [
+        ({"errors": {"heading_deg": {"dist": "gauss", "sigma": 1}}}, "heading_deg dist = 'gauss'"),
+        ({"errors": {"heading_deg": {"dist": "normal", "sigma": -1}}}, "heading_deg sigma = -1"),
+        ({"errors": {"heading_deg": {"dist": "uniform", "sigma": 1}}}, "heading_deg"),
+        ({"errors": {"wind_deg": {"dist": "normal", "sigma": 1}}}, "wind_deg"),
+        ({"nominal": {"lat_deg": 95.0, "lon_deg": 0.0, "h_m": 1.0}}, "lat = 95"),
+        ({"target": {"h_m": "high"}}, "h_m = 'high'"),
+        ({"bogus": 1}, "bogus"),
+    ],
+)
 def test_bad_scenario_names_field(patch, needle):
     import tomllib
+
     data = tomllib.loads(SCEN.read_text())
     data.update(patch)
     with pytest.raises(ValueError, match=None) as e:
@@ -312,6 +320,7 @@ def test_bad_scenario_names_field(patch, needle):
 
 def test_image_centre_error_needs_pixel_pitch():
     import tomllib
+
     data = tomllib.loads(SCEN.read_text())
     del data["camera"]["pixel_pitch_m"]
     with pytest.raises(ValueError, match="pixel_pitch_m"):
@@ -323,15 +332,40 @@ def test_cli_stats_json_keys_and_values(tmp_path, capsys):
     out = tmp_path / "stats.json"
     assert main(["montecarlo", str(SCEN), "--samples", "5000", "--seed", "0", "--out", str(out)]) == 0
     d = json.loads(out.read_text())
-    assert set(d) == {"mean_lat_deg", "mean_lon_deg", "mean_h_m", "std_lat_deg", "std_lon_deg",
-                      "std_h_m", "cep_m", "cep50_empirical_m"}
+    assert set(d) == {
+        "mean_lat_deg",
+        "mean_lon_deg",
+        "mean_h_m",
+        "std_lat_deg",
+        "std_lon_deg",
+        "std_h_m",
+        "cep_m",
+        "cep50_empirical_m",
+    }
     assert abs(d["std_lat_deg"] / 0.00048 - 1) < 0.05  # as in the test above
     assert abs(d["mean_lat_deg"] - 35.57709) < 3 * 0.00048 / math.sqrt(5000) + 0.5e-5
 
 
 def test_cli_sweep_writes_csv_and_png(tmp_path, capsys):
-    assert main(["montecarlo", str(SCEN), "--sweep", "terrain", "--samples", "400",
-                 "--angles-deg", "10:70:60", "--terrain-sigmas-m", "10,100", "--out-dir", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "montecarlo",
+                str(SCEN),
+                "--sweep",
+                "terrain",
+                "--samples",
+                "400",
+                "--angles-deg",
+                "10:70:60",
+                "--terrain-sigmas-m",
+                "10,100",
+                "--out-dir",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     rows = (tmp_path / "fig10a_terrain_sigma.csv").read_text().splitlines()
     assert rows[0] == "gimbal_roll_deg,curve,cep_m,cep50_empirical_m,n_ok"
     assert len(rows) == 1 + 2 * 2
@@ -352,9 +386,11 @@ def test_hop_by_hop_engine_equals_frame_chain(model):
     # FrameChain. Include every error source and a camera with its own boresight
     # and mount rotations, at large errors so every factor matters.
     cam = replace(model.camera, boresight=(0.01, -0.02, 0.03), mount=(-0.005, 0.004, 0.02))
-    big = replace(model, camera=cam,
-                  errors={k: Distribution(d.dist, d.scale * (1 if k == "target_h_m" else 1000))
-                          for k, d in model.errors.items()})
+    big = replace(
+        model,
+        camera=cam,
+        errors={k: Distribution(d.dist, d.scale * (1 if k == "target_h_m" else 1000)) for k, d in model.errors.items()},
+    )
     errs = big.sample(3000, np.random.default_rng(8))
     a = chain_reference(big, errs)
     b = mc.evaluate(big, errs)
@@ -394,6 +430,7 @@ def test_the_height_kind_key_and_its_older_name():
     # [target] height_kind names the constant-height surface's kind; "surface" (its name before
     # "surface" came to mean only what a line of sight meets) still reads the same, both is an error
     import tomllib
+
     data = tomllib.loads(SCEN.read_text())
     assert data["target"]["height_kind"] == "inflated"
     tgt = {k: v for k, v in data["target"].items() if k != "height_kind"}

@@ -72,8 +72,23 @@ def test_fig10b_paper_bounds_on_bundled_terrain(dmodel, surface):
 
 
 def test_cli_dem_sweep(tmp_path, capsys):
-    assert main(["montecarlo", str(DEM_SCEN), "--sweep", "dem", "--samples", "300",
-                 "--angles-deg", "30,60", "--out-dir", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "montecarlo",
+                str(DEM_SCEN),
+                "--sweep",
+                "dem",
+                "--samples",
+                "300",
+                "--angles-deg",
+                "30,60",
+                "--out-dir",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     rows = (tmp_path / "fig10b_dem.csv").read_text().splitlines()
     assert rows[0] == "gimbal_roll_deg,curve,cep_m,cep50_empirical_m,n_ok" and len(rows) == 3
     assert (tmp_path / "fig10b_dem.png").read_bytes()[:4] == b"\x89PNG"

@@ -30,10 +30,23 @@ BROWN = {**LENS, "model": "brown", "k1": -0.12, "k2": 0.03, "p1": 2e-4, "p2": -1
 
 def _model(lens=LENS, errors=None, row=540.5, col=960.5, **nominal):
     """Nadir by default: level aircraft, gimbal at zero (the line of sight is the ellipsoid normal)."""
-    nom = {"lat_deg": 30.0, "lon_deg": 80.0, "h_m": H, "heading_deg": 0.0, "pitch_deg": 0.0, "roll_deg": 0.0,
-           "gimbal_roll_deg": 0.0, "gimbal_pitch_deg": 0.0, **nominal}
-    data = {"camera": {"lens": dict(lens), "gimbal": {"preset": "roll-pitch"}}, "nominal": nom,
-            "target": {"h_m": 0.0, "row": row, "col": col}, "errors": errors or {}}
+    nom = {
+        "lat_deg": 30.0,
+        "lon_deg": 80.0,
+        "h_m": H,
+        "heading_deg": 0.0,
+        "pitch_deg": 0.0,
+        "roll_deg": 0.0,
+        "gimbal_roll_deg": 0.0,
+        "gimbal_pitch_deg": 0.0,
+        **nominal,
+    }
+    data = {
+        "camera": {"lens": dict(lens), "gimbal": {"preset": "roll-pitch"}},
+        "nominal": nom,
+        "target": {"h_m": 0.0, "row": row, "col": col},
+        "errors": errors or {},
+    }
     return ErrorModel.from_dict(data, source="test")
 
 
@@ -96,11 +109,24 @@ def test_first_order_agrees_with_monte_carlo_for_lens_sources():
     # an oblique Brown camera with every kind of lens source at a corner-ish pixel: the linear
     # propagation (central differences through the same chain) against 20 000 samples; the sampling
     # error of the CEP is ~0.5 %, the sources are small enough for the map to be linear: 3 %
-    errs = {"cx_px": {"dist": "normal", "sigma": 0.8}, "cy_px": {"dist": "uniform", "max": 1.0},
-            "fx_px": {"dist": "normal", "sigma": 6.0}, "fy_px": {"dist": "normal", "sigma": 6.0},
-            "k1": {"dist": "normal", "sigma": 2e-3}, "p2": {"dist": "normal", "sigma": 5e-5}}
-    m = _model(BROWN, errs, row=200.0, col=1700.0, gimbal_roll_deg=30.0, gimbal_pitch_deg=-5.0,
-               heading_deg=120.0, pitch_deg=2.0)
+    errs = {
+        "cx_px": {"dist": "normal", "sigma": 0.8},
+        "cy_px": {"dist": "uniform", "max": 1.0},
+        "fx_px": {"dist": "normal", "sigma": 6.0},
+        "fy_px": {"dist": "normal", "sigma": 6.0},
+        "k1": {"dist": "normal", "sigma": 2e-3},
+        "p2": {"dist": "normal", "sigma": 5e-5},
+    }
+    m = _model(
+        BROWN,
+        errs,
+        row=200.0,
+        col=1700.0,
+        gimbal_roll_deg=30.0,
+        gimbal_pitch_deg=-5.0,
+        heading_deg=120.0,
+        pitch_deg=2.0,
+    )
     res = mc.run(m, 20_000, np.random.default_rng(6))
     fo = mc.first_order(m)
     assert res.stats["cep_m"] == pytest.approx(fo.cep_m, rel=0.03)
@@ -126,8 +152,9 @@ def test_distortion_draws_follow_opencv_undistortion():
     for dk in d:
         K = np.array([[F, 0, 959.5], [0, F, 539.5], [0, 0, 1.0]])
         dist = np.array([BROWN["k1"] + dk, BROWN["k2"], BROWN["p1"], BROWN["p2"], 0.0])
-        pts = cv2.undistortPoints(np.array([[[u, v]]]), K, dist,
-                                  criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15))
+        pts = cv2.undistortPoints(
+            np.array([[[u, v]]]), K, dist, criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
+        )
         xy.append(pts[0, 0])
     xy = np.array(xy)
     x0, y0 = xy[2]
@@ -143,17 +170,25 @@ def test_lens_draws_equal_the_sensor_with_those_parameters():
     m = _model(BROWN, row=100.0, col=1800.0, gimbal_roll_deg=20.0, heading_deg=33.0)
     rng = np.random.default_rng(7)
     n = 6
-    errs = {"fx_px": rng.normal(0, 5, n), "cy_px": rng.normal(0, 1, n), "k1": rng.normal(0, 1e-3, n),
-            "focal_length_px": rng.normal(0, 3, n), "skew_px": rng.normal(0, 0.2, n)}
+    errs = {
+        "fx_px": rng.normal(0, 5, n),
+        "cy_px": rng.normal(0, 1, n),
+        "k1": rng.normal(0, 1e-3, n),
+        "focal_length_px": rng.normal(0, 3, n),
+        "skew_px": rng.normal(0, 0.2, n),
+    }
     lat, lon, _, st = mc.evaluate(m, errs)
     assert np.all(st == Status.OK)
     s = m.camera
     pose = m.nominal_pose()
     for k in range(n):
-        moved = s.with_params(fx=s.params["fx"] + errs["fx_px"][k] + errs["focal_length_px"][k],
-                              fy=s.params["fy"] + errs["focal_length_px"][k],
-                              cy=s.params["cy"] + errs["cy_px"][k], k1=s.params["k1"] + errs["k1"][k],
-                              skew=errs["skew_px"][k])
+        moved = s.with_params(
+            fx=s.params["fx"] + errs["fx_px"][k] + errs["focal_length_px"][k],
+            fy=s.params["fy"] + errs["focal_length_px"][k],
+            cy=s.params["cy"] + errs["cy_px"][k],
+            k1=s.params["k1"] + errs["k1"][k],
+            skew=errs["skew_px"][k],
+        )
         g = locate(pose, moved, m.row, m.col, target_h=0.0, engine="numpy")
         assert float(g.lat) == pytest.approx(lat[k], abs=1e-13)
         assert float(g.lon) == pytest.approx(lon[k], abs=1e-13)
@@ -169,14 +204,22 @@ def test_lens_sources_are_checked_against_the_lens():
     with pytest.raises(ValueError, match=r"k1: the camera's pinhole lens has no parameter 'k1'"):
         _model(errors={"k1": {"dist": "normal", "sigma": 1e-3}})
     with pytest.raises(ValueError, match="roll-pitch"):
-        ErrorModel.from_dict({"camera": {"lens": LENS, "gimbal": {"preset": "azimuth-elevation"}},
-                              "nominal": {"lat_deg": 0, "lon_deg": 0, "h_m": 1000}, "target": {"h_m": 0}})
+        ErrorModel.from_dict(
+            {
+                "camera": {"lens": LENS, "gimbal": {"preset": "azimuth-elevation"}},
+                "nominal": {"lat_deg": 0, "lon_deg": 0, "h_m": 1000},
+                "target": {"h_m": 0},
+            }
+        )
     # the first-phase camera's pinhole takes the pinhole's sources
-    q17 = ErrorModel.from_dict({"camera": {"focal_length_px": 1e4, "principal_row": 50.5, "principal_col": 50.5,
-                                           "rows": 100, "cols": 100},
-                                "nominal": {"lat_deg": 0, "lon_deg": 0, "h_m": 1000}, "target": {"h_m": 0},
-                                "errors": {"focal_length_px": {"dist": "normal", "sigma": 5.0},
-                                           "cx_px": {"dist": "normal", "sigma": 0.5}}})
+    q17 = ErrorModel.from_dict(
+        {
+            "camera": {"focal_length_px": 1e4, "principal_row": 50.5, "principal_col": 50.5, "rows": 100, "cols": 100},
+            "nominal": {"lat_deg": 0, "lon_deg": 0, "h_m": 1000},
+            "target": {"h_m": 0},
+            "errors": {"focal_length_px": {"dist": "normal", "sigma": 5.0}, "cx_px": {"dist": "normal", "sigma": 0.5}},
+        }
+    )
     assert set(q17.errors) == {"focal_length_px", "cx_px"}
 
 
@@ -213,16 +256,35 @@ cx_px = { dist = "normal", sigma = 2.0 }
     assert "first order" in text and "eq. 18 1.00 m" in text  # linear: 2 px * 0.5 m exactly
     # --error adds a source (here one that cancels at the principal point, the scenario's default
     # target pixel: no spread of its own; its draws come first, so the cx draws are others)
-    assert main(["montecarlo", str(scen), "--samples", "20000", "--seed", "1", "--out", str(out),
-                 "--error", "focal_length_px=normal:50"]) == 0
+    assert (
+        main(
+            [
+                "montecarlo",
+                str(scen),
+                "--samples",
+                "20000",
+                "--seed",
+                "1",
+                "--out",
+                str(out),
+                "--error",
+                "focal_length_px=normal:50",
+            ]
+        )
+        == 0
+    )
     assert json.loads(out.read_text())["cep_m"] == pytest.approx(2.0 * GSD, rel=0.025)
     assert "eq. 18 1.00 m" in capsys.readouterr().out
     # --sensor replaces the scenario's camera: a pinhole file has no k1 to draw
     sensor = tmp_path / "pinhole.toml"
-    sensor.write_text("[lens]\n" + "\n".join(f"{k} = {v!r}" if not isinstance(v, str) else f'{k} = "{v}"'
-                                             for k, v in LENS.items()) + "\n")
-    assert main(["montecarlo", str(scen), "--samples", "1000", "--sensor", str(sensor),
-                 "--error", "k1=normal:0.001"]) == 2
+    sensor.write_text(
+        "[lens]\n"
+        + "\n".join(f"{k} = {v!r}" if not isinstance(v, str) else f'{k} = "{v}"' for k, v in LENS.items())
+        + "\n"
+    )
+    assert (
+        main(["montecarlo", str(scen), "--samples", "1000", "--sensor", str(sensor), "--error", "k1=normal:0.001"]) == 2
+    )
     assert "no parameter 'k1'" in capsys.readouterr().err
     assert main(["montecarlo", str(scen), "--samples", "1000", "--error", "cx_px=gauss:1"]) == 2
     assert "--error 'cx_px=gauss:1'" in capsys.readouterr().err

@@ -41,8 +41,13 @@ def test_mount_and_boresight_draws_equal_the_sensor_with_those_parameters(model)
     s = as_sensor(model.camera)
     pose = model.nominal_pose()
     for k in range(n):
-        moved = s.with_params(**{f"{w}_{a}": s.params[f"{w}_{a}"] + draws[f"{w}_{a}_deg"][k]
-                                 for w in ("mount", "boresight") for a in "xyz"})
+        moved = s.with_params(
+            **{
+                f"{w}_{a}": s.params[f"{w}_{a}"] + draws[f"{w}_{a}_deg"][k]
+                for w in ("mount", "boresight")
+                for a in "xyz"
+            }
+        )
         g = locate(pose, moved, model.row, model.col, target_h=model.target_h_m, height_kind=model.height_kind)
         # 1e-13 rad = 0.6 um: the same rotations in another order
         assert float(g.lat) == pytest.approx(lat_h[k], abs=1e-13)
@@ -53,9 +58,9 @@ def test_mount_and_boresight_draws_equal_the_sensor_with_those_parameters(model)
 def test_a_mount_sigma_spreads_the_points_as_the_same_gimbal_encoder_sigma(model):
     # a mount draw about the body's x axis at zero attitude errors acts as a gimbal-roll error
     # of the same size ([Q17]'s outer gimbal turns about body X too): equal spreads
-    base = dataclasses.replace(model, camera=dataclasses.replace(model.camera, mount=(0.0, 0.0, 0.0),
-                                                                         boresight=(0.0, 0.0, 0.0)),
-                               errors={})
+    base = dataclasses.replace(
+        model, camera=dataclasses.replace(model.camera, mount=(0.0, 0.0, 0.0), boresight=(0.0, 0.0, 0.0)), errors={}
+    )
     a = dataclasses.replace(base, errors={"mount_x_deg": Distribution("normal", math.radians(0.01))})
     b = dataclasses.replace(base, errors={"gimbal_roll_deg": Distribution("normal", math.radians(0.01))})
     ra = mc.run(a, 20_000, np.random.default_rng(1))

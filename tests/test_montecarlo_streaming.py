@@ -28,8 +28,8 @@ def model():
 
 
 def test_one_chunk_gives_the_same_numbers_as_keeping_the_samples(model):
-    a = mc.run(model, 5000, np.random.default_rng(0))                       # samples kept
-    b = mc.run(model, 5000, np.random.default_rng(0), keep_samples=False)   # one chunk
+    a = mc.run(model, 5000, np.random.default_rng(0))  # samples kept
+    b = mc.run(model, 5000, np.random.default_rng(0), keep_samples=False)  # one chunk
     assert a.lat is not None and b.lat is None and not b.streamed
     assert a.stats == b.stats
     assert b.status_counts[Status.OK] == 5000
@@ -37,7 +37,7 @@ def test_one_chunk_gives_the_same_numbers_as_keeping_the_samples(model):
 
 def test_streamed_statistics_equal_the_exact_ones_on_the_same_samples(model):
     kw = dict(chunk=20_000)
-    ex = mc.run(model, 100_000, np.random.default_rng(5), **kw)              # kept: exact
+    ex = mc.run(model, 100_000, np.random.default_rng(5), **kw)  # kept: exact
     st = mc.run(model, 100_000, np.random.default_rng(5), keep_samples=False, **kw)
     assert st.streamed and st.lat is None
     for k in EXACT_KEYS:  # pairwise merging: the same numbers to rounding
@@ -67,7 +67,7 @@ def test_histogram_median_against_the_exact_one(corr):
     ex = mc.statistics(lat, lon, h)
     acc = StreamingStats()
     for a in range(0, lat.size, 100_000):
-        acc.add(lat[a:a + 100_000], lon[a:a + 100_000], h[a:a + 100_000])
+        acc.add(lat[a : a + 100_000], lon[a : a + 100_000], h[a : a + 100_000])
     s = acc.result()
     for k in EXACT_KEYS:
         assert s[k] == pytest.approx(ex[k], rel=1e-12, abs=1e-12), k
@@ -127,7 +127,6 @@ def test_keeping_too_many_samples_is_refused(model):
 def test_sweep_streams_beyond_one_chunk(model):
     # 1000 samples x 2 sigmas per angle with chunks of 500: streamed, same distribution
     a = mc.sweep_terrain_sigma(model, [30.0, 70.0], [10.0, 100.0], 1000, np.random.default_rng(0))
-    b = mc.sweep_terrain_sigma(model, [30.0, 70.0], [10.0, 100.0], 1000, np.random.default_rng(0),
-                               chunk=500)
+    b = mc.sweep_terrain_sigma(model, [30.0, 70.0], [10.0, 100.0], 1000, np.random.default_rng(0), chunk=500)
     assert (a.n_ok == 1000).all() and (b.n_ok == 1000).all()
     assert np.allclose(a.cep_m, b.cep_m, rtol=0.1)

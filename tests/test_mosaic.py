@@ -62,10 +62,13 @@ def write_vrt(path, tiles, wins):
         f'<SimpleSource><SourceFilename relativeToVRT="1">{p.name}</SourceFilename><SourceBand>1</SourceBand>'
         f'<SrcRect xOff="0" yOff="0" xSize="{c1 - c0}" ySize="{r1 - r0}"/>'
         f'<DstRect xOff="{c0}" yOff="{r0}" xSize="{c1 - c0}" ySize="{r1 - r0}"/></SimpleSource>'
-        for p, (r0, r1, c0, c1) in zip(tiles, wins))
-    path.write_text(f'<VRTDataset rasterXSize="{W}" rasterYSize="{H}"><SRS>{wkt.replace("&", "&amp;").replace("<", "&lt;")}</SRS>'
-                    f"<GeoTransform>{t.c!r}, {t.a!r}, 0.0, {t.f!r}, 0.0, {t.e!r}</GeoTransform>"
-                    f'<VRTRasterBand dataType="Int16" band="1">{srcs}</VRTRasterBand></VRTDataset>')
+        for p, (r0, r1, c0, c1) in zip(tiles, wins)
+    )
+    path.write_text(
+        f'<VRTDataset rasterXSize="{W}" rasterYSize="{H}"><SRS>{wkt.replace("&", "&amp;").replace("<", "&lt;")}</SRS>'
+        f"<GeoTransform>{t.c!r}, {t.a!r}, 0.0, {t.f!r}, 0.0, {t.e!r}</GeoTransform>"
+        f'<VRTRasterBand dataType="Int16" band="1">{srcs}</VRTRasterBand></VRTDataset>'
+    )
     return path
 
 
@@ -110,8 +113,11 @@ def _same_hits(a, b, tol=HIT_TOL_M):
 @pytest.mark.parametrize("how", ["folder", "list", "vrt"])
 def test_seam_rays_same_hits_as_merged_raster(tmp_path, merged, rays, n, overlap, how):
     tiles, wins = cut_tiles(tmp_path / "tiles", n, overlap)
-    src = {"folder": tmp_path / "tiles", "list": [str(p) for p in tiles],
-           "vrt": write_vrt(tmp_path / "tiles" / "all.vrt", tiles, wins) if how == "vrt" else None}[how]
+    src = {
+        "folder": tmp_path / "tiles",
+        "list": [str(p) for p in tiles],
+        "vrt": write_vrt(tmp_path / "tiles" / "all.vrt", tiles, wins) if how == "vrt" else None,
+    }[how]
     if how == "folder":
         assert len(list((tmp_path / "tiles").iterdir())) == n * n
     # a small cache and region bound: the batch is split in several regions
@@ -129,7 +135,9 @@ def test_seam_rays_same_hits_as_merged_raster(tmp_path, merged, rays, n, overlap
     _same_hits(a, b)
     seams_lat = [lat_n - merged.grid.dlat_deg * k for k in np.linspace(0, merged.shape[0], n + 1).astype(int)[1:-1]]
     seams_lon = [lon_w + merged.grid.dlon_deg * k for k in np.linspace(0, merged.shape[1], n + 1).astype(int)[1:-1]]
-    assert _seam_crossings(merged, rays, a, seams_lat, seams_lon).sum() > 50  # the seams are exercised (63 of 1500 rays on 2 x 2)
+    assert (
+        _seam_crossings(merged, rays, a, seams_lat, seams_lon).sum() > 50
+    )  # the seams are exercised (63 of 1500 rays on 2 x 2)
     assert m.cache.peak_bytes <= m.cache.max_bytes
 
 
@@ -205,14 +213,23 @@ def test_missing_tile_is_nodata_not_a_crash(tmp_path, merged, rays):
     b = m.intersect(rays)
     # the hole: nodes rows 114..228, columns 134..267 of the crop (linspace cut of 344 x 403)
     r0, r1, c0, c1 = 114, 229, 134, 268
-    lat_n, lon_w, dy, dx = merged.grid.lat_north_deg, merged.grid.lon_west_deg, merged.grid.dlat_deg, merged.grid.dlon_deg
-    in_hole = ((a.lat_deg < lat_n - dy * (r0 - 1)) & (a.lat_deg > lat_n - dy * r1)
-               & (a.lon_deg > lon_w + dx * (c0 - 1)) & (a.lon_deg < lon_w + dx * c1))
+    lat_n, lon_w, dy, dx = (
+        merged.grid.lat_north_deg,
+        merged.grid.lon_west_deg,
+        merged.grid.dlat_deg,
+        merged.grid.dlon_deg,
+    )
+    in_hole = (
+        (a.lat_deg < lat_n - dy * (r0 - 1))
+        & (a.lat_deg > lat_n - dy * r1)
+        & (a.lon_deg > lon_w + dx * (c0 - 1))
+        & (a.lon_deg < lon_w + dx * c1)
+    )
     assert in_hole.sum() > 50
     assert set(b.status[in_hole].tolist()) <= {Status.NODATA, Status.LEFT_DEM}
     assert (b.status[in_hole] == Status.NODATA).mean() > 0.9
     # rays that meet the terrain before the hole are unchanged; the NODATA rays have NaN positions
-    far = (b.status == Status.OK)
+    far = b.status == Status.OK
     assert far.sum() > 500 and np.max(np.abs(a.ecef[far] - b.ecef[far])) < HIT_TOL_M
     assert np.all(np.isnan(b.ecef[b.status == Status.NODATA]))
     # sampling inside the hole
@@ -259,9 +276,28 @@ def test_bad_tiles_are_named(tmp_path):
 
 def test_cli_locate_and_replay_on_a_folder(tmp_path, capsys):
     cut_tiles(tmp_path / "t", 3, 1)
-    args = ["locate", "--sensor", str(ROOT / "assets/sensors/eo_turret.toml"), "--lat-deg", "36.6",
-            "--lon-deg", "-84.25", "--h-m", "2500", "--heading-deg", "45", "--pitch-deg", "2", "--roll-deg", "1",
-            "--angle", "azimuth=90", "--angle", "elevation=-30", "--json"]
+    args = [
+        "locate",
+        "--sensor",
+        str(ROOT / "assets/sensors/eo_turret.toml"),
+        "--lat-deg",
+        "36.6",
+        "--lon-deg",
+        "-84.25",
+        "--h-m",
+        "2500",
+        "--heading-deg",
+        "45",
+        "--pitch-deg",
+        "2",
+        "--roll-deg",
+        "1",
+        "--angle",
+        "azimuth=90",
+        "--angle",
+        "elevation=-30",
+        "--json",
+    ]
     assert main(args + ["--dem", str(SRTM)]) == 0
     one = json.loads(capsys.readouterr().out)
     assert main(args + ["--dem", str(tmp_path / "t")]) == 0
@@ -285,8 +321,9 @@ def test_cli_locate_and_replay_on_a_folder(tmp_path, capsys):
     for ra, rb in zip(a, b):
         # every column as written (positions to 1e-8 deg, heights to 1 mm), but the count of cells
         # visited: the walk's skip blocks are aligned to each region, not to the whole raster
-        assert {k: v for k, v in ra.items() if k != "dem_evaluations"} == \
-            {k: v for k, v in rb.items() if k != "dem_evaluations"}
+        assert {k: v for k, v in ra.items() if k != "dem_evaluations"} == {
+            k: v for k, v in rb.items() if k != "dem_evaluations"
+        }
         assert int(rb["dem_evaluations"]) >= 1
 
 
@@ -296,8 +333,13 @@ def test_example_27_figures():
     import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, str(ROOT / "examples" / "27_dem_mosaic.py")], cwd=ROOT,
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "27_dem_mosaic.py")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     out = r.stdout
     assert "9 tiles, 344 x 403 nodes" in out and "same status on every ray: True" in out

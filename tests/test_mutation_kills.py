@@ -45,8 +45,9 @@ def test_up_normal_closed_form_on_a_batch():
 
 def test_wrap_lon_into_minus_pi_pi():
     x = np.array([0.0, math.pi, -math.pi, 1.5 * math.pi, -1.5 * math.pi, 7.0, -7.0, 4 * math.pi + 0.25])
-    ref = np.array([0.0, -math.pi, -math.pi, -0.5 * math.pi, 0.5 * math.pi, 7.0 - 2 * math.pi,
-                    -7.0 + 2 * math.pi, 0.25])
+    ref = np.array(
+        [0.0, -math.pi, -math.pi, -0.5 * math.pi, 0.5 * math.pi, 7.0 - 2 * math.pi, -7.0 + 2 * math.pi, 0.25]
+    )
     np.testing.assert_allclose(wrap_lon(x), ref, atol=1e-12)
     assert np.all((wrap_lon(x) >= -math.pi) & (wrap_lon(x) < math.pi))
 
@@ -96,16 +97,33 @@ def test_pose_defaults_are_zero():
     assert Pose.from_deg(35.0, 80.0, 1000.0, angles_deg={"azimuth": np.zeros((2, 1))}).shape == (2, 1)
 
 
-@pytest.mark.parametrize("field, value, valid", [
-    # docs: lat in [-90, 90] deg, lon and heading in [-360, 360] deg, pitch in [-90, 90] deg,
-    # h in [-12 km, 1e8 m], other joint angles in [-360, 360] deg; both ends included
-    ("lat", -math.pi / 2, True), ("lat", -1.6, False), ("lat", math.pi / 2, True),
-    ("lon", -2 * math.pi, True), ("lon", -7.0, False), ("lon", 7.0, False),
-    ("h", -1.2e4, True), ("h", -11999.5, True), ("h", -12000.5, False),
-    ("heading", -1.0, True), ("heading", 4.0, True), ("heading", 6.3, False), ("heading", -6.3, False),
-    ("pitch", -math.pi / 2, True), ("pitch", -2.0, False), ("pitch", 2.0, False),
-    ("azimuth", -6.0, True), ("azimuth", 6.0, True), ("azimuth", -6.3, False), ("azimuth", 6.3, False),
-])
+@pytest.mark.parametrize(
+    "field, value, valid",
+    [
+        # docs: lat in [-90, 90] deg, lon and heading in [-360, 360] deg, pitch in [-90, 90] deg,
+        # h in [-12 km, 1e8 m], other joint angles in [-360, 360] deg; both ends included
+        ("lat", -math.pi / 2, True),
+        ("lat", -1.6, False),
+        ("lat", math.pi / 2, True),
+        ("lon", -2 * math.pi, True),
+        ("lon", -7.0, False),
+        ("lon", 7.0, False),
+        ("h", -1.2e4, True),
+        ("h", -11999.5, True),
+        ("h", -12000.5, False),
+        ("heading", -1.0, True),
+        ("heading", 4.0, True),
+        ("heading", 6.3, False),
+        ("heading", -6.3, False),
+        ("pitch", -math.pi / 2, True),
+        ("pitch", -2.0, False),
+        ("pitch", 2.0, False),
+        ("azimuth", -6.0, True),
+        ("azimuth", 6.0, True),
+        ("azimuth", -6.3, False),
+        ("azimuth", 6.3, False),
+    ],
+)
 def test_pose_range_boundaries(field, value, valid):
     kw = dict(lat=0.5, lon=1.0, h=1000.0)
     angles = {}
@@ -181,8 +199,9 @@ def test_intersect_dem_broadcasts_origins_against_one_direction():
     from geoloc.surfaces.terrain import intersect_dem
 
     dem = _ridge_lon_dem()
-    o, d, LOS = _rays(EnuFrame.from_deg(36.0, 78.002, 0.0), [[0, 0, 400.0], [0, 50.0, 400.0], [0, -80.0, 420.0]],
-                      [1.0, 0.0, -0.12])
+    o, d, LOS = _rays(
+        EnuFrame.from_deg(36.0, 78.002, 0.0), [[0, 0, 400.0], [0, 50.0, 400.0], [0, -80.0, 420.0]], [1.0, 0.0, -0.12]
+    )
     for method in ("exact", "steps", "bisect"):
         batch = intersect_dem(LOS(o, d, np.uint8(0)), dem, method)  # (3, 3) origins, (3,) direction, () status
         assert batch.h.shape == (3,)
@@ -237,7 +256,9 @@ def test_hidden_samples_up_to_the_last_quarter_cell():
     s_first, s_bis = np.array([0.0]), np.array([1000.0])
     ns = int(np.ceil(1000.0 / q))
     step = 1000.0 / ns
-    seen = terrain._hidden(o, d, s_bis, s_first, _EquatorFake((1000.0 - 1.5 * step, 2000.0), cell_deg), np.array([True]))
+    seen = terrain._hidden(
+        o, d, s_bis, s_first, _EquatorFake((1000.0 - 1.5 * step, 2000.0), cell_deg), np.array([True])
+    )
     assert seen[0]
     none = terrain._hidden(o, d, s_bis, s_first, _EquatorFake((2000.0, 3000.0), cell_deg), np.array([True]))
     assert not none[0]
@@ -305,7 +326,9 @@ def test_bisection_hidden_flag_on_a_projected_dem():
     zrow = 300.0 * np.clip(1 - np.abs(X - (x0 + 1500.0)) / 120.0, 0, None)
     dem = DEM.from_array(np.tile(zrow, (41, 1)), y0, x0, dx, dx, crs="EPSG:32644")
     assert not dem.is_geographic
-    lon0, lat0 = pyproj.Transformer.from_crs("EPSG:32644", "EPSG:4326", always_xy=True).transform(x0 + 200.0, y0 - 400.0)
+    lon0, lat0 = pyproj.Transformer.from_crs("EPSG:32644", "EPSG:4326", always_xy=True).transform(
+        x0 + 200.0, y0 - 400.0
+    )
     o, d, LOS = _rays(EnuFrame.from_deg(lat0, lon0, 0.0), [[0, 0, 400.0]], [1.0, 0.0, -0.12])
     los = LOS(o, d, np.zeros(1, np.uint8))
     st = intersect_dem(los, dem, "steps", eps_h=0.5)
@@ -364,8 +387,11 @@ def test_report_rounding_outlier_rule_and_loo_components(flight):
 
     vec = []
     for k, s in zip(idx, en):
-        hit = for_records(t, [k]).intersect(line_of_sight(rec.pose().take([k]), s, rec.column("row")[[k]],
-                                                          rec.column("col")[[k]], outside="extrapolate"))
+        hit = for_records(t, [k]).intersect(
+            line_of_sight(
+                rec.pose().take([k]), s, rec.column("row")[[k]], rec.column("col")[[k]], outside="extrapolate"
+            )
+        )
         ev = error_vectors(rec.subset([k]), s, hit)
         vec.append([ev.east_m[0], ev.north_m[0]])
     vec = np.array(vec)
@@ -421,7 +447,9 @@ def test_first_order_ignores_sources_of_zero_spread():
 
     m = ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1.toml"))
     one = replace(m, errors={"gimbal_roll_deg": Distribution("normal", 0.006)})
-    both = replace(m, errors={"heading_deg": Distribution("normal", 0.0), "gimbal_roll_deg": Distribution("normal", 0.006)})
+    both = replace(
+        m, errors={"heading_deg": Distribution("normal", 0.0), "gimbal_roll_deg": Distribution("normal", 0.006)}
+    )
     a, b = mc.first_order(one), mc.first_order(both)
     assert b.sources == ["gimbal_roll_deg"] and np.isfinite(b.cep_m)
     assert b.cep_m == pytest.approx(a.cep_m, rel=1e-12)
@@ -436,9 +464,15 @@ def _turret():
 
 
 def _turret_states():
-    return Pose.from_deg(np.array([36.6, -12.0]), np.array([-84.25, 170.0]), np.array([2500.0, 900.0]),
-                         np.array([45.0, -130.0]), np.array([2.0, -4.0]), np.array([1.0, 7.0]),
-                         angles_deg={"azimuth": np.array([90.0, 233.0]), "elevation": np.array([-30.0, -71.0])})
+    return Pose.from_deg(
+        np.array([36.6, -12.0]),
+        np.array([-84.25, 170.0]),
+        np.array([2500.0, 900.0]),
+        np.array([45.0, -130.0]),
+        np.array([2.0, -4.0]),
+        np.array([1.0, 7.0]),
+        angles_deg={"azimuth": np.array([90.0, 233.0]), "elevation": np.array([-30.0, -71.0])},
+    )
 
 
 def _R_ecef_ned_by_hand(lat, lon):

@@ -68,8 +68,7 @@ def test_walk_compiles_once_for_every_kind_of_input(monkeypatch):
     for d_ in (dem, dem32):
         los = random_oblique_rays(d_, 20, rng)
         one = LineOfSight(los.origin_ecef[0], los.direction_ecef, los.status)
-        ro = LineOfSight(*(np.broadcast_to(a, a.shape) for a in (los.origin_ecef, los.direction_ecef)),
-                         los.status)
+        ro = LineOfSight(*(np.broadcast_to(a, a.shape) for a in (los.origin_ecef, los.direction_ecef)), los.status)
         assert not ro.origin_ecef.flags.writeable
         for l_ in (los, one, ro):
             for method in ("exact", "bisect"):
@@ -93,8 +92,13 @@ def test_walk_compiles_once_for_every_kind_of_input(monkeypatch):
     # one compiled walk per (climb, block side, cell model) used (issue 32: a call compiles only
     # its own model; other tests of the session may have compiled more, hence >=)
     used = {k for k, kernel in tn.KERNELS.items() if kernel.signatures}
-    assert used >= {("climb", "triangles"), ("flat", "bilinear"), ("flat", "triangles"),
-                    ("flat_block", "bilinear"), ("flat_block", "triangles")}, used
+    assert used >= {
+        ("climb", "triangles"),
+        ("flat", "bilinear"),
+        ("flat", "triangles"),
+        ("flat_block", "bilinear"),
+        ("flat_block", "triangles"),
+    }, used
     for kernel in (tn.KERNELS[k] for k in used):
         assert len(kernel.signatures) == 1, kernel.signatures
         # the one signature takes read-only inputs (so writable ones never need a second)
@@ -131,8 +135,7 @@ print(json.dumps(dict(F=ellipsoid.F, h=h, lat=lat, h_np=float(h_np), lat_np=floa
 
 def _probe(src: Path, cache: Path) -> dict:
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=str(src))
-    r = subprocess.run([sys.executable, "-c", PROBE], cwd=src, env=env, capture_output=True, text=True,
-                       timeout=300)
+    r = subprocess.run([sys.executable, "-c", PROBE], cwd=src, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     return json.loads(r.stdout.strip().splitlines()[-1])
 

@@ -25,9 +25,22 @@ DEM_OPENERS = {("DEM", "open"), ("DemMosaic", "open"), (None, "open_dem_or_mosai
 
 #: Modules read for DEM openers: every module of both packages but ``geoloc.surfaces``, where the
 #: openers live (``SurfaceSpec.build`` / ``.raster()`` is the one way from a DEM's name to a DEM).
-DEM_OPENER_SCOPE = ("geoloc.status", "geoloc.tomlio", "geoloc.assets", "geoloc.userfiles", "geoloc.extras",
-                    "geoloc.geodesy", "geoloc.frames", "geoloc.sensors", "geoloc.locate", "geoloc.io",
-                    "geoloc.analysis", "geoloc.workflows", "geoloc.cli", "geoloc_viz")
+DEM_OPENER_SCOPE = (
+    "geoloc.status",
+    "geoloc.tomlio",
+    "geoloc.assets",
+    "geoloc.userfiles",
+    "geoloc.extras",
+    "geoloc.geodesy",
+    "geoloc.frames",
+    "geoloc.sensors",
+    "geoloc.locate",
+    "geoloc.io",
+    "geoloc.analysis",
+    "geoloc.workflows",
+    "geoloc.cli",
+    "geoloc_viz",
+)
 
 #: Modules in DEM_OPENER_SCOPE that still open a DEM, and why (may only shrink): none left. The
 #: verbs (``geoloc rpc``, ``warm``, ``view``), the viewer's scene (``terrain_link``) and the rerun
@@ -75,8 +88,11 @@ def dem_opens(tree) -> list:
             continue
         f = node.func
         if isinstance(f, ast.Attribute):  # x.open(...): x a name, or a module's attribute (_dem.DEM.open)
-            owner = f.value.id if isinstance(f.value, ast.Name) else (
-                f.value.attr if isinstance(f.value, ast.Attribute) else None)
+            owner = (
+                f.value.id
+                if isinstance(f.value, ast.Name)
+                else (f.value.attr if isinstance(f.value, ast.Attribute) else None)
+            )
             key = (owner, f.attr)
         else:
             key = (None, f.id) if isinstance(f, ast.Name) else None
@@ -88,8 +104,11 @@ def dem_opens(tree) -> list:
 def camera_checks(tree) -> list:
     out = []
     for node in ast.walk(tree):
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("isinstance",
-                                                                                            "issubclass"):
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Name)
+            and node.func.id in ("isinstance", "issubclass")
+        ):
             if len(node.args) == 2 and "Camera" in {n.id for n in ast.walk(node.args[1]) if isinstance(n, ast.Name)}:
                 out.append(node.lineno)
     return out
@@ -99,8 +118,11 @@ def mosaic_attribute_checks(tree) -> list:
     out = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in ("hasattr", "getattr"):
-            if len(node.args) >= 2 and isinstance(node.args[1], ast.Constant) and node.args[1].value in (
-                    "with_solver", "cache"):
+            if (
+                len(node.args) >= 2
+                and isinstance(node.args[1], ast.Constant)
+                and node.args[1].value in ("with_solver", "cache")
+            ):
                 out.append(node.lineno)
     return out
 
@@ -123,7 +145,9 @@ def surface_dem_asks(tree) -> list:
 
 
 def test_a_surface_is_asked_for_its_terrain_with_terrain_of():
-    found = {mod: lines for mod, tree in modules() if mod != "geoloc.surfaces.base" and (lines := surface_dem_asks(tree))}
+    found = {
+        mod: lines for mod, tree in modules() if mod != "geoloc.surfaces.base" and (lines := surface_dem_asks(tree))
+    }
     new = {m: v for m, v in found.items() if m not in KNOWN_SURFACE_DEM_ASKS}
     assert not new, f"ask geoloc.surfaces.base.terrain_of(surface), not its .dem (a mosaic has none): {new}"
     gone = KNOWN_SURFACE_DEM_ASKS - set(found)
@@ -157,8 +181,11 @@ def camera_imports(tree, mod: str) -> list:
 
 
 def test_a_camera_file_loads_as_a_sensor_and_camera_is_imported_by_the_file_format_only(tmp_path):
-    found = {mod: lines for mod, tree in modules() if mod not in CAMERA_FORMAT | CAMERA_REEXPORT
-             and (lines := camera_imports(tree, mod))}
+    found = {
+        mod: lines
+        for mod, tree in modules()
+        if mod not in CAMERA_FORMAT | CAMERA_REEXPORT and (lines := camera_imports(tree, mod))
+    }
     new = {m: v for m, v in found.items() if m not in KNOWN_CAMERA_IMPORTS}
     assert not new, f"these import Camera outside the camera file format (load_sensor gives a FrameSensor): {new}"
     gone = KNOWN_CAMERA_IMPORTS - set(found)
@@ -187,7 +214,7 @@ CAMERA_ENTRANCES = {
     "geoloc.analysis.triangulate": "triangulate (examples/35)",
     "geoloc.analysis.errormodel": "ErrorModel and its with_camera (examples/31-33)",
     "geoloc.workflows.ortho": "locate_frame, write_frame_geotiff, orthorectify "
-                              "(docs/tour_terrain.md, docs/ortho.md, examples/26)",
+    "(docs/tour_terrain.md, docs/ortho.md, examples/26)",
     "geoloc_viz.model": "the viewer's Scenario, converted once in __post_init__",
     "geoloc_viz.rerun_model": "steps_from_flight and steps_from_records (docs/rerun.md, examples/80-83)",
 }
@@ -208,8 +235,10 @@ def sensor_conversions(tree) -> list:
 def test_a_camera_becomes_a_sensor_only_at_the_python_entrances():
     found = {mod: lines for mod, tree in modules() if (lines := sensor_conversions(tree))}
     new = {m: v for m, v in found.items() if m not in CAMERA_ENTRANCES}
-    assert not new, ("as_sensor/sensor_of behind the Python entrances (what reaches here is a Sensor "
-                     f"already; convert where the object is built): {new}")
+    assert not new, (
+        "as_sensor/sensor_of behind the Python entrances (what reaches here is a Sensor "
+        f"already; convert where the object is built): {new}"
+    )
     gone = set(CAMERA_ENTRANCES) - set(found)
     assert not gone, f"no conversion left: remove them from CAMERA_ENTRANCES: {sorted(gone)}"
 
@@ -221,15 +250,17 @@ def test_a_mosaic_is_recognised_by_is_mosaic_only():
 
 def test_the_checks_find_planted_cases():
     # each rule above must be able to fail
-    tree = ast.parse("from geoloc.surfaces.dem import DEM\n"
-                     "def f(p):\n"
-                     "    d = DEM.open(p)\n"
-                     "    m = open_dem_or_mosaic(p); mc.open_dem(p)\n"
-                     "    if isinstance(d, (Camera, int)): pass\n"
-                     "    from geoloc.sensors.camera import Camera\n"
-                     "    return hasattr(m, 'with_solver') or hasattr(m, 'dem') or getattr(surface, 'dem', None)\n"
-                     "s = as_sensor(c); t = camera.sensor_of(c)\n"
-                     "e = _dem.DEM.open(p)\n")
+    tree = ast.parse(
+        "from geoloc.surfaces.dem import DEM\n"
+        "def f(p):\n"
+        "    d = DEM.open(p)\n"
+        "    m = open_dem_or_mosaic(p); mc.open_dem(p)\n"
+        "    if isinstance(d, (Camera, int)): pass\n"
+        "    from geoloc.sensors.camera import Camera\n"
+        "    return hasattr(m, 'with_solver') or hasattr(m, 'dem') or getattr(surface, 'dem', None)\n"
+        "s = as_sensor(c); t = camera.sensor_of(c)\n"
+        "e = _dem.DEM.open(p)\n"
+    )
     assert sorted(dem_opens(tree)) == [3, 4, 4, 9]
     assert camera_checks(tree) == [5]
     assert camera_imports(tree, "geoloc.x") == [6]

@@ -22,16 +22,31 @@ SCANNED = [ROOT / "geoloc", ROOT / "viz" / "geoloc_viz"]
 HOME = [ROOT / "geoloc" / "surfaces", ROOT / "geoloc" / "pipeline.py"]
 #: Functions that meet a surface and are no location, each with why.
 EXCEPTIONS = {
-    ("viz/geoloc_viz/picture_model.py", "ground_pick", "intersect"):
-        "the browser's ray from the viewer's camera (a click in the 3D scene), not a sensor's line of sight",
-    ("viz/geoloc_viz/terrain_link.py", "terrain_geometry", "intersect_los_height"):
-        "the teaching drawing: where the straight line crosses the heights the DEM iteration tries",
-    ("geoloc/sensors/limb.py", "limb_tangent", "ray_inflated_ellipsoid"):
-        "the limb tangent solver's test that a limb ray meets the Earth (HITS_EARTH), no location",
+    (
+        "viz/geoloc_viz/picture_model.py",
+        "ground_pick",
+        "intersect",
+    ): "the browser's ray from the viewer's camera (a click in the 3D scene), not a sensor's line of sight",
+    (
+        "viz/geoloc_viz/terrain_link.py",
+        "terrain_geometry",
+        "intersect_los_height",
+    ): "the teaching drawing: where the straight line crosses the heights the DEM iteration tries",
+    (
+        "geoloc/sensors/limb.py",
+        "limb_tangent",
+        "ray_inflated_ellipsoid",
+    ): "the limb tangent solver's test that a limb ray meets the Earth (HITS_EARTH), no location",
 }
 #: Calls that meet a surface, by name.
-SURFACE_FUNCTIONS = {"intersect_los_height", "intersect_dem", "ray_at_height", "ray_inflated_ellipsoid",
-                     "ray_geodetic_height", "locate_fast"}
+SURFACE_FUNCTIONS = {
+    "intersect_los_height",
+    "intersect_dem",
+    "ray_at_height",
+    "ray_inflated_ellipsoid",
+    "ray_geodetic_height",
+    "locate_fast",
+}
 #: The fused kernel's own module may call it.
 KERNEL_HOME = ROOT / "geoloc" / "sensors" / "_fastlocate.py"
 
@@ -60,7 +75,8 @@ def _is_pipeline(expr, names) -> bool:
     if isinstance(expr, ast.Call):
         f = expr.func
         return (isinstance(f, ast.Name) and f.id == "Pipeline") or (
-            isinstance(f, ast.Attribute) and f.attr == "replace" and expr.args and _is_pipeline(expr.args[0], names))
+            isinstance(f, ast.Attribute) and f.attr == "replace" and expr.args and _is_pipeline(expr.args[0], names)
+        )
     return isinstance(expr, ast.Name) and expr.id in names
 
 
@@ -134,7 +150,8 @@ def test_the_check_catches_a_direct_call(tmp_path, monkeypatch):
         "    pipe = Pipeline(None, surface)\n"
         "    b = pipe.intersect(los)\n"
         "    c = Pipeline(None, surface).intersect(los)\n"
-        "    d = intersect_dem(los, None, 'exact')\n")
+        "    d = intersect_dem(los, None, 'exact')\n"
+    )
     monkeypatch.setattr(__import__(__name__), "SCANNED", [bad])
     monkeypatch.setattr(__import__(__name__), "ROOT", tmp_path)
     found = _findings()

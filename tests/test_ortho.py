@@ -55,11 +55,14 @@ def _read(path):
 
 
 # --------------------------------------------------------------------------- the compiled grid
-@pytest.mark.parametrize("sensor_file, records", [
-    (Q17_CAMERA, Q17_RECORDS),  # [Q17] pinhole, roll-pitch
-    (ASSETS / "sensors" / "eo_turret.toml", ASSETS / "records" / "eo_turret_flight.csv"),  # Brown, mount, lever arm
-    (ASSETS / "sensors" / "drone_camera.toml", ASSETS / "records" / "drone_targets.csv"),  # earth-referenced
-])
+@pytest.mark.parametrize(
+    "sensor_file, records",
+    [
+        (Q17_CAMERA, Q17_RECORDS),  # [Q17] pinhole, roll-pitch
+        (ASSETS / "sensors" / "eo_turret.toml", ASSETS / "records" / "eo_turret_flight.csv"),  # Brown, mount, lever arm
+        (ASSETS / "sensors" / "drone_camera.toml", ASSETS / "records" / "drone_targets.csv"),  # earth-referenced
+    ],
+)
 def test_grid_line_of_sight_equals_the_sensors_ray_for_ray(sensor_file, records):
     s, _, pose = _record(sensor_file, records)
     rows, cols = frame_pixels(s, 37)
@@ -94,17 +97,47 @@ def test_bad_pose_gives_invalid_input_per_pixel_not_an_exception():
 # --------------------------------------------------------------------------- the GeoTIFF vs geoloc locate
 def _locate_cli_args(rec, k=0):
     c = rec.column
-    return ["--lat-deg", repr(float(c("ac_lat_deg")[k])), "--lon-deg", repr(float(c("ac_lon_deg")[k])), "--h-m",
-            repr(float(c("ac_h_m")[k])), "--heading-deg", repr(float(c("heading_deg")[k])), "--pitch-deg",
-            repr(float(c("pitch_deg")[k])), "--roll-deg", repr(float(c("roll_deg")[k])), "--gimbal-roll-deg",
-            repr(float(c("gimbal_roll_deg")[k])), "--gimbal-pitch-deg", repr(float(c("gimbal_pitch_deg")[k]))]
+    return [
+        "--lat-deg",
+        repr(float(c("ac_lat_deg")[k])),
+        "--lon-deg",
+        repr(float(c("ac_lon_deg")[k])),
+        "--h-m",
+        repr(float(c("ac_h_m")[k])),
+        "--heading-deg",
+        repr(float(c("heading_deg")[k])),
+        "--pitch-deg",
+        repr(float(c("pitch_deg")[k])),
+        "--roll-deg",
+        repr(float(c("roll_deg")[k])),
+        "--gimbal-roll-deg",
+        repr(float(c("gimbal_roll_deg")[k])),
+        "--gimbal-pitch-deg",
+        repr(float(c("gimbal_pitch_deg")[k])),
+    ]
 
 
 def test_geotiff_pixels_equal_geoloc_locate(tmp_path, capsys):
     out = tmp_path / "q17.tif"
     step = 97
-    assert main(["ortho", "--record", "T3-1", "--dem", str(ETOPO), "--step", str(step), "--out", str(out),
-                 "--json", "--serial"]) == 0
+    assert (
+        main(
+            [
+                "ortho",
+                "--record",
+                "T3-1",
+                "--dem",
+                str(ETOPO),
+                "--step",
+                str(step),
+                "--out",
+                str(out),
+                "--json",
+                "--serial",
+            ]
+        )
+        == 0
+    )
     info = json.loads(capsys.readouterr().out)
     bands, tags, desc, btags = _read(out)
     s, rec, _ = _record(Q17_CAMERA, Q17_RECORDS)
@@ -118,8 +151,12 @@ def test_geotiff_pixels_equal_geoloc_locate(tmp_path, capsys):
     assert (bands[3] == 0).all()
     for i, j in [(0, 0), (n_r - 1, n_c - 1), (n_r // 2, 3), (7, n_c // 2)]:
         row, col = 1 + i * step, 1 + j * step
-        assert main(["locate", *_locate_cli_args(rec), "--row", str(row), "--col", str(col), "--dem", str(ETOPO),
-                     "--json"]) == 0
+        assert (
+            main(
+                ["locate", *_locate_cli_args(rec), "--row", str(row), "--col", str(col), "--dem", str(ETOPO), "--json"]
+            )
+            == 0
+        )
         ref = json.loads(capsys.readouterr().out)
         # the same rays to ~1e-16 rad (the test above) meet the same bilinear cell; the walk polishes its
         # root to 1e-7 m along the ray: 1e-9 deg is 0.1 mm, 1e-5 m a hundred times the polish
@@ -136,8 +173,25 @@ def test_corner_pixels_agree_with_trimesh_embree_on_the_dem_mesh(tmp_path):
 
     out = tmp_path / "tri.tif"
     step = 191
-    assert main(["ortho", "--record", "T3-7", "--dem", str(ETOPO), "--dem-model", "triangles", "--step",
-                 str(step), "--out", str(out), "--serial"]) == 0
+    assert (
+        main(
+            [
+                "ortho",
+                "--record",
+                "T3-7",
+                "--dem",
+                str(ETOPO),
+                "--dem-model",
+                "triangles",
+                "--step",
+                str(step),
+                "--out",
+                str(out),
+                "--serial",
+            ]
+        )
+        == 0
+    )
     grid = read_frame_geotiff(out)
     s, rec, _ = _record(Q17_CAMERA, Q17_RECORDS)
     pose = rec.subset([rec.labels().index("T3-7")]).pose()
@@ -149,7 +203,8 @@ def test_corner_pixels_agree_with_trimesh_embree_on_the_dem_mesh(tmp_path):
     m = dem.to_trimesh()
     fr = m.metadata["enu_frame"]
     loc, idx, _ = RayMeshIntersector(m).intersects_location(
-        fr.from_ecef(los.origin_ecef), fr.vector_from_ecef(los.direction_ecef), multiple_hits=False)
+        fr.from_ecef(los.origin_ecef), fr.vector_from_ecef(los.direction_ecef), multiple_hits=False
+    )
     assert sorted(idx.tolist()) == [0, 1, 2, 3]
     ours = np.array([geodetic_to_ecef(grid.lat[i, j], grid.lon[i, j], grid.h[i, j]) for i, j in corners])
     err = np.linalg.norm(fr.from_ecef(ours[idx]) - loc, axis=-1)
@@ -164,9 +219,28 @@ def test_flat_surface_corners_agree_with_pymap3d_look_at_spheroid(tmp_path):
 
     out = tmp_path / "flat.tif"
     step = 229
-    assert main(["ortho", "--sensor", str(ASSETS / "sensors" / "drone_camera.toml"), "--record", "survey1-1",
-                 "--records", str(ASSETS / "records" / "drone_targets.csv"), "--target-h-m", "0",
-                 "--height-kind", "geodetic", "--step", str(step), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "ortho",
+                "--sensor",
+                str(ASSETS / "sensors" / "drone_camera.toml"),
+                "--record",
+                "survey1-1",
+                "--records",
+                str(ASSETS / "records" / "drone_targets.csv"),
+                "--target-h-m",
+                "0",
+                "--height-kind",
+                "geodetic",
+                "--step",
+                str(step),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     grid = read_frame_geotiff(out)
     s, rec, pose = _record(ASSETS / "sensors" / "drone_camera.toml", ASSETS / "records" / "drone_targets.csv")
     assert (grid.status == Status.OK).all()  # 70 deg below the horizon: every pixel meets the ellipsoid
@@ -243,8 +317,8 @@ def test_photo_target_lands_at_its_surveyed_position_in_the_orthophoto(tmp_path,
     assert len(rows) == 5
     for t in rows[:3]:
         # a marker photo: a disc of radius 2.5 px around the target pixel, orthorectified (inverse map)
-        vv, uu = np.mgrid[1:s.rows + 1, 1:s.cols + 1]
-        marker = (((vv - t["row"]) ** 2 + (uu - t["col"]) ** 2) <= 2.5 ** 2).astype(np.uint8)[None] * 200
+        vv, uu = np.mgrid[1 : s.rows + 1, 1 : s.cols + 1]
+        marker = (((vv - t["row"]) ** 2 + (uu - t["col"]) ** 2) <= 2.5**2).astype(np.uint8)[None] * 200
         out = tmp_path / f"ortho_{t['row']}_{t['col']}.tif"
         info = orthorectify(marker, s, pose, dem, out, gsd_m=gsd, frame=frame, parallel=False)
         with rasterio.open(out) as src:  # the orthophoto's own georeferencing, read by rasterio
@@ -262,16 +336,43 @@ def test_photo_target_lands_at_its_surveyed_position_in_the_orthophoto(tmp_path,
         # GDAL's own warp of the same marker with the frame's per-pixel lat/lon as geolocation arrays
         # (an independent resampler; its backmap is approximate): its centroid within 2 cells of ours
         dst = np.zeros(band.shape, np.float32)
-        reproject(marker[0].astype(np.float32), dst, src_geoloc_array=np.stack([frame.lon_deg, frame.lat_deg]),
-                  src_crs=crs, dst_transform=tr, dst_crs=crs, resampling=Resampling.bilinear)
+        reproject(
+            marker[0].astype(np.float32),
+            dst,
+            src_geoloc_array=np.stack([frame.lon_deg, frame.lat_deg]),
+            src_crs=crs,
+            dst_transform=tr,
+            dst_crs=crs,
+            resampling=Resampling.bilinear,
+        )
         gx, gy = _centroid(dst, tr)
         assert float(horizontal_distance_m(gy, gx, y, x)) < 2 * gsd
 
 
 def test_ortho_cli_writes_a_georeferenced_photo(tmp_path, capsys):
     out, ortho = tmp_path / "grid.tif", tmp_path / "ortho.tif"
-    assert main(["ortho", "--photo", str(PHOTO), "--dem", str(SRTM), "--out", str(out), "--ortho-out", str(ortho),
-                 "--gsd-m", "0.5", "--ortho-crs", "utm", "--json", "--serial"]) == 0
+    assert (
+        main(
+            [
+                "ortho",
+                "--photo",
+                str(PHOTO),
+                "--dem",
+                str(SRTM),
+                "--out",
+                str(out),
+                "--ortho-out",
+                str(ortho),
+                "--gsd-m",
+                "0.5",
+                "--ortho-crs",
+                "utm",
+                "--json",
+                "--serial",
+            ]
+        )
+        == 0
+    )
     info = json.loads(capsys.readouterr().out)
     assert info["shape"] == [600, 800] and info["counts"] == {"ok": 480000}
     with rasterio.open(ortho) as src:
@@ -284,18 +385,21 @@ def test_ortho_cli_writes_a_georeferenced_photo(tmp_path, capsys):
 
 
 # --------------------------------------------------------------------------- bad inputs
-@pytest.mark.parametrize("argv, words", [
-    (["--record", "T3-1", "--step", "0"], "--step 0"),
-    (["--record", "T3-1", "--chunk", "0"], "--chunk 0"),
-    (["--record", "T9-9"], "--record 'T9-9'"),
-    (["--lat-deg", "36.4"], "--lon-deg"),
-    (["--record", "T3-1", "--ortho-out", "o.tif", "--gsd-m", "1"], "--ortho-out needs --photo"),
-    (["--photo", str(PHOTO), "--ortho-out", "o.tif"], "--gsd-m"),
-    (["--photo", str(PHOTO), "--ortho-out", "o.tif", "--gsd-m", "-2"], "--gsd-m -2"),
-    (["--record", "T3-1", "--lat-deg", "1", "--lon-deg", "2", "--h-m", "3"], "the pose is given twice"),
-    (["--lat-deg", "120", "--lon-deg", "2", "--h-m", "3000"], "lat = 120"),
-    (["--record", "T3-1", "--dem", str(ETOPO), "--target-h-m", "0"], "--dem and --target-h-m"),
-])
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["--record", "T3-1", "--step", "0"], "--step 0"),
+        (["--record", "T3-1", "--chunk", "0"], "--chunk 0"),
+        (["--record", "T9-9"], "--record 'T9-9'"),
+        (["--lat-deg", "36.4"], "--lon-deg"),
+        (["--record", "T3-1", "--ortho-out", "o.tif", "--gsd-m", "1"], "--ortho-out needs --photo"),
+        (["--photo", str(PHOTO), "--ortho-out", "o.tif"], "--gsd-m"),
+        (["--photo", str(PHOTO), "--ortho-out", "o.tif", "--gsd-m", "-2"], "--gsd-m -2"),
+        (["--record", "T3-1", "--lat-deg", "1", "--lon-deg", "2", "--h-m", "3"], "the pose is given twice"),
+        (["--lat-deg", "120", "--lon-deg", "2", "--h-m", "3000"], "lat = 120"),
+        (["--record", "T3-1", "--dem", str(ETOPO), "--target-h-m", "0"], "--dem and --target-h-m"),
+    ],
+)
 def test_bad_inputs_name_the_field(tmp_path, capsys, argv, words):
     assert main(["ortho", *argv, "--out", str(tmp_path / "x.tif")]) == 2
     err = capsys.readouterr().err

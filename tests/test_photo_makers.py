@@ -31,11 +31,13 @@ F_PX = 700.0
 
 
 def _packet(ns_decls: str, body: str, attrs: str = "") -> bytes:
-    return ('<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n'
-            '<x:xmpmeta xmlns:x="adobe:ns:meta/">\n'
-            ' <rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
-            f'  <rdf:Description rdf:about="" {ns_decls} {attrs}>\n{body}\n  </rdf:Description>\n'
-            ' </rdf:RDF>\n</x:xmpmeta>\n<?xpacket end="w"?>').encode("utf-8")
+    return (
+        '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n'
+        '<x:xmpmeta xmlns:x="adobe:ns:meta/">\n'
+        ' <rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
+        f'  <rdf:Description rdf:about="" {ns_decls} {attrs}>\n{body}\n  </rdf:Description>\n'
+        ' </rdf:RDF>\n</x:xmpmeta>\n<?xpacket end="w"?>'
+    ).encode("utf-8")
 
 
 def _dms(deg):
@@ -72,8 +74,11 @@ def _targets(tmp_path, name, pixels):
 def _rzyx(y, p, r):
     """Rz(y) Ry(p) Rx(r), written out (radians)."""
     cy, sy, cp, sp, cr, sr = np.cos(y), np.sin(y), np.cos(p), np.sin(p), np.cos(r), np.sin(r)
-    return (np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]]) @ np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-            @ np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]]))
+    return (
+        np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+        @ np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+        @ np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    )
 
 
 def _oracle(los_ned):
@@ -119,24 +124,30 @@ def test_skydio_photo_locates_like_the_ned_convention(tmp_path, form):
     # as child elements, older as attributes of the struct element
     yaw, pitch, roll = 120.0, -35.0, 4.0
     if form == "elements":
-        body = ("<drone-skydio:Latitude>36.52</drone-skydio:Latitude>"
-                "<drone-skydio:Longitude>-84.21</drone-skydio:Longitude>"
-                "<drone-skydio:AbsoluteAltitude>150.0</drone-skydio:AbsoluteAltitude>"
-                '<drone-skydio:CameraOrientationNED rdf:parseType="Resource">'
-                f"<drone-skydio:Yaw>{yaw}</drone-skydio:Yaw><drone-skydio:Pitch>{pitch}</drone-skydio:Pitch>"
-                f"<drone-skydio:Roll>{roll}</drone-skydio:Roll></drone-skydio:CameraOrientationNED>"
-                '<drone-skydio:CalibratedFocalLength rdf:parseType="Resource"><drone-skydio:X>700</drone-skydio:X>'
-                "<drone-skydio:Y>700</drone-skydio:Y></drone-skydio:CalibratedFocalLength>"
-                '<drone-skydio:CalibratedOpticalCenter rdf:parseType="Resource"><drone-skydio:X>400</drone-skydio:X>'
-                "<drone-skydio:Y>300</drone-skydio:Y></drone-skydio:CalibratedOpticalCenter>")
+        body = (
+            "<drone-skydio:Latitude>36.52</drone-skydio:Latitude>"
+            "<drone-skydio:Longitude>-84.21</drone-skydio:Longitude>"
+            "<drone-skydio:AbsoluteAltitude>150.0</drone-skydio:AbsoluteAltitude>"
+            '<drone-skydio:CameraOrientationNED rdf:parseType="Resource">'
+            f"<drone-skydio:Yaw>{yaw}</drone-skydio:Yaw><drone-skydio:Pitch>{pitch}</drone-skydio:Pitch>"
+            f"<drone-skydio:Roll>{roll}</drone-skydio:Roll></drone-skydio:CameraOrientationNED>"
+            '<drone-skydio:CalibratedFocalLength rdf:parseType="Resource"><drone-skydio:X>700</drone-skydio:X>'
+            "<drone-skydio:Y>700</drone-skydio:Y></drone-skydio:CalibratedFocalLength>"
+            '<drone-skydio:CalibratedOpticalCenter rdf:parseType="Resource"><drone-skydio:X>400</drone-skydio:X>'
+            "<drone-skydio:Y>300</drone-skydio:Y></drone-skydio:CalibratedOpticalCenter>"
+        )
         xmp = _packet(f'xmlns:drone-skydio="{SKYDIO_NS}"', body)
     else:
-        body = (f'<drone-skydio:CameraOrientationNED drone-skydio:Roll="{roll}" drone-skydio:Pitch="{pitch}" '
-                f'drone-skydio:Yaw="{yaw}"/>'
-                '<drone-skydio:CalibratedFocalLength drone-skydio:X="700" drone-skydio:Y="700"/>')
-        xmp = _packet(f'xmlns:drone-skydio="{SKYDIO_NS.replace("http:", "https:")}"', body,
-                      'drone-skydio:Latitude="36.52" drone-skydio:Longitude="-84.21" '
-                      'drone-skydio:AbsoluteAltitude="150.0"')
+        body = (
+            f'<drone-skydio:CameraOrientationNED drone-skydio:Roll="{roll}" drone-skydio:Pitch="{pitch}" '
+            f'drone-skydio:Yaw="{yaw}"/>'
+            '<drone-skydio:CalibratedFocalLength drone-skydio:X="700" drone-skydio:Y="700"/>'
+        )
+        xmp = _packet(
+            f'xmlns:drone-skydio="{SKYDIO_NS.replace("http:", "https:")}"',
+            body,
+            'drone-skydio:Latitude="36.52" drone-skydio:Longitude="-84.21" drone-skydio:AbsoluteAltitude="150.0"',
+        )
     p = _jpeg(tmp_path / "S1.JPG", xmp, "Skydio", "X2")
     m = read_photo(p)
     assert m.maker == "Skydio" and m.position_source.startswith("drone-skydio:Latitude")
@@ -152,14 +163,17 @@ def test_skydio_photo_locates_like_the_ned_convention(tmp_path, form):
 
 # --------------------------------------------------------------------------- Parrot
 
+
 def test_parrot_photo_position_from_exif_angles_from_drone_parrot(tmp_path):
     # Parrot GroundSDK "Photo metadata" (via OpenAthena): drone-parrot:Camera{Yaw,Pitch,Roll}Degree,
     # degrees, pitch up from the horizon; position and altitude in EXIF GPS only
     yaw, pitch, roll = -47.3, -62.0, 0.0
-    body = (f"<drone-parrot:CameraYawDegree>{yaw}</drone-parrot:CameraYawDegree>"
-            f"<drone-parrot:CameraPitchDegree>{pitch}</drone-parrot:CameraPitchDegree>"
-            f"<drone-parrot:CameraRollDegree>{roll}</drone-parrot:CameraRollDegree>"
-            "<drone-parrot:DroneYawDegree>-50.1</drone-parrot:DroneYawDegree>")
+    body = (
+        f"<drone-parrot:CameraYawDegree>{yaw}</drone-parrot:CameraYawDegree>"
+        f"<drone-parrot:CameraPitchDegree>{pitch}</drone-parrot:CameraPitchDegree>"
+        f"<drone-parrot:CameraRollDegree>{roll}</drone-parrot:CameraRollDegree>"
+        "<drone-parrot:DroneYawDegree>-50.1</drone-parrot:DroneYawDegree>"
+    )
     xmp = _packet('xmlns:drone-parrot="http://www.parrot.com/drone-parrot/1.0/"', body)
     # ANAFI: no calibration in the photo; the camera database knows its sensor, EXIF its focal length
     p = _jpeg(tmp_path / "P1.JPG", xmp, "Parrot", "ANAFI", focal_mm=4.0)
@@ -182,12 +196,12 @@ def test_parrot_photo_position_from_exif_angles_from_drone_parrot(tmp_path):
 
 # --------------------------------------------------------------------------- Pix4D Camera: (Autel)
 
+
 def test_pix4d_camera_tags_pitch_from_nadir(tmp_path):
     # Pix4D "Yaw, Pitch, Roll and Omega, Phi, Kappa angles": (0, 0, 0) looks down with the image
     # top north; R = Rz(yaw) Ry(pitch) Rx(roll), camera x = image top, y = right, z = line of sight
     yaw, pitch, roll = 120.0, 55.0, 7.0
-    body = (f"<Camera:Yaw>{yaw}</Camera:Yaw><Camera:Pitch>{pitch}</Camera:Pitch>"
-            f"<Camera:Roll>{roll}</Camera:Roll>")
+    body = f"<Camera:Yaw>{yaw}</Camera:Yaw><Camera:Pitch>{pitch}</Camera:Pitch><Camera:Roll>{roll}</Camera:Roll>"
     xmp = _packet('xmlns:Camera="http://pix4d.com/camera/1.0/"', body)
     p = _jpeg(tmp_path / "A1.JPG", xmp, "Autel Robotics", "XT701", focal_mm=4.0)
     m = read_photo(p)
@@ -220,14 +234,17 @@ def test_pix4d_to_dji_angles_closed_form():
 
 # --------------------------------------------------------------------------- MicaSense
 
+
 def _micasense_tiff(path, camera_angles=(0.0, 0.0, 0.0), exif_type_error=False):
     y, p, r = camera_angles
-    xmp = _packet('xmlns:Camera="http://pix4d.com/camera/1.0/" xmlns:DLS="http://micasense.com/DLS/1.0/" '
-                  'xmlns:MicaSense="http://micasense.com/MicaSense/1.0/"',
-                  "<Camera:BandName><rdf:Seq><rdf:li>Blue</rdf:li></rdf:Seq></Camera:BandName>"
-                  f"<Camera:Yaw>{y}</Camera:Yaw><Camera:Pitch>{p}</Camera:Pitch><Camera:Roll>{r}</Camera:Roll>"
-                  "<DLS:Yaw>0.73310724098153246</DLS:Yaw><DLS:Pitch>0.0413</DLS:Pitch><DLS:Roll>0.1538</DLS:Roll>"
-                  "<MicaSense:CaptureId>abc</MicaSense:CaptureId>")
+    xmp = _packet(
+        'xmlns:Camera="http://pix4d.com/camera/1.0/" xmlns:DLS="http://micasense.com/DLS/1.0/" '
+        'xmlns:MicaSense="http://micasense.com/MicaSense/1.0/"',
+        "<Camera:BandName><rdf:Seq><rdf:li>Blue</rdf:li></rdf:Seq></Camera:BandName>"
+        f"<Camera:Yaw>{y}</Camera:Yaw><Camera:Pitch>{p}</Camera:Pitch><Camera:Roll>{r}</Camera:Roll>"
+        "<DLS:Yaw>0.73310724098153246</DLS:Yaw><DLS:Pitch>0.0413</DLS:Pitch><DLS:Roll>0.1538</DLS:Roll>"
+        "<MicaSense:CaptureId>abc</MicaSense:CaptureId>",
+    )
     info = TiffImagePlugin.ImageFileDirectory_v2()
     info[271], info[272] = "MicaSense", "RedEdge-M"
     info[700] = xmp
@@ -282,12 +299,15 @@ def test_pillow_exif_type_error_is_a_note_not_a_crash(tmp_path, monkeypatch):
 
 # --------------------------------------------------------------------------- Teal
 
+
 def test_teal_angles_relative_to_the_platform(tmp_path):
     # OpenAthena's Teal reader: exif:Platform{Yaw,Pitch,Roll} + exif:Camera{Yaw,Pitch,Roll},
     # rationals in degrees, summed. With a level platform composing the rotations is the sum.
-    body = ("<exif:PlatformYaw>9000/100</exif:PlatformYaw><exif:PlatformPitch>0/1</exif:PlatformPitch>"
-            "<exif:PlatformRoll>0/1</exif:PlatformRoll><exif:CameraYaw>2500/100</exif:CameraYaw>"
-            "<exif:CameraPitch>-4000/100</exif:CameraPitch><exif:CameraRoll>0/1</exif:CameraRoll>")
+    body = (
+        "<exif:PlatformYaw>9000/100</exif:PlatformYaw><exif:PlatformPitch>0/1</exif:PlatformPitch>"
+        "<exif:PlatformRoll>0/1</exif:PlatformRoll><exif:CameraYaw>2500/100</exif:CameraYaw>"
+        "<exif:CameraPitch>-4000/100</exif:CameraPitch><exif:CameraRoll>0/1</exif:CameraRoll>"
+    )
     xmp = _packet('xmlns:exif="http://ns.adobe.com/exif/1.0/"', body)
     p = _jpeg(tmp_path / "T1.JPG", xmp, "Teledyne FLIR", "Hadron 640R", focal_mm=9.0)
     m = read_photo(p)
@@ -300,21 +320,31 @@ def test_teal_angles_relative_to_the_platform(tmp_path):
 
 # --------------------------------------------------------------------------- bad inputs
 
+
 def test_unknown_maker_names_the_file_and_every_tag_looked_for(tmp_path):
     xmp = _packet('xmlns:acme="http://acme.example/1.0/"', "<acme:Heading>12</acme:Heading>")
     p = _jpeg(tmp_path / "X1.JPG", xmp, "Acme", "Hawk")
     with pytest.raises(PhotoTagError) as e:
         read_photo(p)
     msg = str(e.value)
-    for tag in ("X1.JPG", "'Acme'", "drone-dji:GimbalYawDegree", "drone-skydio:CameraOrientationNED/Yaw",
-                "drone-parrot:CameraPitchDegree", "Camera:Yaw", "exif:CameraYaw"):
+    for tag in (
+        "X1.JPG",
+        "'Acme'",
+        "drone-dji:GimbalYawDegree",
+        "drone-skydio:CameraOrientationNED/Yaw",
+        "drone-parrot:CameraPitchDegree",
+        "Camera:Yaw",
+        "exif:CameraYaw",
+    ):
         assert tag in msg
 
 
 def test_missing_maker_angle_names_the_maker_tag(tmp_path):
-    xmp = _packet('xmlns:drone-parrot="http://www.parrot.com/drone-parrot/1.0/"',
-                  "<drone-parrot:CameraYawDegree>10</drone-parrot:CameraYawDegree>"
-                  "<drone-parrot:CameraPitchDegree>abc</drone-parrot:CameraPitchDegree>")
+    xmp = _packet(
+        'xmlns:drone-parrot="http://www.parrot.com/drone-parrot/1.0/"',
+        "<drone-parrot:CameraYawDegree>10</drone-parrot:CameraYawDegree>"
+        "<drone-parrot:CameraPitchDegree>abc</drone-parrot:CameraPitchDegree>",
+    )
     p = _jpeg(tmp_path / "P2.JPG", xmp, "Parrot", "ANAFI")
     with pytest.raises(PhotoTagError, match=r"P2\.JPG.*drone-parrot:CameraPitchDegree, drone-parrot:CameraRollDegree"):
         read_photo(p)

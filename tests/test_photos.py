@@ -75,23 +75,28 @@ BASE_TAGS = {
 
 def xmp_packet(tags: dict, form: str = "attributes") -> bytes:
     """An XMP packet as DJI's cameras write it (``form="attributes"``), or with child elements."""
-    ns = ('xmlns:tiff="http://ns.adobe.com/tiff/1.0/" xmlns:exif="http://ns.adobe.com/exif/1.0/" '
-          'xmlns:xmp="http://ns.adobe.com/xap/1.0/" xmlns:xmpMM="http://ns.adobe.com/xap/1.0/mm/" '
-          'xmlns:dc="http://purl.org/dc/elements/1.1/" xmlns:crs="http://ns.adobe.com/camera-raw-settings/1.0/" '
-          f'xmlns:drone-dji="{DJI_NS}"')
+    ns = (
+        'xmlns:tiff="http://ns.adobe.com/tiff/1.0/" xmlns:exif="http://ns.adobe.com/exif/1.0/" '
+        'xmlns:xmp="http://ns.adobe.com/xap/1.0/" xmlns:xmpMM="http://ns.adobe.com/xap/1.0/mm/" '
+        'xmlns:dc="http://purl.org/dc/elements/1.1/" xmlns:crs="http://ns.adobe.com/camera-raw-settings/1.0/" '
+        f'xmlns:drone-dji="{DJI_NS}"'
+    )
     if form == "attributes":
         attrs = "\n    ".join(f'drone-dji:{k}="{v}"' for k, v in tags.items())
-        desc = (f'  <rdf:Description rdf:about="DJI Meta Data"\n    {ns}\n    tiff:Make="DJI"\n'
-                f'    tiff:Model="FC6310R"\n    dc:format="image/jpg"\n    {attrs}\n    crs:Version="7.0"\n'
-                '    crs:HasSettings="False">\n   <xmpMM:Version>1</xmpMM:Version>\n  </rdf:Description>\n')
+        desc = (
+            f'  <rdf:Description rdf:about="DJI Meta Data"\n    {ns}\n    tiff:Make="DJI"\n'
+            f'    tiff:Model="FC6310R"\n    dc:format="image/jpg"\n    {attrs}\n    crs:Version="7.0"\n'
+            '    crs:HasSettings="False">\n   <xmpMM:Version>1</xmpMM:Version>\n  </rdf:Description>\n'
+        )
     else:
         elems = "\n".join(f"   <drone-dji:{k}>{v}</drone-dji:{k}>" for k, v in tags.items())
-        desc = (f'  <rdf:Description rdf:about="" {ns}>\n   <tiff:Make>DJI</tiff:Make>\n{elems}\n'
-                "  </rdf:Description>\n")
-    return ('<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n'
-            '<x:xmpmeta xmlns:x="adobe:ns:meta/">\n'
-            ' <rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
-            f"{desc} </rdf:RDF>\n</x:xmpmeta>\n" + " " * 200 + '\n<?xpacket end="w"?>').encode("utf-8")
+        desc = f'  <rdf:Description rdf:about="" {ns}>\n   <tiff:Make>DJI</tiff:Make>\n{elems}\n  </rdf:Description>\n'
+    return (
+        '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n'
+        '<x:xmpmeta xmlns:x="adobe:ns:meta/">\n'
+        ' <rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
+        f"{desc} </rdf:RDF>\n</x:xmpmeta>\n" + " " * 200 + '\n<?xpacket end="w"?>'
+    ).encode("utf-8")
 
 
 def _dms(deg):
@@ -121,8 +126,9 @@ def make_jpeg(path, tags=None, drop=(), size=(W, H), form="attributes", exif=Non
     t = {**BASE_TAGS, **(tags or {})}
     for k in drop:
         t.pop(k, None)
-    Image.new("RGB", size, (90, 120, 60)).save(path, exif=exif if exif is not None else exif_block(),
-                                               xmp=xmp_packet(t, form), quality=70)
+    Image.new("RGB", size, (90, 120, 60)).save(
+        path, exif=exif if exif is not None else exif_block(), xmp=xmp_packet(t, form), quality=70
+    )
     return path
 
 
@@ -144,6 +150,7 @@ def write_targets(path, rows, header="image,row,col"):
 
 
 # --------------------------------------------------------------------------- reading
+
 
 @pytest.mark.parametrize("form", ["attributes", "elements"])
 def test_read_jpeg_both_xmp_forms(tmp_path, form):
@@ -172,8 +179,7 @@ def test_read_tiff_xmp_in_tag_700(tmp_path):
 def test_exif_gps_only_south_west(tmp_path):
     # no drone-dji position: the EXIF GPS IFD's degrees-minutes-seconds and S/W references
     lat, lon = -33.8675, 151.2070 * -1
-    p = make_jpeg(tmp_path / "exif_only.jpg", drop=("GpsLatitude", "GpsLongitude"),
-                  exif=exif_block(lat=lat, lon=lon))
+    p = make_jpeg(tmp_path / "exif_only.jpg", drop=("GpsLatitude", "GpsLongitude"), exif=exif_block(lat=lat, lon=lon))
     m = read_photo(p)
     assert m.position_source == "EXIF GPS"
     assert m.lat_deg == pytest.approx(lat, abs=1e-9) and m.lon_deg == pytest.approx(lon, abs=1e-9)
@@ -205,8 +211,10 @@ def test_photo_without_xmp(tmp_path):
 
 
 def test_xmp_with_entities_is_refused(tmp_path):
-    bomb = (b'<?xml version="1.0"?><!DOCTYPE x [<!ENTITY a "aaaa"><!ENTITY b "&a;&a;&a;">]>'
-            b'<x:xmpmeta xmlns:x="adobe:ns:meta/">&b;</x:xmpmeta>')
+    bomb = (
+        b'<?xml version="1.0"?><!DOCTYPE x [<!ENTITY a "aaaa"><!ENTITY b "&a;&a;&a;">]>'
+        b'<x:xmpmeta xmlns:x="adobe:ns:meta/">&b;</x:xmpmeta>'
+    )
     with pytest.raises(ValueError, match="refused"):
         parse_xmp(bomb, "bomb.jpg")
     p = tmp_path / "bomb.jpg"
@@ -218,8 +226,8 @@ def test_xmp_with_entities_is_refused(tmp_path):
 def test_broken_jpeg_segment_names_the_file(tmp_path):
     data = bytearray(make_jpeg(tmp_path / "ok.jpg").read_bytes())
     k = data.index(b"http://ns.adobe.com/xap/1.0/") - 4  # the XMP APP1 marker
-    assert data[k:k + 2] == b"\xff\xe1"
-    data[k + 2:k + 4] = b"\xff\xff"  # a length past the end of the file
+    assert data[k : k + 2] == b"\xff\xe1"
+    data[k + 2 : k + 4] = b"\xff\xff"  # a length past the end of the file
     bad = tmp_path / "broken.jpg"
     bad.write_bytes(bytes(data))
     with pytest.raises(ValueError, match=r"broken\.jpg: JPEG segment 0xFFE1 at byte \d+ has length 65535"):
@@ -229,7 +237,8 @@ def test_broken_jpeg_segment_names_the_file(tmp_path):
 def test_rdf_alt_value_and_attribute_precedence():
     pkt = xmp_packet({"GimbalYawDegree": "+10.00"}, "elements").replace(
         b"<drone-dji:GimbalYawDegree>+10.00</drone-dji:GimbalYawDegree>",
-        b"<drone-dji:GimbalYawDegree><rdf:Alt><rdf:li>+11.00</rdf:li></rdf:Alt></drone-dji:GimbalYawDegree>")
+        b"<drone-dji:GimbalYawDegree><rdf:Alt><rdf:li>+11.00</rdf:li></rdf:Alt></drone-dji:GimbalYawDegree>",
+    )
     dji, tiff = parse_xmp(pkt)
     assert dji["GimbalYawDegree"] == "+11.00" and tiff["Make"] == "DJI"
 
@@ -238,14 +247,17 @@ def test_rdf_alt_value_and_attribute_precedence():
 
 #: DewarpData of a public DJI Phantom 4 RTK photo (FC6310R, 5472 x 3648), as exiftool prints it
 #: (Agisoft forum, "Import Calibration data from DJI XMP data", 2020).
-P4RTK_DEWARP = (" 2018-09-06;3684.480000000000,3677.570000000000,2.240000000000,22.050000000000,"
-                "-0.263482000000,0.106788000000,0.000037110700,-0.000327247000,-0.030078300000")
+P4RTK_DEWARP = (
+    " 2018-09-06;3684.480000000000,3677.570000000000,2.240000000000,22.050000000000,"
+    "-0.263482000000,0.106788000000,0.000037110700,-0.000327247000,-0.030078300000"
+)
 
 
 def test_parse_dewarp_data_literal():
     d = parse_dewarp_data(P4RTK_DEWARP)
-    assert d == DewarpData("2018-09-06", 3684.48, 3677.57, 2.24, 22.05, -0.263482, 0.106788,
-                           0.0000371107, -0.000327247, -0.0300783)
+    assert d == DewarpData(
+        "2018-09-06", 3684.48, 3677.57, 2.24, 22.05, -0.263482, 0.106788, 0.0000371107, -0.000327247, -0.0300783
+    )
     with pytest.raises(ValueError, match="9 finite numbers"):
         parse_dewarp_data("2018-09-06;1,2,3")
     with pytest.raises(ValueError, match="not numbers"):
@@ -255,22 +267,41 @@ def test_parse_dewarp_data_literal():
 
 def test_dewarp_lens_offset_principal_point(tmp_path):
     # the Phantom 4 RTK's full-resolution calibration, on a photo shared at a quarter of its size
-    p = make_jpeg(tmp_path / "p4rtk_small.jpg", tags={"DewarpData": P4RTK_DEWARP, "DewarpFlag": "0",
-                                                      "CalibratedOpticalCenterX": "2736.000000",
-                                                      "CalibratedOpticalCenterY": "1824.000000"},
-                  size=(1368, 912), exif=exif_block(full=(5472, 3648)))
+    p = make_jpeg(
+        tmp_path / "p4rtk_small.jpg",
+        tags={
+            "DewarpData": P4RTK_DEWARP,
+            "DewarpFlag": "0",
+            "CalibratedOpticalCenterX": "2736.000000",
+            "CalibratedOpticalCenterY": "1824.000000",
+        },
+        size=(1368, 912),
+        exif=exif_block(full=(5472, 3648)),
+    )
     m = read_photo(p)
     assert m.resized and any("resized photo" in n for n in m.notes)
-    full = lens_from_photo(read_photo(make_jpeg(tmp_path / "p4rtk_full.jpg", size=(5472, 3648),
-                                                tags={"DewarpData": P4RTK_DEWARP},
-                                                exif=exif_block(full=(5472, 3648)))))
+    full = lens_from_photo(
+        read_photo(
+            make_jpeg(
+                tmp_path / "p4rtk_full.jpg",
+                size=(5472, 3648),
+                tags={"DewarpData": P4RTK_DEWARP},
+                exif=exif_block(full=(5472, 3648)),
+            )
+        )
+    )
     assert isinstance(full, BrownLens)
     # principal point: image centre (W/2, H/2, corner origin) + DewarpData's offsets, in OpenCV's
     # 0-based pixel centres: 2736 + 2.24 - 0.5, 1824 + 22.05 - 0.5
     assert (full.fx, full.fy) == (3684.48, 3677.57)
     assert full.cx == pytest.approx(2737.74, abs=1e-9) and full.cy == pytest.approx(1845.55, abs=1e-9)
-    assert (full.k1, full.k2, full.p1, full.p2, full.k3) == (-0.263482, 0.106788, 0.0000371107,
-                                                             -0.000327247, -0.0300783)
+    assert (full.k1, full.k2, full.p1, full.p2, full.k3) == (
+        -0.263482,
+        0.106788,
+        0.0000371107,
+        -0.000327247,
+        -0.0300783,
+    )
     small = lens_from_photo(m)
     assert (small.width, small.height) == (1368, 912)
     assert small.fx == pytest.approx(3684.48 / 4) and small.fy == pytest.approx(3677.57 / 4)
@@ -285,8 +316,12 @@ def test_dewarp_lens_offset_principal_point(tmp_path):
 
 
 def test_dewarp_flag_1_gives_a_pinhole(tmp_path):
-    m = read_photo(make_jpeg(tmp_path / "dewarped.jpg", tags={
-        "DewarpData": "2020-01-01;702.0,701.0,3.0,-2.0,-0.2,0.1,0.0,0.0,0.0", "DewarpFlag": "1"}))
+    m = read_photo(
+        make_jpeg(
+            tmp_path / "dewarped.jpg",
+            tags={"DewarpData": "2020-01-01;702.0,701.0,3.0,-2.0,-0.2,0.1,0.0,0.0,0.0", "DewarpFlag": "1"},
+        )
+    )
     lens = lens_from_photo(m)
     assert isinstance(lens, PinholeLens)
     assert (lens.fx, lens.fy, lens.cx, lens.cy) == (702.0, 701.0, 400 + 3.0 - 0.5, 300 - 2.0 - 0.5)
@@ -316,16 +351,17 @@ def test_scale_lens_round_trip():
 
 # --------------------------------------------------------------------------- geolocation oracles
 
+
 def _flat_dem(h=250.0, datum="ellipsoid"):
-    return DEM.from_array(np.full((41, 41), h) + np.arange(41)[None, :] * 0.5, LAT + 0.02, LON - 0.02,
-                          0.001, 0.001, datum=datum)
+    return DEM.from_array(
+        np.full((41, 41), h) + np.arange(41)[None, :] * 0.5, LAT + 0.02, LON - 0.02, 0.001, 0.001, datum=datum
+    )
 
 
 def test_nadir_principal_point_is_below_the_camera(tmp_path):
     # gimbal pitch -90 (whatever the airframe's attitude): the principal point's ray is the
     # ellipsoid normal, so the ground point has the camera's latitude and longitude and the DEM's height
-    tags = {"DewarpData": "2019-05-05;705.5,704.0,6.25,-4.75,-0.12,0.05,0.0001,-0.0002,-0.01",
-            "DewarpFlag": "0"}
+    tags = {"DewarpData": "2019-05-05;705.5,704.0,6.25,-4.75,-0.12,0.05,0.0001,-0.0002,-0.01", "DewarpFlag": "0"}
     p = make_jpeg(tmp_path / "nadir.jpg", tags=tags)
     # principal point: OpenCV (400 + 6.25 - 0.5, 300 - 4.75 - 0.5), 1-based +1
     col, row = 400 + 6.25 + 0.5, 300 - 4.75 + 0.5
@@ -347,7 +383,10 @@ def test_nadir_principal_point_is_below_the_camera(tmp_path):
 def test_nadir_image_top_points_along_gimbal_yaw(tmp_path):
     # at nadir the image's top is the gimbal yaw's direction: a pixel above the centre lies that way
     p = make_jpeg(tmp_path / "up.jpg", tags={"GimbalYawDegree": "+90.00"})  # image top = east
-    t = write_targets(tmp_path / "t.csv", [["up.jpg", 100.5, 400.5], ["up.jpg", 300.5, 700.5]],)
+    t = write_targets(
+        tmp_path / "t.csv",
+        [["up.jpg", 100.5, 400.5], ["up.jpg", 300.5, 700.5]],
+    )
     rows, _ = replay_photos([p], t, surface=surface_for(dem=_flat_dem()))
     assert rows[0]["lon_deg"] > LON and rows[0]["lat_deg"] == pytest.approx(LAT, abs=2e-6)
     assert rows[1]["lat_deg"] < LAT  # image right = south when the top is east
@@ -358,12 +397,16 @@ def test_oblique_matches_pymap3d_look_at_spheroid(tmp_path, yaw, pitch):
     # zero gimbal roll: the principal point looks at azimuth = gimbal yaw, tilt from nadir
     # = 90 + gimbal pitch; pymap3d intersects the ellipsoid (h = 0) on its own. A pixel straight
     # below it on the image's vertical centre line looks atan(dv / fy) lower (pinhole).
-    p = make_jpeg(tmp_path / "obl.jpg", tags={"GimbalYawDegree": f"{yaw:+.2f}",
-                                             "GimbalPitchDegree": f"{pitch:+.2f}",
-                                             "AbsoluteAltitude": "+150.00"})
+    p = make_jpeg(
+        tmp_path / "obl.jpg",
+        tags={"GimbalYawDegree": f"{yaw:+.2f}", "GimbalPitchDegree": f"{pitch:+.2f}", "AbsoluteAltitude": "+150.00"},
+    )
     dv = 120.0
-    t = write_targets(tmp_path / "t.csv", [["obl.jpg", 300.5, 400.5, 0.0], ["obl.jpg", 300.5 + dv, 400.5, 0.0]],
-                      header="image,row,col,truth_h_m")
+    t = write_targets(
+        tmp_path / "t.csv",
+        [["obl.jpg", 300.5, 400.5, 0.0], ["obl.jpg", 300.5 + dv, 400.5, 0.0]],
+        header="image,row,col,truth_h_m",
+    )
     rows, msgs = replay_photos([p], t, altitude_datum="ellipsoid")
     assert msgs == []
     assert all(r["status"] == "ok" for r in rows)
@@ -392,8 +435,10 @@ def test_resized_photo_locates_like_the_full_one(tmp_path):
     assert lens.cx == pytest.approx((400 + 5.0) / 2 - 0.5) and lens.cy == pytest.approx((300 - 3.0) / 2 - 0.5)
     # full-resolution 1-based (row, col) -> half-size: (x - 0.5) / 2 + 0.5
     px = [(150.5, 600.5), (500.0, 80.0)]
-    t = write_targets(tmp_path / "t.csv", [["full.jpg", r, c] for r, c in px]
-                      + [["half.jpg", (r - 0.5) / 2 + 0.5, (c - 0.5) / 2 + 0.5] for r, c in px])
+    t = write_targets(
+        tmp_path / "t.csv",
+        [["full.jpg", r, c] for r, c in px] + [["half.jpg", (r - 0.5) / 2 + 0.5, (c - 0.5) / 2 + 0.5] for r, c in px],
+    )
     rows, msgs = replay_photos([full, half], t, surface=surface_for(dem=_flat_dem()))
     assert any("half.jpg: resized photo" in s and "400 x 300" in s for s in msgs)
     for a, b in zip(rows[:2], rows[2:]):
@@ -403,8 +448,11 @@ def test_resized_photo_locates_like_the_full_one(tmp_path):
 
 def test_user_sensor_overrides_the_lens(tmp_path):
     p = make_jpeg(tmp_path / "s.jpg", size=(W // 2, H // 2))
-    own = FrameSensor(BrownLens(fx=650.0, fy=650.0, cx=399.5, cy=299.5, width=W, height=H, k1=-0.1),
-                      gimbal=PRESETS["yaw-pitch-roll"], name="calibrated")
+    own = FrameSensor(
+        BrownLens(fx=650.0, fy=650.0, cx=399.5, cy=299.5, width=W, height=H, k1=-0.1),
+        gimbal=PRESETS["yaw-pitch-roll"],
+        name="calibrated",
+    )
     t = write_targets(tmp_path / "t.csv", [["s.jpg", 150.5, 200.5]])
     rows, msgs = replay_photos([p], t, sensor=own, surface=surface_for(dem=_flat_dem()))
     assert rows[0]["lens"] == "sensor file calibrated, scaled to the resized raster"
@@ -415,13 +463,21 @@ def test_user_sensor_overrides_the_lens(tmp_path):
 
 # --------------------------------------------------------------------------- datums
 
+
 def test_altitude_datum_egm96_against_nga_test_value(tmp_path):
     # NGA's EGM96 test point (F477 program, OUTINTPT.DAT): N(38.6281550 N, 269.7791550 E) = -31.628 m.
     # It lies outside the bundled 15' crops: the global 30' copy holds it (its documented error:
     # RMS 0.15 m, 99 % within 0.61 m; here 0.04 m), hence the 0.1 m tolerance.
     lat, lon = 38.6281550, 269.7791550 - 360.0
-    p = make_jpeg(tmp_path / "stl.jpg", tags={"GpsLatitude": f"{lat:.8f}", "GpsLongitude": f"{lon:.8f}",
-                                             "AbsoluteAltitude": "+300.00", "GimbalPitchDegree": "-45.00"})
+    p = make_jpeg(
+        tmp_path / "stl.jpg",
+        tags={
+            "GpsLatitude": f"{lat:.8f}",
+            "GpsLongitude": f"{lon:.8f}",
+            "AbsoluteAltitude": "+300.00",
+            "GimbalPitchDegree": "-45.00",
+        },
+    )
     t = write_targets(tmp_path / "t.csv", [["stl.jpg", 300.5, 400.5, 140.0]], header="image,row,col,truth_h_m")
     (r,), _ = replay_photos([p], t)
     assert r["geoid_undulation_m"] == pytest.approx(-31.628, abs=0.1)
@@ -456,15 +512,21 @@ def test_altitude_check_against_relative_altitude(tmp_path):
 
 # --------------------------------------------------------------------------- the replay's messages and file
 
+
 def test_bad_photo_is_reported_and_skipped_others_run(tmp_path):
     good = make_jpeg(tmp_path / "good.jpg")
     bad = make_jpeg(tmp_path / "bad.jpg", drop=("GimbalYawDegree", "GimbalPitchDegree", "GimbalRollDegree"))
-    t = write_targets(tmp_path / "t.csv", [["good.jpg", 300.5, 400.5, LAT, LON],
-                                           ["bad.jpg", 10, 10, LAT, LON],
-                                           ["good", 5000, 10, LAT, LON],  # the stem names the photo too
-                                           ["missing.jpg", 10, 10, LAT, LON],
-                                           ["good.jpg", "x", 10, LAT, LON]],
-                      header="image,row,col,truth_lat_deg,truth_lon_deg")
+    t = write_targets(
+        tmp_path / "t.csv",
+        [
+            ["good.jpg", 300.5, 400.5, LAT, LON],
+            ["bad.jpg", 10, 10, LAT, LON],
+            ["good", 5000, 10, LAT, LON],  # the stem names the photo too
+            ["missing.jpg", 10, 10, LAT, LON],
+            ["good.jpg", "x", 10, LAT, LON],
+        ],
+        header="image,row,col,truth_lat_deg,truth_lon_deg",
+    )
     junk = tmp_path / "junk.jpg"
     junk.write_text("not an image")
     rows, msgs = replay_photos([good, bad, junk], t, surface=surface_for(dem=_flat_dem()))
@@ -485,8 +547,11 @@ def test_no_dem_needs_truth_heights(tmp_path):
     t = write_targets(tmp_path / "t.csv", [["a.jpg", 300.5, 400.5]])
     with pytest.raises(ValueError, match="no DEM.*truth_h_m"):
         replay_photos([p], t)
-    t2 = write_targets(tmp_path / "t2.csv", [["a.jpg", 300.5, 400.5, ""], ["a.jpg", 300.5, 400.5, 250.0]],
-                       header="image,row,col,truth_h_m")
+    t2 = write_targets(
+        tmp_path / "t2.csv",
+        [["a.jpg", 300.5, 400.5, ""], ["a.jpg", 300.5, 400.5, 250.0]],
+        header="image,row,col,truth_h_m",
+    )
     rows, msgs = replay_photos([p], t2)
     assert len(rows) == 1 and rows[0]["h_m"] == pytest.approx(250.0, abs=1e-6)
     assert any("line 2" in s and "no truth_h_m" in s for s in msgs)
@@ -505,8 +570,11 @@ def test_targets_file_errors(tmp_path):
 
 def test_write_rows_reads_back_in_the_gis_reader(tmp_path):
     p = make_jpeg(tmp_path / "w.jpg", tags={"GimbalPitchDegree": "-60.00"})
-    t = write_targets(tmp_path / "t.csv", [["w.jpg", 200.5, 300.5, "P7", 36.5201, -84.2101, 255.0]],
-                      header="image,row,col,point,truth_lat_deg,truth_lon_deg,truth_h_m")
+    t = write_targets(
+        tmp_path / "t.csv",
+        [["w.jpg", 200.5, 300.5, "P7", 36.5201, -84.2101, 255.0]],
+        header="image,row,col,point,truth_lat_deg,truth_lon_deg,truth_h_m",
+    )
     rows, msgs = replay_photos([p], t, surface=surface_for(dem=_flat_dem()))
     out = tmp_path / "out.csv"
     write_rows(out, rows)
@@ -520,6 +588,7 @@ def test_write_rows_reads_back_in_the_gis_reader(tmp_path):
 
 
 # --------------------------------------------------------------------------- one target in several photos
+
 
 def _photos_around(tmp_path, g_h, n=3, dist=150.0):
     """``n`` nadir-free photos from around a ground point G = (LAT, LON, g_h), each looking near
@@ -536,12 +605,15 @@ def _photos_around(tmp_path, g_h, n=3, dist=150.0):
         lon, lat, back = geod.fwd(LON, LAT, az, dist)
         h_cam = 412.6 + float(egm96_undulation(math.radians(lat), math.radians(lon)))  # AbsoluteAltitude, EGM96
         pitch = -math.degrees(math.atan2(h_cam - g_h, dist))
-        tags = {"GpsLatitude": f"{lat:.8f}", "GpsLongitude": f"{lon:.8f}",
-                "GimbalYawDegree": f"{(back + 180) % 360 - 180:+.2f}", "GimbalPitchDegree": f"{pitch:+.2f}"}
+        tags = {
+            "GpsLatitude": f"{lat:.8f}",
+            "GpsLongitude": f"{lon:.8f}",
+            "GimbalYawDegree": f"{(back + 180) % 360 - 180:+.2f}",
+            "GimbalPitchDegree": f"{pitch:+.2f}",
+        }
         p = make_jpeg(tmp_path / f"p{i}.jpg", tags=tags, exif=exif_block(lat=lat, lon=lon))
         meta = read_photo(p)
-        px = sensor_from_photo(meta).ground_to_pixel(math.radians(LAT), math.radians(LON), g_h,
-                                                     pose_from_photo(meta))
+        px = sensor_from_photo(meta).ground_to_pixel(math.radians(LAT), math.radians(LON), g_h, pose_from_photo(meta))
         assert int(np.asarray(px.status)) == Status.OK
         paths.append(p)
         pixels.append((float(np.asarray(px.row)), float(np.asarray(px.col))))

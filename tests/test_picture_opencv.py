@@ -53,8 +53,13 @@ def _cam_vectors(scn, idx, points_llh_deg):
 
 
 def _opencv_rowcol(v_cam, K, dist=None):
-    uv, _ = cv2.projectPoints(np.asarray(v_cam, np.float64).reshape(-1, 1, 3), np.zeros(3), np.zeros(3),
-                              np.asarray(K, np.float64), np.zeros(5) if dist is None else dist)
+    uv, _ = cv2.projectPoints(
+        np.asarray(v_cam, np.float64).reshape(-1, 1, 3),
+        np.zeros(3),
+        np.zeros(3),
+        np.asarray(K, np.float64),
+        np.zeros(5) if dist is None else dist,
+    )
     uv = uv.reshape(-1, 2)
     return uv[:, 1] + 1.0, uv[:, 0] + 1.0  # 1-based (row, col) of pixel centres
 
@@ -66,9 +71,13 @@ def _targets(scn):
 def test_zooming_frame_pixels_equal_opencv_on_the_pictures_grid(scn):
     idx = 0
     hfov, vfov = (math.radians(float(x)) for x in scn.frame_fov_deg[idx])
-    K = np.array([[(COLS / 2) / math.tan(hfov / 2), 0.0, (COLS - 1) / 2],
-                  [0.0, (ROWS / 2) / math.tan(vfov / 2), (ROWS - 1) / 2],
-                  [0.0, 0.0, 1.0]])
+    K = np.array(
+        [
+            [(COLS / 2) / math.tan(hfov / 2), 0.0, (COLS - 1) / 2],
+            [0.0, (ROWS / 2) / math.tan(vfov / 2), (ROWS - 1) / 2],
+            [0.0, 0.0, 1.0],
+        ]
+    )
     sensor = pm.frame_sensor(scn, idx, ROWS, COLS)
     assert (sensor.rows, sensor.cols) == (ROWS, COLS)
     inputs = scn.records[idx][1]
@@ -89,9 +98,13 @@ def test_a_click_on_the_zooming_frame_projects_back_to_its_pixel(scn):
     picture's camera matrix: the clicked pixel again."""
     idx = 0
     hfov, vfov = (math.radians(float(x)) for x in scn.frame_fov_deg[idx])
-    K = np.array([[(COLS / 2) / math.tan(hfov / 2), 0.0, (COLS - 1) / 2],
-                  [0.0, (ROWS / 2) / math.tan(vfov / 2), (ROWS - 1) / 2],
-                  [0.0, 0.0, 1.0]])
+    K = np.array(
+        [
+            [(COLS / 2) / math.tan(hfov / 2), 0.0, (COLS - 1) / 2],
+            [0.0, (ROWS / 2) / math.tan(vfov / 2), (ROWS - 1) / 2],
+            [0.0, 0.0, 1.0],
+        ]
+    )
     sensor = pm.frame_sensor(scn, idx, ROWS, COLS)
     inputs = scn.records[idx][1]
     clicks = [(20.0, 30.0), (67.5, 200.25), (130.0, 235.0)]
@@ -109,9 +122,13 @@ def test_a_click_on_the_zooming_frame_projects_back_to_its_pixel(scn):
 def _resampled_K(lens, rows, cols):
     """The sensor's camera matrix carried to a picture of rows x cols by OpenCV's resize map."""
     sx, sy = cols / lens.width, rows / lens.height
-    return np.array([[lens.fx * sx, lens.skew * sx, (lens.cx + 0.5) * sx - 0.5],
-                     [0.0, lens.fy * sy, (lens.cy + 0.5) * sy - 0.5],
-                     [0.0, 0.0, 1.0]])
+    return np.array(
+        [
+            [lens.fx * sx, lens.skew * sx, (lens.cx + 0.5) * sx - 0.5],
+            [0.0, lens.fy * sy, (lens.cy + 0.5) * sy - 0.5],
+            [0.0, 0.0, 1.0],
+        ]
+    )
 
 
 def test_opencv_resize_moves_a_pixel_centre_by_the_map_used_here():
@@ -120,7 +137,7 @@ def test_opencv_resize_moves_a_pixel_centre_by_the_map_used_here():
     H, W = 1080, 1920
     u, v = 1234.3, 321.7
     y, x = np.mgrid[0:H, 0:W].astype(np.float32)
-    img = np.exp(-((x - u) ** 2 + (y - v) ** 2) / (2 * 40.0 ** 2)).astype(np.float32)
+    img = np.exp(-((x - u) ** 2 + (y - v) ** 2) / (2 * 40.0**2)).astype(np.float32)
     small = cv2.resize(img, (COLS, ROWS), interpolation=cv2.INTER_AREA)
     yy, xx = np.mgrid[0:ROWS, 0:COLS]
     cu, cv_ = float((small * xx).sum() / small.sum()), float((small * yy).sum() / small.sum())
@@ -186,13 +203,19 @@ def test_every_mark_of_a_record_against_opencv(scn):
     flat.records = [(info, inputs)] + list(scn.records[1:])
     flat.targets = [("X", float("nan"), float("nan"), 500.0)] + list(scn.targets)
     hfov, vfov = (math.radians(float(x)) for x in scn.frame_fov_deg[idx])
-    K = np.array([[(COLS / 2) / math.tan(hfov / 2), 0.0, (COLS - 1) / 2],
-                  [0.0, (ROWS / 2) / math.tan(vfov / 2), (ROWS - 1) / 2],
-                  [0.0, 0.0, 1.0]])
+    K = np.array(
+        [
+            [(COLS / 2) / math.tan(hfov / 2), 0.0, (COLS - 1) / 2],
+            [0.0, (ROWS / 2) / math.tan(vfov / 2), (ROWS - 1) / 2],
+            [0.0, 0.0, 1.0],
+        ]
+    )
     sensor = pm.frame_sensor(flat, idx, ROWS, COLS)
     marks = pm.image_marks(flat, idx, sensor, inputs)
-    named = {"truth": (info.truth_lat_deg, info.truth_lon_deg, info.paper_height_m),
-             "reported": (info.paper_lat_deg, info.paper_lon_deg, info.paper_height_m)}
+    named = {
+        "truth": (info.truth_lat_deg, info.truth_lon_deg, info.paper_height_m),
+        "reported": (info.paper_lat_deg, info.paper_lon_deg, info.paper_height_m),
+    }
     named.update({f"target {t[0]}": (t[1], t[2], t[3]) for t in scn.targets})
     assert set(marks) == set(named) | {"recomputed"}
     row, col = _opencv_rowcol(_cam_vectors(scn, idx, list(named.values())), K)
@@ -226,9 +249,13 @@ def test_a_click_without_a_dem_is_on_the_records_height_and_says_so(scn):
     flat.dem = None
     inputs = scn.records[0][1]
     hfov, vfov = (math.radians(float(x)) for x in scn.frame_fov_deg[0])
-    K = np.array([[(COLS / 2) / math.tan(hfov / 2), 0.0, (COLS - 1) / 2],
-                  [0.0, (ROWS / 2) / math.tan(vfov / 2), (ROWS - 1) / 2],
-                  [0.0, 0.0, 1.0]])
+    K = np.array(
+        [
+            [(COLS / 2) / math.tan(hfov / 2), 0.0, (COLS - 1) / 2],
+            [0.0, (ROWS / 2) / math.tan(vfov / 2), (ROWS - 1) / 2],
+            [0.0, 0.0, 1.0],
+        ]
+    )
     sensor = pm.frame_sensor(flat, 0, ROWS, COLS)
     p = pm.locate_pixel(flat, inputs, sensor, 40.0, 100.0)
     assert p.ok and p.method == "constant height"

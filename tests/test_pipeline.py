@@ -29,8 +29,22 @@ from geoloc.surfaces.height import HeightSurface
 
 LAT, LON, H = 35.48, 80.97, 18000.0
 ROOT_ASSETS = __import__("pathlib").Path(__file__).resolve().parents[1] / "assets" / "scenarios"
-POSE_ARGS = ["--lat-deg", str(LAT), "--lon-deg", str(LON), "--h-m", str(H), "--heading-deg", "0",
-             "--pitch-deg", "0", "--roll-deg", "0", "--gimbal-roll-deg", "0"]
+POSE_ARGS = [
+    "--lat-deg",
+    str(LAT),
+    "--lon-deg",
+    str(LON),
+    "--h-m",
+    str(H),
+    "--heading-deg",
+    "0",
+    "--pitch-deg",
+    "0",
+    "--roll-deg",
+    "0",
+    "--gimbal-roll-deg",
+    "0",
+]
 
 
 def _locate_json(capsys, *extra):
@@ -76,15 +90,18 @@ def test_locate_refraction_from_18_km_grows_and_points_to_nadir(capsys):
 def test_locate_text_says_which_corrections(capsys):
     assert main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0"]) == 0
     assert "corrections: none" in capsys.readouterr().out
-    assert main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0",
-                 "--refraction", "standard"]) == 0
+    assert (
+        main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0", "--refraction", "standard"]) == 0
+    )
     assert "refraction moved the point 11.83 m" in capsys.readouterr().out
 
 
 def test_aberration_on_a_frame_sensor_is_refused_by_name(capsys):
     assert main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0", "--light-time"]) == 0
-    out = json.loads(main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0",
-                           "--light-time", "--json"]) == 0 and capsys.readouterr().out.splitlines()[-1])
+    out = json.loads(
+        main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0", "--light-time", "--json"]) == 0
+        and capsys.readouterr().out.splitlines()[-1]
+    )
     assert out["corrections"] == "light_time"
     cam = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
     with pytest.raises(ValueError, match="no platform velocity"):
@@ -96,10 +113,20 @@ def test_aberration_on_a_frame_sensor_is_refused_by_name(capsys):
 def test_pixel_inverts_locate_with_refraction(capsys):
     """`geoloc pixel --refraction standard` of `geoloc locate --refraction standard`'s point
     gives back the pixel; without the correction it is off by the shift's worth of pixels."""
-    bent = _locate_json(capsys, "--gimbal-pitch-deg", "60", "--row", "400", "--col", "1800",
-                        "--refraction", "standard")
-    args = ["pixel", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--point-lat-deg", repr(bent["lat_deg"]),
-            "--point-lon-deg", repr(bent["lon_deg"]), "--point-h-m", "0", "--json"]
+    bent = _locate_json(capsys, "--gimbal-pitch-deg", "60", "--row", "400", "--col", "1800", "--refraction", "standard")
+    args = [
+        "pixel",
+        *POSE_ARGS,
+        "--gimbal-pitch-deg",
+        "60",
+        "--point-lat-deg",
+        repr(bent["lat_deg"]),
+        "--point-lon-deg",
+        repr(bent["lon_deg"]),
+        "--point-h-m",
+        "0",
+        "--json",
+    ]
     assert main([*args, "--refraction", "standard"]) == 0
     back = json.loads(capsys.readouterr().out)
     # Refraction.aim stops within 1e-4 m; a pixel is 0.2 m here (36 km / 166 841 px): 1e-3 px
@@ -134,8 +161,14 @@ def _limb_ray(tangent_h):
 @pytest.mark.parametrize("tangent_h", [5000.0, 15000.0])
 def test_limb_cli_prints_the_refracted_tangent_height(capsys, tangent_h):
     o, d = _limb_ray(tangent_h)
-    args = ["limb", "--origin-ecef", *(repr(float(x)) for x in o), "--direction-ecef",
-            *(repr(float(x)) for x in d), "--json"]
+    args = [
+        "limb",
+        "--origin-ecef",
+        *(repr(float(x)) for x in o),
+        "--direction-ecef",
+        *(repr(float(x)) for x in d),
+        "--json",
+    ]
     assert main(args) == 0
     plain = json.loads(capsys.readouterr().out)
     assert "refracted_tangent_h_m" not in plain and plain["corrections"] == "none"
@@ -156,8 +189,22 @@ def test_limb_cli_prints_the_refracted_tangent_height(capsys, tangent_h):
 
 def test_limb_scenario_csv_has_the_refracted_columns(tmp_path, capsys):
     out = tmp_path / "limb.csv"
-    assert main(["limb", "assets/scenarios/tiangong2_limb.toml", "--frames", "2", "--refraction", "standard",
-                 "--json", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "limb",
+                "assets/scenarios/tiangong2_limb.toml",
+                "--frames",
+                "2",
+                "--refraction",
+                "standard",
+                "--json",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     summary = json.loads(capsys.readouterr().out)
     assert summary["corrections"] == "refraction" and summary["max_refraction_m"] > 100.0
     header = out.read_text().splitlines()[0].split(",")
@@ -295,8 +342,9 @@ def test_refraction_as_a_source_of_the_error_budget(engine):
     # 1e-3 m: the model is within 1 cm of the trace, a tenth of it here
     assert float(pu.ellipse_major_m) == pytest.approx(0.1 * math.hypot(e, n), abs=1e-3)
     assert float(pu.ellipse_minor_m) < 1e-6
-    assert float(pu.ellipse_azimuth_deg) % 180.0 == pytest.approx(0.0, abs=0.1) or \
-        float(pu.ellipse_azimuth_deg) % 180.0 == pytest.approx(180.0, abs=0.1)
+    assert float(pu.ellipse_azimuth_deg) % 180.0 == pytest.approx(0.0, abs=0.1) or float(
+        pu.ellipse_azimuth_deg
+    ) % 180.0 == pytest.approx(180.0, abs=0.1)
 
 
 def _lorentz_source_direction(u_apparent, v_inertial):
@@ -358,8 +406,14 @@ def test_limb_scenario_with_aberration_against_the_lorentz_boost(tmp_path, capsy
 def test_limb_raw_mode_takes_a_velocity(capsys):
     o, d = _limb_ray(20000.0)
     v = np.array([0.0, 7600.0, 0.0])
-    args = ["limb", "--origin-ecef", *(repr(float(x)) for x in o), "--direction-ecef",
-            *(repr(float(x)) for x in d), "--json"]
+    args = [
+        "limb",
+        "--origin-ecef",
+        *(repr(float(x)) for x in o),
+        "--direction-ecef",
+        *(repr(float(x)) for x in d),
+        "--json",
+    ]
     assert main([*args, "--velocity-ecef", *(repr(float(x)) for x in v)]) == 0
     out = json.loads(capsys.readouterr().out)
     from geoloc.corrections.lighttime import inertial_velocity
@@ -393,7 +447,10 @@ def test_triangulation_meets_the_bent_rays():
     c = Corrections.for_sensor(cam, "standard")
     target = (math.radians(35.75), math.radians(81.02), 300.0)
     T = geodetic_to_ecef(*target)
-    poses = [Pose.from_deg(LAT, LON, H, 10.0, 0, 0, 0, 55.0), Pose.from_deg(LAT + 0.05, LON + 0.25, H, 330.0, 0, 0, 0, 55.0)]
+    poses = [
+        Pose.from_deg(LAT, LON, H, 10.0, 0, 0, 0, 55.0),
+        Pose.from_deg(LAT + 0.05, LON + 0.25, H, 330.0, 0, 0, 0, 55.0),
+    ]
     rows, cols = [], []
     for pose in poses:
         # aim the gimbal roughly, then the pixel that sees the target exactly
@@ -404,15 +461,21 @@ def test_triangulation_meets_the_bent_rays():
         assert np.linalg.norm(hit - T) < 0.01
         rows.append(float(row))
         cols.append(float(col))
-    pose2 = Pose(*(np.array([getattr(p, f) for p in poses]) for f in ("lat", "lon", "h", "heading", "pitch", "roll",
-                                                                     "gimbal_roll", "gimbal_pitch")))
+    pose2 = Pose(
+        *(
+            np.array([getattr(p, f) for p in poses])
+            for f in ("lat", "lon", "h", "heading", "pitch", "roll", "gimbal_roll", "gimbal_pitch")
+        )
+    )
     bent = triangulate(cam, pose2, np.array(rows), np.array(cols), corrections=c)
     straight = triangulate(cam, pose2, np.array(rows), np.array(cols))
     assert bent.status == Status.OK
     assert np.linalg.norm(np.asarray(bent.ecef) - T) < 5e-3
     assert np.linalg.norm(np.asarray(straight.ecef) - T) > 1.0
-    print(f"triangulated {np.linalg.norm(np.asarray(bent.ecef) - T) * 1e3:.2f} mm from the target with refraction, "
-          f"{np.linalg.norm(np.asarray(straight.ecef) - T):.2f} m without")
+    print(
+        f"triangulated {np.linalg.norm(np.asarray(bent.ecef) - T) * 1e3:.2f} mm from the target with refraction, "
+        f"{np.linalg.norm(np.asarray(straight.ecef) - T):.2f} m without"
+    )
 
 
 def test_refraction_through_a_measured_ground(capsys):
@@ -456,15 +519,37 @@ def test_a_fitted_sensor_file_keeps_the_corrections_it_was_fitted_with(tmp_path,
     from geoloc.sensors.sensor_file import load_sensor_corrections
 
     out = tmp_path / "fitted.toml"
-    assert main(["calibrate", "--height-column", "paper_height_m", "--fit", "mount_x,mount_y", "--joint",
-                 "--refraction", "standard", "--write-sensor", str(out)]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                "--height-column",
+                "paper_height_m",
+                "--fit",
+                "mount_x,mount_y",
+                "--joint",
+                "--refraction",
+                "standard",
+                "--write-sensor",
+                str(out),
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     assert load_sensor_corrections(out) == {"refraction": "standard", "light_time": False, "aberration": False}
-    assert main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0", "--json",
-                 "--sensor", str(out)]) == 0
+    assert (
+        main(["locate", *POSE_ARGS, "--gimbal-pitch-deg", "60", "--target-h-m", "0", "--json", "--sensor", str(out)])
+        == 0
+    )
     assert json.loads(capsys.readouterr().out)["corrections"] == "refraction"
     cam = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
     c = Corrections(refraction=Refraction(StandardAtmosphere(ground_h_m=250.0, ground_p_pa=95000.0)))
-    assert c.to_table() == {"refraction": "standard", "light_time": False, "aberration": False,
-                            "ground_h_m": 250.0, "ground_p_pa": 95000.0}
+    assert c.to_table() == {
+        "refraction": "standard",
+        "light_time": False,
+        "aberration": False,
+        "ground_h_m": 250.0,
+        "ground_p_pa": 95000.0,
+    }
     assert corrections_from_table(cam, c.to_table()) == c

@@ -53,12 +53,26 @@ def test_the_numbers_of_the_rule():
     assert 400 * FOOT_M < 500 < DRONE_MAX_HEIGHT_M == 1000.0 and DRONE_CEILING_M == 7000.0
 
 
-@pytest.mark.parametrize("text, drone", [
-    ("drone", True), ("DJI Matrice 300 RTK", True), ("Mavic 3E", True), ("quadcopter", True),
-    ("small UAV", True), ("Small_UAS", True), ("Parrot Anafi USA", True), ("sUAS", True),
-    ("MQ-9 Reaper UAV", False), ("RQ-4 Global Hawk", False), ("King Air 350", False), ("UAS", False),
-    ("", False), (None, False), ("androne", False),
-])
+@pytest.mark.parametrize(
+    "text, drone",
+    [
+        ("drone", True),
+        ("DJI Matrice 300 RTK", True),
+        ("Mavic 3E", True),
+        ("quadcopter", True),
+        ("small UAV", True),
+        ("Small_UAS", True),
+        ("Parrot Anafi USA", True),
+        ("sUAS", True),
+        ("MQ-9 Reaper UAV", False),
+        ("RQ-4 Global Hawk", False),
+        ("King Air 350", False),
+        ("UAS", False),
+        ("", False),
+        (None, False),
+        ("androne", False),
+    ],
+)
 def test_what_names_a_drone(text, drone):
     assert is_drone(text) is drone
 
@@ -78,17 +92,21 @@ def test_drone_records_in_feet_are_warned_naming_line_field_and_value(tmp_path, 
     assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM), "--out", str(out)]) == 0
     err = capsys.readouterr().err
     # line 2: 425.3902335 m / 0.3048 = 1395.637 "m", over terrain at 291 m (the DEM): 1.1 km up
-    assert ("warning: line 2 (survey1-1): ac_h_m = 1395.637: a drone's camera 1.1 km above the terrain under "
-            "it (291.1 m), while drones fly below 1000 m above the ground and 7000 m above the sea: likely feet "
-            "read as metres (x 0.3048: 425.4 m, 134 m above it); a height column in feet needs unit = 'ft'") in err, err
+    assert (
+        "warning: line 2 (survey1-1): ac_h_m = 1395.637: a drone's camera 1.1 km above the terrain under "
+        "it (291.1 m), while drones fly below 1000 m above the ground and 7000 m above the sea: likely feet "
+        "read as metres (x 0.3048: 425.4 m, 134 m above it); a height column in feet needs unit = 'ft'"
+    ) in err, err
     assert "... and 15 more record(s) too high for a drone" in err  # every record: 5 shown, then a count
     # a warning, not an error: every row located as read, status ok, in the batch output
     got = _rows(out)
     assert len(got) == len(rows) and {r[got[0].index("status")] for r in got[1:]} == {"ok"}
     # at the targets' heights (no DEM) the reference is the target, said so
     assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--height-column", "truth_h_m"]) == 0
-    assert "line 2 (survey1-1): ac_h_m = 1395.637: a drone's camera 1.1 km above the target (287.4 m)" \
+    assert (
+        "line 2 (survey1-1): ac_h_m = 1395.637: a drone's camera 1.1 km above the target (287.4 m)"
         in capsys.readouterr().err
+    )
 
 
 def test_mapped_feet_column_names_the_files_column(tmp_path, capsys):
@@ -96,14 +114,40 @@ def test_mapped_feet_column_names_the_files_column(tmp_path, capsys):
     rows[0][rows[0].index("ac_h_m")] = "Alt"
     _write(recs, rows)
     (tmp_path / "map.toml").write_text('[columns]\nac_h_m = "Alt"\n')
-    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM),
-                 "--columns", str(tmp_path / "map.toml")]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                str(recs),
+                "--sensor",
+                str(DRONE_SENSOR),
+                "--dem",
+                str(SRTM),
+                "--columns",
+                str(tmp_path / "map.toml"),
+            ]
+        )
+        == 0
+    )
     err = capsys.readouterr().err
     assert "line 2 (survey1-1): Alt (read as ac_h_m, m, ellipsoid) = 1395.637: a drone's camera 1.1 km" in err, err
     # with its unit the same file is plausible
     (tmp_path / "map_ft.toml").write_text('[columns]\nac_h_m = {column = "Alt", unit = "ft"}\n')
-    assert main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM),
-                 "--columns", str(tmp_path / "map_ft.toml")]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                str(recs),
+                "--sensor",
+                str(DRONE_SENSOR),
+                "--dem",
+                str(SRTM),
+                "--columns",
+                str(tmp_path / "map_ft.toml"),
+            ]
+        )
+        == 0
+    )
     assert "too high for a drone" not in capsys.readouterr().err
 
 
@@ -121,8 +165,10 @@ def test_q17_flight_at_18_km_is_not_a_drone(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("a drone's camera") == 1 and "line 2 (T3-1): ac_h_m = " in err, err
     # 17987.25 m over a target at 4629.9 m; as feet, 5482.5 m: a drone's height over the Tibetan plateau
-    assert ("ac_h_m = 17987.25: a drone's camera 13.4 km above the target (4629.9 m)" in err
-            and "likely feet read as metres (x 0.3048: 5482.5 m, 853 m above it)" in err), err
+    assert (
+        "ac_h_m = 17987.25: a drone's camera 13.4 km above the target (4629.9 m)" in err
+        and "likely feet read as metres (x 0.3048: 5482.5 m, 853 m above it)" in err
+    ), err
 
 
 def test_row_platform_overrides_the_sensor_files(tmp_path, capsys):
@@ -142,8 +188,13 @@ def test_sensor_file_platform_round_trip_and_error(tmp_path):
     sensor_to_toml(s, tmp_path / "s.toml")
     assert load_sensor(tmp_path / "s.toml").platform == "drone"
     with pytest.raises(ValueError, match=r"x.toml: platform = 3: must be a string"):
-        sensor_from_dict({"lens": {"model": "pinhole", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0,
-                                   "width": 2, "height": 2}, "platform": 3}, "x.toml")
+        sensor_from_dict(
+            {
+                "lens": {"model": "pinhole", "fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "width": 2, "height": 2},
+                "platform": 3,
+            },
+            "x.toml",
+        )
 
 
 def test_drone_photo_in_feet_is_warned_naming_the_tag(tmp_path, capsys):
@@ -154,8 +205,10 @@ def test_drone_photo_in_feet_is_warned_naming_the_tag(tmp_path, capsys):
     out = tmp_path / "out.csv"
     assert main(["replay", str(up), "--targets", str(TARGETS), "--dem", str(SRTM), "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert ("DJI_0001.JPG: warning: implausible for a drone: the camera is 1.3 km above the DEM under it" in err
-            and "drone-dji:AbsoluteAltitude = 1650.3: likely feet read as metres (x 0.3048: 503.0 m" in err), err
+    assert (
+        "DJI_0001.JPG: warning: implausible for a drone: the camera is 1.3 km above the DEM under it" in err
+        and "drone-dji:AbsoluteAltitude = 1650.3: likely feet read as metres (x 0.3048: 503.0 m" in err
+    ), err
     rows = list(csv.DictReader(open(out)))
     assert len(rows) == 5 and {r["status"] for r in rows} == {"ok"}
     assert main(["replay", str(PHOTO), "--targets", str(TARGETS), "--dem", str(SRTM)]) == 0
@@ -215,9 +268,11 @@ def test_klv_drone_designation_kilometres_up_is_warned(tmp_path, capsys):
     assert main(["replay", str(path), "--out", str(out_csv)]) == 0
     out = capsys.readouterr().out
     assert "warning: 12 packet(s) too high for a drone" in out, out
-    assert ("packet 0 (byte 0): tag 75 (Sensor Ellipsoid Height) = 2115.3 m: a drone's camera (Platform "
-            "Designation 'DJI Matrice 300 RTK') 1.6 km above the frame centre (tag 78) (524.7 m): likely feet "
-            "read as metres (x 0.3048: 644.7 m, 120 m above it)") in out, out
+    assert (
+        "packet 0 (byte 0): tag 75 (Sensor Ellipsoid Height) = 2115.3 m: a drone's camera (Platform "
+        "Designation 'DJI Matrice 300 RTK') 1.6 km above the frame centre (tag 78) (524.7 m): likely feet "
+        "read as metres (x 0.3048: 644.7 m, 120 m above it)"
+    ) in out, out
     assert "... and 7 more" in out
     rows = list(csv.DictReader(open(out_csv)))
     assert len(rows) == 12 and {r["status"] for r in rows} == {"ok"}  # used as read
@@ -229,7 +284,7 @@ def test_the_docs_list_the_rule_as_the_code_has_it():
     from geoloc.sensors.platform import DRONE_WORDS
 
     doc = (Path(__file__).resolve().parents[1] / "docs" / "records.md").read_text()
-    section = doc[doc.index("## Plausibility checks"):]
+    section = doc[doc.index("## Plausibility checks") :]
     flat = " ".join(section.split())
     for w in DRONE_WORDS:
         assert f"`{w}`".lower() in flat.lower(), w
@@ -237,16 +292,33 @@ def test_the_docs_list_the_rule_as_the_code_has_it():
 
 
 def test_locate_with_a_drone_sensor_kilometres_up_is_warned(capsys):
-    args = ["locate", "--sensor", str(DRONE_SENSOR), "--lat-deg", "36.6", "--lon-deg", "-84.2", "--angle",
-            "gimbal_yaw=0", "--angle", "gimbal_pitch=-90", "--angle", "gimbal_roll=0", "--target-h-m", "300"]
+    args = [
+        "locate",
+        "--sensor",
+        str(DRONE_SENSOR),
+        "--lat-deg",
+        "36.6",
+        "--lon-deg",
+        "-84.2",
+        "--angle",
+        "gimbal_yaw=0",
+        "--angle",
+        "gimbal_pitch=-90",
+        "--angle",
+        "gimbal_roll=0",
+        "--target-h-m",
+        "300",
+    ]
     assert main(args + ["--h-m", "420"]) == 0  # 120 m above the target: none
     err = capsys.readouterr().err
     assert "a drone's camera" not in err, err
     # 420 m written in feet: 420 / 0.3048 = 1377.95 "m"
     assert main(args + ["--h-m", f"{420 / FOOT_M:.2f}", "--json"]) == 0
     cap = capsys.readouterr()
-    assert ("geoloc locate: warning: --h-m = 1378.0 m: a drone's camera (the sensor file's platform 'drone') "
-            "1.1 km above the target (300.0 m)") in cap.err and "x 0.3048: 420.0 m, 120 m above it" in cap.err
+    assert (
+        "geoloc locate: warning: --h-m = 1378.0 m: a drone's camera (the sensor file's platform 'drone') "
+        "1.1 km above the target (300.0 m)"
+    ) in cap.err and "x 0.3048: 420.0 m, 120 m above it" in cap.err
     assert '"status": "ok"' in cap.out  # the point is still given
 
 
@@ -266,7 +338,9 @@ def test_campaign_units_say_the_drone_check(tmp_path):
     ok = run_campaign([DRONE], tmp_path / "ok", cfg, scheduler="none")
     assert not [m for m in ok.messages if "of a drone" in m], ok.messages
     # KLV: the packets of a drone kilometres up
-    res = run_campaign([_klv(tmp_path, "m300.klv", "DJI Matrice 300 RTK")], tmp_path / "k", CampaignConfig(),
-                       scheduler="none")
-    assert any("12 packet(s) too high for a drone, first packet 0 (byte 0): tag 75" in m for m in res.messages), \
+    res = run_campaign(
+        [_klv(tmp_path, "m300.klv", "DJI Matrice 300 RTK")], tmp_path / "k", CampaignConfig(), scheduler="none"
+    )
+    assert any("12 packet(s) too high for a drone, first packet 0 (byte 0): tag 75" in m for m in res.messages), (
         res.messages
+    )

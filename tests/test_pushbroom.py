@@ -171,8 +171,9 @@ def test_bad_inputs_give_clear_errors_and_status():
     with pytest.raises(ValueError, match="tan_psi_x"):
         LookAngles(np.array([0.0, 1.0, 0.5]), np.zeros(3))
     s = PushbroomSensor.from_dict(SCEN)
-    row, col, st = s.ground_to_pixel(np.array([np.nan, math.radians(60.0)]),
-                                     np.array([0.0, math.radians(-84.2)]), np.array([0.0, 0.0]))
+    row, col, st = s.ground_to_pixel(
+        np.array([np.nan, math.radians(60.0)]), np.array([0.0, math.radians(-84.2)]), np.array([0.0, 0.0])
+    )
     assert st[0] == Status.INVALID_INPUT and np.isnan(row[0])
     # 60 N is ~2600 km along track, far outside the orbit samples of this scene
     assert st[1] != Status.OK and np.isnan(col[1])

@@ -113,6 +113,7 @@ def test_refractivity_of_air():
 
 # --- near-vertical views: the photogrammetric refraction ------------------------------------------
 
+
 @pytest.mark.parametrize("H_km, h_km", [(3.0, 0.0), (6.0, 0.0), (9.0, 0.0), (18.0, 0.0), (6.0, 2.0), (12.0, 1.5)])
 def test_photogrammetric_refraction_near_vertical(H_km, h_km):
     H, h = H_km * 1000.0, h_km * 1000.0
@@ -137,6 +138,7 @@ def test_photogrammetric_refraction_near_vertical(H_km, h_km):
 
 
 # --- astronomical refraction: an observer looking up ------------------------------------------------
+
 
 def astronomical_refraction(elevation_deg):
     o, d = look(LAT, LON, 0.0, 180.0 - (90.0 - elevation_deg))  # up, elevation above the horizon
@@ -167,6 +169,7 @@ def test_astronomical_refraction_bennett_and_the_horizon(elevation_deg):
 
 
 # --- the limb ---------------------------------------------------------------------------------------
+
 
 def limb_ray(tangent_h):
     """From 700 km, a ray whose straight line grazes tangent_h (about) on the sphere of radius 6371 km."""
@@ -220,14 +223,18 @@ def test_limb_statuses():
 
 # --- against an independent ray trace ----------------------------------------------------------------
 
-@pytest.mark.parametrize("h_p, off_nadir, h_g, tol_m", [
-    (18000.0, 30.0, 0.0, 0.003),
-    (18000.0, 60.0, 0.0, 0.006),
-    (18000.0, 70.0, 1500.0, 0.006),
-    (18000.0, 80.0, 0.0, 0.012),
-    (700e3, 20.0, 0.0, 0.003),
-    (700e3, 50.0, 300.0, 0.006),
-])
+
+@pytest.mark.parametrize(
+    "h_p, off_nadir, h_g, tol_m",
+    [
+        (18000.0, 30.0, 0.0, 0.003),
+        (18000.0, 60.0, 0.0, 0.006),
+        (18000.0, 70.0, 1500.0, 0.006),
+        (18000.0, 80.0, 0.0, 0.012),
+        (700e3, 20.0, 0.0, 0.003),
+        (700e3, 50.0, 300.0, 0.006),
+    ],
+)
 def test_against_an_independent_ray_trace(h_p, off_nadir, h_g, tol_m):
     # tolerances: measured 0.4, 4.1, 5.2, 6.2, 0.3, 2.7 mm (6.2 mm of 387 m at 80 deg), with room for
     # the trace's own reproducibility (2-4 mm: it moves that much when given the tabulated n)
@@ -253,8 +260,7 @@ def test_shift_from_18_km_grows_with_the_angle_and_points_to_nadir(capsys):
         assert np.linalg.norm(hit - trace(o, d, 0.0, exact_n)) < 0.006
         shifts.append(shift)
     with capsys.disabled():
-        print("\nrefraction shift from 18 km at 30/45/60/70 deg off nadir: "
-              + ", ".join(f"{s:.2f} m" for s in shifts))
+        print("\nrefraction shift from 18 km at 30/45/60/70 deg off nadir: " + ", ".join(f"{s:.2f} m" for s in shifts))
     assert np.all(np.diff(shifts) > 0)
     # the figures of docs/refraction.md (1.29, 3.38, 11.83, 41.22 m), to 1 cm
     assert shifts == pytest.approx([1.29, 3.38, 11.83, 41.22], abs=0.01)
@@ -324,6 +330,7 @@ def test_rugged_no_op_and_reversed_atmosphere():
 
 # --- the pieces the pipeline calls -----------------------------------------------------------------------
 
+
 def test_aim_inverts_the_correction():
     rng = np.random.default_rng(4)
     o, d0 = look(LAT, LON, 18000.0, 0.0)
@@ -343,8 +350,9 @@ def test_correct_vectorises_and_flags_bad_rays():
     many = STANDARD_REFRACTION.correct(np.broadcast_to(o, (2, 3, 3)), np.broadcast_to(d, (2, 3, 3)), raw)
     assert many.hit_ecef.shape == (2, 3, 3) and one.hit_ecef.shape == (3,)
     np.testing.assert_array_equal(many.hit_ecef[1, 2], one.hit_ecef)
-    bad = STANDARD_REFRACTION.correct(np.array([[np.nan, 0, 0], o]), np.array([d, d]), np.array([raw, raw]),
-                                      at_h=np.array([0.0, 30000.0]))
+    bad = STANDARD_REFRACTION.correct(
+        np.array([[np.nan, 0, 0], o]), np.array([d, d]), np.array([raw, raw]), at_h=np.array([0.0, 30000.0])
+    )
     assert bad.status[0] == Status.INVALID_INPUT and np.isnan(bad.hit_ecef[0]).all()
     # 30 km is above the camera, behind it along the line: not served
     assert bad.status[1] == Status.NO_CONVERGENCE
@@ -375,6 +383,7 @@ def test_looking_up_at_a_mountain():
     # a camera at 500 m looking 1 deg above the horizon at a slope 40 km away: the bent ray
     # (the sphere osculates at the camera, the lower end) against the ray trace
     o, d = look(LAT, LON, 500.0, 91.0, azimuth_deg=200.0)
+
     def intersect_up(o_, d_):  # the line's crossing of 1000 m on its way up
         lo, hi = 0.0, 2e5
         for _ in range(200):
@@ -399,8 +408,16 @@ def test_looking_up_at_a_mountain():
         return ecef_to_geodetic(y[:3])[2] - 1000.0
 
     reach.terminal, reach.direction = True, 1
-    sol = solve_ivp(rhs, (0.0, 2e5), np.r_[o, nfun(500.0) * dd], method="DOP853", rtol=1e-12, atol=1e-7,
-                    events=reach, max_step=2000.0)
+    sol = solve_ivp(
+        rhs,
+        (0.0, 2e5),
+        np.r_[o, nfun(500.0) * dd],
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-7,
+        events=reach,
+        max_step=2000.0,
+    )
     ref = sol.y_events[0][0][:3]
     shift = np.linalg.norm(ref - raw)
     assert shift > 5.0  # the ray climbs slower than the line: metres short of it
@@ -448,8 +465,16 @@ def test_fixed_point_on_terrain():
         return h - terrain(lat, lon)
 
     ground.terminal, ground.direction = True, -1
-    sol = solve_ivp(rhs, (0.0, 2e5), np.r_[o, exact_n(18000.0) * d], method="DOP853", rtol=1e-12,
-                    atol=1e-7, events=ground, max_step=500.0)
+    sol = solve_ivp(
+        rhs,
+        (0.0, 2e5),
+        np.r_[o, exact_n(18000.0) * d],
+        method="DOP853",
+        rtol=1e-12,
+        atol=1e-7,
+        events=ground,
+        max_step=500.0,
+    )
     ref = sol.y_events[0][0][:3]
     assert np.linalg.norm(ref - raw[0]) > 3.0
     # 1 cm on a slope (the terrain's 0.3 rad/km slopes turn a height error into a larger shift)

@@ -58,16 +58,30 @@ def flight(tool, dem):
 def opencv_pixels(st, targets, size):
     """1-based (row, col) of the targets by cv2.projectPoints, the rotation from scipy, NED from pymap3d."""
     w, h = size
-    r_body = Rotation.from_euler("ZYX", [st["platform_heading_deg"], st["platform_pitch_full_deg"],
-                                         st["platform_roll_full_deg"]], degrees=True)
-    r_sens = Rotation.from_euler("ZYX", [st["sensor_relative_azimuth_deg"], st["sensor_relative_elevation_deg"],
-                                         st["sensor_relative_roll_deg"]], degrees=True)
+    r_body = Rotation.from_euler(
+        "ZYX", [st["platform_heading_deg"], st["platform_pitch_full_deg"], st["platform_roll_full_deg"]], degrees=True
+    )
+    r_sens = Rotation.from_euler(
+        "ZYX",
+        [st["sensor_relative_azimuth_deg"], st["sensor_relative_elevation_deg"], st["sensor_relative_roll_deg"]],
+        degrees=True,
+    )
     R_ned_sensor = (r_body * r_sens).as_matrix()  # sensor coordinates -> NED
     P = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # optical x, y, z = sensor Y, Z, X
     R_cam_ned = P @ R_ned_sensor.T
-    ned = np.array([pymap3d.geodetic2ned(t["lat_deg"], t["lon_deg"], t["h_m"], st["sensor_latitude_deg"],
-                                         st["sensor_longitude_deg"], st["sensor_ellipsoid_height_m"])
-                    for t in targets])
+    ned = np.array(
+        [
+            pymap3d.geodetic2ned(
+                t["lat_deg"],
+                t["lon_deg"],
+                t["h_m"],
+                st["sensor_latitude_deg"],
+                st["sensor_longitude_deg"],
+                st["sensor_ellipsoid_height_m"],
+            )
+            for t in targets
+        ]
+    )
     fx = (w / 2) / math.tan(math.radians(st["sensor_horizontal_fov_deg"]) / 2)
     fy = (h / 2) / math.tan(math.radians(st["sensor_vertical_fov_deg"]) / 2)
     K = np.array([[fx, 0, (w - 1) / 2], [0, fy, (h - 1) / 2], [0, 0, 1.0]])
@@ -117,8 +131,10 @@ def test_a_found_cross_locates_within_two_ground_samples(flight, dem):
             hit = surf.intersect(line_of_sight(p, s, rows, cols))
             assert np.all(hit.status == Status.OK)
             lat, lon = np.rad2deg(hit.lat), np.rad2deg(hit.lon)
-            gsd = max(horizontal_distance_m(lat[0], lon[0], lat[1], lon[1]),
-                      horizontal_distance_m(lat[0], lon[0], lat[2], lon[2]))
+            gsd = max(
+                horizontal_distance_m(lat[0], lon[0], lat[1], lon[1]),
+                horizontal_distance_m(lat[0], lon[0], lat[2], lon[2]),
+            )
             d = min(horizontal_distance_m(lat[0], lon[0], t["lat_deg"], t["lon_deg"]) for t in targets)
             assert d <= 2 * gsd, (i, row, col, d, gsd)
 

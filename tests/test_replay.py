@@ -44,8 +44,12 @@ def test_published_errors_are_the_distance_between_published_points():
     # An outside check of our distance: the paper's own numbers, computed from
     # its own (rounded) coordinates, agree with pyproj's geodesic to ~1 m.
     rec = load_records(RECORDS)
-    d = horizontal_distance_m(rec.column("paper_lat_deg"), rec.column("paper_lon_deg"),
-                              rec.column("truth_lat_deg"), rec.column("truth_lon_deg"))
+    d = horizontal_distance_m(
+        rec.column("paper_lat_deg"),
+        rec.column("paper_lon_deg"),
+        rec.column("truth_lat_deg"),
+        rec.column("truth_lon_deg"),
+    )
     assert np.max(np.abs(d - rec.column("paper_error_m"))) < 1.5
 
 
@@ -78,9 +82,28 @@ def test_missing_required_column_is_an_error(tmp_path):
 
 
 def test_cli_locate_json(capsys):
-    rc = main(["locate", "--lat-deg", "35.48", "--lon-deg", "80.97", "--h-m", "18000",
-               "--heading-deg", "45", "--pitch-deg", "3.5", "--gimbal-roll-deg", "50",
-               "--gimbal-pitch-deg", "-2.6", "--target-h-m", "5083.5", "--json"])
+    rc = main(
+        [
+            "locate",
+            "--lat-deg",
+            "35.48",
+            "--lon-deg",
+            "80.97",
+            "--h-m",
+            "18000",
+            "--heading-deg",
+            "45",
+            "--pitch-deg",
+            "3.5",
+            "--gimbal-roll-deg",
+            "50",
+            "--gimbal-pitch-deg",
+            "-2.6",
+            "--target-h-m",
+            "5083.5",
+            "--json",
+        ]
+    )
     assert rc == 0
     out = json.loads(capsys.readouterr().out)
     assert out["lat_deg"] == pytest.approx(35.57709, abs=0.5e-5)
@@ -99,27 +122,54 @@ def test_cli_locate_json(capsys):
     from pyproj import Transformer
 
     x, y, z = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True).transform(
-        out["lon_deg"], out["lat_deg"], out["h_m"])
+        out["lon_deg"], out["lat_deg"], out["h_m"]
+    )
     a = 6378137.0
     b = a * (1 - 1 / 298.257223563)
     assert (x * x + y * y) / (a + 5083.5) ** 2 + z * z / (b + 5083.5) ** 2 == pytest.approx(1.0, abs=1e-11)
 
 
 def test_cli_locate_sky_and_bad_angle(capsys):
-    rc = main(["locate", "--lat-deg", "35", "--lon-deg", "80", "--h-m", "18000",
-               "--gimbal-roll-deg", "100", "--target-h-m", "0", "--json"])
+    rc = main(
+        [
+            "locate",
+            "--lat-deg",
+            "35",
+            "--lon-deg",
+            "80",
+            "--h-m",
+            "18000",
+            "--gimbal-roll-deg",
+            "100",
+            "--target-h-m",
+            "0",
+            "--json",
+        ]
+    )
     assert rc == 1
     assert json.loads(capsys.readouterr().out)["status"] == "sky"
-    rc = main(["locate", "--lat-deg", "35", "--lon-deg", "80", "--h-m", "18000",
-               "--gimbal-roll-deg", "200", "--target-h-m", "0"])
+    rc = main(
+        [
+            "locate",
+            "--lat-deg",
+            "35",
+            "--lon-deg",
+            "80",
+            "--h-m",
+            "18000",
+            "--gimbal-roll-deg",
+            "200",
+            "--target-h-m",
+            "0",
+        ]
+    )
     assert rc == 2
     assert "gimbal_roll = 200 deg" in capsys.readouterr().err
 
 
 def test_cli_replay_writes_every_column(tmp_path, capsys):
     out = tmp_path / "out.csv"
-    rc = main(["replay", str(RECORDS), "--camera", str(CAMERA), "--height-column", "paper_height_m",
-               "--out", str(out)])
+    rc = main(["replay", str(RECORDS), "--camera", str(CAMERA), "--height-column", "paper_height_m", "--out", str(out)])
     assert rc == 0
     text = capsys.readouterr().out
     assert "group T3" in text and "group T4" in text

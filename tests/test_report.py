@@ -102,8 +102,15 @@ def test_along_across_from_pyproj_displacements():
 
 
 def test_nan_rows_stay_nan():
-    c = error_components([36.0, np.nan, 36.0], [78.0, 78.0, 78.0], [100.0, 100.0, np.nan],
-                         [36.0001, 36.0, 36.0], [78.0, 78.0, 78.0], [90.0, 90.0, 90.0], track_heading_rad=0.3)
+    c = error_components(
+        [36.0, np.nan, 36.0],
+        [78.0, 78.0, 78.0],
+        [100.0, 100.0, np.nan],
+        [36.0001, 36.0, 36.0],
+        [78.0, 78.0, 78.0],
+        [90.0, 90.0, 90.0],
+        track_heading_rad=0.3,
+    )
     for k, v in c.items():
         assert np.isfinite(v[0]), k
         assert np.isnan(v[1]) and np.isnan(v[2]), k
@@ -111,10 +118,10 @@ def test_nan_rows_stay_nan():
 
 def test_sight_geometry_equals_pymap3d_aer(replay_csv):
     rows, col = _read(replay_csv)
-    g = sight_geometry(col("ac_lat_deg"), col("ac_lon_deg"), col("ac_h_m"), col("lat_deg"), col("lon_deg"),
-                       col("h_m"))
-    _az, el, srange = pymap3d.geodetic2aer(col("lat_deg"), col("lon_deg"), col("h_m"), col("ac_lat_deg"),
-                                           col("ac_lon_deg"), col("ac_h_m"))
+    g = sight_geometry(col("ac_lat_deg"), col("ac_lon_deg"), col("ac_h_m"), col("lat_deg"), col("lon_deg"), col("h_m"))
+    _az, el, srange = pymap3d.geodetic2aer(
+        col("lat_deg"), col("lon_deg"), col("h_m"), col("ac_lat_deg"), col("ac_lon_deg"), col("ac_h_m")
+    )
     # 20 km ranges through ECEF in float64 on both sides: 1e-6 m, 1e-9 rad
     np.testing.assert_allclose(g["slant_range_m"], srange, atol=1e-6)
     np.testing.assert_allclose(g["off_nadir_rad"], np.deg2rad(90.0 + el), atol=1e-9)  # el < 0 looking down
@@ -167,8 +174,7 @@ def test_report_numbers_equal_a_direct_computation(replay_csv):
         assert s["bias_east_m"] == pytest.approx(e[m].mean(), abs=1e-6)
         assert s["bias_up_m"] == pytest.approx(up[m].mean(), abs=1e-6)
         # [Q17] eq. 18 on the north/east spreads is the radial RMS about the mean error
-        assert s["radial_rms_eq18_m"] == pytest.approx(math.hypot(np.std(n[m], ddof=1), np.std(e[m], ddof=1)),
-                                                       rel=1e-9)
+        assert s["radial_rms_eq18_m"] == pytest.approx(math.hypot(np.std(n[m], ddof=1), np.std(e[m], ddof=1)), rel=1e-9)
         # against the replay's own error column (pyproj's geodesic on the ellipsoid): the report's
         # error is at the target's height (~4.9 km), longer by h / R = 7.7e-4; 1e-3 relative covers it
         d = col("error_to_truth_m")[m]
@@ -187,8 +193,9 @@ def test_slant_range_model_equals_polyfit(replay_csv):
     rows, col = _read(replay_csv)
     rep, _ = report_from_csv(replay_csv, ref_h_column="paper_height_m")
     hor, *_ = _direct(rows, col)
-    _, _, srange = pymap3d.geodetic2aer(col("lat_deg"), col("lon_deg"), col("h_m"), col("ac_lat_deg"),
-                                        col("ac_lon_deg"), col("ac_h_m"))
+    _, _, srange = pymap3d.geodetic2aer(
+        col("lat_deg"), col("lon_deg"), col("h_m"), col("ac_lat_deg"), col("ac_lon_deg"), col("ac_h_m")
+    )
     table = np.array([r["table"] for r in rows])
     for g, s in list(rep.groups.items()) + [("all", rep.overall)]:
         m = np.ones(len(rows), bool) if g == "all" else table == g
@@ -292,8 +299,9 @@ def test_report_api_groups_and_tracks():
     lon0 = np.array([78.0, 78.0, 78.0, 81.0, 81.0, 81.0])
     psi = np.array([90.0, 90.0, 90.0, 0.0, 0.0, 0.0])
     lon1, lat1, _ = GEOD.fwd(lon0, lat0, np.where(psi == 90.0, 90.0, 90.0), np.where(psi == 90.0, 10.0, 5.0))
-    rep = accuracy_report(lat1, lon1, 98.0, lat0, lon0, 100.0, track_heading_rad=np.deg2rad(psi),
-                          group=["A"] * 3 + ["B"] * 3)
+    rep = accuracy_report(
+        lat1, lon1, 98.0, lat0, lon0, 100.0, track_heading_rad=np.deg2rad(psi), group=["A"] * 3 + ["B"] * 3
+    )
     # tangent plane vs geodesic at 10 m: ~1e-5 m; the 2 m drop moves the horizontal by 2 * 10/R: negligible
     assert rep.groups["A"]["bias_along_m"] == pytest.approx(10.0, abs=1e-3)
     assert rep.groups["A"]["bias_across_m"] == pytest.approx(0.0, abs=1e-3)
@@ -308,8 +316,14 @@ def test_report_api_groups_and_tracks():
 
 def test_example_72_prints_the_report(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
-    r = subprocess.run([sys.executable, str(ROOT / "examples" / "72_accuracy_report.py"), str(tmp_path)],
-                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "72_accuracy_report.py"), str(tmp_path)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     m = re.search(r"CEP ([0-9.]+) m, CE90 ([0-9.]+) m .* direct ([0-9.]+) m, ([0-9.]+) m", r.stdout)
     assert m, r.stdout
@@ -327,8 +341,11 @@ def test_readme_accuracy_table(replay_csv, capsys):
     # direct computation in test_report_numbers_equal_a_direct_computation)
     assert main(["report", str(replay_csv), "--ref-h-column", "paper_height_m", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
-    table = {"T3": (10, 50.71, 51.87, 50.05, -49.83, -0.59), "T4": (10, 49.79, 54.99, 50.56, -50.27, -0.60),
-             "all": (20, 50.25, 54.99, 50.31, -50.05, -0.59)}
+    table = {
+        "T3": (10, 50.71, 51.87, 50.05, -49.83, -0.59),
+        "T4": (10, 49.79, 54.99, 50.56, -50.27, -0.60),
+        "all": (20, 50.25, 54.99, 50.31, -50.05, -0.59),
+    }
     for g, (n, cep, ce90, mae, along, across) in table.items():
         e = d["overall"] if g == "all" else d["groups"][g]
         got = (e["n"], e["cep_m"], e["ce90_m"], e["mae_horizontal_m"], e["bias_along_m"], e["bias_across_m"])

@@ -56,8 +56,11 @@ def test_reproduce_table_of_the_docs(q17_dem):
 
     n = q17_dem.numbers
     # geoloc row: 0.000483 deg, 0.000596 deg, 62.1 m; CEP eq. 18 76 m, CEP50 52 m
-    assert (round(n["mc_std_lat_deg"], 6), round(n["mc_std_lon_deg"], 6), round(n["mc_std_h_m"], 1)) == \
-        (0.000483, 0.000596, 62.1)
+    assert (round(n["mc_std_lat_deg"], 6), round(n["mc_std_lon_deg"], 6), round(n["mc_std_h_m"], 1)) == (
+        0.000483,
+        0.000596,
+        62.1,
+    )
     assert (round(n["mc_cep_m"]), round(n["mc_cep50_empirical_m"])) == (76, 52)
     fo = mc.first_order(ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1.toml")))
     # docs/tour_papers.md's first-order row: 0.000487 deg, 0.000602 deg, 62.47 m
@@ -65,16 +68,22 @@ def test_reproduce_table_of_the_docs(q17_dem):
     for k, ref in (("mc_std_lat_deg", fo.std_lat_deg), ("mc_std_lon_deg", fo.std_lon_deg), ("mc_std_h_m", fo.std_h_m)):
         assert n[k] == pytest.approx(ref, rel=0.03)
     # the DEM row: 0.00012 deg, 0.00014 deg, 0.64 m (ETOPO5; [Q17]: 0.00015, 0.00013, 3.58 m on ASTER)
-    assert (round(n["mcdem_std_lat_deg"], 5), round(n["mcdem_std_lon_deg"], 5), round(n["mcdem_std_h_m"], 2)) == \
-        (0.00012, 0.00014, 0.64)
+    assert (round(n["mcdem_std_lat_deg"], 5), round(n["mcdem_std_lon_deg"], 5), round(n["mcdem_std_h_m"], 2)) == (
+        0.00012,
+        0.00014,
+        0.64,
+    )
     # Fig. 10b on the bundled DEM: "36 m at 70 deg and 106 m at 80 deg" against the paper's
     # "< 50 m" and "< 180 m"; angles 10, 30, 50, 63, 70, 80, 82
     c = n["fig10b_cep_m"]
     assert round(c[4]) == 36 and round(c[5]) == 106 and c[4] < 50 and c[5] < 180
     # the flight rows: 50.02 / 50.52 m ([Q17]: 50.246 / 50.485), 0.36 m RMS (T3 0.40, T4 0.32)
     assert (round(n["flight_T3_mean_error_m"], 2), round(n["flight_T4_mean_error_m"], 2)) == (50.02, 50.52)
-    assert (round(n["flight_rms_to_paper_m"], 2), round(n["flight_T3_rms_to_paper_m"], 2),
-            round(n["flight_T4_rms_to_paper_m"], 2)) == (0.36, 0.40, 0.32)
+    assert (
+        round(n["flight_rms_to_paper_m"], 2),
+        round(n["flight_T3_rms_to_paper_m"], 2),
+        round(n["flight_T4_rms_to_paper_m"], 2),
+    ) == (0.36, 0.40, 0.32)
 
 
 def test_fig10_trend(q17):
@@ -85,8 +94,10 @@ def test_fig10_trend(q17):
 
 def test_cli_prints_paper_and_project_side_by_side(tmp_path, capsys):
     out = tmp_path / "q17.json"
-    assert main(["reproduce", "qiao2017", "--no-dem", "--samples", "1000", "--sweep-samples", "200",
-                 "--json", str(out)]) == 0
+    assert (
+        main(["reproduce", "qiao2017", "--no-dem", "--samples", "1000", "--sweep-samples", "200", "--json", str(out)])
+        == 0
+    )
     text = capsys.readouterr().out
     assert "paper   35.57709 N  80.84918 E" in text and "geoloc  35.57709 N  80.84918 E" in text
     assert json.loads(out.read_text())["nominal_lat_deg"] == pytest.approx(35.57709, abs=0.5e-5)
@@ -118,8 +129,7 @@ def test_li2023_counts_match_the_readme(l23):
         assert abs(n["steps_mean_evals"] - steps) < 5  # printed to 2-3 significant digits
         assert round(n["bisect_mean_evals"]) == bisect
         assert n["hidden"] == 0 and n["n_ok"] == 120
-        assert n["saving_pct"] == pytest.approx(100 * (1 - n["bisect_mean_evals"] / n["steps_mean_evals"]),
-                                                rel=1e-9)
+        assert n["saving_pct"] == pytest.approx(100 * (1 - n["bisect_mean_evals"] / n["steps_mean_evals"]), rel=1e-9)
 
 
 def test_li2023_counts_follow_the_closed_forms():
@@ -137,7 +147,9 @@ def test_li2023_counts_follow_the_closed_forms():
     from geoloc.workflows.replay import records_line_of_sight
 
     dem = DEM.open(asset_path("dem", "etopo5_flight_area.tif"))
-    los = records_line_of_sight(load_records(asset_path(*DEFAULT_RECORDS)), Camera.from_toml(asset_path(*DEFAULT_CAMERA)))
+    los = records_line_of_sight(
+        load_records(asset_path(*DEFAULT_RECORDS)), Camera.from_toml(asset_path(*DEFAULT_CAMERA))
+    )
     ex = intersect_dem(los, dem, "exact")
     assert (ex.status == 0).all()
     h_max, h_min = dem.max_height(), dem.min_height()

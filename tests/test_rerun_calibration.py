@@ -71,8 +71,9 @@ def test_sensor_file_on_a_dem_logs_fit_sensor_groups_after_errors(tmp_path, caps
     assert list(k) == list(range(24))
     sensor = load_sensor(SENSOR)
     recs = load_records(TURRET, angles=sensor.angle_names)
-    rep, _ = fit_sensor_groups(recs, sensor, MOUNT, surface_for(dem=DEM.open(DEM_FILE, datum="egm96")),
-                               group_column=None)
+    rep, _ = fit_sensor_groups(
+        recs, sensor, MOUNT, surface_for(dem=DEM.open(DEM_FILE, datum="egm96")), group_column=None
+    )
     # the report rounds each distance to 1e-4 m (errors.ErrorVectors.as_dict): 5e-5 m plus float noise
     np.testing.assert_allclose(after, per_record(rep, "all", "after"), rtol=0, atol=5.1e-5)
     np.testing.assert_allclose(before, per_record(rep, "all", "before"), rtol=0, atol=5.1e-5)
@@ -86,8 +87,9 @@ def test_sensor_file_on_a_dem_logs_fit_sensor_groups_after_errors(tmp_path, caps
 
     los = line_of_sight(recs.pose(), sensor, recs.column("row"), recs.column("col"), outside="extrapolate")
     hit = surface_for(dem=DEM.open(DEM_FILE, datum="egm96")).intersect(los)
-    _, _, dist = Geod(ellps="WGS84").inv(np.rad2deg(hit.lon), np.rad2deg(hit.lat), recs.column("truth_lon_deg"),
-                                         recs.column("truth_lat_deg"))
+    _, _, dist = Geod(ellps="WGS84").inv(
+        np.rad2deg(hit.lon), np.rad2deg(hit.lat), recs.column("truth_lon_deg"), recs.column("truth_lat_deg")
+    )
     # pyproj on the ellipsoid vs the code's horizontal distance at the target height (longer by h / R,
     # 1e-4 at ~600 m): 1e-4 relative
     np.testing.assert_allclose(before, dist, rtol=1.5e-4)
@@ -100,8 +102,13 @@ def test_fit_names_on_two_flights_at_target_heights(tmp_path):
     recs = load_records(Q17)
     h = recs.column("paper_height_m")
     table = np.array(recs.text("table"), dtype=object)
-    rep, _ = fit_sensor_groups(recs, as_sensor(Camera.from_toml(CAMERA)), ["mount_y", "mount_z"],
-                               surface_for(h, kind="inflated", per_record=True), group_column="table")
+    rep, _ = fit_sensor_groups(
+        recs,
+        as_sensor(Camera.from_toml(CAMERA)),
+        ["mount_y", "mount_z"],
+        surface_for(h, kind="inflated", per_record=True),
+        group_column="table",
+    )
     for g in ("T3", "T4"):
         k, after = s[f"/series/{g}/calibration/after_m"]
         assert list(k) == np.flatnonzero(table == g).tolist()  # each flight's own entity

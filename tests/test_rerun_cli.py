@@ -94,11 +94,14 @@ def test_log_records_with_a_bad_row_skips_it(tmp_path, capsys):
     np.testing.assert_allclose(e, load_records(p).column("paper_error_m"), atol=2.0)  # see test_rerun_log
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["log", "no_such_scenario", "--out", "x.rrd"], "input not found: no_such_scenario"),
-    (["log", "flight_scan"], "--out is required"),
-    (["log", "flight_scan", "--out", "x.rrd", "--display-scale", "0"], "--display-scale = 0.0"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["log", "no_such_scenario", "--out", "x.rrd"], "input not found: no_such_scenario"),
+        (["log", "flight_scan"], "--out is required"),
+        (["log", "flight_scan", "--out", "x.rrd", "--display-scale", "0"], "--display-scale = 0.0"),
+    ],
+)
 def test_bad_input_is_named(argv, needle, capsys, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 2

@@ -17,8 +17,11 @@ from test_examples import (
 
 def test_example_82_prints_per_flight_figures(tmp_path):
     out = run("82_rerun_flight_test_debugger.py", tmp_path / "x.rrd", env={"HOME": str(tmp_path)})
-    got = re.findall(r"flight (T\d): origin ([0-9.]+) N ([0-9.]+) E .* along ([-+0-9.]+) m, across ([-+0-9.]+) m; "
-                     r"before ([0-9.]+) m, after calibration ([0-9.]+) m", out)
+    got = re.findall(
+        r"flight (T\d): origin ([0-9.]+) N ([0-9.]+) E .* along ([-+0-9.]+) m, across ([-+0-9.]+) m; "
+        r"before ([0-9.]+) m, after calibration ([0-9.]+) m",
+        out,
+    )
     assert [g[0] for g in got] == ["T3", "T4"]
     # origins 200 km apart, the first published points rounded (see test_rerun_log); docs/calibration.md:
     # ~50 m before, 5.0 / 5.1 m after; the error is along track
@@ -34,8 +37,7 @@ def test_example_83_prints_the_sensor_fit_on_the_dem(tmp_path):
     before, after = map(float, re.search(r"before ([0-9.]+) m, after ([0-9.]+) m", out).groups())
     # docs/sensors.md: 22.87 m mean error before on this DEM; the fit lowers the mean (in-sample)
     assert before == pytest.approx(22.87, abs=0.005) and after < before
-    fit = {k: (float(v), float(sd)) for k, v, sd in
-           re.findall(r"(mount_[xyz]) ([-+0-9.]+) \+- ([0-9.]+) deg", out)}
+    fit = {k: (float(v), float(sd)) for k, v, sd in re.findall(r"(mount_[xyz]) ([-+0-9.]+) \+- ([0-9.]+) deg", out)}
     # the records were made with the sensor file's own mount (assets/sensors/eo_turret.toml: 0.10, -0.05,
     # 0.20 deg) and angle noise: the fit must agree with it within 3 of its standard deviations
     for k, want in (("mount_x", 0.10), ("mount_y", -0.05), ("mount_z", 0.20)):

@@ -57,8 +57,11 @@ def scalars(data, path):
     """(record, value) of a series; ``series/<rel>`` of a two-flight recording joins ``series/T3/<rel>``
     and ``series/T4/<rel>`` (one entity per flight) in record order."""
     if path not in data and path.startswith("/series/"):
-        parts = [scalars(data, path.replace("/series/", f"/series/{g}/", 1)) for g in FLIGHTS
-                 if path.replace("/series/", f"/series/{g}/", 1) in data]
+        parts = [
+            scalars(data, path.replace("/series/", f"/series/{g}/", 1))
+            for g in FLIGHTS
+            if path.replace("/series/", f"/series/{g}/", 1) in data
+        ]
         if not parts:
             raise KeyError(path)
         k, v = np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
@@ -85,10 +88,18 @@ def core():
     recs = load_records(RECORDS)
     res = replay_at_height(recs, Camera.from_toml(CAMERA), "paper_height_m")
     table = np.array(recs.text("table"), dtype=object)
-    track = track_azimuth_rad(recs.column("ac_lat_deg"), recs.column("ac_lon_deg"), table,
-                              np.deg2rad(recs.column("heading_deg")))
-    comp = error_components(res.lat_deg, res.lon_deg, res.h_m, recs.column("truth_lat_deg"),
-                            recs.column("truth_lon_deg"), np.nan, track_heading_rad=track)
+    track = track_azimuth_rad(
+        recs.column("ac_lat_deg"), recs.column("ac_lon_deg"), table, np.deg2rad(recs.column("heading_deg"))
+    )
+    comp = error_components(
+        res.lat_deg,
+        res.lon_deg,
+        res.h_m,
+        recs.column("truth_lat_deg"),
+        recs.column("truth_lon_deg"),
+        np.nan,
+        track_heading_rad=track,
+    )
     return recs, res, table, comp
 
 
@@ -96,8 +107,12 @@ def test_one_tree_and_origin_per_flight_and_no_strip_joins_them(rec, core):
     steps, out, data = rec
     recs, res, table, _ = core
     # the two flights are ~200 km apart (pyproj): one shared scene would draw one grey line
-    _, _, dist = Geod(ellps="WGS84").inv(recs.column("ac_lon_deg")[0], recs.column("ac_lat_deg")[0],
-                                         recs.column("ac_lon_deg")[10], recs.column("ac_lat_deg")[10])
+    _, _, dist = Geod(ellps="WGS84").inv(
+        recs.column("ac_lon_deg")[0],
+        recs.column("ac_lat_deg")[0],
+        recs.column("ac_lon_deg")[10],
+        recs.column("ac_lat_deg")[10],
+    )
     assert dist > 150e3
     for g in FLIGHTS:
         for ent in ("ned", "ned/body", "track", "footprint", "los", "target", "truth", "published", "current"):
@@ -149,8 +164,9 @@ def test_error_components_equal_the_core_and_pymap3d(rec, core):
         np.testing.assert_allclose(v, comp[c], rtol=0, atol=1e-9)
     assert not any(e.endswith("/error/up_m") for e in data)  # the survey gives no heights: no vertical component
     # outside the code: pymap3d about the truth at the computed height; 1e-6 m (float64 through ECEF)
-    n, e, _ = pymap3d.geodetic2ned(res.lat_deg, res.lon_deg, res.h_m, recs.column("truth_lat_deg"),
-                                   recs.column("truth_lon_deg"), res.h_m)
+    n, e, _ = pymap3d.geodetic2ned(
+        res.lat_deg, res.lon_deg, res.h_m, recs.column("truth_lat_deg"), recs.column("truth_lon_deg"), res.h_m
+    )
     np.testing.assert_allclose(scalars(data, "/series/error/north_m")[1], n, atol=1e-6)
     np.testing.assert_allclose(scalars(data, "/series/error/east_m")[1], e, atol=1e-6)
     # the flight test's errors are along track (docs/calibration.md: ~50 m behind, ~1 m across)
@@ -203,8 +219,13 @@ def test_before_and_after_calibration(rec, core):
     # the target height, longer by (R + h) / R (h ~ 5 km: 8e-4)
     np.testing.assert_allclose(before, res.error_to_truth_m, rtol=0, atol=1e-9)
     np.testing.assert_allclose(before, comp["horizontal_m"], rtol=1e-3)
-    report, _ = fit_sensor_groups(recs, as_sensor(Camera.from_toml(CAMERA)), ["mount_x", "mount_y", "mount_z"],
-                                  PerRecordHeightSurface(recs.column("paper_height_m")), group_column="table")
+    report, _ = fit_sensor_groups(
+        recs,
+        as_sensor(Camera.from_toml(CAMERA)),
+        ["mount_x", "mount_y", "mount_z"],
+        PerRecordHeightSurface(recs.column("paper_height_m")),
+        group_column="table",
+    )
     for g in FLIGHTS:
         m = table == g
         # calibrate's own mean (pyproj's geodesic on the ellipsoid, rounded to 1 mm) and ours (tangent plane
@@ -224,8 +245,9 @@ def test_offline_2d_plot_and_current_hit(rec):
         pts = np.array(data[f"/plot/{g}/targets"]["static"]["Points2D:positions"][0])
         # (east, -north): rerun's 2D view has y down, so north is up on the screen
         np.testing.assert_array_equal(pts, np.c_[tgt[:, 0], -tgt[:, 1]].astype(np.float32))
-        tr = steps.enu_for(g).from_geodetic(np.deg2rad(steps.truth["lat_deg"][m]),
-                                            np.deg2rad(steps.truth["lon_deg"][m]), steps.ground.h[m])
+        tr = steps.enu_for(g).from_geodetic(
+            np.deg2rad(steps.truth["lat_deg"][m]), np.deg2rad(steps.truth["lon_deg"][m]), steps.ground.h[m]
+        )
         truth = np.array(data[f"/plot/{g}/truth"]["static"]["Points2D:positions"][0])
         np.testing.assert_array_equal(truth, np.c_[tr[:, 0], -tr[:, 1]].astype(np.float32))
         # the error arrows go from the truth to the computed point: ~50 m long (Tables 3-4)
@@ -234,8 +256,7 @@ def test_offline_2d_plot_and_current_hit(rec):
         # the entity the 3D eye tracks sits on the current hit at every step of the flight
         cur = data[f"/world/{g}/current"]["temporal"]
         assert cur["record"] == np.flatnonzero(m).tolist()
-        np.testing.assert_array_equal(np.array([r[0] for r in cur["Transform3D:translation"]]),
-                                      tgt.astype(np.float32))
+        np.testing.assert_array_equal(np.array([r[0] for r in cur["Transform3D:translation"]]), tgt.astype(np.float32))
 
 
 def test_blueprint_separates_heading_attitude_and_flights(rec):
@@ -248,16 +269,20 @@ def test_blueprint_separates_heading_attitude_and_flights(rec):
         s = d.get("static", {})
         if "ViewBlueprint:display_name" in s:
             views[s["ViewBlueprint:display_name"][0][0]] = {
-                "kind": s["ViewBlueprint:class_identifier"][0][0], "origin": s["ViewBlueprint:space_origin"][0][0],
+                "kind": s["ViewBlueprint:class_identifier"][0][0],
+                "origin": s["ViewBlueprint:space_origin"][0][0],
                 "query": bp.get(f"{ent}/ViewContents", {}).get("static", {}).get("ViewContents:query", [[None]])[0],
-                "eye": bp.get(f"{ent}/EyeControls3D", {}).get("static", {})}
+                "eye": bp.get(f"{ent}/EyeControls3D", {}).get("static", {}),
+            }
     # every time-series view shows both flights, each from its own entity; heading apart from pitch / roll
     assert views["Heading [deg]"]["query"] == ["/series/T3/attitude/heading_deg", "/series/T4/attitude/heading_deg"]
     assert views["Heading [deg]"]["origin"] == "/series"
-    assert views["Pitch and roll [deg]"]["query"] == [f"/series/{g}/attitude/{a}_deg" for g in FLIGHTS
-                                                      for a in ("pitch", "roll")]
-    assert views["Error components to truth [m]"]["query"] == [f"/series/{g}/error/{c}_m" for g in FLIGHTS
-                                                               for c in ("north", "east", "along", "across")]
+    assert views["Pitch and roll [deg]"]["query"] == [
+        f"/series/{g}/attitude/{a}_deg" for g in FLIGHTS for a in ("pitch", "roll")
+    ]
+    assert views["Error components to truth [m]"]["query"] == [
+        f"/series/{g}/error/{c}_m" for g in FLIGHTS for c in ("north", "east", "along", "across")
+    ]
     for v in views.values():
         if v["kind"] == "TimeSeries":
             assert v["origin"] == "/series" and {q.split("/")[2] for q in v["query"]} == set(FLIGHTS), v
@@ -284,7 +309,6 @@ def test_klv_pose_is_the_replay_columns():
     assert one["lat_deg"] == float(c["sensor_lat_deg"][3]) and isinstance(one["angles_deg"]["sensor_roll"], float)
 
 
-
 def test_no_series_entity_has_rows_of_two_flights(rec, core):
     """Each flight's series is its own entity (series/<flight>/...), so no plot line joins T3-10 to T4-1."""
     from rerun.chunk import RrdReader
@@ -306,7 +330,10 @@ def test_no_series_entity_has_rows_of_two_flights(rec, core):
         assert [st[g]["SeriesLines:names"][0][0] for g in FLIGHTS] == [f"{g} {rel.split('/')[1]}" for g in FLIGHTS]
     # and the blueprint's time-series views exist (a check over an empty list proves nothing)
     bp = read(out, store=RrdReader(out).blueprints()[0])
-    kinds = [d["static"]["ViewBlueprint:class_identifier"][0][0] for d in bp.values()
-             if "ViewBlueprint:class_identifier" in d.get("static", {})]
+    kinds = [
+        d["static"]["ViewBlueprint:class_identifier"][0][0]
+        for d in bp.values()
+        if "ViewBlueprint:class_identifier" in d.get("static", {})
+    ]
     # heading; pitch and roll; gimbal; range; height; horizontal error; components; outliers; calibration
     assert kinds.count("TimeSeries") == 9

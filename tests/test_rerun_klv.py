@@ -34,8 +34,12 @@ def series(path, entity):
 
 def test_klv_log_series_are_the_replay_residuals(tmp_path, rerun_home):
     out = tmp_path / "klv.rrd"
-    r = subprocess.run([sys.executable, "-m", "geoloc", "log", str(KLV), "--out", str(out)], capture_output=True,
-                       text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-m", "geoloc", "log", str(KLV), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr
     assert "skipped bad packet at byte 32400" in r.stderr and "299 steps" in r.stdout
     # no --dem: the bundled SRTM crop covering the flight (the DEM `geoloc view` draws), exact walk
@@ -62,8 +66,24 @@ def test_klv_log_honours_the_dem_method(tmp_path, rerun_home):
 
     dem_path = Path(ASSETS) / "dem" / "srtm_jacksboro.tif"
     out = tmp_path / "klv_steps.rrd"
-    r = subprocess.run([sys.executable, "-m", "geoloc", "log", str(KLV), "--dem", str(dem_path), "--method", "steps",
-                        "--out", str(out)], capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "geoloc",
+            "log",
+            str(KLV),
+            "--dem",
+            str(dem_path),
+            "--method",
+            "steps",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr
     dem = DEM.open(dem_path, datum="egm96")
     steps = replay_klv(KLV, surface=surface_for(dem=dem, method="steps")).columns

@@ -146,14 +146,17 @@ def test_flight_frame_hierarchy_equals_the_chain(flight):
     ac = enu.from_geodetic(p.lat, p.lon, p.h)
     base = "/world/ned"
     ned = data[base]["temporal"]
-    np.testing.assert_array_equal(np.array([r[0] for r in ned["Transform3D:translation"]]),
-                                  ac.astype(np.float32))
+    np.testing.assert_array_equal(np.array([r[0] for r in ned["Transform3D:translation"]]), ac.astype(np.float32))
     R_enu_ned = enu.R_enu_from(chain.R_ecef_ned)
     # 1 float32 ulp: the graph computes the same rotation as FrameChain in another order
     np.testing.assert_allclose(mat3(ned["Transform3D:mat3x3"]), R_enu_ned, atol=1.2e-7)
-    paths = [f"{base}/body", f"{base}/body/gimbal_base", f"{base}/body/gimbal_base/gimbal_outer",
-             f"{base}/body/gimbal_base/gimbal_outer/gimbal_inner",
-             f"{base}/body/gimbal_base/gimbal_outer/gimbal_inner/cam"]
+    paths = [
+        f"{base}/body",
+        f"{base}/body/gimbal_base",
+        f"{base}/body/gimbal_base/gimbal_outer",
+        f"{base}/body/gimbal_base/gimbal_outer/gimbal_inner",
+        f"{base}/body/gimbal_base/gimbal_outer/gimbal_inner/cam",
+    ]
     # the optical frame is [Q17]'s S turned about the line of sight (docs/conventions.md)
     R_S_opt = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     want = [chain.R_ned_body, np.eye(3), chain.R_body_outer, chain.R_outer_cam, R_S_opt]
@@ -226,14 +229,18 @@ def test_records_one_step_per_record_with_core_errors(records):
     cam = Camera.from_toml(CAMERA)
     ref = replay_at_height(recs, cam, height_column="paper_height_m")
     # two flights: one entity per flight and series (series/T3/..., series/T4/...), together every record
-    assert sorted(data["/series/T3/error/to_truth_m"]["temporal"]["record"]
-                  + data["/series/T4/error/to_truth_m"]["temporal"]["record"]) == list(range(20))
+    assert sorted(
+        data["/series/T3/error/to_truth_m"]["temporal"]["record"]
+        + data["/series/T4/error/to_truth_m"]["temporal"]["record"]
+    ) == list(range(20))
     got = np.array([r[0] for r in flights(data, "/series/{}/error/to_truth_m", "Scalars:scalars")])
     np.testing.assert_array_equal(got, ref.error_to_truth_m)
-    np.testing.assert_array_equal([r[0] for r in flights(data, "/series/{}/error/to_published_m", "Scalars:scalars")],
-                                  ref.error_to_paper_m)
-    np.testing.assert_array_equal([r[0] for r in flights(data, "/series/{}/height/target_h_m", "Scalars:scalars")],
-                                  ref.h_m)
+    np.testing.assert_array_equal(
+        [r[0] for r in flights(data, "/series/{}/error/to_published_m", "Scalars:scalars")], ref.error_to_paper_m
+    )
+    np.testing.assert_array_equal(
+        [r[0] for r in flights(data, "/series/{}/height/target_h_m", "Scalars:scalars")], ref.h_m
+    )
     # Outside the code: [Q17] Tables 3-4 publish 45-56 m between computed and surveyed
     # positions; ours (at paper_height_m) reproduces them to within 2 m (the published
     # coordinates are rounded to 1e-5 deg, ~1 m, in both the computed and the surveyed point).
@@ -257,14 +264,12 @@ def test_records_geopoints_are_the_file_and_the_core(records):
     recs = load_records(RECORDS)
     for key, prefix in (("published", "paper"), ("truth", "truth")):
         geo = np.array([r[0] for r in flights(data, "/map/{}/" + key, "GeoPoints:positions")])
-        np.testing.assert_array_equal(geo, np.c_[recs.column(f"{prefix}_lat_deg"),
-                                                 recs.column(f"{prefix}_lon_deg")])
+        np.testing.assert_array_equal(geo, np.c_[recs.column(f"{prefix}_lat_deg"), recs.column(f"{prefix}_lon_deg")])
     ac = np.array([r[0] for r in flights(data, "/map/{}/aircraft", "GeoPoints:positions")])
     pose = recs.pose()
     np.testing.assert_array_equal(ac, np.c_[np.rad2deg(pose.lat), np.rad2deg(pose.lon)])
     # and the file's degrees, up to one degree -> radian -> degree round trip (1e-12 deg)
-    np.testing.assert_allclose(ac, np.c_[recs.column("ac_lat_deg"), recs.column("ac_lon_deg")],
-                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ac, np.c_[recs.column("ac_lat_deg"), recs.column("ac_lon_deg")], rtol=0, atol=1e-12)
 
 
 def test_records_scene_origin_follows_the_viser_rule(records):
@@ -273,8 +278,10 @@ def test_records_scene_origin_follows_the_viser_rule(records):
     # rounded to 0.001 deg and 100 m.
     steps, out, data = records
     assert steps.enu == EnuFrame.from_deg(36.338, 78.858, 4600.0)
-    assert steps.enus == {"T3": EnuFrame.from_deg(36.338, 78.858, 4600.0),
-                          "T4": EnuFrame.from_deg(35.574, 80.873, 5300.0)}
+    assert steps.enus == {
+        "T3": EnuFrame.from_deg(36.338, 78.858, 4600.0),
+        "T4": EnuFrame.from_deg(35.574, 80.873, 5300.0),
+    }
     # The published point of each flight's first record is then a few tens of metres from its origin.
     for g in ("T3", "T4"):
         pub = np.array(data[f"/world/{g}/published"]["temporal"]["Points3D:positions"][0][0])

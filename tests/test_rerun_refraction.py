@@ -57,8 +57,27 @@ def log(tmp, *extra):
     from geoloc.cli import main
 
     out = tmp / "run.rrd"
-    assert main(["log", str(RECORDS), "--group-by", "none", "--dem", str(DEM), "--method", "bisect",
-                 "--threshold", "1", "--no-calibration", "--out", str(out), *extra]) == 0
+    assert (
+        main(
+            [
+                "log",
+                str(RECORDS),
+                "--group-by",
+                "none",
+                "--dem",
+                str(DEM),
+                "--method",
+                "bisect",
+                "--threshold",
+                "1",
+                "--no-calibration",
+                "--out",
+                str(out),
+                *extra,
+            ]
+        )
+        == 0
+    )
     return read(out)
 
 
@@ -75,21 +94,55 @@ def test_refraction_series_is_the_pipelines(tmp_path, rerun_home):
     sensor = load_sensor(ROOT / "assets" / "cameras" / "qiao2017.toml")
     recs = load_records(RECORDS, angles=sensor.angle_names)
     surface = SurfaceSpec(dem=str(DEM), dem_datum="egm96", method="bisect", threshold=1.0).build()
-    want = Pipeline(sensor, surface, Corrections.for_sensor(sensor, "standard")).locate(
-        recs.column("row"), recs.column("col"), recs.pose(), outside="extrapolate").refraction_m
+    want = (
+        Pipeline(sensor, surface, Corrections.for_sensor(sensor, "standard"))
+        .locate(recs.column("row"), recs.column("col"), recs.pose(), outside="extrapolate")
+        .refraction_m
+    )
     assert list(k) == list(range(len(recs)))
     # logged as float64 scalars, read back exactly: the same computation, so 1e-9 m
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
     assert np.all((got > 0.1) & (got < 10.0))  # metres of shift from 18 km (docs/refraction.md: 1.2-2.6 m)
     # the first record by the CLI (geoloc locate, its own path from the command line)
     r = next(iter(recs.rows))
-    argv = [sys.executable, "-m", "geoloc", "locate", "--lat-deg", r["ac_lat_deg"], "--lon-deg", r["ac_lon_deg"],
-            "--h-m", r["ac_h_m"], "--heading-deg", r["heading_deg"], "--pitch-deg", r["pitch_deg"],
-            "--roll-deg", r["roll_deg"], "--gimbal-roll-deg", r["gimbal_roll_deg"],
-            "--gimbal-pitch-deg", r["gimbal_pitch_deg"], "--row", r["row"], "--col", r["col"], "--dem", str(DEM),
-            "--method", "bisect", "--threshold", "1", "--refraction", "standard", "--json"]
-    cli = json.loads(subprocess.run([str(a) for a in argv], capture_output=True, text=True, check=True,
-                                    timeout=300).stdout)
+    argv = [
+        sys.executable,
+        "-m",
+        "geoloc",
+        "locate",
+        "--lat-deg",
+        r["ac_lat_deg"],
+        "--lon-deg",
+        r["ac_lon_deg"],
+        "--h-m",
+        r["ac_h_m"],
+        "--heading-deg",
+        r["heading_deg"],
+        "--pitch-deg",
+        r["pitch_deg"],
+        "--roll-deg",
+        r["roll_deg"],
+        "--gimbal-roll-deg",
+        r["gimbal_roll_deg"],
+        "--gimbal-pitch-deg",
+        r["gimbal_pitch_deg"],
+        "--row",
+        r["row"],
+        "--col",
+        r["col"],
+        "--dem",
+        str(DEM),
+        "--method",
+        "bisect",
+        "--threshold",
+        "1",
+        "--refraction",
+        "standard",
+        "--json",
+    ]
+    cli = json.loads(
+        subprocess.run([str(a) for a in argv], capture_output=True, text=True, check=True, timeout=300).stdout
+    )
     assert abs(got[0] - cli["refraction_m"]) < 1e-6  # the same pipeline by another path: micrometres
     notes = texts(rec)
     assert "line-of-sight corrections (docs/refraction.md): refraction (U.S. Standard Atmosphere 1976)" in notes

@@ -104,11 +104,11 @@ def test_truth_is_the_exact_hit_and_errors_match(rec, core):
     p, dem, hit, exact = core
     enu = steps.enu
     ent = _by(data["/world/truth"])
-    np.testing.assert_array_equal(np.array([r[0] for r in ent["Points3D:positions"]]),
-                                  enu.from_ecef(exact.ecef).astype(np.float32))
+    np.testing.assert_array_equal(
+        np.array([r[0] for r in ent["Points3D:positions"]]), enu.from_ecef(exact.ecef).astype(np.float32)
+    )
     err = np.array([r[0] for r in _by(data["/series/error/to_truth_m"])["Scalars:scalars"]])
-    np.testing.assert_array_equal(err, horizontal_distance_m(hit.lat_deg, hit.lon_deg,
-                                                             exact.lat_deg, exact.lon_deg))
+    np.testing.assert_array_equal(err, horizontal_distance_m(hit.lat_deg, hit.lon_deg, exact.lat_deg, exact.lon_deg))
     # The descending steps stop within eps_h = 10 m (in height, along the line of sight) below
     # the crossing, so the point is within 10 m x tan(off-nadir angle) of the exact hit along
     # the ground. Off-nadir angle <= frame angle + 5 deg (pitch 3.5 deg and Earth curvature,
@@ -119,8 +119,7 @@ def test_truth_is_the_exact_hit_and_errors_match(rec, core):
 
     ell = intersect_los_height(line_of_sight(p, Camera.from_toml(CAMERA)), 5083.0)
     got = np.array([r[0] for r in _by(data["/series/ellipsoid_model/to_truth_m"])["Scalars:scalars"]])
-    np.testing.assert_array_equal(got, horizontal_distance_m(ell.lat_deg, ell.lon_deg,
-                                                             exact.lat_deg, exact.lon_deg))
+    np.testing.assert_array_equal(got, horizontal_distance_m(ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg))
 
 
 def test_dem_mesh_is_static_and_on_the_dem(rec, core):
@@ -148,8 +147,9 @@ def test_iteration_points_lie_on_the_los_and_the_dem(rec, core):
     seg = _by(data["/world/iterations/to_dem"])
     k = 7
     r = hit.trace.ray(k)
-    np.testing.assert_array_equal(np.array(on["Points3D:positions"][k], dtype=np.float32),
-                                  steps.enu.from_ecef(r["ecef"]).astype(np.float32))
+    np.testing.assert_array_equal(
+        np.array(on["Points3D:positions"][k], dtype=np.float32), steps.enu.from_ecef(r["ecef"]).astype(np.float32)
+    )
     lower = np.array([s[1] for s in seg["LineStrips3D:strips"][k]], dtype=float)
     lat, lon, h = steps.enu.to_geodetic(lower)
     np.testing.assert_allclose(h, r["h_dem"], atol=0.05)  # float32 ENU, as above
@@ -164,11 +164,14 @@ def test_records_on_the_dem_by_bisection(rec, tmp_path):
 
     records = Path(ASSETS) / "records" / "qiao2017_flight_tests.csv"
     out = tmp_path / "rec_dem.rrd"
-    assert main(["log", str(records), "--dem", str(DEM_PATH), "--method", "bisect",
-                 "--threshold", "5", "--out", str(out)]) == 0
+    assert (
+        main(["log", str(records), "--dem", str(DEM_PATH), "--method", "bisect", "--threshold", "5", "--out", str(out)])
+        == 0
+    )
     recs = load_records(records)
-    los = line_of_sight(recs.pose(), Camera.from_toml(CAMERA), recs.column("row"), recs.column("col"),
-                       outside="extrapolate")  # as the recording: T4-3 is off the sensor
+    los = line_of_sight(
+        recs.pose(), Camera.from_toml(CAMERA), recs.column("row"), recs.column("col"), outside="extrapolate"
+    )  # as the recording: T4-3 is off the sensor
     hit = intersect_dem(los, DEM.open(DEM_PATH, datum="egm96"), "bisect", threshold=5.0)
     ev, geo = {}, {}
     for ch in RrdReader(out).stream():
@@ -194,8 +197,13 @@ def test_cep_series_is_the_core_monte_carlo(rec, core):
     from geoloc.workflows.flight import step_cep
 
     scn, steps, data = rec
-    ref = step_cep(simulate(scn), ErrorModel.from_toml(scn.mc_model_path), scn.target_h_m,
-                   scn.mc_samples, np.random.default_rng(scn.mc_seed))
+    ref = step_cep(
+        simulate(scn),
+        ErrorModel.from_toml(scn.mc_model_path),
+        scn.target_h_m,
+        scn.mc_samples,
+        np.random.default_rng(scn.mc_seed),
+    )
     for key in ("cep_m", "cep50_empirical_m"):
         ent = _by(data[f"/series/cep/{key}"])
         assert ent["frame"] == list(range(21))

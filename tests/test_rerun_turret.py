@@ -50,8 +50,12 @@ def column(batches, name):
 @pytest.fixture(scope="module")
 def turret(tmp_path_factory, rerun_home):
     out = tmp_path_factory.mktemp("turret") / "turret.rrd"
-    r = subprocess.run([sys.executable, "-m", "geoloc", "log", str(KLV), "--out", str(out)],
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "geoloc", "log", str(KLV), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr
     assert f"DEM {SRTM}" in r.stderr  # the bundled DEM covering the flight, said on stderr
     return read(out)
@@ -94,20 +98,46 @@ def test_corners_are_on_the_dem_as_geoloc_locate_finds_them(turret, tmp_path, re
         hfov, vfov = float(rep["sensor_horizontal_fov_deg"][k]), float(rep["sensor_vertical_fov_deg"][k])
         sensor = tmp_path / f"fov_{packet}.toml"
         # the packet's own lens (ST 0601 gives fields of view) on the MISB joints, as a sensor file
-        sensor.write_text(f'name = "packet {packet}"\n[lens]\nmodel = "fov"\nhfov_deg = {hfov!r}\n'
-                          f'vfov_deg = {vfov!r}\nwidth = 1920\nheight = 1080\n'
-                          '[gimbal]\npreset = "azimuth-elevation-roll"\n')
+        sensor.write_text(
+            f'name = "packet {packet}"\n[lens]\nmodel = "fov"\nhfov_deg = {hfov!r}\n'
+            f"vfov_deg = {vfov!r}\nwidth = 1920\nheight = 1080\n"
+            '[gimbal]\npreset = "azimuth-elevation-roll"\n'
+        )
         ring = np.asarray(rings[row_of[packet]][0])  # (5, 2) lat, lon: a closed ring
         assert np.array_equal(ring[0], ring[4])
         # corners: upper left, upper right, lower right, lower left; the outer edges of the
         # corner pixels (1-based centres: rows 0.5 and M + 0.5, columns 0.5 and N + 0.5)
         for j, (row, col) in enumerate(((0.5, 0.5), (0.5, 1920.5), (1080.5, 1920.5), (1080.5, 0.5))):
-            cmd = [sys.executable, "-m", "geoloc", "locate", "--json", "--sensor", str(sensor),
-                   "--lat-deg", repr(d["lat_deg"]), "--lon-deg", repr(d["lon_deg"]), "--h-m", repr(d["h_m"]),
-                   "--altitude-datum", "ellipsoid", "--heading-deg", repr(d["heading_deg"]),
-                   "--pitch-deg", repr(d["pitch_deg"]), "--roll-deg", repr(d["roll_deg"]),
-                   *[a for name, v in d["angles_deg"].items() for a in ("--angle", f"{name}={float(v)!r}")],
-                   "--row", str(row), "--col", str(col), "--dem", str(SRTM)]
+            cmd = [
+                sys.executable,
+                "-m",
+                "geoloc",
+                "locate",
+                "--json",
+                "--sensor",
+                str(sensor),
+                "--lat-deg",
+                repr(d["lat_deg"]),
+                "--lon-deg",
+                repr(d["lon_deg"]),
+                "--h-m",
+                repr(d["h_m"]),
+                "--altitude-datum",
+                "ellipsoid",
+                "--heading-deg",
+                repr(d["heading_deg"]),
+                "--pitch-deg",
+                repr(d["pitch_deg"]),
+                "--roll-deg",
+                repr(d["roll_deg"]),
+                *[a for name, v in d["angles_deg"].items() for a in ("--angle", f"{name}={float(v)!r}")],
+                "--row",
+                str(row),
+                "--col",
+                str(col),
+                "--dem",
+                str(SRTM),
+            ]
             r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
             assert r.returncode == 0, r.stderr
             got = json.loads(r.stdout)
@@ -137,8 +167,13 @@ def scene_origin(data):
 
 def test_spawn_without_a_display_is_refused_before_computing(tmp_path, rerun_home):
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
-    r = subprocess.run([sys.executable, "-m", "geoloc", "log", str(KLV), "--spawn", "--out", str(tmp_path / "a.rrd")],
-                       capture_output=True, text=True, timeout=120, env=env)
+    r = subprocess.run(
+        [sys.executable, "-m", "geoloc", "log", str(KLV), "--spawn", "--out", str(tmp_path / "a.rrd")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
     assert r.returncode == 2
     assert "needs a display" in r.stderr and "--serve" in r.stderr and "rerun FILE" in r.stderr
     assert "spawn() ignored" not in r.stderr
@@ -173,8 +208,23 @@ def test_turret_records_without_heights_use_the_bundled_dem(tmp_path, rerun_home
     records = Path(ASSETS) / "records" / "eo_turret_flight.csv"
     sensor = Path(ASSETS) / "sensors" / "eo_turret.toml"
     out = tmp_path / "turret_records.rrd"
-    r = subprocess.run([sys.executable, "-m", "geoloc", "log", str(records), "--sensor", str(sensor),
-                        "--no-calibration", "--out", str(out)], capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "geoloc",
+            "log",
+            str(records),
+            "--sensor",
+            str(sensor),
+            "--no-calibration",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stderr
     assert f"DEM {SRTM}" in r.stderr
     data = read(out)
@@ -195,11 +245,39 @@ def test_turret_records_without_heights_use_the_bundled_dem(tmp_path, rerun_home
     target = dict(pos)
     for k in (0, 13):
         row = rows[k]
-        cmd = [sys.executable, "-m", "geoloc", "locate", "--json", "--sensor", str(sensor), "--dem", str(SRTM),
-               "--lat-deg", row["ac_lat_deg"], "--lon-deg", row["ac_lon_deg"], "--h-m", row["ac_h_m"],
-               "--altitude-datum", "ellipsoid", "--heading-deg", row["heading_deg"], "--pitch-deg", row["pitch_deg"],
-               "--roll-deg", row["roll_deg"], "--angle", f"azimuth={row['azimuth_deg']}",
-               "--angle", f"elevation={row['elevation_deg']}", "--row", row["row"], "--col", row["col"]]
+        cmd = [
+            sys.executable,
+            "-m",
+            "geoloc",
+            "locate",
+            "--json",
+            "--sensor",
+            str(sensor),
+            "--dem",
+            str(SRTM),
+            "--lat-deg",
+            row["ac_lat_deg"],
+            "--lon-deg",
+            row["ac_lon_deg"],
+            "--h-m",
+            row["ac_h_m"],
+            "--altitude-datum",
+            "ellipsoid",
+            "--heading-deg",
+            row["heading_deg"],
+            "--pitch-deg",
+            row["pitch_deg"],
+            "--roll-deg",
+            row["roll_deg"],
+            "--angle",
+            f"azimuth={row['azimuth_deg']}",
+            "--angle",
+            f"elevation={row['elevation_deg']}",
+            "--row",
+            row["row"],
+            "--col",
+            row["col"],
+        ]
         got = json.loads(subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=True).stdout)
         lat, lon = target[k][0]
         # the same exact DEM walk from the same ray: well under 1 mm (float64 map positions)

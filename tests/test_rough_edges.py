@@ -40,8 +40,23 @@ r = np.deg2rad
 def test_sweep_both_without_dem_refuses_before_writing_anything(tmp_path, capsys):
     # before: Fig. 10a was written, then exit 2 on the missing [dem]
     out = tmp_path / "fig10"
-    assert main(["montecarlo", str(SCEN), "--sweep", "both", "--samples", "50",
-                 "--angles-deg", "10:70:60", "--out-dir", str(out)]) == 2
+    assert (
+        main(
+            [
+                "montecarlo",
+                str(SCEN),
+                "--sweep",
+                "both",
+                "--samples",
+                "50",
+                "--angles-deg",
+                "10:70:60",
+                "--out-dir",
+                str(out),
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "has no [dem] table" in err and "qiao2017_table1_dem.toml" in err
     assert not out.exists() or not any(out.iterdir())
@@ -54,9 +69,25 @@ def test_readme_sweep_both_command_uses_a_scenario_with_a_dem(tmp_path, capsys):
         scen = re.search(r"assets/scenarios/(\S+\.toml)", ln).group(1)
         assert "[dem]" in asset_path("scenarios", scen).read_text(), ln
     scen = re.search(r"assets/scenarios/(\S+\.toml)", cmds[0]).group(1)
-    assert main(["montecarlo", str(asset_path("scenarios", scen)), "--sweep", "both",
-                 "--samples", "60", "--angles-deg", "10:70:60", "--terrain-sigmas-m", "10",
-                 "--out-dir", str(tmp_path)]) == 0
+    assert (
+        main(
+            [
+                "montecarlo",
+                str(asset_path("scenarios", scen)),
+                "--sweep",
+                "both",
+                "--samples",
+                "60",
+                "--angles-deg",
+                "10:70:60",
+                "--terrain-sigmas-m",
+                "10",
+                "--out-dir",
+                str(tmp_path),
+            ]
+        )
+        == 0
+    )
     assert {p.name for p in tmp_path.iterdir()} >= {"fig10a_terrain_sigma.csv", "fig10b_dem.csv"}
 
 
@@ -68,17 +99,19 @@ def bad_dems(tmp_path_factory):
     (d / "folder").mkdir()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-        with rasterio.open(d / "plain.png", "w", driver="PNG", width=8, height=6, count=1,
-                           dtype="uint8") as dst:
+        with rasterio.open(d / "plain.png", "w", driver="PNG", width=8, height=6, count=1, dtype="uint8") as dst:
             dst.write(np.arange(48, dtype="uint8").reshape(6, 8), 1)
     return d
 
 
-@pytest.mark.parametrize("name, what", [
-    ("notes.tif", "not a raster that GDAL can read"),  # before: RasterioIOError, a traceback
-    ("folder", "is a folder, not a raster file"),      # before: "DEM file not found"
-    ("plain.png", "has no georeferencing"),            # before: "not north-up"
-])
+@pytest.mark.parametrize(
+    "name, what",
+    [
+        ("notes.tif", "not a raster that GDAL can read"),  # before: RasterioIOError, a traceback
+        ("folder", "is a folder, not a raster file"),  # before: "DEM file not found"
+        ("plain.png", "has no georeferencing"),  # before: "not north-up"
+    ],
+)
 def test_dem_open_says_which_file_and_what_is_wrong(bad_dems, name, what):
     path = bad_dems / name
     with pytest.raises(ValueError) as e:
@@ -86,12 +119,15 @@ def test_dem_open_says_which_file_and_what_is_wrong(bad_dems, name, what):
     assert str(path) in str(e.value) and what in str(e.value)
 
 
-@pytest.mark.parametrize("name, what", [("notes.tif", "not a raster"), ("folder", "is a folder"),
-                                        ("plain.png", "no georeferencing")])
+@pytest.mark.parametrize(
+    "name, what", [("notes.tif", "not a raster"), ("folder", "is a folder"), ("plain.png", "no georeferencing")]
+)
 def test_cli_dem_errors_are_one_line_not_a_traceback(bad_dems, capsys, name, what):
     path = bad_dems / name
-    for argv in (["replay", str(RECORDS), "--dem", str(path)],
-                 ["montecarlo", str(SCEN), "--samples", "10", "--dem", str(path)]):
+    for argv in (
+        ["replay", str(RECORDS), "--dem", str(path)],
+        ["montecarlo", str(SCEN), "--samples", "10", "--dem", str(path)],
+    ):
         assert main(argv) == 2, argv
         err = capsys.readouterr().err
         assert what in err and str(path) in err and "Traceback" not in err
@@ -108,8 +144,7 @@ def make_utm_dem(src_path, dst_path, crs="EPSG:32616"):
         prof = src.profile.copy()
         prof.update(crs=crs, transform=t, width=w, height=h, dtype="float32", nodata=-9999.0)
         with rasterio.open(dst_path, "w", **prof) as dst:
-            reproject(rasterio.band(src, 1), rasterio.band(dst, 1), resampling=Resampling.bilinear,
-                      dst_nodata=-9999.0)
+            reproject(rasterio.band(src, 1), rasterio.band(dst, 1), resampling=Resampling.bilinear, dst_nodata=-9999.0)
     return dst_path
 
 
@@ -205,8 +240,7 @@ def test_replay_with_out_prints_the_summary_not_every_row(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "T3-1 " not in text and "--print-rows" in text
     # asked for: every row
-    assert main(["replay", str(many), "--height-column", "paper_height_m", "--out", str(out),
-                 "--print-rows"]) == 0
+    assert main(["replay", str(many), "--height-column", "paper_height_m", "--out", str(out), "--print-rows"]) == 0
     assert capsys.readouterr().out.count("T3-1 ") == 15
     # the bundled 20 records without --out: the per-record table, as docs/tour_cli.md shows
     assert main(["replay", "--height-column", "paper_height_m"]) == 0
@@ -277,14 +311,18 @@ def test_dem_samples_the_whole_raster_like_gdal():
 
 def _text_files():
     try:
-        out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard"],
-                             cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+        out = subprocess.run(
+            ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.split()
     except (OSError, subprocess.CalledProcessError):
         pytest.skip("not a git checkout")
     for rel in out:
         p = ROOT / rel
-        if p.suffix.lower() in {".py", ".md", ".toml", ".txt", ".csv", ".sh", ".cfg", ".in"} \
-                or p.name == "run":
+        if p.suffix.lower() in {".py", ".md", ".toml", ".txt", ".csv", ".sh", ".cfg", ".in"} or p.name == "run":
             if p.is_file():
                 yield rel, p
 
@@ -329,8 +367,7 @@ def test_readme_calibration_figure_comes_with_joint(capsys, tmp_path):
     k = TOUR_PAPERS.index("+0.220 +- 0.004 deg")
     blocks = re.findall(r"```bash\n(.*?)```", TOUR_PAPERS[:k], re.S)
     assert "--joint" in blocks[-1].replace("\\\n", " ")
-    assert main(["calibrate", str(RECORDS), "--height-column", "paper_height_m", "--group-by",
-                 "table", "--joint"]) == 0
+    assert main(["calibrate", str(RECORDS), "--height-column", "paper_height_m", "--group-by", "table", "--joint"]) == 0
     # the joint fit's parameter table: "mount_y  start  fitted  sd deg", printed to 6 decimals;
     # at the page's digits they are +0.220 and 0.004
     line = re.search(r"^  mount_y +(\S+) +(\S+) +(\S+) deg$", capsys.readouterr().out, re.M)
@@ -350,8 +387,7 @@ def test_reproduce_says_plainly_what_table_5_is(capsys):
 def test_geoid_accuracy_statements_are_the_measured_ones():
     # before: "within about a metre" / "within 1 m" of the 15' grid; it is up to 3.9 m off
     # the README's terrain section is docs/tour_terrain.md since issue 48
-    for rel in ("README.md", "docs/tour_terrain.md", "docs/terrain.md", "assets/README.md",
-                "geoloc/geodesy/geoid.py"):
+    for rel in ("README.md", "docs/tour_terrain.md", "docs/terrain.md", "assets/README.md", "geoloc/geodesy/geoid.py"):
         text = (ROOT / rel).read_text()
         assert "within 1 m" not in text and "about a metre" not in text, rel
     for rel in ("docs/terrain.md", "assets/README.md", "geoloc/geodesy/geoid.py"):
@@ -361,8 +397,9 @@ def test_geoid_accuracy_statements_are_the_measured_ones():
 GTX = Path("/usr/share/proj/egm96_15.gtx")
 
 
-@pytest.mark.skipif(not GTX.is_file(), reason="Debian proj-data's egm96_15.gtx not installed "
-                    "(tools/test.sh installs it)")
+@pytest.mark.skipif(
+    not GTX.is_file(), reason="Debian proj-data's egm96_15.gtx not installed (tools/test.sh installs it)"
+)
 def test_global_geoid_copy_error_is_the_documented_one():
     # docs/terrain.md, assets/README.md and geoloc/geodesy/geoid.py: at the 15' nodes the
     # 30' copy drops (three in four), RMS 0.15 m, 99 % within 0.61 m, at most 3.93 m at
@@ -408,8 +445,7 @@ def test_montecarlo_memory_does_not_grow_with_the_sample_count(capsys):
     def peak(n):
         tracemalloc.start()
         try:
-            assert main(["montecarlo", str(SCEN), "--samples", str(n), "--chunk", "4000",
-                         "--no-progress"]) == 0
+            assert main(["montecarlo", str(SCEN), "--samples", str(n), "--chunk", "4000", "--no-progress"]) == 0
             return tracemalloc.get_traced_memory()[1]
         finally:
             tracemalloc.stop()
@@ -430,15 +466,28 @@ def test_geoloc_assets_is_honoured_everywhere(tmp_path):
     shutil.rmtree(alt / "geoid")
     env = {k: v for k, v in __import__("os").environ.items() if k != "PYTHONPATH"}
     env["GEOLOC_ASSETS"] = str(alt)
-    code = ("import geoloc.assets as a, geoloc.geodesy.geoid as g; "
-            "print(a.ASSETS, a.ASSETS_SOURCE, g.GEOID_DIR, sep='|')")
-    out = subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True,
-                         text=True, check=True).stdout.strip().split("|")
+    code = (
+        "import geoloc.assets as a, geoloc.geodesy.geoid as g; print(a.ASSETS, a.ASSETS_SOURCE, g.GEOID_DIR, sep='|')"
+    )
+    out = (
+        subprocess.run([sys.executable, "-c", code], env=env, cwd=tmp_path, capture_output=True, text=True, check=True)
+        .stdout.strip()
+        .split("|")
+    )
     assert out == [str(alt), "$GEOLOC_ASSETS", str(alt / "geoid")]
-    r = subprocess.run([sys.executable, "-m", "geoloc", "replay", "--height-column", "paper_height_m"],
-                       env=env, cwd=tmp_path, capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "geoloc", "replay", "--height-column", "paper_height_m"],
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0 and "group T3: n=5" in r.stdout, r.stderr
-    r = subprocess.run([sys.executable, "-m", "geoloc", "replay", "--dem",
-                        "assets/dem/etopo5_flight_area.tif"], env=env, cwd=tmp_path,
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [sys.executable, "-m", "geoloc", "replay", "--dem", "assets/dem/etopo5_flight_area.tif"],
+        env=env,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "GEOLOC_ASSETS" in r.stderr and str(alt / "geoid") in r.stderr

@@ -53,8 +53,9 @@ def test_rpc_evaluation_matches_gdal_term_order_and_pixel_convention():
     coef[:, 0] = [0.1, 1.0, -0.2, 1.0]
     coef[0, 1:4] += [0.3, -1.0, 0.2]  # keep the numerators well away from the denominators
     coef[2, 1:4] += [1.0, 0.2, -0.1]
-    m = RPCModel(1000.0, 2000.0, 36.5, -84.2, 600.0, 1000.0, 2000.0, 0.2, 0.25, 800.0,
-                 coef[0], coef[1], coef[2], coef[3])
+    m = RPCModel(
+        1000.0, 2000.0, 36.5, -84.2, 600.0, 1000.0, 2000.0, 0.2, 0.25, 800.0, coef[0], coef[1], coef[2], coef[3]
+    )
     lat = np.deg2rad(rng.uniform(36.3, 36.7, 50))
     lon = np.deg2rad(rng.uniform(-84.45, -83.95, 50))
     h = rng.uniform(-200, 1400, 50)
@@ -122,8 +123,9 @@ def test_gdal_inverse_at_fixed_height_and_its_threshold(fitted):
     cols = np.array([1.0, 0.9 * s.cols, 0.5 * s.cols, 0.1 * s.cols, s.cols])
     h = 0.5 * (sc.height_min + sc.height_max)
     for thr, tol in ((None, 0.1 + 0.0015), (1e-6, 1e-3)):
-        lat, lon = gdal_rpc_to_ground(f.model, rows, cols, height=h, pixel_error_threshold=thr,
-                                      max_iterations=None if thr is None else 100)
+        lat, lon = gdal_rpc_to_ground(
+            f.model, rows, cols, height=h, pixel_error_threshold=thr, max_iterations=None if thr is None else 100
+        )
         r, c, st = s.ground_to_pixel(lat, lon, np.full(lat.shape, h))
         assert np.all(st == Status.OK)
         assert np.max(np.abs(r - rows)) < tol and np.max(np.abs(c - cols)) < tol

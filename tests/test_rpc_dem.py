@@ -84,8 +84,9 @@ def test_gdal_default_threshold_is_the_documented_0_1_pixel(case):
     """GDAL stops when max(|dx|, |dy|) < 0.1 px (gdal_rpc.cpp DEFAULT_PIX_ERR_THRESHOLD):
     a distance of at most 0.1 * sqrt(2) px, plus the RPC fit error."""
     sc, fit, dem, ell, rows, cols = case
-    cc = crosscheck_gdal_dem(sc.sensor, fit.model, dem, ell, rows, cols,
-                             pixel_error_threshold=None, max_iterations=None)
+    cc = crosscheck_gdal_dem(
+        sc.sensor, fit.model, dem, ell, rows, cols, pixel_error_threshold=None, max_iterations=None
+    )
     assert cc.max_px < 0.1 * math.sqrt(2) + 0.0015
 
 
@@ -100,8 +101,9 @@ def test_orthometric_dem_read_as_is_is_off_by_the_geoid(case):
     """
     sc, fit, dem, ell, rows, cols = case
     cc = crosscheck_gdal_dem(sc.sensor, fit.model, dem, sc.dem_path, rows, cols)
-    ortho = NodeGrid(dem.orthometric, dem.grid.lat_north_deg, dem.grid.lon_west_deg,
-                     dem.grid.dlat_deg, dem.grid.dlon_deg)
+    ortho = NodeGrid(
+        dem.orthometric, dem.grid.lat_north_deg, dem.grid.lon_west_deg, dem.grid.dlat_deg, dem.grid.dlon_deg
+    )
     H = ortho.interp(np.rad2deg(cc.gdal_lat), np.rad2deg(cc.gdal_lon))
     r, c, st = sc.sensor.ground_to_pixel(cc.gdal_lat, cc.gdal_lon, H)
     assert np.all(st == Status.OK)
@@ -156,8 +158,13 @@ def test_gdal_own_vertical_shift_works_only_when_its_proj_has_the_geoid_grid(fra
     # in this process (rasterio's own PROJ data, no geoid grid) the same options do nothing
     from rasterio.transform import RPCTransformer
 
-    opts = dict(RPC_DEM=str(sc.dem_path), RPC_DEM_SRS="EPSG:4326+5773", RPC_DEM_APPLY_VDATUM_SHIFT="TRUE",
-                RPC_PIXEL_ERROR_THRESHOLD="1e-6", RPC_MAX_ITERATIONS="100")
+    opts = dict(
+        RPC_DEM=str(sc.dem_path),
+        RPC_DEM_SRS="EPSG:4326+5773",
+        RPC_DEM_APPLY_VDATUM_SHIFT="TRUE",
+        RPC_PIXEL_ERROR_THRESHOLD="1e-6",
+        RPC_MAX_ITERATIONS="100",
+    )
     with rasterio.Env(), RPCTransformer(fit.model.to_rasterio(), **opts) as tr:
         x, y = tr.xy(rows[:9] - 1, cols[:9] - 1, zs=np.zeros(9), offset="center")
     raw = crosscheck_gdal_dem(sc.sensor, fit.model, dem, sc.dem_path, rows[:9], cols[:9])
@@ -169,12 +176,15 @@ def test_rpc_verb_writes_image_and_report(tmp_path):
     from geoloc.cli import main
 
     out, rep = tmp_path / "img.tif", tmp_path / "r.json"
-    code = main(["rpc", str(asset_path("scenarios", "qiao2017_frame.toml")), "--out", str(out),
-                 "--report", str(rep)])
+    code = main(["rpc", str(asset_path("scenarios", "qiao2017_frame.toml")), "--out", str(out), "--report", str(rep)])
     assert code == 0 and out.exists()
     r = json.loads(rep.read_text())
     for k in ("fit_rms_px", "check_rms_px", "check_max_px", "gdal_vs_exact_max_px"):
         assert r[k] is not None and r[k] <= 0.01
     assert r["gdal_orthometric_dem_max_px"] > 50
-    assert main(["rpc", str(asset_path("scenarios", "qiao2017_frame.toml")), "--out", str(out),
-                 "--gdal-threshold-px", "-1"]) == 2
+    assert (
+        main(
+            ["rpc", str(asset_path("scenarios", "qiao2017_frame.toml")), "--out", str(out), "--gdal-threshold-px", "-1"]
+        )
+        == 2
+    )

@@ -30,6 +30,8 @@ def test_example_62_rpc_sensor_on_dem(capsys):
     assert n_ok >= 80
     chord = float(re.search(r"line of sight vs RPC at the terrain, max \[px\]: ([0-9.e+-]+)", out).group(1))
     assert chord < 5e-6  # tests/test_rpc_sensor.py: CHORD_TOL
-    px, m = (float(v) for v in re.search(r"GDAL RPC_DEM vs RPC sensor: max ([0-9.e+-]+) px, ([0-9.e+-]+) m", out).groups())
+    px, m = (
+        float(v) for v in re.search(r"GDAL RPC_DEM vs RPC sensor: max ([0-9.e+-]+) px, ([0-9.e+-]+) m", out).groups()
+    )
     assert px < 5e-6 and m < 2e-5
     assert "OUTSIDE_DOMAIN" in out

@@ -21,10 +21,21 @@ from geoloc.workflows.scenario import load_scenario
 
 # RPC00B (STDI-0002 App. E): SUCCESS, ERR_BIAS, ERR_RAND, then the ten normalisation fields,
 # then 4 x 20 coefficients of 12 characters (+d.ddddddE+d); (name, width, decimals)
-TRE_FIELDS = [("success", 1, 0), ("err_bias", 7, 2), ("err_rand", 7, 2),
-              ("line_off", 6, 0), ("samp_off", 5, 0), ("lat_off", 8, 4), ("long_off", 9, 4),
-              ("height_off", 5, 0), ("line_scale", 6, 0), ("samp_scale", 5, 0), ("lat_scale", 8, 4),
-              ("long_scale", 9, 4), ("height_scale", 5, 0)]
+TRE_FIELDS = [
+    ("success", 1, 0),
+    ("err_bias", 7, 2),
+    ("err_rand", 7, 2),
+    ("line_off", 6, 0),
+    ("samp_off", 5, 0),
+    ("lat_off", 8, 4),
+    ("long_off", 9, 4),
+    ("height_off", 5, 0),
+    ("line_scale", 6, 0),
+    ("samp_scale", 5, 0),
+    ("lat_scale", 8, 4),
+    ("long_scale", 9, 4),
+    ("height_scale", 5, 0),
+]
 COEFFS = ("line_num", "line_den", "samp_num", "samp_den")
 NORM = [f for f, _, _ in TRE_FIELDS[3:]]
 
@@ -34,10 +45,10 @@ def parse_rpc00b(text: str) -> dict:
     assert len(text) == 1 + 7 + 7 + 6 + 5 + 8 + 9 + 5 + 6 + 5 + 8 + 9 + 5 + 80 * 12 == 1041
     out, i = {}, 0
     for name, w, _ in TRE_FIELDS:
-        out[name] = float(text[i:i + w])
+        out[name] = float(text[i : i + w])
         i += w
     for name in COEFFS:
-        vals = [text[i + 12 * k:i + 12 * (k + 1)] for k in range(20)]
+        vals = [text[i + 12 * k : i + 12 * (k + 1)] for k in range(20)]
         assert all(len(v) == 12 and v[0] in "+-" and v[2] == "." and v[9] == "E" for v in vals), vals
         out[name] = np.array([float(v) for v in vals])
         i += 240
@@ -54,7 +65,7 @@ def coeff_half_unit(c):
     """Half a unit of the 7th significant digit of +d.ddddddE+d; |c| < 1e-9 has no exponent digit (0)."""
     c = np.abs(np.asarray(c, float))
     e = np.floor(np.log10(np.where(c > 0, c, 1.0)))
-    return np.where(c >= 1e-9, 0.5e-6 * 10.0 ** e, 1e-9)
+    return np.where(c >= 1e-9, 0.5e-6 * 10.0**e, 1e-9)
 
 
 @pytest.fixture(scope="module")
@@ -67,8 +78,11 @@ def zy3():
 def _cube_points(m: RPCModel, n=2000, seed=33):
     rng = np.random.default_rng(seed)
     u = rng.uniform(-1, 1, (3, n))
-    return (np.deg2rad(m.lat_off + u[0] * m.lat_scale), np.deg2rad(m.long_off + u[1] * m.long_scale),
-            m.height_off + u[2] * m.height_scale)
+    return (
+        np.deg2rad(m.lat_off + u[0] * m.lat_scale),
+        np.deg2rad(m.long_off + u[1] * m.long_scale),
+        m.height_off + u[2] * m.height_scale,
+    )
 
 
 def test_the_tre_holds_the_90_values_to_its_text_precision(zy3, tmp_path):
@@ -84,7 +98,7 @@ def test_the_tre_holds_the_90_values_to_its_text_precision(zy3, tmp_path):
         assert np.array_equal(getattr(got, k), tre[k]), k
     # and each is the known model's value to the text's precision: half a unit of the last digit
     for name, _, dec in TRE_FIELDS[3:]:
-        assert abs(tre[name] - getattr(m, name)) <= 0.5 * 10.0 ** -dec + 1e-12, name
+        assert abs(tre[name] - getattr(m, name)) <= 0.5 * 10.0**-dec + 1e-12, name
     for k in COEFFS:
         assert np.all(np.abs(tre[k] - getattr(m, k)) <= coeff_half_unit(getattr(m, k)) * (1 + 1e-9)), k
     assert sum(1 for _ in NORM) + 20 * len(COEFFS) == 90
@@ -123,8 +137,7 @@ def test_renormalizing_keeps_the_model_and_plain_rounding_does_not(zy3, tmp_path
     r1, c1 = rpc00b_renormalized(m).ground_to_pixel(lat, lon, h)
     assert np.max(np.hypot(r1 - r0, c1 - c0)) < 1e-8
     renorm = read_rpc(write_rpc_nitf(tmp_path / "r.ntf", m, 64, 64), rows=24576, cols=24576).model
-    plain = read_rpc(write_rpc_nitf(tmp_path / "p.ntf", m, 64, 64, renormalize=False), rows=24576,
-                     cols=24576).model
+    plain = read_rpc(write_rpc_nitf(tmp_path / "p.ntf", m, 64, 64, renormalize=False), rows=24576, cols=24576).model
     r2, c2 = renorm.ground_to_pixel(lat, lon, h)
     r3, c3 = plain.ground_to_pixel(lat, lon, h)
     # the bound of 7 significant digits: on the cube every |term| <= 1, so a ratio num/den moves by at
@@ -141,8 +154,10 @@ def test_renormalizing_keeps_the_model_and_plain_rounding_does_not(zy3, tmp_path
     assert np.all(np.abs(r2 - r0) <= bound[0]) and np.all(np.abs(c2 - c0) <= bound[1])
     moved = np.hypot(r2 - r0, c2 - c0).max()
     plain_moved = np.hypot(r3 - r0, c3 - c0).max()
-    print(f"NITF RPC00B: renormalised max {moved:.2e} px (bound {max(b.max() for b in bound):.2e} px); "
-          f"offsets just rounded max {plain_moved:.2f} px")
+    print(
+        f"NITF RPC00B: renormalised max {moved:.2e} px (bound {max(b.max() for b in bound):.2e} px); "
+        f"offsets just rounded max {plain_moved:.2f} px"
+    )
     assert plain_moved > 100 * moved  # LINE_OFF 12287.5 -> 12288 alone is half a pixel
 
 

@@ -190,16 +190,19 @@ def test_statuses_off_sensor_out_of_domain_invalid(zy3):
     assert s.ground_to_pixel(lat[0], lon[0], h_far).status == Status.OUTSIDE_DOMAIN
     assert s.with_params().ground_to_pixel(lat[0], lon[0], h_far).status == Status.OUTSIDE_DOMAIN
     assert RPCSensor(m, s.rows, s.cols, domain_height=2.5).ground_to_pixel(lat[0], lon[0], h_far).status == Status.OK
-    assert RPCSensor(m, s.rows, s.cols, domain_latlon=1.0).ground_to_pixel(lat[1], lon[1], h[1]).status \
+    assert (
+        RPCSensor(m, s.rows, s.cols, domain_latlon=1.0).ground_to_pixel(lat[1], lon[1], h[1]).status
         == Status.OUTSIDE_DOMAIN
+    )
     # lines of sight: on the image, off it (computed), far off it (outside the domain), NaN
     los = s.line_of_sight(np.array([100.0, -50.0, -5.0 * s.rows, np.nan]), np.array([200.0, 200.0, 200.0, 1.0]))
     assert los.status.tolist() == [Status.OK, Status.OUTSIDE_SENSOR, Status.OUTSIDE_DOMAIN, Status.INVALID_INPUT]
     assert np.isfinite(los.origin_ecef[:2]).all() and np.isnan(los.direction_ecef[2:]).all()
     g = intersect_los_height(los, m.height_off, "geodetic")
     assert g.status.tolist()[1:] == [Status.OUTSIDE_SENSOR, Status.OUTSIDE_DOMAIN, Status.INVALID_INPUT]
-    ext = s.line_of_sight(np.array([100.0, -50.0, -5.0 * s.rows]), np.array([200.0, 200.0, 200.0]),
-                          outside="extrapolate")
+    ext = s.line_of_sight(
+        np.array([100.0, -50.0, -5.0 * s.rows]), np.array([200.0, 200.0, 200.0]), outside="extrapolate"
+    )
     assert ext.status.tolist() == [Status.OK, Status.OK, Status.OUTSIDE_DOMAIN]
     assert np.array_equal(ext.origin_ecef[:2], los.origin_ecef[:2])
     with pytest.raises(ValueError, match="outside"):
@@ -257,8 +260,9 @@ def test_rpc_sensor_on_srtm_dem_agrees_with_gdal_rpc_dem(zy3, tmp_path):
     ok = hit.status == Status.OK
     assert ok.sum() >= 40
     R, C = R[ok], C[ok]
-    lat_g, lon_g = gdal_rpc_to_ground(fit.model, R, C, dem_path=ell, height=0.0,
-                                      pixel_error_threshold=1e-6, max_iterations=100)
+    lat_g, lon_g = gdal_rpc_to_ground(
+        fit.model, R, C, dem_path=ell, height=0.0, pixel_error_threshold=1e-6, max_iterations=100
+    )
     assert np.all(np.isfinite(lat_g))
     h_g = dem.height(lat_g, lon_g)
     p_g = s.ground_to_pixel(lat_g, lon_g, h_g)
@@ -276,23 +280,52 @@ def _blank_image(path, rows, cols):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        with rasterio.open(path, "w", driver="GTiff", width=cols, height=rows, count=1, dtype="uint8",
-                           tiled=True, blockxsize=256, blockysize=256, SPARSE_OK=True):
+        with rasterio.open(
+            path,
+            "w",
+            driver="GTiff",
+            width=cols,
+            height=rows,
+            count=1,
+            dtype="uint8",
+            tiled=True,
+            blockxsize=256,
+            blockysize=256,
+            SPARSE_OK=True,
+        ):
             pass  # sparse: no tile written
     return path
 
 
 def _write_rpb(path, m: RPCModel):
     """DigitalGlobe .RPB, as GDAL writes and reads it (gcore/gdal_rpcimdio.cpp, GDALWriteRPBFile)."""
-    lines = ['satId = "SYNTH";', 'bandId = "P";', 'SpecId = "RPC00B";', "BEGIN_GROUP = IMAGE",
-             "\terrBias = 1.5;", "\terrRand = 0.25;"]
-    for key, attr in (("lineOffset", "line_off"), ("sampOffset", "samp_off"), ("latOffset", "lat_off"),
-                      ("longOffset", "long_off"), ("heightOffset", "height_off"), ("lineScale", "line_scale"),
-                      ("sampScale", "samp_scale"), ("latScale", "lat_scale"), ("longScale", "long_scale"),
-                      ("heightScale", "height_scale")):
+    lines = [
+        'satId = "SYNTH";',
+        'bandId = "P";',
+        'SpecId = "RPC00B";',
+        "BEGIN_GROUP = IMAGE",
+        "\terrBias = 1.5;",
+        "\terrRand = 0.25;",
+    ]
+    for key, attr in (
+        ("lineOffset", "line_off"),
+        ("sampOffset", "samp_off"),
+        ("latOffset", "lat_off"),
+        ("longOffset", "long_off"),
+        ("heightOffset", "height_off"),
+        ("lineScale", "line_scale"),
+        ("sampScale", "samp_scale"),
+        ("latScale", "lat_scale"),
+        ("longScale", "long_scale"),
+        ("heightScale", "height_scale"),
+    ):
         lines.append(f"\t{key} = {float(getattr(m, attr))!r};")
-    for key, attr in (("lineNumCoef", "line_num"), ("lineDenCoef", "line_den"),
-                      ("sampNumCoef", "samp_num"), ("sampDenCoef", "samp_den")):
+    for key, attr in (
+        ("lineNumCoef", "line_num"),
+        ("lineDenCoef", "line_den"),
+        ("sampNumCoef", "samp_num"),
+        ("sampDenCoef", "samp_den"),
+    ):
         vals = [f"{float(v):+.17e}" for v in getattr(m, attr)]
         lines.append(f"\t{key} = (")
         lines += [f"\t\t\t{v}," for v in vals[:-1]] + [f"\t\t\t{vals[-1]});"]
@@ -315,8 +348,18 @@ def _write_rpc_txt(path, m: RPCModel):
 
 
 def _same_model(a: RPCModel, b: RPCModel, rtol):
-    for k in ("line_off", "samp_off", "lat_off", "long_off", "height_off",
-              "line_scale", "samp_scale", "lat_scale", "long_scale", "height_scale"):
+    for k in (
+        "line_off",
+        "samp_off",
+        "lat_off",
+        "long_off",
+        "height_off",
+        "line_scale",
+        "samp_scale",
+        "lat_scale",
+        "long_scale",
+        "height_scale",
+    ):
         assert getattr(a, k) == pytest.approx(getattr(b, k), rel=rtol, abs=0), k
     for k in ("line_num", "line_den", "samp_num", "samp_den"):
         assert np.allclose(getattr(a, k), getattr(b, k), rtol=rtol, atol=1e-300), k
@@ -343,9 +386,13 @@ def test_read_rpc_from_geotiff_rpb_and_rpc_txt(zy3, tmp_path):
     with rasterio.open(txt_img) as src:
         assert any(f.endswith("ge_rpc.txt") for f in src.files) and src.rpcs is not None
 
-    for path, kw, rtol in ((tif, {}, 1e-14), (rpb_img, {}, 1e-15), (txt_img, {}, 1e-15),
-                           (bare_rpb, dict(rows=s.rows, cols=s.cols), 1e-15),
-                           (bare_txt, dict(rows=s.rows, cols=s.cols), 1e-15)):
+    for path, kw, rtol in (
+        (tif, {}, 1e-14),
+        (rpb_img, {}, 1e-15),
+        (txt_img, {}, 1e-15),
+        (bare_rpb, dict(rows=s.rows, cols=s.cols), 1e-15),
+        (bare_txt, dict(rows=s.rows, cols=s.cols), 1e-15),
+    ):
         r = read_rpc(path, **kw)
         assert isinstance(r, RPCSensor) and (r.rows, r.cols) == (s.rows, s.cols), path
         _same_model(r.model, m, rtol)
@@ -373,8 +420,9 @@ def test_model_from_gdal_metadata_dict(zy3):
 
 
 # ------------------------------------------------------------------ adjust_rpc
-TRUE_AFFINE = dict(row_bias=2.5, row_per_row=1.2e-5, row_per_col=-8e-6,
-                   col_bias=-1.7, col_per_row=5e-6, col_per_col=2e-5)
+TRUE_AFFINE = dict(
+    row_bias=2.5, row_per_row=1.2e-5, row_per_col=-8e-6, col_bias=-1.7, col_per_row=5e-6, col_per_col=2e-5
+)
 
 
 def _gcps(s, n, rng):

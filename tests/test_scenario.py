@@ -33,14 +33,20 @@ def test_the_same_object_as_the_kinds_own_loader():
 
 
 def test_a_verb_given_another_kind_says_what_the_file_is():
-    with pytest.raises(ValueError, match=r"tiangong2_limb.toml: this is a limb-viewing orbit .*"
-                                         r"kind = 'limb'\); expected kind 'montecarlo'"):
+    with pytest.raises(
+        ValueError,
+        match=r"tiangong2_limb.toml: this is a limb-viewing orbit .*"
+        r"kind = 'limb'\); expected kind 'montecarlo'",
+    ):
         load_scenario(asset_path("scenarios", "tiangong2_limb.toml"), expect="montecarlo")
 
 
 def test_explicit_kind_and_bad_kind(tmp_path):
-    src = "\n".join(line for line in asset_path("scenarios", "tiangong2_limb.toml").read_text().splitlines()
-                    if not line.startswith("kind ="))
+    src = "\n".join(
+        line
+        for line in asset_path("scenarios", "tiangong2_limb.toml").read_text().splitlines()
+        if not line.startswith("kind =")
+    )
     f = tmp_path / "limb.toml"
     f.write_text(src)  # a kind-less file of the first phase: recognised by its tables
     assert isinstance(load_scenario(f, expect="limb"), LimbScenario)

@@ -12,8 +12,9 @@ NUM = r"[-+]?[0-9]*\.?[0-9]+(?:e[-+]?[0-9]+)?"
 
 
 def run(name):
-    r = subprocess.run([sys.executable, str(ROOT / "examples" / name)], cwd=ROOT, capture_output=True,
-                       text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / name)], cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
     assert r.returncode == 0, r.stderr[-2000:]
     return r.stdout
 

@@ -20,8 +20,7 @@ from geoloc.locate import locate
 from geoloc.sensors.sensor_file import load_sensor
 from geoloc.surfaces.height import HeightSurface
 
-TRUE = {"mount_x": math.radians(0.4), "mount_y": math.radians(-0.25), "mount_z": math.radians(0.6),
-        "fx": 2230.0}
+TRUE = {"mount_x": math.radians(0.4), "mount_y": math.radians(-0.25), "mount_z": math.radians(0.6), "fx": 2230.0}
 
 
 def make_records(tmp_path, n=30, plant_m=0.0):
@@ -29,9 +28,15 @@ def make_records(tmp_path, n=30, plant_m=0.0):
     true = nominal.with_params(**TRUE)
     rng = np.random.default_rng(7)
     az, el = rng.uniform(0, 360, n), rng.uniform(-80, -30, n)
-    pose = Pose.from_deg(36.6 + rng.uniform(-0.05, 0.05, n), -84.25 + rng.uniform(-0.05, 0.05, n),
-                         rng.uniform(1500, 3500, n), rng.uniform(-180, 180, n), rng.uniform(-3, 3, n),
-                         rng.uniform(-5, 5, n), angles_deg={"azimuth": az, "elevation": el})
+    pose = Pose.from_deg(
+        36.6 + rng.uniform(-0.05, 0.05, n),
+        -84.25 + rng.uniform(-0.05, 0.05, n),
+        rng.uniform(1500, 3500, n),
+        rng.uniform(-180, 180, n),
+        rng.uniform(-3, 3, n),
+        rng.uniform(-5, 5, n),
+        angles_deg={"azimuth": az, "elevation": el},
+    )
     row, col = rng.uniform(50, 1030, n), rng.uniform(50, 1870, n)
     g = locate(pose, true, row, col, target_h=300.0, height_kind="geodetic")
     tlat = g.lat_deg.copy()
@@ -39,13 +44,44 @@ def make_records(tmp_path, n=30, plant_m=0.0):
     f = tmp_path / "rec.csv"
     with f.open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg", "pitch_deg", "roll_deg",
-                    "azimuth_deg", "elevation_deg", "truth_lat_deg", "truth_lon_deg", "truth_h_m"])
+        w.writerow(
+            [
+                "row",
+                "col",
+                "ac_lat_deg",
+                "ac_lon_deg",
+                "ac_h_m",
+                "heading_deg",
+                "pitch_deg",
+                "roll_deg",
+                "azimuth_deg",
+                "elevation_deg",
+                "truth_lat_deg",
+                "truth_lon_deg",
+                "truth_h_m",
+            ]
+        )
         for k in range(n):
-            w.writerow([repr(float(v)) for v in (
-                row[k], col[k], np.rad2deg(pose.lat[k]), np.rad2deg(pose.lon[k]), pose.h[k],
-                np.rad2deg(pose.heading[k]), np.rad2deg(pose.pitch[k]), np.rad2deg(pose.roll[k]), az[k], el[k],
-                tlat[k], g.lon_deg[k], 300.0)])
+            w.writerow(
+                [
+                    repr(float(v))
+                    for v in (
+                        row[k],
+                        col[k],
+                        np.rad2deg(pose.lat[k]),
+                        np.rad2deg(pose.lon[k]),
+                        pose.h[k],
+                        np.rad2deg(pose.heading[k]),
+                        np.rad2deg(pose.pitch[k]),
+                        np.rad2deg(pose.roll[k]),
+                        az[k],
+                        el[k],
+                        tlat[k],
+                        g.lon_deg[k],
+                        300.0,
+                    )
+                ]
+            )
     return load_records(f, angles=nominal.angle_names), nominal
 
 

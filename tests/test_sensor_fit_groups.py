@@ -41,9 +41,15 @@ def make_flights(tmp_path, n=12, outlier_m=60.0, heights=None, true_params=None,
         params = true_params or {k: math.radians(v) for k, v in zip(NAMES, mount)}
         true = nominal.with_params(**params)
         az, el = rng.uniform(0, 360, n), rng.uniform(-80, -30, n)
-        pose = Pose.from_deg(36.6 + rng.uniform(-0.05, 0.05, n), -84.25 + rng.uniform(-0.05, 0.05, n),
-                             rng.uniform(1500, 3500, n), rng.uniform(-180, 180, n), rng.uniform(-3, 3, n),
-                             rng.uniform(-5, 5, n), angles_deg={"azimuth": az, "elevation": el})
+        pose = Pose.from_deg(
+            36.6 + rng.uniform(-0.05, 0.05, n),
+            -84.25 + rng.uniform(-0.05, 0.05, n),
+            rng.uniform(1500, 3500, n),
+            rng.uniform(-180, 180, n),
+            rng.uniform(-3, 3, n),
+            rng.uniform(-5, 5, n),
+            angles_deg={"azimuth": az, "elevation": el},
+        )
         row, col = rng.uniform(50, 1030, n), rng.uniform(50, 1870, n)
         h = np.full(n, 300.0) if heights is None else heights(rng, n)
         g = locate(pose, true, row, col, target_h=h, height_kind="inflated" if heights else "geodetic")
@@ -51,14 +57,53 @@ def make_flights(tmp_path, n=12, outlier_m=60.0, heights=None, true_params=None,
         if table == "B":
             tlat[0] += outlier_m / 111_000.0
         for k in range(n):
-            rows.append([table, k + 1] + [repr(float(v)) for v in (
-                row[k], col[k], np.rad2deg(pose.lat[k]), np.rad2deg(pose.lon[k]), pose.h[k],
-                np.rad2deg(pose.heading[k]), np.rad2deg(pose.pitch[k]), np.rad2deg(pose.roll[k]), az[k], el[k],
-                tlat[k], g.lon_deg[k], h[k], g.lat_deg[k], g.lon_deg[k])])
+            rows.append(
+                [table, k + 1]
+                + [
+                    repr(float(v))
+                    for v in (
+                        row[k],
+                        col[k],
+                        np.rad2deg(pose.lat[k]),
+                        np.rad2deg(pose.lon[k]),
+                        pose.h[k],
+                        np.rad2deg(pose.heading[k]),
+                        np.rad2deg(pose.pitch[k]),
+                        np.rad2deg(pose.roll[k]),
+                        az[k],
+                        el[k],
+                        tlat[k],
+                        g.lon_deg[k],
+                        h[k],
+                        g.lat_deg[k],
+                        g.lon_deg[k],
+                    )
+                ]
+            )
     f = tmp_path / "flights.csv"
-    _write(f, rows, ["table", "point", "row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg",
-                     "pitch_deg", "roll_deg", "azimuth_deg", "elevation_deg", "truth_lat_deg", "truth_lon_deg",
-                     "truth_h_m", "paper_lat_deg", "paper_lon_deg"])
+    _write(
+        f,
+        rows,
+        [
+            "table",
+            "point",
+            "row",
+            "col",
+            "ac_lat_deg",
+            "ac_lon_deg",
+            "ac_h_m",
+            "heading_deg",
+            "pitch_deg",
+            "roll_deg",
+            "azimuth_deg",
+            "elevation_deg",
+            "truth_lat_deg",
+            "truth_lon_deg",
+            "truth_h_m",
+            "paper_lat_deg",
+            "paper_lon_deg",
+        ],
+    )
     return f, load_records(f, angles=nominal.angle_names), nominal
 
 
@@ -68,8 +113,7 @@ def _values_deg(entry):
 
 def test_one_fit_per_flight_recovers_each_flights_mount(tmp_path):
     _, recs, nominal = make_flights(tmp_path)
-    rep, sensors = fit_sensor_groups(recs, nominal, NAMES, HeightSurface(300.0, "geodetic"),
-                                     exclude_outliers=True)
+    rep, sensors = fit_sensor_groups(recs, nominal, NAMES, HeightSurface(300.0, "geodetic"), exclude_outliers=True)
     # flight A is clean: its own mount to the solver's tolerance (1e-7 deg is 5 mm at 3 km)
     np.testing.assert_allclose(_values_deg(rep["groups"]["A"]), MOUNTS["A"], atol=1e-7)
     # flight B's planted 60 m survey error is flagged before the fit and left out of it,
@@ -143,8 +187,26 @@ def test_calibrate_cli_groups_and_resects_a_sensor_file(tmp_path, capsys):
     f, _, _ = make_flights(tmp_path)
     out = tmp_path / "rep.json"
     sensor = str(asset_path("sensors", "eo_turret.toml"))
-    assert main(["calibrate", str(f), "--sensor", sensor, "--fit", ",".join(NAMES), "--target-h-m", "300",
-                 "--height-kind", "geodetic", "--exclude-outliers", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                str(f),
+                "--sensor",
+                sensor,
+                "--fit",
+                ",".join(NAMES),
+                "--target-h-m",
+                "300",
+                "--height-kind",
+                "geodetic",
+                "--exclude-outliers",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "outliers before the fit: ['B-1'] (left out)" in text
     import json
@@ -152,8 +214,26 @@ def test_calibrate_cli_groups_and_resects_a_sensor_file(tmp_path, capsys):
     rep = json.loads(out.read_text())
     np.testing.assert_allclose(_values_deg(rep["groups"]["B"]), MOUNTS["B"], atol=1e-7)
     # --resect on a sensor file: the same names fitted to the published positions, heights unknown
-    assert main(["calibrate", str(f), "--sensor", sensor, "--fit", ",".join(NAMES), "--target-h-m", "300",
-                 "--group-by", "none", "--resect", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                str(f),
+                "--sensor",
+                sensor,
+                "--fit",
+                ",".join(NAMES),
+                "--target-h-m",
+                "300",
+                "--group-by",
+                "none",
+                "--resect",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "resection of mount_x, mount_y, mount_z to the published positions" in text
     assert len(json.loads(out.read_text())["resection"]["heights_m"]) == 24
@@ -185,8 +265,9 @@ def test_per_record_heights_rule_and_rounding(tmp_path):
 
     _, recs, nominal = make_flights(tmp_path, n=6, outlier_m=0.0)
     h = recs.column("truth_h_m")
-    fit = fit_sensor_params(recs, nominal, NAMES, PerRecordHeightSurface(h, "geodetic"),
-                            idx=np.arange(6))  # flight A: its true mount
+    fit = fit_sensor_params(
+        recs, nominal, NAMES, PerRecordHeightSurface(h, "geodetic"), idx=np.arange(6)
+    )  # flight A: its true mount
     np.testing.assert_allclose(np.degrees(fit.values), MOUNTS["A"], atol=1e-7)
     rep, _ = fit_sensor_groups(recs, nominal, NAMES, HeightSurface(300.0, "geodetic"))
     assert "> 3.5 robust sigma" in rep["outlier_rule"]

@@ -40,39 +40,61 @@ height = 960
 preset = "azimuth-elevation"
 """
 
-BROWN = BrownLens(fx=1800.0, fy=1795.0, cx=1012.3, cy=757.9, width=2048, height=1536,
-                  k1=-0.28, k2=0.11, p1=6e-4, p2=-3e-4, k3=-0.02)
-FISHEYE = FisheyeLens(fx=400.0, fy=400.0, cx=639.5, cy=479.5, width=1280, height=960,
-                      k1=0.02, k2=-0.005, k3=0.001, k4=-0.0002)
+BROWN = BrownLens(
+    fx=1800.0, fy=1795.0, cx=1012.3, cy=757.9, width=2048, height=1536, k1=-0.28, k2=0.11, p1=6e-4, p2=-3e-4, k3=-0.02
+)
+FISHEYE = FisheyeLens(
+    fx=400.0, fy=400.0, cx=639.5, cy=479.5, width=1280, height=960, k1=0.02, k2=-0.005, k3=0.001, k4=-0.0002
+)
 
-ANGLES = {"roll-pitch": ("gimbal_roll", "gimbal_pitch"), "azimuth-elevation": ("azimuth", "elevation"),
-          "azimuth-elevation-roll": ("azimuth", "elevation", "sensor_roll"),
-          "yaw-pitch-roll": ("gimbal_yaw", "gimbal_pitch", "gimbal_roll")}
+ANGLES = {
+    "roll-pitch": ("gimbal_roll", "gimbal_pitch"),
+    "azimuth-elevation": ("azimuth", "elevation"),
+    "azimuth-elevation-roll": ("azimuth", "elevation", "sensor_roll"),
+    "yaw-pitch-roll": ("gimbal_yaw", "gimbal_pitch", "gimbal_roll"),
+}
 
 
 def random_poses(rng, n, preset):
     """Poses over the globe with the preset's angles in ranges that look at the ground."""
     angles = {}
     for name in ANGLES[preset]:
-        lo, hi = {"gimbal_roll": (-60, 60), "gimbal_pitch": (-100, 10) if preset == "yaw-pitch-roll" else (-20, 20),
-                  "azimuth": (0, 360), "elevation": (-90, -20), "sensor_roll": (-180, 180),
-                  "gimbal_yaw": (-180, 180)}[name]
+        lo, hi = {
+            "gimbal_roll": (-60, 60),
+            "gimbal_pitch": (-100, 10) if preset == "yaw-pitch-roll" else (-20, 20),
+            "azimuth": (0, 360),
+            "elevation": (-90, -20),
+            "sensor_roll": (-180, 180),
+            "gimbal_yaw": (-180, 180),
+        }[name]
         angles[name] = rng.uniform(lo, hi, n)
     q17 = {k: angles.pop(k) for k in ("gimbal_roll", "gimbal_pitch") if k in angles}
-    return Pose.from_deg(rng.uniform(-70, 70, n), rng.uniform(-180, 180, n), rng.uniform(200, 12000, n),
-                         rng.uniform(-180, 180, n), rng.uniform(-10, 10, n), rng.uniform(-15, 15, n),
-                         q17.get("gimbal_roll", 0.0), q17.get("gimbal_pitch", 0.0), angles_deg=angles)
+    return Pose.from_deg(
+        rng.uniform(-70, 70, n),
+        rng.uniform(-180, 180, n),
+        rng.uniform(200, 12000, n),
+        rng.uniform(-180, 180, n),
+        rng.uniform(-10, 10, n),
+        rng.uniform(-15, 15, n),
+        q17.get("gimbal_roll", 0.0),
+        q17.get("gimbal_pitch", 0.0),
+        angles_deg=angles,
+    )
 
 
 def rigged(preset, lens=BROWN):
     mount = (0.0, 0.0, 0.0) if PRESETS[preset].earth_referenced else (1e-3, -2e-3, 3e-3)
-    return FrameSensor(lens, PRESETS[preset], mount=mount, boresight=(-4e-4, 5e-4, 2e-3),
-                       lever_arm_m=(0.8, -0.3, 1.2), name=preset)
+    return FrameSensor(
+        lens, PRESETS[preset], mount=mount, boresight=(-4e-4, 5e-4, 2e-3), lever_arm_m=(0.8, -0.3, 1.2), name=preset
+    )
 
 
 def test_roll_pitch_pinhole_is_the_q17_chain_with_mount_and_boresight():
-    cam = dataclasses.replace(Camera.from_toml(asset_path(*DEFAULT_CAMERA)),
-                              mount=(0.001, math.radians(0.22), -0.002), boresight=(9e-4, -4e-4, 3e-3))
+    cam = dataclasses.replace(
+        Camera.from_toml(asset_path(*DEFAULT_CAMERA)),
+        mount=(0.001, math.radians(0.22), -0.002),
+        boresight=(9e-4, -4e-4, 3e-3),
+    )
     rng = np.random.default_rng(11)
     pose = random_poses(rng, 2000, "roll-pitch")
     row, col = rng.uniform(1, cam.rows, 2000), rng.uniform(1, cam.cols, 2000)
@@ -116,8 +138,11 @@ def test_compiled_path_equals_numpy_for_every_preset_lens_mount_boresight_and_le
 def test_lever_arm_moves_the_optical_centre_by_the_body_offset():
     # Level flight heading east: body X = east, Y = south, Z = down. A lever arm (2, 1, -3) m in
     # body axes is 2 m east, 1 m south, 3 m up: pymap3d.ned2ecef gives the expected ECEF point.
-    s = FrameSensor(PinholeLens(1000.0, 1000.0, 499.5, 499.5, 1000, 1000), PRESETS["azimuth-elevation"],
-                    lever_arm_m=(2.0, 1.0, -3.0))
+    s = FrameSensor(
+        PinholeLens(1000.0, 1000.0, 499.5, 499.5, 1000, 1000),
+        PRESETS["azimuth-elevation"],
+        lever_arm_m=(2.0, 1.0, -3.0),
+    )
     pose = Pose.from_deg(47.3, 8.5, 900.0, 90.0, 0.0, 0.0, angles_deg={"azimuth": 0.0, "elevation": -45.0})
     o = s.line_of_sight(500.5, 500.5, pose).origin_ecef
     want = pymap3d.ned2ecef(-1.0, 2.0, -3.0, 47.3, 8.5, 900.0)
@@ -130,10 +155,39 @@ def test_minimal_sensor_file_locates_as_pymap3d_look_at_spheroid(tmp_path):
     f.write_text(MINIMAL)
     # the principal point, azimuth 90 (the right wing), elevation -30, heading 20: an oblique ray
     # at azimuth 110 and 60 deg from nadir; pymap3d intersects the ellipsoid (h = 0) on its own
-    cmd = [sys.executable, "-m", "geoloc", "locate", "--sensor", str(f), "--lat-deg", "35.1",
-           "--lon-deg", "-106.6", "--h-m", "1500", "--heading-deg", "20", "--pitch-deg", "0",
-           "--roll-deg", "0", "--angle", "azimuth=90", "--angle", "elevation=-30", "--row", "480",
-           "--col", "640", "--target-h-m", "0", "--height-kind", "geodetic", "--json"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "geoloc",
+        "locate",
+        "--sensor",
+        str(f),
+        "--lat-deg",
+        "35.1",
+        "--lon-deg",
+        "-106.6",
+        "--h-m",
+        "1500",
+        "--heading-deg",
+        "20",
+        "--pitch-deg",
+        "0",
+        "--roll-deg",
+        "0",
+        "--angle",
+        "azimuth=90",
+        "--angle",
+        "elevation=-30",
+        "--row",
+        "480",
+        "--col",
+        "640",
+        "--target-h-m",
+        "0",
+        "--height-kind",
+        "geodetic",
+        "--json",
+    ]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
@@ -144,14 +198,33 @@ def test_minimal_sensor_file_locates_as_pymap3d_look_at_spheroid(tmp_path):
     assert abs(out["h_m"]) < 1e-6
     # a missing angle is an error naming it and the gimbal's angles
     k = cmd.index("elevation=-30")
-    bad = cmd[:k - 1] + cmd[k + 1:]
+    bad = cmd[: k - 1] + cmd[k + 1 :]
     r = subprocess.run(bad, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "missing angle(s) ['elevation']" in r.stderr
 
 
 def test_row_99999_is_outside_the_sensor_in_the_cli():
-    cmd = [sys.executable, "-m", "geoloc", "locate", "--lat-deg", "35.48", "--lon-deg", "80.97", "--h-m",
-           "18000", "--gimbal-roll-deg", "50", "--row", "99999", "--col", "1146", "--target-h-m", "5000", "--json"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "geoloc",
+        "locate",
+        "--lat-deg",
+        "35.48",
+        "--lon-deg",
+        "80.97",
+        "--h-m",
+        "18000",
+        "--gimbal-roll-deg",
+        "50",
+        "--row",
+        "99999",
+        "--col",
+        "1146",
+        "--target-h-m",
+        "5000",
+        "--json",
+    ]
     r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert r.returncode == 1
     assert json.loads(r.stdout)["status"] == "outside_sensor"
@@ -178,11 +251,18 @@ def test_named_parameters_move_the_answer_and_keep_the_pixel_convention():
     p = s.params
     assert p["cx"] == pytest.approx(BROWN.cx + 1.0) and p["cy"] == pytest.approx(BROWN.cy + 1.0)
     assert {"mount_x", "boresight_z", "lever_arm_y_m", "fx", "k1", "p2"} <= set(p)
-    pose = Pose.from_deg(30.0, 20.0, 3000.0, 10.0, 1.0, -2.0,
-                         angles_deg={"azimuth": 30.0, "elevation": -50.0, "sensor_roll": 5.0})
+    pose = Pose.from_deg(
+        30.0, 20.0, 3000.0, 10.0, 1.0, -2.0, angles_deg={"azimuth": 30.0, "elevation": -50.0, "sensor_roll": 5.0}
+    )
     base = locate(pose, s, 700.0, 900.0, target_h=0.0)
-    for name, delta in (("mount_y", 1e-3), ("boresight_x", 1e-3), ("lever_arm_x_m", 5.0), ("fx", 20.0),
-                        ("cy", 3.0), ("k1", 0.01)):
+    for name, delta in (
+        ("mount_y", 1e-3),
+        ("boresight_x", 1e-3),
+        ("lever_arm_x_m", 5.0),
+        ("fx", 20.0),
+        ("cy", 3.0),
+        ("k1", 0.01),
+    ):
         moved = locate(pose, s.with_params(**{name: p[name] + delta}), 700.0, 900.0, target_h=0.0)
         assert np.linalg.norm(moved.ecef - base.ecef) > 0.01, name
     assert s.with_params(cx=p["cx"]).lens == s.lens  # 1-based in, 0-based lens: exact round trip
@@ -215,8 +295,10 @@ def test_first_phase_camera_file_is_the_q17_preset():
     cam = Camera.from_toml(path)  # the file format's reader
     s = load_sensor(path)  # a camera file loads as its sensor
     assert type(s) is FrameSensor and s == cam.to_sensor() and s.gimbal is PRESETS["roll-pitch"]
-    assert isinstance(sensor_from_dict({"lens": {"model": "fov", "hfov_deg": 60.0, "vfov_deg": 45.0,
-                                                 "width": 640, "height": 480}}), FrameSensor)
+    assert isinstance(
+        sensor_from_dict({"lens": {"model": "fov", "hfov_deg": 60.0, "vfov_deg": 45.0, "width": 640, "height": 480}}),
+        FrameSensor,
+    )
 
 
 def test_pose_angle_ranges_are_checked():

@@ -73,12 +73,15 @@ def start(argv, env, ready: str, timeout_s: float = 240.0):
     (viser's banner and geoloc's line), and waited the whole timeout for it (seen in a full
     suite); stderr is kept (``proc.err_lines``) so that a chatty process never blocks on it.
     """
-    proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env=env, text=True)
+    proc = subprocess.Popen(
+        argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, text=True
+    )
     lines: queue.Queue = queue.Queue()
     proc.err_lines = []
-    proc.readers = [threading.Thread(target=_drain, args=(proc.stdout, lines.put), daemon=True),
-                    threading.Thread(target=_drain, args=(proc.stderr, proc.err_lines.append), daemon=True)]
+    proc.readers = [
+        threading.Thread(target=_drain, args=(proc.stdout, lines.put), daemon=True),
+        threading.Thread(target=_drain, args=(proc.stderr, proc.err_lines.append), daemon=True),
+    ]
     for t in proc.readers:
         t.start()
     deadline = time.monotonic() + timeout_s
@@ -145,8 +148,18 @@ def check(proc, expose: bool, ports) -> list[tuple[str, int]]:
 @pytest.mark.parametrize("expose", [False, True], ids=["default", "host-0.0.0.0"])
 def test_geoloc_log_serve_binds_loopback(env, expose):
     web, grpc = free_port(), free_port()
-    argv = [sys.executable, "-m", "geoloc", "log", "flight_scan", "--serve",
-            "--web-port", str(web), "--grpc-port", str(grpc)] + (["--host", "0.0.0.0"] if expose else [])
+    argv = [
+        sys.executable,
+        "-m",
+        "geoloc",
+        "log",
+        "flight_scan",
+        "--serve",
+        "--web-port",
+        str(web),
+        "--grpc-port",
+        str(grpc),
+    ] + (["--host", "0.0.0.0"] if expose else [])
     proc, line = start(argv, env, r"web viewer: http")
     try:
         socks = check(proc, expose, (web, grpc))

@@ -27,6 +27,7 @@ def rays_enu(frame: EnuFrame, origins_enu, dirs_enu):
 def reference_first_hit(o, d, terrain_h, s_max, ds=0.5):
     """First root of h_ray(s) - terrain(lat, lon) by a dense scan + brentq, with the core's
     ECEF -> geodetic conversion and an independent terrain function (deg in)."""
+
     def g(s):
         lat, lon, h = ecef_to_geodetic(o + np.asarray(s)[..., None] * d)
         return h - terrain_h(np.rad2deg(lat), np.rad2deg(lon))
@@ -74,8 +75,7 @@ def test_tilted_plane_all_methods():
     off = r(np.array([20, 45, 60, 70]))
     az = r(np.array([10, 130, 250, 330]))
     los = rays_enu(fr, [0, 0, 4000.0], np.c_[np.sin(az) * np.sin(off), np.cos(az) * np.sin(off), -np.cos(off)])
-    s_ref = np.array([reference_first_hit(los.origin_ecef[k], los.direction_ecef[k], f, 20000.0)
-                      for k in range(4)])
+    s_ref = np.array([reference_first_hit(los.origin_ecef[k], los.direction_ecef[k], f, 20000.0) for k in range(4)])
     p_ref = los.origin_ecef + s_ref[:, None] * los.direction_ecef
     h_ref = ecef_to_geodetic(p_ref)[2]
     ex = intersect_dem(los, dem, "exact")
@@ -104,7 +104,9 @@ def hill_dem():
     LO, LA = np.meshgrid(lo, la)
     z = 200.0 + 600.0 * np.exp(-(((LO - 78.1) / 0.012) ** 2 + ((LA - 36.0) / 0.01) ** 2))
     dem = DEM.from_array(z, 36.05, 78.05, step, step)
-    interp = RegularGridInterpolator((la[::-1], lo), z[::-1], method="linear", bounds_error=False)  # independent bilinear
+    interp = RegularGridInterpolator(
+        (la[::-1], lo), z[::-1], method="linear", bounds_error=False
+    )  # independent bilinear
     return dem, lambda lat_deg, lon_deg: interp(np.stack(np.broadcast_arrays(lat_deg, lon_deg), -1))
 
 
@@ -123,8 +125,7 @@ def test_hill_exact(surface):
     hit = intersect_dem(los, dem, "exact", dem_model=surface)
     assert (hit.status == Status.OK).all()
     if surface == "bilinear":
-        s_ref = np.array([reference_first_hit(los.origin_ecef[k], los.direction_ecef[k], f, 15000.0)
-                          for k in range(n)])
+        s_ref = np.array([reference_first_hit(los.origin_ecef[k], los.direction_ecef[k], f, 15000.0) for k in range(n)])
         assert np.max(np.abs(hit_s(hit, los) - s_ref)) < 0.01  # goal: 1 cm
     else:
         import trimesh
@@ -133,8 +134,9 @@ def test_hill_exact(surface):
         frm = m.metadata["enu_frame"]
         # pure-python trimesh backend on this small mesh (20 000 triangles, 12 rays)
         tri = trimesh.ray.ray_triangle.RayMeshIntersector(m)
-        loc, idx, _ = tri.intersects_location(frm.from_ecef(los.origin_ecef),
-                                              frm.vector_from_ecef(los.direction_ecef), multiple_hits=False)
+        loc, idx, _ = tri.intersects_location(
+            frm.from_ecef(los.origin_ecef), frm.vector_from_ecef(los.direction_ecef), multiple_hits=False
+        )
         assert sorted(idx) == list(range(n))
         mine = frm.from_ecef(hit.ecef)[idx]
         # the same triangles in float64 on both sides: rounding only (measured 8e-10 m); the
@@ -164,8 +166,7 @@ def test_ridge_in_front_of_valley_grazing():
     # 213 m, comes out of its back at about 196 m and reaches the floor 1.6 km further on.
     d = np.array([1.0, 0.0, -0.12])
     los = rays_enu(fr, [[0, 0, 400.0], [0, 50.0, 400.0]], d)
-    s_ref = np.array([reference_first_hit(los.origin_ecef[k], los.direction_ecef[k], f, 4000.0)
-                      for k in range(2)])
+    s_ref = np.array([reference_first_hit(los.origin_ecef[k], los.direction_ecef[k], f, 4000.0) for k in range(2)])
     ex = intersect_dem(los, dem, "exact")
     assert np.max(np.abs(hit_s(ex, los) - s_ref)) < 0.01  # goal: 1 cm
     assert np.all(ex.h > 150)  # the ridge, not the floor
@@ -279,8 +280,9 @@ def test_scalar_vermeille_matches_core():
         assert np.allclose(got[:2], ref[:2, k], rtol=0, atol=1e-12)
         assert abs(got[2] - ref[2, k]) < 1e-6
         lat, lon, h, nx, ny, nz = geodetic_up(*p[k])
-        assert np.allclose([nx, ny, nz], [np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)],
-                           atol=1e-12)
+        assert np.allclose(
+            [nx, ny, nz], [np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], atol=1e-12
+        )
 
 
 def test_bad_arguments():

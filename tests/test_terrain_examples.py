@@ -14,8 +14,7 @@ EXAMPLES = sorted((ROOT / "examples").glob("2[0-9]_*.py"))
 
 def run(path):
     # check=False: a failing example is reported with its stderr by the assert below
-    r = subprocess.run([sys.executable, str(path)], cwd=ROOT, capture_output=True, text=True, timeout=300,
-                       check=False)
+    r = subprocess.run([sys.executable, str(path)], cwd=ROOT, capture_output=True, text=True, timeout=300, check=False)
     assert r.returncode == 0, r.stderr
     return r.stdout
 

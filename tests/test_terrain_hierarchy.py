@@ -22,8 +22,7 @@ from geoloc.surfaces.terrain import _MARGIN_M, intersect_dem, random_oblique_ray
 def _rough_dem(n, seed, roughness_m=3.0):
     """The bundled SRTM crop resampled bilinearly to n x n nodes over the same area, plus
     seeded Gaussian roughness (sigma ``roughness_m``): cells ~50 m at n = 600."""
-    return upsampled_dem(DEM.open(asset_path("dem", "srtm_jacksboro.tif")), n, np.random.default_rng(seed),
-                         roughness_m)
+    return upsampled_dem(DEM.open(asset_path("dem", "srtm_jacksboro.tif")), n, np.random.default_rng(seed), roughness_m)
 
 
 def _decode(inv):
@@ -59,12 +58,13 @@ def test_levels_are_the_maximum_over_their_cells(block, monkeypatch):
     for off, rows, cols, k in hlev:
         span = BLOCK << k
         assert (rows, cols) == (-(-(nr - 1) // span), -(-(nc - 1) // span))
-        got = _decode(hinv[off: off + rows * cols].reshape(rows, cols, 2))
+        got = _decode(hinv[off : off + rows * cols].reshape(rows, cols, 2))
         want = np.empty((rows, cols))
         for a in range(rows):
             for b in range(cols):
-                want[a, b] = z[a * span: min((a + 1) * span, nr - 1) + 1,
-                               b * span: min((b + 1) * span, nc - 1) + 1].max()
+                want[a, b] = z[
+                    a * span : min((a + 1) * span, nr - 1) + 1, b * span : min((b + 1) * span, nc - 1) + 1
+                ].max()
         assert np.array_equal(np.isnan(got), np.isnan(want))
         # 1/(a+H)^2 and back loses ~1e-16 of a + H = 6.4e6 m: 1e-9 m; 1e-6 m is far below any
         # height difference that would matter and far above that rounding
@@ -208,8 +208,11 @@ def test_auto_climbs_for_grazing_views_only(rough600, monkeypatch):
     assert terrain.climbs(*flat(grazing), tab)
     used = []
     real = tn._kernel_for
-    monkeypatch.setattr(tn, "_kernel_for", lambda hlev, block=tn.BLOCK, triangles=False:
-                        (used.append(len(hlev)), real(hlev, block, triangles))[1])
+    monkeypatch.setattr(
+        tn,
+        "_kernel_for",
+        lambda hlev, block=tn.BLOCK, triangles=False: (used.append(len(hlev)), real(hlev, block, triangles))[1],
+    )
     for los in (oblique, grazing):
         auto = intersect_dem(los, rough600, "exact", dem_model="triangles")
         monkeypatch.setattr(terrain, "CLIMB", "always")
@@ -271,8 +274,17 @@ def test_walk_order_changes_no_hit(rough600, monkeypatch):
         assert np.array_equal(got.dem_evaluations, plain.dem_evaluations)
     tab = terrain._exact_tables(rough600)
     o, d = los.origin_ecef.reshape(-1, 3), los.direction_ecef.reshape(-1, 3)
-    order = tn.ray_order(o, d, 0.5 * (tab["h_max"] + tab["h_min"]), tab["lat_n"], tab["lon_w"], tab["dlat"],
-                         tab["dlon"], 64, -(-600 // 64) + 2)
+    order = tn.ray_order(
+        o,
+        d,
+        0.5 * (tab["h_max"] + tab["h_min"]),
+        tab["lat_n"],
+        tab["lon_w"],
+        tab["dlat"],
+        tab["dlon"],
+        64,
+        -(-600 // 64) + 2,
+    )
     assert np.array_equal(np.sort(order), np.arange(len(o)))
 
 
@@ -293,8 +305,19 @@ def test_tile_keys_against_geodetic_tiles(rough600):
     h_mid, cells = 0.5 * (tab["h_max"] + tab["h_min"]), 64
     nt = -(-600 // cells) + 2
     keys = np.empty(len(o), np.int64)
-    tn._tile_keys(o, d, 1.0 / (A + h_mid) ** 2, 1.0 / (B + h_mid) ** 2, np.tan(tab["lat_n"]),
-                  np.sin(tab["lon_w"]), np.cos(tab["lon_w"]), tab["dlat"] * cells, tab["dlon"] * cells, nt, keys)
+    tn._tile_keys(
+        o,
+        d,
+        1.0 / (A + h_mid) ** 2,
+        1.0 / (B + h_mid) ** 2,
+        np.tan(tab["lat_n"]),
+        np.sin(tab["lon_w"]),
+        np.cos(tab["lon_w"]),
+        tab["dlat"] * cells,
+        tab["dlon"] * cells,
+        nt,
+        keys,
+    )
     # the point at height h_mid on each ray: pyproj's geodetic coordinates of the ray points,
     # bisected on the ray parameter (the rays come down from 1500 m above the terrain)
     ecef_to_lla = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
@@ -323,11 +346,38 @@ def test_walk_refuses_a_bad_order(rough600):
     tab = terrain._exact_tables(rough600)
     o = np.array([[A + 2000.0, 0.0, 0.0]])
     d = np.array([[-1.0, 0.0, 0.0]])
-    outs = (np.empty(1), np.empty((1, 3)), np.empty((1, 4)), np.zeros(1, np.uint8), np.empty(1, np.int64),
-            np.full((1, 0), np.nan), np.full((1, 0, 2), -1, np.int64))
-    args = (o, d, tab["h_max"] + _MARGIN_M, tab["h_floor"], tab["hgt"], tab["lon_col"], tab["cinv"],
-            tab["binv"], tab["hinv"], tab["hlev"][:0], tab["row_geo"], tab["lat_n"], tab["lon_w"], tab["dlat"],
-            tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"], True, *outs)
+    outs = (
+        np.empty(1),
+        np.empty((1, 3)),
+        np.empty((1, 4)),
+        np.zeros(1, np.uint8),
+        np.empty(1, np.int64),
+        np.full((1, 0), np.nan),
+        np.full((1, 0, 2), -1, np.int64),
+    )
+    args = (
+        o,
+        d,
+        tab["h_max"] + _MARGIN_M,
+        tab["h_floor"],
+        tab["hgt"],
+        tab["lon_col"],
+        tab["cinv"],
+        tab["binv"],
+        tab["hinv"],
+        tab["hlev"][:0],
+        tab["row_geo"],
+        tab["lat_n"],
+        tab["lon_w"],
+        tab["dlat"],
+        tab["dlon"],
+        tab["tan_row"],
+        tab["c_row"],
+        tab["sin_col"],
+        tab["cos_col"],
+        True,
+        *outs,
+    )
     for bad in (np.array([1]), np.array([-1]), np.zeros((1, 1), np.int64)):
         with pytest.raises(ValueError, match="order"):
             tn.walk(*args, order=bad)

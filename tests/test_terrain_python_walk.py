@@ -97,6 +97,7 @@ def _prefix_spy(monkeypatch):
         k = real(kernel, kargs, order, nodes)
         seen.append((k, len(order)))
         return k
+
     monkeypatch.setattr(tn, "_python_prefix", spy)
     return seen
 
@@ -170,6 +171,7 @@ def test_python_walk_failure_falls_back_to_the_kernel_with_the_inputs_restored(m
             status[:] = 99  # scribbled on, then a failure
             a[-7][:] = -1.0
             raise ValueError("math domain error")
+
         return run
 
     monkeypatch.setattr(tn, "_python_ok", lambda n, nodes: True)

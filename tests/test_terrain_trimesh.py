@@ -20,15 +20,19 @@ def embree_cast(dem, los):
     in a local ENU frame, float32-safe): the mesh, its ENU frame, and the cast's hit
     points (ENU), ray indices and triangle indices."""
     if platform.machine() != "x86_64":  # the test extra installs embreex on x86_64 only
-        pytest.importorskip("embreex", reason="trimesh's embree backend (pip embreex, x86_64); the "
-                            "pure-python backend takes hours on 275 000 triangles")
+        pytest.importorskip(
+            "embreex",
+            reason="trimesh's embree backend (pip embreex, x86_64); the "
+            "pure-python backend takes hours on 275 000 triangles",
+        )
     import embreex  # noqa: F401  (x86_64: part of the test extra, so a missing one fails)
     from trimesh.ray.ray_pyembree import RayMeshIntersector
 
     m = dem.to_trimesh()
     fr = m.metadata["enu_frame"]
     loc, idx, tri = RayMeshIntersector(m).intersects_location(
-        fr.from_ecef(los.origin_ecef), fr.vector_from_ecef(los.direction_ecef), multiple_hits=False)
+        fr.from_ecef(los.origin_ecef), fr.vector_from_ecef(los.direction_ecef), multiple_hits=False
+    )
     return m, fr, loc, idx, tri
 
 
@@ -123,8 +127,12 @@ def test_referee_closed_form():
     dem = DEM.from_array(400.0 + 60.0 * rng.random((6, 7)), 32.2, -98.3, 0.001, 0.0012)
     lat_deg, lon_deg = dem.node_latlon_deg()
     nodes = ((2, 3), (3, 3), (3, 4))  # (p00, p01, p11) of cell (2, 3), DEM.mesh's first triangle
-    P = np.array([geodetic_to_ecef(np.deg2rad(lat_deg[r, c]), np.deg2rad(lon_deg[r, c]), dem.grid.values[r, c])
-                  for r, c in nodes])
+    P = np.array(
+        [
+            geodetic_to_ecef(np.deg2rad(lat_deg[r, c]), np.deg2rad(lon_deg[r, c]), dem.grid.values[r, c])
+            for r, c in nodes
+        ]
+    )
     n = np.cross(P[1] - P[0], P[2] - P[0])
     two_area = np.linalg.norm(n)
     n /= two_area

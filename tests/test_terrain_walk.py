@@ -73,8 +73,11 @@ def test_readme_evaluations_per_ray_table():
     ok = ex.status == Status.OK
     assert ok.all()
     assert ex.dem_evaluations.mean() == pytest.approx(6.3, abs=0.05)
-    for frac, steps, bisect, saves, hidden in ((0.1, 60.6, 4.6, 92.4, 5.8), (0.5, 13.4, 2.6, 80.3, 5.7),
-                                               (1.0, 7.4, 2.0, 73.1, 5.5)):
+    for frac, steps, bisect, saves, hidden in (
+        (0.1, 60.6, 4.6, 92.4, 5.8),
+        (0.5, 13.4, 2.6, 80.3, 5.7),
+        (1.0, 7.4, 2.0, 73.1, 5.5),
+    ):
         st = intersect_dem(los, dem, "steps", eps_h=frac * cell_m)
         bi = intersect_dem(los, dem, "bisect", threshold=frac * cell_m)
         both = ok & (st.status == Status.OK) & (bi.status == Status.OK)
@@ -112,8 +115,7 @@ def test_triangle_hits_across_the_antimeridian_equal_the_referee():
     ok = hit.status == Status.OK
     assert ok.sum() > 120 and _both_sides(hit.lon[ok])
     window = (0, dem.shape[0] - 1, 0, dem.shape[1] - 1)  # every cell
-    ref = np.array([referee_first_hit(dem, o, d, window).range_m
-                    for o, d in zip(los.origin_ecef, los.direction_ecef)])
+    ref = np.array([referee_first_hit(dem, o, d, window).range_m for o, d in zip(los.origin_ecef, los.direction_ecef)])
     assert np.array_equal(np.isfinite(ref), ok)
     assert np.abs(hit.slant_range[ok] - ref[ok]).max() < 1e-6
 
@@ -140,8 +142,12 @@ def _bilinear_first_hit(dem, o, d, step_m=0.5):
         i = np.clip(np.floor(fi).astype(int), 0, nr - 2)
         j = np.clip(np.floor(fj).astype(int), 0, nc - 2)
         v, u = fi - i, fj - j
-        zb = ((1 - u) * (1 - v) * z[i, j] + u * (1 - v) * z[i, j + 1]
-              + (1 - u) * v * z[i + 1, j] + u * v * z[i + 1, j + 1])
+        zb = (
+            (1 - u) * (1 - v) * z[i, j]
+            + u * (1 - v) * z[i, j + 1]
+            + (1 - u) * v * z[i + 1, j]
+            + u * v * z[i + 1, j + 1]
+        )
         return h - zb, inside
 
     s = np.arange(0.0, 30_000.0, step_m)

@@ -27,8 +27,16 @@ from geoloc.status import Status
 from test_uncertainty import TURRET
 
 TARGET = (math.radians(36.5), math.radians(-84.25), 400.0)
-NOISE = {"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.05, "pitch_deg": 0.03, "roll_deg": 0.03,
-         "azimuth_deg": 0.03, "elevation_deg": 0.03}
+NOISE = {
+    "north_m": 2.0,
+    "east_m": 2.0,
+    "up_m": 3.0,
+    "heading_deg": 0.05,
+    "pitch_deg": 0.03,
+    "roll_deg": 0.03,
+    "azimuth_deg": 0.03,
+    "elevation_deg": 0.03,
+}
 BIAS = {"mount_z_deg": 0.02, "boresight_x_deg": 0.02, "boresight_y_deg": 0.02, "fx_px": 3.0}
 BUDGET = ErrorBudget({**NOISE, **BIAS})
 
@@ -59,9 +67,15 @@ def orbit(n, arc=None):
     # the turret looks at the target: bearing from the aircraft minus heading, depression below the horizon
     bearing = np.degrees(np.arctan2(-east, -north))
     dep = math.degrees(math.atan2(3000.0, r))
-    pose = Pose.from_deg(np.degrees(lat), np.degrees(lon), np.full(n, h0 + 3000.0), heading, np.zeros(n),
-                         np.zeros(n), angles_deg={"azimuth": np.mod(bearing - heading, 360.0),
-                                                  "elevation": np.full(n, -dep)})
+    pose = Pose.from_deg(
+        np.degrees(lat),
+        np.degrees(lon),
+        np.full(n, h0 + 3000.0),
+        heading,
+        np.zeros(n),
+        np.zeros(n),
+        angles_deg={"azimuth": np.mod(bearing - heading, 360.0), "elevation": np.full(n, -dep)},
+    )
     return pose
 
 
@@ -81,14 +95,16 @@ def _perturbed(pose, draw, k):
     """The true pose of frame k: the nominal plus the drawn noise."""
     lat, lon, h = (np.asarray(getattr(pose, f))[k] for f in ("lat", "lon", "h"))
     d = {key: draw[key][k] for key in NOISE}
-    return dict(lat=lat + d["north_m"] / (meridian_radius(lat) + h),
-                lon=lon + d["east_m"] / ((prime_vertical_radius(lat) + h) * math.cos(lat)),
-                h=h + d["up_m"],
-                heading=np.asarray(pose.heading)[k] + math.radians(d["heading_deg"]),
-                pitch=np.asarray(pose.pitch)[k] + math.radians(d["pitch_deg"]),
-                roll=np.asarray(pose.roll)[k] + math.radians(d["roll_deg"]),
-                azimuth=np.asarray(pose.angle("azimuth"))[k] + math.radians(d["azimuth_deg"]),
-                elevation=np.asarray(pose.angle("elevation"))[k] + math.radians(d["elevation_deg"]))
+    return dict(
+        lat=lat + d["north_m"] / (meridian_radius(lat) + h),
+        lon=lon + d["east_m"] / ((prime_vertical_radius(lat) + h) * math.cos(lat)),
+        h=h + d["up_m"],
+        heading=np.asarray(pose.heading)[k] + math.radians(d["heading_deg"]),
+        pitch=np.asarray(pose.pitch)[k] + math.radians(d["pitch_deg"]),
+        roll=np.asarray(pose.roll)[k] + math.radians(d["roll_deg"]),
+        azimuth=np.asarray(pose.angle("azimuth"))[k] + math.radians(d["azimuth_deg"]),
+        elevation=np.asarray(pose.angle("elevation"))[k] + math.radians(d["elevation_deg"]),
+    )
 
 
 @pytest.mark.parametrize("n", [3, 10, 30])
@@ -106,14 +122,19 @@ def test_triangulated_error_within_10_percent_of_monte_carlo(n):
         draw = {k: rng.standard_normal(n) * s for k, s in NOISE.items()}
         b = {k: rng.standard_normal() * s for k, s in BIAS.items()}
         true_sensor = dataclasses.replace(
-            TURRET, lens=TURRET.lens.with_params(fx=TURRET.lens.params["fx"] + b["fx_px"]),
+            TURRET,
+            lens=TURRET.lens.with_params(fx=TURRET.lens.params["fx"] + b["fx_px"]),
             mount=(TURRET.mount[0], TURRET.mount[1], TURRET.mount[2] + math.radians(b["mount_z_deg"])),
-            boresight=(TURRET.boresight[0] + math.radians(b["boresight_x_deg"]),
-                       TURRET.boresight[1] + math.radians(b["boresight_y_deg"]), TURRET.boresight[2]))
+            boresight=(
+                TURRET.boresight[0] + math.radians(b["boresight_x_deg"]),
+                TURRET.boresight[1] + math.radians(b["boresight_y_deg"]),
+                TURRET.boresight[2],
+            ),
+        )
         kw = [_perturbed(pose, draw, k) for k in range(n)]
-        tp = Pose(**{f: np.array([w[f] for w in kw]) for f in ("lat", "lon", "h", "heading", "pitch", "roll")}
-                  ).with_angles(azimuth=np.array([w["azimuth"] for w in kw]),
-                                elevation=np.array([w["elevation"] for w in kw]))
+        tp = Pose(
+            **{f: np.array([w[f] for w in kw]) for f in ("lat", "lon", "h", "heading", "pitch", "roll")}
+        ).with_angles(azimuth=np.array([w["azimuth"] for w in kw]), elevation=np.array([w["elevation"] for w in kw]))
         row, col, st = true_sensor.ground_to_pixel(*TARGET, tp)
         los = TURRET.line_of_sight(row, col, pose, outside="extrapolate", engine="numpy")
         X, _, _, _ = T.intersect_rays(los.origin_ecef, los.direction_ecef)
@@ -126,6 +147,7 @@ def test_triangulated_error_within_10_percent_of_monte_carlo(n):
 def test_more_frames_shrink_the_noise_but_not_the_biases():
     """On the same quarter turn: ten times the frames, noise down by about sqrt(10); a bias, the
     same in every frame, not averaged (on a whole turn it would cancel by symmetry instead)."""
+
     def ce(n, budget):
         p = orbit(n, arc=math.pi / 2)
         return T.triangulate(TURRET, p, *_target_pixels(TURRET, p), budget).ce90_m
@@ -151,10 +173,14 @@ def test_a_shifted_dem_is_reported_and_a_right_one_is_not():
 def test_parallel_rays_or_one_ray_are_refused():
     pose = orbit(3)
     row, col = _target_pixels(TURRET, pose)
-    one = T.triangulate(TURRET, Pose(*(np.asarray(getattr(pose, f))[:1] for f in
-                                       ("lat", "lon", "h", "heading", "pitch", "roll"))).with_angles(
-        azimuth=np.asarray(pose.angle("azimuth"))[:1], elevation=np.asarray(pose.angle("elevation"))[:1]),
-        row[:1], col[:1])
+    one = T.triangulate(
+        TURRET,
+        Pose(*(np.asarray(getattr(pose, f))[:1] for f in ("lat", "lon", "h", "heading", "pitch", "roll"))).with_angles(
+            azimuth=np.asarray(pose.angle("azimuth"))[:1], elevation=np.asarray(pose.angle("elevation"))[:1]
+        ),
+        row[:1],
+        col[:1],
+    )
     assert one.status == Status.INVALID_INPUT and math.isnan(one.lat)
     lat, lon, h = ecef_to_geodetic(geodetic_to_ecef(*TARGET))
     assert abs(h - TARGET[2]) < 1e-6
@@ -170,8 +196,10 @@ def test_replay_triangulates_a_target_id_column_and_flags_a_shifted_height(tmp_p
     from geoloc.sensors.sensor_file import load_sensor
 
     sensor_file = tmp_path / "turret.toml"
-    sensor_file.write_text(asset_path("sensors", "eo_turret.toml").read_text()
-                           + "\n[uncertainty]\nnorth_m = 2.0\nheading_deg = 0.05\nelevation_deg = 0.03\n")
+    sensor_file.write_text(
+        asset_path("sensors", "eo_turret.toml").read_text()
+        + "\n[uncertainty]\nnorth_m = 2.0\nheading_deg = 0.05\nelevation_deg = 0.03\n"
+    )
     s = load_sensor(sensor_file)
     pose = orbit(10)
     row, col, st = s.ground_to_pixel(*TARGET, pose)
@@ -179,13 +207,37 @@ def test_replay_triangulates_a_target_id_column_and_flags_a_shifted_height(tmp_p
     recs = tmp_path / "recs.csv"
     with recs.open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["target_id", "row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg", "pitch_deg",
-                    "roll_deg", "azimuth_deg", "elevation_deg"])
+        w.writerow(
+            [
+                "target_id",
+                "row",
+                "col",
+                "ac_lat_deg",
+                "ac_lon_deg",
+                "ac_h_m",
+                "heading_deg",
+                "pitch_deg",
+                "roll_deg",
+                "azimuth_deg",
+                "elevation_deg",
+            ]
+        )
         for k in range(10):
-            w.writerow(["T1", f"{row[k]:.6f}", f"{col[k]:.6f}", f"{math.degrees(pose.lat[k]):.10f}",
-                        f"{math.degrees(pose.lon[k]):.10f}", f"{pose.h[k]:.4f}", f"{math.degrees(pose.heading[k]):.8f}",
-                        "0", "0", f"{math.degrees(pose.angle('azimuth')[k]):.8f}",
-                        f"{math.degrees(pose.angle('elevation')[k]):.8f}"])
+            w.writerow(
+                [
+                    "T1",
+                    f"{row[k]:.6f}",
+                    f"{col[k]:.6f}",
+                    f"{math.degrees(pose.lat[k]):.10f}",
+                    f"{math.degrees(pose.lon[k]):.10f}",
+                    f"{pose.h[k]:.4f}",
+                    f"{math.degrees(pose.heading[k]):.8f}",
+                    "0",
+                    "0",
+                    f"{math.degrees(pose.angle('azimuth')[k]):.8f}",
+                    f"{math.degrees(pose.angle('elevation')[k]):.8f}",
+                ]
+            )
     for h, warned in ((TARGET[2], False), (TARGET[2] + 30.0, True)):
         assert main(["replay", str(recs), "--sensor", str(sensor_file), "--target-h-m", f"{h}"]) == 0
         out = capsys.readouterr().out

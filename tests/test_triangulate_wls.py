@@ -69,12 +69,12 @@ def _geometry(seed=5):
     dD = np.zeros((n, 3, 3))
     for i in range(n):
         u = rng.normal(size=3)
-        dO[i, :, 0] = POS_SIGMA[i] * u / np.linalg.norm(u)             # a position error, any direction
+        dO[i, :, 0] = POS_SIGMA[i] * u / np.linalg.norm(u)  # a position error, any direction
         w = np.cross(D[i], rng.normal(size=3))
-        dD[i, :, 1] = ANG_SIGMA[i] * w / np.linalg.norm(w)             # an attitude error: the ray turns
+        dD[i, :, 1] = ANG_SIGMA[i] * w / np.linalg.norm(w)  # an attitude error: the ray turns
         dO[i, :, 1] = 0.3 * POS_SIGMA[i] * np.cross(w, u) / np.linalg.norm(np.cross(w, u))  # and its lever arm moves
         w2 = np.cross(D[i], E[2])
-        dD[i, :, 2] = 3e-4 * w2 / np.linalg.norm(w2)                   # a mount bias: the same turn everywhere
+        dD[i, :, 2] = 3e-4 * w2 / np.linalg.norm(w2)  # a mount bias: the same turn everywhere
     return O, D, dO, dD
 
 
@@ -90,11 +90,11 @@ def _wls(O, D, Sig=None):
 
 def _reference(O, D, dO, dD, shared=("mount_z_deg",), names=NAMES):
     """The point, its ECEF covariance, the per-ray moves F and the normal matrix A, by the textbook."""
-    X0, _, _ = _wls(O, D)                                               # unweighted: the range to the target
+    X0, _, _ = _wls(O, D)  # unweighted: the range to the target
     t = np.einsum("ni,ni->n", X0 - O, D)
-    F = dO + t[:, None, None] * dD                                      # (n, 3, k): each ray's move at the target
+    F = dO + t[:, None, None] * dD  # (n, 3, k): each ray's move at the target
     P = np.eye(3)[None] - D[:, :, None] * D[:, None, :]
-    Sig = P @ F @ np.swapaxes(F, -1, -2) @ P                            # rank 2: the miss across the ray
+    Sig = P @ F @ np.swapaxes(F, -1, -2) @ P  # rank 2: the miss across the ray
     X, M, A = _wls(O, D, Sig)
     Ainv = np.linalg.inv(A)
     cols = []
@@ -203,11 +203,19 @@ def test_a_ray_left_out_is_not_weighted_and_has_no_residual():
 
 # ------------------------------------------------------------------ the DEM offset's standard error
 
+
 def _tri_with_cov(cov_enu):
     X = X_TRUE
     lon, lat, h = _TO_LLH.transform(*X)
-    return T.Triangulation(X, math.radians(lat), math.radians(lon), h, 4, np.zeros(4),
-                           None if cov_enu is None else np.asarray(cov_enu, float))
+    return T.Triangulation(
+        X,
+        math.radians(lat),
+        math.radians(lon),
+        h,
+        4,
+        np.zeros(4),
+        None if cov_enu is None else np.asarray(cov_enu, float),
+    )
 
 
 def test_dem_offset_standard_error_with_the_triangulations_own_term():
@@ -216,7 +224,7 @@ def test_dem_offset_standard_error_with_the_triangulations_own_term():
     covariance) - here 20 m, larger than the scatter, so it decides the verdict."""
     cov = np.array([[4.0, 1.0, 0.5], [1.0, 9.0, 0.7], [0.5, 0.7, 400.0]])  # up sigma 20 m; E, N smaller
     tri = _tri_with_cov(cov)
-    d = np.array([48.0, 50.5, 51.0, 52.5])                      # DEM minus triangulated: mean 50.5 m
+    d = np.array([48.0, 50.5, 51.0, 52.5])  # DEM minus triangulated: mean 50.5 m
     c = T.compare_with_surface(tri, tri.h + d)
     n = d.size
     s2 = np.sum((d - d.mean()) ** 2) / (n - 1)
@@ -253,17 +261,20 @@ def test_dem_offset_scatter_term_and_the_frames_left_out():
     assert math.isnan(none["mean_m"]) and math.isnan(none["se_m"]) and none["warning"] == ""
 
 
-@pytest.mark.parametrize("mean_m,sigma_up_m,warned", [
-    (35.0, 10.0, True),    # 3.5 standard errors: over 3 (a threshold of 4 would keep quiet)
-    (25.0, 10.0, False),   # 2.5 standard errors: under 3 (a threshold of 2 would warn)
-    (5.5, 0.1, True),      # 55 standard errors and over the 5 m floor (a 6 m floor would keep quiet)
-    (4.5, 0.1, False),     # under the 5 m floor (a 4 m floor would warn)
-    (-35.0, 10.0, True),   # below the triangulated point as well
-])
+@pytest.mark.parametrize(
+    "mean_m,sigma_up_m,warned",
+    [
+        (35.0, 10.0, True),  # 3.5 standard errors: over 3 (a threshold of 4 would keep quiet)
+        (25.0, 10.0, False),  # 2.5 standard errors: under 3 (a threshold of 2 would warn)
+        (5.5, 0.1, True),  # 55 standard errors and over the 5 m floor (a 6 m floor would keep quiet)
+        (4.5, 0.1, False),  # under the 5 m floor (a 4 m floor would warn)
+        (-35.0, 10.0, True),  # below the triangulated point as well
+    ],
+)
 def test_dem_offset_verdict_on_both_sides_of_each_threshold(mean_m, sigma_up_m, warned):
     """Every frame the same difference (no scatter): the standard error is the up sigma alone,
     and the verdict is |mean| > 3 se and |mean| > 5 m, as the docstring states."""
-    tri = _tri_with_cov(np.diag([1.0, 1.0, sigma_up_m ** 2]))
+    tri = _tri_with_cov(np.diag([1.0, 1.0, sigma_up_m**2]))
     c = T.compare_with_surface(tri, tri.h + np.full(6, mean_m))
     assert c["se_m"] == pytest.approx(sigma_up_m, rel=1e-12)
     assert bool(c["warning"]) == warned, c
@@ -271,9 +282,15 @@ def test_dem_offset_verdict_on_both_sides_of_each_threshold(mean_m, sigma_up_m, 
 
 #: Nadir directions along simple ECEF axes (exact): where a ray straight down points along z,
 #: x, (+-1, 0, 1) or (0, +-1, 1) - the directions a basis across the ray could be built from.
-NADIR_AXES = {(90.0, 0.0): (0.0, 0.0, 1.0), (-90.0, 0.0): (0.0, 0.0, -1.0), (0.0, 0.0): (1.0, 0.0, 0.0),
-              (45.0, 0.0): (1.0, 0.0, 1.0), (45.0, 180.0): (-1.0, 0.0, 1.0), (45.0, 90.0): (0.0, 1.0, 1.0),
-              (45.0, -90.0): (0.0, -1.0, 1.0)}
+NADIR_AXES = {
+    (90.0, 0.0): (0.0, 0.0, 1.0),
+    (-90.0, 0.0): (0.0, 0.0, -1.0),
+    (0.0, 0.0): (1.0, 0.0, 0.0),
+    (45.0, 0.0): (1.0, 0.0, 1.0),
+    (45.0, 180.0): (-1.0, 0.0, 1.0),
+    (45.0, 90.0): (0.0, 1.0, 1.0),
+    (45.0, -90.0): (0.0, -1.0, 1.0),
+}
 
 
 @pytest.mark.parametrize("lat_deg,lon_deg", list(NADIR_AXES))
@@ -320,8 +337,12 @@ def test_two_rays_suffice_and_rays_within_the_minimum_angle_are_refused():
     O, D, dO, dD = _geometry()
     lon, lat, _ = _TO_LLH.transform(*X_TRUE)
     E = _enu_axes(math.radians(lat), math.radians(lon))
-    O2 = np.stack([X_TRUE + 5000.0 * E[2], X_TRUE + 5000.0 * (math.cos(math.radians(1.5)) * E[2]
-                                                              + math.sin(math.radians(1.5)) * E[0])])
+    O2 = np.stack(
+        [
+            X_TRUE + 5000.0 * E[2],
+            X_TRUE + 5000.0 * (math.cos(math.radians(1.5)) * E[2] + math.sin(math.radians(1.5)) * E[0]),
+        ]
+    )
     D2 = X_TRUE + np.array([[0.0, 0.0, 0.0], [3.0, -2.0, 1.0]]) - O2
     D2 /= np.linalg.norm(D2, axis=-1, keepdims=True)
     ang = math.degrees(math.acos(float(D2[0] @ D2[1])))
@@ -344,6 +365,7 @@ def test_dem_offset_at_exactly_three_standard_errors_or_five_metres_is_not_repor
     """The verdict is strict (|mean| > 3 SE and |mean| > 5 m): at exactly 3 SE (30 m, an up sigma
     of 10 m, no scatter) or exactly 5 m, nothing; a metre more, the warning. Heights chosen so that
     every difference is exact in floating point."""
+
     def tri(sig2):
         return T.Triangulation(X_TRUE, 0.6, -1.4, 400.0, 4, np.zeros(4), np.diag([1.0, 1.0, sig2]))
 

@@ -33,14 +33,45 @@ from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import HeightSurface
 from geoloc.surfaces.terrain import DemSurface
 
-TURRET = FrameSensor(BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080,
-                               k1=-0.21, k2=0.07, p1=4e-4, p2=-2e-4, k3=-0.01),
-                     PRESETS["azimuth-elevation"], mount=(2e-3, -1e-3, 4e-3), boresight=(1e-3, 2e-3, -3e-3),
-                     lever_arm_m=(1.5, 0.2, 0.7))
-COMMON = {"north_m": 2.0, "east_m": 2.0, "up_m": 3.0, "heading_deg": 0.03, "pitch_deg": 0.02, "roll_deg": 0.02,
-          "boresight_x_deg": 0.01, "boresight_y_deg": 0.01, "boresight_z_deg": 0.01, "lever_arm_x_m": 0.05,
-          "lever_arm_z_m": 0.05, "fx_px": 2.0, "fy_px": 1.0, "cx_px": 0.5, "cy_px": 0.5, "k1": 0.001,
-          "height_m": 10.0, "dem_m": 16.0 / 1.6448536269514722}
+TURRET = FrameSensor(
+    BrownLens(
+        fx=2200.0,
+        fy=2195.0,
+        cx=959.5,
+        cy=539.5,
+        width=1920,
+        height=1080,
+        k1=-0.21,
+        k2=0.07,
+        p1=4e-4,
+        p2=-2e-4,
+        k3=-0.01,
+    ),
+    PRESETS["azimuth-elevation"],
+    mount=(2e-3, -1e-3, 4e-3),
+    boresight=(1e-3, 2e-3, -3e-3),
+    lever_arm_m=(1.5, 0.2, 0.7),
+)
+COMMON = {
+    "north_m": 2.0,
+    "east_m": 2.0,
+    "up_m": 3.0,
+    "heading_deg": 0.03,
+    "pitch_deg": 0.02,
+    "roll_deg": 0.02,
+    "boresight_x_deg": 0.01,
+    "boresight_y_deg": 0.01,
+    "boresight_z_deg": 0.01,
+    "lever_arm_x_m": 0.05,
+    "lever_arm_z_m": 0.05,
+    "fx_px": 2.0,
+    "fy_px": 1.0,
+    "cx_px": 0.5,
+    "cy_px": 0.5,
+    "k1": 0.001,
+    "height_m": 10.0,
+    "dem_m": 16.0 / 1.6448536269514722,
+}
 ROW, COL = 540.0, 1000.0  # a pixel off the centre: the lens's terms move it
 
 
@@ -80,9 +111,11 @@ def pose_for(preset, off_nadir_deg):
 # ------------------------------------------------------------------ CE90 of an ellipse
 def _ce_polar(q, p):
     """P(r <= R) = 1/(2 pi) int_0^2pi 1 - exp(-R^2 / (2 s(t)^2)) dt, s^2 = cos^2 + q^2 sin^2: another route."""
+
     def prob(R):
         f = lambda t: 1.0 - math.exp(-R * R / (2.0 * (math.cos(t) ** 2 + (q * math.sin(t)) ** 2)))  # noqa: E731
         return integrate.quad(f, 0.0, math.pi / 2.0, epsabs=1e-13, limit=200)[0] * 2.0 / math.pi - p
+
     return optimize.brentq(prob, 1e-3, 5.0, xtol=1e-13)
 
 
@@ -134,8 +167,18 @@ def test_jacobian_matches_central_differences_of_the_exact_chain(preset, off_nad
         eps = 1e-3  # of each sigma: the chain's curvature over it is < 1e-6 of the column
         for k, key in enumerate(pu.sources):
             sig = U.surface_sigma_m(surf, b) if key in ("dem_m", "height_m") else b.sigma(key)
-            enu, st = U.monte_carlo(s, pose, ROW, COL, b, surf, 2, None, velocity_ned_m_s=vel,
-                                    draws={key: np.array([eps * sig, -eps * sig])})
+            enu, st = U.monte_carlo(
+                s,
+                pose,
+                ROW,
+                COL,
+                b,
+                surf,
+                2,
+                None,
+                velocity_ned_m_s=vel,
+                draws={key: np.array([eps * sig, -eps * sig])},
+            )
             assert np.all(st == Status.OK), key
             fd = (enu[0] - enu[1]) / (2 * eps)
             col = pu.jacobian_enu[:, k]
@@ -146,10 +189,25 @@ def test_jacobian_matches_central_differences_of_the_exact_chain(preset, off_nad
 LENSES = {
     "pinhole": PinholeLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080, skew=0.8),
     "brown": TURRET.lens,
-    "brown-rational": BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080, k1=-0.2,
-                                k2=0.05, k3=0.01, k4=0.02, k5=-0.01, k6=0.003, p1=2e-4, p2=1e-4),
-    "fisheye": FisheyeLens(fx=900.0, fy=900.0, cx=959.5, cy=539.5, width=1920, height=1080,
-                           k1=0.05, k2=-0.01, k3=0.002, k4=-1e-4),
+    "brown-rational": BrownLens(
+        fx=2200.0,
+        fy=2195.0,
+        cx=959.5,
+        cy=539.5,
+        width=1920,
+        height=1080,
+        k1=-0.2,
+        k2=0.05,
+        k3=0.01,
+        k4=0.02,
+        k5=-0.01,
+        k6=0.003,
+        p1=2e-4,
+        p2=1e-4,
+    ),
+    "fisheye": FisheyeLens(
+        fx=900.0, fy=900.0, cx=959.5, cy=539.5, width=1920, height=1080, k1=0.05, k2=-0.01, k3=0.002, k4=-1e-4
+    ),
 }
 
 
@@ -168,9 +226,15 @@ def test_compiled_engine_equals_the_numpy_reference(preset, lens, srtm):
     n = 64
     base = pose_for(preset, 30.0)
     ang = {a: np.degrees(np.asarray(base.angle(a))) + rng.uniform(-25, 25, n) for a in s.angle_names}
-    pose = Pose.from_deg(36.47 + rng.uniform(0, 0.1, n), -84.246 + rng.uniform(0, 0.1, n), rng.uniform(2000, 4000, n),
-                         np.degrees(float(base.heading)) + rng.uniform(-30, 30, n), rng.uniform(-3, 3, n),
-                         rng.uniform(-3, 3, n), angles_deg=ang)
+    pose = Pose.from_deg(
+        36.47 + rng.uniform(0, 0.1, n),
+        -84.246 + rng.uniform(0, 0.1, n),
+        rng.uniform(2000, 4000, n),
+        np.degrees(float(base.heading)) + rng.uniform(-30, 30, n),
+        rng.uniform(-3, 3, n),
+        rng.uniform(-3, 3, n),
+        angles_deg=ang,
+    )
     row, col = rng.uniform(1, 1080, n), rng.uniform(1, 1920, n)
     row[3] = 5000.0  # off the sensor: OUTSIDE_SENSOR in both
     vel = np.stack([rng.uniform(-50, 50, n), rng.uniform(-50, 50, n), rng.uniform(-3, 3, n)], -1)
@@ -207,10 +271,8 @@ def test_compiled_engine_equals_the_numpy_reference(preset, lens, srtm):
             assert np.all(np.isnan(a.terrain_rms_m[~ok]))
             np.testing.assert_array_equal(a.grazing, r.grazing)
             np.testing.assert_array_equal(a.linear, r.linear)
-            p = U.propagate(s, pose, row, col, b, surface=surf, velocity_ned_m_s=vel, engine="numba",
-                            dem_slope="point")
-            q = U.propagate(s, pose, row, col, b, surface=surf, velocity_ned_m_s=vel, engine="numpy",
-                            dem_slope="point")
+            p = U.propagate(s, pose, row, col, b, surface=surf, velocity_ned_m_s=vel, engine="numba", dem_slope="point")
+            q = U.propagate(s, pose, row, col, b, surface=surf, velocity_ned_m_s=vel, engine="numpy", dem_slope="point")
             np.testing.assert_allclose(p.ce90_m[ok], q.ce90_m[ok], rtol=1e-5)
             np.testing.assert_allclose(p.le90_m[ok], q.le90_m[ok], rtol=1e-5)
 
@@ -218,8 +280,15 @@ def test_compiled_engine_equals_the_numpy_reference(preset, lens, srtm):
 def test_time_error_is_the_platform_moving_by_its_velocity():
     s = sensor_for("roll-pitch")
     pose = pose_for("roll-pitch", 30.0)
-    a = U.propagate(s, pose, ROW, COL, ErrorBudget({"time_s": 0.1}), surface=HeightSurface(500.0),
-                    velocity_ned_m_s=[60.0, 80.0, 0.0])
+    a = U.propagate(
+        s,
+        pose,
+        ROW,
+        COL,
+        ErrorBudget({"time_s": 0.1}),
+        surface=HeightSurface(500.0),
+        velocity_ned_m_s=[60.0, 80.0, 0.0],
+    )
     b = U.propagate(s, pose, ROW, COL, ErrorBudget({"north_m": 6.0, "east_m": 8.0}), surface=HeightSurface(500.0))
     # one velocity, one draw: dt moves the platform (6, 8) m together -> J_time = J_north + J_east
     assert np.allclose(a.jacobian_enu[:, 0], b.jacobian_enu.sum(-1), atol=1e-9)
@@ -229,7 +298,9 @@ def test_time_error_is_the_platform_moving_by_its_velocity():
 
 def test_a_ray_without_a_ground_point_gets_nan_and_its_status():
     s = sensor_for("azimuth-elevation")
-    pose = Pose.from_deg([36.5, 36.5], -84.2, 3000.0, 0.0, 0.0, 0.0, angles_deg={"azimuth": 0.0, "elevation": [-30.0, 10.0]})
+    pose = Pose.from_deg(
+        [36.5, 36.5], -84.2, 3000.0, 0.0, 0.0, 0.0, angles_deg={"azimuth": 0.0, "elevation": [-30.0, 10.0]}
+    )
     pu = U.propagate(s, pose, ROW, COL, budget_for(s), surface=HeightSurface(0.0))
     assert pu.status.tolist() == [Status.OK, Status.SKY]
     assert np.isfinite(pu.ce90_m[0]) and np.isnan(pu.ce90_m[1]) and np.isnan(pu.le90_m[1])
@@ -239,8 +310,14 @@ def test_a_dem_without_a_vertical_error_is_refused_naming_the_keys():
     etopo = DEM.open(asset_path("dem", "etopo5_flight_area.tif"))
     s = sensor_for("roll-pitch")
     with pytest.raises(ValueError, match="dem_m.*dem_product"):
-        U.propagate(s, Pose.from_deg(35.5, 80.9, 9000.0, 0, 0, 0, 20.0, 0.0), None, None, ErrorBudget({"heading_deg": 0.1}),
-                    surface=DemSurface(etopo))
+        U.propagate(
+            s,
+            Pose.from_deg(35.5, 80.9, 9000.0, 0, 0, 0, 20.0, 0.0),
+            None,
+            None,
+            ErrorBudget({"heading_deg": 0.1}),
+            surface=DemSurface(etopo),
+        )
 
 
 # ------------------------------------------------------------------ against Monte Carlo
@@ -294,8 +371,15 @@ def test_the_strict_point_slope_is_worse_on_rough_terrain_than_the_footprint_pla
 def test_q17_table1_standard_deviations_from_the_propagation():
     model = ErrorModel.from_toml(asset_path("scenarios", "qiao2017_table1.toml"))
     b = U.budget_from_error_model(model)
-    pu = U.propagate(model.camera, model.nominal_pose(), model.row, model.col, b,
-                     surface=HeightSurface(model.target_h_m, model.height_kind), outside="extrapolate")
+    pu = U.propagate(
+        model.camera,
+        model.nominal_pose(),
+        model.row,
+        model.col,
+        b,
+        surface=HeightSurface(model.target_h_m, model.height_kind),
+        outside="extrapolate",
+    )
     lat, h = float(pu.lat), float(pu.h)
     se, sn, su = np.sqrt(np.diag(pu.cov_enu))
     s_lat = math.degrees(sn / (meridian_radius(lat) + h))
@@ -317,11 +401,11 @@ def _plane_tiles(folder, slope):
     import rasterio
 
     folder.mkdir()
-    d, lat0, lon0 = 2e-4, 36.48, -84.2                    # node spacing [deg], seam at lon0
+    d, lat0, lon0 = 2e-4, 36.48, -84.2  # node spacing [deg], seam at lon0
     _, _, m_per_deg = pyproj.Geod(ellps="WGS84").inv(lon0, lat0, lon0 + 1e-3, lat0)
-    k = slope * m_per_deg / 1e-3                          # metres per degree of longitude
-    lon = lon0 + d * np.arange(-50, 51)                   # 101 nodes, 1 km east-west
-    lat = lat0 + 0.005 - d * np.arange(51)                # 51 nodes, north to south
+    k = slope * m_per_deg / 1e-3  # metres per degree of longitude
+    lon = lon0 + d * np.arange(-50, 51)  # 101 nodes, 1 km east-west
+    lat = lat0 + 0.005 - d * np.arange(51)  # 51 nodes, north to south
     H = np.broadcast_to(300.0 + k * (lon - lon0), (len(lat), len(lon))).astype("float64")
     prof = dict(driver="GTiff", count=1, dtype="float64", crs="EPSG:4326")
 
@@ -351,8 +435,9 @@ def test_on_a_mosaic_the_dem_error_moves_the_point_by_the_mosaic_slope(tmp_path)
     b = ErrorBudget({"dem_m": 10.0, "heading_deg": 0.02})
     mosaic = DemMosaic.open([str(p) for p in tiles], datum="ellipsoid", block=32)
     on_mosaic = U.propagate(s, pose, None, None, b, surface=mosaic, dem_slope="point")
-    on_raster = U.propagate(s, pose, None, None, b, surface=DemSurface(DEM.open(merged, datum="ellipsoid")),
-                            dem_slope="point")
+    on_raster = U.propagate(
+        s, pose, None, None, b, surface=DemSurface(DEM.open(merged, datum="ellipsoid")), dem_slope="point"
+    )
     assert on_mosaic.status == Status.OK and on_mosaic.sources[-1] == "dem_m"
 
     lat, lon = math.degrees(float(on_mosaic.lat)), math.degrees(float(on_mosaic.lon))
@@ -362,7 +447,7 @@ def test_on_a_mosaic_the_dem_error_moves_the_point_by_the_mosaic_slope(tmp_path)
     D = np.array(pymap3d.ecef2enuv(*np.asarray(los.direction_ecef).reshape(3), lat, lon))
     m = np.array([-g_e, 0.0, 1.0])
     expected = 10.0 * D / (m @ D)
-    level = 10.0 * D / D[2]                               # what a surface without its terrain gives
+    level = 10.0 * D / D[2]  # what a surface without its terrain gives
     got = np.asarray(on_mosaic.jacobian_enu)[..., -1].reshape(3)
     # 1e-4 of 10 m: the hit (solved to under 1 mm on a 1.3 km range) and the flat ENU at the hit
     # (metres over the Earth's radius, 1e-6) move it by far less; the level answer is 25 % off

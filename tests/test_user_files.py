@@ -142,12 +142,36 @@ def _assert_one_line_error(rc, err, *needles):
 def test_every_verb_that_writes_is_in_the_table():
     # the verbs that write files today; a verb that writes must declare its outputs with the types
     names = {" ".join(p) for p, _ in VERBS}
-    assert names >= {"calibrate", "export", "klv dump", "limb", "log", "montecarlo", "ortho", "replay",
-                     "report", "reproduce", "rpc", "view"}, names
+    assert names >= {
+        "calibrate",
+        "export",
+        "klv dump",
+        "limb",
+        "log",
+        "montecarlo",
+        "ortho",
+        "replay",
+        "report",
+        "reproduce",
+        "rpc",
+        "view",
+    }, names
     # and no file option escapes the table: an untyped option whose help names a file or a folder
     # is a file option declared as a plain string (the ones listed name something else)
-    not_files = {"--format", "--group-by", "--record", "--scenario", "--reference", "--ref-h-column",
-                 "--height-column", "--truth-prefix", "--fit", "--epoch", "--angle", "--columns"}
+    not_files = {
+        "--format",
+        "--group-by",
+        "--record",
+        "--scenario",
+        "--reference",
+        "--ref-h-column",
+        "--height-column",
+        "--truth-prefix",
+        "--fit",
+        "--epoch",
+        "--angle",
+        "--columns",
+    }
     words = ("file", "csv", "toml", "folder", ".tif", "geotiff", ".rrd", ".json")
     for prefix, p in _leaf_parsers(build_parser()):
         for a in p._actions:
@@ -182,8 +206,11 @@ def test_an_input_given_as_an_output_is_refused(prefix, out_dest, in_dest, tmp_p
 
 
 def _with_file_pair():
-    return [prefix for prefix, p in VERBS
-            if any(_role(a) == "input" for a in p._actions) and any(_role(a) == "output" for a in p._actions)]
+    return [
+        prefix
+        for prefix, p in VERBS
+        if any(_role(a) == "input" for a in p._actions) and any(_role(a) == "output" for a in p._actions)
+    ]
 
 
 @pytest.mark.parametrize("how", ["symlink", "hardlink", "relative", "dotted"])
@@ -197,8 +224,12 @@ def test_the_same_file_by_another_name_is_refused(prefix, how, tmp_path, capsys,
     src.parent.mkdir()
     src.write_bytes(b"x,y\n1,2\n")
     monkeypatch.chdir(tmp_path)
-    other = {"symlink": tmp_path / "link.csv", "hardlink": tmp_path / "hard.csv",
-             "relative": Path("data/the_input.csv"), "dotted": tmp_path / "data" / ".." / "data" / "the_input.csv"}[how]
+    other = {
+        "symlink": tmp_path / "link.csv",
+        "hardlink": tmp_path / "hard.csv",
+        "relative": Path("data/the_input.csv"),
+        "dotted": tmp_path / "data" / ".." / "data" / "the_input.csv",
+    }[how]
     if how == "symlink":
         other.symlink_to(src)
     elif how == "hardlink":
@@ -280,8 +311,10 @@ def test_a_tile_of_a_mosaic_is_an_input(tmp_path, capsys):
     tiles.mkdir()
     shutil.copy(asset_path("dem", "srtm_jacksboro.tif"), tiles / "a.tif")
     before = (tiles / "a.tif").read_bytes()
-    rc, err = _run(["replay", str(asset_path("klv", "example_flight.klv")), "--dem", str(tiles),
-                    "--out", str(tiles / "a.tif")], capsys)
+    rc, err = _run(
+        ["replay", str(asset_path("klv", "example_flight.klv")), "--dem", str(tiles), "--out", str(tiles / "a.tif")],
+        capsys,
+    )
     assert rc == 2 and "is an input of this command" in err, err
     assert (tiles / "a.tif").read_bytes() == before
 
@@ -297,8 +330,10 @@ def test_the_bundled_data_is_never_written(capsys):
 
 def test_two_outputs_on_one_path_are_refused(tmp_path, capsys):
     out = tmp_path / "same.tif"
-    rc, err = _run(["ortho", "--photo", "assets/photos/DJI_0001.JPG", "--out", str(out), "--ortho-out", str(out),
-                    "--gsd-m", "1"], capsys)
+    rc, err = _run(
+        ["ortho", "--photo", "assets/photos/DJI_0001.JPG", "--out", str(out), "--ortho-out", str(out), "--gsd-m", "1"],
+        capsys,
+    )
     _assert_one_line_error(rc, err, "are the same file")
     assert not out.exists()
 
@@ -393,8 +428,22 @@ def test_view_reports_a_bad_input_before_it_serves(tmp_path, capsys, monkeypatch
 
 def test_ortho_refuses_ortho_out_without_a_dem_before_writing(tmp_path, capsys):
     out, ortho = tmp_path / "frame.tif", tmp_path / "ortho.tif"
-    rc, err = _run(["ortho", "--photo", "assets/photos/DJI_0001.JPG", "--target-h-m", "100", "--out", str(out),
-                    "--ortho-out", str(ortho), "--gsd-m", "1"], capsys)
+    rc, err = _run(
+        [
+            "ortho",
+            "--photo",
+            "assets/photos/DJI_0001.JPG",
+            "--target-h-m",
+            "100",
+            "--out",
+            str(out),
+            "--ortho-out",
+            str(ortho),
+            "--gsd-m",
+            "1",
+        ],
+        capsys,
+    )
     assert rc == 2 and "needs a DEM" in err, err
     assert not out.exists() and not ortho.exists()
 
@@ -479,11 +528,23 @@ def test_standard_output_is_refused_for_a_binary_output(prefix, out_dest, tmp_pa
 def test_the_text_outputs_are_those_of_text_formats():
     # the options where `-` is standard output: CSV, JSON, JSON lines, TOML, and export's KML/CZML/CoT
     text_output_path = _text_type()
-    text = {f"{' '.join(prefix)} {a.option_strings[0] if a.option_strings else a.metavar}"
-            for prefix, p in VERBS for a in p._actions if a.type is text_output_path}
-    assert text == {"replay --out", "montecarlo --out", "limb --out", "klv dump --out", "calibrate --out",
-                    "reproduce --json", "rpc --report",
-                    "export --out", "export OUT"}
+    text = {
+        f"{' '.join(prefix)} {a.option_strings[0] if a.option_strings else a.metavar}"
+        for prefix, p in VERBS
+        for a in p._actions
+        if a.type is text_output_path
+    }
+    assert text == {
+        "replay --out",
+        "montecarlo --out",
+        "limb --out",
+        "klv dump --out",
+        "calibrate --out",
+        "reproduce --json",
+        "rpc --report",
+        "export --out",
+        "export OUT",
+    }
 
 
 def test_a_symlink_output_is_written_through_and_kept(tmp_path):
@@ -606,8 +667,12 @@ def test_a_library_writer_into_a_fifo_does_not_replace_it(tmp_path, capsys):
     import sys
 
     # in a child with a time limit: given the FIFO itself, SQLite waited on it forever
-    p = subprocess.run([sys.executable, "-m", "geoloc", "export", str(results), "--out", str(fifo)],
-                       capture_output=True, text=True, timeout=120)
+    p = subprocess.run(
+        [sys.executable, "-m", "geoloc", "export", str(results), "--out", str(fifo)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert p.returncode == 0, p.stderr
     reader.join(timeout=120)
     assert fifo.is_fifo() and got and got[0].startswith(b"SQLite format 3\x00")  # a GeoPackage is SQLite

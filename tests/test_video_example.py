@@ -251,8 +251,9 @@ def test_geoloc_log_puts_each_frame_in_its_pinhole(tmp_path, monkeypatch, decode
             for k, v in zip(pk, b.column("EncodedImage:blob").to_pylist()):
                 blobs[k] = bytes(v[0])
         if "Pinhole:image_from_camera" in b.schema.names:
-            for k, m, r in zip(pk, b.column("Pinhole:image_from_camera").to_pylist(),
-                               b.column("Pinhole:resolution").to_pylist()):
+            for k, m, r in zip(
+                pk, b.column("Pinhole:image_from_camera").to_pylist(), b.column("Pinhole:resolution").to_pylist()
+            ):
                 pins[k] = (np.array(m[0]), r[0])
     good = sorted(set(range(300)) - {150})  # the corrupted packet is no step
     assert sorted(blobs) == good and sorted(pins) == good
@@ -261,8 +262,11 @@ def test_geoloc_log_puts_each_frame_in_its_pinhole(tmp_path, monkeypatch, decode
     import av
 
     with av.open(str(TS)) as c:
-        want = {f.pts // 90000: f.to_ndarray(format="rgb24") for f in c.decode(c.streams.video[0])
-                if f.pts // 90000 in (0, 105, 299)}
+        want = {
+            f.pts // 90000: f.to_ndarray(format="rgb24")
+            for f in c.decode(c.streams.video[0])
+            if f.pts // 90000 in (0, 105, 299)
+        }
     for k, ref in want.items():
         got = np.asarray(Image.open(io.BytesIO(blobs[k])).convert("RGB"))
         assert got.shape == ref.shape and np.abs(got.astype(int) - ref).mean() < 3.0, k
@@ -308,11 +312,19 @@ def test_view_export_carries_the_picture_and_the_clicked_points(tmp_path, monkey
     monkeypatch.setenv("HOME", str(tmp_path))
     out = tmp_path / "packet90.html"
     picks = [(273.0, 310.0), (100.0, 500.0)]
-    assert main(["view", "--export", str(out), "--record", "packet 90"]
-                + sum((["--pixel", f"{r:g},{c:g}"] for r, c in picks), [])) == 0
+    assert (
+        main(
+            ["view", "--export", str(out), "--record", "packet 90"]
+            + sum((["--pixel", f"{r:g},{c:g}"] for r, c in picks), [])
+        )
+        == 0
+    )
     page = out.read_text()
-    m = re.search(r'id="geoloc-export-picture"><img alt="frame image" data-rows="(\d+)" data-cols="(\d+)"'
-                  r'[^>]*src="data:image/jpeg;base64,([^"]+)"', page)
+    m = re.search(
+        r'id="geoloc-export-picture"><img alt="frame image" data-rows="(\d+)" data-cols="(\d+)"'
+        r'[^>]*src="data:image/jpeg;base64,([^"]+)"',
+        page,
+    )
     assert m and (int(m.group(1)), int(m.group(2))) == (360, 640)
     img = np.asarray(Image.open(io.BytesIO(base64.b64decode(m.group(3)))).convert("RGB"))
     assert img.shape[1] == 560 and img.std() > 3  # the panel's width; a picture, not a blank

@@ -19,9 +19,18 @@ import numpy as np
 import pytest
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+]
 ARTIFACTS = Path(__file__).resolve().parents[1] / "test-artifacts"
 
 # tools/test.sh installs Debian chromium: no skip for want of it (a missing browser fails loudly)
@@ -64,8 +73,15 @@ def render(server, path, timeout=40.0, min_colours=20):
     cam = server.initial_camera
     t0 = time.monotonic()
     while True:
-        img = client.get_render(300, 450, position=cam.position, wxyz=look_at_wxyz(cam.position, cam.look_at),
-                                fov=cam.fov, transport_format="jpeg", timeout=timeout)
+        img = client.get_render(
+            300,
+            450,
+            position=cam.position,
+            wxyz=look_at_wxyz(cam.position, cam.look_at),
+            fov=cam.fov,
+            transport_format="jpeg",
+            timeout=timeout,
+        )
         if n_colours(img) > min_colours or time.monotonic() - t0 > timeout:
             break
         time.sleep(1.0)
@@ -75,8 +91,11 @@ def render(server, path, timeout=40.0, min_colours=20):
 
 #: Several tabs at once: Chromium throttles (or stops) the pages not in front; these tests
 #: need every tab to run its scene and GUI.
-MULTI_TAB_FLAGS = ["--disable-renderer-backgrounding", "--disable-background-timer-throttling",
-                   "--disable-backgrounding-occluded-windows"]
+MULTI_TAB_FLAGS = [
+    "--disable-renderer-backgrounding",
+    "--disable-background-timer-throttling",
+    "--disable-backgrounding-occluded-windows",
+]
 
 
 @contextlib.contextmanager
@@ -90,12 +109,16 @@ def chromium(tmp_path, extra_flags=()):
         raise AssertionError(
             f"{os.environ.get('PYTEST_CURRENT_TEST', 'this test')} opens Chromium outside the xdist group "
             "'chromium': tests/conftest.py's _opens_chromium did not find the call (name chromium, or "
-            "call it through a function of a test module)")
-    env = {**os.environ, "HOME": str(tmp_path), "XDG_CONFIG_HOME": str(tmp_path / "config"),
-           "XDG_CACHE_HOME": str(tmp_path / "cache")}
+            "call it through a function of a test module)"
+        )
+    env = {
+        **os.environ,
+        "HOME": str(tmp_path),
+        "XDG_CONFIG_HOME": str(tmp_path / "config"),
+        "XDG_CACHE_HOME": str(tmp_path / "cache"),
+    }
     with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS + list(extra_flags), env=env,
-                                    timeout=60000)
+        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS + list(extra_flags), env=env, timeout=60000)
         try:
             yield browser
         finally:
@@ -168,9 +191,11 @@ def test_viewer_in_headless_chromium(tmp_path):
             page2.on("console", lambda m: console.append(m.text))
             page2.goto(out.as_uri(), timeout=40000)
             page2.wait_for_selector("canvas", timeout=40000)
-            wait_for(lambda: any("Embedded data loaded" in m for m in console), 30,
-                     "the exported page to load its embedded scene")
-
+            wait_for(
+                lambda: any("Embedded data loaded" in m for m in console),
+                30,
+                "the exported page to load its embedded scene",
+            )
 
 
 def test_turret_sensor_in_headless_chromium(tmp_path):
@@ -181,8 +206,9 @@ def test_turret_sensor_in_headless_chromium(tmp_path):
     from geoloc_viz.scenario import load_view_scenario
 
     with served() as server:
-        scn = load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
-                            asset_path("sensors", "eo_turret.toml"))
+        scn = load_view_scenario(
+            asset_path("records", "eo_turret_flight.csv"), "orbit1-5", asset_path("sensors", "eo_turret.toml")
+        )
         app = GeolocApp(server, scn)
         assert [k for k in app.num if k.startswith("angle:")] == ["angle:azimuth", "angle:elevation"]
         with chromium(tmp_path) as browser:
@@ -196,8 +222,13 @@ def test_turret_sensor_in_headless_chromium(tmp_path):
             before = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
             # a slider's value set from Python, as the GUI would (arrow keys also move the 3D camera)
             app.num["angle:azimuth"].value = app.inputs.angles_deg["azimuth"] + 10.0
-            wait_for(lambda: np.linalg.norm(np.array(server.scene.get_handle_by_name(
-                "/enu/hit/result").position) - before) > 0.3, 20, "a 10 deg azimuth change to move the hit")
+            wait_for(
+                lambda: (
+                    np.linalg.norm(np.array(server.scene.get_handle_by_name("/enu/hit/result").position) - before) > 0.3
+                ),
+                20,
+                "a 10 deg azimuth change to move the hit",
+            )
             time.sleep(2.0)
             page.screenshot(path=str(ARTIFACTS / "viz_turret_page.png"))
 
@@ -238,8 +269,11 @@ def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
             # A's browser reports the camera that frames T4-3's aircraft and target
             ca = server.get_clients()[ida].camera
             want = sa.view.camera_pose("overview")[0]
-            wait_for(lambda: np.linalg.norm(np.array(ca.position) - want) < 0.05, 20,
-                     "A's browser camera to move to T4-3's overview")  # 50 m of km-unit scene
+            wait_for(
+                lambda: np.linalg.norm(np.array(ca.position) - want) < 0.05,
+                20,
+                "A's browser camera to move to T4-3's overview",
+            )  # 50 m of km-unit scene
             pa.screenshot(path=str(ARTIFACTS / "viz_tab_a_T4-3.png"))
             # tab B: header, inputs, camera unchanged
             assert pb.locator("text=qiao2017_flight_tests.csv T3-1").count() >= 1
@@ -280,15 +314,21 @@ def test_presenter_mode_in_chromium(tmp_path):
             assert box.is_enabled()
             box.fill("12000")
             box.press("Enter")
-            wait_for(lambda: follower_box.input_value().replace(",", "") in ("12000", "12000.0", "12000.00"),
-                     60, "the follower's box to show the driver's height")
+            wait_for(
+                lambda: follower_box.input_value().replace(",", "") in ("12000", "12000.0", "12000.00"),
+                60,
+                "the follower's box to show the driver's height",
+            )
             pb.wait_for_selector("text=custom pose (edited from record T3-1)", timeout=60000, state="attached")
             # the driver's view button moves its camera; the follower's browser follows
             viewer.driver.move_camera("target")
             want = viewer.driver.view.camera_pose("target")[0]
             cb = server.get_clients()[idb].camera
-            wait_for(lambda: np.linalg.norm(np.array(cb.position) - want) < 0.05, 20,
-                     "the follower's browser camera to follow the driver's")
+            wait_for(
+                lambda: np.linalg.norm(np.array(cb.position) - want) < 0.05,
+                20,
+                "the follower's browser camera to follow the driver's",
+            )
             # issue 34: the follower sees every folder of the presenter's panel (flight, outliers,
             # accuracy, legend, teaching, ...), each with the presenter's text, read-only
             from geoloc_viz.app import driver_folders
@@ -296,8 +336,7 @@ def test_presenter_mode_in_chromium(tmp_path):
             folders = [label for label, _ in driver_folders(viewer.driver)]
             assert {"Flight", "Flight: accuracy", "Legend"} <= set(folders), folders
             for label in folders:
-                wait_for(lambda: pb.get_by_text(label, exact=True).count() >= 1, 60,
-                         f"the follower's folder {label!r}")
+                wait_for(lambda: pb.get_by_text(label, exact=True).count() >= 1, 60, f"the follower's folder {label!r}")
             panel = viewer.followers[idb]
             for src, dst in panel.mirrors:
                 assert dst.content == src.content
@@ -314,8 +353,9 @@ def test_presenter_switches_scenario_in_chromium(tmp_path):
 
     with served() as server:
         q17 = load_view_scenario()
-        viewer = GeolocViewer(server, q17, presenter=True,
-                              scenarios={"[Q17] flight test": q17, "example flight": default_flight_scenario})
+        viewer = GeolocViewer(
+            server, q17, presenter=True, scenarios={"[Q17] flight test": q17, "example flight": default_flight_scenario}
+        )
         with chromium(tmp_path, MULTI_TAB_FLAGS) as browser:
             pa = open_viewer(browser, server, 800, 600)
             ida = next(iter(server.get_clients()))
@@ -328,13 +368,19 @@ def test_presenter_switches_scenario_in_chromium(tmp_path):
             assert box.is_enabled()
             box.click(timeout=120000)
             pa.get_by_role("option", name="example flight").click(timeout=120000)
-            wait_for(lambda: viewer.driver is not None and viewer.driver.scn.name.startswith("example_flight.klv"),
-                     300, "the presented scenario to switch")
+            wait_for(
+                lambda: viewer.driver is not None and viewer.driver.scn.name.startswith("example_flight.klv"),
+                300,
+                "the presented scenario to switch",
+            )
             assert viewer.driver.client.client_id == ida
             # the follower's page: the new header, the flight folders, its box on the presenter's choice
             pb.wait_for_selector("text=example_flight.klv", timeout=120000, state="attached")
             pb.wait_for_selector("text=Flight: outliers first", timeout=120000, state="attached")
-            wait_for(lambda: pb.get_by_label("scenario").input_value() == "example flight", 120,
-                     "the follower's scenario box")
+            wait_for(
+                lambda: pb.get_by_label("scenario").input_value() == "example flight",
+                120,
+                "the follower's scenario box",
+            )
             assert pb.get_by_label("scenario").is_disabled()
             pb.screenshot(path=str(ARTIFACTS / "viz_presenter_switched_follower.png"))

@@ -54,8 +54,9 @@ def test_the_ellipse_is_the_sensor_files_budget(tmp_path):
     from geoloc_viz.scenario import load_view_scenario
 
     s = 4.0
-    path = _with_budget(tmp_path, asset_path("cameras", "qiao2017.toml"),
-                        f"north_m = {s}\neast_m = {s}\ntime_s = 0.01\n")
+    path = _with_budget(
+        tmp_path, asset_path("cameras", "qiao2017.toml"), f"north_m = {s}\neast_m = {s}\ntime_s = 0.01\n"
+    )
     scn = load_view_scenario(camera_path=path, use_dem=False)  # the ellipsoid at the record's height
     assert scn.budget is not None and scn.budget.sigma("north_m") == s
     with served() as server:
@@ -92,8 +93,11 @@ def orbit_with_budget(tmp_path_factory):
 
     from geoloc_viz.flight_model import default_flight_scenario
 
-    path = _with_budget(tmp_path_factory.mktemp("budget"), asset_path("sensors", "eo_turret.toml"),
-                        "north_m = 3.0\neast_m = 3.0\nup_m = 3.0\nk1 = 0.001\n")
+    path = _with_budget(
+        tmp_path_factory.mktemp("budget"),
+        asset_path("sensors", "eo_turret.toml"),
+        "north_m = 3.0\neast_m = 3.0\nup_m = 3.0\nk1 = 0.001\n",
+    )
     scn = default_flight_scenario(camera_path=path)
     scn.images = ArrayImages([render_frame(scn, i) for i in FRAMES])
     idx = np.full(len(scn.records), -1)
@@ -148,7 +152,7 @@ def test_the_triangulated_target_takes_the_sensor_files_budget(orbit_with_budget
         A = np.zeros((3, 3))
         for k, d in zip(FRAMES, dirs):
             v = _velocity_enu(int(scn.records[k][0].label.split()[-1]))
-            Sig = s * s * np.eye(3) + sig_t ** 2 * np.outer(v, v)
+            Sig = s * s * np.eye(3) + sig_t**2 * np.outer(v, v)
             ref = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
             b1 = np.cross(d, ref)
             b1 /= np.linalg.norm(b1)
@@ -184,8 +188,9 @@ def _velocity_enu(packet):
     c = r.columns
     j = list(np.asarray(r.packet, int)).index(packet)
     a, b = max(j - 1, 0), min(j + 1, len(r.packet) - 1)
-    lat, lon, h = (np.asarray(c[k], float) for k in ("sensor_latitude_deg", "sensor_longitude_deg",
-                                                     "sensor_ellipsoid_height_m"))
+    lat, lon, h = (
+        np.asarray(c[k], float) for k in ("sensor_latitude_deg", "sensor_longitude_deg", "sensor_ellipsoid_height_m")
+    )
     t = np.asarray(c["precision_time_stamp_us"], float) * 1e-6
     az, _, dist = pyproj.Geod(ellps="WGS84").inv(lon[a], lat[a], lon[b], lat[b])
     dt = t[b] - t[a]
@@ -223,8 +228,10 @@ def test_a_time_error_on_a_klv_flight_moves_the_point_along_the_track(tmp_path):
         # the hit moves with the platform over a level surface: a segment of 1-sigma length
         # speed x sigma_t along the track. The platform's climb (under 0.5 m/s against 54 m/s) moves
         # the hit along the ray by climb x tan(off nadir): 2 % covers it and the local frame's turn
-        print(f"1-sigma segment {float(pu.ellipse_major_m):.3f} m (speed x sigma_t {speed * sig_t:.3f} m), minor "
-              f"{float(pu.ellipse_minor_m):.4f} m, azimuth {float(pu.ellipse_azimuth_deg):.2f} deg (track {az:.2f})")
+        print(
+            f"1-sigma segment {float(pu.ellipse_major_m):.3f} m (speed x sigma_t {speed * sig_t:.3f} m), minor "
+            f"{float(pu.ellipse_minor_m):.4f} m, azimuth {float(pu.ellipse_azimuth_deg):.2f} deg (track {az:.2f})"
+        )
         # (measured: 5.442 m against 5.445 m, the azimuth 0.4 deg off the chord's)
         assert float(pu.ellipse_major_m) == pytest.approx(speed * sig_t, rel=1e-2)
         assert float(pu.ellipse_minor_m) < 0.01 * float(pu.ellipse_major_m)

@@ -41,13 +41,35 @@ def _turret_scenario(n=6, seed=3):
     sensor = FrameSensor(lens_from_fov(hfov, vfov, 1920, 1080), PRESETS["azimuth-elevation-roll"])
     recs = []
     for k in range(n):
-        inp = Inputs(36.5 + 0.01 * k, -84.2 + 0.013 * k, float(rng.uniform(2000, 6000)),
-                     float(rng.uniform(-180, 180)), 0.0, 0.0, 0.0, 0.0, 540.5, 960.5, target_h=0.0,
-                     angles_deg={"azimuth": float(rng.uniform(0, 360)), "elevation": float(rng.uniform(-80, -30)),
-                                 "sensor_roll": 0.0})
+        inp = Inputs(
+            36.5 + 0.01 * k,
+            -84.2 + 0.013 * k,
+            float(rng.uniform(2000, 6000)),
+            float(rng.uniform(-180, 180)),
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            540.5,
+            960.5,
+            target_h=0.0,
+            angles_deg={
+                "azimuth": float(rng.uniform(0, 360)),
+                "elevation": float(rng.uniform(-80, -30)),
+                "sensor_roll": 0.0,
+            },
+        )
         recs.append((RecordInfo(f"f{k}"), inp))
-    scn = Scenario("synthetic", sensor, recs[0][1], EnuFrame.from_deg(36.5, -84.2, 0.0), records=recs,
-                   record_index=0, dem=None, use_dem=False)
+    scn = Scenario(
+        "synthetic",
+        sensor,
+        recs[0][1],
+        EnuFrame.from_deg(36.5, -84.2, 0.0),
+        records=recs,
+        record_index=0,
+        dem=None,
+        use_dem=False,
+    )
     return scn, hfov, vfov
 
 
@@ -73,8 +95,13 @@ def test_footprint_corners_equal_pymap3d_look_at_spheroid():
     m = flight_model.build(scn, diagnose_faults=False)
     assert m.reference == "reported" and m.footprint_enu.shape == (6, 4 * flight_model.EDGE_SAMPLES, 3)
     for k, (_, inp) in enumerate(scn.records):
-        d = _corner_dirs_ned(math.radians(inp.heading_deg), math.radians(inp.angles_deg["azimuth"]),
-                             math.radians(inp.angles_deg["elevation"]), hfov, vfov)
+        d = _corner_dirs_ned(
+            math.radians(inp.heading_deg),
+            math.radians(inp.angles_deg["azimuth"]),
+            math.radians(inp.angles_deg["elevation"]),
+            hfov,
+            vfov,
+        )
         az = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
         tilt = np.degrees(np.arccos(d[:, 2]))  # from nadir (pymap3d's convention)
         lat, lon, _ = lookAtSpheroid(inp.lat_deg, inp.lon_deg, inp.h_m, az, tilt)
@@ -137,8 +164,11 @@ def test_the_fitted_faults_give_back_the_planted_sizes(klv_model):
     scn, m = klv_model
     kinds = {(m.labels[f.first], m.labels[f.last]): f for f in m.faults}
     assert set(kinds) == {("packet 100", "packet 109"), ("packet 200", "packet 204"), ("packet 250", "packet 256")}
-    yaw, datum, stale = kinds[("packet 100", "packet 109")], kinds[("packet 200", "packet 204")], \
-        kinds[("packet 250", "packet 256")]
+    yaw, datum, stale = (
+        kinds[("packet 100", "packet 109")],
+        kinds[("packet 200", "packet 204")],
+        kinds[("packet 250", "packet 256")],
+    )
     assert (yaw.kind, datum.kind, stale.kind) == ("attitude", "datum", "timing")
     # planted: heading + 2.5 deg; 0.1 deg: the linearisation over a 2.5 deg step and the 0.0055 deg
     # quantisation of the heading tag
@@ -174,8 +204,9 @@ def test_accuracy_panel_agrees_with_a_direct_computation(klv_model):
 
     _, m = klv_model
     ok = np.isfinite(m.residual_m)
-    _, _, d = Geod(ellps="WGS84").inv(m.recomputed_lon_deg[ok], m.recomputed_lat_deg[ok],
-                                      m.reported_lon_deg[ok], m.reported_lat_deg[ok])
+    _, _, d = Geod(ellps="WGS84").inv(
+        m.recomputed_lon_deg[ok], m.recomputed_lat_deg[ok], m.reported_lon_deg[ok], m.reported_lat_deg[ok]
+    )
     # rtol 1e-4: the geodesic runs on the ellipsoid, the local-NED distance at the target's ~525 m
     # height, longer by (R + h) / R - 1 = 8e-5; 1e-6 m for the millimetre residuals
     np.testing.assert_allclose(m.residual_m[ok], d, rtol=1e-4, atol=1e-6)
@@ -278,8 +309,14 @@ def test_timeline_moves_only_the_highlight():
 
 
 def test_example_53_prints_the_frames_and_the_top_outliers():
-    out = subprocess.run([sys.executable, str(ROOT / "examples" / "53_flight_debugger_scene.py")], cwd=ROOT,
-                         capture_output=True, text=True, timeout=300, check=False)
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / "53_flight_debugger_scene.py")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert "298 frames" in out.stdout
     assert "22 outliers" in out.stdout
@@ -320,8 +357,15 @@ def test_scrubbing_the_timeline_moves_the_footprint_on_the_canvas(tmp_path):
                 # before the scene): it lies elsewhere, so its pixels are not where this one projects
                 t0 = time.monotonic()
                 while True:
-                    img = client.get_render(200, 280, position=tuple(pos), wxyz=look_at_wxyz(pos, c), fov=0.9,
-                                            transport_format="png", timeout=60)[..., :3]
+                    img = client.get_render(
+                        200,
+                        280,
+                        position=tuple(pos),
+                        wxyz=look_at_wxyz(pos, c),
+                        fov=0.9,
+                        transport_format="png",
+                        timeout=60,
+                    )[..., :3]
                     if _magenta(img).sum() > 20 or time.monotonic() - t0 > 25:
                         break
                     time.sleep(0.5)
@@ -364,8 +408,11 @@ def test_choosing_an_outlier_moves_the_browser_camera(tmp_path):
             # the browser applies the new camera and reports it back
             # 0.05 km: the browser reports float32 positions after orbit-control damping settles
             try:
-                wait_for(lambda: any(np.linalg.norm(p - pos) < 0.05 for p in reported), 20,
-                         "the browser to report the outlier's camera")
+                wait_for(
+                    lambda: any(np.linalg.norm(p - pos) < 0.05 for p in reported),
+                    20,
+                    "the browser to report the outlier's camera",
+                )
             except AssertionError:
                 raise AssertionError(f"target {pos}, before {before}, reported {reported[-3:]}")
             assert np.linalg.norm(pos - before) > 0.1  # km
@@ -418,8 +465,11 @@ def test_at_each_planted_fault_the_error_vector_shows_on_the_canvas(tmp_path):
                 pos, aim = fl.camera_pose(idx)
                 D = np.linalg.norm(pos - aim)
                 # 2 % of the distance: the browser reports float32 positions after the damping settles
-                wait_for(lambda: np.linalg.norm(np.array(client.camera.position) - pos) < 0.02 * D, 30,
-                         f"the browser camera to frame {lab}'s error")
+                wait_for(
+                    lambda: np.linalg.norm(np.array(client.camera.position) - pos) < 0.02 * D,
+                    30,
+                    f"the browser camera to frame {lab}'s error",
+                )
                 a, b = fl.focus_world()
                 # the markers of the frame are sized to its error (a tenth), the session's hit markers too
                 err = fl.focus_info["error_m"]
@@ -436,11 +486,11 @@ def test_at_each_planted_fault_the_error_vector_shows_on_the_canvas(tmp_path):
                 # before the scene): it lies elsewhere, so its pixels are not where this one projects
                 t0 = time.monotonic()
                 while True:
-                    img = client.get_render(H_, W_, position=tuple(cpos), wxyz=tuple(cwxyz), fov=fov,
-                                            transport_format="png", timeout=90)[..., :3]
+                    img = client.get_render(
+                        H_, W_, position=tuple(cpos), wxyz=tuple(cwxyz), fov=fov, transport_format="png", timeout=90
+                    )[..., :3]
                     pink = _pink(img)
-                    hits = [pink[max(int(v) - 3, 0):int(v) + 4, max(int(u) - 3, 0):int(u) + 4].any()
-                            for u, v in uv]
+                    hits = [pink[max(int(v) - 3, 0) : int(v) + 4, max(int(u) - 3, 0) : int(u) + 4].any() for u, v in uv]
                     if np.mean(hits) >= 0.9 or time.monotonic() - t0 > 60:
                         break
                     time.sleep(1.0)
@@ -470,8 +520,13 @@ def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
         page = app.export(tmp_path / "outlier.html", animate_steps=False).read_text()
         panel = re.search(r'<div id="geoloc-summary"[^>]*>(.*?)</div>', page, re.S).group(1)
         err = fl.error_m(idx)
-        for text in ("example_flight.klv packet 203", f"residual {fl.model.residual_m[idx]:.2f} m",
-                     f"error {err:.1f} m", "sensor height off by", "height in the wrong datum"):
+        for text in (
+            "example_flight.klv packet 203",
+            f"residual {fl.model.residual_m[idx]:.2f} m",
+            f"error {err:.1f} m",
+            "sensor height off by",
+            "height in the wrong datum",
+        ):
             assert text in panel, text
 
 
@@ -487,6 +542,9 @@ def test_one_legend_per_scenario_from_what_it_draws():
     assert "surveyed" not in klv and "bright pink" in klv and "outer gimbal" not in klv
     q17 = legend_markdown(load_view_scenario())
     assert "published position [Q17]" in q17 and "**white**: surveyed" in q17 and "outer gimbal" in q17
-    turret = legend_markdown(load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
-                                                asset_path("sensors", "eo_turret.toml")))
+    turret = legend_markdown(
+        load_view_scenario(
+            asset_path("records", "eo_turret_flight.csv"), "orbit1-5", asset_path("sensors", "eo_turret.toml")
+        )
+    )
     assert "gimbal azimuth" in turret and "gimbal elevation" in turret and "outer gimbal" not in turret

@@ -37,7 +37,8 @@ def _measure(page, texts, scales):
         return texts.map((t, i) => { c.font = fonts[i]; const lines = t.split('\\n'); const m = c.measureText('Hg');
           return [Math.max(...lines.map(l => c.measureText(l).width)),
                   (m.fontBoundingBoxAscent + m.fontBoundingBoxDescent) * lines.length]; }); }""",
-        [fonts, list(texts)])
+        [fonts, list(texts)],
+    )
 
 
 def _pose(scene, name):
@@ -67,8 +68,7 @@ def boxes(page, scene, camera, W=W, H=H):
             continue
         R, t, shown = _pose(scene, name)
         if shown:
-            labels.append((name, h.text, h.anchor, R @ np.asarray(h.position, float) + t,
-                           float(h.font_screen_scale)))
+            labels.append((name, h.text, h.anchor, R @ np.asarray(h.position, float) + t, float(h.font_screen_scale)))
     if not labels:
         return {}
     sizes = _measure(page, [lab[1] for lab in labels], [lab[4] for lab in labels])
@@ -95,7 +95,7 @@ def overlaps(bx):
     names = sorted(bx)
     bad = []
     for i, a in enumerate(names):
-        for b in names[i + 1:]:
+        for b in names[i + 1 :]:
             A, B = bx[a], bx[b]
             if A[0] < B[2] and B[0] < A[2] and A[1] < B[3] and B[1] < A[3]:
                 bad.append((A[4], B[4]))
@@ -116,8 +116,11 @@ def _check(tmp_path, make_viewer, scene_of, name, act=None, size=(W, H), done=la
             page = open_viewer(browser, server, w, h)
             cid, client = next(iter(server.get_clients().items()))
             wait_for(lambda: scene_of(viewer, cid) is not None, 300, "the tab's scene to be built")
-            wait_for(lambda: client.camera.update_timestamp > 0 and client.camera.image_width == w, 60,
-                     "the browser's camera report")
+            wait_for(
+                lambda: client.camera.update_timestamp > 0 and client.camera.image_width == w,
+                60,
+                "the browser's camera report",
+            )
             scene = scene_of(viewer, cid)
             if act is not None:
                 act(page, viewer, cid)
@@ -161,8 +164,9 @@ def test_turret_labels_do_not_overlap(tmp_path):
     from geoloc_viz.app import GeolocViewer
     from geoloc_viz.scenario import load_view_scenario
 
-    scn = load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
-                             asset_path("sensors", "eo_turret.toml"))
+    scn = load_view_scenario(
+        asset_path("records", "eo_turret_flight.csv"), "orbit1-5", asset_path("sensors", "eo_turret.toml")
+    )
     _check(tmp_path, lambda server: GeolocViewer(server, scn), _tab_scene, "turret")
 
 
@@ -184,8 +188,9 @@ def _turret(preset):
     from geoloc.sensors.gimbals import PRESETS
     from geoloc_viz.scenario import load_view_scenario
 
-    scn = load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5",
-                             asset_path("sensors", "eo_turret.toml"))
+    scn = load_view_scenario(
+        asset_path("records", "eo_turret_flight.csv"), "orbit1-5", asset_path("sensors", "eo_turret.toml")
+    )
     if preset != "azimuth-elevation":  # the turret with a roll about its line of sight
         scn.camera = dataclasses.replace(as_sensor(scn.camera), gimbal=PRESETS[preset])
         scn.inputs = scn.inputs.replace(angles_deg={**scn.inputs.angles_deg, "sensor_roll": 8.0})
@@ -216,18 +221,31 @@ def test_turret_teaching_row_labels_do_not_overlap(tmp_path, preset):
         return len(t) > 20 and all(b[2] < Wt - PANEL_PX + 20 for b in t.values())
 
     # the bundled turret flight's records carry no roll angle: the roll variant without the flight layer
-    layers = DEFAULT_LAYERS if preset == "azimuth-elevation" else tuple(l for l in DEFAULT_LAYERS if l is not attach_flight)
-    bx, scene = _check(tmp_path, lambda server: GeolocViewer(server, scn, layers=layers), _tab_scene,
-                       f"turret_teaching_{preset}",
-                       act=frame_it, size=(Wt, Ht), done=row_framed)
+    layers = (
+        DEFAULT_LAYERS if preset == "azimuth-elevation" else tuple(l for l in DEFAULT_LAYERS if l is not attach_flight)
+    )
+    bx, scene = _check(
+        tmp_path,
+        lambda server: GeolocViewer(server, scn, layers=layers),
+        _tab_scene,
+        f"turret_teaching_{preset}",
+        act=frame_it,
+        size=(Wt, Ht),
+        done=row_framed,
+    )
     import viser
 
-    row = {n for n, h in scene._handle_from_node_name.items()
-           if isinstance(h, viser.LabelHandle) and n.startswith("/enu/teach/") and h.text}
+    row = {
+        n
+        for n, h in scene._handle_from_node_name.items()
+        if isinstance(h, viser.LabelHandle) and n.startswith("/enu/teach/") and h.text
+    }
     shown = teach(bx)
     missing = sorted(row - set(shown))
     assert not missing, f"teaching labels hidden or off the canvas: {missing}"
-    joints = ["gimbal_azimuth", "gimbal_elevation", "cam"] + (["gimbal_roll_los"] if preset != "azimuth-elevation" else [])
+    joints = ["gimbal_azimuth", "gimbal_elevation", "cam"] + (
+        ["gimbal_roll_los"] if preset != "azimuth-elevation" else []
+    )
     for f in joints:
         for ax in "xyz":
             assert f"/enu/teach/frames/{f}/{ax}" in shown

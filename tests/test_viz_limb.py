@@ -1,6 +1,5 @@
 """The limb scene and the ``geoloc view`` command line, in process (no browser)."""
 
-
 import numpy as np
 import pyproj
 import pytest
@@ -29,8 +28,20 @@ def ecef_of(app, name):
 
 def test_limb_nodes_where_the_geometry_says(limb):
     names = set(limb.server.scene._handle_from_node_name)
-    for n in ("earth", "virtual", "spacecraft", "velocity", "los", "tangent", "tangent/label", "exact",
-              "exact/label", "earth_section", "virtual_section", "nr/iterate_0"):
+    for n in (
+        "earth",
+        "virtual",
+        "spacecraft",
+        "velocity",
+        "los",
+        "tangent",
+        "tangent/label",
+        "exact",
+        "exact/label",
+        "earth_section",
+        "virtual_section",
+        "nr/iterate_0",
+    ):
         assert f"/limb/{n}" in names, n
     # Spacecraft on the bundled circular orbit: |P| = a + 390 km (scenario file); 1e-3 m
     # covers float64 km positions on the wire.
@@ -124,10 +135,12 @@ def test_drawn_virtual_ellipsoid_stays_tangent_to_the_drawn_line(limb, k):
         lon_t, lat_t, _ = TO_GEO.transform(*limb.tan.tangent_ecef)
         step = 1e-3  # deg: central differences of a smooth height (error ~ step^2 x third derivative: sub-mm)
         h_t = true_virtual_height(lat_t, lon_t, da)
-        g_lat = (true_virtual_height(lat_t + step, lon_t, da)
-                 - true_virtual_height(lat_t - step, lon_t, da)) / (2 * step)
-        g_lon = (true_virtual_height(lat_t, lon_t + step, da)
-                 - true_virtual_height(lat_t, lon_t - step, da)) / (2 * step)
+        g_lat = (true_virtual_height(lat_t + step, lon_t, da) - true_virtual_height(lat_t - step, lon_t, da)) / (
+            2 * step
+        )
+        g_lon = (true_virtual_height(lat_t, lon_t + step, da) - true_virtual_height(lat_t, lon_t - step, da)) / (
+            2 * step
+        )
         lon_e, lat_e, h_drawn = TO_GEO.transform(*sec[-1])
         h_v = true_virtual_height(lat_e, lon_e, da)
         expect = h_v + (k - 1) * (h_v - h_t - g_lat * (lat_e - lat_t) - g_lon * (lon_e - lon_t))
@@ -154,8 +167,7 @@ def test_markers_smaller_than_half_their_separation(limb):
     los = points_ecef(limb, "/limb/los")
     assert line_distance(x[None], los[0], los[-1] - los[0])[0] < 1.0  # float32 km on the wire
     s_t = float((t - o) @ d)
-    res = minimize_scalar(lambda s: TO_GEO.transform(*(o + s * d))[2], bracket=(s_t - 5e3, s_t, s_t + 5e3),
-                          tol=1e-12)
+    res = minimize_scalar(lambda s: TO_GEO.transform(*(o + s * d))[2], bracket=(s_t - 5e3, s_t, s_t + 5e3), tol=1e-12)
     true_off = res.x - s_t
     k_off = limb.offset_exaggeration
     # a flat minimum (h ~ (s - s_X)^2 / 2R): 1e-7 m of height precision is ~1.6 m along the line
@@ -202,8 +214,20 @@ def test_view_command_rejects_bad_arguments(capsys):
     assert main(["view", "--port", "70000", "--no-browser"]) == 2
     assert "port = 70000" in capsys.readouterr().err
     # A DEM that does not cover the target (the SRTM tile is in Tennessee, T3-1 in Asia).
-    assert main(["view", "--scenario", "flight-test", "--dem", str(asset_path("dem", "srtm_jacksboro.tif")),
-                 "--export", "/dev/null"]) == 2
+    assert (
+        main(
+            [
+                "view",
+                "--scenario",
+                "flight-test",
+                "--dem",
+                str(asset_path("dem", "srtm_jacksboro.tif")),
+                "--export",
+                "/dev/null",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "does not cover the target" in err and "srtm_jacksboro.tif" in err
 

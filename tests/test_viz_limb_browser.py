@@ -50,8 +50,11 @@ def settle(page, app, before, name, timeout=60.0):
     prev = None
     while True:
         img = shot(page, name)
-        if (prev is not None and np.abs(img.astype(int) - prev.astype(int)).mean() < 0.5
-                and (before is None or np.abs(img.astype(int) - before.astype(int)).mean() > 1.0)):
+        if (
+            prev is not None
+            and np.abs(img.astype(int) - prev.astype(int)).mean() < 0.5
+            and (before is None or np.abs(img.astype(int) - before.astype(int)).mean() > 1.0)
+        ):
             return img
         if time.monotonic() - t0 > timeout:
             return img
@@ -70,8 +73,13 @@ def test_limb_scene_holds_at_every_step(tmp_path):
             cid = next(iter(server.get_clients()))
             wait_for(lambda: cid in viewer.apps, 60, "the tab's limb scene")
             app = viewer.apps[cid]
-            steps = [("frame0", 0, 0.0, 0), ("hits_earth", 0, -1.5, 7), ("frame600", 600, 0.0, 0),
-                     ("frame600_hits_earth", 600, -1.5, 7), ("frame1136", 1136, 0.0, 0)]
+            steps = [
+                ("frame0", 0, 0.0, 0),
+                ("hits_earth", 0, -1.5, 7),
+                ("frame600", 600, 0.0, 0),
+                ("frame600_hits_earth", 600, -1.5, 7),
+                ("frame1136", 1136, 0.0, 0),
+            ]
             img = None
             fractions = {}
             for name, frame, alpha, status in steps:

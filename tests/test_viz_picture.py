@@ -40,13 +40,13 @@ def render_frame(scn, idx, rows=ROWS, cols=COLS):
     from geoloc_viz import picture_model as pm
 
     sensor = pm.frame_sensor(scn, idx, rows, cols)
-    R, C = np.mgrid[1:rows + 1, 1:cols + 1].astype(float)
+    R, C = np.mgrid[1 : rows + 1, 1 : cols + 1].astype(float)
     hit = DemSurface(scn.dem, "exact").intersect(sensor.line_of_sight(R, C, scn.records[idx][1].pose()))
     h = np.nan_to_num(np.asarray(hit.h, float), nan=0.0)
     t = (h - np.nanmin(h)) / max(np.ptp(h), 1.0)
     rgb = matplotlib.colormaps["gist_earth"](0.25 + 0.6 * t)[..., :3]
     # a 200 m checker on the ground (lat, lon): texture to see the ground move
-    check = ((np.floor(np.degrees(hit.lat) * 111e3 / 200) + np.floor(np.degrees(hit.lon) * 89e3 / 200)) % 2)
+    check = (np.floor(np.degrees(hit.lat) * 111e3 / 200) + np.floor(np.degrees(hit.lon) * 89e3 / 200)) % 2
     rgb = rgb * np.where(check[..., None] > 0, 1.0, 0.8)
     rgb[np.asarray(hit.status) != Status.OK] = (0.45, 0.6, 0.85)
     return (rgb * 255).astype(np.uint8)
@@ -70,12 +70,39 @@ def locate_cli(scn, sensor, inputs, row, col, tmp_path):
 
     path = tmp_path / "frame_sensor.toml"
     sensor_to_toml(sensor, path)
-    args = [sys.executable, "-m", "geoloc", "locate", "--sensor", str(path),
-            "--lat-deg", repr(inputs.lat_deg), "--lon-deg", repr(inputs.lon_deg), "--h-m", repr(inputs.h_m),
-            "--heading-deg", repr(inputs.heading_deg), "--pitch-deg", repr(inputs.pitch_deg),
-            "--roll-deg", repr(inputs.roll_deg), "--row", repr(float(row)), "--col", repr(float(col)),
-            "--dem", scn._dem_path, "--method", inputs.method, "--threshold", repr(inputs.threshold),
-            "--eps-h", repr(inputs.eps_h), "--json"]
+    args = [
+        sys.executable,
+        "-m",
+        "geoloc",
+        "locate",
+        "--sensor",
+        str(path),
+        "--lat-deg",
+        repr(inputs.lat_deg),
+        "--lon-deg",
+        repr(inputs.lon_deg),
+        "--h-m",
+        repr(inputs.h_m),
+        "--heading-deg",
+        repr(inputs.heading_deg),
+        "--pitch-deg",
+        repr(inputs.pitch_deg),
+        "--roll-deg",
+        repr(inputs.roll_deg),
+        "--row",
+        repr(float(row)),
+        "--col",
+        repr(float(col)),
+        "--dem",
+        scn._dem_path,
+        "--method",
+        inputs.method,
+        "--threshold",
+        repr(inputs.threshold),
+        "--eps-h",
+        repr(inputs.eps_h),
+        "--json",
+    ]
     for k, v in inputs.angles_deg.items():
         args += ["--angle", f"{k}={v!r}"]
     out = subprocess.run(args, capture_output=True, text=True, check=False, timeout=300)
@@ -150,6 +177,7 @@ def test_terrain_pick_marks_the_pixel_of_the_ground_point(flight, tmp_path):
         assert gp.row == pytest.approx(r, abs=0.5) and gp.col == pytest.approx(c, abs=0.5)
         assert "in the frame" in layer.md_ground.content
         import mgrs  # issue 33: the pick's MGRS beside its lat/lon, as NGA's GEOTRANS (the mgrs package) gives it
+
         ref_mgrs = mgrs.MGRS().toMGRS(float(np.degrees(gp.hit.lat)), float(np.degrees(gp.hit.lon)), MGRSPrecision=5)
         assert f"MGRS {ref_mgrs} (USNG " in layer.md_ground.content
         assert server.scene.get_handle_by_name("/enu/picture/ground").visible
@@ -197,10 +225,20 @@ def test_a_ridge_hides_a_point_and_the_verdict_says_so():
     H[ridge, :] = 600.0
     dem = DEM.from_array(H, lat0 + 0.1, lon0 - 0.1, step, step, datum="ellipsoid")
     sensor = klv_sensor(np.radians(20.0), np.radians(11.25))
-    inp = Inputs(lat0, lon0, 500.0, 0.0, 0.0, 0.0, row=540.5, col=960.5, method="exact", target_h=100.0,
-                 angles_deg={"azimuth": 0.0, "elevation": -3.0, "sensor_roll": 0.0})
-    scn = Scenario("ridge", sensor, inp, EnuFrame.from_deg(lat0, lon0, 100.0), [(RecordInfo("r"), inp)], 0,
-                   dem=dem)
+    inp = Inputs(
+        lat0,
+        lon0,
+        500.0,
+        0.0,
+        0.0,
+        0.0,
+        row=540.5,
+        col=960.5,
+        method="exact",
+        target_h=100.0,
+        angles_deg={"azimuth": 0.0, "elevation": -3.0, "sensor_roll": 0.0},
+    )
+    scn = Scenario("ridge", sensor, inp, EnuFrame.from_deg(lat0, lon0, 100.0), [(RecordInfo("r"), inp)], 0, dem=dem)
     # a browser ray from straight above a point 1.5 km behind the ridge, falling onto it
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
@@ -272,8 +310,9 @@ def test_the_horizon_is_where_the_rays_reach_a_flat_dems_far_edge(flight):
         # (0.18 deg) crosses the frame; 0.6 deg (67 km) the other ways, out of view
         d = 0.005
         north, south, west, east = lat0 + 0.18, lat0 - 0.6, lon0 - 0.6, lon0 + 0.6
-        dem = DEM.from_array(np.full((round((north - south) / d) + 1, round((east - west) / d) + 1), h0),
-                             north, west, d, d)
+        dem = DEM.from_array(
+            np.full((round((north - south) / d) + 1, round((east - west) / d) + 1), h0), north, west, d, d
+        )
         south, east = north - d * (dem.shape[0] - 1), west + d * (dem.shape[1] - 1)
         scn = copy.copy(app.scn)
         scn.dem = dem
@@ -339,8 +378,11 @@ def test_click_a_pixel_in_the_panel_and_the_terrain_in_chromium(flight, tmp_path
             page.wait_for_selector("#geoloc-picture", timeout=60000)
             # zoom 4x: an image pixel is ~9 screen px wide, so a click lands inside it
             layer.sl_zoom.value = 2
-            wait_for(lambda: page.locator("#geoloc-picture").get_attribute("data-w") == str(COLS // 4), 60,
-                     "the panel to show the 4x crop")
+            wait_for(
+                lambda: page.locator("#geoloc-picture").get_attribute("data-w") == str(COLS // 4),
+                60,
+                "the panel to show the 4x crop",
+            )
             r, c = 70.0, 118.0
             x, y = _panel_pixel_xy(page, r, c)
             page.mouse.click(x, y)
@@ -365,14 +407,22 @@ def test_click_a_pixel_in_the_panel_and_the_terrain_in_chromium(flight, tmp_path
             ref2 = locate_cli(flight, layer.sensor, app.inputs, r2, c2, tmp_path)
             from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
-            G = app.view.disp.z(app.scn.enu.from_ecef(geodetic_to_ecef(
-                np.radians(ref2["lat_deg"]), np.radians(ref2["lon_deg"]), ref2["h_m"])))
+            G = app.view.disp.z(
+                app.scn.enu.from_ecef(
+                    geodetic_to_ecef(np.radians(ref2["lat_deg"]), np.radians(ref2["lon_deg"]), ref2["h_m"])
+                )
+            )
             client = next(iter(server.get_clients().values()))
             eye = G + np.array([0.25, -0.35, 0.45])
             app.move_camera((eye, G))
-            wait_for(lambda: np.linalg.norm(np.array(client.camera.position) - eye) < 1e-3
-                     and np.linalg.norm(np.array(client.camera.look_at) - G) < 1e-3, 30,
-                     "the browser's camera at the ground point")
+            wait_for(
+                lambda: (
+                    np.linalg.norm(np.array(client.camera.position) - eye) < 1e-3
+                    and np.linalg.norm(np.array(client.camera.look_at) - G) < 1e-3
+                ),
+                30,
+                "the browser's camera at the ground point",
+            )
             time.sleep(1.5)
             canvas = page.locator("canvas").first.bounding_box()
             # looking at G: G is drawn at the canvas's centre

@@ -38,8 +38,9 @@ def test_pause_stops_the_display_where_it_was(tmp_path):
         with chromium(tmp_path) as browser:
             page = open_viewer(browser, server, 800, 520)
             cid = next(iter(server.get_clients()))
-            wait_for(lambda: viewer.session_of(cid) is not None and viewer.session_of(cid).layers, 300,
-                     "the tab's session")
+            wait_for(
+                lambda: viewer.session_of(cid) is not None and viewer.session_of(cid).layers, 300, "the tab's session"
+            )
             fl = viewer.session_of(cid).layers[0]
             fl.num_fps.value = 20.0
             page.wait_for_selector("text=/timeline frame index \\d+ /", timeout=120000)

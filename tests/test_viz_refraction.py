@@ -41,11 +41,34 @@ def t3_1() -> dict:
 def cli_locate(refraction: str, method=("--method", "bisect", "--threshold", "1")) -> dict:
     """``geoloc locate`` of T3-1's pixel on the bundled DEM, bisection at 1 m (the scene's method)."""
     r = t3_1()
-    pose = [f"--{k.replace('_', '-')}" if i == 0 else r[k] for k in
-            ("heading_deg", "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg") for i in (0, 1)]
-    argv = [sys.executable, "-m", "geoloc", "locate", "--lat-deg", r["ac_lat_deg"], "--lon-deg", r["ac_lon_deg"],
-            "--h-m", r["ac_h_m"], *pose, "--row", r["row"], "--col", r["col"], "--dem", str(DEM),
-            *method, "--refraction", refraction, "--json"]
+    pose = [
+        f"--{k.replace('_', '-')}" if i == 0 else r[k]
+        for k in ("heading_deg", "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg")
+        for i in (0, 1)
+    ]
+    argv = [
+        sys.executable,
+        "-m",
+        "geoloc",
+        "locate",
+        "--lat-deg",
+        r["ac_lat_deg"],
+        "--lon-deg",
+        r["ac_lon_deg"],
+        "--h-m",
+        r["ac_h_m"],
+        *pose,
+        "--row",
+        r["row"],
+        "--col",
+        r["col"],
+        "--dem",
+        str(DEM),
+        *method,
+        "--refraction",
+        refraction,
+        "--json",
+    ]
     out = subprocess.run(argv, capture_output=True, text=True, check=True, timeout=300)
     return json.loads(out.stdout)
 
@@ -126,8 +149,10 @@ def test_view_refraction_option_reaches_the_scene():
         p_unc = ecef(math.degrees(float(unc.pu.lat)), math.degrees(float(unc.pu.lon)), float(unc.pu.h))
         assert np.linalg.norm(p_unc - ecef(bent_cli["lat_deg"], bent_cli["lon_deg"], bent_cli["h_m"])) < 1e-3
         # the two ends are refraction_m apart (the CLI's two points, by PROJ)
-        d_cli = np.linalg.norm(ecef(bent_cli["lat_deg"], bent_cli["lon_deg"], bent_cli["h_m"])
-                               - ecef(straight_cli["lat_deg"], straight_cli["lon_deg"], straight_cli["h_m"]))
+        d_cli = np.linalg.norm(
+            ecef(bent_cli["lat_deg"], bent_cli["lon_deg"], bent_cli["h_m"])
+            - ecef(straight_cli["lat_deg"], straight_cli["lon_deg"], straight_cli["h_m"])
+        )
         assert abs(d_cli - bent_cli["refraction_m"]) < 1e-3
         lab = server.scene.get_handle_by_name("/enu/refraction/label")
         assert lab.text.startswith("bent ray (refraction), true size")
@@ -171,8 +196,10 @@ def test_a_person_turns_refraction_on_in_chromium(tmp_path):
             assert abs(shift - bent_cli["refraction_m"]) < 1e-3  # printed to 1 mm
             check_scene(server, app, bent_cli, straight_cli)
             page.screenshot(path=str(ARTIFACTS / "viz_refraction_panel.png"))
-            num = page.locator("xpath=//label[normalize-space()='bent ray drawn x']/ancestor::div"
-                               "[.//input[@inputmode='decimal']][1]//input[@inputmode='decimal']")
+            num = page.locator(
+                "xpath=//label[normalize-space()='bent ray drawn x']/ancestor::div"
+                "[.//input[@inputmode='decimal']][1]//input[@inputmode='decimal']"
+            )
             num.fill("100", timeout=60000)
             num.press("Enter")
             wait_for(lambda: lay.scale == 100.0, 30, "the factor to reach the server")
@@ -186,8 +213,15 @@ def test_a_person_turns_refraction_on_in_chromium(tmp_path):
             pos = mid + 1.2 * side / np.linalg.norm(side) + np.array([0.0, 0.0, 0.6])
             img = None
             for _ in range(40):
-                img = client.get_render(600, 900, position=tuple(pos), wxyz=look_at_wxyz(pos, mid), fov=1.0,
-                                        transport_format="png", timeout=60)
+                img = client.get_render(
+                    600,
+                    900,
+                    position=tuple(pos),
+                    wxyz=look_at_wxyz(pos, mid),
+                    fov=1.0,
+                    transport_format="png",
+                    timeout=60,
+                )
                 if n_colours(img) > 20:
                     break
             PIL.Image.fromarray(img[..., :3]).save(ARTIFACTS / "viz_refraction_x100.png")
@@ -205,8 +239,19 @@ def test_limb_scene_marks_the_refracted_tangent_point():
     with served() as server:
         app = app_factory(args)(server)
         o, d = (np.asarray(v, float).reshape(3) for v in (app.chain.origin_ecef, app.chain.direction_ecef))
-        argv = [sys.executable, "-m", "geoloc", "limb", "--origin-ecef", *(repr(float(x)) for x in o), "--direction-ecef",
-                *(repr(float(x)) for x in d), "--refraction", "standard", "--json"]
+        argv = [
+            sys.executable,
+            "-m",
+            "geoloc",
+            "limb",
+            "--origin-ecef",
+            *(repr(float(x)) for x in o),
+            "--direction-ecef",
+            *(repr(float(x)) for x in d),
+            "--refraction",
+            "standard",
+            "--json",
+        ]
         cli = json.loads(subprocess.run(argv, capture_output=True, text=True, check=True, timeout=300).stdout)
         shown = float(re.search(r"refracted tangent \*\*h = (\d+\.\d) m\*\*", app.md.content).group(1))
         assert abs(shown - cli["refracted_tangent_h_m"]) < 0.051  # printed to 0.1 m

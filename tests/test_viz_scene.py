@@ -22,8 +22,18 @@ from geoloc_viz.scenario import load_view_scenario
 from geoloc_viz.scene_geoloc import WORLD_SCALE
 
 # The first record of the bundled flight test (T3-1), as in the CSV.
-T31 = dict(lat=36.39895, lon=78.72927, h=17987.25, heading=30.0457, pitch=3.3903, roll=-0.0110,
-           groll=-45.2273, gpitch=-2.4880, row=526, col=1550)
+T31 = dict(
+    lat=36.39895,
+    lon=78.72927,
+    h=17987.25,
+    heading=30.0457,
+    pitch=3.3903,
+    roll=-0.0110,
+    groll=-45.2273,
+    gpitch=-2.4880,
+    row=526,
+    col=1550,
+)
 
 
 @pytest.fixture(scope="module")
@@ -52,25 +62,39 @@ def pyproj_enu(app, lat_deg, lon_deg, h):
     geo = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
     x0, y0, z0 = geo.transform(math.degrees(enu.lon0), math.degrees(enu.lat0), enu.h0)
     x, y, z = geo.transform(lon_deg, lat_deg, h)
-    topo = pyproj.Transformer.from_pipeline(
-        f"+proj=topocentric +ellps=WGS84 +X_0={x0!r} +Y_0={y0!r} +Z_0={z0!r}")
+    topo = pyproj.Transformer.from_pipeline(f"+proj=topocentric +ellps=WGS84 +X_0={x0!r} +Y_0={y0!r} +Z_0={z0!r}")
     return np.array(topo.transform(x, y, z))
 
 
 def core_t31():
-    pose = Pose.from_deg(T31["lat"], T31["lon"], T31["h"], T31["heading"], T31["pitch"], T31["roll"],
-                         T31["groll"], T31["gpitch"])
+    pose = Pose.from_deg(
+        T31["lat"], T31["lon"], T31["h"], T31["heading"], T31["pitch"], T31["roll"], T31["groll"], T31["gpitch"]
+    )
     cam = Camera.from_toml(asset_path("cameras", "qiao2017.toml"))
     return pose, cam, line_of_sight(pose, cam, T31["row"], T31["col"])
 
 
 def test_default_scene_has_every_element(app):
     names = {n.removeprefix("/enu") for n in app.server.scene._handle_from_node_name}
-    for n in ["/terrain", "/aircraft", "/aircraft/mesh", "/los", "/frustum", "/hit/result", "/hit/hmax",
-              "/hit/exact", "/iterations/points", "/iterations/verticals", "/iterations/brackets",
-              "/iterations/current", "/record/published", "/record/surveyed", "/record/error",
-              "/origin", "/scale_bar"] + [f"/frames/{f}{s}" for f in ("ned", "body", "gimbal_outer", "cam")
-                                          for s in ("", "/label")]:
+    for n in [
+        "/terrain",
+        "/aircraft",
+        "/aircraft/mesh",
+        "/los",
+        "/frustum",
+        "/hit/result",
+        "/hit/hmax",
+        "/hit/exact",
+        "/iterations/points",
+        "/iterations/verticals",
+        "/iterations/brackets",
+        "/iterations/current",
+        "/record/published",
+        "/record/surveyed",
+        "/record/error",
+        "/origin",
+        "/scale_bar",
+    ] + [f"/frames/{f}{s}" for f in ("ned", "body", "gimbal_outer", "cam") for s in ("", "/label")]:
         assert n in names, n
     assert app.error == ""
 
@@ -84,12 +108,11 @@ def test_hit_marker_at_the_terrain_hit_in_pyproj_enu(app):
     # PROJ and our ENU agree to 1e-6 m (test_enu).
     np.testing.assert_allclose(pos(app, "/hit/result"), expected, atol=1e-3)
     exact = intersect_dem(los, dem, "exact")
-    np.testing.assert_allclose(pos(app, "/hit/exact"),
-                               pyproj_enu(app, float(exact.lat_deg), float(exact.lon_deg), float(exact.h)),
-                               atol=1e-3)
+    np.testing.assert_allclose(
+        pos(app, "/hit/exact"), pyproj_enu(app, float(exact.lat_deg), float(exact.lon_deg), float(exact.h)), atol=1e-3
+    )
     # The aircraft node sits at the POS position of the record.
-    np.testing.assert_allclose(pos(app, "/aircraft"),
-                               pyproj_enu(app, T31["lat"], T31["lon"], T31["h"]), atol=1e-3)
+    np.testing.assert_allclose(pos(app, "/aircraft"), pyproj_enu(app, T31["lat"], T31["lon"], T31["h"]), atol=1e-3)
     # The line of sight runs from the aircraft to the hit (float32 vertices: ~2 mm at 20 km).
     seg = (np.asarray(node(app, "/los").points, float) / WORLD_SCALE)[0]
     np.testing.assert_allclose(seg[0], pos(app, "/aircraft"), atol=0.01)
@@ -97,8 +120,10 @@ def test_hit_marker_at_the_terrain_hit_in_pyproj_enu(app):
 
 
 def test_frames_orientation_closed_form(app):
-    R = {f: vtf.SO3(np.asarray(node(app, f"/frames/{f}").wxyz)).as_matrix()
-         for f in ("ned", "body", "gimbal_outer", "cam")}
+    R = {
+        f: vtf.SO3(np.asarray(node(app, f"/frames/{f}").wxyz)).as_matrix()
+        for f in ("ned", "body", "gimbal_outer", "cam")
+    }
     # NED at the aircraft vs ENU at the origin ~16 km away: axes differ by the
     # angle between the two normals, 16 km / 6371 km = 2.5e-3 rad.
     np.testing.assert_allclose(R["ned"], [[0, 1, 0], [1, 0, 0], [0, 0, -1]], atol=4e-3)
@@ -124,8 +149,7 @@ def test_step_slider_walks_the_core_trace(app):
     try:
         for k in (0, 2, len(tr["H"]) - 1):
             app.sl_step.value = k
-            np.testing.assert_allclose(pos(app, "/iterations/current"), app.scn.enu.from_ecef(tr["ecef"][k]),
-                                       atol=1e-6)
+            np.testing.assert_allclose(pos(app, "/iterations/current"), app.scn.enu.from_ecef(tr["ecef"][k]), atol=1e-6)
             pts = np.asarray(node(app, "/iterations/points").points)
             assert len(pts) == k + 1
             # Vertical segment from H_n on the line of sight down (or up) to the DEM height h_n.
@@ -155,8 +179,9 @@ def test_gui_pose_change_moves_the_line_of_sight(app):
     app.num["gimbal_roll_deg"].value = -40.0
     try:
         assert app.dd_record.value == "(custom pose)"
-        pose = Pose.from_deg(T31["lat"], T31["lon"], T31["h"], T31["heading"], T31["pitch"], T31["roll"],
-                             -40.0, T31["gpitch"])
+        pose = Pose.from_deg(
+            T31["lat"], T31["lon"], T31["h"], T31["heading"], T31["pitch"], T31["roll"], -40.0, T31["gpitch"]
+        )
         cam = Camera.from_toml(asset_path("cameras", "qiao2017.toml"))
         hit = intersect_dem(line_of_sight(pose, cam, T31["row"], T31["col"]), app.scn.dem, "bisect")
         new = np.array(pos(app, "/hit/result"))
@@ -176,9 +201,14 @@ def test_teaching_panel_shows_the_core_matrices_and_highlights(app):
     for f in ("ned", "body", "gimbal_outer"):
         np.testing.assert_allclose(chain.T_ecef(f), q17.T_ecef(f), rtol=0, atol=1e-6)
     np.testing.assert_allclose(chain.T_ecef("cam")[:3, 2], q17.T_ecef("cam")[:3, 2], atol=1e-15)
-    assert [h.name for h in chain.hops] == ["T_ecef_ned", "T_ned_body", "T_body_gimbal_base",
-                                           "T_gimbal_base_gimbal_outer", "T_gimbal_outer_gimbal_inner",
-                                           "T_gimbal_inner_cam"]
+    assert [h.name for h in chain.hops] == [
+        "T_ecef_ned",
+        "T_ned_body",
+        "T_body_gimbal_base",
+        "T_gimbal_base_gimbal_outer",
+        "T_gimbal_outer_gimbal_inner",
+        "T_gimbal_inner_cam",
+    ]
     for hop in chain.hops:
         app.dd_hop.value = hop.name
         text = app.md_hop.content
@@ -190,7 +220,8 @@ def test_teaching_panel_shows_the_core_matrices_and_highlights(app):
         # Selecting T_dst_src highlights the frame it maps from (thicker axes, marked label).
         assert node(app, f"/frames/{hop.src}/label").text.startswith("> ")
         assert node(app, f"/frames/{hop.src}").axes_radius == pytest.approx(
-            0.05 * node(app, f"/frames/{hop.src}").axes_length)
+            0.05 * node(app, f"/frames/{hop.src}").axes_length
+        )
         # [Q17] eq. 5's four factors are shown under T_ecef_ned and under no other hop
         assert ("max |difference|" in app.md_q17.content) == (hop.name == "T_ecef_ned")
     app.dd_hop.value = "T_ecef_ned"
@@ -203,8 +234,9 @@ def test_record_dropdown_loads_published_and_surveyed(app):
     app.dd_record.value = "T4-3"
     try:
         # T4-3 in the CSV: published 35.59935 N 80.85938 E at paper_height 4799.9 m.
-        np.testing.assert_allclose(pos(app, "/record/published"),
-                                   pyproj_enu(app, 35.59935, 80.85938, 4799.9), atol=1e-3)
+        np.testing.assert_allclose(
+            pos(app, "/record/published"), pyproj_enu(app, 35.59935, 80.85938, 4799.9), atol=1e-3
+        )
         assert app.inputs.gimbal_roll_deg == pytest.approx(51.9420)
         assert "T4-3" in app.md_summary.content
         # The ENU origin moved near the new target (float32 safety): within 1 km.
@@ -221,7 +253,7 @@ def _decode_recording(raw: bytes):
 
     inner = zstandard.ZstdDecompressor().decompress(raw[8:], max_output_size=int.from_bytes(raw[:8], "little"))
     n = int.from_bytes(inner[:8], "little")
-    return msgspec.msgpack.decode(inner[8:8 + n])
+    return msgspec.msgpack.decode(inner[8 : 8 + n])
 
 
 def test_export_writes_static_recordings(app, tmp_path):
@@ -265,8 +297,9 @@ def test_labels_say_3d_or_horizontal_and_the_drawing_factor(app):
     # the surveyed point sits on the DEM (the records give no truth height): the DEM's
     # ellipsoidal height there (geoloc.surfaces.dem, checked against rasterio in its own tests)
     h_truth = float(app.scn.dem.height(math.radians(info.truth_lat_deg), math.radians(info.truth_lon_deg)))
-    d3 = np.linalg.norm(np.subtract(ecef.transform(lon, lat, h),
-                                    ecef.transform(info.truth_lon_deg, info.truth_lat_deg, h_truth)))
+    d3 = np.linalg.norm(
+        np.subtract(ecef.transform(lon, lat, h), ecef.transform(info.truth_lon_deg, info.truth_lat_deg, h_truth))
+    )
     assert e3 == pytest.approx(d3, abs=0.051)  # PROJ's ECEF chord; the label rounds to 0.1 m
     horiz = geod.inv(lon, lat, info.truth_lon_deg, info.truth_lat_deg)[2]
     summary = app.md_summary.content
@@ -310,9 +343,15 @@ def test_export_html_carries_record_method_and_errors(app, tmp_path):
 
     page = app.export(tmp_path / "s.html", animate_steps=False).read_text()
     panel = re.search(r'<div id="geoloc-summary"[^>]*>(.*?)</div>', page, re.S).group(1)
-    for text in ("qiao2017_flight_tests.csv T3-1", "method: bisection [L23], threshold 1 m",
-                 "to surveyed:", "(horizontal)", "error vector to surveyed (3D", "drawn x10",
-                 "aircraft drawn x200"):
+    for text in (
+        "qiao2017_flight_tests.csv T3-1",
+        "method: bisection [L23], threshold 1 m",
+        "to surveyed:",
+        "(horizontal)",
+        "error vector to surveyed (3D",
+        "drawn x10",
+        "aircraft drawn x200",
+    ):
         assert text in panel, text
 
 
@@ -337,8 +376,9 @@ def test_viewer_line_of_sight_keeps_the_camera_mount_and_boresight():
     from geoloc_viz import model
 
     scn = load_view_scenario()
-    cam = dataclasses.replace(scn.camera, mount=(0.0, math.radians(0.22), 0.0),
-                              boresight=(math.radians(0.05), 0.0, math.radians(-0.1)))
+    cam = dataclasses.replace(
+        scn.camera, mount=(0.0, math.radians(0.22), 0.0), boresight=(math.radians(0.05), 0.0, math.radians(-0.1))
+    )
     scn = dataclasses.replace(scn, camera=cam, dem=None)
     inp = scn.inputs.replace(target_h=4600.0)
     g = model.compute(scn, inp)
@@ -352,11 +392,12 @@ def test_viewer_line_of_sight_keeps_the_camera_mount_and_boresight():
     np.testing.assert_allclose(g.hit_enu, scn.enu.from_ecef(want.ecef), atol=1e-3)
 
 
-RIG_ANGLES = {"roll-pitch": {"gimbal_roll_deg": -30.0, "gimbal_pitch_deg": 4.0},
-              "azimuth-elevation": {"angles_deg": {"azimuth": 70.0, "elevation": -40.0}},
-              "azimuth-elevation-roll": {"angles_deg": {"azimuth": 250.0, "elevation": -35.0, "sensor_roll": 12.0}},
-              "yaw-pitch-roll": {"angles_deg": {"gimbal_yaw": 40.0}, "gimbal_pitch_deg": -70.0,
-                                 "gimbal_roll_deg": 2.0}}
+RIG_ANGLES = {
+    "roll-pitch": {"gimbal_roll_deg": -30.0, "gimbal_pitch_deg": 4.0},
+    "azimuth-elevation": {"angles_deg": {"azimuth": 70.0, "elevation": -40.0}},
+    "azimuth-elevation-roll": {"angles_deg": {"azimuth": 250.0, "elevation": -35.0, "sensor_roll": 12.0}},
+    "yaw-pitch-roll": {"angles_deg": {"gimbal_yaw": 40.0}, "gimbal_pitch_deg": -70.0, "gimbal_roll_deg": 2.0},
+}
 
 
 @pytest.mark.parametrize("preset", list(RIG_ANGLES))
@@ -371,8 +412,19 @@ def test_viewer_and_rerun_lines_of_sight_equal_the_core_for_every_preset(preset,
     from geoloc_viz import model
     from geoloc_viz.rerun_model import steps_from_records
 
-    lens = BrownLens(fx=2200.0, fy=2195.0, cx=959.5, cy=539.5, width=1920, height=1080,
-                     k1=-0.21, k2=0.07, p1=4e-4, p2=-2e-4, k3=-0.01)
+    lens = BrownLens(
+        fx=2200.0,
+        fy=2195.0,
+        cx=959.5,
+        cy=539.5,
+        width=1920,
+        height=1080,
+        k1=-0.21,
+        k2=0.07,
+        p1=4e-4,
+        p2=-2e-4,
+        k3=-0.01,
+    )
     mount = (0.0, 0.0, 0.0) if PRESETS[preset].earth_referenced else (2e-3, -1e-3, 4e-3)
     s = FrameSensor(lens, PRESETS[preset], mount=mount, boresight=(1e-3, 2e-3, -3e-3), lever_arm_m=(1.5, 0.2, 0.7))
     scn = load_view_scenario()
@@ -385,12 +437,23 @@ def test_viewer_and_rerun_lines_of_sight_equal_the_core_for_every_preset(preset,
     np.testing.assert_allclose(g.aircraft_enu, scn.enu.from_ecef(los.origin_ecef), atol=1e-6)
     assert tuple(g.frames) == s.graph.frames[1:]
     # rerun: a records file with this sensor's angle columns, replayed into a recording
-    cols = {"gimbal_roll_deg": inp.gimbal_roll_deg, "gimbal_pitch_deg": inp.gimbal_pitch_deg,
-            **{f"{k}_deg": v for k, v in inp.angles_deg.items()}}
-    names = ["row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg", "pitch_deg", "roll_deg",
-             *cols]
-    vals = [inp.row, inp.col, inp.lat_deg, inp.lon_deg, inp.h_m, inp.heading_deg, inp.pitch_deg, inp.roll_deg,
-            *cols.values()]
+    cols = {
+        "gimbal_roll_deg": inp.gimbal_roll_deg,
+        "gimbal_pitch_deg": inp.gimbal_pitch_deg,
+        **{f"{k}_deg": v for k, v in inp.angles_deg.items()},
+    }
+    names = ["row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg", "pitch_deg", "roll_deg", *cols]
+    vals = [
+        inp.row,
+        inp.col,
+        inp.lat_deg,
+        inp.lon_deg,
+        inp.h_m,
+        inp.heading_deg,
+        inp.pitch_deg,
+        inp.roll_deg,
+        *cols.values(),
+    ]
     f = tmp_path / "rec.csv"
     f.write_text(",".join(names) + "\n" + ",".join(repr(float(v)) for v in vals) + "\n")
     steps, _ = steps_from_records(f, s, target_h_m=500.0)
@@ -437,8 +500,12 @@ def test_hillshade_lambert_on_planes_closed_form():
 
     x, y = np.meshgrid(np.arange(5.0) * 100.0, np.arange(5.0) * 100.0)
     i = np.arange(25).reshape(5, 5)
-    faces = np.concatenate([np.stack([i[:-1, :-1], i[:-1, 1:], i[1:, 1:]], -1).reshape(-1, 3),
-                            np.stack([i[:-1, :-1], i[1:, 1:], i[1:, :-1]], -1).reshape(-1, 3)])
+    faces = np.concatenate(
+        [
+            np.stack([i[:-1, :-1], i[:-1, 1:], i[1:, 1:]], -1).reshape(-1, 3),
+            np.stack([i[:-1, :-1], i[1:, 1:], i[1:, :-1]], -1).reshape(-1, 3),
+        ]
+    )
     el, az_sun = math.radians(45.0), math.radians(315.0)
     sun = np.array([math.sin(az_sun) * math.cos(el), math.cos(az_sun) * math.cos(el), math.sin(el)])
     # level; towards the sun (brighter); away (darker); across; steep away (in shadow: 0.45)
@@ -471,9 +538,9 @@ def test_terrain_is_sent_unlit_with_the_mesh_unchanged(app):
     glb, mesh = terrain_glb_cached(scn), terrain_mesh_cached(scn)
     h = app.server.scene.get_handle_by_name("/enu/terrain")
     assert h is not None and h.glb_data == glb
-    jlen, = struct.unpack_from("<I", glb, 12)
+    (jlen,) = struct.unpack_from("<I", glb, 12)
     assert struct.unpack_from("<I", glb, 8)[0] == len(glb)
-    doc = json.loads(glb[20:20 + jlen])
+    doc = json.loads(glb[20 : 20 + jlen])
     assert "KHR_materials_unlit" in doc["extensionsUsed"]
     assert [m["extensions"] for m in doc["materials"]] == [{"KHR_materials_unlit": {}}]
     back = trimesh.load(io.BytesIO(glb), file_type="glb", force="mesh", process=False)
@@ -510,8 +577,12 @@ def test_terrain_mesh_level_of_detail_and_its_height_bound():
     n = tl.MESH_NODES
     assert lats.shape == lons.shape == (n,) and np.all(np.diff(lats) < 0) and np.all(np.diff(lons) > 0)
     w, s, e, nn = scn.dem.bounds_deg
-    assert (lats[0], lats[-1], lons[0], lons[-1]) == (min(nn, lats[0]), max(s, lats[-1]), max(w, lons[0]),
-                                                      min(e, lons[-1]))
+    assert (lats[0], lats[-1], lons[0], lons[-1]) == (
+        min(nn, lats[0]),
+        max(s, lats[-1]),
+        max(w, lons[0]),
+        min(e, lons[-1]),
+    )
     # the spacing at each gap against the rule, from the gap's mid-point's distance to the origin:
     # equal steps of F (r0 ln(1 + d / r0)) give dx = dF (1 + d / r0) to first order in the step
     lat0 = np.degrees(scn.enu.lat0)

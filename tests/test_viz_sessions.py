@@ -29,7 +29,8 @@ from geoloc_viz.scene_geoloc import WORLD_SCALE
 pytestmark = pytest.mark.filterwarnings("ignore:Queued a .* on a closed connection:UserWarning")
 
 _spec = importlib.util.spec_from_file_location(
-    "bench_viz_churn", Path(__file__).resolve().parents[1] / "benchmarks" / "bench_viz_churn.py")
+    "bench_viz_churn", Path(__file__).resolve().parents[1] / "benchmarks" / "bench_viz_churn.py"
+)
 churn_mod = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(churn_mod)
 
@@ -44,8 +45,7 @@ class FakeTab:
         self._stop = False
         self._loop = asyncio.new_event_loop()
         self._ready = threading.Event()
-        self._thread = threading.Thread(target=lambda: self._loop.run_until_complete(self._main()),
-                                        daemon=True)
+        self._thread = threading.Thread(target=lambda: self._loop.run_until_complete(self._main()), daemon=True)
         self._thread.start()
         if not self.seen.wait(timeout):
             self.close()
@@ -55,8 +55,9 @@ class FakeTab:
         import viser
         import websockets
 
-        async with websockets.connect(f"ws://127.0.0.1:{self.port}", max_size=None,
-                                      subprotocols=[f"viser-v{viser.__version__}"]) as ws:
+        async with websockets.connect(
+            f"ws://127.0.0.1:{self.port}", max_size=None, subprotocols=[f"viser-v{viser.__version__}"]
+        ) as ws:
             self.ws = ws
             await ws.send(churn_mod.camera_message())
             while not self._stop:
@@ -74,8 +75,9 @@ class FakeTab:
 
     def send_camera(self, position, look_at) -> None:
         """The browser's report of a camera the user moved (scene units)."""
-        asyncio.run_coroutine_threadsafe(
-            self.ws.send(churn_mod.camera_message(position, look_at)), self._loop).result(10)
+        asyncio.run_coroutine_threadsafe(self.ws.send(churn_mod.camera_message(position, look_at)), self._loop).result(
+            10
+        )
 
     def close(self) -> None:
         self._stop = True
@@ -106,8 +108,7 @@ def wait_for(cond, timeout, what):
 
 def pymap3d_enu(session, lat_deg, lon_deg, h):
     enu = session.scn.enu
-    return np.array(pymap3d.geodetic2enu(lat_deg, lon_deg, h, math.degrees(enu.lat0),
-                                         math.degrees(enu.lon0), enu.h0))
+    return np.array(pymap3d.geodetic2enu(lat_deg, lon_deg, h, math.degrees(enu.lat0), math.degrees(enu.lon0), enu.h0))
 
 
 def in_view(camera, p, fov=1.3, aspect=640 / 480):
@@ -205,8 +206,15 @@ def test_presenter_mode_followers_mirror_the_driver(server):
         d.dd_record.value = "T4-3"
         _, inp = next(r for r in d.scn.records if r[0].label == "T4-3")
         # the record box, the summary and the numbers are set one after the other: wait for all
-        wait_for(lambda: f.dd_record.value == "T4-3" and "T4-3" in f.md_summary.content
-                 and abs(f.num["h_m"].value - inp.h_m) < 1e-9, 60, "the follower's record, summary and height")
+        wait_for(
+            lambda: (
+                f.dd_record.value == "T4-3"
+                and "T4-3" in f.md_summary.content
+                and abs(f.num["h_m"].value - inp.h_m) < 1e-9
+            ),
+            60,
+            "the follower's record, summary and height",
+        )
         # the follower sees the shared scene: the aircraft node at pymap3d's ENU of T4-3
         ac = np.asarray(server.scene.get_handle_by_name("/enu/aircraft").position) / WORLD_SCALE
         np.testing.assert_allclose(ac, pymap3d_enu(d, inp.lat_deg, inp.lon_deg, inp.h_m), atol=1e-3)
@@ -215,9 +223,14 @@ def test_presenter_mode_followers_mirror_the_driver(server):
         cam_b = lambda: np.asarray(f.client.camera.position)  # noqa: E731
         # the follower's position and look-at are set one after the other (two messages): wait
         # for both, or this thread can read the look-at in between (seen once in CI)
-        wait_for(lambda: np.allclose(cam_b(), (3.0, -40.0, 25.0))
-                 and np.allclose(f.client.camera.look_at, (1.0, 2.0, 3.0), rtol=0, atol=1e-9),
-                 20, "the follower's camera")
+        wait_for(
+            lambda: (
+                np.allclose(cam_b(), (3.0, -40.0, 25.0))
+                and np.allclose(f.client.camera.look_at, (1.0, 2.0, 3.0), rtol=0, atol=1e-9)
+            ),
+            20,
+            "the follower's camera",
+        )
         np.testing.assert_allclose(f.client.camera.look_at, (1.0, 2.0, 3.0), atol=1e-9)
         # take control: B drives (from A's state), A follows
         viewer.take_control(idb)
@@ -238,8 +251,9 @@ def test_presenter_switches_scenario_and_the_followers_follow(server):
     from geoloc_viz.flight_model import default_flight_scenario
 
     q17 = load_view_scenario()
-    viewer = GeolocViewer(server, q17, presenter=True,
-                          scenarios={"[Q17] flight test": q17, "example flight": default_flight_scenario})
+    viewer = GeolocViewer(
+        server, q17, presenter=True, scenarios={"[Q17] flight test": q17, "example flight": default_flight_scenario}
+    )
     a, ida = open_tab(server, viewer=viewer)
     b, idb = open_tab(server, until=b"take control")
     try:
@@ -334,8 +348,7 @@ def test_a_tab_switches_scenario_in_one_click_and_alone(server):
     from geoloc_viz.flight_model import default_flight_scenario
 
     q17 = load_view_scenario()
-    viewer = GeolocViewer(server, q17, scenarios={"[Q17] flight test": q17,
-                                                  "example flight": default_flight_scenario})
+    viewer = GeolocViewer(server, q17, scenarios={"[Q17] flight test": q17, "example flight": default_flight_scenario})
     a, ida = open_tab(server, viewer=viewer)
     b, idb = open_tab(server, viewer=viewer)
     try:
@@ -375,8 +388,9 @@ def test_limb_scene_keeps_a_state_per_tab(server):
         la.sl_alpha.value = 1.0  # tab A raises its line of sight (as its slider would)
         wait_for(lambda: la.alpha_deg == 1.0, 20, "tab A's view angle")
         assert lb.alpha_deg == 0.0 and float(lb.sl_alpha.value) == 0.0
-        np.testing.assert_array_equal(np.asarray(lb.server.scene.get_handle_by_name("/limb/tangent").position,
-                                                 float), before_b)
+        np.testing.assert_array_equal(
+            np.asarray(lb.server.scene.get_handle_by_name("/limb/tangent").position, float), before_b
+        )
         assert "alpha +1.00 deg" in la.md.content and "alpha +0.00 deg" in lb.md.content
     finally:
         a.close()

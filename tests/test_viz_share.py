@@ -44,8 +44,7 @@ def _make(scn):
     from geoloc_viz.app import GeolocApp, make_server
 
     server = make_server(port=0)
-    app = GeolocApp(server, copy.copy(scn), layers=(image_layer.attach, uncertainty_layer.attach,
-                                                    share_layer.attach))
+    app = GeolocApp(server, copy.copy(scn), layers=(image_layer.attach, uncertainty_layer.attach, share_layer.attach))
     return server, app, app.layers[0], app.layers[2]
 
 
@@ -53,8 +52,9 @@ def run_shown_command(text: str, extra=()) -> subprocess.CompletedProcess:
     """The shown command line, run: ``geoloc`` as this interpreter's ``python -m geoloc``."""
     argv = shlex.split(text)
     assert argv[:2] == ["geoloc", "locate"], argv[:2]
-    out = subprocess.run([sys.executable, "-m", "geoloc", *argv[1:], *extra], capture_output=True, text=True,
-                         check=False, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-m", "geoloc", *argv[1:], *extra], capture_output=True, text=True, check=False, timeout=300
+    )
     assert out.returncode == 0, out.stderr
     return out
 
@@ -209,8 +209,10 @@ def test_the_field_of_view_is_the_lens_s(flight):  # noqa: F811
     with open(path, "rb") as f:
         cam = tomllib.load(f)
     fpx = cam["focal_length_px"]
-    want = [math.degrees(math.atan((c0 - 0.5) / fpx) + math.atan((n + 0.5 - c0) / fpx))
-            for c0, n in ((cam["principal_col"], cam["cols"]), (cam["principal_row"], cam["rows"]))]
+    want = [
+        math.degrees(math.atan((c0 - 0.5) / fpx) + math.atan((n + 0.5 - c0) / fpx))
+        for c0, n in ((cam["principal_col"], cam["cols"]), (cam["principal_row"], cam["rows"]))
+    ]
     hv = sh.field_of_view_deg(load_sensor(path), Pose.from_deg(30.0, 110.0, 3000.0, 0, 0, 0, 0, 0))
     # the edge rays run through the middle row / column, 0.1 px off the principal one: a change
     # of the order (0.1 / f)^2 rad, nothing at f = 166841 px; 1e-9 deg is the floats' round-off
@@ -234,12 +236,18 @@ def test_a_person_picks_a_pixel_and_copies_what_to_send_in_chromium(flight, tmp_
             r, c = 70.0, 118.0
             x, y = _panel_pixel_xy(page, r, c)
             page.mouse.click(x, y)
-            wait_for(lambda: share.point is not None and share.point.what == "picked pixel", 60,
-                     "the click to reach the server")
+            wait_for(
+                lambda: share.point is not None and share.point.what == "picked pixel",
+                60,
+                "the click to reach the server",
+            )
             page.get_by_text("Send the point on").click()
             page.wait_for_selector("#geoloc-share-locate", timeout=60000)
-            wait_for(lambda: "--row 70.0 --col 118.0" in page.locator("#geoloc-share-locate").inner_text(), 60,
-                     "the panel to show the pick's command")
+            wait_for(
+                lambda: "--row 70.0 --col 118.0" in page.locator("#geoloc-share-locate").inner_text(),
+                60,
+                "the panel to show the pick's command",
+            )
             texts = {k: page.locator(f"#geoloc-share-{k}").inner_text() for k in ("mgrs", "latlon", "locate", "cot")}
             p = share.point
             check_texts(texts, (p.lat_deg, p.lon_deg, p.h_m))

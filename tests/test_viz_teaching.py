@@ -33,8 +33,18 @@ E2 = F_WGS84 * (2 - F_WGS84)
 TOL = 1e-12
 
 # T3-1 of the bundled [Q17] flight test (docs/records.md)
-T31 = dict(lat=36.39895, lon=78.72927, h=17987.25, heading=30.0457, pitch=3.3903, roll=-0.0110,
-           groll=-45.2273, gpitch=-2.4880, row=526.0, col=1550.0)
+T31 = dict(
+    lat=36.39895,
+    lon=78.72927,
+    h=17987.25,
+    heading=30.0457,
+    pitch=3.3903,
+    roll=-0.0110,
+    groll=-45.2273,
+    gpitch=-2.4880,
+    row=526.0,
+    col=1550.0,
+)
 
 
 def passive(axis, a):
@@ -61,8 +71,9 @@ def mount_matrix(table):
 
 
 def q17_pose():
-    return Pose.from_deg(T31["lat"], T31["lon"], T31["h"], T31["heading"], T31["pitch"], T31["roll"],
-                         T31["groll"], T31["gpitch"])
+    return Pose.from_deg(
+        T31["lat"], T31["lon"], T31["h"], T31["heading"], T31["pitch"], T31["roll"], T31["groll"], T31["gpitch"]
+    )
 
 
 def test_q17_ray_in_every_frame_matches_scipy_and_pymap3d():
@@ -79,9 +90,15 @@ def test_q17_ray_in_every_frame_matches_scipy_and_pymap3d():
     v_body = passive("x", math.radians(T31["groll"])).T @ v_outer  # R_body_outer = rx(groll)^T
     v_ned = R_ned_body(*(math.radians(T31[k]) for k in ("heading", "pitch", "roll"))) @ v_body
     v_ecef = ned_to_ecef_vec(v_ned, math.radians(T31["lat"]), math.radians(T31["lon"]))
-    expect = {"ecef": v_ecef, "ned": v_ned, "body": v_body, "gimbal_base": v_body,  # no mount in [Q17]
-              "gimbal_outer": v_outer, "gimbal_inner": v_S,
-              "cam": np.array([-v_S[1], v_S[0], v_S[2]])}  # x_opt = -Y_S, y_opt = X_S (conventions.md)
+    expect = {
+        "ecef": v_ecef,
+        "ned": v_ned,
+        "body": v_body,
+        "gimbal_base": v_body,  # no mount in [Q17]
+        "gimbal_outer": v_outer,
+        "gimbal_inner": v_S,
+        "cam": np.array([-v_S[1], v_S[0], v_S[2]]),
+    }  # x_opt = -Y_S, y_opt = X_S (conventions.md)
     got = teaching.vector_in_frames(chain, teaching.pixel_ray_cam(sensor, T31["row"], T31["col"]), "cam")
     assert list(got) == list(expect)
     for name, want in expect.items():
@@ -97,12 +114,22 @@ def _sensors():
     turret = as_sensor(load_sensor(asset_path("sensors", "eo_turret.toml")))
     drone = as_sensor(load_sensor(asset_path("sensors", "drone_camera.toml")))
     aer = dataclasses.replace(turret, gimbal=PRESETS["azimuth-elevation-roll"])
-    return {"roll-pitch": (q17, None), "azimuth-elevation": (turret, "eo_turret.toml"),
-            "yaw-pitch-roll": (drone, "drone_camera.toml"), "azimuth-elevation-roll": (aer, "eo_turret.toml")}
+    return {
+        "roll-pitch": (q17, None),
+        "azimuth-elevation": (turret, "eo_turret.toml"),
+        "yaw-pitch-roll": (drone, "drone_camera.toml"),
+        "azimuth-elevation-roll": (aer, "eo_turret.toml"),
+    }
 
 
-ANGLES_DEG = {"gimbal_roll": -35.0, "gimbal_pitch": -20.0, "azimuth": 47.0, "elevation": -25.0,
-              "sensor_roll": 8.0, "gimbal_yaw": 120.0}
+ANGLES_DEG = {
+    "gimbal_roll": -35.0,
+    "gimbal_pitch": -20.0,
+    "azimuth": 47.0,
+    "elevation": -25.0,
+    "sensor_roll": 8.0,
+    "gimbal_yaw": 120.0,
+}
 
 
 @pytest.mark.parametrize("preset", ["roll-pitch", "azimuth-elevation", "azimuth-elevation-roll", "yaw-pitch-roll"])
@@ -113,21 +140,28 @@ def test_every_preset_hop_by_hop(preset):
     angles = {k: ANGLES_DEG[k] for k in names if k not in Pose.FIELD_ANGLES}
     fields = {k: ANGLES_DEG[k] for k in names if k in Pose.FIELD_ANGLES}
     lat, lon = 36.6, -84.2
-    pose = Pose.from_deg(lat, lon, 900.0, 75.0, 4.0, -3.0, fields.get("gimbal_roll", 0.0),
-                         fields.get("gimbal_pitch", 0.0), angles_deg=angles)
+    pose = Pose.from_deg(
+        lat,
+        lon,
+        900.0,
+        75.0,
+        4.0,
+        -3.0,
+        fields.get("gimbal_roll", 0.0),
+        fields.get("gimbal_pitch", 0.0),
+        angles_deg=angles,
+    )
     chain = sensor.frames(pose)
     row, col = 0.3 * sensor.rows, 0.8 * sensor.cols
     got = teaching.vector_in_frames(chain, teaching.pixel_ray_cam(sensor, row, col), "cam")
     # the ECEF end is the core's line of sight for this pixel
-    np.testing.assert_allclose(got["ecef"], sensor.line_of_sight(row, col, pose).direction_ecef,
-                               rtol=0, atol=TOL)
+    np.testing.assert_allclose(got["ecef"], sensor.line_of_sight(row, col, pose).direction_ecef, rtol=0, atol=TOL)
     table = {}
     if fname:
         with open(asset_path("sensors", fname), "rb") as fh:
             table = tomllib.load(fh)
     # each hop recomputed from the sensor file and the conventions with scipy / pymap3d
-    np.testing.assert_allclose(got["ecef"], ned_to_ecef_vec(got["ned"], math.radians(lat), math.radians(lon)),
-                               atol=TOL)
+    np.testing.assert_allclose(got["ecef"], ned_to_ecef_vec(got["ned"], math.radians(lat), math.radians(lon)), atol=TOL)
     for j in chain.graph.path(chain.leaf)[1:]:
         p, c = got[j.parent], got[j.child]
         if j.kind == "attitude":
@@ -137,8 +171,11 @@ def test_every_preset_hop_by_hop(preset):
         elif j.child == "gimbal_base":
             R_parent_child = mount_matrix(table.get("mount")).T
         else:  # the camera: boresight, then the preset's turn to the optical axes (conventions.md)
-            R_opt = (np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]) if preset == "roll-pitch"
-                     else np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]))  # x_opt = Y, z_opt = X
+            R_opt = (
+                np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+                if preset == "roll-pitch"
+                else np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+            )  # x_opt = Y, z_opt = X
             R_parent_child = (R_opt @ mount_matrix(table.get("boresight"))).T
         np.testing.assert_allclose(p, R_parent_child @ c, atol=TOL, err_msg=f"{preset}: {j.parent} <- {j.child}")
     # the animatable angles are the attitude and this gimbal's own joints
@@ -167,18 +204,35 @@ def test_partial_products_are_explicit_products_of_the_hops():
     T_body_outer = np.eye(4)
     T_body_outer[:3, :3] = passive("x", math.radians(T31["groll"])).T
     pp = {name: T for name, _, T in teaching.partial_products(chain)}
-    assert list(pp) == ["T_ecef_ned", "T_ecef_body", "T_ecef_gimbal_base", "T_ecef_gimbal_outer",
-                        "T_ecef_gimbal_inner", "T_ecef_cam"]
+    assert list(pp) == [
+        "T_ecef_ned",
+        "T_ecef_body",
+        "T_ecef_gimbal_base",
+        "T_ecef_gimbal_outer",
+        "T_ecef_gimbal_inner",
+        "T_ecef_cam",
+    ]
     # rotation part to 1e-12 (direction cosines), translation to 1e-6 m (pymap3d's ECEF at 6.4e6 m)
-    for name, T in (("T_ecef_ned", T_ecef_ned), ("T_ecef_body", T_ecef_ned @ T_ned_body),
-                    ("T_ecef_gimbal_outer", T_ecef_ned @ T_ned_body @ T_body_outer)):
+    for name, T in (
+        ("T_ecef_ned", T_ecef_ned),
+        ("T_ecef_body", T_ecef_ned @ T_ned_body),
+        ("T_ecef_gimbal_outer", T_ecef_ned @ T_ned_body @ T_body_outer),
+    ):
         np.testing.assert_allclose(pp[name][:3, :3], T[:3, :3], atol=TOL, err_msg=name)
         np.testing.assert_allclose(pp[name][:3, 3], T[:3, 3], atol=1e-6, err_msg=name)
     # the last partial product is the whole chain: its Z column is the principal ray's ECEF direction
-    np.testing.assert_allclose(pp["T_ecef_cam"][:3, 2], ned_to_ecef_vec(
-        R_ned_body(*(math.radians(T31[k]) for k in ("heading", "pitch", "roll")))
-        @ passive("x", math.radians(T31["groll"])).T @ passive("y", math.radians(T31["gpitch"])).T
-        @ np.array([0.0, 0.0, 1.0]), lat, lon), atol=TOL)
+    np.testing.assert_allclose(
+        pp["T_ecef_cam"][:3, 2],
+        ned_to_ecef_vec(
+            R_ned_body(*(math.radians(T31[k]) for k in ("heading", "pitch", "roll")))
+            @ passive("x", math.radians(T31["groll"])).T
+            @ passive("y", math.radians(T31["gpitch"])).T
+            @ np.array([0.0, 0.0, 1.0]),
+            lat,
+            lon,
+        ),
+        atol=TOL,
+    )
 
 
 def test_q17_intermediate_frames():
@@ -232,12 +286,16 @@ def _scenario(kind):
     if kind == "roll-pitch":
         return load_view_scenario()
     if kind == "yaw-pitch-roll":
-        scn = load_view_scenario(asset_path("records", "drone_targets.csv"), None, asset_path("sensors", "drone_camera.toml"))
+        scn = load_view_scenario(
+            asset_path("records", "drone_targets.csv"), None, asset_path("sensors", "drone_camera.toml")
+        )
         # the app's gimbal-pitch slider is [Q17]'s (-30..30 deg) while a drone looks down at -70:
         # start inside it (reported to the lead: app.py should give this preset its own range)
         scn.inputs = scn.inputs.replace(gimbal_pitch_deg=-25.0)
         return scn
-    scn = load_view_scenario(asset_path("records", "eo_turret_flight.csv"), "orbit1-5", asset_path("sensors", "eo_turret.toml"))
+    scn = load_view_scenario(
+        asset_path("records", "eo_turret_flight.csv"), "orbit1-5", asset_path("sensors", "eo_turret.toml")
+    )
     if kind == "azimuth-elevation-roll":
         scn.camera = dataclasses.replace(as_sensor(scn.camera), gimbal=PRESETS["azimuth-elevation-roll"])
         scn.inputs = scn.inputs.replace(angles_deg={**scn.inputs.angles_deg, "sensor_roll": 8.0})
@@ -275,8 +333,9 @@ def test_panel_draws_every_frame_labelled_and_the_same_vector_in_each(panel):
     chain = s.geometry.chain
     R_enu_ecef = _R_enu_ecef(s.scn.enu)
     # the pixel's ray, drawn from every frame: the core's line of sight rotated into ENU (pymap3d)
-    los = as_sensor(s.scn.camera).line_of_sight(float(p.num_row.value), float(p.num_col.value), chain.pose,
-                                                outside="extrapolate")
+    los = as_sensor(s.scn.camera).line_of_sight(
+        float(p.num_row.value), float(p.num_col.value), chain.pose, outside="extrapolate"
+    )
     d_enu = R_enu_ecef @ np.asarray(los.direction_ecef)
     arrows = np.asarray(_node(p, "/enu/teach/vector").points, float)
     frames = teaching.chain_frames(chain)
@@ -391,10 +450,12 @@ def test_animation_runs_the_angle_from_zero(panel):
     # at angle 0 the joint's frame is its parent's (same quaternion up to sign)
     q0p, q0c = seen[0][joint.parent], seen[0][joint.child]
     assert min(np.abs(q0p - q0c).max(), np.abs(q0p + q0c).max()) < 1e-9
+
     # the drawn orientation then turns monotonically to the true one (scipy angle between them)
     def ang(q1, q2):
         r = Rotation.from_quat(np.r_[q1[1:], q1[0]]).inv() * Rotation.from_quat(np.r_[q2[1:], q2[0]])
         return r.magnitude()
+
     total = abs(float(np.asarray(chain.pose.angle(joint.angle))))
     steps = [ang(seen[k][joint.parent], seen[k][joint.child]) for k in range(5)]
     np.testing.assert_allclose(steps, total * np.arange(5) / 4, atol=1e-6)
@@ -425,8 +486,15 @@ def _render(server, panel, path=None):
 
     client = next(iter(server.get_clients().values()))
     eye, aim = panel.camera_pose()
-    img = client.get_render(540, 960, position=eye, wxyz=look_at_wxyz(eye, aim), fov=server.initial_camera.fov,
-                            transport_format="png", timeout=90.0)[..., :3]
+    img = client.get_render(
+        540,
+        960,
+        position=eye,
+        wxyz=look_at_wxyz(eye, aim),
+        fov=server.initial_camera.fov,
+        transport_format="png",
+        timeout=90.0,
+    )[..., :3]
     if path is not None:
         PIL.Image.fromarray(img).save(path)
     return img

@@ -117,13 +117,19 @@ def test_click_the_target_in_three_frames_in_chromium(orbit, tmp_path):
                 app.load_record(k, move_camera=False)
                 wait_for(lambda: layer.index == k and layer.image is not None, 60, f"record {k + 1}'s image")
                 r, c = (float(round(v)) for v in _pixel_of(app, layer, g))
-                wait_for(lambda: page.locator("#geoloc-picture").get_attribute("data-w") == str(240 // 4), 60,
-                         "the panel to show the 4x crop")
+                wait_for(
+                    lambda: page.locator("#geoloc-picture").get_attribute("data-w") == str(240 // 4),
+                    60,
+                    "the panel to show the 4x crop",
+                )
                 time.sleep(1.0)
                 x, y = _panel_pixel_xy(page, r, c)
                 page.mouse.click(x, y)
-                wait_for(lambda: layer.pick is not None and (layer.pick.row, layer.pick.col) == (r, c)
-                         and k in layer.target, 60, "the click to reach the server")
+                wait_for(
+                    lambda: layer.pick is not None and (layer.pick.row, layer.pick.col) == (r, c) and k in layer.target,
+                    60,
+                    "the click to reach the server",
+                )
                 clicked.append((r, c))
             page.wait_for_selector("text=triangulated latitude", timeout=60000)
             t = layer.target_rays
@@ -141,8 +147,10 @@ def test_click_the_target_in_three_frames_in_chromium(orbit, tmp_path):
             ifov = max(1.0 / float(s.lens.fx) for s, _, _ in layer.target.values())
             bound_m = 4.0 * 0.71 * max(rng) * ifov / math.sin(math.radians(10.0))
             err = float(np.linalg.norm(np.asarray(t.tri.ecef) - G))
-            print(f"clicked {clicked}; triangulated {err:.2f} m from G (bound {bound_m:.1f} m); residuals "
-                  f"{np.round(t.tri.residual_m, 2)} m; CE90 {t.tri.ce90_m:.1f} m")
+            print(
+                f"clicked {clicked}; triangulated {err:.2f} m from G (bound {bound_m:.1f} m); residuals "
+                f"{np.round(t.tri.residual_m, 2)} m; CE90 {t.tri.ce90_m:.1f} m"
+            )
             assert err < bound_m
             # look at the rays from the side, half way up to the cameras, and show the panel's text
             z = lambda p: np.asarray(app.view.disp.z(app.scn.enu.from_ecef(p)), float)  # noqa: E731

@@ -65,7 +65,9 @@ def test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse():
             assert b == pytest.approx(r90 * float(pu.ellipse_minor_m) * k, rel=1e-3)
             # the panel's semi-axes (0.1 m) times the label's factor are the drawn ones
             A, B = reported_semi_axes(lay.md.content)
-            assert a == pytest.approx(k * A, abs=k * 0.05 + 1e-3 * a) and b == pytest.approx(k * B, abs=k * 0.05 + 1e-3 * b)
+            assert a == pytest.approx(k * A, abs=k * 0.05 + 1e-3 * a) and b == pytest.approx(
+                k * B, abs=k * 0.05 + 1e-3 * b
+            )
             label = server.scene.get_handle_by_name("/enu/uncertainty/label")
             assert label.visible and (("x10 " in label.text) if k == 10.0 else ("true size" in label.text))
             assert f"CE90 {float(pu.ce90_m):.1f} m" in label.text
@@ -95,8 +97,15 @@ def test_a_person_hides_the_ellipse_in_chromium(tmp_path):
             pos = hit + np.array([0.07, -0.2, 0.28])
             img = None
             for _ in range(40):
-                img = client.get_render(640, 960, position=tuple(pos), wxyz=look_at_wxyz(pos, hit), fov=0.9,
-                                        transport_format="png", timeout=60)
+                img = client.get_render(
+                    640,
+                    960,
+                    position=tuple(pos),
+                    wxyz=look_at_wxyz(pos, hit),
+                    fov=0.9,
+                    transport_format="png",
+                    timeout=60,
+                )
                 if n_colours(img) > 20:
                     break
             PIL.Image.fromarray(img[..., :3]).save(ARTIFACTS / "viewer_uncertainty_ellipse.png")
@@ -107,21 +116,35 @@ def test_a_person_hides_the_ellipse_in_chromium(tmp_path):
             assert lab.visible and lab.text.startswith("90 % ellipse, true size (CE90")
             page.get_by_text("Predicted uncertainty").click()
             # a person enlarges it: types 10 into the slider's number box
-            num = page.locator("xpath=//label[normalize-space()='ellipse drawn x']/ancestor::div"
-                               "[.//input[@inputmode='decimal']][1]//input[@inputmode='decimal']")
+            num = page.locator(
+                "xpath=//label[normalize-space()='ellipse drawn x']/ancestor::div"
+                "[.//input[@inputmode='decimal']][1]//input[@inputmode='decimal']"
+            )
             num.fill("10", timeout=60000)
             num.press("Enter")
             wait_for(lambda: _layer(app).scale == 10.0, 30, "the factor to reach the server")
-            wait_for(lambda: server.scene.get_handle_by_name("/enu/uncertainty/label").text.startswith(
-                "90 % ellipse, x10 (CE90"), 60, "the label x10 on the drawing")
+            wait_for(
+                lambda: server.scene.get_handle_by_name("/enu/uncertainty/label").text.startswith(
+                    "90 % ellipse, x10 (CE90"
+                ),
+                60,
+                "the label x10 on the drawing",
+            )
             a, b = drawn_semi_axes(server, app)
             A, B = reported_semi_axes(page.get_by_text(re.compile(r"90 % ellipse \d")).first.inner_text())
             # the page's semi-axes (0.1 m) times the label's factor are the drawn ones
             assert a == pytest.approx(10 * A, abs=0.5 + 1e-3 * a) and b == pytest.approx(10 * B, abs=0.5 + 1e-3 * b)
             pos = hit + np.array([0.6, -2.0, 2.4])  # km: 3 km off, looking down at the hit
             for _ in range(40):
-                img = client.get_render(640, 960, position=tuple(pos), wxyz=look_at_wxyz(pos, hit), fov=0.9,
-                                        transport_format="png", timeout=60)
+                img = client.get_render(
+                    640,
+                    960,
+                    position=tuple(pos),
+                    wxyz=look_at_wxyz(pos, hit),
+                    fov=0.9,
+                    transport_format="png",
+                    timeout=60,
+                )
                 if n_colours(img) > 20:
                     break
             PIL.Image.fromarray(img[..., :3]).save(ARTIFACTS / "viewer_uncertainty_ellipse_x10.png")
@@ -135,8 +158,11 @@ def test_a_person_hides_the_ellipse_in_chromium(tmp_path):
             box.click()
             wait_for(lambda: not _layer(app).cb_show.value, 30, "the checkbox to reach the server")
             # (hidden, not removed: a step updates the node in place)
-            wait_for(lambda: _layer(app).handle is None or not _layer(app).handle.visible, 30,
-                     "the ellipse to leave the scene")
+            wait_for(
+                lambda: _layer(app).handle is None or not _layer(app).handle.visible,
+                30,
+                "the ellipse to leave the scene",
+            )
             assert re.search(r"CE90 \d+\.\d m", _layer(app).md.content)
 
 

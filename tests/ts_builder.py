@@ -35,7 +35,7 @@ class Mux:
         k = 0
         first = True
         while first or k < len(payload):
-            chunk = payload[k:k + 184]
+            chunk = payload[k : k + 184]
             k += len(chunk)
             cc = self.cc.get(pid, 0)
             self.cc[pid] = (cc + 1) & 0x0F
@@ -77,16 +77,31 @@ def metadata_descriptor() -> bytes:
 
 def pmt(program: int, pcr_pid: int, streams) -> bytes:
     """The PMT section (without CRC): streams = [(stream_type, pid, descriptors bytes)]."""
-    es = b"".join(bytes((st,)) + (0xE000 | pid).to_bytes(2, "big") + (0xF000 | len(d)).to_bytes(2, "big") + d
-                  for st, pid, d in streams)
+    es = b"".join(
+        bytes((st,)) + (0xE000 | pid).to_bytes(2, "big") + (0xF000 | len(d)).to_bytes(2, "big") + d
+        for st, pid, d in streams
+    )
     length = 9 + len(es) + 4
-    return (bytes((0x02, 0xB0 | (length >> 8), length & 0xFF)) + program.to_bytes(2, "big") + b"\xc1\x00\x00"
-            + (0xE000 | pcr_pid).to_bytes(2, "big") + b"\xf0\x00" + es)
+    return (
+        bytes((0x02, 0xB0 | (length >> 8), length & 0xFF))
+        + program.to_bytes(2, "big")
+        + b"\xc1\x00\x00"
+        + (0xE000 | pcr_pid).to_bytes(2, "big")
+        + b"\xf0\x00"
+        + es
+    )
 
 
 def _ts(pts: int, marker: int = 0x21) -> bytes:
-    return bytes((marker | ((pts >> 29) & 0x0E), (pts >> 22) & 0xFF, 0x01 | ((pts >> 14) & 0xFE),
-                  (pts >> 7) & 0xFF, 0x01 | ((pts << 1) & 0xFE)))
+    return bytes(
+        (
+            marker | ((pts >> 29) & 0x0E),
+            (pts >> 22) & 0xFF,
+            0x01 | ((pts >> 14) & 0xFE),
+            (pts >> 7) & 0xFF,
+            0x01 | ((pts << 1) & 0xFE),
+        )
+    )
 
 
 def pes(stream_id: int, payload: bytes, pts: int | None) -> bytes:
@@ -102,8 +117,17 @@ def au_cell(klv: bytes, service_id: int = 0, seq: int = 0) -> bytes:
     return bytes((service_id, seq & 0xFF, 0xC0 | 0x10 | 0x0F)) + len(klv).to_bytes(2, "big") + klv
 
 
-def stream(klv_packets, *, sync: bool = False, pid: int = 0x101, programs=None, psi: bool = True,
-           stream_id: int | None = None, rate_ticks: int = 3000, video_pid: int | None = None) -> bytes:
+def stream(
+    klv_packets,
+    *,
+    sync: bool = False,
+    pid: int = 0x101,
+    programs=None,
+    psi: bool = True,
+    stream_id: int | None = None,
+    rate_ticks: int = 3000,
+    video_pid: int | None = None,
+) -> bytes:
     """A transport stream carrying ``klv_packets`` (bytes each), one PES each at ``rate_ticks``.
 
     ``sync``: stream type 0x15 in metadata AU cells (stream id 0xFC), else 0x06 KLVA (0xBD).

@@ -41,16 +41,26 @@ def _write(path: Path, data, west_node, north_node, dlon, dlat, tags, nodata=Non
     path.parent.mkdir(parents=True, exist_ok=True)
     transform = from_origin(west_node - dlon / 2, north_node + dlat / 2, dlon, dlat)
     profile = dict(
-        driver="GTiff", width=data.shape[1], height=data.shape[0], count=1,
-        dtype=data.dtype.name, crs="EPSG:4326", transform=transform,
-        compress="deflate", predictor=predictor, zlevel=9, nodata=nodata,
+        driver="GTiff",
+        width=data.shape[1],
+        height=data.shape[0],
+        count=1,
+        dtype=data.dtype.name,
+        crs="EPSG:4326",
+        transform=transform,
+        compress="deflate",
+        predictor=predictor,
+        zlevel=9,
+        nodata=nodata,
     )
     with rasterio.open(path, "w", **profile) as dst:
         dst.write(data, 1)
-        dst.update_tags(AREA_OR_POINT="Area", BUILT_BY="tools/build_assets.py",
-                        BUILT_ON=_dt.date.today().isoformat(), **tags)
-    print(f"{path.relative_to(ROOT)}: {data.shape[0]} x {data.shape[1]} {data.dtype}, "
-          f"{path.stat().st_size / 1024:.0f} kB")
+        dst.update_tags(
+            AREA_OR_POINT="Area", BUILT_BY="tools/build_assets.py", BUILT_ON=_dt.date.today().isoformat(), **tags
+        )
+    print(
+        f"{path.relative_to(ROOT)}: {data.shape[0]} x {data.shape[1]} {data.dtype}, {path.stat().st_size / 1024:.0f} kB"
+    )
 
 
 def build_geoid(out: Path):
@@ -66,23 +76,41 @@ def build_geoid(out: Path):
     lons = lon0 + step * np.arange(n.shape[1])
     lats = lat0 - step * np.arange(n.shape[0])
     common = dict(
-        SOURCE_PACKAGE="Debian proj-data", SOURCE_FILE=str(EGM96_GTX),
-        LICENCE="public domain (NGA/NASA EGM96)", QUANTITY="geoid undulation N above WGS-84 [m]",
+        SOURCE_PACKAGE="Debian proj-data",
+        SOURCE_FILE=str(EGM96_GTX),
+        LICENCE="public domain (NGA/NASA EGM96)",
+        QUANTITY="geoid undulation N above WGS-84 [m]",
         VERTICAL_DATUM="EGM96 geoid height N (h = H + N)",
         INTERPOLATION="bilinear between nodes, as PROJ does for .gtx",
     )
     for name, area in (("egm96_flight_area", FLIGHT_AREA), ("egm96_jacksboro", JACKSBORO_AREA)):
         rows = np.where((lats >= area["south"] - 1e-9) & (lats <= area["north"] + 1e-9))[0]
         cols = np.where((lons >= area["west"] - 1e-9) & (lons <= area["east"] + 1e-9))[0]
-        crop = n[rows[0]: rows[-1] + 1, cols[0]: cols[-1] + 1]
-        _write(out / f"{name}.tif", crop, lons[cols[0]], lats[rows[0]], step, step,
-               dict(common, CUT=f"15' nodes, {area}"), predictor=3)
+        crop = n[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
+        _write(
+            out / f"{name}.tif",
+            crop,
+            lons[cols[0]],
+            lats[rows[0]],
+            step,
+            step,
+            dict(common, CUT=f"15' nodes, {area}"),
+            predictor=3,
+        )
     # Global copy at 30' (every second node, 1.0 MB budget): the full 15' grid as
     # float32 is 2.7 MB compressed. Add the +180 column so the grid closes.
     g = n[::2, ::2]
     g = np.concatenate([g, g[:, :1]], axis=1)
-    _write(out / "egm96_global_30min.tif", g, -180.0, 90.0, 0.5, 0.5,
-           dict(common, CUT="every second 15' node (30' grid), -180..180 E, 90 S..90 N"), predictor=3)
+    _write(
+        out / "egm96_global_30min.tif",
+        g,
+        -180.0,
+        90.0,
+        0.5,
+        0.5,
+        dict(common, CUT="every second 15' node (30' grid), -180..180 E, 90 S..90 N"),
+        predictor=3,
+    )
 
 
 def build_etopo5(out: Path):
@@ -102,15 +130,26 @@ def build_etopo5(out: Path):
     lat = y
     rows = np.where((lat >= FLIGHT_AREA["south"] - 1e-9) & (lat <= FLIGHT_AREA["north"] + 1e-9))[0]
     cols = np.where((lon >= FLIGHT_AREA["west"] - 1e-9) & (lon <= FLIGHT_AREA["east"] + 1e-9))[0]
-    crop = z[rows[0]: rows[-1] + 1, cols[0]: cols[-1] + 1][::-1]  # file rows go south -> north
+    crop = z[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1][::-1]  # file rows go south -> north
     crop = np.round(crop).astype(np.int16)  # ETOPO5 heights are whole metres
-    _write(out / "etopo5_flight_area.tif", crop, lon[cols[0]], lat[rows[-1]], 1 / 12, 1 / 12, dict(
-        SOURCE_PACKAGE="Debian ferret-datasets", SOURCE_FILE=str(ETOPO5_CDF) + " variable ROSE",
-        LICENCE="public domain (NOAA NGDC ETOPO5)", UNITS="metre",
-        VERTICAL_DATUM="orthometric, mean sea level (use dem_datum='egm96')",
-        CUT=f"5' nodes {FLIGHT_AREA}; node longitudes taken as exact k/12 deg "
+    _write(
+        out / "etopo5_flight_area.tif",
+        crop,
+        lon[cols[0]],
+        lat[rows[-1]],
+        1 / 12,
+        1 / 12,
+        dict(
+            SOURCE_PACKAGE="Debian ferret-datasets",
+            SOURCE_FILE=str(ETOPO5_CDF) + " variable ROSE",
+            LICENCE="public domain (NOAA NGDC ETOPO5)",
+            UNITS="metre",
+            VERTICAL_DATUM="orthometric, mean sea level (use dem_datum='egm96')",
+            CUT=f"5' nodes {FLIGHT_AREA}; node longitudes taken as exact k/12 deg "
             "(the file's X axis drifts to 359.92 at the last node)",
-    ), nodata=-32768)
+        ),
+        nodata=-32768,
+    )
 
 
 def build_srtm(out: Path):
@@ -126,13 +165,22 @@ def build_srtm(out: Path):
     assert north_edge > float(d["ymax"])
     assert abs((float(d["xmax"]) - west_edge) / dx - z.shape[1]) < 1e-3
     assert abs((north_edge - float(d["ymax"])) / dy - z.shape[0]) < 1e-3
-    _write(out / "srtm_jacksboro.tif", z, west_edge + dx / 2, north_edge - dy / 2, dx, dy, dict(
-        SOURCE_PACKAGE="matplotlib (sample data)",
-        SOURCE_FILE="matplotlib.cbook.get_sample_data('jacksboro_fault_dem.npz')",
-        LICENCE="public domain (NASA/USGS SRTM 3 arc-second, via matplotlib sample data)",
-        UNITS="metre", VERTICAL_DATUM="orthometric, EGM96 (use dem_datum='egm96')",
-        CUT="whole tile, 3'' (about 90 m) cells; key ymin is the north edge",
-    ))
+    _write(
+        out / "srtm_jacksboro.tif",
+        z,
+        west_edge + dx / 2,
+        north_edge - dy / 2,
+        dx,
+        dy,
+        dict(
+            SOURCE_PACKAGE="matplotlib (sample data)",
+            SOURCE_FILE="matplotlib.cbook.get_sample_data('jacksboro_fault_dem.npz')",
+            LICENCE="public domain (NASA/USGS SRTM 3 arc-second, via matplotlib sample data)",
+            UNITS="metre",
+            VERTICAL_DATUM="orthometric, EGM96 (use dem_datum='egm96')",
+            CUT="whole tile, 3'' (about 90 m) cells; key ymin is the north edge",
+        ),
+    )
 
 
 def main(argv=None):

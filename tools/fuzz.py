@@ -42,12 +42,12 @@ def _signature(e: BaseException) -> str:
 
 def _observer(target, st_, last, args):
     """Count each distinct clear error; keep the first input that reached it."""
+
     def observe(e):
         sig = _signature(e)
         if sig not in st_["errors"]:
             st_["errors"][sig] = 0
-            if (args.keep and st_["kept"] < args.per_target and "data" in last
-                    and len(last["data"]) <= args.max_bytes):
+            if args.keep and st_["kept"] < args.per_target and "data" in last and len(last["data"]) <= args.max_bytes:
                 F.keep(target, last["data"])
                 st_["kept"] += 1
         st_["errors"][sig] += 1
@@ -57,10 +57,18 @@ def _observer(target, st_, last, args):
 
 def _batch(target, st_, last, args, seed):
     """One round of ``args.batch`` hypothesis examples of ``target``, with a fixed seed."""
+
     @hseed(seed)
-    @settings(max_examples=args.batch, deadline=None, database=None, derandomize=False,
-              phases=[Phase.generate, Phase.shrink], print_blob=False, report_multiple_bugs=False,
-              suppress_health_check=list(HealthCheck))
+    @settings(
+        max_examples=args.batch,
+        deadline=None,
+        database=None,
+        derandomize=False,
+        phases=[Phase.generate, Phase.shrink],
+        print_blob=False,
+        report_multiple_bugs=False,
+        suppress_health_check=list(HealthCheck),
+    )
     @given(target.strategy())
     def one(data):
         last["data"] = data
@@ -81,9 +89,13 @@ def main(argv=None) -> int:
     ap.add_argument("--targets", default=",".join(F.TARGETS), help="comma-separated targets (default: all)")
     ap.add_argument("--batch", type=int, default=50, help="examples per target per round (default 50)")
     ap.add_argument("--per-target", type=int, default=12, help="inputs kept per target at most (default 12)")
-    ap.add_argument("--max-bytes", type=int, default=16384,
-                    help="keep an input of a distinct clear error only up to this size (default 16384; "
-                    "a finding is kept whatever its size)")
+    ap.add_argument(
+        "--max-bytes",
+        type=int,
+        default=16384,
+        help="keep an input of a distinct clear error only up to this size (default 16384; "
+        "a finding is kept whatever its size)",
+    )
     ap.add_argument("--no-keep", dest="keep", action="store_false", help="keep no input in tests/data/fuzz")
     args = ap.parse_args(argv)
     names = [n.strip() for n in args.targets.split(",") if n.strip()]
@@ -115,19 +127,27 @@ def main(argv=None) -> int:
                 data = last.get("data", b"")
                 kept = F.keep(target, data) if args.keep else None
                 failures.append((name, what, kept))
-                print(f"FINDING {name}: {failures[-1][1]} (input {len(data)} bytes"
-                      f"{', kept as ' + str(kept.relative_to(ROOT)) if kept else ''})", flush=True)
+                print(
+                    f"FINDING {name}: {failures[-1][1]} (input {len(data)} bytes"
+                    f"{', kept as ' + str(kept.relative_to(ROOT)) if kept else ''})",
+                    flush=True,
+                )
             finally:
                 F.OBSERVER = None
         rnd += 1
         if rss_first is None:
             rss_first = rss_mb()
-        print(f"round {rnd}: {sum(s['examples'] for s in stats.values())} examples, "
-              f"{len(failures)} findings, peak RSS {rss_mb():.0f} MB", flush=True)
+        print(
+            f"round {rnd}: {sum(s['examples'] for s in stats.values())} examples, "
+            f"{len(failures)} findings, peak RSS {rss_mb():.0f} MB",
+            flush=True,
+        )
     total = sum(s["examples"] for s in stats.values())
-    print(f"\nfuzz: {args.minutes:g} min, seed {args.seed}, {rnd} rounds, {total} examples, "
-          f"{sum(s['findings'] for s in stats.values())} exceptions that broke the promise "
-          f"({len(failures)} distinct)")
+    print(
+        f"\nfuzz: {args.minutes:g} min, seed {args.seed}, {rnd} rounds, {total} examples, "
+        f"{sum(s['findings'] for s in stats.values())} exceptions that broke the promise "
+        f"({len(failures)} distinct)"
+    )
     print(f"{'target':28s} {'examples':>9s} {'findings':>9s} {'clear errors (distinct)':>24s} {'kept':>5s}")
     for n in names:
         s = stats[n]
@@ -135,7 +155,7 @@ def main(argv=None) -> int:
     print(f"peak RSS: {rss_first or rss_mb():.0f} MB after the first round, {rss_mb():.0f} MB at the end")
     for name, what, kept in failures:
         print(f"  {name}: {what}" + (f" [{kept.relative_to(ROOT)}]" if kept else ""))
-    return 1 if failures else 0  # noqa: RET - one status for the whole run
+    return 1 if failures else 0  # one status for the whole run
 
 
 if __name__ == "__main__":

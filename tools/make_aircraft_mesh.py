@@ -49,7 +49,11 @@ def build() -> trimesh.Trimesh:
         half.apply_translation([0.5, side * 4.0, 0.3])
         parts.append(half)
     # Horizontal tail: 6 m span near the tail.
-    parts.append(trimesh.creation.box(extents=[1.4, 6.0, 0.2], transform=trimesh.transformations.translation_matrix([-5.2, 0, 0])))
+    parts.append(
+        trimesh.creation.box(
+            extents=[1.4, 6.0, 0.2], transform=trimesh.transformations.translation_matrix([-5.2, 0, 0])
+        )
+    )
     # Vertical fin: points up, i.e. towards body -Z.
     fin = trimesh.creation.box(extents=[1.8, 0.2, 2.6])
     fin.apply_translation([-5.0, 0, -1.9])

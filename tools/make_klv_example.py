@@ -81,12 +81,23 @@ ZOOM = ((0, 12.0), (100, 7.0), (200, 4.5))
 #: is at 15:00:00 + i s UTC (its precision time stamp); packet numbers count every packet
 #: written, the corrupted one too.
 FAULTS = {
-    "yaw_bias": (100, 109, "heading (tag 5) 2.5 deg too large: a heading-reference error burst; "
-                           "the reported centres are the true ones"),
-    "wrong_datum": (200, 204, "tag 75 (Sensor Ellipsoid Height, HAE) holds the MSL altitude (tag 15's "
-                              "value): 30.6 m too high, since N = -30.6 m here"),
-    "stale_pose": (250, 256, "platform position and attitude (tags 5-7, 13-15, 75, 90, 91) are the previous "
-                             "packet's (1 s stale), the sensor angles and the reported centre current"),
+    "yaw_bias": (
+        100,
+        109,
+        "heading (tag 5) 2.5 deg too large: a heading-reference error burst; the reported centres are the true ones",
+    ),
+    "wrong_datum": (
+        200,
+        204,
+        "tag 75 (Sensor Ellipsoid Height, HAE) holds the MSL altitude (tag 15's "
+        "value): 30.6 m too high, since N = -30.6 m here",
+    ),
+    "stale_pose": (
+        250,
+        256,
+        "platform position and attitude (tags 5-7, 13-15, 75, 90, 91) are the previous "
+        "packet's (1 s stale), the sensor angles and the reported centre current",
+    ),
     "missing_angles": (275, 275, "tags 18, 19, 20 (sensor-relative angles) left out"),
     "corrupted": (150, 150, "one byte of the packet flipped after encoding: checksum mismatch"),
 }
@@ -94,8 +105,13 @@ FAULTS = {
 #: Faults of the video alone (the KLV is right): name -> (first frame, last frame, seconds, what).
 #: Frame i has packet i's time stamp.
 VIDEO_FAULTS = {
-    "video_ahead": (40, 79, 1.5, "the video runs 1.5 s ahead of its metadata: frame i shows the scene of "
-                                 "metadata time i + 1.5 s (time_offset_s = -1.5 matches them)"),
+    "video_ahead": (
+        40,
+        79,
+        1.5,
+        "the video runs 1.5 s ahead of its metadata: frame i shows the scene of "
+        "metadata time i + 1.5 s (time_offset_s = -1.5 matches them)",
+    ),
 }
 #: Video frame size (width, height) [pixels], 16:9 as the packets' fields of view.
 VIDEO_SIZE = (640, 360)
@@ -103,14 +119,21 @@ VIDEO_SIZE = (640, 360)
 #: cell that holds the tracked point. All five lie inside that one cell (3'' SRTM: 74 m east-west,
 #: 93 m north-south here), 7 m or more from its edges: a cross across a cell edge would sit on a
 #: fold of the bilinear terrain, whose two sides foreshorten its arms differently.
-SURVEYED = (("T1", 0.0, 0.0), ("T2", 18.0, 22.0), ("T3", -18.0, 22.0), ("T4", -18.0, -22.0),
-            ("T5", 18.0, -22.0))
+SURVEYED = (("T1", 0.0, 0.0), ("T2", 18.0, 22.0), ("T3", -18.0, 22.0), ("T4", -18.0, -22.0), ("T5", 18.0, -22.0))
 CROSS_ARM_M, CROSS_WIDTH_M = 10.0, 3.0
 TARGETS_OUT = ROOT / "assets" / "klv" / "example_flight_targets.csv"
 
-POSE_FIELDS = ("platform_heading_deg", "platform_pitch_deg", "platform_roll_deg", "sensor_latitude_deg",
-               "sensor_longitude_deg", "sensor_true_altitude_m", "sensor_ellipsoid_height_m",
-               "platform_pitch_full_deg", "platform_roll_full_deg")
+POSE_FIELDS = (
+    "platform_heading_deg",
+    "platform_pitch_deg",
+    "platform_roll_deg",
+    "sensor_latitude_deg",
+    "sensor_longitude_deg",
+    "sensor_true_altitude_m",
+    "sensor_ellipsoid_height_m",
+    "platform_pitch_full_deg",
+    "platform_roll_full_deg",
+)
 
 
 def _vfov(hfov_deg):
@@ -126,9 +149,8 @@ def true_fields(dem, rng):
     up = ORBIT_HAE_M + 6.0 * np.sin(2 * math.pi * t / 97.0)
     enu = np.stack([ORBIT_RADIUS_M * np.sin(phi), ORBIT_RADIUS_M * np.cos(phi), up], -1)
     lat, lon, h = enu_to_geodetic(enu, lat_t, lon_t, 0.0)
-    heading = (np.degrees(phi) + 90.0 + 1.5 * np.sin(2 * math.pi * t / 150.0)
-               + rng.normal(0, 0.15, N_PACKETS)) % 360.0
-    bank = math.degrees(math.atan(speed ** 2 / (9.80665 * ORBIT_RADIUS_M)))
+    heading = (np.degrees(phi) + 90.0 + 1.5 * np.sin(2 * math.pi * t / 150.0) + rng.normal(0, 0.15, N_PACKETS)) % 360.0
+    bank = math.degrees(math.atan(speed**2 / (9.80665 * ORBIT_RADIUS_M)))
     roll = bank + rng.normal(0, 0.3, N_PACKETS)
     pitch = 2.0 + rng.normal(0, 0.2, N_PACKETS)
 
@@ -150,28 +172,30 @@ def true_fields(dem, rng):
     n_s = egm96_undulation(lat, lon)
     out = []
     for i in range(N_PACKETS):
-        out.append({
-            "precision_time_stamp_us": T0_US + 1_000_000 * i,
-            "mission_id": "GEOLOC-EXAMPLE",
-            "platform_tail_number": "SYNTH-1",
-            "platform_heading_deg": float(heading[i]),
-            "platform_pitch_deg": float(pitch[i]),
-            "platform_roll_deg": float(roll[i]),
-            "image_source_sensor": "EO",
-            "image_coordinate_system": "WGS-84",
-            "sensor_latitude_deg": math.degrees(lat[i]),
-            "sensor_longitude_deg": math.degrees(lon[i]),
-            "sensor_true_altitude_m": float(h[i] - n_s[i]),
-            "sensor_horizontal_fov_deg": float(hfov[i]),
-            "sensor_vertical_fov_deg": _vfov(hfov[i]),
-            "sensor_relative_azimuth_deg": float(az[i]),
-            "sensor_relative_elevation_deg": float(el[i]),
-            "sensor_relative_roll_deg": float(sroll[i]),
-            "uas_ls_version": 17,
-            "sensor_ellipsoid_height_m": float(h[i]),
-            "platform_pitch_full_deg": float(pitch[i]),
-            "platform_roll_full_deg": float(roll[i]),
-        })
+        out.append(
+            {
+                "precision_time_stamp_us": T0_US + 1_000_000 * i,
+                "mission_id": "GEOLOC-EXAMPLE",
+                "platform_tail_number": "SYNTH-1",
+                "platform_heading_deg": float(heading[i]),
+                "platform_pitch_deg": float(pitch[i]),
+                "platform_roll_deg": float(roll[i]),
+                "image_source_sensor": "EO",
+                "image_coordinate_system": "WGS-84",
+                "sensor_latitude_deg": math.degrees(lat[i]),
+                "sensor_longitude_deg": math.degrees(lon[i]),
+                "sensor_true_altitude_m": float(h[i] - n_s[i]),
+                "sensor_horizontal_fov_deg": float(hfov[i]),
+                "sensor_vertical_fov_deg": _vfov(hfov[i]),
+                "sensor_relative_azimuth_deg": float(az[i]),
+                "sensor_relative_elevation_deg": float(el[i]),
+                "sensor_relative_roll_deg": float(sroll[i]),
+                "uas_ls_version": 17,
+                "sensor_ellipsoid_height_m": float(h[i]),
+                "platform_pitch_full_deg": float(pitch[i]),
+                "platform_roll_full_deg": float(roll[i]),
+            }
+        )
     return out
 
 
@@ -179,17 +203,26 @@ def platform_answers(dem, decoded):
     """Frame centre, slant range and corners on the DEM from the decoded fields (one sensor per zoom step)."""
     surf = DemSurface(dem, "exact")
     g = lambda k: np.array([d[k] for d in decoded], float)  # noqa: E731
-    pose = Pose.from_deg(g("sensor_latitude_deg"), g("sensor_longitude_deg"), g("sensor_ellipsoid_height_m"),
-                         g("platform_heading_deg"), g("platform_pitch_full_deg"), g("platform_roll_full_deg"),
-                         angles_deg={"azimuth": g("sensor_relative_azimuth_deg"),
-                                     "elevation": g("sensor_relative_elevation_deg"),
-                                     "sensor_roll": g("sensor_relative_roll_deg")})
+    pose = Pose.from_deg(
+        g("sensor_latitude_deg"),
+        g("sensor_longitude_deg"),
+        g("sensor_ellipsoid_height_m"),
+        g("platform_heading_deg"),
+        g("platform_pitch_full_deg"),
+        g("platform_roll_full_deg"),
+        angles_deg={
+            "azimuth": g("sensor_relative_azimuth_deg"),
+            "elevation": g("sensor_relative_elevation_deg"),
+            "sensor_roll": g("sensor_relative_roll_deg"),
+        },
+    )
     fov = np.stack([g("sensor_horizontal_fov_deg"), g("sensor_vertical_fov_deg")], -1)
     out = [{} for _ in decoded]
     for hv in np.unique(fov, axis=0):
         idx = np.flatnonzero(np.all(fov == hv, axis=1))
-        s = FrameSensor(lens_from_fov(math.radians(hv[0]), math.radians(hv[1]), WIDTH, HEIGHT),
-                        PRESETS["azimuth-elevation-roll"])
+        s = FrameSensor(
+            lens_from_fov(math.radians(hv[0]), math.radians(hv[1]), WIDTH, HEIGHT), PRESETS["azimuth-elevation-roll"]
+        )
         p = pose.take(idx)
         rows = np.array([(HEIGHT + 1) / 2, 0.5, 0.5, HEIGHT + 0.5, HEIGHT + 0.5])[:, None]
         cols = np.array([(WIDTH + 1) / 2, 0.5, WIDTH + 0.5, WIDTH + 0.5, 0.5])[:, None]
@@ -258,13 +291,27 @@ def surveyed_targets(dem) -> list:
     en = np.array([[e, n, 0.0] for _, e, n in SURVEYED])
     lat, lon, _ = enu_to_geodetic(en, lat_t, lon_t, 0.0)
     h = dem.height(lat, lon)
-    return [{"name": name, "lat_deg": round(math.degrees(a), 8), "lon_deg": round(math.degrees(b), 8),
-             "h_m": round(float(c), 3), "arm_m": CROSS_ARM_M, "width_m": CROSS_WIDTH_M}
-            for (name, _, _), a, b, c in zip(SURVEYED, lat, lon, h)]
+    return [
+        {
+            "name": name,
+            "lat_deg": round(math.degrees(a), 8),
+            "lon_deg": round(math.degrees(b), 8),
+            "h_m": round(float(c), 3),
+            "arm_m": CROSS_ARM_M,
+            "width_m": CROSS_WIDTH_M,
+        }
+        for (name, _, _), a, b, c in zip(SURVEYED, lat, lon, h)
+    ]
 
 
-_ANGLES = ("platform_heading_deg", "platform_pitch_full_deg", "platform_roll_full_deg",
-           "sensor_relative_azimuth_deg", "sensor_relative_elevation_deg", "sensor_relative_roll_deg")
+_ANGLES = (
+    "platform_heading_deg",
+    "platform_pitch_full_deg",
+    "platform_roll_full_deg",
+    "sensor_relative_azimuth_deg",
+    "sensor_relative_elevation_deg",
+    "sensor_relative_roll_deg",
+)
 _LINEAR = ("sensor_latitude_deg", "sensor_longitude_deg", "sensor_ellipsoid_height_m")
 
 
@@ -286,29 +333,39 @@ def frame_content_times() -> np.ndarray:
     """Time [s from packet 0] of the scene each frame shows (i, or i + 1.5 in the fault)."""
     t = np.arange(N_PACKETS, dtype=float)
     a, b, d, _ = VIDEO_FAULTS["video_ahead"]
-    t[a:b + 1] += d
+    t[a : b + 1] += d
     return t
 
 
 def video_sensor_pose(st: dict):
     """The video's sensor (lens_from_fov at VIDEO_SIZE, azimuth-elevation-roll) and pose for a state."""
     w, h = VIDEO_SIZE
-    s = FrameSensor(lens_from_fov(math.radians(st["sensor_horizontal_fov_deg"]),
-                                  math.radians(st["sensor_vertical_fov_deg"]), w, h),
-                    PRESETS["azimuth-elevation-roll"])
-    p = Pose.from_deg(st["sensor_latitude_deg"], st["sensor_longitude_deg"], st["sensor_ellipsoid_height_m"],
-                      st["platform_heading_deg"], st["platform_pitch_full_deg"], st["platform_roll_full_deg"],
-                      angles_deg={"azimuth": st["sensor_relative_azimuth_deg"],
-                                  "elevation": st["sensor_relative_elevation_deg"],
-                                  "sensor_roll": st["sensor_relative_roll_deg"]})
+    s = FrameSensor(
+        lens_from_fov(math.radians(st["sensor_horizontal_fov_deg"]), math.radians(st["sensor_vertical_fov_deg"]), w, h),
+        PRESETS["azimuth-elevation-roll"],
+    )
+    p = Pose.from_deg(
+        st["sensor_latitude_deg"],
+        st["sensor_longitude_deg"],
+        st["sensor_ellipsoid_height_m"],
+        st["platform_heading_deg"],
+        st["platform_pitch_full_deg"],
+        st["platform_roll_full_deg"],
+        angles_deg={
+            "azimuth": st["sensor_relative_azimuth_deg"],
+            "elevation": st["sensor_relative_elevation_deg"],
+            "sensor_roll": st["sensor_relative_roll_deg"],
+        },
+    )
     return s, p
 
 
 def texture(dem):
     from geoloc.workflows.render import Cross, ground_texture
 
-    return ground_texture(dem, [Cross(t["lat_deg"], t["lon_deg"], t["arm_m"], t["width_m"], t["name"])
-                                for t in surveyed_targets(dem)])
+    return ground_texture(
+        dem, [Cross(t["lat_deg"], t["lon_deg"], t["arm_m"], t["width_m"], t["name"]) for t in surveyed_targets(dem)]
+    )
 
 
 def render_video(dem, frames=None, log=None):
@@ -318,7 +375,7 @@ def render_video(dem, frames=None, log=None):
     decoded = decoded_truth(dem)
     tex = texture(dem)
     times = frame_content_times()
-    for i in (range(N_PACKETS) if frames is None else frames):
+    for i in range(N_PACKETS) if frames is None else frames:
         s, p = video_sensor_pose(state_at(decoded, float(times[i])))
         yield render_frame(s, p, dem, tex).image
         if log and i % 25 == 0:
@@ -328,15 +385,17 @@ def render_video(dem, frames=None, log=None):
 def write_targets_csv(path, dem):
     rows = surveyed_targets(dem)
     lines = ["name,lat_deg,lon_deg,h_m,arm_m,width_m"] + [
-        f"{t['name']},{t['lat_deg']:.8f},{t['lon_deg']:.8f},{t['h_m']:.3f},{t['arm_m']},{t['width_m']}" for t in rows]
+        f"{t['name']},{t['lat_deg']:.8f},{t['lon_deg']:.8f},{t['h_m']:.3f},{t['arm_m']},{t['width_m']}" for t in rows
+    ]
     Path(path).write_text("\n".join(lines) + "\n")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(OUT), help=f"raw KLV output (default {OUT.relative_to(ROOT)})")
-    ap.add_argument("--ts", default=None, metavar="FILE",
-                    help="also write the packets as an MPEG-TS (1 Hz) with the rendered video")
+    ap.add_argument(
+        "--ts", default=None, metavar="FILE", help="also write the packets as an MPEG-TS (1 Hz) with the rendered video"
+    )
     ap.add_argument("--no-video", action="store_true", help="the MPEG-TS without its video stream")
     ap.add_argument("--targets", default=str(TARGETS_OUT), help="surveyed targets CSV output")
     args = ap.parse_args(argv)
@@ -354,8 +413,7 @@ def main(argv=None) -> int:
         frames = None if args.no_video else render_video(dem, log=print)
         write_ts(args.ts, blobs, rate=1.0, frames=frames, codec_options={"crf": 30})  # 2.3 MB
         what = "KLV data stream" if args.no_video else f"H.264 {VIDEO_SIZE[0]}x{VIDEO_SIZE[1]} + KLV data stream"
-        print(f"wrote {len(blobs)} packets to {args.ts} (MPEG-TS, {what}, 1 Hz; "
-              f"{Path(args.ts).stat().st_size} bytes)")
+        print(f"wrote {len(blobs)} packets to {args.ts} (MPEG-TS, {what}, 1 Hz; {Path(args.ts).stat().st_size} bytes)")
     return 0
 
 

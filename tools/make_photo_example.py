@@ -47,12 +47,14 @@ QUALITY = 85
 def xmp_packet(tags: dict) -> bytes:
     """An XMP packet with the drone-dji properties as attributes of rdf:Description, as DJI writes it."""
     attrs = "\n    ".join(f'drone-dji:{k}="{v}"' for k, v in tags.items())
-    return ('<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n'
-            '<x:xmpmeta xmlns:x="adobe:ns:meta/">\n'
-            ' <rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
-            f'  <rdf:Description rdf:about="DJI Meta Data" xmlns:tiff="http://ns.adobe.com/tiff/1.0/"\n'
-            f'    xmlns:drone-dji="{DJI_NS}" tiff:Make="DJI" tiff:Model="FC6310R"\n    {attrs}/>\n'
-            ' </rdf:RDF>\n</x:xmpmeta>\n<?xpacket end="w"?>').encode("utf-8")
+    return (
+        '<?xpacket begin="\ufeff" id="W5M0MpCehiHzreSzNTczkc9d"?>\n'
+        '<x:xmpmeta xmlns:x="adobe:ns:meta/">\n'
+        ' <rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">\n'
+        f'  <rdf:Description rdf:about="DJI Meta Data" xmlns:tiff="http://ns.adobe.com/tiff/1.0/"\n'
+        f'    xmlns:drone-dji="{DJI_NS}" tiff:Make="DJI" tiff:Model="FC6310R"\n    {attrs}/>\n'
+        ' </rdf:RDF>\n</x:xmpmeta>\n<?xpacket end="w"?>'
+    ).encode("utf-8")
 
 
 def exif_block(alt: float) -> Image.Exif:
@@ -72,13 +74,24 @@ def exif_block(alt: float) -> Image.Exif:
 
 
 def tags(alt, yaw, pitch):
-    return {"GpsLatitude": f"{LAT:.8f}", "GpsLongitude": f"{LON:.8f}", "AbsoluteAltitude": f"{alt:+.2f}",
-            "RelativeAltitude": "+150.00", "GimbalRollDegree": "+0.00", "GimbalYawDegree": f"{yaw:+.2f}",
-            "GimbalPitchDegree": f"{pitch:+.2f}", "FlightRollDegree": "+1.80", "FlightYawDegree": f"{yaw - 1.2:+.2f}",
-            "FlightPitchDegree": "-3.10", "CalibratedFocalLength": "690.000000",
-            "CalibratedOpticalCenterX": "400.000000", "CalibratedOpticalCenterY": "300.000000",
-            "DewarpData": "2024-05-14;690.10,690.10,1.25,-0.80,-0.2680,0.1110,0.00090,-0.00060,-0.0240",
-            "DewarpFlag": "0", "RtkFlag": "0"}
+    return {
+        "GpsLatitude": f"{LAT:.8f}",
+        "GpsLongitude": f"{LON:.8f}",
+        "AbsoluteAltitude": f"{alt:+.2f}",
+        "RelativeAltitude": "+150.00",
+        "GimbalRollDegree": "+0.00",
+        "GimbalYawDegree": f"{yaw:+.2f}",
+        "GimbalPitchDegree": f"{pitch:+.2f}",
+        "FlightRollDegree": "+1.80",
+        "FlightYawDegree": f"{yaw - 1.2:+.2f}",
+        "FlightPitchDegree": "-3.10",
+        "CalibratedFocalLength": "690.000000",
+        "CalibratedOpticalCenterX": "400.000000",
+        "CalibratedOpticalCenterY": "300.000000",
+        "DewarpData": "2024-05-14;690.10,690.10,1.25,-0.80,-0.2680,0.1110,0.00090,-0.00060,-0.0240",
+        "DewarpFlag": "0",
+        "RtkFlag": "0",
+    }
 
 
 def write(path, alt, yaw, pitch, image=None, quality=60):
@@ -94,9 +107,12 @@ def render(photo, dem, truths):
 
     meta = read_photo(photo)
     s, _ = photo_sensor(meta)
-    tex = ground_texture(dem, [Cross(la, lo, CROSS_ARM_M, CROSS_WIDTH_M, f"T{k + 1}")
-                               for k, (la, lo) in enumerate(truths)], graticule_deg=GRATICULE_DEG,
-                         graticule_width_m=0.15)
+    tex = ground_texture(
+        dem,
+        [Cross(la, lo, CROSS_ARM_M, CROSS_WIDTH_M, f"T{k + 1}") for k, (la, lo) in enumerate(truths)],
+        graticule_deg=GRATICULE_DEG,
+        graticule_width_m=0.15,
+    )
     return render_frame(s, pose_from_photo(meta), dem, tex).image
 
 
@@ -113,12 +129,18 @@ def main() -> None:
     tgt.write_text("image,row,col\n" + "".join(f"DJI_0001.JPG,{r},{c}\n" for r, c in pixels))
     rows, msgs = replay_photos([photo], tgt, surface=surface_for(dem=dem))
     assert all(r["status"] == "ok" for r in rows), (rows, msgs)
-    tgt.write_text("image,row,col,truth_lat_deg,truth_lon_deg,truth_h_m\n" + "".join(
-        f"DJI_0001.JPG,{r['row']},{r['col']},{r['lat_deg']:.8f},{r['lon_deg']:.8f},{r['h_m']:.2f}\n" for r in rows))
+    tgt.write_text(
+        "image,row,col,truth_lat_deg,truth_lon_deg,truth_h_m\n"
+        + "".join(
+            f"DJI_0001.JPG,{r['row']},{r['col']},{r['lat_deg']:.8f},{r['lon_deg']:.8f},{r['h_m']:.2f}\n" for r in rows
+        )
+    )
     image = render(photo, dem, [(r["lat_deg"], r["lon_deg"]) for r in rows])  # seen from the true tags
     write(photo, alt + 3.0, 40.4, -60.2, image, QUALITY)  # what the photo says: tenths of a degree, metres off
-    print(f"wrote {photo.relative_to(ROOT)} ({photo.stat().st_size} bytes) and {tgt.relative_to(ROOT)} "
-          f"({len(rows)} targets)")
+    print(
+        f"wrote {photo.relative_to(ROOT)} ({photo.stat().st_size} bytes) and {tgt.relative_to(ROOT)} "
+        f"({len(rows)} targets)"
+    )
 
 
 if __name__ == "__main__":

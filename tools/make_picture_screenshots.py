@@ -86,12 +86,21 @@ def main(argv=None) -> int:
             r, c = find_marks(layer.image)[0][0]
             r, c = float(round(r)), float(round(c))
             layer.sl_zoom.value = 2
-            wait_for(lambda: page.locator("#geoloc-picture").get_attribute("data-w")
-                     == str(layer.image.shape[1] // 4), 60, "the 4x crop")
+            wait_for(
+                lambda: page.locator("#geoloc-picture").get_attribute("data-w") == str(layer.image.shape[1] // 4),
+                60,
+                "the 4x crop",
+            )
             layer.pick_pixel(r, c)  # centre the zoomed crop on it, then click it as a person does
             time.sleep(1.0)
-            wait_for(lambda: page.locator("#geoloc-picture").bounding_box() is not None
-                     and page.locator("#geoloc-picture").get_attribute("data-r1") is not None, 60, "the panel")
+            wait_for(
+                lambda: (
+                    page.locator("#geoloc-picture").bounding_box() is not None
+                    and page.locator("#geoloc-picture").get_attribute("data-r1") is not None
+                ),
+                60,
+                "the panel",
+            )
             x, y = _panel_pixel_xy(page, r, c)
             page.mouse.click(x, y)
             wait_for(lambda: layer.pick is not None and (layer.pick.row, layer.pick.col) == (r, c), 60, "the pick")

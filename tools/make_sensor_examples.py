@@ -76,11 +76,20 @@ def turret(dem, rng):
         heading = (math.degrees(bearing) + 90.0 + 180.0) % 360.0 - 180.0  # orbiting clockwise
         pose = Pose.from_deg(alat, alon, 2500.0, heading, 2.0, 1.5)
         # point the turret at the target (the true angles), then read its pixel
-        (p0, az, el), = look_at(sensor, lambda _: pose, lat[k:k + 1], lon[k:k + 1], h[k:k + 1])
+        ((p0, az, el),) = look_at(sensor, lambda _: pose, lat[k : k + 1], lon[k : k + 1], h[k : k + 1])
         az_rel = (math.degrees(az) - heading) % 360.0
-        true = Pose.from_deg(alat, alon, 2500.0, heading, 2.0, 1.5,
-                             angles_deg={"azimuth": az_rel + rng.uniform(-1.5, 1.5),
-                                         "elevation": math.degrees(el) + rng.uniform(-1.0, 1.0)})
+        true = Pose.from_deg(
+            alat,
+            alon,
+            2500.0,
+            heading,
+            2.0,
+            1.5,
+            angles_deg={
+                "azimuth": az_rel + rng.uniform(-1.5, 1.5),
+                "elevation": math.degrees(el) + rng.uniform(-1.0, 1.0),
+            },
+        )
         # the target: a pixel near the image centre, met on the terrain from the true pose (so it
         # is the first visible crossing; a point drawn on the DEM could hide behind a ridge)
         from geoloc.surfaces.terrain import intersect_dem
@@ -93,20 +102,45 @@ def turret(dem, rng):
         assert int(hit.status) == Status.OK, hit.status
         px = type("P", (), {"row": r, "col": c})
         lat[k], lon[k], h[k] = float(hit.lat_deg), float(hit.lon_deg), float(hit.h)
-        noisy = dict(ac_lat_deg=alat + rng.normal(0, 2.0) / 111_000.0,
-                     ac_lon_deg=alon + rng.normal(0, 2.0) / 89_000.0,
-                     ac_h_m=2500.0 + rng.normal(0, 3.0),
-                     heading_deg=heading + rng.normal(0, 0.1), pitch_deg=2.0 + rng.normal(0, 0.05),
-                     roll_deg=1.5 + rng.normal(0, 0.05),
-                     azimuth_deg=math.degrees(true.angle("azimuth")) + rng.normal(0, 0.05),
-                     elevation_deg=math.degrees(true.angle("elevation")) + rng.normal(0, 0.05))
-        rows.append({"table": "orbit1", "point": k + 1, "row": f"{float(px.row):.2f}",
-                     "col": f"{float(px.col):.2f}", **{kk: f"{v:.7f}" for kk, v in noisy.items()},
-                     "truth_lat_deg": f"{lat[k]:.8f}", "truth_lon_deg": f"{lon[k]:.8f}",
-                     "truth_h_m": f"{h[k]:.2f}"})
-    header = ["table", "point", "row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg",
-              "pitch_deg", "roll_deg", "azimuth_deg", "elevation_deg", "truth_lat_deg", "truth_lon_deg",
-              "truth_h_m"]
+        noisy = dict(
+            ac_lat_deg=alat + rng.normal(0, 2.0) / 111_000.0,
+            ac_lon_deg=alon + rng.normal(0, 2.0) / 89_000.0,
+            ac_h_m=2500.0 + rng.normal(0, 3.0),
+            heading_deg=heading + rng.normal(0, 0.1),
+            pitch_deg=2.0 + rng.normal(0, 0.05),
+            roll_deg=1.5 + rng.normal(0, 0.05),
+            azimuth_deg=math.degrees(true.angle("azimuth")) + rng.normal(0, 0.05),
+            elevation_deg=math.degrees(true.angle("elevation")) + rng.normal(0, 0.05),
+        )
+        rows.append(
+            {
+                "table": "orbit1",
+                "point": k + 1,
+                "row": f"{float(px.row):.2f}",
+                "col": f"{float(px.col):.2f}",
+                **{kk: f"{v:.7f}" for kk, v in noisy.items()},
+                "truth_lat_deg": f"{lat[k]:.8f}",
+                "truth_lon_deg": f"{lon[k]:.8f}",
+                "truth_h_m": f"{h[k]:.2f}",
+            }
+        )
+    header = [
+        "table",
+        "point",
+        "row",
+        "col",
+        "ac_lat_deg",
+        "ac_lon_deg",
+        "ac_h_m",
+        "heading_deg",
+        "pitch_deg",
+        "roll_deg",
+        "azimuth_deg",
+        "elevation_deg",
+        "truth_lat_deg",
+        "truth_lon_deg",
+        "truth_h_m",
+    ]
     write(ROOT / "assets" / "records" / "eo_turret_flight.csv", rows, header)
 
 
@@ -120,8 +154,15 @@ def drone(dem, rng):
         ground = float(dem.height(math.radians(alat), math.radians(alon)))
         ah = ground + rng.uniform(120.0, 300.0)
         yaw, pitch = rng.uniform(-180, 180), rng.uniform(-90, -45)
-        true = Pose.from_deg(alat, alon, ah, yaw + rng.normal(0, 5), rng.normal(0, 3), rng.normal(0, 3),
-                             angles_deg={"gimbal_yaw": yaw, "gimbal_pitch": pitch, "gimbal_roll": 0.0})
+        true = Pose.from_deg(
+            alat,
+            alon,
+            ah,
+            yaw + rng.normal(0, 5),
+            rng.normal(0, 3),
+            rng.normal(0, 3),
+            angles_deg={"gimbal_yaw": yaw, "gimbal_pitch": pitch, "gimbal_roll": 0.0},
+        )
         # a target somewhere in the image: a random pixel, located on the DEM from the true pose
         from geoloc.surfaces.terrain import intersect_dem
 
@@ -129,19 +170,47 @@ def drone(dem, rng):
         hit = intersect_dem(sensor.line_of_sight(r, c, true), dem, "exact")
         if int(hit.status) != Status.OK:
             continue
-        noisy = dict(ac_lat_deg=alat + rng.normal(0, 1.5) / 111_000.0,
-                     ac_lon_deg=alon + rng.normal(0, 1.5) / 89_000.0, ac_h_m=ah + rng.normal(0, 2.0),
-                     heading_deg=math.degrees(true.heading), pitch_deg=math.degrees(true.pitch),
-                     roll_deg=math.degrees(true.roll),
-                     gimbal_yaw_deg=yaw + rng.normal(0, 0.3), gimbal_pitch_deg=pitch + rng.normal(0, 0.1),
-                     gimbal_roll_deg=rng.normal(0, 0.1))
-        rows.append({"table": "survey1", "point": len(rows) + 1, "row": f"{r:.2f}", "col": f"{c:.2f}",
-                     **{kk: f"{v:.7f}" for kk, v in noisy.items()},
-                     "truth_lat_deg": f"{float(hit.lat_deg):.8f}", "truth_lon_deg": f"{float(hit.lon_deg):.8f}",
-                     "truth_h_m": f"{float(hit.h):.2f}"})
-    header = ["table", "point", "row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg",
-              "pitch_deg", "roll_deg", "gimbal_yaw_deg", "gimbal_pitch_deg", "gimbal_roll_deg",
-              "truth_lat_deg", "truth_lon_deg", "truth_h_m"]
+        noisy = dict(
+            ac_lat_deg=alat + rng.normal(0, 1.5) / 111_000.0,
+            ac_lon_deg=alon + rng.normal(0, 1.5) / 89_000.0,
+            ac_h_m=ah + rng.normal(0, 2.0),
+            heading_deg=math.degrees(true.heading),
+            pitch_deg=math.degrees(true.pitch),
+            roll_deg=math.degrees(true.roll),
+            gimbal_yaw_deg=yaw + rng.normal(0, 0.3),
+            gimbal_pitch_deg=pitch + rng.normal(0, 0.1),
+            gimbal_roll_deg=rng.normal(0, 0.1),
+        )
+        rows.append(
+            {
+                "table": "survey1",
+                "point": len(rows) + 1,
+                "row": f"{r:.2f}",
+                "col": f"{c:.2f}",
+                **{kk: f"{v:.7f}" for kk, v in noisy.items()},
+                "truth_lat_deg": f"{float(hit.lat_deg):.8f}",
+                "truth_lon_deg": f"{float(hit.lon_deg):.8f}",
+                "truth_h_m": f"{float(hit.h):.2f}",
+            }
+        )
+    header = [
+        "table",
+        "point",
+        "row",
+        "col",
+        "ac_lat_deg",
+        "ac_lon_deg",
+        "ac_h_m",
+        "heading_deg",
+        "pitch_deg",
+        "roll_deg",
+        "gimbal_yaw_deg",
+        "gimbal_pitch_deg",
+        "gimbal_roll_deg",
+        "truth_lat_deg",
+        "truth_lon_deg",
+        "truth_h_m",
+    ]
     write(ROOT / "assets" / "records" / "drone_targets.csv", rows, header)
 
 

@@ -54,11 +54,11 @@ _BLOCK = 512
 
 # source codes of the chain kernel's columns
 SRC_NORTH, SRC_EAST, SRC_UP, SRC_TIME, SRC_HEADING, SRC_PITCH, SRC_ROLL = 0, 1, 2, 3, 4, 5, 6
-SRC_JOINT = 10   # + joint index
-SRC_MOUNT = 30   # + axis (x, y, z)
-SRC_BORE = 33    # + axis
-SRC_LEVER = 36   # + axis
-SRC_LENS = 40    # + PARAM_LAYOUT slot
+SRC_JOINT = 10  # + joint index
+SRC_MOUNT = 30  # + axis (x, y, z)
+SRC_BORE = 33  # + axis
+SRC_LEVER = 36  # + axis
+SRC_LENS = 40  # + PARAM_LAYOUT slot
 
 
 @cached_njit(KEY, inline="always")
@@ -96,9 +96,33 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 
 @cached_njit(KEY, parallel=True, error_model="numpy")
-def chain_kernel(lat, lon, h, heading, pitch, roll, angles, O, D, t, vel,
-                 axes, R_cam_last, R_base_body, lever, earth_ref, mount_axes, bore_axes,
-                 lens_code, lens_p, codes, sigmas, a_m, e2, free):
+def chain_kernel(
+    lat,
+    lon,
+    h,
+    heading,
+    pitch,
+    roll,
+    angles,
+    O,
+    D,
+    t,
+    vel,
+    axes,
+    R_cam_last,
+    R_base_body,
+    lever,
+    earth_ref,
+    mount_axes,
+    bore_axes,
+    lens_code,
+    lens_p,
+    codes,
+    sigmas,
+    a_m,
+    e2,
+    free,
+):
     """``free[i, :, k] = dO + t dD`` of ray ``i`` per 1 sigma of source ``codes[k]`` (ECEF, metres).
 
     ``sigmas`` are in SI (radians, metres, seconds, pixels); ``mount_axes`` (body frame) and
@@ -131,18 +155,18 @@ def chain_kernel(lat, lon, h, heading, pitch, roll, angles, O, D, t, vel,
             if earth_ref:
                 Rj[0] = Rn
             else:
-                _matmul_T(Rb, R_base_body, Rt)   # R_ecef_base = R_ecef_body R_base_body^T
+                _matmul_T(Rb, R_base_body, Rt)  # R_ecef_base = R_ecef_body R_base_body^T
                 Rj[0] = Rt
             for j in range(nj):
                 _turn_back_cols(axes[j], math.cos(angles[i, j]), math.sin(angles[i, j]), Rj[j], Rj[j + 1])
-            _matmul_T(Rj[nj], R_cam_last, Rc)    # R_ecef_cam
+            _matmul_T(Rj[nj], R_cam_last, Rc)  # R_ecef_cam
             d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
             L0 = Rb[0, 0] * lever[0] + Rb[0, 1] * lever[1] + Rb[0, 2] * lever[2]
             L1 = Rb[1, 0] * lever[0] + Rb[1, 1] * lever[1] + Rb[1, 2] * lever[2]
             L2 = Rb[2, 0] * lever[0] + Rb[2, 1] * lever[1] + Rb[2, 2] * lever[2]
             ti = t[i]
             w = 1.0 - e2 * sp * sp
-            rn_h = a_m / math.sqrt(w) + h[i]                 # prime vertical radius + h
+            rn_h = a_m / math.sqrt(w) + h[i]  # prime vertical radius + h
             rm_h = a_m * (1.0 - e2) / (w * math.sqrt(w)) + h[i]  # meridian radius + h
             # the direction in the optical frame and its normalised point
             c0 = Rc[0, 0] * d0 + Rc[1, 0] * d1 + Rc[2, 0] * d2
@@ -173,7 +197,7 @@ def chain_kernel(lat, lon, h, heading, pitch, roll, angles, O, D, t, vel,
                         o0, o1, o2, e0, e1, e2_ = eO0, eO1, eO2, z0, z1, z2
                     else:
                         vn, ve, vd = vel[i, 0], vel[i, 1], vel[i, 2]
-                        o0 = vn * nO0 + ve * eO0 + vd * Rn[0, 2]   # -vd * up = vd * down
+                        o0 = vn * nO0 + ve * eO0 + vd * Rn[0, 2]  # -vd * up = vd * down
                         o1 = vn * nO1 + ve * eO1 + vd * Rn[1, 2]
                         o2 = vn * nO2 + ve * eO2 + vd * Rn[2, 2]
                         e0, e1, e2_ = vn * y0 + ve * z0, vn * y1 + ve * z1, vn * y2 + ve * z2
@@ -252,8 +276,9 @@ def chain_kernel(lat, lon, h, heading, pitch, roll, angles, O, D, t, vel,
 
 
 @cached_njit(KEY, parallel=True, error_model="numpy")
-def surface_kernel(free, D, m, lat, lon, status, sz, qt_n, rt, le90_per_sigma,
-                   J, cov, major, minor, az, ce, le, inv_out):
+def surface_kernel(
+    free, D, m, lat, lon, status, sz, qt_n, rt, le90_per_sigma, J, cov, major, minor, az, ce, le, inv_out
+):
     """The hit kept on the surface (normal ``m``), turned to ENU; covariance, ellipse, CE90, LE90.
 
     ``J`` has one more column than ``free`` when ``sz > 0`` (the surface's own vertical error).
@@ -378,10 +403,41 @@ def _step(free, i, D, m0, m1, m2, ok, sz, E, N, U, Jo):
 
 
 @cached_njit(KEY, parallel=True, error_model="numpy")
-def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprint,
-                       Z, lat_north, lon_west, dlat, dlon, margin, a_m, e2,
-                       gh_x, gh_w, graze_r, qt_n, rt, le90_per_sigma,
-                       J, cov, major, minor, az, ce, le, rms, grazing):
+def dem_surface_kernel(
+    free,
+    D,
+    t,
+    lat,
+    lon,
+    h,
+    status,
+    sz,
+    iterations,
+    footprint,
+    Z,
+    lat_north,
+    lon_west,
+    dlat,
+    dlon,
+    margin,
+    a_m,
+    e2,
+    gh_x,
+    gh_w,
+    graze_r,
+    qt_n,
+    rt,
+    le90_per_sigma,
+    J,
+    cov,
+    major,
+    minor,
+    az,
+    ce,
+    le,
+    rms,
+    grazing,
+):
     """The surface step on a geographic DEM, per ray, as the numpy path of ``propagate``.
 
     The normal ``m = u - g_e e - g_n n`` starts from the DEM's slope at the hit (central
@@ -414,14 +470,18 @@ def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprin
         N = (-sp * cl, -sp * sl, cp)
         U = (cp * cl, cp * sl, sp)
         w_ = 1.0 - e2 * sp * sp
-        mh = a_m * (1.0 - e2) / (w_ * math.sqrt(w_)) + h[i]   # meridian radius + h
-        nh = (a_m / math.sqrt(w_) + h[i]) * cp                # (prime vertical radius + h) cos lat
+        mh = a_m * (1.0 - e2) / (w_ * math.sqrt(w_)) + h[i]  # meridian radius + h
+        nh = (a_m / math.sqrt(w_) + h[i]) * cp  # (prime vertical radius + h) cos lat
         la, lo = lat[i], lon[i]
         # the slope of the bilinear surface at the hit: central differences over +-1 m
-        g_n = (_grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + 1.0 / mh, lo)
-               - _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la - 1.0 / mh, lo)) / 2.0
-        g_e = (_grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la, lo + 1.0 / nh)
-               - _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la, lo - 1.0 / nh)) / 2.0
+        g_n = (
+            _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + 1.0 / mh, lo)
+            - _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la - 1.0 / mh, lo)
+        ) / 2.0
+        g_e = (
+            _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la, lo + 1.0 / nh)
+            - _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la, lo - 1.0 / nh)
+        ) / 2.0
         Jo = J[i]
         Hf = np.empty(ng * ng)
         n_fit = iterations + 1 if footprint else 1
@@ -459,7 +519,7 @@ def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprin
                             w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
                             eh0 += w * (H - h0) * gh_x[a]
                             eh1 += w * (H - h0) * gh_x[b]
-                ge = eh0 / l11 - l21 / (l11 * l22) * eh1   # L^-T E[z (h - h0)]
+                ge = eh0 / l11 - l21 / (l11 * l22) * eh1  # L^-T E[z (h - h0)]
                 gn = eh1 / l22
                 if it == n_fit:
                     # the terrain's RMS departure from this plane over the footprint
@@ -477,7 +537,7 @@ def dem_surface_kernel(free, D, t, lat, lon, h, status, sz, iterations, footprin
                     break
                 g_e, g_n = ge, gn
             if not math.isfinite(g_e):
-                g_e = 0.0   # at the DEM's edge: level
+                g_e = 0.0  # at the DEM's edge: level
             if not math.isfinite(g_n):
                 g_n = 0.0
             m0 = U[0] - g_e * E[0] - g_n * N[0]

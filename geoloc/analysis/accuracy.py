@@ -69,6 +69,7 @@ def _geod():
         _GEOD = Geod(ellps="WGS84")
     return _GEOD
 
+
 __all__ = [
     "DATUM_MIN_BIAS_M",
     "DATUM_SE_FACTOR",
@@ -101,8 +102,10 @@ DATUM_MIN_BIAS_M = 5.0
 N_BINS = 5
 MIN_PER_BIN = 3
 
-PERCENTILE_TEXT = ("numpy's default percentile (method='linear': linear interpolation between order "
-                   "statistics, Hyndman-Fan definition 7)")
+PERCENTILE_TEXT = (
+    "numpy's default percentile (method='linear': linear interpolation between order "
+    "statistics, Hyndman-Fan definition 7)"
+)
 
 
 # --------------------------------------------------------------------------- ranges
@@ -143,15 +146,16 @@ def _check_ranges(**named):
         if bad.size:
             lo, hi = POSITION_RANGES[kind]
             k = int(bad[0])
-            raise ValueError(f"{name}[{k}] = {float(np.ravel(np.asarray(v, float))[k]):g} is out of range "
-                             f"[{lo:g}, {hi:g}] ({bad.size} value(s) out of range)")
+            raise ValueError(
+                f"{name}[{k}] = {float(np.ravel(np.asarray(v, float))[k]):g} is out of range "
+                f"[{lo:g}, {hi:g}] ({bad.size} value(s) out of range)"
+            )
 
 
 # --------------------------------------------------------------------------- components
 
 
-def error_components(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *,
-                     track_heading_rad=None) -> dict:
+def error_components(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *, track_heading_rad=None) -> dict:
     """Error vector (computed minus reference) in the reference point's local frame.
 
     ``(north, east, down) = geodetic_to_ned(computed; origin = reference)``
@@ -180,18 +184,25 @@ def error_components(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *
         NaN in the computed position or the reference's latitude / longitude is
         NaN in every key.
     """
-    lat, lon, h, rlat, rlon, rh = np.broadcast_arrays(*(np.asarray(v, float) for v in
-                                                         (lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m)))
+    lat, lon, h, rlat, rlon, rh = np.broadcast_arrays(
+        *(np.asarray(v, float) for v in (lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m))
+    )
     no_ref_h = ~np.isfinite(rh)
     rh_used = np.where(no_ref_h, h, rh)
     ned = geodetic_to_ned(np.deg2rad(lat), np.deg2rad(lon), h, np.deg2rad(rlat), np.deg2rad(rlon), rh_used)
     north, east, up = ned[..., 0], ned[..., 1], -ned[..., 2]
     up = np.where(no_ref_h, np.nan, up)
     horizontal = np.hypot(north, east)
-    slant = np.where(no_ref_h, horizontal, np.sqrt(north ** 2 + east ** 2 + np.nan_to_num(up) ** 2))
+    slant = np.where(no_ref_h, horizontal, np.sqrt(north**2 + east**2 + np.nan_to_num(up) ** 2))
     slant = np.where(np.isfinite(horizontal), slant, np.nan)
-    out = {"north_m": north, "east_m": east, "up_m": up, "horizontal_m": horizontal,
-           "vertical_m": up.copy(), "slant_m": slant}
+    out = {
+        "north_m": north,
+        "east_m": east,
+        "up_m": up,
+        "horizontal_m": horizontal,
+        "vertical_m": up.copy(),
+        "slant_m": slant,
+    }
     if track_heading_rad is not None:
         psi = np.broadcast_to(np.asarray(track_heading_rad, float), north.shape)
         out["along_m"] = north * np.cos(psi) + east * np.sin(psi)
@@ -206,8 +217,9 @@ def error_components(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *
 MIN_TRACK_BASELINE_M = 100.0
 
 
-def track_azimuth_rad(platform_lat_deg, platform_lon_deg, group=None, heading_rad=None,
-                      min_baseline_m: float = MIN_TRACK_BASELINE_M) -> np.ndarray:
+def track_azimuth_rad(
+    platform_lat_deg, platform_lon_deg, group=None, heading_rad=None, min_baseline_m: float = MIN_TRACK_BASELINE_M
+) -> np.ndarray:
     """The platform's local track azimuth at each target [rad, clockwise from north].
 
     Within each group, in input order, the geodesic azimuth (WGS-84, pyproj)
@@ -243,9 +255,14 @@ def sight_geometry(platform_lat_deg, platform_lon_deg, platform_h_m, lat_deg, lo
     (0 straight down along the ellipsoid normal, pi/2 at the horizon).
     Heights ellipsoidal.
     """
-    ned = geodetic_to_ned(np.deg2rad(np.asarray(lat_deg, float)), np.deg2rad(np.asarray(lon_deg, float)),
-                          np.asarray(h_m, float), np.deg2rad(np.asarray(platform_lat_deg, float)),
-                          np.deg2rad(np.asarray(platform_lon_deg, float)), np.asarray(platform_h_m, float))
+    ned = geodetic_to_ned(
+        np.deg2rad(np.asarray(lat_deg, float)),
+        np.deg2rad(np.asarray(lon_deg, float)),
+        np.asarray(h_m, float),
+        np.deg2rad(np.asarray(platform_lat_deg, float)),
+        np.deg2rad(np.asarray(platform_lon_deg, float)),
+        np.asarray(platform_h_m, float),
+    )
     n, e, d = ned[..., 0], ned[..., 1], ned[..., 2]
     return {"slant_range_m": np.sqrt(n * n + e * e + d * d), "off_nadir_rad": np.arctan2(np.hypot(n, e), d)}
 
@@ -336,8 +353,13 @@ def binned_medians(x, y, n_bins: int = N_BINS, min_per_bin: int = MIN_PER_BIN, y
         m = ok & (x >= lo) & ((x <= hi) if j == nb - 1 else (x < hi))
         if not m.any():
             continue
-        row = {"lo": float(lo), "hi": float(hi), "n": int(m.sum()), "x_median": float(np.median(x[m])),
-               "median": float(np.median(y[m]))}
+        row = {
+            "lo": float(lo),
+            "hi": float(hi),
+            "n": int(m.sum()),
+            "x_median": float(np.median(x[m])),
+            "median": float(np.median(y[m])),
+        }
         if y2 is not None:
             v2 = np.asarray(y2, float).ravel()[m]
             v2 = v2[np.isfinite(v2)]
@@ -361,8 +383,7 @@ def linear_model(x, y) -> dict:
     A = np.stack([np.ones(n), x[ok]], axis=1)
     (c0, c1), *_ = np.linalg.lstsq(A, y[ok], rcond=None)
     res = y[ok] - (c0 + c1 * x[ok])
-    return {"intercept_m": float(c0), "m_per_m": float(c1), "n": n,
-            "rms_residual_m": float(np.sqrt(np.mean(res ** 2)))}
+    return {"intercept_m": float(c0), "m_per_m": float(c1), "n": n, "rms_residual_m": float(np.sqrt(np.mean(res**2)))}
 
 
 def datum_warning(up_m) -> tuple:
@@ -373,8 +394,14 @@ def datum_warning(up_m) -> tuple:
     mean = float(u.mean())
     se = float(u.std(ddof=1) / math.sqrt(u.size))
     if abs(mean) > DATUM_SE_FACTOR * se and abs(mean) > DATUM_MIN_BIAS_M:
-        return (f"vertical bias {mean:+.1f} m shared by all {u.size} targets (standard error {se:.2f} m): "
-                "likely datum mismatch (ellipsoid vs MSL?)"), mean, se
+        return (
+            (
+                f"vertical bias {mean:+.1f} m shared by all {u.size} targets (standard error {se:.2f} m): "
+                "likely datum mismatch (ellipsoid vs MSL?)"
+            ),
+            mean,
+            se,
+        )
     return None, mean, se
 
 
@@ -405,7 +432,7 @@ def _stats(comp: dict, m, extras: dict, lat_deg, h_m) -> dict:
         "le90_m": _pct(absup, 90),
         "mae_horizontal_m": _mean(hor),
         "mae_vertical_m": _mean(absup),
-        "rmse_horizontal_m": float(np.sqrt(_mean(hor ** 2))),
+        "rmse_horizontal_m": float(np.sqrt(_mean(hor**2))),
         "max_horizontal_m": float(np.max(_finite(hor))) if _finite(hor).size else math.nan,
         "bias_north_m": _mean(comp["north_m"][m]),
         "bias_east_m": _mean(comp["east_m"][m]),
@@ -413,8 +440,9 @@ def _stats(comp: dict, m, extras: dict, lat_deg, h_m) -> dict:
         "bias_up_se_m": se_up,
         "bias_along_m": _mean(comp["along_m"][m]) if "along_m" in comp else math.nan,
         "bias_across_m": _mean(comp["across_m"][m]) if "across_m" in comp else math.nan,
-        "radial_rms_eq18_m": _radial_rms_eq18(comp["north_m"][m], comp["east_m"][m],
-                                              np.asarray(lat_deg)[m], np.asarray(h_m)[m]),
+        "radial_rms_eq18_m": _radial_rms_eq18(
+            comp["north_m"][m], comp["east_m"][m], np.asarray(lat_deg)[m], np.asarray(h_m)[m]
+        ),
         "datum_warning": warn,
         "outliers": [int(k) for k in np.flatnonzero(m)[flags]],
         "outlier_threshold_m": thr,
@@ -425,8 +453,7 @@ def _stats(comp: dict, m, extras: dict, lat_deg, h_m) -> dict:
             continue
         s[f"by_{key}"] = binned_medians(np.asarray(x)[m], hor, y2=absup)
     if extras.get("slant_range_m") is not None:
-        s["slant_range_model"] = dict(linear_model(np.asarray(extras["slant_range_m"])[m], hor),
-                                      error="horizontal_m")
+        s["slant_range_model"] = dict(linear_model(np.asarray(extras["slant_range_m"])[m], hor), error="horizontal_m")
     return s
 
 
@@ -451,8 +478,11 @@ def _f(v, spec=".2f") -> str:
 
 
 #: Trend variables: key, column title, unit conversion for display.
-TRENDS = (("slant_range_m", "slant range [m]", 1.0), ("off_nadir_deg", "off-nadir [deg]", 1.0),
-          ("pixel_radius_px", "pixel radius [px]", 1.0))
+TRENDS = (
+    ("slant_range_m", "slant range [m]", 1.0),
+    ("off_nadir_deg", "off-nadir [deg]", 1.0),
+    ("pixel_radius_px", "pixel radius [px]", 1.0),
+)
 
 
 @dataclass
@@ -509,24 +539,32 @@ class AccuracyReport:
 
     def markdown(self) -> str:
         """A markdown table of the main figures, the trend tables and the warnings."""
-        head = ("| group | n | CEP [m] | CE90 [m] | LE90 [m] | MAE h [m] | MAE v [m] | bias N [m] | bias E [m] "
-                "| bias U [m] | bias along [m] | bias across [m] | eq. 18 radial RMS [m] | outliers |")
+        head = (
+            "| group | n | CEP [m] | CE90 [m] | LE90 [m] | MAE h [m] | MAE v [m] | bias N [m] | bias E [m] "
+            "| bias U [m] | bias along [m] | bias across [m] | eq. 18 radial RMS [m] | outliers |"
+        )
         L = [head, "|" + "---|" * 14]
         for g, s in self.rows():
-            L.append(f"| {g} | {s['n']} | {_f(s['cep_m'])} | {_f(s['ce90_m'])} | {_f(s['le90_m'])} | "
-                     f"{_f(s['mae_horizontal_m'])} | {_f(s['mae_vertical_m'])} | {_f(s['bias_north_m'])} | "
-                     f"{_f(s['bias_east_m'])} | {_f(s['bias_up_m'])} | {_f(s['bias_along_m'])} | "
-                     f"{_f(s['bias_across_m'])} | {_f(s['radial_rms_eq18_m'])} | {len(s['outliers'])} |")
+            L.append(
+                f"| {g} | {s['n']} | {_f(s['cep_m'])} | {_f(s['ce90_m'])} | {_f(s['le90_m'])} | "
+                f"{_f(s['mae_horizontal_m'])} | {_f(s['mae_vertical_m'])} | {_f(s['bias_north_m'])} | "
+                f"{_f(s['bias_east_m'])} | {_f(s['bias_up_m'])} | {_f(s['bias_along_m'])} | "
+                f"{_f(s['bias_across_m'])} | {_f(s['radial_rms_eq18_m'])} | {len(s['outliers'])} |"
+            )
         L.append("")
-        L.append("CEP = 50th, CE90 = 90th percentile of the horizontal errors; LE90 = 90th percentile of "
-                 "|vertical error|; " + PERCENTILE_TEXT + ". The eq. 18 radial RMS ([Q17]) is the spread "
-                 "about the mean error, not a CEP.")
+        L.append(
+            "CEP = 50th, CE90 = 90th percentile of the horizontal errors; LE90 = 90th percentile of "
+            "|vertical error|; " + PERCENTILE_TEXT + ". The eq. 18 radial RMS ([Q17]) is the spread "
+            "about the mean error, not a CEP."
+        )
         for g, s in self.rows():
             mdl = s.get("slant_range_model")
             if mdl and mdl["n"]:
-                L.append(f"\n{g}: horizontal error = {_f(mdl['intercept_m'], '.3f')} m + "
-                         f"{_f(mdl['m_per_m'] * 1000.0, '.4f')} m per km of slant range (least squares, "
-                         f"n = {mdl['n']}, RMS residual {_f(mdl['rms_residual_m'])} m)")
+                L.append(
+                    f"\n{g}: horizontal error = {_f(mdl['intercept_m'], '.3f')} m + "
+                    f"{_f(mdl['m_per_m'] * 1000.0, '.4f')} m per km of slant range (least squares, "
+                    f"n = {mdl['n']}, RMS residual {_f(mdl['rms_residual_m'])} m)"
+                )
             for key, title, _ in TRENDS:
                 bins = s.get(f"by_{key}")
                 if not bins:
@@ -535,8 +573,10 @@ class AccuracyReport:
                 L.append(f"| {title} | n | median horizontal [m] | median |vertical| [m] |")
                 L.append("|---|---|---|---|")
                 for b in bins:
-                    L.append(f"| {_f(b['lo'], '.1f')} - {_f(b['hi'], '.1f')} | {b['n']} | {_f(b['median'])} | "
-                             f"{_f(b.get('median2', math.nan))} |")
+                    L.append(
+                        f"| {_f(b['lo'], '.1f')} - {_f(b['hi'], '.1f')} | {b['n']} | {_f(b['median'])} | "
+                        f"{_f(b.get('median2', math.nan))} |"
+                    )
         for g, s in self.rows():
             b = s.get("budget")
             if b:
@@ -549,9 +589,21 @@ class AccuracyReport:
         return "\n".join(L)
 
 
-def accuracy_report(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *, track_heading_rad=None,
-                    slant_range_m=None, off_nadir_rad=None, pixel_radius_px=None, group=None,
-                    meta: dict | None = None) -> AccuracyReport:
+def accuracy_report(
+    lat_deg,
+    lon_deg,
+    h_m,
+    ref_lat_deg,
+    ref_lon_deg,
+    ref_h_m,
+    *,
+    track_heading_rad=None,
+    slant_range_m=None,
+    off_nadir_rad=None,
+    pixel_radius_px=None,
+    group=None,
+    meta: dict | None = None,
+) -> AccuracyReport:
     """Accuracy statistics of computed positions against references, per group and overall.
 
     Parameters
@@ -588,14 +640,17 @@ def accuracy_report(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *,
         ``by_off_nadir_deg``, ``by_pixel_radius_px`` (bins, when given) and
         ``slant_range_model``.
     """
-    _check_ranges(lat_deg=lat_deg, lon_deg=lon_deg, h_m=h_m, ref_lat_deg=ref_lat_deg, ref_lon_deg=ref_lon_deg,
-                  ref_h_m=ref_h_m)
-    comp = error_components(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m,
-                            track_heading_rad=track_heading_rad)
+    _check_ranges(
+        lat_deg=lat_deg, lon_deg=lon_deg, h_m=h_m, ref_lat_deg=ref_lat_deg, ref_lon_deg=ref_lon_deg, ref_h_m=ref_h_m
+    )
+    comp = error_components(
+        lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, track_heading_rad=track_heading_rad
+    )
     comp = {k: np.ravel(v) for k, v in comp.items()}
     n = comp["north_m"].size
-    grp = np.array(["all"] * n if group is None else [str(g) for g in np.ravel(np.asarray(group, dtype=object))],
-                   dtype=object)
+    grp = np.array(
+        ["all"] * n if group is None else [str(g) for g in np.ravel(np.asarray(group, dtype=object))], dtype=object
+    )
     if grp.size != n:
         raise ValueError(f"group has {grp.size} labels for {n} targets")
 
@@ -605,9 +660,11 @@ def accuracy_report(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *,
         a = np.broadcast_to(np.asarray(v, float), (n,)) * scale
         return np.array(a)
 
-    extras = {"slant_range_m": col(slant_range_m, "slant_range_m"),
-              "off_nadir_deg": col(off_nadir_rad, "off_nadir_rad", 180.0 / math.pi),
-              "pixel_radius_px": col(pixel_radius_px, "pixel_radius_px")}
+    extras = {
+        "slant_range_m": col(slant_range_m, "slant_range_m"),
+        "off_nadir_deg": col(off_nadir_rad, "off_nadir_rad", 180.0 / math.pi),
+        "pixel_radius_px": col(pixel_radius_px, "pixel_radius_px"),
+    }
     lat = np.broadcast_to(np.asarray(lat_deg, float), (n,))
     h = np.broadcast_to(np.asarray(h_m, float), (n,))
     groups = {g: _stats(comp, grp == g, extras, lat, h) for g in dict.fromkeys(grp.tolist())}
@@ -622,9 +679,9 @@ def accuracy_report(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *,
         "le90": "90th percentile of |vertical error|",
         "percentile": PERCENTILE_TEXT,
         "radial_rms_eq18": "[Q17] eq. 18 (geoloc.analysis.streaming.cep_eq18) of the std (ddof=1) of the north "
-                           "and east errors: spread about the mean error, not a CEP",
+        "and east errors: spread about the mean error, not a CEP",
         "datum_rule": f"|mean up| > {DATUM_SE_FACTOR:g} x its standard error and > {DATUM_MIN_BIAS_M:g} m "
-                      "(n >= 3): likely datum mismatch (ellipsoid vs MSL?)",
+        "(n >= 3): likely datum mismatch (ellipsoid vs MSL?)",
         "outlier_rule": f"|horizontal - median| > max({OUTLIER_K:g} x {MAD_SCALE} x MAD, {MIN_EXCESS_M:g} m)",
         "bins": f"equal-count bins of the variable, at most {N_BINS}, at least {MIN_PER_BIN} targets each",
         "slant_range_model": "horizontal_m = intercept_m + m_per_m * slant_range_m, least squares",

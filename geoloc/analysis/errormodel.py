@@ -71,8 +71,7 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.tomlio import read_toml
 
 #: Pose fields of the [nominal] table, in Pose order, with their unit suffix.
-POSE_KEYS = ("lat_deg", "lon_deg", "h_m", "heading_deg", "pitch_deg", "roll_deg",
-             "gimbal_roll_deg", "gimbal_pitch_deg")
+POSE_KEYS = ("lat_deg", "lon_deg", "h_m", "heading_deg", "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg")
 
 #: Every error source the model knows, with a one-line meaning (docs and errors).
 ERROR_SOURCES = {
@@ -121,8 +120,12 @@ ERROR_SOURCES = {
 
 #: Error source -> the lens parameters it moves (``Lens.params`` names; the draw adds to each).
 LENS_SOURCES = {
-    "fx_px": ("fx",), "fy_px": ("fy",), "focal_length_px": ("fx", "fy"),
-    "cx_px": ("cx",), "cy_px": ("cy",), "skew_px": ("skew",),
+    "fx_px": ("fx",),
+    "fy_px": ("fy",),
+    "focal_length_px": ("fx", "fy"),
+    "cx_px": ("cx",),
+    "cy_px": ("cy",),
+    "skew_px": ("skew",),
     **{k: (k,) for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")},
 }
 
@@ -231,8 +234,19 @@ class ErrorModel:
     @classmethod
     def from_dict(cls, data: dict, source: str = "error model", base_dir=None) -> "ErrorModel":
         """Build from the parsed TOML tables (see the module docstring)."""
-        allowed = {"name", "description", "reference", "camera", "nominal", "target", "errors",
-                   "dem", "sweep", "kind", "corrections"}
+        allowed = {
+            "name",
+            "description",
+            "reference",
+            "camera",
+            "nominal",
+            "target",
+            "errors",
+            "dem",
+            "sweep",
+            "kind",
+            "corrections",
+        }
         _no_unknown(data, allowed, source)
         if data.get("kind", "montecarlo") != "montecarlo":  # geoloc.workflows.scenario's dispatch key
             raise ValueError(f"{source}: kind = {data['kind']!r}: this loader reads 'montecarlo' scenarios")
@@ -257,8 +271,7 @@ class ErrorModel:
         row = _number(tgt.get("row", r0), f"{source} [target] row")
         col = _number(tgt.get("col", c0), f"{source} [target] col")
         if "height_kind" in tgt and "surface" in tgt:
-            raise ValueError(f"{source} [target]: give height_kind, not both height_kind and surface "
-                             "(its older name)")
+            raise ValueError(f"{source} [target]: give height_kind, not both height_kind and surface (its older name)")
         key = "surface" if "surface" in tgt else "height_kind"  # a file of before the rename says surface
         height_kind = tgt.get(key, "inflated")
         if height_kind not in ("inflated", "geodetic"):
@@ -284,9 +297,20 @@ class ErrorModel:
         if not isinstance(table, dict):
             raise ValueError(f"{source}: corrections must be a table [corrections], got {table!r}")
         corrections = corrections_from_table(camera, table, f"{source} [corrections]")
-        return cls(str(data.get("name", Path(source).stem)), camera, nominal,
-                   _number(tgt["h_m"], f"{source} [target] h_m"), row, col, height_kind, errors, dem,
-                   dict(data.get("sweep", {})), source, corrections)
+        return cls(
+            str(data.get("name", Path(source).stem)),
+            camera,
+            nominal,
+            _number(tgt["h_m"], f"{source} [target] h_m"),
+            row,
+            col,
+            height_kind,
+            errors,
+            dem,
+            dict(data.get("sweep", {})),
+            source,
+            corrections,
+        )
 
     # ------------------------------------------------------------ use
     def with_nominal(self, **changes) -> "ErrorModel":
@@ -394,8 +418,10 @@ def check_camera(camera, where: str) -> None:
     """A Monte Carlo camera: a :class:`FrameSensor` on the roll-pitch gimbal."""
     sensor = _sensor(camera, where)
     if tuple(sensor.angle_names) != ("gimbal_roll", "gimbal_pitch"):
-        raise ValueError(f"{where}: gimbal = {sensor.gimbal.name!r}: Monte Carlo's [nominal] table gives "
-                         "gimbal_roll_deg and gimbal_pitch_deg, so the sensor must use the roll-pitch gimbal")
+        raise ValueError(
+            f"{where}: gimbal = {sensor.gimbal.name!r}: Monte Carlo's [nominal] table gives "
+            "gimbal_roll_deg and gimbal_pitch_deg, so the sensor must use the roll-pitch gimbal"
+        )
 
 
 def lens_params(camera) -> dict:
@@ -410,13 +436,16 @@ def check_lens_sources(errors: dict, camera, where: str) -> None:
         for p in LENS_SOURCES.get(name, ()):
             if p not in have:
                 model = camera.lens.model
-                raise ValueError(f"{where} [errors] {name}: the camera's {model} lens has no parameter {p!r} "
-                                 f"(its parameters: {sorted(have)}); give a [camera.lens] table with a "
-                                 "lens model that has it, e.g. model = \"brown\"")
+                raise ValueError(
+                    f"{where} [errors] {name}: the camera's {model} lens has no parameter {p!r} "
+                    f"(its parameters: {sorted(have)}); give a [camera.lens] table with a "
+                    'lens model that has it, e.g. model = "brown"'
+                )
 
 
 def _replace(model: ErrorModel, **kw) -> ErrorModel:
     from dataclasses import replace
+
     return replace(model, **kw)
 
 
@@ -434,8 +463,7 @@ def _number(v, where: str) -> float:
 
 def _distribution(spec, where: str) -> Distribution:
     if not isinstance(spec, dict):
-        raise ValueError(f"{where} = {spec!r}: must be a table like "
-                         "{{ dist = \"normal\", sigma = 0.01 }}")
+        raise ValueError(f'{where} = {spec!r}: must be a table like {{{{ dist = "normal", sigma = 0.01 }}}}')
     dist = spec.get("dist")
     if dist not in DISTRIBUTIONS:
         raise ValueError(f"{where} dist = {dist!r}: must be one of {list(DISTRIBUTIONS)}")
@@ -452,6 +480,7 @@ def _distribution(spec, where: str) -> Distribution:
 def _resolve(p, base_dir) -> Path:
     """A DEM path: absolute, relative to the scenario file, or relative to assets/."""
     from geoloc.assets import ASSETS
+
     p = Path(str(p))
     if p.is_absolute():
         return p

@@ -113,8 +113,9 @@ def track_azimuths(records: Records, groups) -> np.ndarray:
     return out
 
 
-def error_vectors(records: Records, camera: FrameSensor, ground: GroundPoint, groups=None,
-                  truth_prefix: str = "truth") -> ErrorVectors:
+def error_vectors(
+    records: Records, camera: FrameSensor, ground: GroundPoint, groups=None, truth_prefix: str = "truth"
+) -> ErrorVectors:
     """Decompose every record's error against its surveyed truth.
 
     Parameters
@@ -140,8 +141,9 @@ def error_vectors(records: Records, camera: FrameSensor, ground: GroundPoint, gr
     tlon = np.deg2rad(records.column(f"{truth_prefix}_lon_deg"))
     h = ground.h
     ok = (ground.status == Status.OK) & np.isfinite(tlat) & np.isfinite(tlon)
-    status = np.where(ground.status != Status.OK, ground.status,
-                      np.where(ok, Status.OK, Status.INVALID_INPUT)).astype(np.uint8)
+    status = np.where(ground.status != Status.OK, ground.status, np.where(ok, Status.OK, Status.INVALID_INPUT)).astype(
+        np.uint8
+    )
     truth_ecef = geodetic_to_ecef(tlat, tlon, h)
     d_enu = rot.rotate(np.swapaxes(R_ecef_enu(tlat, tlon), -1, -2), ground.ecef - truth_ecef)
     east, north = d_enu[..., 0], d_enu[..., 1]
@@ -157,8 +159,7 @@ def error_vectors(records: Records, camera: FrameSensor, ground: GroundPoint, gr
     def nan(a):
         return np.where(ok, a, np.nan)
 
-    return ErrorVectors(nan(east), nan(north), nan(along), nan(cross), nan(dist),
-                        nan(row_px), nan(col_px), az, status)
+    return ErrorVectors(nan(east), nan(north), nan(along), nan(cross), nan(dist), nan(row_px), nan(col_px), az, status)
 
 
 def outlier_flags(east_m, north_m, k_sigma: float = 3.5, min_sigma_m: float = 0.5):
@@ -251,8 +252,9 @@ def plot_error_vectors(path, panels, title: str = "") -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(2, len(panels), figsize=(6.0 * len(panels), 11), squeeze=False,
-                             gridspec_kw={"height_ratios": [1.4, 1]})
+    fig, axes = plt.subplots(
+        2, len(panels), figsize=(6.0 * len(panels), 11), squeeze=False, gridspec_kw={"height_ratios": [1.4, 1]}
+    )
     for col, p in enumerate(panels):
         ax, ax2 = axes[0, col], axes[1, col]
         x, y = np.asarray(p["east_m"], float), np.asarray(p["north_m"], float)
@@ -260,8 +262,19 @@ def plot_error_vectors(path, panels, title: str = "") -> None:
         xs, ys = [x], [y]
         for z, (label, de, dn, color) in enumerate(p["vectors"]):
             de, dn = np.asarray(de, float), np.asarray(dn, float)
-            ax.quiver(x, y, de * ex, dn * ex, angles="xy", scale_units="xy", scale=1.0, color=color,
-                      width=0.005 if z == 0 else 0.004, label=label, zorder=2 + z)
+            ax.quiver(
+                x,
+                y,
+                de * ex,
+                dn * ex,
+                angles="xy",
+                scale_units="xy",
+                scale=1.0,
+                color=color,
+                width=0.005 if z == 0 else 0.004,
+                label=label,
+                zorder=2 + z,
+            )
             xs.append(x + de * ex)
             ys.append(y + dn * ex)
             ax2.plot(de, dn, "o", color=color, ms=5, alpha=0.85, label=label, zorder=2 + z)

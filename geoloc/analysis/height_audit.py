@@ -49,8 +49,15 @@ from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
 from geoloc.pipeline import Pipeline
 
-__all__ = ["Finding", "HeightAudit", "audit_flight", "audit_records", "audit_klv_columns", "median_uncertainty",
-           "FAULTS"]
+__all__ = [
+    "Finding",
+    "HeightAudit",
+    "audit_flight",
+    "audit_records",
+    "audit_klv_columns",
+    "median_uncertainty",
+    "FAULTS",
+]
 
 #: The fault kinds the audit names, and what each means.
 FAULTS = {
@@ -58,7 +65,7 @@ FAULTS = {
     "ellipsoidal_read_as_msl": "ellipsoidal heights read as mean sea level (N added again): off by +N",
     "geoid_wrong_sign": "the geoid applied with the wrong sign (h = H - N): off by -2N",
     "relative_height_read_as_absolute": "a height above the take-off point read as absolute: too low by the "
-                                        "take-off terrain's height",
+    "take-off terrain's height",
     "agl_read_as_absolute": "a height above the ground below read as absolute: too low by the terrain",
     "flat_earth_frame_centre": "frame centres computed on a flat earth at h = 0 m, not on the terrain",
     "time_offset": "the reported centres belong to other records: a constant time offset",
@@ -158,15 +165,16 @@ class Finding:
         """One line: what, how big and how sure, what the signature says, the fix."""
         spec = ".2f" if self.unit == "mrad" else ".1f"
         sure = f" +/- {format(self.uncertainty, spec)}" if math.isfinite(self.uncertainty) else ""
-        text = (f"{self.subject}: {FAULTS[self.kind]}; estimated {format(self.offset, '+' + spec)}{sure} "
-                f"{self.unit} over {self.records} records")
+        text = (
+            f"{self.subject}: {FAULTS[self.kind]}; estimated {format(self.offset, '+' + spec)}{sure} "
+            f"{self.unit} over {self.records} records"
+        )
         if self.expected_text:
             text += f" (signature {self.expected_text})"
         if self.detail:
             text += f"; {self.detail}"
         if np.isfinite(self.misfit_before_m) and np.isfinite(self.misfit_after_m):
-            text += (f"; median misfit {self.misfit_before_m:.1f} m -> {self.misfit_after_m:.1f} m "
-                     "with it corrected")
+            text += f"; median misfit {self.misfit_before_m:.1f} m -> {self.misfit_after_m:.1f} m with it corrected"
         if self.fix:
             text += f"; fix: {self.fix}"
         return text
@@ -202,13 +210,17 @@ class HeightAudit:
     def lines(self) -> list:
         """The audit as the replay prints it: a heading and one line per finding."""
         c = self.checks
-        head = (f"height audit ({self.source}): platform {_f(c.get('platform_agl_median_m'))} m above the "
-                f"terrain (median), reported centres {_f(c.get('fc_minus_dem_median_m'), '+.1f')} m from the DEM, "
-                f"median misfit {_f(c.get('misfit_median_m'))} m over {c.get('records_compared', 0)} records, "
-                f"EGM96 N {_f(c.get('geoid_n_m'), '+.1f')} m")
+        head = (
+            f"height audit ({self.source}): platform {_f(c.get('platform_agl_median_m'))} m above the "
+            f"terrain (median), reported centres {_f(c.get('fc_minus_dem_median_m'), '+.1f')} m from the DEM, "
+            f"median misfit {_f(c.get('misfit_median_m'))} m over {c.get('records_compared', 0)} records, "
+            f"EGM96 N {_f(c.get('geoid_n_m'), '+.1f')} m"
+        )
         if "unexplained_best" in c:
-            head += (f"; the misfit is none of the signatures (the best, {c['unexplained_best'] or 'none'}, leaves "
-                     f"{_f(c.get('unexplained_after_m'))} m): random errors, or a fault of no convention")
+            head += (
+                f"; the misfit is none of the signatures (the best, {c['unexplained_best'] or 'none'}, leaves "
+                f"{_f(c.get('unexplained_after_m'))} m): random errors, or a fault of no convention"
+            )
         if not self.findings:
             return [head + ": no convention fault found"]
         return [head + f": {len(self.findings)} finding(s)"] + [f"  {f.line()}" for f in self.findings]
@@ -253,24 +265,37 @@ def _median(v) -> float:
 
 #: The fix of each platform-height fault for a records CSV (``--altitude-datum``, docs/columns.md).
 RECORDS_FIXES = {
-    "msl_read_as_ellipsoidal": "--altitude-datum egm96 (or datum = \"egm96\" in the column map)",
-    "ellipsoidal_read_as_msl": "--altitude-datum ellipsoid (or datum = \"ellipsoid\" in the column map)",
+    "msl_read_as_ellipsoidal": '--altitude-datum egm96 (or datum = "egm96" in the column map)',
+    "ellipsoidal_read_as_msl": '--altitude-datum ellipsoid (or datum = "ellipsoid" in the column map)',
     "geoid_wrong_sign": "the heights hold H - N: give the MSL heights H with --altitude-datum egm96, "
-                        "or add 2N to the column",
+    "or add 2N to the column",
     "relative_height_read_as_absolute": "add the take-off point's ellipsoidal height to the height column "
-                                        "(a relative altitude is no absolute height)",
+    "(a relative altitude is no absolute height)",
     "agl_read_as_absolute": "add the terrain's ellipsoidal height to the height column (AGL is no absolute height)",
     "flat_earth_frame_centre": "the reported centres are not on the terrain: compare with the replay's "
-                               "(--dem), not with the encoder's",
+    "(--dem), not with the encoder's",
     "frame_centre_msl_read_as_ellipsoidal": "the reported heights are MSL: add N (= the EGM96 undulation)",
     "time_offset": "align the records (the reported centres are shifted)",
     "boresight_bias": "calibrate the boresight (geoloc calibrate) or put it in the sensor file's [boresight]",
 }
 
 
-def audit_flight(pose, sensor, row, col, surface, reported_lat_deg, reported_lon_deg, reported_h_m=None, *,
-                 group=None, time_s=None, fixes=None, source: str = "flight",
-                 reported_name: str = "reported centre") -> HeightAudit:
+def audit_flight(
+    pose,
+    sensor,
+    row,
+    col,
+    surface,
+    reported_lat_deg,
+    reported_lon_deg,
+    reported_h_m=None,
+    *,
+    group=None,
+    time_s=None,
+    fixes=None,
+    source: str = "flight",
+    reported_name: str = "reported centre",
+) -> HeightAudit:
     """Audit one flight's heights and conventions against a DEM and the geoid.
 
     Parameters
@@ -304,8 +329,9 @@ def audit_flight(pose, sensor, row, col, surface, reported_lat_deg, reported_lon
     """
     terrain = terrain_of(surface)
     if terrain is None:
-        raise ValueError("the height audit compares heights with the terrain: it needs a DEM (--dem); "
-                         f"got {type(surface).__name__}")
+        raise ValueError(
+            f"the height audit compares heights with the terrain: it needs a DEM (--dem); got {type(surface).__name__}"
+        )
     fixes = dict(RECORDS_FIXES, **(fixes or {}))
     row = np.atleast_1d(np.asarray(row, float))
     n = row.shape[0]
@@ -316,8 +342,7 @@ def audit_flight(pose, sensor, row, col, surface, reported_lat_deg, reported_lon
     h_p = np.broadcast_to(np.asarray(pose.h, float), shape)
     rlat = np.deg2rad(np.broadcast_to(np.asarray(reported_lat_deg, float), shape))
     rlon = np.deg2rad(np.broadcast_to(np.asarray(reported_lon_deg, float), shape))
-    rep_h = (np.full(shape, np.nan) if reported_h_m is None
-             else np.broadcast_to(np.asarray(reported_h_m, float), shape))
+    rep_h = np.full(shape, np.nan) if reported_h_m is None else np.broadcast_to(np.asarray(reported_h_m, float), shape)
     has_rep = np.isfinite(rlat) & np.isfinite(rlon)
     fin_p = np.isfinite(lat_p) & np.isfinite(lon_p)
 
@@ -354,23 +379,34 @@ def audit_flight(pose, sensor, row, col, surface, reported_lat_deg, reported_lon
     AB = B - A
     span = np.linalg.norm(AB, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        s = np.einsum("ni,ni->n", P - A, AB) / span ** 2
+        s = np.einsum("ni,ni->n", P - A, AB) / span**2
         slope = span / np.abs(h_b - h_a)
     h_over = np.where(slope >= MIN_TRACK_SLOPE, h_a + s * (h_b - h_a), np.nan)
     dh = h_over - dem_r  # platform height as read minus as the reported centres imply
 
     checks = {
-        "records": int(n), "records_compared": int(np.isfinite(misfit).sum()),
+        "records": int(n),
+        "records_compared": int(np.isfinite(misfit).sum()),
         "geoid_n_m": nbar,
-        "platform_agl_median_m": _median(agl), "platform_below_terrain": int(np.sum(agl < 0)),
-        "fc_minus_dem_median_m": _median(fc_dem), "misfit_median_m": raw,
-        "height_over_reported_median_m": _median(h_over), "platform_dh_median_m": _median(dh),
+        "platform_agl_median_m": _median(agl),
+        "platform_below_terrain": int(np.sum(agl < 0)),
+        "fc_minus_dem_median_m": _median(fc_dem),
+        "misfit_median_m": raw,
+        "height_over_reported_median_m": _median(h_over),
+        "platform_dh_median_m": _median(dh),
         "takeoff_terrain_m": float(ground_p[np.flatnonzero(np.isfinite(ground_p))[0]])
-        if np.isfinite(ground_p).any() else math.nan,
+        if np.isfinite(ground_p).any()
+        else math.nan,
     }
-    columns = {"platform_terrain_m": ground_p, "platform_agl_m": agl, "geoid_n_m": n_p,
-               "fc_minus_dem_m": fc_dem, "misfit_m": misfit, "height_over_reported_m": h_over,
-               "platform_dh_m": dh}
+    columns = {
+        "platform_terrain_m": ground_p,
+        "platform_agl_m": agl,
+        "geoid_n_m": n_p,
+        "fc_minus_dem_m": fc_dem,
+        "misfit_m": misfit,
+        "height_over_reported_m": h_over,
+        "platform_dh_m": dh,
+    }
     findings = []
 
     # ---- the reported centres' own heights against the DEM
@@ -423,24 +459,54 @@ def audit_flight(pose, sensor, row, col, surface, reported_lat_deg, reported_lon
             # corrections that leave about the same misfit (within TIE_FACTOR: the flight's random
             # errors) are told apart by their estimate: a height that matches a datum signature wins
             near = [k for k in models if models[k] <= TIE_FACTOR * models[best] and models[k] * MODEL_GAIN <= raw]
-            named = "height" in near and _height_finding(d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"],
-                                                         ground_p, raw, models["height"], fixes).kind != "height_offset"
+            named = (
+                "height" in near
+                and _height_finding(
+                    d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"], ground_p, raw, models["height"], fixes
+                ).kind
+                != "height_offset"
+            )
             best = next(k for k in (("height",) if named else ()) + PREFERENCE if k in near)
             after = models[best]
             if best == "height":
-                findings.append(_height_finding(d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"],
-                                                ground_p, raw, after, fixes))
+                findings.append(
+                    _height_finding(d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"], ground_p, raw, after, fixes)
+                )
             elif best == "agl":
                 g_med, g_u, g_n = median_uncertainty(-ground_p)
-                findings.append(Finding("agl_read_as_absolute", "platform height", d_hat, u_hat, "m", g_med,
-                                        f"-terrain below = {g_med:+.1f} m (median)", n_dh, raw, after,
-                                        fixes["agl_read_as_absolute"]))
+                findings.append(
+                    Finding(
+                        "agl_read_as_absolute",
+                        "platform height",
+                        d_hat,
+                        u_hat,
+                        "m",
+                        g_med,
+                        f"-terrain below = {g_med:+.1f} m (median)",
+                        n_dh,
+                        raw,
+                        after,
+                        fixes["agl_read_as_absolute"],
+                    )
+                )
             elif best == "flat":
                 hm, hu, hn = median_uncertainty(h_over)
-                findings.append(Finding("flat_earth_frame_centre", "frame centres", hm, hu, "m", 0.0,
-                                        "the rays meet the reported centres at h ~ 0 m", hn, raw, after,
-                                        fixes["flat_earth_frame_centre"],
-                                        detail=f"terrain there {_median(dem_r):.0f} m (DEM, median)"))
+                findings.append(
+                    Finding(
+                        "flat_earth_frame_centre",
+                        "frame centres",
+                        hm,
+                        hu,
+                        "m",
+                        0.0,
+                        "the rays meet the reported centres at h ~ 0 m",
+                        hn,
+                        raw,
+                        after,
+                        fixes["flat_earth_frame_centre"],
+                        detail=f"terrain there {_median(dem_r):.0f} m (DEM, median)",
+                    )
+                )
             elif best == "boresight":
                 findings.append(_boresight_finding(sensor, pose, row, col, drow, dcol, raw, after, fixes))
             elif best == "shift":
@@ -449,36 +515,61 @@ def audit_flight(pose, sensor, row, col, surface, reported_lat_deg, reported_lon
                     step = _median(np.diff(np.asarray(time_s, float)))
                     if np.isfinite(step):
                         dt = f"{best_s * step:+.2f} s at {step:g} s per record"
-                findings.append(Finding("time_offset", "time", float(best_s), 0.5, "records", math.nan,
-                                        "", int(n), raw, best_m, fixes["time_offset"],
-                                        detail=(f"the {reported_name} of record k is the recomputed centre "
-                                                f"of record k {best_s:+d}" + (f" ({dt})" if dt else ""))))
+                findings.append(
+                    Finding(
+                        "time_offset",
+                        "time",
+                        float(best_s),
+                        0.5,
+                        "records",
+                        math.nan,
+                        "",
+                        int(n),
+                        raw,
+                        best_m,
+                        fixes["time_offset"],
+                        detail=(
+                            f"the {reported_name} of record k is the recomputed centre "
+                            f"of record k {best_s:+d}" + (f" ({dt})" if dt else "")
+                        ),
+                    )
+                )
         else:  # random pointing errors, or a fault of no convention: said in the heading, not a finding
             checks["unexplained_best"] = best or ""
             checks["unexplained_after_m"] = models[best] if best else math.nan
     elif checks["platform_below_terrain"] > n // 2 and _median(agl) < -HEIGHT_FLOOR_M:
         # no reported centres to fit: the platform under the terrain is all the data say
         a_med, a_u, a_n = median_uncertainty(agl)
-        findings.append(Finding("relative_height_read_as_absolute", "platform height", a_med, a_u, "m",
-                                -checks["takeoff_terrain_m"], "the platform below the terrain", a_n,
-                                fix=fixes["relative_height_read_as_absolute"],
-                                detail="no reported centres: the offset is a bound (the height above the "
-                                       "terrain as read)"))
+        findings.append(
+            Finding(
+                "relative_height_read_as_absolute",
+                "platform height",
+                a_med,
+                a_u,
+                "m",
+                -checks["takeoff_terrain_m"],
+                "the platform below the terrain",
+                a_n,
+                fix=fixes["relative_height_read_as_absolute"],
+                detail="no reported centres: the offset is a bound (the height above the terrain as read)",
+            )
+        )
     # one fault, one line: a flat earth seen in the heights and in the recomputation is one finding
     flat = [f for f in findings if f.kind == "flat_earth_frame_centre"]
     if len(flat) == 2:
         findings.remove(flat[0])
-        findings[findings.index(flat[1])] = dataclasses.replace(
-            flat[1], detail=f"{flat[1].detail}; {flat[0].detail}")
+        findings[findings.index(flat[1])] = dataclasses.replace(flat[1], detail=f"{flat[1].detail}; {flat[0].detail}")
     return HeightAudit(source, findings, checks, columns)
 
 
 def _height_signatures(nbar, takeoff):
     """``[(kind, expected dh, text)]`` of the platform-height signatures."""
-    return [("msl_read_as_ellipsoidal", -nbar, f"-N = {-nbar:+.1f} m"),
-            ("ellipsoidal_read_as_msl", nbar, f"+N = {nbar:+.1f} m"),
-            ("geoid_wrong_sign", -2 * nbar, f"-2N = {-2 * nbar:+.1f} m"),
-            ("relative_height_read_as_absolute", -takeoff, f"-take-off terrain = {-takeoff:+.1f} m")]
+    return [
+        ("msl_read_as_ellipsoidal", -nbar, f"-N = {-nbar:+.1f} m"),
+        ("ellipsoidal_read_as_msl", nbar, f"+N = {nbar:+.1f} m"),
+        ("geoid_wrong_sign", -2 * nbar, f"-2N = {-2 * nbar:+.1f} m"),
+        ("relative_height_read_as_absolute", -takeoff, f"-take-off terrain = {-takeoff:+.1f} m"),
+    ]
 
 
 def _height_finding(d_hat, u_hat, n_dh, nbar, takeoff, ground_p, raw, after, fixes) -> Finding:
@@ -493,9 +584,20 @@ def _height_finding(d_hat, u_hat, n_dh, nbar, takeoff, ground_p, raw, after, fix
         if np.isfinite(e) and dist <= max(tol, u_hat) and (best is None or dist < best[3]):
             best = (kind, e, text, dist)
     if best is None or abs(d_hat) < HEIGHT_FLOOR_M:
-        return Finding("height_offset", "platform height", d_hat, u_hat, "m", math.nan, "", n_dh, raw, after,
-                       "check the height column's datum and unit (docs/columns.md) and the DEM's (--dem-datum)",
-                       detail=f"N = {nbar:+.1f} m, take-off terrain {takeoff:.1f} m: neither explains it")
+        return Finding(
+            "height_offset",
+            "platform height",
+            d_hat,
+            u_hat,
+            "m",
+            math.nan,
+            "",
+            n_dh,
+            raw,
+            after,
+            "check the height column's datum and unit (docs/columns.md) and the DEM's (--dem-datum)",
+            detail=f"N = {nbar:+.1f} m, take-off terrain {takeoff:.1f} m: neither explains it",
+        )
     kind, e, text, _ = best
     return Finding(kind, "platform height", d_hat, u_hat, "m", e, text, n_dh, raw, after, fixes[kind])
 
@@ -512,23 +614,52 @@ def _frame_centre_height(rep_h, dem_r, fc_dem, n_r, fixes, reported_name, checks
     # a flat earth: the heights themselves ~0 (ellipsoidal, or MSL 0 made ellipsoidal: N) over real terrain
     for zero, text in ((0.0, "h = 0 m"), (nbar, f"MSL 0 m (h = N = {nbar:+.1f} m)")):
         if abs(h_med - zero) <= max(h_u, UNCERTAINTY_FLOOR_M) and abs(terrain - zero) > HEIGHT_FLOOR_M:
-            return [Finding("flat_earth_frame_centre", "frame-centre height", d, u, "m", zero - terrain,
-                            f"reported heights {text} over terrain {terrain:.0f} m", m,
-                            fix=fixes["flat_earth_frame_centre"],
-                            detail=f"{reported_name} heights median {h_med:.1f} m")]
-    sigs = [("msl_read_as_ellipsoidal", -nbar, f"-N = {-nbar:+.1f} m"),
-            ("ellipsoidal_read_as_msl", nbar, f"+N = {nbar:+.1f} m"),
-            ("geoid_wrong_sign", -2 * nbar, f"-2N = {-2 * nbar:+.1f} m")]
-    fits = [(abs(d - e), k, e, t) for k, e, t in sigs if abs(d - e) <= MATCH_K * math.hypot(u, UNCERTAINTY_FLOOR_M) / 3.0
-            or abs(d - e) <= u]
+            return [
+                Finding(
+                    "flat_earth_frame_centre",
+                    "frame-centre height",
+                    d,
+                    u,
+                    "m",
+                    zero - terrain,
+                    f"reported heights {text} over terrain {terrain:.0f} m",
+                    m,
+                    fix=fixes["flat_earth_frame_centre"],
+                    detail=f"{reported_name} heights median {h_med:.1f} m",
+                )
+            ]
+    sigs = [
+        ("msl_read_as_ellipsoidal", -nbar, f"-N = {-nbar:+.1f} m"),
+        ("ellipsoidal_read_as_msl", nbar, f"+N = {nbar:+.1f} m"),
+        ("geoid_wrong_sign", -2 * nbar, f"-2N = {-2 * nbar:+.1f} m"),
+    ]
+    fits = [
+        (abs(d - e), k, e, t)
+        for k, e, t in sigs
+        if abs(d - e) <= MATCH_K * math.hypot(u, UNCERTAINTY_FLOOR_M) / 3.0 or abs(d - e) <= u
+    ]
     if fits:
         _, kind, e, text = min(fits)
-        fix = (fixes["frame_centre_msl_read_as_ellipsoidal"] if kind == "msl_read_as_ellipsoidal"
-               else f"the {reported_name} heights: {FAULTS[kind]}")
+        fix = (
+            fixes["frame_centre_msl_read_as_ellipsoidal"]
+            if kind == "msl_read_as_ellipsoidal"
+            else f"the {reported_name} heights: {FAULTS[kind]}"
+        )
         return [Finding(kind, "frame-centre height", d, u, "m", e, text, m, fix=fix)]
-    return [Finding("height_offset", "frame-centre height", d, u, "m", math.nan, "", m,
-                    detail=f"{reported_name} heights minus the DEM's, N = {nbar:+.1f} m there: a DEM in another "
-                           "datum (--dem-datum), or the encoder's DEM not this one")]
+    return [
+        Finding(
+            "height_offset",
+            "frame-centre height",
+            d,
+            u,
+            "m",
+            math.nan,
+            "",
+            m,
+            detail=f"{reported_name} heights minus the DEM's, N = {nbar:+.1f} m there: a DEM in another "
+            "datum (--dem-datum), or the encoder's DEM not this one",
+        )
+    ]
 
 
 def _boresight_finding(sensor, pose, row, col, drow, dcol, raw, after, fixes) -> Finding:
@@ -540,8 +671,9 @@ def _boresight_finding(sensor, pose, row, col, drow, dcol, raw, after, fixes) ->
 
     def angle(r, c):
         a = np.asarray(sensor.line_of_sight(row[k], col[k], p, outside="extrapolate").direction_ecef, float).reshape(3)
-        b = np.asarray(sensor.line_of_sight(row[k] + r, col[k] + c, p, outside="extrapolate").direction_ecef,
-                       float).reshape(3)
+        b = np.asarray(
+            sensor.line_of_sight(row[k] + r, col[k] + c, p, outside="extrapolate").direction_ecef, float
+        ).reshape(3)
         return float(np.arctan2(np.linalg.norm(np.cross(a, b)), np.dot(a, b)))
 
     a_row = math.copysign(angle(dr, 0.0), dr) * 1e3
@@ -550,10 +682,21 @@ def _boresight_finding(sensor, pose, row, col, drow, dcol, raw, after, fixes) ->
     per_px = angle(1.0, 0.0) * 1e3  # mrad per pixel: the pixel uncertainty in angle
     # floor: half a pixel, the rounding of a recorded pixel (median_uncertainty's floor is in metres)
     u = max(3.0 * MEDIAN_SE * MAD_SCALE * math.hypot(_mad(drow), _mad(dcol)) / math.sqrt(max(nr, 1)), 0.5) * per_px
-    return Finding("boresight_bias", "pointing", total, u, "mrad", math.nan, "", nr, raw, after,
-                   fixes["boresight_bias"],
-                   detail=f"the reported centres sit {dr:+.1f} px in rows ({a_row:+.2f} mrad) and {dc:+.1f} px in "
-                          f"columns ({a_col:+.2f} mrad) from the recomputed ones")
+    return Finding(
+        "boresight_bias",
+        "pointing",
+        total,
+        u,
+        "mrad",
+        math.nan,
+        "",
+        nr,
+        raw,
+        after,
+        fixes["boresight_bias"],
+        detail=f"the reported centres sit {dr:+.1f} px in rows ({a_row:+.2f} mrad) and {dc:+.1f} px in "
+        f"columns ({a_col:+.2f} mrad) from the recomputed ones",
+    )
 
 
 def audit_records(records, sensor, surface, *, group_column: str = "table") -> HeightAudit:
@@ -571,21 +714,32 @@ def audit_records(records, sensor, surface, *, group_column: str = "table") -> H
         h_r = records.column(hcol) if records.has(hcol) else None
     group = records.text(group_column) if group_column in records.header else None
     time_s = records.column("time_s") if records.has("time_s") else None
-    return audit_flight(records.pose(), sensor, records.column("row"), records.column("col"), surface,
-                        lat_r, lon_r, h_r, group=group, time_s=time_s, source=str(records.path),
-                        reported_name=name)
+    return audit_flight(
+        records.pose(),
+        sensor,
+        records.column("row"),
+        records.column("col"),
+        surface,
+        lat_r,
+        lon_r,
+        h_r,
+        group=group,
+        time_s=time_s,
+        source=str(records.path),
+        reported_name=name,
+    )
 
 
 #: The fixes of a KLV stream's faults: its datums are the standard's, the encoder is what is wrong.
 KLV_FIXES = {
     "msl_read_as_ellipsoidal": "the encoder writes MSL into tag 75 (HAE): fix the encoder; meanwhile drop tag 75 "
-                               "so tag 15 + N is used (geoloc klv-fix)",
+    "so tag 15 + N is used (geoloc klv-fix)",
     "ellipsoidal_read_as_msl": "the encoder writes HAE into tag 15 (MSL): fix the encoder",
     "geoid_wrong_sign": "the encoder converts with h = H - N: fix the encoder's sign",
     "relative_height_read_as_absolute": "the encoder writes the height above take-off as tag 15/75: fix the encoder",
     "agl_read_as_absolute": "the encoder writes the height above ground as tag 15/75: fix the encoder",
     "flat_earth_frame_centre": "the encoder's frame centres ignore the terrain (tags 23-25): trust the replay "
-                               "with --dem, not tags 23-25",
+    "with --dem, not tags 23-25",
     "frame_centre_msl_read_as_ellipsoidal": "the encoder writes MSL into tag 78 (HAE): fix the encoder",
     "time_offset": "the frame centres lag or lead the pose: fix the encoder's timing",
     "boresight_bias": "the encoder's boresight differs from the sensor file's: calibrate (geoloc calibrate)",
@@ -601,13 +755,32 @@ def audit_klv_columns(columns: dict, sensor, surface, source: str = "KLV") -> He
     f = lambda k: np.asarray(c[k], float)  # noqa: E731
     ok = np.asarray(c["status"]) != Status.INVALID_INPUT
     idx = np.flatnonzero(ok)
-    pose = Pose.from_deg(f("sensor_lat_deg")[idx], f("sensor_lon_deg")[idx], f("sensor_h_m")[idx],
-                         f("platform_heading_deg")[idx], f("platform_pitch_deg")[idx], f("platform_roll_deg")[idx],
-                         angles_deg={"azimuth": f("sensor_relative_azimuth_deg")[idx],
-                                     "elevation": f("sensor_relative_elevation_deg")[idx],
-                                     "sensor_roll": np.nan_to_num(f("sensor_relative_roll_deg")[idx])})
+    pose = Pose.from_deg(
+        f("sensor_lat_deg")[idx],
+        f("sensor_lon_deg")[idx],
+        f("sensor_h_m")[idx],
+        f("platform_heading_deg")[idx],
+        f("platform_pitch_deg")[idx],
+        f("platform_roll_deg")[idx],
+        angles_deg={
+            "azimuth": f("sensor_relative_azimuth_deg")[idx],
+            "elevation": f("sensor_relative_elevation_deg")[idx],
+            "sensor_roll": np.nan_to_num(f("sensor_relative_roll_deg")[idx]),
+        },
+    )
     r0, c0 = sensor.center_pixel
     m = idx.size
-    return audit_flight(pose, sensor, np.full(m, r0), np.full(m, c0), surface, f("reported_lat_deg")[idx],
-                        f("reported_lon_deg")[idx], f("reported_h_m")[idx], time_s=f("time_s")[idx],
-                        fixes=KLV_FIXES, source=source, reported_name="reported frame centre")
+    return audit_flight(
+        pose,
+        sensor,
+        np.full(m, r0),
+        np.full(m, c0),
+        surface,
+        f("reported_lat_deg")[idx],
+        f("reported_lon_deg")[idx],
+        f("reported_h_m")[idx],
+        time_s=f("time_s")[idx],
+        fixes=KLV_FIXES,
+        source=source,
+        reported_name="reported frame centre",
+    )

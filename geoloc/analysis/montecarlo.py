@@ -110,17 +110,21 @@ def check_samples_and_chunk(n, chunk, *, field_n: str = "samples", field_chunk: 
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         raise ValueError(f"{field_n} = {n!r}: must be an integer >= 2")
     if n > MAX_SAMPLES:
-        raise ValueError(f"{field_n} = {n:.3g}: more than {MAX_SAMPLES:.0e} samples is refused (at about "
-                         f"1e5 samples a second that run would take {n / 1e5 / 86400 / 365.25:.3g} years)")
+        raise ValueError(
+            f"{field_n} = {n:.3g}: more than {MAX_SAMPLES:.0e} samples is refused (at about "
+            f"1e5 samples a second that run would take {n / 1e5 / 86400 / 365.25:.3g} years)"
+        )
     if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
         raise ValueError(f"{field_chunk} = {chunk!r}: must be an integer >= 1")
     cap = max_chunk()
     if chunk > cap:
-        raise ValueError(f"{field_chunk} = {chunk}: a chunk that size needs about "
-                         f"{chunk * BYTES_PER_SAMPLE / 1e9:.3g} GB ({BYTES_PER_SAMPLE} bytes a sample), "
-                         f"more than {CHUNK_MEMORY_SHARE:.0%} of the {available_memory_bytes() / 1e9:.3g} GB "
-                         f"available; at most {cap} here (the samples stream through the chunks, so a smaller "
-                         f"chunk streams the same samples' statistics in constant memory)")
+        raise ValueError(
+            f"{field_chunk} = {chunk}: a chunk that size needs about "
+            f"{chunk * BYTES_PER_SAMPLE / 1e9:.3g} GB ({BYTES_PER_SAMPLE} bytes a sample), "
+            f"more than {CHUNK_MEMORY_SHARE:.0%} of the {available_memory_bytes() / 1e9:.3g} GB "
+            f"available; at most {cap} here (the samples stream through the chunks, so a smaller "
+            f"chunk streams the same samples' statistics in constant memory)"
+        )
     return int(n), int(chunk)
 
 
@@ -148,8 +152,7 @@ class Progress:
         than that); True: the bar; False: nothing.
     """
 
-    def __init__(self, total: int, label: str = "montecarlo", enabled: bool | None = None,
-                 stream=None):
+    def __init__(self, total: int, label: str = "montecarlo", enabled: bool | None = None, stream=None):
         self.total = max(int(total), 1)
         self.label = label
         self.stream = stream if stream is not None else sys.stderr
@@ -174,12 +177,16 @@ class Progress:
         if self.mode == "lines":
             self.next_line = now + PROGRESS_INTERVAL_S
             self.lines += 1
-            self.stream.write(f"{self.label}: {self.done}/{self.total} ({100 * frac:.1f}%), {_clock(el)} elapsed, "
-                              f"{_clock(eta)} left\n")
+            self.stream.write(
+                f"{self.label}: {self.done}/{self.total} ({100 * frac:.1f}%), {_clock(el)} elapsed, "
+                f"{_clock(eta)} left\n"
+            )
         else:
             bar = "#" * int(30 * frac)
-            self.stream.write(f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% "
-                              f"{self.done}/{self.total}  {_clock(el)} elapsed, {_clock(eta)} left ")
+            self.stream.write(
+                f"\r{self.label} [{bar:<30}] {100 * frac:5.1f}% "
+                f"{self.done}/{self.total}  {_clock(el)} elapsed, {_clock(eta)} left "
+            )
         self.stream.flush()
 
     def close(self) -> None:
@@ -340,8 +347,9 @@ def evaluate(model: ErrorModel, errors: dict, surface=None):
     lever = [errors.get(f"lever_arm_{a}_m") for a in "xyz"]
     extra = None if all(v is None for v in lever) else np.stack([_or(v, np.zeros(len(row))) for v in lever], -1)
     s = model.camera
-    s = dataclasses.replace(s, lens=perturbed_lens(s.lens, errors), R_base_extra=Rb, R_bore_extra=Ri,
-                            lever_extra_m=extra)
+    s = dataclasses.replace(
+        s, lens=perturbed_lens(s.lens, errors), R_base_extra=Rb, R_bore_extra=Ri, lever_extra_m=extra
+    )
     los = s.line_of_sight(row, col, pose, outside="extrapolate")
     _needs_surface(model, surface)
     if surface is None:  # the one "height or DEM" choice (geoloc.surfaces.terrain.surface_for)
@@ -448,8 +456,16 @@ class MonteCarloResult:
 KEEP_MAX = 2_000_000
 
 
-def run(model: ErrorModel, n: int, rng: np.random.Generator, *, surface=None, chunk: int = CHUNK,
-        progress: bool | None = False, keep_samples: bool | None = None) -> MonteCarloResult:
+def run(
+    model: ErrorModel,
+    n: int,
+    rng: np.random.Generator,
+    *,
+    surface=None,
+    chunk: int = CHUNK,
+    progress: bool | None = False,
+    keep_samples: bool | None = None,
+) -> MonteCarloResult:
     """Monte Carlo of ``n`` samples [Q17 eq. 14-15], vectorised in chunks of ``chunk``.
 
     Memory is bounded by the chunk: each chunk is drawn, located by :func:`evaluate`
@@ -488,8 +504,10 @@ def run(model: ErrorModel, n: int, rng: np.random.Generator, *, surface=None, ch
     n, chunk = check_samples_and_chunk(n, chunk)
     keep = n <= KEEP_MAX if keep_samples is None else bool(keep_samples)
     if keep and n > KEEP_MAX:
-        raise ValueError(f"samples = {n}: keeping more than {KEEP_MAX} samples is refused "
-                         f"({25 * n / 1e9:.1f} GB); stream them (keep_samples=False)")
+        raise ValueError(
+            f"samples = {n}: keeping more than {KEEP_MAX} samples is refused "
+            f"({25 * n / 1e9:.1f} GB); stream them (keep_samples=False)"
+        )
     t0 = time.perf_counter()
     if keep:
         lat, lon, h = np.empty(n), np.empty(n), np.empty(n)
@@ -501,7 +519,7 @@ def run(model: ErrorModel, n: int, rng: np.random.Generator, *, surface=None, ch
     for a in range(0, n, chunk):
         b = min(a + chunk, n)
         out = evaluate(model, model.sample(b - a, rng), surface)
-        counts += np.bincount(out[3], minlength=len(Status))[:len(Status)]
+        counts += np.bincount(out[3], minlength=len(Status))[: len(Status)]
         if keep:
             lat[a:b], lon[a:b], h[a:b], st[a:b] = out
         elif acc is None:
@@ -519,16 +537,19 @@ def run(model: ErrorModel, n: int, rng: np.random.Generator, *, surface=None, ch
     secs = time.perf_counter() - t0
     if not keep:
         lat = lon = h = st = None
-    return MonteCarloResult(lat, lon, h, st, stats, nominal_point(model, surface), secs,
-                            status_counts=counts, streamed=acc is not None)
+    return MonteCarloResult(
+        lat, lon, h, st, stats, nominal_point(model, surface), secs, status_counts=counts, streamed=acc is not None
+    )
 
 
 def _needs_surface(model: ErrorModel, surface) -> None:
     """A model that names a DEM is run on the surface its caller built from it, never without."""
     if surface is None and model.dem is not None:
-        raise ValueError(f"{model.source}: [dem] path = {model.dem.path}: Monte Carlo takes the surface "
-                         "built from it (surface=geoloc.cli._options.surface_from_scenario(model), or "
-                         "geoloc.surfaces.terrain.surface_for(dem=...)); model.without_dem() for the height")
+        raise ValueError(
+            f"{model.source}: [dem] path = {model.dem.path}: Monte Carlo takes the surface "
+            "built from it (surface=geoloc.cli._options.surface_from_scenario(model), or "
+            "geoloc.surfaces.terrain.surface_for(dem=...)); model.without_dem() for the height"
+        )
 
 
 # --------------------------------------------------------------------- first order
@@ -580,8 +601,9 @@ def first_order(model: ErrorModel, rel_step: float = 0.1) -> FirstOrder:
         errs[key][2 * i + 1] = -steps[i]
     lat, lon, h, st = evaluate(model.without_dem(), errs)
     if np.any(st != Status.OK):
-        raise ValueError(f"{model.source}: the nominal geometry gives no ground point "
-                         f"(status {sorted(set(int(x) for x in st))})")
+        raise ValueError(
+            f"{model.source}: the nominal geometry gives no ground point (status {sorted(set(int(x) for x in st))})"
+        )
     y = np.stack([lat, lon, h])  # (3, 2k)
     J = (y[:, 0::2] - y[:, 1::2]) / (2 * steps)
     sig = np.array([std[s] for s in sources])
@@ -589,8 +611,9 @@ def first_order(model: ErrorModel, rel_step: float = 0.1) -> FirstOrder:
     s_lat, s_lon, s_h = np.sqrt(np.diag(cov))
     lat0 = float(np.mean(lat))
     h0 = float(np.mean(h))
-    return FirstOrder(sources, J, cov, math.degrees(s_lat), math.degrees(s_lon), float(s_h),
-                      cep_eq18(s_lat, s_lon, lat0, h0))
+    return FirstOrder(
+        sources, J, cov, math.degrees(s_lat), math.degrees(s_lon), float(s_h), cep_eq18(s_lat, s_lon, lat0, h0)
+    )
 
 
 # --------------------------------------------------------------------- sweeps
@@ -623,12 +646,12 @@ class Sweep:
             fh.write("gimbal_roll_deg,curve,cep_m,cep50_empirical_m,n_ok\n")
             for i, a in enumerate(self.angles_deg):
                 for j, lab in enumerate(self.labels):
-                    fh.write(f"{a:g},{lab},{self.cep_m[i, j]:.3f},{self.cep50_m[i, j]:.3f},"
-                             f"{int(self.n_ok[i, j])}\n")
+                    fh.write(f"{a:g},{lab},{self.cep_m[i, j]:.3f},{self.cep50_m[i, j]:.3f},{int(self.n_ok[i, j])}\n")
 
     def to_png(self, path) -> None:
         """Matplotlib figure like [Q17 Fig. 10]: solid eq. 18, dashed empirical CEP50."""
         import matplotlib
+
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
@@ -661,8 +684,12 @@ def _sweep_point(ma: ErrorModel, n: int, c: int, draw, bar, surface=None, chunk:
     if n * c <= chunk:
         lat, lon, h, st = evaluate(ma, draw(n), surface)
         bar.update(n * c)
-        return [statistics(lat[j * n:(j + 1) * n], lon[j * n:(j + 1) * n], h[j * n:(j + 1) * n],
-                           st[j * n:(j + 1) * n]) for j in range(c)]
+        return [
+            statistics(
+                lat[j * n : (j + 1) * n], lon[j * n : (j + 1) * n], h[j * n : (j + 1) * n], st[j * n : (j + 1) * n]
+            )
+            for j in range(c)
+        ]
     accs = [StreamingStats() for _ in range(c)]
     per = max(chunk // c, 1)
     for a in range(0, n, per):
@@ -675,8 +702,15 @@ def _sweep_point(ma: ErrorModel, n: int, c: int, draw, bar, surface=None, chunk:
     return [acc.result() for acc in accs]
 
 
-def sweep_terrain_sigma(model: ErrorModel, angles_deg, sigmas_m, n: int, rng: np.random.Generator,
-                        progress: bool | None = False, chunk: int = CHUNK) -> Sweep:
+def sweep_terrain_sigma(
+    model: ErrorModel,
+    angles_deg,
+    sigmas_m,
+    n: int,
+    rng: np.random.Generator,
+    progress: bool | None = False,
+    chunk: int = CHUNK,
+) -> Sweep:
     """[Q17 Fig. 10a]: CEP against the outer gimbal angle for several terrain sigmas (ellipsoid).
 
     For each angle the nominal ``gimbal_roll_deg`` is replaced, and one
@@ -704,18 +738,33 @@ def sweep_terrain_sigma(model: ErrorModel, angles_deg, sigmas_m, n: int, rng: np
         for j, stt in enumerate(_sweep_point(ma, n, c, draw, bar, chunk=chunk)):
             cep[i, j], cep50[i, j], nok[i, j] = stt["cep_m"], stt["cep50_empirical_m"], stt["n_ok"]
     bar.close()
-    return Sweep(angles, [f"sigma_h={s:g}m" for s in sig], cep, cep50, nok,
-                 "[Q17] Fig. 10a: ellipsoid model, terrain standard deviation")
+    return Sweep(
+        angles,
+        [f"sigma_h={s:g}m" for s in sig],
+        cep,
+        cep50,
+        nok,
+        "[Q17] Fig. 10a: ellipsoid model, terrain standard deviation",
+    )
 
 
-def sweep_dem(model: ErrorModel, angles_deg, n: int, rng: np.random.Generator, surface=None,
-              progress: bool | None = False, chunk: int = CHUNK) -> Sweep:
+def sweep_dem(
+    model: ErrorModel,
+    angles_deg,
+    n: int,
+    rng: np.random.Generator,
+    surface=None,
+    progress: bool | None = False,
+    chunk: int = CHUNK,
+) -> Sweep:
     """[Q17 Fig. 10b]: CEP against the outer gimbal angle with the target on a DEM: ``surface``,
     built once by the caller (``geoloc.cli._options.surface_from_scenario(model)`` for the
     scenario's ``[dem]`` table)."""
     if surface is None:
-        raise ValueError(f"{model.source}: the DEM sweep needs the DEM's surface (surface=; "
-                         "geoloc.cli._options.surface_from_scenario(model) for a [dem] table)")
+        raise ValueError(
+            f"{model.source}: the DEM sweep needs the DEM's surface (surface=; "
+            "geoloc.cli._options.surface_from_scenario(model) for a [dem] table)"
+        )
     angles = np.asarray(angles_deg, float).ravel()
     cep = np.full((angles.size, 1), np.nan)
     cep50 = np.full_like(cep, np.nan)
@@ -726,9 +775,15 @@ def sweep_dem(model: ErrorModel, angles_deg, n: int, rng: np.random.Generator, s
         (stt,) = _sweep_point(ma, n, 1, lambda k, ma=ma: ma.sample(k, rng), bar, surface, chunk)
         cep[i, 0], cep50[i, 0], nok[i, 0] = stt["cep_m"], stt["cep50_empirical_m"], stt["n_ok"]
     bar.close()
-    return Sweep(angles, ["dem"], cep, cep50, nok, "[Q17] Fig. 10b: target on the DEM",
-                 reference=((70.0, 50.0, "[Q17] upper bounds: < 50 m below 70 deg, < 180 m at 80 deg"),
-                            (80.0, 180.0, "")))
+    return Sweep(
+        angles,
+        ["dem"],
+        cep,
+        cep50,
+        nok,
+        "[Q17] Fig. 10b: target on the DEM",
+        reference=((70.0, 50.0, "[Q17] upper bounds: < 50 m below 70 deg, < 180 m at 80 deg"), (80.0, 180.0, "")),
+    )
 
 
 # --------------------------------------------------------------------- helpers

@@ -80,8 +80,9 @@ def _rms(res):
     return float(np.sqrt(np.mean(np.sum(res**2, axis=-1)))) if res.size else float("nan")
 
 
-def adjust_rpc(sensor: RPCSensor, gcps_lat, gcps_lon, gcps_h, rows, cols,
-               model: str = "bias") -> tuple[RPCSensor, RPCAdjustment]:
+def adjust_rpc(
+    sensor: RPCSensor, gcps_lat, gcps_lon, gcps_h, rows, cols, model: str = "bias"
+) -> tuple[RPCSensor, RPCAdjustment]:
     """Least-squares image-space bias or affine correction of an RPC from GCPs.
 
     Parameters
@@ -126,8 +127,10 @@ def adjust_rpc(sensor: RPCSensor, gcps_lat, gcps_lon, gcps_h, rows, cols,
     raw = sensor.with_params(**dict.fromkeys(PARAM_NAMES, 0.0)).ground_to_pixel(lat, lon, h)
     refused = np.flatnonzero((raw.status != Status.OK) & (raw.status != Status.OUTSIDE_SENSOR))
     if refused.size:
-        raise ValueError(f"GCP(s) {refused.tolist()}: outside the RPC's validity domain "
-                         f"(status {sorted({int(s) for s in raw.status[refused]})}); not used for an adjustment")
+        raise ValueError(
+            f"GCP(s) {refused.tolist()}: outside the RPC's validity domain "
+            f"(status {sorted({int(s) for s in raw.status[refused]})}); not used for an adjustment"
+        )
     r, c = raw.row, raw.col
     before = sensor.ground_to_pixel(lat, lon, h)
     res_before = np.stack([row_m - before.row, col_m - before.col], axis=-1)
@@ -140,8 +143,7 @@ def adjust_rpc(sensor: RPCSensor, gcps_lat, gcps_lon, gcps_h, rows, cols,
     if model == "affine" and np.linalg.matrix_rank(A) < 3:
         raise ValueError("model 'affine' needs GCPs that are not all on one line in the image")
     # back to the parameters: a0 = d0 - a1 r0 - a2 c0, a1 = d1 / s, a2 = d2 / s
-    M = np.eye(1) if model == "bias" else np.array([[1.0, -r0 / s, -c0 / s], [0.0, 1.0 / s, 0.0],
-                                                    [0.0, 0.0, 1.0 / s]])
+    M = np.eye(1) if model == "bias" else np.array([[1.0, -r0 / s, -c0 / s], [0.0, 1.0 / s, 0.0], [0.0, 0.0, 1.0 / s]])
     Q = np.linalg.inv(A.T @ A)  # cofactor matrix of the scaled unknowns
     hat = np.einsum("ij,jk,ik->i", A, Q, A)
     dof = n - p
@@ -166,9 +168,20 @@ def adjust_rpc(sensor: RPCSensor, gcps_lat, gcps_lon, gcps_h, rows, cols,
     adjusted = sensor.with_params(**params)
     res_after = np.stack(after, axis=-1)
     res_loo = np.stack(loo, axis=-1)
-    report = RPCAdjustment(model, params, std, tuple(sig0), res_before, res_after, res_loo,
-                           _rms(res_before), _rms(res_after),
-                           _rms(res_loo) if np.all(np.isfinite(res_loo)) else float("nan"), n, dof)
+    report = RPCAdjustment(
+        model,
+        params,
+        std,
+        tuple(sig0),
+        res_before,
+        res_after,
+        res_loo,
+        _rms(res_before),
+        _rms(res_after),
+        _rms(res_loo) if np.all(np.isfinite(res_loo)) else float("nan"),
+        n,
+        dof,
+    )
     return adjusted, report
 
 

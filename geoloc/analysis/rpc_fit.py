@@ -114,8 +114,9 @@ def solve_ratio(T, x, n_iter=4, ridge=1e-12):
     return num, den
 
 
-def fit_rpc(sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20, 6),
-            corrections: Corrections = NO_CORRECTIONS) -> RPCFit:
+def fit_rpc(
+    sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20, 6), corrections: Corrections = NO_CORRECTIONS
+) -> RPCFit:
     """Fit the 78 RPC coefficients to a sensor model over a 3-D grid [L12 section 4.1].
 
     Parameters
@@ -151,24 +152,30 @@ def fit_rpc(sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20
     hs = np.linspace(height_min, height_max, grid[2])
     r, c, lat, lon, h, lost = grid_points(sensor, grid[0], grid[1], hs, corrections=corrections)
     if lost or r.size < 39:
-        raise ValueError(f"{lost} fit-grid pixels have no ground point (rays missing the surface); "
-                         "check the sensor geometry and height range")
+        raise ValueError(
+            f"{lost} fit-grid pixels have no ground point (rays missing the surface); "
+            "check the sensor geometry and height range"
+        )
     lat_deg, lon_deg = np.rad2deg(lat), np.rad2deg(lon)
     lon_mid = np.rad2deg(np.arctan2(np.mean(np.sin(lon)), np.mean(np.cos(lon))))
     dlon = (lon_deg - lon_mid + 180.0) % 360.0 - 180.0
     lat_off = 0.5 * (lat_deg.max() + lat_deg.min())
     long_off = lon_mid + 0.5 * (dlon.max() + dlon.min())
     model0 = dict(
-        line_off=(sensor.rows - 1) / 2.0, samp_off=(sensor.cols - 1) / 2.0,
-        lat_off=lat_off, long_off=(long_off + 180.0) % 360.0 - 180.0,
+        line_off=(sensor.rows - 1) / 2.0,
+        samp_off=(sensor.cols - 1) / 2.0,
+        lat_off=lat_off,
+        long_off=(long_off + 180.0) % 360.0 - 180.0,
         height_off=0.5 * (height_min + height_max),
-        line_scale=sensor.rows / 2.0, samp_scale=sensor.cols / 2.0,
+        line_scale=sensor.rows / 2.0,
+        samp_scale=sensor.cols / 2.0,
         lat_scale=0.5 * (lat_deg.max() - lat_deg.min()),
         long_scale=0.5 * (dlon.max() - dlon.min()),
         height_scale=0.5 * (height_max - height_min),
     )
-    tmp = RPCModel(**model0, line_num=np.zeros(20), line_den=np.eye(20)[0],
-                   samp_num=np.zeros(20), samp_den=np.eye(20)[0])
+    tmp = RPCModel(
+        **model0, line_num=np.zeros(20), line_den=np.eye(20)[0], samp_num=np.zeros(20), samp_den=np.eye(20)[0]
+    )
     T = rpc_terms(*tmp.normalise(lat, lon, h))
     ln = (r - 1.0 - model0["line_off"]) / model0["line_scale"]
     sn = (c - 1.0 - model0["samp_off"]) / model0["samp_scale"]
@@ -179,13 +186,22 @@ def fit_rpc(sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20
     rr, cc = model.ground_to_pixel(lat, lon, h)
     res_fit = np.hypot(rr - r, cc - c)
     hs_c = height_min + (np.arange(check_grid[2]) + 0.5) / check_grid[2] * (height_max - height_min)
-    r2, c2, lat2, lon2, h2, _ = grid_points(sensor, check_grid[0], check_grid[1], hs_c, staggered=True,
-                                            corrections=corrections)
+    r2, c2, lat2, lon2, h2, _ = grid_points(
+        sensor, check_grid[0], check_grid[1], hs_c, staggered=True, corrections=corrections
+    )
     rr2, cc2 = model.ground_to_pixel(lat2, lon2, h2)
     res = np.stack([rr2 - r2, cc2 - c2], axis=-1)
     d = np.hypot(res[:, 0], res[:, 1])
-    return RPCFit(model, float(np.sqrt(np.mean(res_fit**2))), float(res_fit.max()),
-                  float(np.sqrt(np.mean(d**2))), float(d.max()), int(r.size), int(r2.size), res)
+    return RPCFit(
+        model,
+        float(np.sqrt(np.mean(res_fit**2))),
+        float(res_fit.max()),
+        float(np.sqrt(np.mean(d**2))),
+        float(d.max()),
+        int(r.size),
+        int(r2.size),
+        res,
+    )
 
 
 __all__ = ["RPCFit", "fit_rpc", "grid_points", "solve_ratio"]

@@ -97,8 +97,12 @@ def _covariance(jac, resid, n_params):
 
 def degenerate_pairs(names, corr) -> list:
     """Pairs of parameters the records cannot separate: |correlation| > 0.99, or not determined."""
-    return [[names[a], names[b]] for a in range(len(names)) for b in range(a + 1, len(names))
-            if not np.isfinite(corr[a, b]) or abs(corr[a, b]) > DEGENERATE_CORRELATION]
+    return [
+        [names[a], names[b]]
+        for a in range(len(names))
+        for b in range(a + 1, len(names))
+        if not np.isfinite(corr[a, b]) or abs(corr[a, b]) > DEGENERATE_CORRELATION
+    ]
 
 
 @dataclass
@@ -146,20 +150,35 @@ class SensorFit:
     def report(self) -> dict:
         deg = {n: n.startswith(("mount_", "boresight_")) for n in self.names}
         conv = {n: (np.rad2deg(1.0) if deg[n] else 1.0) for n in self.names}
-        unit = {n: ("deg" if deg[n] else "m" if n.endswith("_m") else "px" if n in ("f", "fx", "fy", "cx", "cy", "skew")
-                    else "") for n in self.names}
+        unit = {
+            n: (
+                "deg"
+                if deg[n]
+                else "m"
+                if n.endswith("_m")
+                else "px"
+                if n in ("f", "fx", "fy", "cx", "cy", "skew")
+                else ""
+            )
+            for n in self.names
+        }
         out = {
-            "parameters": {n: {"start": float(s * conv[n]), "value": float(v * conv[n]), "sd": float(d * conv[n]),
-                               "unit": unit[n]} for n, s, v, d in zip(self.names, self.start, self.values, self.sd)},
+            "parameters": {
+                n: {"start": float(s * conv[n]), "value": float(v * conv[n]), "sd": float(d * conv[n]), "unit": unit[n]}
+                for n, s, v, d in zip(self.names, self.start, self.values, self.sd)
+            },
             "correlation": np.round(self.correlation, 3).tolist(),
-            "rms_before_m": self.rms_before_m, "rms_after_m": self.rms_after_m, "dof": self.dof,
-            "sigma_m": self.sigma_m, "converged": self.success,
+            "rms_before_m": self.rms_before_m,
+            "rms_after_m": self.rms_after_m,
+            "dof": self.dof,
+            "sigma_m": self.sigma_m,
+            "converged": self.success,
             # pairs the records cannot separate: their values are not meaningful one by one
             # (e.g. the mount's pitch and yaw within one flight)
             "degenerate_pairs": degenerate_pairs(self.names, self.correlation),
         }
         if self.loo_errors_m is not None:
-            out["rms_loo_m"] = float(np.sqrt(np.nanmean(self.loo_errors_m ** 2)))
+            out["rms_loo_m"] = float(np.sqrt(np.nanmean(self.loo_errors_m**2)))
         return out
 
 
@@ -181,9 +200,17 @@ def _ground(sensor, pose, row, col, surface_of, corrections: Corrections = NO_CO
     return Pipeline(sensor, surface_of, corrections).locate(row, col, pose, outside="extrapolate")
 
 
-def fit_sensor_params(records: Records, sensor, names, surface, *, corrections: Corrections = NO_CORRECTIONS,
-                      truth_prefix: str = "truth",
-                      idx=None, loo: bool = False) -> SensorFit:
+def fit_sensor_params(
+    records: Records,
+    sensor,
+    names,
+    surface,
+    *,
+    corrections: Corrections = NO_CORRECTIONS,
+    truth_prefix: str = "truth",
+    idx=None,
+    loo: bool = False,
+) -> SensorFit:
     """Least-squares fit of the named parameters of ``sensor`` to the records' surveyed truth.
 
     Parameters
@@ -209,8 +236,10 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, corrections: 
         raise ValueError("name at least one parameter to fit")
     idx = np.arange(len(records)) if idx is None else np.asarray(idx, int)
     if 2 * idx.size < len(names):
-        raise ValueError(f"{idx.size} record(s) give {2 * idx.size} equations for {len(names)} parameters; "
-                         f"need at least {(len(names) + 1) // 2} records")
+        raise ValueError(
+            f"{idx.size} record(s) give {2 * idx.size} equations for {len(names)} parameters; "
+            f"need at least {(len(names) + 1) // 2} records"
+        )
     pose_all = records.pose()
     row_all, col_all = records.column("row"), records.column("col")
     tlat_all = np.deg2rad(records.column(f"{truth_prefix}_lat_deg"))
@@ -228,8 +257,16 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, corrections: 
         def resid(p):
             return errors(with_fit_params(sensor, dict(zip(names, p))), ii).ravel()
 
-        return least_squares(resid, p0, x_scale="jac", method="lm" if 2 * len(ii) >= len(names) else "trf",
-                             xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=200 * (len(names) + 1))
+        return least_squares(
+            resid,
+            p0,
+            x_scale="jac",
+            method="lm" if 2 * len(ii) >= len(names) else "trf",
+            xtol=1e-15,
+            ftol=1e-15,
+            gtol=1e-15,
+            max_nfev=200 * (len(names) + 1),
+        )
 
     r0 = errors(sensor, idx)
     sol = solve(idx)
@@ -247,18 +284,40 @@ def fit_sensor_params(records: Records, sensor, names, surface, *, corrections: 
         for k in range(len(idx)):
             rest = np.delete(idx, k)
             s_k = with_fit_params(sensor, dict(zip(names, solve(rest).x)))
-            loo_err[k] = float(np.linalg.norm(errors(s_k, idx[k:k + 1])))
-    return SensorFit(names, p0, sol.x, sd, corr, fitted,
-                     float(np.sqrt(np.mean(np.sum(r0 ** 2, -1)))), float(np.sqrt(np.mean(np.sum(r1 ** 2, -1)))),
-                     np.linalg.norm(r1, axis=-1), loo_err, dof, residual_m=r1,
-                     sigma_m=float(np.sqrt(s2)) if np.isfinite(s2) else float("nan"), success=bool(sol.success))
+            loo_err[k] = float(np.linalg.norm(errors(s_k, idx[k : k + 1])))
+    return SensorFit(
+        names,
+        p0,
+        sol.x,
+        sd,
+        corr,
+        fitted,
+        float(np.sqrt(np.mean(np.sum(r0**2, -1)))),
+        float(np.sqrt(np.mean(np.sum(r1**2, -1)))),
+        np.linalg.norm(r1, axis=-1),
+        loo_err,
+        dof,
+        residual_m=r1,
+        sigma_m=float(np.sqrt(s2)) if np.isfinite(s2) else float("nan"),
+        success=bool(sol.success),
+    )
 
 
 # --------------------------------------------------------------------------- per flight
-def fit_sensor_groups(records: Records, sensor, names, surface, *, corrections: Corrections = NO_CORRECTIONS,
-                      group_column: str | None = "table",
-                      joint: bool = False, exclude_outliers: bool = False, loo: bool = False,
-                      truth_prefix: str = "truth", k_sigma: float = 3.5) -> tuple[dict, dict]:
+def fit_sensor_groups(
+    records: Records,
+    sensor,
+    names,
+    surface,
+    *,
+    corrections: Corrections = NO_CORRECTIONS,
+    group_column: str | None = "table",
+    joint: bool = False,
+    exclude_outliers: bool = False,
+    loo: bool = False,
+    truth_prefix: str = "truth",
+    k_sigma: float = 3.5,
+) -> tuple[dict, dict]:
     """Per-flight errors before and after fitting ``names``, with outlier flags and leave-one-out.
 
     Each flight (``group_column``) gets its own fit (or, with ``joint``, one fit to
@@ -305,16 +364,28 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, corrections: 
 
     def fit_all(use):
         if joint:
-            jf = fit_sensor_params(records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix,
-                                   idx=all_idx[use], loo=False)
+            jf = fit_sensor_params(
+                records,
+                sensor,
+                names,
+                surface,
+                corrections=corrections,
+                truth_prefix=truth_prefix,
+                idx=all_idx[use],
+                loo=False,
+            )
             return {g: jf for g in names_g}
         fits = {}
         for g in names_g:
             idx = all_idx[(groups == g) & use]
             if 2 * idx.size <= len(names):
-                raise ValueError(f"group {g!r}: {idx.size} usable record(s) cannot determine "
-                                 f"{len(names)} parameters ({', '.join(names)})")
-            fits[g] = fit_sensor_params(records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix, idx=idx)
+                raise ValueError(
+                    f"group {g!r}: {idx.size} usable record(s) cannot determine "
+                    f"{len(names)} parameters ({', '.join(names)})"
+                )
+            fits[g] = fit_sensor_params(
+                records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix, idx=idx
+            )
         return fits
 
     fits = fit_all(use)
@@ -339,7 +410,9 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, corrections: 
             for k in all_idx[groups == g]:
                 train = all_idx[use] if joint else all_idx[(groups == g) & use]
                 train = train[train != k]
-                f = fit_sensor_params(records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix, idx=train)
+                f = fit_sensor_params(
+                    records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix, idx=train
+                )
                 ev = measure(f.sensor, np.array([k]))
                 loo_d[k] = float(ev.distance_m[0])
                 loo_en[k] = float(ev.east_m[0]), float(ev.north_m[0])
@@ -351,14 +424,18 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, corrections: 
     def rms(a):
         a = np.asarray(a, float)
         a = a[np.isfinite(a)]
-        return float(np.sqrt(np.mean(a ** 2))) if a.size else float("nan")
+        return float(np.sqrt(np.mean(a**2))) if a.size else float("nan")
 
     labels = records.labels()
-    report = {"parameters_fitted": list(names), "joint": joint, "exclude_outliers": exclude_outliers,
-              "outlier_rule": f"residual after a first fit with every record: distance from the flight's "
-                              f"median residual vector > {k_sigma} robust sigma (sigma = median distance / "
-                              "sqrt(2 ln 2), floor 0.5 m)",
-              "groups": {}}
+    report = {
+        "parameters_fitted": list(names),
+        "joint": joint,
+        "exclude_outliers": exclude_outliers,
+        "outlier_rule": f"residual after a first fit with every record: distance from the flight's "
+        f"median residual vector > {k_sigma} robust sigma (sigma = median distance / "
+        "sqrt(2 ln 2), floor 0.5 m)",
+        "groups": {},
+    }
     for g in names_g:
         m = groups == g
         idx = all_idx[m]
@@ -374,19 +451,27 @@ def fit_sensor_groups(records: Records, sensor, names, surface, *, corrections: 
             "mean_error_after_m": rnd(np.nanmean(after.distance_m)),
             "mean_error_loo_m": rnd(np.nanmean(loo_d[m])) if loo else None,
             **{k: frep[k] for k in ("parameters", "correlation", "sigma_m", "degenerate_pairs", "converged")},
-            "before": {k: (rnd(v) if isinstance(v, float) else v) for k, v in group_summary(before, m, k_sigma).items()},
-            "after": {k: (rnd(v) if isinstance(v, float) else v)
-                      for k, v in group_summary(after, np.ones(idx.size, bool), k_sigma).items()},
+            "before": {
+                k: (rnd(v) if isinstance(v, float) else v) for k, v in group_summary(before, m, k_sigma).items()
+            },
+            "after": {
+                k: (rnd(v) if isinstance(v, float) else v)
+                for k, v in group_summary(after, np.ones(idx.size, bool), k_sigma).items()
+            },
             "records": [],
         }
         for j, k in enumerate(idx):
-            rec = {"label": labels[k], "line": int(records.lines[k]), "outlier": bool(outlier[k]),
-                   "outlier_before": bool(outlier_before[k]),
-                   "before": before.as_dict(k), "after": after.as_dict(j)}
+            rec = {
+                "label": labels[k],
+                "line": int(records.lines[k]),
+                "outlier": bool(outlier[k]),
+                "outlier_before": bool(outlier_before[k]),
+                "before": before.as_dict(k),
+                "after": after.as_dict(j),
+            }
             if loo:
                 rec["loo_distance_m"] = rnd(loo_d[k])
-                rec["loo"] = {"east_m": rnd(loo_en[k, 0]), "north_m": rnd(loo_en[k, 1]),
-                              "distance_m": rnd(loo_d[k])}
+                rec["loo"] = {"east_m": rnd(loo_en[k, 0]), "north_m": rnd(loo_en[k, 1]), "distance_m": rnd(loo_d[k])}
             entry["records"].append(rec)
         report["groups"][g] = entry
     if joint:
@@ -404,13 +489,23 @@ class SensorResection:
     success: bool
 
     def report(self) -> dict:
-        return {**self.fit.report(), "rms_misfit_m": self.rms_m,
-                "heights_m": [round(float(h), 2) for h in self.heights_m], "converged": self.success}
+        return {
+            **self.fit.report(),
+            "rms_misfit_m": self.rms_m,
+            "heights_m": [round(float(h), 2) for h in self.heights_m],
+            "converged": self.success,
+        }
 
 
-def resect_sensor(records: Records, sensor, names=("fx", "cx", "cy"), *, corrections: Corrections = NO_CORRECTIONS,
-                  computed_prefix: str = "paper",
-                  initial_height_m: float = 0.0) -> SensorResection:
+def resect_sensor(
+    records: Records,
+    sensor,
+    names=("fx", "cx", "cy"),
+    *,
+    corrections: Corrections = NO_CORRECTIONS,
+    computed_prefix: str = "paper",
+    initial_height_m: float = 0.0,
+) -> SensorResection:
     """Fit the named parameters (default focal length and principal point) to published positions.
 
     Unknowns are the named parameters and each record's target height h_k;
@@ -456,8 +551,9 @@ def resect_sensor(records: Records, sensor, names=("fx", "cx", "cy"), *, correct
     # ground shift of ~1e-6 m, where float64 ECEF rounding, ~1e-9 m, costs 1e-3 of the
     # derivative and so of the sd: 17.20 px instead of 17.19 for the bundled camera's j0).
     steps = 1e-5 * np.maximum(1.0, np.abs(sol.x))
-    jac = np.stack([(resid(sol.x + h * e) - resid(sol.x - h * e)) / (2.0 * h)
-                    for h, e in zip(steps, np.eye(x0.size))], axis=-1)
+    jac = np.stack(
+        [(resid(sol.x + h * e) - resid(sol.x - h * e)) / (2.0 * h) for h, e in zip(steps, np.eye(x0.size))], axis=-1
+    )
     cov, s2 = _covariance(jac, sol.fun, x0.size)
     sd = np.sqrt(np.diag(cov))[:p] * scale
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -466,15 +562,26 @@ def resect_sensor(records: Records, sensor, names=("fx", "cx", "cy"), *, correct
     fitted = with_fit_params(sensor, dict(zip(names, values)))
     r = sol.fun.reshape(-1, 2)
     r0 = resid(x0).reshape(-1, 2)
-    fit = SensorFit(names, p0, values, sd, corr, fitted, float(np.sqrt(np.mean(np.sum(r0 ** 2, -1)))),
-                    float(np.sqrt(np.mean(np.sum(r ** 2, -1)))), np.linalg.norm(r, axis=-1), None, m - x0.size,
-                    residual_m=r, sigma_m=float(np.sqrt(s2)) if np.isfinite(s2) else float("nan"),
-                    success=bool(sol.success))
-    return SensorResection(fit, sol.x[p:] * 1000.0, float(np.sqrt(np.mean(r ** 2))), bool(sol.success))
+    fit = SensorFit(
+        names,
+        p0,
+        values,
+        sd,
+        corr,
+        fitted,
+        float(np.sqrt(np.mean(np.sum(r0**2, -1)))),
+        float(np.sqrt(np.mean(np.sum(r**2, -1)))),
+        np.linalg.norm(r, axis=-1),
+        None,
+        m - x0.size,
+        residual_m=r,
+        sigma_m=float(np.sqrt(s2)) if np.isfinite(s2) else float("nan"),
+        success=bool(sol.success),
+    )
+    return SensorResection(fit, sol.x[p:] * 1000.0, float(np.sqrt(np.mean(r**2))), bool(sol.success))
 
 
-def error_vector_panels(report: dict, records: Records, exaggeration: float = 1.0,
-                        truth_prefix: str = "truth") -> list:
+def error_vector_panels(report: dict, records: Records, exaggeration: float = 1.0, truth_prefix: str = "truth") -> list:
     """Panels for :func:`geoloc.analysis.errors.plot_error_vectors` from a :func:`fit_sensor_groups` report.
 
     Truth positions are placed in the ENU frame at each flight's mean truth
@@ -496,13 +603,37 @@ def error_vector_panels(report: dict, records: Records, exaggeration: float = 1.
         def comp(stage, c):
             return [np.nan if (r.get(stage) or {}).get(c) is None else r[stage][c] for r in e["records"]]
 
-        vectors = [(f"before (mean {e['mean_error_before_m']:.1f} m)", comp("before", "east_m"),
-                    comp("before", "north_m"), "tab:red"),
-                   (f"after (mean {e['mean_error_after_m']:.1f} m)", comp("after", "east_m"),
-                    comp("after", "north_m"), "tab:blue")]
+        vectors = [
+            (
+                f"before (mean {e['mean_error_before_m']:.1f} m)",
+                comp("before", "east_m"),
+                comp("before", "north_m"),
+                "tab:red",
+            ),
+            (
+                f"after (mean {e['mean_error_after_m']:.1f} m)",
+                comp("after", "east_m"),
+                comp("after", "north_m"),
+                "tab:blue",
+            ),
+        ]
         if e.get("mean_error_loo_m") is not None:
-            vectors.append((f"leave-one-out (mean {e['mean_error_loo_m']:.1f} m)", comp("loo", "east_m"),
-                            comp("loo", "north_m"), "tab:green"))
-        panels.append({"name": f"flight {g}", "east_m": p[:, 0], "north_m": p[:, 1], "vectors": vectors,
-                       "exaggeration": exaggeration, "labels": [r["label"] for r in e["records"]]})
+            vectors.append(
+                (
+                    f"leave-one-out (mean {e['mean_error_loo_m']:.1f} m)",
+                    comp("loo", "east_m"),
+                    comp("loo", "north_m"),
+                    "tab:green",
+                )
+            )
+        panels.append(
+            {
+                "name": f"flight {g}",
+                "east_m": p[:, 0],
+                "north_m": p[:, 1],
+                "vectors": vectors,
+                "exaggeration": exaggeration,
+                "labels": [r["label"] for r in e["records"]],
+            }
+        )
     return panels

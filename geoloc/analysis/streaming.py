@@ -40,8 +40,16 @@ from geoloc.status import Status
 
 #: Keys of the statistics (``geoloc montecarlo --out stats.json``, the interface of issue 4);
 #: :data:`geoloc.analysis.montecarlo.STATS_KEYS` is this tuple.
-STATS_KEYS = ("mean_lat_deg", "mean_lon_deg", "mean_h_m", "std_lat_deg", "std_lon_deg",
-              "std_h_m", "cep_m", "cep50_empirical_m")
+STATS_KEYS = (
+    "mean_lat_deg",
+    "mean_lon_deg",
+    "mean_h_m",
+    "std_lat_deg",
+    "std_lon_deg",
+    "std_h_m",
+    "cep_m",
+    "cep50_empirical_m",
+)
 
 #: Histogram cells per side and its half-width in standard deviations of the first chunk.
 BINS = 1024
@@ -51,8 +59,9 @@ HALF_WIDTH_SIGMA = 8.0
 def cep_eq18(s_lat, s_lon, lat, h) -> float:
     """[Q17 eq. 18]: sqrt((s_lon (R_N + h) cos phi)^2 + (s_lat (R_M + h))^2) [m] from standard
     deviations of latitude and longitude [rad] about the mean latitude and height."""
-    return float(math.hypot(s_lon * (prime_vertical_radius(lat) + h) * math.cos(lat),
-                            s_lat * (meridian_radius(lat) + h)))
+    return float(
+        math.hypot(s_lon * (prime_vertical_radius(lat) + h) * math.cos(lat), s_lat * (meridian_radius(lat) + h))
+    )
 
 
 def summary(m_lat, m_lon, m_h, s_lat, s_lon, s_h, cep50) -> dict:
@@ -92,14 +101,14 @@ class StreamingStats:
             raise ValueError(f"bins = {bins!r} (>= 2), half_width_sigma = {half_width_sigma!r} (> 0)")
         self.bins = int(bins)
         self.half_width_sigma = float(half_width_sigma)
-        self.n = 0                      # OK samples
+        self.n = 0  # OK samples
         self.n_failed = 0
         self.status_counts = np.zeros(len(Status), np.int64)
-        self.ref = None                 # (lat, lon, h) of the first OK sample [rad, rad, m]
-        self.mean = np.zeros(3)         # of (dlat, dlon, dh)
-        self.m2 = np.zeros((3, 3))      # sum of outer products of deviations
-        self.hist = None                # (bins, bins) counts: rows north offset, columns east
-        self.grid = None                # (dlat0, dlon0, half_lat, half_lon) [rad]
+        self.ref = None  # (lat, lon, h) of the first OK sample [rad, rad, m]
+        self.mean = np.zeros(3)  # of (dlat, dlon, dh)
+        self.m2 = np.zeros((3, 3))  # sum of outer products of deviations
+        self.hist = None  # (bins, bins) counts: rows north offset, columns east
+        self.grid = None  # (dlat0, dlon0, half_lat, half_lon) [rad]
         self.overflow = 0
 
     # ------------------------------------------------------------------ feeding
@@ -110,7 +119,7 @@ class StreamingStats:
         if status is not None:
             st = np.asarray(status).ravel()
             ok &= st == Status.OK
-            self.status_counts += np.bincount(st.astype(np.intp), minlength=len(Status))[:len(Status)]
+            self.status_counts += np.bincount(st.astype(np.intp), minlength=len(Status))[: len(Status)]
         else:
             self.status_counts[Status.OK] += int(ok.sum())
             self.status_counts[Status.INVALID_INPUT] += int((~ok).sum())
@@ -144,9 +153,12 @@ class StreamingStats:
                 return
             s = np.sqrt(np.maximum(np.diag(dev.T @ dev) / (dlat.size - 1), 0.0))
             tiny = 1e-15  # rad (6 nm): a cloud with no spread in one axis still gets a grid
-            self.grid = (float(mb[0]), float(mb[1]),
-                         max(self.half_width_sigma * float(s[0]), tiny),
-                         max(self.half_width_sigma * float(s[1]), tiny))
+            self.grid = (
+                float(mb[0]),
+                float(mb[1]),
+                max(self.half_width_sigma * float(s[0]), tiny),
+                max(self.half_width_sigma * float(s[1]), tiny),
+            )
             self.hist = np.zeros((self.bins, self.bins), np.int64)
         c_lat, c_lon, hw_lat, hw_lon = self.grid
         b = self.bins
@@ -154,7 +166,7 @@ class StreamingStats:
         j = np.floor((dlon - (c_lon - hw_lon)) * (b / (2 * hw_lon)))
         inside = (i >= 0) & (i < b) & (j >= 0) & (j < b)
         self.overflow += int((~inside).sum())
-        flat = (i[inside].astype(np.int64) * b + j[inside].astype(np.int64))
+        flat = i[inside].astype(np.int64) * b + j[inside].astype(np.int64)
         self.hist += np.bincount(flat, minlength=b * b).reshape(b, b)
 
     def merge(self, other: "StreamingStats") -> None:
@@ -191,8 +203,7 @@ class StreamingStats:
     def covariance_neu_m2(self) -> np.ndarray:
         """The covariance in local metres: north, east, up [m^2] at the mean point."""
         m_lat, _, m_h = self._mean_abs()
-        k = np.diag([meridian_radius(m_lat) + m_h,
-                     (prime_vertical_radius(m_lat) + m_h) * math.cos(m_lat), 1.0])
+        k = np.diag([meridian_radius(m_lat) + m_h, (prime_vertical_radius(m_lat) + m_h) * math.cos(m_lat), 1.0])
         return k @ self.covariance @ k
 
     def _mean_abs(self):
@@ -222,8 +233,9 @@ class StreamingStats:
         for q in ((self.n - 1) // 2, self.n // 2):
             k = int(np.searchsorted(cum, q + 1))  # first cell holding order statistic q
             if k >= len(r):
-                return math.nan, (f"the 50 % radius lies beyond the histogram ({self.overflow} of "
-                                  f"{self.n} samples outside it)")
+                return math.nan, (
+                    f"the 50 % radius lies beyond the histogram ({self.overflow} of {self.n} samples outside it)"
+                )
             # spread the cell's points evenly between the previous cell's radius and its own
             lo = r[k - 1] if k > 0 else 0.0
             before = cum[k - 1] if k > 0 else 0
@@ -235,8 +247,10 @@ class StreamingStats:
             d_lat = abs(self.mean[0] - c_lat) * kn
             d_lon = abs(self.mean[1] - c_lon) * ke
             if r50 + d_lat > hw_lat * kn or r50 + d_lon > hw_lon * ke:
-                return math.nan, (f"the 50 % circle leaves the histogram ({self.overflow} of "
-                                  f"{self.n} samples outside it): no empirical radius")
+                return math.nan, (
+                    f"the 50 % circle leaves the histogram ({self.overflow} of "
+                    f"{self.n} samples outside it): no empirical radius"
+                )
         return float(r50), warn
 
     def result(self) -> dict:

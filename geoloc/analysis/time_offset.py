@@ -80,8 +80,9 @@ def interpolate_pose_deg(times_s, pose_deg: dict, t_s) -> dict:
         res[k] = np.interp(tc, tk, np.asarray(pose_deg[k], float)) + nan
     for k in ANGLE_KEYS:
         res[k] = _interp_angle(tc, tk, np.asarray(pose_deg[k], float)) + nan
-    res["angles_deg"] = {k: _interp_angle(tc, tk, np.asarray(v, float)) + nan
-                         for k, v in (pose_deg.get("angles_deg") or {}).items()}
+    res["angles_deg"] = {
+        k: _interp_angle(tc, tk, np.asarray(v, float)) + nan for k, v in (pose_deg.get("angles_deg") or {}).items()
+    }
     return res
 
 
@@ -113,13 +114,16 @@ class TimeOffsetFit:
     cost_grid: np.ndarray
 
     def __str__(self) -> str:
-        return (f"time_offset_s = {self.time_offset_s:+.3f} s (video time = metadata time + offset) from "
-                f"{self.n_marks} marks in {self.n_frames} frames: rms {self.rms_px:.2f} px "
-                f"(at offset 0: {self.rms_at_zero_px:.2f} px)")
+        return (
+            f"time_offset_s = {self.time_offset_s:+.3f} s (video time = metadata time + offset) from "
+            f"{self.n_marks} marks in {self.n_frames} frames: rms {self.rms_px:.2f} px "
+            f"(at offset 0: {self.rms_at_zero_px:.2f} px)"
+        )
 
 
-def fit_time_offset(frame_pts_s, observed_px, predict_px: Callable, *, bounds_s=(-3.0, 3.0),
-                    step_s: float = 0.05, gate_px: float = 40.0) -> TimeOffsetFit:
+def fit_time_offset(
+    frame_pts_s, observed_px, predict_px: Callable, *, bounds_s=(-3.0, 3.0), step_s: float = 0.05, gate_px: float = 40.0
+) -> TimeOffsetFit:
     """Fit ``time_offset_s`` from marks seen in frames and their predicted pixels.
 
     Parameters

@@ -133,9 +133,18 @@ def intersect_rays(origins, directions, cov_across=None):
     return X, np.linalg.norm(miss, axis=-1), W, B
 
 
-def triangulate(sensor, pose, row, col, budget: ErrorBudget | None = None, *, shared=SHARED,
-                velocity_ned_m_s=None, min_angle_deg: float = 1.0,
-                corrections: Corrections = NO_CORRECTIONS) -> Triangulation:
+def triangulate(
+    sensor,
+    pose,
+    row,
+    col,
+    budget: ErrorBudget | None = None,
+    *,
+    shared=SHARED,
+    velocity_ned_m_s=None,
+    min_angle_deg: float = 1.0,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> Triangulation:
     """Locate one target from its pixels in several frames (``pose``, ``row``, ``col`` of shape (n,)).
 
     Parameters
@@ -188,8 +197,9 @@ def triangulate(sensor, pose, row, col, budget: ErrorBudget | None = None, *, sh
     return tri
 
 
-def triangulate_rays(O, D, ok=None, names=None, dO=None, dD=None, *, shared=SHARED,
-                     min_angle_deg: float = 1.0) -> Triangulation:
+def triangulate_rays(
+    O, D, ok=None, names=None, dO=None, dD=None, *, shared=SHARED, min_angle_deg: float = 1.0
+) -> Triangulation:
     """:func:`triangulate` from the rays themselves: origins ``O`` and unit directions ``D`` (n, 3)
     in ECEF, and with a budget each ray's derivatives ``dO``, ``dD`` (n, 3, k) per 1 sigma of the
     sources ``names`` (:func:`geoloc.analysis.uncertainty.chain_derivatives`, one frame's sensor
@@ -200,8 +210,9 @@ def triangulate_rays(O, D, ok=None, names=None, dO=None, dD=None, *, shared=SHAR
     n = len(O)
     nan3 = np.full(3, np.nan)
     if ok.sum() < 2 or _spread_deg(D[ok]) < min_angle_deg:
-        return Triangulation(nan3, math.nan, math.nan, math.nan, int(ok.sum()), np.full(n, np.nan),
-                             status=int(Status.INVALID_INPUT))
+        return Triangulation(
+            nan3, math.nan, math.nan, math.nan, int(ok.sum()), np.full(n, np.nan), status=int(Status.INVALID_INPUT)
+        )
     X, _, _, _ = intersect_rays(O[ok], D[ok])
     out_res = np.full(n, np.nan)
     if names is None:
@@ -209,30 +220,42 @@ def triangulate_rays(O, D, ok=None, names=None, dO=None, dD=None, *, shared=SHAR
         out_res[ok] = res
         lat, lon, h = (float(v) for v in ecef_to_geodetic(X))
         return Triangulation(X, lat, lon, h, int(ok.sum()), out_res)
-    t = np.einsum("ni,ni->n", X - O, D)                           # range to the target along each ray
-    free = (dO + t[:, None, None] * dD)[ok]                       # (m, 3, k): each ray's move at the target
+    t = np.einsum("ni,ni->n", X - O, D)  # range to the target along each ray
+    free = (dO + t[:, None, None] * dD)[ok]  # (m, 3, k): each ray's move at the target
     Dk = D[ok]
     B = _across(Dk)
-    fa = np.einsum("nji,njk->nik", B, free)                       # across-ray components (m, 2, k)
-    C = fa @ np.swapaxes(fa, -1, -2) + np.eye(2) * 1e-12          # each ray's miss covariance across it
+    fa = np.einsum("nji,njk->nik", B, free)  # across-ray components (m, 2, k)
+    C = fa @ np.swapaxes(fa, -1, -2) + np.eye(2) * 1e-12  # each ray's miss covariance across it
     X, res, W, _ = intersect_rays(O[ok], Dk, C)
     out_res[ok] = res
     Ainv = np.linalg.inv(W.sum(0))
-    moves = np.einsum("ij,njk,nkl->nil", Ainv, W, free)           # (m, 3, k): X's move per ray per source
+    moves = np.einsum("ij,njk,nkl->nil", Ainv, W, free)  # (m, 3, k): X's move per ray per source
     cols = []
     for k, key in enumerate(names):
         if key in shared:
-            cols.append(moves[:, :, k].sum(0)[:, None])            # a bias: the same in every frame
+            cols.append(moves[:, :, k].sum(0)[:, None])  # a bias: the same in every frame
         else:
-            cols.append(moves[:, :, k].T)                          # noise: independent per frame
+            cols.append(moves[:, :, k].T)  # noise: independent per frame
     J = np.concatenate(cols, -1) if cols else np.zeros((3, 0))
     lat, lon, h = (float(v) for v in ecef_to_geodetic(X))
     Re = R_ecef_enu(lat, lon)
     Je = Re.T @ J
     cov = Je @ Je.T
     major, minor, az = (float(v) for v in ellipse(cov[:2, :2]))
-    return Triangulation(X, lat, lon, h, int(ok.sum()), out_res, cov, major, minor, az,
-                         float(ce90(major, minor)), float(LE90_PER_SIGMA * math.sqrt(cov[2, 2])))
+    return Triangulation(
+        X,
+        lat,
+        lon,
+        h,
+        int(ok.sum()),
+        out_res,
+        cov,
+        major,
+        minor,
+        az,
+        float(ce90(major, minor)),
+        float(LE90_PER_SIGMA * math.sqrt(cov[2, 2])),
+    )
 
 
 def _spread_deg(D) -> float:
@@ -269,6 +292,8 @@ def compare_with_surface(tri: Triangulation, surface_h_m, surface_ok=None) -> di
     mean = float(v.mean())
     warn = ""
     if abs(mean) > DEM_OFFSET_SE * se and abs(mean) > DEM_OFFSET_MIN_M:
-        warn = (f"the surface is {mean:+.1f} m from the rays' intersection on average over {v.size} frames "
-                f"(standard error {se:.1f} m): likely DEM or datum error (ellipsoid vs MSL? a DEM offset?)")
+        warn = (
+            f"the surface is {mean:+.1f} m from the rays' intersection on average over {v.size} frames "
+            f"(standard error {se:.1f} m): likely DEM or datum error (ellipsoid vs MSL? a DEM offset?)"
+        )
     return {"differences_m": d, "mean_m": mean, "se_m": se, "warning": warn}

@@ -86,7 +86,7 @@ def _ce_table(p: float, n: int = 2001):
     from scipy.special import ndtri
 
     q = np.linspace(0.0, 1.0, n)
-    lo = np.full(n, ndtri(0.5 + p / 2.0))          # q = 0: a normal error along one line
+    lo = np.full(n, ndtri(0.5 + p / 2.0))  # q = 0: a normal error along one line
     hi = np.full(n, math.sqrt(-2.0 * math.log1p(-p)))  # q = 1: Rayleigh
     lo, hi = lo * (1 - 1e-9), hi * (1 + 1e-9)
     for _ in range(48):  # bisection: the bracket 0.5 wide -> 2e-15
@@ -212,8 +212,13 @@ class PointUncertainty:
 
     def columns(self) -> dict:
         """The replay CSV's columns: ``ce90_m le90_m ellipse_major_m ellipse_minor_m ellipse_azimuth_deg``."""
-        return {"ce90_m": self.ce90_m, "le90_m": self.le90_m, "ellipse_major_m": self.ellipse_major_m,
-                "ellipse_minor_m": self.ellipse_minor_m, "ellipse_azimuth_deg": self.ellipse_azimuth_deg}
+        return {
+            "ce90_m": self.ce90_m,
+            "le90_m": self.le90_m,
+            "ellipse_major_m": self.ellipse_major_m,
+            "ellipse_minor_m": self.ellipse_minor_m,
+            "ellipse_azimuth_deg": self.ellipse_azimuth_deg,
+        }
 
 
 def summarise(cov_enu, lat, lon, h, status, jac, sources) -> PointUncertainty:
@@ -221,8 +226,20 @@ def summarise(cov_enu, lat, lon, h, status, jac, sources) -> PointUncertainty:
     bad = np.asarray(status) != Status.OK
     cov = np.where(bad[..., None, None], np.nan, cov_enu)
     major, minor, az = ellipse(cov[..., :2, :2])
-    return PointUncertainty(lat, lon, h, np.asarray(status, np.uint8), cov, jac, tuple(sources), major, minor, az,
-                            ce90(major, minor), LE90_PER_SIGMA * np.sqrt(cov[..., 2, 2]))
+    return PointUncertainty(
+        lat,
+        lon,
+        h,
+        np.asarray(status, np.uint8),
+        cov,
+        jac,
+        tuple(sources),
+        major,
+        minor,
+        az,
+        ce90(major, minor),
+        LE90_PER_SIGMA * np.sqrt(cov[..., 2, 2]),
+    )
 
 
 # --------------------------------------------------------------------- the Jacobian
@@ -301,26 +318,32 @@ def chain_derivatives(sensor, pose, row, col, budget: ErrorBudget, velocity_ned_
     e_n, e_e, e_u = Rn[..., 0], Rn[..., 1], -Rn[..., 2]
     w_n = -e_e / (meridian_radius(lat) + h)[:, None]
     w_e = np.array([0.0, 0.0, 1.0]) / ((prime_vertical_radius(lat) + h) * np.cos(lat))[:, None]
-    pos = {"north_m": (e_n + np.cross(w_n, lever), np.cross(w_n, D)),
-           "east_m": (e_e + np.cross(w_e, lever), np.cross(w_e, D)),
-           "up_m": (e_u, zero)}
+    pos = {
+        "north_m": (e_n + np.cross(w_n, lever), np.cross(w_n, D)),
+        "east_m": (e_e + np.cross(w_e, lever), np.cross(w_e, D)),
+        "up_m": (e_u, zero),
+    }
     for k, (dO, dD) in pos.items():
         if budget.sigma(k) > 0:
             add(k, dO, dD, budget.sigma(k))
     dt = budget.sigma("time_s")
     if dt > 0:
         if velocity_ned_m_s is None:
-            raise ValueError(f"{budget.source}: [uncertainty] time_s = {dt:g} needs the platform's velocity "
-                             "(velocity_ned_m_s, north-east-down metres per second)")
+            raise ValueError(
+                f"{budget.source}: [uncertainty] time_s = {dt:g} needs the platform's velocity "
+                "(velocity_ned_m_s, north-east-down metres per second)"
+            )
         vel = np.broadcast_to(np.asarray(velocity_ned_m_s, float), shape + (3,)).reshape(n, 3)
         dO = sum(vel[:, [i]] * pos[k][0] for i, k in ((0, "north_m"), (1, "east_m"))) - vel[:, [2]] * e_u
         dD = sum(vel[:, [i]] * pos[k][1] for i, k in ((0, "north_m"), (1, "east_m")))
         add("time_s", dO, dD, dt)
     # attitude: z-y-x from NED; the lever arm turns with the body
     heading = _flat(pose.heading, shape)
-    axes = {"heading_deg": Rn[..., 2],
-            "pitch_deg": np.einsum("nij,nj->ni", Rn, np.stack([-np.sin(heading), np.cos(heading), 0 * heading], -1)),
-            "roll_deg": Rs["body"][..., 0]}
+    axes = {
+        "heading_deg": Rn[..., 2],
+        "pitch_deg": np.einsum("nij,nj->ni", Rn, np.stack([-np.sin(heading), np.cos(heading), 0 * heading], -1)),
+        "roll_deg": Rs["body"][..., 0],
+    }
     for k, a in axes.items():
         if budget.sigma(k) > 0:
             add(k, np.cross(a, lever), np.cross(a, D) if attitude_turns_los else zero, budget.sigma(k) * DEG)
@@ -393,16 +416,16 @@ def surface_normal(surface, lat, lon, h, cov_en=None, residual: bool = False):
         g_e = (_dem_height(dem, lat, lon, h, 1.0, 0.0) - _dem_height(dem, lat, lon, h, -1.0, 0.0)) / 2.0
     else:
         C = np.asarray(cov_en, float) + np.eye(2) * 1e-6  # a point footprint stays positive definite
-        L = np.linalg.cholesky(C)                          # (n, 2, 2)
+        L = np.linalg.cholesky(C)  # (n, 2, 2)
         z1, z2 = np.meshgrid(_GH_X, _GH_X, indexing="ij")
         w = np.outer(_GH_W, _GH_W).ravel() / (2.0 * math.pi)
-        z = np.stack([z1.ravel(), z2.ravel()], -1)          # (25, 2)
-        delta = np.einsum("nij,kj->nki", L, z)              # (n, 25, 2) east, north [m]
+        z = np.stack([z1.ravel(), z2.ravel()], -1)  # (25, 2)
+        delta = np.einsum("nij,kj->nki", L, z)  # (n, 25, 2) east, north [m]
         H = _dem_height(dem, lat[:, None], lon[:, None], h[:, None], delta[..., 0], delta[..., 1])
         ok = np.isfinite(H)
         H0 = np.nansum(np.where(ok, H, 0.0) * w, -1) / np.maximum(np.sum(ok * w, -1), 1e-300)
         Eh = np.einsum("nk,ki->ni", np.where(ok, H - H0[:, None], 0.0) * w, z)  # E[z (h - h0)]
-        g = np.einsum("nji,nj->ni", np.linalg.inv(L), Eh)   # C^-1 E[delta h] = L^-T E[z h]
+        g = np.einsum("nji,nj->ni", np.linalg.inv(L), Eh)  # C^-1 E[delta h] = L^-T E[z h]
         g_e, g_n = g[:, 0], g[:, 1]
         if residual:  # the terrain's RMS departure from the plane over the footprint
             plane = H0[:, None] + np.einsum("nki,ni->nk", delta, g)
@@ -427,14 +450,14 @@ def _grazing(dem, lat, lon, h, D_enu, t, sig_t, free_up, sigma_dem):
     account) is compared with the clearance's sigma there: the ray's vertical sigma (the chain's
     sources) and the DEM's own vertical error, which lifts the ridge too.
     """
-    k = _GRAZE_R[None, :] * t[:, None]                         # (n, 65) ranges
+    k = _GRAZE_R[None, :] * t[:, None]  # (n, 65) ranges
     dr = k - t[:, None]
     e, nn, up = (dr * D_enu[:, [i]] for i in range(3))
     R = meridian_radius(lat)[:, None] + h[:, None]
-    ray_h = h[:, None] + up + (e * e + nn * nn) / (2.0 * R)   # the ray's height above the ellipsoid (approx.)
+    ray_h = h[:, None] + up + (e * e + nn * nn) / (2.0 * R)  # the ray's height above the ellipsoid (approx.)
     ground = _dem_height(dem, lat[:, None], lon[:, None], h[:, None], e, nn)
     # the ray's vertical sigma at range r: |u.(dO + r dD)| per source, linear in r between O and the hit
-    sig_v = np.sqrt(np.sum(free_up ** 2, -1)[:, None] * (k / t[:, None]) ** 2 + sigma_dem ** 2)
+    sig_v = np.sqrt(np.sum(free_up**2, -1)[:, None] * (k / t[:, None]) ** 2 + sigma_dem**2)
     near = np.abs(dr) <= 3.0 * sig_t[:, None]
     close = np.isfinite(ground) & ~near & (np.abs(ray_h - ground) < 2.0 * sig_v)
     return np.any(close, -1)
@@ -448,11 +471,24 @@ def surface_sigma_m(surface, budget: ErrorBudget) -> float:
     return budget.sigma("height_m")
 
 
-def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = None, *, surface=None,
-              target_h=None, dem=None, velocity_ned_m_s=None, outside: str = "flag",
-              dem_method: str = "exact", dem_slope: str = "footprint",
-              footprint_iterations: int = 3, engine: str = "auto",
-              corrections: Corrections = NO_CORRECTIONS) -> PointUncertainty:
+def propagate(
+    sensor,
+    pose,
+    row=None,
+    col=None,
+    budget: ErrorBudget | None = None,
+    *,
+    surface=None,
+    target_h=None,
+    dem=None,
+    velocity_ned_m_s=None,
+    outside: str = "flag",
+    dem_method: str = "exact",
+    dem_slope: str = "footprint",
+    footprint_iterations: int = 3,
+    engine: str = "auto",
+    corrections: Corrections = NO_CORRECTIONS,
+) -> PointUncertainty:
     """Locate a batch of pixels and predict each point's uncertainty (first order).
 
     Parameters
@@ -507,8 +543,15 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
     if engine == "auto" and s.compiled:
         from geoloc.sensors._fastlocate import AUTO_MIN_RAYS
 
-        n_rays = int(np.prod(np.broadcast_shapes(pose.shape, np.shape(s.center_pixel[0] if row is None else row),
-                                                 np.shape(s.center_pixel[1] if col is None else col))))
+        n_rays = int(
+            np.prod(
+                np.broadcast_shapes(
+                    pose.shape,
+                    np.shape(s.center_pixel[0] if row is None else row),
+                    np.shape(s.center_pixel[1] if col is None else col),
+                )
+            )
+        )
         fast = n_rays >= AUTO_MIN_RAYS
     else:
         fast = engine == "numba"
@@ -523,8 +566,9 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
 
         hit, shape, O, D = _locate_for(s, pose, row, col, surface, outside, corrections)
         status = np.broadcast_to(hit.status, shape).reshape(-1)
-        lat, lon, h = (np.ascontiguousarray(np.broadcast_to(getattr(hit, k), shape).reshape(-1))
-                       for k in ("lat", "lon", "h"))
+        lat, lon, h = (
+            np.ascontiguousarray(np.broadcast_to(getattr(hit, k), shape).reshape(-1)) for k in ("lat", "lon", "h")
+        )
         P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
         t = np.sqrt(np.sum((P - O) ** 2, axis=-1))
         names, free = _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t)
@@ -536,40 +580,57 @@ def propagate(sensor, pose, row=None, col=None, budget: ErrorBudget | None = Non
         lat, lon, h = (np.broadcast_to(getattr(hit, k), shape).reshape(-1) for k in ("lat", "lon", "h"))
         P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
         t = np.linalg.norm(P - O, axis=-1)
-        free = dO + t[:, None, None] * dD                        # the point carried along the old range
+        free = dO + t[:, None, None] * dD  # the point carried along the old range
     dem = terrain_of(surface)
     on_dem = dem is not None
     if sz > 0:
         names = names + ["dem_m" if on_dem else "height_m"]
     refraction = (s, pose, row, col, surface, budget, corrections, outside)
     if fast and not on_dem:
-        return _with_refraction(_surface_fast(F, free, D, np.zeros((0, 3)), lat, lon, h, status, sz, names, shape),
-                                *refraction)
+        return _with_refraction(
+            _surface_fast(F, free, D, np.zeros((0, 3)), lat, lon, h, status, sz, names, shape), *refraction
+        )
     if fast and _compiled_dem(dem):
-        return _with_refraction(_dem_fast(F, free, D, t, dem, lat, lon, h, status, sz, names, shape,
-                                          footprint_iterations if dem_slope == "footprint" else 0,
-                                          dem_slope == "footprint"), *refraction)
+        return _with_refraction(
+            _dem_fast(
+                F,
+                free,
+                D,
+                t,
+                dem,
+                lat,
+                lon,
+                h,
+                status,
+                sz,
+                names,
+                shape,
+                footprint_iterations if dem_slope == "footprint" else 0,
+                dem_slope == "footprint",
+            ),
+            *refraction,
+        )
     Re = R_ecef_enu(lat, lon)
     cov_en = None
     for _ in range(1 + (footprint_iterations if on_dem and dem_slope == "footprint" else 0)):
         m = surface_normal(surface, lat, lon, h, cov_en if dem_slope == "footprint" else None)
         mD = np.einsum("ni,ni->n", m, D)
         with np.errstate(invalid="ignore", divide="ignore"):
-            inv = np.where(mD < -1e-12, 1.0 / mD, np.nan)    # the ray must enter the surface
+            inv = np.where(mD < -1e-12, 1.0 / mD, np.nan)  # the ray must enter the surface
         dP = free - D[:, :, None] * (np.einsum("ni,nik->nk", m, free) * inv[:, None])[:, None, :]
         if sz > 0:
             dP = np.concatenate([dP, (D * (sz * inv)[:, None])[:, :, None]], -1)
-        J = np.einsum("nji,njk->nik", Re, dP)                # ENU at the hit, per 1 sigma
+        J = np.einsum("nji,njk->nik", Re, dP)  # ENU at the hit, per 1 sigma
         cov = J @ np.swapaxes(J, -1, -2)
         cov_en = np.where(np.isfinite(cov[:, :2, :2]), cov[:, :2, :2], 0.0)
-    terrain_rms = (surface_normal(surface, lat, lon, h, cov_en, residual=True)[1] if on_dem
-                   else np.zeros(len(lat)))
+    terrain_rms = surface_normal(surface, lat, lon, h, cov_en, residual=True)[1] if on_dem else np.zeros(len(lat))
     grazing = np.zeros(len(lat), bool)
     if on_dem:
         dt = -np.einsum("ni,nik->nk", m, free) * inv[:, None]
         sig_t = np.sqrt(np.sum(dt * dt, -1) + (sz * inv) ** 2)
-        grazing = _grazing(dem, lat, lon, h, np.einsum("nji,nj->ni", Re, D), t, sig_t,
-                           np.einsum("nj,njk->nk", Re[..., 2], free), sz)
+        grazing = _grazing(
+            dem, lat, lon, h, np.einsum("nji,nj->ni", Re, D), t, sig_t, np.einsum("nj,njk->nk", Re[..., 2], free), sz
+        )
     r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
     out = summarise(r(cov, (3, 3)), r(lat), r(lon), r(h), r(status), r(J, (3, J.shape[-1])), names)
     out.terrain_rms_m = r(np.where(out.status.reshape(-1) == Status.OK, terrain_rms, np.nan))
@@ -591,8 +652,9 @@ def _with_refraction(out: PointUncertainty, s, pose, row, col, surface, budget, 
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
     on = corrections.refraction is not None
-    other = Pipeline(s, surface, dataclasses.replace(corrections, refraction=None if on else STANDARD_REFRACTION)
-                     ).locate(row, col, pose, outside=outside)
+    other = Pipeline(
+        s, surface, dataclasses.replace(corrections, refraction=None if on else STANDARD_REFRACTION)
+    ).locate(row, col, pose, outside=outside)
     here = geodetic_to_ecef(out.lat, out.lon, out.h)
     v = (here - np.asarray(other.ecef, float)) * (1.0 if on else -1.0)  # bent minus straight
     shape = np.shape(out.status)
@@ -600,8 +662,9 @@ def _with_refraction(out: PointUncertainty, s, pose, row, col, surface, budget, 
     j = sig * np.einsum("...ji,...j->...i", R_ecef_enu(out.lat, out.lon), v)
     j = np.where(np.isfinite(j), j, 0.0)
     cov = out.cov_enu + j[..., :, None] * j[..., None, :]
-    jac = np.concatenate([np.broadcast_to(out.jacobian_enu, shape + np.shape(out.jacobian_enu)[-2:]), j[..., :, None]],
-                         axis=-1)
+    jac = np.concatenate(
+        [np.broadcast_to(out.jacobian_enu, shape + np.shape(out.jacobian_enu)[-2:]), j[..., :, None]], axis=-1
+    )
     new = summarise(cov, out.lat, out.lon, out.h, out.status, jac, out.sources + ("refraction",))
     new.terrain_rms_m, new.surface_sigma_m, new.grazing = out.terrain_rms_m, out.surface_sigma_m, out.grazing
     return new
@@ -661,24 +724,49 @@ def _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t):
     names, codes, sig = _source_codes(s, budget)
     n = int(np.prod(shape))
     if "time_s" in names and velocity_ned_m_s is None:
-        raise ValueError(f"{budget.source}: [uncertainty] time_s = {budget.sigma('time_s'):g} needs the platform's "
-                         "velocity (velocity_ned_m_s, north-east-down metres per second)")
+        raise ValueError(
+            f"{budget.source}: [uncertainty] time_s = {budget.sigma('time_s'):g} needs the platform's "
+            "velocity (velocity_ned_m_s, north-east-down metres per second)"
+        )
     col = lambda v: np.ascontiguousarray(np.broadcast_to(np.asarray(v, float), shape).reshape(-1))  # noqa: E731
     joints = s.gimbal.joints
     ang = np.empty((n, len(joints)))
     for j, joint in enumerate(joints):
         ang[:, j] = np.broadcast_to(np.asarray(pose.angle(joint.angle), float), shape).reshape(-1)
-    vel = (np.zeros((1, 3)) if velocity_ned_m_s is None else
-           np.ascontiguousarray(np.broadcast_to(np.asarray(velocity_ned_m_s, float), shape + (3,)).reshape(n, 3)))
+    vel = (
+        np.zeros((1, 3))
+        if velocity_ned_m_s is None
+        else np.ascontiguousarray(np.broadcast_to(np.asarray(velocity_ned_m_s, float), shape + (3,)).reshape(n, 3))
+    )
     mx, bx = _xyz_axes(s.mount), _xyz_axes(s.boresight)
     free = np.empty((n, 3, len(codes)))
-    F.chain_kernel(col(pose.lat), col(pose.lon), col(pose.h), col(pose.heading), col(pose.pitch), col(pose.roll),
-                   ang, np.ascontiguousarray(O), np.ascontiguousarray(D), np.ascontiguousarray(t), vel,
-                   np.array([_AXIS[j.axis] for j in joints], np.int64), np.ascontiguousarray(s.R_cam_last),
-                   np.ascontiguousarray(s.R_base_body), np.array(s.lever_arm_m, float),
-                   bool(s.gimbal.earth_referenced), np.array([mx[c] for c in "xyz"]),
-                   np.array([bx[c] for c in "xyz"]), int(s.lens.code), np.array(s.lens.as_array(), float),
-                   codes, sig, float(A), float(E2), free)
+    F.chain_kernel(
+        col(pose.lat),
+        col(pose.lon),
+        col(pose.h),
+        col(pose.heading),
+        col(pose.pitch),
+        col(pose.roll),
+        ang,
+        np.ascontiguousarray(O),
+        np.ascontiguousarray(D),
+        np.ascontiguousarray(t),
+        vel,
+        np.array([_AXIS[j.axis] for j in joints], np.int64),
+        np.ascontiguousarray(s.R_cam_last),
+        np.ascontiguousarray(s.R_base_body),
+        np.array(s.lever_arm_m, float),
+        bool(s.gimbal.earth_referenced),
+        np.array([mx[c] for c in "xyz"]),
+        np.array([bx[c] for c in "xyz"]),
+        int(s.lens.code),
+        np.array(s.lens.as_array(), float),
+        codes,
+        sig,
+        float(A),
+        float(E2),
+        free,
+    )
     return names, free
 
 
@@ -689,12 +777,41 @@ def _surface_fast(F, free, D, m, lat, lon, h, status, sz, names, shape):
     J, cov = np.empty((n, 3, kk)), np.empty((n, 3, 3))
     major, minor, az, ce, le, inv = (np.empty(n) for _ in range(6))
     qt, rt = _ce_table(0.9)
-    F.surface_kernel(free, np.ascontiguousarray(D), np.ascontiguousarray(m), lat, lon,
-                     np.ascontiguousarray(status, dtype=np.uint8), float(sz), float(len(qt) - 1), rt,
-                     LE90_PER_SIGMA, J, cov, major, minor, az, ce, le, inv)
+    F.surface_kernel(
+        free,
+        np.ascontiguousarray(D),
+        np.ascontiguousarray(m),
+        lat,
+        lon,
+        np.ascontiguousarray(status, dtype=np.uint8),
+        float(sz),
+        float(len(qt) - 1),
+        rt,
+        LE90_PER_SIGMA,
+        J,
+        cov,
+        major,
+        minor,
+        az,
+        ce,
+        le,
+        inv,
+    )
     r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
-    out = PointUncertainty(r(lat), r(lon), r(h), r(np.asarray(status, np.uint8)), r(cov, (3, 3)), r(J, (3, kk)),
-                           tuple(names), r(major), r(minor), r(az), r(ce), r(le))
+    out = PointUncertainty(
+        r(lat),
+        r(lon),
+        r(h),
+        r(np.asarray(status, np.uint8)),
+        r(cov, (3, 3)),
+        r(J, (3, kk)),
+        tuple(names),
+        r(major),
+        r(minor),
+        r(az),
+        r(ce),
+        r(le),
+    )
     out.terrain_rms_m = r(np.where(status == Status.OK, 0.0, np.nan))  # a constant height is a plane
     out.surface_sigma_m = float(sz)
     out.grazing = r(np.zeros(n, bool))
@@ -720,15 +837,56 @@ def _dem_fast(F, free, D, t, dem, lat, lon, h, status, sz, names, shape, iterati
     grazing = np.empty(n, np.bool_)
     qt, rt = _ce_table(0.9)
     g = dem.grid
-    F.dem_surface_kernel(np.ascontiguousarray(free), np.ascontiguousarray(D), np.ascontiguousarray(t, dtype=float),
-                         lat, lon, h, np.ascontiguousarray(status, dtype=np.uint8), float(sz), int(iterations),
-                         bool(footprint), np.ascontiguousarray(g.values, dtype=float), float(g.lat_north_deg),
-                         float(g.lon_west_deg), float(g.dlat_deg), float(g.dlon_deg), float(g.margin),
-                         float(A), float(E2), _GH_X, _GH_W, _GRAZE_R, float(len(qt) - 1), rt, LE90_PER_SIGMA,
-                         J, cov, major, minor, az, ce, le, rms, grazing)
+    F.dem_surface_kernel(
+        np.ascontiguousarray(free),
+        np.ascontiguousarray(D),
+        np.ascontiguousarray(t, dtype=float),
+        lat,
+        lon,
+        h,
+        np.ascontiguousarray(status, dtype=np.uint8),
+        float(sz),
+        int(iterations),
+        bool(footprint),
+        np.ascontiguousarray(g.values, dtype=float),
+        float(g.lat_north_deg),
+        float(g.lon_west_deg),
+        float(g.dlat_deg),
+        float(g.dlon_deg),
+        float(g.margin),
+        float(A),
+        float(E2),
+        _GH_X,
+        _GH_W,
+        _GRAZE_R,
+        float(len(qt) - 1),
+        rt,
+        LE90_PER_SIGMA,
+        J,
+        cov,
+        major,
+        minor,
+        az,
+        ce,
+        le,
+        rms,
+        grazing,
+    )
     r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
-    out = PointUncertainty(r(lat), r(lon), r(h), r(np.asarray(status, np.uint8)), r(cov, (3, 3)), r(J, (3, kk)),
-                           tuple(names), r(major), r(minor), r(az), r(ce), r(le))
+    out = PointUncertainty(
+        r(lat),
+        r(lon),
+        r(h),
+        r(np.asarray(status, np.uint8)),
+        r(cov, (3, 3)),
+        r(J, (3, kk)),
+        tuple(names),
+        r(major),
+        r(minor),
+        r(az),
+        r(ce),
+        r(le),
+    )
     out.terrain_rms_m = r(rms)
     out.surface_sigma_m = float(sz)
     out.grazing = r(grazing)
@@ -745,8 +903,19 @@ def draw(budget: ErrorBudget, n: int, rng: np.random.Generator) -> dict:
     return out
 
 
-def monte_carlo(sensor, pose, row, col, budget: ErrorBudget, surface, n: int, rng: np.random.Generator,
-                velocity_ned_m_s=None, draws: dict | None = None, corrections: Corrections = NO_CORRECTIONS):
+def monte_carlo(
+    sensor,
+    pose,
+    row,
+    col,
+    budget: ErrorBudget,
+    surface,
+    n: int,
+    rng: np.random.Generator,
+    velocity_ned_m_s=None,
+    draws: dict | None = None,
+    corrections: Corrections = NO_CORRECTIONS,
+):
     """Monte Carlo of one ray's located point under the budget: the errors (east, north, up) [m].
 
     Every source is drawn per sample and applied exactly (not linearised): the pose's
@@ -779,9 +948,11 @@ def monte_carlo(sensor, pose, row, col, budget: ErrorBudget, surface, n: int, rn
             raise ValueError("time_s needs velocity_ned_m_s")
         vn, ve, vd = np.asarray(velocity_ned_m_s, float)
         dn, de, du = dn + vn * x["time_s"], de + ve * x["time_s"], du - vd * x["time_s"]
-    kw = dict(lat=lat0 + dn / (meridian_radius(lat0) + h0),
-              lon=lon0 + de / ((prime_vertical_radius(lat0) + h0) * math.cos(lat0)),
-              h=h0 + du)
+    kw = dict(
+        lat=lat0 + dn / (meridian_radius(lat0) + h0),
+        lon=lon0 + de / ((prime_vertical_radius(lat0) + h0) * math.cos(lat0)),
+        h=h0 + du,
+    )
     for f in ("heading", "pitch", "roll"):
         kw[f] = float(np.asarray(getattr(p0, f))) + g(f"{f}_deg") * DEG
     angles = {a: float(np.asarray(p0.angle(a))) + g(f"{a}_deg") * DEG for a in s.angle_names}
@@ -795,7 +966,9 @@ def monte_carlo(sensor, pose, row, col, budget: ErrorBudget, surface, n: int, rn
     bst = [g(f"boresight_{c}_deg") * DEG for c in "xyz"]
     if any(np.any(v) for v in bst):
         b0 = small_rotation(s.boresight)
-        extra["R_bore_extra"] = small_rotation(tuple(b + np.broadcast_to(d, (n,)) for b, d in zip(s.boresight, bst))) @ b0.T
+        extra["R_bore_extra"] = (
+            small_rotation(tuple(b + np.broadcast_to(d, (n,)) for b, d in zip(s.boresight, bst))) @ b0.T
+        )
     lev = [g(f"lever_arm_{c}_m") for c in "xyz"]
     if any(np.any(v) for v in lev):
         extra["lever_extra_m"] = np.stack([np.broadcast_to(v, (n,)) for v in lev], -1)
@@ -804,7 +977,8 @@ def monte_carlo(sensor, pose, row, col, budget: ErrorBudget, surface, n: int, rn
     rr, cc = np.broadcast_to(float(row), (n,)), np.broadcast_to(float(col), (n,))
     los = sp.line_of_sight(rr, cc, pose_s, outside="extrapolate", engine="numpy")
     nominal = Pipeline(s, surface, corrections).intersect(
-        s.line_of_sight(float(row), float(col), p0, outside="extrapolate", engine="numpy"))
+        s.line_of_sight(float(row), float(col), p0, outside="extrapolate", engine="numpy")
+    )
     la, lo, hh = (float(np.asarray(getattr(nominal, k)).reshape(())) for k in ("lat", "lon", "h"))
     if terrain_of(surface) is None:
         hz = surface.h + g("height_m")
@@ -881,8 +1055,10 @@ def budget_from_error_model(model) -> ErrorBudget:
         elif k.startswith(("mount_", "boresight_", "lever_arm_")):
             acc(k, s)
         else:
-            raise ValueError(f"{model.source} [errors] {k}: no budget key for it (focal_length_px draws fx and fy "
-                             "together: give fx_px and fy_px)")
+            raise ValueError(
+                f"{model.source} [errors] {k}: no budget key for it (focal_length_px draws fx and fy "
+                "together: give fx_px and fy_px)"
+            )
     return ErrorBudget(out, None, model.source)
 
 
@@ -903,7 +1079,10 @@ def normalised_errors(east_m, north_m, major_m, minor_m, azimuth_deg):
     along = e * np.sin(az) + n * np.cos(az)
     across = e * np.cos(az) - n * np.sin(az)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.sqrt((along / np.asarray(major_m, float)) ** 2 + (across / np.maximum(minor_m, 1e-9 * np.asarray(major_m, float))) ** 2)
+        return np.sqrt(
+            (along / np.asarray(major_m, float)) ** 2
+            + (across / np.maximum(minor_m, 1e-9 * np.asarray(major_m, float))) ** 2
+        )
 
 
 def outside_ellipse(east_m, north_m, major_m, minor_m, azimuth_deg, p: float = 0.99):
@@ -911,8 +1090,9 @@ def outside_ellipse(east_m, north_m, major_m, minor_m, azimuth_deg, p: float = 0
     return normalised_errors(east_m, north_m, major_m, minor_m, azimuth_deg) > math.sqrt(-2.0 * math.log1p(-p))
 
 
-def budget_check(east_m, north_m, major_m, minor_m, azimuth_deg, up_m=None, le90_m=None,
-                 confidence: float = 0.99) -> dict:
+def budget_check(
+    east_m, north_m, major_m, minor_m, azimuth_deg, up_m=None, le90_m=None, confidence: float = 0.99
+) -> dict:
     """Judge a budget by its data: the share of truths inside their own predicted 90 % ellipse.
 
     Parameters
@@ -953,19 +1133,37 @@ def _judge(r, confidence, what, binom) -> dict:
     ok = np.isfinite(r)
     n = int(ok.sum())
     if n == 0:
-        return {"n": 0, "inside_90": math.nan, "interval": [math.nan, math.nan], "normalised": r,
-                "factor": math.nan, "verdict": "no data", "text": f"budget check: no {what.split(' inside')[0]} "
-                "with a predicted uncertainty"}
+        return {
+            "n": 0,
+            "inside_90": math.nan,
+            "interval": [math.nan, math.nan],
+            "normalised": r,
+            "factor": math.nan,
+            "verdict": "no data",
+            "text": f"budget check: no {what.split(' inside')[0]} with a predicted uncertainty",
+        }
     share = float(np.mean(r[ok] <= 1.0))
     lo, hi = (float(x) / n for x in binom.interval(confidence, n, 0.9))
     factor = float(np.percentile(r[ok], 90))
     if share < lo:
         verdict, how = "optimistic", f"too optimistic: the errors are {factor:.2f}x the predicted"
     elif share > hi:
-        verdict, how = "pessimistic", f"too pessimistic: the errors are {factor:.2f}x the predicted ({1 / factor:.2f}x smaller)"
+        verdict, how = (
+            "pessimistic",
+            f"too pessimistic: the errors are {factor:.2f}x the predicted ({1 / factor:.2f}x smaller)",
+        )
     else:
         verdict, how = "holds", f"holds (errors {factor:.2f}x the predicted)"
-    text = (f"budget {how}: {share:.1%} of {n} {what} (a right budget: {lo:.1%}-{hi:.1%}, "
-            f"{confidence:.0%} binomial interval)")
-    return {"n": n, "inside_90": share, "interval": [lo, hi], "normalised": r, "factor": factor,
-            "verdict": verdict, "text": text}
+    text = (
+        f"budget {how}: {share:.1%} of {n} {what} (a right budget: {lo:.1%}-{hi:.1%}, "
+        f"{confidence:.0%} binomial interval)"
+    )
+    return {
+        "n": n,
+        "inside_90": share,
+        "interval": [lo, hi],
+        "normalised": r,
+        "factor": factor,
+        "verdict": verdict,
+        "text": text,
+    }

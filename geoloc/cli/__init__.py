@@ -27,7 +27,7 @@ VERB_HELP = {
     "calibrate": "flight-test debugger: error vectors, outliers, mounting/boresight fit, resection",
     "export": "write replay results to GeoPackage, GeoJSON, KML, CZML or Cursor-on-Target (TAK)",
     "klv": "MISB ST 0601 KLV metadata: dump the packets (JSON lines), fix a copy's frame-centre and "
-           "corner tags, send an MPEG-TS to udp://HOST:PORT",
+    "corner tags, send an MPEG-TS to udp://HOST:PORT",
     "limb": "limb viewing: tangent height of lines of sight ([L18] virtual ellipsoid + exact minimum)",
     "locate": "geolocate one pixel (aircraft pose + gimbal angles + camera + target height)",
     "montecarlo": "Monte Carlo error analysis of a scenario TOML (statistics, CEP, Fig. 10 sweeps)",
@@ -48,8 +48,9 @@ VIEWER_VERBS = ("view", "log")
 
 def _verb_modules():
     """(name, module name) of every verb: the core's modules, then the entry points."""
-    out = {info.name: f"{__name__}.{info.name}" for info in pkgutil.iter_modules(__path__)
-           if not info.name.startswith("_")}  # helpers (_options), not verbs
+    out = {
+        info.name: f"{__name__}.{info.name}" for info in pkgutil.iter_modules(__path__) if not info.name.startswith("_")
+    }  # helpers (_options), not verbs
     for ep in entry_points(group=VERB_GROUP):
         out.setdefault(ep.name, ep.value)
     return sorted(out.items())
@@ -58,6 +59,7 @@ def _verb_modules():
 def _missing_viewer(args) -> int:
     print(f"geoloc {args.verb}: the viewer is not installed: {VIEWER_INSTALL}", file=sys.stderr)
     return 2
+
 
 def build_parser(only: str | None = None, *, lazy: bool = False) -> argparse.ArgumentParser:
     """The ``geoloc`` parser.
@@ -80,8 +82,7 @@ def build_parser(only: str | None = None, *, lazy: bool = False) -> argparse.Arg
     verbs = dict(_verb_modules())
     for name in sorted(set(verbs) | set(VIEWER_VERBS)):
         if name not in verbs:  # a viewer verb without the viewer installed
-            p = sub.add_parser(name, help=f"{VERB_HELP[name]} (needs the viewer: pip install ./viz)",
-                               add_help=False)
+            p = sub.add_parser(name, help=f"{VERB_HELP[name]} (needs the viewer: pip install ./viz)", add_help=False)
             p.add_argument("rest", nargs=argparse.REMAINDER)
             p.set_defaults(func=_missing_viewer)
         elif lazy and name != only:

@@ -60,15 +60,32 @@ def add_live_options(parser, record_flag: str = "--record") -> None:
     """When to stop a live input (``udp://``) and where to record it: ``--duration``, ``--packets``,
     ``--idle``, ``--record FILE.ts`` (docs/live.md)."""
     g = parser.add_argument_group("live input (udp://HOST:PORT, docs/live.md)")
-    g.add_argument("--duration", type=float, default=None, metavar="S",
-                   help="live: stop after S seconds (default: run until Ctrl-C, --packets or --idle)")
-    g.add_argument("--packets", type=int, default=None, metavar="N",
-                   help="live: stop after N KLV packets (good and bad)")
-    g.add_argument("--idle", type=float, default=None, metavar="S",
-                   help="live: stop when nothing arrived for S seconds after the first datagram")
-    g.add_argument(record_flag, dest="record_ts", default=None, metavar="FILE.ts", type=output_path,
-                   help="live: journal the raw stream, every datagram as it arrives, to this MPEG-TS "
-                   "(it grows as FILE.partial.ts and is renamed at the end; geoloc replay FILE.ts replays it)")
+    g.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="live: stop after S seconds (default: run until Ctrl-C, --packets or --idle)",
+    )
+    g.add_argument(
+        "--packets", type=int, default=None, metavar="N", help="live: stop after N KLV packets (good and bad)"
+    )
+    g.add_argument(
+        "--idle",
+        type=float,
+        default=None,
+        metavar="S",
+        help="live: stop when nothing arrived for S seconds after the first datagram",
+    )
+    g.add_argument(
+        record_flag,
+        dest="record_ts",
+        default=None,
+        metavar="FILE.ts",
+        type=output_path,
+        help="live: journal the raw stream, every datagram as it arrives, to this MPEG-TS "
+        "(it grows as FILE.partial.ts and is renamed at the end; geoloc replay FILE.ts replays it)",
+    )
 
 
 def live_limits(args, url=None) -> dict:
@@ -132,7 +149,7 @@ def declared_files(parser, args, *, types: bool = False) -> tuple[list, list]:
             if v is None:
                 continue
             name = a.option_strings[0] if a.option_strings else a.metavar or a.dest
-            for x in (v if isinstance(v, list) else [v]):
+            for x in v if isinstance(v, list) else [v]:
                 if role == "input" and is_stream(x):
                     continue  # a network stream is no file
                 if role == "input":
@@ -162,8 +179,10 @@ def check_outputs(parser, args) -> list:
     for name, path, role, kind in outputs:
         if path == STDOUT:
             if kind is not text_output_path:
-                raise ValueError(f"{name} -: standard output is for text outputs (CSV, JSON, KML ...); "
-                                 f"{name} writes a binary file: give a file name")
+                raise ValueError(
+                    f"{name} -: standard output is for text outputs (CSV, JSON, KML ...); "
+                    f"{name} writes a binary file: give a file name"
+                )
             if STDOUT in seen.values():
                 other = next(k for k, v in seen.items() if v == STDOUT)
                 raise ValueError(f"{other} - and {name} -: only one output can go to standard output")
@@ -193,15 +212,21 @@ def check_crs(option: str, value: str, words=("geographic", "utm")) -> str:
         crs = pyproj.CRS.from_user_input(value)
     except pyproj.exceptions.CRSError as e:
         reason = " ".join(str(e).split())
-        raise ValueError(f"{option} {value!r}: not a CRS that pyproj knows ({reason}); give "
-                         f"{', '.join(words)} or a projected CRS such as EPSG:32617") from None
+        raise ValueError(
+            f"{option} {value!r}: not a CRS that pyproj knows ({reason}); give "
+            f"{', '.join(words)} or a projected CRS such as EPSG:32617"
+        ) from None
     if not crs.is_projected:
-        raise ValueError(f"{option} {value!r} ({crs.name}) is not a projected CRS: its cells would be in "
-                         f"degrees, not metres; give {' or '.join(words)} or a projected CRS in metres")
+        raise ValueError(
+            f"{option} {value!r} ({crs.name}) is not a projected CRS: its cells would be in "
+            f"degrees, not metres; give {' or '.join(words)} or a projected CRS in metres"
+        )
     units = {a.unit_name for a in crs.axis_info}
     if not units <= {"metre", "meter"}:
-        raise ValueError(f"{option} {value!r} ({crs.name}): its unit is {', '.join(sorted(units))}, not metres; "
-                         "give a projected CRS in metres")
+        raise ValueError(
+            f"{option} {value!r} ({crs.name}): its unit is {', '.join(sorted(units))}, not metres; "
+            "give a projected CRS in metres"
+        )
     return value
 
 
@@ -238,8 +263,9 @@ def add_pose_options(g, required: bool = True, datum_what: str = "--h-m") -> Non
     d = {"required": True} if required else {"default": None}
     g.add_argument("--lat-deg", type=float, **d, help="aircraft geodetic latitude [deg]")
     g.add_argument("--lon-deg", type=float, **d, help="aircraft longitude [deg, east +]")
-    g.add_argument("--h-m", type=float, **d,
-                   help="aircraft height [m]: ellipsoidal (WGS 84) unless --altitude-datum egm96 (MSL)")
+    g.add_argument(
+        "--h-m", type=float, **d, help="aircraft height [m]: ellipsoidal (WGS 84) unless --altitude-datum egm96 (MSL)"
+    )
     add_altitude_datum_option(g, datum_what)
     g.add_argument("--heading-deg", type=float, default=0.0, help="heading psi [deg] (default 0)")
     g.add_argument("--pitch-deg", type=float, default=0.0, help="pitch theta, nose up + [deg]")
@@ -248,8 +274,12 @@ def add_pose_options(g, required: bool = True, datum_what: str = "--h-m") -> Non
 
 def add_gimbal_options(g) -> None:
     """The gimbal's angles (the [Q17] pair, or ``--angle NAME=DEG``) and ``--sensor``."""
-    g.add_argument("--gimbal-roll-deg", type=float, default=None,
-                   help="[Q17] outer gimbal (roll) angle [deg]; negative looks right of track")
+    g.add_argument(
+        "--gimbal-roll-deg",
+        type=float,
+        default=None,
+        help="[Q17] outer gimbal (roll) angle [deg]; negative looks right of track",
+    )
     g.add_argument("--gimbal-pitch-deg", type=float, default=None, help="[Q17] inner gimbal (pitch) angle [deg]")
     add_angle_option(g)
     add_sensor_option(g)
@@ -257,35 +287,57 @@ def add_gimbal_options(g) -> None:
 
 def add_sensor_option(parser, help: str | None = None) -> None:
     """``--sensor FILE`` (alias ``--camera``): a sensor file, or a first-phase camera file."""
-    parser.add_argument("--sensor", "--camera", dest="camera", default=None, metavar="FILE", type=input_path,
-                        help=help or "sensor TOML ([lens], [gimbal], [mount], [lever_arm], [boresight]; "
-                        "docs/sensor_format.md) or a first-phase camera TOML "
-                        "(default: the bundled assets/cameras/qiao2017.toml)")
+    parser.add_argument(
+        "--sensor",
+        "--camera",
+        dest="camera",
+        default=None,
+        metavar="FILE",
+        type=input_path,
+        help=help
+        or "sensor TOML ([lens], [gimbal], [mount], [lever_arm], [boresight]; "
+        "docs/sensor_format.md) or a first-phase camera TOML "
+        "(default: the bundled assets/cameras/qiao2017.toml)",
+    )
 
 
 def add_angle_option(parser) -> None:
     """``--angle NAME=DEG`` (repeatable): the sensor gimbal's joint angles by name."""
-    parser.add_argument("--angle", action="append", default=[], metavar="NAME=DEG",
-                        help="a gimbal joint angle in degrees, by the name the sensor's gimbal gives it "
-                        "(e.g. --angle azimuth=90 --angle elevation=-30); repeat for each joint")
+    parser.add_argument(
+        "--angle",
+        action="append",
+        default=[],
+        metavar="NAME=DEG",
+        help="a gimbal joint angle in degrees, by the name the sensor's gimbal gives it "
+        "(e.g. --angle azimuth=90 --angle elevation=-30); repeat for each joint",
+    )
 
 
 def add_altitude_datum_option(parser, what: str = "the records' ac_h_m") -> None:
     """``--altitude-datum ellipsoid|egm96``: the vertical datum of the aircraft heights."""
     from geoloc.io.columns import DATUMS
 
-    parser.add_argument("--altitude-datum", choices=list(DATUMS), default=None,
-                        help=f"vertical datum of the aircraft height ({what}): ellipsoid (WGS 84; the "
-                        "default, when not given) or egm96 (MSL, orthometric: made ellipsoidal with the "
-                        "bundled EGM96 grid, h = H + N); a column map's datum for ac_h_m wins")
+    parser.add_argument(
+        "--altitude-datum",
+        choices=list(DATUMS),
+        default=None,
+        help=f"vertical datum of the aircraft height ({what}): ellipsoid (WGS 84; the "
+        "default, when not given) or egm96 (MSL, orthometric: made ellipsoidal with the "
+        "bundled EGM96 grid, h = H + N); a column map's datum for ac_h_m wins",
+    )
 
 
 def add_columns_option(parser) -> None:
     """``--columns FILE``: a column map for the records CSV (docs/columns.md)."""
-    parser.add_argument("--columns", default=None, metavar="MAP.toml", type=input_path,
-                        help="column map: the records CSV's own column names and units (deg/rad, m/ft, "
-                        "ellipsoid/egm96 heights, zero-/one-based pixels) onto the canonical columns "
-                        "(docs/columns.md); default: the sensor file's [columns] table, if any")
+    parser.add_argument(
+        "--columns",
+        default=None,
+        metavar="MAP.toml",
+        type=input_path,
+        help="column map: the records CSV's own column names and units (deg/rad, m/ft, "
+        "ellipsoid/egm96 heights, zero-/one-based pixels) onto the canonical columns "
+        "(docs/columns.md); default: the sensor file's [columns] table, if any",
+    )
 
 
 def add_records_options(parser) -> None:
@@ -306,15 +358,22 @@ def add_target_options(parser, *, height_column: bool = True) -> None:
     the two height surfaces, :class:`geoloc.surfaces.height.HeightSurface`).
     """
     g = parser.add_argument_group("target height (without a DEM)")
-    g.add_argument("--target-h-m", type=float, default=None,
-                   help="one target height for every ray [m above the WGS 84 ellipsoid]")
+    g.add_argument(
+        "--target-h-m", type=float, default=None, help="one target height for every ray [m above the WGS 84 ellipsoid]"
+    )
     if height_column:
-        g.add_argument("--height-column", default=None,
-                       help="column holding each target's height [m above the WGS 84 ellipsoid], "
-                       "e.g. paper_height_m")
-    g.add_argument("--height-kind", choices=["inflated", "geodetic"], default="inflated",
-                   help="with a height: the ellipsoid inflated by it, [Q17] eq. 11 (default), or the exact "
-                   "surface of constant geodetic height")
+        g.add_argument(
+            "--height-column",
+            default=None,
+            help="column holding each target's height [m above the WGS 84 ellipsoid], e.g. paper_height_m",
+        )
+    g.add_argument(
+        "--height-kind",
+        choices=["inflated", "geodetic"],
+        default="inflated",
+        help="with a height: the ellipsoid inflated by it, [Q17] eq. 11 (default), or the exact "
+        "surface of constant geodetic height",
+    )
 
 
 # --------------------------------------------------------------------------- DEM options
@@ -350,11 +409,13 @@ def surface_spec_from_args(args):
         dem_datum=getattr(args, "dem_datum", None) or "egm96",
         method=getattr(args, "method", None) or "exact",
         dem_model=getattr(args, "dem_model", None) or "bilinear",
-        eps_h=getattr(args, "eps_h", None), threshold=getattr(args, "threshold", None),
-        cache_bytes=_mosaic_options(args)["cache_bytes"] if dem is not None and hasattr(args, "dem_cache_mb")
-        else None,
-        target_h_m=getattr(args, "target_h_m", None), height_column=getattr(args, "height_column", None),
-        kind=getattr(args, "height_kind", None) or "inflated")
+        eps_h=getattr(args, "eps_h", None),
+        threshold=getattr(args, "threshold", None),
+        cache_bytes=_mosaic_options(args)["cache_bytes"] if dem is not None and hasattr(args, "dem_cache_mb") else None,
+        target_h_m=getattr(args, "target_h_m", None),
+        height_column=getattr(args, "height_column", None),
+        kind=getattr(args, "height_kind", None) or "inflated",
+    )
 
 
 def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
@@ -379,8 +440,9 @@ def surface_from_args(args, records=None, *, example: str = "paper_height_m"):
         h = records.column(column)
         bad = ~np.isfinite(h)
         if np.any(bad):
-            raise ValueError(f"height column {column!r} is empty or not finite on line(s) "
-                             f"{[int(n) for n in records.lines[bad]]}")
+            raise ValueError(
+                f"height column {column!r} is empty or not finite on line(s) {[int(n) for n in records.lines[bad]]}"
+            )
         return spec.build(h)
     if spec.target_h_m is not None:
         return spec.build()
@@ -432,22 +494,54 @@ def add_correction_options(parser) -> None:
     light-time on for another sensor).
     """
     g = parser.add_argument_group("line-of-sight corrections (docs/refraction.md)")
-    g.add_argument("--refraction", choices=["none", "standard"], default=None,
-                   help="atmospheric refraction: none (default, as the papers) or standard (the ray bent "
-                   "through the U.S. Standard Atmosphere 1976)")
-    g.add_argument("--light-time", dest="light_time", action="store_true", default=None,
-                   help="the Earth's rotation while the light travels (default: on for a spaceborne sensor)")
-    g.add_argument("--no-light-time", dest="light_time", action="store_false",
-                   help="turn light-time off for a spaceborne sensor")
-    g.add_argument("--no-aberration", dest="aberration", action="store_false", default=None,
-                   help="turn aberration of light off for a spaceborne sensor (on by default there)")
-    g.add_argument("--ground-p-pa", dest="ground_p_pa", type=float, default=None, metavar="PA",
-                   help="with --refraction standard: the ground pressure measured [Pa] (the standard atmosphere "
-                   "fitted to it)")
-    g.add_argument("--ground-t-k", dest="ground_t_k", type=float, default=None, metavar="K",
-                   help="with --refraction standard: the ground temperature measured [K]")
-    g.add_argument("--ground-h-m", dest="ground_h_m", type=float, default=None, metavar="M",
-                   help="the height of that measurement [m] (default 0)")
+    g.add_argument(
+        "--refraction",
+        choices=["none", "standard"],
+        default=None,
+        help="atmospheric refraction: none (default, as the papers) or standard (the ray bent "
+        "through the U.S. Standard Atmosphere 1976)",
+    )
+    g.add_argument(
+        "--light-time",
+        dest="light_time",
+        action="store_true",
+        default=None,
+        help="the Earth's rotation while the light travels (default: on for a spaceborne sensor)",
+    )
+    g.add_argument(
+        "--no-light-time", dest="light_time", action="store_false", help="turn light-time off for a spaceborne sensor"
+    )
+    g.add_argument(
+        "--no-aberration",
+        dest="aberration",
+        action="store_false",
+        default=None,
+        help="turn aberration of light off for a spaceborne sensor (on by default there)",
+    )
+    g.add_argument(
+        "--ground-p-pa",
+        dest="ground_p_pa",
+        type=float,
+        default=None,
+        metavar="PA",
+        help="with --refraction standard: the ground pressure measured [Pa] (the standard atmosphere fitted to it)",
+    )
+    g.add_argument(
+        "--ground-t-k",
+        dest="ground_t_k",
+        type=float,
+        default=None,
+        metavar="K",
+        help="with --refraction standard: the ground temperature measured [K]",
+    )
+    g.add_argument(
+        "--ground-h-m",
+        dest="ground_h_m",
+        type=float,
+        default=None,
+        metavar="M",
+        help="the height of that measurement [m] (default 0)",
+    )
 
 
 def corrections_from_args(args, sensor, settings: dict | None = None, base=None):
@@ -506,8 +600,11 @@ class _DemAction(argparse.Action):
 
 def one_height_source(args) -> None:
     """Refuse two of ``--dem``, ``--height-column``, ``--target-h-m``: the targets lie on one of them."""
-    given = [opt for opt, dest in (("--dem", "dem"), ("--height-column", "height_column"),
-                                   ("--target-h-m", "target_h_m")) if getattr(args, dest, None) is not None]
+    given = [
+        opt
+        for opt, dest in (("--dem", "dem"), ("--height-column", "height_column"), ("--target-h-m", "target_h_m"))
+        if getattr(args, dest, None) is not None
+    ]
     if len(given) > 1:
         raise ValueError(f"{' and '.join(given)} are both given: the targets lie on one of them")
 
@@ -525,14 +622,23 @@ def one_dem_raster(args, verb: str):
     if isinstance(args.dem, list) or Path(args.dem).is_dir() or str(args.dem).lower().endswith(".vrt"):
         shown = ", ".join(args.dem) if isinstance(args.dem, list) else args.dem
         what = "is a folder" if not isinstance(args.dem, list) and Path(args.dem).is_dir() else "is a mosaic"
-        raise ValueError(f"--dem {shown} {what}: geoloc {verb} reads one DEM raster, not a mosaic (geoloc "
-                         "replay, locate, ortho and calibrate take mosaics)")
+        raise ValueError(
+            f"--dem {shown} {what}: geoloc {verb} reads one DEM raster, not a mosaic (geoloc "
+            "replay, locate, ortho and calibrate take mosaics)"
+        )
     return args.dem
 
 
-def add_dem_options(parser, *, mosaic: bool = True, tolerances: bool = True, datum: bool = True,
-                    method_default: str | None = "exact", dem_help: str | None = None,
-                    method_help: str | None = None) -> None:
+def add_dem_options(
+    parser,
+    *,
+    mosaic: bool = True,
+    tolerances: bool = True,
+    datum: bool = True,
+    method_default: str | None = "exact",
+    dem_help: str | None = None,
+    method_help: str | None = None,
+) -> None:
     """The DEM options, declared here once for every verb that meets the terrain.
 
     The verb reads them with :func:`surface_from_args` (or, drawing one raster,
@@ -546,27 +652,55 @@ def add_dem_options(parser, *, mosaic: bool = True, tolerances: bool = True, dat
     verb's own default (a scenario's method) when ``--method`` is not given.
     """
     g = parser.add_argument_group("terrain (DEM)")
-    g.add_argument("--dem", metavar="FILE", default=None, action=_DemAction, type=input_path,
-                   help=dem_help or "DEM raster (GeoTIFF, ...): intersect the line of sight with the terrain "
-                   "instead of a target height, e.g. assets/dem/etopo5_flight_area.tif"
-                   + ("; a folder of tiles, a GDAL .vrt, or --dem given several times is one mosaic, read in "
-                      "windows on demand (docs/scale.md)" if mosaic else ""))
+    g.add_argument(
+        "--dem",
+        metavar="FILE",
+        default=None,
+        action=_DemAction,
+        type=input_path,
+        help=dem_help
+        or "DEM raster (GeoTIFF, ...): intersect the line of sight with the terrain "
+        "instead of a target height, e.g. assets/dem/etopo5_flight_area.tif"
+        + (
+            "; a folder of tiles, a GDAL .vrt, or --dem given several times is one mosaic, read in "
+            "windows on demand (docs/scale.md)"
+            if mosaic
+            else ""
+        ),
+    )
     if mosaic:
-        g.add_argument("--dem-cache-mb", type=float, default=64.0,
-                       help="DEM mosaic: bound of its tile cache and of one region it assembles [MiB] "
-                       "(default 64)")
-    g.add_argument("--method", choices=METHODS, default=method_default,
-                   help=method_help or "steps: descending steps of [Q17]; bisect: halving of [L23]; "
-                   "exact: first visible hit, no threshold (default)")
+        g.add_argument(
+            "--dem-cache-mb",
+            type=float,
+            default=64.0,
+            help="DEM mosaic: bound of its tile cache and of one region it assembles [MiB] (default 64)",
+        )
+    g.add_argument(
+        "--method",
+        choices=METHODS,
+        default=method_default,
+        help=method_help
+        or "steps: descending steps of [Q17]; bisect: halving of [L23]; "
+        "exact: first visible hit, no threshold (default)",
+    )
     if datum:
-        g.add_argument("--dem-datum", choices=["egm96", "ellipsoid"], default="egm96",
-                       help="vertical datum of the DEM heights (default egm96: real DEMs are orthometric; "
-                       "N from the bundled EGM96 grid)")
+        g.add_argument(
+            "--dem-datum",
+            choices=["egm96", "ellipsoid"],
+            default="egm96",
+            help="vertical datum of the DEM heights (default egm96: real DEMs are orthometric; "
+            "N from the bundled EGM96 grid)",
+        )
     if tolerances:
         g.add_argument("--eps-h", type=float, default=1.0, help="step of --method steps [m] (default 1)")
-        g.add_argument("--threshold", type=float, default=1.0,
-                       help="bisection stops when |H - h_DEM| < threshold [m] (default 1)")
+        g.add_argument(
+            "--threshold", type=float, default=1.0, help="bisection stops when |H - h_DEM| < threshold [m] (default 1)"
+        )
     if tolerances and mosaic:
-        g.add_argument("--dem-model", dest="dem_model", choices=DEM_MODELS, default="bilinear",
-                       help="how the exact method reads between DEM nodes: bilinear cells (default) or two "
-                       "triangles per cell")
+        g.add_argument(
+            "--dem-model",
+            dest="dem_model",
+            choices=DEM_MODELS,
+            default="bilinear",
+            help="how the exact method reads between DEM nodes: bilinear cells (default) or two triangles per cell",
+        )

@@ -53,48 +53,90 @@ def register(sub) -> None:
         "optionally focal length and principal point) by least squares, and report errors before, "
         "after and in leave-one-out cross-validation, as JSON. See docs/calibration.md.",
     )
-    p.add_argument("records", nargs="?", default=None, type=input_path,
-                   help="records CSV with truth_lat_deg/truth_lon_deg (default: the bundled "
-                        "assets/records/qiao2017_flight_tests.csv)")
+    p.add_argument(
+        "records",
+        nargs="?",
+        default=None,
+        type=input_path,
+        help="records CSV with truth_lat_deg/truth_lon_deg (default: the bundled "
+        "assets/records/qiao2017_flight_tests.csv)",
+    )
     add_sensor_option(p)
-    p.add_argument("--fit", default=None, metavar="NAMES",
-                   help="a sensor file's named parameters to fit, comma-separated (e.g. "
-                        "mount_x,mount_y,mount_z,fx,cx,cy,k1,lever_arm_x_m): the fit for any --sensor "
-                        "(flights from --group-by, outliers, --joint, --loo and --resect apply to it too)")
-    p.add_argument("--write-sensor", default=None, metavar="FILE", type=output_path,
-                   help="save the fitted sensor file (TOML); with several flights fitted separately, one "
-                        "file per flight named STEM_<flight>.toml")
+    p.add_argument(
+        "--fit",
+        default=None,
+        metavar="NAMES",
+        help="a sensor file's named parameters to fit, comma-separated (e.g. "
+        "mount_x,mount_y,mount_z,fx,cx,cy,k1,lever_arm_x_m): the fit for any --sensor "
+        "(flights from --group-by, outliers, --joint, --loo and --resect apply to it too)",
+    )
+    p.add_argument(
+        "--write-sensor",
+        default=None,
+        metavar="FILE",
+        type=output_path,
+        help="save the fitted sensor file (TOML); with several flights fitted separately, one "
+        "file per flight named STEM_<flight>.toml",
+    )
     add_target_options(p)
     add_dem_options(p)
     add_correction_options(p)
-    p.add_argument("--group-by", default="table",
-                   help="column grouping records into flights (default: table; 'none' for one group)")
-    p.add_argument("--model", choices=sorted(MODELS), default=None,
-                   help="without --fit: where the fitted rotation sits: 'mount' = gimbal base in the aircraft "
-                        "body (R_base_body, mount_x,mount_y,mount_z; default), 'camera' = camera in the inner "
-                        "gimbal (R_cam_inner, boresight_x,boresight_y,boresight_z)")
-    p.add_argument("--joint", action="store_true",
-                   help="fit one rotation to all flights together (default: one fit per flight)")
-    p.add_argument("--fit-focal", action="store_true",
-                   help="without --fit: also fit the focal length (f: the lens's fx and fy together)")
-    p.add_argument("--fit-principal-point", action="store_true",
-                   help="without --fit: also fit the principal point (cy, cx: row and column, 1-based)")
+    p.add_argument(
+        "--group-by",
+        default="table",
+        help="column grouping records into flights (default: table; 'none' for one group)",
+    )
+    p.add_argument(
+        "--model",
+        choices=sorted(MODELS),
+        default=None,
+        help="without --fit: where the fitted rotation sits: 'mount' = gimbal base in the aircraft "
+        "body (R_base_body, mount_x,mount_y,mount_z; default), 'camera' = camera in the inner "
+        "gimbal (R_cam_inner, boresight_x,boresight_y,boresight_z)",
+    )
+    p.add_argument(
+        "--joint", action="store_true", help="fit one rotation to all flights together (default: one fit per flight)"
+    )
+    p.add_argument(
+        "--fit-focal",
+        action="store_true",
+        help="without --fit: also fit the focal length (f: the lens's fx and fy together)",
+    )
+    p.add_argument(
+        "--fit-principal-point",
+        action="store_true",
+        help="without --fit: also fit the principal point (cy, cx: row and column, 1-based)",
+    )
     p.add_argument("--loo", action="store_true", help="leave-one-out cross-validation per flight")
-    p.add_argument("--exclude-outliers", action="store_true",
-                   help="leave records flagged as outliers (on the residuals of a first fit with every "
-                        "record) out of the fit")
-    p.add_argument("--truth-prefix", default="truth",
-                   help="columns {prefix}_lat_deg/{prefix}_lon_deg hold the surveyed truth (default truth)")
-    p.add_argument("--resect", action="store_true",
-                   help="also fit focal length and principal point (f, cy, cx; with --fit its names) to "
-                        "the published computed positions (paper_lat_deg/paper_lon_deg) with unknown target "
-                        "heights: how the bundled camera was derived")
+    p.add_argument(
+        "--exclude-outliers",
+        action="store_true",
+        help="leave records flagged as outliers (on the residuals of a first fit with every record) out of the fit",
+    )
+    p.add_argument(
+        "--truth-prefix",
+        default="truth",
+        help="columns {prefix}_lat_deg/{prefix}_lon_deg hold the surveyed truth (default truth)",
+    )
+    p.add_argument(
+        "--resect",
+        action="store_true",
+        help="also fit focal length and principal point (f, cy, cx; with --fit its names) to "
+        "the published computed positions (paper_lat_deg/paper_lon_deg) with unknown target "
+        "heights: how the bundled camera was derived",
+    )
     p.add_argument("--out", default=None, type=text_output_path, help="write the JSON report here")
-    p.add_argument("--write-camera", default=None, type=output_path,
-                   help="save the calibrated sensor as a first-phase camera file (TOML; a pinhole with "
-                        "fx = fy on the roll-pitch gimbal, else use --write-sensor); with several flights "
-                        "fitted separately, one file per flight named STEM_<flight>.toml")
-    p.add_argument("--plot", default=None, type=output_path, help="matplotlib figure of the error vectors per flight (PNG)")
+    p.add_argument(
+        "--write-camera",
+        default=None,
+        type=output_path,
+        help="save the calibrated sensor as a first-phase camera file (TOML; a pinhole with "
+        "fx = fy on the roll-pitch gimbal, else use --write-sensor); with several flights "
+        "fitted separately, one file per flight named STEM_<flight>.toml",
+    )
+    p.add_argument(
+        "--plot", default=None, type=output_path, help="matplotlib figure of the error vectors per flight (PNG)"
+    )
     p.add_argument("--exaggeration", type=float, default=1.0, help="arrow scale of --plot (default 1)")
     p.set_defaults(func=run)
 
@@ -120,19 +162,33 @@ def _fmt(v, spec=".2f"):
 
 def _surface(args, records, example: str = "paper_height_m"):
     """The surface the targets lie on, for the sensor fit (:func:`geoloc.cli._options.surface_from_args`)."""
-    label = (f"dem:{args.dem}" if args.dem is not None else f"column:{args.height_column}"
-             if args.height_column is not None else f"height:{args.target_h_m}")
+    label = (
+        f"dem:{args.dem}"
+        if args.dem is not None
+        else f"column:{args.height_column}"
+        if args.height_column is not None
+        else f"height:{args.target_h_m}"
+    )
     return surface_from_args(args, records, example=example), label
 
 
 def fit_names(args) -> list:
     """The parameters to fit: ``--fit NAMES``, else those of ``--model`` / ``--fit-focal`` / ``--fit-principal-point``."""
     if args.fit is not None:
-        chosen = [o for o, v in (("--model", args.model is not None), ("--fit-focal", args.fit_focal),
-                                 ("--fit-principal-point", args.fit_principal_point)) if v]
+        chosen = [
+            o
+            for o, v in (
+                ("--model", args.model is not None),
+                ("--fit-focal", args.fit_focal),
+                ("--fit-principal-point", args.fit_principal_point),
+            )
+            if v
+        ]
         if chosen:
-            raise ValueError(f"{', '.join(chosen)} choose the parameters without --fit; with --fit {args.fit} "
-                             "name them all (e.g. mount_x,mount_y,mount_z,f,cy,cx)")
+            raise ValueError(
+                f"{', '.join(chosen)} choose the parameters without --fit; with --fit {args.fit} "
+                "name them all (e.g. mount_x,mount_y,mount_z,f,cy,cx)"
+            )
         names = [n.strip() for n in args.fit.split(",") if n.strip()]
         if not names:
             raise ValueError(f"--fit {args.fit!r}: name at least one parameter (e.g. mount_x,mount_y,mount_z)")
@@ -148,8 +204,11 @@ def fit_names(args) -> list:
 def _write_fitted(option: str, out, sensors: dict, joint: bool, write) -> None:
     """One file, or with several flights fitted separately one ``STEM_<flight>`` file each."""
     out = Path(out)
-    todo = ([(g, out) for g in sensors] if joint or len(sensors) == 1 else
-            [(g, out.with_name(f"{out.stem}_{g}{out.suffix or '.toml'}")) for g in sensors])
+    todo = (
+        [(g, out) for g in sensors]
+        if joint or len(sensors) == 1
+        else [(g, out.with_name(f"{out.stem}_{g}{out.suffix or '.toml'}")) for g in sensors]
+    )
     for g, path in todo:
         write(sensors[g], path)
         print(f"wrote the fitted {option} ({g}) to {path}")
@@ -181,23 +240,40 @@ def run(args) -> int:
     if group.lower() == "none" or (group == "table" and "table" not in records.header):
         group = None
     corrections = corrections_from_args(args, sensor)
-    rep, sensors = fit_sensor_groups(records, sensor, names, surface, corrections=corrections,
-                                     group_column=group, joint=args.joint,
-                                     exclude_outliers=args.exclude_outliers, loo=args.loo,
-                                     truth_prefix=args.truth_prefix)
-    report = {"records": str(records.path), "sensor": str(args.camera or asset_path("cameras", "qiao2017.toml")),
-              "target": label, "corrections": corrections.label, **rep}
+    rep, sensors = fit_sensor_groups(
+        records,
+        sensor,
+        names,
+        surface,
+        corrections=corrections,
+        group_column=group,
+        joint=args.joint,
+        exclude_outliers=args.exclude_outliers,
+        loo=args.loo,
+        truth_prefix=args.truth_prefix,
+    )
+    report = {
+        "records": str(records.path),
+        "sensor": str(args.camera or asset_path("cameras", "qiao2017.toml")),
+        "target": label,
+        "corrections": corrections.label,
+        **rep,
+    }
     for g, e in rep["groups"].items():
-        line = (f"flight {g}: n={e['n']} (fit {e['n_used_in_fit']}), mean error to truth: "
-                f"before {_fmt(e['mean_error_before_m'])} m, after {_fmt(e['mean_error_after_m'])} m")
+        line = (
+            f"flight {g}: n={e['n']} (fit {e['n_used_in_fit']}), mean error to truth: "
+            f"before {_fmt(e['mean_error_before_m'])} m, after {_fmt(e['mean_error_after_m'])} m"
+        )
         if args.loo:
             line += f", leave-one-out {_fmt(e['mean_error_loo_m'])} m"
         rms = f"before {_fmt(e['rms_before_m'])}, after {_fmt(e['rms_after_m'])}"
         print(line + f" (RMS {rms}" + (f", leave-one-out {_fmt(e['rms_loo_m'])}" if args.loo else "") + " m)")
         flagged = [r["label"] for r in e["records"] if r["outlier"]]
         if flagged:
-            print(f"  outliers before the fit: {flagged}"
-                  + (" (left out)" if args.exclude_outliers else " (kept; --exclude-outliers leaves them out)"))
+            print(
+                f"  outliers before the fit: {flagged}"
+                + (" (left out)" if args.exclude_outliers else " (kept; --exclude-outliers leaves them out)")
+            )
         if not args.joint:
             _print_parameters(e["parameters"], e["degenerate_pairs"])
     if args.joint:
@@ -207,8 +283,10 @@ def run(args) -> int:
         rnames = names if args.fit is not None else list(RESECT_NAMES)
         r = resect_sensor(records, sensor, rnames, corrections=corrections)
         report["resection"] = r.report()
-        print(f"resection of {', '.join(rnames)} to the published positions (unknown target heights): "
-              f"RMS misfit {r.rms_m:.2f} m" + ("" if r.success else " (did not converge)"))
+        print(
+            f"resection of {', '.join(rnames)} to the published positions (unknown target heights): "
+            f"RMS misfit {r.rms_m:.2f} m" + ("" if r.success else " (did not converge)")
+        )
         _print_parameters(report["resection"]["parameters"], report["resection"]["degenerate_pairs"])
     report = _json_safe(report)
     if args.out:
@@ -218,18 +296,23 @@ def run(args) -> int:
         # the fitted sensor carries the corrections it was fitted with (else, located without
         # them, its parameters would be biased by the very shift they absorbed)
         table = corrections.to_table()
-        _write_fitted("sensor", args.write_sensor, sensors, args.joint,
-                      lambda s, path: sensor_to_toml(s, path, corrections=table))
+        _write_fitted(
+            "sensor", args.write_sensor, sensors, args.joint, lambda s, path: sensor_to_toml(s, path, corrections=table)
+        )
     if args.write_camera:
         # the fitted sensor carries the input camera file's pixel pitch, if it gave one
-        _write_fitted("camera", args.write_camera, sensors, args.joint,
-                      lambda s, path: camera_from_sensor(s).to_toml(path))
+        _write_fitted(
+            "camera", args.write_camera, sensors, args.joint, lambda s, path: camera_from_sensor(s).to_toml(path)
+        )
     if args.plot:
         from geoloc.analysis.errors import plot_error_vectors
 
-        plot_error_vectors(args.plot, error_vector_panels(report, records, args.exaggeration),
-                           title=f"error vectors (computed - truth), {', '.join(names)}"
-                                 + (", joint fit" if args.joint else ", one fit per flight"))
+        plot_error_vectors(
+            args.plot,
+            error_vector_panels(report, records, args.exaggeration),
+            title=f"error vectors (computed - truth), {', '.join(names)}"
+            + (", joint fit" if args.joint else ", one fit per flight"),
+        )
         print(f"wrote {args.plot}")
     return 0
 
@@ -239,5 +322,6 @@ def _print_parameters(params: dict, degenerate=()) -> None:
     for n, e in params.items():
         print(f"  {n:<16} {e['start']:>14.6f} {e['value']:>14.6f} {_fmt(e['sd'], '.6f'):>12} {e['unit']}")
     if degenerate:
-        print(f"  not separable with these records (|correlation| > 0.99): "
-              f"{', '.join('/'.join(p) for p in degenerate)}")
+        print(
+            f"  not separable with these records (|correlation| > 0.99): {', '.join('/'.join(p) for p in degenerate)}"
+        )

@@ -30,9 +30,11 @@ from geoloc.cli import VERB_HELP
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
 #: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
-EXAMPLE = ("geoloc klv dump assets/klv/example_flight.klv --out packets.jsonl",
-           "geoloc klv fix assets/klv/example_flight.klv --out fixed.klv",
-           "geoloc klv send assets/klv/example_flight.ts udp://127.0.0.1:9 --fast")
+EXAMPLE = (
+    "geoloc klv dump assets/klv/example_flight.klv --out packets.jsonl",
+    "geoloc klv fix assets/klv/example_flight.klv --out fixed.klv",
+    "geoloc klv send assets/klv/example_flight.ts udp://127.0.0.1:9 --fast",
+)
 
 
 def register(sub) -> None:
@@ -57,12 +59,17 @@ def register(sub) -> None:
         "read) keeps the packet and is reported once per kind, with a count and the first offset. "
         "Exit code: 0 every packet decoded, 1 some could not be, 2 none could.",
     )
-    d.add_argument("file", metavar="FILE", type=input_path,
-                   help="raw KLV (.klv, .bin: concatenated packets), a container (.ts, .m2ts, .mpg, .mp4), or a "
-                   "live MPEG-TS stream udp://HOST:PORT (docs/live.md)")
-    d.add_argument("--out", default=None, type=text_output_path, help="write the JSON lines to this file instead of stdout")
-    d.add_argument("--no-checksum", action="store_true",
-                   help="do not verify the checksums (tag 1), nor require them")
+    d.add_argument(
+        "file",
+        metavar="FILE",
+        type=input_path,
+        help="raw KLV (.klv, .bin: concatenated packets), a container (.ts, .m2ts, .mpg, .mp4), or a "
+        "live MPEG-TS stream udp://HOST:PORT (docs/live.md)",
+    )
+    d.add_argument(
+        "--out", default=None, type=text_output_path, help="write the JSON lines to this file instead of stdout"
+    )
+    d.add_argument("--no-checksum", action="store_true", help="do not verify the checksums (tag 1), nor require them")
     from geoloc.cli._options import add_live_options
 
     add_live_options(d)
@@ -78,14 +85,15 @@ def register(sub) -> None:
         "bad packets, and (containers) every other stream are copied as they are: a remux, no "
         "re-encode. Packets that cannot be located are copied unchanged and listed (docs/klv.md).",
     )
-    f.add_argument("file", metavar="IN", type=input_path,
-                   help="raw KLV (.klv, .bin) or a container (.ts, .m2ts, .mpg)")
-    f.add_argument("--out", required=True, type=output_path,
-                   help="the copy to write (the same kind of file; never IN)")
+    f.add_argument("file", metavar="IN", type=input_path, help="raw KLV (.klv, .bin) or a container (.ts, .m2ts, .mpg)")
+    f.add_argument("--out", required=True, type=output_path, help="the copy to write (the same kind of file; never IN)")
     from geoloc.cli._options import add_correction_options, add_dem_options, add_sensor_option
 
-    add_sensor_option(f, help="sensor file (image size, mount, boresight, lever arm: e.g. a calibration "
-                      "written by geoloc calibrate --fit ... --write-sensor)")
+    add_sensor_option(
+        f,
+        help="sensor file (image size, mount, boresight, lever arm: e.g. a calibration "
+        "written by geoloc calibrate --fit ... --write-sensor)",
+    )
     f.add_argument("--no-checksum", action="store_true", help="do not verify the input's checksums")
     add_dem_options(f)
     add_correction_options(f)
@@ -100,15 +108,24 @@ def register(sub) -> None:
         "time), as an aircraft's data link would; for trying geoloc view --live, replay and klv dump on "
         "udp:// (docs/live.md). A multicast group is sent to with TTL 1 (this network segment only).",
     )
-    sd.add_argument("file", metavar="FILE.ts", type=input_path, help="the transport stream, e.g. "
-                    "assets/klv/example_flight.ts, or a raw KLV file (.klv, .bin)")
+    sd.add_argument(
+        "file",
+        metavar="FILE.ts",
+        type=input_path,
+        help="the transport stream, e.g. assets/klv/example_flight.ts, or a raw KLV file (.klv, .bin)",
+    )
     sd.add_argument("url", metavar="udp://HOST:PORT", help="where to send (udp://127.0.0.1:5600: this machine)")
     sd.add_argument("--speed", type=float, default=1.0, help="pace: 1 = real time (default), 10 = ten times faster")
     sd.add_argument("--fast", action="store_true", help="as fast as possible (no pacing)")
     sd.add_argument("--loop", type=int, default=1, metavar="N", help="send the file N times (default 1)")
-    sd.add_argument("--wait", type=float, default=0.0, metavar="S",
-                    help="first wait up to S seconds for a program on this machine to listen on the port "
-                    "(loopback or a local address), e.g. a geoloc replay udp:// started on the same line")
+    sd.add_argument(
+        "--wait",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="first wait up to S seconds for a program on this machine to listen on the port "
+        "(loopback or a local address), e.g. a geoloc replay udp:// started on the same line",
+    )
     sd.set_defaults(func=run_send)
 
     def usage(args) -> int:
@@ -138,16 +155,18 @@ def run(args) -> int:
             out = stack.enter_context(tmp.open("w", encoding="utf-8"))
         good, bad = _dump(args.file, results, out)
     if args.out:
-        print(f"wrote {good} packets to {args.out}" + (f" ({bad} bad, see above)" if bad else ""),
-              file=sys.stderr)
+        print(f"wrote {good} packets to {args.out}" + (f" ({bad} bad, see above)" if bad else ""), file=sys.stderr)
     return _status(args.file, good, bad)
 
 
 def _status(name, good: int, bad: int) -> int:
     """The exit code of a dump: 0 every packet decoded, 1 some not, 2 none (docs/cli.md)."""
     if good == 0:
-        what = f"{bad} packet{'s' if bad != 1 else ''} found, none could be decoded (see above)" if bad \
+        what = (
+            f"{bad} packet{'s' if bad != 1 else ''} found, none could be decoded (see above)"
+            if bad
             else "no UAS LS (MISB ST 0601) or EG 0104 packet in it"
+        )
         print(f"geoloc klv: {name}: {what}", file=sys.stderr)
         return 2
     if bad:
@@ -165,8 +184,11 @@ def _run_live(args) -> int:
     limits = live_limits(args, args.file)
     sock = _bind(args.file)
     rx = LiveReceiver(verify_checksum=not args.no_checksum)
-    print(f"geoloc klv: listening on {args.file}" + (" (Ctrl-C to stop)" if not any(limits.values()) else ""),
-          file=sys.stderr, flush=True)
+    print(
+        f"geoloc klv: listening on {args.file}" + (" (Ctrl-C to stop)" if not any(limits.values()) else ""),
+        file=sys.stderr,
+        flush=True,
+    )
     with contextlib.ExitStack() as stack:
         out = sys.stdout
         if args.out:
@@ -231,8 +253,11 @@ def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:
                 out.flush()
     finally:
         if stray > STRAY_SHOWN:
-            print(f"geoloc klv: {name}: and {stray - STRAY_SHOWN} more runs of bytes that are no UAS LS packet "
-                  "between packets (no packet lost)", file=sys.stderr)
+            print(
+                f"geoloc klv: {name}: and {stray - STRAY_SHOWN} more runs of bytes that are no UAS LS packet "
+                "between packets (no packet lost)",
+                file=sys.stderr,
+            )
         for line in quirks.lines():
             print(f"geoloc klv: {name}: quirk: {line}", file=sys.stderr)
     return good, bad
@@ -257,8 +282,7 @@ def run_send(args) -> int:
         from geoloc.io.live import wait_for_listener
 
         if not wait_for_listener(url, args.wait):
-            print(f"geoloc klv send: nothing listens on {url} after {args.wait:g} s: sending anyway",
-                  file=sys.stderr)
+            print(f"geoloc klv send: nothing listens on {url} after {args.wait:g} s: sending anyway", file=sys.stderr)
         time.sleep(0.2)  # the listener binds, then starts up: give it a moment
     from geoloc.io.klv import is_container_file
 
@@ -268,8 +292,11 @@ def run_send(args) -> int:
         from geoloc.io.live import klv_as_ts
 
         source, n, bad = klv_as_ts(args.file)
-        note = (f" ({n} KLV packets in an MPEG-TS, stream type 0x06 KLVA"
-                + (f"; {bad} bad packets left out" if bad else "") + ")")
+        note = (
+            f" ({n} KLV packets in an MPEG-TS, stream type 0x06 KLVA"
+            + (f"; {bad} bad packets left out" if bad else "")
+            + ")"
+        )
     total = 0
     for _ in range(args.loop):
         r = send(source, url, speed=None if args.fast else args.speed)
@@ -288,7 +315,14 @@ def run_fix(args) -> int:
     from geoloc.sensors.sensor_file import load_sensor_budget
 
     budget = load_sensor_budget(path) if path else None  # its [uncertainty]: tags 45 / 46
-    fix = fix_klv(args.file, args.out, surface=surface, sensor=sensor, budget=budget,
-                  verify_checksum=not args.no_checksum, corrections=corrections_from_args(args, sensor))
+    fix = fix_klv(
+        args.file,
+        args.out,
+        surface=surface,
+        sensor=sensor,
+        budget=budget,
+        verify_checksum=not args.no_checksum,
+        corrections=corrections_from_args(args, sensor),
+    )
     print(fix)
     return 0 if fix.packets else 1

@@ -39,23 +39,52 @@ def register(sub) -> None:
         "(orbit, attitude, slit; e.g. assets/scenarios/tiangong2_limb.toml) or one raw line "
         "of sight given in ECEF.",
     )
-    p.add_argument("scenario", nargs="?", default=None, type=input_path, help="limb scenario TOML file (see docs/limb.md)")
-    p.add_argument("--out", default=None, type=text_output_path, help="scenario mode: write one CSV row per frame and pixel here")
+    p.add_argument(
+        "scenario", nargs="?", default=None, type=input_path, help="limb scenario TOML file (see docs/limb.md)"
+    )
+    p.add_argument(
+        "--out", default=None, type=text_output_path, help="scenario mode: write one CSV row per frame and pixel here"
+    )
     p.add_argument("--frames", type=int, default=None, help="scenario mode: use only the first N frames")
-    p.add_argument("--origin-ecef", type=float, nargs=3, metavar=("X", "Y", "Z"), default=None,
-                   help="raw mode: sensor position, ECEF [m]")
-    p.add_argument("--direction-ecef", type=float, nargs=3, metavar=("DX", "DY", "DZ"), default=None,
-                   help="raw mode: line-of-sight direction, ECEF (any length)")
+    p.add_argument(
+        "--origin-ecef",
+        type=float,
+        nargs=3,
+        metavar=("X", "Y", "Z"),
+        default=None,
+        help="raw mode: sensor position, ECEF [m]",
+    )
+    p.add_argument(
+        "--direction-ecef",
+        type=float,
+        nargs=3,
+        metavar=("DX", "DY", "DZ"),
+        default=None,
+        help="raw mode: line-of-sight direction, ECEF (any length)",
+    )
     p.add_argument("--max-iter", type=int, default=20, help="Newton-Raphson step limit for eq. 17 (default 20)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
-    p.add_argument("--refraction", choices=["none", "standard"], default=None,
-                   help="standard: also the refracted tangent point, the ray bent through the U.S. Standard "
-                   "Atmosphere 1976 (refracted_tangent_h_m; default: the scenario's [corrections], else none)")
-    p.add_argument("--velocity-ecef", type=float, nargs=3, metavar=("VX", "VY", "VZ"), default=None,
-                   help="raw mode: the sensor's Earth-fixed velocity [m/s]: the line of sight is then turned by "
-                   "aberration of light (as for every spaceborne sensor; --no-aberration leaves it)")
-    p.add_argument("--no-aberration", action="store_true",
-                   help="leave aberration of light out (on by default in scenario mode and with --velocity-ecef)")
+    p.add_argument(
+        "--refraction",
+        choices=["none", "standard"],
+        default=None,
+        help="standard: also the refracted tangent point, the ray bent through the U.S. Standard "
+        "Atmosphere 1976 (refracted_tangent_h_m; default: the scenario's [corrections], else none)",
+    )
+    p.add_argument(
+        "--velocity-ecef",
+        type=float,
+        nargs=3,
+        metavar=("VX", "VY", "VZ"),
+        default=None,
+        help="raw mode: the sensor's Earth-fixed velocity [m/s]: the line of sight is then turned by "
+        "aberration of light (as for every spaceborne sensor; --no-aberration leaves it)",
+    )
+    p.add_argument(
+        "--no-aberration",
+        action="store_true",
+        help="leave aberration of light out (on by default in scenario mode and with --velocity-ecef)",
+    )
     p.set_defaults(func=run)
 
 
@@ -67,8 +96,9 @@ def _num(x, nd=None):
 
 
 def _label(aberration: bool, refraction: str) -> str:
-    return "+".join(n for n, on in (("aberration", aberration), ("refraction", refraction == "standard")) if on) \
-        or "none"
+    return (
+        "+".join(n for n, on in (("aberration", aberration), ("refraction", refraction == "standard")) if on) or "none"
+    )
 
 
 def _refracted(refraction: str, origin, direction) -> dict:
@@ -80,9 +110,13 @@ def _refracted(refraction: str, origin, direction) -> dict:
 
     r = STANDARD_REFRACTION.limb(origin, direction)
     lat, lon, _ = ecef_to_geodetic(r.refracted_tangent_ecef)
-    return {"refracted_tangent_h_m": r.refracted_tangent_h_m, "refracted_tangent_lat_deg": np.degrees(lat),
-            "refracted_tangent_lon_deg": np.degrees(lon), "refraction_m": r.tangent_h_m - r.refracted_tangent_h_m,
-            "refraction_bending_rad": r.bending_rad}
+    return {
+        "refracted_tangent_h_m": r.refracted_tangent_h_m,
+        "refracted_tangent_lat_deg": np.degrees(lat),
+        "refracted_tangent_lon_deg": np.degrees(lon),
+        "refraction_m": r.tangent_h_m - r.refracted_tangent_h_m,
+        "refraction_bending_rad": r.bending_rad,
+    }
 
 
 def _raw(args) -> int:
@@ -131,16 +165,22 @@ def _raw(args) -> int:
     if args.json:
         print(json.dumps(out))
     elif st == Status.OK:
-        print(f"virtual ellipsoid [L18]: lat {out['tangent_lat_deg']:.6f} deg  lon {out['tangent_lon_deg']:.6f} deg"
-              f"  h {out['tangent_h_m']:.3f} m  (Delta a {out['delta_a_m']:.3f} m,"
-              f" {out['nr_iterations']} Newton-Raphson steps)")
-        print(f"exact (min geodetic h): lat {out['exact_tangent_lat_deg']:.6f} deg"
-              f"  lon {out['exact_tangent_lon_deg']:.6f} deg  h {out['exact_tangent_h_m']:.3f} m")
+        print(
+            f"virtual ellipsoid [L18]: lat {out['tangent_lat_deg']:.6f} deg  lon {out['tangent_lon_deg']:.6f} deg"
+            f"  h {out['tangent_h_m']:.3f} m  (Delta a {out['delta_a_m']:.3f} m,"
+            f" {out['nr_iterations']} Newton-Raphson steps)"
+        )
+        print(
+            f"exact (min geodetic h): lat {out['exact_tangent_lat_deg']:.6f} deg"
+            f"  lon {out['exact_tangent_lon_deg']:.6f} deg  h {out['exact_tangent_h_m']:.3f} m"
+        )
         print(f"difference (L18 - exact): {out['h_difference_m'] * 1e3:.3f} mm")
         if out.get("refracted_tangent_h_m") is not None:
-            print(f"refracted (standard atmosphere): h {out['refracted_tangent_h_m']:.3f} m, "
-                  f"{out['refraction_m']:.3f} m below the straight line's; bent "
-                  f"{out['refraction_bending_rad'] * 1e3:.3f} mrad to the tangent point")
+            print(
+                f"refracted (standard atmosphere): h {out['refracted_tangent_h_m']:.3f} m, "
+                f"{out['refraction_m']:.3f} m below the straight line's; bent "
+                f"{out['refraction_bending_rad'] * 1e3:.3f} mrad to the tangent point"
+            )
     if st != Status.OK:
         print(f"geoloc limb: {describe(st)}", file=sys.stderr)
         return 1
@@ -148,9 +188,24 @@ def _raw(args) -> int:
 
 
 _COLUMNS = [
-    "frame", "pixel", "time_s", "alpha_deg", "sat_lat_deg", "sat_lon_deg", "sat_h_m", "status",
-    "tangent_lat_deg", "tangent_lon_deg", "tangent_h_m", "delta_a_m", "nr_iterations",
-    "exact_tangent_lat_deg", "exact_tangent_lon_deg", "exact_tangent_h_m", "h_difference_m", "tangent_range_m",
+    "frame",
+    "pixel",
+    "time_s",
+    "alpha_deg",
+    "sat_lat_deg",
+    "sat_lon_deg",
+    "sat_h_m",
+    "status",
+    "tangent_lat_deg",
+    "tangent_lon_deg",
+    "tangent_h_m",
+    "delta_a_m",
+    "nr_iterations",
+    "exact_tangent_lat_deg",
+    "exact_tangent_lon_deg",
+    "exact_tangent_h_m",
+    "h_difference_m",
+    "tangent_range_m",
 ]
 
 
@@ -162,12 +217,15 @@ def _scenario(args) -> int:
         sc = sc.with_frames(min(args.frames, sc.n_frames))
     if args.velocity_ecef is not None:
         raise ValueError("--velocity-ecef is for raw mode: a scenario's orbit gives the velocity")
-    sc = dataclasses.replace(sc, aberration=sc.aberration and not args.no_aberration,
-                             refraction=args.refraction or sc.refraction)
+    sc = dataclasses.replace(
+        sc, aberration=sc.aberration and not args.no_aberration, refraction=args.refraction or sc.refraction
+    )
     chain, r = sc.solve(max_iter=args.max_iter)
     nf, npx = r.shape
-    refr = {k: np.broadcast_to(v, (nf, npx))
-            for k, v in _refracted(sc.refraction, chain.origin_ecef, chain.direction_ecef).items()}
+    refr = {
+        k: np.broadcast_to(v, (nf, npx))
+        for k, v in _refracted(sc.refraction, chain.origin_ecef, chain.direction_ecef).items()
+    }
     columns = _COLUMNS + [k for k in refr if k != "refraction_bending_rad"]
     t = sc.times()
     alpha = np.degrees(sc.alphas())
@@ -195,10 +253,18 @@ def _scenario(args) -> int:
             "tangent_range_m": r.s.ravel(),
             **{k: v.ravel() for k, v in refr.items()},
         }
-        fmt = {"time_s": "{:.3f}", "alpha_deg": "{:.5f}", "sat_h_m": "{:.3f}", "tangent_h_m": "{:.4f}",
-               "refracted_tangent_h_m": "{:.4f}", "refraction_m": "{:.4f}",
-               "delta_a_m": "{:.4f}", "exact_tangent_h_m": "{:.4f}", "h_difference_m": "{:.6f}",
-               "tangent_range_m": "{:.3f}"}
+        fmt = {
+            "time_s": "{:.3f}",
+            "alpha_deg": "{:.5f}",
+            "sat_h_m": "{:.3f}",
+            "tangent_h_m": "{:.4f}",
+            "refracted_tangent_h_m": "{:.4f}",
+            "refraction_m": "{:.4f}",
+            "delta_a_m": "{:.4f}",
+            "exact_tangent_h_m": "{:.4f}",
+            "h_difference_m": "{:.6f}",
+            "tangent_range_m": "{:.3f}",
+        }
 
         def cell(name, v):
             if isinstance(v, (np.floating, float)):
@@ -237,10 +303,12 @@ def _scenario(args) -> int:
     else:
         print(f"{sc.name}: {nf} frames x {npx} pixels; status {counts}")
         if ok.any():
-            print(f"exact tangent heights {summary['exact_tangent_h_m_min'] / 1e3:.2f}"
-                  f"-{summary['exact_tangent_h_m_max'] / 1e3:.2f} km; max |L18 - exact| "
-                  f"{summary['max_abs_h_difference_m'] * 1e3:.3f} mm; Newton-Raphson <= "
-                  f"{summary['max_nr_iterations']} steps")
+            print(
+                f"exact tangent heights {summary['exact_tangent_h_m_min'] / 1e3:.2f}"
+                f"-{summary['exact_tangent_h_m_max'] / 1e3:.2f} km; max |L18 - exact| "
+                f"{summary['max_abs_h_difference_m'] * 1e3:.3f} mm; Newton-Raphson <= "
+                f"{summary['max_nr_iterations']} steps"
+            )
         if args.out:
             print(f"wrote {nf * npx} rows to {args.out}")
     return 0

@@ -44,8 +44,10 @@ from geoloc.cli import VERB_HELP
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
 #: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
-EXAMPLE = ("geoloc locate --lat-deg 35.48 --lon-deg 80.97 --h-m 18000 --heading-deg 45 --pitch-deg 3.5 "
-           "--gimbal-roll-deg 50 --gimbal-pitch-deg -2.6 --target-h-m 5083.5 --json")
+EXAMPLE = (
+    "geoloc locate --lat-deg 35.48 --lon-deg 80.97 --h-m 18000 --heading-deg 45 --pitch-deg 3.5 "
+    "--gimbal-roll-deg 50 --gimbal-pitch-deg -2.6 --target-h-m 5083.5 --json"
+)
 
 
 def register(sub) -> None:
@@ -59,10 +61,12 @@ def register(sub) -> None:
     add_pose_options(p.add_argument_group("aircraft (POS)"), required=True)
     g = p.add_argument_group("gimbal and sensor")
     add_gimbal_options(g)
-    g.add_argument("--row", type=float, default=None,
-                   help="pixel row, 1-based pixel centres (default: the image centre)")
-    g.add_argument("--col", type=float, default=None,
-                   help="pixel column, 1-based pixel centres (default: the image centre)")
+    g.add_argument(
+        "--row", type=float, default=None, help="pixel row, 1-based pixel centres (default: the image centre)"
+    )
+    g.add_argument(
+        "--col", type=float, default=None, help="pixel column, 1-based pixel centres (default: the image centre)"
+    )
     add_target_options(p, height_column=False)
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
     p.set_defaults(func=run)
@@ -114,12 +118,14 @@ def load_records_reporting(path, sensor=None, columns=None, altitude_datum=None)
     source = "--altitude-datum"
     if altitude_datum is None and columns is None and _is_bundled_records(path):
         altitude_datum, source = "ellipsoid", "docs/records.md"
-    records = load_records(path, angles=angles, columns=columns, altitude_datum=altitude_datum,
-                           altitude_source=source)
+    records = load_records(path, angles=angles, columns=columns, altitude_datum=altitude_datum, altitude_source=source)
     alt = records.altitude
     if altitude_datum is not None and alt.datum != altitude_datum:
-        print(f"{records.path}: note: --altitude-datum {altitude_datum} not used for ac_h_m: the "
-              f"{alt.stated} gives datum {alt.datum!r} for column {alt.column!r}", file=sys.stderr)
+        print(
+            f"{records.path}: note: --altitude-datum {altitude_datum} not used for ac_h_m: the "
+            f"{alt.stated} gives datum {alt.datum!r} for column {alt.column!r}",
+            file=sys.stderr,
+        )
     for err in records.errors:
         print(f"{records.path}: skipped {err}", file=sys.stderr)
     for msg in records.warnings:
@@ -145,8 +151,9 @@ def column_map_from_args(args) -> ColumnMap | None:
 def records_from_args(args, path, sensor) -> Records:
     """:func:`load_records_reporting` with the verb's ``--columns`` (or the sensor file's
     ``[columns]``) and ``--altitude-datum`` (options of :func:`add_records_options`)."""
-    return load_records_reporting(path, sensor, columns=column_map_from_args(args),
-                                  altitude_datum=getattr(args, "altitude_datum", None))
+    return load_records_reporting(
+        path, sensor, columns=column_map_from_args(args), altitude_datum=getattr(args, "altitude_datum", None)
+    )
 
 
 def altitude_from_args(args) -> HeightSource:
@@ -188,8 +195,17 @@ def pose_from_args(args, sensor) -> Pose:
     # --angle tilt=-30 was reported as the missing elevation
     check_angle_names(given, s.angle_names, s.gimbal.name, defaults=("gimbal_roll", "gimbal_pitch"))
     q = {k: angles.pop(k, 0.0) for k in ("gimbal_roll", "gimbal_pitch")}
-    return Pose.from_deg(args.lat_deg, args.lon_deg, ellipsoidal_h_from_args(args), args.heading_deg, args.pitch_deg,
-                         args.roll_deg, q["gimbal_roll"], q["gimbal_pitch"], angles_deg=angles).validate()
+    return Pose.from_deg(
+        args.lat_deg,
+        args.lon_deg,
+        ellipsoidal_h_from_args(args),
+        args.heading_deg,
+        args.pitch_deg,
+        args.roll_deg,
+        q["gimbal_roll"],
+        q["gimbal_pitch"],
+        angles_deg=angles,
+    ).validate()
 
 
 def run(args) -> int:
@@ -248,12 +264,16 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(out))
     else:
-        print(f"lat {out['lat_deg']:.7f} deg  lon {out['lon_deg']:.7f} deg  h {out['h_m']:.2f} m"
-              f"  (slant range {out['slant_range_m']:.1f} m)")
+        print(
+            f"lat {out['lat_deg']:.7f} deg  lon {out['lon_deg']:.7f} deg  h {out['h_m']:.2f} m"
+            f"  (slant range {out['slant_range_m']:.1f} m)"
+        )
         print(f"MGRS {out['mgrs']}  (USNG {out['usng']})")
         if "surface_difference_m" in out:
-            print(f"inflated ellipsoid [Q17 eq. 11] vs exact constant-height surface: "
-                  f"{out['surface_difference_m'] * 1000:.1f} mm apart")
+            print(
+                f"inflated ellipsoid [Q17 eq. 11] vs exact constant-height surface: "
+                f"{out['surface_difference_m'] * 1000:.1f} mm apart"
+            )
         print(_locate_datum_line(alt, args.h_m, out["ac_h_m"]))
         print(_corrections_line(pipe.corrections, out["refraction_m"]))
     return 0
@@ -262,19 +282,30 @@ def run(args) -> int:
 def _corrections_line(corrections, refraction_m: float) -> str:
     """The text output's line on the line-of-sight corrections (docs/refraction.md)."""
     if corrections.refraction is None:
-        head = "corrections: none (a straight line of sight, as the papers)" if not corrections else \
-            f"corrections: {corrections.label}"
+        head = (
+            "corrections: none (a straight line of sight, as the papers)"
+            if not corrections
+            else f"corrections: {corrections.label}"
+        )
         return head + "; --refraction standard bends it through the standard atmosphere"
-    return (f"corrections: {corrections.label}; refraction moved the point {refraction_m:.2f} m "
-            "(U.S. Standard Atmosphere 1976)")
+    return (
+        f"corrections: {corrections.label}; refraction moved the point {refraction_m:.2f} m "
+        "(U.S. Standard Atmosphere 1976)"
+    )
 
 
 def _drone_height_warning(camera, pose, target_h: float, surface, alt) -> list:
     """A drone sensor (its file's ``platform``) more than DRONE_MAX_HEIGHT_M above the terrain
     under it (with a DEM) or the target, or above DRONE_CEILING_M: one warning (docs/records.md,
     "Plausibility checks"); the point is still given as computed."""
-    from geoloc.sensors.platform import (DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint, drone_height_where,
-                                         drone_too_high, is_drone)
+    from geoloc.sensors.platform import (
+        DRONE_CEILING_M,
+        DRONE_MAX_HEIGHT_M,
+        drone_height_hint,
+        drone_height_where,
+        drone_too_high,
+        is_drone,
+    )
     from geoloc.surfaces.base import terrain_of
 
     if not is_drone(getattr(camera, "platform", "")):
@@ -286,10 +317,12 @@ def _drone_height_warning(camera, pose, target_h: float, surface, alt) -> list:
     if not high:
         return []
     ref, what = float(ref), str(what)
-    return [f"{alt.column} = {h:.1f} m: a drone's camera (the sensor file's platform {camera.platform!r}) "
-            f"{drone_height_where(h, ref, what)}, while drones fly below "
-            f"{DRONE_MAX_HEIGHT_M:.0f} m above the ground and {DRONE_CEILING_M:.0f} m above the sea: "
-            f"{drone_height_hint(h, ref)}; the point is computed as given"]
+    return [
+        f"{alt.column} = {h:.1f} m: a drone's camera (the sensor file's platform {camera.platform!r}) "
+        f"{drone_height_where(h, ref, what)}, while drones fly below "
+        f"{DRONE_MAX_HEIGHT_M:.0f} m above the ground and {DRONE_CEILING_M:.0f} m above the sea: "
+        f"{drone_height_hint(h, ref)}; the point is computed as given"
+    ]
 
 
 def _grid_reference(lat_deg: float, lon_deg: float) -> dict:
@@ -302,8 +335,10 @@ def _grid_reference(lat_deg: float, lon_deg: float) -> dict:
 
 def _locate_datum_line(alt: HeightSource, given: float, used: float) -> str:
     if alt.datum == "egm96":
-        return (f"heights: aircraft --h-m {given:.2f} m read as {DATUM_TEXT['egm96']} (--altitude-datum), "
-                f"used as {used:.2f} m ellipsoidal (N = {used - given:+.2f} m, bundled EGM96); "
-                f"h is {ELLIPSOID_DATUM}")
+        return (
+            f"heights: aircraft --h-m {given:.2f} m read as {DATUM_TEXT['egm96']} (--altitude-datum), "
+            f"used as {used:.2f} m ellipsoidal (N = {used - given:+.2f} m, bundled EGM96); "
+            f"h is {ELLIPSOID_DATUM}"
+        )
     how = "--altitude-datum" if alt.stated else "the default: not stated; --altitude-datum egm96 if it is MSL"
     return f"heights: aircraft --h-m read as {ELLIPSOID_DATUM} ({how}); h is {ELLIPSOID_DATUM}"

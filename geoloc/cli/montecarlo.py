@@ -45,50 +45,91 @@ def register(sub) -> None:
         "standard deviation of lat, lon, h, the CEP of [Q17] eq. 18 and the empirical 50 % "
         "radius. With --sweep, CEP against the outer gimbal angle ([Q17] Fig. 10) as CSV + PNG.",
     )
-    p.add_argument("scenario", type=input_path, help="scenario TOML, e.g. assets/scenarios/qiao2017_table1.toml "
-                   "(a path starting with assets/ names the bundled file when it is not here)")
-    p.add_argument("--samples", type=sample_count, default=5000,
-                   help="number of samples N (default 5000; 1e9 is accepted: the samples are "
-                   "processed in chunks and their statistics streamed, in constant memory)")
+    p.add_argument(
+        "scenario",
+        type=input_path,
+        help="scenario TOML, e.g. assets/scenarios/qiao2017_table1.toml "
+        "(a path starting with assets/ names the bundled file when it is not here)",
+    )
+    p.add_argument(
+        "--samples",
+        type=sample_count,
+        default=5000,
+        help="number of samples N (default 5000; 1e9 is accepted: the samples are "
+        "processed in chunks and their statistics streamed, in constant memory)",
+    )
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    add_sensor_option(p, help="sensor TOML (docs/sensor_format.md; a lens of any model on the roll-pitch "
-                      "gimbal) or first-phase camera TOML replacing the scenario's [camera] table")
-    p.add_argument("--error", action="append", default=[], metavar="SOURCE=DIST:VALUE",
-                   help="add or replace one error source of the scenario, in its [errors] unit: "
-                   "e.g. --error cx_px=normal:0.5 --error k1=normal:0.002 --error "
-                   "vibration_yaw_deg=uniform:0.01 (normal:SIGMA or uniform:MAX, optional :BIAS); "
-                   "lens sources: fx_px fy_px focal_length_px cx_px cy_px skew_px k1 k2 p1 p2 k3 k4 k5 k6; "
-                   "repeatable")
-    p.add_argument("--out", default=None, type=text_output_path,
-                   help="statistics JSON of a single run")
-    p.add_argument("--out-dir", default=None, type=output_dir,
-                   help="with --sweep: the folder of the sweep's CSV and PNG files (default montecarlo_sweep)")
-    p.add_argument("--sweep", choices=["terrain", "dem", "both"], default=None,
-                   help="terrain: CEP vs gimbal roll for several terrain sigmas, ellipsoid model "
-                   "([Q17] Fig. 10a); dem: the same with the target on the scenario's DEM "
-                   "(Fig. 10b); both")
-    p.add_argument("--angles-deg", default=None,
-                   help="sweep angles START:STOP:STEP in degrees, STOP included "
-                   "(default: the scenario's [sweep] angles_deg, else 10:82:2)")
-    p.add_argument("--terrain-sigmas-m", default=None,
-                   help="comma-separated terrain standard deviations [m] for --sweep terrain "
-                   "(default: the scenario's [sweep] terrain_sigmas_m, else 10,20,...,100)")
+    add_sensor_option(
+        p,
+        help="sensor TOML (docs/sensor_format.md; a lens of any model on the roll-pitch "
+        "gimbal) or first-phase camera TOML replacing the scenario's [camera] table",
+    )
+    p.add_argument(
+        "--error",
+        action="append",
+        default=[],
+        metavar="SOURCE=DIST:VALUE",
+        help="add or replace one error source of the scenario, in its [errors] unit: "
+        "e.g. --error cx_px=normal:0.5 --error k1=normal:0.002 --error "
+        "vibration_yaw_deg=uniform:0.01 (normal:SIGMA or uniform:MAX, optional :BIAS); "
+        "lens sources: fx_px fy_px focal_length_px cx_px cy_px skew_px k1 k2 p1 p2 k3 k4 k5 k6; "
+        "repeatable",
+    )
+    p.add_argument("--out", default=None, type=text_output_path, help="statistics JSON of a single run")
+    p.add_argument(
+        "--out-dir",
+        default=None,
+        type=output_dir,
+        help="with --sweep: the folder of the sweep's CSV and PNG files (default montecarlo_sweep)",
+    )
+    p.add_argument(
+        "--sweep",
+        choices=["terrain", "dem", "both"],
+        default=None,
+        help="terrain: CEP vs gimbal roll for several terrain sigmas, ellipsoid model "
+        "([Q17] Fig. 10a); dem: the same with the target on the scenario's DEM "
+        "(Fig. 10b); both",
+    )
+    p.add_argument(
+        "--angles-deg",
+        default=None,
+        help="sweep angles START:STOP:STEP in degrees, STOP included "
+        "(default: the scenario's [sweep] angles_deg, else 10:82:2)",
+    )
+    p.add_argument(
+        "--terrain-sigmas-m",
+        default=None,
+        help="comma-separated terrain standard deviations [m] for --sweep terrain "
+        "(default: the scenario's [sweep] terrain_sigmas_m, else 10,20,...,100)",
+    )
     add_correction_options(p)
-    add_dem_options(p, mosaic=False, tolerances=False, method_default=None,
-                    dem_help="DEM raster replacing the target height (overrides the scenario's [dem])",
-                    method_help="DEM method: steps [Q17], bisect [L23] or exact (default: the scenario's "
-                    "[dem] method, else exact)")
-    p.add_argument("--no-dem", action="store_true",
-                   help="ignore the scenario's [dem] table (ellipsoid model with target_h_m)")
-    p.add_argument("--chunk", type=sample_count, default=mc.CHUNK,
-                   help=f"samples per vectorised batch (memory bound; default {mc.CHUNK}; at most "
-                   f"{mc.CHUNK_MEMORY_SHARE * 100:.0f}%% of the available memory at {mc.BYTES_PER_SAMPLE} bytes a "
-                   "sample, checked when the run starts)")
-    p.add_argument("--progress", action="store_true", default=None,
-                   help="force the stderr progress bar (with the time left) on (default: the bar on a "
-                   "terminal; elsewhere, a log, a line every 10 s)")
-    p.add_argument("--no-progress", dest="progress", action="store_false", default=None,
-                   help="no progress at all")
+    add_dem_options(
+        p,
+        mosaic=False,
+        tolerances=False,
+        method_default=None,
+        dem_help="DEM raster replacing the target height (overrides the scenario's [dem])",
+        method_help="DEM method: steps [Q17], bisect [L23] or exact (default: the scenario's [dem] method, else exact)",
+    )
+    p.add_argument(
+        "--no-dem", action="store_true", help="ignore the scenario's [dem] table (ellipsoid model with target_h_m)"
+    )
+    p.add_argument(
+        "--chunk",
+        type=sample_count,
+        default=mc.CHUNK,
+        help=f"samples per vectorised batch (memory bound; default {mc.CHUNK}; at most "
+        f"{mc.CHUNK_MEMORY_SHARE * 100:.0f}%% of the available memory at {mc.BYTES_PER_SAMPLE} bytes a "
+        "sample, checked when the run starts)",
+    )
+    p.add_argument(
+        "--progress",
+        action="store_true",
+        default=None,
+        help="force the stderr progress bar (with the time left) on (default: the bar on a "
+        "terminal; elsewhere, a log, a line every 10 s)",
+    )
+    p.add_argument("--no-progress", dest="progress", action="store_false", default=None, help="no progress at all")
     p.set_defaults(func=run)
 
 
@@ -120,8 +161,10 @@ def parse_angles(text: str) -> np.ndarray:
             return np.round(np.arange(a, b + s / 2, s), 9)
         return np.array([float(x) for x in text.split(",")])
     except ValueError:
-        raise ValueError(f"--angles-deg = {text!r}: expected START:STOP:STEP (STEP > 0, "
-                         "STOP >= START) or a comma-separated list of degrees") from None
+        raise ValueError(
+            f"--angles-deg = {text!r}: expected START:STOP:STEP (STEP > 0, "
+            "STOP >= START) or a comma-separated list of degrees"
+        ) from None
 
 
 def parse_error(text: str):
@@ -137,10 +180,16 @@ def parse_error(text: str):
         values = [float(x) for x in parts[1:]]
     except ValueError:
         values = []
-    if parts[0] not in ("normal", "uniform") or len(values) not in (1, 2) or not all(map(math.isfinite, values)) \
-            or values[0] < 0:
-        raise ValueError(f"--error {text!r}: expected {name}=normal:SIGMA or {name}=uniform:MAX "
-                         "(>= 0, in the source's unit), optionally :BIAS")
+    if (
+        parts[0] not in ("normal", "uniform")
+        or len(values) not in (1, 2)
+        or not all(map(math.isfinite, values))
+        or values[0] < 0
+    ):
+        raise ValueError(
+            f"--error {text!r}: expected {name}=normal:SIGMA or {name}=uniform:MAX "
+            "(>= 0, in the source's unit), optionally :BIAS"
+        )
     return name, Distribution(parts[0], values[0], values[1] if len(values) == 2 else 0.0)
 
 
@@ -158,6 +207,7 @@ def load_model(args) -> ErrorModel:
     from dataclasses import replace
 
     from geoloc.analysis.errormodel import DemSpec
+
     scenario = Path(args.scenario)
     if not scenario.is_file():
         raise FileNotFoundError(f"scenario file not found: {args.scenario}")
@@ -182,8 +232,9 @@ def load_model(args) -> ErrorModel:
         model = replace(model, dem=DemSpec(Path(dem), args.dem_datum, model.dem.method if model.dem else None))
     if args.method is not None:
         if model.dem is None:
-            raise ValueError(f"--method {args.method}: the scenario has no DEM (give --dem FILE or a scenario "
-                             "with a [dem] table)")
+            raise ValueError(
+                f"--method {args.method}: the scenario has no DEM (give --dem FILE or a scenario with a [dem] table)"
+            )
         model = replace(model, dem=replace(model.dem, method=args.method))
     # the scenario's [corrections] with --refraction / --light-time / --no-aberration on top
     return replace(model, corrections=corrections_from_args(args, model.camera, base=model.corrections))
@@ -207,39 +258,47 @@ def format_stats(stats: dict, nominal=None) -> str:
 def run(args) -> int:
     mc.check_samples_and_chunk(args.samples, args.chunk, field_n="--samples", field_chunk="--chunk")
     if args.sweep and args.out:
-        raise ValueError(f"--out {args.out} is the statistics JSON of a single run; a sweep writes its CSV "
-                         "and PNG files into --out-dir DIR")
+        raise ValueError(
+            f"--out {args.out} is the statistics JSON of a single run; a sweep writes its CSV "
+            "and PNG files into --out-dir DIR"
+        )
     if args.out_dir and not args.sweep:
         raise ValueError(f"--out-dir {args.out_dir} goes with --sweep; a single run writes --out FILE.json")
     model = load_model(args)
     if args.sweep in ("dem", "both") and model.dem is None:
         # refuse before any work (and before writing Fig. 10a for --sweep both)
-        raise ValueError(f"--sweep {args.sweep}: scenario {args.scenario} has no [dem] table; "
-                         "give --dem FILE, use a scenario with a DEM (e.g. "
-                         "assets/scenarios/qiao2017_table1_dem.toml) or --sweep terrain")
+        raise ValueError(
+            f"--sweep {args.sweep}: scenario {args.scenario} has no [dem] table; "
+            "give --dem FILE, use a scenario with a DEM (e.g. "
+            "assets/scenarios/qiao2017_table1_dem.toml) or --sweep terrain"
+        )
     rng = np.random.default_rng(args.seed)
     surface = surface_from_scenario(model)  # a bad DEM fails here, named
     if args.sweep is None:
-        res = mc.run(model, args.samples, rng, surface=surface, chunk=args.chunk, progress=args.progress,
-                     keep_samples=False)
+        res = mc.run(
+            model, args.samples, rng, surface=surface, chunk=args.chunk, progress=args.progress, keep_samples=False
+        )
         if res.stats["n_ok"] < 2:
             st = res.status_counts
             why = ", ".join(f"{Status(k).name.lower()}: {int(c)}" for k, c in enumerate(st) if c)
-            print(f"geoloc montecarlo: fewer than 2 samples located ({why}); no statistics",
-                  file=sys.stderr)
+            print(f"geoloc montecarlo: fewer than 2 samples located ({why}); no statistics", file=sys.stderr)
             return 1
-        print(f"scenario {model.name}: N = {args.samples}, seed {args.seed}, "
-              f"{'streamed in chunks of ' + str(args.chunk) + ', ' if res.streamed else ''}"
-              f"{'DEM ' + str(model.dem.path) if model.dem else 'ellipsoid model'}, "
-              f"{res.seconds:.2f} s")
+        print(
+            f"scenario {model.name}: N = {args.samples}, seed {args.seed}, "
+            f"{'streamed in chunks of ' + str(args.chunk) + ', ' if res.streamed else ''}"
+            f"{'DEM ' + str(model.dem.path) if model.dem else 'ellipsoid model'}, "
+            f"{res.seconds:.2f} s"
+        )
         print(format_stats(res.stats, res.nominal))
         for w in res.stats.get("warnings", []):
             print(f"warning: {w}", file=sys.stderr)
         if model.dem is None:
             try:
                 fo = mc.first_order(model)
-                print(f"first order      lat {fo.std_lat_deg:.6f} deg  lon {fo.std_lon_deg:.6f} deg  "
-                      f"h {fo.std_h_m:.2f} m  eq. 18 {fo.cep_m:.2f} m")
+                print(
+                    f"first order      lat {fo.std_lat_deg:.6f} deg  lon {fo.std_lon_deg:.6f} deg  "
+                    f"h {fo.std_h_m:.2f} m  eq. 18 {fo.cep_m:.2f} m"
+                )
             except ValueError as e:  # the nominal geometry (or a step of it) has no ground point
                 print(f"first order      not available: {e}")
         if args.out:
@@ -249,21 +308,27 @@ def run(args) -> int:
         return 0
 
     sw = model.sweep
-    angles = parse_angles(args.angles_deg) if args.angles_deg else (
-        _sweep_angles(sw.get("angles_deg")) if "angles_deg" in sw else parse_angles("10:82:2"))
-    sigmas = _floats(args.terrain_sigmas_m, "--terrain-sigmas-m") if args.terrain_sigmas_m else (
-        np.asarray(sw.get("terrain_sigmas_m", np.arange(10.0, 101.0, 10.0)), float))
+    angles = (
+        parse_angles(args.angles_deg)
+        if args.angles_deg
+        else (_sweep_angles(sw.get("angles_deg")) if "angles_deg" in sw else parse_angles("10:82:2"))
+    )
+    sigmas = (
+        _floats(args.terrain_sigmas_m, "--terrain-sigmas-m")
+        if args.terrain_sigmas_m
+        else (np.asarray(sw.get("terrain_sigmas_m", np.arange(10.0, 101.0, 10.0)), float))
+    )
     outdir = check_output_dir(args.out_dir or "montecarlo_sweep", "--out-dir")
     outdir.mkdir(parents=True, exist_ok=True)
     kinds = ["terrain", "dem"] if args.sweep == "both" else [args.sweep]
     for kind in kinds:
         if kind == "terrain":
-            s = mc.sweep_terrain_sigma(model, angles, sigmas, args.samples, rng, args.progress,
-                                       chunk=args.chunk)
+            s = mc.sweep_terrain_sigma(model, angles, sigmas, args.samples, rng, args.progress, chunk=args.chunk)
             stem = "fig10a_terrain_sigma"
         else:
-            s = mc.sweep_dem(model, angles, args.samples, rng, surface=surface, progress=args.progress,
-                             chunk=args.chunk)
+            s = mc.sweep_dem(
+                model, angles, args.samples, rng, surface=surface, progress=args.progress, chunk=args.chunk
+            )
             stem = "fig10b_dem"
         s.to_csv(outdir / f"{stem}.csv")
         s.to_png(outdir / f"{stem}.png")

@@ -60,28 +60,61 @@ def register(sub) -> None:
     g = p.add_argument_group("pose (as geoloc locate), or --record, or --photo")
     add_pose_options(g, required=False, datum_what="--h-m, the records' ac_h_m or the photo's altitude")
     add_gimbal_options(g)
-    g.add_argument("--record", default=None, metavar="LABEL",
-                   help="take the pose from this record of --records (its label: table-point, e.g. T3-1, "
-                   "or 'line N')")
-    g.add_argument("--records", default=None, metavar="CSV", type=input_path,
-                   help="records CSV for --record (default: the bundled assets/records/qiao2017_flight_tests.csv)")
+    g.add_argument(
+        "--record",
+        default=None,
+        metavar="LABEL",
+        help="take the pose from this record of --records (its label: table-point, e.g. T3-1, or 'line N')",
+    )
+    g.add_argument(
+        "--records",
+        default=None,
+        metavar="CSV",
+        type=input_path,
+        help="records CSV for --record (default: the bundled assets/records/qiao2017_flight_tests.csv)",
+    )
     add_columns_option(g)
-    g.add_argument("--photo", default=None, metavar="JPG", type=input_path,
-                   help="a DJI photo: its own sensor (or --sensor's lens) and pose; enables --ortho-out")
+    g.add_argument(
+        "--photo",
+        default=None,
+        metavar="JPG",
+        type=input_path,
+        help="a DJI photo: its own sensor (or --sensor's lens) and pose; enables --ortho-out",
+    )
     o = p.add_argument_group("output")
-    o.add_argument("--out", required=True, metavar="FILE.tif", type=output_path,
-                   help="GeoTIFF on the image grid: bands lat_deg, lon_deg, h_m (ellipsoidal), status")
+    o.add_argument(
+        "--out",
+        required=True,
+        metavar="FILE.tif",
+        type=output_path,
+        help="GeoTIFF on the image grid: bands lat_deg, lon_deg, h_m (ellipsoidal), status",
+    )
     o.add_argument("--step", type=int, default=1, help="every Nth pixel in both directions (default 1: all)")
-    o.add_argument("--chunk", type=int, default=None,
-                   help="rays per call of the DEM solver (default 262144; memory is bounded by it)")
-    o.add_argument("--ortho-out", default=None, metavar="FILE.tif", type=output_path,
-                   help="with --photo: the orthorectified photo (RGB + alpha), north-up")
+    o.add_argument(
+        "--chunk",
+        type=int,
+        default=None,
+        help="rays per call of the DEM solver (default 262144; memory is bounded by it)",
+    )
+    o.add_argument(
+        "--ortho-out",
+        default=None,
+        metavar="FILE.tif",
+        type=output_path,
+        help="with --photo: the orthorectified photo (RGB + alpha), north-up",
+    )
     o.add_argument("--gsd-m", type=float, default=None, help="cell size of --ortho-out [m] (required with it)")
-    o.add_argument("--ortho-crs", default="geographic",
-                   help="grid of --ortho-out: geographic (EPSG:4326, default), utm (the zone of the "
-                   "footprint) or a CRS such as EPSG:32617")
-    o.add_argument("--serial", action="store_true",
-                   help="run the DEM solver on one core (default: all cores, numba threads); the same hits")
+    o.add_argument(
+        "--ortho-crs",
+        default="geographic",
+        help="grid of --ortho-out: geographic (EPSG:4326, default), utm (the zone of the "
+        "footprint) or a CRS such as EPSG:32617",
+    )
+    o.add_argument(
+        "--serial",
+        action="store_true",
+        help="run the DEM solver on one core (default: all cores, numba threads); the same hits",
+    )
     o.add_argument("--json", action="store_true", help="print a JSON summary")
     add_target_options(p, height_column=False)
     p.set_defaults(func=run)
@@ -99,8 +132,12 @@ def _bundled_dem(lat_deg: float, lon_deg: float):
     for path in sorted(Path(asset_path("dem")).glob("*.tif")):
         with rasterio.open(path) as src:
             b = src.bounds
-            if src.crs is not None and src.crs.is_geographic and b.left <= lon_deg <= b.right \
-                    and b.bottom <= lat_deg <= b.top:
+            if (
+                src.crs is not None
+                and src.crs.is_geographic
+                and b.left <= lon_deg <= b.right
+                and b.bottom <= lat_deg <= b.top
+            ):
                 if best is None or abs(src.res[0]) < best[0]:
                     best = (abs(src.res[0]), path)
     return None if best is None else best[1]
@@ -108,9 +145,15 @@ def _bundled_dem(lat_deg: float, lon_deg: float):
 
 def _pose(args):
     """(sensor, pose, photo meta or None, where the pose came from)."""
-    given = [name for name, on in (("--photo", args.photo), ("--record", args.record),
-                                   ("--lat-deg/--lon-deg/--h-m", any(getattr(args, k) is not None
-                                                                     for k in POSE_FIELDS))) if on]
+    given = [
+        name
+        for name, on in (
+            ("--photo", args.photo),
+            ("--record", args.record),
+            ("--lat-deg/--lon-deg/--h-m", any(getattr(args, k) is not None for k in POSE_FIELDS)),
+        )
+        if on
+    ]
     if len(given) > 1:
         raise ValueError(f"the pose is given twice ({' and '.join(given)}): use one of them")
     if args.photo:
@@ -129,8 +172,9 @@ def _pose(args):
         if args.record not in labels:
             from geoloc.io.records import describe_labels
 
-            raise ValueError(f"--record {args.record!r}: no such record in {records.path} "
-                             f"({describe_labels(args.record, labels)})")
+            raise ValueError(
+                f"--record {args.record!r}: no such record in {records.path} ({describe_labels(args.record, labels)})"
+            )
         k = labels.index(args.record)
         pose = records.subset([k]).pose().validate()
         return sensor, pose, None, f"record {args.record} of {records.path} ({records.altitude.describe()})"
@@ -155,12 +199,13 @@ def _surface(args, pose):
         lat, lon = (float(np.rad2deg(np.ravel(v)[0])) for v in (pose.lat, pose.lon))
         args.dem = _bundled_dem(lat, lon)
         if args.dem is None:
-            raise ValueError(f"no --dem and no bundled DEM covers the aircraft at {lat:.5f}, {lon:.5f} deg: "
-                             "give --dem FILE or --target-h-m")
+            raise ValueError(
+                f"no --dem and no bundled DEM covers the aircraft at {lat:.5f}, {lon:.5f} deg: "
+                "give --dem FILE or --target-h-m"
+            )
         args.dem = str(args.dem)
     shown = ", ".join(Path(p).name for p in args.dem) if isinstance(args.dem, list) else Path(args.dem).name
-    return surface_from_args(args), \
-        f"DEM {shown} ({args.method}, {args.dem_model}; its heights {args.dem_datum})"
+    return surface_from_args(args), f"DEM {shown} ({args.method}, {args.dem_model}; its heights {args.dem_datum})"
 
 
 def run(args) -> int:
@@ -197,32 +242,61 @@ def run(args) -> int:
         require("cv2", "--ortho-out (a photo's pixels)")
         image = read_photo_pixels(Path(meta.path))
         if image.shape[1:] != (sensor.rows, sensor.cols):
-            raise ValueError(f"--photo {meta.path}: its pixels are {image.shape[2]} x {image.shape[1]}, "
-                             f"the sensor's {sensor.cols} x {sensor.rows}")
+            raise ValueError(
+                f"--photo {meta.path}: its pixels are {image.shape[2]} x {image.shape[1]}, "
+                f"the sensor's {sensor.cols} x {sensor.rows}"
+            )
     corrections = corrections_from_args(args, sensor)
-    tags = {"pose": pose_from, "surface": surface_text, "sensor": getattr(sensor, "name", "") or "frame sensor",
-            "corrections": corrections.label}
+    tags = {
+        "pose": pose_from,
+        "surface": surface_text,
+        "sensor": getattr(sensor, "name", "") or "frame sensor",
+        "corrections": corrections.label,
+    }
     t0 = time.perf_counter()
-    info = write_frame_geotiff(out, sensor, pose, surface, step=args.step, chunk=chunk, tags=tags,
-                               parallel=not args.serial, corrections=corrections)
+    info = write_frame_geotiff(
+        out,
+        sensor,
+        pose,
+        surface,
+        step=args.step,
+        chunk=chunk,
+        tags=tags,
+        parallel=not args.serial,
+        corrections=corrections,
+    )
     info["seconds"] = time.perf_counter() - t0
     info.update(pose=pose_from, surface=surface_text, h_datum=ELLIPSOID_DATUM, corrections=corrections.label)
     if args.ortho_out:
-        info["ortho"] = orthorectify(image, sensor, pose, terrain_of(surface), args.ortho_out, gsd_m=args.gsd_m,
-                                     crs=args.ortho_crs, chunk=chunk, tags={"photo": meta.name},
-                                     parallel=not args.serial, corrections=corrections)
+        info["ortho"] = orthorectify(
+            image,
+            sensor,
+            pose,
+            terrain_of(surface),
+            args.ortho_out,
+            gsd_m=args.gsd_m,
+            crs=args.ortho_crs,
+            chunk=chunk,
+            tags={"photo": meta.name},
+            parallel=not args.serial,
+            corrections=corrections,
+        )
     if args.json:
         print(json.dumps(info))
     else:
         n = info["shape"][0] * info["shape"][1]
         counts = ", ".join(f"{k} {v}" for k, v in info["counts"].items())
-        print(f"{out}: {info['shape'][0]} x {info['shape'][1]} pixels (step {args.step}), {n} rays in "
-              f"{info['seconds']:.2f} s; {counts}")
+        print(
+            f"{out}: {info['shape'][0]} x {info['shape'][1]} pixels (step {args.step}), {n} rays in "
+            f"{info['seconds']:.2f} s; {counts}"
+        )
         print(f"pose: {pose_from}; surface: {surface_text}; h is {ELLIPSOID_DATUM}")
         if "ortho" in info:
             o = info["ortho"]
-            print(f"{o['path']}: orthophoto {o['width']} x {o['height']} cells of {o['gsd_m']:g} m ({o['crs']}), "
-                  f"{o['cells_seen']} seen, {o['cells_hidden']} hidden behind terrain")
+            print(
+                f"{o['path']}: orthophoto {o['width']} x {o['height']} cells of {o['gsd_m']:g} m ({o['crs']}), "
+                f"{o['cells_seen']} seen, {o['cells_hidden']} hidden behind terrain"
+            )
     bad = info["counts"].get("ok", 0) == 0
     if bad:
         print("geoloc ortho: warning: no pixel has a ground point", file=sys.stderr)

@@ -35,9 +35,11 @@ from geoloc.cli import VERB_HELP
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
 #: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
-EXAMPLE = ("geoloc pixel --sensor assets/sensors/eo_turret.toml --lat-deg 36.6 --lon-deg -84.25 --h-m 2500 "
-           "--heading-deg 45 --pitch-deg 2 --roll-deg 1 --angle azimuth=90 --angle elevation=-30 "
-           "--mgrs 16SGF4865251608 --dem assets/dem/srtm_jacksboro.tif")
+EXAMPLE = (
+    "geoloc pixel --sensor assets/sensors/eo_turret.toml --lat-deg 36.6 --lon-deg -84.25 --h-m 2500 "
+    "--heading-deg 45 --pitch-deg 2 --roll-deg 1 --angle azimuth=90 --angle elevation=-30 "
+    "--mgrs 16SGF4865251608 --dem assets/dem/srtm_jacksboro.tif"
+)
 
 
 def register(sub) -> None:
@@ -51,12 +53,20 @@ def register(sub) -> None:
     add_pose_options(p.add_argument_group("aircraft (POS)"), required=True)
     add_gimbal_options(p.add_argument_group("gimbal and sensor"))
     g = p.add_argument_group("the ground point")
-    g.add_argument("--mgrs", default=None, metavar="REF",
-                   help="MGRS or USNG reference, e.g. 16SGF4866651490 (the centre of its square)")
+    g.add_argument(
+        "--mgrs",
+        default=None,
+        metavar="REF",
+        help="MGRS or USNG reference, e.g. 16SGF4866651490 (the centre of its square)",
+    )
     g.add_argument("--point-lat-deg", type=float, default=None, help="latitude [deg]")
     g.add_argument("--point-lon-deg", type=float, default=None, help="longitude [deg, east +]")
-    g.add_argument("--point-h-m", type=float, default=None,
-                   help="height [m above the WGS 84 ellipsoid]; default with --dem: the DEM's height there")
+    g.add_argument(
+        "--point-h-m",
+        type=float,
+        default=None,
+        help="height [m above the WGS 84 ellipsoid]; default with --dem: the DEM's height there",
+    )
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
     add_dem_options(p)
     add_correction_options(p)
@@ -123,18 +133,33 @@ def run(args) -> int:
         verdict = "hidden behind terrain from this camera"
     else:
         verdict = "in the frame" + ("" if visible else " (no DEM: not checked for terrain in the way)")
-    out = {"row": row, "col": col, "status": Status(st).name.lower(), "verdict": verdict,
-           "lat_deg": lat_deg, "lon_deg": lon_deg, "h_m": h, "h_datum": ELLIPSOID_DATUM, "h_from": h_from,
-           "given": given, "visible": visible, "corrections": pipe.corrections.label}
+    out = {
+        "row": row,
+        "col": col,
+        "status": Status(st).name.lower(),
+        "verdict": verdict,
+        "lat_deg": lat_deg,
+        "lon_deg": lon_deg,
+        "h_m": h,
+        "h_datum": ELLIPSOID_DATUM,
+        "h_from": h_from,
+        "given": given,
+        "visible": visible,
+        "corrections": pipe.corrections.label,
+    }
     if visible is not None and math.isfinite(occluder):
         out["occluder_range_m"] = occluder
     if args.json:
         print(json.dumps(out))
     else:
         print(f"pixel row {row:.3f}, column {col:.3f}: {verdict}")
-        print(f"ground point {lat_deg:.7f} N, {lon_deg:.7f} E, h {h:.2f} m ({ELLIPSOID_DATUM}, from {h_from}); "
-              f"{mgrs_text(lat_deg, lon_deg)}")
+        print(
+            f"ground point {lat_deg:.7f} N, {lon_deg:.7f} E, h {h:.2f} m ({ELLIPSOID_DATUM}, from {h_from}); "
+            f"{mgrs_text(lat_deg, lon_deg)}"
+        )
         if visible is False:
-            print(f"the line of sight through that pixel meets the terrain {occluder:.0f} m from the camera, "
-                  f"before the point")
+            print(
+                f"the line of sight through that pixel meets the terrain {occluder:.0f} m from the camera, "
+                f"before the point"
+            )
     return 0 if st == Status.OK and visible is not False else 1

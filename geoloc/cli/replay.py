@@ -55,42 +55,77 @@ def register(sub) -> None:
         "recomputed from its own pose and compared with the packet's, outliers flagged (docs/klv.md). "
         "Drone photos with --targets: docs/photos.md.",
     )
-    p.add_argument("records", nargs="*", default=None, metavar="INPUT", type=input_path,
-                   help="records CSV (default: the bundled assets/records/qiao2017_flight_tests.csv); "
-                   "or MISB ST 0601 KLV: raw .klv/.bin or video .ts/.mpg/.mp4 (one or more files: each "
-                   "packet's frame centre and corners recomputed and compared, docs/klv.md); or drone "
-                   "photos .jpg/.jpeg/.tif/.tiff/.dng with --targets; or DJI flight-log subtitles .srt (docs/photos.md)")
+    p.add_argument(
+        "records",
+        nargs="*",
+        default=None,
+        metavar="INPUT",
+        type=input_path,
+        help="records CSV (default: the bundled assets/records/qiao2017_flight_tests.csv); "
+        "or MISB ST 0601 KLV: raw .klv/.bin or video .ts/.mpg/.mp4 (one or more files: each "
+        "packet's frame centre and corners recomputed and compared, docs/klv.md); or drone "
+        "photos .jpg/.jpeg/.tif/.tiff/.dng with --targets; or DJI flight-log subtitles .srt (docs/photos.md)",
+    )
     add_sensor_option(p)
     add_records_options(p)
     add_target_options(p)
-    p.add_argument("--out", default=None, type=text_output_path,
-                   help="output CSV of every row (never the input file: refused)")
-    p.add_argument("--print-rows", action="store_true",
-                   help=f"print one line per record even with --out or more than {ROWS_SHOWN} "
-                   "records (default: the per-record lines only without --out and for at most "
-                   f"{ROWS_SHOWN} records; the per-flight summary always)")
-    p.add_argument("--group-by", default=None,
-                   help="records CSV: the column that groups records into flights (default: table, when there "
-                   "is one; a column that is not there is an error naming the columns there are)")
-    p.add_argument("--export", default=None, metavar="FILE", type=output_path,
-                   help="also write the results to GIS: FILE.gpkg, .geojson, .kml or .czml "
-                   "(points, truth, error vectors, track; docs/gis.md)")
-    p.add_argument("--audit", action="store_true",
-                   help="with --dem: audit the flight's heights and conventions from the data (MSL read as "
-                   "ellipsoidal and the reverse, the geoid's sign, relative heights, flat-earth frame centres, "
-                   "a time offset, a boresight bias): one line per finding, docs/height_audit.md")
-    p.add_argument("--targets", default=None, metavar="T.csv", type=input_path,
-                   help="drone photos: the targets to locate (columns image,row,col; optional truth columns)")
+    p.add_argument(
+        "--out", default=None, type=text_output_path, help="output CSV of every row (never the input file: refused)"
+    )
+    p.add_argument(
+        "--print-rows",
+        action="store_true",
+        help=f"print one line per record even with --out or more than {ROWS_SHOWN} "
+        "records (default: the per-record lines only without --out and for at most "
+        f"{ROWS_SHOWN} records; the per-flight summary always)",
+    )
+    p.add_argument(
+        "--group-by",
+        default=None,
+        help="records CSV: the column that groups records into flights (default: table, when there "
+        "is one; a column that is not there is an error naming the columns there are)",
+    )
+    p.add_argument(
+        "--export",
+        default=None,
+        metavar="FILE",
+        type=output_path,
+        help="also write the results to GIS: FILE.gpkg, .geojson, .kml or .czml "
+        "(points, truth, error vectors, track; docs/gis.md)",
+    )
+    p.add_argument(
+        "--audit",
+        action="store_true",
+        help="with --dem: audit the flight's heights and conventions from the data (MSL read as "
+        "ellipsoidal and the reverse, the geoid's sign, relative heights, flat-earth frame centres, "
+        "a time offset, a boresight bias): one line per finding, docs/height_audit.md",
+    )
+    p.add_argument(
+        "--targets",
+        default=None,
+        metavar="T.csv",
+        type=input_path,
+        help="drone photos: the targets to locate (columns image,row,col; optional truth columns)",
+    )
     from geoloc.cli._options import add_live_options
 
     add_live_options(p)
     c = p.add_argument_group("campaigns (many inputs on dask.distributed, docs/scale.md)")
-    c.add_argument("--parquet-out", default=None, metavar="DIR", type=output_dir,
-                   help="campaign: replay every input (files, or folders of KLV/TS files, photos, or a "
-                   "partitioned Parquet / CSVs of records) unit by unit and write the rows to DIR/part-*.parquet")
-    c.add_argument("--scheduler", default="local", metavar="ADDR",
-                   help="campaign: 'local' (a local dask cluster on 127.0.0.1, the default), 'none' (serial, "
-                   "this process), or a dask scheduler address such as tcp://10.0.0.5:8786")
+    c.add_argument(
+        "--parquet-out",
+        default=None,
+        metavar="DIR",
+        type=output_dir,
+        help="campaign: replay every input (files, or folders of KLV/TS files, photos, or a "
+        "partitioned Parquet / CSVs of records) unit by unit and write the rows to DIR/part-*.parquet",
+    )
+    c.add_argument(
+        "--scheduler",
+        default="local",
+        metavar="ADDR",
+        help="campaign: 'local' (a local dask cluster on 127.0.0.1, the default), 'none' (serial, "
+        "this process), or a dask scheduler address such as tcp://10.0.0.5:8786",
+    )
     c.add_argument("--workers", type=int, default=2, help="campaign: workers of the local cluster (default 2)")
     p.set_defaults(func=run)
     from geoloc.cli._options import add_dem_options
@@ -123,16 +158,18 @@ def run(args) -> int:
     if kind == "srt":
         return _run_srt(args, inputs)
     if len(inputs) > 1:
-        raise ValueError(f"{len(inputs)} records files given ({', '.join(inputs)}): give one records CSV "
-                         "(several inputs are for KLV files or photos)")
+        raise ValueError(
+            f"{len(inputs)} records files given ({', '.join(inputs)}): give one records CSV "
+            "(several inputs are for KLV files or photos)"
+        )
     args.records = inputs[0] if inputs else None
-    records_path = (args.records if args.records is not None
-                    else asset_path(*DEFAULT_RECORDS))
+    records_path = args.records if args.records is not None else asset_path(*DEFAULT_RECORDS)
     camera = sensor_from_args(args)
     records = records_from_args(args, str(records_path), camera)
     if args.group_by is not None and args.group_by not in records.header:  # before: silently one group
-        raise ValueError(f"--group-by {args.group_by!r}: no such column in {records.path}; its columns: "
-                         f"{', '.join(records.header)}")
+        raise ValueError(
+            f"--group-by {args.group_by!r}: no such column in {records.path}; its columns: {', '.join(records.header)}"
+        )
     group_by = args.group_by or "table"
     surface = surface_from_args(args, records)
     if args.dem is not None:
@@ -151,8 +188,11 @@ def run(args) -> int:
     for msg in outside_sensor_messages(records, camera, result.lat_deg):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
     if TARGET_ID_COLUMN in records.header:  # targets seen in several rows: their rays' intersection
-        for line in summary_lines(triangulate_records(records, camera, budget, result.h_m,
-                                                      result.status == Status.OK, corrections=corrections)):
+        for line in summary_lines(
+            triangulate_records(
+                records, camera, budget, result.h_m, result.status == Status.OK, corrections=corrections
+            )
+        ):
             print(line)
     for msg in plausibility_warnings(records, result, result.terrain, sensor=camera):
         print(f"geoloc replay: warning: {msg}", file=sys.stderr)
@@ -167,14 +207,16 @@ def run(args) -> int:
 
         print("\n".join(audit_records(records, camera, surface, group_column=group_by).lines()))
     if not rows and not args.out:
-        print(f"({len(records)} records: per-record lines not printed; --out FILE writes them, "
-              "--print-rows prints them)")
+        print(
+            f"({len(records)} records: per-record lines not printed; --out FILE writes them, --print-rows prints them)"
+        )
     if args.out:
         write_replay_csv(args.out, result)
         print(f"wrote {len(records)} rows to {args.out}")
     if args.export:
-        _export(args, lambda path: write_replay_csv(path, result),
-                group_by if group_by in result.records.header else None)
+        _export(
+            args, lambda path: write_replay_csv(path, result), group_by if group_by in result.records.header else None
+        )
     return 0 if located(result).all() else 1  # docs/cli.md: 1 = some records could not be located
 
 
@@ -219,20 +261,35 @@ PHOTO_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".dng")
 
 
 def _input_kind(inputs) -> str:
-    """"klv", "photos", "srt" or "records" for the positional inputs (suffixes; a mix is an error)."""
+    """ "klv", "photos", "srt" or "records" for the positional inputs (suffixes; a mix is an error)."""
     from geoloc.workflows.klv_replay import is_klv_path
 
-    kinds = ["klv" if is_klv_path(x) else "photos" if Path(x).suffix.lower() in PHOTO_SUFFIXES
-             else "srt" if Path(x).suffix.lower() == ".srt" else "records" for x in inputs]
+    kinds = [
+        "klv"
+        if is_klv_path(x)
+        else "photos"
+        if Path(x).suffix.lower() in PHOTO_SUFFIXES
+        else "srt"
+        if Path(x).suffix.lower() == ".srt"
+        else "records"
+        for x in inputs
+    ]
     if len(set(kinds)) > 1:
-        raise ValueError("inputs of different kinds: " + ", ".join(f"{x} ({k})" for x, k in zip(inputs, kinds))
-                         + "; replay one kind at a time")
+        raise ValueError(
+            "inputs of different kinds: "
+            + ", ".join(f"{x} ({k})" for x, k in zip(inputs, kinds))
+            + "; replay one kind at a time"
+        )
     return kinds[0] if kinds else "records"
 
 
 def _reject_records_options(args, what: str) -> None:
-    for opt, why in (("height_column", "records CSVs"), ("target_h_m", "records CSVs"),
-                     ("columns", "records CSVs"), ("group_by", "records CSVs")):
+    for opt, why in (
+        ("height_column", "records CSVs"),
+        ("target_h_m", "records CSVs"),
+        ("columns", "records CSVs"),
+        ("group_by", "records CSVs"),
+    ):
         if getattr(args, opt, None) is not None:
             raise ValueError(f"--{opt.replace('_', '-')} is for {why}, not for {what}")
 
@@ -241,11 +298,17 @@ def _run_klv(args, inputs) -> int:
     """``geoloc replay FILE.klv|FILE.ts ...``: :func:`geoloc.workflows.klv_replay.replay_klv` per file."""
     from geoloc.workflows.klv_replay import replay_klv, write_klv_csv
 
-    _reject_records_options(args, "KLV: each packet is intersected at its own frame-centre height "
-                            "(tag 78 HAE, else tag 25 MSL + EGM96 N), or with --dem")
+    _reject_records_options(
+        args,
+        "KLV: each packet is intersected at its own frame-centre height "
+        "(tag 78 HAE, else tag 25 MSL + EGM96 N), or with --dem",
+    )
     if getattr(args, "altitude_datum", None) is not None:
-        print("geoloc replay: note: --altitude-datum is not used for KLV: MISB ST 0601 gives each height's "
-              "datum (tags 75, 78: ellipsoid; tags 15, 25: MSL, made ellipsoidal with EGM96)", file=sys.stderr)
+        print(
+            "geoloc replay: note: --altitude-datum is not used for KLV: MISB ST 0601 gives each height's "
+            "datum (tags 75, 78: ellipsoid; tags 15, 25: MSL, made ellipsoidal with EGM96)",
+            file=sys.stderr,
+        )
     paths = [Path(x) for x in inputs]
     sensor = sensor_from_args(args, default=False)
     surface = surface_from_args(args) if args.dem else None  # else: each packet's own frame-centre height
@@ -267,8 +330,10 @@ def _run_klv(args, inputs) -> int:
     n = sum(len(r) for r in replays)
     if args.out and n:
         write_klv_csv(args.out, replays)
-        print(f"wrote {n} rows to {args.out} (heights ellipsoidal, WGS 84: column h_datum; "
-              "*_msl_m columns mean sea level)")
+        print(
+            f"wrote {n} rows to {args.out} (heights ellipsoidal, WGS 84: column h_datum; "
+            "*_msl_m columns mean sea level)"
+        )
     if args.export and n:
         _export(args, lambda path: write_klv_csv(path, replays), "file" if len(paths) > 1 else None)
     if n == 0:
@@ -309,14 +374,19 @@ def _run_live(args, inputs) -> int:
         if args.record_ts:
             rec = stack.enter_context(growing_path(args.record_ts, "--record"))
             fh = stack.enter_context(rec.open("wb"))
-            print(f"geoloc replay: recording the stream to {rec} (renamed {args.record_ts} at the end)",
-                  file=sys.stderr)
+            print(
+                f"geoloc replay: recording the stream to {rec} (renamed {args.record_ts} at the end)", file=sys.stderr
+            )
 
             def record(b, fh=fh):
                 fh.write(b)
+
         live = LiveReplay(url, surface=surface, sensor=sensor, journal=journal, receiver=rx)
-        print(f"geoloc replay: listening on {url}" + ("" if any(limits.values()) else " (Ctrl-C to stop)"),
-              file=sys.stderr, flush=True)
+        print(
+            f"geoloc replay: listening on {url}" + ("" if any(limits.values()) else " (Ctrl-C to stop)"),
+            file=sys.stderr,
+            flush=True,
+        )
         print(HEADER, flush=True)
 
         def batch(results):
@@ -352,17 +422,21 @@ def _klv_rows_text(r) -> str:
     from geoloc.status import names
 
     st = names(c["status"])
-    lines = [f"{'packet':>6} {'time_utc':<27} {'lat_deg':>11} {'lon_deg':>12} {'h_m (HAE)':>9} {'status':>13} "
-             f"{'centre_err_m':>12} {'corner_err_m':>12} outlier"]
+    lines = [
+        f"{'packet':>6} {'time_utc':<27} {'lat_deg':>11} {'lon_deg':>12} {'h_m (HAE)':>9} {'status':>13} "
+        f"{'centre_err_m':>12} {'corner_err_m':>12} outlier"
+    ]
 
     def f(v, spec):
         return format(float(v), spec) if v == v else ""
 
     for k in range(len(r)):
-        lines.append(f"{c['packet'][k]:>6} {c['time_utc'][k]:<27} {f(c['lat_deg'][k], '11.6f'):>11} "
-                     f"{f(c['lon_deg'][k], '12.6f'):>12} {f(c['h_m'][k], '9.1f'):>9} {st[k]:>13} "
-                     f"{f(c['frame_center_error_m'][k], '12.3f'):>12} {f(c['corner_error_m'][k], '12.3f'):>12} "
-                     f"{'yes' if c['outlier'][k] else ''}")
+        lines.append(
+            f"{c['packet'][k]:>6} {c['time_utc'][k]:<27} {f(c['lat_deg'][k], '11.6f'):>11} "
+            f"{f(c['lon_deg'][k], '12.6f'):>12} {f(c['h_m'][k], '9.1f'):>9} {st[k]:>13} "
+            f"{f(c['frame_center_error_m'][k], '12.3f'):>12} {f(c['corner_error_m'][k], '12.3f'):>12} "
+            f"{'yes' if c['outlier'][k] else ''}"
+        )
     return "\n".join(lines)
 
 
@@ -378,8 +452,15 @@ def _run_photos(args, inputs) -> int:
     surface = surface_from_args(args) if args.dem else None  # else: each target at its truth_h_m
     extra = {"altitude_datum": args.altitude_datum} if getattr(args, "altitude_datum", None) else {}
     targets = []  # a target_id column: each target seen in several photos, triangulated
-    rows, messages = replay_photos(photos, args.targets, sensor=sensor, surface=surface, targets_out=targets,
-                                   corrections=corrections_from_args(args, sensor), **extra)
+    rows, messages = replay_photos(
+        photos,
+        args.targets,
+        sensor=sensor,
+        surface=surface,
+        targets_out=targets,
+        corrections=corrections_from_args(args, sensor),
+        **extra,
+    )
     for m in messages:
         print(f"geoloc replay: {m}", file=sys.stderr)
     print(summarize(rows, messages))
@@ -409,8 +490,10 @@ def _run_srt(args, inputs) -> int:
     if args.out:
         merged = SrtFlight(",".join(inputs), [r for f in flights for r in f.records], [])
         n = write_srt_records(args.out, merged)
-        print(f"wrote {n} rows to {args.out} (ac_h_m ellipsoidal, WGS 84, from abs_alt taken as EGM96; "
-              "rel_alt above the take-off point)")
+        print(
+            f"wrote {n} rows to {args.out} (ac_h_m ellipsoidal, WGS 84, from abs_alt taken as EGM96; "
+            "rel_alt above the take-off point)"
+        )
     return 0
 
 
@@ -422,8 +505,10 @@ def _run_campaign(args, inputs) -> int:
     from geoloc.workflows.campaign import CampaignConfig, run_campaign
 
     if not args.parquet_out:
-        raise ValueError(f"inputs {', '.join(inputs)}: a folder or a Parquet dataset is a campaign: give "
-                         "--parquet-out DIR (and --scheduler, --workers; docs/scale.md)")
+        raise ValueError(
+            f"inputs {', '.join(inputs)}: a folder or a Parquet dataset is a campaign: give "
+            "--parquet-out DIR (and --scheduler, --workers; docs/scale.md)"
+        )
     if not inputs:
         raise ValueError("--parquet-out: give the campaign's inputs (files or folders)")
     for opt in ("out", "export"):
@@ -434,10 +519,12 @@ def _run_campaign(args, inputs) -> int:
     from geoloc.sensors.sensor_file import load_sensor
 
     cfg = CampaignConfig(
-        sensor=args.camera, surface=surface_spec_from_args(args),
+        sensor=args.camera,
+        surface=surface_spec_from_args(args),
         altitude_datum=getattr(args, "altitude_datum", None) or "ellipsoid",
         targets=args.targets,
-        corrections=corrections_from_args(args, load_sensor(args.camera) if args.camera else None))
+        corrections=corrections_from_args(args, load_sensor(args.camera) if args.camera else None),
+    )
     if args.workers < 1:
         raise ValueError(f"--workers {args.workers}: must be at least 1")
 

@@ -40,8 +40,10 @@ HEADING_COLUMNS = ("heading_deg", "platform_heading_deg")
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
 #: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
-EXAMPLE = ("geoloc replay --height-column paper_height_m --out results.csv",
-           "geoloc report results.csv --out-dir report")
+EXAMPLE = (
+    "geoloc replay --height-column paper_height_m --out results.csv",
+    "geoloc report results.csv --out-dir report",
+)
 
 
 def register(sub) -> None:
@@ -56,28 +58,48 @@ def register(sub) -> None:
         "is a separate line. See docs/report.md.",
     )
     p.add_argument("results", metavar="RESULTS.csv", type=input_path, help="output CSV of `geoloc replay --out`")
-    p.add_argument("--reference", default="auto", choices=["auto", *AUTO_REFERENCES],
-                   help="reference positions: columns {ref}_lat_deg, {ref}_lon_deg (and {ref}_h_m); auto: the "
-                   "first of truth, reported (KLV frame centre), paper with values")
-    p.add_argument("--ref-h-column", default=None,
-                   help="column of the reference's ellipsoidal height [m] (default {ref}_h_m, e.g. truth_h_m; "
-                   "without one the vertical error is not computed), e.g. paper_height_m for [Q17]")
-    p.add_argument("--group-by", default=None,
-                   help="column grouping rows into flights (default: table, else file, else one group; "
-                   "'none' for one group)")
-    add_sensor_option(p, help="camera/sensor file giving the image size for the pixel radius (default: the "
-                      "bundled [Q17] camera for flight-test records; none for other inputs)")
+    p.add_argument(
+        "--reference",
+        default="auto",
+        choices=["auto", *AUTO_REFERENCES],
+        help="reference positions: columns {ref}_lat_deg, {ref}_lon_deg (and {ref}_h_m); auto: the "
+        "first of truth, reported (KLV frame centre), paper with values",
+    )
+    p.add_argument(
+        "--ref-h-column",
+        default=None,
+        help="column of the reference's ellipsoidal height [m] (default {ref}_h_m, e.g. truth_h_m; "
+        "without one the vertical error is not computed), e.g. paper_height_m for [Q17]",
+    )
+    p.add_argument(
+        "--group-by",
+        default=None,
+        help="column grouping rows into flights (default: table, else file, else one group; 'none' for one group)",
+    )
+    add_sensor_option(
+        p,
+        help="camera/sensor file giving the image size for the pixel radius (default: the "
+        "bundled [Q17] camera for flight-test records; none for other inputs)",
+    )
     p.add_argument("--out-dir", default=None, type=output_dir, help="write PNG plots, report.json and report.html here")
     p.add_argument("--json", action="store_true", help="print the numbers as JSON (instead of the table)")
-    p.add_argument("--audit", action="store_true",
-                   help="with --dem: audit the flight's heights and conventions from the CSV's own poses and "
-                   "reported centres (records or KLV replays; docs/height_audit.md): one line per finding, "
-                   "and report.json's 'height_audit'")
+    p.add_argument(
+        "--audit",
+        action="store_true",
+        help="with --dem: audit the flight's heights and conventions from the CSV's own poses and "
+        "reported centres (records or KLV replays; docs/height_audit.md): one line per finding, "
+        "and report.json's 'height_audit'",
+    )
     p.set_defaults(func=run)
     from geoloc.cli._options import add_dem_options
 
-    add_dem_options(p, mosaic=False, tolerances=False, method_default="exact",
-                    dem_help="DEM raster for --audit (the one the replay used)")
+    add_dem_options(
+        p,
+        mosaic=False,
+        tolerances=False,
+        method_default="exact",
+        dem_help="DEM raster for --audit (the one the replay used)",
+    )
 
 
 # --------------------------------------------------------------------------- reading
@@ -95,8 +117,10 @@ def read_results(path) -> tuple:
         with path.open(newline="", encoding="utf-8-sig") as fh:
             header, rows, messages = _read_rows(path, fh)
     except UnicodeDecodeError as e:
-        raise ValueError(f"results file {path}: not a text CSV (UTF-8): byte 0x{e.object[e.start]:02x} cannot be "
-                         "decoded; is it a binary file?") from None
+        raise ValueError(
+            f"results file {path}: not a text CSV (UTF-8): byte 0x{e.object[e.start]:02x} cannot be "
+            "decoded; is it a binary file?"
+        ) from None
     check_header(path, header)
     # a position out of its range (latitude 95) leaves its row out, named (issue 32)
     kept = []
@@ -113,7 +137,9 @@ def read_results(path) -> tuple:
                 continue  # not a number: said (and treated as missing) where the column is read
             if bad:
                 lo, hi = POSITION_RANGES[kind]
-                why = f"{path.name} line {row['_line']}: {name} = {text!r} is out of range [{lo:g}, {hi:g}]: row left out"
+                why = (
+                    f"{path.name} line {row['_line']}: {name} = {text!r} is out of range [{lo:g}, {hi:g}]: row left out"
+                )
                 break
         if why:
             messages.append(why)
@@ -150,8 +176,9 @@ def _column(rows, name, path, messages) -> np.ndarray:
         try:
             out[k] = float(text)
         except ValueError:
-            messages.append(f"{path.name} line {r['_line']}: column {name} = {text!r} is not a number: "
-                            "treated as missing")
+            messages.append(
+                f"{path.name} line {r['_line']}: column {name} = {text!r} is not a number: treated as missing"
+            )
     return out
 
 
@@ -159,8 +186,9 @@ def _has_values(rows, name) -> bool:
     return any(r.get(name, "") != "" for r in rows)
 
 
-def report_from_csv(path, reference: str = "auto", ref_h_column: str | None = None, group_by: str | None = None,
-                    camera=None) -> tuple:
+def report_from_csv(
+    path, reference: str = "auto", ref_h_column: str | None = None, group_by: str | None = None, camera=None
+) -> tuple:
     """``(AccuracyReport, messages)`` of a replay output CSV (see the verb's help for the choices)."""
     path = Path(path)
     header, rows, messages = read_results(path)
@@ -168,13 +196,16 @@ def report_from_csv(path, reference: str = "auto", ref_h_column: str | None = No
         raise ValueError(f"results file {path} has no data rows")
     for c in ("lat_deg", "lon_deg", "h_m"):
         if c not in header:
-            raise ValueError(f"results file {path}: no column {c!r} (columns: {header}); give the output CSV of "
-                             "geoloc replay --out")
+            raise ValueError(
+                f"results file {path}: no column {c!r} (columns: {header}); give the output CSV of geoloc replay --out"
+            )
     if reference == "auto":
         found = [p for p in AUTO_REFERENCES if _has_values(rows, f"{p}_lat_deg") and _has_values(rows, f"{p}_lon_deg")]
         if not found:
-            raise ValueError(f"results file {path}: no reference columns with values ({', '.join(f'{p}_lat_deg' for p in AUTO_REFERENCES)}); "
-                             "the report needs truth or reported positions")
+            raise ValueError(
+                f"results file {path}: no reference columns with values ({', '.join(f'{p}_lat_deg' for p in AUTO_REFERENCES)}); "
+                "the report needs truth or reported positions"
+            )
         reference = found[0]
     for c in (f"{reference}_lat_deg", f"{reference}_lon_deg"):
         if c not in header:
@@ -192,13 +223,18 @@ def report_from_csv(path, reference: str = "auto", ref_h_column: str | None = No
     if no_pos.any():
         st = [rows[k].get("status", "") for k in np.flatnonzero(no_pos)]
         lines = [rows[k]["_line"] for k in np.flatnonzero(no_pos)]
-        messages.append(f"{path.name}: {int(no_pos.sum())} row(s) without a computed position, left out "
-                        f"(lines {_short(lines)}; status {', '.join(sorted(set(s for s in st if s))) or 'empty'})")
+        messages.append(
+            f"{path.name}: {int(no_pos.sum())} row(s) without a computed position, left out "
+            f"(lines {_short(lines)}; status {', '.join(sorted(set(s for s in st if s))) or 'empty'})"
+        )
 
     # groups
     if group_by is None:
-        group_by = "table" if "table" in header else ("file" if "file" in header and
-                                                     len({r.get("file") for r in rows}) > 1 else None)
+        group_by = (
+            "table"
+            if "table" in header
+            else ("file" if "file" in header and len({r.get("file") for r in rows}) > 1 else None)
+        )
     elif group_by == "none":
         group_by = None
     elif group_by not in header:
@@ -236,23 +272,41 @@ def report_from_csv(path, reference: str = "auto", ref_h_column: str | None = No
         + (f", height {ref_h_column}" if ref_h_column else " (no reference height: vertical not computed)"),
         "group_by": group_by or "(one group)",
         "platform": ", ".join(plat) if plat else "(none: no slant range or off-nadir from geometry)",
-        "track": ("track_heading_deg column" if "track_heading_deg" in header else
-                  "local azimuth between neighbouring platform positions, heading below 100 m" if plat else
-                  "(none)"),
-        "pixel_radius": "hypot(row - (rows+1)/2, col - (cols+1)/2) of the camera's image size" if pix is not None
+        "track": (
+            "track_heading_deg column"
+            if "track_heading_deg" in header
+            else "local azimuth between neighbouring platform positions, heading below 100 m"
+            if plat
+            else "(none)"
+        ),
+        "pixel_radius": "hypot(row - (rows+1)/2, col - (cols+1)/2) of the camera's image size"
+        if pix is not None
         else "(none)",
         # the line-of-sight corrections the replay applied (its 'corrections' column), and how far
         # refraction moved the points (its 'refraction_m'): residuals judged with it on and off
         "corrections": ", ".join(sorted({r.get("corrections") or "none" for r in rows}))
-        if "corrections" in header else "(not stated: a replay before the corrections)",
+        if "corrections" in header
+        else "(not stated: a replay before the corrections)",
     }
     if "refraction_m" in header:
         shift = col("refraction_m")
         if np.isfinite(shift).any():
             meta["refraction_m_median"] = float(np.nanmedian(shift))
             meta["refraction_m_max"] = float(np.nanmax(shift))
-    rep = accuracy_report(lat, lon, h, rlat, rlon, rh, track_heading_rad=track, slant_range_m=slant,
-                          off_nadir_rad=off, pixel_radius_px=pix, group=group, meta=meta)
+    rep = accuracy_report(
+        lat,
+        lon,
+        h,
+        rlat,
+        rlon,
+        rh,
+        track_heading_rad=track,
+        slant_range_m=slant,
+        off_nadir_rad=off,
+        pixel_radius_px=pix,
+        group=group,
+        meta=meta,
+    )
     if all(c in header for c in BUDGET_COLUMNS):
         add_budget_check(rep, *(col(c) for c in BUDGET_COLUMNS))
     return rep, messages
@@ -270,10 +324,12 @@ def add_budget_check(rep, major, minor, azimuth_deg, le90) -> None:
     from geoloc.analysis.uncertainty import budget_check
 
     c = rep.components
+
     def check(m):
         up = c["up_m"][m] if "up_m" in c else None
-        return budget_check(c["east_m"][m], c["north_m"][m], major[m], minor[m], azimuth_deg[m],
-                            up, le90[m] if up is not None else None)
+        return budget_check(
+            c["east_m"][m], c["north_m"][m], major[m], minor[m], azimuth_deg[m], up, le90[m] if up is not None else None
+        )
 
     allm = np.ones(len(major), bool)
     b = check(allm)
@@ -284,9 +340,11 @@ def add_budget_check(rep, major, minor, azimuth_deg, le90) -> None:
     rep.overall["budget"] = strip(b)
     for g in rep.groups:
         rep.groups[g]["budget"] = strip(check(rep.group == g))
-    rep.meta["budget_check"] = ("share of truths inside their own predicted 90 % ellipse (the replay's "
-                                "ellipse_* columns) against the binomial 99 % interval around 90 %; factor = "
-                                "90th percentile of error / its 90 % ellipse radius (geoloc.analysis.uncertainty)")
+    rep.meta["budget_check"] = (
+        "share of truths inside their own predicted 90 % ellipse (the replay's "
+        "ellipse_* columns) against the binomial 99 % interval around 90 %; factor = "
+        "90th percentile of error / its 90 % ellipse radius (geoloc.analysis.uncertainty)"
+    )
 
 
 def _short(lines) -> str:
@@ -355,8 +413,11 @@ def write_plots(rep: AccuracyReport, out_dir) -> list:
     save(fig, "errors_cdf.png")
 
     # 3-5. trends
-    for key, xlabel in (("slant_range_m", "slant range [m]"), ("off_nadir_deg", "off-nadir angle [deg]"),
-                        ("pixel_radius_px", "pixel radius from the image centre [px]")):
+    for key, xlabel in (
+        ("slant_range_m", "slant range [m]"),
+        ("off_nadir_deg", "off-nadir angle [deg]"),
+        ("pixel_radius_px", "pixel radius from the image centre [px]"),
+    ):
         if key not in c:
             continue
         fig, ax = plt.subplots(figsize=(5.5, 3.6))
@@ -365,13 +426,19 @@ def write_plots(rep: AccuracyReport, out_dir) -> list:
             ax.scatter(c[key][m], c["horizontal_m"][m], s=14, label=g)
         bins = rep.overall.get(f"by_{key}") or []
         if bins:
-            ax.plot([b["x_median"] for b in bins], [b["median"] for b in bins], "k-o", ms=3, lw=1,
-                    label="binned median")
+            ax.plot(
+                [b["x_median"] for b in bins], [b["median"] for b in bins], "k-o", ms=3, lw=1, label="binned median"
+            )
         mdl = rep.overall.get("slant_range_model") if key == "slant_range_m" else None
         if mdl and math.isfinite(mdl["m_per_m"]):
             x = np.array([np.nanmin(c[key]), np.nanmax(c[key])])
-            ax.plot(x, mdl["intercept_m"] + mdl["m_per_m"] * x, "r--", lw=1,
-                    label=f"{mdl['intercept_m']:.2f} m + {mdl['m_per_m'] * 1000:.3f} m/km")
+            ax.plot(
+                x,
+                mdl["intercept_m"] + mdl["m_per_m"] * x,
+                "r--",
+                lw=1,
+                label=f"{mdl['intercept_m']:.2f} m + {mdl['m_per_m'] * 1000:.3f} m/km",
+            )
         ax.set_xlabel(xlabel)
         ax.set_ylabel("horizontal error [m]")
         ax.legend(fontsize=7)
@@ -380,11 +447,20 @@ def write_plots(rep: AccuracyReport, out_dir) -> list:
 
 
 def _md_table_html(rep: AccuracyReport) -> str:
-    cols = [("n", "n", "d"), ("cep_m", "CEP [m]", ".2f"), ("ce90_m", "CE90 [m]", ".2f"), ("le90_m", "LE90 [m]", ".2f"),
-            ("mae_horizontal_m", "MAE horizontal [m]", ".2f"), ("mae_vertical_m", "MAE vertical [m]", ".2f"),
-            ("bias_north_m", "bias N [m]", ".2f"), ("bias_east_m", "bias E [m]", ".2f"),
-            ("bias_up_m", "bias U [m]", ".2f"), ("bias_along_m", "bias along [m]", ".2f"),
-            ("bias_across_m", "bias across [m]", ".2f"), ("radial_rms_eq18_m", "[Q17] eq. 18 radial RMS [m]", ".2f")]
+    cols = [
+        ("n", "n", "d"),
+        ("cep_m", "CEP [m]", ".2f"),
+        ("ce90_m", "CE90 [m]", ".2f"),
+        ("le90_m", "LE90 [m]", ".2f"),
+        ("mae_horizontal_m", "MAE horizontal [m]", ".2f"),
+        ("mae_vertical_m", "MAE vertical [m]", ".2f"),
+        ("bias_north_m", "bias N [m]", ".2f"),
+        ("bias_east_m", "bias E [m]", ".2f"),
+        ("bias_up_m", "bias U [m]", ".2f"),
+        ("bias_along_m", "bias along [m]", ".2f"),
+        ("bias_across_m", "bias across [m]", ".2f"),
+        ("radial_rms_eq18_m", "[Q17] eq. 18 radial RMS [m]", ".2f"),
+    ]
     L = ["<table><tr><th>group</th>" + "".join(f"<th>{html.escape(t)}</th>" for _, t, _ in cols) + "</tr>"]
     for g, s in rep.rows():
         cells = []
@@ -399,20 +475,24 @@ def _md_table_html(rep: AccuracyReport) -> str:
 def write_html(rep: AccuracyReport, pngs, path) -> Path:
     """One self-contained HTML page: the table, the definitions, the warnings and the plots (base64 PNG)."""
     path = Path(path)
-    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>geoloc accuracy report</title>",
-             "<style>body{font-family:sans-serif;margin:1.5em;max-width:70em}table{border-collapse:collapse}"
-             "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}th{background:#eee}"
-             ".warn{color:#a00;font-weight:bold}img{max-width:48%;margin:4px}</style></head><body>",
-             f"<h1>Accuracy report: {html.escape(str(rep.meta.get('source', '')))}</h1>",
-             _md_table_html(rep)]
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>geoloc accuracy report</title>",
+        "<style>body{font-family:sans-serif;margin:1.5em;max-width:70em}table{border-collapse:collapse}"
+        "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right}th{background:#eee}"
+        ".warn{color:#a00;font-weight:bold}img{max-width:48%;margin:4px}</style></head><body>",
+        f"<h1>Accuracy report: {html.escape(str(rep.meta.get('source', '')))}</h1>",
+        _md_table_html(rep),
+    ]
     for w in rep.warnings:
         parts.append(f"<p class='warn'>warning: {html.escape(w)}</p>")
     for g, s in rep.rows():
         mdl = s.get("slant_range_model")
         if mdl and math.isfinite(mdl["m_per_m"]):
-            parts.append(f"<p>{html.escape(str(g))}: horizontal error = {mdl['intercept_m']:.3f} m + "
-                         f"{mdl['m_per_m'] * 1000:.4f} m per km of slant range (least squares, n = {mdl['n']}, "
-                         f"RMS residual {mdl['rms_residual_m']:.2f} m)</p>")
+            parts.append(
+                f"<p>{html.escape(str(g))}: horizontal error = {mdl['intercept_m']:.3f} m + "
+                f"{mdl['m_per_m'] * 1000:.4f} m per km of slant range (least squares, n = {mdl['n']}, "
+                f"RMS residual {mdl['rms_residual_m']:.2f} m)</p>"
+            )
     parts.append("<h2>Definitions</h2><ul>")
     for k, v in rep.meta.items():
         parts.append(f"<li><b>{html.escape(str(k))}</b>: {html.escape(str(v))}</li>")
@@ -453,8 +533,11 @@ def audit_from_csv(path, surface, camera=None):
                 except ValueError:
                     continue
         base = sensor_from_args(argparse.Namespace(camera=camera), default=False) if camera else None
-        sens = klv_sensor(math.radians(float(np.nanmedian(cols["sensor_horizontal_fov_deg"]))),
-                          math.radians(float(np.nanmedian(cols["sensor_vertical_fov_deg"]))), base)
+        sens = klv_sensor(
+            math.radians(float(np.nanmedian(cols["sensor_horizontal_fov_deg"]))),
+            math.radians(float(np.nanmedian(cols["sensor_vertical_fov_deg"]))),
+            base,
+        )
         return audit_klv_columns(cols, sens, surface, source=Path(path).name)
     from geoloc.io.records import load_records
 
@@ -487,6 +570,8 @@ def run(args) -> int:
         pngs = write_plots(rep, out)
         write_text(out / "report.json", json.dumps(rep.to_dict(per_target=True), indent=1))
         page = write_html(rep, pngs, out / "report.html")
-        print(f"wrote {page}, report.json and {len(pngs)} PNG plot(s) to {out}",
-              file=sys.stderr if args.json else sys.stdout)
+        print(
+            f"wrote {page}, report.json and {len(pngs)} PNG plot(s) to {out}",
+            file=sys.stderr if args.json else sys.stdout,
+        )
     return 0

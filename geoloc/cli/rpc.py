@@ -36,17 +36,27 @@ def register(subparsers) -> None:
             "Fit the 78 RPC00B coefficients to the scenario's rigorous sensor model (pushbroom [L12] "
             "or the [Q17] frame camera) over a 3-D grid of ground points, report residuals on "
             "independent check points, write the RPC as GDAL metadata into a GeoTIFF, and compare "
-            "GDAL's RPC transformer with RPC_DEM against the project's exact DEM intersection."),
+            "GDAL's RPC transformer with RPC_DEM against the project's exact DEM intersection."
+        ),
     )
     p.add_argument("scenario", type=input_path, help="scenario TOML (e.g. assets/scenarios/zy3_nadir.toml)")
     p.add_argument("--out", required=True, type=output_path, help="GeoTIFF to write (RPC tag, sparse pixels)")
-    p.add_argument("--report", type=text_output_path, help="JSON report to write (fit_rms_px, check_rms_px, check_max_px, "
-                                    "gdal_vs_exact_max_px, ...)")
+    p.add_argument(
+        "--report",
+        type=text_output_path,
+        help="JSON report to write (fit_rms_px, check_rms_px, check_max_px, gdal_vs_exact_max_px, ...)",
+    )
     p.add_argument("--no-gdal", action="store_true", help="skip the GDAL RPC_DEM cross-check")
-    p.add_argument("--gdal-threshold-px", type=float, default=1e-6,
-                   help="GDAL RPC_PIXEL_ERROR_THRESHOLD for the cross-check [px] (GDAL's default is 0.1)")
+    p.add_argument(
+        "--gdal-threshold-px",
+        type=float,
+        default=1e-6,
+        help="GDAL RPC_PIXEL_ERROR_THRESHOLD for the cross-check [px] (GDAL's default is 0.1)",
+    )
     add_correction_options(p)
-    p.add_argument("--ellipsoidal-dem", type=output_path, help="keep the ellipsoidal-height DEM copy given to GDAL at this path")
+    p.add_argument(
+        "--ellipsoidal-dem", type=output_path, help="keep the ellipsoidal-height DEM copy given to GDAL at this path"
+    )
     p.set_defaults(func=run)
 
 
@@ -66,18 +76,21 @@ def run(args) -> int:
     dem = None
     if not args.no_gdal and sc.dem_path is not None:  # the scenario's DEM, opened here at the edge
         dem = SurfaceSpec(dem=sc.dem_path, dem_datum=sc.dem_datum).raster(f"{sc.name}: dem")
-    rep = rpc_report(sc, out, dem, gdal=not args.no_gdal, pixel_error_threshold=thr,
-                     dem_copy=args.ellipsoidal_dem)
+    rep = rpc_report(sc, out, dem, gdal=not args.no_gdal, pixel_error_threshold=thr, dem_copy=args.ellipsoidal_dem)
     print(f"{sc.name}: {rep['rows']} x {rep['cols']} px, {rep['n_fit']} fit / {rep['n_check']} check points")
     print(f"  rigorous model's line-of-sight corrections (the RPC holds them): {rep['corrections']}")
     print(f"  fit   RMS {rep['fit_rms_px']:.2e} px")
     print(f"  check RMS {rep['check_rms_px']:.2e} px, max {rep['check_max_px']:.2e} px")
     if rep.get("gdal_vs_exact_max_px") is not None:
-        print(f"  GDAL RPC_DEM vs exact DEM intersection: max {rep['gdal_vs_exact_max_px']:.2e} px "
-              f"({rep['gdal_vs_exact_max_m']:.1e} m) over {rep['gdal_points']} pixels "
-              f"(threshold {thr:g} px; GDAL default 0.1 px gives max {rep['gdal_default_threshold_max_px']:.3f} px)")
-        print(f"  same with the orthometric DEM as GDAL reads it by default: max "
-              f"{rep['gdal_orthometric_dem_max_px']:.3g} px ({rep['gdal_orthometric_dem_max_m']:.2f} m)")
+        print(
+            f"  GDAL RPC_DEM vs exact DEM intersection: max {rep['gdal_vs_exact_max_px']:.2e} px "
+            f"({rep['gdal_vs_exact_max_m']:.1e} m) over {rep['gdal_points']} pixels "
+            f"(threshold {thr:g} px; GDAL default 0.1 px gives max {rep['gdal_default_threshold_max_px']:.3f} px)"
+        )
+        print(
+            f"  same with the orthometric DEM as GDAL reads it by default: max "
+            f"{rep['gdal_orthometric_dem_max_px']:.3g} px ({rep['gdal_orthometric_dem_max_m']:.2f} m)"
+        )
     else:
         print(f"  GDAL cross-check: {rep.get('gdal_note')}")
     print(f"  wrote {out}")

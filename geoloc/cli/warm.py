@@ -51,26 +51,55 @@ def _refraction() -> int:
     dem = SurfaceSpec(dem=asset_path("dem", "srtm_jacksboro.tif")).raster()
     los = random_oblique_rays(dem, 100, np.random.default_rng(0))
     c = Corrections(refraction=STANDARD_REFRACTION)
-    ok = [np.any(np.asarray(Pipeline(None, surf, c).intersect(los).status) == 0)
-          for surf in (HeightSurface(300.0), DemSurface(dem, "exact"))]
+    ok = [
+        np.any(np.asarray(Pipeline(None, surf, c).intersect(los).status) == 0)
+        for surf in (HeightSurface(300.0), DemSurface(dem, "exact"))
+    ]
     limb = STANDARD_REFRACTION.limb(np.array([6378137.0 + 10e3, -2.3e6, 0.0]), np.array([0.0, 1.0, 0.0]))
     return 0 if all(ok) and np.all(np.isfinite(limb.refracted_tangent_h_m)) else 1
 
 
 #: The steps: (what it runs, the verb's arguments or a function); paths under the bundled assets.
 STEPS = (
-    ("a one-ray locate (its walk uncompiled): geoloc locate --sensor eo_turret.toml "
-     "--dem srtm_jacksboro.tif",
-     ["locate", "--sensor", "assets/sensors/eo_turret.toml", "--lat-deg", "36.6", "--lon-deg", "-84.25",
-      "--h-m", "2500", "--heading-deg", "45", "--angle", "azimuth=90", "--angle", "elevation=-30",
-      "--dem", "assets/dem/srtm_jacksboro.tif", "--json"]),
-    ("a records replay: geoloc replay drone_targets.csv --sensor drone_camera.toml --dem srtm_jacksboro.tif",
-     ["replay", "assets/records/drone_targets.csv", "--sensor", "assets/sensors/drone_camera.toml",
-      "--dem", "assets/dem/srtm_jacksboro.tif"]),
-    ("a KLV replay: geoloc replay example_flight.klv",
-     ["replay", "assets/klv/example_flight.klv"]),
-    ("the viewer's first scene (its walk uncompiled): geoloc view --export (the scene geoloc view serves)",
-     ["view", "--export", "{tmp}/scene.html"]),
+    (
+        "a one-ray locate (its walk uncompiled): geoloc locate --sensor eo_turret.toml --dem srtm_jacksboro.tif",
+        [
+            "locate",
+            "--sensor",
+            "assets/sensors/eo_turret.toml",
+            "--lat-deg",
+            "36.6",
+            "--lon-deg",
+            "-84.25",
+            "--h-m",
+            "2500",
+            "--heading-deg",
+            "45",
+            "--angle",
+            "azimuth=90",
+            "--angle",
+            "elevation=-30",
+            "--dem",
+            "assets/dem/srtm_jacksboro.tif",
+            "--json",
+        ],
+    ),
+    (
+        "a records replay: geoloc replay drone_targets.csv --sensor drone_camera.toml --dem srtm_jacksboro.tif",
+        [
+            "replay",
+            "assets/records/drone_targets.csv",
+            "--sensor",
+            "assets/sensors/drone_camera.toml",
+            "--dem",
+            "assets/dem/srtm_jacksboro.tif",
+        ],
+    ),
+    ("a KLV replay: geoloc replay example_flight.klv", ["replay", "assets/klv/example_flight.klv"]),
+    (
+        "the viewer's first scene (its walk uncompiled): geoloc view --export (the scene geoloc view serves)",
+        ["view", "--export", "{tmp}/scene.html"],
+    ),
     ("the terrain walk of a large batch: 20 000 rays over srtm_jacksboro.tif", _large_batch),
     ("the refraction kernels: --refraction standard on a height, on the DEM, and a limb ray", _refraction),
 )
@@ -98,8 +127,7 @@ def run(args) -> int:
     from geoloc.cli import main
     from geoloc.geodesy import _nbgeo
 
-    print(f"geoloc warm: compiling what locate, replay and view need, once; cache: {_nbgeo.cache_dir()}",
-          flush=True)
+    print(f"geoloc warm: compiling what locate, replay and view need, once; cache: {_nbgeo.cache_dir()}", flush=True)
     t_all = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="geoloc-warm-") as tmp:
         for what, argv in STEPS:
@@ -119,7 +147,5 @@ def run(args) -> int:
                 tail = err.getvalue().strip().splitlines()[-1:] or ["(no message)"]
                 print(f"geoloc warm: step failed (exit {rc}): {tail[0]}", file=sys.stderr)
                 return rc
-    print(f"geoloc warm: done in {time.perf_counter() - t_all:.1f} s; the next runs start from the cache",
-          flush=True)
+    print(f"geoloc warm: done in {time.perf_counter() - t_all:.1f} s; the next runs start from the cache", flush=True)
     return 0
-

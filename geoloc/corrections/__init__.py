@@ -33,6 +33,8 @@ def check_table(table, source: str = "[corrections]") -> dict:
             raise ValueError(f"{source}: {key} = {table[key]!r} must be true or false")
     for key in GROUND_KEYS:
         v = table.get(key)
-        if key in table and (isinstance(v, bool) or not isinstance(v, (int, float)) or v != v or abs(v) == float("inf")):
+        if key in table and (
+            isinstance(v, bool) or not isinstance(v, (int, float)) or v != v or abs(v) == float("inf")
+        ):
             raise ValueError(f"{source}: {key} = {v!r} must be a finite number")
     return dict(table)

@@ -245,8 +245,12 @@ def air_refractivity(p_pa, t_k, wavelength_um: float = WAVELENGTH_UM):
     """
     p = np.asarray(p_pa, float)
     t = np.asarray(t_k, float) - 273.15
-    return standard_air_refractivity(wavelength_um) * p * (1.0 + 1e-8 * (0.601 - 0.00972 * t) * p) / (
-        96095.43 * (1.0 + 0.003661 * t))
+    return (
+        standard_air_refractivity(wavelength_um)
+        * p
+        * (1.0 + 1e-8 * (0.601 - 0.00972 * t) * p)
+        / (96095.43 * (1.0 + 0.003661 * t))
+    )
 
 
 def standard_air_refractivity(wavelength_um: float = WAVELENGTH_UM) -> float:

@@ -224,13 +224,39 @@ def _nan_row(out_org, out_hit, out_dir, out_llh, out_shift, i):
 def _finite_rows(o, d, p, h, out):
     """out[i]: every coordinate of ray i finite (outside the fast-math kernel, which may fold the test)."""
     for i in range(o.shape[0]):
-        out[i] = math.isfinite(o[i, 0] + o[i, 1] + o[i, 2] + d[i, 0] + d[i, 1] + d[i, 2]
-                               + p[i, 0] + p[i, 1] + p[i, 2] + h[i])
+        out[i] = math.isfinite(
+            o[i, 0] + o[i, 1] + o[i, 2] + d[i, 0] + d[i, 1] + d[i, 2] + p[i, 0] + p[i, 1] + p[i, 2] + h[i]
+        )
 
 
 @cached_njit(KEY, parallel=True, error_model="numpy", fastmath=FAST)
-def _correct_kernel(o, d, p, at_h, finite, lat_in, lon_in, h_in, have_llh, mode, h0, step, table, bottoms, values, bounds, top, gx, gw,
-                    out_org, out_hit, out_dir, out_llh, out_shift, out_status):
+def _correct_kernel(
+    o,
+    d,
+    p,
+    at_h,
+    finite,
+    lat_in,
+    lon_in,
+    h_in,
+    have_llh,
+    mode,
+    h0,
+    step,
+    table,
+    bottoms,
+    values,
+    bounds,
+    top,
+    gx,
+    gw,
+    out_org,
+    out_hit,
+    out_dir,
+    out_llh,
+    out_shift,
+    out_status,
+):
     """Per ray: the bent ray's point and tangent at the sphere height ``at_h`` (see the module doc)."""
     n = o.shape[0]
     for i in prange(n):
@@ -290,8 +316,9 @@ def _correct_kernel(o, d, p, at_h, finite, lat_in, lon_in, h_in, have_llh, mode,
             _nan_row(out_org, out_hit, out_dir, out_llh, out_shift, i)
             continue
         qp = abs(wp)
-        dth = _dtheta(c0, min(qp, qg), max(qp, qg), R, eps_p, mode, h0, step, table, bottoms, values,
-                      bounds, top, gx, gw)
+        dth = _dtheta(
+            c0, min(qp, qg), max(qp, qg), R, eps_p, mode, h0, step, table, bottoms, values, bounds, top, gx, gw
+        )
         if c0 > 0.0:
             e1x, e1y, e1z = fx / c0, fy / c0, fz / c0
         else:
@@ -446,12 +473,25 @@ class Layers:
 
 #: The layers Rugged's ``MultiLayerModel(ellipsoid)`` builds in (its source,
 #: ``org/orekit/rugged/refraction/MultiLayerModel.java``, Rugged 2.x): lowest height [m], n.
-RUGGED_LAYERS = Layers((
-    (100000.0, 1.000000), (50000.0, 1.000000), (40000.0, 1.000001), (30000.0, 1.000004),
-    (23000.0, 1.000012), (18000.0, 1.000028), (14000.0, 1.000052), (11000.0, 1.000083),
-    (9000.0, 1.000106), (7000.0, 1.000134), (5000.0, 1.000167), (3000.0, 1.000206),
-    (1000.0, 1.000252), (0.0, 1.000278), (-1000.0, 1.000306),
-))
+RUGGED_LAYERS = Layers(
+    (
+        (100000.0, 1.000000),
+        (50000.0, 1.000000),
+        (40000.0, 1.000001),
+        (30000.0, 1.000004),
+        (23000.0, 1.000012),
+        (18000.0, 1.000028),
+        (14000.0, 1.000052),
+        (11000.0, 1.000083),
+        (9000.0, 1.000106),
+        (7000.0, 1.000134),
+        (5000.0, 1.000167),
+        (3000.0, 1.000206),
+        (1000.0, 1.000252),
+        (0.0, 1.000278),
+        (-1000.0, 1.000306),
+    )
+)
 
 
 @dataclass(frozen=True)
@@ -611,12 +651,44 @@ class Refraction:
         status = np.empty(n, np.uint8)
         finite = np.empty(n, np.bool_)
         _finite_rows(o, d, p, h, finite)
-        _correct_kernel(o, d, p, h, finite, lat_in, lon_in, h_in, hit_llh is not None, mode, h0, step, table, bottoms, values, bounds, top, _GL_X, _GL_W,
-                        org, hit_out, dir_out, out_llh, shift, status)
-        return RefractedLine(org.reshape(shape + (3,)), dir_out.reshape(shape + (3,)),
-                             hit_out.reshape(shape + (3,)), out_llh[:, 0].reshape(shape),
-                             out_llh[:, 1].reshape(shape), out_llh[:, 2].reshape(shape), shift[:, 0].reshape(shape),
-                             status.reshape(shape), shift[:, 1].reshape(shape))
+        _correct_kernel(
+            o,
+            d,
+            p,
+            h,
+            finite,
+            lat_in,
+            lon_in,
+            h_in,
+            hit_llh is not None,
+            mode,
+            h0,
+            step,
+            table,
+            bottoms,
+            values,
+            bounds,
+            top,
+            _GL_X,
+            _GL_W,
+            org,
+            hit_out,
+            dir_out,
+            out_llh,
+            shift,
+            status,
+        )
+        return RefractedLine(
+            org.reshape(shape + (3,)),
+            dir_out.reshape(shape + (3,)),
+            hit_out.reshape(shape + (3,)),
+            out_llh[:, 0].reshape(shape),
+            out_llh[:, 1].reshape(shape),
+            out_llh[:, 2].reshape(shape),
+            shift[:, 0].reshape(shape),
+            status.reshape(shape),
+            shift[:, 1].reshape(shape),
+        )
 
     def aim(self, origin, ground, max_iter: int = 8, tol_m: float = 1e-4):
         """The direction leaving the camera whose bent ray reaches ``ground``: the inverse of :meth:`correct`.
@@ -695,9 +767,23 @@ class Refraction:
         out = np.empty((n, 3))
         finite = np.isfinite(c0) & np.isfinite(rp) & (wp < 0)
         c0k = np.where(finite, c0, R)
-        _limb_kernel(np.array(c0k, dtype=float), np.array(np.where(finite, rp, R + 1e6), dtype=float),
-                     np.array(R, dtype=float), np.array(np.where(finite, eps_p, 0.0), dtype=float), mode, h0, step, table, bottoms, values,
-                     bounds, top, _GLL_X, _GLL_W, out)
+        _limb_kernel(
+            np.array(c0k, dtype=float),
+            np.array(np.where(finite, rp, R + 1e6), dtype=float),
+            np.array(R, dtype=float),
+            np.array(np.where(finite, eps_p, 0.0), dtype=float),
+            mode,
+            h0,
+            step,
+            table,
+            bottoms,
+            values,
+            bounds,
+            top,
+            _GLL_X,
+            _GLL_W,
+            out,
+        )
         rt, ang, st = out[:, 0], out[:, 1], out[:, 2].astype(np.uint8)
         a_p = np.arctan2(wp, c0)
         a_t = a_p + ang

@@ -74,9 +74,7 @@ def T_ned_ecef_q17_factors(lat, lon, h):
         The factors, leftmost first. Their product equals
         ``rotations.invert(T_ecef_ned(lat, lon, h))`` (checked in the tests).
     """
-    lat, lon, h = np.broadcast_arrays(
-        np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float)
-    )
+    lat, lon, h = np.broadcast_arrays(np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float))
     rn = prime_vertical_radius(lat)
     z = np.zeros_like(lat)
     sp, cp = np.sin(lat), np.cos(lat)
@@ -214,9 +212,10 @@ class Pose:
 
     @property
     def shape(self) -> tuple:
-        return np.broadcast_shapes(*(np.shape(getattr(self, f.name)) for f in fields(self)
-                                     if f.name != "angles"),
-                                   *(np.shape(v) for v in self.angles.values()))
+        return np.broadcast_shapes(
+            *(np.shape(getattr(self, f.name)) for f in fields(self) if f.name != "angles"),
+            *(np.shape(v) for v in self.angles.values()),
+        )
 
     def batch_size(self, *arrays) -> int:
         """Samples in the broadcast of this batch with ``arrays`` (pixels, heights): the rays of a call."""
@@ -247,18 +246,13 @@ class Pose:
                 unit = "m" if name == "h" else "deg"
                 shown = val if name == "h" else np.rad2deg(val)
                 lo_s, hi_s = (lo, hi) if name == "h" else (np.rad2deg(lo), np.rad2deg(hi))
-                raise ValueError(
-                    f"{name} = {shown:g} {unit} is not a finite value in "
-                    f"[{lo_s:g}, {hi_s:g}] {unit}"
-                )
+                raise ValueError(f"{name} = {shown:g} {unit} is not a finite value in [{lo_s:g}, {hi_s:g}] {unit}")
         return self
 
 
 def _rotate_T(R, v):
     """R^T v for stacks of rotations (..., 3, 3) and vectors (..., 3)."""
     return np.einsum("...ji,...j->...i", R, v)
-
-
 
 
 class FrameChain:
@@ -326,14 +320,34 @@ class FrameChain:
     def hops(self) -> list:
         """ECEF <- NED <- body <- gimbal_outer <- cam as :class:`Hop` objects, outermost first."""
         return [
-            Hop("ecef", "ned", rot.transform(self.R_ecef_ned, self.origin_ecef),
-                "Q17 eq. 4-5", "local North-East-Down at the aircraft to Earth-centred Earth-fixed"),
-            Hop("ned", "body", rot.transform(self.R_ned_body),
-                "Q17 eq. 6", "aircraft body (X nose, Y right wing, Z down) to NED"),
-            Hop("body", "gimbal_outer", rot.transform(self.R_body_outer),
-                "Q17 eq. 7", "outer gimbal (roll about the body X axis) to body"),
-            Hop("gimbal_outer", "cam", rot.transform(self.R_outer_cam),
-                "Q17 eq. 7", "inner gimbal / camera (pitch about the outer gimbal Y axis; Z is the line of sight) to outer gimbal"),
+            Hop(
+                "ecef",
+                "ned",
+                rot.transform(self.R_ecef_ned, self.origin_ecef),
+                "Q17 eq. 4-5",
+                "local North-East-Down at the aircraft to Earth-centred Earth-fixed",
+            ),
+            Hop(
+                "ned",
+                "body",
+                rot.transform(self.R_ned_body),
+                "Q17 eq. 6",
+                "aircraft body (X nose, Y right wing, Z down) to NED",
+            ),
+            Hop(
+                "body",
+                "gimbal_outer",
+                rot.transform(self.R_body_outer),
+                "Q17 eq. 7",
+                "outer gimbal (roll about the body X axis) to body",
+            ),
+            Hop(
+                "gimbal_outer",
+                "cam",
+                rot.transform(self.R_outer_cam),
+                "Q17 eq. 7",
+                "inner gimbal / camera (pitch about the outer gimbal Y axis; Z is the line of sight) to outer gimbal",
+            ),
         ]
 
     def cam_to_ecef(self, v_cam) -> np.ndarray:

@@ -83,8 +83,11 @@ class Joint:
         if self.kind == "fixed":
             # (3, 3), or a batch (..., 3, 3) (Monte Carlo draws a mount perturbation per sample)
             R = np.asarray(self.R if self.R is not None else np.eye(3), float)
-            if (R.shape[-2:] != (3, 3) or not np.allclose(R @ np.swapaxes(R, -1, -2), np.eye(3), atol=1e-9)
-                    or np.any(np.linalg.det(R) < 0)):
+            if (
+                R.shape[-2:] != (3, 3)
+                or not np.allclose(R @ np.swapaxes(R, -1, -2), np.eye(3), atol=1e-9)
+                or np.any(np.linalg.det(R) < 0)
+            ):
                 raise ValueError(f"joint {self.child!r}: R must be a 3x3 rotation matrix (or a stack of them)")
             object.__setattr__(self, "R", R)
         off = np.asarray(self.offset_m, float)
@@ -271,8 +274,10 @@ class BoundFrames:
     def all_hops(self) -> list:
         """One hop per joint of the whole graph (side branches too: the body of an
         earth-referenced gimbal), parents before children."""
-        return [Hop(j.parent, j.child, self.graph.T(j.parent, j.child, self.pose), j.equation,
-                    j.description, j) for j in self.graph.joints]
+        return [
+            Hop(j.parent, j.child, self.graph.T(j.parent, j.child, self.pose), j.equation, j.description, j)
+            for j in self.graph.joints
+        ]
 
     def T_ecef(self, frame: str) -> np.ndarray:
         return self.graph.T_ecef(frame, self.pose)

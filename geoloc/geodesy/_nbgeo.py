@@ -100,9 +100,12 @@ def _announce(name: str) -> None:
     if not on:
         return
     _announced = True
-    print(f"geoloc: compiling the terrain and camera kernels once (about {FIRST_COMPILE_CPU_S} s of CPU on "
-          f"2 cores, the first run only; `geoloc warm` does it ahead); cached in {cache_dir()}",
-          file=sys.stderr, flush=True)
+    print(
+        f"geoloc: compiling the terrain and camera kernels once (about {FIRST_COMPILE_CPU_S} s of CPU on "
+        f"2 cores, the first run only; `geoloc warm` does it ahead); cached in {cache_dir()}",
+        file=sys.stderr,
+        flush=True,
+    )
 
 
 def dependency_key(*modules) -> str:
@@ -125,6 +128,7 @@ def dependency_key(*modules) -> str:
 
 
 if _FunctionCache is not None:
+
     class _GeolocCacheLocator(_UserLocator):
         """numba's user-folder locator pointed at :func:`cache_dir` (when ``NUMBA_CACHE_DIR`` is
         not set: then numba's own locator serves it first). Unwritable: None, numba's next."""
@@ -142,7 +146,8 @@ if _FunctionCache is not None:
 
     class _GeolocCacheImpl(_CacheImpl):
         _locator_classes = [_UserLocator, _GeolocCacheLocator] + [
-            c for c in _CacheImpl._locator_classes if c is not _UserLocator]
+            c for c in _CacheImpl._locator_classes if c is not _UserLocator
+        ]
 
     class _KeyedFunctionCache(_FunctionCache):
         """numba's function cache with ``key`` appended to every index key, kept in
@@ -185,6 +190,7 @@ def cached_njit(key: str, **options):
     No C-callable (``cfunc``) wrapper is made: nothing takes these kernels as first-class
     function pointers, and the wrapper was 2 % of the first compile's Python work (issue 32).
     """
+
     def deco(fn):
         disp = njit(cache=False, no_cfunc_wrapper=True, **options)(fn)
         if _KeyedFunctionCache is not None and isinstance(disp, _Dispatcher):

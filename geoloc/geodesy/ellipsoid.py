@@ -81,9 +81,7 @@ def geodetic_to_ecef(lat, lon, h):
     ndarray, shape (..., 3)
         ECEF coordinates [m].
     """
-    lat, lon, h = np.broadcast_arrays(
-        np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float)
-    )
+    lat, lon, h = np.broadcast_arrays(np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float))
     rn = prime_vertical_radius(lat)
     cl = np.cos(lat)
     x = (rn + h) * cl * np.cos(lon)

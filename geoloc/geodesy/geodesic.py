@@ -10,8 +10,9 @@ _GEOD = Geod(ellps="WGS84")
 
 def horizontal_distance_m(lat1_deg, lon1_deg, lat2_deg, lon2_deg) -> np.ndarray:
     """Geodesic distance on WGS-84 between two sets of points [m] (NaN in, NaN out)."""
-    lat1, lon1, lat2, lon2 = np.broadcast_arrays(*(np.asarray(v, float) for v in
-                                                   (lat1_deg, lon1_deg, lat2_deg, lon2_deg)))
+    lat1, lon1, lat2, lon2 = np.broadcast_arrays(
+        *(np.asarray(v, float) for v in (lat1_deg, lon1_deg, lat2_deg, lon2_deg))
+    )
     out = np.full(lat1.shape, np.nan)
     ok = np.isfinite(lat1) & np.isfinite(lon1) & np.isfinite(lat2) & np.isfinite(lon2)
     if np.any(ok):

@@ -93,8 +93,10 @@ class NodeGrid:
 
     def grid_coords(self, lat_deg, lon_deg):
         """Fractional (row, col) of points, 0 at the first node."""
-        return ((self.lat_north_deg - np.asarray(lat_deg, float)) / self.dlat_deg,
-                (np.asarray(lon_deg, float) - self.lon_west_deg) / self.dlon_deg)
+        return (
+            (self.lat_north_deg - np.asarray(lat_deg, float)) / self.dlat_deg,
+            (np.asarray(lon_deg, float) - self.lon_west_deg) / self.dlon_deg,
+        )
 
     def contains(self, lat_deg, lon_deg, tol=1e-9):
         """True where a point is on the grid: the node hull grown by ``margin`` cells."""
@@ -122,8 +124,12 @@ class NodeGrid:
         z = self.values
         out = np.zeros(np.shape(u))
         # a missing node spoils the point only if its weight is not zero
-        for w, zz in (((1 - u) * (1 - v), z[i, j]), (u * (1 - v), z[i, j + 1]),
-                      ((1 - u) * v, z[i + 1, j]), (u * v, z[i + 1, j + 1])):
+        for w, zz in (
+            ((1 - u) * (1 - v), z[i, j]),
+            (u * (1 - v), z[i, j + 1]),
+            ((1 - u) * v, z[i + 1, j]),
+            (u * v, z[i + 1, j + 1]),
+        ):
             with np.errstate(invalid="ignore"):
                 out = out + np.where(w != 0, w * zz, 0.0)
         return np.where(inside, out, np.nan)
@@ -140,7 +146,8 @@ def _grids(folder: str) -> tuple:
                 f"does without its grid): the bundled data folder {folder} is incomplete; "
                 "reinstall geoloc, or set GEOLOC_ASSETS to a folder laid out like the "
                 "repository's assets/ (in a source checkout, tools/build_assets.py rebuilds "
-                "the grids)")
+                "the grids)"
+            )
         grids.append(NodeGrid.from_geotiff(p))
     return tuple(grids)
 
@@ -176,8 +183,7 @@ def egm96_undulation(lat, lon, *, folder=None):
     17.16
     """
     grids = _grids(str(folder or GEOID_DIR))
-    lat_deg, lon_deg = np.broadcast_arrays(np.rad2deg(np.asarray(lat, float)),
-                                           np.rad2deg(np.asarray(lon, float)))
+    lat_deg, lon_deg = np.broadcast_arrays(np.rad2deg(np.asarray(lat, float)), np.rad2deg(np.asarray(lon, float)))
     lon_deg = (lon_deg + 180.0) % 360.0 - 180.0  # [-180, 180); the global grid closes at +180
     out = np.full(lat_deg.shape, np.nan)
     todo = np.isfinite(lat_deg) & np.isfinite(lon_deg) & (np.abs(lat_deg) <= 90.0)

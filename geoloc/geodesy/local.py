@@ -349,9 +349,7 @@ def aer_to_enu(az, el, srange):
         ENU coordinates (east, north, up) [m]; the leading shape is the
         broadcast of az, el and srange.
     """
-    az, el, srange = np.broadcast_arrays(
-        np.asarray(az, float), np.asarray(el, float), np.asarray(srange, float)
-    )
+    az, el, srange = np.broadcast_arrays(np.asarray(az, float), np.asarray(el, float), np.asarray(srange, float))
     bad = np.isnan(az) | np.isnan(el) | np.isnan(srange) | (srange < 0.0)
     r = srange * np.cos(el)
     e, n, u = _nan_where(bad, r * np.sin(az), r * np.cos(az), srange * np.sin(el))
@@ -466,8 +464,7 @@ def aer_to_ecef(az, el, srange, lat0, lon0, h0):
 
 def geodetic_to_enu_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0):
     """:func:`geodetic_to_enu` with latitudes and longitudes in degrees; ENU [m] (..., 3)."""
-    return geodetic_to_enu(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h,
-                           np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
+    return geodetic_to_enu(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h, np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
 
 
 def enu_to_geodetic_deg(p_enu, lat0_deg, lon0_deg, h0):
@@ -478,8 +475,7 @@ def enu_to_geodetic_deg(p_enu, lat0_deg, lon0_deg, h0):
 
 def geodetic_to_ned_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0):
     """:func:`geodetic_to_ned` with latitudes and longitudes in degrees; NED [m] (..., 3)."""
-    return geodetic_to_ned(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h,
-                           np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
+    return geodetic_to_ned(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h, np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
 
 
 def ned_to_geodetic_deg(p_ned, lat0_deg, lon0_deg, h0):
@@ -517,8 +513,7 @@ def ecef_to_aer_deg(p_ecef, lat0_deg, lon0_deg, h0):
 
 def aer_to_ecef_deg(az_deg, el_deg, srange, lat0_deg, lon0_deg, h0):
     """:func:`aer_to_ecef` with azimuth, elevation and the origin in degrees; ECEF [m] (..., 3)."""
-    return aer_to_ecef(np.deg2rad(az_deg), np.deg2rad(el_deg), srange,
-                       np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
+    return aer_to_ecef(np.deg2rad(az_deg), np.deg2rad(el_deg), srange, np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
 
 
 def ellipse_ring_enu(semi_major, semi_minor, azimuth_deg, n: int) -> np.ndarray:

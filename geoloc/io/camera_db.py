@@ -61,9 +61,11 @@ class DbLens:
     entry: CameraEntry
 
     def describe(self) -> str:
-        return (f"camera database: {self.entry.label}, focal {self.focal_mm:g} mm ({self.focal_from}) "
-                f"+- {self.focal_sigma_mm:.3g} mm (1 sigma), sensor {self.entry.sensor_width_mm:g} x "
-                f"{self.entry.sensor_height_mm:g} mm; fx 1-sigma {self.sigma_fx:.3g} px")
+        return (
+            f"camera database: {self.entry.label}, focal {self.focal_mm:g} mm ({self.focal_from}) "
+            f"+- {self.focal_sigma_mm:.3g} mm (1 sigma), sensor {self.entry.sensor_width_mm:g} x "
+            f"{self.entry.sensor_height_mm:g} mm; fx 1-sigma {self.sigma_fx:.3g} px"
+        )
 
 
 def _float(text, name, path, line, required=True):
@@ -89,8 +91,18 @@ def load_camera_db(path=None) -> tuple:
         raise ValueError(f"{p}: no header line")
     rows = list(csv.reader([s for _, s in body]))
     header = [h.strip() for h in rows[0]]
-    need = ["make", "model", "width_px", "height_px", "sensor_width_mm", "sensor_height_mm", "focal_mm",
-            "focal_step_mm", "focal_rel_sigma", "source"]
+    need = [
+        "make",
+        "model",
+        "width_px",
+        "height_px",
+        "sensor_width_mm",
+        "sensor_height_mm",
+        "focal_mm",
+        "focal_step_mm",
+        "focal_rel_sigma",
+        "source",
+    ]
     missing = [c for c in need if c not in header]
     if missing:
         raise ValueError(f"{p}: column(s) {missing} missing from the header {header}")
@@ -98,14 +110,27 @@ def load_camera_db(path=None) -> tuple:
     for (line, _), cells in zip(body[1:], rows[1:]):
         r = dict(zip(header, (c.strip() for c in cells)))
         width, height = _float(r["width_px"], "width_px", p, line), _float(r["height_px"], "height_px", p, line)
-        sw, sh = _float(r["sensor_width_mm"], "sensor_width_mm", p, line), \
-            _float(r["sensor_height_mm"], "sensor_height_mm", p, line)
+        sw, sh = (
+            _float(r["sensor_width_mm"], "sensor_width_mm", p, line),
+            _float(r["sensor_height_mm"], "sensor_height_mm", p, line),
+        )
         if not (width and height and sw and sh):
             raise ValueError(f"{p} line {line}: sizes must be > 0")
-        out.append(CameraEntry(r["make"], r["model"], int(width), int(height), sw, sh,
-                               _float(r["focal_mm"], "focal_mm", p, line, False),
-                               _float(r["focal_step_mm"], "focal_step_mm", p, line, False) or 0.0,
-                               _float(r["focal_rel_sigma"], "focal_rel_sigma", p, line), r["source"], line))
+        out.append(
+            CameraEntry(
+                r["make"],
+                r["model"],
+                int(width),
+                int(height),
+                sw,
+                sh,
+                _float(r["focal_mm"], "focal_mm", p, line, False),
+                _float(r["focal_step_mm"], "focal_step_mm", p, line, False) or 0.0,
+                _float(r["focal_rel_sigma"], "focal_rel_sigma", p, line),
+                r["source"],
+                line,
+            )
+        )
     return tuple(out)
 
 

@@ -71,8 +71,13 @@ INPUT_SUFFIX = "_input"
 FILE_STATED = "the file's h_datum column"
 
 _FIXED = TEXT_COLUMNS + PIXEL_COLUMNS + POSE_COLUMNS + TRUTH_COLUMNS + PAPER_COLUMNS
-_KEYS = {"text": {"column"}, "pixel": {"column", "pixel"}, "angle": {"column", "unit"},
-         "length": {"column", "unit"}, "height": {"column", "unit", "datum"}}
+_KEYS = {
+    "text": {"column"},
+    "pixel": {"column", "pixel"},
+    "angle": {"column", "unit"},
+    "length": {"column", "unit"},
+    "height": {"column", "unit", "datum"},
+}
 
 
 def column_kind(name: str) -> str | None:
@@ -173,16 +178,21 @@ class ColumnMap:
             if kind is None:
                 raise ValueError(
                     f"{where}: unknown canonical column {name!r} (= {entry!r}); the names are "
-                    f"{list(_FIXED)} and <angle>_deg for each joint angle of the sensor's gimbal")
+                    f"{list(_FIXED)} and <angle>_deg for each joint angle of the sensor's gimbal"
+                )
             if isinstance(entry, str):
                 entry = {"column": entry}
             if not isinstance(entry, dict):
-                raise ValueError(f"{where}: {name} = {entry!r}: must be a column name (a string) or a "
-                                 "table {column = ..., unit = ...}")
+                raise ValueError(
+                    f"{where}: {name} = {entry!r}: must be a column name (a string) or a "
+                    "table {column = ..., unit = ...}"
+                )
             unknown = sorted(set(entry) - _KEYS[kind])
             if unknown:
-                raise ValueError(f"{where}: {name} = {entry!r}: key(s) {unknown} not allowed for "
-                                 f"{name} (a column of kind {kind}); allowed: {sorted(_KEYS[kind])}")
+                raise ValueError(
+                    f"{where}: {name} = {entry!r}: key(s) {unknown} not allowed for "
+                    f"{name} (a column of kind {kind}); allowed: {sorted(_KEYS[kind])}"
+                )
             col = entry.get("column")
             if not isinstance(col, str) or not col.strip():
                 raise ValueError(f"{where}: {name}: column = {col!r}: must be the name of a column of the file")
@@ -190,16 +200,22 @@ class ColumnMap:
             if unit is not None:
                 units = ANGLE_UNITS if kind == "angle" else LENGTH_UNITS
                 if unit not in units:
-                    raise ValueError(f"{where}: {name}: unit = {unit!r} is not {'an angle' if kind == 'angle' else 'a length'} "
-                                     f"unit; use one of {list(units)}"
-                                     + (" (ft: the international foot, 0.3048 m)" if kind != "angle" else ""))
+                    raise ValueError(
+                        f"{where}: {name}: unit = {unit!r} is not {'an angle' if kind == 'angle' else 'a length'} "
+                        f"unit; use one of {list(units)}"
+                        + (" (ft: the international foot, 0.3048 m)" if kind != "angle" else "")
+                    )
             if datum is not None and datum not in DATUMS:
-                raise ValueError(f"{where}: {name}: datum = {datum!r} is not a vertical datum; use "
-                                 f"'ellipsoid' (WGS 84) or 'egm96' (MSL, orthometric: the usual 'altitude')")
+                raise ValueError(
+                    f"{where}: {name}: datum = {datum!r} is not a vertical datum; use "
+                    f"'ellipsoid' (WGS 84) or 'egm96' (MSL, orthometric: the usual 'altitude')"
+                )
             if pixel is not None and pixel not in PIXELS:
-                raise ValueError(f"{where}: {name}: pixel = {pixel!r} is not a pixel convention; use "
-                                 "'one-based' (the project's, pixel (1, 1) the top-left centre) or "
-                                 "'zero-based' (OpenCV's, (0, 0) the top-left centre)")
+                raise ValueError(
+                    f"{where}: {name}: pixel = {pixel!r} is not a pixel convention; use "
+                    "'one-based' (the project's, pixel (1, 1) the top-left centre) or "
+                    "'zero-based' (OpenCV's, (0, 0) the top-left centre)"
+                )
             specs[name] = ColumnSpec(name, col.strip(), unit, datum, pixel)
         return cls(specs, source)
 
@@ -211,7 +227,8 @@ class ColumnMap:
                 raise ValueError(
                     f"{self.source} [columns]: {name} = {spec.column!r}: the sensor's gimbal has no joint "
                     f"angle {name[:-4]!r}; its angles are {list(angles)} (columns "
-                    f"{[f'{a}_deg' for a in angles]})")
+                    f"{[f'{a}_deg' for a in angles]})"
+                )
 
 
 def load_column_map(path) -> ColumnMap:
@@ -220,8 +237,10 @@ def load_column_map(path) -> ColumnMap:
     data = read_toml(path, "column map")
     unknown = sorted(set(data) - {"columns"})
     if unknown or "columns" not in data:
-        raise ValueError(f"column map {path}: expected one [columns] table"
-                         + (f", got unknown key(s) or table(s) {unknown}" if unknown else ", found none"))
+        raise ValueError(
+            f"column map {path}: expected one [columns] table"
+            + (f", got unknown key(s) or table(s) {unknown}" if unknown else ", found none")
+        )
     return ColumnMap.from_table(data["columns"], source=str(path))
 
 
@@ -249,8 +268,7 @@ class HeightSource:
     stated: str = ""
 
     @classmethod
-    def of_option(cls, datum: str | None, column: str = "--h-m",
-                  option: str = "--altitude-datum") -> HeightSource:
+    def of_option(cls, datum: str | None, column: str = "--h-m", option: str = "--altitude-datum") -> HeightSource:
         """An aircraft height given on the command line: ``datum`` as ``option`` gave it (None: not given)."""
         if datum is not None and datum not in DATUMS:
             raise ValueError(f"{option} {datum!r}: use 'ellipsoid' or 'egm96' (MSL)")
@@ -269,14 +287,17 @@ class HeightSource:
         what += f" from column {self.column!r}" if self.column != self.name else ""
         what += f", {self.unit}" if self.unit != "m" else ""
         what += f") read as {DATUM_TEXT[self.datum]}"
-        what += f" ({self.stated})" if self.stated else " (the default: not stated; --altitude-datum egm96 if they are MSL)"
+        what += (
+            f" ({self.stated})" if self.stated else " (the default: not stated; --altitude-datum egm96 if they are MSL)"
+        )
         if self.datum == "egm96":
             what += ", made ellipsoidal with the bundled EGM96 grid (h = H + N)"
         return f"heights: {what}; every output height is ellipsoidal, WGS 84 (h_datum column)"
 
 
-def datum_warnings(dem_datum: str, height: HeightSource, altitude_option: str = "--altitude-datum",
-                   dem_option: str = "--dem-datum") -> list:
+def datum_warnings(
+    dem_datum: str, height: HeightSource, altitude_option: str = "--altitude-datum", dem_option: str = "--dem-datum"
+) -> list:
     """Warnings for a DEM of ``dem_datum`` meeting aircraft heights read as ``height``.
 
     * an orthometric (egm96) DEM with aircraft heights of unstated datum (taken
@@ -286,14 +307,18 @@ def datum_warnings(dem_datum: str, height: HeightSource, altitude_option: str = 
     """
     out = []
     if dem_datum == "egm96" and height.datum == "ellipsoid" and not height.stated:
-        out.append(f"the DEM is orthometric (egm96) and the aircraft heights are taken as ellipsoidal "
-                   f"(default): if they are MSL, pass {altitude_option} egm96 (if they are ellipsoidal, "
-                   f"{altitude_option} ellipsoid says so)")
+        out.append(
+            f"the DEM is orthometric (egm96) and the aircraft heights are taken as ellipsoidal "
+            f"(default): if they are MSL, pass {altitude_option} egm96 (if they are ellipsoidal, "
+            f"{altitude_option} ellipsoid says so)"
+        )
     if dem_datum == "ellipsoid" and height.datum == "egm96":
-        out.append(f"the aircraft heights are MSL (egm96, {height.stated or 'stated'}; made ellipsoidal with "
-                   f"EGM96) and the DEM is taken as ellipsoidal ({dem_option} ellipsoid): check the DEM's "
-                   f"vertical datum: most DEMs (SRTM, ASTER GDEM, Copernicus, ETOPO) are orthometric, "
-                   f"for which pass {dem_option} egm96")
+        out.append(
+            f"the aircraft heights are MSL (egm96, {height.stated or 'stated'}; made ellipsoidal with "
+            f"EGM96) and the DEM is taken as ellipsoidal ({dem_option} ellipsoid): check the DEM's "
+            f"vertical datum: most DEMs (SRTM, ASTER GDEM, Copernicus, ETOPO) are orthometric, "
+            f"for which pass {dem_option} egm96"
+        )
     return out
 
 
@@ -381,15 +406,22 @@ class ColumnPlan:
         text = raw.get(H_DATUM_COLUMN, "")
         kind = _datum_of_text(text)
         if kind is None:
-            return (H_DATUM_COLUMN, text, (f"is not a vertical datum: use {DATUM_TEXT['ellipsoid']!r} or "
-                                           f"{DATUM_TEXT['egm96']!r}"))
+            return (
+                H_DATUM_COLUMN,
+                text,
+                (f"is not a vertical datum: use {DATUM_TEXT['ellipsoid']!r} or {DATUM_TEXT['egm96']!r}"),
+            )
         for name, src in self.heights.items():
             if src.datum != kind and raw.get(src.column, "").strip():
                 who = src.stated if src.stated not in ("", FILE_STATED) else "the default"
-                fix = (f"--altitude-datum {kind}" if name == "ac_h_m"
-                       else f"datum = {kind!r} for {name} in the column map")
-                return (H_DATUM_COLUMN, text,
-                        f"says {kind} but {name} is read as {src.datum} ({who}): pass {fix}, or correct the file")
+                fix = (
+                    f"--altitude-datum {kind}" if name == "ac_h_m" else f"datum = {kind!r} for {name} in the column map"
+                )
+                return (
+                    H_DATUM_COLUMN,
+                    text,
+                    f"says {kind} but {name} is read as {src.datum} ({who}): pass {fix}, or correct the file",
+                )
         return None
 
     def apply_datums(self, rows: list) -> dict:
@@ -414,9 +446,14 @@ class ColumnPlan:
                     rows[k][name] = repr(float(H[j] + n[j]))
                 elif name != "ac_h_m" or ok[j]:
                     # (a bad aircraft position is reported on its own column by the validation)
-                    errors[int(k)] = (spec.column, _text_of(rows[k], self, name),
-                                      (f"egm96 height {name} needs a valid {lat_name}/{lon_name} in the row "
-                                       "to add the geoid undulation N"))
+                    errors[int(k)] = (
+                        spec.column,
+                        _text_of(rows[k], self, name),
+                        (
+                            f"egm96 height {name} needs a valid {lat_name}/{lon_name} in the row "
+                            "to add the geoid undulation N"
+                        ),
+                    )
         self._pending = {}
         return errors
 
@@ -454,22 +491,30 @@ def unit_warnings(column_map: ColumnMap | None) -> list:
     ``ac_h_m = "Alt_ft"`` read feet as metres, 41 km errors marked ok). A unit the map states
     (even ``m``) is taken as meant."""
     out = []
-    for name, spec in (column_map.specs.items() if column_map is not None else ()):
+    for name, spec in column_map.specs.items() if column_map is not None else ():
         said = _name_unit(spec.column)
         kind = spec.kind
         if spec.unit is not None or said is None:
             continue
         if (said == "ft" and kind in ("length", "height")) or (said == "rad" and kind == "angle"):
             canon = "metres" if said == "ft" else "degrees"
-            out.append(f"{column_map.source} [columns]: {name} = {spec.column!r}: the column's name says "
-                       f"{'feet' if said == 'ft' else 'radians'} but the map gives no unit, so it is read in "
-                       f"{canon}; write {name} = {{column = {spec.column!r}, unit = {said!r}}} if it is")
+            out.append(
+                f"{column_map.source} [columns]: {name} = {spec.column!r}: the column's name says "
+                f"{'feet' if said == 'ft' else 'radians'} but the map gives no unit, so it is read in "
+                f"{canon}; write {name} = {{column = {spec.column!r}, unit = {said!r}}} if it is"
+            )
     return out
 
 
-def plan_columns(path, header: list, angles=(), column_map: ColumnMap | None = None,
-                 altitude_datum: str | None = None, altitude_source: str = "--altitude-datum",
-                 required=()) -> ColumnPlan:
+def plan_columns(
+    path,
+    header: list,
+    angles=(),
+    column_map: ColumnMap | None = None,
+    altitude_datum: str | None = None,
+    altitude_source: str = "--altitude-datum",
+    required=(),
+) -> ColumnPlan:
     """Bind a column map (and the aircraft heights' datum) to a file's ``header``.
 
     Parameters
@@ -504,20 +549,24 @@ def plan_columns(path, header: list, angles=(), column_map: ColumnMap | None = N
         raise ValueError(f"{altitude_source} {altitude_datum!r}: use 'ellipsoid' or 'egm96' (MSL)")
     for name, spec in column_map.specs.items():
         if spec.column not in header:
-            raise ValueError(f"{column_map.source} [columns]: {name} = {spec.column!r}: no column "
-                             f"{spec.column!r} in {path}; its header is {header}")
+            raise ValueError(
+                f"{column_map.source} [columns]: {name} = {spec.column!r}: no column "
+                f"{spec.column!r} in {path}; its header is {header}"
+            )
     specs = dict(column_map.specs)
     # a height whose datum is egm96 by --altitude-datum but which the map does not name
     heights = {}
     for name in HEIGHT_COLUMNS:
         spec = specs.get(name)
         if spec is not None and spec.datum is not None:
-            heights[name] = HeightSource(name, spec.column, spec.datum, spec.unit or "m",
-                                         f"column map {column_map.source}")
+            heights[name] = HeightSource(
+                name, spec.column, spec.datum, spec.unit or "m", f"column map {column_map.source}"
+            )
         elif name == "ac_h_m" and altitude_datum is not None:
             col = spec.column if spec is not None else name
-            heights[name] = HeightSource(name, col, altitude_datum, (spec.unit if spec else None) or "m",
-                                         altitude_source)
+            heights[name] = HeightSource(
+                name, col, altitude_datum, (spec.unit if spec else None) or "m", altitude_source
+            )
             if altitude_datum == "egm96" and spec is None:
                 specs[name] = ColumnSpec(name, name, None, "egm96", None)
         elif spec is not None or name in header or name == "ac_h_m":
@@ -532,9 +581,11 @@ def plan_columns(path, header: list, angles=(), column_map: ColumnMap | None = N
         if name in header:
             new = name + INPUT_SUFFIX
             if new in header:
-                raise ValueError(f"{column_map.source} [columns]: {name} = {spec.column!r} replaces the "
-                                 f"file's column {name!r}, which would be kept as {new!r}, but {path} already "
-                                 f"has a column {new!r}")
+                raise ValueError(
+                    f"{column_map.source} [columns]: {name} = {spec.column!r} replaces the "
+                    f"file's column {name!r}, which would be kept as {new!r}, but {path} already "
+                    f"has a column {new!r}"
+                )
             renamed[name] = new
     out = [renamed.get(h, h) for h in header]
     out += [n for n in specs if n not in out]
@@ -544,12 +595,15 @@ def plan_columns(path, header: list, angles=(), column_map: ColumnMap | None = N
             lat, lon = HEIGHT_COLUMNS[name]
             missing = [c for c in (lat, lon) if c not in out]
             if missing:
-                raise ValueError(f"{name} (column {src.column!r}) is egm96 (MSL): converting it needs the "
-                                 f"position of its point, and there is no {missing} column in {path} "
-                                 "(map it, or give the height as ellipsoidal)")
+                raise ValueError(
+                    f"{name} (column {src.column!r}) is egm96 (MSL): converting it needs the "
+                    f"position of its point, and there is no {missing} column in {path} "
+                    "(map it, or give the height as ellipsoidal)"
+                )
     missing = [c for c in required if c not in out]
     if missing:
         hint = " (a column map, --columns FILE or [columns] in the sensor file, maps your own names: docs/columns.md)"
         raise ValueError(f"{path}: missing required column(s) {missing}; header is {header}{hint}")
-    return ColumnPlan(str(path), list(header), out, specs, renamed, heights, file_h_datum,
-                      warnings=unit_warnings(column_map))
+    return ColumnPlan(
+        str(path), list(header), out, specs, renamed, heights, file_h_datum, warnings=unit_warnings(column_map)
+    )

@@ -92,8 +92,16 @@ def _uid_part(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.:-]+", "_", text).strip("_") or "x"
 
 
-def cot_events(table, *, source: str = "geoloc", cot_type: str = DEFAULT_TYPE, how: str = DEFAULT_HOW,
-               stale_s: float = DEFAULT_STALE_S, now: datetime | None = None, epoch=None) -> CotEvents:
+def cot_events(
+    table,
+    *,
+    source: str = "geoloc",
+    cot_type: str = DEFAULT_TYPE,
+    how: str = DEFAULT_HOW,
+    stale_s: float = DEFAULT_STALE_S,
+    now: datetime | None = None,
+    epoch=None,
+) -> CotEvents:
     """One CoT event per located point of a results table.
 
     Parameters
@@ -155,8 +163,7 @@ def cot_events(table, *, source: str = "geoloc", cot_type: str = DEFAULT_TYPE, h
             continue
         lon = (lon + 180.0) % 360.0 - 180.0
         ce = ce90[k] / CE90_PER_SIGMA if np.isfinite(ce90[k]) and ce90[k] >= 0 else COT_UNKNOWN
-        le = le90[k] / LE90_PER_SIGMA if np.isfinite(le90[k]) and le90[k] >= 0 and math.isfinite(h) \
-            else COT_UNKNOWN
+        le = le90[k] / LE90_PER_SIGMA if np.isfinite(le90[k]) and le90[k] >= 0 and math.isfinite(h) else COT_UNKNOWN
         hae = h if math.isfinite(h) else COT_UNKNOWN
         label = ctx.labels[k]
         uid = f"geoloc.{_uid_part(source)}.{_uid_part(label)}"
@@ -175,16 +182,22 @@ def cot_events(table, *, source: str = "geoloc", cot_type: str = DEFAULT_TYPE, h
             remarks.append(f"MGRS {mg}")
         remarks.append(f"hae {'unknown' if not math.isfinite(h) else 'above the ' + ELLIPSOID_DATUM}")
         if np.isfinite(ce90[k]) or np.isfinite(le90[k]):
-            remarks.append("predicted CE90 " + (f"{ce90[k]:.2f} m" if np.isfinite(ce90[k]) else "unknown")
-                           + ", LE90 " + (f"{le90[k]:.2f} m" if np.isfinite(le90[k]) else "unknown")
-                           + "; ce/le are one sigma (CoT schema)")
+            remarks.append(
+                "predicted CE90 "
+                + (f"{ce90[k]:.2f} m" if np.isfinite(ce90[k]) else "unknown")
+                + ", LE90 "
+                + (f"{le90[k]:.2f} m" if np.isfinite(le90[k]) else "unknown")
+                + "; ce/le are one sigma (CoT schema)"
+            )
         else:
             remarks.append("no predicted uncertainty: ce/le unknown (9999999)")
-        xml = (f"<event version=\"2.0\" type={quoteattr(cot_type)} uid={quoteattr(uid)} how={quoteattr(how)} "
-               f"time=\"{t0}\" start=\"{t0}\" stale=\"{t_stale}\">"
-               f"<point lat=\"{_num(lat)}\" lon=\"{_num(lon)}\" hae=\"{_num(hae)}\" ce=\"{_num(ce)}\" "
-               f"le=\"{_num(le)}\"/>"
-               f"<detail><remarks>{escape('; '.join(remarks))}</remarks></detail></event>")
+        xml = (
+            f'<event version="2.0" type={quoteattr(cot_type)} uid={quoteattr(uid)} how={quoteattr(how)} '
+            f'time="{t0}" start="{t0}" stale="{t_stale}">'
+            f'<point lat="{_num(lat)}" lon="{_num(lon)}" hae="{_num(hae)}" ce="{_num(ce)}" '
+            f'le="{_num(le)}"/>'
+            f"<detail><remarks>{escape('; '.join(remarks))}</remarks></detail></event>"
+        )
         out.events.append(xml.encode("utf-8"))
         out.rows.append(k)
     return out
@@ -222,5 +235,15 @@ def send_udp(events: CotEvents, url: str, ttl: int = 1) -> int:
     return len(events.events)
 
 
-__all__ = ["COT_UNKNOWN", "CotEvents", "DEFAULT_HOW", "DEFAULT_STALE_S", "DEFAULT_TYPE", "TAK_SA_MULTICAST",
-           "cot_events", "parse_udp_url", "send_udp", "write_cot"]
+__all__ = [
+    "COT_UNKNOWN",
+    "CotEvents",
+    "DEFAULT_HOW",
+    "DEFAULT_STALE_S",
+    "DEFAULT_TYPE",
+    "TAK_SA_MULTICAST",
+    "cot_events",
+    "parse_udp_url",
+    "send_udp",
+    "write_cot",
+]

@@ -50,9 +50,29 @@ _DATETIME = re.compile(r"(\d{4}[-.]\d{2}[-.]\d{2}[ T]\d{2}:\d{2}:\d{2}(?:[.,]\d+
 _TAGS = re.compile(r"<[^>]*>")
 
 #: Columns of :func:`write_srt_records` (heights ellipsoidal in ac_h_m, datums stated).
-SRT_COLUMNS = ["index", "line", "frame", "start_s", "end_s", "datetime", "ac_lat_deg", "ac_lon_deg", "ac_h_m",
-               "h_datum", "abs_alt_m", "abs_alt_datum", "rel_alt_m", "rel_alt_datum", "heading_deg",
-               "pitch_deg", "roll_deg", "gimbal_yaw_deg", "gimbal_pitch_deg", "gimbal_roll_deg", "focal_len_mm"]
+SRT_COLUMNS = [
+    "index",
+    "line",
+    "frame",
+    "start_s",
+    "end_s",
+    "datetime",
+    "ac_lat_deg",
+    "ac_lon_deg",
+    "ac_h_m",
+    "h_datum",
+    "abs_alt_m",
+    "abs_alt_datum",
+    "rel_alt_m",
+    "rel_alt_datum",
+    "heading_deg",
+    "pitch_deg",
+    "roll_deg",
+    "gimbal_yaw_deg",
+    "gimbal_pitch_deg",
+    "gimbal_roll_deg",
+    "focal_len_mm",
+]
 
 
 @dataclass
@@ -139,8 +159,9 @@ def read_srt(path) -> SrtFlight:
     try:
         text = p.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as e:
-        raise ValueError(f"{p.name}: not a text SRT file (UTF-8): byte 0x{e.object[e.start]:02x} at "
-                         f"offset {e.start} (file {path})") from None
+        raise ValueError(
+            f"{p.name}: not a text SRT file (UTF-8): byte 0x{e.object[e.start]:02x} at offset {e.start} (file {path})"
+        ) from None
     records, errors, forms = [], [], set()
     for start, block in _blocks(text.splitlines()):
         rec, err, form = _parse_block(start, block)
@@ -170,7 +191,7 @@ def _parse_block(start: int, block: list):
     g = [int(x) for x in m.groups()]
     t0 = g[0] * 3600 + g[1] * 60 + g[2] + int(m.group(4).ljust(3, "0")) / 1000.0
     t1 = g[4] * 3600 + g[5] * 60 + g[6] + int(m.group(8).ljust(3, "0")) / 1000.0
-    body_lines = block[k + 1:]
+    body_lines = block[k + 1 :]
     body = _TAGS.sub(" ", " ".join(body_lines))
     fields = {}
     for key, value in _PAIR.findall(body):
@@ -221,13 +242,20 @@ def _parse_block(start: int, block: list):
         else:
             raise _BadField("no position: neither [latitude: ..] [longitude: ..] nor GPS(lon,lat,alt)", start)
         if not (abs(rec.lat_deg) <= 90.0 and abs(rec.lon_deg) <= 180.0):
-            raise _BadField(f"latitude, longitude = {rec.lat_deg!r}, {rec.lon_deg!r}: out of range",
-                            line_of("lat") if form == "bracketed" else line_of("GPS"))
+            raise _BadField(
+                f"latitude, longitude = {rec.lat_deg!r}, {rec.lon_deg!r}: out of range",
+                line_of("lat") if form == "bracketed" else line_of("GPS"),
+            )
         if rec.lat_deg == 0.0 and rec.lon_deg == 0.0:
-            raise _BadField("latitude, longitude = 0, 0: no GPS fix", line_of("lat") if form == "bracketed"
-                            else line_of("GPS"))
-        for key, attr in (("gb_yaw", "gimbal_yaw_deg"), ("gb_pitch", "gimbal_pitch_deg"),
-                          ("gb_roll", "gimbal_roll_deg"), ("focal_len", "focal_len_mm")):
+            raise _BadField(
+                "latitude, longitude = 0, 0: no GPS fix", line_of("lat") if form == "bracketed" else line_of("GPS")
+            )
+        for key, attr in (
+            ("gb_yaw", "gimbal_yaw_deg"),
+            ("gb_pitch", "gimbal_pitch_deg"),
+            ("gb_roll", "gimbal_roll_deg"),
+            ("focal_len", "focal_len_mm"),
+        ):
             if key in fields:
                 setattr(rec, attr, number(key, fields[key], line_of(key)))
         fc = fields.get("framecnt")
@@ -272,11 +300,32 @@ def write_srt_records(path, flight: SrtFlight) -> int:
             if r.abs_alt_m is not None:
                 h = r.abs_alt_m + float(egm96_undulation(math.radians(r.lat_deg), math.radians(r.lon_deg)))
             earth = r.gimbal_yaw_deg is not None
-            w.writerow([cell(v) for v in (
-                r.index, r.line, r.frame, r.start_s, r.end_s, r.datetime, r.lat_deg, r.lon_deg, h,
-                ELLIPSOID_DATUM if h is not None else "", r.abs_alt_m,
-                "EGM96 (DJI abs_alt, above mean sea level)" if r.abs_alt_m is not None else "",
-                r.rel_alt_m, "above the take-off point" if r.rel_alt_m is not None else "",
-                0.0 if earth else None, 0.0 if earth else None, 0.0 if earth else None,
-                r.gimbal_yaw_deg, r.gimbal_pitch_deg, r.gimbal_roll_deg, r.focal_len_mm)])
+            w.writerow(
+                [
+                    cell(v)
+                    for v in (
+                        r.index,
+                        r.line,
+                        r.frame,
+                        r.start_s,
+                        r.end_s,
+                        r.datetime,
+                        r.lat_deg,
+                        r.lon_deg,
+                        h,
+                        ELLIPSOID_DATUM if h is not None else "",
+                        r.abs_alt_m,
+                        "EGM96 (DJI abs_alt, above mean sea level)" if r.abs_alt_m is not None else "",
+                        r.rel_alt_m,
+                        "above the take-off point" if r.rel_alt_m is not None else "",
+                        0.0 if earth else None,
+                        0.0 if earth else None,
+                        0.0 if earth else None,
+                        r.gimbal_yaw_deg,
+                        r.gimbal_pitch_deg,
+                        r.gimbal_roll_deg,
+                        r.focal_len_mm,
+                    )
+                ]
+            )
     return len(flight.records)

@@ -41,8 +41,7 @@ from geoloc.userfiles import atomic_path, note_input, write_bytes
 
 #: Formats :func:`export` writes.
 FORMATS = ("gpkg", "geojson", "kml", "czml")
-_ALIASES = {"gpkg": "gpkg", "geopackage": "gpkg", "geojson": "geojson", "json": "geojson",
-            "kml": "kml", "czml": "czml"}
+_ALIASES = {"gpkg": "gpkg", "geopackage": "gpkg", "geojson": "geojson", "json": "geojson", "kml": "kml", "czml": "czml"}
 #: Output extensions and the format each implies.
 EXTENSIONS = {".gpkg": "gpkg", ".geojson": "geojson", ".json": "geojson", ".kml": "kml", ".czml": "czml"}
 #: Layers, in the order they are written (every format writes all of them, empty or not).
@@ -62,14 +61,17 @@ DEFAULT_EPOCH = "1970-01-01T00:00:00Z"
 
 #: Reference positions: (name, latitude column, longitude column, height columns in preference order).
 _TRUTH = ("truth", "truth_lat_deg", "truth_lon_deg", ("truth_h_m", "truth_height_m"))
-_REPORTED = (("paper", "paper_lat_deg", "paper_lon_deg", ("paper_height_m", "paper_h_m")),
-             ("reported", "reported_lat_deg", "reported_lon_deg", ("reported_h_m", "reported_height_m")))
+_REPORTED = (
+    ("paper", "paper_lat_deg", "paper_lon_deg", ("paper_height_m", "paper_h_m")),
+    ("reported", "reported_lat_deg", "reported_lon_deg", ("reported_h_m", "reported_height_m")),
+)
 _PLATFORMS = ("ac", "sensor")
 
 _Z_TYPES = {"Point": 1, "LineString": 2, "Polygon": 3}
 
 
 # --------------------------------------------------------------------------- reading
+
 
 def read_results(path) -> dict:
     """Read a results CSV into a table: column name -> float array or list of strings.
@@ -97,8 +99,9 @@ def read_results(path) -> dict:
     try:
         return _read_results(path, p)
     except UnicodeDecodeError as e:
-        raise ValueError(f"{path}: not a text CSV (UTF-8): byte 0x{e.object[e.start]:02x} cannot be decoded; "
-                         "is it a binary file?") from None
+        raise ValueError(
+            f"{path}: not a text CSV (UTF-8): byte 0x{e.object[e.start]:02x} cannot be decoded; is it a binary file?"
+        ) from None
 
 
 def _read_results(path, p):
@@ -118,8 +121,7 @@ def _read_results(path, p):
             if not row:  # a blank line
                 continue
             if len(row) > len(header):
-                raise ValueError(f"{path}: line {reader.line_num} has {len(row)} fields, "
-                                 f"the header has {len(header)}")
+                raise ValueError(f"{path}: line {reader.line_num} has {len(row)} fields, the header has {len(header)}")
             row = row + [""] * (len(header) - len(row))
             for c, v in zip(cols, row):
                 c.append(v.strip())
@@ -141,6 +143,7 @@ def _parse_column(name, vals):
 
 
 # --------------------------------------------------------------------------- table access
+
 
 def _nrows(table) -> int:
     lengths = {name: len(v) for name, v in table.items()}
@@ -222,6 +225,7 @@ def _is_error_column(name: str) -> bool:
 
 # --------------------------------------------------------------------------- heights
 
+
 def _datum_kind(text, k):
     if text is None:
         return "ellipsoid"
@@ -230,8 +234,7 @@ def _datum_kind(text, k):
         return "egm96"
     if any(s in t for s in ("ellipsoid", "wgs 84", "wgs84", "wgs-84", "4979")):
         return "ellipsoid"
-    raise ValueError(f"h_datum {text!r} on row {k} is not understood: use {ELLIPSOID_DATUM!r} "
-                     f"or {EGM96_DATUM!r}")
+    raise ValueError(f"h_datum {text!r} on row {k} is not understood: use {ELLIPSOID_DATUM!r} or {EGM96_DATUM!r}")
 
 
 def _undulation(lat_deg, lon_deg):
@@ -256,6 +259,7 @@ def _ellipsoidal(h, lat, lon, egm96_rows):
 
 # --------------------------------------------------------------------------- times
 
+
 def _parse_time(text, k=None):
     try:
         t = datetime.fromisoformat(text.strip().replace("Z", "+00:00").replace("z", "+00:00"))
@@ -271,6 +275,7 @@ def _iso(base: datetime, seconds: float) -> str:
 
 
 # --------------------------------------------------------------------------- model
+
 
 @dataclass
 class _Feature:
@@ -342,8 +347,10 @@ class ExportSummary:
     def __str__(self) -> str:
         lines = [f"wrote {self.format} ({self.rows} rows) to {', '.join(str(p) for p in self.paths)}"]
         for name in LAYERS:
-            lines.append(f"  {name:<14} {self.features.get(name, 0):5d} features, "
-                         f"{self.without_geometry.get(name, 0)} with an empty geometry")
+            lines.append(
+                f"  {name:<14} {self.features.get(name, 0):5d} features, "
+                f"{self.without_geometry.get(name, 0)} with an empty geometry"
+            )
         lines.append(f"  rows without a computed position: {len(self.rows_without_position)}")
         lines += [f"    {m}" for m in self.missing]
         lines += [f"  note: {s}" for s in self.notes]
@@ -351,6 +358,7 @@ class ExportSummary:
 
 
 # --------------------------------------------------------------------------- layers from the table
+
 
 def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
     """The six layers of a table, with heights made ellipsoidal (the writers' common input).
@@ -360,8 +368,7 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
     """
     n = _nrows(table)
     if group_by is not None and group_by not in table:
-        raise ValueError(f"group-by column {group_by!r} is not in the results "
-                         f"(columns: {', '.join(table) or 'none'})")
+        raise ValueError(f"group-by column {group_by!r} is not in the results (columns: {', '.join(table) or 'none'})")
     if group_by is None and "table" in table:
         group_by = "table"
 
@@ -408,8 +415,7 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
     if datum_text is not None:
         fields.append(("h_datum_input", "text"))
         values["h_datum_input"] = datum_text
-    egm96 = np.array([_datum_kind(datum_text[k] if datum_text else None, k) == "egm96" for k in range(n)],
-                     dtype=bool)
+    egm96 = np.array([_datum_kind(datum_text[k] if datum_text else None, k) == "egm96" for k in range(n)], dtype=bool)
 
     def row_attrs(k, **extra):
         a = {name: values[name][k] for name, _ in fields}
@@ -462,9 +468,11 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
         else:
             coords = None
             missing.append(k)
-        lay.features.append(_Feature(coords, row_attrs(k, h_m=_opt(comp[2][k]) if comp else None,
-                                                       mgrs=comp_mgrs[k]),
-                                     labels[k], k, t_of(k)))
+        lay.features.append(
+            _Feature(
+                coords, row_attrs(k, h_m=_opt(comp[2][k]) if comp else None, mgrs=comp_mgrs[k]), labels[k], k, t_of(k)
+            )
+        )
     lay.description = "computed ground points (lat_deg, lon_deg, h_m)"
     layers["points"] = lay
 
@@ -475,8 +483,11 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
         truth_mgrs = mgrs_of(truth)
         for k in range(n):
             coords = [(float(truth[1][k]), float(truth[0][k]), float(truth[2][k]))] if ok(truth, k) else None
-            lay.features.append(_Feature(coords, row_attrs(k, h_m=_opt(truth[2][k]), mgrs=truth_mgrs[k]),
-                                         f"truth {labels[k]}", k, t_of(k)))
+            lay.features.append(
+                _Feature(
+                    coords, row_attrs(k, h_m=_opt(truth[2][k]), mgrs=truth_mgrs[k]), f"truth {labels[k]}", k, t_of(k)
+                )
+            )
     lay.description = "surveyed (truth) positions (truth_lat_deg, truth_lon_deg, truth_h_m)"
     layers["truth"] = lay
 
@@ -487,15 +498,24 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
         p_mgrs = mgrs_of(p)
         for k in range(n):
             coords = [(float(p[1][k]), float(p[0][k]), float(p[2][k]))] if ok(p, k) else None
-            lay.features.append(_Feature(coords, row_attrs(k, source=name, h_m=_opt(p[2][k]), mgrs=p_mgrs[k]),
-                                         f"{name} {labels[k]}", k, t_of(k)))
-    lay.description = ("published (paper_*) and reported (reported_*, e.g. MISB KLV) positions; "
-                       "attribute source says which")
+            lay.features.append(
+                _Feature(
+                    coords,
+                    row_attrs(k, source=name, h_m=_opt(p[2][k]), mgrs=p_mgrs[k]),
+                    f"{name} {labels[k]}",
+                    k,
+                    t_of(k),
+                )
+            )
+    lay.description = (
+        "published (paper_*) and reported (reported_*, e.g. MISB KLV) positions; attribute source says which"
+    )
     layers["reported"] = lay
 
     # error vectors: computed point -> truth / paper / reported
-    lay = _Layer("error_vectors", "LineString",
-                 fields + [("target", "text"), ("error_m", "real"), ("end_h_from", "text")])
+    lay = _Layer(
+        "error_vectors", "LineString", fields + [("target", "text"), ("error_m", "real"), ("end_h_from", "text")]
+    )
     targets = ([("truth", truth)] if truth is not None else []) + reported
     for name, p in targets:
         err = _num(table, f"error_to_{name}_m", n)
@@ -506,14 +526,23 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
             if ok(comp, k) and ok(p, k):
                 h_end = p[2][k] if np.isfinite(p[2][k]) else comp[2][k]
                 end_from = p[3] if np.isfinite(p[2][k]) else "h_m (target height unknown)"
-                coords = [(float(comp[1][k]), float(comp[0][k]), float(comp[2][k])),
-                          (float(p[1][k]), float(p[0][k]), float(h_end))]
-            lay.features.append(_Feature(coords, row_attrs(k, target=name,
-                                                           error_m=_opt(err[k]) if err is not None else None,
-                                                           end_h_from=end_from),
-                                         f"{labels[k]} to {name}", k, t_of(k)))
-    lay.description = ("from the computed point to the truth / published / reported position; the far "
-                       "end takes the target's height, or the computed height when the target has none")
+                coords = [
+                    (float(comp[1][k]), float(comp[0][k]), float(comp[2][k])),
+                    (float(p[1][k]), float(p[0][k]), float(h_end)),
+                ]
+            lay.features.append(
+                _Feature(
+                    coords,
+                    row_attrs(k, target=name, error_m=_opt(err[k]) if err is not None else None, end_h_from=end_from),
+                    f"{labels[k]} to {name}",
+                    k,
+                    t_of(k),
+                )
+            )
+    lay.description = (
+        "from the computed point to the truth / published / reported position; the far "
+        "end takes the target's height, or the computed height when the target has none"
+    )
     layers["error_vectors"] = lay
 
     # frame footprints
@@ -529,24 +558,37 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
                 order = order + [0]
                 coords = [pts[i] for i in order]
                 order = ",".join(str(i + 1) for i in order)
-            lay.features.append(_Feature(coords, row_attrs(k, ring_corners=order),
-                                         f"footprint {labels[k]}", k, t_of(k)))
-    lay.description = ("image footprints (corner1..corner4), closed ring, counterclockwise; "
-                       "ring_corners gives the corner order")
+            lay.features.append(
+                _Feature(coords, row_attrs(k, ring_corners=order), f"footprint {labels[k]}", k, t_of(k))
+            )
+    lay.description = (
+        "image footprints (corner1..corner4), closed ring, counterclockwise; ring_corners gives the corner order"
+    )
     layers["footprints"] = lay
 
     # platform track, one line per flight
     gname = group_by or "group"
-    tfields = [(gname, "text"), ("n_samples", "int"), ("first_row", "int"), ("last_row", "int"),
-               ("time_source", "text")]
+    tfields = [
+        (gname, "text"),
+        ("n_samples", "int"),
+        ("first_row", "int"),
+        ("last_row", "int"),
+        ("time_source", "text"),
+    ]
     if time_source == "time_utc":
         tfields += [("start_time_utc", "text"), ("end_time_utc", "text")]
     if "time_s" in table:
         tfields += [("start_time_s", "real"), ("end_time_s", "real")]
     tfields += [("h_datum", "text")]
     lay = _Layer("track", "LineString", tfields)
-    plat = next((position(f"{p}_lat_deg", f"{p}_lon_deg", (f"{p}_h_m",)) for p in _PLATFORMS
-                 if f"{p}_lat_deg" in table and f"{p}_lon_deg" in table), None)
+    plat = next(
+        (
+            position(f"{p}_lat_deg", f"{p}_lon_deg", (f"{p}_h_m",))
+            for p in _PLATFORMS
+            if f"{p}_lat_deg" in table and f"{p}_lon_deg" in table
+        ),
+        None,
+    )
     if plat is not None and n:
         groups = _text(table, group_by) if group_by else ["all"] * n
         groups = [g or "" for g in groups]
@@ -560,18 +602,31 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
                 if not keep or seconds[k] > seconds[keep[-1]]:
                     keep.append(k)
             samples = [(float(plat[1][k]), float(plat[0][k]), float(plat[2][k])) for k in keep]
-            a = {gname: g, "n_samples": len(keep), "first_row": keep[0] if keep else None,
-                 "last_row": keep[-1] if keep else None, "time_source": time_source,
-                 "h_datum": ELLIPSOID_DATUM}
+            a = {
+                gname: g,
+                "n_samples": len(keep),
+                "first_row": keep[0] if keep else None,
+                "last_row": keep[-1] if keep else None,
+                "time_source": time_source,
+                "h_datum": ELLIPSOID_DATUM,
+            }
             if time_source == "time_utc":
                 a["start_time_utc"] = utc[keep[0]] if keep else None
                 a["end_time_utc"] = utc[keep[-1]] if keep else None
             if time_s is not None:
                 a["start_time_s"] = _opt(time_s[keep[0]]) if keep else None
                 a["end_time_s"] = _opt(time_s[keep[-1]]) if keep else None
-            lay.features.append(_Feature(samples if len(samples) >= 2 else None, a, f"track {g}".strip(),
-                                         None, float(seconds[keep[0]]) if keep else None, samples,
-                                         [float(seconds[k]) for k in keep]))
+            lay.features.append(
+                _Feature(
+                    samples if len(samples) >= 2 else None,
+                    a,
+                    f"track {g}".strip(),
+                    None,
+                    float(seconds[keep[0]]) if keep else None,
+                    samples,
+                    [float(seconds[k]) for k in keep],
+                )
+            )
     lay.description = "platform track (ac_* or sensor_* columns), one line per flight, ordered by time"
     layers["track"] = lay
 
@@ -588,11 +643,22 @@ def _ellipse_layer(table, n, comp, ok, fields, row_attrs, labels, t_of):
 
     ell = [_num(table, c, n) for c in ("ellipse_major_m", "ellipse_minor_m", "ellipse_azimuth_deg")]
     ce, le = _num(table, "ce90_m", n), _num(table, "le90_m", n)
-    lay = _Layer("ellipses", "Polygon", fields + [("ce90_m", "real"), ("le90_m", "real"),
-                                                  ("semi_major_90_m", "real"), ("semi_minor_90_m", "real"),
-                                                  ("azimuth_deg", "real")])
-    lay.description = ("predicted 90 % horizontal error ellipse of each computed point (the ellipse_* columns "
-                       "x 2.1460, chi-square 2 dof), at the point's height; counterclockwise")
+    lay = _Layer(
+        "ellipses",
+        "Polygon",
+        fields
+        + [
+            ("ce90_m", "real"),
+            ("le90_m", "real"),
+            ("semi_major_90_m", "real"),
+            ("semi_minor_90_m", "real"),
+            ("azimuth_deg", "real"),
+        ],
+    )
+    lay.description = (
+        "predicted 90 % horizontal error ellipse of each computed point (the ellipse_* columns "
+        "x 2.1460, chi-square 2 dof), at the point's height; counterclockwise"
+    )
     if any(c is None for c in ell):
         return lay
     r90 = math.sqrt(-2.0 * math.log(0.1))
@@ -602,15 +668,30 @@ def _ellipse_layer(table, n, comp, ok, fields, row_attrs, labels, t_of):
         if ok(comp, k) and all(np.isfinite((a, b, az))):
             # counterclockwise (RFC 7946): geoloc.geodesy.local.ellipse_ring_enu
             h0 = float(comp[2][k])
-            la, lo, _ = enu_to_geodetic_deg(ellipse_ring_enu(r90 * a, r90 * b, az, ELLIPSE_VERTICES),
-                                            float(comp[0][k]), float(comp[1][k]), h0 if np.isfinite(h0) else 0.0)
+            la, lo, _ = enu_to_geodetic_deg(
+                ellipse_ring_enu(r90 * a, r90 * b, az, ELLIPSE_VERTICES),
+                float(comp[0][k]),
+                float(comp[1][k]),
+                h0 if np.isfinite(h0) else 0.0,
+            )
             pts = [(float(x), float(y), h0) for x, y in zip(lo, la)]
             coords = pts + [pts[0]]
-        lay.features.append(_Feature(coords, row_attrs(k, ce90_m=_opt(ce[k]) if ce is not None else None,
-                                                       le90_m=_opt(le[k]) if le is not None else None,
-                                                       semi_major_90_m=_opt(r90 * a), semi_minor_90_m=_opt(r90 * b),
-                                                       azimuth_deg=_opt(az)),
-                                     f"ellipse {labels[k]}", k, t_of(k)))
+        lay.features.append(
+            _Feature(
+                coords,
+                row_attrs(
+                    k,
+                    ce90_m=_opt(ce[k]) if ce is not None else None,
+                    le90_m=_opt(le[k]) if le is not None else None,
+                    semi_major_90_m=_opt(r90 * a),
+                    semi_minor_90_m=_opt(r90 * b),
+                    azimuth_deg=_opt(az),
+                ),
+                f"ellipse {labels[k]}",
+                k,
+                t_of(k),
+            )
+        )
     return lay
 
 
@@ -623,6 +704,7 @@ def _signed_area(pts) -> float:
 
 # --------------------------------------------------------------------------- export
 
+
 def resolve_format(format, out_path) -> str:
     """The format name from ``format`` (any case, aliases) or the output's extension."""
     allowed = ", ".join(FORMATS)
@@ -633,8 +715,10 @@ def resolve_format(format, out_path) -> str:
         return f
     ext = Path(out_path).suffix.lower()
     if ext not in EXTENSIONS:
-        raise ValueError(f"cannot tell the format from the extension {ext or '(none)'!r} of {str(out_path)!r}: "
-                         f"give a format (one of {allowed}) or use one of {', '.join(EXTENSIONS)}")
+        raise ValueError(
+            f"cannot tell the format from the extension {ext or '(none)'!r} of {str(out_path)!r}: "
+            f"give a format (one of {allowed}) or use one of {', '.join(EXTENSIONS)}"
+        )
     return EXTENSIONS[ext]
 
 
@@ -646,8 +730,9 @@ def geojson_paths(out_path) -> dict:
     return {name: p if name == "points" else p.with_name(f"{p.stem}_{name}{p.suffix}") for name in LAYERS}
 
 
-def export(table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH,
-           require_rows: bool = False) -> ExportSummary:
+def export(
+    table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH, require_rows: bool = False
+) -> ExportSummary:
     """Write a results table to GeoPackage, GeoJSON, KML or CZML.
 
     Parameters
@@ -697,10 +782,15 @@ def export(table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH,
         raise ValueError(f"{source}: a header and no rows: nothing to export")
     if table and not ("lat_deg" in table and "lon_deg" in table):
         # a records CSV never replayed: six layers of empty geometries said nothing (issue 32)
-        hint = (" (it has the records' columns: replay it first, `geoloc replay FILE --out results.csv`, "
-                "then export results.csv)" if "ac_lat_deg" in table else "")
-        raise ValueError(f"{source}: no computed positions (columns lat_deg and lon_deg): not the results "
-                         f"of a replay{hint}")
+        hint = (
+            " (it has the records' columns: replay it first, `geoloc replay FILE --out results.csv`, "
+            "then export results.csv)"
+            if "ac_lat_deg" in table
+            else ""
+        )
+        raise ValueError(
+            f"{source}: no computed positions (columns lat_deg and lon_deg): not the results of a replay{hint}"
+        )
     out = Path(out_path)
     if not out.parent.is_dir():
         raise FileNotFoundError(f"output folder {str(out.parent)!r} does not exist")
@@ -718,11 +808,17 @@ def export(table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH,
         paths = [_write_kml(layers, ctx, out)]
     else:
         paths = [_write_czml(layers, ctx, out, epoch)]
-    return ExportSummary(fmt, [str(p) for p in paths], ctx.n,
-                         {k: len(v.features) for k, v in layers.items()},
-                         {k: v.without_geometry() for k, v in layers.items()},
-                         list(ctx.rows_without_position), ctx.missing_text(ctx.rows_without_position),
-                         ctx.time_source, notes)
+    return ExportSummary(
+        fmt,
+        [str(p) for p in paths],
+        ctx.n,
+        {k: len(v.features) for k, v in layers.items()},
+        {k: v.without_geometry() for k, v in layers.items()},
+        list(ctx.rows_without_position),
+        ctx.missing_text(ctx.rows_without_position),
+        ctx.time_source,
+        notes,
+    )
 
 
 def _require(module: str, pip_name: str):
@@ -733,6 +829,7 @@ def _require(module: str, pip_name: str):
 
 
 # --------------------------------------------------------------------------- GeoPackage / GeoJSON
+
 
 def wkb(geometry: str, coords, z: bool) -> bytes:
     """ISO WKB (little-endian) of a Point, LineString or single-ring Polygon."""
@@ -784,28 +881,43 @@ def _write_ogr_layer(raw, layer, name, path, driver) -> None:
     geoms = np.empty(len(layer.features), dtype=object)
     geoms[:] = [wkb(layer.geometry, f.coords, z) if f.coords else None for f in layer.features]
     names, data, masks = _ogr_columns(layer)
-    desc = (f"{layer.description}. Heights: metres above the WGS 84 ellipsoid "
-            f"(h_datum = {ELLIPSOID_DATUM!r}).")
+    desc = f"{layer.description}. Heights: metres above the WGS 84 ellipsoid (h_datum = {ELLIPSOID_DATUM!r})."
     opts = {"DESCRIPTION": desc}
     if driver == "GeoJSON":
         opts.update({"RFC7946": "YES", "COORDINATE_PRECISION": "12"})
-    raw.write(path, geoms, data, names, field_mask=masks, layer=name, driver=driver,
-              geometry_type=layer.geometry + (" Z" if z else ""),
-              crs="EPSG:4979" if z else "EPSG:4326", layer_options=opts)
+    raw.write(
+        path,
+        geoms,
+        data,
+        names,
+        field_mask=masks,
+        layer=name,
+        driver=driver,
+        geometry_type=layer.geometry + (" Z" if z else ""),
+        crs="EPSG:4979" if z else "EPSG:4326",
+        layer_options=opts,
+    )
 
 
 # --------------------------------------------------------------------------- KML
 
 _KML_COLORS = {  # aabbggrr
-    "points": "ff0000ff", "truth": "ff00ff00", "reported": "ffff8800", "error_vectors": "ff00ffff",
-    "footprints": "ff00ffff", "track": "ffffffff", "ellipses": "ffff00ff",
+    "points": "ff0000ff",
+    "truth": "ff00ff00",
+    "reported": "ffff8800",
+    "error_vectors": "ff00ffff",
+    "footprints": "ff00ffff",
+    "track": "ffffffff",
+    "ellipses": "ffff00ff",
 }
 
 
 def _describe_heights_kml() -> str:
-    return ("KML altitudes are above mean sea level: absolute altitudes here are EGM96 orthometric "
-            "heights H = h - N (h ellipsoidal WGS 84, N from the bundled EGM96 grid, geoloc.geodesy.geoid); "
-            "positions without a height are clampToGround. The attribute h_m keeps the ellipsoidal height.")
+    return (
+        "KML altitudes are above mean sea level: absolute altitudes here are EGM96 orthometric "
+        "heights H = h - N (h ellipsoidal WGS 84, N from the bundled EGM96 grid, geoloc.geodesy.geoid); "
+        "positions without a height are clampToGround. The attribute h_m keeps the ellipsoidal height."
+    )
 
 
 def _document_description(ctx, layers, extra) -> str:
@@ -842,8 +954,13 @@ def _write_kml(layers, ctx, out):
         for f in layer.features:
             pts = f.coords
             if not pts:
-                missing.append(ctx.missing_text([f.row])[0] if name == "points"
-                               else f.label if f.row is None else f"row {f.row} ({ctx.labels[f.row]})")
+                missing.append(
+                    ctx.missing_text([f.row])[0]
+                    if name == "points"
+                    else f.label
+                    if f.row is None
+                    else f"row {f.row} ({ctx.labels[f.row]})"
+                )
                 continue
             lon = np.array([c[0] for c in pts])
             lat = np.array([c[1] for c in pts])
@@ -869,8 +986,9 @@ def _write_kml(layers, ctx, out):
             for k, v in f.attrs.items():
                 if v is not None:
                     g.extendeddata.newdata(k, html.escape(str(v), quote=False))
-            g.extendeddata.newdata("altitude", "EGM96 orthometric H = h - N (absolute)" if absolute
-                                   else "clampToGround (no height)")
+            g.extendeddata.newdata(
+                "altitude", "EGM96 orthometric H = h - N (absolute)" if absolute else "clampToGround (no height)"
+            )
             if layer.geometry == "Point" and absolute:
                 g.extendeddata.newdata("egm96_undulation_m", repr(float(und[0])))
             if ctx.real_time:
@@ -890,8 +1008,24 @@ def _write_kml(layers, ctx, out):
 _KML_NS = "http://www.opengis.net/kml/2.2"
 _GX_NS = "http://www.google.com/kml/ext/2.2"
 #: Feature elements the KML 2.2 schema puts before a StyleSelector (Style, StyleMap).
-_BEFORE_STYLE = {"name", "visibility", "open", "author", "link", "address", "AddressDetails", "phoneNumber",
-                 "Snippet", "snippet", "description", "LookAt", "Camera", "TimeStamp", "TimeSpan", "styleUrl"}
+_BEFORE_STYLE = {
+    "name",
+    "visibility",
+    "open",
+    "author",
+    "link",
+    "address",
+    "AddressDetails",
+    "phoneNumber",
+    "Snippet",
+    "snippet",
+    "description",
+    "LookAt",
+    "Camera",
+    "TimeStamp",
+    "TimeSpan",
+    "styleUrl",
+}
 
 
 def _kml_schema_order(text: str) -> bytes:
@@ -933,15 +1067,22 @@ def _kml_schema_order(text: str) -> bytes:
 # --------------------------------------------------------------------------- CZML
 
 _CZML_COLORS = {
-    "points": [255, 0, 0, 255], "truth": [0, 255, 0, 255], "reported": [0, 136, 255, 255],
-    "error_vectors": [255, 255, 0, 255], "footprints": [255, 255, 0, 70], "track": [255, 255, 255, 255],
+    "points": [255, 0, 0, 255],
+    "truth": [0, 255, 0, 255],
+    "reported": [0, 136, 255, 255],
+    "error_vectors": [255, 255, 0, 255],
+    "footprints": [255, 255, 0, 70],
+    "track": [255, 255, 255, 255],
     "ellipses": [255, 0, 255, 90],
 }
 
 
 def _html_table(attrs) -> str:
-    rows = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>"
-                   for k, v in attrs.items() if v is not None)
+    rows = "".join(
+        f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>"
+        for k, v in attrs.items()
+        if v is not None
+    )
     return f"<table>{rows}</table>"
 
 
@@ -959,20 +1100,37 @@ def _write_czml(layers, ctx, out, epoch):
     start = float(min(times)) if times else 0.0
     stop = (float(max(times)) if times else 0.0) + 1.0  # one second past the last record, so it shows
     stop_iso = ctx.iso(stop)
-    extra = [("Heights are metres above the WGS 84 ellipsoid (CZML cartographicDegrees); "
-              "positions without a height are clamped to the ground.")]
+    extra = [
+        (
+            "Heights are metres above the WGS 84 ellipsoid (CZML cartographicDegrees); "
+            "positions without a height are clamped to the ground."
+        )
+    ]
     if ctx.time_source == "row_order":
-        extra.append(f"The results have no time column (time_s / time_utc): times are synthesized, "
-                     f"one second per row from {epoch}.")
+        extra.append(
+            f"The results have no time column (time_s / time_utc): times are synthesized, "
+            f"one second per row from {epoch}."
+        )
     elif ctx.time_source == "time_s":
         extra.append(f"Times are time_s seconds after {epoch}.")
     else:
         extra.append("Times are the time_utc column.")
-    clock = C.Clock(interval=C.TimeInterval(start=ctx.iso(start), end=stop_iso), currentTime=ctx.iso(start),
-                    multiplier=max(1.0, (stop - start) / 60.0), range=ClockRanges.CLAMPED,
-                    step=ClockSteps.SYSTEM_CLOCK_MULTIPLIER)
-    packets = [C.Packet(id="document", name=out.stem, version=C.CZML_VERSION,
-                        description=_document_description(ctx, layers, extra), clock=clock)]
+    clock = C.Clock(
+        interval=C.TimeInterval(start=ctx.iso(start), end=stop_iso),
+        currentTime=ctx.iso(start),
+        multiplier=max(1.0, (stop - start) / 60.0),
+        range=ClockRanges.CLAMPED,
+        step=ClockSteps.SYSTEM_CLOCK_MULTIPLIER,
+    )
+    packets = [
+        C.Packet(
+            id="document",
+            name=out.stem,
+            version=C.CZML_VERSION,
+            description=_document_description(ctx, layers, extra),
+            clock=clock,
+        )
+    ]
     clamp = HeightReference(heightReference=HeightReferences.CLAMP_TO_GROUND)
 
     def color(name):
@@ -981,8 +1139,11 @@ def _write_czml(layers, ctx, out, epoch):
     for name in LAYERS:
         layer = layers[name]
         for f in layer.features:
-            common = {"name": f.label, "description": _html_table(f.attrs),
-                      "properties": {k: v for k, v in f.attrs.items() if v is not None}}
+            common = {
+                "name": f.label,
+                "description": _html_table(f.attrs),
+                "properties": {k: v for k, v in f.attrs.items() if v is not None},
+            }
             if name == "track":
                 s = f.samples
                 if not s:
@@ -993,19 +1154,32 @@ def _write_czml(layers, ctx, out, epoch):
                     vals = []
                     for t, c in zip(f.times, s):
                         vals += [t - t0, c[0], c[1], c[2] if has_h else 0.0]
-                    pos = C.Position(epoch=ctx.iso(t0), cartographicDegrees=vals,
-                                     interpolationAlgorithm=InterpolationAlgorithms.LINEAR, interpolationDegree=1)
+                    pos = C.Position(
+                        epoch=ctx.iso(t0),
+                        cartographicDegrees=vals,
+                        interpolationAlgorithm=InterpolationAlgorithms.LINEAR,
+                        interpolationDegree=1,
+                    )
                     avail = C.TimeInterval(start=ctx.iso(t0), end=ctx.iso(f.times[-1]))
                 else:
                     c = s[0]
                     pos = C.Position(cartographicDegrees=[c[0], c[1], c[2] if has_h else 0.0])
                     avail = C.TimeInterval(start=ctx.iso(f.times[0]), end=stop_iso)
-                packets.append(C.Packet(
-                    id=f"platform/{f.attrs.get(layer.fields[0][0])}", availability=avail, position=pos,
-                    point=C.Point(pixelSize=10, color=color(name), heightReference=None if has_h else clamp),
-                    path=C.Path(width=2, leadTime=0, resolution=1,
-                                material=C.PolylineMaterial(solidColor=C.SolidColorMaterial(color=color(name)))),
-                    **common))
+                packets.append(
+                    C.Packet(
+                        id=f"platform/{f.attrs.get(layer.fields[0][0])}",
+                        availability=avail,
+                        position=pos,
+                        point=C.Point(pixelSize=10, color=color(name), heightReference=None if has_h else clamp),
+                        path=C.Path(
+                            width=2,
+                            leadTime=0,
+                            resolution=1,
+                            material=C.PolylineMaterial(solidColor=C.SolidColorMaterial(color=color(name))),
+                        ),
+                        **common,
+                    )
+                )
                 continue
             if not f.coords:
                 continue
@@ -1013,24 +1187,48 @@ def _write_czml(layers, ctx, out, epoch):
             pid = f"{name}/{f.attrs.get('source') or f.attrs.get('target') or ''}/{f.row}".replace("//", "/")
             has_h = all(np.isfinite(c[2]) for c in f.coords)
             flat = []
-            for c in (f.coords[:-1] if layer.geometry == "Polygon" else f.coords):
+            for c in f.coords[:-1] if layer.geometry == "Polygon" else f.coords:
                 flat += [c[0], c[1], c[2] if has_h else 0.0]
             if layer.geometry == "Point":
-                packets.append(C.Packet(id=pid, availability=avail, position=C.Position(cartographicDegrees=flat),
-                                        point=C.Point(pixelSize=8, color=color(name),
-                                                      heightReference=None if has_h else clamp), **common))
+                packets.append(
+                    C.Packet(
+                        id=pid,
+                        availability=avail,
+                        position=C.Position(cartographicDegrees=flat),
+                        point=C.Point(pixelSize=8, color=color(name), heightReference=None if has_h else clamp),
+                        **common,
+                    )
+                )
             elif layer.geometry == "LineString":
-                packets.append(C.Packet(id=pid, availability=avail, polyline=C.Polyline(
-                    positions=C.PositionList(cartographicDegrees=flat), width=2,
-                    material=C.PolylineMaterial(solidColor=C.SolidColorMaterial(color=color(name))),
-                    clampToGround=None if has_h else True), **common))
+                packets.append(
+                    C.Packet(
+                        id=pid,
+                        availability=avail,
+                        polyline=C.Polyline(
+                            positions=C.PositionList(cartographicDegrees=flat),
+                            width=2,
+                            material=C.PolylineMaterial(solidColor=C.SolidColorMaterial(color=color(name))),
+                            clampToGround=None if has_h else True,
+                        ),
+                        **common,
+                    )
+                )
             else:
-                packets.append(C.Packet(id=pid, availability=avail, polygon=C.Polygon(
-                    positions=C.PositionList(cartographicDegrees=flat),
-                    material=C.Material(solidColor=C.SolidColorMaterial(color=color(name))),
-                    outline=True, outlineColor=C.Color(rgba=[255, 255, 0, 255]),
-                    perPositionHeight=True if has_h else None,
-                    heightReference=None if has_h else clamp), **common))
+                packets.append(
+                    C.Packet(
+                        id=pid,
+                        availability=avail,
+                        polygon=C.Polygon(
+                            positions=C.PositionList(cartographicDegrees=flat),
+                            material=C.Material(solidColor=C.SolidColorMaterial(color=color(name))),
+                            outline=True,
+                            outlineColor=C.Color(rgba=[255, 255, 0, 255]),
+                            perPositionHeight=True if has_h else None,
+                            heightReference=None if has_h else clamp,
+                        ),
+                        **common,
+                    )
+                )
     with atomic_path(out) as tmp:
         C.Document(packets=packets).save(str(tmp))
     return out

@@ -42,15 +42,23 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from geoloc.extras import require
 
-__all__ = ["ImageSource", "PhotoImage", "VideoFrames", "ArrayImages", "open_images",
-           "nearest_index", "PHOTO_SUFFIXES", "VIDEO_SUFFIXES"]
+__all__ = [
+    "ImageSource",
+    "PhotoImage",
+    "VideoFrames",
+    "ArrayImages",
+    "open_images",
+    "nearest_index",
+    "PHOTO_SUFFIXES",
+    "VIDEO_SUFFIXES",
+]
 
 #: Still-image suffixes :func:`open_images` opens as a :class:`PhotoImage`.
 PHOTO_SUFFIXES = {".jpg", ".jpeg", ".tif", ".tiff", ".png"}
 #: Video suffixes :func:`open_images` opens as :class:`VideoFrames` (anything else FFmpeg reads works too).
 VIDEO_SUFFIXES = {".ts", ".m2ts", ".mts", ".mpg", ".mpeg", ".mp4", ".mov", ".mkv", ".trp", ".avi"}
 
-DEFAULT_CACHE_BYTES = 256 * 2 ** 20
+DEFAULT_CACHE_BYTES = 256 * 2**20
 
 
 @runtime_checkable
@@ -288,8 +296,9 @@ class _Decoder:
             match = [s for s in videos if s.index == stream]
             if not match:
                 self.container.close()
-                raise ValueError(f"{path}: stream {stream} is not a video stream "
-                                 f"(video streams: {[s.index for s in videos]})")
+                raise ValueError(
+                    f"{path}: stream {stream} is not a video stream (video streams: {[s.index for s in videos]})"
+                )
             self.stream = match[0]
         self.stream.thread_type = "AUTO"
         tb = self.stream.time_base
@@ -300,9 +309,9 @@ class _Decoder:
         self.lock = threading.RLock()
         self._pts: np.ndarray | None = None
         self.pts_s: np.ndarray | None = None
-        self._frames = None   # the running decode generator
-        self._last = None     # PTS of the last frame it gave
-        self.decoded = 0      # frames decoded so far (a benchmark reads it)
+        self._frames = None  # the running decode generator
+        self._last = None  # PTS of the last frame it gave
+        self.decoded = 0  # frames decoded so far (a benchmark reads it)
         self.seeks = 0
 
     # ---- the index of PTS, by demuxing (no pixel decoded)
@@ -380,8 +389,12 @@ class _Decoder:
                 return a
             # continue the running decode when the target is a little ahead of it
             # (playback), else seek to the key frame at or before the target
-            ahead = (self._frames is not None and self._last is not None and target_pts > self._last
-                     and np.searchsorted(self.pts, target_pts) - np.searchsorted(self.pts, self._last) <= 12)
+            ahead = (
+                self._frames is not None
+                and self._last is not None
+                and target_pts > self._last
+                and np.searchsorted(self.pts, target_pts) - np.searchsorted(self.pts, self._last) <= 12
+            )
             if not ahead:
                 self._restart(target_pts)
             attempt = 0
@@ -428,8 +441,15 @@ class VideoFrames:
     decoder is a few frames behind ``i`` already (playback), just decodes on.
     """
 
-    def __init__(self, path, time_offset_s: float = 0.0, cache_bytes: int = DEFAULT_CACHE_BYTES, *,
-                 stream: int | None = None, _decoder: _Decoder | None = None):
+    def __init__(
+        self,
+        path,
+        time_offset_s: float = 0.0,
+        cache_bytes: int = DEFAULT_CACHE_BYTES,
+        *,
+        stream: int | None = None,
+        _decoder: _Decoder | None = None,
+    ):
         self.time_offset_s = _check_offset(time_offset_s)
         self.path = Path(path)
         self._dec = _decoder if _decoder is not None else _Decoder(self.path, stream, _check_cache(cache_bytes))
@@ -437,8 +457,7 @@ class VideoFrames:
         self._times: np.ndarray | None = None
 
     def __repr__(self) -> str:
-        return (f"VideoFrames({str(self.path)!r}, {self.rows}x{self.cols}, "
-                f"time_offset_s={self.time_offset_s})")
+        return f"VideoFrames({str(self.path)!r}, {self.rows}x{self.cols}, time_offset_s={self.time_offset_s})"
 
     def with_time_offset(self, time_offset_s: float) -> "VideoFrames":
         """The same frames (same decoder and cache) with another metadata-to-video offset."""

@@ -188,16 +188,34 @@ def _t(tag, name, title):
 
 _CORNERS = []
 for _i in range(4):
-    _CORNERS.append(_s(26 + 2 * _i, f"offset_corner_latitude_{_i + 1}_deg",
-                       f"Offset Corner Latitude Point {_i + 1}", 2, 0.075, ERROR))
-    _CORNERS.append(_s(27 + 2 * _i, f"offset_corner_longitude_{_i + 1}_deg",
-                       f"Offset Corner Longitude Point {_i + 1}", 2, 0.075, ERROR))
+    _CORNERS.append(
+        _s(
+            26 + 2 * _i,
+            f"offset_corner_latitude_{_i + 1}_deg",
+            f"Offset Corner Latitude Point {_i + 1}",
+            2,
+            0.075,
+            ERROR,
+        )
+    )
+    _CORNERS.append(
+        _s(
+            27 + 2 * _i,
+            f"offset_corner_longitude_{_i + 1}_deg",
+            f"Offset Corner Longitude Point {_i + 1}",
+            2,
+            0.075,
+            ERROR,
+        )
+    )
 _FULL_CORNERS = []
 for _i in range(4):
-    _FULL_CORNERS.append(_s(82 + 2 * _i, f"corner_latitude_{_i + 1}_deg",
-                            f"Corner Latitude Point {_i + 1} (Full)", 4, 90, ERROR))
-    _FULL_CORNERS.append(_s(83 + 2 * _i, f"corner_longitude_{_i + 1}_deg",
-                            f"Corner Longitude Point {_i + 1} (Full)", 4, 180, ERROR))
+    _FULL_CORNERS.append(
+        _s(82 + 2 * _i, f"corner_latitude_{_i + 1}_deg", f"Corner Latitude Point {_i + 1} (Full)", 4, 90, ERROR)
+    )
+    _FULL_CORNERS.append(
+        _s(83 + 2 * _i, f"corner_longitude_{_i + 1}_deg", f"Corner Longitude Point {_i + 1} (Full)", 4, 180, ERROR)
+    )
 
 #: The decoded items, in tag order (MISB ST 0601 tag tables). Offset corners
 #: (26-33) are offsets from the frame centre (23, 24); 82-89 are the full corners.
@@ -251,11 +269,22 @@ TAG_BY_NAME: dict[str, TagSpec] = {s.name: s for s in TAGS}
 #: the EG 0104 items with no ST 0601 tag: read-only (the encoder writes the nested sets back
 #: from their raw bytes in :attr:`Packet.unknown` and skips these names).
 DERIVED_FIELDS = (
-    "security_classification", "security_classifying_country", "security_sci_shi", "security_caveats",
-    "security_releasing_instructions", "security_version",
-    "vmti_system_name", "vmti_version", "vmti_targets_detected", "vmti_targets_reported",
-    "vmti_frame_width_px", "vmti_frame_height_px", "vmti_detections",
-    "eg0104_angle_to_north_deg", "eg0104_obliquity_angle_deg", "eg0104_sensor_roll_deg",
+    "security_classification",
+    "security_classifying_country",
+    "security_sci_shi",
+    "security_caveats",
+    "security_releasing_instructions",
+    "security_version",
+    "vmti_system_name",
+    "vmti_version",
+    "vmti_targets_detected",
+    "vmti_targets_reported",
+    "vmti_frame_width_px",
+    "vmti_frame_height_px",
+    "vmti_detections",
+    "eg0104_angle_to_north_deg",
+    "eg0104_obliquity_angle_deg",
+    "eg0104_sensor_roll_deg",
 )
 _FIELD_RANK = {s.name: i for i, s in enumerate(TAGS)}
 _FIELD_RANK.update({n: len(TAGS) + i for i, n in enumerate(DERIVED_FIELDS)})
@@ -264,6 +293,8 @@ _RANK_LAST = len(_FIELD_RANK)
 
 def _rank(name):
     return _FIELD_RANK.get(name, _RANK_LAST)
+
+
 _NUMERIC_SPECS = [s for s in TAGS if s.kind != "str"]
 _TEXT_SPECS = [s for s in TAGS if s.kind == "str"]
 
@@ -303,8 +334,12 @@ class KlvError(ValueError):
         return f"KlvError(offset={self.offset!r}, reason={self.reason!r}, pts={self.pts!r})"
 
     def __eq__(self, other) -> bool:
-        return (isinstance(other, KlvError) and self.offset == other.offset
-                and self.reason == other.reason and self.pts == other.pts)
+        return (
+            isinstance(other, KlvError)
+            and self.offset == other.offset
+            and self.reason == other.reason
+            and self.pts == other.pts
+        )
 
     __hash__ = None
 
@@ -427,7 +462,7 @@ def _bytesum(b: bytes) -> int:
     """
     if len(b) <= 256:
         return (zlib.adler32(b) & 0xFFFF) - 1
-    return sum((zlib.adler32(b[i:i + 256]) & 0xFFFF) - 1 for i in range(0, len(b), 256))
+    return sum((zlib.adler32(b[i : i + 256]) & 0xFFFF) - 1 for i in range(0, len(b), 256))
 
 
 # --------------------------------------------------------------------------- layouts
@@ -465,8 +500,10 @@ def _length_quirk(spec: TagSpec, ln: int) -> str | None:
         return None
     if ln == 0:
         return f"tag {spec.tag} ({spec.title}) is empty (0 bytes): taken as absent"
-    return (f"tag {spec.tag} ({spec.title}) in {ln} bytes, the standard's {spec.size}: "
-            f"decoded at its length with the standard's step")
+    return (
+        f"tag {spec.tag} ({spec.title}) in {ln} bytes, the standard's {spec.size}: "
+        f"decoded at its length with the standard's step"
+    )
 
 
 class _Layout:
@@ -481,7 +518,7 @@ class _Layout:
         # items: list of (tag, item_start, value_start, length) with absolute positions.
         hdr_fmt, val_fmt = [">"], [">"]
         self.hdr_pos = []  # positions of tag/length bytes relative to the value start vs
-        self.vitems = []   # (spec or None, tag, value offset relative to vs, length)
+        self.vitems = []  # (spec or None, tag, value offset relative to vs, length)
         p = vs
         kinds = []
         quirks = []
@@ -509,15 +546,20 @@ class _Layout:
         self.hdr_vals = self.hdr.unpack_from(data, vs)
         self.vals = struct.Struct("".join(val_fmt))
         self.hdr_pos = np.array(self.hdr_pos, dtype=np.intp)
-        self.hdr_arr = np.frombuffer(bytes(data[vs + int(i)] for i in self.hdr_pos), np.uint8) \
-            if len(self.hdr_pos) else np.zeros(0, np.uint8)
+        self.hdr_arr = (
+            np.frombuffer(bytes(data[vs + int(i)] for i in self.hdr_pos), np.uint8)
+            if len(self.hdr_pos)
+            else np.zeros(0, np.uint8)
+        )
 
         self.ck_idx = next((i for i, (_, tag, _) in enumerate(kinds) if tag == _CHECKSUM_TAG), None)
         self.nested = any(tag in _NESTED for _, tag, _ in kinds)
         make = _compile_make(kinds, self.quirks)
         if self.nested:
+
             def make_nested(raws, offset, _make=make):
                 return _decode_nested(_make(raws, offset))
+
             self.make = make_nested
         else:
             self.make = make
@@ -623,7 +665,7 @@ def _walk(data, vs, ve):
                 raise _Bad(f"tag {tag}: invalid BER length byte 0x{b:02X}")
             if p + m > ve:
                 raise _Bad(f"tag {tag}: its BER length runs past the end of the local set")
-            ln = int.from_bytes(data[p:p + m], "big")
+            ln = int.from_bytes(data[p : p + m], "big")
             p += m
         if p + ln > ve:
             raise _Bad(f"tag {tag}: length {ln} runs past the end of the local set ({ve - p} bytes left)")
@@ -633,8 +675,7 @@ def _walk(data, vs, ve):
 
 
 #: Nested local sets decoded into fields: ST 0601 tag -> (title, decoder).
-_NESTED = {48: ("Security Local Set, ST 0102", decode_security),
-           74: ("VMTI Local Set, ST 0903", decode_vmti)}
+_NESTED = {48: ("Security Local Set, ST 0102", decode_security), 74: ("VMTI Local Set, ST 0903", decode_vmti)}
 
 
 def _decode_nested(p: Packet) -> Packet:
@@ -723,8 +764,10 @@ class _Decoder:
                 if n != len(items) - 1:
                     raise _Bad("tag 1 (Checksum) is not the last item of the local set")
             elif spec is not None and spec.kind != "str" and ln > 8:
-                raise _Bad(f"tag {tag} ({spec.title}) has length {ln}, expected {spec.size}: an integer "
-                           "of more than 8 bytes cannot be decoded at its length")
+                raise _Bad(
+                    f"tag {tag} ({spec.title}) has length {ln}, expected {spec.size}: an integer "
+                    "of more than 8 bytes cannot be decoded at its length"
+                )
         if need_checksum and (not items or items[-1][0] != _CHECKSUM_TAG):
             raise _Bad("no checksum item (tag 1) at the end of the local set")
         lay = _Layout(items, data, vs)
@@ -742,10 +785,13 @@ class _Decoder:
             if ve - vs < 4 or data[ve - 4] != 1 or data[ve - 3] != 2:
                 raise _Bad("no checksum item (tag 1, length 2) at the end of the local set")
             if ve - k <= 514:
-                calc = (((zlib.adler32(data[k:ve - 2:2]) & 0xFFFF) << 8)
-                        + (zlib.adler32(data[k + 1:ve - 2:2]) & 0xFFFF) - 257) & 0xFFFF
+                calc = (
+                    ((zlib.adler32(data[k : ve - 2 : 2]) & 0xFFFF) << 8)
+                    + (zlib.adler32(data[k + 1 : ve - 2 : 2]) & 0xFFFF)
+                    - 257
+                ) & 0xFFFF
             else:
-                calc = ((_bytesum(data[k:ve - 2:2]) << 8) + _bytesum(data[k + 1:ve - 2:2])) & 0xFFFF
+                calc = ((_bytesum(data[k : ve - 2 : 2]) << 8) + _bytesum(data[k + 1 : ve - 2 : 2])) & 0xFFFF
             stored = (data[ve - 2] << 8) | data[ve - 1]
             if calc != stored:
                 raise _Bad(f"checksum mismatch: the packet says 0x{stored:04X}, its bytes sum to 0x{calc:04X}")
@@ -866,7 +912,7 @@ def _scan(data, base, final, state, verify, start=0, max_length=MAX_PACKET_LENGT
                 state.garbage_from = None
                 pos = k + 1
                 continue
-            L = int.from_bytes(data[p + 1:p + 1 + m], "big")
+            L = int.from_bytes(data[p + 1 : p + 1 + m], "big")
             vs = p + 1 + m
         if L > max_length:
             append(KlvError(base + k, f"implausible length {L} (more than {max_length} bytes)"))
@@ -893,8 +939,9 @@ def _scan(data, base, final, state, verify, start=0, max_length=MAX_PACKET_LENGT
         state.garbage_from = base + ve
 
 
-_EG0104_QUIRK = ("EG 0104 Predator UAV Basic Universal Set (16-byte item keys, no checksum): "
-                 "read into the ST 0601 fields")
+_EG0104_QUIRK = (
+    "EG 0104 Predator UAV Basic Universal Set (16-byte item keys, no checksum): read into the ST 0601 fields"
+)
 
 
 def _scan_eg0104(data, k, n, base, final, state, max_length):
@@ -916,7 +963,7 @@ def _scan_eg0104(data, k, n, base, final, state, max_length):
         L, vs = b, p + 1
     else:
         m = b & 0x7F
-        L, vs = (int.from_bytes(data[p + 1:p + 1 + m], "big") if 0 < m <= 8 else -1), p + 1 + m
+        L, vs = (int.from_bytes(data[p + 1 : p + 1 + m], "big") if 0 < m <= 8 else -1), p + 1 + m
     if pre is not None:  # report the stray bytes first; the packet on the next call
         state.garbage_from = None
         return pre, k
@@ -968,8 +1015,9 @@ def _iter_stream(f: BinaryIO, verify: bool, chunk_size: int, max_length: int) ->
             base += used
 
 
-def iter_packets(data, *, verify_checksum: bool = True, chunk_size: int = 1 << 20,
-                 max_length: int = MAX_PACKET_LENGTH) -> Iterator[Packet | KlvError]:
+def iter_packets(
+    data, *, verify_checksum: bool = True, chunk_size: int = 1 << 20, max_length: int = MAX_PACKET_LENGTH
+) -> Iterator[Packet | KlvError]:
     """Scan bytes or a binary file for UAS Datalink LS packets.
 
     Each packet is found by its 16-byte key (:data:`UAS_LS_KEY`), its BER length read,
@@ -1041,13 +1089,18 @@ def _klv_stream(container, index, path=None):
         for s in data:
             if s.index == index:
                 return s
-        raise ValueError(f"{where}stream {index} is not a data stream of the container "
-                         f"(data streams: {[s.index for s in data]})")
+        raise ValueError(
+            f"{where}stream {index} is not a data stream of the container (data streams: {[s.index for s in data]})"
+        )
     if not data:
-        kinds = ", ".join(f"{s.type} ({s.codec_context.name if s.codec_context else '?'})"
-                          for s in container.streams) or "none"
-        raise ValueError(f"{where}the container has no data (KLV) stream (its streams: {kinds}), "
-                         "so it carries no MISB ST 0601 metadata to read")
+        kinds = (
+            ", ".join(f"{s.type} ({s.codec_context.name if s.codec_context else '?'})" for s in container.streams)
+            or "none"
+        )
+        raise ValueError(
+            f"{where}the container has no data (KLV) stream (its streams: {kinds}), "
+            "so it carries no MISB ST 0601 metadata to read"
+        )
     klv = [s for s in data if getattr(s, "name", None) in ("klv", "smpte_klv")]
     return (klv or data)[0]
 
@@ -1108,8 +1161,11 @@ def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None
             except (IndexError, KeyError, ValueError, OSError, RuntimeError) as e:
                 # issue 47's fuzzing: on a damaged stream PyAV's demuxer raised IndexError ("list index
                 # out of range", a stream it had not announced); the packets read so far are kept
-                yield KlvError(pos, f"the container's demultiplexer stopped here ({type(e).__name__}: {e}); "
-                                    "the rest of the file is not read")
+                yield KlvError(
+                    pos,
+                    f"the container's demultiplexer stopped here ({type(e).__name__}: {e}); "
+                    "the rest of the file is not read",
+                )
                 return
             b = bytes(pkt)
             if not b:
@@ -1247,7 +1303,7 @@ def _packet_end(data: bytes) -> int:
     if b < 0x80:
         return 17 + b
     m = b & 0x7F
-    return 17 + m + int.from_bytes(data[17:17 + m], "big")
+    return 17 + m + int.from_bytes(data[17 : 17 + m], "big")
 
 
 def decode_local_set(value: bytes) -> Packet:
@@ -1278,11 +1334,13 @@ def _item_encoder(spec: TagSpec):
     where = f"(ST 0601 Tag {spec.tag})"
     name = spec.name
     if spec.kind == "str":
+
         def enc(value):
             b = value.encode("utf-8") if isinstance(value, str) else bytes(value)
             if len(b) > 127:
                 raise ValueError(f"{name}: {len(b)} bytes of text, the standard allows at most 127 {where}")
             return tag + bytes((len(b),)) + b
+
         return enc
     prefix = tag + bytes((spec.size,))
     pack = struct.Struct(">" + spec.fmt).pack
@@ -1298,6 +1356,7 @@ def _item_encoder(spec: TagSpec):
             if not 0 <= v <= top:
                 raise ValueError(f"{name} = {v} does not fit {spec.size} unsigned bytes {where}")
             return prefix + pack(v)
+
         return enc
     step, lo = spec.step, spec.lo
     span = f"[{spec.lo:g}, {spec.hi:g}]"
@@ -1312,6 +1371,7 @@ def _item_encoder(spec: TagSpec):
             if not 0 <= raw <= top:
                 raise ValueError(f"{name} = {v!r} is outside {span} {where}")
             return prefix + pack(raw)
+
         return enc
     lim = (1 << (8 * spec.size - 1)) - 1
     sentinel = prefix + pack(-lim - 1)
@@ -1329,6 +1389,7 @@ def _item_encoder(spec: TagSpec):
                 return sentinel
             raise ValueError(f"{name} = {v!r} is outside {span} {where}")
         return prefix + pack(raw)
+
     return enc
 
 
@@ -1411,7 +1472,7 @@ def encode_value(name: str, value) -> bytes:
         raise ValueError(f"unknown UAS LS field {name!r} (known: see geoloc.io.klv.TAGS)")
     b = e[1](value)
     spec = TAG_BY_NAME[name]
-    return b[len(ber_oid(spec.tag)) + 1:]
+    return b[len(ber_oid(spec.tag)) + 1 :]
 
 
 def local_set_items(packet: bytes) -> list:
@@ -1452,7 +1513,7 @@ def local_set_items(packet: bytes) -> list:
         i += 1
         if n >= 0x80:
             m = n & 0x7F
-            n = int.from_bytes(data[i:i + m], "big")
+            n = int.from_bytes(data[i : i + m], "big")
             i += m
         if i + n > end:
             raise KlvError(0, f"tag {tag}: {n} bytes run past the end of the packet")
@@ -1538,18 +1599,30 @@ def replace_values(packet: bytes, values: dict) -> bytes:
             continue
         data[a:b] = v
     if resized:
-        body = b"".join(ber_oid(t) + ber_length(len(v)) + v for t, v in
-                        ((t, bytes(values[t]) if t in values else bytes(data[a:b])) for t, a, b in items[:-1]))
+        body = b"".join(
+            ber_oid(t) + ber_length(len(v)) + v
+            for t, v in ((t, bytes(values[t]) if t in values else bytes(data[a:b])) for t, a, b in items[:-1])
+        )
         head = UAS_LS_KEY + ber_length(len(body) + 4) + body + b"\x01\x02"
         return head + checksum(head + b"\0\0").to_bytes(2, "big")
     data[-2:] = checksum(bytes(data)).to_bytes(2, "big")
     return bytes(data)
 
 
-def write_ts(path, packets: Iterable, *, rate: float = 30.0, pts: Iterable[int] | None = None,
-             time_base: Fraction = Fraction(1, 90000), video: bool = False,
-             video_size: tuple[int, int] = (64, 48), frames: Iterable | None = None,
-             codec: str = "libx264", codec_options: dict | None = None, gop: int = 10) -> int:
+def write_ts(
+    path,
+    packets: Iterable,
+    *,
+    rate: float = 30.0,
+    pts: Iterable[int] | None = None,
+    time_base: Fraction = Fraction(1, 90000),
+    video: bool = False,
+    video_size: tuple[int, int] = (64, 48),
+    frames: Iterable | None = None,
+    codec: str = "libx264",
+    codec_options: dict | None = None,
+    gop: int = 10,
+) -> int:
     """Write an MPEG-TS with a KLV data stream (and optionally a video stream), via PyAV.
 
     With ``frames`` the file has the STANAG 4609 layout: a video stream (H.264 by
@@ -1619,8 +1692,9 @@ def write_ts(path, packets: Iterable, *, rate: float = 30.0, pts: Iterable[int] 
                 raise ValueError("frames: no picture given")
             first = np.asarray(first)
             if first.ndim != 3 or first.shape[2] != 3 or first.dtype != np.uint8:
-                raise ValueError(f"frames: each picture must be (rows, cols, 3) uint8 RGB, got "
-                                 f"{first.shape} {first.dtype}")
+                raise ValueError(
+                    f"frames: each picture must be (rows, cols, 3) uint8 RGB, got {first.shape} {first.dtype}"
+                )
             vs = out.add_stream(codec, rate=Fraction(rate).limit_denominator(1001))
             vs.height, vs.width = first.shape[:2]
             vs.pix_fmt = "yuv420p"
@@ -1695,8 +1769,9 @@ def _columns_from_packets(packets) -> dict[str, np.ndarray]:
     return cols
 
 
-def packets_to_columns(packets, *, verify_checksum: bool = True, quirks: QuirkTally | None = None
-                       ) -> dict[str, np.ndarray]:
+def packets_to_columns(
+    packets, *, verify_checksum: bool = True, quirks: QuirkTally | None = None
+) -> dict[str, np.ndarray]:
     """Decoded packets as columns, for vectorised use.
 
     Parameters
@@ -1736,7 +1811,7 @@ _BLOCK = 1 << 15
 def _be_ints(M, off, size, signed):
     """Big-endian integers of ``size`` bytes (1 to 8) at column ``off`` of the rows M."""
     if size in _INT_CODES:
-        sub = np.ascontiguousarray(M[:, off:off + size])
+        sub = np.ascontiguousarray(M[:, off : off + size])
         return sub.view(f">{'i' if signed else 'u'}{size}")[:, 0]
     v = np.zeros(M.shape[0], np.int64)
     for j in range(size):
@@ -1749,7 +1824,7 @@ def _be_ints(M, off, size, signed):
 def _texts(M, off, ln):
     if ln == 0:
         return np.full(M.shape[0], "", dtype=object)
-    sub = np.ascontiguousarray(M[:, off:off + ln]).view(f"V{ln}")[:, 0]
+    sub = np.ascontiguousarray(M[:, off : off + ln]).view(f"V{ln}")[:, 0]
     uniq, inv = np.unique(sub, return_inverse=True)
     dec = np.array([bytes(u).decode("utf-8", "replace") for u in uniq] + [None], dtype=object)[:-1]
     return dec[inv.ravel()]
@@ -1759,8 +1834,8 @@ def _raw_bytes(M, off, ln):
     n = M.shape[0]
     if ln == 0:
         return [b""] * n
-    b = np.ascontiguousarray(M[:, off:off + ln]).tobytes()
-    return [b[i:i + ln] for i in range(0, n * ln, ln)]
+    b = np.ascontiguousarray(M[:, off : off + ln]).tobytes()
+    return [b[i : i + ln] for i in range(0, n * ln, ln)]
 
 
 def _gather(arr, vs_rows, L):
@@ -1781,12 +1856,12 @@ def _match_group(data, M, vs_rows, k0, L, verify):
         if L < 4:
             return np.zeros(n, bool), []
         vs0 = int(vs_rows[0])
-        lb = data[k0 + 16:vs0]
+        lb = data[k0 + 16 : vs0]
         even = _KEY_EVEN + sum(lb[0::2])
         odd = _KEY_ODD + sum(lb[1::2])
         s = (vs0 - k0) % 2  # local-set byte 0 at an even index from the key: s = 0
-        se = M[:, s:L - 2:2].sum(axis=1, dtype=np.int64)
-        so = M[:, 1 - s:L - 2:2].sum(axis=1, dtype=np.int64)
+        se = M[:, s : L - 2 : 2].sum(axis=1, dtype=np.int64)
+        so = M[:, 1 - s : L - 2 : 2].sum(axis=1, dtype=np.int64)
         calc = ((even + se) * 256 + odd + so) & 0xFFFF
         stored = M[:, L - 2].astype(np.int64) * 256 + M[:, L - 1]
         ok &= (calc == stored) & (M[:, L - 4] == 1) & (M[:, L - 3] == 2)
@@ -1929,7 +2004,7 @@ def _locate_run(data, pos, n, limit, max_length):
             m = b & 0x7F
             if m == 0 or m > 8 or p + 1 + m > n:
                 break
-            L, vs = int.from_bytes(data[p + 1:p + 1 + m], "big"), p + 1 + m
+            L, vs = int.from_bytes(data[p + 1 : p + 1 + m], "big"), p + 1 + m
         if L > max_length or vs + L > n:
             break
         ks.append(pos)
@@ -1996,7 +2071,7 @@ def _columns_from_bytes(data: bytes, verify: bool, quirks: QuirkTally | None = N
         for idx in np.split(order, np.flatnonzero(np.diff(gid[order])) + 1):
             L = int(Ls[idx[0]])
             for b0 in range(0, len(idx), _BLOCK):
-                rows = idx[b0:b0 + _BLOCK]
+                rows = idx[b0 : b0 + _BLOCK]
                 M = _gather(arr, vss[rows], L)
                 ok, matches = _match_group(data, M, vss[rows], int(ks[rows[0]]), L, verify)
                 good[rows] = ok

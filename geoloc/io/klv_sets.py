@@ -53,8 +53,7 @@ EG0104_KEY = bytes.fromhex("060E2B34020101010E01010201010000")
 UAS_LS_KEY = bytes.fromhex("060E2B34020B01010E01030101000000")
 
 #: ST 0102 tag 1: the classification enumeration (MISB ST 0102, Security Classification).
-SECURITY_CLASSIFICATION = {1: "UNCLASSIFIED", 2: "RESTRICTED", 3: "CONFIDENTIAL", 4: "SECRET",
-                           5: "TOP SECRET"}
+SECURITY_CLASSIFICATION = {1: "UNCLASSIFIED", 2: "RESTRICTED", 3: "CONFIDENTIAL", 4: "SECRET", 5: "TOP SECRET"}
 
 
 def _k(hexkey: str) -> bytes:
@@ -147,7 +146,7 @@ def _ber_length(data, p: int, end: int) -> tuple[int, int]:
     m = b & 0x7F
     if m == 0 or m > 8 or p + 1 + m > end:
         raise SetError(f"invalid BER length byte 0x{b:02X}")
-    return int.from_bytes(data[p + 1:p + 1 + m], "big"), p + 1 + m
+    return int.from_bytes(data[p + 1 : p + 1 + m], "big"), p + 1 + m
 
 
 def _ber_oid(data, p: int, end: int) -> tuple[int, int]:
@@ -172,7 +171,7 @@ def local_set(data) -> list[tuple[int, bytes]]:
         ln, p = _ber_length(data, p, end)
         if p + ln > end:
             raise SetError(f"tag {tag}: length {ln} runs past the end of the set")
-        out.append((tag, bytes(data[p:p + ln])))
+        out.append((tag, bytes(data[p : p + ln])))
         p += ln
     return out
 
@@ -264,7 +263,7 @@ def decode_vmti(value: bytes) -> dict:
             ln, p = _ber_length(series, p, end)
             if p + ln > end:
                 raise SetError(f"VTarget Pack of {ln} bytes runs past the end of the VTarget Series")
-            pack = series[p:p + ln]
+            pack = series[p : p + ln]
             p += ln
             tid, q = _ber_oid(pack, 0, len(pack))
             d: dict = {"id": tid}
@@ -299,6 +298,7 @@ def encode_vmti(width: int, height: int, targets, *, system: str = "", version: 
     ``targets``: (id, (row, col) centroid, (row, col) top left, (row, col) bottom right,
     confidence %) each, 1-based pixels; the pixel numbers are column + (row - 1) width.
     """
+
     def num(rc):
         n = rc[1] + (rc[0] - 1) * width
         return n.to_bytes(max(1, (n.bit_length() + 7) // 8), "big")
@@ -310,8 +310,13 @@ def encode_vmti(width: int, height: int, targets, *, system: str = "", version: 
     items = [(4, bytes((version,)))]
     if system:
         items.append((3, system.encode()))
-    items += [(5, bytes((len(packs),))), (6, bytes((len(packs),))),
-              (8, width.to_bytes(2, "big")), (9, height.to_bytes(2, "big")), (101, b"".join(packs))]
+    items += [
+        (5, bytes((len(packs),))),
+        (6, bytes((len(packs),))),
+        (8, width.to_bytes(2, "big")),
+        (9, height.to_bytes(2, "big")),
+        (101, b"".join(packs)),
+    ]
     return encode_local_set(items)
 
 
@@ -350,11 +355,11 @@ def decode_eg0104(value: bytes) -> tuple[dict, dict, list]:
     while p < end:
         if p + 16 > end:
             raise SetError(f"an item key at set byte {p} runs past the end")
-        key = bytes(value[p:p + 16])
+        key = bytes(value[p : p + 16])
         ln, p = _ber_length(value, p + 16, end)
         if p + ln > end:
             raise SetError(f"item {key.hex()}: length {ln} runs past the end")
-        v = bytes(value[p:p + ln])
+        v = bytes(value[p : p + ln])
         p += ln
         spec = _EG0104_BY_MASKED.get(_mask(key))
         if spec is None:

@@ -102,7 +102,6 @@ REORDER_S = 0.1
 STALL_S = 1.0
 
 
-
 # --------------------------------------------------------------------------- addresses
 
 
@@ -199,13 +198,17 @@ def exposure_note(url: UdpUrl) -> str | None:
     if url.loopback:
         return None
     if url.multicast:
-        return (f"note: joining multicast group {url.host} on port {url.port} (interface {url.iface}): "
-                "any host on that network segment that sends to the group feeds this session; the "
-                "datagrams are parsed as MPEG-TS / KLV, nothing in them is executed")
+        return (
+            f"note: joining multicast group {url.host} on port {url.port} (interface {url.iface}): "
+            "any host on that network segment that sends to the group feeds this session; the "
+            "datagrams are parsed as MPEG-TS / KLV, nothing in them is executed"
+        )
     where = "every interface" if url.host == "0.0.0.0" else url.host
-    return (f"note: listening for UDP on {where}, port {url.port}: any host that can reach this machine "
-            "there can send datagrams into this session; they are parsed as MPEG-TS / KLV, nothing in them "
-            "is executed (udp://127.0.0.1:PORT listens on this machine only)")
+    return (
+        f"note: listening for UDP on {where}, port {url.port}: any host that can reach this machine "
+        "there can send datagrams into this session; they are parsed as MPEG-TS / KLV, nothing in them "
+        "is executed (udp://127.0.0.1:PORT listens on this machine only)"
+    )
 
 
 def open_socket(url: UdpUrl, rcvbuf: int = 4 << 20) -> socket.socket:
@@ -329,9 +332,16 @@ class LiveReceiver:
         Keep the video bytes (for decoding a picture), not only their time stamps.
     """
 
-    def __init__(self, *, verify_checksum: bool = True, window: int = PACKET_WINDOW,
-                 video_window: int = VIDEO_WINDOW, keep_video_data: bool = True,
-                 reorder: bool = True, reorder_s: float = REORDER_S):
+    def __init__(
+        self,
+        *,
+        verify_checksum: bool = True,
+        window: int = PACKET_WINDOW,
+        video_window: int = VIDEO_WINDOW,
+        keep_video_data: bool = True,
+        reorder: bool = True,
+        reorder_s: float = REORDER_S,
+    ):
         self.stats = LiveStats()
         self.demux = TsDemuxer(self.stats, reorder=reorder, reorder_s=reorder_s, video_window=video_window)
         self.verify = verify_checksum
@@ -407,8 +417,11 @@ class LiveReceiver:
                 continue
             if not u.data:
                 continue
-            if u.pts is not None and self._last_klv_pts is not None and \
-                    u.pts < self._last_klv_pts - RESTART_BACK_S * 90000:
+            if (
+                u.pts is not None
+                and self._last_klv_pts is not None
+                and u.pts < self._last_klv_pts - RESTART_BACK_S * 90000
+            ):
                 st.restarts += 1
             if u.pts is not None:
                 self._last_klv_pts = u.pts
@@ -427,11 +440,20 @@ class LiveReceiver:
         return out
 
 
-def receive(url, *, duration_s: float | None = None, packets: int | None = None, idle_s: float | None = None,
-            record: Callable[[bytes], None] | None = None, receiver: LiveReceiver | None = None,
-            on_batch: Callable[[list], None] | None = None, poll_s: float = 0.05,
-            announce: Callable[[str], None] | None = None, stop: Callable[[], bool] | None = None,
-            sock: socket.socket | None = None) -> Iterator[Packet | KlvError]:
+def receive(
+    url,
+    *,
+    duration_s: float | None = None,
+    packets: int | None = None,
+    idle_s: float | None = None,
+    record: Callable[[bytes], None] | None = None,
+    receiver: LiveReceiver | None = None,
+    on_batch: Callable[[list], None] | None = None,
+    poll_s: float = 0.05,
+    announce: Callable[[str], None] | None = None,
+    stop: Callable[[], bool] | None = None,
+    sock: socket.socket | None = None,
+) -> Iterator[Packet | KlvError]:
     """Listen on ``url`` and yield every KLV result as it is decoded.
 
     Parameters
@@ -524,7 +546,7 @@ def _pes_pts_at(data: bytes) -> list:
         afc = (data[i + 3] >> 4) & 3
         p = i + 4 + (1 + data[i + 4] if afc & 2 else 0)
         if data[i] == 0x47 and data[i + 1] & 0x40 and afc & 1 and p + 14 <= i + TS_PACKET:
-            if data[p:p + 3] == b"\x00\x00\x01" and data[p + 3] not in _NO_PES_HEADER_IDS and data[p + 7] & 0x80:
+            if data[p : p + 3] == b"\x00\x00\x01" and data[p + 3] not in _NO_PES_HEADER_IDS and data[p + 7] & 0x80:
                 cur[pid] = _timestamp(data, p + 9)
             else:
                 cur[pid] = None
@@ -538,7 +560,7 @@ def _datagram_times(data: bytes, per: int) -> list:
     at = _pes_pts_at(data)
     out = []
     for k in range(0, len(at), per):
-        ts = [t for t in at[k:k + per] if t is not None]
+        ts = [t for t in at[k : k + per] if t is not None]
         out.append(min(ts) if ts else None)
     return out
 
@@ -546,7 +568,7 @@ def _datagram_times(data: bytes, per: int) -> list:
 def datagrams_of(data: bytes, per: int = DATAGRAM_PACKETS) -> list[bytes]:
     """``data`` (a TS file's bytes) cut into datagrams of ``per`` TS packets."""
     size = per * TS_PACKET
-    return [data[k:k + size] for k in range(0, len(data), size)]
+    return [data[k : k + size] for k in range(0, len(data), size)]
 
 
 def klv_as_ts(path) -> tuple[bytes, int, int]:
@@ -575,11 +597,13 @@ def klv_as_ts(path) -> tuple[bytes, int, int]:
         if not isinstance(r, Packet):
             bad += 0 if r.reason.endswith("are not a UAS LS packet") else 1
             continue
-        blobs.append(data[r.offset:r.offset + _packet_end(data[r.offset:r.offset + 26])])
+        blobs.append(data[r.offset : r.offset + _packet_end(data[r.offset : r.offset + 26])])
         stamps.append(r.fields.get("precision_time_stamp_us"))
     if not blobs:
-        raise ValueError(f"{path}: no packet of it can be decoded ({bad} bad): nothing a receiver could use "
-                         "(geoloc klv dump names what is wrong with each)")
+        raise ValueError(
+            f"{path}: no packet of it can be decoded ({bad} bad): nothing a receiver could use "
+            "(geoloc klv dump names what is wrong with each)"
+        )
     pts = None
     if all(isinstance(t, int) for t in stamps) and all(b >= a for a, b in zip(stamps, stamps[1:])):
         pts = [(t - stamps[0]) * 9 // 100 for t in stamps]  # microseconds -> 90 kHz ticks
@@ -590,9 +614,19 @@ def klv_as_ts(path) -> tuple[bytes, int, int]:
             return f.read(), len(blobs), bad
 
 
-def send(source, url, *, speed: float | None = 1.0, per: int = DATAGRAM_PACKETS, loss: float = 0.0,
-         reorder: float = 0.0, duplicate: float = 0.0, rng=None, start_delay_s: float = 0.0,
-         sock: socket.socket | None = None) -> dict:
+def send(
+    source,
+    url,
+    *,
+    speed: float | None = 1.0,
+    per: int = DATAGRAM_PACKETS,
+    loss: float = 0.0,
+    reorder: float = 0.0,
+    duplicate: float = 0.0,
+    rng=None,
+    start_delay_s: float = 0.0,
+    sock: socket.socket | None = None,
+) -> dict:
     """Stream a transport stream to ``url`` as UDP datagrams of ``per`` TS packets.
 
     Parameters
@@ -686,8 +720,15 @@ def send(source, url, *, speed: float | None = 1.0, per: int = DATAGRAM_PACKETS,
     finally:
         if own:
             sock.close()
-    return {"sent": sent, "dropped": int(drop.sum()), "reordered": reordered, "duplicated": dups,
-            "dropped_index": [int(i) for i in np.flatnonzero(drop)], "datagrams": n, "first_sent_s": first}
+    return {
+        "sent": sent,
+        "dropped": int(drop.sum()),
+        "reordered": reordered,
+        "duplicated": dups,
+        "dropped_index": [int(i) for i in np.flatnonzero(drop)],
+        "datagrams": n,
+        "first_sent_s": first,
+    }
 
 
 # --------------------------------------------------------------------------- python -m geoloc.io.live
@@ -695,9 +736,11 @@ def send(source, url, *, speed: float | None = 1.0, per: int = DATAGRAM_PACKETS,
 
 def main(argv=None) -> int:
     """``python -m geoloc.io.live send FILE.ts udp://HOST:PORT [--speed X | --fast] [--loop N]``."""
-    p = argparse.ArgumentParser(prog="python -m geoloc.io.live",
-                                description="Stream an MPEG-TS file (STANAG 4609: video + MISB ST 0601 KLV) "
-                                "to a UDP address, 7 TS packets a datagram, paced by its time stamps.")
+    p = argparse.ArgumentParser(
+        prog="python -m geoloc.io.live",
+        description="Stream an MPEG-TS file (STANAG 4609: video + MISB ST 0601 KLV) "
+        "to a UDP address, 7 TS packets a datagram, paced by its time stamps.",
+    )
     sub = p.add_subparsers(dest="action", metavar="ACTION")
     s = sub.add_parser("send", help="stream a .ts file to udp://HOST:PORT")
     s.add_argument("file", metavar="FILE.ts")
@@ -713,10 +756,12 @@ def main(argv=None) -> int:
         return 2
     try:
         for _ in range(max(args.loop, 1)):
-            r = send(args.file, args.url, speed=None if args.fast else args.speed, loss=args.loss,
-                     reorder=args.reorder)
-            print(f"sent {r['sent']} datagrams of {args.file} to {args.url} ({r['dropped']} dropped, "
-                  f"{r['reordered']} reordered)", file=sys.stderr)
+            r = send(args.file, args.url, speed=None if args.fast else args.speed, loss=args.loss, reorder=args.reorder)
+            print(
+                f"sent {r['sent']} datagrams of {args.file} to {args.url} ({r['dropped']} dropped, "
+                f"{r['reordered']} reordered)",
+                file=sys.stderr,
+            )
     except KeyboardInterrupt:
         return 0
     except (ValueError, OSError) as e:

@@ -200,5 +200,15 @@ def mgrs_text(lat_deg, lon_deg, precision: int = 5) -> str:
     return f"MGRS {text} (USNG {format_usng(text)})"
 
 
-__all__ = ["LatLonResult", "MgrsResult", "PRECISION_M", "format_usng", "latlon_to_mgrs", "mgrs_column",
-           "mgrs_text", "mgrs_to_latlon", "normalize_mgrs", "parse_mgrs"]
+__all__ = [
+    "LatLonResult",
+    "MgrsResult",
+    "PRECISION_M",
+    "format_usng",
+    "latlon_to_mgrs",
+    "mgrs_column",
+    "mgrs_text",
+    "mgrs_to_latlon",
+    "normalize_mgrs",
+    "parse_mgrs",
+]

@@ -76,11 +76,11 @@ _SKIP_NS = (_RDF, "adobe:ns:meta/")
 #: The conventions a maker's camera angles come in.
 CONVENTIONS = {
     "ned-horizon": "earth-referenced NED z-y-x: yaw from north, pitch up from the horizon, roll about "
-                   "the line of sight (DJI's gimbal; the yaw-pitch-roll preset)",
+    "the line of sight (DJI's gimbal; the yaw-pitch-roll preset)",
     "pix4d-nadir": "Pix4D: R = Rz(yaw) Ry(pitch) Rx(roll), camera x = image top, z = line of sight; "
-                   "(0, 0, 0) looks straight down, top of the image north; pitch 0 = nadir",
+    "(0, 0, 0) looks straight down, top of the image north; pitch 0 = nadir",
     "platform-relative": "camera angles relative to the platform (both z-y-x, pitch up from the "
-                         "horizon), composed with the platform's attitude",
+    "horizon), composed with the platform's attitude",
 }
 
 
@@ -150,6 +150,7 @@ class MakerTags:
 
     def required_names(self) -> dict:
         """PhotoMeta field -> the tags that give it (alternatives joined by "or")."""
+
         def alt(which):
             names = self.tag_names(which)
             if which in ("platform_yaw", "platform_pitch", "platform_roll") and not names:
@@ -158,63 +159,104 @@ class MakerTags:
 
         out = {"gimbal_yaw_deg": alt("yaw"), "gimbal_pitch_deg": alt("pitch"), "gimbal_roll_deg": alt("roll")}
         if self.convention == "platform-relative":
-            out.update(flight_yaw_deg=alt("platform_yaw"), flight_pitch_deg=alt("platform_pitch"),
-                       flight_roll_deg=alt("platform_roll"))
+            out.update(
+                flight_yaw_deg=alt("platform_yaw"),
+                flight_pitch_deg=alt("platform_pitch"),
+                flight_roll_deg=alt("platform_roll"),
+            )
         return out
 
 
-_SKYDIO_SRC = ("Skydio support article 4417425974683, 'Skydio camera and metadata overview', as read by "
-               "OpenAthena MetadataExtractor.handleSKYDIO (AGPL-3.0; read, not copied)")
-_PIX4D_SRC = ("Pix4D support articles 202558969 'Yaw, Pitch, Roll and Omega, Phi, Kappa angles' and 'How "
-              "to write XMP tags'; as read by OpenAthena handleAUTEL and OpenDroneMap opendm/photo.py")
+_SKYDIO_SRC = (
+    "Skydio support article 4417425974683, 'Skydio camera and metadata overview', as read by "
+    "OpenAthena MetadataExtractor.handleSKYDIO (AGPL-3.0; read, not copied)"
+)
+_PIX4D_SRC = (
+    "Pix4D support articles 202558969 'Yaw, Pitch, Roll and Omega, Phi, Kappa angles' and 'How "
+    "to write XMP tags'; as read by OpenAthena handleAUTEL and OpenDroneMap opendm/photo.py"
+)
 
 #: The makers read besides DJI (DJI's own reader is :func:`geoloc.io.photos.read_photo`'s).
 MAKERS = (
     MakerTags(
-        name="Skydio", prefix="drone-skydio",
+        name="Skydio",
+        prefix="drone-skydio",
         namespaces=("http://www.skydio.com/drone-skydio/1.0/", "https://www.skydio.com/drone-skydio/1.0/"),
-        makes=("skydio",), lat=("Latitude",), lon=("Longitude",), altitude=("AbsoluteAltitude",),
+        makes=("skydio",),
+        lat=("Latitude",),
+        lon=("Longitude",),
+        altitude=("AbsoluteAltitude",),
         relative_altitude=("RelativeAltitude",),
-        yaw=("CameraOrientationNED/Yaw",), pitch=("CameraOrientationNED/Pitch",),
+        yaw=("CameraOrientationNED/Yaw",),
+        pitch=("CameraOrientationNED/Pitch",),
         roll=("CameraOrientationNED/Roll",),
-        focal_x_px=("CalibratedFocalLength/X",), focal_y_px=("CalibratedFocalLength/Y",),
-        center_x_px=("CalibratedOpticalCenter/X",), center_y_px=("CalibratedOpticalCenter/Y",),
+        focal_x_px=("CalibratedFocalLength/X",),
+        focal_y_px=("CalibratedFocalLength/Y",),
+        center_x_px=("CalibratedOpticalCenter/X",),
+        center_y_px=("CalibratedOpticalCenter/Y",),
         convention="ned-horizon",
         altitude_datum="EGM96 per OpenAthena (Skydio 2); users report WGS-84 ellipsoidal heights on the X10",
-        source=_SKYDIO_SRC),
+        source=_SKYDIO_SRC,
+    ),
     MakerTags(
-        name="Parrot", prefix="drone-parrot", namespaces=("http://www.parrot.com/drone-parrot/1.0/",),
-        makes=("parrot",), yaw=("CameraYawDegree",), pitch=("CameraPitchDegree",), roll=("CameraRollDegree",),
-        platform_yaw=("DroneYawDegree",), platform_pitch=("DronePitchDegree",),
-        platform_roll=("DroneRollDegree",), convention="ned-horizon",
+        name="Parrot",
+        prefix="drone-parrot",
+        namespaces=("http://www.parrot.com/drone-parrot/1.0/",),
+        makes=("parrot",),
+        yaw=("CameraYawDegree",),
+        pitch=("CameraPitchDegree",),
+        roll=("CameraRollDegree",),
+        platform_yaw=("DroneYawDegree",),
+        platform_pitch=("DronePitchDegree",),
+        platform_roll=("DroneRollDegree",),
+        convention="ned-horizon",
         altitude_datum="EXIF GPSAltitude: EGM96 on ANAFI 4K/Thermal/USA, WGS-84 ellipsoid on ANAFI Ai (Parrot)",
         source="Parrot GroundSDK tools, 'Photo metadata' (developer.parrot.com/docs/groundsdk-tools/"
-               "photo-metadata.html), as read by OpenAthena handlePARROT"),
+        "photo-metadata.html), as read by OpenAthena handlePARROT",
+    ),
     MakerTags(
-        name="MicaSense", prefix="Camera",
+        name="MicaSense",
+        prefix="Camera",
         namespaces=("http://micasense.com/MicaSense/1.0/", "http://micasense.com/DLS/1.0/"),
-        makes=("micasense",), yaw=("Yaw",), pitch=("Pitch",), roll=("Roll",), convention="pix4d-nadir",
+        makes=("micasense",),
+        yaw=("Yaw",),
+        pitch=("Pitch",),
+        roll=("Roll",),
+        convention="pix4d-nadir",
         altitude_datum="EXIF GPSAltitude, datum not stated",
         source=_PIX4D_SRC + "; DLS:Yaw/Pitch/Roll in radians per MicaSense imageprocessing metadata.py "
-               "(dls_pose), the light sensor's attitude, not used",
-        extra={"angles_namespace": "http://pix4d.com/camera/1.0/"}),
+        "(dls_pose), the light sensor's attitude, not used",
+        extra={"angles_namespace": "http://pix4d.com/camera/1.0/"},
+    ),
     MakerTags(
-        name="Teal", prefix="exif", namespaces=(),
+        name="Teal",
+        prefix="exif",
+        namespaces=(),
         makes=("teledyne flir", "teal"),
-        yaw=("CameraYaw",), pitch=("CameraPitch",), roll=("CameraRoll",),
-        platform_yaw=("PlatformYaw",), platform_pitch=("PlatformPitch",), platform_roll=("PlatformRoll",),
-        convention="platform-relative", altitude_datum="EXIF GPSAltitude, EGM96 per OpenAthena",
+        yaw=("CameraYaw",),
+        pitch=("CameraPitch",),
+        roll=("CameraRoll",),
+        platform_yaw=("PlatformYaw",),
+        platform_pitch=("PlatformPitch",),
+        platform_roll=("PlatformRoll",),
+        convention="platform-relative",
+        altitude_datum="EXIF GPSAltitude, EGM96 per OpenAthena",
         source="no tag list published by Teal is known to us; OpenAthena handleTeal reads these Adobe "
-               "exif: properties (rationals, degrees) and adds camera to platform",
-        extra={"angles_namespace": "http://ns.adobe.com/exif/1.0/"}),
+        "exif: properties (rationals, degrees) and adds camera to platform",
+        extra={"angles_namespace": "http://ns.adobe.com/exif/1.0/"},
+    ),
     MakerTags(
-        name="Pix4D Camera tags (Autel, Sequoia, Sentera)", prefix="Camera",
+        name="Pix4D Camera tags (Autel, Sequoia, Sentera)",
+        prefix="Camera",
         namespaces=("http://pix4d.com/camera/1.0/", "http://pix4d.com/camera/1.0"),
         makes=("autel", "autel robotics", "sentera"),
-        yaw=("Yaw",), pitch=("Pitch",), roll=("Roll",), convention="pix4d-nadir",
-        altitude_datum="EXIF GPSAltitude; OpenAthena: old Autel firmware writes MSL while its tags say "
-                       "ellipsoidal",
-        source=_PIX4D_SRC),
+        yaw=("Yaw",),
+        pitch=("Pitch",),
+        roll=("Roll",),
+        convention="pix4d-nadir",
+        altitude_datum="EXIF GPSAltitude; OpenAthena: old Autel firmware writes MSL while its tags say ellipsoidal",
+        source=_PIX4D_SRC,
+    ),
 )
 
 
@@ -254,6 +296,7 @@ def pick_maker(props: dict, make: str | None) -> MakerTags | None:
 
 
 # --------------------------------------------------------------------------- XMP, every namespace
+
 
 def xmp_properties(root) -> dict:
     """Every property of a parsed XMP tree: ``{namespace: {path: text}}``.
@@ -302,10 +345,17 @@ def xmp_properties(root) -> dict:
 
 # --------------------------------------------------------------------------- rotations
 
+
 def rotation_zyx(yaw, pitch, roll) -> np.ndarray:
     """R = Rz(yaw) Ry(pitch) Rx(roll) [rad]: body (or camera) axes to NED."""
-    cy, sy, cp, sp, cr, sr = (math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch),
-                              math.cos(roll), math.sin(roll))
+    cy, sy, cp, sp, cr, sr = (
+        math.cos(yaw),
+        math.sin(yaw),
+        math.cos(pitch),
+        math.sin(pitch),
+        math.cos(roll),
+        math.sin(roll),
+    )
     rz = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
     ry = np.array([[cp, 0.0, sp], [0.0, 1.0, 0.0], [-sp, 0.0, cp]])
     rx = np.array([[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]])
@@ -328,8 +378,9 @@ def zyx_from_rotation(r) -> tuple:
 _PIX4D_TO_DJI = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
 
 
-def earth_gimbal_deg(convention: str, yaw_deg: float, pitch_deg: float, roll_deg: float,
-                     platform_deg: tuple | None = None) -> tuple:
+def earth_gimbal_deg(
+    convention: str, yaw_deg: float, pitch_deg: float, roll_deg: float, platform_deg: tuple | None = None
+) -> tuple:
     """A maker's camera angles [deg] -> DJI's earth-referenced (yaw, pitch, roll) [deg].
 
     ``"ned-horizon"``: unchanged. ``"pix4d-nadir"``: R_dji = Rz Ry Rx (Pix4D) Ry(-90 deg), then

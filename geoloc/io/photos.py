@@ -136,8 +136,7 @@ class PhotoTagError(ValueError):
     def __init__(self, path, missing, why: str = "cannot be geolocated"):
         self.path = str(path)
         self.missing = tuple(missing)
-        super().__init__(f"{Path(self.path).name}: {why}: missing tag(s) {', '.join(self.missing)} "
-                         f"(file {self.path})")
+        super().__init__(f"{Path(self.path).name}: {why}: missing tag(s) {', '.join(self.missing)} (file {self.path})")
 
 
 @dataclass(frozen=True)
@@ -198,11 +197,14 @@ def parse_dewarp_data(text: str, source: str = "DewarpData") -> DewarpData:
     try:
         nums = [float(p) for p in parts]
     except ValueError:
-        raise ValueError(f"{source} = {raw!r}: not numbers after the date (expected "
-                         "'date;fx,fy,cx,cy,k1,k2,p1,p2,k3')") from None
+        raise ValueError(
+            f"{source} = {raw!r}: not numbers after the date (expected 'date;fx,fy,cx,cy,k1,k2,p1,p2,k3')"
+        ) from None
     if len(nums) not in (9, 12) or not all(math.isfinite(v) for v in nums):
-        raise ValueError(f"{source} = {raw!r}: {len(nums)} values; expected 9 finite numbers "
-                         "'fx,fy,cx,cy,k1,k2,p1,p2,k3' (or 12, to k6) after 'date;'")
+        raise ValueError(
+            f"{source} = {raw!r}: {len(nums)} values; expected 9 finite numbers "
+            "'fx,fy,cx,cy,k1,k2,p1,p2,k3' (or 12, to k6) after 'date;'"
+        )
     return DewarpData(date.strip(), *nums)
 
 
@@ -292,6 +294,7 @@ class PhotoMeta:
 
 # --------------------------------------------------------------------------- XMP
 
+
 def _jpeg_xmp(fh, path) -> bytes | None:
     """The standard XMP packet of a JPEG: walk the segments up to the image data (SOS), reading only them."""
     name = Path(path).name
@@ -318,10 +321,12 @@ def _jpeg_xmp(fh, path) -> bytes | None:
         length = struct.unpack(">H", raw)[0] if len(raw) == 2 else 0
         payload = fh.read(length - 2) if length >= 2 else b""
         if length < 2 or len(payload) != length - 2:
-            raise ValueError(f"{name}: JPEG segment 0xFF{marker:02X} at byte {pos} has length {length}, "
-                             f"past the end of the file (file {path})")
+            raise ValueError(
+                f"{name}: JPEG segment 0xFF{marker:02X} at byte {pos} has length {length}, "
+                f"past the end of the file (file {path})"
+            )
         if marker == 0xE1 and payload.startswith(XMP_APP1_HEADER):
-            return payload[len(XMP_APP1_HEADER):]
+            return payload[len(XMP_APP1_HEADER) :]
 
 
 def read_xmp_packet(path, image=None) -> bytes | None:
@@ -355,7 +360,7 @@ def read_xmp_packet(path, image=None) -> bytes | None:
 
 def _local(tag: str, ns: str) -> str | None:
     prefix = "{" + ns + "}"
-    return tag[len(prefix):] if tag.startswith(prefix) else None
+    return tag[len(prefix) :] if tag.startswith(prefix) else None
 
 
 def xmp_element(packet: bytes) -> bytes:
@@ -374,7 +379,7 @@ def xmp_element(packet: bytes) -> bytes:
     # a DTD before it stays, for defusedxml to refuse by name (cut off, its entities would
     # read as merely undefined)
     if start >= 0 and end > start and b"<!" not in packet[:start]:
-        return packet[start:end + len(b"</x:xmpmeta>")]
+        return packet[start : end + len(b"</x:xmpmeta>")]
     return packet.rstrip(b"\x00 \t\r\n")
 
 
@@ -405,8 +410,9 @@ def parse_xmp(packet: bytes, source: str = "XMP", _with_root: bool = False) -> t
     try:
         root = DET.fromstring(text)
     except DefusedXmlException as e:
-        raise ValueError(f"{source}: XMP packet refused ({type(e).__name__}: DTDs and entity "
-                         "declarations are not allowed in XMP)") from None
+        raise ValueError(
+            f"{source}: XMP packet refused ({type(e).__name__}: DTDs and entity declarations are not allowed in XMP)"
+        ) from None
     except ParseError as e:
         raise ValueError(f"{source}: XMP packet is not well-formed XML ({e})") from None
     return _dji_and_tiff(root) + (root,) if _with_root else _dji_and_tiff(root)
@@ -435,6 +441,7 @@ def _dji_and_tiff(root) -> tuple[dict, dict]:
 
 # --------------------------------------------------------------------------- EXIF
 
+
 def _rational(v) -> float:
     if isinstance(v, tuple) and len(v) == 2:  # (numerator, denominator) from some writers
         return float(v[0]) / float(v[1])
@@ -454,14 +461,16 @@ def _gps_coordinate(value, ref, positive: str, negative: str, limit: float, name
     try:
         parts = [_rational(x) for x in value] if isinstance(value, (tuple, list)) else [_rational(value)]
     except (TypeError, ValueError, ZeroDivisionError):
-        raise ValueError(f"{Path(path).name}: EXIF {name} = {value!r}: not degrees, minutes, seconds "
-                         f"(file {path})") from None
+        raise ValueError(
+            f"{Path(path).name}: EXIF {name} = {value!r}: not degrees, minutes, seconds (file {path})"
+        ) from None
     parts = (parts + [0.0, 0.0])[:3]
     deg = parts[0] + parts[1] / 60.0 + parts[2] / 3600.0
     r = (_text(ref) or positive).upper()[:1]
     if r not in (positive, negative):
-        raise ValueError(f"{Path(path).name}: EXIF {name}Ref = {ref!r}: must be {positive!r} or "
-                         f"{negative!r} (file {path})")
+        raise ValueError(
+            f"{Path(path).name}: EXIF {name}Ref = {ref!r}: must be {positive!r} or {negative!r} (file {path})"
+        )
     deg = -deg if r == negative else deg
     if not (math.isfinite(deg) and abs(deg) <= limit):
         raise ValueError(f"{Path(path).name}: EXIF {name} = {deg!r} deg: out of range (file {path})")
@@ -471,8 +480,12 @@ def _gps_coordinate(value, ref, positive: str, negative: str, limit: float, name
 #: TIFF tag where GDAL keeps the metadata items a TIFF has no tag for (GDAL_METADATA, XML).
 _GDAL_METADATA_TAG = 42112
 #: GDAL's names of the EXIF items read from its metadata, and their EXIF tags.
-_GDAL_EXIF_NAMES = {"EXIF_PixelXDimension": _PIXEL_X, "EXIF_PixelYDimension": _PIXEL_Y,
-                    "EXIF_FocalLength": _FOCAL, "EXIF_FocalLengthIn35mmFilm": _FOCAL_35}
+_GDAL_EXIF_NAMES = {
+    "EXIF_PixelXDimension": _PIXEL_X,
+    "EXIF_PixelYDimension": _PIXEL_Y,
+    "EXIF_FocalLength": _FOCAL,
+    "EXIF_FocalLengthIn35mmFilm": _FOCAL_35,
+}
 
 
 def _gdal_exif(img, notes) -> dict:
@@ -529,8 +542,10 @@ def _read_exif(img, path, notes) -> dict:
             try:
                 out[key] = int(v)
             except (TypeError, ValueError):
-                notes.append(f"EXIF {'PixelXDimension' if tag == _PIXEL_X else 'PixelYDimension'} "
-                             f"= {v!r} ignored: not an integer")
+                notes.append(
+                    f"EXIF {'PixelXDimension' if tag == _PIXEL_X else 'PixelYDimension'} "
+                    f"= {v!r} ignored: not an integer"
+                )
     for key, tag in (("focal_mm", _FOCAL), ("focal_35mm", _FOCAL_35)):
         v = sub.get(tag)
         if v is not None:
@@ -542,10 +557,10 @@ def _read_exif(img, path, notes) -> dict:
                 pass
     gps = exif.get_ifd(_GPS_IFD)
     if _GPS_LAT in gps and _GPS_LON in gps:
-        out["gps_lat_deg"] = _gps_coordinate(gps[_GPS_LAT], gps.get(_GPS_LAT_REF), "N", "S", 90.0,
-                                             "GPSLatitude", path)
-        out["gps_lon_deg"] = _gps_coordinate(gps[_GPS_LON], gps.get(_GPS_LON_REF), "E", "W", 180.0,
-                                             "GPSLongitude", path)
+        out["gps_lat_deg"] = _gps_coordinate(gps[_GPS_LAT], gps.get(_GPS_LAT_REF), "N", "S", 90.0, "GPSLatitude", path)
+        out["gps_lon_deg"] = _gps_coordinate(
+            gps[_GPS_LON], gps.get(_GPS_LON_REF), "E", "W", 180.0, "GPSLongitude", path
+        )
     if _GPS_ALT in gps:
         try:
             alt = _rational(gps[_GPS_ALT])
@@ -559,6 +574,7 @@ def _read_exif(img, path, notes) -> dict:
 
 
 # --------------------------------------------------------------------------- reading
+
 
 def _number(dji: dict, key: str, notes: list) -> float | None:
     if key not in dji:
@@ -639,8 +655,9 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
     except UnidentifiedImageError:
         raise ValueError(f"{p.name}: not an image file Pillow can read (file {path})") from None
     except Image.DecompressionBombError as e:  # issue 47's fuzzing: a header declaring 179 M pixels
-        raise ValueError(f"{p.name}: its header declares more pixels than Pillow opens, a damaged file? "
-                         f"({e}) (file {path})") from None
+        raise ValueError(
+            f"{p.name}: its header declares more pixels than Pillow opens, a damaged file? ({e}) (file {path})"
+        ) from None
     except OSError as e:
         raise ValueError(f"{p.name}: Pillow cannot read it ({e}) (file {path})") from None
     with img:
@@ -650,15 +667,15 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
         except (TypeError, AttributeError, KeyError, IndexError, SyntaxError, struct.error) as e:
             # Pillow's EXIF directory parsing fails on some multispectral TIFFs (issue 45: a
             # MicaSense TIFF raised a TypeError here): the XMP still holds what is needed
-            notes.append(f"EXIF directories not readable by Pillow ({type(e).__name__}: {e}); "
-                         "using the XMP only")
+            notes.append(f"EXIF directories not readable by Pillow ({type(e).__name__}: {e}); using the XMP only")
             ex = {}
         if not jpeg:
             try:
                 packet = read_xmp_packet(p, img)
             except (TypeError, AttributeError) as e:
-                raise ValueError(f"{p.name}: TIFF tag 700 (XMP) not readable ({type(e).__name__}: {e}) "
-                                 f"(file {path})") from None
+                raise ValueError(
+                    f"{p.name}: TIFF tag 700 (XMP) not readable ({type(e).__name__}: {e}) (file {path})"
+                ) from None
     if packet is not None:
         dji, tiff, root = parse_xmp(packet, f"{p.name}", _with_root=True)
         props = xmp_properties(root)
@@ -686,8 +703,12 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
         m.missing = (_unknown_maker_tags(),)
         m.maker = m.make
         if require:
-            raise PhotoTagError(path, m.missing, why=f"camera maker {m.make!r} (EXIF Make) is not one geoloc "
-                                "reads, and no known maker's XMP namespace is in the photo")
+            raise PhotoTagError(
+                path,
+                m.missing,
+                why=f"camera maker {m.make!r} (EXIF Make) is not one geoloc "
+                "reads, and no known maker's XMP namespace is in the photo",
+            )
         return m
     m.maker = "DJI"
 
@@ -697,8 +718,9 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
     lon = _number(dji, lon_key, notes)
     if lat is not None and lon is not None:
         if not (abs(lat) <= 90 and abs(lon) <= 180):
-            raise ValueError(f"{p.name}: drone-dji:GpsLatitude/{lon_key} = {lat!r}, {lon!r}: out of "
-                             f"range (file {path})")
+            raise ValueError(
+                f"{p.name}: drone-dji:GpsLatitude/{lon_key} = {lat!r}, {lon!r}: out of range (file {path})"
+            )
         m.lat_deg, m.lon_deg, m.position_source = lat, lon, f"drone-dji:GpsLatitude/{lon_key}"
         if "gps_lat_deg" in ex:
             d = max(abs(ex["gps_lat_deg"] - lat), abs(ex["gps_lon_deg"] - lon))
@@ -722,8 +744,10 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
             setattr(m, f"{what.lower()}_{axis.lower()}_deg", _number(dji, f"{what}{axis}Degree", notes))
     if all(getattr(m, f"flight_{a}_deg") is None for a in ("yaw", "pitch", "roll")):
         if dji:
-            notes.append("no drone-dji:Flight{Yaw,Pitch,Roll}Degree: flight attitude taken as 0 "
-                         "(the earth-referenced gimbal does not depend on it)")
+            notes.append(
+                "no drone-dji:Flight{Yaw,Pitch,Roll}Degree: flight attitude taken as 0 "
+                "(the earth-referenced gimbal does not depend on it)"
+            )
     else:
         for a in ("yaw", "pitch", "roll"):
             if getattr(m, f"flight_{a}_deg") is None:
@@ -758,19 +782,29 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
     if m.calibrated_center_x_px is not None and m.calibrated_center_y_px is not None:
         cx, cy = 2 * m.calibrated_center_x_px, 2 * m.calibrated_center_y_px
         if m.exif_width is None and (abs(cx - m.width) > 0.05 * m.width or abs(cy - m.height) > 0.05 * m.height):
-            notes.append(f"drone-dji:CalibratedOpticalCenterX/Y ({m.calibrated_center_x_px:g}, "
-                         f"{m.calibrated_center_y_px:g}) is far from the centre of the {m.width} x "
-                         f"{m.height} raster and EXIF PixelXDimension/PixelYDimension are absent: the "
-                         f"photo may have been resized from about {cx:.0f} x {cy:.0f} (not scaled here)")
+            notes.append(
+                f"drone-dji:CalibratedOpticalCenterX/Y ({m.calibrated_center_x_px:g}, "
+                f"{m.calibrated_center_y_px:g}) is far from the centre of the {m.width} x "
+                f"{m.height} raster and EXIF PixelXDimension/PixelYDimension are absent: the "
+                f"photo may have been resized from about {cx:.0f} x {cy:.0f} (not scaled here)"
+            )
         elif m.dewarp is not None and (abs(cx - m.full_width) > 2 or abs(cy - m.full_height) > 2):
-            notes.append(f"drone-dji:CalibratedOpticalCenterX/Y ({m.calibrated_center_x_px:g}, "
-                         f"{m.calibrated_center_y_px:g}) is not the image centre ({m.full_width / 2:g}, "
-                         f"{m.full_height / 2:g}); DewarpData's offsets are taken from the image centre "
-                         "(DJI: 'origin point: photo center')")
+            notes.append(
+                f"drone-dji:CalibratedOpticalCenterX/Y ({m.calibrated_center_x_px:g}, "
+                f"{m.calibrated_center_y_px:g}) is not the image centre ({m.full_width / 2:g}, "
+                f"{m.full_height / 2:g}); DewarpData's offsets are taken from the image centre "
+                "(DJI: 'origin point: photo center')"
+            )
 
-    m.missing = tuple(REQUIRED[k] for k in REQUIRED if (
-        (k == "position" and m.lat_deg is None) or (k == "altitude" and m.altitude_m is None)
-        or (k.endswith("_deg") and getattr(m, k) is None)))
+    m.missing = tuple(
+        REQUIRED[k]
+        for k in REQUIRED
+        if (
+            (k == "position" and m.lat_deg is None)
+            or (k == "altitude" and m.altitude_m is None)
+            or (k.endswith("_deg") and getattr(m, k) is None)
+        )
+    )
     if m.missing and require:
         raise PhotoTagError(path, m.missing)
     return m
@@ -780,15 +814,21 @@ def _size_notes(m: PhotoMeta, notes: list) -> None:
     """Notes on a resized raster and a rotated view (every maker)."""
     # sizes: a raster smaller (or larger) than the size the camera wrote was resized since
     if m.resized:
-        notes.append(f"resized photo: the raster is {m.width} x {m.height}, EXIF PixelXDimension x "
-                     f"PixelYDimension say {m.full_width} x {m.full_height}; the calibration tags (in "
-                     f"full-resolution pixels) are scaled by {m.scale_x:.6g} x {m.scale_y:.6g}")
+        notes.append(
+            f"resized photo: the raster is {m.width} x {m.height}, EXIF PixelXDimension x "
+            f"PixelYDimension say {m.full_width} x {m.full_height}; the calibration tags (in "
+            f"full-resolution pixels) are scaled by {m.scale_x:.6g} x {m.scale_y:.6g}"
+        )
         if abs(m.scale_x - m.scale_y) > 0.01 * max(m.scale_x, m.scale_y):
-            notes.append("the two scales differ by more than 1 %: the photo may have been cropped, "
-                         "which scaling cannot undo (check the geolocation)")
+            notes.append(
+                "the two scales differ by more than 1 %: the photo may have been cropped, "
+                "which scaling cannot undo (check the geolocation)"
+            )
     if m.orientation not in (None, 1):
-        notes.append(f"EXIF Orientation = {m.orientation}: pixels are taken in the stored raster's "
-                     "orientation (rows and columns of the file, not of a rotated view)")
+        notes.append(
+            f"EXIF Orientation = {m.orientation}: pixels are taken in the stored raster's "
+            "orientation (rows and columns of the file, not of a rotated view)"
+        )
 
 
 #: EXIF Make of DJI's cameras (Hasselblad: the L1D/L2D cameras of Mavic 2 Pro and Mavic 3).
@@ -848,8 +888,9 @@ def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: li
     m.absolute_altitude_m = alt
     m.relative_altitude_m, _ = _maker_number(own, maker.relative_altitude, pre, notes)
     m.gps_altitude_m = ex.get("gps_altitude_m")
-    m.altitude_source = f"{pre}:{kalt}" if alt is not None else ("EXIF GPSAltitude" if m.gps_altitude_m is not None
-                                                                 else "")
+    m.altitude_source = (
+        f"{pre}:{kalt}" if alt is not None else ("EXIF GPSAltitude" if m.gps_altitude_m is not None else "")
+    )
     if m.altitude_source:
         notes.append(f"{maker.name}: altitude from {m.altitude_source}; its datum: {maker.altitude_datum}")
 
@@ -859,12 +900,14 @@ def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: li
         raw[which], _ = _maker_number(ang, getattr(maker, which), ang_pre, notes)
     plat = {}
     for which in ("platform_yaw", "platform_pitch", "platform_roll"):
-        plat[which], _ = _maker_number(ang if maker.convention == "platform-relative" else own,
-                                       getattr(maker, which), pre, notes)
+        plat[which], _ = _maker_number(
+            ang if maker.convention == "platform-relative" else own, getattr(maker, which), pre, notes
+        )
     scale = math.degrees(1.0) if maker.unit == "rad" else 1.0
     if any(v is not None for v in plat.values()):
         m.flight_yaw_deg, m.flight_pitch_deg, m.flight_roll_deg = (
-            (plat[k] or 0.0) * scale for k in ("platform_yaw", "platform_pitch", "platform_roll"))
+            (plat[k] or 0.0) * scale for k in ("platform_yaw", "platform_pitch", "platform_roll")
+        )
     missing = []
     names = {"yaw": maker.tag_names("yaw"), "pitch": maker.tag_names("pitch"), "roll": maker.tag_names("roll")}
     if maker.convention == "pix4d-nadir":
@@ -878,14 +921,18 @@ def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: li
                 missing.append(" or ".join(maker.tag_names(which)))
     if not missing:
         y, p_, r = (raw[k] * scale for k in ("yaw", "pitch", "roll"))
-        platform = tuple(plat[k] * scale for k in ("platform_yaw", "platform_pitch", "platform_roll")) \
-            if maker.convention == "platform-relative" else None
-        m.gimbal_yaw_deg, m.gimbal_pitch_deg, m.gimbal_roll_deg = earth_gimbal_deg(maker.convention, y, p_, r,
-                                                                                   platform)
+        platform = (
+            tuple(plat[k] * scale for k in ("platform_yaw", "platform_pitch", "platform_roll"))
+            if maker.convention == "platform-relative"
+            else None
+        )
+        m.gimbal_yaw_deg, m.gimbal_pitch_deg, m.gimbal_roll_deg = earth_gimbal_deg(maker.convention, y, p_, r, platform)
         if maker.convention != "ned-horizon":
-            notes.append(f"{maker.name}: camera angles yaw {y:g}, pitch {p_:g}, roll {r:g} deg "
-                         f"({CONVENTIONS[maker.convention]}) are DJI's earth-referenced gimbal yaw "
-                         f"{m.gimbal_yaw_deg:.6g}, pitch {m.gimbal_pitch_deg:.6g}, roll {m.gimbal_roll_deg:.6g} deg")
+            notes.append(
+                f"{maker.name}: camera angles yaw {y:g}, pitch {p_:g}, roll {r:g} deg "
+                f"({CONVENTIONS[maker.convention]}) are DJI's earth-referenced gimbal yaw "
+                f"{m.gimbal_yaw_deg:.6g}, pitch {m.gimbal_pitch_deg:.6g}, roll {m.gimbal_roll_deg:.6g} deg"
+            )
 
     fx, _ = _maker_number(own, maker.focal_x_px, pre, notes)
     fy, _ = _maker_number(own, maker.focal_y_px, pre, notes)
@@ -898,14 +945,18 @@ def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: li
 
     miss = []
     if m.lat_deg is None:
-        miss.append(" or ".join([f"{pre}:{maker.lat[0]}/{maker.lon[0]}"] if maker.lat else [])
-                    + (" or " if maker.lat else "") + "EXIF GPSLatitude/GPSLongitude")
+        miss.append(
+            " or ".join([f"{pre}:{maker.lat[0]}/{maker.lon[0]}"] if maker.lat else [])
+            + (" or " if maker.lat else "")
+            + "EXIF GPSLatitude/GPSLongitude"
+        )
     if m.altitude_m is None:
         miss.append((f"{pre}:{maker.altitude[0]} or " if maker.altitude else "") + "EXIF GPSAltitude")
     m.missing = tuple(miss + missing)
 
 
 # --------------------------------------------------------------------------- lens, sensor, pose
+
 
 def scale_lens(lens: Lens, width: int, height: int) -> Lens:
     """``lens`` for the same image resampled to ``width`` x ``height`` pixels.
@@ -915,9 +966,16 @@ def scale_lens(lens: Lens, width: int, height: int) -> Lens:
     the distortion coefficients act on normalised coordinates and do not change.
     """
     sx, sy = width / lens.width, height / lens.height
-    return dataclasses.replace(lens, fx=lens.fx * sx, fy=lens.fy * sy, skew=lens.skew * sx,
-                               cx=(lens.cx + 0.5) * sx - 0.5, cy=(lens.cy + 0.5) * sy - 0.5,
-                               width=int(width), height=int(height))
+    return dataclasses.replace(
+        lens,
+        fx=lens.fx * sx,
+        fy=lens.fy * sy,
+        skew=lens.skew * sx,
+        cx=(lens.cx + 0.5) * sx - 0.5,
+        cy=(lens.cy + 0.5) * sy - 0.5,
+        width=int(width),
+        height=int(height),
+    )
 
 
 def database_lens(meta: PhotoMeta):
@@ -931,8 +989,9 @@ def database_lens(meta: PhotoMeta):
 def lens_source(meta: PhotoMeta) -> str:
     """Which tags the photo's lens comes from (written to every output row)."""
     if meta.dewarp is not None:
-        return "pinhole (DewarpData, DewarpFlag=1: already undistorted)" if meta.dewarp_flag == 1 \
-            else "brown (DewarpData)"
+        return (
+            "pinhole (DewarpData, DewarpFlag=1: already undistorted)" if meta.dewarp_flag == 1 else "brown (DewarpData)"
+        )
     if meta.calibrated_focal_px is not None:
         if meta.maker not in ("", "DJI"):
             return f"pinhole ({meta.xmp.get('_calibration_tags', 'calibrated focal length')}, X/Y)"
@@ -988,11 +1047,18 @@ def lens_from_photo(meta: PhotoMeta) -> Lens:
         fx = fy = meta.focal_35mm * math.hypot(W, H) / _DIAGONAL_35MM
         x0, y0 = W / 2.0, H / 2.0
     else:
-        raise PhotoTagError(meta.path, (("drone-dji:DewarpData or drone-dji:CalibratedFocalLength or "
-                                         "a camera of the camera database (assets/cameras/drone_cameras.csv, "
-                                         f"EXIF Make/Model {meta.make!r}/{meta.model!r}) or "
-                                         "EXIF FocalLengthIn35mmFilm"),),
-                            why="has no lens calibration (give a sensor file instead)")
+        raise PhotoTagError(
+            meta.path,
+            (
+                (
+                    "drone-dji:DewarpData or drone-dji:CalibratedFocalLength or "
+                    "a camera of the camera database (assets/cameras/drone_cameras.csv, "
+                    f"EXIF Make/Model {meta.make!r}/{meta.model!r}) or "
+                    "EXIF FocalLengthIn35mmFilm"
+                ),
+            ),
+            why="has no lens calibration (give a sensor file instead)",
+        )
     full = kind(fx=fx, fy=fy, cx=x0 - 0.5, cy=y0 - 0.5, width=W, height=H, **coeffs)
     return scale_lens(full, meta.width, meta.height) if meta.resized else full
 
@@ -1015,8 +1081,7 @@ def lens_uncertainty(meta: PhotoMeta) -> dict:
 def sensor_from_photo(meta: PhotoMeta) -> FrameSensor:
     """The photo's camera: :func:`lens_from_photo` on the earth-referenced ``yaw-pitch-roll`` preset."""
     name = " ".join(s for s in (meta.make, meta.model) if s) or meta.name
-    return FrameSensor(lens=lens_from_photo(meta), gimbal=PRESETS[GIMBAL_PRESET],
-                       name=f"{name} ({lens_source(meta)})")
+    return FrameSensor(lens=lens_from_photo(meta), gimbal=PRESETS[GIMBAL_PRESET], name=f"{name} ({lens_source(meta)})")
 
 
 def camera_height(meta: PhotoMeta, altitude_datum: str = "egm96") -> tuple[float, float]:
@@ -1047,10 +1112,19 @@ def pose_from_photo(meta: PhotoMeta, altitude_datum: str = "egm96") -> Pose:
     if meta.missing:
         raise PhotoTagError(meta.path, meta.missing)
     h, _ = camera_height(meta, altitude_datum)
-    return Pose.from_deg(meta.lat_deg, meta.lon_deg, h, meta.flight_yaw_deg or 0.0,
-                         meta.flight_pitch_deg or 0.0, meta.flight_roll_deg or 0.0,
-                         angles_deg={"gimbal_yaw": meta.gimbal_yaw_deg, "gimbal_pitch": meta.gimbal_pitch_deg,
-                                     "gimbal_roll": meta.gimbal_roll_deg})
+    return Pose.from_deg(
+        meta.lat_deg,
+        meta.lon_deg,
+        h,
+        meta.flight_yaw_deg or 0.0,
+        meta.flight_pitch_deg or 0.0,
+        meta.flight_roll_deg or 0.0,
+        angles_deg={
+            "gimbal_yaw": meta.gimbal_yaw_deg,
+            "gimbal_pitch": meta.gimbal_pitch_deg,
+            "gimbal_roll": meta.gimbal_roll_deg,
+        },
+    )
 
 
 def photo_sensor(meta: PhotoMeta, sensor: FrameSensor | None = None) -> tuple[FrameSensor, str]:
@@ -1073,17 +1147,22 @@ def photo_sensor(meta: PhotoMeta, sensor: FrameSensor | None = None) -> tuple[Fr
     if not isinstance(sensor, FrameSensor):
         raise TypeError(f"sensor = {sensor!r}: must be a FrameSensor (a frame camera)")
     if set(sensor.angle_names) != set(GIMBAL_ANGLES):
-        raise ValueError(f"sensor {sensor.name or ''} uses the {sensor.gimbal.name} gimbal with angles "
-                         f"{list(sensor.angle_names)}; a DJI photo gives {list(GIMBAL_ANGLES)} in NED: "
-                         f"use the {GIMBAL_PRESET!r} preset ([gimbal] preset = \"{GIMBAL_PRESET}\")")
+        raise ValueError(
+            f"sensor {sensor.name or ''} uses the {sensor.gimbal.name} gimbal with angles "
+            f"{list(sensor.angle_names)}; a DJI photo gives {list(GIMBAL_ANGLES)} in NED: "
+            f'use the {GIMBAL_PRESET!r} preset ([gimbal] preset = "{GIMBAL_PRESET}")'
+        )
     label = f"sensor file{' ' + sensor.name if sensor.name else ''}"
     if (sensor.cols, sensor.rows) == (meta.width, meta.height):
         return sensor, label
     if (sensor.cols, sensor.rows) == (meta.full_width, meta.full_height):
-        return dataclasses.replace(sensor, lens=scale_lens(sensor.lens, meta.width, meta.height)), \
-            f"{label}, scaled to the resized raster"
-    raise ValueError(f"{meta.name}: the sensor is {sensor.cols} x {sensor.rows} pixels, the photo "
-                     f"{meta.width} x {meta.height} (full resolution {meta.full_width} x {meta.full_height})")
+        return dataclasses.replace(
+            sensor, lens=scale_lens(sensor.lens, meta.width, meta.height)
+        ), f"{label}, scaled to the resized raster"
+    raise ValueError(
+        f"{meta.name}: the sensor is {sensor.cols} x {sensor.rows} pixels, the photo "
+        f"{meta.width} x {meta.height} (full resolution {meta.full_width} x {meta.full_height})"
+    )
 
 
 def photo_columns(meta: PhotoMeta) -> dict:
@@ -1091,10 +1170,15 @@ def photo_columns(meta: PhotoMeta) -> dict:
     return {
         "absolute_altitude_m": meta.absolute_altitude_m,
         "relative_altitude_m": meta.relative_altitude_m,
-        "heading_deg": meta.flight_yaw_deg, "pitch_deg": meta.flight_pitch_deg,
+        "heading_deg": meta.flight_yaw_deg,
+        "pitch_deg": meta.flight_pitch_deg,
         "roll_deg": meta.flight_roll_deg,
-        "gimbal_yaw_deg": meta.gimbal_yaw_deg, "gimbal_pitch_deg": meta.gimbal_pitch_deg,
+        "gimbal_yaw_deg": meta.gimbal_yaw_deg,
+        "gimbal_pitch_deg": meta.gimbal_pitch_deg,
         "gimbal_roll_deg": meta.gimbal_roll_deg,
-        "rtk_flag": meta.rtk_flag, "make": meta.make, "model": meta.model, "maker": meta.maker,
+        "rtk_flag": meta.rtk_flag,
+        "make": meta.make,
+        "model": meta.model,
+        "maker": meta.maker,
         "lens_fx_sigma_px": lens_uncertainty(meta).get("fx_px"),
     }

@@ -60,6 +60,7 @@ def required_columns(angles=Q17_ANGLES) -> dict:
         base[f"{a}_deg"] = REQUIRED.get(f"{a}_deg", ANGLE_RANGE_DEG)
     return base
 
+
 #: Optional numeric columns (may be empty) and their ranges.
 OPTIONAL = {
     "paper_lat_deg": (-90.0, 90.0),
@@ -141,8 +142,18 @@ class Records:
     def subset(self, idx) -> Records:
         """The records of the rows ``idx`` (same header, angles, datums; no errors)."""
         idx = np.asarray(idx, dtype=int)
-        return Records(self.path, self.header, [self.rows[k] for k in idx], self.lines[idx], [],
-                       self.angles, self.source_header, dict(self.heights), self.column_map, list(self.warnings))
+        return Records(
+            self.path,
+            self.header,
+            [self.rows[k] for k in idx],
+            self.lines[idx],
+            [],
+            self.angles,
+            self.source_header,
+            dict(self.heights),
+            self.column_map,
+            list(self.warnings),
+        )
 
     def __len__(self) -> int:
         return len(self.rows)
@@ -166,9 +177,17 @@ class Records:
         c = self.column
         q17 = {a: c(f"{a}_deg") for a in Q17_ANGLES if f"{a}_deg" in self.header}
         other = {a: c(f"{a}_deg") for a in self.angles if a not in Q17_ANGLES}
-        return Pose.from_deg(c("ac_lat_deg"), c("ac_lon_deg"), c("ac_h_m"), c("heading_deg"),
-                             c("pitch_deg"), c("roll_deg"), q17.get("gimbal_roll", 0.0),
-                             q17.get("gimbal_pitch", 0.0), angles_deg=other)
+        return Pose.from_deg(
+            c("ac_lat_deg"),
+            c("ac_lon_deg"),
+            c("ac_h_m"),
+            c("heading_deg"),
+            c("pitch_deg"),
+            c("roll_deg"),
+            q17.get("gimbal_roll", 0.0),
+            q17.get("gimbal_pitch", 0.0),
+            angles_deg=other,
+        )
 
     def labels(self) -> list:
         """Short row labels: ``table-point`` when those columns exist, else the line number."""
@@ -182,8 +201,15 @@ def _to_float(text: str) -> float:
     return float(text) if text else math.nan
 
 
-def load_records(path, required=None, optional=OPTIONAL, angles=Q17_ANGLES, columns=None,
-                 altitude_datum=None, altitude_source="--altitude-datum") -> Records:
+def load_records(
+    path,
+    required=None,
+    optional=OPTIONAL,
+    angles=Q17_ANGLES,
+    columns=None,
+    altitude_datum=None,
+    altitude_source="--altitude-datum",
+) -> Records:
     """Read and validate a records CSV (UTF-8, with or without a byte-order mark).
 
     Parameters
@@ -231,11 +257,12 @@ def load_records(path, required=None, optional=OPTIONAL, angles=Q17_ANGLES, colu
     # utf-8-sig: a spreadsheet's byte-order mark must not become part of the first column's name
     with path.open(newline="", encoding="utf-8-sig") as fh:
         try:
-            return _read_records(path, fh, angles, required, optional, column_map, altitude_datum,
-                                 altitude_source)
+            return _read_records(path, fh, angles, required, optional, column_map, altitude_datum, altitude_source)
         except UnicodeDecodeError as e:
-            raise ValueError(f"{path}: not a text CSV (UTF-8): byte 0x{e.object[e.start]:02x} cannot be "
-                             "decoded; is it a binary file?") from None
+            raise ValueError(
+                f"{path}: not a text CSV (UTF-8): byte 0x{e.object[e.start]:02x} cannot be "
+                "decoded; is it a binary file?"
+            ) from None
 
 
 #: Labels a "no such record" message shows at most (issue 32: all 299 were listed).
@@ -264,8 +291,11 @@ def describe_labels(value, labels, shown: int = LABELS_SHOWN) -> str:
     m = re.fullmatch(r"(.*?)(\d+)", value.strip())
     if m:  # same prefix, nearest number
         prefix, number = m.group(1), int(m.group(2))
-        numbered = [(abs(int(mm.group(2)) - number), i) for i, lab in enumerate(labels)
-                    if (mm := re.fullmatch(r"(.*?)(\d+)", lab)) and mm.group(1) == prefix]
+        numbered = [
+            (abs(int(mm.group(2)) - number), i)
+            for i, lab in enumerate(labels)
+            if (mm := re.fullmatch(r"(.*?)(\d+)", lab)) and mm.group(1) == prefix
+        ]
         near = [labels[i] for _, i in sorted(numbered)[:shown]]
     for x in difflib.get_close_matches(value, labels, n=shown, cutoff=0.5):
         if x not in near and len(near) < shown:
@@ -290,8 +320,10 @@ def _separator_hint(header) -> str:
     """A hint when the header looks split by another separator than the comma."""
     for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars")):
         if any(sep in h for h in header):
-            return (f"; the header holds {name} ({header[0][:60]!r}): records CSVs are comma-separated "
-                    "(save the sheet as CSV with commas)")
+            return (
+                f"; the header holds {name} ({header[0][:60]!r}): records CSVs are comma-separated "
+                "(save the sheet as CSV with commas)"
+            )
     return ""
 
 
@@ -304,8 +336,9 @@ def _read_records(path, fh, angles, required, optional, column_map, altitude_dat
         raise ValueError(f"{path}: empty file, expected a header line") from None
     check_header(path, source_header)
     try:
-        plan = plan_columns(str(path), source_header, angles, column_map, altitude_datum, altitude_source,
-                            required=required)
+        plan = plan_columns(
+            str(path), source_header, angles, column_map, altitude_datum, altitude_source, required=required
+        )
     except ValueError as e:
         hint = _separator_hint(source_header)
         if hint:
@@ -317,8 +350,9 @@ def _read_records(path, fh, angles, required, optional, column_map, altitude_dat
         if not cells or all(not c.strip() for c in cells):
             continue
         if len(cells) != len(source_header):
-            errors.append(RowError(line, "*", ",".join(cells),
-                                   f"has {len(cells)} fields, header has {len(source_header)}"))
+            errors.append(
+                RowError(line, "*", ",".join(cells), f"has {len(cells)} fields, header has {len(source_header)}")
+            )
             continue
         raw = dict(zip(source_header, (c.strip() for c in cells)))
         row, err = plan.apply(raw, line, len(rows))
@@ -331,16 +365,25 @@ def _read_records(path, fh, angles, required, optional, column_map, altitude_dat
     bad = plan.apply_datums(rows)
     good_rows, good_lines = [], []
     for k, (row, line, raw) in enumerate(zip(rows, lines, raws)):
-        err = (RowError(line, *bad[k]) if k in bad
-               else _check_row(row, line, required, optional, plan, raw))
+        err = RowError(line, *bad[k]) if k in bad else _check_row(row, line, required, optional, plan, raw)
         if err is not None:
             errors.append(err)
             continue
         good_rows.append(row)
         good_lines.append(line)
     errors.sort(key=lambda e: e.line)
-    return Records(str(path), plan.header, good_rows, np.array(good_lines, dtype=int), errors, angles,
-                   source_header, dict(plan.heights), column_map, list(plan.warnings))
+    return Records(
+        str(path),
+        plan.header,
+        good_rows,
+        np.array(good_lines, dtype=int),
+        errors,
+        angles,
+        source_header,
+        dict(plan.heights),
+        column_map,
+        list(plan.warnings),
+    )
 
 
 def _check_row(row, line, required, optional, plan=None, raw=None):

@@ -42,9 +42,18 @@ def write_rpc_geotiff(path, model: RPCModel, rows: int, cols: int, image=None) -
     from rasterio.errors import NotGeoreferencedWarning
 
     path = Path(path)
-    profile = dict(driver="GTiff", width=int(cols), height=int(rows), count=1, dtype="uint16",
-                   tiled=True, blockxsize=256, blockysize=256, compress="deflate",
-                   SPARSE_OK=True)
+    profile = dict(
+        driver="GTiff",
+        width=int(cols),
+        height=int(rows),
+        count=1,
+        dtype="uint16",
+        tiled=True,
+        blockxsize=256,
+        blockysize=256,
+        compress="deflate",
+        SPARSE_OK=True,
+    )
     with warnings.catch_warnings():
         # raised at creation, before the RPCs below are attached: not true of the file written
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
@@ -70,9 +79,18 @@ def read_rpc_geotiff(path) -> RPCModel:
 #: The RPC00B TRE's text fields (STDI-0002 Appendix E): name -> (width, decimals) of the
 #: normalisation constants; every coefficient is +d.ddddddE+d (12 characters: 7 significant
 #: digits, a one-digit exponent, so |c| < 1e-9 is written as 0 by GDAL).
-RPC00B_FIELDS = {"line_off": (6, 0), "samp_off": (5, 0), "lat_off": (8, 4), "long_off": (9, 4),
-                 "height_off": (5, 0), "line_scale": (6, 0), "samp_scale": (5, 0), "lat_scale": (8, 4),
-                 "long_scale": (9, 4), "height_scale": (5, 0)}
+RPC00B_FIELDS = {
+    "line_off": (6, 0),
+    "samp_off": (5, 0),
+    "lat_off": (8, 4),
+    "long_off": (9, 4),
+    "height_off": (5, 0),
+    "line_scale": (6, 0),
+    "samp_scale": (5, 0),
+    "lat_scale": (8, 4),
+    "long_scale": (9, 4),
+    "height_scale": (5, 0),
+}
 
 
 def rpc00b_renormalized(model: RPCModel) -> RPCModel:
@@ -100,15 +118,16 @@ def rpc00b_renormalized(model: RPCModel) -> RPCModel:
         v = float(getattr(model, k))
         q = round(v, dec) if dec else float(round(v))
         if k.endswith("scale") and q <= 0:
-            q = 10.0 ** -dec
+            q = 10.0**-dec
         new[k] = q
     # ground side: old normalised (L, P, H) as affine functions of the new ones
     g = np.linspace(-1.0, 1.0, 4)
     Ln, Pn, Hn = (a.ravel() for a in np.meshgrid(g, g, g, indexing="ij"))
 
     def old_of(axis, x):
-        return (x * new[f"{axis}_scale"] + new[f"{axis}_off"] - getattr(model, f"{axis}_off")) \
-            / getattr(model, f"{axis}_scale")
+        return (x * new[f"{axis}_scale"] + new[f"{axis}_off"] - getattr(model, f"{axis}_off")) / getattr(
+            model, f"{axis}_scale"
+        )
 
     T_old = rpc_terms(old_of("long", Ln), old_of("lat", Pn), old_of("height", Hn))
     T_new = rpc_terms(Ln, Pn, Hn)
@@ -160,8 +179,7 @@ def write_rpc_nitf(path, model: RPCModel, rows: int, cols: int, renormalize: boo
     with tempfile.TemporaryDirectory() as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         src = os.path.join(tmp, "rpc.tif")
-        with rasterio.open(src, "w", driver="GTiff", width=int(cols), height=int(rows), count=1,
-                           dtype="uint8") as dst:
+        with rasterio.open(src, "w", driver="GTiff", width=int(cols), height=int(rows), count=1, dtype="uint8") as dst:
             dst.rpcs = m.to_rasterio()
         with atomic_path(path) as part:
             with rasterio.Env(GDAL_PAM_ENABLED="NO"):
@@ -236,8 +254,12 @@ def read_rpc(path, rows: int | None = None, cols: int | None = None, **sensor_op
         raise ValueError(f"{path}: not a raster GDAL can read ({' '.join(str(e).split())})") from None
     if rpcs is None:
         raise ValueError(f"{path}: no RPC metadata (no RPC tag, and no .RPB or _RPC.TXT beside it)")
-    return RPCSensor(RPCModel.from_rasterio(rpcs), int(size[0] if rows is None else rows),
-                     int(size[1] if cols is None else cols), **sensor_options)
+    return RPCSensor(
+        RPCModel.from_rasterio(rpcs),
+        int(size[0] if rows is None else rows),
+        int(size[1] if cols is None else cols),
+        **sensor_options,
+    )
 
 
 def _rpcs(src, path):
@@ -250,8 +272,17 @@ def _rpcs(src, path):
 
 
 # ------------------------------------------------------------------- GDAL
-def gdal_rpc_to_ground(model: RPCModel, row, col, *, dem_path=None, height=0.0,
-                       pixel_error_threshold=None, max_iterations=None, vdatum_shift=False):
+def gdal_rpc_to_ground(
+    model: RPCModel,
+    row,
+    col,
+    *,
+    dem_path=None,
+    height=0.0,
+    pixel_error_threshold=None,
+    max_iterations=None,
+    vdatum_shift=False,
+):
     """Pixel -> ground with GDAL's RPC transformer (through rasterio).
 
     With ``dem_path`` the GDAL option ``RPC_DEM`` is set: GDAL then treats
@@ -352,14 +383,33 @@ def write_ellipsoidal_dem(dem, path) -> Path:
     v = np.asarray(g.values, float)
     t = Affine(g.dlon_deg, 0.0, g.lon_west_deg - g.dlon_deg / 2, 0.0, -g.dlat_deg, g.lat_north_deg + g.dlat_deg / 2)
     path = Path(path)
-    with atomic_path(path) as tmp, rasterio.open(tmp, "w", driver="GTiff", width=v.shape[1], height=v.shape[0],
-                                                 count=1, dtype="float64", crs="EPSG:4326", transform=t,
-                                                 nodata=np.nan) as dst:
+    with (
+        atomic_path(path) as tmp,
+        rasterio.open(
+            tmp,
+            "w",
+            driver="GTiff",
+            width=v.shape[1],
+            height=v.shape[0],
+            count=1,
+            dtype="float64",
+            crs="EPSG:4326",
+            transform=t,
+            nodata=np.nan,
+        ) as dst,
+    ):
         dst.write(v, 1)
-        dst.update_tags(VERTICAL_DATUM="WGS-84 ellipsoidal heights (h = H + N, EGM96)",
-                        SOURCE=str(dem.path))
+        dst.update_tags(VERTICAL_DATUM="WGS-84 ellipsoidal heights (h = H + N, EGM96)", SOURCE=str(dem.path))
     return path
 
 
-__all__ = ["RPC00B_FIELDS", "gdal_rpc_to_ground", "read_rpc", "read_rpc_geotiff", "rpc00b_renormalized",
-           "write_ellipsoidal_dem", "write_rpc_geotiff", "write_rpc_nitf"]
+__all__ = [
+    "RPC00B_FIELDS",
+    "gdal_rpc_to_ground",
+    "read_rpc",
+    "read_rpc_geotiff",
+    "rpc00b_renormalized",
+    "write_ellipsoidal_dem",
+    "write_rpc_geotiff",
+    "write_rpc_nitf",
+]

@@ -139,20 +139,24 @@ class LiveStats:
 
     def line(self) -> str:
         """One line: what arrived, what was lost."""
-        return (f"{self.datagrams} datagrams, {self.klv_packets} KLV packets ({self.bad_packets} bad, "
-                f"{self.bad_checksums} bad checksums), {self.video_units} video frames; "
-                f"{self.cc_errors} TS continuity errors, {self.duplicates} duplicates, {self.resyncs} resyncs, "
-                f"{self.orphans} orphan PES fragments, {self.restarts} restarts, {self.stalls} stalls")
+        return (
+            f"{self.datagrams} datagrams, {self.klv_packets} KLV packets ({self.bad_packets} bad, "
+            f"{self.bad_checksums} bad checksums), {self.video_units} video frames; "
+            f"{self.cc_errors} TS continuity errors, {self.duplicates} duplicates, {self.resyncs} resyncs, "
+            f"{self.orphans} orphan PES fragments, {self.restarts} restarts, {self.stalls} stalls"
+        )
 
     def markdown(self) -> str:
         """The loss panel's text."""
-        return ("| received | lost / bad |\n|---|---|\n"
-                f"| {self.datagrams} datagrams | {self.cc_errors} TS continuity errors |\n"
-                f"| {self.klv_packets} KLV packets | {self.bad_packets} bad KLV packets "
-                f"({self.bad_checksums} checksums) |\n"
-                f"| {self.video_units} video frames | {self.duplicates} duplicates, {self.resyncs} resyncs |\n"
-                f"| {self.ts_packets} TS packets | {self.orphans} orphan PES, {self.damaged_pes} damaged PES |\n"
-                f"| {self.restarts} restarts | {self.stalls} stalls, {self.transport_errors} TS errors |")
+        return (
+            "| received | lost / bad |\n|---|---|\n"
+            f"| {self.datagrams} datagrams | {self.cc_errors} TS continuity errors |\n"
+            f"| {self.klv_packets} KLV packets | {self.bad_packets} bad KLV packets "
+            f"({self.bad_checksums} checksums) |\n"
+            f"| {self.video_units} video frames | {self.duplicates} duplicates, {self.resyncs} resyncs |\n"
+            f"| {self.ts_packets} TS packets | {self.orphans} orphan PES, {self.damaged_pes} damaged PES |\n"
+            f"| {self.restarts} restarts | {self.stalls} stalls, {self.transport_errors} TS errors |"
+        )
 
 
 class _PesBuf:
@@ -183,8 +187,14 @@ class TsDemuxer:
         Return video PES (default True); False drops them unassembled.
     """
 
-    def __init__(self, stats: LiveStats | None = None, keep_video: bool = True, reorder: bool = True,
-                 reorder_s: float = 0.1, video_window: int = VIDEO_WINDOW):
+    def __init__(
+        self,
+        stats: LiveStats | None = None,
+        keep_video: bool = True,
+        reorder: bool = True,
+        reorder_s: float = 0.1,
+        video_window: int = VIDEO_WINDOW,
+    ):
         self.stats = stats if stats is not None else LiveStats()
         #: PTS of the video PES whose start (its header) arrived, newest last: a frame's time is known
         #: from its first TS packet, while the PES itself (no length field) completes only at the next
@@ -312,7 +322,7 @@ class TsDemuxer:
         afc = (b3 >> 4) & 3
         if not afc & 1:
             return  # adaptation field only: no payload, the counter does not move
-        pkt = buf[i:i + TS_PACKET]
+        pkt = buf[i : i + TS_PACKET]
         cc = b3 & 0x0F
         discontinuity = afc & 2 and pkt[4] and pkt[5] & 0x80
         last = self._cc.get(pid)
@@ -413,8 +423,11 @@ class TsDemuxer:
                 # metadata / private stream PES is taken as KLV (the UAS LS key check in the scanner
                 # rejects anything else), and so is any PES whose data starts with a UAS LS or an
                 # EG 0104 key (directly, or after a metadata access-unit cell header)
-                if len(payload) >= 4 and payload[:3] == b"\x00\x00\x01" and \
-                        (payload[3] in _KLV_STREAM_IDS or _starts_with_klv(payload)):
+                if (
+                    len(payload) >= 4
+                    and payload[:3] == b"\x00\x00\x01"
+                    and (payload[3] in _KLV_STREAM_IDS or _starts_with_klv(payload))
+                ):
                     self.streams[pid] = ("klv", 0)
                 else:
                     return
@@ -422,8 +435,13 @@ class TsDemuxer:
             if len(payload) >= 6 and payload[:3] == b"\x00\x00\x01":
                 ln = (payload[4] << 8) | payload[5]
                 b.expected = 6 + ln if ln else 0
-                if kind == "video" and len(payload) >= 14 and payload[3] not in _NO_PES_HEADER_IDS \
-                        and payload[7] & 0x80 and payload[8] >= 5:
+                if (
+                    kind == "video"
+                    and len(payload) >= 14
+                    and payload[3] not in _NO_PES_HEADER_IDS
+                    and payload[7] & 0x80
+                    and payload[8] >= 5
+                ):
                     self.video_starts.append(_timestamp(payload, 9))
             self._pes[pid] = b
         elif kind is None:
@@ -453,7 +471,7 @@ class TsDemuxer:
         kind, stype = self.streams.get(pid, ("klv", 0))
         data = b"".join(b.parts)
         if b.expected and len(data) > b.expected:
-            data = data[:b.expected]
+            data = data[: b.expected]
         elif b.expected and len(data) < b.expected:
             b.damaged = True
         if len(data) < 6 or data[:3] != b"\x00\x00\x01":
@@ -467,14 +485,13 @@ class TsDemuxer:
             if len(data) < 9:
                 return None
             flags, hlen = data[7], data[8]
-            h = data[9:9 + hlen]
+            h = data[9 : 9 + hlen]
             if flags & 0x80 and len(h) >= 5:
                 pts = _timestamp(h, 0)
             if flags & 0x40 and len(h) >= 10:
                 dts = _timestamp(h, 5)
-            body = data[9 + hlen:]
-        if kind == "klv" and (stype == 0x15 or (stype == 0 and body[:4] != _KLV_PREFIX
-                                                 and body[5:9] == _KLV_PREFIX)):
+            body = data[9 + hlen :]
+        if kind == "klv" and (stype == 0x15 or (stype == 0 and body[:4] != _KLV_PREFIX and body[5:9] == _KLV_PREFIX)):
             body = _metadata_cells(body)  # synchronous metadata (or, with no PMT, cells before a key)
         if b.damaged:
             self.stats.damaged_pes += 1
@@ -486,9 +503,9 @@ class TsDemuxer:
             ptr = payload[0]
             prev = self._psi.get(pid)
             if prev is not None and ptr:
-                prev += payload[1:1 + ptr]
+                prev += payload[1 : 1 + ptr]
                 self._try_section(pid, prev)
-            self._psi[pid] = bytearray(payload[1 + ptr:])
+            self._psi[pid] = bytearray(payload[1 + ptr :])
         elif pid in self._psi:
             self._psi[pid] += payload
         else:
@@ -503,7 +520,7 @@ class TsDemuxer:
             if len(sec) > 4096:
                 self._psi.pop(pid, None)
             return
-        s = bytes(sec[:3 + slen])
+        s = bytes(sec[: 3 + slen])
         self._psi.pop(pid, None)
         if slen < 9 or crc32_mpeg2(s) != 0:
             self.stats.psi_errors += 1
@@ -528,7 +545,7 @@ class TsDemuxer:
                 stype = s[k]
                 epid = ((s[k + 1] & 0x1F) << 8) | s[k + 2]
                 eslen = ((s[k + 3] & 0x0F) << 8) | s[k + 4]
-                desc = s[k + 5:k + 5 + eslen]
+                desc = s[k + 5 : k + 5 + eslen]
                 kind = None
                 if stype == 0x15 or (stype == 0x06 and _registration(desc) == b"KLVA"):
                     kind = "klv"
@@ -551,7 +568,7 @@ def _starts_with_klv(payload: bytes) -> bool:
     header) starts with a UAS LS or EG 0104 key, directly or after a 5-byte metadata cell header."""
     if len(payload) < 9 or payload[3] in _NO_PES_HEADER_IDS:
         return False
-    body = payload[9 + payload[8]:]
+    body = payload[9 + payload[8] :]
     return any(body.startswith(k, at) for k in _KLV_KEYS for at in (0, 5))
 
 
@@ -560,7 +577,7 @@ def _registration(desc: bytes) -> bytes | None:
     while k + 2 <= len(desc):
         tag, ln = desc[k], desc[k + 1]
         if tag == 0x05 and ln >= 4:
-            return bytes(desc[k + 2:k + 6])
+            return bytes(desc[k + 2 : k + 6])
         k += 2 + ln
     return None
 
@@ -576,8 +593,6 @@ def _metadata_cells(body: bytes) -> bytes:
     n = len(body)
     while k + 5 <= n:
         ln = (body[k + 3] << 8) | body[k + 4]
-        out.append(body[k + 5:k + 5 + ln])
+        out.append(body[k + 5 : k + 5 + ln])
         k += 5 + ln
     return b"".join(out) if out else body
-
-

@@ -47,8 +47,7 @@ _OUTSIDE = int(Status.OUTSIDE_SENSOR)
 
 
 @cached_njit(KEY)
-def _chain_matrix(lat, lon, heading, pitch, roll, angles, axes, R_cam_last, has_mount, R_base_body, earth_ref,
-                  out_R):
+def _chain_matrix(lat, lon, heading, pitch, roll, angles, axes, R_cam_last, has_mount, R_base_body, earth_ref, out_R):
     """``R_ecef_cam`` of one state: the columns are the optical axes carried hop by hop to ECEF.
 
     The hops of ``_fastlocate.locate_kernel``: optical -> last joint frame (``R_cam_last``^T),
@@ -116,9 +115,20 @@ def R_ecef_cam(sensor, state) -> np.ndarray:
     (lat, lon, heading, pitch, roll), angles = _scalar_state(state, sensor.angle_names)
     axes = np.array([_AXIS[j.axis] for j in sensor.gimbal.joints], dtype=np.int64)
     R = np.empty((3, 3))
-    _chain_matrix(lat, lon, heading, pitch, roll, angles, axes, np.ascontiguousarray(sensor.R_cam_last, float),
-                  not np.array_equal(sensor.R_base_body, np.eye(3)),
-                  np.ascontiguousarray(sensor.R_base_body, float), bool(sensor.gimbal.earth_referenced), R)
+    _chain_matrix(
+        lat,
+        lon,
+        heading,
+        pitch,
+        roll,
+        angles,
+        axes,
+        np.ascontiguousarray(sensor.R_cam_last, float),
+        not np.array_equal(sensor.R_base_body, np.eye(3)),
+        np.ascontiguousarray(sensor.R_base_body, float),
+        bool(sensor.gimbal.earth_referenced),
+        R,
+    )
     return R
 
 
@@ -151,8 +161,9 @@ def grid_line_of_sight(sensor, state, rows, cols) -> LineOfSight:
         a bad pose), OUTSIDE_SENSOR off the rows/columns, as ``sensor.line_of_sight``.
     """
     if not supports(sensor):
-        raise ValueError(f"sensor = {sensor!r}: the compiled grid serves a FrameSensor with one lens "
-                         "(use sensor.line_of_sight)")
+        raise ValueError(
+            f"sensor = {sensor!r}: the compiled grid serves a FrameSensor with one lens (use sensor.line_of_sight)"
+        )
     rows = np.ascontiguousarray(np.asarray(rows, float).reshape(-1))
     cols = np.ascontiguousarray(np.asarray(cols, float).reshape(-1))
     R = R_ecef_cam(sensor, state)
@@ -162,7 +173,17 @@ def grid_line_of_sight(sensor, state, rows, cols) -> LineOfSight:
     d = np.empty((n, 3))
     st = np.empty(n, dtype=np.uint8)
     lens = sensor.lens
-    grid_kernel(rows, cols, int(lens.code), np.ascontiguousarray(lens.as_array(), float), float(sensor.rows),
-                float(sensor.cols), R, bad, d, st)
+    grid_kernel(
+        rows,
+        cols,
+        int(lens.code),
+        np.ascontiguousarray(lens.as_array(), float),
+        float(sensor.rows),
+        float(sensor.cols),
+        R,
+        bad,
+        d,
+        st,
+    )
     shape = (rows.size, cols.size)
     return LineOfSight(np.broadcast_to(o, shape + (3,)), d.reshape(shape + (3,)), st.reshape(shape))

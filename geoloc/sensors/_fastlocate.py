@@ -100,9 +100,11 @@ def _turn_back(axis, a, x, y, z):
 @cached_njit(KEY, inline="always")
 def _mul_T(R, x, y, z):
     """R^T (x, y, z) for a 3x3 R."""
-    return (R[0, 0] * x + R[1, 0] * y + R[2, 0] * z,
-            R[0, 1] * x + R[1, 1] * y + R[2, 1] * z,
-            R[0, 2] * x + R[1, 2] * y + R[2, 2] * z)
+    return (
+        R[0, 0] * x + R[1, 0] * y + R[2, 0] * z,
+        R[0, 1] * x + R[1, 1] * y + R[2, 1] * z,
+        R[0, 2] * x + R[1, 2] * y + R[2, 2] * z,
+    )
 
 
 @cached_njit(KEY, inline="always")
@@ -116,7 +118,7 @@ def _body_to_ned(heading, pitch, roll, x, y, z):
 # fdlibm's (and musl's) __sin / __cos kernels on [-pi/4, pi/4] (Sun Microsystems, 1993;
 # errors below 1 ulp there) and its medium-size Cody-Waite reduction by pi/2 in two parts.
 _INV_PIO2 = 6.36619772367581382433e-01
-_PIO2_1 = 1.57079632673412561417e+00  # first 33 bits of pi/2: fn * _PIO2_1 is exact for |fn| < 2^20
+_PIO2_1 = 1.57079632673412561417e00  # first 33 bits of pi/2: fn * _PIO2_1 is exact for |fn| < 2^20
 _PIO2_1T = 6.07710050650619224932e-11  # pi/2 - _PIO2_1
 _S1, _S2, _S3 = -1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04
 _S4, _S5, _S6 = 2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10
@@ -209,10 +211,10 @@ def sincos_lanes(a):
 # P(z)/Q(z) of degree 4/5 in z = x^2; peak relative error 1.8e-16 over the real line.
 _T3P8 = 2.41421356237309504880  # tan(3 pi / 8)
 _MOREBITS = 6.123233995736765886130e-17  # pi/2 - (pi/2 rounded)
-_AP0, _AP1, _AP2 = -8.750608600031904122785e-01, -1.615753718733365076637e+01, -7.500855792314704667340e+01
-_AP3, _AP4 = -1.228866684490136173410e+02, -6.485021904942025371773e+01
-_AQ0, _AQ1, _AQ2 = 2.485846490142306297962e+01, 1.650270098316988542046e+02, 4.328810604912902668951e+02
-_AQ3, _AQ4 = 4.853903996359136964868e+02, 1.945506571482613964425e+02
+_AP0, _AP1, _AP2 = -8.750608600031904122785e-01, -1.615753718733365076637e01, -7.500855792314704667340e01
+_AP3, _AP4 = -1.228866684490136173410e02, -6.485021904942025371773e01
+_AQ0, _AQ1, _AQ2 = 2.485846490142306297962e01, 1.650270098316988542046e02, 4.328810604912902668951e02
+_AQ3, _AQ4 = 4.853903996359136964868e02, 1.945506571482613964425e02
 _PIO2 = 1.5707963267948966
 _PIO4 = 0.7853981633974483
 
@@ -284,12 +286,18 @@ def _sincos_block(a, s, c):
 def _valid_block(lat, lon, h, heading, pitch, roll, row, col, target_h, ranges, b_m, ok):
     """ok[i] = 1.0 where the pose, the pixel and the target height are valid, else 0.0."""
     for i in range(lat.shape[0]):
-        v = (_in(lat[i], ranges[0, 0], ranges[0, 1]) & _in(lon[i], ranges[1, 0], ranges[1, 1])
-             & _in(h[i], ranges[2, 0], ranges[2, 1])
-             & _in(heading[i], ranges[3, 0], ranges[3, 1])
-             & _in(pitch[i], ranges[4, 0], ranges[4, 1]) & _in(roll[i], ranges[5, 0], ranges[5, 1])
-             & math.isfinite(row[i]) & math.isfinite(col[i]) & math.isfinite(target_h[i])
-             & (b_m + target_h[i] > 0.0))
+        v = (
+            _in(lat[i], ranges[0, 0], ranges[0, 1])
+            & _in(lon[i], ranges[1, 0], ranges[1, 1])
+            & _in(h[i], ranges[2, 0], ranges[2, 1])
+            & _in(heading[i], ranges[3, 0], ranges[3, 1])
+            & _in(pitch[i], ranges[4, 0], ranges[4, 1])
+            & _in(roll[i], ranges[5, 0], ranges[5, 1])
+            & math.isfinite(row[i])
+            & math.isfinite(col[i])
+            & math.isfinite(target_h[i])
+            & (b_m + target_h[i] > 0.0)
+        )
         ok[i] = 1.0 if v else 0.0
 
 
@@ -339,13 +347,36 @@ def _turn_back_block(axis, s, c, x, y, z):
 def _body_to_ned_block(sc, x, y, z):
     """(x, y, z)[i] from body to NED, with the attitude's sines and cosines in rows 0-5 of ``sc``."""
     for i in range(x.shape[0]):
-        x[i], y[i], z[i] = _body_to_ned_cs(sc[1, i], sc[0, i], sc[3, i], sc[2, i], sc[5, i], sc[4, i],
-                                           x[i], y[i], z[i])
+        x[i], y[i], z[i] = _body_to_ned_cs(sc[1, i], sc[0, i], sc[3, i], sc[2, i], sc[5, i], sc[4, i], x[i], y[i], z[i])
 
 
 @cached_njit(KEY, error_model="numpy")
-def _hit_block(sc, x, y, z, okv, h, target_h, row, col, flag_off, width, height, lever, a_m, b_m, e2,
-               out_o, out_d, out_s, out_ecef, out_status, px, py, pz):
+def _hit_block(
+    sc,
+    x,
+    y,
+    z,
+    okv,
+    h,
+    target_h,
+    row,
+    col,
+    flag_off,
+    width,
+    height,
+    lever,
+    a_m,
+    b_m,
+    e2,
+    out_o,
+    out_d,
+    out_s,
+    out_ecef,
+    out_status,
+    px,
+    py,
+    pz,
+):
     """NED -> ECEF [Q17 eq. 5], the optical centre with the lever arm, and ray x inflated ellipsoid [Q17 eq. 10-11]."""
     for i in range(x.shape[0]):
         xi, yi, zi = x[i], y[i], z[i]
@@ -357,8 +388,9 @@ def _hit_block(sc, x, y, z, okv, h, target_h, row, col, flag_off, width, height,
         ox = (rn + h[i]) * cp * cl
         oy = (rn + h[i]) * cp * sl
         oz = (rn * (1.0 - e2) + h[i]) * sp
-        lx, ly, lz = _body_to_ned_cs(sc[1, i], sc[0, i], sc[3, i], sc[2, i], sc[5, i], sc[4, i],
-                                     lever[0], lever[1], lever[2])
+        lx, ly, lz = _body_to_ned_cs(
+            sc[1, i], sc[0, i], sc[3, i], sc[2, i], sc[5, i], sc[4, i], lever[0], lever[1], lever[2]
+        )
         ox += -sp * cl * lx - sl * ly - cp * cl * lz
         oy += -sp * sl * lx + cl * ly - cp * sl * lz
         oz += cp * lx - sp * lz
@@ -380,8 +412,19 @@ def _hit_block(sc, x, y, z, okv, h, target_h, row, col, flag_off, width, height,
         # (a distortion model beyond its domain gives NaN): the first reason wins (issue 32)
         given = (okv[i] != 0.0) & math.isfinite(r_) & math.isfinite(c_)
         inside = (not flag_off) | ((r_ >= 0.5) & (r_ <= height + 0.5) & (c_ >= 0.5) & (c_ <= width + 0.5))
-        status = (_INVALID if not given else _OUTSIDE if not inside else _INVALID if not math.isfinite(dx)
-                  else _BELOW if qc < 0.0 else _SKY if (disc < 0.0) | (qb >= 0.0) else _OK)
+        status = (
+            _INVALID
+            if not given
+            else _OUTSIDE
+            if not inside
+            else _INVALID
+            if not math.isfinite(dx)
+            else _BELOW
+            if qc < 0.0
+            else _SKY
+            if (disc < 0.0) | (qb >= 0.0)
+            else _OK
+        )
         sol = min(s1, s2) if status == _OK else math.nan
         out_status[i] = status
         out_s[i] = sol
@@ -402,10 +445,43 @@ def _geodetic_block(x, y, z, a_m, e2, status, lat, lon, h, good):
 
 
 @cached_njit(KEY, parallel=True, error_model="numpy")
-def locate_kernel(lat, lon, h, heading, pitch, roll, angles, row, col, target_h,
-                  lens_code, lens_p, width, height, flag_off, axes, R_cam_last, has_mount, R_base_body, lever, earth_ref,
-                  ranges, angle_lo, angle_hi, a_m, b_m, e2,
-                  out_lat, out_lon, out_h, out_ecef, out_s, out_o, out_d, out_status):
+def locate_kernel(
+    lat,
+    lon,
+    h,
+    heading,
+    pitch,
+    roll,
+    angles,
+    row,
+    col,
+    target_h,
+    lens_code,
+    lens_p,
+    width,
+    height,
+    flag_off,
+    axes,
+    R_cam_last,
+    has_mount,
+    R_base_body,
+    lever,
+    earth_ref,
+    ranges,
+    angle_lo,
+    angle_hi,
+    a_m,
+    b_m,
+    e2,
+    out_lat,
+    out_lon,
+    out_h,
+    out_ecef,
+    out_s,
+    out_o,
+    out_d,
+    out_status,
+):
     """The fused chain over blocks of :data:`_BLOCK` rays, hop by hop, each hop one loop over the block.
 
     Each hop's loop (a ``*_block`` function) is branch-free (selects), so that LLVM compiles
@@ -435,8 +511,20 @@ def locate_kernel(lat, lon, h, heading, pitch, roll, angles, row, col, target_h,
         _sincos_block(lon[k0:k1], sc[8, :m], sc[9, :m])
         for j in range(nj):
             _sincos_block(angles[k0:k1, j], sc[10 + 2 * j, :m], sc[11 + 2 * j, :m])
-        _valid_block(lat[k0:k1], lon[k0:k1], h[k0:k1], heading[k0:k1], pitch[k0:k1], roll[k0:k1],
-                     row[k0:k1], col[k0:k1], target_h[k0:k1], ranges, b_m, sc[rok, :m])
+        _valid_block(
+            lat[k0:k1],
+            lon[k0:k1],
+            h[k0:k1],
+            heading[k0:k1],
+            pitch[k0:k1],
+            roll[k0:k1],
+            row[k0:k1],
+            col[k0:k1],
+            target_h[k0:k1],
+            ranges,
+            b_m,
+            sc[rok, :m],
+        )
         for j in range(nj):
             _angle_valid_block(angles[k0:k1, j], angle_lo[j], angle_hi[j], sc[rok, :m])
         # pixel -> optical frame -> last joint frame -> ... -> gimbal base (or NED) -> body -> NED
@@ -448,12 +536,45 @@ def locate_kernel(lat, lon, h, heading, pitch, roll, angles, row, col, target_h,
             if has_mount:
                 _mul_T_block(R_base_body, x, y, z)
             _body_to_ned_block(sc, x, y, z)
-        _hit_block(sc, x, y, z, sc[rok, :m], h[k0:k1], target_h[k0:k1], row[k0:k1], col[k0:k1], flag_off,
-                   width, height, lever, a_m, b_m, e2, out_o[k0:k1], out_d[k0:k1], out_s[k0:k1],
-                   out_ecef[k0:k1], out_status[k0:k1], sc[rp, :m], sc[rp + 1, :m], sc[rp + 2, :m])
+        _hit_block(
+            sc,
+            x,
+            y,
+            z,
+            sc[rok, :m],
+            h[k0:k1],
+            target_h[k0:k1],
+            row[k0:k1],
+            col[k0:k1],
+            flag_off,
+            width,
+            height,
+            lever,
+            a_m,
+            b_m,
+            e2,
+            out_o[k0:k1],
+            out_d[k0:k1],
+            out_s[k0:k1],
+            out_ecef[k0:k1],
+            out_status[k0:k1],
+            sc[rp, :m],
+            sc[rp + 1, :m],
+            sc[rp + 2, :m],
+        )
         # ECEF -> geodetic, Vermeille's closed form (as geoloc.geodesy.ellipsoid.ecef_to_geodetic)
-        _geodetic_block(sc[rp, :m], sc[rp + 1, :m], sc[rp + 2, :m], a_m, e2, out_status[k0:k1],
-                        out_lat[k0:k1], out_lon[k0:k1], out_h[k0:k1], good[:m])
+        _geodetic_block(
+            sc[rp, :m],
+            sc[rp + 1, :m],
+            sc[rp + 2, :m],
+            a_m,
+            e2,
+            out_status[k0:k1],
+            out_lat[k0:k1],
+            out_lon[k0:k1],
+            out_h[k0:k1],
+            good[:m],
+        )
 
 
 def _col(a, shape):
@@ -507,8 +628,9 @@ def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
     lat, lon, h, ecef, slant_range, status, origin_ecef, direction_ecef
     """
     if not serves(sensor):
-        raise ValueError("the compiled kernel takes a FrameSensor with one lens and no per-sample "
-                         "perturbations; use engine='numpy'")
+        raise ValueError(
+            "the compiled kernel takes a FrameSensor with one lens and no per-sample perturbations; use engine='numpy'"
+        )
     names = sensor.angle_names
     angles = [pose.angle(a) for a in names]
     fields = [pose.lat, pose.lon, pose.h, pose.heading, pose.pitch, pose.roll, row, col, target_h, *angles]
@@ -527,12 +649,43 @@ def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
     out_ecef, out_o, out_d = (np.empty((n, 3)) for _ in range(3))
     out_status = np.empty(n, dtype=np.uint8)
     lens = sensor.lens
-    locate_kernel(*flat[:6], ang, *flat[6:], int(lens.code), _lens_vector(lens),
-                  float(lens.width), float(lens.height), outside == "flag", axes,
-                  np.ascontiguousarray(sensor.R_cam_last), has_mount, np.ascontiguousarray(sensor.R_base_body),
-                  np.array(sensor.lever_arm_m, float), bool(sensor.gimbal.earth_referenced),
-                  ranges, lo, hi, float(A), float(B), float(E2),
-                  out_lat, out_lon, out_h, out_ecef, out_s, out_o, out_d, out_status)
-    return (out_lat.reshape(shape), out_lon.reshape(shape), out_h.reshape(shape),
-            out_ecef.reshape(shape + (3,)), out_s.reshape(shape), out_status.reshape(shape),
-            out_o.reshape(shape + (3,)), out_d.reshape(shape + (3,)))
+    locate_kernel(
+        *flat[:6],
+        ang,
+        *flat[6:],
+        int(lens.code),
+        _lens_vector(lens),
+        float(lens.width),
+        float(lens.height),
+        outside == "flag",
+        axes,
+        np.ascontiguousarray(sensor.R_cam_last),
+        has_mount,
+        np.ascontiguousarray(sensor.R_base_body),
+        np.array(sensor.lever_arm_m, float),
+        bool(sensor.gimbal.earth_referenced),
+        ranges,
+        lo,
+        hi,
+        float(A),
+        float(B),
+        float(E2),
+        out_lat,
+        out_lon,
+        out_h,
+        out_ecef,
+        out_s,
+        out_o,
+        out_d,
+        out_status,
+    )
+    return (
+        out_lat.reshape(shape),
+        out_lon.reshape(shape),
+        out_h.reshape(shape),
+        out_ecef.reshape(shape + (3,)),
+        out_s.reshape(shape),
+        out_status.reshape(shape),
+        out_o.reshape(shape + (3,)),
+        out_d.reshape(shape + (3,)),
+    )

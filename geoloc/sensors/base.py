@@ -119,12 +119,16 @@ def check_angle_names(given: Mapping[str, str], need, gimbal: str, defaults=()) 
     unknown = [a for a in given if a not in need]
     if unknown:
         more = f" (also unknown: {unknown[1:]})" if len(unknown) > 1 else ""
-        raise ValueError(f"{given[unknown[0]]}: the sensor's {gimbal} gimbal has no angle {unknown[0]!r}; "
-                         f"its angles are {need}{more}")
+        raise ValueError(
+            f"{given[unknown[0]]}: the sensor's {gimbal} gimbal has no angle {unknown[0]!r}; "
+            f"its angles are {need}{more}"
+        )
     missing = [a for a in need if a not in given and a not in defaults]
     if missing:
-        raise ValueError(f"missing angle(s) {missing}: the sensor's {gimbal} gimbal needs {need}; "
-                         "give each (--angle NAME=DEG on the command line)")
+        raise ValueError(
+            f"missing angle(s) {missing}: the sensor's {gimbal} gimbal needs {need}; "
+            "give each (--angle NAME=DEG on the command line)"
+        )
 
 
 def check_param_names(changes: Mapping[str, float], known: Mapping[str, float], what: str) -> None:

@@ -38,15 +38,20 @@ LE90_PER_SIGMA = 1.6448536269514722
 #: Published vertical accuracy of DEM products, as LE90 (90 % linear error) [m], and where it comes from.
 #: ``dem_product = NAME`` in a budget takes sigma = LE90 / 1.6449.
 DEM_PRODUCTS = {
-    "srtm": (16.0, "SRTM's mission specification of absolute vertical accuracy, 16 m at 90 % (LE90; "
-                   "sigma 9.73 m): Farr et al. 2007, 'The Shuttle Radar Topography Mission', Rev. Geophys. "
-                   "45, RG2004, doi:10.1029/2005RG000183; the same 16 m / RMSE 9.73 m is quoted as the "
-                   "consensus figure by Mukul et al. 2017, Sci. Rep. 7, 41672. The errors measured against "
-                   "ground truth, as 90 % errors per continent, are Rodriguez et al. 2006, 'A global "
-                   "assessment of the SRTM performance', PE&RS 72(3), 249-260, doi:10.14358/PERS.72.3.249; "
-                   "the specification is kept as the conservative default"),
-    "copernicus-glo30": (4.0, "Copernicus DEM GLO-30 product handbook: absolute vertical accuracy "
-                              "< 4 m at 90 % (LE90)"),
+    "srtm": (
+        16.0,
+        "SRTM's mission specification of absolute vertical accuracy, 16 m at 90 % (LE90; "
+        "sigma 9.73 m): Farr et al. 2007, 'The Shuttle Radar Topography Mission', Rev. Geophys. "
+        "45, RG2004, doi:10.1029/2005RG000183; the same 16 m / RMSE 9.73 m is quoted as the "
+        "consensus figure by Mukul et al. 2017, Sci. Rep. 7, 41672. The errors measured against "
+        "ground truth, as 90 % errors per continent, are Rodriguez et al. 2006, 'A global "
+        "assessment of the SRTM performance', PE&RS 72(3), 249-260, doi:10.14358/PERS.72.3.249; "
+        "the specification is kept as the conservative default",
+    ),
+    "copernicus-glo30": (
+        4.0,
+        "Copernicus DEM GLO-30 product handbook: absolute vertical accuracy < 4 m at 90 % (LE90)",
+    ),
 }
 
 #: The bundled DEMs (``assets/dem``) and the product each one is a crop of (None: no published
@@ -70,7 +75,7 @@ FIXED_KEYS = {
     "height_m": "vertical error of a constant target height [m]",
     "dem_m": "vertical error of the DEM [m]",
     "refraction": "atmospheric refraction, as a fraction of the standard atmosphere's shift (dimensionless; "
-                  "0.05 for a day's weather against the yearly mean, 1.0 for refraction left out)",
+    "0.05 for a day's weather against the yearly mean, 1.0 for refraction left out)",
 }
 #: The sensor's own parameters (``FrameSensor.params``), degrees and metres at this edge.
 SENSOR_KEYS = {
@@ -79,8 +84,14 @@ SENSOR_KEYS = {
     **{f"lever_arm_{a}_m": f"lever arm {a} (body axes) [m]" for a in "xyz"},
 }
 #: The lens's parameters (``Lens.params``): key -> parameter name. Pixels, or dimensionless.
-LENS_KEYS = {"fx_px": "fx", "fy_px": "fy", "cx_px": "cx", "cy_px": "cy", "skew_px": "skew",
-             **{k: k for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")}}
+LENS_KEYS = {
+    "fx_px": "fx",
+    "fy_px": "fy",
+    "cx_px": "cx",
+    "cy_px": "cy",
+    "skew_px": "skew",
+    **{k: k for k in ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")},
+}
 
 
 @dataclass(frozen=True)
@@ -127,8 +138,10 @@ class ErrorBudget:
             product = BUNDLED_DEMS.get(name)
         if product is None:
             what = f" (the bundled {name} has no published vertical accuracy)" if name in BUNDLED_DEMS else ""
-            raise ValueError(f"{self.source}: [uncertainty] gives no DEM vertical error{what}: set dem_m "
-                             f"(sigma, metres) or dem_product (one of {sorted(DEM_PRODUCTS)})")
+            raise ValueError(
+                f"{self.source}: [uncertainty] gives no DEM vertical error{what}: set dem_m "
+                f"(sigma, metres) or dem_product (one of {sorted(DEM_PRODUCTS)})"
+            )
         return DEM_PRODUCTS[product][0] / LE90_PER_SIGMA
 
 
@@ -144,8 +157,9 @@ def budget_from_dict(table, sensor, source: str = "sensor") -> ErrorBudget:
         raise ValueError(f"{where} must be a table of standard deviations, got {table!r}")
     allowed = dict(FIXED_KEYS)
     allowed.update({f"{a}_deg": f"gimbal joint {a} [deg]" for a in sensor.angle_names})
-    allowed.update({k: v for k, v in SENSOR_KEYS.items()
-                    if not (sensor.gimbal.earth_referenced and k.startswith("mount_"))})
+    allowed.update(
+        {k: v for k, v in SENSOR_KEYS.items() if not (sensor.gimbal.earth_referenced and k.startswith("mount_"))}
+    )
     lens_params = sensor.lens.params
     allowed.update({k: f"lens {p}" for k, p in LENS_KEYS.items() if p in lens_params})
     sigmas, product = {}, None

@@ -117,9 +117,14 @@ class Camera:
             v = getattr(self, k)
             if v is None:
                 continue
-            ok = (isinstance(v, (tuple, list)) and len(v) == 3
-                  and all(isinstance(a, (int, float)) and not isinstance(a, bool)
-                          and math.isfinite(a) and abs(a) <= math.pi for a in v))
+            ok = (
+                isinstance(v, (tuple, list))
+                and len(v) == 3
+                and all(
+                    isinstance(a, (int, float)) and not isinstance(a, bool) and math.isfinite(a) and abs(a) <= math.pi
+                    for a in v
+                )
+            )
             if not ok:
                 bad(k, v, "must be three finite angles in [-pi, pi] radians")
             object.__setattr__(self, k, tuple(float(a) for a in v))
@@ -134,21 +139,32 @@ class Camera:
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "camera") -> "Camera":
-        known = {"focal_length_px", "principal_row", "principal_col", "rows", "cols",
-                 "pixel_pitch_m", "name", "boresight_deg", "mount_deg"}
+        known = {
+            "focal_length_px",
+            "principal_row",
+            "principal_col",
+            "rows",
+            "cols",
+            "pixel_pitch_m",
+            "name",
+            "boresight_deg",
+            "mount_deg",
+        }
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(known)}")
-        missing = [k for k in ("focal_length_px", "principal_row", "principal_col", "rows", "cols")
-                   if k not in data]
+        missing = [k for k in ("focal_length_px", "principal_row", "principal_col", "rows", "cols") if k not in data]
         if missing:
             raise ValueError(f"{source}: missing key(s) {missing}")
         data = dict(data)
         for k in ("boresight", "mount"):
             if f"{k}_deg" in data:
                 v = data.pop(f"{k}_deg")
-                if not (isinstance(v, list) and len(v) == 3
-                        and all(isinstance(a, (int, float)) and not isinstance(a, bool) for a in v)):
+                if not (
+                    isinstance(v, list)
+                    and len(v) == 3
+                    and all(isinstance(a, (int, float)) and not isinstance(a, bool) for a in v)
+                ):
                     raise ValueError(f"{source}: {k}_deg = {v!r}: must be a list of three numbers (degrees)")
                 data[k] = tuple(math.radians(a) for a in v)
         return cls(**data)
@@ -222,8 +238,9 @@ class Camera:
         """
         i, j = self.undistort(row, col)
         i, j = np.broadcast_arrays(i, j)
-        d = np.stack([i - self.principal_row, self.principal_col - j,
-                      np.full(i.shape, float(self.focal_length_px))], axis=-1)
+        d = np.stack(
+            [i - self.principal_row, self.principal_col - j, np.full(i.shape, float(self.focal_length_px))], axis=-1
+        )
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
     def los_to_pixel(self, d_cam):
@@ -264,10 +281,21 @@ class Camera:
         from geoloc.sensors.lenses import PinholeLens
 
         f = float(self.focal_length_px)
-        lens = PinholeLens(fx=f, fy=f, cx=float(self.principal_col) - 1.0, cy=float(self.principal_row) - 1.0,
-                           width=int(self.cols), height=int(self.rows))
-        return FrameSensor(lens, mount=self.mount or (0.0, 0.0, 0.0), boresight=self.boresight or (0.0, 0.0, 0.0),
-                           name=self.name, pixel_pitch_m=self.pixel_pitch_m)
+        lens = PinholeLens(
+            fx=f,
+            fy=f,
+            cx=float(self.principal_col) - 1.0,
+            cy=float(self.principal_row) - 1.0,
+            width=int(self.cols),
+            height=int(self.rows),
+        )
+        return FrameSensor(
+            lens,
+            mount=self.mount or (0.0, 0.0, 0.0),
+            boresight=self.boresight or (0.0, 0.0, 0.0),
+            name=self.name,
+            pixel_pitch_m=self.pixel_pitch_m,
+        )
 
     def chain(self, pose):
         """The [Q17] frame chain of ``pose`` with this camera's boresight and mounting rotations.
@@ -337,8 +365,10 @@ def camera_from_sensor(sensor, pixel_pitch_m: float | None = None) -> Camera:
     from geoloc.sensors.lenses import PinholeLens
 
     def bad(field, value, why):
-        raise ValueError(f"sensor {sensor.name or 'frame camera'}: {field} = {value!r}: {why}; a camera file "
-                         "cannot hold it (write a sensor file, --write-sensor)")
+        raise ValueError(
+            f"sensor {sensor.name or 'frame camera'}: {field} = {value!r}: {why}; a camera file "
+            "cannot hold it (write a sensor file, --write-sensor)"
+        )
 
     if not isinstance(sensor, FrameSensor):
         raise ValueError(f"sensor = {sensor!r}: only a FrameSensor can be written as a camera file")
@@ -351,8 +381,9 @@ def camera_from_sensor(sensor, pixel_pitch_m: float | None = None) -> Camera:
         bad("lens.skew", float(lens.skew), "a camera file has no skew")
     q17 = PRESETS["roll-pitch"]
     g = sensor.gimbal
-    if not (g is q17 or (g.joints == q17.joints and not g.earth_referenced
-                         and np.array_equal(g.R_opt_last, q17.R_opt_last))):
+    if not (
+        g is q17 or (g.joints == q17.joints and not g.earth_referenced and np.array_equal(g.R_opt_last, q17.R_opt_last))
+    ):
         bad("gimbal", sensor.gimbal.name, "a camera file is on the [Q17] roll-pitch gimbal")
     if any(float(v) != 0.0 for v in sensor.lever_arm_m):
         bad("lever_arm_m", tuple(sensor.lever_arm_m), "a camera file has no lever arm")
@@ -361,10 +392,17 @@ def camera_from_sensor(sensor, pixel_pitch_m: float | None = None) -> Camera:
         v = tuple(float(a) for a in v)
         return None if all(a == 0.0 for a in v) else v
 
-    return Camera(focal_length_px=float(lens.fx), principal_row=float(lens.cy) + 1.0,
-                  principal_col=float(lens.cx) + 1.0, rows=int(lens.height), cols=int(lens.width),
-                  pixel_pitch_m=sensor.pixel_pitch_m if pixel_pitch_m is None else pixel_pitch_m, name=sensor.name, boresight=angles(sensor.boresight),
-                  mount=angles(sensor.mount))
+    return Camera(
+        focal_length_px=float(lens.fx),
+        principal_row=float(lens.cy) + 1.0,
+        principal_col=float(lens.cx) + 1.0,
+        rows=int(lens.height),
+        cols=int(lens.width),
+        pixel_pitch_m=sensor.pixel_pitch_m if pixel_pitch_m is None else pixel_pitch_m,
+        name=sensor.name,
+        boresight=angles(sensor.boresight),
+        mount=angles(sensor.mount),
+    )
 
 
 @lru_cache(maxsize=64)

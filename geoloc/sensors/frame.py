@@ -44,8 +44,17 @@ from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 
 #: Names of the sensor's own (non-lens) parameters, SI units (radians, metres).
-OWN_PARAMS = ("mount_x", "mount_y", "mount_z", "boresight_x", "boresight_y", "boresight_z",
-              "lever_arm_x_m", "lever_arm_y_m", "lever_arm_z_m")
+OWN_PARAMS = (
+    "mount_x",
+    "mount_y",
+    "mount_z",
+    "boresight_x",
+    "boresight_y",
+    "boresight_z",
+    "lever_arm_x_m",
+    "lever_arm_y_m",
+    "lever_arm_z_m",
+)
 
 
 def small_rotation(angles) -> np.ndarray:
@@ -119,8 +128,10 @@ class FrameSensor:
             if any(abs(a) > math.pi for a in getattr(self, k)):
                 raise ValueError(f"sensor field {k} = {getattr(self, k)!r}: angles must lie in [-pi, pi] rad")
         if self.gimbal.earth_referenced and (any(self.mount) or self.R_base_extra is not None):
-            raise ValueError(f"sensor field mount = {self.mount!r}: an earth-referenced gimbal "
-                             f"({self.gimbal.name}) has no mount (its angles are in NED)")
+            raise ValueError(
+                f"sensor field mount = {self.mount!r}: an earth-referenced gimbal "
+                f"({self.gimbal.name}) has no mount (its angles are in NED)"
+            )
 
     # ----------------------------------------------------------- basics
     @property
@@ -148,8 +159,12 @@ class FrameSensor:
     def compiled(self) -> bool:
         """True if the compiled kernels (:mod:`geoloc.sensors._fastlocate`, ``_fastgrid``) serve this
         sensor: one (unbatched) lens and no per-sample Monte Carlo perturbation."""
-        return (not self.lens.batched and self.R_base_extra is None and self.R_bore_extra is None
-                and self.lever_extra_m is None)
+        return (
+            not self.lens.batched
+            and self.R_base_extra is None
+            and self.R_bore_extra is None
+            and self.lever_extra_m is None
+        )
 
     @cached_property
     def R_base_body(self) -> np.ndarray:
@@ -193,36 +208,72 @@ class FrameSensor:
                 lens_changes[k] = float(v) - (1.0 if k in ("cx", "cy") else 0.0)
         vals = [own[k] for k in OWN_PARAMS]
         lens = self.lens.with_params(**lens_changes) if lens_changes else self.lens
-        return dataclasses.replace(self, lens=lens, mount=tuple(vals[0:3]), boresight=tuple(vals[3:6]),
-                                   lever_arm_m=tuple(vals[6:9]))
+        return dataclasses.replace(
+            self, lens=lens, mount=tuple(vals[0:3]), boresight=tuple(vals[3:6]), lever_arm_m=tuple(vals[6:9])
+        )
 
     # ----------------------------------------------------------- frame graph
     @cached_property
     def graph(self) -> FrameGraph:
         """The sensor's frame graph (state-independent; evaluate it with a Pose)."""
         joints = [
-            Joint("ecef", "ned", "geodetic", equation="Q17 eq. 4-5",
-                  description="North-East-Down at the navigation reference, to ECEF"),
-            Joint("ned", "body", "attitude", equation="Q17 eq. 6",
-                  description="aircraft body (X nose, Y right wing, Z down), z-y-x attitude, to NED"),
+            Joint(
+                "ecef",
+                "ned",
+                "geodetic",
+                equation="Q17 eq. 4-5",
+                description="North-East-Down at the navigation reference, to ECEF",
+            ),
+            Joint(
+                "ned",
+                "body",
+                "attitude",
+                equation="Q17 eq. 6",
+                description="aircraft body (X nose, Y right wing, Z down), z-y-x attitude, to NED",
+            ),
         ]
         g = self.gimbal
         if g.earth_referenced:
             base = "ned"
             offset = dict(offset_m=np.array(self.lever_arm_m), offset_frame="body")
         else:
-            joints.append(Joint("body", "gimbal_base", "fixed", R=self.R_base_body,
-                                offset_m=np.array(self.lever_arm_m), equation="mount and lever arm",
-                                description="gimbal base: the body turned by the mount, at the optical centre"))
+            joints.append(
+                Joint(
+                    "body",
+                    "gimbal_base",
+                    "fixed",
+                    R=self.R_base_body,
+                    offset_m=np.array(self.lever_arm_m),
+                    equation="mount and lever arm",
+                    description="gimbal base: the body turned by the mount, at the optical centre",
+                )
+            )
             base, offset = "gimbal_base", {}
         parent = base
         for k, j in enumerate(g.joints):
-            joints.append(Joint(parent, j.frame, "revolute", axis=j.axis, angle=j.angle,
-                                equation=g.equation, description=j.description,
-                                **(offset if k == 0 else {})))
+            joints.append(
+                Joint(
+                    parent,
+                    j.frame,
+                    "revolute",
+                    axis=j.axis,
+                    angle=j.angle,
+                    equation=g.equation,
+                    description=j.description,
+                    **(offset if k == 0 else {}),
+                )
+            )
             parent = j.frame
-        joints.append(Joint(parent, "cam", "fixed", R=self.R_cam_last, equation="boresight, optical axes",
-                            description="camera optical frame (x right, y down, z the line of sight)"))
+        joints.append(
+            Joint(
+                parent,
+                "cam",
+                "fixed",
+                R=self.R_cam_last,
+                equation="boresight, optical axes",
+                description="camera optical frame (x right, y down, z the line of sight)",
+            )
+        )
         return FrameGraph(joints)
 
     def frames(self, state=None):
@@ -254,8 +305,9 @@ class FrameSensor:
     def ecef_to_cam(self, v_ecef, state) -> np.ndarray:
         return self.graph.rotate_from_ecef(v_ecef, "cam", state)
 
-    def line_of_sight(self, row=None, col=None, state=None, *, outside: str = "flag",
-                      engine: str = "auto") -> LineOfSight:
+    def line_of_sight(
+        self, row=None, col=None, state=None, *, outside: str = "flag", engine: str = "auto"
+    ) -> LineOfSight:
         """1-based pixels -> lines of sight in ECEF (batched; NaN + Status).
 
         Status: INVALID_INPUT (pose out of range, NaN pixel); OUTSIDE_SENSOR
@@ -282,8 +334,9 @@ class FrameSensor:
         if engine != "numpy":
             from geoloc.sensors import _fastlocate
 
-            if engine == "numba" or (self.compiled and isinstance(state, Pose)
-                                     and state.batch_size(row) >= _fastlocate.AUTO_MIN_RAYS):
+            if engine == "numba" or (
+                self.compiled and isinstance(state, Pose) and state.batch_size(row) >= _fastlocate.AUTO_MIN_RAYS
+            ):
                 return LineOfSight(*_fastlocate.line_of_sight_fast(state, self, row, col, outside=outside))
         d_cam = self.lens.unproject(col - 1.0, row - 1.0)
         d = self.cam_to_ecef(d_cam, state)

@@ -87,26 +87,63 @@ def _preset(name, joints, R, earth=False, eq=""):
 PRESETS = {
     "roll-pitch": _preset(
         "roll-pitch",
-        [("gimbal_roll", "x", "gimbal_outer", "outer gimbal: roll about the body X (nose) axis"),
-         ("gimbal_pitch", "y", "gimbal_inner", "inner gimbal: pitch about the outer gimbal Y axis; Z is the line of sight")],
-        R_OPT_Q17, eq="Q17 eq. 7-8"),
+        [
+            ("gimbal_roll", "x", "gimbal_outer", "outer gimbal: roll about the body X (nose) axis"),
+            (
+                "gimbal_pitch",
+                "y",
+                "gimbal_inner",
+                "inner gimbal: pitch about the outer gimbal Y axis; Z is the line of sight",
+            ),
+        ],
+        R_OPT_Q17,
+        eq="Q17 eq. 7-8",
+    ),
     "azimuth-elevation": _preset(
         "azimuth-elevation",
-        [("azimuth", "z", "gimbal_azimuth", "azimuth about the base's down axis, clockwise seen from above"),
-         ("elevation", "y", "gimbal_elevation", "elevation about the turned Y axis, positive up; X is the line of sight")],
-        R_OPT_XFWD, eq="MISB ST 0601 tags 18-19"),
+        [
+            ("azimuth", "z", "gimbal_azimuth", "azimuth about the base's down axis, clockwise seen from above"),
+            (
+                "elevation",
+                "y",
+                "gimbal_elevation",
+                "elevation about the turned Y axis, positive up; X is the line of sight",
+            ),
+        ],
+        R_OPT_XFWD,
+        eq="MISB ST 0601 tags 18-19",
+    ),
     "azimuth-elevation-roll": _preset(
         "azimuth-elevation-roll",
-        [("azimuth", "z", "gimbal_azimuth", "sensor relative azimuth, clockwise seen from above"),
-         ("elevation", "y", "gimbal_elevation", "sensor relative elevation, positive up"),
-         ("sensor_roll", "x", "gimbal_roll_los", "sensor relative roll about the line of sight, clockwise looking out")],
-        R_OPT_XFWD, eq="MISB ST 0601 tags 18-20"),
+        [
+            ("azimuth", "z", "gimbal_azimuth", "sensor relative azimuth, clockwise seen from above"),
+            ("elevation", "y", "gimbal_elevation", "sensor relative elevation, positive up"),
+            (
+                "sensor_roll",
+                "x",
+                "gimbal_roll_los",
+                "sensor relative roll about the line of sight, clockwise looking out",
+            ),
+        ],
+        R_OPT_XFWD,
+        eq="MISB ST 0601 tags 18-20",
+    ),
     "yaw-pitch-roll": _preset(
         "yaw-pitch-roll",
-        [("gimbal_yaw", "z", "gimbal_yaw_frame", "yaw from north about the local down axis"),
-         ("gimbal_pitch", "y", "gimbal_pitch_frame", "pitch from the horizon, positive up (-90 looks straight down)"),
-         ("gimbal_roll", "x", "gimbal_roll_frame", "roll about the line of sight")],
-        R_OPT_XFWD, earth=True, eq="earth-referenced z-y-x (DJI gimbal angles)"),
+        [
+            ("gimbal_yaw", "z", "gimbal_yaw_frame", "yaw from north about the local down axis"),
+            (
+                "gimbal_pitch",
+                "y",
+                "gimbal_pitch_frame",
+                "pitch from the horizon, positive up (-90 looks straight down)",
+            ),
+            ("gimbal_roll", "x", "gimbal_roll_frame", "roll about the line of sight"),
+        ],
+        R_OPT_XFWD,
+        earth=True,
+        eq="earth-referenced z-y-x (DJI gimbal angles)",
+    ),
 }
 
 DEFAULT = "roll-pitch"
@@ -136,14 +173,17 @@ def gimbal_from_dict(data: dict, source: str = "gimbal") -> Gimbal:
         raise ValueError(f"{source}: [gimbal] unknown key(s) {unknown}; allowed: preset, or {sorted(known)}")
     joints = data.get("joints")
     if not isinstance(joints, list) or not joints:
-        raise ValueError(f"{source}: [gimbal] joints = {joints!r}: must be a non-empty list of "
-                         "{angle = NAME, axis = 'x'|'y'|'z'}")
+        raise ValueError(
+            f"{source}: [gimbal] joints = {joints!r}: must be a non-empty list of {{angle = NAME, axis = 'x'|'y'|'z'}}"
+        )
     out = []
     for k, j in enumerate(joints):
         if not isinstance(j, dict) or set(j) - {"angle", "axis", "frame"} or "angle" not in j or "axis" not in j:
             raise ValueError(f"{source}: [gimbal] joints[{k}] = {j!r}: must be {{angle = NAME, axis = 'x'|'y'|'z'}}")
         if not (isinstance(j["angle"], str) and j["angle"].isidentifier()):
-            raise ValueError(f"{source}: [gimbal] joints[{k}].angle = {j['angle']!r}: must be a name (letters, digits, _)")
+            raise ValueError(
+                f"{source}: [gimbal] joints[{k}].angle = {j['angle']!r}: must be a name (letters, digits, _)"
+            )
         out.append(GimbalJoint(j["angle"], j["axis"], j.get("frame", f"joint_{j['angle']}")))
     los = data.get("line_of_sight", "x")
     if los not in ("x", "z"):
@@ -159,5 +199,9 @@ def gimbal_to_dict(g: Gimbal) -> dict:
     if g.name in PRESETS and PRESETS[g.name] is g:
         return {"preset": g.name}
     los = "x" if np.allclose(g.R_opt_last, R_OPT_XFWD) else "z"
-    return {"name": g.name, "joints": [{"angle": j.angle, "axis": j.axis, "frame": j.frame} for j in g.joints],
-            "line_of_sight": los, "earth_referenced": g.earth_referenced}
+    return {
+        "name": g.name,
+        "joints": [{"angle": j.angle, "axis": j.axis, "frame": j.frame} for j in g.joints],
+        "line_of_sight": los,
+        "earth_referenced": g.earth_referenced,
+    }

@@ -65,8 +65,9 @@ def _yaml_load(path, text):
     class Loader(yaml.SafeLoader):
         pass
 
-    Loader.add_constructor("tag:yaml.org,2002:opencv-matrix",
-                           lambda loader, node: loader.construct_mapping(node, deep=True))
+    Loader.add_constructor(
+        "tag:yaml.org,2002:opencv-matrix", lambda loader, node: loader.construct_mapping(node, deep=True)
+    )
     text = re.sub(r"\A\s*%YAML[: ]\s*\d+\.\d+[^\n]*\n", "", text)
     try:
         return yaml.load(text, Loader=Loader)
@@ -100,8 +101,13 @@ def _number(path, key, value):
 
 def _integer(path, key, value):
     # NaN and inf first (issue 47's fuzzing: JSON's NaN raised "cannot convert float NaN to integer")
-    if (isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
-            or value != int(value) or value <= 0):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or value != int(value)
+        or value <= 0
+    ):
         raise _Bad(path, f"{key} = {value!r}: must be a positive integer")
     return int(value)
 
@@ -165,8 +171,11 @@ def _model_name(path, key, value) -> str:
         return "brown"
     if name in _FISHEYE_NAMES:
         return "fisheye"
-    raise _Bad(path, f"{key} = {value!r}: not a supported distortion model "
-                     f"(brown: {list(_BROWN_NAMES)}; fisheye: {list(_FISHEYE_NAMES)})")
+    raise _Bad(
+        path,
+        f"{key} = {value!r}: not a supported distortion model "
+        f"(brown: {list(_BROWN_NAMES)}; fisheye: {list(_FISHEYE_NAMES)})",
+    )
 
 
 def _opencv_lens(path, data, model=None) -> Lens:
@@ -282,17 +291,19 @@ def read_colmap_cameras(path) -> dict[int, Lens]:
             raise _Bad(path, f"{where}: {line!r}: expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]")
         cam_id, model, width, height, *params = fields
         if model not in _COLMAP_MODELS:
-            raise _Bad(path, f"{where}: camera model {model!r} is not supported "
-                             f"(supported: {list(_COLMAP_MODELS)})")
+            raise _Bad(path, f"{where}: camera model {model!r} is not supported (supported: {list(_COLMAP_MODELS)})")
         names, cls = _COLMAP_MODELS[model]
         if len(params) != len(names):
-            raise _Bad(path, f"{where}: {model} takes {len(names)} parameters {list(names)}, "
-                             f"got {len(params)}: {line!r}")
+            raise _Bad(
+                path, f"{where}: {model} takes {len(names)} parameters {list(names)}, got {len(params)}: {line!r}"
+            )
         try:
             cam_id, width, height = int(cam_id), int(width), int(height)
         except ValueError:
-            raise _Bad(path, f"{where}: CAMERA_ID, WIDTH, HEIGHT = {fields[0]!r}, {fields[2]!r}, "
-                             f"{fields[3]!r}: must be integers") from None
+            raise _Bad(
+                path,
+                f"{where}: CAMERA_ID, WIDTH, HEIGHT = {fields[0]!r}, {fields[2]!r}, {fields[3]!r}: must be integers",
+            ) from None
         if cam_id in lenses:
             raise _Bad(path, f"{where}: camera id {cam_id} appears twice")
         values = {name: _number(path, f"{where}: {name}", p) for name, p in zip(names, params)}
@@ -348,22 +359,32 @@ def read_opensfm_cameras(path) -> dict[str, Lens]:
         cam = _mapping(path, cam, where)
         ptype = cam.get("projection_type", "perspective")
         if ptype not in _OPENSFM_TYPES:
-            raise _Bad(path, f"{where}: projection_type = {ptype!r} is not supported "
-                             f"(supported: {list(_OPENSFM_TYPES)})")
+            raise _Bad(
+                path, f"{where}: projection_type = {ptype!r} is not supported (supported: {list(_OPENSFM_TYPES)})"
+            )
         cls, focal_keys, has_pp, coeffs = _OPENSFM_TYPES[ptype]
         for key in ("width", "height", *focal_keys):
             if key not in cam:
                 raise _Bad(path, f"{where}: missing key {key!r} of a {ptype} camera")
-        v = {key: _number(path, f"{where}: {key}", cam[key])
-             for key in (*focal_keys, *coeffs, "c_x", "c_y") if key in cam}
+        v = {
+            key: _number(path, f"{where}: {key}", cam[key])
+            for key in (*focal_keys, *coeffs, "c_x", "c_y")
+            if key in cam
+        }
         width = _integer(path, f"{where}: width", cam["width"])
         height = _integer(path, f"{where}: height", cam["height"])
         s = float(max(width, height))
         cx, cy = (v.get("c_x", 0.0), v.get("c_y", 0.0)) if has_pp else (0.0, 0.0)
         try:
-            lenses[name] = cls(fx=v[focal_keys[0]] * s, fy=v[focal_keys[-1]] * s,
-                               cx=(width - 1) / 2.0 + cx * s, cy=(height - 1) / 2.0 + cy * s,
-                               width=width, height=height, **{k: v.get(k, 0.0) for k in coeffs})
+            lenses[name] = cls(
+                fx=v[focal_keys[0]] * s,
+                fy=v[focal_keys[-1]] * s,
+                cx=(width - 1) / 2.0 + cx * s,
+                cy=(height - 1) / 2.0 + cy * s,
+                width=width,
+                height=height,
+                **{k: v.get(k, 0.0) for k in coeffs},
+            )
         except ValueError as e:
             raise _Bad(path, f"{where}: {e}") from None
     return lenses
@@ -396,8 +417,11 @@ def read_lens_file(path, model: str | None = None, camera=None) -> Lens:
         lenses = read_colmap_cameras(path)
     elif path.suffix.lower() == ".json" or text.lstrip().startswith("{"):
         data = _json_load(path, text)
-        is_sfm = isinstance(data, dict) and data and all(
-            isinstance(c, dict) and ({"projection_type", "focal", "focal_x"} & set(c)) for c in data.values())
+        is_sfm = (
+            isinstance(data, dict)
+            and data
+            and all(isinstance(c, dict) and ({"projection_type", "focal", "focal_x"} & set(c)) for c in data.values())
+        )
         if not is_sfm:
             return _opencv_lens(path, data, model)
         lenses = read_opensfm_cameras(path)

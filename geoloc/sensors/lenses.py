@@ -148,6 +148,7 @@ _HEADER = 5  # u0, v0, 1 / step, nodes along u, nodes along v (after the PARAM_L
 # The maths, once: numpy ufuncs only, so each body runs on arrays (numpy path)
 # and numba compiles it for scalars (kernels). p is the as_array() vector.
 
+
 def _to_pixel(p, xd, yd):
     """Distorted normalised point -> pixel: (u, v) = K (xd, yd, 1)."""
     return p[0] * xd + p[4] * yd + p[2], p[1] * yd + p[3]
@@ -165,8 +166,7 @@ def _brown_distort(p, x, y):
     r2 = x * x + y * y
     den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
     radial = (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))) / den
-    d_radial = ((k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2))
-                - radial * (k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2))) / den
+    d_radial = ((k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)) - radial * (k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2))) / den
     xy2 = 2.0 * x * y
     xd = x * radial + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
     yd = y * radial + p1 * (r2 + 2.0 * y * y) + p2 * xy2
@@ -324,10 +324,8 @@ def unproject_map_lanes(p, u, v):
     fu, fv = gu - j, gv - i
     k = n0 + _HEADER + 2 * (i * nu + j)
     k2 = k + 2 * nu
-    x = ((1.0 - fv) * ((1.0 - fu) * p[k] + fu * p[k + 2])
-         + fv * ((1.0 - fu) * p[k2] + fu * p[k2 + 2]))
-    y = ((1.0 - fv) * ((1.0 - fu) * p[k + 1] + fu * p[k + 3])
-         + fv * ((1.0 - fu) * p[k2 + 1] + fu * p[k2 + 3]))
+    x = (1.0 - fv) * ((1.0 - fu) * p[k] + fu * p[k + 2]) + fv * ((1.0 - fu) * p[k2] + fu * p[k2 + 2])
+    y = (1.0 - fv) * ((1.0 - fu) * p[k + 1] + fu * p[k + 3]) + fv * ((1.0 - fu) * p[k2 + 1] + fu * p[k2 + 3])
     xd, yd, radial, d_radial = _brown_distort_nb(p, x, y)
     dx, dy, det = _brown_newton_step_nb(p, x, y, xd, yd, radial, d_radial, xt, yt)
     x -= dx
@@ -358,6 +356,7 @@ def unproject_map_nb(code, p, u, v):
 
 # ---------------------------------------------------------------------------
 # Validation helpers
+
 
 def _bad(field, value, why):
     return ValueError(f"lens field {field} = {value!r}: {why}")
@@ -392,6 +391,7 @@ def _count(field, value):
 
 # ---------------------------------------------------------------------------
 # Lens classes
+
 
 @dataclass(frozen=True)
 class Lens:
@@ -455,8 +455,7 @@ class Lens:
         """
         unknown = sorted(set(changes) - set(self.params))
         if unknown:
-            raise ValueError(f"{self.model} lens has no parameter(s) {unknown}; "
-                             f"its parameters: {list(self.params)}")
+            raise ValueError(f"{self.model} lens has no parameter(s) {unknown}; its parameters: {list(self.params)}")
         return dataclasses.replace(self, **changes)
 
     @property
@@ -475,8 +474,10 @@ class Lens:
         Raises ValueError for a lens with per-sample parameters (the kernels take one lens).
         """
         if self.batched:
-            raise ValueError(f"{self.model} lens with per-sample parameter arrays has no kernel vector; "
-                             "use the numpy path (unproject / project)")
+            raise ValueError(
+                f"{self.model} lens with per-sample parameter arrays has no kernel vector; "
+                "use the numpy path (unproject / project)"
+            )
         p = np.zeros(len(PARAM_LAYOUT))
         for name, value in self.params.items():
             p[_SLOT[name]] = value
@@ -695,6 +696,7 @@ _MODELS = {cls.model: cls for cls in (PinholeLens, BrownLens, FisheyeLens)}
 # ---------------------------------------------------------------------------
 # Constructors
 
+
 def lens_from_fov(hfov, vfov, width, height, cx=None, cy=None) -> PinholeLens:
     """Pinhole lens from its fields of view.
 
@@ -720,9 +722,13 @@ def lens_from_fov(hfov, vfov, width, height, cx=None, cy=None) -> PinholeLens:
             raise _bad(name, value, "must be a field of view in (0, pi) radians")
     width, height = _count("width", width), _count("height", height)
     return PinholeLens(
-        fx=(width / 2.0) / math.tan(hfov / 2.0), fy=(height / 2.0) / math.tan(vfov / 2.0),
-        cx=(width - 1) / 2.0 if cx is None else cx, cy=(height - 1) / 2.0 if cy is None else cy,
-        width=width, height=height)
+        fx=(width / 2.0) / math.tan(hfov / 2.0),
+        fy=(height / 2.0) / math.tan(vfov / 2.0),
+        cx=(width - 1) / 2.0 if cx is None else cx,
+        cy=(height - 1) / 2.0 if cy is None else cy,
+        width=width,
+        height=height,
+    )
 
 
 def lens_from_opencv(camera_matrix, dist_coeffs, image_size, model: str = "brown") -> Lens:
@@ -755,9 +761,11 @@ def lens_from_opencv(camera_matrix, dist_coeffs, image_size, model: str = "brown
         raise ValueError(f"image size {image_size!r}: must be (width, height)") from None
     if model == "brown":
         if len(d) not in (0, 4, 5, 8):
-            raise ValueError(f"distortion coefficients {d.tolist()}: {len(d)} values are not supported "
-                             "(brown takes 4, 5 or 8: k1, k2, p1, p2[, k3[, k4, k5, k6]]; "
-                             "thin prism (12) and tilt (14) models are not supported)")
+            raise ValueError(
+                f"distortion coefficients {d.tolist()}: {len(d)} values are not supported "
+                "(brown takes 4, 5 or 8: k1, k2, p1, p2[, k3[, k4, k5, k6]]; "
+                "thin prism (12) and tilt (14) models are not supported)"
+            )
         cls, d = BrownLens, np.concatenate([d, np.zeros(8 - len(d))])
     elif model == "fisheye":
         if len(d) != 4:
@@ -766,8 +774,7 @@ def lens_from_opencv(camera_matrix, dist_coeffs, image_size, model: str = "brown
     else:
         raise ValueError(f"lens model {model!r}: must be 'brown' or 'fisheye'")
     coeffs = {name: float(c) for name, c in zip(cls.coefficients, d)}
-    return cls(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], skew=K[0, 1],
-               width=width, height=height, **coeffs)
+    return cls(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2], skew=K[0, 1], width=width, height=height, **coeffs)
 
 
 # ---------------------------------------------------------------------------
@@ -812,16 +819,19 @@ def lens_from_dict(data: dict, source: str = "lens") -> Lens:
     keys = _FILE_KEYS[model]
     for key, value in data.items():
         if key != "model" and key not in keys:
-            raise ValueError(f"{source}: lens key {key} = {value!r}: not a key of a {model} lens "
-                             f"(allowed: {list(keys)})")
+            raise ValueError(
+                f"{source}: lens key {key} = {value!r}: not a key of a {model} lens (allowed: {list(keys)})"
+            )
         integral = key in ("width", "height")
         if key != "model" and (isinstance(value, bool) or not isinstance(value, int if integral else (int, float))):
-            raise ValueError(f"{source}: lens key {key} = {value!r}: must be "
-                             f"{'an integer' if integral else 'a number'}")
-    missing = [k for k in keys[:_REQUIRED[model]] if k not in data]
+            raise ValueError(
+                f"{source}: lens key {key} = {value!r}: must be {'an integer' if integral else 'a number'}"
+            )
+    missing = [k for k in keys[: _REQUIRED[model]] if k not in data]
     if missing:
-        raise ValueError(f"{source}: lens key(s) {missing} missing (a {model} lens needs "
-                         f"{list(keys[:_REQUIRED[model]])})")
+        raise ValueError(
+            f"{source}: lens key(s) {missing} missing (a {model} lens needs {list(keys[: _REQUIRED[model]])})"
+        )
     for k in ("hfov_deg", "vfov_deg"):
         if k in data and not 0 < data[k] < 180:
             raise ValueError(f"{source}: lens key {k} = {data[k]!r}: must be a field of view in (0, 180) degrees")
@@ -831,8 +841,7 @@ def lens_from_dict(data: dict, source: str = "lens") -> Lens:
             values[k] = values[k] - 1.0
     try:
         if model == "fov":
-            return lens_from_fov(math.radians(values.pop("hfov_deg")), math.radians(values.pop("vfov_deg")),
-                                 **values)
+            return lens_from_fov(math.radians(values.pop("hfov_deg")), math.radians(values.pop("vfov_deg")), **values)
         return _MODELS[model](**values)
     except ValueError as e:
         raise ValueError(f"{source}: {e}") from None

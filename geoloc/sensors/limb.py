@@ -273,8 +273,9 @@ class VirtualEllipsoid:
     status: np.ndarray
 
 
-def virtual_ellipsoid_tangent(origin_ecef, direction_ecef, *, delta_a0=0.0, tol_m: float = 1e-6,
-                              max_iter: int = 20) -> VirtualEllipsoid:
+def virtual_ellipsoid_tangent(
+    origin_ecef, direction_ecef, *, delta_a0=0.0, tol_m: float = 1e-6, max_iter: int = 20
+) -> VirtualEllipsoid:
     """Solve the tangency condition [L18 eq. 17] for Delta a by Newton-Raphson.
 
     The virtual ellipsoid (x^2 + y^2)/(a + Da)^2 + z^2/((1 - f)(a + Da))^2 = 1
@@ -310,8 +311,7 @@ def virtual_ellipsoid_tangent(origin_ecef, direction_ecef, *, delta_a0=0.0, tol_
     shape = np.broadcast_shapes(x.shape[:-1], v.shape[:-1], np.shape(delta_a0))
     x = np.broadcast_to(x, shape + (3,))
     with np.errstate(invalid="ignore", divide="ignore"):
-        v = np.broadcast_to(v, shape + (3,)) / np.linalg.norm(np.broadcast_to(v, shape + (3,)), axis=-1,
-                                                              keepdims=True)
+        v = np.broadcast_to(v, shape + (3,)) / np.linalg.norm(np.broadcast_to(v, shape + (3,)), axis=-1, keepdims=True)
     scale = np.array([1.0, 1.0, 1.0 / _K])
     xt, ut = x * scale, v * scale
     finite = np.all(np.isfinite(xt), axis=-1) & np.all(np.isfinite(ut), axis=-1)
@@ -452,8 +452,9 @@ def _slope(o, d, s):
     return g, dg
 
 
-def exact_tangent(origin_ecef, direction_ecef, active=None, *, tol_m: float = 1e-4,
-                  max_iter: int = 100) -> ExactTangent:
+def exact_tangent(
+    origin_ecef, direction_ecef, active=None, *, tol_m: float = 1e-4, max_iter: int = 100
+) -> ExactTangent:
     """Minimum geodetic height along the ray X + s V, s >= 0, for rays that miss the Earth.
 
     Why it is robust: outside the (convex) ellipsoid the geodetic height of a
@@ -639,8 +640,16 @@ class LimbTangent:
         return self.status.shape
 
 
-def limb_tangent(origin_ecef, direction_ecef, *, delta_a0=0.0, tol_m: float = 1e-6, max_iter: int = 20,
-                 exact_tol_m: float = 1e-4, exact_max_iter: int = 100) -> LimbTangent:
+def limb_tangent(
+    origin_ecef,
+    direction_ecef,
+    *,
+    delta_a0=0.0,
+    tol_m: float = 1e-6,
+    max_iter: int = 20,
+    exact_tol_m: float = 1e-4,
+    exact_max_iter: int = 100,
+) -> LimbTangent:
     """Tangent point and limb height of lines of sight, [L18] and exact, in one batch.
 
     For each line X + s V (s >= 0): first the geometry is classified with the

@@ -24,11 +24,31 @@ import numpy as np
 #: Words (case-insensitive, whole words) that make a platform text a drone: small multirotors
 #: and small fixed-wing UAS, and their makers' product names (DJI's Mavic, Phantom, Matrice,
 #: Inspire, Mini, Air; Autel's EVO; Parrot's Anafi; Skydio).
-DRONE_WORDS = ("drone", "multirotor", "multicopter", "quadcopter", "quadrotor", "hexacopter", "octocopter",
-               "suas", "suav", "small uav", "small uas", "dji", "mavic", "phantom", "matrice", "inspire",
-               "autel", "anafi", "parrot", "skydio")
-_DRONE_RE = re.compile(r"\b(" + "|".join(re.escape(w).replace(r"\ ", r"[\s_-]+") for w in DRONE_WORDS) + r")\b",
-                       re.IGNORECASE)
+DRONE_WORDS = (
+    "drone",
+    "multirotor",
+    "multicopter",
+    "quadcopter",
+    "quadrotor",
+    "hexacopter",
+    "octocopter",
+    "suas",
+    "suav",
+    "small uav",
+    "small uas",
+    "dji",
+    "mavic",
+    "phantom",
+    "matrice",
+    "inspire",
+    "autel",
+    "anafi",
+    "parrot",
+    "skydio",
+)
+_DRONE_RE = re.compile(
+    r"\b(" + "|".join(re.escape(w).replace(r"\ ", r"[\s_-]+") for w in DRONE_WORDS) + r")\b", re.IGNORECASE
+)
 
 #: Height above the terrain (or the target) [m] beyond which a drone's camera is implausible.
 #: The rules cap drones at 120 m above the ground (EU 2019/947 open category; FAA Part 107:
@@ -49,8 +69,7 @@ def is_drone(text) -> bool:
     return bool(text) and _DRONE_RE.search(str(text)) is not None
 
 
-def drone_too_high(h_m, fallback_m, ground_m=None, fallback_what="the target",
-                   ground_what="the terrain under it"):
+def drone_too_high(h_m, fallback_m, ground_m=None, fallback_what="the target", ground_what="the terrain under it"):
     """Which drone camera heights cannot be a drone's (issue 32; docs/records.md, "Plausibility checks").
 
     Parameters
@@ -104,5 +123,7 @@ def drone_height_hint(h_m: float, ref_m: float | None, unit: str = "m", advice: 
         if 0.0 <= above <= DRONE_MAX_HEIGHT_M and (ref_m is not None or as_m <= DRONE_CEILING_M):
             where = f", {above:.0f} m above it" if ref_m is not None else ""
             return f"likely feet read as metres (x {FOOT_M}: {as_m:.1f} m{where})" + (f"; {advice}" if advice else "")
-    return ("perhaps a height in another unit (feet, decimetres) or of another platform (MSL and the "
-            "ellipsoid differ by tens of metres only, so not a datum alone)")
+    return (
+        "perhaps a height in another unit (feet, decimetres) or of another platform (MSL and the "
+        "ellipsoid differ by tens of metres only, so not a datum alone)"
+    )

@@ -312,8 +312,10 @@ class LookAngles:
             _bad("detectors", n, "must be an integer >= 2")
         c = (n + 1) / 2.0 if centre is None else float(centre)
         s = np.arange(1, n + 1, dtype=float) - c
-        return cls(np.polynomial.polynomial.polyval(s, np.asarray(coeffs_x, float)),
-                   np.polynomial.polynomial.polyval(s, np.asarray(coeffs_y, float)))
+        return cls(
+            np.polynomial.polynomial.polyval(s, np.asarray(coeffs_x, float)),
+            np.polynomial.polynomial.polyval(s, np.asarray(coeffs_y, float)),
+        )
 
     @property
     def n(self) -> int:
@@ -417,8 +419,7 @@ class PushbroomSensor:
         t_first, t_last = self.line_time(1), self.line_time(self.rows)
         for name, span in (("orbit", self.orbit.span), ("attitude", (self.attitude.t[0], self.attitude.t[-1]))):
             if t_first < span[0] or t_last > span[1]:
-                _bad(f"{name} samples", span,
-                     f"must cover the imaging time [{t_first:.3f}, {t_last:.3f}] s")
+                _bad(f"{name} samples", span, f"must cover the imaging time [{t_first:.3f}, {t_last:.3f}] s")
 
     # ------------------------------------------------------------ basics
     @property
@@ -469,9 +470,12 @@ class PushbroomSensor:
 
         check_param_names(changes, self.params, "pushbroom sensor")
         p = {**self.params, **{k: float(v) for k, v in changes.items()}}
-        return dataclasses.replace(self, lever_arm_body=np.array([p["lever_arm_x_m"], p["lever_arm_y_m"],
-                                                                  p["lever_arm_z_m"]]),
-                                   t0_s=p["t0_s"], line_period_s=p["line_period_s"])
+        return dataclasses.replace(
+            self,
+            lever_arm_body=np.array([p["lever_arm_x_m"], p["lever_arm_y_m"], p["lever_arm_z_m"]]),
+            t0_s=p["t0_s"],
+            line_period_s=p["line_period_s"],
+        )
 
     def frames(self, state=None):
         """A pushbroom's frames change line by line; the viewers draw it from its lines of sight (None)."""
@@ -626,13 +630,42 @@ def _sensor_from_dict(data: dict, source: str) -> PushbroomSensor:
     o, a, c = data["orbit"], data["attitude"], data["camera"]
     so, sa, sc = f"{source} [orbit]", f"{source} [attitude]", f"{source} [camera]"
     known = {
-        "orbit": {"altitude_m", "inclination_deg", "centre_lat_deg", "centre_lon_deg", "descending",
-                  "sample_interval_s", "margin_s"},
-        "attitude": {"sample_interval_s", "roll_deg", "pitch_deg", "yaw_deg", "roll_rate_deg_s",
-                     "pitch_rate_deg_s", "yaw_rate_deg_s", "jitter_amplitude_deg", "jitter_period_s"},
-        "camera": {"focal_length_m", "pixel_pitch_m", "detectors", "lines", "line_period_s",
-                   "tan_psi_x_poly", "tan_psi_y_poly", "mount_roll_deg", "mount_pitch_deg",
-                   "mount_yaw_deg", "cal_roll_deg", "cal_pitch_deg", "cal_yaw_deg", "lever_arm_body_m"},
+        "orbit": {
+            "altitude_m",
+            "inclination_deg",
+            "centre_lat_deg",
+            "centre_lon_deg",
+            "descending",
+            "sample_interval_s",
+            "margin_s",
+        },
+        "attitude": {
+            "sample_interval_s",
+            "roll_deg",
+            "pitch_deg",
+            "yaw_deg",
+            "roll_rate_deg_s",
+            "pitch_rate_deg_s",
+            "yaw_rate_deg_s",
+            "jitter_amplitude_deg",
+            "jitter_period_s",
+        },
+        "camera": {
+            "focal_length_m",
+            "pixel_pitch_m",
+            "detectors",
+            "lines",
+            "line_period_s",
+            "tan_psi_x_poly",
+            "tan_psi_y_poly",
+            "mount_roll_deg",
+            "mount_pitch_deg",
+            "mount_yaw_deg",
+            "cal_roll_deg",
+            "cal_pitch_deg",
+            "cal_yaw_deg",
+            "lever_arm_body_m",
+        },
     }
     for sec, d in (("orbit", o), ("attitude", a), ("camera", c)):
         unknown = sorted(set(d) - known[sec])
@@ -649,10 +682,16 @@ def _sensor_from_dict(data: dict, source: str) -> PushbroomSensor:
     cy = _get(c, "tan_psi_y_poly", sc, list, default=[0.0])
     look = LookAngles.from_polynomial(n, cx, cy)
     deg = math.radians
-    R_mount = R_zyx(deg(_get(c, "mount_roll_deg", sc, default=0.0)), deg(_get(c, "mount_pitch_deg", sc, default=0.0)),
-                    deg(_get(c, "mount_yaw_deg", sc, default=0.0)))
-    R_cal = R_zyx(deg(_get(c, "cal_roll_deg", sc, default=0.0)), deg(_get(c, "cal_pitch_deg", sc, default=0.0)),
-                  deg(_get(c, "cal_yaw_deg", sc, default=0.0)))
+    R_mount = R_zyx(
+        deg(_get(c, "mount_roll_deg", sc, default=0.0)),
+        deg(_get(c, "mount_pitch_deg", sc, default=0.0)),
+        deg(_get(c, "mount_yaw_deg", sc, default=0.0)),
+    )
+    R_cal = R_zyx(
+        deg(_get(c, "cal_roll_deg", sc, default=0.0)),
+        deg(_get(c, "cal_pitch_deg", sc, default=0.0)),
+        deg(_get(c, "cal_yaw_deg", sc, default=0.0)),
+    )
     lever = _get(c, "lever_arm_body_m", sc, list, default=[0.0, 0.0, 0.0])
     if len(lever) != 3:
         raise ValueError(f"{sc}: lever_arm_body_m = {lever!r} must have 3 numbers")
@@ -685,10 +724,27 @@ def _sensor_from_dict(data: dict, source: str) -> PushbroomSensor:
     angles[0] = angles[0] + amp * np.sin(2 * np.pi * ta / per)
     angles[1] = angles[1] + amp * np.cos(2 * np.pi * ta / per)
     att = Attitude(ta, *angles)
-    return PushbroomSensor(orbit, att, look, lines, period, t0,
-                           R_cam_body=rot.rx(np.pi) @ R_cal @ R_mount,
-                           lever_arm_body=np.asarray(lever), name=str(data.get("name", "")))
+    return PushbroomSensor(
+        orbit,
+        att,
+        look,
+        lines,
+        period,
+        t0,
+        R_cam_body=rot.rx(np.pi) @ R_cal @ R_mount,
+        lever_arm_body=np.asarray(lever),
+        name=str(data.get("name", "")),
+    )
 
 
-__all__ = ["Attitude", "LookAngles", "Orbit", "PushbroomSensor", "R_ecef_orbital", "R_zyx",
-           "circular_orbit", "GM_EARTH", "OMEGA_EARTH"]
+__all__ = [
+    "Attitude",
+    "LookAngles",
+    "Orbit",
+    "PushbroomSensor",
+    "R_ecef_orbital",
+    "R_zyx",
+    "circular_orbit",
+    "GM_EARTH",
+    "OMEGA_EARTH",
+]

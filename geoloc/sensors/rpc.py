@@ -45,15 +45,45 @@ from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 
 #: Names of the 20 RPC00B terms, in order (L = longitude, P = latitude, H = height).
-TERMS = ("1", "L", "P", "H", "LP", "LH", "PH", "LL", "PP", "HH",
-         "PLH", "LLL", "LPP", "LHH", "LLP", "PPP", "PHH", "LLH", "PPH", "HHH")
+TERMS = (
+    "1",
+    "L",
+    "P",
+    "H",
+    "LP",
+    "LH",
+    "PH",
+    "LL",
+    "PP",
+    "HH",
+    "PLH",
+    "LLL",
+    "LPP",
+    "LHH",
+    "LLP",
+    "PPP",
+    "PHH",
+    "LLH",
+    "PPH",
+    "HHH",
+)
 
 #: The image-space correction parameters of :class:`RPCSensor` (Grodecki & Dial 2003).
 PARAM_NAMES = ("row_bias", "row_per_row", "row_per_col", "col_bias", "col_per_row", "col_per_col")
 
 #: The GDAL "RPC" metadata keys (RFC 22) that carry one number each.
-_SCALAR_KEYS = ("LINE_OFF", "SAMP_OFF", "LAT_OFF", "LONG_OFF", "HEIGHT_OFF",
-                "LINE_SCALE", "SAMP_SCALE", "LAT_SCALE", "LONG_SCALE", "HEIGHT_SCALE")
+_SCALAR_KEYS = (
+    "LINE_OFF",
+    "SAMP_OFF",
+    "LAT_OFF",
+    "LONG_OFF",
+    "HEIGHT_OFF",
+    "LINE_SCALE",
+    "SAMP_SCALE",
+    "LAT_SCALE",
+    "LONG_SCALE",
+    "HEIGHT_SCALE",
+)
 _COEFF_KEYS = ("LINE_NUM_COEFF", "LINE_DEN_COEFF", "SAMP_NUM_COEFF", "SAMP_DEN_COEFF")
 
 
@@ -61,9 +91,31 @@ def rpc_terms(L, P, H):
     """The 20 cubic terms of RPC00B for normalised (L, P, H), shape (..., 20)."""
     L, P, H = np.broadcast_arrays(np.asarray(L, float), np.asarray(P, float), np.asarray(H, float))
     one = np.ones_like(L)
-    return np.stack([one, L, P, H, L * P, L * H, P * H, L * L, P * P, H * H,
-                     P * L * H, L**3, L * P * P, L * H * H, L * L * P, P**3, P * H * H,
-                     L * L * H, P * P * H, H**3], axis=-1)
+    return np.stack(
+        [
+            one,
+            L,
+            P,
+            H,
+            L * P,
+            L * H,
+            P * H,
+            L * L,
+            P * P,
+            H * H,
+            P * L * H,
+            L**3,
+            L * P * P,
+            L * H * H,
+            L * L * P,
+            P**3,
+            P * H * H,
+            L * L * H,
+            P * P * H,
+            H**3,
+        ],
+        axis=-1,
+    )
 
 
 def _cubic_in_lp(c, H):
@@ -72,9 +124,18 @@ def _cubic_in_lp(c, H):
     Order: 1, L, P, LP, LL, PP, LLL, LPP, LLP, PPP.
     """
     H = np.asarray(H, float)
-    return (c[0] + H * (c[3] + H * (c[9] + H * c[19])), c[1] + H * (c[5] + H * c[13]),
-            c[2] + H * (c[6] + H * c[16]), c[4] + H * c[10], c[7] + H * c[17], c[8] + H * c[18],
-            np.full(H.shape, c[11]), np.full(H.shape, c[12]), np.full(H.shape, c[14]), np.full(H.shape, c[15]))
+    return (
+        c[0] + H * (c[3] + H * (c[9] + H * c[19])),
+        c[1] + H * (c[5] + H * c[13]),
+        c[2] + H * (c[6] + H * c[16]),
+        c[4] + H * c[10],
+        c[7] + H * c[17],
+        c[8] + H * c[18],
+        np.full(H.shape, c[11]),
+        np.full(H.shape, c[12]),
+        np.full(H.shape, c[14]),
+        np.full(H.shape, c[15]),
+    )
 
 
 def _eval_cubic(a, L, P):
@@ -125,8 +186,11 @@ class RPCModel:
         """Normalised (Ln, Pn, Hn) from latitude, longitude [rad] and height [m]."""
         lat_deg, lon_deg = np.rad2deg(lat), np.rad2deg(lon)
         dl = (lon_deg - self.long_off + 180.0) % 360.0 - 180.0  # the antimeridian, as GDAL
-        return (dl / self.long_scale, (lat_deg - self.lat_off) / self.lat_scale,
-                (np.asarray(h, float) - self.height_off) / self.height_scale)
+        return (
+            dl / self.long_scale,
+            (lat_deg - self.lat_off) / self.lat_scale,
+            (np.asarray(h, float) - self.height_off) / self.height_scale,
+        )
 
     def denormalise(self, Ln, Pn, Hn):
         """Inverse of :meth:`normalise`: (lat, lon [rad], h [m]); longitude wrapped to [-pi, pi)."""
@@ -163,19 +227,32 @@ class RPCModel:
         SCALE = n / 2) and for the usual vendor choice OFF = SCALE = n / 2; an
         estimate otherwise: give the image size when it is known.
         """
-        return (math.floor(self.line_off + self.line_scale + 0.5),
-                math.floor(self.samp_off + self.samp_scale + 0.5))
+        return (math.floor(self.line_off + self.line_scale + 0.5), math.floor(self.samp_off + self.samp_scale + 0.5))
 
     # ------------------------------------------------------------ GDAL I/O
     def to_gdal(self) -> dict:
         """The GDAL "RPC" metadata domain (RFC 22) as a dict of strings."""
+
         def f(v):
             return f"{float(v):.15g}"
 
-        md = {k.upper(): f(getattr(self, k)) for k in (
-            "line_off", "samp_off", "lat_off", "long_off", "height_off",
-            "line_scale", "samp_scale", "lat_scale", "long_scale", "height_scale",
-            "err_bias", "err_rand")}
+        md = {
+            k.upper(): f(getattr(self, k))
+            for k in (
+                "line_off",
+                "samp_off",
+                "lat_off",
+                "long_off",
+                "height_off",
+                "line_scale",
+                "samp_scale",
+                "lat_scale",
+                "long_scale",
+                "height_scale",
+                "err_bias",
+                "err_rand",
+            )
+        }
         for k in ("line_num", "line_den", "samp_num", "samp_den"):
             md[f"{k.upper()}_COEFF"] = " ".join(f(v) for v in getattr(self, k))
         return md
@@ -199,10 +276,24 @@ class RPCModel:
                 raise ValueError(f"RPC metadata: {k} has {len(parts)} values, RPC00B needs 20")
             coef[k] = np.array([_parse_number(k, p) for p in parts])
         errs = [_parse_number(k, md[k]) if k in md else -1.0 for k in ("ERR_BIAS", "ERR_RAND")]
-        return cls(vals["line_off"], vals["samp_off"], vals["lat_off"], vals["long_off"], vals["height_off"],
-                   vals["line_scale"], vals["samp_scale"], vals["lat_scale"], vals["long_scale"],
-                   vals["height_scale"], coef["LINE_NUM_COEFF"], coef["LINE_DEN_COEFF"],
-                   coef["SAMP_NUM_COEFF"], coef["SAMP_DEN_COEFF"], errs[0], errs[1])
+        return cls(
+            vals["line_off"],
+            vals["samp_off"],
+            vals["lat_off"],
+            vals["long_off"],
+            vals["height_off"],
+            vals["line_scale"],
+            vals["samp_scale"],
+            vals["lat_scale"],
+            vals["long_scale"],
+            vals["height_scale"],
+            coef["LINE_NUM_COEFF"],
+            coef["LINE_DEN_COEFF"],
+            coef["SAMP_NUM_COEFF"],
+            coef["SAMP_DEN_COEFF"],
+            errs[0],
+            errs[1],
+        )
 
     def to_rasterio(self):
         """A :class:`rasterio.rpc.RPC` (for ``dataset.rpcs = ...`` and ``RPCTransformer``)."""
@@ -213,12 +304,24 @@ class RPCModel:
     @classmethod
     def from_rasterio(cls, rpc) -> RPCModel:
         """From a :class:`rasterio.rpc.RPC` (``dataset.rpcs``)."""
-        return cls(rpc.line_off, rpc.samp_off, rpc.lat_off, rpc.long_off, rpc.height_off,
-                   rpc.line_scale, rpc.samp_scale, rpc.lat_scale, rpc.long_scale, rpc.height_scale,
-                   np.asarray(rpc.line_num_coeff, float), np.asarray(rpc.line_den_coeff, float),
-                   np.asarray(rpc.samp_num_coeff, float), np.asarray(rpc.samp_den_coeff, float),
-                   -1.0 if rpc.err_bias is None else rpc.err_bias,
-                   -1.0 if rpc.err_rand is None else rpc.err_rand)
+        return cls(
+            rpc.line_off,
+            rpc.samp_off,
+            rpc.lat_off,
+            rpc.long_off,
+            rpc.height_off,
+            rpc.line_scale,
+            rpc.samp_scale,
+            rpc.lat_scale,
+            rpc.long_scale,
+            rpc.height_scale,
+            np.asarray(rpc.line_num_coeff, float),
+            np.asarray(rpc.line_den_coeff, float),
+            np.asarray(rpc.samp_num_coeff, float),
+            np.asarray(rpc.samp_den_coeff, float),
+            -1.0 if rpc.err_bias is None else rpc.err_bias,
+            -1.0 if rpc.err_rand is None else rpc.err_rand,
+        )
 
 
 def _positive_int(name, v):
@@ -302,8 +405,10 @@ class RPCSensor:
         object.__setattr__(self, "domain_height", _finite("domain_height", self.domain_height, 0.0))
         f = _finite("los_fraction", self.los_fraction, 0.0)
         if f > self.domain_height:
-            raise ValueError(f"RPCSensor: los_fraction = {f!r} must not exceed domain_height = "
-                             f"{self.domain_height!r} (the heights must lie inside the domain)")
+            raise ValueError(
+                f"RPCSensor: los_fraction = {f!r} must not exceed domain_height = "
+                f"{self.domain_height!r} (the heights must lie inside the domain)"
+            )
         object.__setattr__(self, "los_fraction", f)
         object.__setattr__(self, "tol_px", _finite("tol_px", self.tol_px, 0.0))
         object.__setattr__(self, "max_iter", _positive_int("max_iter", self.max_iter))
@@ -325,8 +430,10 @@ class RPCSensor:
     def rpc_to_image(self, r, c):
         """The correction: RPC projection (1-based) -> image pixel."""
         r, c = np.asarray(r, float), np.asarray(c, float)
-        return (r + (self.row_bias + self.row_per_row * r + self.row_per_col * c),
-                c + (self.col_bias + self.col_per_row * r + self.col_per_col * c))
+        return (
+            r + (self.row_bias + self.row_per_row * r + self.row_per_col * c),
+            c + (self.col_bias + self.col_per_row * r + self.col_per_col * c),
+        )
 
     def image_to_rpc(self, row, col):
         """Inverse of :meth:`rpc_to_image` (exact: a 2 x 2 linear system)."""
@@ -342,8 +449,11 @@ class RPCSensor:
         """True where the ground point lies inside the validity domain (see the class docstring)."""
         Ln, Pn, Hn = self.model.normalise(lat, lon, h)
         with np.errstate(invalid="ignore"):
-            return ((np.abs(Ln) <= self.domain_latlon) & (np.abs(Pn) <= self.domain_latlon)
-                    & (np.abs(Hn) <= self.domain_height))
+            return (
+                (np.abs(Ln) <= self.domain_latlon)
+                & (np.abs(Pn) <= self.domain_latlon)
+                & (np.abs(Hn) <= self.domain_height)
+            )
 
     def ground_to_pixel(self, lat, lon, h, state=None) -> PixelHit:
         """Geodetic points (rad, rad, ellipsoidal m) -> 1-based image pixels by the RPC (and the correction).
@@ -435,7 +545,8 @@ class RPCSensor:
             for it in range(self.max_iter + 1):
                 la, pa = L[act], P[act]
                 (ln, ln_l, ln_p), (ld, ld_l, ld_p), (sn, sn_l, sn_p), (sd, sd_l, sd_p) = (
-                    _eval_cubic([a[act] for a in q], la, pa) for q in polys)
+                    _eval_cubic([a[act] for a in q], la, pa) for q in polys
+                )
                 fl, fs = ln / ld, sn / sd
                 el, es = fl - ln_t[act], fs - sn_t[act]
                 ok = (np.abs(el) * m.line_scale <= self.tol_px) & (np.abs(es) * m.samp_scale <= self.tol_px)
@@ -504,8 +615,9 @@ class RPCSensor:
         keep = (status == Status.OK) | (status == Status.OUTSIDE_SENSOR)
         if outside == "extrapolate":
             status = np.where(status == Status.OUTSIDE_SENSOR, np.uint8(Status.OK), status)
-        return LineOfSight(np.where(keep[..., None], p[0], np.nan), np.where(keep[..., None], d, np.nan),
-                           status.astype(np.uint8))
+        return LineOfSight(
+            np.where(keep[..., None], p[0], np.nan), np.where(keep[..., None], d, np.nan), status.astype(np.uint8)
+        )
 
     def frames(self, state=None):
         """None: an RPC has no frame graph.

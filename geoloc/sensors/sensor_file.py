@@ -100,19 +100,23 @@ def sensor_from_dict(data: dict, source: str = "sensor") -> FrameSensor:
         return Camera.from_dict(data, source=source).to_sensor()
     unknown = sorted(set(data) - set(TABLES) - set(KEYS))
     if unknown:
-        raise ValueError(f"{source}: unknown key(s) or table(s) {unknown}; allowed: "
-                         f"{['[' + t + ']' for t in TABLES] + list(KEYS)}")
+        raise ValueError(
+            f"{source}: unknown key(s) or table(s) {unknown}; allowed: {['[' + t + ']' for t in TABLES] + list(KEYS)}"
+        )
     name = data.get("name", "")
     if not isinstance(name, str):
         raise ValueError(f"{source}: name = {name!r}: must be a string")
     platform = data.get("platform", "")
     if not isinstance(platform, str):
-        raise ValueError(f"{source}: platform = {platform!r}: must be a string (e.g. \"drone\", "
-                         "\"DJI Matrice 300 RTK\", \"King Air 350\"; docs/sensor_format.md)")
+        raise ValueError(
+            f'{source}: platform = {platform!r}: must be a string (e.g. "drone", '
+            '"DJI Matrice 300 RTK", "King Air 350"; docs/sensor_format.md)'
+        )
     lens = lens_from_dict(data["lens"], source=f"{source} [lens]")
     gimbal = gimbal_from_dict(data["gimbal"], source) if "gimbal" in data else PRESETS[DEFAULT]
     return FrameSensor(
-        lens, gimbal,
+        lens,
+        gimbal,
         mount=_angles(data.get("mount", {}), "mount", source),
         boresight=_angles(data.get("boresight", {}), "boresight", source),
         lever_arm_m=_lever(data.get("lever_arm", {}), source),
@@ -162,18 +166,21 @@ def _refuse_sensor_without_lens(data: dict, source: str) -> None:
     not a first-phase camera file with unknown keys: say so (issue 32)."""
     tables = [t for t in TABLES if t in data]
     if tables:
-        raise ValueError(f"{source}: missing table [lens] (the file has "
-                         f"{', '.join('[' + t + ']' for t in tables)}, so it is a sensor file, and a "
-                         f"sensor file needs a [lens] table: model, fx, fy, cx, cy, width, height; "
-                         f"docs/sensor_format.md)")
+        raise ValueError(
+            f"{source}: missing table [lens] (the file has "
+            f"{', '.join('[' + t + ']' for t in tables)}, so it is a sensor file, and a "
+            f"sensor file needs a [lens] table: model, fx, fy, cx, cy, width, height; "
+            f"docs/sensor_format.md)"
+        )
 
 
 def _without_columns(data: dict, source: str) -> dict:
     if COLUMNS_TABLE not in data:
         return data
     if not isinstance(data[COLUMNS_TABLE], dict):
-        raise ValueError(f"{source}: [{COLUMNS_TABLE}] must be a table (canonical name = column), "
-                         f"got {data[COLUMNS_TABLE]!r}")
+        raise ValueError(
+            f"{source}: [{COLUMNS_TABLE}] must be a table (canonical name = column), got {data[COLUMNS_TABLE]!r}"
+        )
     return {k: v for k, v in data.items() if k != COLUMNS_TABLE}
 
 
@@ -212,8 +219,9 @@ def _toml_value(v) -> str:
     return repr(v)
 
 
-def sensor_to_toml(sensor: FrameSensor, path, budget: ErrorBudget | None = None,
-                   corrections: dict | None = None) -> None:
+def sensor_to_toml(
+    sensor: FrameSensor, path, budget: ErrorBudget | None = None, corrections: dict | None = None
+) -> None:
     """Write a sensor file that :func:`load_sensor` reads back to the same sensor (and
     :func:`load_sensor_budget` to ``budget``, :func:`load_sensor_corrections` to the
     ``[corrections]`` table ``corrections``, when given)."""

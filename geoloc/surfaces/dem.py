@@ -123,8 +123,7 @@ class DEM:
         _check_datum(datum)
         path = Path(path)
         if path.is_dir():
-            raise ValueError(f"DEM {path} is a folder, not a raster file: give the DEM file "
-                             "itself (e.g. a GeoTIFF)")
+            raise ValueError(f"DEM {path} is a folder, not a raster file: give the DEM file itself (e.g. a GeoTIFF)")
         if not path.is_file():
             raise FileNotFoundError(f"DEM file not found: {path}")
         note_input(path)
@@ -137,27 +136,33 @@ class DEM:
                         raise ValueError(
                             f"DEM {path} ({src.driver}) has no georeferencing: neither a "
                             "geotransform nor a CRS; a DEM must say where its pixels are "
-                            "(e.g. a GeoTIFF, or a world file and .prj beside the image)")
+                            "(e.g. a GeoTIFF, or a world file and .prj beside the image)"
+                        )
                     if crs is None:
-                        raise ValueError(f"DEM {path}: the file has no CRS (its geotransform "
-                                         "alone does not say which coordinates it uses)")
+                        raise ValueError(
+                            f"DEM {path}: the file has no CRS (its geotransform "
+                            "alone does not say which coordinates it uses)"
+                        )
                     if t.is_identity:
-                        raise ValueError(f"DEM {path}: the file has a CRS but no geotransform "
-                                         "(pixel positions unknown)")
+                        raise ValueError(
+                            f"DEM {path}: the file has a CRS but no geotransform (pixel positions unknown)"
+                        )
                     if t.b != 0 or t.d != 0:
-                        raise ValueError(f"DEM {path}: transform {tuple(t)[:6]} is rotated, "
-                                         "not north-up (warp it to a north-up grid, e.g. "
-                                         "gdalwarp)")
+                        raise ValueError(
+                            f"DEM {path}: transform {tuple(t)[:6]} is rotated, "
+                            "not north-up (warp it to a north-up grid, e.g. "
+                            "gdalwarp)"
+                        )
                     if t.e >= 0:
-                        raise ValueError(f"DEM {path}: transform {tuple(t)[:6]} is south-up "
-                                         "(row 0 at the south edge), not north-up (flip it, "
-                                         "e.g. gdalwarp)")
+                        raise ValueError(
+                            f"DEM {path}: transform {tuple(t)[:6]} is south-up "
+                            "(row 0 at the south edge), not north-up (flip it, "
+                            "e.g. gdalwarp)"
+                        )
                     if not 1 <= band <= src.count:
-                        raise ValueError(f"DEM {path}: band {band} requested, the file has "
-                                         f"{src.count}")
+                        raise ValueError(f"DEM {path}: band {band} requested, the file has {src.count}")
                     if min(src.height, src.width) < 2:
-                        raise ValueError(f"DEM {path}: {src.height} x {src.width} pixels; a DEM "
-                                         "needs at least 2 x 2")
+                        raise ValueError(f"DEM {path}: {src.height} x {src.width} pixels; a DEM needs at least 2 x 2")
                     v = src.read(band, masked=True).astype(float).filled(np.nan)
                     crs = crs.to_wkt()
         except RasterioError as e:
@@ -186,17 +191,28 @@ class DEM:
         """
         if self.is_geographic:
             return self
-        src = self.grid if self.orthometric is None else NodeGrid(
-            self.orthometric, self.grid.lat_north_deg, self.grid.lon_west_deg,
-            self.grid.dlat_deg, self.grid.dlon_deg, self.grid.path, self.grid.margin)
+        src = (
+            self.grid
+            if self.orthometric is None
+            else NodeGrid(
+                self.orthometric,
+                self.grid.lat_north_deg,
+                self.grid.lon_west_deg,
+                self.grid.dlat_deg,
+                self.grid.dlon_deg,
+                self.grid.path,
+                self.grid.margin,
+            )
+        )
         crs = self.crs.to_wkt()
         dem = self._with_datum(_warp_to_geographic(src, crs), "EPSG:4326", self.datum, self.path)
         dem.source_crs = crs
         return dem
 
     @classmethod
-    def from_array(cls, heights, lat_north_deg, lon_west_deg, dlat_deg, dlon_deg,
-                   datum="ellipsoid", nodata=None, crs="EPSG:4326") -> "DEM":
+    def from_array(
+        cls, heights, lat_north_deg, lon_west_deg, dlat_deg, dlon_deg, datum="ellipsoid", nodata=None, crs="EPSG:4326"
+    ) -> "DEM":
         """A DEM from an array of node heights (row 0 north), e.g. synthetic terrain.
 
         Parameters
@@ -225,8 +241,7 @@ class DEM:
         return cls._with_datum(grid, crs, datum, None)
 
     @classmethod
-    def from_grid(cls, grid: NodeGrid, crs="EPSG:4326", datum="egm96", path=None,
-                  height_range_m=None) -> "DEM":
+    def from_grid(cls, grid: NodeGrid, crs="EPSG:4326", datum="egm96", path=None, height_range_m=None) -> "DEM":
         """A DEM from a :class:`~geoloc.geodesy.geoid.NodeGrid` of heights as read (a window of a file).
 
         The heights are converted to ellipsoidal node by node exactly as :meth:`open`
@@ -249,8 +264,10 @@ class DEM:
             lo, hi = (float(x) for x in height_range_m)
             v = dem.grid.values
             if np.isfinite(v).any() and not (lo <= np.nanmin(v) and np.nanmax(v) <= hi):
-                raise ValueError(f"height_range_m = {height_range_m!r} does not bound the window's nodes "
-                                 f"({np.nanmin(v):.3f} to {np.nanmax(v):.3f} m)")
+                raise ValueError(
+                    f"height_range_m = {height_range_m!r} does not bound the window's nodes "
+                    f"({np.nanmin(v):.3f} to {np.nanmax(v):.3f} m)"
+                )
             dem._surface_range = (lo, hi)
         return dem
 
@@ -261,8 +278,9 @@ class DEM:
             lat_deg, lon_deg = dem.node_latlon_deg()
             n = egm96_undulation(np.deg2rad(lat_deg), np.deg2rad(lon_deg))
             ortho = grid.values
-            grid = NodeGrid(ortho + n, grid.lat_north_deg, grid.lon_west_deg,
-                            grid.dlat_deg, grid.dlon_deg, grid.path, grid.margin)
+            grid = NodeGrid(
+                ortho + n, grid.lat_north_deg, grid.lon_west_deg, grid.dlat_deg, grid.dlon_deg, grid.path, grid.margin
+            )
             dem = cls(grid, crs=crs, datum=datum, orthometric=ortho, path=path)
         return dem
 
@@ -373,7 +391,7 @@ class DEM:
         # nodes of every cell that touches the region: an upper/lower bound of the bilinear surface
         i0, i1 = int(np.clip(np.floor(r0), 0, nr - 1)), int(np.clip(np.ceil(r1), 0, nr - 1))
         j0, j1 = int(np.clip(np.floor(c0), 0, nc - 1)), int(np.clip(np.ceil(c1), 0, nc - 1))
-        return v[i0: i1 + 1, j0: j1 + 1]
+        return v[i0 : i1 + 1, j0 : j1 + 1]
 
     def max_height(self, region=None) -> float:
         """Highest ellipsoidal node height [m] (of the cells touching ``region``).
@@ -447,8 +465,7 @@ class DEM:
         lon0 = np.deg2rad(0.5 * (w + e)) if origin_lon is None else float(origin_lon)
         return EnuFrame(lat0, lon0, float(origin_h))
 
-    def to_trimesh(self, stride: int = 1, origin_lat=None, origin_lon=None, origin_h=0.0,
-                   frame: str = "enu"):
+    def to_trimesh(self, stride: int = 1, origin_lat=None, origin_lon=None, origin_h=0.0, frame: str = "enu"):
         """The :meth:`mesh` as a ``trimesh.Trimesh`` in a local ENU frame (or ECEF).
 
         Use ENU for drawing (three.js and embree use float32: ECEF magnitudes
@@ -483,8 +500,10 @@ class DEM:
 
     def __repr__(self):
         w, s, e, n = self.bounds_deg
-        return (f"DEM({self.path or 'array'}, {self.shape[0]}x{self.shape[1]} nodes, "
-                f"W{w:.4f} S{s:.4f} E{e:.4f} N{n:.4f}, datum={self.datum})")
+        return (
+            f"DEM({self.path or 'array'}, {self.shape[0]}x{self.shape[1]} nodes, "
+            f"W{w:.4f} S{s:.4f} E{e:.4f} N{n:.4f}, datum={self.datum})"
+        )
 
 
 def grid_faces(ok) -> np.ndarray:
@@ -521,8 +540,14 @@ def upsampled_dem(src: DEM, n: int, rng: np.random.Generator, roughness_m: float
         w = (x - i).reshape((n, 1) if axis == 0 else (1, n))
         z = np.take(z, i, axis) * (1 - w) + np.take(z, i + 1, axis) * w
     z += rng.normal(0.0, roughness_m, z.shape)
-    return DEM.from_array(z, g.lat_north_deg, g.lon_west_deg, g.dlat_deg * (g.values.shape[0] - 1) / (n - 1),
-                          g.dlon_deg * (g.values.shape[1] - 1) / (n - 1), datum="ellipsoid")
+    return DEM.from_array(
+        z,
+        g.lat_north_deg,
+        g.lon_west_deg,
+        g.dlat_deg * (g.values.shape[0] - 1) / (n - 1),
+        g.dlon_deg * (g.values.shape[1] - 1) / (n - 1),
+        datum="ellipsoid",
+    )
 
 
 def _warp_to_geographic(grid: NodeGrid, crs_wkt: str) -> NodeGrid:
@@ -549,7 +574,8 @@ def _warp_to_geographic(grid: NodeGrid, crs_wkt: str) -> NodeGrid:
     with warnings.catch_warnings():  # rasterio 1.4's own use of Affine's "*" (its business)
         warnings.simplefilter("ignore", PendingDeprecationWarning)
         t, width, height = calculate_default_transform(
-            crs_wkt, "EPSG:4326", int(round(w_px)), int(round(h_px)), left, bottom, right, top)
+            crs_wkt, "EPSG:4326", int(round(w_px)), int(round(h_px)), left, bottom, right, top
+        )
     lon = t.c + t.a * (np.arange(width) + 0.5)
     lat = t.f + t.e * (np.arange(height) + 0.5)
     LON, LAT = np.meshgrid(lon, lat)

@@ -90,13 +90,7 @@ def ray_inflated_ellipsoid(origin, direction, h):
         q = -0.5 * (qb - np.sqrt(disc))  # qb < 0 on the useful branch, so no cancellation
         s = np.minimum(q / qa, qc / q)
     status = np.full(shape, Status.OK, dtype=np.uint8)
-    finite = (
-        np.all(np.isfinite(o), axis=-1)
-        & np.all(np.isfinite(d), axis=-1)
-        & np.isfinite(h)
-        & (B + h > 0)
-        & (qa > 0)
-    )
+    finite = np.all(np.isfinite(o), axis=-1) & np.all(np.isfinite(d), axis=-1) & np.isfinite(h) & (B + h > 0) & (qa > 0)
     status[~finite] = Status.INVALID_INPUT
     inside = finite & (qc < 0)
     status[inside] = Status.ORIGIN_BELOW

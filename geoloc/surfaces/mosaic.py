@@ -131,8 +131,10 @@ class TileCache:
         return len(self._d)
 
     def __repr__(self) -> str:
-        return (f"TileCache({self.bytes_used}/{self.max_bytes} bytes, {len(self)} blocks, "
-                f"hits={self.hits}, misses={self.misses}, evictions={self.evictions})")
+        return (
+            f"TileCache({self.bytes_used}/{self.max_bytes} bytes, {len(self)} blocks, "
+            f"hits={self.hits}, misses={self.misses}, evictions={self.evictions})"
+        )
 
 
 @dataclass
@@ -156,8 +158,10 @@ def mosaic_paths(source) -> list:
         if p.is_dir():
             files = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in TILE_SUFFIXES)
             if not files:
-                raise ValueError(f"DEM {p} is a folder with no raster tiles ({', '.join(TILE_SUFFIXES)}): "
-                                 "give a raster file, or a folder of DEM tiles")
+                raise ValueError(
+                    f"DEM {p} is a folder with no raster tiles ({', '.join(TILE_SUFFIXES)}): "
+                    "give a raster file, or a folder of DEM tiles"
+                )
             return [str(q) for q in files]
         if not p.is_file():
             raise FileNotFoundError(f"DEM file not found: {p}")
@@ -184,8 +188,10 @@ def _vertical_datum(crs, path):
                 name = sub.name.lower()
                 if "egm96" in name or "egm 96" in name:
                     return "egm96"
-                raise ValueError(f"DEM tile {path}: vertical CRS {sub.name!r} is neither EGM96 heights nor "
-                                 "ellipsoidal; convert the tile (e.g. gdalwarp) to EGM96 or ellipsoidal heights")
+                raise ValueError(
+                    f"DEM tile {path}: vertical CRS {sub.name!r} is neither EGM96 heights nor "
+                    "ellipsoidal; convert the tile (e.g. gdalwarp) to EGM96 or ellipsoidal heights"
+                )
     if c.is_geographic and len(c.axis_info) == 3:
         return "ellipsoid"
     return None
@@ -212,9 +218,20 @@ class DemMosaic:
         What :meth:`intersect` hands to :func:`geoloc.surfaces.terrain.intersect_dem`.
     """
 
-    def __init__(self, paths, datum="egm96", *, band: int = 1, cache_bytes: int = DEFAULT_CACHE_BYTES,
-                 block: int = DEFAULT_BLOCK, max_region_nodes: int | None = None, height_range_m=None,
-                 method: str = "exact", dem_model: str = "bilinear", **options):
+    def __init__(
+        self,
+        paths,
+        datum="egm96",
+        *,
+        band: int = 1,
+        cache_bytes: int = DEFAULT_CACHE_BYTES,
+        block: int = DEFAULT_BLOCK,
+        max_region_nodes: int | None = None,
+        height_range_m=None,
+        method: str = "exact",
+        dem_model: str = "bilinear",
+        **options,
+    ):
         import pyproj
         import rasterio
         from rasterio.errors import NotGeoreferencedWarning, RasterioError
@@ -228,16 +245,21 @@ class DemMosaic:
         if dem_model not in DEM_MODELS:
             raise ValueError(f"dem_model must be one of {DEM_MODELS}, got {dem_model!r}")
         if options.get("trace"):
-            raise ValueError("trace=True is not available on a DEM mosaic (the batch is solved in regions): "
-                             "trace on a DEM from DemMosaic.region_dem")
+            raise ValueError(
+                "trace=True is not available on a DEM mosaic (the batch is solved in regions): "
+                "trace on a DEM from DemMosaic.region_dem"
+            )
         if not (isinstance(block, (int, np.integer)) and block >= 2):
             raise ValueError(f"block must be an integer of at least 2 nodes, got {block!r}")
         self.cache = TileCache(cache_bytes)
         if block * block * 8 > self.cache.max_bytes:
-            raise ValueError(f"block = {block} nodes ({block * block * 8} bytes) does not fit the cache bound "
-                             f"cache_bytes = {self.cache.max_bytes}: give a smaller block or a larger bound")
-        self.max_region_nodes = int(max_region_nodes if max_region_nodes is not None
-                                    else max(self.cache.max_bytes // 8, 16))
+            raise ValueError(
+                f"block = {block} nodes ({block * block * 8} bytes) does not fit the cache bound "
+                f"cache_bytes = {self.cache.max_bytes}: give a smaller block or a larger bound"
+            )
+        self.max_region_nodes = int(
+            max_region_nodes if max_region_nodes is not None else max(self.cache.max_bytes // 8, 16)
+        )
         if self.max_region_nodes < 16:
             raise ValueError(f"max_region_nodes must be at least 16, got {max_region_nodes!r}")
         self.paths = list(paths)
@@ -269,31 +291,41 @@ class DemMosaic:
             if horiz.is_geographic and len(horiz.axis_info) == 3:
                 horiz = horiz.to_2d()  # EPSG:4979 (ellipsoidal heights) is EPSG:4326 horizontally
             if not horiz.is_geographic:
-                raise ValueError(f"DEM tile {path}: CRS {horiz.name!r} is projected; a mosaic needs geographic "
-                                 "(lat/lon) tiles: warp them first (gdalwarp -t_srs EPSG:4326)")
+                raise ValueError(
+                    f"DEM tile {path}: CRS {horiz.name!r} is projected; a mosaic needs geographic "
+                    "(lat/lon) tiles: warp them first (gdalwarp -t_srs EPSG:4326)"
+                )
             vdat = _vertical_datum(crs, path)
             if vdat is not None and vdat != datum:
-                raise ValueError(f"DEM tile {path}: its CRS states {vdat} heights, the mosaic's datum is "
-                                 f"{datum!r} (every tile must have the same vertical datum)")
+                raise ValueError(
+                    f"DEM tile {path}: its CRS states {vdat} heights, the mosaic's datum is "
+                    f"{datum!r} (every tile must have the same vertical datum)"
+                )
             lat_n, lon_w, dlat, dlon = t.f + t.e / 2, t.c + t.a / 2, -t.e, t.a
             if ref is None:
                 ref = (path, horiz, dlat, dlon, lat_n, lon_w, vdat)
             else:
                 rp, rcrs, rdlat, rdlon, rlat, rlon, rvd = ref
                 if not horiz.equals(rcrs, ignore_axis_order=True):
-                    raise ValueError(f"DEM tile {path}: CRS {horiz.name!r} differs from {rcrs.name!r} of {rp}; "
-                                     "every tile of a mosaic must have the same CRS")
+                    raise ValueError(
+                        f"DEM tile {path}: CRS {horiz.name!r} differs from {rcrs.name!r} of {rp}; "
+                        "every tile of a mosaic must have the same CRS"
+                    )
                 if vdat != rvd and None not in (vdat, rvd):
                     raise ValueError(f"DEM tile {path}: vertical datum {vdat} differs from {rvd} of {rp}")
                 # 1e-9 relative: the spacings of tiles cut from one grid agree to float rounding
                 if abs(dlat - rdlat) > 1e-9 * rdlat or abs(dlon - rdlon) > 1e-9 * rdlon:
-                    raise ValueError(f"DEM tile {path}: node spacing {dlat!r} x {dlon!r} deg differs from "
-                                     f"{rdlat!r} x {rdlon!r} deg of {rp}; resample the tiles to one grid")
+                    raise ValueError(
+                        f"DEM tile {path}: node spacing {dlat!r} x {dlon!r} deg differs from "
+                        f"{rdlat!r} x {rdlon!r} deg of {rp}; resample the tiles to one grid"
+                    )
                 for off in ((rlat - lat_n) / rdlat, (lon_w - rlon) / rdlon):
                     # 1e-6 of a node: a float-rounded transform, not a shifted lattice
                     if abs(off - round(off)) > 1e-6:
-                        raise ValueError(f"DEM tile {path}: its nodes are {off - round(off):+.4f} of a node off "
-                                         f"the lattice of {rp}; resample the tiles to one grid")
+                        raise ValueError(
+                            f"DEM tile {path}: its nodes are {off - round(off):+.4f} of a node off "
+                            f"the lattice of {rp}; resample the tiles to one grid"
+                        )
             found.append((path, lat_n, lon_w, h, w))
         _, self._crs, self.dlat_deg, self.dlon_deg, lat0, lon0, _ = ref
         # the lattice's node (0, 0): the north-west-most node of any tile (offsets rounded to whole nodes)
@@ -409,10 +441,14 @@ class DemMosaic:
         bad.setdefault(path, []).append((r0, c0, int(win.height), int(win.width)))
         if first:
             reason = " ".join(str(e.__cause__ or e).split())[:200]  # rasterio: "Read failed. See previous ..."
-            warnings.warn(DemTileWarning(
-                f"DEM tile {path}: rows {r0}-{r0 + int(win.height) - 1}, columns {c0}-{c0 + int(win.width) - 1} "
-                f"cannot be read ({reason}); its unreadable cells are no data (a ray meeting them: status "
-                "nodata), the other tiles are used"), stacklevel=2)
+            warnings.warn(
+                DemTileWarning(
+                    f"DEM tile {path}: rows {r0}-{r0 + int(win.height) - 1}, columns {c0}-{c0 + int(win.width) - 1} "
+                    f"cannot be read ({reason}); its unreadable cells are no data (a ray meeting them: status "
+                    "nodata), the other tiles are used"
+                ),
+                stacklevel=2,
+            )
 
     def _scan_heights(self):
         """Lowest and highest ellipsoidal node of the mosaic, block by block (memory: one block)."""
@@ -450,8 +486,8 @@ class DemMosaic:
                     v = self._block(k, bi, bj)
                     ra, rb = max(a0, bi * b), min(a1, bi * b + v.shape[0] - 1)
                     ca, cb = max(e0, bj * b), min(e1, bj * b + v.shape[1] - 1)
-                    src = v[ra - bi * b: rb - bi * b + 1, ca - bj * b: cb - bj * b + 1]
-                    dst = out[ra + s.row0 - r0: rb + s.row0 - r0 + 1, ca + s.col0 - c0: cb + s.col0 - c0 + 1]
+                    src = v[ra - bi * b : rb - bi * b + 1, ca - bj * b : cb - bj * b + 1]
+                    dst = out[ra + s.row0 - r0 : rb + s.row0 - r0 + 1, ca + s.col0 - c0 : cb + s.col0 - c0 + 1]
                     empty = np.isnan(dst)  # the first file with a value at a node gives it
                     dst[empty] = src[empty]
         return out
@@ -467,13 +503,22 @@ class DemMosaic:
             c0, c1 = (c0, c0 + 1) if c0 + 1 < nc else (c1 - 1, c1)
         n = (r1 - r0 + 1) * (c1 - c0 + 1)
         if n > max(self.max_region_nodes, 4):
-            raise ValueError(f"DEM mosaic window of {r1 - r0 + 1} x {c1 - c0 + 1} nodes exceeds max_region_nodes = "
-                             f"{self.max_region_nodes}")
+            raise ValueError(
+                f"DEM mosaic window of {r1 - r0 + 1} x {c1 - c0 + 1} nodes exceeds max_region_nodes = "
+                f"{self.max_region_nodes}"
+            )
         v = self.window_nodes(r0, r1, c0, c1)
         # margin 0.5: at the mosaic's outer edges the raster covers half a cell more (as DEM.open);
         # inside, the windows are cut wider than any track (PAD_NODES), so the band is never reached
-        grid = NodeGrid(v, self.lat_north_deg - self.dlat_deg * r0, self.lon_west_deg + self.dlon_deg * c0,
-                        self.dlat_deg, self.dlon_deg, self.paths[0], margin=0.5)
+        grid = NodeGrid(
+            v,
+            self.lat_north_deg - self.dlat_deg * r0,
+            self.lon_west_deg + self.dlon_deg * c0,
+            self.dlat_deg,
+            self.dlon_deg,
+            self.paths[0],
+            margin=0.5,
+        )
         label = self.path
         # the whole mosaic's H_max / H_min: the solvers start and stop where they would on one
         # merged raster (the walk calls a ray LEFT_DEM when it starts off the grid)
@@ -592,6 +637,7 @@ class DemMosaic:
     # ------------------------------------------------------------------ rays
     def _tracks(self, o, d):
         """Per ray: (s_start, s_end) of the segment between the inflated H_max and H_min, and a reach flag."""
+
         def roots(h):
             ia, ib = 1.0 / (A + h) ** 2, 1.0 / (B + h) ** 2  # the inflated ellipsoid [Q17 eq. 11]
             qa = (d[:, 0] ** 2 + d[:, 1] ** 2) * ia + d[:, 2] ** 2 * ib
@@ -617,8 +663,15 @@ class DemMosaic:
         lat, lon, _ = ecef_to_geodetic(p)
         r, c = self._rc(lat, lon)
         nr, nc = self.shape
-        box = np.stack([np.floor(r.min(1)) - PAD_NODES, np.ceil(r.max(1)) + PAD_NODES,
-                        np.floor(c.min(1)) - PAD_NODES, np.ceil(c.max(1)) + PAD_NODES], -1)
+        box = np.stack(
+            [
+                np.floor(r.min(1)) - PAD_NODES,
+                np.ceil(r.max(1)) + PAD_NODES,
+                np.floor(c.min(1)) - PAD_NODES,
+                np.ceil(c.max(1)) + PAD_NODES,
+            ],
+            -1,
+        )
         box[:, 0], box[:, 2] = np.maximum(box[:, 0], 0), np.maximum(box[:, 2], 0)
         box[:, 1], box[:, 3] = np.minimum(box[:, 1], nr - 1), np.minimum(box[:, 3], nc - 1)
         return box.astype(np.int64)
@@ -671,17 +724,29 @@ class DemMosaic:
             st[idx], evals[idx] = hit.status, hit.dem_evaluations
             hidden[idx] = hit.hidden
         r = lambda a: a.reshape(shape)  # noqa: E731
-        return TerrainHit(r(lat), r(lon), r(h), ecef.reshape(shape + (3,)), r(rng), r(st),
-                          los if isinstance(los, LineOfSight) else None, dem_evaluations=r(evals),
-                          hidden=r(hidden), method=self.method, dem_model=self.dem_model, trace=None)
+        return TerrainHit(
+            r(lat),
+            r(lon),
+            r(h),
+            ecef.reshape(shape + (3,)),
+            r(rng),
+            r(st),
+            los if isinstance(los, LineOfSight) else None,
+            dem_evaluations=r(evals),
+            hidden=r(hidden),
+            method=self.method,
+            dem_model=self.dem_model,
+            trace=None,
+        )
 
     def _pieces(self, k, o, d, s0, s1, solve):
         """Ray k's track cut along the ray into pieces that each fit a region; the first hit wins."""
         nparts = 2
         while True:
             cuts = np.linspace(s0, s1, nparts + 1)
-            boxes = self._track_box(np.repeat(o[k:k + 1], nparts, 0), np.repeat(d[k:k + 1], nparts, 0),
-                                    cuts[:-1], cuts[1:])
+            boxes = self._track_box(
+                np.repeat(o[k : k + 1], nparts, 0), np.repeat(d[k : k + 1], nparts, 0), cuts[:-1], cuts[1:]
+            )
             sizes = (boxes[:, 1] - boxes[:, 0] + 1) * (boxes[:, 3] - boxes[:, 2] + 1)
             if sizes.max() <= self.max_region_nodes:
                 break
@@ -691,11 +756,16 @@ class DemMosaic:
         for a, bx in zip(cuts[:-1], boxes):
             if bx[0] > bx[1] or bx[2] > bx[3]:
                 continue
-            origin = o[k:k + 1] + a * d[k:k + 1]
+            origin = o[k : k + 1] + a * d[k : k + 1]
             hit = solve(np.array([k]), self.window_dem(*bx), origin)
             evals += int(hit.dem_evaluations[0])
-            if hit.status[0] in (Status.OK, Status.NODATA, Status.ORIGIN_BELOW, Status.BELOW_TERRAIN,
-                                 Status.INVALID_INPUT):
+            if hit.status[0] in (
+                Status.OK,
+                Status.NODATA,
+                Status.ORIGIN_BELOW,
+                Status.BELOW_TERRAIN,
+                Status.INVALID_INPUT,
+            ):
                 break
             if hit.status[0] == Status.LEFT_DEM and evals == 0:
                 break  # it starts off the mosaic: LEFT_DEM, as the walk says on one raster
@@ -707,8 +777,10 @@ class DemMosaic:
 
     def __repr__(self) -> str:
         w, s, e, n = self.bounds_deg
-        return (f"DemMosaic({len(self.paths)} file(s), {self.shape[0]}x{self.shape[1]} nodes, W{w:.4f} S{s:.4f} "
-                f"E{e:.4f} N{n:.4f}, datum={self.datum}, cache {self.cache.max_bytes} bytes)")
+        return (
+            f"DemMosaic({len(self.paths)} file(s), {self.shape[0]}x{self.shape[1]} nodes, W{w:.4f} S{s:.4f} "
+            f"E{e:.4f} N{n:.4f}, datum={self.datum}, cache {self.cache.max_bytes} bytes)"
+        )
 
 
 def open_dem_or_mosaic(source, datum="egm96", **kwargs):

@@ -88,8 +88,10 @@ def _unit_ray(origin_ecef, direction_ecef):
     d = np.asarray(direction_ecef, float).reshape(3).astype(_LD)
     n = np.sqrt(np.sum(d * d))
     if not (np.isfinite(n) and n > 0) or not np.all(np.isfinite(o)):
-        raise ValueError(f"referee: the ray needs a finite origin and a non-zero direction, got origin "
-                         f"{np.asarray(origin_ecef).tolist()} and direction {np.asarray(direction_ecef).tolist()}")
+        raise ValueError(
+            f"referee: the ray needs a finite origin and a non-zero direction, got origin "
+            f"{np.asarray(origin_ecef).tolist()} and direction {np.asarray(direction_ecef).tolist()}"
+        )
     return o, d / n
 
 
@@ -108,8 +110,10 @@ def _moller_trumbore(o, d, a, b, c):
         # barycentric weight of each vertex times that vertex's height over the opposite edge
         two_area = np.sqrt(np.sum(np.cross(e1, e2) ** 2, -1))
         w = np.stack([1 - u - v, u, v], -1)  # weights of a, b, c
-        opp = np.stack([np.sqrt(np.sum((c - b) ** 2, -1)), np.sqrt(np.sum((c - a) ** 2, -1)),
-                        np.sqrt(np.sum((b - a) ** 2, -1))], -1)
+        opp = np.stack(
+            [np.sqrt(np.sum((c - b) ** 2, -1)), np.sqrt(np.sum((c - a) ** 2, -1)), np.sqrt(np.sum((b - a) ** 2, -1))],
+            -1,
+        )
         inside = np.min(w * (two_area[..., None] / opp), -1)
     return t, inside
 
@@ -225,10 +229,13 @@ def judge(dem, origin_ecef, direction_ecef, hit_a_ecef, hit_b_ecef, pad_cells: i
     if not finite:
         raise ValueError("referee: judge needs at least one of the two hits")
     ref = referee_first_hit(dem, origin_ecef, direction_ecef, window_around(dem, finite, pad_cells))
+
     def agrees(p):
         if not np.all(np.isfinite(p)):
             return not np.isfinite(ref.range_m)
-        return bool(np.isfinite(ref.range_m)
-                    and np.sqrt(np.sum((o + _LD(ref.range_m) * d - p.astype(_LD)) ** 2)) <= tol_m)
+        return bool(
+            np.isfinite(ref.range_m) and np.sqrt(np.sum((o + _LD(ref.range_m) * d - p.astype(_LD)) ** 2)) <= tol_m
+        )
+
     a, b = agrees(pts[0]), agrees(pts[1])
     return ("both" if a and b else "a" if a else "b" if b else "neither"), ref

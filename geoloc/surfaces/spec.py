@@ -111,8 +111,9 @@ class SurfaceSpec:
         if self.dem is not None:
             mosaic = {} if self.cache_bytes is None else {"cache_bytes": int(self.cache_bytes)}
             source = list(self.dem) if isinstance(self.dem, tuple) else Path(self.dem)
-            dem = open_dem_or_mosaic(source, self.dem_datum, method=self.method, dem_model=self.dem_model,
-                                     **mosaic, **self.solver_options)
+            dem = open_dem_or_mosaic(
+                source, self.dem_datum, method=self.method, dem_model=self.dem_model, **mosaic, **self.solver_options
+            )
             if whole and is_mosaic(dem):
                 dem = dem.to_dem()
             return surface_for(dem=dem, method=self.method, dem_model=self.dem_model, **self.solver_options)

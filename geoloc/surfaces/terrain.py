@@ -189,8 +189,9 @@ class _Tracer:
             k[idx] += 1
         cell = np.full((n, m, 2), -1, dtype=np.int64)
         r = lambda a, extra=(): a.reshape(shape + (m,) + extra)  # noqa: E731
-        return TerrainTrace(method, r(H), r(lat), r(lon), r(ecef, (3,)), r(hd), r(lo), r(hi),
-                            r(cell, (2,)), count.reshape(shape))
+        return TerrainTrace(
+            method, r(H), r(lat), r(lon), r(ecef, (3,)), r(hd), r(lo), r(hi), r(cell, (2,)), count.reshape(shape)
+        )
 
 
 # --------------------------------------------------------------------------- steps [Q17]
@@ -199,6 +200,7 @@ class _Tracer:
 #: smaller ``eps_h`` that would need more stops there with NO_CONVERGENCE instead of iterating
 #: for hours (issue 47: ``--eps-h 1e-7`` over 600 m of relief is 6e9 steps).
 STEPS_MAX = 20_000
+
 
 def _steps(o, d, st, dem, eps_h, tracer, max_iter):
     n = len(o)
@@ -321,9 +323,11 @@ def _exact_tables(dem: DEM):
     if tab is not None:
         return tab
     if not dem.is_geographic:
-        raise ValueError(f"method 'exact' needs a geographic (lat/lon) grid, got CRS {dem.crs.name!r}: "
-                         "use dem.to_geographic() (DEM.open does it for a file unless "
-                         "geographic=False), or the 'steps' / 'bisect' methods")
+        raise ValueError(
+            f"method 'exact' needs a geographic (lat/lon) grid, got CRS {dem.crs.name!r}: "
+            "use dem.to_geographic() (DEM.open does it for a file unless "
+            "geographic=False), or the 'steps' / 'bisect' methods"
+        )
     g = dem.grid
     hgt = np.ascontiguousarray(g.values, dtype=float)
     nr = hgt.shape[0]
@@ -352,10 +356,27 @@ def _exact_tables(dem: DEM):
     cinv = _offsets32(np.stack([1 / (A + hs) ** 2, 1 / (B + hs) ** 2], -1), h_floor)
     block = block_cells(dlat, dlon, lat_n - 0.5 * dlat * (nr - 1))
     binv, hinv, hlev = _block_tables(cmax, block, h_floor)
-    tab = dict(h_max=h_max, h_min=h_min, h_floor=h_floor, hgt=hgt, lon_col=lon_cols, cinv=cinv,
-               binv=binv, block=block, hinv=hinv, hlev=hlev, row_geo=row_geo, lat_n=lat_n,
-               lon_w=lon_w, dlat=dlat, dlon=dlon, tan_row=tan_row, c_row=c_row,
-               sin_col=np.sin(lon_cols), cos_col=np.cos(lon_cols))
+    tab = dict(
+        h_max=h_max,
+        h_min=h_min,
+        h_floor=h_floor,
+        hgt=hgt,
+        lon_col=lon_cols,
+        cinv=cinv,
+        binv=binv,
+        block=block,
+        hinv=hinv,
+        hlev=hlev,
+        row_geo=row_geo,
+        lat_n=lat_n,
+        lon_w=lon_w,
+        dlat=dlat,
+        dlon=dlon,
+        tan_row=tan_row,
+        c_row=c_row,
+        sin_col=np.sin(lon_cols),
+        cos_col=np.cos(lon_cols),
+    )
     for v in tab.values():  # read-only: shared by every call, and passed to the walk as they are
         if isinstance(v, np.ndarray):
             v.flags.writeable = False
@@ -481,13 +502,17 @@ def climbs(o, d, tab) -> bool:
     from geoloc.surfaces.terrain_numba import _readonly, median_run
 
     # read-only float64 views, as the walk takes them: one compiled signature
-    run_m = median_run(_readonly("o", o, np.float64, 2), _readonly("d", d, np.float64, 2),
-                       float(tab["h_max"] - tab["h_min"] + 2 * _MARGIN_M), 256)
+    run_m = median_run(
+        _readonly("o", o, np.float64, 2),
+        _readonly("d", d, np.float64, 2),
+        float(tab["h_max"] - tab["h_min"] + 2 * _MARGIN_M),
+        256,
+    )
     if math.isnan(run_m):  # no ray without NaN
         return False
     lat_mid = tab["lat_n"] - 0.5 * tab["dlat"] * (tab["hgt"].shape[0] - 1)
     cell_m = A * min(tab["dlat"], tab["dlon"] * math.cos(lat_mid))
-    span_m = tab["block"] * 2 ** CLIMB_FROM * cell_m
+    span_m = tab["block"] * 2**CLIMB_FROM * cell_m
     return bool(run_m > CLIMB_MIN_NODES * span_m)
 
 
@@ -500,8 +525,17 @@ def _exact(o, d, st, dem, dem_model, trace_on, max_cells=4096, parallel=False):
     order = None
     if n >= _SORT_MIN_RAYS and tab["cinv"].nbytes >= _SORT_MIN_BYTES:
         nt = -(-max(tab["hgt"].shape) // _SORT_TILE) + 2
-        order = tn.ray_order(o, d, 0.5 * (tab["h_max"] + tab["h_min"]), tab["lat_n"], tab["lon_w"],
-                             tab["dlat"], tab["dlon"], _SORT_TILE, nt)
+        order = tn.ray_order(
+            o,
+            d,
+            0.5 * (tab["h_max"] + tab["h_min"]),
+            tab["lat_n"],
+            tab["lon_w"],
+            tab["dlat"],
+            tab["dlon"],
+            _SORT_TILE,
+            nt,
+        )
     s_out = np.empty(n)
     p_out = np.empty((n, 3))
     geo_out = np.empty((n, 4))
@@ -510,20 +544,52 @@ def _exact(o, d, st, dem, dem_model, trace_on, max_cells=4096, parallel=False):
     trace_s = np.full((n, m), np.nan)
     trace_ij = np.full((n, m, 2), -1, dtype=np.int64)
     (tn.walk_parallel if parallel else tn.walk)(
-        o, d, tab["h_max"] + _MARGIN_M, tab["h_floor"],
-        tab["hgt"], tab["lon_col"], tab["cinv"], tab["binv"], tab["hinv"],
-        tab["hlev"][CLIMB_FROM - 1:] if climbs(o, d, tab) else tab["hlev"][:0],
-        tab["row_geo"], tab["lat_n"], tab["lon_w"],
-        tab["dlat"], tab["dlon"], tab["tan_row"], tab["c_row"], tab["sin_col"], tab["cos_col"],
-        dem_model == "triangles", s_out, p_out, geo_out, st, ncell, trace_s, trace_ij, order=order,
-        block=tab["block"])
+        o,
+        d,
+        tab["h_max"] + _MARGIN_M,
+        tab["h_floor"],
+        tab["hgt"],
+        tab["lon_col"],
+        tab["cinv"],
+        tab["binv"],
+        tab["hinv"],
+        tab["hlev"][CLIMB_FROM - 1 :] if climbs(o, d, tab) else tab["hlev"][:0],
+        tab["row_geo"],
+        tab["lat_n"],
+        tab["lon_w"],
+        tab["dlat"],
+        tab["dlon"],
+        tab["tan_row"],
+        tab["c_row"],
+        tab["sin_col"],
+        tab["cos_col"],
+        dem_model == "triangles",
+        s_out,
+        p_out,
+        geo_out,
+        st,
+        ncell,
+        trace_s,
+        trace_ij,
+        order=order,
+        block=tab["block"],
+    )
     return p_out, ncell, s_out, (trace_s, trace_ij), geo_out.T
 
 
 # --------------------------------------------------------------------------- front end
-def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: float = 1.0,
-                  threshold: float = 1.0, dem_model: str = "bilinear", trace: bool = False,
-                  max_iter: int | None = None, parallel: bool = False) -> TerrainHit:
+def intersect_dem(
+    los: LineOfSight,
+    dem: DEM,
+    method: str = "exact",
+    *,
+    eps_h: float = 1.0,
+    threshold: float = 1.0,
+    dem_model: str = "bilinear",
+    trace: bool = False,
+    max_iter: int | None = None,
+    parallel: bool = False,
+) -> TerrainHit:
     """Intersect lines of sight with a DEM (docs/method.md section 4).
 
     Parameters
@@ -593,11 +659,18 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
             pe = o[:, None, :] + ts[..., None] * d[:, None, :]
             lat, lon, H = ecef_to_geodetic(pe)
             hd = dem.height(lat, lon)
-            tr = TerrainTrace(method, H.reshape(shape + (m,)), lat.reshape(shape + (m,)),
-                              lon.reshape(shape + (m,)), pe.reshape(shape + (m, 3)),
-                              hd.reshape(shape + (m,)), np.full(shape + (m,), np.nan),
-                              np.full(shape + (m,), np.nan), tij.reshape(shape + (m, 2)),
-                              np.minimum(evals, m).reshape(shape))
+            tr = TerrainTrace(
+                method,
+                H.reshape(shape + (m,)),
+                lat.reshape(shape + (m,)),
+                lon.reshape(shape + (m,)),
+                pe.reshape(shape + (m, 3)),
+                hd.reshape(shape + (m,)),
+                np.full(shape + (m,), np.nan),
+                np.full(shape + (m,), np.nan),
+                tij.reshape(shape + (m, 2)),
+                np.minimum(evals, m).reshape(shape),
+            )
     ok = st == Status.OK
     if method == "exact":  # the kernel converted its hits (NaN elsewhere)
         lat, lon, h, rng = geo
@@ -606,9 +679,20 @@ def intersect_dem(los: LineOfSight, dem: DEM, method: str = "exact", *, eps_h: f
         lat, lon, h = ecef_to_geodetic(p)
         rng = np.linalg.norm(p - o, axis=-1)
     r = lambda a: a.reshape(shape)  # noqa: E731
-    return TerrainHit(r(lat), r(lon), r(h), p.reshape(shape + (3,)), r(rng), r(st),
-                      los if isinstance(los, LineOfSight) else None,
-                      dem_evaluations=r(evals), hidden=r(hidden & ok), method=method, dem_model=dem_model, trace=tr)
+    return TerrainHit(
+        r(lat),
+        r(lon),
+        r(h),
+        p.reshape(shape + (3,)),
+        r(rng),
+        r(st),
+        los if isinstance(los, LineOfSight) else None,
+        dem_evaluations=r(evals),
+        hidden=r(hidden & ok),
+        method=method,
+        dem_model=dem_model,
+        trace=tr,
+    )
 
 
 #: Below any land or sea floor (the Challenger Deep is at about -10 935 m) [m, ellipsoidal
@@ -631,22 +715,53 @@ def _no_terrain(los, shape, o, d, st, method, dem_model, trace):
     tr = None
     if trace:
         e = np.full(shape + (0,), np.nan)
-        tr = TerrainTrace(method, e, e, e, np.full(shape + (0, 3), np.nan), e, e, e,
-                          np.full(shape + (0, 2), -1, dtype=np.int64), np.zeros(shape, dtype=np.int64))
-    return TerrainHit(nan, nan.copy(), nan.copy(), np.full(shape + (3,), np.nan), nan.copy(), st.reshape(shape),
-                      los if isinstance(los, LineOfSight) else None, dem_evaluations=np.zeros(shape, np.int64),
-                      hidden=np.zeros(shape, bool), method=method, dem_model=dem_model, trace=tr)
+        tr = TerrainTrace(
+            method,
+            e,
+            e,
+            e,
+            np.full(shape + (0, 3), np.nan),
+            e,
+            e,
+            e,
+            np.full(shape + (0, 2), -1, dtype=np.int64),
+            np.zeros(shape, dtype=np.int64),
+        )
+    return TerrainHit(
+        nan,
+        nan.copy(),
+        nan.copy(),
+        np.full(shape + (3,), np.nan),
+        nan.copy(),
+        st.reshape(shape),
+        los if isinstance(los, LineOfSight) else None,
+        dem_evaluations=np.zeros(shape, np.int64),
+        hidden=np.zeros(shape, bool),
+        method=method,
+        dem_model=dem_model,
+        trace=tr,
+    )
 
 
 def _first_sampled(o, d, dem):
     """First ray parameter below the terrain, sampled (non-geographic DEMs)."""
-    hit = intersect_dem(LineOfSight(o, d, np.zeros(len(o), np.uint8)), dem, "steps",
-                        eps_h=max(0.1, (dem.max_height() - dem.min_height()) / 2000))
+    hit = intersect_dem(
+        LineOfSight(o, d, np.zeros(len(o), np.uint8)),
+        dem,
+        "steps",
+        eps_h=max(0.1, (dem.max_height() - dem.min_height()) / 2000),
+    )
     return np.sum((hit.ecef - o) * d, -1)
 
 
-def random_oblique_rays(dem: DEM, n: int, rng: np.random.Generator, frame_angle_deg=(45.0, 82.0),
-                        clearance_m: float = 1500.0, inner: float = 0.5) -> LineOfSight:
+def random_oblique_rays(
+    dem: DEM,
+    n: int,
+    rng: np.random.Generator,
+    frame_angle_deg=(45.0, 82.0),
+    clearance_m: float = 1500.0,
+    inner: float = 0.5,
+) -> LineOfSight:
     """Random lines of sight over a DEM, for tests and benchmarks.
 
     Each ray aims at a random point of the DEM's central ``inner`` fraction,
@@ -731,8 +846,10 @@ class DemElseHeight:
         if not miss.any():
             return g
         f = self.height_surface.intersect(los)
-        lat, lon, h, rng = (np.where(miss, b, a) for a, b in ((g.lat, f.lat), (g.lon, f.lon), (g.h, f.h),
-                                                            (g.slant_range, f.slant_range)))
+        lat, lon, h, rng = (
+            np.where(miss, b, a)
+            for a, b in ((g.lat, f.lat), (g.lon, f.lon), (g.h, f.h), (g.slant_range, f.slant_range))
+        )
         ecef = np.where(miss[..., None], f.ecef, g.ecef)
         return GroundPoint(lat, lon, h, ecef, rng, np.where(miss, f.status, st).astype(np.uint8), g.los)
 
@@ -740,8 +857,17 @@ class DemElseHeight:
         return f"DemElseHeight({self.dem_surface!r}, {self.height_surface!r})"
 
 
-def surface_for(target_h=None, dem: DEM | None = None, *, method: str = "exact", kind: str = "inflated",
-                dem_model: str = "bilinear", per_record: bool = False, else_height: bool = False, **options):
+def surface_for(
+    target_h=None,
+    dem: DEM | None = None,
+    *,
+    method: str = "exact",
+    kind: str = "inflated",
+    dem_model: str = "bilinear",
+    per_record: bool = False,
+    else_height: bool = False,
+    **options,
+):
     """The one place the "constant height or DEM" choice is made: a DEM if given, else a height.
 
     Parameters
@@ -772,8 +898,11 @@ def surface_for(target_h=None, dem: DEM | None = None, *, method: str = "exact",
     if target_h is not None:
         height = PerRecordHeightSurface(target_h, kind) if per_record else HeightSurface(target_h, kind)
     if dem is not None:
-        terrain = (dem.with_solver(method, dem_model, **options) if is_mosaic(dem)  # a surface itself
-                   else DemSurface(dem, method, dem_model, **options))
+        terrain = (
+            dem.with_solver(method, dem_model, **options)
+            if is_mosaic(dem)  # a surface itself
+            else DemSurface(dem, method, dem_model, **options)
+        )
         return DemElseHeight(terrain, height) if else_height and height is not None else terrain
     if height is None:
         raise ValueError("give a DEM or a target height (ellipsoidal, metres)")

@@ -127,8 +127,6 @@ _SOUTH = -1.0
 KEY = dependency_key(ellipsoid, _nbgeo, _status_module, sys.modules[__name__])
 
 
-
-
 @intrinsic
 def _prefetch(typingctx, arr, i, j):
     """A hint to the CPU to bring the cache line of ``arr[i, j]`` (``arr[i, j, 0]`` for a 3-d
@@ -141,6 +139,7 @@ def _prefetch(typingctx, arr, i, j):
     reached was a miss waited for in turn (a fifth of the walk's time, sampled with perf).
     On a DEM of fewer than :data:`PREFETCH_MIN_NODES` nodes it does not (the rows are cached).
     """
+
     def codegen(context, builder, signature, args):
         aryty = signature.args[0]
         ary = context.make_array(aryty)(context, builder, args[0])
@@ -148,13 +147,18 @@ def _prefetch(typingctx, arr, i, j):
         ptr = cgutils.get_item_pointer(context, builder, aryty, ary, idx, wraparound=False)
         i8p = ir.IntType(8).as_pointer()
         i32 = ir.IntType(32)
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
-                                            "llvm.prefetch.p0")
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]), "llvm.prefetch.p0"
+        )
         builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
         return context.get_dummy_value()
 
-    if not (isinstance(arr, nbtypes.Array) and arr.ndim in (2, 3) and isinstance(i, nbtypes.Integer)
-            and isinstance(j, nbtypes.Integer)):
+    if not (
+        isinstance(arr, nbtypes.Array)
+        and arr.ndim in (2, 3)
+        and isinstance(i, nbtypes.Integer)
+        and isinstance(j, nbtypes.Integer)
+    ):
         return None
     return nbtypes.void(arr, i, j), codegen
 
@@ -403,8 +407,33 @@ def _tri(ox, oy, oz, dx, dy, dz, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z):
 
 
 @cached_njit(KEY, error_model="numpy", fastmath={"contract"})
-def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b, lon_b, h_b,
-                   z00, z10, z01, z11, i, j, lat_n, lon_w, dlat, dlon):
+def _bilinear_cell(
+    ox,
+    oy,
+    oz,
+    dx,
+    dy,
+    dz,
+    sa,
+    sb,
+    lat_a,
+    lon_a,
+    h_a,
+    g_a,
+    lat_b,
+    lon_b,
+    h_b,
+    z00,
+    z10,
+    z01,
+    z11,
+    i,
+    j,
+    lat_n,
+    lon_w,
+    dlat,
+    dlon,
+):
     """First root of h_ray(s) - bilinear(lat(s), lon(s)) on [sa, sb]; inf if none.
 
     Model on the cell: (u, v) linear between the exact entry/exit grid
@@ -491,8 +520,36 @@ def _bilinear_cell(ox, oy, oz, dx, dy, dz, sa, sb, lat_a, lon_a, h_a, g_a, lat_b
     return s
 
 
-def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev, row_geo, lat_n, lon_w, dlat,
-          dlon, tan_row, c_row, sin_col, cos_col, s_out, p_out, geo_out, status, ncell, trace_s, trace_ij):
+def _walk(
+    o,
+    d,
+    order,
+    h_top,
+    h_floor,
+    hgt,
+    lon_col,
+    cinv,
+    binv,
+    blk,
+    hinv,
+    hlev,
+    row_geo,
+    lat_n,
+    lon_w,
+    dlat,
+    dlon,
+    tan_row,
+    c_row,
+    sin_col,
+    cos_col,
+    s_out,
+    p_out,
+    geo_out,
+    status,
+    ncell,
+    trace_s,
+    trace_ij,
+):
     """Exact first hit for each ray (see module docstring); fills s_out, status, ncell,
     and for the hits p_out (ECEF [m]) and geo_out (latitude, longitude [rad], height
     [m], range [m]); NaN elsewhere.
@@ -727,8 +784,11 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                 qa = dxy2 * ia + dz2 * ib
                 hb = oxd * ia + ozd * ib
                 qc = oxy2 * ia + oz2 * ib - 1.0
-                clear = (((qa * s + 2.0 * hb) * s + qc > 0.0) and ((qa * e + 2.0 * hb) * e + qc > 0.0)
-                         and not (qa * s < -hb and -hb < qa * e and hb * hb >= qa * qc))
+                clear = (
+                    ((qa * s + 2.0 * hb) * s + qc > 0.0)
+                    and ((qa * e + 2.0 * hb) * e + qc > 0.0)
+                    and not (qa * s < -hb and -hb < qa * e and hb * hb >= qa * qc)
+                )
             if not clear and ia == ia:
                 # until the ray meets the block's inflated ellipsoid it is above all of the
                 # block's terrain: the cell walk starts there (the first root of F), not at
@@ -814,8 +874,11 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                         hb = oxd * ia + ozd * ib
                         qc = oxy2 * ia + oz2 * ib - 1.0
                         # necessary: clear up to the smaller node's exit (no side computed yet)
-                        if not (((qa * s + 2.0 * hb) * s + qc > 0.0) and ((qa * gE + 2.0 * hb) * gE + qc > 0.0)
-                                and not (qa * s < -hb and -hb < qa * gE and hb * hb >= qa * qc)):
+                        if not (
+                            ((qa * s + 2.0 * hb) * s + qc > 0.0)
+                            and ((qa * gE + 2.0 * hb) * gE + qc > 0.0)
+                            and not (qa * s < -hb and -hb < qa * gE and hb * hb >= qa * qc)
+                        ):
                             break
                         span = blk << sh
                         a0 = ni * span
@@ -823,17 +886,32 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                         c0 = nj * span
                         c1 = min(c0 + span, nc - 1)
                         # the node's sides: a side it shares with the smaller node keeps its crossing
-                        nN, nN2 = _par_exit_kept(a0 == gi0, gN, gN2, tan_row[a0], c_row[a0], oz, dz, dz2, dxy2,
-                                                 oxd, oxy2, s, _NORTH)
-                        nS, nS2 = _par_exit_kept(a1 == gi1, gS, gS2, tan_row[a1], c_row[a1], oz, dz, dz2, dxy2,
-                                                 oxd, oxy2, s, _SOUTH)
+                        nN, nN2 = _par_exit_kept(
+                            a0 == gi0, gN, gN2, tan_row[a0], c_row[a0], oz, dz, dz2, dxy2, oxd, oxy2, s, _NORTH
+                        )
+                        nS, nS2 = _par_exit_kept(
+                            a1 == gi1, gS, gS2, tan_row[a1], c_row[a1], oz, dz, dz2, dxy2, oxd, oxy2, s, _SOUTH
+                        )
                         jm = c1 if east else c0
-                        nM = _mer_ahead_kept(along, (c1 == gj1) if east else (c0 == gj0), gM, sin_col[jm],
-                                             cos_col[jm], ox, oy, dx, dy, s, east)
+                        nM = _mer_ahead_kept(
+                            along,
+                            (c1 == gj1) if east else (c0 == gj0),
+                            gM,
+                            sin_col[jm],
+                            cos_col[jm],
+                            ox,
+                            oy,
+                            dx,
+                            dy,
+                            s,
+                            east,
+                        )
                         nE = min(nN, nS, nM)
                         e = nE if nE < send else send
-                        if not (((qa * e + 2.0 * hb) * e + qc > 0.0)
-                                and not (qa * s < -hb and -hb < qa * e and hb * hb >= qa * qc)):
+                        if not (
+                            ((qa * e + 2.0 * hb) * e + qc > 0.0)
+                            and not (qa * s < -hb and -hb < qa * e and hb * hb >= qa * qc)
+                        ):
                             break
                         failed = -1
                         glv = sh
@@ -884,10 +962,12 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                         i1 = min(i0 + blk, nr - 1)
                         j0 = bj * blk
                         j1 = min(j0 + blk, nc - 1)
-                        bN, bN2 = _par_exit_kept(i0 == gi0, gN, gN2, tan_row[i0], c_row[i0], oz, dz, dz2, dxy2,
-                                                 oxd, oxy2, s, _NORTH)
-                        bS, bS2 = _par_exit_kept(i1 == gi1, gS, gS2, tan_row[i1], c_row[i1], oz, dz, dz2, dxy2,
-                                                 oxd, oxy2, s, _SOUTH)
+                        bN, bN2 = _par_exit_kept(
+                            i0 == gi0, gN, gN2, tan_row[i0], c_row[i0], oz, dz, dz2, dxy2, oxd, oxy2, s, _NORTH
+                        )
+                        bS, bS2 = _par_exit_kept(
+                            i1 == gi1, gS, gS2, tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, _SOUTH
+                        )
                         jm = j1 if east else j0
                         bM = _mer_exit(sin_col[jm], cos_col[jm], ox, oy, dx, dy, s, east)
                         came = 2
@@ -929,8 +1009,19 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                             bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, _SOUTH)
                             came = 0
                         jm = j1 if east else j0
-                        bM = _mer_ahead_kept(along, (j1 == gj1) if east else (j0 == gj0), gM, sin_col[jm],
-                                             cos_col[jm], ox, oy, dx, dy, s, east)
+                        bM = _mer_ahead_kept(
+                            along,
+                            (j1 == gj1) if east else (j0 == gj0),
+                            gM,
+                            sin_col[jm],
+                            cos_col[jm],
+                            ox,
+                            oy,
+                            dx,
+                            dy,
+                            s,
+                            east,
+                        )
                     continue
                 s = sx
                 side = 2 if sx == bM else (0 if sx == bN else 1)
@@ -990,8 +1081,11 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                     qa = dxy2 * ia + dz2 * ib
                     hb = oxd * ia + ozd * ib
                     qc = oxy2 * ia + oz2 * ib - 1.0
-                    if not (((qa * s + 2.0 * hb) * s + qc > 0.0) and ((qa * s_b + 2.0 * hb) * s_b + qc > 0.0)
-                            and not (qa * s < -hb and -hb < qa * s_b and hb * hb >= qa * qc)):
+                    if not (
+                        ((qa * s + 2.0 * hb) * s + qc > 0.0)
+                        and ((qa * s_b + 2.0 * hb) * s_b + qc > 0.0)
+                        and not (qa * s < -hb and -hb < qa * s_b and hb * hb >= qa * qc)
+                    ):
                         px = ox + s * dx
                         py = oy + s * dy
                         pz = oz + s * dz
@@ -1025,8 +1119,23 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                             n2y = (rb + h11) * cb * sl1
                             n2z = (rbb + h11) * sb
                             t1 = _tri(ox, oy, oz, dx, dy, dz, n0x, n0y, n0z, n1x, n1y, n1z, n2x, n2y, n2z)
-                            t2 = _tri(ox, oy, oz, dx, dy, dz, n0x, n0y, n0z, n2x, n2y, n2z,
-                                      (ra + h01) * ca * cl1, (ra + h01) * ca * sl1, (rba + h01) * sa)
+                            t2 = _tri(
+                                ox,
+                                oy,
+                                oz,
+                                dx,
+                                dy,
+                                dz,
+                                n0x,
+                                n0y,
+                                n0z,
+                                n2x,
+                                n2y,
+                                n2z,
+                                (ra + h01) * ca * cl1,
+                                (ra + h01) * ca * sl1,
+                                (rba + h01) * sa,
+                            )
                             if t1 < best or t2 < best:
                                 best = min(t1, t2, best)
                                 hit_i = i
@@ -1039,9 +1148,33 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
                                 g = nx * dx + ny * dy + nz * dz
                             lat_b, lon_b, h_b, nx, ny, nz = geodetic_up(ox + s_b * dx, oy + s_b * dy, oz + s_b * dz)
                             lon_b = _wrap(lon_b, lon_w)
-                            t1 = _bilinear_cell(ox, oy, oz, dx, dy, dz, s, s_b, lat, lon, h, g,
-                                                lat_b, lon_b, h_b, hgt[i, j], hgt[i, j + 1], hgt[i + 1, j],
-                                                hgt[i + 1, j + 1], i, j, lat_n, lon_w, dlat, dlon)
+                            t1 = _bilinear_cell(
+                                ox,
+                                oy,
+                                oz,
+                                dx,
+                                dy,
+                                dz,
+                                s,
+                                s_b,
+                                lat,
+                                lon,
+                                h,
+                                g,
+                                lat_b,
+                                lon_b,
+                                h_b,
+                                hgt[i, j],
+                                hgt[i, j + 1],
+                                hgt[i + 1, j],
+                                hgt[i + 1, j + 1],
+                                i,
+                                j,
+                                lat_n,
+                                lon_w,
+                                dlat,
+                                dlon,
+                            )
                             if t1 < best:
                                 best = t1
                                 hit_i = i
@@ -1145,16 +1278,23 @@ def _walk(o, d, order, h_top, h_floor, hgt, lon_col, cinv, binv, blk, hinv, hlev
             p_out[r, 0] = hx
             p_out[r, 1] = hy
             p_out[r, 2] = hz
-            la, lo, hh = _geodetic_near(hx, hy, hz, row_geo[hit_i, 4], row_geo[hit_i, 3],
-                                        row_geo[hit_i, 1], lon_col[hit_j], sin_col[hit_j], cos_col[hit_j])
+            la, lo, hh = _geodetic_near(
+                hx,
+                hy,
+                hz,
+                row_geo[hit_i, 4],
+                row_geo[hit_i, 3],
+                row_geo[hit_i, 1],
+                lon_col[hit_j],
+                sin_col[hit_j],
+                cos_col[hit_j],
+            )
             if la != la:
                 la, lo, hh, _, _, _ = geodetic_up(hx, hy, hz)
             geo_out[r, 0] = la
             geo_out[r, 1] = lo
             geo_out[r, 2] = hh
             geo_out[r, 3] = best
-
-
 
 
 def _variant(fn, name, climb, fixed_block, triangles):
@@ -1184,14 +1324,17 @@ def _variant(fn, name, climb, fixed_block, triangles):
 #: :func:`walk`'s ``triangles`` picks the kernel and is not passed to it.
 KERNELS = {
     (kind, model): cached_njit(KEY, error_model="numpy", fastmath={"contract"}, nogil=True)(
-        _variant(_walk, f"_walk_{kind}_{model}", kind == "climb", BLOCK if kind == "flat" else 0,
-                 model == "triangles"))
-    for kind in ("climb", "flat", "flat_block") for model in ("bilinear", "triangles")}
+        _variant(_walk, f"_walk_{kind}_{model}", kind == "climb", BLOCK if kind == "flat" else 0, model == "triangles")
+    )
+    for kind in ("climb", "flat", "flat_block")
+    for model in ("bilinear", "triangles")
+}
 
 
 def _kernel_for(hlev, block=BLOCK, triangles=False):
     kind = "climb" if np.shape(hlev)[0] > 0 else "flat" if int(block) == BLOCK else "flat_block"
     return KERNELS[kind, "triangles" if triangles else "bilinear"]
+
 
 # One signature per kernel. numba compiles a kernel once per distinct argument type, and
 # a read-only array is a type of its own: the origins and directions of a line-of-sight
@@ -1200,14 +1343,27 @@ def _kernel_for(hlev, block=BLOCK, triangles=False):
 # on a cold cache (16 s each). Inputs are therefore always passed as read-only, C-ordered
 # views of the dtype below (a view: no copy), scalars as Python floats / bool, and the
 # outputs are checked to be writable C-ordered arrays of the dtype the kernel fills.
-_IN = (("o", np.float64, 2), ("d", np.float64, 2), ("hgt", np.float64, 2), ("lon_col", np.float64, 1),
-       ("cinv", np.float32, 3), ("binv", np.float32, 3), ("hinv", np.float64, 2), ("hlev", np.int64, 2),
-       ("row_geo", np.float64, 2))
-_IN2 = (("tan_row", np.float64, 1), ("c_row", np.float64, 1), ("sin_col", np.float64, 1),
-        ("cos_col", np.float64, 1))
-_OUT = (("s_out", np.float64, 1), ("p_out", np.float64, 2), ("geo_out", np.float64, 2),
-        ("status", np.uint8, 1), ("ncell", np.int64, 1), ("trace_s", np.float64, 2),
-        ("trace_ij", np.int64, 3))
+_IN = (
+    ("o", np.float64, 2),
+    ("d", np.float64, 2),
+    ("hgt", np.float64, 2),
+    ("lon_col", np.float64, 1),
+    ("cinv", np.float32, 3),
+    ("binv", np.float32, 3),
+    ("hinv", np.float64, 2),
+    ("hlev", np.int64, 2),
+    ("row_geo", np.float64, 2),
+)
+_IN2 = (("tan_row", np.float64, 1), ("c_row", np.float64, 1), ("sin_col", np.float64, 1), ("cos_col", np.float64, 1))
+_OUT = (
+    ("s_out", np.float64, 1),
+    ("p_out", np.float64, 2),
+    ("geo_out", np.float64, 2),
+    ("status", np.uint8, 1),
+    ("ncell", np.int64, 1),
+    ("trace_s", np.float64, 2),
+    ("trace_ij", np.int64, 3),
+)
 
 
 #: The tables the kernel reads as float32 offsets from the floor's ellipsoid
@@ -1217,12 +1373,19 @@ _OFFSET_TABLES = ("cinv", "binv")
 
 
 def _readonly(name, a, dtype, ndim):
-    if (isinstance(a, np.ndarray) and a.dtype == dtype and a.ndim == ndim and not a.flags.writeable
-            and a.flags.c_contiguous):
+    if (
+        isinstance(a, np.ndarray)
+        and a.dtype == dtype
+        and a.ndim == ndim
+        and not a.flags.writeable
+        and a.flags.c_contiguous
+    ):
         return a  # already the kernel's form (the tables of terrain._exact_tables are kept so)
     if name in _OFFSET_TABLES and np.asarray(a).dtype != dtype:
-        raise ValueError(f"walk: {name} must be float32 offsets from the floor's ellipsoid "
-                         f"(geoloc.surfaces.terrain._offsets32), got dtype {np.asarray(a).dtype}")
+        raise ValueError(
+            f"walk: {name} must be float32 offsets from the floor's ellipsoid "
+            f"(geoloc.surfaces.terrain._offsets32), got dtype {np.asarray(a).dtype}"
+        )
     a = np.ascontiguousarray(a, dtype=dtype)
     if a.ndim != ndim:
         raise ValueError(f"walk: {name} must have {ndim} dimensions, got shape {a.shape}")
@@ -1232,10 +1395,12 @@ def _readonly(name, a, dtype, ndim):
 
 
 def _output(name, a, dtype, ndim):
-    if not (isinstance(a, np.ndarray) and a.dtype == dtype and a.ndim == ndim
-            and a.flags.c_contiguous and a.flags.writeable):
-        raise ValueError(f"walk: {name} must be a writable C-ordered {np.dtype(dtype).name} array "
-                         f"with {ndim} dimensions")
+    if not (
+        isinstance(a, np.ndarray) and a.dtype == dtype and a.ndim == ndim and a.flags.c_contiguous and a.flags.writeable
+    ):
+        raise ValueError(
+            f"walk: {name} must be a writable C-ordered {np.dtype(dtype).name} array with {ndim} dimensions"
+        )
     return a
 
 
@@ -1246,18 +1411,40 @@ def _order(order, n):
         return np.arange(n, dtype=np.int64)
     order = np.ascontiguousarray(order, dtype=np.int64)
     if order.ndim != 1 or (len(order) and (order.min() < 0 or order.max() >= n)):
-        raise ValueError(f"walk: order must list ray indices in [0, {n}), got shape {order.shape}"
-                         + (f" and values {order.min()}..{order.max()}" if order.ndim == 1 and len(order) else ""))
+        raise ValueError(
+            f"walk: order must list ray indices in [0, {n}), got shape {order.shape}"
+            + (f" and values {order.min()}..{order.max()}" if order.ndim == 1 and len(order) else "")
+        )
     return order
 
 
 def _prepare(args, order=None, order_checked=False, block=BLOCK):
     """(kernel, its arguments, the order, the DEM's rows + columns): ``args`` checked and put in the
     kernel's form (:data:`_IN`, :data:`_OUT`), the kernel picked (:func:`_kernel_for`)."""
-    (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
-     tan_row, c_row, sin_col, cos_col, triangles, *outs) = args
-    ins = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN, (o, d, hgt, lon_col, cinv, binv, hinv, hlev,
-                                                               row_geo))]
+    (
+        o,
+        d,
+        h_top,
+        h_floor,
+        hgt,
+        lon_col,
+        cinv,
+        binv,
+        hinv,
+        hlev,
+        row_geo,
+        lat_n,
+        lon_w,
+        dlat,
+        dlon,
+        tan_row,
+        c_row,
+        sin_col,
+        cos_col,
+        triangles,
+        *outs,
+    ) = args
+    ins = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN, (o, d, hgt, lon_col, cinv, binv, hinv, hlev, row_geo))]
     ins2 = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN2, (tan_row, c_row, sin_col, cos_col))]
     outs = [_output(n, a, t, k) for (n, t, k), a in zip(_OUT, outs)]
     o, d, hgt, lon_col, cinv, binv, hinv, hlev, row_geo = ins
@@ -1268,17 +1455,40 @@ def _prepare(args, order=None, order_checked=False, block=BLOCK):
             raise ValueError(f"walk: {name} has {len(a)} rows for {len(o)} rays")
     block = int(block)
     if max(hgt.shape) >= 1 << 24 or not 1 <= block <= 16:
-        raise ValueError(f"walk: a grid of {hgt.shape[0]} x {hgt.shape[1]} nodes with blocks of {block} cells: "
-                         "the walk takes fewer than 2^24 rows and columns and blocks of 1 to 16 cells")
+        raise ValueError(
+            f"walk: a grid of {hgt.shape[0]} x {hgt.shape[1]} nodes with blocks of {block} cells: "
+            "the walk takes fewer than 2^24 rows and columns and blocks of 1 to 16 cells"
+        )
     want = (-(-(hgt.shape[0] - 1) // block), -(-(hgt.shape[1] - 1) // block))
     if binv.shape[:2] != want:
         # a block table made for another side would be read at the wrong blocks: refused
-        raise ValueError(f"walk: binv has {binv.shape[0]} x {binv.shape[1]} blocks, but block = {block} "
-                         f"on {hgt.shape[0]} x {hgt.shape[1]} nodes needs {want}: pass the block side the "
-                         "tables were made with (geoloc.surfaces.terrain._exact_tables: 'block')")
+        raise ValueError(
+            f"walk: binv has {binv.shape[0]} x {binv.shape[1]} blocks, but block = {block} "
+            f"on {hgt.shape[0]} x {hgt.shape[1]} nodes needs {want}: pass the block side the "
+            "tables were made with (geoloc.surfaces.terrain._exact_tables: 'block')"
+        )
     kernel = _kernel_for(hlev, block, triangles)
-    kargs = (o, d, order, float(h_top), float(h_floor), hgt, lon_col, cinv, binv, block, hinv, hlev, row_geo,
-             float(lat_n), float(lon_w), float(dlat), float(dlon), *ins2, *outs)
+    kargs = (
+        o,
+        d,
+        order,
+        float(h_top),
+        float(h_floor),
+        hgt,
+        lon_col,
+        cinv,
+        binv,
+        block,
+        hinv,
+        hlev,
+        row_geo,
+        float(lat_n),
+        float(lon_w),
+        float(dlat),
+        float(dlon),
+        *ins2,
+        *outs,
+    )
     return kernel, kargs, order, hgt.shape[0] + hgt.shape[1]
 
 
@@ -1381,7 +1591,7 @@ def _python_prefix(kernel, kargs, order, nodes) -> int:
     run = _python_walk(kernel)
     done, steps = 0, 0
     while done < n:
-        sub = order[done:done + chunk]
+        sub = order[done : done + chunk]
         kept = [a[sub].copy() for a in outs]  # status is read too: restored if the kernel must redo them
         try:
             with np.errstate(all="ignore"):
@@ -1424,23 +1634,110 @@ def _no_prefetch(arr, i, j):
     return None
 
 
-def walk(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
-         tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
-         trace_s, trace_ij, order=None, block=BLOCK):
+def walk(
+    o,
+    d,
+    h_top,
+    h_floor,
+    hgt,
+    lon_col,
+    cinv,
+    binv,
+    hinv,
+    hlev,
+    row_geo,
+    lat_n,
+    lon_w,
+    dlat,
+    dlon,
+    tan_row,
+    c_row,
+    sin_col,
+    cos_col,
+    triangles,
+    s_out,
+    p_out,
+    geo_out,
+    status,
+    ncell,
+    trace_s,
+    trace_ij,
+    order=None,
+    block=BLOCK,
+):
     """The exact first hit for each ray, serial: :func:`_walk` (its docstring) compiled once
     for the cell model (``triangles``) and the climb; a flat walk of :data:`KERNELS` when ``hlev``
     is empty (no levels above the blocks to climb).
     ``order``: the rays to walk, in that order (default: all, in turn; :func:`ray_order`).
     ``block``: the cells per side of the blocks ``binv`` and ``hinv`` were made for (checked
     against ``binv``'s shape)."""
-    _call((o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
-           tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell, trace_s, trace_ij),
-          order, block=block)
+    _call(
+        (
+            o,
+            d,
+            h_top,
+            h_floor,
+            hgt,
+            lon_col,
+            cinv,
+            binv,
+            hinv,
+            hlev,
+            row_geo,
+            lat_n,
+            lon_w,
+            dlat,
+            dlon,
+            tan_row,
+            c_row,
+            sin_col,
+            cos_col,
+            triangles,
+            s_out,
+            p_out,
+            geo_out,
+            status,
+            ncell,
+            trace_s,
+            trace_ij,
+        ),
+        order,
+        block=block,
+    )
 
 
-def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat,
-                  dlon, tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell,
-                  trace_s, trace_ij, threads=None, order=None, block=BLOCK):
+def walk_parallel(
+    o,
+    d,
+    h_top,
+    h_floor,
+    hgt,
+    lon_col,
+    cinv,
+    binv,
+    hinv,
+    hlev,
+    row_geo,
+    lat_n,
+    lon_w,
+    dlat,
+    dlon,
+    tan_row,
+    c_row,
+    sin_col,
+    cos_col,
+    triangles,
+    s_out,
+    p_out,
+    geo_out,
+    status,
+    ncell,
+    trace_s,
+    trace_ij,
+    threads=None,
+    order=None,
+    block=BLOCK,
+):
     """As :func:`walk`, the rays spread over all cores; identical results (each ray is walked alone).
 
     The serial kernel runs on contiguous slices of the order in threads (it releases the
@@ -1453,11 +1750,38 @@ def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, ro
     import numba
 
     order = _order(order, len(o))
-    args = (o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, row_geo, lat_n, lon_w, dlat, dlon,
-            tan_row, c_row, sin_col, cos_col, triangles, s_out, p_out, geo_out, status, ncell, trace_s, trace_ij)
+    args = (
+        o,
+        d,
+        h_top,
+        h_floor,
+        hgt,
+        lon_col,
+        cinv,
+        binv,
+        hinv,
+        hlev,
+        row_geo,
+        lat_n,
+        lon_w,
+        dlat,
+        dlon,
+        tan_row,
+        c_row,
+        sin_col,
+        cos_col,
+        triangles,
+        s_out,
+        p_out,
+        geo_out,
+        status,
+        ncell,
+        trace_s,
+        trace_ij,
+    )
     # the uncompiled start decided once for the whole call, as the serial walk decides it (the same
     # rays walked uncompiled whatever the thread count); the threads share the compiled rest
-    order = order[_python_start(args, order, block):]
+    order = order[_python_start(args, order, block) :]
     n = len(order)
     k = max(1, min(int(threads or numba.config.NUMBA_NUM_THREADS), n // 256 or 1))
     cuts = np.linspace(0, n, k + 1).astype(int)
@@ -1471,7 +1795,6 @@ def walk_parallel(o, d, h_top, h_floor, hgt, lon_col, cinv, binv, hinv, hlev, ro
     with ThreadPoolExecutor(k) as pool:
         for f in [pool.submit(part, a, b) for a, b in zip(cuts[:-1], cuts[1:])]:
             f.result()
-
 
 
 @cached_njit(KEY, error_model="numpy", fastmath={"contract"})
@@ -1525,8 +1848,19 @@ def ray_order(o, d, h_mid, lat_n, lon_w, dlat, dlon, tile_cells, nt):
     o = np.ascontiguousarray(o, dtype=np.float64)
     d = np.ascontiguousarray(d, dtype=np.float64)
     keys = np.empty(len(o), dtype=np.int64)
-    _tile_keys(o, d, 1.0 / (A + h_mid) ** 2, 1.0 / (B + h_mid) ** 2, math.tan(lat_n), math.sin(lon_w),
-               math.cos(lon_w), float(dlat * tile_cells), float(dlon * tile_cells), int(nt), keys)
+    _tile_keys(
+        o,
+        d,
+        1.0 / (A + h_mid) ** 2,
+        1.0 / (B + h_mid) ** 2,
+        math.tan(lat_n),
+        math.sin(lon_w),
+        math.cos(lon_w),
+        float(dlat * tile_cells),
+        float(dlon * tile_cells),
+        int(nt),
+        keys,
+    )
     # keys < nt^2 <= 65536 for the tile sizes used: a 16-bit stable sort is a radix sort
     kt = np.uint16 if nt * nt <= 65536 else np.int64
     return np.argsort(keys.astype(kt), kind="stable").astype(np.int64)

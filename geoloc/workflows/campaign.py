@@ -93,8 +93,9 @@ class CampaignConfig:
 
     def __post_init__(self):
         if not isinstance(self.surface, SurfaceSpec):
-            raise TypeError(f"CampaignConfig.surface must be a geoloc.surfaces.spec.SurfaceSpec, got "
-                            f"{type(self.surface).__name__}")
+            raise TypeError(
+                f"CampaignConfig.surface must be a geoloc.surfaces.spec.SurfaceSpec, got {type(self.surface).__name__}"
+            )
 
 
 @dataclass
@@ -148,11 +149,14 @@ class CampaignResult:
         return pa.concat_tables(parts, promote_options="permissive") if parts else pa.table({})
 
     def summary(self) -> str:
-        lines = [f"campaign ({self.kind}): {len(self.units)} unit(s), {self.rows} rows, "
-                 f"{len(self.failed)} failed; Parquet parts in {self.out_dir}"]
+        lines = [
+            f"campaign ({self.kind}): {len(self.units)} unit(s), {self.rows} rows, "
+            f"{len(self.failed)} failed; Parquet parts in {self.out_dir}"
+        ]
         if np.isfinite(self.wall_s) and self.wall_s > 0:
-            lines.append(f"wall {self.wall_s:.2f} s, unit CPU {self.cpu_s:.2f} s, "
-                         f"{self.rows / self.wall_s:,.0f} rows/s")
+            lines.append(
+                f"wall {self.wall_s:.2f} s, unit CPU {self.cpu_s:.2f} s, {self.rows / self.wall_s:,.0f} rows/s"
+            )
         return "\n".join(lines)
 
 
@@ -204,11 +208,14 @@ def campaign_units(inputs, photos_per_unit: int = PHOTOS_PER_UNIT, exclude=()):
     if not kinds:
         raise ValueError("campaign: no KLV, photo or records file among the inputs")
     if len(kinds) > 1:
-        raise ValueError("campaign inputs of different kinds: " + "; ".join(
-            f"{k}: {v[0]} (+{len(v) - 1})" for k, v in kinds.items()) + "; run one kind at a time")
-    (kind, paths), = kinds.items()
+        raise ValueError(
+            "campaign inputs of different kinds: "
+            + "; ".join(f"{k}: {v[0]} (+{len(v) - 1})" for k, v in kinds.items())
+            + "; run one kind at a time"
+        )
+    ((kind, paths),) = kinds.items()
     if kind == "photos":
-        units = [paths[i: i + photos_per_unit] for i in range(0, len(paths), photos_per_unit)]
+        units = [paths[i : i + photos_per_unit] for i in range(0, len(paths), photos_per_unit)]
     else:
         units = paths
     return kind, units, notes
@@ -246,8 +253,9 @@ WORKER_TRIM_THRESHOLD = 64 * 2**20  # twice that, as glibc's dynamic rule sets i
 _MALLOC = {"tuned": None}  # per process: None (not looked at), True (mallopt done), False (left alone)
 
 
-def set_malloc_thresholds(mmap_threshold: int = WORKER_MMAP_THRESHOLD,
-                          trim_threshold: int = WORKER_TRIM_THRESHOLD) -> bool:
+def set_malloc_thresholds(
+    mmap_threshold: int = WORKER_MMAP_THRESHOLD, trim_threshold: int = WORKER_TRIM_THRESHOLD
+) -> bool:
     """Set this process's glibc malloc mmap and trim thresholds (``mallopt(3)``).
 
     Parameters
@@ -273,8 +281,7 @@ def set_malloc_thresholds(mmap_threshold: int = WORKER_MMAP_THRESHOLD,
     except (OSError, AttributeError):  # musl and others: no mallopt
         return False
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    return bool(mallopt(M_MMAP_THRESHOLD, int(mmap_threshold))) and bool(mallopt(M_TRIM_THRESHOLD,
-                                                                                  int(trim_threshold)))
+    return bool(mallopt(M_MMAP_THRESHOLD, int(mmap_threshold))) and bool(mallopt(M_TRIM_THRESHOLD, int(trim_threshold)))
 
 
 def tune_worker_malloc() -> bool:
@@ -328,13 +335,20 @@ def _dictionary_columns(table) -> list:
     status), not floats (pyarrow would try, then fall back: 3x the write time of a records part)."""
     import pyarrow as pa
 
-    return [f.name for f in table.schema
-            if pa.types.is_dictionary(f.type) or pa.types.is_string(f.type) or pa.types.is_large_string(f.type)
-            or pa.types.is_boolean(f.type) or (pa.types.is_integer(f.type) and f.type.bit_width <= 16)]
+    return [
+        f.name
+        for f in table.schema
+        if pa.types.is_dictionary(f.type)
+        or pa.types.is_string(f.type)
+        or pa.types.is_large_string(f.type)
+        or pa.types.is_boolean(f.type)
+        or (pa.types.is_integer(f.type) and f.type.bit_width <= 16)
+    ]
 
 
-def run_unit(index: int, unit, kind: str, cfg: CampaignConfig, out_dir: str,
-             numba_threads: int | None = None) -> UnitResult:
+def run_unit(
+    index: int, unit, kind: str, cfg: CampaignConfig, out_dir: str, numba_threads: int | None = None
+) -> UnitResult:
     """Replay one unit and write its rows to ``out_dir/part-<index>.parquet``; never raises for a bad unit.
 
     ``numba_threads``: the threads this unit's parallel kernels may use (numba's setting
@@ -363,15 +377,31 @@ def _run_unit(index, unit, kind, cfg, out_dir) -> UnitResult:
     try:
         table, messages = {"records": _records_unit, "klv": _klv_unit, "photos": _photos_unit}[kind](unit, cfg)
     except Exception as e:  # a bad unit is reported and the campaign goes on
-        return UnitResult(index, source, None, 0, [f"{source}: failed: {type(e).__name__}: {e}"], True,
-                          time.thread_time() - c0, _threads_now())
+        return UnitResult(
+            index,
+            source,
+            None,
+            0,
+            [f"{source}: failed: {type(e).__name__}: {e}"],
+            True,
+            time.thread_time() - c0,
+            _threads_now(),
+        )
     part = None
     if table.num_rows:
         part = str(Path(out_dir) / f"part-{index:05d}.parquet")
         with atomic_path(part) as tmp:  # a part is whole or absent: an interrupted campaign resumes cleanly
             pq.write_table(table, tmp, use_dictionary=_dictionary_columns(table))
-    return UnitResult(index, source, part, table.num_rows, messages, table.num_rows == 0 and kind == "klv",
-                      time.thread_time() - c0, _threads_now())
+    return UnitResult(
+        index,
+        source,
+        part,
+        table.num_rows,
+        messages,
+        table.num_rows == 0 and kind == "klv",
+        time.thread_time() - c0,
+        _threads_now(),
+    )
 
 
 def _threads_now() -> int:
@@ -422,8 +452,9 @@ def _records_unit(path: str, cfg: CampaignConfig):
     from geoloc.assets import DEFAULT_CAMERA, asset_path
     from geoloc.sensors.sensor_file import load_sensor
 
-    sensor = _sensor(cfg) if cfg.sensor else _cached(
-        ("sensor", "default"), lambda: load_sensor(asset_path(*DEFAULT_CAMERA)))
+    sensor = (
+        _sensor(cfg) if cfg.sensor else _cached(("sensor", "default"), lambda: load_sensor(asset_path(*DEFAULT_CAMERA)))
+    )
     table = _read_table(path)
     n = table.num_rows
     req = required_columns(sensor.angle_names)
@@ -435,8 +466,10 @@ def _records_unit(path: str, cfg: CampaignConfig):
         b = ~(np.isfinite(v) & (v >= lo) & (v <= hi))
         if b.any():
             i = int(np.flatnonzero(b)[0])
-            messages.append(f"{path}: {int(b.sum())} row(s) with {k} missing or outside [{lo:g}, {hi:g}], "
-                            f"first row {i} ({k} = {v[i]!r}): status invalid_input")
+            messages.append(
+                f"{path}: {int(b.sum())} row(s) with {k} missing or outside [{lo:g}, {hi:g}], "
+                f"first row {i} ({k} = {v[i]!r}): status invalid_input"
+            )
             bad |= b
     h_ac = cols["ac_h_m"]
     if cfg.altitude_datum == "egm96":
@@ -448,35 +481,58 @@ def _records_unit(path: str, cfg: CampaignConfig):
     clean = {k: np.where(bad, 0.0, v) for k, v in cols.items()}  # bad rows: a harmless pose, flagged below
     q17 = {a: clean[f"{a}_deg"] for a in Q17_ANGLES if f"{a}_deg" in clean}
     other = {a: clean[f"{a}_deg"] for a in sensor.angle_names if a not in Q17_ANGLES}
-    pose = Pose.from_deg(clean["ac_lat_deg"], clean["ac_lon_deg"], np.where(bad, 0.0, h_ac), clean["heading_deg"],
-                         clean["pitch_deg"], clean["roll_deg"], q17.get("gimbal_roll", 0.0),
-                         q17.get("gimbal_pitch", 0.0), angles_deg=other)
+    pose = Pose.from_deg(
+        clean["ac_lat_deg"],
+        clean["ac_lon_deg"],
+        np.where(bad, 0.0, h_ac),
+        clean["heading_deg"],
+        clean["pitch_deg"],
+        clean["roll_deg"],
+        q17.get("gimbal_roll", 0.0),
+        q17.get("gimbal_pitch", 0.0),
+        angles_deg=other,
+    )
     los = line_of_sight(pose, sensor, clean["row"], clean["col"], outside="extrapolate")
     spec = cfg.surface
     if spec.dem is None and spec.height_column is None and spec.target_h_m is None:
         raise ValueError("records need a DEM, a height column or a target height")
-    surf = (_dem_surface(cfg) if spec.dem is not None else spec.build(_column(table, spec.height_column, path))
-            if spec.height_column is not None else _cached(("surface", spec), spec.build))
+    surf = (
+        _dem_surface(cfg)
+        if spec.dem is not None
+        else spec.build(_column(table, spec.height_column, path))
+        if spec.height_column is not None
+        else _cached(("surface", spec), spec.build)
+    )
     dem = terrain_of(surf)
     hit = Pipeline(sensor, surf, cfg.corrections).intersect(los)
     status = np.asarray(hit.status, np.uint8).copy()
     off = ~sensor.in_image(clean["row"], clean["col"]) & (status == Status.OK)
     status[off] = Status.OUTSIDE_SENSOR  # located by extending the lens model, flagged (as geoloc replay)
     if off.any():
-        messages.append(f"{path}: {int(off.sum())} row(s) with the pixel off the sensor, first row "
-                        f"{int(np.flatnonzero(off)[0])}: located by extending the lens model, status outside_sensor")
+        messages.append(
+            f"{path}: {int(off.sum())} row(s) with the pixel off the sensor, first row "
+            f"{int(np.flatnonzero(off)[0])}: located by extending the lens model, status outside_sensor"
+        )
     status[bad] = Status.INVALID_INPUT
     messages += _drone_height_messages(path, table, sensor, dem, cols, h_ac, np.asarray(hit.h, float), bad)
     nan = lambda a: np.where(bad, np.nan, np.asarray(a, float))  # noqa: E731
     lat, lon = nan(hit.lat_deg), nan(hit.lon_deg)
-    out = {"source": _constant_column(Path(path).name, n),
-           "row_index": np.arange(n, dtype=np.int64), "lat_deg": lat, "lon_deg": lon, "h_m": nan(hit.h),
-           "h_datum": _constant_column("ellipsoid (WGS 84)", n),
-           "slant_range_m": nan(hit.slant_range), "status": status,
-           "corrections": _constant_column(cfg.corrections.label, n), "refraction_m": nan(hit.refraction_m)}
+    out = {
+        "source": _constant_column(Path(path).name, n),
+        "row_index": np.arange(n, dtype=np.int64),
+        "lat_deg": lat,
+        "lon_deg": lon,
+        "h_m": nan(hit.h),
+        "h_datum": _constant_column("ellipsoid (WGS 84)", n),
+        "slant_range_m": nan(hit.slant_range),
+        "status": status,
+        "corrections": _constant_column(cfg.corrections.label, n),
+        "refraction_m": nan(hit.refraction_m),
+    }
     if "truth_lat_deg" in table.column_names and "truth_lon_deg" in table.column_names:
-        out["error_to_truth_m"] = horizontal_distance_m(lat, lon, _column(table, "truth_lat_deg", path),
-                                                        _column(table, "truth_lon_deg", path))
+        out["error_to_truth_m"] = horizontal_distance_m(
+            lat, lon, _column(table, "truth_lat_deg", path), _column(table, "truth_lon_deg", path)
+        )
     arrays = {k: pa.array(v) if isinstance(v, np.ndarray) else v for k, v in out.items()}
     if not cfg.carry_columns:
         return pa.table(arrays), messages
@@ -489,8 +545,14 @@ def _records_unit(path: str, cfg: CampaignConfig):
 def _drone_height_messages(path, table, sensor, dem, cols, h_ac, hit_h, bad) -> list:
     """The records' drone check (``geoloc replay``'s, docs/records.md "Plausibility checks") for
     one unit: a count and the first row, as the unit's other messages; the rows run as read."""
-    from geoloc.sensors.platform import (DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint, drone_height_where,
-                                         drone_too_high, is_drone)
+    from geoloc.sensors.platform import (
+        DRONE_CEILING_M,
+        DRONE_MAX_HEIGHT_M,
+        drone_height_hint,
+        drone_height_where,
+        drone_too_high,
+        is_drone,
+    )
 
     default = is_drone(getattr(sensor, "platform", ""))
     if "platform" in table.column_names:
@@ -510,9 +572,11 @@ def _drone_height_messages(path, table, sensor, dem, cols, h_ac, hit_h, bad) -> 
     v, known = float(cols["ac_h_m"][i]), bool(np.isfinite(ref[i]))
     where = drone_height_where(h_ac[i], ref[i], what[i])
     hint = drone_height_hint(v, ref[i] - (h_ac[i] - v) if known else None)
-    return [f"{path}: warning: {int(high.sum())} row(s) of a drone more than {DRONE_MAX_HEIGHT_M:.0f} m above the "
-            f"terrain or target (or {DRONE_CEILING_M:.0f} m), first row {i} (ac_h_m = {v:g}: {where}): {hint}; "
-            "used as read"]
+    return [
+        f"{path}: warning: {int(high.sum())} row(s) of a drone more than {DRONE_MAX_HEIGHT_M:.0f} m above the "
+        f"terrain or target (or {DRONE_CEILING_M:.0f} m), first row {i} (ac_h_m = {v:g}: {where}): {hint}; "
+        "used as read"
+    ]
 
 
 def _arrow_columns(columns: dict, source: str):
@@ -523,8 +587,9 @@ def _arrow_columns(columns: dict, source: str):
     for k, v in columns.items():
         a = np.asarray(v)
         if a.dtype.kind == "O":
-            out[k] = pa.array([None if x is None or (isinstance(x, float) and x != x) else str(x) for x in a],
-                              pa.string())
+            out[k] = pa.array(
+                [None if x is None or (isinstance(x, float) and x != x) else str(x) for x in a], pa.string()
+            )
         else:
             out[k] = pa.array(a)
     return pa.table(out)
@@ -552,9 +617,14 @@ def _photos_unit(paths, cfg: CampaignConfig):
 
     if cfg.targets is None:
         raise ValueError("drone photos need a targets file (targets=, --targets T.csv)")
-    rows, messages = replay_photos(list(paths), cfg.targets, sensor=_sensor(cfg),
-                                   surface=_dem_surface(cfg, whole=True),
-                                   altitude_datum=cfg.altitude_datum, corrections=cfg.corrections)
+    rows, messages = replay_photos(
+        list(paths),
+        cfg.targets,
+        sensor=_sensor(cfg),
+        surface=_dem_surface(cfg, whole=True),
+        altitude_datum=cfg.altitude_datum,
+        corrections=cfg.corrections,
+    )
     # targets of the campaign's other photo units are not this unit's business
     messages = [m for m in messages if "is not among the photos given" not in m]
     if not rows:
@@ -602,9 +672,14 @@ def local_cluster(workers: int = 2, threads_per_worker: int = 1, processes: bool
         raise ValueError(f"threads_per_worker must be a positive integer, got {threads_per_worker!r}")
     net = {"host": "127.0.0.1"} if processes else {}
     with dask.config.set({"distributed.worker.profile.enabled": False}):  # the workers take this config along
-        return LocalCluster(n_workers=int(workers), threads_per_worker=int(threads_per_worker),
-                            processes=bool(processes), dashboard_address="127.0.0.1:0",
-                            worker_dashboard_address="127.0.0.1:0", **net)
+        return LocalCluster(
+            n_workers=int(workers),
+            threads_per_worker=int(threads_per_worker),
+            processes=bool(processes),
+            dashboard_address="127.0.0.1:0",
+            worker_dashboard_address="127.0.0.1:0",
+            **net,
+        )
 
 
 def worker_numba_threads(workers: int, threads_per_worker: int = 1) -> int:
@@ -621,10 +696,19 @@ def worker_numba_threads(workers: int, threads_per_worker: int = 1) -> int:
     return max(1, cores // (int(workers) * int(threads_per_worker)))
 
 
-def run_campaign(inputs, out_dir, config: CampaignConfig | None = None, *, scheduler: str = "local",
-                 workers: int = 2, processes: bool = True, threads_per_worker: int = 1,
-                 photos_per_unit: int = PHOTOS_PER_UNIT, on_unit=None,
-                 numba_threads: int | str | None = "auto") -> CampaignResult:
+def run_campaign(
+    inputs,
+    out_dir,
+    config: CampaignConfig | None = None,
+    *,
+    scheduler: str = "local",
+    workers: int = 2,
+    processes: bool = True,
+    threads_per_worker: int = 1,
+    photos_per_unit: int = PHOTOS_PER_UNIT,
+    on_unit=None,
+    numba_threads: int | str | None = "auto",
+) -> CampaignResult:
     """Replay every unit of ``inputs`` (files or folders) and write Parquet parts to ``out_dir``.
 
     Parameters
@@ -660,8 +744,10 @@ def run_campaign(inputs, out_dir, config: CampaignConfig | None = None, *, sched
     out.mkdir(parents=True, exist_ok=True)
     old = sorted(out.glob("part-*.parquet"))
     if old:
-        raise ValueError(f"--parquet-out {out} already holds {len(old)} part file(s) ({old[0].name}, ...): "
-                         "give an empty or new folder")
+        raise ValueError(
+            f"--parquet-out {out} already holds {len(old)} part file(s) ({old[0].name}, ...): "
+            "give an empty or new folder"
+        )
     if not (isinstance(workers, (int, np.integer)) and workers >= 1):
         raise ValueError(f"workers must be a positive integer, got {workers!r}")
     if isinstance(numba_threads, str) and numba_threads == "auto":
@@ -692,8 +778,10 @@ def run_campaign(inputs, out_dir, config: CampaignConfig | None = None, *, sched
         else:
             client = Client(scheduler)
         try:
-            futs = [client.submit(run_unit, k, u, kind, cfg, str(out.resolve()), numba_threads, pure=False,
-                                  key=f"unit-{k}") for k, u in enumerate(units)]
+            futs = [
+                client.submit(run_unit, k, u, kind, cfg, str(out.resolve()), numba_threads, pure=False, key=f"unit-{k}")
+                for k, u in enumerate(units)
+            ]
             for f in as_completed(futs):
                 done(f.result())
         finally:

@@ -156,12 +156,24 @@ class FlightScenario:
             v = mc.get(key, 200 if key == "samples" else 0)
             if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
                 raise ValueError(f"{source} [montecarlo] {key} = {v!r}: must be an integer in [{lo}, {hi}]")
-        _no_unknown(ac, {"start_lat_deg", "start_lon_deg", "h_m", "heading_deg", "speed_m_s",
-                         "pitch_deg", "roll_deg", "roll_amplitude_deg", "roll_period_s"}, f"{source} [aircraft]")
+        _no_unknown(
+            ac,
+            {
+                "start_lat_deg",
+                "start_lon_deg",
+                "h_m",
+                "heading_deg",
+                "speed_m_s",
+                "pitch_deg",
+                "roll_deg",
+                "roll_amplitude_deg",
+                "roll_period_s",
+            },
+            f"{source} [aircraft]",
+        )
         _no_unknown(tm, {"duration_s", "rate_hz"}, f"{source} [time]")
         _no_unknown(sc, {"outer_min_deg", "outer_max_deg", "period_s", "side", "inner_deg"}, f"{source} [scan]")
-        _no_unknown(te, {"target_h_m", "dem", "dem_datum", "method", "eps_h_m", "threshold_m"},
-                    f"{source} [terrain]")
+        _no_unknown(te, {"target_h_m", "dem", "dem_datum", "method", "eps_h_m", "threshold_m"}, f"{source} [terrain]")
         _no_unknown(px, {"row", "col"}, f"{source} [pixel]")
 
         def num(tab, key, lo, hi, default=None, section=""):
@@ -229,8 +241,9 @@ class FlightScenario:
             mc_seed=int(mc.get("seed", 0)) if mc else 0,
         )
         if scn.outer_max_deg < scn.outer_min_deg:
-            raise ValueError(f"{source} [scan] outer_max_deg = {scn.outer_max_deg!r}: "
-                             f"below outer_min_deg = {scn.outer_min_deg!r}")
+            raise ValueError(
+                f"{source} [scan] outer_max_deg = {scn.outer_max_deg!r}: below outer_min_deg = {scn.outer_min_deg!r}"
+            )
         n = scn.n_steps
         if n > 1_000_000:
             raise ValueError(f"{source} [time]: duration_s x rate_hz gives {n} steps (limit 1 000 000)")
@@ -310,15 +323,17 @@ def simulate(scn: FlightScenario) -> FlightTrack:
     """
     n = scn.n_steps
     t = np.arange(n, dtype=float) / scn.rate_hz
-    lon, lat, back_az = _GEOD.fwd(np.full(n, scn.start_lon_deg), np.full(n, scn.start_lat_deg),
-                                  np.full(n, scn.heading_deg), scn.speed_m_s * t)
+    lon, lat, back_az = _GEOD.fwd(
+        np.full(n, scn.start_lon_deg), np.full(n, scn.start_lat_deg), np.full(n, scn.heading_deg), scn.speed_m_s * t
+    )
     lon, lat = np.asarray(lon, float), np.asarray(lat, float)
     heading = np.mod(np.asarray(back_az, float) + 180.0 + 180.0, 360.0) - 180.0  # (-180, 180]
     roll = scn.roll_deg + scn.roll_amplitude_deg * np.sin(2 * np.pi * t / scn.roll_period_s)
     sign = 1.0 if scn.side == "left" else -1.0
     outer = sign * whisk_broom(t, scn.outer_min_deg, scn.outer_max_deg, scn.scan_period_s)
-    pose = Pose.from_deg(lat, lon, np.full(n, scn.h_m), heading, np.full(n, scn.pitch_deg), roll,
-                         outer, np.full(n, scn.inner_deg))
+    pose = Pose.from_deg(
+        lat, lon, np.full(n, scn.h_m), heading, np.full(n, scn.pitch_deg), roll, outer, np.full(n, scn.inner_deg)
+    )
     return FlightTrack(t, pose)
 
 
@@ -352,9 +367,16 @@ def step_cep(track: FlightTrack, model, target_h_m: float, n: int, rng: np.rando
 
     p = track.pose
     d = np.rad2deg
-    fields_deg = {"lat_deg": d(p.lat), "lon_deg": d(p.lon), "h_m": p.h, "heading_deg": d(p.heading),
-                  "pitch_deg": d(p.pitch), "roll_deg": d(p.roll), "gimbal_roll_deg": d(p.gimbal_roll),
-                  "gimbal_pitch_deg": d(p.gimbal_pitch)}
+    fields_deg = {
+        "lat_deg": d(p.lat),
+        "lon_deg": d(p.lon),
+        "h_m": p.h,
+        "heading_deg": d(p.heading),
+        "pitch_deg": d(p.pitch),
+        "roll_deg": d(p.roll),
+        "gimbal_roll_deg": d(p.gimbal_roll),
+        "gimbal_pitch_deg": d(p.gimbal_pitch),
+    }
     m = len(track)
     arrays = {k: np.broadcast_to(np.asarray(v, float), (m,)) for k, v in fields_deg.items()}
     base = replace(model.without_dem(), target_h_m=float(target_h_m))

@@ -42,20 +42,37 @@ from pathlib import Path
 import numpy as np
 
 from geoloc.geodesy.geoid import egm96_undulation
-from geoloc.io.klv import (TAG_BY_NAME, UAS_LS_KEY, KlvError, add_items, encode_value, is_container_file,
-                          iter_packets, local_set_items, replace_values)
+from geoloc.io.klv import (
+    TAG_BY_NAME,
+    UAS_LS_KEY,
+    KlvError,
+    add_items,
+    encode_value,
+    is_container_file,
+    iter_packets,
+    local_set_items,
+    replace_values,
+)
 from geoloc.status import Status, describe
 from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, read_klv, replay_klv
 from geoloc.extras import require
 from geoloc.pipeline import NO_CORRECTIONS, Corrections
 
 #: The items rewritten: tag -> field name.
-CENTRE_TAGS = {23: "frame_center_latitude_deg", 24: "frame_center_longitude_deg",
-               25: "frame_center_elevation_m", 78: "frame_center_hae_m"}
-OFFSET_CORNER_TAGS = {26 + 2 * j + a: f"offset_corner_{'latitude' if a == 0 else 'longitude'}_{j + 1}_deg"
-                      for j in range(4) for a in (0, 1)}
-FULL_CORNER_TAGS = {82 + 2 * j + a: f"corner_{'latitude' if a == 0 else 'longitude'}_{j + 1}_deg"
-                    for j in range(4) for a in (0, 1)}
+CENTRE_TAGS = {
+    23: "frame_center_latitude_deg",
+    24: "frame_center_longitude_deg",
+    25: "frame_center_elevation_m",
+    78: "frame_center_hae_m",
+}
+OFFSET_CORNER_TAGS = {
+    26 + 2 * j + a: f"offset_corner_{'latitude' if a == 0 else 'longitude'}_{j + 1}_deg"
+    for j in range(4)
+    for a in (0, 1)
+}
+FULL_CORNER_TAGS = {
+    82 + 2 * j + a: f"corner_{'latitude' if a == 0 else 'longitude'}_{j + 1}_deg" for j in range(4) for a in (0, 1)
+}
 #: Target Error Estimate CE90 / LE90 (MISB ST 0601 tags 45, 46): the replay's predicted column for each.
 ERROR_TAGS = {45: ("target_error_ce90_m", "ce90_m"), 46: ("target_error_le90_m", "le90_m")}
 
@@ -78,16 +95,21 @@ class KlvFix:
     added: dict = field(default_factory=dict)  # tag -> number of items added (packets without it)
 
     def __str__(self) -> str:
-        lines = [f"{self.source}: {self.packets} packets read, {self.rewritten} rewritten, "
-                 f"{len(self.unchanged)} left unchanged, {len(self.bad)} bad packet(s) copied as they were"]
+        lines = [
+            f"{self.source}: {self.packets} packets read, {self.rewritten} rewritten, "
+            f"{len(self.unchanged)} left unchanged, {len(self.bad)} bad packet(s) copied as they were"
+        ]
         if self.items:
             lines.append("  items rewritten: " + ", ".join(f"tag {t}: {n}" for t, n in sorted(self.items.items())))
         if self.budget_source:
             n45, n46 = self.items.get(45, 0), self.items.get(46, 0)
             add = ", ".join(f"tag {t} added to {n}" for t, n in sorted(self.added.items()) if n)
-            lines.append(f"  target error estimate: tags 45 / 46 hold the predicted CE90 / LE90 of the "
-                         f"[uncertainty] budget of {self.budget_source} ({n45} / {n46} packets"
-                         + (f"; {add} packet(s) that had none" if add else "") + ")")
+            lines.append(
+                f"  target error estimate: tags 45 / 46 hold the predicted CE90 / LE90 of the "
+                f"[uncertainty] budget of {self.budget_source} ({n45} / {n46} packets"
+                + (f"; {add} packet(s) that had none" if add else "")
+                + ")"
+            )
         c = self.correction_m
         if c is not None and np.isfinite(c).any():
             f = c[np.isfinite(c)]
@@ -139,8 +161,10 @@ def _new_values(r: KlvReplay, k: int, tags: set, notes: list, errors: bool = Fal
                 if not math.isfinite(v):
                     notes.append(f"tag {t}: no predicted {col[:-2].upper()} for this centre: left as it was")
                 elif v > TAG_BY_NAME[name].hi:  # 0..4095 m
-                    notes.append(f"tag {t}: predicted {col[:-2].upper()} {v:.0f} m is beyond the item's "
-                                 f"{TAG_BY_NAME[name].hi:g} m: written as {TAG_BY_NAME[name].hi:g} m")
+                    notes.append(
+                        f"tag {t}: predicted {col[:-2].upper()} {v:.0f} m is beyond the item's "
+                        f"{TAG_BY_NAME[name].hi:g} m: written as {TAG_BY_NAME[name].hi:g} m"
+                    )
                     put(t, name, TAG_BY_NAME[name].hi, "target error estimate")
                 else:
                     put(t, name, v, "target error estimate")
@@ -159,8 +183,10 @@ def _new_values(r: KlvReplay, k: int, tags: set, notes: list, errors: bool = Fal
                     spec = TAG_BY_NAME[OFFSET_CORNER_TAGS[t]]
                     if abs(d) > spec.hi:
                         out[t] = encode_value(spec.name, math.nan)  # the reserved "error" value
-                        notes.append(f"tag {t}: offset {d:+.4f} deg is beyond +-{spec.hi:g} deg: written as the "
-                                     "reserved error value (full corners 82-89 have the range)")
+                        notes.append(
+                            f"tag {t}: offset {d:+.4f} deg is beyond +-{spec.hi:g} deg: written as the "
+                            "reserved error value (full corners 82-89 have the range)"
+                        )
                     else:
                         put(t, spec.name, d, f"offset corner {j + 1}")
     return out
@@ -195,8 +221,14 @@ class _Rewriter:
         for text in notes:
             self.fix.notes.append((num, text))
         if not values:
-            self.fix.unchanged.append((num, _why_unchanged(self.r, k) if int(self.r.columns["status"][k]) != Status.OK
-                                       else "no frame-centre or corner item to rewrite"))
+            self.fix.unchanged.append(
+                (
+                    num,
+                    _why_unchanged(self.r, k)
+                    if int(self.r.columns["status"][k]) != Status.OK
+                    else "no frame-centre or corner item to rewrite",
+                )
+            )
             return blob
         for t in values:
             self.fix.items[t] = self.fix.items.get(t, 0) + 1
@@ -216,11 +248,15 @@ def _fix_bytes(data: bytes, rw: _Rewriter, verify: bool, raw: bool = False) -> b
             continue  # copied with the bytes around it
         start = p.offset
         if raw and rw.k < len(rw.r) and int(rw.r.columns["offset"][rw.k]) != start:
-            raise RuntimeError(f"packet at byte {start}: the replay's row {rw.k} is at byte "
-                               f"{int(rw.r.columns['offset'][rw.k])}")
+            raise RuntimeError(
+                f"packet at byte {start}: the replay's row {rw.k} is at byte {int(rw.r.columns['offset'][rw.k])}"
+            )
         b = data[start + 16]
-        end = start + 17 + (b if b < 0x80 else (b & 0x7F) + int.from_bytes(data[start + 17:start + 17 + (b & 0x7F)],
-                                                                               "big"))
+        end = (
+            start
+            + 17
+            + (b if b < 0x80 else (b & 0x7F) + int.from_bytes(data[start + 17 : start + 17 + (b & 0x7F)], "big"))
+        )
         parts.append(data[pos:start])
         parts.append(rw.packet(data[start:end]))
         pos = end
@@ -267,8 +303,16 @@ def _remux(src: Path, tmp: str, rw: _Rewriter, fix: KlvFix, verify: bool) -> Non
                     out.mux(pkt)
 
 
-def fix_klv(source, out, *, surface=None, sensor=None, budget=None, verify_checksum: bool = True,
-            corrections: Corrections = NO_CORRECTIONS) -> KlvFix:
+def fix_klv(
+    source,
+    out,
+    *,
+    surface=None,
+    sensor=None,
+    budget=None,
+    verify_checksum: bool = True,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> KlvFix:
     """Write a copy of a KLV stream whose frame-centre and corner items are geoloc's.
 
     Parameters
@@ -306,13 +350,20 @@ def fix_klv(source, out, *, surface=None, sensor=None, budget=None, verify_check
     # the output is written in the input's format (its muxer, not its name); a lying suffix may stay
     same_suffix = dst.suffix.lower() == src.suffix.lower()
     if container != (dst.suffix.lower() in CONTAINER_SUFFIXES or (container and same_suffix)):
-        raise ValueError(f"--out {dst.name}: write the same kind of file as the input {src.name} "
-                         "(raw KLV to raw KLV, a container to a container)")
+        raise ValueError(
+            f"--out {dst.name}: write the same kind of file as the input {src.name} "
+            "(raw KLV to raw KLV, a container to a container)"
+        )
     read = read_klv(src, verify_checksum=verify_checksum)
     r = replay_klv(read, surface=surface, sensor=sensor, budget=budget, corrections=corrections)
-    fix = KlvFix(str(src), str(dst), packets=len(r), correction_m=np.asarray(r.columns["frame_center_error_m"]),
-                 bad=[e for e in read.errors if not e.reason.endswith("are not a UAS LS packet")],
-                 budget_source=(str(budget.source or "the sensor file") if budget is not None else ""))
+    fix = KlvFix(
+        str(src),
+        str(dst),
+        packets=len(r),
+        correction_m=np.asarray(r.columns["frame_center_error_m"]),
+        bad=[e for e in read.errors if not e.reason.endswith("are not a UAS LS packet")],
+        budget_source=(str(budget.source or "the sensor file") if budget is not None else ""),
+    )
     rw = _Rewriter(r, fix, errors=budget is not None)
     with atomic_path(dst, "--out") as tmp:
         if container:

@@ -309,12 +309,16 @@ def klv_sensor(hfov, vfov, base: FrameSensor | None = None) -> FrameSensor:
         w, h = NOMINAL_SIZE
         return FrameSensor(lens_from_fov(hfov, vfov, w, h), PRESETS[GIMBAL], name="MISB ST 0601 sensor")
     if not isinstance(base, FrameSensor):
-        raise ValueError(f"sensor {base!r}: the KLV replay needs a sensor file ([lens], [gimbal] preset = "
-                         f"{GIMBAL!r}); a first-phase camera file has the [Q17] roll-pitch gimbal")
+        raise ValueError(
+            f"sensor {base!r}: the KLV replay needs a sensor file ([lens], [gimbal] preset = "
+            f"{GIMBAL!r}); a first-phase camera file has the [Q17] roll-pitch gimbal"
+        )
     if base.gimbal.name not in (GIMBAL, "azimuth-elevation"):
-        raise ValueError(f"sensor {base.name or 'file'}: gimbal {base.gimbal.name!r}: MISB ST 0601's "
-                         f"sensor-relative angles (tags 18-20) are the {GIMBAL!r} preset; give a sensor "
-                         f"file with [gimbal] preset = {GIMBAL!r} (or 'azimuth-elevation')")
+        raise ValueError(
+            f"sensor {base.name or 'file'}: gimbal {base.gimbal.name!r}: MISB ST 0601's "
+            f"sensor-relative angles (tags 18-20) are the {GIMBAL!r} preset; give a sensor "
+            f"file with [gimbal] preset = {GIMBAL!r} (or 'azimuth-elevation')"
+        )
     lens = lens_from_fov(hfov, vfov, base.cols, base.rows)
     return dataclasses.replace(base, lens=lens, gimbal=PRESETS[GIMBAL])
 
@@ -332,17 +336,26 @@ def klv_pose_deg(columns: dict, k: int | None = None) -> dict:
     corners need it): the names of :meth:`geoloc.frames.chain.Pose.from_deg`
     and of the viewer's ``Inputs``. With ``k``, packet ``k``'s values as floats.
     """
+
     def get(name):
         v = np.asarray(columns[name], float)
         return float(v[k]) if k is not None else v
 
     roll = get("sensor_relative_roll_deg")
     roll = (roll if math.isfinite(roll) else 0.0) if k is not None else np.nan_to_num(roll)
-    return {"lat_deg": get("sensor_lat_deg"), "lon_deg": get("sensor_lon_deg"), "h_m": get("sensor_h_m"),
-            "heading_deg": get("platform_heading_deg"), "pitch_deg": get("platform_pitch_deg"),
-            "roll_deg": get("platform_roll_deg"),
-            "angles_deg": {"azimuth": get("sensor_relative_azimuth_deg"),
-                           "elevation": get("sensor_relative_elevation_deg"), "sensor_roll": roll}}
+    return {
+        "lat_deg": get("sensor_lat_deg"),
+        "lon_deg": get("sensor_lon_deg"),
+        "h_m": get("sensor_h_m"),
+        "heading_deg": get("platform_heading_deg"),
+        "pitch_deg": get("platform_pitch_deg"),
+        "roll_deg": get("platform_roll_deg"),
+        "angles_deg": {
+            "azimuth": get("sensor_relative_azimuth_deg"),
+            "elevation": get("sensor_relative_elevation_deg"),
+            "sensor_roll": roll,
+        },
+    }
 
 
 def klv_pose(columns: dict) -> Pose:
@@ -422,35 +435,47 @@ class KlvSummary:
         for reason, count in self.invalid_reasons.items():
             L.append(f"    invalid_input, {count} packet(s): {reason}")
         if self.compared:
-            L.append(f"  frame-centre error (recomputed vs reported, horizontal): median {self.median_m:.3f} m, "
-                     f"90th percentile {self.p90_m:.3f} m, max {self.max_m:.3f} m over {self.compared} packets")
+            L.append(
+                f"  frame-centre error (recomputed vs reported, horizontal): median {self.median_m:.3f} m, "
+                f"90th percentile {self.p90_m:.3f} m, max {self.max_m:.3f} m over {self.compared} packets"
+            )
         else:
             L.append("  frame-centre error: no packet with both a reported and a recomputed frame centre")
         if self.corner_compared:
-            L.append(f"  corner error (mean of the corners): median {self.corner_median_m:.3f} m, "
-                     f"90th percentile {self.corner_p90_m:.3f} m over {self.corner_compared} packets")
+            L.append(
+                f"  corner error (mean of the corners): median {self.corner_median_m:.3f} m, "
+                f"90th percentile {self.corner_p90_m:.3f} m over {self.corner_compared} packets"
+            )
         if self.compared:
-            L.append(f"  outliers (|error - median| > max({OUTLIER_K:g} x {MAD_SCALE} x MAD, {MIN_EXCESS_M:g} m) "
-                     f"= {self.outlier_threshold_m:.3f} m from the median {self.outlier_median_m:.3f} m): "
-                     f"{len(self.outliers)} packet(s)" + (f": {_ranges(self.outliers)}" if self.outliers else ""))
+            L.append(
+                f"  outliers (|error - median| > max({OUTLIER_K:g} x {MAD_SCALE} x MAD, {MIN_EXCESS_M:g} m) "
+                f"= {self.outlier_threshold_m:.3f} m from the median {self.outlier_median_m:.3f} m): "
+                f"{len(self.outliers)} packet(s)" + (f": {_ranges(self.outliers)}" if self.outliers else "")
+            )
         if self.datum_warnings:
-            L.append(f"  datum check: {len(self.datum_warnings)} packet(s) whose HAE and MSL heights do not differ "
-                     f"by the EGM96 N (within {DATUM_CHECK_M:g} m): one of the two is in the wrong datum")
+            L.append(
+                f"  datum check: {len(self.datum_warnings)} packet(s) whose HAE and MSL heights do not differ "
+                f"by the EGM96 N (within {DATUM_CHECK_M:g} m): one of the two is in the wrong datum"
+            )
             for w in self.datum_warnings[:5]:
                 L.append(f"    {w}")
             if len(self.datum_warnings) > 5:
                 L.append(f"    ... and {len(self.datum_warnings) - 5} more (column datum_warning)")
         if self.plausibility_warnings:
-            L.append(f"  warning: {len(self.plausibility_warnings)} packet(s) too high for a drone "
-                     f"(over {DRONE_MAX_HEIGHT_M:g} m above the terrain or frame centre, or {DRONE_CEILING_M:g} m): "
-                     "used as read")
+            L.append(
+                f"  warning: {len(self.plausibility_warnings)} packet(s) too high for a drone "
+                f"(over {DRONE_MAX_HEIGHT_M:g} m above the terrain or frame centre, or {DRONE_CEILING_M:g} m): "
+                "used as read"
+            )
             for w in self.plausibility_warnings[:5]:
                 L.append(f"    {w}")
             if len(self.plausibility_warnings) > 5:
                 L.append(f"    ... and {len(self.plausibility_warnings) - 5} more")
         L += [f"  note: {n}" for n in self.notes]
-        L.append(f"  heights written: ellipsoidal, {H_DATUM} (column h_datum), except the decoded "
-                 "*_msl_m items (mean sea level)")
+        L.append(
+            f"  heights written: ellipsoidal, {H_DATUM} (column h_datum), except the decoded "
+            "*_msl_m items (mean sea level)"
+        )
         return "\n".join(L)
 
 
@@ -560,9 +585,17 @@ def _append(notes, mask, text):
         notes[mask] = notes[mask] + text
 
 
-def replay_klv(source, *, surface=None, sensor: FrameSensor | None = None, verify_checksum: bool = True,
-               fast: bool = True, label: str | None = None, budget=None,
-               corrections: Corrections = NO_CORRECTIONS) -> KlvReplay:
+def replay_klv(
+    source,
+    *,
+    surface=None,
+    sensor: FrameSensor | None = None,
+    verify_checksum: bool = True,
+    fast: bool = True,
+    label: str | None = None,
+    budget=None,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> KlvReplay:
     """Recompute every packet's frame centre and corners and compare with the packet's own.
 
     Parameters
@@ -594,8 +627,11 @@ def replay_klv(source, *, surface=None, sensor: FrameSensor | None = None, verif
         One row per good packet; a packet lacking a needed tag has status
         ``invalid_input`` and a ``note`` naming the tag, the others are located.
     """
-    read = source if isinstance(source, KlvRead) else read_klv(source, verify_checksum=verify_checksum,
-                                                                 fast=fast, label=label)
+    read = (
+        source
+        if isinstance(source, KlvRead)
+        else read_klv(source, verify_checksum=verify_checksum, fast=fast, label=label)
+    )
     return _replay(read, surface, sensor, budget, corrections)
 
 
@@ -681,23 +717,33 @@ def _klv_uncertainty(sens, pose, surface, budget, ok, velocity_ned_m_s=None):
     from geoloc.sensors.budget import LENS_KEYS, ErrorBudget
 
     messages = []
-    keep = {k: v for k, v in budget.sigmas.items()
-            if not (k in LENS_KEYS and LENS_KEYS[k] not in sens.lens.params)}
+    keep = {k: v for k, v in budget.sigmas.items() if not (k in LENS_KEYS and LENS_KEYS[k] not in sens.lens.params)}
     vel = None
     if budget.sigma("time_s") > 0:
         known = np.isfinite(velocity_ned_m_s).all(axis=1) if velocity_ned_m_s is not None else np.zeros(len(ok), bool)
         if not known.any():
             keep.pop("time_s", None)
-            messages.append(f"{budget.source}: [uncertainty] time_s = {budget.sigma('time_s'):g} s left out of the "
-                            "predicted uncertainty: no packet has a velocity (tags 79, 80, or a neighbour to "
-                            "difference)")
+            messages.append(
+                f"{budget.source}: [uncertainty] time_s = {budget.sigma('time_s'):g} s left out of the "
+                "predicted uncertainty: no packet has a velocity (tags 79, 80, or a neighbour to "
+                "difference)"
+            )
         else:
             vel = np.where(known[:, None], velocity_ned_m_s, 0.0)
             if (~known & ok).any():
-                messages.append(f"{budget.source}: [uncertainty] time_s left out for {int(np.sum(~known & ok))} "
-                                "packet(s) whose velocity cannot be known")
-    pu = propagate(sens, pose, None, None, ErrorBudget(keep, budget.dem_product, budget.source), surface=surface,
-                   velocity_ned_m_s=vel)
+                messages.append(
+                    f"{budget.source}: [uncertainty] time_s left out for {int(np.sum(~known & ok))} "
+                    "packet(s) whose velocity cannot be known"
+                )
+    pu = propagate(
+        sens,
+        pose,
+        None,
+        None,
+        ErrorBudget(keep, budget.dem_product, budget.source),
+        surface=surface,
+        velocity_ned_m_s=vel,
+    )
     good = ok & (np.asarray(pu.status) == Status.OK)
     return {k: np.where(good, np.asarray(v, float), np.nan) for k, v in pu.columns().items()}, messages
 
@@ -731,8 +777,11 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
     p90, r91 = g("platform_pitch_full_deg"), g("platform_roll_full_deg")
     pitch = np.where(np.isfinite(p90), p90, g("platform_pitch_deg"))
     roll = np.where(np.isfinite(r91), r91, g("platform_roll_deg"))
-    az, el, sroll = (g("sensor_relative_azimuth_deg"), g("sensor_relative_elevation_deg"),
-                     g("sensor_relative_roll_deg"))
+    az, el, sroll = (
+        g("sensor_relative_azimuth_deg"),
+        g("sensor_relative_elevation_deg"),
+        g("sensor_relative_roll_deg"),
+    )
     hfov, vfov = g("sensor_horizontal_fov_deg"), g("sensor_vertical_fov_deg")
     with np.errstate(invalid="ignore"):
         hfov_ok = np.isfinite(hfov) & (hfov > 0) & (hfov < 180)
@@ -751,8 +800,13 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         (~np.isfinite(el), _TAG_TEXT["sensor_relative_elevation_deg"]),
     ]
     if surface is None:
-        needs.append((~np.isfinite(rep_h), "tag 78 (Frame Center Height Above Ellipsoid) or tag 25 "
-                      "(Frame Center Elevation), the height to intersect at (or give a DEM)"))
+        needs.append(
+            (
+                ~np.isfinite(rep_h),
+                "tag 78 (Frame Center Height Above Ellipsoid) or tag 25 "
+                "(Frame Center Elevation), the height to intersect at (or give a DEM)",
+            )
+        )
     # with a boresight the centre's ray turns with the sensor roll; without, it is the roll axis
     centre_needs_roll = base_sensor is not None and any(getattr(base_sensor, "boresight", ()))
     if centre_needs_roll:
@@ -762,8 +816,10 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         bad_c |= mask
         _append(notes, mask, f"{text}, ")
     invalid_reasons = dict(Counter("missing " + s[:-2] for s in notes[bad_c].tolist()).most_common())
-    corner_needs = [(~hfov_ok, "tag 16 (Sensor Horizontal Field of View; absent, 0 or 180)"),
-                    (~vfov_ok, "tag 17 (Sensor Vertical Field of View; absent, 0 or 180)")]
+    corner_needs = [
+        (~hfov_ok, "tag 16 (Sensor Horizontal Field of View; absent, 0 or 180)"),
+        (~vfov_ok, "tag 17 (Sensor Vertical Field of View; absent, 0 or 180)"),
+    ]
     if not centre_needs_roll:
         corner_needs.append((~np.isfinite(sroll), _TAG_TEXT["sensor_relative_roll_deg"]))
     knotes = np.full(n, "", dtype=object)
@@ -771,9 +827,16 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
     for mask, text in corner_needs:
         bad_k |= mask
         _append(knotes, mask & ~bad_c, f"{text}, ")
-    notes = np.array([("missing " + a[:-2] if a else "") + ("; " if a and b else "")
-                      + ("corners not computed: missing " + b[:-2] if b else "")
-                      for a, b in zip(notes.tolist(), knotes.tolist())] + [None], dtype=object)[:-1]
+    notes = np.array(
+        [
+            ("missing " + a[:-2] if a else "")
+            + ("; " if a and b else "")
+            + ("corners not computed: missing " + b[:-2] if b else "")
+            for a, b in zip(notes.tolist(), knotes.tolist())
+        ]
+        + [None],
+        dtype=object,
+    )[:-1]
 
     # ---- the sensor: lens from the median fields of view; packet i's corners scaled to it
     hv = hfov_ok & vfov_ok
@@ -784,10 +847,19 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
     def clean(v, bad, fill=0.0):
         return np.where(bad | ~np.isfinite(v), fill, v)
 
-    pose_c = Pose.from_deg(clean(lat_s, bad_c), clean(lon_s, bad_c), clean(h_s, bad_c, 1000.0),
-                           clean(heading, bad_c), clean(pitch, bad_c), clean(roll, bad_c),
-                           angles_deg={"azimuth": clean(az, bad_c), "elevation": clean(el, bad_c, -45.0),
-                                       "sensor_roll": clean(sroll, bad_c)})
+    pose_c = Pose.from_deg(
+        clean(lat_s, bad_c),
+        clean(lon_s, bad_c),
+        clean(h_s, bad_c, 1000.0),
+        clean(heading, bad_c),
+        clean(pitch, bad_c),
+        clean(roll, bad_c),
+        angles_deg={
+            "azimuth": clean(az, bad_c),
+            "elevation": clean(el, bad_c, -45.0),
+            "sensor_roll": clean(sroll, bad_c),
+        },
+    )
     r0, c0 = sens.center_pixel
     with np.errstate(invalid="ignore"):
         sx = np.tan(np.deg2rad(clean(hfov, bad_k, href)) / 2) / math.tan(math.radians(href) / 2) * sens.cols / 2
@@ -799,16 +871,29 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
     # ---- intersect: one call for the centres, one for the corners
     if surface is None:
         h_int = clean(rep_h, bad_c)
-        surface_text = ("each packet's own frame-centre height, ellipsoidal (tag 78 HAE; tag 25 MSL + EGM96 N "
-                        "where 78 is absent): the comparison isolates the angles")
+        surface_text = (
+            "each packet's own frame-centre height, ellipsoidal (tag 78 HAE; tag 25 MSL + EGM96 N "
+            "where 78 is absent): the comparison isolates the angles"
+        )
         gc = locate(pose_c, sens, target_h=h_int, height_kind="geodetic", corrections=corrections)
-        gk = locate(pose_k, sens, k_rows, k_cols, target_h=h_int[None, :], height_kind="geodetic",
-                    outside="extrapolate", corrections=corrections)
+        gk = locate(
+            pose_k,
+            sens,
+            k_rows,
+            k_cols,
+            target_h=h_int[None, :],
+            height_kind="geodetic",
+            outside="extrapolate",
+            corrections=corrections,
+        )
     else:
         if terrain is not None:
             src = getattr(terrain, "path", None) or "DEM"
-            surface_text = (f"DEM {src} (heights {terrain.datum}" + (" -> ellipsoidal with EGM96 N"
-                            if terrain.datum == "egm96" else "") + f"), method {surface.method}")
+            surface_text = (
+                f"DEM {src} (heights {terrain.datum}"
+                + (" -> ellipsoidal with EGM96 N" if terrain.datum == "egm96" else "")
+                + f"), method {surface.method}"
+            )
         else:
             surface_text = repr(surface)
         pipe = Pipeline(sens, surface, corrections)
@@ -867,13 +952,13 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         if dev_s[k]:
             parts.append(f"tag 75 - tag 15 = {h75[k] - h15[k]:+.1f} m but EGM96 N = {n_s[k]:+.1f} m at the sensor")
         if dev_f[k]:
-            parts.append(f"tag 78 - tag 25 = {h78[k] - h25[k]:+.1f} m but EGM96 N = {n_fc[k]:+.1f} m at the "
-                         "frame centre")
+            parts.append(
+                f"tag 78 - tag 25 = {h78[k] - h25[k]:+.1f} m but EGM96 N = {n_fc[k]:+.1f} m at the frame centre"
+            )
         datum_warn[k] = "; ".join(parts)
         warnings.append(f"packet {int(read.packet[k])} (byte {int(c['offset'][k])}): {datum_warn[k]}")
 
-    plaus = _drone_height_warnings(read, base_sensor, terrain, lat_s, lon_s, h_s, h75, h15, from75, rep_h,
-                                   from78, h)
+    plaus = _drone_height_warnings(read, base_sensor, terrain, lat_s, lon_s, h_s, h75, h15, from75, rep_h, from78, h)
 
     ts = g("precision_time_stamp_us")
     cols = {
@@ -910,17 +995,19 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         cols[f"reported_corner{j + 1}_lat_deg"] = rk_lat[j]
         cols[f"reported_corner{j + 1}_lon_deg"] = rk_lon[j]
     cols["reported_corners_from"] = rep_corners
-    cols.update({
-        "lat_deg": lat,
-        "lon_deg": lon,
-        "mgrs": np.array(mgrs_column(lat, lon), dtype=object),  # '' where no point (io.mgrs_grid)
-        "h_m": h,
-        "status": status,
-        "range_m": rng,
-        "frame_center_error_m": fc_err,
-        "corrections": np.full(n, corrections.label, dtype=object),
-        "refraction_m": np.where(ok, np.asarray(gc.refraction_m, float), np.nan),
-    })
+    cols.update(
+        {
+            "lat_deg": lat,
+            "lon_deg": lon,
+            "mgrs": np.array(mgrs_column(lat, lon), dtype=object),  # '' where no point (io.mgrs_grid)
+            "h_m": h,
+            "status": status,
+            "range_m": rng,
+            "frame_center_error_m": fc_err,
+            "corrections": np.full(n, corrections.label, dtype=object),
+            "refraction_m": np.where(ok, np.asarray(gc.refraction_m, float), np.nan),
+        }
+    )
     for j in range(4):
         cols[f"corner{j + 1}_lat_deg"] = k_lat[j]
         cols[f"corner{j + 1}_lon_deg"] = k_lon[j]
@@ -934,8 +1021,9 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         cols["reported_le90_m"] = g("target_error_le90_m")
         vel = None
         if budget.sigma("time_s") > 0:
-            vel, vel_from = platform_velocity_ned(lat_s, lon_s, h_s, ts / 1e6, g("sensor_north_velocity_m_s"),
-                                                  g("sensor_east_velocity_m_s"))
+            vel, vel_from = platform_velocity_ned(
+                lat_s, lon_s, h_s, ts / 1e6, g("sensor_north_velocity_m_s"), g("sensor_east_velocity_m_s")
+            )
         ucols, unc_messages = _klv_uncertainty(sens, pose_c, unc_surface, budget, ok, vel)
         cols.update(ucols)
         if vel is not None:
@@ -943,26 +1031,32 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
                 cols[f"velocity_{axis}_m_s"] = vel[:, j]
             cols["velocity_from"] = vel_from
             used = ok & (vel_from != "")
-            unc_messages.append(f"time_s = {budget.sigma('time_s'):g} s propagated with the platform's velocity: "
-                                f"tags 79, 80 for {int(np.sum(used & (vel_from == 'tags 79, 80')))} packet(s), "
-                                f"differenced positions for {int(np.sum(used & (vel_from == 'differenced')))} "
-                                "(column velocity_from)")
-    cols.update({
-        "corner_status": corner_status,
-        "corner_error_m": corner_err,
-        "h_datum": np.full(n, H_DATUM, dtype=object),
-        "outlier": outlier.astype(np.int64),
-        "datum_warning": datum_warn,
-        "note": notes,
-    })
+            unc_messages.append(
+                f"time_s = {budget.sigma('time_s'):g} s propagated with the platform's velocity: "
+                f"tags 79, 80 for {int(np.sum(used & (vel_from == 'tags 79, 80')))} packet(s), "
+                f"differenced positions for {int(np.sum(used & (vel_from == 'differenced')))} "
+                "(column velocity_from)"
+            )
+    cols.update(
+        {
+            "corner_status": corner_status,
+            "corner_error_m": corner_err,
+            "h_datum": np.full(n, H_DATUM, dtype=object),
+            "outlier": outlier.astype(np.int64),
+            "datum_warning": datum_warn,
+            "note": notes,
+        }
+    )
 
     fin = np.isfinite(fc_err)
     kfin = np.isfinite(corner_err)
     counts = {s.name.lower(): int(np.sum(status == s)) for s in Status if np.any(status == s)}
     summ_notes = list(unc_messages)
     if base_sensor is not None:
-        summ_notes.append(f"sensor file: image {sens.cols} x {sens.rows}, mount, boresight and lever arm "
-                          "used; its lens is replaced by each packet's fields of view (tags 16, 17)")
+        summ_notes.append(
+            f"sensor file: image {sens.cols} x {sens.rows}, mount, boresight and lever arm "
+            "used; its lens is replaced by each packet's fields of view (tags 16, 17)"
+        )
     if terrain is not None and fin.any():
         dh = rep_h - h
         okh = np.isfinite(dh)
@@ -971,28 +1065,41 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
             mn = float(np.nanmedian(n_fc[okh])) if np.isfinite(n_fc[okh]).any() else math.nan
             text = f"reported frame-centre height minus the DEM's: median {mdh:+.2f} m"
             if abs(mdh) > 5 and math.isfinite(mn) and abs(mdh + mn) < DATUM_CHECK_M:
-                text += (f", about -N ({-mn:+.1f} m): the reported heights look orthometric (MSL) where "
-                         "they should be ellipsoidal, or the DEM's datum is wrong (--dem-datum)")
+                text += (
+                    f", about -N ({-mn:+.1f} m): the reported heights look orthometric (MSL) where "
+                    "they should be ellipsoidal, or the DEM's datum is wrong (--dem-datum)"
+                )
             summ_notes.append(text)
     summary = KlvSummary(
-        source=read.source, packets=n, errors=list(read.errors), status_counts=counts,
-        invalid_reasons=invalid_reasons, compared=int(fin.sum()),
+        source=read.source,
+        packets=n,
+        errors=list(read.errors),
+        status_counts=counts,
+        invalid_reasons=invalid_reasons,
+        compared=int(fin.sum()),
         median_m=float(np.median(fc_err[fin])) if fin.any() else math.nan,
         p90_m=float(np.percentile(fc_err[fin], 90)) if fin.any() else math.nan,
         max_m=float(np.max(fc_err[fin])) if fin.any() else math.nan,
         corner_compared=int(kfin.sum()),
         corner_median_m=float(np.median(corner_err[kfin])) if kfin.any() else math.nan,
         corner_p90_m=float(np.percentile(corner_err[kfin], 90)) if kfin.any() else math.nan,
-        outliers=read.packet[outlier].tolist(), outlier_median_m=med, outlier_threshold_m=thr,
+        outliers=read.packet[outlier].tolist(),
+        outlier_median_m=med,
+        outlier_threshold_m=thr,
         sensor_h_sources={"tag 75 (HAE)": int(from75.sum()), "tag 15 (MSL) + EGM96 N": int(from15.sum())},
         reported_h_sources={"tag 78 (HAE)": int(from78.sum()), "tag 25 (MSL) + EGM96 N": int(from25.sum())},
-        surface=surface_text, datum_warnings=warnings, notes=summ_notes, plausibility_warnings=plaus,
-        quirks=list(read.quirks))
+        surface=surface_text,
+        datum_warnings=warnings,
+        notes=summ_notes,
+        plausibility_warnings=plaus,
+        quirks=list(read.quirks),
+    )
     return KlvReplay(cols, list(read.errors), summary, sens)
 
 
-def _drone_height_warnings(read: KlvRead, base_sensor, terrain, lat_s, lon_s, h_s, h75, h15, from75, rep_h,
-                           from78, h) -> list:
+def _drone_height_warnings(
+    read: KlvRead, base_sensor, terrain, lat_s, lon_s, h_s, h75, h15, from75, rep_h, from78, h
+) -> list:
     """One line per packet of a drone whose sensor is too high for a drone (issue 32).
 
     A packet is a drone's when its Platform Designation (tag 10) names one, or, without a
@@ -1010,8 +1117,11 @@ def _drone_height_warnings(read: KlvRead, base_sensor, terrain, lat_s, lon_s, h_
     if not drone.any():
         return []
     ref = np.where(np.isfinite(rep_h), rep_h, h)
-    what = np.where(np.isfinite(rep_h), np.where(from78, "the frame centre (tag 78)", "the frame centre (tag 25)"),
-                    "the located point").astype(object)
+    what = np.where(
+        np.isfinite(rep_h),
+        np.where(from78, "the frame centre (tag 78)", "the frame centre (tag 25)"),
+        "the located point",
+    ).astype(object)
     if terrain is not None:
         ground, _ = terrain.sample(np.deg2rad(lat_s), np.deg2rad(lon_s))
     else:
@@ -1020,14 +1130,19 @@ def _drone_height_warnings(read: KlvRead, base_sensor, terrain, lat_s, lon_s, h_
     high &= drone
     out = []
     for k in np.flatnonzero(high):
-        tag, value = ("tag 75 (Sensor Ellipsoid Height)", h75[k]) if from75[k] else \
-            ("tag 15 (Sensor True Altitude, MSL)", h15[k])
+        tag, value = (
+            ("tag 75 (Sensor Ellipsoid Height)", h75[k])
+            if from75[k]
+            else ("tag 15 (Sensor True Altitude, MSL)", h15[k])
+        )
         known = np.isfinite(ref[k])
         where = drone_height_where(h_s[k], ref[k], what[k])
         said = f"Platform Designation {desig[k]!r}" if desig[k] else "the sensor file's platform"
         hint = drone_height_hint(value, ref[k] - (h_s[k] - value) if known else None)
-        out.append(f"packet {int(read.packet[k])} (byte {int(c['offset'][k])}): {tag} = {value:.1f} m: a drone's "
-                   f"camera ({said}) {where}: {hint}")
+        out.append(
+            f"packet {int(read.packet[k])} (byte {int(c['offset'][k])}): {tag} = {value:.1f} m: a drone's "
+            f"camera ({said}) {where}: {hint}"
+        )
     return out
 
 

@@ -91,8 +91,19 @@ class LimbScenario:
                 value = math.degrees(value)
             raise ValueError(f"{self.source}: {key} = {value!r} {why}")
 
-        for field in ("altitude", "inclination", "raan", "arg_latitude0", "greenwich0", "interval",
-                      "yaw", "roll", "pitch", "theta_mount", "fov"):
+        for field in (
+            "altitude",
+            "inclination",
+            "raan",
+            "arg_latitude0",
+            "greenwich0",
+            "interval",
+            "yaw",
+            "roll",
+            "pitch",
+            "theta_mount",
+            "fov",
+        ):
             v = getattr(self, field)
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 bad(field, v, "must be a finite number")
@@ -153,8 +164,9 @@ class LimbScenario:
         :attr:`aberration`, its directions are the light's (the apparent line of sight of the
         chain turned back by the orbit's inertial velocity: :func:`geoloc.corrections.lighttime.aberration`)."""
         p, v = self.state_ecef()
-        chain = line_of_sight_l18(p[:, None, :], v[:, None, :], self.yaw, self.roll, self.pitch,
-                                  self.theta_mount, self.alphas()[None, :])
+        chain = line_of_sight_l18(
+            p[:, None, :], v[:, None, :], self.yaw, self.roll, self.pitch, self.theta_mount, self.alphas()[None, :]
+        )
         if not self.aberration:
             return chain
         from dataclasses import replace
@@ -218,8 +230,10 @@ def scenario_from_dict(data: dict, source: str = "scenario") -> LimbScenario:
     kw = {}
     table = check_table(data.get("corrections", {}), f"{source} [corrections]")
     if "light_time" in table:
-        raise ValueError(f"{source} [corrections]: light_time does not apply to a limb scenario (no ground "
-                         "point: the tangent point's height does not change)")
+        raise ValueError(
+            f"{source} [corrections]: light_time does not apply to a limb scenario (no ground "
+            "point: the tangent point's height does not change)"
+        )
     kw["aberration"] = table.get("aberration", True)
     kw["refraction"] = table.get("refraction", "none")
     for (section, key), (attr, deg, required) in _FIELDS.items():

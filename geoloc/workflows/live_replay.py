@@ -69,8 +69,7 @@ class LiveReplay:
         For ``frame_pts_s`` (the nearest video frame's time).
     """
 
-    def __init__(self, label: str, *, surface=None, sensor=None, journal=None, window: int = WINDOW,
-                 receiver=None):
+    def __init__(self, label: str, *, surface=None, sensor=None, journal=None, window: int = WINDOW, receiver=None):
         self.label = str(label)
         self.surface, self.sensor = surface, sensor
         self.journal = journal
@@ -179,9 +178,11 @@ class LiveReplay:
         for e in list(self.errors)[:20]:
             L.append(f"  bad packet at byte {e.offset} (pts {e.pts}): {e.reason}")
         if len(fin):
-            L.append(f"  frame-centre error (recomputed vs reported, horizontal; last {len(err)} packets): median "
-                     f"{np.median(fin):.3f} m, 90th percentile {np.percentile(fin, 90):.3f} m, max "
-                     f"{np.max(fin):.3f} m")
+            L.append(
+                f"  frame-centre error (recomputed vs reported, horizontal; last {len(err)} packets): median "
+                f"{np.median(fin):.3f} m, 90th percentile {np.percentile(fin, 90):.3f} m, max "
+                f"{np.max(fin):.3f} m"
+            )
             out = int(np.sum(outlier_mask(err)[0]))
             L.append(f"  outliers in that window (median / MAD rule): {out}")
         else:
@@ -202,9 +203,12 @@ class LiveReplay:
             f"{c['packet'][k]:>6} {c['time_utc'][k]:<27} {f(c['lat_deg'][k], '11.6f'):>11} "
             f"{f(c['lon_deg'][k], '12.6f'):>12} {f(c['h_m'][k], '9.1f'):>9} {st[k]:>13} "
             f"{f(c['frame_center_error_m'][k], '12.3f'):>12} {f(c['corner_error_m'][k], '12.3f'):>12} "
-            f"{'yes' if c['outlier'][k] else ''}" for k in range(len(r)))
+            f"{'yes' if c['outlier'][k] else ''}"
+            for k in range(len(r))
+        )
 
 
-HEADER = (f"{'packet':>6} {'time_utc':<27} {'lat_deg':>11} {'lon_deg':>12} {'h_m (HAE)':>9} {'status':>13} "
-          f"{'centre_err_m':>12} {'corner_err_m':>12} outlier")
-
+HEADER = (
+    f"{'packet':>6} {'time_utc':<27} {'lat_deg':>11} {'lon_deg':>12} {'h_m (HAE)':>9} {'status':>13} "
+    f"{'centre_err_m':>12} {'corner_err_m':>12} outlier"
+)

@@ -107,8 +107,10 @@ def _check_chunk(chunk) -> int:
 def frame_pixels(sensor, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """The 1-based pixel centres ``1, 1 + step, ...`` along the rows and the columns of ``sensor``."""
     step = _check_step(step)
-    return (np.arange(1, int(sensor.rows) + 1, step, dtype=float),
-            np.arange(1, int(sensor.cols) + 1, step, dtype=float))
+    return (
+        np.arange(1, int(sensor.rows) + 1, step, dtype=float),
+        np.arange(1, int(sensor.cols) + 1, step, dtype=float),
+    )
 
 
 def _as_sensor(sensor):
@@ -135,8 +137,9 @@ def _on_cores(surface, parallel: bool = True):
     from geoloc.surfaces.terrain import DemSurface
 
     if isinstance(surface, DemSurface):
-        return DemSurface(surface.dem, surface.method, surface.dem_model,
-                          **{**surface.options, "parallel": bool(parallel)})
+        return DemSurface(
+            surface.dem, surface.method, surface.dem_model, **{**surface.options, "parallel": bool(parallel)}
+        )
     return surface
 
 
@@ -151,8 +154,16 @@ def frame_line_of_sight(sensor, pose, rows, cols) -> LineOfSight:
     return sensor.line_of_sight(R, C, pose)
 
 
-def iter_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHUNK, parallel: bool = True,
-               corrections: Corrections = NO_CORRECTIONS):
+def iter_frame(
+    sensor,
+    pose,
+    surface,
+    *,
+    step: int = 1,
+    chunk: int = DEFAULT_CHUNK,
+    parallel: bool = True,
+    corrections: Corrections = NO_CORRECTIONS,
+):
     """Yield ``(i0, i1, lat, lon, h, status)`` for blocks of whole grid rows ``i0:i1`` (see :func:`locate_frame`)."""
     sensor = _as_sensor(sensor)
     pipe = Pipeline(sensor, _on_cores(_as_surface(surface), parallel), corrections)
@@ -163,12 +174,26 @@ def iter_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHU
         i1 = min(rows.size, i0 + per)
         los = frame_line_of_sight(sensor, pose, rows[i0:i1], cols)  # the compiled grid executor
         hit = pipe.intersect(los)
-        yield (i0, i1, np.asarray(hit.lat, float), np.asarray(hit.lon, float), np.asarray(hit.h, float),
-               np.asarray(hit.status, np.uint8))
+        yield (
+            i0,
+            i1,
+            np.asarray(hit.lat, float),
+            np.asarray(hit.lon, float),
+            np.asarray(hit.h, float),
+            np.asarray(hit.status, np.uint8),
+        )
 
 
-def locate_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHUNK,
-                 parallel: bool = True, corrections: Corrections = NO_CORRECTIONS) -> FrameGrid:
+def locate_frame(
+    sensor,
+    pose,
+    surface,
+    *,
+    step: int = 1,
+    chunk: int = DEFAULT_CHUNK,
+    parallel: bool = True,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> FrameGrid:
     """Every pixel of one frame onto a surface, in one call.
 
     Parameters
@@ -211,8 +236,9 @@ def locate_frame(sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_C
     shape = (rows.size, cols.size)
     lat, lon, h = (np.empty(shape) for _ in range(3))
     st = np.empty(shape, dtype=np.uint8)
-    for i0, i1, a, b, c, s in iter_frame(sensor, pose, surface, step=step, chunk=chunk, parallel=parallel,
-                                         corrections=corrections):
+    for i0, i1, a, b, c, s in iter_frame(
+        sensor, pose, surface, step=step, chunk=chunk, parallel=parallel, corrections=corrections
+    ):
         lat[i0:i1], lon[i0:i1], h[i0:i1], st[i0:i1] = a, b, c, s
     return FrameGrid(lat, lon, h, st, rows, cols, int(step))
 
@@ -222,9 +248,18 @@ def _status_legend() -> str:
     return ", ".join(f"{int(s)}={s.name.lower()}" for s in Status)
 
 
-def write_frame_geotiff(path, sensor, pose, surface, *, step: int = 1, chunk: int = DEFAULT_CHUNK,
-                        tags: dict | None = None, parallel: bool = True,
-                        corrections: Corrections = NO_CORRECTIONS) -> dict:
+def write_frame_geotiff(
+    path,
+    sensor,
+    pose,
+    surface,
+    *,
+    step: int = 1,
+    chunk: int = DEFAULT_CHUNK,
+    tags: dict | None = None,
+    parallel: bool = True,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> dict:
     """Locate a whole frame and write it as a 4-band float64 GeoTIFF on the image grid, chunk by chunk.
 
     Bands: ``lat_deg``, ``lon_deg`` (WGS 84, degrees), ``h_m`` (ellipsoidal height
@@ -247,17 +282,39 @@ def write_frame_geotiff(path, sensor, pose, surface, *, step: int = 1, chunk: in
     sensor = _as_sensor(sensor)
     rows, cols = frame_pixels(sensor, step)
     counts = np.zeros(len(Status), dtype=np.int64)
-    profile = dict(driver="GTiff", width=cols.size, height=rows.size, count=len(BANDS), dtype="float64",
-                   nodata=float("nan"), tiled=True, blockxsize=256, blockysize=256, compress="deflate",
-                   predictor=3, BIGTIFF="IF_SAFER")
-    all_tags = {"h_datum": ELLIPSOID_DATUM, "lat_lon_datum": "WGS 84 (geodetic)",
-                "pixel_convention": "1-based pixel centres (docs/conventions.md)", "row_first": "1",
-                "col_first": "1", "step": str(int(step)), "sensor_rows": str(sensor.rows),
-                "sensor_cols": str(sensor.cols), "status_codes": _status_legend(),
-                "software": "geoloc ortho (geoloc.workflows.ortho.write_frame_geotiff)"}
+    profile = dict(
+        driver="GTiff",
+        width=cols.size,
+        height=rows.size,
+        count=len(BANDS),
+        dtype="float64",
+        nodata=float("nan"),
+        tiled=True,
+        blockxsize=256,
+        blockysize=256,
+        compress="deflate",
+        predictor=3,
+        BIGTIFF="IF_SAFER",
+    )
+    all_tags = {
+        "h_datum": ELLIPSOID_DATUM,
+        "lat_lon_datum": "WGS 84 (geodetic)",
+        "pixel_convention": "1-based pixel centres (docs/conventions.md)",
+        "row_first": "1",
+        "col_first": "1",
+        "step": str(int(step)),
+        "sensor_rows": str(sensor.rows),
+        "sensor_cols": str(sensor.cols),
+        "status_codes": _status_legend(),
+        "software": "geoloc ortho (geoloc.workflows.ortho.write_frame_geotiff)",
+    }
     all_tags.update({k: str(v) for k, v in (tags or {}).items()})
-    descriptions = ("lat_deg: geodetic latitude, WGS 84 [deg]", "lon_deg: longitude, WGS 84, east + [deg]",
-                    f"h_m: height [m], {ELLIPSOID_DATUM}", "status: geoloc.status.Status code (0 = ok)")
+    descriptions = (
+        "lat_deg: geodetic latitude, WGS 84 [deg]",
+        "lon_deg: longitude, WGS 84, east + [deg]",
+        f"h_m: height [m], {ELLIPSOID_DATUM}",
+        "status: geoloc.status.Status code (0 = ok)",
+    )
     path = Path(path)
     with atomic_path(path) as tmp:
         with warnings.catch_warnings(), rasterio.Env():
@@ -269,16 +326,21 @@ def write_frame_geotiff(path, sensor, pose, surface, *, step: int = 1, chunk: in
                 dst.set_band_description(b, desc)
                 unit = {"lat_deg": "deg", "lon_deg": "deg", "h_m": "m"}.get(name, "")
                 dst.update_tags(b, name=name, unit=unit, **({"datum": ELLIPSOID_DATUM} if name == "h_m" else {}))
-            for i0, i1, lat, lon, h, st in iter_frame(sensor, pose, surface, step=step, chunk=chunk,
-                                                      parallel=parallel, corrections=corrections):
+            for i0, i1, lat, lon, h, st in iter_frame(
+                sensor, pose, surface, step=step, chunk=chunk, parallel=parallel, corrections=corrections
+            ):
                 win = rasterio.windows.Window(0, i0, cols.size, i1 - i0)
                 dst.write(np.rad2deg(lat), 1, window=win)
                 dst.write(np.rad2deg(lon), 2, window=win)
                 dst.write(h, 3, window=win)
                 dst.write(st.astype(np.float64), 4, window=win)
                 counts += np.bincount(st.reshape(-1), minlength=len(Status))
-    return {"path": str(path), "shape": [int(rows.size), int(cols.size)], "step": int(step),
-            "counts": {Status(k).name.lower(): int(v) for k, v in enumerate(counts) if v}}
+    return {
+        "path": str(path),
+        "shape": [int(rows.size), int(cols.size)],
+        "step": int(step),
+        "counts": {Status(k).name.lower(): int(v) for k, v in enumerate(counts) if v},
+    }
 
 
 def read_frame_geotiff(path) -> FrameGrid:
@@ -296,8 +358,9 @@ def read_frame_geotiff(path) -> FrameGrid:
     step = int(tags.get("step", 1))
     rows = 1.0 + step * np.arange(lat.shape[0], dtype=float)
     cols = 1.0 + step * np.arange(lat.shape[1], dtype=float)
-    return FrameGrid(np.deg2rad(lat), np.deg2rad(lon), h, st.astype(np.uint8), rows, cols, step,
-                     tags.get("h_datum", ELLIPSOID_DATUM))
+    return FrameGrid(
+        np.deg2rad(lat), np.deg2rad(lon), h, st.astype(np.uint8), rows, cols, step, tags.get("h_datum", ELLIPSOID_DATUM)
+    )
 
 
 # --------------------------------------------------------------------------- orthophoto
@@ -338,7 +401,7 @@ def ortho_grid(frame: FrameGrid, gsd_m: float, crs: str = "geographic") -> Ortho
 
         s = math.sin(math.radians(lat0))
         w = math.sqrt(1.0 - E2 * s * s)
-        m_per_deg_lat = math.radians(1.0) * A * (1.0 - E2) / w ** 3  # meridian radius of curvature
+        m_per_deg_lat = math.radians(1.0) * A * (1.0 - E2) / w**3  # meridian radius of curvature
         m_per_deg_lon = math.radians(1.0) * A / w * math.cos(math.radians(lat0))
         dy, dx = gsd_m / m_per_deg_lat, gsd_m / m_per_deg_lon
         x0, x1, y0, y1 = lon.min(), lon.max(), lat.min(), lat.max()
@@ -391,8 +454,12 @@ def _sample_cells(dem, grid: OrthoGrid, lat, lon):
         v, u = rc - i, cc - j
     z = g.values
     out = np.zeros(np.broadcast_shapes(u.shape, v.shape))
-    for w, zz in (((1 - u) * (1 - v), z[i, j]), (u * (1 - v), z[i, j + 1]),
-                  ((1 - u) * v, z[i + 1, j]), (u * v, z[i + 1, j + 1])):
+    for w, zz in (
+        ((1 - u) * (1 - v), z[i, j]),
+        (u * (1 - v), z[i, j + 1]),
+        ((1 - u) * v, z[i + 1, j]),
+        (u * v, z[i + 1, j + 1]),
+    ):
         with np.errstate(invalid="ignore"):
             out = out + np.where(w != 0, w * zz, 0.0)
     inside = ok_r & ok_c & np.isfinite(r) & np.isfinite(c)
@@ -412,8 +479,13 @@ def _project_cells(sensor, pose, lat, lon, h, p_ecef, corrections: Corrections =
     from geoloc.sensors.base import PixelHit, flag_outside
     from geoloc.sensors.frame import FrameSensor
 
-    if corrections or not isinstance(sensor, FrameSensor) or np.ndim(pose.lat) != 0 \
-            or sensor.lever_extra_m is not None or bool(np.any(pose.invalid_mask())):
+    if (
+        corrections
+        or not isinstance(sensor, FrameSensor)
+        or np.ndim(pose.lat) != 0
+        or sensor.lever_extra_m is not None
+        or bool(np.any(pose.invalid_mask()))
+    ):
         return Pipeline(sensor, None, corrections).ground_to_pixel(lat, lon, h, pose)
     R_ecef_cam = np.asarray(sensor.frames(pose).T_ecef("cam"), float)[:3, :3]
     o = np.asarray(sensor.optical_centre_ecef(pose), float).reshape(3)
@@ -425,10 +497,22 @@ def _project_cells(sensor, pose, lat, lon, h, p_ecef, corrections: Corrections =
     return PixelHit(row, col, flag_outside(status, row, col, sensor.rows, sensor.cols))
 
 
-def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str = "geographic",
-                 frame: FrameGrid | None = None, chunk: int = DEFAULT_CHUNK, visible_tol_m: float | None = None,
-                 tags: dict | None = None, parallel: bool = True,
-                 corrections: Corrections = NO_CORRECTIONS) -> dict:
+def orthorectify(
+    image,
+    sensor,
+    pose,
+    dem,
+    out_path,
+    *,
+    gsd_m: float,
+    crs: str = "geographic",
+    frame: FrameGrid | None = None,
+    chunk: int = DEFAULT_CHUNK,
+    visible_tol_m: float | None = None,
+    tags: dict | None = None,
+    parallel: bool = True,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> dict:
     """Resample ``image`` onto a north-up grid (inverse map, occlusion-aware) and write a GeoTIFF.
 
     Parameters
@@ -471,27 +555,45 @@ def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str =
     if img.ndim == 2:
         img = img[None]
     if img.ndim != 3 or img.shape[1:] != (sensor.rows, sensor.cols):
-        raise ValueError(f"image shape {np.shape(image)}: must be (bands, {sensor.rows}, {sensor.cols}) "
-                         f"(the sensor's rows and columns)")
+        raise ValueError(
+            f"image shape {np.shape(image)}: must be (bands, {sensor.rows}, {sensor.cols}) "
+            f"(the sensor's rows and columns)"
+        )
     chunk = _check_chunk(chunk)
     if frame is None:
-        frame = locate_frame(sensor, pose, dem, step=max(1, min(sensor.rows, sensor.cols) // 400), chunk=chunk,
-                             parallel=parallel)
+        frame = locate_frame(
+            sensor, pose, dem, step=max(1, min(sensor.rows, sensor.cols) // 400), chunk=chunk, parallel=parallel
+        )
     grid = ortho_grid(frame, gsd_m, crs)
     tol = 0.25 * grid.gsd_m if visible_tol_m is None else float(visible_tol_m)
     bands = img.shape[0]
     src = [np.ascontiguousarray(b.astype(np.float32)) for b in img]
     dtype = img.dtype if img.dtype in (np.uint8, np.uint16, np.float32) else np.float32
-    profile = dict(driver="GTiff", width=grid.width, height=grid.height, count=bands + 1, dtype=str(np.dtype(dtype)),
-                   crs=grid.crs, transform=grid.transform, tiled=True, blockxsize=256, blockysize=256,
-                   compress="deflate", photometric="RGB" if bands == 3 and dtype == np.uint8 else "MINISBLACK")
+    profile = dict(
+        driver="GTiff",
+        width=grid.width,
+        height=grid.height,
+        count=bands + 1,
+        dtype=str(np.dtype(dtype)),
+        crs=grid.crs,
+        transform=grid.transform,
+        tiled=True,
+        blockxsize=256,
+        blockysize=256,
+        compress="deflate",
+        photometric="RGB" if bands == 3 and dtype == np.uint8 else "MINISBLACK",
+    )
     per = max(1, chunk // grid.width)
     seen_total = hidden_total = 0
     alpha_max = 255 if dtype == np.uint8 else (65535 if dtype == np.uint16 else 1.0)
-    all_tags = {"method": "inverse map: cell centre at the DEM height -> sensor.ground_to_pixel -> "
-                          "visibility (the pixel's line of sight meets the terrain there) -> cv2.remap bilinear",
-                "gsd_m": repr(grid.gsd_m), "visible_tol_m": repr(tol), "dem_height_datum": ELLIPSOID_DATUM,
-                "software": "geoloc ortho (geoloc.workflows.ortho.orthorectify)"}
+    all_tags = {
+        "method": "inverse map: cell centre at the DEM height -> sensor.ground_to_pixel -> "
+        "visibility (the pixel's line of sight meets the terrain there) -> cv2.remap bilinear",
+        "gsd_m": repr(grid.gsd_m),
+        "visible_tol_m": repr(tol),
+        "dem_height_datum": ELLIPSOID_DATUM,
+        "software": "geoloc ortho (geoloc.workflows.ortho.orthorectify)",
+    }
     all_tags.update({k: str(v) for k, v in (tags or {}).items()})
     with atomic_path(out_path) as tmp, rasterio.open(tmp, "w", **profile) as dst:
         dst.update_tags(**all_tags)
@@ -513,8 +615,11 @@ def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str =
                 if hasattr(sensor, "optical_centre_ecef") and not corrections:
                     o = np.broadcast_to(np.asarray(sensor.optical_centre_ecef(pose), float).reshape(-1, 3)[0], p.shape)
                     dvec = p - o
-                    los = LineOfSight(np.ascontiguousarray(o), dvec / np.linalg.norm(dvec, axis=-1, keepdims=True),
-                                      np.zeros(len(idx), np.uint8))
+                    los = LineOfSight(
+                        np.ascontiguousarray(o),
+                        dvec / np.linalg.norm(dvec, axis=-1, keepdims=True),
+                        np.zeros(len(idx), np.uint8),
+                    )
                 else:
                     los = sensor.line_of_sight(r.reshape(-1)[idx], c.reshape(-1)[idx], pose)
                 hit = visibility.intersect(los)
@@ -538,9 +643,16 @@ def orthorectify(image, sensor, pose, dem, out_path, *, gsd_m: float, crs: str =
             from rasterio.enums import ColorInterp
 
             dst.colorinterp = [ColorInterp.gray] * bands + [ColorInterp.alpha]
-    return {"path": str(out_path), "crs": grid.crs, "width": grid.width, "height": grid.height,
-            "gsd_m": grid.gsd_m, "transform": list(grid.transform.to_gdal()), "cells_seen": seen_total,
-            "cells_hidden": hidden_total}
+    return {
+        "path": str(out_path),
+        "crs": grid.crs,
+        "width": grid.width,
+        "height": grid.height,
+        "gsd_m": grid.gsd_m,
+        "transform": list(grid.transform.to_gdal()),
+        "cells_seen": seen_total,
+        "cells_hidden": hidden_total,
+    }
 
 
 def read_photo_pixels(path) -> np.ndarray:

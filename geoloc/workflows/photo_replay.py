@@ -49,13 +49,43 @@ __all__ = ["OUTPUT_COLUMNS", "read_targets", "replay_photos", "summarize", "writ
 
 #: Columns of every output row, in this order (input columns the targets file adds follow).
 OUTPUT_COLUMNS = [
-    "image", "row", "col", "lat_deg", "lon_deg", "mgrs", "h_m", "h_datum", "status", "surface",
-    "slant_range_m", "truth_lat_deg", "truth_lon_deg", "truth_h_m", "error_to_truth_m",
-    "vertical_error_m", "corrections", "refraction_m", "sensor_lat_deg", "sensor_lon_deg", "sensor_h_m",
+    "image",
+    "row",
+    "col",
+    "lat_deg",
+    "lon_deg",
+    "mgrs",
+    "h_m",
+    "h_datum",
+    "status",
+    "surface",
+    "slant_range_m",
+    "truth_lat_deg",
+    "truth_lon_deg",
+    "truth_h_m",
+    "error_to_truth_m",
+    "vertical_error_m",
+    "corrections",
+    "refraction_m",
+    "sensor_lat_deg",
+    "sensor_lon_deg",
+    "sensor_h_m",
     "absolute_altitude_m",
-    "altitude_datum", "geoid_undulation_m", "relative_altitude_m", "heading_deg", "pitch_deg",
-    "roll_deg", "gimbal_yaw_deg", "gimbal_pitch_deg", "gimbal_roll_deg", "lens", "lens_fx_sigma_px",
-    "rtk_flag", "make", "model", "maker",
+    "altitude_datum",
+    "geoid_undulation_m",
+    "relative_altitude_m",
+    "heading_deg",
+    "pitch_deg",
+    "roll_deg",
+    "gimbal_yaw_deg",
+    "gimbal_pitch_deg",
+    "gimbal_roll_deg",
+    "lens",
+    "lens_fx_sigma_px",
+    "rtk_flag",
+    "make",
+    "model",
+    "maker",
 ]
 #: Required columns of the targets file.
 TARGET_COLUMNS = ("image", "row", "col")
@@ -102,9 +132,11 @@ def read_targets(path) -> tuple[list, list, list]:
             raise ValueError(f"targets file {path}: column(s) {dup} appear more than once in the header")
         missing = [c for c in TARGET_COLUMNS if c not in header]
         if missing:
-            raise ValueError(f"targets file {path}: column(s) {missing} missing (header: {header}); "
-                             f"a targets file has columns {list(TARGET_COLUMNS)} (1-based pixel centres) "
-                             f"and optionally {list(TRUTH_COLUMNS)}")
+            raise ValueError(
+                f"targets file {path}: column(s) {missing} missing (header: {header}); "
+                f"a targets file has columns {list(TARGET_COLUMNS)} (1-based pixel centres) "
+                f"and optionally {list(TRUTH_COLUMNS)}"
+            )
         if ("truth_lat_deg" in header) != ("truth_lon_deg" in header):
             raise ValueError(f"targets file {path}: give both truth_lat_deg and truth_lon_deg, or neither")
         targets, messages = [], []
@@ -113,8 +145,9 @@ def read_targets(path) -> tuple[list, list, list]:
             if not any(v.strip() for v in values):
                 continue
             if len(values) > len(header):
-                messages.append(f"targets file {p.name} line {line}: {len(values)} fields, the header "
-                                f"has {len(header)}: skipped")
+                messages.append(
+                    f"targets file {p.name} line {line}: {len(values)} fields, the header has {len(header)}: skipped"
+                )
                 continue
             rec = dict(zip(header, [v.strip() for v in values] + [""] * (len(header) - len(values))))
             t, bad = {"line": line}, []
@@ -160,9 +193,17 @@ def _resolve(image: str, index: dict):
     return None
 
 
-def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
-                  altitude_datum: str = "egm96", truth_h_datum: str = "ellipsoid", targets_out: list | None = None,
-                  corrections: Corrections = NO_CORRECTIONS):
+def replay_photos(
+    photo_paths,
+    targets_csv,
+    sensor=None,
+    surface=None,
+    *,
+    altitude_datum: str = "egm96",
+    truth_h_datum: str = "ellipsoid",
+    targets_out: list | None = None,
+    corrections: Corrections = NO_CORRECTIONS,
+):
     """Locate every target of ``targets_csv`` in its photo and compare it with its truth.
 
     Parameters
@@ -219,17 +260,20 @@ def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
     surface_dem = terrain_of(surface) if surface is not None else None  # the DEM the surface reads
     targets, header, messages = read_targets(targets_csv)
     if surface is None and "truth_h_m" not in header:
-        raise ValueError(f"no DEM and the targets file {targets_csv} has no truth_h_m column: give a DEM "
-                         "(--dem) or each target's height (truth_h_m, ellipsoidal unless its datum is "
-                         "given) so that the targets can be located")
+        raise ValueError(
+            f"no DEM and the targets file {targets_csv} has no truth_h_m column: give a DEM "
+            "(--dem) or each target's height (truth_h_m, ellipsoidal unless its datum is "
+            "given) so that the targets can be located"
+        )
 
     # ---- the photos
     photos, bad_photos = {}, {}
     for path in photo_paths:
         name = Path(path).name
         if name in photos or name in bad_photos:
-            messages.append(f"{name}: a second photo with this file name ({path}) is ignored: targets "
-                            "name their photo by file name")
+            messages.append(
+                f"{name}: a second photo with this file name ({path}) is ignored: targets name their photo by file name"
+            )
             continue
         try:
             meta = read_photo(path)
@@ -261,12 +305,16 @@ def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
                 skipped_bad[bad] = skipped_bad.get(bad, 0) + 1
             else:
                 given = ", ".join(sorted(photos) + sorted(bad_photos)) or "none"
-                messages.append(f"targets file line {t['line']}: image {t['image']!r} is not among the "
-                                f"photos given ({given}): skipped")
+                messages.append(
+                    f"targets file line {t['line']}: image {t['image']!r} is not among the "
+                    f"photos given ({given}): skipped"
+                )
             continue
         if surface is None and t.get("truth_h_m") is None:
-            messages.append(f"targets file line {t['line']} ({t['image']}): no DEM and no truth_h_m: "
-                            "no height to locate the target at; skipped")
+            messages.append(
+                f"targets file line {t['line']} ({t['image']}): no DEM and no truth_h_m: "
+                "no height to locate the target at; skipped"
+            )
             continue
         by_photo.setdefault(key, []).append(k)
         order.append(k)
@@ -276,8 +324,19 @@ def replay_photos(photo_paths, targets_csv, sensor=None, surface=None, *,
     extra = [c for c in header if c not in TARGET_COLUMNS and c not in TRUTH_COLUMNS]
     out = {}
     for key, ks in by_photo.items():
-        out.update(_locate_photo(photos[key], [targets[k] for k in ks], ks, surface,
-                                 altitude_datum, truth_h_datum, extra, messages, corrections))
+        out.update(
+            _locate_photo(
+                photos[key],
+                [targets[k] for k in ks],
+                ks,
+                surface,
+                altitude_datum,
+                truth_h_datum,
+                extra,
+                messages,
+                corrections,
+            )
+        )
     if targets_out is not None and TARGET_ID_COLUMN in header:
         targets_out.extend(_triangulate_targets(photos, targets, by_photo, out, surface is not None))
     return [out[k] for k in order], messages
@@ -288,8 +347,9 @@ def _triangulate_targets(photos, targets, by_photo, located, on_surface: bool) -
     ks, O, D, ok = [], [], [], []
     for key, kk in by_photo.items():
         ph = photos[key]
-        los = ph["sensor"].line_of_sight(np.array([targets[k]["row"] for k in kk]),
-                                         np.array([targets[k]["col"] for k in kk]), ph["pose"])
+        los = ph["sensor"].line_of_sight(
+            np.array([targets[k]["row"] for k in kk]), np.array([targets[k]["col"] for k in kk]), ph["pose"]
+        )
         ks.extend(kk)
         O.append(np.asarray(los.origin_ecef, float).reshape(-1, 3))
         D.append(np.asarray(los.direction_ecef, float).reshape(-1, 3))
@@ -297,20 +357,27 @@ def _triangulate_targets(photos, targets, by_photo, located, on_surface: bool) -
     if not ks:
         return []
     h = [located[k]["h_m"] if located[k]["h_m"] is not None else math.nan for k in ks]
-    return triangulate_ids([targets[k].get(TARGET_ID_COLUMN, "") for k in ks], np.concatenate(O),
-                           np.concatenate(D), np.concatenate(ok), [targets[k]["line"] for k in ks],
-                           np.array(h, float) if on_surface else None,
-                           [located[k]["status"] == "ok" for k in ks])
+    return triangulate_ids(
+        [targets[k].get(TARGET_ID_COLUMN, "") for k in ks],
+        np.concatenate(O),
+        np.concatenate(D),
+        np.concatenate(ok),
+        [targets[k]["line"] for k in ks],
+        np.array(h, float) if on_surface else None,
+        [located[k]["status"] == "ok" for k in ks],
+    )
 
 
 def _datum_messages(meta, altitude_datum, h_cam, n, dem) -> list:
     out = []
     if altitude_datum == "egm96" and (meta.rtk_corrected or (meta.altitude_type or "").lower() == "rtkalt"):
         why = f"RtkFlag = {meta.rtk_flag}" if meta.rtk_corrected else f"AltitudeType = {meta.altitude_type}"
-        out.append(f"{meta.name}: {why} (an RTK-corrected position): DJI's RTK aircraft write "
-                   f"AbsoluteAltitude as a WGS-84 ellipsoidal height; it is taken here as EGM96 "
-                   f"(altitude_datum='egm96'), which adds N = {n:+.2f} m. If this aircraft writes "
-                   "ellipsoidal heights, use altitude_datum='ellipsoid' (--altitude-datum ellipsoid)")
+        out.append(
+            f"{meta.name}: {why} (an RTK-corrected position): DJI's RTK aircraft write "
+            f"AbsoluteAltitude as a WGS-84 ellipsoidal height; it is taken here as EGM96 "
+            f"(altitude_datum='egm96'), which adds N = {n:+.2f} m. If this aircraft writes "
+            "ellipsoidal heights, use altitude_datum='ellipsoid' (--altitude-datum ellipsoid)"
+        )
     above_dem = None
     if dem is not None:
         ground, st = dem.sample(np.array(math.radians(meta.lat_deg)), np.array(math.radians(meta.lon_deg)))
@@ -318,21 +385,30 @@ def _datum_messages(meta, altitude_datum, h_cam, n, dem) -> list:
             above_dem = h_cam - float(ground)
     rel = meta.relative_altitude_m
     if (above_dem is not None and above_dem > DRONE_MAX_HEIGHT_M) or (rel is not None and rel > DRONE_MAX_HEIGHT_M):
-        said = [f"the camera is {above_dem / 1000:.1f} km above the DEM under it (its altitude "
-                f"{meta.altitude_m:.1f} m taken as {_DATUM_TEXT[altitude_datum]})"] if above_dem is not None \
-            and above_dem > DRONE_MAX_HEIGHT_M else []
+        said = (
+            [
+                f"the camera is {above_dem / 1000:.1f} km above the DEM under it (its altitude "
+                f"{meta.altitude_m:.1f} m taken as {_DATUM_TEXT[altitude_datum]})"
+            ]
+            if above_dem is not None and above_dem > DRONE_MAX_HEIGHT_M
+            else []
+        )
         if rel is not None:
             said.append(f"RelativeAltitude (above the take-off point) is {rel:.1f} m")
         if above_dem is not None and above_dem > DRONE_MAX_HEIGHT_M:
             # the hint in the photo's own datum: the DEM height less the N added to the altitude
             ground_file = meta.altitude_m - above_dem
-            field, hint = (f"{meta.altitude_source or 'altitude'} = {meta.altitude_m:g}",
-                           drone_height_hint(meta.altitude_m, ground_file))
+            field, hint = (
+                f"{meta.altitude_source or 'altitude'} = {meta.altitude_m:g}",
+                drone_height_hint(meta.altitude_m, ground_file),
+            )
         else:
             field, hint = f"RelativeAltitude = {rel:g}", drone_height_hint(rel, 0.0)
-        out.append(f"{meta.name}: warning: implausible for a drone: {'; '.join(said)}, while drones fly below "
-                   f"{DRONE_MAX_HEIGHT_M:.0f} m (DJI's firmware caps them at 500 m above take-off): "
-                   f"{field}: {hint}; the numbers are used as read")
+        out.append(
+            f"{meta.name}: warning: implausible for a drone: {'; '.join(said)}, while drones fly below "
+            f"{DRONE_MAX_HEIGHT_M:.0f} m (DJI's firmware caps them at 500 m above take-off): "
+            f"{field}: {hint}; the numbers are used as read"
+        )
     if dem is not None and meta.relative_altitude_m is not None:
         ground, st = dem.sample(np.array(math.radians(meta.lat_deg)), np.array(math.radians(meta.lon_deg)))
         if int(st) == Status.OK and np.isfinite(ground):
@@ -344,12 +420,14 @@ def _datum_messages(meta, altitude_datum, h_cam, n, dem) -> list:
                     f"Check the altitude datum (AbsoluteAltitude taken as {_DATUM_TEXT[altitude_datum]}; "
                     f"EGM96 N here is {n:+.2f} m), the DEM's datum, and whether AbsoluteAltitude is "
                     "barometric (DJI's consumer aircraft); a take-off point at another ground height "
-                    "explains part of a difference")
+                    "explains part of a difference"
+                )
     return out
 
 
-def _locate_photo(ph, targets, ks, on, altitude_datum, truth_h_datum, extra, messages,
-                  corrections: Corrections = NO_CORRECTIONS) -> dict:
+def _locate_photo(
+    ph, targets, ks, on, altitude_datum, truth_h_datum, extra, messages, corrections: Corrections = NO_CORRECTIONS
+) -> dict:
     meta, s, pose = ph["meta"], ph["sensor"], ph["pose"]
     row = np.array([t["row"] for t in targets])
     col = np.array([t["col"] for t in targets])
@@ -362,8 +440,11 @@ def _locate_photo(ph, targets, ks, on, altitude_datum, truth_h_datum, extra, mes
     dem = terrain_of(on) if on is not None else None
     given = on is not None  # a surface given (else each target at its own truth height)
     if given:
-        surface = (f"dem ({on.method})" + (f": {Path(dem.path).name}" if getattr(dem, "path", None) else "")
-                   if dem is not None else repr(on))
+        surface = (
+            f"dem ({on.method})" + (f": {Path(dem.path).name}" if getattr(dem, "path", None) else "")
+            if dem is not None
+            else repr(on)
+        )
     else:
         on = HeightSurface(truth["truth_h_m"], "geodetic")
         surface = "truth_h_m (geodetic height)"
@@ -374,13 +455,20 @@ def _locate_photo(ph, targets, ks, on, altitude_datum, truth_h_datum, extra, mes
     st = names(hit.status)
     for t, code in zip(targets, hit.status):
         if code == Status.OUTSIDE_SENSOR:
-            messages.append(f"targets file line {t['line']} ({meta.name}): pixel row {t['row']:g}, col "
-                            f"{t['col']:g} is outside the {s.rows} x {s.cols} image (rows 0.5..{s.rows + 0.5:g}, "
-                            f"columns 0.5..{s.cols + 0.5:g}): not located")
+            messages.append(
+                f"targets file line {t['line']} ({meta.name}): pixel row {t['row']:g}, col "
+                f"{t['col']:g} is outside the {s.rows} x {s.cols} image (rows 0.5..{s.rows + 0.5:g}, "
+                f"columns 0.5..{s.cols + 0.5:g}): not located"
+            )
     common = {
-        "h_datum": ELLIPSOID_DATUM, "surface": surface,
-        "sensor_lat_deg": meta.lat_deg, "sensor_lon_deg": meta.lon_deg, "sensor_h_m": ph["h_cam"],
-        "altitude_datum": _DATUM_TEXT[altitude_datum], "geoid_undulation_m": ph["n"], "lens": ph["lens"],
+        "h_datum": ELLIPSOID_DATUM,
+        "surface": surface,
+        "sensor_lat_deg": meta.lat_deg,
+        "sensor_lon_deg": meta.lon_deg,
+        "sensor_h_m": ph["h_cam"],
+        "altitude_datum": _DATUM_TEXT[altitude_datum],
+        "geoid_undulation_m": ph["n"],
+        "lens": ph["lens"],
         **photo_columns(meta),
     }
     out = {}
@@ -388,12 +476,24 @@ def _locate_photo(ph, targets, ks, on, altitude_datum, truth_h_datum, extra, mes
     for j, (k, t) in enumerate(zip(ks, targets)):
         r = {c: None for c in OUTPUT_COLUMNS}
         r.update(common)
-        r.update(image=t["image"], row=t["row"], col=t["col"], lat_deg=_f(lat[j]), lon_deg=_f(lon[j]),
-                 mgrs=mgrs[j], h_m=_f(hit.h[j]), status=str(st[j]), slant_range_m=_f(hit.slant_range[j]),
-                 truth_lat_deg=_f(truth["truth_lat_deg"][j]), truth_lon_deg=_f(truth["truth_lon_deg"][j]),
-                 truth_h_m=_f(truth["truth_h_m"][j]), error_to_truth_m=_f(err[j]),
-                 vertical_error_m=_f(vert[j]), corrections=corrections.label,
-                 refraction_m=_f(hit.refraction_m[j]))
+        r.update(
+            image=t["image"],
+            row=t["row"],
+            col=t["col"],
+            lat_deg=_f(lat[j]),
+            lon_deg=_f(lon[j]),
+            mgrs=mgrs[j],
+            h_m=_f(hit.h[j]),
+            status=str(st[j]),
+            slant_range_m=_f(hit.slant_range[j]),
+            truth_lat_deg=_f(truth["truth_lat_deg"][j]),
+            truth_lon_deg=_f(truth["truth_lon_deg"][j]),
+            truth_h_m=_f(truth["truth_h_m"][j]),
+            error_to_truth_m=_f(err[j]),
+            vertical_error_m=_f(vert[j]),
+            corrections=corrections.label,
+            refraction_m=_f(hit.refraction_m[j]),
+        )
         for c in extra:
             r[c if c not in r else f"input_{c}"] = t.get(c, "")
         out[k] = r

@@ -36,8 +36,19 @@ import numpy as np
 from geoloc.status import Status
 from geoloc.extras import require
 
-__all__ = ["Cross", "GroundTexture", "ground_texture", "hillshade", "find_marks", "RenderedFrame", "read_crosses", "render_frame", "SKY_RGB", "HAZE_RGB",
-           "CROSS_RGB"]
+__all__ = [
+    "Cross",
+    "GroundTexture",
+    "ground_texture",
+    "hillshade",
+    "find_marks",
+    "RenderedFrame",
+    "read_crosses",
+    "render_frame",
+    "SKY_RGB",
+    "HAZE_RGB",
+    "CROSS_RGB",
+]
 
 #: Colour of rays that miss the terrain upward (Status.SKY).
 SKY_RGB = (150, 190, 235)
@@ -76,8 +87,10 @@ class Cross:
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise ValueError(f"Cross {self.name!r}: {k} = {v!r} must be a finite number")
         if not (self.arm_m > 0 and 0 < self.width_m <= 2 * self.arm_m):
-            raise ValueError(f"Cross {self.name!r}: arm_m = {self.arm_m!r}, width_m = {self.width_m!r}: need "
-                             f"arm_m > 0 and 0 < width_m <= 2 arm_m")
+            raise ValueError(
+                f"Cross {self.name!r}: arm_m = {self.arm_m!r}, width_m = {self.width_m!r}: need "
+                f"arm_m > 0 and 0 < width_m <= 2 arm_m"
+            )
 
 
 def read_crosses(path, *, arm_m: float = 12.0, width_m: float = 2.5) -> list[Cross]:
@@ -86,9 +99,15 @@ def read_crosses(path, *, arm_m: float = 12.0, width_m: float = 2.5) -> list[Cro
     with open(path, newline="", encoding="utf-8-sig") as f:
         for line, row in enumerate(csv.DictReader(f), start=2):
             try:
-                out.append(Cross(float(row["lat_deg"]), float(row["lon_deg"]),
-                                 float(row.get("arm_m") or arm_m), float(row.get("width_m") or width_m),
-                                 row.get("name", "") or ""))
+                out.append(
+                    Cross(
+                        float(row["lat_deg"]),
+                        float(row["lon_deg"]),
+                        float(row.get("arm_m") or arm_m),
+                        float(row.get("width_m") or width_m),
+                        row.get("name", "") or "",
+                    )
+                )
             except (KeyError, ValueError) as e:
                 raise ValueError(f"{path}, line {line}: {e}") from None
     return out
@@ -99,7 +118,7 @@ def _radii(lat_rad):
 
     s = np.sin(lat_rad)
     w = np.sqrt(1.0 - E2 * s * s)
-    return A * (1.0 - E2) / w ** 3, A / w  # meridian M, prime vertical N
+    return A * (1.0 - E2) / w**3, A / w  # meridian M, prime vertical N
 
 
 @dataclass(frozen=True)
@@ -109,7 +128,7 @@ class GroundTexture:
     Build with :func:`ground_texture`; :meth:`colour` gives the RGB of ground points.
     """
 
-    rgb: np.ndarray              # (nr, nc, 3) float32 0..255 on the DEM's nodes (row 0 north)
+    rgb: np.ndarray  # (nr, nc, 3) float32 0..255 on the DEM's nodes (row 0 north)
     lat_north_deg: float
     lon_west_deg: float
     dlat_deg: float
@@ -134,8 +153,9 @@ class GroundTexture:
         x0 = np.minimum(np.floor(x).astype(np.int64), nc - 2)
         fy, fx = (y - y0)[..., None], (x - x0)[..., None]
         t = self.rgb
-        c = ((t[y0, x0] * (1 - fx) + t[y0, x0 + 1] * fx) * (1 - fy)
-             + (t[y0 + 1, x0] * (1 - fx) + t[y0 + 1, x0 + 1] * fx) * fy)
+        c = (t[y0, x0] * (1 - fx) + t[y0, x0 + 1] * fx) * (1 - fy) + (
+            t[y0 + 1, x0] * (1 - fx) + t[y0 + 1, x0 + 1] * fx
+        ) * fy
         M, N = _radii(np.where(ok, lat, 0.0))
         if self.graticule_deg > 0:
             g = math.radians(self.graticule_deg)
@@ -148,8 +168,7 @@ class GroundTexture:
             n = (lat - la) * M
             e = (lon - lo) * N * np.cos(lat)
             half = 0.5 * cr.width_m
-            inside = (((np.abs(n) <= half) & (np.abs(e) <= cr.arm_m))
-                      | ((np.abs(e) <= half) & (np.abs(n) <= cr.arm_m)))
+            inside = ((np.abs(n) <= half) & (np.abs(e) <= cr.arm_m)) | ((np.abs(e) <= half) & (np.abs(n) <= cr.arm_m))
             c = np.where(inside[..., None], np.asarray(cr.rgb, np.float32), c)
         out = np.clip(np.rint(c), 0, 255).astype(np.uint8)
         out[~ok] = self.haze_rgb
@@ -158,8 +177,15 @@ class GroundTexture:
 
 def _tint(z, lo, hi) -> np.ndarray:
     """Hypsometric tint: green (low) through olive to brown and pale (high), (..., 3) in 0..1."""
-    stops = np.array([[0.00, 0.27, 0.45, 0.20], [0.35, 0.50, 0.60, 0.28], [0.65, 0.66, 0.58, 0.36],
-                      [0.85, 0.60, 0.45, 0.30], [1.00, 0.85, 0.82, 0.78]])
+    stops = np.array(
+        [
+            [0.00, 0.27, 0.45, 0.20],
+            [0.35, 0.50, 0.60, 0.28],
+            [0.65, 0.66, 0.58, 0.36],
+            [0.85, 0.60, 0.45, 0.30],
+            [1.00, 0.85, 0.82, 0.78],
+        ]
+    )
     u = np.clip((z - lo) / max(hi - lo, 1e-9), 0, 1)
     return np.stack([np.interp(u, stops[:, 0], stops[:, k]) for k in (1, 2, 3)], -1)
 
@@ -194,8 +220,15 @@ def hillshade(dem, sun_azimuth_deg: float = 315.0, sun_elevation_deg: float = 45
     return np.clip(nrm @ light, 0, 1)
 
 
-def ground_texture(dem, crosses=(), *, sun_azimuth_deg: float = 315.0, sun_elevation_deg: float = 45.0,
-                   graticule_deg: float = 0.001, graticule_width_m: float = 1.5) -> GroundTexture:
+def ground_texture(
+    dem,
+    crosses=(),
+    *,
+    sun_azimuth_deg: float = 315.0,
+    sun_elevation_deg: float = 45.0,
+    graticule_deg: float = 0.001,
+    graticule_width_m: float = 1.5,
+) -> GroundTexture:
     """The shaded relief of a geographic DEM, with a graticule and crosses.
 
     Parameters
@@ -226,8 +259,16 @@ def ground_texture(dem, crosses=(), *, sun_azimuth_deg: float = 315.0, sun_eleva
     for c in crosses:
         if not isinstance(c, Cross):
             raise ValueError(f"crosses: {c!r} is not a Cross")
-    return GroundTexture(rgb, float(g.lat_north_deg), float(g.lon_west_deg), float(g.dlat_deg), float(g.dlon_deg),
-                         crosses, float(graticule_deg), float(graticule_width_m))
+    return GroundTexture(
+        rgb,
+        float(g.lat_north_deg),
+        float(g.lon_west_deg),
+        float(g.dlat_deg),
+        float(g.dlon_deg),
+        crosses,
+        float(graticule_deg),
+        float(graticule_width_m),
+    )
 
 
 @dataclass(frozen=True)
@@ -246,8 +287,9 @@ class RenderedFrame:
     grid: object
 
 
-def render_frame(sensor, pose, surface, texture: GroundTexture, *, parallel: bool = True,
-                 chunk: int | None = None) -> RenderedFrame:
+def render_frame(
+    sensor, pose, surface, texture: GroundTexture, *, parallel: bool = True, chunk: int | None = None
+) -> RenderedFrame:
     """Render one frame: every pixel's exact terrain hit, coloured from ``texture``.
 
     Parameters

@@ -62,8 +62,7 @@ def records_line_of_sight(records: Records, camera: FrameSensor):
     replay flags them OUTSIDE_SENSOR and :func:`outside_sensor_messages` names
     them), so one off-sensor record neither vanishes nor passes unnoticed.
     """
-    return line_of_sight(records.pose(), camera, records.column("row"), records.column("col"),
-                         outside="extrapolate")
+    return line_of_sight(records.pose(), camera, records.column("row"), records.column("col"), outside="extrapolate")
 
 
 def outside_sensor_mask(records: Records, camera) -> np.ndarray:
@@ -87,15 +86,19 @@ def outside_sensor_messages(records: Records, camera, lat=None) -> list:
             what.append(f"row = {row[k]:g} (rows 1-{s.rows})")
         if not 0.5 <= col[k] <= s.cols + 0.5:
             what.append(f"col = {col[k]:g} (columns 1-{s.cols})")
-        how = ("located by extending the lens model" if lat is None or np.isfinite(lat[k])
-               else "too far out for the lens model to give a ray there: not located")
-        out.append(f"line {records.lines[k]} ({labels[k]}): {' and '.join(what)} is outside the sensor; "
-                   f"{how}, flagged outside_sensor")
+        how = (
+            "located by extending the lens model"
+            if lat is None or np.isfinite(lat[k])
+            else "too far out for the lens model to give a ray there: not located"
+        )
+        out.append(
+            f"line {records.lines[k]} ({labels[k]}): {' and '.join(what)} is outside the sensor; "
+            f"{how}, flagged outside_sensor"
+        )
     return out
 
 
-def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None = None,
-                       camera=None) -> ReplayResult:
+def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None = None, camera=None) -> ReplayResult:
     """Wrap ground points with the distances to the published and surveyed positions.
 
     With ``camera``, records whose pixel is off its sensor get status
@@ -115,8 +118,9 @@ def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None
 
     def err(prefix):
         if records.has(f"{prefix}_lat_deg") and records.has(f"{prefix}_lon_deg"):
-            return horizontal_distance_m(lat, lon, records.column(f"{prefix}_lat_deg"),
-                                         records.column(f"{prefix}_lon_deg"))
+            return horizontal_distance_m(
+                lat, lon, records.column(f"{prefix}_lat_deg"), records.column(f"{prefix}_lon_deg")
+            )
         return np.full(len(records), np.nan)
 
     return ReplayResult(records, lat, lon, ground.h, status, err("paper"), err("truth"), extra)
@@ -149,8 +153,7 @@ def drone_rows(records: Records, sensor=None) -> np.ndarray:
     return np.array([is_drone(t) if t.strip() else default for t in records.text(PLATFORM_COLUMN)], dtype=bool)
 
 
-def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, limit: int = 5,
-                          sensor=None) -> list:
+def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, limit: int = 5, sensor=None) -> list:
     """Warnings for records whose numbers cannot be right, without changing them (issue 32).
 
     - the camera below the terrain under it (``terrain``: a DEM or DEM mosaic, whose
@@ -183,10 +186,15 @@ def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, 
         ht, _ = terrain.sample(np.deg2rad(ac_lat), np.deg2rad(ac_lon))
         with np.errstate(invalid="ignore"):
             below = np.flatnonzero(ac_h < ht - BELOW_TERRAIN_M)
-        add("with the camera below the terrain", below,
-            lambda k: f"the camera (ac_h_m = {ac_h[k]:.1f} m) is {ht[k] - ac_h[k]:.0f} m below the terrain under "
-            f"it ({ht[k]:.1f} m, the DEM), heights ellipsoidal: a height in the wrong datum or unit "
-            "(MSL read as ellipsoidal, feet as metres), or above the ground instead of the ellipsoid?")
+        add(
+            "with the camera below the terrain",
+            below,
+            lambda k: (
+                f"the camera (ac_h_m = {ac_h[k]:.1f} m) is {ht[k] - ac_h[k]:.0f} m below the terrain under "
+                f"it ({ht[k]:.1f} m, the DEM), heights ellipsoidal: a height in the wrong datum or unit "
+                "(MSL read as ellipsoidal, feet as metres), or above the ground instead of the ellipsoid?"
+            ),
+        )
     ht_ok = None
     if terrain is not None:
         ht_ok = np.where(np.isfinite(ht), ht, np.nan)
@@ -201,10 +209,15 @@ def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, 
             far = (err > IMPLAUSIBLE_ERROR_FRACTION * slant) & (err > IMPLAUSIBLE_ERROR_M)
         far[below] = False  # said already: the camera is below the terrain
         far = np.flatnonzero(far)
-        add("far from their truth", far,
-            lambda k: f"located {err[k]:.0f} m from its truth, {100 * err[k] / slant[k]:.0f} % of its slant range "
-            f"({slant[k]:.0f} m): implausible for a pointing error; a height or angle in the wrong unit or "
-            "datum, or the wrong sensor?")
+        add(
+            "far from their truth",
+            far,
+            lambda k: (
+                f"located {err[k]:.0f} m from its truth, {100 * err[k] / slant[k]:.0f} % of its slant range "
+                f"({slant[k]:.0f} m): implausible for a pointing error; a height or angle in the wrong unit or "
+                "datum, or the wrong sensor?"
+            ),
+        )
     return out
 
 
@@ -212,8 +225,13 @@ def _drone_height_warnings(records: Records, result: ReplayResult, ground, senso
     """(indices, text of index) of the drone records too high for a drone: above the terrain
     ``ground`` (None or NaN where unknown: the located point's height instead) by more than
     DRONE_MAX_HEIGHT_M, or above DRONE_CEILING_M."""
-    from geoloc.sensors.platform import (DRONE_CEILING_M, DRONE_MAX_HEIGHT_M, drone_height_hint,
-                                         drone_height_where, drone_too_high)
+    from geoloc.sensors.platform import (
+        DRONE_CEILING_M,
+        DRONE_MAX_HEIGHT_M,
+        drone_height_hint,
+        drone_height_where,
+        drone_too_high,
+    )
 
     drone = drone_rows(records, sensor)
     if not drone.any():
@@ -222,8 +240,11 @@ def _drone_height_warnings(records: Records, result: ReplayResult, ground, senso
     high, ref, what = drone_too_high(ac_h, result.h_m, ground)
     high &= drone
     src = records.altitude
-    field = "ac_h_m" if src.column in ("ac_h_m", "") or src.column not in records.header \
+    field = (
+        "ac_h_m"
+        if src.column in ("ac_h_m", "") or src.column not in records.header
         else f"{src.column} (read as ac_h_m, {src.unit}, {src.datum})"
+    )
 
     def text(k):
         cell = records.rows[k].get(src.column if field != "ac_h_m" else "ac_h_m", "").strip() or f"{ac_h[k]:.1f}"
@@ -234,10 +255,18 @@ def _drone_height_warnings(records: Records, result: ReplayResult, ground, senso
         except ValueError:
             value = ac_h[k]
         ref_file = ref[k] - (ac_h[k] - value) if known else None
-        return (f"{field} = {cell}: a drone's camera {where}, while drones fly below "
-                f"{DRONE_MAX_HEIGHT_M:.0f} m above the ground and {DRONE_CEILING_M:.0f} m above the sea: "
-                + drone_height_hint(value, ref_file, src.unit, "a height column in feet needs unit = 'ft' "
-                                   "in the column map (docs/columns.md)") + "; the row is used as read")
+        return (
+            f"{field} = {cell}: a drone's camera {where}, while drones fly below "
+            f"{DRONE_MAX_HEIGHT_M:.0f} m above the ground and {DRONE_CEILING_M:.0f} m above the sea: "
+            + drone_height_hint(
+                value,
+                ref_file,
+                src.unit,
+                "a height column in feet needs unit = 'ft' in the column map (docs/columns.md)",
+            )
+            + "; the row is used as read"
+        )
+
     return np.flatnonzero(high), text
 
 
@@ -298,12 +327,22 @@ def uncertainty_columns(records: Records, sensor, surface, budget) -> tuple:
 
     messages = []
     if budget.sigma("time_s") > 0:
-        messages.append(f"{budget.source}: [uncertainty] time_s = {budget.sigma('time_s'):g} s left out of the "
-                        "predicted uncertainty (the records carry no platform velocity)")
-        budget = ErrorBudget({k: v for k, v in budget.sigmas.items() if k != "time_s"}, budget.dem_product,
-                             budget.source)
-    pu = propagate(sensor, records.pose(), records.column("row"), records.column("col"), budget,
-                   surface=surface, outside="extrapolate")
+        messages.append(
+            f"{budget.source}: [uncertainty] time_s = {budget.sigma('time_s'):g} s left out of the "
+            "predicted uncertainty (the records carry no platform velocity)"
+        )
+        budget = ErrorBudget(
+            {k: v for k, v in budget.sigmas.items() if k != "time_s"}, budget.dem_product, budget.source
+        )
+    pu = propagate(
+        sensor,
+        records.pose(),
+        records.column("row"),
+        records.column("col"),
+        budget,
+        surface=surface,
+        outside="extrapolate",
+    )
     ok = np.asarray(pu.status) == Status.OK
     cols = {k: np.where(ok, np.asarray(v, float), np.nan) for k, v in pu.columns().items()}
     return cols, messages
@@ -329,20 +368,28 @@ def refraction_note(records: Records, sensor, surface, corrections: Corrections,
     from geoloc.corrections.refraction import STANDARD_REFRACTION
 
     bent = Pipeline(sensor, surface, dataclasses.replace(corrections, refraction=STANDARD_REFRACTION)).intersect(
-        records_line_of_sight(records, sensor))
+        records_line_of_sight(records, sensor)
+    )
     shift = np.asarray(bent.refraction_m, float)
     with np.errstate(invalid="ignore"):
         big = shift > REFRACTION_NOTE_FRACTION * np.asarray(ce90, float)
     if not big.any():
         return None
     k = int(np.nanargmax(np.where(big, shift, np.nan)))
-    return (f"refraction is off, but the standard atmosphere would move {int(big.sum())} of {len(records)} "
-            f"records by more than a tenth of their predicted CE90 (up to {shift[k]:.1f} m, line "
-            f"{records.lines[k]}, CE90 {float(np.asarray(ce90)[k]):.1f} m): --refraction standard applies it")
+    return (
+        f"refraction is off, but the standard atmosphere would move {int(big.sum())} of {len(records)} "
+        f"records by more than a tenth of their predicted CE90 (up to {shift[k]:.1f} m, line "
+        f"{records.lines[k]}, CE90 {float(np.asarray(ce90)[k]):.1f} m): --refraction standard applies it"
+    )
 
 
-def replay_at_height(records: Records, camera: FrameSensor, height_column: str | None = None,
-                     target_h: float | None = None, height_kind: str = "inflated") -> ReplayResult:
+def replay_at_height(
+    records: Records,
+    camera: FrameSensor,
+    height_column: str | None = None,
+    target_h: float | None = None,
+    height_kind: str = "inflated",
+) -> ReplayResult:
     """:func:`replay_records` at a target height from a column, or one height for all.
 
     Parameters
@@ -430,8 +477,9 @@ def not_located_lines(result: ReplayResult) -> list:
     if not lost.any():
         return []
     st = np.asarray(result.status)[lost]
-    why = "; ".join(f"{int(np.sum(st == c))} {Status(c).name.lower()} ({describe(c)})"
-                    for c in sorted(set(st.tolist())))
+    why = "; ".join(
+        f"{int(np.sum(st == c))} {Status(c).name.lower()} ({describe(c)})" for c in sorted(set(st.tolist()))
+    )
     return [f"not located: {int(lost.sum())} of {len(lost)} records: {why}"]
 
 
@@ -452,11 +500,16 @@ def dem_coverage_warning(result: ReplayResult) -> str | None:
     if not (outside.any() or left.any()):
         return None
     fin = np.isfinite(lat) & np.isfinite(lon)
-    data = (f"W {np.min(lon[fin]):.4f} S {np.min(lat[fin]):.4f} E {np.max(lon[fin]):.4f} N {np.max(lat[fin]):.4f}"
-            if fin.any() else "no finite position")
-    return (f"the DEM does not cover the data: {int(outside.sum())} of {len(r)} aircraft positions are outside it "
-            f"and {int(left.sum())} lines of sight left it before meeting the terrain; DEM W {w:.4f} S {so:.4f} "
-            f"E {e:.4f} N {n:.4f} deg, aircraft {data} deg")
+    data = (
+        f"W {np.min(lon[fin]):.4f} S {np.min(lat[fin]):.4f} E {np.max(lon[fin]):.4f} N {np.max(lat[fin]):.4f}"
+        if fin.any()
+        else "no finite position"
+    )
+    return (
+        f"the DEM does not cover the data: {int(outside.sum())} of {len(r)} aircraft positions are outside it "
+        f"and {int(left.sum())} lines of sight left it before meeting the terrain; DEM W {w:.4f} S {so:.4f} "
+        f"E {e:.4f} N {n:.4f} deg, aircraft {data} deg"
+    )
 
 
 def summary_table(result: ReplayResult, group_column: str = "table", rows: bool = True) -> str:
@@ -464,14 +517,21 @@ def summary_table(result: ReplayResult, group_column: str = "table", rows: bool 
     r = result.records
     labels = r.labels()
     pub = r.column("paper_error_m") if r.has("paper_error_m") else np.full(len(r), np.nan)
-    lines = [f"{'record':<10} {'lat_deg':>11} {'lon_deg':>11} {'h_m':>9} {'status':>8} "
-             f"{'to_paper_m':>10} {'to_truth_m':>10} {'published_m':>11}"] if rows else []
+    lines = (
+        [
+            f"{'record':<10} {'lat_deg':>11} {'lon_deg':>11} {'h_m':>9} {'status':>8} "
+            f"{'to_paper_m':>10} {'to_truth_m':>10} {'published_m':>11}"
+        ]
+        if rows
+        else []
+    )
     st = names(result.status)
     for k in range(len(r) if rows else 0):
         lines.append(
             f"{labels[k]:<10} {_fmt(result.lat_deg[k], '11.5f'):>11} {_fmt(result.lon_deg[k], '11.5f'):>11} "
             f"{_fmt(result.h_m[k], '9.1f'):>9} {st[k]:>8} {_fmt(result.error_to_paper_m[k], '10.2f'):>10} "
-            f"{_fmt(result.error_to_truth_m[k], '10.2f'):>10} {_fmt(pub[k], '11.3f'):>11}")
+            f"{_fmt(result.error_to_truth_m[k], '10.2f'):>10} {_fmt(pub[k], '11.3f'):>11}"
+        )
     groups = r.text(group_column) if group_column in r.header else ["all"] * len(r)
     if rows:
         lines.append("")
@@ -493,7 +553,9 @@ def summary_table(result: ReplayResult, group_column: str = "table", rows: bool 
         lines.append(text)
     lines += not_located_lines(result)
     if np.any(np.isfinite(result.error_to_paper_m)):
-        lines.append(f"all: RMS distance to the published positions "
-                     f"{np.sqrt(_nanmean(result.error_to_paper_m ** 2)):.2f} m over "
-                     f"{int(np.isfinite(result.error_to_paper_m).sum())} records")
+        lines.append(
+            f"all: RMS distance to the published positions "
+            f"{np.sqrt(_nanmean(result.error_to_paper_m**2)):.2f} m over "
+            f"{int(np.isfinite(result.error_to_paper_m).sum())} records"
+        )
     return "\n".join(lines)

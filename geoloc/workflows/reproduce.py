@@ -76,8 +76,9 @@ def dem_scenario_available() -> bool:
         return False
 
 
-def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 2000,
-                    surface=None, progress: bool | None = False) -> Report:
+def qiao2017_report(
+    samples: int = 5000, seed: int = 0, sweep_samples: int = 2000, surface=None, progress: bool | None = False
+) -> Report:
     """[Q17] side by side with the project.
 
     Parameters
@@ -101,26 +102,33 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
     lat, lon, h, _ = mc.nominal_point(model)
     la, lo = math.degrees(lat), math.degrees(lon)
     rep.numbers.update(nominal_lat_deg=la, nominal_lon_deg=lo, nominal_h_m=h)
-    rep.add("[Q17] Qiao et al. 2017 -- paper vs geoloc", "",
-            "1. Table 1 nominal target (CCD centre, ellipsoid inflated to h_T = 5083.5 m)",
-            f"   paper   {Q17_NOMINAL_DEG[0]:.5f} N  {Q17_NOMINAL_DEG[1]:.5f} E",
-            f"   geoloc  {la:.5f} N  {lo:.5f} E   ({la:.7f}, {lo:.7f}; h {h:.3f} m)", "")
+    rep.add(
+        "[Q17] Qiao et al. 2017 -- paper vs geoloc",
+        "",
+        "1. Table 1 nominal target (CCD centre, ellipsoid inflated to h_T = 5083.5 m)",
+        f"   paper   {Q17_NOMINAL_DEG[0]:.5f} N  {Q17_NOMINAL_DEG[1]:.5f} E",
+        f"   geoloc  {la:.5f} N  {lo:.5f} E   ({la:.7f}, {lo:.7f}; h {h:.3f} m)",
+        "",
+    )
 
     # 2. Monte Carlo, ellipsoid model
     res = mc.run(model, samples, rng, progress=progress)
     s = res.stats
     fo = mc.first_order(model)
     rep.numbers.update({f"mc_{k}": v for k, v in s.items()})
-    rep.add(f"2. Monte Carlo, Tables 1-2, ellipsoid model, terrain sigma 62.47 m, N = {samples}, seed {seed}",
-            f"   {'':8} {'std lat deg':>12} {'std lon deg':>12} {'std h m':>9}",
-            f"   {'paper':8} {Q17_STD_ELLIPSOID[0]:12.5f} {Q17_STD_ELLIPSOID[1]:12.5f} {Q17_STD_ELLIPSOID[2]:9.1f}",
-            f"   {'geoloc':8} {s['std_lat_deg']:12.5f} {s['std_lon_deg']:12.5f} {s['std_h_m']:9.1f}"
-            f"   ({_pct(s['std_lat_deg'], Q17_STD_ELLIPSOID[0])}, {_pct(s['std_lon_deg'], Q17_STD_ELLIPSOID[1])}, "
-            f"{_pct(s['std_h_m'], Q17_STD_ELLIPSOID[2])})",
-            f"   {'1st ord.':8} {fo.std_lat_deg:12.5f} {fo.std_lon_deg:12.5f} {fo.std_h_m:9.1f}"
-            "   (linear propagation, Jacobian of the chain)",
-            f"   CEP [Q17 eq. 18] {s['cep_m']:.1f} m, empirical 50 % radius {s['cep50_empirical_m']:.1f} m "
-            "(eq. 18 is a radial RMS; see docs/montecarlo.md)", "")
+    rep.add(
+        f"2. Monte Carlo, Tables 1-2, ellipsoid model, terrain sigma 62.47 m, N = {samples}, seed {seed}",
+        f"   {'':8} {'std lat deg':>12} {'std lon deg':>12} {'std h m':>9}",
+        f"   {'paper':8} {Q17_STD_ELLIPSOID[0]:12.5f} {Q17_STD_ELLIPSOID[1]:12.5f} {Q17_STD_ELLIPSOID[2]:9.1f}",
+        f"   {'geoloc':8} {s['std_lat_deg']:12.5f} {s['std_lon_deg']:12.5f} {s['std_h_m']:9.1f}"
+        f"   ({_pct(s['std_lat_deg'], Q17_STD_ELLIPSOID[0])}, {_pct(s['std_lon_deg'], Q17_STD_ELLIPSOID[1])}, "
+        f"{_pct(s['std_h_m'], Q17_STD_ELLIPSOID[2])})",
+        f"   {'1st ord.':8} {fo.std_lat_deg:12.5f} {fo.std_lon_deg:12.5f} {fo.std_h_m:9.1f}"
+        "   (linear propagation, Jacobian of the chain)",
+        f"   CEP [Q17 eq. 18] {s['cep_m']:.1f} m, empirical 50 % radius {s['cep50_empirical_m']:.1f} m "
+        "(eq. 18 is a radial RMS; see docs/montecarlo.md)",
+        "",
+    )
 
     # 3. Monte Carlo with the DEM
     if use_dem:
@@ -129,18 +137,24 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
         ds = dres.stats
         dlat, dlon, dh, _ = dres.nominal
         rep.numbers.update({f"mcdem_{k}": v for k, v in ds.items()})
-        rep.add(f"3. Monte Carlo with a DEM, N = {samples} (paper: ASTER GDEM 30 m; geoloc: bundled "
-                "ETOPO5 5' crop, so the terrain and its slopes differ)",
-                f"   {'':8} {'target':>24} {'h m':>8} {'std lat deg':>12} {'std lon deg':>12} {'std h m':>8}",
-                f"   {'paper':8} {Q17_DEM_TARGET_DEG[0]:10.5f} N {Q17_DEM_TARGET_DEG[1]:10.5f} E "
-                f"{Q17_DEM_TARGET_DEG[2]:8.1f} {Q17_STD_DEM[0]:12.5f} {Q17_STD_DEM[1]:12.5f} {Q17_STD_DEM[2]:8.2f}",
-                f"   {'geoloc':8} {math.degrees(dlat):10.5f} N {math.degrees(dlon):10.5f} E "
-                f"{dh:8.1f} {ds['std_lat_deg']:12.5f} {ds['std_lon_deg']:12.5f} {ds['std_h_m']:8.2f}",
-                f"   CEP [Q17 eq. 18] {ds['cep_m']:.1f} m, empirical 50 % radius "
-                f"{ds['cep50_empirical_m']:.1f} m; {ds['n_failed']} samples without a terrain hit", "")
+        rep.add(
+            f"3. Monte Carlo with a DEM, N = {samples} (paper: ASTER GDEM 30 m; geoloc: bundled "
+            "ETOPO5 5' crop, so the terrain and its slopes differ)",
+            f"   {'':8} {'target':>24} {'h m':>8} {'std lat deg':>12} {'std lon deg':>12} {'std h m':>8}",
+            f"   {'paper':8} {Q17_DEM_TARGET_DEG[0]:10.5f} N {Q17_DEM_TARGET_DEG[1]:10.5f} E "
+            f"{Q17_DEM_TARGET_DEG[2]:8.1f} {Q17_STD_DEM[0]:12.5f} {Q17_STD_DEM[1]:12.5f} {Q17_STD_DEM[2]:8.2f}",
+            f"   {'geoloc':8} {math.degrees(dlat):10.5f} N {math.degrees(dlon):10.5f} E "
+            f"{dh:8.1f} {ds['std_lat_deg']:12.5f} {ds['std_lon_deg']:12.5f} {ds['std_h_m']:8.2f}",
+            f"   CEP [Q17 eq. 18] {ds['cep_m']:.1f} m, empirical 50 % radius "
+            f"{ds['cep50_empirical_m']:.1f} m; {ds['n_failed']} samples without a terrain hit",
+            "",
+        )
     else:
-        rep.add("3. Monte Carlo with a DEM: skipped (no DEM surface given: --no-dem, or the bundled DEM "
-                "scenario is not installed)", "")
+        rep.add(
+            "3. Monte Carlo with a DEM: skipped (no DEM surface given: --no-dem, or the bundled DEM "
+            "scenario is not installed)",
+            "",
+        )
 
     # 4. flight test
     from geoloc.io.records import load_records
@@ -150,25 +164,29 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
     camera = load_sensor(asset_path(*DEFAULT_CAMERA))
     rr = replay_at_height(records, camera, "paper_height_m")
     tables = records.text("table")
-    rep.add("4. Flight test (Tables 3-4; fitted camera assets/cameras/qiao2017.toml, target at "
-            "each point's published height)",
-            f"   {'flight':6} {'n':>3} {'mean error to truth m':>22} {'published mean m':>17} "
-            f"{'RMS to published position m':>28}")
+    rep.add(
+        "4. Flight test (Tables 3-4; fitted camera assets/cameras/qiao2017.toml, target at "
+        "each point's published height)",
+        f"   {'flight':6} {'n':>3} {'mean error to truth m':>22} {'published mean m':>17} "
+        f"{'RMS to published position m':>28}",
+    )
     for t in sorted(set(tables)):
         m = np.array([x == t for x in tables])
         mean_err = float(np.nanmean(rr.error_to_truth_m[m]))
         rms_pub = float(np.sqrt(np.nanmean(rr.error_to_paper_m[m] ** 2)))
         rep.numbers[f"flight_{t}_mean_error_m"] = mean_err
         rep.numbers[f"flight_{t}_rms_to_paper_m"] = rms_pub
-        rep.add(f"   {t:6} {int(m.sum()):3d} {mean_err:22.2f} {Q17_MEAN_ERROR.get(t, math.nan):17.3f} "
-                f"{rms_pub:28.2f}")
-    rms_all = float(np.sqrt(np.nanmean(rr.error_to_paper_m ** 2)))
+        rep.add(f"   {t:6} {int(m.sum()):3d} {mean_err:22.2f} {Q17_MEAN_ERROR.get(t, math.nan):17.3f} {rms_pub:28.2f}")
+    rms_all = float(np.sqrt(np.nanmean(rr.error_to_paper_m**2)))
     rep.numbers["flight_rms_to_paper_m"] = rms_all
-    rep.add(f"   all: RMS distance to the published positions {rms_all:.2f} m (published coordinates "
-            "are rounded to 1e-5 deg, about 1 m)",
-            "   [Q17] Table 5, a third flight at roll gimbal angles of 57-63 deg, is not in the "
-            "bundled records (the copy of the paper they come from lacks that table); the paper's "
-            f"text gives its mean error to truth, {Q17_MEAN_ERROR['T5']} m", "")
+    rep.add(
+        f"   all: RMS distance to the published positions {rms_all:.2f} m (published coordinates "
+        "are rounded to 1e-5 deg, about 1 m)",
+        "   [Q17] Table 5, a third flight at roll gimbal angles of 57-63 deg, is not in the "
+        "bundled records (the copy of the paper they come from lacks that table); the paper's "
+        f"text gives its mean error to truth, {Q17_MEAN_ERROR['T5']} m",
+        "",
+    )
 
     # 5. Fig. 10 trend
     angles = np.array([10.0, 30.0, 50.0, 63.0, 70.0, 80.0, 82.0])
@@ -176,8 +194,10 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
     sw = mc.sweep_terrain_sigma(model, angles, sigmas, sweep_samples, rng, progress)
     rep.numbers["fig10a_cep_m"] = sw.cep_m.tolist()
     head = "   " + f"{'angle':>6}" + "".join(f"{'sigma ' + format(x, 'g') + ' m':>16}" for x in sigmas)
-    rep.add(f"5. Fig. 10 trend: CEP [Q17 eq. 18] against the outer frame angle, N = {sweep_samples} per point",
-            "   (a) ellipsoid model; paper: CEP grows with the angle and with the terrain sigma")
+    rep.add(
+        f"5. Fig. 10 trend: CEP [Q17 eq. 18] against the outer frame angle, N = {sweep_samples} per point",
+        "   (a) ellipsoid model; paper: CEP grows with the angle and with the terrain sigma",
+    )
     dsw = None
     if use_dem:
         dsw = mc.sweep_dem(dmodel, angles, sweep_samples, rng, surface=surface, progress=progress)
@@ -196,8 +216,10 @@ def qiao2017_report(samples: int = 5000, seed: int = 0, sweep_samples: int = 200
     if dsw is not None:
         c70 = float(np.interp(70.0, angles, dsw.cep_m[:, 0]))
         c80 = float(np.interp(80.0, angles, dsw.cep_m[:, 0]))
-        rep.add(f"   (b) paper with ASTER GDEM: CEP < 50 m below 70 deg, < 180 m at 80 deg; "
-                f"geoloc on ETOPO5: {c70:.1f} m at 70 deg, {c80:.1f} m at 80 deg")
+        rep.add(
+            f"   (b) paper with ASTER GDEM: CEP < 50 m below 70 deg, < 180 m at 80 deg; "
+            f"geoloc on ETOPO5: {c70:.1f} m at 70 deg, {c80:.1f} m at 80 deg"
+        )
     return rep
 
 
@@ -229,15 +251,16 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
 
     dem = terrain_of(surface)
     if dem is None:
-        raise ValueError(f"li2023_report: surface = {surface!r} has no DEM; give the DEM scenario's surface "
-                         "(geoloc.cli._options.surface_from_scenario(load_q17_dem_model()))")
+        raise ValueError(
+            f"li2023_report: surface = {surface!r} has no DEM; give the DEM scenario's surface "
+            "(geoloc.cli._options.surface_from_scenario(load_q17_dem_model()))"
+        )
     rep = Report()
     dmodel = load_q17_dem_model()
     rng = np.random.default_rng(seed)
     errs = dmodel.sample(n_rays, rng)
     angles = rng.uniform(10.0, 80.0, n_rays)
-    errs["gimbal_roll_deg"] = errs.get("gimbal_roll_deg", 0.0) + np.radians(
-        angles - dmodel.nominal["gimbal_roll_deg"])
+    errs["gimbal_roll_deg"] = errs.get("gimbal_roll_deg", 0.0) + np.radians(angles - dmodel.nominal["gimbal_roll_deg"])
     pose, chain, row, col = mc.perturbed_geometry(dmodel, errs)
     # the [Q17] chain, as the paper: the scenario camera's file form (exact: camera_from_sensor
     # inverts to_sensor) on the batched FrameChain
@@ -245,21 +268,28 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
     records = load_records(asset_path(*DEFAULT_RECORDS))
     los_b = records_line_of_sight(records, load_sensor(asset_path(*DEFAULT_CAMERA)))
     from geoloc.surfaces.base import LineOfSight
-    los = LineOfSight(np.concatenate([los_a.origin_ecef, los_b.origin_ecef]),
-                      np.concatenate([los_a.direction_ecef, los_b.direction_ecef]),
-                      np.concatenate([los_a.status, los_b.status]))
+
+    los = LineOfSight(
+        np.concatenate([los_a.origin_ecef, los_b.origin_ecef]),
+        np.concatenate([los_a.direction_ecef, los_b.direction_ecef]),
+        np.concatenate([los_a.status, los_b.status]),
+    )
     n = len(los.status)
     # the paper's experiment is on the DEM solvers themselves: the same rays through the pipeline
     # with each solver as its surface, no corrections (as [Q17] and [L23])
     exact = Pipeline(None, DemSurface(dem, "exact")).intersect(los)
-    rep.add("[L23] Li et al. 2023 -- bisection on the target elevation vs [Q17] descending steps", "",
-            f"DEM: {dem.path} ({dem.shape[0]}x{dem.shape[1]} nodes, heights {dem.min_height():.0f}-"
-            f"{dem.max_height():.0f} m); {n} rays: {n_rays} Table 1-2 rays with the outer gimbal "
-            f"angle in 10-80 deg (seed {seed}) + {len(records)} flight-test records",
-            f"paper: bisection with the threshold at 1/10 of the DEM accuracy is {L23_SAVING_PCT} % "
-            "more iteration-efficient than the stepping method", "",
-            f"{'tol m':>6} {'steps evals':>12} {'bisect evals':>13} {'saving %':>9} {'steps s':>8} "
-            f"{'bisect s':>9} {'max dist to exact m (steps/bisect)':>36} {'hidden':>7}")
+    rep.add(
+        "[L23] Li et al. 2023 -- bisection on the target elevation vs [Q17] descending steps",
+        "",
+        f"DEM: {dem.path} ({dem.shape[0]}x{dem.shape[1]} nodes, heights {dem.min_height():.0f}-"
+        f"{dem.max_height():.0f} m); {n} rays: {n_rays} Table 1-2 rays with the outer gimbal "
+        f"angle in 10-80 deg (seed {seed}) + {len(records)} flight-test records",
+        f"paper: bisection with the threshold at 1/10 of the DEM accuracy is {L23_SAVING_PCT} % "
+        "more iteration-efficient than the stepping method",
+        "",
+        f"{'tol m':>6} {'steps evals':>12} {'bisect evals':>13} {'saving %':>9} {'steps s':>8} "
+        f"{'bisect s':>9} {'max dist to exact m (steps/bisect)':>36} {'hidden':>7}",
+    )
     for tol in tolerances_m:
         t0 = time.perf_counter()
         st = Pipeline(None, DemSurface(dem, "steps", eps_h=tol)).intersect(los)
@@ -271,14 +301,23 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
         saving = 100.0 * (1.0 - eb.sum() / es.sum())
         ds = horizontal_distance_m(st.lat_deg[ok], st.lon_deg[ok], exact.lat_deg[ok], exact.lon_deg[ok])
         db = horizontal_distance_m(bi.lat_deg[ok], bi.lon_deg[ok], exact.lat_deg[ok], exact.lon_deg[ok])
-        rep.numbers[f"tol_{tol:g}"] = dict(steps_mean_evals=float(es.mean()), bisect_mean_evals=float(eb.mean()),
-                                           saving_pct=saving, n_ok=int(ok.sum()),
-                                           hidden=int(bi.hidden[ok].sum()))
-        rep.add(f"{tol:6g} {es.mean():12.1f} {eb.mean():13.1f} {saving:9.1f} {t1 - t0:8.2f} {t2 - t1:9.2f} "
-                f"{np.max(ds):17.1f} / {np.max(db):<16.1f} {int(bi.hidden[ok].sum()):7d}")
-    rep.add("", "evals: DEM heights read per ray (mean over rays where all three methods hit); "
-            "saving = 1 - bisect/steps evaluations; hidden: bisection answers behind a ridge.",
-            "The steps start at the DEM's highest node, so their count grows with (H_max - h)/tol; "
-            "bisection grows with log2((H_max - H_min)/tol): the saving depends on the relief and "
-            "the tolerance, not on one number.")
+        rep.numbers[f"tol_{tol:g}"] = dict(
+            steps_mean_evals=float(es.mean()),
+            bisect_mean_evals=float(eb.mean()),
+            saving_pct=saving,
+            n_ok=int(ok.sum()),
+            hidden=int(bi.hidden[ok].sum()),
+        )
+        rep.add(
+            f"{tol:6g} {es.mean():12.1f} {eb.mean():13.1f} {saving:9.1f} {t1 - t0:8.2f} {t2 - t1:9.2f} "
+            f"{np.max(ds):17.1f} / {np.max(db):<16.1f} {int(bi.hidden[ok].sum()):7d}"
+        )
+    rep.add(
+        "",
+        "evals: DEM heights read per ray (mean over rays where all three methods hit); "
+        "saving = 1 - bisect/steps evaluations; hidden: bisection answers behind a ridge.",
+        "The steps start at the DEM's highest node, so their count grows with (H_max - h)/tol; "
+        "bisection grows with log2((H_max - H_min)/tol): the saving depends on the relief and "
+        "the tolerance, not on one number.",
+    )
     return rep

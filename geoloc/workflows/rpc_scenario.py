@@ -134,14 +134,22 @@ def dem_pixels(sensor, dem, grid=(12, 12), margin=0.05):
     c0 = max(0.5, np.nanmin(c[ok])) if ok.any() else 0.5
     c1 = min(sensor.cols + 0.5, np.nanmax(c[ok])) if ok.any() else sensor.cols + 0.5
     dr, dc = margin * (r1 - r0), margin * (c1 - c0)
-    R, C = np.meshgrid(np.linspace(r0 + dr, r1 - dr, grid[0]), np.linspace(c0 + dc, c1 - dc, grid[1]),
-                       indexing="ij")
+    R, C = np.meshgrid(np.linspace(r0 + dr, r1 - dr, grid[0]), np.linspace(c0 + dc, c1 - dc, grid[1]), indexing="ij")
     return R.ravel(), C.ravel()
 
 
-def crosscheck_gdal_dem(sensor, model: RPCModel, dem, dem_path_for_gdal, row, col, *,
-                        pixel_error_threshold=1e-6, max_iterations=100,
-                        corrections: Corrections = NO_CORRECTIONS) -> DemCrossCheck:
+def crosscheck_gdal_dem(
+    sensor,
+    model: RPCModel,
+    dem,
+    dem_path_for_gdal,
+    row,
+    col,
+    *,
+    pixel_error_threshold=1e-6,
+    max_iterations=100,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> DemCrossCheck:
     """Pixel -> ground by GDAL (RPC + ``RPC_DEM``) against the project's exact DEM intersection.
 
     The exact side intersects the rigorous line of sight with the DEM
@@ -177,18 +185,30 @@ def crosscheck_gdal_dem(sensor, model: RPCModel, dem, dem_path_for_gdal, row, co
     ok = hit.status == Status.OK
     row, col = row[ok], col[ok]
     lat_e, lon_e, h_e, p_e = hit.lat[ok], hit.lon[ok], hit.h[ok], hit.ecef[ok]
-    lat_g, lon_g = gdal_rpc_to_ground(model, row, col, dem_path=dem_path_for_gdal, height=0.0,
-                                      pixel_error_threshold=pixel_error_threshold,
-                                      max_iterations=max_iterations)
+    lat_g, lon_g = gdal_rpc_to_ground(
+        model,
+        row,
+        col,
+        dem_path=dem_path_for_gdal,
+        height=0.0,
+        pixel_error_threshold=pixel_error_threshold,
+        max_iterations=max_iterations,
+    )
     h_g = dem.height(lat_g, lon_g)
     r_g, c_g, st = pipe.ground_to_pixel(lat_g, lon_g, h_g)
     err_px = np.where(st == Status.OK, np.hypot(r_g - row, c_g - col), np.nan)
     err_m = np.linalg.norm(geodetic_to_ecef(lat_g, lon_g, h_g) - p_e, axis=-1)
-    opts = {"RPC_DEM": str(dem_path_for_gdal), "RPC_DEMINTERPOLATION": "bilinear",
-            "RPC_DEM_APPLY_VDATUM_SHIFT": "FALSE", "RPC_HEIGHT": "0 (zs = 0 above the DEM)",
-            "RPC_PIXEL_ERROR_THRESHOLD": pixel_error_threshold, "RPC_MAX_ITERATIONS": max_iterations}
-    return DemCrossCheck(row, col, lat_e, lon_e, h_e, lat_g, lon_g, err_px, err_m,
-                         int(np.sum(~np.isfinite(lat_g))), opts)
+    opts = {
+        "RPC_DEM": str(dem_path_for_gdal),
+        "RPC_DEMINTERPOLATION": "bilinear",
+        "RPC_DEM_APPLY_VDATUM_SHIFT": "FALSE",
+        "RPC_HEIGHT": "0 (zs = 0 above the DEM)",
+        "RPC_PIXEL_ERROR_THRESHOLD": pixel_error_threshold,
+        "RPC_MAX_ITERATIONS": max_iterations,
+    }
+    return DemCrossCheck(
+        row, col, lat_e, lon_e, h_e, lat_g, lon_g, err_px, err_m, int(np.sum(~np.isfinite(lat_g))), opts
+    )
 
 
 # --------------------------------------------------------------- scenarios
@@ -232,7 +252,7 @@ def _resolve(rel: str, base: Path, field_name: str) -> Path:
     from geoloc.assets import ASSETS
 
     p = Path(rel)
-    for cand in ((p,) if p.is_absolute() else (base / p, ASSETS / p)):
+    for cand in (p,) if p.is_absolute() else (base / p, ASSETS / p):
         if cand.exists():
             return cand
     raise FileNotFoundError(f"{field_name} = {rel!r}: not found (tried beside the scenario and in {ASSETS})")
@@ -240,8 +260,11 @@ def _resolve(rel: str, base: Path, field_name: str) -> Path:
 
 def _int_tuple(d, key, n, default, source):
     v = d.get(key, default)
-    if (not isinstance(v, (list, tuple)) or len(v) != n
-            or any(isinstance(x, bool) or not isinstance(x, int) or x < 2 for x in v)):
+    if (
+        not isinstance(v, (list, tuple))
+        or len(v) != n
+        or any(isinstance(x, bool) or not isinstance(x, int) or x < 2 for x in v)
+    ):
         raise ValueError(f"{source}: {key} = {v!r} must be {n} integers >= 2")
     return tuple(v)
 
@@ -272,8 +295,16 @@ def load_rpc_scenario(path) -> RPCScenario:
         pose_d = data.get("pose")
         if not isinstance(pose_d, dict):
             raise ValueError(f"{src}: missing table [pose]")
-        allowed = ("lat_deg", "lon_deg", "h_m", "heading_deg", "pitch_deg", "roll_deg",
-                   "gimbal_roll_deg", "gimbal_pitch_deg")
+        allowed = (
+            "lat_deg",
+            "lon_deg",
+            "h_m",
+            "heading_deg",
+            "pitch_deg",
+            "roll_deg",
+            "gimbal_roll_deg",
+            "gimbal_pitch_deg",
+        )
         unknown = sorted(set(pose_d) - set(allowed))
         if unknown:
             raise ValueError(f"{src} [pose]: unknown key(s) {unknown}; allowed: {list(allowed)}")
@@ -314,12 +345,14 @@ def load_rpc_scenario(path) -> RPCScenario:
     if not isinstance(table, dict):
         raise ValueError(f"{src}: corrections must be a table [corrections], got {table!r}")
     corrections = corrections_from_table(sensor, table, f"{src} [corrections]")
-    return RPCScenario(str(data.get("name", path.stem)), kind, sensor, hr[0], hr[1], grid, check,
-                       dem_path, datum, cc, corrections)
+    return RPCScenario(
+        str(data.get("name", path.stem)), kind, sensor, hr[0], hr[1], grid, check, dem_path, datum, cc, corrections
+    )
 
 
-def rpc_report(scenario: RPCScenario, out_tif, dem=None, *, gdal: bool = True,
-               pixel_error_threshold: float = 1e-6, dem_copy=None) -> dict:
+def rpc_report(
+    scenario: RPCScenario, out_tif, dem=None, *, gdal: bool = True, pixel_error_threshold: float = 1e-6, dem_copy=None
+) -> dict:
     """Fit, write and cross-check the RPC of a scenario: what ``geoloc rpc`` reports.
 
     Parameters
@@ -348,16 +381,28 @@ def rpc_report(scenario: RPCScenario, out_tif, dem=None, *, gdal: bool = True,
     import tempfile
 
     s = scenario.sensor
-    fit = fit_rpc(s, scenario.height_min, scenario.height_max, scenario.grid, scenario.check_grid,
-                  corrections=scenario.corrections)
+    fit = fit_rpc(
+        s,
+        scenario.height_min,
+        scenario.height_max,
+        scenario.grid,
+        scenario.check_grid,
+        corrections=scenario.corrections,
+    )
     write_rpc_geotiff(out_tif, fit.model, s.rows, s.cols)
     rep = {
-        "scenario": scenario.name, "kind": scenario.kind, "image": str(out_tif),
-        "rows": int(s.rows), "cols": int(s.cols),
+        "scenario": scenario.name,
+        "kind": scenario.kind,
+        "image": str(out_tif),
+        "rows": int(s.rows),
+        "cols": int(s.cols),
         "height_range_m": [scenario.height_min, scenario.height_max],
-        "n_fit": fit.n_fit, "n_check": fit.n_check,
-        "fit_rms_px": fit.fit_rms_px, "fit_max_px": fit.fit_max_px,
-        "check_rms_px": fit.check_rms_px, "check_max_px": fit.check_max_px,
+        "n_fit": fit.n_fit,
+        "n_check": fit.n_check,
+        "fit_rms_px": fit.fit_rms_px,
+        "fit_max_px": fit.fit_max_px,
+        "check_rms_px": fit.check_rms_px,
+        "check_max_px": fit.check_max_px,
         "corrections": scenario.corrections.label,
     }
     if not gdal or scenario.dem_path is None:
@@ -365,33 +410,73 @@ def rpc_report(scenario: RPCScenario, out_tif, dem=None, *, gdal: bool = True,
         rep["gdal_note"] = "skipped" if not gdal else "no [dem] in the scenario"
         return rep
     if dem is None:
-        raise ValueError(f"scenario {scenario.name!r} names the DEM {scenario.dem_path}: pass it opened, "
-                         "rpc_report(scenario, out_tif, DEM.open(scenario.dem_path, datum=scenario.dem_datum)), "
-                         "or gdal=False")
+        raise ValueError(
+            f"scenario {scenario.name!r} names the DEM {scenario.dem_path}: pass it opened, "
+            "rpc_report(scenario, out_tif, DEM.open(scenario.dem_path, datum=scenario.dem_datum)), "
+            "or gdal=False"
+        )
     rows, cols = dem_pixels(s, dem, scenario.cross_check_grid)
     with tempfile.TemporaryDirectory() as tmp:
         ell = Path(dem_copy) if dem_copy is not None else Path(tmp) / "dem_ellipsoidal.tif"
         write_ellipsoidal_dem(dem, ell)
-        cc = crosscheck_gdal_dem(s, fit.model, dem, ell, rows, cols,
-                                 pixel_error_threshold=pixel_error_threshold, corrections=scenario.corrections)
-        cc_default = crosscheck_gdal_dem(s, fit.model, dem, ell, cc.row, cc.col,
-                                         pixel_error_threshold=None, max_iterations=None,
-                                         corrections=scenario.corrections)
+        cc = crosscheck_gdal_dem(
+            s,
+            fit.model,
+            dem,
+            ell,
+            rows,
+            cols,
+            pixel_error_threshold=pixel_error_threshold,
+            corrections=scenario.corrections,
+        )
+        cc_default = crosscheck_gdal_dem(
+            s,
+            fit.model,
+            dem,
+            ell,
+            cc.row,
+            cc.col,
+            pixel_error_threshold=None,
+            max_iterations=None,
+            corrections=scenario.corrections,
+        )
     # GDAL's default handling of the bundled file: orthometric values taken as ellipsoidal
-    cc_raw = crosscheck_gdal_dem(s, fit.model, dem, scenario.dem_path, cc.row, cc.col,
-                                 pixel_error_threshold=pixel_error_threshold, corrections=scenario.corrections)
-    rep.update({
-        "gdal_vs_exact_max_px": cc.max_px, "gdal_vs_exact_rms_px": cc.rms_px,
-        "gdal_vs_exact_max_m": cc.max_m, "gdal_points": int(cc.row.size), "gdal_failed": cc.n_failed,
-        "gdal_options": {k: str(v) for k, v in cc.options.items() if k != "RPC_DEM"},
-        "gdal_default_threshold_max_px": cc_default.max_px,
-        "gdal_orthometric_dem_max_px": cc_raw.max_px, "gdal_orthometric_dem_max_m": cc_raw.max_m,
-        "dem": str(scenario.dem_path), "dem_datum": scenario.dem_datum,
-    })
+    cc_raw = crosscheck_gdal_dem(
+        s,
+        fit.model,
+        dem,
+        scenario.dem_path,
+        cc.row,
+        cc.col,
+        pixel_error_threshold=pixel_error_threshold,
+        corrections=scenario.corrections,
+    )
+    rep.update(
+        {
+            "gdal_vs_exact_max_px": cc.max_px,
+            "gdal_vs_exact_rms_px": cc.rms_px,
+            "gdal_vs_exact_max_m": cc.max_m,
+            "gdal_points": int(cc.row.size),
+            "gdal_failed": cc.n_failed,
+            "gdal_options": {k: str(v) for k, v in cc.options.items() if k != "RPC_DEM"},
+            "gdal_default_threshold_max_px": cc_default.max_px,
+            "gdal_orthometric_dem_max_px": cc_raw.max_px,
+            "gdal_orthometric_dem_max_m": cc_raw.max_m,
+            "dem": str(scenario.dem_path),
+            "dem_datum": scenario.dem_datum,
+        }
+    )
     if dem_copy is not None:
         rep["ellipsoidal_dem"] = str(dem_copy)
     return rep
 
 
-__all__ = ["DemCrossCheck", "FrameCameraSensor", "RPCScenario", "crosscheck_gdal_dem", "dem_pixels",
-           "load_rpc_scenario", "rpc_report"]
+__all__ = [
+    "DemCrossCheck",
+    "FrameCameraSensor",
+    "RPCScenario",
+    "crosscheck_gdal_dem",
+    "dem_pixels",
+    "load_rpc_scenario",
+    "rpc_report",
+]

@@ -54,8 +54,10 @@ def scenario_kind(data: dict, source: str = "scenario") -> str:
         return "montecarlo"
     if {"aircraft", "scan"} <= tables:
         return "flight_scan"
-    raise ValueError(f"{source}: no 'kind' key, and its tables {sorted(tables)} are not those of a known "
-                     f"scenario; set kind = one of {sorted(KINDS)}")
+    raise ValueError(
+        f"{source}: no 'kind' key, and its tables {sorted(tables)} are not those of a known "
+        f"scenario; set kind = one of {sorted(KINDS)}"
+    )
 
 
 def load_scenario(path, expect=None):
@@ -82,8 +84,9 @@ def load_scenario(path, expect=None):
     if expect is not None:
         want = (expect,) if isinstance(expect, str) else tuple(expect)
         if kind not in want:
-            raise ValueError(f"{src}: this is {KINDS[kind]} (kind = {kind!r}); expected kind "
-                             f"{' or '.join(repr(w) for w in want)}")
+            raise ValueError(
+                f"{src}: this is {KINDS[kind]} (kind = {kind!r}); expected kind {' or '.join(repr(w) for w in want)}"
+            )
     body = {k: v for k, v in data.items() if k != "kind"}
     if kind == "montecarlo":
         from geoloc.analysis.errormodel import ErrorModel

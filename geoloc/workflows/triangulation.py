@@ -31,14 +31,21 @@ class TargetResult:
     """One target's triangulation, the rows it came from and the surface check."""
 
     target_id: str
-    rows: np.ndarray           # indices into the records
-    lines: list                # their line numbers in the file
+    rows: np.ndarray  # indices into the records
+    lines: list  # their line numbers in the file
     tri: Triangulation
-    surface: dict = field(default_factory=dict)   # compare_with_surface's result (empty without hits)
+    surface: dict = field(default_factory=dict)  # compare_with_surface's result (empty without hits)
 
 
-def triangulate_records(records: Records, sensor, budget=None, surface_h_m=None, surface_ok=None,
-                        column: str = TARGET_ID_COLUMN, corrections: Corrections = NO_CORRECTIONS) -> list:
+def triangulate_records(
+    records: Records,
+    sensor,
+    budget=None,
+    surface_h_m=None,
+    surface_ok=None,
+    column: str = TARGET_ID_COLUMN,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> list:
     """Triangulate every target named in two rows or more of ``column``.
 
     Parameters
@@ -60,8 +67,9 @@ def triangulate_records(records: Records, sensor, budget=None, surface_h_m=None,
     if budget is not None and budget.sigma("time_s") > 0:  # records carry no velocity (the replay says so)
         from geoloc.sensors.budget import ErrorBudget
 
-        budget = ErrorBudget({k: v for k, v in budget.sigmas.items() if k != "time_s"}, budget.dem_product,
-                             budget.source)
+        budget = ErrorBudget(
+            {k: v for k, v in budget.sigmas.items() if k != "time_s"}, budget.dem_product, budget.source
+        )
     ids = [r.get(column, "").strip() for r in records.rows]
     pose = records.pose()
     row, col = records.column("row"), records.column("col")
@@ -129,14 +137,20 @@ def summary_lines(results: list) -> list:
     for r in results:
         t = r.tri
         if t.status != Status.OK:
-            L.append(f"target {r.target_id}: {t.n_rays} usable rays (lines {r.lines}): not triangulated "
-                     "(fewer than two rays, or rays within 1 deg of each other)")
+            L.append(
+                f"target {r.target_id}: {t.n_rays} usable rays (lines {r.lines}): not triangulated "
+                "(fewer than two rays, or rays within 1 deg of each other)"
+            )
             continue
-        unc = (f", CE90 {t.ce90_m:.1f} m, LE90 {t.le90_m:.1f} m" if math.isfinite(t.ce90_m) else "")
-        L.append(f"target {r.target_id}: {t.lat_deg:.7f} {t.lon_deg:.7f} h {t.h:.1f} m (ellipsoidal, WGS 84) "
-                 f"from {t.n_rays} rays{unc}; worst ray residual {np.nanmax(t.residual_m):.1f} m")
+        unc = f", CE90 {t.ce90_m:.1f} m, LE90 {t.le90_m:.1f} m" if math.isfinite(t.ce90_m) else ""
+        L.append(
+            f"target {r.target_id}: {t.lat_deg:.7f} {t.lon_deg:.7f} h {t.h:.1f} m (ellipsoidal, WGS 84) "
+            f"from {t.n_rays} rays{unc}; worst ray residual {np.nanmax(t.residual_m):.1f} m"
+        )
         s = r.surface
         if s and math.isfinite(s.get("mean_m", math.nan)):
-            L.append(f"target {r.target_id}: surface minus intersection {s['mean_m']:+.1f} m "
-                     f"(standard error {s['se_m']:.1f} m)" + (f"; warning: {s['warning']}" if s["warning"] else ""))
+            L.append(
+                f"target {r.target_id}: surface minus intersection {s['mean_m']:+.1f} m "
+                f"(standard error {s['se_m']:.1f} m)" + (f"; warning: {s['warning']}" if s["warning"] else "")
+            )
     return L

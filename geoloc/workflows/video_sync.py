@@ -41,12 +41,12 @@ class KlvPredictor:
     1-based ``(row, col)`` (NaN behind the camera, without metadata, or outside the packets' span).
     """
 
-    times_s: np.ndarray          # the packets' PTS [s] (packets with a complete pose)
-    pose_deg: dict               # their poses (klv_pose_deg), arrays
-    fov_deg: np.ndarray          # (k, 2) their fields of view (horizontal, vertical) [deg]
-    lat: np.ndarray              # (p,) [rad]
+    times_s: np.ndarray  # the packets' PTS [s] (packets with a complete pose)
+    pose_deg: dict  # their poses (klv_pose_deg), arrays
+    fov_deg: np.ndarray  # (k, 2) their fields of view (horizontal, vertical) [deg]
+    lat: np.ndarray  # (p,) [rad]
     lon: np.ndarray
-    h_m: np.ndarray              # (p,) ellipsoidal [m]
+    h_m: np.ndarray  # (p,) ellipsoidal [m]
     rows: int
     cols: int
 
@@ -55,8 +55,10 @@ class KlvPredictor:
         from geoloc.sensors.gimbals import PRESETS
         from geoloc.sensors.lenses import lens_from_fov
 
-        return FrameSensor(lens_from_fov(math.radians(hfov_deg), math.radians(vfov_deg), self.cols, self.rows),
-                           PRESETS["azimuth-elevation-roll"])
+        return FrameSensor(
+            lens_from_fov(math.radians(hfov_deg), math.radians(vfov_deg), self.cols, self.rows),
+            PRESETS["azimuth-elevation-roll"],
+        )
 
     def __call__(self, t_s) -> np.ndarray:
         from geoloc.frames.chain import Pose
@@ -64,12 +66,21 @@ class KlvPredictor:
         t = np.atleast_1d(np.asarray(t_s, float))
         p = interpolate_pose_deg(self.times_s, self.pose_deg, t)
         col = lambda a: np.asarray(a, float)[:, None]  # noqa: E731  (n, 1) against the points (1, p)
-        pose = Pose.from_deg(col(p["lat_deg"]), col(p["lon_deg"]), col(p["h_m"]), col(p["heading_deg"]),
-                             col(p["pitch_deg"]), col(p["roll_deg"]),
-                             angles_deg={k: col(v) for k, v in p["angles_deg"].items()})
+        pose = Pose.from_deg(
+            col(p["lat_deg"]),
+            col(p["lon_deg"]),
+            col(p["h_m"]),
+            col(p["heading_deg"]),
+            col(p["pitch_deg"]),
+            col(p["roll_deg"]),
+            angles_deg={k: col(v) for k, v in p["angles_deg"].items()},
+        )
         # the fields of view of the packet at or before each time (they change in steps: a zoom)
-        k = np.clip(np.searchsorted(self.times_s, np.where(np.isfinite(t), t, self.times_s[0]), "right") - 1,
-                    0, len(self.times_s) - 1)
+        k = np.clip(
+            np.searchsorted(self.times_s, np.where(np.isfinite(t), t, self.times_s[0]), "right") - 1,
+            0,
+            len(self.times_s) - 1,
+        )
         out = np.full((len(t), len(self.lat), 2), np.nan)
         fov = self.fov_deg[k]
         for hv in np.unique(fov, axis=0):
@@ -91,14 +102,17 @@ def klv_predictor(replay, points_deg, rows: int, cols: int) -> KlvPredictor:
     c = replay.columns
     pd = klv_pose_deg(c)
     t = np.asarray(c["pts_s"], float)
-    fov = np.stack([np.asarray(c["sensor_horizontal_fov_deg"], float),
-                    np.asarray(c["sensor_vertical_fov_deg"], float)], -1)
+    fov = np.stack(
+        [np.asarray(c["sensor_horizontal_fov_deg"], float), np.asarray(c["sensor_vertical_fov_deg"], float)], -1
+    )
     arrays = [pd[k] for k in ("lat_deg", "lon_deg", "h_m", "heading_deg", "pitch_deg", "roll_deg")]
     arrays += [pd["angles_deg"][k] for k in ("azimuth", "elevation")]
     ok = np.isfinite(t) & np.all(np.isfinite(np.stack(arrays)), axis=0) & np.all(np.isfinite(fov), axis=1)
     if ok.sum() < 2:
-        raise ValueError(f"{getattr(replay.summary, 'source', 'KLV')}: fewer than two packets with a pose, "
-                         "fields of view and a container time stamp")
+        raise ValueError(
+            f"{getattr(replay.summary, 'source', 'KLV')}: fewer than two packets with a pose, "
+            "fields of view and a container time stamp"
+        )
     idx = np.flatnonzero(ok)
     idx = idx[np.argsort(t[idx], kind="stable")]
     keep = np.concatenate([[True], np.diff(t[idx]) > 0])
@@ -106,8 +120,9 @@ def klv_predictor(replay, points_deg, rows: int, cols: int) -> KlvPredictor:
     sub = {k: np.asarray(v)[idx] for k, v in pd.items() if k != "angles_deg"}
     sub["angles_deg"] = {k: np.asarray(v)[idx] for k, v in pd["angles_deg"].items()}
     pts = np.asarray(points_deg, float).reshape(-1, 3)
-    return KlvPredictor(t[idx], sub, fov[idx], np.deg2rad(pts[:, 0]), np.deg2rad(pts[:, 1]), pts[:, 2],
-                        int(rows), int(cols))
+    return KlvPredictor(
+        t[idx], sub, fov[idx], np.deg2rad(pts[:, 0]), np.deg2rad(pts[:, 1]), pts[:, 2], int(rows), int(cols)
+    )
 
 
 def frame_marks(images, frames) -> list:
@@ -118,8 +133,17 @@ def frame_marks(images, frames) -> list:
     return [find_marks(images.image(int(k)))[0] for k in frames]
 
 
-def fit_klv_time_offset(ts_path, points_deg, frames, *, bounds_s=(-3.0, 3.0), step_s: float = 0.05,
-                        gate_px: float = 40.0, replay=None, images=None) -> TimeOffsetFit:
+def fit_klv_time_offset(
+    ts_path,
+    points_deg,
+    frames,
+    *,
+    bounds_s=(-3.0, 3.0),
+    step_s: float = 0.05,
+    gate_px: float = 40.0,
+    replay=None,
+    images=None,
+) -> TimeOffsetFit:
     """Fit the MPEG-TS's metadata-to-video ``time_offset_s`` on ``frames`` (video frame indices).
 
     Parameters
@@ -149,8 +173,7 @@ def fit_klv_time_offset(ts_path, points_deg, frames, *, bounds_s=(-3.0, 3.0), st
     frames = np.asarray(frames, int)
     pred = klv_predictor(replay, points_deg, images.rows, images.cols)
     pts = np.asarray(images.pts_s, float)[frames]
-    return fit_time_offset(pts, frame_marks(images, frames), pred, bounds_s=bounds_s, step_s=step_s,
-                           gate_px=gate_px)
+    return fit_time_offset(pts, frame_marks(images, frames), pred, bounds_s=bounds_s, step_s=step_s, gate_px=gate_px)
 
 
 def mark_offsets(observed_px, predicted_px, gate_px: float = 40.0) -> np.ndarray:

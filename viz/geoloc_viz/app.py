@@ -117,10 +117,17 @@ def attach_flight(session):
 #: (issue 44), sending the picked point on
 #: (issue 46: MGRS, lat/lon/height, a ``geoloc locate`` line, a CoT event), the teaching panel, and
 #: the label layout (labels kept apart on screen).
-DEFAULT_LAYERS = (attach_flight, image_layer.attach, calibration_layer.attach, uncertainty_layer.attach,
-                  refraction_layer.attach, share_layer.attach, teaching_panel.attach, label_layout.attach)
-METHOD_NAMES = {"steps": "descending steps [Q17]", "bisect": "bisection [L23]",
-                "exact": "exact first hit (cell walk)"}
+DEFAULT_LAYERS = (
+    attach_flight,
+    image_layer.attach,
+    calibration_layer.attach,
+    uncertainty_layer.attach,
+    refraction_layer.attach,
+    share_layer.attach,
+    teaching_panel.attach,
+    label_layout.attach,
+)
+METHOD_NAMES = {"steps": "descending steps [Q17]", "bisect": "bisection [L23]", "exact": "exact first hit (cell walk)"}
 LEGEND = """\
 - **red** ball: the chosen method's answer; **green**: the exact first hit;
   **light blue**: the ellipsoid hit at H_max (where [Q17]'s steps start)
@@ -157,11 +164,13 @@ def coarse_dem_note(scn, inp, error_m: float, published_error_m: float) -> str:
     if not (np.isfinite(cell) and cell > 1000.0 and error_m > 2.0 * published_error_m):
         return ""
     name = str(getattr(scn, "dem_name", "") or "the DEM").split(" (")[0]
-    return (f"**why {error_m:.0f} m, not the published {published_error_m:.0f} m**: the terrain here is "
-            f"{name}, cells of about {cell / 1e3:.0f} km ([Q17] used ASTER GDEM, 30 m cells); a coarse DEM "
-            "misplaces the terrain height by hundreds of metres, and at a gimbal roll of "
-            f"{abs(inp.gimbal_roll_deg):.0f} deg a height error moves the target about as much "
-            "horizontally. Without terrain (`--no-dem`) the published positions come back to 0.3 m")
+    return (
+        f"**why {error_m:.0f} m, not the published {published_error_m:.0f} m**: the terrain here is "
+        f"{name}, cells of about {cell / 1e3:.0f} km ([Q17] used ASTER GDEM, 30 m cells); a coarse DEM "
+        "misplaces the terrain height by hundreds of metres, and at a gimbal roll of "
+        f"{abs(inp.gimbal_roll_deg):.0f} deg a height error moves the target about as much "
+        "horizontally. Without terrain (`--no-dem`) the published positions come back to 0.3 m"
+    )
 
 
 def legend_markdown(scn) -> str:
@@ -176,33 +185,45 @@ def legend_markdown(scn) -> str:
     q17 = has_truth  # a published point beside a surveyed one: [Q17]'s records; else a reported one
     frames = drawn_frames(scn.camera)
     names = ", ".join(frame_style(f, k)[1].split(":")[0] for k, f in enumerate(frames))
-    L = ["- **red** ball: the chosen method's answer; **green**: the exact first hit; **light blue**: "
-         "the ellipsoid hit at H_max (where [Q17]'s steps start)",
-         "- **yellow** line: line of sight; **orange**: image footprint (corner rays)",
-         "- iterations: dots on the line of sight at H_n with a segment to the DEM height h_n below, "
-         "**blue** if H_n - h_n > 0 (above the terrain), **red** below; **cyan**: bisection brackets"]
+    L = [
+        "- **red** ball: the chosen method's answer; **green**: the exact first hit; **light blue**: "
+        "the ellipsoid hit at H_max (where [Q17]'s steps start)",
+        "- **yellow** line: line of sight; **orange**: image footprint (corner rays)",
+        "- iterations: dots on the line of sight at H_n with a segment to the DEM height h_n below, "
+        "**blue** if H_n - h_n > 0 (above the terrain), **red** below; **cyan**: bisection brackets",
+    ]
     if has_paper:
         pub = "published position" + (" [Q17]" if "qiao2017" in str(getattr(scn, "source", "")) else "")
-        L.append("- **violet**: " + (pub if q17 else
-                                     "reported position (the record's own, e.g. the MISB frame centre)"))
+        L.append(
+            "- **violet**: " + (pub if q17 else "reported position (the record's own, e.g. the MISB frame centre)")
+        )
     if has_truth:
-        L.append("- **white**: surveyed; **pink**: error vector computed -> surveyed, drawn longer than it "
-                 "is by the \"error vector exaggeration\" factor (its label gives its true 3D length)")
-    L.append("- **teal** ring on the terrain: the predicted 90 % error ellipse of the located point, at "
-             "true size unless \"ellipse drawn x\" enlarges it (its label then says the factor, e.g. x10)")
-    L.append("- **lime** line (with refraction on, \"Refraction\" folder): the bent ray from the camera to "
-             "the located point, beside the straight line of sight (yellow, then ending at its own hit); its "
-             "offset drawn at true size unless \"bent ray drawn x\" enlarges it (its label then says x100)")
-    L += ["- the aircraft is drawn larger than life by the \"aircraft display scale\" factor; frames "
-          "scale with it",
-          f"- frames at the aircraft, largest first: {names}; axes x red, y green, z blue",
-          "- scene: East-North-Up at the target, world unit km; zoom with the wheel, rotate with the "
-          "left button, pan with the right"]
+        L.append(
+            "- **white**: surveyed; **pink**: error vector computed -> surveyed, drawn longer than it "
+            'is by the "error vector exaggeration" factor (its label gives its true 3D length)'
+        )
+    L.append(
+        "- **teal** ring on the terrain: the predicted 90 % error ellipse of the located point, at "
+        'true size unless "ellipse drawn x" enlarges it (its label then says the factor, e.g. x10)'
+    )
+    L.append(
+        '- **lime** line (with refraction on, "Refraction" folder): the bent ray from the camera to '
+        "the located point, beside the straight line of sight (yellow, then ending at its own hit); its "
+        'offset drawn at true size unless "bent ray drawn x" enlarges it (its label then says x100)'
+    )
+    L += [
+        '- the aircraft is drawn larger than life by the "aircraft display scale" factor; frames scale with it',
+        f"- frames at the aircraft, largest first: {names}; axes x red, y green, z blue",
+        "- scene: East-North-Up at the target, world unit km; zoom with the wheel, rotate with the "
+        "left button, pan with the right",
+    ]
     if len(recs) > 1:
-        L.append("- flight (every frame): **blue** track (flagged runs thick **red**, labelled with their "
-                 "fault); footprints **orange** (outliers **red**), the current one **magenta**; points "
-                 "**violet** / **red** / **white**: reported / recomputed / truth; **mauve**: every "
-                 "frame's error vector; **bright pink**: the current frame's, labelled with its length")
+        L.append(
+            "- flight (every frame): **blue** track (flagged runs thick **red**, labelled with their "
+            "fault); footprints **orange** (outliers **red**), the current one **magenta**; points "
+            "**violet** / **red** / **white**: reported / recomputed / truth; **mauve**: every "
+            "frame's error vector; **bright pink**: the current frame's, labelled with its length"
+        )
     return "\n".join(L) + "\n"
 
 
@@ -282,9 +303,19 @@ class GeolocSession:
         Start from these inputs instead of the scenario's (a presenter hand-over).
     """
 
-    def __init__(self, server: viser.ViserServer, scn: Scenario, disp: Display | None = None, *,
-                 client=None, scene=None, gui=None, layers=None, inputs: Inputs | None = None,
-                 copy_scenario: bool = False):
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        scn: Scenario,
+        disp: Display | None = None,
+        *,
+        client=None,
+        scene=None,
+        gui=None,
+        layers=None,
+        inputs: Inputs | None = None,
+        copy_scenario: bool = False,
+    ):
         self.server = server
         self.client = client
         self.scene = scene if scene is not None else (client.scene if client is not None else server.scene)
@@ -312,7 +343,7 @@ class GeolocSession:
         self.refresh()
         if client is None:
             self.view.set_initial_camera(server)
-        for attach in (DEFAULT_LAYERS if layers is None else layers):
+        for attach in DEFAULT_LAYERS if layers is None else layers:
             obj = attach(self)
             self.layers.append(obj)
             if attach is calibration_layer.attach:
@@ -340,8 +371,9 @@ class GeolocSession:
         else:
             pos, aim = (np.asarray(v, float) for v in kind)
             if pos.shape != (3,) or aim.shape != (3,):
-                raise ValueError(f"move_camera: kind = {kind!r}: 'overview', 'target' or a "
-                                 "(position, look_at) pair of 3-vectors")
+                raise ValueError(
+                    f"move_camera: kind = {kind!r}: 'overview', 'target' or a (position, look_at) pair of 3-vectors"
+                )
         clients = [self.client] if self.client is not None else list(self.server.get_clients().values())
         for c in clients:
             try:
@@ -373,8 +405,9 @@ class GeolocSession:
         labels = [info.label for info, _ in self.scn.records]
         with gui.add_folder("Flight-test record"):
             init = labels[self.scn.record_index] if self.scn.record_index is not None else CUSTOM
-            self.dd_record = gui.add_dropdown("record", labels + [CUSTOM], initial_value=init,
-                                              hint="Load a bundled flight-test record of [Q17]")
+            self.dd_record = gui.add_dropdown(
+                "record", labels + [CUSTOM], initial_value=init, hint="Load a bundled flight-test record of [Q17]"
+            )
             self.dd_record.on_update(lambda _: self._on_record())
         with gui.add_folder("Aircraft and gimbal"):
             i = self.inputs
@@ -394,8 +427,7 @@ class GeolocSession:
 
             self.dd_method = gui.add_dropdown("method", terrain_link.METHODS, initial_value=i.method)
             self.num_eps = gui.add_number("eps_h steps (m)", i.eps_h, min=0.1, max=1000.0, step=0.1)
-            self.num_thr = gui.add_number("bisect threshold (m)", i.threshold, min=0.01, max=1000.0,
-                                          step=0.01)
+            self.num_thr = gui.add_number("bisect threshold (m)", i.threshold, min=0.01, max=1000.0, step=0.01)
             for h in (self.dd_method, self.num_eps, self.num_thr):
                 h.on_update(lambda _: self._on_inputs())
             self.cb_all_steps = gui.add_checkbox("show all iterations", True)
@@ -412,27 +444,53 @@ class GeolocSession:
         with gui.add_folder("Display"):
             d = self.view.disp
             self.sl_vexag = gui.add_slider("vertical exaggeration", 1.0, 10.0, 0.5, d.vertical_exaggeration)
-            self.sl_ac = gui.add_slider("aircraft display scale", 1.0, 300.0, 1.0, d.aircraft_scale,
-                                        hint="The aircraft is drawn this many times its size (display only)")
-            self.sl_err = gui.add_slider("error vector exaggeration", 1.0, 100.0, 1.0, d.error_exaggeration,
-                                         hint="The error vector is drawn this many times its length; "
-                                         "its label gives the true length")
-            self.sl_marker = gui.add_slider("marker radius (m)", 0.25, 500.0, 0.25, d.marker_radius_m,
-                                            hint="Radius of the hit markers; the flight layer sizes them "
-                                            "to the current frame's error")
-            self.cb_frames = {f: gui.add_checkbox(f"frame {f}", d.frames_visible.get(f, True))
-                              for f in drawn_frames(self.scn.camera)}
+            self.sl_ac = gui.add_slider(
+                "aircraft display scale",
+                1.0,
+                300.0,
+                1.0,
+                d.aircraft_scale,
+                hint="The aircraft is drawn this many times its size (display only)",
+            )
+            self.sl_err = gui.add_slider(
+                "error vector exaggeration",
+                1.0,
+                100.0,
+                1.0,
+                d.error_exaggeration,
+                hint="The error vector is drawn this many times its length; its label gives the true length",
+            )
+            self.sl_marker = gui.add_slider(
+                "marker radius (m)",
+                0.25,
+                500.0,
+                0.25,
+                d.marker_radius_m,
+                hint="Radius of the hit markers; the flight layer sizes them to the current frame's error",
+            )
+            self.cb_frames = {
+                f: gui.add_checkbox(f"frame {f}", d.frames_visible.get(f, True)) for f in drawn_frames(self.scn.camera)
+            }
             self.cb_terrain = gui.add_checkbox("terrain", d.terrain_visible)
-            self.cb_labels = gui.add_checkbox("marker labels", d.marker_labels,
-                                              hint="Labels of the hit markers (they overlap until you zoom in)")
-            for h in (self.sl_vexag, self.sl_ac, self.sl_err, self.sl_marker, self.cb_terrain, self.cb_labels,
-                      *self.cb_frames.values()):
+            self.cb_labels = gui.add_checkbox(
+                "marker labels", d.marker_labels, hint="Labels of the hit markers (they overlap until you zoom in)"
+            )
+            for h in (
+                self.sl_vexag,
+                self.sl_ac,
+                self.sl_err,
+                self.sl_marker,
+                self.cb_terrain,
+                self.cb_labels,
+                *self.cb_frames.values(),
+            ):
                 h.on_update(lambda _: self._on_display())
         with gui.add_folder("Teaching: the chain of 4x4 matrices", expand_by_default=False):
             hops0 = teaching.hops(self._chain0())
             self._hop_src = {h.key: h.src for h in hops0}
-            self.dd_hop = gui.add_dropdown("hop", ["(none)"] + [h.key for h in hops0],
-                                           hint="With the teaching panel: follows its 'teaching hop'")
+            self.dd_hop = gui.add_dropdown(
+                "hop", ["(none)"] + [h.key for h in hops0], hint="With the teaching panel: follows its 'teaching hop'"
+            )
             self.dd_hop.on_update(lambda _: self._on_display())
             self.md_hop = gui.add_markdown("")
             self.md_q17 = gui.add_markdown("")
@@ -445,8 +503,11 @@ class GeolocSession:
         out = list(ANGLE_SLIDERS[:3])
         sensor = self.scn.camera
         # [Q17]'s gimbal ranges only for its roll-pitch gimbal: a DJI gimbal_pitch runs to -90
-        q17 = ({row[0][:-4]: row for row in ANGLE_SLIDERS[3:]}
-               if getattr(getattr(sensor, "gimbal", None), "name", "roll-pitch") == "roll-pitch" else {})
+        q17 = (
+            {row[0][:-4]: row for row in ANGLE_SLIDERS[3:]}
+            if getattr(getattr(sensor, "gimbal", None), "name", "roll-pitch") == "roll-pitch"
+            else {}
+        )
         for name in sensor.angle_names:
             # azimuths run 0..360 and some joints wind further: the whole valid range of a joint angle
             out.append(q17.get(name, (f"angle:{name}", f"{name.replace('_', ' ')} (deg)", -360.0, 360.0, 0.0001)))
@@ -461,8 +522,13 @@ class GeolocSession:
     def _read_inputs(self) -> Inputs:
         vals = {k: float(h.value) for k, h in self.num.items() if not k.startswith("angle:")}
         angles = {k[6:]: float(h.value) for k, h in self.num.items() if k.startswith("angle:")}
-        return self.inputs.replace(method=str(self.dd_method.value), eps_h=float(self.num_eps.value),
-                                   threshold=float(self.num_thr.value), angles_deg=angles, **vals)
+        return self.inputs.replace(
+            method=str(self.dd_method.value),
+            eps_h=float(self.num_eps.value),
+            threshold=float(self.num_thr.value),
+            angles_deg=angles,
+            **vals,
+        )
 
     def _read_display(self) -> None:
         d = self.view.disp
@@ -483,8 +549,7 @@ class GeolocSession:
         if self.scn.record_index is None:
             return True
         rec_inp = self.scn.records[self.scn.record_index][1]
-        return any(abs(self._input_value(self.inputs, k) - self._input_value(rec_inp, k)) > 1e-9
-                   for k in self.num)
+        return any(abs(self._input_value(self.inputs, k) - self._input_value(rec_inp, k)) > 1e-9 for k in self.num)
 
     def _sync_record_box(self) -> None:
         if self._is_custom() and self.dd_record.value != CUSTOM:
@@ -529,8 +594,7 @@ class GeolocSession:
             before = self._static_key()
             select_record(self.scn, idx)
             keep = self.inputs
-            self.inputs = self.scn.inputs.replace(method=keep.method, eps_h=keep.eps_h,
-                                                  threshold=keep.threshold)
+            self.inputs = self.scn.inputs.replace(method=keep.method, eps_h=keep.eps_h, threshold=keep.threshold)
             self._mute = True
             try:
                 for k, h in self.num.items():
@@ -561,8 +625,7 @@ class GeolocSession:
         try:
             cb(arg)
         except Exception:  # a layer's bug must not take the viewer down: report it
-            print(f"geoloc view: error in a layer callback {getattr(cb, '__qualname__', cb)}:",
-                  file=sys.stderr)
+            print(f"geoloc view: error in a layer callback {getattr(cb, '__qualname__', cb)}:", file=sys.stderr)
             traceback.print_exc(file=sys.stderr)
 
     # ------------------------------------------------------------ redraw
@@ -615,25 +678,36 @@ class GeolocSession:
             method = f"method: hit at the target height {inp.target_h:.1f} m (ellipsoidal); no DEM"
         else:
             method = f"method: {METHOD_NAMES.get(inp.method, inp.method)}"
-            method += (f", eps_h {inp.eps_h:g} m" if inp.method == "steps" else
-                       f", threshold {inp.threshold:g} m" if inp.method == "bisect" else "")
-        lines = [f"**{self.header()}**  ",
-                 f"terrain: {scn.dem_name}  ",
-                 method + "  ",
-                 f"scene: local East-North-Up, origin {np.rad2deg(enu.lat0):.3f} N "
-                 f"{np.rad2deg(enu.lon0):.3f} E h {enu.h0:.0f} m; scale bar 5 km  ",
-                 f"aircraft drawn x{d.aircraft_scale:g} (display only)  "]
+            method += (
+                f", eps_h {inp.eps_h:g} m"
+                if inp.method == "steps"
+                else f", threshold {inp.threshold:g} m"
+                if inp.method == "bisect"
+                else ""
+            )
+        lines = [
+            f"**{self.header()}**  ",
+            f"terrain: {scn.dem_name}  ",
+            method + "  ",
+            f"scene: local East-North-Up, origin {np.rad2deg(enu.lat0):.3f} N "
+            f"{np.rad2deg(enu.lon0):.3f} E h {enu.h0:.0f} m; scale bar 5 km  ",
+            f"aircraft drawn x{d.aircraft_scale:g} (display only)  ",
+        ]
         if self.error:
             lines.append(f"\n**input error:** {self.error}")
         hit = g.hit
         if int(hit.status) == 0:
-            lines.append(f"\n**{g.hit_label}**: {float(hit.lat_deg):.6f} N, {float(hit.lon_deg):.6f} E, "
-                         f"h {float(hit.h):.1f} m, slant range {float(hit.slant_range) / 1e3:.2f} km  ")
+            lines.append(
+                f"\n**{g.hit_label}**: {float(hit.lat_deg):.6f} N, {float(hit.lon_deg):.6f} E, "
+                f"h {float(hit.h):.1f} m, slant range {float(hit.slant_range) / 1e3:.2f} km  "
+            )
             lines.append(mgrs_text(float(hit.lat_deg), float(hit.lon_deg)) + "  ")  # issue 33
             if getattr(hit, "corrections", ()):  # issue 44: which corrections, and refraction's shift
                 shift = float(np.asarray(getattr(hit, "refraction_m", np.nan)))
-                lines.append(f"corrections: {'+'.join(hit.corrections)}"
-                             + (f"; refraction moved the point {shift:.3f} m  " if np.isfinite(shift) else "  "))
+                lines.append(
+                    f"corrections: {'+'.join(hit.corrections)}"
+                    + (f"; refraction moved the point {shift:.3f} m  " if np.isfinite(shift) else "  ")
+                )
         else:
             lines.append(f"\n**no hit**: {describe(int(hit.status))}  ")
         if g.message:
@@ -643,10 +717,8 @@ class GeolocSession:
             from geoloc.geodesy.geodesic import horizontal_distance_m
 
             if int(hit.status) == 0 and np.isfinite(info.truth_lat_deg):
-                e_t = float(horizontal_distance_m(hit.lat_deg, hit.lon_deg, info.truth_lat_deg,
-                                                  info.truth_lon_deg))
-                e_p = float(horizontal_distance_m(hit.lat_deg, hit.lon_deg, info.paper_lat_deg,
-                                                  info.paper_lon_deg))
+                e_t = float(horizontal_distance_m(hit.lat_deg, hit.lon_deg, info.truth_lat_deg, info.truth_lon_deg))
+                e_p = float(horizontal_distance_m(hit.lat_deg, hit.lon_deg, info.paper_lat_deg, info.paper_lon_deg))
                 text = f"to surveyed: {e_t:.1f} m (horizontal)"
                 if np.isfinite(info.paper_error_m):
                     text += f" (published error {info.paper_error_m:.1f} m)"
@@ -658,13 +730,14 @@ class GeolocSession:
                     lines.append(why + "  ")
                 if g.surveyed_enu is not None and np.all(np.isfinite(g.hit_enu)):
                     e3 = float(np.linalg.norm(g.surveyed_enu - g.hit_enu))
-                    lines.append(f"error vector to surveyed (3D, surveyed point on the terrain): "
-                                 f"{e3:.1f} m, drawn x{d.error_exaggeration:g}  ")
+                    lines.append(
+                        f"error vector to surveyed (3D, surveyed point on the terrain): "
+                        f"{e3:.1f} m, drawn x{d.error_exaggeration:g}  "
+                    )
         self.md_summary.content = "\n".join(lines)
         hop = str(self.dd_hop.value)
         hv = {h.key: h for h in teaching.hops(g.chain)}
-        self.md_hop.content = (teaching.hop_markdown(hv[hop]) if hop in hv
-                               else teaching.chain_markdown(g.chain))
+        self.md_hop.content = teaching.hop_markdown(hv[hop]) if hop in hv else teaching.chain_markdown(g.chain)
         # [Q17] eq. 5's factors belong to T_ecef_ned only (issue 20): not under every hop
         self.md_q17.content = teaching.q17_factors_markdown(g.chain) if hop == "T_ecef_ned" else ""
 
@@ -676,8 +749,7 @@ class GeolocApp(GeolocSession):
     :class:`GeolocViewer` (a session per tab) instead.
     """
 
-    def __init__(self, server: viser.ViserServer, scn: Scenario, disp: Display | None = None, *,
-                 layers=None):
+    def __init__(self, server: viser.ViserServer, scn: Scenario, disp: Display | None = None, *, layers=None):
         super().__init__(server, scn, disp, layers=layers)
 
     # ------------------------------------------------------------ export
@@ -713,9 +785,13 @@ class GeolocApp(GeolocSession):
             text = "\n\n".join([self.md_summary.content] + [t for t in extra if t])
             # and what they show (the picture layer: the frame with its marks and picks)
             extra_html = "".join(obj.export_html() for obj in self.layers if hasattr(obj, "export_html"))
-            page = with_summary(ser.as_html(dark_mode=True), f"geoloc view: {self.header()}", text,
-                                "Static export of geoloc view (no controls); "
-                                "the scene animates the terrain method's iterations.", extra_html)
+            page = with_summary(
+                ser.as_html(dark_mode=True),
+                f"geoloc view: {self.header()}",
+                text,
+                "Static export of geoloc view (no controls); the scene animates the terrain method's iterations.",
+                extra_html,
+            )
             write_text(path, page)
         else:
             write_bytes(path, ser.serialize())
@@ -737,6 +813,7 @@ def driver_folders(session) -> list:
             label = getattr(folder, "label", None)
             if label:
                 groups.setdefault(label, []).append(v)
+
     # the panel's own order (a folder's order value), then first seen
     def order(item):
         h = item[1][0]
@@ -758,17 +835,22 @@ class _FollowerPanel:
         self.bt_take.on_click(lambda _e: viewer.take_control(cid))
         self.dd_scenario = None
         if len(viewer.scenarios) > 1:  # the presenter's scenario, read-only (it follows theirs)
-            self.dd_scenario = gui.add_dropdown("scenario", tuple(viewer.scenarios),
-                                                initial_value=viewer.driver_scenario, disabled=True,
-                                                hint="The presenter's scenario (they switch it)")
+            self.dd_scenario = gui.add_dropdown(
+                "scenario",
+                tuple(viewer.scenarios),
+                initial_value=viewer.driver_scenario,
+                disabled=True,
+                hint="The presenter's scenario (they switch it)",
+            )
         self.viewer = viewer
         self.md_summary = gui.add_markdown("")
         self.num = {}
         self.mirrors: list = []  # (driver's markdown handle, ours)
         if driver is not None:
             with gui.add_folder("Presenter's inputs (read-only)"):
-                self.dd_record = gui.add_dropdown("record", list(driver.dd_record.options),
-                                                  initial_value=driver.dd_record.value, disabled=True)
+                self.dd_record = gui.add_dropdown(
+                    "record", list(driver.dd_record.options), initial_value=driver.dd_record.value, disabled=True
+                )
                 for k, h in driver.num.items():
                     self.num[k] = gui.add_number(h.label, float(h.value), disabled=True)
             # every folder of the presenter's panel (the session's and its layers': flight,
@@ -783,9 +865,11 @@ class _FollowerPanel:
         if driver is None:
             return
         who = driver.client.client_id if driver.client is not None else "?"
-        self.md_note.content = (f"**Presenter mode**: you follow tab #{who}, the presenter; the scene "
-                                "and the camera are theirs and the controls are read-only. Press "
-                                "\"take control\" to drive.")
+        self.md_note.content = (
+            f"**Presenter mode**: you follow tab #{who}, the presenter; the scene "
+            "and the camera are theirs and the controls are read-only. Press "
+            '"take control" to drive.'
+        )
         self.md_summary.content = driver.md_summary.content
         if self.dd_scenario is not None and self.dd_scenario.value != self.viewer.driver_scenario:
             self.dd_scenario.value = self.viewer.driver_scenario
@@ -831,8 +915,17 @@ class GeolocViewer:
     #: What builds a tab's session (same arguments as :class:`GeolocSession`).
     session_factory = GeolocSession
 
-    def __init__(self, server: viser.ViserServer, scn: Scenario, disp: Display | None = None, *,
-                 presenter: bool = False, max_clients: int = MAX_CLIENTS, layers=None, scenarios=None):
+    def __init__(
+        self,
+        server: viser.ViserServer,
+        scn: Scenario,
+        disp: Display | None = None,
+        *,
+        presenter: bool = False,
+        max_clients: int = MAX_CLIENTS,
+        layers=None,
+        scenarios=None,
+    ):
         if int(max_clients) != max_clients or max_clients < 1:
             raise ValueError(f"max_clients = {max_clients!r}: must be a whole number >= 1")
         self.server, self.scn, self.disp = server, scn, disp or Display()
@@ -874,8 +967,7 @@ class GeolocViewer:
 
     def session_of(self, client_id: int) -> GeolocSession | None:
         """The session of a tab (presenter mode: the driver's, for the driver)."""
-        if self.driver is not None and self.driver.client is not None \
-                and self.driver.client.client_id == client_id:
+        if self.driver is not None and self.driver.client is not None and self.driver.client.client_id == client_id:
             return self.driver
         return self.sessions.get(client_id)
 
@@ -920,11 +1012,13 @@ class GeolocViewer:
         """Build a tab's session on scenario ``name`` (a scenario dropdown on top when there are several)."""
         cid = client.client_id
         if len(self.scenarios) > 1:
-            dd = client.gui.add_dropdown("scenario", tuple(self.scenarios), initial_value=name,
-                                         hint="Open another bundled scenario in this tab")
+            dd = client.gui.add_dropdown(
+                "scenario", tuple(self.scenarios), initial_value=name, hint="Open another bundled scenario in this tab"
+            )
             dd.on_update(lambda _, c=client, d=dd: self.switch(c, str(d.value)))
-        s = self.session_factory(self.server, self._scenario(name), self.disp, client=client, layers=self.layers,
-                                 copy_scenario=True)
+        s = self.session_factory(
+            self.server, self._scenario(name), self.disp, client=client, layers=self.layers, copy_scenario=True
+        )
         if self._connected(client):
             self.sessions[cid] = s
             self.tab_scenario[cid] = name
@@ -985,18 +1079,23 @@ class GeolocViewer:
     def _refuse(self, client) -> None:
         self.refused.add(client.client_id)
         n = self.max_clients
-        text = (f"This viewer serves at most **{n}** browser tabs at once (`--max-clients {n}`), "
-                f"and {self.n_served} are open. Close another tab and reload this page, or restart "
-                f"the server with a higher limit: `geoloc view --max-clients {2 * n}`.")
+        text = (
+            f"This viewer serves at most **{n}** browser tabs at once (`--max-clients {n}`), "
+            f"and {self.n_served} are open. Close another tab and reload this page, or restart "
+            f"the server with a higher limit: `geoloc view --max-clients {2 * n}`."
+        )
         try:
             with client.gui.add_modal("geoloc view: too many browser tabs"):
                 client.gui.add_markdown(text)
             client.gui.add_markdown("**Not served:** " + text)
         except Exception:  # it left already
             pass
-        print(f"geoloc view: refused browser tab #{client.client_id}: {self.n_served} of "
-              f"--max-clients {n} already served (raise it with --max-clients)", file=sys.stderr,
-              flush=True)
+        print(
+            f"geoloc view: refused browser tab #{client.client_id}: {self.n_served} of "
+            f"--max-clients {n} already served (raise it with --max-clients)",
+            file=sys.stderr,
+            flush=True,
+        )
 
     # ------------------------------------------------------------ presenter mode
     def _make_driver(self, client, old: GeolocSession | None) -> None:
@@ -1004,17 +1103,34 @@ class GeolocViewer:
         (None: the presented scenario's default record); with several scenarios a "scenario"
         dropdown on top switches what is presented (:meth:`present`)."""
         if len(self.scenarios) > 1:
-            dd = client.gui.add_dropdown("scenario", tuple(self.scenarios), initial_value=self.driver_scenario,
-                                         hint="Present another bundled scenario (the followers follow)")
+            dd = client.gui.add_dropdown(
+                "scenario",
+                tuple(self.scenarios),
+                initial_value=self.driver_scenario,
+                hint="Present another bundled scenario (the followers follow)",
+            )
             dd.on_update(lambda _, d=dd: self.present(str(d.value)))
         if old is None:
-            self.driver = self.session_factory(self.server, self._scenario(self.driver_scenario), self.disp,
-                                               client=client, scene=self.server.scene, layers=self.layers,
-                                               copy_scenario=True)
+            self.driver = self.session_factory(
+                self.server,
+                self._scenario(self.driver_scenario),
+                self.disp,
+                client=client,
+                scene=self.server.scene,
+                layers=self.layers,
+                copy_scenario=True,
+            )
         else:
-            self.driver = self.session_factory(self.server, old.scn, old.view.disp, client=client,
-                                        scene=self.server.scene, layers=self.layers,
-                                        inputs=old.inputs, copy_scenario=True)
+            self.driver = self.session_factory(
+                self.server,
+                old.scn,
+                old.view.disp,
+                client=client,
+                scene=self.server.scene,
+                layers=self.layers,
+                inputs=old.inputs,
+                copy_scenario=True,
+            )
         self.driver.on_refresh(lambda _g: self._mirror())
         cid = client.client_id
         client.camera.on_update(lambda cam: self._on_driver_camera(cid, cam))

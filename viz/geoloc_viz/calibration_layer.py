@@ -59,8 +59,9 @@ class ErrorGeometry:
         return np.stack([t, t + exaggeration * (c[ok] - t)], axis=1)
 
 
-def error_geometry(records: Records, frame: EnuFrame, heights, cameras: dict,
-                   truth_prefix: str = "truth") -> ErrorGeometry:
+def error_geometry(
+    records: Records, frame: EnuFrame, heights, cameras: dict, truth_prefix: str = "truth"
+) -> ErrorGeometry:
     """Locate every record with each camera (at ``heights``) and express all in ENU.
 
     Parameters
@@ -106,9 +107,16 @@ class CalibrationLayer:
         in the ``geoloc view`` app, whose world unit is the km).
     """
 
-    def __init__(self, scene, geometry: ErrorGeometry, name: str = "/calibration",
-                 exaggeration: float = 20.0, stage: str = "both", thickness: float = 3.0,
-                 world_scale: float = 1.0):
+    def __init__(
+        self,
+        scene,
+        geometry: ErrorGeometry,
+        name: str = "/calibration",
+        exaggeration: float = 20.0,
+        stage: str = "both",
+        thickness: float = 3.0,
+        world_scale: float = 1.0,
+    ):
         self.scene = scene
         self.geometry = geometry
         self.world_scale = float(world_scale)
@@ -119,8 +127,13 @@ class CalibrationLayer:
         self.vertical = 1.0
         self.handles = {}
         self.truth_handle = scene.add_point_cloud(
-            f"{self.name}/truth", (geometry.truth * self.world_scale).astype(np.float32), COLORS["truth"],
-            point_size=60.0 * self.world_scale, point_shape="circle", precision="float32")
+            f"{self.name}/truth",
+            (geometry.truth * self.world_scale).astype(np.float32),
+            COLORS["truth"],
+            point_size=60.0 * self.world_scale,
+            point_shape="circle",
+            precision="float32",
+        )
         self._draw()
 
     @staticmethod
@@ -134,8 +147,7 @@ class CalibrationLayer:
         if stage not in STAGES:
             raise ValueError(f"stage = {stage!r}: must be one of {STAGES}")
         if stage != "both" and stage not in self.geometry.computed:
-            raise ValueError(f"stage = {stage!r}: no camera given for it "
-                             f"(have {sorted(self.geometry.computed)})")
+            raise ValueError(f"stage = {stage!r}: no camera given for it (have {sorted(self.geometry.computed)})")
         return stage
 
     def _draw(self) -> None:
@@ -147,8 +159,13 @@ class CalibrationLayer:
                 self.handles[stage].visible = visible
             else:
                 self.handles[stage] = self.scene.add_line_segments(
-                    f"{self.name}/{stage}", seg, COLORS.get(stage, (200, 200, 0)),
-                    thickness=self.thickness, thickness_units="screen", visible=visible)
+                    f"{self.name}/{stage}",
+                    seg,
+                    COLORS.get(stage, (200, 200, 0)),
+                    thickness=self.thickness,
+                    thickness_units="screen",
+                    visible=visible,
+                )
 
     def set_exaggeration(self, x: float) -> None:
         """Rescale every vector (the truth end stays)."""
@@ -194,8 +211,9 @@ class CalibrationLayer:
         return dd, sl
 
 
-def add_error_vectors(scene, records: Records, frame: EnuFrame, heights, camera_before,
-                      camera_after=None, **kw) -> CalibrationLayer:
+def add_error_vectors(
+    scene, records: Records, frame: EnuFrame, heights, camera_before, camera_after=None, **kw
+) -> CalibrationLayer:
     """Add the error vectors of all records (before and, if given, after calibration) to a scene.
 
     Parameters
@@ -223,19 +241,45 @@ def records_from_scenario(scn) -> Records:
 
     The flight (``table``) is the label's part before ``-`` (``T3-1`` -> ``T3``).
     """
-    header = ["table", "point", "row", "col", "ac_lat_deg", "ac_lon_deg", "ac_h_m", "heading_deg",
-              "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg", "paper_height_m",
-              "truth_lat_deg", "truth_lon_deg"]
+    header = [
+        "table",
+        "point",
+        "row",
+        "col",
+        "ac_lat_deg",
+        "ac_lon_deg",
+        "ac_h_m",
+        "heading_deg",
+        "pitch_deg",
+        "roll_deg",
+        "gimbal_roll_deg",
+        "gimbal_pitch_deg",
+        "paper_height_m",
+        "truth_lat_deg",
+        "truth_lon_deg",
+    ]
     rows = []
     for info, inp in scn.records:
         table, _, point = info.label.partition("-")
-        vals = [inp.row, inp.col, inp.lat_deg, inp.lon_deg, inp.h_m, inp.heading_deg, inp.pitch_deg,
-                inp.roll_deg, inp.gimbal_roll_deg, inp.gimbal_pitch_deg, info.paper_height_m,
-                info.truth_lat_deg, info.truth_lon_deg]
-        rows.append(dict(zip(header, [table, point or table] +
-                             ["" if not np.isfinite(v) else repr(float(v)) for v in vals])))
-    return Records(getattr(scn, "source", "scenario"), header, rows,
-                   np.arange(2, len(rows) + 2), [])
+        vals = [
+            inp.row,
+            inp.col,
+            inp.lat_deg,
+            inp.lon_deg,
+            inp.h_m,
+            inp.heading_deg,
+            inp.pitch_deg,
+            inp.roll_deg,
+            inp.gimbal_roll_deg,
+            inp.gimbal_pitch_deg,
+            info.paper_height_m,
+            info.truth_lat_deg,
+            info.truth_lon_deg,
+        ]
+        rows.append(
+            dict(zip(header, [table, point or table] + ["" if not np.isfinite(v) else repr(float(v)) for v in vals]))
+        )
+    return Records(getattr(scn, "source", "scenario"), header, rows, np.arange(2, len(rows) + 2), [])
 
 
 #: What the app fits: the mounting rotation (the [Q17] installation error, docs/calibration.md).
@@ -255,8 +299,7 @@ class AppCalibration:
     (:func:`geoloc.analysis.sensor_fit.fit_sensor_groups`, joint fit).
     """
 
-    def __init__(self, app, exaggeration: float = 20.0, stage: str = "both", world_scale=None,
-                 name=None):
+    def __init__(self, app, exaggeration: float = 20.0, stage: str = "both", world_scale=None, name=None):
         from geoloc.analysis.sensor_fit import fit_sensor_groups
         from geoloc.surfaces.height import PerRecordHeightSurface
 
@@ -281,19 +324,31 @@ class AppCalibration:
             self.records = records_from_scenario(app.scn)
             self.cameras = {"before": app.scn.camera}
             heights = self.records.column("paper_height_m")
-            ok = (np.isfinite(heights) & np.isfinite(self.records.column("truth_lat_deg"))
-                  & np.isfinite(self.records.column("truth_lon_deg")))
+            ok = (
+                np.isfinite(heights)
+                & np.isfinite(self.records.column("truth_lat_deg"))
+                & np.isfinite(self.records.column("truth_lon_deg"))
+            )
             if ok.sum() >= 2 and ok.all():
-                _, fitted = fit_sensor_groups(self.records, app.scn.camera, MOUNT_NAMES,
-                                              PerRecordHeightSurface(heights), group_column="table", joint=True)
+                _, fitted = fit_sensor_groups(
+                    self.records,
+                    app.scn.camera,
+                    MOUNT_NAMES,
+                    PerRecordHeightSurface(heights),
+                    group_column="table",
+                    joint=True,
+                )
                 self.cameras["after"] = fitted["joint"]
             with _FIT_LOCK:
                 _FIT_CACHE[key] = (app.scn.records, app.scn.camera, self.records, dict(self.cameras))
                 while len(_FIT_CACHE) > 4:
                     _FIT_CACHE.popitem(last=False)
         self.heights = self.records.column("paper_height_m")
-        ok = (np.isfinite(self.heights) & np.isfinite(self.records.column("truth_lat_deg"))
-              & np.isfinite(self.records.column("truth_lon_deg")))
+        ok = (
+            np.isfinite(self.heights)
+            & np.isfinite(self.records.column("truth_lat_deg"))
+            & np.isfinite(self.records.column("truth_lon_deg"))
+        )
         if "after" not in self.cameras:
             self.message = "calibration needs truth_lat/lon and paper_height_m on every record"
         self.exaggeration, self.stage, self.visible, self.vertical = exaggeration, stage, True, 1.0
@@ -309,9 +364,14 @@ class AppCalibration:
         if "after" not in self.cameras and self.stage != "before":
             self.stage = "before"
         geom = error_geometry(self.records, self.app.scn.enu, self.heights, self.cameras)
-        self.layer = CalibrationLayer(_scene_of(self.app), geom, name=self.name,
-                                      exaggeration=self.exaggeration, stage=self.stage,
-                                      world_scale=self.world_scale)
+        self.layer = CalibrationLayer(
+            _scene_of(self.app),
+            geom,
+            name=self.name,
+            exaggeration=self.exaggeration,
+            stage=self.stage,
+            world_scale=self.world_scale,
+        )
         self.layer.set_visible(self.visible)
         self.layer.set_vertical_exaggeration(self.vertical)
 
@@ -320,8 +380,9 @@ class AppCalibration:
         with gui.add_folder(folder, expand_by_default=False):
             self.cb_show = gui.add_checkbox("show", True)
             stages = list(STAGES) if "after" in self.cameras else ["before"]
-            self.dd_stage = gui.add_dropdown("before / after calibration", stages,
-                                             initial_value=self.stage if self.stage in stages else stages[0])
+            self.dd_stage = gui.add_dropdown(
+                "before / after calibration", stages, initial_value=self.stage if self.stage in stages else stages[0]
+            )
             self.sl_exag = gui.add_slider("exaggeration", 1.0, 200.0, 1.0, self.exaggeration)
             if self.message:
                 gui.add_markdown(self.message)
@@ -367,6 +428,7 @@ def attach(app) -> AppCalibration:
     cal.add_gui(_gui_of(app))
     slider = getattr(app, "sl_vexag", None)
     if slider is not None:
+
         def follow(_e=None) -> None:
             cal.vertical = float(slider.value)
             if cal.layer is not None:

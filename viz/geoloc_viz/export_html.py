@@ -14,9 +14,11 @@ import re
 #: id of the injected panel (the tests look for it).
 PANEL_ID = "geoloc-summary"
 
-_STYLE = ("position:fixed;right:12px;top:12px;z-index:10000;max-width:34em;max-height:96vh;overflow:auto;"
-          "background:rgba(24,24,28,0.88);color:#e8e8e8;font:13px/1.45 system-ui,sans-serif;"
-          "padding:8px 12px;border-radius:6px;border:1px solid #555")
+_STYLE = (
+    "position:fixed;right:12px;top:12px;z-index:10000;max-width:34em;max-height:96vh;overflow:auto;"
+    "background:rgba(24,24,28,0.88);color:#e8e8e8;font:13px/1.45 system-ui,sans-serif;"
+    "padding:8px 12px;border-radius:6px;border:1px solid #555"
+)
 
 
 def markdown_to_html(text: str) -> str:
@@ -41,7 +43,7 @@ def with_summary(page: str, title: str, summary_markdown: str, note: str = "", e
         page = page.replace("</head>", f"<title>{t}</title></head>", 1)
     body = markdown_to_html(summary_markdown)
     if note:
-        body += f"<br><span style=\"opacity:0.7\">{html.escape(note)}</span>"
+        body += f'<br><span style="opacity:0.7">{html.escape(note)}</span>'
     body += extra_html
     panel = f'<div id="{PANEL_ID}" style="{_STYLE}">{body}</div>'
     if "</body>" in page:

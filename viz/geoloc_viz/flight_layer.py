@@ -152,61 +152,95 @@ class FlightLayer:
         f32 = lambda a: (np.nan_to_num(np.asarray(a, float)) * W).astype(np.float32)
         self.handles["root"] = s.add_frame(ROOT, show_axes=False)
         if len(m) > 1:
-            self.handles["track"] = s.add_line_segments(f"{ROOT}/track", f32(m.track_segments()), COLORS["track"],
-                                                        thickness=2.0, thickness_units="screen")
+            self.handles["track"] = s.add_line_segments(
+                f"{ROOT}/track", f32(m.track_segments()), COLORS["track"], thickness=2.0, thickness_units="screen"
+            )
         seg = m.footprint_segments(FOOTPRINT_EVERY) + np.array([0.0, 0.0, LIFT_M["footprints"]])
         P = m.footprint_enu.shape[1]  # the current frame's outline: every point
-        col = np.where(np.repeat(m.outlier, P // FOOTPRINT_EVERY)[:, None], COLORS["footprint_outlier"],
-                       COLORS["footprint"])
+        col = np.where(
+            np.repeat(m.outlier, P // FOOTPRINT_EVERY)[:, None], COLORS["footprint_outlier"], COLORS["footprint"]
+        )
         good = np.all(np.isfinite(seg), axis=(1, 2))
         self.handles["footprints"] = s.add_line_segments(
-            f"{ROOT}/footprints", f32(seg[good]), np.repeat(col[good, None].astype(np.uint8), 2, axis=1),
-            thickness=1.0, thickness_units="screen")
-        for name, pts in (("centres", m.centre_enu), ("reported", m.reported_enu),
-                          ("recomputed", m.recomputed_enu), ("truth", m.truth_enu)):
+            f"{ROOT}/footprints",
+            f32(seg[good]),
+            np.repeat(col[good, None].astype(np.uint8), 2, axis=1),
+            thickness=1.0,
+            thickness_units="screen",
+        )
+        for name, pts in (
+            ("centres", m.centre_enu),
+            ("reported", m.reported_enu),
+            ("recomputed", m.recomputed_enu),
+            ("truth", m.truth_enu),
+        ):
             ok = np.all(np.isfinite(pts), axis=1)
             if ok.any():
                 self.handles[name] = s.add_point_cloud(
-                    f"{ROOT}/{name}", f32(pts[ok]), COLORS["centre" if name == "centres" else name],
-                    point_size=self.point_size * (0.6 if name == "centres" else 1.0), point_shape="circle",
-                    precision="float32")
+                    f"{ROOT}/{name}",
+                    f32(pts[ok]),
+                    COLORS["centre" if name == "centres" else name],
+                    point_size=self.point_size * (0.6 if name == "centres" else 1.0),
+                    point_shape="circle",
+                    precision="float32",
+                )
         # the flagged runs: their stretch of the track in red, thick, labelled with the fault
-        runs = sorted(m.faults, key=lambda f: -np.nanmax(m.residual_m[f.first:f.last + 1]))
+        runs = sorted(m.faults, key=lambda f: -np.nanmax(m.residual_m[f.first : f.last + 1]))
         segs, self.run_labels = [], []
         for r, f in enumerate(runs, 1):
             a, b = f.first, min(f.last + 1, len(m) - 1)
-            seg = np.stack([m.track_enu[a:b], m.track_enu[a + 1:b + 1]], axis=1) if b > a else \
-                np.stack([m.track_enu[a:a + 1], m.track_enu[a:a + 1] + [0.0, 0.0, 1.0]], axis=1)
+            seg = (
+                np.stack([m.track_enu[a:b], m.track_enu[a + 1 : b + 1]], axis=1)
+                if b > a
+                else np.stack([m.track_enu[a : a + 1], m.track_enu[a : a + 1] + [0.0, 0.0, 1.0]], axis=1)
+            )
             segs.append(seg)
         if segs:  # (the parent node before its labels: re-creating a node drops its children)
             seg = np.concatenate(segs)
             ok = np.all(np.isfinite(seg), axis=(1, 2))
-            self.handles["runs"] = s.add_line_segments(f"{ROOT}/runs", f32(seg[ok]), COLORS["footprint_outlier"],
-                                                       thickness=6.0, thickness_units="screen")
+            self.handles["runs"] = s.add_line_segments(
+                f"{ROOT}/runs", f32(seg[ok]), COLORS["footprint_outlier"], thickness=6.0, thickness_units="screen"
+            )
         for r, f in enumerate(runs, 1):
             mid = m.track_enu[(f.first + f.last) // 2]
             what = f.headline().split(": ", 1)[-1]
-            self.run_labels.append(s.add_label(f"{ROOT}/run_labels/run{r}", f"run {r}: {what}",
-                                               position=tuple(f32(mid[None])[0]), anchor="bottom-center"))
+            self.run_labels.append(
+                s.add_label(
+                    f"{ROOT}/run_labels/run{r}",
+                    f"run {r}: {what}",
+                    position=tuple(f32(mid[None])[0]),
+                    anchor="bottom-center",
+                )
+            )
         err = m.error_segments()
         ok = np.all(np.isfinite(err), axis=(1, 2))
         if ok.any():
-            self.handles["errors"] = s.add_line_segments(f"{ROOT}/errors", f32(err[ok]), COLORS["errors"],
-                                                         thickness=1.5, thickness_units="screen")
+            self.handles["errors"] = s.add_line_segments(
+                f"{ROOT}/errors", f32(err[ok]), COLORS["errors"], thickness=1.5, thickness_units="screen"
+            )
         self.handles["current"] = s.add_line_segments(
-            f"{ROOT}/current", np.zeros((P, 2, 3), np.float32), COLORS["current"], thickness=6.0,
-            thickness_units="screen")
-        self.handles["label"] = s.add_label(f"{ROOT}/current/label", "", position=(0.0, 0.0, 0.0),
-                                            anchor="bottom-left")
+            f"{ROOT}/current",
+            np.zeros((P, 2, 3), np.float32),
+            COLORS["current"],
+            thickness=6.0,
+            thickness_units="screen",
+        )
+        self.handles["label"] = s.add_label(f"{ROOT}/current/label", "", position=(0.0, 0.0, 0.0), anchor="bottom-left")
         # the current frame's error, drawn above everything around it (see focus()): the vector
         # (lifted over the terrain mesh), stems down to the true points, two markers sized to the
         # error, and a label with its length
         z = np.zeros((1, 2, 3), np.float32)
         self.focus_handles = {
-            "error": s.add_line_segments(f"{ROOT}/focus/error", z, COLORS["error"], thickness=7.0,
-                                         thickness_units="screen"),
-            "stems": s.add_line_segments(f"{ROOT}/focus/stems", np.zeros((2, 2, 3), np.float32),
-                                         COLORS["error"], thickness=1.5, thickness_units="screen"),
+            "error": s.add_line_segments(
+                f"{ROOT}/focus/error", z, COLORS["error"], thickness=7.0, thickness_units="screen"
+            ),
+            "stems": s.add_line_segments(
+                f"{ROOT}/focus/stems",
+                np.zeros((2, 2, 3), np.float32),
+                COLORS["error"],
+                thickness=1.5,
+                thickness_units="screen",
+            ),
         }
         self._focus_key = None
         self.focus_info: dict = {}
@@ -245,8 +279,9 @@ class FlightLayer:
             lab.position = tuple(c * WORLD_SCALE * np.array([1.0, 1.0, v]))
         res = m.residual_m[idx]
         f = m.fault_of(idx)
-        lab.text = (f"{m.labels[idx]}: residual {res:.1f} m" if np.isfinite(res) else m.labels[idx]) + \
-            (f" ({f.kind})" if f is not None else "")
+        lab.text = (f"{m.labels[idx]}: residual {res:.1f} m" if np.isfinite(res) else m.labels[idx]) + (
+            f" ({f.kind})" if f is not None else ""
+        )
         self.focus(idx)
         # an error worth seeing has its own label (frame, length, fault) above its vector: the frame's
         # label at the image centre would sit on the vector's start
@@ -309,11 +344,22 @@ class FlightLayer:
         key = round(r, 4)
         if key != self._focus_key or "recomputed" not in fh:
             self._focus_key = key
-            fh["recomputed"] = s.add_icosphere(f"{ROOT}/focus/recomputed", radius=r * W, color=COLORS["recomputed"],
-                                               subdivisions=2, cast_shadow=False, receive_shadow=False)
-            fh["reference"] = s.add_icosphere(f"{ROOT}/focus/reference", radius=r * W,
-                                              color=COLORS["truth" if m.reference == "truth" else "reported"],
-                                              subdivisions=2, cast_shadow=False, receive_shadow=False)
+            fh["recomputed"] = s.add_icosphere(
+                f"{ROOT}/focus/recomputed",
+                radius=r * W,
+                color=COLORS["recomputed"],
+                subdivisions=2,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+            fh["reference"] = s.add_icosphere(
+                f"{ROOT}/focus/reference",
+                radius=r * W,
+                color=COLORS["truth" if m.reference == "truth" else "reported"],
+                subdivisions=2,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
         fh["recomputed"].position = tuple(a2 * v)
         fh["reference"].position = tuple(b2 * v)
         text = self.error_text(idx)
@@ -327,8 +373,15 @@ class FlightLayer:
         # a residual of millimetres (a frame that agrees) has nothing to show: the frame's own label says it
         for h in fh.values():
             h.visible = e > 0.5
-        self.focus_info = {"idx": idx, "a_enu": a2, "b_enu": b2, "error_m": e, "radius_m": r, "lift_m": lift,
-                           "label": text}
+        self.focus_info = {
+            "idx": idx,
+            "a_enu": a2,
+            "b_enu": b2,
+            "error_m": e,
+            "radius_m": r,
+            "lift_m": lift,
+            "label": text,
+        }
 
     def export_markdown(self) -> str:
         """The current frame's residual, error vector and fault (its run and what it looks like),
@@ -360,24 +413,28 @@ class FlightLayer:
             return None
         scene_enu, F = self.session.scn.enu, self.model.enu
         v = np.array([1.0, 1.0, self._vexag()]) * WORLD_SCALE
-        return tuple(scene_enu.from_ecef(F.to_ecef(p)) * v for p in (self.focus_info["a_enu"],
-                                                                      self.focus_info["b_enu"]))
+        return tuple(
+            scene_enu.from_ecef(F.to_ecef(p)) * v for p in (self.focus_info["a_enu"], self.focus_info["b_enu"])
+        )
 
     def _frame_text(self, idx: int) -> str:
         m, c = self.model, self.model.components
         f = m.fault_of(idx)
-        text = (f"**{m.labels[idx]}** (timeline frame index {idx} of 0 .. {len(m) - 1}): residual "
-                f"{m.residual_m[idx]:.2f} m "
-                f"(recomputed vs {m.reference}, horizontal); along {c['along_m'][idx]:+.1f}, across "
-                f"{c['across_m'][idx]:+.1f}, up {c['up_m'][idx]:+.1f} m"
-                + (" **outlier**" if m.outlier[idx] else ""))
+        text = (
+            f"**{m.labels[idx]}** (timeline frame index {idx} of 0 .. {len(m) - 1}): residual "
+            f"{m.residual_m[idx]:.2f} m "
+            f"(recomputed vs {m.reference}, horizontal); along {c['along_m'][idx]:+.1f}, across "
+            f"{c['across_m'][idx]:+.1f}, up {c['up_m'][idx]:+.1f} m" + (" **outlier**" if m.outlier[idx] else "")
+        )
         if f is not None:
             text += f"  \nrun: {f.headline()}"
         if self.focus_info.get("idx") == idx:
             fi = self.focus_info
-            text += (f"  \n**pink vector**: {fi['label']}; markers {fi['radius_m']:.2g} m"
-                     + (f", drawn {fi['lift_m']:.0f} m above the terrain mesh (stems to the true points)"
-                        if fi["lift_m"] > 0 else ""))
+            text += f"  \n**pink vector**: {fi['label']}; markers {fi['radius_m']:.2g} m" + (
+                f", drawn {fi['lift_m']:.0f} m above the terrain mesh (stems to the true points)"
+                if fi["lift_m"] > 0
+                else ""
+            )
         return text
 
     # ------------------------------------------------------------ GUI
@@ -394,29 +451,50 @@ class FlightLayer:
         with g.add_folder("Flight", order=self._order(0)):
             self.md_head = g.add_markdown(
                 f"**{n} frames**, footprints on {m.surface.split(' (')[0]}; {int(m.outlier.sum())} flagged in "
-                f"{len(m.faults)} run(s). Colours: the Legend folder")
-            self.sl_frame = g.add_slider("frame index", 0, max(n - 1, 1), 1, 0, disabled=n < 2,
-                                         hint="Scrub through the frames; each loads as the current record")
-            self.bt_whole = g.add_button("whole flight", hint="The camera on the whole flight: track, "
-                                         "footprints, the flagged runs in red")
+                f"{len(m.faults)} run(s). Colours: the Legend folder"
+            )
+            self.sl_frame = g.add_slider(
+                "frame index",
+                0,
+                max(n - 1, 1),
+                1,
+                0,
+                disabled=n < 2,
+                hint="Scrub through the frames; each loads as the current record",
+            )
+            self.bt_whole = g.add_button(
+                "whole flight", hint="The camera on the whole flight: track, footprints, the flagged runs in red"
+            )
             worst = self.top_idx[0] if self.top_idx else None
             self.bt_worst = g.add_button(
-                f"worst fault: {m.labels[worst]}" + (f" ({KIND_NAMES.get(m.fault_of(worst).kind)})"
-                                                      if m.fault_of(worst) is not None else "")
-                if worst is not None else "worst fault", disabled=worst is None,
-                hint="Jump to the frame of largest error, the camera framed on its error vector")
-            self.cb_follow = g.add_checkbox("camera follows the timeline", False,
-                                            hint="While the timeline moves, the camera moves with the aircraft")
+                f"worst fault: {m.labels[worst]}"
+                + (f" ({KIND_NAMES.get(m.fault_of(worst).kind)})" if m.fault_of(worst) is not None else "")
+                if worst is not None
+                else "worst fault",
+                disabled=worst is None,
+                hint="Jump to the frame of largest error, the camera framed on its error vector",
+            )
+            self.cb_follow = g.add_checkbox(
+                "camera follows the timeline",
+                False,
+                hint="While the timeline moves, the camera moves with the aircraft",
+            )
             self.bt_play = g.add_button("play", hint="Play / pause the timeline")
             self.num_fps = g.add_number("frames per second", 2.0, min=0.2, max=30.0, step=0.1)
             self.cb_auto_markers = g.add_checkbox(
-                "markers sized to the error", True,
+                "markers sized to the error",
+                True,
                 hint="The hit markers shrink to a tenth of the current frame's error so they never cover "
-                     "its error vector (pink, with its length)")
+                "its error vector (pink, with its length)",
+            )
             self.md_frame = g.add_markdown("")
         with g.add_folder("Flight: outliers first", order=self._order(1)):
-            self.dd_goto = g.add_dropdown("go to", [CHOOSE] + self.opts, initial_value=CHOOSE,
-                                          hint="Jump the timeline and the camera to this frame")
+            self.dd_goto = g.add_dropdown(
+                "go to",
+                [CHOOSE] + self.opts,
+                initial_value=CHOOSE,
+                hint="Jump the timeline and the camera to this frame",
+            )
             self.md_table = g.add_markdown(m.outlier_markdown(self.top_n))
         with g.add_folder("Flight: what the outliers look like", order=self._order(2)):
             self.md_faults = g.add_markdown(m.faults_markdown())
@@ -450,15 +528,18 @@ class FlightLayer:
             self.dd_goto.options = [CHOOSE] + self.opts
             self.md_head.content = (
                 f"**{n} frames**, footprints on {model.surface.split(' (')[0]}; {int(model.outlier.sum())} "
-                f"flagged in {len(model.faults)} run(s). Colours: the Legend folder")
+                f"flagged in {len(model.faults)} run(s). Colours: the Legend folder"
+            )
             self.md_table.content = model.outlier_markdown(self.top_n)
             self.md_faults.content = model.faults_markdown()
             self.md_accuracy.content = model.summary_markdown()
             worst = self.top_idx[0] if self.top_idx else None
             f = model.fault_of(worst) if worst is not None else None
-            self.bt_worst.label = (f"worst fault: {model.labels[worst]}"
-                                   + (f" ({KIND_NAMES.get(f.kind)})" if f is not None else "")
-                                   if worst is not None else "worst fault")
+            self.bt_worst.label = (
+                f"worst fault: {model.labels[worst]}" + (f" ({KIND_NAMES.get(f.kind)})" if f is not None else "")
+                if worst is not None
+                else "worst fault"
+            )
             self.bt_worst.disabled = worst is None
         finally:
             self._mute = False
@@ -552,8 +633,12 @@ class FlightLayer:
         self.show_origin(not camera)
         if camera:
             self.move_camera_to(idx)
-        elif before is not None and before != idx and getattr(self, "cb_follow", None) is not None \
-                and self.cb_follow.value:
+        elif (
+            before is not None
+            and before != idx
+            and getattr(self, "cb_follow", None) is not None
+            and self.cb_follow.value
+        ):
             self.follow(before, idx)
 
     def follow(self, old: int, new: int) -> None:
@@ -787,8 +872,7 @@ def shift_left_of_panel(pos, aim, k: float = PANEL_SHIFT):
     return pos + d, aim + d
 
 
-KIND_NAMES = {"attitude": "heading bias", "datum": "height datum", "timing": "stale pose",
-              "unexplained": "unexplained"}
+KIND_NAMES = {"attitude": "heading bias", "datum": "height datum", "timing": "stale pose", "unexplained": "unexplained"}
 
 
 def goto_entries(m: flight_model.FlightModel, top_n: int = TOP_N):
@@ -796,14 +880,15 @@ def goto_entries(m: flight_model.FlightModel, top_n: int = TOP_N):
     its worst frame then each of its frames (so every outlier is one choice away); without runs
     the ``top_n`` largest residuals."""
     idx, opts = [], []
-    runs = sorted(m.faults, key=lambda f: -np.nanmax(m.residual_m[f.first:f.last + 1]))
+    runs = sorted(m.faults, key=lambda f: -np.nanmax(m.residual_m[f.first : f.last + 1]))
     for r, f in enumerate(runs, 1):
         frames = np.arange(f.first, f.last + 1)
         worst = int(frames[np.nanargmax(m.residual_m[frames])])
         span = m.labels[f.first] if f.first == f.last else f"{m.labels[f.first]} .. {m.labels[f.last]}"
         idx.append(worst)
-        opts.append(f"run {r} ({KIND_NAMES.get(f.kind, f.kind)}, {span}): worst {m.labels[worst]}, "
-                    f"{m.residual_m[worst]:.1f} m")
+        opts.append(
+            f"run {r} ({KIND_NAMES.get(f.kind, f.kind)}, {span}): worst {m.labels[worst]}, {m.residual_m[worst]:.1f} m"
+        )
         for i in frames:
             idx.append(int(i))
             opts.append(f"  run {r}: {m.labels[i]} ({m.residual_m[i]:.1f} m)")

@@ -73,21 +73,25 @@ WHAT_IT_LOOKS_LIKE = {
         "**attitude (yaw) bias burst**: for a run of frames the error turns about the aircraft: it "
         "lies across the line of sight (along the track when the turret looks sideways), its size is "
         "ground range x bias angle, and it stops as suddenly as it started. Look at the heading "
-        "reference (magnetic vs true north, an INS realignment, a gimbal encoder slip)."),
+        "reference (magnetic vs true north, an INS realignment, a gimbal encoder slip)."
+    ),
     "datum": (
         "**height in the wrong datum**: a run of frames shares one vertical offset of the sensor "
         "height, so the hits slide along the line of sight's ground track by dh / tan(depression); "
         "dh close to the geoid undulation N means a mean-sea-level altitude written where an "
-        "ellipsoidal (HAE) one belongs, or the reverse."),
+        "ellipsoidal (HAE) one belongs, or the reverse."
+    ),
     "timing": (
         "**timing offset between metadata and frames**: the pose belongs to another instant, so the "
         "error lies along the track and is proportional to the speed (speed x offset), plus the "
         "attitude change over the offset (a turn's, and the frame-to-frame attitude noise: the run's "
-        "errors then scatter in size); the fitted offset is in frames (seconds at 1 Hz)."),
+        "errors then scatter in size); the fitted offset is in frames (seconds at 1 Hz)."
+    ),
     "unexplained": (
         "**not one of the three simple faults**: neither a heading bias, a height offset nor a timing "
         "offset explains this run; look at the frame's chain (mount, gimbal angles, lens) and its "
-        "iterations."),
+        "iterations."
+    ),
 }
 
 
@@ -117,11 +121,16 @@ class FaultRun:
 
     def headline(self) -> str:
         """One line: frames, kind and the fitted size in its unit."""
-        what = {"attitude": f"heading bias {math.degrees(self.value):+.2f} deg",
-                "datum": f"sensor height off by {self.value:+.1f} m",
-                "timing": (f"pose {abs(self.value):.2f} frame(s) stale (from an earlier instant than the image)"
-                           if self.value < 0 else f"pose {self.value:.2f} frame(s) ahead of the image"),
-                "unexplained": "no simple fault fits"}[self.kind]
+        what = {
+            "attitude": f"heading bias {math.degrees(self.value):+.2f} deg",
+            "datum": f"sensor height off by {self.value:+.1f} m",
+            "timing": (
+                f"pose {abs(self.value):.2f} frame(s) stale (from an earlier instant than the image)"
+                if self.value < 0
+                else f"pose {self.value:.2f} frame(s) ahead of the image"
+            ),
+            "unexplained": "no simple fault fits",
+        }[self.kind]
         span = self.labels[0] if self.first == self.last else f"{self.labels[0]} .. {self.labels[-1]}"
         return f"{span} ({self.last - self.first + 1} frames): {what}"
 
@@ -206,19 +215,34 @@ class FlightModel:
         for [Q17] records, ``T3-1`` -> ``T3``; one group for a KLV file)."""
         if getattr(self, "_report", None) is not None:
             return self._report
-        ref = (self.truth_lat_deg, self.truth_lon_deg, self.truth_h_m) if self.reference == "truth" else \
-            (self.reported_lat_deg, self.reported_lon_deg, self.reported_h_m)
+        ref = (
+            (self.truth_lat_deg, self.truth_lon_deg, self.truth_h_m)
+            if self.reference == "truth"
+            else (self.reported_lat_deg, self.reported_lon_deg, self.reported_h_m)
+        )
         tlat, tlon, th = self.enu.to_geodetic(self.track_enu)
-        sight = accuracy.sight_geometry(np.degrees(tlat), np.degrees(tlon), th, self.recomputed_lat_deg,
-                                        self.recomputed_lon_deg, self.recomputed_h_m)
+        sight = accuracy.sight_geometry(
+            np.degrees(tlat),
+            np.degrees(tlon),
+            th,
+            self.recomputed_lat_deg,
+            self.recomputed_lon_deg,
+            self.recomputed_h_m,
+        )
         group = [lab.partition("-")[0] if "-" in lab else "flight" for lab in self.labels]
         ok = self.status == Status.OK
         nan = lambda a: np.where(ok, a, np.nan)
         self._report = accuracy.accuracy_report(
-            nan(self.recomputed_lat_deg), nan(self.recomputed_lon_deg), nan(self.recomputed_h_m), *ref,
-            track_heading_rad=self.track_heading_rad, slant_range_m=sight["slant_range_m"],
-            off_nadir_rad=sight["off_nadir_rad"], group=group,
-            meta={"reference": f"recomputed vs {self.reference}", "surface": self.surface})
+            nan(self.recomputed_lat_deg),
+            nan(self.recomputed_lon_deg),
+            nan(self.recomputed_h_m),
+            *ref,
+            track_heading_rad=self.track_heading_rad,
+            slant_range_m=sight["slant_range_m"],
+            off_nadir_rad=sight["off_nadir_rad"],
+            group=group,
+            meta={"reference": f"recomputed vs {self.reference}", "surface": self.surface},
+        )
         return self._report
 
     def error_model(self):
@@ -236,8 +260,10 @@ class FlightModel:
         if n < 5 or not np.isfinite(b) or not np.isfinite(a):
             return None, f"{n} frames: too few for an error model"
         if b < 0:
-            return None, (f"the least-squares line in slant range has a negative intercept ({b:.1f} m + "
-                          f"{a * 1e3:.2f} m per km): a line through scatter, not an accuracy")
+            return None, (
+                f"the least-squares line in slant range has a negative intercept ({b:.1f} m + "
+                f"{a * 1e3:.2f} m per km): a line through scatter, not an accuracy"
+            )
         if a < 0:
             return None, f"the errors shrink with slant range ({a * 1e3:.2f} m per km): no range model"
         if len(h) > 1 and not rms < 0.9 * float(np.std(h)):
@@ -253,35 +279,53 @@ class FlightModel:
         f = lambda v, spec=".2f": "n/a" if v is None or not np.isfinite(v) else format(v, spec)
         L = []
         if self.reference == "truth":
-            L += [f"**accuracy against the surveyed truth** (recomputed vs truth, {s['n']} frames; heights "
-                  f"{H_DATUM})  ",
-                  f"CEP {f(s['cep_m'], '.1f')} m, CE90 {f(s['ce90_m'], '.1f')} m, LE90 {f(s['le90_m'], '.1f')} m  ",
-                  f"mean abs. error: horizontal {f(s['mae_horizontal_m'], '.1f')} m, vertical "
-                  f"{f(s['mae_vertical_m'], '.1f')} m  ",
-                  (f"bias: N {f(s['bias_north_m'], '.1f')}, E {f(s['bias_east_m'], '.1f')}, U "
-                   f"{f(s['bias_up_m'], '.1f')}, along {f(s['bias_along_m'], '.1f')}, across "
-                   f"{f(s['bias_across_m'], '.1f')} m  ")]
+            L += [
+                f"**accuracy against the surveyed truth** (recomputed vs truth, {s['n']} frames; heights {H_DATUM})  ",
+                f"CEP {f(s['cep_m'], '.1f')} m, CE90 {f(s['ce90_m'], '.1f')} m, LE90 {f(s['le90_m'], '.1f')} m  ",
+                f"mean abs. error: horizontal {f(s['mae_horizontal_m'], '.1f')} m, vertical "
+                f"{f(s['mae_vertical_m'], '.1f')} m  ",
+                (
+                    f"bias: N {f(s['bias_north_m'], '.1f')}, E {f(s['bias_east_m'], '.1f')}, U "
+                    f"{f(s['bias_up_m'], '.1f')}, along {f(s['bias_along_m'], '.1f')}, across "
+                    f"{f(s['bias_across_m'], '.1f')} m  "
+                ),
+            ]
             mdl, why = self.error_model()
-            L.append(f"error model: horizontal error = {mdl['intercept_m']:.1f} m + {mdl['m_per_m'] * 1e3:.2f} m "
-                     "per km of slant range  " if mdl is not None else f"error model: none ({why})  ")
-            rep = agreement(self.recomputed_lat_deg, self.recomputed_lon_deg, self.reported_lat_deg,
-                            self.reported_lon_deg)
+            L.append(
+                f"error model: horizontal error = {mdl['intercept_m']:.1f} m + {mdl['m_per_m'] * 1e3:.2f} m "
+                "per km of slant range  "
+                if mdl is not None
+                else f"error model: none ({why})  "
+            )
+            rep = agreement(
+                self.recomputed_lat_deg, self.recomputed_lon_deg, self.reported_lat_deg, self.reported_lon_deg
+            )
             if rep is not None:
-                L.append(f"agreement with the reported positions (not an accuracy): median {_length(rep[0])}, "
-                         f"90 % within {_length(rep[1])}, largest {_length(rep[2])}  ")
+                L.append(
+                    f"agreement with the reported positions (not an accuracy): median {_length(rep[0])}, "
+                    f"90 % within {_length(rep[1])}, largest {_length(rep[2])}  "
+                )
         else:
             h = self.residual_m[np.isfinite(self.residual_m)]
-            L.append(f"**agreement with the reported positions** (recomputed vs the positions the records "
-                     f"report, e.g. the MISB frame centre; {len(h)} frames)  ")
+            L.append(
+                f"**agreement with the reported positions** (recomputed vs the positions the records "
+                f"report, e.g. the MISB frame centre; {len(h)} frames)  "
+            )
             if len(h):
-                L.append(f"median {_length(np.median(h))}, 90 % within {_length(np.percentile(h, 90))}, largest "
-                         f"{_length(h.max())}; {int((h < 1.0).sum())} of {len(h)} frames within 1 m  ")
-            L.append("**accuracy: unknown**: the records carry no surveyed truth, so how far either position "
-                     "is from the ground truth cannot be said (no CEP, no error model)  ")
+                L.append(
+                    f"median {_length(np.median(h))}, 90 % within {_length(np.percentile(h, 90))}, largest "
+                    f"{_length(h.max())}; {int((h < 1.0).sum())} of {len(h)} frames within 1 m  "
+                )
+            L.append(
+                "**accuracy: unknown**: the records carry no surveyed truth, so how far either position "
+                "is from the ground truth cannot be said (no CEP, no error model)  "
+            )
         L.append(f"robust outliers: {int(self.outlier.sum())} of {len(self)} frames (median / MAD rule)  ")
         if self.outside_ellipse99 is not None:
-            L.append(f"outside their own predicted 99 % ellipse: {int(self.outside_ellipse99.sum())} of "
-                     f"{len(self)} frames (the sensor's error budget)  ")
+            L.append(
+                f"outside their own predicted 99 % ellipse: {int(self.outside_ellipse99.sum())} of "
+                f"{len(self)} frames (the sensor's error budget)  "
+            )
         L += [f"**warning** {w}  " for w in r.warnings]
         return "\n".join(L)
 
@@ -296,16 +340,19 @@ class FlightModel:
         """A markdown table of the ``n`` largest residuals (frame, residual, components, flag, fault)."""
         c = self.components
         ref = "truth" if self.reference == "truth" else "reported"
-        lines = [f"frames by residual (recomputed vs {ref}, horizontal; along/across track; up)  ",
-                 "",
-                 "| # | frame | residual m | along m | across m | up m | flag | looks like |",
-                 "|---|---|---|---|---|---|---|---|"]
+        lines = [
+            f"frames by residual (recomputed vs {ref}, horizontal; along/across track; up)  ",
+            "",
+            "| # | frame | residual m | along m | across m | up m | flag | looks like |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
         for rank, i in enumerate(self.top(n), 1):
             f = self.fault_of(int(i))
             lines.append(
                 f"| {rank} | {self.labels[i]} | {self.residual_m[i]:.1f} | {c['along_m'][i]:+.1f} | "
                 f"{c['across_m'][i]:+.1f} | {c['up_m'][i]:+.1f} | {self._flag(i)} | "
-                f"{f.kind if f is not None else ''} |")
+                f"{f.kind if f is not None else ''} |"
+            )
         return "\n".join(lines)
 
     def _flag(self, i) -> str:
@@ -353,8 +400,17 @@ def records_pose(records) -> tuple:
     a = lambda k: np.array([float(getattr(i, k)) for i in inps])
     names = sorted({k for i in inps for k in i.angles_deg})
     angles = {k: np.array([float(i.angles_deg.get(k, 0.0)) for i in inps]) for k in names}
-    pose = Pose.from_deg(a("lat_deg"), a("lon_deg"), a("h_m"), a("heading_deg"), a("pitch_deg"), a("roll_deg"),
-                         a("gimbal_roll_deg"), a("gimbal_pitch_deg"), angles_deg=angles)
+    pose = Pose.from_deg(
+        a("lat_deg"),
+        a("lon_deg"),
+        a("h_m"),
+        a("heading_deg"),
+        a("pitch_deg"),
+        a("roll_deg"),
+        a("gimbal_roll_deg"),
+        a("gimbal_pitch_deg"),
+        angles_deg=angles,
+    )
     return pose, a("row"), a("col"), a("target_h")
 
 
@@ -431,8 +487,9 @@ def _assessment(track, pose, rec_lat, rec_lon, rec_h, rec_st, ref_lat, ref_lon, 
     components against the reference, the residual, the robust outlier flags and the order."""
     _, speed = _track_speed(track)
     # the local track azimuth (previous to next position; the heading where they nearly coincide)
-    heading = accuracy.track_azimuth_rad(np.degrees(pose.lat), np.degrees(pose.lon),
-                                         heading_rad=np.asarray(pose.heading, float))
+    heading = accuracy.track_azimuth_rad(
+        np.degrees(pose.lat), np.degrees(pose.lon), heading_rad=np.asarray(pose.heading, float)
+    )
     comp = accuracy.error_components(rec_lat, rec_lon, rec_h, ref_lat, ref_lon, ref_h, track_heading_rad=heading)
     comp = {k_: np.asarray(v, float) for k_, v in comp.items()}
     residual = comp["horizontal_m"].copy()
@@ -440,19 +497,45 @@ def _assessment(track, pose, rec_lat, rec_lon, rec_h, rec_st, ref_lat, ref_lon, 
     outlier = np.asarray(accuracy.robust_outliers(residual), bool)
     key = np.where(np.isfinite(residual), -residual, np.inf)
     order = np.argsort(key, kind="stable")
-    return {"speed": speed, "heading": heading, "components": comp, "residual": residual, "outlier": outlier,
-            "order": order}
+    return {
+        "speed": speed,
+        "heading": heading,
+        "components": comp,
+        "residual": residual,
+        "outlier": outlier,
+        "order": order,
+    }
 
 
 #: FlightModel fields holding one entry per frame (frame index first): what :func:`extend` joins.
-PER_FRAME = ("track_enu", "footprint_enu", "footprint_status", "corners_enu", "corner_lat_deg", "corner_lon_deg",
-             "corner_h_m", "centre_enu", "recomputed_lat_deg", "recomputed_lon_deg", "recomputed_h_m",
-             "recomputed_enu", "status", "reported_lat_deg", "reported_lon_deg", "reported_h_m", "reported_enu",
-             "truth_lat_deg", "truth_lon_deg", "truth_h_m", "truth_enu")
+PER_FRAME = (
+    "track_enu",
+    "footprint_enu",
+    "footprint_status",
+    "corners_enu",
+    "corner_lat_deg",
+    "corner_lon_deg",
+    "corner_h_m",
+    "centre_enu",
+    "recomputed_lat_deg",
+    "recomputed_lon_deg",
+    "recomputed_h_m",
+    "recomputed_enu",
+    "status",
+    "reported_lat_deg",
+    "reported_lon_deg",
+    "reported_h_m",
+    "reported_enu",
+    "truth_lat_deg",
+    "truth_lon_deg",
+    "truth_h_m",
+    "truth_enu",
+)
 
 
-def extend(model: FlightModel | None, new: FlightModel, scn, keep: int | None = None,
-           diagnose_faults: bool = True) -> FlightModel:
+def extend(
+    model: FlightModel | None, new: FlightModel, scn, keep: int | None = None, diagnose_faults: bool = True
+) -> FlightModel:
     """``model`` followed by the frames of ``new`` (a flight that grew: a live stream), the newest
     ``keep`` kept, with everything that depends on the whole flight derived again over the result
     exactly as :func:`build` derives it (speed, track heading, residual components, robust outlier
@@ -478,19 +561,44 @@ def extend(model: FlightModel | None, new: FlightModel, scn, keep: int | None = 
     reference = "truth" if np.isfinite(joined["truth_lat_deg"]).any() else "reported"
     pre = "truth" if reference == "truth" else "reported"
     ref_h = np.where(np.isfinite(joined[f"{pre}_h_m"]), joined[f"{pre}_h_m"], joined["recomputed_h_m"])
-    a = _assessment(joined["track_enu"], pose, joined["recomputed_lat_deg"], joined["recomputed_lon_deg"],
-                    joined["recomputed_h_m"], joined["status"], joined[f"{pre}_lat_deg"], joined[f"{pre}_lon_deg"],
-                    ref_h)
-    m = FlightModel(labels=labels, enu=new.enu, **joined, reference=reference, residual_m=a["residual"],
-                    components=a["components"], outlier=a["outlier"], order=a["order"],
-                    track_heading_rad=a["heading"], speed_m_per_frame=a["speed"], surface=new.surface)
+    a = _assessment(
+        joined["track_enu"],
+        pose,
+        joined["recomputed_lat_deg"],
+        joined["recomputed_lon_deg"],
+        joined["recomputed_h_m"],
+        joined["status"],
+        joined[f"{pre}_lat_deg"],
+        joined[f"{pre}_lon_deg"],
+        ref_h,
+    )
+    m = FlightModel(
+        labels=labels,
+        enu=new.enu,
+        **joined,
+        reference=reference,
+        residual_m=a["residual"],
+        components=a["components"],
+        outlier=a["outlier"],
+        order=a["order"],
+        track_heading_rad=a["heading"],
+        speed_m_per_frame=a["speed"],
+        surface=new.surface,
+    )
     if diagnose_faults:
         m.faults = diagnose(m, scn, pose=pose, row=row, col=col, target_h=target_h)
     return m
 
 
-def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: EnuFrame | None = None,
-          fov_deg=None, diagnose_faults: bool = True) -> FlightModel:
+def build(
+    scn,
+    *,
+    edge_samples: int = EDGE_SAMPLES,
+    method: str = "exact",
+    enu: EnuFrame | None = None,
+    fov_deg=None,
+    diagnose_faults: bool = True,
+) -> FlightModel:
     """Compute the whole flight of ``scn.records`` in one batch (see the module docstring).
 
     Parameters
@@ -562,28 +670,52 @@ def build(scn, *, edge_samples: int = EDGE_SAMPLES, method: str = "exact", enu: 
     ref_h = np.where(np.isfinite(ref[2]), ref[2], rec_h)
 
     a = _assessment(track, pose, rec_lat, rec_lon, rec_h, rec_st, ref[0], ref[1], ref_h)
-    speed, heading, comp, residual, outlier, order = (a[k] for k in ("speed", "heading", "components",
-                                                                     "residual", "outlier", "order"))
+    speed, heading, comp, residual, outlier, order = (
+        a[k] for k in ("speed", "heading", "components", "residual", "outlier", "order")
+    )
 
     def enu_of(la, lo, hh):
         return enu.from_geodetic(np.radians(la), np.radians(lo), np.where(np.isfinite(hh), hh, 0.0))
 
-    desc = (f"DEM {getattr(scn, 'dem_name', '') or 'given'}, {method} first hit (outline rays off the DEM: "
-            "the record's target height)" if dem is not None else
-            "ellipsoid at each record's target height (no DEM)")
+    desc = (
+        f"DEM {getattr(scn, 'dem_name', '') or 'given'}, {method} first hit (outline rays off the DEM: "
+        "the record's target height)"
+        if dem is not None
+        else "ellipsoid at each record's target height (no DEM)"
+    )
     model = FlightModel(
-        labels=[info.label for info, _ in recs], enu=enu, track_enu=track, footprint_enu=footprint,
-        footprint_status=np.swapaxes(st[:P], 0, 1), corners_enu=footprint[:, corner_idx],
-        corner_lat_deg=lat_d[:P][corner_idx].T, corner_lon_deg=lon_d[:P][corner_idx].T,
-        corner_h_m=h[:P][corner_idx].T, centre_enu=pts_enu[P],
-        recomputed_lat_deg=rec_lat, recomputed_lon_deg=rec_lon, recomputed_h_m=rec_h,
-        recomputed_enu=pts_enu[-1], status=rec_st,
-        reported_lat_deg=rep_lat, reported_lon_deg=rep_lon, reported_h_m=rep_h,
+        labels=[info.label for info, _ in recs],
+        enu=enu,
+        track_enu=track,
+        footprint_enu=footprint,
+        footprint_status=np.swapaxes(st[:P], 0, 1),
+        corners_enu=footprint[:, corner_idx],
+        corner_lat_deg=lat_d[:P][corner_idx].T,
+        corner_lon_deg=lon_d[:P][corner_idx].T,
+        corner_h_m=h[:P][corner_idx].T,
+        centre_enu=pts_enu[P],
+        recomputed_lat_deg=rec_lat,
+        recomputed_lon_deg=rec_lon,
+        recomputed_h_m=rec_h,
+        recomputed_enu=pts_enu[-1],
+        status=rec_st,
+        reported_lat_deg=rep_lat,
+        reported_lon_deg=rep_lon,
+        reported_h_m=rep_h,
         reported_enu=enu_of(rep_lat, rep_lon, np.where(np.isfinite(rep_h), rep_h, target_h)),
-        truth_lat_deg=t_lat, truth_lon_deg=t_lon, truth_h_m=np.where(has_truth, t_h, np.nan),
-        truth_enu=enu_of(t_lat, t_lon, t_h), reference=reference, residual_m=residual,
-        components=comp, outlier=outlier, order=order, track_heading_rad=heading,
-        speed_m_per_frame=speed, surface=desc)
+        truth_lat_deg=t_lat,
+        truth_lon_deg=t_lon,
+        truth_h_m=np.where(has_truth, t_h, np.nan),
+        truth_enu=enu_of(t_lat, t_lon, t_h),
+        reference=reference,
+        residual_m=residual,
+        components=comp,
+        outlier=outlier,
+        order=order,
+        track_heading_rad=heading,
+        speed_m_per_frame=speed,
+        surface=desc,
+    )
     budget = getattr(scn, "budget", None)
     if budget is not None:  # the second outlier rule: outside the frame's own predicted 99 % ellipse
         model.outside_ellipse99 = outside_own_ellipse(sensor, pose, row, col, surface, budget, comp, residual)
@@ -606,8 +738,9 @@ def outside_own_ellipse(sensor, pose, row, col, surface, budget, components, res
 
     b, _ = usable_budget(budget, sensor)
     pu = propagate(sensor, pose, row, col, b, surface=surface, outside="extrapolate")
-    out = outside_ellipse(components["east_m"], components["north_m"], pu.ellipse_major_m, pu.ellipse_minor_m,
-                          pu.ellipse_azimuth_deg, p)
+    out = outside_ellipse(
+        components["east_m"], components["north_m"], pu.ellipse_major_m, pu.ellipse_minor_m, pu.ellipse_azimuth_deg, p
+    )
     return np.asarray(out & np.isfinite(residual) & (np.asarray(pu.status) == Status.OK), bool)
 
 
@@ -669,8 +802,12 @@ def diagnose(model: FlightModel, scn, *, pose=None, row=None, col=None, target_h
         "timing+": nxt,
         "timing-": prv,
     }
-    steps = {"attitude": HEADING_STEP_RAD, "datum": HEIGHT_STEP_M, "timing+": TIME_STEP_FRAMES,
-             "timing-": -TIME_STEP_FRAMES}
+    steps = {
+        "attitude": HEADING_STEP_RAD,
+        "datum": HEIGHT_STEP_M,
+        "timing+": TIME_STEP_FRAMES,
+        "timing-": -TIME_STEP_FRAMES,
+    }
     kinds = list(variants)
     # one batch: the unperturbed pose and the variants, stacked on a leading axis
     stack = {k: np.stack([base[k]] + [variants[v][k] for v in kinds]) for k in base}
@@ -678,12 +815,15 @@ def diagnose(model: FlightModel, scn, *, pose=None, row=None, col=None, target_h
     angles = {a: np.broadcast_to(np.asarray(v, float), shape) for a, v in p0.angles.items()}
     gr = np.broadcast_to(np.asarray(p0.gimbal_roll, float), shape)
     gp = np.broadcast_to(np.asarray(p0.gimbal_pitch, float), shape)
-    pb = Pose(stack["lat"], stack["lon"], stack["h"], stack["heading"], stack["pitch"], stack["roll"], gr, gp,
-              angles=angles)
+    pb = Pose(
+        stack["lat"], stack["lon"], stack["h"], stack["heading"], stack["pitch"], stack["roll"], gr, gp, angles=angles
+    )
     th = target_h[idx]
     surface = _surface(scn, th, method)
     los = sensor.line_of_sight(row[idx], col[idx], pb, outside="extrapolate")
-    *_, ecef, _ = _hit(surface, los, getattr(scn, "corrections", NO_CORRECTIONS))  # a failed variant is NaN: left out of its fit
+    *_, ecef, _ = _hit(
+        surface, los, getattr(scn, "corrections", NO_CORRECTIONS)
+    )  # a failed variant is NaN: left out of its fit
     pts = model.enu.from_ecef(ecef)  # (1 + kinds, m, 3)
     J = {k: (pts[1 + j] - pts[0]) / steps[k] for j, k in enumerate(kinds)}
     # the first frame has no earlier one (and the last no later one): its one-sided step is zero
@@ -712,8 +852,16 @@ def diagnose(model: FlightModel, scn, *, pose=None, row=None, col=None, target_h
         named = ("attitude", "datum", "timing")
         best = min(named, key=lambda k: fits[k][1])
         kind = best if fits[best][1] < EXPLAINED_FRACTION else "unexplained"
-        out.append(FaultRun(a, b, kind, fits[best][0] if kind != "unexplained" else math.nan,
-                            {k: fits[k][1] for k in named}, tuple(model.labels[a:b + 1])))
+        out.append(
+            FaultRun(
+                a,
+                b,
+                kind,
+                fits[best][0] if kind != "unexplained" else math.nan,
+                {k: fits[k][1] for k in named},
+                tuple(model.labels[a : b + 1]),
+            )
+        )
     return out
 
 
@@ -743,8 +891,9 @@ def default_flight_path() -> Path:
     return Path(ASSETS) / "klv" / "example_flight.klv"
 
 
-def default_flight_scenario(record=None, path=None, camera_path=None, dem_path=None, use_dem: bool = True,
-                            dem_datum: str = "egm96"):
+def default_flight_scenario(
+    record=None, path=None, camera_path=None, dem_path=None, use_dem: bool = True, dem_datum: str = "egm96"
+):
     """The viewer's first look: the bundled KLV example flight over the SRTM crop, its worst frame open.
 
     Its planted faults (``tools/make_klv_example.py``, ``docs/klv.md``): a 2.5 deg heading-bias burst
@@ -778,8 +927,14 @@ def read_targets(path) -> list:
         for k, row in enumerate(csv.DictReader(f), start=2):
             try:
                 h = row.get("h_m", "")
-                out.append((row["name"], float(row["lat_deg"]), float(row["lon_deg"]),
-                            float(h) if h not in ("", None) else math.nan))
+                out.append(
+                    (
+                        row["name"],
+                        float(row["lat_deg"]),
+                        float(row["lon_deg"]),
+                        float(h) if h not in ("", None) else math.nan,
+                    )
+                )
             except (KeyError, ValueError) as e:
                 raise ValueError(f"{path}, line {k}: {e}: need name, lat_deg, lon_deg[, h_m]") from None
     return out

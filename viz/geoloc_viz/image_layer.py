@@ -75,9 +75,9 @@ COLORS = {
     "reported": (180, 80, 255),
     "recomputed": (255, 60, 60),
     "horizon": (0, 230, 230),
-    "target_rays": (255, 215, 0),      # one target's rays from several frames and their intersection
-    "residual": (255, 60, 160),        # each ray's residual, ray to the triangulated point
-    "target_ellipse": (0, 200, 170),   # the triangulated point's 90 % ellipse: uncertainty_layer.COLOR (teal)
+    "target_rays": (255, 215, 0),  # one target's rays from several frames and their intersection
+    "residual": (255, 60, 160),  # each ray's residual, ray to the triangulated point
+    "target_ellipse": (0, 200, 170),  # the triangulated point's 90 % ellipse: uncertainty_layer.COLOR (teal)
 }
 _PIXEL_RE = re.compile(r"^\s*\(?\s*([-+0-9.eE]+)\s*[, ;]\s*([-+0-9.eE]+)\s*\)?\s*$")
 
@@ -139,8 +139,11 @@ def draw_marks(img: np.ndarray, marks, to_xy, size: float) -> np.ndarray:
         col = COLORS.get(kind.split()[0], (255, 255, 255))
         if kind in ("pick",):  # crosshair with a gap: the pixel itself stays visible
             for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-                d.line([(x + dx * s * 0.35, y + dy * s * 0.35), (x + dx * s * 1.6, y + dy * s * 1.6)],
-                       fill=col, width=w + 1)
+                d.line(
+                    [(x + dx * s * 0.35, y + dy * s * 0.35), (x + dx * s * 1.6, y + dy * s * 1.6)],
+                    fill=col,
+                    width=w + 1,
+                )
         elif kind.startswith("ground"):
             d.ellipse([x - s, y - s, x + s, y + s], outline=col, width=w + 1)
         elif kind in ("reported", "recomputed"):
@@ -204,31 +207,50 @@ class ImageLayer:
                 "and targets; squares **violet** / **red**: reported / recomputed frame centre; "
                 "**cyan** line: terrain horizon. Pick one target in several frames: its rays (**gold**) meet at "
                 "the triangulated point, with its 90 % ellipse (**teal**, as every 90 % ellipse) and residuals "
-                "(**pink**), both drawn at the error vector exaggeration")
+                "(**pink**), both drawn at the error vector exaggeration"
+            )
             self.html = g.add_html("")
-            self.sl_zoom = g.add_slider("zoom (x)", 0, len(ZOOMS) - 1, 1, 0,
-                                        hint="Zoom the panel's image about the picked pixel: 1, 2, 4, ... 32 x")
-            self.tx_pixel = g.add_text("picked pixel", "",
-                                       hint="row, col (1-based pixel centres): a click on the image writes it; "
-                                       "type one to locate it")
+            self.sl_zoom = g.add_slider(
+                "zoom (x)",
+                0,
+                len(ZOOMS) - 1,
+                1,
+                0,
+                hint="Zoom the panel's image about the picked pixel: 1, 2, 4, ... 32 x",
+            )
+            self.tx_pixel = g.add_text(
+                "picked pixel",
+                "",
+                hint="row, col (1-based pixel centres): a click on the image writes it; type one to locate it",
+            )
             self.md_pick = g.add_markdown("")
             self.md_target = g.add_markdown("")
-            self.bt_clear_target = g.add_button("clear target rays",
-                                                hint="Forget the picks of the other frames: the next pick starts "
-                                                "a new target (each frame's last pick is one of its rays)")
+            self.bt_clear_target = g.add_button(
+                "clear target rays",
+                hint="Forget the picks of the other frames: the next pick starts "
+                "a new target (each frame's last pick is one of its rays)",
+            )
             self.md_ground = g.add_markdown("")
             self.md_found = g.add_markdown("")
             self.cb_frustum = g.add_checkbox("picture in the frustum", True)
-            self.sl_dist = g.add_slider("picture distance (x range)", 0.05, 1.0, 0.05, 0.35,
-                                        hint="Where the image sits along the frustum: a fraction of the range to "
-                                        "the frame centre")
+            self.sl_dist = g.add_slider(
+                "picture distance (x range)",
+                0.05,
+                1.0,
+                0.05,
+                0.35,
+                hint="Where the image sits along the frustum: a fraction of the range to the frame centre",
+            )
             self.sl_opacity = g.add_slider("picture opacity", 0.1, 1.0, 0.05, 1.0)
             self.cb_marks = g.add_checkbox("marks: truth, targets, frame centres", True)
             self.cb_horizon = g.add_checkbox("mark: terrain horizon", True)
-            self.cb_drape = g.add_checkbox("drape the frame on the terrain", False,
-                                           hint="The frame orthorectified (geoloc ortho: each ground cell's pixel "
-                                           "by ground_to_pixel, cells hidden from the camera left out) and laid "
-                                           "on the terrain as a texture")
+            self.cb_drape = g.add_checkbox(
+                "drape the frame on the terrain",
+                False,
+                hint="The frame orthorectified (geoloc ortho: each ground cell's pixel "
+                "by ground_to_pixel, cells hidden from the camera left out) and laid "
+                "on the terrain as a texture",
+            )
         self.cb_drape.on_update(lambda _e: self._safe(self.drape))
         self.bt_clear_target.on_click(lambda _e: self._safe(self.clear_target))
         self.sl_zoom.on_update(lambda _e: self._safe(self.redraw_images))
@@ -295,8 +317,7 @@ class ImageLayer:
         if self.cb_horizon.value and len(self.horizon):
             out.append(("horizon", self.horizon[:, 0], self.horizon[:, 1], None))
         if self.ground is not None and self.ground.ok and np.isfinite(self.ground.row):
-            out.append(("ground" if self.ground.visible else "ground_hidden", self.ground.row, self.ground.col,
-                        None))
+            out.append(("ground" if self.ground.visible else "ground_hidden", self.ground.row, self.ground.col, None))
         if self.pick is not None:
             out.append(("pick", self.pick.row, self.pick.col, None))
         return out
@@ -310,11 +331,10 @@ class ImageLayer:
         M, N = self.image.shape[:2]
         centre = (self.pick.row, self.pick.col) if self.pick is not None else None
         r1, c1, h, w = self.crop = crop_window(M, N, self.zoom, centre)
-        crop = self.image[r1 - 1:r1 - 1 + h, c1 - 1:c1 - 1 + w, :3]
+        crop = self.image[r1 - 1 : r1 - 1 + h, c1 - 1 : c1 - 1 + w, :3]
         s = PANEL_WIDTH / w
         H = max(int(round(h * s)), 1)
-        disp = np.asarray(PIL.Image.fromarray(np.ascontiguousarray(crop)).resize((PANEL_WIDTH, H),
-                                                                              PIL.Image.NEAREST))
+        disp = np.asarray(PIL.Image.fromarray(np.ascontiguousarray(crop)).resize((PANEL_WIDTH, H), PIL.Image.NEAREST))
         marks = self._mark_list()
         disp = draw_marks(disp, marks, lambda r, c: ((c - (c1 - 0.5)) * s, (r - (r1 - 0.5)) * s), 7.0)
         self.html.content = self._panel_html(disp, r1, c1, h, w)
@@ -325,23 +345,29 @@ class ImageLayer:
         # the click handler: the clicked position as a fraction of the shown crop -> the pixel
         # (1-based centres: pixel k spans k - 0.5 .. k + 0.5), written into the "picked pixel"
         # box as typing would (React reads the native value setter's 'input' event)
-        js = ("var b=this.getBoundingClientRect();"
-              "var x=(event.clientX-b.left)/b.width,y=(event.clientY-b.top)/b.height;"
-              f"var r=Math.floor({r1 - 0.5}+y*{h}+0.5),c=Math.floor({c1 - 0.5}+x*{w}+0.5);"
-              f"var l=document.querySelector('label[for=\"{uuid}\"]');if(!l)return;"
-              "var p=l.parentElement;while(p&&!p.querySelector('input'))p=p.parentElement;if(!p)return;"
-              "var i=p.querySelector('input');"
-              "Object.getOwnPropertyDescriptor(HTMLInputElement.prototype,'value').set.call(i,r+', '+c);"
-              "i.dispatchEvent(new Event('input',{bubbles:true}));")
+        js = (
+            "var b=this.getBoundingClientRect();"
+            "var x=(event.clientX-b.left)/b.width,y=(event.clientY-b.top)/b.height;"
+            f"var r=Math.floor({r1 - 0.5}+y*{h}+0.5),c=Math.floor({c1 - 0.5}+x*{w}+0.5);"
+            f"var l=document.querySelector('label[for=\"{uuid}\"]');if(!l)return;"
+            "var p=l.parentElement;while(p&&!p.querySelector('input'))p=p.parentElement;if(!p)return;"
+            "var i=p.querySelector('input');"
+            "Object.getOwnPropertyDescriptor(HTMLInputElement.prototype,'value').set.call(i,r+', '+c);"
+            "i.dispatchEvent(new Event('input',{bubbles:true}));"
+        )
         M, N = self.image.shape[:2]
-        cap = (f"frame {self.k + 1} of {len(self.images)}: {N} x {M} px; shown rows {r1}-{r1 + h - 1}, "
-               f"columns {c1}-{c1 + w - 1} (zoom {self.zoom} x)")
-        return (f'<div style="padding:0 0.5em"><img id="geoloc-picture" alt="frame image" '
-                f'data-r1="{r1}" data-c1="{c1}" data-h="{h}" data-w="{w}" '
-                f'src="data:image/jpeg;base64,{_encode(disp)}" '
-                f'style="width:100%;display:block;cursor:crosshair;image-rendering:pixelated" '
-                f'onclick="{html.escape(js, quote=True)}">'
-                f'<div style="font-size:0.75em;opacity:0.8">{html.escape(cap)}</div></div>')
+        cap = (
+            f"frame {self.k + 1} of {len(self.images)}: {N} x {M} px; shown rows {r1}-{r1 + h - 1}, "
+            f"columns {c1}-{c1 + w - 1} (zoom {self.zoom} x)"
+        )
+        return (
+            f'<div style="padding:0 0.5em"><img id="geoloc-picture" alt="frame image" '
+            f'data-r1="{r1}" data-c1="{c1}" data-h="{h}" data-w="{w}" '
+            f'src="data:image/jpeg;base64,{_encode(disp)}" '
+            f'style="width:100%;display:block;cursor:crosshair;image-rendering:pixelated" '
+            f'onclick="{html.escape(js, quote=True)}">'
+            f'<div style="font-size:0.75em;opacity:0.8">{html.escape(cap)}</div></div>'
+        )
 
     # ------------------------------------------------------------ the frustum image
     def _hide(self, name) -> None:
@@ -386,8 +412,9 @@ class ImageLayer:
 
         f = min(1.0, TEXTURE_MAX / max(M, N))
         tw, th = max(int(round(N * f)), 1), max(int(round(M * f)), 1)
-        tex = np.asarray(PIL.Image.fromarray(np.ascontiguousarray(self.image[..., :3])).resize((tw, th),
-                                                                                          PIL.Image.BILINEAR))
+        tex = np.asarray(
+            PIL.Image.fromarray(np.ascontiguousarray(self.image[..., :3])).resize((tw, th), PIL.Image.BILINEAR)
+        )
         tex = draw_marks(tex, marks, lambda r, c: ((c - 0.5) * tw / N, (r - 0.5) * th / M), max(tw / 120, 3))
         op = float(self.sl_opacity.value)
         if op < 0.999:
@@ -403,10 +430,17 @@ class ImageLayer:
             if not h.visible:
                 h.visible = True
         else:
-            self.handles[name] = self.scene.add_image(name, tex, float(width * W), float(height * W),
-                                                      format=fmt, position=tuple(pos),
-                                                      wxyz=tuple(wxyz(R_enu_cam)), cast_shadow=False,
-                                                      receive_shadow=False)
+            self.handles[name] = self.scene.add_image(
+                name,
+                tex,
+                float(width * W),
+                float(height * W),
+                format=fmt,
+                position=tuple(pos),
+                wxyz=tuple(wxyz(R_enu_cam)),
+                cast_shadow=False,
+                receive_shadow=False,
+            )
         self.plane = (pos, R_enu_cam, width * W, height * W)
 
     def pixel_on_frame(self, ray_origin, ray_direction):
@@ -428,8 +462,10 @@ class ImageLayer:
             return None
         M, N = self.sensor.rows, self.sensor.cols
         # the pixel whose square holds the point (1-based centres)
-        return (float(np.clip(math.floor(0.5 + v * M + 0.5), 1, M)),
-                float(np.clip(math.floor(0.5 + u * N + 0.5), 1, N)))
+        return (
+            float(np.clip(math.floor(0.5 + v * M + 0.5), 1, M)),
+            float(np.clip(math.floor(0.5 + u * N + 0.5), 1, N)),
+        )
 
     # ------------------------------------------------------------ draping
     def drape(self) -> None:
@@ -550,8 +586,12 @@ class ImageLayer:
             shown |= {f"{ROOT}/target/rays", f"{ROOT}/target/residuals", f"{ROOT}/target/point"}
             if t.tri.cov_enu is not None and np.isfinite(t.tri.ellipse_major_m):
                 pts = pm.target_ellipse_enu(enu, t.tri, scale=k)
-                self._line(f"{ROOT}/target/ellipse", np.stack([pts, np.roll(pts, -1, axis=0)], 1),
-                           COLORS["target_ellipse"], 4.0)
+                self._line(
+                    f"{ROOT}/target/ellipse",
+                    np.stack([pts, np.roll(pts, -1, axis=0)], 1),
+                    COLORS["target_ellipse"],
+                    4.0,
+                )
                 shown.add(f"{ROOT}/target/ellipse")
         for n in old + [f"{ROOT}/target/{x}" for x in ("rays", "residuals", "point", "ellipse")]:
             if n not in shown:
@@ -570,8 +610,11 @@ class ImageLayer:
 
         M, N = self.image.shape[:2]
         s = PANEL_WIDTH / N
-        disp = np.asarray(PIL.Image.fromarray(np.ascontiguousarray(self.image[..., :3])).resize(
-            (PANEL_WIDTH, max(int(round(M * s)), 1)), PIL.Image.BILINEAR))
+        disp = np.asarray(
+            PIL.Image.fromarray(np.ascontiguousarray(self.image[..., :3])).resize(
+                (PANEL_WIDTH, max(int(round(M * s)), 1)), PIL.Image.BILINEAR
+            )
+        )
         marks = self._mark_list() + [("pick", p.row, p.col, None) for p in self.picks[:-1]]
         disp = draw_marks(disp, marks, lambda r, c: ((c - 0.5) * s, (r - 0.5) * s), 7.0)
         buf = io.BytesIO()
@@ -580,10 +623,13 @@ class ImageLayer:
         text = [pm.pick_markdown(p) for p in self.picks]
         text += [t for t in (self.md_ground.content, self.md_found.content) if t]
         cap = f"frame {self.k + 1} of {len(self.images)}: {N} x {M} px"
-        return (f'<div id="geoloc-export-picture"><img alt="frame image" data-rows="{M}" data-cols="{N}" '
-                f'style="width:100%;display:block;margin:6px 0" src="data:image/jpeg;base64,{b64}">'
-                f'<span style="opacity:0.7">{html.escape(cap)}</span><br>'
-                + "<br>".join(markdown_to_html(t) for t in text) + "</div>")
+        return (
+            f'<div id="geoloc-export-picture"><img alt="frame image" data-rows="{M}" data-cols="{N}" '
+            f'style="width:100%;display:block;margin:6px 0" src="data:image/jpeg;base64,{b64}">'
+            f'<span style="opacity:0.7">{html.escape(cap)}</span><br>'
+            + "<br>".join(markdown_to_html(t) for t in text)
+            + "</div>"
+        )
 
     def pick_ground(self, origin_scene, direction_scene) -> pm.GroundPick | None:
         """A ray of the browser (scene units, vertical exaggeration included) on the terrain:
@@ -626,14 +672,20 @@ class ImageLayer:
     def _line(self, name, pts, color, thickness=3.0):
         d = self.session.view.disp
         seg = d.z(np.asarray(pts, float).reshape(-1, 2, 3)).astype(np.float32)
-        self.handles[name] = self.scene.add_line_segments(name, seg, color, thickness=thickness,
-                                                          thickness_units="screen")
+        self.handles[name] = self.scene.add_line_segments(
+            name, seg, color, thickness=thickness, thickness_units="screen"
+        )
 
     def _ball(self, name, p, color, radius_factor=0.8):
         d = self.session.view.disp
-        self.handles[name] = self.scene.add_icosphere(name, radius=radius_factor * d.marker_radius_m * WORLD_SCALE,
-                                                      color=color, position=tuple(d.z(p)), cast_shadow=False,
-                                                      receive_shadow=False)
+        self.handles[name] = self.scene.add_icosphere(
+            name,
+            radius=radius_factor * d.marker_radius_m * WORLD_SCALE,
+            color=color,
+            position=tuple(d.z(p)),
+            cast_shadow=False,
+            receive_shadow=False,
+        )
 
     def draw_pick(self) -> None:
         s = self.session
@@ -655,9 +707,13 @@ class ImageLayer:
             if p.trace_ecef is not None and len(p.trace_ecef):
                 pts = s.view.disp.z(enu.from_ecef(p.trace_ecef)).astype(np.float32)
                 self.handles[f"{ROOT}/iterations"] = self.scene.add_point_cloud(
-                    f"{ROOT}/iterations", pts, COLORS["pick"],
-                    point_size=0.4 * s.view.disp.marker_radius_m * WORLD_SCALE, point_shape="circle",
-                    precision="float32")
+                    f"{ROOT}/iterations",
+                    pts,
+                    COLORS["pick"],
+                    point_size=0.4 * s.view.disp.marker_radius_m * WORLD_SCALE,
+                    point_shape="circle",
+                    precision="float32",
+                )
                 shown.add(f"{ROOT}/iterations")
         gp = self.ground
         if gp is not None and gp.ok:
@@ -708,12 +764,12 @@ def drape_mesh(scn, inputs, sensor, image, disp):
     frame = locate_frame(sensor, pose, dem, step=max(1, min(sensor.rows, sensor.cols) // 60))
     with tempfile.TemporaryDirectory(prefix="geoloc-drape-") as d:
         # a first grid at 1 m would be huge for a wide frame: size the cell from the frame's extent
-        probe = orthorectify(image.transpose(2, 0, 1), sensor, pose, dem, Path(d) / "probe.tif", gsd_m=50.0,
-                             frame=frame)
+        probe = orthorectify(
+            image.transpose(2, 0, 1), sensor, pose, dem, Path(d) / "probe.tif", gsd_m=50.0, frame=frame
+        )
         extent_m = 50.0 * max(probe["width"], probe["height"])
         gsd = max(extent_m / DRAPE_CELLS, 0.25)
-        info = orthorectify(image.transpose(2, 0, 1), sensor, pose, dem, Path(d) / "ortho.tif", gsd_m=gsd,
-                            frame=frame)
+        info = orthorectify(image.transpose(2, 0, 1), sensor, pose, dem, Path(d) / "ortho.tif", gsd_m=gsd, frame=frame)
         with rasterio.open(info["path"]) as src:
             rgba = np.moveaxis(src.read(), 0, -1)
             T, w, h = src.transform, src.width, src.height
@@ -732,9 +788,13 @@ def drape_mesh(scn, inputs, sensor, image, disp):
     a, b, c, e = idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:], idx[1:, :-1]
     faces = np.concatenate([np.stack([a, e, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)])
     uv = np.stack([U.reshape(-1), 1.0 - V.reshape(-1)], axis=1)  # glTF/trimesh: v up from the bottom row
-    mat = trimesh.visual.material.PBRMaterial(baseColorTexture=PIL.Image.fromarray(np.ascontiguousarray(rgba)),
-                                              alphaMode="BLEND", doubleSided=True, metallicFactor=0.0,
-                                              roughnessFactor=1.0)
+    mat = trimesh.visual.material.PBRMaterial(
+        baseColorTexture=PIL.Image.fromarray(np.ascontiguousarray(rgba)),
+        alphaMode="BLEND",
+        doubleSided=True,
+        metallicFactor=0.0,
+        roughnessFactor=1.0,
+    )
     mesh = trimesh.Trimesh(verts, faces, process=False)
     mesh.visual = trimesh.visual.TextureVisuals(uv=uv, material=mat)
     return mesh, info

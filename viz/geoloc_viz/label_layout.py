@@ -40,8 +40,16 @@ LINE_EM = 1.2
 PAD_FRACTION = 0.2
 #: Gap kept between two boxes [px].
 GAP_PX = 2.0
-ANCHORS = ("bottom-left", "top-left", "bottom-right", "top-right", "center-left", "center-right",
-           "bottom-center", "top-center")
+ANCHORS = (
+    "bottom-left",
+    "top-left",
+    "bottom-right",
+    "top-right",
+    "center-left",
+    "center-right",
+    "bottom-center",
+    "top-center",
+)
 
 
 def label_size_px(text: str, em_px: float = EM_PX, char_em: float = CHAR_EM) -> tuple:
@@ -237,7 +245,7 @@ class LabelLayout:
             # a label whose own place is on the canvas is moved only to places on the canvas
             on = _inside(label_box(uv[0], uv[1], size, anchor), W, H)
             for step in range(0, 9):
-                for sgn in ((1,) if step == 0 else (-1, 1)):
+                for sgn in (1,) if step == 0 else (-1, 1):
                     dv = sgn * step * size[1]
                     for a in order:
                         box = label_box(uv[0], uv[1] + dv, size, a)

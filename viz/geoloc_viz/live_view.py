@@ -80,8 +80,19 @@ class LiveFeed:
         Already bound (:func:`geoloc.io.live.open_socket`); default: bound here.
     """
 
-    def __init__(self, url, *, sensor=None, surface=None, limits=None, journal=None, record=None,
-                 decode_video: bool = True, window: int | None = None, sock=None):
+    def __init__(
+        self,
+        url,
+        *,
+        sensor=None,
+        surface=None,
+        limits=None,
+        journal=None,
+        record=None,
+        decode_video: bool = True,
+        window: int | None = None,
+        sock=None,
+    ):
         from geoloc.io.live import LiveReceiver, exposure_note, open_socket, parse_udp_url
         from geoloc.workflows.live_replay import WINDOW, LiveReplay
 
@@ -94,8 +105,9 @@ class LiveFeed:
             sock = open_socket(u)
         self.sock = sock  # bound now: what comes while the viewer starts waits in the kernel
         self.rx = LiveReceiver()
-        self.replay = LiveReplay(self.url, surface=surface, sensor=sensor, journal=journal,
-                                 receiver=self.rx, window=window or WINDOW)
+        self.replay = LiveReplay(
+            self.url, surface=surface, sensor=sensor, journal=journal, receiver=self.rx, window=window or WINDOW
+        )
         self.limits = dict(limits or {})
         self.record = record
         self.decode_video = decode_video
@@ -151,8 +163,15 @@ class LiveFeed:
         from geoloc.io.live import receive
 
         try:
-            for _ in receive(self.url, receiver=self.rx, record=self.record, on_batch=self._batch,
-                             stop=lambda: self._stop, sock=self.sock, **self.limits):
+            for _ in receive(
+                self.url,
+                receiver=self.rx,
+                record=self.record,
+                on_batch=self._batch,
+                stop=lambda: self._stop,
+                sock=self.sock,
+                **self.limits,
+            ):
                 pass
             self._took(self.replay.flush())  # the packets still waiting for their video frame
         except Exception as e:  # a bind that fails, a bug: shown in the panel, never a dead viewer
@@ -195,7 +214,7 @@ class LiveFeed:
         if n_new <= 0:
             return
         self._video_done = self.rx.stats.video_units
-        units = list(video)[-min(n_new, len(video)):]
+        units = list(video)[-min(n_new, len(video)) :]
         try:
             if self._decoder is None:
                 from geoloc.io.ts_demux import _STREAM_TYPES_VIDEO
@@ -226,14 +245,19 @@ class LiveFeed:
         if self.video_size is None and not self.decode_errors:
             return ""
         w, h = self.video_size or (0, 0)
-        return (f"video {w} x {h} pixels; {self.resolution_changes} resolution change(s), "
-                f"{self.decode_errors} undecodable access unit(s)")
+        return (
+            f"video {w} x {h} pixels; {self.resolution_changes} resolution change(s), "
+            f"{self.decode_errors} undecodable access unit(s)"
+        )
 
     def stats_markdown(self) -> str:
         """The stream panel: what arrived, what was lost, what the decoder saw, the feed's error."""
         v = self.video_markdown()
-        return (self.rx.stats.markdown() + (f"\n\n{v}" if v else "")
-                + (f"\n\n**error**: {self.error}" if self.error else ""))
+        return (
+            self.rx.stats.markdown()
+            + (f"\n\n{v}" if v else "")
+            + (f"\n\n**error**: {self.error}" if self.error else "")
+        )
 
     def picture_at(self, pts_s: float):
         """The decoded picture nearest ``pts_s`` [s] (None without video)."""
@@ -316,8 +340,15 @@ class LiveFlight:
         The vertical datum of the DEM file's heights (``--dem-datum``).
     """
 
-    def __init__(self, feed: LiveFeed, *, dem_path=None, use_dem: bool = True, window: int = FLIGHT_WINDOW,
-                 dem_datum: str = "egm96"):
+    def __init__(
+        self,
+        feed: LiveFeed,
+        *,
+        dem_path=None,
+        use_dem: bool = True,
+        window: int = FLIGHT_WINDOW,
+        dem_datum: str = "egm96",
+    ):
         self.feed = feed
         self.dem_path, self.use_dem, self.window = dem_path, bool(use_dem), int(window)
         self.dem_datum = dem_datum
@@ -336,8 +367,19 @@ class LiveFlight:
     def __len__(self) -> int:
         return len(self.records)
 
-    ROW_KEYS = ("packet", "time_utc", "pts_s", "frame_pts_s", "lat_deg", "lon_deg", "h_m", "status",
-                "frame_center_error_m", "corner_error_m", "outlier")
+    ROW_KEYS = (
+        "packet",
+        "time_utc",
+        "pts_s",
+        "frame_pts_s",
+        "lat_deg",
+        "lon_deg",
+        "h_m",
+        "status",
+        "frame_center_error_m",
+        "corner_error_m",
+        "outlier",
+    )
 
     def _scenario(self, recs):
         from geoloc_viz import terrain_link
@@ -346,9 +388,17 @@ class LiveFlight:
 
         info, inp = recs[0]
         url = self.feed.url
-        scn = Scenario(name=f"{url} {info.label}", camera=self.feed.sensor, inputs=inp,
-                       enu=enu_origin_for(info, inp), records=list(recs), record_index=0,
-                       use_dem=self.use_dem, source=url, description=f"live stream {url}")
+        scn = Scenario(
+            name=f"{url} {info.label}",
+            camera=self.feed.sensor,
+            inputs=inp,
+            enu=enu_origin_for(info, inp),
+            records=list(recs),
+            record_index=0,
+            use_dem=self.use_dem,
+            source=url,
+            description=f"live stream {url}",
+        )
         scn._user_dem, scn.dem_datum = self.dem_path, self.dem_datum
         if self.use_dem:
             terrain_link.attach_dem(scn, self.dem_path, strict=self.dem_path is not None)
@@ -372,8 +422,13 @@ class LiveFlight:
         if not recs:
             return False
         kept = np.asarray(kept, int)
-        fov = np.stack([np.asarray(c["sensor_horizontal_fov_deg"], float)[kept],
-                        np.asarray(c["sensor_vertical_fov_deg"], float)[kept]], axis=1)
+        fov = np.stack(
+            [
+                np.asarray(c["sensor_horizontal_fov_deg"], float)[kept],
+                np.asarray(c["sensor_vertical_fov_deg"], float)[kept],
+            ],
+            axis=1,
+        )
         vt, pt = (np.asarray(c[k], float)[kept] for k in ("frame_pts_s", "pts_s"))
         t0 = time.perf_counter()
         with self._lock:
@@ -382,7 +437,7 @@ class LiveFlight:
             new_scn = copy.copy(self.base)
             new_scn.records = recs
             new = flight_model.build(new_scn, enu=self.base.enu, fov_deg=fov, diagnose_faults=False)
-            records = (self.records + recs)[-self.window:]
+            records = (self.records + recs)[-self.window :]
             dropped = len(self.records) + len(recs) - len(records)
             scn = copy.copy(self.base)
             scn.records = records
@@ -391,8 +446,11 @@ class LiveFlight:
             w = self.window
             self.fov_deg = np.concatenate([self.fov_deg, fov])[-w:]
             self.times_s = np.concatenate([self.times_s, np.where(np.isfinite(vt), vt, pt)])[-w:]
-            self.rows = {k: np.concatenate([self.rows.get(k, np.zeros(0, np.asarray(c[k]).dtype)),
-                                            np.asarray(c[k])[kept]])[-w:] for k in self.ROW_KEYS if k in c}
+            self.rows = {
+                k: np.concatenate([self.rows.get(k, np.zeros(0, np.asarray(c[k]).dtype)), np.asarray(c[k])[kept]])[-w:]
+                for k in self.ROW_KEYS
+                if k in c
+            }
             self.dropped += dropped
             self.version += 1
             if self.first_frame_s is None:
@@ -420,11 +478,13 @@ class LiveFlight:
         c = self.rows
         f = lambda v, spec: "n/a" if v is None or not np.isfinite(float(v)) else format(float(v), spec)  # noqa: E731
         st = names(np.asarray([c["status"][idx]]))[0]
-        text = (f"**packet {int(c['packet'][idx])}** (frame {idx + 1} of {len(self.records)}), "
-                f"{c['time_utc'][idx]}, pts {f(c['pts_s'][idx], '.3f')} s  \nrecomputed frame centre "
-                f"{f(c['lat_deg'][idx], '.6f')}, {f(c['lon_deg'][idx], '.6f')}, h {f(c['h_m'][idx], '.1f')} m "
-                f"(ellipsoidal), {st}; vs the packet's own: {f(c['frame_center_error_m'][idx], '.2f')} m"
-                + (" **outlier** (causal)" if c["outlier"][idx] else ""))
+        text = (
+            f"**packet {int(c['packet'][idx])}** (frame {idx + 1} of {len(self.records)}), "
+            f"{c['time_utc'][idx]}, pts {f(c['pts_s'][idx], '.3f')} s  \nrecomputed frame centre "
+            f"{f(c['lat_deg'][idx], '.6f')}, {f(c['lon_deg'][idx], '.6f')}, h {f(c['h_m'][idx], '.1f')} m "
+            f"(ellipsoidal), {st}; vs the packet's own: {f(c['frame_center_error_m'][idx], '.2f')} m"
+            + (" **outlier** (causal)" if c["outlier"][idx] else "")
+        )
         vt = c.get("frame_pts_s")
         if vt is not None and np.isfinite(float(vt[idx])):
             text += f"  \nvideo frame at pts {float(vt[idx]):.3f} s"
@@ -483,8 +543,11 @@ class LiveTab:
         return -1 if s.scn.record_index is None else int(s.scn.record_index)
 
     def _follow_text(self) -> None:
-        self.md_follow.content = ("following the latest frame" if self.following else
-                                  "**scrubbed back**: the timeline still grows; press **live** to follow again")
+        self.md_follow.content = (
+            "following the latest frame"
+            if self.following
+            else "**scrubbed back**: the timeline still grows; press **live** to follow again"
+        )
 
     def scrubbed(self, idx=None) -> None:
         """A person moved through the flight (to frame ``idx`` if known): stop following, unless it is the latest."""
@@ -534,8 +597,10 @@ class LiveTab:
                 self._grow()
             if now - self._drawn_s >= DRAW_S:
                 self._drawn_s = now
-                self.md_title.content = (f"**live: {self.feed.url}**: {len(fl)} frames in the window, "
-                                         f"{self.feed.replay.rows_total} packets located since the start")
+                self.md_title.content = (
+                    f"**live: {self.feed.url}**: {len(fl)} frames in the window, "
+                    f"{self.feed.replay.rows_total} packets located since the start"
+                )
         self._follow()
         self.refresh_text()
 
@@ -658,8 +723,11 @@ class LiveTab:
     def refresh_text(self) -> None:
         """The Live folder's frame line for the frame shown (after a scrub)."""
         idx = self.current
-        if self.session is not None and 0 <= idx < min(self.n, len(self.flight.records)) \
-                and self.dropped == self.flight.dropped:  # (the same indices until the window slides)
+        if (
+            self.session is not None
+            and 0 <= idx < min(self.n, len(self.flight.records))
+            and self.dropped == self.flight.dropped
+        ):  # (the same indices until the window slides)
             text = self.flight.frame_text(idx)
             if text != self.md_frame.content:
                 self.md_frame.content = text
@@ -693,9 +761,18 @@ class LiveViewer:
     ``use_dem`` are those of :class:`LiveFlight` (``--dem``, ``--no-dem``).
     """
 
-    def __init__(self, server, feed: LiveFeed, max_clients: int = 16, *, dem_path=None, use_dem: bool = True,
-                 dem_datum: str = "egm96",
-                 window: int = FLIGHT_WINDOW, warm: bool = True):
+    def __init__(
+        self,
+        server,
+        feed: LiveFeed,
+        max_clients: int = 16,
+        *,
+        dem_path=None,
+        use_dem: bool = True,
+        dem_datum: str = "egm96",
+        window: int = FLIGHT_WINDOW,
+        warm: bool = True,
+    ):
         self.server = server
         self.feed = feed
         self.flight = LiveFlight(feed, dem_path=dem_path, use_dem=use_dem, window=window, dem_datum=dem_datum)
@@ -725,8 +802,12 @@ class LiveViewer:
             packets = [p for p in read_klv_file(ASSETS / "klv" / "example_flight.klv") if isinstance(p, Packet)][:3]
             r = LiveReplay("warm-up").add(packets)
             recs, _ = records_from_columns(r.columns, r.sensor)
-            probe = LiveFlight(_WarmFeed(r.sensor), dem_path=self.flight.dem_path, use_dem=self.flight.use_dem,
-                               dem_datum=self.flight.dem_datum)
+            probe = LiveFlight(
+                _WarmFeed(r.sensor),
+                dem_path=self.flight.dem_path,
+                use_dem=self.flight.use_dem,
+                dem_datum=self.flight.dem_datum,
+            )
             scn = probe._scenario(recs)
             flight_model.build(scn)
             for method in ("exact", "bisect", "steps"):

@@ -36,7 +36,6 @@ def drawn_frames(sensor) -> tuple:
     return tuple(f for f in sensor.frames().frames if f != "ecef")
 
 
-
 @dataclass
 class Inputs:
     """The editable inputs of the geolocation scene (degrees and metres: the GUI edge)."""
@@ -58,9 +57,17 @@ class Inputs:
     angles_deg: dict = field(default_factory=dict)  # other joint angles by name (azimuth, ...)
 
     def pose(self) -> Pose:
-        return Pose.from_deg(self.lat_deg, self.lon_deg, self.h_m, self.heading_deg,
-                             self.pitch_deg, self.roll_deg, self.gimbal_roll_deg,
-                             self.gimbal_pitch_deg, angles_deg=self.angles_deg)
+        return Pose.from_deg(
+            self.lat_deg,
+            self.lon_deg,
+            self.h_m,
+            self.heading_deg,
+            self.pitch_deg,
+            self.roll_deg,
+            self.gimbal_roll_deg,
+            self.gimbal_pitch_deg,
+            angles_deg=self.angles_deg,
+        )
 
     def replace(self, **kw) -> "Inputs":
         return dataclasses.replace(self, **kw)
@@ -182,8 +189,9 @@ def compute(scn: Scenario, inp: Inputs) -> Geometry:
     los = line_of_sight(pose, cam, inp.row, inp.col, outside="extrapolate")
     aircraft = enu.from_ecef(los.origin_ecef)
     d_enu = enu.vector_from_ecef(los.direction_ecef)
-    geo = dict(chain=chain, frames=frames, aircraft_enu=aircraft,
-               R_enu_body=frames["body"].R_enu_frame, los_dir_enu=d_enu)
+    geo = dict(
+        chain=chain, frames=frames, aircraft_enu=aircraft, R_enu_body=frames["body"].R_enu_frame, los_dir_enu=d_enu
+    )
     from geoloc_viz import terrain_link
 
     # the height-or-DEM choice: surfaces.terrain.surface_for, through terrain_link.scene_surface
@@ -193,25 +201,26 @@ def compute(scn: Scenario, inp: Inputs) -> Geometry:
     sensor = cam
     if g.status == Status.OK and not bool(sensor.in_image(inp.row, inp.col)):
         g.status = int(Status.OUTSIDE_SENSOR)
-        g.message = (f"**pixel outside the sensor**: row {inp.row:g}, column {inp.col:g} "
-                     f"(the sensor has rows 1-{sensor.rows}, columns 1-{sensor.cols}); "
-                     "the line of sight extends the lens model beyond its edge. " + g.message)
+        g.message = (
+            f"**pixel outside the sensor**: row {inp.row:g}, column {inp.col:g} "
+            f"(the sensor has rows 1-{sensor.rows}, columns 1-{sensor.cols}); "
+            "the line of sight extends the lens model beyond its edge. " + g.message
+        )
     if g.status in (Status.OK, Status.OUTSIDE_SENSOR):
         g.footprint_enu = _corner_footprint(pose, cam, enu, float(g.hit.h))
     if scn.record_index is not None:
         info = scn.records[scn.record_index][0]
         if np.isfinite(info.paper_lat_deg):
-            g.published_enu = enu.from_geodetic(np.deg2rad(info.paper_lat_deg),
-                                                np.deg2rad(info.paper_lon_deg),
-                                                info.paper_height_m)
+            g.published_enu = enu.from_geodetic(
+                np.deg2rad(info.paper_lat_deg), np.deg2rad(info.paper_lon_deg), info.paper_height_m
+            )
         if np.isfinite(info.truth_lat_deg):
             h_truth = info.paper_height_m
             if scn.dem is not None:
                 from geoloc_viz import terrain_link
 
                 h_truth = terrain_link.dem_height(scn.dem, info.truth_lat_deg, info.truth_lon_deg)
-            g.surveyed_enu = enu.from_geodetic(np.deg2rad(info.truth_lat_deg),
-                                               np.deg2rad(info.truth_lon_deg), h_truth)
+            g.surveyed_enu = enu.from_geodetic(np.deg2rad(info.truth_lat_deg), np.deg2rad(info.truth_lon_deg), h_truth)
     return g
 
 

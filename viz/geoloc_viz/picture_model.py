@@ -135,11 +135,13 @@ def pick_markdown(p: PixelPick, geoid=True) -> str:
         head += " (**outside the frame**)"
     if not p.ok:
         return head + f"  \n**no ground point**: {describe(int(p.hit.status))}"
-    lines = [head + "  ",
-             f"latitude **{p.lat_deg():.8f}** deg  ",
-             f"longitude **{p.lon_deg():.8f}** deg  ",
-             mgrs_text(p.lat_deg(), p.lon_deg()) + "  ",  # issue 33
-             f"height **{float(p.hit.h):.2f} m** ({H_DATUM})"]
+    lines = [
+        head + "  ",
+        f"latitude **{p.lat_deg():.8f}** deg  ",
+        f"longitude **{p.lon_deg():.8f}** deg  ",
+        mgrs_text(p.lat_deg(), p.lon_deg()) + "  ",  # issue 33
+        f"height **{float(p.hit.h):.2f} m** ({H_DATUM})",
+    ]
     if geoid:
         from geoloc.geodesy.geoid import egm96_undulation
 
@@ -203,24 +205,29 @@ def ground_pick(scn, inputs, sensor, origin_ecef, direction_ecef) -> GroundPick:
     from geoloc_viz.terrain_link import scene_corrections
 
     v = point_view(Pipeline(sensor, surface, scene_corrections(scn)), inputs.pose(), hit.lat, hit.lon, hit.h)
-    return GroundPick(hit, v.row, v.col, v.pixel_status, v.pixel_status == Status.OK, v.visible,
-                      v.occluder_range_m, v.range_m)
+    return GroundPick(
+        hit, v.row, v.col, v.pixel_status, v.pixel_status == Status.OK, v.visible, v.occluder_range_m, v.range_m
+    )
 
 
 def ground_markdown(g: GroundPick) -> str:
     """The panel's text for a picked terrain point."""
     if not g.ok:
         return f"**terrain pick**: {g.verdict()}"
-    lines = [f"**terrain pick**: {float(np.rad2deg(g.hit.lat)):.7f} N, {float(np.rad2deg(g.hit.lon)):.7f} E, "
-             f"h {float(g.hit.h):.1f} m ({H_DATUM})  ",
-             mgrs_text(float(np.rad2deg(g.hit.lat)), float(np.rad2deg(g.hit.lon))) + "  "]  # issue 33
+    lines = [
+        f"**terrain pick**: {float(np.rad2deg(g.hit.lat)):.7f} N, {float(np.rad2deg(g.hit.lon)):.7f} E, "
+        f"h {float(g.hit.h):.1f} m ({H_DATUM})  ",
+        mgrs_text(float(np.rad2deg(g.hit.lat)), float(np.rad2deg(g.hit.lon))) + "  ",
+    ]  # issue 33
     if np.isfinite(g.row):
         lines.append(f"pixel row {g.row:.2f}, column {g.col:.2f}: **{g.verdict()}**")
     else:
         lines.append(f"**{g.verdict()}** ({describe(g.pixel_status)})")
     if np.isfinite(g.occluder_range_m) and not g.visible:
-        lines[-1] += (f"  \nthe camera's ray meets the terrain at {g.occluder_range_m:.0f} m, "
-                      f"{g.range_m - g.occluder_range_m:.0f} m before the point")
+        lines[-1] += (
+            f"  \nthe camera's ray meets the terrain at {g.occluder_range_m:.0f} m, "
+            f"{g.range_m - g.occluder_range_m:.0f} m before the point"
+        )
     return "\n".join(lines)
 
 
@@ -246,13 +253,14 @@ def image_marks(scn, idx, sensor, inputs, centre: "PixelPick | None" = None) -> 
 
     if info is not None:
         if np.isfinite(info.truth_lat_deg):
-            pts["truth"] = (info.truth_lat_deg, info.truth_lon_deg,
-                            dem_h(info.truth_lat_deg, info.truth_lon_deg, np.nan if scn.dem is not None
-                                  else info.paper_height_m))
+            pts["truth"] = (
+                info.truth_lat_deg,
+                info.truth_lon_deg,
+                dem_h(info.truth_lat_deg, info.truth_lon_deg, np.nan if scn.dem is not None else info.paper_height_m),
+            )
         if np.isfinite(info.paper_lat_deg):
             h = info.paper_height_m if np.isfinite(info.paper_height_m) else np.nan
-            pts["reported"] = (info.paper_lat_deg, info.paper_lon_deg, dem_h(info.paper_lat_deg,
-                                                                             info.paper_lon_deg, h))
+            pts["reported"] = (info.paper_lat_deg, info.paper_lon_deg, dem_h(info.paper_lat_deg, info.paper_lon_deg, h))
     if centre is None:  # the image centre's pick (a caller that has it passes it)
         centre = locate_pixel(scn, inputs, sensor, *sensor.center_pixel)
     if centre.ok:
@@ -319,10 +327,10 @@ MARKS_DISAGREE_PX = 3.0
 class FoundMarks:
     """The painted marks found in a frame against the targets' reprojections."""
 
-    found: np.ndarray         # (m, 2) (row, col) of the red marks found in the image
-    predicted: np.ndarray     # (p, 2) the targets' reprojected pixels (in the frame)
-    offset_px: np.ndarray     # (2,) centroid of the found minus centroid of the predicted (row, col)
-    angle_deg: float          # the angle between the two centroids' lines of sight [deg]
+    found: np.ndarray  # (m, 2) (row, col) of the red marks found in the image
+    predicted: np.ndarray  # (p, 2) the targets' reprojected pixels (in the frame)
+    offset_px: np.ndarray  # (2,) centroid of the found minus centroid of the predicted (row, col)
+    angle_deg: float  # the angle between the two centroids' lines of sight [deg]
 
     @property
     def agree(self) -> bool:
@@ -336,8 +344,9 @@ def found_marks(scn, image, marks, sensor, inputs) -> FoundMarks | None:
     None when the scenario has no targets, none is in the frame, or no mark is found."""
     from geoloc.workflows.render import find_marks
 
-    pred = np.array([(r, c) for name, (r, c, st) in marks.items() if name.startswith("target ")
-                     and st == Status.OK], float).reshape(-1, 2)
+    pred = np.array(
+        [(r, c) for name, (r, c, st) in marks.items() if name.startswith("target ") and st == Status.OK], float
+    ).reshape(-1, 2)
     if not len(pred):
         return None
     found, _ = find_marks(image)
@@ -356,11 +365,12 @@ def found_markdown(f: FoundMarks | None) -> str:
     if f is None:
         return ""
     dr, dc = (float(x) for x in f.offset_px)
-    verdict = ("**agree** with the metadata" if f.agree else
-               "**disagree**: the picture and the metadata's pose part")
-    return (f"**painted marks**: {len(f.found)} found for {len(f.predicted)} targets in the frame; their "
-            f"centre lies **{math.hypot(dr, dc):.1f} px** ({f.angle_deg:.2f} deg; row {dr:+.1f}, "
-            f"column {dc:+.1f}) from the targets' reprojection: {verdict}")
+    verdict = "**agree** with the metadata" if f.agree else "**disagree**: the picture and the metadata's pose part"
+    return (
+        f"**painted marks**: {len(f.found)} found for {len(f.predicted)} targets in the frame; their "
+        f"centre lies **{math.hypot(dr, dc):.1f} px** ({f.angle_deg:.2f} deg; row {dr:+.1f}, "
+        f"column {dc:+.1f}) from the targets' reprojection: {verdict}"
+    )
 
 
 # ------------------------------------------------------------------ one target in several frames
@@ -385,8 +395,9 @@ class TargetRays:
     budget_note: str = ""
 
 
-def triangulate_picks(scn, frames: dict, budget=None, budget_note: str = "", velocities: dict | None = None
-                      ) -> TargetRays | None:
+def triangulate_picks(
+    scn, frames: dict, budget=None, budget_note: str = "", velocities: dict | None = None
+) -> TargetRays | None:
     """The least-squares intersection of the rays of one target picked in several frames.
 
     Parameters
@@ -419,8 +430,17 @@ def triangulate_picks(scn, frames: dict, budget=None, budget_note: str = "", vel
     ok = np.array([int(np.asarray(p.los.status)) in (Status.OK, Status.OUTSIDE_SENSOR) for p in picks])
     tri = None
     if budget is not None:
-        ders = [chain_derivatives(frames[k][0], frames[k][1].pose(), frames[k][2].row, frames[k][2].col,
-                                  budget, None if velocities is None else velocities.get(k)) for k in keys]
+        ders = [
+            chain_derivatives(
+                frames[k][0],
+                frames[k][1].pose(),
+                frames[k][2].row,
+                frames[k][2].col,
+                budget,
+                None if velocities is None else velocities.get(k),
+            )
+            for k in keys
+        ]
         if all(d[0] == ders[0][0] for d in ders):  # the same sources in every frame
             dO = np.concatenate([d[1].reshape(1, 3, -1) for d in ders])
             dD = np.concatenate([d[2].reshape(1, 3, -1) for d in ders])
@@ -455,21 +475,26 @@ def target_markdown(t: TargetRays | None, n_frames: int = 0) -> str:
     covariance, each ray's residual and the comparison with each frame's DEM hit."""
     if t is None:
         if n_frames == 1:
-            return ("**target rays**: 1 frame picked; pick the same target in another frame (move the "
-                    "timeline) to triangulate it")
+            return (
+                "**target rays**: 1 frame picked; pick the same target in another frame (move the "
+                "timeline) to triangulate it"
+            )
         return ""
     tri = t.tri
     head = f"**target rays**: {len(t.frames)} frames (records {', '.join(str(k + 1) for k in t.frames)})"
     if tri.status != Status.OK:
         return head + "  \nnot triangulated: fewer than two rays, or rays within 1 deg of each other"
-    lines = [head + "  ",
-             f"triangulated latitude **{tri.lat_deg:.8f}** deg, longitude **{tri.lon_deg:.8f}** deg, "
-             f"height **{tri.h:.2f} m** ({H_DATUM})  "]
+    lines = [
+        head + "  ",
+        f"triangulated latitude **{tri.lat_deg:.8f}** deg, longitude **{tri.lon_deg:.8f}** deg, "
+        f"height **{tri.h:.2f} m** ({H_DATUM})  ",
+    ]
     if tri.cov_enu is not None:
         c = tri.cov_enu
         lines.append(f"CE90 **{tri.ce90_m:.2f} m**, LE90 **{tri.le90_m:.2f} m** ({t.budget_note})  ")
-        lines.append("covariance ENU [m^2]: "
-                     + "; ".join(" ".join(f"{c[i, j]:.3g}" for j in range(3)) for i in range(3)) + "  ")
+        lines.append(
+            "covariance ENU [m^2]: " + "; ".join(" ".join(f"{c[i, j]:.3g}" for j in range(3)) for i in range(3)) + "  "
+        )
     elif t.budget_note:
         lines.append(f"({t.budget_note})  ")
     diff = t.surface.get("differences_m") if t.surface else None
@@ -480,6 +505,8 @@ def target_markdown(t: TargetRays | None, n_frames: int = 0) -> str:
             s += f", DEM hit {float(p.hit.h):.1f} m: DEM minus triangulated {diff[i]:+.1f} m"
         lines.append(s + "  ")
     if t.surface and math.isfinite(t.surface.get("mean_m", math.nan)):
-        lines.append(f"DEM minus triangulated, mean **{t.surface['mean_m']:+.1f} m** (standard error "
-                     f"{t.surface['se_m']:.1f} m)" + (f"; **{t.surface['warning']}**" if t.surface["warning"] else ""))
+        lines.append(
+            f"DEM minus triangulated, mean **{t.surface['mean_m']:+.1f} m** (standard error "
+            f"{t.surface['se_m']:.1f} m)" + (f"; **{t.surface['warning']}**" if t.surface["warning"] else "")
+        )
     return "\n".join(lines)

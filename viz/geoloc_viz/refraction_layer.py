@@ -57,13 +57,22 @@ class RefractionLayer:
         g = session.gui
         c = session.scn.corrections
         with g.add_folder("Refraction", expand_by_default=c.refraction is not None):
-            self.dd = g.add_dropdown("refraction", ("none", "standard"),
-                                     initial_value="none" if c.refraction is None else "standard",
-                                     hint="Atmospheric refraction of the line of sight: none (as the papers) "
-                                     "or the ray bent through the U.S. Standard Atmosphere 1976")
-            self.sl_scale = g.add_slider("bent ray drawn x", 1.0, SCALE_MAX, 1.0, 1.0,
-                                         hint="Draw the bent ray's offset from the straight line of sight this "
-                                         "many times its size (display only); the label on the drawing says so")
+            self.dd = g.add_dropdown(
+                "refraction",
+                ("none", "standard"),
+                initial_value="none" if c.refraction is None else "standard",
+                hint="Atmospheric refraction of the line of sight: none (as the papers) "
+                "or the ray bent through the U.S. Standard Atmosphere 1976",
+            )
+            self.sl_scale = g.add_slider(
+                "bent ray drawn x",
+                1.0,
+                SCALE_MAX,
+                1.0,
+                1.0,
+                hint="Draw the bent ray's offset from the straight line of sight this "
+                "many times its size (display only); the label on the drawing says so",
+            )
             self.md = g.add_markdown("")
         self.dd.on_update(lambda _e: self._safe(self.set_refraction, str(self.dd.value)))
         self.sl_scale.on_update(lambda _e: self._safe(self.update))
@@ -107,7 +116,7 @@ class RefractionLayer:
         bent = None if g is None else g.bent
         if c.refraction is None or bent is None:
             self._hide()
-            why = ("" if c.refraction is None else "  \nno located point to refract")
+            why = "" if c.refraction is None else "  \nno located point to refract"
             self.md.content = head + why
             return
         k = self.scale
@@ -120,8 +129,9 @@ class RefractionLayer:
         else:
             if h is not None:
                 self.scene.remove_by_name(f"{ROOT}/bent")
-            self.handle = self.scene.add_line_segments(f"{ROOT}/bent", seg, COLOR, thickness=4.0,
-                                                       thickness_units="screen")
+            self.handle = self.scene.add_line_segments(
+                f"{ROOT}/bent", seg, COLOR, thickness=4.0, thickness_units="screen"
+            )
         text = label_text(bent.shift_m, k)
         # the label at the bent ray's middle, where it is farthest from the straight line
         pos = tuple(float(v) for v in s.view.disp.z(pts[len(pts) // 2]))
@@ -132,11 +142,14 @@ class RefractionLayer:
         else:
             self.label = self.scene.add_label(f"{ROOT}/label", text, position=pos, anchor="bottom-left")
         off = np.linalg.norm(bent.bent_enu - bent.straight_enu, axis=-1)
-        self.md.content = "  \n".join([
-            head,
-            f"refraction moved the point **{bent.shift_m:.3f} m** (from the straight line of sight's hit)",
-            f"bent ray: at most {float(off.max()):.2f} m from the straight line on its way down; "
-            + ("drawn at true size" if k == 1.0 else f"**drawn x{k:g}** (its label says so)")])
+        self.md.content = "  \n".join(
+            [
+                head,
+                f"refraction moved the point **{bent.shift_m:.3f} m** (from the straight line of sight's hit)",
+                f"bent ray: at most {float(off.max()):.2f} m from the straight line on its way down; "
+                + ("drawn at true size" if k == 1.0 else f"**drawn x{k:g}** (its label says so)"),
+            ]
+        )
 
 
 def attach(session):

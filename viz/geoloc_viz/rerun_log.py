@@ -81,25 +81,41 @@ from geoloc_viz.rerun_model import LogSteps
 from geoloc_viz.rerun_style import COLORS, series_color
 
 #: Axis length of each drawn frame [m] (distinct, so coinciding origins stay readable).
-AXIS_LENGTH_M = {"ned": 4000.0, "body": 3000.0, "gimbal_base": 2600.0, "gimbal_outer": 2200.0,
-                 "gimbal_inner": 1800.0, "cam": 1500.0}
+AXIS_LENGTH_M = {
+    "ned": 4000.0,
+    "body": 3000.0,
+    "gimbal_base": 2600.0,
+    "gimbal_outer": 2200.0,
+    "gimbal_inner": 1800.0,
+    "cam": 1500.0,
+}
 #: Sizes in the 3D scene, in UI points: the eye follows the current hit from close by, where
 #: target, truth and published position are tens of metres apart, and also shows a whole
 #: flight from ~20 km; radii in metres (once 500 m) filled the close view with one sphere.
-SCENE_RADIUS_PT = {"track": rr.Radius.ui_points(2.0), "footprint": rr.Radius.ui_points(2.5),
-                   "los": rr.Radius.ui_points(1.5), "target": rr.Radius.ui_points(6.0),
-                   "reference": rr.Radius.ui_points(5.0)}
+SCENE_RADIUS_PT = {
+    "track": rr.Radius.ui_points(2.0),
+    "footprint": rr.Radius.ui_points(2.5),
+    "los": rr.Radius.ui_points(1.5),
+    "target": rr.Radius.ui_points(6.0),
+    "reference": rr.Radius.ui_points(5.0),
+}
 #: Sizes in the 2D plot, in UI points (rr.Radius.ui_points): the targets of a flight spread over
 #: kilometres while their errors are tens of metres, so sizes in metres are either invisible or
 #: hide the arrows; UI points keep them readable at any zoom.
-PLOT_RADIUS_PT = {"point": rr.Radius.ui_points(3.0), "outlier": rr.Radius.ui_points(7.0),
-                  "arrow": rr.Radius.ui_points(1.0), "current": rr.Radius.ui_points(6.0)}
+PLOT_RADIUS_PT = {
+    "point": rr.Radius.ui_points(3.0),
+    "outlier": rr.Radius.ui_points(7.0),
+    "arrow": rr.Radius.ui_points(1.0),
+    "current": rr.Radius.ui_points(6.0),
+}
 #: Axis length of the frame at the current hit [m]. The 3D eye tracks that entity and, once it
 #: settles, frames its bounds: 300 m axes gave a close-up of nothing but the axes; ~1.5 km keeps
 #: the hit, its truth and the neighbouring targets in view.
 CURRENT_AXIS_M = 1500.0
 #: Distance of the pinhole's image plane in the 3D view [m].
 IMAGE_PLANE_M = 3000.0
+
+
 #: Colours (RGBA).
 def _index(steps: LogSteps, select=None) -> list:
     cols = []
@@ -128,7 +144,9 @@ def series_values(steps: LogSteps) -> dict:
     p = steps.pose
     d = np.rad2deg
     series = {
-        "attitude/heading_deg": d(p.heading), "attitude/pitch_deg": d(p.pitch), "attitude/roll_deg": d(p.roll),
+        "attitude/heading_deg": d(p.heading),
+        "attitude/pitch_deg": d(p.pitch),
+        "attitude/roll_deg": d(p.roll),
         # the sensor's own joints, by its names (azimuth, elevation, sensor_roll of a MISB turret;
         # gimbal_roll, gimbal_pitch of the [Q17] gimbal): not the [Q17] fields of every pose
         **{f"gimbal/{name}_deg": d(p.angle(name)) for name in steps.camera.angle_names},
@@ -166,18 +184,21 @@ def series_views(steps: LogSteps, present=None) -> list:
     Heading has a view of its own (its tens of degrees would flatten pitch and roll).
     """
     present = series_values(steps) if present is None else present
-    spec = [("Heading [deg]", "attitude", ["heading_deg"]),
-            ("Pitch and roll [deg]", "attitude", ["pitch_deg", "roll_deg"]),
-            ("Gimbal angles [deg]", "gimbal", None), ("Slant range [m]", "range", None),
-            ("Target height [m]", "height", None),
-            ("Horizontal error [m]", "error", ["to_truth_m", "to_published_m", "horizontal_m"]),
-            (f"Error components to {steps.reference} [m]", "error", list(COMPONENT_SERIES)),
-            ("Outlier flags (1 = outlier)", "outlier", None),
-            ("Before / after calibration: error to truth [m]", "calibration", None),
-            ("KLV corner residual [m], outlier", "klv", None),
-            ("Ellipsoid model: horizontal error [m]", "ellipsoid_model", None),
-            ("Monte Carlo CEP per step [m]", "cep", None),
-            ("DEM evaluations per ray", "dem", None)]
+    spec = [
+        ("Heading [deg]", "attitude", ["heading_deg"]),
+        ("Pitch and roll [deg]", "attitude", ["pitch_deg", "roll_deg"]),
+        ("Gimbal angles [deg]", "gimbal", None),
+        ("Slant range [m]", "range", None),
+        ("Target height [m]", "height", None),
+        ("Horizontal error [m]", "error", ["to_truth_m", "to_published_m", "horizontal_m"]),
+        (f"Error components to {steps.reference} [m]", "error", list(COMPONENT_SERIES)),
+        ("Outlier flags (1 = outlier)", "outlier", None),
+        ("Before / after calibration: error to truth [m]", "calibration", None),
+        ("KLV corner residual [m], outlier", "klv", None),
+        ("Ellipsoid model: horizontal error [m]", "ellipsoid_model", None),
+        ("Monte Carlo CEP per step [m]", "cep", None),
+        ("DEM evaluations per ray", "dem", None),
+    ]
     out = []
     for title, cat, names in spec:
         have = [k.split("/", 1)[1] for k in present if k.split("/", 1)[0] == cat]
@@ -210,11 +231,17 @@ def blueprint(steps: LogSteps) -> rrb.Blueprint:
     series = []
     for title, cat, names in series_views(steps):
         if steps.multi:
-            series.append(rrb.TimeSeriesView(origin="/series", name=title, contents=[
-                "/" + steps.series_path(g, f"{cat}/{x}") for g in steps.groups for x in names]))
+            series.append(
+                rrb.TimeSeriesView(
+                    origin="/series",
+                    name=title,
+                    contents=["/" + steps.series_path(g, f"{cat}/{x}") for g in steps.groups for x in names],
+                )
+            )
         else:
-            series.append(rrb.TimeSeriesView(origin=f"/series/{cat}", name=title,
-                                             contents=[f"$origin/{x}" for x in names]))
+            series.append(
+                rrb.TimeSeriesView(origin=f"/series/{cat}", name=title, contents=[f"$origin/{x}" for x in names])
+            )
     if steps.terrain is not None and steps.terrain.method != "ellipsoid":
         series.append(rrb.BarChartView(origin="/convergence", name="H_n - h_n per iteration [m]"))
     views3d, views2d = [], []
@@ -222,22 +249,37 @@ def blueprint(steps: LogSteps) -> rrb.Blueprint:
         root = "/" + steps.root(g)
         title = f"{g}: " if steps.multi else ""
         eye_position, eye_target = default_eye(steps, g)
-        views3d.append(rrb.Spatial3DView(
-            origin=root, name=f"{title}scene (local ENU, m), following the current hit",
-            eye_controls=rrb.archetypes.EyeControls3D(position=eye_position, look_target=eye_target,
-                                                      eye_up=[0.0, 0.0, 1.0], tracking_entity=f"{root}/current"),
-            line_grid=rrb.archetypes.LineGrid3D(visible=False)))
+        views3d.append(
+            rrb.Spatial3DView(
+                origin=root,
+                name=f"{title}scene (local ENU, m), following the current hit",
+                eye_controls=rrb.archetypes.EyeControls3D(
+                    position=eye_position,
+                    look_target=eye_target,
+                    eye_up=[0.0, 0.0, 1.0],
+                    tracking_entity=f"{root}/current",
+                ),
+                line_grid=rrb.archetypes.LineGrid3D(visible=False),
+            )
+        )
         if steps.components is not None or steps.truth is not None or steps.published is not None:
-            views2d.append(rrb.Spatial2DView(origin="/" + steps.root(g, "plot"),
-                                             name=f"{title}targets and {steps.reference or 'reference'} "
-                                             "(east, north m; offline)"))
+            views2d.append(
+                rrb.Spatial2DView(
+                    origin="/" + steps.root(g, "plot"),
+                    name=f"{title}targets and {steps.reference or 'reference'} (east, north m; offline)",
+                )
+            )
     scene = views3d[0] if len(views3d) == 1 else rrb.Tabs(*views3d)
     bottom = []
     if views2d:
         bottom.append(views2d[0] if len(views2d) == 1 else rrb.Tabs(*views2d))
-    bottom.append(rrb.Tabs(rrb.TextLogView(origin="/log", name="Records and annotations"),
-                           rrb.MapView(origin="/map", name="Map (tiles need a network)", zoom=map_zoom(steps)),
-                           rrb.TextDocumentView(origin="/info", name="About")))
+    bottom.append(
+        rrb.Tabs(
+            rrb.TextLogView(origin="/log", name="Records and annotations"),
+            rrb.MapView(origin="/map", name="Map (tiles need a network)", zoom=map_zoom(steps)),
+            rrb.TextDocumentView(origin="/info", name="About"),
+        )
+    )
     left = rrb.Vertical(scene, rrb.Horizontal(*bottom), row_shares=[3, 2])
     return rrb.Blueprint(
         rrb.Horizontal(left, rrb.Grid(*series, grid_columns=2), column_shares=[1, 1]),
@@ -292,21 +334,34 @@ def _aircraft_mesh():
 
 
 def info_markdown(steps: LogSteps) -> str:
-    lines = [f"**{steps.name}**", "", *[f"- {n}" for n in steps.notes],
-             f"- camera: {steps.camera.name or 'unnamed'} (fx = {steps.camera.lens.fx:g} px)"]
+    lines = [
+        f"**{steps.name}**",
+        "",
+        *[f"- {n}" for n in steps.notes],
+        f"- camera: {steps.camera.name or 'unnamed'} (fx = {steps.camera.lens.fx:g} px)",
+    ]
     for g in steps.groups:
         e = steps.enu_for(g)
-        lines.append(f"- scene origin (ENU){' of ' + g if steps.multi else ''}: {np.rad2deg(e.lat0):.3f} N, "
-                     f"{np.rad2deg(e.lon0):.3f} E, {e.h0:.0f} m (ellipsoidal); X east, Y north, Z up, metres")
+        lines.append(
+            f"- scene origin (ENU){' of ' + g if steps.multi else ''}: {np.rad2deg(e.lat0):.3f} N, "
+            f"{np.rad2deg(e.lon0):.3f} E, {e.h0:.0f} m (ellipsoidal); X east, Y north, Z up, metres"
+        )
     lines.append(f"- timelines: {', '.join(steps.timelines)}; each step's label is in the *Records* log")
     if steps.components is not None:
-        lines.append(f"- error components: computed minus {steps.reference}, north / east / up in the "
-                     f"{steps.reference} point's local frame, along / across the local track (right +)")
-    lines += ["", f"Frames: {steps.root(steps.groups[0])}/{' / '.join(steps.chain.frames[1:])}, "
-              "each a Transform3D equal to the hop of the sensor's frame graph ([Q17] eq. 4-7)."]
+        lines.append(
+            f"- error components: computed minus {steps.reference}, north / east / up in the "
+            f"{steps.reference} point's local frame, along / across the local track (right +)"
+        )
+    lines += [
+        "",
+        f"Frames: {steps.root(steps.groups[0])}/{' / '.join(steps.chain.frames[1:])}, "
+        "each a Transform3D equal to the hop of the sensor's frame graph ([Q17] eq. 4-7).",
+    ]
     if steps.multi:
-        lines.append("Each flight has its own entity tree (world/<flight>, plot/<flight>, map/<flight>) "
-                     "and scene origin: they are hundreds of km apart.")
+        lines.append(
+            "Each flight has its own entity tree (world/<flight>, plot/<flight>, map/<flight>) "
+            "and scene origin: they are hundreds of km apart."
+        )
     return "\n".join(lines)
 
 
@@ -339,49 +394,72 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
 
         # ------------------------------------------------------------ frames
         for name, path in paths.items():
-            path = root + path[len("world"):]
+            path = root + path[len("world") :]
             Tn = np.broadcast_to(T[name], (n, 4, 4))[m]
             cols = {"mat3x3": Tn[:, :3, :3]}
             if name == "ned" or np.any(Tn[:, :3, 3]):
                 cols["translation"] = Tn[:, :3, 3]
             rec.send_columns(path, indexes=idx, columns=rr.Transform3D.columns(**cols))
             rec.log(path, rr.TransformAxes3D(axis_length=AXIS_LENGTH_M.get(name, 2000.0)), static=True)
-        cam = root + paths["cam"][len("world"):]
+        cam = root + paths["cam"][len("world") :]
         if steps.images is not None and np.any(np.asarray(steps.image_index)[m] >= 0):
             log_images(rec, steps, cam, m)
         else:
-            rec.log(cam, rr.Pinhole(
-                focal_length=[float(lens.fx), float(lens.fy)], width=int(lens.width), height=int(lens.height),
-                # the lens's 0-based pixel centres (OpenCV's) -> rerun's continuous (u, v): +0.5
-                principal_point=[lens.cx + 0.5, lens.cy + 0.5],
-                # the optical frame of the lens: X right, Y down, Z the line of sight
-                camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=IMAGE_PLANE_M), static=True)
-        body = root + paths["body"][len("world"):]
+            rec.log(
+                cam,
+                rr.Pinhole(
+                    focal_length=[float(lens.fx), float(lens.fy)],
+                    width=int(lens.width),
+                    height=int(lens.height),
+                    # the lens's 0-based pixel centres (OpenCV's) -> rerun's continuous (u, v): +0.5
+                    principal_point=[lens.cx + 0.5, lens.cy + 0.5],
+                    # the optical frame of the lens: X right, Y down, Z the line of sight
+                    camera_xyz=rr.ViewCoordinates.RDF,
+                    image_plane_distance=IMAGE_PLANE_M,
+                ),
+                static=True,
+            )
+        body = root + paths["body"][len("world") :]
         rec.log(f"{body}/aircraft", rr.Transform3D(scale=display_scale), static=True)
-        rec.log(f"{body}/aircraft", rr.Mesh3D(vertex_positions=v_mesh, triangle_indices=f_mesh,
-                                              albedo_factor=COLORS["aircraft"]), static=True)
+        rec.log(
+            f"{body}/aircraft",
+            rr.Mesh3D(vertex_positions=v_mesh, triangle_indices=f_mesh, albedo_factor=COLORS["aircraft"]),
+            static=True,
+        )
 
         # -------------------------------------------------- points and lines
         ac, tgt = ac_all[m], tgt_all[m]
-        rec.log(f"{root}/track", rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=SCENE_RADIUS_PT["track"]),
-                static=True)
+        rec.log(
+            f"{root}/track",
+            rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=SCENE_RADIUS_PT["track"]),
+            static=True,
+        )
         ok = np.all(np.isfinite(tgt), axis=-1)
-        rec.log(f"{root}/footprint", rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=SCENE_RADIUS_PT["footprint"]),
-                static=True)
+        rec.log(
+            f"{root}/footprint",
+            rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=SCENE_RADIUS_PT["footprint"]),
+            static=True,
+        )
         # The line of sight ends at the target, or runs 200 km into the sky where there is none.
         d_enu = steps.enu_for(g).vector_from_ecef(np.broadcast_to(steps.los.direction_ecef, (n, 3))[m])
         end = np.where(ok[:, None], tgt, ac + 2.0e5 * d_enu)
-        rec.send_columns(f"{root}/los", indexes=idx, columns=rr.LineStrips3D.columns(
-            strips=list(np.stack([ac, end], axis=1).astype(f32))))
-        rec.log(f"{root}/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=SCENE_RADIUS_PT["los"]), static=True)
+        rec.send_columns(
+            f"{root}/los",
+            indexes=idx,
+            columns=rr.LineStrips3D.columns(strips=list(np.stack([ac, end], axis=1).astype(f32))),
+        )
+        rec.log(
+            f"{root}/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=SCENE_RADIUS_PT["los"]), static=True
+        )
         _points(rec, steps, f"{root}/target", tgt_all, COLORS["target"], SCENE_RADIUS_PT["target"], m, labels)
         for key, p in refs.items():
             _points(rec, steps, f"{root}/{key}", p, COLORS[key], SCENE_RADIUS_PT["reference"], m)
         # the entity the 3D view's eye tracks: a frame at the current hit (the last hit where a step has none)
         cur = m & np.all(np.isfinite(tgt_all), axis=-1)
         if np.any(cur):
-            rec.send_columns(f"{root}/current", indexes=_index(steps, cur),
-                             columns=rr.Transform3D.columns(translation=tgt_all[cur]))
+            rec.send_columns(
+                f"{root}/current", indexes=_index(steps, cur), columns=rr.Transform3D.columns(translation=tgt_all[cur])
+            )
             rec.log(f"{root}/current", rr.TransformAxes3D(axis_length=CURRENT_AXIS_M), static=True)
 
         if steps.corners is not None:
@@ -394,12 +472,19 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
         mroot = steps.root(g, "map")
         lat_ac = np.broadcast_to(np.rad2deg(steps.pose.lat), (n,))[m]
         lon_ac = np.broadcast_to(np.rad2deg(steps.pose.lon), (n,))[m]
-        rec.log(f"{mroot}/track", rr.GeoLineStrings(lat_lon=[np.c_[lat_ac, lon_ac]], colors=COLORS["track"],
-                                                    radii=rr.Radius.ui_points(2.0)), static=True)
-        rec.send_columns(f"{mroot}/aircraft", indexes=idx,
-                         columns=rr.GeoPoints.columns(positions=np.c_[lat_ac, lon_ac]))
-        rec.log(f"{mroot}/aircraft", rr.GeoPoints.from_fields(colors=COLORS["aircraft"],
-                                                              radii=rr.Radius.ui_points(6.0)), static=True)
+        rec.log(
+            f"{mroot}/track",
+            rr.GeoLineStrings(lat_lon=[np.c_[lat_ac, lon_ac]], colors=COLORS["track"], radii=rr.Radius.ui_points(2.0)),
+            static=True,
+        )
+        rec.send_columns(
+            f"{mroot}/aircraft", indexes=idx, columns=rr.GeoPoints.columns(positions=np.c_[lat_ac, lon_ac])
+        )
+        rec.log(
+            f"{mroot}/aircraft",
+            rr.GeoPoints.from_fields(colors=COLORS["aircraft"], radii=rr.Radius.ui_points(6.0)),
+            static=True,
+        )
         geo = {"target": (steps.ground.lat_deg, steps.ground.lon_deg)}
         for key in refs:
             ref = getattr(steps, key)
@@ -407,10 +492,16 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
         for key, (la, lo) in geo.items():
             good = m & np.isfinite(la) & np.isfinite(lo)
             if np.any(good):
-                rec.send_columns(f"{mroot}/{key}", indexes=_index(steps, good),
-                                 columns=rr.GeoPoints.columns(positions=np.c_[la[good], lo[good]]))
-                rec.log(f"{mroot}/{key}", rr.GeoPoints.from_fields(colors=COLORS[key],
-                                                                   radii=rr.Radius.ui_points(5.0)), static=True)
+                rec.send_columns(
+                    f"{mroot}/{key}",
+                    indexes=_index(steps, good),
+                    columns=rr.GeoPoints.columns(positions=np.c_[la[good], lo[good]]),
+                )
+                rec.log(
+                    f"{mroot}/{key}",
+                    rr.GeoPoints.from_fields(colors=COLORS[key], radii=rr.Radius.ui_points(5.0)),
+                    static=True,
+                )
 
     # -------------------------------------------------------------- series
     # one entity per flight and series (series/<flight>/...): no plot line joins two flights
@@ -429,27 +520,37 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
 
     # ------------------------------------------- labels and annotations
     flag = steps.outlier if steps.outlier is not None else np.zeros(n, bool)
-    text = [f"{labels[k]}" + (f" ({grp[k]})" if steps.multi else "") + (" - outlier" if flag[k] else "")
-            for k in range(n)]
-    rec.send_columns("log/record", indexes=_index(steps), columns=rr.TextLog.columns(
-        text=text, level=["WARN" if f else "INFO" for f in flag]))
+    text = [
+        f"{labels[k]}" + (f" ({grp[k]})" if steps.multi else "") + (" - outlier" if flag[k] else "") for k in range(n)
+    ]
+    rec.send_columns(
+        "log/record",
+        indexes=_index(steps),
+        columns=rr.TextLog.columns(text=text, level=["WARN" if f else "INFO" for f in flag]),
+    )
     if np.any(flag):
         hor = steps.components["horizontal_m"]
         notes = []
         for k in np.flatnonzero(flag):
             mk = (grp == grp[k]) & np.isfinite(hor)
-            notes.append(f"{labels[k]}: outlier, horizontal error to {steps.reference} {hor[k]:.2f} m, "
-                         f"flight median {np.median(hor[mk]):.2f} m (median / MAD rule)")
-        rec.send_columns("log/outliers", indexes=_index(steps, flag),
-                         columns=rr.TextLog.columns(text=notes, level=["WARN"] * len(notes)))
+            notes.append(
+                f"{labels[k]}: outlier, horizontal error to {steps.reference} {hor[k]:.2f} m, "
+                f"flight median {np.median(hor[mk]):.2f} m (median / MAD rule)"
+            )
+        rec.send_columns(
+            "log/outliers",
+            indexes=_index(steps, flag),
+            columns=rr.TextLog.columns(text=notes, level=["WARN"] * len(notes)),
+        )
 
     # ------------------------------------------------------ status messages
     st = np.asarray(steps.ground.status)
     bad = st != Status.OK
     if np.any(bad):
         text = [f"{steps.labels[k]}: {describe(st[k])}" for k in np.flatnonzero(bad)]
-        rec.send_columns("log/status", indexes=_index(steps, bad),
-                         columns=rr.TextLog.columns(text=text, level=["WARN"] * len(text)))
+        rec.send_columns(
+            "log/status", indexes=_index(steps, bad), columns=rr.TextLog.columns(text=text, level=["WARN"] * len(text))
+        )
 
     if steps.terrain is not None:
         from geoloc_viz.rerun_terrain import log_terrain
@@ -487,8 +588,11 @@ def log_images(rec: rr.RecordingStream, steps: LogSteps, cam: str, m) -> None:
         hv = tuple(fov[k]) if fov is not None and np.all(np.isfinite(fov[k])) else None
         key = (hv, rows, cols)
         if key not in cache:
-            cache[key] = (lens_from_fov(math.radians(hv[0]), math.radians(hv[1]), cols, rows) if hv
-                          else scale_lens(base, cols, rows))
+            cache[key] = (
+                lens_from_fov(math.radians(hv[0]), math.radians(hv[1]), cols, rows)
+                if hv
+                else scale_lens(base, cols, rows)
+            )
         lens = cache[key]
         for name, (kind, values) in steps.timelines.items():
             v = values[k]
@@ -496,9 +600,17 @@ def log_images(rec: rr.RecordingStream, steps: LogSteps, cam: str, m) -> None:
                 rec.set_time(name, duration=float(v))
             else:
                 rec.set_time(name, sequence=int(v))
-        rec.log(cam, rr.Pinhole(focal_length=[float(lens.fx), float(lens.fy)], width=int(cols), height=int(rows),
-                                principal_point=[lens.cx + 0.5, lens.cy + 0.5], camera_xyz=rr.ViewCoordinates.RDF,
-                                image_plane_distance=IMAGE_PLANE_M))
+        rec.log(
+            cam,
+            rr.Pinhole(
+                focal_length=[float(lens.fx), float(lens.fy)],
+                width=int(cols),
+                height=int(rows),
+                principal_point=[lens.cx + 0.5, lens.cy + 0.5],
+                camera_xyz=rr.ViewCoordinates.RDF,
+                image_plane_distance=IMAGE_PLANE_M,
+            ),
+        )
         buf = io.BytesIO()
         PIL.Image.fromarray(np.ascontiguousarray(a[..., :3])).save(buf, format="JPEG", quality=IMAGE_QUALITY)
         rec.log(cam, rr.EncodedImage(contents=buf.getvalue(), media_type="image/jpeg"))
@@ -520,29 +632,64 @@ def _plot2d(rec, steps: LogSteps, g, m, refs, labels) -> None:
     lab = [str(x) for x in labels[m][ok]]
     if not np.any(ok):
         return
-    rec.log(f"{root}/targets", rr.Points2D(plot_east_north(steps, g, tgt[ok]), colors=COLORS["target"],
-                                           radii=PLOT_RADIUS_PT["point"], labels=lab, show_labels=False), static=True)
+    rec.log(
+        f"{root}/targets",
+        rr.Points2D(
+            plot_east_north(steps, g, tgt[ok]),
+            colors=COLORS["target"],
+            radii=PLOT_RADIUS_PT["point"],
+            labels=lab,
+            show_labels=False,
+        ),
+        static=True,
+    )
     if steps.outlier is not None and np.any(steps.outlier[m] & ok):
         o = steps.outlier[m] & ok
-        rec.log(f"{root}/outliers", rr.Points2D(plot_east_north(steps, g, tgt[o]), colors=(255, 0, 255, 255),
-                                                radii=PLOT_RADIUS_PT["outlier"], labels=[str(x) for x in labels[m][o]]), static=True)
+        rec.log(
+            f"{root}/outliers",
+            rr.Points2D(
+                plot_east_north(steps, g, tgt[o]),
+                colors=(255, 0, 255, 255),
+                radii=PLOT_RADIUS_PT["outlier"],
+                labels=[str(x) for x in labels[m][o]],
+            ),
+            static=True,
+        )
     ref_key = steps.reference or next(iter(refs), None)
     for key, p in refs.items():
         pk = p[m]
         good = np.all(np.isfinite(pk), axis=-1)
-        rec.log(f"{root}/{key}", rr.Points2D(plot_east_north(steps, g, pk[good]), colors=COLORS[key], radii=PLOT_RADIUS_PT["point"]),
-                static=True)
+        rec.log(
+            f"{root}/{key}",
+            rr.Points2D(plot_east_north(steps, g, pk[good]), colors=COLORS[key], radii=PLOT_RADIUS_PT["point"]),
+            static=True,
+        )
     if ref_key in refs:
         r = refs[ref_key][m]
         both = ok & np.all(np.isfinite(r), axis=-1)
         o2 = plot_east_north(steps, g, r[both])
-        rec.log(f"{root}/errors", rr.Arrows2D(origins=o2, vectors=plot_east_north(steps, g, tgt[both]) - o2,
-                                              colors=COLORS["los"], radii=PLOT_RADIUS_PT["arrow"]), static=True)
+        rec.log(
+            f"{root}/errors",
+            rr.Arrows2D(
+                origins=o2,
+                vectors=plot_east_north(steps, g, tgt[both]) - o2,
+                colors=COLORS["los"],
+                radii=PLOT_RADIUS_PT["arrow"],
+            ),
+            static=True,
+        )
     cur = np.zeros(len(steps), bool)
     cur[np.flatnonzero(m)[ok]] = True
-    rec.send_columns(f"{root}/current", indexes=_index(steps, cur), columns=rr.Points2D.columns(
-        positions=plot_east_north(steps, g, steps.target_enu[cur]), labels=lab))
-    rec.log(f"{root}/current", rr.Points2D.from_fields(colors=(255, 255, 255, 255), radii=PLOT_RADIUS_PT["current"]), static=True)
+    rec.send_columns(
+        f"{root}/current",
+        indexes=_index(steps, cur),
+        columns=rr.Points2D.columns(positions=plot_east_north(steps, g, steps.target_enu[cur]), labels=lab),
+    )
+    rec.log(
+        f"{root}/current",
+        rr.Points2D.from_fields(colors=(255, 255, 255, 255), radii=PLOT_RADIUS_PT["current"]),
+        static=True,
+    )
 
 
 def _log_corners(rec, steps: LogSteps, g, m) -> None:
@@ -557,14 +704,26 @@ def _log_corners(rec, steps: LogSteps, g, m) -> None:
     ring = np.r_[0, 1, 2, 3, 0]  # closed: upper left, upper right, lower right, lower left, upper left
     enu = steps.enu_for(g).from_geodetic(np.deg2rad(lat[idx]), np.deg2rad(lon[idx]), h[idx])  # (k, 4, 3)
     root, mroot = steps.root(g), steps.root(g, "map")
-    rec.send_columns(f"{root}/corners", indexes=_index(steps, good), columns=rr.LineStrips3D.columns(
-        strips=list(enu[:, ring].astype(np.float32))))
-    rec.log(f"{root}/corners", rr.LineStrips3D.from_fields(colors=COLORS["footprint"],
-                                                          radii=SCENE_RADIUS_PT["los"]), static=True)
-    rec.send_columns(f"{mroot}/corners", indexes=_index(steps, good), columns=rr.GeoLineStrings.columns(
-        line_strings=list(np.stack([lat[idx][:, ring], lon[idx][:, ring]], axis=-1))))
-    rec.log(f"{mroot}/corners", rr.GeoLineStrings.from_fields(colors=COLORS["footprint"],
-                                                             radii=rr.Radius.ui_points(1.5)), static=True)
+    rec.send_columns(
+        f"{root}/corners",
+        indexes=_index(steps, good),
+        columns=rr.LineStrips3D.columns(strips=list(enu[:, ring].astype(np.float32))),
+    )
+    rec.log(
+        f"{root}/corners",
+        rr.LineStrips3D.from_fields(colors=COLORS["footprint"], radii=SCENE_RADIUS_PT["los"]),
+        static=True,
+    )
+    rec.send_columns(
+        f"{mroot}/corners",
+        indexes=_index(steps, good),
+        columns=rr.GeoLineStrings.columns(line_strings=list(np.stack([lat[idx][:, ring], lon[idx][:, ring]], axis=-1))),
+    )
+    rec.log(
+        f"{mroot}/corners",
+        rr.GeoLineStrings.from_fields(colors=COLORS["footprint"], radii=rr.Radius.ui_points(1.5)),
+        static=True,
+    )
 
 
 def _points(rec, steps, path, pts, color, radius, mask=None, labels=None):
@@ -573,8 +732,9 @@ def _points(rec, steps, path, pts, color, radius, mask=None, labels=None):
         good &= mask
     if np.any(good):
         kw = {"labels": [str(x) for x in np.asarray(labels, dtype=object)[good]]} if labels is not None else {}
-        rec.send_columns(path, indexes=_index(steps, good),
-                         columns=rr.Points3D.columns(positions=pts[good].astype(np.float32), **kw))
+        rec.send_columns(
+            path, indexes=_index(steps, good), columns=rr.Points3D.columns(positions=pts[good].astype(np.float32), **kw)
+        )
         rec.log(path, rr.Points3D.from_fields(colors=color, radii=radius), static=True)
 
 
@@ -583,8 +743,16 @@ def recording_id(steps: LogSteps) -> str:
     return str(uuid.uuid5(uuid.NAMESPACE_URL, f"geoloc:{steps.kind}:{steps.name}"))
 
 
-def write(steps: LogSteps, out, *, display_scale: float = 200.0, serve: bool = False,
-          grpc_port: int = 9876, grpc_host: str = "127.0.0.1", spawn: bool = False) -> rr.RecordingStream:
+def write(
+    steps: LogSteps,
+    out,
+    *,
+    display_scale: float = 200.0,
+    serve: bool = False,
+    grpc_port: int = 9876,
+    grpc_host: str = "127.0.0.1",
+    spawn: bool = False,
+) -> rr.RecordingStream:
     """Write ``steps`` to the ``.rrd`` file ``out`` (and optionally serve it or spawn a viewer).
 
     Parameters
@@ -614,8 +782,15 @@ def write(steps: LogSteps, out, *, display_scale: float = 200.0, serve: bool = F
         require_display()
     with contextlib.ExitStack() as stack:  # the .rrd is renamed into place once flushed and closed
         tmp = stack.enter_context(atomic_path(out)) if out is not None else None
-        rec = _write(steps, tmp, display_scale, serve, grpc_port, grpc_host,
-                     stream_port=(grpc_port + 1 if serve else grpc_port) if spawn and out is None else None)
+        rec = _write(
+            steps,
+            tmp,
+            display_scale,
+            serve,
+            grpc_port,
+            grpc_host,
+            stream_port=(grpc_port + 1 if serve else grpc_port) if spawn and out is None else None,
+        )
         if not serve:
             rec.disconnect()
     if spawn and out is not None:
@@ -665,11 +840,13 @@ def has_display() -> bool:
 
 
 #: What ``--spawn`` says on a machine without a display (before anything is computed).
-NO_DISPLAY = ("--spawn opens rerun's native viewer window, which needs a display, and this session has "
-              "none (DISPLAY and WAYLAND_DISPLAY are unset, e.g. a headless server or an SSH session "
-              "without X forwarding): write the recording with --out FILE and open it where there is a "
-              "display (`rerun FILE`), or use --serve for the web viewer (a browser on this machine, or "
-              "through an SSH tunnel)")
+NO_DISPLAY = (
+    "--spawn opens rerun's native viewer window, which needs a display, and this session has "
+    "none (DISPLAY and WAYLAND_DISPLAY are unset, e.g. a headless server or an SSH session "
+    "without X forwarding): write the recording with --out FILE and open it where there is a "
+    "display (`rerun FILE`), or use --serve for the web viewer (a browser on this machine, or "
+    "through an SSH tunnel)"
+)
 
 
 def require_display() -> None:
@@ -703,8 +880,9 @@ def spawn_viewer(host: str, port: int, path=None, timeout_s: float = 20.0) -> st
     if path is not None:
         cmd.append(str(path))
     log = tempfile.TemporaryFile()
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
-                            start_new_session=True)  # the viewer outlives `geoloc log`
+    proc = subprocess.Popen(
+        cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, start_new_session=True
+    )  # the viewer outlives `geoloc log`
     url = f"rerun+http://{_url_host(host)}:{port}/proxy"
     probe = "127.0.0.1" if host in ("0.0.0.0", "") else "::1" if host == "::" else host
     deadline = time.monotonic() + (SPAWN_GRACE_S if path is not None else timeout_s)
@@ -742,8 +920,10 @@ def exposure_note(host: str, ports) -> str | None:
     if host in LOOPBACK_HOSTS or host.startswith("127."):
         return None
     where = "every interface" if host in ("0.0.0.0", "::", "") else host
-    return (f"warning: listening on {where} (ports {', '.join(str(p) for p in ports)}): anyone who "
-            f"can reach this machine can read the recording (no authentication)")
+    return (
+        f"warning: listening on {where} (ports {', '.join(str(p) for p in ports)}): anyone who "
+        f"can reach this machine can read the recording (no authentication)"
+    )
 
 
 def _url_host(host: str) -> str:
@@ -763,8 +943,9 @@ def rerun_executable() -> str:
     return str(exe)
 
 
-def serve_web(grpc_port: int = 9876, web_port: int = 9090, host: str = "127.0.0.1",
-              timeout_s: float = 20.0) -> tuple[str, subprocess.Popen]:
+def serve_web(
+    grpc_port: int = 9876, web_port: int = 9090, host: str = "127.0.0.1", timeout_s: float = 20.0
+) -> tuple[str, subprocess.Popen]:
     """Host the web viewer (assets inside the rerun wheel, no network) connected to the gRPC server.
 
     The SDK's ``rr.serve_web_viewer`` (rerun-sdk 0.41) has no bind address and listens on
@@ -795,7 +976,10 @@ def serve_web(grpc_port: int = 9876, web_port: int = 9090, host: str = "127.0.0.
     log = tempfile.TemporaryFile()
     proc = subprocess.Popen(
         [rerun_executable(), "--serve-web", "--bind", host, "--web-viewer-port", str(web_port), grpc_url],
-        stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
+        stdin=subprocess.DEVNULL,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
     probe = "127.0.0.1" if host in ("0.0.0.0", "") else "::1" if host == "::" else host
     deadline = time.monotonic() + timeout_s
     while True:
@@ -841,10 +1025,24 @@ class LiveRecording:
         As :func:`write`.
     """
 
-    def __init__(self, out, label: str, camera=None, *, dem_path=None, dem_datum: str = "egm96",
-                 method: str = "exact", eps_h_m=None, threshold_m=None, display_scale: float = 200.0,
-                 serve: bool = False, grpc_port: int = 9876, grpc_host: str = "127.0.0.1", spawn: bool = False,
-                 window: int = 18000):
+    def __init__(
+        self,
+        out,
+        label: str,
+        camera=None,
+        *,
+        dem_path=None,
+        dem_datum: str = "egm96",
+        method: str = "exact",
+        eps_h_m=None,
+        threshold_m=None,
+        display_scale: float = 200.0,
+        serve: bool = False,
+        grpc_port: int = 9876,
+        grpc_host: str = "127.0.0.1",
+        spawn: bool = False,
+        window: int = 18000,
+    ):
         from collections import deque
 
         from geoloc.surfaces.spec import SurfaceSpec
@@ -898,10 +1096,19 @@ class LiveRecording:
 
         def causal(err):  # the batch's residuals after those received before it (the live replay's rule)
             self._err.extend(np.asarray(err, float).tolist())
-            return outlier_mask(np.array(self._err, float))[0][-len(err):] if len(err) else np.zeros(0, bool)
+            return outlier_mask(np.array(self._err, float))[0][-len(err) :] if len(err) else np.zeros(0, bool)
 
-        steps, _ = steps_from_klv(results, self.camera, dem=self.dem, label=self.label, enu=self.enu,
-                                  t0_s=self.t0_s, outlier=causal, first_packet=self.seq, **self.kw)
+        steps, _ = steps_from_klv(
+            results,
+            self.camera,
+            dem=self.dem,
+            label=self.label,
+            enu=self.enu,
+            t0_s=self.t0_s,
+            outlier=causal,
+            first_packet=self.seq,
+            **self.kw,
+        )
         self.seq += sum(1 for r in results if isinstance(r, Packet) or (isinstance(r, KlvError) and not _is_stray(r)))
         if self.enu is None:
             self.enu = steps.enu
@@ -929,29 +1136,61 @@ class LiveRecording:
         ac, tgt, pub, labels, flag, lat, lon = (np.asarray(x) for x in zip(*self._acc))
         tgt, pub = tgt.astype(float), pub.astype(float)
         flag = flag.astype(bool)
-        rec.log("world/track", rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"],
-                                               radii=SCENE_RADIUS_PT["track"]), static=True)
+        rec.log(
+            "world/track",
+            rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=SCENE_RADIUS_PT["track"]),
+            static=True,
+        )
         ok = np.all(np.isfinite(tgt), axis=-1)
-        rec.log("world/footprint", rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"],
-                                               radii=SCENE_RADIUS_PT["footprint"]), static=True)
-        rec.log("map/track", rr.GeoLineStrings(lat_lon=[np.c_[lat, lon]], colors=COLORS["track"],
-                                               radii=rr.Radius.ui_points(2.0)), static=True)
+        rec.log(
+            "world/footprint",
+            rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=SCENE_RADIUS_PT["footprint"]),
+            static=True,
+        )
+        rec.log(
+            "map/track",
+            rr.GeoLineStrings(lat_lon=[np.c_[lat, lon]], colors=COLORS["track"], radii=rr.Radius.ui_points(2.0)),
+            static=True,
+        )
         if not ok.any():
             return
         en = lambda p: np.stack([p[..., 0], -p[..., 1]], axis=-1)  # noqa: E731  (plot_east_north, one flight)
-        rec.log("plot/targets", rr.Points2D(en(tgt[ok]), colors=COLORS["target"], radii=PLOT_RADIUS_PT["point"],
-                                            labels=[str(x) for x in labels[ok]], show_labels=False), static=True)
+        rec.log(
+            "plot/targets",
+            rr.Points2D(
+                en(tgt[ok]),
+                colors=COLORS["target"],
+                radii=PLOT_RADIUS_PT["point"],
+                labels=[str(x) for x in labels[ok]],
+                show_labels=False,
+            ),
+            static=True,
+        )
         o = flag & ok
         if o.any():
-            rec.log("plot/outliers", rr.Points2D(en(tgt[o]), colors=(255, 0, 255, 255), radii=PLOT_RADIUS_PT["outlier"],
-                                                 labels=[str(x) for x in labels[o]]), static=True)
+            rec.log(
+                "plot/outliers",
+                rr.Points2D(
+                    en(tgt[o]),
+                    colors=(255, 0, 255, 255),
+                    radii=PLOT_RADIUS_PT["outlier"],
+                    labels=[str(x) for x in labels[o]],
+                ),
+                static=True,
+            )
         good = np.all(np.isfinite(pub), axis=-1)
-        rec.log("plot/published", rr.Points2D(en(pub[good]), colors=COLORS["published"],
-                                              radii=PLOT_RADIUS_PT["point"]), static=True)
+        rec.log(
+            "plot/published",
+            rr.Points2D(en(pub[good]), colors=COLORS["published"], radii=PLOT_RADIUS_PT["point"]),
+            static=True,
+        )
         both = ok & good
         o2 = en(pub[both])
-        rec.log("plot/errors", rr.Arrows2D(origins=o2, vectors=en(tgt[both]) - o2, colors=COLORS["los"],
-                                           radii=PLOT_RADIUS_PT["arrow"]), static=True)
+        rec.log(
+            "plot/errors",
+            rr.Arrows2D(origins=o2, vectors=en(tgt[both]) - o2, colors=COLORS["los"], radii=PLOT_RADIUS_PT["arrow"]),
+            static=True,
+        )
 
     def close(self) -> None:
         """Flush and disconnect (a served or spawned viewer keeps what it received)."""

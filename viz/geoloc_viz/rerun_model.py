@@ -238,7 +238,9 @@ def load_camera(path=None):
     return load_sensor(path if path else Path(ASSETS).joinpath(*DEFAULT_CAMERA))
 
 
-def _terrain(los: LineOfSight, dem, method: str, eps_h_m=None, threshold_m=None, corrections: Corrections = NO_CORRECTIONS):
+def _terrain(
+    los: LineOfSight, dem, method: str, eps_h_m=None, threshold_m=None, corrections: Corrections = NO_CORRECTIONS
+):
     """Intersect with a DEM through :mod:`geoloc.surfaces.terrain`; returns (GroundPoint, TerrainSteps)."""
     return dem_steps(los, dem, method, eps_h_m, threshold_m, corrections)
 
@@ -256,8 +258,10 @@ def add_corrections(steps: LogSteps, corrections) -> LogSteps:
         steps.extra_series["series/refraction_m"] = np.asarray(shift, float)
         ok = np.isfinite(np.asarray(shift, float))
         if np.any(ok):
-            steps.notes.append(f"refraction moved the located points {np.min(shift[ok]):.2f}-"
-                               f"{np.max(shift[ok]):.2f} m (series/refraction_m)")
+            steps.notes.append(
+                f"refraction moved the located points {np.min(shift[ok]):.2f}-"
+                f"{np.max(shift[ok]):.2f} m (series/refraction_m)"
+            )
     return steps
 
 
@@ -269,7 +273,9 @@ def _first_finite(lat, lon, h):
     return lat[k], lon[k], h[k]
 
 
-def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None, corrections: Corrections = NO_CORRECTIONS) -> LogSteps:
+def steps_from_flight(
+    scn: FlightScenario, camera: FrameSensor | None = None, corrections: Corrections = NO_CORRECTIONS
+) -> LogSteps:
     """Simulate a scenario (:func:`geoloc.workflows.flight.simulate`) and geolocate every step.
 
     The located target is the scenario's method: the ellipsoid inflated to
@@ -289,9 +295,12 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None, co
     extra = {}
     # the scenario's DEM, opened once: the located points, the exact truth and the mesh
     dem = SurfaceSpec(dem=scn.dem_path, dem_datum=scn.dem_datum).raster(f"{scn.name}: dem")
-    notes = [f"scenario: {scn.name}", f"{n} steps at {scn.rate_hz:g} Hz, "
-             f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
-             f"period {scn.scan_period_s:g} s"]
+    notes = [
+        f"scenario: {scn.name}",
+        f"{n} steps at {scn.rate_hz:g} Hz, "
+        f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
+        f"period {scn.scan_period_s:g} s",
+    ]
     if scn.method == "ellipsoid":
         ground = Pipeline(None, HeightSurface(scn.target_h_m), corrections).intersect(los)
         notes.append(f"located on the ellipsoid inflated to {scn.target_h_m:g} m [Q17 eq. 11]")
@@ -299,19 +308,25 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None, co
         ground, terrain = _terrain(los, dem, scn.method, scn.eps_h_m, scn.threshold_m, corrections)
         notes.append(f"located on {scn.dem_path.name} ({scn.dem_datum}) by '{scn.method}'")
     if dem is not None:
-        exact = (ground if (terrain is not None and scn.method == "exact")
-                 else _terrain(los, dem, "exact", corrections=corrections)[0])
+        exact = (
+            ground
+            if (terrain is not None and scn.method == "exact")
+            else _terrain(los, dem, "exact", corrections=corrections)[0]
+        )
         if terrain is None:
-            terrain = TerrainSteps("ellipsoid", dem, str(scn.dem_path),
-                                   np.zeros(n, int), [], [])
-        truth = {"lat_deg": exact.lat_deg, "lon_deg": exact.lon_deg, "h_m": exact.h,
-                 "error_m": horizontal_distance_m(ground.lat_deg, ground.lon_deg,
-                                                  exact.lat_deg, exact.lon_deg)}
+            terrain = TerrainSteps("ellipsoid", dem, str(scn.dem_path), np.zeros(n, int), [], [])
+        truth = {
+            "lat_deg": exact.lat_deg,
+            "lon_deg": exact.lon_deg,
+            "h_m": exact.h,
+            "error_m": horizontal_distance_m(ground.lat_deg, ground.lon_deg, exact.lat_deg, exact.lon_deg),
+        }
         notes.append("truth: exact first hit on the DEM")
         if scn.method != "ellipsoid" and scn.target_h_m is not None:
             ell = Pipeline(None, HeightSurface(scn.target_h_m), corrections).intersect(los)
             extra["series/ellipsoid_model/to_truth_m"] = horizontal_distance_m(
-                ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg)
+                ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg
+            )
             notes.append(f"ellipsoid model at {scn.target_h_m:g} m compared with the truth too")
     if scn.mc_model_path is not None:
         from geoloc.analysis.errormodel import ErrorModel
@@ -319,25 +334,59 @@ def steps_from_flight(scn: FlightScenario, camera: FrameSensor | None = None, co
 
         if scn.target_h_m is None:
             raise ValueError("[montecarlo] needs [terrain] target_h_m (the ellipsoid model's height)")
-        mc = step_cep(track, ErrorModel.from_toml(scn.mc_model_path), scn.target_h_m, scn.mc_samples,
-                      np.random.default_rng(scn.mc_seed))
+        mc = step_cep(
+            track,
+            ErrorModel.from_toml(scn.mc_model_path),
+            scn.target_h_m,
+            scn.mc_samples,
+            np.random.default_rng(scn.mc_seed),
+        )
         extra["series/cep/cep_m"] = mc["cep_m"]
         extra["series/cep/cep50_empirical_m"] = mc["cep50_empirical_m"]
-        notes.append(f"CEP: {scn.mc_samples} Monte Carlo samples per step, errors of "
-                     f"{scn.mc_model_path.name}, seed {scn.mc_seed}")
+        notes.append(
+            f"CEP: {scn.mc_samples} Monte Carlo samples per step, errors of "
+            f"{scn.mc_model_path.name}, seed {scn.mc_seed}"
+        )
     enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
     k = np.arange(n)
-    steps = LogSteps("flight", scn.name, {"time": ("duration", track.t), "frame": ("sequence", k)},
-                     [f"frame {i}" for i in k], camera, track.pose, chain, row, col, los, ground, enu,
-                     truth=truth, terrain=terrain, notes=notes, extra_series=extra)
+    steps = LogSteps(
+        "flight",
+        scn.name,
+        {"time": ("duration", track.t), "frame": ("sequence", k)},
+        [f"frame {i}" for i in k],
+        camera,
+        track.pose,
+        chain,
+        row,
+        col,
+        los,
+        ground,
+        enu,
+        truth=truth,
+        terrain=terrain,
+        notes=notes,
+        extra_series=extra,
+    )
     return add_error_analysis(add_corrections(steps, corrections))
 
 
-def steps_from_records(path, camera: FrameSensor | None = None, *, height_column: str | None = None,
-                       target_h_m: float | None = None, height_kind: str = "inflated", dem_path=None,
-                       dem_datum: str = "egm96", method: str = "exact", eps_h_m=None,
-                       threshold_m=None, group_column: str | None = "table",
-                       calibrate: bool = True, fit_names=None, corrections: Corrections = NO_CORRECTIONS) -> tuple[LogSteps, list]:
+def steps_from_records(
+    path,
+    camera: FrameSensor | None = None,
+    *,
+    height_column: str | None = None,
+    target_h_m: float | None = None,
+    height_kind: str = "inflated",
+    dem_path=None,
+    dem_datum: str = "egm96",
+    method: str = "exact",
+    eps_h_m=None,
+    threshold_m=None,
+    group_column: str | None = "table",
+    calibrate: bool = True,
+    fit_names=None,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> tuple[LogSteps, list]:
     """Geolocate every record of a flight-test CSV: one time step per record.
 
     Height source, first given wins: ``dem_path`` (method of :mod:`geoloc.surfaces.terrain`),
@@ -365,8 +414,9 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
     terrain = None
     notes = [f"records: {Path(path).name} ({len(recs)} records)"]
     if dem_path is not None:
-        ground, terrain = _terrain(los, SurfaceSpec(dem=dem_path, dem_datum=dem_datum).raster(), method, eps_h_m,
-                                   threshold_m, corrections)
+        ground, terrain = _terrain(
+            los, SurfaceSpec(dem=dem_path, dem_datum=dem_datum).raster(), method, eps_h_m, threshold_m, corrections
+        )
         notes.append(f"located on {Path(dem_path).name} ({dem_datum}) by '{method}'")
     else:
         if target_h_m is not None:
@@ -375,24 +425,33 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
         else:
             col_name = height_column or ("paper_height_m" if recs.has("paper_height_m") else None)
             if col_name is None:
-                raise ValueError(f"{path}: give a height column, a target height or a DEM "
-                                 "(no paper_height_m column to default to)")
+                raise ValueError(
+                    f"{path}: give a height column, a target height or a DEM (no paper_height_m column to default to)"
+                )
             h = recs.column(col_name)
             bad = ~np.isfinite(h)
             if np.any(bad):
-                raise ValueError(f"height column {col_name!r} is empty or not finite on line(s) "
-                                 f"{[int(x) for x in recs.lines[bad]]}")
+                raise ValueError(
+                    f"height column {col_name!r} is empty or not finite on line(s) {[int(x) for x in recs.lines[bad]]}"
+                )
             notes.append(f"located at each record's {col_name}")
         ground = Pipeline(None, HeightSurface(h, height_kind), corrections).intersect(los)
     res = result_from_ground(recs, ground)
     truth = published = None
     if recs.has("truth_lat_deg") and recs.has("truth_lon_deg"):
         th = recs.column("truth_h_m") if recs.has("truth_h_m") else ground.h
-        truth = {"lat_deg": recs.column("truth_lat_deg"), "lon_deg": recs.column("truth_lon_deg"),
-                 "h_m": th, "error_m": res.error_to_truth_m}
+        truth = {
+            "lat_deg": recs.column("truth_lat_deg"),
+            "lon_deg": recs.column("truth_lon_deg"),
+            "h_m": th,
+            "error_m": res.error_to_truth_m,
+        }
     if recs.has("paper_lat_deg") and recs.has("paper_lon_deg"):
-        published = {"lat_deg": recs.column("paper_lat_deg"), "lon_deg": recs.column("paper_lon_deg"),
-                     "error_m": res.error_to_paper_m}
+        published = {
+            "lat_deg": recs.column("paper_lat_deg"),
+            "lon_deg": recs.column("paper_lon_deg"),
+            "error_m": res.error_to_paper_m,
+        }
     grp = None
     if group_column is not None and group_column in recs.header:
         grp = np.array(recs.text(group_column), dtype=object)
@@ -413,9 +472,26 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
     enu = next(iter(enus.values())) if enus else enu_origin(*_first_finite(olat, olon, oh))
     if grp is not None:
         notes.append(f"flights ({group_column}): {', '.join(enus)}, each with its own scene origin")
-    steps = LogSteps("records", Path(path).name, {"record": ("sequence", np.arange(len(recs)))},
-                     recs.labels(), camera, pose, chain, row, col, los, ground, enu, truth=truth,
-                     published=published, terrain=terrain, notes=notes, group=grp, enus=enus)
+    steps = LogSteps(
+        "records",
+        Path(path).name,
+        {"record": ("sequence", np.arange(len(recs)))},
+        recs.labels(),
+        camera,
+        pose,
+        chain,
+        row,
+        col,
+        los,
+        ground,
+        enu,
+        truth=truth,
+        published=published,
+        terrain=terrain,
+        notes=notes,
+        group=grp,
+        enus=enus,
+    )
     add_corrections(steps, corrections)
     if truth is not None:
         truth["has_h"] = recs.has("truth_h_m")
@@ -427,8 +503,14 @@ def steps_from_records(path, camera: FrameSensor | None = None, *, height_column
         # the targets' surface: the DEM, else per-record heights (as geoloc calibrate's --height-column)
         on_dem = dem_path is not None
         kw = {k: float(v) for k, v in (("eps_h", eps_h_m), ("threshold", threshold_m)) if on_dem and v is not None}
-        surf = surface_for(None if on_dem else np.broadcast_to(np.asarray(h, float), (len(recs),)),
-                           terrain.dem if on_dem else None, method=method, kind=height_kind, per_record=True, **kw)
+        surf = surface_for(
+            None if on_dem else np.broadcast_to(np.asarray(h, float), (len(recs),)),
+            terrain.dem if on_dem else None,
+            method=method,
+            kind=height_kind,
+            per_record=True,
+            **kw,
+        )
         names = list(DEFAULT_FIT_NAMES if fit_names is None else fit_names)
         steps.calibration = sensor_fit_series(steps, recs, names, surf, gcol)
     return steps, list(recs.errors)
@@ -461,8 +543,15 @@ def add_error_analysis(steps: LogSteps, heading_deg=None, outlier=None) -> LogSt
     heading = np.deg2rad(heading_deg) if heading_deg is not None else np.broadcast_to(steps.pose.heading, (n,))
     track = track_azimuth_rad(ac_lat, ac_lon, steps.group_of, heading)
     ref_h = ref["h_m"] if ref.get("has_h", True) else np.full(n, np.nan)
-    comp = error_components(steps.ground.lat_deg, steps.ground.lon_deg, steps.ground.h, ref["lat_deg"],
-                            ref["lon_deg"], ref_h, track_heading_rad=track)
+    comp = error_components(
+        steps.ground.lat_deg,
+        steps.ground.lon_deg,
+        steps.ground.h,
+        ref["lat_deg"],
+        ref["lon_deg"],
+        ref_h,
+        track_heading_rad=track,
+    )
     comp["track_rad"] = track
     steps.components, steps.reference = comp, name
     if outlier is None:
@@ -502,31 +591,54 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
     rep_groups = list(report["groups"])
     for g, rg in zip(steps.groups, rep_groups):
         idx = np.flatnonzero(grp == g)
-        los = line_of_sight(steps.pose.take(idx), sensors[rg], steps.row[idx], steps.col[idx],
-                            outside="extrapolate")
+        los = line_of_sight(steps.pose.take(idx), sensors[rg], steps.row[idx], steps.col[idx], outside="extrapolate")
         gp = Pipeline(sensors[rg], surf(idx)).intersect(los)
         lat, lon = np.rad2deg(gp.lat), np.rad2deg(gp.lon)
         after["after_m"][idx] = horizontal_distance_m(lat, lon, tlat[idx], tlon[idx])
-        c = error_components(lat, lon, gp.h, tlat[idx], tlon[idx], np.nan,
-                             track_heading_rad=steps.components["track_rad"][idx])
+        c = error_components(
+            lat, lon, gp.h, tlat[idx], tlon[idx], np.nan, track_heading_rad=steps.components["track_rad"][idx]
+        )
         after["after_along_m"][idx] = c["along_m"]
         after["after_across_m"][idx] = c["across_m"]
     bad = ~np.isfinite(after["after_m"])
-    means = ", ".join(f"{g} {report['groups'][rg]['mean_error_before_m']:.1f} -> "
-                      f"{report['groups'][rg]['mean_error_after_m']:.1f} m" for g, rg in zip(steps.groups, rep_groups))
+    means = ", ".join(
+        f"{g} {report['groups'][rg]['mean_error_before_m']:.1f} -> {report['groups'][rg]['mean_error_after_m']:.1f} m"
+        for g, rg in zip(steps.groups, rep_groups)
+    )
     where = "on the DEM" if terrain_of(surface) is not None else "at the target heights"
-    note = (f"calibration: {', '.join(names)} fitted per flight (fit_sensor_groups, in-sample, {where}): "
-            f"mean error to truth {means}" + (f"; {int(bad.sum())} record(s) without a ground point after" if
-                                               np.any(bad) else ""))
+    note = (
+        f"calibration: {', '.join(names)} fitted per flight (fit_sensor_groups, in-sample, {where}): "
+        f"mean error to truth {means}"
+        + (f"; {int(bad.sum())} record(s) without a ground point after" if np.any(bad) else "")
+    )
     steps.notes.append(note)
-    return {"before_m": np.asarray(steps.truth["error_m"], float).copy(), **after, "note": note,
-            "report": report, "names": list(names)}
+    return {
+        "before_m": np.asarray(steps.truth["error_m"], float).copy(),
+        **after,
+        "note": note,
+        "report": report,
+        "names": list(names),
+    }
 
 
-def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96", method: str = "exact",
-                   eps_h_m=None, threshold_m=None, label: str | None = None, video=None, enu=None,
-                   t0_s: float | None = None, outlier=None, dem=None, first_packet: int = 0,
-                   corrections: Corrections = NO_CORRECTIONS) -> tuple[LogSteps, list]:
+def steps_from_klv(
+    path,
+    camera=None,
+    *,
+    dem_path=None,
+    dem_datum: str = "egm96",
+    method: str = "exact",
+    eps_h_m=None,
+    threshold_m=None,
+    label: str | None = None,
+    video=None,
+    enu=None,
+    t0_s: float | None = None,
+    outlier=None,
+    dem=None,
+    first_packet: int = 0,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> tuple[LogSteps, list]:
     """A MISB ST 0601 file replayed (:func:`geoloc.workflows.klv_replay.replay_klv`): one step per packet.
 
     ``method``, ``eps_h_m`` and ``threshold_m`` are the DEM solver and its tolerances, as
@@ -555,9 +667,13 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
 
     # one surface for every ray (frame centres and corners), built as the core builds it:
     # SurfaceSpec(...).build(), or for a DEM already open (a live session's) the same surface_for
-    spec = SurfaceSpec(dem=dem_path, dem_datum=dem_datum, method=method,
-                       eps_h=None if eps_h_m is None else float(eps_h_m),
-                       threshold=None if threshold_m is None else float(threshold_m))
+    spec = SurfaceSpec(
+        dem=dem_path,
+        dem_datum=dem_datum,
+        method=method,
+        eps_h=None if eps_h_m is None else float(eps_h_m),
+        threshold=None if threshold_m is None else float(threshold_m),
+    )
     if dem is not None:
         surface = surface_for(dem=dem, method=method, **spec.solver_options)
     elif dem_path is not None:
@@ -578,10 +694,23 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     h = np.asarray(c["h_m"], float)
     status = np.asarray(c["status"], np.uint8)
     shift = np.asarray(c["refraction_m"], float) if "refraction_m" in c else None
-    ground = GroundPoint(lat, lon, h, geodetic_to_ecef(lat, lon, h), np.asarray(c["range_m"], float), status, los,
-                         corrections=corrections.names, refraction_m=shift)
-    published = {"lat_deg": np.asarray(c["reported_lat_deg"], float), "lon_deg": np.asarray(c["reported_lon_deg"], float),
-                 "h_m": np.asarray(c["reported_h_m"], float), "error_m": np.asarray(c["frame_center_error_m"], float)}
+    ground = GroundPoint(
+        lat,
+        lon,
+        h,
+        geodetic_to_ecef(lat, lon, h),
+        np.asarray(c["range_m"], float),
+        status,
+        los,
+        corrections=corrections.names,
+        refraction_m=shift,
+    )
+    published = {
+        "lat_deg": np.asarray(c["reported_lat_deg"], float),
+        "lon_deg": np.asarray(c["reported_lon_deg"], float),
+        "h_m": np.asarray(c["reported_h_m"], float),
+        "error_m": np.asarray(c["frame_center_error_m"], float),
+    }
     t = np.asarray(c["time_s"], float)
     if t0_s is None:
         t = t - np.nanmin(t) if np.any(np.isfinite(t)) else np.arange(n, dtype=float)
@@ -594,33 +723,63 @@ def steps_from_klv(path, camera=None, *, dem_path=None, dem_datum: str = "egm96"
     if first_packet:
         c["packet"] = np.asarray(c["packet"], np.int64) + int(first_packet)
     name = label or Path(path).name
-    notes = [f"MISB ST 0601: {name}, {n} packets ({len(r.errors)} bad, skipped)",
-             "published = the packet's own frame centre (tags 23-25 / 78); target = recomputed",
-             f"outliers flagged: {int(np.sum(c['outlier']))}"]
-    extra = {"series/klv/corner_error_m": np.asarray(c["corner_error_m"], float),
-             "series/klv/outlier": np.asarray(c["outlier"], float)}
-    corners = {key: np.stack([np.asarray(c[f"corner{j + 1}_{key}"], float) for j in range(4)], axis=-1)
-               for key in ("lat_deg", "lon_deg", "h_m")}
+    notes = [
+        f"MISB ST 0601: {name}, {n} packets ({len(r.errors)} bad, skipped)",
+        "published = the packet's own frame centre (tags 23-25 / 78); target = recomputed",
+        f"outliers flagged: {int(np.sum(c['outlier']))}",
+    ]
+    extra = {
+        "series/klv/corner_error_m": np.asarray(c["corner_error_m"], float),
+        "series/klv/outlier": np.asarray(c["outlier"], float),
+    }
+    corners = {
+        key: np.stack([np.asarray(c[f"corner{j + 1}_{key}"], float) for j in range(4)], axis=-1)
+        for key in ("lat_deg", "lon_deg", "h_m")
+    }
     terrain = None
     if dem is not None:  # drawn as a mesh; the replay's solver keeps no per-ray trace ("ellipsoid": none)
         terrain = TerrainSteps("ellipsoid", dem, str(getattr(dem, "path", dem_path)), np.zeros(n, int), [], [])
-        notes.append(f"frame centres and corners located on {Path(str(terrain.dem_path)).name} "
-                     f"(heights {getattr(dem, 'datum', dem_datum)}) by '{method}'")
+        notes.append(
+            f"frame centres and corners located on {Path(str(terrain.dem_path)).name} "
+            f"(heights {getattr(dem, 'datum', dem_datum)}) by '{method}'"
+        )
     else:
         notes.append("no DEM: each packet located at its own frame-centre height (geodetic)")
-    steps = LogSteps("klv", name, {"time": ("duration", t), "packet": ("sequence", np.asarray(c["packet"]))},
-                     [f"packet {k}" for k in c["packet"]], sensor, pose, sensor.frames(pose), row, col, los, ground,
-                     enu, published=published, terrain=terrain, notes=notes, extra_series=extra, corners=corners)
+    steps = LogSteps(
+        "klv",
+        name,
+        {"time": ("duration", t), "packet": ("sequence", np.asarray(c["packet"]))},
+        [f"packet {k}" for k in c["packet"]],
+        sensor,
+        pose,
+        sensor.frames(pose),
+        row,
+        col,
+        los,
+        ground,
+        enu,
+        published=published,
+        terrain=terrain,
+        notes=notes,
+        extra_series=extra,
+        corners=corners,
+    )
     add_corrections(steps, corrections)
     # the replay's own flags (the same median / MAD rule, on its geodesic frame-centre residual)
-    add_error_analysis(steps, heading_deg=np.asarray(c["platform_heading_deg"], float),
-                       outlier=np.asarray(c["outlier"]).astype(bool))
+    add_error_analysis(
+        steps, heading_deg=np.asarray(c["platform_heading_deg"], float), outlier=np.asarray(c["outlier"]).astype(bool)
+    )
     if video is None and isinstance(path, (str, os.PathLike)):
         video = path
     if video is not None:
-        attach_klv_video(steps, video, np.asarray(c["packet"]),
-                         np.stack([np.asarray(c["sensor_horizontal_fov_deg"], float),
-                                   np.asarray(c["sensor_vertical_fov_deg"], float)], -1))
+        attach_klv_video(
+            steps,
+            video,
+            np.asarray(c["packet"]),
+            np.stack(
+                [np.asarray(c["sensor_horizontal_fov_deg"], float), np.asarray(c["sensor_vertical_fov_deg"], float)], -1
+            ),
+        )
     return steps, list(r.errors)
 
 
@@ -632,8 +791,10 @@ def klv_default_dem(path):
     from geoloc_viz.terrain_link import default_dem_path
 
     c = read_klv(path).columns
-    for la, lo in (("frame_center_latitude_deg", "frame_center_longitude_deg"),
-                   ("sensor_latitude_deg", "sensor_longitude_deg")):
+    for la, lo in (
+        ("frame_center_latitude_deg", "frame_center_longitude_deg"),
+        ("sensor_latitude_deg", "sensor_longitude_deg"),
+    ):
         lat, lon = (np.asarray(c.get(k, []), float) for k in (la, lo))
         ok = np.isfinite(lat) & np.isfinite(lon) if lat.shape == lon.shape else np.zeros(0, bool)
         if ok.any():

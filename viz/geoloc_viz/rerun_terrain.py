@@ -59,8 +59,14 @@ class TerrainSteps:
     ecef: list = field(default_factory=list)
 
 
-def dem_steps(los: LineOfSight, dem, method: str = "exact", eps_h_m=None,
-              threshold_m=None, corrections: Corrections = NO_CORRECTIONS) -> tuple[GroundPoint, TerrainSteps]:
+def dem_steps(
+    los: LineOfSight,
+    dem,
+    method: str = "exact",
+    eps_h_m=None,
+    threshold_m=None,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> tuple[GroundPoint, TerrainSteps]:
     """Intersect every line of sight with a DEM; the hits as a GroundPoint and the per-ray trace.
 
     Parameters
@@ -86,16 +92,34 @@ def dem_steps(los: LineOfSight, dem, method: str = "exact", eps_h_m=None,
     if threshold_m is not None:
         kw["threshold"] = float(threshold_m)
     hit = Pipeline(None, DemSurface(dem, method, trace=True, **kw), corrections).intersect(los)
-    ground = GroundPoint(hit.lat, hit.lon, hit.h, hit.ecef, hit.slant_range, hit.status, los,
-                         corrections=hit.corrections, refraction_m=hit.refraction_m)
+    ground = GroundPoint(
+        hit.lat,
+        hit.lon,
+        hit.h,
+        hit.ecef,
+        hit.slant_range,
+        hit.status,
+        los,
+        corrections=hit.corrections,
+        refraction_m=hit.refraction_m,
+    )
     n = len(hit.status)
     tr = {"H": [], "h_dem": [], "lat": [], "lon": [], "ecef": []}
     for k in range(n):
         r = hit.trace.ray(k)
         for key in tr:
             tr[key].append(np.asarray(r[key], float))
-    return ground, TerrainSteps(method, dem, str(dem.path), np.asarray(hit.dem_evaluations),
-                                tr["H"], tr["h_dem"], tr["lat"], tr["lon"], tr["ecef"])
+    return ground, TerrainSteps(
+        method,
+        dem,
+        str(dem.path),
+        np.asarray(hit.dem_evaluations),
+        tr["H"],
+        tr["h_dem"],
+        tr["lat"],
+        tr["lon"],
+        tr["ecef"],
+    )
 
 
 def dem_mesh_enu(dem, enu, lat_range_deg, lon_range_deg, max_nodes: int = 250_000):
@@ -112,8 +136,9 @@ def dem_mesh_enu(dem, enu, lat_range_deg, lon_range_deg, max_nodes: int = 250_00
     lat, lon = dem.node_latlon_deg()
     lat, lon = lat[::stride, ::stride].ravel(), lon[::stride, ::stride].ravel()
     h = dem.grid.values[::stride, ::stride].ravel()
-    inside = ((lat >= lat_range_deg[0]) & (lat <= lat_range_deg[1])
-              & (lon >= lon_range_deg[0]) & (lon <= lon_range_deg[1]))
+    inside = (
+        (lat >= lat_range_deg[0]) & (lat <= lat_range_deg[1]) & (lon >= lon_range_deg[0]) & (lon <= lon_range_deg[1])
+    )
     faces = np.asarray(m.faces)
     keep = np.any(inside[faces], axis=1)
     faces = faces[keep]
@@ -153,8 +178,11 @@ def log_terrain(rec, steps, index) -> None:
         box_lon = (np.nanmin(lon) - CROP_MARGIN_DEG, np.nanmax(lon) + CROP_MARGIN_DEG)
         v, f, h = dem_mesh_enu(ter.dem, steps.enu_for(g), box_lat, box_lon)
         if len(f):
-            rec.log(f"{root}/dem", rr.Mesh3D(vertex_positions=v.astype(np.float32), triangle_indices=f,
-                                             vertex_colors=height_colors(h)), static=True)
+            rec.log(
+                f"{root}/dem",
+                rr.Mesh3D(vertex_positions=v.astype(np.float32), triangle_indices=f, vertex_colors=height_colors(h)),
+                static=True,
+            )
         if ter.method != "ellipsoid":
             rec.log(f"{root}/iterations/on_los", rr.Points3D.from_fields(radii=120.0), static=True)
             rec.log(f"{root}/iterations/to_dem", rr.LineStrips3D.from_fields(radii=40.0), static=True)
@@ -172,13 +200,18 @@ def log_terrain(rec, steps, index) -> None:
         diff = (H - hd)[good]
         rec.send_columns("convergence/H_minus_h_m", indexes=idx, columns=rr.BarChart.columns(values=diff))
         r = steps_trace_points(steps, k)
-        colors = np.where((diff > 0)[:, None], np.array(COLORS["above"], np.uint8),
-                          np.array(COLORS["below"], np.uint8))
-        rec.send_columns(f"{root}/iterations/on_los", indexes=idx, columns=rr.Points3D.columns(
-            positions=r["on_los"].astype(np.float32), colors=colors).partition([len(diff)]))
+        colors = np.where((diff > 0)[:, None], np.array(COLORS["above"], np.uint8), np.array(COLORS["below"], np.uint8))
+        rec.send_columns(
+            f"{root}/iterations/on_los",
+            indexes=idx,
+            columns=rr.Points3D.columns(positions=r["on_los"].astype(np.float32), colors=colors).partition([len(diff)]),
+        )
         strips = np.stack([r["on_los"], r["dem"]], axis=1).astype(np.float32)
-        rec.send_columns(f"{root}/iterations/to_dem", indexes=idx, columns=rr.LineStrips3D.columns(
-            strips=list(strips), colors=colors).partition([len(diff)]))
+        rec.send_columns(
+            f"{root}/iterations/to_dem",
+            indexes=idx,
+            columns=rr.LineStrips3D.columns(strips=list(strips), colors=colors).partition([len(diff)]),
+        )
 
 
 def steps_trace_points(steps, k: int) -> dict:
@@ -192,5 +225,4 @@ def steps_trace_points(steps, k: int) -> dict:
     good = np.isfinite(H) & np.isfinite(hd)
     lat, lon = ter.lat[k][good], ter.lon[k][good]
     enu = steps.enu_of_step(k)  # the step's flight's scene frame
-    return {"on_los": enu.from_ecef(ter.ecef[k][good]),
-            "dem": enu.from_geodetic(lat, lon, hd[good])}
+    return {"on_los": enu.from_ecef(ter.ecef[k][good]), "dem": enu.from_geodetic(lat, lon, hd[good])}

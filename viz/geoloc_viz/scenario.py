@@ -40,17 +40,30 @@ def records_from_csv(path, camera=None) -> list:
     recs = load_records(path, angles=names)
     out = []
     for label, row in zip(recs.labels(), recs.rows):
-        info = RecordInfo(label, _num(row, "paper_lat_deg"), _num(row, "paper_lon_deg"),
-                          _num(row, "paper_height_m"), _num(row, "truth_lat_deg"),
-                          _num(row, "truth_lon_deg"), _num(row, "paper_error_m"))
+        info = RecordInfo(
+            label,
+            _num(row, "paper_lat_deg"),
+            _num(row, "paper_lon_deg"),
+            _num(row, "paper_height_m"),
+            _num(row, "truth_lat_deg"),
+            _num(row, "truth_lon_deg"),
+            _num(row, "paper_error_m"),
+        )
         target_h = info.paper_height_m if np.isfinite(info.paper_height_m) else 0.0
-        inp = Inputs(_num(row, "ac_lat_deg"), _num(row, "ac_lon_deg"), _num(row, "ac_h_m"),
-                     _num(row, "heading_deg"), _num(row, "pitch_deg"), _num(row, "roll_deg"),
-                     _num(row, "gimbal_roll_deg") if "gimbal_roll" in names else 0.0,
-                     _num(row, "gimbal_pitch_deg") if "gimbal_pitch" in names else 0.0,
-                     _num(row, "row"), _num(row, "col"), target_h=target_h,
-                     angles_deg={a: _num(row, f"{a}_deg") for a in names
-                                 if a not in ("gimbal_roll", "gimbal_pitch")})
+        inp = Inputs(
+            _num(row, "ac_lat_deg"),
+            _num(row, "ac_lon_deg"),
+            _num(row, "ac_h_m"),
+            _num(row, "heading_deg"),
+            _num(row, "pitch_deg"),
+            _num(row, "roll_deg"),
+            _num(row, "gimbal_roll_deg") if "gimbal_roll" in names else 0.0,
+            _num(row, "gimbal_pitch_deg") if "gimbal_pitch" in names else 0.0,
+            _num(row, "row"),
+            _num(row, "col"),
+            target_h=target_h,
+            angles_deg={a: _num(row, f"{a}_deg") for a in names if a not in ("gimbal_roll", "gimbal_pitch")},
+        )
         out.append((info, inp))
     if not out:
         raise ValueError(f"records file {path}: no valid rows ({len(recs.errors)} rejected)")
@@ -75,11 +88,18 @@ def records_from_klv(path, camera=None):
     out, kept = records_from_columns(c, r.sensor)
     if not out:
         raise ValueError(f"{path}: no packet with a pose and sensor angles")
-    pos = np.array([[klv_pose_deg(c, k)[f] for f in ("lat_deg", "lon_deg", "h_m")] for k in range(len(c["packet"]))],
-                   float).reshape(-1, 3)
+    pos = np.array(
+        [[klv_pose_deg(c, k)[f] for f in ("lat_deg", "lon_deg", "h_m")] for k in range(len(c["packet"]))], float
+    ).reshape(-1, 3)
     tag = lambda name: np.asarray(read.columns[name], float) if name in read.columns else None  # noqa: E731
-    vel, _ = platform_velocity_ned(pos[:, 0], pos[:, 1], pos[:, 2], np.asarray(c["time_s"], float),
-                                   tag("sensor_north_velocity_m_s"), tag("sensor_east_velocity_m_s"))
+    vel, _ = platform_velocity_ned(
+        pos[:, 0],
+        pos[:, 1],
+        pos[:, 2],
+        np.asarray(c["time_s"], float),
+        tag("sensor_north_velocity_m_s"),
+        tag("sensor_east_velocity_m_s"),
+    )
     return r.sensor, out, vel[kept]
 
 
@@ -91,17 +111,29 @@ def records_from_columns(c, sensor) -> tuple[list, list]:
 
     out, kept = [], []
     for k in range(len(c["packet"])):
+
         def v(name):
             x = c[name][k]
             return float(x) if x is not None else np.nan
 
-        info = RecordInfo(f"packet {int(c['packet'][k])}", v("reported_lat_deg"), v("reported_lon_deg"),
-                          v("reported_h_m"), np.nan, np.nan, v("frame_center_error_m"))
+        info = RecordInfo(
+            f"packet {int(c['packet'][k])}",
+            v("reported_lat_deg"),
+            v("reported_lon_deg"),
+            v("reported_h_m"),
+            np.nan,
+            np.nan,
+            v("frame_center_error_m"),
+        )
         pose = klv_pose_deg(c, k)
         # ST 0601 headings run 0..360 deg, the viewer's heading slider -180..180: the same angle, wrapped
         pose["heading_deg"] = (pose["heading_deg"] + 180.0) % 360.0 - 180.0
-        inp = Inputs(**pose, row=(sensor.rows + 1) / 2, col=(sensor.cols + 1) / 2,
-                     target_h=v("reported_h_m") if np.isfinite(v("reported_h_m")) else 0.0)
+        inp = Inputs(
+            **pose,
+            row=(sensor.rows + 1) / 2,
+            col=(sensor.cols + 1) / 2,
+            target_h=v("reported_h_m") if np.isfinite(v("reported_h_m")) else 0.0,
+        )
         if np.isfinite(inp.angles_deg["azimuth"]) and np.isfinite(inp.angles_deg["elevation"]):
             out.append((info, inp))
             kept.append(k)
@@ -121,8 +153,14 @@ def enu_origin_for(info: RecordInfo, inp: Inputs) -> EnuFrame:
     return EnuFrame.scene_origin(lat, lon, h)
 
 
-def load_view_scenario(records_path=None, record: str | int | None = None, camera_path=None,
-                  dem_path=None, use_dem: bool = True, dem_datum: str = "egm96") -> Scenario:
+def load_view_scenario(
+    records_path=None,
+    record: str | int | None = None,
+    camera_path=None,
+    dem_path=None,
+    use_dem: bool = True,
+    dem_datum: str = "egm96",
+) -> Scenario:
     """Build a geolocation scenario from a records file (default: the bundled [Q17] flight test).
 
     Parameters
@@ -161,13 +199,19 @@ def load_view_scenario(records_path=None, record: str | int | None = None, camer
         else:
             from geoloc.io.records import describe_labels
 
-            raise ValueError(f"record = {record!r}: not in {records_path.name} "
-                             f"({describe_labels(record, labels)})")
+            raise ValueError(f"record = {record!r}: not in {records_path.name} ({describe_labels(record, labels)})")
     info, inp = recs[idx]
-    scn = Scenario(name=f"{records_path.name} {info.label}", camera=camera, inputs=inp,
-                   enu=enu_origin_for(info, inp), records=recs, record_index=idx,
-                   use_dem=use_dem, source=records_path.name,
-                   description=f"records {records_path}, camera {camera.name or camera_path}")
+    scn = Scenario(
+        name=f"{records_path.name} {info.label}",
+        camera=camera,
+        inputs=inp,
+        enu=enu_origin_for(info, inp),
+        records=recs,
+        record_index=idx,
+        use_dem=use_dem,
+        source=records_path.name,
+        description=f"records {records_path}, camera {camera.name or camera_path}",
+    )
     scn._user_dem = dem_path  # kept when another record is selected
     scn.dem_datum = dem_datum
     scn.record_velocity_ned = velocity

@@ -46,8 +46,7 @@ ROOT = "/enu"
 WORLD_SCALE = 1e-3
 
 #: Axis length of each frame, in multiples of the aircraft display scale (nested so all show).
-FRAME_AXES = {"ned": 16.0, "body": 13.0, "gimbal_base": 11.5, "gimbal_outer": 10.0, "gimbal_inner": 8.5,
-              "cam": 7.5}
+FRAME_AXES = {"ned": 16.0, "body": 13.0, "gimbal_base": 11.5, "gimbal_outer": 10.0, "gimbal_inner": 8.5, "cam": 7.5}
 FRAME_LABELS = {
     "ned": "NED: N",
     "body": "body: X nose",
@@ -65,6 +64,8 @@ def frame_style(name: str, index: int) -> tuple:
     other gimbals get lengths between the body's and the camera's and a label on their Y tip."""
     L = FRAME_AXES.get(name, max(7.5, 12.0 - 1.2 * index))
     return L, FRAME_LABELS.get(name, f"{name.replace('_', ' ')}: Y"), LABEL_AXIS.get(name, 1)
+
+
 COLORS = {
     "los": (255, 210, 0),
     "los_beyond": (140, 120, 40),
@@ -205,8 +206,8 @@ def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
     b = buf.getvalue()
     magic, version, _ = struct.unpack_from("<III", b, 0)
     jlen, jtype = struct.unpack_from("<II", b, 12)
-    doc = json.loads(b[20:20 + jlen])
-    rest = b[20 + jlen:]
+    doc = json.loads(b[20 : 20 + jlen])
+    rest = b[20 + jlen :]
     mats = doc.setdefault("materials", [])
     if not mats:  # trimesh writes none for a vertex-coloured mesh
         mats.append({"pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0]}})
@@ -248,29 +249,55 @@ class GeolocScene:
         W = WORLD_SCALE
         s.add_frame(ROOT, show_axes=False)
         s.add_frame("/enu/origin", axes_length=600.0 * W, axes_radius=25.0 * W, origin_radius=60.0 * W)
-        s.add_label("/enu/origin/label", "ENU origin", position=(0.0, 0.0, 0.0), anchor="top-right",
-                    visible=self.disp.marker_labels)
+        s.add_label(
+            "/enu/origin/label",
+            "ENU origin",
+            position=(0.0, 0.0, 0.0),
+            anchor="top-right",
+            visible=self.disp.marker_labels,
+        )
         if self.scn.dem is None:  # a 1 km grid on the origin's level when there is no terrain
-            s.add_grid("/enu/grid", width=40000.0 * W, height=40000.0 * W, cell_size=1000.0 * W,
-                       section_size=5000.0 * W, plane="xy", cell_color=(120, 120, 120),
-                       section_color=(90, 90, 90), fade_distance=200.0, shadow_opacity=0.0)
+            s.add_grid(
+                "/enu/grid",
+                width=40000.0 * W,
+                height=40000.0 * W,
+                cell_size=1000.0 * W,
+                section_size=5000.0 * W,
+                plane="xy",
+                cell_color=(120, 120, 120),
+                section_color=(90, 90, 90),
+                fade_distance=200.0,
+                shadow_opacity=0.0,
+            )
         else:
             s.remove_by_name("/enu/grid")
         # Scale bar: 5 km along East with 1 km ticks, set 6 km south-west of the origin.
         x0 = np.array([-11000.0, -6000.0, 0.0])
-        bar = np.array([[x0, x0 + [5000.0, 0, 0]]] + [[x0 + [x, 0, 0], x0 + [x, 0, 400.0]] for x in
-                                                        (0.0, 1000.0, 2000.0, 3000.0, 4000.0, 5000.0)])
-        s.add_line_segments("/enu/scale_bar", (bar * W).astype(np.float32), (255, 255, 255), thickness=3.0,
-                            thickness_units="screen")
-        s.add_label("/enu/scale_bar/label", "5 km, ticks 1 km (East)", position=(x0 + [2500.0, 0.0, 400.0]) * W,
-                    anchor="bottom-center")
+        bar = np.array(
+            [[x0, x0 + [5000.0, 0, 0]]]
+            + [[x0 + [x, 0, 0], x0 + [x, 0, 400.0]] for x in (0.0, 1000.0, 2000.0, 3000.0, 4000.0, 5000.0)]
+        )
+        s.add_line_segments(
+            "/enu/scale_bar", (bar * W).astype(np.float32), (255, 255, 255), thickness=3.0, thickness_units="screen"
+        )
+        s.add_label(
+            "/enu/scale_bar/label",
+            "5 km, ticks 1 km (East)",
+            position=(x0 + [2500.0, 0.0, 400.0]) * W,
+            anchor="bottom-center",
+        )
         self.draw_terrain()
         self.handles["aircraft"] = s.add_frame("/enu/aircraft", show_axes=False)
-        self.handles["aircraft_mesh"] = s.add_mesh_trimesh("/enu/aircraft/mesh", self.aircraft_mesh,
-                                                           scale=self.disp.aircraft_scale * W,
-                                                           cast_shadow=False, receive_shadow=False)
-        self.handles["aircraft_label"] = s.add_label("/enu/aircraft/label", self.aircraft_label(),
-                                                     position=(0.0, 0.0, 0.0), anchor="bottom-left")
+        self.handles["aircraft_mesh"] = s.add_mesh_trimesh(
+            "/enu/aircraft/mesh",
+            self.aircraft_mesh,
+            scale=self.disp.aircraft_scale * W,
+            cast_shadow=False,
+            receive_shadow=False,
+        )
+        self.handles["aircraft_label"] = s.add_label(
+            "/enu/aircraft/label", self.aircraft_label(), position=(0.0, 0.0, 0.0), anchor="bottom-left"
+        )
 
     def aircraft_label(self) -> str:
         """The aircraft's label: it is drawn larger than life, by the display scale."""
@@ -287,8 +314,13 @@ class GeolocScene:
             return
         # unlit, its relief baked into its colours: the cheap material in software WebGL (unlit_glb)
         self.terrain_handle = self.scene.add_glb(
-            "/enu/terrain", terrain_glb_cached(self.scn), scale=self._terrain_scale(),
-            visible=self.disp.terrain_visible, cast_shadow=False, receive_shadow=False)
+            "/enu/terrain",
+            terrain_glb_cached(self.scn),
+            scale=self._terrain_scale(),
+            visible=self.disp.terrain_visible,
+            cast_shadow=False,
+            receive_shadow=False,
+        )
 
     # ------------------------------------------------------------ dynamic parts
     def _alive(self, name, key):
@@ -304,9 +336,15 @@ class GeolocScene:
         key = (r, tuple(int(c) for c in color))
         h = self._alive(name, key)
         if h is None:
-            h = self.scene.add_icosphere(name, radius=r, color=color, subdivisions=2,
-                                         position=self.disp.z(p), cast_shadow=False,
-                                         receive_shadow=False)
+            h = self.scene.add_icosphere(
+                name,
+                radius=r,
+                color=color,
+                subdivisions=2,
+                position=self.disp.z(p),
+                cast_shadow=False,
+                receive_shadow=False,
+            )
             self._cache[name] = (h, key)
         else:
             h.position = self.disp.z(p)
@@ -339,14 +377,26 @@ class GeolocScene:
     def _points(self, name, pts, colors, point_size):
         pts = self.disp.z(np.asarray(pts, float).reshape(-1, 3)).astype(np.float32)
         colors = np.broadcast_to(np.asarray(colors, np.uint8), pts.shape).copy()
-        return self._array_node(name, (float(point_size), pts.shape), pts, colors, lambda: self.scene.add_point_cloud(
-            name, pts, colors, point_size=point_size, point_shape="circle", precision="float32"))
+        return self._array_node(
+            name,
+            (float(point_size), pts.shape),
+            pts,
+            colors,
+            lambda: self.scene.add_point_cloud(
+                name, pts, colors, point_size=point_size, point_shape="circle", precision="float32"
+            ),
+        )
 
     def _segments(self, name, pts, color, thickness=3.0):
         pts = self.disp.z(np.asarray(pts, float).reshape(-1, 2, 3)).astype(np.float32)
         colors = np.broadcast_to(np.asarray(color, np.uint8), pts.shape).copy()
-        return self._array_node(name, (thickness, pts.shape), pts, colors, lambda: self.scene.add_line_segments(
-            name, pts, colors, thickness=thickness, thickness_units="screen"))
+        return self._array_node(
+            name,
+            (thickness, pts.shape),
+            pts,
+            colors,
+            lambda: self.scene.add_line_segments(name, pts, colors, thickness=thickness, thickness_units="screen"),
+        )
 
     def update(self, g: Geometry) -> None:
         """Redraw every dynamic node from ``g`` (call inside ``server.atomic()``)."""
@@ -368,10 +418,15 @@ class GeolocScene:
             key = (L, big)
             fh = self._alive(f"/enu/frames/{name}", key)
             if fh is None:
-                fh = s.add_frame(f"/enu/frames/{name}", axes_length=L,
-                                 axes_radius=L * (0.05 if big else 0.02), origin_radius=L * 0.04,
-                                 position=d.z(f.origin_enu), wxyz=wxyz(f.R_enu_frame),
-                                 visible=d.frames_visible.get(name, True))
+                fh = s.add_frame(
+                    f"/enu/frames/{name}",
+                    axes_length=L,
+                    axes_radius=L * (0.05 if big else 0.02),
+                    origin_radius=L * 0.04,
+                    position=d.z(f.origin_enu),
+                    wxyz=wxyz(f.R_enu_frame),
+                    visible=d.frames_visible.get(name, True),
+                )
                 self._cache[f"/enu/frames/{name}"] = (fh, key)
             else:
                 fh.position = d.z(f.origin_enu)
@@ -380,8 +435,7 @@ class GeolocScene:
                 continue
             tip = np.zeros(3)
             tip[label_axis] = L * 1.05
-            s.add_label(f"/enu/frames/{name}/label", ("> " if big else "") + text,
-                        position=tip, anchor="center-left")
+            s.add_label(f"/enu/frames/{name}/label", ("> " if big else "") + text, position=tip, anchor="center-left")
         # Line of sight: aircraft -> answer, then faintly on to the end of its usefulness.
         ok = np.all(np.isfinite(g.hit_enu))
         end = g.hit_enu if ok else g.aircraft_enu + 40e3 * g.los_dir_enu
@@ -399,12 +453,23 @@ class GeolocScene:
         self._sphere("/enu/hit/result", g.hit_enu if ok else g.aircraft_enu, COLORS["result"], g.hit_label)
         s.get_handle_by_name("/enu/hit/result").visible = bool(ok)
         if g.hit_hmax_enu is not None:
-            self._sphere("/enu/hit/hmax", g.hit_hmax_enu, COLORS["hmax"],
-                         f"ellipsoid hit at H_max = {g.hmax:.0f} m", radius=0.7 * d.marker_radius_m,
-                         anchor="center-right")
+            self._sphere(
+                "/enu/hit/hmax",
+                g.hit_hmax_enu,
+                COLORS["hmax"],
+                f"ellipsoid hit at H_max = {g.hmax:.0f} m",
+                radius=0.7 * d.marker_radius_m,
+                anchor="center-right",
+            )
         if g.exact_enu is not None and np.all(np.isfinite(g.exact_enu)):
-            self._sphere("/enu/hit/exact", g.exact_enu, COLORS["exact"], "exact first hit",
-                         radius=0.8 * d.marker_radius_m, anchor="top-right")
+            self._sphere(
+                "/enu/hit/exact",
+                g.exact_enu,
+                COLORS["exact"],
+                "exact first hit",
+                radius=0.8 * d.marker_radius_m,
+                anchor="top-right",
+            )
         self._draw_iterations(g)
         self._draw_record(g)
 
@@ -418,24 +483,45 @@ class GeolocScene:
         above = (it.H - it.h_dem)[:n] > 0
         cols = np.where(above[:, None], COLORS["above"], COLORS["below"]).astype(np.uint8)
         self._points("/enu/iterations/points", it.on_los_enu[:n], cols, 0.6 * d.marker_radius_m * WORLD_SCALE)
-        self._segments("/enu/iterations/verticals", np.stack([it.on_los_enu[:n], it.dem_enu[:n]], 1),
-                       np.repeat(cols[:, None], 2, 1), 2.5)
+        self._segments(
+            "/enu/iterations/verticals",
+            np.stack([it.on_los_enu[:n], it.dem_enu[:n]], 1),
+            np.repeat(cols[:, None], 2, 1),
+            2.5,
+        )
         if it.brackets_enu is not None:
             self._segments("/enu/iterations/brackets", it.brackets_enu[:n], COLORS["bracket"], 6.0)
         k = n - 1
-        self._sphere("/enu/iterations/current", it.on_los_enu[k], COLORS["above"] if above[k] else COLORS["below"],
-                     f"{it.method} n={k}: H={it.H[k]:.1f} m, DEM h={it.h_dem[k]:.1f} m, "
-                     f"H-h={it.H[k] - it.h_dem[k]:+.1f} m", radius=0.5 * d.marker_radius_m,
-                     anchor="center-left", show_label=d.step is not None or d.marker_labels)
+        self._sphere(
+            "/enu/iterations/current",
+            it.on_los_enu[k],
+            COLORS["above"] if above[k] else COLORS["below"],
+            f"{it.method} n={k}: H={it.H[k]:.1f} m, DEM h={it.h_dem[k]:.1f} m, H-h={it.H[k] - it.h_dem[k]:+.1f} m",
+            radius=0.5 * d.marker_radius_m,
+            anchor="center-left",
+            show_label=d.step is not None or d.marker_labels,
+        )
 
     def _draw_record(self, g: Geometry) -> None:
         s, d = self.scene, self.disp
         if g.published_enu is not None:
-            self._sphere("/enu/record/published", g.published_enu, COLORS["published"],
-                         "published [Q17]", radius=0.6 * d.marker_radius_m, anchor="top-left")
+            self._sphere(
+                "/enu/record/published",
+                g.published_enu,
+                COLORS["published"],
+                "published [Q17]",
+                radius=0.6 * d.marker_radius_m,
+                anchor="top-left",
+            )
         if g.surveyed_enu is not None:
-            self._sphere("/enu/record/surveyed", g.surveyed_enu, COLORS["surveyed"], "surveyed",
-                         radius=0.6 * d.marker_radius_m, anchor="bottom-right")
+            self._sphere(
+                "/enu/record/surveyed",
+                g.surveyed_enu,
+                COLORS["surveyed"],
+                "surveyed",
+                radius=0.6 * d.marker_radius_m,
+                anchor="bottom-right",
+            )
             if np.all(np.isfinite(g.hit_enu)):
                 tip = g.hit_enu + d.error_exaggeration * (g.surveyed_enu - g.hit_enu)
                 eh = self._segments("/enu/record/error", [g.hit_enu, tip], COLORS["error"], 5.0)

@@ -95,8 +95,8 @@ def virtual_height(lat, lon, delta_a):
     c2, s2 = np.cos(lat) ** 2, np.sin(lat) ** 2
     al = c2 / a2 + s2 / b2
     be = 2.0 * n * (c2 / a2 + (1.0 - E2) * s2 / b2)
-    ga = n ** 2 * (c2 / a2 + (1.0 - E2) ** 2 * s2 / b2) - 1.0
-    return (-be + np.sqrt(be ** 2 - 4.0 * al * ga)) / (2.0 * al) + 0.0 * np.asarray(lon, float)
+    ga = n**2 * (c2 / a2 + (1.0 - E2) ** 2 * s2 / b2) - 1.0
+    return (-be + np.sqrt(be**2 - 4.0 * al * ga)) / (2.0 * al) + 0.0 * np.asarray(lon, float)
 
 
 def drawn_virtual_height(lat, lon, delta_a, lat_t, lon_t, k):
@@ -119,7 +119,7 @@ def drawn_virtual_height(lat, lon, delta_a, lat_t, lon_t, k):
 
 def central_angle_deg(lat1, lon1, lat2, lon2) -> float:
     """Angle [deg] between two directions given by latitude and longitude [rad] (spherical)."""
-    c = (np.sin(lat1) * np.sin(lat2) + np.cos(lat1) * np.cos(lat2) * np.cos(lon2 - lon1))
+    c = np.sin(lat1) * np.sin(lat2) + np.cos(lat1) * np.cos(lat2) * np.cos(lon2 - lon1)
     return float(np.rad2deg(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
@@ -158,20 +158,36 @@ class LimbApp:
             self.sl_alpha = gui.add_slider("view angle alpha (deg)", -half, half, 0.01, 0.0)
             self.sl_frame = gui.add_slider("frame", 0, max(scenario.n_frames - 1, 1), 1, 0)
             self.sl_exag = gui.add_slider(
-                "Delta a - limb height exaggeration", 1.0, 5000.0, 1.0, SHAPE_EXAGGERATION,
+                "Delta a - limb height exaggeration",
+                1.0,
+                5000.0,
+                1.0,
+                SHAPE_EXAGGERATION,
                 hint="The virtual ellipsoid's departure from a shell at the limb height, drawn this many "
-                     "times larger about the tangent point (the line stays tangent)")
+                "times larger about the tangent point (the line stays tangent)",
+            )
             self.sl_off = gui.add_slider(
-                "tangent offset exaggeration", 1.0, 2000.0, 1.0, OFFSET_EXAGGERATION,
-                hint="The exact minimum is drawn this many times farther from the [L18] tangent point, on the line")
+                "tangent offset exaggeration",
+                1.0,
+                2000.0,
+                1.0,
+                OFFSET_EXAGGERATION,
+                hint="The exact minimum is drawn this many times farther from the [L18] tangent point, on the line",
+            )
             self.dd_refraction = gui.add_dropdown(
-                "refraction", ("none", "standard"), initial_value="standard" if self.refraction else "none",
+                "refraction",
+                ("none", "standard"),
+                initial_value="standard" if self.refraction else "none",
                 hint="standard: the ray bent through the U.S. Standard Atmosphere 1976; its tangent point "
-                     "(lime) is drawn beside the straight line's")
+                "(lime) is drawn beside the straight line's",
+            )
             self.dd_refraction.on_update(lambda _: self._on_gui())
-            self.cb_follow = gui.add_checkbox("camera follows the view angle", True,
-                                              hint="Re-frame the spacecraft and the tangent point when "
-                                                   "alpha or the frame changes (they move by hundreds of km)")
+            self.cb_follow = gui.add_checkbox(
+                "camera follows the view angle",
+                True,
+                hint="Re-frame the spacecraft and the tangent point when "
+                "alpha or the frame changes (they move by hundreds of km)",
+            )
             for h in (self.sl_alpha, self.sl_frame, self.sl_exag, self.sl_off):
                 h.on_update(lambda _: self._on_gui())
         with gui.add_folder("Legend"):
@@ -199,8 +215,9 @@ class LimbApp:
         s = self.scn
         p, v = s.state_ecef(np.array([s.times()[min(self.frame, s.n_frames - 1)]]))
         self.p, self.v = p[0], v[0]
-        self.chain = line_of_sight_l18(self.p, self.v, s.yaw, s.roll, s.pitch, s.theta_mount,
-                                       np.deg2rad(self.alpha_deg))
+        self.chain = line_of_sight_l18(
+            self.p, self.v, s.yaw, s.roll, s.pitch, s.theta_mount, np.deg2rad(self.alpha_deg)
+        )
         self.tan = limb_tangent(self.chain.origin_ecef, self.chain.direction_ecef)
         ok = int(self.tan.status) == 0
         self.lref = None
@@ -213,8 +230,13 @@ class LimbApp:
         # What the view is about: the exact tangent, else the line down to where it meets the
         # Earth (the middle of it), else the spacecraft; the Earth patch is drawn around its foot (issue 46: the patch stayed at
         # frame 0's tangent and was out of sight ~95 deg of orbit later, at frame 600).
-        foot = (self.tan.exact_ecef if ok else 0.5 * (self.p + self.tan.earth_hit_ecef) if hit  # the whole
-                else self.p)                                                                # line's ground
+        foot = (
+            self.tan.exact_ecef
+            if ok
+            else 0.5 * (self.p + self.tan.earth_hit_ecef)
+            if hit  # the whole
+            else self.p
+        )  # line's ground
         lat, lon, _ = ecef_to_geodetic(foot)
         self.focus_latlon = (float(lat), float(lon))
         # The scene origin: on the ellipsoid below that foot, moved only when the foot is more
@@ -281,59 +303,117 @@ class LimbApp:
             LO, LA = np.meshgrid(lo, la)
             earth = geodetic_to_ecef(LA, LO, np.zeros_like(LA))
             idx = np.arange(LA.size).reshape(LA.shape)
-            faces = np.concatenate([
-                np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
-                np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3)])
-            sc.add_mesh_simple("/limb/earth", self.w(earth.reshape(-1, 3)).astype(np.float32), faces,
-                               color=(40, 90, 170), side="double", cast_shadow=False, receive_shadow=False)
+            faces = np.concatenate(
+                [
+                    np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
+                    np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3),
+                ]
+            )
+            sc.add_mesh_simple(
+                "/limb/earth",
+                self.w(earth.reshape(-1, 3)).astype(np.float32),
+                faces,
+                color=(40, 90, 170),
+                side="double",
+                cast_shadow=False,
+                receive_shadow=False,
+            )
             self._polyline("/limb/earth_section", self.w(self.section_ecef), (120, 170, 255), 2.0)
             if ok:
                 virt = self.drawn_virtual(LA.reshape(-1), LO.reshape(-1))
-                sc.add_mesh_simple("/limb/virtual", self.w(virt).astype(np.float32), faces,
-                                   color=(255, 170, 60), opacity=0.25, side="double",
-                                   cast_shadow=False, receive_shadow=False)
-                self._polyline("/limb/virtual_section", self.w(self.drawn_virtual(*self.section_geodetic)),
-                               (255, 170, 60), 3.0)
+                sc.add_mesh_simple(
+                    "/limb/virtual",
+                    self.w(virt).astype(np.float32),
+                    faces,
+                    color=(255, 170, 60),
+                    opacity=0.25,
+                    side="double",
+                    cast_shadow=False,
+                    receive_shadow=False,
+                )
+                self._polyline(
+                    "/limb/virtual_section", self.w(self.drawn_virtual(*self.section_geodetic)), (255, 170, 60), 3.0
+                )
                 hist = np.asarray(tan.nr_delta_a_history).reshape(-1)
                 hist = hist[np.isfinite(hist)]
                 sc.remove_by_name("/limb/nr")
                 for k, dk in enumerate(hist[:-1]):
                     g = int(80 + 150 * k / max(len(hist) - 1, 1))
-                    self._polyline(f"/limb/nr/iterate_{k}", self.w(self._virtual(self.section_ecef, dk)),
-                                   (g, g, 255 - g // 2), 1.5)
+                    self._polyline(
+                        f"/limb/nr/iterate_{k}", self.w(self._virtual(self.section_ecef, dk)), (g, g, 255 - g // 2), 1.5
+                    )
             # Spacecraft, its velocity (60 s of flight), the line of sight.
             sp = self.w(self.p)
-            sc.add_icosphere("/limb/spacecraft", radius=25.0, color=(250, 250, 250), position=sp,
-                             cast_shadow=False, receive_shadow=False)
-            sc.add_label("/limb/spacecraft/label", f"spacecraft, {np.linalg.norm(self.v) / 1e3:.2f} km/s",
-                         anchor="bottom-left")
+            sc.add_icosphere(
+                "/limb/spacecraft",
+                radius=25.0,
+                color=(250, 250, 250),
+                position=sp,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+            sc.add_label(
+                "/limb/spacecraft/label", f"spacecraft, {np.linalg.norm(self.v) / 1e3:.2f} km/s", anchor="bottom-left"
+            )
             vel = np.stack([sp, self.w(self.p + 60.0 * self.v)])[None]
-            sc.add_arrows("/limb/velocity", vel.astype(np.float32), (255, 255, 255), shaft_radius=6.0,
-                          head_radius=15.0, head_length=40.0)
+            sc.add_arrows(
+                "/limb/velocity",
+                vel.astype(np.float32),
+                (255, 255, 255),
+                shaft_radius=6.0,
+                head_radius=15.0,
+                head_length=40.0,
+            )
             self._polyline("/limb/los", self.w(self.los_ecef), (255, 210, 0), 3.0)
             if ok:
                 r = self.marker_radii_km()
                 off_m = float(np.linalg.norm(tan.exact_ecef - tan.tangent_ecef))
-                sc.add_icosphere("/limb/tangent", radius=r["tangent"], color=(255, 120, 0),
-                                 position=self.w(tan.tangent_ecef), cast_shadow=False, receive_shadow=False)
-                sc.add_label("/limb/tangent/label",
-                             f"[L18] tangent: h = {float(tan.tangent_h) / 1e3:.3f} km", anchor="bottom-left")
-                sc.add_icosphere("/limb/exact", radius=r["exact"], color=(20, 220, 90),
-                                 position=self.w(self.drawn_exact_ecef()), cast_shadow=False, receive_shadow=False)
-                sc.add_label("/limb/exact/label",
-                             f"exact minimum: h = {float(tan.exact_h) / 1e3:.3f} km, {off_m:.1f} m along the "
-                             f"line from the tangent (drawn x{self.offset_exaggeration:g})", anchor="top-left")
+                sc.add_icosphere(
+                    "/limb/tangent",
+                    radius=r["tangent"],
+                    color=(255, 120, 0),
+                    position=self.w(tan.tangent_ecef),
+                    cast_shadow=False,
+                    receive_shadow=False,
+                )
+                sc.add_label(
+                    "/limb/tangent/label",
+                    f"[L18] tangent: h = {float(tan.tangent_h) / 1e3:.3f} km",
+                    anchor="bottom-left",
+                )
+                sc.add_icosphere(
+                    "/limb/exact",
+                    radius=r["exact"],
+                    color=(20, 220, 90),
+                    position=self.w(self.drawn_exact_ecef()),
+                    cast_shadow=False,
+                    receive_shadow=False,
+                )
+                sc.add_label(
+                    "/limb/exact/label",
+                    f"exact minimum: h = {float(tan.exact_h) / 1e3:.3f} km, {off_m:.1f} m along the "
+                    f"line from the tangent (drawn x{self.offset_exaggeration:g})",
+                    anchor="top-left",
+                )
                 sc.remove_by_name("/limb/earth_hit")
                 if self.lref is not None:
                     lr = self.lref
-                    drop = float(np.asarray(lr.tangent_h_m).reshape(-1)[0] - np.asarray(
-                        lr.refracted_tangent_h_m).reshape(-1)[0])
-                    sc.add_icosphere("/limb/refracted", radius=REFRACTED_MARKER_KM, color=REFRACTED_COLOR,
-                                     position=self.w(np.asarray(lr.refracted_tangent_ecef).reshape(3)),
-                                     cast_shadow=False, receive_shadow=False)
-                    sc.add_label("/limb/refracted/label",
-                                 f"refracted tangent: h = {self.refracted_h_m() / 1e3:.3f} km ({drop:.0f} m lower)",
-                                 anchor="top-right")
+                    drop = float(
+                        np.asarray(lr.tangent_h_m).reshape(-1)[0] - np.asarray(lr.refracted_tangent_h_m).reshape(-1)[0]
+                    )
+                    sc.add_icosphere(
+                        "/limb/refracted",
+                        radius=REFRACTED_MARKER_KM,
+                        color=REFRACTED_COLOR,
+                        position=self.w(np.asarray(lr.refracted_tangent_ecef).reshape(3)),
+                        cast_shadow=False,
+                        receive_shadow=False,
+                    )
+                    sc.add_label(
+                        "/limb/refracted/label",
+                        f"refracted tangent: h = {self.refracted_h_m() / 1e3:.3f} km ({drop:.0f} m lower)",
+                        anchor="top-right",
+                    )
                 else:
                     sc.remove_by_name("/limb/refracted")
             else:
@@ -341,10 +421,19 @@ class LimbApp:
                 for n in ("tangent", "exact", "virtual", "virtual_section", "nr"):
                     sc.remove_by_name(f"/limb/{n}")
                 if int(tan.status) == int(Status.HITS_EARTH):
-                    sc.add_icosphere("/limb/earth_hit", radius=12.0, color=(255, 60, 60),
-                                     position=self.w(tan.earth_hit_ecef), cast_shadow=False, receive_shadow=False)
-                    sc.add_label("/limb/earth_hit/label", "the line of sight meets the Earth here: no tangent",
-                                 anchor="bottom-left")
+                    sc.add_icosphere(
+                        "/limb/earth_hit",
+                        radius=12.0,
+                        color=(255, 60, 60),
+                        position=self.w(tan.earth_hit_ecef),
+                        cast_shadow=False,
+                        receive_shadow=False,
+                    )
+                    sc.add_label(
+                        "/limb/earth_hit/label",
+                        "the line of sight meets the Earth here: no tangent",
+                        anchor="bottom-left",
+                    )
                 else:
                     sc.remove_by_name("/limb/earth_hit")
         self._text()
@@ -418,22 +507,43 @@ class LimbApp:
 
     def legend_markdown(self, ok: bool) -> str:
         """The legend of what this frame draws (the colours of :meth:`draw`), one line each."""
-        rows = [("blue", "the Earth: WGS-84 ellipsoid, h = 0 (a 30 x 30 deg patch); light blue line: its "
-                 "section under the line of sight")]
+        rows = [
+            (
+                "blue",
+                "the Earth: WGS-84 ellipsoid, h = 0 (a 30 x 30 deg patch); light blue line: its "
+                "section under the line of sight",
+            )
+        ]
         if ok:
-            rows += [("orange, translucent", f"the virtual ellipsoid of [L18] eq. 13 (same flattening, a + Delta a; "
-                      f"its departure from a shell drawn x{self.exaggeration:g}); orange line: its section"),
-                     ("blue to lilac lines", "the Newton-Raphson iterates of eq. 17 (their virtual ellipsoids' "
-                      "sections), converging onto the tangent one")]
-        rows += [("white ball and arrow", "the spacecraft and 60 s of its velocity"),
-                 ("yellow", "the line of sight")]
+            rows += [
+                (
+                    "orange, translucent",
+                    f"the virtual ellipsoid of [L18] eq. 13 (same flattening, a + Delta a; "
+                    f"its departure from a shell drawn x{self.exaggeration:g}); orange line: its section",
+                ),
+                (
+                    "blue to lilac lines",
+                    "the Newton-Raphson iterates of eq. 17 (their virtual ellipsoids' "
+                    "sections), converging onto the tangent one",
+                ),
+            ]
+        rows += [("white ball and arrow", "the spacecraft and 60 s of its velocity"), ("yellow", "the line of sight")]
         if ok:
-            rows += [("orange ball", "the [L18] tangent point (eq. 21-26)"),
-                     ("green ball", f"the exact minimum-height point (drawn x{self.offset_exaggeration:g} farther "
-                      "along the line)")]
+            rows += [
+                ("orange ball", "the [L18] tangent point (eq. 21-26)"),
+                (
+                    "green ball",
+                    f"the exact minimum-height point (drawn x{self.offset_exaggeration:g} farther along the line)",
+                ),
+            ]
             if self.lref is not None:
-                rows.append(("lime ball", "the refracted tangent point: the lowest point of the ray bent through "
-                             "the U.S. Standard Atmosphere 1976 (true position)"))
+                rows.append(
+                    (
+                        "lime ball",
+                        "the refracted tangent point: the lowest point of the ray bent through "
+                        "the U.S. Standard Atmosphere 1976 (true position)",
+                    )
+                )
         elif int(self.tan.status) == int(Status.HITS_EARTH):
             rows.append(("red ball", "where the line of sight meets the Earth (no tangent)"))
         return "\n".join(f"- **{c}**: {w}" for c, w in rows) + "\n\nscene: local ENU at the exact tangent's foot, km"
@@ -445,32 +555,37 @@ class LimbApp:
 
     def _text(self) -> None:
         t = self.tan
-        lines = [f"**{self.scn.name}**  ",
-                 f"frame {self.frame}, alpha {self.alpha_deg:+.2f} deg; scene: local ENU at the exact "
-                 f"tangent's foot, km  "]
+        lines = [
+            f"**{self.scn.name}**  ",
+            f"frame {self.frame}, alpha {self.alpha_deg:+.2f} deg; scene: local ENU at the exact tangent's foot, km  ",
+        ]
         if int(t.status) == 0:
             da, ht = float(t.delta_a), float(t.tangent_h_geodetic)
             off_m = float(np.linalg.norm(t.exact_ecef - t.tangent_ecef))
-            lines += [f"virtual ellipsoid Delta a = {da / 1e3:.3f} km after "
-                      f"{int(t.nr_iterations)} Newton-Raphson steps (eq. 17)  ",
-                      f"Delta a - limb height = {da - ht:.2f} m: the virtual ellipsoid is a scaled WGS-84, "
-                      f"not a shell; its departure from a shell at the limb height is drawn "
-                      f"x{self.exaggeration:g} about the tangent point (tangency kept)  ",
-                      f"exact minimum {off_m:.1f} m along the line from the [L18] tangent point, "
-                      f"drawn x{self.offset_exaggeration:g}  ",
-                      f"[L18] limb height {float(t.tangent_h) / 1e3:.3f} km, exact minimum "
-                      f"{float(t.exact_h) / 1e3:.3f} km, difference {float(t.h_difference):+.2e} m  ",
-                      "Newton-Raphson Delta a iterates (km): "
-                      + ", ".join(f"{x / 1e3:.3f}" for x in np.asarray(t.nr_delta_a_history).reshape(-1)
-                                  if np.isfinite(x))]
+            lines += [
+                f"virtual ellipsoid Delta a = {da / 1e3:.3f} km after "
+                f"{int(t.nr_iterations)} Newton-Raphson steps (eq. 17)  ",
+                f"Delta a - limb height = {da - ht:.2f} m: the virtual ellipsoid is a scaled WGS-84, "
+                f"not a shell; its departure from a shell at the limb height is drawn "
+                f"x{self.exaggeration:g} about the tangent point (tangency kept)  ",
+                f"exact minimum {off_m:.1f} m along the line from the [L18] tangent point, "
+                f"drawn x{self.offset_exaggeration:g}  ",
+                f"[L18] limb height {float(t.tangent_h) / 1e3:.3f} km, exact minimum "
+                f"{float(t.exact_h) / 1e3:.3f} km, difference {float(t.h_difference):+.2e} m  ",
+                "Newton-Raphson Delta a iterates (km): "
+                + ", ".join(f"{x / 1e3:.3f}" for x in np.asarray(t.nr_delta_a_history).reshape(-1) if np.isfinite(x)),
+            ]
             if self.lref is not None:
                 lr = self.lref
                 h0 = float(np.asarray(lr.tangent_h_m).reshape(-1)[0])
                 hr = self.refracted_h_m()
-                lines += ["  ", f"refraction (U.S. Standard Atmosphere 1976): refracted tangent "
-                          f"**h = {hr:.1f} m** (WGS 84 ellipsoid), straight line's {h0:.1f} m: "
-                          f"{h0 - hr:.1f} m lower; bending "
-                          f"{float(np.asarray(lr.bending_rad).reshape(-1)[0]) * 1e3:.3f} mrad  "]
+                lines += [
+                    "  ",
+                    f"refraction (U.S. Standard Atmosphere 1976): refracted tangent "
+                    f"**h = {hr:.1f} m** (WGS 84 ellipsoid), straight line's {h0:.1f} m: "
+                    f"{h0 - hr:.1f} m lower; bending "
+                    f"{float(np.asarray(lr.bending_rad).reshape(-1)[0]) * 1e3:.3f} mrad  ",
+                ]
             elif self.refraction:
                 lines.append("refraction: the bent ray has no tangent point here (it meets the Earth or ducts)  ")
         else:
@@ -495,8 +610,15 @@ class LimbApp:
         if path.suffix.lower() == ".html":
             from geoloc_viz.export_html import with_summary
 
-            write_text(path, with_summary(ser.as_html(dark_mode=True), "geoloc view: limb", self.md.content,
-                                          "Static export of geoloc view --scenario limb (no controls)."))
+            write_text(
+                path,
+                with_summary(
+                    ser.as_html(dark_mode=True),
+                    "geoloc view: limb",
+                    self.md.content,
+                    "Static export of geoloc view --scenario limb (no controls).",
+                ),
+            )
         else:
             write_bytes(path, ser.serialize())
         return path
@@ -529,4 +651,3 @@ class LimbViewer:
     def _on_disconnect(self, client) -> None:
         with self._lock:
             self.apps.pop(client.client_id, None)
-

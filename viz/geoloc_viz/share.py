@@ -65,8 +65,7 @@ def field_of_view_deg(sensor, pose) -> tuple[float, float]:
     cc = np.array([0.5, N + 0.5, (N + 1) / 2, (N + 1) / 2])
     d = np.asarray(sensor.line_of_sight(rr, cc, pose, outside="extrapolate").direction_ecef, float)
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    ang = [math.degrees(math.atan2(np.linalg.norm(np.cross(d[i], d[i + 1])), float(d[i] @ d[i + 1])))
-           for i in (0, 2)]
+    ang = [math.degrees(math.atan2(np.linalg.norm(np.cross(d[i], d[i + 1])), float(d[i] @ d[i + 1]))) for i in (0, 2)]
     return ang[0], ang[1]
 
 
@@ -80,15 +79,26 @@ def latlon_text(p: SharedPoint) -> str:
     from geoloc.geodesy.geoid import egm96_undulation
 
     n = float(egm96_undulation(math.radians(p.lat_deg), math.radians(p.lon_deg)))
-    return (f"{p.lat_deg:.8f}, {p.lon_deg:.8f}, h {p.h_m:.3f} m ({H_DATUM}); "
-            f"{p.h_m - n:.3f} m above EGM96 (MSL)")
+    return f"{p.lat_deg:.8f}, {p.lon_deg:.8f}, h {p.h_m:.3f} m ({H_DATUM}); {p.h_m - n:.3f} m above EGM96 (MSL)"
 
 
 def _pose_args(sensor, inputs) -> list:
-    a = ["--lat-deg", repr(float(inputs.lat_deg)), "--lon-deg", repr(float(inputs.lon_deg)),
-         "--h-m", repr(float(inputs.h_m)), "--altitude-datum", "ellipsoid",
-         "--heading-deg", repr(float(inputs.heading_deg)), "--pitch-deg", repr(float(inputs.pitch_deg)),
-         "--roll-deg", repr(float(inputs.roll_deg))]
+    a = [
+        "--lat-deg",
+        repr(float(inputs.lat_deg)),
+        "--lon-deg",
+        repr(float(inputs.lon_deg)),
+        "--h-m",
+        repr(float(inputs.h_m)),
+        "--altitude-datum",
+        "ellipsoid",
+        "--heading-deg",
+        repr(float(inputs.heading_deg)),
+        "--pitch-deg",
+        repr(float(inputs.pitch_deg)),
+        "--roll-deg",
+        repr(float(inputs.roll_deg)),
+    ]
     for name in sensor.angle_names:  # the sensor's own joints, by the names its gimbal gives them
         if name in ("gimbal_roll", "gimbal_pitch"):
             a += [f"--{name.replace('_', '-')}-deg", repr(float(getattr(inputs, f"{name}_deg")))]
@@ -100,13 +110,21 @@ def _pose_args(sensor, inputs) -> list:
 def locate_args(scn, p: SharedPoint, sensor_path) -> list:
     """``geoloc locate`` argv (starting ``["geoloc", "locate"]``) that reproduces ``p``: its pose,
     pixel, the sensor file at ``sensor_path`` (the caller writes it) and the scene's surface."""
-    a = ["geoloc", "locate", "--sensor", str(sensor_path), *_pose_args(p.sensor, p.inputs),
-         "--row", repr(float(p.row)), "--col", repr(float(p.col))]
+    a = [
+        "geoloc",
+        "locate",
+        "--sensor",
+        str(sensor_path),
+        *_pose_args(p.sensor, p.inputs),
+        "--row",
+        repr(float(p.row)),
+        "--col",
+        repr(float(p.col)),
+    ]
     dem_path = getattr(scn, "_dem_path", None)
     on_dem = scn.dem is not None and (p.what != "terrain pick" or getattr(scn, "use_dem", True))
     if on_dem and dem_path:
-        a += ["--dem", str(dem_path), "--dem-datum", str(getattr(scn, "dem_datum", "egm96")),
-              "--method", p.method]
+        a += ["--dem", str(dem_path), "--dem-datum", str(getattr(scn, "dem_datum", "egm96")), "--method", p.method]
         if p.method == "bisect":
             a += ["--threshold", repr(float(p.inputs.threshold))]
         elif p.method == "steps":
@@ -130,9 +148,16 @@ def cot_event(p: SharedPoint, *, source: str = "view", now: datetime | None = No
     """The point as one Cursor-on-Target event (:func:`geoloc.io.cot.cot_events`)."""
     from geoloc.io.cot import cot_events
 
-    table = {"lat_deg": np.array([p.lat_deg]), "lon_deg": np.array([p.lon_deg]), "h_m": np.array([p.h_m]),
-             "h_datum": ["ellipsoid"], "ce90_m": np.array([p.ce90_m]), "le90_m": np.array([p.le90_m]),
-             "record": [f"{p.label} {p.what} row {p.row:.2f} col {p.col:.2f}"], "status": ["ok"]}
+    table = {
+        "lat_deg": np.array([p.lat_deg]),
+        "lon_deg": np.array([p.lon_deg]),
+        "h_m": np.array([p.h_m]),
+        "h_datum": ["ellipsoid"],
+        "ce90_m": np.array([p.ce90_m]),
+        "le90_m": np.array([p.le90_m]),
+        "record": [f"{p.label} {p.what} row {p.row:.2f} col {p.col:.2f}"],
+        "status": ["ok"],
+    }
     ev = cot_events(table, source=source, now=now)
     if not ev.events:
         raise ValueError(f"no CoT event: {ev.skipped}")
@@ -149,9 +174,17 @@ def predicted_90(scn, p: SharedPoint, surface, velocity=None, budget=None) -> tu
         return float("nan"), float("nan")
     if budget is None:
         budget, _, _ = scenario_budget(scn, p.sensor, velocity is not None)
-    pu = propagate(p.sensor, p.inputs.pose(), p.row, p.col, budget, surface=surface, outside="extrapolate",
-                   velocity_ned_m_s=velocity if budget.sigma("time_s") > 0 else None,
-                   corrections=getattr(scn, "corrections", NO_CORRECTIONS))
+    pu = propagate(
+        p.sensor,
+        p.inputs.pose(),
+        p.row,
+        p.col,
+        budget,
+        surface=surface,
+        outside="extrapolate",
+        velocity_ned_m_s=velocity if budget.sigma("time_s") > 0 else None,
+        corrections=getattr(scn, "corrections", NO_CORRECTIONS),
+    )
     if int(pu.status) != Status.OK:
         return float("nan"), float("nan")
     return float(pu.ce90_m), float(pu.le90_m)

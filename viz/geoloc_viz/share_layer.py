@@ -64,21 +64,25 @@ def sensor_file(sensor) -> Path:
 
 
 #: A copy button: the clipboard where the page may write it, else select the block for Ctrl+C.
-_COPY_JS = ("var b=this,p=b.parentElement.querySelector('pre'),t=p.textContent;"
-            "function done(m){b.textContent=m;setTimeout(function(){b.textContent='copy'},2000)}"
-            "function sel(){var r=document.createRange();r.selectNodeContents(p);var s=window.getSelection();"
-            "s.removeAllRanges();s.addRange(r);var ok=false;try{ok=document.execCommand('copy')}catch(e){}"
-            "done(ok?'copied':'selected: Ctrl+C')}"
-            "if(navigator.clipboard&&window.isSecureContext){navigator.clipboard.writeText(t)"
-            ".then(function(){done('copied')},sel)}else{sel()}")
+_COPY_JS = (
+    "var b=this,p=b.parentElement.querySelector('pre'),t=p.textContent;"
+    "function done(m){b.textContent=m;setTimeout(function(){b.textContent='copy'},2000)}"
+    "function sel(){var r=document.createRange();r.selectNodeContents(p);var s=window.getSelection();"
+    "s.removeAllRanges();s.addRange(r);var ok=false;try{ok=document.execCommand('copy')}catch(e){}"
+    "done(ok?'copied':'selected: Ctrl+C')}"
+    "if(navigator.clipboard&&window.isSecureContext){navigator.clipboard.writeText(t)"
+    ".then(function(){done('copied')},sel)}else{sel()}"
+)
 
 
 def _block(key: str, title: str, text: str) -> str:
-    return (f'<div style="margin:0.3em 0"><span style="font-weight:600">{html.escape(title)}</span> '
-            f'<button id="geoloc-share-copy-{key}" style="font-size:0.75em;padding:0 0.5em" '
-            f'onclick="{html.escape(_COPY_JS, quote=True)}">copy</button>'
-            f'<pre id="geoloc-share-{key}" style="white-space:pre-wrap;word-break:break-all;font-size:0.72em;'
-            f'margin:0.2em 0;padding:0.3em;background:rgba(128,128,128,0.15)">{html.escape(text)}</pre></div>')
+    return (
+        f'<div style="margin:0.3em 0"><span style="font-weight:600">{html.escape(title)}</span> '
+        f'<button id="geoloc-share-copy-{key}" style="font-size:0.75em;padding:0 0.5em" '
+        f'onclick="{html.escape(_COPY_JS, quote=True)}">copy</button>'
+        f'<pre id="geoloc-share-{key}" style="white-space:pre-wrap;word-break:break-all;font-size:0.72em;'
+        f'margin:0.2em 0;padding:0.3em;background:rgba(128,128,128,0.15)">{html.escape(text)}</pre></div>'
+    )
 
 
 class ShareLayer:
@@ -98,9 +102,12 @@ class ShareLayer:
         with g.add_folder("Send the point on", expand_by_default=False):
             self.md_head = g.add_markdown("")
             self.html = g.add_html("")
-            self.tx_url = g.add_text("CoT UDP destination", DEFAULT_COT_URL,
-                                     hint="udp://HOST:PORT; this machine by default; TAK's situational-"
-                                     "awareness multicast is udp://239.2.3.1:6969")
+            self.tx_url = g.add_text(
+                "CoT UDP destination",
+                DEFAULT_COT_URL,
+                hint="udp://HOST:PORT; this machine by default; TAK's situational-"
+                "awareness multicast is udp://239.2.3.1:6969",
+            )
             self.bt_send = g.add_button("send the CoT event (UDP)")
             self.bt_file = g.add_button("write the CoT event to a file")
             self.md_status = g.add_markdown("")
@@ -131,23 +138,54 @@ class ShareLayer:
         if pic is not None and pic.sensor is not None:
             if pic.last_pick == "pixel" and pic.pick is not None and pic.pick.ok:
                 p = pic.pick
-                pt = sh.SharedPoint("picked pixel", p.lat_deg(), p.lon_deg(), float(p.hit.h), p.row, p.col,
-                                    pic.sensor, inp, method, self._label())
+                pt = sh.SharedPoint(
+                    "picked pixel",
+                    p.lat_deg(),
+                    p.lon_deg(),
+                    float(p.hit.h),
+                    p.row,
+                    p.col,
+                    pic.sensor,
+                    inp,
+                    method,
+                    self._label(),
+                )
                 return pt, terrain_link.scene_surface(scn, inp, trace=False)
             if pic.last_pick == "ground" and pic.ground is not None and pic.ground.ok:
                 gp, gi = pic.ground, pic.ground_inputs or inp
                 lat, lon = (math.degrees(float(v)) for v in (gp.hit.lat, gp.hit.lon))
                 ok = bool(gp.in_frame and gp.visible)
-                pt = sh.SharedPoint("terrain pick", lat, lon, float(gp.hit.h), gp.row, gp.col, pic.sensor, gi,
-                                    "exact", self._label(), reproducible=ok,
-                                    note="" if ok else f"no pixel of this frame sees it ({gp.verdict()})")
+                pt = sh.SharedPoint(
+                    "terrain pick",
+                    lat,
+                    lon,
+                    float(gp.hit.h),
+                    gp.row,
+                    gp.col,
+                    pic.sensor,
+                    gi,
+                    "exact",
+                    self._label(),
+                    reproducible=ok,
+                    note="" if ok else f"no pixel of this frame sees it ({gp.verdict()})",
+                )
                 dem = scn.dem if getattr(scn, "use_dem", True) else None
                 return pt, surface_for(gi.target_h, dem, method="exact")
         g = s.geometry
         if g is None or g.status != Status.OK:
             return None, None
-        pt = sh.SharedPoint("scene pixel", math.degrees(float(g.hit.lat)), math.degrees(float(g.hit.lon)),
-                            float(g.hit.h), float(inp.row), float(inp.col), scn.camera, inp, method, self._label())
+        pt = sh.SharedPoint(
+            "scene pixel",
+            math.degrees(float(g.hit.lat)),
+            math.degrees(float(g.hit.lon)),
+            float(g.hit.h),
+            float(inp.row),
+            float(inp.col),
+            scn.camera,
+            inp,
+            method,
+            self._label(),
+        )
         return pt, terrain_link.scene_surface(scn, inp, trace=False)
 
     def update(self) -> None:
@@ -175,22 +213,32 @@ class ShareLayer:
             texts["locate"] = f"(none: {pt.note})"
         texts["cot"] = sh.cot_event(pt)
         self.texts = texts
-        what = {"picked pixel": f"the picked pixel (row {pt.row:g}, column {pt.col:g})",
-                "terrain pick": "the terrain point clicked in the scene"
-                                + (f" (pixel row {pt.row:.2f}, column {pt.col:.2f})" if pt.reproducible else ""),
-                "scene pixel": f"the scene's pixel (row {pt.row:g}, column {pt.col:g}); click the picture "
-                               "or the terrain to send another point"}[pt.what]
+        what = {
+            "picked pixel": f"the picked pixel (row {pt.row:g}, column {pt.col:g})",
+            "terrain pick": "the terrain point clicked in the scene"
+            + (f" (pixel row {pt.row:.2f}, column {pt.col:.2f})" if pt.reproducible else ""),
+            "scene pixel": f"the scene's pixel (row {pt.row:g}, column {pt.col:g}); click the picture "
+            "or the terrain to send another point",
+        }[pt.what]
         h, v = self.fov_deg
-        ce = (f"predicted CE90 {pt.ce90_m:.1f} m, LE90 {pt.le90_m:.1f} m (CoT ce/le: one sigma)"
-              if np.isfinite(pt.ce90_m) else "no predicted uncertainty (CoT ce/le unknown)")
-        self.md_head.content = (f"**{pt.label}**: {what}  \n"
-                                f"field of view **{h:.3f} x {v:.3f} deg** (horizontal x vertical, from the "
-                                f"lens; {pt.sensor.cols} x {pt.sensor.rows} px)  \n{ce}")
-        self.html.content = ('<div id="geoloc-share" style="padding:0 0.5em">'
-                             + _block("mgrs", "MGRS (1 m)", texts["mgrs"])
-                             + _block("latlon", "latitude, longitude, height", texts["latlon"])
-                             + _block("locate", "geoloc locate (reproduces the point)", texts["locate"])
-                             + _block("cot", "Cursor-on-Target event", texts["cot"]) + "</div>")
+        ce = (
+            f"predicted CE90 {pt.ce90_m:.1f} m, LE90 {pt.le90_m:.1f} m (CoT ce/le: one sigma)"
+            if np.isfinite(pt.ce90_m)
+            else "no predicted uncertainty (CoT ce/le unknown)"
+        )
+        self.md_head.content = (
+            f"**{pt.label}**: {what}  \n"
+            f"field of view **{h:.3f} x {v:.3f} deg** (horizontal x vertical, from the "
+            f"lens; {pt.sensor.cols} x {pt.sensor.rows} px)  \n{ce}"
+        )
+        self.html.content = (
+            '<div id="geoloc-share" style="padding:0 0.5em">'
+            + _block("mgrs", "MGRS (1 m)", texts["mgrs"])
+            + _block("latlon", "latitude, longitude, height", texts["latlon"])
+            + _block("locate", "geoloc locate (reproduces the point)", texts["locate"])
+            + _block("cot", "Cursor-on-Target event", texts["cot"])
+            + "</div>"
+        )
 
     # ------------------------------------------------------------ sending
     def _fresh_event(self) -> bytes:

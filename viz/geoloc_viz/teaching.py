@@ -37,10 +37,17 @@ class HopView:
 
 def hops(chain) -> list:
     """The chain's hops, outermost first, plus the composed ECEF <- cam transform."""
-    out = [HopView(h.name, h.dst, h.src, np.asarray(h.T), h.equation, h.description)
-           for h in chain.hops]
-    out.append(HopView("T_ecef_cam", "ecef", "cam", chain.T_ecef("cam"), "Q17 eq. 9, generalised",
-                       "the whole chain: camera to ECEF (product of the hops above)"))
+    out = [HopView(h.name, h.dst, h.src, np.asarray(h.T), h.equation, h.description) for h in chain.hops]
+    out.append(
+        HopView(
+            "T_ecef_cam",
+            "ecef",
+            "cam",
+            chain.T_ecef("cam"),
+            "Q17 eq. 9, generalised",
+            "the whole chain: camera to ECEF (product of the hops above)",
+        )
+    )
     return out
 
 
@@ -54,8 +61,10 @@ def fmt_matrix(T: np.ndarray) -> str:
 
 
 def hop_markdown(h: HopView) -> str:
-    return (f"**{h.key}** ({h.equation}): maps `{h.src}` coordinates to `{h.dst}`.  \n"
-            f"{h.description}\n\n```\n{fmt_matrix(h.T)}\n```\n")
+    return (
+        f"**{h.key}** ({h.equation}): maps `{h.src}` coordinates to `{h.dst}`.  \n"
+        f"{h.description}\n\n```\n{fmt_matrix(h.T)}\n```\n"
+    )
 
 
 def q17_factors_markdown(chain) -> str:
@@ -68,8 +77,10 @@ def q17_factors_markdown(chain) -> str:
     parts = ["**T_ned_ecef as the four factors of [Q17 eq. 5]** (leftmost first):\n"]
     for name, F in zip(Q17_FACTOR_NAMES, factors):
         parts.append(f"{name}\n```\n{fmt_matrix(F)}\n```\n")
-    parts.append(f"Product minus the direct form `inv(T_ecef_ned)`: max |difference| = {diff:.2e} "
-                 f"(m in the translation column; float64 rounding at 6.4e6 m is ~1e-9 m).\n")
+    parts.append(
+        f"Product minus the direct form `inv(T_ecef_ned)`: max |difference| = {diff:.2e} "
+        f"(m in the translation column; float64 rounding at 6.4e6 m is ~1e-9 m).\n"
+    )
     return "\n".join(parts)
 
 
@@ -77,8 +88,10 @@ def chain_markdown(chain) -> str:
     """The whole chain as Markdown: the order of the product, then every hop."""
     names = [h.name for h in chain.hops]
     inner = [h.dst for h in reversed(chain.hops)]
-    head = (f"`T_ecef_cam = {' @ '.join(names)}` [Q17 eq. 9, generalised]: read right to left, "
-            f"a camera vector goes to {', '.join(inner[:-1])} and {inner[-1]}.\n")
+    head = (
+        f"`T_ecef_cam = {' @ '.join(names)}` [Q17 eq. 9, generalised]: read right to left, "
+        f"a camera vector goes to {', '.join(inner[:-1])} and {inner[-1]}.\n"
+    )
     return head + "\n".join(hop_markdown(h) for h in hops(chain))
 
 
@@ -210,10 +223,12 @@ def q17_intermediate_frames(chain) -> list:
     """
     p = chain.pose
     F = T_ned_ecef_q17_factors(p.lat, p.lon, p.h)
-    names = ("F1: origin at the prime-vertical centre, Tz(R_N e^2 sin phi)",
-             "F2: turned into the meridian plane, Rz(lambda)",
-             "F3: axes N, E, D, M(phi)",
-             "NED: origin R_N + h up the normal, Tz(R_N + h)")
+    names = (
+        "F1: origin at the prime-vertical centre, Tz(R_N e^2 sin phi)",
+        "F2: turned into the meridian plane, Rz(lambda)",
+        "F3: axes N, E, D, M(phi)",
+        "NED: origin R_N + h up the normal, Tz(R_N + h)",
+    )
     out, T_k_ecef = [], np.eye(4)
     for name, Fk in zip(names, F[::-1]):
         T_k_ecef = np.asarray(Fk, float) @ T_k_ecef
@@ -225,8 +240,7 @@ def _fmt3(v, point: bool) -> list:
     return [f"{x:.3f}" if point else f"{x:+.6f}" for x in v]
 
 
-def vector_markdown(chain, v, frame: str, hop: str | None = None, point: bool = False,
-                    what: str = "the vector") -> str:
+def vector_markdown(chain, v, frame: str, hop: str | None = None, point: bool = False, what: str = "the vector") -> str:
     """The vector's coordinates in every frame (a Markdown table), the source and destination of
     ``hop`` marked, then the partial products ``T_ecef_<frame>``."""
     coords = vector_in_frames(chain, v, frame, point)
@@ -234,10 +248,12 @@ def vector_markdown(chain, v, frame: str, hop: str | None = None, point: bool = 
     unit = " [m]" if point else " (unit-free direction)"
     # four columns, the hop's frames tagged in their own cell: the table fits the GUI panel
     # (a fifth column of tags overflowed it, issue 34)
-    roles = (f" **(src)** is the hop's **source** `{src}`, **(dst)** its **destination** `{dst}`."
-             if hop else "")
-    lines = [f"**Coordinates of {what} in every frame**{unit}, given in `{frame}`.{roles}\n",
-             "| frame | x | y | z |", "|---|---:|---:|---:|"]
+    roles = f" **(src)** is the hop's **source** `{src}`, **(dst)** its **destination** `{dst}`." if hop else ""
+    lines = [
+        f"**Coordinates of {what} in every frame**{unit}, given in `{frame}`.{roles}\n",
+        "| frame | x | y | z |",
+        "|---|---:|---:|---:|",
+    ]
     for f, c in coords.items():
         mark = " (dst)" if f == dst else " (src)" if f == src else ""
         x, y, z = _fmt3(c, point)
@@ -245,9 +261,11 @@ def vector_markdown(chain, v, frame: str, hop: str | None = None, point: bool = 
         lines.append(f"| {name} | {x} | {y} | {z} |")
     if hop:
         a, b = coords[src], coords[dst]
-        lines.append(f"\nCheck: `{hop}` @ ({', '.join(_fmt3(a, point))}) = "
-                     f"({', '.join(_fmt3(b, point))}), the `{dst}` row "
-                     f"({'T' if point else 'the rotation block of T'} times the `{src}` row).")
+        lines.append(
+            f"\nCheck: `{hop}` @ ({', '.join(_fmt3(a, point))}) = "
+            f"({', '.join(_fmt3(b, point))}), the `{dst}` row "
+            f"({'T' if point else 'the rotation block of T'} times the `{src}` row)."
+        )
     lines.append("\n**Partial products** (running product of the hops, from ECEF in):\n")
     acc = []
     for h, (name, f, T) in zip(chain.hops, partial_products(chain)):

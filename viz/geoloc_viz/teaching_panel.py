@@ -164,7 +164,11 @@ class TeachingPanel:
             r, c = float(self.num_row.value), float(self.num_col.value)
             return teaching.pixel_ray_cam(self.sensor, r, c), "cam", f"the ray of pixel (row {r:g}, column {c:g})"
         v = np.asarray(self.vec3.value, float)
-        return v, str(self.dd_frame.value), f"the vector ({v[0]:g}, {v[1]:g}, {v[2]:g}) given in `{self.dd_frame.value}`"
+        return (
+            v,
+            str(self.dd_frame.value),
+            f"the vector ({v[0]:g}, {v[1]:g}, {v[2]:g}) given in `{self.dd_frame.value}`",
+        )
 
     # ------------------------------------------------------------ GUI
     def _build_gui(self) -> None:
@@ -173,28 +177,38 @@ class TeachingPanel:
         self.hop_keys = [h.key for h in teaching.hops(chain)]
         frames = list(teaching.chain_frames(chain))
         with gui.add_folder("Teaching: a vector through the chain"):
-            self.dd_hop = gui.add_dropdown("teaching hop", [NONE] + self.hop_keys, initial_value="T_ned_body"
-                                           if "T_ned_body" in self.hop_keys else NONE,
-                                           hint="T_dst_src: source frame magenta, destination cyan")
+            self.dd_hop = gui.add_dropdown(
+                "teaching hop",
+                [NONE] + self.hop_keys,
+                initial_value="T_ned_body" if "T_ned_body" in self.hop_keys else NONE,
+                hint="T_dst_src: source frame magenta, destination cyan",
+            )
             self.bt_hops = gui.add_button_group("step hop", ["previous hop", "next hop"])
             self.dd_vec = gui.add_dropdown("vector", [PIXEL, TYPED], initial_value=PIXEL)
             inp = getattr(s, "inputs", None)
-            self.num_row = gui.add_number("ray row", float(getattr(inp, "row", self.sensor.center_pixel[0])),
-                                          step=0.5)
-            self.num_col = gui.add_number("ray column", float(getattr(inp, "col", self.sensor.center_pixel[1])),
-                                          step=0.5)
+            self.num_row = gui.add_number("ray row", float(getattr(inp, "row", self.sensor.center_pixel[0])), step=0.5)
+            self.num_col = gui.add_number(
+                "ray column", float(getattr(inp, "col", self.sensor.center_pixel[1])), step=0.5
+            )
             self.vec3 = gui.add_vector3("typed vector", (1.0, 0.0, 0.0), step=0.1)
-            self.dd_frame = gui.add_dropdown("typed in frame", frames,
-                                             initial_value="body" if "body" in frames else frames[1])
+            self.dd_frame = gui.add_dropdown(
+                "typed in frame", frames, initial_value="body" if "body" in frames else frames[1]
+            )
             self.cb_show = gui.add_checkbox("show the frames row and globe", True)
             self.cb_mesh = gui.add_checkbox("aircraft mesh", True, hint="The mesh hides the camera frame")
             self.bt_frame = gui.add_button("frame the aircraft")
             angles = list(teaching.animatable_angles(chain))
-            self.dd_angle = gui.add_dropdown("angle to animate", angles,
-                                             initial_value=angles[3] if len(angles) > 3 else angles[0])
-            self.num_anim_s = gui.add_slider("animation duration (s)", 0.5, 20.0, 0.5,
-                                             self.anim_steps * self.anim_dt_s,
-                                             hint="How long 'animate this angle from 0' takes to sweep the angle")
+            self.dd_angle = gui.add_dropdown(
+                "angle to animate", angles, initial_value=angles[3] if len(angles) > 3 else angles[0]
+            )
+            self.num_anim_s = gui.add_slider(
+                "animation duration (s)",
+                0.5,
+                20.0,
+                0.5,
+                self.anim_steps * self.anim_dt_s,
+                hint="How long 'animate this angle from 0' takes to sweep the angle",
+            )
             self.num_anim_s.on_update(lambda _: self._set_anim_speed())
             self.bt_anim = gui.add_button("animate this angle from 0")
             self.md_anim = gui.add_markdown("")
@@ -294,8 +308,7 @@ class TeachingPanel:
             if h.visible != show:
                 h.visible = show
 
-        self._node(ROOT, None, lambda: sc.add_frame(ROOT, show_axes=False, position=aircraft, visible=show),
-                   place_root)
+        self._node(ROOT, None, lambda: sc.add_frame(ROOT, show_axes=False, position=aircraft, visible=show), place_root)
         arrows = []
         for index, f in enumerate(teaching.chain_frames(chain)):
             T = chain.T_ecef(f)
@@ -307,13 +320,20 @@ class TeachingPanel:
             key = (round(L, 9), big)
             h = self._handles.get(name)
             if h is None or h[1] != key:
-                fh = sc.add_frame(name, axes_length=L, axes_radius=L * (0.06 if big else 0.025),
-                                  origin_radius=L * 0.06, position=pos[f], wxyz=wxyz(R_enu_f))
+                fh = sc.add_frame(
+                    name,
+                    axes_length=L,
+                    axes_radius=L * (0.06 if big else 0.025),
+                    origin_radius=L * 0.06,
+                    position=pos[f],
+                    wxyz=wxyz(R_enu_f),
+                )
                 for i, ax in enumerate("xyz"):
                     tip = np.zeros(3)
                     tip[i] = L * 1.08
-                    sc.add_label(f"{name}/{ax}", f"{ax} {f}", position=tip, anchor="center-left",
-                                 font_screen_scale=AXIS_FONT)
+                    sc.add_label(
+                        f"{name}/{ax}", f"{ax} {f}", position=tip, anchor="center-left", font_screen_scale=AXIS_FONT
+                    )
                 self._handles[name] = (fh, key)
             else:
                 fh = h[0]
@@ -326,8 +346,12 @@ class TeachingPanel:
             z = -1.75 * U if index % 2 == 0 else 1.75 * U
             anchor = "top-center" if index % 2 == 0 else "bottom-center"
             self._label(f"{ROOT}/frames_name/{f}", f"{tag}{f}{where}", pos[f] + np.array([0, 0, z]), anchor)
-            self._label(f"{ROOT}/frames_coords/{f}", f"({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:+.3f})",
-                        pos[f] + np.array([0, 0, z - 0.45 * U if index % 2 == 0 else z + 0.45 * U]), anchor)
+            self._label(
+                f"{ROOT}/frames_coords/{f}",
+                f"({c[0]:+.3f}, {c[1]:+.3f}, {c[2]:+.3f})",
+                pos[f] + np.array([0, 0, z - 0.45 * U if index % 2 == 0 else z + 0.45 * U]),
+                anchor,
+            )
             arrows.append([pos[f], pos[f] + 1.1 * U * v_enu])
             for r in ("src", "dst"):
                 if role == r:
@@ -338,11 +362,23 @@ class TeachingPanel:
         self._arrows(f"{ROOT}/vector", np.asarray(arrows, np.float32), 0.03 * U, 0.08 * U, 0.2 * U)
         # a leader from the row down to the aircraft: the frames really share its origin
         # (its caption under the row's lower band of texts, above the aircraft's own frame labels)
-        self._node(f"{ROOT}/leader", U, lambda: sc.add_line_segments(
-            f"{ROOT}/leader", np.array([[[0, 0, 0], [0, 0, (LIFT - 3.0) * U]]], np.float32),
-            (200, 200, 200), thickness=1.5, thickness_units="screen"))
-        self._label(f"{ROOT}/leader/label", "frames drawn apart: all but ECEF sit at the aircraft",
-                    np.array([0, 0, (LIFT - 3.0) * U]), "top-center")
+        self._node(
+            f"{ROOT}/leader",
+            U,
+            lambda: sc.add_line_segments(
+                f"{ROOT}/leader",
+                np.array([[[0, 0, 0], [0, 0, (LIFT - 3.0) * U]]], np.float32),
+                (200, 200, 200),
+                thickness=1.5,
+                thickness_units="screen",
+            ),
+        )
+        self._label(
+            f"{ROOT}/leader/label",
+            "frames drawn apart: all but ECEF sit at the aircraft",
+            np.array([0, 0, (LIFT - 3.0) * U]),
+            "top-center",
+        )
         self._draw_globe(chain, globe, U, coords, dst, src, hop == "T_ecef_ned")
         self._text(chain, v, vframe, what, hop)
         self.set_mesh(self._mesh_visible)
@@ -362,12 +398,18 @@ class TeachingPanel:
 
     def _arrows(self, name, points, shaft, head, head_length):
         """Arrows ``points`` (N, 2, 3) made once per count and size, then only their points moved."""
+
         def move(h):
             h.points = points
 
-        return self._node(name, (points.shape, round(shaft, 12), round(head, 12), round(head_length, 12)),
-                          lambda: self.scene.add_arrows(name, points, VECTOR_COLOR, shaft_radius=shaft,
-                                                        head_radius=head, head_length=head_length), move)
+        return self._node(
+            name,
+            (points.shape, round(shaft, 12), round(head, 12), round(head_length, 12)),
+            lambda: self.scene.add_arrows(
+                name, points, VECTOR_COLOR, shaft_radius=shaft, head_radius=head, head_length=head_length
+            ),
+            move,
+        )
 
     def _label(self, name, text, position, anchor):
         h = self._handles.get(name)
@@ -385,9 +427,16 @@ class TeachingPanel:
         name = f"{ROOT}/highlight/{role}"
         h = self._handles.get(name)
         if h is None or h[1] != radius:
-            hh = self.scene.add_icosphere(name, radius=radius, color=HIGHLIGHT[role], subdivisions=2,
-                                          position=position, cast_shadow=False, receive_shadow=False,
-                                          material="toon3")
+            hh = self.scene.add_icosphere(
+                name,
+                radius=radius,
+                color=HIGHLIGHT[role],
+                subdivisions=2,
+                position=position,
+                cast_shadow=False,
+                receive_shadow=False,
+                material="toon3",
+            )
             self._handles[name] = (hh, radius)
         else:
             h[0].position = position
@@ -403,24 +452,40 @@ class TeachingPanel:
         def move_to(p):
             def move(h):
                 h.position = p
+
             return move
 
         self._node(name, None, lambda: sc.add_frame(name, show_axes=False, position=center), move_to(center))
-        self._node(name + "/earth", R, lambda: sc.add_icosphere(
-            name + "/earth", radius=R, color=(30, 50, 150), subdivisions=3, opacity=0.55, scale=(1.0, 1.0, 1.0),
-            cast_shadow=False, receive_shadow=False))
+        self._node(
+            name + "/earth",
+            R,
+            lambda: sc.add_icosphere(
+                name + "/earth",
+                radius=R,
+                color=(30, 50, 150),
+                subdivisions=3,
+                opacity=0.55,
+                scale=(1.0, 1.0, 1.0),
+                cast_shadow=False,
+                receive_shadow=False,
+            ),
+        )
         big = dst == "ecef" or src == "ecef"
         L = 1.6 * R
         q_axes = wxyz(R_enu_ecef)
 
         def make_axes():
-            ax = sc.add_frame(name + "/axes", axes_length=L, axes_radius=L * (0.03 if big else 0.015),
-                              origin_radius=L * 0.03, wxyz=q_axes)
+            ax = sc.add_frame(
+                name + "/axes",
+                axes_length=L,
+                axes_radius=L * (0.03 if big else 0.015),
+                origin_radius=L * 0.03,
+                wxyz=q_axes,
+            )
             for i, txt in enumerate(("X ecef (0 N, 0 E)", "Y ecef (0 N, 90 E)", "Z ecef (north pole)")):
                 tip = np.zeros(3)
                 tip[i] = L * 1.05
-                sc.add_label(name + f"/axes/{'xyz'[i]}", txt, position=tip, anchor="center-left",
-                             font_screen_scale=0.8)
+                sc.add_label(name + f"/axes/{'xyz'[i]}", txt, position=tip, anchor="center-left", font_screen_scale=0.8)
             return ax
 
         def turn(h):
@@ -431,17 +496,25 @@ class TeachingPanel:
         p_in = R_enu_ecef @ p * k
 
         def make_aircraft():
-            h = sc.add_icosphere(name + "/aircraft", radius=0.08 * U, color=(255, 40, 40), position=p_in,
-                                 cast_shadow=False, receive_shadow=False)
-            sc.add_label(name + "/aircraft/label", "aircraft (Earth to scale)", anchor="top-left",
-                         font_screen_scale=0.8)
+            h = sc.add_icosphere(
+                name + "/aircraft",
+                radius=0.08 * U,
+                color=(255, 40, 40),
+                position=p_in,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+            sc.add_label(
+                name + "/aircraft/label", "aircraft (Earth to scale)", anchor="top-left", font_screen_scale=0.8
+            )
             return h
 
         self._node(name + "/aircraft", round(U, 12), make_aircraft, move_to(p_in))
         ve = enu.vector_from_ecef(coords["ecef"])
         ve = ve / max(np.linalg.norm(ve), 1e-300)
-        self._arrows(name + "/vector", np.array([[p_in, p_in + 0.6 * U * ve]], np.float32), 0.02 * U, 0.06 * U,
-                     0.15 * U)
+        self._arrows(
+            name + "/vector", np.array([[p_in, p_in + 0.6 * U * ve]], np.float32), 0.02 * U, 0.06 * U, 0.15 * U
+        )
         # (the ECEF highlight stays on the row's ecef frame: a ball at the globe's centre would be hidden)
         if self._handles.pop(name + "/q17", None) is not None or q17:
             sc.remove_by_name(name + "/q17")
@@ -450,15 +523,31 @@ class TeachingPanel:
             for j, (txt, T) in enumerate(teaching.q17_intermediate_frames(chain)):
                 o = R_enu_ecef @ T[:3, 3] * k
                 Lq = 0.45 * U
-                sc.add_frame(name + f"/q17/{j}", axes_length=Lq, axes_radius=Lq * 0.04, origin_radius=Lq * 0.05,
-                             position=o, wxyz=wxyz(R_enu_ecef @ T[:3, :3]))
+                sc.add_frame(
+                    name + f"/q17/{j}",
+                    axes_length=Lq,
+                    axes_radius=Lq * 0.04,
+                    origin_radius=Lq * 0.05,
+                    position=o,
+                    wxyz=wxyz(R_enu_ecef @ T[:3, :3]),
+                )
                 tip = np.zeros(3)
                 tip[j % 3] = Lq * 1.1
-                sc.add_label(name + f"/q17/{j}/label", txt.split(",")[0] if j < 3 else "NED", position=tip,
-                             anchor="center-left", font_screen_scale=0.75)
+                sc.add_label(
+                    name + f"/q17/{j}/label",
+                    txt.split(",")[0] if j < 3 else "NED",
+                    position=tip,
+                    anchor="center-left",
+                    font_screen_scale=0.75,
+                )
             pv = R_enu_ecef @ teaching.q17_intermediate_frames(chain)[0][1][:3, 3] * k
-            sc.add_line_segments(name + "/q17/normal", np.array([[pv, p_in]], np.float32), (255, 255, 255),
-                                 thickness=1.5, thickness_units="screen")
+            sc.add_line_segments(
+                name + "/q17/normal",
+                np.array([[pv, p_in]], np.float32),
+                (255, 255, 255),
+                thickness=1.5,
+                thickness_units="screen",
+            )
 
     def _text(self, chain, v, vframe, what, hop) -> None:
         hv = {h.key: h for h in teaching.hops(chain)}
@@ -474,8 +563,9 @@ class TeachingPanel:
         self.md_vec.content = teaching.vector_markdown(chain, v, vframe, hop, what=what)
         if hop == "T_ecef_ned":
             frames = "\n".join(f"- {t}" for t, _ in teaching.q17_intermediate_frames(chain))
-            self.md_q17.content = (teaching.q17_factors_markdown(chain)
-                                   + "\nIntermediate frames (drawn on the globe):\n" + frames + "\n")
+            self.md_q17.content = (
+                teaching.q17_factors_markdown(chain) + "\nIntermediate frames (drawn on the globe):\n" + frames + "\n"
+            )
             self.md_q17.visible = True
         else:
             self.md_q17.content = ""
@@ -557,8 +647,9 @@ class TeachingPanel:
         """
         chain = self.session.geometry.chain
         if name not in teaching.animatable_angles(chain):
-            raise ValueError(f"angle = {name!r}: not an angle of this chain; angles: "
-                             f"{list(teaching.animatable_angles(chain))}")
+            raise ValueError(
+                f"angle = {name!r}: not an angle of this chain; angles: {list(teaching.animatable_angles(chain))}"
+            )
         pose = chain.pose
         target = teaching.pose_angle(pose, name)
         steps = self.anim_steps if steps is None else int(steps)
@@ -582,8 +673,9 @@ class TeachingPanel:
                     self._stop.wait(max(t_k - time.monotonic(), 0.0))
                     a = target * k / steps
                     self.pose_override = teaching.pose_with_angle(pose, name, a)
-                    self.md_anim.content = (f"animating **{name}**: {np.rad2deg(a):+.2f} of "
-                                            f"{np.rad2deg(target):+.2f} deg")
+                    self.md_anim.content = (
+                        f"animating **{name}**: {np.rad2deg(a):+.2f} of {np.rad2deg(target):+.2f} deg"
+                    )
                     self.redraw()
             finally:
                 self.pose_override = None

@@ -99,8 +99,10 @@ def attach_dem(scn, path=None, strict: bool = False) -> None:
         scn._dem_path, scn._dem_path_datum = str(path), datum  # what is open, and in which datum
     w, s_, e, n = scn.dem.bounds_deg
     if not (s_ <= lat <= n and w <= lon <= e):
-        msg = (f"dem = {path}: does not cover the target at {lat:.4f} N {lon:.4f} E "
-               f"(DEM bounds W {w:.4f} S {s_:.4f} E {e:.4f} N {n:.4f})")
+        msg = (
+            f"dem = {path}: does not cover the target at {lat:.4f} N {lon:.4f} E "
+            f"(DEM bounds W {w:.4f} S {s_:.4f} E {e:.4f} N {n:.4f})"
+        )
         if strict:
             raise ValueError(msg)
         scn.dem, scn._dem_path = None, None
@@ -143,8 +145,7 @@ def mesh_grid(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES, lod_m: f
     w, s, e, n = dem.bounds_deg
     north, south = min(lat0 + dlat, n), max(lat0 - dlat, s)
     west, east = max(lon0 - dlon, w), min(lon0 + dlon, e)
-    return (_lod_axis(north, south, lat0, nodes, r_lat),
-            _lod_axis(west, east, lon0, nodes, r_lat / np.cos(enu.lat0)))
+    return (_lod_axis(north, south, lat0, nodes, r_lat), _lod_axis(west, east, lon0, nodes, r_lat / np.cos(enu.lat0)))
 
 
 def _grid_trimesh(LAT, LON, H, enu):
@@ -287,15 +288,16 @@ def terrain_geometry(scn, inp, los, surface=None) -> dict:
     hmax = dem.max_height()
     # the teaching drawing: where the straight line of sight crosses the heights the iteration
     # tries (H_max, the bisection's brackets): the solver's own steps, not located points
-    out = {"hmax": hmax,
-           "hit_hmax_enu": enu.from_ecef(intersect_los_height(los, hmax).ecef)}
+    out = {"hmax": hmax, "hit_hmax_enu": enu.from_ecef(intersect_los_height(los, hmax).ecef)}
     surface = scene_surface(scn, inp) if surface is None else surface
     corr = scene_corrections(scn)
     hit = Pipeline(None, surface, corr).intersect(los)
     exact = hit if inp.method == "exact" else Pipeline(None, _terrain.DemSurface(dem, "exact"), corr).intersect(los)
-    names = {"steps": f"descending steps [Q17], eps_h {inp.eps_h:g} m",
-             "bisect": f"bisection [L23], threshold {inp.threshold:g} m",
-             "exact": "exact first hit"}
+    names = {
+        "steps": f"descending steps [Q17], eps_h {inp.eps_h:g} m",
+        "bisect": f"bisection [L23], threshold {inp.threshold:g} m",
+        "exact": "exact first hit",
+    }
     msg = f"{names[inp.method]}: {int(hit.dem_evaluations)} DEM evaluations"
     if int(hit.status) != 0:
         msg += f"; {describe(int(hit.status))}"
@@ -314,14 +316,22 @@ def terrain_geometry(scn, inp, los, surface=None) -> dict:
             hi = intersect_los_height(los, tr["hi"]).ecef
             brackets = np.stack([enu.from_ecef(lo), enu.from_ecef(hi)], axis=1)
         it = IterationView(inp.method, tr["H"], tr["h_dem"], on_los, below, brackets)
-    out.update(hit=hit, hit_enu=enu.from_ecef(hit.ecef), hit_label=names[inp.method].split(",")[0],
-               exact_enu=enu.from_ecef(exact.ecef), iterations=it, message=msg, terrain_result=hit,
-               **bent_fields(scn, los, scene_surface(scn, inp, trace=False), hit))
+    out.update(
+        hit=hit,
+        hit_enu=enu.from_ecef(hit.ecef),
+        hit_label=names[inp.method].split(",")[0],
+        exact_enu=enu.from_ecef(exact.ecef),
+        iterations=it,
+        message=msg,
+        terrain_result=hit,
+        **bent_fields(scn, los, scene_surface(scn, inp, trace=False), hit),
+    )
     return out
 
 
-def mesh_height_bound(scn, lat_deg, lon_deg, window_m: float = WINDOW_M, nodes: int = MESH_NODES,
-                      lod_m: float = MESH_LOD_M):
+def mesh_height_bound(
+    scn, lat_deg, lon_deg, window_m: float = WINDOW_M, nodes: int = MESH_NODES, lod_m: float = MESH_LOD_M
+):
     """Highest node of the terrain mesh's grid cell under each point [m, ellipsoidal]: an upper
     bound of the drawn terrain surface there (any triangulation of a cell lies below its highest
     node). NaN outside the mesh or without a DEM.
@@ -398,8 +408,12 @@ def bent_ray(los, raw_hit, hit, corrections, enu, n: int = BENT_SAMPLES) -> Bent
     h_hit = float(np.asarray(hit.h))
     # heights from just below the camera down to the hit; the camera itself is where both start
     H = np.linspace(h_hit, h_cam, n + 1)[::-1][1:]
-    line = ref.correct(np.broadcast_to(o, (len(H), 3)), np.broadcast_to(d, (len(H), 3)),
-                       np.broadcast_to(np.asarray(raw_hit.ecef, float).reshape(3), (len(H), 3)), at_h=H)
+    line = ref.correct(
+        np.broadcast_to(o, (len(H), 3)),
+        np.broadcast_to(d, (len(H), 3)),
+        np.broadcast_to(np.asarray(raw_hit.ecef, float).reshape(3), (len(H), 3)),
+        at_h=H,
+    )
     ok = np.asarray(line.status) == Status.OK
     H = H[ok]
     bent = np.asarray(line.hit_ecef, float)[ok]
@@ -410,5 +424,6 @@ def bent_ray(los, raw_hit, hit, corrections, enu, n: int = BENT_SAMPLES) -> Bent
     H = np.concatenate([[h_cam], H])
     bent = np.concatenate([o[None], bent])
     straight = np.concatenate([o[None], straight])
-    return BentRay(H, enu.from_ecef(bent), enu.from_ecef(straight), float(np.asarray(hit.refraction_m)),
-                   tuple(hit.corrections))
+    return BentRay(
+        H, enu.from_ecef(bent), enu.from_ecef(straight), float(np.asarray(hit.refraction_m)), tuple(hit.corrections)
+    )

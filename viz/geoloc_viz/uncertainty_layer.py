@@ -126,9 +126,15 @@ class UncertaintyLayer:
         g = session.gui
         with g.add_folder("Predicted uncertainty", expand_by_default=False):
             self.cb_show = g.add_checkbox("90 % error ellipse at the hit", True)
-            self.sl_scale = g.add_slider("ellipse drawn x", 1.0, SCALE_MAX, 1.0, 1.0,
-                                         hint="Draw the ellipse this many times its size about the point "
-                                         "(display only); the label on the drawing gives the factor")
+            self.sl_scale = g.add_slider(
+                "ellipse drawn x",
+                1.0,
+                SCALE_MAX,
+                1.0,
+                1.0,
+                hint="Draw the ellipse this many times its size about the point "
+                "(display only); the label on the drawing gives the factor",
+            )
             self.md = g.add_markdown("")
         self.label = None
         self.cb_show.on_update(lambda _e: self._safe(self.update))
@@ -165,10 +171,17 @@ class UncertaintyLayer:
         vel = record_velocity(s.scn, s.scn.record_index)
         budget, note, illustrative = self.budget(vel is not None)
         inp = s.inputs
-        pu = propagate(s.scn.camera, inp.pose(), inp.row, inp.col, budget,
-                       surface=terrain_link.scene_surface(s.scn, inp, trace=False), outside="extrapolate",
-                       velocity_ned_m_s=vel if budget.sigma("time_s") > 0 else None,
-                       corrections=s.scn.corrections)  # the ellipse about the scene's (corrected) point
+        pu = propagate(
+            s.scn.camera,
+            inp.pose(),
+            inp.row,
+            inp.col,
+            budget,
+            surface=terrain_link.scene_surface(s.scn, inp, trace=False),
+            outside="extrapolate",
+            velocity_ned_m_s=vel if budget.sigma("time_s") > 0 else None,
+            corrections=s.scn.corrections,
+        )  # the ellipse about the scene's (corrected) point
         self.pu = pu
         if pu.status != Status.OK:
             self._hide()
@@ -185,8 +198,9 @@ class UncertaintyLayer:
                 h.visible = True
             else:
                 self._hide()
-                self.handle = self.scene.add_line_segments(f"{ROOT}/ellipse", seg, COLOR, thickness=4.0,
-                                                           thickness_units="screen")
+                self.handle = self.scene.add_line_segments(
+                    f"{ROOT}/ellipse", seg, COLOR, thickness=4.0, thickness_units="screen"
+                )
             # the label on the drawing: at the end of the major axis (the vertex farthest from the point)
             c = s.scn.enu.from_geodetic(*(float(np.asarray(v)) for v in (pu.lat, pu.lon, pu.h)))
             tip = pts[int(np.argmax(np.hypot(*(pts[:, :2] - c[:2]).T)))]
@@ -200,22 +214,32 @@ class UncertaintyLayer:
                 self.label = self.scene.add_label(f"{ROOT}/label", text, position=pos, anchor="bottom-left")
         else:
             self._hide()
-        lines = [f"predicted **CE90 {float(pu.ce90_m):.1f} m**, **LE90 {float(pu.le90_m):.1f} m** "
-                 f"(90 % ellipse {float(pu.ellipse_major_m) * ELLIPSE90_PER_SIGMA:.1f} x "
-                 f"{float(pu.ellipse_minor_m) * ELLIPSE90_PER_SIGMA:.1f} m, major axis at "
-                 f"{float(pu.ellipse_azimuth_deg):.0f} deg; "
-                 + ("drawn at true size)" if k == 1.0 else f"**drawn x{k:g}**, its label says so)")]
-        ref, name = (g.surveyed_enu, "surveyed truth") if g.surveyed_enu is not None else (g.published_enu, "published point")
+        lines = [
+            f"predicted **CE90 {float(pu.ce90_m):.1f} m**, **LE90 {float(pu.le90_m):.1f} m** "
+            f"(90 % ellipse {float(pu.ellipse_major_m) * ELLIPSE90_PER_SIGMA:.1f} x "
+            f"{float(pu.ellipse_minor_m) * ELLIPSE90_PER_SIGMA:.1f} m, major axis at "
+            f"{float(pu.ellipse_azimuth_deg):.0f} deg; "
+            + ("drawn at true size)" if k == 1.0 else f"**drawn x{k:g}**, its label says so)")
+        ]
+        ref, name = (
+            (g.surveyed_enu, "surveyed truth") if g.surveyed_enu is not None else (g.published_enu, "published point")
+        )
         if ref is not None and np.all(np.isfinite(ref)) and np.all(np.isfinite(g.hit_enu)):
             d = np.asarray(g.hit_enu, float) - np.asarray(ref, float)
-            r = float(normalised_errors(d[0], d[1], pu.ellipse_major_m, pu.ellipse_minor_m,
-                                        pu.ellipse_azimuth_deg)) / ELLIPSE90_PER_SIGMA
-            lines.append(f"actual error to the {name}: **{math.hypot(d[0], d[1]):.1f} m** horizontal, "
-                         f"{r:.2f} x its own 90 % ellipse ({'inside' if r <= 1 else 'outside'})")
+            r = (
+                float(normalised_errors(d[0], d[1], pu.ellipse_major_m, pu.ellipse_minor_m, pu.ellipse_azimuth_deg))
+                / ELLIPSE90_PER_SIGMA
+            )
+            lines.append(
+                f"actual error to the {name}: **{math.hypot(d[0], d[1]):.1f} m** horizontal, "
+                f"{r:.2f} x its own 90 % ellipse ({'inside' if r <= 1 else 'outside'})"
+            )
         if illustrative:
-            lines.append("_illustrative budget (the scenario's sensor has no [uncertainty] table): "
-                         "2 m / 3 m position, 0.05 deg heading, 0.03 deg attitude and joints, "
-                         + ("SRTM 16 m LE90_" if s.scn.dem is not None else "10 m height_"))
+            lines.append(
+                "_illustrative budget (the scenario's sensor has no [uncertainty] table): "
+                "2 m / 3 m position, 0.05 deg heading, 0.03 deg attitude and joints, "
+                + ("SRTM 16 m LE90_" if s.scn.dem is not None else "10 m height_")
+            )
         else:
             lines.append(f"budget: {note}")
         self.md.content = "  \n".join(lines)

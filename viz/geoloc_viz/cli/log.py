@@ -46,49 +46,84 @@ def register(sub) -> None:
         "in a log, an offline 2D target/truth plot, map points and a default layout whose 3D view follows "
         "the current hit. Open it with `rerun run.rrd` (or the web viewer: --serve). See docs/rerun.md.",
     )
-    p.add_argument("input", metavar="SCENARIO_OR_RECORDS", type=input_path,
-                   help="scenario .toml (or the name of a bundled one) or records .csv; or MISB ST 0601 KLV "
-                   "(.klv, .ts), or a live stream udp://HOST:PORT (logged as it arrives, until --duration, --packets, "
-                   "--idle or Ctrl-C; docs/live.md)")
-    p.add_argument("--out", default=None, type=output_path, help="output .rrd file (required unless --serve or --spawn)")
+    p.add_argument(
+        "input",
+        metavar="SCENARIO_OR_RECORDS",
+        type=input_path,
+        help="scenario .toml (or the name of a bundled one) or records .csv; or MISB ST 0601 KLV "
+        "(.klv, .ts), or a live stream udp://HOST:PORT (logged as it arrives, until --duration, --packets, "
+        "--idle or Ctrl-C; docs/live.md)",
+    )
+    p.add_argument(
+        "--out", default=None, type=output_path, help="output .rrd file (required unless --serve or --spawn)"
+    )
     add_sensor_option(p)
     from geoloc.cli._options import add_correction_options
 
     add_correction_options(p)
     add_target_options(p)
-    add_dem_options(p, mosaic=False, dem_help="DEM raster (GeoTIFF, ...): intersect the line of sight with "
-                    "the terrain instead of a target height, e.g. assets/dem/etopo5_flight_area.tif; default for a MISB "
-                    "KLV file, and for records without any target height (no --target-h-m, --height-column or "
-                    "paper_height_m): a bundled DEM covering the flight, as geoloc view draws it (--no-dem: none)")
-    p.add_argument("--no-dem", action="store_true",
-                   help="no DEM, even where a bundled one covers the flight (a KLV packet is then located at "
-                   "its own frame-centre height; records need --target-h-m, --height-column or paper_height_m)")
-    g = p.add_argument_group("records (a records CSV's target height: --dem, --target-h-m or --height-column, "
-                             "first given wins; default paper_height_m)")
-    g.add_argument("--group-by", default="table",
-                   help="records: column naming each record's flight (default table; 'none' for one flight); "
-                   "each flight gets its own scene origin and entity tree")
-    g.add_argument("--no-calibration", action="store_true",
-                   help="records: do not fit and log the per-flight mounting calibration (before/after series)")
-    g.add_argument("--fit", default=None, metavar="NAMES",
-                   help="records: comma-separated sensor parameters to fit per flight for the before/after "
-                   "series (geoloc.analysis.sensor_fit, e.g. mount_x,mount_y,mount_z,boresight_z); default "
-                   "mount_x,mount_y,mount_z (the mounting calibration of geoloc calibrate)")
+    add_dem_options(
+        p,
+        mosaic=False,
+        dem_help="DEM raster (GeoTIFF, ...): intersect the line of sight with "
+        "the terrain instead of a target height, e.g. assets/dem/etopo5_flight_area.tif; default for a MISB "
+        "KLV file, and for records without any target height (no --target-h-m, --height-column or "
+        "paper_height_m): a bundled DEM covering the flight, as geoloc view draws it (--no-dem: none)",
+    )
+    p.add_argument(
+        "--no-dem",
+        action="store_true",
+        help="no DEM, even where a bundled one covers the flight (a KLV packet is then located at "
+        "its own frame-centre height; records need --target-h-m, --height-column or paper_height_m)",
+    )
+    g = p.add_argument_group(
+        "records (a records CSV's target height: --dem, --target-h-m or --height-column, "
+        "first given wins; default paper_height_m)"
+    )
+    g.add_argument(
+        "--group-by",
+        default="table",
+        help="records: column naming each record's flight (default table; 'none' for one flight); "
+        "each flight gets its own scene origin and entity tree",
+    )
+    g.add_argument(
+        "--no-calibration",
+        action="store_true",
+        help="records: do not fit and log the per-flight mounting calibration (before/after series)",
+    )
+    g.add_argument(
+        "--fit",
+        default=None,
+        metavar="NAMES",
+        help="records: comma-separated sensor parameters to fit per flight for the before/after "
+        "series (geoloc.analysis.sensor_fit, e.g. mount_x,mount_y,mount_z,boresight_z); default "
+        "mount_x,mount_y,mount_z (the mounting calibration of geoloc calibrate)",
+    )
     g = p.add_argument_group("viewer")
-    g.add_argument("--display-scale", type=float, default=200.0,
-                   help="scale of the aircraft mesh in the 3D view (default 200)")
-    g.add_argument("--serve", action="store_true",
-                   help="also serve the recording to the web viewer (bundled in the rerun wheel, "
-                   "works offline) and wait for Ctrl-C")
-    g.add_argument("--host", default="127.0.0.1",
-                   help="address the web viewer and the gRPC server of --serve listen on (default "
-                   "127.0.0.1: this machine only; 0.0.0.0 exposes them to the network)")
+    g.add_argument(
+        "--display-scale", type=float, default=200.0, help="scale of the aircraft mesh in the 3D view (default 200)"
+    )
+    g.add_argument(
+        "--serve",
+        action="store_true",
+        help="also serve the recording to the web viewer (bundled in the rerun wheel, "
+        "works offline) and wait for Ctrl-C",
+    )
+    g.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="address the web viewer and the gRPC server of --serve listen on (default "
+        "127.0.0.1: this machine only; 0.0.0.0 exposes them to the network)",
+    )
     g.add_argument("--web-port", type=int, default=9090, help="web viewer port (default 9090)")
     g.add_argument("--grpc-port", type=int, default=9876, help="gRPC server port (default 9876)")
-    g.add_argument("--spawn", action="store_true",
-                   help="also open the native rerun viewer on the recording (on --out once written, else "
-                   "streamed to it), bound to --host like every port here; it needs a display: without one "
-                   "(DISPLAY / WAYLAND_DISPLAY unset) the verb refuses before computing, exit status 2")
+    g.add_argument(
+        "--spawn",
+        action="store_true",
+        help="also open the native rerun viewer on the recording (on --out once written, else "
+        "streamed to it), bound to --host like every port here; it needs a display: without one "
+        "(DISPLAY / WAYLAND_DISPLAY unset) the verb refuses before computing, exit status 2",
+    )
     from geoloc.cli._options import add_live_options
 
     add_live_options(p)
@@ -135,8 +170,7 @@ def _log_live(args, camera, dem) -> int:
 
     limits = live_limits(args, args.input)
     if not any(limits.values()):
-        print("geoloc log: logging until Ctrl-C (--duration, --packets or --idle stop it)", file=sys.stderr,
-              flush=True)
+        print("geoloc log: logging until Ctrl-C (--duration, --packets or --idle stop it)", file=sys.stderr, flush=True)
     sock = _bind(args.input)
     rx = LiveReceiver()
     with contextlib.ExitStack() as stack:
@@ -145,9 +179,21 @@ def _log_live(args, camera, dem) -> int:
         if args.record_ts:
             rec_ts = stack.enter_context(growing_path(args.record_ts, "--record"))
             record = stack.enter_context(rec_ts.open("wb")).write
-        live = LiveRecording(out, args.input, camera, dem_path=dem, dem_datum=args.dem_datum, method=args.method,
-                             eps_h_m=args.eps_h, threshold_m=args.threshold, display_scale=args.display_scale,
-                             serve=args.serve, grpc_port=args.grpc_port, grpc_host=args.host, spawn=args.spawn)
+        live = LiveRecording(
+            out,
+            args.input,
+            camera,
+            dem_path=dem,
+            dem_datum=args.dem_datum,
+            method=args.method,
+            eps_h_m=args.eps_h,
+            threshold_m=args.threshold,
+            display_scale=args.display_scale,
+            serve=args.serve,
+            grpc_port=args.grpc_port,
+            grpc_host=args.host,
+            spawn=args.spawn,
+        )
         viewer = None
         if args.serve:
             note = exposure_note(args.host, (args.web_port, args.grpc_port))
@@ -171,8 +217,11 @@ def _log_live(args, camera, dem) -> int:
             raise KeyboardInterrupt
 
         signal.signal(signal.SIGTERM, _stop)  # a killed session still ends its .rrd on what was logged
-        print(f"geoloc log: listening on {args.input}" + (f", logging to {out}" if out else ""), file=sys.stderr,
-              flush=True)
+        print(
+            f"geoloc log: listening on {args.input}" + (f", logging to {out}" if out else ""),
+            file=sys.stderr,
+            flush=True,
+        )
         try:
             for _ in receive(args.input, receiver=rx, record=record, sock=sock, on_batch=on_batch, **limits):
                 if args.serve and viewer is None and live.rec is not None:
@@ -190,8 +239,10 @@ def _log_live(args, camera, dem) -> int:
     for err in live.errors:
         print(f"{args.input}: skipped bad packet at byte {err.offset}: {err.reason}", file=sys.stderr)
     if args.out:
-        print(f"wrote {args.out}: {live.steps_total} steps ({live.located_total} located) on timeline(s) "
-              f"{', '.join(live.timelines)}, logged as they arrived")
+        print(
+            f"wrote {args.out}: {live.steps_total} steps ({live.located_total} located) on timeline(s) "
+            f"{', '.join(live.timelines)}, logged as they arrived"
+        )
     return 0
 
 
@@ -242,14 +293,26 @@ def run(args) -> int:
 
             dem = records_default_dem(path, camera)  # no height in the file: the DEM `geoloc view` draws
             if dem is not None:
-                print(f"geoloc log: DEM {dem} (bundled, covers the targets; the records give no "
-                      "target height)", file=sys.stderr)
+                print(
+                    f"geoloc log: DEM {dem} (bundled, covers the targets; the records give no target height)",
+                    file=sys.stderr,
+                )
         steps, errors = steps_from_records(
-            path, camera, height_column=args.height_column, target_h_m=args.target_h_m,
-            height_kind=args.height_kind, dem_path=dem, dem_datum=args.dem_datum, method=args.method,
-            eps_h_m=args.eps_h, threshold_m=args.threshold,
-            group_column=None if args.group_by == "none" else args.group_by, calibrate=not args.no_calibration,
-            fit_names=_fit_names(args.fit), corrections=corrections)
+            path,
+            camera,
+            height_column=args.height_column,
+            target_h_m=args.target_h_m,
+            height_kind=args.height_kind,
+            dem_path=dem,
+            dem_datum=args.dem_datum,
+            method=args.method,
+            eps_h_m=args.eps_h,
+            threshold_m=args.threshold,
+            group_column=None if args.group_by == "none" else args.group_by,
+            calibrate=not args.no_calibration,
+            fit_names=_fit_names(args.fit),
+            corrections=corrections,
+        )
         for err in errors:
             print(f"{path}: skipped {err}", file=sys.stderr)
     elif path.suffix.lower() in (".klv", ".bin", ".ts", ".mpg", ".mpeg", ".mp4", ".m2ts"):
@@ -259,24 +322,42 @@ def run(args) -> int:
             dem = klv_default_dem(path)  # the DEM `geoloc view` draws for this flight
             if dem is not None:
                 print(f"geoloc log: DEM {dem} (bundled, covers the flight; --no-dem for none)", file=sys.stderr)
-        steps, errors = steps_from_klv(path, camera, dem_path=dem, dem_datum=args.dem_datum,
-                                       method=args.method, eps_h_m=args.eps_h, threshold_m=args.threshold,
-                                       corrections=corrections)
+        steps, errors = steps_from_klv(
+            path,
+            camera,
+            dem_path=dem,
+            dem_datum=args.dem_datum,
+            method=args.method,
+            eps_h_m=args.eps_h,
+            threshold_m=args.threshold,
+            corrections=corrections,
+        )
         for err in errors:
             print(f"{path}: skipped bad packet at byte {err.offset}: {err.reason}", file=sys.stderr)
     else:
         raise ValueError(f"input {path}: expected a scenario .toml, a records .csv or a MISB KLV file (.klv, .ts)")
-    rec = write(steps, args.out, display_scale=args.display_scale, serve=args.serve,
-                grpc_port=args.grpc_port, grpc_host=args.host, spawn=args.spawn)
+    rec = write(
+        steps,
+        args.out,
+        display_scale=args.display_scale,
+        serve=args.serve,
+        grpc_port=args.grpc_port,
+        grpc_host=args.host,
+        spawn=args.spawn,
+    )
     ok = int((steps.ground.status == 0).sum())
     if args.out:
-        print(f"wrote {args.out}: {len(steps)} steps ({ok} located) on timeline(s) "
-              f"{', '.join(steps.timelines)}" + (f"; flights {', '.join(steps.groups)}, one scene origin each"
-                                                 if steps.multi else ""))
+        print(
+            f"wrote {args.out}: {len(steps)} steps ({ok} located) on timeline(s) "
+            f"{', '.join(steps.timelines)}"
+            + (f"; flights {', '.join(steps.groups)}, one scene origin each" if steps.multi else "")
+        )
         if steps.outlier is not None and steps.outlier.any():
             bad = [steps.labels[k] for k in np.flatnonzero(steps.outlier)]
-            print(f"outliers (median / MAD of the horizontal error to {steps.reference}, per flight): "
-                  f"{len(bad)}: {', '.join(bad[:20])}{' ...' if len(bad) > 20 else ''}")
+            print(
+                f"outliers (median / MAD of the horizontal error to {steps.reference}, per flight): "
+                f"{len(bad)}: {', '.join(bad[:20])}{' ...' if len(bad) > 20 else ''}"
+            )
         if steps.calibration is not None:
             print(steps.calibration["note"])
     viewer = None

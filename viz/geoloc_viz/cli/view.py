@@ -34,56 +34,102 @@ def register(sub) -> None:
         "With --scenario limb: the TianGong-2 limb-viewing scene. Binds to 127.0.0.1 unless "
         "--host says otherwise.",
     )
-    p.add_argument("--scenario", default="flight", type=input_path,
-                   help="'flight' (default: the bundled MISB ST 0601 example flight over the SRTM crop, "
-                   "with its planted faults, in the flight debugger), 'flight-test' (the bundled [Q17] "
-                   "records), 'limb' (bundled TianGong-2 limb scenario) or a path to a limb scenario TOML")
-    p.add_argument("--records", default=None, type=input_path,
-                   help="records CSV (or a MISB ST 0601 .klv/.ts file) for the flight scene (default: "
-                   "the bundled example flight; with --scenario flight-test the bundled "
-                   "assets/records/qiao2017_flight_tests.csv)")
-    p.add_argument("--record", default=None,
-                   help="record to open: label such as T4-3, or 0-based index (default: the first)")
+    p.add_argument(
+        "--scenario",
+        default="flight",
+        type=input_path,
+        help="'flight' (default: the bundled MISB ST 0601 example flight over the SRTM crop, "
+        "with its planted faults, in the flight debugger), 'flight-test' (the bundled [Q17] "
+        "records), 'limb' (bundled TianGong-2 limb scenario) or a path to a limb scenario TOML",
+    )
+    p.add_argument(
+        "--records",
+        default=None,
+        type=input_path,
+        help="records CSV (or a MISB ST 0601 .klv/.ts file) for the flight scene (default: "
+        "the bundled example flight; with --scenario flight-test the bundled "
+        "assets/records/qiao2017_flight_tests.csv)",
+    )
+    p.add_argument(
+        "--record", default=None, help="record to open: label such as T4-3, or 0-based index (default: the first)"
+    )
     add_sensor_option(p)
     from geoloc.cli._options import add_correction_options
 
     add_correction_options(p)
-    add_dem_options(p, mosaic=False, tolerances=False, method_default=None,
-                    dem_help="DEM GeoTIFF (default: a bundled DEM covering the target, if any)",
-                    method_help="terrain method shown first: steps, bisect or exact (default bisect)")
-    p.add_argument("--no-dem", action="store_true",
-                   help="no terrain: intersect at each record's paper_height_m")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="interface to bind (default 127.0.0.1, this machine only; "
-                   "0.0.0.0 exposes the viewer to the network)")
-    p.add_argument("--port", type=int, default=None,
-                   help="port (default 8080; viser moves to the next free one if taken; 0 = any free). "
-                   "With --export the scene is built on a private server on 127.0.0.1 at this "
-                   "port (default: any free one) that is stopped before the command returns")
-    p.add_argument("--pixel", action="append", default=None, metavar="ROW,COL",
-                   help="with --export: locate this pixel of the record's picture before exporting, as a "
-                   "click in the picture panel does (1-based pixel centres; repeat for several): its ray and "
-                   "hit are in the scene, the picture with its marks and each pixel's latitude, longitude, "
-                   "height and datum in the page")
-    p.add_argument("--export", default=None, metavar="FILE", type=output_path,
-                   help="write a static recording and exit, printing only its name: FILE.html "
-                   "(self-contained, opens in a browser without a server, with a text panel naming "
-                   "the record, the hit and its error) or FILE.viser (viser's playback format)")
+    add_dem_options(
+        p,
+        mosaic=False,
+        tolerances=False,
+        method_default=None,
+        dem_help="DEM GeoTIFF (default: a bundled DEM covering the target, if any)",
+        method_help="terrain method shown first: steps, bisect or exact (default bisect)",
+    )
+    p.add_argument("--no-dem", action="store_true", help="no terrain: intersect at each record's paper_height_m")
+    p.add_argument(
+        "--host",
+        default="127.0.0.1",
+        help="interface to bind (default 127.0.0.1, this machine only; 0.0.0.0 exposes the viewer to the network)",
+    )
+    p.add_argument(
+        "--port",
+        type=int,
+        default=None,
+        help="port (default 8080; viser moves to the next free one if taken; 0 = any free). "
+        "With --export the scene is built on a private server on 127.0.0.1 at this "
+        "port (default: any free one) that is stopped before the command returns",
+    )
+    p.add_argument(
+        "--pixel",
+        action="append",
+        default=None,
+        metavar="ROW,COL",
+        help="with --export: locate this pixel of the record's picture before exporting, as a "
+        "click in the picture panel does (1-based pixel centres; repeat for several): its ray and "
+        "hit are in the scene, the picture with its marks and each pixel's latitude, longitude, "
+        "height and datum in the page",
+    )
+    p.add_argument(
+        "--export",
+        default=None,
+        metavar="FILE",
+        type=output_path,
+        help="write a static recording and exit, printing only its name: FILE.html "
+        "(self-contained, opens in a browser without a server, with a text panel naming "
+        "the record, the hit and its error) or FILE.viser (viser's playback format)",
+    )
     p.add_argument("--no-browser", action="store_true", help="do not open a browser tab")
-    p.add_argument("--presenter", action="store_true",
-                   help="presenter mode: the first browser tab drives, the others follow read-only "
-                   "(scene, camera, disabled controls) until one presses 'take control'. Default: "
-                   "every tab has its own state")
-    p.add_argument("--max-clients", type=int, default=16, metavar="N",
-                   help="browser tabs served at once (default 16); a tab beyond is told the limit")
+    p.add_argument(
+        "--presenter",
+        action="store_true",
+        help="presenter mode: the first browser tab drives, the others follow read-only "
+        "(scene, camera, disabled controls) until one presses 'take control'. Default: "
+        "every tab has its own state",
+    )
+    p.add_argument(
+        "--max-clients",
+        type=int,
+        default=16,
+        metavar="N",
+        help="browser tabs served at once (default 16); a tab beyond is told the limit",
+    )
     lv = p.add_argument_group("live (docs/live.md)")
-    lv.add_argument("--live", default=None, metavar="udp://HOST:PORT", type=input_path,
-                    help="follow a live MPEG-TS / MISB ST 0601 stream: the timeline grows as packets arrive, "
-                    "the view follows the latest frame until you scrub back ('live' returns), loss counts in "
-                    "a panel")
-    lv.add_argument("--journal", default=None, metavar="FILE.csv", type=output_path,
-                    help="live: journal every located packet's row to this CSV as it arrives (the columns "
-                    "of geoloc replay --out)")
+    lv.add_argument(
+        "--live",
+        default=None,
+        metavar="udp://HOST:PORT",
+        type=input_path,
+        help="follow a live MPEG-TS / MISB ST 0601 stream: the timeline grows as packets arrive, "
+        "the view follows the latest frame until you scrub back ('live' returns), loss counts in "
+        "a panel",
+    )
+    lv.add_argument(
+        "--journal",
+        default=None,
+        metavar="FILE.csv",
+        type=output_path,
+        help="live: journal every located packet's row to this CSV as it arrives (the columns of geoloc replay --out)",
+    )
     from geoloc.cli._options import add_live_options
 
     add_live_options(p, record_flag="--record-ts")
@@ -115,11 +161,13 @@ def app_factory(args, serve: bool = False):
         klv = args.records is not None and args.records.lower().endswith(KLV_SUFFIXES)
         if scen in ("flight", "default") and args.records is None or klv:
             # the bundled MISB ST 0601 example flight (or the user's KLV), with each frame's fields of view
-            scn = default_flight_scenario(args.record, args.records, args.camera, dem,
-                                          use_dem=not args.no_dem, dem_datum=args.dem_datum)
+            scn = default_flight_scenario(
+                args.record, args.records, args.camera, dem, use_dem=not args.no_dem, dem_datum=args.dem_datum
+            )
         else:
-            scn = load_view_scenario(args.records, args.record, args.camera, dem,
-                                     use_dem=not args.no_dem, dem_datum=args.dem_datum)
+            scn = load_view_scenario(
+                args.records, args.record, args.camera, dem, use_dem=not args.no_dem, dem_datum=args.dem_datum
+            )
         if args.method:
             scn.inputs = scn.inputs.replace(method=args.method)
         with_corrections = _corrections_setter(args)
@@ -128,13 +176,19 @@ def app_factory(args, serve: bool = False):
             scenarios = None
             if args.records is None and args.dem is None and args.camera is None:
                 # the two bundled scenarios, one click apart (the chosen one first)
-                flight = ("example flight (MISB ST 0601 KLV)",
-                          lambda: with_corrections(default_flight_scenario(use_dem=not args.no_dem)))
+                flight = (
+                    "example flight (MISB ST 0601 KLV)",
+                    lambda: with_corrections(default_flight_scenario(use_dem=not args.no_dem)),
+                )
                 q17 = ("[Q17] flight test", lambda: with_corrections(load_view_scenario(use_dem=not args.no_dem)))
                 scenarios = dict([q17, flight] if scen in ("flight-test", "qiao2017") else [flight, q17])
-            return lambda server: GeolocViewer(server, scn, presenter=getattr(args, "presenter", False),
-                                               max_clients=getattr(args, "max_clients", 16),
-                                               scenarios=scenarios)
+            return lambda server: GeolocViewer(
+                server,
+                scn,
+                presenter=getattr(args, "presenter", False),
+                max_clients=getattr(args, "max_clients", 16),
+                scenarios=scenarios,
+            )
         return lambda server: GeolocApp(server, scn)
     from geoloc_viz.scene_limb import LimbApp, LimbViewer, load_limb
 
@@ -177,13 +231,17 @@ def run(args) -> int:
     try:
         make_app(server)
         url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{server.get_port()}"
-        mode = ("presenter mode: the first tab drives, the others follow" if args.presenter
-                else "each browser tab has its own state")
-        print(f"geoloc view: {url}  ({mode}; at most {args.max_clients} tabs; Ctrl+C to stop)",
-              flush=True)
+        mode = (
+            "presenter mode: the first tab drives, the others follow"
+            if args.presenter
+            else "each browser tab has its own state"
+        )
+        print(f"geoloc view: {url}  ({mode}; at most {args.max_clients} tabs; Ctrl+C to stop)", flush=True)
         if args.host not in ("127.0.0.1", "localhost", "::1"):
-            print(f"warning: listening on {args.host}: anyone who can reach this machine can "
-                  "open the viewer", file=sys.stderr)
+            print(
+                f"warning: listening on {args.host}: anyone who can reach this machine can open the viewer",
+                file=sys.stderr,
+            )
         if not args.no_browser:
             webbrowser.open(url)
         while True:
@@ -210,8 +268,11 @@ def _export(args) -> int:
     from geoloc_viz.app import make_server
 
     if args.host not in ("127.0.0.1", "localhost"):
-        print(f"geoloc view: note: --host {args.host} is not used by --export (no one connects "
-              "to an export's private server)", file=sys.stderr)
+        print(
+            f"geoloc view: note: --host {args.host} is not used by --export (no one connects "
+            "to an export's private server)",
+            file=sys.stderr,
+        )
     sink = io.StringIO()
     with contextlib.redirect_stdout(sink):
         server = make_server("127.0.0.1", 0 if args.port is None else args.port)
@@ -248,8 +309,9 @@ def _run_live(args) -> int:
     if args.dem:
         from geoloc.surfaces.spec import SurfaceSpec
 
-        surface = SurfaceSpec(dem=one_dem_raster(args, "view"), dem_datum=args.dem_datum,
-                              method=args.method or "exact").build()
+        surface = SurfaceSpec(
+            dem=one_dem_raster(args, "view"), dem_datum=args.dem_datum, method=args.method or "exact"
+        ).build()
     from geoloc_viz.app import make_server
     from geoloc_viz.live_view import LiveFeed, LiveViewer
 
@@ -262,19 +324,27 @@ def _run_live(args) -> int:
             rec = stack.enter_context(growing_path(args.record_ts, "--record-ts"))
             fh = stack.enter_context(rec.open("wb"))
             record = fh.write
-        feed = LiveFeed(args.live, sensor=sensor, surface=surface, limits=limits,
-                        journal=journal, record=record, sock=sock)
+        feed = LiveFeed(
+            args.live, sensor=sensor, surface=surface, limits=limits, journal=journal, record=record, sock=sock
+        )
         server = make_server(args.host, 8080 if args.port is None else args.port)
         viewer = None
         try:
-            viewer = LiveViewer(server, feed, max_clients=args.max_clients, dem_path=one_dem_raster(args, "view"),
-                                dem_datum=args.dem_datum)
+            viewer = LiveViewer(
+                server,
+                feed,
+                max_clients=args.max_clients,
+                dem_path=one_dem_raster(args, "view"),
+                dem_datum=args.dem_datum,
+            )
             feed.start()
             url = f"http://{'127.0.0.1' if args.host in ('0.0.0.0', '::') else args.host}:{server.get_port()}"
             print(f"geoloc view: {url}  (live: {args.live}; Ctrl+C to stop)", flush=True)
             if args.host not in ("127.0.0.1", "localhost", "::1"):
-                print(f"warning: listening on {args.host}: anyone who can reach this machine can "
-                      "open the viewer", file=sys.stderr)
+                print(
+                    f"warning: listening on {args.host}: anyone who can reach this machine can open the viewer",
+                    file=sys.stderr,
+                )
             if not args.no_browser:
                 webbrowser.open(url)
             while not feed.done:
@@ -293,6 +363,8 @@ def _run_live(args) -> int:
     print(feed.replay.summary())
     print(f"  stream: {feed.rx.stats.line()}")
     return 0
+
+
 def _pick_pixels(app, values) -> None:
     """``--pixel ROW,COL`` for an export: each located through the picture layer (a click's path)."""
     if not values:
