@@ -47,7 +47,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 COPY = ("geoloc", "viz", "tests", "assets", "examples")
 #: The tests written from earlier runs' survivors run with every target.
-KILLS = "tests/test_mutation_kills.py"
+KILLS = "tests/project/test_mutation_kills.py"
 
 
 @dataclass
@@ -57,31 +57,31 @@ class Target:
     tests: tuple
     functions: tuple = ()  # empty: the whole module (module-level constants included)
     notes: str = ""
-    #: run tests/test_mutation_kills.py too (the core's kill tests: nothing in it covers the last
+    #: run tests/project/test_mutation_kills.py too (the core's kill tests: nothing in it covers the last
     #: phase's modules, so their targets leave it out and run only their own tests)
     kills: bool = True
 
 
 #: The tests of the live stream's demultiplexer and receiver (the targets ts_demux and live).
 LIVE_TESTS = (
-    "tests/test_live_gaps.py",
-    "tests/test_live.py::test_synchronous_metadata_carriage_is_read",
-    "tests/test_live.py::test_datagrams_and_chunks_decode_as_ffmpeg_reads_the_file",
-    "tests/test_live.py::test_lost_swapped_and_repeated_datagrams_every_intact_packet_used",
-    "tests/test_live.py::test_corrupt_cut_and_foreign_datagrams_are_counted_never_fatal",
-    "tests/test_live.py::test_a_stream_that_stops_and_restarts",
-    "tests/test_live.py::test_crc32_of_the_files_psi_sections_is_zero",
+    "tests/io/test_live_gaps.py",
+    "tests/workflows/test_live.py::test_synchronous_metadata_carriage_is_read",
+    "tests/workflows/test_live.py::test_datagrams_and_chunks_decode_as_ffmpeg_reads_the_file",
+    "tests/workflows/test_live.py::test_lost_swapped_and_repeated_datagrams_every_intact_packet_used",
+    "tests/workflows/test_live.py::test_corrupt_cut_and_foreign_datagrams_are_counted_never_fatal",
+    "tests/workflows/test_live.py::test_a_stream_that_stops_and_restarts",
+    "tests/workflows/test_live.py::test_crc32_of_the_files_psi_sections_is_zero",
 )
 
 TARGETS = [
-    Target("ellipsoid", "geoloc/geodesy/ellipsoid.py", ("tests/test_ellipsoid.py",)),
-    Target("rotations", "geoloc/frames/rotations.py", ("tests/test_frames.py", "tests/test_locate.py")),
-    Target("chain", "geoloc/frames/chain.py", ("tests/test_frames.py", "tests/test_locate.py")),
-    Target("height", "geoloc/surfaces/height.py", ("tests/test_locate.py", "tests/test_terrain.py")),
+    Target("ellipsoid", "geoloc/geodesy/ellipsoid.py", ("tests/geodesy/test_ellipsoid.py",)),
+    Target("rotations", "geoloc/frames/rotations.py", ("tests/frames/test_frames.py", "tests/pipeline/test_locate.py")),
+    Target("chain", "geoloc/frames/chain.py", ("tests/frames/test_frames.py", "tests/pipeline/test_locate.py")),
+    Target("height", "geoloc/surfaces/height.py", ("tests/pipeline/test_locate.py", "tests/surfaces/test_terrain.py")),
     Target(
         "terrain",
         "geoloc/surfaces/terrain.py",
-        ("tests/test_terrain.py", "tests/test_terrain_walk.py", "tests/test_terrain_trimesh.py"),
+        ("tests/surfaces/test_terrain.py", "tests/surfaces/test_terrain_walk.py", "tests/surfaces/test_terrain_trimesh.py"),
         (
             "_flat_los",
             "_ground",
@@ -99,32 +99,32 @@ TARGETS = [
     Target(
         "montecarlo",
         "geoloc/analysis/montecarlo.py",
-        ("tests/test_montecarlo.py",),
+        ("tests/analysis/test_montecarlo.py",),
         ("statistics", "first_order"),
         "the statistics and CEP [Q17 eq. 18]",
     ),
     # the sensor model of the second phase
-    Target("local", "geoloc/geodesy/local.py", ("tests/test_local_frames.py", "tests/test_frames.py")),
-    Target("graph", "geoloc/frames/graph.py", ("tests/test_gimbals.py", "tests/test_sensors.py")),
-    Target("gimbals", "geoloc/sensors/gimbals.py", ("tests/test_gimbals.py", "tests/test_sensors.py")),
+    Target("local", "geoloc/geodesy/local.py", ("tests/geodesy/test_local_frames.py", "tests/frames/test_frames.py")),
+    Target("graph", "geoloc/frames/graph.py", ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py")),
+    Target("gimbals", "geoloc/sensors/gimbals.py", ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py")),
     Target(
-        "frame", "geoloc/sensors/frame.py", ("tests/test_gimbals.py", "tests/test_sensors.py", "tests/test_locate.py")
+        "frame", "geoloc/sensors/frame.py", ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py", "tests/pipeline/test_locate.py")
     ),
     # the one calibrator (analysis/calibrate.py, the first-phase camera's, is gone: issue 31)
     Target(
         "sensor_fit",
         "geoloc/analysis/sensor_fit.py",
-        ("tests/test_sensor_fit.py", "tests/test_sensor_fit_groups.py", "tests/test_calibrate.py"),
+        ("tests/analysis/test_sensor_fit.py", "tests/analysis/test_sensor_fit_groups.py", "tests/analysis/test_calibrate.py"),
     ),
     # the last phase (issue 50): the fastest test that covers each first (pytest -x stops there)
-    Target("uncertainty", "geoloc/analysis/uncertainty.py", ("tests/test_uncertainty.py",), kills=False),
+    Target("uncertainty", "geoloc/analysis/uncertainty.py", ("tests/analysis/test_uncertainty.py",), kills=False),
     Target(
         "triangulate",
         "geoloc/analysis/triangulate.py",
-        ("tests/test_triangulate_wls.py", "tests/test_triangulate.py"),
+        ("tests/analysis/test_triangulate_wls.py", "tests/analysis/test_triangulate.py"),
         kills=False,
     ),
-    Target("time_offset", "geoloc/analysis/time_offset.py", ("tests/test_video_example.py",), kills=False),
+    Target("time_offset", "geoloc/analysis/time_offset.py", ("tests/viz/test_video_example.py",), kills=False),
     # the live stream: its demultiplexer (geoloc.io.ts_demux, which geoloc.io.klv reads a .ts with too)
     # and its receiver (geoloc.io.live; not the sockets, the sender, the CLI), under the same tests
     Target(
@@ -165,26 +165,26 @@ TARGETS = [
         "the receiver (not the sockets, the sender, the CLI)",
         kills=False,
     ),
-    Target("mgrs_grid", "geoloc/io/mgrs_grid.py", ("tests/test_mgrs_wrap.py", "tests/test_mgrs.py"), kills=False),
-    Target("cot", "geoloc/io/cot.py", ("tests/test_cot.py",), kills=False),
+    Target("mgrs_grid", "geoloc/io/mgrs_grid.py", ("tests/io/test_mgrs_wrap.py", "tests/io/test_mgrs.py"), kills=False),
+    Target("cot", "geoloc/io/cot.py", ("tests/io/test_cot.py",), kills=False),
     Target(
         "rpc_nitf",
         "geoloc/io/rpc_gdal.py",
-        ("tests/test_rpc_nitf.py",),
+        ("tests/io/test_rpc_nitf.py",),
         ("rpc00b_renormalized", "old_of", "write_rpc_nitf", "_is_sidecar", "read_rpc"),
         "the NITF RPC00B",
         kills=False,
     ),
-    Target("klv_fix", "geoloc/workflows/klv_fix.py", ("tests/test_klv_fix.py",), kills=False),
+    Target("klv_fix", "geoloc/workflows/klv_fix.py", ("tests/workflows/test_klv_fix.py",), kills=False),
     Target(
         "picture_model",
         "viz/geoloc_viz/picture_model.py",
-        ("tests/test_picture_opencv.py",),
+        ("tests/viz/test_picture_opencv.py",),
         ("frame_sensor", "image_index", "locate_pixel", "image_marks"),
         "the picture's sensor and its pixels",
         kills=False,
     ),
-    Target("userfiles", "geoloc/userfiles.py", ("tests/test_user_files.py",), kills=False),
+    Target("userfiles", "geoloc/userfiles.py", ("tests/cli/test_user_files.py",), kills=False),
 ]
 
 _KEEP_BINARY = {

@@ -9,7 +9,7 @@ import pytest
 # geoloc caches its compiled kernels in the user's cache folder (geoloc.geodesy._nbgeo.cache_dir),
 # found from HOME: tests that start geoloc with HOME pointed at a temporary folder (for rerun,
 # Chromium) would compile every kernel afresh there. One cache for the whole session: numba reads
-# NUMBA_CACHE_DIR when it is imported, in this process and in every child (tests/test_first_run.py
+# NUMBA_CACHE_DIR when it is imported, in this process and in every child (tests/cli/test_first_run.py
 # takes it out for the probes that check the default).
 os.environ.setdefault(
     "NUMBA_CACHE_DIR",
@@ -46,7 +46,7 @@ def _code_names(code):
 
 
 def _opens_chromium(fn, seen) -> bool:
-    """Whether ``fn`` launches headless Chromium: it names ``chromium`` (tests/test_viz_browser.py's
+    """Whether ``fn`` launches headless Chromium: it names ``chromium`` (tests/viz/test_viz_browser.py's
     launcher, imported at module level or inside the function), or calls a function of a test
     module that does (a helper such as test_viz_labels' ``_check``), followed to any depth."""
     fn = inspect.unwrap(fn)

@@ -10,9 +10,9 @@ the parser's promise:
   a bare library error (``KeyError``, ``TypeError``, ``IndexError``, ``struct.error``,
   ``UnicodeDecodeError``, a message without the file) is a finding;
 - good records around a bad one are kept (the records CSV: every line the mutation left
-  alone and that was good is still loaded; KLV and MPEG-TS: tests/test_klv_wild.py).
+  alone and that was good is still loaded; KLV and MPEG-TS: tests/io/test_klv_wild.py).
 
-The in-suite tests (tests/test_fuzz.py) run every target with hypothesis for a few seconds
+The in-suite tests (tests/io/test_fuzz.py) run every target with hypothesis for a few seconds
 and replay the corpus (``tests/data/fuzz/TARGET/*``: the inputs the long run found,
 kept as regression cases); the long run is ``python tools/fuzz.py --minutes 10 --seed 0``
 (docs/testing.md, "Fuzzing").

@@ -3,7 +3,7 @@
 The ray equation d/ds (n dx/ds) = grad n integrated in ECEF with scipy's solve_ivp (DOP853,
 rtol 1e-12), n a function of the geodetic height (so grad n = n'(h) times the ellipsoid's
 normal), stopped by an event at the target height (or, for a limb ray, where it turns
-level). Used by tests/test_refraction.py and tests/test_pipeline.py.
+level). Used by tests/corrections/test_refraction.py and tests/pipeline/test_pipeline.py.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ clear errors seen, and the peak memory (RSS) after the first round and at the en
 
 Found inputs are kept as regression cases (``--keep``, default on): each failing input
 (hypothesis' shrunk one), and one input per distinct clear error, at most ``--per-target``,
-under ``tests/data/fuzz/TARGET/`` (``tests/test_fuzz.py`` replays them all). Exit status 0
+under ``tests/data/fuzz/TARGET/`` (``tests/io/test_fuzz.py`` replays them all). Exit status 0
 when no exception broke the promise, 1 otherwise.
 """
 

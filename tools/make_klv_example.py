@@ -39,7 +39,7 @@ How each packet is made:
 
 This is example data for the README, the docs and the viewer, and the test that the
 replay flags the planted packets and no others; the oracle tests of the chain are
-elsewhere (pymap3d, in ``tests/test_klv_replay.py``).
+elsewhere (pymap3d, in ``tests/workflows/test_klv_replay.py``).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ The same mathematics as the numpy reference path of :mod:`geoloc.analysis.uncert
 (:func:`~geoloc.analysis.uncertainty.chain_derivatives` and the surface step of
 :func:`~geoloc.analysis.uncertainty.propagate`), written per ray so that a 100 000-frame flight
 costs one pass over memory instead of a few hundred temporary arrays
-(``benchmarks/bench_uncertainty.py``). ``tests/test_uncertainty.py`` holds the two engines equal
+(``benchmarks/bench_uncertainty.py``). ``tests/analysis/test_uncertainty.py`` holds the two engines equal
 column for column, for every gimbal preset and lens model.
 
 Three kernels:

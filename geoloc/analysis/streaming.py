@@ -21,7 +21,7 @@ A point moves by at most half a cell diagonal, so the radius is off by at most
 ``0.71 * 2 * half_width / bins`` standard deviations (0.011 sigma with the
 defaults), and in practice far less, the displacements averaging out: 1e-4 of
 the radius on normal clouds of 1e6 points, against a sampling error of the
-median itself of 1e-3 (``tests/test_montecarlo_streaming.py``). Samples beyond
+median itself of 1e-3 (``tests/analysis/test_montecarlo_streaming.py``). Samples beyond
 the histogram are counted as overflow (distance unknown, larger than the box):
 the radius is exact unless the 50 % circle about the final mean leaves the box,
 which :meth:`StreamingStats.result` reports as a warning and a NaN radius.

@@ -20,7 +20,7 @@ Covariance, first order: a source moving ray ``i`` by ``f_i`` at the target move
 ``(sum W)^-1 sum_i W_i f_i``. A source independent from frame to frame (position, attitude,
 joints, time: noise) gives one column per frame; a source shared by every frame (the sensor's
 own mount, boresight, lever arm and lens: biases, ``SHARED``) one column summed over the frames,
-so that averaging many frames does not shrink it. ``tests/test_triangulate.py`` holds the
+so that averaging many frames does not shrink it. ``tests/analysis/test_triangulate.py`` holds the
 predicted CE90 / LE90 to Monte Carlo of the whole chain for a target seen from 3 to 30 frames of
 an orbit.
 """

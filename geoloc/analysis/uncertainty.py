@@ -29,7 +29,7 @@ it and the grazing test; a projected DEM or a mosaic takes the numpy surface ste
 path here is the reference they are held to.
 ``benchmarks/bench_uncertainty.py`` times it against ``locate``.
 
-``tests/test_uncertainty.py`` holds the analytic Jacobian to central differences of the whole
+``tests/analysis/test_uncertainty.py`` holds the analytic Jacobian to central differences of the whole
 ``locate`` chain, and the predicted CE90 / LE90 to Monte Carlo (:func:`monte_carlo`) over
 nadir to 80 degrees off nadir, the ellipsoid and a DEM, and every gimbal preset.
 """
@@ -198,7 +198,7 @@ class PointUncertainty:
     def linear(self) -> np.ndarray:
         """True where the first order holds: a constant height, or a DEM that is a plane over the
         footprint to within ``NONLINEAR_TERRAIN`` of its vertical sigma (the grid of
-        ``tests/test_uncertainty.py``: every point under it within 5 % of Monte Carlo; the
+        ``tests/analysis/test_uncertainty.py``: every point under it within 5 % of Monte Carlo; the
         two over it, 0.16 of sigma, 7 % off: hills the errors carry the point onto)."""
         if self.terrain_rms_m is None:
             return np.ones(np.shape(self.ce90_m), bool)

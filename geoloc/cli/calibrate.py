@@ -40,7 +40,7 @@ RESECT_NAMES = ("f", "cy", "cx")
 
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
-#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+#: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
 EXAMPLE = "geoloc calibrate --height-column paper_height_m --out calibration.json --plot errors.png"
 
 

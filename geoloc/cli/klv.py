@@ -29,7 +29,7 @@ from geoloc.cli import VERB_HELP
 
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
-#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+#: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
 EXAMPLE = (
     "geoloc klv dump assets/klv/example_flight.klv --out packets.jsonl",
     "geoloc klv fix assets/klv/example_flight.klv --out fixed.klv",

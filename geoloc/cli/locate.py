@@ -43,7 +43,7 @@ from geoloc.cli import VERB_HELP
 
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
-#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+#: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
 EXAMPLE = (
     "geoloc locate --lat-deg 35.48 --lon-deg 80.97 --h-m 18000 --heading-deg 45 --pitch-deg 3.5 "
     "--gimbal-roll-deg 50 --gimbal-pitch-deg -2.6 --target-h-m 5083.5 --json"

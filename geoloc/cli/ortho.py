@@ -43,7 +43,7 @@ POSE_FIELDS = ("lat_deg", "lon_deg", "h_m")
 
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
-#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+#: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
 EXAMPLE = "geoloc ortho --record T3-1 --step 256 --out frame.tif"
 
 

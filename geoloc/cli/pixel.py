@@ -34,7 +34,7 @@ from geoloc.cli import VERB_HELP
 
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
-#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+#: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
 EXAMPLE = (
     "geoloc pixel --sensor assets/sensors/eo_turret.toml --lat-deg 36.6 --lon-deg -84.25 --h-m 2500 "
     "--heading-deg 45 --pitch-deg 2 --roll-deg 1 --angle azimuth=90 --angle elevation=-30 "

@@ -18,7 +18,7 @@ PAPERS = {
 
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
-#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+#: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
 EXAMPLE = "geoloc reproduce li2023 --rays 10 --json numbers.json"
 
 

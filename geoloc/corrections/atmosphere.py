@@ -14,7 +14,7 @@ Sources
 
 No package is used for the atmosphere: the well-kept ones (``ambiance``, ``fluids``)
 are not dependencies of geoloc, and the part needed here is the seven-layer table
-below. The values it gives are checked in ``tests/test_refraction.py`` against the
+below. The values it gives are checked in ``tests/corrections/test_refraction.py`` against the
 published tables of [USSA76] (Table I).
 
 Heights are geometric heights above the ellipsoid [m], treated as heights above

@@ -46,7 +46,7 @@ Accuracy
 --------
 Against an exact integration of the ray equation d/ds(n dx/ds) = grad n in ECEF, with n
 a function of the *geodetic* height (the ellipsoidal stratification; scipy ``solve_ivp``,
-DOP853, rtol 1e-12, written in ``tests/test_refraction.py``): the corrected ground point
+DOP853, rtol 1e-12, written in ``tests/corrections/test_refraction.py``): the corrected ground point
 is within 0.4 / 1.4 / 4.1 / 5.2 / 6.2 mm of it from 18 km at 30 / 45 / 60 / 70 / 80 degrees
 off nadir (shifts of 1.3-387 m), within 3 mm from 700 km at 20-50 degrees, 28 mm of a
 401 m shift for a look 1 degree up; the limb's refracted tangent height within 0.2 m.
@@ -81,7 +81,7 @@ KEY = dependency_key(_nbgeo, _status_module, sys.modules[__name__])
 
 #: LLVM's fast-math flags that keep NaN and infinity semantics (no "nnan", "ninf": the kernel
 #: tests its input for NaN): fused multiply-adds, reassociation, reciprocals, approximate
-#: functions. The shifts move by below 1e-9 of themselves (tests/test_refraction.py holds the
+#: functions. The shifts move by below 1e-9 of themselves (tests/corrections/test_refraction.py holds the
 #: model to the independent trace and to Rugged's figures).
 FAST = {"nsz", "arcp", "contract", "afn", "reassoc"}
 

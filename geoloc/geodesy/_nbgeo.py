@@ -15,7 +15,7 @@ terrain walk and the fused locate kernel running the old numbers from a stale
 cache. :func:`cached_njit` adds :func:`dependency_key` to numba's index key: the
 values of the ellipsoid constants and the sources of the modules the kernel takes
 code or constants from, so that any change there compiles afresh (and the old
-entry stays, so switching back costs no compile). ``tests/test_numba_cache.py``
+entry stays, so switching back costs no compile). ``tests/surfaces/test_numba_cache.py``
 edits a constant in a scratch copy of the package and checks that the compiled
 code follows.
 

@@ -14,7 +14,7 @@ between nodes (as PROJ does for .gtx grids). Inside the crops the answer equals
 PROJ with the full grid (< 1 mm). Elsewhere the 30' copy is an approximation of
 the 15' grid: at the 778 320 nodes of the 15' grid that the 30' copy drops (three
 in four), RMS 0.15 m, 99 % within 0.61 m, 0.3 % beyond 1 m and at most 3.93 m (at
-10.75 N, 73.75 W, where the geoid is steep); measured by ``tests/test_geoid.py``
+10.75 N, 73.75 W, where the geoid is steep); measured by ``tests/geodesy/test_geoid.py``
 when Debian's ``proj-data`` is installed (``tools/test.sh`` installs it). Use the crops' areas, or a full grid (``folder=``), where metres matter.
 
 The grids are found through :mod:`geoloc.assets` (``$GEOLOC_ASSETS``, the

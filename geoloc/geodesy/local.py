@@ -10,7 +10,7 @@ NED, and AER (azimuth clockwise from north in [0, 2 pi), elevation up from the
 local horizontal plane, slant range in metres): ``enu_to_aer``, ``aer_to_enu``,
 ``geodetic_to_aer``, ``aer_to_geodetic``, ``ecef_to_aer``, ``aer_to_ecef``.
 Degree front ends carry ``_deg`` (``geodetic_to_aer_deg``, ...). Checked
-against pymap3d in ``tests/test_local_frames.py``.
+against pymap3d in ``tests/geodesy/test_local_frames.py``.
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ Reading a reference back gives the **centre** of the square it names (as
 GEOTRANS 3 does): the point known to that precision with the smallest worst
 error, half a square's side in each axis (0.5 m for a 1 m reference).
 
-Checked in ``tests/test_mgrs.py`` against pyproj's UTM and UPS projections and
+Checked in ``tests/io/test_mgrs.py`` against pyproj's UTM and UPS projections and
 the standard's letter and zone rules, written out in the test.
 """
 

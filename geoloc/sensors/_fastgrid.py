@@ -13,7 +13,7 @@ costs one lens inversion (:func:`geoloc.sensors.lenses.unproject_nb`) and one
 The optical centre (navigation reference plus lever arm) is the numpy path's own
 :meth:`FrameSensor.optical_centre_ecef`: one point per frame.
 
-``tests/test_ortho.py`` holds :func:`grid_line_of_sight` equal to
+``tests/workflows/test_ortho.py`` holds :func:`grid_line_of_sight` equal to
 ``sensor.line_of_sight`` ray for ray, for the [Q17] pinhole, the turret's Brown
 lens on the azimuth-elevation gimbal (mount, boresight, lever arm) and the drone's
 earth-referenced gimbal. Conventions: ``docs/conventions.md`` (1-based pixel

@@ -8,7 +8,7 @@ passed as data, not code: the lens as a model code and its parameter vector
 with one column of angles each, the boresight/optical turn and the mount as
 3x3 matrices, the lever arm as a vector, and a flag for earth-referenced
 gimbals. So every preset, lens, mount, boresight and lever arm runs compiled
-(no silent fallback). ``tests/test_fastlocate.py`` holds it equal to the
+(no silent fallback). ``tests/sensors/test_fastlocate.py`` holds it equal to the
 reference path, ray for ray.
 
 The ellipsoid constants are arguments too, so a cached compile never keeps a
@@ -16,7 +16,7 @@ stale constant.
 
 What makes it fast (``benchmarks/bench_locate.py``; each step checked against the
 numpy reference path, and each lane function against libm or PROJ, by
-``tests/test_fastlocate.py``):
+``tests/sensors/test_fastlocate.py``):
 
 - the rays run in blocks of :data:`_BLOCK`, hop by hop: each hop is one loop over the
   block (a ``*_block`` function) whose body has selects instead of branches, so LLVM
@@ -141,7 +141,7 @@ def geodetic_fast(x, y, z, a_m, e2):
 
     The same formulas with ``sqrt(d^2 + z^2)`` for ``hypot`` and ``2 atan(z / (d + dz))`` for
     ``2 atan2(z, d + dz)`` (d + dz > 0 off the Earth's centre): the same values to a few ulps,
-    held to ``ecef_to_geodetic`` by ``tests/test_fastlocate.py``.
+    held to ``ecef_to_geodetic`` by ``tests/sensors/test_fastlocate.py``.
     """
     e4, rho, q, r, g = _vermeille_front(x, y, z, a_m, e2)
     d, dz, h = _vermeille_back(np.cbrt(g), e4, rho, z, q, r, e2)

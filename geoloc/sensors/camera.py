@@ -302,7 +302,7 @@ class Camera:
 
         The paper's own form of the roll-pitch chain (:class:`geoloc.frames.chain.FrameChain`,
         eq. 4-9, with its 4x4 hops and the eq. 5 factors); the sensor's frame graph gives the
-        same rotations (``tests/test_sensors.py``).
+        same rotations (``tests/sensors/test_sensors.py``).
         """
         from geoloc.frames.chain import FrameChain
 

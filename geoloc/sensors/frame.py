@@ -317,7 +317,7 @@ class FrameSensor:
 
         ``engine``: ``"numpy"`` is the reference path (lens, then the frame graph hop by
         hop); ``"numba"`` the compiled kernel of :mod:`geoloc.sensors._fastlocate` (the same
-        mathematics; ``tests/test_fastlocate.py`` holds the two equal ray for ray); ``"auto"``
+        mathematics; ``tests/sensors/test_fastlocate.py`` holds the two equal ray for ray); ``"auto"``
         takes the kernel for batches of ``AUTO_MIN_RAYS`` (10 000) rays or more when it
         serves this sensor (one lens, no per-sample perturbation).
         """

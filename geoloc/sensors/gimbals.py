@@ -7,7 +7,7 @@ OpenCV's, as the lenses use). Body-referenced gimbals hang off the gimbal base
 (the body turned by the mount); earth-referenced ones hang off NED.
 
 Every preset's zero direction, axes and signs are on ``docs/conventions.md``
-("Gimbal presets"); ``tests/test_gimbals.py`` checks each sign on a case a
+("Gimbal presets"); ``tests/sensors/test_gimbals.py`` checks each sign on a case a
 person can check by eye.
 """
 

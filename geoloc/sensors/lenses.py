@@ -64,7 +64,7 @@ OpenCV's ``initUndistortRectifyMap``, but of normalised points; at most
 cached on the lens). :func:`unproject_map_nb` interpolates the map bilinearly and
 refines the guess by two Newton steps; Newton converges quadratically, so from the
 map's ~1e-5 the second step leaves rounding only, the same root as the full
-iteration's to ~1e-16 (``tests/test_lenses.py`` holds it to :func:`unproject_nb`
+iteration's to ~1e-16 (``tests/sensors/test_lenses.py`` holds it to :func:`unproject_nb`
 over the whole sensor). A pixel off the map, a guess the map does not have (a
 node where the inverse fails) or a second step above :data:`MAP_ACCEPT` falls back
 to the full iteration, so the result never depends on the map's accuracy.

@@ -18,7 +18,7 @@ Pixels. The format's image coordinates have (0, 0) at the *centre* of the
 upper-left pixel. GDAL's RPC transformer (``alg/gdal_rpc.cpp``,
 ``RPCTransformPoint``) adds 0.5 to reach its own pixel/line space, where
 (0, 0) is the upper-left *corner* and (0.5, 0.5) the centre of the first
-pixel (checked against rasterio's ``RPCTransformer`` in ``tests/test_rpc.py``).
+pixel (checked against rasterio's ``RPCTransformer`` in ``tests/analysis/test_rpc.py``).
 This project's pixels are 1-based centres, so
 
     row = RPC line + 1 = GDAL line + 0.5,    col = RPC sample + 1 = GDAL pixel + 0.5.

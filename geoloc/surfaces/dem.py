@@ -528,7 +528,7 @@ def upsampled_dem(src: DEM, n: int, rng: np.random.Generator, roughness_m: float
     """``src`` resampled bilinearly to n x n nodes over the same area, plus Gaussian roughness.
 
     A large synthetic DEM for tests and benchmarks (``benchmarks/bench_terrain.py --size``,
-    ``tests/test_terrain_hierarchy.py``): sigma ``roughness_m`` [m], drawn from ``rng``;
+    ``tests/surfaces/test_terrain_hierarchy.py``): sigma ``roughness_m`` [m], drawn from ``rng``;
     heights ellipsoidal, as ``src.grid.values`` are (``DEM.open`` adds EGM96's undulation).
     """
     g = src.grid

@@ -15,7 +15,7 @@ walk's tables or code:
 
 It is slow (a few milliseconds a ray for a window of 20 x 20 cells): a tool for the rays
 in question, not a solver. ``benchmarks/bench_terrain.py`` runs it on every ray where the
-walk and embree land more than 1 mm apart, and ``tests/test_terrain_trimesh.py`` holds the
+walk and embree land more than 1 mm apart, and ``tests/surfaces/test_terrain_trimesh.py`` holds the
 walk to it (docs/terrain.md, "Where embree and the walk differ").
 """
 
@@ -213,7 +213,7 @@ def judge(dem, origin_ecef, direction_ecef, hit_a_ecef, hit_b_ecef, pad_cells: i
     The referee searches every triangle of the cells around both hits (:func:`window_around`,
     ``pad_cells`` more each side). A hit of NaN (no hit) is judged right when the referee
     finds none in that window. ``tol_m`` [m]: 1e-6 by default. pyproj's and geoloc's ECEF
-    conversions agree to rounding (``tests/test_ellipsoid.py``), so what is left is a
+    conversions agree to rounding (``tests/geodesy/test_ellipsoid.py``), so what is left is a
     solver's float64 rounding of its hit: 7e-8 m measured for the walk against trimesh's
     recomputation on the SRTM crop, and more for a hit met at a shallow angle to its
     triangle; 1e-6 m leaves a factor of ten for that.

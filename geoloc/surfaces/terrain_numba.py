@@ -25,7 +25,7 @@ large clear nodes.
 The hit's latitude, longitude and height are computed in the kernel from the
 corner of its cell (:func:`_geodetic_near`; Vermeille's closed form of
 :func:`geoloc.geodesy.ellipsoid.ecef_to_geodetic`, from :mod:`geoloc.geodesy._nbgeo`, where that
-does not apply); ``tests/test_terrain.py`` checks them against the core's.
+does not apply); ``tests/surfaces/test_terrain.py`` checks them against the core's.
 
 The helpers (:func:`_par_exit`, :func:`_mer_exit`, :func:`_tri`, ...) are ordinary compiled
 functions, not ``inline="always"``: numba's IR inlining put a copy of each into the walk's
@@ -58,7 +58,7 @@ ray and 5 us a cell step on the bundled crop), so a one-ray ``geoloc locate --de
 :func:`uncompiled_budget` (the viewer's first scene) a larger call starts uncompiled too, while
 its projected cost fits. Its statuses and cells are the kernel's; its hits differ from the
 kernel's by the FMA rounding below (2.5e-8 m on the crop's 300 oblique rays, bilinear;
-``tests/test_terrain_python_walk.py`` holds them to 1e-6 m).
+``tests/surfaces/test_terrain_python_walk.py`` holds them to 1e-6 m).
 
 ``fastmath={"contract"}`` only lets LLVM fuse a multiply and an add (FMA, one
 rounding instead of two): 10 % faster; hits move by at most 1e-7 m on grazing
@@ -611,7 +611,7 @@ def _walk(
     fetch_rows = nr * nc >= PREFETCH_MIN_NODES
     # i // blk as (i * bdiv) >> 28: exact for 1 <= blk <= 16 and 0 <= i < 2^24 (ceil(2^28 / blk),
     # the reciprocal of a shift 4 bits longer than the numerator: checked for every such i in
-    # tests/test_terrain_hierarchy.py; _call refuses larger grids); a division was 1 % of the crop's walk
+    # tests/surfaces/test_terrain_hierarchy.py; _call refuses larger grids); a division was 1 % of the crop's walk
     bdiv = ((1 << 28) + blk - 1) // blk
     max_steps = 4 * (nr + nc) + 16  # a straight ray crosses each meridian once, each parallel twice
     for q in prange(n):
@@ -1513,11 +1513,11 @@ def _call(args, order=None, order_checked=False, block=BLOCK, python=True):
 #: 5 us a cell step on the bundled crop). The same code, run with numpy's float64 scalars: the
 #: statuses are the kernel's, the hits within the rounding of the multiply-adds LLVM fuses
 #: (``fastmath={"contract"}``; the bilinear polish stops at 1e-7 m anyway), checked in
-#: ``tests/test_terrain_python_walk.py``. The choice is the call's alone (its rays, its DEM, and
+#: ``tests/surfaces/test_terrain_python_walk.py``. The choice is the call's alone (its rays, its DEM, and
 #: whether its caller opened an :func:`uncompiled_budget`), never the process's history, so the
 #: same call gives the same bits in any process: a campaign's worker equals the serial run
-#: (tests/test_campaign.py), a viewer's step equals its first, a whole frame is the same in any
-#: chunks (tests/test_ortho.py). A process making many one-ray calls (a live feed) pays about
+#: (tests/workflows/test_campaign.py), a viewer's step equals its first, a whole frame is the same in any
+#: chunks (tests/workflows/test_ortho.py). A process making many one-ray calls (a live feed) pays about
 #: 0.1 ms a ray for that (about 50 us compiled). 0: always compiled.
 PY_WALK_MAX_RAYS = 64
 #: Rays x (rows + columns): the most cells such a call could cross, bounded so that a grazing

@@ -362,7 +362,7 @@ def rpc_report(
         GeoTIFF to write (RPC metadata, sparse pixels).
     dem : geoloc.surfaces.dem.DEM, optional
         The scenario's DEM (``scenario.dem_path`` with ``scenario.dem_datum``), opened
-        by the caller: a workflow does not open a DEM itself (``tests/test_one_model.py``).
+        by the caller: a workflow does not open a DEM itself (``tests/sensors/test_one_model.py``).
         Needed for the GDAL cross-check when the scenario has a ``[dem]``.
     gdal : bool
         Run the GDAL RPC_DEM cross-check (needs ``scenario.dem_path``).

@@ -19,7 +19,7 @@ camera moves (the tab's camera; a server session's: the first tab's).
 
 Text width is estimated at :data:`CHAR_EM` em per character (the system sans-serif stack's
 average advance is 0.50-0.56 em for these labels' text, measured with the browser's
-``measureText`` in ``tests/test_viz_labels.py``): an overestimate, so boxes found apart here
+``measureText`` in ``tests/viz/test_viz_labels.py``): an overestimate, so boxes found apart here
 are apart on screen.
 """
 

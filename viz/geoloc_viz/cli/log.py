@@ -28,7 +28,7 @@ from geoloc.cli import VERB_HELP
 
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
-#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+#: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
 EXAMPLE = "geoloc log assets/records/qiao2017_flight_tests.csv --height-column paper_height_m --out run.rrd"
 
 

@@ -1,0 +1,531 @@
+"""The rules of docs/cli.md, run on every verb's own example (issue 47, items 2 and 3).
+
+Each verb module declares ``EXAMPLE``: a quick command that writes its files (a tuple when
+earlier commands make its inputs, or when the verb has actions: ``klv dump``, ``fix``,
+``send``). The table is built from those examples and the verbs' option declarations
+(the argparse types of ``geoloc.cli._options``, as tests/cli/test_user_files.py does): every
+output of every example is written through a symlink to a file with other permission bits,
+into a FIFO, into ``/dev/full``, onto a full filesystem, is hit by Ctrl-C and by ENOSPC at
+its rename, and every text output goes to standard output and into a closed pipe. A new
+verb is in the table the day it lands: ``test_every_verb_has_an_example`` fails until it
+declares one.
+
+The refusals that need no run (an input as an output, a read-only file, a folder, a
+missing folder, ``-`` for a binary file) are tests/cli/test_user_files.py's, over the same
+declarations; the catalogue of issue 47's cases is tests/cli/test_bad_inputs.py.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import importlib
+import os
+import shlex
+import signal
+import stat
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from geoloc import userfiles
+from geoloc.cli import _verb_modules, build_parser, main
+from geoloc.cli._options import ROLES, declared_files, text_output_path
+
+
+def _leaves(parser, prefix=()):
+    import argparse
+
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield prefix, parser
+        return
+    for name, p in subs[0].choices.items():
+        yield from _leaves(p, prefix + (name,))
+
+
+PARSER = build_parser()
+LEAVES = {prefix: p for prefix, p in _leaves(PARSER) if prefix}
+
+
+def _examples() -> dict:
+    """Leaf (``("klv", "dump")``) -> (setup argvs, its own argv), from each verb module's EXAMPLE."""
+    out = {}
+    for name, module in _verb_modules():
+        ex = getattr(importlib.import_module(module), "EXAMPLE", None)
+        if ex is None:
+            continue
+        setup = []
+        for cmd in (ex,) if isinstance(ex, str) else ex:
+            argv = shlex.split(cmd)
+            assert argv[0] == "geoloc", cmd
+            argv = argv[1:]
+            leaf = tuple(argv[:2]) if tuple(argv[:2]) in LEAVES else (argv[0],)
+            if argv[0] != name:
+                setup.append(argv)
+            else:
+                out[leaf] = (list(setup), argv)
+    return out
+
+
+EXAMPLES = _examples()
+
+
+def _outputs(argv) -> list:
+    """(option, path, role, type) of the outputs a command line writes."""
+    return declared_files(PARSER, PARSER.parse_args(argv), types=True)[1]
+
+
+def _cases(text_only=False, first_only=False):
+    out = []
+    for leaf, (_setup, argv) in sorted(EXAMPLES.items()):
+        outs = _outputs(argv)
+        for k, (opt, path, role, kind) in enumerate(outs):
+            if (text_only and kind is not text_output_path) or (first_only and k):
+                continue
+            out.append(pytest.param(leaf, opt, id=f"{' '.join(leaf)}:{opt}"))
+    return out
+
+
+def _with(argv, opt, value) -> list:
+    """``argv`` with output option ``opt`` (or the positional of that metavar) set to ``value``."""
+    argv = list(argv)
+    if opt in argv:
+        argv[argv.index(opt) + 1] = str(value)
+        return argv
+    old = next(path for o, path, _r, _t in _outputs(argv) if o == opt)
+    argv[argv.index(old)] = str(value)
+    return argv
+
+
+class Run:
+    def __init__(self, rc, out, err):
+        self.rc, self.out, self.err = rc, out, err
+
+    def lines(self):
+        return [ln for ln in self.err.splitlines() if ln.strip()]
+
+
+def _run(argv, capsysbinary) -> Run:
+    capsysbinary.readouterr()
+    try:
+        rc = main(argv)
+    except SystemExit as e:  # argparse's usage errors
+        rc = e.code
+    out, err = capsysbinary.readouterr()
+    return Run(rc, out, err.decode("utf-8", "replace"))
+
+
+def _setup(leaf, tmp_path, monkeypatch, capsysbinary):
+    monkeypatch.chdir(tmp_path)
+    setup, argv = EXAMPLES[leaf]
+    for s in setup:
+        r = _run(s, capsysbinary)
+        assert r.rc in (0, 1), (s, r.err)
+    return argv
+
+
+_REFERENCE: dict = {}
+
+
+def _reference(leaf, tmp_path_factory, dash: str | None = None) -> dict:
+    """The example run plainly once: its exit status and each output's bytes (a folder: its file names).
+
+    ``dash``: the output option written as ``./-.SUFFIX``, a file whose name is standard output's
+    (a KML names its document after its file: ``-``)."""
+    key = (leaf, dash)
+    if key not in _REFERENCE:
+        d = tmp_path_factory.mktemp("reference")
+        old = os.getcwd()
+        os.chdir(d)
+        try:
+            setup, argv = EXAMPLES[leaf]
+            for s in setup:
+                assert main(s) in (0, 1), s
+            if dash:
+                argv = _with(argv, dash, "./-" + Path(_with_path(argv, dash)).suffix)
+            rc = main(argv)
+        finally:
+            os.chdir(old)
+        files = {}
+        for opt, path, role, _t in _outputs(argv):
+            p = d / path
+            files[opt] = sorted(os.listdir(p)) if role == "output_dir" else p.read_bytes()
+        _REFERENCE[key] = {"rc": rc, "files": files}
+    return _REFERENCE[key]
+
+
+#: Outputs whose bytes differ from one run to the next, and why: compared by their magic number only.
+NOT_REPRODUCIBLE = {
+    ".rrd": "rerun stamps its chunks with the time of logging and random ids",
+    ".gpkg": "GDAL writes the time of writing in gpkg_contents.last_change",
+}
+
+
+def _same_output(path, got: bytes, ref: bytes) -> bool:
+    if Path(str(path)).suffix in NOT_REPRODUCIBLE:
+        return len(got) > 0 and got[:4] == ref[:4]
+    return got == ref
+
+
+def _temp_files(folder: Path) -> list:
+    """Files atomic_path leaves when it fails to clean up (``.NAME.geoloc-XXXX``)."""
+    return [p.name for p in Path(folder).iterdir() if ".geoloc-" in p.name]
+
+
+def _role(leaf, opt):
+    _s, argv = EXAMPLES[leaf]
+    return next(r for o, _p, r, _t in _outputs(argv) if o == opt)
+
+
+# --------------------------------------------------------------------------- the table covers every verb
+
+
+def test_every_verb_has_an_example():
+    # every leaf of the command line (the viewer's verbs too) declares an EXAMPLE that parses
+    assert set(EXAMPLES) == set(LEAVES), sorted(set(LEAVES) - set(EXAMPLES))
+    from geoloc.cli import VERB_HELP
+
+    assert {leaf[0] for leaf in EXAMPLES} == set(VERB_HELP)
+    for leaf, (setup, argv) in EXAMPLES.items():
+        for a in setup + [argv]:
+            PARSER.parse_args(a)  # an example that does not parse exits here
+
+
+def test_every_output_option_of_the_examples_is_in_the_table():
+    # the options an example leaves out are still covered by tests/cli/test_user_files.py's refusals;
+    # here, each verb that writes a file writes at least one in its example
+    writers = {
+        leaf for leaf, p in LEAVES.items() if any(ROLES.get(a.type) in ("output", "output_dir") for a in p._actions)
+    }
+    with_outputs = {leaf for leaf, (_s, argv) in EXAMPLES.items() if _outputs(argv)}
+    # klv send writes nothing; view's --journal and live --record are live-only (docs/live.md)
+    assert writers - with_outputs <= {("klv", "send")}, writers - with_outputs
+    assert len(with_outputs) >= 12
+
+
+@pytest.mark.parametrize("leaf", sorted(EXAMPLES), ids=" ".join)
+def test_the_example_runs_and_exits_0_or_1(leaf, tmp_path, monkeypatch, capsysbinary):
+    # exit codes (docs/cli.md): 0 all done, 1 some records not located (klv dump of the example flight:
+    # its one planted bad checksum); every output is there, no temporary file is left
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    r = _run(argv, capsysbinary)
+    assert r.rc in (0, 1) and "Traceback" not in r.err, r.err
+    for opt, path, role, _t in _outputs(argv):
+        assert (tmp_path / path).is_dir() if role == "output_dir" else (tmp_path / path).stat().st_size > 0
+    assert _temp_files(tmp_path) == []
+
+
+@pytest.mark.parametrize("leaf", sorted(EXAMPLES), ids=" ".join)
+def test_bad_usage_is_exit_2(leaf, capsysbinary):
+    # the example with an option the verb does not have: argparse's usage line, exit 2, nothing run
+    r = _run(EXAMPLES[leaf][1] + ["--no-such-option"], capsysbinary)
+    assert r.rc == 2 and "unrecognized arguments: --no-such-option" in r.lines()[-1], r.err
+
+
+# --------------------------------------------------------------------------- arguments before any work
+
+
+@pytest.mark.parametrize("leaf,opt", _cases())
+def test_a_refused_output_stops_the_verb_before_it_starts(leaf, opt, tmp_path, monkeypatch, capsysbinary):
+    # the outputs are checked before the verb runs: command_files (the verb's whole run is inside it)
+    # is never entered when an output is a folder
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    folder = tmp_path / "a_folder"
+    folder.mkdir()
+    wrong = tmp_path / "a_file" if _role(leaf, opt) == "output_dir" else folder
+    (tmp_path / "a_file").write_text("x")
+
+    def started(inputs=()):
+        raise AssertionError(f"{' '.join(leaf)} started before refusing {opt} {wrong}")
+
+    monkeypatch.setattr(userfiles, "command_files", started)
+    r = _run(_with(argv, opt, wrong), capsysbinary)
+    assert r.rc == 2 and len(r.lines()) == 1 and "error:" in r.err, r.err
+
+
+# --------------------------------------------------------------------------- --out -: standard output
+
+
+@pytest.mark.parametrize("leaf,opt", _cases(text_only=True))
+def test_out_dash_writes_standard_output_the_files_bytes(
+    leaf, opt, tmp_path, tmp_path_factory, monkeypatch, capsysbinary
+):
+    ref = _reference(leaf, tmp_path_factory, dash=opt)
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    before = set(os.listdir(tmp_path))
+    r = _run(_with(argv, opt, "-"), capsysbinary)
+    assert r.rc == ref["rc"], r.err
+    assert r.out == ref["files"][opt]  # the data alone: the messages went to stderr
+    assert not (tmp_path / "-").exists()
+    assert set(os.listdir(tmp_path)) - before <= {p for o, p, _r, _t in _outputs(argv) if o != opt}
+
+
+class _ClosedPipe:
+    """A standard output whose reader has gone: every write is EPIPE (no file descriptor: main takes
+    the BrokenPipeError as the closed pipe, as tests/cli/test_user_files.py does)."""
+
+    def write(self, data):
+        raise BrokenPipeError(errno.EPIPE, "Broken pipe")
+
+    def flush(self):
+        raise BrokenPipeError(errno.EPIPE, "Broken pipe")
+
+    @property
+    def buffer(self):
+        return self
+
+    def isatty(self):
+        return False
+
+
+@pytest.mark.parametrize("leaf,opt", _cases(text_only=True))
+def test_out_dash_into_a_closed_pipe_ends_quietly_with_141(leaf, opt, tmp_path, monkeypatch, capsysbinary):
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    capsysbinary.readouterr()
+    monkeypatch.setattr(sys, "stdout", _ClosedPipe())
+    rc = main(_with(argv, opt, "-"))
+    monkeypatch.undo()
+    assert rc == 141
+    assert "Traceback" not in capsysbinary.readouterr().err.decode()
+
+
+# --------------------------------------------------------------------------- what is there is written through
+
+
+@pytest.mark.parametrize("leaf,opt", _cases())
+def test_a_symlink_stays_and_its_target_keeps_its_mode(
+    leaf, opt, tmp_path, tmp_path_factory, monkeypatch, capsysbinary
+):
+    ref = _reference(leaf, tmp_path_factory)
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    real = tmp_path / "real"
+    real.mkdir()
+    is_dir = _role(leaf, opt) == "output_dir"
+    suffix = Path(_with_path(argv, opt)).suffix  # a writer may choose its format by it (matplotlib)
+    target = real / ("target_dir" if is_dir else "target" + suffix)
+    if is_dir:
+        target.mkdir()
+    else:
+        target.write_bytes(b"the old output\n")
+        target.chmod(0o640)
+    link = tmp_path / "links" / Path(_with_path(argv, opt)).name  # the example's name (a KML names itself by it)
+    link.parent.mkdir()
+    link.symlink_to(target)
+    r = _run(_with(argv, opt, link), capsysbinary)
+    assert r.rc == ref["rc"], r.err
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    if is_dir:
+        assert sorted(os.listdir(target)) == ref["files"][opt]
+    else:
+        assert _same_output(link, target.read_bytes(), ref["files"][opt])
+        assert stat.S_IMODE(target.stat().st_mode) == 0o640
+        assert sorted(os.listdir(real)) == [target.name]
+    assert _temp_files(tmp_path) == []
+
+
+def _file_cases(**kw):
+    return [c for c in _cases(**kw) if _role(c.values[0], c.values[1]) == "output"]
+
+
+@pytest.mark.parametrize("leaf,opt", _file_cases())
+def test_a_fifo_is_written_through(leaf, opt, tmp_path, tmp_path_factory, monkeypatch, capsysbinary):
+    ref = _reference(leaf, tmp_path_factory)
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    fifo = tmp_path / "fifos" / Path(_with_path(argv, opt)).name  # the example's name (a KML names itself by it)
+    fifo.parent.mkdir()
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()), daemon=True)
+    reader.start()
+    r = _run(_with(argv, opt, fifo), capsysbinary)
+    if not got:  # the verb failed before opening it: let the reader go
+        with contextlib.suppress(OSError):
+            fd = os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+            os.close(fd)
+    reader.join(timeout=60)
+    assert r.rc == ref["rc"], r.err
+    assert fifo.is_fifo() and len(got) == 1 and _same_output(fifo, got[0], ref["files"][opt])
+    assert _temp_files(tmp_path) == []
+
+
+def _with_path(argv, opt):
+    return next(p for o, p, _r, _t in _outputs(argv) if o == opt)
+
+
+@pytest.mark.parametrize("leaf,opt", _file_cases())
+def test_dev_full_is_written_through_and_is_one_line(leaf, opt, tmp_path, monkeypatch, capsysbinary):
+    # through a link, so that a verb that replaced its output would replace the link, not the device
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    link = tmp_path / ("full" + Path(_with_path(argv, opt)).suffix)
+    link.symlink_to("/dev/full")
+    r = _run(_with(argv, opt, link), capsysbinary)
+    assert r.rc == 2, r.err
+    assert r.lines()[-1].endswith(f"error: {link}: No space left on device"), r.err
+    assert link.is_symlink() and Path("/dev/full").is_char_device()
+
+
+# --------------------------------------------------------------------------- Ctrl-C and faults at the rename
+
+
+def _replace_raising(monkeypatch, target: Path, exc):
+    """os.replace raises ``exc`` when it would put a file at or in ``target`` (the last step of atomic_path)."""
+    real = os.replace
+    hits = []
+
+    def replace(src, dst, *a, **k):
+        d = Path(os.fspath(dst))
+        if d == target or target in d.parents:
+            hits.append(d)
+            raise exc
+        return real(src, dst, *a, **k)
+
+    monkeypatch.setattr(os, "replace", replace)
+    return hits
+
+
+def _old_output(tmp_path, leaf, opt):
+    """An earlier output of the same name: a file with known bytes, or a folder holding one."""
+    p = tmp_path / ("old_output" + Path(_with_path(EXAMPLES[leaf][1], opt)).suffix)
+    if _role(leaf, opt) == "output_dir":
+        p.mkdir()
+        (p / "earlier.txt").write_bytes(b"an earlier report\n")
+        return p, lambda: sorted(os.listdir(p)) == ["earlier.txt"] or (p / "earlier.txt").read_bytes()
+    p.write_bytes(b"the old output\n")
+    return p, lambda: p.read_bytes() == b"the old output\n"
+
+
+@pytest.mark.parametrize("leaf,opt", _cases())
+def test_ctrl_c_while_writing_is_one_line_130_and_the_old_output_stays(leaf, opt, tmp_path, monkeypatch, capsysbinary):
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    old, intact = _old_output(tmp_path, leaf, opt)
+    hits = _replace_raising(monkeypatch, old, KeyboardInterrupt())
+    r = _run(_with(argv, opt, old), capsysbinary)
+    prog = "geoloc " + " ".join(leaf)
+    assert hits and r.rc == 130 and r.lines()[-1:] == [f"{prog}: interrupted (Ctrl-C)"], r.err
+    assert "Traceback" not in r.err and intact()
+    assert _temp_files(tmp_path) == [] and (not old.is_dir() or _temp_files(old) == [])
+
+
+@pytest.mark.parametrize("leaf,opt", _cases())
+def test_no_space_at_the_rename_keeps_the_old_output(leaf, opt, tmp_path, monkeypatch, capsysbinary):
+    # a patched os.replace raising ENOSPC: the fault every platform can inject (the real full disk: below)
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    old, intact = _old_output(tmp_path, leaf, opt)
+    hits = _replace_raising(monkeypatch, old, OSError(errno.ENOSPC, "No space left on device", str(old)))
+    r = _run(_with(argv, opt, old), capsysbinary)
+    assert hits and r.rc == 2 and "No space left on device" in r.lines()[-1], r.err
+    assert len([ln for ln in r.lines() if "error:" in ln]) == 1 and "Traceback" not in r.err
+    assert intact() and _temp_files(tmp_path) == [] and (not old.is_dir() or _temp_files(old) == [])
+
+
+# --------------------------------------------------------------------------- a real full disk, a folder made read-only
+
+
+@pytest.fixture
+def small_fs(tmp_path):
+    """A mount point of a 1 MB tmpfs (root only: skipped where mounting is not allowed); unmounted after."""
+    mnt = tmp_path / "small"
+    mnt.mkdir()
+    p = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if p.returncode:
+        pytest.skip(f"cannot mount a small filesystem here: {p.stderr.strip()}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def _fill(mnt: Path, leave: int) -> None:
+    """Fill the filesystem but ``leave`` bytes (rounded down to its blocks)."""
+    st = os.statvfs(mnt)
+    free = st.f_bavail * st.f_frsize
+    with open(mnt / "filler", "wb") as fh:
+        with contextlib.suppress(OSError):
+            fh.write(b"\0" * max(0, free - leave))
+
+
+@pytest.mark.parametrize("leaf,opt", _cases())
+def test_a_disk_full_while_writing_keeps_the_old_output(
+    leaf, opt, small_fs, tmp_path, tmp_path_factory, monkeypatch, capsysbinary
+):
+    ref = _reference(leaf, tmp_path_factory)
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    old, intact = _old_output(small_fs, leaf, opt)
+    size = len(ref["files"][opt]) if isinstance(ref["files"][opt], bytes) else 4096
+    _fill(small_fs, size // 2)  # the write runs out of space half way (or at its first block)
+    before = sorted(os.listdir(small_fs))
+    r = _run(_with(argv, opt, old), capsysbinary)
+    assert r.rc == 2 and len([ln for ln in r.lines() if "error:" in ln]) == 1, r.err
+    assert "No space left on device" in r.lines()[-1] and "Traceback" not in r.err, r.err
+    assert intact() and sorted(os.listdir(small_fs)) == before
+    assert not old.is_dir() or _temp_files(old) == []
+
+
+@pytest.mark.parametrize("leaf,opt", _cases(first_only=True))
+def test_a_folder_made_read_only_mid_run_is_one_line(leaf, opt, small_fs, tmp_path, monkeypatch, capsysbinary):
+    # after the outputs were checked, the folder turns read-only (remounted: as root, permission bits do
+    # not stop a write); the verb ends with one line, the old output whole, nothing left behind
+    import geoloc.cli._options as options
+
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    old, intact = _old_output(small_fs, leaf, opt)
+    real = options.check_outputs
+
+    def then_read_only(parser, args):
+        inputs = real(parser, args)
+        subprocess.run(["mount", "-o", "remount,ro", str(small_fs)], check=True)
+        return inputs
+
+    monkeypatch.setattr(options, "check_outputs", then_read_only)
+    r = _run(_with(argv, opt, old), capsysbinary)
+    assert r.rc == 2 and "Read-only file system" in r.lines()[-1] and "Traceback" not in r.err, r.err
+    assert intact() and sorted(os.listdir(small_fs)) == [old.name]
+
+
+# --------------------------------------------------------------------------- bounded iterations
+
+
+def _dem_cases():
+    return [
+        pytest.param(leaf, id=" ".join(leaf))
+        for leaf, (_s, argv) in sorted(EXAMPLES.items())
+        if any("--eps-h" in a.option_strings for a in LEAVES[leaf]._actions)
+        and "--dem" in argv
+        or leaf in {("replay",), ("ortho",), ("calibrate",)}
+    ]
+
+
+@pytest.mark.parametrize("leaf", _dem_cases())
+def test_a_tolerance_no_solver_reaches_still_ends(leaf, tmp_path, monkeypatch, capsysbinary):
+    # --method steps --eps-h 1e-9: unbounded, the descending steps would take (relief / 1e-9) steps,
+    # hours; bounded (docs/cli.md, "Bounded iterations"), the verb ends with statuses. The alarm only
+    # turns a hang into a failure (it is no speed test: the run takes seconds)
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+
+    def hang(*_):
+        raise TimeoutError(f"{' '.join(leaf)} --method steps --eps-h 1e-9 did not end in 300 s")
+
+    old = signal.signal(signal.SIGALRM, hang)
+    signal.alarm(300)
+    try:
+        r = _run(argv + ["--method", "steps", "--eps-h", "1e-9"], capsysbinary)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    assert r.rc in (0, 1) and "Traceback" not in r.err, r.err
+
+
+def test_two_kml_exports_in_one_process_are_the_same_bytes(tmp_path, monkeypatch, capsysbinary):
+    # found by the `--out -` rule: simplekml numbers ids with a counter of the whole process, so the
+    # second KML a process wrote had other ids (k32 for k1) than the first
+    monkeypatch.chdir(tmp_path)
+    assert main(["replay", "--height-column", "paper_height_m", "--out", "r.csv"]) == 0
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        assert main(["export", "r.csv", "--out", f"{name}/x.kml"]) == 0
+    a, b = (tmp_path / "a" / "x.kml").read_bytes(), (tmp_path / "b" / "x.kml").read_bytes()
+    assert a == b and b'id="k1"' in a

@@ -1,0 +1,75 @@
+"""The documentation's pictures are there (issue 34's Done-when: screenshots of the first view and of
+an outlier with its error vector; issue 48: the README shows one picture): every image the README
+or a docs page links is a readable PNG in the repository."""
+
+import re
+from pathlib import Path
+
+import PIL.Image
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+IMAGE = re.compile(r"!\[[^\]]*\]\(([^)\s]+)\)")
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+# (page, the link as written, the file it names): a link is relative to its page's folder
+LINKS = [
+    (page, link, (page.parent / link).resolve())
+    for page in PAGES
+    for link in IMAGE.findall(page.read_text(encoding="utf-8"))
+    if "://" not in link
+]
+
+
+def test_the_readme_shows_one_picture():
+    shown = IMAGE.findall((ROOT / "README.md").read_text(encoding="utf-8"))
+    assert len(shown) == 1, shown  # issue 48: "a picture", on one screen
+    assert shown[0].startswith("docs/img/"), shown
+
+
+def test_the_issue_34_screenshots_are_linked():
+    tour = (ROOT / "docs" / "tour_viewer.md").read_text(encoding="utf-8")
+    for name in ("img/viewer_first_view.png", "img/viewer_outlier_error.png"):
+        assert name in IMAGE.findall(tour), f"docs/tour_viewer.md does not show {name}"
+
+
+@pytest.mark.parametrize("page,link,path", LINKS, ids=[f"{p.relative_to(ROOT)}:{link}" for p, link, _ in LINKS])
+def test_every_docs_image_is_a_png_in_the_repository(page, link, path):
+    assert path.is_file(), f"{page.relative_to(ROOT)} links {link!r}, which is not in the repository"
+    with PIL.Image.open(path) as im:
+        assert im.format == "PNG", (link, im.format)
+        # a real screenshot or figure, not a placeholder or an icon: the smallest side is 640 px today
+        assert min(im.size) >= 200, (link, im.size)
+
+
+@pytest.mark.xdist_group("chromium")  # a browser in a subprocess: tests/conftest.py cannot see it
+@pytest.mark.browser
+def test_the_screenshot_tool_makes_both_views(tmp_path):
+    """tools/make_viewer_screenshots.py, which made the two issue 34 pictures, still runs: both PNGs
+    at 1100 x 700, the second a different view (the camera on packet 100's error vector)."""
+    import os
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    r = subprocess.run(
+        [sys.executable, str(ROOT / "tools" / "make_viewer_screenshots.py"), "--out", str(tmp_path / "img")],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr[-4000:]
+    imgs = []
+    for name in ("viewer_first_view.png", "viewer_outlier_error.png"):
+        with PIL.Image.open(tmp_path / "img" / name) as im:
+            assert im.format == "PNG" and im.size == (1100, 700), (name, im.format, im.size)
+            imgs.append(np.asarray(im.convert("RGB"), float))
+    assert sorted(p.name for p in (tmp_path / "img").iterdir()) == [
+        "viewer_first_view.png",
+        "viewer_outlier_error.png",
+    ]  # no temp left
+    # the 3D view (left of the panel) changed: the camera moved to the error
+    assert np.abs(imgs[0][:, :680] - imgs[1][:, :680]).mean() > 10.0
