@@ -81,7 +81,11 @@ TARGETS = [
     Target(
         "terrain",
         "geoloc/surfaces/terrain.py",
-        ("tests/surfaces/test_terrain.py", "tests/surfaces/test_terrain_walk.py", "tests/surfaces/test_terrain_trimesh.py"),
+        (
+            "tests/surfaces/test_terrain.py",
+            "tests/surfaces/test_terrain_walk.py",
+            "tests/surfaces/test_terrain_trimesh.py",
+        ),
         (
             "_flat_los",
             "_ground",
@@ -108,13 +112,19 @@ TARGETS = [
     Target("graph", "geoloc/frames/graph.py", ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py")),
     Target("gimbals", "geoloc/sensors/gimbals.py", ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py")),
     Target(
-        "frame", "geoloc/sensors/frame.py", ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py", "tests/pipeline/test_locate.py")
+        "frame",
+        "geoloc/sensors/frame.py",
+        ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py", "tests/pipeline/test_locate.py"),
     ),
     # the one calibrator (analysis/calibrate.py, the first-phase camera's, is gone: issue 31)
     Target(
         "sensor_fit",
         "geoloc/analysis/sensor_fit.py",
-        ("tests/analysis/test_sensor_fit.py", "tests/analysis/test_sensor_fit_groups.py", "tests/analysis/test_calibrate.py"),
+        (
+            "tests/analysis/test_sensor_fit.py",
+            "tests/analysis/test_sensor_fit_groups.py",
+            "tests/analysis/test_calibrate.py",
+        ),
     ),
     # the last phase (issue 50): the fastest test that covers each first (pytest -x stops there)
     Target("uncertainty", "geoloc/analysis/uncertainty.py", ("tests/analysis/test_uncertainty.py",), kills=False),
