@@ -96,9 +96,14 @@ def _num(x, nd=None):
 
 
 def _label(aberration: bool, refraction: str) -> str:
-    return (
-        "+".join(n for n, on in (("aberration", aberration), ("refraction", refraction == "standard")) if on) or "none"
-    )
+    """The output's ``corrections``, named as every locating verb names them (``Corrections.label``);
+    a tangent ray meets no surface, so light-time has nothing to act on."""
+    from geoloc.corrections.refraction import STANDARD_REFRACTION
+    from geoloc.pipeline import Corrections
+
+    return Corrections(
+        refraction=STANDARD_REFRACTION if refraction == "standard" else None, aberration=aberration
+    ).label
 
 
 def _refracted(refraction: str, origin, direction) -> dict:
