@@ -553,20 +553,18 @@ def corrections_from_args(args, sensor, settings: dict | None = None, base=None)
     from geoloc.pipeline import TABLE_KEYS, corrections_from_table
 
     flags = {k: getattr(args, k, None) for k in TABLE_KEYS}
-    if base is not None:
+    source = "[corrections] and the command line"
+    if base is not None:  # the scenario's corrections, as the table that makes them
         from geoloc.corrections import GROUND_KEYS
-        from geoloc.pipeline import refraction_model
 
-        ground = {k: flags.pop(k) for k in GROUND_KEYS}
-        if flags["refraction"] is not None or any(v is not None for v in ground.values()):
-            name = flags["refraction"] or ("standard" if base.refraction is not None else "none")
-            flags["refraction"] = refraction_model(name, ground, "the command line")
-        return base.overridden(sensor, **flags)
-    if settings is None and getattr(args, "camera", None):  # the --sensor file's [corrections]
+        settings = base.to_table()
+        if flags["refraction"] == "none":  # its ground measurement goes with its refraction
+            settings = {k: v for k, v in settings.items() if k not in GROUND_KEYS}
+    elif settings is None and getattr(args, "camera", None):  # the --sensor file's [corrections]
         from geoloc.sensors.sensor_file import load_sensor_corrections
 
         settings = load_sensor_corrections(args.camera)
-    return corrections_from_table(sensor, settings, **flags)
+    return corrections_from_table(sensor, settings, source, **flags)
 
 
 def pipeline_from_args(args, sensor, surface, settings: dict | None = None):

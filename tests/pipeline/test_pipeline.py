@@ -553,3 +553,29 @@ def test_a_fitted_sensor_file_keeps_the_corrections_it_was_fitted_with(tmp_path,
         "ground_p_pa": 95000.0,
     }
     assert corrections_from_table(cam, c.to_table()) == c
+
+
+def test_command_line_over_a_scenarios_corrections():
+    """montecarlo and rpc hold a scenario's corrections (``base``); the command line changes only
+    what it names, and a ground measurement goes with the refraction it fits."""
+    import argparse
+
+    from geoloc.cli._options import corrections_from_args
+    from geoloc.corrections.atmosphere import StandardAtmosphere
+    from geoloc.corrections.refraction import Refraction
+
+    sensor = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
+    base = Corrections(refraction=Refraction(StandardAtmosphere(ground_p_pa=95000.0)))
+
+    def args(**given):
+        keys = ("refraction", "light_time", "aberration", "ground_h_m", "ground_p_pa", "ground_t_k")
+        return argparse.Namespace(**{k: given.get(k) for k in keys})
+
+    kept = corrections_from_args(args(), sensor, base=base)
+    assert kept.refraction.atmosphere == StandardAtmosphere(ground_p_pa=95000.0) and not kept.light_time
+    both = corrections_from_args(args(ground_t_k=300.0), sensor, base=base)  # the scenario's pressure kept
+    assert both.refraction.atmosphere == StandardAtmosphere(ground_p_pa=95000.0, ground_t_k=300.0)
+    off = corrections_from_args(args(refraction="none", light_time=True), sensor, base=base)
+    assert off.refraction is None and off.light_time and off.label == "light_time"
+    with pytest.raises(ValueError, match="ground_t_k given, but refraction = 'none'"):
+        corrections_from_args(args(ground_t_k=300.0), sensor, base=Corrections())
