@@ -228,10 +228,11 @@ def test_a_person_turns_refraction_on_in_chromium(tmp_path):
             page.screenshot(path=str(ARTIFACTS / "viz_refraction_x100_page.png"))
 
 
-def test_limb_scene_marks_the_refracted_tangent_point():
-    """``--scenario limb --refraction standard``: the panel's refracted tangent height is ``geoloc limb
-    --origin-ecef ... --direction-ecef ... --refraction standard --json``'s for the scene's ray, and the
-    lime marker sits at the refracted tangent point, below the straight line's tangent point."""
+def test_limb_scene_marks_the_refracted_tangent_point(tmp_path):
+    """``--scenario limb --refraction standard``: the panel's refracted tangent height, as a person
+    reads it in the page, is ``geoloc limb --origin-ecef ... --direction-ecef ... --refraction
+    standard --json``'s for the scene's ray, and the lime marker sits at the refracted tangent
+    point, below the straight line's tangent point."""
     from geoloc.cli import build_parser
     from geoloc_viz.cli.view import app_factory
 
@@ -255,6 +256,13 @@ def test_limb_scene_marks_the_refracted_tangent_point():
         cli = json.loads(subprocess.run(argv, capture_output=True, text=True, check=True, timeout=300).stdout)
         shown = float(re.search(r"refracted tangent \*\*h = (\d+\.\d) m\*\*", app.md.content).group(1))
         assert abs(shown - cli["refracted_tangent_h_m"]) < 0.051  # printed to 0.1 m
+        with chromium(tmp_path) as browser:  # and in the page, where a person reads it
+            page = open_viewer(browser, server, 900, 700)
+            el = page.get_by_text(re.compile(r"refracted tangent h = \d+\.\d m")).first
+            el.wait_for(timeout=120000)
+            seen = float(re.search(r"refracted tangent h = (\d+\.\d) m", el.inner_text()).group(1))
+            assert abs(seen - cli["refracted_tangent_h_m"]) < 0.051  # printed to 0.1 m
+            page.screenshot(path=str(ARTIFACTS / "viz_limb_refracted_panel.png"))
         assert cli["refracted_tangent_h_m"] < cli.get("tangent_h_m", cli.get("exact_tangent_h_m", np.inf))
         refr = np.asarray(server.scene.get_handle_by_name("/limb/refracted").position, float)
         tan = np.asarray(server.scene.get_handle_by_name("/limb/tangent").position, float)
