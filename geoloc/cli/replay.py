@@ -485,6 +485,8 @@ def _run_srt(args, inputs) -> int:
         f = read_srt(path)
         for line, msg in f.errors:
             print(f"geoloc replay: {path} line {line}: {msg}: skipped", file=sys.stderr)
+        for line, msg in f.warnings:
+            print(f"geoloc replay: {path} line {line}: {msg}: kept in file order", file=sys.stderr)
         print(f.summary())
         flights.append(f)
     if args.out:

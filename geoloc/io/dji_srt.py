@@ -98,12 +98,17 @@ class SrtRecord:
 
 @dataclass
 class SrtFlight:
-    """The good blocks of an SRT file and the bad ones (``(line, message)``)."""
+    """The good blocks of an SRT file and the bad ones (``(line, message)``).
+
+    ``warnings`` (``(line, message)``): good blocks kept with a note, a time code that goes back
+    from the block before it (a cut or spliced file); the blocks stay in file order.
+    """
 
     path: str
     records: list
     errors: list
     form: str = ""
+    warnings: list = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.records)
@@ -116,6 +121,8 @@ class SrtFlight:
             text += f", {t0:.3f}-{t1:.3f} s of video"
         if self.errors:
             text += f"; {len(self.errors)} bad block(s) skipped"
+        if self.warnings:
+            text += f"; {len(self.warnings)} time code(s) going back"
         return text
 
 
@@ -173,7 +180,13 @@ def read_srt(path) -> SrtFlight:
     if not records:
         first = "; ".join(f"line {ln}: {msg}" for ln, msg in errors[:3]) or "the file is empty"
         raise ValueError(f"{p.name}: no readable DJI SRT block ({first}) (file {path})")
-    return SrtFlight(str(path), records, errors, "+".join(sorted(forms)))
+    # a time code before the block before it is kept (the file's order is the video's) and reported
+    warnings = [
+        (b.line, f"time code {b.start_s:.3f} s goes back from {a.start_s:.3f} s (the block at line {a.line})")
+        for a, b in zip(records, records[1:])
+        if b.start_s < a.start_s
+    ]
+    return SrtFlight(str(path), records, errors, "+".join(sorted(forms)), warnings)
 
 
 def _parse_block(start: int, block: list):

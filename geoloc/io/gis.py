@@ -793,7 +793,7 @@ def export(
         )
     out = Path(out_path)
     if not out.parent.is_dir():
-        raise FileNotFoundError(f"output folder {str(out.parent)!r} does not exist")
+        raise FileNotFoundError(f"{out}: output folder {str(out.parent)!r} does not exist")
     layers, ctx = build_layers(table, group_by=group_by, epoch=epoch)
     notes = []
     if ctx.time_source == "row_order" and fmt == "czml":
