@@ -157,7 +157,7 @@ TARGETS = [
     Target(
         "time_offset",
         "geoloc/analysis/time_offset.py",
-        ("tests/test_video_example.py::test_fitting_the_time_offset_on_the_timing_fault_recovers_it",),
+        ("tests/test_time_offset.py", "tests/test_video_example.py::test_fitting_the_time_offset_on_the_timing_fault_recovers_it"),
         kills=False,
     ),
     # the live stream: its demultiplexer (geoloc.io.ts_demux, which geoloc.io.klv reads a .ts with too)

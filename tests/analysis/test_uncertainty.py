@@ -458,3 +458,48 @@ def test_on_a_mosaic_the_dem_error_moves_the_point_by_the_mosaic_slope(tmp_path)
     np.testing.assert_allclose(np.asarray(foot.jacobian_enu)[..., -1].reshape(3), expected, rtol=1e-4, atol=1e-3)
     # and the mosaic's answer is the one raster's, the same nodes (float rounding of the windows)
     np.testing.assert_allclose(on_mosaic.cov_enu, on_raster.cov_enu, rtol=1e-9, atol=1e-9)
+
+
+def test_the_linear_flag_compares_the_terrain_with_the_dems_own_sigma_when_given():
+    """``linear``: the terrain's RMS against 0.1 of the DEM's vertical sigma when it is given (even
+    below 1 m), else of the point's own vertical sigma; the numbers worked here by hand."""
+    from geoloc.analysis.uncertainty import PointUncertainty
+
+    cov = np.diag([4.0, 4.0, 0.01])[None]  # the point's vertical sigma 0.1 m
+
+    def pu(terrain_rms, surface_sigma):
+        z = np.zeros(1)
+        return PointUncertainty(
+            z, z, z, np.zeros(1, np.uint8), cov, np.zeros((1, 3, 1)), ("x",), z, z, z, z, z,
+            terrain_rms_m=np.array([terrain_rms]), surface_sigma_m=surface_sigma,
+        )  # fmt: skip
+
+    # a DEM sigma of 0.5 m: the threshold is 0.05 m, so 0.04 m of relief is a plane, 0.06 m is not
+    assert pu(0.04, 0.5).linear.tolist() == [True]
+    assert pu(0.06, 0.5).linear.tolist() == [False]
+    # no DEM sigma: the point's own 0.1 m, threshold 0.01 m
+    assert pu(0.009, 0.0).linear.tolist() == [True]
+    assert pu(0.04, 0.0).linear.tolist() == [False]
+    # no terrain (a constant height): linear
+    import dataclasses
+
+    assert dataclasses.replace(pu(0.5, 0.0), terrain_rms_m=None).linear.tolist() == [True]
+
+
+def test_normalised_errors_in_their_own_ellipse_by_hand():
+    """d^2 = (along / major)^2 + (across / minor)^2, azimuth clockwise from north; a zero minor axis
+    is floored at 1e-9 of the major (an error across a degenerate ellipse is far outside it)."""
+    from geoloc.analysis.uncertainty import normalised_errors, outside_ellipse
+
+    # major axis north (azimuth 0): 3 m north and 1 m east in a 10 x 1 m ellipse: d^2 = 0.09 + 1
+    assert normalised_errors(1.0, 3.0, 10.0, 1.0, 0.0) == pytest.approx(math.sqrt(1.09), rel=1e-14)
+    # major axis east (azimuth 90): the same error is 1 m along, 3 m across
+    assert normalised_errors(1.0, 3.0, 10.0, 1.0, 90.0) == pytest.approx(math.sqrt(0.01 + 9.0), rel=1e-14)
+    # a zero minor axis: 1 m across is 1 / (1e-9 x 10) = 1e8 sigma
+    assert normalised_errors(1.0, 0.0, 10.0, 0.0, 0.0) == pytest.approx(1e8, rel=1e-12)
+    # the 99 % ellipse's radius sqrt(-2 ln 0.01) = 3.0349 sigma, both sides of it
+    r99 = math.sqrt(-2.0 * math.log(0.01))
+    assert (
+        outside_ellipse(0.0, 1.001 * r99, 1.0, 1.0, 0.0).item()
+        and not outside_ellipse(0.0, 0.999 * r99, 1.0, 1.0, 0.0).item()
+    )

@@ -171,3 +171,13 @@ def test_read_rpc_on_a_nitf_without_rpc_says_so(tmp_path):
             dst.write(np.zeros((1, 8, 8), np.uint8))
     with pytest.raises(ValueError, match="no RPC"):
         read_rpc(p)
+
+
+def test_a_bare_sidecar_needs_both_rows_and_cols(tmp_path):
+    """An .RPB or _RPC.TXT alone carries no image size: one of the two is not enough."""
+    for name in ("alone.RPB", "alone_RPC.TXT"):
+        p = tmp_path / name
+        p.write_text("")
+        for kw in ({}, {"rows": 64}, {"cols": 64}):
+            with pytest.raises(ValueError, match="a sidecar RPC file has no image size; give rows and cols"):
+                read_rpc(p, **kw)
