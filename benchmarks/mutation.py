@@ -157,7 +157,10 @@ TARGETS = [
     Target(
         "time_offset",
         "geoloc/analysis/time_offset.py",
-        ("tests/test_time_offset.py", "tests/test_video_example.py::test_fitting_the_time_offset_on_the_timing_fault_recovers_it"),
+        (
+            "tests/test_time_offset.py",
+            "tests/test_video_example.py::test_fitting_the_time_offset_on_the_timing_fault_recovers_it",
+        ),
         kills=False,
     ),
     # the live stream: its demultiplexer (geoloc.io.ts_demux, which geoloc.io.klv reads a .ts with too)
@@ -201,11 +204,12 @@ TARGETS = [
         kills=False,
     ),
     Target("mgrs_grid", "geoloc/io/mgrs_grid.py", ("tests/test_mgrs_wrap.py", "tests/test_mgrs.py"), kills=False),
-    Target("cot", "geoloc/io/cot.py", ("tests/test_cot.py",), kills=False),
+    Target("cot", "geoloc/io/cot.py", ("tests/test_cot_fields.py", "tests/test_cot.py"), kills=False),
     Target(
         "rpc_nitf",
         "geoloc/io/rpc_gdal.py",
-        ("tests/test_rpc_nitf.py",),
+        # read_rpc's sidecars (.RPB, _RPC.TXT) are read in test_rpc_sensor.py
+        ("tests/test_rpc_nitf.py", "tests/test_rpc_sensor.py::test_read_rpc_from_geotiff_rpb_and_rpc_txt"),
         ("rpc00b_renormalized", "old_of", "write_rpc_nitf", "_is_sidecar", "read_rpc"),
         "the NITF RPC00B",
         kills=False,

@@ -181,3 +181,16 @@ def test_a_bare_sidecar_needs_both_rows_and_cols(tmp_path):
         for kw in ({}, {"rows": 64}, {"cols": 64}):
             with pytest.raises(ValueError, match="a sidecar RPC file has no image size; give rows and cols"):
                 read_rpc(p, **kw)
+
+
+def test_the_image_size_is_read_as_rows_then_cols(zy3, tmp_path):
+    """A NITF and a GeoTIFF of 48 lines x 80 samples: the sensor has 48 rows and 80 columns (GDAL's
+    height and width), unless rows and cols are given."""
+    _, m = zy3
+    for path in (write_rpc_nitf(tmp_path / "wide.ntf", m, 48, 80), write_rpc_geotiff(tmp_path / "wide.tif", m, 48, 80)):
+        with rasterio.open(path) as src:
+            assert (src.height, src.width) == (48, 80)
+        s = read_rpc(path)
+        assert (s.rows, s.cols) == (48, 80)
+        s = read_rpc(path, rows=100, cols=200)
+        assert (s.rows, s.cols) == (100, 200)
