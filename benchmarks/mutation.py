@@ -214,7 +214,12 @@ TARGETS = [
         "the NITF RPC00B",
         kills=False,
     ),
-    Target("klv_fix", "geoloc/workflows/klv_fix.py", ("tests/test_klv_fix.py",) + _skip(_SLOW["klv_fix"]), kills=False),
+    Target(
+        "klv_fix",
+        "geoloc/workflows/klv_fix.py",
+        ("tests/test_klv_fix_parts.py", "tests/test_klv_fix.py") + _skip(_SLOW["klv_fix"]),
+        kills=False,
+    ),
     Target(
         "picture_model",
         "viz/geoloc_viz/picture_model.py",
