@@ -47,7 +47,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 COPY = ("geoloc", "viz", "tests", "assets", "examples")
 #: The tests written from earlier runs' survivors run with every target.
-KILLS = "tests/test_mutation_kills.py"
+KILLS = "tests/project/test_mutation_kills.py"
 
 
 @dataclass
@@ -57,43 +57,43 @@ class Target:
     tests: tuple
     functions: tuple = ()  # empty: the whole module (module-level constants included)
     notes: str = ""
-    #: run tests/test_mutation_kills.py too (the core's kill tests: nothing in it covers the last
+    #: run tests/project/test_mutation_kills.py too (the core's kill tests: nothing in it covers the last
     #: phase's modules, so their targets leave it out and run only their own tests)
     kills: bool = True
 
 
 #: The tests of the live stream's demultiplexer and receiver (the targets ts_demux and live).
 LIVE_TESTS = (
-    "tests/test_live_gaps.py",
-    "tests/test_live.py::test_synchronous_metadata_carriage_is_read",
-    "tests/test_live.py::test_datagrams_and_chunks_decode_as_ffmpeg_reads_the_file",
-    "tests/test_live.py::test_lost_swapped_and_repeated_datagrams_every_intact_packet_used",
-    "tests/test_live.py::test_corrupt_cut_and_foreign_datagrams_are_counted_never_fatal",
-    "tests/test_live.py::test_a_stream_that_stops_and_restarts",
-    "tests/test_live.py::test_crc32_of_the_files_psi_sections_is_zero",
+    "tests/io/test_live_gaps.py",
+    "tests/workflows/test_live.py::test_synchronous_metadata_carriage_is_read",
+    "tests/workflows/test_live.py::test_datagrams_and_chunks_decode_as_ffmpeg_reads_the_file",
+    "tests/workflows/test_live.py::test_lost_swapped_and_repeated_datagrams_every_intact_packet_used",
+    "tests/workflows/test_live.py::test_corrupt_cut_and_foreign_datagrams_are_counted_never_fatal",
+    "tests/workflows/test_live.py::test_a_stream_that_stops_and_restarts",
+    "tests/workflows/test_live.py::test_crc32_of_the_files_psi_sections_is_zero",
 )
 
 #: Tests left out of a target's run for their time alone (each is a minute or more on the shared
 #: machine: a numba compile, a whole-flight replay, a Monte Carlo); the rest of the file runs.
 _SLOW = {
     "uncertainty": (
-        "tests/test_uncertainty.py::test_compiled_engine_equals_the_numpy_reference",
-        "tests/test_uncertainty.py::test_predicted_ce90_le90_within_5_percent_of_monte_carlo",
-        "tests/test_uncertainty.py::test_ce90_ends_are_the_normal_and_rayleigh_quantiles",
-        "tests/test_uncertainty.py::test_ce90_matches_four_million_draws_and_not_the_circular_rule",
+        "tests/analysis/test_uncertainty.py::test_compiled_engine_equals_the_numpy_reference",
+        "tests/analysis/test_uncertainty.py::test_predicted_ce90_le90_within_5_percent_of_monte_carlo",
+        "tests/analysis/test_uncertainty.py::test_ce90_ends_are_the_normal_and_rayleigh_quantiles",
+        "tests/analysis/test_uncertainty.py::test_ce90_matches_four_million_draws_and_not_the_circular_rule",
     ),
     "klv_fix": (
-        "tests/test_klv_fix.py::test_fix_the_bundled_flight_on_the_dem",
-        "tests/test_klv_fix.py::test_a_budget_writes_the_predicted_ce90_le90_into_tags_45_46",
+        "tests/workflows/test_klv_fix.py::test_fix_the_bundled_flight_on_the_dem",
+        "tests/workflows/test_klv_fix.py::test_a_budget_writes_the_predicted_ce90_le90_into_tags_45_46",
     ),
     "pipeline": (
-        "tests/test_pipeline.py::test_refraction_as_a_source_of_the_error_budget",
-        "tests/test_pipeline.py::test_locate_refraction_from_18_km_grows_and_points_to_nadir",
-        "tests/test_pipeline.py::test_limb_cli_prints_the_refracted_tangent_height",
-        "tests/test_pipeline.py::test_whole_frame_grid_executor_agrees_with_the_pipeline_with_refraction",
-        "tests/test_pipeline.py::test_report_says_which_corrections_the_replay_applied",
+        "tests/pipeline/test_pipeline.py::test_refraction_as_a_source_of_the_error_budget",
+        "tests/pipeline/test_pipeline.py::test_locate_refraction_from_18_km_grows_and_points_to_nadir",
+        "tests/pipeline/test_pipeline.py::test_limb_cli_prints_the_refracted_tangent_height",
+        "tests/pipeline/test_pipeline.py::test_whole_frame_grid_executor_agrees_with_the_pipeline_with_refraction",
+        "tests/pipeline/test_pipeline.py::test_report_says_which_corrections_the_replay_applied",
     ),
-    "refraction": ("tests/test_refraction.py::test_limb_refracted_tangent_against_the_ray_trace",),
+    "refraction": ("tests/corrections/test_refraction.py::test_limb_refracted_tangent_against_the_ray_trace",),
 }
 
 
@@ -101,17 +101,21 @@ def _skip(node_ids) -> tuple:
     return tuple(f"--deselect={n}" for n in node_ids)
 
 
-UNCERTAINTY_TESTS = ("tests/test_uncertainty.py",) + _skip(_SLOW["uncertainty"])
+UNCERTAINTY_TESTS = ("tests/analysis/test_uncertainty.py",) + _skip(_SLOW["uncertainty"])
 
 TARGETS = [
-    Target("ellipsoid", "geoloc/geodesy/ellipsoid.py", ("tests/test_ellipsoid.py",)),
-    Target("rotations", "geoloc/frames/rotations.py", ("tests/test_frames.py", "tests/test_locate.py")),
-    Target("chain", "geoloc/frames/chain.py", ("tests/test_frames.py", "tests/test_locate.py")),
-    Target("height", "geoloc/surfaces/height.py", ("tests/test_locate.py", "tests/test_terrain.py")),
+    Target("ellipsoid", "geoloc/geodesy/ellipsoid.py", ("tests/geodesy/test_ellipsoid.py",)),
+    Target("rotations", "geoloc/frames/rotations.py", ("tests/frames/test_frames.py", "tests/pipeline/test_locate.py")),
+    Target("chain", "geoloc/frames/chain.py", ("tests/frames/test_frames.py", "tests/pipeline/test_locate.py")),
+    Target("height", "geoloc/surfaces/height.py", ("tests/pipeline/test_locate.py", "tests/surfaces/test_terrain.py")),
     Target(
         "terrain",
         "geoloc/surfaces/terrain.py",
-        ("tests/test_terrain.py", "tests/test_terrain_walk.py", "tests/test_terrain_trimesh.py"),
+        (
+            "tests/surfaces/test_terrain.py",
+            "tests/surfaces/test_terrain_walk.py",
+            "tests/surfaces/test_terrain_trimesh.py",
+        ),
         (
             "_flat_los",
             "_ground",
@@ -129,37 +133,43 @@ TARGETS = [
     Target(
         "montecarlo",
         "geoloc/analysis/montecarlo.py",
-        ("tests/test_montecarlo.py",),
+        ("tests/analysis/test_montecarlo.py",),
         ("statistics", "first_order"),
         "the statistics and CEP [Q17 eq. 18]",
     ),
     # the sensor model of the second phase
-    Target("local", "geoloc/geodesy/local.py", ("tests/test_local_frames.py", "tests/test_frames.py")),
-    Target("graph", "geoloc/frames/graph.py", ("tests/test_gimbals.py", "tests/test_sensors.py")),
-    Target("gimbals", "geoloc/sensors/gimbals.py", ("tests/test_gimbals.py", "tests/test_sensors.py")),
+    Target("local", "geoloc/geodesy/local.py", ("tests/geodesy/test_local_frames.py", "tests/frames/test_frames.py")),
+    Target("graph", "geoloc/frames/graph.py", ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py")),
+    Target("gimbals", "geoloc/sensors/gimbals.py", ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py")),
     Target(
-        "frame", "geoloc/sensors/frame.py", ("tests/test_gimbals.py", "tests/test_sensors.py", "tests/test_locate.py")
+        "frame",
+        "geoloc/sensors/frame.py",
+        ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py", "tests/pipeline/test_locate.py"),
     ),
     # the one calibrator (analysis/calibrate.py, the first-phase camera's, is gone: issue 31)
     Target(
         "sensor_fit",
         "geoloc/analysis/sensor_fit.py",
-        ("tests/test_sensor_fit.py", "tests/test_sensor_fit_groups.py", "tests/test_calibrate.py"),
+        (
+            "tests/analysis/test_sensor_fit.py",
+            "tests/analysis/test_sensor_fit_groups.py",
+            "tests/analysis/test_calibrate.py",
+        ),
     ),
     # the last phase (issue 50): the fastest test that covers each first (pytest -x stops there)
     Target("uncertainty", "geoloc/analysis/uncertainty.py", UNCERTAINTY_TESTS, kills=False),
     Target(
         "triangulate",
         "geoloc/analysis/triangulate.py",
-        ("tests/test_triangulate_wls.py", "tests/test_triangulate.py"),
+        ("tests/analysis/test_triangulate_wls.py", "tests/analysis/test_triangulate.py"),
         kills=False,
     ),
     Target(
         "time_offset",
         "geoloc/analysis/time_offset.py",
         (
-            "tests/test_time_offset.py",
-            "tests/test_video_example.py::test_fitting_the_time_offset_on_the_timing_fault_recovers_it",
+            "tests/analysis/test_time_offset.py",
+            "tests/viz/test_video_example.py::test_fitting_the_time_offset_on_the_timing_fault_recovers_it",
         ),
         kills=False,
     ),
@@ -203,13 +213,13 @@ TARGETS = [
         "the receiver (not the sockets, the sender, the CLI)",
         kills=False,
     ),
-    Target("mgrs_grid", "geoloc/io/mgrs_grid.py", ("tests/test_mgrs_wrap.py", "tests/test_mgrs.py"), kills=False),
-    Target("cot", "geoloc/io/cot.py", ("tests/test_cot_fields.py", "tests/test_cot.py"), kills=False),
+    Target("mgrs_grid", "geoloc/io/mgrs_grid.py", ("tests/io/test_mgrs_wrap.py", "tests/io/test_mgrs.py"), kills=False),
+    Target("cot", "geoloc/io/cot.py", ("tests/io/test_cot_fields.py", "tests/io/test_cot.py"), kills=False),
     Target(
         "rpc_nitf",
         "geoloc/io/rpc_gdal.py",
         # read_rpc's sidecars (.RPB, _RPC.TXT) are read in test_rpc_sensor.py
-        ("tests/test_rpc_nitf.py", "tests/test_rpc_sensor.py::test_read_rpc_from_geotiff_rpb_and_rpc_txt"),
+        ("tests/io/test_rpc_nitf.py", "tests/sensors/test_rpc_sensor.py::test_read_rpc_from_geotiff_rpb_and_rpc_txt"),
         ("rpc00b_renormalized", "old_of", "write_rpc_nitf", "_is_sidecar", "read_rpc"),
         "the NITF RPC00B",
         kills=False,
@@ -217,39 +227,49 @@ TARGETS = [
     Target(
         "klv_fix",
         "geoloc/workflows/klv_fix.py",
-        ("tests/test_klv_fix_parts.py", "tests/test_klv_fix.py") + _skip(_SLOW["klv_fix"]),
+        ("tests/workflows/test_klv_fix_parts.py", "tests/workflows/test_klv_fix.py") + _skip(_SLOW["klv_fix"]),
         kills=False,
     ),
     Target(
         "picture_model",
         "viz/geoloc_viz/picture_model.py",
-        ("tests/test_picture_opencv.py",),
+        ("tests/viz/test_picture_opencv.py",),
         ("frame_sensor", "image_index", "locate_pixel", "image_marks"),
         "the picture's sensor and its pixels",
         kills=False,
     ),
-    Target("userfiles", "geoloc/userfiles.py", ("tests/test_user_files.py", "tests/test_contract_io.py"), kills=False),
+    Target(
+        "userfiles",
+        "geoloc/userfiles.py",
+        ("tests/cli/test_user_files.py", "tests/io/test_contract_io.py"),
+        kills=False,
+    ),
     # the modules new in the phase after it: the one location pipeline, the corrections (refraction,
     # light time and aberration), the height audit, the photo makers' tags, the camera database, DJI's SRT
-    Target("pipeline", "geoloc/pipeline.py", ("tests/test_pipeline.py",) + _skip(_SLOW["pipeline"]), kills=False),
+    Target(
+        "pipeline", "geoloc/pipeline.py", ("tests/pipeline/test_pipeline.py",) + _skip(_SLOW["pipeline"]), kills=False
+    ),
     Target(
         "refraction",
         "geoloc/corrections/refraction.py",
-        ("tests/test_refraction.py",) + _skip(_SLOW["refraction"]),
+        ("tests/corrections/test_refraction.py",) + _skip(_SLOW["refraction"]),
         notes="the ray trace's kernels too (each mutant of a kernel recompiles it)",
         kills=False,
     ),
-    Target("lighttime", "geoloc/corrections/lighttime.py", ("tests/test_lighttime.py",), kills=False),
-    Target("height_audit", "geoloc/analysis/height_audit.py", ("tests/test_height_audit.py",), kills=False),
-    Target("photo_makers", "geoloc/io/photo_makers.py", ("tests/test_photo_makers.py",), kills=False),
+    Target("lighttime", "geoloc/corrections/lighttime.py", ("tests/corrections/test_lighttime.py",), kills=False),
+    Target("height_audit", "geoloc/analysis/height_audit.py", ("tests/analysis/test_height_audit.py",), kills=False),
+    Target("photo_makers", "geoloc/io/photo_makers.py", ("tests/io/test_photo_makers.py",), kills=False),
     Target(
-        "camera_db", "geoloc/io/camera_db.py", ("tests/test_camera_db.py", "tests/test_photo_makers.py"), kills=False
+        "camera_db",
+        "geoloc/io/camera_db.py",
+        ("tests/io/test_camera_db.py", "tests/io/test_photo_makers.py"),
+        kills=False,
     ),
     # -k srt: test_dji_srt.py and the SRT cases of the readers' and writers' contracts
     Target(
         "dji_srt",
         "geoloc/io/dji_srt.py",
-        ("tests/test_dji_srt.py", "tests/test_contract_io.py", "-k", "srt"),
+        ("tests/io/test_dji_srt.py", "tests/io/test_contract_io.py", "-k", "srt"),
         kills=False,
     ),
 ]

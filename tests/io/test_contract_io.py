@@ -1,6 +1,6 @@
 """One contract per interface of the user's files: every flight reader, every output writer.
 
-As tests/test_contract.py runs one contract against every sensor, surface and correction
+As tests/pipeline/test_contract.py runs one contract against every sensor, surface and correction
 (Orekit Rugged's AbstractAlgorithmTest), each test function here is parametrised over every
 implementation of its interface:
 

@@ -1,6 +1,6 @@
 """The KLV write-back's parts on a replay table written in the test (geoloc.workflows.klv_fix).
 
-``tests/test_klv_fix.py`` runs whole flights; here a one-row replay is laid out by hand, so each
+``tests/workflows/test_klv_fix.py`` runs whole flights; here a one-row replay is laid out by hand, so each
 item the write-back chooses (MISB ST 0601 tags 45/46, 82-89) and each line of its summary is
 checked against values the test states: the tag numbers of ST 0601's table (82 + 2 (corner - 1)
 for a latitude, one more for its longitude), the items' encodings by ``geoloc.io.klv`` (not the
