@@ -307,6 +307,26 @@ def test_ffmpeg_samples_frame_centres_bear_the_relative_azimuth_as_if_it_were_tr
     assert s.median_m > 1000.0
 
 
+def test_replay_names_an_item_held_at_the_reserved_value_not_as_missing():
+    """The Tekever AR5 sends tag 19 (and the frame centre, two corners) in every packet with the
+    standard's error value 0x80000000: the packets are kept, and the replay says the item holds
+    no value, where it said "missing tag 19" before."""
+    from geoloc.workflows.klv_replay import read_klv, replay_klv
+
+    path = CORPUS / "tekever_ar5_realflight.bin"
+    for fast in (True, False):
+        read = read_klv(path, fast=fast)
+        assert [
+            set(t) >= {"sensor_relative_elevation_deg", "frame_center_latitude_deg"} for t in read.columns["reserved"]
+        ] == [True] * 19
+    r = replay_klv(path)
+    assert r.summary.status_counts == {"invalid_input": 19}
+    (reason,) = r.summary.invalid_reasons
+    assert reason.startswith("tag 19 (Sensor Relative Elevation Angle) holds the standard's reserved value")
+    assert "missing" not in reason
+    assert all(n.startswith("tag 19 (Sensor Relative Elevation Angle) holds") for n in r.columns["note"])
+
+
 def test_geoloc_replay_runs_every_real_file_end_to_end_and_from_a_transport_stream(tmp_path):
     """One `geoloc replay` of the four raw files and of four transport streams carrying their
     packets (no PAT / PMT: found by their keys): the same rows, one per packet, each file's

@@ -297,6 +297,7 @@ def _rank(name):
 
 _NUMERIC_SPECS = [s for s in TAGS if s.kind != "str"]
 _TEXT_SPECS = [s for s in TAGS if s.kind == "str"]
+_NUMERIC_NAMES = frozenset(s.name for s in _NUMERIC_SPECS)
 
 
 # --------------------------------------------------------------------------- results
@@ -1750,7 +1751,20 @@ def _empty_columns(n: int) -> dict[str, np.ndarray]:
         cols[s.name] = np.full(n, np.nan)
     for s in _TEXT_SPECS:
         cols[s.name] = np.full(n, None, dtype=object)
+    cols["reserved"] = _no_reserved(n)
     return cols
+
+
+def _reserved_names(names) -> tuple:
+    """Field names in tag order, each once (both decoders give the same tuple)."""
+    return tuple(sorted(set(names), key=_FIELD_RANK.__getitem__))
+
+
+def _no_reserved(n: int) -> np.ndarray:
+    """The ``reserved`` column of n packets that have none: an empty tuple each."""
+    col = np.empty(n, dtype=object)
+    col[:] = [()] * n
+    return col
 
 
 def _columns_from_packets(packets) -> dict[str, np.ndarray]:
@@ -1766,6 +1780,7 @@ def _columns_from_packets(packets) -> dict[str, np.ndarray]:
     for s in _TEXT_SPECS:
         name = s.name
         cols[name][:] = [p.fields.get(name) for p in rows]
+    cols["reserved"][:] = [_reserved_names(n for n in p.flags if n in _NUMERIC_NAMES) for p in rows]
     return cols
 
 
@@ -1791,8 +1806,11 @@ def packets_to_columns(
         One entry per good packet in each column: ``offset`` (int64, -1 if unknown),
         ``pts`` (float, NaN if none), every numeric field of :data:`TAGS` (float64;
         NaN where the item is absent or reserved; the time stamp in microseconds is
-        exact in float64 until the year 2255) and the text fields (object; None where
-        absent).
+        exact in float64 until the year 2255), the text fields (object; None where
+        absent) and ``reserved`` (object: a tuple per packet of the numeric fields that
+        are NaN because the packet holds the item with a reserved value or one beyond
+        what the standard's length holds, :attr:`Packet.flags`; ``()`` for none), which
+        tells such an item from an absent one.
     """
     if isinstance(packets, (bytes, bytearray, memoryview)):
         return _columns_from_bytes(bytes(packets), verify_checksum, quirks)
@@ -2084,7 +2102,12 @@ def _columns_from_bytes(data: bytes, verify: bool, quirks: QuirkTally | None = N
                             if ln == 0 and spec.kind != "str":
                                 cols[spec.name][dst] = None if spec.kind == "str" else np.nan
                             else:
-                                cols[spec.name][dst] = _item_values(spec, Ms, off, ln)[0]
+                                val, flags = _item_values(spec, Ms, off, ln)
+                                cols[spec.name][dst] = val
+                                for mask, _ in flags:
+                                    res = cols["reserved"]
+                                    for j in dst[mask]:
+                                        res[j] = _reserved_names(res[j] + (spec.name,))
     bad = np.flatnonzero(~good)
     cut = int(bad[0]) if len(bad) else N
     if cut < N:

@@ -132,6 +132,9 @@ DATUM_CHECK_M = 3.0
 H_DATUM = "ellipsoid (WGS 84)"
 
 _TAG_TEXT = {name: f"tag {s.tag} ({s.title})" for name, s in TAG_BY_NAME.items()}
+#: A needed item the packet holds with the standard's reserved value (0x80..., ST 0601's
+#: "error" / "out of range"): the writer had no value for it.
+_RESERVED_NOTE = "holds the standard's reserved value (error / out of range): no value"
 
 
 def is_klv_path(path) -> bool:
@@ -789,15 +792,29 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
 
     # ---- what each packet lacks
     notes = np.full(n, "", dtype=object)
+    # A writer that has no value may still send the item, holding the standard's reserved
+    # value (0x80000000, "error"): such an item is named as that, not as missing.
+    reserved = c.get("reserved")
+    if reserved is None:
+        reserved = np.empty(n, object)
+        reserved[:] = [()] * n
+
+    def held(*names):
+        return np.fromiter((any(x in t for x in names) for t in reserved), bool, n)
+
     needs = [
-        (~np.isfinite(lat_s), _TAG_TEXT["sensor_latitude_deg"]),
-        (~np.isfinite(lon_s), _TAG_TEXT["sensor_longitude_deg"]),
-        (~np.isfinite(h_s), "tag 75 (Sensor Ellipsoid Height) or tag 15 (Sensor True Altitude)"),
-        (~np.isfinite(heading), _TAG_TEXT["platform_heading_deg"]),
-        (~np.isfinite(pitch), "tag 90 or tag 6 (Platform Pitch Angle)"),
-        (~np.isfinite(roll), "tag 91 or tag 7 (Platform Roll Angle)"),
-        (~np.isfinite(az), _TAG_TEXT["sensor_relative_azimuth_deg"]),
-        (~np.isfinite(el), _TAG_TEXT["sensor_relative_elevation_deg"]),
+        (~np.isfinite(lat_s), _TAG_TEXT["sensor_latitude_deg"], ("sensor_latitude_deg",)),
+        (~np.isfinite(lon_s), _TAG_TEXT["sensor_longitude_deg"], ("sensor_longitude_deg",)),
+        (~np.isfinite(h_s), "tag 75 (Sensor Ellipsoid Height) or tag 15 (Sensor True Altitude)", ()),
+        (~np.isfinite(heading), _TAG_TEXT["platform_heading_deg"], ()),
+        (
+            ~np.isfinite(pitch),
+            "tag 90 or tag 6 (Platform Pitch Angle)",
+            ("platform_pitch_full_deg", "platform_pitch_deg"),
+        ),
+        (~np.isfinite(roll), "tag 91 or tag 7 (Platform Roll Angle)", ("platform_roll_full_deg", "platform_roll_deg")),
+        (~np.isfinite(az), _TAG_TEXT["sensor_relative_azimuth_deg"], ()),
+        (~np.isfinite(el), _TAG_TEXT["sensor_relative_elevation_deg"], ("sensor_relative_elevation_deg",)),
     ]
     if surface is None:
         needs.append(
@@ -805,17 +822,29 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
                 ~np.isfinite(rep_h),
                 "tag 78 (Frame Center Height Above Ellipsoid) or tag 25 "
                 "(Frame Center Elevation), the height to intersect at (or give a DEM)",
+                (),
             )
         )
     # with a boresight the centre's ray turns with the sensor roll; without, it is the roll axis
     centre_needs_roll = base_sensor is not None and any(getattr(base_sensor, "boresight", ()))
     if centre_needs_roll:
-        needs.append((~np.isfinite(sroll), _TAG_TEXT["sensor_relative_roll_deg"]))
+        needs.append((~np.isfinite(sroll), _TAG_TEXT["sensor_relative_roll_deg"], ()))
     bad_c = np.zeros(n, bool)
-    for mask, text in needs:
+    rnotes = np.full(n, "", dtype=object)
+    for mask, text, items in needs:
         bad_c |= mask
-        _append(notes, mask, f"{text}, ")
-    invalid_reasons = dict(Counter("missing " + s[:-2] for s in notes[bad_c].tolist()).most_common())
+        r = mask & held(*items) if items else np.zeros(n, bool)
+        _append(notes, mask & ~r, f"{text}, ")
+        _append(rnotes, r, f"{text}, ")
+
+    def lacks(a, r):
+        """'missing tag ..., tag ...; tag ... holds a reserved value (no value)'."""
+        return "; ".join(
+            t for t in (("missing " + a[:-2]) if a else "", (r[:-2] + " " + _RESERVED_NOTE) if r else "") if t
+        )
+
+    centre_notes = [lacks(a, r) for a, r in zip(notes.tolist(), rnotes.tolist())]
+    invalid_reasons = dict(Counter(centre_notes[i] for i in np.flatnonzero(bad_c)).most_common())
     corner_needs = [
         (~hfov_ok, "tag 16 (Sensor Horizontal Field of View; absent, 0 or 180)"),
         (~vfov_ok, "tag 17 (Sensor Vertical Field of View; absent, 0 or 180)"),
@@ -829,10 +858,8 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         _append(knotes, mask & ~bad_c, f"{text}, ")
     notes = np.array(
         [
-            ("missing " + a[:-2] if a else "")
-            + ("; " if a and b else "")
-            + ("corners not computed: missing " + b[:-2] if b else "")
-            for a, b in zip(notes.tolist(), knotes.tolist())
+            a + ("; " if a and b else "") + ("corners not computed: missing " + b[:-2] if b else "")
+            for a, b in zip(centre_notes, knotes.tolist())
         ]
         + [None],
         dtype=object,
