@@ -54,7 +54,7 @@ from geoloc.io.klv import (
     replace_values,
 )
 from geoloc.status import Status, describe
-from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, read_klv, replay_klv
+from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, _ranges, read_klv, replay_klv
 from geoloc.extras import require
 from geoloc.pipeline import NO_CORRECTIONS, Corrections
 
@@ -114,10 +114,17 @@ class KlvFix:
         if c is not None and np.isfinite(c).any():
             f = c[np.isfinite(c)]
             lines.append(f"  frame-centre correction: median {np.median(f):.3f} m, max {f.max():.3f} m")
-        for k, why in self.unchanged[:20]:
-            lines.append(f"  packet {k}: unchanged: {why}")
-        if len(self.unchanged) > 20:
-            lines.append(f"  ... {len(self.unchanged) - 20} more unchanged")
+        # one line per reason, not per packet: a writer that never sends an angle leaves every
+        # packet of a long flight unchanged for the same reason
+        by_why: dict = {}
+        for k, why in self.unchanged:
+            by_why.setdefault(why, []).append(k)
+        for why, ks in list(by_why.items())[:20]:
+            head = f"packet {ks[0]}" if len(ks) == 1 else f"{_ranges(ks)} ({len(ks)})"
+            lines.append(f"  {head}: unchanged: {why}")
+        if len(by_why) > 20:
+            rest = sum(len(ks) for ks in list(by_why.values())[20:])
+            lines.append(f"  ... {rest} more unchanged, for {len(by_why) - 20} other reasons")
         for e in self.bad:
             lines.append(f"  bad packet copied unchanged: {e}")
         for k, text in self.notes[:20]:
