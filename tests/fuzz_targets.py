@@ -302,6 +302,53 @@ def run_ts(data: bytes) -> None:
     expect_clear(live)
 
 
+def _real_packets() -> list[bytes]:
+    """The first three packets of each real file of tests/data/misb (four writers: Esri, Tekever,
+    FFmpeg's two samples; security sets, reserved values, tag 22 in 4 bytes), in file order."""
+    from geoloc.io.klv import iter_packets
+
+    out = []
+    for name in (
+        "esri_cheyenne.bin",
+        "tekever_ar5_realflight.bin",
+        "ffmpeg_day_flight.klv",
+        "ffmpeg_night_flight_ir.klv",
+    ):
+        data = (ROOT / "tests" / "data" / "misb" / name).read_bytes()
+        offsets = [p.offset for _, p in zip(range(4), iter_packets(data))]
+        out += [data[a:b] for a, b in zip(offsets, offsets[1:])]
+    return out
+
+
+def klv_real_seed() -> bytes:
+    return b"".join(_real_packets())
+
+
+def run_klv_real(data: bytes) -> None:
+    """run_klv, and every real packet the mutation left whole, where it starts after the end of
+    the one before it, is still decoded at its offset (a bad packet never takes a good one
+    with it)."""
+    from geoloc.io.klv import Packet, iter_packets
+
+    run_klv(data)
+    got = {x.offset for x in iter_packets(data) if isinstance(x, Packet)}
+    pos = 0
+    for pk in _real_packets():
+        at = data.find(pk, pos)
+        if at < 0:
+            continue
+        if at not in got:
+            raise Finding(f"the whole real packet at byte {at} was not decoded")
+        pos = at + len(pk)
+
+
+def ts_real_seed() -> bytes:
+    """The real packets in an MPEG-TS with no PAT / PMT (found by their keys)."""
+    from ts_builder import stream
+
+    return stream(_real_packets(), psi=False)
+
+
 def csv_seed() -> bytes:
     return b"".join(_seed("records", "eo_turret_flight.csv").splitlines(keepends=True)[:12])
 
@@ -578,6 +625,8 @@ TARGETS = {
     for t in [
         Target("klv", klv_seed, run_klv, False, ".klv"),
         Target("ts", ts_seed, run_ts, False, ".ts"),
+        Target("klv_real", klv_real_seed, run_klv_real, False, ".klv"),
+        Target("ts_real", ts_real_seed, run_ts, False, ".ts"),
         Target("csv", csv_seed, run_csv, True, ".csv"),
         Target("column_map", column_map_seed, run_column_map, True, ".toml"),
         Target("sensor", sensor_seed, run_sensor, True, ".toml"),
