@@ -27,7 +27,7 @@ from klvdata.misb0601 import UASLocalMetadataSet
 from geoloc.io import klv
 from geoloc.io.klv import KlvError, Packet, QuirkTally
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CORPUS = ROOT / "tests" / "data" / "misb"
 
 # file -> (UAS LS packets in the file, counted by their 16-byte key, each one a packet;
@@ -223,7 +223,7 @@ def test_real_packets_in_a_transport_stream_decode_as_in_the_raw_file(tmp_path, 
 
 def oracle_centre(p: Packet) -> tuple[float, float]:
     """The frame centre of packet p from its own pose and angles, computed independently: the
-    line of sight from scipy's rotations (tests/test_klv_replay.py ``los_ned``), the heights made
+    line of sight from scipy's rotations (tests/workflows/test_klv_replay.py ``los_ned``), the heights made
     ellipsoidal with N from PROJ's vgridshift, the ray from pymap3d's ECEF cut in closed form with
     the ellipsoid whose semi-axes are raised by the reported frame-centre height h_f."""
     import pymap3d as pm
