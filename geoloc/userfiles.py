@@ -260,7 +260,8 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
     target = write_target(p)
     old_mode = stat.S_IMODE(os.stat(target).st_mode) if _kind(target) == "file" else None
     folder = target.parent if str(target.parent) else Path(".")
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{target.name}.geoloc-", suffix=p.suffix)
+    with _as_output(path):  # a folder made read-only since the checks: the user's path, not the temp's
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{target.name}.geoloc-", suffix=p.suffix)
     os.close(fd)
     tmp = Path(tmp)
     try:
@@ -271,9 +272,10 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
             raise OutputRefused(f"{option + ' ' if option else ''}{path}: the writer produced no file")
         with _naming(path, folder):
             _verify(tmp)
-        if old_mode is not None and tmp.is_file():
-            os.chmod(tmp, old_mode)
-        os.replace(tmp, target)
+        with _as_output(path):
+            if old_mode is not None and tmp.is_file():
+                os.chmod(tmp, old_mode)
+            os.replace(tmp, target)
     finally:
         with contextlib.suppress(FileNotFoundError):
             if tmp.is_dir():
@@ -282,6 +284,20 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
                 shutil.rmtree(tmp)
             else:
                 tmp.unlink()
+
+
+@contextlib.contextmanager
+def _as_output(path) -> Iterator[None]:
+    """An OSError of atomic_path's own steps (the temporary file's creation, its mode, the rename)
+    said of the user's output ``path``: the temporary file's hidden name means nothing to them."""
+    try:
+        yield
+    except BrokenPipeError:
+        raise
+    except OSError as e:
+        if e.errno is None:
+            raise
+        raise OSError(e.errno, e.strerror or str(e), os.fspath(path)) from None
 
 
 #: Free space under which a filesystem on which a writer failed is taken as full [bytes].

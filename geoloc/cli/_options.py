@@ -483,6 +483,26 @@ def sensor_from_args(args, *, default: bool = True):
     return load_sensor(path if path else asset_path(*DEFAULT_CAMERA))
 
 
+# --------------------------------------------------------------------------- progress of long work
+
+
+def add_progress_options(parser) -> None:
+    """``--progress`` / ``--no-progress`` of a long verb (:class:`geoloc.progress.Progress`, docs/cli.md).
+
+    ``args.progress`` is None by default (the bar on a terminal, a line every 10 s elsewhere),
+    True to force the bar, False for silence. ``tests/test_cli_rules.py`` runs every verb that
+    declares them with a clock that jumps and checks both forms of the progress.
+    """
+    parser.add_argument(
+        "--progress",
+        action="store_true",
+        default=None,
+        help="force the stderr progress bar (with the time left) on (default: the bar on a "
+        "terminal; elsewhere, a log, a line every 10 s)",
+    )
+    parser.add_argument("--no-progress", dest="progress", action="store_false", default=None, help="no progress at all")
+
+
 # --------------------------------------------------------------------------- line-of-sight corrections
 
 

@@ -15,6 +15,7 @@ import numpy as np
 from geoloc.analysis import montecarlo as mc
 from geoloc.analysis.errormodel import ErrorModel
 from geoloc.cli._options import (
+    add_progress_options,
     add_correction_options,
     add_dem_options,
     corrections_from_args,
@@ -122,14 +123,7 @@ def register(sub) -> None:
         f"{mc.CHUNK_MEMORY_SHARE * 100:.0f}%% of the available memory at {mc.BYTES_PER_SAMPLE} bytes a "
         "sample, checked when the run starts)",
     )
-    p.add_argument(
-        "--progress",
-        action="store_true",
-        default=None,
-        help="force the stderr progress bar (with the time left) on (default: the bar on a "
-        "terminal; elsewhere, a log, a line every 10 s)",
-    )
-    p.add_argument("--no-progress", dest="progress", action="store_false", default=None, help="no progress at all")
+    add_progress_options(p)
     p.set_defaults(func=run)
 
 

@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 from geoloc.cli._options import (
+    add_progress_options,
     add_columns_option,
     check_crs,
     check_suffix,
@@ -117,6 +118,7 @@ def register(sub) -> None:
     )
     o.add_argument("--json", action="store_true", help="print a JSON summary")
     add_target_options(p, height_column=False)
+    add_progress_options(p)
     p.set_defaults(func=run)
     add_dem_options(p)
     add_correction_options(p)
@@ -264,6 +266,7 @@ def run(args) -> int:
         tags=tags,
         parallel=not args.serial,
         corrections=corrections,
+        progress=args.progress,
     )
     info["seconds"] = time.perf_counter() - t0
     info.update(pose=pose_from, surface=surface_text, h_datum=ELLIPSOID_DATUM, corrections=corrections.label)
@@ -280,6 +283,7 @@ def run(args) -> int:
             tags={"photo": meta.name},
             parallel=not args.serial,
             corrections=corrections,
+            progress=args.progress,
         )
     if args.json:
         print(json.dumps(info))

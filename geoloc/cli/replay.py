@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from geoloc.cli._options import (
+    add_progress_options,
     add_correction_options,
     add_records_options,
     add_sensor_option,
@@ -127,6 +128,7 @@ def register(sub) -> None:
         "this process), or a dask scheduler address such as tcp://10.0.0.5:8786",
     )
     c.add_argument("--workers", type=int, default=2, help="campaign: workers of the local cluster (default 2)")
+    add_progress_options(p)
     p.set_defaults(func=run)
     from geoloc.cli._options import add_dem_options
 
@@ -175,7 +177,7 @@ def run(args) -> int:
     if args.dem is not None:
         warn_datums("replay", args.dem_datum, records.altitude)
     corrections = corrections_from_args(args, camera)
-    result = replay_records(records, camera, surface, corrections)
+    result = replay_records(records, camera, surface, corrections, progress=args.progress)
     budget = _budget(args)
     if budget is not None:
         cols, notes = uncertainty_columns(records, camera, surface, budget)

@@ -11,6 +11,7 @@ import math
 from pathlib import Path
 
 from geoloc.cli._options import (
+    add_progress_options,
     add_correction_options,
     check_suffix,
     corrections_from_args,
@@ -57,6 +58,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--ellipsoidal-dem", type=output_path, help="keep the ellipsoidal-height DEM copy given to GDAL at this path"
     )
+    add_progress_options(p)
     p.set_defaults(func=run)
 
 
@@ -76,7 +78,15 @@ def run(args) -> int:
     dem = None
     if not args.no_gdal and sc.dem_path is not None:  # the scenario's DEM, opened here at the edge
         dem = SurfaceSpec(dem=sc.dem_path, dem_datum=sc.dem_datum).raster(f"{sc.name}: dem")
-    rep = rpc_report(sc, out, dem, gdal=not args.no_gdal, pixel_error_threshold=thr, dem_copy=args.ellipsoidal_dem)
+    rep = rpc_report(
+        sc,
+        out,
+        dem,
+        gdal=not args.no_gdal,
+        pixel_error_threshold=thr,
+        dem_copy=args.ellipsoidal_dem,
+        progress=args.progress,
+    )
     print(f"{sc.name}: {rep['rows']} x {rep['cols']} px, {rep['n_fit']} fit / {rep['n_check']} check points")
     print(f"  rigorous model's line-of-sight corrections (the RPC holds them): {rep['corrections']}")
     print(f"  fit   RMS {rep['fit_rms_px']:.2e} px")

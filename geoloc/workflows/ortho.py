@@ -33,6 +33,7 @@ import numpy as np
 
 from geoloc.io.columns import ELLIPSOID_DATUM
 from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
+from geoloc.progress import Progress
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 from geoloc.userfiles import atomic_path
@@ -259,6 +260,7 @@ def write_frame_geotiff(
     tags: dict | None = None,
     parallel: bool = True,
     corrections: Corrections = NO_CORRECTIONS,
+    progress: bool | None = False,
 ) -> dict:
     """Locate a whole frame and write it as a 4-band float64 GeoTIFF on the image grid, chunk by chunk.
 
@@ -267,7 +269,8 @@ def write_frame_geotiff(
     number). NaN is the nodata value of the three coordinates (the status band is
     never NaN). Output pixel (i, j) (0-based) is the sensor's pixel
     ``(1 + i * step, 1 + j * step)`` (1-based centres), as the tags say; the file is
-    on the image grid, so it has no CRS or geotransform.
+    on the image grid, so it has no CRS or geotransform. ``progress``: :class:`geoloc.progress.Progress`
+    on stderr, one update per chunk of pixels (None: the bar on a terminal, a line every 10 s elsewhere).
 
     Returns
     -------
@@ -316,6 +319,7 @@ def write_frame_geotiff(
         "status: geoloc.status.Status code (0 = ok)",
     )
     path = Path(path)
+    bar = Progress(rows.size * cols.size, f"ortho {path.name}", progress)
     with atomic_path(path) as tmp:
         with warnings.catch_warnings(), rasterio.Env():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)  # the image grid has no CRS by design
@@ -335,6 +339,8 @@ def write_frame_geotiff(
                 dst.write(h, 3, window=win)
                 dst.write(st.astype(np.float64), 4, window=win)
                 counts += np.bincount(st.reshape(-1), minlength=len(Status))
+                bar.update((i1 - i0) * cols.size)
+    bar.close()
     return {
         "path": str(path),
         "shape": [int(rows.size), int(cols.size)],
@@ -512,6 +518,7 @@ def orthorectify(
     tags: dict | None = None,
     parallel: bool = True,
     corrections: Corrections = NO_CORRECTIONS,
+    progress: bool | None = False,
 ) -> dict:
     """Resample ``image`` onto a north-up grid (inverse map, occlusion-aware) and write a GeoTIFF.
 
@@ -535,6 +542,9 @@ def orthorectify(
         distance of the cell's ground point; default a quarter of ``gsd_m`` (a nearer
         ridge hides a cell by far more; the round trip ground -> pixel -> ground is
         exact to micrometres, so the tolerance only separates "this cell" from "another").
+    progress : bool or None
+        :class:`geoloc.progress.Progress` on stderr, one update per chunk of cells (None: the bar
+        on a terminal, a line every 10 s elsewhere; False: nothing).
 
     Returns
     -------
@@ -595,6 +605,7 @@ def orthorectify(
         "software": "geoloc ortho (geoloc.workflows.ortho.orthorectify)",
     }
     all_tags.update({k: str(v) for k, v in (tags or {}).items()})
+    bar = Progress(grid.height * grid.width, f"ortho {Path(out_path).name}", progress)
     with atomic_path(out_path) as tmp, rasterio.open(tmp, "w", **profile) as dst:
         dst.update_tags(**all_tags)
         for i0 in range(0, grid.height, per):
@@ -635,6 +646,8 @@ def orthorectify(
                 v = cv2.remap(src[b], mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
                 dst.write(np.where(seen, v, 0).astype(dtype), b + 1, window=win)
             dst.write(np.where(seen, alpha_max, 0).astype(dtype), bands + 1, window=win)
+            bar.update((i1 - i0) * grid.width)
+        bar.close()
         if bands == 3 and dtype == np.uint8:
             from rasterio.enums import ColorInterp
 

@@ -10,7 +10,9 @@ Conventions: ``docs/conventions.md``.
 from __future__ import annotations
 
 import csv
+import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -19,9 +21,11 @@ from geoloc.io.records import Records
 from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.locate import line_of_sight
 from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
+from geoloc.progress import Progress
 from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status, names
 from geoloc.surfaces.base import GroundPoint, terrain_of
+from geoloc.surfaces.height import for_records
 from geoloc.surfaces.terrain import surface_for
 from geoloc.userfiles import atomic_path
 
@@ -270,7 +274,46 @@ def _drone_height_warnings(records: Records, result: ReplayResult, ground, senso
     return np.flatnonzero(high), text
 
 
-def replay_records(records: Records, sensor, surface, corrections: Corrections = NO_CORRECTIONS) -> ReplayResult:
+#: Records located per call of the pipeline [records]: the unit of the replay's progress (docs/cli.md,
+#: "Progress"). A ray's answer does not depend on its batch, so the chunk changes the pace, not a byte.
+REPLAY_CHUNK = 20_000
+
+
+def _take_rows(obj, sl: slice):
+    """Rows ``sl`` of a batch dataclass (a :class:`LineOfSight`): every array with a leading record axis."""
+    kw = {}
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if isinstance(v, np.ndarray) and v.ndim >= 1:
+            kw[f.name] = v[sl]
+    return dataclasses.replace(obj, **kw)
+
+
+def _concat_rows(parts: list):
+    """The chunks' answers (:class:`GroundPoint` or a subclass) as one: arrays joined along the records;
+    what every chunk has alike (the method, the corrections applied, None) taken from the first."""
+    first = parts[0]
+    if len(parts) == 1:
+        return first
+    kw = {}
+    for f in dataclasses.fields(first):
+        vals = [getattr(p, f.name) for p in parts]
+        if isinstance(vals[0], np.ndarray) and vals[0].ndim >= 1:
+            kw[f.name] = np.concatenate(vals)
+        elif dataclasses.is_dataclass(vals[0]) and not isinstance(vals[0], type):
+            kw[f.name] = _concat_rows(vals)
+    return dataclasses.replace(first, **kw)
+
+
+def replay_records(
+    records: Records,
+    sensor,
+    surface,
+    corrections: Corrections = NO_CORRECTIONS,
+    *,
+    progress: bool | None = False,
+    chunk: int | None = None,
+) -> ReplayResult:
     """Locate every record on ``surface`` through the location pipeline: the replay itself.
 
     Parameters
@@ -291,8 +334,27 @@ def replay_records(records: Records, sensor, surface, corrections: Corrections =
         refraction moved each point); on a DEM also ``status``, ``dem_evaluations`` (and
         ``hidden`` for ``bisect``) and ``terrain`` (the DEM or mosaic, for
         :func:`plausibility_warnings`).
+    progress : bool or None
+        :class:`geoloc.progress.Progress` on stderr, one update per ``chunk`` records (None: the bar
+        on a terminal, a line every 10 s elsewhere; False, the default of the API: nothing).
+    chunk : int, optional
+        Records per call of the pipeline (default :data:`REPLAY_CHUNK`).
     """
-    hit = Pipeline(sensor, surface, corrections).intersect(records_line_of_sight(records, sensor))
+    chunk = REPLAY_CHUNK if chunk is None else chunk
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"chunk = {chunk!r}: must be a whole number of records >= 1")
+    los = records_line_of_sight(records, sensor)
+    n = len(records)
+    bar = Progress(n, f"replay {Path(str(records.path)).name}", progress)
+    parts = []
+    for i0 in range(0, max(n, 1), chunk):
+        sl = slice(i0, min(i0 + chunk, n))
+        part = los if (i0 == 0 and sl.stop == n) else _take_rows(los, sl)
+        surf = surface if part is los else for_records(surface, np.arange(sl.start, sl.stop))
+        parts.append(Pipeline(sensor, surf, corrections).intersect(part))
+        bar.update(sl.stop - sl.start)
+    bar.close()
+    hit = _concat_rows(parts)
     terrain = terrain_of(surface)
     extra = {"corrections": np.full(len(records), corrections.label, dtype=object), "refraction_m": hit.refraction_m}
     if terrain is not None:

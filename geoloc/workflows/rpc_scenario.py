@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from geoloc.progress import Progress
 from geoloc.analysis.rpc_fit import fit_rpc
 from geoloc.frames.chain import Pose
 from geoloc.io.rpc_gdal import (
@@ -351,7 +352,14 @@ def load_rpc_scenario(path) -> RPCScenario:
 
 
 def rpc_report(
-    scenario: RPCScenario, out_tif, dem=None, *, gdal: bool = True, pixel_error_threshold: float = 1e-6, dem_copy=None
+    scenario: RPCScenario,
+    out_tif,
+    dem=None,
+    *,
+    gdal: bool = True,
+    pixel_error_threshold: float = 1e-6,
+    dem_copy=None,
+    progress: bool | None = False,
 ) -> dict:
     """Fit, write and cross-check the RPC of a scenario: what ``geoloc rpc`` reports.
 
@@ -371,6 +379,10 @@ def rpc_report(
     dem_copy : path-like, optional
         Where to keep the ellipsoidal-height DEM given to GDAL (default: a
         temporary file, deleted).
+    progress : bool or None
+        :class:`geoloc.progress.Progress` on stderr, one update per stage: the fit, the GeoTIFF,
+        each of the three GDAL cross-checks (None: the bar on a terminal, a line every 10 s
+        elsewhere; False: nothing).
 
     Returns
     -------
@@ -381,6 +393,8 @@ def rpc_report(
     import tempfile
 
     s = scenario.sensor
+    cross = gdal and scenario.dem_path is not None
+    bar = Progress(5 if cross else 2, f"rpc {scenario.name}", progress)  # stages
     fit = fit_rpc(
         s,
         scenario.height_min,
@@ -389,7 +403,9 @@ def rpc_report(
         scenario.check_grid,
         corrections=scenario.corrections,
     )
+    bar.update(1)
     write_rpc_geotiff(out_tif, fit.model, s.rows, s.cols)
+    bar.update(1)
     rep = {
         "scenario": scenario.name,
         "kind": scenario.kind,
@@ -408,6 +424,7 @@ def rpc_report(
     if not gdal or scenario.dem_path is None:
         rep["gdal_vs_exact_max_px"] = None
         rep["gdal_note"] = "skipped" if not gdal else "no [dem] in the scenario"
+        bar.close()
         return rep
     if dem is None:
         raise ValueError(
@@ -429,6 +446,7 @@ def rpc_report(
             pixel_error_threshold=pixel_error_threshold,
             corrections=scenario.corrections,
         )
+        bar.update(1)
         cc_default = crosscheck_gdal_dem(
             s,
             fit.model,
@@ -440,6 +458,7 @@ def rpc_report(
             max_iterations=None,
             corrections=scenario.corrections,
         )
+        bar.update(1)
     # GDAL's default handling of the bundled file: orthometric values taken as ellipsoidal
     cc_raw = crosscheck_gdal_dem(
         s,
@@ -451,6 +470,8 @@ def rpc_report(
         pixel_error_threshold=pixel_error_threshold,
         corrections=scenario.corrections,
     )
+    bar.update(1)
+    bar.close()
     rep.update(
         {
             "gdal_vs_exact_max_px": cc.max_px,

@@ -379,10 +379,10 @@ def test_montecarlo_prints_a_progress_line_every_10_s_in_a_log(monkeypatch, caps
     # before: 1e7 samples with --chunk 10 ran 36 minutes without a word when stderr was not a terminal.
     # The clock is a fake one that advances 3 s at each reading (no timed test): 20 chunks, 10 s apart
     # at most three chunks -> a line every 4 readings (12 s), the first after 10 s.
-    import geoloc.analysis.montecarlo as mc
+    import geoloc.progress as progress
 
     t = iter(range(0, 10_000, 3))
-    monkeypatch.setattr(mc, "_now", lambda: float(next(t)))
+    monkeypatch.setattr(progress, "_now", lambda: float(next(t)))
     assert main(["montecarlo", str(SCEN), "--samples", "2000", "--chunk", "100", "--seed", "0"]) == 0
     out, err = capsys.readouterr()
     lines = [ln for ln in err.splitlines() if ln.startswith("montecarlo qiao2017_table1: ")]
@@ -395,19 +395,19 @@ def test_montecarlo_prints_a_progress_line_every_10_s_in_a_log(monkeypatch, caps
 def test_progress_is_a_bar_on_a_terminal_and_nothing_when_refused():
     import io
 
-    import geoloc.analysis.montecarlo as mc
+    import geoloc.progress as progress
 
     class Tty(io.StringIO):
         def isatty(self):
             return True
 
     tty = Tty()
-    bar = mc.Progress(4, "x", stream=tty)
+    bar = progress.Progress(4, "x", stream=tty)
     bar.update(2)
     bar.close()
     assert tty.getvalue().startswith("\rx [###############               ]  50.0% 2/4")
     quiet = io.StringIO()
-    bar = mc.Progress(4, "x", enabled=False, stream=quiet)
+    bar = progress.Progress(4, "x", enabled=False, stream=quiet)
     bar.update(4)
     bar.close()
     assert quiet.getvalue() == ""

@@ -20,7 +20,10 @@ from __future__ import annotations
 import contextlib
 import errno
 import importlib
+import io
+import itertools
 import os
+import re
 import shlex
 import signal
 import stat
@@ -484,6 +487,160 @@ def test_a_folder_made_read_only_mid_run_is_one_line(leaf, opt, small_fs, tmp_pa
     r = _run(_with(argv, opt, old), capsysbinary)
     assert r.rc == 2 and "Read-only file system" in r.lines()[-1] and "Traceback" not in r.err, r.err
     assert intact() and sorted(os.listdir(small_fs)) == [old.name]
+
+
+# --------------------------------------------------------------------------- progress of long work
+
+#: The verbs without ``--progress`` (geoloc.cli._options.add_progress_options), and why their work is
+#: short or shows itself. A new verb is either run by the test below or named here with its reason.
+QUICK = {
+    ("locate",): "one line of sight",
+    ("pixel",): "one pixel",
+    ("limb",): "a few tangent points",
+    ("calibrate",): "a least-squares fit of a flight's records, seconds",
+    ("export",): "a format conversion of a results file, one pass",
+    ("report",): "a report of a results file, one pass",
+    ("reproduce",): "the papers' tables at their fixed sizes (its Monte Carlo takes progress= in the API)",
+    ("warm",): "compiles the kernels once, a few seconds; says so before it starts",
+    ("klv", "dump"): "streams its packets out as it reads them",
+    ("klv", "fix"): "one pass over a file, streamed",
+    ("klv", "send"): "sends in real time; the live verbs show their own state",
+    ("view",): "a viewer: its progress is on screen",
+    ("log",): "one recording of a results file",
+}
+#: The verbs whose work grows with the input: they must show progress.
+LONG = {("montecarlo",), ("replay",), ("ortho",), ("rpc",)}
+
+
+def _with_progress():
+    return sorted(leaf for leaf, p in LEAVES.items() if any("--progress" in a.option_strings for a in p._actions))
+
+
+def test_every_long_verb_shows_progress_and_every_other_says_why_not():
+    shown = set(_with_progress())
+    assert LONG <= shown, LONG - shown
+    assert set(LEAVES) - shown == set(QUICK), (set(LEAVES) - shown) ^ set(QUICK)
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+@pytest.mark.parametrize("leaf", _with_progress(), ids=" ".join)
+def test_long_work_is_a_bar_on_a_terminal_and_a_line_in_a_log(leaf, tmp_path, monkeypatch, capsysbinary):
+    # the example with a clock that jumps 11 s at each reading, so that every update of the work is
+    # due (the 10 s between two lines of a log: tests/test_cli_bad_inputs.py); stderr a log (not a
+    # terminal): plain lines; a terminal: the \r-updated bar; --no-progress on a terminal: nothing
+    import geoloc.progress as progress
+
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    clock = itertools.count(0, 11)
+    monkeypatch.setattr(progress, "_now", lambda: float(next(clock)))
+    line = re.compile(rf"{leaf[0]} .+: (\d+)/(\d+) \(\d+\.\d%\), \S+ elapsed, \S+ left")
+    r = _run(argv, capsysbinary)
+    lines = [m for m in map(line.fullmatch, r.err.splitlines()) if m]
+    assert r.rc in (0, 1) and lines and "\r" not in r.err, r.err
+    assert lines[-1].group(1) == lines[-1].group(2)  # the last update counts the whole of the work
+    assert b"elapsed" not in r.out  # standard output carries the data alone
+
+    def on_a_terminal(extra):
+        term = _Terminal()
+        with monkeypatch.context() as m:
+            m.setattr(sys, "stderr", term)
+            rc = main(argv + extra)
+        capsysbinary.readouterr()
+        return rc, term.getvalue()
+
+    rc, err = on_a_terminal([])
+    bars = re.findall(rf"\r{leaf[0]} .+? \[[# ]{{30}}\] +\d+\.\d% (\d+)/(\d+) ", err)
+    assert rc in (0, 1) and bars and bars[-1][0] == bars[-1][1], err
+    rc, err = on_a_terminal(["--no-progress"])
+    assert rc in (0, 1) and "elapsed" not in err and "\r" not in err, err
+
+
+def _folder_turns_read_only(monkeypatch, folder: Path, err: int, hits: list) -> None:
+    """From now on, what the kernel refuses in a folder made read-only refuses in ``folder``: creating,
+    opening for writing, renaming, changing the mode of or removing a file there fails with ``err``
+    (EROFS: the filesystem remounted read-only; EACCES: the folder lost its write bit, for a user who
+    is not root). The system calls Python makes (``os.open``, under ``tempfile.mkstemp`` and
+    ``os.fdopen``; ``open``; ``os.replace`` ...) are patched, so no root is needed; the real read-only
+    filesystem is the next test's. ``hits`` gets the paths refused (the fault was met, not missed)."""
+    import builtins
+
+    folder = folder.resolve()
+
+    def inside(p) -> bool:
+        if isinstance(p, int):
+            return False
+        q = Path(os.fsdecode(p)).absolute()
+        return q.parent == folder or folder in q.parents
+
+    def refuse(p):
+        hits.append(os.fsdecode(p))
+        raise OSError(err, os.strerror(err), os.fsdecode(p))
+
+    real_os_open = os.open
+
+    def os_open(p, flags, *a, **k):
+        if flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT | os.O_TRUNC) and inside(p):
+            refuse(p)
+        return real_os_open(p, flags, *a, **k)
+
+    monkeypatch.setattr(os, "open", os_open)
+    for name in ("mkdir", "replace", "rename", "chmod", "unlink", "rmdir", "truncate"):
+
+        def refused(p, *a, _real=getattr(os, name), **k):
+            if inside(p) or any(inside(x) for x in a[:1] if isinstance(x, (str, bytes, os.PathLike))):
+                refuse(p)
+            return _real(p, *a, **k)
+
+        monkeypatch.setattr(os, name, refused)
+    real_open = builtins.open
+
+    def open_(file, mode="r", *a, **k):
+        if any(c in mode for c in "wax+") and inside(file):
+            refuse(file)
+        return real_open(file, mode, *a, **k)
+
+    monkeypatch.setattr(builtins, "open", open_)
+    monkeypatch.setattr(io, "open", open_)
+
+
+@pytest.mark.parametrize("err", [errno.EROFS, errno.EACCES], ids=["read-only-fs", "no-write-bit"])
+@pytest.mark.parametrize("leaf,opt", _cases(first_only=True))
+def test_a_folder_made_read_only_after_the_checks_keeps_the_old_output(
+    leaf, opt, err, tmp_path, monkeypatch, capsysbinary
+):
+    # the folder is writable when the outputs are checked (check_outputs passes), then refuses every
+    # write: the verb ends with one line naming the output (not the hidden temporary file) and the
+    # reason, exit 2; the old output is whole and nothing is left beside it. No root needed: the
+    # system calls are patched (_folder_turns_read_only); as root a permission bit would not stop a write
+    import geoloc.cli._options as options
+
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    folder = tmp_path / "outputs"
+    folder.mkdir()
+    old, intact = _old_output(folder, leaf, opt)
+    real = options.check_outputs
+    hits = []
+
+    def then_read_only(parser, args):
+        inputs = real(parser, args)
+        _folder_turns_read_only(patches, folder, err, hits)
+        return inputs
+
+    with pytest.MonkeyPatch.context() as patches:
+        monkeypatch.setattr(options, "check_outputs", then_read_only)
+        r = _run(_with(argv, opt, old), capsysbinary)
+    reason = os.strerror(err)
+    assert hits, f"{' '.join(leaf)} wrote {opt} without a system call the test can refuse"
+    assert r.rc == 2 and "Traceback" not in r.err, r.err
+    last = r.lines()[-1]  # "...error: [--out] OLD: [cannot write in folder F: ]REASON"
+    assert "error: " in last and str(old) in last and last.endswith(f": {reason}") and ".geoloc-" not in last, r.err
+    assert len([ln for ln in r.lines() if "error:" in ln]) == 1, r.err
+    assert intact() and sorted(os.listdir(folder)) == [old.name]
+    assert not old.is_dir() or _temp_files(old) == []
 
 
 # --------------------------------------------------------------------------- bounded iterations

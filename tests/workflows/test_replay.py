@@ -205,3 +205,34 @@ def test_every_verb_has_help(capsys):
             main([verb, "--help"])
         assert e.value.code == 0
         assert "usage: geoloc " + verb in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "surface",
+    [
+        ["--height-column", "paper_height_m"],  # one height per record: each chunk takes its own
+        ["--dem", str(asset_path("dem", "srtm_jacksboro.tif"))],
+    ],
+    ids=["per-record-height", "dem"],
+)
+def test_replay_in_chunks_writes_the_same_bytes_as_in_one(surface, tmp_path, monkeypatch, capsys):
+    # the replay locates its records chunk by chunk (the unit of its progress): chunks of 7 records,
+    # 20 or 24 records in 3 or 4 chunks, the last one short, must give the bytes of one batch
+    import geoloc.workflows.replay as replay
+
+    if "--dem" in surface:
+        args = [
+            str(asset_path("records", "eo_turret_flight.csv")),
+            "--sensor",
+            str(asset_path("sensors", "eo_turret.toml")),
+        ]
+    else:
+        args = []
+    outs = []
+    for chunk in (replay.REPLAY_CHUNK, 7):
+        monkeypatch.setattr(replay, "REPLAY_CHUNK", chunk)
+        out = tmp_path / f"r{chunk}.csv"
+        assert main(["replay", *args, *surface, "--out", str(out)]) in (0, 1)
+        outs.append(out.read_bytes())
+    capsys.readouterr()
+    assert outs[0] == outs[1] and outs[0].count(b"\n") > 14
