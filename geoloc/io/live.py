@@ -626,6 +626,7 @@ def send(
     rng=None,
     start_delay_s: float = 0.0,
     sock: socket.socket | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> dict:
     """Stream a transport stream to ``url`` as UDP datagrams of ``per`` TS packets.
 
@@ -647,6 +648,8 @@ def send(
         UDP's 4-bit TS counters cannot tell the pair's order, see
         :meth:`TsDemuxer.feed_datagram`).
     rng : numpy.random.Generator, optional
+    stop : callable, optional
+        Polled before each datagram: True ends the stream there (the rest is not sent).
 
     Returns
     -------
@@ -699,6 +702,8 @@ def send(
     first = None
     try:
         for j, k in enumerate(order):
+            if stop is not None and stop():
+                break
             if speed is not None and pts[k] is not None:
                 if p0 is None:
                     p0 = pts[k]

@@ -60,6 +60,17 @@ NOT_RUN = {
     "geoloc export frames.csv --cot udp://239.2.3.1:6969": "sends to TAK's LAN multicast group; the same sender to loopback is test_cot.py's",
 }
 
+#: Commands run at another pace than the page's, and why: (what the page says, what is run). Only the
+#: pace of a sender with no receiver changes (its datagrams go to nobody, what it prints is the same);
+#: the real-time pacing itself is tests/test_live.py's (test_real_time_over_loopback).
+PACED = {
+    "geoloc klv send assets/klv/example_flight.ts udp://127.0.0.1:5600 --speed 10": (
+        "--speed 10",
+        "--speed 1000",
+        "the viewer's companion, run after the viewer stopped: 36 s of sleeping between datagrams no one reads",
+    ),
+}
+
 
 def bash_blocks(text: str) -> list[list[tuple[str, list[str]]]]:
     """A page's bash blocks: each a list of (command, the `#   ` output lines under it)."""
@@ -110,6 +121,10 @@ def test_not_run_list_is_current():
     assert ALL_COMMANDS, "no geoloc command found in the pages' bash blocks"
     stale = sorted(set(NOT_RUN) - set(ALL_COMMANDS))
     assert not stale, f"NOT_RUN names commands the pages no longer have: {stale}"
+    stale = sorted(set(PACED) - set(ALL_COMMANDS))
+    assert not stale, f"PACED names commands the pages no longer have: {stale}"
+    for cmd, (page_pace, run_pace, _why) in PACED.items():
+        assert cmd.endswith(page_pace) and run_pace.split()[0] == page_pace.split()[0], cmd
 
 
 def test_every_page_with_commands_is_run_or_says_why():
@@ -195,6 +210,9 @@ def test_docs_block_runs_from_an_empty_folder(block, tmp_path):
         if cmd in NOT_RUN:
             continue
         before = _files(tmp_path)
+        if cmd in PACED:
+            page_pace, run_pace, _why = PACED[cmd]
+            cmd = cmd[: -len(page_pace)] + run_pace
         if cmd.startswith("geoloc view "):
             out = _run_view(cmd, tmp_path, env)
         else:

@@ -753,8 +753,10 @@ def test_log_of_a_stream_grows_as_it_arrives_and_a_killed_session_keeps_it(tmp_p
         stderr=subprocess.PIPE,
         text=True,
     )
+    done = threading.Event()
+    # 298 s of flight in 37 s; stopped once the receiver is killed (the rest would go to nobody)
+    th, res = _sender(TS, url, speed=8.0, stop=done.is_set)
     try:
-        th, res = _sender(TS, url, speed=8.0)  # 298 s of flight in 37 s
         want = dict(zip(*(replay_klv(TS).columns[k] for k in ("packet", "frame_center_error_m"))))
         seen = []
 
@@ -784,8 +786,12 @@ def test_log_of_a_stream_grows_as_it_arrives_and_a_killed_session_keeps_it(tmp_p
         assert seen[-1] <= len(pk) < 297, (seen, len(pk))
         assert len(set(pk.tolist())) == len(pk)  # each packet once
         np.testing.assert_array_equal(err, np.asarray([want[p] for p in pk]))  # the file replay's, exactly
-        th.join(60)
+        done.set()  # the sender stops at its next datagram, the rest of the flight unsent
+        th.join(10)
+        assert not th.is_alive() and 0 < res["sent"] < res["datagrams"], res
     finally:
+        done.set()
+        th.join(60)
         if proc.poll() is None:
             proc.kill()
 
