@@ -490,7 +490,7 @@ def add_progress_options(parser) -> None:
     """``--progress`` / ``--no-progress`` of a long verb (:class:`geoloc.progress.Progress`, docs/cli.md).
 
     ``args.progress`` is None by default (the bar on a terminal, a line every 10 s elsewhere),
-    True to force the bar, False for silence. ``tests/test_cli_rules.py`` runs every verb that
+    True to force the bar, False for silence. ``tests/cli/test_cli_rules.py`` runs every verb that
     declares them with a clock that jumps and checks both forms of the progress.
     """
     parser.add_argument(

@@ -530,7 +530,7 @@ class _Terminal(io.StringIO):
 @pytest.mark.parametrize("leaf", _with_progress(), ids=" ".join)
 def test_long_work_is_a_bar_on_a_terminal_and_a_line_in_a_log(leaf, tmp_path, monkeypatch, capsysbinary):
     # the example with a clock that jumps 11 s at each reading, so that every update of the work is
-    # due (the 10 s between two lines of a log: tests/test_cli_bad_inputs.py); stderr a log (not a
+    # due (the 10 s between two lines of a log: tests/cli/test_bad_inputs.py); stderr a log (not a
     # terminal): plain lines; a terminal: the \r-updated bar; --no-progress on a terminal: nothing
     import geoloc.progress as progress
 

@@ -62,7 +62,7 @@ NOT_RUN = {
 
 #: Commands run at another pace than the page's, and why: (what the page says, what is run). Only the
 #: pace of a sender with no receiver changes (its datagrams go to nobody, what it prints is the same);
-#: the real-time pacing itself is tests/test_live.py's (test_real_time_over_loopback).
+#: the real-time pacing itself is tests/workflows/test_live.py's (test_real_time_over_loopback).
 PACED = {
     "geoloc klv send assets/klv/example_flight.ts udp://127.0.0.1:5600 --speed 10": (
         "--speed 10",
