@@ -17,6 +17,7 @@ EXTRAS = {
     "video": ("av", "cv2"),
     "campaign": ("dask", "distributed", "pyarrow"),
     "mesh": ("trimesh",),
+    "space": ("astropy", "erfa"),
 }
 
 #: The command that installs the viewer package beside the core, from a clone.

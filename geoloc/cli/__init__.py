@@ -36,6 +36,7 @@ VERB_HELP = {
     "replay": "replay flight-test records: locate each one and measure the errors",
     "report": "accuracy report of a replay's output CSV: CEP, CE90, LE90, MAE, bias, plots, HTML",
     "reproduce": "reproduce a paper's results: the published numbers and geoloc's side by side",
+    "s2": "Sentinel-2 L1B: direct-location grids (lon, lat, h GeoTIFF) and the pixel of a ground point",
     "rpc": "fit RPC coefficients to a sensor model, write GDAL RPC metadata, cross-check with GDAL RPC_DEM",
     "warm": "compile the terrain and camera kernels once, ahead of the first locate / replay / view",
     # the viewer package's verbs (entry points), listed even when it is not installed

@@ -27,7 +27,7 @@ DOC = ROOT / "docs" / "architecture.md"
 #: Import roots of the two packages, and the folder each lives in.
 ROOTS = {"geoloc": ROOT / "geoloc", "geoloc_viz": ROOT / "viz" / "geoloc_viz"}
 #: The libraries of the core's extras and of the viewer (pyproject.toml, viz/pyproject.toml).
-OPTIONAL = {"av", "cv2", "trimesh", "dask", "distributed", "pyarrow"}
+OPTIONAL = {"av", "cv2", "trimesh", "dask", "distributed", "pyarrow", "astropy", "erfa"}
 VIEWER_LIBS = {"viser", "rerun"}
 
 #: Import cycles allowed inside geoloc_viz: none.
