@@ -3,25 +3,40 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import warnings
 from pathlib import Path
 
 import numpy as np
+import pytest
 import rasterio
 from rasterio.errors import NotGeoreferencedWarning
 
+from geoloc.cli import main
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
 DATA = Path(__file__).parent / "data" / "sentinel2"
 PRODUCT = DATA / "L1B"
 
 
-def geoloc(*args, cwd):
-    return subprocess.run(
-        [sys.executable, "-m", "geoloc", *map(str, args)], cwd=cwd, capture_output=True, text=True, timeout=300
-    )
+class Run:
+    def __init__(self, returncode, stdout, stderr):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+@pytest.fixture
+def geoloc(capsys):
+    """``geoloc ARGS`` in this process (as tests/test_cli_rules.py runs the verbs): exit code and output."""
+
+    def run(*args, cwd=None):
+        capsys.readouterr()
+        try:
+            rc = main([str(a) for a in args])
+        except SystemExit as e:
+            rc = e.code
+        out, err = capsys.readouterr()
+        return Run(rc, out, err)
+
+    return run
 
 
 def read(path):
@@ -31,7 +46,7 @@ def read(path):
             return ds.read().astype(float), ds.tags(), ds.tags(3)
 
 
-def test_grid_on_the_geoid_matches_sen2vm_in_position_and_height(tmp_path):
+def test_grid_on_the_geoid_matches_sen2vm_in_position_and_height(tmp_path, geoloc):
     """Sen2VM's grid of B02 D06's first granule, made by ``geoloc s2 grid --geoid`` with Sen2VM's
     settings: 3-D distance under 0.3 m (measured 0.02-0.20 m) and heights within 0.2 m
     (measured 0.12 m: geoloc's bundled EGM96 is a 30' copy of the 15' grid, within 0.6 m of it
@@ -67,7 +82,7 @@ def test_grid_on_the_geoid_matches_sen2vm_in_position_and_height(tmp_path):
     assert np.max(np.abs(a[2] - ref[2])) < 0.2
 
 
-def test_grid_defaults_to_rugged_corrections_and_refuses_two_surfaces(tmp_path):
+def test_grid_defaults_to_rugged_corrections_and_refuses_two_surfaces(tmp_path, geoloc):
     r = geoloc(
         "s2",
         "grid",
@@ -107,7 +122,7 @@ def test_grid_defaults_to_rugged_corrections_and_refuses_two_surfaces(tmp_path):
     assert not (tmp_path / "h.tif").exists()
 
 
-def test_pixel_verb_inverts_the_grid(tmp_path):
+def test_pixel_verb_inverts_the_grid(tmp_path, geoloc):
     """The pixel of a grid point (row 1201, column 1201 of B02 D06, located by the grid verb) comes
     back to 1e-4 px through the pixel verb, corrections and all."""
     r = geoloc(
