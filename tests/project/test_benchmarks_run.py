@@ -145,6 +145,16 @@ CASES = {
         ],
         120,
     ),
+    "bench_sentinel2.py": (
+        ["--step", "600", "--repeat", "1"],
+        [
+            rf"^Sen2VM's step 600: 5 x 5 points: median {N} s wall, CPU {N} s$",
+            rf"^step 600: 5 x 5 = 25 points batched: median {N} s wall, CPU {N} s$",
+            rf"^step 600: the same points one by one: median {N} s wall",
+            rf"^ratio: {N} \(one by one / batched\)$",
+        ],
+        120,
+    ),
     "bench_terrain.py": (
         # (c) too, on a 60 x 60 resampled DEM
         ["--rays", "200", "--repeat", "1", "--size", "60", "--big-rays", "500", "--big-repeat", "1"],
