@@ -112,15 +112,13 @@ def _product_and_sensor(args):
     return prod, sensor
 
 
-def _one_surface(args) -> list:
-    opts = (
-        ("--target-h-m", args.target_h_m is not None),
-        ("--geoid", args.geoid),
-        ("--dem", getattr(args, "dem", None)),
-    )
+def _one_surface(args, dem_option: bool = True) -> list:
+    opts = [("--target-h-m", args.target_h_m is not None), ("--geoid", args.geoid)]
+    if dem_option:
+        opts.append(("--dem", args.dem))
     given = [n for n, on in opts if on]
     if len(given) != 1:
-        names = ", ".join(n for n, _ in opts if n != "--dem" or hasattr(args, "dem"))
+        names = ", ".join(n for n, _ in opts)
         raise ValueError(f"give exactly one of {names} (given: {', '.join(given) or 'none'})")
     if args.target_h_m is not None and not math.isfinite(args.target_h_m):
         raise ValueError(f"--target-h-m = {args.target_h_m!r}: must be a finite height in metres")
@@ -190,7 +188,7 @@ def run_pixel(args) -> int:
         raise ValueError(f"--lat = {args.lat!r}: must be in [-90, 90] degrees")
     if not math.isfinite(args.lon):
         raise ValueError(f"--lon = {args.lon!r}: must be a finite longitude in degrees")
-    _one_surface(args)
+    _one_surface(args, dem_option=False)
     _, sensor = _product_and_sensor(args)
     lat, lon = math.radians(args.lat), math.radians(args.lon)
     h = float(egm96_undulation(lat, lon)) if args.geoid else args.target_h_m
