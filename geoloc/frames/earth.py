@@ -188,7 +188,8 @@ class EarthRotationTable:
 
     Between samples 0.5 s apart the Earth turns by 3.6e-5 rad; linear interpolation of the
     matrix elements departs from the rotation by at most (omega dt)^2 / 8 = 1.7e-10 rad
-    (0.1 mm at 800 km), so a pushbroom's thousands of line times cost a few dozen ERFA calls.
+    (0.1 mm at 800 km), so a pushbroom's thousands of line times cost a few dozen ERFA calls;
+    the blend is made orthogonal again (one Newton-Schulz step), so its transpose inverts it.
 
     Attributes
     ----------
@@ -218,6 +219,9 @@ class EarthRotationTable:
         i = np.clip(np.floor(np.nan_to_num(x)).astype(int), 0, self.t_s.size - 2)
         f = (x - i)[..., None, None]
         out = self.R[i] * (1.0 - f) + self.R[i + 1] * f
+        # the blend is 1.7e-10 from orthogonal: one Newton-Schulz step, R <- (3R - R R^T R) / 2,
+        # squares that to 1e-20, so that R^T is R's inverse (a sensor's inverse uses R^T)
+        out = 1.5 * out - 0.5 * out @ np.swapaxes(out, -1, -2) @ out
         outside = ~((t >= self.t_s[0]) & (t <= self.t_s[-1]))
         return np.where(outside[..., None, None], np.nan, out)
 
