@@ -507,6 +507,8 @@ QUICK = {
     ("klv", "send"): "sends in real time; the live verbs show their own state",
     ("view",): "a viewer: its progress is on screen",
     ("log",): "one recording of a results file",
+    ("s2", "grid"): "a granule's grid is one batched call: 0.04 s at a 150-pixel step (benchmarks/bench_sentinel2.py)",
+    ("s2", "pixel"): "one ground point",
 }
 #: The verbs whose work grows with the input: they must show progress.
 LONG = {("montecarlo",), ("replay",), ("ortho",), ("rpc",)}
