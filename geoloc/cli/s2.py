@@ -26,7 +26,7 @@ from geoloc.cli._options import (
 #: input, by absolute path, as the examples run from any folder (it is test data, not bundled)
 _TDS1 = (Path(__file__).resolve().parents[2] / "tests" / "data" / "sentinel2" / "L1B").as_posix()
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
-#: its inputs): tests/test_cli_rules.py runs it under every rule of docs/cli.md.
+#: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
 EXAMPLE = (
     f"geoloc s2 grid {_TDS1} --band B01 --detector 6 --step 100 --geoid --out grid.tif",
     f"geoloc s2 pixel {_TDS1} --band B02 --detector 6 --lat 33.4436 --lon -17.53 --geoid",

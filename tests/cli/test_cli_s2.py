@@ -14,7 +14,7 @@ from rasterio.errors import NotGeoreferencedWarning
 from geoloc.cli import main
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
-DATA = Path(__file__).parent / "data" / "sentinel2"
+DATA = Path(__file__).parents[1] / "data" / "sentinel2"
 PRODUCT = DATA / "L1B"
 
 
@@ -25,7 +25,7 @@ class Run:
 
 @pytest.fixture
 def geoloc(capsys):
-    """``geoloc ARGS`` in this process (as tests/test_cli_rules.py runs the verbs): exit code and output."""
+    """``geoloc ARGS`` in this process (as tests/cli/test_cli_rules.py runs the verbs): exit code and output."""
 
     def run(*args, cwd=None):
         capsys.readouterr()
@@ -50,7 +50,7 @@ def test_grid_on_the_geoid_matches_sen2vm_in_position_and_height(tmp_path, geolo
     """Sen2VM's grid of B02 D06's first granule, made by ``geoloc s2 grid --geoid`` with Sen2VM's
     settings: 3-D distance under 0.3 m (measured 0.02-0.20 m) and heights within 0.2 m
     (measured 0.12 m: geoloc's bundled EGM96 is a 30' copy of the 15' grid, within 0.6 m of it
-    (tests/test_geoid.py); here, over the open sea, the two agree to 0.12 m)."""
+    (tests/geodesy/test_geoid.py); here, over the open sea, the two agree to 0.12 m)."""
     ref_file = next((DATA / "ref/direct").glob("*120222_D06_N05.00/*_B02.tif"))
     r = geoloc(
         "s2",

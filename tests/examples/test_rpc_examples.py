@@ -39,7 +39,7 @@ def test_example_62_rpc_sensor_on_dem(capsys):
 
 def test_example_63_sentinel2_pixel_to_ground(capsys):
     """Sen2VM's point within 0.5 m with its settings (measured 0.020 m), 18-22 m away with Rugged's
-    light-time and aberration (tests/test_sentinel2.py has the closed forms), and back to the pixel."""
+    light-time and aberration (tests/sensors/test_sentinel2.py has the closed forms), and back to the pixel."""
     runpy.run_path(str(EX / "63_sentinel2_pixel_to_ground.py"), run_name="__main__")
     out = capsys.readouterr().out
     d = [float(v) for v in re.findall(r"E, ([0-9.]+) m from Sen2VM", out)]

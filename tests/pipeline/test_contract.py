@@ -37,7 +37,7 @@ from geoloc.io.sentinel2 import read_product
 #: Round-trip tolerance per sensor [px]. Frame cameras and the pushbroom: the hit lies on the
 #: sensor's own ray, so only the lens inverse (1e-14 normalised) and the pushbroom's line-time
 #: iteration (1e-6 line) are left: 1e-6 px. The RPC's straight line departs from its own curved
-#: locus by up to 2.6e-6 px inside the domain (tests/test_rpc_sensor.py): 5e-6 px.
+#: locus by up to 2.6e-6 px inside the domain (tests/sensors/test_rpc_sensor.py): 5e-6 px.
 ROUND_TRIP_PX = {"q17": 1e-6, "turret": 1e-6, "drone": 1e-6, "pushbroom": 1e-6, "sentinel2": 1e-6, "rpc": 5e-6}
 
 
@@ -91,7 +91,7 @@ def _sensors():
         ),
         "pushbroom": (sc.sensor, None),
         # a real satellite: Sentinel-2 B05 of detector 07 over its whole datastrip (tests/data/sentinel2)
-        "sentinel2": (read_product(Path(__file__).parent / "data" / "sentinel2" / "L1B").sensor("B05", 7), None),
+        "sentinel2": (read_product(Path(__file__).parents[1] / "data" / "sentinel2" / "L1B").sensor("B05", 7), None),
         "rpc": (rpc, None),
     }
 
@@ -140,7 +140,7 @@ CORRECTIONS = {
 #: (18 km / 166 841 px): 1e-3 px. (Measured: 4e-7 px.)
 ROUND_TRIP_CORRECTED_PX = 1e-3
 #: Executors agree to 1 mm (the issue's bound); the fused kernel's hit differs from numpy's by
-#: the rounding of two chains written apart (tests/test_fastlocate.py: micrometres).
+#: the rounding of two chains written apart (tests/sensors/test_fastlocate.py: micrometres).
 EXECUTORS_AGREE_M = 1e-3
 SURFACES = ("inflated", "geodetic", "dem-exact", "dem-bisect")
 CASES = [(s, f, c) for s in SENSORS for f in SURFACES for c in CORRECTIONS]

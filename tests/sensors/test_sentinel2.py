@@ -29,7 +29,7 @@ from geoloc.pipeline import Corrections, Pipeline
 from geoloc.status import Status
 from geoloc.surfaces.height import HeightSurface
 
-DATA = Path(__file__).parent / "data" / "sentinel2"
+DATA = Path(__file__).parents[1] / "data" / "sentinel2"
 PRODUCT = DATA / "L1B"
 #: Sen2VM's direct-location steps of testDirectLoc, in pixels of each band (600 for 10 m bands)
 DIRECT_STEP = {10: 600, 20: 300, 60: 100}

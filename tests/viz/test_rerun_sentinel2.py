@@ -17,7 +17,7 @@ from pyproj import Transformer
 
 from geoloc.io.sentinel2 import read_product
 
-PRODUCT = Path(__file__).parent / "data" / "sentinel2" / "L1B"
+PRODUCT = Path(__file__).parents[1] / "data" / "sentinel2" / "L1B"
 TO_LLH = Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
 
 
