@@ -81,6 +81,7 @@ from geoloc_viz import (
     image_layer,
     label_layout,
     refraction_layer,
+    panel_layer,
     share_layer,
     teaching,
     teaching_panel,
@@ -115,7 +116,8 @@ def attach_flight(session):
 #: flight debugger, the picture of the frame (when the scenario has images), the calibration
 #: error vectors, the predicted 90 % ellipse at the hit (issue 29), refraction and the bent ray
 #: (issue 44), sending the picked point on
-#: (issue 46: MGRS, lat/lon/height, a ``geoloc locate`` line, a CoT event), the teaching panel, and
+#: (issue 46: MGRS, lat/lon/height, a ``geoloc locate`` line, a CoT event), the large panel (the
+#: picture at full resolution, a map, plots against time), the teaching panel, and
 #: the label layout (labels kept apart on screen).
 DEFAULT_LAYERS = (
     attach_flight,
@@ -124,6 +126,7 @@ DEFAULT_LAYERS = (
     uncertainty_layer.attach,
     refraction_layer.attach,
     share_layer.attach,
+    panel_layer.attach,
     teaching_panel.attach,
     label_layout.attach,
 )

@@ -1,0 +1,212 @@
+"""The large panel (``geoloc_viz.panel_layer``): the picture at full resolution, the map, the plots.
+
+* no browser: the map's pixel of every reported and surveyed point (latitude, longitude from the
+  records) equals the pixel of pymap3d's East-North of it about the map's origin; the map's
+  hillshade equals the core renderer's on a DEM-aligned ramp; a closed panel costs a step nothing.
+* headless Chromium, as a person does it: open the panel with its button; click a pixel of the
+  large picture and read the sidebar's latitude and longitude: ``geoloc locate``'s for that pixel;
+  the map tab's current footprint and pick sit where pymap3d puts the scene's own points (and are
+  drawn there in the current frame's magenta); the plots' cursor is found in the screenshot at the
+  current frame's time, for three frames along the timeline.
+"""
+
+from __future__ import annotations
+
+import copy
+import io
+import re
+import time
+
+import numpy as np
+import pytest
+from test_viz_picture import COLS, ROWS, locate_cli, render_frame
+
+from geoloc.io.images import ArrayImages
+
+
+@pytest.fixture(scope="module")
+def flight():
+    """The bundled example flight with rendered images for its first two records."""
+    from geoloc_viz.flight_model import default_flight_scenario
+
+    scn = default_flight_scenario()
+    n = 2
+    scn.images = ArrayImages([render_frame(scn, i) for i in range(n)])
+    scn.image_index = np.r_[np.arange(n), np.full(len(scn.records) - n, -1)]
+    return scn
+
+
+def make_app(scn):
+    from geoloc_viz import flight_layer, image_layer, panel_layer
+    from geoloc_viz.app import GeolocApp, make_server
+
+    server = make_server(port=0)
+    app = GeolocApp(server, copy.copy(scn), layers=(flight_layer.attach, image_layer.attach, panel_layer.attach))
+    return server, app, app.layers[0], app.layers[1], app.layers[2]
+
+
+def _enu_px(lat_deg, lon_deg, h_m, origin, e0, n0, mpp):
+    """Map pixel (x, y) of a geodetic point by pymap3d: East-North about the map's origin."""
+    import pymap3d
+
+    e, n, _u = pymap3d.geodetic2enu(lat_deg, lon_deg, h_m, *origin)
+    return np.stack([(np.asarray(e) - e0) / mpp, (n0 - np.asarray(n)) / mpp], -1)
+
+
+def test_map_places_reported_and_surveyed_points_where_pymap3d_does(flight):
+    from geoloc_viz import panel_layer
+    from geoloc_viz.flight_layer import model_for
+
+    m = model_for(flight)
+    view = panel_layer.build_map(m, flight.dem)
+    o = m.enu.to_geodetic(np.zeros(3))
+    origin = (np.degrees(o[0]), np.degrees(o[1]), float(o[2]))
+    ok = np.isfinite(m.reported_lat_deg)
+    ref = _enu_px(
+        m.reported_lat_deg[ok], m.reported_lon_deg[ok], m.reported_h_m[ok], origin, view.e0, view.n0, view.m_per_px
+    )
+    # pymap3d and the core's ENU agree to micrometres: 1e-4 px is 1 mm at 11 m per pixel
+    np.testing.assert_allclose(view.to_px(m.reported_enu[ok]), ref, atol=1e-4)
+    # everything drawn lies inside the image
+    assert np.all((ref >= 0) & (ref <= [view.width, view.height]))
+    assert view.background.shape == (view.height, view.width, 3) and view.background.std() > 10
+
+
+def test_map_hillshade_equals_the_renderers_on_a_plane():
+    """A plane tilted up to the east (slope s): the Lambert shading is cos of the angle between
+    its normal (-s, 0, 1)/|.| and the sun, by hand; the map's grid shading gives it everywhere."""
+    from geoloc_viz import panel_layer
+
+    s, mpp = 0.3, 10.0
+    H = np.tile(np.arange(40) * mpp * s, (30, 1))
+    az, el = np.radians(panel_layer.SUN_AZ_EL_DEG)
+    sun = np.array([np.sin(az) * np.cos(el), np.cos(az) * np.cos(el), np.sin(el)])
+    nrm = np.array([-s, 0.0, 1.0]) / np.hypot(s, 1.0)
+    np.testing.assert_allclose(panel_layer.hillshade_grid(H, mpp), max(nrm @ sun, 0.0), atol=1e-12)
+
+
+def test_a_closed_panel_draws_nothing_and_an_open_one_follows_the_timeline(flight):
+    server, app, fl, _im, pl = make_app(flight)
+    try:
+        assert not pl.is_open
+        fl.go(5)
+        assert pl.view is None and pl.plot_view is None  # nothing built while closed
+        pl.open_panel()
+        assert 'data-frame="5"' in pl.html_map.content and 'data-frame="5"' in pl.html_plots.content
+        fl.go(7)
+        assert 'data-frame="7"' in pl.html_map.content and 'data-frame="7"' in pl.html_plots.content
+        # frame 0 has its picture; 7 has none and says so
+        assert "no picture" in pl.html_picture.content
+        fl.go(0)
+        assert 'id="geoloc-picture-large"' in pl.html_picture.content
+        assert f'data-rows="{ROWS}" data-cols="{COLS}"' in pl.html_picture.content
+        pl.close_panel()
+        assert not pl.is_open and pl.bt_open.label.startswith("open")
+    finally:
+        server.stop()
+
+
+# ------------------------------------------------------------------ headless Chromium
+
+
+def _magenta_columns(png: bytes) -> np.ndarray:
+    import PIL.Image
+
+    a = np.asarray(PIL.Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    mask = (a[..., 0] > 200) & (a[..., 1] < 90) & (a[..., 2] > 200)
+    return mask, a
+
+
+@pytest.mark.browser
+def test_large_picture_map_and_plots_in_chromium(flight, tmp_path):
+    import pymap3d
+    from test_viz_browser import ARTIFACTS, chromium, open_viewer, wait_for
+
+    from geoloc_viz.scene_geoloc import WORLD_SCALE
+
+    ARTIFACTS.mkdir(exist_ok=True)
+    server, app, fl, im, pl = make_app(flight)
+    try:
+        with chromium(tmp_path) as browser:
+            page = open_viewer(browser, server, 1400, 860)
+            page.get_by_role("button", name="open the large panel").click(timeout=60000)
+            img = page.locator("#geoloc-picture-large")
+            img.wait_for(timeout=60000)
+
+            # a pixel of the large picture: at 520 screen px for 240 image px, a pixel is 2 px wide
+            r, c = 40.0, 170.0
+            box = img.bounding_box(timeout=60000)
+            M, N = (float(img.get_attribute(k)) for k in ("data-rows", "data-cols"))
+            page.mouse.click(box["x"] + (c - 0.5) / N * box["width"], box["y"] + (r - 0.5) / M * box["height"])
+            wait_for(lambda: im.pick is not None, 60, "the click to reach the server")
+            assert (im.pick.row, im.pick.col) == (r, c)
+            page.wait_for_selector("text=latitude", timeout=60000)
+            text = page.locator("text=latitude").first.inner_text()
+            lat = float(re.search(r"([-0-9.]+)", text.split("latitude")[1]).group(1))
+            text = page.locator("text=longitude").first.inner_text()
+            lon = float(re.search(r"([-0-9.]+)", text.split("longitude")[1]).group(1))
+            ref = locate_cli(flight, im.sensor, app.inputs, r, c, tmp_path)
+            # the panel prints 8 decimals: 5e-9 of rounding, under the 1e-7 deg asked
+            assert lat == pytest.approx(ref["lat_deg"], abs=1e-7)
+            assert lon == pytest.approx(ref["lon_deg"], abs=1e-7)
+            time.sleep(1.0)
+            page.screenshot(path=str(ARTIFACTS / "viz_panel_picture.png"))
+
+            # the map: the scene's current outline (the flight node's own ENU, km) and the pick
+            page.get_by_role("tab", name="Map").click()
+            mp = page.locator("#geoloc-map")
+            mp.wait_for(timeout=60000)
+            a = {k: float(mp.get_attribute(f"data-{k}")) for k in ("e0", "n0", "m-per-px", "width", "height")}
+            origin = tuple(float(mp.get_attribute(f"data-origin-{k}")) for k in ("lat-deg", "lon-deg", "h-m"))
+            seg = np.asarray(server.scene.get_handle_by_name("/flight/current").points, float) / WORLD_SCALE
+            o = fl.model.enu.to_geodetic(np.zeros(3))
+            la, lo, h = pymap3d.enu2geodetic(
+                seg[:, 0, 0], seg[:, 0, 1], seg[:, 0, 2], np.degrees(o[0]), np.degrees(o[1]), float(o[2])
+            )
+            want = _enu_px(la, lo, h, origin, a["e0"], a["n0"], a["m-per-px"])
+            pts = page.locator("#geoloc-map-current").get_attribute("points")
+            got = np.array([[float(v) for v in p.split(",")] for p in pts.split()])
+            # float32 scene points (km): 1e-4 km = 0.1 m, 0.01 px at 11 m per pixel; the page prints 0.01 px
+            np.testing.assert_allclose(got, want, atol=0.02)
+            pick = page.locator("#geoloc-map-pick")
+            want_pick = _enu_px(ref["lat_deg"], ref["lon_deg"], ref["h_m"], origin, a["e0"], a["n0"], a["m-per-px"])
+            got_pick = [float(pick.get_attribute("data-x")), float(pick.get_attribute("data-y"))]
+            np.testing.assert_allclose(got_pick, want_pick, atol=0.02)
+            # and a person sees them there: magenta at the outline's edge midpoints in the screenshot
+            time.sleep(1.0)
+            shot = mp.screenshot()
+            mask, _rgb = _magenta_columns(shot)
+            sx = mask.shape[1] / a["width"]
+            mids = 0.5 * (want + np.roll(want, -1, axis=0)) * sx
+            hits = [mask[int(y) - 2 : int(y) + 3, int(x) - 2 : int(x) + 3].any() for x, y in mids[::2]]
+            assert np.mean(hits) > 0.8, hits
+            page.screenshot(path=str(ARTIFACTS / "viz_panel_map.png"))
+
+            # the plots: the cursor at the current frame's time, frame after frame
+            page.get_by_role("tab", name="Plots").click()
+            pp = page.locator("#geoloc-plots")
+            pp.wait_for(timeout=60000)
+            xs, ts = [], []
+            for idx in (20, 150, 280):
+                fl.go(idx)  # what the timeline slider's callback does
+                wait_for(lambda: pp.get_attribute("data-frame") == str(idx), 60, f"the plots at frame {idx}")
+                time.sleep(0.5)
+                mask, _rgb = _magenta_columns(pp.screenshot())
+                cols = np.flatnonzero(mask.sum(axis=0) > 0.5 * mask.shape[0] * 0.5)
+                assert len(cols), f"no cursor line at frame {idx}"
+                W = float(pp.get_attribute("data-width"))
+                x = cols.mean() * W / mask.shape[1]  # screen -> image pixels
+                t = float(pp.get_attribute("data-t"))
+                x_page = float(pp.get_attribute("data-x0-px")) + (t - float(pp.get_attribute("data-t0"))) * float(
+                    pp.get_attribute("data-px-per-t")
+                )
+                assert x == pytest.approx(x_page, abs=2.0)  # a 2 px line, rounded to screen pixels
+                xs.append(x)
+                ts.append(t)
+            # the cursor's column is affine in the frame's time (the axis is linear): 2 px
+            k = (xs[2] - xs[0]) / (ts[2] - ts[0])
+            assert xs[1] == pytest.approx(xs[0] + k * (ts[1] - ts[0]), abs=2.0)
+            assert k > 0
+            page.screenshot(path=str(ARTIFACTS / "viz_panel_plots.png"))
+    finally:
+        server.stop()
