@@ -54,6 +54,8 @@ COLORS["ground"] = il_mod.COLORS["ground"]
 #: Footprints of the whole flight drawn on the map: at most this many (every k-th frame, outliers
 #: always), so 300 overlapping outlines thin to a readable trail; the current one is drawn bold.
 MAP_TRAIL_MAX = 60
+#: The large picture's sizes: fit the panel, or screen pixels per image pixel (the panel scrolls).
+PICTURE_SIZES = ("fit the panel", "1:1", "2:1")
 OPEN_LABEL = "open the large panel: picture, map, plots"
 CLOSE_LABEL = "close the large panel"
 
@@ -455,6 +457,14 @@ class PanelLayer:
             self.md_picture = g.add_markdown(
                 "The frame at its own resolution: click a pixel to locate it (as in the sidebar's Picture)."
             )
+            self.dd_size = g.add_dropdown(
+                "picture size",
+                PICTURE_SIZES,
+                initial_value=PICTURE_SIZES[0],
+                hint="Fit the panel's width, or one or two screen pixels per image pixel (the panel scrolls): "
+                "at 1:1 a click can reach every pixel of a frame wider than the panel",
+            )
+            self.dd_size.on_update(lambda _e: self._safe(self._resize_picture))
             self.html_picture = g.add_html("<p>no picture for this scenario</p>")
             self.tx_pixel = g.add_text(
                 "pixel clicked (row, col)",
@@ -535,12 +545,25 @@ class PanelLayer:
         ) % (M, N)
         frames = len(im.images) if hasattr(im.images, "__len__") else "?"
         cap = f"image {im.k + 1} of {frames}: {N} x {M} px, every pixel shown"
+        self._picture_parts = (M, N, _b64(img, "JPEG", 92), js, cap)
+        self._resize_picture()
+
+    def _resize_picture(self) -> None:
+        """The large picture's HTML at the chosen size (no new JPEG: the size is CSS)."""
+        parts = getattr(self, "_picture_parts", None)
+        if parts is None or not self.is_open:
+            return
+        M, N, b64, js, cap = parts
+        size = str(self.dd_size.value)
+        k = {"1:1": 1, "2:1": 2}.get(size)
+        width = "100%" if k is None else f"{N * k}px;max-width:none"
         self.html_picture.content = (
-            f'<div style="padding:0 0.5em"><img id="geoloc-picture-large" alt="frame image, full resolution" '
-            f'data-rows="{M}" data-cols="{N}" src="data:image/jpeg;base64,{_b64(img, "JPEG", 92)}" '
-            f'style="width:100%;display:block;cursor:crosshair;image-rendering:pixelated" '
-            f'onclick="{html.escape(js, quote=True)}">'
-            f'<div style="font-size:0.75em;opacity:0.8">{html.escape(cap)}</div></div>'
+            f'<div style="padding:0 0.5em"><div style="overflow:auto;max-height:80vh">'
+            f'<img id="geoloc-picture-large" alt="frame image, full resolution" '
+            f'data-rows="{M}" data-cols="{N}" src="data:image/jpeg;base64,{b64}" '
+            f'style="width:{width};display:block;cursor:crosshair;image-rendering:pixelated" '
+            f'onclick="{html.escape(js, quote=True)}"></div>'
+            f'<div style="font-size:0.75em;opacity:0.8">{html.escape(cap)}; shown {html.escape(size)}</div></div>'
         )
 
     def _on_pixel_text(self) -> None:
