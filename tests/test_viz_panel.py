@@ -210,3 +210,23 @@ def test_large_picture_map_and_plots_in_chromium(flight, tmp_path):
             page.screenshot(path=str(ARTIFACTS / "viz_panel_plots.png"))
     finally:
         server.stop()
+
+
+def test_a_flight_view_folds_the_teaching_panel_and_hides_its_row(flight):
+    """The teaching row sits on the aircraft: in a flight view it starts hidden (the panel folded);
+    'frame the aircraft' shows it. Without a flight (a lesson) it shows from the start."""
+    from geoloc_viz import flight_layer, teaching_panel
+    from geoloc_viz.app import GeolocApp, make_server
+
+    server = make_server(port=0)
+    try:
+        app = GeolocApp(server, copy.copy(flight), layers=(flight_layer.attach, teaching_panel.attach))
+        tp = app.layers[1]
+        root = lambda: server.scene.get_handle_by_name(teaching_panel.ROOT)  # noqa: E731
+        assert tp.flight_view and not tp.cb_show.value and not root().visible
+        tp.frame_aircraft()
+        assert tp.cb_show.value and root().visible
+        lesson = GeolocApp(server, copy.copy(flight), layers=(teaching_panel.attach,)).layers[0]
+        assert not lesson.flight_view and lesson.cb_show.value
+    finally:
+        server.stop()

@@ -425,7 +425,7 @@ class GeolocSession:
             self.num["col"] = gui.add_number("pixel column j", i.col, step=0.01)
             for h in self.num.values():
                 h.on_update(lambda _: self._on_inputs())
-        with gui.add_folder("Terrain method"):
+        with gui.add_folder("Terrain method", expand_by_default=False):
             from geoloc_viz import terrain_link
 
             self.dd_method = gui.add_dropdown("method", terrain_link.METHODS, initial_value=i.method)
@@ -444,7 +444,7 @@ class GeolocSession:
             self.bt_target.on_click(lambda _: self.move_camera("target"))
         with gui.add_folder("Legend", expand_by_default=False):
             self.md_legend = gui.add_markdown(legend_markdown(self.scn))
-        with gui.add_folder("Display"):
+        with gui.add_folder("Display", expand_by_default=False):
             d = self.view.disp
             self.sl_vexag = gui.add_slider("vertical exaggeration", 1.0, 10.0, 0.5, d.vertical_exaggeration)
             self.sl_ac = gui.add_slider(

@@ -137,6 +137,10 @@ class TeachingPanel:
         #: Sweeps run so far and the wall time [s] of the last one (start to the true pose redrawn).
         self.anim_count, self.last_anim_s = 0, float("nan")
         self._stop = threading.Event()
+        #: A session that debugs a flight (its flight layer attached before this panel) is not a
+        #: lesson: the panel starts folded and its row and globe hidden, so they do not sit on the
+        #: flight; "frame the aircraft" (or the checkbox) brings them back.
+        self.flight_view = any(type(o).__name__ == "FlightLayer" for o in (getattr(session, "layers", None) or ()))
         self._build_gui()
         self._hook_refresh()
         self.redraw()
@@ -176,7 +180,7 @@ class TeachingPanel:
         chain = self.chain
         self.hop_keys = [h.key for h in teaching.hops(chain)]
         frames = list(teaching.chain_frames(chain))
-        with gui.add_folder("Teaching: a vector through the chain"):
+        with gui.add_folder("Teaching: a vector through the chain", expand_by_default=not self.flight_view):
             self.dd_hop = gui.add_dropdown(
                 "teaching hop",
                 [NONE] + self.hop_keys,
@@ -194,7 +198,7 @@ class TeachingPanel:
             self.dd_frame = gui.add_dropdown(
                 "typed in frame", frames, initial_value="body" if "body" in frames else frames[1]
             )
-            self.cb_show = gui.add_checkbox("show the frames row and globe", True)
+            self.cb_show = gui.add_checkbox("show the frames row and globe", not self.flight_view)
             self.cb_mesh = gui.add_checkbox("aircraft mesh", True, hint="The mesh hides the camera frame")
             self.bt_frame = gui.add_button("frame the aircraft")
             angles = list(teaching.animatable_angles(chain))
@@ -615,7 +619,10 @@ class TeachingPanel:
         return getattr(c, "camera", None)
 
     def frame_aircraft(self) -> None:
-        """Move the browsers' cameras to the aircraft (the wheel then zooms about it, not the ground hit)."""
+        """Move the browsers' cameras to the aircraft (the wheel then zooms about it, not the ground hit),
+        the frames row and globe shown (a teacher asking for them in a flight view)."""
+        if not self.cb_show.value:
+            self.cb_show.value = True  # its callback redraws the row
         eye, aim = self.camera_pose()
         mc = getattr(self.session, "move_camera", None)
         if mc is not None:
