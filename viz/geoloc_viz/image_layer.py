@@ -199,7 +199,7 @@ class ImageLayer:
         g = self.gui
         head = getattr(self.session, "md_summary", None)
         base = getattr(head, "order", None)
-        order = None if base is None else float(base) + 0.005
+        order = None if base is None else float(base) + 0.015  # under the Flight folder (timeline), before its tables
         with g.add_folder("Picture", order=order):
             self.md_legend = g.add_markdown(
                 "Click the image to locate a pixel; click the terrain to find its pixel. Marks: "
