@@ -172,6 +172,16 @@ CASES = {
         [rf"^\[ellipsoid\] propagate: .* {N} points/s wall", rf"^ratio: {N}$", rf"^ratio dem: {N}$"],
         300,
     ),
+    "bench_panel.py": (
+        ["--steps", "2"],
+        [
+            rf"^panel closed: timeline step median {N} ms wall, {N} ms CPU over 2 steps$",
+            rf"^opening the panel: {N} s wall, {N} s CPU$",
+            rf"^panel open: timeline step median {N} ms wall, {N} ms CPU over 2 steps$",
+            rf"^ratio open / closed \(step wall\): {N}$",
+        ],
+        300,
+    ),
     "bench_viz.py": (
         ["--nodes", "20"],
         [
