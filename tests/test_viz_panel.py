@@ -70,6 +70,17 @@ def test_map_places_reported_and_surveyed_points_where_pymap3d_does(flight):
     # everything drawn lies inside the image
     assert np.all((ref >= 0) & (ref <= [view.width, view.height]))
     assert view.background.shape == (view.height, view.width, 3) and view.background.std() > 10
+    # "map shows: the footprints": a finer map (the orbit is 3-4 times the ground seen) framing
+    # every footprint corner, the track running off it
+    ground = panel_layer.build_map(m, flight.dem, extent="the footprints")
+    assert ground.m_per_px < 0.5 * view.m_per_px
+    ok = np.all(np.isfinite(m.corners_enu), axis=2)
+    px = ground.to_px(m.corners_enu[ok])
+    assert np.all((px >= 0) & (px <= [ground.width, ground.height]))
+    tr = ground.to_px(m.track_enu)
+    assert np.any((tr < 0) | (tr > [ground.width, ground.height]))
+    with pytest.raises(ValueError, match="map extent 'the moon'"):
+        panel_layer.map_extent(m, "the moon")
 
 
 def test_map_hillshade_equals_the_renderers_on_a_plane():

@@ -102,6 +102,7 @@ class MapView:
         self.background = np.zeros((self.height, self.width, 3), np.uint8)
         self.background_b64 = ""
         self.dem_note = ""
+        self.extent = MAP_EXTENTS[0]
 
     def to_px(self, p_enu) -> np.ndarray:
         """(..., 2) map pixels (x, y) of ENU points (..., >= 2) [m] of :attr:`enu`."""
@@ -115,10 +116,18 @@ class MapView:
         return np.meshgrid(e, n)
 
 
-def map_extent(model) -> np.ndarray:
-    """(e_min, n_min, e_max, n_max) [m] of what the map shows: track, footprints, points."""
-    pts = [model.track_enu, model.footprint_enu.reshape(-1, 3), model.recomputed_enu, model.truth_enu]
-    pts.append(model.reported_enu)
+#: What the map frames: the whole flight (track, footprints, points) or the ground only (footprints
+#: and points; the track runs off the edges).
+MAP_EXTENTS = ("the whole flight", "the footprints")
+
+
+def map_extent(model, what: str = MAP_EXTENTS[0]) -> np.ndarray:
+    """(e_min, n_min, e_max, n_max) [m] of what the map shows (:data:`MAP_EXTENTS`)."""
+    if what not in MAP_EXTENTS:
+        raise ValueError(f"map extent {what!r}: one of {MAP_EXTENTS}")
+    pts = [model.footprint_enu.reshape(-1, 3), model.recomputed_enu, model.truth_enu, model.reported_enu]
+    if what == MAP_EXTENTS[0]:
+        pts.append(model.track_enu)
     p = np.concatenate([np.asarray(a, float).reshape(-1, 3) for a in pts])
     p = p[np.all(np.isfinite(p[:, :2]), axis=1)]
     if not len(p):
@@ -151,19 +160,20 @@ def trail_frames(model, max_n: int = MAP_TRAIL_MAX) -> np.ndarray:
     return np.flatnonzero(keep)
 
 
-def build_map(model, dem=None, width_px: int = MAP_PX) -> MapView:
+def build_map(model, dem=None, width_px: int = MAP_PX, extent: str = MAP_EXTENTS[0]) -> MapView:
     """The map of a flight model: its grid (:func:`map_extent`, square pixels), the DEM's
     hillshade (heights of the DEM's bilinear surface at each pixel centre's ground point, on the
     ellipsoid's normal through it), the track and the thinned footprints drawn on it."""
     import PIL.Image
     import PIL.ImageDraw
 
-    e_min, n_min, e_max, n_max = map_extent(model)
+    e_min, n_min, e_max, n_max = map_extent(model, extent)
     mpp = (e_max - e_min) / width_px
     h_px = int(np.clip(np.ceil((n_max - n_min) / mpp), 60, 2 * width_px))
     # centre the data vertically when the height was clipped or rounded
     n0 = 0.5 * (n_min + n_max) + 0.5 * h_px * mpp
     view = MapView(model.enu, e_min, n0, mpp, width_px, h_px)
+    view.extent = extent
     shade = np.full((h_px, width_px), 0.75)
     tint = np.ones((h_px, width_px, 3)) * np.array([0.78, 0.80, 0.78])
     if dem is not None:
@@ -478,6 +488,10 @@ class PanelLayer:
             )
             self.tx_pixel.on_update(lambda _e: self._on_pixel_text())
         with self.panel.add_tab("Map"):
+            self.dd_extent = g.add_dropdown(
+                "map shows", MAP_EXTENTS, initial_value=MAP_EXTENTS[0], hint="Frame the whole flight or the ground seen"
+            )
+            self.dd_extent.on_update(lambda _e: self._safe(self._on_extent))
             self.html_map = g.add_html("<p>no flight to map</p>")
         with self.panel.add_tab("Plots"):
             self.md_plots = g.add_markdown("")
@@ -599,6 +613,10 @@ class PanelLayer:
         self._built[what] = (now, len(model))
         return True
 
+    def _on_extent(self) -> None:
+        if self.is_open:
+            self.update_map()
+
     # map
     def _picks_enu(self, model):
         im = self.images
@@ -618,9 +636,11 @@ class PanelLayer:
         if model is None:
             self.html_map.content = "<p>one record: no flight to map</p>"
             return
-        key = (id(model), len(model))
-        if key != self._map_key and self._due("map", model):
-            self.view = build_map(model, self.session.scn.dem if self.session.scn.use_dem else None)
+        extent = str(self.dd_extent.value)
+        key = (id(model), len(model), extent)
+        if key != self._map_key and (self.view is None or self.view.extent != extent or self._due("map", model)):
+            dem = self.session.scn.dem if self.session.scn.use_dem else None
+            self.view = build_map(model, dem, extent=extent)
             self._map_key = key
         self.html_map.content = map_html(self.view, model, idx, self._picks_enu(model))
 
