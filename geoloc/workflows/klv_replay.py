@@ -89,6 +89,7 @@ from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import lens_from_fov
 from geoloc.status import Status, names
 from geoloc.surfaces.base import terrain_of
+from geoloc.surfaces.height import HeightSurface
 from geoloc.userfiles import atomic_path
 
 __all__ = [
@@ -751,50 +752,119 @@ def _klv_uncertainty(sens, pose, surface, budget, ok, velocity_ned_m_s=None):
     return {k: np.where(good, np.asarray(v, float), np.nan) for k, v in pu.columns().items()}, messages
 
 
-def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corrections = NO_CORRECTIONS) -> KlvReplay:
-    terrain = terrain_of(surface)
-    c = read.columns
-    n = len(read)
-    g = lambda name: _f(c, name, n)  # noqa: E731
+@dataclass(frozen=True)
+class _Heights:
+    """Each packet's sensor and reported frame-centre positions [deg] and heights [m], every
+    height ellipsoidal (WGS-84) and the tag it came from, NaN where the packet cannot say."""
 
-    # ---- position and heights (datums per tag)
+    lat_s: np.ndarray
+    lon_s: np.ndarray
+    h75: np.ndarray  # tag 75, sensor height above the ellipsoid
+    h15: np.ndarray  # tag 15, sensor height above mean sea level (EGM96)
+    n_s: np.ndarray  # EGM96 N at the sensor
+    from75: np.ndarray
+    from15: np.ndarray
+    h_s: np.ndarray  # sensor ellipsoidal height
+    sensor_h_from: np.ndarray
+    fc_lat: np.ndarray
+    fc_lon: np.ndarray
+    h78: np.ndarray  # tag 78, frame centre height above the ellipsoid
+    h25: np.ndarray  # tag 25, frame centre elevation above mean sea level (EGM96)
+    has_fc: np.ndarray
+    n_fc: np.ndarray  # EGM96 N at the frame centre (at the sensor where the packet has no centre)
+    from78: np.ndarray
+    from25: np.ndarray
+    rep_h: np.ndarray  # reported frame-centre ellipsoidal height
+    rep_h_from: np.ndarray
+
+
+def _packet_heights(g) -> _Heights:
+    """The sensor's and the reported frame centre's heights, each made ellipsoidal: the HAE tag
+    (75, 78) where present, else the MSL tag (15, 25) + EGM96 N."""
     lat_s, lon_s = g("sensor_latitude_deg"), g("sensor_longitude_deg")
     h75, h15 = g("sensor_ellipsoid_height_m"), g("sensor_true_altitude_m")
     n_s = _undulation(lat_s, lon_s)
     from75 = np.isfinite(h75)
     from15 = ~from75 & np.isfinite(h15) & np.isfinite(n_s)
-    h_s = np.where(from75, h75, np.where(from15, h15 + n_s, np.nan))
-    sensor_h_from = np.where(from75, "tag 75 (HAE)", np.where(from15, "tag 15 (MSL) + EGM96 N", ""))
-
     fc_lat, fc_lon = g("frame_center_latitude_deg"), g("frame_center_longitude_deg")
     h78, h25 = g("frame_center_hae_m"), g("frame_center_elevation_m")
     has_fc = np.isfinite(fc_lat) & np.isfinite(fc_lon)
     n_fc = _undulation(np.where(has_fc, fc_lat, lat_s), np.where(has_fc, fc_lon, lon_s))
     from78 = np.isfinite(h78)
     from25 = ~from78 & np.isfinite(h25) & np.isfinite(n_fc)
-    rep_h = np.where(from78, h78, np.where(from25, h25 + n_fc, np.nan))
-    rep_h_from = np.where(from78, "tag 78 (HAE)", np.where(from25, "tag 25 (MSL) + EGM96 N", ""))
-
-    # ---- attitude and pointing (full-range pitch and roll when present)
-    heading = g("platform_heading_deg")
-    p90, r91 = g("platform_pitch_full_deg"), g("platform_roll_full_deg")
-    pitch = np.where(np.isfinite(p90), p90, g("platform_pitch_deg"))
-    roll = np.where(np.isfinite(r91), r91, g("platform_roll_deg"))
-    az, el, sroll = (
-        g("sensor_relative_azimuth_deg"),
-        g("sensor_relative_elevation_deg"),
-        g("sensor_relative_roll_deg"),
+    return _Heights(
+        lat_s=lat_s,
+        lon_s=lon_s,
+        h75=h75,
+        h15=h15,
+        n_s=n_s,
+        from75=from75,
+        from15=from15,
+        h_s=np.where(from75, h75, np.where(from15, h15 + n_s, np.nan)),
+        sensor_h_from=np.where(from75, "tag 75 (HAE)", np.where(from15, "tag 15 (MSL) + EGM96 N", "")),
+        fc_lat=fc_lat,
+        fc_lon=fc_lon,
+        h78=h78,
+        h25=h25,
+        has_fc=has_fc,
+        n_fc=n_fc,
+        from78=from78,
+        from25=from25,
+        rep_h=np.where(from78, h78, np.where(from25, h25 + n_fc, np.nan)),
+        rep_h_from=np.where(from78, "tag 78 (HAE)", np.where(from25, "tag 25 (MSL) + EGM96 N", "")),
     )
+
+
+@dataclass(frozen=True)
+class _Angles:
+    """Each packet's attitude, turret angles and fields of view [deg], NaN where absent."""
+
+    heading: np.ndarray
+    pitch: np.ndarray
+    roll: np.ndarray
+    az: np.ndarray
+    el: np.ndarray
+    sroll: np.ndarray
+    hfov: np.ndarray
+    vfov: np.ndarray
+    hfov_ok: np.ndarray  # a field of view a lens can have: finite, in (0, 180)
+    vfov_ok: np.ndarray
+
+
+def _packet_angles(g) -> _Angles:
+    """Attitude (the full-range pitch and roll, tags 90 and 91, where present, else tags 6 and 7),
+    the turret's angles (tags 18-20) and the fields of view (tags 16, 17)."""
+    p90, r91 = g("platform_pitch_full_deg"), g("platform_roll_full_deg")
     hfov, vfov = g("sensor_horizontal_fov_deg"), g("sensor_vertical_fov_deg")
     with np.errstate(invalid="ignore"):
         hfov_ok = np.isfinite(hfov) & (hfov > 0) & (hfov < 180)
         vfov_ok = np.isfinite(vfov) & (vfov > 0) & (vfov < 180)
+    return _Angles(
+        heading=g("platform_heading_deg"),
+        pitch=np.where(np.isfinite(p90), p90, g("platform_pitch_deg")),
+        roll=np.where(np.isfinite(r91), r91, g("platform_roll_deg")),
+        az=g("sensor_relative_azimuth_deg"),
+        el=g("sensor_relative_elevation_deg"),
+        sroll=g("sensor_relative_roll_deg"),
+        hfov=hfov,
+        vfov=vfov,
+        hfov_ok=hfov_ok,
+        vfov_ok=vfov_ok,
+    )
 
-    # ---- what each packet lacks
-    notes = np.full(n, "", dtype=object)
-    # A writer that has no value may still send the item, holding the standard's reserved
-    # value (0x80000000, "error"): such an item is named as that, not as missing.
-    reserved = c.get("reserved")
+
+def _missing_tags(
+    hts: _Heights, ang: _Angles, surface, base_sensor, reserved=None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """What each packet lacks to be located (``bad_c``) and, beyond that, to have its corners
+    (``bad_k``); the note naming the tags per packet, and the count of each reason.
+
+    Without a surface the packet's own frame-centre height is where its rays end, so it is
+    needed; with a boresight the centre's ray turns with the sensor roll, so the roll is needed
+    for the centre, else only for the corners. ``reserved`` (per packet, the names of the items
+    it holds at the standard's reserved value, 0x80000000, "error"): a writer that has no value
+    may still send the item, and such an item is named as that, not as missing."""
+    n = len(hts.lat_s)
     if reserved is None:
         reserved = np.empty(n, object)
         reserved[:] = [()] * n
@@ -803,32 +873,36 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         return np.fromiter((any(x in t for x in names) for t in reserved), bool, n)
 
     needs = [
-        (~np.isfinite(lat_s), _TAG_TEXT["sensor_latitude_deg"], ("sensor_latitude_deg",)),
-        (~np.isfinite(lon_s), _TAG_TEXT["sensor_longitude_deg"], ("sensor_longitude_deg",)),
-        (~np.isfinite(h_s), "tag 75 (Sensor Ellipsoid Height) or tag 15 (Sensor True Altitude)", ()),
-        (~np.isfinite(heading), _TAG_TEXT["platform_heading_deg"], ()),
+        (~np.isfinite(hts.lat_s), _TAG_TEXT["sensor_latitude_deg"], ("sensor_latitude_deg",)),
+        (~np.isfinite(hts.lon_s), _TAG_TEXT["sensor_longitude_deg"], ("sensor_longitude_deg",)),
+        (~np.isfinite(hts.h_s), "tag 75 (Sensor Ellipsoid Height) or tag 15 (Sensor True Altitude)", ()),
+        (~np.isfinite(ang.heading), _TAG_TEXT["platform_heading_deg"], ()),
         (
-            ~np.isfinite(pitch),
+            ~np.isfinite(ang.pitch),
             "tag 90 or tag 6 (Platform Pitch Angle)",
             ("platform_pitch_full_deg", "platform_pitch_deg"),
         ),
-        (~np.isfinite(roll), "tag 91 or tag 7 (Platform Roll Angle)", ("platform_roll_full_deg", "platform_roll_deg")),
-        (~np.isfinite(az), _TAG_TEXT["sensor_relative_azimuth_deg"], ()),
-        (~np.isfinite(el), _TAG_TEXT["sensor_relative_elevation_deg"], ("sensor_relative_elevation_deg",)),
+        (
+            ~np.isfinite(ang.roll),
+            "tag 91 or tag 7 (Platform Roll Angle)",
+            ("platform_roll_full_deg", "platform_roll_deg"),
+        ),
+        (~np.isfinite(ang.az), _TAG_TEXT["sensor_relative_azimuth_deg"], ()),
+        (~np.isfinite(ang.el), _TAG_TEXT["sensor_relative_elevation_deg"], ("sensor_relative_elevation_deg",)),
     ]
     if surface is None:
         needs.append(
             (
-                ~np.isfinite(rep_h),
+                ~np.isfinite(hts.rep_h),
                 "tag 78 (Frame Center Height Above Ellipsoid) or tag 25 "
                 "(Frame Center Elevation), the height to intersect at (or give a DEM)",
                 (),
             )
         )
-    # with a boresight the centre's ray turns with the sensor roll; without, it is the roll axis
     centre_needs_roll = base_sensor is not None and any(getattr(base_sensor, "boresight", ()))
     if centre_needs_roll:
-        needs.append((~np.isfinite(sroll), _TAG_TEXT["sensor_relative_roll_deg"], ()))
+        needs.append((~np.isfinite(ang.sroll), _TAG_TEXT["sensor_relative_roll_deg"], ()))
+    notes = np.full(n, "", dtype=object)
     bad_c = np.zeros(n, bool)
     rnotes = np.full(n, "", dtype=object)
     for mask, text, items in needs:
@@ -846,11 +920,11 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
     centre_notes = [lacks(a, r) for a, r in zip(notes.tolist(), rnotes.tolist())]
     invalid_reasons = dict(Counter(centre_notes[i] for i in np.flatnonzero(bad_c)).most_common())
     corner_needs = [
-        (~hfov_ok, "tag 16 (Sensor Horizontal Field of View; absent, 0 or 180)"),
-        (~vfov_ok, "tag 17 (Sensor Vertical Field of View; absent, 0 or 180)"),
+        (~ang.hfov_ok, "tag 16 (Sensor Horizontal Field of View; absent, 0 or 180)"),
+        (~ang.vfov_ok, "tag 17 (Sensor Vertical Field of View; absent, 0 or 180)"),
     ]
     if not centre_needs_roll:
-        corner_needs.append((~np.isfinite(sroll), _TAG_TEXT["sensor_relative_roll_deg"]))
+        corner_needs.append((~np.isfinite(ang.sroll), _TAG_TEXT["sensor_relative_roll_deg"]))
     knotes = np.full(n, "", dtype=object)
     bad_k = bad_c.copy()
     for mask, text in corner_needs:
@@ -864,85 +938,114 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         + [None],
         dtype=object,
     )[:-1]
+    return bad_c, bad_k, notes, invalid_reasons
 
-    # ---- the sensor: lens from the median fields of view; packet i's corners scaled to it
-    hv = hfov_ok & vfov_ok
-    href = float(np.median(hfov[hv])) if hv.any() else 10.0
-    vref = float(np.median(vfov[hv])) if hv.any() else 10.0
+
+def _clean(v, bad, fill=0.0):
+    """``v`` with ``fill`` where a packet is bad or the value is not finite (such a packet's row is
+    marked invalid; the fill only keeps the batch's arithmetic finite)."""
+    return np.where(bad | ~np.isfinite(v), fill, v)
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """The batch's one sensor, the poses of the centres and of the corners, and each packet's
+    four corner pixels (upper left, upper right, lower right, lower left; shape (4, n))."""
+
+    sensor: FrameSensor
+    pose_c: Pose
+    pose_k: Pose
+    k_rows: np.ndarray
+    k_cols: np.ndarray
+
+
+def _replay_geometry(hts: _Heights, ang: _Angles, bad_c, bad_k, base_sensor) -> _Geometry:
+    """One sensor for every packet, its lens from the median fields of view; packet i's corners
+    are the pixels of that lens whose rays are those of packet i's own lens's corners (for a
+    pinhole: offsets from the centre scaled by tan(fov_i / 2) / tan(fov_ref / 2), exact)."""
+    hv = ang.hfov_ok & ang.vfov_ok
+    href = float(np.median(ang.hfov[hv])) if hv.any() else 10.0
+    vref = float(np.median(ang.vfov[hv])) if hv.any() else 10.0
     sens = klv_sensor(math.radians(href), math.radians(vref), base_sensor)
-
-    def clean(v, bad, fill=0.0):
-        return np.where(bad | ~np.isfinite(v), fill, v)
-
     pose_c = Pose.from_deg(
-        clean(lat_s, bad_c),
-        clean(lon_s, bad_c),
-        clean(h_s, bad_c, 1000.0),
-        clean(heading, bad_c),
-        clean(pitch, bad_c),
-        clean(roll, bad_c),
+        _clean(hts.lat_s, bad_c),
+        _clean(hts.lon_s, bad_c),
+        _clean(hts.h_s, bad_c, 1000.0),
+        _clean(ang.heading, bad_c),
+        _clean(ang.pitch, bad_c),
+        _clean(ang.roll, bad_c),
         angles_deg={
-            "azimuth": clean(az, bad_c),
-            "elevation": clean(el, bad_c, -45.0),
-            "sensor_roll": clean(sroll, bad_c),
+            "azimuth": _clean(ang.az, bad_c),
+            "elevation": _clean(ang.el, bad_c, -45.0),
+            "sensor_roll": _clean(ang.sroll, bad_c),
         },
     )
     r0, c0 = sens.center_pixel
     with np.errstate(invalid="ignore"):
-        sx = np.tan(np.deg2rad(clean(hfov, bad_k, href)) / 2) / math.tan(math.radians(href) / 2) * sens.cols / 2
-        sy = np.tan(np.deg2rad(clean(vfov, bad_k, vref)) / 2) / math.tan(math.radians(vref) / 2) * sens.rows / 2
-    k_rows = np.stack([r0 - sy, r0 - sy, r0 + sy, r0 + sy])  # upper left, upper right, lower right, lower left
-    k_cols = np.stack([c0 - sx, c0 + sx, c0 + sx, c0 - sx])
-    pose_k = pose_c.with_angles(sensor_roll=np.deg2rad(clean(sroll, bad_k)))
+        sx = np.tan(np.deg2rad(_clean(ang.hfov, bad_k, href)) / 2) / math.tan(math.radians(href) / 2) * sens.cols / 2
+        sy = np.tan(np.deg2rad(_clean(ang.vfov, bad_k, vref)) / 2) / math.tan(math.radians(vref) / 2) * sens.rows / 2
+    return _Geometry(
+        sensor=sens,
+        pose_c=pose_c,
+        pose_k=pose_c.with_angles(sensor_roll=np.deg2rad(_clean(ang.sroll, bad_k))),
+        k_rows=np.stack([r0 - sy, r0 - sy, r0 + sy, r0 + sy]),
+        k_cols=np.stack([c0 - sx, c0 + sx, c0 + sx, c0 - sx]),
+    )
 
-    # ---- intersect: one call for the centres, one for the corners
+
+def _surface_text(surface, terrain) -> str:
+    """What the rays were intersected with, in words, for the summary."""
     if surface is None:
-        h_int = clean(rep_h, bad_c)
-        surface_text = (
+        return (
             "each packet's own frame-centre height, ellipsoidal (tag 78 HAE; tag 25 MSL + EGM96 N "
             "where 78 is absent): the comparison isolates the angles"
         )
-        gc = locate(pose_c, sens, target_h=h_int, height_kind="geodetic", corrections=corrections)
+    if terrain is not None:
+        src = getattr(terrain, "path", None) or "DEM"
+        return (
+            f"DEM {src} (heights {terrain.datum}"
+            + (" -> ellipsoidal with EGM96 N" if terrain.datum == "egm96" else "")
+            + f"), method {surface.method}"
+        )
+    return repr(surface)
+
+
+def _intersect_packets(geo: _Geometry, surface, h_int, corrections: Corrections):
+    """The frame centres' and the corners' ground points: one batch call each. Without a surface
+    each packet's rays end at its own ellipsoidal height ``h_int``. Corner pixels may lie beyond
+    the reference sensor's edge: extrapolated, which for a pinhole is exact."""
+    if surface is None:
+        gc = locate(geo.pose_c, geo.sensor, target_h=h_int, height_kind="geodetic", corrections=corrections)
         gk = locate(
-            pose_k,
-            sens,
-            k_rows,
-            k_cols,
+            geo.pose_k,
+            geo.sensor,
+            geo.k_rows,
+            geo.k_cols,
             target_h=h_int[None, :],
             height_kind="geodetic",
             outside="extrapolate",
             corrections=corrections,
         )
-    else:
-        if terrain is not None:
-            src = getattr(terrain, "path", None) or "DEM"
-            surface_text = (
-                f"DEM {src} (heights {terrain.datum}"
-                + (" -> ellipsoidal with EGM96 N" if terrain.datum == "egm96" else "")
-                + f"), method {surface.method}"
-            )
-        else:
-            surface_text = repr(surface)
-        pipe = Pipeline(sens, surface, corrections)
-        gc = pipe.intersect(line_of_sight(pose_c, sens))
-        gk = pipe.intersect(line_of_sight(pose_k, sens, k_rows, k_cols, outside="extrapolate"))
+        return gc, gk
+    pipe = Pipeline(geo.sensor, surface, corrections)
+    gc = pipe.intersect(line_of_sight(geo.pose_c, geo.sensor))
+    gk = pipe.intersect(line_of_sight(geo.pose_k, geo.sensor, geo.k_rows, geo.k_cols, outside="extrapolate"))
+    return gc, gk
 
-    status = np.where(bad_c, np.uint8(Status.INVALID_INPUT), np.asarray(gc.status, np.uint8)).astype(np.uint8)
-    ok = status == Status.OK
-    lat = np.where(ok, np.rad2deg(gc.lat), np.nan)
-    lon = np.where(ok, np.rad2deg(gc.lon), np.nan)
-    h = np.where(ok, gc.h, np.nan)
-    rng = np.where(ok, gc.slant_range, np.nan)
-    kst = np.where(bad_k[None, :], np.uint8(Status.INVALID_INPUT), np.asarray(gk.status, np.uint8))
-    kok = kst == Status.OK
-    k_lat = np.where(kok, np.rad2deg(gk.lat), np.nan)
-    k_lon = np.where(kok, np.rad2deg(gk.lon), np.nan)
-    k_h = np.where(kok, gk.h, np.nan)
-    corner_status = np.zeros(n, np.uint8)
-    for j in (3, 2, 1, 0):  # the first corner's failure wins
-        corner_status = np.where(kst[j] != Status.OK, kst[j], corner_status)
 
-    # ---- reported corners: full (82-89) where both items are there, else offsets (26-33) + centre
+def _corner_status(kst) -> np.ndarray:
+    """One status per packet from its four corners' (shape (4, n)): the first failed corner's."""
+    out = np.zeros(kst.shape[1], np.uint8)
+    for j in (3, 2, 1, 0):
+        out = np.where(kst[j] != Status.OK, kst[j], out)
+    return out
+
+
+def _reported_corners(g, hts: _Heights) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The packets' own corners [deg] (shape (4, n)): the full corners (tags 82-89) where both
+    items are there, else the offsets (tags 26-33) added to the frame centre; and where they came
+    from per packet."""
+    n = len(hts.lat_s)
     rk_lat, rk_lon = np.full((4, n), np.nan), np.full((4, n), np.nan)
     n_full = np.zeros(n, int)
     n_off = np.zeros(n, int)
@@ -950,42 +1053,133 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         fl, fo = g(f"corner_latitude_{j + 1}_deg"), g(f"corner_longitude_{j + 1}_deg")
         ol, oo = g(f"offset_corner_latitude_{j + 1}_deg"), g(f"offset_corner_longitude_{j + 1}_deg")
         full = np.isfinite(fl) & np.isfinite(fo)
-        off = ~full & np.isfinite(ol) & np.isfinite(oo) & has_fc
-        rk_lat[j] = np.where(full, fl, np.where(off, fc_lat + ol, np.nan))
-        rk_lon[j] = np.where(full, fo, np.where(off, fc_lon + oo, np.nan))
+        off = ~full & np.isfinite(ol) & np.isfinite(oo) & hts.has_fc
+        rk_lat[j] = np.where(full, fl, np.where(off, hts.fc_lat + ol, np.nan))
+        rk_lon[j] = np.where(full, fo, np.where(off, hts.fc_lon + oo, np.nan))
         n_full += full
         n_off += off
     rep_corners = np.full(n, "", dtype=object)
     rep_corners[n_full == 4] = "tags 82-89 (full)"
     rep_corners[n_off == 4] = "tags 26-33 (offsets from the frame centre)"
     rep_corners[(n_full + n_off > 0) & (n_full != 4) & (n_off != 4)] = "partial"
+    return rk_lat, rk_lon, rep_corners
+
+
+def _datum_warnings(read: KlvRead, hts: _Heights) -> tuple[np.ndarray, list[str]]:
+    """Where a packet carries both heights, HAE - MSL must be EGM96 N (within ``DATUM_CHECK_M``):
+    the per-packet warning column, and the summary's lines (packet and byte offset)."""
+    datum_warn = np.full(len(hts.lat_s), "", dtype=object)
+    warnings = []
+    with np.errstate(invalid="ignore"):
+        dev_s = np.abs((hts.h75 - hts.h15) - hts.n_s) > DATUM_CHECK_M
+        dev_f = np.abs((hts.h78 - hts.h25) - hts.n_fc) > DATUM_CHECK_M
+    for k in np.flatnonzero(dev_s | dev_f):
+        parts = []
+        if dev_s[k]:
+            parts.append(
+                f"tag 75 - tag 15 = {hts.h75[k] - hts.h15[k]:+.1f} m but EGM96 N = {hts.n_s[k]:+.1f} m at the sensor"
+            )
+        if dev_f[k]:
+            parts.append(
+                f"tag 78 - tag 25 = {hts.h78[k] - hts.h25[k]:+.1f} m but EGM96 N = {hts.n_fc[k]:+.1f} m "
+                "at the frame centre"
+            )
+        datum_warn[k] = "; ".join(parts)
+        warnings.append(f"packet {int(read.packet[k])} (byte {int(read.columns['offset'][k])}): {datum_warn[k]}")
+    return datum_warn, warnings
+
+
+def _uncertainty_columns(g, budget, geo: _Geometry, unc_surface, ok, hts: _Heights, time_s) -> tuple[dict, list[str]]:
+    """The predicted uncertainty columns beside the packet's own target error estimates (tags 45,
+    46), the platform's velocity where a ``time_s`` term needs it, and the messages to show."""
+    cols = {"reported_ce90_m": g("target_error_ce90_m"), "reported_le90_m": g("target_error_le90_m")}
+    vel = None
+    if budget.sigma("time_s") > 0:
+        vel, vel_from = platform_velocity_ned(
+            hts.lat_s, hts.lon_s, hts.h_s, time_s, g("sensor_north_velocity_m_s"), g("sensor_east_velocity_m_s")
+        )
+    ucols, messages = _klv_uncertainty(geo.sensor, geo.pose_c, unc_surface, budget, ok, vel)
+    cols.update(ucols)
+    if vel is not None:
+        for j, axis in enumerate(("north", "east", "down")):
+            cols[f"velocity_{axis}_m_s"] = vel[:, j]
+        cols["velocity_from"] = vel_from
+        used = ok & (vel_from != "")
+        messages.append(
+            f"time_s = {budget.sigma('time_s'):g} s propagated with the platform's velocity: "
+            f"tags 79, 80 for {int(np.sum(used & (vel_from == 'tags 79, 80')))} packet(s), "
+            f"differenced positions for {int(np.sum(used & (vel_from == 'differenced')))} "
+            "(column velocity_from)"
+        )
+    return cols, messages
+
+
+def _dem_height_note(hts: _Heights, h) -> str | None:
+    """The reported frame-centre heights against the DEM's: the median difference, and a hint
+    when it is about -N (reported heights orthometric where they should be ellipsoidal)."""
+    dh = hts.rep_h - h
+    okh = np.isfinite(dh)
+    if not okh.any():
+        return None
+    mdh = float(np.median(dh[okh]))
+    mn = float(np.nanmedian(hts.n_fc[okh])) if np.isfinite(hts.n_fc[okh]).any() else math.nan
+    text = f"reported frame-centre height minus the DEM's: median {mdh:+.2f} m"
+    if abs(mdh) > 5 and math.isfinite(mn) and abs(mdh + mn) < DATUM_CHECK_M:
+        text += (
+            f", about -N ({-mn:+.1f} m): the reported heights look orthometric (MSL) where "
+            "they should be ellipsoidal, or the DEM's datum is wrong (--dem-datum)"
+        )
+    return text
+
+
+def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corrections = NO_CORRECTIONS) -> KlvReplay:
+    terrain = terrain_of(surface)
+    c = read.columns
+    n = len(read)
+    g = lambda name: _f(c, name, n)  # noqa: E731
+
+    hts = _packet_heights(g)
+    ang = _packet_angles(g)
+    bad_c, bad_k, notes, invalid_reasons = _missing_tags(hts, ang, surface, base_sensor, c.get("reserved"))
+    geo = _replay_geometry(hts, ang, bad_c, bad_k, base_sensor)
+    sens = geo.sensor
+    h_int = _clean(hts.rep_h, bad_c)
+    gc, gk = _intersect_packets(geo, surface, h_int, corrections)
+
+    status = np.where(bad_c, np.uint8(Status.INVALID_INPUT), np.asarray(gc.status, np.uint8)).astype(np.uint8)
+    ok = status == Status.OK
+    lat = np.where(ok, np.rad2deg(gc.lat), np.nan)
+    lon = np.where(ok, np.rad2deg(gc.lon), np.nan)
+    h = np.where(ok, gc.h, np.nan)
+    kst = np.where(bad_k[None, :], np.uint8(Status.INVALID_INPUT), np.asarray(gk.status, np.uint8))
+    kok = kst == Status.OK
+    k_lat = np.where(kok, np.rad2deg(gk.lat), np.nan)
+    k_lon = np.where(kok, np.rad2deg(gk.lon), np.nan)
+    k_h = np.where(kok, gk.h, np.nan)
+    rk_lat, rk_lon, rep_corners = _reported_corners(g, hts)
 
     # ---- errors
-    fc_err = horizontal_distance_m(lat, lon, fc_lat, fc_lon)
+    fc_err = horizontal_distance_m(lat, lon, hts.fc_lat, hts.fc_lon)
     k_err = horizontal_distance_m(k_lat, k_lon, rk_lat, rk_lon)
     k_cnt = np.isfinite(k_err).sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
         corner_err = np.where(k_cnt > 0, np.nansum(k_err, axis=0) / np.maximum(k_cnt, 1), np.nan)
     outlier, med, _mad, thr = outlier_mask(fc_err)
-
-    # ---- datum check: HAE - MSL should be N
-    datum_warn = np.full(n, "", dtype=object)
-    warnings = []
-    with np.errstate(invalid="ignore"):
-        dev_s = np.abs((h75 - h15) - n_s) > DATUM_CHECK_M
-        dev_f = np.abs((h78 - h25) - n_fc) > DATUM_CHECK_M
-    for k in np.flatnonzero(dev_s | dev_f):
-        parts = []
-        if dev_s[k]:
-            parts.append(f"tag 75 - tag 15 = {h75[k] - h15[k]:+.1f} m but EGM96 N = {n_s[k]:+.1f} m at the sensor")
-        if dev_f[k]:
-            parts.append(
-                f"tag 78 - tag 25 = {h78[k] - h25[k]:+.1f} m but EGM96 N = {n_fc[k]:+.1f} m at the frame centre"
-            )
-        datum_warn[k] = "; ".join(parts)
-        warnings.append(f"packet {int(read.packet[k])} (byte {int(c['offset'][k])}): {datum_warn[k]}")
-
-    plaus = _drone_height_warnings(read, base_sensor, terrain, lat_s, lon_s, h_s, h75, h15, from75, rep_h, from78, h)
+    datum_warn, warnings = _datum_warnings(read, hts)
+    plaus = _drone_height_warnings(
+        read,
+        base_sensor,
+        terrain,
+        hts.lat_s,
+        hts.lon_s,
+        hts.h_s,
+        hts.h75,
+        hts.h15,
+        hts.from75,
+        hts.rep_h,
+        hts.from78,
+        h,
+    )
 
     ts = g("precision_time_stamp_us")
     cols = {
@@ -995,28 +1189,28 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         "pts_s": np.asarray(read.pts_s, float),
         "time_utc": _iso(ts),
         "time_s": ts / 1e6,
-        "sensor_lat_deg": lat_s,
-        "sensor_lon_deg": lon_s,
-        "sensor_h_m": h_s,
-        "sensor_h_from": sensor_h_from.astype(object),
-        "sensor_ellipsoid_height_m": h75,
-        "sensor_true_altitude_msl_m": h15,
-        "sensor_geoid_n_m": n_s,
-        "platform_heading_deg": heading,
-        "platform_pitch_deg": pitch,
-        "platform_roll_deg": roll,
-        "sensor_relative_azimuth_deg": az,
-        "sensor_relative_elevation_deg": el,
-        "sensor_relative_roll_deg": sroll,
-        "sensor_horizontal_fov_deg": hfov,
-        "sensor_vertical_fov_deg": vfov,
+        "sensor_lat_deg": hts.lat_s,
+        "sensor_lon_deg": hts.lon_s,
+        "sensor_h_m": hts.h_s,
+        "sensor_h_from": hts.sensor_h_from.astype(object),
+        "sensor_ellipsoid_height_m": hts.h75,
+        "sensor_true_altitude_msl_m": hts.h15,
+        "sensor_geoid_n_m": hts.n_s,
+        "platform_heading_deg": ang.heading,
+        "platform_pitch_deg": ang.pitch,
+        "platform_roll_deg": ang.roll,
+        "sensor_relative_azimuth_deg": ang.az,
+        "sensor_relative_elevation_deg": ang.el,
+        "sensor_relative_roll_deg": ang.sroll,
+        "sensor_horizontal_fov_deg": ang.hfov,
+        "sensor_vertical_fov_deg": ang.vfov,
         "slant_range_m": g("slant_range_m"),
-        "frame_center_hae_m": h78,
-        "frame_center_elevation_msl_m": h25,
-        "reported_lat_deg": fc_lat,
-        "reported_lon_deg": fc_lon,
-        "reported_h_m": rep_h,
-        "reported_h_from": rep_h_from.astype(object),
+        "frame_center_hae_m": hts.h78,
+        "frame_center_elevation_msl_m": hts.h25,
+        "reported_lat_deg": hts.fc_lat,
+        "reported_lon_deg": hts.fc_lon,
+        "reported_h_m": hts.rep_h,
+        "reported_h_from": hts.rep_h_from.astype(object),
     }
     for j in range(4):
         cols[f"reported_corner{j + 1}_lat_deg"] = rk_lat[j]
@@ -1029,7 +1223,7 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
             "mgrs": np.array(mgrs_column(lat, lon), dtype=object),  # '' where no point (io.mgrs_grid)
             "h_m": h,
             "status": status,
-            "range_m": rng,
+            "range_m": np.where(ok, gc.slant_range, np.nan),
             "frame_center_error_m": fc_err,
             "corrections": np.full(n, corrections.label, dtype=object),
             "refraction_m": np.where(ok, np.asarray(gc.refraction_m, float), np.nan),
@@ -1039,34 +1233,14 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         cols[f"corner{j + 1}_lat_deg"] = k_lat[j]
         cols[f"corner{j + 1}_lon_deg"] = k_lon[j]
         cols[f"corner{j + 1}_h_m"] = k_h[j]
-    unc_messages = []
-    if budget is not None:  # predicted beside the packet's own target error estimates (tags 45, 46)
-        from geoloc.surfaces.height import HeightSurface
-
+    unc_messages: list[str] = []
+    if budget is not None:
         unc_surface = HeightSurface(h_int, "geodetic") if surface is None else surface
-        cols["reported_ce90_m"] = g("target_error_ce90_m")
-        cols["reported_le90_m"] = g("target_error_le90_m")
-        vel = None
-        if budget.sigma("time_s") > 0:
-            vel, vel_from = platform_velocity_ned(
-                lat_s, lon_s, h_s, ts / 1e6, g("sensor_north_velocity_m_s"), g("sensor_east_velocity_m_s")
-            )
-        ucols, unc_messages = _klv_uncertainty(sens, pose_c, unc_surface, budget, ok, vel)
+        ucols, unc_messages = _uncertainty_columns(g, budget, geo, unc_surface, ok, hts, ts / 1e6)
         cols.update(ucols)
-        if vel is not None:
-            for j, axis in enumerate(("north", "east", "down")):
-                cols[f"velocity_{axis}_m_s"] = vel[:, j]
-            cols["velocity_from"] = vel_from
-            used = ok & (vel_from != "")
-            unc_messages.append(
-                f"time_s = {budget.sigma('time_s'):g} s propagated with the platform's velocity: "
-                f"tags 79, 80 for {int(np.sum(used & (vel_from == 'tags 79, 80')))} packet(s), "
-                f"differenced positions for {int(np.sum(used & (vel_from == 'differenced')))} "
-                "(column velocity_from)"
-            )
     cols.update(
         {
-            "corner_status": corner_status,
+            "corner_status": _corner_status(kst),
             "corner_error_m": corner_err,
             "h_datum": np.full(n, H_DATUM, dtype=object),
             "outlier": outlier.astype(np.int64),
@@ -1085,18 +1259,9 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
             "used; its lens is replaced by each packet's fields of view (tags 16, 17)"
         )
     if terrain is not None and fin.any():
-        dh = rep_h - h
-        okh = np.isfinite(dh)
-        if okh.any():
-            mdh = float(np.median(dh[okh]))
-            mn = float(np.nanmedian(n_fc[okh])) if np.isfinite(n_fc[okh]).any() else math.nan
-            text = f"reported frame-centre height minus the DEM's: median {mdh:+.2f} m"
-            if abs(mdh) > 5 and math.isfinite(mn) and abs(mdh + mn) < DATUM_CHECK_M:
-                text += (
-                    f", about -N ({-mn:+.1f} m): the reported heights look orthometric (MSL) where "
-                    "they should be ellipsoidal, or the DEM's datum is wrong (--dem-datum)"
-                )
-            summ_notes.append(text)
+        note = _dem_height_note(hts, h)
+        if note is not None:
+            summ_notes.append(note)
     summary = KlvSummary(
         source=read.source,
         packets=n,
@@ -1113,9 +1278,9 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         outliers=read.packet[outlier].tolist(),
         outlier_median_m=med,
         outlier_threshold_m=thr,
-        sensor_h_sources={"tag 75 (HAE)": int(from75.sum()), "tag 15 (MSL) + EGM96 N": int(from15.sum())},
-        reported_h_sources={"tag 78 (HAE)": int(from78.sum()), "tag 25 (MSL) + EGM96 N": int(from25.sum())},
-        surface=surface_text,
+        sensor_h_sources={"tag 75 (HAE)": int(hts.from75.sum()), "tag 15 (MSL) + EGM96 N": int(hts.from15.sum())},
+        reported_h_sources={"tag 78 (HAE)": int(hts.from78.sum()), "tag 25 (MSL) + EGM96 N": int(hts.from25.sum())},
+        surface=_surface_text(surface, terrain),
         datum_warnings=warnings,
         notes=summ_notes,
         plausibility_warnings=plaus,

@@ -1,0 +1,168 @@
+"""The KLV replay's steps, each alone (geoloc.workflows.klv_replay: ``_packet_heights``,
+``_packet_angles``, ``_missing_tags``, ``_replay_geometry``, ``_reported_corners``,
+``_corner_status``, ``_datum_warnings``), on columns written here by hand.
+
+Oracles: PROJ's own vgridshift on the bundled EGM96 grid for N (tests/test_klv_replay.py's
+``proj_undulation``), MISB ST 0601's tag rules (75 before 15, 78 before 25, 90/91 before 6/7,
+82-89 before 26-33 + the frame centre), and the pinhole's closed form for the corners: a pixel
+at column offset x from the centre of a lens whose focal length is f pixels looks atan(x / f)
+off the axis.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from geoloc.status import Status
+from geoloc.workflows import klv_replay as kr
+from test_klv_replay import proj_undulation
+
+LAT, LON = 36.60, -84.25  # on the bundled EGM96 crop (Jacksboro)
+
+
+def getter(**cols):
+    n = max(len(np.atleast_1d(v)) for v in cols.values())
+    arrays = {k: np.broadcast_to(np.asarray(v, float), (n,)).copy() for k, v in cols.items()}
+    return lambda name: kr._f(arrays, name, n)
+
+
+def full_packet(n=1, **over):
+    cols = dict(
+        sensor_latitude_deg=LAT,
+        sensor_longitude_deg=LON,
+        sensor_ellipsoid_height_m=2500.0,
+        platform_heading_deg=30.0,
+        platform_pitch_deg=0.0,
+        platform_roll_deg=0.0,
+        sensor_relative_azimuth_deg=90.0,
+        sensor_relative_elevation_deg=-30.0,
+        sensor_relative_roll_deg=0.0,
+        sensor_horizontal_fov_deg=8.0,
+        sensor_vertical_fov_deg=4.5,
+        frame_center_latitude_deg=LAT + 0.01,
+        frame_center_longitude_deg=LON + 0.02,
+        frame_center_hae_m=300.0,
+    )
+    cols.update(over)
+    cols = {k: v for k, v in cols.items() if v is not None}
+    cols["_n"] = np.zeros(n)
+    return getter(**cols)
+
+
+def test_heights_take_the_ellipsoidal_tag_first_else_msl_plus_proj_n():
+    n_s = proj_undulation(LAT, LON)
+    # packet 0 carries both sensor heights (75 wins), packet 1 only tag 15, packet 2 neither
+    g = full_packet(
+        3,
+        sensor_ellipsoid_height_m=[2500.0, np.nan, np.nan],
+        sensor_true_altitude_m=[9999.0, 2400.0, np.nan],
+        frame_center_hae_m=[300.0, np.nan, np.nan],
+        frame_center_elevation_m=[np.nan, 250.0, np.nan],
+        frame_center_latitude_deg=LAT,
+        frame_center_longitude_deg=LON,
+    )
+    hts = kr._packet_heights(g)
+    # 1 mm: the bundled grid read bilinearly by two codes (the project's and PROJ's)
+    assert hts.h_s[0] == 2500.0
+    assert hts.h_s[1] == pytest.approx(2400.0 + n_s, abs=1e-3)
+    assert np.isnan(hts.h_s[2])
+    assert hts.sensor_h_from.tolist() == ["tag 75 (HAE)", "tag 15 (MSL) + EGM96 N", ""]
+    assert hts.rep_h[0] == 300.0
+    assert hts.rep_h[1] == pytest.approx(250.0 + n_s, abs=1e-3)
+    assert hts.rep_h_from.tolist() == ["tag 78 (HAE)", "tag 25 (MSL) + EGM96 N", ""]
+
+
+def test_angles_take_the_full_range_pitch_and_roll_first_and_refuse_impossible_fields_of_view():
+    g = full_packet(
+        3,
+        platform_pitch_deg=[5.0, 5.0, 5.0],
+        platform_pitch_full_deg=[-120.0, np.nan, np.nan],
+        platform_roll_full_deg=[np.nan, 100.0, np.nan],
+        platform_roll_deg=[1.0, 1.0, 1.0],
+        sensor_horizontal_fov_deg=[8.0, 0.0, 180.0],
+    )
+    ang = kr._packet_angles(g)
+    assert ang.pitch.tolist() == [-120.0, 5.0, 5.0]
+    assert ang.roll.tolist() == [1.0, 100.0, 1.0]
+    assert ang.hfov_ok.tolist() == [True, False, False]  # MISB: 0 and 180 are no field of view
+
+
+def test_missing_tags_name_the_tag_and_keep_the_corners_apart():
+    g = full_packet(
+        3,
+        sensor_latitude_deg=[LAT, np.nan, LAT],
+        sensor_vertical_fov_deg=[4.5, 4.5, np.nan],
+    )
+    hts, ang = kr._packet_heights(g), kr._packet_angles(g)
+    bad_c, bad_k, notes, reasons = kr._missing_tags(hts, ang, None, None)
+    assert bad_c.tolist() == [False, True, False]
+    assert bad_k.tolist() == [False, True, True]  # a packet that cannot be located has no corners either
+    assert notes[0] == ""
+    assert notes[1] == "missing tag 13 (Sensor Latitude)"
+    assert notes[2].startswith("corners not computed: missing tag 17")
+    assert reasons == {"missing tag 13 (Sensor Latitude)": 1}
+
+
+def test_without_a_surface_the_reported_height_is_needed_and_with_one_it_is_not():
+    g = full_packet(1, frame_center_hae_m=None)
+    hts, ang = kr._packet_heights(g), kr._packet_angles(g)
+    assert kr._missing_tags(hts, ang, None, None)[0].tolist() == [True]
+    assert kr._missing_tags(hts, ang, object(), None)[0].tolist() == [False]
+
+
+def test_each_packets_corners_look_half_its_own_field_of_view_off_the_axis():
+    # three fields of view in one batch: the sensor's lens is the median's (8 x 4.5 deg)
+    hfov, vfov = np.array([4.0, 8.0, 20.0]), np.array([2.25, 4.5, 11.0])
+    g = full_packet(3, sensor_horizontal_fov_deg=hfov, sensor_vertical_fov_deg=vfov)
+    hts, ang = kr._packet_heights(g), kr._packet_angles(g)
+    bad_c, bad_k, _, _ = kr._missing_tags(hts, ang, None, None)
+    geo = kr._replay_geometry(hts, ang, bad_c, bad_k, None)
+    s = geo.sensor
+    r0, c0 = s.center_pixel
+    f_cols = (s.cols / 2) / math.tan(math.radians(8.0) / 2)  # the median lens's focal length [px]
+    f_rows = (s.rows / 2) / math.tan(math.radians(4.5) / 2)
+    # upper right corner: half the horizontal and vertical fields of view off the axis (1e-9 deg:
+    # rounding of the tangents)
+    assert np.degrees(np.arctan((geo.k_cols[1] - c0) / f_cols)) == pytest.approx(hfov / 2, abs=1e-9)
+    assert np.degrees(np.arctan((r0 - geo.k_rows[1]) / f_rows)) == pytest.approx(vfov / 2, abs=1e-9)
+    # the median packet's corners are the image's outer edges (1-based pixel centres: 0.5 and N + 0.5)
+    assert geo.k_cols[:, 1].tolist() == pytest.approx([0.5, s.cols + 0.5, s.cols + 0.5, 0.5])
+    assert geo.k_rows[:, 1].tolist() == pytest.approx([0.5, 0.5, s.rows + 0.5, s.rows + 0.5])
+
+
+def test_reported_corners_are_the_full_tags_else_the_offsets_from_the_centre():
+    full = {f"corner_latitude_{j}_deg": [LAT + j, np.nan] for j in range(1, 5)}
+    full |= {f"corner_longitude_{j}_deg": [LON + j, np.nan] for j in range(1, 5)}
+    off = {f"offset_corner_latitude_{j}_deg": [0.5, 0.01 * j] for j in range(1, 5)}
+    off |= {f"offset_corner_longitude_{j}_deg": [0.5, -0.01 * j] for j in range(1, 5)}
+    g = full_packet(2, **full, **off)
+    rk_lat, rk_lon, src = kr._reported_corners(g, kr._packet_heights(g))
+    assert rk_lat[:, 0].tolist() == [LAT + j for j in range(1, 5)]  # full corners win over offsets
+    assert rk_lat[:, 1] == pytest.approx([LAT + 0.01 + 0.01 * j for j in range(1, 5)], abs=1e-12)
+    assert rk_lon[:, 1] == pytest.approx([LON + 0.02 - 0.01 * j for j in range(1, 5)], abs=1e-12)
+    assert src.tolist() == ["tags 82-89 (full)", "tags 26-33 (offsets from the frame centre)"]
+
+
+def test_corner_status_is_the_first_failed_corners():
+    OK, MISS, INV = int(Status.OK), int(Status.SKY), int(Status.INVALID_INPUT)
+    kst = np.array([[OK, OK, OK], [OK, MISS, INV], [OK, INV, OK], [OK, OK, MISS]], np.uint8)
+    # per packet (columns): all OK; corner 1 then 2 failed; corner 1 then 3 failed
+    assert kr._corner_status(kst).tolist() == [OK, MISS, INV]
+
+
+def test_datum_warning_when_hae_minus_msl_is_not_n():
+    n_s = proj_undulation(LAT, LON)
+    # packet 0: HAE - MSL = N (no warning); packet 1: the MSL item carries the HAE (off by -N)
+    g = full_packet(
+        2,
+        sensor_ellipsoid_height_m=[2500.0, 2500.0],
+        sensor_true_altitude_m=[2500.0 - n_s, 2500.0],
+        frame_center_latitude_deg=LAT,
+        frame_center_longitude_deg=LON,
+    )
+    read = type("R", (), {"packet": np.array([7, 8]), "columns": {"offset": np.array([0, 190])}})()
+    warn, lines = kr._datum_warnings(read, kr._packet_heights(g))
+    assert warn[0] == ""
+    assert "tag 75 - tag 15 = +0.0 m" in warn[1] and "at the sensor" in warn[1]
+    assert lines == [f"packet 8 (byte 190): {warn[1]}"]
