@@ -360,26 +360,22 @@ class ExportSummary:
 # --------------------------------------------------------------------------- layers from the table
 
 
-def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
-    """The six layers of a table, with heights made ellipsoidal (the writers' common input).
-
-    Returns ``(layers, context)``: a dict layer name -> layer, and the time base,
-    labels and rows without a position. See :func:`export` for the arguments.
-    """
-    n = _nrows(table)
-    if group_by is not None and group_by not in table:
-        raise ValueError(f"group-by column {group_by!r} is not in the results (columns: {', '.join(table) or 'none'})")
-    if group_by is None and "table" in table:
-        group_by = "table"
-
-    # row labels and the attributes every row-based feature carries
+def _row_labels(table, n) -> tuple[list, list]:
+    """The id columns present, and each row's label: its ids joined by '/', else ``row k``."""
     ids = [c for c in ID_COLUMNS if c in table]
     id_text = {c: _text(table, c) for c in ids}
     labels = []
     for k in range(n):
         parts = [id_text[c][k] for c in ids if id_text[c][k]]
         labels.append("/".join(parts) if parts else f"row {k}")
+    return ids, labels
 
+
+def _row_fields(table, n, ids, group_by) -> tuple[list, dict, list | None, np.ndarray]:
+    """The attributes every row-based feature carries: ``(fields, values, status, egm96)`` with
+    fields ``[(name, kind)]``, values name -> one value per row, the status text per row (None
+    without a status column), and where a row's heights are EGM96 (made ellipsoidal by the
+    positions)."""
     fields = [("row_index", "int")]
     values = {"row_index": list(range(n))}
     for c in ids + ([group_by] if group_by and group_by not in ids else []):
@@ -416,157 +412,174 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
         fields.append(("h_datum_input", "text"))
         values["h_datum_input"] = datum_text
     egm96 = np.array([_datum_kind(datum_text[k] if datum_text else None, k) == "egm96" for k in range(n)], dtype=bool)
+    return fields, values, status, egm96
 
-    def row_attrs(k, **extra):
-        a = {name: values[name][k] for name, _ in fields}
-        a.update(extra)
-        return a
 
-    def position(lat_col, lon_col, h_cols):
-        lat, lon = _num(table, lat_col, n), _num(table, lon_col, n)
-        if lat is None or lon is None:
-            return None
-        h = next((_num(table, c, n) for c in h_cols if c in table), None)
-        h = np.full(n, np.nan) if h is None else _ellipsoidal(h, lat, lon, egm96)
-        hcol = next((c for c in h_cols if c in table), None)
-        return lat, lon, h, hcol
-
-    def ok(p, k):
-        return p is not None and np.isfinite(p[0][k]) and np.isfinite(p[1][k])
-
-    # time base
+def _time_base(table, n, epoch) -> tuple[datetime, np.ndarray, str]:
+    """The time base and each row's seconds after it: from ``time_utc`` (the base its earliest
+    stamp), else ``time_s`` after ``epoch``, else one second per row after ``epoch``."""
     if "time_utc" in table:
         txt = _text(table, "time_utc")
         stamps = [None if t is None else _parse_time(t, k) for k, t in enumerate(txt)]
         known = [t for t in stamps if t is not None]
         base = min(known) if known else _parse_time(epoch)
         seconds = np.array([np.nan if t is None else (t - base).total_seconds() for t in stamps])
-        time_source = "time_utc"
-    elif "time_s" in table:
-        base, seconds, time_source = _parse_time(epoch), _num(table, "time_s", n), "time_s"
-    else:
-        base, seconds, time_source = _parse_time(epoch), np.arange(n, dtype=float), "row_order"
+        return base, seconds, "time_utc"
+    if "time_s" in table:
+        return _parse_time(epoch), _num(table, "time_s", n), "time_s"
+    return _parse_time(epoch), np.arange(n, dtype=float), "row_order"
 
-    def t_of(k):
-        return float(seconds[k]) if np.isfinite(seconds[k]) else None
 
-    layers = {}
+def _has_position(p, k) -> bool:
+    """Row k of the position ``p`` (from :meth:`_Rows.position`) has a finite lat and lon."""
+    return p is not None and np.isfinite(p[0][k]) and np.isfinite(p[1][k])
+
+
+@dataclass
+class _Rows:
+    """The table's rows as the layers read them: labels, the attributes each row-based feature
+    carries, and each row's time."""
+
+    table: dict
+    n: int
+    labels: list
+    fields: list  # [(name, kind)] every row-based feature carries
+    values: dict  # name -> one value per row
+    egm96: np.ndarray  # rows whose heights are EGM96 (made ellipsoidal by position)
+    seconds: np.ndarray  # after the time base, NaN where unknown
+
+    def attrs(self, k, **extra) -> dict:
+        a = {name: self.values[name][k] for name, _ in self.fields}
+        a.update(extra)
+        return a
+
+    def t_of(self, k) -> float | None:
+        return float(self.seconds[k]) if np.isfinite(self.seconds[k]) else None
+
+    def position(self, lat_col, lon_col, h_cols):
+        """``(lat, lon, h, h_column)`` of the columns named, the height made ellipsoidal (NaN where
+        the table has none of ``h_cols``); None without the lat or lon column."""
+        lat, lon = _num(self.table, lat_col, self.n), _num(self.table, lon_col, self.n)
+        if lat is None or lon is None:
+            return None
+        h = next((_num(self.table, c, self.n) for c in h_cols if c in self.table), None)
+        h = np.full(self.n, np.nan) if h is None else _ellipsoidal(h, lat, lon, self.egm96)
+        hcol = next((c for c in h_cols if c in self.table), None)
+        return lat, lon, h, hcol
+
+    def mgrs_of(self, p) -> list:
+        """Each row's MGRS reference of position ``p`` (1 m; None where it has no position)."""
+        return [t or None for t in mgrs_column(p[0], p[1])] if p is not None else [None] * self.n
+
+
+def _point_fields(rows: _Rows) -> list:
     # every point carries its MGRS reference (1 m, geoloc.io.mgrs_grid; None where it has no position)
-    point_fields = fields + [("h_m", "real"), ("mgrs", "text")]
+    return rows.fields + [("h_m", "real"), ("mgrs", "text")]
 
-    def mgrs_of(p):
-        return [t or None for t in mgrs_column(p[0], p[1])] if p is not None else [None] * n
 
-    # computed points
-    comp = position("lat_deg", "lon_deg", ("h_m",))
-    comp_mgrs = mgrs_of(comp)
-    lay = _Layer("points", "Point", point_fields)
+def _points_layer(rows: _Rows, comp) -> tuple[_Layer, list]:
+    """The computed ground points, one feature per row (an empty geometry where the row has no
+    position), and the rows without one."""
+    comp_mgrs = rows.mgrs_of(comp)
+    lay = _Layer("points", "Point", _point_fields(rows))
     missing = []
-    for k in range(n):
-        if ok(comp, k):
+    for k in range(rows.n):
+        if _has_position(comp, k):
             coords = [(float(comp[1][k]), float(comp[0][k]), float(comp[2][k]))]
         else:
             coords = None
             missing.append(k)
-        lay.features.append(
-            _Feature(
-                coords, row_attrs(k, h_m=_opt(comp[2][k]) if comp else None, mgrs=comp_mgrs[k]), labels[k], k, t_of(k)
-            )
-        )
+        attrs = rows.attrs(k, h_m=_opt(comp[2][k]) if comp else None, mgrs=comp_mgrs[k])
+        lay.features.append(_Feature(coords, attrs, rows.labels[k], k, rows.t_of(k)))
     lay.description = "computed ground points (lat_deg, lon_deg, h_m)"
-    layers["points"] = lay
+    return lay, missing
 
-    # truth and reported points
-    truth = position(*_TRUTH[1:])
-    lay = _Layer("truth", "Point", point_fields)
+
+def _truth_layer(rows: _Rows, truth) -> _Layer:
+    """The surveyed positions, one feature per row; empty without truth columns."""
+    lay = _Layer("truth", "Point", _point_fields(rows))
     if truth is not None:
-        truth_mgrs = mgrs_of(truth)
-        for k in range(n):
-            coords = [(float(truth[1][k]), float(truth[0][k]), float(truth[2][k]))] if ok(truth, k) else None
-            lay.features.append(
-                _Feature(
-                    coords, row_attrs(k, h_m=_opt(truth[2][k]), mgrs=truth_mgrs[k]), f"truth {labels[k]}", k, t_of(k)
-                )
-            )
+        truth_mgrs = rows.mgrs_of(truth)
+        for k in range(rows.n):
+            coords = [(float(truth[1][k]), float(truth[0][k]), float(truth[2][k]))] if _has_position(truth, k) else None
+            attrs = rows.attrs(k, h_m=_opt(truth[2][k]), mgrs=truth_mgrs[k])
+            lay.features.append(_Feature(coords, attrs, f"truth {rows.labels[k]}", k, rows.t_of(k)))
     lay.description = "surveyed (truth) positions (truth_lat_deg, truth_lon_deg, truth_h_m)"
-    layers["truth"] = lay
+    return lay
 
-    reported = [(name, position(lat, lon, hs)) for name, lat, lon, hs in _REPORTED]
-    reported = [(name, p) for name, p in reported if p is not None]
-    lay = _Layer("reported", "Point", fields + [("source", "text"), ("h_m", "real"), ("mgrs", "text")])
+
+def _reported_layer(rows: _Rows, reported) -> _Layer:
+    """The published and reported positions (``[(source, position)]``), one feature per row
+    and source."""
+    lay = _Layer("reported", "Point", rows.fields + [("source", "text"), ("h_m", "real"), ("mgrs", "text")])
     for name, p in reported:
-        p_mgrs = mgrs_of(p)
-        for k in range(n):
-            coords = [(float(p[1][k]), float(p[0][k]), float(p[2][k]))] if ok(p, k) else None
-            lay.features.append(
-                _Feature(
-                    coords,
-                    row_attrs(k, source=name, h_m=_opt(p[2][k]), mgrs=p_mgrs[k]),
-                    f"{name} {labels[k]}",
-                    k,
-                    t_of(k),
-                )
-            )
+        p_mgrs = rows.mgrs_of(p)
+        for k in range(rows.n):
+            coords = [(float(p[1][k]), float(p[0][k]), float(p[2][k]))] if _has_position(p, k) else None
+            attrs = rows.attrs(k, source=name, h_m=_opt(p[2][k]), mgrs=p_mgrs[k])
+            lay.features.append(_Feature(coords, attrs, f"{name} {rows.labels[k]}", k, rows.t_of(k)))
     lay.description = (
         "published (paper_*) and reported (reported_*, e.g. MISB KLV) positions; attribute source says which"
     )
-    layers["reported"] = lay
+    return lay
 
-    # error vectors: computed point -> truth / paper / reported
+
+def _error_vector_layer(rows: _Rows, comp, targets) -> _Layer:
+    """A line from each computed point to each target (``[(name, position)]``: truth, paper,
+    reported); the far end at the target's height, or the computed height where it has none."""
     lay = _Layer(
-        "error_vectors", "LineString", fields + [("target", "text"), ("error_m", "real"), ("end_h_from", "text")]
+        "error_vectors", "LineString", rows.fields + [("target", "text"), ("error_m", "real"), ("end_h_from", "text")]
     )
-    targets = ([("truth", truth)] if truth is not None else []) + reported
     for name, p in targets:
-        err = _num(table, f"error_to_{name}_m", n)
+        err = _num(rows.table, f"error_to_{name}_m", rows.n)
         if err is None and name == "reported":  # a MISB KLV replay names it after the frame centre
-            err = _num(table, "frame_center_error_m", n)
-        for k in range(n):
+            err = _num(rows.table, "frame_center_error_m", rows.n)
+        for k in range(rows.n):
             coords, end_from = None, None
-            if ok(comp, k) and ok(p, k):
+            if _has_position(comp, k) and _has_position(p, k):
                 h_end = p[2][k] if np.isfinite(p[2][k]) else comp[2][k]
                 end_from = p[3] if np.isfinite(p[2][k]) else "h_m (target height unknown)"
                 coords = [
                     (float(comp[1][k]), float(comp[0][k]), float(comp[2][k])),
                     (float(p[1][k]), float(p[0][k]), float(h_end)),
                 ]
-            lay.features.append(
-                _Feature(
-                    coords,
-                    row_attrs(k, target=name, error_m=_opt(err[k]) if err is not None else None, end_h_from=end_from),
-                    f"{labels[k]} to {name}",
-                    k,
-                    t_of(k),
-                )
-            )
+            attrs = rows.attrs(k, target=name, error_m=_opt(err[k]) if err is not None else None, end_h_from=end_from)
+            lay.features.append(_Feature(coords, attrs, f"{rows.labels[k]} to {name}", k, rows.t_of(k)))
     lay.description = (
         "from the computed point to the truth / published / reported position; the far "
         "end takes the target's height, or the computed height when the target has none"
     )
-    layers["error_vectors"] = lay
+    return lay
 
-    # frame footprints
-    lay = _Layer("footprints", "Polygon", fields + [("ring_corners", "text")])
+
+def _footprint_layer(rows: _Rows) -> _Layer:
+    """Each row's image footprint (corner1..corner4) as a closed ring, counterclockwise (RFC 7946,
+    3.1.6); ``ring_corners`` says the corner order. Empty without the four corners' columns."""
+    lay = _Layer("footprints", "Polygon", rows.fields + [("ring_corners", "text")])
     corner_cols = [(f"corner{i}_lat_deg", f"corner{i}_lon_deg") for i in range(1, 5)]
-    if all(a in table and b in table for a, b in corner_cols):
-        corners = [position(a, b, (f"corner{i + 1}_h_m",)) for i, (a, b) in enumerate(corner_cols)]
-        for k in range(n):
+    if all(a in rows.table and b in rows.table for a, b in corner_cols):
+        corners = [rows.position(a, b, (f"corner{i + 1}_h_m",)) for i, (a, b) in enumerate(corner_cols)]
+        for k in range(rows.n):
             coords, order = None, None
-            if all(ok(c, k) for c in corners):
+            if all(_has_position(c, k) for c in corners):
                 pts = [(float(c[1][k]), float(c[0][k]), float(c[2][k])) for c in corners]
-                order = [0, 1, 2, 3] if _signed_area(pts) >= 0 else [0, 3, 2, 1]  # RFC 7946: counterclockwise
+                order = [0, 1, 2, 3] if _signed_area(pts) >= 0 else [0, 3, 2, 1]
                 order = order + [0]
                 coords = [pts[i] for i in order]
                 order = ",".join(str(i + 1) for i in order)
             lay.features.append(
-                _Feature(coords, row_attrs(k, ring_corners=order), f"footprint {labels[k]}", k, t_of(k))
+                _Feature(coords, rows.attrs(k, ring_corners=order), f"footprint {rows.labels[k]}", k, rows.t_of(k))
             )
     lay.description = (
         "image footprints (corner1..corner4), closed ring, counterclockwise; ring_corners gives the corner order"
     )
-    layers["footprints"] = lay
+    return lay
 
-    # platform track, one line per flight
+
+def _track_layer(rows: _Rows, group_by, time_source) -> _Layer:
+    """The platform's track (``ac_*`` else ``sensor_*`` columns), one line per group (flight),
+    ordered by time, one sample per time (the first row at it); rows without a time are left out."""
+    table, n, seconds = rows.table, rows.n, rows.seconds
     gname = group_by or "group"
     tfields = [
         (gname, "text"),
@@ -581,56 +594,86 @@ def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
         tfields += [("start_time_s", "real"), ("end_time_s", "real")]
     tfields += [("h_datum", "text")]
     lay = _Layer("track", "LineString", tfields)
+    lay.description = "platform track (ac_* or sensor_* columns), one line per flight, ordered by time"
     plat = next(
         (
-            position(f"{p}_lat_deg", f"{p}_lon_deg", (f"{p}_h_m",))
+            rows.position(f"{p}_lat_deg", f"{p}_lon_deg", (f"{p}_h_m",))
             for p in _PLATFORMS
             if f"{p}_lat_deg" in table and f"{p}_lon_deg" in table
         ),
         None,
     )
-    if plat is not None and n:
-        groups = _text(table, group_by) if group_by else ["all"] * n
-        groups = [g or "" for g in groups]
-        time_s = _num(table, "time_s", n)
-        utc = _text(table, "time_utc")
-        for g in dict.fromkeys(groups):
-            rows = [k for k in range(n) if groups[k] == g and ok(plat, k) and np.isfinite(seconds[k])]
-            rows.sort(key=lambda k: seconds[k])
-            keep = []
-            for k in rows:  # one sample per time: the first row at each time
-                if not keep or seconds[k] > seconds[keep[-1]]:
-                    keep.append(k)
-            samples = [(float(plat[1][k]), float(plat[0][k]), float(plat[2][k])) for k in keep]
-            a = {
-                gname: g,
-                "n_samples": len(keep),
-                "first_row": keep[0] if keep else None,
-                "last_row": keep[-1] if keep else None,
-                "time_source": time_source,
-                "h_datum": ELLIPSOID_DATUM,
-            }
-            if time_source == "time_utc":
-                a["start_time_utc"] = utc[keep[0]] if keep else None
-                a["end_time_utc"] = utc[keep[-1]] if keep else None
-            if time_s is not None:
-                a["start_time_s"] = _opt(time_s[keep[0]]) if keep else None
-                a["end_time_s"] = _opt(time_s[keep[-1]]) if keep else None
-            lay.features.append(
-                _Feature(
-                    samples if len(samples) >= 2 else None,
-                    a,
-                    f"track {g}".strip(),
-                    None,
-                    float(seconds[keep[0]]) if keep else None,
-                    samples,
-                    [float(seconds[k]) for k in keep],
-                )
+    if plat is None or not n:
+        return lay
+    groups = _text(table, group_by) if group_by else ["all"] * n
+    groups = [g or "" for g in groups]
+    time_s = _num(table, "time_s", n)
+    utc = _text(table, "time_utc")
+    for g in dict.fromkeys(groups):
+        ks = [k for k in range(n) if groups[k] == g and _has_position(plat, k) and np.isfinite(seconds[k])]
+        ks.sort(key=lambda k: seconds[k])
+        keep = []
+        for k in ks:  # one sample per time: the first row at each time
+            if not keep or seconds[k] > seconds[keep[-1]]:
+                keep.append(k)
+        samples = [(float(plat[1][k]), float(plat[0][k]), float(plat[2][k])) for k in keep]
+        a = {
+            gname: g,
+            "n_samples": len(keep),
+            "first_row": keep[0] if keep else None,
+            "last_row": keep[-1] if keep else None,
+            "time_source": time_source,
+            "h_datum": ELLIPSOID_DATUM,
+        }
+        if time_source == "time_utc":
+            a["start_time_utc"] = utc[keep[0]] if keep else None
+            a["end_time_utc"] = utc[keep[-1]] if keep else None
+        if time_s is not None:
+            a["start_time_s"] = _opt(time_s[keep[0]]) if keep else None
+            a["end_time_s"] = _opt(time_s[keep[-1]]) if keep else None
+        lay.features.append(
+            _Feature(
+                samples if len(samples) >= 2 else None,
+                a,
+                f"track {g}".strip(),
+                None,
+                float(seconds[keep[0]]) if keep else None,
+                samples,
+                [float(seconds[k]) for k in keep],
             )
-    lay.description = "platform track (ac_* or sensor_* columns), one line per flight, ordered by time"
-    layers["track"] = lay
+        )
+    return lay
 
-    layers["ellipses"] = _ellipse_layer(table, n, comp, ok, fields, row_attrs, labels, t_of)
+
+def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
+    """The six layers of a table, with heights made ellipsoidal (the writers' common input).
+
+    Returns ``(layers, context)``: a dict layer name -> layer, and the time base,
+    labels and rows without a position. See :func:`export` for the arguments.
+    """
+    n = _nrows(table)
+    if group_by is not None and group_by not in table:
+        raise ValueError(f"group-by column {group_by!r} is not in the results (columns: {', '.join(table) or 'none'})")
+    if group_by is None and "table" in table:
+        group_by = "table"
+    ids, labels = _row_labels(table, n)
+    fields, values, status, egm96 = _row_fields(table, n, ids, group_by)
+    base, seconds, time_source = _time_base(table, n, epoch)
+    rows = _Rows(table, n, labels, fields, values, egm96, seconds)
+
+    comp = rows.position("lat_deg", "lon_deg", ("h_m",))
+    truth = rows.position(*_TRUTH[1:])
+    reported = [(name, rows.position(lat, lon, hs)) for name, lat, lon, hs in _REPORTED]
+    reported = [(name, p) for name, p in reported if p is not None]
+    layers = {}
+    layers["points"], missing = _points_layer(rows, comp)
+    layers["truth"] = _truth_layer(rows, truth)
+    layers["reported"] = _reported_layer(rows, reported)
+    targets = ([("truth", truth)] if truth is not None else []) + reported
+    layers["error_vectors"] = _error_vector_layer(rows, comp, targets)
+    layers["footprints"] = _footprint_layer(rows)
+    layers["track"] = _track_layer(rows, group_by, time_source)
+    layers["ellipses"] = _ellipse_layer(table, n, comp, _has_position, fields, rows.attrs, labels, rows.t_of)
     ctx = _Context(n, base, seconds, time_source, labels, status, missing)
     return layers, ctx
 
