@@ -13,7 +13,7 @@ def read_toml(path, what: str = "scenario file") -> dict:
 
     Raises ``FileNotFoundError`` ("<what> not found: <path>") if it is missing and
     ``ValueError`` ("<what> <path>: not valid TOML: ...") if it does not parse or is not
-    UTF-8 text (issue 47's fuzzing: a binary file raised a bare ``UnicodeDecodeError``).
+    UTF-8 text (fuzzing found a binary file raising a bare ``UnicodeDecodeError``, naming no file).
     """
     note_input(path)
     path = Path(path)

@@ -326,7 +326,7 @@ def _naming(path, folder=None) -> Iterator[None]:
     An OSError that names no file (``fh.write`` on a full disk: ``[Errno 28] No space left on
     device``) is raised again naming the output. A library's own error (GDAL through pyogrio:
     "Failed to commit transaction"; an unreadable raster, :func:`_verify`) when the output's
-    filesystem is full or read-only is that OSError (issue 47, the machine's faults)."""
+    filesystem is full or read-only is that OSError (a full or read-only disk is a fault a user meets)."""
     import errno
 
     try:
@@ -355,7 +355,7 @@ GDAL_RASTERS = (".tif", ".tiff", ".ntf", ".nitf")
 def _verify(tmp: Path) -> None:
     """Raise when a GDAL raster just written cannot be opened: on a full disk rasterio 1.4 closes a
     GeoTIFF without an error (GDALClose's status is not looked at) and leaves a file of 0 bytes,
-    which replaced the old output (issue 47, found by writing on a full filesystem)."""
+    which replaced the old output (found by writing on a full filesystem)."""
     if tmp.suffix.lower() not in GDAL_RASTERS or not tmp.is_file():
         return
     import warnings

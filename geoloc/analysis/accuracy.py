@@ -1,6 +1,6 @@
 """Accuracy report of located targets against reference positions: CEP, CE90, LE90, bias, trends.
 
-The numbers drone and flight-test accuracy reports publish (issue 16, item 3),
+The numbers drone and flight-test accuracy reports publish,
 from per-target errors **computed minus reference**:
 
 * :func:`error_components`: the error vector in the reference point's local
@@ -136,8 +136,8 @@ def out_of_range(values, kind: str) -> np.ndarray:
 
 
 def _check_ranges(**named):
-    """ValueError naming the argument, the first index and value out of its range (issue 32:
-    a latitude of 95 gave a CE90 of 1 091 124 m without a word)."""
+    """ValueError naming the argument, the first index and value out of its range (a
+    latitude of 95 gave a CE90 of 1 091 124 m without a word)."""
     for name, v in named.items():
         if v is None:
             continue

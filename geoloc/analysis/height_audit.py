@@ -1,4 +1,4 @@
-"""Heights and conventions audited from the data: which convention fault a flight's metadata has (issue 45).
+"""Heights and conventions audited from the data: which convention fault a flight's metadata has.
 
 A flight's metadata can disagree with itself in ways that follow a convention mix-up,
 not noise: heights above mean sea level read as ellipsoidal (or the reverse), the geoid

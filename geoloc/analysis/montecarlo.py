@@ -56,14 +56,14 @@ from geoloc.status import Status
 from geoloc.userfiles import atomic_path
 
 # STATS_KEYS (imported above, defined beside the streamed statistics): the keys of
-# ``geoloc montecarlo --out stats.json`` (the interface of issue 4).
+# ``geoloc montecarlo --out stats.json`` (an interface other tools read).
 
 _POSE_ERR = {k: k for k in POSE_KEYS}  # error source -> nominal key (same names)
 
 #: Default chunk of samples evaluated at once (memory: ~1.5 kB per sample in flight);
 #: runs and sweeps larger than a chunk stream their statistics (constant memory).
 CHUNK = 100_000
-#: Bytes one sample in flight may take, the bound the chunk cap divides by. Measured (issue 32):
+#: Bytes one sample in flight may take, the bound the chunk cap divides by. Measured:
 #: 744 B/sample peak traced by ``tracemalloc`` on the [Q17] Table 1 scenario and 720 B on its DEM
 #: variant (chunks of 5e4 and 2e5), and 727 B/sample of peak RSS between ``--chunk 1e4`` and
 #: ``--chunk 1e6`` on the DEM scenario (310 MB -> 1013 MB); 2 kB leaves room for lens and
@@ -105,8 +105,8 @@ def max_chunk(available_bytes: int | None = None) -> int:
 
 def check_samples_and_chunk(n, chunk, *, field_n: str = "samples", field_chunk: str = "chunk") -> tuple[int, int]:
     """``(n, chunk)`` as ints, or ValueError naming the field and the value: ``n`` in
-    2..``MAX_SAMPLES``, ``chunk`` in 1..:func:`max_chunk` (the memory bound, issue 32:
-    ``--chunk 1e8`` grew to 7.2 GB and died)."""
+    2..``MAX_SAMPLES``, ``chunk`` in 1..:func:`max_chunk` (the memory bound:
+    ``--chunk 1e8`` once grew to 7.2 GB and died)."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         raise ValueError(f"{field_n} = {n!r}: must be an integer >= 2")
     if n > MAX_SAMPLES:

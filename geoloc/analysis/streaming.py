@@ -38,7 +38,7 @@ import numpy as np
 from geoloc.geodesy.ellipsoid import meridian_radius, prime_vertical_radius
 from geoloc.status import Status
 
-#: Keys of the statistics (``geoloc montecarlo --out stats.json``, the interface of issue 4);
+#: Keys of the statistics (``geoloc montecarlo --out stats.json``, an interface other tools read);
 #: :data:`geoloc.analysis.montecarlo.STATS_KEYS` is this tuple.
 STATS_KEYS = (
     "mean_lat_deg",

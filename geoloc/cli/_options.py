@@ -200,7 +200,7 @@ def check_outputs(parser, args) -> list:
 
 
 def check_crs(option: str, value: str, words=("geographic", "utm")) -> str:
-    """A CRS option checked before the verb computes anything (issue 47: ``--ortho-crs EPSG:99999``
+    """A CRS option checked before the verb computes anything (``--ortho-crs EPSG:99999`` once
     failed with a CRSError after the whole computation): one of ``words``, or a projected CRS in
     metres that pyproj knows. Returns ``value``; raises ``ValueError`` naming the option, the value
     and pyproj's reason."""

@@ -113,7 +113,7 @@ def run(args) -> int:
     if args.out is None and args.cot is None:
         raise ValueError("give --out FILE, or --cot udp://HOST:PORT to send Cursor-on-Target events")
     if not is_cot and args.cot is None:
-        # the path, not a table read here: export's errors then name the file (issue 32)
+        # the path, not a table read here: export's errors then name the file
         print(export(args.results, args.out, args.format, group_by=args.group_by, epoch=args.epoch, require_rows=True))
         return 0
     from geoloc.io.cot import cot_events, parse_udp_url, send_udp, write_cot

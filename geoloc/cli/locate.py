@@ -191,7 +191,7 @@ def pose_from_args(args, sensor) -> Pose:
             angles[name] = v
             given[name] = f"--{name.replace('_', '-')}-deg {v:g}"
     s = sensor
-    # before issue 32 --gimbal-roll-deg was ignored on a gimbal without it, and a misspelt
+    # unchecked, --gimbal-roll-deg was ignored on a gimbal without it, and a misspelt
     # --angle tilt=-30 was reported as the missing elevation
     check_angle_names(given, s.angle_names, s.gimbal.name, defaults=("gimbal_roll", "gimbal_pitch"))
     q = {k: angles.pop(k, 0.0) for k in ("gimbal_roll", "gimbal_pitch")}

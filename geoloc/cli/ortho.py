@@ -231,7 +231,7 @@ def run(args) -> int:
         raise ValueError(f"--gsd-m {args.gsd_m}: must be a positive number of metres")
     out = Path(args.out)
     check_suffix("--out", args.out)
-    if args.ortho_out:  # before any pixel is located (issue 47: a bad CRS failed after all of them)
+    if args.ortho_out:  # before any pixel is located (a bad CRS used to fail after all of them)
         check_crs("--ortho-crs", args.ortho_crs)
         check_suffix("--ortho-out", args.ortho_out)
     sensor, pose, meta, pose_from = _pose(args)

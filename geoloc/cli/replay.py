@@ -143,7 +143,7 @@ ROWS_SHOWN = 50
 def run(args) -> int:
     from geoloc.cli._options import check_gis_output, is_stream
 
-    check_gis_output("--export", args.export)  # before any record is located (issue 47)
+    check_gis_output("--export", args.export)  # before any record is located: fail in a second
     _audit_wanted(args)  # --audit without --dem: said before any record is located
     inputs = list(args.records or [])
     if any(is_stream(x) for x in inputs):
@@ -247,7 +247,7 @@ def _export(args, write_csv, group_by) -> None:
     from geoloc.io.gis import export, read_results
 
     with tempfile.TemporaryDirectory() as tmp:
-        # --out -: stdout, not re-readable; nor is a FIFO or a device (issue 47: `--out FIFO --export X`
+        # --out -: stdout, not re-readable; nor is a FIFO or a device (`--out FIFO --export X` once
         # read its own FIFO back: "is not a file")
         on_disk = args.out if args.out not in (None, "-") and Path(args.out).is_file() else None
         csv_path = on_disk or str(Path(tmp) / "replay.csv")

@@ -122,7 +122,7 @@ def read_results(path) -> tuple:
             "decoded; is it a binary file?"
         ) from None
     check_header(path, header)
-    # a position out of its range (latitude 95) leaves its row out, named (issue 32)
+    # a position out of its range (latitude 95) leaves its row out, named, rather than stopping the report
     kept = []
     for row in rows:
         why = None

@@ -69,7 +69,7 @@ def run(args) -> int:
     thr = args.gdal_threshold_px
     if not (math.isfinite(thr) and thr > 0):
         raise ValueError(f"--gdal-threshold-px = {thr!r} must be a number > 0 (pixels)")
-    check_suffix("--out", args.out)  # the GeoTIFF's name, before the fit (issue 47)
+    check_suffix("--out", args.out)  # the GeoTIFF's name, before the fit: a bad name fails in a second
     check_suffix("--ellipsoidal-dem", args.ellipsoidal_dem)
     out = Path(args.out)
     sc = load_scenario(args.scenario, expect=("pushbroom", "frame"))  # not a montecarlo, limb ... file

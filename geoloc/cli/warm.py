@@ -1,7 +1,7 @@
 """``geoloc warm``: compile the kernels the verbs use, once, ahead of their first call.
 
 numba compiles geoloc's terrain walk and camera chain the first time they run on a machine
-(5-30 s of CPU on 2 cores, under 500 MB; issue 32) and caches them in the user's cache folder
+(5-30 s of CPU on 2 cores, under 500 MB, measured) and caches them in the user's cache folder
 (:func:`geoloc.geodesy._nbgeo.cache_dir`), where a reinstall keeps them. A small call walks the
 terrain uncompiled (``terrain_numba.PY_WALK_MAX_RAYS``: a one-ray ``locate``, a short ``replay``),
 and so does the viewer's first scene (``terrain_numba.uncompiled_budget``), so only a larger

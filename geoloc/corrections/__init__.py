@@ -1,4 +1,4 @@
-"""Line-of-sight corrections: atmospheric refraction, light-time and aberration of light (issue 44).
+"""Line-of-sight corrections: atmospheric refraction, light-time and aberration of light.
 
 The physics is in the modules (:mod:`~geoloc.corrections.atmosphere`,
 :mod:`~geoloc.corrections.refraction`, :mod:`~geoloc.corrections.lighttime`); the location

@@ -19,7 +19,7 @@ entry stays, so switching back costs no compile). ``tests/surfaces/test_numba_ca
 edits a constant in a scratch copy of the package and checks that the compiled
 code follows.
 
-Where the cache lives (issue 32): numba's default puts it in ``__pycache__`` beside the
+Where the cache lives: numba's default puts it in ``__pycache__`` beside the
 sources, which ``pip install --upgrade`` / a reinstall deletes, so every reinstall paid the
 first-run compile again (48 s and 1 GB on 2 cores then; 15 s and 390 MB since the walk's
 helpers are no longer numba-inlined). geoloc's kernels are cached in
@@ -60,7 +60,7 @@ except ImportError:  # pragma: no cover - a numba without it: compile without a 
 #: Say on stderr, once per process, that kernels are being compiled: True, False, or None
 #: (the default: when stderr is a terminal, or the environment sets GEOLOC_ANNOUNCE_COMPILE=1).
 ANNOUNCE: bool | None = None
-#: CPU seconds of a first call that compiles the terrain walk on a cold cache, 2 cores (issue 32:
+#: CPU seconds of a first call that compiles the terrain walk on a cold cache, 2 cores (measured:
 #: 14-15 s for ``geoloc view``'s first scene: ``view --export`` cold 17.3 s of CPU in all, the
 #: flat bilinear walk's compile 10.8 s of it, 12-14 s before the walk was compiled per model,
 #: 41-48 s while its helpers were numba-inlined; a small call (a one-ray ``locate --dem``, the
@@ -188,7 +188,7 @@ def cached_njit(key: str, **options):
     compiled without a disk cache: slower to start, never stale.
 
     No C-callable (``cfunc``) wrapper is made: nothing takes these kernels as first-class
-    function pointers, and the wrapper was 2 % of the first compile's Python work (issue 32).
+    function pointers, and the wrapper was 2 % of the first compile's Python work (measured).
     """
 
     def deco(fn):

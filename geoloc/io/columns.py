@@ -487,7 +487,7 @@ def _name_unit(column: str) -> str | None:
 
 
 def unit_warnings(column_map: ColumnMap | None) -> list:
-    """Warnings for mapped columns whose name states a unit the map does not give (issue 32:
+    """Warnings for mapped columns whose name states a unit the map does not give (once
     ``ac_h_m = "Alt_ft"`` read feet as metres, 41 km errors marked ok). A unit the map states
     (even ``m``) is taken as meant."""
     out = []

@@ -819,12 +819,12 @@ def export(
     if isinstance(table, (str, Path)):
         source = str(table)
         table = read_results(table)
-    if require_rows and not table:  # a 0-byte file: an empty GeoPackage said nothing (issue 47)
+    if require_rows and not table:  # a 0-byte file: an empty GeoPackage said nothing
         raise ValueError(f"{source}: empty (no header line, no rows): nothing to export")
     if require_rows and not len(next(iter(table.values()))):
         raise ValueError(f"{source}: a header and no rows: nothing to export")
     if table and not ("lat_deg" in table and "lon_deg" in table):
-        # a records CSV never replayed: six layers of empty geometries said nothing (issue 32)
+        # a records CSV never replayed: six layers of empty geometries said nothing
         hint = (
             " (it has the records' columns: replay it first, `geoloc replay FILE --out results.csv`, "
             "then export results.csv)"
@@ -1081,7 +1081,7 @@ def _kml_schema_order(text: str) -> bytes:
     root = ET.fromstring(text.encode("utf-8"))
     style_tags = {f"{{{_KML_NS}}}Style", f"{{{_KML_NS}}}StyleMap"}
     # simplekml's ids are bare numbers from a counter of the whole process (a second KML written by
-    # the same process had other ids: issue 47, `export --out -` against `--out FILE`); the schema's
+    # the same process had other ids: `export --out -` against `--out FILE`); the schema's
     # xsd:ID must start with a letter: k1, k2, ... in the order of the document
     ids = {}
     for el in root.iter():

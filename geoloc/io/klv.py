@@ -1160,7 +1160,7 @@ def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None
             except StopIteration:
                 break
             except (IndexError, KeyError, ValueError, OSError, RuntimeError) as e:
-                # issue 47's fuzzing: on a damaged stream PyAV's demuxer raised IndexError ("list index
+                # found by fuzzing: on a damaged stream PyAV's demuxer raised IndexError ("list index
                 # out of range", a stream it had not announced); the packets read so far are kept
                 yield KlvError(
                     pos,
@@ -1227,7 +1227,7 @@ def sniff_klv_file(path) -> str | None:
     (the EBML magic 1A 45 DF A3), ``"mpegps"`` (a pack start code 00 00 01 BA),
     ``"klv"`` (a SMPTE 336M universal key, 06 0E 2B 34) or None (unknown: the suffix decides).
 
-    A ``.ts`` renamed ``.klv`` is thus read as the MPEG-TS it is (issue 32)."""
+    A ``.ts`` renamed ``.klv`` is thus read as the MPEG-TS it is: a suffix can lie."""
     with open(path, "rb") as f:
         head = f.read(192 * _SNIFF_TS_PACKETS)
     for size, skip in ((188, 0), (192, 4)):

@@ -372,7 +372,7 @@ def xmp_element(packet: bytes) -> bytes:
     rasterio's ``update_tags(ns="xml:XMP", **src.tags(ns="xml:XMP"))`` does), and some
     writers pad with NULs. Readers such as OpenSfM's locate the packet the same way (by its
     element). A packet without the element (``x:xapmeta`` of old writers, a bare
-    ``rdf:RDF``) is returned as it is, trailing NULs and blanks stripped (issue 32).
+    ``rdf:RDF``) is returned as it is, trailing NULs and blanks stripped (some writers pad the packet).
     """
     start = packet.find(b"<x:xmpmeta")
     end = packet.rfind(b"</x:xmpmeta>")
@@ -495,7 +495,7 @@ def _gdal_exif(img, notes) -> dict:
     a TIFF it writes from them (a resized copy of a drone photo, as public test sets are
     shipped) holds them in its GDAL_METADATA XML, not in an EXIF directory (GDAL 3.10),
     so that PixelXDimension/PixelYDimension (the full size the calibration is in) are read
-    from there (issue 32). Values are GDAL's text (``(3.6)`` for a rational)."""
+    from there. Values are GDAL's text (``(3.6)`` for a rational)."""
     tags = getattr(img, "tag_v2", None)
     raw = tags.get(_GDAL_METADATA_TAG) if tags is not None else None
     if not raw:
@@ -654,7 +654,7 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
         img = Image.open(p)
     except UnidentifiedImageError:
         raise ValueError(f"{p.name}: not an image file Pillow can read (file {path})") from None
-    except Image.DecompressionBombError as e:  # issue 47's fuzzing: a header declaring 179 M pixels
+    except Image.DecompressionBombError as e:  # found by fuzzing: a header declaring 179 M pixels
         raise ValueError(
             f"{p.name}: its header declares more pixels than Pillow opens, a damaged file? ({e}) (file {path})"
         ) from None
@@ -665,7 +665,7 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
         try:
             ex = _read_exif(img, path, notes)
         except (TypeError, AttributeError, KeyError, IndexError, SyntaxError, struct.error) as e:
-            # Pillow's EXIF directory parsing fails on some multispectral TIFFs (issue 45: a
+            # Pillow's EXIF directory parsing fails on some multispectral TIFFs (a
             # MicaSense TIFF raised a TypeError here): the XMP still holds what is needed
             notes.append(f"EXIF directories not readable by Pillow ({type(e).__name__}: {e}); using the XMP only")
             ex = {}

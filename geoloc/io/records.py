@@ -265,7 +265,7 @@ def load_records(
             ) from None
 
 
-#: Labels a "no such record" message shows at most (issue 32: all 299 were listed).
+#: Labels a "no such record" message shows at most (listing all 299 of a flight buried the message).
 LABELS_SHOWN = 5
 
 
@@ -306,7 +306,7 @@ def describe_labels(value, labels, shown: int = LABELS_SHOWN) -> str:
 def check_header(path, header) -> None:
     """Refuse a CSV header with two columns of one name (ValueError naming the column, its
     positions and the file): a reader of rows as dicts keeps the last one without a word
-    (issue 32: two ``row`` columns took the second, 0.36 m -> 72.83 m RMS to the paper)."""
+    (two ``row`` columns once took the second, 0.36 m -> 72.83 m RMS to the paper)."""
     seen = {}
     for k, name in enumerate(header):
         seen.setdefault(name, []).append(k + 1)

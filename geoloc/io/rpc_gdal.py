@@ -250,7 +250,7 @@ def read_rpc(path, rows: int | None = None, cols: int | None = None, **sensor_op
             with rasterio.open(path) as src:
                 rpcs = _rpcs(src, path)
                 size = (src.height, src.width)
-    except RasterioError as e:  # issue 47's fuzzing: "Cannot read 400040 bytes for NITF header", no file named
+    except RasterioError as e:  # found by fuzzing: "Cannot read 400040 bytes for NITF header", no file named
         raise ValueError(f"{path}: not a raster GDAL can read ({' '.join(str(e).split())})") from None
     if rpcs is None:
         raise ValueError(f"{path}: no RPC metadata (no RPC tag, and no .RPB or _RPC.TXT beside it)")
@@ -263,7 +263,7 @@ def read_rpc(path, rows: int | None = None, cols: int | None = None, **sensor_op
 
 
 def _rpcs(src, path):
-    """``src.rpcs``, with a value rasterio cannot read named with the file (issue 47's fuzzing: a
+    """``src.rpcs``, with a value rasterio cannot read named with the file (fuzzing found a
     coefficient ``+0.0d+00`` raised "could not convert string to float" naming nothing)."""
     try:
         return src.rpcs

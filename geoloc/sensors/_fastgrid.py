@@ -93,7 +93,7 @@ def grid_kernel(rows, cols, lens_code, lens_p, n_rows, n_cols, R, bad_state, out
             if bad_state or not (math.isfinite(r) and math.isfinite(c)):
                 out_status[k] = _INVALID
             elif not (row_in and 0.5 <= c <= n_cols + 0.5):
-                out_status[k] = _OUTSIDE  # before the lens's NaN: off the sensor is the reason (issue 32)
+                out_status[k] = _OUTSIDE  # before the lens's NaN: off the sensor is the reason, which says what to fix
             elif not (math.isfinite(dx) and math.isfinite(dy) and math.isfinite(dz)):
                 out_status[k] = _INVALID
             else:

@@ -409,7 +409,7 @@ def _hit_block(
         s1, s2 = q / qa, qc / q
         r_, c_ = row[i], col[i]
         # a finite pixel off the sensor is OUTSIDE_SENSOR even where the lens has no ray for it
-        # (a distortion model beyond its domain gives NaN): the first reason wins (issue 32)
+        # (a distortion model beyond its domain gives NaN): the first reason wins: off the sensor says what to fix
         given = (okv[i] != 0.0) & math.isfinite(r_) & math.isfinite(c_)
         inside = (not flag_off) | ((r_ >= 0.5) & (r_ <= height + 0.5) & (c_ >= 0.5) & (c_ <= width + 0.5))
         status = (

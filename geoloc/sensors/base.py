@@ -96,7 +96,8 @@ def check_outside(outside: str) -> None:
 
 
 def check_angle_names(given: Mapping[str, str], need, gimbal: str, defaults=()) -> None:
-    """Check the joint angles a caller gives against those a gimbal has (issue 32).
+    """Check the joint angles a caller gives against those a gimbal has (an angle the gimbal lacks
+    would otherwise be ignored without a word).
 
     Parameters
     ----------

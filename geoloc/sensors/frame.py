@@ -346,7 +346,7 @@ class FrameSensor:
         rb, cb = np.broadcast_to(row, shape), np.broadcast_to(col, shape)
         given = ~np.broadcast_to(state.invalid_mask(), shape) & np.isfinite(rb) & np.isfinite(cb)
         status = np.where(given, Status.OK, Status.INVALID_INPUT).astype(np.uint8)
-        if outside == "flag":  # before the lens's NaN: a distortion model gives none beyond its domain (issue 32)
+        if outside == "flag":  # before the lens's NaN (none beyond a model's domain): off the sensor says more
             status = flag_outside(status, rb, cb, self.rows, self.cols)
         status[(status == Status.OK) & ~np.all(np.isfinite(d), axis=-1)] = Status.INVALID_INPUT
         return LineOfSight(o, d, status)

@@ -52,7 +52,7 @@ def _text(path) -> str:
         return Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
         raise FileNotFoundError(f"lens file not found: {path}") from None
-    except UnicodeDecodeError as e:  # issue 47's fuzzing: a bare UnicodeDecodeError naming no file
+    except UnicodeDecodeError as e:  # else a bare UnicodeDecodeError names no file (found by fuzzing)
         raise _Bad(path, f"not a text file (UTF-8): byte 0x{e.object[e.start]:02x} at offset {e.start}") from None
 
 
@@ -100,7 +100,7 @@ def _number(path, key, value):
 
 
 def _integer(path, key, value):
-    # NaN and inf first (issue 47's fuzzing: JSON's NaN raised "cannot convert float NaN to integer")
+    # NaN and inf first (fuzzing found JSON's NaN raising "cannot convert float NaN to integer")
     if (
         isinstance(value, bool)
         or not isinstance(value, (int, float))

@@ -1,4 +1,4 @@
-"""Which platform carries the camera: the rule that says "a drone" (issue 32, plausibility).
+"""Which platform carries the camera: the rule that says "a drone" (the plausibility checks).
 
 A drone's camera flies low: a records row, a photo or a KLV packet whose drone is kilometres
 above the terrain under it holds a height in the wrong unit or datum, or is not a drone's.
@@ -70,7 +70,7 @@ def is_drone(text) -> bool:
 
 
 def drone_too_high(h_m, fallback_m, ground_m=None, fallback_what="the target", ground_what="the terrain under it"):
-    """Which drone camera heights cannot be a drone's (issue 32; docs/records.md, "Plausibility checks").
+    """Which drone camera heights cannot be a drone's (docs/records.md, "Plausibility checks").
 
     Parameters
     ----------

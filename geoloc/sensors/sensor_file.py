@@ -138,7 +138,7 @@ def load_sensor(path) -> FrameSensor:
 
 def _naming_source(source: str, build):
     """``build()``, with a ValueError that does not name ``source`` (a first-phase camera's own check:
-    "camera field focal_length_px = nan: ...", found by issue 47's fuzzing) prefixed with it."""
+    "camera field focal_length_px = nan: ...", found by fuzzing) prefixed with it."""
     try:
         return build()
     except ValueError as e:
@@ -163,7 +163,7 @@ def load_sensor_budget(path) -> ErrorBudget | None:
 
 def _refuse_sensor_without_lens(data: dict, source: str) -> None:
     """A file with a sensor file's tables but no ``[lens]`` is a sensor file missing its lens,
-    not a first-phase camera file with unknown keys: say so (issue 32)."""
+    not a first-phase camera file with unknown keys: say so."""
     tables = [t for t in TABLES if t in data]
     if tables:
         raise ValueError(

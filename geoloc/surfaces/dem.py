@@ -420,7 +420,7 @@ class DEM:
         """Whether any node has a height (False: the raster is all no-data, int16 nodata or NaN).
 
         The solvers give such a DEM status NODATA for every ray that reaches it, rather than
-        starting from a NaN highest node (which read as SKY before issue 32)."""
+        starting from a NaN highest node (which read as SKY, a wrong reason)."""
         if self._has_data is None:
             self._has_data = bool(np.isfinite(self.grid.values).any())
         return self._has_data

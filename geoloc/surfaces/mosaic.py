@@ -426,7 +426,7 @@ class DemMosaic:
             win = Window(c0, r0, min(b, s.ncols - c0), min(b, s.nrows - r0))
             try:
                 return self._dataset(k).read(s.band, window=win, masked=True).astype(float).filled(np.nan)
-            except (RasterioError, OSError) as e:  # a truncated or corrupt tile (issue 47): no data there
+            except (RasterioError, OSError) as e:  # a truncated or corrupt tile: no data there, the others serve
                 self._unreadable(s.path, r0, c0, win, e)
                 return np.full((int(win.height), int(win.width)), np.nan)
 

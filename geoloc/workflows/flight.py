@@ -199,7 +199,7 @@ class FlightScenario:
         if datum not in ("egm96", "ellipsoid"):
             raise ValueError(f"{source} [terrain] dem_datum = {datum!r}: must be 'egm96' or 'ellipsoid'")
         target_h = num(te, "target_h_m", -1.2e4, 1e5, None, "terrain") if "target_h_m" in te else None
-        # paths must be text (issue 47's fuzzing: camera = nan raised "unsupported operand type(s) for /")
+        # paths must be text (fuzzing found camera = nan raised "unsupported operand type(s) for /")
         for key, v in (("camera", data.get("camera")), ("[terrain] dem", te.get("dem"))):
             if v is not None and not isinstance(v, str):
                 raise ValueError(f"{source} {key} = {v!r}: must be the path of a file (a string)")

@@ -353,7 +353,7 @@ def fix_klv(
     note_input(src)
     if dst.exists() and os.path.samefile(dst, src):
         raise ValueError(f"--out {dst} is the input: refusing to overwrite it")
-    container = is_container_file(src)  # by its bytes when they say (issue 32)
+    container = is_container_file(src)  # by its bytes when they say: a suffix can lie
     # the output is written in the input's format (its muxer, not its name); a lying suffix may stay
     same_suffix = dst.suffix.lower() == src.suffix.lower()
     if container != (dst.suffix.lower() in CONTAINER_SUFFIXES or (container and same_suffix)):

@@ -141,7 +141,7 @@ _RESERVED_NOTE = "holds the standard's reserved value (error / out of range): no
 def is_klv_path(path) -> bool:
     """True for a file the KLV replay reads: by its suffix (``.klv``, ``.bin``, ``.ts``, ``.mpg``,
     ``.mp4``, ...), or, whatever its name, by its first bytes (an MPEG-TS's sync bytes, a raw
-    KLV's universal key: :func:`geoloc.io.klv.sniff_klv_file`; issue 32)."""
+    KLV's universal key: :func:`geoloc.io.klv.sniff_klv_file`: a suffix can lie)."""
     p = Path(str(path))
     if p.suffix.lower() in KLV_SUFFIXES:
         return True
@@ -1292,7 +1292,8 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
 def _drone_height_warnings(
     read: KlvRead, base_sensor, terrain, lat_s, lon_s, h_s, h75, h15, from75, rep_h, from78, h
 ) -> list:
-    """One line per packet of a drone whose sensor is too high for a drone (issue 32).
+    """One line per packet of a drone whose sensor is too high for a drone (a feet or datum mix-up
+    is still located as ok).
 
     A packet is a drone's when its Platform Designation (tag 10) names one, or, without a
     designation, when the sensor file's ``platform`` does (:func:`geoloc.sensors.platform.is_drone`).

@@ -95,7 +95,7 @@ TRUTH_COLUMNS = ("truth_lat_deg", "truth_lon_deg", "truth_h_m")
 #: than this [m] gives a message: a datum mix-up (|N| is tens of metres) or a barometric altitude.
 ALTITUDE_CHECK_M = 30.0
 # A drone photo's camera more than geoloc.sensors.platform.DRONE_MAX_HEIGHT_M above the DEM under
-# it (or a RelativeAltitude above it) is warned about as implausible (issue 32): the records and
+# it (or a RelativeAltitude above it) is warned about as implausible: the records and
 # KLV checks use the same number.
 #: The datum names written in ``altitude_datum`` for each ``altitude_datum`` argument.
 _DATUM_TEXT = {"egm96": EGM96_DATUM, "ellipsoid": ELLIPSOID_DATUM}

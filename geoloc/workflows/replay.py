@@ -113,7 +113,7 @@ def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None
     extra = dict(extra or {})
     if camera is not None:
         # a pixel far off the sensor has no ray through a distortion model (NaN: INVALID_INPUT
-        # from the line of sight); its reason is still that it is off the sensor (issue 32)
+        # from the line of sight); its reason is still that it is off the sensor, which says what to fix
         lens_nan = (status == Status.INVALID_INPUT) & ~np.broadcast_to(records.pose().invalid_mask(), status.shape)
         off = outside_sensor_mask(records, camera) & ((status == Status.OK) | lens_nan)
         status = np.where(off, np.uint8(Status.OUTSIDE_SENSOR), status).astype(np.uint8)
@@ -133,7 +133,7 @@ def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None
 #: Plausibility: a located point farther from its truth than this fraction of its slant range
 #: (and than :data:`IMPLAUSIBLE_ERROR_M`) is warned about. A pointing error of 0.05 rad (2.9 deg)
 #: is far beyond any gimbal's encoders and calibration; a height in feet read as metres (x 3.28)
-#: or a datum mix-up gives errors of that order of the range (issue 32: 41 km errors, all `ok`).
+#: or a datum mix-up gives errors of that order of the range (a feet column read as metres gave 41 km errors, all `ok`).
 IMPLAUSIBLE_ERROR_FRACTION = 0.05
 IMPLAUSIBLE_ERROR_M = 50.0
 #: The camera counts as below the terrain under it when lower than the DEM by this much [m]
@@ -158,7 +158,8 @@ def drone_rows(records: Records, sensor=None) -> np.ndarray:
 
 
 def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, limit: int = 5, sensor=None) -> list:
-    """Warnings for records whose numbers cannot be right, without changing them (issue 32).
+    """Warnings for records whose numbers cannot be right, without changing them (a unit or datum
+    mix-up still gives status ok).
 
     - the camera below the terrain under it (``terrain``: a DEM or DEM mosaic, whose
       ``sample(lat, lon)`` gives ellipsoidal heights), by more than :data:`BELOW_TERRAIN_M`;
@@ -411,7 +412,7 @@ def uncertainty_columns(records: Records, sensor, surface, budget) -> tuple:
 
 
 #: The summary notes refraction left off where it would move a point by more than this fraction
-#: of the point's predicted CE90 (issue 44: a tenth).
+#: of the point's predicted CE90 (a tenth: below it the note would be noise).
 REFRACTION_NOTE_FRACTION = 0.1
 
 
@@ -493,7 +494,7 @@ def write_replay_csv(path, result: ReplayResult) -> None:
     """Write every input column of the good rows plus the replay's output columns (and ``mgrs``)."""
     records = result.records
     cols = result.columns()
-    # every row's status, with or without a DEM: a row without a position says why (issue 32)
+    # every row's status, with or without a DEM: a row without a position says why
     cols.setdefault("status", result.status)
     # the MGRS reference of each computed point beside its latitude and longitude
     # (geoloc.io.mgrs_grid; '' where there is no point)
@@ -548,8 +549,8 @@ def not_located_lines(result: ReplayResult) -> list:
 def dem_coverage_warning(result: ReplayResult) -> str | None:
     """A warning when the DEM of a replay does not cover its records: how many aircraft positions
     lie outside it and how many lines of sight left it, with the DEM's bounds and the data's
-    (west, south, east, north in degrees); None when it covers them (issue 47: it exited 0
-    without a word)."""
+    (west, south, east, north in degrees); None when it covers them (records outside the DEM used
+    to exit 0 without a word)."""
     dem = result.terrain
     r = result.records
     if dem is None or not (r.has("ac_lat_deg") and r.has("ac_lon_deg")):

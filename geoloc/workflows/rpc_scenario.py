@@ -284,7 +284,7 @@ def load_rpc_scenario(path) -> RPCScenario:
     if kind == "pushbroom":
         try:
             sensor = PushbroomSensor.from_dict(data, source=src)
-        except ValueError as e:  # issue 47's fuzzing: the sensor's own checks ("tan_psi_x = ...") named no file
+        except ValueError as e:  # found by fuzzing: the sensor's own checks ("tan_psi_x = ...") named no file
             if src in str(e):
                 raise
             raise ValueError(f"{src}: {e}") from None
