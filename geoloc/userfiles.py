@@ -261,9 +261,9 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
     old_mode = stat.S_IMODE(os.stat(target).st_mode) if _kind(target) == "file" else None
     folder = target.parent if str(target.parent) else Path(".")
     with _as_output(path):  # a folder made read-only since the checks: the user's path, not the temp's
-        fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{target.name}.geoloc-", suffix=p.suffix)
+        fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=f".{target.name}.geoloc-", suffix=p.suffix)
     os.close(fd)
-    tmp = Path(tmp)
+    tmp = Path(tmp_name)
     try:
         tmp.unlink()  # the writer creates it: its own default mode, and some libraries refuse a file
         with _naming(path, folder):

@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -524,7 +525,12 @@ class AccuracyReport:
     def to_dict(self, per_target: bool = False) -> dict:
         """JSON-ready dict (NaN -> null): ``meta``, ``overall``, ``groups``, ``warnings`` (and the
         per-target components with ``per_target``)."""
-        d = {"meta": self.meta, "overall": self.overall, "groups": self.groups, "warnings": self.warnings}
+        d: dict[str, Any] = {
+            "meta": self.meta,
+            "overall": self.overall,
+            "groups": self.groups,
+            "warnings": self.warnings,
+        }
         if per_target:
             d["targets"] = {k: np.asarray(v).tolist() for k, v in self.components.items()}
             d["targets"]["group"] = [str(g) for g in self.group]

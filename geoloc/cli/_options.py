@@ -175,7 +175,7 @@ def check_outputs(parser, args) -> list:
     from geoloc.userfiles import STDOUT, check_output, check_output_dir, same_file
 
     inputs, outputs = declared_files(parser, args, types=True)
-    seen = {}
+    seen: dict[str, object] = {}  # option name -> its path, or STDOUT
     for name, path, role, kind in outputs:
         if path == STDOUT:
             if kind is not text_output_path:

@@ -453,7 +453,7 @@ def _run_photos(args, inputs) -> int:
     sensor = sensor_from_args(args, default=False)
     surface = surface_from_args(args) if args.dem else None  # else: each target at its truth_h_m
     extra = {"altitude_datum": args.altitude_datum} if getattr(args, "altitude_datum", None) else {}
-    targets = []  # a target_id column: each target seen in several photos, triangulated
+    targets: list = []  # a target_id column: each target seen in several photos, triangulated
     rows, messages = replay_photos(
         photos,
         args.targets,

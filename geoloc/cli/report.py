@@ -336,7 +336,10 @@ def add_budget_check(rep, major, minor, azimuth_deg, le90) -> None:
     c["normalised_error"] = b["normalised"]
     if "vertical" in b:
         c["normalised_vertical_error"] = b["vertical"]["normalised"]
-    strip = lambda d: {k: (strip(v) if isinstance(v, dict) else v) for k, v in d.items() if k != "normalised"}  # noqa: E731
+
+    def strip(d: dict) -> dict:
+        return {k: (strip(v) if isinstance(v, dict) else v) for k, v in d.items() if k != "normalised"}
+
     rep.overall["budget"] = strip(b)
     for g in rep.groups:
         rep.groups[g]["budget"] = strip(check(rep.group == g))

@@ -127,7 +127,7 @@ class ColumnSpec:
     pixel: str | None = None
 
     @property
-    def kind(self) -> str:
+    def kind(self) -> str | None:
         return column_kind(self.name)
 
     def converts(self) -> bool:
@@ -490,8 +490,10 @@ def unit_warnings(column_map: ColumnMap | None) -> list:
     """Warnings for mapped columns whose name states a unit the map does not give (once
     ``ac_h_m = "Alt_ft"`` read feet as metres, 41 km errors marked ok). A unit the map states
     (even ``m``) is taken as meant."""
-    out = []
-    for name, spec in column_map.specs.items() if column_map is not None else ():
+    out: list[str] = []
+    if column_map is None:
+        return out
+    for name, spec in column_map.specs.items():
         said = _name_unit(spec.column)
         kind = spec.kind
         if spec.unit is not None or said is None:

@@ -228,7 +228,7 @@ def send_udp(events: CotEvents, url: str, ttl: int = 1) -> int:
     info = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
     family, _, _, _, addr = info[0]
     with socket.socket(family, socket.SOCK_DGRAM) as s:
-        if family == socket.AF_INET and 224 <= int(addr[0].split(".")[0]) <= 239:
+        if family == socket.AF_INET and 224 <= int(str(addr[0]).split(".")[0]) <= 239:
             s.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, int(ttl))
         for e in events.events:
             s.sendto(e, addr)

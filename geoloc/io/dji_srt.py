@@ -206,7 +206,7 @@ def _parse_block(start: int, block: list):
     t1 = g[4] * 3600 + g[5] * 60 + g[6] + int(m.group(8).ljust(3, "0")) / 1000.0
     body_lines = block[k + 1 :]
     body = _TAGS.sub(" ", " ".join(body_lines))
-    fields = {}
+    fields: dict[str, str] = {}
     for key, value in _PAIR.findall(body):
         fields.setdefault(key.lower(), value)
     rec = SrtRecord(index, start, t0, t1, math.nan, math.nan)

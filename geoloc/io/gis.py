@@ -1083,7 +1083,7 @@ def _kml_schema_order(text: str) -> bytes:
     # simplekml's ids are bare numbers from a counter of the whole process (a second KML written by
     # the same process had other ids: `export --out -` against `--out FILE`); the schema's
     # xsd:ID must start with a letter: k1, k2, ... in the order of the document
-    ids = {}
+    ids: dict[str | None, str] = {}
     for el in root.iter():
         if "id" in el.attrib:
             ids.setdefault(el.get("id"), f"k{len(ids) + 1}")

@@ -120,7 +120,7 @@ class Records:
     lines: np.ndarray
     errors: list = field(default_factory=list)
     angles: tuple = Q17_ANGLES
-    source_header: list = None
+    source_header: list | None = None
     heights: dict = field(default_factory=dict)
     column_map: ColumnMap | None = None
     #: Plausibility warnings of the loading (a mapped column named in feet without its unit, ...).
@@ -307,7 +307,7 @@ def check_header(path, header) -> None:
     """Refuse a CSV header with two columns of one name (ValueError naming the column, its
     positions and the file): a reader of rows as dicts keeps the last one without a word
     (two ``row`` columns once took the second, 0.36 m -> 72.83 m RMS to the paper)."""
-    seen = {}
+    seen: dict[str, list[int]] = {}
     for k, name in enumerate(header):
         seen.setdefault(name, []).append(k + 1)
     dup = {n: pos for n, pos in seen.items() if len(pos) > 1 and n}  # (blank: trailing empty cells)

@@ -90,7 +90,7 @@ import dataclasses
 import math
 import numbers
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import sys
 
@@ -759,6 +759,7 @@ def lens_from_opencv(camera_matrix, dist_coeffs, image_size, model: str = "brown
         width, height = image_size
     except (TypeError, ValueError):
         raise ValueError(f"image size {image_size!r}: must be (width, height)") from None
+    cls: type[BrownLens] | type[FisheyeLens]
     if model == "brown":
         if len(d) not in (0, 4, 5, 8):
             raise ValueError(
@@ -849,7 +850,7 @@ def lens_from_dict(data: dict, source: str = "lens") -> Lens:
 
 def lens_to_dict(lens: Lens) -> dict:
     """The ``[lens]`` table of :func:`lens_from_dict` for ``lens`` (cx, cy 1-based)."""
-    out = {"model": lens.model, **lens.params, "width": lens.width, "height": lens.height}
+    out: dict[str, Any] = {"model": lens.model, **lens.params, "width": lens.width, "height": lens.height}
     out["cx"] += 1.0
     out["cy"] += 1.0
     return out

@@ -80,8 +80,8 @@ class DEM:
         if not self.is_geographic:
             self._to_crs = pyproj.Transformer.from_crs("EPSG:4326", self.crs, always_xy=True)
             self._from_crs = pyproj.Transformer.from_crs(self.crs, "EPSG:4326", always_xy=True)
-        self._cell_max = None
-        self._has_data = None
+        self._cell_max: np.ndarray | None = None
+        self._has_data: bool | None = None
         self._surface_range = None  # (lowest, highest) of the surface a window is cut from (from_grid)
         #: The CRS of the file before :meth:`to_geographic` warped it (WKT), or None.
         self.source_crs = None

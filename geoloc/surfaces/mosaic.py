@@ -53,6 +53,7 @@ import warnings
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -265,8 +266,8 @@ class DemMosaic:
         self.paths = list(paths)
         self.datum, self.band, self.block = datum, int(band), int(block)
         self.method, self.dem_model, self.options = method, dem_model, options
-        self._open = {}
-        ref = None  # (path, crs, dlat, dlon, lat_n, lon_w)
+        self._open: dict[int, Any] = {}  # source index -> its open rasterio dataset
+        ref: tuple | None = None  # (path, crs, dlat, dlon, lat_n, lon_w, vertical datum)
         found = []
         for path in self.paths:
             note_input(path)  # every tile is an input: no output may be written over one
@@ -327,6 +328,8 @@ class DemMosaic:
                             f"the lattice of {rp}; resample the tiles to one grid"
                         )
             found.append((path, lat_n, lon_w, h, w))
+        if ref is None:
+            raise ValueError("a DEM mosaic needs at least one tile: paths is empty")
         _, self._crs, self.dlat_deg, self.dlon_deg, lat0, lon0, _ = ref
         # the lattice's node (0, 0): the north-west-most node of any tile (offsets rounded to whole nodes)
         di = [round((lat0 - f[1]) / self.dlat_deg) for f in found]

@@ -74,7 +74,7 @@ class LiveReplay:
         self.surface, self.sensor = surface, sensor
         self.journal = journal
         self._writer = csv.writer(journal) if journal is not None else None
-        self._header = None
+        self._header: list[str] | None = None  # the journal's columns, fixed by the first batch
         self.receiver = receiver
         self.seq = 0  # packets seen (good and bad), arrival order
         self.rows_total = 0

@@ -237,6 +237,13 @@ def test_missing_tile_is_nodata_not_a_crash(tmp_path, merged, rays):
     assert np.isnan(h) and st == Status.NODATA
 
 
+def test_a_mosaic_of_no_tiles_is_refused_by_name():
+    # the constructor itself (DemMosaic.open checks its source first): it used to raise a bare
+    # TypeError unpacking the reference tile it never found
+    with pytest.raises(ValueError, match="at least one tile: paths is empty"):
+        DemMosaic([])
+
+
 def test_bad_tiles_are_named(tmp_path):
     tiles, _ = cut_tiles(tmp_path / "t", 2, 0)
     with rasterio.open(tiles[1]) as src:
