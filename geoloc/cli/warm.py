@@ -31,7 +31,7 @@ def _large_batch() -> int:
     from geoloc.surfaces.spec import SurfaceSpec
     from geoloc.surfaces.terrain import DemSurface, random_oblique_rays
 
-    dem = SurfaceSpec(dem=asset_path("dem", "srtm_jacksboro.tif")).raster()
+    dem = SurfaceSpec(dem=str(asset_path("dem", "srtm_jacksboro.tif"))).raster()
     g = Pipeline(None, DemSurface(dem, "exact")).intersect(random_oblique_rays(dem, 20000, np.random.default_rng(0)))
     return 0 if np.any(np.asarray(g.status) == 0) else 1
 
@@ -48,7 +48,7 @@ def _refraction() -> int:
     from geoloc.surfaces.spec import SurfaceSpec
     from geoloc.surfaces.terrain import DemSurface, random_oblique_rays
 
-    dem = SurfaceSpec(dem=asset_path("dem", "srtm_jacksboro.tif")).raster()
+    dem = SurfaceSpec(dem=str(asset_path("dem", "srtm_jacksboro.tif"))).raster()
     los = random_oblique_rays(dem, 100, np.random.default_rng(0))
     c = Corrections(refraction=STANDARD_REFRACTION)
     ok = [

@@ -289,7 +289,7 @@ def read_colmap_cameras(path) -> dict[int, Lens]:
         fields = line.split()
         if len(fields) < 4:
             raise _Bad(path, f"{where}: {line!r}: expected CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]")
-        cam_id_text, model, width, height, *params = fields
+        cam_id_text, model, width_text, height_text, *params = fields
         if model not in _COLMAP_MODELS:
             raise _Bad(path, f"{where}: camera model {model!r} is not supported (supported: {list(_COLMAP_MODELS)})")
         names, cls = _COLMAP_MODELS[model]
@@ -298,7 +298,7 @@ def read_colmap_cameras(path) -> dict[int, Lens]:
                 path, f"{where}: {model} takes {len(names)} parameters {list(names)}, got {len(params)}: {line!r}"
             )
         try:
-            cam_id, width, height = int(cam_id_text), int(width), int(height)
+            cam_id, width, height = int(cam_id_text), int(width_text), int(height_text)
         except ValueError:
             raise _Bad(
                 path,

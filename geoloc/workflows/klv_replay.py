@@ -495,7 +495,9 @@ def _counts(d: dict) -> str:
 def _ranges(idx) -> str:
     """[1, 2, 3, 7] -> 'packets 1-3, 7'."""
     idx = sorted(int(i) for i in idx)
-    parts, start, prev = [], None, None
+    parts: list[str] = []
+    start: int | None = None
+    prev = -2  # no packet yet: the first one starts a range
     for i in idx:
         if start is None:
             start = prev = i
