@@ -645,7 +645,9 @@ def _track_layer(rows: _Rows, group_by, time_source) -> _Layer:
     return lay
 
 
-def build_layers(table, group_by=None, epoch=DEFAULT_EPOCH):
+def build_layers(
+    table: dict, group_by: str | None = None, epoch: str = DEFAULT_EPOCH
+) -> tuple[dict[str, _Layer], _Context]:
     """The six layers of a table, with heights made ellipsoidal (the writers' common input).
 
     Returns ``(layers, context)``: a dict layer name -> layer, and the time base,
