@@ -2,7 +2,7 @@
 ``_packet_angles``, ``_missing_tags``, ``_replay_geometry``, ``_reported_corners``,
 ``_corner_status``, ``_datum_warnings``), on columns written here by hand.
 
-Oracles: PROJ's own vgridshift on the bundled EGM96 grid for N (tests/test_klv_replay.py's
+Oracles: PROJ's own vgridshift on the bundled EGM96 grid for N (tests/workflows/test_klv_replay.py's
 ``proj_undulation``), MISB ST 0601's tag rules (75 before 15, 78 before 25, 90/91 before 6/7,
 82-89 before 26-33 + the frame centre), and the pinhole's closed form for the corners: a pixel
 at column offset x from the centre of a lens whose focal length is f pixels looks atan(x / f)

@@ -3,7 +3,7 @@
 written here by hand.
 
 Oracles: Python's datetime for the time base, PROJ's vgridshift on the bundled EGM96 grid for N
-(tests/test_klv_replay.py's ``proj_undulation``), RFC 7946 section 3.1.6 for the ring's
+(tests/workflows/test_klv_replay.py's ``proj_undulation``), RFC 7946 section 3.1.6 for the ring's
 orientation (checked with a shoelace written here, on the ring as written).
 """
 
