@@ -309,3 +309,54 @@ def test_bowring_latlon_for_cell_lookup():
     # documented bound 1e-9 rad (6 mm): far below the 1e-5 rad of a 3'' cell
     assert np.max(np.abs(got[:, 0] - lat)) < 1e-9
     assert np.max(np.abs(got[:, 1] - lon)) < 1e-12
+
+
+# --------------------------------------------------------------------------- origin below the terrain
+def test_below_terrain_flags_the_same_origins_as_sampling_every_one():
+    """below_terrain first sets aside the origins outside the ellipsoid inflated to the DEM's highest
+    node plus the margin, without sampling them: that must set aside no origin below the terrain.
+    The reference is independent of that test: pyproj's geodetic height of each origin (EPSG:4978
+    to 4979) against the DEM's bilinear height under it. Origins are spread 60 m below to 60 m
+    above the highest node (where the test decides) and near the ground."""
+    import pyproj
+
+    from geoloc.surfaces.terrain import below_terrain
+
+    rng = np.random.default_rng(3)
+    z = 100.0 + 400.0 * rng.random((31, 41))  # 100..500 m, one highest node
+    dem = DEM.from_array(z, 36.3, 78.0, 0.01, 0.01)
+    n = 4000
+    lat = rng.uniform(36.0, 36.3, n)
+    lon = rng.uniform(78.0, 78.4, n)
+    h = np.where(rng.random(n) < 0.5, dem.max_height() + rng.uniform(-60.0, 60.0, n), rng.uniform(0.0, 600.0, n))
+    lla_to_ecef = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    o = np.stack(lla_to_ecef.transform(lon, lat, h), -1)
+    st = np.zeros(n, np.uint8)
+    st[:10] = Status.SKY  # a ray that is not OK keeps its status
+    below_terrain(o, st, dem)
+    ecef_to_lla = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    lon_p, lat_p, h_p = ecef_to_lla.transform(o[:, 0], o[:, 1], o[:, 2])
+    ground = dem.height(r(lat_p), r(lon_p))
+    want = np.where(h_p < ground, Status.BELOW_TERRAIN, Status.OK).astype(np.uint8)
+    want[:10] = Status.SKY
+    # pyproj's heights and the core's agree to ~1e-9 m: no origin lies that close to the ground here
+    assert np.min(np.abs(h_p - ground)) > 1e-6
+    assert 100 < np.sum(want == Status.BELOW_TERRAIN) < n - 100  # both kinds, and many of each
+    assert st.tolist() == want.tolist()
+
+
+@pytest.mark.parametrize("h_m", [-11_000.0, 0.0, 9_000.0, 100_000.0])
+def test_surface_of_constant_height_lies_inside_the_ellipsoid_inflated_by_the_margin(h_m):
+    """The premise of below_terrain's first test: the points of geodetic height h (pyproj, every
+    0.01 deg of latitude) lie inside the ellipsoid with semi-axes (a + h + 1 m, b + h + 1 m)."""
+    import pyproj
+
+    from geoloc.geodesy.ellipsoid import A, B
+
+    lat = np.linspace(-90.0, 90.0, 18001)
+    x, y, z = pyproj.Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True).transform(
+        np.zeros_like(lat), lat, np.full_like(lat, h_m)
+    )
+    q = (x * x + y * y) / (A + h_m + 1.0) ** 2 + z * z / (B + h_m + 1.0) ** 2
+    # 1 - q >= 2.6e-7 at 100 km (0.83 m inside); rounding is ~1e-16
+    assert q.max() < 1.0 - 1e-7
