@@ -407,6 +407,71 @@ def _tri(ox, oy, oz, dx, dy, dz, p0x, p0y, p0z, p1x, p1y, p1z, p2x, p2y, p2z):
 
 
 @cached_njit(KEY, error_model="numpy", fastmath={"contract"})
+def _ellipsoid_quadratic(ia, ib, dxy2, dz2, oxd, ozd, oxy2, oz2):
+    """(qa, hb, qc): F(s) = qa s^2 + 2 hb s + qc = |P'(s)|^2 - 1, the ray P(s) = o + s d scaled
+    by the inflated ellipsoid's ``ia`` = 1/(a+H)^2 and ``ib`` = 1/(b+H)^2 [Q17 eq. 11]; F > 0
+    outside it. The ray's terms come in precomputed: dxy2 = dx^2 + dy^2, dz2 = dz^2,
+    oxd = ox dx + oy dy, ozd = oz dz, oxy2 = ox^2 + oy^2, oz2 = oz^2."""
+    return dxy2 * ia + dz2 * ib, oxd * ia + ozd * ib, oxy2 * ia + oz2 * ib - 1.0
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
+def _clear_between(qa, hb, qc, s, e):
+    """Whether the ray stays outside the inflated ellipsoid of :func:`_ellipsoid_quadratic` from
+    s to e (s <= e), so above every height under it: F is convex, so it is positive on [s, e]
+    iff it is at both ends and, when its vertex -hb/qa lies between them, there too
+    (F(vertex) = qc - hb^2/qa, tested without a division). False when a coefficient is NaN."""
+    return (
+        ((qa * s + 2.0 * hb) * s + qc > 0.0)
+        and ((qa * e + 2.0 * hb) * e + qc > 0.0)
+        and not (qa * s < -hb and -hb < qa * e and hb * hb >= qa * qc)
+    )
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
+def _cell_triangles(ox, oy, oz, dx, dy, dz, ra, ca, rba, sa, rb, cb, rbb, sb, cl0, sl0, cl1, sl1, h00, h01, h10, h11):
+    """Ray parameters (t1, t2) where the ray meets the two triangles of a cell, inf for a miss.
+
+    The nodes (i, j), (i+1, j), (i+1, j+1) make the first triangle, (i, j), (i+1, j+1),
+    (i, j+1) the second ([Q17]'s grid split as ``DEM.mesh`` splits it). A node's ECEF
+    position is computed from its height h as ``geodetic_to_ecef`` computes it for the mesh:
+    ((R_N + h) cos phi cos lambda, (R_N + h) cos phi sin lambda, (R_N (1 - e^2) + h) sin phi),
+    from the rows' (R_N, cos phi, R_N (1 - e^2), sin phi) (``ra, ca, rba, sa`` of row i,
+    ``rb, cb, rbb, sb`` of row i+1) and the columns' (cos, sin) of lambda (``cl0, sl0`` of
+    column j, ``cl1, sl1`` of j+1): the same vertices as the trimesh mesh, bit for bit.
+    Scalars only (an array argument costs reference counting on every call).
+    """
+    n0x = (ra + h00) * ca * cl0
+    n0y = (ra + h00) * ca * sl0
+    n0z = (rba + h00) * sa
+    n1x = (rb + h10) * cb * cl0
+    n1y = (rb + h10) * cb * sl0
+    n1z = (rbb + h10) * sb
+    n2x = (rb + h11) * cb * cl1
+    n2y = (rb + h11) * cb * sl1
+    n2z = (rbb + h11) * sb
+    t1 = _tri(ox, oy, oz, dx, dy, dz, n0x, n0y, n0z, n1x, n1y, n1z, n2x, n2y, n2z)
+    t2 = _tri(
+        ox,
+        oy,
+        oz,
+        dx,
+        dy,
+        dz,
+        n0x,
+        n0y,
+        n0z,
+        n2x,
+        n2y,
+        n2z,
+        (ra + h01) * ca * cl1,
+        (ra + h01) * ca * sl1,
+        (rba + h01) * sa,
+    )
+    return t1, t2
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"})
 def _bilinear_cell(
     ox,
     oy,
@@ -778,17 +843,9 @@ def _walk(
             if ia == ia:  # NaN: no data in the block, never skipped
                 ib = ib_floor + binv[np.uint64(bi), np.uint64(bj), 1]
                 e = sx if sx < send else send
-                # F(s) = qa s^2 + 2 hb s + qc = |P'(s)|^2 - 1 on the block's inflated
-                # ellipsoid is convex: clear iff F > 0 at both ends and at the vertex
-                # when that lies between (F(vertex) = qc - hb^2 / qa), without a division
-                qa = dxy2 * ia + dz2 * ib
-                hb = oxd * ia + ozd * ib
-                qc = oxy2 * ia + oz2 * ib - 1.0
-                clear = (
-                    ((qa * s + 2.0 * hb) * s + qc > 0.0)
-                    and ((qa * e + 2.0 * hb) * e + qc > 0.0)
-                    and not (qa * s < -hb and -hb < qa * e and hb * hb >= qa * qc)
-                )
+                # clear of the block's inflated ellipsoid from s to where the ray leaves it
+                qa, hb, qc = _ellipsoid_quadratic(ia, ib, dxy2, dz2, oxd, ozd, oxy2, oz2)
+                clear = _clear_between(qa, hb, qc, s, e)
             if not clear and ia == ia:
                 # until the ray meets the block's inflated ellipsoid it is above all of the
                 # block's terrain: the cell walk starts there (the first root of F), not at
@@ -870,15 +927,9 @@ def _walk(
                         if ia != ia:  # no data under the node
                             break
                         ib = hinv[hk, 1]
-                        qa = dxy2 * ia + dz2 * ib
-                        hb = oxd * ia + ozd * ib
-                        qc = oxy2 * ia + oz2 * ib - 1.0
+                        qa, hb, qc = _ellipsoid_quadratic(ia, ib, dxy2, dz2, oxd, ozd, oxy2, oz2)
                         # necessary: clear up to the smaller node's exit (no side computed yet)
-                        if not (
-                            ((qa * s + 2.0 * hb) * s + qc > 0.0)
-                            and ((qa * gE + 2.0 * hb) * gE + qc > 0.0)
-                            and not (qa * s < -hb and -hb < qa * gE and hb * hb >= qa * qc)
-                        ):
+                        if not _clear_between(qa, hb, qc, s, gE):
                             break
                         span = blk << sh
                         a0 = ni * span
@@ -1078,63 +1129,36 @@ def _walk(
                         done = True
                         break
                     ib = ib_floor + cinv[ui, uj, 1]
-                    qa = dxy2 * ia + dz2 * ib
-                    hb = oxd * ia + ozd * ib
-                    qc = oxy2 * ia + oz2 * ib - 1.0
-                    if not (
-                        ((qa * s + 2.0 * hb) * s + qc > 0.0)
-                        and ((qa * s_b + 2.0 * hb) * s_b + qc > 0.0)
-                        and not (qa * s < -hb and -hb < qa * s_b and hb * hb >= qa * qc)
-                    ):
+                    qa, hb, qc = _ellipsoid_quadratic(ia, ib, dxy2, dz2, oxd, ozd, oxy2, oz2)
+                    if not _clear_between(qa, hb, qc, s, s_b):
                         px = ox + s * dx
                         py = oy + s * dy
                         pz = oz + s * dz
                         if _TRIANGLES:  # a constant of the variant (KERNELS): pruned
-                            # the cell's nodes (i, j), (i+1, j), (i+1, j+1), then (i, j+1), from the
-                            # heights as geodetic_to_ecef computes them for DEM.mesh (same tables,
-                            # same operations: the same vertices as the trimesh mesh)
-                            ra = row_geo[ui, 0]
-                            ca = row_geo[ui, 1]
-                            rba = row_geo[ui, 2]
-                            sa = row_geo[ui, 3]
-                            rb = row_geo[ui + np.uint64(1), 0]
-                            cb = row_geo[ui + np.uint64(1), 1]
-                            rbb = row_geo[ui + np.uint64(1), 2]
-                            sb = row_geo[ui + np.uint64(1), 3]
-                            cl0 = cos_col[uj]
-                            sl0 = sin_col[uj]
-                            cl1 = cos_col[uj + np.uint64(1)]
-                            sl1 = sin_col[uj + np.uint64(1)]
-                            h00 = hgt[ui, uj]
-                            h01 = hgt[ui, uj + np.uint64(1)]
-                            h10 = hgt[ui + np.uint64(1), uj]
-                            h11 = hgt[ui + np.uint64(1), uj + np.uint64(1)]
-                            n0x = (ra + h00) * ca * cl0
-                            n0y = (ra + h00) * ca * sl0
-                            n0z = (rba + h00) * sa
-                            n1x = (rb + h10) * cb * cl0
-                            n1y = (rb + h10) * cb * sl0
-                            n1z = (rbb + h10) * sb
-                            n2x = (rb + h11) * cb * cl1
-                            n2y = (rb + h11) * cb * sl1
-                            n2z = (rbb + h11) * sb
-                            t1 = _tri(ox, oy, oz, dx, dy, dz, n0x, n0y, n0z, n1x, n1y, n1z, n2x, n2y, n2z)
-                            t2 = _tri(
+                            # the cell's two triangles, from the heights and the rows' and columns' tables
+                            t1, t2 = _cell_triangles(
                                 ox,
                                 oy,
                                 oz,
                                 dx,
                                 dy,
                                 dz,
-                                n0x,
-                                n0y,
-                                n0z,
-                                n2x,
-                                n2y,
-                                n2z,
-                                (ra + h01) * ca * cl1,
-                                (ra + h01) * ca * sl1,
-                                (rba + h01) * sa,
+                                row_geo[ui, 0],
+                                row_geo[ui, 1],
+                                row_geo[ui, 2],
+                                row_geo[ui, 3],
+                                row_geo[ui + np.uint64(1), 0],
+                                row_geo[ui + np.uint64(1), 1],
+                                row_geo[ui + np.uint64(1), 2],
+                                row_geo[ui + np.uint64(1), 3],
+                                cos_col[uj],
+                                sin_col[uj],
+                                cos_col[uj + np.uint64(1)],
+                                sin_col[uj + np.uint64(1)],
+                                hgt[ui, uj],
+                                hgt[ui, uj + np.uint64(1)],
+                                hgt[ui + np.uint64(1), uj],
+                                hgt[ui + np.uint64(1), uj + np.uint64(1)],
                             )
                             if t1 < best or t2 < best:
                                 best = min(t1, t2, best)

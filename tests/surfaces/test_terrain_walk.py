@@ -210,3 +210,88 @@ def test_bilinear_hits_across_the_equator_and_antimeridian_lie_on_the_surface():
     assert res.max() < 1e-3
     assert (hit.lat > 0).sum() > 500 and (hit.lat < 0).sum() > 500
     assert (hit.lon > 0).sum() > 500 and (hit.lon < 0).sum() > 500
+
+
+# --------------------------------------------------------------------------- the walk's steps, alone
+def test_clear_between_agrees_with_the_quadratic_sampled_densely():
+    """_clear_between (the skip test of every block and cell) against F(s) = qa s^2 + 2 hb s + qc
+    sampled at 4001 points of [s, e] and at its vertex: clear iff the smallest sample is > 0.
+    Cases whose smallest value lies within 1e-9 of zero (where sampling cannot decide) are left
+    out; the quadratics are drawn so that all three answers occur (positive throughout, a dip
+    below zero between the ends, an end below zero)."""
+    from geoloc.surfaces.terrain_numba import _clear_between
+
+    rng = np.random.default_rng(11)
+    decided = {True: 0, False: 0}
+    for _ in range(3000):
+        qa = rng.uniform(0.1, 2.0)
+        v = rng.uniform(-1.0, 2.0)  # the vertex, sometimes outside [0, 1]
+        fmin = rng.uniform(-0.3, 0.3)
+        hb, qc = -qa * v, fmin + qa * v * v
+        s, e = np.sort(rng.uniform(-0.2, 1.2, 2))
+        t = np.linspace(s, e, 4001)
+        if s < v < e:
+            t = np.append(t, v)
+        m = np.min((qa * t + 2.0 * hb) * t + qc)
+        if abs(m) < 1e-9:
+            continue
+        got = _clear_between(qa, hb, qc, s, e)
+        assert got == (m > 0.0), (qa, hb, qc, s, e, m)
+        decided[bool(got)] += 1
+    assert min(decided.values()) > 500
+    assert not _clear_between(np.nan, 0.0, 1.0, 0.0, 1.0)  # no data: never skipped
+
+
+def test_cell_triangles_meet_the_ray_where_trimesh_does():
+    """_cell_triangles (a cell's two triangles, nodes from the heights) against trimesh's own ray
+    cast (pure Python backend) on DEM.to_trimesh's ECEF mesh of a one-cell DEM: the same rays hit,
+    at the same distance. 1e-6 m: both are float64 Moller-Trumbore on coordinates of 6.4e6 m
+    (rounding ~1e-9 m a coordinate, grown by the small angle between ray and triangle)."""
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    from geoloc.frames.enu import EnuFrame
+    from geoloc.surfaces.terrain import _exact_tables
+    from geoloc.surfaces.terrain_numba import _cell_triangles
+
+    dem = DEM.from_array(np.array([[310.0, 402.0], [255.0, 377.0]]), 36.30, 78.10, 0.01, 0.01)
+    tab = _exact_tables(dem)
+    mesh = dem.to_trimesh(frame="ecef")
+    assert len(mesh.faces) == 2
+    rng = np.random.default_rng(4)
+    n = 400
+    fr = EnuFrame.from_deg(36.295, 78.105, 0.0)
+    # aimed at points inside and around the cell (0.9 km a side), from 2 km up, 0-70 deg off nadir
+    aim = np.stack([rng.uniform(-700, 700, n), rng.uniform(-800, 800, n), np.full(n, 330.0)], -1)
+    off, az = np.deg2rad(rng.uniform(0, 70, n)), rng.uniform(0, 2 * np.pi, n)
+    d_enu = -np.stack([np.sin(off) * np.sin(az), np.sin(off) * np.cos(az), np.cos(off)], -1)
+    o = fr.to_ecef(aim - 2500.0 * d_enu)
+    d = np.einsum("ij,nj->ni", fr.R_ecef_enu, d_enu)
+    rg, sc, cc, hg = tab["row_geo"], tab["sin_col"], tab["cos_col"], tab["hgt"]
+    got = np.array(
+        [
+            min(
+                _cell_triangles(
+                    *o[k],
+                    *d[k],
+                    *rg[0, :4],
+                    *rg[1, :4],
+                    cc[0],
+                    sc[0],
+                    cc[1],
+                    sc[1],
+                    hg[0, 0],
+                    hg[0, 1],
+                    hg[1, 0],
+                    hg[1, 1],
+                )
+            )
+            for k in range(n)
+        ]
+    )
+    loc, idx, _ = RayMeshIntersector(mesh).intersects_location(o, d, multiple_hits=False)
+    want = np.full(n, np.inf)
+    want[idx] = np.linalg.norm(loc - o[idx], axis=-1)
+    assert 100 < np.isfinite(want).sum() < n - 100  # hits and misses both
+    assert np.array_equal(np.isfinite(got), np.isfinite(want))
+    ok = np.isfinite(want)
+    assert np.abs(got[ok] - want[ok]).max() < 1e-6
