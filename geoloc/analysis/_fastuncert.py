@@ -329,7 +329,7 @@ def _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov,
 
 # --------------------------------------------------------------------- on a DEM
 @cached_njit(KEY, inline="always")
-def _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, lat, lon):
+def _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, lat, lon):
     """:meth:`geoloc.surfaces.dem.DEM.height` of a geographic DEM at (lat, lon) [rad], scalar.
 
     The bilinear interpolation of :meth:`geoloc.geodesy.geoid.NodeGrid.interp`: the longitude
@@ -341,9 +341,12 @@ def _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, lat, lon):
     lon_deg = math.degrees(lon)
     if not (math.isfinite(lat_deg) and math.isfinite(lon_deg)):
         return math.nan
-    lon_deg = (lon_deg - lon_west + 180.0) % 360.0 + lon_west - 180.0
-    r = (lat_north - lat_deg) / dlat
-    c = (lon_deg - lon_west) / dlon
+    x = lon_deg - lon_west + 180.0
+    if not (0.0 <= x < 360.0):  # already in the window: x % 360 is x, without the remainder's cost
+        x = x % 360.0
+    lon_deg = x + lon_west - 180.0
+    r = (lat_north - lat_deg) * idlat
+    c = (lon_deg - lon_west) * idlon
     nr, nc = Z.shape
     tol = 1e-9 + margin
     if r < -tol or r > nr - 1 + tol or c < -tol or c > nc - 1 + tol:
@@ -454,6 +457,8 @@ def dem_surface_kernel(
     kk = J.shape[2]
     ng = gh_x.shape[0]
     nr_ = graze_r.shape[0]
+    idlat = 1.0 / dlat  # the grid's nodes per degree: a product per sample, not a division
+    idlon = 1.0 / dlon
     for i in prange(n):
         if status[i] != _OK:
             for a in range(3):
@@ -475,12 +480,12 @@ def dem_surface_kernel(
         la, lo = lat[i], lon[i]
         # the slope of the bilinear surface at the hit: central differences over +-1 m
         g_n = (
-            _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + 1.0 / mh, lo)
-            - _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la - 1.0 / mh, lo)
+            _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la + 1.0 / mh, lo)
+            - _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la - 1.0 / mh, lo)
         ) / 2.0
         g_e = (
-            _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la, lo + 1.0 / nh)
-            - _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la, lo - 1.0 / nh)
+            _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la, lo + 1.0 / nh)
+            - _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la, lo - 1.0 / nh)
         ) / 2.0
         Jo = J[i]
         Hf = np.empty(ng * ng)
@@ -503,7 +508,7 @@ def dem_surface_kernel(
                     for b in range(ng):
                         de = l11 * gh_x[a]
                         dn = l21 * gh_x[a] + l22 * gh_x[b]
-                        H = _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + dn / mh, lo + de / nh)
+                        H = _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la + dn / mh, lo + de / nh)
                         Hf[a * ng + b] = H  # the footprint's heights, read once per fit
                         if math.isfinite(H):
                             w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
@@ -568,7 +573,7 @@ def dem_surface_kernel(
                 continue
             e_, n_, u_ = dr * de_, dr * dn_, dr * du_
             ray_h = h[i] + u_ + (e_ * e_ + n_ * n_) / (2.0 * mh)
-            ground = _grid_height(Z, lat_north, lon_west, dlat, dlon, margin, la + n_ / mh, lo + e_ / nh)
+            ground = _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la + n_ / mh, lo + e_ / nh)
             if not math.isfinite(ground):
                 continue
             sig_v = math.sqrt(fu2 * (kr / ti) ** 2 + sz * sz)
