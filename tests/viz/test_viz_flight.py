@@ -458,7 +458,7 @@ def test_at_each_planted_fault_the_error_vector_shows_on_the_canvas(tmp_path):
             client = next(iter(server.get_clients().values()))
             wait_for(lambda: client.camera.update_timestamp > 0, 30, "the browser's first camera report")
             for lab in ("packet 100", "packet 203", "packet 250"):
-                opt = next(o for o in fl.opts if o.strip().endswith(")") and f": {lab} (" in o)
+                opt = next(o for o in fl.opts if o.strip().endswith(")") and f", {lab} (" in o)
                 fl.dd_goto.value = opt  # as the GUI would
                 idx = fl.model.labels.index(lab)
                 assert app.scn.record_index == idx

@@ -87,7 +87,7 @@ from geoloc_viz import (
     teaching_panel,
     uncertainty_layer,
 )
-from geoloc_viz.model import Inputs, Scenario, compute, drawn_frames
+from geoloc_viz.model import Inputs, Scenario, compute, drawn_frames, frame_name
 from geoloc_viz.scenario import select_record
 from geoloc_viz.scene_geoloc import Display, GeolocScene, camera_pose_for
 
@@ -690,6 +690,8 @@ class GeolocSession:
             )
         lines = [
             f"**{self.header()}**  ",
+            f"{frame_name(scn, scn.record_index)}; pixel row {inp.row:g}, column {inp.col:g} in "
+            f"{getattr(scn, 'pixel_grid', None) or f'the sensor grid, {scn.camera.cols} x {scn.camera.rows} px'}  ",
             f"terrain: {scn.dem_name}  ",
             method + "  ",
             f"scene: local East-North-Up, origin {np.rad2deg(enu.lat0):.3f} N "

@@ -279,7 +279,8 @@ class FlightLayer:
             lab.position = tuple(c * WORLD_SCALE * np.array([1.0, 1.0, v]))
         res = m.residual_m[idx]
         f = m.fault_of(idx)
-        lab.text = (f"{m.labels[idx]}: residual {res:.1f} m" if np.isfinite(res) else m.labels[idx]) + (
+        name = self.frame_name(idx, of=False)
+        lab.text = (f"{name}: residual {res:.1f} m" if np.isfinite(res) else name) + (
             f" ({f.kind})" if f is not None else ""
         )
         self.focus(idx)
@@ -405,7 +406,7 @@ class FlightLayer:
             return ""
         f = m.fault_of(idx)
         kind = f" ({KIND_NAMES.get(f.kind, f.kind)} run)" if f is not None else ""
-        return f"{m.labels[idx]}{kind}: error {e:.1f} m, recomputed -> {m.reference}"
+        return f"{self.frame_name(idx, of=False)}{kind}: error {e:.1f} m, recomputed -> {m.reference}"
 
     def focus_world(self):
         """The lifted error vector's ends in the session's scene frame (km), for cameras and tests."""
@@ -417,11 +418,18 @@ class FlightLayer:
             scene_enu.from_ecef(F.to_ecef(p)) * v for p in (self.focus_info["a_enu"], self.focus_info["b_enu"])
         )
 
+    def frame_name(self, idx: int, of: bool = True) -> str:
+        """Frame ``idx``'s one name (:func:`geoloc_viz.model.frame_name`): its timeline index, time
+        and record label, as the summary, the picture and the exports name it."""
+        from geoloc_viz.model import frame_name
+
+        return frame_name(self.session.scn, idx, of=of)
+
     def _frame_text(self, idx: int) -> str:
         m, c = self.model, self.model.components
         f = m.fault_of(idx)
         text = (
-            f"**{m.labels[idx]}** (timeline frame index {idx} of 0 .. {len(m) - 1}): residual "
+            f"**{self.frame_name(idx)}**: residual "
             f"{m.residual_m[idx]:.2f} m "
             f"(recomputed vs {m.reference}, horizontal); along {c['along_m'][idx]:+.1f}, across "
             f"{c['across_m'][idx]:+.1f}, up {c['up_m'][idx]:+.1f} m" + (" **outlier**" if m.outlier[idx] else "")
@@ -465,14 +473,11 @@ class FlightLayer:
             self.bt_whole = g.add_button(
                 "whole flight", hint="The camera on the whole flight: track, footprints, the flagged runs in red"
             )
-            worst = self.top_idx[0] if self.top_idx else None
+            self.worst = worst_flagged(m)
             self.bt_worst = g.add_button(
-                f"worst fault: {m.labels[worst]}"
-                + (f" ({KIND_NAMES.get(m.fault_of(worst).kind)})" if m.fault_of(worst) is not None else "")
-                if worst is not None
-                else "worst fault",
-                disabled=worst is None,
-                hint="Jump to the frame of largest error, the camera framed on its error vector",
+                worst_label(m, self.worst),
+                visible=self.worst is not None,
+                hint="Jump to the flagged frame of largest error, the camera framed on its error vector",
             )
             self.cb_follow = g.add_checkbox(
                 "camera follows the timeline",
@@ -503,7 +508,7 @@ class FlightLayer:
         self.sl_frame.on_update(lambda _e: self._on_slider())
         self.bt_play.on_click(lambda _e: self.toggle_play())
         self.bt_whole.on_click(lambda _e: self.show_whole_flight())
-        self.bt_worst.on_click(lambda _e: self.top_idx and self.go(self.top_idx[0], camera=True))
+        self.bt_worst.on_click(lambda _e: self.worst is not None and self.go(self.worst, camera=True))
         self.dd_goto.on_update(lambda _e: self._on_goto())
 
     def rebuild(self) -> None:
@@ -533,14 +538,9 @@ class FlightLayer:
             self.md_table.content = model.outlier_markdown(self.top_n)
             self.md_faults.content = model.faults_markdown()
             self.md_accuracy.content = model.summary_markdown()
-            worst = self.top_idx[0] if self.top_idx else None
-            f = model.fault_of(worst) if worst is not None else None
-            self.bt_worst.label = (
-                f"worst fault: {model.labels[worst]}" + (f" ({KIND_NAMES.get(f.kind)})" if f is not None else "")
-                if worst is not None
-                else "worst fault"
-            )
-            self.bt_worst.disabled = worst is None
+            self.worst = worst_flagged(model)
+            self.bt_worst.label = worst_label(model, self.worst)
+            self.bt_worst.visible = self.worst is not None
         finally:
             self._mute = False
         idx = self.current if current is None else current
@@ -884,22 +884,41 @@ def goto_entries(m: flight_model.FlightModel, top_n: int = TOP_N):
     for r, f in enumerate(runs, 1):
         frames = np.arange(f.first, f.last + 1)
         worst = int(frames[np.nanargmax(m.residual_m[frames])])
-        span = m.labels[f.first] if f.first == f.last else f"{m.labels[f.first]} .. {m.labels[f.last]}"
         idx.append(worst)
         opts.append(
-            f"run {r} ({KIND_NAMES.get(f.kind, f.kind)}, {span}): worst {m.labels[worst]}, {m.residual_m[worst]:.1f} m"
+            f"run {r} ({KIND_NAMES.get(f.kind, f.kind)}, {f.span()}): worst frame {worst}, {m.labels[worst]}, "
+            f"{m.residual_m[worst]:.1f} m"
         )
         for i in frames:
             idx.append(int(i))
-            opts.append(f"  run {r}: {m.labels[i]} ({m.residual_m[i]:.1f} m)")
+            opts.append(f"  run {r}: frame {i}, {m.labels[i]} ({m.residual_m[i]:.1f} m)")
     flagged = {int(i) for i in np.flatnonzero(m.outlier)}
     rest = [int(i) for i in m.order if int(i) in flagged and int(i) not in idx]
     if not runs:
         rest = [int(i) for i in m.top(top_n) if np.isfinite(m.residual_m[int(i)])]
     for k, i in enumerate(rest, 1):
         idx.append(i)
-        opts.append(f"{k}. {m.labels[i]} ({m.residual_m[i]:.1f} m)")
+        opts.append(f"{k}. frame {i}, {m.labels[i]} ({m.residual_m[i]:.1f} m)")
     return idx, opts
+
+
+def worst_flagged(m: flight_model.FlightModel):
+    """The flagged frame of largest residual (what "worst fault" goes to), or None when no frame
+    is flagged: then there is no fault to go to and the button is not offered."""
+    flagged = np.flatnonzero(np.asarray(m.outlier, bool) & np.isfinite(m.residual_m))
+    if not len(flagged):
+        return None
+    return int(flagged[np.argmax(m.residual_m[flagged])])
+
+
+def worst_label(m: flight_model.FlightModel, worst) -> str:
+    """The "worst fault" button's text: the frame (timeline index and label) and its fault's kind."""
+    if worst is None:
+        return "worst fault"
+    f = m.fault_of(worst)
+    return f"worst fault: frame {worst}, {m.labels[worst]}" + (
+        f" ({KIND_NAMES.get(f.kind, f.kind)})" if f is not None else ""
+    )
 
 
 def attach(session) -> FlightLayer:

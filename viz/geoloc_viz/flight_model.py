@@ -131,8 +131,16 @@ class FaultRun:
             ),
             "unexplained": "no simple fault fits",
         }[self.kind]
-        span = self.labels[0] if self.first == self.last else f"{self.labels[0]} .. {self.labels[-1]}"
-        return f"{span} ({self.last - self.first + 1} frames): {what}"
+        return f"{self.span()}: {what}"
+
+    def span(self) -> str:
+        """The run's frames by the timeline's index, with the records' own labels beside them:
+        ``frames 100 .. 109 (packet 100 .. packet 109, 10 frames)``."""
+        n = self.last - self.first + 1
+        if self.first == self.last:
+            return f"frame {self.first}" + (f" ({self.labels[0]})" if self.labels else "")
+        labels = f"{self.labels[0]} .. {self.labels[-1]}, " if self.labels else ""
+        return f"frames {self.first} .. {self.last} ({labels}{n} frames)"
 
 
 @dataclass
@@ -343,13 +351,13 @@ class FlightModel:
         lines = [
             f"frames by residual (recomputed vs {ref}, horizontal; along/across track; up)  ",
             "",
-            "| # | frame | residual m | along m | across m | up m | flag | looks like |",
+            "| # | frame (record) | residual m | along m | across m | up m | flag | looks like |",
             "|---|---|---|---|---|---|---|---|",
         ]
         for rank, i in enumerate(self.top(n), 1):
             f = self.fault_of(int(i))
             lines.append(
-                f"| {rank} | {self.labels[i]} | {self.residual_m[i]:.1f} | {c['along_m'][i]:+.1f} | "
+                f"| {rank} | {i} ({self.labels[i]}) | {self.residual_m[i]:.1f} | {c['along_m'][i]:+.1f} | "
                 f"{c['across_m'][i]:+.1f} | {c['up_m'][i]:+.1f} | {self._flag(i)} | "
                 f"{f.kind if f is not None else ''} |"
             )
@@ -944,7 +952,8 @@ def attach_video(scn, ts_path) -> bool:
     """Give ``scn`` the frames of the video in ``ts_path`` (an MPEG-TS with the KLV stream beside
     its video, STANAG 4609): ``scn.images`` (:func:`geoloc.io.images.open_images`, decoded lazily)
     and ``scn.record_times_s``, each record's KLV packet time stamp on the container clock, so a
-    record shows the frame nearest its packet (``ImageSource.index_at``). False (and the scenario
+    record shows the frame nearest its packet (``ImageSource.index_at``); the sensor and the records'
+    pixels are put in the video's own grid (:func:`geoloc_viz.model.use_image_grid`). False (and the scenario
     left without images) when the file is missing or has no video stream."""
     from geoloc.io.images import open_images
     from geoloc.workflows.klv_replay import read_klv
@@ -960,5 +969,11 @@ def attach_video(scn, ts_path) -> bool:
     r = read_klv(ts_path)
     pts = {int(p): float(t) for p, t in zip(r.packet, r.pts_s)}
     scn.images = images
+    scn.video_path = ts_path  # the stream whose picture-to-metadata timing is fitted (picture_model)
     scn.record_times_s = np.array([pts.get(int(str(info.label).split()[-1]), np.nan) for info, _ in scn.records])
+    # the one place the sensor's nominal pixel grid becomes the video's: every pixel shown from
+    # here on (inputs, picture, footprints, exported commands) is one of the image's own
+    from geoloc_viz.model import use_image_grid
+
+    use_image_grid(scn, images.rows, images.cols)
     return True

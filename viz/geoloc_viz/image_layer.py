@@ -189,10 +189,67 @@ class ImageLayer:
         self.crop = None
         self.plane = None  # (position (3,), R_enu_cam (3, 3), width, height) of the frustum image [scene units]
         self.handles: dict = {}
+        #: Runs of frames whose picture is shifted in time against its metadata
+        #: (:func:`geoloc_viz.picture_model.video_timing_faults`); None until the search is done.
+        self.timing: list | None = None
         self._build_gui()
         session.on_refresh(lambda _g: self._safe(self.update))
         self.scene.on_click()(self._on_scene_click)
         self._safe(self.update)
+        threading.Thread(target=self._find_timing, daemon=True, name="geoloc-video-timing").start()
+
+    # ------------------------------------------------------------ a video timing fault
+    def _find_timing(self) -> None:
+        """Search the flight for video timing faults, on a thread at low priority (the first view
+        and a step keep the cores), then name the current frame's run in the panel."""
+        import os
+
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)  # Linux: this thread only
+        except (AttributeError, OSError):
+            pass
+        try:
+            found = pm.cached_video_timing_faults(self.session.scn)
+        except Exception:
+            traceback.print_exc(file=sys.stderr)
+            found = []
+        if not self.closed:
+            self.timing = found
+            self._safe(self.show_timing)
+
+    def timing_fault_of(self, idx):
+        """The video timing fault whose run holds record ``idx``, or None."""
+        return next((f for f in self.timing or () if f.contains(idx)), None)
+
+    def show_timing(self) -> None:
+        """The panel's timing line: on a frame of a run, the run, how far the picture runs ahead
+        and the fitted offset; elsewhere the flight's runs in one line (and the button to go)."""
+        if self.timing is None:
+            return
+        f = self.timing_fault_of(self.index)
+        if f is not None:
+            self.md_timing.content = f.markdown()
+        elif self.timing:
+            self.md_timing.content = "video timing faults of this flight: " + "; ".join(
+                f"frames {x.first} .. {x.last} (the picture {x.ahead()} its metadata)" for x in self.timing
+            )
+        else:
+            self.md_timing.content = ""
+        if self.timing:
+            x = self.timing[0]
+            self.bt_timing.label = f"go to the video timing fault: frames {x.first} .. {x.last}"
+        self.bt_timing.visible = bool(self.timing) and f is None
+
+    def go_to_timing_fault(self) -> None:
+        """The timeline (the flight layer's, when there is one) to the first frame of the first run."""
+        if not self.timing:
+            return
+        idx = self.timing[0].first
+        fl = next((x for x in getattr(self.session, "layers", ()) if hasattr(x, "sl_frame")), None)
+        if fl is not None:
+            fl.go(idx, camera=False)
+        else:
+            self.session.load_record(idx)
 
     # ------------------------------------------------------------ GUI
     def _build_gui(self) -> None:
@@ -232,6 +289,13 @@ class ImageLayer:
             )
             self.md_ground = g.add_markdown("")
             self.md_found = g.add_markdown("")
+            # a video timing fault, found in the background (a few seconds of mark finding and a fit)
+            self.md_timing = g.add_markdown("")
+            self.bt_timing = g.add_button(
+                "go to the video timing fault",
+                visible=False,
+                hint="The timeline to the first frame of the run whose picture runs ahead of its metadata",
+            )
             self.cb_frustum = g.add_checkbox("picture in the frustum", True)
             self.sl_dist = g.add_slider(
                 "picture distance (x range)",
@@ -251,6 +315,7 @@ class ImageLayer:
                 "by ground_to_pixel, cells hidden from the camera left out) and laid "
                 "on the terrain as a texture",
             )
+        self.bt_timing.on_click(lambda _e: self._safe(self.go_to_timing_fault))
         self.cb_drape.on_update(lambda _e: self._safe(self.drape))
         self.bt_clear_target.on_click(lambda _e: self._safe(self.clear_target))
         self.sl_zoom.on_update(lambda _e: self._safe(self.redraw_images))
@@ -299,6 +364,7 @@ class ImageLayer:
         self.marks = pm.image_marks(s.scn, idx, self.sensor, s.inputs, self.centre)
         self.found = pm.found_marks(s.scn, self.image, self.marks, self.sensor, s.inputs)
         self.md_found.content = pm.found_markdown(self.found)
+        self.show_timing()
         self.horizon = pm.terrain_horizon(s.scn, s.inputs, self.sensor)
         if self.pick is not None:  # the pose may have changed under the picked pixel
             self.pick = pm.locate_pixel(s.scn, s.inputs, self.sensor, self.pick.row, self.pick.col)
@@ -340,6 +406,18 @@ class ImageLayer:
         self.html.content = self._panel_html(disp, r1, c1, h, w)
         self._draw_frame(marks)
 
+    def caption(self) -> str:
+        """The picture's caption: the frame's one name (its timeline index, time and label:
+        :func:`geoloc_viz.model.frame_name`), when the picture was taken and its pixel grid, the grid
+        every pixel of the page is in. The image source's own frame count is not shown: a video
+        holds frames the records skip, and a second numbering would not match the timeline."""
+        from geoloc_viz.model import frame_name
+
+        M, N = self.image.shape[:2]
+        t = np.asarray(getattr(self.images, "times_s", []), float)
+        when = f"picture at {t[self.k]:.2f} s; " if 0 <= self.k < len(t) and np.isfinite(t[self.k]) else ""
+        return f"{frame_name(self.session.scn, self.index)}: {when}{N} x {M} px"
+
     def _panel_html(self, disp, r1, c1, h, w) -> str:
         uuid = self.tx_pixel._impl.uuid
         # the click handler: the clicked position as a fraction of the shown crop -> the pixel
@@ -355,11 +433,7 @@ class ImageLayer:
             "Object.getOwnPropertyDescriptor(HTMLInputElement.prototype,'value').set.call(i,r+', '+c);"
             "i.dispatchEvent(new Event('input',{bubbles:true}));"
         )
-        M, N = self.image.shape[:2]
-        cap = (
-            f"frame {self.k + 1} of {len(self.images)}: {N} x {M} px; shown rows {r1}-{r1 + h - 1}, "
-            f"columns {c1}-{c1 + w - 1} (zoom {self.zoom} x)"
-        )
+        cap = self.caption() + f"; shown rows {r1}-{r1 + h - 1}, columns {c1}-{c1 + w - 1} (zoom {self.zoom} x)"
         return (
             f'<div style="padding:0 0.5em"><img id="geoloc-picture" alt="frame image" '
             f'data-r1="{r1}" data-c1="{c1}" data-h="{h}" data-w="{w}" '
@@ -621,8 +695,8 @@ class ImageLayer:
         PIL.Image.fromarray(disp).save(buf, format="JPEG", quality=88)
         b64 = base64.b64encode(buf.getvalue()).decode("ascii")
         text = [pm.pick_markdown(p) for p in self.picks]
-        text += [t for t in (self.md_ground.content, self.md_found.content) if t]
-        cap = f"frame {self.k + 1} of {len(self.images)}: {N} x {M} px"
+        text += [t for t in (self.md_ground.content, self.md_found.content, self.md_timing.content) if t]
+        cap = self.caption()
         return (
             f'<div id="geoloc-export-picture"><img alt="frame image" data-rows="{M}" data-cols="{N}" '
             f'style="width:100%;display:block;margin:6px 0" src="data:image/jpeg;base64,{b64}">'

@@ -228,3 +228,80 @@ def T_enu_frame(g: Geometry, name: str) -> np.ndarray:
     """4x4 of a drawn frame in the scene (ENU), for tests and the teaching panel."""
     f = g.frames[name]
     return rot.transform(f.R_enu_frame, f.origin_enu)
+
+
+# --------------------------------------------------------------------------- one numbering, one grid
+
+
+def frame_time_s(scn, idx) -> float:
+    """Record ``idx``'s time [s] on the stream's clock (``scn.record_times_s``: a video's PTS of
+    its KLV packet), NaN when the scenario has no times."""
+    times = getattr(scn, "record_times_s", None)
+    if times is None or idx is None or not 0 <= int(idx) < len(times):
+        return float("nan")
+    return float(times[int(idx)])
+
+
+def frame_name(scn, idx, *, of: bool = True) -> str:
+    """The one name of record ``idx`` on every panel, the picture, the report and the exports: its
+    0-based **frame index** (the timeline's), the time beside it and the record's own label, e.g.
+    ``frame 202 of 0 .. 297 (t 203.00 s, packet 203)``; ``of=False`` drops the range."""
+    if idx is None:
+        return "custom pose (no frame)"
+    idx = int(idx)
+    label = str(scn.records[idx][0].label) if 0 <= idx < len(scn.records) else ""
+    extra = []
+    t = frame_time_s(scn, idx)
+    if np.isfinite(t):
+        extra.append(f"t {t:.2f} s")
+    if label and label != str(idx):
+        extra.append(label)
+    text = f"frame {idx}" + (f" of 0 .. {len(scn.records) - 1}" if of else "")
+    return text + (f" ({', '.join(extra)})" if extra else "")
+
+
+def pixel_to_grid(rc, from_size: int, to_size: int):
+    """A 1-based pixel coordinate of a ``from_size`` axis in the grid of the same image resampled
+    to ``to_size`` pixels: the image's edges (0.5 and size + 0.5, docs/conventions.md "Pixels")
+    map onto each other, ``rc' - 0.5 = (rc - 0.5) * to / from`` (the rule of
+    :func:`geoloc.io.photos.scale_lens` for the principal point)."""
+    return 0.5 + (np.asarray(rc, float) - 0.5) * (float(to_size) / float(from_size))
+
+
+def use_image_grid(scn, rows: int, cols: int) -> bool:
+    """Put the scenario's pixels in the grid of its images (``rows`` x ``cols``), once, at load.
+
+    A MISB ST 0601 stream names no image size, so its sensor is made on a nominal 1920 x 1080 grid
+    (:func:`geoloc.workflows.klv_replay.klv_sensor`) while its video is, e.g., 640 x 360. Here the
+    sensor's lens is resampled to the video's size (:func:`geoloc.io.photos.scale_lens`: the same
+    rays) and every record's pixel moved to that grid (:func:`pixel_to_grid`), so the inputs, the
+    teaching ray, the footprints, the picture and the exported commands all speak the image's own
+    pixels. ``scn.pixel_grid`` says what was done. False when the grids already agree."""
+    cam = scn.camera
+    rows, cols = int(rows), int(cols)
+    if (cam.rows, cam.cols) == (rows, cols):
+        scn.pixel_grid = f"the image's own grid, {cols} x {rows} px"
+        return False
+    from geoloc.io.photos import scale_lens
+
+    r0, c0 = cam.rows, cam.cols
+    scn.camera = dataclasses.replace(cam, lens=scale_lens(cam.lens, cols, rows))
+    recs = []
+    for info, inp in scn.records:
+        recs.append(
+            (
+                info,
+                inp.replace(row=float(pixel_to_grid(inp.row, r0, rows)), col=float(pixel_to_grid(inp.col, c0, cols))),
+            )
+        )
+    scn.records = recs
+    if scn.record_index is not None:
+        scn.inputs = recs[scn.record_index][1].replace()
+    else:
+        scn.inputs = scn.inputs.replace(
+            row=float(pixel_to_grid(scn.inputs.row, r0, rows)), col=float(pixel_to_grid(scn.inputs.col, c0, cols))
+        )
+    scn.pixel_grid = (
+        f"the image's own grid, {cols} x {rows} px (the sensor's nominal {c0} x {r0} converted once, at load)"
+    )
+    return True

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -510,3 +511,126 @@ def target_markdown(t: TargetRays | None, n_frames: int = 0) -> str:
             f"{t.surface['se_m']:.1f} m)" + (f"; **{t.surface['warning']}**" if t.surface["warning"] else "")
         )
     return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- a video timing fault
+
+#: Shortest run of frames whose painted marks disagree with the metadata that is fitted as a
+#: video timing fault: a few frames can disagree for other reasons (a mark on a ridge's edge).
+TIMING_MIN_FRAMES = 5
+#: Frames of agreement a run may hold and stay one run: while the aircraft moves slowly across the
+#: line of sight a 1.5 s offset moves the marks by under 3 px (the bundled run has 6 such frames).
+TIMING_MAX_GAP = 8
+#: The fit must explain the run: at its offset the marks lie within the agreement threshold, and
+#: at least twice closer than at offset 0.
+TIMING_EXPLAINED = 0.5
+
+
+@dataclass
+class VideoTimingFault:
+    """A run of frames whose picture is shifted in time against its metadata (record indices,
+    inclusive), with the fitted offset (:func:`geoloc.workflows.video_sync.fit_klv_time_offset`:
+    video time = metadata time + ``fit.time_offset_s``)."""
+
+    first: int
+    last: int
+    fit: object  # geoloc.analysis.time_offset.TimeOffsetFit
+
+    def contains(self, idx) -> bool:
+        return idx is not None and self.first <= int(idx) <= self.last
+
+    def ahead(self) -> str:
+        d = -float(self.fit.time_offset_s)
+        return f"{abs(d):.2f} s {'ahead of' if d > 0 else 'behind'}"
+
+    def markdown(self) -> str:
+        f = self.fit
+        return (
+            f"**video timing fault, frames {self.first} .. {self.last}**: the picture runs {self.ahead()} its "
+            f"metadata: the painted crosses are where the projected marks (white x) will be "
+            f"{abs(f.time_offset_s):.2f} s {'later' if f.time_offset_s < 0 else 'earlier'}. Fitted time "
+            f"offset **{f.time_offset_s:+.3f} s** (video time = metadata time + offset) from {f.n_marks} "
+            f"marks in {f.n_frames} frames: rms {f.rms_px:.2f} px (at offset 0: {f.rms_at_zero_px:.2f} px)"
+        )
+
+
+def frame_mark_disagreement(scn, predictor, frames) -> np.ndarray:
+    """Median distance [px] from each target's projection at the record's own time (the metadata's
+    word) to the nearest painted mark found in the record's picture, per record index in ``frames``;
+    NaN where no mark lies within 40 px or the record has no picture."""
+    from geoloc.workflows.video_sync import frame_marks, mark_offsets
+
+    frames = np.asarray(list(frames), int)
+    ks = np.array([image_index(scn, i) for i in frames])
+    out = np.full(len(frames), np.nan)
+    has = ks >= 0
+    if not has.any():
+        return out
+    marks = frame_marks(images_of(scn), ks[has])
+    pred = predictor(np.asarray(scn.record_times_s, float)[frames[has]])
+    med = []
+    for m, p in zip(marks, pred):
+        o = mark_offsets(m, p)
+        d = np.hypot(o[:, 0], o[:, 1])
+        med.append(np.nanmedian(d) if np.isfinite(d).any() else np.nan)
+    out[has] = med
+    return out
+
+
+def video_timing_faults(scn, exclude=None, *, should_stop=lambda: False) -> list:
+    """The runs of frames where the picture and its metadata disagree in time, each fitted.
+
+    Each record's painted marks are compared with the targets projected at the record's own time
+    (:func:`frame_mark_disagreement`); runs of frames over :data:`MARKS_DISAGREE_PX` (gaps of up to
+    :data:`TIMING_MAX_GAP` frames, at least :data:`TIMING_MIN_FRAMES`), leaving out the frames in
+    ``exclude`` (a mask: frames whose metadata is already flagged against its own reported
+    centres, a fault of the metadata, not of the picture's timing), are each fitted with
+    :func:`geoloc.workflows.video_sync.fit_klv_time_offset`; a run is kept when the fitted offset
+    explains it (:data:`TIMING_EXPLAINED`). Needs a STANAG 4609 stream (``scn.video_path``), its
+    pictures' time stamps (``scn.record_times_s``) and surveyed targets (``scn.targets``); else [].
+    """
+    from geoloc_viz.flight_model import outlier_runs
+    from geoloc.workflows.klv_replay import replay_klv
+    from geoloc.workflows.video_sync import fit_klv_time_offset, klv_predictor
+
+    path, targets, images = getattr(scn, "video_path", None), getattr(scn, "targets", None), images_of(scn)
+    if path is None or not targets or images is None or getattr(scn, "record_times_s", None) is None:
+        return []
+    pts = [(la, lo, h) for _, la, lo, h in targets]
+    replay = replay_klv(path)
+    pred = klv_predictor(replay, pts, images.rows, images.cols)
+    n = len(scn.records)
+    d = frame_mark_disagreement(scn, pred, range(n))
+    bad = np.nan_to_num(d, nan=0.0) > MARKS_DISAGREE_PX
+    if exclude is not None:
+        bad &= ~np.asarray(exclude, bool)[:n]
+    out = []
+    for a, b in outlier_runs(bad, max_gap=TIMING_MAX_GAP):
+        if should_stop():
+            break
+        if b - a + 1 < TIMING_MIN_FRAMES:
+            continue
+        ks = [k for k in (image_index(scn, i) for i in range(a, b + 1)) if k >= 0]
+        fit = fit_klv_time_offset(path, pts, ks, replay=replay, images=images)
+        if fit.rms_px <= MARKS_DISAGREE_PX and fit.rms_px <= TIMING_EXPLAINED * fit.rms_at_zero_px:
+            out.append(VideoTimingFault(int(a), int(b), fit))
+    return out
+
+
+_TIMING_CACHE: dict = {}
+_TIMING_LOCK = threading.Lock()
+
+
+def cached_video_timing_faults(scn, exclude=None) -> list:
+    """:func:`video_timing_faults` once per stream and records (every tab of a viewer shares the
+    scenario's records): the first caller computes, the others wait for its answer."""
+    key = (str(getattr(scn, "video_path", None)), id(scn.records), len(scn.records))
+    with _TIMING_LOCK:
+        hit = _TIMING_CACHE.get(key)
+        if hit is not None and hit[0] is scn.records:
+            return hit[1]
+        out = video_timing_faults(scn, exclude)
+        if len(_TIMING_CACHE) > 4:
+            _TIMING_CACHE.clear()
+        _TIMING_CACHE[key] = (scn.records, out)
+        return out
