@@ -43,6 +43,17 @@ CASES = {
         ],
         600,
     ),
+    "bench_viewer.py": (
+        ["--repeat", "1", "--steps", "1", "--play-s", "2"],
+        [
+            rf"^first useful view .*: median {N} s wall over 1 loads \(goal 5 s\)",
+            rf"^step to the next frame, to the first canvas change: median {N} ms wall over 1 steps",
+            rf"^peer: viser's bare scene update .*: median {N} ms wall$",
+            rf"^playback, 10 frames per second asked: {N} frames/s",
+            rf"^ratio: step / bare update {N}; playback reached / asked {N}$",
+        ],
+        900,
+    ),
     "bench_campaign.py": (
         # one worker: the same cluster path as the default two, 4 s less
         ["--records", "2000", "--partition", "1000", "--workers", "1"],
@@ -231,7 +242,7 @@ CASES = {
 #: Opens headless Chromium: on the xdist worker of tests/conftest.py's Chromium group (conftest
 #: does not see a browser in a subprocess), and marked ``browser`` like the other browser tests.
 #: Its smallest run (a warm-up load and one measured load) takes 46-54 s.
-BROWSER = {"bench_browser.py"}
+BROWSER = {"bench_browser.py", "bench_viewer.py"}
 
 
 def _params():

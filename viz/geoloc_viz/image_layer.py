@@ -60,8 +60,11 @@ from geoloc_viz.layer_safety import call_safely
 ROOT = "/enu/picture"
 #: Width of the panel's image [screen px] (the crop is scaled to it, nearest neighbour).
 PANEL_WIDTH = 560
-#: Largest side of the texture sent for the frustum [px] (the panel shows full resolution).
-TEXTURE_MAX = 640
+#: Largest side of the texture sent for the frustum [px] (the panel shows full resolution). The
+#: picture in its frustum spans 20-300 screen pixels in the views the viewer frames (the whole
+#: flight, an error, the aircraft followed): 320 is its display size; 640 sent four times the
+#: pixels to decode and upload to software WebGL on every timeline step (bench_viewer.py).
+TEXTURE_MAX = 320
 ZOOMS = (1, 2, 4, 8, 16, 32)
 #: Picks of one frame kept for an export (the scene shows the last one's ray).
 MAX_PICKS = 20

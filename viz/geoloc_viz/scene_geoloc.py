@@ -333,8 +333,14 @@ class GeolocScene:
     def _sphere(self, name, p, color, label=None, radius=None, anchor="bottom-left", show_label=None):
         # Moving an existing node costs one small message; re-creating it costs a full one.
         r = (radius or self.disp.marker_radius_m) * WORLD_SCALE
-        key = (r, tuple(int(c) for c in color))
+        rgb = tuple(int(c) for c in color)
+        # a new radius re-creates the node; a new colour is one property update (the current
+        # iteration's ball turns red below the terrain on most steps: re-creating it cost a
+        # geometry and a material in the browser on every timeline step)
+        key = r
         h = self._alive(name, key)
+        if h is not None and tuple(int(c) for c in h.color) != rgb:
+            h.color = rgb
         if h is None:
             h = self.scene.add_icosphere(
                 name,

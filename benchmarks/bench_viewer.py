@@ -1,0 +1,211 @@
+"""Is the viewer fast enough to scrub? First useful view, a step to the next frame, playback at 10 fps.
+
+One command: ``python benchmarks/bench_viewer.py [--repeat 3] [--steps 8] [--play-s 12]``.
+
+Headless Debian Chromium through playwright with software WebGL (SwiftShader), a 1000 x 640
+page on ``geoloc view``'s per-tab viewer (every default layer) on the bundled example flight with
+its video. The server is up before the clock starts (the scenario loaded, the port open); a first
+page load warms what every tab shares (the flight model, the terrain mesh). Then, per page load:
+
+* **first useful view**: from ``page.goto`` to the later of (a) the first canvas frame showing
+  the scene (200+ distinct colours, once the tab's session is built) and (b) the panel naming
+  the frame (the summary's "frame 0 of 0 .. N"); goal 5 s. Its settled time (the canvas's last
+  change before 2 s without one) beside it;
+* **step to the next frame**: the timeline moved by one frame (as the GUI's slider does), to the
+  first canvas change; goal 300 ms;
+* **peer, measured in the same page**: viser's own bare scene update: one small ball, added to
+  the tab's scene at the camera's look-at point, moved; to the first canvas change. The ratio
+  step / peer says how much of a step is the viewer's, not the browser's floor;
+* **playback** at 10 frames per second asked (the player waits for the browser's
+  acknowledgement of each step): frames shown per second over ``--play-s`` seconds, counted
+  on the server (frames the timeline reached) and on the canvas (changes the probe saw).
+
+CPU beside wall: Chromium's processes (``/proc``; its GPU process, where SwiftShader draws, apart)
+and this process (the server), over the same intervals. The canvas is watched from inside the
+page every 50 ms (``bench_browser.PROBE``). Prints medians, the load average before and after,
+and the ratio last.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+#: Records, in the page, when the panel first names a frame: ``window.__geolocPanelAt`` [ms, epoch].
+PANEL_PROBE = """(() => {
+  window.__geolocPanelAt = null;
+  const rx = /frame \\d+ of 0 \\.\\. \\d+/;
+  function look() {
+    if (window.__geolocPanelAt === null && document.body && rx.test(document.body.innerText)) {
+      window.__geolocPanelAt = Date.now(); return;
+    }
+    setTimeout(look, 50);
+  }
+  look();
+})();"""
+
+
+def _first_scene_frame(page, t0, ready, min_colours=200, timeout=240.0):
+    """Epoch time of the first probe frame with ``min_colours`` colours seen once ``ready()``."""
+    from bench_browser import _frames
+
+    while time.time() - t0 < timeout:
+        if ready():
+            for t, _h, n in _frames(page):
+                if n >= min_colours:
+                    return t
+        time.sleep(0.05)
+    raise RuntimeError(f"no scene on the canvas within {timeout} s")
+
+
+def _first_change(page, seen, t_from, timeout=120.0):
+    """Seconds from ``t_from`` to the first probe frame after index ``seen``."""
+    from bench_browser import _frames
+
+    while time.time() - t_from < timeout:
+        fr = _frames(page)
+        if len(fr) > seen:
+            return fr[seen][0] - t_from
+        time.sleep(0.01)
+    raise RuntimeError(f"the canvas did not change within {timeout} s")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3, help="page loads measured (default 3)")
+    ap.add_argument("--steps", type=int, default=8, help="steps (and peer updates) per load (default 8)")
+    ap.add_argument("--play-s", type=float, default=12.0, help="seconds of playback per load (default 12)")
+    args = ap.parse_args(argv)
+
+    import numpy as np
+    from bench_browser import PROBE, _browser_cpu_s, _frames, _settled
+    from test_viz_browser import chromium
+
+    from geoloc_viz.app import GeolocViewer, make_server
+    from geoloc_viz.flight_model import default_flight_scenario
+
+    load0 = os.getloadavg()
+    scn = default_flight_scenario()
+    server = make_server(port=0)
+    built: dict = {}
+    viewer = GeolocViewer(server, scn)
+    orig = viewer._build_tab
+
+    def timed_build(client, name):
+        orig(client, name)
+        built[client.client_id] = time.time()
+
+    viewer._build_tab = timed_build
+    view, settle, view_cpu, steps, step_cpu, server_step, peers, play = [], [], [], [], [], [], [], []
+    try:
+        with tempfile.TemporaryDirectory() as tmp, chromium(Path(tmp)) as browser:
+            for k in range(args.repeat + 1):
+                page = browser.new_page(viewport={"width": 1000, "height": 640})
+                page.add_init_script(PROBE)
+                page.add_init_script(PANEL_PROBE)
+                before = set(built)
+                cpu0, scpu0 = _browser_cpu_s(), time.process_time()
+                t0 = time.time()
+                page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=120000)
+                ready = lambda: len(set(built) - before) == 1  # noqa: E731
+                t_scene = _first_scene_frame(page, t0, ready)
+                while page.evaluate("window.__geolocPanelAt") is None and time.time() - t0 < 240:
+                    time.sleep(0.05)
+                t_panel = page.evaluate("window.__geolocPanelAt") / 1e3
+                useful = max(t_scene, t_panel) - t0
+                cpu1, scpu1 = _browser_cpu_s(), time.process_time()
+                dt_settle, seen = _settled(page, t0, ready=ready)
+                cid = (set(built) - before).pop()
+                session = viewer.session_of(cid)
+                fl = session.layers[0]
+                client = server.get_clients()[cid]
+                if k == 0:  # the warm-up load
+                    page.close()
+                    continue
+                view.append(useful)
+                settle.append(dt_settle)
+                view_cpu.append((cpu1[0] - cpu0[0], cpu1[1] - cpu0[1], scpu1 - scpu0))
+                # the peer: a small ball at the camera's look-at point, moved sideways each time
+                look = np.array(client.camera.look_at, float)
+                dist = float(np.linalg.norm(np.array(client.camera.position, float) - look))
+                ball = session.scene.add_icosphere(
+                    "/bench_peer", radius=0.02 * dist, color=(255, 0, 255), position=tuple(look)
+                )
+                time.sleep(2.0)
+                seen = len(_frames(page))
+                for j in range(args.steps):
+                    # a step to the next frame, as the GUI's slider sets it
+                    c0, s0 = _browser_cpu_s(), time.process_time()
+                    t_step = time.time()
+                    w = time.perf_counter()
+                    fl.sl_frame.value = (int(fl.sl_frame.value) + 1) % len(fl.model)
+                    server_step.append((time.perf_counter() - w, time.process_time() - s0))
+                    steps.append(_first_change(page, seen, t_step))
+                    c1 = _browser_cpu_s()
+                    step_cpu.append((c1[0] - c0[0], c1[1] - c0[1]))
+                    _, seen = _settled(page, t_step, quiet_s=1.0, after=seen)
+                    # the peer: the bare update
+                    t_peer = time.time()
+                    ball.position = tuple(look + (0.04 * dist * (1 if j % 2 == 0 else -1), 0.0, 0.0))
+                    peers.append(_first_change(page, seen, t_peer))
+                    _, seen = _settled(page, t_peer, quiet_s=1.0, after=seen)
+                ball.remove()
+                # playback at 10 frames per second asked
+                fl.num_fps.value = 10.0
+                time.sleep(1.0)
+                seen = len(_frames(page))
+                f0, t_play = fl.current, time.time()
+                c0 = _browser_cpu_s()
+                fl.toggle_play()
+                time.sleep(args.play_s)
+                fl.toggle_play()
+                dt = time.time() - t_play
+                c1 = _browser_cpu_s()
+                shown = (fl.current - f0) % len(fl.model)
+                changes = len(_frames(page)) - seen
+                play.append((shown / dt, changes / dt, (c1[0] - c0[0]) / dt))
+                page.close()
+    finally:
+        server.stop()
+    med = statistics.median
+    load1 = os.getloadavg()
+    print(
+        f"headless Chromium (software WebGL), 1000 x 640, geoloc view's example flight with its video, "
+        f"{os.cpu_count()} cores, load average {load0[0]:.1f} before, {load1[0]:.1f} after"
+    )
+    print(
+        f"first useful view (scene on the canvas and the panel naming the frame): median {med(view):.2f} s "
+        f"wall over {len(view)} loads (goal 5 s); settled {med(settle):.2f} s; browser CPU "
+        f"{med(v[0] for v in view_cpu):.2f} s (GPU process {med(v[1] for v in view_cpu):.2f} s), server CPU "
+        f"{med(v[2] for v in view_cpu):.2f} s"
+    )
+    print(
+        f"step to the next frame, to the first canvas change: median {med(steps) * 1e3:.0f} ms wall over "
+        f"{len(steps)} steps (goal 300 ms); browser CPU {med(c[0] for c in step_cpu) * 1e3:.0f} ms (GPU process "
+        f"{med(c[1] for c in step_cpu) * 1e3:.0f} ms); the server's step {med(s[0] for s in server_step) * 1e3:.0f} "
+        f"ms wall, {med(s[1] for s in server_step) * 1e3:.0f} ms CPU"
+    )
+    print(f"peer: viser's bare scene update (one ball moved) to the canvas: median {med(peers) * 1e3:.0f} ms wall")
+    print(
+        f"playback, 10 frames per second asked: {med(p[0] for p in play):.2f} frames/s reached by the timeline, "
+        f"{med(p[1] for p in play):.2f} canvas changes/s, browser CPU {med(p[2] for p in play):.2f} s per s "
+        f"(medians over {len(play)} runs of {args.play_s:g} s)"
+    )
+    print(
+        f"ratio: step / bare update {med(steps) / med(peers):.2f}; playback reached / asked "
+        f"{med(p[0] for p in play) / 10.0:.2f}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
