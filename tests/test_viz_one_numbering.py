@@ -83,6 +83,20 @@ def test_a_flight_with_nothing_flagged_offers_no_worst_fault():
         assert fl.opts and fl.opts[0].startswith("1. frame ")
 
 
+def test_clear_target_rays_is_offered_only_with_rays_to_clear(flight):
+    from test_viz_picture import make_app
+
+    server, app, layer = make_app(flight)
+    try:
+        assert not layer.bt_clear_target.visible  # nothing picked: nothing to clear
+        layer.pick_pixel(150.0, 333.0)
+        assert layer.target and layer.bt_clear_target.visible
+        layer.clear_target()
+        assert not layer.target and not layer.bt_clear_target.visible
+    finally:
+        server.stop()
+
+
 # ------------------------------------------------------------------ headless Chromium
 
 FRAME_RX = re.compile(r"frame (\d+) of 0 \.\. (\d+) \(t ([0-9.]+) s, (packet \d+)\)")

@@ -287,6 +287,7 @@ class ImageLayer:
             self.md_target = g.add_markdown("")
             self.bt_clear_target = g.add_button(
                 "clear target rays",
+                visible=False,  # offered once there are rays to clear
                 hint="Forget the picks of the other frames: the next pick starts "
                 "a new target (each frame's last pick is one of its rays)",
             )
@@ -673,6 +674,9 @@ class ImageLayer:
         for n in old + [f"{ROOT}/target/{x}" for x in ("rays", "residuals", "point", "ellipse")]:
             if n not in shown:
                 self._hide(n)
+        # a button with nothing to do is not offered
+        if self.bt_clear_target.visible != bool(self.target):
+            self.bt_clear_target.visible = bool(self.target)
 
     def export_html(self) -> str:
         """The picture for a static export (``geoloc view --export``, which records the 3D scene
