@@ -49,6 +49,7 @@ import re
 import sys
 import threading
 import traceback
+import weakref
 
 import numpy as np
 
@@ -199,27 +200,13 @@ class ImageLayer:
         session.on_refresh(lambda _g: self._safe(self.update))
         self.scene.on_click()(self._on_scene_click)
         self._safe(self.update)
-        threading.Thread(target=self._find_timing, daemon=True, name="geoloc-video-timing").start()
+        # the thread holds the layer weakly: a tab closed meanwhile frees its session (the search
+        # itself, shared by every tab, finishes into the cache)
+        threading.Thread(
+            target=_find_timing, args=(weakref.ref(self), session.scn), daemon=True, name="geoloc-video-timing"
+        ).start()
 
     # ------------------------------------------------------------ a video timing fault
-    def _find_timing(self) -> None:
-        """Search the flight for video timing faults, on a thread at low priority (the first view
-        and a step keep the cores), then name the current frame's run in the panel."""
-        import os
-
-        try:
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)  # Linux: this thread only
-        except (AttributeError, OSError):
-            pass
-        try:
-            found = pm.cached_video_timing_faults(self.session.scn)
-        except Exception:
-            traceback.print_exc(file=sys.stderr)
-            found = []
-        if not self.closed:
-            self.timing = found
-            self._safe(self.show_timing)
-
     def timing_fault_of(self, idx):
         """The video timing fault whose run holds record ``idx``, or None."""
         return next((f for f in self.timing or () if f.contains(idx)), None)
@@ -821,6 +808,39 @@ DRAPE_LIFT_M = 40.0
 #: Cells across the draped ortho (its ground sample follows) and mesh nodes per side.
 DRAPE_CELLS = 320
 DRAPE_NODES = 48
+
+
+def _find_timing(layer_ref, scn) -> None:
+    """Search the flight for video timing faults (:func:`geoloc_viz.picture_model.
+    cached_video_timing_faults`) on a thread at low priority (the first view and a step keep the
+    cores), then have the layer, if it is still open, name the current frame's run in its panel."""
+    import os
+
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 10)  # Linux: this thread only
+    except (AttributeError, OSError):
+        pass
+    try:
+        found = pm.cached_video_timing_faults(scn)
+    except Exception:
+        traceback.print_exc(file=sys.stderr)
+        found = []
+    layer = layer_ref()
+    if layer is not None and not layer.closed:
+        layer.timing = found
+        if not _server_stopped(layer.session):  # a panel of a stopped server would never arrive
+            layer._safe(layer.show_timing)
+
+
+def _server_stopped(session) -> bool:
+    """Whether the session's viser server was stopped (viser 1.1 sets its websocket server's
+    ``_stop_event``; private, so anything unexpected counts as running)."""
+    ws = getattr(getattr(session, "server", None), "_websock_server", None)
+    ev = getattr(ws, "_stop_event", None)
+    try:
+        return bool(ev is not None and ev.is_set())
+    except Exception:
+        return False
 
 
 def drape_mesh(scn, inputs, sensor, image, disp):
