@@ -272,8 +272,10 @@ def test_53_flight_debugger_scene():
     out = run("53_flight_debugger_scene.py")
     assert "298 frames" in out and "22 outliers" in out
     # docs/tour_viewer.md "See it in 3D": the fitted faults and the clean frames' median residual, as printed
-    assert "(10 frames): heading bias +2.45 deg" in out and "(5 frames): sensor height off by +30.5 m" in out
-    assert "(7 frames): pose 0.97 frame(s) stale" in out
+    # each run by its frame indices, its packets and its length (the viewer's one numbering)
+    assert "frames 100 .. 109 (packet 100 .. packet 109, 10 frames): heading bias +2.45 deg" in out
+    assert "frames 199 .. 203 (packet 200 .. packet 204, 5 frames): sensor height off by +30.5 m" in out
+    assert "frames 249 .. 255 (packet 250 .. packet 256, 7 frames): pose 0.97 frame(s) stale" in out
     assert "the other 276 frames: median residual 2.4 mm" in out
 
 

@@ -43,10 +43,11 @@ def _frames_on_page(page) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def _picture_on_page(page) -> int | None:
-    """The picture panel's frame (its caption: 'frame K of N: W x H px')."""
-    m = re.search(r"frame (\d+) of \d+: \d+ x \d+ px", page.locator("body").inner_text())
-    return int(m.group(1)) if m else None
+def _picture_on_page(page) -> float | None:
+    """The picture panel's picture time [s on the stream clock] (its caption: 'frame I of 0 .. N
+    (t T s, packet P): picture at T s; W x H px'); the bundled stream has a picture a second."""
+    m = re.search(r"picture at ([0-9.]+) s; \d+ x \d+ px", page.locator("body").inner_text())
+    return float(m.group(1)) if m else None
 
 
 def _shot(page, name):
@@ -137,7 +138,8 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
             seen = []  # the page read once per poll: it may move on between two reads
             wait_for(lambda: seen.append(_picture_on_page(page)) or seen[-1] is not None, 60, "the live picture")
             k1 = seen[-1]
-            wait_for(lambda: (_picture_on_page(page) or 0) >= k1 + 4, 30, "the picture to follow the stream")
+            # 4 pictures on (a picture a second; half a picture of margin)
+            wait_for(lambda: (_picture_on_page(page) or 0) >= k1 + 3.5, 30, "the picture to follow the stream")
 
             # read on the server, where the tab may be between two states: the looped sender's restart
             # rebuilds the session, whose new picture layer shows nothing (k = -1) until its first frame
@@ -208,7 +210,7 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
             # the feed loops the 300-packet file: a slow page may meet the burst's second pass (packets
             # 400-409) too, which then shares the 12-row table with the first (CI saw 100, 400, 102, 402, ...);
             # so the rows are counted, each by its packet within the file: at least 8 of the 12 are the burst
-            rows = [int(p) % 300 for p in re.findall(r"\| packet (\d+) \|", table)]
+            rows = [int(p) % 300 for p in re.findall(r"\| \d+ \(packet (\d+)\) \|", table)]
             assert len(rows) >= 10 and sum(100 <= p < 110 for p in rows) >= 8, table
             m = re.search(r"; (\d+) frames\)", tab.layer.md_accuracy.content)
             assert m and int(m.group(1)) > n_acc, (n_acc, tab.layer.md_accuracy.content)  # the panel grew
