@@ -233,6 +233,14 @@ def test_a_person_picks_a_pixel_and_copies_what_to_send_in_chromium(flight, tmp_
         with chromium(tmp_path) as browser:
             page = open_viewer(browser, server, 1280, 1000)
             page.wait_for_selector("#geoloc-picture", timeout=60000)
+            # zoom 4x, as tests/test_viz_picture.py does: at 1x an image pixel is about 1.4 screen px,
+            # so a click meant for its centre lands on the next row when the layout moves by a pixel
+            pic.sl_zoom.value = 2
+            wait_for(
+                lambda: page.locator("#geoloc-picture").get_attribute("data-w") == str(pic.image.shape[1] // 4),
+                60,
+                "the panel to show the 4x crop",
+            )
             r, c = 70.0, 118.0
             x, y = _panel_pixel_xy(page, r, c)
             page.mouse.click(x, y)
