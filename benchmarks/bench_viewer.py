@@ -37,7 +37,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "tests" / "viz")]  # the browser helpers of tests/viz
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 #: Records, in the page, when the panel first names a frame: ``window.__geolocPanelAt`` [ms, epoch].

@@ -233,7 +233,7 @@ def test_a_person_picks_a_pixel_and_copies_what_to_send_in_chromium(flight, tmp_
         with chromium(tmp_path) as browser:
             page = open_viewer(browser, server, 1280, 1000)
             page.wait_for_selector("#geoloc-picture", timeout=60000)
-            # zoom 4x, as tests/test_viz_picture.py does: at 1x an image pixel is about 1.4 screen px,
+            # zoom 4x, as tests/viz/test_viz_picture.py does: at 1x an image pixel is about 1.4 screen px,
             # so a click meant for its centre lands on the next row when the layout moves by a pixel
             pic.sl_zoom.value = 2
             wait_for(
