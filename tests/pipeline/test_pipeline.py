@@ -579,3 +579,35 @@ def test_command_line_over_a_scenarios_corrections():
     assert off.refraction is None and off.light_time and off.label == "light_time"
     with pytest.raises(ValueError, match="ground_t_k given, but refraction = 'none'"):
         corrections_from_args(args(ground_t_k=300.0), sensor, base=Corrections())
+
+
+def test_refracted_points_on_a_sloping_dem_lie_on_it():
+    """On a DEM the refracted ray is met with the terrain again (a fixed point), not kept at the
+    straight hit's height: on a plane sloping 1 in 3 the points lie on the plane, whose height the
+    test writes (bilinear interpolation of a plane is the plane), within 1 cm, for a batch of rays."""
+    from geoloc.surfaces.dem import DEM
+    from geoloc.surfaces.terrain import DemSurface
+
+    cam = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
+    pose = Pose.from_deg(LAT, LON, H, 0, 0, 0, 0, 60)
+    lat_s, lon_s, _ = lookAtSpheroid(LAT, LON, H, 0.0, 60.0)
+    # the grid reaches 0.05 deg south of the straight hit at h = 0, where the ray (3.2 km) is above the
+    # DEM's highest node (2300 m): a ray must enter the grid from above it (docs/terrain.md, LEFT_DEM)
+    n0, w0, step = lat_s + 0.01, lon_s - 0.03, 0.001
+    y = np.arange(61.0)[:, None]
+    h = np.tile(500.0 + 30.0 * y, (1, 61))  # 30 m a row of ~110 m, rising south, toward the camera
+
+    def plane(lat_deg):
+        return 500.0 + 30.0 * (n0 - lat_deg) / step
+
+    dem = DEM.from_array(h, n0, w0, step, step, datum="ellipsoid")
+    rows, cols = np.array([1162.12, 1000.0]), np.array([1146.42, 1300.0])
+    c = Corrections.for_sensor(cam, "standard")
+    bent = Pipeline(cam, DemSurface(dem, "exact"), c).locate(rows, cols, pose)
+    straight = Pipeline(cam, DemSurface(dem, "exact")).locate(rows, cols, pose)
+    assert np.all(bent.status == Status.OK)
+    assert np.all(np.asarray(bent.refraction_m) > 0.5)  # metres at 60 deg off nadir from 18 km
+    assert np.allclose(bent.h, plane(np.rad2deg(bent.lat)), atol=0.01, rtol=0)
+    assert np.allclose(straight.h, plane(np.rad2deg(straight.lat)), atol=0.01, rtol=0)
+    # refraction moves the point toward nadir, up the slope: its height changed with its latitude
+    assert np.all(np.abs(np.asarray(bent.h) - np.asarray(straight.h)) > 0.05)
