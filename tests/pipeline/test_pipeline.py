@@ -628,3 +628,22 @@ def test_overridden_corrections_change_only_what_is_given():
     assert (off.refraction is STANDARD_REFRACTION, off.light_time, off.aberration) == (True, False, False)
     on = Corrections.for_sensor(cam, None, False, False).overridden(cam, light_time=True)
     assert (on.refraction, on.light_time) == (None, True)
+
+
+def test_the_fused_kernel_serves_only_an_inflated_height_surface(monkeypatch):
+    """Which executor runs: the fused chain-and-ellipsoid kernel for an inflated height surface
+    (asked by name, or a batch of COMPILED_MIN_RAYS), never for another surface or ``numpy``."""
+    from geoloc.pipeline import COMPILED_MIN_RAYS
+    from geoloc.sensors import _fastlocate
+
+    monkeypatch.setattr(_fastlocate, "locate_fast", lambda *a, **k: "fused")
+    cam = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
+    pose = Pose.from_deg(LAT, LON, H, 0, 0, 0, 0, 60)
+    assert _fastlocate.serves(cam)
+    inflated = Pipeline(cam, HeightSurface(250.0, "inflated"))
+    assert inflated._fused(1000.0, 900.0, pose, "numba", "flag") == "fused"
+    assert inflated._fused(1000.0, 900.0, pose, "numpy", "flag") is None
+    assert inflated._fused(1000.0, 900.0, pose, "auto", "flag") is None  # one ray
+    rows = np.full(COMPILED_MIN_RAYS, 1000.0)
+    assert inflated._fused(rows, rows, pose, "auto", "flag") == "fused"
+    assert Pipeline(cam, HeightSurface(250.0, "geodetic"))._fused(1000.0, 900.0, pose, "numba", "flag") is None
