@@ -114,3 +114,23 @@ def test_geoloc_replay_reads_an_srt_as_a_flight(tmp_path, capsys):
     assert "2 SRT record(s)" in cap.out
     rows = list(csv.DictReader(out.open()))
     assert [r["frame"] for r in rows] == ["1", "3"] and rows[1]["gimbal_pitch_deg"] == "-45.0"
+
+
+def test_time_codes_no_fix_lines_and_the_summary_span(tmp_path):
+    """Time codes with hours, minutes and a one-digit millisecond field (SubRip: HH:MM:SS,mmm; "4"
+    is 400 ms), a block at 0, 0 reported on its position's line in either form, the summary's span
+    from the first block's start to the last one's end (worked by hand)."""
+    p = tmp_path / "DJI_0003.SRT"
+    p.write_text(
+        "1\n01:02:03,4 --> 01:02:04,050\n[latitude: 36.52] [longitude: -84.21] [abs_alt: 412.6]\n\n"
+        "2\n01:02:04,050 --> 01:02:05,100\n[iso: 100]\n[latitude: 0.0] [longitude: 0.0]\n\n"
+        "3\n01:02:05,100 --> 01:02:06,150\n[latitude: 36.53] [longitude: -84.22]\n\n"
+        "4\n01:02:06,150 --> 01:02:07,200\nHOME(0,0)\nGPS(0.0,0.0,12.0) BAROMETER:1.0\n\n"
+    )
+    f = read_srt(p)
+    assert [(r.start_s, r.end_s) for r in f.records] == [(3723.4, 3724.05), (3725.1, 3726.15)]
+    assert f.errors == [(8, "latitude, longitude = 0, 0: no GPS fix"), (17, "latitude, longitude = 0, 0: no GPS fix")]
+    assert "DJI_0003.SRT: 2 SRT record(s) (bracketed form), 3723.400-3726.150 s of video" in f.summary()
+    from geoloc.io.dji_srt import SrtFlight
+
+    assert SrtFlight("none.SRT", [], []).summary() == "none.SRT: 0 SRT record(s) (no form)"
