@@ -105,7 +105,7 @@ def _eps(h, mode, h0, step, table, bottoms, values):
     """n - 1 at height h: linear in ``table`` (mode 0) or the value of the layer holding h (mode 1)."""
     if mode == 0:
         x = (h - h0) / step
-        if x <= 0.0:
+        if not x > 0.0:  # NaN too: int(NaN) would index far outside the table
             return table[0]
         k = int(x)
         if k >= table.shape[0] - 1:
@@ -125,7 +125,7 @@ def _deps(h, mode, h0, step, table):
     if mode != 0:
         return 0.0
     x = (h - h0) / step
-    if x <= 0.0:
+    if not x > 0.0:  # NaN too
         return 0.0
     k = int(x)
     if k >= table.shape[0] - 1:

@@ -487,3 +487,16 @@ def test_locate_passes_on_the_surface_status():
     hit, raw, st = locate(STANDARD_REFRACTION, np.stack([o, o]), np.stack([d, sky]), 0.0)
     assert st[0] == Status.OK and st[1] == Status.SKY
     assert np.isnan(hit[1]).all() and np.isfinite(hit[0]).all()
+
+
+def test_the_profile_at_a_nan_height_stays_inside_its_table():
+    """A NaN height (a ray of NaN) reads the table's first value, never an index int(NaN) far outside
+    it (the limb kernel read there for an INVALID_INPUT ray: found with NUMBA_BOUNDSCHECK=1)."""
+    from geoloc.corrections.refraction import _deps, _eps
+
+    table, none = np.array([3e-4, 2e-4, 1e-4]), np.zeros(1)
+    assert _eps(np.nan, 0, 0.0, 1000.0, table, none, none) == 3e-4
+    assert _deps(np.nan, 0, 0.0, 1000.0, table) == 0.0
+    # and inside the table, linear between the nodes: 1500 m is halfway from 2e-4 to 1e-4
+    assert _eps(1500.0, 0, 0.0, 1000.0, table, none, none) == pytest.approx(1.5e-4, rel=1e-12)
+    assert _deps(1500.0, 0, 0.0, 1000.0, table) == pytest.approx(-1e-7, rel=1e-12)

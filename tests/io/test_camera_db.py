@@ -92,6 +92,10 @@ def test_the_first_matching_entry_of_a_given_database_wins():
     c = CameraEntry("M", "X", 300, 300, 3.0, 3.0, 4.0, 0.0, 0.01, "c")
     assert find_camera("M", "X1", 400, 300, db=(a, b)) is a
     assert find_camera("M", "X1", 300, 300, db=(a, b, c)) is c
+    # an EXIF without a Model (or a Make) matches nothing, even an entry whose own is empty
+    blank = CameraEntry("M", "", 400, 300, 4.0, 3.0, 4.0, 0.0, 0.01, "d")
+    assert find_camera("M", "", 400, 300, db=(blank,)) is None
+    assert find_camera("", "X", 400, 300, db=(CameraEntry("", "X", 400, 300, 4.0, 3.0, 4.0, 0.0, 0.01, "e"),)) is None
 
 
 def _write_db(tmp_path, body, name="cams.csv"):

@@ -126,11 +126,12 @@ def test_time_codes_no_fix_lines_and_the_summary_span(tmp_path):
         "2\n01:02:04,050 --> 01:02:05,100\n[iso: 100]\n[latitude: 0.0] [longitude: 0.0]\n\n"
         "3\n01:02:05,100 --> 01:02:06,150\n[latitude: 36.53] [longitude: -84.22]\n\n"
         "4\n01:02:06,150 --> 01:02:07,200\nHOME(0,0)\nGPS(0.0,0.0,12.0) BAROMETER:1.0\n\n"
+        "5\n01:02:07,200 --> 01:02:08,250\n[latitude: 36.54] [longitude: -84.23]\n\n"
     )
     f = read_srt(p)
-    assert [(r.start_s, r.end_s) for r in f.records] == [(3723.4, 3724.05), (3725.1, 3726.15)]
+    assert [(r.start_s, r.end_s) for r in f.records] == [(3723.4, 3724.05), (3725.1, 3726.15), (3727.2, 3728.25)]
     assert f.errors == [(8, "latitude, longitude = 0, 0: no GPS fix"), (17, "latitude, longitude = 0, 0: no GPS fix")]
-    assert "DJI_0003.SRT: 2 SRT record(s) (bracketed form), 3723.400-3726.150 s of video" in f.summary()
+    assert "DJI_0003.SRT: 3 SRT record(s) (bracketed form), 3723.400-3728.250 s of video" in f.summary()
     from geoloc.io.dji_srt import SrtFlight
 
     assert SrtFlight("none.SRT", [], []).summary() == "none.SRT: 0 SRT record(s) (no form)"
