@@ -312,3 +312,16 @@ def test_report_audits_a_replay_csv(flight, tmp_path, capsys):
     (f,) = audit["findings"]
     assert f["kind"] == "msl_read_as_ellipsoidal"
     assert abs(f["offset"] - np.median(-flight["n"])) <= f["uncertainty"], f
+
+
+def test_the_height_signatures_and_their_texts_by_hand():
+    """Each platform-height fault's expected shift and its text, for N = -31.2 m and a take-off
+    terrain of 250.4 m: MSL read as ellipsoidal moves the heights by -N, the geoid's wrong sign by -2N."""
+    from geoloc.analysis.height_audit import _height_signatures
+
+    assert _height_signatures(-31.2, 250.4) == [
+        ("msl_read_as_ellipsoidal", 31.2, "-N = +31.2 m"),
+        ("ellipsoidal_read_as_msl", -31.2, "+N = -31.2 m"),
+        ("geoid_wrong_sign", 62.4, "-2N = +62.4 m"),
+        ("relative_height_read_as_absolute", -250.4, "-take-off terrain = -250.4 m"),
+    ]

@@ -677,3 +677,21 @@ def test_a_library_writer_into_a_fifo_does_not_replace_it(tmp_path, capsys):
     reader.join(timeout=120)
     assert fifo.is_fifo() and got and got[0].startswith(b"SQLite format 3\x00")  # a GeoPackage is SQLite
     assert sorted(x.name for x in tmp_path.iterdir()) == ["layers.gpkg", "r.csv"]
+
+
+def test_a_live_journal_grows_beside_its_path_and_never_over_an_older_one(tmp_path):
+    """``STEM.partial.SUFFIX``, or ``STEM.partial-2.SUFFIX`` when an earlier session's is there (the
+    names docs/cli.md gives), renamed onto the path at the end; the older journal is kept."""
+    from geoloc.userfiles import growing_path
+
+    out = tmp_path / "live.csv"
+    with growing_path(out) as part:
+        assert part == tmp_path / "live.partial.csv"
+        part.write_text("a\n1\n")
+    assert out.read_text() == "a\n1\n" and not part.exists()
+    (tmp_path / "live.partial.csv").write_text("an earlier session\n")
+    with growing_path(out) as part:
+        assert part == tmp_path / "live.partial-2.csv"
+        part.write_text("a\n2\n")
+    assert out.read_text() == "a\n2\n"
+    assert (tmp_path / "live.partial.csv").read_text() == "an earlier session\n"
