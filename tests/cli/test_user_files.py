@@ -695,3 +695,22 @@ def test_a_live_journal_grows_beside_its_path_and_never_over_an_older_one(tmp_pa
         part.write_text("a\n2\n")
     assert out.read_text() == "a\n2\n"
     assert (tmp_path / "live.partial.csv").read_text() == "an earlier session\n"
+
+
+def test_a_vague_library_error_on_a_full_disk_is_named_as_the_disk_full(tmp_path, monkeypatch):
+    """An OSError that says nothing (errno None or EIO) in a folder whose filesystem is full becomes
+    ENOSPC naming the output; the same error elsewhere stays what it was (the filesystem's state
+    is stood in for by monkeypatching ``_fault_of``: no test fills a disk)."""
+    import errno
+
+    from geoloc import userfiles
+
+    out = tmp_path / "out.gpkg"
+    monkeypatch.setattr(userfiles, "_fault_of", lambda folder: errno.ENOSPC if folder == tmp_path else None)
+    with pytest.raises(OSError) as e, userfiles.atomic_path(out):
+        raise OSError("Failed to commit transaction")
+    assert e.value.errno == errno.ENOSPC and e.value.filename == str(out)
+    monkeypatch.setattr(userfiles, "_fault_of", lambda folder: None)
+    with pytest.raises(OSError) as e, userfiles.atomic_path(out):
+        raise OSError("Failed to commit transaction")
+    assert e.value.errno is None and str(e.value) == "Failed to commit transaction"
