@@ -325,3 +325,32 @@ def test_the_height_signatures_and_their_texts_by_hand():
         ("geoid_wrong_sign", 62.4, "-2N = +62.4 m"),
         ("relative_height_read_as_absolute", -250.4, "-take-off terrain = -250.4 m"),
     ]
+
+
+def test_the_audit_heading_with_no_figures_measured():
+    """A flight where nothing could be compared (no check measured): the heading counts 0 records
+    and names no finding."""
+    from geoloc.analysis.height_audit import HeightAudit
+
+    (line,) = HeightAudit("f.csv", [], {}).lines()
+    assert "over 0 records" in line and line.endswith(": no convention fault found")
+    assert line.startswith("height audit (f.csv): platform ")
+
+
+def test_a_records_files_surveyed_heights_in_msl_are_named(flight, tmp_path):
+    """Through ``audit_records``: the records' own ``truth_h_m`` column is read as the reported
+    centres' heights, so heights written as MSL (h - N, N from outside geoloc) are named."""
+    n_fc = reference_undulation(flight["lat"], flight["lon"])
+    rec = flight["records"]
+    header = [c for c in rec.header if not c.startswith("truth_")] + ["truth_lat_deg", "truth_lon_deg", "truth_h_m"]
+    out = tmp_path / "records.csv"
+    with out.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, header, extrasaction="ignore")
+        w.writeheader()
+        for k, row in enumerate(rec.rows):
+            row = dict(row, truth_lat_deg=repr(float(flight["lat"][k])), truth_lon_deg=repr(float(flight["lon"][k])))
+            w.writerow(dict(row, truth_h_m=repr(float(flight["h"][k] - n_fc[k]))))
+    records = load_records(out, angles=flight["sensor"].angle_names)
+    f = _one(audit_records(records, flight["sensor"], flight["surface"]), "msl_read_as_ellipsoidal")
+    assert f.subject == "frame-centre height"
+    assert abs(f.offset - np.median(-n_fc)) <= f.uncertainty, f.line()
