@@ -500,3 +500,20 @@ def test_the_profile_at_a_nan_height_stays_inside_its_table():
     # and inside the table, linear between the nodes: 1500 m is halfway from 2e-4 to 1e-4
     assert _eps(1500.0, 0, 0.0, 1000.0, table, none, none) == pytest.approx(1.5e-4, rel=1e-12)
     assert _deps(1500.0, 0, 0.0, 1000.0, table) == pytest.approx(-1e-7, rel=1e-12)
+
+
+def test_the_corrected_range_is_the_distance_to_the_bent_point():
+    """``range_m``: the distance from the origin to the bent point, computed here with numpy, for rays
+    whose shift has every ECEF component (a batch off nadir in several azimuths)."""
+    o = geodetic_to_ecef(np.deg2rad(35.5), np.deg2rad(81.0), 18000.0)
+    R = R_ecef_ned(np.deg2rad(35.5), np.deg2rad(81.0))
+    az = np.deg2rad([10.0, 130.0, 250.0])
+    off = np.deg2rad(60.0)
+    d_ned = np.stack([np.cos(az) * np.sin(off), np.sin(az) * np.sin(off), np.full(3, np.cos(off))], axis=-1)
+    d = np.einsum("ij,nj->ni", R, d_ned)
+    hit = HeightSurface(0.0, "geodetic").intersect(LineOfSight(np.broadcast_to(o, (3, 3)), d, np.zeros(3, np.uint8)))
+    bent = STANDARD_REFRACTION.correct(np.broadcast_to(o, (3, 3)), d, np.asarray(hit.ecef))
+    assert np.all(bent.status == Status.OK)
+    want = np.sqrt(np.sum((np.asarray(bent.hit_ecef) - o) ** 2, axis=-1))
+    assert np.allclose(bent.range_m, want, rtol=1e-12, atol=0)
+    assert np.all(np.asarray(bent.shift_m) > 1.0)  # metres at 60 deg off nadir from 18 km
