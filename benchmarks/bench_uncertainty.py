@@ -54,32 +54,32 @@ TURRET = FrameSensor(
     lever_arm_m=(1.5, 0.2, 0.7),
     name="turret",
 )
-BUDGET = ErrorBudget(
-    {
-        "north_m": 2.0,
-        "east_m": 2.0,
-        "up_m": 3.0,
-        "heading_deg": 0.03,
-        "pitch_deg": 0.02,
-        "roll_deg": 0.02,
-        "azimuth_deg": 0.01,
-        "elevation_deg": 0.01,
-        "mount_x_deg": 0.01,
-        "mount_y_deg": 0.01,
-        "mount_z_deg": 0.01,
-        "boresight_x_deg": 0.01,
-        "boresight_y_deg": 0.01,
-        "boresight_z_deg": 0.01,
-        "lever_arm_x_m": 0.05,
-        "fx_px": 2.0,
-        "cx_px": 0.5,
-        "cy_px": 0.5,
-        "k1": 0.001,
-        "time_s": 0.005,
-        "height_m": 10.0,
-        "dem_m": 9.73,
-    }
-)
+#: The turret's 1-sigma budget (the guard builds its uncertainty kernel from the same table).
+BUDGET_TABLE = {
+    "north_m": 2.0,
+    "east_m": 2.0,
+    "up_m": 3.0,
+    "heading_deg": 0.03,
+    "pitch_deg": 0.02,
+    "roll_deg": 0.02,
+    "azimuth_deg": 0.01,
+    "elevation_deg": 0.01,
+    "mount_x_deg": 0.01,
+    "mount_y_deg": 0.01,
+    "mount_z_deg": 0.01,
+    "boresight_x_deg": 0.01,
+    "boresight_y_deg": 0.01,
+    "boresight_z_deg": 0.01,
+    "lever_arm_x_m": 0.05,
+    "fx_px": 2.0,
+    "cx_px": 0.5,
+    "cy_px": 0.5,
+    "k1": 0.001,
+    "time_s": 0.005,
+    "height_m": 10.0,
+    "dem_m": 9.73,
+}
+BUDGET = ErrorBudget(BUDGET_TABLE)
 
 
 def main() -> None:

@@ -182,39 +182,15 @@ def cases(pkg: str, mode: str) -> dict:
     n = sz["uncertainty"]
     pose, row, col, rng = poses(n, 1)
     vel = np.stack([rng.uniform(-60, 60, n), rng.uniform(-60, 60, n), np.zeros(n)], -1)
-    budget = M("sensors.budget").ErrorBudget(BUDGET)
+    from bench_uncertainty import BUDGET_TABLE  # the turret budget bench_uncertainty.py measures
+
+    budget = M("sensors.budget").ErrorBudget(BUDGET_TABLE)
     s, hs = turret(), M("surfaces.height").HeightSurface(500.0)
     propagate = M("analysis.uncertainty").propagate
     out["uncertainty"] = Case(
         lambda: propagate(s, pose, row, col, budget, surface=hs, velocity_ned_m_s=vel), n, "points", lambda u: u.ce90_m
     )
     return out
-
-
-BUDGET = {
-    "north_m": 2.0,
-    "east_m": 2.0,
-    "up_m": 3.0,
-    "heading_deg": 0.03,
-    "pitch_deg": 0.02,
-    "roll_deg": 0.02,
-    "azimuth_deg": 0.01,
-    "elevation_deg": 0.01,
-    "mount_x_deg": 0.01,
-    "mount_y_deg": 0.01,
-    "mount_z_deg": 0.01,
-    "boresight_x_deg": 0.01,
-    "boresight_y_deg": 0.01,
-    "boresight_z_deg": 0.01,
-    "lever_arm_x_m": 0.05,
-    "fx_px": 2.0,
-    "cx_px": 0.5,
-    "cy_px": 0.5,
-    "k1": 0.001,
-    "time_s": 0.005,
-    "height_m": 10.0,
-    "dem_m": 9.73,
-}
 
 
 def _rays(n):
