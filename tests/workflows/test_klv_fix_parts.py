@@ -115,4 +115,13 @@ def test_the_summary_counts():
     assert "in.klv: 30 packets read, 5 rewritten, 25 left unchanged, 0 bad packet(s) copied" in text
     assert "items rewritten: tag 45: 3, tag 46: 2" in text
     assert "[uncertainty] budget of cam.toml (3 / 2 packets; tag 45 added to 1 packet(s) that had none)" in text
-    assert text.count("unchanged: no_intersection: x") == 20 and "... 5 more unchanged" in text
+    # one line per reason, not per packet
+    assert text.count("unchanged: no_intersection: x") == 1
+    assert "  packets 0-24 (25): unchanged: no_intersection: x" in text
+    # 25 reasons: the first 20 a line each, the other five counted
+    many = KlvFix("in.klv", "out.klv", packets=25, unchanged=[(k, f"reason {k}") for k in range(25)])
+    lines = str(many).splitlines()
+    assert [ln for ln in lines if ": unchanged: reason " in ln] == [
+        f"  packet {k}: unchanged: reason {k}" for k in range(20)
+    ]
+    assert "  ... 5 more unchanged, for 5 other reasons" in lines
