@@ -41,6 +41,7 @@ Conventions: ``docs/conventions.md`` (1-based pixel centres); user guide: ``docs
 
 from __future__ import annotations
 
+import atexit
 import base64
 import html
 import io
@@ -202,9 +203,11 @@ class ImageLayer:
         self._safe(self.update)
         # the thread holds the layer weakly: a tab closed meanwhile frees its session (the search
         # itself, shared by every tab, finishes into the cache)
-        threading.Thread(
+        t = threading.Thread(
             target=_find_timing, args=(weakref.ref(self), session.scn), daemon=True, name="geoloc-video-timing"
-        ).start()
+        )
+        _TIMING_THREADS.add(t)
+        t.start()
 
     # ------------------------------------------------------------ a video timing fault
     def timing_fault_of(self, idx):
@@ -810,6 +813,20 @@ DRAPE_CELLS = 320
 DRAPE_NODES = 48
 
 
+#: The timing searches running, and the word that stops them when the interpreter exits: a
+#: daemon thread left inside the video decoder's native code as the process ends aborts it
+#: ("terminate called without an active exception", SIGABRT: `geoloc view --export` did).
+_TIMING_THREADS: weakref.WeakSet = weakref.WeakSet()
+_TIMING_STOP = threading.Event()
+
+
+@atexit.register
+def _stop_timing_searches() -> None:
+    _TIMING_STOP.set()
+    for t in list(_TIMING_THREADS):
+        t.join(timeout=60.0)  # a chunk of pictures at most (picture_model.MARKS_CHUNK)
+
+
 def _find_timing(layer_ref, scn) -> None:
     """Search the flight for video timing faults (:func:`geoloc_viz.picture_model.
     cached_video_timing_faults`) on a thread at low priority (the first view and a step keep the
@@ -821,7 +838,7 @@ def _find_timing(layer_ref, scn) -> None:
     except (AttributeError, OSError):
         pass
     try:
-        found = pm.cached_video_timing_faults(scn)
+        found = pm.cached_video_timing_faults(scn, should_stop=_TIMING_STOP.is_set)
     except Exception:
         traceback.print_exc(file=sys.stderr)
         found = []

@@ -554,10 +554,15 @@ class VideoTimingFault:
         )
 
 
-def frame_mark_disagreement(scn, predictor, frames) -> np.ndarray:
+#: Pictures decoded between two looks at ``should_stop`` (a stop waits for at most this many).
+MARKS_CHUNK = 25
+
+
+def frame_mark_disagreement(scn, predictor, frames, *, should_stop=lambda: False) -> np.ndarray:
     """Median distance [px] from each target's projection at the record's own time (the metadata's
     word) to the nearest painted mark found in the record's picture, per record index in ``frames``;
-    NaN where no mark lies within 40 px or the record has no picture."""
+    NaN where no mark lies within 40 px or the record has no picture. ``should_stop`` is asked
+    between chunks of :data:`MARKS_CHUNK` pictures; when it says so, the rest stays NaN."""
     from geoloc.workflows.video_sync import frame_marks, mark_offsets
 
     frames = np.asarray(list(frames), int)
@@ -566,7 +571,11 @@ def frame_mark_disagreement(scn, predictor, frames) -> np.ndarray:
     has = ks >= 0
     if not has.any():
         return out
-    marks = frame_marks(images_of(scn), ks[has])
+    images, marks = images_of(scn), []
+    for a in range(0, int(has.sum()), MARKS_CHUNK):
+        if should_stop():
+            return out
+        marks += list(frame_marks(images, ks[has][a : a + MARKS_CHUNK]))
     pred = predictor(np.asarray(scn.record_times_s, float)[frames[has]])
     med = []
     for m, p in zip(marks, pred):
@@ -600,7 +609,9 @@ def video_timing_faults(scn, exclude=None, *, should_stop=lambda: False) -> list
     replay = replay_klv(path)
     pred = klv_predictor(replay, pts, images.rows, images.cols)
     n = len(scn.records)
-    d = frame_mark_disagreement(scn, pred, range(n))
+    d = frame_mark_disagreement(scn, pred, range(n), should_stop=should_stop)
+    if should_stop():
+        return []
     bad = np.nan_to_num(d, nan=0.0) > MARKS_DISAGREE_PX
     if exclude is not None:
         bad &= ~np.asarray(exclude, bool)[:n]
@@ -621,15 +632,18 @@ _TIMING_CACHE: dict = {}
 _TIMING_LOCK = threading.Lock()
 
 
-def cached_video_timing_faults(scn, exclude=None) -> list:
+def cached_video_timing_faults(scn, exclude=None, *, should_stop=lambda: False) -> list:
     """:func:`video_timing_faults` once per stream and records (every tab of a viewer shares the
-    scenario's records): the first caller computes, the others wait for its answer."""
+    scenario's records): the first caller computes, the others wait for its answer. A search
+    stopped by ``should_stop`` answers [] and is not kept."""
     key = (str(getattr(scn, "video_path", None)), id(scn.records), len(scn.records))
     with _TIMING_LOCK:
         hit = _TIMING_CACHE.get(key)
         if hit is not None and hit[0] is scn.records:
             return hit[1]
-        out = video_timing_faults(scn, exclude)
+        out = video_timing_faults(scn, exclude, should_stop=should_stop)
+        if should_stop():
+            return []
         if len(_TIMING_CACHE) > 4:
             _TIMING_CACHE.clear()
         _TIMING_CACHE[key] = (scn.records, out)
