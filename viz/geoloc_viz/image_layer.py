@@ -827,6 +827,16 @@ def _stop_timing_searches() -> None:
         t.join(timeout=60.0)  # a chunk of pictures at most (picture_model.MARKS_CHUNK)
 
 
+def _search_over(layer_ref) -> bool:
+    """Whether the timing search should stop: the interpreter is ending, or no one will see the
+    answer (the layer is gone or closed, its server stopped). A search left running after its
+    viewer closed kept decoding pictures in the background of whatever ran next."""
+    if _TIMING_STOP.is_set():
+        return True
+    layer = layer_ref()
+    return layer is None or layer.closed or _server_stopped(layer.session)
+
+
 def _find_timing(layer_ref, scn) -> None:
     """Search the flight for video timing faults (:func:`geoloc_viz.picture_model.
     cached_video_timing_faults`) on a thread at low priority (the first view and a step keep the
@@ -838,7 +848,7 @@ def _find_timing(layer_ref, scn) -> None:
     except (AttributeError, OSError):
         pass
     try:
-        found = pm.cached_video_timing_faults(scn, should_stop=_TIMING_STOP.is_set)
+        found = pm.cached_video_timing_faults(scn, should_stop=lambda: _search_over(layer_ref))
     except Exception:
         traceback.print_exc(file=sys.stderr)
         found = []
