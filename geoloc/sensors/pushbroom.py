@@ -47,6 +47,7 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
+import numpy.typing as npt
 from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from geoloc.frames import rotations as rot
@@ -359,8 +360,33 @@ class LookAngles:
 
 
 # --------------------------------------------------------------------- sensor
+class LineDating:
+    """Line dating and the image's extent of a pushbroom (``t0_s``, ``line_period_s``, ``rows``,
+    ``cols``), shared by :class:`PushbroomSensor` and the inertial one."""
+
+    t0_s: float
+    line_period_s: float
+    rows: int
+
+    @property
+    def cols(self) -> int:
+        raise NotImplementedError
+
+    def line_time(self, row: npt.ArrayLike) -> np.ndarray:
+        """Imaging time of (fractional, 1-based) line ``row``: t0 + (row - 1) * line_period."""
+        return self.t0_s + (np.asarray(row, float) - 1.0) * self.line_period_s
+
+    def row_of_time(self, t: npt.ArrayLike) -> np.ndarray:
+        """Inverse of :meth:`line_time`."""
+        return 1.0 + (np.asarray(t, float) - self.t0_s) / self.line_period_s
+
+    def in_image(self, row: npt.ArrayLike, col: npt.ArrayLike) -> np.ndarray:
+        row, col = np.asarray(row, float), np.asarray(col, float)
+        return (row >= 0.5) & (row <= self.rows + 0.5) & (col >= 0.5) & (col <= self.cols + 0.5)
+
+
 @dataclass(frozen=True)
-class PushbroomSensor:
+class PushbroomSensor(LineDating):
     """Rigorous line-scanner model [L12 eq. 1-2] (see the module docstring).
 
     A spaceborne sensor (:attr:`spaceborne`): light-time and aberration of light are on by
@@ -426,18 +452,6 @@ class PushbroomSensor:
     def cols(self) -> int:
         """Number of detectors (image columns)."""
         return self.look.n
-
-    def line_time(self, row):
-        """Imaging time of (fractional, 1-based) line ``row``: t0 + (row - 1) * line_period."""
-        return self.t0_s + (np.asarray(row, float) - 1.0) * self.line_period_s
-
-    def row_of_time(self, t):
-        """Inverse of :meth:`line_time`."""
-        return 1.0 + (np.asarray(t, float) - self.t0_s) / self.line_period_s
-
-    def in_image(self, row, col):
-        row, col = np.asarray(row, float), np.asarray(col, float)
-        return (row >= 0.5) & (row <= self.rows + 0.5) & (col >= 0.5) & (col <= self.cols + 0.5)
 
     def exterior(self, t):
         """Perspective centre and camera -> ECEF rotation at times ``t`` [L12 eq. 1].

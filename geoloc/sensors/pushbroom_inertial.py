@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from geoloc.frames import rotations as rot
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.sensors.base import PixelHit, check_outside, check_param_names, flag_outside
-from geoloc.sensors.pushbroom import LookAngles, Orbit
+from geoloc.sensors.pushbroom import LineDating, LookAngles, Orbit
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 
@@ -56,7 +56,7 @@ def R_small(angles, axes=("X", "Y", "Z")):
 
 
 @dataclass(frozen=True)
-class InertialPushbroomSensor:
+class InertialPushbroomSensor(LineDating):
     """A line scanner with inertial attitude (see the module docstring).
 
     Attributes
@@ -145,16 +145,6 @@ class InertialPushbroomSensor:
     def frames(self, state=None):
         """The frames change line by line; the viewers draw it from its lines of sight (None)."""
         return None
-
-    def line_time(self, row):
-        return self.t0_s + (np.asarray(row, float) - 1.0) * self.line_period_s
-
-    def row_of_time(self, t):
-        return 1.0 + (np.asarray(t, float) - self.t0_s) / self.line_period_s
-
-    def in_image(self, row, col):
-        row, col = np.asarray(row, float), np.asarray(col, float)
-        return (row >= 0.5) & (row <= self.rows + 0.5) & (col >= 0.5) & (col <= self.cols + 0.5)
 
     # ------------------------------------------------------------ geometry at a time
     def _R_in_body(self, t):
