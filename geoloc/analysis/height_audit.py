@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from geoloc.analysis.accuracy import MAD_SCALE
-from geoloc.geodesy.geodesic import horizontal_distance_m
+from geoloc.geodesy.geodesic import forward_azimuth_deg, horizontal_distance_m
 from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.geodesy.local import geodetic_to_enu
 from geoloc.status import Status
@@ -56,6 +56,7 @@ __all__ = [
     "audit_records",
     "audit_klv_columns",
     "median_uncertainty",
+    "azimuth_convention_finding",
     "FAULTS",
 ]
 
@@ -71,6 +72,8 @@ FAULTS = {
     "time_offset": "the reported centres belong to other records: a constant time offset",
     "boresight_bias": "a constant angular offset between the reported and the recomputed centres",
     "height_offset": "a constant height offset that no datum convention explains",
+    "azimuth_from_north": "the reported centres lie at the bearing of the sensor's relative azimuth (MISB tag 18) "
+    "from true north: the platform heading (tag 5) left out",
 }
 
 #: A median misfit (reported vs recomputed centre) below this [m] is a clean flight: the
@@ -146,6 +149,11 @@ class Finding:
         signature's correction (NaN for the height checks that do not recompute).
     fix : str
         The option or change that removes it.
+    detail : str
+        What else the estimate rests on.
+    frames : tuple of int
+        The records (indices into the flight audited) that show the signature: those the estimate
+        rests on; empty when not said.
     """
 
     kind: str
@@ -160,10 +168,11 @@ class Finding:
     misfit_after_m: float = math.nan
     fix: str = ""
     detail: str = ""
+    frames: tuple = ()
 
     def line(self) -> str:
         """One line: what, how big and how sure, what the signature says, the fix."""
-        spec = ".2f" if self.unit == "mrad" else ".1f"
+        spec = ".2f" if self.unit in ("mrad", "deg") else ".1f"
         sure = f" +/- {format(self.uncertainty, spec)}" if math.isfinite(self.uncertainty) else ""
         text = (
             f"{self.subject}: {FAULTS[self.kind]}; estimated {format(self.offset, '+' + spec)}{sure} "
@@ -181,6 +190,7 @@ class Finding:
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
+        d["frames"] = [int(k) for k in self.frames]
         d["meaning"] = FAULTS[self.kind]
         d["text"] = self.line()
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
@@ -210,6 +220,14 @@ class HeightAudit:
     def lines(self) -> list:
         """The audit as the replay prints it: a heading and one line per finding."""
         c = self.checks
+        if c.get("no_dem"):
+            head = (
+                f"height audit ({self.source}): no DEM, so no height checked; the bearing check only "
+                f"(each packet's rays on its own frame-centre height, ellipsoidal), {c.get('records', 0)} records"
+            )
+            if not self.findings:
+                return [head + ": no convention fault found"]
+            return [head + f": {len(self.findings)} finding(s)"] + [f"  {f.line()}" for f in self.findings]
         head = (
             f"height audit ({self.source}): platform {_f(c.get('platform_agl_median_m'))} m above the "
             f"terrain (median), reported centres {_f(c.get('fc_minus_dem_median_m'), '+.1f')} m from the DEM, "
@@ -559,6 +577,19 @@ def audit_flight(
     if len(flat) == 2:
         findings.remove(flat[0])
         findings[findings.index(flat[1])] = dataclasses.replace(flat[1], detail=f"{flat[1].detail}; {flat[0].detail}")
+    # the records each estimate rests on (the viewer lists them as frames)
+    drow_c, dcol_c = columns.get("reported_drow_px"), columns.get("reported_dcol_px")
+    rests_on = {
+        "platform height": np.isfinite(dh) if np.isfinite(dh).any() else np.isfinite(agl),
+        "frame-centre height": np.isfinite(fc_dem),
+        "frame centres": np.isfinite(h_over),
+        "pointing": np.isfinite(drow_c) & np.isfinite(dcol_c) if drow_c is not None else np.isfinite(misfit),
+        "time": np.isfinite(misfit),
+    }
+    findings = [
+        f if f.frames else dataclasses.replace(f, frames=tuple(int(k) for k in np.flatnonzero(rests_on[f.subject])))
+        for f in findings
+    ]
     return HeightAudit(source, findings, checks, columns)
 
 
@@ -743,16 +774,114 @@ KLV_FIXES = {
     "frame_centre_msl_read_as_ellipsoidal": "the encoder writes MSL into tag 78 (HAE): fix the encoder",
     "time_offset": "the frame centres lag or lead the pose: fix the encoder's timing",
     "boresight_bias": "the encoder's boresight differs from the sensor file's: calibrate (geoloc calibrate)",
+    "azimuth_from_north": "the encoder leaves the platform heading out of its frame centres (tags 23-24): "
+    "geoloc klv fix IN --out OUT rewrites them from heading + tag 18, as MISB ST 0601 has it (or, if tag 18 "
+    "itself is a true azimuth, fix the encoder to write it relative to the heading)",
 }
+
+
+#: A reported centre nearer than this [m] to the point below the sensor says little about its
+#: bearing (5 mm of position rounding is 0.006 deg at 50 m; the platform's pitch and roll turn a
+#: near-nadir ray's bearing by tens of degrees): left out of the bearing check.
+MIN_BEARING_RANGE_M = 50.0
+#: The bearing check's per-record residuals are rounded at about this [deg]: tags 23-24's
+#: 4e-8 / 8e-8 deg steps at 200 m or more from the sensor give under 0.01 deg of bearing, tag 18's
+#: step is 8.4e-8 deg. The floor of its stated uncertainty.
+BEARING_ROUNDING_DEG = 0.01
+#: The two conventions are told apart only when they point this far apart [deg]: the heading is
+#: this far from north (under it, a boresight or heading bias of a degree or two explains as much).
+BEARING_FLOOR_DEG = 5.0
+#: The tag-18-from-north signature matches when the bearings to the reported centres are within
+#: this [deg] of tag 18 alone (in the median): an encoder that leaves the heading out but keeps the
+#: platform's pitch and roll turns its bearings by up to about pitch x tan(depression), degrees.
+BEARING_MATCH_DEG = 2.0
+
+
+def _wrap_deg(a):
+    return (np.asarray(a, float) + 180.0) % 360.0 - 180.0
+
+
+def azimuth_convention_finding(columns: dict, fix: str | None = None) -> Finding | None:
+    """The relative azimuth measured from north: the reported centres (tags 23-24) lie at the bearing
+    of tag 18 (Sensor Relative Azimuth) from true north, not of heading + tag 18 as MISB ST 0601
+    (tag 18: "relative to the platform's longitudinal axis") has it.
+
+    Per record: the geodesic bearing from the sensor to the reported centre, ``b_rep``, against the
+    bearing to the centre recomputed by the standard (the replay's ``lat_deg``, ``lon_deg``), ``b_std``,
+    and against tag 18 alone. The finding is named when the bearings follow tag 18 alone (median
+    residual within :data:`BEARING_MATCH_DEG`, and :data:`MODEL_GAIN` times smaller than the standard's)
+    while the standard's points :data:`BEARING_FLOOR_DEG` or more away. Its offset is the median turn
+    ``b_rep - b_std`` [deg]; the signature's size is ``tag 18 - b_std`` (about minus the heading);
+    the uncertainty is the spread of ``b_rep - tag 18`` (:func:`median_uncertainty`'s rule, floored at
+    :data:`BEARING_ROUNDING_DEG`). Needs no terrain: bearings hardly change with the surface the rays
+    end on (the replay's without a DEM: each packet's own frame-centre height, on the ellipsoid).
+
+    Parameters
+    ----------
+    columns : dict
+        :attr:`geoloc.workflows.klv_replay.KlvReplay.columns`.
+    fix : str, optional
+        The fix to print (default :data:`KLV_FIXES`'s).
+
+    Returns
+    -------
+    Finding or None
+        ``frames`` are the rows (indices into ``columns``) whose bearing follows tag 18 alone.
+    """
+    c = columns
+    f = lambda k: np.asarray(c[k], float)  # noqa: E731
+    lat_s, lon_s = f("sensor_lat_deg"), f("sensor_lon_deg")
+    rlat, rlon = f("reported_lat_deg"), f("reported_lon_deg")
+    b_rep = forward_azimuth_deg(lat_s, lon_s, rlat, rlon)
+    b_std = forward_azimuth_deg(lat_s, lon_s, f("lat_deg"), f("lon_deg"))
+    far = horizontal_distance_m(lat_s, lon_s, rlat, rlon) >= MIN_BEARING_RANGE_M
+    d_std = np.where(far, _wrap_deg(b_rep - b_std), np.nan)
+    d_north = np.where(far, _wrap_deg(b_rep - f("sensor_relative_azimuth_deg")), np.nan)
+    use = np.isfinite(d_std) & np.isfinite(d_north)
+    if use.sum() < 3:
+        return None
+    m_north = float(np.median(np.abs(d_north[use])))
+    m_std = float(np.median(np.abs(d_std[use])))
+    if not (m_std >= BEARING_FLOOR_DEG and m_north <= BEARING_MATCH_DEG and m_north * MODEL_GAIN <= m_std):
+        return None
+    frames = np.flatnonzero(use & (np.abs(np.nan_to_num(d_north, nan=np.inf)) <= BEARING_MATCH_DEG))
+    turn = _wrap_deg(np.median(d_std[frames]))
+    expected = _wrap_deg(np.median(_wrap_deg(d_std[frames] - d_north[frames])))
+    u = max(3.0 * MEDIAN_SE * MAD_SCALE * _mad(d_north[frames]) / math.sqrt(frames.size), BEARING_ROUNDING_DEG)
+    heading = _median(f("platform_heading_deg")[frames])
+    return Finding(
+        "azimuth_from_north",
+        "frame centres",
+        float(turn),
+        float(u),
+        "deg",
+        float(expected),
+        f"tag 18 - (heading + tag 18) = about -heading = {expected:+.2f} deg",
+        int(frames.size),
+        fix=fix or KLV_FIXES["azimuth_from_north"],
+        detail=(
+            f"bearings to the reported centres minus tag 18 alone: median {_median(d_north[frames]):+.3f} deg; "
+            f"minus heading + tag 18 (the standard): median |{m_std:.1f}| deg (heading median {heading:.1f} deg)"
+        ),
+        frames=tuple(int(k) for k in frames),
+    )
 
 
 def audit_klv_columns(columns: dict, sensor, surface, source: str = "KLV") -> HeightAudit:
     """Audit a KLV replay (:attr:`geoloc.workflows.klv_replay.KlvReplay.columns`, ``sensor``
-    the replay's): the reported centres are tags 23-24 (and 78 / 25 + N), the pixel the image centre."""
+    the replay's): the reported centres are tags 23-24 (and 78 / 25 + N), the pixel the image centre.
+
+    Without a DEM (``surface`` None) only the bearing check runs
+    (:func:`azimuth_convention_finding`: it needs no terrain); with one, the heights too
+    (:func:`audit_flight`). A finding's ``frames`` are rows of ``columns``."""
     from geoloc.frames.chain import Pose
 
     c = {k: np.asarray(v) for k, v in columns.items()}
     f = lambda k: np.asarray(c[k], float)  # noqa: E731
+    az = azimuth_convention_finding(c)
+    if surface is None or terrain_of(surface) is None:
+        checks = {"records": int(len(c["status"])), "no_dem": 1}
+        return HeightAudit(source, [az] if az is not None else [], checks)
     ok = np.asarray(c["status"]) != Status.INVALID_INPUT
     idx = np.flatnonzero(ok)
     pose = Pose.from_deg(
@@ -770,7 +899,7 @@ def audit_klv_columns(columns: dict, sensor, surface, source: str = "KLV") -> He
     )
     r0, c0 = sensor.center_pixel
     m = idx.size
-    return audit_flight(
+    audit = audit_flight(
         pose,
         sensor,
         np.full(m, r0),
@@ -784,3 +913,8 @@ def audit_klv_columns(columns: dict, sensor, surface, source: str = "KLV") -> He
         source=source,
         reported_name="reported frame centre",
     )
+    # rows of the replay, not of its located subset; a heading left out is a convention too
+    audit.findings = [dataclasses.replace(x, frames=tuple(int(idx[k]) for k in x.frames)) for x in audit.findings]
+    if az is not None:
+        audit.findings.append(az)
+    return audit

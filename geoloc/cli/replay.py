@@ -99,7 +99,8 @@ def register(sub) -> None:
         action="store_true",
         help="with --dem: audit the flight's heights and conventions from the data (MSL read as "
         "ellipsoidal and the reverse, the geoid's sign, relative heights, flat-earth frame centres, "
-        "a time offset, a boresight bias): one line per finding, docs/height_audit.md",
+        "a time offset, a boresight bias; KLV, also without --dem: frame centres that leave the "
+        "heading out): one line per finding, docs/height_audit.md",
     )
     p.add_argument(
         "--targets",
@@ -144,8 +145,14 @@ def run(args) -> int:
     from geoloc.cli._options import check_gis_output, is_stream
 
     check_gis_output("--export", args.export)  # before any record is located: fail in a second
-    _audit_wanted(args)  # --audit without --dem: said before any record is located
     inputs = list(args.records or [])
+    # --audit without --dem: said before any record is located (KLV has a check that needs no terrain)
+    try:
+        klv_only = bool(inputs) and not any(is_stream(x) for x in inputs) and _input_kind(inputs) == "klv"
+    except ValueError:  # a mix of kinds: said where the inputs are read
+        klv_only = False
+    if not klv_only:
+        _audit_wanted(args)
     if any(is_stream(x) for x in inputs):
         return _run_live(args, inputs)
     if getattr(args, "record_ts", None):
@@ -321,7 +328,7 @@ def _run_klv(args, inputs) -> int:
         for e in r.errors:
             print(f"geoloc replay: {path}: {e}", file=sys.stderr)
         print(r.summary)
-        if _audit_wanted(args):
+        if getattr(args, "audit", False):  # without --dem: the bearing check alone, said in its heading
             from geoloc.analysis.height_audit import audit_klv_columns
 
             print("\n".join(audit_klv_columns(r.columns, r.sensor, surface, source=path.name).lines()))

@@ -18,3 +18,17 @@ def horizontal_distance_m(lat1_deg, lon1_deg, lat2_deg, lon2_deg) -> np.ndarray:
     if np.any(ok):
         out[ok] = _GEOD.inv(lon1[ok], lat1[ok], lon2[ok], lat2[ok])[2]
     return out
+
+
+def forward_azimuth_deg(lat1_deg, lon1_deg, lat2_deg, lon2_deg) -> np.ndarray:
+    """Geodesic forward azimuth from point 1 to point 2 on WGS-84 [deg clockwise from true north,
+    -180..180] (Karney's inverse problem; NaN in, or the same point twice, NaN out)."""
+    lat1, lon1, lat2, lon2 = np.broadcast_arrays(
+        *(np.asarray(v, float) for v in (lat1_deg, lon1_deg, lat2_deg, lon2_deg))
+    )
+    out = np.full(lat1.shape, np.nan)
+    ok = np.isfinite(lat1) & np.isfinite(lon1) & np.isfinite(lat2) & np.isfinite(lon2)
+    ok &= (lat1 != lat2) | (lon1 != lon2)
+    if np.any(ok):
+        out[ok] = _GEOD.inv(lon1[ok], lat1[ok], lon2[ok], lat2[ok])[0]
+    return out

@@ -282,6 +282,9 @@ def test_the_klv_example_is_clean_and_tag_75_in_msl_is_named(klv):
     planted = -np.median(reference_undulation(lat[ok], lon[ok]))
     assert abs(f.offset - planted) <= f.uncertainty, f.line()
     assert "tag 75" in f.fix
+    # its frames are the replay's rows it rests on: every located packet
+    located = np.flatnonzero(np.asarray(rep.columns["status"]) == 0)
+    assert len(f.frames) == f.records and set(f.frames) <= set(located.tolist())
 
 
 def test_real_flight_tests_on_a_coarse_dem_name_no_convention():
@@ -354,3 +357,81 @@ def test_a_records_files_surveyed_heights_in_msl_are_named(flight, tmp_path):
     f = _one(audit_records(records, flight["sensor"], flight["surface"]), "msl_read_as_ellipsoidal")
     assert f.subject == "frame-centre height"
     assert abs(f.offset - np.median(-n_fc)) <= f.uncertainty, f.line()
+
+
+# --------------------------------------------------------------------------- the relative azimuth read as true
+
+CORPUS = ROOT / "tests" / "data" / "misb"
+
+
+def _wrap(a):
+    return (np.asarray(a, float) + 180.0) % 360.0 - 180.0
+
+
+def test_real_frame_centres_that_leave_the_heading_out_are_named():
+    """FFmpeg's "Day Flight" sample (a real encoder's KLV): its frame centres lie at the bearing of tag 18
+    from north, heading left out. No DEM is bundled there, so the replay ends each ray on the packet's own
+    frame-centre height (ellipsoidal) and the audit runs the bearing check only, which needs no terrain.
+    The bearings here are pymap3d's Vincenty, from the packets' raw items, not the audit's geodesics."""
+    from pymap3d.vincenty import vdist
+
+    from geoloc.io import klv
+    from geoloc.workflows.klv_replay import replay_klv
+
+    path = CORPUS / "ffmpeg_day_flight.klv"
+    r = replay_klv(path)
+    a = audit_klv_columns(r.columns, r.sensor, None, source=path.name)
+    f = _one(a, "azimuth_from_north")
+    assert "no DEM" in a.lines()[0] and len(a.lines()) == 2
+    packets = list(klv.iter_packets(path.read_bytes()))
+    b = np.array(
+        [
+            vdist(
+                p["sensor_latitude_deg"],
+                p["sensor_longitude_deg"],
+                p["frame_center_latitude_deg"],
+                p["frame_center_longitude_deg"],
+            )[1]
+            for p in packets
+        ]
+    )
+    t18 = np.array([p["sensor_relative_azimuth_deg"] for p in packets])
+    heading = np.array([p["platform_heading_deg"] for p in packets])
+    # every packet follows tag 18 alone: the centres' 4e-8 deg steps at 10 km and more from the sensor
+    # are far under 0.01 deg of bearing (0.05: margin)
+    assert np.all(np.abs(_wrap(b - t18)) < 0.05)
+    assert f.frames == tuple(range(len(packets)))
+    # the estimated turn from the standard's bearing is about minus the heading: heading + tag 18 by hand
+    # leaves the platform's pitch (3-4 deg) and roll (under 1 deg) out, which at these 4-6 deg
+    # depressions turn a bearing by tenths of a degree: 1 deg
+    assert abs(f.offset - np.median(_wrap(b - t18 - heading))) < 1.0, f.line()
+    assert abs(f.offset - f.expected) <= f.uncertainty and f.unit == "deg"
+    assert "geoloc klv fix" in f.fix and "tag 18" in f.line()
+
+
+def test_a_writer_that_adds_the_heading_gets_no_azimuth_finding():
+    """Esri's Cheyenne flight (another real writer; its heading turns the centres 157-200 deg from tag 18
+    alone) and a clean synthetic stream: no convention named without a DEM."""
+    from geoloc.workflows.klv_replay import replay_klv
+
+    for path in (CORPUS / "esri_cheyenne.bin", KLV):
+        r = replay_klv(path)
+        a = audit_klv_columns(r.columns, r.sensor, None, source=path.name)
+        assert a.findings == [], a.lines()
+        assert a.lines()[0].endswith("no convention fault found")
+
+
+def test_replay_audit_of_klv_without_a_dem_names_the_azimuth_and_klv_fix_removes_it(tmp_path, capsys):
+    """`geoloc replay FILE.klv --audit` without --dem: one line for the finding; the fix it names
+    (`geoloc klv fix`, tags 23-24 rewritten from heading + tag 18) leaves nothing to name."""
+    src = CORPUS / "ffmpeg_day_flight.klv"
+    assert main(["replay", str(src), "--audit"]) == 0
+    out = capsys.readouterr().out
+    lines = [x for x in out.splitlines() if "from true north" in x]
+    assert len(lines) == 1 and "geoloc klv fix" in lines[0], out[-2000:]
+    fixed = tmp_path / "fixed.klv"
+    assert main(["klv", "fix", str(src), "--out", str(fixed)]) == 0
+    capsys.readouterr()
+    assert main(["replay", str(fixed), "--audit"]) == 0
+    head = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("height audit"))
+    assert head.endswith("no convention fault found"), head
