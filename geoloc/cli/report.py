@@ -87,8 +87,8 @@ def register(sub) -> None:
         "--audit",
         action="store_true",
         help="with --dem: audit the flight's heights and conventions from the CSV's own poses and "
-        "reported centres (records or KLV replays; docs/height_audit.md): one line per finding, "
-        "and report.json's 'height_audit'",
+        "reported centres (records or KLV replays; a KLV replay also without --dem: the bearing check "
+        "only; docs/height_audit.md): one line per finding, report.json's 'height_audit' and report.html",
     )
     p.set_defaults(func=run)
     from geoloc.cli._options import add_dem_options
@@ -475,6 +475,19 @@ def _md_table_html(rep: AccuracyReport) -> str:
     return "\n".join(L)
 
 
+def frame_runs(frames) -> str:
+    """``"0 .. 4, 7 (6)"``: frame indices as runs of consecutive ones, and their count."""
+    k = sorted(int(i) for i in frames)
+    if not k:
+        return "not said"
+    runs, start = [], k[0]
+    for a, b in zip(k, k[1:] + [k[-1] + 2]):  # a sentinel past the last run
+        if b != a + 1:
+            runs.append(f"{start}" if start == a else f"{start} .. {a}")
+            start = b
+    return f"{', '.join(runs)} ({len(k)})"
+
+
 def write_html(rep: AccuracyReport, pngs, path) -> Path:
     """One self-contained HTML page: the table, the definitions, the warnings and the plots (base64 PNG)."""
     path = Path(path)
@@ -496,8 +509,21 @@ def write_html(rep: AccuracyReport, pngs, path) -> Path:
                 f"{mdl['m_per_m'] * 1000:.4f} m per km of slant range (least squares, n = {mdl['n']}, "
                 f"RMS residual {mdl['rms_residual_m']:.2f} m)</p>"
             )
+    audit = rep.meta.get("height_audit")
+    if audit:
+        parts.append(f"<h2>Heights and conventions: the audit of {html.escape(str(audit.get('source', '')))}</h2><ul>")
+        for f in audit.get("findings") or []:
+            parts.append(
+                f"<li>{html.escape(str(f['text']))}; frames (rows of the CSV, from 0): "
+                f"{html.escape(frame_runs(f.get('frames') or []))}</li>"
+            )
+        if not audit.get("findings"):
+            parts.append("<li>no convention fault found</li>")
+        parts.append("</ul>")
     parts.append("<h2>Definitions</h2><ul>")
     for k, v in rep.meta.items():
+        if k == "height_audit":
+            continue
         parts.append(f"<li><b>{html.escape(str(k))}</b>: {html.escape(str(v))}</li>")
     parts.append("</ul><h2>Plots</h2>")
     for p in pngs:
@@ -510,6 +536,19 @@ def write_html(rep: AccuracyReport, pngs, path) -> Path:
 
 
 # --------------------------------------------------------------------------- the verb
+
+
+def _is_klv_results(path) -> bool:
+    """Whether a results CSV is a KLV replay's (its header names the sensor and reported centres): its
+    audit has a check that needs no DEM (the bearing of tag 18)."""
+    import csv
+
+    try:
+        with Path(path).open(newline="", encoding="utf-8-sig") as fh:
+            header = next(csv.reader(fh), [])
+    except (OSError, UnicodeDecodeError):
+        return False
+    return all(c in header for c in ("sensor_lat_deg", "reported_lat_deg", "sensor_relative_azimuth_deg"))
 
 
 def audit_from_csv(path, surface, camera=None):
@@ -550,14 +589,16 @@ def audit_from_csv(path, surface, camera=None):
 
 
 def run(args) -> int:
-    if args.audit and not args.dem:
+    if args.audit and not args.dem and not _is_klv_results(args.results):
         raise ValueError("--audit compares heights with the terrain: give a DEM with --dem")
     rep, messages = report_from_csv(args.results, args.reference, args.ref_h_column, args.group_by, args.camera)
     audit = None
     if args.audit:
         from geoloc.cli._options import surface_from_args
 
-        audit = audit_from_csv(args.results, surface_from_args(args), args.camera)
+        # a KLV replay without --dem: no terrain, the bearing check alone (audit_klv_columns says so)
+        surface = surface_from_args(args) if args.dem else None
+        audit = audit_from_csv(args.results, surface, args.camera)
         rep.meta["height_audit"] = audit.to_dict()
     for m in messages:
         print(f"geoloc report: {m}", file=sys.stderr)

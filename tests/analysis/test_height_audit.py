@@ -435,3 +435,22 @@ def test_replay_audit_of_klv_without_a_dem_names_the_azimuth_and_klv_fix_removes
     assert main(["replay", str(fixed), "--audit"]) == 0
     head = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("height audit"))
     assert head.endswith("no convention fault found"), head
+
+
+def test_report_of_a_klv_replay_without_a_dem_puts_the_finding_in_its_page(tmp_path, capsys):
+    """`geoloc report RESULTS.csv --audit` of a KLV replay (no DEM: the bearing check alone): the finding
+    in report.json with its frames, and in report.html's own section with them as runs."""
+    import json
+
+    out, rep_dir = tmp_path / "day.csv", tmp_path / "rep"
+    assert main(["replay", str(CORPUS / "ffmpeg_day_flight.klv"), "--out", str(out)]) == 0
+    assert main(["report", str(out), "--audit", "--out-dir", str(rep_dir)]) == 0
+    assert "from true north" in capsys.readouterr().out
+    (f,) = json.loads((rep_dir / "report.json").read_text())["meta"]["height_audit"]["findings"]
+    assert f["kind"] == "azimuth_from_north" and f["frames"] == [0, 1, 2, 3, 4, 5] and f["unit"] == "deg"
+    page = (rep_dir / "report.html").read_text()
+    section = page.split("<h2>Heights and conventions")[1].split("</ul>")[0]
+    assert "from true north" in section and "frames (rows of the CSV, from 0): 0 .. 5 (6)" in section
+    # a records CSV without a DEM is still refused before any work (its checks need the terrain)
+    assert main(["report", str(RECORDS), "--audit"]) == 2
+    assert "--dem" in capsys.readouterr().err

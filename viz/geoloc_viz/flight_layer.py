@@ -505,6 +505,8 @@ class FlightLayer:
             self.md_faults = g.add_markdown(m.faults_markdown())
         with g.add_folder("Flight: accuracy", expand_by_default=False, order=self._order(3)):
             self.md_accuracy = g.add_markdown(m.summary_markdown())
+        with g.add_folder("Flight: heights and conventions", order=self._order(4)):
+            self.md_audit = g.add_markdown(m.audit_markdown())
         self.sl_frame.on_update(lambda _e: self._on_slider())
         self.bt_play.on_click(lambda _e: self.toggle_play())
         self.bt_whole.on_click(lambda _e: self.show_whole_flight())
@@ -538,6 +540,7 @@ class FlightLayer:
             self.md_table.content = model.outlier_markdown(self.top_n)
             self.md_faults.content = model.faults_markdown()
             self.md_accuracy.content = model.summary_markdown()
+            self.md_audit.content = model.audit_markdown()
             self.worst = worst_flagged(model)
             self.bt_worst.label = worst_label(model, self.worst)
             self.bt_worst.visible = self.worst is not None

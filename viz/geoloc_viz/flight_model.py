@@ -187,6 +187,9 @@ class FlightModel:
     #: ellipse (geoloc.analysis.uncertainty.outside_ellipse); None without a budget
     outside_ellipse99: np.ndarray | None = None
     notes: list = field(default_factory=list)
+    #: the flight's heights and conventions audited (geoloc.analysis.height_audit.HeightAudit; its
+    #: findings' ``frames`` are frame indices); None when the records report no positions
+    audit: object = None
     H_DATUM: str = H_DATUM
     _report: object = None
 
@@ -369,6 +372,57 @@ class FlightModel:
             flags.append("outside 99 %")
         return ", ".join(flags)
 
+    def audit_markdown(self) -> str:
+        """The heights and conventions audit: each finding with its estimated offset, how sure (its
+        stated uncertainty, against the signature's own size), its frames and the one fix."""
+        a = self.audit
+        if a is None:
+            return (
+                "not audited: the records report no positions (frame centres, published points) to "
+                "check the heights and conventions against"
+            )
+        c = a.checks
+        if c.get("no_dem"):
+            what = (
+                "no DEM, so no height checked: the bearing check only (the rays on each record's own "
+                "height, ellipsoidal, WGS 84)"
+            )
+        else:
+            what = (
+                f"platform {_num_text(c.get('platform_agl_median_m'))} m above the DEM (median), reported "
+                f"positions {_num_text(c.get('fc_minus_dem_median_m'), '+.1f')} m from it, EGM96 N "
+                f"{_num_text(c.get('geoid_n_m'), '+.1f')} m, median misfit "
+                f"{_num_text(c.get('misfit_median_m'))} m over {c.get('records_compared', 0)} frames"
+            )
+        if not a.findings:
+            return f"**no convention fault found**  \n{what}"
+        out = [f"**{len(a.findings)} convention fault(s) found**  \n{what}"]
+        for f in a.findings:
+            spec = ".2f" if f.unit in ("mrad", "deg") else ".1f"
+            sure = f" +/- {format(f.uncertainty, spec)}" if np.isfinite(f.uncertainty) else ""
+            sig = f"; signature {f.expected_text}" if f.expected_text else ""
+            out.append(
+                f"- **{f.subject}**: {FAULT_TEXT.get(f.kind, f.kind)}  \n"
+                f"  estimated **{format(f.offset, '+' + spec)}{sure} {f.unit}** (how sure: the stated "
+                f"uncertainty, a 99.7 % bound{sig})  \n"
+                f"  {self.frames_text(f.frames)}  \n"
+                f"  fix: {f.fix}" + (f"  \n  {f.detail}" if f.detail else "")
+            )
+        return "\n".join(out)
+
+    def frames_text(self, frames) -> str:
+        """``frames 0 .. 4, 7 (packet 1 .. packet 8, 6 frames)``: runs of consecutive indices."""
+        k = sorted(int(i) for i in frames)
+        if not k:
+            return "frames: not said"
+        runs, start = [], k[0]
+        for a, b in zip(k, k[1:] + [k[-1] + 2]):  # a sentinel past the last run
+            if b != a + 1:
+                runs.append(f"{start}" if start == a else f"{start} .. {a}")
+                start = b
+        word = "frame" if len(k) == 1 else "frames"
+        return f"{word} {', '.join(runs)} ({self.labels[k[0]]} .. {self.labels[k[-1]]}, {len(k)} {word})"
+
     def faults_markdown(self) -> str:
         """Each run of outliers with its fitted fault and what that fault looks like."""
         if not self.faults:
@@ -377,6 +431,73 @@ class FlightModel:
         for f in self.faults:
             out.append(f"- {f.headline()}  \n  {WHAT_IT_LOOKS_LIKE[f.kind]}")
         return "\n".join(out)
+
+
+def _num_text(v, spec: str = ".1f") -> str:
+    return "n/a" if v is None or not np.isfinite(v) else format(float(v), spec)
+
+
+def _fault_text() -> dict:
+    from geoloc.analysis.height_audit import FAULTS
+
+    return FAULTS
+
+
+#: What each convention fault of the audit means (geoloc.analysis.height_audit.FAULTS).
+FAULT_TEXT = _fault_text()
+
+
+def flight_audit(scn, pose, sensor, row, col, surface, reported, centre_deg, angles_deg):
+    """The heights and conventions audit of a flight (:mod:`geoloc.analysis.height_audit`): with a DEM,
+    :func:`~geoloc.analysis.height_audit.audit_flight` of the reported positions; with a sensor
+    relative azimuth (a KLV flight), also the bearing check, which needs no DEM. None when no record
+    reports a position. ``reported`` is ``(lat_deg, lon_deg, h_m)``, ``centre_deg`` the image centre's
+    hit ``(lat_deg, lon_deg)``, ``angles_deg`` the records' ``heading`` and ``azimuth`` [deg]."""
+    from geoloc.analysis.height_audit import (
+        KLV_FIXES,
+        HeightAudit,
+        audit_flight,
+        azimuth_convention_finding,
+    )
+    from geoloc.workflows.klv_replay import is_klv_path
+
+    rep_lat, rep_lon, rep_h = reported
+    n = len(rep_lat)
+    if not (np.isfinite(rep_lat) & np.isfinite(rep_lon)).any():
+        return None
+    klv = is_klv_path(str(getattr(scn, "source", "") or ""))
+    source = str(getattr(scn, "source", "") or "flight")
+    if terrain_of(surface) is not None:
+        audit = audit_flight(
+            pose,
+            sensor,
+            row,
+            col,
+            surface,
+            rep_lat,
+            rep_lon,
+            rep_h,
+            fixes=KLV_FIXES if klv else None,
+            source=source,
+            reported_name="reported frame centre" if klv else "reported position",
+        )
+    else:
+        audit = HeightAudit(source, [], {"records": n, "no_dem": 1})
+    if angles_deg.get("azimuth") is not None:
+        cols = {
+            "sensor_lat_deg": np.degrees(np.broadcast_to(np.asarray(pose.lat, float), (n,))),
+            "sensor_lon_deg": np.degrees(np.broadcast_to(np.asarray(pose.lon, float), (n,))),
+            "reported_lat_deg": rep_lat,
+            "reported_lon_deg": rep_lon,
+            "lat_deg": centre_deg[0],
+            "lon_deg": centre_deg[1],
+            "sensor_relative_azimuth_deg": angles_deg["azimuth"],
+            "platform_heading_deg": angles_deg["heading"],
+        }
+        az = azimuth_convention_finding(cols)
+        if az is not None:
+            audit.findings.append(az)
+    return audit
 
 
 def _length(v_m: float) -> str:
@@ -606,6 +727,7 @@ def build(
     enu: EnuFrame | None = None,
     fov_deg=None,
     diagnose_faults: bool = True,
+    audit: bool = True,
 ) -> FlightModel:
     """Compute the whole flight of ``scn.records`` in one batch (see the module docstring).
 
@@ -624,6 +746,8 @@ def build(
         ``scn.frame_fov_deg`` when the scenario carries it, else the sensor's own lens.
     diagnose_faults : bool
         Fit the fault models to every run of outliers (:func:`diagnose`).
+    audit : bool
+        Audit the flight's heights and conventions (:func:`flight_audit`).
 
     Returns
     -------
@@ -729,6 +853,15 @@ def build(
         model.outside_ellipse99 = outside_own_ellipse(sensor, pose, row, col, surface, budget, comp, residual)
     if diagnose_faults:
         model.faults = diagnose(model, scn, pose=pose, row=row, col=col, target_h=target_h, method=method)
+    if audit:
+        az = [float(inp.angles_deg.get("azimuth", np.nan)) for _, inp in recs]
+        angles = {
+            "heading": np.array([float(inp.heading_deg) for _, inp in recs]),
+            "azimuth": np.array(az) if np.isfinite(az).any() else None,
+        }
+        model.audit = flight_audit(
+            scn, pose, sensor, row, col, surface, (rep_lat, rep_lon, rep_h), (lat_d[P], lon_d[P]), angles
+        )
     return model
 
 
