@@ -161,6 +161,27 @@ def test_skydio_photo_locates_like_the_ned_convention(tmp_path, form):
     assert rows[0]["maker"] == "Skydio"
 
 
+def test_a_skydio_2_photo_without_calibration_gets_the_database_lens_and_its_sigma(tmp_path):
+    # Skydio 2 writes EXIF Model "2" (OpenAthena's makeModel "skydio2" = Make lower-cased + Model);
+    # without CalibratedFocalLength the camera database gives the lens: 3.7 mm (EXIF FocalLength) on
+    # the maker's 6.2868 x 4.712 mm sensor, this photo 800 x 600 px; 1-sigma 2.5 % (the row's: it
+    # covers OpenAthena's 2.3 % / 4.6 % finer pixel pitch within 2 sigma)
+    body = (
+        "<drone-skydio:Latitude>36.52</drone-skydio:Latitude>"
+        "<drone-skydio:Longitude>-84.21</drone-skydio:Longitude>"
+        "<drone-skydio:AbsoluteAltitude>150.0</drone-skydio:AbsoluteAltitude>"
+        '<drone-skydio:CameraOrientationNED rdf:parseType="Resource">'
+        "<drone-skydio:Yaw>10</drone-skydio:Yaw><drone-skydio:Pitch>-60</drone-skydio:Pitch>"
+        "<drone-skydio:Roll>0</drone-skydio:Roll></drone-skydio:CameraOrientationNED>"
+    )
+    p = _jpeg(tmp_path / "S2.JPG", _packet(f'xmlns:drone-skydio="{SKYDIO_NS}"', body), "Skydio", "2", focal_mm=3.7)
+    m = read_photo(p)
+    lens = lens_from_photo(m)
+    fx, fy = 3.7 / 6.2868 * W, 3.7 / 4.712 * H
+    assert (lens.fx, lens.fy) == pytest.approx((fx, fy), rel=1e-12)
+    assert lens_uncertainty(m) == pytest.approx({"fx_px": 0.025 * fx, "fy_px": 0.025 * fy}, rel=1e-12)
+
+
 # --------------------------------------------------------------------------- Parrot
 
 
