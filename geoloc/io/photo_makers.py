@@ -67,6 +67,7 @@ __all__ = [
     "pick_maker",
     "rotation_zyx",
     "xmp_properties",
+    "xmp_values",
     "zyx_from_rotation",
 ]
 
@@ -399,3 +400,20 @@ def earth_gimbal_deg(
         raise ValueError(f"convention = {convention!r}: one of {sorted(CONVENTIONS)}")
     y, p, rr = zyx_from_rotation(r)
     return math.degrees(y), math.degrees(p), math.degrees(rr)
+
+
+def xmp_values(root, namespace: str, name: str) -> list[str] | None:
+    """Every value of the first property ``namespace:name`` of a parsed XMP tree, in order: the
+    ``rdf:li`` items of an ``rdf:Seq``/``rdf:Bag``/``rdf:Alt``, else its text (or attribute) split at
+    commas (``"0.1,0.2"``); None when the property is absent. :func:`xmp_properties` keeps only the
+    first item of a list (a value); a calibration's coefficients need them all."""
+    tag = f"{{{namespace}}}{name}"
+    for elem in root.iter():
+        if elem.tag == tag:
+            items = [(li.text or "").strip() for li in elem.iter(f"{{{_RDF}}}li")]
+            if items:
+                return items
+            return [t.strip() for t in (elem.text or "").split(",") if t.strip()]
+        if tag in elem.attrib:
+            return [t.strip() for t in elem.attrib[tag].split(",") if t.strip()]
+    return None

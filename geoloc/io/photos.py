@@ -68,6 +68,7 @@ from geoloc.io.photo_makers import (
     earth_gimbal_deg,
     pick_maker,
     xmp_properties,
+    xmp_values,
 )
 from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.sensors.frame import FrameSensor
@@ -119,6 +120,14 @@ RTK_CORRECTED_MIN = 32
 _MAKE, _MODEL, _ORIENTATION = 0x010F, 0x0110, 0x0112
 _EXIF_IFD, _GPS_IFD = 0x8769, 0x8825
 _PIXEL_X, _PIXEL_Y, _FOCAL, _FOCAL_35 = 0xA002, 0xA003, 0x920A, 0xA405
+#: EXIF FocalPlaneXResolution, FocalPlaneYResolution, FocalPlaneResolutionUnit (EXIF 2.32, 4.6.5)
+_FP_X, _FP_Y, _FP_UNIT = 0xA20E, 0xA20F, 0xA210
+#: FocalPlaneResolutionUnit -> millimetres per unit (2 inch, 3 centimetre; 4 millimetre, 5 micrometre:
+#: values some writers use beyond the standard's two)
+_FP_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 1e-3}
+#: Pix4D's camera namespace, whose calibration tags MicaSense and Sequoia write (Pix4D "How to write
+#: XMP tags"; MicaSense imageprocessing metadata.py and image.py read them)
+_PIX4D_NS = "http://pix4d.com/camera/1.0/"
 _GPS_LAT_REF, _GPS_LAT, _GPS_LON_REF, _GPS_LON, _GPS_ALT_REF, _GPS_ALT = 1, 2, 3, 4, 5, 6
 _XMP_TIFF_TAG = 700
 
@@ -555,6 +564,21 @@ def _read_exif(img, path, notes) -> dict:
                     out[key] = f
             except (TypeError, ValueError, ZeroDivisionError):
                 pass
+    if _FP_X in sub and _FP_Y in sub:
+        try:
+            fx_res, fy_res = _rational(sub[_FP_X]), _rational(sub[_FP_Y])
+        except (TypeError, ValueError, ZeroDivisionError):
+            fx_res = fy_res = float("nan")
+        unit = sub.get(_FP_UNIT)
+        if unit is None:  # MicaSense's imageprocessing reads the values as pixels per millimetre
+            notes.append("EXIF FocalPlaneResolutionUnit absent: FocalPlaneX/YResolution read as pixels per mm")
+        mm = _FP_UNIT_MM.get(int(unit) if isinstance(unit, int) else 4)
+        if mm is None:
+            notes.append(f"EXIF FocalPlaneResolutionUnit = {unit!r} ignored: not inch, cm, mm or um")
+        elif math.isfinite(fx_res) and math.isfinite(fy_res) and fx_res > 0 and fy_res > 0:
+            out["focal_plane_px_per_mm"] = (fx_res / mm, fy_res / mm)
+        else:
+            notes.append(f"EXIF FocalPlaneX/YResolution = {sub[_FP_X]!r}, {sub[_FP_Y]!r} ignored: not > 0")
     gps = exif.get_ifd(_GPS_IFD)
     if _GPS_LAT in gps and _GPS_LON in gps:
         out["gps_lat_deg"] = _gps_coordinate(gps[_GPS_LAT], gps.get(_GPS_LAT_REF), "N", "S", 90.0, "GPSLatitude", path)
@@ -676,6 +700,7 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
                 raise ValueError(
                     f"{p.name}: TIFF tag 700 (XMP) not readable ({type(e).__name__}: {e}) (file {path})"
                 ) from None
+    root = None
     if packet is not None:
         dji, tiff, root = parse_xmp(packet, f"{p.name}", _with_root=True)
         props = xmp_properties(root)
@@ -695,6 +720,8 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
     m.focal_mm, m.focal_35mm = ex.get("focal_mm"), ex.get("focal_35mm")
     if maker is not None:
         _read_maker(m, maker, props, ex, notes)
+        if root is not None:
+            _pix4d_calibration(m, root, ex, notes)
         _size_notes(m, notes)
         if m.missing and require:
             raise PhotoTagError(path, m.missing)
@@ -865,6 +892,61 @@ def _maker_number(d: dict, names, prefix: str, notes: list) -> tuple:
     return None, None
 
 
+#: The Pix4D calibration tags read (the text the output's ``lens`` column names).
+PIX4D_CALIBRATION = "Camera:PerspectiveFocalLength, PrincipalPoint, PerspectiveDistortion"
+
+
+def _pix4d_calibration(m: PhotoMeta, root, ex: dict, notes: list) -> None:
+    """The lens of Pix4D's camera calibration tags, as MicaSense writes them (RedEdge, Altum; Sequoia
+    too), in ``m.dewarp`` (DJI's form: offsets from the image centre, OpenCV's coefficient order).
+
+    MicaSense imageprocessing (``metadata.py``, ``image.py``: ``cv2_camera_matrix``,
+    ``cv2_distortion_coeff``): ``Camera:PerspectiveFocalLength`` in mm when
+    ``Camera:PerspectiveFocalLengthUnits`` is ``mm`` (else pixels), ``Camera:PrincipalPoint`` "x,y" in
+    mm, both times EXIF FocalPlaneX/YResolution [px/mm] give OpenCV's fx, fy, cx, cy (the principal
+    point's pixels taken as OpenCV's, first pixel's centre at 0, as MicaSense does);
+    ``Camera:PerspectiveDistortion`` is ``k1, k2, k3, p1, p2``, OpenCV's ``(k1, k2, p1, p2, k3)``
+    being items ``[0, 1, 3, 4, 2]``. A photo without them, or with one unreadable (a note says
+    which), keeps the camera database's lens.
+    """
+    f_items = xmp_values(root, _PIX4D_NS, "PerspectiveFocalLength")
+    if not f_items:
+        return
+    where = f"{m.name}: Camera:PerspectiveFocalLength"
+    res = ex.get("focal_plane_px_per_mm")
+    pp = xmp_values(root, _PIX4D_NS, "PrincipalPoint")
+    dist = xmp_values(root, _PIX4D_NS, "PerspectiveDistortion")
+    units = (xmp_values(root, _PIX4D_NS, "PerspectiveFocalLengthUnits") or ["mm"])[0].lower()
+    try:
+        f = float(f_items[0])
+        ppx, ppy = (float(t) for t in (pp or [])) if pp and len(pp) == 2 else (math.nan, math.nan)
+        k = [float(t) for t in dist] if dist else [0.0] * 5
+    except ValueError as e:
+        notes.append(f"{where} and its calibration tags ignored: {e}")
+        return
+    missing = [n for n, ok in (("EXIF FocalPlaneX/YResolution", res), ("Camera:PrincipalPoint (x,y)", pp)) if not ok]
+    if missing or len(k) != 5 or not all(map(math.isfinite, [f, ppx, ppy, *k])) or f <= 0:
+        why = (
+            f"missing {', '.join(missing)}"
+            if missing
+            else f"PerspectiveDistortion has {len(k)} of 5 values, or a value not finite"
+        )
+        notes.append(f"{where} ignored ({why}): the lens comes from elsewhere")
+        return
+    rx, ry = res
+    fx, fy = (f * rx, f * ry) if units == "mm" else (f, f * ry / rx)
+    cx_cv, cy_cv = ppx * rx, ppy * ry
+    W, H = m.full_width, m.full_height
+    # DJI's DewarpData offsets are from the image centre in corner-origin pixels (OpenCV's + 0.5)
+    m.dewarp = DewarpData("", fx, fy, cx_cv + 0.5 - W / 2.0, cy_cv + 0.5 - H / 2.0, k[0], k[1], k[3], k[4], k[2])
+    m.dewarp_flag = 0
+    m.xmp["_calibration_tags"] = PIX4D_CALIBRATION
+    notes.append(
+        f"lens from {PIX4D_CALIBRATION} (Pix4D tags, MicaSense's reading): fx {fx:.2f}, fy {fy:.2f}, "
+        f"cx {cx_cv:.2f}, cy {cy_cv:.2f} px (OpenCV)"
+    )
+
+
 def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: list) -> None:
     """Fill ``m`` from a non-DJI maker's tags (:mod:`geoloc.io.photo_makers`)."""
     m.maker = maker.name
@@ -988,6 +1070,8 @@ def database_lens(meta: PhotoMeta):
 
 def lens_source(meta: PhotoMeta) -> str:
     """Which tags the photo's lens comes from (written to every output row)."""
+    if meta.dewarp is not None and meta.xmp.get("_calibration_tags") == PIX4D_CALIBRATION:
+        return f"brown ({PIX4D_CALIBRATION})"
     if meta.dewarp is not None:
         return (
             "pinhole (DewarpData, DewarpFlag=1: already undistorted)" if meta.dewarp_flag == 1 else "brown (DewarpData)"

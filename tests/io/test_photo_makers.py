@@ -18,7 +18,14 @@ import pytest
 from PIL import Image, TiffImagePlugin
 
 from geoloc.io.photo_makers import earth_gimbal_deg
-from geoloc.io.photos import PhotoTagError, lens_from_photo, lens_uncertainty, read_photo, sensor_from_photo
+from geoloc.io.photos import (
+    PhotoTagError,
+    lens_from_photo,
+    lens_source,
+    lens_uncertainty,
+    read_photo,
+    sensor_from_photo,
+)
 from geoloc.sensors.budget import budget_from_dict
 from geoloc.workflows.photo_replay import replay_photos
 
@@ -256,7 +263,7 @@ def test_pix4d_to_dji_angles_closed_form():
 # --------------------------------------------------------------------------- MicaSense
 
 
-def _micasense_tiff(path, camera_angles=(0.0, 0.0, 0.0), exif_type_error=False):
+def _micasense_tiff(path, camera_angles=(0.0, 0.0, 0.0), exif_type_error=False, calibration="", exif_extra=None):
     y, p, r = camera_angles
     xmp = _packet(
         'xmlns:Camera="http://pix4d.com/camera/1.0/" xmlns:DLS="http://micasense.com/DLS/1.0/" '
@@ -264,13 +271,13 @@ def _micasense_tiff(path, camera_angles=(0.0, 0.0, 0.0), exif_type_error=False):
         "<Camera:BandName><rdf:Seq><rdf:li>Blue</rdf:li></rdf:Seq></Camera:BandName>"
         f"<Camera:Yaw>{y}</Camera:Yaw><Camera:Pitch>{p}</Camera:Pitch><Camera:Roll>{r}</Camera:Roll>"
         "<DLS:Yaw>0.73310724098153246</DLS:Yaw><DLS:Pitch>0.0413</DLS:Pitch><DLS:Roll>0.1538</DLS:Roll>"
-        "<MicaSense:CaptureId>abc</MicaSense:CaptureId>",
+        "<MicaSense:CaptureId>abc</MicaSense:CaptureId>" + calibration,
     )
     info = TiffImagePlugin.ImageFileDirectory_v2()
     info[271], info[272] = "MicaSense", "RedEdge-M"
     info[700] = xmp
     info[34853] = {1: "N", 2: _dms(LAT), 3: "W", 4: _dms(LON), 5: b"\x00", 6: CAM_H}
-    info[34665] = {0x920A: 5.4}
+    info[34665] = {0x920A: 5.4, **(exif_extra or {})}
     Image.fromarray(np.full((960, 1280), 1000, np.uint16)).save(path, tiffinfo=info)
     return path
 
@@ -299,6 +306,57 @@ def test_micasense_16bit_tiff_reads_and_gets_a_database_lens(tmp_path):
     assert rows[0]["lat_deg"] == pytest.approx(LAT, abs=1e-9) and rows[0]["lon_deg"] == pytest.approx(LON, abs=1e-9)
     assert rows[0]["lens_fx_sigma_px"] == pytest.approx(sigma)
     assert "camera database: MicaSense RedEdge-M" in rows[0]["lens"]
+
+
+#: A RedEdge-M band's calibration as MicaSense writes it (Pix4D's Camera: tags; values of the size a
+#: RedEdge-M calibration has): focal length [mm], principal point [mm], k1, k2, k3, p1, p2
+MICASENSE_CAL = (
+    "<Camera:PerspectiveFocalLength>5.4323</Camera:PerspectiveFocalLength>"
+    "<Camera:PerspectiveFocalLengthUnits>mm</Camera:PerspectiveFocalLengthUnits>"
+    "<Camera:PrincipalPoint>2.4312,1.7731</Camera:PrincipalPoint>"
+    "<Camera:PerspectiveDistortion><rdf:Seq><rdf:li>-0.1053</rdf:li><rdf:li>0.1862</rdf:li>"
+    "<rdf:li>-0.0975</rdf:li><rdf:li>0.00041</rdf:li><rdf:li>-0.00037</rdf:li></rdf:Seq>"
+    "</Camera:PerspectiveDistortion>"
+)
+#: EXIF FocalPlaneX/YResolution of 3.75 um pixels [px/mm], unit 4 (mm)
+MICASENSE_FP = {0xA20E: 1 / 0.00375, 0xA20F: 1 / 0.00375, 0xA210: 4}
+
+
+def test_micasense_calibration_tags_give_the_lens_opencv_projects_with_micasenses_reading(tmp_path):
+    """MicaSense's calibration tags (Pix4D's Camera: namespace) give the lens, not the database: its
+    projection equals cv2.projectPoints with the camera matrix and coefficients built as MicaSense's
+    imageprocessing builds them (image.py cv2_camera_matrix: f [mm] and the principal point [mm] times
+    FocalPlaneX/YResolution; cv2_distortion_coeff: PerspectiveDistortion items [0, 1, 3, 4, 2])."""
+    import cv2
+
+    p = _micasense_tiff(tmp_path / "IMG_0003_1.tif", calibration=MICASENSE_CAL, exif_extra=MICASENSE_FP)
+    m = read_photo(p)
+    lens = lens_from_photo(m)
+    assert lens_source(m) == "brown (Camera:PerspectiveFocalLength, PrincipalPoint, PerspectiveDistortion)"
+    assert lens_uncertainty(m) == {}  # a calibration: no database sigma
+    res = 1 / 0.00375
+    K = np.array([[5.4323 * res, 0, 2.4312 * res], [0, 5.4323 * res, 1.7731 * res], [0, 0, 1.0]])
+    dist = np.array([-0.1053, 0.1862, -0.0975, 0.00041, -0.00037])[[0, 1, 3, 4, 2]]
+    rng = np.random.default_rng(45)
+    dirs = np.column_stack([rng.uniform(-0.35, 0.35, 20), rng.uniform(-0.27, 0.27, 20), np.ones(20)])
+    uv, _ = cv2.projectPoints(dirs.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), K, dist)
+    u, v, st = lens.project(dirs)
+    # float64 round-off of the same polynomial: 1e-9 px
+    assert np.all(st == 0)
+    assert np.max(np.abs(u - uv[:, 0, 0])) < 1e-9 and np.max(np.abs(v - uv[:, 0, 1])) < 1e-9
+    # the replay names where its lens came from
+    t = tmp_path / "t.csv"
+    t.write_text("image,row,col,truth_h_m\nIMG_0003_1.tif,480.5,640.5,0.0\n")
+    rows, _ = replay_photos([p], t, altitude_datum="ellipsoid")
+    assert rows[0]["lens"].startswith("brown (Camera:PerspectiveFocalLength")
+
+
+def test_micasense_calibration_without_the_focal_plane_resolution_is_named_and_the_database_used(tmp_path):
+    p = _micasense_tiff(tmp_path / "IMG_0004_1.tif", calibration=MICASENSE_CAL)
+    m = read_photo(p)
+    assert any("Camera:PerspectiveFocalLength ignored (missing EXIF FocalPlaneX/YResolution)" in n for n in m.notes)
+    assert "camera database: MicaSense RedEdge-M" in lens_source(m)
+    assert lens_from_photo(m).fx == pytest.approx(5.4 / 3.75e-3, rel=1e-12)
 
 
 def test_pillow_exif_type_error_is_a_note_not_a_crash(tmp_path, monkeypatch):
