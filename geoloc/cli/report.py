@@ -10,6 +10,8 @@ self-contained ``report.html`` (plots embedded as base64). See ``docs/report.md`
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import base64
 import csv
 import html
@@ -475,7 +477,7 @@ def _md_table_html(rep: AccuracyReport) -> str:
     return "\n".join(L)
 
 
-def frame_runs(frames) -> str:
+def frame_runs(frames: Iterable[int]) -> str:
     """``"0 .. 4, 7 (6)"``: frame indices as runs of consecutive ones, and their count."""
     k = sorted(int(i) for i in frames)
     if not k:

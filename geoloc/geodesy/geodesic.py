@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 from pyproj import Geod
 
 _GEOD = Geod(ellps="WGS84")
@@ -20,7 +21,9 @@ def horizontal_distance_m(lat1_deg, lon1_deg, lat2_deg, lon2_deg) -> np.ndarray:
     return out
 
 
-def forward_azimuth_deg(lat1_deg, lon1_deg, lat2_deg, lon2_deg) -> np.ndarray:
+def forward_azimuth_deg(
+    lat1_deg: ArrayLike, lon1_deg: ArrayLike, lat2_deg: ArrayLike, lon2_deg: ArrayLike
+) -> np.ndarray:
     """Geodesic forward azimuth from point 1 to point 2 on WGS-84 [deg clockwise from true north,
     -180..180] (Karney's inverse problem; NaN in, or the same point twice, NaN out)."""
     lat1, lon1, lat2, lon2 = np.broadcast_arrays(

@@ -54,6 +54,8 @@ each entry names what it follows, and its test builds metadata from that list, n
 
 from __future__ import annotations
 
+from typing import Any
+
 import math
 from dataclasses import dataclass, field
 
@@ -402,7 +404,7 @@ def earth_gimbal_deg(
     return math.degrees(y), math.degrees(p), math.degrees(rr)
 
 
-def xmp_values(root, namespace: str, name: str) -> list[str] | None:
+def xmp_values(root: Any, namespace: str, name: str) -> list[str] | None:
     """Every value of the first property ``namespace:name`` of a parsed XMP tree, in order: the
     ``rdf:li`` items of an ``rdf:Seq``/``rdf:Bag``/``rdf:Alt``, else its text (or attribute) split at
     commas (``"0.1,0.2"``); None when the property is absent. :func:`xmp_properties` keeps only the
