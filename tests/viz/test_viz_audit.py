@@ -36,12 +36,46 @@ def test_the_panel_shows_the_real_flights_azimuth_finding_with_its_size_frames_a
 
 
 def test_a_clean_flight_panel_says_no_fault_and_what_was_compared():
-    # about 5 s: the one bundled KLV flight over a DEM (298 packets), so the height checks run
-    m = flight_model.build(flight_model.default_flight_scenario(), diagnose_faults=False)
+    # about 5 s on an idle machine: the one bundled KLV flight over a DEM (298 packets) is built
+    from geoloc_viz.scenario import load_view_scenario
+
+    # the records and their DEM only (no video, no zoom): what the audit reads
+    m = flight_model.build(load_view_scenario(flight_model.default_flight_path()), diagnose_faults=False)
     text = m.audit_markdown()
     assert text.startswith("**no convention fault found**"), text
     # the bundled flight over its DEM: heights compared (N at Jacksboro, about -30.6 m)
     assert re.search(r"EGM96 N -30\.\d m, median misfit \d+\.\d m over 298 frames", text), text
+
+
+def test_a_records_flight_with_its_heights_lowered_shows_the_offset_on_every_frame(tmp_path):
+    """The EO turret orbit (24 records, surveyed truth only, over its DEM) with ac_h_m lowered by 400 m:
+    the panel shows a platform-height finding of -400 m within its stated uncertainty on frames 0 .. 23,
+    labelled by the records, with its fix; the file as bundled shows none."""
+    import csv
+
+    from geoloc_viz.scenario import load_view_scenario
+
+    records, sensor, dem = (
+        ROOT / "assets" / "records" / "eo_turret_flight.csv",
+        ROOT / "assets" / "sensors" / "eo_turret.toml",
+        ROOT / "assets" / "dem" / "srtm_jacksboro.tif",
+    )
+    clean = flight_model.build(load_view_scenario(records, camera_path=sensor, dem_path=dem), diagnose_faults=False)
+    assert clean.audit_markdown().startswith("**no convention fault found**")
+    rows = list(csv.DictReader(records.open(newline="")))
+    for r in rows:
+        r["ac_h_m"] = repr(float(r["ac_h_m"]) - 400.0)
+    low = tmp_path / "low.csv"
+    with low.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    m = flight_model.build(load_view_scenario(low, camera_path=sensor, dem_path=dem), diagnose_faults=False)
+    (f,) = m.audit.findings
+    assert f.subject == "platform height" and abs(f.offset - (-400.0)) <= f.uncertainty, f.line()
+    text = m.audit_markdown()
+    assert f"estimated **{f.offset:+.1f} +/- {f.uncertainty:.1f} m**" in text
+    assert "frames 0 .. 23 (orbit1-1 .. orbit1-24, 24 frames)" in text and f"fix: {f.fix}" in text
 
 
 def test_frames_are_written_as_runs_with_their_labels(day_model):

@@ -859,9 +859,11 @@ def build(
             "heading": np.array([float(inp.heading_deg) for _, inp in recs]),
             "azimuth": np.array(az) if np.isfinite(az).any() else None,
         }
-        model.audit = flight_audit(
-            scn, pose, sensor, row, col, surface, (rep_lat, rep_lon, rep_h), (lat_d[P], lon_d[P]), angles
-        )
+        # the reported positions as the records audit takes them: the published ones, else the
+        # surveyed truth (its heights left out: the DEM's under it are no report)
+        has_rep = bool((np.isfinite(rep_lat) & np.isfinite(rep_lon)).any())
+        audited = (rep_lat, rep_lon, rep_h) if has_rep else (t_lat, t_lon, np.full(n, np.nan))
+        model.audit = flight_audit(scn, pose, sensor, row, col, surface, audited, (lat_d[P], lon_d[P]), angles)
     return model
 
 
