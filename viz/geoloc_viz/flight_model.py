@@ -378,8 +378,8 @@ class FlightModel:
         a = self.audit
         if a is None:
             return (
-                "not audited: the records report no positions (frame centres, published points) to "
-                "check the heights and conventions against"
+                "not audited: a live flight (replay its recording with --audit), or records that report "
+                "no positions (frame centres, published points, surveyed truth) to check against"
             )
         c = a.checks
         if c.get("no_dem"):

@@ -436,7 +436,8 @@ class LiveFlight:
                 self.base = self._scenario(recs)
             new_scn = copy.copy(self.base)
             new_scn.records = recs
-            new = flight_model.build(new_scn, enu=self.base.enu, fov_deg=fov, diagnose_faults=False)
+            # no audit per batch: a convention shows over a flight, not over a few new frames
+            new = flight_model.build(new_scn, enu=self.base.enu, fov_deg=fov, diagnose_faults=False, audit=False)
             records = (self.records + recs)[-self.window :]
             dropped = len(self.records) + len(recs) - len(records)
             scn = copy.copy(self.base)
