@@ -95,6 +95,14 @@ def _height_options(p, dem: bool = True) -> None:
     p.add_argument(
         "--geoid", action="store_true", help="the EGM96 geoid (the sea; Sen2VM's ground where its DEM has no tile)"
     )
+    p.add_argument(
+        "--geoid-grid",
+        type=input_path,
+        default=None,
+        metavar="FILE",
+        help="with --geoid: the geoid of this raster of geoid heights [m above WGS 84; north-up, geographic, "
+        "nodes at pixel centres], e.g. Sen2VM's S2__OPER_DEM_GEOIDF (EGM2008) as a GeoTIFF; default the bundled EGM96",
+    )
     if dem:
         add_dem_options(p, tolerances=False)
 
@@ -113,6 +121,8 @@ def _product_and_sensor(args):
 
 
 def _one_surface(args, dem_option: bool = True) -> list:
+    if args.geoid_grid is not None and not args.geoid:
+        raise ValueError(f"--geoid-grid = {str(args.geoid_grid)!r}: goes with --geoid (the surface it describes)")
     opts = [("--target-h-m", args.target_h_m is not None), ("--geoid", args.geoid)]
     if dem_option:
         opts.append(("--dem", args.dem))
@@ -123,6 +133,17 @@ def _one_surface(args, dem_option: bool = True) -> list:
     if args.target_h_m is not None and not math.isfinite(args.target_h_m):
         raise ValueError(f"--target-h-m = {args.target_h_m!r}: must be a finite height in metres")
     return given
+
+
+def _undulation(args):
+    """The geoid N(lat, lon) of --geoid-grid, or None (the bundled EGM96)."""
+    from geoloc.geodesy.geoid import grid_undulation
+
+    return None if args.geoid_grid is None else grid_undulation(args.geoid_grid)
+
+
+def _geoid_name(args) -> str:
+    return "EGM96 (geoloc's bundled grid)" if args.geoid_grid is None else Path(args.geoid_grid).name
 
 
 def run_grid(args) -> int:
@@ -149,9 +170,10 @@ def run_grid(args) -> int:
         cols,
         surface=surface,
         height_m=args.target_h_m,
-        geoid=args.geoid or None,
+        geoid=args.geoid,
         corrections=corr,
         height_kind=args.height_kind,
+        undulation=_undulation(args),
     )
     write_grid(
         args.out,
@@ -165,6 +187,7 @@ def run_grid(args) -> int:
             "detector": f"{int(str(args.detector).lstrip('Dd')):02d}",
             "granule": gid,
             "surface": given[0],
+            **({"geoid": _geoid_name(args)} if args.geoid else {}),
             "corrections": ",".join(corr.names) or "none",
             "refining": "off" if args.no_refining else "on",
             "eop": prod.eop_source,
@@ -191,7 +214,10 @@ def run_pixel(args) -> int:
     _one_surface(args, dem_option=False)
     _, sensor = _product_and_sensor(args)
     lat, lon = math.radians(args.lat), math.radians(args.lon)
-    h = float(egm96_undulation(lat, lon)) if args.geoid else args.target_h_m
+    N = _undulation(args) or egm96_undulation
+    h = float(N(lat, lon)) if args.geoid else args.target_h_m
+    if not math.isfinite(h):
+        raise ValueError(f"--geoid-grid = {str(args.geoid_grid)!r}: has no geoid height at {args.lat}, {args.lon} deg")
     corr = corrections_from_args(args, sensor)
     px = Pipeline(sensor, HeightSurface(h, args.height_kind), corr).ground_to_pixel(
         np.array([lat]), np.array([lon]), np.array([h])
@@ -203,7 +229,7 @@ def run_pixel(args) -> int:
         "lat_deg": args.lat,
         "lon_deg": args.lon,
         "h_m": h,
-        "h_datum": "WGS 84 ellipsoid" + (" (EGM96 geoid height)" if args.geoid else ""),
+        "h_datum": "WGS 84 ellipsoid" + (f" (geoid height: {_geoid_name(args)})" if args.geoid else ""),
         "row": None if not np.isfinite(px.row[0]) else float(px.row[0]),
         "col": None if not np.isfinite(px.col[0]) else float(px.col[0]),
         "status": describe(st) if st else "ok",

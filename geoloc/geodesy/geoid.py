@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Callable
 from pathlib import Path
 
 import numpy as np
@@ -150,6 +151,32 @@ def _grids(folder: str) -> tuple:
             )
         grids.append(NodeGrid.from_geotiff(p))
     return tuple(grids)
+
+
+def grid_undulation(path: str | Path) -> Callable[..., np.ndarray]:
+    """The geoid of a raster of geoid heights (any geoid model: EGM2008, a national one), as a
+    function ``N(lat, lon)`` [m] of geodetic latitude and longitude [rad], like
+    :func:`egm96_undulation`.
+
+    The raster (any GDAL format rasterio reads, e.g. GeoTIFF) is north-up and geographic on
+    WGS 84, its pixel centres the nodes, its values N in metres above the WGS 84 ellipsoid
+    (Sentinel-2's ``S2__OPER_DEM_GEOIDF`` file, EGM2008 at 15', in a GeoTIFF). Bilinear between
+    nodes, as PROJ does for .gtx grids; NaN outside the node hull (no edge continued: a geoid
+    that is not there is not guessed).
+
+    Raises
+    ------
+    ValueError
+        If the raster is not north-up (:meth:`NodeGrid.from_geotiff`).
+    """
+    grid = NodeGrid.from_geotiff(path)
+
+    def undulation(lat, lon) -> np.ndarray:
+        lat_deg = np.rad2deg(np.asarray(lat, float))
+        lon_deg = (np.rad2deg(np.asarray(lon, float)) + 180.0) % 360.0 - 180.0
+        return np.asarray(grid.interp(lat_deg, lon_deg), float)
+
+    return undulation
 
 
 def egm96_undulation(lat, lon, *, folder=None):

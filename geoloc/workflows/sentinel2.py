@@ -10,11 +10,14 @@ EGM96 geoid, or a DEM.
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 
 from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.pipeline import Corrections, Pipeline
 from geoloc.status import Status
+from geoloc.surfaces.base import GroundPoint, Surface
 from geoloc.surfaces.height import HeightSurface
 
 #: Sen2VM's usual steps [pixels of the band] (its test configuration: 6 km)
@@ -42,37 +45,51 @@ def grid_pixels(sensor, step: float, first_row: int = 1, rows: int | None = None
     return 1.0 + step * np.arange(r0, r1 + 1), 1.0 + step * np.arange(nc)
 
 
-def locate_on_geoid(pipe_for, row, col):
-    """Pixels onto the EGM96 geoid: heights h = N(lat, lon) at the hit, a fixed point.
+def locate_on_geoid(pipe_for, row, col, undulation: Callable[..., np.ndarray] | None = None) -> GroundPoint:
+    """Pixels onto the geoid: heights h = N(lat, lon) at the hit, a fixed point.
 
     ``pipe_for(h)`` gives the pipeline on the surface of geodetic height h (broadcast to the
-    pixels). Returns the last GroundPoint.
+    pixels). ``undulation(lat, lon)`` [rad -> m] is the geoid (default: the bundled EGM96,
+    :func:`~geoloc.geodesy.geoid.egm96_undulation`; a file's, e.g. Sen2VM's EGM2008:
+    :func:`~geoloc.geodesy.geoid.grid_undulation`); a point where it is NaN (off the geoid's
+    grid) keeps a NaN height and its status says so. Returns the last GroundPoint.
     """
+    N = egm96_undulation if undulation is None else undulation
     h = np.zeros(np.broadcast_shapes(np.shape(row), np.shape(col)))
     hit = pipe_for(h).locate(row, col, outside="extrapolate")
     for _ in range(GEOID_ITERATIONS):
         ok = hit.status == Status.OK
-        n = egm96_undulation(np.where(ok, hit.lat, 0.0), np.where(ok, hit.lon, 0.0))
+        n = N(np.where(ok, hit.lat, 0.0), np.where(ok, hit.lon, 0.0))
         h = np.where(ok, n, h)
         hit = pipe_for(h).locate(row, col, outside="extrapolate")
     return hit
 
 
 def direct_grid(
-    sensor, rows, cols, *, surface=None, height_m=None, geoid=False, corrections: Corrections, height_kind="geodetic"
-):
+    sensor,
+    rows,
+    cols,
+    *,
+    surface: Surface | None = None,
+    height_m: float | None = None,
+    geoid: bool = False,
+    corrections: Corrections,
+    height_kind: str = "geodetic",
+    undulation: Callable[..., np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Ground points of the grid's pixels: (lon_deg, lat_deg, h_m, status), each (M, N).
 
     Exactly one of ``surface`` (a DEM surface), ``height_m`` (ellipsoidal; the surface of
-    ``height_kind``, :class:`~geoloc.surfaces.height.HeightSurface`) or ``geoid``.
+    ``height_kind``, :class:`~geoloc.surfaces.height.HeightSurface`) or ``geoid`` (the bundled
+    EGM96, or ``undulation``'s geoid: :func:`locate_on_geoid`).
     """
     if sum(x is not None and x is not False for x in (surface, height_m, geoid or None)) != 1:
         raise ValueError("give one of a DEM, a height (--h-m) or --geoid")
     R, C = np.meshgrid(rows, cols, indexing="ij")
     if geoid:
-        hit = locate_on_geoid(lambda h: Pipeline(sensor, HeightSurface(h, "geodetic"), corrections), R, C)
+        hit = locate_on_geoid(lambda h: Pipeline(sensor, HeightSurface(h, "geodetic"), corrections), R, C, undulation)
     else:
-        surf = surface if surface is not None else HeightSurface(float(height_m), height_kind)
+        surf = surface if surface is not None else HeightSurface(float(height_m), height_kind)  # type: ignore[arg-type]
         hit = Pipeline(sensor, surf, corrections).locate(R, C, outside="extrapolate")
     return np.degrees(hit.lon), np.degrees(hit.lat), np.asarray(hit.h, float), np.asarray(hit.status)
 

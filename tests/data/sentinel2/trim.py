@@ -28,6 +28,29 @@ INVERSE_BANDS = ("B02", "B05")
 MARGIN_S = 4.0
 TDS1 = Path("src/test/resources/tests/input/TDS1")
 REF = Path("src/test/resources/tests/ref")
+GEOID = Path("src/test/resources/DEM_GEOID/S2__OPER_DEM_GEOIDF_MPC__20200112T130120_S20190507T000000.DBL")
+#: the geoid crop: whole 15' nodes around the product (its ground lies in 32-34 N, 18-17 W)
+GEOID_BOX_DEG = (31.0, 35.0, -20.0, -15.0)  # south, north, west, east
+
+
+def crop_geoid(src: Path, dst: Path):
+    """Sen2VM's geoid (ENVI raw float32, little-endian, 1440 x 721 nodes every 0.25 deg from
+    90 N, 180 W: its .HDR's map info puts pixel (1, 1)'s corner at 180.125 W, 90.125 N) cut to
+    GEOID_BOX_DEG and written as a GeoTIFF whose pixel centres are the nodes, values unchanged."""
+    import rasterio
+    from affine import Affine
+
+    a = np.fromfile(src, "<f4").reshape(721, 1440)
+    s, n, w, e = GEOID_BOX_DEG
+    i0, i1 = int(round((90 - n) / 0.25)), int(round((90 - s) / 0.25))
+    j0, j1 = int(round((w + 180) / 0.25)), int(round((e + 180) / 0.25))
+    crop = a[i0 : i1 + 1, j0 : j1 + 1]
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    profile = dict(driver="GTiff", width=crop.shape[1], height=crop.shape[0], count=1, dtype="float32")
+    transform = Affine(0.25, 0.0, w - 0.125, 0.0, -0.25, n + 0.125)
+    with rasterio.open(dst, "w", crs="EPSG:4326", transform=transform, **profile) as ds:
+        ds.write(crop[None])
+        ds.update_tags(source=src.name, units="metre", surface="geoid height above the WGS 84 ellipsoid")
 
 
 def local(tag):
@@ -170,6 +193,7 @@ def main(repo: Path, out: Path):
     iers.mkdir(parents=True, exist_ok=True)
     for f in (repo / TDS1 / "inputs/IERS").iterdir():
         shutil.copy(f, iers / f.name)
+    crop_geoid(repo / GEOID, out / "geoid" / "S2__OPER_DEM_GEOIDF_crop.tif")
 
 
 if __name__ == "__main__":
