@@ -123,15 +123,20 @@ class Refining:
     from ``t_centre`` (the datastrip's middle).
 
     ``msi_rotation`` holds the coefficients (lowest degree first) of the rotation angles about
-    X, Y, Z [rad] added to the piloting -> MSI rotation; ``msi_homothety_z`` the relative
-    scale of the MSI frame's Z (focal length); ``position`` the orbit's offsets in the local
-    orbital frame [m] (None where the product gives none).
+    X, Y, Z [rad] added to the piloting -> MSI rotation (``MSI_State``); ``msi_homothety_z`` the
+    relative scale of the MSI frame's Z (focal length); ``focal_plane`` the same two terms of
+    the MSI -> focal plane rotation, per focal plane (``Focal_Plane_State``, ``focalPlaneId``
+    VNIR or SWIR: ``{"VNIR": (rotation, homothety_z)}``, empty where the product gives none);
+    ``position`` the ``Spacecraft_Position`` polynomials X, Y, Z [m] "in the local spacecraft
+    reference frame" (the product format names no axes for it: the sensor refuses a product
+    that carries them, rather than guess; None where the product gives none).
     """
 
     t_centre: np.datetime64  # GPS
     msi_rotation: tuple = ((0.0,), (0.0,), (0.0,))
     msi_homothety_z: tuple = (0.0,)
     position: tuple | None = None
+    focal_plane: dict = field(default_factory=dict)
 
     def angles(self, t_s_from_centre):
         """Rotation angles about X, Y, Z [rad] at seconds from the centre (..., 3)."""
@@ -290,6 +295,7 @@ def read_datastrip(path) -> Datastrip:
         rot = [(0.0,), (0.0,), (0.0,)]
         hom = (0.0,)
         pos = None
+        focal: dict = {}
         if rc is not None:
             msi = rc.find("MSI_State")
             if msi is not None:
@@ -302,12 +308,21 @@ def read_datastrip(path) -> Datastrip:
             if sp is not None and len(sp):
                 pos = tuple(_poly(sp.find(a), f"{w}: Spacecraft_Position {a}") or (0.0,) for a in "XYZ")
             for fp in rc.iter("Focal_Plane_State"):
-                if len(fp):
-                    raise ValueError(
-                        f"{w}: Focal_Plane_State {fp.get('focalPlaneId')} carries corrections; "
-                        "geoloc reads only the MSI_State ones (not implemented)"
-                    )
-        refining = Refining(centre, tuple(rot), hom, pos)
+                if not len(fp):
+                    continue
+                name = (fp.get("focalPlaneId") or "").upper()
+                wf = f"{w}: Focal_Plane_State {name}"
+                if name not in ("VNIR", "SWIR"):
+                    raise ValueError(f"{wf}: focalPlaneId = {fp.get('focalPlaneId')!r}: must be VNIR or SWIR")
+                r = fp.find("Rotation")
+                frot = (
+                    tuple(_poly(r.find(a), f"{wf} Rotation {a}") or (0.0,) for a in "XYZ")
+                    if r is not None
+                    else ((0.0,), (0.0,), (0.0,))
+                )
+                fh = _poly(fp.find("Homothety/Z"), f"{wf} Homothety Z") or (0.0,)
+                focal[name] = (frot, fh)
+        refining = Refining(centre, tuple(rot), hom, pos, focal)
 
     ib = root.find("Auxiliary_Data_Info/IERS_Bulletin")
     iers = (
@@ -589,15 +604,23 @@ class Sentinel2Product:
         if (plane, det) in sm["focal_plane_to_detector"]:
             a3, ax3 = sm["focal_plane_to_detector"][(plane, det)]
             R_det_fp = R_small(a3, ax3)
-        R_body_msi = R_msi_pil  # the detector chain's fixed part, MSI -> piloting (body)
-        R_body_det_fixed = R_body_msi @ R_fp_msi.T @ R_det_fp.T
-        kw = {}
+        # the detector chain: piloting <- MSI (then MSI_State), MSI <- focal plane (then
+        # Focal_Plane_State), focal plane <- detector
+        kw: dict = {"R_body_msi": R_msi_pil, "R_msi_fp": R_fp_msi.T, "R_fp_det": R_det_fp.T}
         if refining and ds.refining is not None:
-            kw = dict(
+            if ds.refining.position is not None:
+                raise ValueError(
+                    f"{ds.path}: Refined_Corrections/Spacecraft_Position = {ds.refining.position!r}: the format "
+                    "gives these orbit offsets 'in the local spacecraft reference frame' without naming its axes; "
+                    "geoloc does not guess them (refining=False, or --no-refining, ignores all the refining)"
+                )
+            kw.update(
                 refining_t0_s=float(secs(ds.refining.t_centre)),
                 refining_rotation=ds.refining.msi_rotation,
                 refining_homothety=ds.refining.msi_homothety_z,
             )
+            if plane in ds.refining.focal_plane:
+                kw["focal_rotation"], kw["focal_homothety"] = ds.refining.focal_plane[plane]
         span = (min(orbit.span[0], ta[0]), max(orbit.span[1], ta[-1]))
         earth = EarthRotationTable.build(epoch, span[0] - 1.0, span[1] + 1.0, self.eop)
         return InertialPushbroomSensor(
@@ -609,7 +632,6 @@ class Sentinel2Product:
             rows=int(rows),
             line_period_s=period,
             t0_s=t0,
-            R_body_msi=R_body_det_fixed,
             name=f"Sentinel-2 {b} D{det}",
             epoch=epoch,
             **kw,

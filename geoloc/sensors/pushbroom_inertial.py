@@ -15,9 +15,10 @@ inertial frame (Sen2VM's Sentinel-2 set-up)::
   spherical linear interpolation between samples (Rugged's default with two neighbours).
 * ``R_ecef_in(t)``: the Earth's orientation, precession-nutation, Earth rotation and polar
   motion (:class:`geoloc.frames.earth.EarthRotationTable`, astropy/ERFA from IERS values).
-* ``R_body_det(t)``: the instrument's mounting (fixed small rotations) times the refining
-  rotation, polynomials in time (:class:`geoloc.io.sentinel2.Refining`), and the homothety on
-  the detector frame's Z (the focal length's relative change).
+* ``R_body_det(t)``: the instrument's mounting (fixed small rotations: body <- MSI <- focal
+  plane <- detector), each of the first two followed by its refining rotation, polynomials in
+  time (:class:`geoloc.io.sentinel2.Refining`: ``MSI_State``, ``Focal_Plane_State``), and
+  their homotheties on the detector frame's Z (the focal length's relative change).
 * ``u(j)``: the viewing direction of detector pixel j (column j), from its tabulated
   tan psi_x (across track) and tan psi_y (along track), interpolated linearly between pixels.
 
@@ -77,13 +78,19 @@ class InertialPushbroomSensor(LineDating):
     t0_s : float
         Time of row 1's centre [s from the epoch].
     R_body_msi : ndarray (3, 3)
-        The fixed part of the detector's mounting, MSI frame -> body (piloting) frame.
+        The instrument's mounting, MSI frame -> body (piloting) frame.
+    R_msi_fp, R_fp_det : ndarray (3, 3)
+        Focal plane -> MSI frame, detector -> focal plane (identity by default).
     refining_t0_s : float
         Time origin of the refining polynomials [s from the epoch].
     refining_rotation : tuple of 3 tuples
-        Coefficients (lowest degree first, seconds) of the refining angles about X, Y, Z [rad].
+        Coefficients (lowest degree first, seconds) of the refining angles about X, Y, Z [rad],
+        applied after the MSI mounting (Sentinel-2's ``MSI_State``).
     refining_homothety : tuple
         Coefficients of the relative scale of the detector frame's Z.
+    focal_rotation, focal_homothety : tuple
+        The same two terms of the focal plane (``Focal_Plane_State``): the rotation applied after
+        ``R_msi_fp``, the scale multiplying ``refining_homothety``'s.
     name : str
     """
 
@@ -99,6 +106,10 @@ class InertialPushbroomSensor(LineDating):
     refining_t0_s: float = 0.0
     refining_rotation: tuple = ((0.0,), (0.0,), (0.0,))
     refining_homothety: tuple = (0.0,)
+    R_msi_fp: np.ndarray = field(default_factory=lambda: np.eye(3))
+    R_fp_det: np.ndarray = field(default_factory=lambda: np.eye(3))
+    focal_rotation: tuple = ((0.0,), (0.0,), (0.0,))
+    focal_homothety: tuple = (0.0,)
     name: str = ""
     epoch: object = None  # the datetime64 of t = 0 (for messages and the inverse's dates)
 
@@ -152,12 +163,18 @@ class InertialPushbroomSensor(LineDating):
         # v_in = R(q) v_body: the active matrix of q maps body coordinates to inertial ones
         return self._slerp(np.ravel(t)).as_matrix().reshape(np.shape(t) + (3, 3))
 
-    def R_body_det(self, t):
-        """Detector frame -> body frame at times ``t``: the mounting and the refining rotation."""
+    def _refining_R(self, t: np.ndarray, coefficients: tuple) -> np.ndarray:
+        """The refining rotation of angles about X, Y, Z (polynomials in seconds from the
+        refining origin) at times ``t``: ``Rz Ry Rx`` (..., 3, 3)."""
         dt = np.asarray(t, float) - self.refining_t0_s
-        ang = [np.polynomial.polynomial.polyval(dt, c) for c in self.refining_rotation]
-        R_ref = rot.rz(ang[2]) @ rot.ry(ang[1]) @ rot.rx(ang[0])
-        return self.R_body_msi @ R_ref
+        ang = [np.polynomial.polynomial.polyval(dt, c) for c in coefficients]
+        return rot.rz(ang[2]) @ rot.ry(ang[1]) @ rot.rx(ang[0])
+
+    def R_body_det(self, t: np.ndarray) -> np.ndarray:
+        """Detector frame -> body frame at times ``t``: MSI mounting, its refining rotation, the
+        focal plane's mounting, its refining rotation, the detector's mounting."""
+        R = self.R_body_msi @ self._refining_R(t, self.refining_rotation) @ self.R_msi_fp
+        return R @ self._refining_R(t, self.focal_rotation) @ self.R_fp_det
 
     def exterior(self, t):
         """(centre_ecef, velocity_ecef, R_ecef_det) at times ``t``."""
@@ -166,10 +183,10 @@ class InertialPushbroomSensor(LineDating):
         R = self.earth.R_ecef_in(t) @ self._R_in_body(t) @ self.R_body_det(t)
         return p, v, R
 
-    def _scale_z(self, t):
-        return 1.0 + np.polynomial.polynomial.polyval(
-            np.asarray(t, float) - self.refining_t0_s, self.refining_homothety
-        )
+    def _scale_z(self, t: np.ndarray) -> np.ndarray:
+        dt = np.asarray(t, float) - self.refining_t0_s
+        msi = np.polynomial.polynomial.polyval(dt, self.refining_homothety)
+        return (1.0 + msi) * (1.0 + np.polynomial.polynomial.polyval(dt, self.focal_homothety))
 
     def detector_direction(self, col, t):
         """u(j) in the detector frame (not normalised), with the refining homothety on Z."""

@@ -444,3 +444,87 @@ def test_dem_surface_of_the_sea_gives_the_geoid_grid(tmp_path):
     p = geodetic_to_ecef(np.radians(x[1]), np.radians(x[0]), x[2])
     q = geodetic_to_ecef(np.radians(y[1]), np.radians(y[0]), y[2])
     assert np.max(np.linalg.norm(p - q, axis=-1)) < 0.02
+
+
+def _product_with(tmp_path, old: str, new: str):
+    """The test product with one element of its datastrip metadata rewritten (the rest linked)."""
+    import shutil
+
+    root = tmp_path / "L1B"
+    for name in ("GRANULE", "GIPP", "IERS"):
+        (root / name).mkdir(parents=True)
+        for p in (PRODUCT / name).iterdir():
+            (root / name / p.name).symlink_to(p)
+    src = next(PRODUCT.glob("DATASTRIP/*/*.xml"))
+    dst = root / "DATASTRIP" / src.parent.name / src.name
+    dst.parent.mkdir(parents=True)
+    text = src.read_text()
+    assert text.count(old) == 1
+    dst.write_text(text.replace(old, new))
+    shutil.copymode(src, dst)
+    return s2.read_product(root)
+
+
+def test_focal_plane_refining_turns_its_focal_plane_only(tmp_path, product):
+    """A ``Focal_Plane_State`` rotation of 2 microradians about the VNIR focal plane's X (its
+    along-track axis: u = [tan psi_y, -tan psi_x, 1]) turns a VNIR band's lines of sight across
+    track: on the ground, the slant range times 2e-6 rad (1.6 m from 790 km), stretched by the
+    slant of the ground under the ray (measured ratios 0.99996-1.0006; 1 % allowed, the stretch
+    at detector 06's view angles), at right angles to the ground track (its along-track part
+    measured below 3e-4 of the shift; 1 % allowed); the same term on the SWIR focal plane leaves
+    the VNIR bands exactly where they were, and the round trip still returns each pixel."""
+    eps = 2e-6
+    rotation = (
+        f"<Rotation><X><DEGREE>0</DEGREE><COEFFICIENTS>{eps!r}</COEFFICIENTS></X>"
+        "<Y><DEGREE>0</DEGREE><COEFFICIENTS>0</COEFFICIENTS></Y><Z><DEGREE>0</DEGREE><COEFFICIENTS>0</COEFFICIENTS></Z>"
+        "</Rotation>"
+    )
+    row = np.array([1.0, 3000.0, 9000.0, 13824.0])
+    col = np.array([1.0, 1276.0, 2000.0, 2552.0])
+    base_sensor = product.sensor("B02", 6)
+    surface = HeightSurface(45.0, "geodetic")
+    base = Pipeline(base_sensor, surface, SEN2VM).locate(row, col)
+
+    vnir = _product_with(
+        tmp_path / "v",
+        '<Focal_Plane_State focalPlaneId="VNIR" />',
+        f'<Focal_Plane_State focalPlaneId="VNIR">{rotation}</Focal_Plane_State>',
+    )
+    assert vnir.datastrip.refining.focal_plane["VNIR"][0][0] == (eps,)
+    sensor = vnir.sensor("B02", 6)
+    pipe = Pipeline(sensor, surface, SEN2VM)
+    hit = pipe.locate(row, col)
+    moved = hit.ecef - base.ecef
+    los = base_sensor.line_of_sight(row, col)
+    rho = np.linalg.norm(base.ecef - los.origin_ecef, axis=-1)
+    ratio = np.linalg.norm(moved, axis=-1) / (rho * eps)
+    assert np.all((ratio > 0.99) & (ratio < 1.01)), ratio
+    # the ground track's direction: the velocity, made horizontal at the ground point
+    up = base.ecef / np.linalg.norm(base.ecef, axis=-1, keepdims=True)
+    v = los.velocity_ecef - np.sum(los.velocity_ecef * up, axis=-1, keepdims=True) * up
+    along = np.abs(np.sum(moved * v, axis=-1)) / np.linalg.norm(v, axis=-1)
+    assert np.all(along < 0.01 * np.linalg.norm(moved, axis=-1))
+    back = pipe.ground_to_pixel(hit.lat, hit.lon, hit.h)
+    assert np.allclose(back.row, row, atol=1e-6) and np.allclose(back.col, col, atol=1e-6)
+
+    swir = _product_with(
+        tmp_path / "s",
+        '<Focal_Plane_State focalPlaneId="SWIR" />',
+        f'<Focal_Plane_State focalPlaneId="SWIR">{rotation}</Focal_Plane_State>',
+    )
+    same = Pipeline(swir.sensor("B02", 6), surface, SEN2VM).locate(row, col)
+    assert np.array_equal(same.ecef, base.ecef)
+
+
+def test_spacecraft_position_refining_is_refused_by_name(tmp_path):
+    """``Spacecraft_Position`` offsets are given "in the local spacecraft reference frame" with
+    no axes named by the format or used in Sen2VM's own code (it hands them to a library not in
+    its repository): a product that carries them is refused by name with refining on, and
+    located without any refining when asked."""
+    poly = "<X><DEGREE>0</DEGREE><COEFFICIENTS>1.5</COEFFICIENTS></X>"
+    prod = _product_with(tmp_path, "<Spacecraft_Position />", f"<Spacecraft_Position>{poly}</Spacecraft_Position>")
+    assert prod.datastrip.refining.position == ((1.5,), (0.0,), (0.0,))
+    with pytest.raises(ValueError, match="Spacecraft_Position.*no-refining"):
+        prod.sensor("B02", 6)
+    raw = prod.sensor("B02", 6, refining=False)
+    assert raw.refining_rotation == ((0.0,), (0.0,), (0.0,))
