@@ -5,6 +5,7 @@ See docs/sentinel2.md. Degrees and metres at this edge.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 from pathlib import Path
@@ -47,7 +48,7 @@ def _common(p) -> None:
     add_correction_options(p)
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "s2",
         help=VERB_HELP["s2"],
@@ -107,7 +108,7 @@ def _height_options(p, dem: bool = True) -> None:
         add_dem_options(p, tolerances=False)
 
 
-def usage(args) -> int:
+def usage(args: argparse.Namespace) -> int:
     print("geoloc s2: give an action: grid or pixel (geoloc s2 --help)")
     return 2
 
@@ -146,7 +147,7 @@ def _geoid_name(args) -> str:
     return "EGM96 (geoloc's bundled grid)" if args.geoid_grid is None else Path(args.geoid_grid).name
 
 
-def run_grid(args) -> int:
+def run_grid(args: argparse.Namespace) -> int:
     from geoloc.cli._options import surface_from_args
     from geoloc.io.sentinel2 import band_info
     from geoloc.workflows.sentinel2 import DEFAULT_STEPS, direct_grid, grid_pixels, write_grid
@@ -201,7 +202,7 @@ def run_grid(args) -> int:
     return 0
 
 
-def run_pixel(args) -> int:
+def run_pixel(args: argparse.Namespace) -> int:
     from geoloc.geodesy.geoid import egm96_undulation
     from geoloc.pipeline import Pipeline
     from geoloc.status import describe

@@ -23,7 +23,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from typing import Any, cast
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.extras import require
 
@@ -81,7 +84,7 @@ class EarthOrientation:
             raise ValueError(f"{self.source}: mjd_utc must be increasing, got {mjd[:4].tolist()}")
         object.__setattr__(self, "mjd_utc", mjd)
 
-    def at(self, mjd_utc):
+    def at(self, mjd_utc: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(UT1-UTC [s], x_p [rad], y_p [rad]) at the UTC dates ``mjd_utc``.
 
         Raises ValueError for a date outside the table (one day of margin): values are never
@@ -102,7 +105,7 @@ class EarthOrientation:
         return f(self.ut1_utc_s), f(self.xp_arcsec) * ARCSEC, f(self.yp_arcsec) * ARCSEC
 
 
-def gps_to_astropy(t_gps):
+def gps_to_astropy(t_gps: ArrayLike) -> Any:
     """GPS dates (``numpy.datetime64``, any precision) -> astropy ``Time`` in TAI.
 
     GPS time is TAI - 19 s by definition, so the date read as TAI is moved 19 s on.
@@ -116,7 +119,7 @@ def gps_to_astropy(t_gps):
     return time.Time(jd1, frac_s / _DAY_S, format="jd", scale="tai")
 
 
-def utc_to_gps(t_utc):
+def utc_to_gps(t_utc: ArrayLike) -> np.ndarray:
     """UTC dates (datetime64) -> the same instants as GPS dates (datetime64[ns]): + (TAI-UTC) - 19 s.
 
     TAI - UTC (the leap seconds) from astropy's own table (37 s since 2017: GPS = UTC + 18 s).
@@ -133,7 +136,7 @@ def utc_to_gps(t_utc):
     return t + shift_ns.astype("timedelta64[ns]")
 
 
-def R_itrs_eme2000(t_gps, eop: EarthOrientation):
+def R_itrs_eme2000(t_gps: ArrayLike, eop: EarthOrientation) -> np.ndarray:
     """The rotation EME2000 -> ITRS at GPS dates ``t_gps``: ``v_itrs = R @ v_eme2000``.
 
     ``c2t06a`` (IAU 2006/2000A precession-nutation, Earth rotation angle from UT1, polar
@@ -162,7 +165,9 @@ def R_itrs_eme2000(t_gps, eop: EarthOrientation):
     return c2t @ np.swapaxes(rb, -1, -2)
 
 
-def eme2000_to_itrs(t_gps, eop: EarthOrientation, position, velocity=None):
+def eme2000_to_itrs(
+    t_gps: ArrayLike, eop: EarthOrientation, position: ArrayLike, velocity: ArrayLike | None = None
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Inertial (EME2000) position and velocity -> ITRS, at GPS dates ``t_gps``.
 
     The velocity is the Earth-fixed one: the rotated inertial velocity minus omega x r, with the
@@ -206,13 +211,16 @@ class EarthRotationTable:
     R: np.ndarray
 
     @classmethod
-    def build(cls, epoch, t_start_s: float, t_end_s: float, eop: EarthOrientation, step_s: float = 0.5):
+    def build(
+        cls, epoch: np.datetime64 | str, t_start_s: float, t_end_s: float, eop: EarthOrientation, step_s: float = 0.5
+    ) -> EarthRotationTable:
         n = max(2, int(np.ceil((t_end_s - t_start_s) / step_s)) + 1)
         t = t_start_s + np.arange(n) * step_s
-        dates = np.datetime64(epoch, "ns") + (t * 1e9).round().astype("timedelta64[ns]")
-        return cls(np.datetime64(epoch, "ns"), t, R_itrs_eme2000(dates, eop))
+        t_epoch = np.asarray(epoch, "datetime64[ns]")
+        dates = t_epoch + (t * 1e9).round().astype("timedelta64[ns]")
+        return cls(cast(np.datetime64, t_epoch[()]), t, R_itrs_eme2000(dates, eop))
 
-    def R_ecef_in(self, t):
+    def R_ecef_in(self, t: ArrayLike) -> np.ndarray:
         """EME2000 -> ITRS at times ``t`` [s from the epoch] (..., 3, 3); NaN outside the table."""
         t = np.asarray(t, float)
         x = (t - self.t_s[0]) / (self.t_s[1] - self.t_s[0])

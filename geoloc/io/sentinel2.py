@@ -25,11 +25,18 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from defusedxml import ElementTree as ET
 
 from geoloc.userfiles import note_input
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from geoloc.frames.earth import EarthOrientation
+    from geoloc.sensors.pushbroom_inertial import InertialPushbroomSensor
 
 #: band name -> (band index in the metadata, pixel size [m], focal plane)
 BANDS = {
@@ -57,7 +64,7 @@ def _bad(where, field_name, value, why):
     raise ValueError(f"{where}: {field_name} = {value!r}: {why}")
 
 
-def band_info(band: str):
+def band_info(band: str) -> tuple[str, int, int, str]:
     """(index, pixel size [m], focal plane) of ``band`` ("B02", "B8A", ...), or ValueError naming it."""
     b = str(band).upper()
     if re.fullmatch(r"B\d", b):
@@ -67,7 +74,7 @@ def band_info(band: str):
     return (b, *BANDS[b])
 
 
-def detector_id(detector) -> str:
+def detector_id(detector: int | str) -> str:
     """'01'..'12' from 1..12 or '1'..'12' or 'D04', or ValueError naming it."""
     s = str(detector).upper().lstrip("D")
     if not s.isdigit() or not 1 <= int(s) <= 12:
@@ -138,12 +145,12 @@ class Refining:
     position: tuple | None = None
     focal_plane: dict = field(default_factory=dict)
 
-    def angles(self, t_s_from_centre):
+    def angles(self, t_s_from_centre: ArrayLike) -> np.ndarray:
         """Rotation angles about X, Y, Z [rad] at seconds from the centre (..., 3)."""
         t = np.asarray(t_s_from_centre, float)
         return np.stack([np.polynomial.polynomial.polyval(t, c) for c in self.msi_rotation], axis=-1)
 
-    def homothety(self, t_s_from_centre):
+    def homothety(self, t_s_from_centre: ArrayLike) -> np.ndarray:
         return np.polynomial.polynomial.polyval(np.asarray(t_s_from_centre, float), self.msi_homothety_z)
 
 
@@ -195,7 +202,7 @@ class Datastrip:
         _, _, size, _ = band_info(band)
         return self.line_period_10m_s * size / 10.0
 
-    def first_line_time(self, band: str, detector) -> np.datetime64:
+    def first_line_time(self, band: str, detector: int | str) -> np.datetime64:
         """The date of line 1's centre (its GPS time stamp plus half a line period) of a band/detector."""
         b, idx, size, _ = band_info(band)
         det = detector_id(detector)
@@ -218,7 +225,7 @@ def _poly(el, where):
     return tuple(_floats(c.text, where=where).tolist())
 
 
-def read_datastrip(path) -> Datastrip:
+def read_datastrip(path: str | Path) -> Datastrip:
     """Read an L1B datastrip metadata file (``S2?_OPER_MTD_L1B_DS_*.xml``).
 
     Raises ValueError naming the file and the element for a missing or malformed one.
@@ -231,7 +238,9 @@ def read_datastrip(path) -> Datastrip:
     stop = gps_time(_find(ti, "DATASTRIP_SENSING_STOP", w).text, w)
 
     eph = _find(root, "Satellite_Ancillary_Data_Info/Ephemeris", w)
-    t, p, v = [], [], []
+    t: Any = []  # the GPS dates, then their array
+    p: Any = []
+    v: Any = []
     for i, pt in enumerate(eph.iter("GPS_Point")):
         wi = f"{w}: GPS_Point {i + 1}"
         gt = pt.find("GPS_TIME")
@@ -248,7 +257,8 @@ def read_datastrip(path) -> Datastrip:
     keep = np.concatenate([[True], np.diff(t) > np.timedelta64(0, "ns")])  # duplicates: the first kept
 
     att = _find(root, "Satellite_Ancillary_Data_Info/Attitudes/Corrected_Attitudes", w)
-    ta, qa = [], []
+    ta: Any = []  # the quaternions' dates, then their array
+    qa: Any = []
     for i, val in enumerate(att.iter("Values")):
         wi = f"{w}: Corrected_Attitudes Values {i + 1}"
         ta.append(gps_time(_find(val, "GPS_TIME", wi).text, wi))
@@ -322,7 +332,7 @@ def read_datastrip(path) -> Datastrip:
                 )
                 fh = _poly(fp.find("Homothety/Z"), f"{wf} Homothety Z") or (0.0,)
                 focal[name] = (frot, fh)
-        refining = Refining(centre, tuple(rot), hom, pos, focal)
+        refining = Refining(cast(np.datetime64, centre), tuple(rot), hom, pos, focal)
 
     ib = root.find("Auxiliary_Data_Info/IERS_Bulletin")
     iers = (
@@ -382,7 +392,7 @@ class Granule:
         return self.size[size]
 
 
-def read_granule(path) -> Granule:
+def read_granule(path: str | Path) -> Granule:
     path = Path(path)
     w = str(path)
     root = _parse(path, "Sentinel-2 L1B granule metadata")
@@ -396,7 +406,7 @@ def read_granule(path) -> Granule:
 
 
 # ------------------------------------------------------------------ GIPP
-def read_viewing_directions(path, tdi: str | None = None) -> dict:
+def read_viewing_directions(path: str | Path, tdi: str | None = None) -> dict:
     """A ``GIP_VIEDIR`` file -> {detector id: (N, 2) array of (tan psi_x, tan psi_y)}, and the band index.
 
     ``tdi``: the TDI configuration to pick where the file has one list per setting (bands 3, 4,
@@ -440,7 +450,7 @@ def _rotation_el(el, where):
     return tuple(angles), tuple(axes)
 
 
-def read_spacecraft_model(path) -> dict:
+def read_spacecraft_model(path: str | Path) -> dict:
     """A ``GIP_SPAMOD`` file -> {"piloting_to_msi": (angles, axes, scale), "msi_to_focal_plane":
     {"VNIR": ..., "SWIR": ...}, "focal_plane_to_detector": {("VNIR", "01"): (angles, axes), ...}}."""
     path = Path(path)
@@ -448,7 +458,7 @@ def read_spacecraft_model(path) -> dict:
     root = _parse(path, "Sentinel-2 GIPP spacecraft model")
     data = _find(root, "DATA", w)
     p2m = _find(data, "PILOTING_TO_MSI_FRAME", w)
-    out = {
+    out: dict[str, Any] = {
         "piloting_to_msi": (*_rotation_el(p2m, w + " PILOTING_TO_MSI_FRAME"), float(p2m.findtext("SCALE_FACTOR", "1")))
     }
     fp = {}
@@ -466,7 +476,7 @@ def read_spacecraft_model(path) -> dict:
 
 
 # ------------------------------------------------------------------ IERS
-def read_ut1utc(path):
+def read_ut1utc(path: str | Path) -> EarthOrientation:
     """An IERS Bulletin A text file (Sentinel-2's ``AUX_UT1UTC``) -> EarthOrientation.
 
     Reads the rows of the "COMBINED EARTH ORIENTATION PARAMETERS" table
@@ -481,7 +491,7 @@ def read_ut1utc(path):
         text = path.read_text(encoding="latin-1")
     except OSError as e:
         raise ValueError(f"{path}: cannot read the IERS file ({e.strerror})") from None
-    rows = {}
+    rows: dict[int, tuple[float, float, float]] = {}
     combined = re.compile(
         r"^\s*(\d{2})\s+(\d{1,2})\s+(\d{1,2})\s+(\d{5})\s+([-\d.]+)\s+[\d.]+\s+([-\d.]+)\s+[\d.]+\s+([-\d.]+)\s+[\d.]+\s*$"
     )
@@ -489,13 +499,12 @@ def read_ut1utc(path):
     for line in text.splitlines():
         m = combined.match(line) or predicted.match(line)
         if m:
-            mjd = int(m.group(4))
-            rows.setdefault(mjd, (float(m.group(5)), float(m.group(6)), float(m.group(7))))
+            rows.setdefault(int(m.group(4)), (float(m.group(5)), float(m.group(6)), float(m.group(7))))
     if not rows:
         raise ValueError(f"{path}: no Bulletin A rows (YY MM DD MJD x y UT1-UTC) found")
-    mjd = np.array(sorted(rows), float)
-    vals = np.array([rows[int(k)] for k in mjd])
-    return EarthOrientation(mjd, vals[:, 2], vals[:, 0], vals[:, 1], source=str(path))
+    days = sorted(rows)
+    vals = np.array([rows[k] for k in days])
+    return EarthOrientation(np.array(days, float), vals[:, 2], vals[:, 0], vals[:, 1], source=str(path))
 
 
 # ------------------------------------------------------------------ the product
@@ -516,11 +525,11 @@ class Sentinel2Product:
     granules: dict  # granule id -> Granule
     gipp_dir: Path
     spacecraft_model: dict
-    eop: object  # geoloc.frames.earth.EarthOrientation
+    eop: EarthOrientation
     eop_source: str
     _viedir: dict = field(default_factory=dict, repr=False, compare=False)
 
-    def granule(self, detector, which=None) -> Granule:
+    def granule(self, detector: int | str, which: int | str | None = None) -> Granule:
         """A detector's granule: ``which`` an id, a 1-based index along the datastrip, or None (the first)."""
         det = detector_id(detector)
         mine = sorted((g for g in self.granules.values() if g.detector == det), key=lambda g: g.position)
@@ -537,7 +546,7 @@ class Sentinel2Product:
                 return g
         raise ValueError(f"granule = {which!r}: not a granule of detector {det} in {self.path}")
 
-    def viewing_directions(self, band: str, detector) -> np.ndarray:
+    def viewing_directions(self, band: str, detector: int | str) -> np.ndarray:
         """(N, 2) tan psi_x, tan psi_y of a band and detector, from the band's GIP_VIEDIR file."""
         b, idx, _, _ = band_info(band)
         det = detector_id(detector)
@@ -564,7 +573,7 @@ class Sentinel2Product:
             out[int(el.get("bandId"))] = el.text.strip()
         return out
 
-    def sensor(self, band: str, detector, *, refining: bool = True):
+    def sensor(self, band: str, detector: int | str, *, refining: bool = True) -> InertialPushbroomSensor:
         """The pushbroom sensor of a band and detector over the whole datastrip (rows: all its lines).
 
         Row 1 is the detector's first line in the datastrip; a granule's rows start at
@@ -638,7 +647,7 @@ class Sentinel2Product:
         )
 
 
-def read_product(path, gipp=None, iers=None) -> Sentinel2Product:
+def read_product(path: str | Path, gipp: str | Path | None = None, iers: str | Path | None = None) -> Sentinel2Product:
     """Open an L1B product folder (``DATASTRIP/*/MTD_L1B_DS*.xml``, ``GRANULE/*/MTD_L1B_GR*.xml``).
 
     Parameters
@@ -683,7 +692,11 @@ def read_product(path, gipp=None, iers=None) -> Sentinel2Product:
             raise ValueError(f"{ds_file}: no IERS_Bulletin and no IERS file given (--iers)")
         mjd = (ds.sensing_start_utc.astype("datetime64[D]") - np.datetime64("1858-11-17", "D")).astype(float)
         eop = EarthOrientation(
-            np.array([mjd]), [ds.iers[0]], [ds.iers[1]], [ds.iers[2]], source=f"{ds_file} IERS_Bulletin"
+            np.array([mjd]),
+            np.array([ds.iers[0]]),
+            np.array([ds.iers[1]]),
+            np.array([ds.iers[2]]),
+            source=f"{ds_file} IERS_Bulletin",
         )
         source = f"{ds_file} IERS_Bulletin"
     return Sentinel2Product(path, ds, granules, gipp_dir, sm, eop, source)

@@ -30,9 +30,10 @@ driven to zero by Newton steps.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation, Slerp
 
 from geoloc.frames import rotations as rot
@@ -42,12 +43,15 @@ from geoloc.sensors.pushbroom import LineDating, LookAngles, Orbit
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 
+if TYPE_CHECKING:
+    from geoloc.frames.earth import EarthRotationTable
+
 
 def _bad(field_name, value, why):
     raise ValueError(f"{field_name} = {value!r}: {why}")
 
 
-def R_small(angles, axes=("X", "Y", "Z")):
+def R_small(angles: Sequence[float] | np.ndarray, axes: tuple[str, ...] = ("X", "Y", "Z")) -> np.ndarray:
     """The passive rotation ``R_a3 @ R_a2 @ R_a1`` of three angles about the named axes (R1 first)."""
     elementary = {"X": rot.rx, "Y": rot.ry, "Z": rot.rz}
     R = np.eye(3)
@@ -97,7 +101,7 @@ class InertialPushbroomSensor(LineDating):
     orbit: Orbit
     attitude_t: np.ndarray
     q_in_body: np.ndarray
-    earth: object
+    earth: EarthRotationTable
     look: LookAngles
     rows: int
     line_period_s: float
@@ -147,13 +151,14 @@ class InertialPushbroomSensor(LineDating):
     def params(self) -> dict:
         return {"t0_s": float(self.t0_s), "line_period_s": float(self.line_period_s)}
 
-    def with_params(self, **changes) -> "InertialPushbroomSensor":
+    def with_params(self, **changes: float) -> "InertialPushbroomSensor":
         import dataclasses
 
         check_param_names(changes, self.params, "inertial pushbroom sensor")
-        return dataclasses.replace(self, **{k: float(v) for k, v in changes.items()})
+        values: dict[str, Any] = {k: float(v) for k, v in changes.items()}
+        return dataclasses.replace(self, **values)
 
-    def frames(self, state=None):
+    def frames(self, state: object = None) -> None:
         """The frames change line by line; the viewers draw it from its lines of sight (None)."""
         return None
 
@@ -176,26 +181,28 @@ class InertialPushbroomSensor(LineDating):
         R = self.R_body_msi @ self._refining_R(t, self.refining_rotation) @ self.R_msi_fp
         return R @ self._refining_R(t, self.focal_rotation) @ self.R_fp_det
 
-    def exterior(self, t):
+    def exterior(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(centre_ecef, velocity_ecef, R_ecef_det) at times ``t``."""
         t = np.asarray(t, float)
         p, v = self.orbit.state(t)
         R = self.earth.R_ecef_in(t) @ self._R_in_body(t) @ self.R_body_det(t)
         return p, v, R
 
-    def _scale_z(self, t: np.ndarray) -> np.ndarray:
+    def _scale_z(self, t: ArrayLike) -> np.ndarray:
         dt = np.asarray(t, float) - self.refining_t0_s
         msi = np.polynomial.polynomial.polyval(dt, self.refining_homothety)
         return (1.0 + msi) * (1.0 + np.polynomial.polynomial.polyval(dt, self.focal_homothety))
 
-    def detector_direction(self, col, t):
+    def detector_direction(self, col: ArrayLike, t: ArrayLike) -> np.ndarray:
         """u(j) in the detector frame (not normalised), with the refining homothety on Z."""
         tx = self.look.tan_x(col)
         ty = self.look.tan_y(col)
         return np.stack([ty, -tx, np.broadcast_to(self._scale_z(t), np.shape(tx))], axis=-1)
 
     # ------------------------------------------------------------ the Sensor interface
-    def line_of_sight(self, row, col, state=None, *, outside: str = "flag") -> LineOfSight:
+    def line_of_sight(
+        self, row: ArrayLike, col: ArrayLike, state: object = None, *, outside: str = "flag"
+    ) -> LineOfSight:
         """Pixels (1-based row = line, col = detector pixel) -> lines of sight in ECEF.
 
         Geometry is computed once per distinct row (one time per image line).
@@ -231,7 +238,16 @@ class InertialPushbroomSensor(LineDating):
             velocity_ecef=vel.reshape(shape + (3,)),
         )
 
-    def ground_to_pixel(self, lat, lon, h, state=None, *, tol_lines: float = 1e-7, max_iter: int = 30) -> PixelHit:
+    def ground_to_pixel(
+        self,
+        lat: ArrayLike,
+        lon: ArrayLike,
+        h: ArrayLike,
+        state: object = None,
+        *,
+        tol_lines: float = 1e-7,
+        max_iter: int = 30,
+    ) -> PixelHit:
         """Ground points (rad, rad, m ellipsoidal) -> (row, col), by Newton steps on the line time.
 
         At a trial time the point in the detector frame, u = R_det_ecef (P - C), gives the

@@ -12,11 +12,15 @@ from __future__ import annotations
 
 from typing import Callable
 
+from pathlib import Path
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.pipeline import Corrections, Pipeline
 from geoloc.status import Status
+from geoloc.sensors.base import Sensor
 from geoloc.surfaces.base import GroundPoint, Surface
 from geoloc.surfaces.height import HeightSurface
 
@@ -27,7 +31,9 @@ DEFAULT_STEPS = {10: 600, 20: 300, 60: 100}
 GEOID_ITERATIONS = 4
 
 
-def grid_pixels(sensor, step: float, first_row: int = 1, rows: int | None = None):
+def grid_pixels(
+    sensor: Sensor, step: float, first_row: int = 1, rows: int | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Sen2VM's grid over rows ``first_row .. first_row + rows - 1`` of ``sensor``.
 
     Grid row i is image row 1 + step * (r0 + i), r0 the grid row holding ``first_row`` (the
@@ -45,7 +51,12 @@ def grid_pixels(sensor, step: float, first_row: int = 1, rows: int | None = None
     return 1.0 + step * np.arange(r0, r1 + 1), 1.0 + step * np.arange(nc)
 
 
-def locate_on_geoid(pipe_for, row, col, undulation: Callable[..., np.ndarray] | None = None) -> GroundPoint:
+def locate_on_geoid(
+    pipe_for: Callable[[np.ndarray], Pipeline],
+    row: ArrayLike,
+    col: ArrayLike,
+    undulation: Callable[..., np.ndarray] | None = None,
+) -> GroundPoint:
     """Pixels onto the geoid: heights h = N(lat, lon) at the hit, a fixed point.
 
     ``pipe_for(h)`` gives the pipeline on the surface of geodetic height h (broadcast to the
@@ -66,9 +77,9 @@ def locate_on_geoid(pipe_for, row, col, undulation: Callable[..., np.ndarray] | 
 
 
 def direct_grid(
-    sensor,
-    rows,
-    cols,
+    sensor: Sensor,
+    rows: np.ndarray,
+    cols: np.ndarray,
     *,
     surface: Surface | None = None,
     height_m: float | None = None,
@@ -94,7 +105,15 @@ def direct_grid(
     return np.degrees(hit.lon), np.degrees(hit.lat), np.asarray(hit.h, float), np.asarray(hit.status)
 
 
-def write_grid(path, lon_deg, lat_deg, h_m, rows, cols, tags: dict) -> None:
+def write_grid(
+    path: str | Path,
+    lon_deg: np.ndarray,
+    lat_deg: np.ndarray,
+    h_m: np.ndarray,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    tags: dict,
+) -> None:
     """The grid as a GeoTIFF (float64 bands lon, lat, h), written to a temporary file then renamed.
 
     Like Sen2VM's: no georeferencing (the grid is in the image's geometry); the tags say where it

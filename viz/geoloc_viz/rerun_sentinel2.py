@@ -99,7 +99,7 @@ def log_detector(rec: rr.RecordingStream, sensor, n_steps: int = 60) -> dict:
 def write(sensor, out, n_steps: int = 60) -> dict:
     """Write the recording of ``sensor`` to the ``.rrd`` file ``out`` (a temporary file, then renamed)."""
     rec = rr.RecordingStream("geoloc", recording_id=f"geoloc-sentinel2-{sensor.name}")
-    stream = rec.binary_stream()
+    stream = rr.binary_stream(recording=rec)
     s = log_detector(rec, sensor, n_steps)
     rec.flush()
     data = stream.read(flush=True) or b""
