@@ -31,7 +31,8 @@ def register(sub) -> None:
         description="Start a local viser server with the 3D scene of a geolocation: aircraft, "
         "NED/body/gimbal/camera frames, frustum, line of sight, DEM mesh, the iterations of the "
         "terrain method, and the published and surveyed positions of a flight-test record. "
-        "With --scenario limb: the TianGong-2 limb-viewing scene. Binds to 127.0.0.1 unless "
+        "With --scenario limb: the TianGong-2 limb-viewing scene; with a Sentinel-2 L1B product "
+        "folder: its orbit, attitude frames, lines of sight and footprints. Binds to 127.0.0.1 unless "
         "--host says otherwise.",
     )
     p.add_argument(
@@ -40,8 +41,11 @@ def register(sub) -> None:
         type=input_path,
         help="'flight' (default: the bundled MISB ST 0601 example flight over the SRTM crop, "
         "with its planted faults, in the flight debugger), 'flight-test' (the bundled [Q17] "
-        "records), 'limb' (bundled TianGong-2 limb scenario) or a path to a limb scenario TOML",
+        "records), 'limb' (bundled TianGong-2 limb scenario), a path to a limb scenario TOML, or a "
+        "Sentinel-2 L1B product folder (holding DATASTRIP and GRANULE: its orbit, attitude, lines of "
+        "sight and footprints, docs/sentinel2.md)",
     )
+    p.add_argument("--s2-band", default="B02", help="with a Sentinel-2 product: the band shown (default B02)")
     p.add_argument(
         "--records",
         default=None,
@@ -190,6 +194,18 @@ def app_factory(args, serve: bool = False):
                 scenarios=scenarios,
             )
         return lambda server: GeolocApp(server, scn)
+    from geoloc_viz.scene_sentinel2 import is_product
+
+    if is_product(scen):
+        from geoloc_viz.scene_sentinel2 import Sentinel2App, Sentinel2Viewer, load
+
+        product = load(scen)
+        band = getattr(args, "s2_band", "B02")
+        return (
+            (lambda server: Sentinel2Viewer(server, product, band))
+            if serve
+            else (lambda server: Sentinel2App(server, product, band))
+        )
     from geoloc_viz.scene_limb import LimbApp, LimbViewer, load_limb
 
     limb = load_limb(None if scen == "limb" else scen)
