@@ -40,6 +40,7 @@ from typing import Iterator
 
 __all__ = [
     "OutputRefused",
+    "TempFileLeft",
     "command_files",
     "note_input",
     "noted_inputs",
@@ -277,13 +278,41 @@ def atomic_path(path, option: str = "") -> Iterator[Path]:
                 os.chmod(tmp, old_mode)
             os.replace(tmp, target)
     finally:
-        with contextlib.suppress(FileNotFoundError):
-            if tmp.is_dir():
-                import shutil
+        _remove_temp(tmp, path)
 
-                shutil.rmtree(tmp)
-            else:
-                tmp.unlink()
+
+class TempFileLeft(UserWarning):
+    """A temporary output file that could not be removed (its folder turned read-only between
+    the writer and the rename): one line naming it, so the user can delete it."""
+
+
+def _remove_temp(tmp: Path, path) -> None:
+    """Remove :func:`atomic_path`'s temporary file or folder ``tmp``, if it is there.
+
+    Never raises: it runs while an exception (the rename refused, Ctrl-C) is on its way and must
+    not replace it (a failed removal once ended the command with an error naming the hidden temp
+    file instead of the output). What cannot be removed is a :class:`TempFileLeft` warning, one
+    line naming it (``geoloc VERB: warning: ...``)."""
+    import shutil
+    import warnings
+
+    try:
+        if tmp.is_dir() and not tmp.is_symlink():
+            shutil.rmtree(tmp)
+        else:
+            tmp.unlink()
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        if not os.path.lexists(tmp):  # gone after all (rmtree met a file removed meanwhile)
+            return
+        warnings.warn(
+            TempFileLeft(
+                f"{os.fspath(path)}: its temporary file {tmp} could not be removed "
+                f"({e.strerror or e}); delete it by hand"
+            ),
+            stacklevel=2,
+        )
 
 
 @contextlib.contextmanager

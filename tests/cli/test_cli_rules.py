@@ -651,6 +651,51 @@ def test_a_folder_made_read_only_after_the_checks_keeps_the_old_output(
     assert not old.is_dir() or _temp_files(old) == []
 
 
+@pytest.mark.parametrize(
+    "leaf,opt",
+    # atomic_path's three kinds of output: a text file, a GDAL raster (read back before its rename),
+    # a folder of files
+    [(("replay",), "--out"), (("ortho",), "--out"), (("report",), "--out-dir")],
+    ids=lambda v: " ".join(v) if isinstance(v, tuple) else v,
+)
+def test_a_folder_made_read_only_at_the_rename_names_the_temp_file_it_cannot_remove(
+    leaf, opt, tmp_path, monkeypatch, capsysbinary
+):
+    # the fault at the one point where the temporary file is whole and cannot be taken back: the writer
+    # has finished, then the folder turns read-only, so the rename and the removal of the temporary file
+    # are both refused. The command ends with one error line naming the output (not the temporary file,
+    # which the removal's own error once named), one warning line naming the file left behind so the
+    # user can delete it, exit 2, the old output whole
+    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    folder = tmp_path / "outputs"
+    folder.mkdir()
+    old, intact = _old_output(folder, leaf, opt)
+    hits: list = []
+    renames: list = []
+    real_replace = os.replace
+
+    with pytest.MonkeyPatch.context() as patches:
+
+        def replace(src, dst, *a, **k):
+            d = Path(os.fspath(dst))
+            if d == old or old in d.parents:
+                renames.append(d)
+                _folder_turns_read_only(patches, folder, errno.EROFS, hits)
+                return os.replace(src, dst, *a, **k)  # now the refusing one
+            return real_replace(src, dst, *a, **k)
+
+        patches.setattr(os, "replace", replace)
+        r = _run(_with(argv, opt, old), capsysbinary)
+    left = _temp_files(folder) + (_temp_files(old) if old.is_dir() else [])
+    assert renames and r.rc == 2 and "Traceback" not in r.err, r.err
+    last = r.lines()[-1]
+    assert "error: " in last and str(old) in last and last.endswith(": Read-only file system"), r.err
+    assert ".geoloc-" not in last and len([ln for ln in r.lines() if "error:" in ln]) == 1, r.err
+    assert len(left) == 1 and intact(), (left, r.err)
+    warned = [ln for ln in r.lines() if "warning:" in ln and left[0] in ln]
+    assert len(warned) == 1 and "could not be removed (Read-only file system); delete it by hand" in warned[0], r.err
+
+
 # --------------------------------------------------------------------------- bounded iterations
 
 
