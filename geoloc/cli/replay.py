@@ -137,6 +137,10 @@ def register(sub) -> None:
     add_correction_options(p)
 
 
+#: The kinds of input replay reads (``_input_kind``, a campaign, a live stream): each shows the
+#: progress of its work, or tests/cli/test_cli_rules.py names why it needs none.
+INPUT_KINDS = ("records", "klv", "photos", "srt", "campaign", "live")
+
 #: Without --out, records up to this many are printed one line each (more: the summary only).
 ROWS_SHOWN = 50
 
@@ -322,9 +326,15 @@ def _run_klv(args, inputs) -> int:
     sensor = sensor_from_args(args, default=False)
     surface = surface_from_args(args) if args.dem else None  # else: each packet's own frame-centre height
     corrections = corrections_from_args(args, sensor)  # KLV comes from aircraft: refraction, light-time
+    # one step per file, counted in bytes (a file is read and located whole: its outliers are
+    # judged against all its packets); the messages after the bar, not through it
+    bar = _files_progress(paths, "KLV", args.progress)
     replays = []
     for path in paths:
-        r = replay_klv(path, surface=surface, sensor=sensor, budget=_budget(args), corrections=corrections)
+        replays.append(replay_klv(path, surface=surface, sensor=sensor, budget=_budget(args), corrections=corrections))
+        bar.update(_size(path))
+    bar.close()
+    for path, r in zip(paths, replays):
         for e in r.errors:
             print(f"geoloc replay: {path}: {e}", file=sys.stderr)
         print(r.summary)
@@ -335,7 +345,6 @@ def _run_klv(args, inputs) -> int:
         show = args.print_rows or (not args.out and len(r) <= ROWS_SHOWN)
         if show and len(r):
             print(_klv_rows_text(r))
-        replays.append(r)
     n = sum(len(r) for r in replays)
     if args.out and n:
         write_klv_csv(args.out, replays)
@@ -349,6 +358,22 @@ def _run_klv(args, inputs) -> int:
         print("geoloc replay: no good UAS LS packet", file=sys.stderr)
         return 1
     return 0
+
+
+def _size(path: Path) -> int:
+    """A file's size [bytes]: the progress of a replay of whole files (0 for a stream or a device)."""
+    try:
+        return path.stat().st_size if path.is_file() else 0
+    except OSError:
+        return 0
+
+
+def _files_progress(paths, kind: str, enabled):
+    """:class:`geoloc.progress.Progress` over the bytes of ``paths``, one update per file replayed."""
+    from geoloc.progress import Progress
+
+    label = f"replay {paths[0].name}" if len(paths) == 1 else f"replay {len(paths)} {kind} files"
+    return Progress(sum(_size(p) for p in paths), f"{label} (bytes)", enabled)
 
 
 def _run_live(args, inputs) -> int:
@@ -468,6 +493,7 @@ def _run_photos(args, inputs) -> int:
         surface=surface,
         targets_out=targets,
         corrections=corrections_from_args(args, sensor),
+        progress=args.progress,
         **extra,
     )
     for m in messages:
@@ -490,14 +516,17 @@ def _run_srt(args, inputs) -> int:
 
     _reject_records_options(args, "DJI SRT flight logs")
     flights = []
+    bar = _files_progress([Path(x) for x in inputs], "SRT", args.progress)
     for path in inputs:
-        f = read_srt(path)
+        flights.append(read_srt(path))
+        bar.update(_size(Path(path)))
+    bar.close()
+    for path, f in zip(inputs, flights):
         for line, msg in f.errors:
             print(f"geoloc replay: {path} line {line}: {msg}: skipped", file=sys.stderr)
         for line, msg in f.warnings:
             print(f"geoloc replay: {path} line {line}: {msg}: kept in file order", file=sys.stderr)
         print(f.summary())
-        flights.append(f)
     if args.out:
         merged = SrtFlight(",".join(inputs), [r for f in flights for r in f.records], [])
         n = write_srt_records(args.out, merged)
@@ -543,7 +572,9 @@ def _run_campaign(args, inputs) -> int:
         for m in u.messages:
             print(f"geoloc replay: {m}", file=sys.stderr)
 
-    res = run_campaign(paths, out, cfg, scheduler=args.scheduler, workers=args.workers, on_unit=report)
+    res = run_campaign(
+        paths, out, cfg, scheduler=args.scheduler, workers=args.workers, on_unit=report, progress=args.progress
+    )
     for m in res.notes:
         print(f"geoloc replay: note: {m}", file=sys.stderr)
     print(res.summary())

@@ -708,6 +708,7 @@ def run_campaign(
     photos_per_unit: int = PHOTOS_PER_UNIT,
     on_unit=None,
     numba_threads: int | str | None = "auto",
+    progress: bool | None = False,
 ) -> CampaignResult:
     """Replay every unit of ``inputs`` (files or folders) and write Parquet parts to ``out_dir``.
 
@@ -732,6 +733,9 @@ def run_campaign(
         (:func:`worker_numba_threads`: 1 for 2 workers on 2 cores), elsewhere
         numba's own setting (a worker's ``NUMBA_NUM_THREADS``, or the caller's in
         serial). An int: that many, at most ``NUMBA_NUM_THREADS``. None: numba's own.
+    progress : bool or None
+        :class:`geoloc.progress.Progress` on stderr, one step per unit done (None: the bar on a
+        terminal, a line every 10 s in a log; False, the default: nothing).
 
     Returns
     -------
@@ -758,9 +762,13 @@ def run_campaign(
         _dem_surface(cfg)  # a bad DEM is one error here, not one per unit
     results = [None] * len(units)
     t0 = time.perf_counter()
+    from geoloc.progress import Progress
+
+    bar = Progress(len(units), f"replay campaign of {len(units)} {kind} unit(s)", progress)
 
     def done(r):
         results[r.index] = r
+        bar.update(1)
         if on_unit is not None:
             on_unit(r)
 
@@ -788,4 +796,5 @@ def run_campaign(
             client.close()
             if cluster is not None:
                 cluster.close()
+    bar.close()
     return CampaignResult(kind, str(out), results, time.perf_counter() - t0, notes)

@@ -203,6 +203,7 @@ def replay_photos(
     truth_h_datum: str = "ellipsoid",
     targets_out: list | None = None,
     corrections: Corrections = NO_CORRECTIONS,
+    progress: bool | None = False,
 ):
     """Locate every target of ``targets_csv`` in its photo and compare it with its truth.
 
@@ -235,6 +236,9 @@ def replay_photos(
     corrections : Corrections
         The location pipeline's line-of-sight corrections (:class:`geoloc.pipeline.Corrections`;
         none by default); each row says which (``corrections``) and ``refraction_m``.
+    progress : bool or None
+        :class:`geoloc.progress.Progress` on stderr, counting each photo read and each target
+        located (None: the bar on a terminal, a line every 10 s in a log; False, the default: nothing).
 
     Returns
     -------
@@ -267,8 +271,14 @@ def replay_photos(
         )
 
     # ---- the photos
+    photo_paths = list(photo_paths)
+    from geoloc.progress import Progress
+
+    # the work: each photo read (its tags, its sensor) and each target located
+    bar = Progress(len(photo_paths) + len(targets), f"replay {len(photo_paths)} photo(s)", progress)
     photos, bad_photos = {}, {}
     for path in photo_paths:
+        bar.update(1)
         name = Path(path).name
         if name in photos or name in bad_photos:
             messages.append(
@@ -324,6 +334,7 @@ def replay_photos(
     extra = [c for c in header if c not in TARGET_COLUMNS and c not in TRUTH_COLUMNS]
     out = {}
     for key, ks in by_photo.items():
+        bar.update(len(ks))
         out.update(
             _locate_photo(
                 photos[key],
@@ -337,6 +348,9 @@ def replay_photos(
                 corrections,
             )
         )
+    if len(order) < len(targets):
+        bar.update(len(targets) - len(order))  # the targets skipped: done with
+    bar.close()
     if targets_out is not None and TARGET_ID_COLUMN in header:
         targets_out.extend(_triangulate_targets(photos, targets, by_photo, out, surface is not None))
     return [out[k] for k in order], messages

@@ -529,14 +529,75 @@ class _Terminal(io.StringIO):
         return True
 
 
-@pytest.mark.parametrize("leaf", _with_progress(), ids=" ".join)
-def test_long_work_is_a_bar_on_a_terminal_and_a_line_in_a_log(leaf, tmp_path, monkeypatch, capsysbinary):
-    # the example with a clock that jumps 11 s at each reading, so that every update of the work is
-    # due (the 10 s between two lines of a log: tests/cli/test_bad_inputs.py); stderr a log (not a
-    # terminal): plain lines; a terminal: the \r-updated bar; --no-progress on a terminal: nothing
+def _asset(*parts) -> str:
+    from geoloc.assets import asset_path
+
+    return str(asset_path(*parts))
+
+
+def _srt(tmp_path) -> str:
+    # two blocks in DJI's bracketed layout (tests/io/test_dji_srt.py has both layouts)
+    p = tmp_path / "DJI_0001.SRT"
+    p.write_text(
+        "".join(
+            f"{k}\n00:00:0{k - 1},000 --> 00:00:0{k},000\n[latitude: 36.52{k}] [longitude: -84.21] "
+            f"[rel_alt: 100.0 abs_alt: 412.6] [FrameCnt: {k}]\n\n"
+            for k in (1, 2)
+        )
+    )
+    return str(p)
+
+
+#: Each kind of input ``replay`` reads (geoloc.cli.replay.INPUT_KINDS) as a quick command that shows
+#: its progress (its example, ``EXAMPLE``, is the records CSV's), or the reason it needs none.
+REPLAY_KINDS = {
+    "records": None,  # the verb's own example
+    "klv": lambda tmp: ["replay", _asset("klv", "example_flight.klv"), "--out", "k.csv"],
+    "photos": lambda tmp: [
+        "replay",
+        _asset("photos", "DJI_0001.JPG"),
+        "--targets",
+        _asset("photos", "targets.csv"),
+        "--out",
+        "p.csv",
+    ],
+    "srt": lambda tmp: ["replay", _srt(tmp), "--out", "s.csv"],
+    "campaign": lambda tmp: [
+        "replay",
+        _asset("klv", "example_flight.klv"),
+        "--parquet-out",
+        "parts",
+        "--scheduler",
+        "none",
+    ],
+    "live": "a live stream has no end to count towards: each packet's row is printed as it arrives (docs/live.md)",
+}
+
+
+def test_every_input_kind_of_replay_shows_progress_or_says_why_not():
+    from geoloc.cli.replay import INPUT_KINDS
+
+    assert set(REPLAY_KINDS) == set(INPUT_KINDS), set(REPLAY_KINDS) ^ set(INPUT_KINDS)
+
+
+def _progress_cases():
+    cases = [pytest.param(leaf, None, id=" ".join(leaf)) for leaf in _with_progress()]
+    return cases + [
+        pytest.param(("replay",), kind, id=f"replay {kind}") for kind, how in REPLAY_KINDS.items() if callable(how)
+    ]
+
+
+@pytest.mark.parametrize("leaf,kind", _progress_cases())
+def test_long_work_is_a_bar_on_a_terminal_and_a_line_in_a_log(leaf, kind, tmp_path, monkeypatch, capsysbinary):
+    # the example (or a replay of another kind of input) with a clock that jumps 11 s at each reading,
+    # so that every update of the work is due (the 10 s between two lines of a log:
+    # tests/cli/test_bad_inputs.py); stderr a log (not a terminal): plain lines; a terminal: the
+    # \r-updated bar; --no-progress on a terminal: nothing
     import geoloc.progress as progress
 
     argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    if kind is not None:
+        argv = REPLAY_KINDS[kind](tmp_path)
     clock = itertools.count(0, 11)
     monkeypatch.setattr(progress, "_now", lambda: float(next(clock)))
     line = re.compile(rf"{leaf[0]} .+: (\d+)/(\d+) \(\d+\.\d%\), \S+ elapsed, \S+ left")
@@ -554,11 +615,21 @@ def test_long_work_is_a_bar_on_a_terminal_and_a_line_in_a_log(leaf, tmp_path, mo
         capsysbinary.readouterr()
         return rc, term.getvalue()
 
+    if kind == "campaign":  # a second run into the same folder is refused: a new one
+        argv = _with_value(argv, "--parquet-out", "parts2")
     rc, err = on_a_terminal([])
+    if kind == "campaign":
+        argv = _with_value(argv, "--parquet-out", "parts3")
     bars = re.findall(rf"\r{leaf[0]} .+? \[[# ]{{30}}\] +\d+\.\d% (\d+)/(\d+) ", err)
     assert rc in (0, 1) and bars and bars[-1][0] == bars[-1][1], err
     rc, err = on_a_terminal(["--no-progress"])
     assert rc in (0, 1) and "elapsed" not in err and "\r" not in err, err
+
+
+def _with_value(argv, opt, value) -> list:
+    argv = list(argv)
+    argv[argv.index(opt) + 1] = value
+    return argv
 
 
 def _folder_turns_read_only(monkeypatch, folder: Path, err: int, hits: list) -> None:
