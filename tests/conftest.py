@@ -116,5 +116,43 @@ def pytest_runtest_setup(item):
         )
 
 
+#: The kernels each process of the run compiled (a cold cache): {worker: [(kernel, CPU s), ...]}.
+_COMPILED: dict = {}
+
+
+def _compiled_here() -> list:
+    import sys
+
+    nbgeo = sys.modules.get("geoloc.geodesy._nbgeo")  # only if a test imported it
+    return [list(c) for c in getattr(nbgeo, "COMPILED", [])]
+
+
 def pytest_sessionfinish(session):
     os.environ.pop(CHROMIUM_GROUP_ENV, None)
+    worker = getattr(session.config, "workeroutput", None)
+    if worker is not None:  # a pytest-xdist worker: its compiles go to the controller
+        worker["geoloc_compiled"] = _compiled_here()
+    else:
+        _COMPILED["main"] = _compiled_here()
+
+
+def pytest_testnodedown(node, error):
+    _COMPILED[getattr(node, "gateway", None) and node.gateway.id or "worker"] = node.workeroutput.get(
+        "geoloc_compiled", []
+    )
+
+
+def pytest_terminal_summary(terminalreporter):
+    # where a cold numba cache's time goes: a fresh machine compiles every kernel the tests call
+    # (geoloc.geodesy._nbgeo.COMPILED); nothing is printed on a warm cache
+    done = {w: c for w, c in _COMPILED.items() if c}
+    if not done:
+        return
+    names = [k for c in done.values() for k in {k for k, _t in c}]  # each process's kernels, once
+    twice = sorted({k for k in names if names.count(k) > 1})
+    terminalreporter.write_line(
+        "numba kernels compiled (cold cache): "
+        + "; ".join(f"{w} {len(c)} in {sum(t for _k, t in c):.0f} s CPU" for w, c in sorted(done.items()))
+        + " (a kernel's time includes the kernels it calls that compiled with it)"
+        + (f"; in more than one process: {', '.join(twice)}" if twice else "")
+    )
