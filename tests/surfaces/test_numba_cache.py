@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from geoloc.geodesy import _nbgeo, ellipsoid
 from geoloc.surfaces import terrain
@@ -166,3 +167,46 @@ def test_changed_constant_reaches_the_compiled_code(tmp_path):
     assert abs(grs["h"] - grs["h_np"]) < 1e-8
     assert abs(grs["h"] - cold["h"]) > 5e-5
     assert abs(grs["bowring"] - grs["lat_np"]) < 1e-9
+
+
+def test_a_second_process_waits_for_the_compile_of_a_kernel_and_loads_it(tmp_path):
+    # two processes that miss a cold cache at once (the two pytest-xdist workers of tools/test.sh, two
+    # verbs started together) compiled every kernel they share twice. Now the second waits on the
+    # first's lock and loads what it compiled. Played in order: the test holds the lock (as a
+    # compiling process does), B misses and waits on it, A (told not to wait) compiles and caches the
+    # kernel, the lock is released: B must load A's kernel, not compile its own
+    import fcntl
+    import time
+
+    if not Path("/proc/self/fd").is_dir():
+        pytest.skip("needs /proc to see that the second process waits on the lock")
+    cache = tmp_path / "cache"
+    own = _nbgeo.geodetic._cache
+    lock = cache / Path(own._cache_path).name / (own._cache_file._index_name + ".lock")
+    lock.parent.mkdir(parents=True)
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    code = (
+        "import json, sys; from geoloc.geodesy import _nbgeo; _nbgeo.COMPILE_WAIT_S = float(sys.argv[1]); "
+        "_nbgeo.geodetic(6378137.0, 0.0, 0.0); print(json.dumps([n for n, _ in _nbgeo.COMPILED]))"
+    )
+    with open(lock, "w") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)
+        b = subprocess.Popen([sys.executable, "-c", code, "600"], env=env, stdout=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 120  # B's imports, seconds on a busy machine
+            while not any(os.path.realpath(f) == str(lock.resolve()) for f in _open_files(b.pid)):
+                assert b.poll() is None and time.monotonic() < deadline, "B did not wait on the lock"
+                time.sleep(0.05)
+            a = subprocess.run([sys.executable, "-c", code, "0"], env=env, capture_output=True, text=True, check=True)
+            assert json.loads(a.stdout) == ["geodetic"]  # A compiled it (and saved it)
+        finally:
+            fcntl.flock(held, fcntl.LOCK_UN)
+        out, _ = b.communicate(timeout=300)
+    assert b.returncode == 0 and json.loads(out) == [], out  # B loaded A's kernel: no compile of its own
+
+
+def _open_files(pid: int) -> list:
+    try:
+        return [os.readlink(f"/proc/{pid}/fd/{fd}") for fd in os.listdir(f"/proc/{pid}/fd")]
+    except OSError:  # a file closed while listed
+        return []
