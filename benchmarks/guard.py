@@ -227,6 +227,7 @@ def _raw_hits(n):
 
 
 def _once(fn):
+    """(CPU s, wall s, result) of one call, after a collection (no earlier garbage freed inside it)."""
     gc.collect()
     c, w = time.process_time(), time.perf_counter()
     r = fn()
@@ -235,14 +236,24 @@ def _once(fn):
 
 def measure(old, new, pairs: int, warm: int = 2):
     """``pairs`` alternating calls of each (ABBA order), after ``warm`` untimed pairs; returns arrays
-    (pairs, 2) of CPU and wall seconds, column 0 old, column 1 new, and the last results."""
+    (pairs, 2) of CPU and wall seconds, column 0 old, column 1 new, and the results of one more
+    untimed call of each (to compare the sides' outputs).
+
+    A timed call's result is dropped before the next call: kept (as this function once kept each
+    side's last one), it held the memory of a large result (locate's, 200 000 rays: tens of MB)
+    while the other side ran, which then took fresh pages from the system (page faults, in the
+    process's CPU time) in a pattern that depends on the order of the calls: identical code read
+    0.85 (old first in a pair: 1.00, new first: 0.77), while its fastest quarters read 0.97. With
+    each result dropped at once the same code reads 1.007 (both orders 1.00-1.01)."""
     for _ in range(warm):  # the first timed calls after a compile ran 20-25 % slower at load 10
-        old(), new()
-    cpu, wall, res = np.empty((pairs, 2)), np.empty((pairs, 2)), [None, None]
+        old()  # a statement each: a tuple (old(), new()) kept old's result through new's call
+        new()
+    cpu, wall = np.empty((pairs, 2)), np.empty((pairs, 2))
     for i in range(pairs):
         for side in (0, 1) if i % 2 == 0 else (1, 0):
-            cpu[i, side], wall[i, side], res[side] = _once((old, new)[side])
-    return cpu, wall, res
+            cpu[i, side], wall[i, side], r = _once((old, new)[side])
+            del r  # freed now, before the next call
+    return cpu, wall, [old(), new()]
 
 
 def ratios(t):

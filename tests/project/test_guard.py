@@ -15,6 +15,8 @@ the next run), about 12 s after.
 
 from __future__ import annotations
 
+import weakref
+
 import csv
 import importlib.util
 import os
@@ -91,7 +93,27 @@ def test_measure_alternates_the_order():
     g = _guard()
     calls = []
     g.measure(lambda: calls.append("old"), lambda: calls.append("new"), pairs=4, warm=0)
-    assert calls == ["old", "new", "new", "old", "old", "new", "new", "old"]
+    # the timed ABBA calls, then one untimed call of each for the outputs
+    assert calls == ["old", "new", "new", "old", "old", "new", "new", "old", "old", "new"]
+
+
+def test_measure_drops_each_timed_result_before_the_next_call():
+    """A result kept alive across the other side's call made identical code read 0.85 (its memory
+    held, the next call paid fresh pages): no timed call may start while an earlier one's result lives."""
+    g = _guard()
+    refs, alive = [], []
+
+    class Result:
+        pass
+
+    def call():
+        alive.append(sum(r() is not None for r in refs))
+        out = Result()
+        refs.append(weakref.ref(out))
+        return out
+
+    g.measure(call, call, pairs=6, warm=1)
+    assert alive[: 2 + 12] == [0] * 14  # the warm pair and the 12 timed calls
 
 
 def test_default_against(monkeypatch):
