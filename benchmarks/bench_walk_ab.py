@@ -58,7 +58,7 @@ def main(argv=None) -> None:
     t = terrain._exact_tables(dem)
     n = len(o)
     head = (o, d, t["h_max"] + _MARGIN_M, t["h_floor"], t["hgt"], t["lon_col"], t["cinv"], t["binv"])
-    old_block = "block" in inspect.signature(old.walk).parameters
+    old_block = hasattr(old, "WalkGrid") or "block" in inspect.signature(old.walk).parameters
     old_hinv, old_hlev = t["hinv"], t["hlev"]
     if not old_block and t["block"] != 8:
         # REV's walk has blocks of 8 cells built in: its block tables are made for that side
@@ -89,7 +89,7 @@ def main(argv=None) -> None:
         t["cos_col"],
         a.dem_model == "triangles",
     )
-    old_has_levels = "hinv" in inspect.signature(old.walk).parameters
+    old_has_levels = hasattr(old, "WalkGrid") or "hinv" in inspect.signature(old.walk).parameters
 
     def outs():
         return (
@@ -107,21 +107,35 @@ def main(argv=None) -> None:
         walk(*head, *((hinv, hlev) if levels_arg else ()), *tail, *r, **kw)
         return r
 
+    grid = terrain.walk_grid(t, climb=False)
+
+    def run_record(mod, hlev):
+        """A walk that takes its tables as one record (this tree's; REV's from the record on)."""
+        out = mod.walk_outputs(np.zeros(n, np.uint8))
+        mod.walk(o, d, mod.WalkGrid(*grid._replace(hlev=hlev)), out, a.dem_model == "triangles")
+        return out
+
     blk = {"block": t["block"]}
     rows = {
-        f"{a.rev}": lambda: run(
-            old.walk,
-            old_hlev[terrain.CLIMB_FROM - 1 :],
-            old_has_levels,
-            old_head,
-            old_hinv,
-            **(blk if old_block else {}),
+        f"{a.rev}": lambda: (
+            run_record(old, t["hlev"][terrain.CLIMB_FROM - 1 :])
+            if hasattr(old, "WalkGrid")
+            else run(
+                old.walk,
+                old_hlev[terrain.CLIMB_FROM - 1 :],
+                old_has_levels,
+                old_head,
+                old_hinv,
+                **(blk if old_block else {}),
+            )
         ),
-        f"{a.rev}, flat": lambda: run(
-            old.walk, old_hlev[:0], old_has_levels, old_head, old_hinv, **(blk if old_block else {})
+        f"{a.rev}, flat": lambda: (
+            run_record(old, t["hlev"][:0])
+            if hasattr(old, "WalkGrid")
+            else run(old.walk, old_hlev[:0], old_has_levels, old_head, old_hinv, **(blk if old_block else {}))
         ),
-        "this tree, climbing": lambda: run(tn.walk, t["hlev"][terrain.CLIMB_FROM - 1 :], **blk),
-        "this tree, flat": lambda: run(tn.walk, t["hlev"][:0], **blk),
+        "this tree, climbing": lambda: run_record(tn, t["hlev"][terrain.CLIMB_FROM - 1 :]),
+        "this tree, flat": lambda: run_record(tn, t["hlev"][:0]),
     }
     for f in rows.values():  # compile (or load) first
         f()

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +34,9 @@ from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint, LineOfSight, is_mosaic
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import ray_inflated_ellipsoid
+
+if TYPE_CHECKING:  # numba's import is a start-up cost the walk's first call pays, not this module's
+    from geoloc.surfaces.terrain_numba import WalkGrid
 
 METHODS = ("steps", "bisect", "exact")
 #: How the exact solver reads between DEM nodes (``dem_model``; never called a "surface").
@@ -558,45 +562,39 @@ def _exact(o, d, st, dem, dem_model, trace_on, max_cells=4096, parallel=False):
             _SORT_TILE,
             nt,
         )
-    s_out = np.empty(n)
-    p_out = np.empty((n, 3))
-    geo_out = np.empty((n, 4))
-    ncell = np.empty(n, dtype=np.int64)
-    m = max_cells if trace_on else 0
-    trace_s = np.full((n, m), np.nan)
-    trace_ij = np.full((n, m, 2), -1, dtype=np.int64)
+    out = tn.walk_outputs(st, max_cells if trace_on else 0)
     (tn.walk_parallel if parallel else tn.walk)(
-        o,
-        d,
-        tab["h_max"] + _MARGIN_M,
-        tab["h_floor"],
-        tab["hgt"],
-        tab["lon_col"],
-        tab["cinv"],
-        tab["binv"],
-        tab["hinv"],
-        tab["hlev"][CLIMB_FROM - 1 :] if climbs(o, d, tab) else tab["hlev"][:0],
-        tab["row_geo"],
-        tab["lat_n"],
-        tab["lon_w"],
-        tab["dlat"],
-        tab["dlon"],
-        tab["tan_row"],
-        tab["c_row"],
-        tab["sin_col"],
-        tab["cos_col"],
-        dem_model == "triangles",
-        s_out,
-        p_out,
-        geo_out,
-        st,
-        ncell,
-        trace_s,
-        trace_ij,
-        order=order,
-        block=tab["block"],
+        o, d, walk_grid(tab, climbs(o, d, tab)), out, dem_model == "triangles", order=order
     )
-    return p_out, ncell, s_out, (trace_s, trace_ij), geo_out.T
+    return out.p_out, out.ncell, out.s_out, (out.trace_s, out.trace_ij), out.geo_out.T
+
+
+def walk_grid(tab: dict, climb: bool) -> WalkGrid:
+    """The walk's :class:`geoloc.surfaces.terrain_numba.WalkGrid` from :func:`_exact_tables`'s ``tab``:
+    the walk starts at the highest node plus the margin and ends at the tables' floor; with the
+    levels above the blocks from :data:`CLIMB_FROM` up when ``climb`` (:func:`climbs`), else none."""
+    from geoloc.surfaces import terrain_numba as tn
+
+    return tn.WalkGrid(
+        h_top=tab["h_max"] + _MARGIN_M,
+        h_floor=tab["h_floor"],
+        hgt=tab["hgt"],
+        lon_col=tab["lon_col"],
+        cinv=tab["cinv"],
+        binv=tab["binv"],
+        blk=tab["block"],
+        hinv=tab["hinv"],
+        hlev=tab["hlev"][CLIMB_FROM - 1 :] if climb else tab["hlev"][:0],
+        row_geo=tab["row_geo"],
+        lat_n=tab["lat_n"],
+        lon_w=tab["lon_w"],
+        dlat=tab["dlat"],
+        dlon=tab["dlon"],
+        tan_row=tab["tan_row"],
+        c_row=tab["c_row"],
+        sin_col=tab["sin_col"],
+        cos_col=tab["cos_col"],
+    )
 
 
 # --------------------------------------------------------------------------- front end

@@ -32,7 +32,8 @@ functions, not ``inline="always"``: numba's IR inlining put a copy of each into 
 own IR before type inference, and the walk's first compile took 41-55 s of CPU and 1 GB
 (most of it numba's passes over that IR: SSA, rewrites, typing; LLVM 5 %); called, LLVM
 inlines them at the machine-code level all the same, and the first compile of the flat
-walk is 12-14 s and under 400 MB (issue 32, ``benchmarks/bench_first_run.py``). Measured
+walk is 12-14 s and under 400 MB (``benchmarks/bench_first_run.py``: a cold first call is what a
+user of ``geoloc locate --dem`` waits for). Measured
 against the inlined walk (crop, 10 000 rays, one thread, 21 calls in turn, a loaded
 machine): 0.95-1.02 of its time; the triangles' hits and statuses equal bit for bit, the
 bilinear hits within 9.1e-13 m along the ray (the FMAs LLVM forms differ where the code
@@ -41,7 +42,7 @@ numba prunes before typing in the flat kernels.
 
 What the first compile costs is numba's Python-side passes (typing, lowering, SSA: about
 four fifths of it; LLVM the rest), in proportion to the code compiled, plus a fixed cost per
-kernel and per signature (issue 32). So a helper is compiled for one signature
+kernel and per signature. So a helper is compiled for one signature
 (:data:`_NORTH`: a float, where a bool constant was typed as a literal of its own and
 compiled :func:`_par_exit` twice); :func:`median_run` is numpy; the walk calls
 :func:`geodetic_up` alone, not :func:`geodetic` too; :func:`latlon` is one kernel, and the
@@ -50,11 +51,19 @@ cold ``geoloc locate --dem`` (a figure the machine's load does not move): 13.25 
 about 11.0 M after. Kernels split out of the walk (its start cell, a cell's two triangles,
 a cell's bilinear step) saved little more (10.6 M) and made the walk 9-16 % slower: a kernel
 taking arrays pays their reference counts on every call.
+Inlined at numba's IR level (``inline="always"``) such a step pays them all the same (an
+array argument becomes a local bound to the caller's, counted in and out around the step's
+loops): the start cell, the cell where the ray enters a block, the step into the next block and
+the hit's conversion as inlined steps ran at 0.81 of the walk's speed (crop, triangles, 10 000
+rays, one thread, called in turn in one process; the block step alone 0.93). So only the steps
+on scalars are functions of their own (:func:`_ray_span`: where a ray's walk starts and ends),
+and the walk's arguments travel as three records (:class:`WalkRays`, :class:`WalkGrid`,
+:class:`WalkOut`), unpacked once a call (measured: 0.998 of the walk with 28 arguments).
 
 A small call is not compiled at all (:data:`PY_WALK_MAX_RAYS`: up to 64 rays over a DEM of
 modest size): :func:`walk` runs the same source uncompiled (:func:`_python_walk`, about 70 us a
 ray and 5 us a cell step on the bundled crop), so a one-ray ``geoloc locate --dem`` or a short
-``replay`` starts in about 1 s of CPU on a cold cache instead of 15 s (issue 32). Within an
+``replay`` starts in about 1 s of CPU on a cold cache instead of 15 s. Within an
 :func:`uncompiled_budget` (the viewer's first scene) a larger call starts uncompiled too, while
 its projected cost fits. Its statuses and cells are the kernel's; its hits differ from the
 kernel's by the FMA rounding below (2.5e-8 m on the crop's 300 oblique rays, bilinear;
@@ -71,15 +80,19 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+from concurrent.futures import ThreadPoolExecutor
 import math
 import sys
 import types
+from typing import NamedTuple
 
+import numba
 import numpy as np
 from llvmlite import ir
 from numba import prange
 from numba.core import cgutils
 from numba.core import types as nbtypes
+from numba.core.dispatcher import Dispatcher
 from numba.extending import intrinsic
 
 from geoloc import status as _status_module
@@ -113,18 +126,86 @@ _CLIMB = True
 #: 1-3 % slower with the side read at run time).
 _FIXED_BLOCK = 0
 #: The cell model: each compiled walk is one model's (:data:`KERNELS`), so a call compiles the
-#: model it walks and not the other one (issue 32): ``_TRIANGLES`` is a constant numba prunes
+#: model it walks and not the other one (half the first compile): ``_TRIANGLES`` is a constant numba prunes
 #: the other model's branch on before typing (:func:`walk`'s ``triangles`` picks the kernel).
 _TRIANGLES = False
 #: The direction argument of :func:`_par_exit`: a float, not a bool, so that numba compiles the
 #: helper once (a constant True or False is typed as a literal of its own: two compiles of
-#: 0.4-0.6 s on a cold cache, issue 32); LLVM folds it where it inlines the helper.
+#: 0.4-0.6 s on a cold cache); LLVM folds it where it inlines the helper.
 _NORTH = 1.0
 _SOUTH = -1.0
 #: The cache key of this module's kernels (:func:`geoloc.geodesy._nbgeo.cached_njit`): they
 #: freeze A, B, E2, the status codes and the code of _nbgeo's conversions, so a change to
 #: any of those modules must compile them afresh, not load a stale cache.
 KEY = dependency_key(ellipsoid, _nbgeo, _status_module, sys.modules[__name__])
+
+
+class WalkRays(NamedTuple):
+    """The rays of a walk: ECEF origins ``o`` [m] and directions ``d`` (n, 3), and ``order``, the
+    indices of the rays to walk in the order to walk them (:func:`ray_order`)."""
+
+    o: np.ndarray
+    d: np.ndarray
+    order: np.ndarray
+
+
+class WalkGrid(NamedTuple):
+    """The DEM as the walk reads it (:func:`geoloc.surfaces.terrain._exact_tables` builds the tables;
+    :func:`_walk`'s docstring says what each holds). One record, so that the kernel, its wrappers and
+    its callers name the tables once: numba types a tuple of arrays and scalars as one argument and
+    passes its members as it passes separate ones (the walk's machine code does not change).
+
+    ``h_top``, ``h_floor``: the heights [m, ellipsoidal] the walk starts from and ends at; ``blk``:
+    the cells per side of a block of ``binv`` and ``hinv``; ``hlev`` empty: no levels to climb."""
+
+    h_top: float
+    h_floor: float
+    hgt: np.ndarray
+    lon_col: np.ndarray
+    cinv: np.ndarray
+    binv: np.ndarray
+    blk: int
+    hinv: np.ndarray
+    hlev: np.ndarray
+    row_geo: np.ndarray
+    lat_n: float
+    lon_w: float
+    dlat: float
+    dlon: float
+    tan_row: np.ndarray
+    c_row: np.ndarray
+    sin_col: np.ndarray
+    cos_col: np.ndarray
+
+
+class WalkOut(NamedTuple):
+    """What the walk fills, one row a ray: ``s_out`` (the hit's ray parameter), ``p_out`` (ECEF [m]),
+    ``geo_out`` (latitude, longitude [rad], height [m], range [m]), ``status`` (read first: a ray
+    whose status is not OK is not walked), ``ncell`` (cells and blocks visited), and the trace
+    ``trace_s`` (n, m), ``trace_ij`` (n, m, 2) (m = 0: no trace). :func:`walk_outputs` makes one."""
+
+    s_out: np.ndarray
+    p_out: np.ndarray
+    geo_out: np.ndarray
+    status: np.ndarray
+    ncell: np.ndarray
+    trace_s: np.ndarray
+    trace_ij: np.ndarray
+
+
+def walk_outputs(status: np.ndarray, trace_cells: int = 0) -> WalkOut:
+    """A :class:`WalkOut` for ``len(status)`` rays (``status`` used in place: the walk reads and
+    writes it), with room for a trace of ``trace_cells`` steps a ray."""
+    n = len(status)
+    return WalkOut(
+        np.empty(n),
+        np.empty((n, 3)),
+        np.empty((n, 4)),
+        status,
+        np.empty(n, dtype=np.int64),
+        np.full((n, trace_cells), np.nan),
+        np.full((n, trace_cells, 2), -1, dtype=np.int64),
+    )
 
 
 @intrinsic
@@ -585,36 +666,39 @@ def _bilinear_cell(
     return s
 
 
-def _walk(
-    o,
-    d,
-    order,
-    h_top,
-    h_floor,
-    hgt,
-    lon_col,
-    cinv,
-    binv,
-    blk,
-    hinv,
-    hlev,
-    row_geo,
-    lat_n,
-    lon_w,
-    dlat,
-    dlon,
-    tan_row,
-    c_row,
-    sin_col,
-    cos_col,
-    s_out,
-    p_out,
-    geo_out,
-    status,
-    ncell,
-    trace_s,
-    trace_ij,
-):
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+def _ray_span(ox, oy, oz, dx, dy, dz, ia_top, ib_top, ia_floor, ib_floor):
+    """(status, ux, uy, uz, 1/|d|, s, send, st_end): where the walk of the ray o + s u (u = d / |d|)
+    starts and ends.
+
+    It starts where the ray enters the ellipsoid inflated to the top height (``ia_top``,
+    ``ib_top`` = 1/(a+H)^2, 1/(b+H)^2 [Q17 eq. 10-11]; s = 0 when o is inside it) and ends, at
+    ``send``, where it meets the floor's ellipsoid (status ``st_end`` = NO_CONVERGENCE there: no
+    terrain is lower) or else leaves the top's one (SKY: the ray grazes and climbs away). The
+    status is INVALID_INPUT for a direction of zero or infinite length or an infinite origin,
+    SKY for a ray that misses the top's ellipsoid; OK when the walk is to run.
+    Inlined into the walk (called once a ray).
+    """
+    dn = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if not (dn > 0.0 and dn < np.inf) or not (abs(ox) + abs(oy) + abs(oz) < np.inf):
+        return _INVALID, dx, dy, dz, np.nan, np.nan, np.nan, _SKY
+    idn = 1.0 / dn
+    dx *= idn
+    dy *= idn
+    dz *= idn
+    s0, s1, inside = _roots(ox, oy, oz, dx, dy, dz, ia_top, ib_top)
+    if inside:
+        s0 = 0.0
+    elif s0 != s0:
+        return _SKY, dx, dy, dz, idn, np.nan, np.nan, _SKY
+    f0, f1, finside = _roots(ox, oy, oz, dx, dy, dz, ia_floor, ib_floor)
+    end_is_floor = not finside and f0 == f0
+    send = f0 if end_is_floor else s1
+    st_end = _NOCONV if end_is_floor else _SKY  # status when the ray reaches send
+    return _OK, dx, dy, dz, idn, s0, send, st_end
+
+
+def _walk(rays, grid, out):
     """Exact first hit for each ray (see module docstring); fills s_out, status, ncell,
     and for the hits p_out (ECEF [m]) and geo_out (latitude, longitude [rad], height
     [m], range [m]); NaN elsewhere.
@@ -655,6 +739,35 @@ def _walk(
     it. A jump lands on the block boundary crossing the block-by-block walk would
     compute (same function, same absolute parameters), so the hits do not change.
     """
+    # the records unpacked once a call: in the loop these are the locals they were as arguments
+    o = rays.o
+    d = rays.d
+    order = rays.order
+    h_top = grid.h_top
+    h_floor = grid.h_floor
+    hgt = grid.hgt
+    lon_col = grid.lon_col
+    cinv = grid.cinv
+    binv = grid.binv
+    blk = grid.blk
+    hinv = grid.hinv
+    hlev = grid.hlev
+    row_geo = grid.row_geo
+    lat_n = grid.lat_n
+    lon_w = grid.lon_w
+    dlat = grid.dlat
+    dlon = grid.dlon
+    tan_row = grid.tan_row
+    c_row = grid.c_row
+    sin_col = grid.sin_col
+    cos_col = grid.cos_col
+    s_out = out.s_out
+    p_out = out.p_out
+    geo_out = out.geo_out
+    status = out.status
+    ncell = out.ncell
+    trace_s = out.trace_s
+    trace_ij = out.trace_ij
     n = order.shape[0]
     nr = hgt.shape[0]
     nc = hgt.shape[1]
@@ -698,25 +811,10 @@ def _walk(
         dx = d[r, 0]
         dy = d[r, 1]
         dz = d[r, 2]
-        dn = math.sqrt(dx * dx + dy * dy + dz * dz)
-        if not (dn > 0.0 and dn < np.inf) or not (abs(ox) + abs(oy) + abs(oz) < np.inf):
-            status[r] = _INVALID
+        st, dx, dy, dz, idn, s, send, st_end = _ray_span(ox, oy, oz, dx, dy, dz, ia_top, ib_top, ia_floor, ib_floor)
+        if st != _OK:
+            status[r] = st
             continue
-        idn = 1.0 / dn
-        dx *= idn
-        dy *= idn
-        dz *= idn
-        # walk from the ellipsoid inflated to H_max + margin down to H_min - margin [Q17 eq. 11]
-        s0, s1, inside = _roots(ox, oy, oz, dx, dy, dz, ia_top, ib_top)
-        if inside:
-            s0 = 0.0
-        elif s0 != s0:
-            status[r] = _SKY
-            continue
-        f0, f1, finside = _roots(ox, oy, oz, dx, dy, dz, ia_floor, ib_floor)
-        end_is_floor = not finside and f0 == f0
-        send = f0 if end_is_floor else s1
-        st_end = _NOCONV if end_is_floor else _SKY  # status when the ray reaches send
         dxy2 = dx * dx + dy * dy
         dz2 = dz * dz
         oxd = ox * dx + oy * dy
@@ -727,7 +825,6 @@ def _walk(
         east = lz > 0.0
         along = lz != 0.0  # False: the line lies in a meridian plane, it crosses none
         dj = 1 if east else -1
-        s = s0
         lat = 0.0
         lon = 0.0
         h = 0.0
@@ -1367,27 +1464,32 @@ def _kernel_for(hlev, block=BLOCK, triangles=False):
 # on a cold cache (16 s each). Inputs are therefore always passed as read-only, C-ordered
 # views of the dtype below (a view: no copy), scalars as Python floats / bool, and the
 # outputs are checked to be writable C-ordered arrays of the dtype the kernel fills.
-_IN = (
-    ("o", np.float64, 2),
-    ("d", np.float64, 2),
-    ("hgt", np.float64, 2),
-    ("lon_col", np.float64, 1),
-    ("cinv", np.float32, 3),
-    ("binv", np.float32, 3),
-    ("hinv", np.float64, 2),
-    ("hlev", np.int64, 2),
-    ("row_geo", np.float64, 2),
-)
-_IN2 = (("tan_row", np.float64, 1), ("c_row", np.float64, 1), ("sin_col", np.float64, 1), ("cos_col", np.float64, 1))
-_OUT = (
-    ("s_out", np.float64, 1),
-    ("p_out", np.float64, 2),
-    ("geo_out", np.float64, 2),
-    ("status", np.uint8, 1),
-    ("ncell", np.int64, 1),
-    ("trace_s", np.float64, 2),
-    ("trace_ij", np.int64, 3),
-)
+#: The arrays of :class:`WalkGrid`, their dtype and dimensions.
+_GRID_ARRAYS = {
+    "hgt": (np.float64, 2),
+    "lon_col": (np.float64, 1),
+    "cinv": (np.float32, 3),
+    "binv": (np.float32, 3),
+    "hinv": (np.float64, 2),
+    "hlev": (np.int64, 2),
+    "row_geo": (np.float64, 2),
+    "tan_row": (np.float64, 1),
+    "c_row": (np.float64, 1),
+    "sin_col": (np.float64, 1),
+    "cos_col": (np.float64, 1),
+}
+#: The scalars of :class:`WalkGrid` (``blk`` apart: an int).
+_GRID_FLOATS = ("h_top", "h_floor", "lat_n", "lon_w", "dlat", "dlon")
+#: :class:`WalkOut`'s arrays, their dtype and dimensions.
+_OUT = {
+    "s_out": (np.float64, 1),
+    "p_out": (np.float64, 2),
+    "geo_out": (np.float64, 2),
+    "status": (np.uint8, 1),
+    "ncell": (np.int64, 1),
+    "trace_s": (np.float64, 2),
+    "trace_ij": (np.int64, 3),
+}
 
 
 #: The tables the kernel reads as float32 offsets from the floor's ellipsoid
@@ -1442,98 +1544,58 @@ def _order(order, n):
     return order
 
 
-def _prepare(args, order=None, order_checked=False, block=BLOCK):
-    """(kernel, its arguments, the order, the DEM's rows + columns): ``args`` checked and put in the
-    kernel's form (:data:`_IN`, :data:`_OUT`), the kernel picked (:func:`_kernel_for`)."""
-    (
-        o,
-        d,
-        h_top,
-        h_floor,
-        hgt,
-        lon_col,
-        cinv,
-        binv,
-        hinv,
-        hlev,
-        row_geo,
-        lat_n,
-        lon_w,
-        dlat,
-        dlon,
-        tan_row,
-        c_row,
-        sin_col,
-        cos_col,
-        triangles,
-        *outs,
-    ) = args
-    ins = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN, (o, d, hgt, lon_col, cinv, binv, hinv, hlev, row_geo))]
-    ins2 = [_readonly(n, a, t, k) for (n, t, k), a in zip(_IN2, (tan_row, c_row, sin_col, cos_col))]
-    outs = [_output(n, a, t, k) for (n, t, k), a in zip(_OUT, outs)]
-    o, d, hgt, lon_col, cinv, binv, hinv, hlev, row_geo = ins
+def _prepare(o, d, grid, out, triangles, order=None, order_checked=False):
+    """(kernel, its arguments (rays, grid, out), the DEM's rows + columns): the rays, the
+    :class:`WalkGrid` and the :class:`WalkOut` checked and put in the kernel's form (read-only
+    C-ordered inputs of the dtypes of :data:`_GRID_ARRAYS`, floats as Python floats, writable
+    outputs of :data:`_OUT`: one compiled signature), the kernel picked (:func:`_kernel_for`)."""
+    o = _readonly("o", o, np.float64, 2)
+    d = _readonly("d", d, np.float64, 2)
+    grid = WalkGrid(
+        **{
+            k: (_readonly(k, v, *_GRID_ARRAYS[k]) if k in _GRID_ARRAYS else float(v) if k in _GRID_FLOATS else int(v))
+            for k, v in zip(WalkGrid._fields, grid)
+        }
+    )
+    out = WalkOut(*(_output(k, a, *_OUT[k]) for k, a in zip(WalkOut._fields, out)))
     # walk_parallel's slices of an order it has checked once: not scanned again per thread
     order = np.ascontiguousarray(order, dtype=np.int64) if order_checked else _order(order, len(o))
-    for (name, _, _), a in zip(_OUT, outs):
+    for name, a in zip(WalkOut._fields, out):
         if len(a) != len(o):
             raise ValueError(f"walk: {name} has {len(a)} rows for {len(o)} rays")
-    block = int(block)
+    hgt, block = grid.hgt, grid.blk
     if max(hgt.shape) >= 1 << 24 or not 1 <= block <= 16:
         raise ValueError(
             f"walk: a grid of {hgt.shape[0]} x {hgt.shape[1]} nodes with blocks of {block} cells: "
             "the walk takes fewer than 2^24 rows and columns and blocks of 1 to 16 cells"
         )
     want = (-(-(hgt.shape[0] - 1) // block), -(-(hgt.shape[1] - 1) // block))
-    if binv.shape[:2] != want:
+    if grid.binv.shape[:2] != want:
         # a block table made for another side would be read at the wrong blocks: refused
         raise ValueError(
-            f"walk: binv has {binv.shape[0]} x {binv.shape[1]} blocks, but block = {block} "
+            f"walk: binv has {grid.binv.shape[0]} x {grid.binv.shape[1]} blocks, but block = {block} "
             f"on {hgt.shape[0]} x {hgt.shape[1]} nodes needs {want}: pass the block side the "
             "tables were made with (geoloc.surfaces.terrain._exact_tables: 'block')"
         )
-    kernel = _kernel_for(hlev, block, triangles)
-    kargs = (
-        o,
-        d,
-        order,
-        float(h_top),
-        float(h_floor),
-        hgt,
-        lon_col,
-        cinv,
-        binv,
-        block,
-        hinv,
-        hlev,
-        row_geo,
-        float(lat_n),
-        float(lon_w),
-        float(dlat),
-        float(dlon),
-        *ins2,
-        *outs,
-    )
-    return kernel, kargs, order, hgt.shape[0] + hgt.shape[1]
+    kernel = _kernel_for(grid.hlev, block, triangles)
+    return kernel, (WalkRays(o, d, order), grid, out), hgt.shape[0] + hgt.shape[1]
 
 
-def _python_start(args, order=None, block=BLOCK) -> int:
-    """Walk the call's first rays uncompiled (:func:`_python_prefix`); how many of ``order``."""
-    return _python_prefix(*_prepare(args, order, True, block))
-
-
-def _call(args, order=None, order_checked=False, block=BLOCK, python=True):
+def _call(o, d, grid, out, triangles, order=None, order_checked=False, python=True):
     """Walk ``order``'s rays: the start uncompiled where the call is small (:func:`_python_prefix`,
-    unless ``python`` is False), the rest by the compiled kernel."""
-    kernel, kargs, order, nodes = _prepare(args, order, order_checked, block)
-    start = _python_prefix(kernel, kargs, order, nodes) if python else 0
-    if start < len(order):
-        kernel(*kargs[:2], order[start:], *kargs[3:])
+    unless ``python`` is False), the rest by the compiled kernel. Returns how many rays of the
+    order (checked) it walked uncompiled, and that order."""
+    kernel, (rays, grid, out), nodes = _prepare(o, d, grid, out, triangles, order, order_checked)
+    start = _python_prefix(kernel, rays, grid, out, nodes) if python else 0
+    if start < len(rays.order):
+        kernel(rays._replace(order=rays.order[start:]), grid, out)
+    return start, rays.order
 
 
 #: A call of at most this many rays, and at most :data:`PY_WALK_MAX_WORK` rays x (rows + columns)
 #: of the DEM, runs the walk's Python source (:func:`_python_walk`) instead of its compiled
 #: kernel, whatever the process compiled before: ``locate`` (one ray) and a short ``replay``
-#: compile nothing (issue 32: the compile is 5-15 s of CPU; the Python walk about 70 us a ray and
+#: compile nothing (the compile is 5-15 s of CPU, for one ray; the Python walk about 70 us a ray and
 #: 5 us a cell step on the bundled crop). The same code, run with numpy's float64 scalars: the
 #: statuses are the kernel's, the hits within the rounding of the multiply-adds LLVM fuses
 #: (``fastmath={"contract"}``; the bilinear polish stops at 1e-7 m anyway), checked in
@@ -1570,7 +1632,8 @@ def uncompiled_budget(steps: int | None = None):
 
     For a one-off batch that would otherwise compile the walk on a cold cache (5-15 s of CPU)
     though it walks in under a second uncompiled: the viewer's first scene, whose example flight
-    has 5364 footprint rays (:func:`geoloc_viz.flight_model.build`; issue 32). Not for a loop of
+    has 5364 footprint rays (:func:`geoloc_viz.flight_model.build`), a first view that must not
+    wait for a compile. Not for a loop of
     such calls in a warm process (a whole frame in chunks, a campaign): each would pay up to the
     budget where the kernel takes milliseconds. The choice stays the call's (its rays, their order,
     its DEM and this block: the steps counted are the walk's own), never the process's history
@@ -1588,7 +1651,7 @@ def _python_ok(n, nodes):
     return n <= PY_WALK_MAX_RAYS and n * nodes <= PY_WALK_MAX_WORK
 
 
-def _python_prefix(kernel, kargs, order, nodes) -> int:
+def _python_prefix(kernel, rays, grid, out, nodes) -> int:
     """Walk ``order``'s rays uncompiled from its start: all of a small call (:func:`_python_ok`),
     else, within an :func:`uncompiled_budget`, a chunk at a time while the cost projected over the
     whole call (the cell steps so far plus :data:`PY_WALK_RAY_STEPS` a ray, per ray walked, times
@@ -1596,6 +1659,7 @@ def _python_prefix(kernel, kargs, order, nodes) -> int:
     kernel walks the call). Where Python's arithmetic raises and numba's does not (int(nan), a
     sqrt of a negative, an index past an end) the chunk's outputs are restored and the kernel
     walks the rest from there."""
+    order = rays.order
     n = len(order)
     if n == 0:
         return 0
@@ -1607,11 +1671,11 @@ def _python_prefix(kernel, kargs, order, nodes) -> int:
         if not budget or nodes > PY_WALK_MAX_WORK:
             return 0
         chunk = max(1, min(PY_WALK_MAX_RAYS, PY_WALK_MAX_WORK // max(int(nodes), 1)))
-    outs = kargs[-7:]
-    ncell = outs[4]
+    outs = out
+    ncell = out.ncell
     # the scalars as numpy float64: a Python float plus a float32 table entry is float32
     # under numpy 2's promotion; numba's (and numpy's float64 + float32) is float64
-    f64 = tuple(np.float64(a) if type(a) is float else a for a in kargs)
+    grid64 = grid._replace(**{k: np.float64(getattr(grid, k)) for k in _GRID_FLOATS})
     run = _python_walk(kernel)
     done, steps = 0, 0
     while done < n:
@@ -1619,7 +1683,7 @@ def _python_prefix(kernel, kargs, order, nodes) -> int:
         kept = [a[sub].copy() for a in outs]  # status is read too: restored if the kernel must redo them
         try:
             with np.errstate(all="ignore"):
-                run(*f64[:2], sub, *f64[3:])
+                run(rays._replace(order=sub), grid64, out)
         except (ArithmeticError, ValueError, IndexError):
             for a, k in zip(outs, kept):
                 a[sub] = k
@@ -1635,7 +1699,6 @@ def _python_prefix(kernel, kargs, order, nodes) -> int:
 def _python_walk(kernel):
     """``kernel``'s Python function, with the compiled helpers it calls replaced by theirs
     (recursively), ``prange`` by ``range`` and the prefetch hint by nothing: runs uncompiled."""
-    from numba.core.dispatcher import Dispatcher
 
     def plain(f):
         if f in _PY_FUNCS:
@@ -1658,160 +1721,57 @@ def _no_prefetch(arr, i, j):
     return None
 
 
+def _python_start(o, d, grid, out, triangles, order=None):
+    """Walk the call's first rays uncompiled (:func:`_python_prefix`): (how many of the order, the order checked)."""
+    kernel, (rays, grid, out), nodes = _prepare(o, d, grid, out, triangles, order)
+    return _python_prefix(kernel, rays, grid, out, nodes), rays.order
+
+
 def walk(
-    o,
-    d,
-    h_top,
-    h_floor,
-    hgt,
-    lon_col,
-    cinv,
-    binv,
-    hinv,
-    hlev,
-    row_geo,
-    lat_n,
-    lon_w,
-    dlat,
-    dlon,
-    tan_row,
-    c_row,
-    sin_col,
-    cos_col,
-    triangles,
-    s_out,
-    p_out,
-    geo_out,
-    status,
-    ncell,
-    trace_s,
-    trace_ij,
-    order=None,
-    block=BLOCK,
-):
+    o: np.ndarray,
+    d: np.ndarray,
+    grid: WalkGrid,
+    out: WalkOut,
+    triangles: bool,
+    order: np.ndarray | None = None,
+) -> None:
     """The exact first hit for each ray, serial: :func:`_walk` (its docstring) compiled once
-    for the cell model (``triangles``) and the climb; a flat walk of :data:`KERNELS` when ``hlev``
-    is empty (no levels above the blocks to climb).
-    ``order``: the rays to walk, in that order (default: all, in turn; :func:`ray_order`).
-    ``block``: the cells per side of the blocks ``binv`` and ``hinv`` were made for (checked
-    against ``binv``'s shape)."""
-    _call(
-        (
-            o,
-            d,
-            h_top,
-            h_floor,
-            hgt,
-            lon_col,
-            cinv,
-            binv,
-            hinv,
-            hlev,
-            row_geo,
-            lat_n,
-            lon_w,
-            dlat,
-            dlon,
-            tan_row,
-            c_row,
-            sin_col,
-            cos_col,
-            triangles,
-            s_out,
-            p_out,
-            geo_out,
-            status,
-            ncell,
-            trace_s,
-            trace_ij,
-        ),
-        order,
-        block=block,
-    )
+    for the cell model (``triangles``) and the climb; a flat walk of :data:`KERNELS` when
+    ``grid.hlev`` is empty (no levels above the blocks to climb). Fills ``out``.
+
+    ``o``, ``d``: the rays' ECEF origins [m] and directions (n, 3); ``grid``: the DEM's tables
+    (its ``blk`` the block side ``binv`` and ``hinv`` were made for, checked against ``binv``'s
+    shape); ``order``: the rays to walk, in that order (default: all, in turn; :func:`ray_order`)."""
+    _call(o, d, grid, out, triangles, order)
 
 
 def walk_parallel(
-    o,
-    d,
-    h_top,
-    h_floor,
-    hgt,
-    lon_col,
-    cinv,
-    binv,
-    hinv,
-    hlev,
-    row_geo,
-    lat_n,
-    lon_w,
-    dlat,
-    dlon,
-    tan_row,
-    c_row,
-    sin_col,
-    cos_col,
-    triangles,
-    s_out,
-    p_out,
-    geo_out,
-    status,
-    ncell,
-    trace_s,
-    trace_ij,
-    threads=None,
-    order=None,
-    block=BLOCK,
-):
+    o: np.ndarray,
+    d: np.ndarray,
+    grid: WalkGrid,
+    out: WalkOut,
+    triangles: bool,
+    threads: int | None = None,
+    order: np.ndarray | None = None,
+) -> None:
     """As :func:`walk`, the rays spread over all cores; identical results (each ray is walked alone).
 
     The serial kernel runs on contiguous slices of the order in threads (it releases the
     GIL), rather than as a second, ``parallel=True`` compilation of the walk: numba's
     parfor passes over the whole inlined walk took minutes of CPU on a cold cache, for
-    the same per-ray code. ``threads`` defaults to numba's thread count (the cores).
+    the same per-ray code. ``threads`` defaults to numba's thread count (``numba.get_num_threads()``:
+    the cores, or what the caller set, e.g. a campaign's workers).
     """
-    from concurrent.futures import ThreadPoolExecutor
-
-    import numba
-
-    order = _order(order, len(o))
-    args = (
-        o,
-        d,
-        h_top,
-        h_floor,
-        hgt,
-        lon_col,
-        cinv,
-        binv,
-        hinv,
-        hlev,
-        row_geo,
-        lat_n,
-        lon_w,
-        dlat,
-        dlon,
-        tan_row,
-        c_row,
-        sin_col,
-        cos_col,
-        triangles,
-        s_out,
-        p_out,
-        geo_out,
-        status,
-        ncell,
-        trace_s,
-        trace_ij,
-    )
     # the uncompiled start decided once for the whole call, as the serial walk decides it (the same
     # rays walked uncompiled whatever the thread count); the threads share the compiled rest
-    order = order[_python_start(args, order, block) :]
+    start, order = _python_start(o, d, grid, out, triangles, order)
+    order = order[start:]
     n = len(order)
-    k = max(1, min(int(threads or numba.config.NUMBA_NUM_THREADS), n // 256 or 1))
+    k = max(1, min(int(threads or numba.get_num_threads()), n // 256 or 1))
     cuts = np.linspace(0, n, k + 1).astype(int)
 
     def part(a, b):  # each thread a contiguous run of the order: disjoint rays, disjoint output rows
-        _call(args, order[a:b], order_checked=True, block=block, python=False)
+        _call(o, d, grid, out, triangles, order[a:b], order_checked=True, python=False)
 
     if k == 1:
         part(0, n)
@@ -1897,7 +1857,7 @@ def median_run(o, d, dh, m):
     does not descend runs forever (inf), a ray with NaN in it is left out; NaN if none is
     left. In numpy on the (at most ``m``) rays picked, first and last included: 10-20 us for
     256 rays, where a compiled version cost 0.7-0.9 s of CPU to compile on a cold cache, for
-    every first call of a verb (issue 32)."""
+    every first call of a verb."""
     n = len(o)
     k = max(0, min(n, int(m)))
     if k == 0:

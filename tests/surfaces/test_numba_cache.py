@@ -90,7 +90,7 @@ def test_walk_compiles_once_for_every_kind_of_input(monkeypatch):
     los = random_oblique_rays(fine, 20, rng)
     intersect_dem(los, fine, "exact", dem_model="triangles")
     intersect_dem(los, fine, "exact", trace=True)
-    # one compiled walk per (climb, block side, cell model) used (issue 32: a call compiles only
+    # one compiled walk per (climb, block side, cell model) used (a call compiles only
     # its own model; other tests of the session may have compiled more, hence >=)
     used = {k for k, kernel in tn.KERNELS.items() if kernel.signatures}
     assert used >= {
@@ -103,8 +103,8 @@ def test_walk_compiles_once_for_every_kind_of_input(monkeypatch):
     for kernel in (tn.KERNELS[k] for k in used):
         assert len(kernel.signatures) == 1, kernel.signatures
         # the one signature takes read-only inputs (so writable ones never need a second)
-        sig = kernel.signatures[0]
-        assert not sig[0].mutable and not sig[1].mutable and sig[-7].mutable
+        rays, grid, out = kernel.signatures[0]  # the records WalkRays, WalkGrid, WalkOut
+        assert not rays[0].mutable and not rays[1].mutable and not grid[2].mutable and out[0].mutable
 
 
 def test_walk_refuses_outputs_it_cannot_fill():

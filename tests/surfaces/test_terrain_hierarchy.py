@@ -346,56 +346,25 @@ def test_walk_refuses_a_bad_order(rough600):
     tab = terrain._exact_tables(rough600)
     o = np.array([[A + 2000.0, 0.0, 0.0]])
     d = np.array([[-1.0, 0.0, 0.0]])
-    outs = (
-        np.empty(1),
-        np.empty((1, 3)),
-        np.empty((1, 4)),
-        np.zeros(1, np.uint8),
-        np.empty(1, np.int64),
-        np.full((1, 0), np.nan),
-        np.full((1, 0, 2), -1, np.int64),
-    )
-    args = (
-        o,
-        d,
-        tab["h_max"] + _MARGIN_M,
-        tab["h_floor"],
-        tab["hgt"],
-        tab["lon_col"],
-        tab["cinv"],
-        tab["binv"],
-        tab["hinv"],
-        tab["hlev"][:0],
-        tab["row_geo"],
-        tab["lat_n"],
-        tab["lon_w"],
-        tab["dlat"],
-        tab["dlon"],
-        tab["tan_row"],
-        tab["c_row"],
-        tab["sin_col"],
-        tab["cos_col"],
-        True,
-        *outs,
-    )
+    grid = terrain.walk_grid(tab, climb=False)
+    out = tn.walk_outputs(np.zeros(1, np.uint8))
     for bad in (np.array([1]), np.array([-1]), np.zeros((1, 1), np.int64)):
         with pytest.raises(ValueError, match="order"):
-            tn.walk(*args, order=bad)
-    tn.walk(*args, order=np.array([0]))  # a good one runs
+            tn.walk(o, d, grid, out, True, order=bad)
+    tn.walk(o, d, grid, out, True, order=np.array([0]))  # a good one runs
     # a cell or block table not in the kernel's float32 offset form is refused, not cast
     # (a float64 table of the values themselves would be read as offsets: wrong skips)
-    for k in (6, 7):  # cinv, binv
-        bad_tab = list(args)
-        bad_tab[k] = args[k].astype(np.float64)
-        with pytest.raises(ValueError, match=("cinv", "binv")[k - 6] + " must be float32 offsets"):
-            tn.walk(*bad_tab)
+    for k in ("cinv", "binv"):
+        bad_grid = grid._replace(**{k: getattr(grid, k).astype(np.float64)})
+        with pytest.raises(ValueError, match=k + " must be float32 offsets"):
+            tn.walk(o, d, bad_grid, out, True)
     # a block side other than the one binv was made for is refused (it would read wrong blocks)
     assert tab["block"] == 8
     with pytest.raises(ValueError, match="binv has 75 x 75 blocks, but block = 12"):
-        tn.walk(*args, block=12)
+        tn.walk(o, d, grid._replace(blk=12), out, True)
     for blk in (0, 17):
         with pytest.raises(ValueError, match=f"blocks of {blk} cells"):
-            tn.walk(*args, block=blk)
+            tn.walk(o, d, grid._replace(blk=blk), out, True)
 
 
 def test_block_index_without_a_division():

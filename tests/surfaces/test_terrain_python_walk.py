@@ -93,9 +93,9 @@ def _prefix_spy(monkeypatch):
     seen = []
     real = tn._python_prefix
 
-    def spy(kernel, kargs, order, nodes):
-        k = real(kernel, kargs, order, nodes)
-        seen.append((k, len(order)))
+    def spy(kernel, rays, grid, out, nodes):
+        k = real(kernel, rays, grid, out, nodes)
+        seen.append((k, len(rays.order)))
         return k
 
     monkeypatch.setattr(tn, "_python_prefix", spy)

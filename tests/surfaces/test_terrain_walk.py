@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pyproj import Transformer
 
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic
 from geoloc.status import Status
@@ -295,3 +296,35 @@ def test_cell_triangles_meet_the_ray_where_trimesh_does():
     assert np.array_equal(np.isfinite(got), np.isfinite(want))
     ok = np.isfinite(want)
     assert np.abs(got[ok] - want[ok]).max() < 1e-6
+
+
+# the walk's named steps, called alone
+def _ecef(lat, lon, h):
+    """(lat, lon [rad], h [m]) -> ECEF [m] by pyproj (EPSG:4979 -> EPSG:4978), the outside reference."""
+    t = Transformer.from_crs("EPSG:4979", "EPSG:4978", always_xy=True)
+    return np.stack(t.transform(np.rad2deg(lon), np.rad2deg(lat), h), -1)
+
+
+def test_ray_span_starts_and_ends_on_the_heights_along_a_plumb_line():
+    """A ray straight down the normal from 5000 m enters the top height h_top at s = 5000 - h_top
+    and reaches the floor at 5000 - h_floor (distances along the normal are geodetic heights);
+    the walk's surfaces are the inflated ellipsoids (a + h, b + h), which depart from the constant
+    height h by millimetres at these heights [Q17 eq. 11] (hence 0.02 m). A direction of any length
+    gives the same span (s in metres; 1/|d| returned); a zero direction is invalid, an upward ray SKY."""
+    from geoloc.geodesy.ellipsoid import A, B
+    from geoloc.surfaces.terrain_numba import _ray_span
+
+    lat, lon = np.deg2rad(36.3), np.deg2rad(78.1)
+    o = _ecef(lat, lon, 5000.0)
+    up = np.array([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)])
+    inv = [1.0 / (A + h) ** 2 for h in (1200.0, -50.0)] + [1.0 / (B + h) ** 2 for h in (1200.0, -50.0)]
+    ia_top, ia_floor, ib_top, ib_floor = inv
+    for scale in (1.0, 7.0):
+        st, ux, uy, uz, idn, s, send, st_end = _ray_span(*o, *(-scale * up), ia_top, ib_top, ia_floor, ib_floor)
+        assert st == Status.OK and st_end == Status.NO_CONVERGENCE
+        assert idn == pytest.approx(1.0 / scale, rel=1e-15)
+        assert np.allclose([ux, uy, uz], -up, atol=1e-15)
+        assert s == pytest.approx(5000.0 - 1200.0, abs=0.02)
+        assert send == pytest.approx(5000.0 + 50.0, abs=0.02)
+    assert _ray_span(*o, 0.0, 0.0, 0.0, ia_top, ib_top, ia_floor, ib_floor)[0] == Status.INVALID_INPUT
+    assert _ray_span(*o, *up, ia_top, ib_top, ia_floor, ib_floor)[0] == Status.SKY
