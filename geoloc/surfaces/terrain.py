@@ -158,7 +158,7 @@ def below_terrain(o, st, dem, h_max=None) -> None:
     (:meth:`DEM.max_height` otherwise, a scan of every node of a DEM that is not a window).
 
     Such a ray meets the terrain at its origin: the walk answered the camera's own position
-    with a slant range of 0 m and status OK (issue 47). Where the DEM has no height under the
+    with a slant range of 0 m and status OK, a hit no one can use. Where the DEM has no height under the
     camera (outside it, no data) nothing is said here: the solver's own status stands.
     """
     ok = np.flatnonzero(st == Status.OK)
@@ -224,7 +224,7 @@ class _Tracer:
 #: Bound of the descending steps of one call (without ``max_iter``): the Earth's relief, from the
 #: Challenger Deep (-10 935 m) to Everest (8 849 m), at the default 1 m step is 19 784 steps; a
 #: smaller ``eps_h`` that would need more stops there with NO_CONVERGENCE instead of iterating
-#: for hours (issue 47: ``--eps-h 1e-7`` over 600 m of relief is 6e9 steps).
+#: for hours (``--eps-h 1e-7`` over 600 m of relief is 6e9 steps).
 STEPS_MAX = 20_000
 
 
@@ -723,7 +723,7 @@ LOWEST_TERRAIN_M = -11_500.0
 def _no_terrain(los, shape, o, d, st, method, dem_model, trace):
     """The hit of a DEM without a single height: NODATA for every ray still OK that comes down
     to the ellipsoid inflated to :data:`LOWEST_TERRAIN_M` (no terrain lies lower); SKY above it
-    (issue 32: it was SKY for every ray, the NaN highest node failing every test)."""
+    (a NaN highest node fails every comparison: without this each ray would be SKY)."""
     with np.errstate(invalid="ignore", divide="ignore"):
         d = d / np.linalg.norm(d, axis=-1, keepdims=True)  # (the exact method's rays come unnormalised)
     bad = ~(np.all(np.isfinite(o), axis=-1) & np.all(np.isfinite(d), axis=-1))
