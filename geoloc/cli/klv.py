@@ -247,6 +247,8 @@ def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:
                 continue
             good += 1
             quirks.add(r)
+            if r.time_back:  # kept and written, in file order; the user is told where the clock went back
+                print(f"geoloc klv: {name}: {r.time_back}", file=sys.stderr)
             out.write(json.dumps(r.to_json(), ensure_ascii=False, allow_nan=False))
             out.write("\n")
             if flush:

@@ -24,7 +24,8 @@ Bad packets do not stop a read: a checksum mismatch, a truncated packet, a lengt
 running past the end, an integer item longer than 8 bytes, or bytes that are no
 packet at all are reported as a :class:`KlvError` (byte offset of the packet's key
 in the file, and the reason) in the stream of results, and the scan resumes at the
-next key.
+next key. A packet whose Precision Time Stamp (Tag 2) goes back from the one before it
+is kept in file order and carries the report in :attr:`Packet.time_back`.
 
 What writers in the wild do is read (docs/klv.md, "Encoders in the wild"): an
 integer item at another length than the standard's is decoded at its length with
@@ -57,7 +58,7 @@ import math
 import os
 import struct
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from fractions import Fraction
 from typing import BinaryIO, Iterable, Iterator
 
@@ -374,6 +375,13 @@ class Packet:
         unambiguous (an item at another length than the standard's, an empty item,
         an undecodable nested set, ...), one text per kind; a read tallies them with
         :class:`QuirkTally` (docs/klv.md, "Encoders in the wild").
+    time_back : str or None
+        Set by the file readers (:func:`iter_packets`, :func:`read_klv_file`,
+        :func:`read_ts_klv`) when this packet's Precision Time Stamp (MISB ST 0601
+        Tag 2) is earlier than the packet's before it: one line naming this
+        packet's index among the packets decoded (1-based) and byte offset, how far
+        back, and the packet it goes back from. The packet is kept, in file order.
+        Not part of a packet's equality (it is a note on the read, not the packet).
     """
 
     fields: dict
@@ -384,6 +392,7 @@ class Packet:
     pts: int | None = None
     time_base: Fraction | None = None
     quirks: tuple = ()
+    time_back: str | None = field(default=None, compare=False)
 
     def __getitem__(self, name: str):
         return self.fields[name]
@@ -1016,6 +1025,33 @@ def _iter_stream(f: BinaryIO, verify: bool, chunk_size: int, max_length: int) ->
             base += used
 
 
+def _note_time_back(results: Iterable[Packet | KlvError]) -> Iterator[Packet | KlvError]:
+    """Pass ``results`` through, noting on each good packet whose Precision Time Stamp
+    (MISB ST 0601 Tag 2, microseconds since 1970 UTC) is earlier than that of the packet
+    with a time stamp before it: :attr:`Packet.time_back`. Nothing is dropped or reordered (a sender's re-stamped
+    or reordered packets are still the flight's; the user decides), as the SRT reader keeps a
+    time code going back and names its line."""
+    last_us: int | None = None
+    last_k, last_at = 0, None
+    k = 0
+    for r in results:
+        if isinstance(r, Packet):
+            k += 1
+            t = r.fields.get("precision_time_stamp_us")
+            if isinstance(t, int):
+                if last_us is not None and t < last_us:
+                    where = f"byte {r.offset}" if r.offset is not None else "unknown position"
+                    was = f"byte {last_at}" if last_at is not None else "unknown position"
+                    r.time_back = (
+                        f"packet {k} ({where}): Precision Time Stamp goes back {(last_us - t) / 1e6:.6f} s "
+                        f"from packet {last_k} ({was})"
+                    )
+                # each packet against the one before it (as the SRT reader's blocks): a clock that
+                # restarts is reported once, not at every packet after it
+                last_us, last_k, last_at = t, k, r.offset
+        yield r
+
+
 def iter_packets(
     data, *, verify_checksum: bool = True, chunk_size: int = 1 << 20, max_length: int = MAX_PACKET_LENGTH
 ) -> Iterator[Packet | KlvError]:
@@ -1044,11 +1080,16 @@ def iter_packets(
     Yields
     ------
     Packet or KlvError
-        In file order.
+        In file order; a packet whose Precision Time Stamp goes back carries
+        :attr:`Packet.time_back`.
     """
     if hasattr(data, "read"):
-        yield from _iter_stream(data, verify_checksum, chunk_size, max_length)
+        yield from _note_time_back(_iter_stream(data, verify_checksum, chunk_size, max_length))
         return
+    yield from _note_time_back(_iter_bytes(data, verify_checksum, max_length))
+
+
+def _iter_bytes(data, verify_checksum: bool, max_length: int) -> Iterator[Packet | KlvError]:
     if not isinstance(data, (bytes, bytearray)):
         data = bytes(data)
     state = _ScanState(0)
@@ -1077,10 +1118,11 @@ def read_klv_file(path, *, verify_checksum: bool = True, chunk_size: int = 1 << 
     Yields
     ------
     Packet or KlvError
-        In file order; offsets are byte offsets in the file.
+        In file order; offsets are byte offsets in the file. A packet whose Precision
+        Time Stamp goes back carries :attr:`Packet.time_back`.
     """
     with open(path, "rb") as f:
-        yield from _iter_stream(f, verify_checksum, chunk_size, MAX_PACKET_LENGTH)
+        yield from _note_time_back(_iter_stream(f, verify_checksum, chunk_size, MAX_PACKET_LENGTH))
 
 
 def _klv_stream(container, index, path=None):
@@ -1128,7 +1170,13 @@ def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None
     Yields
     ------
     Packet or KlvError
+        In the stream's order; a packet whose Precision Time Stamp goes back carries
+        :attr:`Packet.time_back`.
     """
+    yield from _note_time_back(_read_ts_klv(path, verify_checksum, stream))
+
+
+def _read_ts_klv(path, verify_checksum: bool, stream: int | None) -> Iterator[Packet | KlvError]:
     av = require("av", "reading KLV from MPEG-TS video")
 
     try:

@@ -125,7 +125,7 @@ def _klv_file(tmp_path):
 def _klv_read(items):
     from geoloc.io.klv import TAG_BY_NAME, KlvError
 
-    kept, bad, times, datums = [], [], [], set()
+    kept, bad, times, datums, back = [], [], [], set(), []
     for it in items:
         if isinstance(it, KlvError):
             bad.append((it.offset, str(it)))
@@ -133,14 +133,16 @@ def _klv_read(items):
         kept.append(it.fields["mission_id"])
         times.append(it.fields["precision_time_stamp_us"])
         datums |= {TAG_BY_NAME[n].datum for n in it.fields if TAG_BY_NAME.get(n) and TAG_BY_NAME[n].datum}
-    return kept, bad, times, sorted(datums)
+        if it.time_back:
+            back.append((it.offset, it.time_back))
+    return kept, bad, times, sorted(datums), back
 
 
 def _read_klv(p):
     from geoloc.io.klv import read_klv_file
 
-    kept, bad, times, datums = _klv_read(read_klv_file(p))
-    return Read(kept, [(o, f"{p.name} {t}") for o, t in bad], datums, times)
+    kept, bad, times, datums, back = _klv_read(read_klv_file(p))
+    return Read(kept, [(o, f"{p.name} {t}") for o, t in bad], datums, times, back)
 
 
 # -- KLV in MPEG-TS: the same three packets, one per PES; the bad one is found at its PES's byte position
@@ -152,22 +154,26 @@ def _ts_file(tmp_path):
     a, b, c = _klv_packets([_T0_US, _T0_US + 100_000, _T0_US + 200_000])
     p = tmp_path / "flight.ts"
     write_ts(p, [a, _spoil_checksum(b), c])
-    # the byte position of the TS packet that starts the second PES, found by walking the 188-byte
-    # packets here: the KLV PID's payload_unit_start_indicator packets, in order (ISO 13818-1 2.4.3.2)
-    data = p.read_bytes()
+    # the byte position of the TS packet that starts the second PES
+    return p, ["P0", "P2"], _klv_pes_starts(p.read_bytes())[1]
+
+
+def _klv_pes_starts(data: bytes) -> list:
+    """The byte positions of the TS packets that start a KLV PES, found by walking the 188-byte
+    packets here: the KLV PID's payload_unit_start_indicator packets, in order (ISO 13818-1 2.4.3.2)."""
     starts = []
     for k in range(0, len(data), 188):
         pusi, pid = data[k + 1] & 0x40, ((data[k + 1] & 0x1F) << 8) | data[k + 2]
         if pusi and pid not in (0, 0x11, 0x1FFF) and b"KLVA" not in data[k : k + 188] and pid >= 0x100:
             starts.append(k)
-    return p, ["P0", "P2"], starts[1]
+    return starts
 
 
 def _read_ts(p):
     from geoloc.io.klv import read_ts_klv
 
-    kept, bad, times, datums = _klv_read(read_ts_klv(p))
-    return Read(kept, [(o, f"{p.name} {t}") for o, t in bad], datums, times)
+    kept, bad, times, datums, back = _klv_read(read_ts_klv(p))
+    return Read(kept, [(o, f"{p.name} {t}") for o, t in bad], datums, times, back)
 
 
 # -- photos: two copies of the bundled DJI photo around a JPEG whose XMP is cut
@@ -281,51 +287,49 @@ def test_every_height_a_reader_gives_says_its_datum(reader, tmp_path):
 
 
 def _klv_back(tmp_path, suffix):
+    """Three packets, the third's Precision Time Stamp 0.1 s before the second's; (file, the third
+    packet's byte offset: after the first two packets in a raw file, the third PES's first TS packet
+    in a transport stream)."""
     from geoloc.io.klv import write_ts
 
     a, b, c = _klv_packets([_T0_US, _T0_US + 200_000, _T0_US + 100_000])  # the third goes back 0.1 s
     p = tmp_path / f"back{suffix}"
     if suffix == ".klv":
         p.write_bytes(a + b + c)
-    else:
-        write_ts(p, [a, b, c])
-    return p
+        return p, len(a) + len(b)
+    write_ts(p, [a, b, c])
+    return p, _klv_pes_starts(p.read_bytes())[2]
 
 
 def _srt_back(tmp_path):
     p = tmp_path / "back.SRT"
     p.write_text(_srt_block(1, 0, 1, "36.52") + _srt_block(2, 2, 3, "36.53") + _srt_block(3, 1, 2, "36.54"))
-    return p
+    return p, 9  # block 3 of the SRT starts on the file's line 9
 
 
 #: Readers whose items carry a time (the records CSV has no time column; a photo's file order is
 #: the user's, not a time order). Each is given three items, the third's time before the second's.
-_KLV_TIME_GAP = pytest.mark.xfail(
-    strict=True,
-    reason="not built: a KLV packet whose Precision Time Stamp goes back is yielded in file order with no "
-    "report (read_klv_file, read_ts_klv; only the live demultiplexer counts a clock going back as a restart)",
-)
 TIMED = {
-    "klv": pytest.param(lambda tmp: _klv_back(tmp, ".klv"), _read_klv, marks=_KLV_TIME_GAP),
-    "klv-in-ts": pytest.param(lambda tmp: _klv_back(tmp, ".ts"), _read_ts, marks=_KLV_TIME_GAP),
-    "dji-srt": pytest.param(_srt_back, _read_srt),
+    "klv": (lambda tmp: _klv_back(tmp, ".klv"), _read_klv),
+    "klv-in-ts": (lambda tmp: _klv_back(tmp, ".ts"), _read_ts),
+    "dji-srt": (_srt_back, _read_srt),
 }
 
 
-@pytest.mark.parametrize(
-    "make,read,where",
-    [pytest.param(*p.values, w, marks=p.marks, id=k) for (k, p), w in zip(TIMED.items(), (None, None, 9))],
-)
-def test_a_time_going_back_is_kept_in_file_order_and_reported(make, read, where, tmp_path):
-    got = read(make(tmp_path))
+@pytest.mark.parametrize("reader", list(TIMED))
+def test_a_time_going_back_is_kept_in_file_order_and_reported(reader, tmp_path):
+    make, read = TIMED[reader]
+    path, where = make(tmp_path)
+    got = read(path)
     assert len(got.kept) == 3  # nothing is dropped or reordered for its time
     t = np.asarray(got.times, float)
     assert t[2] < t[1] and t[1] > t[0]
     assert len(got.time_reports) == 1, got.time_reports
-    line, text = got.time_reports[0]
+    position, text = got.time_reports[0]
     assert "back" in text
-    if where is not None:
-        assert line == where  # block 3 of the SRT starts on the file's line 9
+    assert position == where  # the line or byte offset counted in the test
+    if reader != "dji-srt":  # the packet's index and offset, and how far back (0.1 s written above)
+        assert f"packet 3 (byte {where})" in text and "0.100000 s" in text, text
 
 
 # --------------------------------------------------------------------------- writers

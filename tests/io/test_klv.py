@@ -856,6 +856,30 @@ def test_cli_dump_raw_file(tmp_path):
     assert r2.returncode == 1 and r2.stdout == "" and out.read_text() == r.stdout
 
 
+def test_cli_dump_names_each_step_back_of_the_clock_and_keeps_every_packet(tmp_path):
+    # seconds after t0: one step back of 0.25 s (packet 4), then a clock that restarts 10 s back
+    # (packet 6) and runs on from there: two reports, every packet written in file order
+    t0 = 1_700_000_000_000_000
+    sec = [0.0, 1.0, 2.0, 1.75, 3.0, -7.0, -6.0]
+    pkts = [
+        klv.encode_packet({"precision_time_stamp_us": t0 + round(x * 1e6), "mission_id": f"M{k}"})
+        for k, x in enumerate(sec)
+    ]
+    offsets = np.concatenate([[0], np.cumsum([len(b) for b in pkts])[:-1]]).tolist()
+    path = tmp_path / "back.klv"
+    path.write_bytes(b"".join(pkts))
+    r = run_cli(path)
+    assert r.returncode == 0, r.stderr  # a time going back is a note, not a bad packet
+    assert [json.loads(line)["mission_id"] for line in r.stdout.splitlines()] == [f"M{k}" for k in range(7)]
+    back = [e for e in r.stderr.splitlines() if "goes back" in e]
+    assert back == [
+        f"geoloc klv: {path}: packet 4 (byte {offsets[3]}): Precision Time Stamp goes back 0.250000 s "
+        f"from packet 3 (byte {offsets[2]})",
+        f"geoloc klv: {path}: packet 6 (byte {offsets[5]}): Precision Time Stamp goes back 10.000000 s "
+        f"from packet 5 (byte {offsets[4]})",
+    ], r.stderr
+
+
 def test_cli_dump_ts_and_exit_codes(tmp_path):
     rng = np.random.default_rng(5)
     ts = tmp_path / "clip.ts"
