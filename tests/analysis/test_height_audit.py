@@ -454,3 +454,64 @@ def test_report_of_a_klv_replay_without_a_dem_puts_the_finding_in_its_page(tmp_p
     # a records CSV without a DEM is still refused before any work (its checks need the terrain)
     assert main(["report", str(RECORDS), "--audit"]) == 2
     assert "--dem" in capsys.readouterr().err
+
+
+def test_the_stated_uncertainty_is_three_standard_errors_of_the_median_at_least_half_a_metre():
+    from scipy.stats import median_abs_deviation
+
+    from geoloc.analysis.height_audit import median_uncertainty
+
+    # docs/height_audit.md, "How sure": 3 x 1.2533 x 1.4826 x MAD / sqrt(n), at least 0.5 m; the MAD
+    # scaled to a normal sigma by scipy, the median's standard error sqrt(pi / 2) sigma / sqrt(n)
+    rng = np.random.default_rng(3)
+    wide = 40.0 + rng.normal(0.0, 6.0, 25)  # three standard errors ~4.5 m: above the floor
+    sigma = median_abs_deviation(wide, scale="normal")
+    med, u, n = median_uncertainty(np.concatenate([wide, [np.nan]]))
+    assert (med, n) == (np.median(wide), 25)
+    assert u == pytest.approx(3 * np.sqrt(np.pi / 2) * sigma / 5.0, rel=1e-4)  # scipy's 1.4826 to 5 digits
+    # a tight sample (formula 0.12 m) and a constant one (MAD 0): the documented floor, 0.5 m
+    tight = 40.0 + rng.normal(0.0, 0.16, 25)
+    assert 3 * np.sqrt(np.pi / 2) * median_abs_deviation(tight, scale="normal") / 5.0 < 0.5
+    assert median_uncertainty(tight)[1] == 0.5
+    assert median_uncertainty([7.0, 7.0, 7.0]) == (7.0, 0.5, 3)
+
+
+@pytest.mark.parametrize("elevation_deg, measured", [(-55.0, True), (-89.9, False)])
+def test_a_height_over_the_centre_needs_a_ground_track_of_two_centimetres_a_metre(flight, elevation_deg, measured):
+    """The docs' cut (a ray off nadir by under 1.1 deg, a track under 0.02 m per m of height, says
+    little about heights): a ray 35 deg off nadir gives the height at which it passes over its
+    reported centre, which for a centre on the DEM is the DEM's height there; one 0.1 deg off gives
+    none. (The bundled orbit looks 75 to 80 deg off nadir: it never came near the cut.)"""
+    f = flight
+    n = len(f["row"])
+    zero = np.zeros(n)
+    pose = dataclasses.replace(
+        f["pose"],
+        pitch=zero,
+        roll=zero,
+        angles={"azimuth": zero, "elevation": np.full(n, np.deg2rad(elevation_deg))},
+    )
+    row, col = np.full(n, 540.5), np.full(n, 960.5)  # the principal point: the gimbal's own direction
+    los = f["sensor"].line_of_sight(row, col, pose)
+    # each ray's angle off the ellipsoid's normal at the platform, the normal written out here
+    lat, lon = np.asarray(pose.lat, float), np.asarray(pose.lon, float)
+    down = -np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], -1)
+    c = np.einsum("ni,ni->n", los.direction_ecef, down)
+    tan_off = np.sqrt(1 - c**2) / c
+    if measured:
+        assert np.all((tan_off > 0.5) & (tan_off < 0.9)), tan_off  # far above 0.02, below 1 (45 deg)
+    else:
+        assert np.all(tan_off < 0.01), tan_off  # half the cut (0.1 deg, mount and boresight: 0.3 deg in all)
+    g = f["surface"].intersect(los)
+    assert np.all(g.status == 0)
+    a = audit_flight(
+        pose, f["sensor"], row, col, f["surface"], np.rad2deg(g.lat), np.rad2deg(g.lon), g.h, source="test"
+    )
+    h_over = a.columns["height_over_reported_m"]
+    if measured:
+        # the DEM's height at each centre; 0.5 m: the audit walks a straight ground track between two
+        # heights (0 m and the DEM's), the ray's track over 600 m of height bends by centimetres, and
+        # the located centre is on the DEM to the solver's tolerance
+        np.testing.assert_allclose(h_over, np.asarray(g.h), atol=0.5)
+    else:
+        assert np.all(np.isnan(h_over))
