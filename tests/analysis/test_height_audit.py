@@ -152,14 +152,16 @@ def test_frame_centre_heights_in_msl_are_named(flight):
     assert abs(f.offset - np.median(-n_fc)) <= f.uncertainty, f.line()
 
 
-def test_a_time_offset_is_named_in_records(flight):
-    k = 3
-    pad = np.full(k, np.nan)
+@pytest.mark.parametrize("k", [3, -3])
+def test_a_time_offset_is_named_in_records(flight, k):
+    # record j reports the centre of record j + k: late by k records, or early (k < 0)
+    pad = np.full(abs(k), np.nan)
+
+    def shifted(v):
+        return np.r_[v[k:], pad] if k > 0 else np.r_[pad, v[:k]]
+
     f = _one(
-        _audit(
-            flight, lat=np.r_[flight["lat"][k:], pad], lon=np.r_[flight["lon"][k:], pad], h=np.r_[flight["h"][k:], pad]
-        ),
-        "time_offset",
+        _audit(flight, lat=shifted(flight["lat"]), lon=shifted(flight["lon"]), h=shifted(flight["h"])), "time_offset"
     )
     assert abs(f.offset - k) <= f.uncertainty and f.unit == "records", f.line()
 

@@ -252,3 +252,23 @@ def test_every_named_parameter_moves_the_answer(name):
         assert shift > 1e-3, f"{key}: moved {shift:.2e} m"
     with pytest.raises(ValueError, match="no parameter"):
         sensor.with_params(not_a_parameter=1.0)
+
+
+@pytest.mark.parametrize("corr", ["all", "light_time"])
+@pytest.mark.parametrize("name", ["pushbroom", "sentinel2"])
+def test_a_corrected_pushbroom_round_trip_closes_to_a_millionth_of_a_pixel(name, corr):
+    """A pushbroom's optical centre moves with the row, so ``Pipeline.ground_to_pixel`` repeats from
+    the new row's centre until the pixel moves by less than its ``tol_px`` (1e-7 px). With every
+    correction on, or light time alone (the aim then a direction of the range's length, normalised
+    before the point is put back at the range), the round trip closes to 1e-6 px: measured 3e-7 px (the aim's own stop, 1e-4 m
+    on ground pixels of 2 m and 20 m); an iteration stopped at a pixel's move (a tolerance of 1 px)
+    leaves Sentinel-2's rows 3e-6 px off, one pass ZY3's 3e-5 px."""
+    sensor, state = SENSORS[name]
+    pipe = Pipeline(sensor, _surfaces(name)["geodetic"], Corrections.for_sensor(sensor, **CORRECTIONS[corr]))
+    row, col = _pixels(sensor)
+    hit = pipe.locate(row, col, state)
+    ok = hit.status == Status.OK
+    assert ok.mean() > 0.9
+    back = pipe.ground_to_pixel(hit.lat[ok], hit.lon[ok], hit.h[ok], state)
+    np.testing.assert_allclose(back.row, row[ok], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(back.col, col[ok], rtol=0, atol=1e-6)

@@ -647,3 +647,87 @@ def test_the_fused_kernel_serves_only_an_inflated_height_surface(monkeypatch):
     rows = np.full(COMPILED_MIN_RAYS, 1000.0)
     assert inflated._fused(rows, rows, pose, "auto", "flag") == "fused"
     assert Pipeline(cam, HeightSurface(250.0, "geodetic"))._fused(1000.0, 900.0, pose, "numba", "flag") is None
+
+
+def test_locate_takes_its_pixels_by_name_and_its_options_only_by_name():
+    """``Pipeline.locate(row, col, state=None, *, outside=..., engine=...)``: the pixels and the state
+    by place or by name, an option only by name (a caller's positional flag would be read as another)."""
+    cam = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
+    pose = Pose.from_deg(LAT, LON, H, 0, 0, 0, 0, 30)
+    pipe = Pipeline(cam, HeightSurface(0.0, "geodetic"))
+    by_name = pipe.locate(row=1000.0, col=1200.0, state=pose, outside="flag")
+    by_place = pipe.locate(1000.0, 1200.0, pose)
+    np.testing.assert_array_equal(by_name.ecef, by_place.ecef)
+    with pytest.raises(TypeError):
+        pipe.locate(1000.0, 1200.0, pose, "extrapolate")  # an option is never taken by its place
+
+
+@pytest.mark.parametrize("light_time", [False, True])
+def test_the_slant_range_of_a_corrected_point_is_its_distance_from_the_optical_centre(light_time):
+    """With refraction (and light time) on the exact surface of a height, the slant range is the
+    distance from the sensor's own optical centre to the point given, measured here with numpy."""
+    cam = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
+    pose = Pose.from_deg(LAT, LON, H, 0, 0, 0, 0, 60)
+    rows, cols = np.array([1162.12, 900.0]), np.array([1146.42, 1400.0])
+    c = Corrections.for_sensor(cam, "standard", light_time, False)
+    hit = Pipeline(cam, HeightSurface(300.0, "geodetic"), c).locate(rows, cols, pose)
+    assert np.all(hit.status == Status.OK) and np.all(np.asarray(hit.refraction_m) > 0.5)
+    o = np.asarray(cam.line_of_sight(rows, cols, pose).origin_ecef, float)
+    # 1 um: two distances of 36 km computed apart, to the rounding of their coordinates
+    np.testing.assert_allclose(hit.slant_range, np.linalg.norm(np.asarray(hit.ecef) - o, axis=-1), rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize("off_nadir_deg, tol_m", [(20.0, 0.003), (50.0, 0.006)])
+def test_a_bent_line_near_a_point_passes_through_the_traced_ray_there(off_nadir_deg, tol_m):
+    """``lines_near`` (the straight lines triangulation meets) from 700 km: the independent ray
+    trace's point at 300 m lies on the line given for it. Tolerances as test_refraction.py's ray
+    trace from 700 km (the model's 0.3 and 2.7 mm there, and the trace's own 2-4 mm); a sphere
+    osculating the ellipsoid at the camera instead of near the point misses by 19 mm at 50 deg."""
+    from raytrace import look
+
+    from geoloc.surfaces.base import LineOfSight
+
+    o, d = look(math.radians(35.0), math.radians(80.0), 700e3, off_nadir_deg, azimuth_deg=53.0)
+    target = trace(o, d, 300.0, exact_n)
+    los = LineOfSight(o[None], d[None], np.zeros(1, np.uint8))
+    line = Pipeline(None, None, Corrections(refraction=STANDARD_REFRACTION)).lines_near(los, target[None])
+    assert line.status[0] == Status.OK
+    bo, bd = np.asarray(line.origin_ecef[0], float), np.asarray(line.direction_ecef[0], float)
+    v = target - bo
+    assert np.linalg.norm(v - (v @ bd) * bd) < tol_m
+    assert np.linalg.norm(np.cross(target - o, d)) > 1.0  # the straight ray misses it by metres
+
+
+def test_a_nadir_ray_on_a_dem_is_not_bent_and_settles_at_once():
+    """A vertical ray is not bent (Snell's law in spherical layers: n r sin z is constant and z = 0):
+    on a DEM its refracted point is its straight one and its status OK, alone or in a batch with an
+    oblique ray, whose point moves by metres and settles at the DEM's height."""
+    from geoloc.surfaces.dem import DEM
+    from geoloc.surfaces.terrain import DemSurface
+
+    cam = as_sensor(Camera(166841.0, 1162.12, 1146.42, 2323, 2292))
+    lat_s, lon_s, _ = lookAtSpheroid(LAT, LON, H, 0.0, 60.0)
+    n0, w0, step = max(LAT, lat_s) + 0.02, LON - 0.03, 0.001
+    ny = int((n0 - min(LAT, lat_s) + 0.02) / step) + 1
+    dem = DEM.from_array(np.full((ny, 61), 500.0), n0, w0, step, step, datum="ellipsoid")
+    c = Corrections.for_sensor(cam, "standard")
+    pose = Pose(
+        *(np.array([v, v]) for v in (math.radians(LAT), math.radians(LON), H, 0.0, 0.0, 0.0, 0.0)),
+        np.radians([0.0, 60.0]),
+    )
+    rows, cols = np.full(2, 1162.12), np.full(2, 1146.42)  # the principal point: the gimbal's direction
+    for k in ([0], [0, 1]):
+        p = Pose(
+            *(
+                np.asarray(getattr(pose, f))[k]
+                for f in ("lat", "lon", "h", "heading", "pitch", "roll", "gimbal_roll", "gimbal_pitch")
+            )
+        )
+        bent = Pipeline(cam, DemSurface(dem, "exact"), c).locate(rows[k], cols[k], p)
+        straight = Pipeline(cam, DemSurface(dem, "exact")).locate(rows[k], cols[k], p)
+        assert np.all(bent.status == Status.OK), bent.status
+        # 1 mm: the fixed point's own tolerance (REFRACTION_TOL_M)
+        assert np.linalg.norm(np.asarray(bent.ecef[0]) - np.asarray(straight.ecef[0])) < 1e-3
+        np.testing.assert_allclose(bent.h, 500.0, rtol=0, atol=1e-3)
+        if len(k) == 2:
+            assert np.linalg.norm(np.asarray(bent.ecef[1]) - np.asarray(straight.ecef[1])) > 1.0
