@@ -517,3 +517,35 @@ def test_a_height_over_the_centre_needs_a_ground_track_of_two_centimetres_a_metr
         np.testing.assert_allclose(h_over, np.asarray(g.h), atol=0.5)
     else:
         assert np.all(np.isnan(h_over))
+
+
+def test_a_height_offset_that_is_no_signature_is_named_a_plain_offset(flight):
+    """+100 m on every platform height: 70 m from +-N (30.6 m), 39 m from -2N, 580 m from the take-off
+    terrain's -483 m. No signature is that near; the audit names a plain height offset of +100 m."""
+    pose = dataclasses.replace(flight["pose"], h=flight["pose"].h + 100.0)
+    f = _one(_audit(flight, pose=pose), "height_offset")
+    assert abs(f.offset - 100.0) <= f.uncertainty, f.line()
+
+
+def test_no_record_shift_is_reported_where_every_shift_fits_worse(flight):
+    # 100 m on the platform heights: every centre is off, and pairing it with another record's
+    # recomputed centre fits worse still (the turret looks at other ground), so no shift is a model
+    pose = dataclasses.replace(flight["pose"], h=flight["pose"].h + 100.0)
+    a = _audit(flight, pose=pose)
+    assert a.checks["misfit_median_m"] > 10.0
+    assert "misfit_after_shift_m" not in a.checks, a.checks
+
+
+@pytest.mark.parametrize("k", [7, 9])
+def test_the_record_shift_search_is_the_same_both_ways(flight, k):
+    """A shift of k records late and k records early get mirror verdicts: the search runs over
+    -n/3 .. n/3 (24 records: 8 each way), so 7 is named both ways and 9 neither way as 9."""
+    pad = np.full(k, np.nan)
+    late = {c: np.r_[flight[c][k:], pad] for c in ("lat", "lon", "h")}
+    early = {c: np.r_[pad, flight[c][:-k]] for c in ("lat", "lon", "h")}
+    a, b = _audit(flight, **late), _audit(flight, **early)
+    offs = []
+    for audit in (a, b):
+        shift = [f for f in audit.findings if f.kind == "time_offset"]
+        offs.append(round(shift[0].offset) if shift else None)
+    assert (offs == [7, -7]) if k == 7 else (9 not in offs and -9 not in offs), offs
