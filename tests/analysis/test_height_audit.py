@@ -549,3 +549,41 @@ def test_the_record_shift_search_is_the_same_both_ways(flight, k):
         shift = [f for f in audit.findings if f.kind == "time_offset"]
         offs.append(round(shift[0].offset) if shift else None)
     assert (offs == [7, -7]) if k == 7 else (9 not in offs and -9 not in offs), offs
+
+
+def test_a_boresight_bias_states_its_uncertainty_in_the_lens_own_angle_per_pixel(flight):
+    """The boresight finding's uncertainty: three standard errors of the median pixel offset, at
+    least half a pixel, turned into mrad by the angle one row spans at the first record's pixel. That
+    angle is computed here with OpenCV (the Brown lens of eo_turret.toml through ``cv2.projectPoints``, inverted by scipy)."""
+    cv2 = pytest.importorskip("cv2")
+    from scipy.stats import median_abs_deviation
+
+    planted = 5e-3
+    s = flight["sensor"]
+    biased = s.with_params(boresight_y=s.params["boresight_y"] + planted)
+    g = flight["surface"].intersect(biased.line_of_sight(flight["row"], flight["col"], flight["pose"]))
+    a = _audit(flight, lat=np.rad2deg(g.lat), lon=np.rad2deg(g.lon), h=g.h)
+    f = _one(a, "boresight_bias")
+    drow, dcol = a.columns["reported_drow_px"], a.columns["reported_dcol_px"]
+    ok = np.isfinite(drow) & np.isfinite(dcol)
+    k = int(np.flatnonzero(ok)[0])
+    K = np.array([[2200.0, 0.0, 959.5], [0.0, 2195.0, 539.5], [0.0, 0.0, 1.0]])  # 1-based centres made 0-based
+    dist = np.array([-0.21, 0.07, 0.0004, -0.0002, -0.01])  # k1 k2 p1 p2 k3, OpenCV's order
+    from scipy.optimize import fsolve
+
+    def ray(u, v):  # the normalised point OpenCV's projectPoints takes to pixel (u, v), solved by scipy
+        def miss(xy):
+            uv = cv2.projectPoints(np.array([[xy[0], xy[1], 1.0]]), np.zeros(3), np.zeros(3), K, dist)[0]
+            return uv.reshape(2) - (u, v)
+
+        return fsolve(miss, ((u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]), xtol=1e-14)
+
+    u0, v0 = flight["col"][k] - 1, flight["row"][k] - 1
+    xy = np.array([ray(u0, v0), ray(u0, v0 + 1)])
+    rays = np.c_[xy, np.ones(2)]
+    per_px = 1e3 * np.arctan2(np.linalg.norm(np.cross(rays[0], rays[1])), rays[0] @ rays[1])
+    n = int(np.sum(np.isfinite(drow)))
+    spread = median_abs_deviation(drow[ok], scale="normal"), median_abs_deviation(dcol[ok], scale="normal")
+    want = max(3 * np.sqrt(np.pi / 2) * np.hypot(*spread) / np.sqrt(n), 0.5) * per_px
+    # 1e-4: scipy's normal scale 1.482602 against the module's 1.4826 and OpenCV's undistortion
+    assert f.uncertainty == pytest.approx(want, rel=1e-4), (f.uncertainty, want)
