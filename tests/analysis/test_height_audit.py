@@ -587,3 +587,53 @@ def test_a_boresight_bias_states_its_uncertainty_in_the_lens_own_angle_per_pixel
     want = max(3 * np.sqrt(np.pi / 2) * np.hypot(*spread) / np.sqrt(n), 0.5) * per_px
     # 1e-4: scipy's normal scale 1.482602 against the module's 1.4826 and OpenCV's undistortion
     assert f.uncertainty == pytest.approx(want, rel=1e-4), (f.uncertainty, want)
+
+
+def test_frame_centre_heights_with_the_geoid_subtracted_twice_say_minus_2n(flight):
+    # h - 2N on every reported centre; the text's size is -2N of the reference geoid (pyproj or the
+    # bundled grid read here), to its one printed decimal
+    n_fc = reference_undulation(flight["lat"], flight["lon"])
+    f = _one(_audit(flight, h=flight["h"] - 2 * n_fc), "geoid_wrong_sign")
+    assert f.subject == "frame-centre height"
+    assert abs(f.offset - np.median(-2 * n_fc)) <= f.uncertainty, f.line()
+    assert (
+        f.expected_text.startswith("-2N = +6")
+        and abs(float(f.expected_text.split("=")[1].split()[0]) - np.median(-2 * n_fc)) <= 0.1
+    ), f.expected_text
+
+
+def test_the_boresight_detail_gives_each_axis_in_the_lens_own_angle(flight):
+    """The detail's per-axis angles: the median row and column offsets turned into the angle between
+    the rays of the first record's pixel and the pixel so moved, computed with OpenCV's projectPoints
+    (inverted by scipy) for the Brown lens of eo_turret.toml."""
+    cv2 = pytest.importorskip("cv2")
+    from scipy.optimize import fsolve
+
+    s = flight["sensor"]
+    biased = s.with_params(boresight_y=s.params["boresight_y"] + 5e-3, boresight_x=s.params["boresight_x"] + 3e-3)
+    g = flight["surface"].intersect(biased.line_of_sight(flight["row"], flight["col"], flight["pose"]))
+    a = _audit(flight, lat=np.rad2deg(g.lat), lon=np.rad2deg(g.lon), h=g.h)
+    f = _one(a, "boresight_bias")
+    drow, dcol = a.columns["reported_drow_px"], a.columns["reported_dcol_px"]
+    k = int(np.flatnonzero(np.isfinite(drow) & np.isfinite(dcol))[0])
+    dr, dc = np.nanmedian(drow), np.nanmedian(dcol)
+    K = np.array([[2200.0, 0.0, 959.5], [0.0, 2195.0, 539.5], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.21, 0.07, 0.0004, -0.0002, -0.01])
+
+    def ray(u, v):
+        def miss(xy):
+            return cv2.projectPoints(np.array([[xy[0], xy[1], 1.0]]), np.zeros(3), np.zeros(3), K, dist)[0].reshape(
+                2
+            ) - (u, v)
+
+        x, y = fsolve(miss, ((u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]), xtol=1e-14)
+        return np.array([x, y, 1.0])
+
+    def mrad(a, b):
+        return 1e3 * np.arctan2(np.linalg.norm(np.cross(a, b)), a @ b)
+
+    u0, v0 = flight["col"][k] - 1, flight["row"][k] - 1
+    a_row = np.copysign(mrad(ray(u0, v0), ray(u0, v0 + dr)), dr)
+    a_col = np.copysign(mrad(ray(u0, v0), ray(u0 + dc, v0)), dc)
+    assert f"{dr:+.1f} px in rows ({a_row:+.2f} mrad)" in f.detail, (f.detail, a_row)
+    assert f"{dc:+.1f} px in columns ({a_col:+.2f} mrad)" in f.detail, (f.detail, a_col)
