@@ -48,6 +48,7 @@ from geoloc.status import Status
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
 from geoloc.pipeline import Pipeline
+from geoloc.sensors.budget import DEM_PRODUCTS, LE90_PER_SIGMA
 
 __all__ = [
     "Finding",
@@ -71,7 +72,8 @@ FAULTS = {
     "flat_earth_frame_centre": "frame centres computed on a flat earth at h = 0 m, not on the terrain",
     "time_offset": "the reported centres belong to other records: a constant time offset",
     "boresight_bias": "a constant angular offset between the reported and the recomputed centres",
-    "height_offset": "a constant height offset that no datum convention explains",
+    "height_offset": "an unexplained height offset: constant, and no datum convention's signature within its "
+    "uncertainty",
     "azimuth_from_north": "the reported centres lie at the bearing of the sensor's relative azimuth (MISB tag 18) "
     "from true north: the platform heading (tag 5) left out",
 }
@@ -99,6 +101,12 @@ TIE_FACTOR = 1.25
 #: Which correction a tie goes to, after a height that matches a datum signature: the ones with a
 #: fixed size first (a flat earth, a whole-record shift, the terrain), the free ones last.
 PREFERENCE = ("flat", "shift", "agl", "boresight", "height")
+#: The take-off terrain's own uncertainty as a signature [m, one standard deviation]: the DEM's
+#: vertical error at one point, SRTM's specification (16 m LE90, sigma 9.73 m:
+#: :data:`geoloc.sensors.budget.DEM_PRODUCTS`), the product of the bundled DEMs; a better DEM only
+#: makes the match more tolerant than it need be. Not the terrain's spread under the whole flight
+#: (hundreds of metres over hills): that would let any offset of the terrain's size match.
+TAKEOFF_SIGMA_M = DEM_PRODUCTS["srtm"][0] / LE90_PER_SIGMA
 #: The largest record shift tried for a time offset (either way).
 MAX_SHIFT = 10
 #: A ray whose ground track moves less than this [m per m of height] says little about heights
@@ -295,6 +303,7 @@ RECORDS_FIXES = {
     "frame_centre_msl_read_as_ellipsoidal": "the reported heights are MSL: add N (= the EGM96 undulation)",
     "time_offset": "align the records (the reported centres are shifted)",
     "boresight_bias": "calibrate the boresight (geoloc calibrate) or put it in the sensor file's [boresight]",
+    "height_offset": "check the height column's datum and unit (docs/columns.md) and the DEM's (--dem-datum)",
 }
 
 
@@ -480,7 +489,7 @@ def audit_flight(
             named = (
                 "height" in near
                 and _height_finding(
-                    d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"], ground_p, raw, models["height"], fixes
+                    d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"], raw, models["height"], fixes
                 ).kind
                 != "height_offset"
             )
@@ -488,7 +497,7 @@ def audit_flight(
             after = models[best]
             if best == "height":
                 findings.append(
-                    _height_finding(d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"], ground_p, raw, after, fixes)
+                    _height_finding(d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"], raw, after, fixes)
                 )
             elif best == "agl":
                 g_med, g_u, g_n = median_uncertainty(-ground_p)
@@ -603,18 +612,37 @@ def _height_signatures(nbar, takeoff):
     ]
 
 
-def _height_finding(d_hat, u_hat, n_dh, nbar, takeoff, ground_p, raw, after, fixes) -> Finding:
-    """The platform-height finding: the closest signature within its uncertainty, else a plain offset."""
+def _height_finding(d_hat, u_hat, n_dh, nbar, takeoff, raw, after, fixes) -> Finding:
+    """The platform-height finding: the closest signature within its uncertainty, else a plain offset.
+
+    A signature ``e`` matches the estimate ``d_hat`` when ``|d_hat - e| <= hypot(u_hat, u_e)``: both
+    are 99.7 % bounds (:data:`MATCH_K` standard deviations) of independent errors, so their standard
+    deviations add in quadrature and so do the bounds. ``u_hat`` is the estimate's
+    (:func:`median_uncertainty`); ``u_e`` the signature's own: for N (and 2N) the geoid grid's
+    :data:`UNCERTAINTY_FLOOR_M`, for the take-off terrain :data:`MATCH_K` x :data:`TAKEOFF_SIGMA_M`
+    (the DEM's vertical error at one point). An estimate no signature matches is a
+    ``height_offset`` of its own size: no convention named, none of their fixes printed."""
     u_n = UNCERTAINTY_FLOOR_M  # N along a flight varies by decimetres: the grid's floor covers it
-    u_t = median_uncertainty(ground_p)[1] * math.sqrt(max(1, np.isfinite(ground_p).sum()))  # terrain spread
-    best = None
+    u_t = MATCH_K * TAKEOFF_SIGMA_M
+    best, nearest = None, None
     for kind, e, text in _height_signatures(nbar, takeoff):
-        u_e = u_t if kind.startswith("relative") else u_n
-        tol = MATCH_K * math.hypot(u_hat, u_e) / 3.0 + HEIGHT_FLOOR_M * (kind.startswith("relative"))
+        if not np.isfinite(e):
+            continue
+        u_e = u_t if kind == "relative_height_read_as_absolute" else u_n
+        tol = math.hypot(u_hat, u_e)
         dist = abs(d_hat - e)
-        if np.isfinite(e) and dist <= max(tol, u_hat) and (best is None or dist < best[3]):
+        if nearest is None or dist < nearest[3]:
+            nearest = (kind, e, text, dist, tol)
+        if dist <= tol and (best is None or dist < best[3]):
             best = (kind, e, text, dist)
     if best is None or abs(d_hat) < HEIGHT_FLOOR_M:
+        why = f"N = {nbar:+.1f} m, take-off terrain {takeoff:.1f} m: none of their signatures explains it"
+        if nearest is not None:
+            kind, e, _, dist, tol = nearest
+            why += (
+                f" (the nearest, {kind} at {e:+.1f} m, is {dist:.1f} m away; it would match within "
+                f"{tol:.1f} m, the estimate's and the signature's uncertainties in quadrature)"
+            )
         return Finding(
             "height_offset",
             "platform height",
@@ -626,8 +654,8 @@ def _height_finding(d_hat, u_hat, n_dh, nbar, takeoff, ground_p, raw, after, fix
             n_dh,
             raw,
             after,
-            "check the height column's datum and unit (docs/columns.md) and the DEM's (--dem-datum)",
-            detail=f"N = {nbar:+.1f} m, take-off terrain {takeoff:.1f} m: neither explains it",
+            fixes["height_offset"],
+            detail=why,
         )
     kind, e, text, _ = best
     return Finding(kind, "platform height", d_hat, u_hat, "m", e, text, n_dh, raw, after, fixes[kind])
@@ -774,6 +802,8 @@ KLV_FIXES = {
     "frame_centre_msl_read_as_ellipsoidal": "the encoder writes MSL into tag 78 (HAE): fix the encoder",
     "time_offset": "the frame centres lag or lead the pose: fix the encoder's timing",
     "boresight_bias": "the encoder's boresight differs from the sensor file's: calibrate (geoloc calibrate)",
+    "height_offset": "check the encoder's height tags (15 MSL, 75 HAE) against the take-off and the DEM's "
+    "datum (--dem-datum)",
     "azimuth_from_north": "the encoder leaves the platform heading out of its frame centres (tags 23-24): "
     "geoloc klv fix IN --out OUT rewrites them from heading + tag 18, as MISB ST 0601 has it (or, if tag 18 "
     "itself is a true azimuth, fix the encoder to write it relative to the heading)",
