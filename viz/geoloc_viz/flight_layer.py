@@ -875,7 +875,13 @@ def shift_left_of_panel(pos, aim, k: float = PANEL_SHIFT):
     return pos + d, aim + d
 
 
-KIND_NAMES = {"attitude": "heading bias", "datum": "height datum", "timing": "stale pose", "unexplained": "unexplained"}
+KIND_NAMES = {
+    "attitude": "heading bias",
+    "datum": "height datum",
+    "timing": "stale pose",
+    "unexplained": "unexplained",
+    "convention": "the audit's convention fault",
+}
 
 
 def goto_entries(m: flight_model.FlightModel, top_n: int = TOP_N):

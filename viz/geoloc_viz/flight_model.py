@@ -40,7 +40,7 @@ Conventions: ``docs/conventions.md``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -92,6 +92,27 @@ WHAT_IT_LOOKS_LIKE = {
         "offset explains this run; look at the frame's chain (mount, gimbal angles, lens) and its "
         "iterations."
     ),
+    "convention": (
+        "**a convention fault the audit names**: the heights and conventions audit found a fault of "
+        "convention in every frame of this run (its section gives the size, how sure and the fix); the "
+        "one-parameter fit (heading bias, height, timing) is shown after it as what that fit alone would "
+        "guess, not the cause. A burst on top of a whole-flight convention can still be the fit's: see "
+        "whether the run stands out from the other frames the finding covers."
+    ),
+}
+
+#: Short names of the audit's findings (geoloc.analysis.height_audit.FAULTS) for a run's headline.
+CONVENTION_NAMES = {
+    "msl_read_as_ellipsoidal": "MSL heights read as ellipsoidal",
+    "ellipsoidal_read_as_msl": "ellipsoidal heights read as MSL",
+    "geoid_wrong_sign": "the geoid applied with the wrong sign",
+    "relative_height_read_as_absolute": "a height above take-off read as absolute",
+    "agl_read_as_absolute": "a height above ground read as absolute",
+    "flat_earth_frame_centre": "frame centres on a flat earth",
+    "time_offset": "the reported centres shifted in time",
+    "boresight_bias": "a boresight bias",
+    "height_offset": "an unexplained height offset",
+    "azimuth_from_north": "frame centres measured from north (tag 18 without the heading)",
 }
 
 
@@ -104,12 +125,17 @@ class FaultRun:
     first, last : int
         Frame indices (inclusive) into the model.
     kind : str
-        ``"attitude"``, ``"datum"``, ``"timing"`` or ``"unexplained"`` (keys of :data:`WHAT_IT_LOOKS_LIKE`).
+        ``"attitude"``, ``"datum"``, ``"timing"`` or ``"unexplained"`` (keys of :data:`WHAT_IT_LOOKS_LIKE`);
+        ``"convention"`` when the audit has a finding over every frame of the run (:func:`name_runs_by_audit`).
     value : float
         The fitted parameter: heading bias [rad], sensor-height offset [m] or time offset
         [frames] (the recorded pose is the true one at frame i + value: negative = stale).
     unexplained : dict
         Kind -> fraction of the run's residual norm each model leaves unexplained.
+    findings : tuple
+        The audit's findings (:class:`geoloc.analysis.height_audit.Finding`) whose frames cover the run.
+    fit_kind : str
+        The one-parameter fit's kind when ``kind`` is ``"convention"`` (else ``kind`` itself).
     """
 
     first: int
@@ -118,10 +144,30 @@ class FaultRun:
     value: float
     unexplained: dict
     labels: tuple = ()
+    findings: tuple = ()
+    fit_kind: str = ""
 
     def headline(self) -> str:
-        """One line: frames, kind and the fitted size in its unit."""
-        what = {
+        """One line: frames, kind and the fitted size in its unit; the audit's finding first when
+        it covers the run."""
+        if self.findings:
+            named = "; ".join(
+                f"{CONVENTION_NAMES.get(x.kind, x.kind)} (the audit's finding: "
+                f"{format(x.offset, '+.2f' if x.unit in ('mrad', 'deg') else '+.1f')}"
+                + (
+                    f" +/- {format(x.uncertainty, '.2f' if x.unit in ('mrad', 'deg') else '.1f')}"
+                    if math.isfinite(x.uncertainty)
+                    else ""
+                )
+                + f" {x.unit})"
+                for x in self.findings
+            )
+            return f"{self.span()}: {named}; the one-parameter fit alone would say: {self.fit_text()}"
+        return f"{self.span()}: {self.fit_text()}"
+
+    def fit_text(self) -> str:
+        """The one-parameter fit's fault and its fitted size in its unit."""
+        return {
             "attitude": f"heading bias {math.degrees(self.value):+.2f} deg",
             "datum": f"sensor height off by {self.value:+.1f} m",
             "timing": (
@@ -130,8 +176,7 @@ class FaultRun:
                 else f"pose {self.value:.2f} frame(s) ahead of the image"
             ),
             "unexplained": "no simple fault fits",
-        }[self.kind]
-        return f"{self.span()}: {what}"
+        }[self.fit_kind or self.kind]
 
     def span(self) -> str:
         """The run's frames by the timeline's index, with the records' own labels beside them:
@@ -864,6 +909,7 @@ def build(
         has_rep = bool((np.isfinite(rep_lat) & np.isfinite(rep_lon)).any())
         audited = (rep_lat, rep_lon, rep_h) if has_rep else (t_lat, t_lon, np.full(n, np.nan))
         model.audit = flight_audit(scn, pose, sensor, row, col, surface, audited, (lat_d[P], lon_d[P]), angles)
+        model.faults = name_runs_by_audit(model.faults, model.audit)
     return model
 
 
@@ -899,6 +945,34 @@ def outlier_runs(mask, max_gap: int = 1) -> list:
     starts = np.r_[idx[0], idx[breaks + 1]]
     ends = np.r_[idx[breaks], idx[-1]]
     return list(zip(starts.tolist(), ends.tolist()))
+
+
+def name_runs_by_audit(faults: list, audit) -> list:
+    """The runs of ``faults`` (:class:`FaultRun`) with the audit's findings that cover them named first.
+
+    A finding covers a run when every frame of the run is among the frames its estimate rests on
+    (``Finding.frames``: frame indices of the model). Such a run gets ``kind = "convention"``, the
+    covering findings, and keeps its one-parameter fit (``fit_kind``, ``value``) as the second
+    guess: a convention the whole data name is a better cause than a fit to a few frames (a 1-frame
+    "timing" fit to centres measured from north, say). Runs no finding covers are returned as they are.
+
+    Parameters
+    ----------
+    faults : list of FaultRun
+        :func:`diagnose`'s runs.
+    audit : geoloc.analysis.height_audit.HeightAudit or None
+        The flight's audit (:func:`flight_audit`); None: nothing to name.
+    """
+    if audit is None or not getattr(audit, "findings", None):
+        return list(faults)
+    out = []
+    for f in faults:
+        run = set(range(f.first, f.last + 1))
+        cover = tuple(x for x in audit.findings if run <= {int(k) for k in x.frames})
+        if cover:
+            f = replace(f, kind="convention", fit_kind=f.fit_kind or f.kind, findings=cover)
+        out.append(f)
+    return out
 
 
 def _pose_fields(pose: Pose, idx):
