@@ -291,7 +291,7 @@ def test_labels_say_3d_or_horizontal_and_the_drawing_factor(app):
     hit = app.geometry.hit
     lat, lon, h = float(hit.lat_deg), float(hit.lon_deg), float(hit.h)
     text = node(app, "/record/error/label").text
-    m = re.fullmatch(r"error vector \(3D, drawn x10\): ([\d.]+) m", text)
+    m = re.fullmatch(r"error vector \(3D, true length\): ([\d.]+) m", text)
     assert m, text
     e3 = float(m.group(1))
     # the surveyed point sits on the DEM (the records give no truth height): the DEM's
@@ -311,7 +311,16 @@ def test_labels_say_3d_or_horizontal_and_the_drawing_factor(app):
     # by 8e-5 rad over the distance, a few mm of the 70 m height difference
     h_mean = 0.5 * (h + h_truth)
     assert e3 == pytest.approx(math.hypot(horiz * (1 + h_mean / 6.371e6), h - h_truth), abs=0.1)
-    assert f"error vector to surveyed (3D, surveyed point on the terrain): {e3:.1f} m, drawn x10" in summary
+    assert f"error vector to surveyed (3D, surveyed point on the terrain): {e3:.1f} m, true length" in summary
+    # drawn at true length: the node's vector is the surveyed point minus the hit (float32 km: < 0.1 m)
+    seg = np.asarray(node(app, "/record/error").points, float)[0] / WORLD_SCALE
+    assert seg[1] - seg[0] == pytest.approx(app.geometry.surveyed_enu - app.geometry.hit_enu, abs=0.1)
+    app.sl_err.value = 10.0
+    try:
+        assert node(app, "/record/error/label").text == f"error vector (3D, drawn x10): {e3:.1f} m"
+        assert f"{e3:.1f} m, drawn x10" in app.md_summary.content
+    finally:
+        app.sl_err.value = 1.0
     # the aircraft's display scale, next to it and in the panel
     assert node(app, "/aircraft/label").text == "aircraft drawn x200"
     assert "aircraft drawn x200 (display only)" in summary
@@ -349,7 +358,7 @@ def test_export_html_carries_record_method_and_errors(app, tmp_path):
         "to surveyed:",
         "(horizontal)",
         "error vector to surveyed (3D",
-        "drawn x10",
+        "true length",
         "aircraft drawn x200",
     ):
         assert text in panel, text

@@ -22,6 +22,8 @@ import time
 import numpy as np
 import pytest
 
+from geoloc_viz.scene_geoloc import WORLD_SCALE
+
 from geoloc.io.images import ArrayImages
 from geoloc.status import Status
 
@@ -92,6 +94,23 @@ def test_picks_in_three_frames_meet_at_the_ground_point(orbit):
         assert "DEM minus triangulated" in text and "covariance ENU" in text
         for name in ("rays", "residuals", "point", "ellipse"):
             assert server.scene.get_handle_by_name(f"/enu/picture/target/{name}") is not None, name
+        # true size by default, and the drawing says so; the Display factor enlarges the residuals and
+        # the ellipse about the point, and the label on the drawing then gives the factor
+        label = server.scene.get_handle_by_name("/enu/picture/target/label")
+        assert label.text.endswith("90 % ellipse at true size"), label.text
+
+        def ellipse_radius_m():
+            seg = np.asarray(server.scene.get_handle_by_name("/enu/picture/target/ellipse").points, float)
+            X = server.scene.get_handle_by_name("/enu/picture/target/point").position
+            return float(np.max(np.hypot(seg[:, 0, 0] - X[0], seg[:, 0, 1] - X[1]))) / WORLD_SCALE
+
+        r1 = ellipse_radius_m()
+        app.sl_err.value = 10.0
+        layer.draw_target()
+        assert server.scene.get_handle_by_name("/enu/picture/target/label").text.endswith("drawn x10")
+        # float32 km positions near the origin: well under 1 mm of a metres-wide ellipse
+        assert ellipse_radius_m() == pytest.approx(10.0 * r1, rel=1e-4)
+        app.sl_err.value = 1.0
         layer.clear_target()
         assert layer.target_rays is None and layer.md_target.content == ""
     finally:

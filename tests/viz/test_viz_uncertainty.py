@@ -13,6 +13,7 @@ The render is kept as docs/img/viewer_uncertainty_ellipse.png.
 
 import math
 import re
+import time
 
 import numpy as np
 import pytest
@@ -55,7 +56,8 @@ def test_the_ellipse_in_the_scene_is_the_predicted_90_percent_ellipse():
         lay = _layer(app)
         pu = lay.pu
         r90 = math.sqrt(chi2.ppf(0.9, 2))
-        assert lay.scale == 1.0 and app.view.disp.error_exaggeration == 10.0  # not tied to the error vectors
+        assert lay.scale == 1.0 and app.view.disp.error_exaggeration == 1.0  # both true size by default
+        app.sl_err.value = 10.0  # the error vector's factor: the ellipse keeps its own
         for k in (1.0, 10.0):
             lay.sl_scale.value = k
             lay.update()
@@ -188,3 +190,96 @@ def test_flight_debugger_flags_frames_outside_their_own_99_percent_ellipse():
     assert np.all(out[big]) and not np.any(out[small])
     assert "outside their own predicted 99 % ellipse" in m.summary_markdown()
     assert "outside 99 %" in m.outlier_markdown()
+
+
+def _pink_along(img, p0, p1, half_width_px=6.0):
+    """Pixels of the error vector's pink (255, 90, 200) within ``half_width_px`` of the line p0 -> p1
+    (image x, y): their positions along it [px from p0], sorted."""
+    rgb = img[..., :3].astype(int)
+    # (a thin line blends with what is behind it at its edges: pink is red and blue well above green)
+    pink = (rgb[..., 0] > 180) & (rgb[..., 2] > 140) & (rgb[..., 1] < np.minimum(rgb[..., 0], rgb[..., 2]) - 25)
+    ys, xs = np.nonzero(pink)
+    q = np.stack([xs, ys], axis=1) + 0.5 - p0
+    u = (p1 - p0) / np.linalg.norm(p1 - p0)
+    t = q @ u
+    across = np.abs(q @ np.array([-u[1], u[0]]))
+    return np.sort(t[across < half_width_px])
+
+
+def test_the_error_vector_is_drawn_at_true_length_in_chromium(tmp_path):
+    """Read from the page: the pink vector's pixels, on a render looking down at the hit, span the
+    hit to the surveyed point (their pixels by the pinhole model of the render's camera), no
+    further; a person types 10 into "error vector drawn x" and the pink runs ten times as far."""
+    import PIL.Image
+    import viser.transforms as vtf
+
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scenario import load_view_scenario
+
+    H = W = 640
+    fov = 0.9  # rad, vertical (viser's get_render)
+    with served() as server:
+        app = GeolocApp(server, load_view_scenario())
+        with chromium(tmp_path) as browser:
+            page = open_viewer(browser, server, 900, 600)
+            page.wait_for_selector("canvas", timeout=90000)
+            client = next(iter(server.get_clients().values()))
+            # the flight layer draws the current frame's error in the same pink: hide it, to measure this node
+            server.scene.get_handle_by_name("/flight").visible = False
+            app.cb_terrain.value = False  # the vector lies on the terrain (both its ends do): measure it alone
+            server.scene.get_handle_by_name("/enu/origin").visible = False  # its axes cross the surveyed end
+            g, d = app.geometry, app.view.disp
+            a, b = d.z(g.hit_enu), d.z(g.surveyed_enu)  # km, the scene's units
+            pos = a + np.array([0.0, -0.05, 1.5])  # 1.5 km above the hit, a little south (up stays defined)
+            q = look_at_wxyz(pos, a)
+            R = vtf.SO3(np.asarray(q)).as_matrix()  # camera -> scene (OpenCV axes: x right, y down, z forward)
+            f_px = 0.5 * H / np.tan(0.5 * fov)
+
+            def px(p):
+                c = R.T @ (np.asarray(p, float) - pos)
+                return np.array([W / 2 + f_px * c[0] / c[2], H / 2 + f_px * c[1] / c[2]])
+
+            p0, p1 = px(a), px(b)
+            L = float(np.linalg.norm(p1 - p0))
+            img = None
+            for _ in range(40):
+                img = client.get_render(H, W, position=tuple(pos), wxyz=q, fov=fov, transport_format="png", timeout=60)
+                # drawn, and the terrain's hiding applied (the background then fills most of the picture)
+                if n_colours(img[..., :3]) > 20 and (img[..., :3].max(axis=-1) < 30).mean() > 0.5:
+                    break
+                time.sleep(0.5)
+            PIL.Image.fromarray(img[..., :3]).save(ARTIFACTS / "viewer_error_vector_true_length.png")
+            t = _pink_along(img, p0, p1)
+            assert len(t) > 50, len(t)
+            # the markers (spheres, seen from above) hide the vector's ends: radius r at the hit, 0.6 r at
+            # the surveyed point, r the session's marker radius (display only, metres -> pixels here)
+            m_per_px = 1e3 * float(np.linalg.norm(pos - a)) / f_px
+            hidden_px = 1.6 * d.marker_radius_m / m_per_px
+            # 3 px: the line's width and antialiasing at its end caps
+            assert t[0] > -3.0 and t[-1] < L + 3.0, (t[0], t[-1], L)
+            assert t[-1] - t[0] > L - hidden_px - 6.0, (t[0], t[-1], L, hidden_px)
+            # a person draws it ten times longer: the Display folder, "error vector drawn x" = 10
+            page.get_by_text("Display", exact=True).click()
+            num = page.locator(
+                "xpath=//label[normalize-space()='error vector drawn x']/ancestor::div"
+                "[.//input[@inputmode='decimal']][1]//input[@inputmode='decimal']"
+            )
+            num.fill("10", timeout=60000)
+            num.press("Enter")
+            wait_for(lambda: app.view.disp.error_exaggeration == 10.0, 30, "the factor to reach the server")
+            wait_for(
+                lambda: "drawn x10" in server.scene.get_handle_by_name("/enu/record/error/label").text,
+                60,
+                "the label x10 on the drawing",
+            )
+            for _ in range(40):
+                img = client.get_render(H, W, position=tuple(pos), wxyz=q, fov=fov, transport_format="png", timeout=60)
+                t = _pink_along(img, p0, p1)
+                if len(t) and t[-1] > 2.0 * L:
+                    break
+            PIL.Image.fromarray(img[..., :3]).save(ARTIFACTS / "viewer_error_vector_x10.png")
+            # ten times L runs off the 640 px picture: the pink reaches past twice the true length, or to
+            # where the line leaves the picture (5 px: the line's end cap and antialiasing)
+            u = (p1 - p0) / L
+            t_exit = min(((W if u[0] > 0 else 0.0) - p0[0]) / u[0], ((H if u[1] > 0 else 0.0) - p0[1]) / u[1])
+            assert t[-1] > min(2.0 * L, t_exit - 5.0), (t[-1], L, t_exit)

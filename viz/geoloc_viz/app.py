@@ -89,7 +89,7 @@ from geoloc_viz import (
 )
 from geoloc_viz.model import Inputs, Scenario, compute, drawn_frames, frame_name
 from geoloc_viz.scenario import select_record
-from geoloc_viz.scene_geoloc import Display, GeolocScene, camera_pose_for
+from geoloc_viz.scene_geoloc import Display, GeolocScene, camera_pose_for, drawn_factor
 
 #: (field, label, min, max, step) of the pose sliders, degrees.
 ANGLE_SLIDERS = (
@@ -139,8 +139,8 @@ LEGEND = """\
   height h_n below, **blue** if H_n - h_n > 0 (above the terrain), **red** below;
   **cyan**: bisection brackets
 - **violet**: published position [Q17]; **white**: surveyed; **pink**: error
-  vector computed -> surveyed, drawn longer than it is by the "error vector
-  exaggeration" factor (its label gives its true 3D length)
+  vector computed -> surveyed, at true length unless "error vector drawn x"
+  enlarges it (its label then says the factor, e.g. x10)
 - the aircraft is drawn larger than life by the "aircraft display scale"
   factor (a 15 m aircraft is a speck at 20 km); frames scale with it
 - frames at the aircraft: axes x red, y green, z blue; NED largest, then body,
@@ -202,8 +202,8 @@ def legend_markdown(scn) -> str:
         )
     if has_truth:
         L.append(
-            "- **white**: surveyed; **pink**: error vector computed -> surveyed, drawn longer than it "
-            'is by the "error vector exaggeration" factor (its label gives its true 3D length)'
+            "- **white**: surveyed; **pink**: error vector computed -> surveyed, at true length unless "
+            '"error vector drawn x" enlarges it (its label then says the factor, e.g. x10)'
         )
     L.append(
         "- **teal** ring on the terrain: the predicted 90 % error ellipse of the located point, at "
@@ -456,12 +456,13 @@ class GeolocSession:
                 hint="The aircraft is drawn this many times its size (display only)",
             )
             self.sl_err = gui.add_slider(
-                "error vector exaggeration",
+                "error vector drawn x",
                 1.0,
                 100.0,
                 1.0,
                 d.error_exaggeration,
-                hint="The error vector is drawn this many times its length; its label gives the true length",
+                hint="Draw the error vector (and the picture's triangulation residuals and ellipse) this many "
+                "times their size; 1 is true size. The label on the drawing says the factor and the true length",
             )
             self.sl_marker = gui.add_slider(
                 "marker radius (m)",
@@ -737,7 +738,7 @@ class GeolocSession:
                     e3 = float(np.linalg.norm(g.surveyed_enu - g.hit_enu))
                     lines.append(
                         f"error vector to surveyed (3D, surveyed point on the terrain): "
-                        f"{e3:.1f} m, drawn x{d.error_exaggeration:g}  "
+                        f"{e3:.1f} m, {drawn_factor(d.error_exaggeration)}  "
                     )
         self.md_summary.content = "\n".join(lines)
         hop = str(self.dd_hop.value)

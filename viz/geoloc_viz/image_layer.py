@@ -56,7 +56,7 @@ import numpy as np
 
 from geoloc.status import Status
 from geoloc_viz import picture_model as pm
-from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
+from geoloc_viz.scene_geoloc import WORLD_SCALE, drawn_factor, wxyz
 from geoloc_viz.layer_safety import call_safely
 
 ROOT = "/enu/picture"
@@ -257,7 +257,7 @@ class ImageLayer:
                 "and targets; squares **violet** / **red**: reported / recomputed frame centre; "
                 "**cyan** line: terrain horizon. Pick one target in several frames: its rays (**gold**) meet at "
                 "the triangulated point, with its 90 % ellipse (**teal**, as every 90 % ellipse) and residuals "
-                "(**pink**), both drawn at the error vector exaggeration"
+                '(**pink**), both at true size unless "error vector drawn x" (Display) enlarges them'
             )
             self.html = g.add_html("")
             self.sl_zoom = g.add_slider(
@@ -651,7 +651,15 @@ class ImageLayer:
             res = [[X, X + k * (enu.from_ecef(c) - X)] for c in t.closest]
             self._line(f"{ROOT}/target/residuals", res, COLORS["residual"], 4.0)
             self._ball(f"{ROOT}/target/point", X, COLORS["target_rays"], 1.0)
+            # the drawing says its own scale: a person reading the residuals must know they are enlarged
+            self.handles[f"{ROOT}/target/label"] = self.scene.add_label(
+                f"{ROOT}/target/label",
+                "triangulated target: residuals and 90 % ellipse " + ("at true size" if k == 1.0 else drawn_factor(k)),
+                position=tuple(s.view.disp.z(X)),
+                anchor="top-left",
+            )
             shown |= {f"{ROOT}/target/rays", f"{ROOT}/target/residuals", f"{ROOT}/target/point"}
+            shown.add(f"{ROOT}/target/label")
             if t.tri.cov_enu is not None and np.isfinite(t.tri.ellipse_major_m):
                 pts = pm.target_ellipse_enu(enu, t.tri, scale=k)
                 self._line(
@@ -661,7 +669,7 @@ class ImageLayer:
                     4.0,
                 )
                 shown.add(f"{ROOT}/target/ellipse")
-        for n in old + [f"{ROOT}/target/{x}" for x in ("rays", "residuals", "point", "ellipse")]:
+        for n in old + [f"{ROOT}/target/{x}" for x in ("rays", "residuals", "point", "ellipse", "label")]:
             if n not in shown:
                 self._hide(n)
         # a button with nothing to do is not offered

@@ -88,7 +88,7 @@ class Display:
 
     vertical_exaggeration: float = 1.0
     aircraft_scale: float = 200.0  # the 15 m mesh drawn 200x larger: ~3 km
-    error_exaggeration: float = 10.0
+    error_exaggeration: float = 1.0  # true length unless the "error vector drawn x" control enlarges it
     marker_radius_m: float = 220.0
     step: int | None = None  # iteration shown (None: all)
     frames_visible: dict = field(default_factory=dict)  # frame -> shown (default shown)
@@ -102,9 +102,14 @@ class Display:
         return p * (WORLD_SCALE * np.array([1.0, 1.0, self.vertical_exaggeration]))
 
 
+def drawn_factor(exaggeration: float) -> str:
+    """How a quantity is drawn, for its label: ``"true length"`` at 1, else ``"drawn x10"``."""
+    return "true length" if float(exaggeration) == 1.0 else f"drawn x{float(exaggeration):g}"
+
+
 def error_label(err_enu, exaggeration: float) -> str:
-    """Label of the error vector: its true 3D length and how much longer it is drawn."""
-    return f"error vector (3D, drawn x{exaggeration:g}): {float(np.linalg.norm(err_enu)):.1f} m"
+    """Label of the error vector: its true 3D length and whether it is drawn longer (``drawn x10``)."""
+    return f"error vector (3D, {drawn_factor(exaggeration)}): {float(np.linalg.norm(err_enu)):.1f} m"
 
 
 def camera_pose_for(g: Geometry, d: Display, kind: str = "overview"):
