@@ -288,5 +288,5 @@ def test_view_export(venv):
     r = geoloc(venv, "view", "--export", "x.html", timeout=900)
     assert r.stdout.strip() == "wrote x.html"
     page = (venv["work"] / "x.html").read_text()
-    assert 'id="geoloc-summary"' in page and "example_flight.klv packet" in page and "srtm_jacksboro" in page
+    assert 'id="geoloc-summary"' in page and "example_flight.klv: frame " in page and "srtm_jacksboro" in page
     assert len(page) > 100_000  # the scene itself is in the file

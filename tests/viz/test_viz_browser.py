@@ -162,7 +162,7 @@ def test_viewer_in_headless_chromium(tmp_path):
             assert img0.std(axis=(0, 1)).max() > 10.0
             assert n_colours(img0) > 20
             # The summary panel reached the page.
-            page.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=20000)
+            page.wait_for_selector("text=qiao2017_flight_tests.csv: frame 0 (T3-1)", timeout=20000)
 
             # Type a new aircraft height into the GUI, as a user would.
             before = np.array(server.scene.get_handle_by_name("/enu/hit/result").position)
@@ -253,9 +253,9 @@ def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
             # one tab at a time until each is up (software WebGL on a loaded 2-core machine)
             pa = open_viewer(browser, server, 480, 320)
             ida = next(iter(server.get_clients()))
-            pa.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=60000, state="attached")
+            pa.wait_for_selector("text=qiao2017_flight_tests.csv: frame 0 (T3-1)", timeout=60000, state="attached")
             pb, idb = _open_tab(browser, server, 480, 320, {ida})
-            pb.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=60000, state="attached")
+            pb.wait_for_selector("text=qiao2017_flight_tests.csv: frame 0 (T3-1)", timeout=60000, state="attached")
             sa, sb = viewer.session_of(ida), viewer.session_of(idb)
             cam_b0 = np.array(server.get_clients()[idb].camera.position)
             # tab A: type a height (an edit: A's header says so), then choose T4-3
@@ -263,9 +263,9 @@ def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
             box.fill("12000")
             box.press("Enter")
             wait_for(lambda: abs(sa.inputs.h_m - 12000.0) < 1e-6, 60, "A's height to reach A's session")
-            pa.wait_for_selector("text=custom pose (edited from record T3-1)", timeout=60000, state="attached")
-            sa.dd_record.value = "T4-3"  # as A's dropdown would (a Mantine select is slow to drive)
-            pa.wait_for_selector("text=qiao2017_flight_tests.csv T4-3", timeout=60000, state="attached")
+            pa.wait_for_selector("text=custom pose (edited from frame 0 (T3-1))", timeout=60000, state="attached")
+            sa.dd_record.value = sa.record_option("T4-3")  # as A's dropdown would (a Mantine select is slow to drive)
+            pa.wait_for_selector("text=qiao2017_flight_tests.csv: frame 12 (T4-3)", timeout=60000, state="attached")
             # A's browser reports the camera that frames T4-3's aircraft and target
             ca = server.get_clients()[ida].camera
             want = sa.view.camera_pose("overview")[0]
@@ -276,8 +276,8 @@ def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
             )  # 50 m of km-unit scene
             pa.screenshot(path=str(ARTIFACTS / "viz_tab_a_T4-3.png"))
             # tab B: header, inputs, camera unchanged
-            assert pb.locator("text=qiao2017_flight_tests.csv T3-1").count() >= 1
-            assert pb.locator("text=qiao2017_flight_tests.csv T4-3").count() == 0
+            assert pb.locator("text=qiao2017_flight_tests.csv: frame 0 (T3-1)").count() >= 1
+            assert pb.locator("text=qiao2017_flight_tests.csv: frame 12 (T4-3)").count() == 0
             assert pb.locator("text=custom pose (edited from").count() == 0
             assert pb.get_by_label("height (m, ellipsoidal)").input_value() != "12000"
             np.testing.assert_allclose(server.get_clients()[idb].camera.position, cam_b0, atol=1e-6)
@@ -303,7 +303,7 @@ def test_presenter_mode_in_chromium(tmp_path):
         with chromium(tmp_path, MULTI_TAB_FLAGS) as browser:
             pa = open_viewer(browser, server, 480, 320)
             ida = next(iter(server.get_clients()))
-            pa.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=60000, state="attached")
+            pa.wait_for_selector("text=qiao2017_flight_tests.csv: frame 0 (T3-1)", timeout=60000, state="attached")
             pb, idb = _open_tab(browser, server, 480, 320, {ida})
             pb.wait_for_selector("text=take control", timeout=60000, state="attached")
             assert viewer.driver.client.client_id == ida and idb in viewer.followers
@@ -319,7 +319,7 @@ def test_presenter_mode_in_chromium(tmp_path):
                 60,
                 "the follower's box to show the driver's height",
             )
-            pb.wait_for_selector("text=custom pose (edited from record T3-1)", timeout=60000, state="attached")
+            pb.wait_for_selector("text=custom pose (edited from frame 0 (T3-1))", timeout=60000, state="attached")
             # the driver's view button moves its camera; the follower's browser follows
             viewer.driver.move_camera("target")
             want = viewer.driver.view.camera_pose("target")[0]
@@ -359,7 +359,7 @@ def test_presenter_switches_scenario_in_chromium(tmp_path):
         with chromium(tmp_path, MULTI_TAB_FLAGS) as browser:
             pa = open_viewer(browser, server, 800, 600)
             ida = next(iter(server.get_clients()))
-            pa.wait_for_selector("text=qiao2017_flight_tests.csv T3-1", timeout=120000, state="attached")
+            pa.wait_for_selector("text=qiao2017_flight_tests.csv: frame 0 (T3-1)", timeout=120000, state="attached")
             pb, idb = _open_tab(browser, server, 800, 600, {ida})
             pb.wait_for_selector("text=take control", timeout=120000, state="attached")
             wait_for(lambda: idb in viewer.followers, 60, "the follower's panel")
@@ -384,3 +384,30 @@ def test_presenter_switches_scenario_in_chromium(tmp_path):
             )
             assert pb.get_by_label("scenario").is_disabled()
             pb.screenshot(path=str(ARTIFACTS / "viz_presenter_switched_follower.png"))
+
+
+def test_a_tab_says_it_is_loading_until_its_scene_is_built(tmp_path):
+    """A tab's session takes seconds to build (more while another tab's holds the lock): the page
+    says so from the tab's first message, and the note goes once the scene and the panel are there.
+    The build is held back here (a session class that waits), so the note is seen for certain."""
+    import threading
+
+    from geoloc_viz.app import GeolocSession, GeolocViewer
+    from geoloc_viz.scenario import load_view_scenario
+
+    release = threading.Event()
+
+    class HeldBack(GeolocSession):
+        def __init__(self, *a, **kw):
+            release.wait(180)
+            super().__init__(*a, **kw)
+
+    with served() as server:
+        viewer = GeolocViewer(server, load_view_scenario())
+        viewer.session_factory = HeldBack
+        with chromium(tmp_path) as browser:
+            page = open_viewer(browser, server, 900, 600)
+            page.wait_for_selector("text=Loading the scene", timeout=60000)
+            release.set()
+            page.wait_for_selector("text=qiao2017_flight_tests.csv: frame 0 (T3-1)", timeout=120000, state="attached")
+            page.wait_for_selector("text=Loading the scene", timeout=60000, state="detached")

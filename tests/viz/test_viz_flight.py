@@ -25,6 +25,7 @@ import pytest
 from test_viz_browser import served
 
 from geoloc.frames.enu import EnuFrame
+from geoloc_viz.model import frame_name
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import lens_from_fov
@@ -266,10 +267,16 @@ def test_whole_flight_footprints_keep_the_corners_at_half_the_points():
         assert set(np.arange(0, P, flight_model.EDGE_SAMPLES)) <= set(keep)  # the corners
         want = np.stack([m.footprint_enu[:, keep], m.footprint_enu[:, np.roll(keep, -1)]], axis=2).reshape(-1, 2, 3)
         np.testing.assert_array_equal(seg, want)
+        # the trail is thinned: every k-th frame (k = ceil(298 / 60) = 5) and every outlier
+        trail = m.trail_frames(flight_layer.TRAIL_MAX)
+        k = int(np.ceil(len(m) / flight_layer.TRAIL_MAX))
+        assert set(range(0, len(m), k)) | set(np.flatnonzero(m.outlier)) == set(trail.tolist())
+        assert len(trail) < len(m) / 2
+        want = want.reshape(len(m), P // 2, 2, 3)[trail].reshape(-1, 2, 3)
         ok = np.all(np.isfinite(want), axis=(1, 2))
         got = np.array(server.scene.get_handle_by_name("/flight/footprints").points)
         lifted = (want[ok] + [0.0, 0.0, flight_layer.LIFT_M["footprints"]]) * 1e-3
-        assert got.shape == lifted.shape == (ok.sum(), 2, 3) and ok.sum() > 0.9 * len(m) * P // 2
+        assert got.shape == lifted.shape == (ok.sum(), 2, 3) and ok.sum() > 0.9 * len(trail) * P // 2
         np.testing.assert_allclose(got, lifted, rtol=0, atol=1e-6)  # float32 km: under a millimetre
         with pytest.raises(ValueError, match="must divide the 16 outline points"):
             m.footprint_segments(3)
@@ -521,7 +528,7 @@ def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
         panel = re.search(r'<div id="geoloc-summary"[^>]*>(.*?)</div>', page, re.S).group(1)
         err = fl.error_m(idx)
         for text in (
-            "example_flight.klv packet 203",
+            f"example_flight.klv: {frame_name(app.scn, idx, of=False)}",  # the one name: frame 202 (.., packet 203)
             f"residual {fl.model.residual_m[idx]:.2f} m",
             f"error {err:.1f} m",
             "sensor height off by",
@@ -548,3 +555,18 @@ def test_one_legend_per_scenario_from_what_it_draws():
         )
     )
     assert "gimbal azimuth" in turret and "gimbal elevation" in turret and "outer gimbal" not in turret
+
+
+def test_a_flight_without_surveyed_truth_is_not_offered_a_calibration():
+    """A MISB stream carries no surveyed target: the calibration folder (error vectors of every
+    record against its truth) has nothing to draw and is not offered, and no text on the page names
+    the records file's internal column names ("paper_height_m")."""
+    from geoloc_viz.app import GeolocApp
+
+    with served() as server:
+        app = GeolocApp(server, flight_model.default_flight_scenario())
+        cal = app.calibration
+        assert cal is not None and cal.layer is None and cal.cb_show is None
+        assert "paper_height_m" not in cal.message and "surveyed target" in cal.message
+        for text in (app.md_summary.content, app.md_legend.content):
+            assert "paper_height" not in text and "truth_lat" not in text

@@ -151,6 +151,10 @@ def test_every_panel_shows_one_frame_index_and_one_pixel_grid_in_chromium(flight
             # the summary, the picture's caption and the flight panel: one index, one time, one label
             assert len(names) >= 3 and set(names) == {("202", "297", "203.00", "packet 203")}, names
             assert "timeline frame index" not in text  # the second numbering is gone
+            # the record box and the summary's header: the same name, not the stream's "packet 203" alone
+            assert app.dd_record.value == "frame 202 (t 203.00 s, packet 203)"
+            assert "example_flight.klv: frame 202 (t 203.00 s, packet 203)" in text
+            assert not re.search(r"(?<!, )packet 203(?!\))", text), "a packet number outside a frame's name"
             assert fl.sl_frame.value == 202
             # the scene's labels (canvas, not page text) name the frame the same way
             assert server.scene.get_handle_by_name("/flight/focus/label").text.startswith(

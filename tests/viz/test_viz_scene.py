@@ -188,8 +188,8 @@ def test_gui_pose_change_moves_the_line_of_sight(app):
         np.testing.assert_allclose(new, app.scn.enu.from_ecef(hit.ecef), atol=1e-6)
         assert np.linalg.norm(new - old) > 1000.0  # 5 deg at ~18 km slant range: km-scale shift
     finally:
-        app.dd_record.value = "T4-1"
-        app.dd_record.value = "T3-1"
+        app.dd_record.value = app.record_option("T4-1")
+        app.dd_record.value = app.record_option("T3-1")
 
 
 def test_teaching_panel_shows_the_core_matrices_and_highlights(app):
@@ -231,7 +231,7 @@ def test_teaching_panel_shows_the_core_matrices_and_highlights(app):
 
 
 def test_record_dropdown_loads_published_and_surveyed(app):
-    app.dd_record.value = "T4-3"
+    app.dd_record.value = app.record_option("T4-3")
     try:
         # T4-3 in the CSV: published 35.59935 N 80.85938 E at paper_height 4799.9 m.
         np.testing.assert_allclose(
@@ -242,7 +242,7 @@ def test_record_dropdown_loads_published_and_surveyed(app):
         # The ENU origin moved near the new target (float32 safety): within 1 km.
         assert np.linalg.norm(pos(app, "/hit/result")[:2]) < 2000.0
     finally:
-        app.dd_record.value = "T3-1"
+        app.dd_record.value = app.record_option("T3-1")
 
 
 def _decode_recording(raw: bytes):
@@ -335,16 +335,16 @@ def test_labels_say_3d_or_horizontal_and_the_drawing_factor(app):
 
 def test_header_says_custom_pose_after_an_edit(app):
     # issue 16: the header kept the old record's name after an edit
-    assert app.md_summary.content.startswith("**qiao2017_flight_tests.csv T3-1**")
+    assert app.md_summary.content.startswith("**qiao2017_flight_tests.csv: frame 0 (T3-1)**")
     app.num["h_m"].value = app.inputs.h_m + 100.0
     try:
         head = app.md_summary.content.splitlines()[0]
-        assert head == "**qiao2017_flight_tests.csv: custom pose (edited from record T3-1)**  "
+        assert head == "**qiao2017_flight_tests.csv: custom pose (edited from frame 0 (T3-1))**  "
         assert "to surveyed" not in app.md_summary.content  # no record's truth for a custom pose
     finally:
-        app.dd_record.value = "T4-1"
-        app.dd_record.value = "T3-1"
-    assert app.md_summary.content.startswith("**qiao2017_flight_tests.csv T3-1**")
+        app.dd_record.value = app.record_option("T4-1")
+        app.dd_record.value = app.record_option("T3-1")
+    assert app.md_summary.content.startswith("**qiao2017_flight_tests.csv: frame 0 (T3-1)**")
 
 
 def test_export_html_carries_record_method_and_errors(app, tmp_path):
@@ -353,7 +353,7 @@ def test_export_html_carries_record_method_and_errors(app, tmp_path):
     page = app.export(tmp_path / "s.html", animate_steps=False).read_text()
     panel = re.search(r'<div id="geoloc-summary"[^>]*>(.*?)</div>', page, re.S).group(1)
     for text in (
-        "qiao2017_flight_tests.csv T3-1",
+        "qiao2017_flight_tests.csv: frame 0 (T3-1)",
         "method: bisection [L23], threshold 1 m",
         "to surveyed:",
         "(horizontal)",
@@ -370,8 +370,8 @@ def test_bad_input_is_reported_not_raised(app):
         assert "h = 1e+09 m" in app.error
         assert "input error" in app.md_summary.content
     finally:
-        app.dd_record.value = "T4-1"
-        app.dd_record.value = "T3-1"
+        app.dd_record.value = app.record_option("T4-1")
+        app.dd_record.value = app.record_option("T3-1")
     assert app.error == ""
 
 

@@ -145,7 +145,7 @@ def test_two_tabs_keep_their_own_state(server):
         assert sa.scene is sa.client.scene and sa.gui is sa.client.gui  # the tab's own scene and GUI
         cam_b0 = np.array(sb.client.camera.position)  # B's own first view (the flight layer's whole flight)
         labels = [info.label for info, _ in scn.records]
-        sa.dd_record.value = "T4-3"  # tab A chooses another record, as its dropdown would
+        sa.dd_record.value = sa.record_option("T4-3")  # tab A chooses another record, as its dropdown would
         wait_for(lambda: sa.scn.name.endswith("T4-3"), 30, "tab A to load T4-3")
         rec = {info.label: (info, inp) for info, inp in scn.records}
         # tab A: its aircraft node at pymap3d's ENU of T4-3's aircraft, in A's new origin
@@ -158,7 +158,7 @@ def test_two_tabs_keep_their_own_state(server):
         ib = rec["T3-1"][1]
         assert sb.scn.name.endswith("T3-1") and "T3-1" in sb.md_summary.content
         assert "T4-3" not in sb.md_summary.content
-        assert sb.inputs.h_m == ib.h_m and sb.dd_record.value == "T3-1"
+        assert sb.inputs.h_m == ib.h_m and sb.dd_record.value == sb.record_option("T3-1")
         ac_b = np.asarray(sb.scene.get_handle_by_name("/enu/aircraft").position) / WORLD_SCALE
         np.testing.assert_allclose(ac_b, pymap3d_enu(sb, ib.lat_deg, ib.lon_deg, ib.h_m), atol=1e-3)
         # the base scenario every new tab starts from is untouched
@@ -169,18 +169,20 @@ def test_two_tabs_keep_their_own_state(server):
             assert in_view(sa.client.camera, sa.view.disp.z(p)), p
         np.testing.assert_allclose(sb.client.camera.position, cam_b0)  # A's actions left B's camera alone
         # A's header reached A's browser; B's stream never carried it
-        wait_for(lambda: b"qiao2017_flight_tests.csv T4-3" in a.stream(), 20, "A's new header in A's stream")
+        wait_for(
+            lambda: b"qiao2017_flight_tests.csv: frame 12 (T4-3)" in a.stream(), 20, "A's new header in A's stream"
+        )
         time.sleep(0.5)  # had it gone to B too, it would have arrived by now (same loop, same batch)
-        assert b"qiao2017_flight_tests.csv T4-3" not in b.stream()
+        assert b"qiao2017_flight_tests.csv: frame 12 (T4-3)" not in b.stream()
         # a new tab opens on the default record, not on A's T4-3 and not "(custom pose)"
         sa.num["h_m"].value = 15000.0
         assert sa.dd_record.value == "(custom pose)"
-        assert "custom pose (edited from record T4-3)" in sa.md_summary.content  # header follows
+        assert "custom pose (edited from frame 12 (T4-3))" in sa.md_summary.content  # header follows
         c, idc = open_tab(server, viewer=viewer)
         try:
             sc = viewer.session_of(idc)
-            assert sc.dd_record.value == "T3-1" and sc.inputs.h_m == ib.h_m
-            assert b"qiao2017_flight_tests.csv T3-1" in c.stream()
+            assert sc.dd_record.value == sc.record_option("T3-1") and sc.inputs.h_m == ib.h_m
+            assert b"qiao2017_flight_tests.csv: frame 0 (T3-1)" in c.stream()
         finally:
             c.close()
     finally:
@@ -203,12 +205,12 @@ def test_presenter_mode_followers_mirror_the_driver(server):
         f = viewer.followers[idb]
         # the follower's copy of the inputs is read-only and shows the driver's values
         assert all(h.disabled for h in f.num.values()) and f.dd_record.disabled
-        d.dd_record.value = "T4-3"
+        d.dd_record.value = d.record_option("T4-3")
         _, inp = next(r for r in d.scn.records if r[0].label == "T4-3")
         # the record box, the summary and the numbers are set one after the other: wait for all
         wait_for(
             lambda: (
-                f.dd_record.value == "T4-3"
+                f.dd_record.value == d.record_option("T4-3")
                 and "T4-3" in f.md_summary.content
                 and abs(f.num["h_m"].value - inp.h_m) < 1e-9
             ),

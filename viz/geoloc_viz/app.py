@@ -176,6 +176,19 @@ def coarse_dem_note(scn, inp, error_m: float, published_error_m: float) -> str:
     )
 
 
+#: The note a tab shows while its session is built (removed once the scene and the panel are sent).
+LOADING_NOTE = (
+    "**Loading the scene...** locating every frame of the flight and sending the terrain takes a few "
+    "seconds (longer while another tab is being built)"
+)
+
+
+def record_options(scn) -> list:
+    """The record dropdown's entries: each record's one name (:func:`geoloc_viz.model.frame_name`
+    without the range: its frame index, time and own label), as the timeline and the panels name it."""
+    return [frame_name(scn, k, of=False) for k in range(len(scn.records))]
+
+
 def legend_markdown(scn) -> str:
     """The Legend folder of a scenario, written from what its scene draws: the markers its records
     carry (a [Q17] published point, or a MISB reported frame centre; a surveyed point only with
@@ -405,11 +418,14 @@ class GeolocSession:
     def _build_gui(self) -> None:
         gui = self.gui
         self.md_summary = gui.add_markdown("")
-        labels = [info.label for info, _ in self.scn.records]
+        labels = record_options(self.scn)
         with gui.add_folder("Flight-test record"):
             init = labels[self.scn.record_index] if self.scn.record_index is not None else CUSTOM
             self.dd_record = gui.add_dropdown(
-                "record", labels + [CUSTOM], initial_value=init, hint="Load a bundled flight-test record of [Q17]"
+                "record",
+                labels + [CUSTOM],
+                initial_value=init,
+                hint="Load a record by its frame index (the timeline's), its time and its own label",
             )
             self.dd_record.on_update(lambda _: self._on_record())
         with gui.add_folder("Aircraft and gimbal"):
@@ -583,8 +599,15 @@ class GeolocSession:
     def _on_record(self) -> None:
         if self._mute or self.closed or self.dd_record.value == CUSTOM:
             return
-        labels = [info.label for info, _ in self.scn.records]
-        self.load_record(labels.index(self.dd_record.value))
+        labels = record_options(self.scn)
+        if self.dd_record.value in labels:
+            self.load_record(labels.index(self.dd_record.value))
+
+    def record_option(self, key) -> str:
+        """The record dropdown's entry of record ``key`` (its index, or its own label, e.g. "T4-1")."""
+        if not isinstance(key, (int, np.integer)):
+            key = [info.label for info, _ in self.scn.records].index(key)
+        return frame_name(self.scn, int(key), of=False)
 
     def load_record(self, idx: int, move_camera: bool = True) -> None:
         """Load record ``idx``: pose, pixel, new ENU origin and terrain, redraw, and (``move_camera``)
@@ -603,7 +626,7 @@ class GeolocSession:
             try:
                 for k, h in self.num.items():
                     h.value = self._input_value(self.inputs, k)
-                label = self.scn.records[idx][0].label
+                label = frame_name(self.scn, idx, of=False)
                 if self.dd_record.value != label:
                     self.dd_record.value = label
             finally:
@@ -669,10 +692,11 @@ class GeolocSession:
         scn = self.scn
         if scn.record_index is None:
             return f"{scn.name} (custom pose)"
-        label = scn.records[scn.record_index][0].label
+        name = frame_name(scn, scn.record_index, of=False)
         if self.dd_record.value == CUSTOM:
-            return f"{scn.source or scn.name}: custom pose (edited from record {label})"
-        return scn.name
+            return f"{scn.source or scn.name}: custom pose (edited from {name})"
+        # the records file and the frame's one name (its label, e.g. "packet 203", only inside it)
+        return f"{scn.source}: {name}" if scn.source else scn.name
 
     def _update_text(self, g) -> None:
         scn, enu = self.scn, self.scn.enu
@@ -986,6 +1010,23 @@ class GeolocViewer:
         # build is CPU bound). viser pops a leaving client from get_clients() before it runs
         # the disconnect callbacks, so a tab that closed while its session was being built is
         # seen below and its session dropped at once (else it would never be freed).
+        # A note from the tab's first message on: a build takes seconds (more while another tab's
+        # build holds the lock), and an empty page gave no hint that anything was coming.
+        note = None
+        try:
+            note = client.gui.add_markdown(LOADING_NOTE, order=-1e9)
+        except Exception:  # the tab left already
+            pass
+        try:
+            self._build_on_connect(client)
+        finally:
+            if note is not None:
+                try:
+                    note.remove()
+                except Exception:  # the tab left
+                    pass
+
+    def _build_on_connect(self, client) -> None:
         with self._lock:
             if not self._connected(client):
                 return

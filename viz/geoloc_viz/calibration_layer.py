@@ -100,7 +100,8 @@ class CalibrationLayer:
     name : str
         Parent node name.
     exaggeration : float
-        Arrow scale (> 0); the errors are ~50 m over a ~10 km scene.
+        Arrow scale (> 0; default 1, true length); the errors are ~50 m over a ~10 km scene, so a
+        viewer may enlarge them: the label on the drawing (``name/truth/label``) gives the factor.
     stage : {"before", "after", "both"}
     world_scale : float
         Scene units per metre (1: metres; ``geoloc_viz.scene_geoloc.WORLD_SCALE`` = 1e-3
@@ -112,7 +113,7 @@ class CalibrationLayer:
         scene,
         geometry: ErrorGeometry,
         name: str = "/calibration",
-        exaggeration: float = 20.0,
+        exaggeration: float = 1.0,
         stage: str = "both",
         thickness: float = 3.0,
         world_scale: float = 1.0,
@@ -134,7 +135,21 @@ class CalibrationLayer:
             point_shape="circle",
             precision="float32",
         )
+        # the drawing says its own scale, beside the first record's truth (a child of the truth
+        # points: it goes with them)
+        first = geometry.truth[0] if len(geometry.truth) else np.zeros(3)
+        self.label_handle = scene.add_label(
+            f"{self.name}/truth/label",
+            self.label_text(),
+            position=tuple(float(x) for x in first * self.world_scale),
+            anchor="top-left",
+        )
         self._draw()
+
+    def label_text(self) -> str:
+        """The label on the drawing: what it shows and at what scale ("true length" or "drawn x20")."""
+        how = "true length" if self.exaggeration == 1.0 else f"drawn x{self.exaggeration:g}"
+        return f"error vectors of all records ({self.stage}), {how}"
 
     @staticmethod
     def _check_exaggeration(x) -> float:
@@ -151,6 +166,9 @@ class CalibrationLayer:
         return stage
 
     def _draw(self) -> None:
+        lab = getattr(self, "label_handle", None)
+        if lab is not None and lab.text != self.label_text():
+            lab.text = self.label_text()
         for stage in self.geometry.computed:
             seg = self.geometry.segments(stage, self.exaggeration) * self.world_scale
             visible = self.stage in (stage, "both")
@@ -188,6 +206,7 @@ class CalibrationLayer:
 
     def set_visible(self, visible: bool) -> None:
         self.truth_handle.visible = bool(visible)
+        self.label_handle.visible = bool(visible)
         for stage, h in self.handles.items():
             h.visible = bool(visible) and self.stage in (stage, "both")
 
@@ -299,7 +318,7 @@ class AppCalibration:
     (:func:`geoloc.analysis.sensor_fit.fit_sensor_groups`, joint fit).
     """
 
-    def __init__(self, app, exaggeration: float = 20.0, stage: str = "both", world_scale=None, name=None):
+    def __init__(self, app, exaggeration: float = 1.0, stage: str = "both", world_scale=None, name=None):
         from geoloc.analysis.sensor_fit import fit_sensor_groups
         from geoloc.surfaces.height import PerRecordHeightSurface
 
@@ -350,7 +369,11 @@ class AppCalibration:
             & np.isfinite(self.records.column("truth_lon_deg"))
         )
         if "after" not in self.cameras:
-            self.message = "calibration needs truth_lat/lon and paper_height_m on every record"
+            # in the words of the input: a surveyed target is what the records lack
+            self.message = (
+                "no mounting calibration: it needs a surveyed target (latitude, longitude and height) "
+                f"on every record, and {int(ok.sum())} of {len(ok)} records have one"
+            )
         self.exaggeration, self.stage, self.visible, self.vertical = exaggeration, stage, True, 1.0
         if ok.all():
             self.rebuild()
@@ -376,14 +399,27 @@ class AppCalibration:
         self.layer.set_vertical_exaggeration(self.vertical)
 
     def add_gui(self, gui, folder: str = "Calibration: error vectors of all records"):
-        """Folder with a show checkbox, a before/after/both dropdown and an exaggeration slider."""
+        """Folder with a show checkbox, a before/after/both dropdown and an exaggeration slider
+        (1: true length; the label on the drawing says the factor). Records without a surveyed
+        truth have no error vectors: the folder is not offered."""
+        if self.layer is None:
+            self.cb_show = self.dd_stage = self.sl_exag = None
+            return
         with gui.add_folder(folder, expand_by_default=False):
             self.cb_show = gui.add_checkbox("show", True)
             stages = list(STAGES) if "after" in self.cameras else ["before"]
             self.dd_stage = gui.add_dropdown(
                 "before / after calibration", stages, initial_value=self.stage if self.stage in stages else stages[0]
             )
-            self.sl_exag = gui.add_slider("exaggeration", 1.0, 200.0, 1.0, self.exaggeration)
+            self.sl_exag = gui.add_slider(
+                "error vectors drawn x",
+                1.0,
+                200.0,
+                1.0,
+                self.exaggeration,
+                hint="Draw every record's error vector this many times its length (1: true length); "
+                "the label on the drawing says the factor",
+            )
             if self.message:
                 gui.add_markdown(self.message)
 

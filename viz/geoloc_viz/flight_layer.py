@@ -4,9 +4,10 @@
 flight of the session's scenario (:func:`geoloc_viz.flight_model.build`, one batch for all
 frames) and adds a **Flight** GUI folder:
 
-* scene (one node each, batched): the track, every frame's footprint (outliers red), the
-  frame centres, the reported / recomputed / truth points and the error vectors; the current
-  frame's footprint highlighted in magenta (``/flight/current``);
+* scene (one node each, batched): the track, a thinned trail of footprints (every k-th frame,
+  at most :data:`TRAIL_MAX`, and every outlier, in red), the frame centres, the reported /
+  recomputed / truth points and the error vectors; the current frame's footprint bold, in
+  magenta (``/flight/current``);
 * a **timeline**: a frame slider, play / pause and a speed; moving it loads that frame into the
   session (``session.load_record(idx)``: its full chain, line of sight and iterations, as
   one record) and moves only the highlight (the batched nodes are never rebuilt);
@@ -71,6 +72,10 @@ LIFT_M = {"footprints": 8.0, "current": 25.0}
 #: WebGL a frame's cost follows the segments drawn, and the example flight's 4768 segments cost
 #: 0.13 s of a 0.30 s frame (``benchmarks/bench_browser.py --groups``).
 FOOTPRINT_EVERY = 2
+#: Footprints of the whole flight drawn in the scene: at most this many (every k-th frame, outliers
+#: always; :meth:`geoloc_viz.flight_model.FlightModel.trail_frames`): 300 overlapping outlines hid
+#: each other and the terrain; the map's trail is thinned the same way.
+TRAIL_MAX = 60
 CHOOSE = "(choose a frame)"
 
 _CACHE: dict = {}  # id(records) -> (records, model): one model per scenario, shared by every tab
@@ -155,10 +160,13 @@ class FlightLayer:
             self.handles["track"] = s.add_line_segments(
                 f"{ROOT}/track", f32(m.track_segments()), COLORS["track"], thickness=2.0, thickness_units="screen"
             )
-        seg = m.footprint_segments(FOOTPRINT_EVERY) + np.array([0.0, 0.0, LIFT_M["footprints"]])
         P = m.footprint_enu.shape[1]  # the current frame's outline: every point
+        # the trail thinned (every k-th frame, outliers always), as the map draws it; the current one bold
+        trail = m.trail_frames(TRAIL_MAX)
+        seg = m.footprint_segments(FOOTPRINT_EVERY).reshape(len(m), P // FOOTPRINT_EVERY, 2, 3)[trail]
+        seg = seg.reshape(-1, 2, 3) + np.array([0.0, 0.0, LIFT_M["footprints"]])
         col = np.where(
-            np.repeat(m.outlier, P // FOOTPRINT_EVERY)[:, None], COLORS["footprint_outlier"], COLORS["footprint"]
+            np.repeat(m.outlier[trail], P // FOOTPRINT_EVERY)[:, None], COLORS["footprint_outlier"], COLORS["footprint"]
         )
         good = np.all(np.isfinite(seg), axis=(1, 2))
         self.handles["footprints"] = s.add_line_segments(

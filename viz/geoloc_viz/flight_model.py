@@ -255,6 +255,16 @@ class FlightModel:
         fp = self.footprint_enu[:, ::every]
         return np.stack([fp, np.roll(fp, -1, axis=1)], axis=2).reshape(-1, 2, 3)
 
+    def trail_frames(self, max_n: int) -> np.ndarray:
+        """Frame indices whose footprints a whole-flight drawing shows: every k-th (at most ``max_n``)
+        and every outlier, so hundreds of overlapping outlines thin to a readable trail."""
+        n = len(self)
+        k = max(int(np.ceil(n / max(int(max_n), 1))), 1)
+        keep = np.zeros(n, bool)
+        keep[::k] = True
+        keep |= np.asarray(self.outlier, bool)
+        return np.flatnonzero(keep)
+
     def track_segments(self) -> np.ndarray:
         """(n - 1, 2, 3) segments joining consecutive optical centres."""
         return np.stack([self.track_enu[:-1], self.track_enu[1:]], axis=1)

@@ -654,14 +654,16 @@ class LiveTab:
             s.move_camera("overview")
 
     def _record_idx(self):
-        labels = [info.label for info, _ in self.session.scn.records]
+        from geoloc_viz.app import record_options
+
+        labels = record_options(self.session.scn)
         v = self.session.dd_record.value
         return labels.index(v) if v in labels else None
 
     def _grow(self) -> None:
         """The session's records and the flight layer's model replaced by the flight's window."""
         from geoloc_viz import flight_layer
-        from geoloc_viz.app import CUSTOM
+        from geoloc_viz.app import CUSTOM, record_options
 
         s, fl = self.session, self.flight
         with s._lock, fl._lock:
@@ -676,11 +678,14 @@ class LiveTab:
             scn.record_times_s = fl.times_s.copy()
             if scn.record_index is not None:
                 scn.record_index = int(np.clip(scn.record_index - shift, 0, n - 1))
-            labels = [info.label for info, _ in scn.records]
+            labels = record_options(scn)
             s._mute = True
             try:
                 value = s.dd_record.value
                 s.dd_record.options = labels + [CUSTOM]
+                # the same record under its new frame index (the window slid by ``shift``)
+                if value != CUSTOM and scn.record_index is not None:
+                    value = labels[scn.record_index]
                 if value in labels or value == CUSTOM:
                     s.dd_record.value = value
             finally:
