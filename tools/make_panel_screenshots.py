@@ -3,7 +3,7 @@ viewer on the bundled example flight in headless Debian Chromium (software WebGL
 
 A person's steps: open the large panel with its button, move the timeline to packet 90 (typed
 into the frame index box), click painted cross (273, 310) in the large picture, then look at each
-tab. Writes ``panel_picture.png``, ``panel_map.png`` and ``panel_plots.png`` (each to a temporary
+tab (on the plots, the pointer over them shows the readout of the frame under it). Writes ``panel_picture.png``, ``panel_map.png`` and ``panel_plots.png`` (each to a temporary
 file renamed into place).
 
 Run: ``python tools/make_panel_screenshots.py [--out docs/img]``.
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
             box.fill(str(idx))
             box.press("Enter")
             wait_for(
-                lambda: f"timeline frame index {idx} " in page.locator("body").inner_text(),
+                lambda: f"frame {idx} of 0 .. " in page.locator("body").inner_text(),
                 120,
                 f"frame index {idx} on the page",
             )
@@ -93,7 +93,14 @@ def main(argv=None) -> int:
             time.sleep(3.0)
             shot(page, "panel_map.png")
             page.get_by_role("tab", name="Plots").click()
+            pp = page.locator("#geoloc-plots")
+            pp.wait_for(timeout=120000)
             time.sleep(3.0)
+            # the pointer on the plots, a little left of the cursor: the readout of the frame under it
+            b = pp.bounding_box(timeout=60000)
+            page.mouse.move(b["x"] + 0.22 * b["width"], b["y"] + 0.12 * b["height"])
+            page.locator(".geoloc-plots-readout").wait_for(state="visible", timeout=60000)
+            time.sleep(1.0)
             shot(page, "panel_plots.png")
     finally:
         server.stop()

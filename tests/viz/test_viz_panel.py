@@ -13,6 +13,7 @@
 from __future__ import annotations
 
 import copy
+import html
 import io
 import re
 import time
@@ -106,11 +107,20 @@ def test_a_closed_panel_draws_nothing_and_an_open_one_follows_the_timeline(fligh
         assert 'data-frame="5"' in pl.html_map.content and 'data-frame="5"' in pl.html_plots.content
         fl.go(7)
         assert 'data-frame="7"' in pl.html_map.content and 'data-frame="7"' in pl.html_plots.content
+        # the map's caption and the plots' title name the frame as the timeline does (no "packet 7" alone)
+        from geoloc_viz.model import frame_name
+
+        assert html.escape(frame_name(app.scn, 7, of=False)) + ": map East-North" in pl.html_map.content
+        assert pl.md_plots.content.startswith(f"**{frame_name(app.scn, 7)}**")
         # frame 0 has its picture; 7 has none and says so
         assert "no picture" in pl.html_picture.content
         fl.go(0)
         assert 'id="geoloc-picture-large"' in pl.html_picture.content
         assert f'data-rows="{ROWS}" data-cols="{COLS}"' in pl.html_picture.content
+        # its caption names the frame as the timeline does (the picture's own count is not a second numbering)
+        from geoloc_viz.model import frame_name
+
+        assert frame_name(app.scn, 0) + ":" in pl.html_picture.content and "image 1 of" not in pl.html_picture.content
         pl.close_panel()
         assert not pl.is_open and pl.bt_open.label.startswith("open")
     finally:
@@ -218,6 +228,27 @@ def test_large_picture_map_and_plots_in_chromium(flight, tmp_path):
             k = (xs[2] - xs[0]) / (ts[2] - ts[0])
             assert xs[1] == pytest.approx(xs[0] + k * (ts[1] - ts[0]), abs=2.0)
             assert k > 0
+            # a person points at the plots: the readout names the frame under the pointer and its values
+            from geoloc_viz.model import frame_name
+
+            j = 150
+            tj = ts[1]  # frame 150's time, as the page gave it above
+            box = pp.bounding_box(timeout=60000)
+            W = float(pp.get_attribute("data-width"))
+            # the page's own time-to-pixel transform (a frame is 1.5 image px wide: the cursor's 2 px is too coarse)
+            xj = float(pp.get_attribute("data-x0-px")) + (tj - float(pp.get_attribute("data-t0"))) * float(
+                pp.get_attribute("data-px-per-t")
+            )
+            page.mouse.move(box["x"] + xj / W * box["width"], box["y"] + 0.3 * box["height"])
+            ro = pp.locator(".geoloc-plots-readout")
+            ro.wait_for(state="visible", timeout=30000)
+            text = ro.inner_text()
+            assert text.splitlines()[0] == frame_name(app.scn, j, of=False), text
+            m = re.search(r"error to \w+ \(horizontal\): ([-0-9.]+) m", text)
+            # the page holds the series to 0.1 m: the model's residual rounded, within that rounding
+            assert m and float(m[1]) == pytest.approx(float(fl.model.residual_m[j]), abs=0.05 + 1e-9), text
+            h = re.search(r"aircraft: ([-0-9.]+) m", text)
+            assert h and float(h[1]) == pytest.approx(app.scn.records[j][1].h_m, abs=0.05 + 1e-9), text
             page.screenshot(path=str(ARTIFACTS / "viz_panel_plots.png"))
     finally:
         server.stop()

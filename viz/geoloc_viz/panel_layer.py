@@ -17,7 +17,8 @@ can dock, float, resize and minimise, ``gui.add_panel``) docked on the left, wit
   pixel can be computed from its coordinates.
 - **Plots**: the error, the heights and the angles against time (matplotlib, drawn once per
   flight, gaps where a value is unknown), with a cursor (a vertical SVG line, in the current
-  frame's magenta) on the current frame: a step moves only the line.
+  frame's magenta) on the current frame: a step moves only the line; the pointer over the plots
+  shows the nearest frame's name and values (the page holds the plotted series, 0.1 of a unit).
 
 The panel updates only while it is open (a closed panel costs a step nothing). The layer follows
 the session's flight layer and picture layer as they are now (a live view attaches them late and
@@ -151,13 +152,9 @@ def hillshade_grid(H: np.ndarray, m_per_px: float, sun_az_el_deg=SUN_AZ_EL_DEG) 
 
 
 def trail_frames(model, max_n: int = MAP_TRAIL_MAX) -> np.ndarray:
-    """Frame indices whose footprints the map draws: every k-th (at most ``max_n``), and every outlier."""
-    n = len(model)
-    k = max(int(np.ceil(n / max(int(max_n), 1))), 1)
-    keep = np.zeros(n, bool)
-    keep[::k] = True
-    keep |= np.asarray(model.outlier, bool)
-    return np.flatnonzero(keep)
+    """Frame indices whose footprints the map draws: every k-th (at most ``max_n``), and every outlier
+    (:meth:`geoloc_viz.flight_model.FlightModel.trail_frames`, as the scene's trail)."""
+    return model.trail_frames(max_n)
 
 
 def build_map(model, dem=None, width_px: int = MAP_PX, extent: str = MAP_EXTENTS[0]) -> MapView:
@@ -264,7 +261,7 @@ def map_svg(view: MapView, model, idx: int, picks=()) -> str:
     return "".join(out)
 
 
-def map_html(view: MapView, model, idx: int, picks=()) -> str:
+def map_html(view: MapView, model, idx: int, picks=(), name: str | None = None) -> str:
     """The map tab: the background image and the SVG overlay, its transform in ``data-*``."""
     o = view.enu.to_geodetic(np.zeros(3))
     lat0, lon0, h0 = float(np.degrees(o[0])), float(np.degrees(o[1])), float(o[2])
@@ -288,7 +285,7 @@ def map_html(view: MapView, model, idx: int, picks=()) -> str:
         f'<svg viewBox="0 0 {view.width} {view.height}" preserveAspectRatio="none" '
         f'style="position:absolute;left:0;top:0;width:100%;height:100%">{map_svg(view, model, idx, picks)}</svg>'
         f"</div>"
-        f'<div style="font-size:0.75em;opacity:0.85">{model.labels[idx]}: map East-North of '
+        f'<div style="font-size:0.75em;opacity:0.85">{html.escape(name or model.labels[idx])}: map East-North of '
         f"{lat0:.5f} N, {lon0:.5f} E, north up, {view.m_per_px:.1f} m per pixel; {html.escape(view.dem_note)}"
         f"<br>{legend}</div></div>"
     )
@@ -390,16 +387,57 @@ def build_plots(S: dict) -> PlotView:
     return PlotView(img, t[0], xa, (xb - xa) / span, top, bottom, S["t_unit"])
 
 
-def plots_html(view: PlotView, t_current: float, idx: int) -> str:
-    """The plots tab: the image and the cursor (an SVG line at the current frame's time)."""
+def readout_json(S: dict) -> str:
+    """The plotted values as compact JSON for the hover readout: ``t``, the frames' names and each
+    series (rounded to 0.1 of its unit, ``null`` where unknown), ``[[group, name, unit, values], ...]``."""
+    import json
+
+    def r(v):
+        return [None if not np.isfinite(x) else round(float(x), 1) for x in np.asarray(v, float)]
+
+    units = {"error": "m", "heights": "m", "angles": "deg"}
+    series = [[g, name, units[g], r(v)] for g in ("error", "heights", "angles") for name, v in S[g].items()]
+    names = S.get("names") or [str(k) for k in range(len(S["t"]))]
+    t = [round(float(x), 3) for x in np.asarray(S["t"], float)]  # the time axis, to the millisecond
+    return json.dumps({"t": t, "names": names, "s": series}, separators=(",", ":"))
+
+
+#: The hover readout (the plots' image is a picture: the values under the pointer come from the
+#: page's own copy of the plotted series): the frame nearest the pointer's time, its name and values.
+_READOUT_JS = (
+    "var D=this._d||(this._d=JSON.parse(this.dataset.series));var b=this.getBoundingClientRect();"
+    "var W=+this.dataset.width,x=(event.clientX-b.left)/b.width*W;"
+    "var t=(x-this.dataset.x0Px)/this.dataset.pxPerT+(+this.dataset.t0);"
+    "var k=0,best=1e300;for(var i=0;i<D.t.length;i++){var e=Math.abs(D.t[i]-t);if(e<best){best=e;k=i;}}"
+    "var L=[D.names[k]];for(var j=0;j<D.s.length;j++){var v=D.s[j][3][k];"
+    "if(v!==null)L.push(D.s[j][1]+': '+v.toFixed(1)+' '+D.s[j][2]);}"
+    "var r=this.querySelector('.geoloc-plots-readout');r.textContent=L.join('\\n');r.dataset.frame=k;"
+    "r.style.display='block';r.style.left=Math.min(event.clientX-b.left+12,b.width*0.45)+'px';"
+    "r.style.top=(event.clientY-b.top+12)+'px';"
+)
+
+
+def plots_html(view: PlotView, t_current: float, idx: int, series_json: str = "") -> str:
+    """The plots tab: the image, the cursor (an SVG line at the current frame's time) and, with
+    ``series_json`` (:func:`readout_json`), a readout of the values at the pointer."""
     H, W = view.image.shape[:2]
     x = view.t_to_px(t_current)
     col = _hex(COLORS["current"])
+    hover = (
+        f'data-series="{html.escape(series_json, quote=True)}" '
+        f'onmousemove="{html.escape(_READOUT_JS, quote=True)}" '
+        "onmouseleave=\"this.querySelector('.geoloc-plots-readout').style.display='none'\" "
+        if series_json
+        else ""
+    )
     return (
         f'<div style="padding:0 0.5em"><div id="geoloc-plots" style="position:relative;width:100%" '
         f'data-t0="{view.t0!r}" data-x0-px="{view.x0_px!r}" data-px-per-t="{view.px_per_t!r}" '
-        f'data-width="{W}" data-height="{H}" data-frame="{idx}" data-t="{t_current!r}">'
+        f'data-width="{W}" data-height="{H}" data-frame="{idx}" data-t="{t_current!r}" {hover}>'
         f'<img alt="plots" src="data:image/png;base64,{view.b64}" style="width:100%;display:block">'
+        '<div class="geoloc-plots-readout" style="display:none;position:absolute;pointer-events:none;'
+        "white-space:pre;font-size:0.75em;background:rgba(20,20,20,0.85);color:#fff;padding:3px 6px;"
+        'border-radius:3px;z-index:2"></div>'
         f'<svg viewBox="0 0 {W} {H}" preserveAspectRatio="none" '
         f'style="position:absolute;left:0;top:0;width:100%;height:100%">'
         f'<line id="geoloc-plots-cursor" x1="{x:.2f}" y1="{view.top_px:.1f}" x2="{x:.2f}" y2="{view.bottom_px:.1f}" '
@@ -563,8 +601,8 @@ class PanelLayer:
             "Object.getOwnPropertyDescriptor(HTMLInputElement.prototype,'value').set.call(i,r+', '+c);"
             "i.dispatchEvent(new Event('input',{bubbles:true}));"
         ) % (M, N)
-        frames = len(im.images) if hasattr(im.images, "__len__") else "?"
-        cap = f"image {im.k + 1} of {frames}: {N} x {M} px, every pixel shown"
+        # the sidebar picture's caption: the frame's one name (the timeline's index), not the video's count
+        cap = f"{im.caption()}, every pixel shown"
         self._picture_parts = (M, N, _b64(img, "JPEG", 92), js, cap)
         self._resize_picture()
 
@@ -642,7 +680,10 @@ class PanelLayer:
             dem = self.session.scn.dem if self.session.scn.use_dem else None
             self.view = build_map(model, dem, extent=extent)
             self._map_key = key
-        self.html_map.content = map_html(self.view, model, idx, self._picks_enu(model))
+        from geoloc_viz.model import frame_name
+
+        name = frame_name(self.session.scn, idx, of=False)  # the one name, as the timeline gives it
+        self.html_map.content = map_html(self.view, model, idx, self._picks_enu(model), name=name)
 
     # plots
     def update_plots(self) -> None:
@@ -655,7 +696,12 @@ class PanelLayer:
         if key != self._series_key and self._due("plots", model):
             self._series = plot_series(self.session.scn, model)
             self._series["labels"] = list(model.labels)
+            from geoloc_viz.model import frame_name
+
+            scn = self.session.scn
+            self._series["names"] = [frame_name(scn, k, of=False) for k in range(len(self._series["t"]))]
             self.plot_view = build_plots(self._series)
+            self._readout = readout_json(self._series)
             self._series_key = key
         S = self._series
         label = model.labels[idx]
@@ -664,15 +710,15 @@ class PanelLayer:
         plotted = label in S["labels"]
         k = S["labels"].index(label) if plotted else len(S["t"]) - 1
         tc = float(S["t"][k])
+        from geoloc_viz.model import frame_name
+
         when = (
-            f"t = {tc:.2f} {S['t_unit']}"
+            "the magenta line is the current frame; point at the plots to read a frame's values"
             if plotted
             else f"newer than the plots (redrawn every {REBUILD_S:g} s), cursor at their end"
         )
-        self.md_plots.content = (
-            f"**{model.labels[idx]}** (frame index {idx}), {when}: the magenta line is the current frame"
-        )
-        self.html_plots.content = plots_html(self.plot_view, tc, idx)
+        self.md_plots.content = f"**{frame_name(self.session.scn, idx)}**: {when}"
+        self.html_plots.content = plots_html(self.plot_view, tc, idx, getattr(self, "_readout", ""))
 
 
 def attach(session) -> PanelLayer:
