@@ -20,6 +20,18 @@ page load warms what every tab shares (the flight model, the terrain mesh). Then
   acknowledgement of each step): frames shown per second over ``--play-s`` seconds, counted
   on the server (frames the timeline reached) and on the canvas (changes the probe saw).
 
+Where a step's time goes, per step (medians), beside the same figures for the peer:
+
+* **the wire**: the messages the server queued for the tab from the step to the canvas settled
+  (viser's message buffer, counted in this process: a benchmark-only hook), their bytes as viser
+  encodes them (msgpack plus the raw arrays; before its zstd of the msgpack part), split into
+  scene and GUI messages, the biggest kind named; scene nodes touched and nodes created;
+* **the browser**: frames drawn (animation frames with a WebGL draw call, ``bench_browser.COUNTER``),
+  the renderer's main-thread busy time and its script time (CDP ``Performance.getMetrics``:
+  ``TaskDuration``, ``ScriptDuration``), and the CPU of Chromium's processes (its GPU process, where
+  SwiftShader draws, apart);
+* **the server**: the step's wall and CPU time (``time.process_time`` of this process).
+
 CPU beside wall: Chromium's processes (``/proc``; its GPU process, where SwiftShader draws, apart)
 and this process (the server), over the same intervals. The canvas is watched from inside the
 page every 50 ms (``bench_browser.PROBE``). Prints medians, the load average before and after,
@@ -52,6 +64,98 @@ PANEL_PROBE = """(() => {
   }
   look();
 })();"""
+
+
+class _Wire:
+    """What the server queues for the browsers: every message pushed into a viser message buffer
+    while ``on`` (a benchmark-only wrap of ``AsyncMessageBuffer.push``; sizes computed afterwards,
+    off the server's clock)."""
+
+    def __init__(self):
+        from viser.infra._async_message_buffer import AsyncMessageBuffer
+
+        self.on, self.log = False, []
+        orig = AsyncMessageBuffer.push
+        wire = self
+
+        def push(buf, message):
+            if wire.on:
+                wire.log.append(message)
+            return orig(buf, message)
+
+        AsyncMessageBuffer.push = push
+
+    def start(self) -> None:
+        self.log, self.on = [], True
+
+    def stop(self) -> dict:
+        """(messages, scene messages, GUI messages, bytes, nodes touched, nodes created, biggest kind)."""
+        import collections
+
+        import msgspec
+
+        self.on = False
+        size, nodes, created = collections.Counter(), set(), 0
+        scene = gui = 0
+        for m in self.log:
+            bufs: list = []
+            d = m.as_serializable_dict(bufs)
+            kind = type(m).__name__
+            size[kind] += len(msgspec.msgpack.encode(d)) + sum(b.nbytes for b in bufs)
+            if kind.startswith("Gui"):
+                gui += 1
+            name = getattr(m, "name", None)
+            if isinstance(name, str) and name.startswith("/"):
+                scene += 1
+                nodes.add(name)
+                created += getattr(m, "lifecycle_phase", None) == "create"
+        big = size.most_common(1)[0] if size else ("none", 0)
+        return {
+            "messages": len(self.log),
+            "scene": scene,
+            "gui": gui,
+            "bytes": sum(size.values()),
+            "nodes": len(nodes),
+            "created": created,
+            "biggest": big,
+        }
+
+
+def _renderer_s(cdp) -> tuple[float, float]:
+    """(the renderer main thread's busy seconds, its script seconds) so far (CDP Performance)."""
+    m = {x["name"]: x["value"] for x in cdp.send("Performance.getMetrics")["metrics"]}
+    return m.get("TaskDuration", float("nan")), m.get("ScriptDuration", float("nan"))
+
+
+def _draws(page) -> dict:
+    return page.evaluate("({...(window.__geolocDraws || {frames: 0, draws: 0, prims: 0})})")
+
+
+class _Probe:
+    """The browser's and the wire's figures over one interval (a step or a peer update)."""
+
+    def __init__(self, page, cdp, wire):
+        self.page, self.cdp, self.wire = page, cdp, wire
+
+    def start(self) -> None:
+        from bench_browser import _browser_cpu_s
+
+        self.wire.start()
+        self.r0, self.d0, self.c0 = _renderer_s(self.cdp), _draws(self.page), _browser_cpu_s()
+
+    def stop(self) -> dict:
+        from bench_browser import _browser_cpu_s
+
+        r1, d1, c1 = _renderer_s(self.cdp), _draws(self.page), _browser_cpu_s()
+        out = self.wire.stop()
+        out.update(
+            frames=d1["frames"] - self.d0["frames"],
+            task_s=r1[0] - self.r0[0],
+            script_s=r1[1] - self.r0[1],
+            browser_s=c1[0] - self.c0[0],
+            gpu_s=c1[1] - self.c0[1],
+        )
+        return out
 
 
 def _first_scene_frame(page, t0, ready, min_colours=200, timeout=240.0):
@@ -87,13 +191,14 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import numpy as np
-    from bench_browser import PROBE, _browser_cpu_s, _frames, _settled
+    from bench_browser import COUNTER, PROBE, _browser_cpu_s, _frames, _settled
     from test_viz_browser import chromium
 
     from geoloc_viz.app import GeolocViewer, make_server
     from geoloc_viz.flight_model import default_flight_scenario
 
     load0 = os.getloadavg()
+    wire = _Wire()
     scn = default_flight_scenario()
     server = make_server(port=0)
     built: dict = {}
@@ -106,12 +211,17 @@ def main(argv=None) -> int:
 
     viewer._build_tab = timed_build
     view, settle, view_cpu, steps, step_cpu, server_step, peers, play = [], [], [], [], [], [], [], []
+    step_where, peer_where = [], []
     try:
         with tempfile.TemporaryDirectory() as tmp, chromium(Path(tmp)) as browser:
             for k in range(args.repeat + 1):
                 page = browser.new_page(viewport={"width": 1000, "height": 640})
                 page.add_init_script(PROBE)
                 page.add_init_script(PANEL_PROBE)
+                page.add_init_script(COUNTER)
+                cdp = page.context.new_cdp_session(page)
+                cdp.send("Performance.enable")
+                probe = _Probe(page, cdp, wire)
                 before = set(built)
                 cpu0, scpu0 = _browser_cpu_s(), time.process_time()
                 t0 = time.time()
@@ -144,6 +254,7 @@ def main(argv=None) -> int:
                 seen = len(_frames(page))
                 for j in range(args.steps):
                     # a step to the next frame, as the GUI's slider sets it
+                    probe.start()
                     c0, s0 = _browser_cpu_s(), time.process_time()
                     t_step = time.time()
                     w = time.perf_counter()
@@ -153,11 +264,14 @@ def main(argv=None) -> int:
                     c1 = _browser_cpu_s()
                     step_cpu.append((c1[0] - c0[0], c1[1] - c0[1]))
                     _, seen = _settled(page, t_step, quiet_s=1.0, after=seen)
+                    step_where.append(probe.stop())
                     # the peer: the bare update
+                    probe.start()
                     t_peer = time.time()
                     ball.position = tuple(look + (0.04 * dist * (1 if j % 2 == 0 else -1), 0.0, 0.0))
                     peers.append(_first_change(page, seen, t_peer))
                     _, seen = _settled(page, t_peer, quiet_s=1.0, after=seen)
+                    peer_where.append(probe.stop())
                 ball.remove()
                 # playback at 10 frames per second asked
                 fl.num_fps.value = 10.0
@@ -195,13 +309,28 @@ def main(argv=None) -> int:
         f"ms wall, {med(s[1] for s in server_step) * 1e3:.0f} ms CPU"
     )
     print(f"peer: viser's bare scene update (one ball moved) to the canvas: median {med(peers) * 1e3:.0f} ms wall")
+    for label, rows in (("a step", step_where), ("the peer", peer_where)):
+        big = statistics.mode(r["biggest"][0] for r in rows)
+        print(
+            f"where {label}'s time goes (medians, from the update to the canvas settled): "
+            f"{med(r['messages'] for r in rows):.0f} messages ({med(r['scene'] for r in rows):.0f} scene, "
+            f"{med(r['gui'] for r in rows):.0f} GUI), {med(r['bytes'] for r in rows) / 1e3:.1f} kB "
+            f"(biggest kind {big}: {med(r['biggest'][1] for r in rows if r['biggest'][0] == big) / 1e3:.1f} kB); "
+            f"{med(r['nodes'] for r in rows):.0f} scene nodes touched, {med(r['created'] for r in rows):.0f} created; "
+            f"{med(r['frames'] for r in rows):.0f} frames drawn; renderer main thread "
+            f"{med(r['task_s'] for r in rows) * 1e3:.0f} ms busy ({med(r['script_s'] for r in rows) * 1e3:.0f} ms "
+            f"script); Chromium CPU {med(r['browser_s'] for r in rows) * 1e3:.0f} ms (GPU process "
+            f"{med(r['gpu_s'] for r in rows) * 1e3:.0f} ms)"
+        )
     print(
         f"playback, 10 frames per second asked: {med(p[0] for p in play):.2f} frames/s reached by the timeline, "
         f"{med(p[1] for p in play):.2f} canvas changes/s, browser CPU {med(p[2] for p in play):.2f} s per s "
         f"(medians over {len(play)} runs of {args.play_s:g} s)"
     )
     print(
-        f"ratio: step / bare update {med(steps) / med(peers):.2f}; playback reached / asked "
+        f"ratio: step / bare update {med(steps) / med(peers):.2f} (Chromium CPU "
+        f"{med(r['browser_s'] for r in step_where) / max(med(r['browser_s'] for r in peer_where), 1e-3):.2f}); "
+        f"playback reached / asked "
         f"{med(p[0] for p in play) / 10.0:.2f}"
     )
     return 0

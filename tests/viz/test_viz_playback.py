@@ -6,7 +6,10 @@ at the moment the pause button's click event fires there; after the pause the pa
 at most two steps later (the step already on its way, and one the server may have sent while the
 click travelled) and stay there. Before the player waited for the browser, a software-WebGL page
 fell behind a 5 fps timeline and ran on from frame 62 to 85 after pause (the issue's report);
-here the timeline runs at 20 fps, far faster than such a page draws.
+here the timeline runs at 20 fps, far faster than such a page draws. The player follows the clock
+(a step skips the frames the page could not draw in time), so "two steps" are counted in the
+sequence of frames the player sent (``FlightLayer.played``); the rate it reaches is measured by
+``benchmarks/bench_viewer.py``, not here.
 """
 
 import re
@@ -48,7 +51,7 @@ def test_pause_stops_the_display_where_it_was(tmp_path):
             page.evaluate(RECORDER)
             # clicks wait up to 3 min: at load 8 on the shared 2-core machine the busy page took 40 s
             page.get_by_role("button", name="play").click(timeout=180000)
-            wait_for(lambda: fl.current >= start + 4, 180, "the timeline to play 4 steps")
+            wait_for(lambda: len(fl.played) >= 4, 180, "the timeline to play 4 steps")
             page.get_by_role("button", name="pause").click(timeout=180000)
             wait_for(lambda: not fl._playing, 180, "the pause to reach the server")
             fl._thread.join(60)
@@ -63,5 +66,9 @@ def test_pause_stops_the_display_where_it_was(tmp_path):
             page.screenshot(path=str(ARTIFACTS / "playback_paused.png"))
             print(f"pause: the page showed frame {at_pause} at the click, {final} after it (server {stop})")
             assert final == stop == fl.current
-            assert 0 <= final - at_pause <= 2, (at_pause, final)
+            played = list(fl.played)
+            assert at_pause in played and final == played[-1], (at_pause, final, played)
+            # the steps the page applied after the click: the one on its way and at most one more
+            assert 0 <= len(played) - 1 - played.index(at_pause) <= 2, (at_pause, final, played)
+            print(f"playback: {len(played)} steps over {played[-1] - start} frames")
             assert re.search(rf"frame {final} of 0 \.\. ", page.locator("body").inner_text())

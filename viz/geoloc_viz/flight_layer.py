@@ -25,6 +25,7 @@ vertical exaggeration: a (1, 1, v) node scale, as the terrain. Conventions: ``do
 
 from __future__ import annotations
 
+import collections
 import inspect
 import threading
 import time
@@ -129,6 +130,9 @@ class FlightLayer:
         self._busy = threading.Lock()
         self._playing = False
         self._thread = None
+        #: The frames the player sent in its last run, in order (the clock skips those a slow browser
+        #: could not draw in time), bounded.
+        self.played: collections.deque = collections.deque(maxlen=10000)
         self._enu_key = None
         self.last_step_s = float("nan")
         self.handles = {}
@@ -776,7 +780,12 @@ class FlightLayer:
         self._move(self.camera_pose(idx))
 
     def toggle_play(self) -> None:
-        """Start or pause the timeline (a daemon thread steps ``frames per second``).
+        """Start or pause the timeline (a daemon thread plays ``frames per second``).
+
+        The displayed frame follows the clock: a browser slower than the asked rate (software
+        WebGL draws a frame in a few tenths of a second) is sent the frame the clock has reached,
+        the frames in between skipped, so the timeline runs at the asked rate and the picture
+        keeps up as well as the browser can (:attr:`played` lists the frames sent).
 
         Pause is immediate: the player sends a step only once the browsers have applied the
         one before (:meth:`_caught_up`), so when pause is pressed at most the step already
@@ -787,6 +796,7 @@ class FlightLayer:
             self.bt_play.label = "play"
             return
         self._playing = True
+        self.played.clear()
         self.bt_play.label = "pause"
         self._thread = threading.Thread(target=self._play, daemon=True, name="geoloc-flight-timeline")
         self._thread.start()
@@ -822,22 +832,35 @@ class FlightLayer:
         return self._playing and not self.closed
 
     def _play(self) -> None:
+        # the clock: frame k (counted from the anchor frame, unwrapped) is due at anchor_t + k / fps;
+        # re-anchored when the rate changes or the timeline was moved by hand meanwhile
+        n = len(self.model)
+        fps = max(float(self.num_fps.value), 1e-3)
+        anchor_t, anchor_f, k = time.monotonic(), int(self.current or 0), 0
         while self._playing and not self.closed:
-            t0 = time.monotonic()
-            nxt = (self.current + 1) % len(self.model)
+            f = max(float(self.num_fps.value), 1e-3)
+            now = time.monotonic()
+            if f != fps or self.current != (anchor_f + k) % n:
+                fps, anchor_t, anchor_f, k = f, now, int(self.current or 0), 0
+            # the next frame: the one the clock has reached, at least one on; wait until it is due
+            k_next = max(k + 1, int(np.floor((now - anchor_t) * fps)))
+            due = anchor_t + k_next / fps
+            while self._playing and not self.closed and time.monotonic() < due:
+                time.sleep(min(0.05, max(due - time.monotonic(), 0.0)))
+            if not self._playing or self.closed:
+                break
+            nxt = (anchor_f + k_next) % n
             try:
                 self.go(nxt)
             except (RuntimeError, KeyError, ValueError):  # the tab left (its handles are gone): stop
                 self._playing = False
                 break
+            k = k_next
+            self.played.append(nxt)
             # the browsers first draw this step (software WebGL can take seconds a frame): a
             # player that ran ahead of them would leave steps queued that run on after pause
             if not self._caught_up():
                 break
-            dt = 1.0 / max(float(self.num_fps.value), 1e-3)
-            end = t0 + dt
-            while self._playing and not self.closed and time.monotonic() < end:
-                time.sleep(min(0.05, max(end - time.monotonic(), 0.0)))
 
     # ------------------------------------------------------------ session hooks
     def _follow_session(self) -> None:

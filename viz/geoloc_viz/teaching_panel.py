@@ -313,6 +313,13 @@ class TeachingPanel:
                 h.visible = show
 
         self._node(ROOT, None, lambda: sc.add_frame(ROOT, show_axes=False, position=aircraft, visible=show), place_root)
+        if not show:
+            # hidden (the flight view's default): the row is brought up to date when shown (the
+            # checkbox redraws); a timeline step then sends the text, not some 45 node updates
+            # nobody sees (benchmarks/bench_viewer.py)
+            self._text(chain, v, vframe, what, hop)
+            self.set_mesh(self._mesh_visible)
+            return
         arrows = []
         for index, f in enumerate(teaching.chain_frames(chain)):
             T = chain.T_ecef(f)
