@@ -61,12 +61,14 @@ Conventions: ``docs/conventions.md``. User guide: ``docs/viz.md``.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import sys
 import threading
 import time
 import traceback
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -349,6 +351,9 @@ class GeolocSession:
         self._mute = False
         self._lock = threading.RLock()
         self._refresh_cbs: list = []
+        self._deferred_cbs: list = []
+        self._defer_depth = 0
+        self._deferred_due = None
         self._record_cbs: list = []
         self.layers: list = []
         self.calibration = None
@@ -367,10 +372,38 @@ class GeolocSession:
                 self.calibration = obj
 
     # ------------------------------------------------------------ interface
-    def on_refresh(self, callback):
-        """Register ``callback(geometry)``, called after each redraw; returns it (a decorator)."""
-        self._refresh_cbs.append(callback)
+    def on_refresh(self, callback, deferred: bool = False):
+        """Register ``callback(geometry)``, called after each redraw; returns it (a decorator).
+
+        ``deferred``: a panel's work (the picture, the teaching text), which during a timeline step
+        (:meth:`deferring`) runs after the step's scene went out, in a second batch, and is skipped
+        when a newer step is already waiting."""
+        (self._deferred_cbs if deferred else self._refresh_cbs).append(callback)
         return callback
+
+    @contextlib.contextmanager
+    def deferring(self, skip: Callable[[], bool] = lambda: False) -> Iterator[None]:
+        """Within: a redraw leaves its deferred callbacks (``on_refresh(..., deferred=True)``) for
+        later. On exit (after the caller's atomic batch, flushed: the browser draws the scene
+        first), they run in a batch of their own, unless ``skip()`` (a newer step waits, which
+        will run them)."""
+        with self._lock:
+            self._defer_depth += 1
+            try:
+                yield
+            finally:
+                self._defer_depth -= 1
+            if self._defer_depth:  # an outer deferring() runs them
+                return
+            g, self._deferred_due = self._deferred_due, None
+            if g is None or self.closed:
+                return
+            (self.client if self.client is not None else self.server).flush()
+            if skip():
+                return
+            with self._atomic():
+                for cb in list(self._deferred_cbs):
+                    self._call(cb, g)
 
     def on_record(self, callback):
         """Register ``callback(idx)``, called after record ``idx`` is loaded, before the redraw."""
@@ -407,6 +440,7 @@ class GeolocSession:
                 except Exception:
                     traceback.print_exc(file=sys.stderr)
         self._refresh_cbs.clear()
+        self._deferred_cbs.clear()
         self._record_cbs.clear()
         self.layers.clear()
         self.calibration = None
@@ -686,6 +720,11 @@ class GeolocSession:
             if g is not None:
                 for cb in list(self._refresh_cbs):
                     self._call(cb, g)
+                if self._defer_depth:
+                    self._deferred_due = g
+                else:
+                    for cb in list(self._deferred_cbs):
+                        self._call(cb, g)
 
     def header(self) -> str:
         """The panel's title: the records file and record, or a custom pose and where it came from."""

@@ -625,9 +625,18 @@ class FlightLayer:
         framed on the frame's error, the markers sized to it).
 
         One atomic batch (the session's ``_atomic``): the client applies the step's parts (the record,
-        its redraw, the highlight) together, not over several frames (docs/viz.md, bench_browser)."""
-        with self.session._atomic():
-            self._go(idx, camera)
+        its redraw, the highlight) together, not over several frames (docs/viz.md, bench_browser).
+        The panels' work (the picture, the teaching text: the session's deferred redraw callbacks)
+        follows in a second batch, once the scene is on its way, and is left to the next step when
+        one already waits (a slider drag)."""
+        deferring = getattr(self.session, "deferring", None)
+        if deferring is None:  # the older app
+            with self.session._atomic():
+                self._go(idx, camera)
+            return
+        with deferring(skip=lambda: self._pending is not None):
+            with self.session._atomic():
+                self._go(idx, camera)
 
     def _go(self, idx: int, camera: bool) -> None:
         idx = int(np.clip(idx, 0, len(self.model) - 1))

@@ -198,7 +198,7 @@ class ImageLayer:
         #: (:func:`geoloc_viz.picture_model.video_timing_faults`); None until the search is done.
         self.timing: list | None = None
         self._build_gui()
-        session.on_refresh(lambda _g: self._safe(self.update))
+        session.on_refresh(lambda _g: self._safe(self.update), deferred=True)
         self.scene.on_click()(self._on_scene_click)
         self._safe(self.update)
         # the thread holds the layer weakly: a tab closed meanwhile frees its session (the search

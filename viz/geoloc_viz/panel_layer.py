@@ -473,7 +473,7 @@ class PanelLayer:
             "(click it to locate a pixel), a map of the flight on the DEM's hillshade, and plots against time",
         )
         self.bt_open.on_click(lambda _e: self._safe(self.toggle))
-        session.on_refresh(lambda _g: self._safe(self.update))
+        session.on_refresh(lambda _g: self._safe(self.update), deferred=True)  # after the picture layer
 
     # -------------------------------------------------------------- plumbing
     def _safe(self, fn, *a):

@@ -113,7 +113,7 @@ class ShareLayer:
             self.md_status = g.add_markdown("")
         self.bt_send.on_click(lambda _e: self._safe(self.send_udp))
         self.bt_file.on_click(lambda _e: self._safe(self.write_file))
-        session.on_refresh(lambda _g: self._safe(self.update))
+        session.on_refresh(lambda _g: self._safe(self.update), deferred=True)
         if self.picture is not None:
             self.picture.on_pick(lambda _l: self._safe(self.update))
         self._safe(self.update)

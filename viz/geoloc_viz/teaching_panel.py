@@ -229,7 +229,7 @@ class TeachingPanel:
     def _hook_refresh(self) -> None:
         s = self.session
         if hasattr(s, "on_refresh"):
-            s.on_refresh(lambda *_: self.redraw())
+            s.on_refresh(lambda *_: self.redraw(), deferred=True)
             return
         # Fallback until the app has on_refresh: wrap this instance's refresh.
         orig = s.refresh
