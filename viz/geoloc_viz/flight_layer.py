@@ -841,24 +841,27 @@ class FlightLayer:
         return self._playing and not self.closed
 
     def _play(self) -> None:
-        # the clock: frame k (counted from the anchor frame, unwrapped) is due at anchor_t + k / fps;
-        # re-anchored when the rate changes or the timeline was moved by hand meanwhile
+        # the clock: frame k (counted from the anchor frame, unwrapped) is due on screen at
+        # anchor_t + k / fps; re-anchored when the rate changes or the timeline was moved by hand.
+        # A step takes `lead` seconds from sending to drawn (the last one's, measured to the
+        # browser's acknowledgement): the player sends the frame that will be due when it is drawn
         n = len(self.model)
         fps = max(float(self.num_fps.value), 1e-3)
-        anchor_t, anchor_f, k = time.monotonic(), int(self.current or 0), 0
+        anchor_t, anchor_f, k, lead = time.monotonic(), int(self.current or 0), 0, 0.0
         while self._playing and not self.closed:
             f = max(float(self.num_fps.value), 1e-3)
             now = time.monotonic()
             if f != fps or self.current != (anchor_f + k) % n:
                 fps, anchor_t, anchor_f, k = f, now, int(self.current or 0), 0
-            # the next frame: the one the clock has reached, at least one on; wait until it is due
-            k_next = max(k + 1, int(np.floor((now - anchor_t) * fps)))
-            due = anchor_t + k_next / fps
+            # the next frame: the one due once drawn, at least one on; sent `lead` before it is due
+            k_next = max(k + 1, int(np.floor((now + lead - anchor_t) * fps)))
+            due = anchor_t + k_next / fps - lead
             while self._playing and not self.closed and time.monotonic() < due:
                 time.sleep(min(0.05, max(due - time.monotonic(), 0.0)))
             if not self._playing or self.closed:
                 break
             nxt = (anchor_f + k_next) % n
+            sent = time.monotonic()
             try:
                 self.go(nxt)
             except (RuntimeError, KeyError, ValueError):  # the tab left (its handles are gone): stop
@@ -870,6 +873,7 @@ class FlightLayer:
             # player that ran ahead of them would leave steps queued that run on after pause
             if not self._caught_up():
                 break
+            lead = time.monotonic() - sent
 
     # ------------------------------------------------------------ session hooks
     def _follow_session(self) -> None:
