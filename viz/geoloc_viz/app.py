@@ -388,6 +388,8 @@ class GeolocSession:
         first), they run in a batch of their own, unless ``skip()`` (a newer step waits, which
         will run them)."""
         with self._lock:
+            if not self._defer_depth:
+                self._deferred_due = None  # (left by a step that raised)
             self._defer_depth += 1
             try:
                 yield
