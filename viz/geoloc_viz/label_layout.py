@@ -300,7 +300,12 @@ def attach(session) -> LabelLayout:
         return clients[0].camera if clients else None
 
     lay = LabelLayout(session.scene, camera, priority=label_priority)
-    session.on_refresh(lambda _g: lay.schedule(0.05))
+    try:
+        # in the redraw's panel batch (a timeline step's second batch, after the labels the panels
+        # move): one render request in the browser, not another one 50 ms later
+        session.on_refresh(lambda _g: lay.run(), deferred=True)
+    except TypeError:  # a session without deferred callbacks
+        session.on_refresh(lambda _g: lay.schedule(0.05))
     if client is not None:
         client.camera.on_update(lambda _c: lay.schedule())
     else:
