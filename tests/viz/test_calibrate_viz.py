@@ -129,14 +129,17 @@ def test_app_calibration_with_a_scenario_like_app(server):
     truth = np.stack(pymap3d.geodetic2enu(c("truth_lat_deg"), c("truth_lon_deg"), h, lat0, lon0, h00), -1)
     np.testing.assert_allclose(cal.layer.truth_handle.points / WORLD_SCALE, truth, atol=0.05)  # as above
     after = np.array(cal.layer.handles["after"].points) / WORLD_SCALE
-    # drawn at true length by default, and the label on the drawing says so
+    # drawn at true length by default; the scale label shows only on an exaggerated drawing (at true
+    # length it would sit on the surveyed point)
     assert cal.layer.exaggeration == 1.0 and cal.layer.label_handle.text.endswith("true length")
+    assert not cal.layer.label_handle.visible
     assert np.linalg.norm(after[:, 1] - after[:, 0], axis=1).mean() < 8.0
     # the GUI drives the layer
     cal.dd_stage.value = "before"
     cal.sl_exag.value = 10.0
     assert cal.layer.stage == "before" and cal.layer.exaggeration == 10.0
     assert cal.layer.label_handle.text == "error vectors of all records (before), drawn x10"
+    assert cal.layer.label_handle.visible
     # moving the origin and rebuilding keeps stage and exaggeration, in the new frame
     scn.enu = EnuFrame.from_deg(36.36, 78.87, 5000.0)
     cal.rebuild()

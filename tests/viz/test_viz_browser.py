@@ -215,7 +215,7 @@ def test_turret_sensor_in_headless_chromium(tmp_path):
             page = open_viewer(browser, server, 1100, 700)
             # 60 s: right after loading, a 1100 x 700 software-WebGL page answers a query for an
             # element already shown in 13-30 s on the shared machine at load 8-10
-            page.wait_for_selector("text=eo_turret_flight.csv orbit1-5", timeout=60000)
+            page.wait_for_selector("text=eo_turret_flight.csv: frame 4 (orbit1-5)", timeout=60000)
             page.wait_for_selector("text=azimuth (deg)", timeout=60000)
             img = render(server, ARTIFACTS / "viz_turret_render.png")
             assert n_colours(img) > 20

@@ -1219,7 +1219,9 @@ class GeolocViewer:
                 inputs=old.inputs,
                 copy_scenario=True,
             )
-        self.driver.on_refresh(lambda _g: self._mirror())
+        # deferred, and registered after the layers' own: during a step the panels' text (the share
+        # panel's CE90, the picture) is written in the deferred batch, and the followers copy it after
+        self.driver.on_refresh(lambda _g: self._mirror(), deferred=True)
         cid = client.client_id
         client.camera.on_update(lambda cam: self._on_driver_camera(cid, cam))
 

@@ -135,14 +135,17 @@ class CalibrationLayer:
             point_shape="circle",
             precision="float32",
         )
-        # the drawing says its own scale, beside the first record's truth (a child of the truth
-        # points: it goes with them)
+        # an exaggerated drawing says its scale beside the first record's truth (a child of the truth
+        # points: it goes with them); at true length it is hidden, as it would sit on a surveyed
+        # point the single-point view measures from, and the folder's name says what the vectors are
         first = geometry.truth[0] if len(geometry.truth) else np.zeros(3)
+        self.shown = True
         self.label_handle = scene.add_label(
             f"{self.name}/truth/label",
             self.label_text(),
             position=tuple(float(x) for x in first * self.world_scale),
             anchor="top-left",
+            visible=self.exaggeration != 1.0,
         )
         self._draw()
 
@@ -169,6 +172,8 @@ class CalibrationLayer:
         lab = getattr(self, "label_handle", None)
         if lab is not None and lab.text != self.label_text():
             lab.text = self.label_text()
+        if lab is not None and lab.visible != (self.shown and self.exaggeration != 1.0):
+            lab.visible = self.shown and self.exaggeration != 1.0
         for stage in self.geometry.computed:
             seg = self.geometry.segments(stage, self.exaggeration) * self.world_scale
             visible = self.stage in (stage, "both")
@@ -205,8 +210,9 @@ class CalibrationLayer:
         self._draw()
 
     def set_visible(self, visible: bool) -> None:
+        self.shown = bool(visible)
         self.truth_handle.visible = bool(visible)
-        self.label_handle.visible = bool(visible)
+        self.label_handle.visible = bool(visible) and self.exaggeration != 1.0
         for stage, h in self.handles.items():
             h.visible = bool(visible) and self.stage in (stage, "both")
 
