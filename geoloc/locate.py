@@ -224,14 +224,18 @@ def locate_dem(
     **kwargs
         ``dem_model``, ``eps_h``, ``threshold``, ``trace``, ``max_iter``.
     """
-    from geoloc.surfaces.terrain import DemSurface
+    from geoloc.surfaces.terrain import DemSurface, TerrainHit
 
     if dem is None:
         raise ValueError("dem is required")
     s = as_sensor(sensor)
     row, col = _default_pixel(s, row, col)
     dem_model = kwargs.pop("dem_model", "bilinear")
-    return Pipeline(s, DemSurface(dem, method, dem_model, **kwargs), corrections).locate(row, col, pose)
+    hit = Pipeline(s, DemSurface(dem, method, dem_model, **kwargs), corrections).locate(row, col, pose)
+    # DemSurface meets the rays in a TerrainHit and the pipeline's corrections replace its fields
+    # (dataclasses.replace), keeping its class: the type the Pipeline's signature cannot say
+    assert isinstance(hit, TerrainHit)
+    return hit
 
 
 __all__ = [

@@ -33,9 +33,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from geoloc import corrections as _corr
 from geoloc.corrections.lighttime import (
@@ -53,6 +54,8 @@ from geoloc.surfaces.base import GroundPoint, LineOfSight
 
 if TYPE_CHECKING:  # the refraction kernels import numba: loaded when refraction is asked for
     from geoloc.corrections.refraction import Refraction
+    from geoloc.sensors.base import Sensor
+    from geoloc.surfaces.base import Surface
 
 #: The corrections, in the order the pipeline applies them.
 CORRECTIONS = ("aberration", "light_time", "refraction")
@@ -91,7 +94,7 @@ class Corrections:
     @classmethod
     def for_sensor(
         cls,
-        sensor,
+        sensor: object,
         refraction: str | Refraction | None = "none",
         light_time: bool | None = None,
         aberration: bool | None = None,
@@ -143,7 +146,11 @@ class Corrections:
         return cls(refraction, lt, ab)
 
     def overridden(
-        self, sensor, refraction=None, light_time: bool | None = None, aberration: bool | None = None
+        self,
+        sensor: object,
+        refraction: str | Refraction | None = None,
+        light_time: bool | None = None,
+        aberration: bool | None = None,
     ) -> Corrections:
         """These corrections with the given settings changed (None: kept), checked for ``sensor``
         as :meth:`for_sensor` checks them (a command line's flags over a file's table)."""
@@ -159,7 +166,7 @@ class Corrections:
         corrections (a refraction through a ``StandardAtmosphere``: its ground measurement too)."""
         from geoloc.corrections.atmosphere import StandardAtmosphere
 
-        table = {
+        table: dict[str, str | bool | float] = {
             "refraction": "none" if self.refraction is None else "standard",
             "light_time": bool(self.light_time),
             "aberration": bool(self.aberration),
@@ -194,7 +201,9 @@ NO_CORRECTIONS = Corrections()
 TABLE_KEYS = _corr.TABLE_KEYS
 
 
-def refraction_model(name, ground: dict | None = None, source: str = "[corrections]"):
+def refraction_model(
+    name: str | Refraction | None, ground: dict | None = None, source: str = "[corrections]"
+) -> str | Refraction | None:
     """The refraction of ``name`` (``"none"``, ``"standard"``, or a Refraction), its standard
     atmosphere fitted to ``ground`` (``ground_h_m``, ``ground_p_pa``, ``ground_t_k``: a measured
     ground pressure and temperature; ``StandardAtmosphere``) when given. Errors name ``source``."""
@@ -215,7 +224,9 @@ def refraction_model(name, ground: dict | None = None, source: str = "[correctio
         raise ValueError(f"{source}: {e}") from None
 
 
-def corrections_from_table(sensor, table, source: str = "[corrections]", **override) -> Corrections:
+def corrections_from_table(
+    sensor: object, table: dict | None, source: str = "[corrections]", **override: object
+) -> Corrections:
     """A file's ``[corrections]`` table (``refraction = "none" | "standard"``, ``light_time`` and
     ``aberration`` true or false), with the command line's ``override`` (None: not given) on top,
     over the sensor's defaults (:meth:`Corrections.for_sensor`). Errors name ``source`` and the key."""
@@ -238,20 +249,36 @@ class Pipeline:
 
     Parameters
     ----------
-    sensor : Sensor
-        Any :class:`geoloc.sensors.base.Sensor` (frame, pushbroom, RPC).
-    surface : Surface
-        What the lines of sight meet (:class:`geoloc.surfaces.base.Surface`).
+    sensor : Sensor or None
+        Any :class:`geoloc.sensors.base.Sensor` (frame, pushbroom, RPC); None for a pipeline
+        that only meets given lines of sight with its surface (:meth:`intersect`).
+    surface : Surface or None
+        What the lines of sight meet (:class:`geoloc.surfaces.base.Surface`); None for a
+        pipeline that only projects ground points to pixels (:meth:`ground_to_pixel`).
     corrections : Corrections
         Off by default (:meth:`Corrections.for_sensor` gives Rugged's defaults).
     """
 
-    sensor: object
-    surface: object
+    sensor: Sensor | None
+    surface: Surface | None
     corrections: Corrections = NO_CORRECTIONS
 
+    @property
+    def _sensor(self) -> Sensor:
+        if self.sensor is None:
+            raise ValueError("Pipeline(sensor=None): it meets given lines of sight only (intersect), no pixels")
+        return self.sensor
+
+    @property
+    def _surface(self) -> Surface:
+        if self.surface is None:
+            raise ValueError("Pipeline(surface=None): it projects ground points to pixels only (ground_to_pixel)")
+        return self.surface
+
     # ------------------------------------------------------------ pixel -> ground
-    def locate(self, row, col, state=None, *, outside: str = "flag", engine: str = "auto") -> GroundPoint:
+    def locate(
+        self, row: npt.ArrayLike, col: npt.ArrayLike, state: Any = None, *, outside: str = "flag", engine: str = "auto"
+    ) -> GroundPoint:
         """1-based pixels -> ground points, batched (NaN and a Status per ray).
 
         Parameters
@@ -279,7 +306,7 @@ class Pipeline:
             return self._refract(los, los, raw)
         # a frame sensor has a compiled line of sight; the others have one executor
         kw = {"engine": engine} if hasattr(self.sensor, "compiled") else {}
-        los = self.sensor.line_of_sight(row, col, state, outside=outside, **kw)
+        los = self._sensor.line_of_sight(row, col, state, outside=outside, **kw)
         return self.intersect(los)
 
     def _fused(self, row, col, state, engine, outside):
@@ -312,7 +339,7 @@ class Pipeline:
             v = inertial_velocity(los.origin_ecef, los.velocity_ecef)
             d = aberration(los.direction_ecef, v)
             line = LineOfSight(los.origin_ecef, d, los.status, los.velocity_ecef)
-        raw = self.surface.intersect(line)
+        raw = self._surface.intersect(line)
         if c.light_time:
             o = np.asarray(line.origin_ecef, float)
             # a ray with no raw hit is not turned (its range taken as 0): it keeps its own status
@@ -322,7 +349,7 @@ class Pipeline:
                 ecef = light_time_point(o, raw.ecef)
                 raw = dataclasses.replace(raw, ecef=ecef, lon=np.arctan2(ecef[..., 1], ecef[..., 0]))
             else:
-                raw = self.surface.intersect(line)
+                raw = self._surface.intersect(line)
         return self._refract(los, line, raw)
 
     def _refract(self, los: LineOfSight, line: LineOfSight, raw: GroundPoint) -> GroundPoint:
@@ -357,21 +384,20 @@ class Pipeline:
                 corrections=c.names,
                 refraction_m=shift,
             )
-        hit = self._refract_fixed_point(o, d, raw, bent)
+        hit = self._refract_fixed_point(c.refraction, o, d, raw, bent)
         ok = np.asarray(hit.status) == Status.OK
         shift = np.where(ok, np.linalg.norm(np.asarray(hit.ecef) - raw_ecef, axis=-1), np.nan)
         rng = np.where(ok, np.linalg.norm(np.asarray(hit.ecef) - np.asarray(los.origin_ecef, float), axis=-1), np.nan)
         return dataclasses.replace(hit, slant_range=rng, los=los, corrections=c.names, refraction_m=shift)
 
-    def _refract_fixed_point(self, o, d, raw: GroundPoint, bent) -> GroundPoint:
+    def _refract_fixed_point(self, refraction: Refraction, o, d, raw: GroundPoint, bent) -> GroundPoint:
         """Meet the bent ray's tangent line with the surface, at the new hit's height, until it settles."""
-        refraction = self.corrections.refraction
         ok_raw = np.asarray(raw.status) == Status.OK
         hit = raw
         moving = ok_raw
         for _ in range(REFRACTION_MAX_ITER):
             st = np.where(ok_raw, bent.status, raw.status).astype(np.uint8)
-            new = self.surface.intersect(LineOfSight(bent.origin_ecef, bent.direction_ecef, st))
+            new = self._surface.intersect(LineOfSight(bent.origin_ecef, bent.direction_ecef, st))
             step = np.linalg.norm(np.asarray(new.ecef) - np.asarray(hit.ecef), axis=-1)
             hit = new
             moving = (np.asarray(new.status) == Status.OK) & ~(step < REFRACTION_TOL_M)
@@ -391,7 +417,7 @@ class Pipeline:
             status=status,
         )
 
-    def lines_near(self, los: LineOfSight, near_ecef) -> LineOfSight:
+    def lines_near(self, los: LineOfSight, near_ecef: npt.ArrayLike) -> LineOfSight:
         """The sensor's lines of sight, corrected, as straight lines near the points ``near_ecef``.
 
         For a computation that meets the rays with something other than a surface (triangulation
@@ -423,7 +449,16 @@ class Pipeline:
         return LineOfSight(bent.origin_ecef, bent.direction_ecef, status, los.velocity_ecef)
 
     # ------------------------------------------------------------ ground -> pixel
-    def ground_to_pixel(self, lat, lon, h, state=None, *, max_iter: int = 4, tol_px: float = 1e-7) -> PixelHit:
+    def ground_to_pixel(
+        self,
+        lat: npt.ArrayLike,
+        lon: npt.ArrayLike,
+        h: npt.ArrayLike,
+        state: Any = None,
+        *,
+        max_iter: int = 4,
+        tol_px: float = 1e-7,
+    ) -> PixelHit:
         """Geodetic points (radians, metres ellipsoidal) -> 1-based pixels: the inverse of :meth:`locate`.
 
         With no correction it is the sensor's ``ground_to_pixel``. With corrections, each
@@ -437,14 +472,14 @@ class Pipeline:
         times at most; the corrections change the row by a few lines at most).
         """
         c = self.corrections
-        px = self.sensor.ground_to_pixel(lat, lon, h, state)
+        px = self._sensor.ground_to_pixel(lat, lon, h, state)
         if not c:
             return px
         ground = geodetic_to_ecef(lat, lon, h)
         for _ in range(max_iter):
             row = np.asarray(px.row, float)
             col = np.asarray(px.col, float)
-            los = self.sensor.line_of_sight(
+            los = self._sensor.line_of_sight(
                 np.where(np.isfinite(row), row, 0.0), np.where(np.isfinite(col), col, 0.0), state, outside="extrapolate"
             )
             o = np.asarray(los.origin_ecef, float)
@@ -455,11 +490,13 @@ class Pipeline:
                 d = target - o
                 rst = np.zeros(np.shape(d)[:-1], np.uint8)
             if c.aberration:
+                if los.velocity_ecef is None:
+                    raise ValueError("aberration: the lines of sight carry no velocity (LineOfSight.velocity_ecef)")
                 d = apparent_direction(d, inertial_velocity(o, los.velocity_ecef))
             d = d / np.linalg.norm(d, axis=-1, keepdims=True)
             virtual = o + np.linalg.norm(target - o, axis=-1, keepdims=True) * d
             vlat, vlon, vh = ecef_to_geodetic(virtual)
-            new = self.sensor.ground_to_pixel(vlat, vlon, vh, state)
+            new = self._sensor.ground_to_pixel(vlat, vlon, vh, state)
             bad = (np.asarray(rst) != Status.OK) & np.isfinite(np.asarray(new.row, float))
             status = np.where(bad, np.uint8(Status.NO_CONVERGENCE), np.asarray(new.status)).astype(np.uint8)
             new = PixelHit(np.where(bad, np.nan, new.row), np.where(bad, np.nan, new.col), status)
@@ -479,11 +516,11 @@ class Pipeline:
 
 
 def at_height(
-    sensor,
-    row,
-    col,
-    h,
-    state=None,
+    sensor: Sensor,
+    row: npt.ArrayLike,
+    col: npt.ArrayLike,
+    h: npt.ArrayLike,
+    state: Any = None,
     *,
     height_kind: str = "geodetic",
     corrections: Corrections = NO_CORRECTIONS,

@@ -37,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -411,7 +412,8 @@ def audit_flight(
     h_over = np.where(slope >= MIN_TRACK_SLOPE, h_a + s * (h_b - h_a), np.nan)
     dh = h_over - dem_r  # platform height as read minus as the reported centres imply
 
-    checks = {
+    # figures, and the name of the best signature (unexplained_best): a JSON object's values
+    checks: dict[str, Any] = {
         "records": int(n),
         "records_compared": int(np.isfinite(misfit).sum()),
         "geoid_n_m": nbar,
@@ -441,7 +443,7 @@ def audit_flight(
 
     # ---- the misfit: each signature's correction, located again
     if np.isfinite(raw) and raw > ERROR_FLOOR_M:
-        models = {}
+        models: dict[str, float] = {}
         # platform height: the median offset taken off
         d_hat, u_hat, n_dh = median_uncertainty(dh)
         if np.isfinite(d_hat):
@@ -481,7 +483,7 @@ def audit_flight(
         if best_s:
             models["shift"] = best_m
         checks.update({f"misfit_after_{k}_m": v for k, v in models.items()})
-        best = min(models, key=models.get) if models else None
+        best = min(models, key=models.__getitem__) if models else None
         if best is not None and models[best] * MODEL_GAIN <= raw:
             # corrections that leave about the same misfit (within TIE_FACTOR: the flight's random
             # errors) are told apart by their estimate: a height that matches a datum signature wins
@@ -767,7 +769,8 @@ def audit_records(records, sensor, surface, *, group_column: str = "table") -> H
     hcol = "paper_height_m" if ref == "paper" else "truth_h_m"
     if not (records.has(f"{ref}_lat_deg") and records.has(f"{ref}_lon_deg")):
         nan = np.full(len(records), np.nan)
-        lat_r = lon_r = h_r = nan
+        lat_r = lon_r = nan
+        h_r: np.ndarray | None = nan
     else:
         lat_r, lon_r = records.column(f"{ref}_lat_deg"), records.column(f"{ref}_lon_deg")
         h_r = records.column(hcol) if records.has(hcol) else None

@@ -38,6 +38,7 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -151,7 +152,9 @@ def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True
     """
     n = _batch_len(errors)
     nom = model.nominal_pose()
-    vals = {}
+    # Pose's array fields by name; Any, as the checker would hold each against every field of Pose
+    # (its joint angles are a dict, not drawn here)
+    vals: dict[str, Any] = {}
     for k in POSE_KEYS:
         base = getattr(nom, _field(k))
         e = errors.get(k)
@@ -225,7 +228,7 @@ def perturbed_lens(lens, errors: dict):
         poses (``Lens.unproject``); a sample whose draw makes no lens (fx <= 0) gets NaN and
         ``INVALID_INPUT`` downstream.
     """
-    changes = {}
+    changes: dict[str, np.ndarray] = {}
     for source, names in LENS_SOURCES.items():
         d = errors.get(source)
         if d is None:
@@ -369,7 +372,7 @@ class MonteCarloResult:
     stats: dict
     nominal: tuple
     seconds: float
-    status_counts: np.ndarray | None = None
+    status_counts: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(len(Status), np.int64))
     streamed: bool = False
 
 
@@ -430,34 +433,36 @@ def run(
             f"({25 * n / 1e9:.1f} GB); stream them (keep_samples=False)"
         )
     t0 = time.perf_counter()
-    if keep:
-        lat, lon, h = np.empty(n), np.empty(n), np.empty(n)
-        st = np.empty(n, np.uint8)
+    # lat, lon, h, status of every sample when they are kept
+    kept: tuple[np.ndarray, ...] | None = (
+        (np.empty(n), np.empty(n), np.empty(n), np.empty(n, np.uint8)) if keep else None
+    )
     acc = None if keep or n <= chunk else StreamingStats()
     counts = np.zeros(len(Status), np.int64)
-    one = None
+    one = None  # the single chunk's results, when there is one chunk and nothing is kept
     bar = Progress(n, f"montecarlo {model.name}", progress)
     for a in range(0, n, chunk):
         b = min(a + chunk, n)
         out = evaluate(model, model.sample(b - a, rng), surface)
         counts += np.bincount(out[3], minlength=len(Status))[: len(Status)]
-        if keep:
-            lat[a:b], lon[a:b], h[a:b], st[a:b] = out
+        if kept is not None:
+            for whole, part in zip(kept, out):
+                whole[a:b] = part
         elif acc is None:
             one = out
         else:
             acc.add(*out)
         bar.update(b - a)
     bar.close()
-    if keep:
-        stats = statistics(lat, lon, h, st)
+    if kept is not None:
+        stats = statistics(*kept)
     elif acc is None:
+        assert one is not None  # n <= chunk: the loop ran once
         stats = statistics(*one)
     else:
         stats = acc.result()
     secs = time.perf_counter() - t0
-    if not keep:
-        lat = lon = h = st = None
+    lat, lon, h, st = kept if kept is not None else (None, None, None, None)
     return MonteCarloResult(
         lat, lon, h, st, stats, nominal_point(model, surface), secs, status_counts=counts, streamed=acc is not None
     )

@@ -427,6 +427,7 @@ def fit_sensor_groups(
         return float(np.sqrt(np.mean(a**2))) if a.size else float("nan")
 
     labels = records.labels()
+    per_group: dict[str, dict] = {}
     report = {
         "parameters_fitted": list(names),
         "joint": joint,
@@ -434,7 +435,7 @@ def fit_sensor_groups(
         "outlier_rule": f"residual after a first fit with every record: distance from the flight's "
         f"median residual vector > {k_sigma} robust sigma (sigma = median distance / "
         "sqrt(2 ln 2), floor 0.5 m)",
-        "groups": {},
+        "groups": per_group,
     }
     for g in names_g:
         m = groups == g
@@ -473,7 +474,7 @@ def fit_sensor_groups(
                 rec["loo_distance_m"] = rnd(loo_d[k])
                 rec["loo"] = {"east_m": rnd(loo_en[k, 0]), "north_m": rnd(loo_en[k, 1]), "distance_m": rnd(loo_d[k])}
             entry["records"].append(rec)
-        report["groups"][g] = entry
+        per_group[g] = entry
     if joint:
         report["joint_fit"] = {**fits[names_g[0]].report(), "n": int(use.sum())}
     return report, sensors

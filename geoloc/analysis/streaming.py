@@ -32,6 +32,7 @@ Conventions: ``docs/conventions.md`` (radians inside). See ``docs/montecarlo.md`
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -104,11 +105,11 @@ class StreamingStats:
         self.n = 0  # OK samples
         self.n_failed = 0
         self.status_counts = np.zeros(len(Status), np.int64)
-        self.ref = None  # (lat, lon, h) of the first OK sample [rad, rad, m]
+        self.ref: tuple[float, float, float] | None = None  # (lat, lon, h) of the first OK sample [rad, rad, m]
         self.mean = np.zeros(3)  # of (dlat, dlon, dh)
         self.m2 = np.zeros((3, 3))  # sum of outer products of deviations
-        self.hist = None  # (bins, bins) counts: rows north offset, columns east
-        self.grid = None  # (dlat0, dlon0, half_lat, half_lon) [rad]
+        self.hist: np.ndarray | None = None  # (bins, bins) counts: rows north offset, columns east
+        self.grid: tuple[float, float, float, float] | None = None  # (dlat0, dlon0, half_lat, half_lon) [rad]
         self.overflow = 0
 
     # ------------------------------------------------------------------ feeding
@@ -130,10 +131,11 @@ class StreamingStats:
             return
         if self.ref is None:
             self.ref = (float(lat[0]), float(lon[0]), float(h[0]))
+        ref = self.ref
         x = np.empty((k, 3))
-        x[:, 0] = lat - self.ref[0]
-        x[:, 1] = (lon - self.ref[1] + np.pi) % (2 * np.pi) - np.pi  # no wrap at +-180 deg
-        x[:, 2] = h - self.ref[2]
+        x[:, 0] = lat - ref[0]
+        x[:, 1] = (lon - ref[1] + np.pi) % (2 * np.pi) - np.pi  # no wrap at +-180 deg
+        x[:, 2] = h - ref[2]
         mb = x.mean(axis=0)
         dev = x - mb
         m2b = dev.T @ dev
@@ -160,6 +162,7 @@ class StreamingStats:
                 max(self.half_width_sigma * float(s[1]), tiny),
             )
             self.hist = np.zeros((self.bins, self.bins), np.int64)
+        assert self.hist is not None  # laid out with the grid
         c_lat, c_lon, hw_lat, hw_lon = self.grid
         b = self.bins
         i = np.floor((dlat - (c_lat - hw_lat)) * (b / (2 * hw_lat)))
@@ -211,7 +214,7 @@ class StreamingStats:
 
     def cep50(self) -> tuple[float, str | None]:
         """The empirical 50 % radius [m] from the histogram, and a warning (or None)."""
-        if self.n < 2 or self.hist is None:
+        if self.n < 2 or self.hist is None or self.grid is None:
             return math.nan, None
         m_lat, _, m_h = self._mean_abs()
         kn = meridian_radius(m_lat) + m_h
@@ -259,8 +262,9 @@ class StreamingStats:
         Extra keys: ``cov_neu_m2`` (3 x 3 list, north-east-up metres),
         ``cep50_method`` ("histogram") and ``warnings`` (list of str).
         """
-        out = {k: math.nan for k in STATS_KEYS}
-        out.update(n_ok=int(self.n), n_failed=int(self.n_failed), warnings=[])
+        warnings: list[str] = []
+        out: dict[str, Any] = {k: math.nan for k in STATS_KEYS}
+        out.update(n_ok=int(self.n), n_failed=int(self.n_failed), warnings=warnings)
         if self.n < 2:
             return out
         m_lat, m_lon, m_h = self._mean_abs()
@@ -270,5 +274,5 @@ class StreamingStats:
         out["cov_neu_m2"] = self.covariance_neu_m2().tolist()
         out["cep50_method"] = "histogram"
         if warn:
-            out["warnings"].append(warn)
+            warnings.append(warn)
         return out

@@ -36,6 +36,7 @@ Earth-fixed velocity).
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 #: Speed of light in vacuum [m/s] (SI, exact).
 C_LIGHT = 299792458.0
@@ -43,11 +44,11 @@ C_LIGHT = 299792458.0
 OMEGA_EARTH = 7.292115e-5
 
 
-def _vec(a):
+def _vec(a: npt.ArrayLike) -> np.ndarray:
     return np.asarray(a, float)
 
 
-def inertial_velocity(position_ecef, velocity_ecef):
+def inertial_velocity(position_ecef: npt.ArrayLike, velocity_ecef: npt.ArrayLike) -> np.ndarray:
     """Velocity relative to the inertial frame aligned with ECEF now: v_ecef + omega_E z x r [m/s].
 
     Parameters
@@ -61,7 +62,7 @@ def inertial_velocity(position_ecef, velocity_ecef):
     return v + w
 
 
-def aberration(direction, velocity_inertial, relativistic: bool = False):
+def aberration(direction: npt.ArrayLike, velocity_inertial: npt.ArrayLike, relativistic: bool = False) -> np.ndarray:
     """The direction the light came from, given the apparent line of sight of a moving sensor.
 
     Parameters
@@ -107,7 +108,9 @@ def _lorentz(u, v, sign: float):
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 
-def apparent_direction(direction, velocity_inertial, relativistic: bool = False):
+def apparent_direction(
+    direction: npt.ArrayLike, velocity_inertial: npt.ArrayLike, relativistic: bool = False
+) -> np.ndarray:
     """The inverse of :func:`aberration`: the line of sight a moving sensor sees for a light path.
 
     Classical: u' = (c u + v) / |c u + v|; relativistic: the Lorentz form with +beta.
@@ -127,13 +130,13 @@ def _rot_z(angle, x):
     return np.stack([c * x[..., 0] - s * x[..., 1], s * x[..., 0] + c * x[..., 1], x[..., 2]], axis=-1)
 
 
-def light_time_angle(origin_ecef, hit_ecef):
+def light_time_angle(origin_ecef: npt.ArrayLike, hit_ecef: npt.ArrayLike) -> np.ndarray:
     """omega_E rho / c: how far the Earth turns while the light crosses the slant range rho [rad]."""
     rho = np.linalg.norm(_vec(hit_ecef) - _vec(origin_ecef), axis=-1)
     return OMEGA_EARTH * rho / C_LIGHT
 
 
-def light_time_point(origin_ecef, hit_ecef):
+def light_time_point(origin_ecef: npt.ArrayLike, hit_ecef: npt.ArrayLike) -> np.ndarray:
     """The ground point's Earth-fixed position: the raw hit turned east by omega_E rho / c.
 
     Exact for a surface of revolution about the Earth's axis (a constant height above
@@ -143,7 +146,9 @@ def light_time_point(origin_ecef, hit_ecef):
     return _rot_z(light_time_angle(origin_ecef, hit_ecef), hit)
 
 
-def light_time_line(origin_ecef, direction_ecef, hit_ecef):
+def light_time_line(
+    origin_ecef: npt.ArrayLike, direction_ecef: npt.ArrayLike, hit_ecef: npt.ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
     """The line of sight turned east by omega_E rho / c, rho the range to the raw hit: meet it with a DEM.
 
     Rugged's correction, as a line: points of the light path at the raw hit's range are
@@ -158,7 +163,7 @@ def light_time_line(origin_ecef, direction_ecef, hit_ecef):
     return _rot_z(ang, _vec(origin_ecef)), _rot_z(ang, _vec(direction_ecef))
 
 
-def light_time_source(origin_ecef, ground_ecef, iterations: int = 3):
+def light_time_source(origin_ecef: npt.ArrayLike, ground_ecef: npt.ArrayLike, iterations: int = 3) -> np.ndarray:
     """Where an Earth-fixed ground point was when the light now reaching ``origin`` left it: aim there.
 
     The inverse of :func:`light_time_point` (for ground to pixel): the point turned west by

@@ -95,12 +95,24 @@ class Joint:
             raise ValueError(f"joint {self.child!r}: offset_m = {self.offset_m!r}: must be 3 finite numbers (metres)")
         object.__setattr__(self, "offset_m", off)
 
+    @property
+    def _R(self) -> np.ndarray:
+        # a fixed joint's rotation: __post_init__ sets it (the identity when None was given)
+        assert self.R is not None, f"joint {self.child!r} ({self.kind}) has no fixed rotation"
+        return self.R
+
+    @property
+    def _axis(self) -> str:
+        # a revolute joint's axis: __post_init__ checked it is one of x, y, z
+        assert self.axis is not None, f"joint {self.child!r} ({self.kind}) has no axis"
+        return self.axis
+
     def R_child_parent(self, state) -> np.ndarray:
         """The joint's passive rotation for ``state``: ``v_child = R @ v_parent``."""
         if self.kind == "fixed":
-            return self.R
+            return self._R
         if self.kind == "revolute":
-            return _ELEMENTARY[self.axis](state.angle(self.angle))
+            return _ELEMENTARY[self._axis](state.angle(self.angle))
         if self.kind == "attitude":
             return rot.rx(state.roll) @ rot.ry(state.pitch) @ rot.rz(state.heading)
         return np.swapaxes(R_ecef_ned(state.lat, state.lon), -1, -2)  # geodetic: R_ned_ecef
@@ -109,9 +121,9 @@ class Joint:
         """``R_parent_child @ v`` hop by hop (elementary rotations applied to the vectors)."""
         v = np.asarray(v, float)
         if self.kind == "fixed":
-            return rot.rotate(np.swapaxes(self.R, -1, -2), v)
+            return rot.rotate(np.swapaxes(self._R, -1, -2), v)
         if self.kind == "revolute":
-            return rot.rotate_axis(self.axis, state.angle(self.angle), v, transpose=True)
+            return rot.rotate_axis(self._axis, state.angle(self.angle), v, transpose=True)
         if self.kind == "attitude":
             v = rot.rotate_axis("x", state.roll, v, transpose=True)
             v = rot.rotate_axis("y", state.pitch, v, transpose=True)
@@ -122,9 +134,9 @@ class Joint:
         """``R_child_parent @ v``: the inverse of :meth:`rotate_to_parent`."""
         v = np.asarray(v, float)
         if self.kind == "fixed":
-            return rot.rotate(self.R, v)
+            return rot.rotate(self._R, v)
         if self.kind == "revolute":
-            return rot.rotate_axis(self.axis, state.angle(self.angle), v)
+            return rot.rotate_axis(self._axis, state.angle(self.angle), v)
         if self.kind == "attitude":
             v = rot.rotate_axis("z", state.heading, v)
             v = rot.rotate_axis("y", state.pitch, v)

@@ -53,9 +53,10 @@ try:  # numba's per-function cache; its index key is what we extend
     from numba.core.caching import FunctionCache as _FunctionCache
     from numba.core.caching import UserProvidedCacheLocator as _UserLocator
     from numba.core.dispatcher import Dispatcher as _Dispatcher
+
+    _CACHE_API = True
 except ImportError:  # pragma: no cover - a numba without it: compile without a disk cache
-    _FunctionCache = None
-    _Dispatcher = ()
+    _CACHE_API = False
 
 #: Say on stderr, once per process, that kernels are being compiled: True, False, or None
 #: (the default: when stderr is a terminal, or the environment sets GEOLOC_ANNOUNCE_COMPILE=1).
@@ -78,7 +79,7 @@ def cache_dir() -> Path:
     """The folder geoloc's compiled kernels are cached in: ``NUMBA_CACHE_DIR`` when the user set
     one, else the user's cache folder + ``geoloc/numba`` (XDG on Linux, ``~/Library/Caches`` on
     macOS, ``%LOCALAPPDATA%`` on Windows): outside the installed package, so a reinstall keeps it."""
-    user = getattr(_nb_config, "CACHE_DIR", "") if _FunctionCache is not None else os.environ.get("NUMBA_CACHE_DIR", "")
+    user = getattr(_nb_config, "CACHE_DIR", "") if _CACHE_API else os.environ.get("NUMBA_CACHE_DIR", "")
     if user:
         return Path(user)
     if sys.platform == "win32":
@@ -127,7 +128,7 @@ def dependency_key(*modules) -> str:
     return h.hexdigest()
 
 
-if _FunctionCache is not None:
+if _CACHE_API:
 
     class _GeolocCacheLocator(_UserLocator):
         """numba's user-folder locator pointed at :func:`cache_dir` (when ``NUMBA_CACHE_DIR`` is
@@ -253,7 +254,7 @@ def cached_njit(key: str, **options):
 
     def deco(fn):
         disp = njit(cache=False, no_cfunc_wrapper=True, **options)(fn)
-        if _KeyedFunctionCache is not None and isinstance(disp, _Dispatcher):
+        if _CACHE_API and isinstance(disp, _Dispatcher):
             disp._cache = _KeyedFunctionCache(disp.py_func, key)
         return disp
 

@@ -377,7 +377,7 @@ def _row_fields(table, n, ids, group_by) -> tuple[list, dict, list | None, np.nd
     without a status column), and where a row's heights are EGM96 (made ellipsoidal by the
     positions)."""
     fields = [("row_index", "int")]
-    values = {"row_index": list(range(n))}
+    values: dict[str, list] = {"row_index": list(range(n))}  # name -> one value per row (int, float, str, None)
     for c in ids + ([group_by] if group_by and group_by not in ids else []):
         fields.append((c, "text"))
         values[c] = _text(table, c)
@@ -560,15 +560,15 @@ def _footprint_layer(rows: _Rows) -> _Layer:
     if all(a in rows.table and b in rows.table for a, b in corner_cols):
         corners = [rows.position(a, b, (f"corner{i + 1}_h_m",)) for i, (a, b) in enumerate(corner_cols)]
         for k in range(rows.n):
-            coords, order = None, None
+            coords, ring = None, None
             if all(_has_position(c, k) for c in corners):
                 pts = [(float(c[1][k]), float(c[0][k]), float(c[2][k])) for c in corners]
                 order = [0, 1, 2, 3] if _signed_area(pts) >= 0 else [0, 3, 2, 1]
                 order = order + [0]
                 coords = [pts[i] for i in order]
-                order = ",".join(str(i + 1) for i in order)
+                ring = ",".join(str(i + 1) for i in order)
             lay.features.append(
-                _Feature(coords, rows.attrs(k, ring_corners=order), f"footprint {rows.labels[k]}", k, rows.t_of(k))
+                _Feature(coords, rows.attrs(k, ring_corners=ring), f"footprint {rows.labels[k]}", k, rows.t_of(k))
             )
     lay.description = (
         "image footprints (corner1..corner4), closed ring, counterclockwise; ring_corners gives the corner order"
@@ -612,7 +612,7 @@ def _track_layer(rows: _Rows, group_by, time_source) -> _Layer:
     for g in dict.fromkeys(groups):
         ks = [k for k in range(n) if groups[k] == g and _has_position(plat, k) and np.isfinite(seconds[k])]
         ks.sort(key=lambda k: seconds[k])
-        keep = []
+        keep: list[int] = []
         for k in ks:  # one sample per time: the first row at each time
             if not keep or seconds[k] > seconds[keep[-1]]:
                 keep.append(k)

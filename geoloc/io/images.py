@@ -74,9 +74,15 @@ class ImageSource(Protocol):
         minus ``time_offset_s`` for a video); NaN for a still photo.
     """
 
-    rows: int
-    cols: int
-    times_s: np.ndarray
+    # read-only: a video's are properties over its frame index
+    @property
+    def rows(self) -> int: ...
+
+    @property
+    def cols(self) -> int: ...
+
+    @property
+    def times_s(self) -> np.ndarray: ...
 
     def __len__(self) -> int: ...
 
@@ -329,7 +335,8 @@ class _Decoder:
         decode order); from the packets alone (``demux``), no pixel decoded."""
         av = require("av", "reading video frames")
 
-        pts, seek = [], []
+        pts_list: list[int] = []
+        seek_list: list[int] = []
         key = None
         with av.open(os.fspath(self.path)) as c:
             s = c.streams[self.stream.index]
@@ -339,13 +346,13 @@ class _Decoder:
                 ts = p.dts if p.dts is not None else p.pts
                 if p.is_keyframe or key is None:
                     key = ts
-                pts.append(p.pts)
-                seek.append(key)
-        if not pts:
+                pts_list.append(p.pts)
+                seek_list.append(key)
+        if not pts_list:
             raise ValueError(f"{self.path}: the video stream has no frame with a time stamp")
-        pts = np.asarray(pts, np.int64)
+        pts = np.asarray(pts_list, np.int64)
         order = np.argsort(pts, kind="stable")
-        pts, seek = pts[order], np.asarray(seek, np.int64)[order]
+        pts, seek = pts[order], np.asarray(seek_list, np.int64)[order]
         keep = np.concatenate([[True], np.diff(pts) > 0])
         self._seek = seek[keep]
         self._keys = np.unique(self._seek)

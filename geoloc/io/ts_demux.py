@@ -212,7 +212,7 @@ class TsDemuxer:
         self.pmt_pids: set[int] = set()
         self.streams: dict[int, tuple[str, int]] = {}  # pid -> (kind, stream_type)
         self._pmt_version: dict[int, int] = {}
-        self._held = None  # (datagram, time) held for reordering
+        self._held: tuple[bytes, float] | None = None  # (datagram, time) held for reordering
         self._seen: deque = deque(maxlen=16)
         self._seen_data: deque = deque(maxlen=16)
         self.now = 0.0
@@ -346,7 +346,8 @@ class TsDemuxer:
 
     def _counters(self, data: bytes):
         """(first counter, packets) per PID of the payload packets of ``data``; None for a cut datagram."""
-        cc, count = {}, {}
+        cc: dict[int, int] = {}
+        count: dict[int, int] = {}
         for i in range(0, len(data) - TS_PACKET + 1, TS_PACKET):
             if data[i] != 0x47:
                 return None
@@ -429,6 +430,7 @@ class TsDemuxer:
                     and (payload[3] in _KLV_STREAM_IDS or _starts_with_klv(payload))
                 ):
                     self.streams[pid] = ("klv", 0)
+                    kind = "klv"
                 else:
                     return
             b = _PesBuf(offset)
@@ -446,17 +448,17 @@ class TsDemuxer:
             self._pes[pid] = b
         elif kind is None:
             return
-        b = self._pes.get(pid)
-        if b is None:
+        held = self._pes.get(pid)
+        if held is None:
             st.orphans += 1  # a PES whose start we never saw (joined mid-PES, or its first packet lost)
             return
-        b.parts.append(payload)
-        b.size += len(payload)
-        if b.size > MAX_PES.get(kind, 1 << 20):
+        held.parts.append(payload)
+        held.size += len(payload)
+        if held.size > MAX_PES.get(kind, 1 << 20):
             st.oversize += 1
             del self._pes[pid]
             return
-        if b.expected and b.size >= b.expected:
+        if held.expected and held.size >= held.expected:
             u = self._finish(pid)
             if u is not None:
                 out.append(u)

@@ -14,13 +14,19 @@ extrapolated ray can read it.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from typing import Any, Mapping, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Mapping, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
 
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+_D = TypeVar("_D", bound="DataclassInstance")
 
 
 @dataclass(frozen=True)
@@ -49,8 +55,13 @@ class PixelHit:
 class Sensor(Protocol):
     """What every sensor offers (``docs/architecture.md``, "The Sensor interface")."""
 
-    rows: int
-    cols: int
+    @property
+    def rows(self) -> int:
+        """Image height [pixels]."""
+
+    @property
+    def cols(self) -> int:
+        """Image width [pixels]."""
 
     @property
     def params(self) -> Mapping[str, float]:
@@ -59,8 +70,9 @@ class Sensor(Protocol):
     def with_params(self, **changes: float) -> "Sensor":
         """A copy with some named parameters changed (unknown names are an error)."""
 
-    def line_of_sight(self, row, col, state: Any = None) -> LineOfSight:
-        """1-based pixels -> lines of sight in ECEF, batched, NaN + Status."""
+    def line_of_sight(self, row, col, state: Any = None, *, outside: str = "flag") -> LineOfSight:
+        """1-based pixels -> lines of sight in ECEF, batched, NaN + Status (``outside``: "flag" or
+        "extrapolate", :func:`check_outside`)."""
 
     def ground_to_pixel(self, lat, lon, h, state: Any = None) -> PixelHit:
         """Geodetic points (radians, metres) -> 1-based pixels, batched, NaN + Status."""
@@ -130,6 +142,15 @@ def check_angle_names(given: Mapping[str, str], need, gimbal: str, defaults=()) 
             f"missing angle(s) {missing}: the sensor's {gimbal} gimbal needs {need}; "
             "give each (--angle NAME=DEG on the command line)"
         )
+
+
+def replace_params(obj: _D, changes: Mapping[str, float]) -> _D:
+    """``dataclasses.replace(obj, **changes)`` for names :func:`check_param_names` has checked
+    against ``obj.params`` (float fields). The changes pass as a ``dict[str, Any]``: the checker
+    cannot tell from a mapping's value type which fields its names are, and would hold every float
+    against every field's type."""
+    fields: dict[str, Any] = dict(changes)
+    return dataclasses.replace(obj, **fields)
 
 
 def check_param_names(changes: Mapping[str, float], known: Mapping[str, float], what: str) -> None:

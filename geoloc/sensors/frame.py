@@ -234,8 +234,8 @@ class FrameSensor:
         ]
         g = self.gimbal
         if g.earth_referenced:
-            base = "ned"
-            offset = dict(offset_m=np.array(self.lever_arm_m), offset_frame="body")
+            # the first joint hangs off NED at the lever arm, written in body axes
+            base, offset_m, offset_frame = "ned", np.array(self.lever_arm_m), "body"
         else:
             joints.append(
                 Joint(
@@ -248,7 +248,7 @@ class FrameSensor:
                     description="gimbal base: the body turned by the mount, at the optical centre",
                 )
             )
-            base, offset = "gimbal_base", {}
+            base, offset_m, offset_frame = "gimbal_base", np.zeros(3), None
         parent = base
         for k, j in enumerate(g.joints):
             joints.append(
@@ -260,7 +260,8 @@ class FrameSensor:
                     angle=j.angle,
                     equation=g.equation,
                     description=j.description,
-                    **(offset if k == 0 else {}),
+                    offset_m=offset_m if k == 0 else np.zeros(3),
+                    offset_frame=offset_frame if k == 0 else None,
                 )
             )
             parent = j.frame

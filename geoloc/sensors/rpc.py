@@ -34,13 +34,13 @@ pixel's ground points at two heights), and ``params`` are the image-space bias
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
-from geoloc.sensors.base import PixelHit, check_outside, check_param_names, flag_outside, in_sensor
+from geoloc.sensors.base import PixelHit, check_outside, check_param_names, flag_outside, in_sensor, replace_params
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 
@@ -373,8 +373,10 @@ class RPCSensor:
     """
 
     model: RPCModel
-    rows: int | None = None
-    cols: int | None = None
+    # None: the model's image size (RPCModel.image_size), which __post_init__ puts in its place;
+    # an int after construction, as the Sensor interface says
+    rows: int = None  # type: ignore[assignment]
+    cols: int = None  # type: ignore[assignment]
     row_bias: float = 0.0
     row_per_row: float = 0.0
     row_per_col: float = 0.0
@@ -425,7 +427,7 @@ class RPCSensor:
     def with_params(self, **changes: float) -> RPCSensor:
         """A copy with some of :attr:`params` changed (unknown names are a ValueError)."""
         check_param_names(changes, self.params, "RPCSensor")
-        return replace(self, **changes)
+        return replace_params(self, changes)
 
     def rpc_to_image(self, r, c):
         """The correction: RPC projection (1-based) -> image pixel."""

@@ -41,6 +41,7 @@ import os
 import sys
 import time
 from dataclasses import dataclass, field
+from typing import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -190,7 +191,11 @@ def _kind(path: Path) -> str | None:
     return None
 
 
-def campaign_units(inputs, photos_per_unit: int = PHOTOS_PER_UNIT, exclude=()):
+def campaign_units(
+    inputs: Iterable[str | os.PathLike],
+    photos_per_unit: int = PHOTOS_PER_UNIT,
+    exclude: Iterable[str | os.PathLike | None] = (),
+) -> tuple[str, list[list[str]] | list[str], list[str]]:
     """(kind, units, notes): the inputs' files (folders expanded, recursively: a partitioned
     Parquet dataset is a folder of ``.parquet`` files) as units of one kind.
 
@@ -198,7 +203,8 @@ def campaign_units(inputs, photos_per_unit: int = PHOTOS_PER_UNIT, exclude=()):
     """
     skip = {Path(x).resolve() for x in exclude if x}
     files = [f for f in _expand(inputs) if f.resolve() not in skip]  # e.g. the targets file beside the photos
-    notes, kinds = [], {}
+    notes: list[str] = []
+    kinds: dict[str, list[str]] = {}
     for f in files:
         k = _kind(f)
         if k is None:
@@ -214,6 +220,7 @@ def campaign_units(inputs, photos_per_unit: int = PHOTOS_PER_UNIT, exclude=()):
             + "; run one kind at a time"
         )
     ((kind, paths),) = kinds.items()
+    units: list[list[str]] | list[str]  # photos go in batches; a flight file is a unit of its own
     if kind == "photos":
         units = [paths[i : i + photos_per_unit] for i in range(0, len(paths), photos_per_unit)]
     else:
@@ -250,7 +257,9 @@ def _dem_surface(cfg: CampaignConfig, whole: bool = False):
 M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 WORKER_MMAP_THRESHOLD = 32 * 2**20  # glibc's DEFAULT_MMAP_THRESHOLD_MAX on 64-bit: the dynamic threshold's ceiling
 WORKER_TRIM_THRESHOLD = 64 * 2**20  # twice that, as glibc's dynamic rule sets it (free heap kept at most 64 MiB)
-_MALLOC = {"tuned": None}  # per process: None (not looked at), True (mallopt done), False (left alone)
+_MALLOC: dict[str, bool | None] = {
+    "tuned": None
+}  # per process: None (not looked at), True (mallopt done), False (left alone)
 
 
 def set_malloc_thresholds(
@@ -311,8 +320,9 @@ def tune_worker_malloc() -> bool:
     bool
         Whether this process's thresholds were set (now or at an earlier call).
     """
-    if _MALLOC["tuned"] is not None:
-        return _MALLOC["tuned"]
+    tuned = _MALLOC["tuned"]
+    if tuned is not None:
+        return tuned
     _MALLOC["tuned"] = False
     if "MALLOC_TRIM_THRESHOLD_" not in os.environ or os.environ.get("GEOLOC_DASK_MALLOC") == "keep":
         return False
@@ -326,8 +336,8 @@ def tune_worker_malloc() -> bool:
         get_worker()
     except (ImportError, ValueError):
         return False
-    _MALLOC["tuned"] = set_malloc_thresholds()
-    return _MALLOC["tuned"]
+    tuned = _MALLOC["tuned"] = set_malloc_thresholds()
+    return tuned
 
 
 def _dictionary_columns(table) -> list:
@@ -360,7 +370,10 @@ def run_unit(
     import numba
 
     before = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(int(numba_threads), numba.config.NUMBA_NUM_THREADS)))
+    # numba.config sets NUMBA_NUM_THREADS from the environment when it is imported, so the module
+    # declares no such name the checker could see
+    most = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
+    numba.set_num_threads(max(1, min(int(numba_threads), most)))
     try:
         return _run_unit(index, unit, kind, cfg, out_dir)
     finally:

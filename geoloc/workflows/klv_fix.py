@@ -222,7 +222,7 @@ class _Rewriter:
             self.fix.unchanged.append((int(self.number[k]), "an EG 0104 packet: klv fix rewrites ST 0601 items only"))
             return blob
         tags = {t for t, _, _ in local_set_items(blob)}
-        notes = []
+        notes: list[str] = []
         values = _new_values(self.r, k, tags, notes, self.errors)
         num = int(self.number[k])
         for text in notes:
@@ -254,6 +254,8 @@ def _fix_bytes(data: bytes, rw: _Rewriter, verify: bool, raw: bool = False) -> b
         if isinstance(p, KlvError):
             continue  # copied with the bytes around it
         start = p.offset
+        if start is None:  # a scan of bytes gives each packet its offset; a packet from a TS has none
+            raise RuntimeError("a KLV packet without its byte offset: it cannot be rewritten in place")
         if raw and rw.k < len(rw.r) and int(rw.r.columns["offset"][rw.k]) != start:
             raise RuntimeError(
                 f"packet at byte {start}: the replay's row {rw.k} is at byte {int(rw.r.columns['offset'][rw.k])}"

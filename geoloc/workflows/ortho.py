@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -38,6 +39,9 @@ from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 from geoloc.userfiles import atomic_path
 from geoloc.extras import require
+
+if TYPE_CHECKING:  # affine comes with rasterio, an optional dependency
+    from affine import Affine
 
 #: Default chunk [rays]: whole image rows of about this many pixels per call of the surface.
 #: 2^18 rays hold ~45 MB of temporaries in the exact DEM solver (about 170 bytes a ray).
@@ -380,7 +384,7 @@ class OrthoGrid:
     """The output grid of :func:`orthorectify`: a north-up raster in ``crs``."""
 
     crs: str
-    transform: object  # affine.Affine: cell corner (0, 0) -> (x, y)
+    transform: Affine  # cell corner (0, 0) -> (x, y)
     width: int
     height: int
     gsd_m: float

@@ -21,6 +21,7 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -150,7 +151,8 @@ def read_targets(path) -> tuple[list, list, list]:
                 )
                 continue
             rec = dict(zip(header, [v.strip() for v in values] + [""] * (len(header) - len(values))))
-            t, bad = {"line": line}, []
+            t: dict[str, Any] = {"line": line}  # a target: its line, numbers, texts (None: not given)
+            bad: list[str] = []
             for k, v in rec.items():
                 if k in ("row", "col") or k in TRUTH_COLUMNS:
                     if v == "" and k in TRUTH_COLUMNS:
@@ -175,7 +177,7 @@ def read_targets(path) -> tuple[list, list, list]:
 
 def _photo_index(metas: dict) -> dict:
     """Image names a target may use -> photo key: the file name, and the name without its extension."""
-    index = {}
+    index: dict[str, str] = {}
     for key in metas:
         index.setdefault(key, key)
         index.setdefault(key.lower(), key)
@@ -305,8 +307,9 @@ def replay_photos(
     bad_index = _photo_index(bad_photos)
 
     # ---- the targets, photo by photo
-    by_photo, order = {}, []
-    skipped_bad = {}
+    by_photo: dict[str, list[int]] = {}
+    order: list[int] = []
+    skipped_bad: dict[str, int] = {}
     for k, t in enumerate(targets):
         key = _resolve(t["image"], index)
         if key is None:
@@ -463,6 +466,8 @@ def _locate_photo(
         on = HeightSurface(truth["truth_h_m"], "geodetic")
         surface = "truth_h_m (geodetic height)"
     hit = Pipeline(s, on, corrections).intersect(los)
+    refraction_m = hit.refraction_m
+    assert refraction_m is not None  # the pipeline says how far refraction moved each point (0: off)
     lat, lon = np.rad2deg(hit.lat), np.rad2deg(hit.lon)
     err = horizontal_distance_m(lat, lon, truth["truth_lat_deg"], truth["truth_lon_deg"])
     vert = hit.h - truth["truth_h_m"] if given else np.full(len(ks), np.nan)
@@ -488,7 +493,7 @@ def _locate_photo(
     out = {}
     mgrs = mgrs_column(lat, lon)  # '' where not located (geoloc.io.mgrs_grid)
     for j, (k, t) in enumerate(zip(ks, targets)):
-        r = {c: None for c in OUTPUT_COLUMNS}
+        r: dict[str, Any] = {c: None for c in OUTPUT_COLUMNS}
         r.update(common)
         r.update(
             image=t["image"],
@@ -506,7 +511,7 @@ def _locate_photo(
             error_to_truth_m=_f(err[j]),
             vertical_error_m=_f(vert[j]),
             corrections=corrections.label,
-            refraction_m=_f(hit.refraction_m[j]),
+            refraction_m=_f(refraction_m[j]),
         )
         for c in extra:
             r[c if c not in r else f"input_{c}"] = t.get(c, "")

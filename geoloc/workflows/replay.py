@@ -13,6 +13,7 @@ import csv
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,10 @@ from geoloc.surfaces.base import GroundPoint, terrain_of
 from geoloc.surfaces.height import for_records
 from geoloc.surfaces.terrain import surface_for
 from geoloc.userfiles import atomic_path
+
+if TYPE_CHECKING:
+    from geoloc.surfaces.dem import DEM
+    from geoloc.surfaces.mosaic import DemMosaic
 
 #: Columns the replay adds to every input row.
 OUTPUT_COLUMNS = ["lat_deg", "lon_deg", "h_m", "error_to_paper_m", "error_to_truth_m"]
@@ -45,7 +50,7 @@ class ReplayResult:
     error_to_paper_m: np.ndarray
     error_to_truth_m: np.ndarray
     extra: dict  # further output columns, name -> array (e.g. DEM evaluations)
-    terrain: object = None  # the DEM (or mosaic) located on, if any: for plausibility_warnings
+    terrain: DEM | DemMosaic | None = None  # the DEM (or mosaic) located on, if any: for plausibility_warnings
 
     def columns(self) -> dict:
         cols = {

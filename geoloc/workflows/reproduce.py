@@ -246,7 +246,7 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
     from geoloc.io.records import load_records
     from geoloc.surfaces.base import terrain_of
     from geoloc.pipeline import Pipeline
-    from geoloc.surfaces.terrain import DemSurface
+    from geoloc.surfaces.terrain import DemSurface, TerrainHit
     from geoloc.workflows.replay import records_line_of_sight
 
     dem = terrain_of(surface)
@@ -278,6 +278,14 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
     # the paper's experiment is on the DEM solvers themselves: the same rays through the pipeline
     # with each solver as its surface, no corrections (as [Q17] and [L23])
     exact = Pipeline(None, DemSurface(dem, "exact")).intersect(los)
+
+    def solver_hit(surface: DemSurface) -> TerrainHit:
+        # DemSurface meets the rays in a TerrainHit (with its evaluation counts and hidden flags),
+        # which the pipeline passes on as it is without corrections: the type its signature cannot say
+        hit = Pipeline(None, surface).intersect(los)
+        assert isinstance(hit, TerrainHit)
+        return hit
+
     rep.add(
         "[L23] Li et al. 2023 -- bisection on the target elevation vs [Q17] descending steps",
         "",
@@ -292,9 +300,9 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
     )
     for tol in tolerances_m:
         t0 = time.perf_counter()
-        st = Pipeline(None, DemSurface(dem, "steps", eps_h=tol)).intersect(los)
+        st = solver_hit(DemSurface(dem, "steps", eps_h=tol))
         t1 = time.perf_counter()
-        bi = Pipeline(None, DemSurface(dem, "bisect", threshold=tol)).intersect(los)
+        bi = solver_hit(DemSurface(dem, "bisect", threshold=tol))
         t2 = time.perf_counter()
         ok = (st.status == 0) & (bi.status == 0) & (exact.status == 0)
         es, eb = st.dem_evaluations[ok].astype(float), bi.dem_evaluations[ok].astype(float)

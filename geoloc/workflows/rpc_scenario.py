@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from geoloc.sensors.sensor_file import load_sensor
 from geoloc.sensors.rpc import RPCModel
 from geoloc.status import Status
 from geoloc.tomlio import read_toml
+
+if TYPE_CHECKING:  # loaded with a pushbroom scenario only
+    from geoloc.sensors.pushbroom import PushbroomSensor
 
 
 # ------------------------------------------------------------------ sensors
@@ -238,7 +242,7 @@ class RPCScenario:
 
     name: str
     kind: str
-    sensor: object
+    sensor: PushbroomSensor | FrameCameraSensor
     height_min: float
     height_max: float
     grid: tuple
@@ -281,6 +285,7 @@ def load_rpc_scenario(path) -> RPCScenario:
     data = read_toml(path, "scenario file")
     src = str(path)
     kind = data.get("kind")
+    sensor: PushbroomSensor | FrameCameraSensor
     if kind == "pushbroom":
         try:
             sensor = PushbroomSensor.from_dict(data, source=src)
