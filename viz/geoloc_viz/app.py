@@ -116,9 +116,8 @@ def attach_flight(session):
 
 #: The layers every session gets unless told otherwise (``attach_fn(session)`` each): the
 #: flight debugger, the picture of the frame (when the scenario has images), the calibration
-#: error vectors, the predicted 90 % ellipse at the hit (issue 29), refraction and the bent ray
-#: (issue 44), sending the picked point on
-#: (issue 46: MGRS, lat/lon/height, a ``geoloc locate`` line, a CoT event), the large panel (the
+#: error vectors, the predicted 90 % ellipse at the hit, refraction and the bent ray, sending the picked point
+#: on (MGRS, lat/lon/height, a ``geoloc locate`` line, a CoT event), the large panel (the
 #: picture at full resolution, a map, plots against time), the teaching panel, and
 #: the label layout (labels kept apart on screen).
 DEFAULT_LAYERS = (
@@ -262,7 +261,7 @@ def configure_lighting(scene) -> None:
     Shadow maps over tens of km cost much and show little (and are slow in software WebGL). No
     environment map (viser's client loads its "city" one unless told otherwise): with software
     WebGL its decoding and prefiltering held the first view back, the canvas fading in only once
-    it was loaded (issue 34); an ambient light lifts the lit markers' shadowed sides instead.
+    it was loaded; an ambient light lifts the lit markers' shadowed sides instead.
     """
     scene.configure_default_lights(True, cast_shadow=False)
     scene.configure_environment_map(None)
@@ -368,7 +367,7 @@ class GeolocSession:
             obj = attach(self)
             self.layers.append(obj)
             if attach is calibration_layer.attach:
-                # Issue 8: error vectors of all records, before/after a fitted mounting rotation.
+                # error vectors of all records, before/after a fitted mounting rotation: what calibration removes
                 self.calibration = obj
 
     # ------------------------------------------------------------ interface
@@ -772,8 +771,8 @@ class GeolocSession:
                 f"\n**{g.hit_label}**: {float(hit.lat_deg):.6f} N, {float(hit.lon_deg):.6f} E, "
                 f"h {float(hit.h):.1f} m, slant range {float(hit.slant_range) / 1e3:.2f} km  "
             )
-            lines.append(mgrs_text(float(hit.lat_deg), float(hit.lon_deg)) + "  ")  # issue 33
-            if getattr(hit, "corrections", ()):  # issue 44: which corrections, and refraction's shift
+            lines.append(mgrs_text(float(hit.lat_deg), float(hit.lon_deg)) + "  ")  # the grid reference a user hands on
+            if getattr(hit, "corrections", ()):  # which corrections moved the point, and refraction's shift
                 shift = float(np.asarray(getattr(hit, "refraction_m", np.nan)))
                 lines.append(
                     f"corrections: {'+'.join(hit.corrections)}"
@@ -809,7 +808,7 @@ class GeolocSession:
         hop = str(self.dd_hop.value)
         hv = {h.key: h for h in teaching.hops(g.chain)}
         self.md_hop.content = teaching.hop_markdown(hv[hop]) if hop in hv else teaching.chain_markdown(g.chain)
-        # [Q17] eq. 5's factors belong to T_ecef_ned only (issue 20): not under every hop
+        # [Q17] eq. 5's factors belong to T_ecef_ned only (the paper's chain): not under every hop
         self.md_q17.content = teaching.q17_factors_markdown(g.chain) if hop == "T_ecef_ned" else ""
 
 

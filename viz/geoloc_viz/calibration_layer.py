@@ -1,4 +1,4 @@
-"""Flight-test error vectors in the viser scene, before and after calibration (issue 8).
+"""Flight-test error vectors in the viser scene, before and after calibration: what the fit removed and what is left.
 
 Each record's error (computed minus surveyed truth) is drawn as a line segment
 from the truth point to ``truth + exaggeration * (computed - truth)``, in the

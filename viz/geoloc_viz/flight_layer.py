@@ -69,7 +69,7 @@ PLAY_ACK_TIMEOUT_S = 30.0
 #: hide lines that lie on it (the mesh resamples the DEM: it is tens of metres off between nodes).
 LIFT_M = {"footprints": 8.0, "current": 25.0}
 #: The whole flight's footprints through every second outline point (the corners kept: 8 segments
-#: a frame, the current frame's own outline all 16), a level of detail (issue 34): in software
+#: a frame, the current frame's own outline all 16), a level of detail: in software
 #: WebGL a frame's cost follows the segments drawn, and the example flight's 4768 segments cost
 #: 0.13 s of a 0.30 s frame (``benchmarks/bench_browser.py --groups``).
 FOOTPRINT_EVERY = 2
@@ -141,7 +141,7 @@ class FlightLayer:
         self._follow_session()
         idx = session.scn.record_index
         self.highlight(0 if idx is None else int(idx))
-        # the first view orients: the whole flight, its worst runs marked (issue 34)
+        # the first view orients: the whole flight, its worst runs marked (where to look first)
         if len(self.model) > 1:
             self.show_whole_flight(initial=True)
 

@@ -644,7 +644,7 @@ def _hit(surface, los, corrections: Corrections = NO_CORRECTIONS):
     """The batch's hits: (lat, lon, h, ECEF, status). Walked under an uncompiled budget
     (``terrain_numba.uncompiled_budget``): the example flight's 5364 footprint rays walk in
     0.5-0.9 s uncompiled, where a cold cache would compile the walk for them (5-15 s of CPU before
-    the viewer's first scene; issue 32); a long flight's batch walks its first rays so, then the
+    the viewer's first scene); a long flight's batch walks its first rays so, then the
     compiled kernel."""
     from geoloc.surfaces.terrain_numba import uncompiled_budget
 

@@ -491,7 +491,7 @@ class ImageLayer:
         fmt = "png" if tex.shape[2] == 4 else "jpeg"
         h = self.handles.get(name)
         if h is not None and self.scene.get_handle_by_name(name) is h and h.format == fmt:
-            # a step sends the new picture and pose to the node, which the browser keeps (issue 34)
+            # a step sends the new picture and pose to the node, which the browser keeps (a re-created node is rebuilt)
             h.image = tex
             h.render_width, h.render_height = float(width * W), float(height * W)
             h.position, h.wxyz = tuple(pos), tuple(wxyz(R_enu_cam))

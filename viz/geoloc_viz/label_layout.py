@@ -1,4 +1,4 @@
-"""Labels laid out on screen so that none overlaps another (issue 34).
+"""Labels laid out on screen so that none overlaps another (overlapping labels cannot be read).
 
 viser draws a label (``scene.add_label``, screen-size font) as a text block on a background
 rectangle whose *anchor* corner sits at the label's 3D point, 12 CSS px per em whatever the

@@ -140,7 +140,7 @@ def pick_markdown(p: PixelPick, geoid=True) -> str:
         head + "  ",
         f"latitude **{p.lat_deg():.8f}** deg  ",
         f"longitude **{p.lon_deg():.8f}** deg  ",
-        mgrs_text(p.lat_deg(), p.lon_deg()) + "  ",  # issue 33
+        mgrs_text(p.lat_deg(), p.lon_deg()) + "  ",  # the grid reference a user hands on
         f"height **{float(p.hit.h):.2f} m** ({H_DATUM})",
     ]
     if geoid:
@@ -219,7 +219,7 @@ def ground_markdown(g: GroundPick) -> str:
         f"**terrain pick**: {float(np.rad2deg(g.hit.lat)):.7f} N, {float(np.rad2deg(g.hit.lon)):.7f} E, "
         f"h {float(g.hit.h):.1f} m ({H_DATUM})  ",
         mgrs_text(float(np.rad2deg(g.hit.lat)), float(np.rad2deg(g.hit.lon))) + "  ",
-    ]  # issue 33
+    ]  # the MGRS line: the grid reference a user hands on
     if np.isfinite(g.row):
         lines.append(f"pixel row {g.row:.2f}, column {g.col:.2f}: **{g.verdict()}**")
     else:
@@ -288,7 +288,7 @@ def terrain_horizon(scn, inputs, sensor, n_cols: int = 32, refine: int = 13):
     The columns are bisected, not sampled on a grid of rows first: 2 ``n_cols`` rays, then
     ``n_cols`` or fewer a halving, each call small enough to walk uncompiled (64 rays or fewer:
     ``terrain_numba.PY_WALK_MAX_RAYS``), where a 33 x 24 grid's 792 rays compiled the walk on a
-    cold cache (issue 32).
+    cold cache (5-15 s of CPU before the first picture).
     """
     from geoloc.surfaces.terrain import surface_for
 

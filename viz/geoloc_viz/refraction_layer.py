@@ -1,4 +1,4 @@
-"""Atmospheric refraction in the scene (issue 44 item 5): the bent ray beside the straight one.
+"""Atmospheric refraction in the scene (what it moves, made visible): the bent ray beside the straight one.
 
 :func:`attach` (a layer of :class:`geoloc_viz.app.GeolocSession`) adds a "Refraction" GUI folder:
 

@@ -563,7 +563,7 @@ IMAGE_QUALITY = 85
 
 
 def log_images(rec: rr.RecordingStream, steps: LogSteps, cam: str, m) -> None:
-    """Each step's picture at the camera entity, with its own pinhole (issue 28 item 7).
+    """Each step's picture at the camera entity, with its own pinhole (so the picture lies in the camera's view).
 
     Per step with an image: an ``EncodedImage`` (JPEG of ``steps.images.image(k)``) and a
     ``Pinhole`` sized to that image, from the step's fields of view (``lens_from_fov`` of
@@ -802,7 +802,7 @@ def _write(steps, out, display_scale, serve, grpc_port, grpc_host, stream_port=N
     rec = rr.RecordingStream("geoloc", recording_id=recording_id(steps))
     if out is not None and not serve:  # (--spawn with a file opens the written file afterwards)
         # a file alone: the recording is built in memory and written by Python, so that a full disk
-        # or a read-only folder is an OSError naming the file (issue 47: rerun's file-writer thread
+        # or a read-only folder is an OSError naming the file (rerun's file-writer thread
         # printed its own error lines, then flush() raised "File-writer thread shut down prematurely"
         # or, in a process that had written recordings before, waited forever)
         stream = rec.binary_stream()
@@ -1000,7 +1000,7 @@ def serve_web(
 
 
 class LiveRecording:
-    """A rerun recording written as a live stream arrives (``geoloc log udp://...``, issue 30).
+    """A rerun recording written as a live stream arrives (``geoloc log udp://...``).
 
     Each :meth:`add` logs a batch of received KLV results (:class:`geoloc.io.klv.Packet` /
     ``KlvError``) exactly as :func:`log_steps` logs a file's steps

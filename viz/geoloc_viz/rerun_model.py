@@ -124,12 +124,12 @@ class LogSteps:
     reference: str = ""
     outlier: np.ndarray | None = None
     calibration: dict | None = None
-    #: Each step's picture (issue 28): an ImageSource, the image index of each step (-1: none) and
+    #: Each step's picture (what the camera saw): an ImageSource, the image index of each step (-1: none) and
     #: each step's fields of view [deg] (horizontal, vertical) for its pinhole at the image's size.
     images: object = None
     image_index: np.ndarray | None = None
     image_fov_deg: np.ndarray | None = None
-    #: Each step's image corners on the surface it was located on (a KLV replay's, issue 46):
+    #: Each step's image corners on the surface it was located on (a KLV replay's):
     #: ``lat_deg``, ``lon_deg``, ``h_m`` (ellipsoidal, WGS 84), each (n, 4), corners in ring
     #: order (upper left, upper right, lower right, lower left); None: not computed.
     corners: dict | None = None

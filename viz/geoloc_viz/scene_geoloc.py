@@ -197,7 +197,7 @@ def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
     For the terrain, whose relief is baked into its colours (:func:`geoloc_viz.terrain_link.hillshade`):
     in headless Chromium with software WebGL the lit material (physically based, with viser's default
     environment map) over a 51 k-triangle terrain filling the canvas cost 1.9-2.6 s a frame, unlit
-    0.4-0.45 s, about what the scene costs without the terrain (issue 34, machine load 10-12;
+    0.4-0.45 s, about what the scene costs without the terrain (machine load 10-12;
     a 161 or an 81 node grid made no difference: the cost is per pixel, not per triangle).
     """
     # glTF's COLOR_0 is linear (glTF 2.0, 3.7.2.1) and three.js converts it to sRGB on output: the

@@ -8,7 +8,7 @@ eq. 18-26 height, and the exact minimum geodetic height), surfaces from
 (:mod:`geoloc.frames.enu`) at the foot of the exact tangent. The virtual ellipsoid of
 eq. 13 has the WGS-84 flattening and semi-major axis a + Delta a.
 
-What the drawing exaggerates (issue 20: "exaggerate what differs"), display only:
+What the drawing exaggerates (so that what differs can be seen), display only:
 
 - **Delta a minus the limb height.** The virtual ellipsoid is a *scaled* WGS-84,
   not a shell of constant height: it stands Delta a above the equator but only the
@@ -147,7 +147,7 @@ class LimbApp:
         self.exaggeration = SHAPE_EXAGGERATION
         self.offset_exaggeration = OFFSET_EXAGGERATION
         #: atmospheric refraction (``geoloc view --refraction standard``, the "refraction" box): the
-        #: refracted tangent point beside the straight line's (issue 44)
+        #: refracted tangent point beside the straight line's (what refraction moves)
         self.refraction = bool(refraction)
         self.lref = None
         self.last_update_s = float("nan")
@@ -194,7 +194,7 @@ class LimbApp:
             self.md_legend = gui.add_markdown("")
         self.compute()
         self.draw(reset_camera=True)
-        # labels kept apart on this tab's screen (issue 34): after each redraw and camera move
+        # labels kept apart on this tab's screen (overlapping ones cannot be read): after each redraw and camera move
         from geoloc_viz.label_layout import LabelLayout
 
         client = server if not hasattr(server, "get_clients") else None
@@ -228,8 +228,8 @@ class LimbApp:
             self.lref = lr if int(np.asarray(lr.status).reshape(-1)[0]) == Status.OK else None
         hit = int(self.tan.status) == int(Status.HITS_EARTH)
         # What the view is about: the exact tangent, else the line down to where it meets the
-        # Earth (the middle of it), else the spacecraft; the Earth patch is drawn around its foot (issue 46: the patch stayed at
-        # frame 0's tangent and was out of sight ~95 deg of orbit later, at frame 600).
+        # Earth (the middle of it), else the spacecraft; the Earth patch is drawn around its foot (a patch fixed at
+        # frame 0's tangent was out of sight ~95 deg of orbit later, at frame 600).
         foot = (
             self.tan.exact_ecef
             if ok
@@ -260,7 +260,7 @@ class LimbApp:
         la, lo, _ = ecef_to_geodetic(pts)
         self.section_geodetic = (la, lo)
         self.section_ecef = geodetic_to_ecef(la, lo, np.zeros_like(la))
-        # A line that meets the Earth stops there (issue 16): not drawn through the planet.
+        # A line that meets the Earth stops there: drawn through the planet it would show a view no one has.
         self.los_ecef = np.stack([pts[0], self.tan.earth_hit_ecef if hit else pts[-1]])
 
     # ------------------------------------------------------------ drawing
@@ -470,7 +470,7 @@ class LimbApp:
         2000 km along the line. The camera stands 1.1 L to the side of the line and 0.25 L
         above it (L: spacecraft to the point of interest), the side and "above" taken from the
         local vertical there, and is lifted until it is at least ``CAMERA_CLEARANCE`` L above
-        WGS-84: an eye inside the Earth mesh (double-sided) sees one blue wall (issue 46).
+        WGS-84: an eye inside the Earth mesh (double-sided) sees one blue wall.
         """
         tan = self.tan
         ok = int(tan.status) == 0

@@ -1,4 +1,4 @@
-"""Send a picked point on (issue 46 item 5): its texts, computed by the core (no viser here).
+"""Send a picked point on (to another tool or person): its texts, computed by the core (no viser here).
 
 A point picked in the viewer (a pixel of the picture, a terrain click in the scene, or without
 a picture the scene's own pixel) becomes a :class:`SharedPoint`, and :mod:`geoloc_viz.share_layer`

@@ -1,4 +1,4 @@
-"""Send the point on (issue 46 item 5): a "Send the point on" GUI folder of texts to copy.
+"""Send the point on (to another tool or person): a "Send the point on" GUI folder of texts to copy.
 
 :func:`attach` (a layer of :class:`geoloc_viz.app.GeolocSession`) shows, for the last point
 picked in the picture (a pixel of the panel or of the frustum image) or in the scene (a terrain

@@ -247,7 +247,7 @@ def vector_markdown(chain, v, frame: str, hop: str | None = None, point: bool = 
     dst, src = hop_frames(hop, chain) if hop else (None, None)
     unit = " [m]" if point else " (unit-free direction)"
     # four columns, the hop's frames tagged in their own cell: the table fits the GUI panel
-    # (a fifth column of tags overflowed it, issue 34)
+    # (a fifth column of tags overflowed it)
     roles = f" **(src)** is the hop's **source** `{src}`, **(dst)** its **destination** `{dst}`." if hop else ""
     lines = [
         f"**Coordinates of {what} in every frame**{unit}, given in `{frame}`.{roles}\n",

@@ -1,4 +1,4 @@
-"""The teaching panel: a vector through the sensor's chain of frames, in the browser (issue 20).
+"""The teaching panel: a vector through the sensor's chain of frames, in the browser, to teach how each hop turns it.
 
 A layer on a ``geoloc view`` session (:func:`attach`). It walks the sensor's own
 frame graph (:class:`geoloc.frames.graph.BoundFrames`), so it works for every
@@ -265,7 +265,7 @@ class TeachingPanel:
         """Row positions (relative to the aircraft, km) of the frames and of the globe, and the
         row's direction ``u``.
 
-        Spaced by what the frames carry (issue 34): frame k and frame k + 2 (one band) sit at
+        Spaced by what the frames carry (so that their labels do not overlap): frame k and frame k + 2 (one band) sit at
         least their axes and their widest labels apart (:func:`row_offsets`), so a turret's
         frames, which all sit at one optical centre, are fanned out over the row and their
         labels do not collide.
@@ -397,7 +397,7 @@ class TeachingPanel:
     def _node(self, name, key, make, update=None):
         """The node ``name``: made by ``make()`` the first time (or when its ``key``, what it was made
         with, changed, or the scene lost it), else kept and handed to ``update(handle)``. A step then
-        moves nodes instead of re-creating them (issue 34: the browser rebuilds a re-created node)."""
+        moves nodes instead of re-creating them (the browser rebuilds a re-created node)."""
         h, k = self._handles.get(name, (None, None))
         alive = h is not None and k == key and getattr(self.scene, "get_handle_by_name", lambda n: h)(name) is h
         if not alive:
@@ -711,7 +711,7 @@ def attach(session) -> TeachingPanel:
     """Add the teaching panel (GUI folder and scene nodes) to a ``geoloc view`` session.
 
     The app wires it with ``self.teaching_panel = teaching_panel.attach(self)``
-    after its own GUI and first refresh. One hop selector (issue 34): the session's own
+    after its own GUI and first refresh. One hop selector (one per session kept the panel readable): the session's own
     "Teaching: the chain of 4x4 matrices" folder then follows this panel's "teaching hop"
     (its own dropdown hidden), so the two folders always show the same hop.
     """

@@ -173,7 +173,7 @@ def terrain_mesh(scn, window_m: float = WINDOW_M, nodes: int = MESH_NODES, lod_m
 
     In software WebGL a frame's cost follows the triangles drawn (``benchmarks/bench_browser.py
     --groups``): the terrain cost 0.16 s of a 0.36 s frame on a uniform 161 x 161 grid, 0.064 s
-    on 81 x 81 (issue 34).
+    on 81 x 81.
     """
     import matplotlib
 

@@ -1,4 +1,4 @@
-"""Predicted uncertainty in the scene: the 90 % error ellipse on the terrain at the hit (issue 29).
+"""Predicted uncertainty in the scene: the 90 % error ellipse on the terrain at the hit, beside the measured errors.
 
 :func:`attach` (a layer of :class:`geoloc_viz.app.GeolocSession`) draws, for the current record or
 pose, the predicted 90 % horizontal error ellipse of the located point
@@ -35,7 +35,7 @@ from geoloc.status import Status
 from geoloc_viz.layer_safety import call_safely
 
 ROOT = "/enu/uncertainty"
-#: The predicted 90 % ellipse's colour, one meaning one colour (issue 46): not the flight layer's
+#: The predicted 90 % ellipse's colour, one meaning one colour (layers are told apart by it): not the flight layer's
 #: magenta current footprint, nor any other colour of the scene (``app.legend_markdown``).
 COLOR = (0, 200, 170)
 COLOR_NAME = "teal"
