@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from geoloc.frames.chain import Pose
+from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.sensors.base import PixelHit, check_outside
 from geoloc.sensors.camera import as_sensor
@@ -181,7 +182,6 @@ def point_view(pipe: Pipeline, state, lat, lon, h) -> PointView:
     ray meets the surface more than :data:`HIDDEN_TOLERANCE_M` before it. Used by the
     viewer's terrain pick and by ``geoloc pixel``.
     """
-    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
     px = pipe.ground_to_pixel(np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float), state)
     st = int(np.asarray(px.status))

@@ -51,6 +51,7 @@ from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
 from geoloc.sensors.base import PixelHit, check_outside
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint, LineOfSight
+from geoloc.surfaces.height import HeightSurface
 
 if TYPE_CHECKING:  # the refraction kernels import numba: loaded when refraction is asked for
     from geoloc.corrections.refraction import Refraction
@@ -312,7 +313,6 @@ class Pipeline:
     def _fused(self, row, col, state, engine, outside):
         """The fused chain-and-ellipsoid kernel's results, when it serves this pipeline and batch, else None."""
         from geoloc.sensors import _fastlocate
-        from geoloc.surfaces.height import HeightSurface
 
         surf = self.surface
         if engine == "numpy" or type(surf) is not HeightSurface or surf.kind != "inflated":
@@ -529,7 +529,6 @@ def at_height(
     """Pixels of any sensor -> ground points at ellipsoidal height ``h``: the pipeline on a
     :class:`geoloc.surfaces.height.HeightSurface` (the exact surface of constant geodetic height
     by default, as an RPC's heights are)."""
-    from geoloc.surfaces.height import HeightSurface
 
     return Pipeline(sensor, HeightSurface(h, height_kind), corrections).locate(row, col, state, outside=outside)
 

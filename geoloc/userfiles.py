@@ -32,9 +32,13 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import errno
 import os
+import shutil
 import stat
+import sys
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Iterator
 
@@ -335,7 +339,6 @@ FULL_BELOW = 256 * 1024
 
 def _fault_of(folder) -> int | None:
     """``errno.EROFS`` or ``errno.ENOSPC`` when ``folder``'s filesystem is read-only or (nearly) full."""
-    import errno
 
     try:
         st = os.statvfs(folder)
@@ -356,7 +359,6 @@ def _naming(path, folder=None) -> Iterator[None]:
     device``) is raised again naming the output. A library's own error (GDAL through pyogrio:
     "Failed to commit transaction"; an unreadable raster, :func:`_verify`) when the output's
     filesystem is full or read-only is that OSError (a full or read-only disk is a fault a user meets)."""
-    import errno
 
     try:
         yield
@@ -387,7 +389,6 @@ def _verify(tmp: Path) -> None:
     which replaced the old output (found by writing on a full filesystem)."""
     if tmp.suffix.lower() not in GDAL_RASTERS or not tmp.is_file():
         return
-    import warnings
 
     import rasterio
 
@@ -414,7 +415,6 @@ _DATA_OUT: contextvars.ContextVar = contextvars.ContextVar("geoloc_data_out", de
 def stdout_is_data() -> Iterator[None]:
     """While a command writes ``--out -``: its messages (``print``) go to stderr, so that standard
     output carries the data alone; :func:`atomic_path` writes ``-`` to the real standard output."""
-    import sys
 
     real = sys.stdout
     token = _DATA_OUT.set(real)
@@ -430,7 +430,6 @@ def stdout_is_data() -> Iterator[None]:
 def _through_temp(option: str, path, suffix: str, sink) -> Iterator[Path]:
     """A temporary file (in a folder of its own, with ``suffix``) whose bytes ``sink(fh)`` copies
     where they go when the block succeeds: standard output, a device, a FIFO."""
-    import shutil
 
     folder = Path(tempfile.mkdtemp(prefix="geoloc-out-"))
     try:
@@ -447,8 +446,6 @@ def _through_temp(option: str, path, suffix: str, sink) -> Iterator[Path]:
 
 
 def _copy_to_stdout(fh) -> None:
-    import shutil
-    import sys
 
     out = _DATA_OUT.get() or sys.stdout
     out.flush()
@@ -459,7 +456,6 @@ def _copy_to_stdout(fh) -> None:
 def _copy_to_special(fh, p: Path) -> None:
     """Write the bytes through a device, FIFO or socket file, never replacing it (``/dev/full``: the
     OSError names the path)."""
-    import shutil
 
     try:
         with open(p, "wb") as dst:

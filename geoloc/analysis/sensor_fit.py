@@ -28,11 +28,12 @@ from functools import partial
 import numpy as np
 from scipy.optimize import least_squares
 
+from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.geodesy.local import R_ecef_ned
 from geoloc.io.records import Records
 from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.status import Status
-from geoloc.surfaces.height import for_records
+from geoloc.surfaces.height import HeightSurface, for_records
 
 #: Residual given to a record whose ray finds no ground point during the fit [m].
 FAILED_RESIDUAL_M = 1.0e4
@@ -184,7 +185,6 @@ class SensorFit:
 
 def _enu_residuals(hit, truth_lat, truth_lon) -> np.ndarray:
     """(east, north) of computed minus truth [m], in the local level frame at the truth, (n, 2)."""
-    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
     t = geodetic_to_ecef(truth_lat, truth_lon, hit.h)
     d = np.einsum("...ji,...j->...i", R_ecef_ned(truth_lat, truth_lon), hit.ecef - t)
@@ -521,7 +521,6 @@ def resect_sensor(
     SensorResection
         ``rms_m`` is the RMS of the 2n residual components [m].
     """
-    from geoloc.surfaces.height import HeightSurface
 
     names = list(names)
     known = _check_names(sensor, names)

@@ -44,14 +44,17 @@ from functools import lru_cache
 import numpy as np
 
 from geoloc.frames import rotations as rot
-from geoloc.geodesy.ellipsoid import meridian_radius, prime_vertical_radius
-from geoloc.geodesy.local import R_ecef_enu, R_ecef_ned
+from geoloc.frames.chain import Pose
+from geoloc.geodesy.ellipsoid import E2, A, geodetic_to_ecef, meridian_radius, prime_vertical_radius
+from geoloc.geodesy.local import R_ecef_enu, R_ecef_ned, ecef_to_enu
 from geoloc.locate import as_sensor
 from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.sensors.budget import LE90_PER_SIGMA, LENS_KEYS, ErrorBudget
 from geoloc.sensors.frame import small_rotation
+from geoloc.sensors.lenses import PARAM_LAYOUT
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight, terrain_of
+from geoloc.surfaces.height import HeightSurface
 
 DEG = math.pi / 180.0
 #: sqrt of the chi-square (2 dof) 0.9 quantile: the 90 % ellipse is the 1-sigma ellipse times this.
@@ -302,7 +305,6 @@ def chain_derivatives(sensor, pose, row, col, budget: ErrorBudget, velocity_ned_
     D = np.einsum("nij,nj->ni", R_cam, d_cam)
     lat, lon, h = (_flat(getattr(pose, k), shape) for k in ("lat", "lon", "h"))
     lever = np.einsum("nij,j->ni", Rs["body"], np.array(s.lever_arm_m))
-    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
     O = geodetic_to_ecef(lat, lon, h) + lever
     cols, names = [], []
@@ -649,7 +651,6 @@ def _with_refraction(out: PointUncertainty, s, pose, row, col, surface, budget, 
     if not sig > 0:
         return out
     from geoloc.corrections.refraction import STANDARD_REFRACTION
-    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 
     on = corrections.refraction is not None
     other = Pipeline(
@@ -685,7 +686,6 @@ def _locate_for(s, pose, row, col, surface, outside, corrections: Corrections = 
 def _source_codes(s, budget: ErrorBudget):
     """The budget's sources in :func:`chain_derivatives`'s order: names, kernel codes, SI sigmas."""
     from geoloc.analysis import _fastuncert as F
-    from geoloc.sensors.lenses import PARAM_LAYOUT
 
     names, codes, sig = [], [], []
 
@@ -718,7 +718,6 @@ def _source_codes(s, budget: ErrorBudget):
 def _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t):
     """:func:`chain_derivatives`'s ``dO + t dD`` (n, 3, k) through :func:`_fastuncert.chain_kernel`."""
     from geoloc.analysis import _fastuncert as F
-    from geoloc.geodesy.ellipsoid import A, E2
     from geoloc.sensors._fastlocate import _AXIS
 
     names, codes, sig = _source_codes(s, budget)
@@ -828,7 +827,6 @@ def _compiled_dem(dem) -> bool:
 def _dem_fast(F, free, D, t, dem, lat, lon, h, status, sz, names, shape, iterations, footprint):
     """The surface step on a DEM (slope, footprint plane, terrain RMS, grazing, covariance, ellipse,
     CE90, LE90) through :func:`_fastuncert.dem_surface_kernel`: what the numpy path computes."""
-    from geoloc.geodesy.ellipsoid import A, E2
 
     n, k = free.shape[0], free.shape[2]
     kk = k + (1 if sz > 0 else 0)
@@ -933,9 +931,6 @@ def monte_carlo(
     status : ndarray (n,) of uint8
     """
     from geoloc.analysis.montecarlo import perturbed_lens
-    from geoloc.frames.chain import Pose
-    from geoloc.geodesy.local import ecef_to_enu
-    from geoloc.surfaces.height import HeightSurface
 
     s = as_sensor(sensor)
     x = draws if draws is not None else draw(budget, n, rng)

@@ -22,11 +22,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
+from geoloc.assets import DEFAULT_CAMERA, asset_path, resolve_user_path
+from geoloc.pipeline import TABLE_KEYS, Pipeline, corrections_from_table
 from geoloc.surfaces.terrain import DEM_MODELS, METHODS
-
+from geoloc.userfiles import STDOUT, check_output, check_output_dir, same_file
 
 # --------------------------------------------------------------------------- file options
 
@@ -44,7 +47,6 @@ def input_path(text: str) -> str:
     A ``udp://`` URL (a live stream, docs/live.md) is returned as a :class:`StreamUrl`
     (the verb checks it: :func:`geoloc.io.live.parse_udp_url`, one line naming it).
     """
-    from geoloc.assets import resolve_user_path
 
     if str(text).lower().startswith("udp://"):
         return StreamUrl(text)
@@ -161,7 +163,6 @@ def declared_files(parser, args, *, types: bool = False) -> tuple[list, list]:
 
 def writes_stdout(parser, args) -> bool:
     """Whether an output of this command line is ``-`` (standard output)."""
-    from geoloc.userfiles import STDOUT
 
     return any(path == STDOUT for _, path, _ in declared_files(parser, args)[1])
 
@@ -172,7 +173,6 @@ def check_outputs(parser, args) -> list:
     ``-`` (standard output) is taken once, by an option whose file is text (:func:`text_output_path`);
     a binary output (GeoTIFF, GeoPackage, .rrd, MPEG-TS, PNG) given ``-`` is one clear error.
     """
-    from geoloc.userfiles import STDOUT, check_output, check_output_dir, same_file
 
     inputs, outputs = declared_files(parser, args, types=True)
     seen: dict[str, object] = {}  # option name -> its path, or STDOUT
@@ -234,7 +234,6 @@ def check_suffix(option: str, path, suffixes=(".tif", ".tiff"), what: str = "a G
     """An output whose format is fixed, checked by its name before the verb computes anything
     (``--out frame.png`` of a verb that writes a GeoTIFF). ``None`` and ``-`` pass (``-`` is
     checked by :func:`check_outputs`)."""
-    from pathlib import Path
 
     if path is None or path == "-":
         return
@@ -474,7 +473,6 @@ def sensor_from_args(args, *, default: bool = True):
     bundled [Q17] camera, or None with ``default=False`` (a verb whose input brings its
     own sensor: KLV, photos).
     """
-    from geoloc.assets import DEFAULT_CAMERA, asset_path
     from geoloc.sensors.sensor_file import load_sensor
 
     path = getattr(args, "camera", None)
@@ -570,7 +568,6 @@ def corrections_from_args(args, sensor, settings: dict | None = None, base=None)
     ``settings`` (a sensor or scenario file's ``[corrections]`` table: ``refraction``,
     ``light_time``, ``aberration``), over the sensor's defaults
     (:meth:`~geoloc.pipeline.Corrections.for_sensor`)."""
-    from geoloc.pipeline import TABLE_KEYS, corrections_from_table
 
     flags = {k: getattr(args, k, None) for k in TABLE_KEYS}
     source = "[corrections] and the command line"
@@ -589,7 +586,6 @@ def corrections_from_args(args, sensor, settings: dict | None = None, base=None)
 
 def pipeline_from_args(args, sensor, surface, settings: dict | None = None):
     """The verb's one :class:`geoloc.pipeline.Pipeline`: its sensor, its surface and its corrections."""
-    from geoloc.pipeline import Pipeline
 
     return Pipeline(sensor, surface, corrections_from_args(args, sensor, settings))
 
@@ -633,7 +629,6 @@ def one_dem_raster(args, verb: str):
     A mosaic (a folder, a ``.vrt`` or a repeated ``--dem``) is refused with the option
     named, rather than read as something else.
     """
-    from pathlib import Path
 
     if args.dem is None:
         return None

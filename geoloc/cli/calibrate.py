@@ -16,21 +16,23 @@ import numpy as np
 
 from geoloc.analysis.sensor_fit import error_vector_panels, fit_sensor_groups, resect_sensor
 from geoloc.assets import asset_path
+from geoloc.cli import VERB_HELP
 from geoloc.cli._options import (
     add_correction_options,
     add_dem_options,
-    corrections_from_args,
     add_sensor_option,
     add_target_options,
+    corrections_from_args,
     input_path,
+    output_path,
     sensor_from_args,
     surface_from_args,
-    output_path,
     text_output_path,
 )
 from geoloc.cli.locate import load_records_reporting
+from geoloc.sensors.camera import camera_from_sensor
+from geoloc.sensors.sensor_file import sensor_to_toml
 from geoloc.userfiles import write_text
-from geoloc.cli import VERB_HELP
 
 #: ``--model``: the rotation each names (``Camera`` file keys ``mount_deg`` / ``boresight_deg``).
 MODELS = {"mount": ("mount_x", "mount_y", "mount_z"), "camera": ("boresight_x", "boresight_y", "boresight_z")}
@@ -224,8 +226,6 @@ def run(args) -> int:
     names) to the published positions with unknown target heights
     (:func:`geoloc.analysis.sensor_fit.resect_sensor`).
     """
-    from geoloc.sensors.camera import camera_from_sensor
-    from geoloc.sensors.sensor_file import sensor_to_toml
     from geoloc.workflows.replay import outside_sensor_messages
 
     if args.exaggeration <= 0 or not np.isfinite(args.exaggeration):

@@ -15,14 +15,14 @@ import sys
 
 import numpy as np
 
+from geoloc.cli import VERB_HELP
 from geoloc.cli._options import input_path, text_output_path
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic
+from geoloc.pipeline import Corrections
 from geoloc.sensors.limb import limb_tangent
 from geoloc.status import Status, describe
 from geoloc.userfiles import atomic_path
 from geoloc.workflows.scenario import load_scenario
-from geoloc.cli import VERB_HELP
-
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
 #: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
@@ -99,7 +99,6 @@ def _label(aberration: bool, refraction: str) -> str:
     """The output's ``corrections``, named as every locating verb names them (``Corrections.label``);
     a tangent ray meets no surface, so light-time has nothing to act on."""
     from geoloc.corrections.refraction import STANDARD_REFRACTION
-    from geoloc.pipeline import Corrections
 
     return Corrections(
         refraction=STANDARD_REFRACTION if refraction == "standard" else None, aberration=aberration

@@ -12,9 +12,12 @@ import dataclasses
 import json
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 
+from geoloc.assets import DEFAULT_RECORDS, asset_path
+from geoloc.cli import VERB_HELP
 from geoloc.cli._options import (
     add_correction_options,
     add_dem_options,
@@ -26,8 +29,8 @@ from geoloc.cli._options import (
     surface_from_args,
     warn_datums,
 )
-from geoloc.assets import DEFAULT_RECORDS, asset_path
 from geoloc.frames.chain import Pose
+from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.io.columns import (
     DATUM_TEXT,
     ELLIPSOID_DATUM,
@@ -36,11 +39,11 @@ from geoloc.io.columns import (
     load_column_map,
 )
 from geoloc.io.records import Records, load_records
+from geoloc.sensors.base import check_angle_names
 from geoloc.sensors.sensor_file import load_sensor_columns
 from geoloc.status import Status, describe
+from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
-from geoloc.cli import VERB_HELP
-
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
 #: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
@@ -95,7 +98,6 @@ def parse_angles(items) -> dict:
 
 
 def _is_bundled_records(path) -> bool:
-    from pathlib import Path
 
     try:
         return Path(path).resolve() == asset_path(*DEFAULT_RECORDS).resolve()
@@ -165,7 +167,6 @@ def ellipsoidal_h_from_args(args) -> float:
     """``--h-m`` as an ellipsoidal height: + N (bundled EGM96) for ``--altitude-datum egm96``."""
     if altitude_from_args(args).datum != "egm96":
         return args.h_m
-    from geoloc.geodesy.geoid import egm96_undulation
 
     for name in ("lat_deg", "lon_deg", "h_m"):
         v = getattr(args, name)
@@ -179,7 +180,6 @@ def ellipsoidal_h_from_args(args) -> float:
 
 def pose_from_args(args, sensor) -> Pose:
     """The pose of the command line, with every joint angle the sensor's gimbal needs."""
-    from geoloc.sensors.base import check_angle_names
 
     angles = parse_angles(getattr(args, "angle", []))
     given = {name: f"--angle {name}={v:g}" for name, v in angles.items()}
@@ -306,7 +306,6 @@ def _drone_height_warning(camera, pose, target_h: float, surface, alt) -> list:
         drone_too_high,
         is_drone,
     )
-    from geoloc.surfaces.base import terrain_of
 
     if not is_drone(getattr(camera, "platform", "")):
         return []

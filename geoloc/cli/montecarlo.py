@@ -5,31 +5,32 @@ Degrees and metres at this edge; see ``docs/montecarlo.md``.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from geoloc.analysis import montecarlo as mc
-from geoloc.analysis.errormodel import ErrorModel
+from geoloc.analysis.errormodel import ERROR_SOURCES, DemSpec, Distribution, ErrorModel
+from geoloc.cli import VERB_HELP
 from geoloc.cli._options import (
-    add_progress_options,
     add_correction_options,
     add_dem_options,
-    corrections_from_args,
+    add_progress_options,
     add_sensor_option,
+    corrections_from_args,
     input_path,
     one_dem_raster,
     output_dir,
-    text_output_path,
     surface_from_scenario,
+    text_output_path,
 )
 from geoloc.status import Status
 from geoloc.userfiles import check_output_dir, write_text
-from geoloc.cli import VERB_HELP
-
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
 #: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
@@ -129,7 +130,6 @@ def register(sub) -> None:
 
 def sample_count(text: str) -> int:
     """``"5000"``, ``"1e9"`` or ``"1_000_000"`` -> an int; argparse reports anything else."""
-    import argparse
 
     t = str(text).strip().replace("_", "")
     try:
@@ -163,7 +163,6 @@ def parse_angles(text: str) -> np.ndarray:
 
 def parse_error(text: str):
     """``"cx_px=normal:0.5"`` / ``"k1=uniform:0.01:0.001"`` -> (source, Distribution), errors naming the text."""
-    from geoloc.analysis.errormodel import ERROR_SOURCES, Distribution
 
     name, sep, spec = str(text).partition("=")
     name = name.strip()
@@ -198,9 +197,6 @@ def _floats(text: str, name: str) -> np.ndarray:
 
 
 def load_model(args) -> ErrorModel:
-    from dataclasses import replace
-
-    from geoloc.analysis.errormodel import DemSpec
 
     scenario = Path(args.scenario)
     if not scenario.is_file():

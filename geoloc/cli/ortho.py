@@ -18,27 +18,30 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+
+from geoloc.assets import asset_path
+from geoloc.cli import VERB_HELP
 from geoloc.cli._options import (
-    add_progress_options,
     add_columns_option,
-    check_crs,
-    check_suffix,
     add_correction_options,
     add_dem_options,
-    corrections_from_args,
     add_gimbal_options,
     add_pose_options,
+    add_progress_options,
     add_target_options,
+    check_crs,
+    check_suffix,
+    corrections_from_args,
     input_path,
     output_path,
     sensor_from_args,
     surface_from_args,
 )
 from geoloc.cli.locate import pose_from_args, records_from_args
+from geoloc.extras import require
 from geoloc.io.columns import ELLIPSOID_DATUM
 from geoloc.surfaces.base import terrain_of
-from geoloc.extras import require
-from geoloc.cli import VERB_HELP
 
 POSE_FIELDS = ("lat_deg", "lon_deg", "h_m")
 
@@ -128,8 +131,6 @@ def _bundled_dem(lat_deg: float, lon_deg: float):
     """The finest bundled DEM (assets/dem/*.tif) whose bounds contain (lat, lon), or None."""
     import rasterio
 
-    from geoloc.assets import asset_path
-
     best = None
     for path in sorted(Path(asset_path("dem")).glob("*.tif")):
         with rasterio.open(path) as src:
@@ -189,7 +190,6 @@ def _pose(args):
 def _surface(args, pose):
     """The surface of the shared options (:func:`geoloc.cli._options.surface_from_args`); without
     ``--dem`` and ``--target-h-m``, the finest bundled DEM that covers the aircraft."""
-    import numpy as np
 
     if args.target_h_m is not None:
         if args.dem:

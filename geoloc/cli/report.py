@@ -10,27 +10,30 @@ self-contained ``report.html`` (plots embedded as base64). See ``docs/report.md`
 
 from __future__ import annotations
 
-from collections.abc import Iterable
-
+import argparse
 import base64
 import csv
 import html
 import json
 import math
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
 from geoloc.analysis.accuracy import (
+    POSITION_RANGES,
     AccuracyReport,
     accuracy_report,
+    out_of_range,
+    position_kind,
     sight_geometry,
     track_azimuth_rad,
 )
-from geoloc.cli._options import add_sensor_option, input_path, output_dir
-from geoloc.userfiles import atomic_path, write_text
 from geoloc.cli import VERB_HELP
+from geoloc.cli._options import add_dem_options, add_sensor_option, input_path, output_dir, sensor_from_args
+from geoloc.userfiles import atomic_path, write_text
 
 #: Reference prefixes tried by ``--reference auto``, in this order.
 AUTO_REFERENCES = ("truth", "reported", "paper")
@@ -93,7 +96,6 @@ def register(sub) -> None:
         "only; docs/height_audit.md): one line per finding, report.json's 'height_audit' and report.html",
     )
     p.set_defaults(func=run)
-    from geoloc.cli._options import add_dem_options
 
     add_dem_options(
         p,
@@ -112,7 +114,6 @@ def read_results(path) -> tuple:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"results file {path} does not exist")
-    from geoloc.analysis.accuracy import POSITION_RANGES, out_of_range, position_kind
     from geoloc.io.records import check_header
 
     try:
@@ -557,10 +558,8 @@ def audit_from_csv(path, surface, camera=None):
     """The height audit (:mod:`geoloc.analysis.height_audit`) of a replay output CSV: a records replay
     (its pose columns, loaded as records with ``camera``'s angles; default the [Q17] camera) or a KLV
     replay (``sensor_*`` / ``reported_*`` columns; the frame centre's ray needs no field of view)."""
-    import argparse
 
     from geoloc.analysis.height_audit import audit_klv_columns, audit_records
-    from geoloc.cli._options import sensor_from_args
 
     header, rows, _ = read_results(path)
     if all(c in header for c in ("sensor_lat_deg", "reported_lat_deg", "sensor_relative_azimuth_deg")):

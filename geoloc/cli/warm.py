@@ -18,16 +18,19 @@ import io
 import sys
 import tempfile
 import time
-from geoloc.cli import VERB_HELP
+
+import numpy as np
+
+from geoloc.cli import VERB_HELP, main
+from geoloc.pipeline import Corrections, Pipeline
+from geoloc.surfaces.height import HeightSurface
 
 
 def _large_batch() -> int:
     """The compiled walk a large batch takes: 20 000 oblique rays over the bundled SRTM crop, the
     cell model ``locate`` and ``replay`` use (bilinear), serial and threaded (one kernel)."""
-    import numpy as np
 
     from geoloc.assets import asset_path
-    from geoloc.pipeline import Pipeline
     from geoloc.surfaces.spec import SurfaceSpec
     from geoloc.surfaces.terrain import DemSurface, random_oblique_rays
 
@@ -39,12 +42,9 @@ def _large_batch() -> int:
 def _refraction() -> int:
     """The refraction kernels (``--refraction standard``): a ground ray through the pipeline, on a
     height and on the DEM, and a limb ray (``geoloc limb --refraction standard``)."""
-    import numpy as np
 
     from geoloc.assets import asset_path
     from geoloc.corrections.refraction import STANDARD_REFRACTION
-    from geoloc.pipeline import Corrections, Pipeline
-    from geoloc.surfaces.height import HeightSurface
     from geoloc.surfaces.spec import SurfaceSpec
     from geoloc.surfaces.terrain import DemSurface, random_oblique_rays
 
@@ -124,7 +124,6 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from geoloc.cli import main
     from geoloc.geodesy import _nbgeo
 
     print(f"geoloc warm: compiling what locate, replay and view need, once; cache: {_nbgeo.cache_dir()}", flush=True)

@@ -36,7 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
+from geoloc.geodesy.local import ellipse_ring_enu, enu_to_geodetic_deg
 from geoloc.io.mgrs_grid import mgrs_column
+from geoloc.status import Status
 from geoloc.userfiles import atomic_path, note_input, write_bytes
 
 #: Formats :func:`export` writes.
@@ -206,7 +208,6 @@ def _opt(x):
 
 
 def _status_text(values):
-    from geoloc.status import Status
 
     out = []
     for s in values:
@@ -684,7 +685,6 @@ def _ellipse_layer(table, n, comp, ok, fields, row_attrs, labels, t_of):
     """Each computed point's predicted 90 % horizontal error ellipse as a polygon (the replay's
     ``ellipse_major_m ellipse_minor_m ellipse_azimuth_deg`` columns, 1 sigma, scaled by 2.1460:
     geoloc.analysis.uncertainty), its vertices at the point's height, counterclockwise."""
-    from geoloc.geodesy.local import ellipse_ring_enu, enu_to_geodetic_deg
 
     ell = [_num(table, c, n) for c in ("ellipse_major_m", "ellipse_minor_m", "ellipse_azimuth_deg")]
     ce, le = _num(table, "ce90_m", n), _num(table, "le90_m", n)

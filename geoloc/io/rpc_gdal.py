@@ -12,12 +12,13 @@ import os
 import shutil
 import tempfile
 import warnings
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from geoloc.sensors.rpc import RPCModel, RPCSensor
+from geoloc.sensors.rpc import RPCModel, RPCSensor, rpc_terms
 from geoloc.userfiles import atomic_path, note_input
 
 
@@ -110,9 +111,6 @@ def rpc00b_renormalized(model: RPCModel) -> RPCModel:
 
     The only loss left when writing is the coefficients' 7 significant digits.
     """
-    from dataclasses import replace
-
-    from geoloc.sensors.rpc import rpc_terms
 
     new = {}
     for k, (_w, dec) in RPC00B_FIELDS.items():

@@ -56,7 +56,11 @@ from pathlib import Path
 
 import numpy as np
 
+from geoloc.frames.chain import FrameChain
+from geoloc.frames.rotations import rx, ry, rz
+from geoloc.sensors.base import check_outside, flag_outside
 from geoloc.status import Status
+from geoloc.surfaces.base import LineOfSight
 from geoloc.tomlio import read_toml
 from geoloc.userfiles import write_text
 
@@ -184,7 +188,6 @@ class Camera:
     # ------------------------------------------------------------ geometry
     @staticmethod
     def _rotation(angles):
-        from geoloc.frames.rotations import rx, ry, rz
 
         if angles is None:
             return None
@@ -304,7 +307,6 @@ class Camera:
         eq. 4-9, with its 4x4 hops and the eq. 5 factors); the sensor's frame graph gives the
         same rotations (``tests/sensors/test_sensors.py``).
         """
-        from geoloc.frames.chain import FrameChain
 
         return FrameChain(pose, R_cam_inner=self.R_cam_inner, R_base_body=self.R_base_body)
 
@@ -327,8 +329,6 @@ class Camera:
         -------
         geoloc.surfaces.base.LineOfSight
         """
-        from geoloc.sensors.base import check_outside, flag_outside
-        from geoloc.surfaces.base import LineOfSight
 
         check_outside(outside)
         chain = self.chain(pose) if chain is None else chain

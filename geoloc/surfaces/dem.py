@@ -27,15 +27,16 @@ Conventions: ``docs/conventions.md`` (radians inside; ``_deg`` only at edges).
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
+from geoloc.extras import require
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.geodesy.geoid import NodeGrid, egm96_undulation
 from geoloc.status import Status
 from geoloc.userfiles import note_input
-from geoloc.extras import require
 
 DATUMS = ("egm96", "ellipsoid")
 
@@ -115,7 +116,6 @@ class DEM:
             (no geotransform or no CRS), a rotated or south-up raster, a bad
             datum or band. The message names the file and what is wrong.
         """
-        import warnings
 
         import rasterio
         from rasterio.errors import NotGeoreferencedWarning, RasterioError
@@ -559,7 +559,6 @@ def _warp_to_geographic(grid: NodeGrid, crs_wkt: str) -> NodeGrid:
     and the source grid's bilinear height read there; nodes outside the source's
     extent have no data. The result has ``margin = 0.5`` like any opened raster.
     """
-    import warnings
 
     import pyproj
     from rasterio.warp import calculate_default_transform

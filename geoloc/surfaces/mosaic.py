@@ -51,13 +51,13 @@ from __future__ import annotations
 
 import warnings
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from geoloc.geodesy.ellipsoid import B, A, ecef_to_geodetic
+from geoloc.geodesy.ellipsoid import A, B, ecef_to_geodetic
 from geoloc.geodesy.geoid import NodeGrid, egm96_undulation
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
@@ -772,7 +772,6 @@ class DemMosaic:
                 break
             if hit.status[0] == Status.LEFT_DEM and evals == 0:
                 break  # it starts off the mosaic: LEFT_DEM, as the walk says on one raster
-        from dataclasses import replace
 
         if hit is None:
             raise RuntimeError("no piece of the track is on the mosaic")  # excluded by the caller

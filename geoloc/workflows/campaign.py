@@ -41,14 +41,19 @@ import os
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Iterable
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
-from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
-from geoloc.surfaces.spec import SurfaceSpec
 from geoloc.extras import require
+from geoloc.frames.chain import Pose
+from geoloc.locate import line_of_sight
+from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
+from geoloc.status import Status
+from geoloc.surfaces.base import terrain_of
+from geoloc.surfaces.spec import SurfaceSpec
+from geoloc.userfiles import atomic_path
 
 #: Photo suffixes (as ``geoloc replay``).
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".dng")
@@ -281,7 +286,6 @@ def set_malloc_thresholds(
     """
     if not sys.platform.startswith("linux"):
         return False
-    import ctypes
     import ctypes.util
 
     try:
@@ -383,8 +387,6 @@ def run_unit(
 def _run_unit(index, unit, kind, cfg, out_dir) -> UnitResult:
     import pyarrow.parquet as pq
 
-    from geoloc.userfiles import atomic_path
-
     c0 = time.thread_time()
     source = unit if isinstance(unit, str) else f"{unit[0]} (+{len(unit) - 1} photos)"
     try:
@@ -455,14 +457,9 @@ def _records_unit(path: str, cfg: CampaignConfig):
     """One records file through the vectorised core: (pyarrow table, messages)."""
     import pyarrow as pa
 
-    from geoloc.frames.chain import Pose
+    from geoloc.assets import DEFAULT_CAMERA, asset_path
     from geoloc.geodesy.geodesic import horizontal_distance_m
     from geoloc.io.records import Q17_ANGLES, required_columns
-    from geoloc.locate import line_of_sight
-    from geoloc.status import Status
-    from geoloc.surfaces.base import terrain_of
-
-    from geoloc.assets import DEFAULT_CAMERA, asset_path
     from geoloc.sensors.sensor_file import load_sensor
 
     sensor = (

@@ -41,11 +41,13 @@ from pathlib import Path
 
 import numpy as np
 
+from geoloc.extras import require
 from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.io.klv import (
     TAG_BY_NAME,
     UAS_LS_KEY,
     KlvError,
+    _klv_stream,
     add_items,
     encode_value,
     is_container_file,
@@ -53,10 +55,10 @@ from geoloc.io.klv import (
     local_set_items,
     replace_values,
 )
-from geoloc.status import Status, describe
-from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, _ranges, read_klv, replay_klv
-from geoloc.extras import require
 from geoloc.pipeline import NO_CORRECTIONS, Corrections
+from geoloc.status import Status, describe
+from geoloc.userfiles import atomic_path, note_input
+from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, _ranges, read_klv, replay_klv
 
 #: The items rewritten: tag -> field name.
 CENTRE_TAGS = {
@@ -276,8 +278,6 @@ def _fix_bytes(data: bytes, rw: _Rewriter, verify: bool, raw: bool = False) -> b
 def _remux(src: Path, tmp: str, rw: _Rewriter, fix: KlvFix, verify: bool) -> None:
     av = require("av", "writing KLV back into MPEG-TS video")
 
-    from geoloc.io.klv import _klv_stream
-
     with av.open(os.fspath(src)) as inp:
         klv = _klv_stream(inp, None, src)
         fmt = inp.format.name.split(",")[0]
@@ -347,7 +347,6 @@ def fix_klv(
     -------
     KlvFix
     """
-    from geoloc.userfiles import atomic_path, note_input
 
     src, dst = Path(source), Path(out)
     if not src.is_file():

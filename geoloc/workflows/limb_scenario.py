@@ -13,16 +13,17 @@ a rotation about Z by the Greenwich angle theta_g = theta_g0 + omega_E t
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from geoloc.corrections import check_table
+from geoloc.corrections.lighttime import aberration, inertial_velocity
 from geoloc.frames.rotations import rotate, rz
 from geoloc.geodesy.ellipsoid import A
 from geoloc.sensors.limb import L18Chain, LimbTangent, limb_tangent, line_of_sight_l18
 from geoloc.tomlio import read_toml
-from geoloc.corrections import check_table
 
 #: Earth's gravitational parameter GM [m^3/s^2] (WGS-84).
 GM = 3.986004418e14
@@ -169,9 +170,6 @@ class LimbScenario:
         )
         if not self.aberration:
             return chain
-        from dataclasses import replace
-
-        from geoloc.corrections.lighttime import aberration, inertial_velocity
 
         d = aberration(chain.direction_ecef, inertial_velocity(p[:, None, :], v[:, None, :]))
         return replace(chain, direction_ecef=np.where(np.isfinite(chain.direction_ecef), d, np.nan))
@@ -183,7 +181,6 @@ class LimbScenario:
 
     def with_frames(self, n_frames: int, interval: float | None = None) -> "LimbScenario":
         """A copy with another number of frames (and optionally interval)."""
-        from dataclasses import replace
 
         return replace(self, n_frames=n_frames, interval=self.interval if interval is None else interval)
 

@@ -26,19 +26,23 @@ ellipsoidal unless a datum says otherwise).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from geoloc.extras import require
+from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.io.columns import ELLIPSOID_DATUM
 from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.progress import Progress
+from geoloc.sensors.base import PixelHit, flag_outside
+from geoloc.sensors.camera import sensor_of
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 from geoloc.userfiles import atomic_path
-from geoloc.extras import require
 
 if TYPE_CHECKING:  # affine comes with rasterio, an optional dependency
     from affine import Affine
@@ -119,7 +123,6 @@ def frame_pixels(sensor, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _as_sensor(sensor):
-    from geoloc.sensors.camera import sensor_of
 
     return sensor_of(sensor)
 
@@ -281,7 +284,6 @@ def write_frame_geotiff(
     dict
         ``shape``, ``step``, ``counts`` (pixels per status), ``path``.
     """
-    import warnings
 
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning
@@ -355,7 +357,6 @@ def write_frame_geotiff(
 
 def read_frame_geotiff(path) -> FrameGrid:
     """A :func:`write_frame_geotiff` file back as a :class:`FrameGrid` (for tests and users)."""
-    import warnings
 
     import rasterio
     from rasterio.errors import NotGeoreferencedWarning
@@ -486,7 +487,6 @@ def _project_cells(sensor, pose, lat, lon, h, p_ecef, corrections: Corrections =
     ECEF -> optical frame is one 3x3 matrix (the frame graph's ``T_ecef_cam``), applied once
     instead of hop by hop, then the lens's ``project``: the same pixels to rounding (1e-16 of a
     unit vector, 1e-12 px), a third of the time."""
-    from geoloc.sensors.base import PixelHit, flag_outside
     from geoloc.sensors.frame import FrameSensor
 
     if (
@@ -559,7 +559,6 @@ def orthorectify(
     cv2 = require("cv2", "an orthophoto from a photo's pixels")
     import rasterio
 
-    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
     from geoloc.surfaces.terrain import DemSurface
 
     sensor = _as_sensor(sensor)

@@ -13,16 +13,19 @@ every project number is computed at run time. Conventions: ``docs/conventions.md
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from geoloc.analysis import montecarlo as mc
 from geoloc.analysis.errormodel import ErrorModel
-from geoloc.workflows.scenario import load_scenario
 from geoloc.assets import DEFAULT_CAMERA, DEFAULT_RECORDS, asset_path
+from geoloc.pipeline import Pipeline
 from geoloc.sensors.camera import camera_from_sensor
 from geoloc.sensors.sensor_file import load_sensor
+from geoloc.surfaces.base import LineOfSight, terrain_of
+from geoloc.workflows.scenario import load_scenario
 
 #: Bundled scenario of [Q17] Tables 1-2 (ellipsoid model).
 Q17_SCENARIO = ("scenarios", "qiao2017_table1.toml")
@@ -240,12 +243,9 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
     stops at |H - h_DEM| < t (the same height accuracy); both are compared with
     the exact first hit of :mod:`geoloc.surfaces.terrain`.
     """
-    import time
 
     from geoloc.geodesy.geodesic import horizontal_distance_m
     from geoloc.io.records import load_records
-    from geoloc.surfaces.base import terrain_of
-    from geoloc.pipeline import Pipeline
     from geoloc.surfaces.terrain import DemSurface, TerrainHit
     from geoloc.workflows.replay import records_line_of_sight
 
@@ -267,7 +267,6 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
     los_a = camera_from_sensor(dmodel.camera).chain_line_of_sight(pose, row, col, chain=chain)
     records = load_records(asset_path(*DEFAULT_RECORDS))
     los_b = records_line_of_sight(records, load_sensor(asset_path(*DEFAULT_CAMERA)))
-    from geoloc.surfaces.base import LineOfSight
 
     los = LineOfSight(
         np.concatenate([los_a.origin_ecef, los_b.origin_ecef]),

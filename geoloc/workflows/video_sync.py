@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from geoloc.analysis.time_offset import TimeOffsetFit, fit_time_offset, interpolate_pose_deg
+from geoloc.frames.chain import Pose
 
 __all__ = ["KlvPredictor", "klv_predictor", "frame_marks", "fit_klv_time_offset", "mark_offsets"]
 
@@ -61,7 +62,6 @@ class KlvPredictor:
         )
 
     def __call__(self, t_s) -> np.ndarray:
-        from geoloc.frames.chain import Pose
 
         t = np.atleast_1d(np.asarray(t_s, float))
         p = interpolate_pose_deg(self.times_s, self.pose_deg, t)
