@@ -594,7 +594,11 @@ def audit_flight(
         "platform height": np.isfinite(dh) if np.isfinite(dh).any() else np.isfinite(agl),
         "frame-centre height": np.isfinite(fc_dem),
         "frame centres": np.isfinite(h_over),
-        "pointing": np.isfinite(drow_c) & np.isfinite(dcol_c) if drow_c is not None else np.isfinite(misfit),
+        "pointing": (
+            np.isfinite(drow_c) & np.isfinite(dcol_c)
+            if drow_c is not None and dcol_c is not None
+            else np.isfinite(misfit)
+        ),
         "time": np.isfinite(misfit),
     }
     findings = [

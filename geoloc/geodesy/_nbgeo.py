@@ -196,8 +196,6 @@ if _CACHE_API:
             fd = _HELD.pop(path, None) if path is not None else None
             if fd is not None:
                 os.close(fd)  # closing the file releases its flock
-else:  # pragma: no cover
-    _KeyedFunctionCache = None
 
 
 #: Seconds a process waits for another one compiling the same kernel before it compiles it itself
