@@ -678,7 +678,7 @@ def _frame_centre_height(rep_h, dem_r, fc_dem, n_r, fixes, reported_name, checks
     terrain = _median(dem_r)
     # a flat earth: the heights themselves ~0 (ellipsoidal, or MSL 0 made ellipsoidal: N) over real terrain
     for zero, text in ((0.0, "h = 0 m"), (nbar, f"MSL 0 m (h = N = {nbar:+.1f} m)")):
-        if abs(h_med - zero) <= max(h_u, UNCERTAINTY_FLOOR_M) and abs(terrain - zero) > HEIGHT_FLOOR_M:
+        if abs(h_med - zero) <= max(h_u, UNCERTAINTY_FLOOR_M) and abs(terrain - zero) >= HEIGHT_FLOOR_M:
             return [
                 Finding(
                     "flat_earth_frame_centre",
