@@ -271,7 +271,8 @@ def test_view_export_is_quiet_honours_port_and_names_the_record(tmp_path, capfd,
     assert m, "the exported page carries the summary panel"
     panel = m.group(1)
     assert "T4-3" in panel and "to surveyed" in panel and "published error" in panel
-    assert re.search(r"<title>geoloc view: .*T4-3</title>", page)
+    # the title names the record by the frame's one name, its own label inside it
+    assert re.search(r"<title>geoloc view: .*: frame \d+ \([^)]*T4-3[^)]*\)</title>", page), page[:400]
 
 
 # ------------------------------------------------------------------ DEM half pixel

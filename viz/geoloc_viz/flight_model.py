@@ -918,7 +918,12 @@ def build(
         # surveyed truth (its heights left out: the DEM's under it are no report)
         has_rep = bool((np.isfinite(rep_lat) & np.isfinite(rep_lon)).any())
         audited = (rep_lat, rep_lon, rep_h) if has_rep else (t_lat, t_lon, np.full(n, np.nan))
-        model.audit = flight_audit(scn, pose, sensor, row, col, surface, audited, (lat_d[P], lon_d[P]), angles)
+        # under the same uncompiled budget as the footprints (_hit): the audit's 298 frame centres
+        # must not compile the walk before the first scene on a cold cache
+        from geoloc.surfaces.terrain_numba import uncompiled_budget
+
+        with uncompiled_budget():
+            model.audit = flight_audit(scn, pose, sensor, row, col, surface, audited, (lat_d[P], lon_d[P]), angles)
         model.faults = name_runs_by_audit(model.faults, model.audit)
     return model
 
