@@ -174,6 +174,10 @@ class KlvRead:
     packet : ndarray of int
         Each good packet's number in the file (0-based), bad packets counted: every
         packet the scanner found a key for is one, stray bytes are none.
+    time_back : list of str
+        The packets whose Precision Time Stamp (tag 2) goes back from the packet with a time
+        stamp before them: one line (their count and the first one's :attr:`Packet.time_back`),
+        or none.
     """
 
     source: str
@@ -182,6 +186,7 @@ class KlvRead:
     pts_s: np.ndarray
     packet: np.ndarray
     quirks: list = field(default_factory=list)
+    time_back: list = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.columns["offset"])
@@ -217,13 +222,49 @@ def _is_stray(e: KlvError) -> bool:
     return e.reason.endswith("are not a UAS LS packet")
 
 
+def _time_back_line(count: int, first: str | None) -> list[str]:
+    """One line for every packet whose time stamp goes back: the count and the first one's note
+    (as a quirk is reported: once per kind, never once per packet)."""
+    if not count:
+        return []
+    return [f"{count} packet{'s' if count != 1 else ''}, the first: {first}"]
+
+
+def _time_back_columns(cols: dict) -> list[str]:
+    """:func:`_time_back_line` of columns decoded from raw bytes that tile the file (every packet
+    good, so packet k of the file is row k - 1): the same note as
+    :func:`geoloc.io.klv._note_time_back` gives each packet, from one vectorised difference of the
+    time stamps (each against the packet with a time stamp before it)."""
+    t = cols.get("precision_time_stamp_us")
+    if t is None or len(t) < 2:
+        return []
+    has = np.flatnonzero(~np.isnan(t))
+    if len(has) < 2:
+        return []
+    ts = t[has]
+    back = np.flatnonzero(ts[1:] < ts[:-1])  # float64 holds the microseconds exactly (packets_to_columns)
+    if len(back) == 0:
+        return []
+    i, j = int(has[back[0] + 1]), int(has[back[0]])
+    off = cols["offset"]
+    first = (
+        f"packet {i + 1} (byte {int(off[i])}): Precision Time Stamp goes back "
+        f"{(int(t[j]) - int(t[i])) / 1e6:.6f} s from packet {j + 1} (byte {int(off[j])})"
+    )
+    return _time_back_line(len(back), first)
+
+
 def _from_results(results, source: str) -> KlvRead:
     packets, errors, number = [], [], []
     seq = 0
     tally = QuirkTally()
+    n_back, first_back = 0, None
     for r in results:
         if isinstance(r, Packet):
             tally.add(r)
+            if r.time_back:
+                n_back += 1
+                first_back = first_back or r.time_back
             packets.append(r)
             number.append(seq)
             seq += 1
@@ -232,7 +273,8 @@ def _from_results(results, source: str) -> KlvRead:
             seq += 0 if _is_stray(r) else 1
     cols = packets_to_columns(packets)
     pts_s = np.array([np.nan if p.time_s is None else p.time_s for p in packets], float)
-    return KlvRead(source, cols, errors, pts_s, np.array(number, np.int64), tally.lines())
+    number_ = np.array(number, np.int64)
+    return KlvRead(source, cols, errors, pts_s, number_, tally.lines(), _time_back_line(n_back, first_back))
 
 
 def read_klv(source, *, verify_checksum: bool = True, fast: bool = True, label: str | None = None) -> KlvRead:
@@ -282,7 +324,8 @@ def _read_bytes(data: bytes, source: str, verify: bool, fast: bool) -> KlvRead:
         cols = packets_to_columns(data, verify_checksum=verify, quirks=tally)
         if _tiles(data, cols["offset"]):
             m = len(cols["offset"])
-            return KlvRead(source, cols, [], np.full(m, np.nan), np.arange(m, dtype=np.int64), tally.lines())
+            pts_s, number = np.full(m, np.nan), np.arange(m, dtype=np.int64)
+            return KlvRead(source, cols, [], pts_s, number, tally.lines(), _time_back_columns(cols))
     return _from_results(iter_packets(data, verify_checksum=verify), source)
 
 
@@ -423,6 +466,8 @@ class KlvSummary:
     plausibility_warnings: list = field(default_factory=list)
     #: The writer's quirks that left the values unambiguous: one line per kind (count, first offset).
     quirks: list = field(default_factory=list)
+    #: The packets whose Precision Time Stamp goes back: one line (count, the first one's note) or none.
+    time_back: list = field(default_factory=list)
 
     def __str__(self) -> str:
         L = [f"{self.source}: {self.packets} packets read, {len(self.errors)} bad packet(s) skipped"]
@@ -432,6 +477,8 @@ class KlvSummary:
             L.append(f"  ... and {len(self.errors) - 20} more bad packets")
         for q in self.quirks:
             L.append(f"  quirk: {q}")
+        for q in self.time_back:  # kept and located in file order; the user is told where the clock went back
+            L.append(f"  time goes back: {q}")
         L.append(f"  surface: {self.surface}")
         L.append("  sensor height: " + _counts(self.sensor_h_sources))
         L.append("  reported frame-centre height: " + _counts(self.reported_h_sources))
@@ -1287,6 +1334,7 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         notes=summ_notes,
         plausibility_warnings=plaus,
         quirks=list(read.quirks),
+        time_back=list(read.time_back),
     )
     return KlvReplay(cols, list(read.errors), summary, sens)
 

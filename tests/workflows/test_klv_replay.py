@@ -398,6 +398,39 @@ def test_fast_and_packet_by_packet_reads_agree():
         assert np.array_equal(a.columns[k], b.columns[k], equal_nan=a.columns[k].dtype.kind == "f"), k
 
 
+def test_replay_names_where_the_clock_goes_back_on_both_reads(tmp_path):
+    # seconds after T0: one step back of 0.25 s (packet 4), then a clock that restarts 10 s back
+    # (packet 6): every packet is kept and located in file order, and the summary says once how many
+    # went back and where the first did, whichever read the bytes took (the columnar fast path that
+    # tiles the file, or packet by packet)
+    sec = [0.0, 1.0, 2.0, 1.75, 3.0, -7.0, -6.0]
+    packets = []
+    for i, x in enumerate(sec):
+        f = with_oracle(pose_fields(36.6, -84.25, 2500.0, 7.0 * i, 45.0, -50.0, i=i))[0]
+        f["precision_time_stamp_us"] = T0 + round(x * 1e6)
+        packets.append(f)
+    blobs = [encode_packet(f) for f in packets]
+    offsets = np.concatenate([[0], np.cumsum([len(b) for b in blobs])[:-1]]).tolist()
+    want = [
+        f"2 packets, the first: packet 4 (byte {offsets[3]}): Precision Time Stamp goes back 0.250000 s "
+        f"from packet 3 (byte {offsets[2]})"
+    ]
+    data = b"".join(blobs)
+    for fast in (True, False):
+        r = replay_klv(data, fast=fast)
+        assert list(r.columns["status"]) == [Status.OK] * len(sec), fast
+        assert r.summary.time_back == want, (fast, r.summary.time_back)
+        assert f"  time goes back: {want[0]}" in str(r.summary).splitlines()
+    # a clock that only runs forward says nothing
+    assert replay_klv(stream(packets[:3])).summary.time_back == []
+    # the command line prints the same line in its summary
+    path = tmp_path / "back.klv"
+    path.write_bytes(data)
+    cli = run_cli("replay", str(path), "--out", str(tmp_path / "back.csv"))
+    assert cli.returncode == 0, cli.stderr
+    assert f"  time goes back: {want[0]}" in cli.stdout.splitlines(), cli.stdout
+
+
 def test_missing_tags_named_and_the_good_packets_run():
     base = [with_oracle(pose_fields(36.6, -84.25, 2500.0, 20.0, 90.0, -35.0, i=i))[0] for i in range(6)]
     del base[1]["sensor_latitude_deg"]
