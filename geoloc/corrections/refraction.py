@@ -56,7 +56,12 @@ nodes a panel) is within 1e-6 of the shift of a 64-node one (the floor is the ta
 linear interpolation). The model's own limits: the standard atmosphere is a yearly
 mid-latitude mean (the real refraction differs by the weather: 1 % per 3 K or per 10 hPa at the ground, more near
 the horizon), and the Earth's curvature is taken as that of the osculating sphere at
-the hit (1 mm of height within 60 km of it).
+the hit (1 mm of height within 60 km of it). A long look up is anchored at the camera, where
+the air that bends it is: the direction it leaves the air in is within 0.05-0.23 microradians
+of the trace's (from sea level 2-3 degrees up to 100 km, 850-930 km away), but its *point* at
+a far height is not held to millimetres there: 36-190 m off the trace at 430-930 km out and
+30-100 km up (the osculating sphere's radius is then far from the ellipsoid's along the path).
+Within 26 km of the camera it is millimetres (above).
 """
 
 from __future__ import annotations
