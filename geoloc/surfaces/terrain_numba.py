@@ -31,8 +31,9 @@ The helpers (:func:`_par_exit`, :func:`_mer_exit`, :func:`_tri`, ...) are ordina
 functions, not ``inline="always"``: numba's IR inlining put a copy of each into the walk's
 own IR before type inference, and the walk's first compile took 41-55 s of CPU and 1 GB
 (most of it numba's passes over that IR: SSA, rewrites, typing; LLVM 5 %); called, LLVM
-inlines them at the machine-code level all the same, and the first compile of the flat
-walk is 12-14 s and under 400 MB (``benchmarks/bench_first_run.py``: a cold first call is what a
+inlines the small ones at the machine-code level (:func:`_mer_exit`, :func:`_tri`, the skip
+test; :func:`_par_exit`, :func:`_cell_triangles` and :func:`_geodetic_near` stay calls in the
+flat triangle walk's assembly), and the first compile of the flat walk is 12-14 s and under 400 MB (``benchmarks/bench_first_run.py``: a cold first call is what a
 user of ``geoloc locate --dem`` waits for). Measured
 against the inlined walk (crop, 10 000 rays, one thread, 21 calls in turn, a loaded
 machine): 0.95-1.02 of its time; the triangles' hits and statuses equal bit for bit, the
