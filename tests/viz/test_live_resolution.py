@@ -119,9 +119,9 @@ def test_a_sender_that_changes_its_resolution_is_counted_in_the_panel(tmp_path):
             10,
             "the stream panel to report the change",
         )
-        # the picture layer showed pictures of both sizes (decoded 480 wide: 480 x 360, then 480 x 272),
-        # following the stream and scrubbed back
-        assert {(360, 480), (272, 480)} <= shapes, shapes
+        # the picture layer showed pictures of both sizes (each at the video's own size: 320 x 240, then
+        # 480 x 272), following the stream and scrubbed back
+        assert {(240, 320), (272, 480)} <= shapes, shapes
         # every frame located, before and after the change
         assert np.isfinite(tab.layer.model.residual_m).sum() == n
     finally:

@@ -34,7 +34,8 @@ pytestmark = [pytest.mark.browser]
 
 
 def _packet_on_page(page) -> int | None:
-    m = re.search(r"packet (\d+)\*?\*? \(frame", page.locator("body").inner_text())
+    # the first frame name on the page is the Live folder's (the top folder): "frame I of 0 .. N (t T s, packet P)"
+    m = re.search(r"frame \d+ of 0 \.\. \d+ \(t [0-9.]+ s, packet (\d+)\)", page.locator("body").inner_text())
     return int(m.group(1)) if m else None
 
 
@@ -91,7 +92,7 @@ def test_live_debugger_follows_the_flight_in_chromium(tmp_path):
                 window.__first = null; window.__debugger = null;
                 new MutationObserver(() => {
                     const t = document.body.textContent;
-                    if (window.__first === null && /\(frame \d+ of \d+\)/.test(t)) window.__first = Date.now();
+                    if (window.__first === null && /frame \d+ of 0 \.\. \d+ \(/.test(t)) window.__first = Date.now();
                     if (window.__debugger === null && /slant range [\d.]+ km/.test(t)) window.__debugger = Date.now();
                 }).observe(document.body, {subtree: true, childList: true, characterData: true});
             }""")

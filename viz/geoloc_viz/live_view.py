@@ -35,6 +35,7 @@ import sys
 import threading
 import time
 from collections import deque
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -47,9 +48,11 @@ DRAW_S = 1.0
 #: ... and the latest frame loaded (its chain, iterations, picture) at most this often [s]: a browser
 #: drawing in software WebGL on a busy machine falls minutes behind a stream it is sent every frame of
 FOLLOW_S = 1.0
-#: Decoded pictures kept (the newest), and their width [pixels].
+#: Decoded pictures kept (the newest): at most this many, and at most this many bytes. Each is kept at
+#: the video's own size, the grid every pixel of the debugger is in (:meth:`LiveFlight.update`):
+#: a 640 x 360 stream keeps 64 (44 MB), a 1920 x 1080 one 21 (about 130 MB).
 PICTURES = 64
-PICTURE_WIDTH = 480
+PICTURE_BYTES = 128 * 2**20
 #: A frame's picture is the kept one nearest its time stamp within this [s] (else none: scrubbed
 #: back beyond the pictures kept). A sender that restarts repeats its time stamps: a frame of an
 #: earlier pass can then get the picture of the same time stamp of the newest pass.
@@ -122,7 +125,8 @@ class LiveFeed:
         self._thread: threading.Thread | None = None
         self._decoder = None
         self._video_done = 0
-        self.pictures: deque = deque(maxlen=PICTURES)  # (serial, pts [90 kHz], RGB uint8 array)
+        self.pictures: deque = deque()  # (serial, pts [90 kHz], RGB uint8 array), PICTURES / PICTURE_BYTES at most
+        self._picture_bytes = 0
         self.pictures_total = 0
         #: (width, height) of the last decoded picture, the changes of it seen, and access units the
         #: decoder refused (a sender that changes its resolution; a broken unit: the next key frame recovers)
@@ -231,14 +235,20 @@ class LiveFeed:
                         if self.video_size is not None and size != self.video_size:
                             self.resolution_changes += 1
                         self.video_size = size
-                        w = PICTURE_WIDTH
-                        h = max(2, round(fr.height * w / max(fr.width, 1)) // 2 * 2)
-                        img = fr.to_ndarray(format="rgb24", width=w, height=h)
-                        self.pictures.append((self.pictures_total, fr.pts if fr.pts is not None else pts, img))
+                        img = fr.to_ndarray(format="rgb24")  # the video's own pixels: no resampling
+                        self._keep((self.pictures_total, fr.pts if fr.pts is not None else pts, img))
                         self.pictures_total += 1
         except (av.error.FFmpegError, ValueError) as e:  # a broken access unit: the next key frame recovers
             self.decode_errors += 1
             self._decoder = None if "codec" in str(e).lower() else self._decoder
+
+    def _keep(self, picture) -> None:
+        """Keep a decoded picture, dropping the oldest beyond :data:`PICTURES` or :data:`PICTURE_BYTES`
+        (the newest always kept). Called on the feed's thread only: readers copy the deque."""
+        self.pictures.append(picture)
+        self._picture_bytes += picture[2].nbytes
+        while len(self.pictures) > 1 and (len(self.pictures) > PICTURES or self._picture_bytes > PICTURE_BYTES):
+            self._picture_bytes -= self.pictures.popleft()[2].nbytes
 
     def video_markdown(self) -> str:
         """The picture decoder's line of the stream panel ('' without video)."""
@@ -291,8 +301,8 @@ class LiveImages:
     """A feed's decoded pictures as an image source (:class:`geoloc.io.images.ImageSource`) for the
     picture layer: image ``k`` is the ``k``-th picture decoded since the start (only the newest
     :data:`PICTURES` are kept: an older ``k`` gives the oldest kept); their times are the stream's
-    presentation times [s]. ``rows`` / ``cols`` are the newest picture's (decoded at
-    :data:`PICTURE_WIDTH` wide; the picture layer scales the lens to each image's own size)."""
+    presentation times [s]. ``rows`` / ``cols`` are the newest picture's (the video's own size; after
+    a change of resolution the picture layer scales the lens to each image's own size)."""
 
     def __init__(self, feed: LiveFeed):
         self.feed = feed
@@ -362,6 +372,9 @@ class LiveFlight:
         self.dropped = 0  # frames dropped off the window's start since the start
         self.first_frame_s: float | None = None  # time.monotonic() when the first frame was modelled
         self.last_build_s = float("nan")
+        #: (rows, cols) of the video's own pixel grid, the one every pixel of the debugger is in: fixed by
+        #: the first decoded picture (None before it, and without video: the sensor's grid then)
+        self.grid: tuple | None = None
         self._lock = threading.RLock()
 
     def __len__(self) -> int:
@@ -404,9 +417,32 @@ class LiveFlight:
             terrain_link.attach_dem(scn, self.dem_path, strict=self.dem_path is not None)
         else:
             scn.dem_name = "none (no DEM): ellipsoid at each packet's frame-centre height"
+        if self.grid is not None:
+            from geoloc_viz.model import use_image_grid
+
+            use_image_grid(scn, *self.grid)
         if self.feed.decode_video:
             scn.images = LiveImages(self.feed)
         return scn
+
+    def _take_grid(self) -> None:
+        """Fix the pixel grid at the first decoded picture's size, once. A MISB ST 0601 stream names no
+        image size: its sensor is made on a nominal grid (:func:`geoloc.workflows.klv_replay.klv_sensor`),
+        converted here to the video's own (:func:`geoloc_viz.model.use_image_grid`, the rule of
+        ``geoloc view FILE.ts``). Frames that came before the first picture move to it now."""
+        size = self.feed.video_size if self.feed.decode_video else None
+        if self.grid is not None or size is None:
+            return
+        from geoloc_viz.model import records_in_grid, use_image_grid
+
+        cols, rows = size
+        with self._lock:
+            self.grid = (int(rows), int(cols))
+            if self.base is not None:
+                nominal = (self.base.camera.rows, self.base.camera.cols)
+                use_image_grid(self.base, *self.grid)
+                self.records = records_in_grid(self.records, nominal, self.grid)
+                self.version += 1  # the tabs take the moved frames (LiveTab._grow)
 
     def update(self) -> bool:
         """Take the feed's new batches into the window and the model; True when frames came."""
@@ -418,7 +454,8 @@ class LiveFlight:
             return False
         keys = [k for k in batches[0] if all(k in b for b in batches)]
         c = {k: np.concatenate([np.asarray(b[k]) for b in batches]) for k in keys}
-        recs, kept = records_from_columns(c, self.feed.sensor)
+        self._take_grid()
+        recs, kept = records_from_columns(c, self.feed.sensor)  # on the sensor's own (nominal) grid
         if not recs:
             return False
         kept = np.asarray(kept, int)
@@ -433,7 +470,11 @@ class LiveFlight:
         t0 = time.perf_counter()
         with self._lock:
             if self.base is None:
-                self.base = self._scenario(recs)
+                self.base = self._scenario(recs)  # its sensor and records put in the video's grid
+            if self.grid is not None:  # the new frames' pixels converted once, as they arrive
+                from geoloc_viz.model import records_in_grid
+
+                recs = records_in_grid(recs, (self.feed.sensor.rows, self.feed.sensor.cols), self.grid)
             new_scn = copy.copy(self.base)
             new_scn.records = recs
             # no audit per batch: a convention shows over a flight, not over a few new frames
@@ -472,16 +513,19 @@ class LiveFlight:
             return scn
 
     def frame_text(self, idx: int) -> str:
-        """The Live folder's line for frame ``idx``: its packet, time, the replay's recomputed centre
-        and its agreement with the packet's own, the nearest video frame."""
+        """The Live folder's line for frame ``idx``: its one name (:func:`geoloc_viz.model.frame_name`:
+        the timeline's index, the time, the packet, as every panel names it), the packet's UTC time,
+        the replay's recomputed centre and its agreement with the packet's own, the video frame's time."""
         from geoloc.status import names
+        from geoloc_viz.model import frame_name
 
         c = self.rows
         f = lambda v, spec: "n/a" if v is None or not np.isfinite(float(v)) else format(float(v), spec)  # noqa: E731
         st = names(np.asarray([c["status"][idx]]))[0]
+        name = frame_name(SimpleNamespace(records=self.records, record_times_s=self.times_s), idx)
         text = (
-            f"**packet {int(c['packet'][idx])}** (frame {idx + 1} of {len(self.records)}), "
-            f"{c['time_utc'][idx]}, pts {f(c['pts_s'][idx], '.3f')} s  \nrecomputed frame centre "
+            f"**{name}**, {c['time_utc'][idx]}, KLV packet at pts {f(c['pts_s'][idx], '.3f')} s  \n"
+            "recomputed frame centre "
             f"{f(c['lat_deg'][idx], '.6f')}, {f(c['lon_deg'][idx], '.6f')}, h {f(c['h_m'][idx], '.1f')} m "
             f"(ellipsoidal), {st}; vs the packet's own: {f(c['frame_center_error_m'][idx], '.2f')} m"
             + (" **outlier** (causal)" if c["outlier"][idx] else "")
@@ -674,6 +718,10 @@ class LiveTab:
             keep = n - 1 if self.following or cur < 0 else int(np.clip(cur - shift, 0, n - 1))
             scn = s.scn
             scn.records = list(fl.records)
+            # the first picture came after the session was built: its frames moved to the video's grid
+            regrid = scn.camera is not fl.base.camera
+            if regrid:
+                scn.camera, scn.pixel_grid = fl.base.camera, getattr(fl.base, "pixel_grid", None)
             scn.frame_fov_deg = fl.fov_deg.copy()
             scn.record_times_s = fl.times_s.copy()
             if scn.record_index is not None:
@@ -706,6 +754,8 @@ class LiveTab:
         # has (its index shifted with the window); a person's step that raced this one ends after it
         if self.following:  # the newest frame with the new window (not a second later)
             self._follow(force=True)
+        elif regrid and s.scn.record_index is not None:  # the frame shown, its pixel in the new grid
+            s.load_record(s.scn.record_index, move_camera=False)
 
     def _follow(self, force: bool = False) -> None:
         """On the latest frame while following: its full chain, the highlight, the picture, the text."""

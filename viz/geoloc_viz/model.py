@@ -268,6 +268,26 @@ def pixel_to_grid(rc, from_size: int, to_size: int):
     return 0.5 + (np.asarray(rc, float) - 0.5) * (float(to_size) / float(from_size))
 
 
+def sensor_in_grid(sensor, rows: int, cols: int):
+    """``sensor`` on a ``rows`` x ``cols`` grid: its lens resampled
+    (:func:`geoloc.io.photos.scale_lens`: the same rays through the same image edges)."""
+    from geoloc.io.photos import scale_lens
+
+    if (sensor.rows, sensor.cols) == (int(rows), int(cols)):
+        return sensor
+    return dataclasses.replace(sensor, lens=scale_lens(sensor.lens, int(cols), int(rows)))
+
+
+def records_in_grid(records, from_rc: tuple, to_rc: tuple) -> list:
+    """Records ``[(info, Inputs)]`` whose pixels are on a ``from_rc`` (rows, cols) grid, moved to the
+    ``to_rc`` grid of the same image (:func:`pixel_to_grid` per axis); new Inputs, the same infos."""
+    (r0, c0), (r1, c1) = from_rc, to_rc
+    return [
+        (info, inp.replace(row=float(pixel_to_grid(inp.row, r0, r1)), col=float(pixel_to_grid(inp.col, c0, c1))))
+        for info, inp in records
+    ]
+
+
 def use_image_grid(scn, rows: int, cols: int) -> bool:
     """Put the scenario's pixels in the grid of its images (``rows`` x ``cols``), once, at load.
 
@@ -282,18 +302,9 @@ def use_image_grid(scn, rows: int, cols: int) -> bool:
     if (cam.rows, cam.cols) == (rows, cols):
         scn.pixel_grid = f"the image's own grid, {cols} x {rows} px"
         return False
-    from geoloc.io.photos import scale_lens
-
     r0, c0 = cam.rows, cam.cols
-    scn.camera = dataclasses.replace(cam, lens=scale_lens(cam.lens, cols, rows))
-    recs = []
-    for info, inp in scn.records:
-        recs.append(
-            (
-                info,
-                inp.replace(row=float(pixel_to_grid(inp.row, r0, rows)), col=float(pixel_to_grid(inp.col, c0, cols))),
-            )
-        )
+    scn.camera = sensor_in_grid(cam, rows, cols)
+    recs = records_in_grid(scn.records, (r0, c0), (rows, cols))
     scn.records = recs
     if scn.record_index is not None:
         scn.inputs = recs[scn.record_index][1].replace()
