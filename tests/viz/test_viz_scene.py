@@ -94,9 +94,34 @@ def test_default_scene_has_every_element(app):
         "/record/error",
         "/origin",
         "/scale_bar",
-    ] + [f"/frames/{f}{s}" for f in ("ned", "body", "gimbal_outer", "cam") for s in ("", "/label")]:
+    ] + [f"/frames/{f}" for f in ("ned", "body", "gimbal_outer", "cam")]:
         assert n in names, n
     assert app.error == ""
+
+
+def test_frame_labels_show_in_the_teaching_view_only(app):
+    """[Q17]'s 20 records are a flight: its first view has no frame name labels at the aircraft (seven
+    of them covered the flight); the teaching panel's row shown brings them, hiding it removes them."""
+    frames = ("ned", "body", "gimbal_outer", "cam")
+    scene = app.server.scene
+
+    def labels():
+        return {f for f in frames if scene.get_handle_by_name(f"/enu/frames/{f}/label") is not None}
+
+    tp = next(x for x in app.layers if hasattr(x, "flight_view"))  # the teaching panel
+    assert tp.flight_view and not tp.cb_show.value
+    assert labels() == set()
+    tp.cb_show.value = True
+    assert labels() == set(frames)
+    assert scene.get_handle_by_name("/enu/frames/cam/label").text == "camera: Z = line of sight"
+    tp.cb_show.value = False
+    assert labels() == set()
+    # the origin's axes say what they are: the scene's ENU origin (at the scene's (0, 0, 0), which the
+    # summary places), which colour is which axis
+    lab = scene.get_handle_by_name("/enu/origin/label")
+    assert lab.visible and lab.text == "ENU origin: E red, N green, U blue"
+    assert np.allclose(scene.get_handle_by_name("/enu/origin").position, 0.0)
+    assert "scene: local East-North-Up, origin " in app.md_summary.content
 
 
 def test_hit_marker_at_the_terrain_hit_in_pyproj_enu(app):
@@ -209,6 +234,8 @@ def test_teaching_panel_shows_the_core_matrices_and_highlights(app):
         "T_gimbal_outer_gimbal_inner",
         "T_gimbal_inner_cam",
     ]
+    # the teaching view (the teaching panel's row shown): the frames carry their name labels
+    next(x for x in app.layers if hasattr(x, "flight_view")).cb_show.value = True
     for hop in chain.hops:
         app.dd_hop.value = hop.name
         text = app.md_hop.content

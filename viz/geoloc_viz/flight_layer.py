@@ -136,6 +136,10 @@ class FlightLayer:
         self._enu_key = None
         self.last_step_s = float("nan")
         self.handles = {}
+        # a flight's view: no frame name labels at the aircraft (the teaching view shows them)
+        view = getattr(session, "view", None)
+        if view is not None and hasattr(view, "set_frame_labels"):
+            view.set_frame_labels(False)
         self._draw()
         self._build_gui()
         self._follow_session()

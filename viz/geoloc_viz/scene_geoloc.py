@@ -82,6 +82,12 @@ COLORS = {
 }
 
 
+def origin_label(enu) -> str:
+    """The label of the scene's origin axes: what they are and which colour is which axis (where it is:
+    the summary's "scene" line, to 0.001 deg and 100 m)."""
+    return "ENU origin: E red, N green, U blue"
+
+
 @dataclass
 class Display:
     """Display-only settings (no effect on the geometry)."""
@@ -95,6 +101,9 @@ class Display:
     terrain_visible: bool = True
     highlight: str | None = None  # frame highlighted by the teaching panel
     marker_labels: bool = False  # labels of the hit markers (they overlap at the default zoom)
+    #: the frames' name labels at the aircraft ("NED: N", "camera: Z = line of sight", ...): they teach
+    #: the chain, so they show in the teaching view; a flight's view hides them (GeolocScene.set_frame_labels)
+    frame_labels: bool = True
 
     def z(self, p) -> np.ndarray:
         """Scene position (km) of ENU points (..., 3) [m]: Up multiplied by the exaggeration."""
@@ -254,13 +263,9 @@ class GeolocScene:
         W = WORLD_SCALE
         s.add_frame(ROOT, show_axes=False)
         s.add_frame("/enu/origin", axes_length=600.0 * W, axes_radius=25.0 * W, origin_radius=60.0 * W)
-        s.add_label(
-            "/enu/origin/label",
-            "ENU origin",
-            position=(0.0, 0.0, 0.0),
-            anchor="top-right",
-            visible=self.disp.marker_labels,
-        )
+        # the origin is the scene's East-North-Up origin (EnuFrame.scene_origin: the record's published or
+        # reported point rounded to 0.001 deg and 100 m), so its axes sit by the target: the label says what they are
+        s.add_label("/enu/origin/label", origin_label(self.scn.enu), position=(0.0, 0.0, 0.0), anchor="top-right")
         if self.scn.dem is None:  # a 1 km grid on the origin's level when there is no terrain
             s.add_grid(
                 "/enu/grid",
@@ -303,6 +308,52 @@ class GeolocScene:
         self.handles["aircraft_label"] = s.add_label(
             "/enu/aircraft/label", self.aircraft_label(), position=(0.0, 0.0, 0.0), anchor="bottom-left"
         )
+
+    def _draw_frames(self, g: Geometry) -> None:
+        """The frames at the aircraft (NED, body, gimbal joints, camera), each with its name label while
+        :attr:`Display.frame_labels` (a node re-created when its length, highlight or label changes)."""
+        d, s = self.disp, self.scene
+        for index, (name, f) in enumerate(g.frames.items()):
+            big = d.highlight == name
+            length, text, label_axis = frame_style(name, index)
+            L = length * d.aircraft_scale * (1.4 if big else 1.0) * WORLD_SCALE
+            labelled = d.frame_labels
+            key = (L, big, labelled)
+            fh = self._alive(f"/enu/frames/{name}", key)
+            if fh is None:
+                fh = s.add_frame(
+                    f"/enu/frames/{name}",
+                    axes_length=L,
+                    axes_radius=L * (0.05 if big else 0.02),
+                    origin_radius=L * 0.04,
+                    position=d.z(f.origin_enu),
+                    wxyz=wxyz(f.R_enu_frame),
+                    visible=d.frames_visible.get(name, True),
+                )
+                self._cache[f"/enu/frames/{name}"] = (fh, key)
+            else:
+                fh.position = d.z(f.origin_enu)
+                fh.wxyz = wxyz(f.R_enu_frame)
+                fh.visible = d.frames_visible.get(name, True)
+                continue
+            tip = np.zeros(3)
+            tip[label_axis] = L * 1.05
+            if labelled:
+                s.add_label(
+                    f"/enu/frames/{name}/label", ("> " if big else "") + text, position=tip, anchor="center-left"
+                )
+            else:
+                s.remove_by_name(f"/enu/frames/{name}/label")
+
+    def set_frame_labels(self, visible: bool) -> None:
+        """Show or remove the frames' name labels (:attr:`Display.frame_labels`): the teaching view shows
+        them; a flight's view does not, where seven labels at the aircraft covered the flight. Removed,
+        not hidden: the label layout re-shows labels it hid itself."""
+        if bool(visible) == self.disp.frame_labels:
+            return
+        self.disp.frame_labels = bool(visible)
+        if self.geometry is not None:
+            self._draw_frames(self.geometry)
 
     def aircraft_label(self) -> str:
         """The aircraft's label: it is drawn larger than life, by the display scale."""
@@ -422,31 +473,7 @@ class GeolocScene:
         if self.terrain_handle is not None:
             self.terrain_handle.scale = self._terrain_scale()
             self.terrain_handle.visible = d.terrain_visible
-        for index, (name, f) in enumerate(g.frames.items()):
-            big = d.highlight == name
-            length, text, label_axis = frame_style(name, index)
-            L = length * d.aircraft_scale * (1.4 if big else 1.0) * WORLD_SCALE
-            key = (L, big)
-            fh = self._alive(f"/enu/frames/{name}", key)
-            if fh is None:
-                fh = s.add_frame(
-                    f"/enu/frames/{name}",
-                    axes_length=L,
-                    axes_radius=L * (0.05 if big else 0.02),
-                    origin_radius=L * 0.04,
-                    position=d.z(f.origin_enu),
-                    wxyz=wxyz(f.R_enu_frame),
-                    visible=d.frames_visible.get(name, True),
-                )
-                self._cache[f"/enu/frames/{name}"] = (fh, key)
-            else:
-                fh.position = d.z(f.origin_enu)
-                fh.wxyz = wxyz(f.R_enu_frame)
-                fh.visible = d.frames_visible.get(name, True)
-                continue
-            tip = np.zeros(3)
-            tip[label_axis] = L * 1.05
-            s.add_label(f"/enu/frames/{name}/label", ("> " if big else "") + text, position=tip, anchor="center-left")
+        self._draw_frames(g)
         # Line of sight: aircraft -> answer, then faintly on to the end of its usefulness.
         ok = np.all(np.isfinite(g.hit_enu))
         end = g.hit_enu if ok else g.aircraft_enu + 40e3 * g.los_dir_enu

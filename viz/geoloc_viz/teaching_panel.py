@@ -306,6 +306,9 @@ class TeachingPanel:
         pos, globe, _ = self.layout(chain)
         aircraft = disp.z(enu.from_ecef(chain.T_ecef("body")[:3, 3]))
         show = bool(self.cb_show.value)
+        # the frames' name labels at the aircraft are the teaching view's: shown with the row, or in a lesson
+        if hasattr(s.view, "set_frame_labels"):
+            s.view.set_frame_labels(show or not self.flight_view)
 
         def place_root(h):
             h.position = aircraft
