@@ -428,7 +428,7 @@ def test_choosing_an_outlier_moves_the_browser_camera(tmp_path):
 
 def _pink(img):
     """Pixels of the current error vector's colour (255, 90, 200): red > 225, green 50-150, blue 150-245.
-    Not the red (255, 60, 60) or violet (180, 80, 255) markers, the magenta highlight (green 0), the
+    Not the red (255, 40, 40) or violet (180, 80, 255) markers, the magenta highlight (green 0), the
     other frames' mauve error vectors (165, 95, 145) or the terrain (flight_layer.COLORS)."""
     r, g, b = (img[..., k].astype(int) for k in range(3))
     return (r > 225) & (g > 50) & (g < 150) & (b > 150) & (b < 245)

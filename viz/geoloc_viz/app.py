@@ -132,23 +132,6 @@ DEFAULT_LAYERS = (
     label_layout.attach,
 )
 METHOD_NAMES = {"steps": "descending steps [Q17]", "bisect": "bisection [L23]", "exact": "exact first hit (cell walk)"}
-LEGEND = """\
-- **red** ball: the chosen method's answer; **green**: the exact first hit;
-  **light blue**: the ellipsoid hit at H_max (where [Q17]'s steps start)
-- **yellow** line: line of sight; **orange**: image footprint (corner rays)
-- iterations: dots on the line of sight at H_n with a segment to the DEM
-  height h_n below, **blue** if H_n - h_n > 0 (above the terrain), **red** below;
-  **cyan**: bisection brackets
-- **violet**: published position [Q17]; **white**: surveyed; **pink**: error
-  vector computed -> surveyed, at true length unless "error vector drawn x"
-  enlarges it (its label then says the factor, e.g. x10)
-- the aircraft is drawn larger than life by the "aircraft display scale"
-  factor (a 15 m aircraft is a speck at 20 km); frames scale with it
-- frames at the aircraft: axes x red, y green, z blue; NED largest, then body,
-  outer gimbal, camera (Z = optical axis)
-- scene: East-North-Up at the target, world unit km; zoom with the wheel,
-  rotate with the left button, pan with the right
-"""
 
 
 def dem_cell_m(dem) -> float:
@@ -205,7 +188,8 @@ def legend_markdown(scn) -> str:
     L = [
         "- **red** ball: the chosen method's answer; **green**: the exact first hit; **light blue**: "
         "the ellipsoid hit at H_max (where [Q17]'s steps start)",
-        "- **yellow** line: line of sight; **orange**: image footprint (corner rays)",
+        "- **yellow** line: line of sight (also one target's lines of sight from several frames, Picture "
+        "folder); **orange**: image footprint (corner rays)",
         "- iterations: dots on the line of sight at H_n with a segment to the DEM height h_n below, "
         "**blue** if H_n - h_n > 0 (above the terrain), **red** below; **cyan**: bisection brackets",
     ]
@@ -224,10 +208,15 @@ def legend_markdown(scn) -> str:
         'true size unless "ellipse drawn x" enlarges it (its label then says the factor, e.g. x10)'
     )
     L.append(
-        '- **lime** line (with refraction on, "Refraction" folder): the bent ray from the camera to '
+        '- **spring green** line (with refraction on, "Refraction" folder): the bent ray from the camera to '
         "the located point, beside the straight line of sight (yellow, then ending at its own hit); its "
         'offset drawn at true size unless "bent ray drawn x" enlarges it (its label then says x100)'
     )
+    if getattr(scn, "images", None) is not None:
+        L.append(
+            "- picks (Picture folder): **lime** a picked pixel's ray and ground point; **indigo** a picked "
+            "terrain point (dimmed: hidden from the camera)"
+        )
     L += [
         '- the aircraft is drawn larger than life by the "aircraft display scale" factor; frames scale with it',
         f"- frames at the aircraft, largest first: {names}; axes x red, y green, z blue",
@@ -236,9 +225,9 @@ def legend_markdown(scn) -> str:
     ]
     if len(recs) > 1:
         L.append(
-            "- flight (every frame): **blue** track (flagged runs thick **red**, labelled with their "
-            "fault); footprints **orange** (outliers **red**), the current one **magenta**; points "
-            "**violet** / **red** / **white**: reported / recomputed / truth; **mauve**: every "
+            "- flight (every frame): **blue** track; **dark red**: flagged, the outliers' footprints and the "
+            "runs (thick, labelled with their fault); footprints **orange**, the current one **magenta**; "
+            "points **violet** / **red** / **white**: reported / recomputed (the answer) / truth; **mauve**: every "
             "frame's error vector; **bright pink**: the current frame's, labelled with its length"
         )
     return "\n".join(L) + "\n"

@@ -42,11 +42,13 @@ ROOT = "/flight"
 COLORS = {
     "track": (90, 200, 255),
     "footprint": (205, 150, 70),
-    "footprint_outlier": (235, 50, 50),
+    # flagged (outlier footprints, fault runs): a darker red than the recomputed point's, which is the
+    # method's answer of the frame scene (scene_geoloc.COLORS["result"]): one colour per meaning
+    "footprint_outlier": (190, 0, 40),
     "current": (255, 0, 255),
     "centre": (255, 230, 120),
     "reported": (180, 80, 255),
-    "recomputed": (255, 60, 60),
+    "recomputed": (255, 40, 40),
     "truth": (255, 255, 255),
     "error": (255, 90, 200),
     # every frame's error vector: a dimmer mauve than the current frame's bright pink one, so the

@@ -73,14 +73,17 @@ MAX_PICKS = 20
 #: RGB colours of the marks (the same in the scene and in the image).
 COLORS = {
     "pick": (170, 255, 0),
-    "ground": (255, 140, 0),
-    "ground_hidden": (255, 40, 40),
+    # the picked terrain point: indigo, a colour of its own (it was the orange of the footprints, and its
+    # hidden state the red of the method's answer); hidden behind terrain from the camera: the same, dimmed
+    "ground": (90, 30, 255),
+    "ground_hidden": (60, 40, 140),
     "truth": (255, 255, 255),
     "target": (255, 255, 255),
     "reported": (180, 80, 255),
-    "recomputed": (255, 60, 60),
+    "recomputed": (255, 40, 40),  # the method's answer: scene_geoloc.COLORS["result"]
     "horizon": (0, 230, 230),
-    "target_rays": (255, 215, 0),  # one target's rays from several frames and their intersection
+    # one target's rays from several frames and their intersection: lines of sight, the scene's yellow
+    "target_rays": (255, 210, 0),
     "residual": (255, 60, 160),  # each ray's residual, ray to the triangulated point
     "target_ellipse": (0, 200, 170),  # the triangulated point's 90 % ellipse: uncertainty_layer.COLOR (teal)
 }
@@ -253,9 +256,10 @@ class ImageLayer:
         with g.add_folder("Picture", order=order):
             self.md_legend = g.add_markdown(
                 "Click the image to locate a pixel; click the terrain to find its pixel. Marks: "
-                "**lime** +: picked pixel; **orange** o: picked terrain point; **white** x: surveyed truth "
+                "**lime** +: picked pixel; **indigo** o: picked terrain point (dimmed: hidden from the camera); "
+                "**white** x: surveyed truth "
                 "and targets; squares **violet** / **red**: reported / recomputed frame centre; "
-                "**cyan** line: terrain horizon. Pick one target in several frames: its rays (**gold**) meet at "
+                "**cyan** line: terrain horizon. Pick one target in several frames: its rays (**yellow**, lines of sight) meet at "
                 "the triangulated point, with its 90 % ellipse (**teal**, as every 90 % ellipse) and residuals "
                 '(**pink**), both at true size unless "error vector drawn x" (Display) enlarges them'
             )

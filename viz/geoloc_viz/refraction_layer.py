@@ -12,7 +12,7 @@
 * the panel: which corrections are on and how far refraction moved the located point
   (``GroundPoint.refraction_m``, metres, to the millimetre).
 
-The bent ray is scene node ``/enu/refraction/bent`` (:data:`COLOR`, lime: no other meaning has it),
+The bent ray is scene node ``/enu/refraction/bent`` (:data:`COLOR`, spring green: no other meaning has it; lime is the picked pixel's),
 a polyline of :data:`geoloc_viz.terrain_link.BENT_SAMPLES` points from the camera down to the located point
 (:class:`geoloc_viz.terrain_link.BentRay`: ``Refraction.correct(..., at_h=H)``'s points); the straight line
 of sight (yellow) then ends at its own raw hit. Every number comes from the core; this module only
@@ -28,8 +28,8 @@ from geoloc_viz.layer_safety import call_safely
 ROOT = "/enu/refraction"
 #: The bent ray's colour, one meaning one colour: not the line of sight's yellow, the exact hit's
 #: green nor any other colour of the scene (``app.legend_markdown``).
-COLOR = (170, 255, 0)
-COLOR_NAME = "lime"
+COLOR = (0, 255, 160)
+COLOR_NAME = "spring green"
 #: The largest exaggeration of the bent ray's offset the panel offers.
 SCALE_MAX = 1000.0
 #: The atmosphere's name, as the CLI prints it.
