@@ -865,6 +865,11 @@ class LiveViewer:
                 dem_datum=self.flight.dem_datum,
             )
             scn = probe._scenario(recs)
+            # the first picture's grid (use_image_grid): its module loaded now (0.35 s of imports on a quiet
+            # machine, seconds under load), not while the first packet waits for its line
+            from geoloc_viz.model import use_image_grid
+
+            use_image_grid(scn, 360, 640)
             flight_model.build(scn)
             for method in ("exact", "bisect", "steps"):
                 compute(scn, scn.inputs.replace(method=method))
