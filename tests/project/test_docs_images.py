@@ -44,8 +44,9 @@ def test_every_docs_image_is_a_png_in_the_repository(page, link, path):
 @pytest.mark.xdist_group("chromium")  # a browser in a subprocess: tests/conftest.py cannot see it
 @pytest.mark.browser
 def test_the_screenshot_tool_makes_both_views(tmp_path):
-    """tools/make_viewer_screenshots.py, which made the two issue 34 pictures, still runs: both PNGs
-    at 1100 x 700, the second a different view (the camera on packet 100's error vector)."""
+    """tools/make_viewer_screenshots.py, which makes the README's viewer pictures, still runs: three PNGs
+    at 1100 x 700, the second a different view (the camera on packet 100's error vector), the third
+    the limb scene with the line of sight meeting the Earth."""
     import os
     import subprocess
     import sys
@@ -63,13 +64,19 @@ def test_the_screenshot_tool_makes_both_views(tmp_path):
     )
     assert r.returncode == 0, r.stderr[-4000:]
     imgs = []
-    for name in ("viewer_first_view.png", "viewer_outlier_error.png"):
+    for name in ("viewer_first_view.png", "viewer_outlier_error.png", "viewer_limb.png"):
         with PIL.Image.open(tmp_path / "img" / name) as im:
             assert im.format == "PNG" and im.size == (1100, 700), (name, im.format, im.size)
             imgs.append(np.asarray(im.convert("RGB"), float))
     assert sorted(p.name for p in (tmp_path / "img").iterdir()) == [
         "viewer_first_view.png",
+        "viewer_limb.png",
         "viewer_outlier_error.png",
     ]  # no temp left
     # the 3D view (left of the panel) changed: the camera moved to the error
     assert np.abs(imgs[0][:, :680] - imgs[1][:, :680]).mean() > 10.0
+    # the limb scene: the Earth in view, not filling it (its mesh's blue, as tests/viz/test_viz_limb_browser.py
+    # counts it, in the 3D view below the browser's notice: the bounds of that test, 15-90 %)
+    r, g, b = (imgs[2][160:, :680, k] for k in range(3))
+    earth = float(((b > r + 50) & (b > g + 25) & (r < 110)).mean())
+    assert 0.15 < earth < 0.9, earth
