@@ -268,7 +268,7 @@ def pixel_to_grid(rc, from_size: int, to_size: int):
     return 0.5 + (np.asarray(rc, float) - 0.5) * (float(to_size) / float(from_size))
 
 
-def sensor_in_grid(sensor, rows: int, cols: int):
+def sensor_in_grid(sensor: FrameSensor, rows: int, cols: int) -> FrameSensor:
     """``sensor`` on a ``rows`` x ``cols`` grid: its lens resampled
     (:func:`geoloc.io.photos.scale_lens`: the same rays through the same image edges)."""
     from geoloc.io.photos import scale_lens
