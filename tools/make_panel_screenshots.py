@@ -28,7 +28,7 @@ def main(argv=None) -> int:
     ap.add_argument("--packet", default="packet 90", help="the frame to show (its label)")
     ap.add_argument("--pixel", default="273,310", help="row,col of the pixel to click (1-based)")
     args = ap.parse_args(argv)
-    from test_viz_browser import chromium, wait_for
+    from test_viz_browser import chromium, close_software_webgl_notice, wait_for
 
     from geoloc_viz.app import GeolocViewer, make_server
     from geoloc_viz.flight_model import default_flight_scenario
@@ -43,6 +43,7 @@ def main(argv=None) -> int:
         fd, tmp = tempfile.mkstemp(suffix=".png", dir=args.out)
         os.close(fd)
         try:
+            close_software_webgl_notice(page)
             page.screenshot(path=tmp, timeout=120000)
             os.replace(tmp, path)
         finally:

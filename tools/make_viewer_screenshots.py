@@ -49,6 +49,9 @@ def shot(page, path: Path) -> None:
     fd, tmp = tempfile.mkstemp(suffix=".png", dir=path.parent)
     os.close(fd)
     try:
+        from test_viz_browser import close_software_webgl_notice
+
+        close_software_webgl_notice(page)
         page.screenshot(path=tmp, timeout=120000)
         os.replace(tmp, path)
     finally:

@@ -98,6 +98,17 @@ MULTI_TAB_FLAGS = [
 ]
 
 
+def close_software_webgl_notice(page) -> None:
+    """Close the browser's "Software WebGL rendering detected" notice with its x, as a person would.
+
+    Headless Chromium draws with SwiftShader, so viser warns about the machine, not the scene; a
+    documentation picture should show the scene. Any other notice is left on the page."""
+    note = page.locator(".mantine-Notification-root", has_text="Software WebGL rendering detected")
+    if note.count():
+        note.locator("button").first.click(timeout=10000)
+        note.wait_for(state="detached", timeout=10000)
+
+
 @contextlib.contextmanager
 def chromium(tmp_path, extra_flags=()):
     """Headless Debian chromium through playwright, its HOME/XDG folders in ``tmp_path``."""
