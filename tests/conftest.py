@@ -142,6 +142,7 @@ def pytest_testnodedown(node, error):
     )
 
 
+@pytest.hookimpl(trylast=True)  # after pytest's --durations table (tools/test.sh): the run's last lines
 def pytest_terminal_summary(terminalreporter):
     # where a cold numba cache's time goes: a fresh machine compiles every kernel the tests call
     # (geoloc.geodesy._nbgeo.COMPILED); nothing is printed on a warm cache

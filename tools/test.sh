@@ -20,5 +20,7 @@ VENV="${GEOLOC_VENV:-.venv}"
 "$VENV/bin/python" -m pip install -q --upgrade pip
 "$VENV/bin/python" -m pip install -q -e ".[test]" -e ./viz
 # two workers (the machine's 2 cores); the tests that open Chromium share one of them
-# (tests/conftest.py), so the browser tests run one at a time beside the rest
-exec "$VENV/bin/python" -m pytest -n "${GEOLOC_TEST_WORKERS:-2}" --dist loadgroup "$@"
+# (tests/conftest.py), so the browser tests run one at a time beside the rest.
+# --durations=25: the run ends with its 25 slowest test phases, so a run that got slower says
+# where (docs/testing.md, "The suite's time")
+exec "$VENV/bin/python" -m pytest -n "${GEOLOC_TEST_WORKERS:-2}" --dist loadgroup --durations=25 "$@"
