@@ -101,6 +101,8 @@ def in_chromium_group(item) -> bool:
 def pytest_runtest_setup(item):
     # before the item's fixtures: a module fixture that opened Chromium is caught too
     os.environ[CHROMIUM_GROUP_ENV] = "1" if in_chromium_group(item) else "0"
+    if not in_chromium_group(item):
+        _close_shared_chromium()  # the group's tests are done on this worker (they run as one batch)
     if (
         in_chromium_group(item)
         and os.environ.get("PYTEST_XDIST_WORKER")
@@ -127,8 +129,18 @@ def _compiled_here() -> list:
     return [list(c) for c in getattr(nbgeo, "COMPILED", [])]
 
 
+def _close_shared_chromium() -> None:
+    """Close the browser the Chromium group's tests shared (tests/viz/test_viz_browser.py), if one is open."""
+    import sys
+
+    mod = sys.modules.get("test_viz_browser")
+    if mod is not None and getattr(mod, "_SHARED", None):
+        mod.close_shared_chromium()
+
+
 def pytest_sessionfinish(session):
     os.environ.pop(CHROMIUM_GROUP_ENV, None)
+    _close_shared_chromium()
     worker = getattr(session.config, "workeroutput", None)
     if worker is not None:  # a pytest-xdist worker: its compiles go to the controller
         worker["geoloc_compiled"] = _compiled_here()

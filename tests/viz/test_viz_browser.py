@@ -9,9 +9,11 @@ Screenshots (the browser's own renders) go to ``test-artifacts/``.
 Run alone: ``python -m pytest -q -m browser tests/viz/test_viz_browser.py``.
 """
 
+import atexit
 import contextlib
 import os
 import shutil
+import tempfile
 import time
 from pathlib import Path
 
@@ -109,11 +111,64 @@ def close_software_webgl_notice(page) -> None:
         note.wait_for(state="detached", timeout=10000)
 
 
-@contextlib.contextmanager
-def chromium(tmp_path, extra_flags=()):
-    """Headless Debian chromium through playwright, its HOME/XDG folders in ``tmp_path``."""
+#: The worker's one browser: {"pw": the playwright instance, "browser": it, "flags": its extra flags, "home": its
+#: HOME}. Launching headless Chromium for each test cost 8-10 s of waiting at load 13 (playwright's driver
+#: 4.1 s, the browser and a first page 3.3-5.1 s, its close 0.6-1.2 s) on the Chromium group's one worker,
+#: which the whole suite waits for (docs/testing.md, "The suite's time"). A test gets a clean browser all the same: its pages
+#: are new contexts (``browser.new_page``: own cookies, storage and cache) and every context it opened
+#: is closed when it leaves ``chromium()``.
+_SHARED: dict = {}
+
+
+def close_shared_chromium() -> None:
+    """Close the worker's browser and its playwright driver (tests/conftest.py, once the group is done)."""
+    browser, pw, home = _SHARED.pop("browser", None), _SHARED.pop("pw", None), _SHARED.pop("home", None)
+    _SHARED.clear()
+    try:
+        if browser is not None and browser.is_connected():
+            browser.close()
+    finally:
+        if pw is not None:
+            pw.stop()
+        if home is not None:
+            shutil.rmtree(home, ignore_errors=True)
+
+
+def _shared_chromium(extra_flags):
     import playwright.sync_api as playwright  # a test dependency: installed, never skipped
 
+    flags = tuple(extra_flags)
+    browser = _SHARED.get("browser")
+    if browser is not None and (_SHARED["flags"] != flags or not browser.is_connected()):
+        if browser.is_connected():
+            browser.close()  # one browser at a time on the worker
+        del _SHARED["browser"]
+        browser = None
+    if "pw" not in _SHARED:
+        # a script (the screenshot tools, the benchmarks) has no conftest to close it: at exit then
+        atexit.register(close_shared_chromium)
+        _SHARED["pw"] = playwright.sync_playwright().start()
+        _SHARED["home"] = Path(tempfile.mkdtemp(prefix="geoloc-chromium-home-"))
+    if browser is None:
+        home = _SHARED["home"]
+        env = {
+            **os.environ,
+            "HOME": str(home),
+            "XDG_CONFIG_HOME": str(home / "config"),
+            "XDG_CACHE_HOME": str(home / "cache"),
+        }
+        browser = _SHARED["pw"].chromium.launch(
+            executable_path=CHROMIUM, args=FLAGS + list(flags), env=env, timeout=60000
+        )
+        _SHARED["browser"], _SHARED["flags"] = browser, flags
+    return browser
+
+
+@contextlib.contextmanager
+def chromium(tmp_path, extra_flags=()):
+    """Headless Debian chromium through playwright: the worker's one browser (``_SHARED``), launched with
+    ``extra_flags`` if it was not; every page the test opens is closed when it leaves. ``tmp_path``: the
+    test's folder, unused since the browser is shared (its HOME/XDG folders are one temp folder)."""
     # tests/conftest.py sets this for each test: "0" means its look-up did not see this test open
     # Chromium, so under xdist it would run beside another browser (unset: not under pytest)
     if os.environ.get("GEOLOC_CHROMIUM_GROUP") == "0":
@@ -122,18 +177,13 @@ def chromium(tmp_path, extra_flags=()):
             "'chromium': tests/conftest.py's _opens_chromium did not find the call (name chromium, or "
             "call it through a function of a test module)"
         )
-    env = {
-        **os.environ,
-        "HOME": str(tmp_path),
-        "XDG_CONFIG_HOME": str(tmp_path / "config"),
-        "XDG_CACHE_HOME": str(tmp_path / "cache"),
-    }
-    with playwright.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=FLAGS + list(extra_flags), env=env, timeout=60000)
-        try:
-            yield browser
-        finally:
-            browser.close()
+    browser = _shared_chromium(extra_flags)
+    try:
+        yield browser
+    finally:
+        if browser.is_connected():
+            for ctx in list(browser.contexts):  # the test's pages, each in its own context
+                ctx.close()
 
 
 @contextlib.contextmanager
