@@ -18,18 +18,21 @@ Three kernels:
   differences of :func:`geoloc.sensors.lenses.project_nb`, over +-1 sigma in ``p`` as the
   reference's differences of ``unproject``, and +-1e-6 in ``(a, b)``: truncation ~1e-12 and
   rounding ~1e-13 of the derivative), so every lens model is served without an iteration.
-  Output: the point carried along its old range, ``free = dO + t dD`` (ECEF, per 1 sigma).
-* :func:`surface_kernel`: the hit kept on the surface linearised by its normal ``m``,
-  ``dP = free - D (m . free) / (m . D)`` (and ``D dz / (m . D)`` for the surface's own vertical
-  error), turned to ENU at the hit; the covariance ``J J^T``, the 1-sigma ellipse (eigen
-  decomposition of the 2x2 block in closed form), CE90 from the table of
+  Output: the point carried along its old range, ``free = dO + t dD`` (ECEF, per 1 sigma), for
+  the numpy surface step (a projected DEM, a mosaic).
+* :func:`chain_surface_kernel`: the same chain per ray, then the hit kept on a constant height
+  (normal ``m`` the local up), ``dP = free - D (m . free) / (m . D)`` (and ``D dz / (m . D)`` for
+  the surface's own vertical error), turned to ENU at the hit; the covariance ``J J^T``, the
+  1-sigma ellipse (eigen decomposition of the 2x2 block in closed form), CE90 from the table of
   :func:`geoloc.analysis.uncertainty._ce_table` (linear interpolation on its uniform axis-ratio
-  grid, as ``np.interp``) and LE90.
-* :func:`dem_surface_kernel`: the same step on a geographic DEM, whose normal is the DEM's local
+  grid, as ``np.interp``) and LE90. The chain's columns stay in a scratch row per ray: no
+  (n, 3, k) array is written and read back.
+* :func:`chain_dem_kernel`: the same on a geographic DEM, whose normal is the DEM's local
   slope: at the hit, then the plane fitted over the predicted footprint (iterated), the terrain's
   departure from it and the grazing test, reading the DEM's node grid itself (the bilinear
-  interpolation of :meth:`geoloc.geodesy.geoid.NodeGrid.interp`). The perturbed rays are never
-  walked through the DEM again: the plane carries them.
+  interpolation of :meth:`geoloc.geodesy.geoid.NodeGrid.interp`, stepped in rows and columns per
+  metre from the hit's cell). The perturbed rays are never walked through the DEM again: the
+  plane carries them.
 """
 
 from __future__ import annotations
@@ -95,6 +98,174 @@ def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
+@cached_njit(KEY, inline="always")
+def _chain_ray(
+    i,
+    lat,
+    lon,
+    h,
+    heading,
+    pitch,
+    roll,
+    angles,
+    D,
+    ti,
+    vel,
+    axes,
+    R_cam_last,
+    R_base_body,
+    lever,
+    earth_ref,
+    mount_axes,
+    bore_axes,
+    lens_code,
+    lens_p,
+    codes,
+    sigmas,
+    a_m,
+    e2,
+    scratch,
+    out,
+):
+    """Ray ``i``'s ``out[:, k] = dO + ti dD`` per 1 sigma of source ``codes[k]`` (ECEF, metres);
+    ``scratch`` is the caller's ``(Rn, Rb, Rt, Rt2, Rc, Rj, pp)`` (3x3 frames, the joints' frames,
+    the lens's parameters), ``ti`` the ray's range to its hit. (At most 30 arguments: beyond that
+    Python passes them as one tuple, which numba cannot inline.)"""
+    Rn, Rb, Rt, Rt2, Rc, Rj, pp = scratch
+    nj = axes.shape[0]
+    ns = codes.shape[0]
+    sp, cp = math.sin(lat[i]), math.cos(lat[i])
+    sl, cl = math.sin(lon[i]), math.cos(lon[i])
+    # R_ecef_ned: columns north, east, down
+    Rn[0, 0], Rn[1, 0], Rn[2, 0] = -sp * cl, -sp * sl, cp
+    Rn[0, 1], Rn[1, 1], Rn[2, 1] = -sl, cl, 0.0
+    Rn[0, 2], Rn[1, 2], Rn[2, 2] = -cp * cl, -cp * sl, -sp
+    # R_ecef_body = R_ecef_ned rz(heading)^T ry(pitch)^T rx(roll)^T
+    _turn_back_cols(2, math.cos(heading[i]), math.sin(heading[i]), Rn, Rt)
+    _turn_back_cols(1, math.cos(pitch[i]), math.sin(pitch[i]), Rt, Rt2)
+    _turn_back_cols(0, math.cos(roll[i]), math.sin(roll[i]), Rt2, Rb)
+    if earth_ref:
+        Rj[0] = Rn
+    else:
+        _matmul_T(Rb, R_base_body, Rt)  # R_ecef_base = R_ecef_body R_base_body^T
+        Rj[0] = Rt
+    for j in range(nj):
+        _turn_back_cols(axes[j], math.cos(angles[i, j]), math.sin(angles[i, j]), Rj[j], Rj[j + 1])
+    _matmul_T(Rj[nj], R_cam_last, Rc)  # R_ecef_cam
+    d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
+    L0 = Rb[0, 0] * lever[0] + Rb[0, 1] * lever[1] + Rb[0, 2] * lever[2]
+    L1 = Rb[1, 0] * lever[0] + Rb[1, 1] * lever[1] + Rb[1, 2] * lever[2]
+    L2 = Rb[2, 0] * lever[0] + Rb[2, 1] * lever[1] + Rb[2, 2] * lever[2]
+    w = 1.0 - e2 * sp * sp
+    rn_h = a_m / math.sqrt(w) + h[i]  # prime vertical radius + h
+    rm_h = a_m * (1.0 - e2) / (w * math.sqrt(w)) + h[i]  # meridian radius + h
+    # the direction in the optical frame and its normalised point
+    c0 = Rc[0, 0] * d0 + Rc[1, 0] * d1 + Rc[2, 0] * d2
+    c1 = Rc[0, 1] * d0 + Rc[1, 1] * d1 + Rc[2, 1] * d2
+    c2 = Rc[0, 2] * d0 + Rc[1, 2] * d1 + Rc[2, 2] * d2
+    have_lens_jac = False
+    j11 = j12 = j21 = j22 = 0.0
+    a_n, b_n = c0 / c2, c1 / c2
+    for k in range(ns):
+        code = codes[k]
+        sg = sigmas[k]
+        o0 = o1 = o2 = 0.0
+        e0 = e1 = e2_ = 0.0
+        if code == SRC_NORTH or code == SRC_EAST or code == SRC_TIME:
+            # north: origin along north, the NED frame turns by w_n = -east / (R_M + h)
+            wn0, wn1, wn2 = -Rn[0, 1] / rm_h, -Rn[1, 1] / rm_h, 0.0
+            # east: w_e = z / ((R_N + h) cos lat)
+            we2 = 1.0 / (rn_h * cp)
+            x0, x1, x2 = _cross(wn0, wn1, wn2, L0, L1, L2)
+            y0, y1, y2 = _cross(wn0, wn1, wn2, d0, d1, d2)
+            nO0, nO1, nO2 = Rn[0, 0] + x0, Rn[1, 0] + x1, Rn[2, 0] + x2
+            x0, x1, x2 = _cross(0.0, 0.0, we2, L0, L1, L2)
+            z0, z1, z2 = _cross(0.0, 0.0, we2, d0, d1, d2)
+            eO0, eO1, eO2 = Rn[0, 1] + x0, Rn[1, 1] + x1, Rn[2, 1] + x2
+            if code == SRC_NORTH:
+                o0, o1, o2, e0, e1, e2_ = nO0, nO1, nO2, y0, y1, y2
+            elif code == SRC_EAST:
+                o0, o1, o2, e0, e1, e2_ = eO0, eO1, eO2, z0, z1, z2
+            else:
+                vn, ve, vd = vel[i, 0], vel[i, 1], vel[i, 2]
+                o0 = vn * nO0 + ve * eO0 + vd * Rn[0, 2]  # -vd * up = vd * down
+                o1 = vn * nO1 + ve * eO1 + vd * Rn[1, 2]
+                o2 = vn * nO2 + ve * eO2 + vd * Rn[2, 2]
+                e0, e1, e2_ = vn * y0 + ve * z0, vn * y1 + ve * z1, vn * y2 + ve * z2
+        elif code == SRC_UP:
+            o0, o1, o2 = -Rn[0, 2], -Rn[1, 2], -Rn[2, 2]
+        elif code == SRC_LEVER or code == SRC_LEVER + 1 or code == SRC_LEVER + 2:
+            c = code - SRC_LEVER
+            o0, o1, o2 = Rb[0, c], Rb[1, c], Rb[2, c]
+        elif code < SRC_LENS:
+            turns = True
+            if code == SRC_HEADING:
+                a0, a1, a2 = Rn[0, 2], Rn[1, 2], Rn[2, 2]
+                turns = not earth_ref
+            elif code == SRC_PITCH:
+                sh, ch = math.sin(heading[i]), math.cos(heading[i])
+                a0 = -sh * Rn[0, 0] + ch * Rn[0, 1]
+                a1 = -sh * Rn[1, 0] + ch * Rn[1, 1]
+                a2 = -sh * Rn[2, 0] + ch * Rn[2, 1]
+                turns = not earth_ref
+            elif code == SRC_ROLL:
+                a0, a1, a2 = Rb[0, 0], Rb[1, 0], Rb[2, 0]
+                turns = not earth_ref
+            elif code < SRC_MOUNT:
+                j = code - SRC_JOINT
+                ax = axes[j]
+                a0, a1, a2 = Rj[j + 1, 0, ax], Rj[j + 1, 1, ax], Rj[j + 1, 2, ax]
+            elif code < SRC_BORE:
+                v = mount_axes[code - SRC_MOUNT]
+                a0 = Rb[0, 0] * v[0] + Rb[0, 1] * v[1] + Rb[0, 2] * v[2]
+                a1 = Rb[1, 0] * v[0] + Rb[1, 1] * v[1] + Rb[1, 2] * v[2]
+                a2 = Rb[2, 0] * v[0] + Rb[2, 1] * v[1] + Rb[2, 2] * v[2]
+            else:
+                v = bore_axes[code - SRC_BORE]
+                R = Rj[nj]
+                a0 = R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2]
+                a1 = R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2]
+                a2 = R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2]
+            if code <= SRC_ROLL:  # the attitude turns the lever arm too
+                o0, o1, o2 = _cross(a0, a1, a2, L0, L1, L2)
+            if turns:
+                e0, e1, e2_ = _cross(a0, a1, a2, d0, d1, d2)
+        else:
+            # lens: d(a, b) = -J^-1 d pi/dp, J = d pi / d(a, b) at the ray's normalised point
+            if not have_lens_jac:
+                hh = 1e-6
+                up_, vp_, _ = project_nb(lens_code, lens_p, a_n + hh, b_n, 1.0)
+                um_, vm_, _ = project_nb(lens_code, lens_p, a_n - hh, b_n, 1.0)
+                j11, j21 = (up_ - um_) / (2 * hh), (vp_ - vm_) / (2 * hh)
+                up_, vp_, _ = project_nb(lens_code, lens_p, a_n, b_n + hh, 1.0)
+                um_, vm_, _ = project_nb(lens_code, lens_p, a_n, b_n - hh, 1.0)
+                j12, j22 = (up_ - um_) / (2 * hh), (vp_ - vm_) / (2 * hh)
+                have_lens_jac = True
+            slot = code - SRC_LENS
+            base = lens_p[slot]
+            pp[slot] = base + sg
+            up_, vp_, _ = project_nb(lens_code, pp, a_n, b_n, 1.0)
+            pp[slot] = base - sg
+            um_, vm_, _ = project_nb(lens_code, pp, a_n, b_n, 1.0)
+            pp[slot] = base
+            du, dv = (up_ - um_) / 2.0, (vp_ - vm_) / 2.0
+            det = j11 * j22 - j12 * j21
+            da = -(j22 * du - j12 * dv) / det
+            db = -(j11 * dv - j21 * du) / det
+            # d unit(a, b, 1) = (I - u u^T) (da, db, 0) / |(a, b, 1)|, u the unit direction
+            nrm = math.sqrt(a_n * a_n + b_n * b_n + 1.0)
+            u0, u1, u2 = a_n / nrm, b_n / nrm, 1.0 / nrm
+            dot = u0 * da + u1 * db
+            q0, q1, q2 = (da - u0 * dot) / nrm, (db - u1 * dot) / nrm, -u2 * dot / nrm
+            e0 = Rc[0, 0] * q0 + Rc[0, 1] * q1 + Rc[0, 2] * q2
+            e1 = Rc[1, 0] * q0 + Rc[1, 1] * q1 + Rc[1, 2] * q2
+            e2_ = Rc[2, 0] * q0 + Rc[2, 1] * q1 + Rc[2, 2] * q2
+            sg = 1.0  # the differences were over +-1 sigma already
+        out[0, k] = (o0 + ti * e0) * sg
+        out[1, k] = (o1 + ti * e1) * sg
+        out[2, k] = (o2 + ti * e2_) * sg
+
+
 @cached_njit(KEY, parallel=True, error_model="numpy")
 def chain_kernel(
     lat,
@@ -131,7 +302,6 @@ def chain_kernel(
     """
     n = lat.shape[0]
     nj = axes.shape[0]
-    ns = codes.shape[0]
     nb = (n + _BLOCK - 1) // _BLOCK
     for blk in prange(nb):
         Rn = np.empty((3, 3))
@@ -142,164 +312,144 @@ def chain_kernel(
         Rj = np.empty((nj + 1, 3, 3))
         pp = lens_p.copy()
         for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
-            sp, cp = math.sin(lat[i]), math.cos(lat[i])
-            sl, cl = math.sin(lon[i]), math.cos(lon[i])
-            # R_ecef_ned: columns north, east, down
-            Rn[0, 0], Rn[1, 0], Rn[2, 0] = -sp * cl, -sp * sl, cp
-            Rn[0, 1], Rn[1, 1], Rn[2, 1] = -sl, cl, 0.0
-            Rn[0, 2], Rn[1, 2], Rn[2, 2] = -cp * cl, -cp * sl, -sp
-            # R_ecef_body = R_ecef_ned rz(heading)^T ry(pitch)^T rx(roll)^T
-            _turn_back_cols(2, math.cos(heading[i]), math.sin(heading[i]), Rn, Rt)
-            _turn_back_cols(1, math.cos(pitch[i]), math.sin(pitch[i]), Rt, Rt2)
-            _turn_back_cols(0, math.cos(roll[i]), math.sin(roll[i]), Rt2, Rb)
-            if earth_ref:
-                Rj[0] = Rn
-            else:
-                _matmul_T(Rb, R_base_body, Rt)  # R_ecef_base = R_ecef_body R_base_body^T
-                Rj[0] = Rt
-            for j in range(nj):
-                _turn_back_cols(axes[j], math.cos(angles[i, j]), math.sin(angles[i, j]), Rj[j], Rj[j + 1])
-            _matmul_T(Rj[nj], R_cam_last, Rc)  # R_ecef_cam
-            d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
-            L0 = Rb[0, 0] * lever[0] + Rb[0, 1] * lever[1] + Rb[0, 2] * lever[2]
-            L1 = Rb[1, 0] * lever[0] + Rb[1, 1] * lever[1] + Rb[1, 2] * lever[2]
-            L2 = Rb[2, 0] * lever[0] + Rb[2, 1] * lever[1] + Rb[2, 2] * lever[2]
-            ti = t[i]
-            w = 1.0 - e2 * sp * sp
-            rn_h = a_m / math.sqrt(w) + h[i]  # prime vertical radius + h
-            rm_h = a_m * (1.0 - e2) / (w * math.sqrt(w)) + h[i]  # meridian radius + h
-            # the direction in the optical frame and its normalised point
-            c0 = Rc[0, 0] * d0 + Rc[1, 0] * d1 + Rc[2, 0] * d2
-            c1 = Rc[0, 1] * d0 + Rc[1, 1] * d1 + Rc[2, 1] * d2
-            c2 = Rc[0, 2] * d0 + Rc[1, 2] * d1 + Rc[2, 2] * d2
-            have_lens_jac = False
-            j11 = j12 = j21 = j22 = 0.0
-            a_n, b_n = c0 / c2, c1 / c2
-            for k in range(ns):
-                code = codes[k]
-                sg = sigmas[k]
-                o0 = o1 = o2 = 0.0
-                e0 = e1 = e2_ = 0.0
-                if code == SRC_NORTH or code == SRC_EAST or code == SRC_TIME:
-                    # north: origin along north, the NED frame turns by w_n = -east / (R_M + h)
-                    wn0, wn1, wn2 = -Rn[0, 1] / rm_h, -Rn[1, 1] / rm_h, 0.0
-                    # east: w_e = z / ((R_N + h) cos lat)
-                    we2 = 1.0 / (rn_h * cp)
-                    x0, x1, x2 = _cross(wn0, wn1, wn2, L0, L1, L2)
-                    y0, y1, y2 = _cross(wn0, wn1, wn2, d0, d1, d2)
-                    nO0, nO1, nO2 = Rn[0, 0] + x0, Rn[1, 0] + x1, Rn[2, 0] + x2
-                    x0, x1, x2 = _cross(0.0, 0.0, we2, L0, L1, L2)
-                    z0, z1, z2 = _cross(0.0, 0.0, we2, d0, d1, d2)
-                    eO0, eO1, eO2 = Rn[0, 1] + x0, Rn[1, 1] + x1, Rn[2, 1] + x2
-                    if code == SRC_NORTH:
-                        o0, o1, o2, e0, e1, e2_ = nO0, nO1, nO2, y0, y1, y2
-                    elif code == SRC_EAST:
-                        o0, o1, o2, e0, e1, e2_ = eO0, eO1, eO2, z0, z1, z2
-                    else:
-                        vn, ve, vd = vel[i, 0], vel[i, 1], vel[i, 2]
-                        o0 = vn * nO0 + ve * eO0 + vd * Rn[0, 2]  # -vd * up = vd * down
-                        o1 = vn * nO1 + ve * eO1 + vd * Rn[1, 2]
-                        o2 = vn * nO2 + ve * eO2 + vd * Rn[2, 2]
-                        e0, e1, e2_ = vn * y0 + ve * z0, vn * y1 + ve * z1, vn * y2 + ve * z2
-                elif code == SRC_UP:
-                    o0, o1, o2 = -Rn[0, 2], -Rn[1, 2], -Rn[2, 2]
-                elif code == SRC_LEVER or code == SRC_LEVER + 1 or code == SRC_LEVER + 2:
-                    c = code - SRC_LEVER
-                    o0, o1, o2 = Rb[0, c], Rb[1, c], Rb[2, c]
-                elif code < SRC_LENS:
-                    turns = True
-                    if code == SRC_HEADING:
-                        a0, a1, a2 = Rn[0, 2], Rn[1, 2], Rn[2, 2]
-                        turns = not earth_ref
-                    elif code == SRC_PITCH:
-                        sh, ch = math.sin(heading[i]), math.cos(heading[i])
-                        a0 = -sh * Rn[0, 0] + ch * Rn[0, 1]
-                        a1 = -sh * Rn[1, 0] + ch * Rn[1, 1]
-                        a2 = -sh * Rn[2, 0] + ch * Rn[2, 1]
-                        turns = not earth_ref
-                    elif code == SRC_ROLL:
-                        a0, a1, a2 = Rb[0, 0], Rb[1, 0], Rb[2, 0]
-                        turns = not earth_ref
-                    elif code < SRC_MOUNT:
-                        j = code - SRC_JOINT
-                        ax = axes[j]
-                        a0, a1, a2 = Rj[j + 1, 0, ax], Rj[j + 1, 1, ax], Rj[j + 1, 2, ax]
-                    elif code < SRC_BORE:
-                        v = mount_axes[code - SRC_MOUNT]
-                        a0 = Rb[0, 0] * v[0] + Rb[0, 1] * v[1] + Rb[0, 2] * v[2]
-                        a1 = Rb[1, 0] * v[0] + Rb[1, 1] * v[1] + Rb[1, 2] * v[2]
-                        a2 = Rb[2, 0] * v[0] + Rb[2, 1] * v[1] + Rb[2, 2] * v[2]
-                    else:
-                        v = bore_axes[code - SRC_BORE]
-                        R = Rj[nj]
-                        a0 = R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2]
-                        a1 = R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2]
-                        a2 = R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2]
-                    if code <= SRC_ROLL:  # the attitude turns the lever arm too
-                        o0, o1, o2 = _cross(a0, a1, a2, L0, L1, L2)
-                    if turns:
-                        e0, e1, e2_ = _cross(a0, a1, a2, d0, d1, d2)
-                else:
-                    # lens: d(a, b) = -J^-1 d pi/dp, J = d pi / d(a, b) at the ray's normalised point
-                    if not have_lens_jac:
-                        hh = 1e-6
-                        up_, vp_, _ = project_nb(lens_code, lens_p, a_n + hh, b_n, 1.0)
-                        um_, vm_, _ = project_nb(lens_code, lens_p, a_n - hh, b_n, 1.0)
-                        j11, j21 = (up_ - um_) / (2 * hh), (vp_ - vm_) / (2 * hh)
-                        up_, vp_, _ = project_nb(lens_code, lens_p, a_n, b_n + hh, 1.0)
-                        um_, vm_, _ = project_nb(lens_code, lens_p, a_n, b_n - hh, 1.0)
-                        j12, j22 = (up_ - um_) / (2 * hh), (vp_ - vm_) / (2 * hh)
-                        have_lens_jac = True
-                    slot = code - SRC_LENS
-                    base = lens_p[slot]
-                    pp[slot] = base + sg
-                    up_, vp_, _ = project_nb(lens_code, pp, a_n, b_n, 1.0)
-                    pp[slot] = base - sg
-                    um_, vm_, _ = project_nb(lens_code, pp, a_n, b_n, 1.0)
-                    pp[slot] = base
-                    du, dv = (up_ - um_) / 2.0, (vp_ - vm_) / 2.0
-                    det = j11 * j22 - j12 * j21
-                    da = -(j22 * du - j12 * dv) / det
-                    db = -(j11 * dv - j21 * du) / det
-                    # d unit(a, b, 1) = (I - u u^T) (da, db, 0) / |(a, b, 1)|, u the unit direction
-                    nrm = math.sqrt(a_n * a_n + b_n * b_n + 1.0)
-                    u0, u1, u2 = a_n / nrm, b_n / nrm, 1.0 / nrm
-                    dot = u0 * da + u1 * db
-                    q0, q1, q2 = (da - u0 * dot) / nrm, (db - u1 * dot) / nrm, -u2 * dot / nrm
-                    e0 = Rc[0, 0] * q0 + Rc[0, 1] * q1 + Rc[0, 2] * q2
-                    e1 = Rc[1, 0] * q0 + Rc[1, 1] * q1 + Rc[1, 2] * q2
-                    e2_ = Rc[2, 0] * q0 + Rc[2, 1] * q1 + Rc[2, 2] * q2
-                    sg = 1.0  # the differences were over +-1 sigma already
-                free[i, 0, k] = (o0 + ti * e0) * sg
-                free[i, 1, k] = (o1 + ti * e1) * sg
-                free[i, 2, k] = (o2 + ti * e2_) * sg
+            _chain_ray(
+                i,
+                lat,
+                lon,
+                h,
+                heading,
+                pitch,
+                roll,
+                angles,
+                D,
+                t[i],
+                vel,
+                axes,
+                R_cam_last,
+                R_base_body,
+                lever,
+                earth_ref,
+                mount_axes,
+                bore_axes,
+                lens_code,
+                lens_p,
+                codes,
+                sigmas,
+                a_m,
+                e2,
+                (Rn, Rb, Rt, Rt2, Rc, Rj, pp),
+                free[i],
+            )
+
+
+@cached_njit(KEY, inline="always")
+def _range(O, P, i):
+    """Ray ``i``'s range from its origin to its hit (NaN without a hit), as ``np.linalg.norm``."""
+    x, y, z = P[i, 0] - O[i, 0], P[i, 1] - O[i, 1], P[i, 2] - O[i, 2]
+    return math.sqrt(x * x + y * y + z * z)
 
 
 @cached_njit(KEY, parallel=True, error_model="numpy")
-def surface_kernel(
-    free, D, m, lat, lon, status, sz, qt_n, rt, le90_per_sigma, J, cov, major, minor, az, ce, le, inv_out
+def chain_surface_kernel(
+    lat,
+    lon,
+    h,
+    heading,
+    pitch,
+    roll,
+    angles,
+    O,
+    D,
+    P,
+    vel,
+    axes,
+    R_cam_last,
+    R_base_body,
+    lever,
+    earth_ref,
+    mount_axes,
+    bore_axes,
+    lens_code,
+    lens_p,
+    codes,
+    sigmas,
+    a_m,
+    e2,
+    hit_lat,
+    hit_lon,
+    status,
+    sz,
+    qt_n,
+    rt,
+    le90_per_sigma,
+    J,
+    cov,
+    major,
+    minor,
+    az,
+    ce,
+    le,
 ):
-    """The hit kept on the surface (normal ``m``), turned to ENU; covariance, ellipse, CE90, LE90.
+    """:func:`chain_kernel` and the surface step on a constant height in one pass: each ray's chain
+    columns stay in a scratch row (3, k) instead of an (n, 3, k) array written and read back; then
+    ``J`` (one more column than the sources when ``sz > 0``: the surface's own vertical error),
+    ``cov``, the ellipse, CE90 and LE90 per ray (:func:`_step`, :func:`_ellipse_out`).
 
-    ``J`` has one more column than ``free`` when ``sz > 0`` (the surface's own vertical error).
-    ``m`` of no rows stands for the local up at every hit (a constant height).
-    ``inv_out`` gets ``1 / (m . D)`` (NaN where the ray does not enter the surface).
+    ``P`` are the hits in ECEF (the range ``|P - O|`` carries the turned ray to the ground);
+    ``hit_lat``, ``hit_lon`` their geodetic coordinates [rad].
     """
-    n = free.shape[0]
-    for i in prange(n):
-        sp, cp = math.sin(lat[i]), math.cos(lat[i])
-        sl, cl = math.sin(lon[i]), math.cos(lon[i])
-        # ENU axes in ECEF
-        E = (-sl, cl, 0.0)
-        N = (-sp * cl, -sp * sl, cp)
-        U = (cp * cl, cp * sl, sp)
-        if m.shape[0] == 0:  # a constant height: the local up
-            m0, m1, m2 = U[0], U[1], U[2]
-        else:
-            m0, m1, m2 = m[i, 0], m[i, 1], m[i, 2]
-        inv, c00, c01, c02, c11, c12, c22 = _step(free, i, D, m0, m1, m2, status[i] == _OK, sz, E, N, U, J[i])
-        inv_out[i] = inv
-        _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov, major, minor, az, ce, le)
+    n = lat.shape[0]
+    nj = axes.shape[0]
+    ns = codes.shape[0]
+    nb = (n + _BLOCK - 1) // _BLOCK
+    for blk in prange(nb):
+        Rn = np.empty((3, 3))
+        Rb = np.empty((3, 3))
+        Rt = np.empty((3, 3))
+        Rt2 = np.empty((3, 3))
+        Rc = np.empty((3, 3))
+        Rj = np.empty((nj + 1, 3, 3))
+        pp = lens_p.copy()
+        fr = np.empty((3, ns))
+        for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
+            ti = _range(O, P, i)
+            _chain_ray(
+                i,
+                lat,
+                lon,
+                h,
+                heading,
+                pitch,
+                roll,
+                angles,
+                D,
+                ti,
+                vel,
+                axes,
+                R_cam_last,
+                R_base_body,
+                lever,
+                earth_ref,
+                mount_axes,
+                bore_axes,
+                lens_code,
+                lens_p,
+                codes,
+                sigmas,
+                a_m,
+                e2,
+                (Rn, Rb, Rt, Rt2, Rc, Rj, pp),
+                fr,
+            )
+            sp, cp = math.sin(hit_lat[i]), math.cos(hit_lat[i])
+            sl, cl = math.sin(hit_lon[i]), math.cos(hit_lon[i])
+            E = (-sl, cl, 0.0)  # the ENU axes in ECEF
+            N = (-sp * cl, -sp * sl, cp)
+            U = (cp * cl, cp * sl, sp)
+            inv, c00, c01, c02, c11, c12, c22 = _step(
+                fr, D[i, 0], D[i, 1], D[i, 2], U[0], U[1], U[2], status[i] == _OK, sz, E, N, U, J[i]
+            )
+            _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov, major, minor, az, ce, le)
 
 
 @cached_njit(KEY, inline="always")
@@ -329,64 +479,73 @@ def _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov,
 
 # --------------------------------------------------------------------- on a DEM
 @cached_njit(KEY, inline="always")
-def _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, lat, lon):
-    """:meth:`geoloc.surfaces.dem.DEM.height` of a geographic DEM at (lat, lon) [rad], scalar.
-
-    The bilinear interpolation of :meth:`geoloc.geodesy.geoid.NodeGrid.interp`: the longitude
-    brought to the grid's 360-degree window, NaN off the node hull grown by ``margin`` cells
-    (1e-9 cell tolerance), the position clamped to the hull inside that band, and a node without
-    data spoiling the point only where its weight is not zero.
-    """
+def _grid_rc(lat_north, lon_west, idlat, idlon, lat, lon):
+    """The fractional (row, column) of (lat, lon) [rad] on a geographic grid, the longitude brought
+    to the grid's 360-degree window, as :meth:`geoloc.geodesy.geoid.NodeGrid.interp`."""
     lat_deg = math.degrees(lat)
     lon_deg = math.degrees(lon)
-    if not (math.isfinite(lat_deg) and math.isfinite(lon_deg)):
-        return math.nan
     x = lon_deg - lon_west + 180.0
     if not (0.0 <= x < 360.0):  # already in the window: x % 360 is x, without the remainder's cost
         x = x % 360.0
     lon_deg = x + lon_west - 180.0
-    r = (lat_north - lat_deg) * idlat
-    c = (lon_deg - lon_west) * idlon
+    return (lat_north - lat_deg) * idlat, (lon_deg - lon_west) * idlon
+
+
+@cached_njit(KEY, inline="always")
+def _grid_at(Z, margin, cw, r, c):
+    """The DEM's height at the fractional (row, column) ``(r, c)``, scalar: the bilinear
+    interpolation of :meth:`geoloc.geodesy.geoid.NodeGrid.interp`.
+
+    ``c`` is brought back into the grid's 360-degree window (``cw`` columns either side of its west
+    edge), NaN off the node hull grown by ``margin`` cells (1e-9 cell tolerance), the position
+    clamped to the hull inside that band, and a node without data spoiling the point only where its
+    weight is not zero. The callers step from a hit's (row, column) by metres north and east times
+    the grid's rows and columns per metre there: the same positions as converting each sample to
+    degrees (a few 1e-12 of a cell apart by rounding), without two conversions per sample.
+    """
+    if not (math.isfinite(r) and math.isfinite(c)):
+        return math.nan
+    if not (-cw <= c < cw):
+        c = (c + cw) % (2.0 * cw) - cw
     nr, nc = Z.shape
     tol = 1e-9 + margin
     if r < -tol or r > nr - 1 + tol or c < -tol or c > nc - 1 + tol:
         return math.nan
     r = min(max(r, 0.0), nr - 1.0)
     c = min(max(c, 0.0), nc - 1.0)
-    i = min(max(int(math.floor(r)), 0), nr - 2)
-    j = min(max(int(math.floor(c)), 0), nc - 2)
-    v = r - i
-    u = c - j
+    r0 = min(max(int(math.floor(r)), 0), nr - 2)
+    c0 = min(max(int(math.floor(c)), 0), nc - 2)
+    v = r - r0
+    u = c - c0
     out = 0.0
     w = (1.0 - u) * (1.0 - v)
     if w != 0.0:
-        out += w * Z[i, j]
+        out += w * Z[r0, c0]
     w = u * (1.0 - v)
     if w != 0.0:
-        out += w * Z[i, j + 1]
+        out += w * Z[r0, c0 + 1]
     w = (1.0 - u) * v
     if w != 0.0:
-        out += w * Z[i + 1, j]
+        out += w * Z[r0 + 1, c0]
     w = u * v
     if w != 0.0:
-        out += w * Z[i + 1, j + 1]
+        out += w * Z[r0 + 1, c0 + 1]
     return out
 
 
 @cached_njit(KEY, inline="always")
-def _step(free, i, D, m0, m1, m2, ok, sz, E, N, U, Jo):
-    """The surface step of one ray for the normal ``m``: ``Jo`` (3, kk) in ENU, returns 1 / (m . D)
-    (NaN where the ray does not enter the surface or is not ``ok``: then every entry is NaN) and
-    the covariance's six entries."""
-    k = free.shape[2]
+def _step(fr, d0, d1, d2, m0, m1, m2, ok, sz, E, N, U, Jo):
+    """The surface step of one ray (chain columns ``fr`` (3, k), direction ``d``) for the normal
+    ``m``: ``Jo`` (3, kk) in ENU, returns 1 / (m . D) (NaN where the ray does not enter the surface
+    or is not ``ok``: then every entry is NaN) and the covariance's six entries."""
+    k = fr.shape[1]
     kk = Jo.shape[1]
-    d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
     mD = m0 * d0 + m1 * d1 + m2 * d2
     inv = 1.0 / mD if (ok and mD < -1e-12) else math.nan
     c00 = c01 = c02 = c11 = c12 = c22 = 0.0
     for c in range(kk):
         if c < k:
-            f0, f1, f2 = free[i, 0, c], free[i, 1, c], free[i, 2, c]
+            f0, f1, f2 = fr[0, c], fr[1, c], fr[2, c]
             s = (m0 * f0 + m1 * f1 + m2 * f2) * inv
             p0, p1, p2 = f0 - d0 * s, f1 - d1 * s, f2 - d2 * s
         else:
@@ -405,14 +564,209 @@ def _step(free, i, D, m0, m1, m2, ok, sz, E, N, U, Jo):
     return inv, c00, c01, c02, c11, c12, c22
 
 
+@cached_njit(KEY, inline="always")
+def _dem_nan(i, J, cov, major, minor, az, ce, le, rms, grazing):
+    """Row ``i`` of the DEM step's outputs for a ray without a ground point: NaN, not grazing."""
+    kk = J.shape[2]
+    for a in range(3):
+        for c in range(kk):
+            J[i, a, c] = math.nan
+        for c in range(3):
+            cov[i, a, c] = math.nan
+    major[i] = minor[i] = az[i] = ce[i] = le[i] = rms[i] = math.nan
+    grazing[i] = False
+
+
+@cached_njit(KEY, error_model="numpy")
+def _dem_ray(
+    fr,
+    i,
+    d0,
+    d1,
+    d2,
+    ti,
+    la,
+    lo,
+    hi,
+    sz,
+    iterations,
+    footprint,
+    Z,
+    lat_north,
+    lon_west,
+    idlat,
+    idlon,
+    margin,
+    a_m,
+    e2,
+    gh_x,
+    gh_w,
+    graze_r,
+    qt_n,
+    rt,
+    le90_per_sigma,
+    Hf,
+    outs,
+):
+    """The DEM surface step of one located ray ``i`` (chain columns ``fr`` (3, k), direction ``d``,
+    range ``ti``, hit ``la, lo, hi``) into row ``i`` of the outputs; ``Hf`` is scratch for the
+    footprint's heights, ``outs`` the outputs ``(J, cov, major, minor, az, ce, le, rms, grazing)``.
+
+    The normal ``m = u - g_e e - g_n n`` starts from the DEM's slope at the hit (central
+    differences over +-1 m east and north of the bilinear surface); with ``footprint`` it is then
+    refitted ``iterations`` times to the plane of the DEM over the predicted footprint (5 x 5
+    Gauss-Hermite nodes of N(0, C), ``g = L^-T E[z (h - h0)]``, ``C = L L^T`` the horizontal
+    covariance of the step before, :func:`geoloc.analysis.uncertainty.surface_normal`). The plane
+    is analytic: no perturbed ray is walked through the DEM again. Then the terrain's RMS
+    departure from the plane over the final footprint (``rms``) and the grazing test of
+    :func:`geoloc.analysis.uncertainty._grazing` (65 ranges from 0.5 to 1.5 times the hit's),
+    and the covariance, ellipse, CE90 and LE90 as on a constant height.
+
+    Not inlined into its kernel: numba's nested inlining of it with :func:`_grid_at` wrote row
+    ``i``'s outputs to the wrong rows (measured: the ellipse and RMS garbage, the Jacobian right).
+    """
+    J, cov, major, minor, az, ce, le, rms, grazing = outs
+    ng = gh_x.shape[0]
+    nr_ = graze_r.shape[0]
+    sp, cp = math.sin(la), math.cos(la)
+    sl, cl = math.sin(lo), math.cos(lo)
+    E = (-sl, cl, 0.0)  # the ENU axes in ECEF
+    N = (-sp * cl, -sp * sl, cp)
+    U = (cp * cl, cp * sl, sp)
+    w_ = 1.0 - e2 * sp * sp
+    mh = a_m * (1.0 - e2) / (w_ * math.sqrt(w_)) + hi  # meridian radius + h
+    nh = (a_m / math.sqrt(w_) + hi) * cp  # (prime vertical radius + h) cos lat
+    # the hit's (row, column) and the grid's rows and columns per metre north and east there
+    r_h, c_h = _grid_rc(lat_north, lon_west, idlat, idlon, la, lo)
+    kr = -math.degrees(1.0 / mh) * idlat
+    kc = math.degrees(1.0 / nh) * idlon
+    cw = 180.0 * idlon
+    # the slope of the bilinear surface at the hit: central differences over +-1 m
+    g_n = (_grid_at(Z, margin, cw, r_h + kr, c_h) - _grid_at(Z, margin, cw, r_h - kr, c_h)) / 2.0
+    g_e = (_grid_at(Z, margin, cw, r_h, c_h + kc) - _grid_at(Z, margin, cw, r_h, c_h - kc)) / 2.0
+    Jo = J[i]
+    n_fit = iterations + 1 if footprint else 1
+    c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+    m0 = m1 = m2 = inv = 0.0
+    # one more pass than the fits: the last footprint only measures the terrain's departure
+    for it in range(n_fit + 1):
+        if it > 0:
+            # the footprint's plane: C = cov_en (NaN -> 0) + 1e-6 I = L L^T
+            q00 = (c00 if math.isfinite(c00) else 0.0) + 1e-6
+            q01 = c01 if math.isfinite(c01) else 0.0
+            q11 = (c11 if math.isfinite(c11) else 0.0) + 1e-6
+            l11 = math.sqrt(q00)
+            l21 = q01 / l11
+            l22 = math.sqrt(q11 - l21 * l21)
+            sw = 0.0
+            sh = 0.0
+            for a in range(ng):
+                for b in range(ng):
+                    de = l11 * gh_x[a]
+                    dn = l21 * gh_x[a] + l22 * gh_x[b]
+                    H = _grid_at(Z, margin, cw, r_h + dn * kr, c_h + de * kc)
+                    Hf[a * ng + b] = H  # the footprint's heights, read once per fit
+                    if math.isfinite(H):
+                        w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
+                        sw += w
+                        sh += w * H
+            h0 = sh / max(sw, 1e-300)
+            eh0 = 0.0
+            eh1 = 0.0
+            for a in range(ng):
+                for b in range(ng):
+                    H = Hf[a * ng + b]
+                    if math.isfinite(H):
+                        w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
+                        eh0 += w * (H - h0) * gh_x[a]
+                        eh1 += w * (H - h0) * gh_x[b]
+            ge = eh0 / l11 - l21 / (l11 * l22) * eh1  # L^-T E[z (h - h0)]
+            gn = eh1 / l22
+            if it == n_fit:
+                # the terrain's RMS departure from this plane over the footprint
+                sr = 0.0
+                for a in range(ng):
+                    for b in range(ng):
+                        de = l11 * gh_x[a]
+                        dn = l21 * gh_x[a] + l22 * gh_x[b]
+                        H = Hf[a * ng + b]
+                        if math.isfinite(H):
+                            w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
+                            dz = H - (h0 + de * ge + dn * gn)
+                            sr += w * dz * dz
+                rms[i] = math.sqrt(sr / max(sw, 1e-300))
+                break
+            g_e, g_n = ge, gn
+        if not math.isfinite(g_e):
+            g_e = 0.0  # at the DEM's edge: level
+        if not math.isfinite(g_n):
+            g_n = 0.0
+        m0 = U[0] - g_e * E[0] - g_n * N[0]
+        m1 = U[1] - g_e * E[1] - g_n * N[1]
+        m2 = U[2] - g_e * E[2] - g_n * N[2]
+        inv, c00, c01, c02, c11, c12, c22 = _step(fr, d0, d1, d2, m0, m1, m2, True, sz, E, N, U, Jo)
+    # grazing: the ray within 2 sigma of the terrain away from its hit
+    k = fr.shape[1]
+    st2 = 0.0
+    fu2 = 0.0
+    for c in range(k):
+        f0, f1, f2 = fr[0, c], fr[1, c], fr[2, c]
+        dt = -(m0 * f0 + m1 * f1 + m2 * f2) * inv
+        st2 += dt * dt
+        fu = U[0] * f0 + U[1] * f1 + U[2] * f2
+        fu2 += fu * fu
+    sig_t = math.sqrt(st2 + (sz * inv) ** 2)
+    de_ = E[0] * d0 + E[1] * d1 + E[2] * d2
+    dn_ = N[0] * d0 + N[1] * d1 + N[2] * d2
+    du_ = U[0] * d0 + U[1] * d1 + U[2] * d2
+    gz = False
+    for q in range(nr_):
+        kr_ = graze_r[q] * ti
+        dr = kr_ - ti
+        if abs(dr) <= 3.0 * sig_t:
+            continue
+        e_, n_, u_ = dr * de_, dr * dn_, dr * du_
+        ray_h = hi + u_ + (e_ * e_ + n_ * n_) / (2.0 * mh)
+        ground = _grid_at(Z, margin, cw, r_h + n_ * kr, c_h + e_ * kc)
+        if not math.isfinite(ground):
+            continue
+        sig_v = math.sqrt(fu2 * (kr_ / ti) ** 2 + sz * sz)
+        if abs(ray_h - ground) < 2.0 * sig_v:
+            gz = True
+            break
+    grazing[i] = gz
+    _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov, major, minor, az, ce, le)
+
+
 @cached_njit(KEY, parallel=True, error_model="numpy")
-def dem_surface_kernel(
-    free,
-    D,
-    t,
+def chain_dem_kernel(
     lat,
     lon,
     h,
+    heading,
+    pitch,
+    roll,
+    angles,
+    O,
+    D,
+    P,
+    vel,
+    axes,
+    R_cam_last,
+    R_base_body,
+    lever,
+    earth_ref,
+    mount_axes,
+    bore_axes,
+    lens_code,
+    lens_p,
+    codes,
+    sigmas,
+    a_m,
+    e2,
+    hit_lat,
+    hit_lon,
+    hit_h,
     status,
     sz,
     iterations,
@@ -423,8 +777,6 @@ def dem_surface_kernel(
     dlat,
     dlon,
     margin,
-    a_m,
-    e2,
     gh_x,
     gh_w,
     graze_r,
@@ -441,144 +793,89 @@ def dem_surface_kernel(
     rms,
     grazing,
 ):
-    """The surface step on a geographic DEM, per ray, as the numpy path of ``propagate``.
+    """:func:`chain_kernel` and the DEM surface step (:func:`_dem_ray`) in one pass: each located ray's chain
+    columns stay in a scratch row (3, k); a ray without a ground point skips the chain.
 
-    The normal ``m = u - g_e e - g_n n`` starts from the DEM's slope at the hit (central
-    differences over +-1 m east and north of the bilinear surface); with ``footprint`` it is then
-    refitted ``iterations`` times to the plane of the DEM over the predicted footprint (5 x 5
-    Gauss-Hermite nodes of N(0, C), ``g = L^-T E[z (h - h0)]``, ``C = L L^T`` the horizontal
-    covariance of the step before, :func:`geoloc.analysis.uncertainty.surface_normal`). The plane
-    is analytic: no perturbed ray is walked through the DEM again. Then the terrain's RMS
-    departure from the plane over the final footprint (``rms``) and the grazing test of
-    :func:`geoloc.analysis.uncertainty._grazing` (65 ranges from 0.5 to 1.5 times the hit's),
-    and the covariance, ellipse, CE90 and LE90 of :func:`surface_kernel`.
+    ``P`` are the hits in ECEF (the range ``|P - O|``), ``hit_lat, hit_lon, hit_h`` their geodetic
+    coordinates [rad, rad, m].
     """
-    n = free.shape[0]
-    kk = J.shape[2]
+    n = lat.shape[0]
+    nj = axes.shape[0]
+    ns = codes.shape[0]
     ng = gh_x.shape[0]
-    nr_ = graze_r.shape[0]
-    idlat = 1.0 / dlat  # the grid's nodes per degree: a product per sample, not a division
+    idlat = 1.0 / dlat
     idlon = 1.0 / dlon
-    for i in prange(n):
-        if status[i] != _OK:
-            for a in range(3):
-                for c in range(kk):
-                    J[i, a, c] = math.nan
-                for c in range(3):
-                    cov[i, a, c] = math.nan
-            major[i] = minor[i] = az[i] = ce[i] = le[i] = rms[i] = math.nan
-            grazing[i] = False
-            continue
-        sp, cp = math.sin(lat[i]), math.cos(lat[i])
-        sl, cl = math.sin(lon[i]), math.cos(lon[i])
-        E = (-sl, cl, 0.0)
-        N = (-sp * cl, -sp * sl, cp)
-        U = (cp * cl, cp * sl, sp)
-        w_ = 1.0 - e2 * sp * sp
-        mh = a_m * (1.0 - e2) / (w_ * math.sqrt(w_)) + h[i]  # meridian radius + h
-        nh = (a_m / math.sqrt(w_) + h[i]) * cp  # (prime vertical radius + h) cos lat
-        la, lo = lat[i], lon[i]
-        # the slope of the bilinear surface at the hit: central differences over +-1 m
-        g_n = (
-            _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la + 1.0 / mh, lo)
-            - _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la - 1.0 / mh, lo)
-        ) / 2.0
-        g_e = (
-            _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la, lo + 1.0 / nh)
-            - _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la, lo - 1.0 / nh)
-        ) / 2.0
-        Jo = J[i]
+    nb = (n + _BLOCK - 1) // _BLOCK
+    for blk in prange(nb):
+        Rn = np.empty((3, 3))
+        Rb = np.empty((3, 3))
+        Rt = np.empty((3, 3))
+        Rt2 = np.empty((3, 3))
+        Rc = np.empty((3, 3))
+        Rj = np.empty((nj + 1, 3, 3))
+        pp = lens_p.copy()
+        fr = np.empty((3, ns))
         Hf = np.empty(ng * ng)
-        n_fit = iterations + 1 if footprint else 1
-        c00 = c01 = c02 = c11 = c12 = c22 = 0.0
-        m0 = m1 = m2 = inv = 0.0
-        # one more pass than the fits: the last footprint only measures the terrain's departure
-        for it in range(n_fit + 1):
-            if it > 0:
-                # the footprint's plane: C = cov_en (NaN -> 0) + 1e-6 I = L L^T
-                q00 = (c00 if math.isfinite(c00) else 0.0) + 1e-6
-                q01 = c01 if math.isfinite(c01) else 0.0
-                q11 = (c11 if math.isfinite(c11) else 0.0) + 1e-6
-                l11 = math.sqrt(q00)
-                l21 = q01 / l11
-                l22 = math.sqrt(q11 - l21 * l21)
-                sw = 0.0
-                sh = 0.0
-                for a in range(ng):
-                    for b in range(ng):
-                        de = l11 * gh_x[a]
-                        dn = l21 * gh_x[a] + l22 * gh_x[b]
-                        H = _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la + dn / mh, lo + de / nh)
-                        Hf[a * ng + b] = H  # the footprint's heights, read once per fit
-                        if math.isfinite(H):
-                            w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
-                            sw += w
-                            sh += w * H
-                h0 = sh / max(sw, 1e-300)
-                eh0 = 0.0
-                eh1 = 0.0
-                for a in range(ng):
-                    for b in range(ng):
-                        H = Hf[a * ng + b]
-                        if math.isfinite(H):
-                            w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
-                            eh0 += w * (H - h0) * gh_x[a]
-                            eh1 += w * (H - h0) * gh_x[b]
-                ge = eh0 / l11 - l21 / (l11 * l22) * eh1  # L^-T E[z (h - h0)]
-                gn = eh1 / l22
-                if it == n_fit:
-                    # the terrain's RMS departure from this plane over the footprint
-                    sr = 0.0
-                    for a in range(ng):
-                        for b in range(ng):
-                            de = l11 * gh_x[a]
-                            dn = l21 * gh_x[a] + l22 * gh_x[b]
-                            H = Hf[a * ng + b]
-                            if math.isfinite(H):
-                                w = gh_w[a] * gh_w[b] / (2.0 * math.pi)
-                                dz = H - (h0 + de * ge + dn * gn)
-                                sr += w * dz * dz
-                    rms[i] = math.sqrt(sr / max(sw, 1e-300))
-                    break
-                g_e, g_n = ge, gn
-            if not math.isfinite(g_e):
-                g_e = 0.0  # at the DEM's edge: level
-            if not math.isfinite(g_n):
-                g_n = 0.0
-            m0 = U[0] - g_e * E[0] - g_n * N[0]
-            m1 = U[1] - g_e * E[1] - g_n * N[1]
-            m2 = U[2] - g_e * E[2] - g_n * N[2]
-            inv, c00, c01, c02, c11, c12, c22 = _step(free, i, D, m0, m1, m2, True, sz, E, N, U, Jo)
-        # grazing: the ray within 2 sigma of the terrain away from its hit
-        k = free.shape[2]
-        st2 = 0.0
-        fu2 = 0.0
-        for c in range(k):
-            f0, f1, f2 = free[i, 0, c], free[i, 1, c], free[i, 2, c]
-            dt = -(m0 * f0 + m1 * f1 + m2 * f2) * inv
-            st2 += dt * dt
-            fu = U[0] * f0 + U[1] * f1 + U[2] * f2
-            fu2 += fu * fu
-        sig_t = math.sqrt(st2 + (sz * inv) ** 2)
-        d0, d1, d2 = D[i, 0], D[i, 1], D[i, 2]
-        de_ = E[0] * d0 + E[1] * d1 + E[2] * d2
-        dn_ = N[0] * d0 + N[1] * d1 + N[2] * d2
-        du_ = U[0] * d0 + U[1] * d1 + U[2] * d2
-        ti = t[i]
-        gz = False
-        for q in range(nr_):
-            kr = graze_r[q] * ti
-            dr = kr - ti
-            if abs(dr) <= 3.0 * sig_t:
+        for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
+            if status[i] != _OK:
+                _dem_nan(i, J, cov, major, minor, az, ce, le, rms, grazing)
                 continue
-            e_, n_, u_ = dr * de_, dr * dn_, dr * du_
-            ray_h = h[i] + u_ + (e_ * e_ + n_ * n_) / (2.0 * mh)
-            ground = _grid_height(Z, lat_north, lon_west, idlat, idlon, margin, la + n_ / mh, lo + e_ / nh)
-            if not math.isfinite(ground):
-                continue
-            sig_v = math.sqrt(fu2 * (kr / ti) ** 2 + sz * sz)
-            if abs(ray_h - ground) < 2.0 * sig_v:
-                gz = True
-                break
-        grazing[i] = gz
-        _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov, major, minor, az, ce, le)
+            ti = _range(O, P, i)
+            _chain_ray(
+                i,
+                lat,
+                lon,
+                h,
+                heading,
+                pitch,
+                roll,
+                angles,
+                D,
+                ti,
+                vel,
+                axes,
+                R_cam_last,
+                R_base_body,
+                lever,
+                earth_ref,
+                mount_axes,
+                bore_axes,
+                lens_code,
+                lens_p,
+                codes,
+                sigmas,
+                a_m,
+                e2,
+                (Rn, Rb, Rt, Rt2, Rc, Rj, pp),
+                fr,
+            )
+            _dem_ray(
+                fr,
+                i,
+                D[i, 0],
+                D[i, 1],
+                D[i, 2],
+                ti,
+                hit_lat[i],
+                hit_lon[i],
+                hit_h[i],
+                sz,
+                iterations,
+                footprint,
+                Z,
+                lat_north,
+                lon_west,
+                idlat,
+                idlon,
+                margin,
+                a_m,
+                e2,
+                gh_x,
+                gh_w,
+                graze_r,
+                qt_n,
+                rt,
+                le90_per_sigma,
+                Hf,
+                (J, cov, major, minor, az, ce, le, rms, grazing),
+            )

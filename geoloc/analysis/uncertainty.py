@@ -564,14 +564,40 @@ def propagate(
         r0, c0 = s.center_pixel
         row, col = (r0 if row is None else row), (c0 if col is None else col)
     if fast:
-        from geoloc.analysis import _fastuncert as F
-
         hit, shape, O, D = _locate_for(s, pose, row, col, surface, outside, corrections)
         status = np.broadcast_to(hit.status, shape).reshape(-1)
         lat, lon, h = (
             np.ascontiguousarray(np.broadcast_to(getattr(hit, k), shape).reshape(-1)) for k in ("lat", "lon", "h")
         )
         P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
+        dem = terrain_of(surface)
+        refraction = (s, pose, row, col, surface, budget, corrections, outside)
+        # one pass per ray where the kernels read the surface themselves: the chain's columns
+        # never leave the ray's scratch row
+        if dem is None:
+            out = _height_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, lat, lon, h, status, sz)
+            return _with_refraction(out, *refraction)
+        if _compiled_dem(dem):
+            it = footprint_iterations if dem_slope == "footprint" else 0
+            out = _dem_fused(
+                s,
+                pose,
+                budget,
+                velocity_ned_m_s,
+                shape,
+                O,
+                D,
+                P,
+                dem,
+                lat,
+                lon,
+                h,
+                status,
+                sz,
+                it,
+                dem_slope == "footprint",
+            )
+            return _with_refraction(out, *refraction)
         t = np.sqrt(np.sum((P - O) ** 2, axis=-1))
         names, free = _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t)
     else:
@@ -588,30 +614,6 @@ def propagate(
     if sz > 0:
         names = names + ["dem_m" if on_dem else "height_m"]
     refraction = (s, pose, row, col, surface, budget, corrections, outside)
-    if fast and not on_dem:
-        return _with_refraction(
-            _surface_fast(F, free, D, np.zeros((0, 3)), lat, lon, h, status, sz, names, shape), *refraction
-        )
-    if fast and _compiled_dem(dem):
-        return _with_refraction(
-            _dem_fast(
-                F,
-                free,
-                D,
-                t,
-                dem,
-                lat,
-                lon,
-                h,
-                status,
-                sz,
-                names,
-                shape,
-                footprint_iterations if dem_slope == "footprint" else 0,
-                dem_slope == "footprint",
-            ),
-            *refraction,
-        )
     Re = R_ecef_enu(lat, lon)
     cov_en = None
     for _ in range(1 + (footprint_iterations if on_dem and dem_slope == "footprint" else 0)):
@@ -715,9 +717,9 @@ def _source_codes(s, budget: ErrorBudget):
     return names, np.array(codes, np.int64), np.array(sig, float)
 
 
-def _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t):
-    """:func:`chain_derivatives`'s ``dO + t dD`` (n, 3, k) through :func:`_fastuncert.chain_kernel`."""
-    from geoloc.analysis import _fastuncert as F
+def _chain_inputs(s, pose, budget, velocity_ned_m_s, shape):
+    """The budget's source names and :func:`_fastuncert.chain_kernel`'s arguments: those before the
+    rays (the platform and joint angles, flat) and those after them (velocity .. ellipsoid)."""
     from geoloc.sensors._fastlocate import _AXIS
 
     names, codes, sig = _source_codes(s, budget)
@@ -738,18 +740,8 @@ def _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t):
         else np.ascontiguousarray(np.broadcast_to(np.asarray(velocity_ned_m_s, float), shape + (3,)).reshape(n, 3))
     )
     mx, bx = _xyz_axes(s.mount), _xyz_axes(s.boresight)
-    free = np.empty((n, 3, len(codes)))
-    F.chain_kernel(
-        col(pose.lat),
-        col(pose.lon),
-        col(pose.h),
-        col(pose.heading),
-        col(pose.pitch),
-        col(pose.roll),
-        ang,
-        np.ascontiguousarray(O),
-        np.ascontiguousarray(D),
-        np.ascontiguousarray(t),
+    before = tuple(col(getattr(pose, k)) for k in ("lat", "lon", "h", "heading", "pitch", "roll")) + (ang,)
+    after = (
         vel,
         np.array([_AXIS[j.axis] for j in joints], np.int64),
         np.ascontiguousarray(s.R_cam_last),
@@ -764,25 +756,66 @@ def _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t):
         sig,
         float(A),
         float(E2),
-        free,
     )
+    return names, before, after
+
+
+def _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t):
+    """:func:`chain_derivatives`'s ``dO + t dD`` (n, 3, k) through :func:`_fastuncert.chain_kernel`."""
+    from geoloc.analysis import _fastuncert as F
+
+    names, before, after = _chain_inputs(s, pose, budget, velocity_ned_m_s, shape)
+    free = np.empty((int(np.prod(shape)), 3, len(names)))
+    F.chain_kernel(*before, np.ascontiguousarray(O), np.ascontiguousarray(D), np.ascontiguousarray(t), *after, free)
     return names, free
 
 
-def _surface_fast(F, free, D, m, lat, lon, h, status, sz, names, shape):
-    """The surface step, covariance, ellipse, CE90 and LE90 through :func:`_fastuncert.surface_kernel`."""
-    n, k = free.shape[0], free.shape[2]
-    kk = k + (1 if sz > 0 else 0)
-    J, cov = np.empty((n, 3, kk)), np.empty((n, 3, 3))
-    major, minor, az, ce, le, inv = (np.empty(n) for _ in range(6))
+def _outputs(n, kk):
+    """The compiled surface step's output arrays: J (n, 3, kk), cov (n, 3, 3) and six (n,) rows."""
+    return (np.empty((n, 3, kk)), np.empty((n, 3, 3))) + tuple(np.empty(n) for _ in range(6))
+
+
+def _wrap(lat, lon, h, status, J, cov, names, major, minor, az, ce, le, shape) -> PointUncertainty:
+    """A :class:`PointUncertainty` of the compiled engine's flat outputs in the batch's shape."""
+    r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
+    return PointUncertainty(
+        r(lat),
+        r(lon),
+        r(h),
+        r(np.asarray(status, np.uint8)),
+        r(cov, (3, 3)),
+        r(J, (3, J.shape[-1])),
+        tuple(names),
+        r(major),
+        r(minor),
+        r(az),
+        r(ce),
+        r(le),
+    )
+
+
+def _height_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, lat, lon, h, status, sz):
+    """The chain and the surface step on a constant height in one pass
+    (:func:`_fastuncert.chain_surface_kernel`): what :func:`_chain_fast` then the numpy surface step give on a constant height."""
+    from geoloc.analysis import _fastuncert as F
+
+    names, before, after = _chain_inputs(s, pose, budget, velocity_ned_m_s, shape)
+    n = int(np.prod(shape))
+    if sz > 0:
+        names = names + ["height_m"]
+    J, cov, major, minor, az, ce, le, _ = _outputs(n, len(names))
     qt, rt = _ce_table(0.9)
-    F.surface_kernel(
-        free,
-        np.ascontiguousarray(D),
-        np.ascontiguousarray(m),
+    st = np.ascontiguousarray(status, dtype=np.uint8)
+    C = np.ascontiguousarray
+    F.chain_surface_kernel(
+        *before,
+        C(O),
+        C(D),
+        C(P),
+        *after,
         lat,
         lon,
-        np.ascontiguousarray(status, dtype=np.uint8),
+        st,
         float(sz),
         float(len(qt) - 1),
         rt,
@@ -794,66 +827,48 @@ def _surface_fast(F, free, D, m, lat, lon, h, status, sz, names, shape):
         az,
         ce,
         le,
-        inv,
     )
-    r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
-    out = PointUncertainty(
-        r(lat),
-        r(lon),
-        r(h),
-        r(np.asarray(status, np.uint8)),
-        r(cov, (3, 3)),
-        r(J, (3, kk)),
-        tuple(names),
-        r(major),
-        r(minor),
-        r(az),
-        r(ce),
-        r(le),
-    )
-    out.terrain_rms_m = r(np.where(status == Status.OK, 0.0, np.nan))  # a constant height is a plane
+    out = _wrap(lat, lon, h, st, J, cov, names, major, minor, az, ce, le, shape)
+    out.terrain_rms_m = np.where(out.status == Status.OK, 0.0, np.nan)  # a constant height is a plane
     out.surface_sigma_m = float(sz)
-    out.grazing = r(np.zeros(n, bool))
+    out.grazing = np.zeros(shape, bool)
     return out
 
 
-def _compiled_dem(dem) -> bool:
-    """True where :func:`_fastuncert.dem_surface_kernel` reads the DEM itself: one geographic grid."""
-    from geoloc.surfaces.dem import DEM
+def _dem_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, dem, lat, lon, h, status, sz, iterations, footprint):
+    """The chain and the surface step on a geographic DEM in one pass
+    (:func:`_fastuncert.chain_dem_kernel`): what :func:`_chain_fast` then the numpy surface step give on a DEM."""
+    from geoloc.analysis import _fastuncert as F
 
-    return isinstance(dem, DEM) and dem.is_geographic
-
-
-def _dem_fast(F, free, D, t, dem, lat, lon, h, status, sz, names, shape, iterations, footprint):
-    """The surface step on a DEM (slope, footprint plane, terrain RMS, grazing, covariance, ellipse,
-    CE90, LE90) through :func:`_fastuncert.dem_surface_kernel`: what the numpy path computes."""
-
-    n, k = free.shape[0], free.shape[2]
-    kk = k + (1 if sz > 0 else 0)
-    J, cov = np.empty((n, 3, kk)), np.empty((n, 3, 3))
-    major, minor, az, ce, le, rms = (np.empty(n) for _ in range(6))
+    names, before, after = _chain_inputs(s, pose, budget, velocity_ned_m_s, shape)
+    n = int(np.prod(shape))
+    if sz > 0:
+        names = names + ["dem_m"]
+    J, cov, major, minor, az, ce, le, rms = _outputs(n, len(names))
     grazing = np.empty(n, np.bool_)
     qt, rt = _ce_table(0.9)
+    st = np.ascontiguousarray(status, dtype=np.uint8)
     g = dem.grid
-    F.dem_surface_kernel(
-        np.ascontiguousarray(free),
-        np.ascontiguousarray(D),
-        np.ascontiguousarray(t, dtype=float),
+    C = np.ascontiguousarray
+    F.chain_dem_kernel(
+        *before,
+        C(O),
+        C(D),
+        C(P),
+        *after,
         lat,
         lon,
         h,
-        np.ascontiguousarray(status, dtype=np.uint8),
+        st,
         float(sz),
         int(iterations),
         bool(footprint),
-        np.ascontiguousarray(g.values, dtype=float),
+        C(g.values, dtype=float),
         float(g.lat_north_deg),
         float(g.lon_west_deg),
         float(g.dlat_deg),
         float(g.dlon_deg),
         float(g.margin),
-        float(A),
-        float(E2),
         _GH_X,
         _GH_W,
         _GRAZE_R,
@@ -870,25 +885,18 @@ def _dem_fast(F, free, D, t, dem, lat, lon, h, status, sz, names, shape, iterati
         rms,
         grazing,
     )
-    r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
-    out = PointUncertainty(
-        r(lat),
-        r(lon),
-        r(h),
-        r(np.asarray(status, np.uint8)),
-        r(cov, (3, 3)),
-        r(J, (3, kk)),
-        tuple(names),
-        r(major),
-        r(minor),
-        r(az),
-        r(ce),
-        r(le),
-    )
-    out.terrain_rms_m = r(rms)
+    out = _wrap(lat, lon, h, st, J, cov, names, major, minor, az, ce, le, shape)
+    out.terrain_rms_m = rms.reshape(shape)
     out.surface_sigma_m = float(sz)
-    out.grazing = r(grazing)
+    out.grazing = grazing.reshape(shape)
     return out
+
+
+def _compiled_dem(dem) -> bool:
+    """True where :func:`_fastuncert.chain_dem_kernel` reads the DEM itself: one geographic grid."""
+    from geoloc.surfaces.dem import DEM
+
+    return isinstance(dem, DEM) and dem.is_geographic
 
 
 # --------------------------------------------------------------------- Monte Carlo of a budget
