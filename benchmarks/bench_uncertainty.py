@@ -11,7 +11,10 @@ analytic Jacobian, the covariance, the ellipse and the exact CE90 in numba kerne
 Run: ``python benchmarks/bench_uncertainty.py [--points N] [--repeat K] [--dem] [--threads T]``. Prints
 medians of wall and CPU time, points per second of each, and ``ratio: X`` = propagation points
 per CPU second over locate's rays per CPU second (the goal: >= 0.25, on the DEM too), then the same in wall time.
-``--dem`` also times both on the bundled SRTM crop (exact DEM solver).
+``--dem`` also times both on the bundled SRTM crop (exact DEM solver). ``--breakdown`` first times
+the parts of a point on the ellipsoid (its location, the chain kernel's frames alone, the angle,
+position and lever-arm sources, the lens sources, all of them, and the fused chain-and-surface
+kernel), each alone with its outputs allocated once, so that where the time goes is measured.
 """
 
 from __future__ import annotations
@@ -94,6 +97,7 @@ def main() -> None:
         help="numba threads (default: numba's, one per core); 1 measures the kernels' own CPU cost "
         "without the waits of a parallel loop's threads on a loaded machine",
     )
+    ap.add_argument("--breakdown", action="store_true", help="time the parts of a point on the ellipsoid first")
     a = ap.parse_args()
     if a.threads:
         import numba
@@ -119,6 +123,8 @@ def main() -> None:
         f"{n} points, {len(BUDGET.sigmas) - 1} sources, {a.repeat} repeats (medians); 2 cores shared, "
         "a loaded machine: the CPU ratio is the steadier figure; load average %.2f" % os.getloadavg()[0]
     )
+    if a.breakdown:
+        breakdown(pose, row, col, vel, a.repeat)
     for name, surf in cases:
         if name == "ellipsoid":
 
@@ -148,6 +154,45 @@ def main() -> None:
         tag = "" if name == "ellipsoid" else " dem"
         print(f"ratio{tag}: {cl / cp:.3f}")
         print(f"ratio{tag} wall: {wl / wp:.3f}")
+
+
+def breakdown(pose, row, col, vel, repeat: int) -> None:
+    """CPU time of each part of ``propagate`` on the ellipsoid, each alone (outputs allocated once)."""
+    from geoloc.analysis import _fastuncert as F
+    from geoloc.analysis import uncertainty as U
+
+    s, surf = U.as_sensor(TURRET), HeightSurface(500.0)
+    hit, shape, O, D = U._locate_for(s, pose, row, col, surf, "flag")
+    n = int(np.prod(shape))
+    P = np.ascontiguousarray(np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3))
+    t = np.sqrt(np.sum((P - O) ** 2, axis=-1))
+    flat = [np.ascontiguousarray(np.broadcast_to(getattr(hit, k), shape).reshape(-1)) for k in ("lat", "lon", "h")]
+    status = np.broadcast_to(hit.status, shape).reshape(-1)
+    names, before, after = U._chain_inputs(s, pose, BUDGET, vel, shape)
+    codes, sig = after[-4], after[-3]
+    lens = codes >= F.SRC_LENS
+
+    def chain(sel):
+        free = np.empty((n, 3, int(np.sum(sel))))
+        aft = after[:-4] + (np.ascontiguousarray(codes[sel]), np.ascontiguousarray(sig[sel])) + after[-2:]
+        return lambda: F.chain_kernel(*before, O, D, t, *aft, free)
+
+    sz = float(BUDGET.sigma("height_m"))
+    parts = [
+        ("the points (the pipeline's fused locate)", lambda: U._locate_for(s, pose, row, col, surf, "flag")),
+        ("chain kernel: the frames alone", chain(np.zeros(len(codes), bool))),
+        (f"chain kernel: {int(np.sum(~lens))} angle, position, lever-arm sources", chain(~lens)),
+        (f"chain kernel: {int(np.sum(lens))} lens sources", chain(lens)),
+        (f"chain kernel: all {len(codes)} sources", chain(np.ones(len(codes), bool))),
+        (
+            "fused chain + surface step + ellipse (outputs new)",
+            lambda: U._height_fused(s, pose, BUDGET, vel, shape, O, D, P, *flat, status, sz),
+        ),
+    ]
+    for what, fn in parts:
+        fn()
+        w, c, _ = timed(fn, repeat)
+        print(f"[breakdown] {what:55s} {c * 1e3:8.1f} ms CPU {w * 1e3:8.1f} ms wall  load {os.getloadavg()[0]:.2f}")
 
 
 if __name__ == "__main__":
