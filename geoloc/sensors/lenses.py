@@ -302,18 +302,13 @@ def unproject_nb(code, p, u, v):
 
 
 @cached_njit(_KEY, inline="always", error_model="numpy")
-def unproject_map_lanes(p, u, v):
-    """A Brown lens's inverse through its undistortion map, without branches: (x, y, z, ok).
+def _unproject_map_guess(p, u, v):
+    """The bilinear guess of :func:`unproject_map_lanes` from the undistortion map: (x0, y0, inmap).
 
-    ``p`` is :meth:`Lens.kernel_array` of a Brown lens. The bilinear guess from the map, two
-    Newton steps, and the fold tests of the full iteration (det J > 0, R > 0); ``ok`` is
-    False where the map does not cover the pixel, a node is NaN, or the second step is above
-    :data:`MAP_ACCEPT` (then the caller takes :func:`unproject_nb`). Selects instead of
-    branches, so a loop over pixels compiles to SIMD code; a pixel off the map reads node
-    (0, 0), so that every lane's memory access stays inside the map.
+    ``inmap`` is False where the map does not cover the pixel (NaN included); such a pixel
+    reads node (0, 0), so that every lane's memory access stays inside the map.
     """
     n0 = _N_SLOTS
-    xt, yt = _from_pixel_nb(p, u, v)
     nu, nv = int(p[n0 + 3]), int(p[n0 + 4])
     gu = (u - p[n0]) * p[n0 + 2]
     gv = (v - p[n0 + 1]) * p[n0 + 2]
@@ -326,6 +321,18 @@ def unproject_map_lanes(p, u, v):
     k2 = k + 2 * nu
     x = (1.0 - fv) * ((1.0 - fu) * p[k] + fu * p[k + 2]) + fv * ((1.0 - fu) * p[k2] + fu * p[k2 + 2])
     y = (1.0 - fv) * ((1.0 - fu) * p[k + 1] + fu * p[k + 3]) + fv * ((1.0 - fu) * p[k2 + 1] + fu * p[k2 + 3])
+    return x, y, inmap
+
+
+@cached_njit(_KEY, inline="always", error_model="numpy")
+def _unproject_map_refine(p, u, v, x, y, inmap):
+    """Two Newton steps of :func:`unproject_map_lanes` from the guess (x, y): (x, y, z, ok).
+
+    ``p`` holds the :data:`PARAM_LAYOUT` slots (an array, or a tuple of them: a kernel passes
+    a tuple, whose values stay in registers, so that its loop over pixels has no memory access
+    but the pixel's and compiles to SIMD code).
+    """
+    xt, yt = _from_pixel_nb(p, u, v)
     xd, yd, radial, d_radial = _brown_distort_nb(p, x, y)
     dx, dy, det = _brown_newton_step_nb(p, x, y, xd, yd, radial, d_radial, xt, yt)
     x -= dx
@@ -337,6 +344,26 @@ def unproject_map_lanes(p, u, v):
     ok = inmap & (abs(dx) + abs(dy) <= MAP_ACCEPT) & (det > 0.0) & (radial > 0.0)
     ux, uy, uz = _unit_nb(x, y)
     return ux, uy, uz, ok
+
+
+@cached_njit(_KEY, inline="always", error_model="numpy")
+def _slots(p):
+    """The :data:`PARAM_LAYOUT` slots of ``p`` (all 13 of them) as a tuple (for :func:`_unproject_map_refine`)."""
+    return (p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11], p[12])
+
+
+@cached_njit(_KEY, inline="always", error_model="numpy")
+def unproject_map_lanes(p, u, v):
+    """A Brown lens's inverse through its undistortion map, without branches: (x, y, z, ok).
+
+    ``p`` is :meth:`Lens.kernel_array` of a Brown lens. The bilinear guess from the map
+    (:func:`_unproject_map_guess`), two Newton steps and the fold tests of the full iteration
+    (det J > 0, R > 0; :func:`_unproject_map_refine`); ``ok`` is False where the map does not
+    cover the pixel, a node is NaN, or the second step is above :data:`MAP_ACCEPT` (then the
+    caller takes :func:`unproject_nb`). Selects instead of branches.
+    """
+    x, y, inmap = _unproject_map_guess(p, u, v)
+    return _unproject_map_refine(p, u, v, x, y, inmap)
 
 
 @cached_njit(_KEY, error_model="numpy")
