@@ -299,9 +299,10 @@ class Pipeline:
         fused = self._fused(row, col, state, engine, outside)
         if fused is not None:
             lat, lon, h, ecef, rng, status, o, d = fused
-            los_status = np.where(
-                np.isin(status, (Status.INVALID_INPUT, Status.OUTSIDE_SENSOR)), status, Status.OK
-            ).astype(np.uint8)
+            # the line of sight's own statuses; uint8 throughout (np.isin and an int64 np.where
+            # then astype cost 4.7 ns a ray, a thirtieth of the kernel)
+            keep = (status == Status.INVALID_INPUT) | (status == Status.OUTSIDE_SENSOR)
+            los_status = np.where(keep, status, np.uint8(Status.OK))
             los = LineOfSight(o, d, los_status)
             raw = GroundPoint(lat, lon, h, ecef, rng, status, los)
             return self._refract(los, los, raw)

@@ -5,7 +5,7 @@ of sight -> [Q17 eq. 10-11] -> Vermeille), written per ray so that a million
 rays cost one pass over memory instead of ~100 temporary arrays. The chain is
 passed as data, not code: the lens as a model code and its parameter vector
 (:meth:`geoloc.sensors.lenses.Lens.as_array`), the gimbal joints as axis codes
-with one column of angles each, the boresight/optical turn and the mount as
+with one array of angles each, the boresight/optical turn and the mount as
 3x3 matrices, the lever arm as a vector, and a flag for earth-referenced
 gimbals. So every preset, lens, mount, boresight and lever arm runs compiled
 (no silent fallback). ``tests/sensors/test_fastlocate.py`` holds it equal to the
@@ -478,6 +478,18 @@ def _geodetic_block(x, y, z, a_m, e2, status, lat, lon, h, good):
             lat[i], lon[i], h[i] = geodetic_fast(x[i], y[i], z[i], a_m, e2)
 
 
+@cached_njit(KEY, inline="always")
+def _joint_angles(j, angle0, angle1, angle2, angles_more):
+    """The angles of joint ``j``: one of the first three joints' arrays, else row j - 3 of ``angles_more``."""
+    if j == 0:
+        return angle0
+    if j == 1:
+        return angle1
+    if j == 2:
+        return angle2
+    return angles_more[j - 3]
+
+
 @cached_njit(KEY, parallel=True, error_model="numpy")
 def locate_kernel(
     lat,
@@ -486,7 +498,10 @@ def locate_kernel(
     heading,
     pitch,
     roll,
-    angles,
+    angle0,
+    angle1,
+    angle2,
+    angles_more,
     row,
     col,
     target_h,
@@ -544,7 +559,9 @@ def locate_kernel(
         _sincos_block(lat[k0:k1], sc[6, :m], sc[7, :m])
         _sincos_block(lon[k0:k1], sc[8, :m], sc[9, :m])
         for j in range(nj):
-            _sincos_block(angles[k0:k1, j], sc[10 + 2 * j, :m], sc[11 + 2 * j, :m])
+            _sincos_block(
+                _joint_angles(j, angle0, angle1, angle2, angles_more)[k0:k1], sc[10 + 2 * j, :m], sc[11 + 2 * j, :m]
+            )
         _valid_block(
             lat[k0:k1],
             lon[k0:k1],
@@ -560,7 +577,9 @@ def locate_kernel(
             sc[rok, :m],
         )
         for j in range(nj):
-            _angle_valid_block(angles[k0:k1, j], angle_lo[j], angle_hi[j], sc[rok, :m])
+            _angle_valid_block(
+                _joint_angles(j, angle0, angle1, angle2, angles_more)[k0:k1], angle_lo[j], angle_hi[j], sc[rok, :m]
+            )
         # pixel -> optical frame -> last joint frame -> ... -> gimbal base (or NED) -> body -> NED
         _unproject_block(lens_code, lens_p, row[k0:k1], col[k0:k1], x, y, z, good[:m])
         _mul_T_block(R_cam_last, x, y, z)
@@ -669,11 +688,12 @@ def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
     angles = [pose.angle(a) for a in names]
     fields = [pose.lat, pose.lon, pose.h, pose.heading, pose.pitch, pose.roll, row, col, target_h, *angles]
     shape = np.broadcast_shapes(*(np.shape(v) for v in fields))
-    flat = [_col(v, shape) for v in fields[:9]]
+    flat = [_col(v, shape) for v in fields]
     n = flat[0].size
-    ang = np.empty((n, len(names)))
-    for j, a in enumerate(angles):
-        ang[:, j] = np.broadcast_to(np.asarray(a, float), shape).reshape(-1)
+    # the first three joints' angles as the pose holds them (no copy when they are the batch's
+    # float64 arrays already: a copy into one (n, k) array cost 6.5 ns a ray of ~150), more in rows
+    joint = flat[9:12] + [flat[0][:0]] * (3 - len(flat[9:12]))  # unused: empty
+    more = np.stack(flat[12:]) if len(flat) > 12 else np.empty((0, n))
     has_mount = not np.array_equal(sensor.R_base_body, np.eye(3))
     ranges = np.array([pose.RANGES[k] for k in ("lat", "lon", "h", "heading", "pitch", "roll")], dtype=float)
     lo = np.array([pose.RANGES.get(a, pose.ANGLE_RANGE)[0] for a in names], dtype=float)
@@ -685,8 +705,9 @@ def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
     lens = sensor.lens
     locate_kernel(
         *flat[:6],
-        ang,
-        *flat[6:],
+        *joint,
+        more,
+        *flat[6:9],
         int(lens.code),
         _lens_vector(lens),
         float(lens.width),
