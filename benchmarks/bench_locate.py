@@ -18,6 +18,12 @@ camera) and ``ratio turret: X`` = geoloc rays per CPU second over pymap3d's
 kernel runs on both cores and pymap3d on one, so the wall ratio is the larger on
 an idle machine; on a loaded one the CPU ratio is the steadier figure.
 
+``--hops`` prints where the kernel's CPU time goes: each hop's loop (a ``*_block`` function of
+``geoloc/sensors/_fastlocate.py``) driven alone over the rays in blocks, as in the kernel, on
+one thread, nanoseconds a ray (medians), beside the whole kernel's and ``locate()``'s; the
+difference between the sum of the hops and the whole kernel is what no hop holds (the
+kernel's memory traffic: inputs read once, outputs written to fresh pages).
+
 ``--ab REV`` times the kernel alone, this tree's against the ``_fastlocate.py`` of
 git revision REV (loaded from ``git show``, compiled in the same process), on the
 same rays, calls alternating, medians of wall and CPU time: an A/B that stays
@@ -27,6 +33,7 @@ meaningful when other processes load the machine (both sides see the same load).
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numpy as np
@@ -169,6 +176,158 @@ def ab(rev: str, n: int, repeat: int, rng) -> None:
         )
 
 
+def hops(n: int, repeat: int, rng) -> None:
+    """Per-hop CPU time of the fused kernel, one thread, ns a ray (see the module docstring)."""
+    import numba
+    from numba import njit
+
+    from geoloc.geodesy.ellipsoid import E2, A, B
+    from geoloc.locate import as_sensor
+    from geoloc.sensors import _fastlocate as F
+
+    numba.set_num_threads(1)
+    bl = F._BLOCK
+
+    @njit
+    def d_sincos(a, sc):
+        for k0 in range(0, a.shape[0], bl):
+            m = min(a.shape[0], k0 + bl) - k0
+            F._sincos_block(a[k0 : k0 + m], sc[0, :m], sc[1, :m])
+
+    @njit
+    def d_valid(lat, lon, h, hd, p, r, row, col, th, ranges, b_m, sc):
+        for k0 in range(0, lat.shape[0], bl):
+            k1 = min(lat.shape[0], k0 + bl)
+            F._valid_block(
+                lat[k0:k1], lon[k0:k1], h[k0:k1], hd[k0:k1], p[k0:k1], r[k0:k1],
+                row[k0:k1], col[k0:k1], th[k0:k1], ranges, b_m, sc[0, : k1 - k0],
+            )  # fmt: skip
+
+    @njit
+    def d_unproject(code, lp, row, col, sc, good):
+        for k0 in range(0, row.shape[0], bl):
+            k1 = min(row.shape[0], k0 + bl)
+            m = k1 - k0
+            F._unproject_block(code, lp, row[k0:k1], col[k0:k1], sc[0, :m], sc[1, :m], sc[2, :m], good[:m])
+
+    @njit
+    def d_reset(n, sc):  # each rotation driver starts every block from the same unit vectors
+        for k0 in range(0, n, bl):
+            sc[0, :], sc[1, :], sc[2, :] = sc[13, :], sc[14, :], sc[15, :]
+
+    @njit
+    def d_mul_T(R, n, sc):
+        for k0 in range(0, n, bl):
+            sc[0, :], sc[1, :], sc[2, :] = sc[13, :], sc[14, :], sc[15, :]
+            F._mul_T_block(R, sc[0], sc[1], sc[2])
+
+    @njit
+    def d_turn(n, sc):
+        for k0 in range(0, n, bl):
+            sc[0, :], sc[1, :], sc[2, :] = sc[13, :], sc[14, :], sc[15, :]
+            F._turn_back_block(2, sc[16], sc[17], sc[0], sc[1], sc[2])
+
+    @njit
+    def d_b2n(n, sc, xyz):
+        for k0 in range(0, n, bl):
+            xyz[0, :], xyz[1, :], xyz[2, :] = sc[13, :], sc[14, :], sc[15, :]
+            F._body_to_ned_block(sc, xyz[0], xyz[1], xyz[2])
+
+    @njit
+    def d_hit(sc, xyz, h, th, row, col, w, hh, lever, a_m, b_m, e2, o, d, s, ecef, st):
+        for k0 in range(0, h.shape[0], bl):
+            k1 = min(h.shape[0], k0 + bl)
+            m = k1 - k0
+            xyz[0, :], xyz[1, :], xyz[2, :] = sc[13, :], sc[14, :], sc[15, :]
+            F._hit_block(
+                sc[:, :m], xyz[0, :m], xyz[1, :m], xyz[2, :m], sc[12, :m], h[k0:k1], th[k0:k1], row[k0:k1],
+                col[k0:k1], True, w, hh, lever, a_m, b_m, e2, o[k0:k1], d[k0:k1], s[k0:k1], ecef[k0:k1],
+                st[k0:k1], xyz[3, :m], xyz[4, :m], xyz[5, :m],
+            )  # fmt: skip
+
+    @njit
+    def d_geo(ecef, a_m, e2, st, lat, lon, h, good, xyz):
+        for k0 in range(0, lat.shape[0], bl):
+            k1 = min(lat.shape[0], k0 + bl)
+            m = k1 - k0
+            xyz[0, :m], xyz[1, :m], xyz[2, :m] = ecef[k0:k1, 0], ecef[k0:k1, 1], ecef[k0:k1, 2]
+            F._geodetic_block(
+                xyz[0, :m], xyz[1, :m], xyz[2, :m], a_m, e2, st[k0:k1], lat[k0:k1], lon[k0:k1], h[k0:k1], good[:m]
+            )
+
+    def med(fn):
+        fn()  # compile
+        cpu = []
+        for _ in range(repeat):
+            c = time.process_time()
+            fn()
+            cpu.append(time.process_time() - c)
+        return float(np.median(cpu)) * 1e9 / n
+
+    for name, (sensor, pose, rows, cols) in (("q17 pinhole", make_rays(n, rng)), ("turret", make_turret_rays(n, rng))):
+        s = as_sensor(sensor)
+        nj = len(s.angle_names)
+        mount = not np.array_equal(s.R_base_body, np.eye(3))
+        _, _, _, ecef, _, st, _, _ = F.locate_fast(pose, s, rows, cols, 0.0)
+        sc = np.zeros((18, bl))  # sines and cosines of attitude, lat, lon (rows 0-9), then scratch
+        ang = rng.uniform(-0.2, 0.2, (5, bl))
+        ang[3], ang[4] = pose.lat[:bl], pose.lon[:bl]
+        sc[0:10:2], sc[1:10:2] = np.sin(ang), np.cos(ang)
+        sc[12] = 1.0  # valid
+        dn = np.array([0.1, 0.2, 1.0]) / np.linalg.norm([0.1, 0.2, 1.0])  # a look down, 13 deg off nadir
+        sc[13:16] = dn[:, None]
+        sc[16], sc[17] = np.sin(ang[0]), np.cos(ang[0])
+        xyz = np.empty((6, bl))
+        good = np.empty(bl, dtype=np.bool_)
+        th = np.zeros(n)
+        ranges = np.array([pose.RANGES[k] for k in ("lat", "lon", "h", "heading", "pitch", "roll")], dtype=float)
+        lp = F._lens_vector(s.lens)
+        outs = [np.empty((n, 3)), np.empty((n, 3)), np.empty(n), np.empty((n, 3)), np.empty(n, np.uint8)]
+        geo = [np.empty(n) for _ in range(3)]
+        lever = np.array(s.lever_arm_m, float)
+        w, hh = float(s.lens.width), float(s.lens.height)
+        cost = {
+            f"sines and cosines (x {5 + nj})": (5 + nj) * med(lambda: d_sincos(pose.heading, sc)),
+            "valid (pose, pixel ranges)": med(
+                lambda: d_valid(
+                    pose.lat,
+                    pose.lon,
+                    pose.h,
+                    pose.heading,
+                    pose.pitch,
+                    pose.roll,
+                    rows,
+                    cols,
+                    th,
+                    ranges,
+                    float(B),
+                    sc,
+                )
+            ),  # fmt: skip
+            f"lens inverse ({type(s.lens).__name__})": med(
+                lambda: d_unproject(int(s.lens.code), lp, rows, cols, sc, good)
+            ),
+            f"rotations (x {1 + nj + mount} + attitude)": (1 + mount)
+            * med(lambda: d_mul_T(np.ascontiguousarray(s.R_cam_last), n, sc))
+            + nj * med(lambda: d_turn(n, sc))
+            + med(lambda: d_b2n(n, sc, xyz))
+            - (2 + nj + mount) * med(lambda: d_reset(n, sc)),
+            "NED->ECEF, lever arm, ray x ellipsoid, status": med(
+                lambda: d_hit(sc, xyz, pose.h, th, rows, cols, w, hh, lever, float(A), float(B), float(E2), *outs)
+            ),
+            "ECEF -> geodetic (Vermeille)": med(lambda: d_geo(ecef, float(A), float(E2), st, *geo, good, xyz)),
+        }
+        whole = med(lambda: F.locate_fast(pose, s, rows, cols, 0.0))
+        full = med(lambda: locate(pose, sensor, rows, cols, target_h=0.0))
+        print(f"[hops {name}] CPU ns a ray, one thread, medians of {repeat} over {n} rays:")
+        for k, v in cost.items():
+            print(f"[hops {name}]   {k:48s} {v:6.1f}")
+        print(f"[hops {name}]   {'sum of the hops':48s} {sum(cost.values()):6.1f}")
+        print(f"[hops {name}]   {'the whole kernel (locate_fast)':48s} {whole:6.1f}")
+        print(f"[hops {name}]   {'locate() (Pipeline, GroundPoint)':48s} {full:6.1f}")
+    print(f"load average {os.getloadavg()[0]:.2f}")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rays", type=int, default=1_000_000)
@@ -183,6 +342,7 @@ def main(argv=None) -> None:
         help="numba threads for the kernel (default: numba's, one per core); 1 measures the "
         "kernel's own CPU cost without waits at the parallel loop's barrier",
     )
+    ap.add_argument("--hops", action="store_true", help="only the per-hop CPU time of the kernel, one thread")
     args = ap.parse_args(argv)
     if args.threads:
         import numba
@@ -191,6 +351,9 @@ def main(argv=None) -> None:
     rng = np.random.default_rng(0)
     if args.ab:
         ab(args.ab, args.rays, args.repeat, rng)
+        return
+    if args.hops:
+        hops(args.rays, args.repeat, rng)
         return
     cam, pose, rows, cols = make_rays(args.rays, rng)
     print(f"rays: {args.rays}, repeats: {args.repeat} (medians; the kernel uses both cores, so CPU > wall)")
