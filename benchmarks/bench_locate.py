@@ -14,7 +14,7 @@ any sensor; nothing falls back to numpy).
 Run: ``python benchmarks/bench_locate.py [--rays N] [--repeat K]``. Prints
 medians of wall and CPU time; the last lines are ``ratio: X`` (the [Q17]
 camera) and ``ratio turret: X`` = geoloc rays per CPU second over pymap3d's
-(the goal: >= 2.5 for both), each followed by the same ratio in wall time. The
+(the goal: >= 3 for both), each followed by the same ratio in wall time. The
 kernel runs on both cores and pymap3d on one, so the wall ratio is the larger on
 an idle machine; on a loaded one the CPU ratio is the steadier figure.
 
