@@ -382,3 +382,39 @@ def test_line_of_sight_auto_takes_the_kernel_and_equals_the_numpy_path():
     np.testing.assert_allclose(moved, np.linalg.norm(lever - np.array(s.lever_arm_m), axis=-1)[ok], atol=1e-6)
     with pytest.raises(ValueError, match="per-sample"):
         locate(pose, perturbed, rows, cols, engine="numba")
+
+
+def test_kernel_takes_any_number_of_joints_as_the_numpy_path():
+    # the kernel reads the first three joints' angle arrays as the pose holds them and any
+    # further ones from rows of one array: a one-joint and a five-joint custom gimbal (two
+    # joints beyond the three) against the numpy reference path, ray for ray; one signature
+    from geoloc.sensors._fastlocate import locate_kernel
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.sensors.gimbals import Gimbal, GimbalJoint
+    from geoloc.sensors.lenses import BrownLens
+
+    lens = BrownLens(fx=1000.0, fy=1000.0, cx=499.5, cy=499.5, width=1000, height=1000, k1=-0.1)
+    axes = ("z", "y", "x", "z", "y")
+    rng = np.random.default_rng(5)
+    n = 2000
+    for k in (1, 5):
+        joints = tuple(GimbalJoint(f"j{i}", axes[i], f"f{i}", "") for i in range(k))
+        s = FrameSensor(lens, Gimbal(f"custom{k}", joints, np.eye(3)), lever_arm_m=(0.5, -0.2, 0.3))
+        # the joints turn the line of sight off the body's Z (down) by a few degrees each
+        angles = {f"j{i}": rng.uniform(-8, 8, n) for i in range(k)}
+        pose = Pose.from_deg(
+            rng.uniform(30, 40, n), 80.0, rng.uniform(500, 3000, n), rng.uniform(0, 360, n), 2.0, -1.0,
+            angles_deg=angles,
+        )  # fmt: skip
+        rows, cols = rng.uniform(1, 1000, n), rng.uniform(1, 1000, n)
+        ref = locate(pose, s, rows, cols, target_h=0.0, engine="numpy")
+        fast = locate(pose, s, rows, cols, target_h=0.0, engine="numba")
+        assert np.array_equal(ref.status, fast.status)
+        ok = ref.status == Status.OK
+        assert ok.sum() > 0.9 * n
+        # tolerances as _compare: the same formulas, rounded in another order
+        np.testing.assert_allclose(fast.ecef[ok], ref.ecef[ok], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(fast.lat[ok], ref.lat[ok], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast.lon[ok], ref.lon[ok], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast.los.direction_ecef[ok], ref.los.direction_ecef[ok], rtol=0, atol=1e-12)
+    assert len(locate_kernel.signatures) == 1, locate_kernel.signatures
