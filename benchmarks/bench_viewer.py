@@ -30,7 +30,9 @@ Where a step's time goes, per step (medians), beside the same figures for the pe
   the renderer's main-thread busy time and its script time (CDP ``Performance.getMetrics``:
   ``TaskDuration``, ``ScriptDuration``), and the CPU of Chromium's processes (its GPU process, where
   SwiftShader draws, apart);
-* **the server**: the step's wall and CPU time (``time.process_time`` of this process).
+* **the server**: the step's wall and CPU time (``time.process_time`` of this process), and its
+  wall time to the scene batch's flush (the step's scene on its way to the browser; the panels'
+  batch follows), so a step's first change splits into the server's part and the browser's.
 
 CPU beside wall: Chromium's processes (``/proc``; its GPU process, where SwiftShader draws, apart)
 and this process (the server), over the same intervals. The canvas is watched from inside the
@@ -191,6 +193,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     import numpy as np
+    import viser
     from bench_browser import COUNTER, PROBE, _browser_cpu_s, _frames, _settled
     from test_viz_browser import chromium
 
@@ -210,7 +213,16 @@ def main(argv=None) -> int:
         built[client.client_id] = time.time()
 
     viewer._build_tab = timed_build
+    flushed: list = []  # perf_counter of each client flush (a step's first one sends its scene batch)
+    orig_flush = viser.ClientHandle.flush
+
+    def timed_flush(self):
+        flushed.append(time.perf_counter())
+        return orig_flush(self)
+
+    viser.ClientHandle.flush = timed_flush
     view, settle, view_cpu, steps, step_cpu, server_step, peers, play = [], [], [], [], [], [], [], []
+    to_scene: list = []  # the server's wall time from a step to its scene batch's flush
     step_where, peer_where = [], []
     try:
         with tempfile.TemporaryDirectory() as tmp, chromium(Path(tmp)) as browser:
@@ -257,9 +269,11 @@ def main(argv=None) -> int:
                     probe.start()
                     c0, s0 = _browser_cpu_s(), time.process_time()
                     t_step = time.time()
+                    flushed.clear()
                     w = time.perf_counter()
                     fl.sl_frame.value = (int(fl.sl_frame.value) + 1) % len(fl.model)
                     server_step.append((time.perf_counter() - w, time.process_time() - s0))
+                    to_scene.append(flushed[0] - w if flushed else float("nan"))
                     steps.append(_first_change(page, seen, t_step))
                     c1 = _browser_cpu_s()
                     step_cpu.append((c1[0] - c0[0], c1[1] - c0[1]))
@@ -306,7 +320,8 @@ def main(argv=None) -> int:
         f"step to the next frame, to the first canvas change: median {med(steps) * 1e3:.0f} ms wall over "
         f"{len(steps)} steps (goal 300 ms); browser CPU {med(c[0] for c in step_cpu) * 1e3:.0f} ms (GPU process "
         f"{med(c[1] for c in step_cpu) * 1e3:.0f} ms); the server's step {med(s[0] for s in server_step) * 1e3:.0f} "
-        f"ms wall, {med(s[1] for s in server_step) * 1e3:.0f} ms CPU"
+        f"ms wall, {med(s[1] for s in server_step) * 1e3:.0f} ms CPU, its scene batch sent after "
+        f"{med(to_scene) * 1e3:.0f} ms wall"
     )
     print(f"peer: viser's bare scene update (one ball moved) to the canvas: median {med(peers) * 1e3:.0f} ms wall")
     for label, rows in (("a step", step_where), ("the peer", peer_where)):
