@@ -266,8 +266,18 @@ def test_a_flight_view_folds_the_teaching_panel_and_hides_its_row(flight):
         tp = app.layers[1]
         root = lambda: server.scene.get_handle_by_name(teaching_panel.ROOT)  # noqa: E731
         assert tp.flight_view and not tp.cb_show.value and not root().visible
+        # hidden, the row stays where it was while the timeline moves the aircraft (a step sends no
+        # scene message for it); shown, it is on the aircraft (the scene's own node, placed by the app)
+        fl, was = app.layers[0], np.array(root().position, float)
+        for _ in range(2):
+            fl.go(int(fl.sl_frame.value) + 1)
+        aircraft = np.array(server.scene.get_handle_by_name("/enu/aircraft").position, float)
+        assert np.linalg.norm(aircraft - was) > 1e-3  # the aircraft moved (km): the check below can fail
+        np.testing.assert_array_equal(root().position, was)
         tp.frame_aircraft()
         assert tp.cb_show.value and root().visible
+        # float32 positions on the wire are not involved: both are the server's float64 values (1e-9 km)
+        np.testing.assert_allclose(root().position, aircraft, atol=1e-9)
         lesson = GeolocApp(server, copy.copy(flight), layers=(teaching_panel.attach,)).layers[0]
         assert not lesson.flight_view and lesson.cb_show.value
     finally:

@@ -311,7 +311,10 @@ class TeachingPanel:
             s.view.set_frame_labels(show or not self.flight_view)
 
         def place_root(h):
-            h.position = aircraft
+            # hidden, the row is not moved: a scene message in a step's panel batch makes the browser
+            # draw the scene again; showing it (the checkbox redraws) places it first
+            if show:
+                h.position = aircraft
             if h.visible != show:
                 h.visible = show
 
