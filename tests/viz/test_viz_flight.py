@@ -315,6 +315,47 @@ def test_timeline_moves_only_the_highlight():
         assert fl.model.outlier[fl.top_idx[0]]
 
 
+def test_a_step_sends_its_scene_first_and_the_panel_text_after(monkeypatch):
+    """A timeline step's first batch (flushed to the browser before the panels are worked out) holds
+    the scene and no markdown: the browser handles a batch with scene messages in the frame that draws
+    it, and the panels' text would delay that frame. The text follows in a batch with no scene
+    message (a GUI-only batch draws no frame), the hidden teaching row not moved. A step skipped for
+    a newer one leaves its text to that step, even one that redraws nothing."""
+    from viser.infra._async_message_buffer import AsyncMessageBuffer
+
+    from geoloc_viz import flight_layer, teaching_panel, uncertainty_layer
+    from geoloc_viz.app import GeolocApp
+
+    with served() as server:
+        scn = flight_model.default_flight_scenario()
+        app = GeolocApp(server, scn, layers=(flight_layer.attach, uncertainty_layer.attach, teaching_panel.attach))
+        fl, unc = app.layers[0], app.layers[1]
+        log: list = []
+        push = AsyncMessageBuffer.push
+        monkeypatch.setattr(AsyncMessageBuffer, "push", lambda buf, m: (log.append(m), push(buf, m))[1])
+        flush = server.flush
+        monkeypatch.setattr(server, "flush", lambda: (log.append("flush"), flush())[1])
+        fl.go(40)
+        cut = log.index("flush")
+        before, after = log[:cut], [m for m in log[cut + 1 :] if m != "flush"]
+        markdown = lambda ms: [m for m in ms if "_markdown" in getattr(m, "updates", {})]  # noqa: E731
+        scene = lambda ms: [m for m in ms if str(getattr(m, "name", "")).startswith("/")]  # noqa: E731
+        assert scene(before) and not markdown(before)
+        assert not scene(after) and len(markdown(after)) >= 3  # the summary, the frame, the ellipse's panel
+        assert not any(str(m.name).startswith(teaching_panel.ROOT) for m in scene(log))
+        assert frame_name(app.scn, 40) in app.md_summary.content
+        assert f"CE90 {float(unc.pu.ce90_m):.1f} m" in unc.md.content
+        # a step skipped for a newer one (a slider drag): its text waits ...
+        with app.deferring(skip=lambda: True):
+            app.load_record(41, move_camera=False)
+        assert frame_name(app.scn, 41) not in app.md_summary.content
+        # ... for the next step, here one back to the frame already loaded, which redraws nothing
+        with app.deferring():
+            pass
+        assert frame_name(app.scn, 41) in app.md_summary.content
+        assert f"CE90 {float(unc.pu.ce90_m):.1f} m" in unc.md.content
+
+
 def test_example_53_prints_the_frames_and_the_top_outliers():
     out = subprocess.run(
         [sys.executable, str(ROOT / "examples" / "53_flight_debugger_scene.py")],

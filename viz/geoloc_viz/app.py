@@ -45,6 +45,9 @@ Session interface (stable: the layers of other modules attach to it)
     ``"target"`` or a ``(position, look_at)`` pair in scene units (km, ENU).
 ``session.on_refresh(callback)``
     ``callback(geometry)`` after each redraw (usable as a decorator).
+``session.later(fn)``
+    ``fn()`` now, or during a timeline step (``session.deferring()``) with the panels' batch, after
+    the step's scene went out: for text the scene does not need (the panels' markdown).
 ``session.on_record(callback)``
     ``callback(idx)`` after a record is loaded and the ENU origin moved, before the redraw.
 ``layers=(attach_fn, ...)``
@@ -340,6 +343,8 @@ class GeolocSession:
         self._lock = threading.RLock()
         self._refresh_cbs: list = []
         self._deferred_cbs: list = []
+        self._later: list = []  # later(fn) calls of the running step, run first in its panels' batch
+        self._carry = False  # a skipped step's panels' batch waits for the next step
         self._defer_depth = 0
         self._deferred_due = None
         self._record_cbs: list = []
@@ -369,6 +374,16 @@ class GeolocSession:
         (self._deferred_cbs if deferred else self._refresh_cbs).append(callback)
         return callback
 
+    def later(self, fn: Callable[[], None]) -> None:
+        """``fn()`` now, or within :meth:`deferring` with the panels' batch, before the deferred
+        callbacks (a follower's mirror copies what it wrote). For GUI text the step's scene does not
+        need: a scene batch with no markdown in it is applied by the browser sooner (its messages
+        are handled in the frame that draws them), and the panels' batch, GUI only, without a frame."""
+        if self._defer_depth:
+            self._later.append(fn)
+        else:
+            fn()
+
     @contextlib.contextmanager
     def deferring(self, skip: Callable[[], bool] = lambda: False) -> Iterator[None]:
         """Within: a redraw leaves its deferred callbacks (``on_refresh(..., deferred=True)``) for
@@ -376,24 +391,36 @@ class GeolocSession:
         first), they run in a batch of their own, unless ``skip()`` (a newer step waits, which
         will run them)."""
         with self._lock:
-            if not self._defer_depth:
+            if not self._defer_depth and not self._carry:
                 self._deferred_due = None  # (left by a step that raised)
+                self._later.clear()
+            self._carry = False
             self._defer_depth += 1
             try:
                 yield
+            except BaseException:
+                self._later.clear()
+                raise
             finally:
                 self._defer_depth -= 1
             if self._defer_depth:  # an outer deferring() runs them
                 return
             g, self._deferred_due = self._deferred_due, None
-            if g is None or self.closed:
+            later, self._later = self._later, []
+            if (g is None and not later) or self.closed:
                 return
             (self.client if self.client is not None else self.server).flush()
             if skip():
+                # the waiting step runs them (after its own: a step back to the frame already loaded
+                # redraws nothing, and its panels would otherwise keep the frame before)
+                self._deferred_due, self._later, self._carry = g, later, True
                 return
             with self._atomic():
-                for cb in list(self._deferred_cbs):
-                    self._call(cb, g)
+                for fn in later:
+                    self._call(lambda _g, fn=fn: fn(), g)
+                if g is not None:
+                    for cb in list(self._deferred_cbs):
+                        self._call(cb, g)
 
     def on_record(self, callback):
         """Register ``callback(idx)``, called after record ``idx`` is loaded, before the redraw."""
@@ -705,7 +732,7 @@ class GeolocSession:
                     self._mute = False
                 with self._atomic():
                     self.view.update(g)
-                self._update_text(g)
+                self.later(lambda: self._update_text(g))
             self.last_update_s = time.perf_counter() - t0
             if g is not None:
                 for cb in list(self._refresh_cbs):

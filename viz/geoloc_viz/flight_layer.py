@@ -306,7 +306,9 @@ class FlightLayer:
         # label at the image centre would sit on the vector's start
         lab.visible = not (self.focus_info and self.focus_info["error_m"] > 0.5)
         if hasattr(self, "md_frame"):
-            self.md_frame.content = self._frame_text(idx)
+            later = getattr(self.session, "later", None)
+            text = lambda: setattr(self.md_frame, "content", self._frame_text(idx))  # noqa: E731
+            later(text) if later is not None else text()
         self.last_step_s = time.perf_counter() - t0
 
     # ------------------------------------------------------------ the current frame's error

@@ -164,7 +164,7 @@ class UncertaintyLayer:
         g = s.geometry
         if g is None or g.status != Status.OK:
             self._hide()
-            self.md.content = "no located point"
+            self._text("no located point")
             return
         from geoloc_viz import terrain_link
 
@@ -185,7 +185,7 @@ class UncertaintyLayer:
         self.pu = pu
         if pu.status != Status.OK:
             self._hide()
-            self.md.content = "no predicted uncertainty (the ray has no ground point)"
+            self._text("no predicted uncertainty (the ray has no ground point)")
             return
         k = self.scale
         pts = ellipse_points_enu(s.scn, pu, s.scn.enu, scale=k)
@@ -242,7 +242,15 @@ class UncertaintyLayer:
             )
         else:
             lines.append(f"budget: {note}")
-        self.md.content = "  \n".join(lines)
+        self._text("  \n".join(lines))
+
+    def _text(self, text: str) -> None:
+        """The panel's text; during a timeline step with the panels' batch, after the scene."""
+        later = getattr(self.session, "later", None)
+        if later is not None:
+            later(lambda: setattr(self.md, "content", text))
+        else:
+            self.md.content = text
 
 
 def label_text(pu, k: float) -> str:
