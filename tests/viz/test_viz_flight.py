@@ -342,6 +342,12 @@ def test_a_step_sends_its_scene_first_and_the_panel_text_after(monkeypatch):
         scene = lambda ms: [m for m in ms if str(getattr(m, "name", "")).startswith("/")]  # noqa: E731
         assert scene(before) and not markdown(before)
         assert not scene(after) and len(markdown(after)) >= 3  # the summary, the frame, the ellipse's panel
+        # the pose and pixel boxes too (the timeline's own slider moves with the scene)
+        boxes = {h._impl.uuid for h in app.num.values()}
+        values = lambda ms: [m.uuid for m in ms if "value" in getattr(m, "updates", {})]  # noqa: E731
+        assert not boxes & set(values(before)) and boxes & set(values(after))
+        rec = app.scn.records[40][1]
+        assert float(app.num["h_m"].value) == rec.h_m and float(app.num["row"].value) == rec.row
         assert not any(str(m.name).startswith(teaching_panel.ROOT) for m in scene(log))
         assert frame_name(app.scn, 40) in app.md_summary.content
         assert f"CE90 {float(unc.pu.ce90_m):.1f} m" in unc.md.content

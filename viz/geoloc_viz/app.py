@@ -673,10 +673,19 @@ class GeolocSession:
             select_record(self.scn, idx)
             keep = self.inputs
             self.inputs = self.scn.inputs.replace(method=keep.method, eps_h=keep.eps_h, threshold=keep.threshold)
+            inputs = self.inputs
+
+            def boxes() -> None:  # the pose and pixel boxes (with a step's panels: no frame waits for them)
+                self._mute = True
+                try:
+                    for k, h in self.num.items():
+                        h.value = self._input_value(inputs, k)
+                finally:
+                    self._mute = False
+
+            self.later(boxes)
             self._mute = True
             try:
-                for k, h in self.num.items():
-                    h.value = self._input_value(self.inputs, k)
                 label = frame_name(self.scn, idx, of=False)
                 if self.dd_record.value != label:
                     self.dd_record.value = label
