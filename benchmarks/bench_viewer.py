@@ -1,6 +1,7 @@
 """Is the viewer fast enough to scrub? First useful view, a step to the next frame, playback at 10 fps.
 
-One command: ``python benchmarks/bench_viewer.py [--repeat 3] [--steps 8] [--play-s 12]``.
+One command: ``python benchmarks/bench_viewer.py [--repeat 3] [--steps 8] [--play-s 12]``
+(``--paired-text N``: only a paired comparison of where a step writes the panels' text, below).
 
 Headless Debian Chromium through playwright with software WebGL (SwiftShader), a 1000 x 640
 page on ``geoloc view``'s per-tab viewer (every default layer) on the bundled example flight with
@@ -33,6 +34,11 @@ Where a step's time goes, per step (medians), beside the same figures for the pe
 * **the server**: the step's wall and CPU time (``time.process_time`` of this process), and its
   wall time to the scene batch's flush (the step's scene on its way to the browser; the panels'
   batch follows), so a step's first change splits into the server's part and the browser's.
+
+``--paired-text N`` measures one cut alone, paired in time in one page: 2N steps alternating
+(ABBA) between the panels' text and pose boxes written with the panels' batch (``session.later``,
+the viewer's way) and written at once, in the step's scene batch; each to its first canvas change,
+medians and the ratio.
 
 CPU beside wall: Chromium's processes (``/proc``; its GPU process, where SwiftShader draws, apart)
 and this process (the server), over the same intervals. The canvas is watched from inside the
@@ -185,12 +191,79 @@ def _first_change(page, seen, t_from, timeout=120.0):
     raise RuntimeError(f"the canvas did not change within {timeout} s")
 
 
+def paired_text(n: int) -> int:
+    """``--paired-text N``: in one page, 2N steps alternating (ABBA) between the panels' text and
+    pose boxes written with the panels' batch (``session.later``, the viewer's way) and written at
+    once, inside the step's scene batch (the way before); each step to its first canvas change.
+    Paired in time, so a load that drifts during the run weighs on both alike."""
+    from bench_browser import PROBE, _frames, _settled
+    from test_viz_browser import chromium
+
+    from geoloc_viz.app import GeolocViewer, make_server
+    from geoloc_viz.flight_model import default_flight_scenario
+
+    load0 = os.getloadavg()
+    server = make_server(port=0)
+    built: dict = {}
+    viewer = GeolocViewer(server, default_flight_scenario())
+    orig = viewer._build_tab
+
+    def timed_build(client, name):
+        orig(client, name)
+        built[client.client_id] = time.time()
+
+    viewer._build_tab = timed_build
+    res: dict = {"panels' batch": [], "scene batch": []}
+    try:
+        with tempfile.TemporaryDirectory() as tmp, chromium(Path(tmp)) as browser:
+            page = browser.new_page(viewport={"width": 1000, "height": 640})
+            page.add_init_script(PROBE)
+            page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=120000)
+            t0 = time.time()
+            while not built and time.time() - t0 < 240:
+                time.sleep(0.2)
+            _settled(page, t0)
+            session = viewer.session_of(next(iter(built)))
+            fl = session.layers[0]
+            seen = len(_frames(page))
+            for j in range(2 * n):
+                way = ("panels' batch", "scene batch")[(j + j // 2) % 2]  # ABBA ...
+                if way == "scene batch":
+                    session.later = lambda fn: fn()  # an instance attribute: the class's method hidden
+                else:
+                    session.__dict__.pop("later", None)
+                t_step = time.time()
+                fl.sl_frame.value = (int(fl.sl_frame.value) + 1) % len(fl.model)
+                res[way].append(_first_change(page, seen, t_step))
+                _, seen = _settled(page, t_step, quiet_s=1.0, after=seen)
+    finally:
+        server.stop()
+    med = statistics.median
+    load1 = os.getloadavg()
+    print(f"paired steps, {n} each way, load average {load0[0]:.1f} before, {load1[0]:.1f} after")
+    for way, v in res.items():
+        print(f"text and pose boxes in the {way}: step to the first canvas change, median {med(v) * 1e3:.0f} ms wall")
+    a, b = med(res["panels' batch"]), med(res["scene batch"])
+    print(f"ratio: panels' batch / scene batch {a / b:.2f}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="page loads measured (default 3)")
     ap.add_argument("--steps", type=int, default=8, help="steps (and peer updates) per load (default 8)")
     ap.add_argument("--play-s", type=float, default=12.0, help="seconds of playback per load (default 12)")
+    ap.add_argument(
+        "--paired-text",
+        type=int,
+        default=0,
+        metavar="N",
+        help="only compare, in one page, N steps with the panels' text in the panels' batch and N with it "
+        "in the scene batch (alternating)",
+    )
     args = ap.parse_args(argv)
+    if args.paired_text:
+        return paired_text(args.paired_text)
 
     import numpy as np
     import viser
