@@ -1,4 +1,4 @@
-"""The parsers' fuzz targets (issue 47, item 4), shared by the suite and the long run.
+"""The parsers' fuzz targets, shared by the suite and the long run.
 
 Each target takes bytes (a whole input file), mutated from a real seed (a bundled file, or
 one written by the format's own standard layout); it feeds them to one parser and checks

@@ -1,4 +1,4 @@
-"""Boresight / mounting calibration, resection and error decomposition (issue 8).
+"""Boresight / mounting calibration, resection and error decomposition.
 
 The calibrator is :mod:`geoloc.analysis.sensor_fit`, run on the camera file's sensor
 (``as_sensor``), as ``geoloc calibrate`` runs it.
@@ -150,7 +150,7 @@ def test_leave_one_out_never_sees_the_left_out_record(bundled, per_flight):
 
 
 def test_must_show_loo_per_flight_at_most_7_m(per_flight):
-    # the issue's target: leave-one-out mean error <= 7 m per flight, from about 50 m
+    # the target: leave-one-out mean error <= 7 m per flight, from about 50 m
     report = per_flight[0]
     assert set(report["groups"]) == {"T3", "T4"}
     for g, e in report["groups"].items():

@@ -1,4 +1,4 @@
-"""Issue 45 item 3: heights and conventions audited from the data (geoloc.analysis.height_audit).
+"""Heights and conventions audited from the data (geoloc.analysis.height_audit).
 
 Each fault signature is planted at a known size in a bundled flight (the EO turret orbit over the
 Jacksboro SRTM crop, the KLV example flight) and the audit must name it, with an estimate within

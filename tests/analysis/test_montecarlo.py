@@ -49,7 +49,7 @@ def test_table12_standard_deviations_within_5_percent_of_q17(model):
     r = mc.run(model, 5000, np.random.default_rng(0))
     s = r.stats
     assert s["n_ok"] == 5000
-    # Issue 4 asks for 5 %. Sampling error of a standard deviation with N = 5000 is
+    # Held to 5 % of [Q17]'s figures. Sampling error of a standard deviation with N = 5000 is
     # 1/sqrt(2N) = 1 %, and [Q17] rounds to 2 digits (0.00048: +-1 %).
     for key, paper in (("std_lat_deg", 0.00048), ("std_lon_deg", 0.00060), ("std_h_m", 62.3)):
         assert abs(s[key] / paper - 1) < 0.05, (key, s[key], paper)

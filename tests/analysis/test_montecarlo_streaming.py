@@ -1,4 +1,4 @@
-"""Monte Carlo in bounded memory: chunked evaluation and streamed statistics (issue 15).
+"""Monte Carlo in bounded memory: chunked evaluation and streamed statistics.
 
 The streamed statistics (geoloc.analysis.streaming.StreamingStats) against the exact ones of
 geoloc.analysis.montecarlo.statistics on the same samples; one chunk gives today's numbers

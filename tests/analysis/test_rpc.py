@@ -26,7 +26,7 @@ def fitted(request):
 
 
 def test_fit_residuals_on_check_points_both_sensors(fitted):
-    """Issue 9: <= 0.01 px on check points; [L12] 4.1: ZY-3 RPCs fit "better than 0.15 % of a pixel"."""
+    """The fit's budget, <= 0.01 px on check points; [L12] 4.1: ZY-3 RPCs fit "better than 0.15 % of a pixel"."""
     sc, f = fitted
     assert f.n_check >= 2000 and f.n_fit >= 3000
     # docs/tour_papers.md's figures plus a tenth. The fit is deterministic on one machine, but residuals of

@@ -1,6 +1,6 @@
 """Triangulation (geoloc.analysis.triangulate) against a weighted least squares written here.
 
-Issue 50's gap: every test of ``tests/analysis/test_triangulate.py`` has rays of the same quality from one
+Why: every test of ``tests/analysis/test_triangulate.py`` has rays of the same quality from one
 constant-range orbit, so weighting each ray by its covariance instead of its inverse moved the
 point by 1e-9 m and no test saw it. Here the rays are of **unequal** quality - ranges from 1.5 to
 25 km, directions 20 to 130 deg apart, position and angle errors of different sizes per ray - and

@@ -1,4 +1,4 @@
-"""The second bad-input catalogue (issue 47, item 1): each case pinned by a test that failed before
+"""The second bad-input catalogue: each case pinned by a test that failed before
 it was mended (the KLV cases and ``view --export`` have their own tests elsewhere).
 
 Exit codes, ``--out`` rules, interrupts, broken pipes and progress: docs/cli.md.

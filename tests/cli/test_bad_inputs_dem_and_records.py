@@ -1,4 +1,4 @@
-"""Issue 32: every input told the truth. One test (or a few) per item of the issue's list,
+"""Every input told the truth. One test (or a few) per kind of bad DEM or record,
 each the bad input, the status or message expected (naming the file, the field, the value)
 and, where a batch is concerned, the good rows still produced. Each failed before its mend."""
 
@@ -106,7 +106,7 @@ def test_all_nodata_dem_replay_rows_say_nodata(empty_dems, tmp_path, capsys):
             ["replay", str(DRONE), "--sensor", str(DRONE_SENSOR), "--dem", str(empty_dems["int16"]), "--out", str(out)]
         )
         == 1
-    )  # issue 47: some records not located (docs/cli.md)
+    )  # exit 1: some records not located (docs/cli.md)
     rows = _read_csv(out)
     assert len(rows) == 20 and {r["status"] for r in rows} == {"nodata"}
 
@@ -167,7 +167,7 @@ def test_drone_target_far_off_the_sensor_is_outside_sensor_with_a_message(tmp_pa
     out = tmp_path / "out.csv"
     assert (
         main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300", "--out", str(out)]) == 1
-    )  # issue 47: some records not located (docs/cli.md)
+    )  # exit 1: some records not located (docs/cli.md)
     err = capsys.readouterr().err
     assert "line 2 (survey1-1): row = 3001 (rows 1-3000) is outside the sensor; located by extending" in err
     assert (
@@ -216,7 +216,7 @@ def test_replay_out_without_dem_has_a_status_column(tmp_path):
     out = tmp_path / "out.csv"
     assert (
         main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--target-h-m", "300", "--out", str(out)]) == 1
-    )  # issue 47: some records not located (docs/cli.md)
+    )  # exit 1: some records not located (docs/cli.md)
     rows = _read_csv(out)
     assert rows[0]["status"] == "origin_below" and rows[0]["lat_deg"] == ""
     assert {r["status"] for r in rows[1:]} == {"ok"} and all(r["lat_deg"] for r in rows[1:])
@@ -396,7 +396,7 @@ def test_camera_below_the_terrain_is_warned(tmp_path, capsys):
     recs = _drone_records(tmp_path, {(1, "ac_h_m"): "150.0"})
     assert (
         main(["replay", str(recs), "--sensor", str(DRONE_SENSOR), "--dem", str(SRTM)]) == 1
-    )  # issue 47: some records not located (docs/cli.md)
+    )  # exit 1: some records not located (docs/cli.md)
     err = capsys.readouterr().err
     assert "line 2 (survey1-1): the camera (ac_h_m = 150.0 m) is 141 m below the terrain under it (291.1 m" in err
     assert err.count("warning: line") == 1  # one record, one warning (its error to truth not said twice)
@@ -438,7 +438,7 @@ def _gdal_copy(dst_path, factor):
 
 def test_gdal_tiff_copy_replays_as_the_jpeg(tmp_path, capsys):
     # before: "XMP packet is not well-formed XML"; with that mended, the TIFF's EXIF size was not
-    # read, the lens not scaled to the raster: pixels off the axis ~95 m away (issue 32)
+    # read, the lens not scaled to the raster: pixels off the axis ~95 m away
     from geoloc.io.photos import lens_from_photo, read_photo
 
     tif = tmp_path / "DJI_0001.tif"

@@ -1,4 +1,4 @@
-"""Issue 32, the rest of its list: each test the bad input, the message or status expected
+"""Bad input files and limits: each test the bad input, the message or status expected
 (naming the file, the field, the value) and the good inputs still served. Each failed before
 its mend (the "before" comments quote what was printed)."""
 

@@ -1,4 +1,4 @@
-"""The command line's shared options are declared once, in geoloc.cli._options (issue 31, item 1).
+"""The command line's shared options are declared once, in geoloc.cli._options, so that they read and fail alike in every verb.
 
 A verb module holds only what is its own: an option that several verbs share, declared
 again in a verb, drifts (a missing --method, a different default, a help that lies).

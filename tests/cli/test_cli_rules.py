@@ -1,4 +1,4 @@
-"""The rules of docs/cli.md, run on every verb's own example (issue 47, items 2 and 3).
+"""The rules of docs/cli.md, run on every verb's own example.
 
 Each verb module declares ``EXAMPLE``: a quick command that writes its files (a tuple when
 earlier commands make its inputs, or when the verb has actions: ``klv dump``, ``fix``,
@@ -12,7 +12,7 @@ declares one.
 
 The refusals that need no run (an input as an output, a read-only file, a folder, a
 missing folder, ``-`` for a binary file) are tests/cli/test_user_files.py's, over the same
-declarations; the catalogue of issue 47's cases is tests/cli/test_bad_inputs.py.
+declarations; the catalogue of bad inputs is tests/cli/test_bad_inputs.py.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 32, the first run: numba's compiled kernels cached where a reinstall keeps them
+"""The first run: numba's compiled kernels cached where a reinstall keeps them
 (the user's cache folder, or NUMBA_CACHE_DIR when set), the first compile said once on
 stderr, and ``geoloc warm`` compiling ahead. Timings are in benchmarks/bench_first_run.py.
 
@@ -105,7 +105,7 @@ print(json.dumps({"frames": len(m), "compiled": [n for n, _ in _nbgeo.COMPILED]}
 
 
 def test_the_viewers_first_scene_compiles_no_walk(tmp_path):
-    """Issue 32: the example flight's model (the first scene's 5364 footprint rays and 110 centre
+    """The viewer's first scene starts without a compile: the example flight's model (the first scene's 5364 footprint rays and 110 centre
     and record rays) walks uncompiled on a cold cache: no walk kernel is compiled for it
     (terrain_numba.PY_WALK_MAX_STEPS); bench_first_run.py times it."""
     env = {k: v for k, v in os.environ.items() if k != "GEOLOC_ANNOUNCE_COMPILE"}

@@ -1,4 +1,4 @@
-"""Faults of the machine (issue 47, item 3), each injected: a DEM tile truncated or corrupt in a
+"""Faults of the machine, each injected: a DEM tile truncated or corrupt in a
 mosaic, an input file that changes while it is read. (A full disk, ``/dev/full``, ENOSPC at the
 rename and a folder made read-only mid-run are run on every verb's outputs by
 tests/cli/test_cli_rules.py.)"""

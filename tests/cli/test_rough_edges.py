@@ -1,6 +1,6 @@
-"""Issue 15: each rough edge a new user hit, pinned by a test that failed before it was mended.
+"""Each rough edge a new user hit, pinned by a test that failed before it was mended.
 
-One test (or a few) per item of the issue's list; the Monte Carlo in bounded memory
+One test (or a few) per rough edge; the Monte Carlo in bounded memory
 has its own module (``test_montecarlo_streaming.py``), the installed wheel too
 (``test_install.py``).
 """
@@ -29,7 +29,7 @@ SCEN = asset_path("scenarios", "qiao2017_table1.toml")
 DEM_SCEN = asset_path("scenarios", "qiao2017_table1_dem.toml")
 SRTM = asset_path("dem", "srtm_jacksboro.tif")
 RECORDS = asset_path(*DEFAULT_RECORDS)
-# the README's sections this file pins moved to the tour pages (issue 48: one README screen)
+# the README's sections this file pins moved to the tour pages (the README is one screen)
 TOUR_CLI = (ROOT / "docs" / "tour_cli.md").read_text(encoding="utf-8")
 TOUR_PAPERS = (ROOT / "docs" / "tour_papers.md").read_text(encoding="utf-8")
 DOCS = "\n".join(p.read_text(encoding="utf-8") for p in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))])
@@ -306,8 +306,8 @@ def test_dem_samples_the_whole_raster_like_gdal():
 
 
 # ------------------------------------------------------------------ references outside the repo
-#: Files owned by other engineers while issue 15 was done; their references are listed in
-#: the issue's report and go when those files are next edited (then remove them here).
+#: Files owned by other engineers when this check came in; their references were listed in
+#: its report and go when those files are next edited (then remove them here).
 
 
 def _text_files():
@@ -387,7 +387,7 @@ def test_reproduce_says_plainly_what_table_5_is(capsys):
 
 def test_geoid_accuracy_statements_are_the_measured_ones():
     # before: "within about a metre" / "within 1 m" of the 15' grid; it is up to 3.9 m off
-    # the README's terrain section is docs/tour_terrain.md since issue 48
+    # the README's terrain section is docs/tour_terrain.md now (the README is one screen)
     for rel in ("README.md", "docs/tour_terrain.md", "docs/terrain.md", "assets/README.md", "geoloc/geodesy/geoid.py"):
         text = (ROOT / rel).read_text()
         assert "within 1 m" not in text and "about a metre" not in text, rel

@@ -456,7 +456,7 @@ def test_the_docs_python_block_runs_from_an_empty_folder(tmp_path):
     import subprocess
     import sys
 
-    # the README's Python example, now on docs/tour_cli.md (issue 48: the README is one screen)
+    # the README's Python example, now on docs/tour_cli.md (the README is one screen)
     page = (Path(__file__).resolve().parents[2] / "docs" / "tour_cli.md").read_text(encoding="utf-8")
     blocks = re.findall(r"```python\n(.*?)```", page, re.S)
     assert blocks
@@ -470,13 +470,13 @@ def test_the_docs_python_block_runs_from_an_empty_folder(tmp_path):
     assert "35.5770" in r.stdout and "80.849" in r.stdout, r.stdout
 
 
-# --------------------------------------------------------------------------- issue 47: the --out rules (docs/cli.md)
+# --------------------------------------------------------------------------- the --out rules (docs/cli.md)
 
 
 def _text_type():
     import geoloc.cli._options as o
 
-    return getattr(o, "text_output_path", None)  # (None before issue 47: the test then fails, not errors)
+    return getattr(o, "text_output_path", None)  # (None where a verb has none: the test then fails, not errors)
 
 
 def _file_outputs(binary_only=False):
@@ -611,7 +611,7 @@ def _leaf_argvs(tmp_path):
 
 
 def test_ctrl_c_in_every_verb_is_one_line_and_130(tmp_path, capsys, monkeypatch):
-    # issue 47: Ctrl-C printed a KeyboardInterrupt traceback; main now ends every verb the same way
+    # before: Ctrl-C printed a KeyboardInterrupt traceback; main now ends every verb the same way
     import contextlib
 
     @contextlib.contextmanager
@@ -635,7 +635,7 @@ def test_a_live_journal_to_standard_output_is_one_line(tmp_path):
 
 
 def test_a_closed_pipe_in_every_verb_ends_quietly_with_141(tmp_path, capsys, monkeypatch):
-    # issue 47: `geoloc klv dump FILE | head -1` died of BrokenPipeError; main ends every verb the same way
+    # before: `geoloc klv dump FILE | head -1` died of BrokenPipeError; main ends every verb the same way
     # (here stdout is pytest's capture, with no file descriptor: taken as the closed pipe; the real pipe:
     # tests/cli/test_bad_inputs.py)
     import contextlib

@@ -1,4 +1,4 @@
-"""Fuzzing of every parser in the suite (issue 47, item 4): a few seconds of hypothesis per parser,
+"""Fuzzing of every parser in the suite: a few seconds of hypothesis per parser,
 the corpus the long run kept, and memory on a large bad input.
 
 The targets and their promise: tests/fuzz_targets.py. The long run (10 minutes, fixed seed):

@@ -1,4 +1,4 @@
-"""MISB KLV as writers in the wild produce it (issue 45 item 1; the KLV cases of issue 47).
+"""MISB KLV as writers in the wild produce it, and the bad KLV inputs a user meets.
 
 Every stream here is built in the test, the way a writer in the wild builds it (docs/klv.md,
 "Encoders in the wild", says which writer and where it is documented); nothing fetched is
@@ -103,7 +103,7 @@ def test_the_tests_checksum_is_the_standards():
 
 
 def test_target_width_in_four_bytes_is_decoded_and_agrees_with_klvdata():
-    """Issue 45: `klv dump` refused every packet of a stream whose tag 22 (Target Width) is 4 bytes
+    """Before: `klv dump` refused every packet of a stream whose tag 22 (Target Width) is 4 bytes
     ("has length 4, expected 2", once per packet); klvdata read the same packets."""
     spec = klv.TAG_BY_NUMBER[22]
     rows = []
@@ -239,7 +239,7 @@ def test_quirks_are_counted_alike_by_the_batch_and_the_packet_decoders():
 
 def test_non_minimal_ber_lengths_are_read():
     """A BER length in more bytes than it needs (82 00 04 for 4), as jmisb wrote some before its
-    issue 124: the same value, nothing to report."""
+    fix (jmisb #124): the same value, nothing to report."""
     items = b"\x05\x82\x00\x02\x71\xc2" + item(13, raw_of(klv.TAG_BY_NUMBER[13], 36.3, 4))
     head = KEY + b"\x83\x00\x00" + bytes((len(items) + 4,)) + items + b"\x01\x02"
     words = head + (b"\0" if len(head) % 2 else b"")
@@ -291,7 +291,7 @@ def test_the_replay_of_a_quirky_older_stream_equals_the_standard_ones():
 
 
 def test_klv_dump_exit_codes():
-    """Issue 47: `klv dump` of a file with no decodable packet exited 0. Now 0 all decoded,
+    """Before: `klv dump` of a file with no decodable packet exited 0. Now 0 all decoded,
     1 some not, 2 none."""
     good = packet(item(5, b"\x71\xc2"))
     bad = bytearray(good)
@@ -548,7 +548,7 @@ def _wild_packets(n=4, vmti=True):
 )
 def test_klv_in_transport_streams_as_multiplexers_write_them(tmp_path, layout):
     # async_type_sync_id: stream type 0x06 (KLVA) with the metadata stream id 0xFC, as jmisb wrote
-    # it before its issue 119
+    # it before its fix (jmisb #119)
     kw = {
         "async": {},
         "sync": {"sync": True},
@@ -588,7 +588,7 @@ def test_a_transport_stream_without_klv_still_says_so(tmp_path):
 
 
 def test_klv_send_of_raw_klv_sends_what_the_receiver_decodes(tmp_path, capsys):
-    """Issue 47: `klv send` of a raw .klv reported "sent" while the receiver decoded 0 packets."""
+    """Before: `klv send` of a raw .klv reported "sent" while the receiver decoded 0 packets."""
     from geoloc.cli import main
     from geoloc.io.live import open_socket, parse_udp_url, receive
 

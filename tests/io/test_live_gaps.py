@@ -1,4 +1,4 @@
-"""Live UDP (geoloc.io.live): the cases issue 50's mutation audit found never sent.
+"""Live UDP (geoloc.io.live): the cases a mutation audit found no test ever sent.
 
 * A KLV clock that goes **back without a restart** (a sender's reordered or re-stamped packets,
   1 to 5 s back) and one that goes back by more (a restart): the count of restarts is the test's

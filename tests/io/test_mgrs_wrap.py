@@ -1,7 +1,7 @@
 """MGRS references of longitudes outside -180..180 (geoloc.io.mgrs_grid.latlon_to_mgrs).
 
 The function accepts longitudes in [-360, 360] (its docstring and its range check) and names the
-same meridian for ``lon`` and ``lon -+ 360``. Issue 50's audit found no test that tried one. The
+same meridian for ``lon`` and ``lon -+ 360``. A mutation audit found no test that tried one. The
 referee is ``tests/io/test_mgrs.py``'s ``oracle``: pyproj's UTM / UPS projections and the standard's
 letter and zone rules (NGA.STND.0037), given the longitude wrapped **here** by ``math.remainder``
 (IEEE remainder: the representative in [-180, 180]), never by the code under test. Exactly

@@ -360,7 +360,7 @@ def test_micasense_calibration_without_the_focal_plane_resolution_is_named_and_t
 
 
 def test_pillow_exif_type_error_is_a_note_not_a_crash(tmp_path, monkeypatch):
-    # The MicaSense TIFF raised a TypeError inside Pillow's EXIF directory reading (the
+    # A user's MicaSense TIFF raised a TypeError inside Pillow's EXIF directory reading (the
     # file is not available here): simulate Pillow failing there; the XMP must still be read
     p = _micasense_tiff(tmp_path / "IMG_0002_1.tif", (10.0, 5.0, 0.0))
 

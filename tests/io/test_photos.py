@@ -621,7 +621,7 @@ def _photos_around(tmp_path, g_h, n=3, dist=150.0):
 
 
 def test_a_target_id_in_the_targets_file_is_triangulated_from_its_photos(tmp_path, capsys):
-    """Issue 29 item 6 for drone photos: the pixel that sees G in each of three photos, one
+    """Triangulation from drone photos: the pixel that sees G in each of three photos, one
     ``target_id``: the rays' intersection is G (pyproj's ECEF, not the code under test) to a
     millimetre; a DEM 30 m above G is reported as a likely DEM or datum error (+30 m, the DEM's own
     offset), a DEM through G is not."""

@@ -1,4 +1,4 @@
-"""Issue 32, "every input told the truth": a drone kilometres up is warned about.
+"""Every input tells the truth: a drone kilometres up is warned about.
 
 The rule (docs/records.md, "Plausibility checks"): a platform is a drone when the photo is a
 drone photo, or when the sensor file's ``platform``, a records ``platform`` cell or a KLV

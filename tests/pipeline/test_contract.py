@@ -139,7 +139,7 @@ CORRECTIONS = {
 #: point by less than 1e-4 m, and the smallest ground pixel here is the [Q17] camera's 0.11 m
 #: (18 km / 166 841 px): 1e-3 px. (Measured: 4e-7 px.)
 ROUND_TRIP_CORRECTED_PX = 1e-3
-#: Executors agree to 1 mm (the issue's bound); the fused kernel's hit differs from numpy's by
+#: Executors agree to 1 mm (the executors' agreed bound); the fused kernel's hit differs from numpy's by
 #: the rounding of two chains written apart (tests/sensors/test_fastlocate.py: micrometres).
 EXECUTORS_AGREE_M = 1e-3
 SURFACES = ("inflated", "geodetic", "dem-exact", "dem-bisect")

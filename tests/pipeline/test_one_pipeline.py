@@ -1,4 +1,4 @@
-"""No locating code path outside the location pipeline (issue 44): the grep, done with the AST.
+"""No locating code path outside the location pipeline, so that every correction applies everywhere: the grep, done with the AST.
 
 Every call that meets a surface with a line of sight, in the core and the viewer, is one of
 - a call in ``geoloc/surfaces/`` (the surfaces themselves) or ``geoloc/pipeline.py``;

@@ -183,7 +183,7 @@ def test_limb_cli_prints_the_refracted_tangent_height(capsys, tangent_h):
 
     ref = trace(o, d, 0.0, exact_n, limb=True)
     assert out["refracted_tangent_h_m"] == pytest.approx(float(ecef_to_geodetic(ref)[2]), abs=0.2)
-    # hundreds of metres to kilometres below the straight tangent (issue 44)
+    # hundreds of metres to kilometres below the straight tangent (the bent ray's drop over a limb path)
     assert out["refraction_m"] > 100.0
 
 

@@ -31,7 +31,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
-# the README and the pages its sections moved to (issue 48: one README screen, the rest a site),
+# the README and the pages its sections moved to (the README is one screen, the rest a site),
 # then the guides whose commands run here too
 PAGES = [
     ROOT / "README.md",

@@ -1,5 +1,5 @@
-"""The documentation's pictures are there (issue 34's Done-when: screenshots of the first view and of
-an outlier with its error vector; issue 48: the README shows one picture): every image the README
+"""The documentation's pictures are there (screenshots of the first view and of
+an outlier with its error vector; the README shows one picture): every image the README
 or a docs page links is a readable PNG in the repository."""
 
 import re
@@ -22,11 +22,11 @@ LINKS = [
 
 def test_the_readme_shows_one_picture():
     shown = IMAGE.findall((ROOT / "README.md").read_text(encoding="utf-8"))
-    assert len(shown) == 1, shown  # issue 48: "a picture", on one screen
+    assert len(shown) == 1, shown  # one picture, on the README's one screen
     assert shown[0].startswith("docs/img/"), shown
 
 
-def test_the_issue_34_screenshots_are_linked():
+def test_the_viewer_screenshots_are_linked():
     tour = (ROOT / "docs" / "tour_viewer.md").read_text(encoding="utf-8")
     for name in ("img/viewer_first_view.png", "img/viewer_outlier_error.png"):
         assert name in IMAGE.findall(tour), f"docs/tour_viewer.md does not show {name}"

@@ -1,4 +1,4 @@
-"""Issue 33: the interop section (the README's until issue 48, now docs/tour_sensors.md) runs as
+"""The interop section (once the README's, now docs/tour_sensors.md) runs as
 written, in an empty folder: the MGRS column, the CoT file opened by takproto (a TAK-style parser),
 the NITF RPC read back, ``klv fix`` on the bundled flight; each printed value is the one the page
 shows."""

@@ -1,4 +1,4 @@
-"""Issue 48's README and documentation site: a README of one screen that starts with the two
+"""The README and the documentation site: a README of one screen that starts with the two
 commands, and a site that builds with `mkdocs build --strict` (the command `tools/docs.sh` runs),
 with an API reference that lists every public module of the core and of the viewer."""
 

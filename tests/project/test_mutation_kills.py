@@ -165,7 +165,7 @@ def test_geodetic_height_unconverged_branch():
     # with max_iter=1 the loop ends before it checks: the final check must see it converged.
     # With max_iter=0 and 1e-6 m the inflated answer itself is not converged. A batch of
     # one ray: with scalar inputs this branch raises TypeError (s is a numpy scalar there),
-    # a bug reported with issue 19 (surfaces/height.py is not this test's to fix).
+    # a known bug of surfaces/height.py's scalar path (not this test's to fix).
     o = np.array([[A * math.cos(0.6) + 18000.0, 0.0, B * math.sin(0.6)]])
     d = np.array([[-0.8, 0.3, -0.5]])
     d /= np.linalg.norm(d)

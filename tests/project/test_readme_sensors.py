@@ -1,4 +1,4 @@
-"""The "Your own sensor" figures of docs/tour_sensors.md (the README's until issue 48), pinned
+"""The "Your own sensor" figures of docs/tour_sensors.md (once the README's own section), pinned
 (regression guards; correctness of the chain itself is shown against pymap3d and FrameChain in
 test_sensors.py and test_gimbals.py)."""
 

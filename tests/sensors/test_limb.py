@@ -69,7 +69,7 @@ def test_constructed_tangent_exact_height(lat, lon, h, az, dist):
     o, d, p0 = constructed_line(lat, lon, h, az, dist)
     r = limb_tangent(o, d)
     assert r.status == Status.OK
-    # Issue 5 asks for <= 0.1 m; the minimum of a convex function located to 1e-4 m along
+    # The limb's tangent height is required to 0.1 m; the minimum of a convex function located to 1e-4 m along
     # the line is exact to rounding, so we also hold it to 1 mm (pyproj's own precision).
     assert abs(r.exact_h - h) <= 1e-3
     # The minimum is unique (convexity), so its place must be P0: 1 m along the line would

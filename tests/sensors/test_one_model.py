@@ -1,4 +1,4 @@
-"""One model of each thing (issue 31, item 2), read from the source like tests/project/test_architecture.py.
+"""One model of each thing, so that a fix lands once, read from the source like tests/project/test_architecture.py.
 
 - A workflow or an analysis module does not open a DEM itself: it takes the
   :class:`geoloc.surfaces.base.Surface` its caller built (on the command line,

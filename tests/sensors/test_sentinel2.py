@@ -104,7 +104,7 @@ def test_direct_location_matches_sen2vm_reference_grid(product, granule_id, band
 
     The tolerance: Rugged interpolates the attitude by Hermite polynomials over its neighbouring
     quaternions and Orekit the Earth orientation by its own rule; geoloc takes SLERP between
-    two quaternions 0.1 s apart and a linear EOP; the 0.5 m bound is half the issue's 1 m and
+    two quaternions 0.1 s apart and a linear EOP; the 0.5 m bound is half the required 1 m and
     a twentieth of a 10 m pixel, where a half-line error would show 5 m and an unrefined
     model 4 m (test_refining_and_corrections_show_their_size).
     """
@@ -121,7 +121,7 @@ def test_heights_on_sen2vm_geoid_match_every_grid(product):
     ``tests/data/sentinel2/geoid``, bilinear: the heights it writes are that geoid at its points
     to 1e-5 m), has Sen2VM's height to 1 cm (measured 4e-5 m at worst, over 870 points): the
     heights differ only by the geoid's slope (< 1e-4 here) times the 0.5 m horizontal
-    difference. The issue asks 0.5 m. On geoloc's bundled EGM96 the same heights differ by up
+    difference. 0.5 m is required. On geoloc's bundled EGM96 the same heights differ by up
     to 1.76 m (median 0.22 m): the geoid model, not the location."""
     from geoloc.geodesy.geoid import grid_undulation
     from geoloc.workflows.sentinel2 import locate_on_geoid
@@ -268,7 +268,7 @@ def test_sen2vm_direct_points_inverted_give_its_pixels_to_the_direct_difference(
 def test_round_trip_returns_every_pixel_to_a_millionth(product):
     """Pixel -> ground -> pixel with geoloc's own direct model, light-time and aberration on, over
     the whole image of a 10 m band (a 31 x 21 lattice from the first to the last line and column,
-    corners included) and at two heights: back to 1e-6 px (the issue asks 0.01 px; measured
+    corners included) and at two heights: back to 1e-6 px (0.01 px is required; measured
     4.2e-10 px at worst over 60 000 pixels of every band and detector of the test product, the
     Newton iteration on the line time stopping at 1e-7 line)."""
     sensor = product.sensor("B02", 6)

@@ -142,7 +142,7 @@ def _probe(src: Path, cache: Path) -> dict:
 
 
 def test_changed_constant_reaches_the_compiled_code(tmp_path):
-    """Edit WGS-84's flattening to GRS80's in a scratch copy (the mutation the issue cites):
+    """Edit WGS-84's flattening to GRS80's in a scratch copy (a mutation the cache must see):
     the kernels compiled before must not be loaded for the new constants.
 
     Before the fix the second run after the edit loaded the cached machine code with

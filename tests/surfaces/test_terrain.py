@@ -294,7 +294,7 @@ def test_bad_arguments():
         intersect_dem(los, dem, "steps", eps_h=0)
     with pytest.raises(ValueError, match="dem_model"):
         intersect_dem(los, dem, "exact", dem_model="quads")
-    with pytest.raises(TypeError, match="surface"):  # the first-phase alias of dem_model is gone (issue 31)
+    with pytest.raises(TypeError, match="surface"):  # dem_model's old alias is gone: "surface" names one thing
         intersect_dem(los, dem, "exact", surface="triangles")
 
 

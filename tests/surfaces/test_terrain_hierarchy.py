@@ -1,4 +1,4 @@
-"""The exact walk's min/max hierarchy (issue 18 item 2): its levels against a direct numpy
+"""The exact walk's min/max hierarchy: its levels against a direct numpy
 maximum over the DEM nodes, and its hits against trimesh/embree's ray cast on a rough
 600 x 600 DEM, including rays that graze it for kilometres and leave it across an edge."""
 

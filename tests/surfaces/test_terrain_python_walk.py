@@ -1,5 +1,5 @@
 """The walk's Python source run uncompiled for a small call (terrain_numba.PY_WALK_MAX_RAYS), and
-for the first rays of a larger one within an uncompiled budget (issue 32: a one-ray ``locate``
+for the first rays of a larger one within an uncompiled budget (so that a one-ray ``locate``
 and the viewer's first scene compile nothing) against the compiled kernel on the same rays:
 oblique views of the bundled SRTM crop and rays that graze a rough DEM for kilometres, leave
 it across an edge or start outside it, both cell models, with and without the climb."""

@@ -63,7 +63,7 @@ def test_error_vector_nodes(server):
         np.testing.assert_allclose((pts[:, 1] - pts[:, 0]) / 20.0, comp - truth, atol=0.01)
     length = np.linalg.norm(before[:, 1] - before[:, 0], axis=1) / 20.0
     length_after = np.linalg.norm(after[:, 1] - after[:, 0], axis=1) / 20.0
-    assert length.mean() > 45.0 and length_after.mean() < 8.0  # ~50 m -> ~5 m (issue 8)
+    assert length.mean() > 45.0 and length_after.mean() < 8.0  # ~50 m -> ~5 m: the calibration's effect, drawn
 
     layer.set_stage("after")
     assert not layer.handles["before"].visible and layer.handles["after"].visible

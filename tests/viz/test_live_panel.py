@@ -1,4 +1,4 @@
-"""The live debugger under a bad network (issue 30, "Robust to the network"): datagrams lost,
+"""The live debugger under a bad network: datagrams lost,
 swapped and repeated, then the sender stopping and starting the flight again. Counted, said in
 the tab's stream panel, every intact packet a frame of the debugger, never a crash.
 

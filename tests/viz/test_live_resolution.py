@@ -1,4 +1,4 @@
-"""A sender that changes its video resolution mid-stream (issue 30, "Robust to the network"):
+"""A sender that changes its video resolution mid-stream, as a robust receiver must take it:
 counted and reported in the live debugger's stream panel, the picture layer showing both
 sizes, every KLV packet used, never a crash.
 

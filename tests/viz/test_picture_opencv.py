@@ -1,6 +1,6 @@
 """The picture panel's pixels (geoloc_viz.picture_model) against OpenCV on the image's own grid.
 
-Issue 50's gap: ``tests/viz/test_viz_picture.py`` renders its frames through the panel's own sensor
+Why: ``tests/viz/test_viz_picture.py`` renders its frames through the panel's own sensor
 and compares the picks with that sensor, so a lens sized with rows and columns swapped agrees
 with itself. Here the expected pixel comes from ``cv2.projectPoints`` with a camera matrix built
 in the test for the picture as it is (135 x 240 pixels, not the sensor's 1080 x 1920):

@@ -1,4 +1,4 @@
-"""``geoloc log --refraction standard`` (issue 44 item 5): the correction per frame in the recording.
+"""``geoloc log --refraction standard``: the correction per frame in the recording.
 
 The recording is read back with rerun's own reader (``rerun.chunk.RrdReader``): ``series/refraction_m``
 on the ``record`` timeline equals, record by record, how far refraction moved each point in the

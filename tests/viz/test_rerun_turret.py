@@ -1,4 +1,4 @@
-"""`geoloc log` of the turret flight (the bundled MISB ST 0601 example, issue 46 item 7), read back
+"""`geoloc log` of the turret flight (the bundled MISB ST 0601 example), read back
 with rerun's own reader (``rerun.chunk.RrdReader``, rerun-sdk 0.41): the gimbal series under the
 sensor's joint names, the DEM `geoloc view` draws and its mesh, and the footprint corners on that
 DEM, checked against `geoloc locate --dem` of the corner pixels (another command, another sensor

@@ -1,4 +1,4 @@
-"""The bundled example flight's video (issue 28 item 5): rendered frames beside the KLV stream.
+"""The bundled example flight's video: rendered frames beside the KLV stream.
 
 ``assets/klv/example_flight.ts`` (``tools/make_klv_example.py --ts``) holds an H.264 video
 rendered by geoloc from the *true* pose, frame i at packet i's time stamp, and the same KLV
@@ -158,7 +158,7 @@ def test_a_painted_cross_clicked_in_a_clean_frame_lands_on_its_survey(flight, pa
         dist = [geod.inv(p.lon_deg(), p.lat_deg(), lo, la)[2] for _, la, lo, _ in targets]
         k = int(np.argmin(dist))
         gsd = _ground_sample_m(flight, inputs, sensor, r, c, geod)
-        # the issue's bound: 2 ground samples (0.6-2.3 m here, by zoom step). The frame is rendered
+        # the bound: 2 ground samples (0.6-2.3 m here, by zoom step). The frame is rendered
         # through the same sensor model on the same DEM, so what remains is the KLV's quantisation
         # and the cross's centroid in a compressed frame (under 0.8 px: a cross's arms foreshorten
         # differently and H.264 smears its chroma)
@@ -226,7 +226,7 @@ def test_bundled_photo_is_rendered_with_the_targets_on_their_pixels():
 
 
 def test_geoloc_log_puts_each_frame_in_its_pinhole(tmp_path, monkeypatch, decoded):
-    # issue 28 item 7: `geoloc log FILE.ts` logs each packet's frame with its pinhole at the camera
+    # `geoloc log FILE.ts` logs each packet's frame with its pinhole at the camera
     # entity, so rerun's 3D view draws it in the frustum; read back with rerun's own RrdReader
     import io
 
@@ -295,7 +295,7 @@ def _klvdata_values(klvdata, data: bytes) -> list:
 
 
 def test_view_export_carries_the_picture_and_the_clicked_points(tmp_path, monkeypatch, flight):
-    # issue 28 item 7: `geoloc view --export FILE.html --pixel ROW,COL`: the page holds the frame
+    # `geoloc view --export FILE.html --pixel ROW,COL`: the page holds the frame
     # (with its marks) and each picked pixel's numbers, equal to `geoloc locate`'s; the scene holds
     # the frame's image node and the pick's ray, read back from viser's own recording
     import base64

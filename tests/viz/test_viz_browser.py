@@ -303,7 +303,7 @@ def _open_tab(browser, server, width, height, before, timeout=90):
 
 
 def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
-    # issue 16 items 4-5: a state per tab, judged on each page's GUI text and on each browser's
+    # a state per tab, judged on each page's GUI text and on each browser's
     # own camera report; then a third tab over --max-clients 2 is told the limit
     from geoloc_viz.app import GeolocViewer
     from geoloc_viz.scenario import load_view_scenario
@@ -354,7 +354,7 @@ def test_two_tabs_keep_their_own_state_and_the_cap_in_chromium(tmp_path):
 
 
 def test_presenter_mode_in_chromium(tmp_path):
-    # issue 20 item 2: the second tab follows the first: its controls are disabled, its panel
+    # presenter mode: the second tab follows the first: its controls are disabled, its panel
     # and camera follow the driver's (judged on the follower's page and its browser's camera)
     from geoloc_viz.app import GeolocViewer
     from geoloc_viz.scenario import load_view_scenario
@@ -390,7 +390,7 @@ def test_presenter_mode_in_chromium(tmp_path):
                 20,
                 "the follower's browser camera to follow the driver's",
             )
-            # issue 34: the follower sees every folder of the presenter's panel (flight, outliers,
+            # the follower sees every folder of the presenter's panel (flight, outliers,
             # accuracy, legend, teaching, ...), each with the presenter's text, read-only
             from geoloc_viz.app import driver_folders
 
@@ -405,7 +405,7 @@ def test_presenter_mode_in_chromium(tmp_path):
 
 
 def test_presenter_switches_scenario_in_chromium(tmp_path):
-    # issue 34 item 6: the presenter chooses another scenario in their "scenario" dropdown, as a
+    # the presenter chooses another scenario in their "scenario" dropdown, as a
     # person does (click the box, click the option); the follower's page shows the new scenario's
     # header and folders and its own read-only box showing the presenter's choice
     from geoloc_viz.app import GeolocViewer

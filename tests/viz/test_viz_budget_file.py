@@ -1,4 +1,4 @@
-"""The viewer reads the error budget from the scenario's sensor file (issue 29, items 4 and 6).
+"""The viewer reads the error budget from the scenario's sensor file.
 
 A sensor file's ``[uncertainty]`` table (``geoloc view --sensor FILE``) is the budget of the
 viewer's predicted ellipse and of a target triangulated from picks in several frames; what the
@@ -71,7 +71,7 @@ def test_the_ellipse_is_the_sensor_files_budget(tmp_path):
         assert float(pu.ellipse_minor_m) == pytest.approx(s, rel=5e-3)
         r90 = math.sqrt(chi2.ppf(0.9, 2))
         assert float(pu.ce90_m) == pytest.approx(r90 * s, rel=5e-3)
-        # the drawn ellipse is that circle, at its own drawing factor (true size by default, issue 46)
+        # the drawn ellipse is that circle, at its own drawing factor (true size by default)
         d = app.view.disp
         assert lay.scale == 1.0
         seg = np.asarray(server.scene.get_handle_by_name("/enu/uncertainty/ellipse").points, float)

@@ -1,4 +1,4 @@
-"""The viewer as a whole-flight debugger (issue 16 items 1, 2, 5-7): geoloc_viz.flight_model / flight_layer.
+"""The viewer as a whole-flight debugger: geoloc_viz.flight_model / flight_layer.
 
 Oracles from outside the code:
 
@@ -214,7 +214,7 @@ def test_accuracy_panel_agrees_with_a_direct_computation(klv_model):
     s = m.report().overall
     assert s["cep_m"] == pytest.approx(np.percentile(d, 50), rel=1e-4)
     assert s["ce90_m"] == pytest.approx(np.percentile(d, 90), rel=1e-4)
-    # issue 34: against the reported positions the panel gives an agreement, in mm where it is that
+    # against the reported positions the panel gives an agreement, in mm where it is that
     # small, never a CEP (an accuracy) nor an error model: the records carry no truth
     text = m.summary_markdown()
     assert "**agreement with the reported positions**" in text and "**accuracy: unknown**" in text
@@ -250,7 +250,7 @@ def test_the_flight_test_panel_shows_no_negative_intercept_model_and_says_why_it
 
 # ------------------------------------------------------------------ the layer on a server (no browser)
 def test_whole_flight_footprints_keep_the_corners_at_half_the_points():
-    """The whole flight's footprints, a level of detail (issue 34): every frame's outline through
+    """The whole flight's footprints, a level of detail: every frame's outline through
     every second outline point, its four corners among them (outline_pixels: corners at 0, k, 2k,
     3k of 4k points), lifted by LIFT_M; the scene node holds exactly those segments (km)."""
     from geoloc_viz import flight_layer
@@ -494,7 +494,7 @@ def project_px(pts, pos, wxyz, fov, width, height):
 
 @pytest.mark.browser
 def test_at_each_planted_fault_the_error_vector_shows_on_the_canvas(tmp_path):
-    # issue 34 item 1: after "go to" the heading-bias burst, the datum run and the stale pose,
+    # after "go to" the heading-bias burst, the datum run and the stale pose,
     # the browser's camera frames the error, its pink vector's pixels are on the canvas between the
     # two markers (not covered by them, nor by the terrain mesh) and its length is in the page
     import PIL.Image
@@ -559,7 +559,7 @@ def test_at_each_planted_fault_the_error_vector_shows_on_the_canvas(tmp_path):
 
 
 def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
-    # issue 34 item 6: the static page of an outlier says its residual, its error vector's length and
+    # the static page of an outlier says its residual, its error vector's length and
     # the fault of its run (the planted datum run, 200-204), not only the record's header
     import re
 
@@ -585,7 +585,7 @@ def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
 
 
 def test_one_legend_per_scenario_from_what_it_draws():
-    # issue 34: the KLV flight has reported centres and no truth (no "[Q17]", no "surveyed"), the [Q17]
+    # the KLV flight has reported centres and no truth (no "[Q17]", no "surveyed"), the [Q17]
     # flight test its published and surveyed points, the turret its own gimbal frames (no "outer gimbal")
     from geoloc.assets import asset_path
     from geoloc_viz.app import legend_markdown

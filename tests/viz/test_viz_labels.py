@@ -1,4 +1,4 @@
-"""No label covers another in the default views (issue 34), judged in headless Chromium.
+"""No label covers another in the default views, judged in headless Chromium.
 
 For the example flight, the [Q17] flight test, the EO turret and the limb scene, a real browser
 opens the viewer as ``geoloc view`` serves it; once its camera is reported, each shown label's
@@ -199,7 +199,7 @@ def _turret(preset):
 
 @pytest.mark.parametrize("preset", ["azimuth-elevation", "azimuth-elevation-roll"])
 def test_turret_teaching_row_labels_do_not_overlap(tmp_path, preset):
-    # issue 34 item 4: the turret's frames (gimbal_base, gimbal_azimuth, gimbal_elevation,
+    # the turret's frames (gimbal_base, gimbal_azimuth, gimbal_elevation,
     # [gimbal_roll_los,] cam) all sit at the optical centre; in the teaching row, framed by the
     # panel's own "frame the aircraft" button as a teacher would, none of the row's labels (axis
     # tips, names, coordinates, the caption) may cover another or be hidden for want of room, and

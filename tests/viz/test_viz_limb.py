@@ -172,7 +172,7 @@ def test_markers_smaller_than_half_their_separation(limb):
     k_off = limb.offset_exaggeration
     # a flat minimum (h ~ (s - s_X)^2 / 2R): 1e-7 m of height precision is ~1.6 m along the line
     assert float((x - t) @ d) == pytest.approx(k_off * true_off, abs=k_off * 2.0)
-    assert 20.0 < abs(true_off) < 200.0  # tens of metres (issue 20: 35-135 m)
+    assert 20.0 < abs(true_off) < 200.0  # tens of metres (35-135 m over the limb's frames)
     assert sep_km > 5.0  # drawn apart by kilometres at the default exaggeration
 
 
@@ -233,7 +233,7 @@ def test_view_command_rejects_bad_arguments(capsys):
 
 
 def test_exports_read_back_node_by_node(limb, tmp_path):
-    # issue 19: the limb scene's .viser and HTML exports decoded message by message: every marker
+    # the limb scene's .viser and HTML exports decoded message by message: every marker
     # at the live scene's position (float64 kept; the live positions are held to the core's
     # geometry by test_limb_nodes_where_the_geometry_says), the meshes and the line of sight present
     import base64

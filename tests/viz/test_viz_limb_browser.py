@@ -1,4 +1,4 @@
-"""The limb scene in headless Chromium, as a person steps through it (issue 46 item 6).
+"""The limb scene in headless Chromium, as a person steps through it.
 
 `geoloc view --scenario limb` serves one :class:`LimbApp` per tab (:class:`LimbViewer`). The
 tab is stepped (from Python, as the GUI's sliders do) to a frame where the line of sight grazes

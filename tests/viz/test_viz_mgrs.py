@@ -1,4 +1,4 @@
-"""Issue 33: MGRS (and USNG) beside latitude and longitude in the viewer's panels.
+"""MGRS (and USNG) beside latitude and longitude in the viewer's panels.
 
 The panel's text is read (in a session, and in headless Chromium as a person reads it) and
 its MGRS reference checked against the ``mgrs`` package (NGA's GEOTRANS code) for the panel's

@@ -1,4 +1,4 @@
-"""The picture layer (issue 28 items 2-4): each frame's image in its frustum and in a panel,
+"""The picture layer: each frame's image in its frustum and in a panel,
 pixel picks located as ``geoloc locate`` locates them, terrain picks marked at their pixel.
 
 The images here (:class:`geoloc.io.images.ArrayImages`) are frames of the bundled example
@@ -148,7 +148,7 @@ def test_pixel_pick_equals_geoloc_locate(flight, tmp_path):
         assert float(p.hit.h) == pytest.approx(ref["h_m"], abs=1e-4)
         text = layer.md_pick.content
         assert f"{ref['lat_deg']:.7f}" in text and "ellipsoidal, WGS 84" in text and "DEM evaluations" in text
-        assert f"MGRS {ref['mgrs']} (USNG {ref['usng']})" in text  # issue 33: beside lat/lon, as locate --json
+        assert f"MGRS {ref['mgrs']} (USNG {ref['usng']})" in text  # beside lat/lon, as locate --json
         # the scene: the ray from the optical centre to the hit, and a marker at the hit
         hit = np.array(server.scene.get_handle_by_name("/enu/picture/hit").position)
         want = app.view.disp.z(app.scn.enu.from_ecef(p.hit.ecef))
@@ -176,7 +176,7 @@ def test_terrain_pick_marks_the_pixel_of_the_ground_point(flight, tmp_path):
         # (bisect, 1 m threshold, over ~5 km slant range at 240 px across 7 deg: < 0.05 px)
         assert gp.row == pytest.approx(r, abs=0.5) and gp.col == pytest.approx(c, abs=0.5)
         assert "in the frame" in layer.md_ground.content
-        import mgrs  # issue 33: the pick's MGRS beside its lat/lon, as NGA's GEOTRANS (the mgrs package) gives it
+        import mgrs  # the pick's MGRS beside its lat/lon, as NGA's GEOTRANS (the mgrs package) gives it
 
         ref_mgrs = mgrs.MGRS().toMGRS(float(np.degrees(gp.hit.lat)), float(np.degrees(gp.hit.lon)), MGRSPrecision=5)
         assert f"MGRS {ref_mgrs} (USNG " in layer.md_ground.content

@@ -1,11 +1,11 @@
-"""The flight timeline's play / pause in headless Chromium (issue 34 item 6: pause is immediate).
+"""The flight timeline's play / pause in headless Chromium: pause is immediate.
 
 A person presses play, then pause, and the display must stop where it was: judged on the page
 itself. A recorder in the page notes the frame index the panel shows ("frame N of 0 .. M", the summary's)
 at the moment the pause button's click event fires there; after the pause the panel must settle
 at most two steps later (the step already on its way, and one the server may have sent while the
 click travelled) and stay there. Before the player waited for the browser, a software-WebGL page
-fell behind a 5 fps timeline and ran on from frame 62 to 85 after pause (the issue's report);
+fell behind a 5 fps timeline and ran on from frame 62 to 85 after pause (as reported);
 here the timeline runs at 20 fps, far faster than such a page draws. The player follows the clock
 (a step skips the frames the page could not draw in time), so "two steps" are counted in the
 sequence of frames the player sent (``FlightLayer.played``); the rate it reaches is measured by

@@ -1,4 +1,4 @@
-"""Refraction in the viewer (issue 44 item 5): the bent ray beside the straight one, and its shift.
+"""Refraction in the viewer: the bent ray beside the straight one, and its shift.
 
 Checked outside the viewer's code: the shift the panel states and the located point are
 ``geoloc locate ... --refraction standard --json``'s (a subprocess of the CLI, its argv written here

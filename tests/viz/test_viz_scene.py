@@ -309,7 +309,7 @@ def test_export_writes_static_recordings(app, tmp_path):
 
 
 def test_labels_say_3d_or_horizontal_and_the_drawing_factor(app):
-    # issue 16: the 3D label and the panel's horizontal figure were both unlabelled
+    # before: the 3D label and the panel's horizontal figure were both unlabelled
     import re
 
     geod = pyproj.Geod(ellps="WGS84")
@@ -361,7 +361,7 @@ def test_labels_say_3d_or_horizontal_and_the_drawing_factor(app):
 
 
 def test_header_says_custom_pose_after_an_edit(app):
-    # issue 16: the header kept the old record's name after an edit
+    # before: the header kept the old record's name after an edit
     assert app.md_summary.content.startswith("**qiao2017_flight_tests.csv: frame 0 (T3-1)**")
     app.num["h_m"].value = app.inputs.h_m + 100.0
     try:
@@ -500,7 +500,7 @@ def test_viewer_and_rerun_lines_of_sight_equal_the_core_for_every_preset(preset,
 
 
 def test_viewer_flags_a_pixel_outside_the_sensor():
-    # issue 15: row 99999 on a 2323-row sensor said "ok"; now the scene says so and why
+    # before: row 99999 on a 2323-row sensor said "ok"; now the scene says so and why
     import dataclasses
 
     from geoloc.status import Status
@@ -598,7 +598,7 @@ def test_terrain_is_sent_unlit_with_the_mesh_unchanged(app):
 
 
 def test_terrain_mesh_level_of_detail_and_its_height_bound():
-    """The drawn terrain (issue 34, a level of detail): its nodes spaced as 1 + d / MESH_LOD_M at a
+    """The drawn terrain, a level of detail: its nodes spaced as 1 + d / MESH_LOD_M at a
     distance d from the scene origin, its vertices on the DEM's surface at their nodes, and
     mesh_height_bound an upper bound of the drawn surface: checked by trimesh's ray casts (an
     outside oracle) straight down onto the mesh at 2000 random points of the example flight."""

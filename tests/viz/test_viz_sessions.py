@@ -246,7 +246,7 @@ def test_presenter_mode_followers_mirror_the_driver(server):
 
 
 def test_presenter_switches_scenario_and_the_followers_follow(server):
-    # issue 34 item 6: in presenter mode the driver has the "scenario" dropdown; choosing another
+    # in presenter mode the driver has the "scenario" dropdown; choosing another
     # scenario rebuilds the shared scene on it and every follower's panel follows (read-only box,
     # header, the new session's folders)
     from geoloc_viz.app import driver_folders
@@ -332,7 +332,7 @@ def test_connection_churn_frees_every_session_and_memory(server):
     gc.collect()
     alive = [r for r in viewer.refs if r() is not None]
     assert not alive, f"{len(alive)} sessions still referenced after their tabs closed"
-    # the issue's goal: back within 10 % of the idle RSS once the tabs are gone (before the
+    # the goal: back within 10 % of the idle RSS once the tabs are gone (before the
     # fix: +15 % after 120 tabs, held by glibc's per-thread arenas; see app.release_memory)
     assert after <= 1.10 * idle, (idle, after)
 
@@ -343,7 +343,7 @@ def test_max_clients_is_checked():
 
 
 def test_a_tab_switches_scenario_in_one_click_and_alone(server):
-    # issue 16: the [Q17] record stays one click away from the example flight (a "scenario" dropdown)
+    # the [Q17] record stays one click away from the example flight (a "scenario" dropdown)
     import gc
     import weakref
 
@@ -376,7 +376,7 @@ def test_a_tab_switches_scenario_in_one_click_and_alone(server):
 
 
 def test_limb_scene_keeps_a_state_per_tab(server):
-    # issue 16 / 20: the limb scene too gives each tab its own scene, GUI and camera
+    # the limb scene too gives each tab its own scene, GUI and camera
     from geoloc_viz.scene_limb import LimbViewer, load_limb
 
     viewer = LimbViewer(server, load_limb())

@@ -1,4 +1,4 @@
-"""Send the point on (issue 46 item 5): the texts the "Send the point on" folder shows.
+"""Send the point on: the texts the "Send the point on" folder shows.
 
 Each text is checked outside the code that made it:
 

@@ -576,7 +576,7 @@ def test_teaching_panel_animation_changes_the_scene_in_chromium(tmp_path):
 
 @pytest.mark.browser
 def test_teaching_table_fits_the_panel_in_chromium(tmp_path):
-    # issue 34 item 4: with a fifth column of tags, "destination" ran past the panel for the
+    # before: with a fifth column of tags, "destination" ran past the panel for the
     # turret's long frame names (28 px at 1280 x 800 for T_gimbal_elevation_gimbal_roll_los);
     # the hop's frames are now tagged in their own cell. Judged on the page: every cell of the
     # table inside the table's container, as the browser lays them out.
@@ -599,7 +599,7 @@ def test_teaching_table_fits_the_panel_in_chromium(tmp_path):
 
 @pytest.mark.browser
 def test_animation_duration_is_typed_and_obeyed_in_chromium(tmp_path):
-    # issue 34 item 4: "animate this angle from 0" ran a fixed ~3 s; a person types a duration into
+    # before: "animate this angle from 0" ran a fixed ~3 s; a person types a duration into
     # the "animation duration (s)" box and the sweep takes that long
     from test_viz_browser import chromium, open_viewer, wait_for
 
@@ -626,7 +626,7 @@ def test_animation_duration_is_typed_and_obeyed_in_chromium(tmp_path):
 
 
 def test_one_hop_selector_and_an_animation_speed():
-    # issue 34 item 4: the session's "chain of 4x4 matrices" folder follows the teaching panel's one
+    # the session's "chain of 4x4 matrices" folder follows the teaching panel's one
     # hop selector (its own hidden), and the sweep's duration is a control
     with _panel_app() as (server, app, p):
         assert app.dd_hop.visible is False

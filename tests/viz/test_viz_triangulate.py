@@ -1,4 +1,4 @@
-"""One target picked in several frames of the viewer (issue 29 item 6): its rays meet in the scene.
+"""One target picked in several frames of the viewer: its rays meet in the scene.
 
 The frames are the bundled example flight's records 1, 21 and 41 (an orbit: 50 degrees of heading
 between the first and the last), rendered as in ``tests/viz/test_viz_picture.py``. The target is the

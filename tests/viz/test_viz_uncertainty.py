@@ -3,7 +3,7 @@
 The drawn ellipse is held to its definition, measured in the scene: the vertices' horizontal
 distances from the hit span the 90 % semi-axes (the 1-sigma axes x sqrt(chi2(2, 0.9)), scipy)
 times the display's exaggeration; the panel quotes the propagation's CE90 and the distance to
-the surveyed truth the scene draws. It is drawn at true size by default (issue 46: its semi-axes
+the surveyed truth the scene draws. It is drawn at true size by default (its semi-axes
 are the reported ones), in its own colour (not the flight's magenta), and enlarged only by its own
 control, whose factor the label on the drawing gives ("x10"). In Chromium, a person opens the
 folder, types 10 into "ellipse drawn x" (the label on the drawing then reads x10 and the drawn

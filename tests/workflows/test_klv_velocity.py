@@ -1,4 +1,4 @@
-"""A time-tag error moves the platform by its velocity (issue 29): the velocity of a KLV flight.
+"""A time-tag error moves the platform by its velocity: the velocity of a KLV flight.
 
 MISB ST 0601 carries the platform's horizontal velocity (tags 79 and 80, +/-327 m/s over int16)
 and no vertical one; where the tags are absent the velocity is the positions differenced over

@@ -10,7 +10,7 @@ Oracles:
   image by image processing (connected components of red, their centroids);
 * matplotlib's ``LightSource.hillshade`` for the texture's shading;
 * geoloc's own ``locate`` of the found cross, against the surveyed position, in
-  ground samples (the issue's criterion).
+  ground samples (the rendering's required accuracy).
 """
 
 import math

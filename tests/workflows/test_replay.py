@@ -28,7 +28,7 @@ def test_replay_reproduces_published_positions():
     assert len(rec) == 20 and rec.errors == []
     res = replay_at_height(rec, Camera.from_toml(CAMERA), "paper_height_m")
     rms = np.sqrt(np.mean(res.error_to_paper_m**2))
-    # issue bar 1.5 m; the published coordinates are rounded to 1e-5 deg (<= 0.6 m
+    # required: 1.5 m; the published coordinates are rounded to 1e-5 deg (<= 0.6 m
     # per axis), so ~0.3-0.4 m RMS is what an exact implementation can reach
     assert rms <= 1.5
     assert rms < 0.6

@@ -1,4 +1,4 @@
-"""GDAL's RPC transformer with RPC_DEM against the project's exact DEM intersection (issue 9)."""
+"""GDAL's RPC transformer with RPC_DEM against the project's exact DEM intersection: within 0.1 px."""
 
 import json
 import math
@@ -44,7 +44,7 @@ def frame_case(tmp_path_factory):
 
 
 def test_gdal_rpc_dem_agrees_with_exact_dem_intersection(case):
-    """Issue 9: <= 0.1 px. With RPC_PIXEL_ERROR_THRESHOLD = 1e-6 px the only differences left
+    """Within 0.1 px, the budget of an RPC located on a DEM. With RPC_PIXEL_ERROR_THRESHOLD = 1e-6 px the only differences left
     are the RPC fit (< 0.0015 px, test_rpc.py) and GDAL's stopping rule: < 2e-3 px."""
     sc, fit, dem, ell, rows, cols = case
     cc = crosscheck_gdal_dem(sc.sensor, fit.model, dem, ell, rows, cols)
