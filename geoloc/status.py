@@ -12,6 +12,7 @@ from __future__ import annotations
 from enum import IntEnum
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 class Status(IntEnum):
@@ -47,7 +48,7 @@ _TEXT = {
 }
 
 
-def describe(code, rows: int | None = None, cols: int | None = None) -> str:
+def describe(code: int, rows: int | None = None, cols: int | None = None) -> str:
     """Human-readable text for a status code.
 
     ``rows`` and ``cols`` (the sensor's size, optional) fill OUTSIDE_SENSOR's span
@@ -59,7 +60,7 @@ def describe(code, rows: int | None = None, cols: int | None = None) -> str:
     return text
 
 
-def names(status) -> np.ndarray:
+def names(status: ArrayLike) -> np.ndarray:
     """Array of lower-case status names (e.g. ``'sky'``) for an array of codes."""
     status = np.asarray(status)
     out = np.empty(status.shape, dtype=object)

@@ -39,6 +39,7 @@ import stat
 import sys
 import tempfile
 import warnings
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Iterator
 
@@ -66,7 +67,7 @@ _INPUTS: contextvars.ContextVar = contextvars.ContextVar("geoloc_inputs", defaul
 
 
 @contextlib.contextmanager
-def command_files(inputs=()) -> Iterator[list]:
+def command_files(inputs: Iterable[str | os.PathLike[str]] = ()) -> Iterator[list]:
     """Note inputs for the duration of one command; yields the list of noted paths.
 
     ``inputs`` are the command's declared inputs (its path options), noted at once;
@@ -81,7 +82,7 @@ def command_files(inputs=()) -> Iterator[list]:
         _INPUTS.reset(token)
 
 
-def note_input(path) -> None:
+def note_input(path: str | os.PathLike[str]) -> None:
     """Note ``path`` (a file or folder the running command reads); a no-op outside a command."""
     noted = _INPUTS.get()
     if noted is None or path is None:
@@ -101,7 +102,7 @@ def noted_inputs() -> list:
     return list(_INPUTS.get() or [])
 
 
-def same_file(a, b) -> bool:
+def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
     """Whether two paths name one file: by identity (symlinks, hard links, relative paths),
     or, when one of them does not exist yet, by their resolved paths (two outputs to be
     written to one place)."""
@@ -153,13 +154,15 @@ def _kind(p: Path) -> str:
     return "file" if stat.S_ISREG(mode) else "special"
 
 
-def write_target(path) -> Path:
+def write_target(path: str | os.PathLike[str]) -> Path:
     """The file a write to ``path`` lands on: ``path`` itself, or a symlink's target (followed to the end)."""
     p = Path(os.fspath(path))
     return Path(os.path.realpath(p)) if p.is_symlink() else p
 
 
-def check_output(path, option: str = "", *, inputs=None) -> Path:
+def check_output(
+    path: str | os.PathLike[str], option: str = "", *, inputs: Iterable[str | os.PathLike[str]] | None = None
+) -> Path:
     """Refuse an output path that must not or cannot be written; returns it as a ``Path``.
 
     Parameters
@@ -218,7 +221,9 @@ def _suffix_hint(option: str) -> str:
     return ".tif" if "ortho" in option else ".csv"
 
 
-def check_output_dir(path, option: str = "", *, inputs=None) -> Path:
+def check_output_dir(
+    path: str | os.PathLike[str], option: str = "", *, inputs: Iterable[str | os.PathLike[str]] | None = None
+) -> Path:
     """Refuse an output folder that is an input, a file, bundled data, or cannot be made or written."""
     p = Path(os.fspath(path))
     where = f"{option} {path}" if option else str(path)
@@ -238,7 +243,7 @@ def check_output_dir(path, option: str = "", *, inputs=None) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_path(path, option: str = "") -> Iterator[Path]:
+def atomic_path(path: str | os.PathLike[str], option: str = "") -> Iterator[Path]:
     """A temporary path beside ``path``, renamed onto it when the block succeeds.
 
     The temporary file is in the same folder (so the rename is atomic) and keeps the
@@ -466,14 +471,14 @@ def _copy_to_special(fh, p: Path) -> None:
         raise
 
 
-def write_text(path, text: str, option: str = "", encoding: str = "utf-8") -> Path:
+def write_text(path: str | os.PathLike[str], text: str, option: str = "", encoding: str = "utf-8") -> Path:
     """Write ``text`` to ``path`` through :func:`atomic_path`."""
     with atomic_path(path, option) as tmp:
         tmp.write_text(text, encoding=encoding)
     return Path(os.fspath(path))
 
 
-def write_bytes(path, data: bytes, option: str = "") -> Path:
+def write_bytes(path: str | os.PathLike[str], data: bytes, option: str = "") -> Path:
     """Write ``data`` to ``path`` through :func:`atomic_path`."""
     with atomic_path(path, option) as tmp:
         tmp.write_bytes(data)
@@ -481,7 +486,7 @@ def write_bytes(path, data: bytes, option: str = "") -> Path:
 
 
 @contextlib.contextmanager
-def growing_path(path, option: str = "") -> Iterator[Path]:
+def growing_path(path: str | os.PathLike[str], option: str = "") -> Iterator[Path]:
     """A file that grows while a command runs (a live journal), put in place when the command ends.
 
     The journal grows beside ``path`` as ``STEM.partial.SUFFIX`` (``STEM.partial-2.SUFFIX``

@@ -54,6 +54,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.analysis.streaming import cep_eq18
 from geoloc.geodesy.ellipsoid import meridian_radius, prime_vertical_radius
@@ -129,7 +130,7 @@ def position_kind(name: str) -> str | None:
     return None
 
 
-def out_of_range(values, kind: str) -> np.ndarray:
+def out_of_range(values: ArrayLike, kind: str) -> np.ndarray:
     """True where a finite value lies outside :data:`POSITION_RANGES` ``[kind]`` (NaN: missing, not out)."""
     lo, hi = POSITION_RANGES[kind]
     v = np.asarray(values, float)
@@ -156,7 +157,16 @@ def _check_ranges(**named):
 # --------------------------------------------------------------------------- components
 
 
-def error_components(lat_deg, lon_deg, h_m, ref_lat_deg, ref_lon_deg, ref_h_m, *, track_heading_rad=None) -> dict:
+def error_components(
+    lat_deg: ArrayLike,
+    lon_deg: ArrayLike,
+    h_m: ArrayLike,
+    ref_lat_deg: ArrayLike,
+    ref_lon_deg: ArrayLike,
+    ref_h_m: ArrayLike,
+    *,
+    track_heading_rad: ArrayLike | None = None,
+) -> dict:
     """Error vector (computed minus reference) in the reference point's local frame.
 
     ``(north, east, down) = geodetic_to_ned(computed; origin = reference)``
@@ -219,7 +229,11 @@ MIN_TRACK_BASELINE_M = 100.0
 
 
 def track_azimuth_rad(
-    platform_lat_deg, platform_lon_deg, group=None, heading_rad=None, min_baseline_m: float = MIN_TRACK_BASELINE_M
+    platform_lat_deg: ArrayLike,
+    platform_lon_deg: ArrayLike,
+    group: ArrayLike | None = None,
+    heading_rad: ArrayLike | None = None,
+    min_baseline_m: float = MIN_TRACK_BASELINE_M,
 ) -> np.ndarray:
     """The platform's local track azimuth at each target [rad, clockwise from north].
 
@@ -248,7 +262,14 @@ def track_azimuth_rad(
     return out
 
 
-def sight_geometry(platform_lat_deg, platform_lon_deg, platform_h_m, lat_deg, lon_deg, h_m) -> dict:
+def sight_geometry(
+    platform_lat_deg: ArrayLike,
+    platform_lon_deg: ArrayLike,
+    platform_h_m: ArrayLike,
+    lat_deg: ArrayLike,
+    lon_deg: ArrayLike,
+    h_m: ArrayLike,
+) -> dict:
     """Slant range and off-nadir angle of each target from its platform position.
 
     The target in the platform's local NED frame (:func:`geoloc.geodesy.local.geodetic_to_ned`):
@@ -271,7 +292,9 @@ def sight_geometry(platform_lat_deg, platform_lon_deg, platform_h_m, lat_deg, lo
 # --------------------------------------------------------------------------- outliers
 
 
-def outlier_rule(residual_m, k: float = OUTLIER_K, min_excess_m: float = MIN_EXCESS_M):
+def outlier_rule(
+    residual_m: ArrayLike, k: float = OUTLIER_K, min_excess_m: float = MIN_EXCESS_M
+) -> tuple[np.ndarray, float, float, float]:
     """Robust outlier flags with their figures: ``|e - median| > max(k x 1.4826 x MAD, min_excess_m)``.
 
     MAD is the median absolute deviation from the median; 1.4826 MAD estimates
@@ -306,7 +329,7 @@ def outlier_rule(residual_m, k: float = OUTLIER_K, min_excess_m: float = MIN_EXC
     return mask, med, mad, thr
 
 
-def robust_outliers(residual_m, k: float = OUTLIER_K, min_excess_m: float = MIN_EXCESS_M) -> np.ndarray:
+def robust_outliers(residual_m: ArrayLike, k: float = OUTLIER_K, min_excess_m: float = MIN_EXCESS_M) -> np.ndarray:
     """Outlier flags of :func:`outlier_rule` (median / MAD, floor ``min_excess_m``): a bool array."""
     return outlier_rule(residual_m, k, min_excess_m)[0]
 
@@ -329,7 +352,9 @@ def _mean(v) -> float:
     return float(v.mean()) if v.size else math.nan
 
 
-def binned_medians(x, y, n_bins: int = N_BINS, min_per_bin: int = MIN_PER_BIN, y2=None) -> list:
+def binned_medians(
+    x: ArrayLike, y: ArrayLike, n_bins: int = N_BINS, min_per_bin: int = MIN_PER_BIN, y2: ArrayLike | None = None
+) -> list:
     """Medians of ``y`` (and ``y2``) in bins of ``x`` of equal counts.
 
     Edges are the quantiles of the finite ``x`` (numpy's linear definition);
@@ -369,7 +394,7 @@ def binned_medians(x, y, n_bins: int = N_BINS, min_per_bin: int = MIN_PER_BIN, y
     return out
 
 
-def linear_model(x, y) -> dict:
+def linear_model(x: ArrayLike, y: ArrayLike) -> dict:
     """Least-squares line ``y = intercept + slope x`` over the finite pairs (``np.linalg.lstsq``).
 
     Returns ``intercept_m, m_per_m, n, rms_residual_m`` (NaN with fewer than two
@@ -387,7 +412,7 @@ def linear_model(x, y) -> dict:
     return {"intercept_m": float(c0), "m_per_m": float(c1), "n": n, "rms_residual_m": float(np.sqrt(np.mean(res**2)))}
 
 
-def datum_warning(up_m) -> tuple:
+def datum_warning(up_m: ArrayLike) -> tuple:
     """``(text or None, mean_up_m, se_m)``: the datum rule of the module docstring on vertical errors."""
     u = _finite(up_m)
     if u.size < 3:
@@ -413,8 +438,8 @@ def _radial_rms_eq18(north, east, lat_deg, h_m) -> float:
     lat = math.radians(float(np.nanmean(np.asarray(lat_deg, float)[ok])))
     hh = np.asarray(h_m, float)[ok]
     h = float(np.nanmean(hh)) if np.isfinite(hh).any() else 0.0
-    s_lat = float(np.std(north[ok], ddof=1)) / (meridian_radius(lat) + h)
-    s_lon = float(np.std(east[ok], ddof=1)) / ((prime_vertical_radius(lat) + h) * math.cos(lat))
+    s_lat = float(np.std(north[ok], ddof=1)) / (float(meridian_radius(lat)) + h)
+    s_lon = float(np.std(east[ok], ddof=1)) / ((float(prime_vertical_radius(lat)) + h) * math.cos(lat))
     return cep_eq18(s_lat, s_lon, lat, h)
 
 
@@ -596,18 +621,18 @@ class AccuracyReport:
 
 
 def accuracy_report(
-    lat_deg,
-    lon_deg,
-    h_m,
-    ref_lat_deg,
-    ref_lon_deg,
-    ref_h_m,
+    lat_deg: ArrayLike,
+    lon_deg: ArrayLike,
+    h_m: ArrayLike,
+    ref_lat_deg: ArrayLike,
+    ref_lon_deg: ArrayLike,
+    ref_h_m: ArrayLike,
     *,
-    track_heading_rad=None,
-    slant_range_m=None,
-    off_nadir_rad=None,
-    pixel_radius_px=None,
-    group=None,
+    track_heading_rad: ArrayLike | None = None,
+    slant_range_m: ArrayLike | None = None,
+    off_nadir_rad: ArrayLike | None = None,
+    pixel_radius_px: ArrayLike | None = None,
+    group: ArrayLike | None = None,
     meta: dict | None = None,
 ) -> AccuracyReport:
     """Accuracy statistics of computed positions against references, per group and overall.

@@ -59,8 +59,11 @@ lever_arm_{x,y,z}_m``          the sensor's named mount / boresight / lever-arm
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -72,6 +75,22 @@ from geoloc.tomlio import read_toml
 
 #: Pose fields of the [nominal] table, in Pose order, with their unit suffix.
 POSE_KEYS = ("lat_deg", "lon_deg", "h_m", "heading_deg", "pitch_deg", "roll_deg", "gimbal_roll_deg", "gimbal_pitch_deg")
+
+
+def _pose_deg(nominal: Mapping[str, float]) -> Pose:
+    """The :class:`Pose` of a ``[nominal]`` table's :data:`POSE_KEYS` (degrees and metres)."""
+    n = nominal
+    return Pose.from_deg(
+        n["lat_deg"],
+        n["lon_deg"],
+        n["h_m"],
+        n["heading_deg"],
+        n["pitch_deg"],
+        n["roll_deg"],
+        n["gimbal_roll_deg"],
+        n["gimbal_pitch_deg"],
+    )
+
 
 #: Every error source the model knows, with a one-line meaning (docs and errors).
 ERROR_SOURCES = {
@@ -154,7 +173,7 @@ class Distribution:
         """Standard deviation: sigma, or max / sqrt(3) for the uniform distribution."""
         return self.scale if self.dist == "normal" else self.scale / math.sqrt(3.0)
 
-    def draw(self, rng: np.random.Generator, shape) -> np.ndarray:
+    def draw(self, rng: np.random.Generator, shape: int | tuple[int, ...]) -> np.ndarray:
         """Samples of this error (edge unit), shape ``shape``."""
         if self.dist == "normal":
             x = rng.standard_normal(shape) * self.scale
@@ -225,14 +244,16 @@ class ErrorModel:
 
     # ------------------------------------------------------------ loading
     @classmethod
-    def from_toml(cls, path) -> "ErrorModel":
+    def from_toml(cls, path: str | os.PathLike[str]) -> "ErrorModel":
         """Load a scenario file; every bad key or value raises ``ValueError`` naming it."""
         path = Path(path)
         data = read_toml(path, "scenario file")
         return cls.from_dict(data, source=str(path), base_dir=path.parent)
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "error model", base_dir=None) -> "ErrorModel":
+    def from_dict(
+        cls, data: dict, source: str = "error model", base_dir: str | os.PathLike[str] | None = None
+    ) -> "ErrorModel":
         """Build from the parsed TOML tables (see the module docstring)."""
         allowed = {
             "name",
@@ -261,7 +282,7 @@ class ErrorModel:
         if missing:
             raise ValueError(f"{source} [nominal]: missing key(s) {missing}")
         nominal = {k: _number(nom.get(k, 0.0), f"{source} [nominal] {k}") for k in POSE_KEYS}
-        Pose.from_deg(*(nominal[k] for k in POSE_KEYS)).validate()
+        _pose_deg(nominal).validate()
 
         tgt = data["target"]
         _no_unknown(tgt, {"h_m", "row", "col", "height_kind", "surface"}, f"{source} [target]")
@@ -313,7 +334,7 @@ class ErrorModel:
         )
 
     # ------------------------------------------------------------ use
-    def with_nominal(self, **changes) -> "ErrorModel":
+    def with_nominal(self, **changes: float) -> "ErrorModel":
         """A copy with some nominal values changed (degrees / metres), e.g. ``gimbal_roll_deg=70``."""
         _no_unknown(changes, set(POSE_KEYS), "with_nominal")
         nominal = dict(self.nominal)
@@ -333,7 +354,7 @@ class ErrorModel:
         check_pixel_pitch(errors, self.camera, f"{self.source} [camera]")
         return _replace(self, errors=errors)
 
-    def with_camera(self, camera) -> "ErrorModel":
+    def with_camera(self, camera: Any) -> "ErrorModel":
         """A copy with another camera or sensor (``geoloc montecarlo --sensor FILE``).
 
         The sensor must use the ``roll-pitch`` gimbal (the [nominal] table's two angles) and
@@ -350,7 +371,7 @@ class ErrorModel:
 
     def nominal_pose(self) -> Pose:
         """The nominal pose (radians)."""
-        return Pose.from_deg(*(self.nominal[k] for k in POSE_KEYS))
+        return _pose_deg(self.nominal)
 
     def std_si(self) -> dict:
         """Standard deviation of every error source in SI units (radians, metres)."""
@@ -386,14 +407,14 @@ def _to_si(name: str, camera) -> float:
     return 1.0
 
 
-def check_pixel_pitch(errors: dict, camera, where: str) -> None:
+def check_pixel_pitch(errors: dict, camera: Any, where: str) -> None:
     """The image-centre errors in micrometres need the camera's ``pixel_pitch_m`` (a camera file's key)."""
     needs_pitch = any(errors.get(k) is not None for k in ("image_centre_x_um", "image_centre_y_um"))
     if needs_pitch and getattr(camera, "pixel_pitch_m", None) is None:
         raise ValueError(f"{where}: pixel_pitch_m is required for the image-centre error in micrometres")
 
 
-def camera_from_table(table, where: str):
+def camera_from_table(table: Mapping[str, Any], where: str) -> FrameSensor:
     """The [camera] table's :class:`FrameSensor`: a camera file's keys or a sensor file's tables
     (:func:`geoloc.sensors.sensor_file.sensor_from_dict`, the one reader of both)."""
     if not isinstance(table, dict):
@@ -414,7 +435,7 @@ def _sensor(camera, where: str) -> FrameSensor:
         raise ValueError(f"{where}: camera {camera!r}: must be a Camera or a FrameSensor") from None
 
 
-def check_camera(camera, where: str) -> None:
+def check_camera(camera: Any, where: str) -> None:
     """A Monte Carlo camera: a :class:`FrameSensor` on the roll-pitch gimbal."""
     sensor = _sensor(camera, where)
     if tuple(sensor.angle_names) != ("gimbal_roll", "gimbal_pitch"):
@@ -424,12 +445,12 @@ def check_camera(camera, where: str) -> None:
         )
 
 
-def lens_params(camera) -> dict:
+def lens_params(camera: Any) -> dict:
     """The lens's named parameters (``Lens.params``, OpenCV's 0-based cx, cy) of a sensor."""
     return dict(camera.lens.params)
 
 
-def check_lens_sources(errors: dict, camera, where: str) -> None:
+def check_lens_sources(errors: dict, camera: Any, where: str) -> None:
     """Every lens source must name a parameter of the camera's lens (k1 needs a distorted lens)."""
     have = lens_params(camera)
     for name in errors:

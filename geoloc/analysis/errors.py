@@ -27,9 +27,13 @@ Conventions: ``docs/conventions.md`` (metres, radians inside, degrees at the edg
 
 from __future__ import annotations
 
+import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from pyproj import Geod
 
 from geoloc.frames import rotations as rot
@@ -97,7 +101,7 @@ def group_labels(records: Records, group_column: str | None) -> np.ndarray:
     return np.array(records.text(group_column), dtype=object)
 
 
-def track_azimuths(records: Records, groups) -> np.ndarray:
+def track_azimuths(records: Records, groups: ArrayLike | None) -> np.ndarray:
     """Track azimuth of each record's flight [rad] (see the module docstring)."""
     groups = np.asarray(groups, dtype=object)
     lat, lon = records.column("ac_lat_deg"), records.column("ac_lon_deg")
@@ -114,7 +118,11 @@ def track_azimuths(records: Records, groups) -> np.ndarray:
 
 
 def error_vectors(
-    records: Records, camera: FrameSensor, ground: GroundPoint, groups=None, truth_prefix: str = "truth"
+    records: Records,
+    camera: FrameSensor,
+    ground: GroundPoint,
+    groups: ArrayLike | None = None,
+    truth_prefix: str = "truth",
 ) -> ErrorVectors:
     """Decompose every record's error against its surveyed truth.
 
@@ -162,7 +170,9 @@ def error_vectors(
     return ErrorVectors(nan(east), nan(north), nan(along), nan(cross), nan(dist), nan(row_px), nan(col_px), az, status)
 
 
-def outlier_flags(east_m, north_m, k_sigma: float = 3.5, min_sigma_m: float = 0.5):
+def outlier_flags(
+    east_m: ArrayLike, north_m: ArrayLike, k_sigma: float = 3.5, min_sigma_m: float = 0.5
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Robust outlier flags of one flight's error vectors (rule in the module docstring).
 
     Parameters
@@ -195,7 +205,7 @@ def outlier_flags(east_m, north_m, k_sigma: float = 3.5, min_sigma_m: float = 0.
     return flags, d, sigma
 
 
-def group_summary(ev: ErrorVectors, mask, k_sigma: float = 3.5, min_sigma_m: float = 0.5) -> dict:
+def group_summary(ev: ErrorVectors, mask: ArrayLike, k_sigma: float = 3.5, min_sigma_m: float = 0.5) -> dict:
     """Per-flight bias, spread and outliers of the records selected by ``mask``.
 
     Returns a JSON-ready dict: ``mean_error_m`` (mean distance), ``bias_east_m``,
@@ -228,7 +238,7 @@ def group_summary(ev: ErrorVectors, mask, k_sigma: float = 3.5, min_sigma_m: flo
     }
 
 
-def plot_error_vectors(path, panels, title: str = "") -> None:
+def plot_error_vectors(path: str | os.PathLike[str], panels: Sequence[Mapping[str, Any]], title: str = "") -> None:
     """Matplotlib figure of error vectors per flight (PNG or any matplotlib format).
 
     Top row: a map of each flight's targets with the error vectors drawn as

@@ -40,12 +40,14 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.analysis.accuracy import MAD_SCALE
 from geoloc.geodesy.geodesic import forward_azimuth_deg, horizontal_distance_m
 from geoloc.geodesy.geoid import egm96_undulation
 from geoloc.geodesy.local import geodetic_to_enu
 from geoloc.status import Status
+from geoloc.frames.chain import Pose
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
 from geoloc.pipeline import Pipeline
@@ -118,7 +120,7 @@ MIN_TRACK_SLOPE = 0.02
 MEDIAN_SE = math.sqrt(math.pi / 2)
 
 
-def median_uncertainty(values) -> tuple:
+def median_uncertainty(values: ArrayLike) -> tuple:
     """``(median, uncertainty, n)`` of the finite ``values``: the uncertainty is three standard
     errors of the median, ``3 * 1.2533 * 1.4826 * MAD / sqrt(n)``, floored at
     :data:`UNCERTAINTY_FLOOR_M` (a 99.7 % bound for normal per-record scatter)."""
@@ -911,7 +913,6 @@ def audit_klv_columns(columns: dict, sensor, surface, source: str = "KLV") -> He
     Without a DEM (``surface`` None) only the bearing check runs
     (:func:`azimuth_convention_finding`: it needs no terrain); with one, the heights too
     (:func:`audit_flight`). A finding's ``frames`` are rows of ``columns``."""
-    from geoloc.frames.chain import Pose
 
     c = {k: np.asarray(v) for k, v in columns.items()}
     f = lambda k: np.asarray(c[k], float)  # noqa: E731

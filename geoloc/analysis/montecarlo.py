@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -53,7 +54,9 @@ from geoloc.geodesy.ellipsoid import (
 from geoloc.pipeline import Pipeline
 from geoloc.progress import Progress
 from geoloc.sensors.frame import small_rotation
+from geoloc.sensors.lenses import Lens
 from geoloc.status import Status
+from geoloc.surfaces.base import Surface
 from geoloc.userfiles import atomic_path
 
 # STATS_KEYS (imported above, defined beside the streamed statistics): the keys of
@@ -104,7 +107,9 @@ def max_chunk(available_bytes: int | None = None) -> int:
     return max(int(CHUNK_MEMORY_SHARE * avail // BYTES_PER_SAMPLE), CHUNK // 10)
 
 
-def check_samples_and_chunk(n, chunk, *, field_n: str = "samples", field_chunk: str = "chunk") -> tuple[int, int]:
+def check_samples_and_chunk(
+    n: int, chunk: int, *, field_n: str = "samples", field_chunk: str = "chunk"
+) -> tuple[int, int]:
     """``(n, chunk)`` as ints, or ValueError naming the field and the value: ``n`` in
     2..``MAX_SAMPLES``, ``chunk`` in 1..:func:`max_chunk` (the memory bound:
     ``--chunk 1e8`` once grew to 7.2 GB and died)."""
@@ -130,7 +135,9 @@ def check_samples_and_chunk(n, chunk, *, field_n: str = "samples", field_chunk: 
 
 
 # --------------------------------------------------------------------- evaluation
-def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True, with_camera: bool = True):
+def perturbed_geometry(
+    model: ErrorModel, errors: dict, build_chain: bool = True, with_camera: bool = True
+) -> tuple[Pose, Any, np.ndarray, np.ndarray]:
     """Pose, chain and pixel of a batch of perturbed samples.
 
     Parameters
@@ -210,7 +217,7 @@ def perturbed_geometry(model: ErrorModel, errors: dict, build_chain: bool = True
     return pose, chain, row, col
 
 
-def perturbed_lens(lens, errors: dict):
+def perturbed_lens(lens: Lens, errors: dict) -> Lens:
     """The lens with the samples' lens errors added: per-sample parameter arrays (or ``lens`` itself).
 
     Parameters
@@ -238,7 +245,9 @@ def perturbed_lens(lens, errors: dict):
     return lens.with_params(**changes) if changes else lens
 
 
-def evaluate(model: ErrorModel, errors: dict, surface=None):
+def evaluate(
+    model: ErrorModel, errors: dict, surface: Surface | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Locate the target for a batch of perturbed samples [Q17 eq. 14].
 
     Parameters
@@ -284,7 +293,7 @@ def evaluate(model: ErrorModel, errors: dict, surface=None):
     return g.lat, g.lon, g.h, np.asarray(g.status, np.uint8)
 
 
-def nominal_point(model: ErrorModel, surface=None):
+def nominal_point(model: ErrorModel, surface: Surface | None = None) -> tuple[float, float, float, int]:
     """The error-free target (lat, lon, h) [rad, rad, m] and its status: y = f(x_1, ..., x_n),
     on ``surface`` (as :func:`evaluate`)."""
     lat, lon, h, st = evaluate(model, {}, surface)
@@ -385,7 +394,7 @@ def run(
     n: int,
     rng: np.random.Generator,
     *,
-    surface=None,
+    surface: Surface | None = None,
     chunk: int = CHUNK,
     progress: bool | None = False,
     keep_samples: bool | None = None,
@@ -566,7 +575,7 @@ class Sweep:
     #: Published bounds drawn on the PNG: (angle_deg, cep_m, label) upper limits.
     reference: tuple = ()
 
-    def to_csv(self, path) -> None:
+    def to_csv(self, path: str | os.PathLike[str]) -> None:
         """One row per angle and curve: angle, curve, cep_m, cep50_empirical_m, n_ok."""
         with atomic_path(path) as tmp, open(tmp, "w") as fh:
             fh.write("gimbal_roll_deg,curve,cep_m,cep50_empirical_m,n_ok\n")
@@ -574,7 +583,7 @@ class Sweep:
                 for j, lab in enumerate(self.labels):
                     fh.write(f"{a:g},{lab},{self.cep_m[i, j]:.3f},{self.cep50_m[i, j]:.3f},{int(self.n_ok[i, j])}\n")
 
-    def to_png(self, path) -> None:
+    def to_png(self, path: str | os.PathLike[str]) -> None:
         """Matplotlib figure like [Q17 Fig. 10]: solid eq. 18, dashed empirical CEP50."""
         import matplotlib
 

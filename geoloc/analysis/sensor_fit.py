@@ -22,10 +22,13 @@ Camera resection (:func:`resect_sensor` of ``f, cx, cy``) is how the bundled cam
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
@@ -33,6 +36,7 @@ from geoloc.geodesy.local import R_ecef_ned
 from geoloc.io.records import Records
 from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.status import Status
+from geoloc.surfaces.base import Surface
 from geoloc.surfaces.height import HeightSurface, for_records
 
 #: Residual given to a record whose ray finds no ground point during the fit [m].
@@ -47,7 +51,7 @@ TIED = {"f": ("fx", "fy")}
 DEGENERATE_CORRELATION = 0.99
 
 
-def fit_params(sensor) -> dict:
+def fit_params(sensor: Any) -> dict:
     """The parameters :func:`fit_sensor_params` can fit: ``sensor.params`` and the :data:`TIED` ones."""
     p = dict(sensor.params)
     for t, parts in TIED.items():
@@ -56,7 +60,7 @@ def fit_params(sensor) -> dict:
     return p
 
 
-def with_fit_params(sensor, values: dict):
+def with_fit_params(sensor: Any, values: dict) -> Any:
     """``sensor.with_params`` with the :data:`TIED` pseudo-parameters spread over their parts."""
     out = {}
     for k, v in values.items():
@@ -96,7 +100,7 @@ def _covariance(jac, resid, n_params):
     return s2 * np.linalg.inv(A) / np.outer(d, d), s2
 
 
-def degenerate_pairs(names, corr) -> list:
+def degenerate_pairs(names: Sequence[str], corr: np.ndarray) -> list:
     """Pairs of parameters the records cannot separate: |correlation| > 0.99, or not determined."""
     return [
         [names[a], names[b]]
@@ -202,13 +206,13 @@ def _ground(sensor, pose, row, col, surface_of, corrections: Corrections = NO_CO
 
 def fit_sensor_params(
     records: Records,
-    sensor,
-    names,
-    surface,
+    sensor: Any,
+    names: Sequence[str],
+    surface: Surface,
     *,
     corrections: Corrections = NO_CORRECTIONS,
     truth_prefix: str = "truth",
-    idx=None,
+    idx: ArrayLike | None = None,
     loo: bool = False,
 ) -> SensorFit:
     """Least-squares fit of the named parameters of ``sensor`` to the records' surveyed truth.
@@ -306,9 +310,9 @@ def fit_sensor_params(
 # --------------------------------------------------------------------------- per flight
 def fit_sensor_groups(
     records: Records,
-    sensor,
-    names,
-    surface,
+    sensor: Any,
+    names: Sequence[str],
+    surface: Surface,
     *,
     corrections: Corrections = NO_CORRECTIONS,
     group_column: str | None = "table",
@@ -500,8 +504,8 @@ class SensorResection:
 
 def resect_sensor(
     records: Records,
-    sensor,
-    names=("fx", "cx", "cy"),
+    sensor: Any,
+    names: Sequence[str] = ("fx", "cx", "cy"),
     *,
     corrections: Corrections = NO_CORRECTIONS,
     computed_prefix: str = "paper",

@@ -35,6 +35,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.geodesy.ellipsoid import meridian_radius, prime_vertical_radius
 from geoloc.status import Status
@@ -57,15 +58,17 @@ BINS = 1024
 HALF_WIDTH_SIGMA = 8.0
 
 
-def cep_eq18(s_lat, s_lon, lat, h) -> float:
+def cep_eq18(s_lat: float, s_lon: float, lat: float, h: float) -> float:
     """[Q17 eq. 18]: sqrt((s_lon (R_N + h) cos phi)^2 + (s_lat (R_M + h))^2) [m] from standard
     deviations of latitude and longitude [rad] about the mean latitude and height."""
     return float(
-        math.hypot(s_lon * (prime_vertical_radius(lat) + h) * math.cos(lat), s_lat * (meridian_radius(lat) + h))
+        math.hypot(
+            s_lon * (float(prime_vertical_radius(lat)) + h) * math.cos(lat), s_lat * (float(meridian_radius(lat)) + h)
+        )
     )
 
 
-def summary(m_lat, m_lon, m_h, s_lat, s_lon, s_h, cep50) -> dict:
+def summary(m_lat: float, m_lon: float, m_h: float, s_lat: float, s_lon: float, s_h: float, cep50: float) -> dict:
     """The :data:`STATS_KEYS` from means and standard deviations [rad, m] and an empirical 50 % radius."""
     return {
         "mean_lat_deg": math.degrees(m_lat),
@@ -113,9 +116,11 @@ class StreamingStats:
         self.overflow = 0
 
     # ------------------------------------------------------------------ feeding
-    def add(self, lat, lon, h, status=None) -> None:
+    def add(self, lat: ArrayLike, lon: ArrayLike, h: ArrayLike, status: ArrayLike | None = None) -> None:
         """Add a chunk: lat, lon [rad], h [m], status (OK samples only are used)."""
-        lat, lon, h = (np.asarray(v, float).ravel() for v in (lat, lon, h))
+        lat = np.asarray(lat, float).ravel()
+        lon = np.asarray(lon, float).ravel()
+        h = np.asarray(h, float).ravel()
         ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h)
         if status is not None:
             st = np.asarray(status).ravel()
@@ -125,17 +130,17 @@ class StreamingStats:
             self.status_counts[Status.OK] += int(ok.sum())
             self.status_counts[Status.INVALID_INPUT] += int((~ok).sum())
         self.n_failed += int((~ok).sum())
-        lat, lon, h = lat[ok], lon[ok], h[ok]
-        k = lat.size
+        lat_ok, lon_ok, h_ok = lat[ok], lon[ok], h[ok]
+        k = lat_ok.size
         if k == 0:
             return
         if self.ref is None:
-            self.ref = (float(lat[0]), float(lon[0]), float(h[0]))
+            self.ref = (float(lat_ok[0]), float(lon_ok[0]), float(h_ok[0]))
         ref = self.ref
         x = np.empty((k, 3))
-        x[:, 0] = lat - ref[0]
-        x[:, 1] = (lon - ref[1] + np.pi) % (2 * np.pi) - np.pi  # no wrap at +-180 deg
-        x[:, 2] = h - ref[2]
+        x[:, 0] = lat_ok - ref[0]
+        x[:, 1] = (lon_ok - ref[1] + np.pi) % (2 * np.pi) - np.pi  # no wrap at +-180 deg
+        x[:, 2] = h_ok - ref[2]
         mb = x.mean(axis=0)
         dev = x - mb
         m2b = dev.T @ dev

@@ -27,13 +27,17 @@ an orbit.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from typing import Any
 import math
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.analysis.uncertainty import ce90, chain_derivatives, ellipse
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic
+from geoloc.frames.chain import Pose
 from geoloc.geodesy.local import R_ecef_enu
 from geoloc.sensors.budget import LE90_PER_SIGMA, LENS_KEYS, SENSOR_KEYS, ErrorBudget
 from geoloc.status import Status
@@ -100,7 +104,9 @@ def _across(D):
     return np.stack([b1, b2], -1)
 
 
-def intersect_rays(origins, directions, cov_across=None):
+def intersect_rays(
+    origins: ArrayLike, directions: ArrayLike, cov_across: ArrayLike | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The weighted least-squares intersection of rays (ECEF): ``(X, residuals, W, B)``.
 
     Parameters
@@ -134,14 +140,14 @@ def intersect_rays(origins, directions, cov_across=None):
 
 
 def triangulate(
-    sensor,
-    pose,
-    row,
-    col,
+    sensor: Any,
+    pose: Pose,
+    row: ArrayLike,
+    col: ArrayLike,
     budget: ErrorBudget | None = None,
     *,
-    shared=SHARED,
-    velocity_ned_m_s=None,
+    shared: Iterable[str] = SHARED,
+    velocity_ned_m_s: ArrayLike | None = None,
     min_angle_deg: float = 1.0,
     corrections: Corrections = NO_CORRECTIONS,
 ) -> Triangulation:
@@ -264,7 +270,7 @@ def _spread_deg(D) -> float:
     return float(np.degrees(np.arccos(c.min())))
 
 
-def compare_with_surface(tri: Triangulation, surface_h_m, surface_ok=None) -> dict:
+def compare_with_surface(tri: Triangulation, surface_h_m: ArrayLike, surface_ok: ArrayLike | None = None) -> dict:
     """Each frame's surface hit height against the triangulated height: a DEM or datum check.
 
     Parameters

@@ -14,6 +14,7 @@ import argparse
 import importlib
 import pkgutil
 import sys
+from collections.abc import Sequence
 from importlib.metadata import entry_points
 
 from geoloc import __version__
@@ -107,7 +108,7 @@ EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     """Parse, check every output against every input (before anything runs), run the verb.
 
     Exit status (docs/cli.md): 0 all done; 1 the command ran but some records could not be

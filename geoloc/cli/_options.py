@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -175,7 +176,7 @@ def check_outputs(parser, args) -> list:
     """
 
     inputs, outputs = declared_files(parser, args, types=True)
-    seen: dict[str, object] = {}  # option name -> its path, or STDOUT
+    seen: dict[str, Any] = {}  # option name -> its path, or STDOUT
     for name, path, role, kind in outputs:
         if path == STDOUT:
             if kind is not text_output_path:

@@ -8,6 +8,7 @@ choose the parameters, ``--fit NAMES`` names them) and written back with
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -46,7 +47,7 @@ RESECT_NAMES = ("f", "cy", "cx")
 EXAMPLE = "geoloc calibrate --height-column paper_height_m --out calibration.json --plot errors.png"
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "calibrate",
         help=VERB_HELP["calibrate"],
@@ -174,7 +175,7 @@ def _surface(args, records, example: str = "paper_height_m"):
     return surface_from_args(args, records, example=example), label
 
 
-def fit_names(args) -> list:
+def fit_names(args: argparse.Namespace) -> list:
     """The parameters to fit: ``--fit NAMES``, else those of ``--model`` / ``--fit-focal`` / ``--fit-principal-point``."""
     if args.fit is not None:
         chosen = [
@@ -216,7 +217,7 @@ def _write_fitted(option: str, out, sensors: dict, joint: bool, write) -> None:
         print(f"wrote the fitted {option} ({g}) to {path}")
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     """Fit the parameters of :func:`fit_names` per flight (:func:`geoloc.analysis.sensor_fit.fit_sensor_groups`).
 
     Flights come from ``--group-by`` (default the ``table`` column when the records

@@ -3,6 +3,7 @@ Cursor-on-Target (a ``.cot`` file, or UDP datagrams with ``--cot udp://HOST:PORT
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from geoloc.cli._options import input_path, text_output_path
@@ -19,7 +20,7 @@ EXAMPLE = (
 )
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "export",
         help=VERB_HELP["export"],
@@ -90,7 +91,7 @@ def register(sub) -> None:
 STDOUT_FORMATS = ("kml", "czml", "cot")
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     if args.output is not None and args.out is not None and args.output != args.out:
         raise ValueError(f"two outputs given ({args.output} and --out {args.out}): give one")
     args.out = args.out if args.out is not None else args.output

@@ -19,6 +19,7 @@ whose frame-centre and corner items are geoloc's replay of each packet
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import json
 import sys
@@ -37,7 +38,7 @@ EXAMPLE = (
 )
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "klv",
         help=VERB_HELP["klv"],
@@ -135,7 +136,7 @@ def register(sub) -> None:
     p.set_defaults(func=usage)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from geoloc.io.klv import read_packets
 
     from geoloc.cli._options import is_stream
@@ -265,7 +266,7 @@ def _dump(name, results, out, flush: bool = False) -> tuple[int, int]:
     return good, bad
 
 
-def run_send(args) -> int:
+def run_send(args: argparse.Namespace) -> int:
     from geoloc.io.live import parse_udp_url, send
 
     url = parse_udp_url(args.url)
@@ -307,7 +308,7 @@ def run_send(args) -> int:
     return 0
 
 
-def run_fix(args) -> int:
+def run_fix(args: argparse.Namespace) -> int:
     from geoloc.cli._options import corrections_from_args, sensor_from_args, surface_from_args
     from geoloc.workflows.klv_fix import fix_klv
 

@@ -7,6 +7,7 @@ metres at this edge; see :mod:`geoloc.sensors.limb`.
 
 from __future__ import annotations
 
+import argparse
 import csv
 import dataclasses
 import json
@@ -29,7 +30,7 @@ from geoloc.workflows.scenario import load_scenario
 EXAMPLE = "geoloc limb assets/scenarios/tiangong2_limb.toml --frames 3 --out limb.csv"
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "limb",
         help=VERB_HELP["limb"],
@@ -318,7 +319,7 @@ def _scenario(args) -> int:
     return 0
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     raw = args.origin_ecef is not None or args.direction_ecef is not None
     if raw and args.scenario:
         raise ValueError("give either a SCENARIO file or --origin-ecef/--direction-ecef, not both")

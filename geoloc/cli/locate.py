@@ -8,11 +8,15 @@ Also what the other verbs read from the shared options (declared in
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
+import os
 import sys
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -53,7 +57,7 @@ EXAMPLE = (
 )
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "locate",
         help=VERB_HELP["locate"],
@@ -77,7 +81,7 @@ def register(sub) -> None:
     add_correction_options(p)
 
 
-def parse_angles(items) -> dict:
+def parse_angles(items: Iterable[str]) -> dict:
     """``["azimuth=90", ...]`` -> ``{"azimuth": 90.0}``; errors name the item."""
     out = {}
     for item in items or []:
@@ -105,7 +109,9 @@ def _is_bundled_records(path) -> bool:
         return False
 
 
-def load_records_reporting(path, sensor=None, columns=None, altitude_datum=None) -> Records:
+def load_records_reporting(
+    path: str | os.PathLike[str] | None, sensor: Any = None, columns: Any = None, altitude_datum: str | None = None
+) -> Records:
     """Records from ``path`` (default: the bundled flight test); each rejected row is
     reported on stderr with its line, and no good row at all is an error. With
     ``sensor``, its gimbal's angles are the required ``<angle>_deg`` columns.
@@ -137,7 +143,7 @@ def load_records_reporting(path, sensor=None, columns=None, altitude_datum=None)
     return records
 
 
-def column_map_from_args(args) -> ColumnMap | None:
+def column_map_from_args(args: argparse.Namespace) -> ColumnMap | None:
     """The column map of ``--columns FILE``, else of the ``--sensor`` file's ``[columns]`` table, else None."""
     path = getattr(args, "columns", None)
     if path:
@@ -150,7 +156,7 @@ def column_map_from_args(args) -> ColumnMap | None:
     return None
 
 
-def records_from_args(args, path, sensor) -> Records:
+def records_from_args(args: argparse.Namespace, path: str | os.PathLike[str] | None, sensor: Any) -> Records:
     """:func:`load_records_reporting` with the verb's ``--columns`` (or the sensor file's
     ``[columns]``) and ``--altitude-datum`` (options of :func:`add_records_options`)."""
     return load_records_reporting(
@@ -158,12 +164,12 @@ def records_from_args(args, path, sensor) -> Records:
     )
 
 
-def altitude_from_args(args) -> HeightSource:
+def altitude_from_args(args: argparse.Namespace) -> HeightSource:
     """How ``--h-m`` is read: its datum and whether ``--altitude-datum`` stated it."""
     return HeightSource.of_option(getattr(args, "altitude_datum", None), "--h-m")
 
 
-def ellipsoidal_h_from_args(args) -> float:
+def ellipsoidal_h_from_args(args: argparse.Namespace) -> float:
     """``--h-m`` as an ellipsoidal height: + N (bundled EGM96) for ``--altitude-datum egm96``."""
     if altitude_from_args(args).datum != "egm96":
         return args.h_m
@@ -178,7 +184,7 @@ def ellipsoidal_h_from_args(args) -> float:
     return args.h_m + n
 
 
-def pose_from_args(args, sensor) -> Pose:
+def pose_from_args(args: argparse.Namespace, sensor: Any) -> Pose:
     """The pose of the command line, with every joint angle the sensor's gimbal needs."""
 
     angles = parse_angles(getattr(args, "angle", []))
@@ -208,7 +214,7 @@ def pose_from_args(args, sensor) -> Pose:
     ).validate()
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     camera = sensor_from_args(args)
     pose = pose_from_args(args, camera)
     for name in ("row", "col"):

@@ -11,6 +11,7 @@ import math
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +38,7 @@ from geoloc.userfiles import check_output_dir, write_text
 EXAMPLE = "geoloc montecarlo assets/scenarios/qiao2017_table1.toml --samples 200 --out stats.json"
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "montecarlo",
         help=VERB_HELP["montecarlo"],
@@ -161,7 +162,7 @@ def parse_angles(text: str) -> np.ndarray:
         ) from None
 
 
-def parse_error(text: str):
+def parse_error(text: str) -> tuple[str, Distribution]:
     """``"cx_px=normal:0.5"`` / ``"k1=uniform:0.01:0.001"`` -> (source, Distribution), errors naming the text."""
 
     name, sep, spec = str(text).partition("=")
@@ -196,7 +197,7 @@ def _floats(text: str, name: str) -> np.ndarray:
     return v
 
 
-def load_model(args) -> ErrorModel:
+def load_model(args: argparse.Namespace) -> ErrorModel:
 
     scenario = Path(args.scenario)
     if not scenario.is_file():
@@ -230,7 +231,7 @@ def load_model(args) -> ErrorModel:
     return replace(model, corrections=corrections_from_args(args, model.camera, base=model.corrections))
 
 
-def format_stats(stats: dict, nominal=None) -> str:
+def format_stats(stats: dict, nominal: Any = None) -> str:
     lines = []
     if nominal is not None:
         lat, lon, h, _ = nominal
@@ -245,7 +246,7 @@ def format_stats(stats: dict, nominal=None) -> str:
     return "\n".join(lines)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     mc.check_samples_and_chunk(args.samples, args.chunk, field_n="--samples", field_chunk="--chunk")
     if args.sweep and args.out:
         raise ValueError(

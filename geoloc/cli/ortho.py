@@ -12,6 +12,7 @@ Docs: ``docs/ortho.md``.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import sys
@@ -51,7 +52,7 @@ POSE_FIELDS = ("lat_deg", "lon_deg", "h_m")
 EXAMPLE = "geoloc ortho --record T3-1 --step 256 --out frame.tif"
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "ortho",
         help=VERB_HELP["ortho"],
@@ -210,7 +211,7 @@ def _surface(args, pose):
     return surface_from_args(args), f"DEM {shown} ({args.method}, {args.dem_model}; its heights {args.dem_datum})"
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from geoloc.workflows.ortho import (
         DEFAULT_CHUNK,
         orthorectify,

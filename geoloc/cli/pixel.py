@@ -11,6 +11,7 @@ sight through that pixel meets the terrain more than 1 m before the point).
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 
@@ -42,7 +43,7 @@ EXAMPLE = (
 )
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "pixel",
         help=VERB_HELP["pixel"],
@@ -73,7 +74,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def point_from_args(args) -> tuple[float, float, str]:
+def point_from_args(args: argparse.Namespace) -> tuple[float, float, str]:
     """(lat_deg, lon_deg, how it was given); errors name the option and the value."""
     has_ll = args.point_lat_deg is not None or args.point_lon_deg is not None
     if args.mgrs is not None and has_ll:
@@ -92,7 +93,7 @@ def point_from_args(args) -> tuple[float, float, str]:
     return args.point_lat_deg, args.point_lon_deg, "latitude/longitude"
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     sensor = sensor_from_args(args)
     pose = pose_from_args(args, sensor)
     lat_deg, lon_deg, given = point_from_args(args)

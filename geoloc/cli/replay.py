@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -44,7 +45,7 @@ from geoloc.cli import VERB_HELP
 EXAMPLE = "geoloc replay --height-column paper_height_m --out results.csv --export results.gpkg"
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "replay",
         help=VERB_HELP["replay"],
@@ -145,7 +146,7 @@ INPUT_KINDS = ("records", "klv", "photos", "srt", "campaign", "live")
 ROWS_SHOWN = 50
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from geoloc.cli._options import check_gis_output, is_stream
 
     check_gis_output("--export", args.export)  # before any record is located: fail in a second

@@ -16,9 +16,11 @@ import csv
 import html
 import json
 import math
+import os
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -51,7 +53,7 @@ EXAMPLE = (
 )
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "report",
         help=VERB_HELP["report"],
@@ -109,7 +111,7 @@ def register(sub) -> None:
 # --------------------------------------------------------------------------- reading
 
 
-def read_results(path) -> tuple:
+def read_results(path: str | os.PathLike[str]) -> tuple:
     """``(header, rows, messages)`` of a results CSV; ``rows`` are dicts with their line numbers (``_line``)."""
     path = Path(path)
     if not path.exists():
@@ -190,7 +192,11 @@ def _has_values(rows, name) -> bool:
 
 
 def report_from_csv(
-    path, reference: str = "auto", ref_h_column: str | None = None, group_by: str | None = None, camera=None
+    path: str | os.PathLike[str],
+    reference: str = "auto",
+    ref_h_column: str | None = None,
+    group_by: str | None = None,
+    camera: Any = None,
 ) -> tuple:
     """``(AccuracyReport, messages)`` of a replay output CSV (see the verb's help for the choices)."""
     path = Path(path)
@@ -269,7 +275,7 @@ def report_from_csv(
         s = sensor_from_args(argparse.Namespace(camera=camera))
         r0, c0 = (s.rows + 1) / 2.0, (s.cols + 1) / 2.0
         pix = np.hypot(col("row") - r0, col("col") - c0)
-    meta = {
+    meta: dict[str, Any] = {
         "source": path.name,
         "reference": f"{reference}_lat_deg, {reference}_lon_deg"
         + (f", height {ref_h_column}" if ref_h_column else " (no reference height: vertical not computed)"),
@@ -320,7 +326,9 @@ def report_from_csv(
 BUDGET_COLUMNS = ("ellipse_major_m", "ellipse_minor_m", "ellipse_azimuth_deg", "le90_m")
 
 
-def add_budget_check(rep, major, minor, azimuth_deg, le90) -> None:
+def add_budget_check(
+    rep: AccuracyReport, major: np.ndarray, minor: np.ndarray, azimuth_deg: np.ndarray, le90: np.ndarray
+) -> None:
     """The budget judged by the data (:func:`geoloc.analysis.uncertainty.budget_check`), overall and
     per group, into ``rep``: ``overall["budget"]``, each group's, and the per-target
     ``normalised_error`` (and ``normalised_vertical_error``) components."""
@@ -360,7 +368,7 @@ def _short(lines) -> str:
 # --------------------------------------------------------------------------- plots and HTML
 
 
-def write_plots(rep: AccuracyReport, out_dir) -> list:
+def write_plots(rep: AccuracyReport, out_dir: str | os.PathLike[str]) -> list:
     """PNG plots (matplotlib, Agg) in ``out_dir``; returns their paths."""
     import matplotlib
 
@@ -491,7 +499,7 @@ def frame_runs(frames: Iterable[int]) -> str:
     return f"{', '.join(runs)} ({len(k)})"
 
 
-def write_html(rep: AccuracyReport, pngs, path) -> Path:
+def write_html(rep: AccuracyReport, pngs: Sequence[str | os.PathLike[str]], path: str | os.PathLike[str]) -> Path:
     """One self-contained HTML page: the table, the definitions, the warnings and the plots (base64 PNG)."""
     path = Path(path)
     parts = [
@@ -589,7 +597,7 @@ def audit_from_csv(path, surface, camera=None):
     return audit_records(records, sensor, surface)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     if args.audit and not args.dem and not _is_klv_results(args.results):
         raise ValueError("--audit compares heights with the terrain: give a DEM with --dem")
     rep, messages = report_from_csv(args.results, args.reference, args.ref_h_column, args.group_by, args.camera)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 
 from geoloc.cli._options import surface_from_scenario, text_output_path
@@ -22,7 +23,7 @@ PAPERS = {
 EXAMPLE = "geoloc reproduce li2023 --rays 10 --json numbers.json"
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "reproduce",
         help=VERB_HELP["reproduce"],
@@ -52,7 +53,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     if args.samples < 2 or args.sweep_samples < 2:
         raise ValueError(f"--samples = {args.samples}, --sweep-samples = {args.sweep_samples}: must be >= 2")
     if args.paper == "qiao2017":

@@ -5,6 +5,7 @@ See docs/rpc.md. Degrees and metres at this edge.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
@@ -29,7 +30,7 @@ from geoloc.cli import VERB_HELP
 EXAMPLE = "geoloc rpc assets/scenarios/zy3_nadir.toml --out zy3.tif --report rpc.json --no-gdal"
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "rpc",
         help=VERB_HELP["rpc"],
@@ -62,7 +63,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from geoloc.workflows.rpc_scenario import rpc_report
     from geoloc.workflows.scenario import load_scenario
 

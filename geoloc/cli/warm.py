@@ -13,6 +13,7 @@ prints what it compiled and how long it took. A warm cache makes every step a fe
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import io
 import sys
@@ -110,7 +111,7 @@ STEPS = (
 EXAMPLE = "geoloc warm --skip-view"
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "warm",
         help=VERB_HELP["warm"],
@@ -123,7 +124,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from geoloc.geodesy import _nbgeo
 
     print(f"geoloc warm: compiling what locate, replay and view need, once; cache: {_nbgeo.cache_dir()}", flush=True)

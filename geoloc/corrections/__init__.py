@@ -9,6 +9,9 @@ layer call.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
 #: The ground measurement a standard atmosphere can be fitted to (``StandardAtmosphere``'s own
 #: parameters: the height of the measurement [m], pressure [Pa], temperature [K]).
 GROUND_KEYS = ("ground_h_m", "ground_p_pa", "ground_t_k")
@@ -18,7 +21,7 @@ TABLE_KEYS = ("refraction", "light_time", "aberration") + GROUND_KEYS
 REFRACTION_MODELS = ("none", "standard")
 
 
-def check_table(table, source: str = "[corrections]") -> dict:
+def check_table(table: Mapping[str, Any], source: str = "[corrections]") -> dict:
     """A ``[corrections]`` table checked: ``refraction = "none" | "standard"``, ``light_time`` and
     ``aberration`` true or false, nothing else. Errors name ``source``, the key and the value."""
     if not isinstance(table, dict):

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 #: [USSA76]'s constants: standard gravity [m/s^2], the gas constant [J/(kmol K)], the mean
 #: molecular weight of air below 86 km [kg/kmol], the Earth radius of eq. 18 [m].
@@ -51,13 +52,13 @@ TOP_M = 86000.0
 WAVELENGTH_UM = 0.55
 
 
-def geopotential_height(h_m):
+def geopotential_height(h_m: ArrayLike) -> np.ndarray:
     """Geopotential height H = r0 h / (r0 + h) (USSA76 eq. 18), in geopotential metres, from geometric height [m]."""
     h = np.asarray(h_m, float)
     return R0_EARTH * h / (R0_EARTH + h)
 
 
-def geometric_height(H_m):
+def geometric_height(H_m: ArrayLike) -> np.ndarray:
     """Geometric height h = r0 H / (r0 - H) [m], the inverse of :func:`geopotential_height`."""
     H = np.asarray(H_m, float)
     return R0_EARTH * H / (R0_EARTH - H)
@@ -134,7 +135,7 @@ class StandardAtmosphere:
     def _tables(self):
         return _tables(self.ground_h_m, self.ground_p_pa, self.ground_t_k)
 
-    def temperature_pressure(self, h_m):
+    def temperature_pressure(self, h_m: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Temperature [K] and pressure [Pa] at geometric height ``h_m`` [m] (NaN above 86 km).
 
         [USSA76] eq. 23 (linear temperature in geopotential height) and eq. 33a/b
@@ -162,21 +163,21 @@ class StandardAtmosphere:
         bad = ~np.isfinite(h) | (h > TOP_M + 1e-6) | (h < -5000.0)
         return np.where(bad, np.nan, T), np.where(bad, np.nan, P)
 
-    def temperature(self, h_m):
+    def temperature(self, h_m: ArrayLike) -> np.ndarray:
         """Temperature [K] at geometric height ``h_m`` [m]."""
         return self.temperature_pressure(h_m)[0]
 
-    def pressure(self, h_m):
+    def pressure(self, h_m: ArrayLike) -> np.ndarray:
         """Pressure [Pa] at geometric height ``h_m`` [m]."""
         return self.temperature_pressure(h_m)[1]
 
-    def density(self, h_m):
+    def density(self, h_m: ArrayLike) -> np.ndarray:
         """Density rho = P M0 / (R* T) in kg/m^3, USSA76 eq. 42."""
         T, P = self.temperature_pressure(h_m)
         return P / (R_AIR * T)
 
     # -- the refractivity ------------------------------------------------------------------
-    def refractivity(self, h_m):
+    def refractivity(self, h_m: ArrayLike) -> np.ndarray:
         """n - 1 of dry air at height ``h_m`` for this wavelength [BD93] (dimensionless).
 
         (n - 1)_s 1e8 = 8342.54 + 2406147 / (130 - s^2) + 15998 / (38.9 - s^2), s = 1/lambda
@@ -194,11 +195,11 @@ class StandardAtmosphere:
             nm1 = np.where(above, nm1 * np.exp(-(h - TOP_M) / scale_h), nm1)
         return np.where(h >= CUT_M, 0.0, nm1)
 
-    def refractive_index(self, h_m):
+    def refractive_index(self, h_m: ArrayLike) -> np.ndarray:
         """n = 1 + :meth:`refractivity` at geometric height ``h_m`` [m]."""
         return 1.0 + self.refractivity(h_m)
 
-    def table(self):
+    def table(self) -> tuple[float, float, np.ndarray]:
         """(h0 [m], step [m], n - 1 at h0 + k step) for the ray tracer: :data:`TABLE_STEP_M` apart."""
         return _refractivity_table(self)
 
@@ -237,7 +238,7 @@ def _refractivity_table(atm: StandardAtmosphere):
     return TABLE_H0_M, TABLE_STEP_M, eps
 
 
-def air_refractivity(p_pa, t_k, wavelength_um: float = WAVELENGTH_UM):
+def air_refractivity(p_pa: ArrayLike, t_k: ArrayLike, wavelength_um: float = WAVELENGTH_UM) -> np.ndarray:
     """n - 1 of dry air at pressure ``p_pa`` [Pa] and temperature ``t_k`` [K], after [BD93].
 
     (n - 1)_tp = (n - 1)_s p [1 + 1e-8 (0.601 - 0.00972 t) p] / (96095.43 (1 + 0.003661 t)),

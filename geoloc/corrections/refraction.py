@@ -71,6 +71,7 @@ import sys
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 from numba import prange
 
 from geoloc.corrections.atmosphere import CUT_M, LAYER_TOPS_M, STANDARD, StandardAtmosphere
@@ -468,7 +469,7 @@ class Layers:
                 raise ValueError(f"Layers: each layer needs a finite height and 0.5 < n < 2, got ({h!r}, {n!r})")
         object.__setattr__(self, "layers", tuple(rows))
 
-    def refractive_index(self, h_m):
+    def refractive_index(self, h_m: ArrayLike) -> np.ndarray:
         h = np.asarray(h_m, float)
         bottoms = np.array([r[0] for r in self.layers])
         values = np.array([r[1] for r in self.layers])
@@ -590,7 +591,7 @@ class Refraction:
     :class:`geoloc.status.Status` per ray rather than raising.
     """
 
-    atmosphere: object = field(default=STANDARD)
+    atmosphere: StandardAtmosphere | Layers = field(default=STANDARD)
 
     def _profile(self):
         atm = self.atmosphere
@@ -607,7 +608,7 @@ class Refraction:
             return 1, 0.0, 1.0, np.zeros(2), bottoms, values, bounds, float(bottoms[-1])
         raise TypeError(f"Refraction: atmosphere must be a StandardAtmosphere or Layers, got {type(atm).__name__}")
 
-    def refractive_index(self, h_m):
+    def refractive_index(self, h_m: ArrayLike) -> np.ndarray:
         """n at geometric height ``h_m`` as the ray tracer sees it (table interpolation or layers)."""
         atm = self.atmosphere
         if isinstance(atm, Layers):
@@ -615,7 +616,14 @@ class Refraction:
         h0, step, table = atm.table()
         return 1.0 + np.interp(np.asarray(h_m, float), h0 + step * np.arange(table.size), table)
 
-    def correct(self, origin, direction, hit, at_h=None, hit_llh=None) -> RefractedLine:
+    def correct(
+        self,
+        origin: ArrayLike,
+        direction: ArrayLike,
+        hit: ArrayLike,
+        at_h: ArrayLike | None = None,
+        hit_llh: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
+    ) -> RefractedLine:
         """The bent ray near a raw hit, as a line to meet the surface with (Rugged's ``applyCorrection``).
 
         Parameters
@@ -695,7 +703,9 @@ class Refraction:
             shift[:, 1].reshape(shape),
         )
 
-    def aim(self, origin, ground, max_iter: int = 8, tol_m: float = 1e-4):
+    def aim(
+        self, origin: ArrayLike, ground: ArrayLike, max_iter: int = 8, tol_m: float = 1e-4
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The direction leaving the camera whose bent ray reaches ``ground``: the inverse of :meth:`correct`.
 
         A fixed point on the aim point: aim at A_k, trace the bent ray to the ground's
@@ -728,7 +738,7 @@ class Refraction:
         d = np.where((status == Status.OK)[:, None], d, np.nan)
         return d.reshape(shape + (3,)), status.astype(np.uint8).reshape(shape)
 
-    def limb(self, origin, direction) -> LimbRefraction:
+    def limb(self, origin: ArrayLike, direction: ArrayLike) -> LimbRefraction:
         """The straight and the refracted tangent points of limb rays (from orbit, missing the Earth).
 
         The straight tangent point is the line's lowest point above the ellipsoid

@@ -13,10 +13,13 @@ All functions take radians and broadcast over leading axes.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from functools import cached_property
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.frames import rotations as rot
 from geoloc.frames.graph import Hop
@@ -27,37 +30,37 @@ from geoloc.geodesy.local import R_ecef_ned
 FRAMES = ("ecef", "ned", "body", "gimbal_outer", "cam")
 
 
-def R_body_ned(heading, pitch, roll):
+def R_body_ned(heading: ArrayLike, pitch: ArrayLike, roll: ArrayLike) -> np.ndarray:
     """NED -> aircraft body: Rx(roll) Ry(pitch) Rz(heading) [Q17 eq. 6] (passive, z-y-x)."""
     return rot.rx(roll) @ rot.ry(pitch) @ rot.rz(heading)
 
 
-def R_ned_body(heading, pitch, roll):
+def R_ned_body(heading: ArrayLike, pitch: ArrayLike, roll: ArrayLike) -> np.ndarray:
     """Aircraft body -> NED: the transpose of :func:`R_body_ned`."""
     return np.swapaxes(R_body_ned(heading, pitch, roll), -1, -2)
 
 
-def R_outer_body(gimbal_roll):
+def R_outer_body(gimbal_roll: ArrayLike) -> np.ndarray:
     """Body -> outer gimbal: Rx(gimbal_roll), about the aircraft roll axis [Q17 eq. 7]."""
     return rot.rx(gimbal_roll)
 
 
-def R_cam_outer(gimbal_pitch):
+def R_cam_outer(gimbal_pitch: ArrayLike) -> np.ndarray:
     """Outer gimbal -> inner gimbal / camera: Ry(gimbal_pitch) [Q17 eq. 7]."""
     return rot.ry(gimbal_pitch)
 
 
-def R_cam_body(gimbal_roll, gimbal_pitch):
+def R_cam_body(gimbal_roll: ArrayLike, gimbal_pitch: ArrayLike) -> np.ndarray:
     """Body -> camera: Ry(gimbal_pitch) Rx(gimbal_roll) [Q17 eq. 7]."""
     return R_cam_outer(gimbal_pitch) @ R_outer_body(gimbal_roll)
 
 
-def T_ecef_ned(lat, lon, h):
+def T_ecef_ned(lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> np.ndarray:
     """4x4 NED -> ECEF with the NED origin at (lat, lon, h): [[R_ecef_ned, O_ecef], [0, 1]]."""
     return rot.transform(R_ecef_ned(lat, lon), geodetic_to_ecef(lat, lon, h))
 
 
-def T_ned_ecef_q17_factors(lat, lon, h):
+def T_ned_ecef_q17_factors(lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> list[np.ndarray]:
     """The four homogeneous factors of [Q17 eq. 5], in the paper's order.
 
     C^NED_ECEF = Tz(R_N + h) . M(phi) . Rz(lambda) . Tz(R_N e^2 sin phi), where
@@ -153,15 +156,15 @@ class Pose:
     @classmethod
     def from_deg(
         cls,
-        lat_deg,
-        lon_deg,
-        h_m,
-        heading_deg=0.0,
-        pitch_deg=0.0,
-        roll_deg=0.0,
-        gimbal_roll_deg=0.0,
-        gimbal_pitch_deg=0.0,
-        angles_deg=None,
+        lat_deg: ArrayLike,
+        lon_deg: ArrayLike,
+        h_m: ArrayLike,
+        heading_deg: ArrayLike = 0.0,
+        pitch_deg: ArrayLike = 0.0,
+        roll_deg: ArrayLike = 0.0,
+        gimbal_roll_deg: ArrayLike = 0.0,
+        gimbal_pitch_deg: ArrayLike = 0.0,
+        angles_deg: Mapping[str, ArrayLike] | None = None,
     ) -> "Pose":
         """Build a Pose from degrees (the edge of the core) and metres.
 
@@ -193,14 +196,14 @@ class Pose:
         given = sorted(set(self.angles) | set(self.FIELD_ANGLES))
         raise ValueError(f"missing angle {name!r}: the pose has {given}")
 
-    def with_angles(self, **angles) -> "Pose":
+    def with_angles(self, **angles: np.ndarray) -> "Pose":
         """A copy with joint angles set by name [rad] (the [Q17] two go to their fields)."""
         import dataclasses
 
         fields_kw = {k: angles.pop(k) for k in list(angles) if k in self.FIELD_ANGLES}
         return dataclasses.replace(self, angles={**self.angles, **angles}, **fields_kw)
 
-    def take(self, idx) -> "Pose":
+    def take(self, idx: Any) -> "Pose":
         """The samples ``idx`` of the batch (every field and angle broadcast to :attr:`shape` first)."""
         shape = self.shape
 
@@ -217,7 +220,7 @@ class Pose:
             *(np.shape(v) for v in self.angles.values()),
         )
 
-    def batch_size(self, *arrays) -> int:
+    def batch_size(self, *arrays: ArrayLike) -> int:
         """Samples in the broadcast of this batch with ``arrays`` (pixels, heights): the rays of a call."""
         return int(np.prod(np.broadcast_shapes(self.shape, *(np.shape(a) for a in arrays))))
 
@@ -275,7 +278,7 @@ class FrameChain:
         ECEF <- NED <- body <- gimbal_outer <- cam, outermost first.
     """
 
-    def __init__(self, pose: Pose, R_cam_inner=None, R_base_body=None):
+    def __init__(self, pose: Pose, R_cam_inner: ArrayLike | None = None, R_base_body: ArrayLike | None = None):
         self.pose = pose
         self.R_cam_inner = None if R_cam_inner is None else np.asarray(R_cam_inner, float)
         self.R_base_body = None if R_base_body is None else np.asarray(R_base_body, float)
@@ -350,7 +353,7 @@ class FrameChain:
             ),
         ]
 
-    def cam_to_ecef(self, v_cam) -> np.ndarray:
+    def cam_to_ecef(self, v_cam: ArrayLike) -> np.ndarray:
         """Rotate camera-frame vectors (..., 3) to ECEF, hop by hop [Q17 eq. 9].
 
         Equal to ``R_ecef_cam @ v`` but applies each elementary rotation to the
@@ -370,7 +373,7 @@ class FrameChain:
         v = rot.rotate_axis("z", p.heading, v, transpose=True)
         return rot.rotate(self.R_ecef_ned, v)
 
-    def ecef_to_cam(self, v_ecef) -> np.ndarray:
+    def ecef_to_cam(self, v_ecef: ArrayLike) -> np.ndarray:
         """Rotate ECEF vectors (..., 3) to the camera frame: the inverse of :meth:`cam_to_ecef`."""
         p = self.pose
         v = _rotate_T(self.R_ecef_ned, np.asarray(v_ecef, float))

@@ -16,13 +16,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.frames import rotations as rot
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
 from geoloc.geodesy.local import R_ecef_enu
 
 
-def T_ecef_enu(lat, lon, h):
+def T_ecef_enu(lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> np.ndarray:
     """4x4 ENU -> ECEF with the ENU origin at geodetic (lat, lon, h)."""
     return rot.transform(R_ecef_enu(lat, lon), geodetic_to_ecef(lat, lon, h))
 
@@ -44,11 +45,11 @@ class EnuFrame:
     h0: float = 0.0
 
     @classmethod
-    def from_deg(cls, lat0_deg, lon0_deg, h0_m=0.0) -> "EnuFrame":
+    def from_deg(cls, lat0_deg: float, lon0_deg: float, h0_m: float = 0.0) -> "EnuFrame":
         return cls(float(np.deg2rad(lat0_deg)), float(np.deg2rad(lon0_deg)), float(h0_m))
 
     @classmethod
-    def scene_origin(cls, lat_deg, lon_deg, h_m) -> "EnuFrame":
+    def scene_origin(cls, lat_deg: float, lon_deg: float, h_m: float) -> "EnuFrame":
         """The 3D scenes' origin near a target: rounded to 0.001 deg and 100 m.
 
         Readable when printed, and close enough that scene coordinates stay
@@ -69,26 +70,26 @@ class EnuFrame:
     def R_enu_ecef(self) -> np.ndarray:
         return self.R_ecef_enu.T
 
-    def from_ecef(self, p_ecef) -> np.ndarray:
+    def from_ecef(self, p_ecef: ArrayLike) -> np.ndarray:
         """ECEF points (..., 3) -> ENU coordinates (..., 3) [m]."""
         return rot.rotate(self.R_enu_ecef, np.asarray(p_ecef, float) - self.origin_ecef)
 
-    def to_ecef(self, p_enu) -> np.ndarray:
+    def to_ecef(self, p_enu: ArrayLike) -> np.ndarray:
         """ENU coordinates (..., 3) -> ECEF points (..., 3) [m]."""
         return rot.rotate(self.R_ecef_enu, np.asarray(p_enu, float)) + self.origin_ecef
 
-    def vector_from_ecef(self, v_ecef) -> np.ndarray:
+    def vector_from_ecef(self, v_ecef: ArrayLike) -> np.ndarray:
         """ECEF direction vectors (..., 3) -> ENU components (no translation)."""
         return rot.rotate(self.R_enu_ecef, v_ecef)
 
-    def from_geodetic(self, lat, lon, h) -> np.ndarray:
+    def from_geodetic(self, lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> np.ndarray:
         """Geodetic (rad, rad, m) -> ENU coordinates (..., 3)."""
         return self.from_ecef(geodetic_to_ecef(lat, lon, h))
 
-    def to_geodetic(self, p_enu):
+    def to_geodetic(self, p_enu: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """ENU coordinates -> geodetic (lat, lon, h) [rad, rad, m]."""
         return ecef_to_geodetic(self.to_ecef(p_enu))
 
-    def R_enu_from(self, R_ecef_x) -> np.ndarray:
+    def R_enu_from(self, R_ecef_x: ArrayLike) -> np.ndarray:
         """Rotation of a frame x into ENU: R_enu_x = R_enu_ecef @ R_ecef_x."""
         return self.R_enu_ecef @ np.asarray(R_ecef_x, float)

@@ -20,10 +20,13 @@ the direction). Radians and metres; arrays broadcast over the state's batch.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.frames import rotations as rot
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
@@ -107,7 +110,7 @@ class Joint:
         assert self.axis is not None, f"joint {self.child!r} ({self.kind}) has no axis"
         return self.axis
 
-    def R_child_parent(self, state) -> np.ndarray:
+    def R_child_parent(self, state: Any) -> np.ndarray:
         """The joint's passive rotation for ``state``: ``v_child = R @ v_parent``."""
         if self.kind == "fixed":
             return self._R
@@ -117,7 +120,7 @@ class Joint:
             return rot.rx(state.roll) @ rot.ry(state.pitch) @ rot.rz(state.heading)
         return np.swapaxes(R_ecef_ned(state.lat, state.lon), -1, -2)  # geodetic: R_ned_ecef
 
-    def rotate_to_parent(self, v, state) -> np.ndarray:
+    def rotate_to_parent(self, v: ArrayLike, state: Any) -> np.ndarray:
         """``R_parent_child @ v`` hop by hop (elementary rotations applied to the vectors)."""
         v = np.asarray(v, float)
         if self.kind == "fixed":
@@ -130,7 +133,7 @@ class Joint:
             return rot.rotate_axis("z", state.heading, v, transpose=True)
         return rot.rotate(R_ecef_ned(state.lat, state.lon), v)
 
-    def rotate_to_child(self, v, state) -> np.ndarray:
+    def rotate_to_child(self, v: ArrayLike, state: Any) -> np.ndarray:
         """``R_child_parent @ v``: the inverse of :meth:`rotate_to_parent`."""
         v = np.asarray(v, float)
         if self.kind == "fixed":
@@ -175,9 +178,9 @@ class FrameGraph:
 
     ROOT = "ecef"
 
-    def __init__(self, joints):
+    def __init__(self, joints: Iterable[Joint]):
         self.joints = tuple(joints)
-        self._by_child = {}
+        self._by_child: dict[str, Joint] = {}
         for j in self.joints:
             if j.child in self._by_child or j.child == self.ROOT:
                 raise ValueError(f"frame {j.child!r} is defined twice")
@@ -210,26 +213,26 @@ class FrameGraph:
         return out[::-1]
 
     # ------------------------------------------------------------ rotations
-    def rotate_to_ecef(self, v, frame: str, state) -> np.ndarray:
+    def rotate_to_ecef(self, v: ArrayLike, frame: str, state: Any) -> np.ndarray:
         """Vectors (..., 3) in ``frame`` -> ECEF, hop by hop (innermost first)."""
         for j in reversed(self.path(frame)):
             v = j.rotate_to_parent(v, state)
         return np.asarray(v, float)
 
-    def rotate_from_ecef(self, v, frame: str, state) -> np.ndarray:
+    def rotate_from_ecef(self, v: ArrayLike, frame: str, state: Any) -> np.ndarray:
         """ECEF vectors (..., 3) -> ``frame``: the inverse of :meth:`rotate_to_ecef`."""
         for j in self.path(frame):
             v = j.rotate_to_child(v, state)
         return np.asarray(v, float)
 
-    def R_ecef(self, frame: str, state) -> np.ndarray:
+    def R_ecef(self, frame: str, state: Any) -> np.ndarray:
         """``R_ecef_frame`` (..., 3, 3): the columns are the frame's axes in ECEF."""
         R = np.eye(3)
         for j in self.path(frame):
             R = R @ np.swapaxes(j.R_child_parent(state), -1, -2)
         return R
 
-    def origin_ecef(self, frame: str, state) -> np.ndarray:
+    def origin_ecef(self, frame: str, state: Any) -> np.ndarray:
         """The frame's origin in ECEF [m] (..., 3)."""
         o = np.zeros(3)
         for j in self.path(frame):
@@ -239,18 +242,18 @@ class FrameGraph:
                 o = o + self.rotate_to_ecef(j.offset_m, j.offset_frame or j.parent, state)
         return np.asarray(o, float)
 
-    def T_ecef(self, frame: str, state) -> np.ndarray:
+    def T_ecef(self, frame: str, state: Any) -> np.ndarray:
         """4x4 from ``frame`` to ECEF."""
         R = self.R_ecef(frame, state)
         o = self.origin_ecef(frame, state)
         shape = np.broadcast_shapes(R.shape[:-2], o.shape[:-1])
         return rot.transform(np.broadcast_to(R, shape + (3, 3)), np.broadcast_to(o, shape + (3,)))
 
-    def T(self, dst: str, src: str, state) -> np.ndarray:
+    def T(self, dst: str, src: str, state: Any) -> np.ndarray:
         """4x4 mapping coordinates in ``src`` to ``dst`` (any two frames)."""
         return rot.invert(self.T_ecef(dst, state)) @ self.T_ecef(src, state)
 
-    def hops(self, state, frame: str | None = None) -> list:
+    def hops(self, state: Any, frame: str | None = None) -> list:
         """The joints on the path to ``frame`` (default the last frame) as 4x4 :class:`Hop`, outermost first."""
         frame = frame or self.frames[-1]
         out = []
@@ -267,7 +270,7 @@ class BoundFrames:
     (``hops``, ``T_ecef``, ``T``, ``pose``), for whatever joints the graph has.
     """
 
-    def __init__(self, graph: FrameGraph, state, leaf: str | None = None):
+    def __init__(self, graph: FrameGraph, state: Any, leaf: str | None = None):
         self.graph = graph
         self.pose = state
         self.leaf = leaf or graph.frames[-1]

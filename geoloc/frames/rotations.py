@@ -11,13 +11,14 @@ Angles are radians and broadcast: ``rx(np.zeros(5))`` has shape ``(5, 3, 3)``.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 def _stack33(rows):
     return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
 
 
-def rx(a):
+def rx(a: ArrayLike) -> np.ndarray:
     """Passive rotation about X: [[1,0,0],[0,c,s],[0,-s,c]]; [Q17 eq. 6, 7]."""
     a = np.asarray(a, float)
     c, s = np.cos(a), np.sin(a)
@@ -25,7 +26,7 @@ def rx(a):
     return _stack33([(o, z, z), (z, c, s), (z, -s, c)])
 
 
-def ry(a):
+def ry(a: ArrayLike) -> np.ndarray:
     """Passive rotation about Y: [[c,0,-s],[0,1,0],[s,0,c]]; [Q17 eq. 6, 7]."""
     a = np.asarray(a, float)
     c, s = np.cos(a), np.sin(a)
@@ -33,7 +34,7 @@ def ry(a):
     return _stack33([(c, z, -s), (z, o, z), (s, z, c)])
 
 
-def rz(a):
+def rz(a: ArrayLike) -> np.ndarray:
     """Passive rotation about Z: [[c,s,0],[-s,c,0],[0,0,1]]; [Q17 eq. 5, 6]."""
     a = np.asarray(a, float)
     c, s = np.cos(a), np.sin(a)
@@ -41,7 +42,7 @@ def rz(a):
     return _stack33([(c, s, z), (-s, c, z), (z, z, o)])
 
 
-def rotate_axis(axis: str, a, v, transpose: bool = False):
+def rotate_axis(axis: str, a: ArrayLike, v: ArrayLike, transpose: bool = False) -> np.ndarray:
     """Apply the passive elementary rotation about ``axis`` (or its transpose) to vectors v (..., 3).
 
     Same result as ``rx(a) @ v`` (``rx(a).T @ v`` with ``transpose=True``), and
@@ -65,7 +66,7 @@ def rotate_axis(axis: str, a, v, transpose: bool = False):
     return np.stack(out, axis=-1)
 
 
-def transform(R, t=None):
+def transform(R: ArrayLike, t: ArrayLike | None = None) -> np.ndarray:
     """4x4 homogeneous matrix [[R, t], [0, 1]] from R (..., 3, 3) and t (..., 3).
 
     ``transform(R_a_b, p_a_borigin)`` maps homogeneous coordinates in frame b to
@@ -83,26 +84,26 @@ def transform(R, t=None):
     return T
 
 
-def translation(t):
+def translation(t: ArrayLike) -> np.ndarray:
     """4x4 pure translation by t (..., 3)."""
     t = np.asarray(t, float)
     return transform(np.broadcast_to(np.eye(3), t.shape[:-1] + (3, 3)), t)
 
 
-def invert(T):
+def invert(T: ArrayLike) -> np.ndarray:
     """Inverse of a rigid 4x4 transform: [[R^T, -R^T t], [0, 1]]."""
     T = np.asarray(T, float)
     Rt = np.swapaxes(T[..., :3, :3], -1, -2)
     return transform(Rt, -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3]))
 
 
-def apply(T, p):
+def apply(T: ArrayLike, p: ArrayLike) -> np.ndarray:
     """Apply a 4x4 transform to points p (..., 3)."""
     T = np.asarray(T, float)
     p = np.asarray(p, float)
     return np.einsum("...ij,...j->...i", T[..., :3, :3], p) + T[..., :3, 3]
 
 
-def rotate(R, v):
+def rotate(R: ArrayLike, v: ArrayLike) -> np.ndarray:
     """Apply a 3x3 rotation (..., 3, 3) to vectors v (..., 3)."""
     return np.einsum("...ij,...j->...i", np.asarray(R, float), np.asarray(v, float))

@@ -16,8 +16,10 @@ Two ECEF -> geodetic paths are provided:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 #: WGS-84 semi-major axis a [m] (docs/method.md section 1).
 A = 6378137.0
@@ -29,7 +31,7 @@ B = A * (1.0 - F)
 E2 = F * (2.0 - F)
 
 
-def prime_vertical_radius(lat):
+def prime_vertical_radius(lat: ArrayLike) -> np.ndarray:
     """Prime-vertical radius of curvature R_N = a / sqrt(1 - e^2 sin^2 phi) [Q17 eq. 17].
 
     Parameters
@@ -46,7 +48,7 @@ def prime_vertical_radius(lat):
     return A / np.sqrt(1.0 - E2 * s * s)
 
 
-def meridian_radius(lat):
+def meridian_radius(lat: ArrayLike) -> np.ndarray:
     """Meridian radius of curvature R_M = a (1 - e^2) / (1 - e^2 sin^2 phi)^(3/2) [Q17 eq. 16].
 
     Parameters
@@ -63,7 +65,7 @@ def meridian_radius(lat):
     return A * (1.0 - E2) / (1.0 - E2 * s * s) ** 1.5
 
 
-def geodetic_to_ecef(lat, lon, h):
+def geodetic_to_ecef(lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> np.ndarray:
     """Geodetic (phi, lambda, h) to ECEF [Q17 eq. 4].
 
     x = (R_N + h) cos phi cos lambda, y = (R_N + h) cos phi sin lambda,
@@ -90,7 +92,7 @@ def geodetic_to_ecef(lat, lon, h):
     return np.stack([x, y, z], axis=-1)
 
 
-def ecef_to_geodetic(xyz):
+def ecef_to_geodetic(xyz: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ECEF to geodetic latitude, longitude, height by Vermeille's closed form.
 
     H. Vermeille, "Direct transformation from geocentric coordinates to geodetic
@@ -117,7 +119,7 @@ def ecef_to_geodetic(xyz):
     return lat, lon, h
 
 
-def vermeille(x, y, z):
+def vermeille(x: Any, y: Any, z: Any) -> tuple[Any, Any, Any, Any, Any, Any]:
     """Vermeille's closed form on arrays or scalars: lat, lon, h and its d, sqrt(d^2 + z^2), rho.
 
     The one body of :func:`ecef_to_geodetic` (numpy arrays) and of the compiled
@@ -166,7 +168,7 @@ class Q17Iteration:
     n_iter: int
 
 
-def ecef_to_geodetic_q17(xyz, n_iter: int = 4) -> Q17Iteration:
+def ecef_to_geodetic_q17(xyz: ArrayLike, n_iter: int = 4) -> Q17Iteration:
     """ECEF to geodetic by the fixed-point iteration of [Q17 eq. 12-13].
 
     Start values: N_0 = a, h_0 = |r| - sqrt(a b),
@@ -210,13 +212,13 @@ def ecef_to_geodetic_q17(xyz, n_iter: int = 4) -> Q17Iteration:
     return Q17Iteration(lat, lon, h, np.stack(lats), np.stack(hs), n_iter)
 
 
-def up_normal_ecef(lat, lon):
+def up_normal_ecef(lat: ArrayLike, lon: ArrayLike) -> np.ndarray:
     """Outward ellipsoid normal (the local 'up', minus NED's D) in ECEF, shape (..., 3)."""
     lat, lon = np.broadcast_arrays(np.asarray(lat, float), np.asarray(lon, float))
     cl = np.cos(lat)
     return np.stack([cl * np.cos(lon), cl * np.sin(lon), np.sin(lat)], axis=-1)
 
 
-def wrap_lon(lon):
+def wrap_lon(lon: ArrayLike) -> np.ndarray:
     """Wrap longitude [rad] into [-pi, pi)."""
     return (np.asarray(lon) + np.pi) % (2.0 * np.pi) - np.pi

@@ -28,12 +28,14 @@ Conventions: ``docs/conventions.md`` (radians inside, metres).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import Callable
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.assets import ASSETS
 
@@ -73,7 +75,7 @@ class NodeGrid:
     margin: float = 0.0
 
     @classmethod
-    def from_geotiff(cls, path) -> "NodeGrid":
+    def from_geotiff(cls, path: str | os.PathLike[str]) -> "NodeGrid":
         """Read band 1 of a north-up geographic GeoTIFF; pixel centres are the nodes."""
         import rasterio
 
@@ -92,21 +94,21 @@ class NodeGrid:
     def lon_east_deg(self) -> float:
         return self.lon_west_deg + self.dlon_deg * (self.values.shape[1] - 1)
 
-    def grid_coords(self, lat_deg, lon_deg):
+    def grid_coords(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Fractional (row, col) of points, 0 at the first node."""
         return (
             (self.lat_north_deg - np.asarray(lat_deg, float)) / self.dlat_deg,
             (np.asarray(lon_deg, float) - self.lon_west_deg) / self.dlon_deg,
         )
 
-    def contains(self, lat_deg, lon_deg, tol=1e-9):
+    def contains(self, lat_deg: ArrayLike, lon_deg: ArrayLike, tol: float = 1e-9) -> np.ndarray:
         """True where a point is on the grid: the node hull grown by ``margin`` cells."""
         r, c = self.grid_coords(lat_deg, lon_deg)
         nr, nc = self.values.shape
         t = tol + self.margin
         return (r >= -t) & (r <= nr - 1 + t) & (c >= -t) & (c <= nc - 1 + t)
 
-    def interp(self, lat_deg, lon_deg):
+    def interp(self, lat_deg: ArrayLike, lon_deg: ArrayLike) -> np.ndarray:
         """Bilinear interpolation between the four surrounding nodes; NaN outside.
 
         Inside the ``margin`` band beyond the outer nodes the position is clamped
@@ -179,7 +181,7 @@ def grid_undulation(path: str | Path) -> Callable[..., np.ndarray]:
     return undulation
 
 
-def egm96_undulation(lat, lon, *, folder=None):
+def egm96_undulation(lat: ArrayLike, lon: ArrayLike, *, folder: str | os.PathLike[str] | None = None) -> np.ndarray:
     """EGM96 geoid undulation N [m] at geodetic (lat, lon) [rad].
 
     h = H + N converts an orthometric height H to the ellipsoidal height h

@@ -18,11 +18,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
 
 
-def R_ecef_ned(lat, lon):
+def R_ecef_ned(lat: ArrayLike, lon: ArrayLike) -> np.ndarray:
     """Rotation NED -> ECEF at (phi, lambda): columns N, E, D in ECEF [Q17 eq. 5].
 
     N = (-sin phi cos lambda, -sin phi sin lambda, cos phi),
@@ -42,7 +43,7 @@ def R_ecef_ned(lat, lon):
 R_ENU_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
 
-def R_ecef_enu(lat, lon):
+def R_ecef_enu(lat: ArrayLike, lon: ArrayLike) -> np.ndarray:
     """Rotation ENU -> ECEF at (phi, lambda): columns E, N, U in ECEF.
 
     E = (-sin lambda, cos lambda, 0), N = (-sin phi cos lambda, -sin phi sin lambda, cos phi),
@@ -96,7 +97,7 @@ def _nan_where(bad, *arrays):
     return tuple(np.where(bad, np.nan, a) for a in arrays)
 
 
-def ecef_to_enu(p_ecef, lat0, lon0, h0):
+def ecef_to_enu(p_ecef: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike) -> np.ndarray:
     """ECEF points to ENU coordinates about a geodetic origin.
 
     p_enu = R_enu_ecef @ (p_ecef - o_ecef), with o_ecef the ECEF position of
@@ -123,7 +124,7 @@ def ecef_to_enu(p_ecef, lat0, lon0, h0):
     return _nan_rows(_rotate_into(R_ecef_enu(lat0, lon0), d))
 
 
-def enu_to_ecef(p_enu, lat0, lon0, h0):
+def enu_to_ecef(p_enu: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike) -> np.ndarray:
     """ENU coordinates about a geodetic origin to ECEF points.
 
     p_ecef = o_ecef + R_ecef_enu @ p_enu (the inverse of :func:`ecef_to_enu`).
@@ -147,7 +148,9 @@ def enu_to_ecef(p_enu, lat0, lon0, h0):
     return _nan_rows(geodetic_to_ecef(lat0, lon0, h0) + v)
 
 
-def geodetic_to_enu(lat, lon, h, lat0, lon0, h0):
+def geodetic_to_enu(
+    lat: ArrayLike, lon: ArrayLike, h: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike
+) -> np.ndarray:
     """Geodetic points to ENU coordinates about a geodetic origin.
 
     Both go to ECEF by [Q17 eq. 4] (:func:`geoloc.geodesy.ellipsoid.geodetic_to_ecef`),
@@ -172,7 +175,9 @@ def geodetic_to_enu(lat, lon, h, lat0, lon0, h0):
     return ecef_to_enu(geodetic_to_ecef(lat, lon, h), lat0, lon0, h0)
 
 
-def enu_to_geodetic(p_enu, lat0, lon0, h0):
+def enu_to_geodetic(
+    p_enu: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ENU coordinates about a geodetic origin to geodetic points.
 
     :func:`enu_to_ecef`, then Vermeille's closed form
@@ -197,7 +202,7 @@ def enu_to_geodetic(p_enu, lat0, lon0, h0):
     return ecef_to_geodetic(enu_to_ecef(p_enu, lat0, lon0, h0))
 
 
-def ecef_to_ned(p_ecef, lat0, lon0, h0):
+def ecef_to_ned(p_ecef: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike) -> np.ndarray:
     """ECEF points to NED coordinates about a geodetic origin.
 
     p_ned = R_ned_ecef @ (p_ecef - o_ecef), with R_ecef_ned of :func:`R_ecef_ned`
@@ -222,7 +227,7 @@ def ecef_to_ned(p_ecef, lat0, lon0, h0):
     return _nan_rows(_rotate_into(R_ecef_ned(lat0, lon0), d))
 
 
-def ned_to_ecef(p_ned, lat0, lon0, h0):
+def ned_to_ecef(p_ned: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike) -> np.ndarray:
     """NED coordinates about a geodetic origin to ECEF points.
 
     p_ecef = o_ecef + R_ecef_ned @ p_ned (the inverse of :func:`ecef_to_ned`).
@@ -246,7 +251,9 @@ def ned_to_ecef(p_ned, lat0, lon0, h0):
     return _nan_rows(geodetic_to_ecef(lat0, lon0, h0) + v)
 
 
-def geodetic_to_ned(lat, lon, h, lat0, lon0, h0):
+def geodetic_to_ned(
+    lat: ArrayLike, lon: ArrayLike, h: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike
+) -> np.ndarray:
     """Geodetic points to NED coordinates about a geodetic origin.
 
     pymap3d: ``geodetic2ned``.
@@ -270,7 +277,9 @@ def geodetic_to_ned(lat, lon, h, lat0, lon0, h0):
     return ecef_to_ned(geodetic_to_ecef(lat, lon, h), lat0, lon0, h0)
 
 
-def ned_to_geodetic(p_ned, lat0, lon0, h0):
+def ned_to_geodetic(
+    p_ned: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """NED coordinates about a geodetic origin to geodetic points.
 
     pymap3d: ``ned2geodetic``.
@@ -293,7 +302,7 @@ def ned_to_geodetic(p_ned, lat0, lon0, h0):
     return ecef_to_geodetic(ned_to_ecef(p_ned, lat0, lon0, h0))
 
 
-def enu_to_aer(p_enu):
+def enu_to_aer(p_enu: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """ENU coordinates to azimuth, elevation and slant range.
 
     az = atan2(e, n) wrapped into [0, 2 pi) (clockwise from north: east is
@@ -326,7 +335,7 @@ def enu_to_aer(p_enu):
     return _nan_where(np.isnan(p).any(axis=-1), az, el, srange)
 
 
-def aer_to_enu(az, el, srange):
+def aer_to_enu(az: ArrayLike, el: ArrayLike, srange: ArrayLike) -> np.ndarray:
     """Azimuth, elevation and slant range to ENU coordinates.
 
     e = s cos(el) sin(az), n = s cos(el) cos(az), u = s sin(el), with the
@@ -356,7 +365,9 @@ def aer_to_enu(az, el, srange):
     return np.stack([e, n, u], axis=-1)
 
 
-def geodetic_to_aer(lat, lon, h, lat0, lon0, h0):
+def geodetic_to_aer(
+    lat: ArrayLike, lon: ArrayLike, h: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Azimuth, elevation and slant range of geodetic points seen from a geodetic origin.
 
     :func:`geodetic_to_enu`, then :func:`enu_to_aer`. pymap3d: ``geodetic2aer``.
@@ -383,7 +394,9 @@ def geodetic_to_aer(lat, lon, h, lat0, lon0, h0):
     return enu_to_aer(geodetic_to_enu(lat, lon, h, lat0, lon0, h0))
 
 
-def aer_to_geodetic(az, el, srange, lat0, lon0, h0):
+def aer_to_geodetic(
+    az: ArrayLike, el: ArrayLike, srange: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Geodetic point at an azimuth, elevation and slant range from a geodetic origin.
 
     :func:`aer_to_enu`, then :func:`enu_to_geodetic`. pymap3d: ``aer2geodetic``.
@@ -409,7 +422,9 @@ def aer_to_geodetic(az, el, srange, lat0, lon0, h0):
     return enu_to_geodetic(aer_to_enu(az, el, srange), lat0, lon0, h0)
 
 
-def ecef_to_aer(p_ecef, lat0, lon0, h0):
+def ecef_to_aer(
+    p_ecef: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Azimuth, elevation and slant range of ECEF points seen from a geodetic origin.
 
     :func:`ecef_to_enu`, then :func:`enu_to_aer`. pymap3d: ``ecef2aer``.
@@ -434,7 +449,9 @@ def ecef_to_aer(p_ecef, lat0, lon0, h0):
     return enu_to_aer(ecef_to_enu(p_ecef, lat0, lon0, h0))
 
 
-def aer_to_ecef(az, el, srange, lat0, lon0, h0):
+def aer_to_ecef(
+    az: ArrayLike, el: ArrayLike, srange: ArrayLike, lat0: ArrayLike, lon0: ArrayLike, h0: ArrayLike
+) -> np.ndarray:
     """ECEF point at an azimuth, elevation and slant range from a geodetic origin.
 
     :func:`aer_to_enu`, then :func:`enu_to_ecef`. pymap3d: ``aer2ecef``.
@@ -462,61 +479,77 @@ def aer_to_ecef(az, el, srange, lat0, lon0, h0):
 # --- degree front ends (pymap3d's default units): angles in degrees, lengths in metres
 
 
-def geodetic_to_enu_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0):
+def geodetic_to_enu_deg(
+    lat_deg: ArrayLike, lon_deg: ArrayLike, h: ArrayLike, lat0_deg: ArrayLike, lon0_deg: ArrayLike, h0: ArrayLike
+) -> np.ndarray:
     """:func:`geodetic_to_enu` with latitudes and longitudes in degrees; ENU [m] (..., 3)."""
     return geodetic_to_enu(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h, np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
 
 
-def enu_to_geodetic_deg(p_enu, lat0_deg, lon0_deg, h0):
+def enu_to_geodetic_deg(
+    p_enu: ArrayLike, lat0_deg: ArrayLike, lon0_deg: ArrayLike, h0: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`enu_to_geodetic` with the origin and the result (lat_deg, lon_deg, h) in degrees."""
     lat, lon, h = enu_to_geodetic(p_enu, np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
     return np.rad2deg(lat), np.rad2deg(lon), h
 
 
-def geodetic_to_ned_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0):
+def geodetic_to_ned_deg(
+    lat_deg: ArrayLike, lon_deg: ArrayLike, h: ArrayLike, lat0_deg: ArrayLike, lon0_deg: ArrayLike, h0: ArrayLike
+) -> np.ndarray:
     """:func:`geodetic_to_ned` with latitudes and longitudes in degrees; NED [m] (..., 3)."""
     return geodetic_to_ned(np.deg2rad(lat_deg), np.deg2rad(lon_deg), h, np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
 
 
-def ned_to_geodetic_deg(p_ned, lat0_deg, lon0_deg, h0):
+def ned_to_geodetic_deg(
+    p_ned: ArrayLike, lat0_deg: ArrayLike, lon0_deg: ArrayLike, h0: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`ned_to_geodetic` with the origin and the result (lat_deg, lon_deg, h) in degrees."""
     lat, lon, h = ned_to_geodetic(p_ned, np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
     return np.rad2deg(lat), np.rad2deg(lon), h
 
 
-def enu_to_aer_deg(p_enu):
+def enu_to_aer_deg(p_enu: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`enu_to_aer` giving (az_deg in [0, 360), el_deg, srange [m])."""
     az, el, srange = enu_to_aer(p_enu)
     az_deg = np.rad2deg(az)
     return np.where(az_deg >= 360.0, 0.0, az_deg), np.rad2deg(el), srange
 
 
-def aer_to_enu_deg(az_deg, el_deg, srange):
+def aer_to_enu_deg(az_deg: ArrayLike, el_deg: ArrayLike, srange: ArrayLike) -> np.ndarray:
     """:func:`aer_to_enu` with azimuth and elevation in degrees; ENU [m] (..., 3)."""
     return aer_to_enu(np.deg2rad(az_deg), np.deg2rad(el_deg), srange)
 
 
-def geodetic_to_aer_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0):
+def geodetic_to_aer_deg(
+    lat_deg: ArrayLike, lon_deg: ArrayLike, h: ArrayLike, lat0_deg: ArrayLike, lon0_deg: ArrayLike, h0: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`geodetic_to_aer` in degrees: (az_deg in [0, 360), el_deg, srange [m])."""
     return enu_to_aer_deg(geodetic_to_enu_deg(lat_deg, lon_deg, h, lat0_deg, lon0_deg, h0))
 
 
-def aer_to_geodetic_deg(az_deg, el_deg, srange, lat0_deg, lon0_deg, h0):
+def aer_to_geodetic_deg(
+    az_deg: ArrayLike, el_deg: ArrayLike, srange: ArrayLike, lat0_deg: ArrayLike, lon0_deg: ArrayLike, h0: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`aer_to_geodetic` in degrees: (lat_deg, lon_deg, h [m])."""
     return enu_to_geodetic_deg(aer_to_enu_deg(az_deg, el_deg, srange), lat0_deg, lon0_deg, h0)
 
 
-def ecef_to_aer_deg(p_ecef, lat0_deg, lon0_deg, h0):
+def ecef_to_aer_deg(
+    p_ecef: ArrayLike, lat0_deg: ArrayLike, lon0_deg: ArrayLike, h0: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`ecef_to_aer` with the origin in degrees: (az_deg in [0, 360), el_deg, srange [m])."""
     return enu_to_aer_deg(ecef_to_enu(p_ecef, np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0))
 
 
-def aer_to_ecef_deg(az_deg, el_deg, srange, lat0_deg, lon0_deg, h0):
+def aer_to_ecef_deg(
+    az_deg: ArrayLike, el_deg: ArrayLike, srange: ArrayLike, lat0_deg: ArrayLike, lon0_deg: ArrayLike, h0: ArrayLike
+) -> np.ndarray:
     """:func:`aer_to_ecef` with azimuth, elevation and the origin in degrees; ECEF [m] (..., 3)."""
     return aer_to_ecef(np.deg2rad(az_deg), np.deg2rad(el_deg), srange, np.deg2rad(lat0_deg), np.deg2rad(lon0_deg), h0)
 
 
-def ellipse_ring_enu(semi_major, semi_minor, azimuth_deg, n: int) -> np.ndarray:
+def ellipse_ring_enu(semi_major: float, semi_minor: float, azimuth_deg: float, n: int) -> np.ndarray:
     """``n`` vertices (n, 3) of a horizontal ellipse in a local ENU frame [m], about its origin.
 
     The major axis points along ``azimuth_deg`` (clockwise from north), the minor axis 90 degrees

@@ -27,8 +27,11 @@ grid, h = H + N, :func:`geoloc.geodesy.geoid.egm96_undulation`). Pixels are
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -95,7 +98,7 @@ def column_kind(name: str) -> str | None:
     return None
 
 
-def canonical_names(angles=()) -> tuple:
+def canonical_names(angles: Sequence[str] = ()) -> tuple:
     """Every canonical column a map may name, for a gimbal with joint ``angles``."""
     out = list(TEXT_COLUMNS + PIXEL_COLUMNS + POSE_COLUMNS)
     out += [f"{a}_deg" for a in angles if f"{a}_deg" not in out]
@@ -167,7 +170,7 @@ class ColumnMap:
         return len(self.specs)
 
     @classmethod
-    def from_table(cls, table, source: str = "column map") -> ColumnMap:
+    def from_table(cls, table: Mapping[str, Any], source: str = "column map") -> ColumnMap:
         """From the ``[columns]`` table (a dict); errors name the key and the value."""
         where = f"{source} [columns]"
         if not isinstance(table, dict):
@@ -219,7 +222,7 @@ class ColumnMap:
             specs[name] = ColumnSpec(name, col.strip(), unit, datum, pixel)
         return cls(specs, source)
 
-    def check_names(self, angles) -> None:
+    def check_names(self, angles: Sequence[str]) -> None:
         """Every name canonical for a gimbal with joint ``angles``; errors name the key."""
         known = set(canonical_names(angles))
         for name, spec in self.specs.items():
@@ -231,7 +234,7 @@ class ColumnMap:
                 )
 
 
-def load_column_map(path) -> ColumnMap:
+def load_column_map(path: str | os.PathLike[str]) -> ColumnMap:
     """Read a column-map TOML file: one ``[columns]`` table (``docs/columns.md``)."""
     path = Path(path)
     data = read_toml(path, "column map")
@@ -244,11 +247,13 @@ def load_column_map(path) -> ColumnMap:
     return ColumnMap.from_table(data["columns"], source=str(path))
 
 
-def as_column_map(columns, source: str = "column map") -> ColumnMap | None:
+def as_column_map(
+    columns: ColumnMap | Mapping[str, Any] | str | os.PathLike[str] | None, source: str = "column map"
+) -> ColumnMap | None:
     """None, a :class:`ColumnMap`, a ``[columns]`` dict or a path to a column-map file -> ColumnMap or None."""
     if columns is None or isinstance(columns, ColumnMap):
         return columns
-    if isinstance(columns, dict):
+    if isinstance(columns, Mapping):
         return ColumnMap.from_table(columns, source)
     return load_column_map(columns)
 
@@ -363,7 +368,7 @@ class ColumnPlan:
         spec = self.specs.get(name)
         return spec.column if spec is not None else None
 
-    def apply(self, raw: dict, line: int, index: int):
+    def apply(self, raw: dict, line: int, index: int) -> tuple[dict | None, tuple[str, str, str] | None]:
         """Row of the file (column -> text) -> (output row, None) or (None, error).
 
         ``index`` is the row's place among the rows kept so far (for
@@ -509,13 +514,13 @@ def unit_warnings(column_map: ColumnMap | None) -> list:
 
 
 def plan_columns(
-    path,
+    path: str | os.PathLike[str],
     header: list,
-    angles=(),
+    angles: Sequence[str] = (),
     column_map: ColumnMap | None = None,
     altitude_datum: str | None = None,
     altitude_source: str = "--altitude-datum",
-    required=(),
+    required: Iterable[str] = (),
 ) -> ColumnPlan:
     """Bind a column map (and the aircraft heights' datum) to a file's ``header``.
 

@@ -29,7 +29,9 @@ import csv
 import html
 import importlib
 import math
+import os
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -75,7 +77,7 @@ _Z_TYPES = {"Point": 1, "LineString": 2, "Polygon": 3}
 # --------------------------------------------------------------------------- reading
 
 
-def read_results(path) -> dict:
+def read_results(path: str | os.PathLike[str]) -> dict:
     """Read a results CSV into a table: column name -> float array or list of strings.
 
     A column becomes a float64 array (NaN where empty) when every non-empty
@@ -750,7 +752,7 @@ def _signed_area(pts) -> float:
 # --------------------------------------------------------------------------- export
 
 
-def resolve_format(format, out_path) -> str:
+def resolve_format(format: str | None, out_path: str | os.PathLike[str]) -> str:
     """The format name from ``format`` (any case, aliases) or the output's extension."""
     allowed = ", ".join(FORMATS)
     if format is not None:
@@ -767,7 +769,7 @@ def resolve_format(format, out_path) -> str:
     return EXTENSIONS[ext]
 
 
-def geojson_paths(out_path) -> dict:
+def geojson_paths(out_path: str | os.PathLike[str]) -> dict:
     """GeoJSON file of each layer: ``OUT.geojson`` for the points, ``OUT_<layer>.geojson`` for the others."""
     p = Path(out_path)
     if not p.suffix:
@@ -776,7 +778,13 @@ def geojson_paths(out_path) -> dict:
 
 
 def export(
-    table, out_path, format=None, *, group_by=None, epoch=DEFAULT_EPOCH, require_rows: bool = False
+    table: dict | str | os.PathLike[str],
+    out_path: str | os.PathLike[str],
+    format: str | None = None,
+    *,
+    group_by: str | None = None,
+    epoch: str = DEFAULT_EPOCH,
+    require_rows: bool = False,
 ) -> ExportSummary:
     """Write a results table to GeoPackage, GeoJSON, KML or CZML.
 
@@ -818,7 +826,7 @@ def export(
     """
     fmt = resolve_format(format, out_path)
     source = "the results table"
-    if isinstance(table, (str, Path)):
+    if isinstance(table, (str, os.PathLike)):
         source = str(table)
         table = read_results(table)
     if require_rows and not table:  # a 0-byte file: an empty GeoPackage said nothing
@@ -876,7 +884,7 @@ def _require(module: str, pip_name: str):
 # --------------------------------------------------------------------------- GeoPackage / GeoJSON
 
 
-def wkb(geometry: str, coords, z: bool) -> bytes:
+def wkb(geometry: str, coords: Sequence[Sequence[float]], z: bool) -> bytes:
     """ISO WKB (little-endian) of a Point, LineString or single-ring Polygon."""
     code = _Z_TYPES[geometry] + (1000 if z else 0)
     fmt = "<ddd" if z else "<dd"

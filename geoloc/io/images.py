@@ -174,7 +174,7 @@ class PhotoImage:
         The file.
     """
 
-    def __init__(self, path):
+    def __init__(self, path: str | os.PathLike[str]):
         from PIL import Image
 
         self.path = Path(path)
@@ -450,7 +450,7 @@ class VideoFrames:
 
     def __init__(
         self,
-        path,
+        path: str | os.PathLike[str],
         time_offset_s: float = 0.0,
         cache_bytes: int = DEFAULT_CACHE_BYTES,
         *,
@@ -518,7 +518,7 @@ class VideoFrames:
         more than a frame interval before the first frame or after the last."""
         return nearest_index(self.times_s, t_s, self.frame_interval_s)
 
-    def close(self):
+    def close(self) -> None:
         """Close the file (every view of it)."""
         self._dec.close()
 
@@ -529,7 +529,9 @@ class VideoFrames:
         self.close()
 
 
-def open_images(path, *, time_offset_s: float = 0.0, cache_bytes: int = DEFAULT_CACHE_BYTES) -> ImageSource:
+def open_images(
+    path: str | os.PathLike[str], *, time_offset_s: float = 0.0, cache_bytes: int = DEFAULT_CACHE_BYTES
+) -> ImageSource:
     """Open a picture file as an :class:`ImageSource`: a still image (``.jpg``, ``.tif``,
     ``.png``) as :class:`PhotoImage`, anything else as :class:`VideoFrames`.
 

@@ -60,7 +60,7 @@ import struct
 import zlib
 from dataclasses import dataclass, field
 from fractions import Fraction
-from typing import BinaryIO, Iterable, Iterator
+from typing import Any, BinaryIO, Iterable, Iterator
 
 import numpy as np
 
@@ -343,7 +343,8 @@ class KlvError(ValueError):
             and self.pts == other.pts
         )
 
-    __hash__ = None
+    # unhashable, as equal errors must hash alike and these hold their own fields: Python sets
+    # __hash__ to None itself in a class that defines __eq__ and not __hash__
 
 
 @dataclass(eq=True, slots=True)
@@ -397,7 +398,7 @@ class Packet:
     def __getitem__(self, name: str):
         return self.fields[name]
 
-    def get(self, name: str, default=None):
+    def get(self, name: str, default: Any = None) -> Any:
         """``fields.get(name, default)``."""
         return self.fields.get(name, default)
 
@@ -715,7 +716,7 @@ class QuirkTally:
     def __init__(self):
         self.kinds: dict[str, list] = {}
 
-    def add(self, result) -> None:
+    def add(self, result: Packet | KlvError) -> None:
         q = getattr(result, "quirks", None)
         if not q:
             return
@@ -726,7 +727,7 @@ class QuirkTally:
             else:
                 e[0] += 1
 
-    def add_kind(self, kind: str, count: int, offset) -> None:
+    def add_kind(self, kind: str, count: int, offset: int | None) -> None:
         """``count`` packets of one kind, the first of them at ``offset`` (batch decoding)."""
         e = self.kinds.get(kind)
         if e is None:
@@ -1053,7 +1054,11 @@ def _note_time_back(results: Iterable[Packet | KlvError]) -> Iterator[Packet | K
 
 
 def iter_packets(
-    data, *, verify_checksum: bool = True, chunk_size: int = 1 << 20, max_length: int = MAX_PACKET_LENGTH
+    data: bytes | bytearray | memoryview | BinaryIO,
+    *,
+    verify_checksum: bool = True,
+    chunk_size: int = 1 << 20,
+    max_length: int = MAX_PACKET_LENGTH,
 ) -> Iterator[Packet | KlvError]:
     """Scan bytes or a binary file for UAS Datalink LS packets.
 
@@ -1083,7 +1088,7 @@ def iter_packets(
         In file order; a packet whose Precision Time Stamp goes back carries
         :attr:`Packet.time_back`.
     """
-    if hasattr(data, "read"):
+    if not isinstance(data, (bytes, bytearray, memoryview)) and hasattr(data, "read"):
         yield from _note_time_back(_iter_stream(data, verify_checksum, chunk_size, max_length))
         return
     yield from _note_time_back(_iter_bytes(data, verify_checksum, max_length))
@@ -1101,7 +1106,9 @@ def _iter_bytes(data, verify_checksum: bool, max_length: int) -> Iterator[Packet
             return
 
 
-def read_klv_file(path, *, verify_checksum: bool = True, chunk_size: int = 1 << 20) -> Iterator[Packet | KlvError]:
+def read_klv_file(
+    path: str | os.PathLike[str], *, verify_checksum: bool = True, chunk_size: int = 1 << 20
+) -> Iterator[Packet | KlvError]:
     """Stream the packets of a raw KLV file (``.klv``, ``.bin``: concatenated packets).
 
     Memory-bounded: the file is read in chunks (see :func:`iter_packets`).
@@ -1148,7 +1155,9 @@ def _klv_stream(container, index, path=None):
     return (klv or data)[0]
 
 
-def read_ts_klv(path, *, verify_checksum: bool = True, stream: int | None = None) -> Iterator[Packet | KlvError]:
+def read_ts_klv(
+    path: str | os.PathLike[str], *, verify_checksum: bool = True, stream: int | None = None
+) -> Iterator[Packet | KlvError]:
     """Stream the UAS LS packets of the KLV data stream of an MPEG-TS (or any container
     FFmpeg demuxes), through PyAV.
 
@@ -1268,7 +1277,7 @@ _CONTAINER_SUFFIXES = {".ts", ".m2ts", ".mts", ".mpg", ".mpeg", ".mp4", ".mov", 
 _SNIFF_TS_PACKETS = 5
 
 
-def sniff_klv_file(path) -> str | None:
+def sniff_klv_file(path: str | os.PathLike[str]) -> str | None:
     """What a file's first bytes say it is, whatever its name: ``"mpegts"`` (the sync byte
     0x47 at every 188th byte, ISO/IEC 13818-1 2.4.3.2; or every 192nd after a 4-byte time
     code, M2TS), ``"mp4"`` (an ISO BMFF ``ftyp`` box, ISO/IEC 14496-12 4.3), ``"matroska"``
@@ -1293,7 +1302,7 @@ def sniff_klv_file(path) -> str | None:
     return None
 
 
-def is_container_file(path) -> bool:
+def is_container_file(path: str | os.PathLike[str]) -> bool:
     """True when ``path`` is read through PyAV (a container): by its bytes
     (:func:`sniff_klv_file`) when they say, else by its suffix (``.ts``, ``.mpg``, ``.mp4``, ...)."""
     kind = sniff_klv_file(path)
@@ -1302,7 +1311,7 @@ def is_container_file(path) -> bool:
     return os.path.splitext(os.fspath(path))[1].lower() in _CONTAINER_SUFFIXES
 
 
-def read_packets(path, *, verify_checksum: bool = True) -> Iterator[Packet | KlvError]:
+def read_packets(path: str | os.PathLike[str], *, verify_checksum: bool = True) -> Iterator[Packet | KlvError]:
     """Raw KLV files through :func:`read_klv_file`, containers (MPEG-TS, MP4, Matroska,
     MPEG-PS) through :func:`read_ts_klv` (an MPEG-TS in which FFmpeg finds no data stream
     through geoloc's own demultiplexer); which is which is sniffed from the bytes
@@ -1426,7 +1435,7 @@ def _item_encoder(spec: TagSpec):
     sentinel = prefix + pack(-lim - 1)
     reserved = spec.reserved
 
-    def enc(value):
+    def enc_signed(value):
         v = float(value)
         if v != v:
             if not reserved:
@@ -1439,7 +1448,7 @@ def _item_encoder(spec: TagSpec):
             raise ValueError(f"{name} = {v!r} is outside {span} {where}")
         return prefix + pack(raw)
 
-    return enc
+    return enc_signed
 
 
 def _first(t):
@@ -1510,7 +1519,7 @@ def encode_packet(fields: dict, *, unknown: dict | None = None, with_checksum: b
     return head + checksum(head + b"\0\0").to_bytes(2, "big")
 
 
-def encode_value(name: str, value) -> bytes:
+def encode_value(name: str, value: Any) -> bytes:
     """The value bytes of one item (no tag, no length), as :func:`encode_packet` writes them.
 
     NaN gives the reserved value of an item that has one; ``ValueError`` (naming the
@@ -1524,12 +1533,12 @@ def encode_value(name: str, value) -> bytes:
     return b[len(ber_oid(spec.tag)) + 1 :]
 
 
-def local_set_items(packet: bytes) -> list:
+def local_set_items(packet: bytes | bytearray | memoryview) -> list[tuple[int, int, int]]:
     """The items of one packet as ``(tag, start, end)``: the value of each is ``packet[start:end]``.
 
     Parameters
     ----------
-    packet : bytes
+    packet : bytes-like
         One complete packet (key, BER length, local set).
 
     Raises
@@ -1659,7 +1668,7 @@ def replace_values(packet: bytes, values: dict) -> bytes:
 
 
 def write_ts(
-    path,
+    path: str | os.PathLike[str],
     packets: Iterable,
     *,
     rate: float = 30.0,
@@ -1762,6 +1771,7 @@ def write_ts(
         ds = out.add_data_stream(codec_name="klv")
         for i, (b, t) in enumerate(zip(blobs, ts)):
             if pictures is not None:
+                assert vs is not None  # made with the pictures' first frame above
                 pic = next(pictures, None)
                 if pic is None:
                     raise ValueError(f"frames: {i} pictures for {len(blobs)} packets")
@@ -1828,12 +1838,15 @@ def _columns_from_packets(packets) -> dict[str, np.ndarray]:
     for s in _TEXT_SPECS:
         name = s.name
         cols[name][:] = [p.fields.get(name) for p in rows]
-    cols["reserved"][:] = [_reserved_names(n for n in p.flags if n in _NUMERIC_NAMES) for p in rows]
+    cols["reserved"][:] = [_reserved_names(n for n in (p.flags or ()) if n in _NUMERIC_NAMES) for p in rows]
     return cols
 
 
 def packets_to_columns(
-    packets, *, verify_checksum: bool = True, quirks: QuirkTally | None = None
+    packets: Iterable[Packet | KlvError] | bytes | bytearray,
+    *,
+    verify_checksum: bool = True,
+    quirks: QuirkTally | None = None,
 ) -> dict[str, np.ndarray]:
     """Decoded packets as columns, for vectorised use.
 
@@ -2104,7 +2117,9 @@ def _decode_batch(data, ks, vss, Ls, base, verify):
 def _columns_from_bytes(data: bytes, verify: bool, quirks: QuirkTally | None = None) -> dict[str, np.ndarray]:
     n = len(data)
     key = UAS_LS_KEY
-    ks, vss, Ls = [], [], []
+    ks_run: list[int] = []
+    vss_run: list[int] = []
+    Ls_run: list[int] = []
     pos = 0
     stop = None  # offset from which the exact scanner takes over
     while True:
@@ -2118,13 +2133,13 @@ def _columns_from_bytes(data: bytes, verify: bool, quirks: QuirkTally | None = N
         if not run[0]:
             stop = pos  # an incomplete or odd packet here: the scanner decides
             break
-        ks += run[0]
-        vss += run[1]
-        Ls += run[2]
+        ks_run += run[0]
+        vss_run += run[1]
+        Ls_run += run[2]
         pos = run[1][-1] + run[2][-1]
-    ks = np.array(ks, np.int64)
-    vss = np.array(vss, np.int64)
-    Ls = np.array(Ls, np.int64)
+    ks = np.array(ks_run, np.int64)
+    vss = np.array(vss_run, np.int64)
+    Ls = np.array(Ls_run, np.int64)
     N = len(ks)
     arr = np.frombuffer(data, np.uint8)
     cols = _empty_columns(N)
@@ -2161,11 +2176,12 @@ def _columns_from_bytes(data: bytes, verify: bool, quirks: QuirkTally | None = N
     if cut < N:
         stop = int(ks[cut])
     out = {name: c[:cut] for name, c in cols.items()}
-    for kinds, dst in qrows:  # the packets before the cut (the scanner counts the rest's)
-        dst = dst[dst < cut]
-        if len(dst):
-            for kind in kinds:
-                quirks.add_kind(kind, len(dst), int(ks[dst].min()))
+    if quirks is not None:  # qrows is filled only then
+        for kinds, dst in qrows:  # the packets before the cut (the scanner counts the rest's)
+            dst = dst[dst < cut]
+            if len(dst):
+                for kind in kinds:
+                    quirks.add_kind(kind, len(dst), int(ks[dst].min()))
     if stop is not None:
         rest, _ = _scan(data, 0, True, _ScanState(None), verify, stop)
         if quirks is not None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Iterable
 from datetime import datetime, timezone
 
 __all__ = [
@@ -162,7 +163,7 @@ def _ber_oid(data, p: int, end: int) -> tuple[int, int]:
             return v, p
 
 
-def local_set(data) -> list[tuple[int, bytes]]:
+def local_set(data: bytes | bytearray | memoryview) -> list[tuple[int, bytes]]:
     """The (tag, value) items of a local set (BER-OID tags, BER lengths)."""
     out = []
     p, end = 0, len(data)
@@ -287,12 +288,12 @@ def decode_vmti(value: bytes) -> dict:
     return f
 
 
-def encode_local_set(items) -> bytes:
+def encode_local_set(items: Iterable[tuple[int, bytes]]) -> bytes:
     """A local set from (tag, value bytes) items (BER-OID tags, BER lengths): for tests and writers."""
     return b"".join(ber_oid(t) + ber_length(len(v)) + bytes(v) for t, v in items)
 
 
-def encode_vmti(width: int, height: int, targets, *, system: str = "", version: int = 5) -> bytes:
+def encode_vmti(width: int, height: int, targets: Iterable[tuple], *, system: str = "", version: int = 5) -> bytes:
     """The value of an ST 0903 VMTI Local Set with a VTarget Series (tests, writers).
 
     ``targets``: (id, (row, col) centroid, (row, col) top left, (row, col) bottom right,
@@ -393,7 +394,7 @@ def decode_eg0104(value: bytes) -> tuple[dict, dict, list]:
     return fields, unknown, quirks
 
 
-def encode_eg0104(items) -> bytes:
+def encode_eg0104(items: Iterable[tuple[bytes, bytes]]) -> bytes:
     """An EG 0104 packet from (universal key bytes, value bytes) items: key, BER length, items."""
     body = b"".join(bytes(k) + ber_length(len(v)) + bytes(v) for k, v in items)
     return EG0104_KEY + ber_length(len(body)) + body

@@ -54,9 +54,10 @@ import socket
 import sys
 import time
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from fractions import Fraction
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
 from urllib.parse import parse_qs, urlsplit
 
 from geoloc.io.klv import KlvError, Packet, _scan, _ScanState
@@ -68,6 +69,9 @@ from geoloc.io.ts_demux import (  # the demultiplexer the receiver runs
     TsDemuxer,
     _timestamp,
 )
+
+if TYPE_CHECKING:  # numpy is imported where the sender draws its losses
+    import numpy as np
 
 __all__ = [
     "TS_PACKET",
@@ -143,7 +147,7 @@ class UdpUrl:
             return self.host == "localhost"
 
 
-def is_stream_url(text) -> bool:
+def is_stream_url(text: str) -> bool:
     """True for ``udp://...`` (a network stream, not a path)."""
     return isinstance(text, str) and text.lower().startswith("udp://")
 
@@ -257,7 +261,7 @@ def _proc_udp_listening(host: str, port: int) -> bool | None:
     return False
 
 
-def listening(url) -> bool:
+def listening(url: str | UdpUrl) -> bool:
     """True when a program of this machine listens on ``url``'s address and port.
 
     Read from ``/proc/net/udp`` where there is one: looking never binds the port, so a
@@ -289,7 +293,7 @@ def _own_address(host: str) -> bool:
     return True
 
 
-def wait_for_listener(url, timeout_s: float) -> bool:
+def wait_for_listener(url: str | UdpUrl, timeout_s: float) -> bool:
     """Wait until a program of this machine listens on ``url``'s port (at most ``timeout_s``).
 
     True when it does (:func:`listening`, which never binds the port); False on timeout, or
@@ -360,7 +364,7 @@ class LiveReceiver:
         if self.first_datagram_s is None:
             self.first_datagram_s = now
             self.first_datagram_unix_s = time.time()
-        elif now - self.last_datagram_s > STALL_S:
+        elif self.last_datagram_s is not None and now - self.last_datagram_s > STALL_S:
             st.stalls += 1
         self.last_datagram_s = now
         st.datagrams += 1
@@ -441,12 +445,12 @@ class LiveReceiver:
 
 
 def receive(
-    url,
+    url: str | UdpUrl,
     *,
     duration_s: float | None = None,
     packets: int | None = None,
     idle_s: float | None = None,
-    record: Callable[[bytes], None] | None = None,
+    record: Callable[[bytes], object] | None = None,  # its return is not read (a file's write)
     receiver: LiveReceiver | None = None,
     on_batch: Callable[[list], None] | None = None,
     poll_s: float = 0.05,
@@ -571,7 +575,7 @@ def datagrams_of(data: bytes, per: int = DATAGRAM_PACKETS) -> list[bytes]:
     return [data[k : k + size] for k in range(0, len(data), size)]
 
 
-def klv_as_ts(path) -> tuple[bytes, int, int]:
+def klv_as_ts(path: str | os.PathLike[str]) -> tuple[bytes, int, int]:
     """A raw KLV file (concatenated packets) as the MPEG-TS a receiver decodes: (TS bytes, packets
     wrapped, packets left out).
 
@@ -597,7 +601,9 @@ def klv_as_ts(path) -> tuple[bytes, int, int]:
         if not isinstance(r, Packet):
             bad += 0 if r.reason.endswith("are not a UAS LS packet") else 1
             continue
-        blobs.append(data[r.offset : r.offset + _packet_end(data[r.offset : r.offset + 26])])
+        off = r.offset
+        assert off is not None  # a file's reader gives each packet its byte offset
+        blobs.append(data[off : off + _packet_end(data[off : off + 26])])
         stamps.append(r.fields.get("precision_time_stamp_us"))
     if not blobs:
         raise ValueError(
@@ -605,8 +611,9 @@ def klv_as_ts(path) -> tuple[bytes, int, int]:
             "(geoloc klv dump names what is wrong with each)"
         )
     pts = None
-    if all(isinstance(t, int) for t in stamps) and all(b >= a for a, b in zip(stamps, stamps[1:])):
-        pts = [(t - stamps[0]) * 9 // 100 for t in stamps]  # microseconds -> 90 kHz ticks
+    us = [t for t in stamps if isinstance(t, int)]
+    if len(us) == len(stamps) and all(b >= a for a, b in zip(us, us[1:])):
+        pts = [(t - us[0]) * 9 // 100 for t in us]  # microseconds -> 90 kHz ticks
     with tempfile.TemporaryDirectory(prefix="geoloc-klv-send-") as d:
         ts = os.path.join(d, "klv.ts")
         write_ts(ts, blobs, pts=pts)
@@ -615,15 +622,15 @@ def klv_as_ts(path) -> tuple[bytes, int, int]:
 
 
 def send(
-    source,
-    url,
+    source: str | os.PathLike[str] | bytes,
+    url: str | UdpUrl,
     *,
     speed: float | None = 1.0,
     per: int = DATAGRAM_PACKETS,
     loss: float = 0.0,
     reorder: float = 0.0,
     duplicate: float = 0.0,
-    rng=None,
+    rng: np.random.Generator | None = None,
     start_delay_s: float = 0.0,
     sock: socket.socket | None = None,
     stop: Callable[[], bool] | None = None,
@@ -687,7 +694,7 @@ def send(
             k += 1
     pts = _datagram_times(data, per)
     own = sock is None
-    if own:
+    if sock is None:
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
         if u.multicast:
             sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_TTL, 1)
@@ -739,7 +746,7 @@ def send(
 # --------------------------------------------------------------------------- python -m geoloc.io.live
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     """``python -m geoloc.io.live send FILE.ts udp://HOST:PORT [--speed X | --fast] [--loop N]``."""
     p = argparse.ArgumentParser(
         prog="python -m geoloc.io.live",

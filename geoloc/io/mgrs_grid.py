@@ -27,6 +27,7 @@ import re
 from typing import NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.status import Status
 
@@ -61,7 +62,7 @@ def _converter():
     return mgrs.MGRS()
 
 
-def latlon_to_mgrs(lat_deg, lon_deg, precision: int = 5) -> MgrsResult:
+def latlon_to_mgrs(lat_deg: ArrayLike, lon_deg: ArrayLike, precision: int = 5) -> MgrsResult:
     """MGRS references of geodetic points (WGS 84), element by element.
 
     Parameters
@@ -114,7 +115,7 @@ def normalize_mgrs(text: str) -> str:
     return s
 
 
-def mgrs_to_latlon(texts) -> LatLonResult:
+def mgrs_to_latlon(texts: str | ArrayLike) -> LatLonResult:
     """The centres of the squares that MGRS / USNG references name, element by element.
 
     Parameters
@@ -185,12 +186,12 @@ def parse_mgrs(text: str, what: str = "--mgrs") -> tuple[float, float]:
     return float(r.lat_deg[0]), float(r.lon_deg[0])
 
 
-def mgrs_column(lat_deg, lon_deg, precision: int = 5) -> list:
+def mgrs_column(lat_deg: ArrayLike, lon_deg: ArrayLike, precision: int = 5) -> list:
     """The ``mgrs`` column of a results table: one string a row, '' where there is no position."""
     return [str(t) for t in latlon_to_mgrs(lat_deg, lon_deg, precision).text.ravel()]
 
 
-def mgrs_text(lat_deg, lon_deg, precision: int = 5) -> str:
+def mgrs_text(lat_deg: ArrayLike, lon_deg: ArrayLike, precision: int = 5) -> str:
     """One point's references for a panel or a printed line: ``'MGRS 16SGF4866651490 (USNG 16S GF
     48666 51490)'``, or ``'MGRS: none (<reason>)'`` where the point has none."""
     r = latlon_to_mgrs(np.asarray([lat_deg], float), np.asarray([lon_deg], float), precision)

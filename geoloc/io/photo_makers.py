@@ -60,6 +60,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = [
     "MAKERS",
@@ -301,7 +302,7 @@ def pick_maker(props: dict, make: str | None) -> MakerTags | None:
 # --------------------------------------------------------------------------- XMP, every namespace
 
 
-def xmp_properties(root) -> dict:
+def xmp_properties(root: Any) -> dict:
     """Every property of a parsed XMP tree: ``{namespace: {path: text}}``.
 
     ``path`` is the property's local name, or ``Struct/Field`` for a field of a struct (written
@@ -349,7 +350,7 @@ def xmp_properties(root) -> dict:
 # --------------------------------------------------------------------------- rotations
 
 
-def rotation_zyx(yaw, pitch, roll) -> np.ndarray:
+def rotation_zyx(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """R = Rz(yaw) Ry(pitch) Rx(roll) [rad]: body (or camera) axes to NED."""
     cy, sy, cp, sp, cr, sr = (
         math.cos(yaw),
@@ -365,7 +366,7 @@ def rotation_zyx(yaw, pitch, roll) -> np.ndarray:
     return rz @ ry @ rx
 
 
-def zyx_from_rotation(r) -> tuple:
+def zyx_from_rotation(r: ArrayLike) -> tuple:
     """(yaw, pitch, roll) [rad] of R = Rz Ry Rx; at pitch = +-90 deg (gimbal lock, e.g. a nadir
     camera) roll is set to 0 and yaw carries the whole rotation about the vertical."""
     r = np.asarray(r, float)

@@ -53,11 +53,14 @@ Conventions: ``docs/conventions.md`` (degrees only at this edge, ``_deg`` names)
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+import os
 import dataclasses
 import math
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from geoloc.frames.chain import Pose
 from geoloc.io.photo_makers import (
@@ -75,6 +78,9 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import BrownLens, Lens, PinholeLens
 from geoloc.userfiles import note_input
+
+if TYPE_CHECKING:  # the camera database is read only for a photo without a calibration
+    from geoloc.io.camera_db import DbLens
 
 __all__ = [
     "ALTITUDE_DATUMS",
@@ -142,7 +148,7 @@ class PhotoTagError(ValueError):
         The tags (or alternatives, ``"A or B"``) that are missing.
     """
 
-    def __init__(self, path, missing, why: str = "cannot be geolocated"):
+    def __init__(self, path: str | os.PathLike[str], missing: Iterable[str], why: str = "cannot be geolocated"):
         self.path = str(path)
         self.missing = tuple(missing)
         super().__init__(f"{Path(self.path).name}: {why}: missing tag(s) {', '.join(self.missing)} (file {self.path})")
@@ -338,7 +344,7 @@ def _jpeg_xmp(fh, path) -> bytes | None:
             return payload[len(XMP_APP1_HEADER) :]
 
 
-def read_xmp_packet(path, image=None) -> bytes | None:
+def read_xmp_packet(path: str | os.PathLike[str], image: Any = None) -> bytes | None:
     """The XMP packet of a JPEG (APP1 ``http://ns.adobe.com/xap/1.0/\\0``) or TIFF (tag 700); None if none.
 
     ``image`` is an open Pillow image of ``path`` (for TIFF), opened here if not given.
@@ -392,7 +398,7 @@ def xmp_element(packet: bytes) -> bytes:
     return packet.rstrip(b"\x00 \t\r\n")
 
 
-def parse_xmp(packet: bytes, source: str = "XMP", _with_root: bool = False) -> tuple[dict, dict]:
+def parse_xmp(packet: bytes, source: str = "XMP") -> tuple[dict, dict]:
     """``drone-dji`` and ``tiff`` properties of an XMP packet: ``(dji, tiff)``, name -> text.
 
     Both XMP forms are read: a property as an attribute of an element
@@ -408,6 +414,11 @@ def parse_xmp(packet: bytes, source: str = "XMP", _with_root: bool = False) -> t
     ImportError
         defusedxml is not installed.
     """
+    return _dji_and_tiff(_xmp_root(packet, source))
+
+
+def _xmp_root(packet: bytes, source: str) -> Any:
+    """The root element of an XMP packet (:func:`parse_xmp`'s errors)."""
     try:
         from defusedxml import DefusedXmlException
         from defusedxml import ElementTree as DET
@@ -424,11 +435,11 @@ def parse_xmp(packet: bytes, source: str = "XMP", _with_root: bool = False) -> t
         ) from None
     except ParseError as e:
         raise ValueError(f"{source}: XMP packet is not well-formed XML ({e})") from None
-    return _dji_and_tiff(root) + (root,) if _with_root else _dji_and_tiff(root)
+    return root
 
 
 def _dji_and_tiff(root) -> tuple[dict, dict]:
-    out = {DJI_NS: {}, _TIFF_NS: {}}
+    out: dict[str, dict[str, str]] = {DJI_NS: {}, _TIFF_NS: {}}
     for elem in root.iter():
         for k, v in elem.attrib.items():
             for ns, d in out.items():
@@ -519,7 +530,7 @@ def _gdal_exif(img, notes) -> dict:
     except (ParseError, DefusedXmlException) as e:
         notes.append(f"GDAL_METADATA tag not readable ({type(e).__name__}): its EXIF items ignored")
         return {}
-    out = {}
+    out: dict[int, int | float | str] = {}
     for item in root.iter("Item"):
         tag = _GDAL_EXIF_NAMES.get(item.get("name", ""))
         if tag is not None and item.get("band") is None and item.text:
@@ -532,7 +543,7 @@ def _gdal_exif(img, notes) -> dict:
 
 
 def _read_exif(img, path, notes) -> dict:
-    out = {}
+    out: dict[str, Any] = {}  # EXIF name -> text, number or pair, each key its own
     try:
         exif = img.getexif()
     except Exception as e:  # noqa: BLE001 - a broken EXIF block must not hide the XMP
@@ -635,7 +646,7 @@ REQUIRED = {
 }
 
 
-def read_photo(path, *, require: bool = True) -> PhotoMeta:
+def read_photo(path: str | os.PathLike[str], *, require: bool = True) -> PhotoMeta:
     """Read a drone photo's EXIF and DJI XMP (JPEG or TIFF).
 
     Parameters
@@ -702,7 +713,8 @@ def read_photo(path, *, require: bool = True) -> PhotoMeta:
                 ) from None
     root = None
     if packet is not None:
-        dji, tiff, root = parse_xmp(packet, f"{p.name}", _with_root=True)
+        root = _xmp_root(packet, f"{p.name}")
+        dji, tiff = _dji_and_tiff(root)
         props = xmp_properties(root)
     else:
         dji, tiff, props = {}, {}, {}
@@ -925,7 +937,7 @@ def _pix4d_calibration(m: PhotoMeta, root, ex: dict, notes: list) -> None:
         notes.append(f"{where} and its calibration tags ignored: {e}")
         return
     missing = [n for n, ok in (("EXIF FocalPlaneX/YResolution", res), ("Camera:PrincipalPoint (x,y)", pp)) if not ok]
-    if missing or len(k) != 5 or not all(map(math.isfinite, [f, ppx, ppy, *k])) or f <= 0:
+    if res is None or missing or len(k) != 5 or not all(map(math.isfinite, [f, ppx, ppy, *k])) or f <= 0:
         why = (
             f"missing {', '.join(missing)}"
             if missing
@@ -1060,7 +1072,7 @@ def scale_lens(lens: Lens, width: int, height: int) -> Lens:
     )
 
 
-def database_lens(meta: PhotoMeta):
+def database_lens(meta: PhotoMeta) -> DbLens | None:
     """The camera database's pinhole for the photo (:mod:`geoloc.io.camera_db`), or None."""
     from geoloc.io.camera_db import db_lens, find_camera
 
@@ -1113,7 +1125,8 @@ def lens_from_photo(meta: PhotoMeta) -> Lens:
         None of DewarpData, CalibratedFocalLength, FocalLengthIn35mmFilm.
     """
     W, H = meta.full_width, meta.full_height
-    kind, coeffs = PinholeLens, {}
+    kind: type[PinholeLens] | type[BrownLens] = PinholeLens
+    coeffs: dict = {}
     if meta.dewarp is not None:
         d = meta.dewarp
         fx, fy, x0, y0 = d.fx, d.fy, W / 2.0 + d.cx, H / 2.0 + d.cy
@@ -1177,9 +1190,9 @@ def camera_height(meta: PhotoMeta, altitude_datum: str = "egm96") -> tuple[float
     """
     if altitude_datum not in ALTITUDE_DATUMS:
         raise ValueError(f"altitude_datum = {altitude_datum!r}: must be one of {ALTITUDE_DATUMS}")
-    missing = [REQUIRED["position"]] if meta.lat_deg is None else []
+    missing = [REQUIRED["position"]] if meta.lat_deg is None or meta.lon_deg is None else []
     missing += [REQUIRED["altitude"]] if meta.altitude_m is None else []
-    if missing:
+    if meta.lat_deg is None or meta.lon_deg is None or meta.altitude_m is None:
         raise PhotoTagError(meta.path, missing)
     n = float(egm96_undulation(math.radians(meta.lat_deg), math.radians(meta.lon_deg)))
     h = meta.altitude_m + (n if altitude_datum == "egm96" else 0.0)
@@ -1196,6 +1209,10 @@ def pose_from_photo(meta: PhotoMeta, altitude_datum: str = "egm96") -> Pose:
     if meta.missing:
         raise PhotoTagError(meta.path, meta.missing)
     h, _ = camera_height(meta, altitude_datum)
+    gimbal = {name: getattr(meta, f"{name}_deg") for name in GIMBAL_ANGLES}
+    absent = [REQUIRED[f"{name}_deg"] for name, v in gimbal.items() if v is None]
+    if meta.lat_deg is None or meta.lon_deg is None or absent:  # (meta.missing names them already)
+        raise PhotoTagError(meta.path, absent or [REQUIRED["position"]])
     return Pose.from_deg(
         meta.lat_deg,
         meta.lon_deg,
@@ -1203,11 +1220,7 @@ def pose_from_photo(meta: PhotoMeta, altitude_datum: str = "egm96") -> Pose:
         meta.flight_yaw_deg or 0.0,
         meta.flight_pitch_deg or 0.0,
         meta.flight_roll_deg or 0.0,
-        angles_deg={
-            "gimbal_yaw": meta.gimbal_yaw_deg,
-            "gimbal_pitch": meta.gimbal_pitch_deg,
-            "gimbal_roll": meta.gimbal_roll_deg,
-        },
+        angles_deg=gimbal,
     )
 
 

@@ -22,10 +22,14 @@ from __future__ import annotations
 
 import csv
 import math
+import os
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.frames.chain import Pose
 from geoloc.io.columns import ColumnMap, HeightSource, as_column_map, plan_columns
@@ -53,7 +57,7 @@ Q17_ANGLES = ("gimbal_roll", "gimbal_pitch")
 ANGLE_RANGE_DEG = (-360.0, 360.0)
 
 
-def required_columns(angles=Q17_ANGLES) -> dict:
+def required_columns(angles: Sequence[str] = Q17_ANGLES) -> dict:
     """The required columns for a sensor whose gimbal has joint ``angles``."""
     base = {k: v for k, v in REQUIRED.items() if not (k.startswith("gimbal_") and k.endswith("_deg"))}
     for a in angles:
@@ -139,7 +143,7 @@ class Records:
         """One line for a verb's summary: the aircraft heights' datum and what was done with it."""
         return self.altitude.sentence()
 
-    def subset(self, idx) -> Records:
+    def subset(self, idx: ArrayLike) -> Records:
         """The records of the rows ``idx`` (same header, angles, datums; no errors)."""
         idx = np.asarray(idx, dtype=int)
         return Records(
@@ -202,13 +206,13 @@ def _to_float(text: str) -> float:
 
 
 def load_records(
-    path,
-    required=None,
-    optional=OPTIONAL,
-    angles=Q17_ANGLES,
-    columns=None,
-    altitude_datum=None,
-    altitude_source="--altitude-datum",
+    path: str | os.PathLike[str],
+    required: Mapping[str, tuple[float, float]] | None = None,
+    optional: Mapping[str, tuple[float, float]] = OPTIONAL,
+    angles: Sequence[str] = Q17_ANGLES,
+    columns: Any = None,
+    altitude_datum: str | None = None,
+    altitude_source: str = "--altitude-datum",
 ) -> Records:
     """Read and validate a records CSV (UTF-8, with or without a byte-order mark).
 
@@ -269,7 +273,7 @@ def load_records(
 LABELS_SHOWN = 5
 
 
-def describe_labels(value, labels, shown: int = LABELS_SHOWN) -> str:
+def describe_labels(value: str, labels: Sequence[str], shown: int = LABELS_SHOWN) -> str:
     """A short account of ``labels`` for a message refusing ``value``: how many there are, the
     first and last, and the few nearest ``value`` (by :func:`difflib.get_close_matches`, and for
     labels ending in a number, those whose number is nearest), never the whole list.
@@ -303,7 +307,7 @@ def describe_labels(value, labels, shown: int = LABELS_SHOWN) -> str:
     return text + ("; nearest: " + ", ".join(repr(x) for x in near) if near else "")
 
 
-def check_header(path, header) -> None:
+def check_header(path: str | os.PathLike[str], header: Sequence[str]) -> None:
     """Refuse a CSV header with two columns of one name (ValueError naming the column, its
     positions and the file): a reader of rows as dicts keeps the last one without a word
     (two ``row`` columns once took the second, 0.36 m -> 72.83 m RMS to the paper)."""

@@ -14,16 +14,22 @@ import tempfile
 import warnings
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.sensors.rpc import RPCModel, RPCSensor, rpc_terms
+
+if TYPE_CHECKING:
+    from geoloc.surfaces.dem import DEM
 from geoloc.userfiles import atomic_path, note_input
 
 
 # --------------------------------------------------------------- GeoTIFF I/O
-def write_rpc_geotiff(path, model: RPCModel, rows: int, cols: int, image=None) -> Path:
+def write_rpc_geotiff(
+    path: str | os.PathLike[str], model: RPCModel, rows: int, cols: int, image: np.ndarray | None = None
+) -> Path:
     """Write a GeoTIFF carrying ``model`` as GDAL RPC metadata (the TIFF RPC tag).
 
     Parameters
@@ -66,7 +72,7 @@ def write_rpc_geotiff(path, model: RPCModel, rows: int, cols: int, image=None) -
     return path
 
 
-def read_rpc_geotiff(path) -> RPCModel:
+def read_rpc_geotiff(path: str | os.PathLike[str]) -> RPCModel:
     """Read the RPC metadata of a raster back into an :class:`RPCModel`."""
     note_input(path)
     import rasterio
@@ -146,7 +152,9 @@ def rpc00b_renormalized(model: RPCModel) -> RPCModel:
     return replace(model, **fields)
 
 
-def write_rpc_nitf(path, model: RPCModel, rows: int, cols: int, renormalize: bool = True) -> Path:
+def write_rpc_nitf(
+    path: str | os.PathLike[str], model: RPCModel, rows: int, cols: int, renormalize: bool = True
+) -> Path:
     """Write a NITF 2.1 image whose RPC00B TRE carries ``model``, through GDAL (rasterio).
 
     GDAL's NITF driver writes the RPC00B TRE from the "RPC" metadata domain when
@@ -195,7 +203,9 @@ def _is_sidecar(path: Path) -> bool:
     return n.endswith((".RPB", "_RPC.TXT"))
 
 
-def read_rpc(path, rows: int | None = None, cols: int | None = None, **sensor_options) -> RPCSensor:
+def read_rpc(
+    path: str | os.PathLike[str], rows: int | None = None, cols: int | None = None, **sensor_options: Any
+) -> RPCSensor:
     """An :class:`RPCSensor` from any source GDAL reads RPCs from, through rasterio.
 
     * a raster with RPC metadata (a GeoTIFF's RPC tag, a NITF's RPC00B TRE, ...);
@@ -276,15 +286,15 @@ def _rpcs(src, path):
 # ------------------------------------------------------------------- GDAL
 def gdal_rpc_to_ground(
     model: RPCModel,
-    row,
-    col,
+    row: ArrayLike,
+    col: ArrayLike,
     *,
-    dem_path=None,
-    height=0.0,
-    pixel_error_threshold=None,
-    max_iterations=None,
-    vdatum_shift=False,
-):
+    dem_path: str | os.PathLike[str] | None = None,
+    height: float = 0.0,
+    pixel_error_threshold: float | None = None,
+    max_iterations: int | None = None,
+    vdatum_shift: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
     """Pixel -> ground with GDAL's RPC transformer (through rasterio).
 
     With ``dem_path`` the GDAL option ``RPC_DEM`` is set: GDAL then treats
@@ -355,7 +365,7 @@ def gdal_rpc_to_ground(
 
 
 # ------------------------------------------------------- GDAL RPC_DEM copy
-def write_ellipsoidal_dem(dem, path) -> Path:
+def write_ellipsoidal_dem(dem: DEM, path: str | os.PathLike[str]) -> Path:
     """Write a geoloc DEM's *ellipsoidal* node heights as a plain EPSG:4326 GeoTIFF.
 
     GDAL's RPC transformer uses ``RPC_DEM`` values as heights above the WGS-84

@@ -15,10 +15,12 @@ extrapolated ray can read it.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Mapping, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
@@ -70,28 +72,28 @@ class Sensor(Protocol):
     def with_params(self, **changes: float) -> "Sensor":
         """A copy with some named parameters changed (unknown names are an error)."""
 
-    def line_of_sight(self, row, col, state: Any = None, *, outside: str = "flag") -> LineOfSight:
+    def line_of_sight(self, row: ArrayLike, col: ArrayLike, state: Any = None, *, outside: str = "flag") -> LineOfSight:
         """1-based pixels -> lines of sight in ECEF, batched, NaN + Status (``outside``: "flag" or
         "extrapolate", :func:`check_outside`)."""
 
-    def ground_to_pixel(self, lat, lon, h, state: Any = None) -> PixelHit:
+    def ground_to_pixel(self, lat: ArrayLike, lon: ArrayLike, h: ArrayLike, state: Any = None) -> PixelHit:
         """Geodetic points (radians, metres) -> 1-based pixels, batched, NaN + Status."""
 
-    def in_image(self, row, col) -> np.ndarray:
+    def in_image(self, row: ArrayLike, col: ArrayLike) -> np.ndarray:
         """True where the 1-based pixel lies on the sensor."""
 
-    def frames(self, state: Any = None):
+    def frames(self, state: Any = None) -> Any:
         """The sensor's frame graph for ``state`` (what the viewers draw)."""
 
 
-def in_sensor(row, col, rows: int, cols: int) -> np.ndarray:
+def in_sensor(row: ArrayLike, col: ArrayLike, rows: int, cols: int) -> np.ndarray:
     """True where 0.5 <= row <= rows + 0.5 and 0.5 <= col <= cols + 0.5 (1-based pixel centres)."""
     row, col = np.asarray(row, float), np.asarray(col, float)
     with np.errstate(invalid="ignore"):
         return (row >= 0.5) & (row <= rows + 0.5) & (col >= 0.5) & (col <= cols + 0.5)
 
 
-def flag_outside(status, row, col, rows: int, cols: int) -> np.ndarray:
+def flag_outside(status: ArrayLike, row: ArrayLike, col: ArrayLike, rows: int, cols: int) -> np.ndarray:
     """``status`` with OUTSIDE_SENSOR where an otherwise OK pixel lies off the sensor."""
     status = np.asarray(status, np.uint8)
     off = ~in_sensor(row, col, rows, cols) & np.isfinite(row) & np.isfinite(col)
@@ -107,7 +109,7 @@ def check_outside(outside: str) -> None:
         raise ValueError(f"outside = {outside!r}: must be one of {OUTSIDE_MODES}")
 
 
-def check_angle_names(given: Mapping[str, str], need, gimbal: str, defaults=()) -> None:
+def check_angle_names(given: Mapping[str, str], need: Sequence[str], gimbal: str, defaults: Sequence[str] = ()) -> None:
     """Check the joint angles a caller gives against those a gimbal has (an angle the gimbal lacks
     would otherwise be ignored without a word).
 

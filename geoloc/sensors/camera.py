@@ -50,19 +50,25 @@ overrides in a subclass.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
-from geoloc.frames.chain import FrameChain
+from geoloc.frames.chain import FrameChain, Pose
 from geoloc.frames.rotations import rx, ry, rz
 from geoloc.sensors.base import check_outside, flag_outside
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 from geoloc.tomlio import read_toml
 from geoloc.userfiles import write_text
+
+if TYPE_CHECKING:  # the sensor module imports this one
+    from geoloc.sensors.frame import FrameSensor
 
 
 @dataclass(frozen=True)
@@ -135,7 +141,7 @@ class Camera:
 
     # ------------------------------------------------------------------ I/O
     @classmethod
-    def from_toml(cls, path) -> "Camera":
+    def from_toml(cls, path: str | os.PathLike[str]) -> "Camera":
         """Load a camera file; unknown keys and missing keys are errors naming the key."""
         path = Path(path)
         data = read_toml(path, "camera file")
@@ -173,7 +179,7 @@ class Camera:
                 data[k] = tuple(math.radians(a) for a in v)
         return cls(**data)
 
-    def to_toml(self, path) -> None:
+    def to_toml(self, path: str | os.PathLike[str]) -> None:
         """Write the camera as TOML (the format of :meth:`from_toml`)."""
         lines = []
         for k, v in asdict(self).items():
@@ -195,12 +201,12 @@ class Camera:
         return rx(x) @ ry(y) @ rz(z)
 
     @property
-    def R_cam_inner(self):
+    def R_cam_inner(self) -> np.ndarray | None:
         """Boresight rotation inner gimbal -> camera (3, 3), or None if the camera has none."""
         return self._rotation(self.boresight)
 
     @property
-    def R_base_body(self):
+    def R_base_body(self) -> np.ndarray | None:
         """Mounting rotation aircraft body -> gimbal base (3, 3), or None if the camera has none."""
         return self._rotation(self.mount)
 
@@ -216,15 +222,15 @@ class Camera:
             return None
         return self.rows * self.pixel_pitch_m, self.cols * self.pixel_pitch_m
 
-    def undistort(self, row, col):
+    def undistort(self, row: ArrayLike, col: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Distortion hook: measured pixel -> ideal pinhole pixel (identity: [Q17] has none)."""
         return np.asarray(row, float), np.asarray(col, float)
 
-    def distort(self, row, col):
+    def distort(self, row: ArrayLike, col: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Distortion hook: ideal pinhole pixel -> measured pixel (identity)."""
         return np.asarray(row, float), np.asarray(col, float)
 
-    def pixel_to_los(self, row, col) -> np.ndarray:
+    def pixel_to_los(self, row: ArrayLike, col: ArrayLike) -> np.ndarray:
         """Unit line-of-sight direction in the camera frame S [Q17 eq. 8, generalised].
 
         d_S = [i - i0, j0 - j, f] / |.|. Pixels outside the sensor are allowed
@@ -246,7 +252,7 @@ class Camera:
         )
         return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
-    def los_to_pixel(self, d_cam):
+    def los_to_pixel(self, d_cam: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Camera-frame direction -> pixel (the inverse of :meth:`pixel_to_los`).
 
         Parameters
@@ -274,7 +280,7 @@ class Camera:
         status = np.where(behind, Status.BEHIND_CAMERA, Status.OK).astype(np.uint8)
         return i, j, status
 
-    def to_sensor(self):
+    def to_sensor(self) -> FrameSensor:
         """This camera as a :class:`geoloc.sensors.frame.FrameSensor`: a pinhole on the [Q17] ``roll-pitch`` gimbal.
 
         The lens's principal point is (cx, cy) = (j0 - 1, i0 - 1) in OpenCV's
@@ -300,7 +306,7 @@ class Camera:
             pixel_pitch_m=self.pixel_pitch_m,
         )
 
-    def chain(self, pose):
+    def chain(self, pose: Pose) -> FrameChain:
         """The [Q17] frame chain of ``pose`` with this camera's boresight and mounting rotations.
 
         The paper's own form of the roll-pitch chain (:class:`geoloc.frames.chain.FrameChain`,
@@ -310,7 +316,9 @@ class Camera:
 
         return FrameChain(pose, R_cam_inner=self.R_cam_inner, R_base_body=self.R_base_body)
 
-    def chain_line_of_sight(self, pose, row, col, chain=None, outside: str = "flag"):
+    def chain_line_of_sight(
+        self, pose: Pose, row: ArrayLike, col: ArrayLike, chain: FrameChain | None = None, outside: str = "flag"
+    ) -> LineOfSight:
         """The [Q17] reference line of sight: pixel -> eq. 8 -> the :class:`FrameChain` (eq. 9).
 
         Parameters
@@ -343,13 +351,13 @@ class Camera:
             status = flag_outside(status, r, c, self.rows, self.cols)
         return LineOfSight(o, d_ecef, status)
 
-    def in_image(self, row, col) -> np.ndarray:
+    def in_image(self, row: ArrayLike, col: ArrayLike) -> np.ndarray:
         """True where (row, col) lies on the sensor: 0.5 <= i <= M + 0.5, same for j."""
         row, col = np.asarray(row, float), np.asarray(col, float)
         return (row >= 0.5) & (row <= self.rows + 0.5) & (col >= 0.5) & (col <= self.cols + 0.5)
 
 
-def camera_from_sensor(sensor, pixel_pitch_m: float | None = None) -> Camera:
+def camera_from_sensor(sensor: Any, pixel_pitch_m: float | None = None) -> Camera:
     """The camera file of a :class:`geoloc.sensors.frame.FrameSensor`: the inverse of :meth:`Camera.to_sensor`.
 
     How a fitted sensor is written back as a first-phase camera file
@@ -410,7 +418,7 @@ def _camera_sensor(camera: Camera):
     return camera.to_sensor()
 
 
-def as_sensor(sensor):
+def as_sensor(sensor: Any) -> FrameSensor:
     """The :class:`geoloc.sensors.frame.FrameSensor` of a frame sensor or a first-phase :class:`Camera`.
 
     The one place a camera file's :class:`Camera` becomes its sensor (cached, so a
@@ -426,6 +434,6 @@ def as_sensor(sensor):
     raise ValueError(f"sensor = {sensor!r}: must be a FrameSensor or a Camera")
 
 
-def sensor_of(sensor):
+def sensor_of(sensor: Any) -> Any:
     """Any sensor as itself, a first-phase :class:`Camera` as its :class:`FrameSensor` (:func:`as_sensor`)."""
     return _camera_sensor(sensor) if isinstance(sensor, Camera) else sensor

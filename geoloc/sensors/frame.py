@@ -28,10 +28,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.frames import rotations as rot
 from geoloc.frames.chain import Pose
@@ -57,7 +60,7 @@ OWN_PARAMS = (
 )
 
 
-def small_rotation(angles) -> np.ndarray:
+def small_rotation(angles: Sequence[float]) -> np.ndarray:
     """``rx(x) @ ry(y) @ rz(z)`` of three angles [rad] (mount and boresight, ``docs/conventions.md``)."""
     x, y, z = angles
     return rot.rx(x) @ rot.ry(y) @ rot.rz(z)
@@ -152,7 +155,7 @@ class FrameSensor:
         """The joint angles a state must give (``Pose.angle``)."""
         return self.gimbal.angle_names
 
-    def in_image(self, row, col) -> np.ndarray:
+    def in_image(self, row: ArrayLike, col: ArrayLike) -> np.ndarray:
         return in_sensor(row, col, self.rows, self.cols)
 
     @property
@@ -197,7 +200,7 @@ class FrameSensor:
         p.update(lens)
         return p
 
-    def with_params(self, **changes) -> "FrameSensor":
+    def with_params(self, **changes: float) -> "FrameSensor":
         check_param_names(changes, self.params, f"sensor {self.name or 'frame camera'}")
         own = dict(zip(OWN_PARAMS, self.mount + self.boresight + self.lever_arm_m))
         lens_changes = {}
@@ -289,7 +292,7 @@ class FrameSensor:
                 raise ValueError(f"{e}; the {self.gimbal.name} gimbal needs {list(self.angle_names)}") from None
 
     # ----------------------------------------------------------- geometry
-    def optical_centre_ecef(self, state) -> np.ndarray:
+    def optical_centre_ecef(self, state: Any) -> np.ndarray:
         """The optical centre in ECEF: the navigation reference plus the lever arm [m]."""
         o = geodetic_to_ecef(state.lat, state.lon, state.h)
         lever = np.array(self.lever_arm_m)
@@ -299,15 +302,21 @@ class FrameSensor:
             o = o + self.graph.rotate_to_ecef(lever, "body", state)
         return o
 
-    def cam_to_ecef(self, v_cam, state) -> np.ndarray:
+    def cam_to_ecef(self, v_cam: ArrayLike, state: Any) -> np.ndarray:
         """Optical-frame vectors -> ECEF, hop by hop."""
         return self.graph.rotate_to_ecef(v_cam, "cam", state)
 
-    def ecef_to_cam(self, v_ecef, state) -> np.ndarray:
+    def ecef_to_cam(self, v_ecef: ArrayLike, state: Any) -> np.ndarray:
         return self.graph.rotate_from_ecef(v_ecef, "cam", state)
 
     def line_of_sight(
-        self, row=None, col=None, state=None, *, outside: str = "flag", engine: str = "auto"
+        self,
+        row: ArrayLike | None = None,
+        col: ArrayLike | None = None,
+        state: Any = None,
+        *,
+        outside: str = "flag",
+        engine: str = "auto",
     ) -> LineOfSight:
         """1-based pixels -> lines of sight in ECEF (batched; NaN + Status).
 
@@ -352,7 +361,7 @@ class FrameSensor:
         status[(status == Status.OK) & ~np.all(np.isfinite(d), axis=-1)] = Status.INVALID_INPUT
         return LineOfSight(o, d, status)
 
-    def ground_to_pixel(self, lat, lon, h, state=None) -> PixelHit:
+    def ground_to_pixel(self, lat: ArrayLike, lon: ArrayLike, h: ArrayLike, state: Any = None) -> PixelHit:
         """Geodetic points [rad, rad, m] -> 1-based pixels (NaN + BEHIND_CAMERA / OUTSIDE_SENSOR)."""
         if state is None:
             raise ValueError("a frame camera needs a state (a Pose with its gimbal angles)")

@@ -24,8 +24,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -197,7 +199,7 @@ def _opencv_lens(path, data, model=None) -> Lens:
         raise _Bad(path, f"{key}/{dkey}: {e}") from None
 
 
-def read_opencv_yaml(path, model: str | None = None) -> Lens:
+def read_opencv_yaml(path: str | os.PathLike[str], model: str | None = None) -> Lens:
     """Lens from an OpenCV FileStorage file (YAML, or JSON).
 
     Parameters
@@ -230,7 +232,7 @@ def read_opencv_yaml(path, model: str | None = None) -> Lens:
 _ROS_MODELS = {"plumb_bob": "brown", "rational_polynomial": "brown", "equidistant": "fisheye"}
 
 
-def read_ros_camera_info(path) -> Lens:
+def read_ros_camera_info(path: str | os.PathLike[str]) -> Lens:
     """Lens from a ROS ``camera_info`` YAML file (camera_calibration_parsers).
 
     Keys used: ``image_width``, ``image_height``, ``camera_matrix`` {rows,
@@ -264,7 +266,7 @@ _COLMAP_MODELS = {
 _COLMAP_PIXEL_OFFSET = 0.5  # COLMAP: the centre of the top-left pixel is (0.5, 0.5)
 
 
-def read_colmap_cameras(path) -> dict[int, Lens]:
+def read_colmap_cameras(path: str | os.PathLike[str]) -> dict[int, Lens]:
     """Lenses of a COLMAP ``cameras.txt`` (lines ``CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]``).
 
     Supported models: SIMPLE_PINHOLE (f, cx, cy), PINHOLE (fx, fy, cx, cy),
@@ -330,7 +332,7 @@ _OPENSFM_TYPES = {
 }
 
 
-def read_opensfm_cameras(path) -> dict[str, Lens]:
+def read_opensfm_cameras(path: str | os.PathLike[str]) -> dict[str, Lens]:
     """Lenses of an OpenSfM ``cameras.json`` (or ``camera_models_overrides.json``).
 
     Supported projection types (OpenSfM "Geometric Models"; the default, as in
@@ -391,7 +393,7 @@ def read_opensfm_cameras(path) -> dict[str, Lens]:
 
 
 # --------------------------------------------------------------------------- any of them
-def read_lens_file(path, model: str | None = None, camera=None) -> Lens:
+def read_lens_file(path: str | os.PathLike[str], model: str | None = None, camera: str | int | None = None) -> Lens:
     """One lens from any of the formats above, the reader chosen by extension and content.
 
     - ``.txt`` -> COLMAP cameras.txt;
@@ -414,7 +416,7 @@ def read_lens_file(path, model: str | None = None, camera=None) -> Lens:
     path = Path(path)
     text = _text(path)
     if path.suffix.lower() == ".txt":
-        lenses: dict[int, Lens] | dict[str, Lens] = read_colmap_cameras(path)  # COLMAP ids are numbers
+        lenses: dict[Any, Lens] = read_colmap_cameras(path)  # COLMAP ids are numbers
     elif path.suffix.lower() == ".json" or text.lstrip().startswith("{"):
         data = _json_load(path, text)
         is_sfm = (

@@ -95,6 +95,7 @@ from typing import Any, ClassVar
 import sys
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..geodesy._nbgeo import cached_njit, dependency_key
 from ..status import Status
@@ -474,7 +475,7 @@ class Lens:
         """True when some parameter is a per-sample array (see the module docstring)."""
         return any(isinstance(v, np.ndarray) for v in self.params.values())
 
-    def with_params(self, **changes) -> Lens:
+    def with_params(self, **changes: Any) -> Lens:
         """A copy with some of :attr:`params` changed (an unknown name raises ValueError).
 
         A value may be an array (per-sample parameters, broadcasting over the batch of
@@ -558,7 +559,7 @@ class Lens:
         return bad
 
     # -------------------------------------------------------------- geometry
-    def project(self, dirs):
+    def project(self, dirs: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Directions in the optical frame -> pixels.
 
         Parameters
@@ -586,7 +587,7 @@ class Lens:
         status = np.where(front, Status.OK, np.where(finite, Status.BEHIND_CAMERA, Status.INVALID_INPUT))
         return u, v, status.astype(np.uint8)
 
-    def unproject(self, u, v) -> np.ndarray:
+    def unproject(self, u: ArrayLike, v: ArrayLike) -> np.ndarray:
         """Pixels -> unit directions in the optical frame.
 
         Parameters
@@ -608,7 +609,7 @@ class Lens:
         d = np.stack(np.broadcast_arrays(x, y, z), axis=-1)
         return np.where(np.asarray(bad)[..., None], np.nan, d) if self.batched else d
 
-    def in_image(self, u, v) -> np.ndarray:
+    def in_image(self, u: ArrayLike, v: ArrayLike) -> np.ndarray:
         """True where (u, v) lies on the sensor: -0.5 <= u <= width - 0.5, -0.5 <= v <= height - 0.5."""
         u, v = np.asarray(u, dtype=float), np.asarray(v, dtype=float)
         return (u >= -0.5) & (u <= self.width - 0.5) & (v >= -0.5) & (v <= self.height - 0.5)
@@ -724,7 +725,9 @@ _MODELS = {cls.model: cls for cls in (PinholeLens, BrownLens, FisheyeLens)}
 # Constructors
 
 
-def lens_from_fov(hfov, vfov, width, height, cx=None, cy=None) -> PinholeLens:
+def lens_from_fov(
+    hfov: float, vfov: float, width: int, height: int, cx: float | None = None, cy: float | None = None
+) -> PinholeLens:
     """Pinhole lens from its fields of view.
 
     Parameters
@@ -758,7 +761,9 @@ def lens_from_fov(hfov, vfov, width, height, cx=None, cy=None) -> PinholeLens:
     )
 
 
-def lens_from_opencv(camera_matrix, dist_coeffs, image_size, model: str = "brown") -> Lens:
+def lens_from_opencv(
+    camera_matrix: ArrayLike, dist_coeffs: ArrayLike | None, image_size: tuple[int, int], model: str = "brown"
+) -> Lens:
     """Lens from OpenCV's calibration results.
 
     Parameters

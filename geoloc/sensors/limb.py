@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.frames.rotations import rotate, rx, ry, rz
 from geoloc.geodesy.ellipsoid import (
@@ -122,7 +123,7 @@ class L18Chain:
         return LineOfSight(self.origin_ecef, self.direction_ecef, self.status)
 
 
-def orbital_frame_l18(position_ecef, velocity_ecef):
+def orbital_frame_l18(position_ecef: ArrayLike, velocity_ecef: ArrayLike) -> np.ndarray:
     """Orbital -> ECEF rotation from position and velocity [L18 eq. 7-10].
 
     b3 = -P/|P| (towards the Earth's centre), b2 = (b3 x V)/|b3 x V|,
@@ -153,7 +154,15 @@ def orbital_frame_l18(position_ecef, velocity_ecef):
     return np.stack([b1, b2, b3], axis=-1)
 
 
-def line_of_sight_l18(position_ecef, velocity_ecef, yaw, roll, pitch, theta_mount, alpha) -> L18Chain:
+def line_of_sight_l18(
+    position_ecef: ArrayLike,
+    velocity_ecef: ArrayLike,
+    yaw: ArrayLike,
+    roll: ArrayLike,
+    pitch: ArrayLike,
+    theta_mount: ArrayLike,
+    alpha: ArrayLike,
+) -> L18Chain:
     """ECEF line of sight of the limb sensor, the [L18] chain (eq. 1-11).
 
     V_ECEF = T_ORB/ECEF T_BODY/ORB T_SCS/BODY View, i.e. in the project's names
@@ -274,7 +283,12 @@ class VirtualEllipsoid:
 
 
 def virtual_ellipsoid_tangent(
-    origin_ecef, direction_ecef, *, delta_a0=0.0, tol_m: float = 1e-6, max_iter: int = 20
+    origin_ecef: ArrayLike,
+    direction_ecef: ArrayLike,
+    *,
+    delta_a0: ArrayLike = 0.0,
+    tol_m: float = 1e-6,
+    max_iter: int = 20,
 ) -> VirtualEllipsoid:
     """Solve the tangency condition [L18 eq. 17] for Delta a by Newton-Raphson.
 
@@ -355,7 +369,7 @@ def virtual_ellipsoid_tangent(
 # --------------------------------------------------------------------------- #
 
 
-def l18_geodetic(p_ecef):
+def l18_geodetic(p_ecef: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Latitude, longitude and limb height of a tangent point as in [L18 eq. 18-26].
 
     lon = atan2(y, x) (eq. 18, quadrant-aware);
@@ -453,7 +467,12 @@ def _slope(o, d, s):
 
 
 def exact_tangent(
-    origin_ecef, direction_ecef, active=None, *, tol_m: float = 1e-4, max_iter: int = 100
+    origin_ecef: ArrayLike,
+    direction_ecef: ArrayLike,
+    active: ArrayLike | None = None,
+    *,
+    tol_m: float = 1e-4,
+    max_iter: int = 100,
 ) -> ExactTangent:
     """Minimum geodetic height along the ray X + s V, s >= 0, for rays that miss the Earth.
 
@@ -494,13 +513,11 @@ def exact_tangent(
         d = np.broadcast_to(d, shape + (3,))
         d = d / np.linalg.norm(d, axis=-1, keepdims=True)
         g0, _ = _slope(o, d, np.zeros(shape))
-        if active is None:
-            active = g0 < 0
-        active = np.broadcast_to(np.asarray(active, bool), shape) & (g0 < 0)
+        live = np.broadcast_to(np.asarray(g0 < 0 if active is None else active, bool), shape) & (g0 < 0)
         lo = np.zeros(shape)
         # Spherical estimate of the closest approach, then double until g(hi) > 0.
-        hi = np.where(active, np.maximum(-2.0 * _dot(o, d), 1e3), np.nan)
-        grow = active.copy()
+        hi = np.where(live, np.maximum(-2.0 * _dot(o, d), 1e3), np.nan)
+        grow = live.copy()
         for _ in range(64):
             if not grow.any():
                 break
@@ -509,11 +526,11 @@ def exact_tangent(
             lo = np.where(still, hi, lo)
             hi = np.where(still, 2.0 * hi + 1e3, hi)
             grow = still
-        active = active & ~grow
-        s = np.where(active, np.clip(-_dot(o, d), lo, hi), np.nan)
+        live = live & ~grow
+        s = np.where(live, np.clip(-_dot(o, d), lo, hi), np.nan)
         iters = np.zeros(shape, dtype=np.int32)
         converged = np.zeros(shape, bool)
-        run = active.copy()
+        run = live.copy()
         for _ in range(max_iter):
             if not run.any():
                 break
@@ -530,7 +547,7 @@ def exact_tangent(
             converged |= done
             run &= ~done
         status = np.full(shape, Status.INVALID_INPUT, dtype=np.uint8)
-        status[active] = Status.NO_CONVERGENCE
+        status[live] = Status.NO_CONVERGENCE
         status[converged] = Status.OK
         s = np.where(converged, s, np.nan)
         p = o + s[..., None] * d
@@ -620,19 +637,19 @@ class LimbTangent:
         return self.tangent_h - self.exact_h
 
     @property
-    def tangent_lat_deg(self):
+    def tangent_lat_deg(self) -> np.ndarray:
         return np.degrees(self.tangent_lat)
 
     @property
-    def tangent_lon_deg(self):
+    def tangent_lon_deg(self) -> np.ndarray:
         return np.degrees(self.tangent_lon)
 
     @property
-    def exact_lat_deg(self):
+    def exact_lat_deg(self) -> np.ndarray:
         return np.degrees(self.exact_lat)
 
     @property
-    def exact_lon_deg(self):
+    def exact_lon_deg(self) -> np.ndarray:
         return np.degrees(self.exact_lon)
 
     @property
@@ -641,10 +658,10 @@ class LimbTangent:
 
 
 def limb_tangent(
-    origin_ecef,
-    direction_ecef,
+    origin_ecef: ArrayLike,
+    direction_ecef: ArrayLike,
     *,
-    delta_a0=0.0,
+    delta_a0: ArrayLike = 0.0,
     tol_m: float = 1e-6,
     max_iter: int = 20,
     exact_tol_m: float = 1e-4,

@@ -64,7 +64,7 @@ DRONE_CEILING_M = 7000.0
 FOOT_M = 0.3048
 
 
-def is_drone(text) -> bool:
+def is_drone(text: str | None) -> bool:
     """True if the platform ``text`` names a drone by :data:`DRONE_WORDS` (None, "": False)."""
     return bool(text) and _DRONE_RE.search(str(text)) is not None
 

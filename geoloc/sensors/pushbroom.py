@@ -42,12 +42,15 @@ line time: Newton steps on the along-track angle residual
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
+from numpy.typing import ArrayLike
 from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from geoloc.frames import rotations as rot
@@ -68,7 +71,7 @@ def _bad(field_name, value, why):
     raise ValueError(f"{field_name} = {value!r}: {why}")
 
 
-def R_ecef_orbital(position, velocity):
+def R_ecef_orbital(position: ArrayLike, velocity: ArrayLike) -> np.ndarray:
     """Orbital frame -> ECEF from position and velocity [L18 eq. 7-10].
 
     b3 = -P/|P| (towards the Earth's centre), b2 = (b3 x V)/|b3 x V| (right of
@@ -93,7 +96,7 @@ def R_ecef_orbital(position, velocity):
     return np.stack([b1, b2, b3], axis=-1)
 
 
-def R_zyx(roll, pitch, yaw):
+def R_zyx(roll: ArrayLike, pitch: ArrayLike, yaw: ArrayLike) -> np.ndarray:
     """Passive z-y-x rotation Rx(roll) Ry(pitch) Rz(yaw), the order of [Q17 eq. 6]."""
     return rot.rx(roll) @ rot.ry(pitch) @ rot.rz(yaw)
 
@@ -116,7 +119,7 @@ class Orbit:
     t: np.ndarray
     position: np.ndarray
     velocity: np.ndarray
-    _spline: object = field(init=False, repr=False, compare=False)
+    _spline: Any = field(init=False, repr=False, compare=False)  # scipy ships no types
 
     def __post_init__(self):
         t = np.asarray(self.t, float)
@@ -138,7 +141,7 @@ class Orbit:
     def span(self) -> tuple[float, float]:
         return float(self.t[0]), float(self.t[-1])
 
-    def state(self, t):
+    def state(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Interpolated position and velocity at times ``t`` [L12 section 4.1].
 
         Cubic Hermite through the position samples with the sampled velocities
@@ -161,7 +164,15 @@ class Orbit:
         return p, v
 
 
-def circular_orbit(altitude_m, inclination, centre_lat, centre_lon, times, *, descending=True):
+def circular_orbit(
+    altitude_m: float,
+    inclination: float,
+    centre_lat: float,
+    centre_lon: float,
+    times: ArrayLike,
+    *,
+    descending: bool = True,
+) -> Orbit:
     """Synthetic circular Keplerian orbit passing over a ground point at t = 0.
 
     Used to build the bundled ZY-3-like scenario. The inertial frame is taken
@@ -254,14 +265,14 @@ class Attitude:
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "_splines", tuple(sp))
 
-    def angles(self, t):
+    def angles(self, t: ArrayLike) -> tuple[np.ndarray, ...]:
         """Interpolated (roll, pitch, yaw) [rad] at times ``t``; NaN outside the span."""
         t = np.asarray(t, float)
         inside = (t >= self.t[0]) & (t <= self.t[-1])
         tc = np.where(inside, t, self.t[0])
         return tuple(np.where(inside, s(tc), np.nan) for s in self._splines)
 
-    def R_orb_body(self, t):
+    def R_orb_body(self, t: ArrayLike) -> np.ndarray:
         """Body -> orbital rotation at times ``t``, shape (..., 3, 3)."""
         r, p, y = self.angles(t)
         return np.swapaxes(R_zyx(r, p, y), -1, -2)
@@ -302,7 +313,9 @@ class LookAngles:
         object.__setattr__(self, "tan_psi_y", y)
 
     @classmethod
-    def from_polynomial(cls, n, coeffs_x, coeffs_y, centre=None):
+    def from_polynomial(
+        cls, n: int, coeffs_x: Sequence[float], coeffs_y: Sequence[float], centre: float | None = None
+    ) -> LookAngles:
         """Look angles as cubic (or any degree) polynomials of the detector offset.
 
         tan psi_X(j) = sum_k cx[k] s^k, tan psi_Y(j) = sum_k cy[k] s^k with
@@ -332,15 +345,15 @@ class LookAngles:
         out = np.where(hi, table[-1] + (col - self.n) * (table[-1] - table[-2]), out)
         return out
 
-    def tan_x(self, col):
+    def tan_x(self, col: ArrayLike) -> np.ndarray:
         """tan psi_X at (fractional) detector positions ``col``."""
         return self._interp(self.tan_psi_x, col)
 
-    def tan_y(self, col):
+    def tan_y(self, col: ArrayLike) -> np.ndarray:
         """tan psi_Y at (fractional) detector positions ``col``."""
         return self._interp(self.tan_psi_y, col)
 
-    def col_of_tan_x(self, tx):
+    def col_of_tan_x(self, tx: ArrayLike) -> np.ndarray:
         """Inverse of :meth:`tan_x`: the fractional detector whose tan psi_X is ``tx``."""
         tx = np.asarray(tx, float)
         x = self.tan_psi_x
@@ -352,7 +365,7 @@ class LookAngles:
         out = np.where(tx > x[-1], j[-1] + (tx - x[-1]) * (j[-1] - j[-2]) / (x[-1] - x[-2]), out)
         return out
 
-    def direction(self, col):
+    def direction(self, col: ArrayLike) -> np.ndarray:
         """Camera-frame line of sight u = [tan psi_Y, tan psi_X, -1], [L12 eq. 1], shape (..., 3)."""
         tx = self.tan_x(col)
         ty = self.tan_y(col)
@@ -453,7 +466,7 @@ class PushbroomSensor(LineDating):
         """Number of detectors (image columns)."""
         return self.look.n
 
-    def exterior(self, t):
+    def exterior(self, t: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Perspective centre and camera -> ECEF rotation at times ``t`` [L12 eq. 1].
 
         Returns
@@ -479,7 +492,7 @@ class PushbroomSensor(LineDating):
         la = self.lever_arm_body
         return dict(zip(self.PARAMS, (float(la[0]), float(la[1]), float(la[2]), self.t0_s, self.line_period_s)))
 
-    def with_params(self, **changes) -> "PushbroomSensor":
+    def with_params(self, **changes: float) -> "PushbroomSensor":
         import dataclasses
 
         check_param_names(changes, self.params, "pushbroom sensor")
@@ -491,11 +504,11 @@ class PushbroomSensor(LineDating):
             line_period_s=p["line_period_s"],
         )
 
-    def frames(self, state=None):
+    def frames(self, state: Any = None) -> None:
         """A pushbroom's frames change line by line; the viewers draw it from its lines of sight (None)."""
         return None
 
-    def line_of_sight(self, row, col, state=None, *, outside: str = "flag") -> LineOfSight:
+    def line_of_sight(self, row: ArrayLike, col: ArrayLike, state: Any = None, *, outside: str = "flag") -> LineOfSight:
         """Pixel (row i = line, column j = detector), 1-based -> line of sight in ECEF [L12 eq. 1].
 
         ``state`` is unused (time and attitude come from the row).
@@ -521,7 +534,16 @@ class PushbroomSensor(LineDating):
         return LineOfSight(centre, d, status, velocity_ecef=self.orbit.state(t)[1])
 
     # ------------------------------------------------------- ground -> image
-    def ground_to_pixel(self, lat, lon, h, state=None, *, tol_lines: float = 1e-6, max_iter: int = 30) -> PixelHit:
+    def ground_to_pixel(
+        self,
+        lat: ArrayLike,
+        lon: ArrayLike,
+        h: ArrayLike,
+        state: Any = None,
+        *,
+        tol_lines: float = 1e-6,
+        max_iter: int = 30,
+    ) -> PixelHit:
         """Ground point -> (row, col) by iteration over the line time [L12 section 4.1].
 
         At a trial time t the point is expressed in the camera frame,
@@ -605,7 +627,7 @@ class PushbroomSensor(LineDating):
         return _sensor_from_dict(data, source)
 
     @classmethod
-    def from_toml(cls, path) -> "PushbroomSensor":
+    def from_toml(cls, path: str | os.PathLike[str]) -> "PushbroomSensor":
         path = Path(path)
         data = read_toml(path, "scenario file")
         return cls.from_dict(data, source=str(path))

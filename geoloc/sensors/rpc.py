@@ -34,10 +34,12 @@ pixel's ground points at two heights), and ``params`` are the image-space bias
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.sensors.base import PixelHit, check_outside, check_param_names, flag_outside, in_sensor, replace_params
@@ -87,7 +89,7 @@ _SCALAR_KEYS = (
 _COEFF_KEYS = ("LINE_NUM_COEFF", "LINE_DEN_COEFF", "SAMP_NUM_COEFF", "SAMP_DEN_COEFF")
 
 
-def rpc_terms(L, P, H):
+def rpc_terms(L: ArrayLike, P: ArrayLike, H: ArrayLike) -> np.ndarray:
     """The 20 cubic terms of RPC00B for normalised (L, P, H), shape (..., 20)."""
     L, P, H = np.broadcast_arrays(np.asarray(L, float), np.asarray(P, float), np.asarray(H, float))
     one = np.ones_like(L)
@@ -182,7 +184,7 @@ class RPCModel:
     err_bias: float = -1.0
     err_rand: float = -1.0
 
-    def normalise(self, lat, lon, h):
+    def normalise(self, lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Normalised (Ln, Pn, Hn) from latitude, longitude [rad] and height [m]."""
         lat_deg, lon_deg = np.rad2deg(lat), np.rad2deg(lon)
         dl = (lon_deg - self.long_off + 180.0) % 360.0 - 180.0  # the antimeridian, as GDAL
@@ -192,13 +194,13 @@ class RPCModel:
             (np.asarray(h, float) - self.height_off) / self.height_scale,
         )
 
-    def denormalise(self, Ln, Pn, Hn):
+    def denormalise(self, Ln: ArrayLike, Pn: ArrayLike, Hn: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Inverse of :meth:`normalise`: (lat, lon [rad], h [m]); longitude wrapped to [-pi, pi)."""
         lon_deg = (np.asarray(Ln, float) * self.long_scale + self.long_off + 180.0) % 360.0 - 180.0
         lat_deg = np.asarray(Pn, float) * self.lat_scale + self.lat_off
         return np.deg2rad(lat_deg), np.deg2rad(lon_deg), np.asarray(Hn, float) * self.height_scale + self.height_off
 
-    def normalised_image(self, lat, lon, h):
+    def normalised_image(self, lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Normalised (line_n, samp_n) of ground points: the two ratios of the RPC."""
         T = rpc_terms(*self.normalise(lat, lon, h))
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -206,7 +208,7 @@ class RPCModel:
             sn = np.einsum("...i,i->...", T, self.samp_num) / np.einsum("...i,i->...", T, self.samp_den)
         return ln, sn
 
-    def ground_to_pixel(self, lat, lon, h):
+    def ground_to_pixel(self, lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Ground (lat, lon [rad], ellipsoidal h [m]) -> 1-based (row, col) by the RPC equations.
 
         No domain check and no status (see :meth:`RPCSensor.ground_to_pixel` for both).
@@ -258,7 +260,7 @@ class RPCModel:
         return md
 
     @classmethod
-    def from_gdal(cls, md) -> RPCModel:
+    def from_gdal(cls, md: Mapping[str, Any]) -> RPCModel:
         """From the GDAL "RPC" metadata domain (a dict of strings, as ``dataset.tags(ns="RPC")``).
 
         Trailing units (``"3437.00 pixels"``) are ignored; a missing or bad key is
@@ -295,14 +297,14 @@ class RPCModel:
             errs[1],
         )
 
-    def to_rasterio(self):
+    def to_rasterio(self) -> Any:
         """A :class:`rasterio.rpc.RPC` (for ``dataset.rpcs = ...`` and ``RPCTransformer``)."""
         from rasterio.rpc import RPC
 
         return RPC.from_gdal(self.to_gdal())
 
     @classmethod
-    def from_rasterio(cls, rpc) -> RPCModel:
+    def from_rasterio(cls, rpc: Any) -> RPCModel:
         """From a :class:`rasterio.rpc.RPC` (``dataset.rpcs``)."""
         return cls(
             rpc.line_off,
@@ -429,7 +431,7 @@ class RPCSensor:
         check_param_names(changes, self.params, "RPCSensor")
         return replace_params(self, changes)
 
-    def rpc_to_image(self, r, c):
+    def rpc_to_image(self, r: ArrayLike, c: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """The correction: RPC projection (1-based) -> image pixel."""
         r, c = np.asarray(r, float), np.asarray(c, float)
         return (
@@ -437,7 +439,7 @@ class RPCSensor:
             c + (self.col_bias + self.col_per_row * r + self.col_per_col * c),
         )
 
-    def image_to_rpc(self, row, col):
+    def image_to_rpc(self, row: ArrayLike, col: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Inverse of :meth:`rpc_to_image` (exact: a 2 x 2 linear system)."""
         row, col = np.asarray(row, float), np.asarray(col, float)
         a, b = 1.0 + self.row_per_row, self.row_per_col
@@ -447,7 +449,7 @@ class RPCSensor:
         return (d * y - b * x) / det, (a * x - c * y) / det
 
     # ------------------------------------------------------- ground -> image
-    def in_domain(self, lat, lon, h) -> np.ndarray:
+    def in_domain(self, lat: ArrayLike, lon: ArrayLike, h: ArrayLike) -> np.ndarray:
         """True where the ground point lies inside the validity domain (see the class docstring)."""
         Ln, Pn, Hn = self.model.normalise(lat, lon, h)
         with np.errstate(invalid="ignore"):
@@ -457,7 +459,7 @@ class RPCSensor:
                 & (np.abs(Hn) <= self.domain_height)
             )
 
-    def ground_to_pixel(self, lat, lon, h, state=None) -> PixelHit:
+    def ground_to_pixel(self, lat: ArrayLike, lon: ArrayLike, h: ArrayLike, state: Any = None) -> PixelHit:
         """Geodetic points (rad, rad, ellipsoidal m) -> 1-based image pixels by the RPC (and the correction).
 
         Returns
@@ -478,12 +480,14 @@ class RPCSensor:
         r, c = np.where(ok, r, np.nan), np.where(ok, c, np.nan)
         return PixelHit(r, c, flag_outside(status, r, c, self.rows, self.cols))
 
-    def in_image(self, row, col) -> np.ndarray:
+    def in_image(self, row: ArrayLike, col: ArrayLike) -> np.ndarray:
         """True where the 1-based pixel lies on the image (0.5 .. rows + 0.5, 0.5 .. cols + 0.5)."""
         return in_sensor(row, col, self.rows, self.cols)
 
     # ------------------------------------------------------- image -> ground
-    def ground_at_height(self, row, col, h):
+    def ground_at_height(
+        self, row: ArrayLike, col: ArrayLike, h: ArrayLike
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The RPC inverse at fixed ellipsoidal heights: pixels -> (lat, lon, status).
 
         Newton iterations on the normalised (longitude, latitude) with the
@@ -568,7 +572,7 @@ class RPCSensor:
                 P[act] = np.clip(pa[keep] - (j11 * es - j21 * el) / det, -cap, cap)
         return L, P, converged
 
-    def line_of_sight(self, row, col, state=None, *, outside: str = "flag") -> LineOfSight:
+    def line_of_sight(self, row: ArrayLike, col: ArrayLike, state: Any = None, *, outside: str = "flag") -> LineOfSight:
         """1-based pixels -> straight lines of sight in ECEF, from the RPC itself.
 
         The pixel is inverted at the two heights ``HEIGHT_OFF +- los_fraction
@@ -621,7 +625,7 @@ class RPCSensor:
             np.where(keep[..., None], p[0], np.nan), np.where(keep[..., None], d, np.nan), status.astype(np.uint8)
         )
 
-    def frames(self, state=None):
+    def frames(self, state: Any = None) -> None:
         """None: an RPC has no frame graph.
 
         It is a ground <-> image mapping with no optical centre, attitude or

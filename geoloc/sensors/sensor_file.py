@@ -24,6 +24,7 @@ values and missing keys are errors naming the key, the value and the file.
 
 from __future__ import annotations
 
+import os
 import math
 from pathlib import Path
 
@@ -125,7 +126,7 @@ def sensor_from_dict(data: dict, source: str = "sensor") -> FrameSensor:
     )
 
 
-def load_sensor(path) -> FrameSensor:
+def load_sensor(path: str | os.PathLike[str]) -> FrameSensor:
     """Read a sensor file, or a first-phase camera file, by path: a :class:`FrameSensor` either way.
 
     A camera file (``focal_length_px``, ``principal_row``, ...; :class:`geoloc.sensors.camera.Camera`
@@ -155,7 +156,7 @@ def budget_from_sensor_dict(data: dict, source: str = "sensor") -> ErrorBudget |
     return budget_from_dict(data[UNCERTAINTY_TABLE], sensor_from_dict(rest, source), source)
 
 
-def load_sensor_budget(path) -> ErrorBudget | None:
+def load_sensor_budget(path: str | os.PathLike[str]) -> ErrorBudget | None:
     """The error budget (``[uncertainty]``) of a sensor (or first-phase camera) file; None if it has none."""
     path = Path(path)
     return budget_from_sensor_dict(read_toml(path, "sensor file"), source=str(path))
@@ -184,7 +185,7 @@ def _without_columns(data: dict, source: str) -> dict:
     return {k: v for k, v in data.items() if k != COLUMNS_TABLE}
 
 
-def load_sensor_columns(path) -> dict | None:
+def load_sensor_columns(path: str | os.PathLike[str]) -> dict | None:
     """The ``[columns]`` table of a sensor (or first-phase camera) file, as read; None if it has none.
 
     The table is the column map of the records CSV flown with this sensor
@@ -198,7 +199,7 @@ def load_sensor_columns(path) -> dict | None:
     return data[COLUMNS_TABLE]
 
 
-def load_sensor_corrections(path) -> dict | None:
+def load_sensor_corrections(path: str | os.PathLike[str]) -> dict | None:
     """The checked ``[corrections]`` table of a sensor (or first-phase camera) file; None if it has none."""
     path = Path(path)
     data = read_toml(path, "sensor file")
@@ -220,7 +221,10 @@ def _toml_value(v) -> str:
 
 
 def sensor_to_toml(
-    sensor: FrameSensor, path, budget: ErrorBudget | None = None, corrections: dict | None = None
+    sensor: FrameSensor,
+    path: str | os.PathLike[str],
+    budget: ErrorBudget | None = None,
+    corrections: dict | None = None,
 ) -> None:
     """Write a sensor file that :func:`load_sensor` reads back to the same sensor (and
     :func:`load_sensor_budget` to ``budget``, :func:`load_sensor_corrections` to the

@@ -12,9 +12,13 @@ into a :class:`GroundPoint` batch. A :class:`DemSource` is a DEM raster
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, TypeGuard, runtime_checkable
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:  # the mosaic module imports this one
+    from geoloc.surfaces.mosaic import DemMosaic
 
 
 @dataclass(frozen=True)
@@ -44,12 +48,15 @@ class LineOfSight:
 class LatLonDeg:
     """``lat_deg`` / ``lon_deg`` of a result whose ``lat``, ``lon`` are in radians."""
 
+    lat: np.ndarray  # (the result's own fields: this class is no dataclass, so they add none)
+    lon: np.ndarray
+
     @property
-    def lat_deg(self):
+    def lat_deg(self) -> np.ndarray:
         return np.rad2deg(self.lat)
 
     @property
-    def lon_deg(self):
+    def lon_deg(self) -> np.ndarray:
         return np.rad2deg(self.lon)
 
 
@@ -120,12 +127,14 @@ class DemSource(Protocol):
     @property
     def bounds_deg(self) -> tuple: ...  # (west, south, east, north) [deg]
 
-    def height(self, lat, lon) -> np.ndarray: ...  # ellipsoidal height [m] at (lat, lon) [rad]; NaN off the data
+    def height(
+        self, lat: ArrayLike, lon: ArrayLike
+    ) -> np.ndarray: ...  # ellipsoidal height [m] at (lat, lon) [rad]; NaN off the data
 
-    def sample(self, lat, lon) -> np.ndarray: ...
+    def sample(self, lat: ArrayLike, lon: ArrayLike) -> np.ndarray: ...
 
 
-def is_mosaic(dem) -> bool:
+def is_mosaic(dem: object) -> TypeGuard[DemMosaic]:
     """True for a DEM mosaic: a :class:`DemSource` that is a :class:`Surface` itself and solves
     region by region within its memory bound (:class:`geoloc.surfaces.mosaic.DemMosaic`).
 

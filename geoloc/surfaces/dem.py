@@ -27,16 +27,22 @@ Conventions: ``docs/conventions.md`` (radians inside; ``_deg`` only at edges).
 
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.extras import require
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
 from geoloc.geodesy.geoid import NodeGrid, egm96_undulation
 from geoloc.status import Status
 from geoloc.userfiles import note_input
+
+if TYPE_CHECKING:
+    from geoloc.frames.enu import EnuFrame
 
 DATUMS = ("egm96", "ellipsoid")
 
@@ -67,7 +73,18 @@ class DEM:
         Source file.
     """
 
-    def __init__(self, grid: NodeGrid, crs=None, datum="ellipsoid", orthometric=None, path=None):
+    #: The exact walk's tables, made on first use and kept with the DEM
+    #: (:func:`geoloc.surfaces.terrain._exact_tables`; absent until then).
+    _exact_tables: dict
+
+    def __init__(
+        self,
+        grid: NodeGrid,
+        crs: Any = None,
+        datum: str = "ellipsoid",
+        orthometric: np.ndarray | None = None,
+        path: str | os.PathLike[str] | None = None,
+    ):
         import pyproj
 
         _check_datum(datum)
@@ -89,7 +106,7 @@ class DEM:
 
     # ------------------------------------------------------------------ building
     @classmethod
-    def open(cls, path, datum="egm96", band: int = 1, geographic: bool = True) -> "DEM":
+    def open(cls, path: str | os.PathLike[str], datum: str = "egm96", band: int = 1, geographic: bool = True) -> "DEM":
         """Read a north-up raster (GeoTIFF, any GDAL format) with rasterio.
 
         Parameters
@@ -211,7 +228,15 @@ class DEM:
 
     @classmethod
     def from_array(
-        cls, heights, lat_north_deg, lon_west_deg, dlat_deg, dlon_deg, datum="ellipsoid", nodata=None, crs="EPSG:4326"
+        cls,
+        heights: ArrayLike,
+        lat_north_deg: float,
+        lon_west_deg: float,
+        dlat_deg: float,
+        dlon_deg: float,
+        datum: str = "ellipsoid",
+        nodata: float | None = None,
+        crs: Any = "EPSG:4326",
     ) -> "DEM":
         """A DEM from an array of node heights (row 0 north), e.g. synthetic terrain.
 
@@ -241,7 +266,14 @@ class DEM:
         return cls._with_datum(grid, crs, datum, None)
 
     @classmethod
-    def from_grid(cls, grid: NodeGrid, crs="EPSG:4326", datum="egm96", path=None, height_range_m=None) -> "DEM":
+    def from_grid(
+        cls,
+        grid: NodeGrid,
+        crs: Any = "EPSG:4326",
+        datum: str = "egm96",
+        path: str | os.PathLike[str] | None = None,
+        height_range_m: tuple[float, float] | None = None,
+    ) -> "DEM":
         """A DEM from a :class:`~geoloc.geodesy.geoid.NodeGrid` of heights as read (a window of a file).
 
         The heights are converted to ellipsoidal node by node exactly as :meth:`open`
@@ -290,7 +322,7 @@ class DEM:
         """(nrows, ncols) of nodes."""
         return self.grid.values.shape
 
-    def node_latlon_deg(self):
+    def node_latlon_deg(self) -> tuple[np.ndarray, np.ndarray]:
         """Geodetic latitude and longitude [deg] of every node, each (nrows, ncols)."""
         g = self.grid
         nr, nc = self.shape
@@ -343,7 +375,7 @@ class DEM:
         return tuple(self._from_crs.transform_bounds(w, s, e, n))
 
     # ------------------------------------------------------------------ sampling
-    def sample(self, lat, lon):
+    def sample(self, lat: ArrayLike, lon: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Ellipsoidal height and status at geodetic points.
 
         Parameters
@@ -370,7 +402,7 @@ class DEM:
         status[inside & ~np.isfinite(h)] = Status.NODATA
         return np.where(status == Status.OK, h, np.nan), status
 
-    def height(self, lat, lon):
+    def height(self, lat: ArrayLike, lon: ArrayLike) -> np.ndarray:
         """Bilinear ellipsoidal height [m] at geodetic (lat, lon) [rad]; NaN outside / no data."""
         return self.sample(lat, lon)[0]
 
@@ -393,7 +425,7 @@ class DEM:
         j0, j1 = int(np.clip(np.floor(c0), 0, nc - 1)), int(np.clip(np.ceil(c1), 0, nc - 1))
         return v[i0 : i1 + 1, j0 : j1 + 1]
 
-    def max_height(self, region=None) -> float:
+    def max_height(self, region: tuple[float, float, float, float] | None = None) -> float:
         """Highest ellipsoidal node height [m] (of the cells touching ``region``).
 
         Bilinear cells never exceed their nodes, so this bounds the surface: it
@@ -409,7 +441,7 @@ class DEM:
             return self._surface_range[1]
         return float(np.nanmax(self._region_nodes(region)))
 
-    def min_height(self, region=None) -> float:
+    def min_height(self, region: tuple[float, float, float, float] | None = None) -> float:
         """Lowest ellipsoidal node height [m] (of the cells touching ``region``)."""
         if region is None and self._surface_range is not None:
             return self._surface_range[0]
@@ -433,7 +465,7 @@ class DEM:
         return self._cell_max
 
     # ------------------------------------------------------------------ meshes
-    def mesh(self, stride: int = 1):
+    def mesh(self, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """Triangle mesh of the nodes in ECEF: two triangles per cell.
 
         Each cell (i, j) with corners p00 = node(i, j), p10 = node(i, j+1)
@@ -456,7 +488,9 @@ class DEM:
         v = geodetic_to_ecef(np.deg2rad(lat_deg), np.deg2rad(lon_deg), np.nan_to_num(h)).reshape(-1, 3)
         return v, grid_faces(np.isfinite(h))
 
-    def enu_frame(self, origin_lat=None, origin_lon=None, origin_h=0.0):
+    def enu_frame(
+        self, origin_lat: float | None = None, origin_lon: float | None = None, origin_h: float = 0.0
+    ) -> EnuFrame:
         """A :class:`geoloc.frames.enu.EnuFrame` at the given origin (default: the DEM's centre, h 0)."""
         from geoloc.frames.enu import EnuFrame
 
@@ -465,7 +499,14 @@ class DEM:
         lon0 = np.deg2rad(0.5 * (w + e)) if origin_lon is None else float(origin_lon)
         return EnuFrame(lat0, lon0, float(origin_h))
 
-    def to_trimesh(self, stride: int = 1, origin_lat=None, origin_lon=None, origin_h=0.0, frame: str = "enu"):
+    def to_trimesh(
+        self,
+        stride: int = 1,
+        origin_lat: float | None = None,
+        origin_lon: float | None = None,
+        origin_h: float = 0.0,
+        frame: str = "enu",
+    ) -> Any:
         """The :meth:`mesh` as a ``trimesh.Trimesh`` in a local ENU frame (or ECEF).
 
         Use ENU for drawing (three.js and embree use float32: ECEF magnitudes

@@ -20,12 +20,14 @@ Two surfaces of "height h_T":
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.geodesy.ellipsoid import A, B, ecef_to_geodetic, up_normal_ecef
 from geoloc.status import Status
-from geoloc.surfaces.base import GroundPoint, LineOfSight
+from geoloc.surfaces.base import GroundPoint, LineOfSight, Surface
 
 
 @dataclass(frozen=True)
@@ -50,7 +52,7 @@ class EllipsoidHit:
     iterations: np.ndarray
 
 
-def ray_inflated_ellipsoid(origin, direction, h):
+def ray_inflated_ellipsoid(origin: ArrayLike, direction: ArrayLike, h: ArrayLike) -> EllipsoidHit:
     """Nearest forward intersection with the ellipsoid (a+h, a+h, b+h) [Q17 eq. 10-11].
 
     Substituting P = O + s d in (x^2 + y^2)/(a+h)^2 + z^2/(b+h)^2 = 1 gives
@@ -102,7 +104,9 @@ def ray_inflated_ellipsoid(origin, direction, h):
     return EllipsoidHit(s, p, status, np.zeros(shape, dtype=np.int32))
 
 
-def ray_geodetic_height(origin, direction, h, tol_m: float = 1e-6, max_iter: int = 20):
+def ray_geodetic_height(
+    origin: ArrayLike, direction: ArrayLike, h: ArrayLike, tol_m: float = 1e-6, max_iter: int = 20
+) -> EllipsoidHit:
     """Nearest forward intersection with the surface of constant geodetic height h.
 
     Newton iteration on the ray parameter, started at the inflated-ellipsoid
@@ -158,7 +162,7 @@ def ray_geodetic_height(origin, direction, h, tol_m: float = 1e-6, max_iter: int
     return EllipsoidHit(s, o + s[..., None] * d, status, iters)
 
 
-def ray_at_height(origin, direction, h, height_kind: str = "inflated"):
+def ray_at_height(origin: ArrayLike, direction: ArrayLike, h: ArrayLike, height_kind: str = "inflated") -> EllipsoidHit:
     """Dispatch to the inflated [Q17 eq. 11] or exact geodetic-height surface."""
     if height_kind == "inflated":
         return ray_inflated_ellipsoid(origin, direction, h)
@@ -167,7 +171,7 @@ def ray_at_height(origin, direction, h, height_kind: str = "inflated"):
     raise ValueError(f"height_kind must be 'inflated' or 'geodetic', got {height_kind!r}")
 
 
-def intersect_los_height(los: LineOfSight, target_h, height_kind: str = "inflated") -> GroundPoint:
+def intersect_los_height(los: LineOfSight, target_h: ArrayLike, height_kind: str = "inflated") -> GroundPoint:
     """Intersect lines of sight with the surface of height ``target_h`` [Q17 eq. 10-13].
 
     Parameters
@@ -210,10 +214,10 @@ class HeightSurface:
     #: no second intersection: :class:`geoloc.pipeline.Pipeline`).
     constant_height = True
 
-    def __init__(self, h, kind: str = "inflated"):
+    def __init__(self, h: ArrayLike, kind: str = "inflated"):
         if kind not in HEIGHT_KINDS:
             raise ValueError(f"height surface kind = {kind!r}: must be one of {HEIGHT_KINDS}")
-        self.h = h
+        self.h: ArrayLike = h  # as given: one height, or one per ray (per record: an array, below)
         self.kind = kind
 
     def intersect(self, los: LineOfSight) -> GroundPoint:
@@ -240,13 +244,15 @@ class PerRecordHeightSurface(HeightSurface):
         As :class:`HeightSurface`.
     """
 
-    def __init__(self, h, kind: str = "inflated"):
+    h: np.ndarray  # one height per record (1-D), checked here
+
+    def __init__(self, h: ArrayLike, kind: str = "inflated"):
         h = np.asarray(h, float)
         if h.ndim != 1:
             raise ValueError(f"per-record heights must be one height per record (1-D), got shape {h.shape}")
         super().__init__(h, kind)
 
-    def take(self, idx) -> "PerRecordHeightSurface":
+    def take(self, idx: Any) -> "PerRecordHeightSurface":
         """The surface of the records ``idx`` (indices into this one's records)."""
         idx = np.asarray(idx)
         return PerRecordHeightSurface(self.h[idx if idx.size else idx.astype(int)], self.kind)
@@ -255,7 +261,7 @@ class PerRecordHeightSurface(HeightSurface):
         return f"PerRecordHeightSurface({len(self.h)} heights, kind={self.kind!r})"
 
 
-def for_records(surface, idx):
+def for_records(surface: Surface, idx: Any) -> Surface:
     """The surface of the records ``idx``: a per-record surface's :meth:`~PerRecordHeightSurface.take`,
     any other surface itself (it is the same for every record)."""
     return surface.take(idx) if isinstance(surface, PerRecordHeightSurface) else surface

@@ -51,11 +51,13 @@ from __future__ import annotations
 
 import warnings
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.geodesy.ellipsoid import A, B, ecef_to_geodetic
 from geoloc.geodesy.geoid import NodeGrid, egm96_undulation
@@ -63,6 +65,9 @@ from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight
 from geoloc.surfaces.dem import DATUMS, DEM
 from geoloc.userfiles import note_input
+
+if TYPE_CHECKING:  # the terrain module imports this one
+    from geoloc.surfaces.terrain import TerrainHit
 
 #: Default bound of the tile cache [bytes] (64 MiB: 2.2 M float64 nodes, a sixth of a 1'' SRTM tile).
 DEFAULT_CACHE_BYTES = 64 * 2**20
@@ -104,7 +109,7 @@ class TileCache:
         self.bytes_used = self.peak_bytes = 0
         self.hits = self.misses = self.evictions = 0
 
-    def get(self, key, load):
+    def get(self, key: Any, load: Callable[[], np.ndarray]) -> np.ndarray:
         """The block of ``key``; ``load()`` reads it on a miss."""
         if key in self._d:
             self._d.move_to_end(key)
@@ -383,7 +388,7 @@ class DemMosaic:
             ds = self._open[k] = rasterio.open(self.sources[k].path)
         return ds
 
-    def with_solver(self, method: str | None = None, dem_model: str | None = None, **options) -> "DemMosaic":
+    def with_solver(self, method: str | None = None, dem_model: str | None = None, **options: Any) -> "DemMosaic":
         """The same mosaic (files, cache, heights) solving with another method / dem_model / options."""
         from geoloc.surfaces.terrain import DEM_MODELS, METHODS
 
@@ -474,7 +479,7 @@ class DemMosaic:
             raise ValueError(f"DEM mosaic of {len(self.paths)} file(s) ({self.paths[0]}, ...) has no data at all")
         return lo, hi
 
-    def window_nodes(self, r0, r1, c0, c1) -> np.ndarray:
+    def window_nodes(self, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
         """Heights as read (before N) of global nodes rows r0..r1, columns c0..c1 (inclusive); NaN: no data."""
         out = np.full((r1 - r0 + 1, c1 - c0 + 1), np.nan)
         b = self.block
@@ -495,7 +500,7 @@ class DemMosaic:
                     dst[empty] = src[empty]
         return out
 
-    def window_dem(self, r0, r1, c0, c1) -> DEM:
+    def window_dem(self, r0: int, r1: int, c0: int, c1: int) -> DEM:
         """The :class:`DEM` of global nodes rows r0..r1, columns c0..c1 (inclusive), as ``DEM.open`` reads it."""
         nr, nc = self.shape
         r0, r1 = int(max(r0, 0)), int(min(r1, nr - 1))
@@ -527,7 +532,7 @@ class DemMosaic:
         # merged raster (the walk calls a ray LEFT_DEM when it starts off the grid)
         return DEM.from_grid(grid, "EPSG:4326", self.datum, label, height_range_m=(self.min_h, self.max_h))
 
-    def region_dem(self, region_deg) -> DEM:
+    def region_dem(self, region_deg: tuple[float, float, float, float]) -> DEM:
         """The :class:`DEM` of the nodes of every cell touching ``(west, south, east, north)`` [deg]."""
         w, s, e, n = (float(x) for x in region_deg)
         if not (w <= e and s <= n):
@@ -601,7 +606,7 @@ class DemMosaic:
         return out
 
     # ------------------------------------------------------------------ sampling
-    def sample(self, lat, lon):
+    def sample(self, lat: ArrayLike, lon: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Ellipsoidal height and status at geodetic points [rad], as :meth:`DEM.sample`.
 
         Returns
@@ -633,7 +638,7 @@ class DemMosaic:
                 h[idx[g]], st[idx[g]] = hh, ss
         return h.reshape(shape), st.reshape(shape)
 
-    def height(self, lat, lon):
+    def height(self, lat: ArrayLike, lon: ArrayLike) -> np.ndarray:
         """Bilinear ellipsoidal height [m] at geodetic (lat, lon) [rad]; NaN outside / no data."""
         return self.sample(lat, lon)[0]
 
@@ -679,7 +684,7 @@ class DemMosaic:
         box[:, 1], box[:, 3] = np.minimum(box[:, 1], nr - 1), np.minimum(box[:, 3], nc - 1)
         return box.astype(np.int64)
 
-    def intersect(self, los: LineOfSight):
+    def intersect(self, los: LineOfSight) -> TerrainHit:
         """First visible crossing of each line of sight with the mosaic (the ``Surface`` interface).
 
         Region by region, :func:`geoloc.surfaces.terrain.intersect_dem` with this mosaic's

@@ -21,10 +21,16 @@ walk to it (docs/terrain.md, "Where embree and the walk differ").
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from geoloc.surfaces.dem import DEM
 
 _LD = np.longdouble
 
@@ -118,7 +124,7 @@ def _moller_trumbore(o, d, a, b, c):
     return t, inside
 
 
-def window_around(dem, points_ecef, pad_cells: int = 3):
+def window_around(dem: DEM, points_ecef: ArrayLike, pad_cells: int = 3) -> tuple[int, int, int, int]:
     """The cells (row0, row1, col0, col1; half-open) spanning ``points_ecef`` (..., 3) plus
     ``pad_cells`` on each side, clipped to the grid. Latitude and longitude by pyproj."""
     if not dem.is_geographic:
@@ -139,7 +145,9 @@ def window_around(dem, points_ecef, pad_cells: int = 3):
     return r0, r1, c0, c1
 
 
-def referee_first_hit(dem, origin_ecef, direction_ecef, window) -> RefereeHit:
+def referee_first_hit(
+    dem: DEM, origin_ecef: ArrayLike, direction_ecef: ArrayLike, window: tuple[int, int, int, int]
+) -> RefereeHit:
     """The first hit of one ray on the triangles of the cells in ``window``.
 
     Parameters
@@ -192,7 +200,9 @@ def referee_first_hit(dem, origin_ecef, direction_ecef, window) -> RefereeHit:
     return best
 
 
-def referee_triangle(dem, origin_ecef, direction_ecef, nodes) -> RefereeHit:
+def referee_triangle(
+    dem: DEM, origin_ecef: ArrayLike, direction_ecef: ArrayLike, nodes: Sequence[tuple[int, int]]
+) -> RefereeHit:
     """Where one ray meets the plane of one triangle (three (row, column) nodes), and by how
     much it is inside (``inside_m`` > 0) or outside (< 0) the triangle there."""
     o, d = _unit_ray(origin_ecef, direction_ecef)
@@ -206,7 +216,15 @@ def referee_triangle(dem, origin_ecef, direction_ecef, nodes) -> RefereeHit:
     return RefereeHit(float(t), float(inside), cell, nodes)
 
 
-def judge(dem, origin_ecef, direction_ecef, hit_a_ecef, hit_b_ecef, pad_cells: int = 3, tol_m: float = 1e-6):
+def judge(
+    dem: DEM,
+    origin_ecef: ArrayLike,
+    direction_ecef: ArrayLike,
+    hit_a_ecef: ArrayLike,
+    hit_b_ecef: ArrayLike,
+    pad_cells: int = 3,
+    tol_m: float = 1e-6,
+) -> tuple[str, RefereeHit]:
     """Which of two solvers' first hits of one ray the referee finds: ``"a"``, ``"b"``,
     ``"both"`` (within ``tol_m`` of each other and of the referee) or ``"neither"``.
 

@@ -15,10 +15,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.surfaces.base import is_mosaic
+
+if TYPE_CHECKING:
+    from geoloc.surfaces.base import Surface
 
 
 @dataclass(frozen=True)
@@ -84,9 +89,13 @@ class SurfaceSpec:
         if isinstance(self.dem, tuple) or Path(self.dem).is_dir() or self.dem.lower().endswith(".vrt"):
             shown = ", ".join(self.dem) if isinstance(self.dem, tuple) else self.dem
             raise ValueError(f"{what} {shown} is a mosaic: this reads one DEM raster, not a mosaic")
-        return terrain_of(self.build())
+        from geoloc.surfaces.dem import DEM
 
-    def build(self, heights=None, *, whole: bool = False):
+        raster = terrain_of(self.build())
+        assert raster is None or isinstance(raster, DEM)  # one raster file: a mosaic was refused above
+        return raster
+
+    def build(self, heights: ArrayLike | None = None, *, whole: bool = False) -> Surface:
         """The :class:`~geoloc.surfaces.base.Surface`: the DEM if one is named, else the heights.
 
         Parameters

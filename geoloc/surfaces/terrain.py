@@ -24,18 +24,20 @@ Conventions: ``docs/conventions.md``. Batch functions return NaN and a
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.geodesy.ellipsoid import E2, A, B, ecef_to_geodetic, prime_vertical_radius
 from geoloc.status import Status
-from geoloc.surfaces.base import GroundPoint, LineOfSight, is_mosaic
+from geoloc.surfaces.base import GroundPoint, LineOfSight, Surface, is_mosaic
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import ray_inflated_ellipsoid
 
 if TYPE_CHECKING:  # numba's import is a start-up cost the walk's first call pays, not this module's
+    from geoloc.surfaces.mosaic import DemMosaic  # (and the mosaic module imports this one)
     from geoloc.surfaces.terrain_numba import WalkGrid
 
 METHODS = ("steps", "bisect", "exact")
@@ -87,7 +89,7 @@ class TerrainTrace:
     cell: np.ndarray
     count: np.ndarray
 
-    def ray(self, index=()):
+    def ray(self, index: Any = ()) -> dict[str, np.ndarray]:
         """The trace of one ray as a dict of 1-D arrays (``index`` into the batch)."""
         n = int(np.asarray(self.count)[index])
         out = {}
@@ -115,8 +117,9 @@ class TerrainHit(GroundPoint):
     trace : TerrainTrace or None
     """
 
-    dem_evaluations: np.ndarray = None
-    hidden: np.ndarray = None
+    # keyword-only: every hit has them, and they follow the base class's fields that have defaults
+    dem_evaluations: np.ndarray = field(kw_only=True)
+    hidden: np.ndarray = field(kw_only=True)
     method: str = ""
     dem_model: str = ""
     trace: TerrainTrace | None = None
@@ -157,7 +160,7 @@ def _ground(dem: DEM, p):
 ABOVE_TEST_MAX_M = 100_000.0
 
 
-def below_terrain(o, st, dem, h_max=None) -> None:
+def below_terrain(o: np.ndarray, st: np.ndarray, dem: DEM | DemMosaic, h_max: float | None = None) -> None:
     """Set BELOW_TERRAIN (in place, in ``st``) for the rays still OK whose origin ``o`` (ECEF, (n, 3))
     is below the DEM's height under it. ``h_max``: the DEM's highest node [m] when known
     (:meth:`DEM.max_height` otherwise, a scan of every node of a DEM that is not a window).
@@ -423,7 +426,7 @@ def _exact_tables(dem: DEM):
 BLOCK_GROUND_M = 100.0
 
 
-def block_cells(dlat, dlon, lat):
+def block_cells(dlat: float, dlon: float, lat: float) -> int:
     """Cells per side of the walk's blocks on a grid of ``dlat`` x ``dlon`` rad cells at
     latitude ``lat``: the nearest to :data:`BLOCK_GROUND_M` metres of ground (the cell's side
     taken as the geometric mean of its two), at least
@@ -459,7 +462,7 @@ def _block_tables(cmax, block, h_floor):
     return binv, hinv, hlev
 
 
-def hierarchy_levels(bmax):
+def hierarchy_levels(bmax: np.ndarray) -> list[np.ndarray]:
     """The min/max hierarchy above the blocks: level k (k = 1, 2, ...) holds the highest
     node of each 2^k x 2^k group of blocks (block x 2^k cells, the block side of
     :func:`block_cells`), halving the rows and columns (rounded up) until one node is left.
@@ -516,7 +519,7 @@ CLIMB = "auto"
 CLIMB_MIN_NODES = 2.0
 
 
-def climbs(o, d, tab) -> bool:
+def climbs(o: np.ndarray, d: np.ndarray, tab: dict) -> bool:
     """Whether :func:`_exact` hands the walk its levels above the blocks (:data:`CLIMB`).
 
     A ray crosses the DEM's height range (its lowest to its highest node, plus the margins)
@@ -788,7 +791,7 @@ def random_oblique_rays(
     dem: DEM,
     n: int,
     rng: np.random.Generator,
-    frame_angle_deg=(45.0, 82.0),
+    frame_angle_deg: tuple[float, float] = (45.0, 82.0),
     clearance_m: float = 1500.0,
     inner: float = 0.5,
 ) -> LineOfSight:
@@ -807,7 +810,8 @@ def random_oblique_rays(
     lat = np.deg2rad(rng.uniform(cy - hh, cy + hh, n))
     lon = np.deg2rad(rng.uniform(cx - hw, cx + hw, n))
     hT = dem.height(lat, lon)
-    off = np.deg2rad(rng.uniform(*frame_angle_deg, n))
+    off_min_deg, off_max_deg = frame_angle_deg
+    off = np.deg2rad(rng.uniform(off_min_deg, off_max_deg, n))
     az = rng.uniform(0, 2 * np.pi, n)
     d_enu = np.stack([np.sin(az) * np.sin(off), np.cos(az) * np.sin(off), -np.cos(off)], -1)
     d = np.einsum("...ij,...j->...i", R_ecef_enu(lat, lon), d_enu)
@@ -830,7 +834,7 @@ class DemSurface:
         ``eps_h``, ``threshold``, ``trace``, ``max_iter``, ``parallel`` of :func:`intersect_dem`.
     """
 
-    def __init__(self, dem: DEM, method: str = "exact", dem_model: str = "bilinear", **options):
+    def __init__(self, dem: DEM, method: str = "exact", dem_model: str = "bilinear", **options: Any):
         if method not in METHODS:
             raise ValueError(f"DEM method = {method!r}: must be one of {METHODS}")
         self.dem, self.method, self.dem_model, self.options = dem, method, dem_model, options
@@ -861,13 +865,14 @@ class DemElseHeight:
     #: The DEM's statuses that fall back to the height.
     FALLBACK = (Status.LEFT_DEM, Status.NODATA)
 
-    def __init__(self, dem_surface, height_surface):
+    def __init__(self, dem_surface: DemSurface | DemMosaic, height_surface: Surface):
         self.dem_surface, self.height_surface = dem_surface, height_surface
 
     @property
-    def dem(self):
+    def dem(self) -> DEM | DemMosaic:
         """The DEM source read (:func:`geoloc.surfaces.base.terrain_of`)."""
-        return self.dem_surface if is_mosaic(self.dem_surface) else self.dem_surface.dem
+        d = self.dem_surface
+        return d.dem if isinstance(d, DemSurface) else d
 
     def intersect(self, los: LineOfSight) -> GroundPoint:
         g = self.dem_surface.intersect(los)
@@ -888,16 +893,16 @@ class DemElseHeight:
 
 
 def surface_for(
-    target_h=None,
-    dem: DEM | None = None,
+    target_h: ArrayLike | None = None,
+    dem: DEM | DemMosaic | None = None,
     *,
     method: str = "exact",
     kind: str = "inflated",
     dem_model: str = "bilinear",
     per_record: bool = False,
     else_height: bool = False,
-    **options,
-):
+    **options: Any,
+) -> Surface:
     """The one place the "constant height or DEM" choice is made: a DEM if given, else a height.
 
     Parameters
@@ -929,9 +934,9 @@ def surface_for(
         height = PerRecordHeightSurface(target_h, kind) if per_record else HeightSurface(target_h, kind)
     if dem is not None:
         terrain = (
-            dem.with_solver(method, dem_model, **options)
-            if is_mosaic(dem)  # a surface itself
-            else DemSurface(dem, method, dem_model, **options)
+            DemSurface(dem, method, dem_model, **options)
+            if isinstance(dem, DEM)
+            else dem.with_solver(method, dem_model, **options)  # a mosaic: a surface itself
         )
         return DemElseHeight(terrain, height) if else_height and height is not None else terrain
     if height is None:

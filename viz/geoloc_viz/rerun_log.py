@@ -75,6 +75,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from geoloc.assets import ASSETS
+from geoloc.frames.enu import EnuFrame
 from geoloc.status import Status, describe
 from geoloc.userfiles import atomic_path
 from geoloc_viz.rerun_model import LogSteps
@@ -161,7 +162,8 @@ def series_values(steps: LogSteps) -> dict:
         series["error/horizontal_m"] = steps.components["horizontal_m"]
         for c in COMPONENT_SERIES:
             series[f"error/{c}"] = steps.components[c]
-        series["outlier/flag"] = steps.outlier.astype(float)
+        if steps.outlier is not None:
+            series["outlier/flag"] = steps.outlier.astype(float)
     if steps.calibration is not None:
         for c in ("before_m", "after_m", "after_along_m", "after_across_m"):
             series[f"calibration/{c}"] = steps.calibration[c]
@@ -228,7 +230,7 @@ def blueprint(steps: LogSteps) -> rrb.Blueprint:
     """Default layout: per flight a 3D scene following the current hit and a 2D target / truth plot
     (tabs when there are several flights), the map, the record log; the time series on the right,
     heading apart from pitch and roll, each view showing every flight (one entity per flight)."""
-    series = []
+    series: list[rrb.View] = []
     for title, cat, names in series_views(steps):
         if steps.multi:
             series.append(
@@ -528,7 +530,7 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
         indexes=_index(steps),
         columns=rr.TextLog.columns(text=text, level=["WARN" if f else "INFO" for f in flag]),
     )
-    if np.any(flag):
+    if np.any(flag) and steps.components is not None:  # the flags are of the horizontal error
         hor = steps.components["horizontal_m"]
         notes = []
         for k in np.flatnonzero(flag):
@@ -578,12 +580,15 @@ def log_images(rec: rr.RecordingStream, steps: LogSteps, cam: str, m) -> None:
     from geoloc.io.photos import scale_lens
     from geoloc.sensors.lenses import lens_from_fov
 
+    images = steps.images
+    if images is None:
+        return
     base = steps.camera.lens
     idx = np.asarray(steps.image_index)
     fov = steps.image_fov_deg
     cache = {}
     for k in np.flatnonzero(m & (idx >= 0)):
-        a = np.asarray(steps.images.image(int(idx[k])))
+        a = np.asarray(images.image(int(idx[k])))
         rows, cols = a.shape[:2]
         hv = tuple(fov[k]) if fov is not None and np.all(np.isfinite(fov[k])) else None
         key = (hv, rows, cols)
@@ -696,7 +701,9 @@ def _log_corners(rec, steps: LogSteps, g, m) -> None:
     """Each step's image footprint (its four corners on the surface it was located on, a closed
     ring) as ``world/corners`` (ENU, float32) and ``map/corners`` (latitude and longitude, float64)."""
     c = steps.corners
-    lat, lon, h = (np.asarray(c[k], float) for k in ("lat_deg", "lon_deg", "h_m"))
+    if c is None:
+        return
+    lat, lon, h = (np.asarray(c[k], dtype=np.float64) for k in ("lat_deg", "lon_deg", "h_m"))
     good = m & np.all(np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h), axis=-1)
     if not np.any(good):
         return
@@ -805,7 +812,7 @@ def _write(steps, out, display_scale, serve, grpc_port, grpc_host, stream_port=N
         # or a read-only folder is an OSError naming the file (rerun's file-writer thread
         # printed its own error lines, then flush() raised "File-writer thread shut down prematurely"
         # or, in a process that had written recordings before, waited forever)
-        stream = rec.binary_stream()
+        stream = rr.binary_stream(recording=rec)
         rec.send_blueprint(blueprint(steps), make_active=False, make_default=True)
         log_steps(rec, steps, display_scale=display_scale)
         rec.flush()
@@ -814,7 +821,7 @@ def _write(steps, out, display_scale, serve, grpc_port, grpc_host, stream_port=N
         with open(out, "wb") as fh:
             fh.write(data)
         return rec
-    sinks = []
+    sinks: list[rr.FileSink | rr.GrpcServerSink | rr.GrpcSink] = []
     if out is not None:
         sinks.append(rr.FileSink(str(out)))
     if serve:
@@ -1051,10 +1058,10 @@ class LiveRecording:
         self.kw = dict(method=method, eps_h_m=eps_h_m, threshold_m=threshold_m)
         self.dem = SurfaceSpec(dem=dem_path, dem_datum=dem_datum).raster()  # once a session
         self.display_scale = float(display_scale)
-        self.sinks = dict(serve=serve, grpc_port=grpc_port, grpc_host=grpc_host, spawn=spawn)
-        self.rec = None
-        self.enu = None
-        self.t0_s = None
+        self.serve, self.grpc_port, self.grpc_host, self.spawn = serve, int(grpc_port), str(grpc_host), spawn
+        self.rec: rr.RecordingStream | None = None
+        self.enu: EnuFrame | None = None
+        self.t0_s: float | None = None
         self.steps_total = 0
         self.located_total = 0
         self.seq = 0  # packets received (good and bad, as the live replay numbers them)
@@ -1063,21 +1070,20 @@ class LiveRecording:
         self._acc: deque = deque(maxlen=int(window))  # per step: (aircraft, target, reported, label, flag)
         self.timelines = ()
 
-    def _open(self, steps) -> None:
+    def _open(self, steps) -> rr.RecordingStream:
         rec = rr.RecordingStream("geoloc", recording_id=recording_id(steps))
-        sinks = []
+        sinks: list[rr.FileSink | rr.GrpcServerSink | rr.GrpcSink] = []
         if self.out is not None:
             sinks.append(rr.FileSink(str(self.out)))
-        s = self.sinks
-        if s["serve"]:
-            sinks.append(rr.GrpcServerSink(bind_ip=s["grpc_host"], port=s["grpc_port"]))
-        if s["spawn"]:
-            port = s["grpc_port"] + 1 if s["serve"] else s["grpc_port"]
-            sinks.append(rr.GrpcSink(spawn_viewer(s["grpc_host"], port)))
+        if self.serve:
+            sinks.append(rr.GrpcServerSink(bind_ip=self.grpc_host, port=self.grpc_port))
+        if self.spawn:
+            port = self.grpc_port + 1 if self.serve else self.grpc_port
+            sinks.append(rr.GrpcSink(spawn_viewer(self.grpc_host, port)))
         if not sinks:
             raise ValueError("nothing to write to: give an output file, serve or spawn")
         rec.set_sinks(*sinks, default_blueprint=blueprint(steps))
-        self.rec = rec
+        return rec
 
     def add(self, results) -> int:
         """Log one batch (a list of results); returns the steps logged (0: no good packet in it)."""
@@ -1090,8 +1096,8 @@ class LiveRecording:
         if not any(isinstance(r, Packet) for r in results):
             return 0
         if self.t0_s is None:
-            t = [r.fields.get("precision_time_stamp_us") for r in results if isinstance(r, Packet)]
-            t = np.asarray([np.nan if v is None else v / 1e6 for v in t], float)
+            us = [r.fields.get("precision_time_stamp_us") for r in results if isinstance(r, Packet)]
+            t = np.asarray([np.nan if v is None else v / 1e6 for v in us], float)
             self.t0_s = float(np.nanmin(t)) if np.any(np.isfinite(t)) else 0.0
 
         def causal(err):  # the batch's residuals after those received before it (the live replay's rule)
@@ -1113,26 +1119,29 @@ class LiveRecording:
         if self.enu is None:
             self.enu = steps.enu
         if self.rec is None:
-            self._open(steps)
-        log_steps(self.rec, steps, display_scale=self.display_scale)
+            self.rec = self._open(steps)
+        rec = self.rec
+        log_steps(rec, steps, display_scale=self.display_scale)
         n = len(steps)
         ac, tgt = steps.aircraft_enu, steps.target_enu
-        pub = steps.geodetic_enu(steps.published["lat_deg"], steps.published["lon_deg"], steps.published["h_m"])
+        p = steps.published
+        # steps_from_klv always gives the published position (the packets' frame centres)
+        pub = steps.geodetic_enu(p["lat_deg"], p["lon_deg"], p["h_m"]) if p is not None else np.full((n, 3), np.nan)
         lat, lon = np.rad2deg(np.broadcast_to(steps.pose.lat, (n,))), np.rad2deg(np.broadcast_to(steps.pose.lon, (n,)))
         flag = steps.outlier if steps.outlier is not None else np.zeros(n, bool)
         for k in range(n):
             self._acc.append((ac[k], tgt[k], pub[k], steps.labels[k], bool(flag[k]), lat[k], lon[k]))
-        self._log_whole_flight()
-        self.rec.flush()
+        self._log_whole_flight(rec)
+        rec.flush()
         self.steps_total += n
         self.located_total += int((steps.ground.status == 0).sum())
         self.timelines = tuple(steps.timelines)
         return n
 
-    def _log_whole_flight(self) -> None:
+    def _log_whole_flight(self, rec: rr.RecordingStream) -> None:
         """The static drawings of every packet received (the window): those :func:`log_steps` drew
         for the batch alone (one flight: entity roots ``world``, ``map``, ``plot``)."""
-        rec, f32 = self.rec, np.float32
+        f32 = np.float32
         ac, tgt, pub, labels, flag, lat, lon = (np.asarray(x) for x in zip(*self._acc))
         tgt, pub = tgt.astype(float), pub.astype(float)
         flag = flag.astype(bool)

@@ -41,6 +41,7 @@ from geoloc.frames.chain import Pose
 from geoloc.frames.enu import EnuFrame
 from geoloc.frames.graph import BoundFrames
 from geoloc.geodesy.geodesic import horizontal_distance_m
+from geoloc.io.images import ImageSource
 from geoloc.io.records import load_records
 from geoloc.locate import as_sensor, line_of_sight  # as_sensor: the steps_from_* entrances
 from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
@@ -126,7 +127,7 @@ class LogSteps:
     calibration: dict | None = None
     #: Each step's picture (what the camera saw): an ImageSource, the image index of each step (-1: none) and
     #: each step's fields of view [deg] (horizontal, vertical) for its pinhole at the image's size.
-    images: object = None
+    images: ImageSource | None = None
     image_index: np.ndarray | None = None
     image_fov_deg: np.ndarray | None = None
     #: Each step's image corners on the surface it was located on (a KLV replay's):
