@@ -36,7 +36,7 @@ def module_at(rev: str, relpath: str):
 
 #: Where whole copies of the package at other revisions are kept (``package_at``): one folder per
 #: commit (or per content of a folder), reused by the next run, so numba's cache of the copy's
-#: kernels (keyed on the copy's path, issue 32's cache_dir) stays warm after the first compile.
+#: kernels (keyed on the copy's path: numba's cache_dir) stays warm after the first compile.
 CACHE = Path(
     os.environ.get("GEOLOC_GUARD_CACHE")
     or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "geoloc" / "guard"

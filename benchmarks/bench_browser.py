@@ -1,4 +1,4 @@
-"""The viewer in a real browser (issue 34 item 5): time to a fully rendered canvas, and to a timeline step.
+"""The viewer in a real browser: time to a fully rendered canvas, and to a timeline step.
 
 One command: ``python benchmarks/bench_browser.py [--repeat 3] [--steps 5]``.
 
@@ -76,7 +76,7 @@ def _browser_cpu_s() -> tuple[float, float]:
 #: (``drawImage`` of a WebGL canvas copies the frame last presented), hashes its pixels and, when
 #: the hash changes, appends ``[Date.now(), hash, distinct colours]`` to ``window.__geolocFrames``.
 #: About 10 ms a probe here; a Playwright screenshot of the canvas costs 0.8 s, so a wait by
-#: screenshots measured mostly itself (issue 34, stop 40).
+#: screenshots measured mostly itself.
 PROBE_MS = 50
 PROBE = (
     """(() => {

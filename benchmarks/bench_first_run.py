@@ -6,7 +6,7 @@ new empty folder (cold: numba compiles every kernel the call needs) and then aga
 folder filled (warm). ``view`` counts until it serves (its "geoloc view: http://..." line),
 then is stopped. For each the child's wall time, CPU time (user + system, from
 ``os.wait4``'s rusage, or /proc/PID/stat for the server still running) and peak RSS
-(``ru_maxrss`` / VmHWM). The issue's target (issue 32): the first call of each verb within
+(``ru_maxrss`` / VmHWM). The target: the first call of each verb within
 10 s and 500 MB. ``geoloc warm`` (tools/run.sh) compiles them ahead of that first call.
 
 Run: ``python benchmarks/bench_first_run.py [--repeat N] [--only locate,replay,view,scene]``
@@ -158,7 +158,7 @@ def main(argv=None) -> int:
             f"{m['cpu'][1]:10.1f} {m['rss_mb'][1]:11.0f} {m['wall'][0] / m['wall'][1]:14.1f}",
             flush=True,
         )
-    print("target (issue 32): cold within 10 s and 500 MB")
+    print("target: cold within 10 s and 500 MB")
     return 0
 
 

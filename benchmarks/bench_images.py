@@ -1,4 +1,4 @@
-"""Speed and memory of the pictures (issue 28): frame switching, an hour of video, a frame's ortho.
+"""Speed and memory of the pictures: frame switching, an hour of video, a frame's ortho.
 
 One command: ``python benchmarks/bench_images.py [--repeat 5] [--hour-s 3600] [--size 1280x720]``
 (``--size``: the switch video's and the ortho frame's pixels, for a quick check; the targets are

@@ -1,6 +1,6 @@
 """Benchmark of the vectorised Monte Carlo (geoloc.analysis.montecarlo) on the [Q17] Table 1-2 scenario.
 
-Goals (issue 4, medians on the 2-core machine):
+Goals (medians on the 2-core machine):
 * N = 5000 with a DEM (target on the bundled ETOPO5 crop) <= 0.5 s;
 * 1 M samples on the ellipsoid <= 30 s.
 

@@ -3,7 +3,7 @@
 Each command runs as a new process (the start-up is what is measured), ``--repeat`` times,
 alternating with the peer: a bare ``python -c "import numpy"``, the floor any numpy tool
 starts from. Printed: median wall time, median CPU time (the child's user + system), peak
-RSS, the machine's load, and the ratio of ours to the peer last. Goals (issue 49): help in
+RSS, the machine's load, and the ratio of ours to the peer last. Goals: help in
 0.3 s or less, a warm one-pixel locate in 0.5 s or less. ``--importtime`` also prints the
 ten slowest imports of the one-pixel locate (``python -X importtime``).
 

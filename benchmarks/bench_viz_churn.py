@@ -1,6 +1,6 @@
 """Server memory under connection churn: ``python benchmarks/bench_viz_churn.py [N]``.
 
-Issue 20 item 5 (and issue 16 item 4): a ``geoloc view`` server (a
+Tabs that come and go: a ``geoloc view`` server (a
 :class:`geoloc_viz.app.GeolocViewer`, one session per tab) is connected to and
 dropped by ``N`` (default 500) clients over loopback, a few at a time. Each client
 speaks viser's own protocol over ``websockets`` (no browser): it opens the

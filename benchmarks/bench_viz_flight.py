@@ -1,4 +1,4 @@
-"""Speed of the flight debugger (issue 16 item 6): a 10 000-frame flight opens in <= 3 s, a timeline step <= 100 ms.
+"""Speed of the flight debugger: a 10 000-frame flight opens in <= 3 s, a timeline step <= 100 ms.
 
 One command: ``python benchmarks/bench_viz_flight.py [--frames 10000] [--repeat 3]``.
 

@@ -147,7 +147,7 @@ TARGETS = [
         "geoloc/sensors/frame.py",
         ("tests/sensors/test_gimbals.py", "tests/sensors/test_sensors.py", "tests/pipeline/test_locate.py"),
     ),
-    # the one calibrator (analysis/calibrate.py, the first-phase camera's, is gone: issue 31)
+    # the one calibrator (analysis/calibrate.py, the first-phase camera's, is gone: one model of each thing)
     Target(
         "sensor_fit",
         "geoloc/analysis/sensor_fit.py",
@@ -157,7 +157,7 @@ TARGETS = [
             "tests/analysis/test_calibrate.py",
         ),
     ),
-    # the last phase (issue 50): the fastest test that covers each first (pytest -x stops there)
+    # the last phase: the fastest test that covers each first (pytest -x stops there)
     Target("uncertainty", "geoloc/analysis/uncertainty.py", UNCERTAINTY_TESTS, kills=False),
     Target(
         "triangulate",

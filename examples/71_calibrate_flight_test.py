@@ -1,6 +1,6 @@
 """71: the [Q17] flight test, debugged: ~50 m systematic errors, a fitted mounting rotation, ~6 m honest.
 
-Runs the calibration of issue 8 on the bundled records (assets/records/
+Runs the mounting calibration on the bundled records (assets/records/
 qiao2017_flight_tests.csv) with the target heights of `paper_height_m`:
 per flight (one mounting rotation each) and jointly (one rotation for both
 flights), with leave-one-out cross-validation, then draws the error vectors

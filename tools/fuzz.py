@@ -1,4 +1,4 @@
-"""The long fuzz run of every parser (issue 47, item 4): ``python tools/fuzz.py --minutes 10 --seed 0``.
+"""The long fuzz run of every parser: ``python tools/fuzz.py --minutes 10 --seed 0``.
 
 Round after round, every target of ``tests/fuzz_targets.py`` (KLV, MPEG-TS, records CSV with
 a column map, column-map TOML, sensor TOML, the five kinds of scenario TOML, photo EXIF/XMP,
