@@ -12,13 +12,13 @@ into a :class:`GroundPoint` batch. A :class:`DemSource` is a DEM raster
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Protocol, TypeGuard, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, TypeGuard, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-if TYPE_CHECKING:  # the mosaic module imports this one
-    from geoloc.surfaces.mosaic import DemMosaic
+if TYPE_CHECKING:  # a raster module that imports no surface: no cycle
+    from geoloc.surfaces.dem import DEM
 
 
 @dataclass(frozen=True)
@@ -131,10 +131,26 @@ class DemSource(Protocol):
         self, lat: ArrayLike, lon: ArrayLike
     ) -> np.ndarray: ...  # ellipsoidal height [m] at (lat, lon) [rad]; NaN off the data
 
-    def sample(self, lat: ArrayLike, lon: ArrayLike) -> np.ndarray: ...
+    def sample(self, lat: ArrayLike, lon: ArrayLike) -> tuple[np.ndarray, np.ndarray]: ...  # height [m], Status
 
 
-def is_mosaic(dem: object) -> TypeGuard[DemMosaic]:
+class MosaicSource(DemSource, Protocol):
+    """A :class:`DemSource` that is a :class:`Surface` too and solves region by region
+    (:class:`geoloc.surfaces.mosaic.DemMosaic`): what :func:`is_mosaic` tells apart. Described here so
+    that the terrain module can name it without importing the mosaic module, which imports it."""
+
+    def with_solver(
+        self, method: str | None = None, dem_model: str | None = None, **options: Any
+    ) -> "MosaicSource": ...
+
+    def intersect(self, los: LineOfSight) -> GroundPoint: ...  # a TerrainHit
+
+    def max_height(self) -> float: ...  # the highest node [m], ellipsoidal
+
+    def to_dem(self) -> DEM: ...  # the whole mosaic as one raster
+
+
+def is_mosaic(dem: object) -> TypeGuard[MosaicSource]:
     """True for a DEM mosaic: a :class:`DemSource` that is a :class:`Surface` itself and solves
     region by region within its memory bound (:class:`geoloc.surfaces.mosaic.DemMosaic`).
 

@@ -25,19 +25,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from geoloc.geodesy.ellipsoid import E2, A, B, ecef_to_geodetic, prime_vertical_radius
 from geoloc.status import Status
-from geoloc.surfaces.base import GroundPoint, LineOfSight, Surface, is_mosaic
+from geoloc.surfaces.base import GroundPoint, LineOfSight, MosaicSource, Surface, is_mosaic
 from geoloc.surfaces.dem import DEM
 from geoloc.surfaces.height import ray_inflated_ellipsoid
 
 if TYPE_CHECKING:  # numba's import is a start-up cost the walk's first call pays, not this module's
-    from geoloc.surfaces.mosaic import DemMosaic  # (and the mosaic module imports this one)
     from geoloc.surfaces.terrain_numba import WalkGrid
 
 METHODS = ("steps", "bisect", "exact")
@@ -160,7 +159,7 @@ def _ground(dem: DEM, p):
 ABOVE_TEST_MAX_M = 100_000.0
 
 
-def below_terrain(o: np.ndarray, st: np.ndarray, dem: DEM | DemMosaic, h_max: float | None = None) -> None:
+def below_terrain(o: np.ndarray, st: np.ndarray, dem: DEM | MosaicSource, h_max: float | None = None) -> None:
     """Set BELOW_TERRAIN (in place, in ``st``) for the rays still OK whose origin ``o`` (ECEF, (n, 3))
     is below the DEM's height under it. ``h_max``: the DEM's highest node [m] when known
     (:meth:`DEM.max_height` otherwise, a scan of every node of a DEM that is not a window).
@@ -841,7 +840,7 @@ class DemSurface:
 
     def intersect(self, los: LineOfSight) -> TerrainHit:
         if is_mosaic(self.dem):  # region by region, within the mosaic's memory bound
-            return self.dem.with_solver(self.method, self.dem_model, **self.options).intersect(los)
+            return cast(TerrainHit, self.dem.with_solver(self.method, self.dem_model, **self.options).intersect(los))
         return intersect_dem(los, self.dem, self.method, dem_model=self.dem_model, **self.options)
 
     def __repr__(self) -> str:
@@ -865,11 +864,11 @@ class DemElseHeight:
     #: The DEM's statuses that fall back to the height.
     FALLBACK = (Status.LEFT_DEM, Status.NODATA)
 
-    def __init__(self, dem_surface: DemSurface | DemMosaic, height_surface: Surface):
+    def __init__(self, dem_surface: DemSurface | MosaicSource, height_surface: Surface):
         self.dem_surface, self.height_surface = dem_surface, height_surface
 
     @property
-    def dem(self) -> DEM | DemMosaic:
+    def dem(self) -> DEM | MosaicSource:
         """The DEM source read (:func:`geoloc.surfaces.base.terrain_of`)."""
         d = self.dem_surface
         return d.dem if isinstance(d, DemSurface) else d
@@ -894,7 +893,7 @@ class DemElseHeight:
 
 def surface_for(
     target_h: ArrayLike | None = None,
-    dem: DEM | DemMosaic | None = None,
+    dem: DEM | MosaicSource | None = None,
     *,
     method: str = "exact",
     kind: str = "inflated",
