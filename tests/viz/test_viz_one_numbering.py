@@ -102,12 +102,18 @@ def test_clear_target_rays_is_offered_only_with_rays_to_clear(flight):
 FRAME_RX = re.compile(r"frame (\d+) of 0 \.\. (\d+) \(t ([0-9.]+) s, (packet \d+)\)")
 
 
-def _type_frame(page, idx):
-    """Type ``idx`` into the timeline's number box, as a person does (arrow keys would move the camera)."""
+def _type_frame(page, idx, shown=None):
+    """Type ``idx`` into the timeline's number box, as a person does (arrow keys would move the camera).
+
+    ``shown``: the frame the box must show first. A person types once the page has caught up with a
+    button that moved the timeline; typing before the server's update of the box reaches the page
+    lets that update overwrite what was typed (CI at a load of about 5)."""
     num = page.locator(
         "xpath=//label[normalize-space()='frame index']/ancestor::div"
         "[.//input[@inputmode='decimal']][1]//input[@inputmode='decimal']"
     )
+    if shown is not None:
+        wait_for(lambda: num.input_value(timeout=60000) == str(shown), 120, f"the frame box to show {shown}")
     num.fill(str(idx), timeout=60000)
     num.press("Enter")
 
@@ -208,7 +214,7 @@ def test_the_video_timing_fault_is_named_on_its_frames_in_chromium(flight, tmp_p
             assert "video timing fault, frames" not in _panels(page)
             page.get_by_role("button", name=re.compile("go to the video timing fault")).click(timeout=120000)
             wait_for(lambda: fl.current == PLANTED_FIRST and il.index == PLANTED_FIRST, 120, "the run's first frame")
-            _type_frame(page, 62)
+            _type_frame(page, 62, shown=PLANTED_FIRST)
             wait_for(lambda: il.index == 62, 120, "frame 62")
             page.wait_for_selector("text=/video timing fault, frames 40 \\.\\. 79/", timeout=120000)
             # frame 40's panel says the same fault: wait until the page has drawn frame 62's (the
