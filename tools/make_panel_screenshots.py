@@ -12,7 +12,6 @@ Run: ``python tools/make_panel_screenshots.py [--out docs/img]``.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import tempfile
 import time
@@ -28,7 +27,8 @@ def main(argv=None) -> int:
     ap.add_argument("--packet", default="packet 90", help="the frame to show (its label)")
     ap.add_argument("--pixel", default="273,310", help="row,col of the pixel to click (1-based)")
     args = ap.parse_args(argv)
-    from test_viz_browser import chromium, close_software_webgl_notice, wait_for
+    from make_viewer_screenshots import shot  # one way to write a screenshot: temp file, renamed
+    from test_viz_browser import chromium, wait_for
 
     from geoloc_viz.app import GeolocViewer, make_server
     from geoloc_viz.flight_model import default_flight_scenario
@@ -37,19 +37,6 @@ def main(argv=None) -> int:
     server = make_server(port=0)
     viewer = GeolocViewer(server, default_flight_scenario())
     r, c = (float(v) for v in args.pixel.split(","))
-
-    def shot(page, name):
-        path = args.out / name
-        fd, tmp = tempfile.mkstemp(suffix=".png", dir=args.out)
-        os.close(fd)
-        try:
-            close_software_webgl_notice(page)
-            page.screenshot(path=tmp, timeout=120000)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-        print(f"wrote {path}")
 
     try:
         with tempfile.TemporaryDirectory() as home, chromium(Path(home)) as browser:
@@ -89,10 +76,10 @@ def main(argv=None) -> int:
                 s = viewer.session_of(cid)
                 next(o for o in s.layers if type(o).__name__ == "PanelLayer").dd_size.value = "fit the panel"
             time.sleep(6.0)
-            shot(page, "panel_picture.png")
+            shot(page, args.out / "panel_picture.png")
             page.get_by_role("tab", name="Map").click()
             time.sleep(3.0)
-            shot(page, "panel_map.png")
+            shot(page, args.out / "panel_map.png")
             page.get_by_role("tab", name="Plots").click()
             pp = page.locator("#geoloc-plots")
             pp.wait_for(timeout=120000)
@@ -102,7 +89,7 @@ def main(argv=None) -> int:
             page.mouse.move(b["x"] + 0.22 * b["width"], b["y"] + 0.12 * b["height"])
             page.locator(".geoloc-plots-readout").wait_for(state="visible", timeout=60000)
             time.sleep(1.0)
-            shot(page, "panel_plots.png")
+            shot(page, args.out / "panel_plots.png")
     finally:
         server.stop()
     return 0

@@ -65,7 +65,8 @@ def _mypy(config_text: str, tmp_path, *paths) -> subprocess.CompletedProcess:
         cwd=ROOT,
         capture_output=True,
         text=True,
-        timeout=600,
+        # a full check is about 50 s of CPU; at a load of 20 on two cores two runs took over 600 s
+        timeout=1200,
     )
 
 
