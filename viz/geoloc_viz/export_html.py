@@ -23,7 +23,7 @@ _STYLE = (
 
 def markdown_to_html(text: str) -> str:
     """The small markdown of the viewer's panels (``**bold**``, lines, blank lines) as HTML."""
-    lines = []
+    lines: list[str] = []
     for line in text.splitlines():
         s = re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", html.escape(line.strip()))
         if s or (lines and lines[-1]):  # one blank line at most between paragraphs
