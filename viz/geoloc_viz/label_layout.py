@@ -237,7 +237,7 @@ class LabelLayout:
                 continue
             items.append((self.priority(name), name, h, home, anchor, R, t, uv[0], float(z[0]), Rc, f))
         items.sort(key=lambda it: (it[0], it[1]))
-        placed = []
+        placed: list[np.ndarray] = []
         for _, name, h, home, anchor, R, t, uv, z, Rc, f in items:
             size = handle_size_px(h)
             best = None
