@@ -25,12 +25,17 @@ import math
 import shlex
 from dataclasses import dataclass
 from datetime import datetime
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from geoloc.io.mgrs_grid import mgrs_column
 from geoloc.status import Status
 from geoloc.pipeline import NO_CORRECTIONS
+from geoloc.sensors.base import Sensor
+
+if TYPE_CHECKING:  # the model imports the viewer's layers; its type is enough here
+    from geoloc_viz.model import Inputs
 
 #: The datum of every height of a shared point.
 H_DATUM = "ellipsoidal, WGS 84"
@@ -46,8 +51,8 @@ class SharedPoint:
     h_m: float  # ellipsoidal, WGS 84
     row: float  # the pixel whose line of sight reaches it (1-based centres); NaN if none
     col: float
-    sensor: object  # the frame's sensor
-    inputs: object  # geoloc_viz.model.Inputs: the pose
+    sensor: Sensor  # the frame's sensor
+    inputs: Inputs  # the pose
     method: str  # the DEM method of the surface ("exact" for a terrain pick); ignored without a DEM
     label: str  # the record (or "custom pose")
     reproducible: bool = True  # a pixel of this frame sees the point (a hidden terrain pick: False)
