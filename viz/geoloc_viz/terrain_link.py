@@ -16,7 +16,7 @@ import numpy as np
 
 from geoloc.assets import ASSETS
 from geoloc.pipeline import Pipeline
-from geoloc.surfaces.base import terrain_of
+from geoloc.surfaces.base import GroundPoint, terrain_of
 from geoloc.surfaces.spec import SurfaceSpec
 
 from geoloc.surfaces import dem as _dem
@@ -270,6 +270,18 @@ def bent_fields(scn, los, surface, hit, raw=None) -> dict:
     return {"raw_hit_enu": scn.enu.from_ecef(raw.ecef), "bent": bent_ray(los, raw, hit, c, scn.enu)}
 
 
+def _terrain_hit(hit: GroundPoint, surface: object) -> _terrain.TerrainHit:
+    """``hit`` as the DEM solver's :class:`geoloc.surfaces.terrain.TerrainHit` (its evaluations,
+    hidden flag and trace are what the scene draws); a surface that gives a plain ground point
+    (a height, or a DEM with a height where it has no hit) is an error naming it."""
+    if not isinstance(hit, _terrain.TerrainHit):
+        raise TypeError(
+            f"terrain_geometry: surface {surface!r} gave a {type(hit).__name__}, not a TerrainHit "
+            "(a DEM surface alone: the scene draws its solver's iterations)"
+        )
+    return hit
+
+
 def terrain_geometry(scn, inp, los, surface=None) -> dict:
     """Run the chosen terrain method on ``los`` (with its trace) and express it in ENU.
 
@@ -291,7 +303,7 @@ def terrain_geometry(scn, inp, los, surface=None) -> dict:
     out = {"hmax": hmax, "hit_hmax_enu": enu.from_ecef(intersect_los_height(los, hmax).ecef)}
     surface = scene_surface(scn, inp) if surface is None else surface
     corr = scene_corrections(scn)
-    hit = Pipeline(None, surface, corr).intersect(los)
+    hit = _terrain_hit(Pipeline(None, surface, corr).intersect(los), surface)
     exact = hit if inp.method == "exact" else Pipeline(None, _terrain.DemSurface(dem, "exact"), corr).intersect(los)
     names = {
         "steps": f"descending steps [Q17], eps_h {inp.eps_h:g} m",
