@@ -13,6 +13,7 @@ Conventions: ``docs/conventions.md`` (degrees only in :class:`Inputs`, the edge)
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -146,6 +147,9 @@ class Scenario:
     #: (n, 3) each record's platform velocity, north-east-down [m/s], NaN where unknown (a KLV
     #: flight's: the KLV replay's, geoloc.workflows.klv_replay.platform_velocity_ned); None: no velocity
     record_velocity_ned: object = None
+    #: The DEM the user named (``geoloc view --dem``; None: a bundled one near the origin), kept
+    #: when another record is selected (:func:`geoloc_viz.scenario.select_record`)
+    _user_dem: str | os.PathLike[str] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
         # the viewer's one entrance for a sensor: a first-phase Camera built in Python becomes its

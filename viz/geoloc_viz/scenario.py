@@ -238,4 +238,4 @@ def select_record(scn: Scenario, idx: int) -> None:
     if scn.use_dem:
         from geoloc_viz import terrain_link
 
-        terrain_link.attach_dem(scn, getattr(scn, "_user_dem", None))
+        terrain_link.attach_dem(scn, scn._user_dem)
