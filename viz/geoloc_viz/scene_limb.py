@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import viser
@@ -59,6 +60,9 @@ from geoloc.status import Status, describe
 from geoloc.userfiles import write_bytes, write_text
 from geoloc_viz.scene_geoloc import WORLD_SCALE
 from geoloc.workflows.scenario import load_scenario
+
+if TYPE_CHECKING:
+    from geoloc.corrections.refraction import LimbRefraction
 
 DEFAULT_LIMB = ("scenarios", "tiangong2_limb.toml")
 #: Default exaggerations: the virtual ellipsoid's departure from a shell at the limb height
@@ -140,6 +144,9 @@ class LimbApp:
     tab's ``ClientHandle`` (its own scene, GUI and camera: :class:`LimbViewer`).
     """
 
+    #: The scene's ENU frame: set by the first :meth:`compute`, moved when the view's foot leaves it
+    enu: EnuFrame
+
     def __init__(self, server: viser.ViserServer, scenario, refraction: bool = False):
         self.server, self.scn = server, scenario
         self.frame = 0
@@ -149,7 +156,7 @@ class LimbApp:
         #: atmospheric refraction (``geoloc view --refraction standard``, the "refraction" box): the
         #: refracted tangent point beside the straight line's (what refraction moves)
         self.refraction = bool(refraction)
-        self.lref = None
+        self.lref: LimbRefraction | None = None
         self.last_update_s = float("nan")
         gui = server.gui
         self.md = gui.add_markdown("")
