@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from trimesh.visual import ColorVisuals
 import viser
 import viser.transforms as vtf
 
@@ -133,7 +134,7 @@ def camera_pose_for(g: Geometry, d: Display, kind: str = "overview"):
     a = d.z(g.aircraft_enu)
     b = d.z(g.hit_enu if np.all(np.isfinite(g.hit_enu)) else g.aircraft_enu + 20e3 * g.los_dir_enu)
     horiz = (b - a)[:2]
-    L = max(np.linalg.norm(b - a), 1e-3)
+    L = max(float(np.linalg.norm(b - a)), 1e-3)
     u = np.r_[horiz / max(np.linalg.norm(horiz), 1e-9), 0.0]
     side = np.array([u[1], -u[0], 0.0])  # to the right of the ground track
     up = np.array([0.0, 0.0, 1.0])
@@ -153,7 +154,11 @@ def load_aircraft_mesh() -> trimesh.Trimesh:
     """The bundled aircraft mesh (body frame, metres), made by tools/make_aircraft_mesh.py.
 
     Loaded once and shared by every session (read only)."""
-    return trimesh.load(Path(ASSETS) / "meshes" / "aircraft.ply", force="mesh")
+    path = Path(ASSETS) / "meshes" / "aircraft.ply"
+    mesh = trimesh.load(path, force="mesh")
+    if not isinstance(mesh, trimesh.Trimesh):  # force="mesh" concatenates a scene's meshes into one
+        raise TypeError(f"aircraft mesh {path}: a {type(mesh).__name__}, not one triangle mesh")
+    return mesh
 
 
 #: Terrain meshes by (DEM object, scene origin): every tab on the same record shares one
@@ -213,6 +218,8 @@ def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
     # colours (sRGB, as a colour map gives them) go in linearised, so the unlit terrain shows them
     # as they are instead of washed out towards white
     m = mesh.copy()
+    if not isinstance(mesh.visual, ColorVisuals) or not isinstance(m.visual, ColorVisuals):
+        raise TypeError(f"unlit_glb: the mesh's visual is a {type(mesh.visual).__name__}, not vertex colours")
     rgba = np.asarray(mesh.visual.vertex_colors, np.uint8)
     m.visual.vertex_colors = np.concatenate([srgb_to_linear_u8(rgba[:, :3]), rgba[:, 3:]], axis=1)
     buf = io.BytesIO()
@@ -251,7 +258,7 @@ class GeolocScene:
         self.scn = scn
         self.disp = disp or Display()
         self.geometry: Geometry | None = None
-        self.terrain_handle = None
+        self.terrain_handle: viser.GlbHandle | None = None
         self.aircraft_mesh = load_aircraft_mesh()
         self.handles: dict = {}
         self._cache: dict = {}  # node name -> (handle, creation key), see _alive
@@ -489,7 +496,10 @@ class GeolocScene:
         else:
             s.remove_by_name("/enu/frustum")
         self._sphere("/enu/hit/result", g.hit_enu if ok else g.aircraft_enu, COLORS["result"], g.hit_label)
-        s.get_handle_by_name("/enu/hit/result").visible = bool(ok)
+        result = s.get_handle_by_name("/enu/hit/result")
+        if result is None:  # _sphere has just made it
+            raise RuntimeError("scene node /enu/hit/result is missing after it was drawn")
+        result.visible = bool(ok)
         if g.hit_hmax_enu is not None:
             self._sphere(
                 "/enu/hit/hmax",
@@ -514,8 +524,8 @@ class GeolocScene:
     def _draw_iterations(self, g: Geometry) -> None:
         s, d, it = self.scene, self.disp, g.iterations
         if it is None or len(it.H) == 0:
-            for n in ("points", "verticals", "brackets", "current"):
-                s.remove_by_name(f"/enu/iterations/{n}")
+            for part in ("points", "verticals", "brackets", "current"):
+                s.remove_by_name(f"/enu/iterations/{part}")
             return
         n = len(it.H) if d.step is None else int(np.clip(d.step, 0, len(it.H) - 1)) + 1
         above = (it.H - it.h_dem)[:n] > 0
@@ -577,6 +587,8 @@ class GeolocScene:
     # ------------------------------------------------------------ camera
     def camera_pose(self, kind: str = "overview"):
         """(position, look_at) in scene units for a named view; see :func:`camera_pose_for`."""
+        if self.geometry is None:
+            raise RuntimeError("camera_pose: the scene has no geometry yet (GeolocScene.update draws one)")
         return camera_pose_for(self.geometry, self.disp, kind)
 
     def set_initial_camera(self, server: viser.ViserServer) -> None:
