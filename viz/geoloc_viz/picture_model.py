@@ -30,6 +30,7 @@ import dataclasses
 import math
 import threading
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -37,7 +38,11 @@ from geoloc.io.mgrs_grid import mgrs_text
 from geoloc.locate import point_view
 from geoloc.pipeline import NO_CORRECTIONS, Pipeline
 from geoloc.status import Status, describe
-from geoloc.surfaces.base import LineOfSight, terrain_of
+from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
+
+if TYPE_CHECKING:  # imported where they are computed, not at the viewer's start
+    from geoloc.analysis.time_offset import TimeOffsetFit
+    from geoloc.analysis.triangulate import Triangulation
 
 #: Height datum of every height in this module.
 H_DATUM = "ellipsoidal, WGS 84"
@@ -95,7 +100,7 @@ class PixelPick:
     col: float
     in_frame: bool
     los: LineOfSight
-    hit: object  # GroundPoint (TerrainHit on a DEM)
+    hit: GroundPoint  # a TerrainHit on a DEM
     method: str
     iterations: int  # DEM evaluations (heights read, or cells visited by the exact walk)
     trace_ecef: np.ndarray | None = None  # (n, 3) the method's iterates on the line of sight
@@ -160,7 +165,7 @@ def pick_markdown(p: PixelPick, geoid=True) -> str:
 class GroundPick:
     """A point of the terrain picked in the scene, and its pixel in the frame."""
 
-    hit: object  # GroundPoint of the browser's ray on the terrain
+    hit: GroundPoint  # the browser's ray on the terrain
     row: float
     col: float
     pixel_status: int  # Status of ground_to_pixel
@@ -391,7 +396,7 @@ class TargetRays:
     origins: np.ndarray
     directions: np.ndarray
     closest: np.ndarray
-    tri: object
+    tri: Triangulation
     surface: dict
     budget_note: str = ""
 
@@ -534,7 +539,7 @@ class VideoTimingFault:
 
     first: int
     last: int
-    fit: object  # geoloc.analysis.time_offset.TimeOffsetFit
+    fit: TimeOffsetFit
 
     def contains(self, idx) -> bool:
         return idx is not None and self.first <= int(idx) <= self.last
