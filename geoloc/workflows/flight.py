@@ -208,6 +208,8 @@ class FlightScenario:
             raise ValueError(f"{source} [terrain]: give target_h_m (ellipsoid model) or dem")
         if method != "ellipsoid" and dem is None:
             raise ValueError(f"{source} [terrain] method = {method!r} needs a dem")
+        if method == "ellipsoid" and target_h is None:  # a dem alone is the truth, not the located surface
+            raise ValueError(f"{source} [terrain] method = 'ellipsoid' needs target_h_m")
         cam = data.get("camera")
         scn = cls(
             name=str(data.get("name", Path(source).stem)),

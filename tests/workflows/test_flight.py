@@ -97,6 +97,17 @@ def test_missing_pieces_are_named(tmp_path):
         FlightScenario.from_toml(tmp_path / "nope.toml")
 
 
+def test_the_ellipsoid_method_with_a_dem_needs_its_target_height():
+    # the dem is then the truth only: without target_h_m there is no surface to locate on (the
+    # recording failed later on formatting None)
+    d = _data()
+    d["terrain"] = {"dem": "../dem/etopo5_flight_area.tif", "method": "ellipsoid"}
+    with pytest.raises(ValueError, match=r"s.toml \[terrain\] method = 'ellipsoid' needs target_h_m"):
+        FlightScenario.from_dict(d, base=SCENARIO.parent, source="s.toml")
+    d["terrain"]["target_h_m"] = 5083.0
+    assert FlightScenario.from_dict(d, base=SCENARIO.parent, source="s.toml").target_h_m == 5083.0
+
+
 def test_step_cep_reproduces_q17_table1_monte_carlo():
     """One step at the [Q17] Table 1 nominal (gimbal roll 50 deg): the per-step CEP is the paper's.
 
