@@ -20,14 +20,35 @@ Conventions: ``docs/conventions.md``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, TypedDict
 
 import numpy as np
 
 from geoloc.pipeline import NO_CORRECTIONS, Corrections
 from geoloc.surfaces.base import GroundPoint, LineOfSight
 
+if TYPE_CHECKING:
+    from geoloc.surfaces.dem import DEM
+
 #: Margin around the aircraft and targets kept of the DEM mesh [deg].
 CROP_MARGIN_DEG = 0.1
+
+
+class SolverOptions(TypedDict, total=False):
+    """The DEM solver's tolerances that were given (:func:`geoloc.surfaces.terrain.intersect_dem`)."""
+
+    eps_h: float  # descending steps' height step [m]
+    threshold: float  # bisection's stopping threshold [m]
+
+
+def solver_options(eps_h_m: float | None = None, threshold_m: float | None = None) -> SolverOptions:
+    """The tolerances given, by the solver's names (an absent one: the solver's default)."""
+    kw: SolverOptions = {}
+    if eps_h_m is not None:
+        kw["eps_h"] = float(eps_h_m)
+    if threshold_m is not None:
+        kw["threshold"] = float(threshold_m)
+    return kw
 
 
 @dataclass
@@ -37,8 +58,8 @@ class TerrainSteps:
     Attributes
     ----------
     method : str
-    dem : object
-        The :class:`geoloc.surfaces.dem.DEM` (for the static mesh).
+    dem : geoloc.surfaces.dem.DEM
+        The raster (for the static mesh).
     dem_evaluations : ndarray (n,) of int
     H : list of ndarray
         Per step, the trial heights H_n of the iteration [m].
@@ -49,7 +70,7 @@ class TerrainSteps:
     """
 
     method: str
-    dem: object
+    dem: DEM
     dem_path: str
     dem_evaluations: np.ndarray
     H: list
@@ -61,10 +82,10 @@ class TerrainSteps:
 
 def dem_steps(
     los: LineOfSight,
-    dem,
+    dem: DEM,
     method: str = "exact",
-    eps_h_m=None,
-    threshold_m=None,
+    eps_h_m: float | None = None,
+    threshold_m: float | None = None,
     corrections: Corrections = NO_CORRECTIONS,
 ) -> tuple[GroundPoint, TerrainSteps]:
     """Intersect every line of sight with a DEM; the hits as a GroundPoint and the per-ray trace.
@@ -84,14 +105,13 @@ def dem_steps(
         ``corrections`` and ``refraction_m``.
     """
     from geoloc.pipeline import Pipeline
-    from geoloc.surfaces.terrain import DemSurface
+    from geoloc.surfaces.terrain import DemSurface, TerrainHit
 
-    kw = {}
-    if eps_h_m is not None:
-        kw["eps_h"] = float(eps_h_m)
-    if threshold_m is not None:
-        kw["threshold"] = float(threshold_m)
-    hit = Pipeline(None, DemSurface(dem, method, trace=True, **kw), corrections).intersect(los)
+    surface = DemSurface(dem, method, trace=True, **solver_options(eps_h_m, threshold_m))
+    hit = Pipeline(None, surface, corrections).intersect(los)
+    if not isinstance(hit, TerrainHit) or hit.trace is None:
+        raise TypeError(f"dem_steps: {surface!r} gave no solver trace (one DEM raster draws its iterations)")
+    trace = hit.trace
     ground = GroundPoint(
         hit.lat,
         hit.lon,
@@ -104,9 +124,9 @@ def dem_steps(
         refraction_m=hit.refraction_m,
     )
     n = len(hit.status)
-    tr = {"H": [], "h_dem": [], "lat": [], "lon": [], "ecef": []}
+    tr: dict[str, list[np.ndarray]] = {"H": [], "h_dem": [], "lat": [], "lon": [], "ecef": []}
     for k in range(n):
-        r = hit.trace.ray(k)
+        r = trace.ray(k)
         for key in tr:
             tr[key].append(np.asarray(r[key], float))
     return ground, TerrainSteps(
