@@ -286,3 +286,15 @@ def test_records_scene_origin_follows_the_viser_rule(records):
     for g in ("T3", "T4"):
         pub = np.array(data[f"/world/{g}/published"]["temporal"]["Points3D:positions"][0][0])
         assert np.linalg.norm(pub) < 100.0
+
+
+def test_a_flight_on_the_ellipsoid_without_its_target_height_is_named():
+    # a FlightScenario built in code (the file's loader refuses it): the recording names the
+    # missing height instead of failing on formatting None
+    import dataclasses
+
+    from geoloc_viz.rerun_model import steps_from_flight
+
+    scn = dataclasses.replace(FlightScenario.from_toml(SCENARIO), method="ellipsoid", target_h_m=None, duration_s=1.0)
+    with pytest.raises(ValueError, match=r"method = 'ellipsoid' needs target_h_m"):
+        steps_from_flight(scn)

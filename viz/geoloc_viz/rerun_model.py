@@ -49,7 +49,7 @@ from geoloc.sensors.frame import FrameSensor
 from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
 from geoloc.surfaces.spec import SurfaceSpec
 from geoloc.surfaces.height import HeightSurface
-from geoloc_viz.rerun_terrain import TerrainSteps, dem_steps
+from geoloc_viz.rerun_terrain import SolverOptions, TerrainSteps, dem_steps, solver_options
 from geoloc.workflows.flight import FlightScenario, simulate
 from geoloc.workflows.replay import result_from_ground
 
@@ -221,7 +221,7 @@ class LogSteps:
 
     def entity_paths(self) -> dict:
         """Frame -> rerun entity path (``world/ned/body/...``), one per frame of the graph."""
-        out = {}
+        out: dict[str, str] = {}
         for j in self.chain.graph.joints:
             out[j.child] = f"{out.get(j.parent, 'world')}/{j.child}"
         return out
@@ -295,17 +295,23 @@ def steps_from_flight(
     truth = None
     extra = {}
     # the scenario's DEM, opened once: the located points, the exact truth and the mesh
-    dem = SurfaceSpec(dem=scn.dem_path, dem_datum=scn.dem_datum).raster(f"{scn.name}: dem")
+    dem_path = None if scn.dem_path is None else str(scn.dem_path)
+    dem = SurfaceSpec(dem=dem_path, dem_datum=scn.dem_datum).raster(f"{scn.name}: dem")
     notes = [
         f"scenario: {scn.name}",
         f"{n} steps at {scn.rate_hz:g} Hz, "
         f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
         f"period {scn.scan_period_s:g} s",
     ]
+    # the scenario file's loader refuses either missing piece; a FlightScenario built in code may lack it
     if scn.method == "ellipsoid":
+        if scn.target_h_m is None:
+            raise ValueError(f"{scn.name}: method = 'ellipsoid' needs target_h_m")
         ground = Pipeline(None, HeightSurface(scn.target_h_m), corrections).intersect(los)
         notes.append(f"located on the ellipsoid inflated to {scn.target_h_m:g} m [Q17 eq. 11]")
     else:
+        if scn.dem_path is None or dem is None:
+            raise ValueError(f"{scn.name}: method = {scn.method!r} needs a dem")
         ground, terrain = _terrain(los, dem, scn.method, scn.eps_h_m, scn.threshold_m, corrections)
         notes.append(f"located on {scn.dem_path.name} ({scn.dem_datum}) by '{scn.method}'")
     if dem is not None:
@@ -462,7 +468,7 @@ def steps_from_records(
         olat, olon, oh = published["lat_deg"], published["lon_deg"], ph
     else:
         olat, olon, oh = ground.lat_deg, ground.lon_deg, ground.h
-    enus = None
+    enus: dict[str, EnuFrame] | None = None
     if grp is not None:
         enus = {}
         for g in dict.fromkeys(grp.tolist()):
@@ -471,7 +477,7 @@ def steps_from_records(
         if len(enus) == 1:
             grp, enus = None, None
     enu = next(iter(enus.values())) if enus else enu_origin(*_first_finite(olat, olon, oh))
-    if grp is not None:
+    if grp is not None and enus is not None:  # both, or neither (one flight: no group)
         notes.append(f"flights ({group_column}): {', '.join(enus)}, each with its own scene origin")
     steps = LogSteps(
         "records",
@@ -502,15 +508,15 @@ def steps_from_records(
         from geoloc.surfaces.terrain import surface_for
 
         # the targets' surface: the DEM, else per-record heights (as geoloc calibrate's --height-column)
-        on_dem = dem_path is not None
-        kw = {k: float(v) for k, v in (("eps_h", eps_h_m), ("threshold", threshold_m)) if on_dem and v is not None}
+        on_dem = terrain is not None  # a dem_path was given: the steps were located on it
+        options: SolverOptions = solver_options(eps_h_m, threshold_m) if on_dem else {}
         surf = surface_for(
             None if on_dem else np.broadcast_to(np.asarray(h, float), (len(recs),)),
-            terrain.dem if on_dem else None,
+            terrain.dem if terrain is not None else None,
             method=method,
             kind=height_kind,
             per_record=True,
-            **kw,
+            **options,
         )
         names = list(DEFAULT_FIT_NAMES if fit_names is None else fit_names)
         steps.calibration = sensor_fit_series(steps, recs, names, surf, gcol)
@@ -580,6 +586,11 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
     from geoloc.analysis.accuracy import error_components
     from geoloc.analysis.sensor_fit import fit_sensor_groups
 
+    truth, components = steps.truth, steps.components
+    if truth is None:
+        raise ValueError(f"{steps.name}: the fit's errors need a surveyed truth (truth_lat_deg, truth_lon_deg)")
+    if components is None:
+        raise ValueError(f"{steps.name}: no error components to follow the track (add_error_analysis first)")
     sensor = steps.camera
     report, sensors = fit_sensor_groups(recs, sensor, names, surface, group_column=group_column)
     from geoloc.surfaces.height import for_records
@@ -588,7 +599,7 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
     n = len(steps)
     grp = steps.group_of
     after = {k: np.full(n, np.nan) for k in ("after_m", "after_along_m", "after_across_m")}
-    tlat, tlon = np.asarray(steps.truth["lat_deg"], float), np.asarray(steps.truth["lon_deg"], float)
+    tlat, tlon = np.asarray(truth["lat_deg"], float), np.asarray(truth["lon_deg"], float)
     rep_groups = list(report["groups"])
     for g, rg in zip(steps.groups, rep_groups):
         idx = np.flatnonzero(grp == g)
@@ -597,7 +608,7 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
         lat, lon = np.rad2deg(gp.lat), np.rad2deg(gp.lon)
         after["after_m"][idx] = horizontal_distance_m(lat, lon, tlat[idx], tlon[idx])
         c = error_components(
-            lat, lon, gp.h, tlat[idx], tlon[idx], np.nan, track_heading_rad=steps.components["track_rad"][idx]
+            lat, lon, gp.h, tlat[idx], tlon[idx], np.nan, track_heading_rad=components["track_rad"][idx]
         )
         after["after_along_m"][idx] = c["along_m"]
         after["after_across_m"][idx] = c["across_m"]
@@ -614,7 +625,7 @@ def sensor_fit_series(steps: LogSteps, recs, names, surface, group_column: str |
     )
     steps.notes.append(note)
     return {
-        "before_m": np.asarray(steps.truth["error_m"], float).copy(),
+        "before_m": np.asarray(truth["error_m"], float).copy(),
         **after,
         "note": note,
         "report": report,
