@@ -61,7 +61,7 @@ def asset_path(*parts: str) -> Path:
     return p
 
 
-def resolve_user_path(text) -> Path:
+def resolve_user_path(text: str | os.PathLike[str]) -> Path:
     """A path given on the command line; ``assets/...`` names a bundled file when absent here.
 
     The README's commands name bundled files as ``assets/records/...``: from a

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import sys
 import time
+from typing import TextIO
 
 #: Seconds between two progress lines when stderr is not a terminal (a log, a batch job): docs/cli.md.
 PROGRESS_INTERVAL_S = 10.0
@@ -37,7 +38,7 @@ class Progress:
         than that); True: the bar; False: nothing.
     """
 
-    def __init__(self, total: int, label: str = "progress", enabled: bool | None = None, stream=None):
+    def __init__(self, total: int, label: str = "progress", enabled: bool | None = None, stream: TextIO | None = None):
         self.total = max(int(total), 1)
         self.label = label
         self.stream = stream if stream is not None else sys.stderr

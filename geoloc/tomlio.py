@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import os
 import tomllib
 from pathlib import Path
+from typing import Any
 
 from geoloc.userfiles import note_input
 
 
-def read_toml(path, what: str = "scenario file") -> dict:
+def read_toml(path: str | os.PathLike[str], what: str = "scenario file") -> dict[str, Any]:
     """Parse a TOML file.
 
     Raises ``FileNotFoundError`` ("<what> not found: <path>") if it is missing and

@@ -321,12 +321,12 @@ def _drone_height_warning(camera, pose, target_h: float, surface, alt) -> list:
     high, ref, what = drone_too_high(h, target_h, ground)
     if not high:
         return []
-    ref, what = float(ref), str(what)
+    ref_m, ref_what = float(ref), str(what)
     return [
         f"{alt.column} = {h:.1f} m: a drone's camera (the sensor file's platform {camera.platform!r}) "
-        f"{drone_height_where(h, ref, what)}, while drones fly below "
+        f"{drone_height_where(h, ref_m, ref_what)}, while drones fly below "
         f"{DRONE_MAX_HEIGHT_M:.0f} m above the ground and {DRONE_CEILING_M:.0f} m above the sea: "
-        f"{drone_height_hint(h, ref)}; the point is computed as given"
+        f"{drone_height_hint(h, ref_m)}; the point is computed as given"
     ]
 
 

@@ -109,7 +109,9 @@ def run(args: argparse.Namespace) -> int:
     elif surface is not None:
         from geoloc.surfaces.base import terrain_of
 
-        h = float(np.asarray(terrain_of(surface).height(np.asarray([lat]), np.asarray([lon])))[0])
+        terrain = terrain_of(surface)
+        assert terrain is not None  # --dem given: the surface reads that DEM
+        h = float(np.asarray(terrain.height(np.asarray([lat]), np.asarray([lon])))[0])
         if not math.isfinite(h):
             raise ValueError(f"the DEM has no height at {lat_deg:.7f}, {lon_deg:.7f}: give --point-h-m")
         h_from = "the DEM"

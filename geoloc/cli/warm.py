@@ -36,6 +36,7 @@ def _large_batch() -> int:
     from geoloc.surfaces.terrain import DemSurface, random_oblique_rays
 
     dem = SurfaceSpec(dem=str(asset_path("dem", "srtm_jacksboro.tif"))).raster()
+    assert dem is not None  # a bundled raster file
     g = Pipeline(None, DemSurface(dem, "exact")).intersect(random_oblique_rays(dem, 20000, np.random.default_rng(0)))
     return 0 if np.any(np.asarray(g.status) == 0) else 1
 
@@ -50,6 +51,7 @@ def _refraction() -> int:
     from geoloc.surfaces.terrain import DemSurface, random_oblique_rays
 
     dem = SurfaceSpec(dem=str(asset_path("dem", "srtm_jacksboro.tif"))).raster()
+    assert dem is not None  # a bundled raster file
     los = random_oblique_rays(dem, 100, np.random.default_rng(0))
     c = Corrections(refraction=STANDARD_REFRACTION)
     ok = [

@@ -13,6 +13,8 @@ from __future__ import annotations
 import csv
 import functools
 import math
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,7 +84,7 @@ def _float(text, name, path, line, required=True):
 
 
 @functools.lru_cache(maxsize=4)
-def load_camera_db(path=None) -> tuple:
+def load_camera_db(path: str | os.PathLike[str] | None = None) -> tuple[CameraEntry, ...]:
     """The cameras of ``path`` (default: the bundled database); ValueError names a bad line and field."""
     p = Path(path) if path is not None else asset_path(*CAMERA_DB)
     lines = p.read_text(encoding="utf-8").splitlines()
@@ -134,7 +136,9 @@ def load_camera_db(path=None) -> tuple:
     return tuple(out)
 
 
-def find_camera(make, model, width, height, db=None) -> CameraEntry | None:
+def find_camera(
+    make: str | None, model: str | None, width: float, height: float, db: Sequence[CameraEntry] | None = None
+) -> CameraEntry | None:
     """The database's camera for EXIF ``make`` and ``model`` (its start) whose image has the
     aspect ratio of ``width`` x ``height`` (a resized photo matches; a crop mode does not)."""
     if not make or not model:

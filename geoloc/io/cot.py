@@ -42,6 +42,7 @@ loopback).
 from __future__ import annotations
 
 import math
+import os
 import re
 import socket
 from dataclasses import dataclass, field
@@ -93,14 +94,14 @@ def _uid_part(text: str) -> str:
 
 
 def cot_events(
-    table,
+    table: dict,
     *,
     source: str = "geoloc",
     cot_type: str = DEFAULT_TYPE,
     how: str = DEFAULT_HOW,
     stale_s: float = DEFAULT_STALE_S,
     now: datetime | None = None,
-    epoch=None,
+    epoch: str | None = None,
 ) -> CotEvents:
     """One CoT event per located point of a results table.
 
@@ -203,7 +204,7 @@ def cot_events(
     return out
 
 
-def write_cot(events: CotEvents, path, option: str = "--out") -> Path:
+def write_cot(events: CotEvents, path: str | os.PathLike[str], option: str = "--out") -> Path:
     """Write the events, one a line (UTF-8), through :func:`geoloc.userfiles.write_bytes` (atomic)."""
     from geoloc.userfiles import write_bytes
 

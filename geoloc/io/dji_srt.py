@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -149,7 +150,7 @@ def _blocks(lines):
         yield start, block
 
 
-def read_srt(path) -> SrtFlight:
+def read_srt(path: str | os.PathLike[str]) -> SrtFlight:
     """Read a DJI ``.SRT`` flight log (module docstring); bad blocks are reported, good ones kept.
 
     Raises
@@ -286,7 +287,7 @@ class _BadField(ValueError):
         self.line = line
 
 
-def write_srt_records(path, flight: SrtFlight) -> int:
+def write_srt_records(path: str | os.PathLike[str], flight: SrtFlight) -> int:
     """Write the flight's records as a CSV (:data:`SRT_COLUMNS`); returns the rows written.
 
     Heights: ``ac_h_m`` is ellipsoidal (WGS 84): ``abs_alt`` taken as EGM96 orthometric plus the

@@ -37,9 +37,11 @@ import threading
 from collections import OrderedDict
 from fractions import Fraction
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from numpy.typing import ArrayLike
 from geoloc.extras import require
 
 __all__ = [
@@ -148,7 +150,7 @@ def _check_cache(cache_bytes) -> int:
     return v
 
 
-def _as_rgb8(a: np.ndarray, what: str) -> np.ndarray:
+def _as_rgb8(a: ArrayLike, what: str) -> np.ndarray:
     a = np.asarray(a)
     if a.ndim == 2:
         a = np.repeat(a[:, :, None], 3, axis=2)
@@ -218,7 +220,7 @@ class ArrayImages:
         Their times [s], increasing; default ``0, 1, ..., n-1``.
     """
 
-    def __init__(self, images, times_s=None):
+    def __init__(self, images: np.ndarray | Sequence[ArrayLike], times_s: ArrayLike | None = None):
         if isinstance(images, np.ndarray) and images.ndim == 4:
             imgs = [_as_rgb8(images[i], "ArrayImages") for i in range(len(images))]
         else:

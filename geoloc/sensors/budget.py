@@ -31,6 +31,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from geoloc.sensors.frame import FrameSensor
 
 #: LE90 / sigma of a normal error: the 0.95 quantile of N(0, 1) (a two-sided 90 % interval).
 LE90_PER_SIGMA = 1.6448536269514722
@@ -124,17 +128,18 @@ class ErrorBudget:
             s["dem_m"] = DEM_PRODUCTS[self.dem_product][0] / LE90_PER_SIGMA * factor
         return ErrorBudget(s, None, self.source)
 
-    def dem_sigma_m(self, dem=None) -> float:
+    def dem_sigma_m(self, dem: object = None) -> float:
         """The DEM's vertical sigma [m]: ``dem_m``, else ``dem_product``'s LE90 / 1.6449, else the
         bundled DEM's product (by its file name); ValueError naming what is missing."""
         if "dem_m" in self.sigmas:
             return float(self.sigmas["dem_m"])
         product = self.dem_product
         name = None
-        if product is None and dem is not None and getattr(dem, "path", None) is not None:
+        path = getattr(dem, "path", None)  # a DEM raster read from a file (a mosaic has paths)
+        if product is None and path is not None:
             from pathlib import Path
 
-            name = Path(str(dem.path)).name
+            name = Path(str(path)).name
             product = BUNDLED_DEMS.get(name)
         if product is None:
             what = f" (the bundled {name} has no published vertical accuracy)" if name in BUNDLED_DEMS else ""
@@ -145,7 +150,7 @@ class ErrorBudget:
         return DEM_PRODUCTS[product][0] / LE90_PER_SIGMA
 
 
-def budget_from_dict(table, sensor, source: str = "sensor") -> ErrorBudget:
+def budget_from_dict(table: object, sensor: FrameSensor, source: str = "sensor") -> ErrorBudget:
     """Check the ``[uncertainty]`` table against ``sensor`` (its gimbal's angle names, its lens).
 
     Every key must be known (:data:`FIXED_KEYS`, the gimbal's ``<angle>_deg``, :data:`SENSOR_KEYS`

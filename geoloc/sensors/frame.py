@@ -31,7 +31,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -280,7 +280,13 @@ class FrameSensor:
         )
         return FrameGraph(joints)
 
-    def frames(self, state=None):
+    @overload
+    def frames(self, state: None = None) -> FrameGraph: ...
+
+    @overload
+    def frames(self, state: Pose) -> BoundFrames: ...
+
+    def frames(self, state: Pose | None = None) -> FrameGraph | BoundFrames:
         """The frame graph the viewers draw: the :class:`FrameGraph`, or with ``state`` its :class:`BoundFrames`."""
         return self.graph if state is None else BoundFrames(self.graph, state)
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 import re
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 #: Words (case-insensitive, whole words) that make a platform text a drone: small multirotors
 #: and small fixed-wing UAS, and their makers' product names (DJI's Mavic, Phantom, Matrice,
@@ -69,7 +70,13 @@ def is_drone(text: str | None) -> bool:
     return bool(text) and _DRONE_RE.search(str(text)) is not None
 
 
-def drone_too_high(h_m, fallback_m, ground_m=None, fallback_what="the target", ground_what="the terrain under it"):
+def drone_too_high(
+    h_m: ArrayLike,
+    fallback_m: ArrayLike,
+    ground_m: ArrayLike | None = None,
+    fallback_what: str | ArrayLike = "the target",
+    ground_what: str | ArrayLike = "the terrain under it",
+) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.object_]]:
     """Which drone camera heights cannot be a drone's (docs/records.md, "Plausibility checks").
 
     Parameters

@@ -127,6 +127,9 @@ class DemSource(Protocol):
     @property
     def bounds_deg(self) -> tuple: ...  # (west, south, east, north) [deg]
 
+    @property
+    def extent_deg(self) -> tuple: ...  # (west, south, east, north) [deg] where sample gives heights
+
     def height(
         self, lat: ArrayLike, lon: ArrayLike
     ) -> np.ndarray: ...  # ellipsoidal height [m] at (lat, lon) [rad]; NaN off the data
@@ -160,7 +163,7 @@ def is_mosaic(dem: object) -> TypeGuard[MosaicSource]:
     return isinstance(dem, DemSource) and isinstance(dem, Surface)
 
 
-def terrain_of(surface):
+def terrain_of(surface: object) -> DEM | MosaicSource | None:
     """The :class:`DemSource` a surface reads (a DEM or a mosaic), or None for a height surface."""
     if is_mosaic(surface):
         return surface

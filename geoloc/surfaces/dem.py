@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from geoloc.extras import require
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
@@ -547,7 +547,7 @@ class DEM:
         )
 
 
-def grid_faces(ok) -> np.ndarray:
+def grid_faces(ok: ArrayLike) -> NDArray[np.intp]:
     """Two triangles per cell of a grid of nodes (row-major indices), :meth:`DEM.mesh`'s split.
 
     Each cell (i, j) with corners p00 = node(i, j), p10 = node(i, j+1), p01 = node(i+1, j),

@@ -51,7 +51,8 @@ from __future__ import annotations
 
 import warnings
 from collections import OrderedDict
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -68,6 +69,9 @@ from geoloc.userfiles import note_input
 
 if TYPE_CHECKING:  # the terrain module imports this one
     from geoloc.surfaces.terrain import TerrainHit
+
+#: What names a DEM's files (:func:`mosaic_paths`): a folder, a ``.vrt``, one raster, or several rasters.
+DemPaths = str | os.PathLike[str] | Iterable[str | os.PathLike[str]]
 
 #: Default bound of the tile cache [bytes] (64 MiB: 2.2 M float64 nodes, a sixth of a 1'' SRTM tile).
 DEFAULT_CACHE_BYTES = 64 * 2**20
@@ -157,9 +161,9 @@ class DemTileWarning(UserWarning):
     """A tile of a mosaic that cannot be read in part (truncated, corrupt): its cells are no data."""
 
 
-def mosaic_paths(source) -> list:
+def mosaic_paths(source: DemPaths) -> list[str]:
     """The raster files of ``source``: a folder (its rasters, sorted by name), one file, or a list."""
-    if isinstance(source, (str, Path)):
+    if isinstance(source, (str, os.PathLike)):
         p = Path(source)
         if p.is_dir():
             files = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in TILE_SUFFIXES)
@@ -226,17 +230,17 @@ class DemMosaic:
 
     def __init__(
         self,
-        paths,
-        datum="egm96",
+        paths: Iterable[str | os.PathLike[str]],
+        datum: str = "egm96",
         *,
         band: int = 1,
         cache_bytes: int = DEFAULT_CACHE_BYTES,
         block: int = DEFAULT_BLOCK,
         max_region_nodes: int | None = None,
-        height_range_m=None,
+        height_range_m: tuple[float, float] | None = None,
         method: str = "exact",
         dem_model: str = "bilinear",
-        **options,
+        **options: Any,
     ):
         import pyproj
         import rasterio
@@ -268,7 +272,7 @@ class DemMosaic:
         )
         if self.max_region_nodes < 16:
             raise ValueError(f"max_region_nodes must be at least 16, got {max_region_nodes!r}")
-        self.paths = list(paths)
+        self.paths = [os.fspath(p) for p in paths]
         self.datum, self.band, self.block = datum, int(band), int(block)
         self.method, self.dem_model, self.options = method, dem_model, options
         self._open: dict[int, Any] = {}  # source index -> its open rasterio dataset
@@ -354,7 +358,7 @@ class DemMosaic:
 
     # ------------------------------------------------------------------ building
     @classmethod
-    def open(cls, source, datum="egm96", **kwargs) -> "DemMosaic":
+    def open(cls, source: DemPaths, datum: str = "egm96", **kwargs: Any) -> "DemMosaic":
         """A mosaic of a folder of tiles, a ``.vrt``, one raster, or a list of rasters.
 
         Parameters
@@ -790,13 +794,13 @@ class DemMosaic:
         )
 
 
-def open_dem_or_mosaic(source, datum="egm96", **kwargs):
+def open_dem_or_mosaic(source: DemPaths, datum: str = "egm96", **kwargs: Any) -> DEM | DemMosaic:
     """``--dem``: one raster file -> :meth:`DEM.open`; a folder, a ``.vrt`` or several files -> :class:`DemMosaic`."""
-    if isinstance(source, (list, tuple)):
-        if len(source) == 1:
-            source = source[0]
-        else:
-            return DemMosaic.open(list(source), datum, **kwargs)
+    if not isinstance(source, (str, os.PathLike)):
+        items = list(source)
+        if len(items) != 1:
+            return DemMosaic.open(items, datum, **kwargs)
+        source = items[0]
     p = Path(source)
     if p.is_dir() or p.suffix.lower() == ".vrt":
         return DemMosaic.open(p, datum, **kwargs)

@@ -24,6 +24,7 @@ from geoloc.surfaces.base import is_mosaic
 
 if TYPE_CHECKING:
     from geoloc.surfaces.base import Surface
+    from geoloc.surfaces.dem import DEM
 
 
 @dataclass(frozen=True)
@@ -77,7 +78,7 @@ class SurfaceSpec:
         """The tolerances that were given (``eps_h``, ``threshold``)."""
         return {k: v for k, v in (("eps_h", self.eps_h), ("threshold", self.threshold)) if v is not None}
 
-    def raster(self, what: str = "--dem"):
+    def raster(self, what: str = "--dem") -> DEM | None:
         """The one DEM raster the spec names (a :class:`~geoloc.surfaces.dem.DEM`), opened by
         :meth:`build`; None without a DEM. For a consumer that draws or samples one raster (the
         rerun recordings' mesh and solver trace): a mosaic (a folder, a ``.vrt``, several

@@ -458,7 +458,7 @@ def _locate_photo(
     given = on is not None  # a surface given (else each target at its own truth height)
     if given:
         surface = (
-            f"dem ({on.method})" + (f": {Path(dem.path).name}" if getattr(dem, "path", None) else "")
+            f"dem ({on.method})" + (f": {Path(dem_path).name}" if (dem_path := getattr(dem, "path", None)) else "")
             if dem is not None
             else repr(on)
         )

@@ -32,7 +32,7 @@ from geoloc.userfiles import atomic_path
 
 if TYPE_CHECKING:
     from geoloc.surfaces.dem import DEM
-    from geoloc.surfaces.mosaic import DemMosaic
+    from geoloc.surfaces.base import MosaicSource
 
 #: Columns the replay adds to every input row.
 OUTPUT_COLUMNS = ["lat_deg", "lon_deg", "h_m", "error_to_paper_m", "error_to_truth_m"]
@@ -50,7 +50,7 @@ class ReplayResult:
     error_to_paper_m: np.ndarray
     error_to_truth_m: np.ndarray
     extra: dict  # further output columns, name -> array (e.g. DEM evaluations)
-    terrain: DEM | DemMosaic | None = None  # the DEM (or mosaic) located on, if any: for plausibility_warnings
+    terrain: DEM | MosaicSource | None = None  # the DEM (or mosaic) located on, if any: for plausibility_warnings
 
     def columns(self) -> dict:
         cols = {

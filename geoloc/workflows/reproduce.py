@@ -246,14 +246,15 @@ def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0,
 
     from geoloc.geodesy.geodesic import horizontal_distance_m
     from geoloc.io.records import load_records
+    from geoloc.surfaces.dem import DEM
     from geoloc.surfaces.terrain import DemSurface, TerrainHit
     from geoloc.workflows.replay import records_line_of_sight
 
     dem = terrain_of(surface)
-    if dem is None:
+    if not isinstance(dem, DEM):  # the report reads the raster's nodes and file name: no mosaic
         raise ValueError(
-            f"li2023_report: surface = {surface!r} has no DEM; give the DEM scenario's surface "
-            "(geoloc.cli._options.surface_from_scenario(load_q17_dem_model()))"
+            f"li2023_report: surface = {surface!r} has no DEM raster (none, or a mosaic); give the DEM "
+            "scenario's surface (geoloc.cli._options.surface_from_scenario(load_q17_dem_model()))"
         )
     rep = Report()
     dmodel = load_q17_dem_model()
