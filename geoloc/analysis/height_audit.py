@@ -37,7 +37,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -52,6 +53,12 @@ from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
 from geoloc.pipeline import Pipeline
 from geoloc.sensors.budget import DEM_PRODUCTS, LE90_PER_SIGMA
+
+if TYPE_CHECKING:
+    from geoloc.io.records import Records
+    from geoloc.sensors.base import Sensor
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.surfaces.base import Surface
 
 __all__ = [
     "Finding",
@@ -311,18 +318,18 @@ RECORDS_FIXES = {
 
 
 def audit_flight(
-    pose,
-    sensor,
-    row,
-    col,
-    surface,
-    reported_lat_deg,
-    reported_lon_deg,
-    reported_h_m=None,
+    pose: Pose,
+    sensor: Sensor,
+    row: ArrayLike,
+    col: ArrayLike,
+    surface: Surface | None,
+    reported_lat_deg: ArrayLike,
+    reported_lon_deg: ArrayLike,
+    reported_h_m: ArrayLike | None = None,
     *,
-    group=None,
-    time_s=None,
-    fixes=None,
+    group: ArrayLike | None = None,
+    time_s: ArrayLike | None = None,
+    fixes: dict[str, str] | None = None,
     source: str = "flight",
     reported_name: str = "reported centre",
 ) -> HeightAudit:
@@ -766,7 +773,9 @@ def _boresight_finding(sensor, pose, row, col, drow, dcol, raw, after, fixes) ->
     )
 
 
-def audit_records(records, sensor, surface, *, group_column: str = "table") -> HeightAudit:
+def audit_records(
+    records: Records, sensor: Sensor, surface: Surface | None, *, group_column: str = "table"
+) -> HeightAudit:
     """Audit a records CSV (:class:`geoloc.io.records.Records`): the reported centres are the
     published positions (``paper_lat_deg``, ``paper_lon_deg``, ``paper_height_m``), else the
     surveyed ones (``truth_*``)."""
@@ -906,7 +915,9 @@ def azimuth_convention_finding(columns: dict, fix: str | None = None) -> Finding
     )
 
 
-def audit_klv_columns(columns: dict, sensor, surface, source: str = "KLV") -> HeightAudit:
+def audit_klv_columns(
+    columns: Mapping[str, ArrayLike], sensor: FrameSensor, surface: Surface | None, source: str = "KLV"
+) -> HeightAudit:
     """Audit a KLV replay (:attr:`geoloc.workflows.klv_replay.KlvReplay.columns`, ``sensor``
     the replay's): the reported centres are tags 23-24 (and 78 / 25 + N), the pixel the image centre.
 

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.analysis.errormodel import LENS_SOURCES, POSE_KEYS, ErrorModel
 from geoloc.analysis.streaming import STATS_KEYS, StreamingStats, cep_eq18, summary
@@ -301,7 +302,7 @@ def nominal_point(model: ErrorModel, surface: Surface | None = None) -> tuple[fl
 
 
 # --------------------------------------------------------------------- statistics
-def statistics(lat, lon, h, status=None) -> dict:
+def statistics(lat: ArrayLike, lon: ArrayLike, h: ArrayLike, status: ArrayLike | None = None) -> dict[str, float]:
     """Mean and standard deviation of the located points, CEP [Q17 eq. 18] and the empirical CEP50.
 
     * ``cep_m`` is [Q17 eq. 18]:
@@ -327,24 +328,24 @@ def statistics(lat, lon, h, status=None) -> dict:
     dict
         The :data:`STATS_KEYS` (degrees and metres) plus ``n_ok``, ``n_failed``.
     """
-    lat, lon, h = (np.asarray(v, float).ravel() for v in (lat, lon, h))
-    ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h)
+    lat_a, lon_a, h_a = (np.asarray(v, float).ravel() for v in (lat, lon, h))
+    ok = np.isfinite(lat_a) & np.isfinite(lon_a) & np.isfinite(h_a)
     if status is not None:
         ok &= np.asarray(status).ravel() == Status.OK
-    lat, lon, h = lat[ok], lon[ok], h[ok]
-    n = lat.size
+    lat_k, lon_k, h_k = lat_a[ok], lon_a[ok], h_a[ok]
+    n = lat_k.size
     if n < 2:
         out = {k: math.nan for k in STATS_KEYS}
         out.update(n_ok=int(n), n_failed=int((~ok).sum()))
         return out
     # longitude: average the offsets from the first sample (no wrap at +-180 deg)
-    dlon = (lon - lon[0] + np.pi) % (2 * np.pi) - np.pi
-    m_lat, m_h = lat.mean(), h.mean()
-    m_lon = lon[0] + dlon.mean()
-    s_lat, s_lon, s_h = lat.std(ddof=1), dlon.std(ddof=1), h.std(ddof=1)
+    dlon = (lon_k - lon_k[0] + np.pi) % (2 * np.pi) - np.pi
+    m_lat, m_h = lat_k.mean(), h_k.mean()
+    m_lon = lon_k[0] + dlon.mean()
+    s_lat, s_lon, s_h = lat_k.std(ddof=1), dlon.std(ddof=1), h_k.std(ddof=1)
     rn, rm = prime_vertical_radius(m_lat), meridian_radius(m_lat)
     east = (dlon - dlon.mean()) * (rn + m_h) * math.cos(m_lat)
-    north = (lat - m_lat) * (rm + m_h)
+    north = (lat_k - m_lat) * (rm + m_h)
     out = summary(m_lat, m_lon, m_h, s_lat, s_lon, s_h, float(np.median(np.hypot(east, north))))
     out.update(n_ok=int(n), n_failed=int((~ok).sum()))
     return out
@@ -639,8 +640,8 @@ def _sweep_point(ma: ErrorModel, n: int, c: int, draw, bar, surface=None, chunk:
 
 def sweep_terrain_sigma(
     model: ErrorModel,
-    angles_deg,
-    sigmas_m,
+    angles_deg: ArrayLike,
+    sigmas_m: ArrayLike,
     n: int,
     rng: np.random.Generator,
     progress: bool | None = False,
@@ -685,10 +686,10 @@ def sweep_terrain_sigma(
 
 def sweep_dem(
     model: ErrorModel,
-    angles_deg,
+    angles_deg: ArrayLike,
     n: int,
     rng: np.random.Generator,
-    surface=None,
+    surface: Surface | None = None,
     progress: bool | None = False,
     chunk: int = CHUNK,
 ) -> Sweep:

@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.sensors.rpc import PARAM_NAMES, RPCSensor
 from geoloc.status import Status
@@ -81,7 +82,13 @@ def _rms(res):
 
 
 def adjust_rpc(
-    sensor: RPCSensor, gcps_lat, gcps_lon, gcps_h, rows, cols, model: str = "bias"
+    sensor: RPCSensor,
+    gcps_lat: ArrayLike,
+    gcps_lon: ArrayLike,
+    gcps_h: ArrayLike,
+    rows: ArrayLike,
+    cols: ArrayLike,
+    model: str = "bias",
 ) -> tuple[RPCSensor, RPCAdjustment]:
     """Least-squares image-space bias or affine correction of an RPC from GCPs.
 

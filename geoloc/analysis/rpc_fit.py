@@ -19,8 +19,10 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
+from geoloc.sensors.base import Sensor
 from geoloc.sensors.rpc import RPCModel, rpc_terms
 from geoloc.status import Status
 from geoloc.surfaces.height import HeightSurface
@@ -54,7 +56,16 @@ class RPCFit:
     check_residuals: np.ndarray = field(repr=False)
 
 
-def grid_points(sensor, n_rows, n_cols, heights, staggered=False, corrections: Corrections = NO_CORRECTIONS):
+def grid_points(
+    sensor: Sensor,
+    n_rows: int,
+    n_cols: int,
+    heights: ArrayLike,
+    staggered: bool = False,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> tuple[
+    NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], int
+]:
     """Pixels on a regular grid spanning the image and the ground points at each height.
 
     The grid runs from the image's outer edges (0.5 and rows + 0.5); with
@@ -78,7 +89,9 @@ def grid_points(sensor, n_rows, n_cols, heights, staggered=False, corrections: C
     return R.ravel()[ok], C.ravel()[ok], g.lat[ok], g.lon[ok], g.h[ok], int(np.sum(~ok))
 
 
-def solve_ratio(T, x, n_iter=4, ridge=1e-12):
+def solve_ratio(
+    T: NDArray[np.float64], x: NDArray[np.float64], n_iter: int = 4, ridge: float = 1e-12
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Least squares for NUM(T)/DEN(T) = x, DEN[0] = 1 (Tao & Hu 2001 iterative weights).
 
     Linearised: T a - x (T' b') = x, with weights 1 / DEN(T)^2 from the previous
@@ -91,9 +104,11 @@ def solve_ratio(T, x, n_iter=4, ridge=1e-12):
     num, den : ndarray (20,)
         ``den[0] = 1``.
     """
+    if not (isinstance(n_iter, int) and n_iter >= 1):  # no pass: no coefficients to return
+        raise ValueError(f"n_iter = {n_iter!r}: must be an integer >= 1")
     M = np.hstack([T, -x[:, None] * T[:, 1:]])
     w = np.ones(len(x))
-    coef = None
+    coef = np.zeros(M.shape[1])
     for _ in range(n_iter):
         Mw = M * w[:, None]
         xw = x * w
@@ -115,7 +130,12 @@ def solve_ratio(T, x, n_iter=4, ridge=1e-12):
 
 
 def fit_rpc(
-    sensor, height_min, height_max, grid=(21, 21, 7), check_grid=(20, 20, 6), corrections: Corrections = NO_CORRECTIONS
+    sensor: Sensor,
+    height_min: float,
+    height_max: float,
+    grid: tuple[int, int, int] = (21, 21, 7),
+    check_grid: tuple[int, int, int] = (20, 20, 6),
+    corrections: Corrections = NO_CORRECTIONS,
 ) -> RPCFit:
     """Fit the 78 RPC coefficients to a sensor model over a 3-D grid [L12 section 4.1].
 

@@ -26,9 +26,11 @@ Layer 6 (``analysis``): no viewer, no workflow.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 __all__ = ["interpolate_pose_deg", "fit_time_offset", "TimeOffsetFit", "ANGLE_KEYS", "LINEAR_KEYS"]
 
@@ -44,7 +46,7 @@ def _interp_angle(t, tk, v):
     return np.interp(t, tk, u)
 
 
-def interpolate_pose_deg(times_s, pose_deg: dict, t_s) -> dict:
+def interpolate_pose_deg(times_s: ArrayLike, pose_deg: dict[str, Any], t_s: ArrayLike) -> dict[str, Any]:
     """The pose at times ``t_s``, linear between the samples at ``times_s`` (a packet's pose).
 
     Parameters
@@ -122,7 +124,13 @@ class TimeOffsetFit:
 
 
 def fit_time_offset(
-    frame_pts_s, observed_px, predict_px: Callable, *, bounds_s=(-3.0, 3.0), step_s: float = 0.05, gate_px: float = 40.0
+    frame_pts_s: ArrayLike,
+    observed_px: Sequence[ArrayLike],
+    predict_px: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+    *,
+    bounds_s: tuple[float, float] = (-3.0, 3.0),
+    step_s: float = 0.05,
+    gate_px: float = 40.0,
 ) -> TimeOffsetFit:
     """Fit ``time_offset_s`` from marks seen in frames and their predicted pixels.
 

@@ -27,7 +27,7 @@ an orbit.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 import math
 from dataclasses import dataclass
@@ -204,7 +204,15 @@ def triangulate(
 
 
 def triangulate_rays(
-    O, D, ok=None, names=None, dO=None, dD=None, *, shared=SHARED, min_angle_deg: float = 1.0
+    O: ArrayLike,
+    D: ArrayLike,
+    ok: ArrayLike | None = None,
+    names: Sequence[str] | None = None,
+    dO: ArrayLike | None = None,
+    dD: ArrayLike | None = None,
+    *,
+    shared: Iterable[str] = SHARED,
+    min_angle_deg: float = 1.0,
 ) -> Triangulation:
     """:func:`triangulate` from the rays themselves: origins ``O`` and unit directions ``D`` (n, 3)
     in ECEF, and with a budget each ray's derivatives ``dO``, ``dD`` (n, 3, k) per 1 sigma of the
@@ -212,28 +220,34 @@ def triangulate_rays(
     per ray if need be: the viewer's frames each have their own zoom)."""
     O = np.asarray(O, float).reshape(-1, 3)
     D = np.asarray(D, float).reshape(-1, 3)
-    ok = (np.ones(len(O), bool) if ok is None else np.asarray(ok, bool).reshape(-1)) & np.all(np.isfinite(D), -1)
+    use = (np.ones(len(O), bool) if ok is None else np.asarray(ok, bool).reshape(-1)) & np.all(np.isfinite(D), -1)
     n = len(O)
     nan3 = np.full(3, np.nan)
-    if ok.sum() < 2 or _spread_deg(D[ok]) < min_angle_deg:
+    if use.sum() < 2 or _spread_deg(D[use]) < min_angle_deg:
         return Triangulation(
-            nan3, math.nan, math.nan, math.nan, int(ok.sum()), np.full(n, np.nan), status=int(Status.INVALID_INPUT)
+            nan3, math.nan, math.nan, math.nan, int(use.sum()), np.full(n, np.nan), status=int(Status.INVALID_INPUT)
         )
-    X, _, _, _ = intersect_rays(O[ok], D[ok])
+    X, _, _, _ = intersect_rays(O[use], D[use])
     out_res = np.full(n, np.nan)
     if names is None:
-        X, res, _, _ = intersect_rays(O[ok], D[ok])
-        out_res[ok] = res
+        X, res, _, _ = intersect_rays(O[use], D[use])
+        out_res[use] = res
         lat, lon, h = (float(v) for v in ecef_to_geodetic(X))
-        return Triangulation(X, lat, lon, h, int(ok.sum()), out_res)
+        return Triangulation(X, lat, lon, h, int(use.sum()), out_res)
+    if dO is None or dD is None:
+        raise ValueError(
+            f"triangulate_rays: names = {list(names)!r} given without their derivatives dO and dD (n, 3, k)"
+        )
     t = np.einsum("ni,ni->n", X - O, D)  # range to the target along each ray
-    free = (dO + t[:, None, None] * dD)[ok]  # (m, 3, k): each ray's move at the target
-    Dk = D[ok]
+    free = (np.asarray(dO, float) + t[:, None, None] * np.asarray(dD, float))[
+        use
+    ]  # (m, 3, k): each ray's move at the target
+    Dk = D[use]
     B = _across(Dk)
     fa = np.einsum("nji,njk->nik", B, free)  # across-ray components (m, 2, k)
     C = fa @ np.swapaxes(fa, -1, -2) + np.eye(2) * 1e-12  # each ray's miss covariance across it
-    X, res, W, _ = intersect_rays(O[ok], Dk, C)
-    out_res[ok] = res
+    X, res, W, _ = intersect_rays(O[use], Dk, C)
+    out_res[use] = res
     Ainv = np.linalg.inv(W.sum(0))
     moves = np.einsum("ij,njk,nkl->nil", Ainv, W, free)  # (m, 3, k): X's move per ray per source
     cols = []
@@ -253,7 +267,7 @@ def triangulate_rays(
         lat,
         lon,
         h,
-        int(ok.sum()),
+        int(use.sum()),
         out_res,
         cov,
         major,

@@ -20,7 +20,7 @@ import os
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,6 +36,10 @@ from geoloc.analysis.accuracy import (
 from geoloc.cli import VERB_HELP
 from geoloc.cli._options import add_dem_options, add_sensor_option, input_path, output_dir, sensor_from_args
 from geoloc.userfiles import atomic_path, write_text
+
+if TYPE_CHECKING:
+    from geoloc.analysis.height_audit import HeightAudit
+    from geoloc.surfaces.base import Surface
 
 #: Reference prefixes tried by ``--reference auto``, in this order.
 AUTO_REFERENCES = ("truth", "reported", "paper")
@@ -562,7 +566,7 @@ def _is_klv_results(path) -> bool:
     return all(c in header for c in ("sensor_lat_deg", "reported_lat_deg", "sensor_relative_azimuth_deg"))
 
 
-def audit_from_csv(path, surface, camera=None):
+def audit_from_csv(path: str | os.PathLike[str], surface: Surface | None, camera: str | None = None) -> HeightAudit:
     """The height audit (:mod:`geoloc.analysis.height_audit`) of a replay output CSV: a records replay
     (its pose columns, loaded as records with ``camera``'s angles; default the [Q17] camera) or a KLV
     replay (``sensor_*`` / ``reported_*`` columns; the frame centre's ray needs no field of view)."""

@@ -11,12 +11,16 @@ DEM cross-check against GDAL and the report.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from geoloc.progress import Progress
 from geoloc.analysis.rpc_fit import fit_rpc
@@ -30,11 +34,15 @@ from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline, corrections_f
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.sensor_file import load_sensor
 from geoloc.sensors.rpc import RPCModel
+from geoloc.frames.graph import BoundFrames
+from geoloc.sensors.base import PixelHit, Sensor
 from geoloc.status import Status
+from geoloc.surfaces.base import LineOfSight
 from geoloc.tomlio import read_toml
 
 if TYPE_CHECKING:  # loaded with a pushbroom scenario only
     from geoloc.sensors.pushbroom import PushbroomSensor
+    from geoloc.surfaces.dem import DEM
 
 
 # ------------------------------------------------------------------ sensors
@@ -59,14 +67,26 @@ class FrameCameraSensor:
     def cols(self) -> int:
         return self.camera.cols
 
-    def line_of_sight(self, row, col, state=None, *, outside: str = "flag"):
+    @property
+    def params(self) -> Mapping[str, float]:
+        return self.camera.params
+
+    def with_params(self, **changes: float) -> "FrameCameraSensor":
+        """The same pose with the camera's named parameters changed."""
+        return dataclasses.replace(self, camera=self.camera.with_params(**changes))
+
+    def line_of_sight(self, row: ArrayLike, col: ArrayLike, state: Any = None, *, outside: str = "flag") -> LineOfSight:
         return self.camera.line_of_sight(row, col, self.pose, outside=outside)
 
-    def ground_to_pixel(self, lat, lon, h, state=None):
+    def ground_to_pixel(self, lat: ArrayLike, lon: ArrayLike, h: ArrayLike, state: Any = None) -> PixelHit:
         return self.camera.ground_to_pixel(lat, lon, h, self.pose)
 
-    def in_image(self, row, col):
+    def in_image(self, row: ArrayLike, col: ArrayLike) -> np.ndarray:
         return self.camera.in_image(row, col)
+
+    def frames(self, state: Any = None) -> BoundFrames:
+        """The camera's frames at :attr:`pose` (``state`` is ignored: the pose is bound)."""
+        return self.camera.frames(self.pose)
 
 
 @dataclass(frozen=True)
@@ -117,7 +137,9 @@ class DemCrossCheck:
         return float(np.nanmax(self.error_m)) if self.error_m.size else float("nan")
 
 
-def dem_pixels(sensor, dem, grid=(12, 12), margin=0.05):
+def dem_pixels(
+    sensor: Sensor, dem: DEM, grid: tuple[int, int] = (12, 12), margin: float = 0.05
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """A grid of pixels whose ground points lie inside the DEM.
 
     The DEM's node hull is projected into the image (at its mean height); the
@@ -144,15 +166,15 @@ def dem_pixels(sensor, dem, grid=(12, 12), margin=0.05):
 
 
 def crosscheck_gdal_dem(
-    sensor,
+    sensor: Sensor,
     model: RPCModel,
-    dem,
-    dem_path_for_gdal,
-    row,
-    col,
+    dem: DEM,
+    dem_path_for_gdal: str | os.PathLike[str],
+    row: ArrayLike,
+    col: ArrayLike,
     *,
-    pixel_error_threshold=1e-6,
-    max_iterations=100,
+    pixel_error_threshold: float | None = 1e-6,
+    max_iterations: int | None = 100,
     corrections: Corrections = NO_CORRECTIONS,
 ) -> DemCrossCheck:
     """Pixel -> ground by GDAL (RPC + ``RPC_DEM``) against the project's exact DEM intersection.
@@ -184,16 +206,16 @@ def crosscheck_gdal_dem(
     from geoloc.geodesy.ellipsoid import geodetic_to_ecef
     from geoloc.surfaces.terrain import DemSurface
 
-    row, col = np.broadcast_arrays(np.asarray(row, float).ravel(), np.asarray(col, float).ravel())
+    row_a, col_a = np.broadcast_arrays(np.asarray(row, float).ravel(), np.asarray(col, float).ravel())
     pipe = Pipeline(sensor, DemSurface(dem, "exact"), corrections)
-    hit = pipe.locate(row, col)
+    hit = pipe.locate(row_a, col_a)
     ok = hit.status == Status.OK
-    row, col = row[ok], col[ok]
+    row_k, col_k = row_a[ok], col_a[ok]
     lat_e, lon_e, h_e, p_e = hit.lat[ok], hit.lon[ok], hit.h[ok], hit.ecef[ok]
     lat_g, lon_g = gdal_rpc_to_ground(
         model,
-        row,
-        col,
+        row_k,
+        col_k,
         dem_path=dem_path_for_gdal,
         height=0.0,
         pixel_error_threshold=pixel_error_threshold,
@@ -201,7 +223,7 @@ def crosscheck_gdal_dem(
     )
     h_g = dem.height(lat_g, lon_g)
     r_g, c_g, st = pipe.ground_to_pixel(lat_g, lon_g, h_g)
-    err_px = np.where(st == Status.OK, np.hypot(r_g - row, c_g - col), np.nan)
+    err_px = np.where(st == Status.OK, np.hypot(r_g - row_k, c_g - col_k), np.nan)
     err_m = np.linalg.norm(geodetic_to_ecef(lat_g, lon_g, h_g) - p_e, axis=-1)
     opts = {
         "RPC_DEM": str(dem_path_for_gdal),
@@ -212,7 +234,7 @@ def crosscheck_gdal_dem(
         "RPC_MAX_ITERATIONS": max_iterations,
     }
     return DemCrossCheck(
-        row, col, lat_e, lon_e, h_e, lat_g, lon_g, err_px, err_m, int(np.sum(~np.isfinite(lat_g))), opts
+        row_k, col_k, lat_e, lon_e, h_e, lat_g, lon_g, err_px, err_m, int(np.sum(~np.isfinite(lat_g))), opts
     )
 
 
@@ -274,7 +296,7 @@ def _int_tuple(d, key, n, default, source):
     return tuple(v)
 
 
-def load_rpc_scenario(path) -> RPCScenario:
+def load_rpc_scenario(path: str | os.PathLike[str]) -> RPCScenario:
     """Read an RPC scenario file (``assets/scenarios/zy3_nadir.toml``, ``qiao2017_frame.toml``).
 
     Format: docs/rpc.md. Errors name the file, the table and the key.
@@ -358,14 +380,14 @@ def load_rpc_scenario(path) -> RPCScenario:
 
 def rpc_report(
     scenario: RPCScenario,
-    out_tif,
-    dem=None,
+    out_tif: str | os.PathLike[str],
+    dem: DEM | None = None,
     *,
     gdal: bool = True,
     pixel_error_threshold: float = 1e-6,
-    dem_copy=None,
+    dem_copy: str | os.PathLike[str] | None = None,
     progress: bool | None = False,
-) -> dict:
+) -> dict[str, Any]:
     """Fit, write and cross-check the RPC of a scenario: what ``geoloc rpc`` reports.
 
     Parameters

@@ -148,3 +148,28 @@ def test_scenario_errors_name_the_key(tmp_path):
             load_scenario(p)
     with pytest.raises(ValueError, match="height range"):
         fit_rpc(load_scenario(asset_path("scenarios", "qiao2017_frame.toml")).sensor, 10.0, 5.0)
+
+
+def test_solve_ratio_refuses_zero_passes_naming_n_iter():
+    # with no pass there are no coefficients: a ValueError naming the field, not a TypeError
+    # from indexing None
+    from geoloc.analysis.rpc_fit import solve_ratio
+
+    T = np.ones((30, 20))
+    with pytest.raises(ValueError, match="n_iter = 0"):
+        solve_ratio(T, np.ones(30), n_iter=0)
+
+
+def test_the_frame_camera_bound_to_a_pose_is_a_sensor():
+    # FrameCameraSensor offers every call of the Sensor interface: params and with_params are the
+    # camera's (its pose kept), frames the camera's graph at that pose
+    from geoloc.sensors.base import Sensor
+
+    sc = load_scenario(asset_path("scenarios", "qiao2017_frame.toml"))
+    s = sc.sensor
+    assert isinstance(s, Sensor)
+    key, value = next((k, v) for k, v in s.params.items() if v != 0.0)
+    moved = s.with_params(**{key: 2.0 * value})
+    assert moved.params[key] == 2.0 * value and moved.pose is s.pose and s.params[key] == value
+    T = np.asarray(s.frames().T_ecef("cam"), float)
+    assert np.allclose(T, np.asarray(s.camera.frames(s.pose).T_ecef("cam"), float))

@@ -246,3 +246,12 @@ def test_replay_triangulates_a_target_id_column_and_flags_a_shifted_height(tmp_p
         assert abs(lat - math.degrees(TARGET[0])) < 1e-7 and abs(lon - math.degrees(TARGET[1])) < 1e-7  # ~1 cm
         assert "from 10 rays" in line and "CE90" in line
         assert ("likely DEM or datum error" in out) == warned, out
+
+
+def test_triangulate_rays_with_names_but_no_derivatives_says_so():
+    # a budget's source names need each ray's derivatives: a ValueError naming them, not a
+    # TypeError from adding None
+    O = np.array([[0.0, 0.0, 0.0], [1000.0, 0.0, 0.0]])
+    D = np.array([[0.0, 0.6, 0.8], [-0.6, 0.0, 0.8]])
+    with pytest.raises(ValueError, match="dO and dD"):
+        T.triangulate_rays(O, D, names=["north_m"])
