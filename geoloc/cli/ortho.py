@@ -272,11 +272,13 @@ def run(args: argparse.Namespace) -> int:
     info["seconds"] = time.perf_counter() - t0
     info.update(pose=pose_from, surface=surface_text, h_datum=ELLIPSOID_DATUM, corrections=corrections.label)
     if args.ortho_out:
+        terrain = terrain_of(surface)
+        assert image is not None and terrain is not None  # both checked above, before any output
         info["ortho"] = orthorectify(
             image,
             sensor,
             pose,
-            terrain_of(surface),
+            terrain,
             args.ortho_out,
             gsd_m=args.gsd_m,
             crs=args.ortho_crs,

@@ -38,6 +38,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -59,6 +60,11 @@ from geoloc.pipeline import NO_CORRECTIONS, Corrections
 from geoloc.status import Status, describe
 from geoloc.userfiles import atomic_path, note_input
 from geoloc.workflows.klv_replay import CONTAINER_SUFFIXES, KlvReplay, _ranges, read_klv, replay_klv
+
+if TYPE_CHECKING:
+    from geoloc.sensors.budget import ErrorBudget
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.surfaces.base import Surface
 
 #: The items rewritten: tag -> field name.
 CENTRE_TAGS = {
@@ -313,12 +319,12 @@ def _remux(src: Path, tmp: str, rw: _Rewriter, fix: KlvFix, verify: bool) -> Non
 
 
 def fix_klv(
-    source,
-    out,
+    source: str | os.PathLike[str],
+    out: str | os.PathLike[str],
     *,
-    surface=None,
-    sensor=None,
-    budget=None,
+    surface: Surface | None = None,
+    sensor: FrameSensor | None = None,
+    budget: ErrorBudget | None = None,
     verify_checksum: bool = True,
     corrections: Corrections = NO_CORRECTIONS,
 ) -> KlvFix:

@@ -59,11 +59,15 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
+import os
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from geoloc.analysis.accuracy import MAD_SCALE, MIN_EXCESS_M, OUTLIER_K, outlier_rule
 from geoloc.frames.chain import Pose
@@ -91,6 +95,13 @@ from geoloc.status import Status, names
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
 from geoloc.userfiles import atomic_path
+
+if TYPE_CHECKING:
+    from geoloc.sensors.budget import ErrorBudget
+    from geoloc.surfaces.base import Surface
+
+#: What :func:`read_klv` reads: a file's path, its bytes, or the results of a :mod:`geoloc.io.klv` read.
+KlvSource = str | os.PathLike[str] | bytes | bytearray | memoryview | Iterable[Packet | KlvError]
 
 __all__ = [
     "CONTAINER_SUFFIXES",
@@ -138,7 +149,7 @@ _TAG_TEXT = {name: f"tag {s.tag} ({s.title})" for name, s in TAG_BY_NAME.items()
 _RESERVED_NOTE = "holds the standard's reserved value (error / out of range): no value"
 
 
-def is_klv_path(path) -> bool:
+def is_klv_path(path: str | os.PathLike[str]) -> bool:
     """True for a file the KLV replay reads: by its suffix (``.klv``, ``.bin``, ``.ts``, ``.mpg``,
     ``.mp4``, ...), or, whatever its name, by its first bytes (an MPEG-TS's sync bytes, a raw
     KLV's universal key: :func:`geoloc.io.klv.sniff_klv_file`: a suffix can lie)."""
@@ -277,7 +288,9 @@ def _from_results(results, source: str) -> KlvRead:
     return KlvRead(source, cols, errors, pts_s, number_, tally.lines(), _time_back_line(n_back, first_back))
 
 
-def read_klv(source, *, verify_checksum: bool = True, fast: bool = True, label: str | None = None) -> KlvRead:
+def read_klv(
+    source: KlvSource, *, verify_checksum: bool = True, fast: bool = True, label: str | None = None
+) -> KlvRead:
     """Read the packets of a KLV file, an MPEG-TS (or other container), raw bytes or read results.
 
     Parameters
@@ -305,7 +318,7 @@ def read_klv(source, *, verify_checksum: bool = True, fast: bool = True, label: 
     """
     if isinstance(source, (bytes, bytearray, memoryview)):
         return _read_bytes(bytes(source), label or "<bytes>", verify_checksum, fast)
-    if isinstance(source, (str, Path)) or hasattr(source, "__fspath__"):
+    if isinstance(source, (str, os.PathLike)):  # a path (os.PathLike: any object with __fspath__)
         p = Path(source)
         if not p.exists():
             raise FileNotFoundError(f"KLV file {str(source)!r} does not exist")
@@ -332,7 +345,7 @@ def _read_bytes(data: bytes, source: str, verify: bool, fast: bool) -> KlvRead:
 # --------------------------------------------------------------------------- the sensor
 
 
-def klv_sensor(hfov, vfov, base: FrameSensor | None = None) -> FrameSensor:
+def klv_sensor(hfov: float, vfov: float, base: FrameSensor | None = None) -> FrameSensor:
     """The replay's sensor: ``lens_from_fov(hfov, vfov, width, height)`` on the
     ``azimuth-elevation-roll`` preset, principal point at the image centre.
 
@@ -413,7 +426,9 @@ def klv_pose(columns: dict) -> Pose:
 # --------------------------------------------------------------------------- outliers
 
 
-def outlier_mask(err, k: float = OUTLIER_K, min_excess_m: float = MIN_EXCESS_M):
+def outlier_mask(
+    err: ArrayLike, k: float = OUTLIER_K, min_excess_m: float = MIN_EXCESS_M
+) -> tuple[np.ndarray, float, float, float]:
     """Robust outlier flags: ``|e - median| > max(k * 1.4826 * MAD, min_excess_m)``.
 
     The one rule of :func:`geoloc.analysis.accuracy.outlier_rule` (which the
@@ -587,7 +602,7 @@ class KlvReplay:
         vals = [_pyvalues(k, self.columns[k]) for k in keys]
         return [dict(zip(keys, r)) for r in zip(*vals)]
 
-    def write_csv(self, path) -> None:
+    def write_csv(self, path: str | os.PathLike[str]) -> None:
         """Write the rows to a CSV (``geoloc.io.gis.read_results`` reads it back)."""
         write_klv_csv(path, [self])
 
@@ -639,14 +654,14 @@ def _append(notes, mask, text):
 
 
 def replay_klv(
-    source,
+    source: KlvSource | KlvRead,
     *,
-    surface=None,
+    surface: Surface | None = None,
     sensor: FrameSensor | None = None,
     verify_checksum: bool = True,
     fast: bool = True,
     label: str | None = None,
-    budget=None,
+    budget: ErrorBudget | None = None,
     corrections: Corrections = NO_CORRECTIONS,
 ) -> KlvReplay:
     """Recompute every packet's frame centre and corners and compare with the packet's own.
@@ -693,7 +708,14 @@ def replay_klv(
 VELOCITY_MAX_GAP_S = 5.0
 
 
-def platform_velocity_ned(lat_deg, lon_deg, h_m, time_s, north_m_s=None, east_m_s=None):
+def platform_velocity_ned(
+    lat_deg: ArrayLike,
+    lon_deg: ArrayLike,
+    h_m: ArrayLike,
+    time_s: ArrayLike,
+    north_m_s: ArrayLike | None = None,
+    east_m_s: ArrayLike | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.object_]]:
     """Each packet's platform velocity (north, east, down) [m/s], and where it comes from.
 
     MISB ST 0601 carries the horizontal velocity (tag 79 Sensor North Velocity, tag 80 Sensor
@@ -1419,7 +1441,7 @@ def _column_text(name, arr) -> list:
     return out
 
 
-def write_klv_csv(path, replays) -> int:
+def write_klv_csv(path: str | os.PathLike[str], replays: KlvReplay | Iterable[KlvReplay]) -> int:
     """Write the rows of one or more replays (the same columns) to one CSV; returns the row count."""
     replays = [replays] if isinstance(replays, KlvReplay) else list(replays)
     if not replays:

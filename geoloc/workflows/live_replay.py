@@ -26,8 +26,9 @@ batch. Memory: the rows of the last ``window`` packets (:attr:`LiveReplay.window
 from __future__ import annotations
 
 import csv
-
 from collections import deque
+from collections.abc import Iterable
+from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
@@ -40,6 +41,11 @@ from geoloc.workflows.klv_replay import (
     _replay,
     outlier_mask,
 )
+
+if TYPE_CHECKING:
+    from geoloc.io.live import LiveReceiver
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.surfaces.base import Surface
 
 __all__ = ["LiveReplay", "WINDOW"]
 
@@ -69,7 +75,16 @@ class LiveReplay:
         For ``frame_pts_s`` (the nearest video frame's time).
     """
 
-    def __init__(self, label: str, *, surface=None, sensor=None, journal=None, window: int = WINDOW, receiver=None):
+    def __init__(
+        self,
+        label: str,
+        *,
+        surface: Surface | None = None,
+        sensor: FrameSensor | None = None,
+        journal: TextIO | None = None,
+        window: int = WINDOW,
+        receiver: LiveReceiver | None = None,
+    ):
         self.label = str(label)
         self.surface, self.sensor = surface, sensor
         self.journal = journal
@@ -86,7 +101,7 @@ class LiveReplay:
         self._waiting: list = []  # (packet, number): their nearest frame may still come
         self._errs: list = []  # bad packets since the last replay (its read's errors)
 
-    def add(self, results) -> KlvReplay | None:
+    def add(self, results: Iterable[Packet | KlvError]) -> KlvReplay | None:
         """Replay one batch of :class:`Packet` / :class:`KlvError`; returns the replay of the packets
         it made ready (None: none; see the module docstring on packets waiting for their frame)."""
         for r in results:
@@ -149,7 +164,7 @@ class LiveReplay:
                 if v is not None:
                     fpts[k] = v / 90000.0
         c["frame_pts_s"] = fpts
-        if self._writer is not None:
+        if self._writer is not None and self.journal is not None:  # the writer writes to the journal
             if self._header is None:
                 self._header = list(c)
                 self._writer.writerow(self._header)

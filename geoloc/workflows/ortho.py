@@ -26,12 +26,15 @@ ellipsoidal unless a datum says otherwise).
 from __future__ import annotations
 
 import math
+import os
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from geoloc.extras import require
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
@@ -46,6 +49,12 @@ from geoloc.userfiles import atomic_path
 
 if TYPE_CHECKING:  # affine comes with rasterio, an optional dependency
     from affine import Affine
+
+    from geoloc.frames.chain import Pose
+    from geoloc.sensors.base import Sensor
+    from geoloc.sensors.camera import Camera
+    from geoloc.surfaces.base import MosaicSource, Surface
+    from geoloc.surfaces.dem import DEM
 
 #: Default chunk [rays]: whole image rows of about this many pixels per call of the surface.
 #: 2^18 rays hold ~45 MB of temporaries in the exact DEM solver (about 170 bytes a ray).
@@ -113,7 +122,7 @@ def _check_chunk(chunk) -> int:
     return int(chunk)
 
 
-def frame_pixels(sensor, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def frame_pixels(sensor: Sensor | Camera, step: int = 1) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The 1-based pixel centres ``1, 1 + step, ...`` along the rows and the columns of ``sensor``."""
     step = _check_step(step)
     return (
@@ -122,7 +131,7 @@ def frame_pixels(sensor, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
-def _as_sensor(sensor):
+def _as_sensor(sensor: Sensor | Camera) -> Sensor:
 
     return sensor_of(sensor)
 
@@ -151,7 +160,7 @@ def _on_cores(surface, parallel: bool = True):
     return surface
 
 
-def frame_line_of_sight(sensor, pose, rows, cols) -> LineOfSight:
+def frame_line_of_sight(sensor: Sensor, pose: Pose, rows: ArrayLike, cols: ArrayLike) -> LineOfSight:
     """Lines of sight of the grid ``rows x cols`` (1-based, 1-D each): compiled for a frame camera
     (:func:`geoloc.sensors._fastgrid.grid_line_of_sight`), else ``sensor.line_of_sight``."""
     from geoloc.sensors import _fastgrid
@@ -163,15 +172,15 @@ def frame_line_of_sight(sensor, pose, rows, cols) -> LineOfSight:
 
 
 def iter_frame(
-    sensor,
-    pose,
-    surface,
+    sensor: Sensor | Camera,
+    pose: Pose,
+    surface: DEM | Surface,
     *,
     step: int = 1,
     chunk: int = DEFAULT_CHUNK,
     parallel: bool = True,
     corrections: Corrections = NO_CORRECTIONS,
-):
+) -> Iterator[tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.uint8]]]:
     """Yield ``(i0, i1, lat, lon, h, status)`` for blocks of whole grid rows ``i0:i1`` (see :func:`locate_frame`)."""
     sensor = _as_sensor(sensor)
     pipe = Pipeline(sensor, _on_cores(_as_surface(surface), parallel), corrections)
@@ -193,9 +202,9 @@ def iter_frame(
 
 
 def locate_frame(
-    sensor,
-    pose,
-    surface,
+    sensor: Sensor | Camera,
+    pose: Pose,
+    surface: DEM | Surface,
     *,
     step: int = 1,
     chunk: int = DEFAULT_CHUNK,
@@ -257,10 +266,10 @@ def _status_legend() -> str:
 
 
 def write_frame_geotiff(
-    path,
-    sensor,
-    pose,
-    surface,
+    path: str | os.PathLike[str],
+    sensor: Sensor | Camera,
+    pose: Pose,
+    surface: DEM | Surface,
     *,
     step: int = 1,
     chunk: int = DEFAULT_CHUNK,
@@ -355,7 +364,7 @@ def write_frame_geotiff(
     }
 
 
-def read_frame_geotiff(path) -> FrameGrid:
+def read_frame_geotiff(path: str | os.PathLike[str]) -> FrameGrid:
     """A :func:`write_frame_geotiff` file back as a :class:`FrameGrid` (for tests and users)."""
 
     import rasterio
@@ -508,11 +517,11 @@ def _project_cells(sensor, pose, lat, lon, h, p_ecef, corrections: Corrections =
 
 
 def orthorectify(
-    image,
-    sensor,
-    pose,
-    dem,
-    out_path,
+    image: np.ndarray,
+    sensor: Sensor | Camera,
+    pose: Pose,
+    dem: DEM | MosaicSource,
+    out_path: str | os.PathLike[str],
     *,
     gsd_m: float,
     crs: str = "geographic",
@@ -559,11 +568,12 @@ def orthorectify(
     cv2 = require("cv2", "an orthophoto from a photo's pixels")
     import rasterio
 
-    from geoloc.surfaces.terrain import DemSurface
+    from geoloc.surfaces.terrain import surface_for
 
     sensor = _as_sensor(sensor)
     # a cell is seen when its pixel's line of sight, through the pipeline, first meets the DEM there
-    visibility = Pipeline(sensor, DemSurface(dem, "exact", parallel=bool(parallel)), corrections)
+    # (a mosaic solves region by region: surface_for makes either the exact solver)
+    visibility = Pipeline(sensor, surface_for(dem=dem, method="exact", parallel=bool(parallel)), corrections)
     img = np.asarray(image)
     if img.ndim == 2:
         img = img[None]
@@ -671,7 +681,7 @@ def orthorectify(
     }
 
 
-def read_photo_pixels(path) -> np.ndarray:
+def read_photo_pixels(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
     """A photo's pixels as (bands, rows, cols) uint8 (OpenCV reads the JPEG; BGR turned to RGB)."""
     cv2 = require("cv2", "an orthophoto from a photo's pixels")
 

@@ -29,12 +29,23 @@ from __future__ import annotations
 
 import csv
 import math
+import os
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from geoloc.status import Status
 from geoloc.extras import require
+
+if TYPE_CHECKING:
+    from geoloc.frames.chain import Pose
+    from geoloc.sensors.base import Sensor
+    from geoloc.sensors.camera import Camera
+    from geoloc.surfaces.base import Surface
+    from geoloc.surfaces.dem import DEM
 
 __all__ = [
     "Cross",
@@ -93,7 +104,7 @@ class Cross:
             )
 
 
-def read_crosses(path, *, arm_m: float = 12.0, width_m: float = 2.5) -> list[Cross]:
+def read_crosses(path: str | os.PathLike[str], *, arm_m: float = 12.0, width_m: float = 2.5) -> list[Cross]:
     """Crosses from a CSV with columns ``name, lat_deg, lon_deg`` (optional ``arm_m``, ``width_m``)."""
     out = []
     with open(path, newline="", encoding="utf-8-sig") as f:
@@ -140,7 +151,7 @@ class GroundTexture:
     haze_rgb: tuple = HAZE_RGB
     _cross_arrays: dict = field(default_factory=dict, compare=False, repr=False)
 
-    def colour(self, lat, lon) -> np.ndarray:
+    def colour(self, lat: ArrayLike, lon: ArrayLike) -> np.ndarray:
         """RGB (uint8, shape ``lat.shape + (3,)``) of ground points ``lat, lon`` [rad]; NaN -> haze."""
         lat = np.asarray(lat, float)
         lon = np.asarray(lon, float)
@@ -197,7 +208,7 @@ def _node_spacing_m(dem):
     return math.radians(g.dlat_deg) * M, math.radians(g.dlon_deg) * N * math.cos(lat_c)
 
 
-def hillshade(dem, sun_azimuth_deg: float = 315.0, sun_elevation_deg: float = 45.0) -> np.ndarray:
+def hillshade(dem: DEM, sun_azimuth_deg: float = 315.0, sun_elevation_deg: float = 45.0) -> NDArray[np.float64]:
     """Lambert shading of a geographic DEM's nodes: cos of the angle between the surface
     normal and the sun, clipped at 0, shape ``dem.shape`` (row 0 north).
 
@@ -221,8 +232,8 @@ def hillshade(dem, sun_azimuth_deg: float = 315.0, sun_elevation_deg: float = 45
 
 
 def ground_texture(
-    dem,
-    crosses=(),
+    dem: DEM,
+    crosses: Iterable[Cross] = (),
     *,
     sun_azimuth_deg: float = 315.0,
     sun_elevation_deg: float = 45.0,
@@ -288,7 +299,13 @@ class RenderedFrame:
 
 
 def render_frame(
-    sensor, pose, surface, texture: GroundTexture, *, parallel: bool = True, chunk: int | None = None
+    sensor: Sensor | Camera,
+    pose: Pose,
+    surface: DEM | Surface,
+    texture: GroundTexture,
+    *,
+    parallel: bool = True,
+    chunk: int | None = None,
 ) -> RenderedFrame:
     """Render one frame: every pixel's exact terrain hit, coloured from ``texture``.
 
@@ -320,7 +337,9 @@ def render_frame(
     return RenderedFrame(img, grid)
 
 
-def find_marks(image: np.ndarray, *, min_excess: int = 60, min_pixels: int = 6):
+def find_marks(
+    image: ArrayLike, *, min_excess: int = 60, min_pixels: int = 6
+) -> tuple[NDArray[np.float64], NDArray[np.int_]]:
     """Centres of the red marks (the painted crosses) in an image, 1-based ``(row, col)``.
 
     Redness is ``R - max(G, B)``: 255 on a painted cross, below 60 on every tint of

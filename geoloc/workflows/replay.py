@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import NDArray
 
 from geoloc.geodesy.geodesic import horizontal_distance_m
 from geoloc.io.records import Records
@@ -25,14 +27,16 @@ from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.progress import Progress
 from geoloc.sensors.frame import FrameSensor
 from geoloc.status import Status, names
-from geoloc.surfaces.base import GroundPoint, terrain_of
+from geoloc.surfaces.base import GroundPoint, LineOfSight, terrain_of
 from geoloc.surfaces.height import for_records
-from geoloc.surfaces.terrain import surface_for
+from geoloc.surfaces.terrain import TerrainHit, surface_for
 from geoloc.userfiles import atomic_path
 
 if TYPE_CHECKING:
     from geoloc.surfaces.dem import DEM
-    from geoloc.surfaces.base import MosaicSource
+    from geoloc.sensors.base import Sensor
+    from geoloc.sensors.budget import ErrorBudget
+    from geoloc.surfaces.base import DemSource, MosaicSource, Surface
 
 #: Columns the replay adds to every input row.
 OUTPUT_COLUMNS = ["lat_deg", "lon_deg", "h_m", "error_to_paper_m", "error_to_truth_m"]
@@ -64,7 +68,7 @@ class ReplayResult:
         return cols
 
 
-def records_line_of_sight(records: Records, camera: FrameSensor):
+def records_line_of_sight(records: Records, camera: FrameSensor) -> LineOfSight:
     """The line of sight of every good record (pixel row/col through the record's chain).
 
     Recorded pixels off the sensor are extended through the lens model (the
@@ -74,13 +78,13 @@ def records_line_of_sight(records: Records, camera: FrameSensor):
     return line_of_sight(records.pose(), camera, records.column("row"), records.column("col"), outside="extrapolate")
 
 
-def outside_sensor_mask(records: Records, camera) -> np.ndarray:
+def outside_sensor_mask(records: Records, camera: Sensor) -> NDArray[np.bool_]:
     """True for the records whose pixel lies off the sensor."""
     s = camera
     return ~s.in_image(records.column("row"), records.column("col"))
 
 
-def outside_sensor_messages(records: Records, camera, lat=None) -> list:
+def outside_sensor_messages(records: Records, camera: Sensor, lat: np.ndarray | None = None) -> list[str]:
     """One message per record whose pixel is off the sensor: line, label, value and the sensor's size.
 
     ``lat`` (the replay's latitudes, optional) tells the records located by extending the lens
@@ -107,7 +111,9 @@ def outside_sensor_messages(records: Records, camera, lat=None) -> list:
     return out
 
 
-def result_from_ground(records: Records, ground: GroundPoint, extra: dict | None = None, camera=None) -> ReplayResult:
+def result_from_ground(
+    records: Records, ground: GroundPoint, extra: dict[str, np.ndarray] | None = None, camera: Sensor | None = None
+) -> ReplayResult:
     """Wrap ground points with the distances to the published and surveyed positions.
 
     With ``camera``, records whose pixel is off its sensor get status
@@ -150,7 +156,7 @@ BELOW_TERRAIN_M = 30.0
 PLATFORM_COLUMN = "platform"
 
 
-def drone_rows(records: Records, sensor=None) -> np.ndarray:
+def drone_rows(records: Records, sensor: object = None) -> NDArray[np.bool_]:
     """True for the records whose platform is a drone: the row's ``platform`` column names one,
     or (where the row has no such cell) the sensor file's ``platform`` does
     (:func:`geoloc.sensors.platform.is_drone`; ``docs/records.md``, "Plausibility checks")."""
@@ -162,7 +168,9 @@ def drone_rows(records: Records, sensor=None) -> np.ndarray:
     return np.array([is_drone(t) if t.strip() else default for t in records.text(PLATFORM_COLUMN)], dtype=bool)
 
 
-def plausibility_warnings(records: Records, result: ReplayResult, terrain=None, limit: int = 5, sensor=None) -> list:
+def plausibility_warnings(
+    records: Records, result: ReplayResult, terrain: DemSource | None = None, limit: int = 5, sensor: object = None
+) -> list[str]:
     """Warnings for records whose numbers cannot be right, without changing them (a unit or datum
     mix-up still gives status ok).
 
@@ -313,8 +321,8 @@ def _concat_rows(parts: list):
 
 def replay_records(
     records: Records,
-    sensor,
-    surface,
+    sensor: FrameSensor,
+    surface: Surface,
     corrections: Corrections = NO_CORRECTIONS,
     *,
     progress: bool | None = False,
@@ -363,10 +371,12 @@ def replay_records(
     hit = _concat_rows(parts)
     terrain = terrain_of(surface)
     extra = {"corrections": np.full(len(records), corrections.label, dtype=object), "refraction_m": hit.refraction_m}
-    if terrain is not None:
-        extra = {"status": hit.status, "dem_evaluations": hit.dem_evaluations.astype(np.int64)}
-        if surface.method == "bisect":
-            extra["hidden"] = hit.hidden.astype(np.int64)
+    if terrain is not None:  # besides corrections and refraction_m, which every row carries
+        extra["status"] = hit.status
+        if isinstance(hit, TerrainHit):  # a DEM met alone (a DEM-else-height surface gives plain points)
+            extra["dem_evaluations"] = hit.dem_evaluations.astype(np.int64)
+            if getattr(surface, "method", None) == "bisect":
+                extra["hidden"] = hit.hidden.astype(np.int64)
     result = result_from_ground(records, hit, extra, camera=sensor)
     result.terrain = terrain
     return result
@@ -377,7 +387,9 @@ def replay_records(
 UNCERTAINTY_COLUMNS = ["ce90_m", "le90_m", "ellipse_major_m", "ellipse_minor_m", "ellipse_azimuth_deg"]
 
 
-def uncertainty_columns(records: Records, sensor, surface, budget) -> tuple:
+def uncertainty_columns(
+    records: Records, sensor: FrameSensor, surface: Surface, budget: ErrorBudget
+) -> tuple[dict[str, np.ndarray], list[str]]:
     """Each record's predicted uncertainty (:func:`geoloc.analysis.uncertainty.propagate`) as the
     replay CSV's columns: ``ce90_m le90_m ellipse_major_m ellipse_minor_m ellipse_azimuth_deg``.
 
@@ -421,7 +433,9 @@ def uncertainty_columns(records: Records, sensor, surface, budget) -> tuple:
 REFRACTION_NOTE_FRACTION = 0.1
 
 
-def refraction_note(records: Records, sensor, surface, corrections: Corrections, result: ReplayResult):
+def refraction_note(
+    records: Records, sensor: FrameSensor, surface: Surface, corrections: Corrections, result: ReplayResult
+) -> str | None:
     """One line when refraction is off but would move points by more than a tenth of their CE90.
 
     Only with a predicted CE90 (``ce90_m``, from the sensor's ``[uncertainty]`` budget): the
@@ -495,7 +509,7 @@ def _fmt(v, spec):
     return "" if not np.isfinite(v) else format(float(v), spec)
 
 
-def write_replay_csv(path, result: ReplayResult) -> None:
+def write_replay_csv(path: str | os.PathLike[str], result: ReplayResult) -> None:
     """Write every input column of the good rows plus the replay's output columns (and ``mgrs``)."""
     records = result.records
     cols = result.columns()

@@ -24,12 +24,21 @@ Heights are ellipsoidal (WGS 84) throughout.
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from geoloc.analysis.time_offset import TimeOffsetFit, fit_time_offset, interpolate_pose_deg
 from geoloc.frames.chain import Pose
+
+if TYPE_CHECKING:
+    from geoloc.io.images import ImageSource, VideoFrames
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.workflows.klv_replay import KlvReplay
 
 __all__ = ["KlvPredictor", "klv_predictor", "frame_marks", "fit_klv_time_offset", "mark_offsets"]
 
@@ -51,7 +60,7 @@ class KlvPredictor:
     rows: int
     cols: int
 
-    def sensor(self, hfov_deg: float, vfov_deg: float):
+    def sensor(self, hfov_deg: float, vfov_deg: float) -> FrameSensor:
         from geoloc.sensors.frame import FrameSensor
         from geoloc.sensors.gimbals import PRESETS
         from geoloc.sensors.lenses import lens_from_fov
@@ -61,7 +70,7 @@ class KlvPredictor:
             PRESETS["azimuth-elevation-roll"],
         )
 
-    def __call__(self, t_s) -> np.ndarray:
+    def __call__(self, t_s: ArrayLike) -> NDArray[np.float64]:
 
         t = np.atleast_1d(np.asarray(t_s, float))
         p = interpolate_pose_deg(self.times_s, self.pose_deg, t)
@@ -92,7 +101,7 @@ class KlvPredictor:
         return out
 
 
-def klv_predictor(replay, points_deg, rows: int, cols: int) -> KlvPredictor:
+def klv_predictor(replay: KlvReplay, points_deg: ArrayLike, rows: int, cols: int) -> KlvPredictor:
     """A :class:`KlvPredictor` from a KLV replay (:func:`geoloc.workflows.klv_replay.replay_klv` of
     the MPEG-TS, its ``columns`` with ``pts_s``) for points ``[(lat_deg, lon_deg, h_m), ...]``
     (ellipsoidal heights) in a ``rows x cols`` video. Packets without a complete pose or fields of
@@ -125,7 +134,7 @@ def klv_predictor(replay, points_deg, rows: int, cols: int) -> KlvPredictor:
     )
 
 
-def frame_marks(images, frames) -> list:
+def frame_marks(images: ImageSource, frames: Iterable[int]) -> list[NDArray[np.float64]]:
     """The painted marks (:func:`geoloc.workflows.render.find_marks`) in each of ``frames`` (indices)
     of an image source: a list of (m, 2) arrays of 1-based ``(row, col)``."""
     from geoloc.workflows.render import find_marks
@@ -134,15 +143,15 @@ def frame_marks(images, frames) -> list:
 
 
 def fit_klv_time_offset(
-    ts_path,
-    points_deg,
-    frames,
+    ts_path: str | os.PathLike[str],
+    points_deg: ArrayLike,
+    frames: ArrayLike,
     *,
-    bounds_s=(-3.0, 3.0),
+    bounds_s: tuple[float, float] = (-3.0, 3.0),
     step_s: float = 0.05,
     gate_px: float = 40.0,
-    replay=None,
-    images=None,
+    replay: KlvReplay | None = None,
+    images: VideoFrames | None = None,
 ) -> TimeOffsetFit:
     """Fit the MPEG-TS's metadata-to-video ``time_offset_s`` on ``frames`` (video frame indices).
 
@@ -165,18 +174,20 @@ def fit_klv_time_offset(
     TimeOffsetFit
         ``time_offset_s``: apply it with ``images.with_time_offset(fit.time_offset_s)``.
     """
-    from geoloc.io.images import open_images
+    from geoloc.io.images import VideoFrames, open_images
     from geoloc.workflows.klv_replay import replay_klv
 
-    images = open_images(ts_path) if images is None else images
+    video = open_images(ts_path) if images is None else images
+    if not isinstance(video, VideoFrames):  # a still picture has no frames' time stamps to fit
+        raise ValueError(f"{ts_path}: not a video with time-stamped frames (an MPEG-TS with a KLV stream)")
     replay = replay_klv(ts_path) if replay is None else replay
-    frames = np.asarray(frames, int)
-    pred = klv_predictor(replay, points_deg, images.rows, images.cols)
-    pts = np.asarray(images.pts_s, float)[frames]
-    return fit_time_offset(pts, frame_marks(images, frames), pred, bounds_s=bounds_s, step_s=step_s, gate_px=gate_px)
+    idx = np.asarray(frames, int)
+    pred = klv_predictor(replay, points_deg, video.rows, video.cols)
+    pts = np.asarray(video.pts_s, float)[idx]
+    return fit_time_offset(pts, frame_marks(video, idx), pred, bounds_s=bounds_s, step_s=step_s, gate_px=gate_px)
 
 
-def mark_offsets(observed_px, predicted_px, gate_px: float = 40.0) -> np.ndarray:
+def mark_offsets(observed_px: ArrayLike, predicted_px: ArrayLike, gate_px: float = 40.0) -> NDArray[np.float64]:
     """Each predicted point's offset to the nearest observed mark, ``observed - predicted``
     [px, (row, col)], shape (p, 2); NaN when no mark lies within ``gate_px`` or no prediction."""
     o = np.asarray(observed_px, float).reshape(-1, 2)

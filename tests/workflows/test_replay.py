@@ -236,3 +236,23 @@ def test_replay_in_chunks_writes_the_same_bytes_as_in_one(surface, tmp_path, mon
         outs.append(out.read_bytes())
     capsys.readouterr()
     assert outs[0] == outs[1] and outs[0].count(b"\n") > 14
+
+
+def test_a_replay_on_a_dem_keeps_the_corrections_and_refraction_columns():
+    # every replay row says which corrections were applied and how far refraction moved it; on a
+    # DEM too (the DEM's columns used to replace them), and a DEM-else-height surface replays
+    from geoloc.sensors.sensor_file import load_sensor
+    from geoloc.surfaces.dem import DEM
+    from geoloc.surfaces.terrain import surface_for
+    from geoloc.workflows.replay import replay_records
+
+    sensor = load_sensor(asset_path("sensors", "eo_turret.toml"))
+    records = load_records(asset_path("records", "eo_turret_flight.csv"), angles=sensor.angle_names)
+    dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"), datum="egm96")
+    cols = replay_records(records, sensor, surface_for(dem=dem)).columns()
+    assert {"corrections", "refraction_m", "status", "dem_evaluations"} <= set(cols)
+    assert list(cols["corrections"]) == ["none"] * len(records)
+    both = replay_records(records, sensor, surface_for(300.0, dem, else_height=True)).columns()
+    assert {"corrections", "refraction_m", "status"} <= set(both)
+    ok = np.asarray(cols["status"]) == 0  # Status.OK: where the DEM has a hit, the fallback changes nothing
+    assert ok.any() and np.array_equal(np.asarray(both["lat_deg"])[ok], np.asarray(cols["lat_deg"])[ok])
