@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     sc = dataclasses.replace(sc, corrections=corrections_from_args(args, sc.sensor, base=sc.corrections))
     dem = None
     if not args.no_gdal and sc.dem_path is not None:  # the scenario's DEM, opened here at the edge
-        dem = SurfaceSpec(dem=sc.dem_path, dem_datum=sc.dem_datum).raster(f"{sc.name}: dem")
+        dem = SurfaceSpec(dem=str(sc.dem_path), dem_datum=sc.dem_datum).raster(f"{sc.name}: dem")
     rep = rpc_report(
         sc,
         out,

@@ -42,7 +42,8 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from collections.abc import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -54,6 +55,10 @@ from geoloc.status import Status
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.spec import SurfaceSpec
 from geoloc.userfiles import atomic_path
+
+if TYPE_CHECKING:  # dask and pyarrow are optional dependencies (geoloc[campaign])
+    import pyarrow as pa
+    from dask.distributed import LocalCluster
 
 #: Photo suffixes (as ``geoloc replay``).
 PHOTO_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".dng")
@@ -146,7 +151,7 @@ class CampaignResult:
         """CPU seconds the units took (summed over workers)."""
         return float(sum(u.cpu_s for u in self.units))
 
-    def table(self):
+    def table(self) -> pa.Table:
         """All rows as one ``pyarrow.Table``, in unit order (reads the parts)."""
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -361,7 +366,12 @@ def _dictionary_columns(table) -> list:
 
 
 def run_unit(
-    index: int, unit, kind: str, cfg: CampaignConfig, out_dir: str, numba_threads: int | None = None
+    index: int,
+    unit: str | Sequence[str],
+    kind: str,
+    cfg: CampaignConfig,
+    out_dir: str,
+    numba_threads: int | None = None,
 ) -> UnitResult:
     """Replay one unit and write its rows to ``out_dir/part-<index>.parquet``; never raises for a bad unit.
 
@@ -648,7 +658,7 @@ def _photos_unit(paths, cfg: CampaignConfig):
 
 
 # --------------------------------------------------------------------------- running
-def local_cluster(workers: int = 2, threads_per_worker: int = 1, processes: bool = True):
+def local_cluster(workers: int = 2, threads_per_worker: int = 1, processes: bool = True) -> LocalCluster:
     """The ``dask.distributed.LocalCluster`` of ``scheduler="local"``: every server on 127.0.0.1.
 
     ``workers`` worker processes (or, ``processes=False``, threads of this process) of
@@ -707,8 +717,8 @@ def worker_numba_threads(workers: int, threads_per_worker: int = 1) -> int:
 
 
 def run_campaign(
-    inputs,
-    out_dir,
+    inputs: Iterable[str | os.PathLike[str]],
+    out_dir: str | os.PathLike[str],
     config: CampaignConfig | None = None,
     *,
     scheduler: str = "local",
@@ -716,7 +726,7 @@ def run_campaign(
     processes: bool = True,
     threads_per_worker: int = 1,
     photos_per_unit: int = PHOTOS_PER_UNIT,
-    on_unit=None,
+    on_unit: Callable[[UnitResult], object] | None = None,
     numba_threads: int | str | None = "auto",
     progress: bool | None = False,
 ) -> CampaignResult:

@@ -50,14 +50,20 @@ azimuth there, so the nose follows the track. Conventions: ``docs/conventions.md
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from pyproj import Geod
 
 from geoloc.frames.chain import Pose
 from geoloc.tomlio import read_toml
+
+if TYPE_CHECKING:
+    from geoloc.analysis.errormodel import ErrorModel
 
 _GEOD = Geod(ellps="WGS84")
 
@@ -129,14 +135,16 @@ class FlightScenario:
     mc_seed: int = 0
 
     @classmethod
-    def from_toml(cls, path) -> "FlightScenario":
+    def from_toml(cls, path: str | os.PathLike[str]) -> "FlightScenario":
         """Load and validate a scenario file; errors name the key and the value."""
         path = Path(path)
         data = read_toml(path, "scenario file")
         return cls.from_dict(data, base=path.parent, source=str(path))
 
     @classmethod
-    def from_dict(cls, data: dict, base=Path("."), source: str = "scenario") -> "FlightScenario":
+    def from_dict(
+        cls, data: dict[str, Any], base: str | os.PathLike[str] = Path("."), source: str = "scenario"
+    ) -> "FlightScenario":
         base = Path(base)
         top = {"name", "camera", "aircraft", "time", "scan", "terrain", "pixel", "kind", "montecarlo"}
         _no_unknown(data, top, source)
@@ -270,7 +278,7 @@ def _no_unknown(tab, allowed, source):
         raise ValueError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
 
 
-def whisk_broom(t, lo, hi, period):
+def whisk_broom(t: ArrayLike, lo: float, hi: float, period: float) -> NDArray[np.float64]:
     """Outer gimbal magnitude of a whisk-broom scan: a triangle wave between ``lo`` and ``hi``.
 
     a(t) = lo + (hi - lo) (1 - |2 frac(t / period) - 1|): ``lo`` at t = 0, ``hi`` at
@@ -339,7 +347,9 @@ def simulate(scn: FlightScenario) -> FlightTrack:
     return FlightTrack(t, pose)
 
 
-def step_cep(track: FlightTrack, model, target_h_m: float, n: int, rng: np.random.Generator) -> dict:
+def step_cep(
+    track: FlightTrack, model: ErrorModel, target_h_m: float, n: int, rng: np.random.Generator
+) -> dict[str, NDArray[np.float64]]:
     """Monte Carlo CEP of every step: [Q17 eq. 14-18] with the step's pose as the nominal.
 
     For each step the error model's nominal pose is replaced by the step's

@@ -13,10 +13,13 @@ a rotation about Z by the Greenwich angle theta_g = theta_g0 + omega_E t
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from geoloc.corrections import check_table
 from geoloc.corrections.lighttime import aberration, inertial_velocity
@@ -141,7 +144,7 @@ class LimbScenario:
         k = (np.arange(self.n_pixels) + 0.5) / self.n_pixels - 0.5
         return k * self.fov
 
-    def state_ecef(self, t=None):
+    def state_ecef(self, t: ArrayLike | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Position [m] and velocity [m/s] in ECEF at times t (default: the frames).
 
         Returns
@@ -174,7 +177,7 @@ class LimbScenario:
         d = aberration(chain.direction_ecef, inertial_velocity(p[:, None, :], v[:, None, :]))
         return replace(chain, direction_ecef=np.where(np.isfinite(chain.direction_ecef), d, np.nan))
 
-    def solve(self, **kwargs) -> tuple[L18Chain, LimbTangent]:
+    def solve(self, **kwargs: Any) -> tuple[L18Chain, LimbTangent]:
         """Lines of sight and their tangents (keyword arguments go to :func:`geoloc.sensors.limb.limb_tangent`)."""
         chain = self.lines_of_sight()
         return chain, limb_tangent(chain.origin_ecef, chain.direction_ecef, **kwargs)
@@ -250,7 +253,7 @@ def scenario_from_dict(data: dict, source: str = "scenario") -> LimbScenario:
     return LimbScenario(name=str(data.get("name", source)), source=source, **kw)
 
 
-def load_limb_scenario(path) -> LimbScenario:
+def load_limb_scenario(path: str | os.PathLike[str]) -> LimbScenario:
     """Read a limb scenario TOML file (e.g. ``assets/scenarios/tiangong2_limb.toml``).
 
     Raises

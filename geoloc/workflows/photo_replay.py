@@ -20,8 +20,10 @@ from __future__ import annotations
 
 import csv
 import math
+import os
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -45,6 +47,11 @@ from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.height import HeightSurface
 from geoloc.userfiles import atomic_path
 from geoloc.workflows.triangulation import TARGET_ID_COLUMN, triangulate_ids
+
+if TYPE_CHECKING:
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.surfaces.base import Surface
+    from geoloc.workflows.triangulation import TargetResult
 
 __all__ = ["OUTPUT_COLUMNS", "read_targets", "replay_photos", "summarize", "write_rows"]
 
@@ -102,7 +109,9 @@ ALTITUDE_CHECK_M = 30.0
 _DATUM_TEXT = {"egm96": EGM96_DATUM, "ellipsoid": ELLIPSOID_DATUM}
 
 
-def read_targets(path) -> tuple[list, list, list]:
+def read_targets(
+    path: str | os.PathLike[str],
+) -> tuple[list[dict[str, Any]], list[str], list[str]]:
     """Read a targets CSV: ``(targets, header, messages)``.
 
     Each target is a dict with ``line`` (the file's line number), ``image``,
@@ -196,17 +205,17 @@ def _resolve(image: str, index: dict):
 
 
 def replay_photos(
-    photo_paths,
-    targets_csv,
-    sensor=None,
-    surface=None,
+    photo_paths: Iterable[str | os.PathLike[str]],
+    targets_csv: str | os.PathLike[str],
+    sensor: FrameSensor | None = None,
+    surface: Surface | None = None,
     *,
     altitude_datum: str = "egm96",
     truth_h_datum: str = "ellipsoid",
-    targets_out: list | None = None,
+    targets_out: list[TargetResult] | None = None,
     corrections: Corrections = NO_CORRECTIONS,
     progress: bool | None = False,
-):
+) -> tuple[list[dict[str, Any]], list[str]]:
     """Locate every target of ``targets_csv`` in its photo and compare it with its truth.
 
     Parameters
@@ -532,7 +541,7 @@ def _cell(v) -> str:
     return str(v)
 
 
-def write_rows(path, rows) -> None:
+def write_rows(path: str | os.PathLike[str], rows: Iterable[Mapping[str, Any]]) -> None:
     """Write the rows of :func:`replay_photos` to a CSV (empty cells for None/NaN; full float precision).
 
     The columns are :data:`OUTPUT_COLUMNS` then any others in the order they
@@ -548,7 +557,7 @@ def write_rows(path, rows) -> None:
             w.writerow([_cell(r.get(c)) for c in cols])
 
 
-def summarize(rows, messages=()) -> str:
+def summarize(rows: Sequence[Mapping[str, Any]], messages: Sequence[str] = ()) -> str:
     """A few lines per photo: targets located, mean and largest error to truth, and the datums used."""
     lines = []
     images = dict.fromkeys(r["image"] for r in rows)

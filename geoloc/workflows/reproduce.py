@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,6 +28,9 @@ from geoloc.sensors.camera import camera_from_sensor
 from geoloc.sensors.sensor_file import load_sensor
 from geoloc.surfaces.base import LineOfSight, terrain_of
 from geoloc.workflows.scenario import load_scenario
+
+if TYPE_CHECKING:
+    from geoloc.surfaces.base import Surface
 
 #: Bundled scenario of [Q17] Tables 1-2 (ellipsoid model).
 Q17_SCENARIO = ("scenarios", "qiao2017_table1.toml")
@@ -50,7 +55,7 @@ class Report:
     lines: list = field(default_factory=list)
     numbers: dict = field(default_factory=dict)
 
-    def add(self, *lines):
+    def add(self, *lines: str) -> None:
         self.lines.extend(lines)
 
     def text(self) -> str:
@@ -80,7 +85,11 @@ def dem_scenario_available() -> bool:
 
 
 def qiao2017_report(
-    samples: int = 5000, seed: int = 0, sweep_samples: int = 2000, surface=None, progress: bool | None = False
+    samples: int = 5000,
+    seed: int = 0,
+    sweep_samples: int = 2000,
+    surface: Surface | None = None,
+    progress: bool | None = False,
 ) -> Report:
     """[Q17] side by side with the project.
 
@@ -230,7 +239,9 @@ def qiao2017_report(
 L23_SAVING_PCT = 45.5
 
 
-def li2023_report(surface, seed: int = 0, n_rays: int = 100, tolerances_m=(10.0, 2.0, 1.0)) -> Report:
+def li2023_report(
+    surface: Surface, seed: int = 0, n_rays: int = 100, tolerances_m: Iterable[float] = (10.0, 2.0, 1.0)
+) -> Report:
     """[L23] bisection on the target elevation against [Q17]'s descending steps.
 
     ``surface`` is the DEM of :func:`load_q17_dem_model`'s ``[dem]`` table, built once by the

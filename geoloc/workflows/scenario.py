@@ -26,9 +26,21 @@ scenario file; it is built by ``geoloc_viz.scenario.load_view_scenario``.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Literal, overload
 
 from geoloc.tomlio import read_toml
+
+if TYPE_CHECKING:
+    from geoloc.analysis.errormodel import ErrorModel
+    from geoloc.workflows.flight import FlightScenario
+    from geoloc.workflows.limb_scenario import LimbScenario
+    from geoloc.workflows.rpc_scenario import RPCScenario
+
+    #: What :func:`load_scenario` returns: the object of the file's kind.
+    Scenario = ErrorModel | FlightScenario | LimbScenario | RPCScenario
 
 #: Every kind, with what it is (for messages).
 KINDS = {
@@ -60,7 +72,30 @@ def scenario_kind(data: dict, source: str = "scenario") -> str:
     )
 
 
-def load_scenario(path, expect=None):
+@overload
+def load_scenario(path: str | os.PathLike[str], expect: Literal["montecarlo"]) -> ErrorModel: ...
+
+
+@overload
+def load_scenario(path: str | os.PathLike[str], expect: Literal["flight_scan"]) -> FlightScenario: ...
+
+
+@overload
+def load_scenario(path: str | os.PathLike[str], expect: Literal["limb"]) -> LimbScenario: ...
+
+
+@overload
+def load_scenario(
+    path: str | os.PathLike[str],
+    expect: Literal["pushbroom", "frame"] | tuple[Literal["pushbroom", "frame"], ...],
+) -> RPCScenario: ...
+
+
+@overload
+def load_scenario(path: str | os.PathLike[str], expect: str | Sequence[str] | None = None) -> Scenario: ...
+
+
+def load_scenario(path: str | os.PathLike[str], expect: str | Sequence[str] | None = None) -> Scenario:
     """Read any scenario file; return its typed object (the table in the module docstring).
 
     Parameters

@@ -13,14 +13,22 @@ height difference is reported as a likely DEM or datum error.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.analysis.triangulate import Triangulation, compare_with_surface, triangulate
 from geoloc.io.records import Records
 from geoloc.status import Status
 from geoloc.pipeline import NO_CORRECTIONS, Corrections
+
+if TYPE_CHECKING:
+    from geoloc.sensors.budget import ErrorBudget
+    from geoloc.sensors.camera import Camera
+    from geoloc.sensors.frame import FrameSensor
 
 #: The column naming a target seen in several rows.
 TARGET_ID_COLUMN = "target_id"
@@ -39,13 +47,13 @@ class TargetResult:
 
 def triangulate_records(
     records: Records,
-    sensor,
-    budget=None,
-    surface_h_m=None,
-    surface_ok=None,
+    sensor: FrameSensor | Camera,
+    budget: ErrorBudget | None = None,
+    surface_h_m: ArrayLike | None = None,
+    surface_ok: ArrayLike | None = None,
     column: str = TARGET_ID_COLUMN,
     corrections: Corrections = NO_CORRECTIONS,
-) -> list:
+) -> list[TargetResult]:
     """Triangulate every target named in two rows or more of ``column``.
 
     Parameters
@@ -88,7 +96,15 @@ def triangulate_records(
     return out
 
 
-def triangulate_ids(ids, origins, directions, ok, lines, surface_h_m=None, surface_ok=None) -> list:
+def triangulate_ids(
+    ids: Sequence[object],
+    origins: ArrayLike,
+    directions: ArrayLike,
+    ok: ArrayLike,
+    lines: Sequence[int],
+    surface_h_m: ArrayLike | None = None,
+    surface_ok: ArrayLike | None = None,
+) -> list[TargetResult]:
     """Triangulate every target id named by two rays or more, from the rays themselves (each ray
     from its own frame's sensor: drone photos each have theirs), without a budget.
 
@@ -116,10 +132,10 @@ def triangulate_ids(ids, origins, directions, ok, lines, surface_h_m=None, surfa
     O = np.asarray(origins, float).reshape(-1, 3)
     D = np.asarray(directions, float).reshape(-1, 3)
     ok = np.asarray(ok, bool).reshape(-1)
-    ids = [str(i).strip() for i in ids]
+    names = [str(i).strip() for i in ids]
     out = []
-    for tid in dict.fromkeys(i for i in ids if i):
-        idx = np.array([k for k, i in enumerate(ids) if i == tid])
+    for tid in dict.fromkeys(i for i in names if i):
+        idx = np.array([k for k, i in enumerate(names) if i == tid])
         if idx.size < 2:
             continue
         tri = triangulate_rays(O[idx], D[idx], ok[idx])
