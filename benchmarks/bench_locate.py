@@ -27,7 +27,8 @@ kernel's memory traffic: inputs read once, outputs written to fresh pages).
 ``--ab REV`` times the kernel alone, this tree's against the ``_fastlocate.py`` of
 git revision REV (loaded from ``git show``, compiled in the same process), on the
 same rays, calls alternating, medians of wall and CPU time: an A/B that stays
-meaningful when other processes load the machine (both sides see the same load).
+meaningful when other processes load the machine (both sides see the same load). Three cases:
+the two sensors' rays, and a frame (one pose, a grid of pixels: inputs of one value each).
 """
 
 from __future__ import annotations
@@ -155,11 +156,16 @@ def ab(rev: str, n: int, repeat: int, rng) -> None:
 
     old = _old_fastlocate(rev)
     cases = [("q17 roll-pitch pinhole", *make_rays(n, rng)), ("turret", *make_turret_rays(n, rng))]
+    # a frame: one pose (one value a field, one target height) for a grid of pixels
+    cam = cases[0][1]
+    rr, cc = np.meshgrid(np.linspace(1, cam.rows, 1000), np.linspace(1, cam.cols, max(n // 1000, 1)), indexing="ij")
+    frame = Pose.from_deg(35.48, 80.97, 18000.0, 45.0, 3.5, 0.0, 50.0, -2.6)
+    cases.append(("frame (one pose)", cam, frame, rr.ravel(), cc.ravel()))
     for name, sensor, pose, rows, cols in cases:
         s = as_sensor(sensor)
         out = {}
         for mod in (old, new):  # compile (or load) both first
-            mod.locate_fast(pose.take(slice(0, 1000)), s, rows[:1000], cols[:1000], 0.0)
+            mod.locate_fast(pose if pose.shape == () else pose.take(slice(0, 1000)), s, rows[:1000], cols[:1000], 0.0)
         for _ in range(repeat):
             for label, mod in (("old", old), ("new", new)):
                 c, w = time.process_time(), time.perf_counter()

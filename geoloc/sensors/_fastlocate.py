@@ -36,6 +36,13 @@ numpy reference path, and each lane function against libm or PROJ, by
   before the loop over pixels, and the map's gathers run in a loop of their own, so that
   the Newton steps (and a pinhole's K^-1) compile to SIMD code: 42 -> 6 ns a ray for the
   [Q17] pinhole, 60 -> 23 ns for the benchmark's Brown lens (one thread, CPU time);
+- an input holding one value for every ray (a frame's pose, one target height) reaches the
+  kernel as that one value (:func:`_col`, :func:`_part`), not broadcast to the batch; the line of
+  sight's statuses and the result's refraction shift (0 where OK) are written by the kernel, not
+  by numpy passes afterwards: fewer bytes on fresh pages, whose faults were a quarter of the
+  CPU time of ``locate()`` (sys time; 1 M rays). Against the previous kernel and wrapper in
+  one process, calls alternating (load 17-22), outputs bit for bit the same: a frame (one
+  pose, 1 M pixels) 1.34x per CPU second, the benchmark's pinhole 1.03x, its turret 1.08x;
 - ECEF -> geodetic is Vermeille's closed form (:func:`geodetic_lanes`) with ``sqrt``
   for ``hypot``, Cephes' ``atan`` (:func:`atan_lanes`, :func:`atan2_lanes`) and the
   cube root as a series and three Newton steps; :func:`geodetic_fast` is the scalar
@@ -490,8 +497,32 @@ def _joint_angles(j, angle0, angle1, angle2, angles_more):
     return angles_more[j - 3]
 
 
+@cached_njit(KEY, inline="always")
+def _part(a, k0, k1, buf):
+    """The block's values of a per-ray input: ``a[k0:k1]``, or ``buf`` filled with ``a[0]`` when ``a``
+    holds one value for every ray (a frame's pose, one target height): the caller passes such an
+    input as one value, not broadcast to the batch (an array of n doubles written, then read)."""
+    if a.shape[0] == 1:
+        buf[:] = a[0]
+        return buf
+    return a[k0:k1]
+
+
+@cached_njit(KEY, error_model="numpy")
+def _status_block(status, los_status, shift):
+    """The line of sight's status (INVALID_INPUT and OUTSIDE_SENSOR kept, else OK) and, when
+    ``shift`` has room, the refraction shift of a result without refraction (0.0 where OK, else NaN)."""
+    for i in range(status.shape[0]):
+        st = status[i]
+        los_status[i] = st if (st == _INVALID) | (st == _OUTSIDE) else _OK
+    if shift.shape[0] > 0:
+        for i in range(status.shape[0]):
+            shift[i] = 0.0 if status[i] == _OK else math.nan
+
+
 @cached_njit(KEY, parallel=True, error_model="numpy")
 def locate_kernel(
+    n,
     lat,
     lon,
     h,
@@ -530,6 +561,8 @@ def locate_kernel(
     out_o,
     out_d,
     out_status,
+    out_los_status,
+    out_shift,
 ):
     """The fused chain over blocks of :data:`_BLOCK` rays, hop by hop, each hop one loop over the block.
 
@@ -539,8 +572,11 @@ def locate_kernel(
     range) are recomputed by the scalar code right after. Rows of the per-block scratch
     ``sc``: sine and cosine of heading, pitch, roll, latitude, longitude and of each joint,
     then the direction x, y, z, a validity flag (1.0 / 0.0), and the hit x, y, z.
+
+    ``n`` rays; each per-ray input (pose fields, joint angles, pixel, target height) holds n
+    values or one for all (:func:`_part`). ``out_los_status``: the line of sight's statuses;
+    ``out_shift``: n values of a refraction shift of 0 where OK, NaN elsewhere, or empty (not wanted).
     """
-    n = lat.shape[0]
     nj = axes.shape[0]
     rx = 10 + 2 * nj
     rok = rx + 3
@@ -551,37 +587,45 @@ def locate_kernel(
         k1 = min(n, k0 + _BLOCK)
         m = k1 - k0
         sc = np.empty((rx + 7, _BLOCK))
+        inp = np.empty((9 + nj, _BLOCK))  # the block's values of the inputs given as one value
         good = np.empty(_BLOCK, dtype=np.bool_)
         x, y, z = sc[rx, :m], sc[rx + 1, :m], sc[rx + 2, :m]
-        _sincos_block(heading[k0:k1], sc[0, :m], sc[1, :m])
-        _sincos_block(pitch[k0:k1], sc[2, :m], sc[3, :m])
-        _sincos_block(roll[k0:k1], sc[4, :m], sc[5, :m])
-        _sincos_block(lat[k0:k1], sc[6, :m], sc[7, :m])
-        _sincos_block(lon[k0:k1], sc[8, :m], sc[9, :m])
+        lat_b = _part(lat, k0, k1, inp[0, :m])
+        lon_b = _part(lon, k0, k1, inp[1, :m])
+        h_b = _part(h, k0, k1, inp[2, :m])
+        heading_b = _part(heading, k0, k1, inp[3, :m])
+        pitch_b = _part(pitch, k0, k1, inp[4, :m])
+        roll_b = _part(roll, k0, k1, inp[5, :m])
+        row_b = _part(row, k0, k1, inp[6, :m])
+        col_b = _part(col, k0, k1, inp[7, :m])
+        th_b = _part(target_h, k0, k1, inp[8, :m])
+        _sincos_block(heading_b, sc[0, :m], sc[1, :m])
+        _sincos_block(pitch_b, sc[2, :m], sc[3, :m])
+        _sincos_block(roll_b, sc[4, :m], sc[5, :m])
+        _sincos_block(lat_b, sc[6, :m], sc[7, :m])
+        _sincos_block(lon_b, sc[8, :m], sc[9, :m])
         for j in range(nj):
-            _sincos_block(
-                _joint_angles(j, angle0, angle1, angle2, angles_more)[k0:k1], sc[10 + 2 * j, :m], sc[11 + 2 * j, :m]
-            )
+            a_j = _part(_joint_angles(j, angle0, angle1, angle2, angles_more), k0, k1, inp[9 + j, :m])
+            _sincos_block(a_j, sc[10 + 2 * j, :m], sc[11 + 2 * j, :m])
         _valid_block(
-            lat[k0:k1],
-            lon[k0:k1],
-            h[k0:k1],
-            heading[k0:k1],
-            pitch[k0:k1],
-            roll[k0:k1],
-            row[k0:k1],
-            col[k0:k1],
-            target_h[k0:k1],
+            lat_b,
+            lon_b,
+            h_b,
+            heading_b,
+            pitch_b,
+            roll_b,
+            row_b,
+            col_b,
+            th_b,
             ranges,
             b_m,
             sc[rok, :m],
         )
         for j in range(nj):
-            _angle_valid_block(
-                _joint_angles(j, angle0, angle1, angle2, angles_more)[k0:k1], angle_lo[j], angle_hi[j], sc[rok, :m]
-            )
+            a_j = _part(_joint_angles(j, angle0, angle1, angle2, angles_more), k0, k1, inp[9 + j, :m])
+            _angle_valid_block(a_j, angle_lo[j], angle_hi[j], sc[rok, :m])
         # pixel -> optical frame -> last joint frame -> ... -> gimbal base (or NED) -> body -> NED
-        _unproject_block(lens_code, lens_p, row[k0:k1], col[k0:k1], x, y, z, good[:m])
+        _unproject_block(lens_code, lens_p, row_b, col_b, x, y, z, good[:m])
         _mul_T_block(R_cam_last, x, y, z)
         for j in range(nj - 1, -1, -1):
             _turn_back_block(axes[j], sc[10 + 2 * j, :m], sc[11 + 2 * j, :m], x, y, z)
@@ -595,10 +639,10 @@ def locate_kernel(
             y,
             z,
             sc[rok, :m],
-            h[k0:k1],
-            target_h[k0:k1],
-            row[k0:k1],
-            col[k0:k1],
+            h_b,
+            th_b,
+            row_b,
+            col_b,
             flag_off,
             width,
             height,
@@ -628,15 +672,21 @@ def locate_kernel(
             out_h[k0:k1],
             good[:m],
         )
+        _status_block(out_status[k0:k1], out_los_status[k0:k1], out_shift[k0:k1] if out_shift.shape[0] else out_shift)
 
 
-def _col(a, shape):
-    """A C-contiguous, writable float64 copy-or-view of ``a`` broadcast to ``shape``, flattened.
+def _col(a, shape: tuple) -> np.ndarray:
+    """A C-contiguous, writable float64 array of the values of ``a`` for a batch of ``shape``: one
+    value (length 1) when ``a`` holds one, else ``a`` broadcast to ``shape``, flattened.
 
-    Always the same array type, so numba compiles the kernel once (a readonly
-    broadcast view would be a second signature).
+    Always the same array type, so numba compiles the kernel once (a readonly broadcast view
+    would be a second signature). One value is not broadcast: the kernel reads it for every ray
+    (:func:`_part`), where a broadcast copy was n doubles written to fresh pages and read back
+    (a frame's pose: nine such arrays; the benchmark's one target height: 8 MB per 1 M rays).
     """
     a = np.asarray(a, float)
+    if a.size == 1:
+        return np.array([a.reshape(-1)[0]])
     if a.shape == shape and a.flags.c_contiguous and a.flags.writeable:
         return a.reshape(-1)  # already the kernel's array type: no copy
     return np.ascontiguousarray(np.broadcast_to(a, shape)).reshape(-1)  # broadcast views are read-only: copy
@@ -668,17 +718,20 @@ def line_of_sight_fast(pose, sensor, row, col, outside="flag"):
     The kernel's line of sight, with the statuses a line of sight has (INVALID_INPUT,
     OUTSIDE_SENSOR, else OK; the kernel's hit on the ellipsoid is dropped).
     """
-    _, _, _, _, _, status, o, d = locate_fast(pose, sensor, row, col, 0.0, outside=outside)
-    los_status = np.where((status == _INVALID) | (status == _OUTSIDE), status, np.uint8(_OK)).astype(np.uint8)
-    return o, d, los_status
+    out = locate_fast(pose, sensor, row, col, 0.0, outside=outside)
+    return out[6], out[7], out[8]
 
 
-def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
+def locate_fast(pose, sensor, row, col, target_h, outside="flag", refraction_m: bool = False) -> tuple:
     """Run :func:`locate_kernel` for a :class:`geoloc.sensors.frame.FrameSensor`; arrays shaped like the batch.
 
     Returns
     -------
-    lat, lon, h, ecef, slant_range, status, origin_ecef, direction_ecef
+    lat, lon, h, ecef, slant_range, status, origin_ecef, direction_ecef, los_status, shift
+        ``los_status``: the line of sight's statuses (INVALID_INPUT and OUTSIDE_SENSOR kept, else
+        OK); ``shift``: with ``refraction_m``, a result's refraction shift when refraction is off
+        (0.0 where OK, NaN elsewhere), else None. Both are written by the kernel while each block's
+        statuses are in the cache, not by numpy passes over the batch afterwards.
     """
     if not serves(sensor):
         raise ValueError(
@@ -689,11 +742,13 @@ def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
     fields = [pose.lat, pose.lon, pose.h, pose.heading, pose.pitch, pose.roll, row, col, target_h, *angles]
     shape = np.broadcast_shapes(*(np.shape(v) for v in fields))
     flat = [_col(v, shape) for v in fields]
-    n = flat[0].size
+    n = math.prod(shape)
     # the first three joints' angles as the pose holds them (no copy when they are the batch's
     # float64 arrays already: a copy into one (n, k) array cost 6.5 ns a ray of ~150), more in rows
     joint = flat[9:12] + [flat[0][:0]] * (3 - len(flat[9:12]))  # unused: empty
-    more = np.stack(flat[12:]) if len(flat) > 12 else np.empty((0, n))
+    extra = flat[12:]
+    width_more = max((len(a) for a in extra), default=n)  # rows of one length: n, or 1 when all hold one value
+    more = np.stack([np.broadcast_to(a, (width_more,)) for a in extra]) if extra else np.empty((0, n))
     has_mount = not np.array_equal(sensor.R_base_body, np.eye(3))
     ranges = np.array([pose.RANGES[k] for k in ("lat", "lon", "h", "heading", "pitch", "roll")], dtype=float)
     lo = np.array([pose.RANGES.get(a, pose.ANGLE_RANGE)[0] for a in names], dtype=float)
@@ -702,8 +757,11 @@ def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
     out_lat, out_lon, out_h, out_s = (np.empty(n) for _ in range(4))
     out_ecef, out_o, out_d = (np.empty((n, 3)) for _ in range(3))
     out_status = np.empty(n, dtype=np.uint8)
+    out_los_status = np.empty(n, dtype=np.uint8)
+    out_shift = np.empty(n if refraction_m else 0)
     lens = sensor.lens
     locate_kernel(
+        n,
         *flat[:6],
         *joint,
         more,
@@ -733,6 +791,8 @@ def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
         out_o,
         out_d,
         out_status,
+        out_los_status,
+        out_shift,
     )
     return (
         out_lat.reshape(shape),
@@ -743,4 +803,6 @@ def locate_fast(pose, sensor, row, col, target_h, outside="flag"):
         out_status.reshape(shape),
         out_o.reshape(shape + (3,)),
         out_d.reshape(shape + (3,)),
+        out_los_status.reshape(shape),
+        out_shift.reshape(shape) if refraction_m else None,
     )

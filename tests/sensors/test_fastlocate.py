@@ -418,3 +418,49 @@ def test_kernel_takes_any_number_of_joints_as_the_numpy_path():
         np.testing.assert_allclose(fast.lon[ok], ref.lon[ok], rtol=0, atol=1e-12)
         np.testing.assert_allclose(fast.los.direction_ecef[ok], ref.los.direction_ecef[ok], rtol=0, atol=1e-12)
     assert len(locate_kernel.signatures) == 1, locate_kernel.signatures
+
+
+def test_one_value_inputs_equal_the_numpy_path_and_their_broadcast_arrays():
+    # a frame's pose (one value a field) and one target height reach the kernel as one value each,
+    # read for every ray, not broadcast to the batch: the results must equal the numpy reference path
+    # (statuses, the line of sight's statuses and refraction_m exactly; positions as _compare), and,
+    # bit for bit, the kernel given the same values as full arrays. A five-joint gimbal mixes one-value
+    # and per-ray joint angles (the rows beyond the first three joints); a NaN pose gives INVALID_INPUT
+    # on every ray, a pixel off the sensor OUTSIDE_SENSOR.
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc.sensors.gimbals import Gimbal, GimbalJoint
+    from geoloc.sensors.lenses import BrownLens
+
+    lens = BrownLens(fx=1000.0, fy=1000.0, cx=499.5, cy=499.5, width=1000, height=1000, k1=-0.1)
+    joints = tuple(GimbalJoint(f"j{i}", ax, f"f{i}", "") for i, ax in enumerate("zyxzy"))
+    s = FrameSensor(lens, Gimbal("custom5", joints, np.eye(3)), lever_arm_m=(0.5, -0.2, 0.3))
+    rng = np.random.default_rng(21)
+    n = 3000
+    rows, cols = rng.uniform(-5, 1005, n), rng.uniform(1, 1000, n)
+    per_ray = {"j1": rng.uniform(-8, 8, n), "j4": rng.uniform(-8, 8, n)}
+    for heading in (33.0, np.nan):
+        angles = {"j0": 4.0, "j1": per_ray["j1"], "j2": -3.0, "j3": 2.0, "j4": per_ray["j4"]}
+        one = Pose.from_deg(35.2, 80.1, 2500.0, heading, 2.0, -1.0, angles_deg=angles)
+        full = Pose.from_deg(
+            *(np.full(n, v) for v in (35.2, 80.1, 2500.0, heading, 2.0, -1.0)),
+            angles_deg={k: np.broadcast_to(v, (n,)).copy() for k, v in angles.items()},
+        )
+        ref = locate(one, s, rows, cols, target_h=120.0, engine="numpy")
+        fast = locate(one, s, rows, cols, target_h=120.0, engine="numba")
+        wide = locate(full, s, rows, cols, target_h=np.full(n, 120.0), engine="numba")
+        assert np.array_equal(fast.status, ref.status)
+        assert np.array_equal(fast.los.status, ref.los.status)
+        np.testing.assert_array_equal(fast.refraction_m, ref.refraction_m)  # 0 where OK, NaN elsewhere
+        ok = ref.status == Status.OK
+        if np.isnan(heading):
+            assert np.all(ref.status == Status.INVALID_INPUT)
+        else:
+            assert 0.9 * n < ok.sum() < n and np.any(ref.status == Status.OUTSIDE_SENSOR)
+        # tolerances as _compare: the same formulas, rounded in another order
+        np.testing.assert_allclose(fast.ecef[ok], ref.ecef[ok], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(fast.lat[ok], ref.lat[ok], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fast.lon[ok], ref.lon[ok], rtol=0, atol=1e-12)
+        for f in ("lat", "lon", "h", "ecef", "slant_range", "status", "refraction_m"):
+            assert np.array_equal(getattr(fast, f), getattr(wide, f), equal_nan=True), f
+        for f in ("origin_ecef", "direction_ecef", "status"):
+            assert np.array_equal(getattr(fast.los, f), getattr(wide.los, f), equal_nan=True), f
