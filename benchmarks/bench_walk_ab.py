@@ -20,6 +20,13 @@ statuses do and how far apart the hits are. ``--dem-model``: the cell model walk
 ``triangles`` (default, as ``bench_terrain.py``) or ``bilinear`` (what ``locate`` and
 ``replay`` use by default). Measures what the walk costs; ``bench_terrain.py`` compares it
 with embree.
+
+``--placement ORDER`` (e.g. ``AMB``, ``MAB``) measures instead how the process's load order moves
+the same walk's speed (docs/terrain.md, seventh round): the flat walk of this tree's
+``terrain_numba.KERNELS`` (A), the same source compiled afresh inside ``terrain_numba`` with its
+helpers (B, ``numba.njit``, no cache), and REV's whole ``terrain_numba.py`` loaded as a scratch
+module (M, with helpers of its own, as the rows above load REV; pass ``HEAD`` for the same code),
+loaded in ORDER, then called in rotated turn, CPU medians, outputs compared bit for bit with A's.
 """
 
 from __future__ import annotations
@@ -44,10 +51,14 @@ def main(argv=None) -> None:
     ap.add_argument("--size", type=int, default=0)
     ap.add_argument("--repeat", type=int, default=11)
     ap.add_argument("--dem-model", choices=("triangles", "bilinear"), default="triangles")
+    ap.add_argument("--placement", default="", help="load order of A, B, M (see the module docstring)")
     a = ap.parse_args(argv)
     import numba
 
     numba.set_num_threads(1)
+    if a.placement:
+        placement(a)
+        return
     old = module_at(a.rev, "geoloc/surfaces/terrain_numba.py")
     dem = DEM.open(SRTM) if a.size == 0 else upsampled_dem(DEM.open(SRTM), a.size, np.random.default_rng(0))
     los = random_oblique_rays(
@@ -164,6 +175,69 @@ def main(argv=None) -> None:
         print(
             f"{k:22s} {np.median(times[k]) * 1e9 / n:8.1f} ns a ray   "
             f"{np.median(times[k]) / np.median(times[p]):5.3f} of {p:12s}   identical to {a.rev}: {same}{diff}"
+        )
+
+
+def placement(a) -> None:
+    """The same flat walk loaded three ways, in the order ``a.placement`` (module docstring)."""
+    import os
+    import statistics
+
+    import numba
+
+    dem = DEM.open(SRTM) if a.size == 0 else upsampled_dem(DEM.open(SRTM), a.size, np.random.default_rng(0))
+    los = random_oblique_rays(
+        dem, 10_000 if a.size == 0 else 100_000, np.random.default_rng(1), frame_angle_deg=(45.0, 82.0)
+    )
+    o = np.ascontiguousarray(los.origin_ecef.reshape(-1, 3))
+    d = np.ascontiguousarray(los.direction_ecef.reshape(-1, 3))
+    grid = terrain.walk_grid(terrain._exact_tables(dem), climb=False)
+    tri = a.dem_model == "triangles"
+    n = len(o)
+    mods, kernels = {}, {}
+    for c in a.placement:
+        if c == "A":
+            mods[c], kernels[c] = tn, tn._kernel_for(grid.hlev, grid.blk, tri)
+        elif c == "B":
+            fresh = tn._variant(tn._walk, "_walk_fresh", False, tn.BLOCK if grid.blk == tn.BLOCK else 0, tri)
+            mods[c], kernels[c] = tn, numba.njit(error_model="numpy", fastmath={"contract"}, nogil=True)(fresh)
+        elif c == "M":
+            m = module_at(a.rev, "geoloc/surfaces/terrain_numba.py")
+            mods[c], kernels[c] = m, m._kernel_for(grid.hlev, grid.blk, tri)
+        else:
+            raise SystemExit(f"--placement: letters A, B, M only, got {c!r}")
+
+    def run(c):
+        m = mods[c]
+        out = m.walk_outputs(np.zeros(n, np.uint8))
+        _, (rays, g, out), _ = m._prepare(o, d, m.WalkGrid(*grid), out, tri)
+        kernels[c](rays, g, out)
+        return out
+
+    for c in mods:  # compile or load, in the order given
+        run(c)
+    names = list(mods)
+    times = {c: [] for c in names}
+    res = {}
+    for r in range(a.repeat):
+        for c in names[r % len(names) :] + names[: r % len(names)]:
+            t0 = time.process_time()
+            res[c] = run(c)
+            times[c].append(time.process_time() - t0)
+    base = names[0]
+    print(
+        f"placement: load order {a.placement}, {'crop' if a.size == 0 else a.size}, {a.dem_model}, flat, {n} rays, "
+        f"{a.repeat} calls each in rotated turn, one thread, load {os.getloadavg()[0]:.1f}"
+    )
+    for c in names:
+        same = all(
+            np.array_equal(getattr(res[c], f), getattr(res[base], f), equal_nan=True)
+            for f in ("status", "ncell", "p_out", "geo_out", "s_out")
+        )
+        med = statistics.median(times[c])
+        print(
+            f"{c}: {med * 1e9 / n:7.1f} ns a ray   {med / statistics.median(times[base]):.3f} of {base}   "
+            f"identical to {base}: {same}"
         )
 
 
