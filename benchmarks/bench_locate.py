@@ -274,7 +274,7 @@ def hops(n: int, repeat: int, rng) -> None:
         s = as_sensor(sensor)
         nj = len(s.angle_names)
         mount = not np.array_equal(s.R_base_body, np.eye(3))
-        _, _, _, ecef, _, st, _, _ = F.locate_fast(pose, s, rows, cols, 0.0)
+        _, _, _, ecef, _, st, *_ = F.locate_fast(pose, s, rows, cols, 0.0)
         sc = np.zeros((18, bl))  # sines and cosines of attitude, lat, lon (rows 0-9), then scratch
         ang = rng.uniform(-0.2, 0.2, (5, bl))
         ang[3], ang[4] = pose.lat[:bl], pose.lon[:bl]
