@@ -14,10 +14,13 @@ Three kernels:
   (``dD = a x D``, ``dO = a x L``), the platform's displacement with the turn of its local
   frame, the lever arm and the time tag, all as in the reference; and each lens parameter by
   implicit differentiation of the lens's closed-form projection ``pi(a, b; p) = pixel`` at the
-  ray's normalised point ``(a, b)``: ``d(a, b) = -[d pi / d(a, b)]^-1 d pi / dp`` (central
-  differences of :func:`geoloc.sensors.lenses.project_nb`, over +-1 sigma in ``p`` as the
-  reference's differences of ``unproject``, and +-1e-6 in ``(a, b)``: truncation ~1e-12 and
-  rounding ~1e-13 of the derivative), so every lens model is served without an iteration.
+  ray's normalised point ``(a, b)``: ``d(a, b) = -[d pi / d(a, b)]^-1 d pi / dp``. For the
+  pinhole and the Brown model both derivatives are in closed form (:func:`_lens_jac`,
+  :func:`_lens_dparam`: the pixel is affine in every parameter but the rational k4..k6, so the
+  derivative is the +-1 sigma secant exactly); k4..k6 and the fisheye take central differences
+  of :func:`geoloc.sensors.lenses.project_nb` (over +-1 sigma in ``p``, as the reference's
+  differences of ``unproject``, and +-1e-6 in ``(a, b)``: truncation ~1e-12 and rounding ~1e-13
+  of the derivative), so every lens model is served without an iteration.
   Output: the point carried along its old range, ``free = dO + t dD`` (ECEF, per 1 sigma), for
   the numpy surface step (a projected DEM, a mosaic).
 * :func:`chain_surface_kernel`: the same chain per ray, then the hit kept on a constant height
@@ -46,7 +49,7 @@ from numba import prange
 from geoloc import status as _status_module
 from geoloc.geodesy._nbgeo import cached_njit, dependency_key
 from geoloc.sensors import lenses as _lenses_module
-from geoloc.sensors.lenses import project_nb
+from geoloc.sensors.lenses import BROWN, FISHEYE, PARAM_LAYOUT, _brown_distort_nb, project_nb
 from geoloc.status import Status
 
 #: The kernels' cache key: the constants and the sources of the modules whose code or constants they freeze.
@@ -96,6 +99,64 @@ def _matmul_T(A, B, out):
 @cached_njit(KEY, inline="always")
 def _cross(a0, a1, a2, b0, b1, b2):
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+#: The first PARAM_LAYOUT slot of the Brown model's rational denominator (k4, k5, k6).
+_SLOT_K4 = PARAM_LAYOUT.index("k4")
+
+
+@cached_njit(KEY, inline="always")
+def _lens_jac(lens_code, p, a, b):
+    """The pinhole's or the Brown model's projection at the normalised point ``(a, b)`` in closed
+    form: the distorted point ``(xd, yd)``, ``d pixel / d(a, b)`` (``j11 j12; j21 j22``: ``K``'s
+    2x2 block times the distortion's Jacobian, that of :func:`geoloc.sensors.lenses._brown_newton_step`)
+    and ``r2``, the radial factor's denominator ``den``. Replaces four projections of central
+    differences (their truncation was ~1e-12 of the derivative)."""
+    fx, fy, sk = p[0], p[1], p[4]
+    r2 = a * a + b * b
+    if lens_code == BROWN:
+        k4, k5, k6, p1, p2 = p[10], p[11], p[12], p[7], p[8]
+        den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        xd, yd, radial, d_radial = _brown_distort_nb(p, a, b)
+        g = 2.0 * d_radial
+        d11 = radial + g * a * a + 2.0 * p1 * b + 6.0 * p2 * a
+        d12 = g * a * b + 2.0 * p1 * a + 2.0 * p2 * b
+        d22 = radial + g * b * b + 6.0 * p1 * b + 2.0 * p2 * a
+    else:  # pinhole: no distortion
+        den = 1.0
+        xd, yd = a, b
+        d11, d12, d22 = 1.0, 0.0, 1.0
+    return xd, yd, fx * d11 + sk * d12, fx * d12 + sk * d22, fy * d12, fy * d22, r2, den
+
+
+@cached_njit(KEY, inline="always")
+def _lens_dparam(lens_code, p, slot, a, b, xd, yd, r2, den):
+    """``d pixel / d p`` of the pinhole's or the Brown model's parameter ``slot`` (PARAM_LAYOUT) at
+    the normalised point ``(a, b)`` (distorted ``(xd, yd)``), in closed form: the pixel is affine in
+    each of fx, fy, cx, cy, skew, k1, k2, k3, p1, p2, so this is exactly the central difference over
+    +-1 sigma that it replaces (two projections). The pinhole has no distortion: zero for those."""
+    if slot == 0:  # u = fx xd + skew yd + cx, v = fy yd + cy
+        return xd, 0.0
+    if slot == 1:
+        return 0.0, yd
+    if slot == 2:
+        return 1.0, 0.0
+    if slot == 3:
+        return 0.0, 1.0
+    if slot == 4:
+        return yd, 0.0
+    if lens_code != BROWN:
+        return 0.0, 0.0
+    if slot == 5 or slot == 6 or slot == 9:  # k1, k2, k3: the radial factor's numerator r2, r2^2, r2^3
+        m = r2 if slot == 5 else (r2 * r2 if slot == 6 else r2 * r2 * r2)
+        dx, dy = a * m / den, b * m / den
+    elif slot == 7:  # p1
+        dx, dy = 2.0 * a * b, r2 + 2.0 * b * b
+    elif slot == 8:  # p2
+        dx, dy = r2 + 2.0 * a * a, 2.0 * a * b
+    else:
+        return math.nan, math.nan  # k4..k6: the caller takes differences
+    return p[0] * dx + p[4] * dy, p[1] * dy
 
 
 @cached_njit(KEY, inline="always")
@@ -165,6 +226,7 @@ def _chain_ray(
     c2 = Rc[0, 2] * d0 + Rc[1, 2] * d1 + Rc[2, 2] * d2
     have_lens_jac = False
     j11 = j12 = j21 = j22 = 0.0
+    xd = yd = r2 = den = 0.0
     a_n, b_n = c0 / c2, c1 / c2
     for k in range(ns):
         code = codes[k]
@@ -233,22 +295,31 @@ def _chain_ray(
         else:
             # lens: d(a, b) = -J^-1 d pi/dp, J = d pi / d(a, b) at the ray's normalised point
             if not have_lens_jac:
-                hh = 1e-6
-                up_, vp_, _ = project_nb(lens_code, lens_p, a_n + hh, b_n, 1.0)
-                um_, vm_, _ = project_nb(lens_code, lens_p, a_n - hh, b_n, 1.0)
-                j11, j21 = (up_ - um_) / (2 * hh), (vp_ - vm_) / (2 * hh)
-                up_, vp_, _ = project_nb(lens_code, lens_p, a_n, b_n + hh, 1.0)
-                um_, vm_, _ = project_nb(lens_code, lens_p, a_n, b_n - hh, 1.0)
-                j12, j22 = (up_ - um_) / (2 * hh), (vp_ - vm_) / (2 * hh)
+                if lens_code == FISHEYE:
+                    hh = 1e-6
+                    up_, vp_, _ = project_nb(lens_code, lens_p, a_n + hh, b_n, 1.0)
+                    um_, vm_, _ = project_nb(lens_code, lens_p, a_n - hh, b_n, 1.0)
+                    j11, j21 = (up_ - um_) / (2 * hh), (vp_ - vm_) / (2 * hh)
+                    up_, vp_, _ = project_nb(lens_code, lens_p, a_n, b_n + hh, 1.0)
+                    um_, vm_, _ = project_nb(lens_code, lens_p, a_n, b_n - hh, 1.0)
+                    j12, j22 = (up_ - um_) / (2 * hh), (vp_ - vm_) / (2 * hh)
+                else:
+                    xd, yd, j11, j12, j21, j22, r2, den = _lens_jac(lens_code, lens_p, a_n, b_n)
                 have_lens_jac = True
             slot = code - SRC_LENS
-            base = lens_p[slot]
-            pp[slot] = base + sg
-            up_, vp_, _ = project_nb(lens_code, pp, a_n, b_n, 1.0)
-            pp[slot] = base - sg
-            um_, vm_, _ = project_nb(lens_code, pp, a_n, b_n, 1.0)
-            pp[slot] = base
-            du, dv = (up_ - um_) / 2.0, (vp_ - vm_) / 2.0
+            if lens_code == FISHEYE or slot >= _SLOT_K4:
+                # central differences over +-1 sigma of the projection (k4..k6 are in a denominator:
+                # the secant is what the reference's secant of the inverse approximates)
+                base = lens_p[slot]
+                pp[slot] = base + sg
+                up_, vp_, _ = project_nb(lens_code, pp, a_n, b_n, 1.0)
+                pp[slot] = base - sg
+                um_, vm_, _ = project_nb(lens_code, pp, a_n, b_n, 1.0)
+                pp[slot] = base
+                du, dv = (up_ - um_) / 2.0, (vp_ - vm_) / 2.0
+            else:
+                du, dv = _lens_dparam(lens_code, lens_p, slot, a_n, b_n, xd, yd, r2, den)
+                du, dv = du * sg, dv * sg
             det = j11 * j22 - j12 * j21
             da = -(j22 * du - j12 * dv) / det
             db = -(j11 * dv - j21 * du) / det
@@ -411,6 +482,7 @@ def chain_surface_kernel(
         Rj = np.empty((nj + 1, 3, 3))
         pp = lens_p.copy()
         fr = np.empty((3, ns))
+        Js = np.empty((3, J.shape[2]))  # the ray's Jacobian when the caller keeps none (J with no rows)
         for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
             ti = _range(O, P, i)
             _chain_ray(
@@ -447,7 +519,19 @@ def chain_surface_kernel(
             N = (-sp * cl, -sp * sl, cp)
             U = (cp * cl, cp * sl, sp)
             inv, c00, c01, c02, c11, c12, c22 = _step(
-                fr, D[i, 0], D[i, 1], D[i, 2], U[0], U[1], U[2], status[i] == _OK, sz, E, N, U, J[i]
+                fr,
+                D[i, 0],
+                D[i, 1],
+                D[i, 2],
+                U[0],
+                U[1],
+                U[2],
+                status[i] == _OK,
+                sz,
+                E,
+                N,
+                U,
+                J[i] if J.shape[0] != 0 else Js,
             )
             _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov, major, minor, az, ce, le)
 
@@ -567,7 +651,7 @@ def _step(fr, d0, d1, d2, m0, m1, m2, ok, sz, E, N, U, Jo):
 @cached_njit(KEY, inline="always")
 def _dem_nan(i, J, cov, major, minor, az, ce, le, rms, grazing):
     """Row ``i`` of the DEM step's outputs for a ray without a ground point: NaN, not grazing."""
-    kk = J.shape[2]
+    kk = J.shape[2] if J.shape[0] != 0 else 0
     for a in range(3):
         for c in range(kk):
             J[i, a, c] = math.nan
@@ -610,7 +694,8 @@ def _dem_ray(
 ):
     """The DEM surface step of one located ray ``i`` (chain columns ``fr`` (3, k), direction ``d``,
     range ``ti``, hit ``la, lo, hi``) into row ``i`` of the outputs; ``Hf`` is scratch for the
-    footprint's heights, ``outs`` the outputs ``(J, cov, major, minor, az, ce, le, rms, grazing)``.
+    footprint's heights, ``outs`` the outputs ``(J, cov, major, minor, az, ce, le, rms, grazing)``
+    and ``Js``, scratch for the ray's (3, kk) Jacobian where ``J`` has no rows (the caller keeps none).
 
     The normal ``m = u - g_e e - g_n n`` starts from the DEM's slope at the hit (central
     differences over +-1 m east and north of the bilinear surface); with ``footprint`` it is then
@@ -625,7 +710,7 @@ def _dem_ray(
     Not inlined into its kernel: numba's nested inlining of it with :func:`_grid_at` wrote row
     ``i``'s outputs to the wrong rows (measured: the ellipse and RMS garbage, the Jacobian right).
     """
-    J, cov, major, minor, az, ce, le, rms, grazing = outs
+    J, cov, major, minor, az, ce, le, rms, grazing, Js = outs
     ng = gh_x.shape[0]
     nr_ = graze_r.shape[0]
     sp, cp = math.sin(la), math.cos(la)
@@ -644,7 +729,7 @@ def _dem_ray(
     # the slope of the bilinear surface at the hit: central differences over +-1 m
     g_n = (_grid_at(Z, margin, cw, r_h + kr, c_h) - _grid_at(Z, margin, cw, r_h - kr, c_h)) / 2.0
     g_e = (_grid_at(Z, margin, cw, r_h, c_h + kc) - _grid_at(Z, margin, cw, r_h, c_h - kc)) / 2.0
-    Jo = J[i]
+    Jo = J[i] if J.shape[0] != 0 else Js
     n_fit = iterations + 1 if footprint else 1
     c00 = c01 = c02 = c11 = c12 = c22 = 0.0
     m0 = m1 = m2 = inv = 0.0
@@ -816,6 +901,7 @@ def chain_dem_kernel(
         pp = lens_p.copy()
         fr = np.empty((3, ns))
         Hf = np.empty(ng * ng)
+        Js = np.empty((3, J.shape[2]))  # the ray's Jacobian when the caller keeps none (J with no rows)
         for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
             if status[i] != _OK:
                 _dem_nan(i, J, cov, major, minor, az, ce, le, rms, grazing)
@@ -877,5 +963,5 @@ def chain_dem_kernel(
                 rt,
                 le90_per_sigma,
                 Hf,
-                (J, cov, major, minor, az, ce, le, rms, grazing),
+                (J, cov, major, minor, az, ce, le, rms, grazing, Js),
             )

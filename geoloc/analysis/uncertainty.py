@@ -39,9 +39,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from collections.abc import Iterable
 from functools import lru_cache
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from geoloc.frames import rotations as rot
 from geoloc.frames.chain import Pose
@@ -55,6 +58,9 @@ from geoloc.sensors.lenses import PARAM_LAYOUT
 from geoloc.status import Status
 from geoloc.surfaces.base import LineOfSight, terrain_of
 from geoloc.surfaces.height import HeightSurface
+
+if TYPE_CHECKING:  # the error model's module loads only for budget_from_error_model
+    from geoloc.analysis.errormodel import ErrorModel
 
 DEG = math.pi / 180.0
 #: sqrt of the chi-square (2 dof) 0.9 quantile: the 90 % ellipse is the 1-sigma ellipse times this.
@@ -99,7 +105,7 @@ def _ce_table(p: float, n: int = 2001):
     return q, 0.5 * (lo + hi)
 
 
-def ce90(major, minor, p: float = 0.9):
+def ce90(major: ArrayLike, minor: ArrayLike, p: float = 0.9) -> np.ndarray:
     """The exact p-quantile of the horizontal radial error of a 2D normal error (default CE90).
 
     Parameters
@@ -126,7 +132,7 @@ def ce90(major, minor, p: float = 0.9):
     return big * np.interp(q, qt, rt)
 
 
-def ellipse(cov_en):
+def ellipse(cov_en: ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """1-sigma error ellipse of (..., 2, 2) east-north covariances.
 
     Returns
@@ -158,8 +164,9 @@ class PointUncertainty:
     status : ndarray of uint8
     cov_enu : ndarray (..., 3, 3)
         Covariance of the point's error in east, north, up at the hit [m^2].
-    jacobian_enu : ndarray (..., 3, k)
-        d(east, north, up) / d(source), per the source's 1 sigma [m]: cov = J J^T.
+    jacobian_enu : ndarray (..., 3, k) or None
+        d(east, north, up) / d(source), per the source's 1 sigma [m]: cov = J J^T; None where
+        :func:`propagate` was asked for none (``jacobian=False``).
     sources : tuple of str
         The budget keys of the Jacobian's columns.
     ellipse_major_m, ellipse_minor_m : ndarray
@@ -180,7 +187,7 @@ class PointUncertainty:
     h: np.ndarray
     status: np.ndarray
     cov_enu: np.ndarray
-    jacobian_enu: np.ndarray
+    jacobian_enu: np.ndarray | None
     sources: tuple
     ellipse_major_m: np.ndarray
     ellipse_minor_m: np.ndarray
@@ -224,7 +231,15 @@ class PointUncertainty:
         }
 
 
-def summarise(cov_enu, lat, lon, h, status, jac, sources) -> PointUncertainty:
+def summarise(
+    cov_enu: np.ndarray,
+    lat: np.ndarray,
+    lon: np.ndarray,
+    h: np.ndarray,
+    status: ArrayLike,
+    jac: np.ndarray | None,
+    sources: Iterable[str],
+) -> PointUncertainty:
     """A :class:`PointUncertainty` from covariances (NaN where the status is not OK)."""
     bad = np.asarray(status) != Status.OK
     cov = np.where(bad[..., None, None], np.nan, cov_enu)
@@ -278,7 +293,14 @@ def _xyz_axes(angles):
     return {"x": Rz.T @ Ry.T @ np.array([1.0, 0, 0]), "y": Rz.T @ np.array([0, 1.0, 0]), "z": np.array([0, 0, 1.0])}
 
 
-def chain_derivatives(sensor, pose, row, col, budget: ErrorBudget, velocity_ned_m_s=None):
+def chain_derivatives(
+    sensor: Any,
+    pose: Pose,
+    row: ArrayLike | None,
+    col: ArrayLike | None,
+    budget: ErrorBudget,
+    velocity_ned_m_s: ArrayLike | None = None,
+) -> tuple[list[str], np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray], tuple[int, ...]]:
     """d(origin), d(direction) of each ray per 1 sigma of each budget source (ECEF, flat batch).
 
     Returns
@@ -397,7 +419,14 @@ def _dem_height(dem, lat, lon, h, de, dn):
 _GH_X, _GH_W = np.polynomial.hermite_e.hermegauss(5)
 
 
-def surface_normal(surface, lat, lon, h, cov_en=None, residual: bool = False):
+def surface_normal(
+    surface: Any,
+    lat: np.ndarray,
+    lon: np.ndarray,
+    h: np.ndarray,
+    cov_en: ArrayLike | None = None,
+    residual: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """The surface's linearised normal ``m = u - g_e e - g_n n`` (ECEF, flat) at hits.
 
     ``g`` is the DEM's slope (dh/d east, dh/d north); zero on a constant-height surface.
@@ -465,7 +494,7 @@ def _grazing(dem, lat, lon, h, D_enu, t, sig_t, free_up, sigma_dem):
     return np.any(close, -1)
 
 
-def surface_sigma_m(surface, budget: ErrorBudget) -> float:
+def surface_sigma_m(surface: Any, budget: ErrorBudget) -> float:
     """The budget's vertical sigma for this surface: ``dem_m`` (or its default) on a DEM, else ``height_m``."""
     dem = terrain_of(surface)
     if dem is not None:
@@ -474,22 +503,23 @@ def surface_sigma_m(surface, budget: ErrorBudget) -> float:
 
 
 def propagate(
-    sensor,
-    pose,
-    row=None,
-    col=None,
+    sensor: Any,
+    pose: Pose,
+    row: ArrayLike | None = None,
+    col: ArrayLike | None = None,
     budget: ErrorBudget | None = None,
     *,
-    surface=None,
-    target_h=None,
-    dem=None,
-    velocity_ned_m_s=None,
+    surface: Any = None,
+    target_h: ArrayLike | None = None,
+    dem: Any = None,
+    velocity_ned_m_s: ArrayLike | None = None,
     outside: str = "flag",
     dem_method: str = "exact",
     dem_slope: str = "footprint",
     footprint_iterations: int = 3,
     engine: str = "auto",
     corrections: Corrections = NO_CORRECTIONS,
+    jacobian: bool = True,
 ) -> PointUncertainty:
     """Locate a batch of pixels and predict each point's uncertainty (first order).
 
@@ -525,6 +555,11 @@ def propagate(
         The location pipeline's line-of-sight corrections (:class:`geoloc.pipeline.Corrections`):
         the points are the corrected ones; the derivatives are the straight line's (refraction
         changes a ray's direction by 1e-4 of itself at most, so its Jacobian by as little).
+    jacobian : bool
+        Keep each point's Jacobian (:attr:`PointUncertainty.jacobian_enu`, 8 (k + 1) x 3 bytes a
+        point, 53 MB for 100 000 points of 21 sources). False: ``jacobian_enu`` is None and the
+        compiled kernels keep each ray's columns in a scratch row (the covariance, the ellipse,
+        CE90 and LE90 are the same); what the replay's columns need.
 
     Returns
     -------
@@ -575,7 +610,7 @@ def propagate(
         # one pass per ray where the kernels read the surface themselves: the chain's columns
         # never leave the ray's scratch row
         if dem is None:
-            out = _height_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, lat, lon, h, status, sz)
+            out = _height_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, lat, lon, h, status, sz, jacobian)
             return _with_refraction(out, *refraction)
         if _compiled_dem(dem):
             it = footprint_iterations if dem_slope == "footprint" else 0
@@ -596,6 +631,7 @@ def propagate(
                 sz,
                 it,
                 dem_slope == "footprint",
+                jacobian,
             )
             return _with_refraction(out, *refraction)
         t = np.sqrt(np.sum((P - O) ** 2, axis=-1))
@@ -636,7 +672,9 @@ def propagate(
             dem, lat, lon, h, np.einsum("nji,nj->ni", Re, D), t, sig_t, np.einsum("nj,njk->nk", Re[..., 2], free), sz
         )
     r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
-    out = summarise(r(cov, (3, 3)), r(lat), r(lon), r(h), r(status), r(J, (3, J.shape[-1])), names)
+    out = summarise(
+        r(cov, (3, 3)), r(lat), r(lon), r(h), r(status), r(J, (3, J.shape[-1])) if jacobian else None, names
+    )
     out.terrain_rms_m = r(np.where(out.status.reshape(-1) == Status.OK, terrain_rms, np.nan))
     out.surface_sigma_m = float(sz)
     out.grazing = r(grazing & (out.status.reshape(-1) == Status.OK))
@@ -665,8 +703,12 @@ def _with_refraction(out: PointUncertainty, s, pose, row, col, surface, budget, 
     j = sig * np.einsum("...ji,...j->...i", R_ecef_enu(out.lat, out.lon), v)
     j = np.where(np.isfinite(j), j, 0.0)
     cov = out.cov_enu + j[..., :, None] * j[..., None, :]
-    jac = np.concatenate(
-        [np.broadcast_to(out.jacobian_enu, shape + np.shape(out.jacobian_enu)[-2:]), j[..., :, None]], axis=-1
+    jac = (
+        None
+        if out.jacobian_enu is None
+        else np.concatenate(
+            [np.broadcast_to(out.jacobian_enu, shape + np.shape(out.jacobian_enu)[-2:]), j[..., :, None]], axis=-1
+        )
     )
     new = summarise(cov, out.lat, out.lon, out.h, out.status, jac, out.sources + ("refraction",))
     new.terrain_rms_m, new.surface_sigma_m, new.grazing = out.terrain_rms_m, out.surface_sigma_m, out.grazing
@@ -770,9 +812,10 @@ def _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t):
     return names, free
 
 
-def _outputs(n, kk):
-    """The compiled surface step's output arrays: J (n, 3, kk), cov (n, 3, 3) and six (n,) rows."""
-    return (np.empty((n, 3, kk)), np.empty((n, 3, 3))) + tuple(np.empty(n) for _ in range(6))
+def _outputs(n, kk, jacobian: bool = True):
+    """The compiled surface step's output arrays: J (n, 3, kk), cov (n, 3, 3) and six (n,) rows;
+    without ``jacobian`` J has no rows (the kernels then keep each ray's in a scratch row)."""
+    return (np.empty((n if jacobian else 0, 3, kk)), np.empty((n, 3, 3))) + tuple(np.empty(n) for _ in range(6))
 
 
 def _wrap(lat, lon, h, status, J, cov, names, major, minor, az, ce, le, shape) -> PointUncertainty:
@@ -784,7 +827,7 @@ def _wrap(lat, lon, h, status, J, cov, names, major, minor, az, ce, le, shape) -
         r(h),
         r(np.asarray(status, np.uint8)),
         r(cov, (3, 3)),
-        r(J, (3, J.shape[-1])),
+        r(J, (3, J.shape[-1])) if len(J) == len(cov) else None,
         tuple(names),
         r(major),
         r(minor),
@@ -794,7 +837,7 @@ def _wrap(lat, lon, h, status, J, cov, names, major, minor, az, ce, le, shape) -
     )
 
 
-def _height_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, lat, lon, h, status, sz):
+def _height_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, lat, lon, h, status, sz, jacobian=True):
     """The chain and the surface step on a constant height in one pass
     (:func:`_fastuncert.chain_surface_kernel`): what :func:`_chain_fast` then the numpy surface step give on a constant height."""
     from geoloc.analysis import _fastuncert as F
@@ -803,7 +846,7 @@ def _height_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, lat, lon, h
     n = int(np.prod(shape))
     if sz > 0:
         names = names + ["height_m"]
-    J, cov, major, minor, az, ce, le, _ = _outputs(n, len(names))
+    J, cov, major, minor, az, ce, le, _ = _outputs(n, len(names), jacobian)
     qt, rt = _ce_table(0.9)
     st = np.ascontiguousarray(status, dtype=np.uint8)
     C = np.ascontiguousarray
@@ -835,7 +878,25 @@ def _height_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, lat, lon, h
     return out
 
 
-def _dem_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, dem, lat, lon, h, status, sz, iterations, footprint):
+def _dem_fused(
+    s,
+    pose,
+    budget,
+    velocity_ned_m_s,
+    shape,
+    O,
+    D,
+    P,
+    dem,
+    lat,
+    lon,
+    h,
+    status,
+    sz,
+    iterations,
+    footprint,
+    jacobian=True,
+):
     """The chain and the surface step on a geographic DEM in one pass
     (:func:`_fastuncert.chain_dem_kernel`): what :func:`_chain_fast` then the numpy surface step give on a DEM."""
     from geoloc.analysis import _fastuncert as F
@@ -844,7 +905,7 @@ def _dem_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, dem, lat, lon,
     n = int(np.prod(shape))
     if sz > 0:
         names = names + ["dem_m"]
-    J, cov, major, minor, az, ce, le, rms = _outputs(n, len(names))
+    J, cov, major, minor, az, ce, le, rms = _outputs(n, len(names), jacobian)
     grazing = np.empty(n, np.bool_)
     qt, rt = _ce_table(0.9)
     st = np.ascontiguousarray(status, dtype=np.uint8)
@@ -910,18 +971,18 @@ def draw(budget: ErrorBudget, n: int, rng: np.random.Generator) -> dict:
 
 
 def monte_carlo(
-    sensor,
-    pose,
-    row,
-    col,
+    sensor: Any,
+    pose: Pose,
+    row: float,
+    col: float,
     budget: ErrorBudget,
-    surface,
+    surface: Any,
     n: int,
     rng: np.random.Generator,
-    velocity_ned_m_s=None,
+    velocity_ned_m_s: ArrayLike | None = None,
     draws: dict | None = None,
     corrections: Corrections = NO_CORRECTIONS,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Monte Carlo of one ray's located point under the budget: the errors (east, north, up) [m].
 
     Every source is drawn per sample and applied exactly (not linearised): the pose's
@@ -997,7 +1058,7 @@ def monte_carlo(
     return np.where((hit.status == Status.OK)[:, None], enu, np.nan), np.asarray(hit.status, np.uint8)
 
 
-def empirical_ce90_le90(enu, status=None):
+def empirical_ce90_le90(enu: ArrayLike, status: ArrayLike | None = None) -> tuple[float, float]:
     """CE90 and LE90 of a sample of errors (ENU, metres): the 0.9 quantiles of the horizontal
     distance and of |up| (numpy's linear percentile, as :mod:`geoloc.analysis.accuracy`)."""
     enu = np.asarray(enu, float)
@@ -1007,7 +1068,7 @@ def empirical_ce90_le90(enu, status=None):
 
 
 # --------------------------------------------------------------------- [Q17]'s error model as a budget
-def budget_from_error_model(model) -> ErrorBudget:
+def budget_from_error_model(model: ErrorModel) -> ErrorBudget:
     """The budget of a Monte Carlo error model (:class:`geoloc.analysis.errormodel.ErrorModel`).
 
     Standard deviations carry over (a uniform error's is max / sqrt(3)); biases are left out.
@@ -1070,7 +1131,9 @@ def budget_from_error_model(model) -> ErrorBudget:
 ELLIPSE99_PER_SIGMA = math.sqrt(-2.0 * math.log(0.01))
 
 
-def normalised_errors(east_m, north_m, major_m, minor_m, azimuth_deg):
+def normalised_errors(
+    east_m: ArrayLike, north_m: ArrayLike, major_m: ArrayLike, minor_m: ArrayLike, azimuth_deg: ArrayLike
+) -> np.ndarray:
     """Each horizontal error's Mahalanobis distance in its own predicted ellipse (1-sigma units).
 
     With the error's components along the major axis (azimuth clockwise from north) and the minor,
@@ -1088,13 +1151,27 @@ def normalised_errors(east_m, north_m, major_m, minor_m, azimuth_deg):
         )
 
 
-def outside_ellipse(east_m, north_m, major_m, minor_m, azimuth_deg, p: float = 0.99):
+def outside_ellipse(
+    east_m: ArrayLike,
+    north_m: ArrayLike,
+    major_m: ArrayLike,
+    minor_m: ArrayLike,
+    azimuth_deg: ArrayLike,
+    p: float = 0.99,
+) -> np.ndarray:
     """True where the horizontal error lies outside its own predicted ``p`` ellipse (default 99 %)."""
     return normalised_errors(east_m, north_m, major_m, minor_m, azimuth_deg) > math.sqrt(-2.0 * math.log1p(-p))
 
 
 def budget_check(
-    east_m, north_m, major_m, minor_m, azimuth_deg, up_m=None, le90_m=None, confidence: float = 0.99
+    east_m: ArrayLike,
+    north_m: ArrayLike,
+    major_m: ArrayLike,
+    minor_m: ArrayLike,
+    azimuth_deg: ArrayLike,
+    up_m: ArrayLike | None = None,
+    le90_m: ArrayLike | None = None,
+    confidence: float = 0.99,
 ) -> dict:
     """Judge a budget by its data: the share of truths inside their own predicted 90 % ellipse.
 

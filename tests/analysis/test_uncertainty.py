@@ -306,6 +306,39 @@ def test_a_ray_without_a_ground_point_gets_nan_and_its_status():
     assert np.isfinite(pu.ce90_m[0]) and np.isnan(pu.ce90_m[1]) and np.isnan(pu.le90_m[1])
 
 
+@pytest.mark.parametrize("engine", ["numba", "numpy"])
+def test_without_the_jacobian_every_other_output_is_the_same(engine, srtm):
+    # jacobian=False keeps no (n, 3, k) array: the kernels use a scratch row per ray; the
+    # covariance, ellipse, CE90, LE90, terrain RMS and grazing flags must not move by a bit, and a
+    # ray without a ground point (the sky, index 1) keeps its NaN and status
+    s = sensor_for("azimuth-elevation")
+    rng = np.random.default_rng(9)
+    n = 24
+    elev = rng.uniform(-80.0, -30.0, n)
+    elev[1] = 10.0
+    pose = Pose.from_deg(
+        36.47 + rng.uniform(0, 0.1, n),
+        -84.246 + rng.uniform(0, 0.1, n),
+        3000.0,
+        rng.uniform(0, 360, n),
+        0.0,
+        0.0,
+        angles_deg={"azimuth": rng.uniform(0, 360, n), "elevation": elev},
+    )
+    b = budget_for(s, refraction=0.05)
+    for surf in (HeightSurface(500.0), DemSurface(srtm)):
+        kw = dict(surface=surf, engine=engine)
+        full = U.propagate(s, pose, ROW, COL, b, **kw)
+        lean = U.propagate(s, pose, ROW, COL, b, jacobian=False, **kw)
+        assert lean.jacobian_enu is None and full.jacobian_enu.shape == (n, 3, len(full.sources))
+        assert lean.sources == full.sources and full.status[1] == Status.SKY
+        np.testing.assert_array_equal(lean.status, full.status)
+        for f in ("cov_enu", "ce90_m", "le90_m", "ellipse_major_m", "ellipse_minor_m", "ellipse_azimuth_deg"):
+            np.testing.assert_array_equal(getattr(lean, f), getattr(full, f), err_msg=f)
+        np.testing.assert_array_equal(lean.terrain_rms_m, full.terrain_rms_m)
+        np.testing.assert_array_equal(lean.grazing, full.grazing)
+
+
 def test_a_dem_without_a_vertical_error_is_refused_naming_the_keys():
     etopo = DEM.open(asset_path("dem", "etopo5_flight_area.tif"))
     s = sensor_for("roll-pitch")
