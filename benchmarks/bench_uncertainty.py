@@ -8,13 +8,15 @@ kernel on the ellipsoid; the compiled line of sight and the DEM solver on a DEM)
 analytic Jacobian, the covariance, the ellipse and the exact CE90 in numba kernels
 (``geoloc.analysis._fastuncert``). ``locate`` is the compiled pixel -> ground path on the same rays.
 
-Run: ``python benchmarks/bench_uncertainty.py [--points N] [--repeat K] [--dem] [--threads T]``. Prints
+Run: ``python benchmarks/bench_uncertainty.py [--points N] [--repeat K] [--dem] [--threads T] [--jacobian]``. Prints
 medians of wall and CPU time, points per second of each, and ``ratio: X`` = propagation points
 per CPU second over locate's rays per CPU second (the goal: >= 0.25, on the DEM too), then the same in wall time.
 ``--dem`` also times both on the bundled SRTM crop (exact DEM solver). ``--breakdown`` first times
 the parts of a point on the ellipsoid (its location, the chain kernel's frames alone, the angle,
 position and lever-arm sources, the lens sources, all of them, and the fused chain-and-surface
 kernel), each alone with its outputs allocated once, so that where the time goes is measured.
+``propagate`` is timed as the replay calls it, without the per-point Jacobian (its default);
+``--jacobian`` also times it with ``jacobian=True``.
 """
 
 from __future__ import annotations
@@ -98,6 +100,12 @@ def main() -> None:
         "without the waits of a parallel loop's threads on a loaded machine",
     )
     ap.add_argument("--breakdown", action="store_true", help="time the parts of a point on the ellipsoid first")
+    ap.add_argument(
+        "--jacobian",
+        action="store_true",
+        help="also time propagate(..., jacobian=True), which returns each point's (3, k) Jacobian (53 MB "
+        "at 100 000 points), beside the default without it",
+    )
     a = ap.parse_args()
     if a.threads:
         import numba
@@ -150,6 +158,17 @@ def main() -> None:
             f"[{name}] propagate: {wp * 1e3:8.1f} ms wall {cp * 1e3:8.1f} ms CPU  {n / wp:10.3g} points/s wall  "
             f"{n / cp:10.3g} points/CPU s  ({ok:.1%} located; median CE90 {np.nanmedian(pu.ce90_m):.1f} m)"
         )
+        if a.jacobian:
+
+            def prop_j():
+                return propagate(TURRET, pose, row, col, BUDGET, surface=surf, velocity_ned_m_s=vel, jacobian=True)
+
+            prop_j()
+            wj, cj, _ = timed(prop_j, a.repeat)
+            print(
+                f"[{name}] propagate, jacobian=True: {wj * 1e3:8.1f} ms wall {cj * 1e3:8.1f} ms CPU  "
+                f"{n / cj:10.3g} points/CPU s  (ratio {cl / cj:.3f})"
+            )
         print(f"[{name}] load average {os.getloadavg()[0]:.2f}")
         tag = "" if name == "ellipsoid" else " dem"
         print(f"ratio{tag}: {cl / cp:.3f}")
@@ -185,7 +204,7 @@ def breakdown(pose, row, col, vel, repeat: int) -> None:
         (f"chain kernel: {int(np.sum(lens))} lens sources", chain(lens)),
         (f"chain kernel: all {len(codes)} sources", chain(np.ones(len(codes), bool))),
         (
-            "fused chain + surface step + ellipse (outputs new)",
+            "fused chain + surface step + ellipse (outputs new, J kept)",
             lambda: U._height_fused(s, pose, BUDGET, vel, shape, O, D, P, *flat, status, sz),
         ),
     ]

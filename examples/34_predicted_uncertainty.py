@@ -38,7 +38,7 @@ budget = ErrorBudget(
 surface = DemSurface(DEM.open(asset_path("dem", "srtm_jacksboro.tif")))
 pose = Pose.from_deg(36.50, -84.20, 3000.0, 0.0, 1.0, 0.5, angles_deg={"azimuth": 0.0, "elevation": -30.0})
 
-pu = propagate(sensor, pose, 540.5, 960.5, budget, surface=surface)
+pu = propagate(sensor, pose, 540.5, 960.5, budget, surface=surface, jacobian=True)  # J: each source's share
 print(
     f"located: {float(pu.lat) * 180 / np.pi:.6f} N {float(pu.lon) * 180 / np.pi:.6f} E "
     f"h {float(pu.h):.1f} m (ellipsoidal)"

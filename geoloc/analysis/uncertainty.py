@@ -519,7 +519,7 @@ def propagate(
     footprint_iterations: int = 3,
     engine: str = "auto",
     corrections: Corrections = NO_CORRECTIONS,
-    jacobian: bool = True,
+    jacobian: bool = False,
 ) -> PointUncertainty:
     """Locate a batch of pixels and predict each point's uncertainty (first order).
 
@@ -556,10 +556,11 @@ def propagate(
         the points are the corrected ones; the derivatives are the straight line's (refraction
         changes a ray's direction by 1e-4 of itself at most, so its Jacobian by as little).
     jacobian : bool
-        Keep each point's Jacobian (:attr:`PointUncertainty.jacobian_enu`, 8 (k + 1) x 3 bytes a
-        point, 53 MB for 100 000 points of 21 sources). False: ``jacobian_enu`` is None and the
-        compiled kernels keep each ray's columns in a scratch row (the covariance, the ellipse,
-        CE90 and LE90 are the same); what the replay's columns need.
+        Also return each point's Jacobian (:attr:`PointUncertainty.jacobian_enu`, 24 (k + 1) bytes a
+        point: 53 MB for 100 000 points of 21 sources, written on fresh pages each call). Default
+        False: ``jacobian_enu`` is None, the compiled kernels keep each ray's columns in a scratch
+        row, and the covariance, ellipse, CE90 and LE90 are the same to the bit (the replay's
+        columns, the viewer's ellipses need no more). Ask for it to see which source dominates.
 
     Returns
     -------

@@ -162,7 +162,7 @@ def test_jacobian_matches_central_differences_of_the_exact_chain(preset, off_nad
     pose = pose_for(preset, off_nadir)
     vel = np.array([40.0, -20.0, 1.5])
     for surf in (HeightSurface(500.0), DemSurface(srtm)):
-        pu = U.propagate(s, pose, ROW, COL, b, surface=surf, velocity_ned_m_s=vel, dem_slope="point")
+        pu = U.propagate(s, pose, ROW, COL, b, surface=surf, velocity_ned_m_s=vel, dem_slope="point", jacobian=True)
         assert pu.status == Status.OK
         eps = 1e-3  # of each sigma: the chain's curvature over it is < 1e-6 of the column
         for k, key in enumerate(pu.sources):
@@ -239,8 +239,9 @@ def test_compiled_engine_equals_the_numpy_reference(preset, lens, srtm):
     row[3] = 5000.0  # off the sensor: OUTSIDE_SENSOR in both
     vel = np.stack([rng.uniform(-50, 50, n), rng.uniform(-50, 50, n), rng.uniform(-3, 3, n)], -1)
     for surf in (HeightSurface(500.0), DemSurface(srtm)):
-        a = U.propagate(s, pose, row, col, b, surface=surf, velocity_ned_m_s=vel, engine="numba")
-        r = U.propagate(s, pose, row, col, b, surface=surf, velocity_ned_m_s=vel, engine="numpy")
+        kw = dict(surface=surf, velocity_ned_m_s=vel, jacobian=True)
+        a = U.propagate(s, pose, row, col, b, engine="numba", **kw)
+        r = U.propagate(s, pose, row, col, b, engine="numpy", **kw)
         assert a.sources == r.sources
         np.testing.assert_array_equal(a.status, r.status)
         assert a.status[3] == Status.OUTSIDE_SENSOR
@@ -288,8 +289,11 @@ def test_time_error_is_the_platform_moving_by_its_velocity():
         ErrorBudget({"time_s": 0.1}),
         surface=HeightSurface(500.0),
         velocity_ned_m_s=[60.0, 80.0, 0.0],
+        jacobian=True,
     )
-    b = U.propagate(s, pose, ROW, COL, ErrorBudget({"north_m": 6.0, "east_m": 8.0}), surface=HeightSurface(500.0))
+    b = U.propagate(
+        s, pose, ROW, COL, ErrorBudget({"north_m": 6.0, "east_m": 8.0}), surface=HeightSurface(500.0), jacobian=True
+    )
     # one velocity, one draw: dt moves the platform (6, 8) m together -> J_time = J_north + J_east
     assert np.allclose(a.jacobian_enu[:, 0], b.jacobian_enu.sum(-1), atol=1e-9)
     with pytest.raises(ValueError, match="time_s = 0.1 needs the platform's velocity"):
@@ -308,7 +312,7 @@ def test_a_ray_without_a_ground_point_gets_nan_and_its_status():
 
 @pytest.mark.parametrize("engine", ["numba", "numpy"])
 def test_without_the_jacobian_every_other_output_is_the_same(engine, srtm):
-    # jacobian=False keeps no (n, 3, k) array: the kernels use a scratch row per ray; the
+    # the default (jacobian=False) keeps no (n, 3, k) array: the kernels use a scratch row per ray; the
     # covariance, ellipse, CE90, LE90, terrain RMS and grazing flags must not move by a bit, and a
     # ray without a ground point (the sky, index 1) keeps its NaN and status
     s = sensor_for("azimuth-elevation")
@@ -328,8 +332,8 @@ def test_without_the_jacobian_every_other_output_is_the_same(engine, srtm):
     b = budget_for(s, refraction=0.05)
     for surf in (HeightSurface(500.0), DemSurface(srtm)):
         kw = dict(surface=surf, engine=engine)
-        full = U.propagate(s, pose, ROW, COL, b, **kw)
-        lean = U.propagate(s, pose, ROW, COL, b, jacobian=False, **kw)
+        full = U.propagate(s, pose, ROW, COL, b, jacobian=True, **kw)
+        lean = U.propagate(s, pose, ROW, COL, b, **kw)  # the default: no Jacobian
         assert lean.jacobian_enu is None and full.jacobian_enu.shape == (n, 3, len(full.sources))
         assert lean.sources == full.sources and full.status[1] == Status.SKY
         np.testing.assert_array_equal(lean.status, full.status)
@@ -467,7 +471,7 @@ def test_on_a_mosaic_the_dem_error_moves_the_point_by_the_mosaic_slope(tmp_path)
     pose = Pose.from_deg(36.478, -84.2094, 1300.0, 90.0, 0.0, 0.0, angles_deg={"azimuth": 0.0, "elevation": -50.0})
     b = ErrorBudget({"dem_m": 10.0, "heading_deg": 0.02})
     mosaic = DemMosaic.open([str(p) for p in tiles], datum="ellipsoid", block=32)
-    on_mosaic = U.propagate(s, pose, None, None, b, surface=mosaic, dem_slope="point")
+    on_mosaic = U.propagate(s, pose, None, None, b, surface=mosaic, dem_slope="point", jacobian=True)
     on_raster = U.propagate(
         s, pose, None, None, b, surface=DemSurface(DEM.open(merged, datum="ellipsoid")), dem_slope="point"
     )
@@ -487,7 +491,7 @@ def test_on_a_mosaic_the_dem_error_moves_the_point_by_the_mosaic_slope(tmp_path)
     np.testing.assert_allclose(got, expected, rtol=1e-4, atol=1e-4 * 10.0)
     assert np.max(np.abs(level - expected)) > 1.0
     # the default footprint plane is the same plane: the same column
-    foot = U.propagate(s, pose, None, None, b, surface=mosaic)
+    foot = U.propagate(s, pose, None, None, b, surface=mosaic, jacobian=True)
     np.testing.assert_allclose(np.asarray(foot.jacobian_enu)[..., -1].reshape(3), expected, rtol=1e-4, atol=1e-3)
     # and the mosaic's answer is the one raster's, the same nodes (float rounding of the windows)
     np.testing.assert_allclose(on_mosaic.cov_enu, on_raster.cov_enu, rtol=1e-9, atol=1e-9)
