@@ -181,11 +181,10 @@ def triangulate(
     O = np.asarray(los.origin_ecef, float).reshape(-1, 3)
     D = np.asarray(los.direction_ecef, float).reshape(-1, 3)
     ok = np.asarray(los.status).reshape(-1) == Status.OK
-    extra = {}
+    names, dO, dD = None, None, None
     if budget is not None:
         names, dO, dD, _, _ = chain_derivatives(s, pose, row, col, budget, velocity_ned_m_s)
-        extra = dict(names=names, dO=dO, dD=dD, shared=shared)
-    tri = triangulate_rays(O, D, ok, min_angle_deg=min_angle_deg, **extra)
+    tri = triangulate_rays(O, D, ok, names, dO, dD, shared=shared, min_angle_deg=min_angle_deg)
     if corrections:
         pipe = Pipeline(s, None, corrections)
         for _ in range(3):
@@ -195,7 +194,7 @@ def triangulate(
             Oc = np.asarray(lines.origin_ecef, float).reshape(-1, 3)
             Dc = np.asarray(lines.direction_ecef, float).reshape(-1, 3)
             okc = ok & (np.asarray(lines.status).reshape(-1) == Status.OK)
-            new = triangulate_rays(Oc, Dc, okc, min_angle_deg=min_angle_deg, **extra)
+            new = triangulate_rays(Oc, Dc, okc, names, dO, dD, shared=shared, min_angle_deg=min_angle_deg)
             moved = float(np.linalg.norm(np.asarray(new.ecef) - np.asarray(tri.ecef)))
             tri = new
             if not moved > 1e-3:
