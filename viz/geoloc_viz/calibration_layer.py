@@ -22,12 +22,16 @@ from __future__ import annotations
 import collections
 import threading
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from geoloc.frames.enu import EnuFrame
 from geoloc.io.records import Records
 from geoloc.locate import locate
+
+if TYPE_CHECKING:
+    from viser import LineSegmentsHandle
 
 #: Segment colours (RGB 0-255): before red, after blue; truth markers white.
 COLORS = {"before": (220, 40, 40), "after": (40, 90, 230), "truth": (255, 255, 255)}
@@ -126,7 +130,7 @@ class CalibrationLayer:
         self.exaggeration = self._check_exaggeration(exaggeration)
         self.stage = self._check_stage(stage)
         self.vertical = 1.0
-        self.handles = {}
+        self.handles: dict[str, LineSegmentsHandle] = {}
         self.truth_handle = scene.add_point_cloud(
             f"{self.name}/truth",
             (geometry.truth * self.world_scale).astype(np.float32),
@@ -178,7 +182,8 @@ class CalibrationLayer:
             seg = self.geometry.segments(stage, self.exaggeration) * self.world_scale
             visible = self.stage in (stage, "both")
             if stage in self.handles:
-                self.handles[stage].points = seg
+                # viser casts to float32 anyway; its property says so
+                self.handles[stage].points = seg.astype(np.float32)
                 self.handles[stage].visible = visible
             else:
                 self.handles[stage] = self.scene.add_line_segments(
@@ -338,7 +343,7 @@ class AppCalibration:
         self.world_scale, self.name = float(world_scale), name
         self.app = app
         self.message = ""
-        self.layer = None
+        self.layer: CalibrationLayer | None = None
         key = (id(app.scn.records), id(app.scn.camera))
         with _FIT_LOCK:
             hit = _FIT_CACHE.get(key)
@@ -412,12 +417,12 @@ class AppCalibration:
             self.cb_show = self.dd_stage = self.sl_exag = None
             return
         with gui.add_folder(folder, expand_by_default=False):
-            self.cb_show = gui.add_checkbox("show", True)
+            self.cb_show = cb_show = gui.add_checkbox("show", True)
             stages = list(STAGES) if "after" in self.cameras else ["before"]
-            self.dd_stage = gui.add_dropdown(
+            self.dd_stage = dd_stage = gui.add_dropdown(
                 "before / after calibration", stages, initial_value=self.stage if self.stage in stages else stages[0]
             )
-            self.sl_exag = gui.add_slider(
+            self.sl_exag = sl_exag = gui.add_slider(
                 "error vectors drawn x",
                 1.0,
                 200.0,
@@ -429,22 +434,23 @@ class AppCalibration:
             if self.message:
                 gui.add_markdown(self.message)
 
-        @self.cb_show.on_update
+        # the callbacks close over the handles themselves, not the attributes (None without a layer)
+        @cb_show.on_update
         def _(_e) -> None:
-            self.visible = bool(self.cb_show.value)
+            self.visible = bool(cb_show.value)
             if self.layer is not None:
                 self.layer.set_visible(self.visible)
 
-        @self.dd_stage.on_update
+        @dd_stage.on_update
         def _(_e) -> None:
             if self.layer is not None:
-                self.layer.set_stage(str(self.dd_stage.value))
+                self.layer.set_stage(str(dd_stage.value))
                 self.layer.set_visible(self.visible)
 
-        @self.sl_exag.on_update
+        @sl_exag.on_update
         def _(_e) -> None:
             if self.layer is not None:
-                self.layer.set_exaggeration(float(self.sl_exag.value))
+                self.layer.set_exaggeration(float(sl_exag.value))
                 self.layer.set_visible(self.visible)
 
 
