@@ -2,7 +2,8 @@
 
 * no browser: the map's pixel of every reported and surveyed point (latitude, longitude from the
   records) equals the pixel of pymap3d's East-North of it about the map's origin; the map's
-  hillshade equals the core renderer's on a DEM-aligned ramp; a closed panel costs a step nothing.
+  hillshade equals the core renderer's on a DEM-aligned ramp; a closed panel costs a step nothing;
+  plots whose first drawing failed are drawn at the next frame, not left missing.
 * headless Chromium, as a person does it: open the panel with its button; click a pixel of the
   large picture and read the sidebar's latitude and longitude: ``geoloc locate``'s for that pixel;
   the map tab's current footprint and pick sit where pymap3d puts the scene's own points (and are
@@ -123,6 +124,31 @@ def test_a_closed_panel_draws_nothing_and_an_open_one_follows_the_timeline(fligh
         assert frame_name(app.scn, 0) + ":" in pl.html_picture.content and "image 1 of" not in pl.html_picture.content
         pl.close_panel()
         assert not pl.is_open and pl.bt_open.label.startswith("open")
+    finally:
+        server.stop()
+
+
+def test_plots_are_drawn_after_a_failed_first_drawing_within_the_redraw_interval(flight, monkeypatch):
+    # a first drawing that failed records its time; a live window that grew within REBUILD_S must
+    # still get plots (none exist yet), not fail on the missing ones until the interval is over
+    from geoloc_viz import panel_layer
+
+    server, app, fl, _im, pl = make_app(flight)
+    try:
+        real = panel_layer.build_plots
+
+        def planted(S):
+            raise RuntimeError("planted: the plots' first drawing fails")
+
+        monkeypatch.setattr(panel_layer, "build_plots", planted)
+        with pytest.raises(RuntimeError, match="planted"):
+            pl.open_panel()
+        assert pl.plot_view is None
+        monkeypatch.setattr(panel_layer, "build_plots", real)
+        # the window grew since that attempt (its time is fresh, its number of frames another)
+        pl._built["plots"] = (time.monotonic(), len(fl.model) - 1)
+        pl.update_plots()
+        assert pl.plot_view is not None and 'data-frame="' in pl.html_plots.content
     finally:
         server.stop()
 

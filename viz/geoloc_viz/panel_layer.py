@@ -252,9 +252,9 @@ def map_svg(view: MapView, model, idx: int, picks=()) -> str:
     for k, (kind, p) in enumerate(picks):
         x, y = pt(p)
         if np.isfinite(x) and np.isfinite(y):
-            col = _hex(COLORS["pick" if kind == "pick" else "ground"])
+            stroke = _hex(COLORS["pick" if kind == "pick" else "ground"])
             out.append(
-                f'<g id="geoloc-map-{kind}" data-x="{x:.2f}" data-y="{y:.2f}" stroke="{col}" stroke-width="2.5">'
+                f'<g id="geoloc-map-{kind}" data-x="{x:.2f}" data-y="{y:.2f}" stroke="{stroke}" stroke-width="2.5">'
                 f'<line x1="{x - 8:.2f}" y1="{y:.2f}" x2="{x + 8:.2f}" y2="{y:.2f}"/>'
                 f'<line x1="{x:.2f}" y1="{y - 8:.2f}" x2="{x:.2f}" y2="{y + 8:.2f}"/></g>'
             )
@@ -358,7 +358,7 @@ def build_plots(S: dict) -> PlotView:
 
     w, h = PLOT_PX
     fig = Figure(figsize=(w / PLOT_DPI, h / PLOT_DPI), dpi=PLOT_DPI)
-    FigureCanvasAgg(fig)
+    canvas = FigureCanvasAgg(fig)
     axs = fig.subplots(3, 1, sharex=True)
     t = S["t"]
     for ax, (group, title) in zip(
@@ -375,8 +375,8 @@ def build_plots(S: dict) -> PlotView:
     if len(t) > 1:
         axs[-1].set_xlim(float(t[0]), float(t[-1]))
     fig.subplots_adjust(left=0.11, right=0.98, top=0.96, bottom=0.07, hspace=0.3)
-    fig.canvas.draw()
-    img = np.asarray(fig.canvas.buffer_rgba())[..., :3].copy()
+    canvas.draw()
+    img = np.asarray(canvas.buffer_rgba())[..., :3].copy()
     H = img.shape[0]
     # display coordinates: origin bottom-left; the image's rows run down
     xa, _ = axs[0].transData.transform((float(t[0]), 0.0))
@@ -680,6 +680,7 @@ class PanelLayer:
             dem = self.session.scn.dem if self.session.scn.use_dem else None
             self.view = build_map(model, dem, extent=extent)
             self._map_key = key
+        assert self.view is not None  # the key is set only once a map is drawn
         from geoloc_viz.model import frame_name
 
         name = frame_name(self.session.scn, idx, of=False)  # the one name, as the timeline gives it
@@ -693,7 +694,8 @@ class PanelLayer:
             self.html_plots.content = ""
             return
         key = (id(model), len(model))
-        if key != self._series_key and self._due("plots", model):
+        # drawn at once when there are none yet (a first drawing that failed leaves none)
+        if key != self._series_key and (self.plot_view is None or self._due("plots", model)):
             self._series = plot_series(self.session.scn, model)
             self._series["labels"] = list(model.labels)
             from geoloc_viz.model import frame_name
@@ -703,6 +705,7 @@ class PanelLayer:
             self.plot_view = build_plots(self._series)
             self._readout = readout_json(self._series)
             self._series_key = key
+        assert self.plot_view is not None  # the key is set only once the plots are drawn
         S = self._series
         label = model.labels[idx]
         # the plotted frame of this label (a live window may have moved on since the plots were drawn;
