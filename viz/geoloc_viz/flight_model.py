@@ -42,6 +42,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -52,6 +53,9 @@ from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.status import Status
 from geoloc.surfaces.base import terrain_of
 from geoloc.surfaces.terrain import surface_for
+
+if TYPE_CHECKING:
+    from geoloc.analysis.height_audit import HeightAudit
 
 #: Points per image edge (its first corner included): 4 gives a ring of 16 points per footprint.
 EDGE_SAMPLES = 4
@@ -234,7 +238,7 @@ class FlightModel:
     notes: list = field(default_factory=list)
     #: the flight's heights and conventions audited (geoloc.analysis.height_audit.HeightAudit; its
     #: findings' ``frames`` are frame indices); None when the records report no positions
-    audit: object = None
+    audit: HeightAudit | None = None
     H_DATUM: str = H_DATUM
     _report: object = None
 
@@ -1076,8 +1080,8 @@ def diagnose(model: FlightModel, scn, *, pose=None, row=None, col=None, target_h
                 fits[k] = (math.nan, math.inf)
                 continue
             p = float(np.sum(jj[good] * dd[good])) / den
-            rest = np.linalg.norm(dd[good] - p * jj[good]) / max(np.linalg.norm(dd[good]), 1e-12)
-            fits[k] = (p, float(rest))
+            rest = float(np.linalg.norm(dd[good] - p * jj[good])) / max(float(np.linalg.norm(dd[good])), 1e-12)
+            fits[k] = (p, rest)
         # the timing fault: the better of the two one-sided steps
         tk = min(("timing+", "timing-"), key=lambda k: fits[k][1])
         fits["timing"] = fits[tk]

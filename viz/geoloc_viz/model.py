@@ -141,6 +141,15 @@ class Scenario:
     description: str = ""
     source: str = ""  # records file name, for the title
     budget: object = None  # the sensor's error budget (geoloc.sensors.budget.ErrorBudget), if known
+    #: (n, 2) each record's horizontal and vertical field of view [deg] for a zooming sensor (a KLV
+    #: flight's tags 16, 17: the footprints and pictures follow the zoom); None: the sensor's own
+    frame_fov_deg: np.ndarray | None = None
+    #: (n,) each record's time stamp on its video's clock [s] (a KLV flight's packet times), NaN
+    #: where unknown; None: no video
+    record_times_s: np.ndarray | None = None
+    #: surveyed targets painted in the video, [(name, lat_deg, lon_deg, h_m)] (heights ellipsoidal,
+    #: WGS 84; NaN: on the DEM); None: none
+    targets: list | None = None
     #: The line-of-sight corrections every located point of the scene goes through (the pipeline's;
     #: ``geoloc view --refraction``, the "Refraction" folder): refraction off by default
     corrections: Corrections = NO_CORRECTIONS
