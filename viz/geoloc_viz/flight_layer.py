@@ -29,11 +29,18 @@ import collections
 import inspect
 import threading
 import time
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
+from viser import LabelHandle, LineSegmentsHandle, PointCloudHandle, SceneNodeHandle
 
 from geoloc_viz import flight_model
 from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
+
+if TYPE_CHECKING:
+    from geoloc.frames.enu import EnuFrame
+
+_Handle = TypeVar("_Handle", bound=SceneNodeHandle)
 
 ROOT = "/flight"
 #: Colours (RGB 0-255). The highlight is pure magenta: nothing else in the scene has it
@@ -125,19 +132,19 @@ class FlightLayer:
         self.gui = _gui(session)
         self.model = model if model is not None else model_for(session.scn)
         self.top_n = int(top_n)
-        self.current = None
+        self.current: int | None = None
         self.closed = False
         self._mute = False
-        self._pending = None
+        self._pending: int | None = None
         self._busy = threading.Lock()
         self._playing = False
-        self._thread = None
+        self._thread: threading.Thread | None = None
         #: The frames the player sent in its last run, in order (the clock skips those a slow browser
         #: could not draw in time), bounded.
         self.played: collections.deque = collections.deque(maxlen=10000)
-        self._enu_key = None
+        self._enu_key: tuple[EnuFrame, float] | None = None  # (the scene's ENU frame, vertical exaggeration)
         self.last_step_s = float("nan")
-        self.handles = {}
+        self.handles: dict[str, SceneNodeHandle] = {}
         # a flight's view: no frame name labels at the aircraft (the teaching view shows them)
         view = getattr(session, "view", None)
         if view is not None and hasattr(view, "set_frame_labels"):
@@ -155,6 +162,13 @@ class FlightLayer:
     def _disp(self):
         view = getattr(self.session, "view", None)
         return getattr(view, "disp", None)
+
+    def _handle(self, key: str, kind: type[_Handle]) -> _Handle:
+        """The scene node ``key`` of :attr:`handles`, of the viser kind ``_draw`` made it."""
+        h = self.handles[key]
+        if not isinstance(h, kind):
+            raise TypeError(f"flight handle {key!r} is a {type(h).__name__}, expected {kind.__name__}")
+        return h
 
     def _vexag(self) -> float:
         d = self._disp()
@@ -260,7 +274,7 @@ class FlightLayer:
                 thickness_units="screen",
             ),
         }
-        self._focus_key = None
+        self._focus_key: float | None = None  # the markers' radius [m] they were made with
         self.focus_info: dict = {}
         self._place_root()
 
@@ -276,8 +290,8 @@ class FlightLayer:
         R = scene_enu.R_enu_ecef @ F.R_ecef_enu
         self.handles["root"].position = tuple(t * WORLD_SCALE * np.array([1.0, 1.0, v]))
         self.handles["root"].wxyz = tuple(wxyz(R))
-        for k, h in self.handles.items():
-            if k not in ("root", "label"):
+        for h in self.handles.values():
+            if isinstance(h, (LineSegmentsHandle, PointCloudHandle)):  # all but the root frame and the label
                 h.scale = (1.0, 1.0, v)
 
     def highlight(self, idx: int) -> None:
@@ -289,9 +303,9 @@ class FlightLayer:
         self._place_root()
         ring = m.footprint_enu[idx] + np.array([0.0, 0.0, LIFT_M["current"]])
         seg = np.nan_to_num(np.stack([ring, np.roll(ring, -1, axis=0)], axis=1)) * WORLD_SCALE
-        self.handles["current"].points = seg.astype(np.float32)
+        self._handle("current", LineSegmentsHandle).points = seg.astype(np.float32)
         c = m.centre_enu[idx]
-        lab = self.handles["label"]
+        lab = self._handle("label", LabelHandle)
         if np.all(np.isfinite(c)):
             v = self._vexag()
             lab.position = tuple(c * WORLD_SCALE * np.array([1.0, 1.0, v]))
@@ -327,9 +341,10 @@ class FlightLayer:
         lo, hi = FOCUS_RADIUS_M
         return float(np.clip(FOCUS_FRACTION * e, lo, hi)) if np.isfinite(e) else hi
 
-    def _lift_m(self, pts_enu) -> float:
+    def _lift_m(self, pts_enu) -> float | None:
         """Display lift [m] of the error vector over the session's terrain mesh (its cells' highest
-        nodes under the ends and the middle), plus a margin; 0 without a DEM."""
+        nodes under the ends and the middle), plus a margin; None without a DEM or with the terrain
+        hidden."""
         from geoloc_viz import terrain_link
 
         scn = self.session.scn
@@ -530,7 +545,7 @@ class FlightLayer:
         self.sl_frame.on_update(lambda _e: self._on_slider())
         self.bt_play.on_click(lambda _e: self.toggle_play())
         self.bt_whole.on_click(lambda _e: self.show_whole_flight())
-        self.bt_worst.on_click(lambda _e: self.worst is not None and self.go(self.worst, camera=True))
+        self.bt_worst.on_click(lambda _e: None if self.worst is None else self.go(self.worst, camera=True))
         self.dd_goto.on_update(lambda _e: self._on_goto())
 
     def rebuild(self) -> None:
@@ -624,7 +639,7 @@ class FlightLayer:
         size = 0.15 * r * WORLD_SCALE if points else self.point_size
         for name in ("centres", "reported", "recomputed", "truth"):
             h = self.handles.get(name)
-            if h is not None:
+            if isinstance(h, PointCloudHandle):  # None when the flight has no such point
                 h.point_size = size * (0.6 if name == "centres" else 1.0)
         self._markers_changed = changed
 
