@@ -398,7 +398,9 @@ class ImageLayer:
         crop = self.image[r1 - 1 : r1 - 1 + h, c1 - 1 : c1 - 1 + w, :3]
         s = PANEL_WIDTH / w
         H = max(int(round(h * s)), 1)
-        disp = np.asarray(PIL.Image.fromarray(np.ascontiguousarray(crop)).resize((PANEL_WIDTH, H), PIL.Image.NEAREST))
+        disp = np.asarray(
+            PIL.Image.fromarray(np.ascontiguousarray(crop)).resize((PANEL_WIDTH, H), PIL.Image.Resampling.NEAREST)
+        )
         marks = self._mark_list()
         disp = draw_marks(disp, marks, lambda r, c: ((c - (c1 - 0.5)) * s, (r - (r1 - 0.5)) * s), 7.0)
         self.html.content = self._panel_html(disp, r1, c1, h, w)
@@ -485,7 +487,9 @@ class ImageLayer:
         f = min(1.0, TEXTURE_MAX / max(M, N))
         tw, th = max(int(round(N * f)), 1), max(int(round(M * f)), 1)
         tex = np.asarray(
-            PIL.Image.fromarray(np.ascontiguousarray(self.image[..., :3])).resize((tw, th), PIL.Image.BILINEAR)
+            PIL.Image.fromarray(np.ascontiguousarray(self.image[..., :3])).resize(
+                (tw, th), PIL.Image.Resampling.BILINEAR
+            )
         )
         tex = draw_marks(tex, marks, lambda r, c: ((c - 0.5) * tw / N, (r - 0.5) * th / M), max(tw / 120, 3))
         op = float(self.sl_opacity.value)
@@ -695,7 +699,7 @@ class ImageLayer:
         s = PANEL_WIDTH / N
         disp = np.asarray(
             PIL.Image.fromarray(np.ascontiguousarray(self.image[..., :3])).resize(
-                (PANEL_WIDTH, max(int(round(M * s)), 1)), PIL.Image.BILINEAR
+                (PANEL_WIDTH, max(int(round(M * s)), 1)), PIL.Image.Resampling.BILINEAR
             )
         )
         marks = self._mark_list() + [("pick", p.row, p.col, None) for p in self.picks[:-1]]
