@@ -92,7 +92,7 @@ from geoloc_viz import (
     teaching_panel,
     uncertainty_layer,
 )
-from geoloc_viz.model import Inputs, Scenario, compute, drawn_frames, frame_name
+from geoloc_viz.model import Geometry, Inputs, Scenario, compute, drawn_frames, frame_name
 from geoloc_viz.scenario import select_record
 from geoloc_viz.scene_geoloc import Display, GeolocScene, camera_pose_for, drawn_factor
 
@@ -335,7 +335,7 @@ class GeolocSession:
         self.scn = scn
         self.view = GeolocScene(self.scene, scn, disp)
         self.inputs: Inputs = (inputs or scn.inputs).replace()
-        self.geometry = None
+        self.geometry: Geometry | None = None
         self.error: str = ""
         self.last_update_s = float("nan")
         self.closed = False
@@ -346,7 +346,7 @@ class GeolocSession:
         self._later: list = []  # later(fn) calls of the running step, run first in its panels' batch
         self._carry = False  # a skipped step's panels' batch waits for the next step
         self._defer_depth = 0
-        self._deferred_due = None
+        self._deferred_due: Geometry | None = None
         self._record_cbs: list = []
         self.layers: list = []
         self.calibration = None
@@ -626,7 +626,8 @@ class GeolocSession:
         if self._is_custom() and self.dd_record.value != CUSTOM:
             self._mute = True
             try:
-                self.dd_record.value = CUSTOM
+                # viser's value setter is not next to its getter: mypy sees the property read-only
+                self.dd_record.value = CUSTOM  # type: ignore[misc]
             finally:
                 self._mute = False
 
@@ -679,7 +680,8 @@ class GeolocSession:
                 self._mute = True
                 try:
                     for k, h in self.num.items():
-                        h.value = self._input_value(inputs, k)
+                        # viser's value setter is not next to its getter: mypy sees the property read-only
+                        h.value = self._input_value(inputs, k)  # type: ignore[misc]
                 finally:
                     self._mute = False
 
@@ -688,7 +690,8 @@ class GeolocSession:
             try:
                 label = frame_name(self.scn, idx, of=False)
                 if self.dd_record.value != label:
-                    self.dd_record.value = label
+                    # viser's value setter is not next to its getter: mypy sees the property read-only
+                    self.dd_record.value = label  # type: ignore[misc]
             finally:
                 self._mute = False
             with self._atomic():
@@ -736,7 +739,8 @@ class GeolocSession:
                     self.sl_step.max = max(n - 1, 1)
                     self.sl_step.disabled = n == 0 or bool(self.cb_all_steps.value)
                     if self.sl_step.value > n - 1:
-                        self.sl_step.value = max(n - 1, 0)
+                        # viser's value setter is not next to its getter: mypy sees the property read-only
+                        self.sl_step.value = max(n - 1, 0)  # type: ignore[misc]
                 finally:
                     self._mute = False
                 with self._atomic():
@@ -858,17 +862,18 @@ class GeolocApp(GeolocSession):
         """
         path = Path(path)
         ser = self.server.get_scene_serializer()
-        it = self.geometry.iterations if self.geometry is not None else None
-        if animate_steps and it is not None and len(it.H) > 1:
+        g = self.geometry
+        it = g.iterations if g is not None else None
+        if animate_steps and g is not None and it is not None and len(it.H) > 1:
             d = self.view.disp
             saved = d.step
             ser.insert_sleep(1.0)
             for k in range(len(it.H)):
                 d.step = k
-                self.view.update(self.geometry)
+                self.view.update(g)
                 ser.insert_sleep(0.4)
             d.step = saved
-            self.view.update(self.geometry)
+            self.view.update(g)
             ser.insert_sleep(1.0)
         if path.suffix.lower() == ".html":
             from geoloc_viz.export_html import with_summary
@@ -1210,10 +1215,11 @@ class GeolocViewer:
         )
 
     # ------------------------------------------------------------ presenter mode
-    def _make_driver(self, client, old: GeolocSession | None) -> None:
+    def _make_driver(self, client, old: GeolocSession | None) -> GeolocSession:
         """Build the driving session on ``client.gui`` and the shared scene, from ``old``'s state
         (None: the presented scenario's default record); with several scenarios a "scenario"
-        dropdown on top switches what is presented (:meth:`present`)."""
+        dropdown on top switches what is presented (:meth:`present`). Returns it (also
+        :attr:`driver`)."""
         if len(self.scenarios) > 1:
             dd = client.gui.add_dropdown(
                 "scenario",
@@ -1223,7 +1229,7 @@ class GeolocViewer:
             )
             dd.on_update(lambda _, d=dd: self.present(str(d.value)))
         if old is None:
-            self.driver = self.session_factory(
+            driver = self.session_factory(
                 self.server,
                 self._scenario(self.driver_scenario),
                 self.disp,
@@ -1233,7 +1239,7 @@ class GeolocViewer:
                 copy_scenario=True,
             )
         else:
-            self.driver = self.session_factory(
+            driver = self.session_factory(
                 self.server,
                 old.scn,
                 old.view.disp,
@@ -1245,9 +1251,11 @@ class GeolocViewer:
             )
         # deferred, and registered after the layers' own: during a step the panels' text (the share
         # panel's CE90, the picture) is written in the deferred batch, and the followers copy it after
-        self.driver.on_refresh(lambda _g: self._mirror(), deferred=True)
+        self.driver = driver
+        driver.on_refresh(lambda _g: self._mirror(), deferred=True)
         cid = client.client_id
         client.camera.on_update(lambda cam: self._on_driver_camera(cid, cam))
+        return driver
 
     def present(self, name: str) -> None:
         """Presenter mode: the driver presents scenario ``name`` (one click in its "scenario"
@@ -1267,14 +1275,14 @@ class GeolocViewer:
                 pass
             self.server.scene.reset()
             configure_lighting(self.server.scene)
-            self._make_driver(client, None)
+            driver = self._make_driver(client, None)
             for cid, panel in list(self.followers.items()):
                 try:
                     panel.client.gui.reset()
-                    self.followers[cid] = _FollowerPanel(self, panel.client, self.driver)
+                    self.followers[cid] = _FollowerPanel(self, panel.client, driver)
                 except Exception:  # a follower that left meanwhile
                     self.followers.pop(cid, None)
-            self.driver.move_camera("overview")
+            driver.move_camera("overview")
             self._mirror()
 
     def take_control(self, client_id: int) -> None:
