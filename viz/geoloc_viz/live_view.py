@@ -36,8 +36,18 @@ import threading
 import time
 from collections import deque
 from types import SimpleNamespace
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import av
+
+    from geoloc.sensors.frame import FrameSensor
+    from geoloc_viz.app import GeolocSession
+    from geoloc_viz.flight_layer import FlightLayer
+    from geoloc_viz.flight_model import FlightModel
+    from geoloc_viz.model import Scenario
 
 #: Frames of the flight debugger's window (the newest): bounds memory and the batched nodes sent.
 FLIGHT_WINDOW = 1000
@@ -123,7 +133,7 @@ class LiveFeed:
         self._stop = False
         self._pending: list = []  # the batches' columns not yet taken by the flight (take_batches)
         self._thread: threading.Thread | None = None
-        self._decoder = None
+        self._decoder: av.VideoCodecContext | None = None
         self._video_done = 0
         self.pictures: deque = deque()  # (serial, pts [90 kHz], RGB uint8 array), PICTURES / PICTURE_BYTES at most
         self._picture_bytes = 0
@@ -224,7 +234,10 @@ class LiveFeed:
                 from geoloc.io.ts_demux import _STREAM_TYPES_VIDEO
 
                 stype = self.rx.demux.streams.get(units[0][2], ("video", 0x1B))[1]
-                self._decoder = av.CodecContext.create(_STREAM_TYPES_VIDEO.get(stype, "h264"), "r")
+                ctx = av.CodecContext.create(_STREAM_TYPES_VIDEO.get(stype, "h264"), "r")
+                if not isinstance(ctx, av.VideoCodecContext):  # a video stream type names a video codec
+                    raise ValueError(f"stream type 0x{stype:02x}: codec {ctx.name} is not a video decoder")
+                self._decoder = ctx
             for pts, data, _pid in units:
                 if data is None:
                     continue
@@ -334,12 +347,33 @@ class LiveImages:
         return self.feed.picture_index_at(t_s)
 
 
+class FlightFeed(Protocol):
+    """What :class:`LiveFlight` reads of a feed (a :class:`LiveFeed`; the warm-up's stand-in): the
+    stream's name, the replay's sensor (there once a batch came), whether pictures are decoded and
+    the first one's size (width, height; None before it), the replay's batches since the last call."""
+
+    @property
+    def url(self) -> str: ...
+
+    @property
+    def sensor(self) -> FrameSensor: ...
+
+    @property
+    def decode_video(self) -> bool: ...
+
+    @property
+    def video_size(self) -> tuple | None: ...
+
+    def take_batches(self) -> list: ...
+
+
 class LiveFlight:
     """The flight debugger's records and flight model of a feed, grown as packets arrive (module docstring).
 
     Parameters
     ----------
-    feed : LiveFeed
+    feed : FlightFeed
+        A :class:`LiveFeed`.
     dem_path : path-like, optional
         The scene's DEM (``--dem``); default a bundled one covering the first frame, as ``geoloc view``.
     use_dem : bool
@@ -352,7 +386,7 @@ class LiveFlight:
 
     def __init__(
         self,
-        feed: LiveFeed,
+        feed: FlightFeed,
         *,
         dem_path=None,
         use_dem: bool = True,
@@ -362,12 +396,12 @@ class LiveFlight:
         self.feed = feed
         self.dem_path, self.use_dem, self.window = dem_path, bool(use_dem), int(window)
         self.dem_datum = dem_datum
-        self.base = None  # the scenario of the first frame: sensor, DEM, the flight's ENU frame
+        self.base: Scenario | None = None  # the scenario of the first frame: sensor, DEM, the flight's ENU frame
         self.records: list = []
         self.fov_deg = np.zeros((0, 2))
         self.times_s = np.zeros(0)
         self.rows: dict = {}  # the replay's own columns of the window's frames (the panel's text)
-        self.model = None
+        self.model: FlightModel | None = None
         self.version = 0  # bumped when frames came
         self.dropped = 0  # frames dropped off the window's start since the start
         self.first_frame_s: float | None = None  # time.monotonic() when the first frame was modelled
@@ -455,10 +489,10 @@ class LiveFlight:
         keys = [k for k in batches[0] if all(k in b for b in batches)]
         c = {k: np.concatenate([np.asarray(b[k]) for b in batches]) for k in keys}
         self._take_grid()
-        recs, kept = records_from_columns(c, self.feed.sensor)  # on the sensor's own (nominal) grid
+        recs, kept_list = records_from_columns(c, self.feed.sensor)  # on the sensor's own (nominal) grid
         if not recs:
             return False
-        kept = np.asarray(kept, int)
+        kept = np.asarray(kept_list, int)
         fov = np.stack(
             [
                 np.asarray(c["sensor_horizontal_fov_deg"], float)[kept],
@@ -505,6 +539,8 @@ class LiveFlight:
         from geoloc_viz.scenario import select_record
 
         with self._lock:
+            if self.base is None:
+                raise RuntimeError("LiveFlight.scenario: no frame has come from the stream yet")
             scn = copy.copy(self.base)
             scn.records = list(self.records)
             scn.frame_fov_deg = self.fov_deg.copy()
@@ -546,11 +582,13 @@ class LiveTab:
     """One tab: the Live folder, then the flight debugger of ``geoloc view`` (module docstring)."""
 
     def __init__(self, flight: LiveFlight, server, client):
+        if not isinstance(flight.feed, LiveFeed):  # the tab shows the feed's pictures and statistics too
+            raise TypeError(f"LiveTab: flight.feed is a {type(flight.feed).__name__}, not a LiveFeed")
         self.flight, self.feed = flight, flight.feed
         self.server, self.client = server, client
         self.gui = client.gui if client is not None else server.gui
-        self.session = None
-        self.layer = None  # the session's FlightLayer (from the second frame on)
+        self.session: GeolocSession | None = None
+        self.layer: FlightLayer | None = None  # the session's FlightLayer (from the second frame on)
         self.following = True
         self.version = -1
         self.dropped = 0
@@ -710,6 +748,8 @@ class LiveTab:
         from geoloc_viz.app import CUSTOM, record_options
 
         s, fl = self.session, self.flight
+        if s is None or fl.base is None or fl.model is None:  # _build made the session from the first frame
+            raise RuntimeError("LiveTab._grow: no session or no flight yet (the first frame builds them)")
         with s._lock, fl._lock:
             shift = fl.dropped - self.dropped
             self.version, self.dropped = fl.version, fl.dropped
@@ -735,7 +775,8 @@ class LiveTab:
                 if value != CUSTOM and scn.record_index is not None:
                     value = labels[scn.record_index]
                 if value in labels or value == CUSTOM:
-                    s.dd_record.value = value
+                    # viser's value setter is not next to its getter: mypy sees the property read-only
+                    s.dd_record.value = value  # type: ignore[misc]
             finally:
                 s._mute = False
             if self.layer is None and n >= 2:
@@ -857,6 +898,8 @@ class LiveViewer:
         try:
             packets = [p for p in read_klv_file(ASSETS / "klv" / "example_flight.klv") if isinstance(p, Packet)][:3]
             r = LiveReplay("warm-up").add(packets)
+            if r is None:
+                raise ValueError("the example's first packets made no frame")
             recs, _ = records_from_columns(r.columns, r.sensor)
             probe = LiveFlight(
                 _WarmFeed(r.sensor),
@@ -925,6 +968,10 @@ class _WarmFeed:
 
     url = "warm-up"
     decode_video = False
+    video_size = None
 
     def __init__(self, sensor):
         self.sensor = sensor
+
+    def take_batches(self) -> list:
+        return []

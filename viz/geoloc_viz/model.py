@@ -150,6 +150,9 @@ class Scenario:
     #: surveyed targets painted in the video, [(name, lat_deg, lon_deg, h_m)] (heights ellipsoidal,
     #: WGS 84; NaN: on the DEM); None: none
     targets: list | None = None
+    #: which pixel grid the records and the sensor are in, in words (:func:`use_image_grid`: a
+    #: video's own); None: the sensor file's
+    pixel_grid: str | None = None
     #: The line-of-sight corrections every located point of the scene goes through (the pipeline's;
     #: ``geoloc view --refraction``, the "Refraction" folder): refraction off by default
     corrections: Corrections = NO_CORRECTIONS
