@@ -3,17 +3,25 @@
 The bundled example flight with its video, the flight, picture, uncertainty and refraction layers,
 a pixel picked in the picture and a terrain point picked on the ground (a ray from the camera, as a
 click on the canvas sends): every node's colours are read back from the scene (what the browser is
-sent), grouped by what they mean. Two meanings may not share a colour: their CIE 1976 L*a*b*
-difference (sRGB D65 -> XYZ -> L*a*b*, CIE 15:2004; computed here, not by the viewer) must be 10 or
-more. A difference of 2.3 is just noticeable for two large patches side by side; thin lines and
+sent), grouped by what they mean. Two meanings may not share a colour: their CIEDE2000 colour
+difference (sRGB D65 -> XYZ -> L*a*b*, CIE 15:2004; CIEDE2000 as Sharma, Wu and Dalal 2005 give it,
+checked here against their published test pairs; computed here, not by the viewer) must be 10 or
+more. A difference of about 1 is just noticeable for two large patches side by side; thin lines and
 small balls far apart on a hillshade need several times that, so under 10 they count as one colour.
-Before the picked terrain point had its own colour it was drawn (255, 140, 0), orange like the
-footprints, and the bent ray of refraction was the picked pixel's lime (difference 0).
+CIEDE2000, not the CIE 1976 distance: the 1976 one overstates differences among blues (the old
+track's sky blue and the H_max hit's azure were 20.7 apart in 1976 units, 9.6 in CIEDE2000, and
+looked one colour). Before the picked terrain point had its own colour it was drawn (255, 140, 0),
+orange like the footprints, and the bent ray of refraction was the picked pixel's lime (difference 0).
+
+Each meaning is drawn in its colour of the viewer's one colour table (:mod:`geoloc_viz.palette`),
+and the Legend names it by that table's word: read from the GUI's markdown in-process, and once from
+the page in Chromium as a person reads it.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 import re
 
 import numpy as np
@@ -33,6 +41,44 @@ def lab(rgb) -> np.ndarray:
         return np.cbrt(t) if t > (6 / 29) ** 3 else t / (3 * (6 / 29) ** 2) + 4 / 29
 
     return np.array([116 * f(y) - 16, 500 * (f(x) - f(y)), 200 * (f(y) - f(z))])
+
+
+def ciede2000(lab1, lab2) -> float:
+    """CIEDE2000 colour difference of two CIE L*a*b* colours (kL = kC = kH = 1), as Sharma, Wu and
+    Dalal, Color Res. Appl. 30 (2005) 21-30, eqs. 1-22 give it."""
+    L1, a1, b1 = (float(v) for v in lab1)
+    L2, a2, b2 = (float(v) for v in lab2)
+    cb = (math.hypot(a1, b1) + math.hypot(a2, b2)) / 2
+    g = 0.5 * (1 - math.sqrt(cb**7 / (cb**7 + 25.0**7)))
+    a1p, a2p = (1 + g) * a1, (1 + g) * a2
+    c1, c2 = math.hypot(a1p, b1), math.hypot(a2p, b2)
+
+    def hue(b, a):
+        return 0.0 if a == 0 and b == 0 else math.degrees(math.atan2(b, a)) % 360
+
+    h1, h2 = hue(b1, a1p), hue(b2, a2p)
+    dh = 0.0 if c1 * c2 == 0 else (h2 - h1 + 180) % 360 - 180
+    dH = 2 * math.sqrt(c1 * c2) * math.sin(math.radians(dh / 2))
+    lm, cm = (L1 + L2) / 2, (c1 + c2) / 2
+    if c1 * c2 == 0:
+        hm = h1 + h2
+    elif abs(h1 - h2) <= 180:
+        hm = (h1 + h2) / 2
+    else:
+        hm = (h1 + h2 + 360) / 2 if h1 + h2 < 360 else (h1 + h2 - 360) / 2
+    r = math.radians
+    t = 1 - 0.17 * math.cos(r(hm - 30)) + 0.24 * math.cos(r(2 * hm)) + 0.32 * math.cos(r(3 * hm + 6))
+    t -= 0.20 * math.cos(r(4 * hm - 63))
+    sl = 1 + 0.015 * (lm - 50) ** 2 / math.sqrt(20 + (lm - 50) ** 2)
+    sc, sh = 1 + 0.045 * cm, 1 + 0.015 * cm * t
+    rt = -math.sin(r(60 * math.exp(-(((hm - 275) / 25) ** 2)))) * 2 * math.sqrt(cm**7 / (cm**7 + 25.0**7))
+    x, y, z = (L2 - L1) / sl, (c2 - c1) / sc, dH / sh
+    return math.sqrt(x * x + y * y + z * z + rt * y * z)
+
+
+def delta_e(rgb1, rgb2) -> float:
+    """CIEDE2000 difference of two sRGB colours 0..255."""
+    return ciede2000(lab(rgb1), lab(rgb2))
 
 
 def node_colours(scene, name) -> set:
@@ -73,54 +119,139 @@ def drawn():
         c = lambda n: node_colours(sc, n)  # noqa: E731
         iters = c("/enu/iterations/verticals")
         runs = c("/flight/runs")
+        # meaning -> (its keys in the colour table, the colours read from the scene)
         meanings = {
-            "line of sight": c("/enu/los"),
-            "this frame's footprint (corner rays)": c("/enu/frustum"),
-            "the method's answer (recomputed point)": c("/enu/hit/result") | c("/flight/focus/recomputed"),
-            "the exact first hit": c("/enu/hit/exact"),
-            "the ellipsoid hit at H_max": c("/enu/hit/hmax"),
-            "the reported point": c("/flight/focus/reference"),
-            "the current error vector": c("/flight/focus/error"),
-            "every frame's error vector": c("/flight/errors"),
-            "the track": c("/flight/track"),
-            "footprints": c("/flight/footprints") - runs,
-            "flagged: outlier footprints and runs": runs,
-            "the current footprint": c("/flight/current"),
-            "the picked pixel": c("/enu/picture/ray") | c("/enu/picture/hit"),
-            "the picked terrain point": c("/enu/picture/ground"),
-            "the 90 % ellipse": c("/enu/uncertainty/ellipse"),
-            "the bent ray (refraction)": c("/enu/refraction/bent"),
-            "bisection brackets": c("/enu/iterations/brackets"),
-            "iterations (above / below the terrain)": iters,
+            "line of sight": (("los",), c("/enu/los")),
+            "this frame's footprint (corner rays)": (("frustum",), c("/enu/frustum")),
+            "the method's answer (recomputed point)": (
+                ("result",),
+                c("/enu/hit/result") | c("/flight/focus/recomputed"),
+            ),
+            "the exact first hit": (("exact",), c("/enu/hit/exact")),
+            "the ellipsoid hit at H_max": (("hmax",), c("/enu/hit/hmax")),
+            "the reported point": (("published",), c("/flight/focus/reference")),
+            "the current error vector": (("error",), c("/flight/focus/error")),
+            "every frame's error vector": (("errors",), c("/flight/errors")),
+            "the track": (("track",), c("/flight/track")),
+            "footprints": (("footprint",), c("/flight/footprints") - runs),
+            "flagged: outlier footprints and runs": (("footprint_outlier",), runs),
+            "the current footprint": (("current",), c("/flight/current")),
+            "every frame's centre": (("centre",), c("/flight/centres")),
+            "the picked pixel": (("pick",), c("/enu/picture/ray") | c("/enu/picture/hit")),
+            "the picked terrain point": (("ground",), c("/enu/picture/ground")),
+            "the 90 % ellipse": (("ellipse",), c("/enu/uncertainty/ellipse")),
+            "the bent ray (refraction)": (("bent",), c("/enu/refraction/bent")),
+            "bisection brackets": (("bracket",), c("/enu/iterations/brackets")),
+            "iterations (above / below the terrain)": (("above", "below"), iters),
         }
         legend = app.md_legend.content
         picture = il.md_legend.content
     return meanings, legend, picture
 
 
+# Sharma, Wu and Dalal (2005), Table 1: pairs (L*, a*, b*) and their CIEDE2000 difference, to the
+# table's 4 decimals (pairs 1, 2, 7, 13, 17-19, 25 and 34: hue wrap, neutral, large and small differences)
+SHARMA_PAIRS = [
+    ((50.0, 2.6772, -79.7751), (50.0, 0.0, -82.7485), 2.0425),
+    ((50.0, 3.1571, -77.2803), (50.0, 0.0, -82.7485), 2.8615),
+    ((50.0, 0.0, 0.0), (50.0, -1.0, 2.0), 2.3669),
+    ((50.0, 2.49, -0.001), (50.0, -2.49, 0.0009), 7.1792),
+    ((50.0, 2.5, 0.0), (73.0, 25.0, -18.0), 27.1492),
+    ((50.0, 2.5, 0.0), (61.0, -5.0, 29.0), 22.8977),
+    ((50.0, 2.5, 0.0), (56.0, -27.0, -3.0), 31.9030),
+    ((60.2574, -34.0099, 36.2677), (60.4626, -34.1751, 39.4387), 1.2644),
+    ((2.0776, 0.0795, -1.1350), (0.9033, -0.0636, -0.5514), 0.9082),
+]
+
+
+@pytest.mark.parametrize("lab1, lab2, want", SHARMA_PAIRS)
+def test_ciede2000_matches_the_published_test_pairs(lab1, lab2, want):
+    assert abs(ciede2000(lab1, lab2) - want) < 5e-5  # the table's 4 decimals
+    assert abs(ciede2000(lab2, lab1) - want) < 5e-5  # symmetric
+
+
+def test_the_old_track_and_hmax_blues_count_as_one_colour():
+    # the palette before: the track (90, 200, 255) and the H_max hit (0, 170, 255), 20.7 apart in CIE 1976
+    # units (the test's former measure passed them) but 9.6 in CIEDE2000: under 10, this test's bound
+    assert delta_e((90, 200, 255), (0, 170, 255)) < 10.0
+    assert float(np.linalg.norm(lab((90, 200, 255)) - lab((0, 170, 255)))) > 10.0
+
+
 def test_no_two_meanings_share_a_colour(drawn):
     meanings, _, _ = drawn
-    for m, cols in meanings.items():
+    for m, (_, cols) in meanings.items():
         assert cols, f"{m}: nothing drawn"
     # the footprints' outliers: one red for every flagged footprint and run
-    assert len(meanings["flagged: outlier footprints and runs"]) == 1
+    assert len(meanings["flagged: outlier footprints and runs"][1]) == 1
     shared = []
-    for (a, ca), (b, cb) in itertools.combinations(meanings.items(), 2):
+    for (a, (_, ca)), (b, (_, cb)) in itertools.combinations(meanings.items(), 2):
         for x in ca:
             for y in cb:
-                d = float(np.linalg.norm(lab(x) - lab(y)))
+                d = delta_e(x, y)
                 if d < 10.0:
-                    shared.append(f"{a} {x} ~ {b} {y}: delta E {d:.1f}")
+                    shared.append(f"{a} {x} ~ {b} {y}: CIEDE2000 {d:.1f}")
     assert not shared, "\n".join(shared)
+
+
+def test_no_two_colours_of_the_table_look_alike():
+    # what the scene does not draw in this fixture too (the triangulation's residuals, a hidden terrain pick)
+    from geoloc_viz.palette import PALETTE
+
+    close = [
+        f"{a} {ca.rgb} ~ {b} {cb.rgb}: {delta_e(ca.rgb, cb.rgb):.1f}"
+        for (a, ca), (b, cb) in itertools.combinations(PALETTE.items(), 2)
+        if {a, b} != {"ground", "ground_hidden"} and delta_e(ca.rgb, cb.rgb) < 10.0  # one meaning, dimmed
+    ]
+    assert not close, close
+
+
+def test_each_meaning_is_drawn_in_its_table_colour(drawn):
+    from geoloc_viz.palette import PALETTE
+
+    meanings, _, _ = drawn
+    for m, (keys, cols) in meanings.items():
+        assert cols == {PALETTE[k].rgb for k in keys}, (m, cols)
+    # the old track / H_max pair is gone from the scene
+    assert meanings["the ellipsoid hit at H_max"][1] != {(0, 170, 255)}
+
+
+def _bold_words(text: str) -> list:
+    return re.findall(r"\*\*([^*]+)\*\*", text)
+
+
+def test_the_legend_names_what_is_drawn_by_the_tables_words(drawn):
+    from geoloc_viz.palette import PALETTE
+
+    meanings, legend, picture = drawn
+    names = {c.name for c in PALETTE.values()}
+    # every bold word of the two legends is a colour of the table (no colour word written by hand)
+    for text in (legend, picture):
+        words = _bold_words(text)
+        assert words and set(words) <= names, set(words) - names
+    # every meaning drawn is named in the Legend folder by its colour's word
+    for m, (keys, _) in meanings.items():
+        for k in keys:
+            assert f"**{PALETTE[k].name}**" in legend, (m, k)
+    assert re.search(r"\*\*light grey\*\*: the ellipsoid hit at H_max", legend)
+    assert re.search(r"\*\*sky blue\*\* track", legend)
 
 
 def test_the_legend_names_each_new_colour_once_with_its_meaning(drawn):
     meanings, legend, picture = drawn
-    assert meanings["the picked terrain point"] == {(90, 30, 255)}  # indigo, shown in the legend as such
-    assert meanings["the bent ray (refraction)"] == {(0, 255, 160)}  # spring green
+    assert meanings["the picked terrain point"][1] == {(90, 30, 255)}  # indigo, shown in the legend as such
+    assert meanings["the bent ray (refraction)"][1] == {(0, 255, 160)}  # spring green
     for text in (legend, picture):
         assert len(re.findall(r"\*\*indigo\*\*", text)) == 1 and "picked terrain point" in text
         assert "**orange** o" not in text  # the terrain point is no longer the footprints' orange
     assert len(re.findall(r"\*\*spring green\*\*", legend)) == 1
     assert re.search(r"\*\*spring green\*\* line \(with refraction on", legend)
     assert re.search(r"\*\*indigo\*\* a picked terrain point", legend)
+
+
+def test_the_docs_colour_table_is_the_palettes():
+    from pathlib import Path
+
+    from geoloc_viz.palette import colour_table_markdown
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "viz.md").read_text()
+    assert colour_table_markdown() in doc, "docs/viz.md: regenerate with python -m geoloc_viz.palette"

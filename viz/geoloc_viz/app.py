@@ -85,6 +85,7 @@ from geoloc_viz import (
     flight_layer,
     image_layer,
     label_layout,
+    palette,
     refraction_layer,
     panel_layer,
     share_layer,
@@ -188,37 +189,39 @@ def legend_markdown(scn) -> str:
     q17 = has_truth  # a published point beside a surveyed one: [Q17]'s records; else a reported one
     frames = drawn_frames(scn.camera)
     names = ", ".join(frame_style(f, k)[1].split(":")[0] for k, f in enumerate(frames))
+    w = palette.word  # every colour word is the colour table's name of what is drawn
     L = [
-        "- **red** ball: the chosen method's answer; **green**: the exact first hit; **light blue**: "
+        f"- {w('result')} ball: the chosen method's answer; {w('exact')}: the exact first hit; {w('hmax')}: "
         "the ellipsoid hit at H_max (where [Q17]'s steps start)",
-        "- **yellow** line: line of sight (also one target's lines of sight from several frames, Picture "
-        "folder); **orange**: image footprint (corner rays)",
+        f"- {w('los')} line: line of sight (also one target's lines of sight from several frames, Picture "
+        f"folder), {w('los_beyond')} beyond the answer; {w('frustum')}: image footprint (corner rays)",
         "- iterations: dots on the line of sight at H_n with a segment to the DEM height h_n below, "
-        "**blue** if H_n - h_n > 0 (above the terrain), **red** below; **cyan**: bisection brackets",
+        f"{w('above')} if H_n - h_n > 0 (above the terrain), {w('below')} below; {w('bracket')}: bisection brackets",
     ]
     if has_paper:
         pub = "published position" + (" [Q17]" if "qiao2017" in str(getattr(scn, "source", "")) else "")
         L.append(
-            "- **violet**: " + (pub if q17 else "reported position (the record's own, e.g. the MISB frame centre)")
+            f"- {w('published')}: "
+            + (pub if q17 else "reported position (the record's own, e.g. the MISB frame centre)")
         )
     if has_truth:
         L.append(
-            "- **white**: surveyed; **pink**: error vector computed -> surveyed, at true length unless "
+            f"- {w('surveyed')}: surveyed; {w('error')}: error vector computed -> surveyed, at true length unless "
             '"error vector drawn x" enlarges it (its label then says the factor, e.g. x10)'
         )
     L.append(
-        "- **teal** ring on the terrain: the predicted 90 % error ellipse of the located point, at "
+        f"- {w('ellipse')} ring on the terrain: the predicted 90 % error ellipse of the located point, at "
         'true size unless "ellipse drawn x" enlarges it (its label then says the factor, e.g. x10)'
     )
     L.append(
-        '- **spring green** line (with refraction on, "Refraction" folder): the bent ray from the camera to '
-        "the located point, beside the straight line of sight (yellow, then ending at its own hit); its "
-        'offset drawn at true size unless "bent ray drawn x" enlarges it (its label then says x100)'
+        f'- {w("bent")} line (with refraction on, "Refraction" folder): the bent ray from the camera to '
+        f"the located point, beside the straight line of sight ({palette.PALETTE['los'].name}, then ending at "
+        'its own hit); its offset drawn at true size unless "bent ray drawn x" enlarges it (its label then says x100)'
     )
     if getattr(scn, "images", None) is not None:
         L.append(
-            "- picks (Picture folder): **lime** a picked pixel's ray and ground point; **indigo** a picked "
-            "terrain point (dimmed: hidden from the camera)"
+            f"- picks (Picture folder): {w('pick')} a picked pixel's ray and ground point; {w('ground')} a picked "
+            f"terrain point ({w('ground_hidden')}: hidden from the camera)"
         )
     L += [
         '- the aircraft is drawn larger than life by the "aircraft display scale" factor; frames scale with it',
@@ -228,10 +231,11 @@ def legend_markdown(scn) -> str:
     ]
     if len(recs) > 1:
         L.append(
-            "- flight (every frame): **blue** track; **dark red**: flagged, the outliers' footprints and the "
-            "runs (thick, labelled with their fault); footprints **orange**, the current one **magenta**; "
-            "points **violet** / **red** / **white**: reported / recomputed (the answer) / truth; **mauve**: every "
-            "frame's error vector; **bright pink**: the current frame's, labelled with its length"
+            f"- flight (every frame): {w('track')} track; {w('footprint_outlier')}: flagged, the outliers' footprints "
+            f"and the runs (thick, labelled with their fault); footprints {w('footprint')}, the current one "
+            f"{w('current')}; centres {w('centre')}; points {w('published')} / {w('result')} / {w('surveyed')}: "
+            f"reported / recomputed (the answer) / truth; {w('errors')}: every frame's error vector; "
+            f"{w('error')}: the current frame's, labelled with its length"
         )
     return "\n".join(L) + "\n"
 

@@ -35,6 +35,7 @@ import numpy as np
 from viser import LabelHandle, LineSegmentsHandle, PointCloudHandle, SceneNodeHandle
 
 from geoloc_viz import flight_model
+from geoloc_viz.palette import rgb
 from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
 
 if TYPE_CHECKING:
@@ -43,24 +44,21 @@ if TYPE_CHECKING:
 _Handle = TypeVar("_Handle", bound=SceneNodeHandle)
 
 ROOT = "/flight"
-#: Colours (RGB 0-255). The highlight is pure magenta: nothing else in the scene has it
-#: (the terrain's gist_earth colours, the pink error (255, 90, 200) and violet published (180, 80, 255)
-#: all have green > 60), so a browser test can find it by pixel statistics.
+#: Colours (RGB 0-255), from the viewer's one colour table (:mod:`geoloc_viz.palette`). The highlight is pure
+#: magenta: nothing else in the scene has it (the terrain's gist_earth colours, the pink error and violet
+#: published all have green > 60), so a browser test can find it by pixel statistics. Every frame's error
+#: vector is a dimmer mauve than the current frame's bright pink one (red > 225 only for the bright one).
 COLORS = {
-    "track": (90, 200, 255),
-    "footprint": (205, 150, 70),
-    # flagged (outlier footprints, fault runs): a darker red than the recomputed point's, which is the
-    # method's answer of the frame scene (scene_geoloc.COLORS["result"]): one colour per meaning
-    "footprint_outlier": (190, 0, 40),
-    "current": (255, 0, 255),
-    "centre": (255, 230, 120),
-    "reported": (180, 80, 255),
-    "recomputed": (255, 40, 40),
-    "truth": (255, 255, 255),
-    "error": (255, 90, 200),
-    # every frame's error vector: a dimmer mauve than the current frame's bright pink one, so the
-    # one being looked at stands out (and a browser test can find it: red > 225 only for the bright one)
-    "errors": (165, 95, 145),
+    "track": rgb("track"),
+    "footprint": rgb("footprint"),
+    "footprint_outlier": rgb("footprint_outlier"),
+    "current": rgb("current"),
+    "centre": rgb("centre"),
+    "reported": rgb("published"),
+    "recomputed": rgb("result"),
+    "truth": rgb("surveyed"),
+    "error": rgb("error"),
+    "errors": rgb("errors"),
 }
 TOP_N = 12
 #: Marker radius at the current frame, as a fraction of its error (the error vector must stay visible

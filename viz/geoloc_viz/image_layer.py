@@ -56,6 +56,8 @@ import numpy as np
 
 from geoloc.status import Status
 from geoloc_viz import picture_model as pm
+from geoloc_viz import palette
+from geoloc_viz.palette import rgb
 from geoloc_viz.scene_geoloc import WORLD_SCALE, drawn_factor, wxyz
 from geoloc_viz.layer_safety import call_safely
 
@@ -70,22 +72,22 @@ TEXTURE_MAX = 320
 ZOOMS = (1, 2, 4, 8, 16, 32)
 #: Picks of one frame kept for an export (the scene shows the last one's ray).
 MAX_PICKS = 20
-#: RGB colours of the marks (the same in the scene and in the image).
+#: RGB colours of the marks (the same in the scene and in the image), from the viewer's one colour table
+#: (:mod:`geoloc_viz.palette`). The picked terrain point is indigo, a colour of its own (it was the orange of
+#: the footprints); hidden behind terrain from the camera, dimmed. One target's rays from several frames are
+#: lines of sight (yellow); its 90 % ellipse is teal, as every 90 % ellipse.
 COLORS = {
-    "pick": (170, 255, 0),
-    # the picked terrain point: indigo, a colour of its own (it was the orange of the footprints, and its
-    # hidden state the red of the method's answer); hidden behind terrain from the camera: the same, dimmed
-    "ground": (90, 30, 255),
-    "ground_hidden": (60, 40, 140),
-    "truth": (255, 255, 255),
-    "target": (255, 255, 255),
-    "reported": (180, 80, 255),
-    "recomputed": (255, 40, 40),  # the method's answer: scene_geoloc.COLORS["result"]
-    "horizon": (0, 230, 230),
-    # one target's rays from several frames and their intersection: lines of sight, the scene's yellow
-    "target_rays": (255, 210, 0),
-    "residual": (255, 60, 160),  # each ray's residual, ray to the triangulated point
-    "target_ellipse": (0, 200, 170),  # the triangulated point's 90 % ellipse: uncertainty_layer.COLOR (teal)
+    "pick": rgb("pick"),
+    "ground": rgb("ground"),
+    "ground_hidden": rgb("ground_hidden"),
+    "truth": rgb("surveyed"),
+    "target": rgb("surveyed"),
+    "reported": rgb("published"),
+    "recomputed": rgb("result"),
+    "horizon": rgb("bracket"),
+    "target_rays": rgb("los"),
+    "residual": rgb("residual"),
+    "target_ellipse": rgb("ellipse"),
 }
 _PIXEL_RE = re.compile(r"^\s*\(?\s*([-+0-9.eE]+)\s*[, ;]\s*([-+0-9.eE]+)\s*\)?\s*$")
 
@@ -254,14 +256,15 @@ class ImageLayer:
         base = getattr(head, "order", None)
         order = None if base is None else float(base) + 0.015  # under the Flight folder (timeline), before its tables
         with g.add_folder("Picture", order=order):
+            w = palette.word  # every colour word is the colour table's name of what is drawn
             self.md_legend = g.add_markdown(
-                "Click the image to locate a pixel; click the terrain to find its pixel. Marks: "
-                "**lime** +: picked pixel; **indigo** o: picked terrain point (dimmed: hidden from the camera); "
-                "**white** x: surveyed truth "
-                "and targets; squares **violet** / **red**: reported / recomputed frame centre; "
-                "**cyan** line: terrain horizon. Pick one target in several frames: its rays (**yellow**, lines of sight) meet at "
-                "the triangulated point, with its 90 % ellipse (**teal**, as every 90 % ellipse) and residuals "
-                '(**pink**), both at true size unless "error vector drawn x" (Display) enlarges them'
+                f"Click the image to locate a pixel; click the terrain to find its pixel. Marks: {w('pick')} +: "
+                f"picked pixel; {w('ground')} o: picked terrain point ({w('ground_hidden')}: hidden from the camera); "
+                f"{w('surveyed')} x: surveyed truth and targets; squares {w('published')} / {w('result')}: reported / "
+                f"recomputed frame centre; {w('bracket')} line: terrain horizon. Pick one target in several frames: "
+                f"its rays ({w('los')}, lines of sight) meet at the triangulated point, with its 90 % ellipse "
+                f"({w('ellipse')}, as every 90 % ellipse) and residuals ({w('residual')}), both at true size unless "
+                '"error vector drawn x" (Display) enlarges them'
             )
             self.html = g.add_html("")
             self.sl_zoom = g.add_slider(

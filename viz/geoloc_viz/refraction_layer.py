@@ -24,12 +24,13 @@ from __future__ import annotations
 
 import numpy as np
 from geoloc_viz.layer_safety import call_safely
+from geoloc_viz.palette import PALETTE
 
 ROOT = "/enu/refraction"
 #: The bent ray's colour, one meaning one colour: not the line of sight's yellow, the exact hit's
 #: green nor any other colour of the scene (``app.legend_markdown``).
-COLOR = (0, 255, 160)
-COLOR_NAME = "spring green"
+COLOR = PALETTE["bent"].rgb
+COLOR_NAME = PALETTE["bent"].name
 #: The largest exaggeration of the bent ray's offset the panel offers.
 SCALE_MAX = 1000.0
 #: The atmosphere's name, as the CLI prints it.

@@ -41,6 +41,7 @@ import viser.transforms as vtf
 
 from geoloc.assets import ASSETS
 from geoloc_viz.model import Geometry, Scenario
+from geoloc_viz.palette import rgb
 
 #: Root node of the scene, and scene units per metre (the world unit is the km).
 ROOT = "/enu"
@@ -67,19 +68,11 @@ def frame_style(name: str, index: int) -> tuple:
     return L, FRAME_LABELS.get(name, f"{name.replace('_', ' ')}: Y"), LABEL_AXIS.get(name, 1)
 
 
+#: The scene's colours (RGB 0-255), from the viewer's one colour table (:mod:`geoloc_viz.palette`).
 COLORS = {
-    "los": (255, 210, 0),
-    "los_beyond": (140, 120, 40),
-    "hmax": (0, 170, 255),
-    "result": (255, 40, 40),
-    "exact": (20, 220, 90),
-    "published": (180, 80, 255),
-    "surveyed": (255, 255, 255),
-    "error": (255, 90, 200),
-    "above": (60, 140, 255),  # H_n - h_n > 0: line of sight above the terrain
-    "below": (255, 80, 40),  # H_n - h_n < 0: below
-    "frustum": (255, 170, 60),
-    "bracket": (0, 230, 230),
+    k: rgb(k)
+    for k in ("los", "los_beyond", "hmax", "result", "exact", "published", "surveyed", "error", "above", "below")
+    + ("frustum", "bracket")
 }
 
 

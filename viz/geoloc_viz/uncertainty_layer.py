@@ -33,12 +33,13 @@ from geoloc.geodesy.local import ellipse_ring_enu, enu_to_geodetic
 from geoloc.sensors.budget import LENS_KEYS, ErrorBudget
 from geoloc.status import Status
 from geoloc_viz.layer_safety import call_safely
+from geoloc_viz.palette import PALETTE
 
 ROOT = "/enu/uncertainty"
 #: The predicted 90 % ellipse's colour, one meaning one colour (layers are told apart by it): not the flight layer's
 #: magenta current footprint, nor any other colour of the scene (``app.legend_markdown``).
-COLOR = (0, 200, 170)
-COLOR_NAME = "teal"
+COLOR = PALETTE["ellipse"].rgb
+COLOR_NAME = PALETTE["ellipse"].name
 #: The largest enlargement of the drawn ellipse the panel offers.
 SCALE_MAX = 100.0
 VERTICES = 96
