@@ -127,3 +127,39 @@ def test_a_sender_that_changes_its_resolution_is_counted_in_the_panel(tmp_path):
     finally:
         viewer.stop()
         server.stop()
+
+
+def test_the_last_frame_of_an_ended_stream_has_its_picture():
+    """The bundled stream (300 H.264 pictures, a second apart, and its KLV) sent over UDP once: when it
+    ends the feed flushes its decoder (the parser's last access unit, the decoder's held frames), so its
+    pictures end at the file's last one as FFmpeg decodes the file itself (PyAV, the peer), and the
+    stream's last KLV packet finds the picture FFmpeg puts nearest it. Before the flush the last
+    picture never came out of the decoder: the last frame of a stream that ended had none."""
+    import av
+
+    from geoloc.io.live import send
+    from geoloc_viz.live_view import LiveFeed
+    from test_live import TS
+
+    with av.open(str(TS)) as c:
+        want = [int(f.pts) for f in c.decode(video=0)]
+    with av.open(str(TS)) as c:
+        klv_pts = [int(p.pts) for p in c.demux(c.streams.data[0]) if p.size and p.pts is not None]
+    port = free_port()
+    url = f"udp://127.0.0.1:{port}"
+    feed = LiveFeed(url, limits={"idle_s": 2.0, "duration_s": 120}).start()
+    try:
+        wait_for(lambda: _bound(port), 20, "the feed to listen")
+        send(TS, url, speed=50.0)  # 300 s of stream in 6 s: loopback keeps up at this speed
+        wait_for(lambda: feed.done, 60, "the stream to end (2 s idle)")
+        assert not feed.error, feed.error
+        got = [int(p[1]) for p in feed.pictures]
+        assert feed.pictures_total == len(want) and feed.decode_errors == 0, (feed.pictures_total, len(want))
+        assert got == want[-len(got) :], (got[-3:], want[-3:])  # the newest kept are the file's last ones
+        # the last KLV packet's picture: FFmpeg's nearest frame to it, the feed's choice too
+        last = klv_pts[-1]
+        nearest = min(want, key=lambda v: abs(v - last))
+        k = feed.picture_index_at(last / 90000.0)
+        assert k >= 0 and next(p[1] for p in feed.pictures if p[0] == k) == nearest
+    finally:
+        feed.stop()

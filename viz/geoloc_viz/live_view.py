@@ -135,6 +135,10 @@ class LiveFeed:
         self._thread: threading.Thread | None = None
         self._decoder: av.VideoCodecContext | None = None
         self._video_done = 0
+        #: the PTS of the access units given to the parser and not yet out of it, oldest first: the parser
+        #: hands an access unit out once the next one starts, so a packet's PTS is the oldest waiting (each
+        #: PES of the stream one access unit), not that of the unit just given
+        self._unit_pts: deque = deque(maxlen=64)
         self.pictures: deque = deque()  # (serial, pts [90 kHz], RGB uint8 array), PICTURES / PICTURE_BYTES at most
         self._picture_bytes = 0
         self.pictures_total = 0
@@ -187,6 +191,8 @@ class LiveFeed:
                 **self.limits,
             ):
                 pass
+            if self.decode_video:  # the stream ended: its last access unit and the decoder's held pictures
+                self._decode(end=True)
             self._took(self.replay.flush())  # the packets still waiting for their video frame
         except Exception as e:  # a bind that fails, a bug: shown in the panel, never a dead viewer
             self.error = f"{type(e).__name__}: {e}"
@@ -219,16 +225,21 @@ class LiveFeed:
             out, self._pending = self._pending, []
             return out
 
-    def _decode(self) -> None:
-        """Decode the video access units that came since the last call (newest pictures kept)."""
+    def _decode(self, end: bool = False) -> None:
+        """Decode the video access units that came since the last call (newest pictures kept).
+
+        ``end``: the stream ended; the parser's buffered access unit and the pictures the decoder holds
+        back (reordering, frame threads) are flushed out (``parse(None)``, then ``decode(None)``: FFmpeg's
+        draining, an empty packet), or the last frames of the stream would never have a picture.
+        """
         import av
 
         video = self.rx.video
         n_new = self.rx.stats.video_units - self._video_done
-        if n_new <= 0:
+        if n_new <= 0 and not (end and self._decoder is not None):
             return
         self._video_done = self.rx.stats.video_units
-        units = list(video)[-min(n_new, len(video)) :]
+        units = list(video)[-min(n_new, len(video)) :] if n_new > 0 else []
         try:
             if self._decoder is None:
                 from geoloc.io.ts_demux import _STREAM_TYPES_VIDEO
@@ -241,19 +252,34 @@ class LiveFeed:
             for pts, data, _pid in units:
                 if data is None:
                     continue
+                self._unit_pts.append(pts)
                 for pkt in self._decoder.parse(data):
-                    pkt.pts = pts
-                    for fr in self._decoder.decode(pkt):
-                        size = (int(fr.width), int(fr.height))
-                        if self.video_size is not None and size != self.video_size:
-                            self.resolution_changes += 1
-                        self.video_size = size
-                        img = fr.to_ndarray(format="rgb24")  # the video's own pixels: no resampling
-                        self._keep((self.pictures_total, fr.pts if fr.pts is not None else pts, img))
-                        self.pictures_total += 1
+                    self._decode_packet(pkt)
+            if end and self._decoder is not None:
+                for pkt in self._decoder.parse(None):
+                    self._decode_packet(pkt)
+                self._pictures(self._decoder.decode(None), None)
         except (av.error.FFmpegError, ValueError) as e:  # a broken access unit: the next key frame recovers
             self.decode_errors += 1
-            self._decoder = None if "codec" in str(e).lower() else self._decoder
+            if "codec" in str(e).lower():
+                self._decoder = None
+                self._unit_pts.clear()
+
+    def _decode_packet(self, pkt) -> None:
+        pts = self._unit_pts.popleft() if self._unit_pts else None
+        pkt.pts = pts
+        self._pictures(self._decoder.decode(pkt), pts)
+
+    def _pictures(self, frames, pts) -> None:
+        """Keep decoded video frames (``pts``: the access unit's, for a frame without its own)."""
+        for fr in frames:
+            size = (int(fr.width), int(fr.height))
+            if self.video_size is not None and size != self.video_size:
+                self.resolution_changes += 1
+            self.video_size = size
+            img = fr.to_ndarray(format="rgb24")  # the video's own pixels: no resampling
+            self._keep((self.pictures_total, fr.pts if fr.pts is not None else pts, img))
+            self.pictures_total += 1
 
     def _keep(self, picture) -> None:
         """Keep a decoded picture, dropping the oldest beyond :data:`PICTURES` or :data:`PICTURE_BYTES`
