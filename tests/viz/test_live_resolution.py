@@ -138,7 +138,7 @@ def test_the_last_frame_of_an_ended_stream_has_its_picture():
     import av
 
     from geoloc.io.live import send
-    from geoloc_viz.live_view import LiveFeed
+    from geoloc_viz.live_view import LiveFeed, LiveImages
     from test_live import TS
 
     with av.open(str(TS)) as c:
@@ -161,5 +161,12 @@ def test_the_last_frame_of_an_ended_stream_has_its_picture():
         nearest = min(want, key=lambda v: abs(v - last))
         k = feed.picture_index_at(last / 90000.0)
         assert k >= 0 and next(p[1] for p in feed.pictures if p[0] == k) == nearest
+        # the picture layer's source: one time per image, by serial number (the caption's "picture at T s"
+        # of a serial past the 64 kept read another picture's time, or none)
+        t = LiveImages(feed).times_s
+        kept = [p[0] for p in feed.pictures]
+        assert len(t) == len(LiveImages(feed)) == len(want)
+        assert np.array_equal(t[kept] * 90000.0, np.array(want[-len(kept) :], float))
+        assert np.isnan(t[: kept[0]]).all()
     finally:
         feed.stop()

@@ -351,7 +351,14 @@ class LiveImages:
 
     @property
     def times_s(self) -> np.ndarray:
-        return np.array([np.nan if p[1] is None else p[1] / 90000.0 for p in list(self.feed.pictures)])
+        """Each picture's time [s], indexed by its serial number as :meth:`image` is (``ImageSource``:
+        one per image): NaN for those no longer kept. Made on demand, never stored (it was the kept
+        pictures' only, so past :data:`PICTURES` pictures a serial read another picture's time or none)."""
+        t = np.full(self.feed.pictures_total, np.nan)
+        for k, pts, _ in list(self.feed.pictures):
+            if pts is not None and 0 <= k < len(t):
+                t[k] = pts / 90000.0
+        return t
 
     @property
     def rows(self) -> int:
