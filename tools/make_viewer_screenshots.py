@@ -5,6 +5,8 @@ bundled example flight in headless Debian Chromium (software WebGL), 1100 x 700.
   labelled), once the canvas has settled;
 * ``docs/img/viewer_outlier_error.png``: after "go to" packet 100 (set as the GUI would), its
   error vector framed and labelled;
+* ``docs/img/viewer_legend.png``: then the Legend folder opened with a click and scrolled to the
+  panel's top, as a person reads it (its colour words are the viewer's one colour table's);
 * ``docs/img/viewer_limb.png``: ``geoloc view --scenario limb`` (its own viewer, 1100 x 700) with the
   line of sight meeting the Earth (frame 0, view angle alpha -1.5 deg, set as its sliders do): the
   Earth in view below the line, not filling it.
@@ -108,7 +110,7 @@ def limb_shot(args) -> None:
 
 
 def flight_shots(args) -> None:
-    """``viewer_first_view.png`` and ``viewer_outlier_error.png`` (module docstring)."""
+    """``viewer_first_view.png``, ``viewer_outlier_error.png`` and ``viewer_legend.png`` (module docstring)."""
     from bench_browser import PROBE, _settled
     from test_viz_browser import chromium
 
@@ -135,6 +137,11 @@ def flight_shots(args) -> None:
             fl.dd_goto.value = opt  # as the GUI would
             _settled(page, t1, after=seen)
             shot(page, args.out / "viewer_outlier_error.png")
+            page.get_by_text("Legend", exact=True).first.click(timeout=120000)
+            items = page.locator("li", has_text="the ellipsoid hit at H_max").first.locator("xpath=..")
+            items.wait_for(timeout=120000)
+            items.evaluate("e => e.scrollIntoView({block: 'start'})")
+            shot(page, args.out / "viewer_legend.png")
     finally:
         server.stop()
 

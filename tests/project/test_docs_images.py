@@ -28,7 +28,7 @@ def test_the_readme_shows_one_picture():
 
 def test_the_viewer_screenshots_are_linked():
     tour = (ROOT / "docs" / "tour_viewer.md").read_text(encoding="utf-8")
-    for name in ("img/viewer_first_view.png", "img/viewer_outlier_error.png"):
+    for name in ("img/viewer_first_view.png", "img/viewer_outlier_error.png", "img/viewer_legend.png"):
         assert name in IMAGE.findall(tour), f"docs/tour_viewer.md does not show {name}"
 
 
@@ -44,9 +44,9 @@ def test_every_docs_image_is_a_png_in_the_repository(page, link, path):
 @pytest.mark.xdist_group("chromium")  # a browser in a subprocess: tests/conftest.py cannot see it
 @pytest.mark.browser
 def test_the_screenshot_tool_makes_both_views(tmp_path):
-    """tools/make_viewer_screenshots.py, which makes the README's viewer pictures, still runs: three PNGs
+    """tools/make_viewer_screenshots.py, which makes the README's viewer pictures, still runs: four PNGs
     at 1100 x 700, the second a different view (the camera on packet 100's error vector), the third
-    the limb scene with the line of sight meeting the Earth."""
+    the limb scene with the line of sight meeting the Earth, the fourth the Legend folder opened."""
     import os
     import subprocess
     import sys
@@ -64,12 +64,13 @@ def test_the_screenshot_tool_makes_both_views(tmp_path):
     )
     assert r.returncode == 0, r.stderr[-4000:]
     imgs = []
-    for name in ("viewer_first_view.png", "viewer_outlier_error.png", "viewer_limb.png"):
+    for name in ("viewer_first_view.png", "viewer_outlier_error.png", "viewer_limb.png", "viewer_legend.png"):
         with PIL.Image.open(tmp_path / "img" / name) as im:
             assert im.format == "PNG" and im.size == (1100, 700), (name, im.format, im.size)
             imgs.append(np.asarray(im.convert("RGB"), float))
     assert sorted(p.name for p in (tmp_path / "img").iterdir()) == [
         "viewer_first_view.png",
+        "viewer_legend.png",
         "viewer_limb.png",
         "viewer_outlier_error.png",
     ]  # no temp left

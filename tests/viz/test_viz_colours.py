@@ -27,7 +27,7 @@ import re
 import numpy as np
 import pytest
 
-from test_viz_browser import served
+from test_viz_browser import ARTIFACTS, chromium, close_software_webgl_notice, open_viewer, served
 
 
 def lab(rgb) -> np.ndarray:
@@ -255,3 +255,40 @@ def test_the_docs_colour_table_is_the_palettes():
 
     doc = (Path(__file__).resolve().parents[2] / "docs" / "viz.md").read_text()
     assert colour_table_markdown() in doc, "docs/viz.md: regenerate with python -m geoloc_viz.palette"
+
+
+@pytest.mark.browser
+def test_the_legend_on_the_page_names_the_drawn_colours_in_chromium(tmp_path):
+    """As a person reads it: the Legend folder opened with a click, its bold colour words (rendered
+    ``<strong>``) are the table's names of what the flight scene draws, each once per meaning line."""
+    import copy
+
+    from geoloc_viz import flight_layer, image_layer
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.flight_model import default_flight_scenario
+    from geoloc_viz.palette import PALETTE
+
+    with served() as server:
+        GeolocApp(server, copy.copy(default_flight_scenario()), layers=(flight_layer.attach, image_layer.attach))
+        sc = server.scene
+        drawn = {k: node_colours(sc, n) for k, n in (("track", "/flight/track"), ("hmax", "/enu/hit/hmax"))}
+        drawn["result"] = node_colours(sc, "/enu/hit/result")
+        drawn["current"] = node_colours(sc, "/flight/current")
+        with chromium(tmp_path) as browser:
+            page = open_viewer(browser, server, 1100, 900)
+            close_software_webgl_notice(page)
+            page.get_by_text("Legend", exact=True).first.click(timeout=60000)
+            line = page.get_by_text("the ellipsoid hit at H_max", exact=False).first
+            line.wait_for(timeout=60000)
+            # the Legend's markdown, as rendered: its list items and their bold words
+            items = page.locator("li", has_text="the ellipsoid hit at H_max").first.locator("xpath=..")
+            words = items.locator("strong").all_inner_texts()
+            text = items.inner_text()
+            items.evaluate("e => e.scrollIntoView({block: 'start'})")  # the legend at the panel's top
+            page.screenshot(path=str(ARTIFACTS / "viz_legend.png"), timeout=120000)
+    names = {c.name for c in PALETTE.values()}
+    assert words and set(words) <= names, set(words) - names
+    for key, cols in drawn.items():  # what the page's words name is what the scene drew
+        assert cols == {PALETTE[key].rgb} and PALETTE[key].name in words, (key, cols)
+    assert "light grey: the ellipsoid hit at H_max" in text and "sky blue track" in text, text
+    assert "light blue" not in text
