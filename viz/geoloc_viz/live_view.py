@@ -135,10 +135,7 @@ class LiveFeed:
         self._thread: threading.Thread | None = None
         self._decoder: av.VideoCodecContext | None = None
         self._video_done = 0
-        #: the PTS of the access units given to the parser and not yet out of it, oldest first: the parser
-        #: hands an access unit out once the next one starts, so a packet's PTS is the oldest waiting (each
-        #: PES of the stream one access unit), not that of the unit just given
-        self._unit_pts: deque = deque(maxlen=64)
+        self._last_pts: int | None = None  # the last access unit's PTS (the parser's flushed unit's)
         self.pictures: deque = deque()  # (serial, pts [90 kHz], RGB uint8 array), PICTURES / PICTURE_BYTES at most
         self._picture_bytes = 0
         self.pictures_total = 0
@@ -228,9 +225,9 @@ class LiveFeed:
     def _decode(self, end: bool = False) -> None:
         """Decode the video access units that came since the last call (newest pictures kept).
 
-        ``end``: the stream ended; the parser's buffered access unit and the pictures the decoder holds
-        back (reordering, frame threads) are flushed out (``parse(None)``, then ``decode(None)``: FFmpeg's
-        draining, an empty packet), or the last frames of the stream would never have a picture.
+        ``end``: the stream ended; the access unit the parser still holds (it hands one out when the next
+        starts) and the pictures the decoder holds back are flushed out (``parse(None)``, then
+        ``decode(None)``: FFmpeg's draining), or the stream's last frames would never have a picture.
         """
         import av
 
@@ -252,23 +249,19 @@ class LiveFeed:
             for pts, data, _pid in units:
                 if data is None:
                     continue
-                self._unit_pts.append(pts)
+                self._last_pts = pts
                 for pkt in self._decoder.parse(data):
-                    self._decode_packet(pkt)
-            if end and self._decoder is not None:
+                    pkt.pts = pts
+                    self._pictures(self._decoder.decode(pkt), pts)
+            if end and self._decoder is not None:  # the parser's last access unit, the decoder's held frames
                 for pkt in self._decoder.parse(None):
-                    self._decode_packet(pkt)
-                self._pictures(self._decoder.decode(None), None)
+                    pkt.pts = self._last_pts
+                    self._pictures(self._decoder.decode(pkt), self._last_pts)
+                self._pictures(self._decoder.decode(None), self._last_pts)
         except (av.error.FFmpegError, ValueError) as e:  # a broken access unit: the next key frame recovers
             self.decode_errors += 1
             if "codec" in str(e).lower():
                 self._decoder = None
-                self._unit_pts.clear()
-
-    def _decode_packet(self, pkt) -> None:
-        pts = self._unit_pts.popleft() if self._unit_pts else None
-        pkt.pts = pts
-        self._pictures(self._decoder.decode(pkt), pts)
 
     def _pictures(self, frames, pts) -> None:
         """Keep decoded video frames (``pts``: the access unit's, for a frame without its own)."""
