@@ -172,8 +172,13 @@ def test_step_slider_walks_the_core_trace(app):
     tr = hit.trace.ray()
     app.cb_all_steps.value = False
     try:
+        kept = None
         for k in (0, 2, len(tr["H"]) - 1):
             app.sl_step.value = k
+            # another count of iterations updates the nodes' arrays: the browser keeps the nodes
+            now = [node(app, f"/iterations/{n}") for n in ("points", "verticals", "brackets")]
+            assert kept is None or all(a is b for a, b in zip(now, kept))
+            kept = now
             np.testing.assert_allclose(pos(app, "/iterations/current"), app.scn.enu.from_ecef(tr["ecef"][k]), atol=1e-6)
             pts = np.asarray(node(app, "/iterations/points").points)
             assert len(pts) == k + 1

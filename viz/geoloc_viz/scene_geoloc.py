@@ -422,9 +422,10 @@ class GeolocScene:
         return h
 
     def _array_node(self, name, key, pts, colors, create):
-        """The node ``name`` showing ``pts`` in ``colors``: a step with as many points moves them (one
-        update message, only for what changed) instead of re-creating the node (the browser
-        rebuilds its geometry and material); ``create()`` makes it when ``key`` changed."""
+        """The node ``name`` showing ``pts`` in ``colors``: a step moves them (one update message,
+        only for what changed), also to another count (the iterations of a frame: viser's client
+        rebuilds the buffer, keeping the node and its material), instead of re-creating the node
+        (the browser mounts a new one); ``create()`` makes it when ``key`` changed."""
         h = self._alive(name, key)
         if h is None:
             h = create()
@@ -441,7 +442,7 @@ class GeolocScene:
         colors = np.broadcast_to(np.asarray(colors, np.uint8), pts.shape).copy()
         return self._array_node(
             name,
-            (float(point_size), pts.shape),
+            float(point_size),
             pts,
             colors,
             lambda: self.scene.add_point_cloud(
@@ -454,7 +455,7 @@ class GeolocScene:
         colors = np.broadcast_to(np.asarray(color, np.uint8), pts.shape).copy()
         return self._array_node(
             name,
-            (thickness, pts.shape),
+            float(thickness),
             pts,
             colors,
             lambda: self.scene.add_line_segments(name, pts, colors, thickness=thickness, thickness_units="screen"),
