@@ -29,6 +29,22 @@ def rerun_home(tmp_path_factory):
         yield d
 
 
+def pytest_configure(config):
+    # GEOLOC_TEST_TIMELOG=FILE: the controller logs every test phase there (tools/suite_time.py
+    # summarises the log; docs/testing.md, "The suite's time"); the workers send it their reports
+    path = os.environ.get("GEOLOC_TEST_TIMELOG")
+    if path and not hasattr(config, "workerinput"):
+        import importlib.util
+        import sys
+        from pathlib import Path
+
+        tool = Path(__file__).resolve().parents[1] / "tools" / "suite_time.py"
+        spec = importlib.util.spec_from_file_location("geoloc_suite_time", tool)
+        mod = sys.modules["geoloc_suite_time"] = importlib.util.module_from_spec(spec)  # for its dataclasses
+        spec.loader.exec_module(mod)
+        config.pluginmanager.register(mod.TimeLog(path), "geoloc_suite_time")
+
+
 #: Set for each test's run by pytest_runtest_setup: "1" in the Chromium group, "0" outside it;
 #: ``tests.test_viz_browser.chromium`` refuses to launch under "0" (a browser test the static
 #: look-up below missed would otherwise run beside another browser on the other worker).
