@@ -32,7 +32,9 @@ def rerun_home(tmp_path_factory):
 def pytest_configure(config):
     # GEOLOC_TEST_TIMELOG=FILE: the controller logs every test phase there (tools/suite_time.py
     # summarises the log; docs/testing.md, "The suite's time"); the workers send it their reports
-    path = os.environ.get("GEOLOC_TEST_TIMELOG")
+    # taken out of the environment: a pytest a test starts (tests/project/test_suite_time.py) logs
+    # elsewhere or not at all, never into this run's log
+    path = os.environ.pop("GEOLOC_TEST_TIMELOG", None)
     if path and not hasattr(config, "workerinput"):
         import importlib.util
         import sys

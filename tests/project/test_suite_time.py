@@ -54,7 +54,9 @@ def test_probe_in_a_group():
 
 
 def test_probe_outside_a_group():
-    """Run by the next test in a pytest subprocess."""
+    """Run by the next test in a pytest subprocess: the log's variable is gone from the tests'
+    environment, so a pytest a test starts does not write into the run's log."""
+    assert "GEOLOC_TEST_TIMELOG" not in os.environ
 
 
 def test_conftest_logs_each_phase_from_the_workers(tmp_path):
