@@ -21,9 +21,10 @@ code per ray.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from geoloc.frames.chain import Pose
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
@@ -35,8 +36,15 @@ from geoloc.surfaces.base import GroundPoint, LineOfSight
 from geoloc.surfaces.height import HeightSurface
 
 if TYPE_CHECKING:
+    from typing import TypeAlias
+
+    from geoloc.sensors.camera import Camera
+    from geoloc.sensors.frame import FrameSensor
     from geoloc.surfaces.dem import DEM
     from geoloc.surfaces.terrain import TerrainHit
+
+    #: What :func:`geoloc.sensors.camera.as_sensor` takes: a frame sensor or a camera file's camera.
+    SensorLike: TypeAlias = FrameSensor | Camera
 
 
 def _default_pixel(sensor, row, col):
@@ -45,7 +53,13 @@ def _default_pixel(sensor, row, col):
 
 
 def line_of_sight(
-    pose: Pose, sensor, row=None, col=None, *, outside: str = "flag", engine: str = "auto"
+    pose: Pose,
+    sensor: SensorLike,
+    row: ArrayLike | None = None,
+    col: ArrayLike | None = None,
+    *,
+    outside: str = "flag",
+    engine: str = "auto",
 ) -> LineOfSight:
     """Pixel (i, j) -> line of sight in ECEF [Q17 eq. 8-9, generalised to any gimbal and lens].
 
@@ -78,10 +92,10 @@ def line_of_sight(
 
 def locate(
     pose: Pose,
-    sensor,
-    row=None,
-    col=None,
-    target_h=0.0,
+    sensor: SensorLike,
+    row: ArrayLike | None = None,
+    col: ArrayLike | None = None,
+    target_h: ArrayLike = 0.0,
     *,
     height_kind: str = "inflated",
     engine: str = "auto",
@@ -142,7 +156,14 @@ def locate(
     return Pipeline(s, surface, corrections).locate(row, col, pose, outside=outside, engine=engine)
 
 
-def ground_to_pixel(pose: Pose, sensor, lat, lon, h, corrections: Corrections = NO_CORRECTIONS) -> PixelHit:
+def ground_to_pixel(
+    pose: Pose,
+    sensor: SensorLike,
+    lat: ArrayLike,
+    lon: ArrayLike,
+    h: ArrayLike,
+    corrections: Corrections = NO_CORRECTIONS,
+) -> PixelHit:
     """Ground point (geodetic, radians and metres) -> 1-based pixel: the inverse of :func:`locate`
     (with the same ``corrections``: :meth:`geoloc.pipeline.Pipeline.ground_to_pixel`).
 
@@ -173,7 +194,13 @@ class PointView:
     range_m: float  # camera to the point [m]
 
 
-def point_view(pipe: Pipeline, state, lat, lon, h) -> PointView:
+def point_view(
+    pipe: Pipeline,
+    state: Any,
+    lat: float | NDArray[np.float64],
+    lon: float | NDArray[np.float64],
+    h: float | NDArray[np.float64],
+) -> PointView:
     """The pixel that sees one ground point, and whether the surface hides it from the camera.
 
     The pixel is ``pipe.ground_to_pixel`` (radians, metres ellipsoidal). Where it is in the
@@ -202,15 +229,15 @@ def point_view(pipe: Pipeline, state, lat, lon, h) -> PointView:
 
 
 def locate_dem(
-    pose,
-    sensor,
-    row=None,
-    col=None,
+    pose: Pose,
+    sensor: SensorLike,
+    row: ArrayLike | None = None,
+    col: ArrayLike | None = None,
     dem: DEM | None = None,
     method: str = "exact",
     *,
     corrections: Corrections = NO_CORRECTIONS,
-    **kwargs,
+    **kwargs: Any,
 ) -> TerrainHit:
     """Geolocate pixels on a DEM: the pipeline with a :class:`geoloc.surfaces.terrain.DemSurface`.
 

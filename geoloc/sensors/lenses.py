@@ -95,7 +95,7 @@ from typing import Any, ClassVar
 import sys
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from ..geodesy._nbgeo import cached_njit, dependency_key
 from ..status import Status
@@ -230,7 +230,7 @@ _unit_nb = _jit(_unit)
 
 
 @cached_njit(_KEY, error_model="numpy")
-def project_nb(code, p, x, y, z):
+def project_nb(code: int, p: NDArray[np.float64], x: float, y: float, z: float) -> tuple[float, float, bool]:
     """Direction (x, y, z) in the optical frame -> pixel (u, v, ok), per element, for numba kernels.
 
     Parameters
@@ -265,7 +265,7 @@ def project_nb(code, p, x, y, z):
 
 
 @cached_njit(_KEY, error_model="numpy")
-def unproject_nb(code, p, u, v):
+def unproject_nb(code: int, p: NDArray[np.float64], u: float, v: float) -> tuple[float, float, float]:
     """Pixel (u, v) -> unit direction (x, y, z) in the optical frame, per element, for numba kernels.
 
     Same parameters as :func:`project_nb`; NaN where the inversion fails
@@ -354,7 +354,7 @@ def _slots(p):
 
 
 @cached_njit(_KEY, inline="always", error_model="numpy")
-def unproject_map_lanes(p, u, v):
+def unproject_map_lanes(p: NDArray[np.float64], u: float, v: float) -> tuple[float, float, float, bool]:
     """A Brown lens's inverse through its undistortion map, without branches: (x, y, z, ok).
 
     ``p`` is :meth:`Lens.kernel_array` of a Brown lens. The bilinear guess from the map
@@ -368,7 +368,7 @@ def unproject_map_lanes(p, u, v):
 
 
 @cached_njit(_KEY, error_model="numpy")
-def unproject_map_nb(code, p, u, v):
+def unproject_map_nb(code: int, p: NDArray[np.float64], u: float, v: float) -> tuple[float, float, float]:
     """:func:`unproject_nb` with the undistortion map of :meth:`Lens.kernel_array`, per element.
 
     ``p`` is :meth:`Lens.kernel_array` (or a plain :meth:`Lens.as_array`, then this is

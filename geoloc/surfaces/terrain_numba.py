@@ -85,10 +85,12 @@ from concurrent.futures import ThreadPoolExecutor
 import math
 import sys
 import types
+from collections.abc import Iterator
 from typing import NamedTuple
 
 import numba
 import numpy as np
+from numpy.typing import NDArray
 from llvmlite import ir
 from numba import prange
 from numba.core import cgutils
@@ -268,7 +270,7 @@ def _roots(ox, oy, oz, dx, dy, dz, ia, ib):
 
 
 @cached_njit(KEY, error_model="numpy", fastmath={"contract"})
-def latlon(x, y, z):
+def latlon(x: float, y: float, z: float) -> tuple[float, float]:
     """Geodetic latitude and longitude by Bowring's one-step formula (no height).
 
     B. R. Bowring, Survey Review 23(181):323-327, 1976: with the parametric
@@ -1624,7 +1626,7 @@ _PY_FUNCS: dict = {}
 
 
 @contextlib.contextmanager
-def uncompiled_budget(steps: int | None = None):
+def uncompiled_budget(steps: int | None = None) -> Iterator[None]:
     """Within this block, a walk larger than :data:`PY_WALK_MAX_RAYS` rays starts uncompiled too:
     :data:`PY_WALK_MAX_RAYS` rays at a time (fewer over a DEM of many rows + columns:
     :data:`PY_WALK_MAX_WORK`), while the cost of the rays walked so far (their cell steps plus
@@ -1824,7 +1826,17 @@ def _tile_keys(o, d, ia, ib, tan_n, sin_w, cos_w, tile_lat, tile_lon, nt, keys):
         keys[r] = ti * nt + tj
 
 
-def ray_order(o, d, h_mid, lat_n, lon_w, dlat, dlon, tile_cells, nt):
+def ray_order(
+    o: NDArray[np.float64],
+    d: NDArray[np.float64],
+    h_mid: float,
+    lat_n: float,
+    lon_w: float,
+    dlat: float,
+    dlon: float,
+    tile_cells: int,
+    nt: int,
+) -> NDArray[np.int64]:
     """A permutation of the rays that visits the DEM tile by tile (``tile_cells`` cells
     square, ``nt`` tiles a side with the outer ring), by the point where each ray meets
     the height ``h_mid`` [m, ellipsoidal]: walked in this order, consecutive rays read
@@ -1851,7 +1863,7 @@ def ray_order(o, d, h_mid, lat_n, lon_w, dlat, dlon, tile_cells, nt):
     return np.argsort(keys.astype(kt), kind="stable").astype(np.int64)
 
 
-def median_run(o, d, dh, m):
+def median_run(o: NDArray[np.float64], d: NDArray[np.float64], dh: float, m: int) -> float:
     """The median, over up to ``m`` of the rays spread over the batch, of the horizontal run
     over which a ray descends by ``dh`` metres: dh cot(depression), with the geocentric up
     (an order of magnitude is all :func:`geoloc.surfaces.terrain.climbs` asks); a ray that
