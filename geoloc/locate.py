@@ -36,15 +36,9 @@ from geoloc.surfaces.base import GroundPoint, LineOfSight
 from geoloc.surfaces.height import HeightSurface
 
 if TYPE_CHECKING:
-    from typing import TypeAlias
-
-    from geoloc.sensors.camera import Camera
-    from geoloc.sensors.frame import FrameSensor
+    from geoloc.sensors.camera import FrameSensorLike
     from geoloc.surfaces.dem import DEM
     from geoloc.surfaces.terrain import TerrainHit
-
-    #: What :func:`geoloc.sensors.camera.as_sensor` takes: a frame sensor or a camera file's camera.
-    SensorLike: TypeAlias = FrameSensor | Camera
 
 
 def _default_pixel(sensor, row, col):
@@ -54,7 +48,7 @@ def _default_pixel(sensor, row, col):
 
 def line_of_sight(
     pose: Pose,
-    sensor: SensorLike,
+    sensor: FrameSensorLike,
     row: ArrayLike | None = None,
     col: ArrayLike | None = None,
     *,
@@ -92,7 +86,7 @@ def line_of_sight(
 
 def locate(
     pose: Pose,
-    sensor: SensorLike,
+    sensor: FrameSensorLike,
     row: ArrayLike | None = None,
     col: ArrayLike | None = None,
     target_h: ArrayLike = 0.0,
@@ -158,7 +152,7 @@ def locate(
 
 def ground_to_pixel(
     pose: Pose,
-    sensor: SensorLike,
+    sensor: FrameSensorLike,
     lat: ArrayLike,
     lon: ArrayLike,
     h: ArrayLike,
@@ -230,7 +224,7 @@ def point_view(
 
 def locate_dem(
     pose: Pose,
-    sensor: SensorLike,
+    sensor: FrameSensorLike,
     row: ArrayLike | None = None,
     col: ArrayLike | None = None,
     dem: DEM | None = None,

@@ -54,7 +54,7 @@ import os
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -68,7 +68,14 @@ from geoloc.tomlio import read_toml
 from geoloc.userfiles import write_text
 
 if TYPE_CHECKING:  # the sensor module imports this one
+    from geoloc.sensors.base import Sensor
     from geoloc.sensors.frame import FrameSensor
+
+#: What :func:`as_sensor` takes: a frame sensor, or a camera file's :class:`Camera` (made one).
+#: Callers name this, not :class:`Camera`, which only the camera file format imports.
+FrameSensorLike: TypeAlias = "FrameSensor | Camera"
+#: What :func:`sensor_of` takes: any sensor, or a camera file's :class:`Camera`.
+SensorLike: TypeAlias = "Sensor | Camera"
 
 
 @dataclass(frozen=True)

@@ -52,7 +52,7 @@ if TYPE_CHECKING:  # affine comes with rasterio, an optional dependency
 
     from geoloc.frames.chain import Pose
     from geoloc.sensors.base import Sensor
-    from geoloc.sensors.camera import Camera
+    from geoloc.sensors.camera import SensorLike
     from geoloc.surfaces.base import MosaicSource, Surface
     from geoloc.surfaces.dem import DEM
 
@@ -122,7 +122,7 @@ def _check_chunk(chunk) -> int:
     return int(chunk)
 
 
-def frame_pixels(sensor: Sensor | Camera, step: int = 1) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def frame_pixels(sensor: SensorLike, step: int = 1) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The 1-based pixel centres ``1, 1 + step, ...`` along the rows and the columns of ``sensor``."""
     step = _check_step(step)
     return (
@@ -131,7 +131,7 @@ def frame_pixels(sensor: Sensor | Camera, step: int = 1) -> tuple[NDArray[np.flo
     )
 
 
-def _as_sensor(sensor: Sensor | Camera) -> Sensor:
+def _as_sensor(sensor: SensorLike) -> Sensor:
 
     return sensor_of(sensor)
 
@@ -172,7 +172,7 @@ def frame_line_of_sight(sensor: Sensor, pose: Pose, rows: ArrayLike, cols: Array
 
 
 def iter_frame(
-    sensor: Sensor | Camera,
+    sensor: SensorLike,
     pose: Pose,
     surface: DEM | Surface,
     *,
@@ -202,7 +202,7 @@ def iter_frame(
 
 
 def locate_frame(
-    sensor: Sensor | Camera,
+    sensor: SensorLike,
     pose: Pose,
     surface: DEM | Surface,
     *,
@@ -267,7 +267,7 @@ def _status_legend() -> str:
 
 def write_frame_geotiff(
     path: str | os.PathLike[str],
-    sensor: Sensor | Camera,
+    sensor: SensorLike,
     pose: Pose,
     surface: DEM | Surface,
     *,
@@ -518,7 +518,7 @@ def _project_cells(sensor, pose, lat, lon, h, p_ecef, corrections: Corrections =
 
 def orthorectify(
     image: np.ndarray,
-    sensor: Sensor | Camera,
+    sensor: SensorLike,
     pose: Pose,
     dem: DEM | MosaicSource,
     out_path: str | os.PathLike[str],

@@ -42,8 +42,7 @@ from geoloc.extras import require
 
 if TYPE_CHECKING:
     from geoloc.frames.chain import Pose
-    from geoloc.sensors.base import Sensor
-    from geoloc.sensors.camera import Camera
+    from geoloc.sensors.camera import SensorLike
     from geoloc.surfaces.base import Surface
     from geoloc.surfaces.dem import DEM
 
@@ -299,7 +298,7 @@ class RenderedFrame:
 
 
 def render_frame(
-    sensor: Sensor | Camera,
+    sensor: SensorLike,
     pose: Pose,
     surface: DEM | Surface,
     texture: GroundTexture,

@@ -27,8 +27,7 @@ from geoloc.pipeline import NO_CORRECTIONS, Corrections
 
 if TYPE_CHECKING:
     from geoloc.sensors.budget import ErrorBudget
-    from geoloc.sensors.camera import Camera
-    from geoloc.sensors.frame import FrameSensor
+    from geoloc.sensors.camera import FrameSensorLike
 
 #: The column naming a target seen in several rows.
 TARGET_ID_COLUMN = "target_id"
@@ -47,7 +46,7 @@ class TargetResult:
 
 def triangulate_records(
     records: Records,
-    sensor: FrameSensor | Camera,
+    sensor: FrameSensorLike,
     budget: ErrorBudget | None = None,
     surface_h_m: ArrayLike | None = None,
     surface_ok: ArrayLike | None = None,
