@@ -100,7 +100,7 @@ def _item_opens_chromium(item) -> bool:
 @pytest.hookimpl(tryfirst=True)  # before pytest-xdist's own, which renames the grouped tests
 def pytest_collection_modifyitems(config, items):
     """Every test that opens headless Chromium (its own code, a helper it calls or a fixture it
-    uses: ``_opens_chromium``) runs on one pytest-xdist worker (``tools/test.sh`` runs ``-n 2
+    uses: ``_opens_chromium``) runs on one pytest-xdist worker (``tools/test.sh`` runs ``-n 3
     --dist loadgroup``): two software-WebGL browsers at once on a 2-core machine made 60 s waits
     for the first view fail, while one browser beside one CPU-bound worker holds. The other tests
     of the same modules run on either worker. Those tests are also marked ``browser``

@@ -19,8 +19,9 @@ VENV="${GEOLOC_VENV:-.venv}"
 [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
 "$VENV/bin/python" -m pip install -q --upgrade pip
 "$VENV/bin/python" -m pip install -q -e ".[test]" -e ./viz
-# two workers (the machine's 2 cores); the tests that open Chromium share one of them
-# (tests/conftest.py), so the browser tests run one at a time beside the rest.
+# three workers on the machine's 2 cores: the tests that open Chromium share one of them
+# (tests/conftest.py) and the install group holds another for minutes, so with two workers
+# the other 3100 tests waited for one of the groups to end (docs/testing.md, "The suite's time").
 # --durations=25: the run ends with its 25 slowest test phases, so a run that got slower says
 # where (docs/testing.md, "The suite's time")
-exec "$VENV/bin/python" -m pytest -n "${GEOLOC_TEST_WORKERS:-2}" --dist loadgroup --durations=25 "$@"
+exec "$VENV/bin/python" -m pytest -n "${GEOLOC_TEST_WORKERS:-3}" --dist loadgroup --durations=25 "$@"
