@@ -99,7 +99,7 @@ def test_a_live_picture_click_is_located_on_the_videos_grid_in_chromium(tmp_path
     from geoloc.io.live import send
     from geoloc_viz.app import make_server
     from geoloc_viz.live_view import LiveFeed, LiveViewer
-    from test_viz_picture import _panel_pixel_xy, locate_cli
+    from test_viz_picture import click_picture_and_read_latlon, locate_cli
 
     ARTIFACTS.mkdir(exist_ok=True)
     port = free_port()
@@ -160,17 +160,8 @@ def test_a_live_picture_click_is_located_on_the_videos_grid_in_chromium(tmp_path
             assert (img.get_attribute("data-h"), img.get_attribute("data-w")) == ("360", "640")  # zoom 1
             assert "1920" not in re.sub(r"nominal 1920 x 1080", "", text)
             # a click on the picture: the pixel in the video's grid, located as `geoloc locate` does
-            il.sl_zoom.value = 2  # 4x: an image pixel is several screen pixels wide, a click lands inside it
-            wait_for(lambda: img.get_attribute("data-w") == "160", 60, "the 4x crop")
             r, c = 150.0, 333.0
-            img.scroll_into_view_if_needed(timeout=60000)
-            x, y = _panel_pixel_xy(page, r, c)
-            page.mouse.click(x, y)
-            wait_for(lambda: il.pick is not None, 60, "the click to reach the server")
-            assert (il.pick.row, il.pick.col) == (r, c)
-            page.wait_for_selector("text=latitude", timeout=60000)
-            lat = float(re.search(r"latitude\s*([-0-9.]+)", _panels(page))[1])
-            lon = float(re.search(r"longitude\s*([-0-9.]+)", _panels(page))[1])
+            lat, lon = click_picture_and_read_latlon(page, il, r, c)
             assert (il.sensor.rows, il.sensor.cols) == (360, 640)  # the command's sensor file: the video's grid
             ref = locate_cli(tab.session.scn, il.sensor, tab.session.inputs, r, c, tmp_path)
             # the panel prints 8 decimals: 5e-9 deg of rounding, under the 1e-7 deg asked (1 cm)

@@ -136,7 +136,7 @@ def _app(flight):
 
 
 def test_every_panel_shows_one_frame_index_and_one_pixel_grid_in_chromium(flight, tmp_path):
-    from test_viz_picture import _panel_pixel_xy, locate_cli
+    from test_viz_picture import click_picture_and_read_latlon, locate_cli
 
     ARTIFACTS.mkdir(exist_ok=True)
     with served() as server:
@@ -174,17 +174,8 @@ def test_every_panel_shows_one_frame_index_and_one_pixel_grid_in_chromium(flight
             assert (img.get_attribute("data-h"), img.get_attribute("data-w")) == ("360", "640")  # zoom 1
             assert "1920" not in re.sub(r"nominal 1920 x 1080", "", text)  # the nominal grid only named once
             # a click on the picture: the pixel in the video's grid, located as `geoloc locate` does
-            il.sl_zoom.value = 2  # 4x: an image pixel is several screen pixels wide, a click lands inside it
-            wait_for(lambda: img.get_attribute("data-w") == "160", 60, "the 4x crop")
             r, c = 150.0, 333.0
-            img.scroll_into_view_if_needed(timeout=60000)  # the GUI panel scrolls; a click must land on the picture
-            x, y = _panel_pixel_xy(page, r, c)
-            page.mouse.click(x, y)
-            wait_for(lambda: il.pick is not None, 60, "the click to reach the server")
-            assert (il.pick.row, il.pick.col) == (r, c)
-            page.wait_for_selector("text=latitude", timeout=60000)
-            lat = float(re.search(r"latitude\s*([-0-9.]+)", _panels(page))[1])
-            lon = float(re.search(r"longitude\s*([-0-9.]+)", _panels(page))[1])
+            lat, lon = click_picture_and_read_latlon(page, il, r, c)
             assert (il.sensor.rows, il.sensor.cols) == (360, 640)  # the command's sensor file: the video's grid
             ref = locate_cli(app.scn, il.sensor, app.inputs, r, c, tmp_path)
             # the panel prints 8 decimals: 5e-9 deg of rounding, under the 1e-7 deg asked (1 cm)

@@ -366,6 +366,24 @@ def _panel_pixel_xy(page, r, c):
     return (box["x"] + (c - (c1 - 0.5)) / w * box["width"], box["y"] + (r - (r1 - 0.5)) / h * box["height"])
 
 
+def click_picture_and_read_latlon(page, layer, r, c):
+    """A person's click on pixel (r, c) of the panel's picture, zoomed 4x first (an image pixel then
+    spans several screen pixels, so the click lands inside it): checks the server got that pixel,
+    then returns the latitude and longitude [deg] the page prints for it."""
+    from test_viz_browser import wait_for
+
+    img = page.locator("#geoloc-picture")
+    layer.sl_zoom.value = 2
+    wait_for(lambda: img.get_attribute("data-w") == "160", 60, "the 4x crop")
+    img.scroll_into_view_if_needed(timeout=60000)  # the GUI panel scrolls; a click must land on the picture
+    page.mouse.click(*_panel_pixel_xy(page, r, c))
+    wait_for(lambda: layer.pick is not None, 60, "the click to reach the server")
+    assert (layer.pick.row, layer.pick.col) == (r, c)
+    page.wait_for_selector("text=latitude", timeout=60000)
+    text = page.evaluate("() => document.body.innerText")
+    return float(re.search(r"latitude\s*([-0-9.]+)", text)[1]), float(re.search(r"longitude\s*([-0-9.]+)", text)[1])
+
+
 @pytest.mark.browser
 def test_click_a_pixel_in_the_panel_and_the_terrain_in_chromium(flight, tmp_path):
     from test_viz_browser import ARTIFACTS, chromium, open_viewer, wait_for
