@@ -48,7 +48,7 @@ from geoloc.corrections.lighttime import (
     light_time_source,
 )
 from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
-from geoloc.sensors.base import PixelHit, check_outside
+from geoloc.sensors.base import COMPILED_MIN_RAYS, PixelHit, check_outside
 from geoloc.status import Status
 from geoloc.surfaces.base import GroundPoint, LineOfSight
 from geoloc.surfaces.height import HeightSurface
@@ -69,8 +69,6 @@ REFRACTION_TOL_M = 1e-3
 #: At most this many refraction steps on a surface that is not of constant height (a DEM):
 #: each step gains the ratio of the terrain slope's effect to the shift (docs/refraction.md).
 REFRACTION_MAX_ITER = 6
-#: Batches of at least this many rays take the compiled executors (``engine="auto"``).
-COMPILED_MIN_RAYS = 10_000
 
 
 @dataclass(frozen=True)

@@ -52,6 +52,7 @@ from geoloc.geodesy.ellipsoid import E2, A, geodetic_to_ecef, meridian_radius, p
 from geoloc.geodesy.local import R_ecef_enu, R_ecef_ned, ecef_to_enu
 from geoloc.locate import as_sensor
 from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
+from geoloc.sensors.base import COMPILED_MIN_RAYS
 from geoloc.sensors.budget import LE90_PER_SIGMA, LENS_KEYS, ErrorBudget
 from geoloc.sensors.frame import small_rotation
 from geoloc.sensors.lenses import PARAM_LAYOUT
@@ -579,8 +580,6 @@ def propagate(
 
         surface = surface_for(target_h, dem, method=dem_method)
     if engine == "auto" and s.compiled:
-        from geoloc.sensors._fastlocate import AUTO_MIN_RAYS
-
         n_rays = int(
             np.prod(
                 np.broadcast_shapes(
@@ -590,7 +589,7 @@ def propagate(
                 )
             )
         )
-        fast = n_rays >= AUTO_MIN_RAYS
+        fast = n_rays >= COMPILED_MIN_RAYS
     else:
         fast = engine == "numba"
     if fast and not s.compiled:

@@ -700,12 +700,6 @@ def _lens_vector(lens) -> np.ndarray:
     return np.array(lens.kernel_array(), float)
 
 
-#: Batches of this many rays or more take the kernel when the caller lets it choose
-#: (``engine="auto"`` of :func:`geoloc.locate.locate` and ``FrameSensor.line_of_sight``):
-#: below it numba's call overhead and the argument checks are a larger share.
-AUTO_MIN_RAYS = 10_000
-
-
 def serves(sensor) -> bool:
     """True if the kernel computes ``sensor`` exactly: a FrameSensor with one (unbatched) lens and
     no per-sample Monte Carlo perturbation (``R_base_extra``, ``R_bore_extra``, ``lever_extra_m``)."""

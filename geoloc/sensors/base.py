@@ -28,6 +28,12 @@ from geoloc.surfaces.base import LineOfSight
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
 
+#: Batches of this many rays or more take the compiled kernels when the caller lets the code
+#: choose (``engine="auto"`` of the pipeline, :func:`geoloc.locate.locate`,
+#: ``FrameSensor.line_of_sight`` and the uncertainty): below it numba's call overhead and the
+#: argument checks are a larger share.
+COMPILED_MIN_RAYS = 10_000
+
 _D = TypeVar("_D", bound="DataclassInstance")
 
 

@@ -40,7 +40,14 @@ from geoloc.frames import rotations as rot
 from geoloc.frames.chain import Pose
 from geoloc.frames.graph import BoundFrames, FrameGraph, Joint
 from geoloc.geodesy.ellipsoid import geodetic_to_ecef
-from geoloc.sensors.base import PixelHit, check_outside, check_param_names, flag_outside, in_sensor
+from geoloc.sensors.base import (
+    COMPILED_MIN_RAYS,
+    PixelHit,
+    check_outside,
+    check_param_names,
+    flag_outside,
+    in_sensor,
+)
 from geoloc.sensors.gimbals import DEFAULT, PRESETS, Gimbal
 from geoloc.sensors.lenses import Lens
 from geoloc.status import Status
@@ -334,7 +341,7 @@ class FrameSensor:
         ``engine``: ``"numpy"`` is the reference path (lens, then the frame graph hop by
         hop); ``"numba"`` the compiled kernel of :mod:`geoloc.sensors._fastlocate` (the same
         mathematics; ``tests/sensors/test_fastlocate.py`` holds the two equal ray for ray); ``"auto"``
-        takes the kernel for batches of ``AUTO_MIN_RAYS`` (10 000) rays or more when it
+        takes the kernel for batches of ``COMPILED_MIN_RAYS`` (10 000) rays or more when it
         serves this sensor (one lens, no per-sample perturbation).
         """
         check_outside(outside)
@@ -351,7 +358,7 @@ class FrameSensor:
             from geoloc.sensors import _fastlocate
 
             if engine == "numba" or (
-                self.compiled and isinstance(state, Pose) and state.batch_size(row) >= _fastlocate.AUTO_MIN_RAYS
+                self.compiled and isinstance(state, Pose) and state.batch_size(row) >= COMPILED_MIN_RAYS
             ):
                 return LineOfSight(*_fastlocate.line_of_sight_fast(state, self, row, col, outside=outside))
         d_cam = self.lens.unproject(col - 1.0, row - 1.0)
