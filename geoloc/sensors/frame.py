@@ -354,13 +354,15 @@ class FrameSensor:
         row = r0 if row is None else row
         col = c0 if col is None else col
         row, col = np.broadcast_arrays(np.asarray(row, float), np.asarray(col, float))
-        if engine != "numpy":
+        if engine == "numba" or (
+            engine == "auto"
+            and self.compiled
+            and isinstance(state, Pose)
+            and state.batch_size(row) >= COMPILED_MIN_RAYS
+        ):
             from geoloc.sensors import _fastlocate
 
-            if engine == "numba" or (
-                self.compiled and isinstance(state, Pose) and state.batch_size(row) >= COMPILED_MIN_RAYS
-            ):
-                return LineOfSight(*_fastlocate.line_of_sight_fast(state, self, row, col, outside=outside))
+            return LineOfSight(*_fastlocate.line_of_sight_fast(state, self, row, col, outside=outside))
         d_cam = self.lens.unproject(col - 1.0, row - 1.0)
         d = self.cam_to_ecef(d_cam, state)
         o = self.optical_centre_ecef(state)
