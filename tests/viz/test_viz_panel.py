@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 import pytest
-from test_viz_picture import COLS, ROWS, locate_cli, render_frame
+from test_viz_picture import COLS, ROWS, locate_cli, read_pick_latlon, render_frame
 
 from geoloc.io.images import ArrayImages
 
@@ -187,11 +187,7 @@ def test_large_picture_map_and_plots_in_chromium(flight, tmp_path):
             page.mouse.click(box["x"] + (c - 0.5) / N * box["width"], box["y"] + (r - 0.5) / M * box["height"])
             wait_for(lambda: im.pick is not None, 60, "the click to reach the server")
             assert (im.pick.row, im.pick.col) == (r, c)
-            page.wait_for_selector("text=latitude", timeout=60000)
-            text = page.locator("text=latitude").first.inner_text()
-            lat = float(re.search(r"([-0-9.]+)", text.split("latitude")[1]).group(1))
-            text = page.locator("text=longitude").first.inner_text()
-            lon = float(re.search(r"([-0-9.]+)", text.split("longitude")[1]).group(1))
+            lat, lon = read_pick_latlon(page)
             ref = locate_cli(flight, im.sensor, app.inputs, r, c, tmp_path)
             # the panel prints 8 decimals: 5e-9 of rounding, under the 1e-7 deg asked
             assert lat == pytest.approx(ref["lat_deg"], abs=1e-7)

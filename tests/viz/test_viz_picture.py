@@ -379,9 +379,29 @@ def click_picture_and_read_latlon(page, layer, r, c):
     page.mouse.click(*_panel_pixel_xy(page, r, c))
     wait_for(lambda: layer.pick is not None, 60, "the click to reach the server")
     assert (layer.pick.row, layer.pick.col) == (r, c)
-    page.wait_for_selector("text=latitude", timeout=60000)
-    text = page.evaluate("() => document.body.innerText")
-    return float(re.search(r"latitude\s*([-0-9.]+)", text)[1]), float(re.search(r"longitude\s*([-0-9.]+)", text)[1])
+    return read_pick_latlon(page)
+
+
+def read_pick_latlon(page, timeout=60):
+    """The latitude and longitude [deg] the page prints for the pick, once both numbers are shown.
+
+    The page text is read whole and searched for "latitude <number>": other text names
+    latitude without a number after it (the share folder's "latitude, longitude, height"
+    heading), and it may be drawn before the pick's own line, so the first element that
+    says "latitude" is not a reliable place to read."""
+    from test_viz_browser import wait_for
+
+    found = {}
+
+    def shown():
+        text = page.evaluate("() => document.body.innerText")
+        la, lo = re.search(r"latitude\s*([-0-9.]+)", text), re.search(r"longitude\s*([-0-9.]+)", text)
+        if la and lo:
+            found["v"] = (float(la[1]), float(lo[1]))
+        return bool(found)
+
+    wait_for(shown, timeout, "the pick's latitude and longitude in the page")
+    return found["v"]
 
 
 @pytest.mark.browser
@@ -406,11 +426,7 @@ def test_click_a_pixel_in_the_panel_and_the_terrain_in_chromium(flight, tmp_path
             page.mouse.click(x, y)
             wait_for(lambda: layer.pick is not None, 60, "the click to reach the server")
             assert (layer.pick.row, layer.pick.col) == (r, c)
-            page.wait_for_selector("text=latitude", timeout=60000)
-            text = page.locator("text=latitude").first.inner_text()
-            lat = float(re.search(r"([-0-9.]+)", text.split("latitude")[1]).group(1))
-            text = page.locator("text=longitude").first.inner_text()
-            lon = float(re.search(r"([-0-9.]+)", text.split("longitude")[1]).group(1))
+            lat, lon = read_pick_latlon(page)
             ref = locate_cli(flight, layer.sensor, app.inputs, r, c, tmp_path)
             # the panel prints 8 decimals: 5e-9 of rounding, under the 1e-7 deg asked
             assert lat == pytest.approx(ref["lat_deg"], abs=1e-7)
