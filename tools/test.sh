@@ -19,6 +19,16 @@ VENV="${GEOLOC_VENV:-.venv}"
 [ -x "$VENV/bin/python" ] || python3 -m venv "$VENV"
 "$VENV/bin/python" -m pip install -q --upgrade pip
 "$VENV/bin/python" -m pip install -q -e ".[test]" -e ./viz
+# Byte code: where PYTHONDONTWRITEBYTECODE is set (this machine) no .pyc is ever kept, so every
+# Python process compiled what it imports from source: each worker geoloc, geoloc_viz and pytest's
+# assertion rewrite of the ~250 test modules (`pytest --collect-only`: 33.4 s of user CPU without
+# the .pyc files, 11.6 s with them), each `geoloc` subprocess of the suite geoloc's modules again
+# (`import geoloc_viz.app, geoloc.cli`: median 3.07 s of user CPU without, 2.50 s with). The run
+# writes them (__pycache__/: ignored by git and by every copy the tests make of the tree) and
+# compiles the two packages first (1.5 s of CPU), so the workers and subprocesses share one compile
+# (docs/testing.md, "The suite's time")
+unset PYTHONDONTWRITEBYTECODE
+"$VENV/bin/python" -m compileall -q -j 0 geoloc viz/geoloc_viz >/dev/null
 # three workers on the machine's 2 cores: the tests that open Chromium share one of them
 # (tests/conftest.py) and the install group holds another for minutes, so with two workers
 # the other 3100 tests waited for one of the groups to end (docs/testing.md, "The suite's time").
