@@ -28,7 +28,8 @@ VENV="${GEOLOC_VENV:-.venv}"
 # compiles the two packages first (1.5 s of CPU), so the workers and subprocesses share one compile
 # (docs/testing.md, "The suite's time")
 unset PYTHONDONTWRITEBYTECODE
-"$VENV/bin/python" -m compileall -q -j 0 geoloc viz/geoloc_viz >/dev/null
+# (a module that does not compile is left to pytest, which names it: no stop here)
+"$VENV/bin/python" -m compileall -q -j 0 geoloc viz/geoloc_viz >/dev/null || true
 # three workers on the machine's 2 cores: the tests that open Chromium share one of them
 # (tests/conftest.py) and the install group holds another for minutes, so with two workers
 # the other 3100 tests waited for one of the groups to end (docs/testing.md, "The suite's time").
