@@ -22,7 +22,7 @@ Camera resection (:func:`resect_sensor` of ``f, cx, cy``) is how the bundled cam
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from typing import Any
@@ -367,30 +367,7 @@ def fit_sensor_groups(
         outlier_before[np.flatnonzero(m)[group_summary(before, m, k_sigma)["outliers"]]] = True
 
     def fit_all(use):
-        if joint:
-            jf = fit_sensor_params(
-                records,
-                sensor,
-                names,
-                surface,
-                corrections=corrections,
-                truth_prefix=truth_prefix,
-                idx=all_idx[use],
-                loo=False,
-            )
-            return {g: jf for g in names_g}
-        fits = {}
-        for g in names_g:
-            idx = all_idx[(groups == g) & use]
-            if 2 * idx.size <= len(names):
-                raise ValueError(
-                    f"group {g!r}: {idx.size} usable record(s) cannot determine "
-                    f"{len(names)} parameters ({', '.join(names)})"
-                )
-            fits[g] = fit_sensor_params(
-                records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix, idx=idx
-            )
-        return fits
+        return _fit_groups(records, sensor, names, surface, groups, use, joint, corrections, truth_prefix)
 
     fits = fit_all(use)
     # Outliers are judged against the model, not the nominal sensor: before a fit, the
@@ -410,25 +387,17 @@ def fit_sensor_groups(
     loo_d = np.full(len(records), np.nan)
     loo_en = np.full((len(records), 2), np.nan)
     if loo:
-        for g in names_g:
-            for k in all_idx[groups == g]:
-                train = all_idx[use] if joint else all_idx[(groups == g) & use]
-                train = train[train != k]
-                f = fit_sensor_params(
+        loo_d, loo_en = _leave_one_out(
+            lambda train: (
+                fit_sensor_params(
                     records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix, idx=train
-                )
-                ev = measure(f.sensor, np.array([k]))
-                loo_d[k] = float(ev.distance_m[0])
-                loo_en[k] = float(ev.east_m[0]), float(ev.north_m[0])
-
-    def rnd(v, nd=4):
-        v = float(v)
-        return round(v, nd) if np.isfinite(v) else None
-
-    def rms(a):
-        a = np.asarray(a, float)
-        a = a[np.isfinite(a)]
-        return float(np.sqrt(np.mean(a**2))) if a.size else float("nan")
+                ).sensor
+            ),
+            measure,
+            groups,
+            use,
+            joint,
+        )
 
     labels = records.labels()
     per_group: dict[str, dict] = {}
@@ -445,26 +414,7 @@ def fit_sensor_groups(
         m = groups == g
         idx = all_idx[m]
         after = measure(fits[g].sensor, idx)
-        frep = fits[g].report()
-        entry = {
-            "n": int(m.sum()),
-            "n_used_in_fit": int((m & use).sum()),
-            "rms_before_m": rnd(rms(before.distance_m[m])),
-            "rms_after_m": rnd(rms(after.distance_m)),
-            "rms_loo_m": rnd(rms(loo_d[m])) if loo else None,
-            "mean_error_before_m": rnd(np.nanmean(before.distance_m[m])),
-            "mean_error_after_m": rnd(np.nanmean(after.distance_m)),
-            "mean_error_loo_m": rnd(np.nanmean(loo_d[m])) if loo else None,
-            **{k: frep[k] for k in ("parameters", "correlation", "sigma_m", "degenerate_pairs", "converged")},
-            "before": {
-                k: (rnd(v) if isinstance(v, float) else v) for k, v in group_summary(before, m, k_sigma).items()
-            },
-            "after": {
-                k: (rnd(v) if isinstance(v, float) else v)
-                for k, v in group_summary(after, np.ones(idx.size, bool), k_sigma).items()
-            },
-            "records": [],
-        }
+        entry = _group_entry(fits[g].report(), before, after, m, use, loo_d if loo else None, k_sigma)
         for j, k in enumerate(idx):
             rec = {
                 "label": labels[k],
@@ -475,13 +425,124 @@ def fit_sensor_groups(
                 "after": after.as_dict(j),
             }
             if loo:
-                rec["loo_distance_m"] = rnd(loo_d[k])
-                rec["loo"] = {"east_m": rnd(loo_en[k, 0]), "north_m": rnd(loo_en[k, 1]), "distance_m": rnd(loo_d[k])}
+                rec["loo_distance_m"] = _rnd(loo_d[k])
+                rec["loo"] = {
+                    "east_m": _rnd(loo_en[k, 0]),
+                    "north_m": _rnd(loo_en[k, 1]),
+                    "distance_m": _rnd(loo_d[k]),
+                }
             entry["records"].append(rec)
         per_group[g] = entry
     if joint:
         report["joint_fit"] = {**fits[names_g[0]].report(), "n": int(use.sum())}
     return report, sensors
+
+
+def _fit_groups(
+    records: Records,
+    sensor: Any,
+    names: Sequence[str],
+    surface: Surface,
+    groups: np.ndarray,
+    use: np.ndarray,
+    joint: bool,
+    corrections: Corrections,
+    truth_prefix: str,
+) -> dict:
+    """Group name -> its :class:`SensorFit` on the records ``use`` marks; with ``joint`` one fit to
+    every group's records, the same for each. ValueError naming the group when a group has too
+    few records for the parameters (no more than half as many as ``names``)."""
+    all_idx = np.arange(len(records))
+    names_g = list(dict.fromkeys(groups))
+    if joint:
+        jf = fit_sensor_params(
+            records,
+            sensor,
+            names,
+            surface,
+            corrections=corrections,
+            truth_prefix=truth_prefix,
+            idx=all_idx[use],
+            loo=False,
+        )
+        return {g: jf for g in names_g}
+    fits = {}
+    for g in names_g:
+        idx = all_idx[(groups == g) & use]
+        if 2 * idx.size <= len(names):
+            raise ValueError(
+                f"group {g!r}: {idx.size} usable record(s) cannot determine "
+                f"{len(names)} parameters ({', '.join(names)})"
+            )
+        fits[g] = fit_sensor_params(
+            records, sensor, names, surface, corrections=corrections, truth_prefix=truth_prefix, idx=idx
+        )
+    return fits
+
+
+def _leave_one_out(
+    fit: Callable[[np.ndarray], Any],
+    measure: Callable[[Any, np.ndarray], Any],
+    groups: np.ndarray,
+    use: np.ndarray,
+    joint: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each record's error when left out of its fit: distance (n,) and east, north (n, 2) [m].
+
+    ``fit(train)`` is the sensor fitted to the records ``train`` (indices); ``measure(sensor, idx)``
+    the error vectors of records ``idx`` with it. A record is measured against the fit to the other
+    usable records of its group (with ``joint``, of every group)."""
+    n = len(groups)
+    all_idx = np.arange(n)
+    loo_d = np.full(n, np.nan)
+    loo_en = np.full((n, 2), np.nan)
+    for g in dict.fromkeys(groups):
+        for k in all_idx[groups == g]:
+            train = all_idx[use] if joint else all_idx[(groups == g) & use]
+            ev = measure(fit(train[train != k]), np.array([k]))
+            loo_d[k] = float(ev.distance_m[0])
+            loo_en[k] = float(ev.east_m[0]), float(ev.north_m[0])
+    return loo_d, loo_en
+
+
+def _rnd(v: Any, nd: int = 4) -> float | None:
+    """A figure for the JSON report: rounded to ``nd`` decimals, None where not finite."""
+    v = float(v)
+    return round(v, nd) if np.isfinite(v) else None
+
+
+def _rms(a: Any) -> float:
+    """Root mean square of the finite values (NaN when none)."""
+    a = np.asarray(a, float)
+    a = a[np.isfinite(a)]
+    return float(np.sqrt(np.mean(a**2))) if a.size else float("nan")
+
+
+def _group_entry(
+    frep: dict, before: Any, after: Any, m: np.ndarray, use: np.ndarray, loo_d: np.ndarray | None, k_sigma: float
+) -> dict[str, Any]:
+    """One group's report entry without its records: counts, errors before, after and left out
+    (``loo_d``, None without), the fit's own report ``frep``; ``m`` marks the group's records in
+    ``before`` and ``use``, ``after`` holds the group's records only."""
+    from geoloc.analysis.errors import group_summary
+
+    return {
+        "n": int(m.sum()),
+        "n_used_in_fit": int((m & use).sum()),
+        "rms_before_m": _rnd(_rms(before.distance_m[m])),
+        "rms_after_m": _rnd(_rms(after.distance_m)),
+        "rms_loo_m": _rnd(_rms(loo_d[m])) if loo_d is not None else None,
+        "mean_error_before_m": _rnd(np.nanmean(before.distance_m[m])),
+        "mean_error_after_m": _rnd(np.nanmean(after.distance_m)),
+        "mean_error_loo_m": _rnd(np.nanmean(loo_d[m])) if loo_d is not None else None,
+        **{k: frep[k] for k in ("parameters", "correlation", "sigma_m", "degenerate_pairs", "converged")},
+        "before": {k: (_rnd(v) if isinstance(v, float) else v) for k, v in group_summary(before, m, k_sigma).items()},
+        "after": {
+            k: (_rnd(v) if isinstance(v, float) else v)
+            for k, v in group_summary(after, np.ones(int(m.sum()), bool), k_sigma).items()
+        },
+        "records": [],
+    }
 
 
 @dataclass
