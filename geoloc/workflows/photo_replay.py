@@ -21,7 +21,7 @@ from __future__ import annotations
 import csv
 import math
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -287,61 +287,10 @@ def replay_photos(
 
     # the work: each photo read (its tags, its sensor) and each target located
     bar = Progress(len(photo_paths) + len(targets), f"replay {len(photo_paths)} photo(s)", progress)
-    photos, bad_photos = {}, {}
-    for path in photo_paths:
-        bar.update(1)
-        name = Path(path).name
-        if name in photos or name in bad_photos:
-            messages.append(
-                f"{name}: a second photo with this file name ({path}) is ignored: targets name their photo by file name"
-            )
-            continue
-        try:
-            meta = read_photo(path)
-            s, lens = photo_sensor(meta, sensor)
-            pose = pose_from_photo(meta, altitude_datum)
-            h_cam, n = camera_height(meta, altitude_datum)
-        except PhotoTagError as e:
-            messages.append(f"{e}; its targets are skipped")
-            bad_photos[name] = str(e)
-            continue
-        except (ValueError, OSError) as e:
-            messages.append(f"{name}: skipped: {e}")
-            bad_photos[name] = str(e)
-            continue
-        messages.extend(f"{meta.name}: {note}" for note in meta.notes)
-        messages.extend(_datum_messages(meta, altitude_datum, h_cam, n, surface_dem))
-        photos[name] = {"meta": meta, "sensor": s, "lens": lens, "pose": pose, "h_cam": h_cam, "n": n}
-    index = _photo_index(photos)
-    bad_index = _photo_index(bad_photos)
+    photos, bad_photos = _read_photos(photo_paths, sensor, altitude_datum, surface_dem, messages, bar.update)
 
     # ---- the targets, photo by photo
-    by_photo: dict[str, list[int]] = {}
-    order: list[int] = []
-    skipped_bad: dict[str, int] = {}
-    for k, t in enumerate(targets):
-        key = _resolve(t["image"], index)
-        if key is None:
-            bad = _resolve(t["image"], bad_index)
-            if bad is not None:
-                skipped_bad[bad] = skipped_bad.get(bad, 0) + 1
-            else:
-                given = ", ".join(sorted(photos) + sorted(bad_photos)) or "none"
-                messages.append(
-                    f"targets file line {t['line']}: image {t['image']!r} is not among the "
-                    f"photos given ({given}): skipped"
-                )
-            continue
-        if surface is None and t.get("truth_h_m") is None:
-            messages.append(
-                f"targets file line {t['line']} ({t['image']}): no DEM and no truth_h_m: "
-                "no height to locate the target at; skipped"
-            )
-            continue
-        by_photo.setdefault(key, []).append(k)
-        order.append(k)
-    for name, count in skipped_bad.items():
-        messages.append(f"{name}: {count} target(s) skipped (the photo could not be used)")
+    by_photo, order = _targets_by_photo(targets, photos, bad_photos, surface is not None, messages)
 
     extra = [c for c in header if c not in TARGET_COLUMNS and c not in TRUTH_COLUMNS]
     out = {}
@@ -366,6 +315,92 @@ def replay_photos(
     if targets_out is not None and TARGET_ID_COLUMN in header:
         targets_out.extend(_triangulate_targets(photos, targets, by_photo, out, surface is not None))
     return [out[k] for k in order], messages
+
+
+def _read_photos(
+    photo_paths: list,
+    sensor: FrameSensor | None,
+    altitude_datum: str,
+    surface_dem: Any,
+    messages: list[str],
+    step: Callable[[int], Any] = lambda k: None,
+) -> tuple[dict[str, dict[str, Any]], dict[str, str]]:
+    """Each photo's tags, sensor, pose and camera height, by file name; the photos that cannot be
+    used, by file name, with why (said in ``messages``, as are each photo's notes).
+
+    A second photo of the same file name is ignored (targets name their photo by file name).
+    ``step(1)`` is called once per photo (the progress bar)."""
+    photos: dict[str, dict[str, Any]] = {}
+    bad_photos: dict[str, str] = {}
+    for path in photo_paths:
+        step(1)
+        name = Path(path).name
+        if name in photos or name in bad_photos:
+            messages.append(
+                f"{name}: a second photo with this file name ({path}) is ignored: targets name their photo by file name"
+            )
+            continue
+        try:
+            meta = read_photo(path)
+            s, lens = photo_sensor(meta, sensor)
+            pose = pose_from_photo(meta, altitude_datum)
+            h_cam, n = camera_height(meta, altitude_datum)
+        except PhotoTagError as e:
+            messages.append(f"{e}; its targets are skipped")
+            bad_photos[name] = str(e)
+            continue
+        except (ValueError, OSError) as e:
+            messages.append(f"{name}: skipped: {e}")
+            bad_photos[name] = str(e)
+            continue
+        messages.extend(f"{meta.name}: {note}" for note in meta.notes)
+        messages.extend(_datum_messages(meta, altitude_datum, h_cam, n, surface_dem))
+        photos[name] = {"meta": meta, "sensor": s, "lens": lens, "pose": pose, "h_cam": h_cam, "n": n}
+    return photos, bad_photos
+
+
+def _targets_by_photo(
+    targets: list[dict[str, Any]],
+    photos: dict[str, Any],
+    bad_photos: dict[str, Any],
+    on_surface: bool,
+    messages: list[str],
+) -> tuple[dict[str, list[int]], list[int]]:
+    """The targets (indices into ``targets``) each photo locates, and every located target in the
+    file's order.
+
+    A target whose photo is not among ``photos`` is skipped: one line per unusable photo with its
+    count, one line per target naming a photo not given at all. Without a surface
+    (``on_surface`` False) a target needs its own ``truth_h_m``."""
+    index = _photo_index(photos)
+    bad_index = _photo_index(bad_photos)
+    by_photo: dict[str, list[int]] = {}
+    order: list[int] = []
+    skipped_bad: dict[str, int] = {}
+    for k, t in enumerate(targets):
+        key = _resolve(t["image"], index)
+        if key is None:
+            bad = _resolve(t["image"], bad_index)
+            if bad is not None:
+                skipped_bad[bad] = skipped_bad.get(bad, 0) + 1
+            else:
+                given = ", ".join(sorted(photos) + sorted(bad_photos)) or "none"
+                messages.append(
+                    f"targets file line {t['line']}: image {t['image']!r} is not among the "
+                    f"photos given ({given}): skipped"
+                )
+            continue
+        if not on_surface and t.get("truth_h_m") is None:
+            messages.append(
+                f"targets file line {t['line']} ({t['image']}): no DEM and no truth_h_m: "
+                "no height to locate the target at; skipped"
+            )
+            continue
+        by_photo.setdefault(key, []).append(k)
+        order.append(k)
+    for name, count in skipped_bad.items():
+        messages.append(f"{name}: {count} target(s) skipped (the photo could not be used)")
+    return by_photo, order
 
 
 def _triangulate_targets(photos, targets, by_photo, located, on_surface: bool) -> list:
