@@ -37,7 +37,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -380,19 +380,13 @@ def audit_flight(
     rlat = np.deg2rad(np.broadcast_to(np.asarray(reported_lat_deg, float), shape))
     rlon = np.deg2rad(np.broadcast_to(np.asarray(reported_lon_deg, float), shape))
     rep_h = np.full(shape, np.nan) if reported_h_m is None else np.broadcast_to(np.asarray(reported_h_m, float), shape)
-    has_rep = np.isfinite(rlat) & np.isfinite(rlon)
-    fin_p = np.isfinite(lat_p) & np.isfinite(lon_p)
 
     # ---- platform against the terrain below; the geoid at both ends
-    n_p = np.full(shape, np.nan)
-    n_p[fin_p] = egm96_undulation(lat_p[fin_p], lon_p[fin_p])
-    ground_p = np.full(shape, np.nan)
-    ground_p[fin_p] = terrain.height(lat_p[fin_p], lon_p[fin_p])
+    n_p = _where_finite(egm96_undulation, lat_p, lon_p)
+    ground_p = _where_finite(terrain.height, lat_p, lon_p)
     agl = h_p - ground_p
-    n_r = np.full(shape, np.nan)
-    dem_r = np.full(shape, np.nan)
-    n_r[has_rep] = egm96_undulation(rlat[has_rep], rlon[has_rep])
-    dem_r[has_rep] = terrain.height(rlat[has_rep], rlon[has_rep])
+    n_r = _where_finite(egm96_undulation, rlat, rlon)
+    dem_r = _where_finite(terrain.height, rlat, rlon)
     fc_dem = rep_h - dem_r
     nbar = _median(n_p)
 
@@ -403,29 +397,87 @@ def audit_flight(
     raw = _median(misfit)
 
     # ---- the height at which each ray passes over its reported centre
-    h_a = np.zeros(shape)
-    h_b = np.where(np.isfinite(dem_r), dem_r, 0.0)
-    h_b = np.where(np.abs(h_b - h_a) < 50.0, h_a + 50.0, h_b)  # a segment of 50 m at least
-    h_b = np.minimum(h_b, h_p - 1.0)  # below the platform, or the ray never gets there
-    la, lo_a, _ = _hit(HeightSurface(h_a, "geodetic"), los)
-    lb, lo_b, _ = _hit(HeightSurface(h_b, "geodetic"), los)
-    ref = (np.where(np.isfinite(lb), lb, 0.0), np.where(np.isfinite(lo_b), lo_b, 0.0))
-    A = geodetic_to_enu(la, lo_a, 0.0, ref[0], ref[1], 0.0)[..., :2]
-    B = geodetic_to_enu(lb, lo_b, 0.0, ref[0], ref[1], 0.0)[..., :2]
-    P = geodetic_to_enu(rlat, rlon, 0.0, ref[0], ref[1], 0.0)[..., :2]
-    AB = B - A
-    span = np.linalg.norm(AB, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = np.einsum("ni,ni->n", P - A, AB) / span**2
-        slope = span / np.abs(h_b - h_a)
-    h_over = np.where(slope >= MIN_TRACK_SLOPE, h_a + s * (h_b - h_a), np.nan)
+    h_over = _height_over_reported(los, rlat, rlon, dem_r, h_p)
     dh = h_over - dem_r  # platform height as read minus as the reported centres imply
 
-    # figures, and the name of the best signature (unexplained_best): a JSON object's values
+    checks, columns = _figures(ground_p, agl, n_p, fc_dem, misfit, h_over, dh)
+    findings = []
+
+    # ---- the reported centres' own heights against the DEM
+    findings += _frame_centre_height(rep_h, dem_r, fc_dem, n_r, fixes, reported_name, checks)
+
+    # ---- the misfit: each signature's correction, located again
+    if np.isfinite(raw) and raw > ERROR_FLOOR_M:
+        fit = _misfit_models(
+            pose, h_p, sensor, row, col, surface, los, rlat, rlon, rep_h, dem_r, dh, ground_p, lat_c, lon_c, raw, group
+        )
+        columns.update(reported_drow_px=fit.drow, reported_dcol_px=fit.dcol)
+        models = fit.models
+        checks.update({f"misfit_after_{k}_m": v for k, v in models.items()})
+        height_named = (
+            "height" in models
+            and _height_finding(
+                fit.d_hat, fit.u_hat, fit.n_dh, nbar, checks["takeoff_terrain_m"], raw, models["height"], fixes
+            ).kind
+            != "height_offset"
+        )
+        best = _pick_correction(models, raw, height_named)
+        if best is not None:
+            findings.append(
+                _model_finding(
+                    best,
+                    fit,
+                    raw,
+                    nbar,
+                    checks["takeoff_terrain_m"],
+                    ground_p,
+                    h_over,
+                    dem_r,
+                    sensor,
+                    pose,
+                    row,
+                    col,
+                    time_s,
+                    fixes,
+                    reported_name,
+                )
+            )
+        else:  # random pointing errors, or a fault of no convention: said in the heading, not a finding
+            least = min(models, key=models.__getitem__) if models else None
+            checks["unexplained_best"] = least or ""
+            checks["unexplained_after_m"] = models[least] if least else math.nan
+    elif checks["platform_below_terrain"] > n // 2 and _median(agl) < -HEIGHT_FLOOR_M:
+        # no reported centres to fit: the platform under the terrain is all the data say
+        findings.append(_below_terrain_finding(agl, checks["takeoff_terrain_m"], fixes))
+    findings = _with_frames(_one_flat_earth(findings), columns)
+    return HeightAudit(source, findings, checks, columns)
+
+
+def _where_finite(f: Callable[[np.ndarray, np.ndarray], ArrayLike], lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
+    """``f(lat, lon)`` where both are finite, NaN elsewhere (a grid's reader takes no NaN)."""
+    out = np.full(np.shape(lat), np.nan)
+    ok = np.isfinite(lat) & np.isfinite(lon)
+    out[ok] = f(lat[ok], lon[ok])
+    return out
+
+
+def _figures(
+    ground_p: np.ndarray,
+    agl: np.ndarray,
+    n_p: np.ndarray,
+    fc_dem: np.ndarray,
+    misfit: np.ndarray,
+    h_over: np.ndarray,
+    dh: np.ndarray,
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The audit's figures (a JSON object's values; the findings add theirs) and its per-record
+    columns, from the per-record terrain below the platform, height above it, geoid, reported
+    height above the DEM, misfit, height over the reported centre and platform height offset."""
+    raw = _median(misfit)
     checks: dict[str, Any] = {
-        "records": int(n),
+        "records": int(len(misfit)),
         "records_compared": int(np.isfinite(misfit).sum()),
-        "geoid_n_m": nbar,
+        "geoid_n_m": _median(n_p),
         "platform_agl_median_m": _median(agl),
         "platform_below_terrain": int(np.sum(agl < 0)),
         "fc_minus_dem_median_m": _median(fc_dem),
@@ -445,164 +497,50 @@ def audit_flight(
         "height_over_reported_m": h_over,
         "platform_dh_m": dh,
     }
-    findings = []
+    return checks, columns
 
-    # ---- the reported centres' own heights against the DEM
-    findings += _frame_centre_height(rep_h, dem_r, fc_dem, n_r, fixes, reported_name, checks)
 
-    # ---- the misfit: each signature's correction, located again
-    if np.isfinite(raw) and raw > ERROR_FLOOR_M:
-        models: dict[str, float] = {}
-        # platform height: the median offset taken off
-        d_hat, u_hat, n_dh = median_uncertainty(dh)
-        if np.isfinite(d_hat):
-            p2 = dataclasses.replace(pose, h=h_p - d_hat)
-            la2, lo2, _ = _hit(surface, sensor.line_of_sight(row, col, p2, outside="extrapolate"))
-            models["height"] = _median(_dist(rlat, rlon, la2, lo2))
-        # a height above the ground read as absolute: the terrain below added back
-        if np.isfinite(ground_p).any():
-            p3 = dataclasses.replace(pose, h=h_p + ground_p)
-            la3, lo3, _ = _hit(surface, sensor.line_of_sight(row, col, p3, outside="extrapolate"))
-            models["agl"] = _median(_dist(rlat, rlon, la3, lo3))
-        # flat earth: the centres on the ellipsoid at h = 0
-        la0, lo0, _ = _hit(HeightSurface(0.0, "geodetic"), los)
-        models["flat"] = _median(_dist(rlat, rlon, la0, lo0))
-        # boresight: the reported centres' pixels, their median offset applied
-        h_rep_px = np.where(np.isfinite(rep_h), rep_h, dem_r)
-        px = sensor.ground_to_pixel(rlat, rlon, h_rep_px, pose)
-        drow, dcol = np.asarray(px.row, float) - row, np.asarray(px.col, float) - col
-        columns.update(reported_drow_px=drow, reported_dcol_px=dcol)
-        dr_hat, dc_hat = _median(drow), _median(dcol)
-        if np.isfinite(dr_hat) and np.isfinite(dc_hat):
-            la4, lo4, _ = _hit(surface, sensor.line_of_sight(row + dr_hat, col + dc_hat, pose, outside="extrapolate"))
-            models["boresight"] = _median(_dist(rlat, rlon, la4, lo4))
-        # a shift of k records
-        best_s, best_m = 0, raw
-        grp = None if group is None else np.asarray(group)
-        for sh in range(-min(MAX_SHIFT, n // 3), min(MAX_SHIFT, n // 3) + 1):
-            if sh == 0:
-                continue
-            k = np.arange(max(0, -sh), min(n, n - sh))
-            same = np.ones(k.size, bool) if grp is None else grp[k] == grp[k + sh]
-            if same.sum() < max(3, n // 3):
-                continue
-            m = _median(_dist(rlat[k[same]], rlon[k[same]], lat_c[k[same] + sh], lon_c[k[same] + sh]))
-            if m < best_m:
-                best_s, best_m = sh, m
-        if best_s:
-            models["shift"] = best_m
-        checks.update({f"misfit_after_{k}_m": v for k, v in models.items()})
-        best = min(models, key=models.__getitem__) if models else None
-        if best is not None and models[best] * MODEL_GAIN <= raw:
-            # corrections that leave about the same misfit (within TIE_FACTOR: the flight's random
-            # errors) are told apart by their estimate: a height that matches a datum signature wins
-            near = [k for k in models if models[k] <= TIE_FACTOR * models[best] and models[k] * MODEL_GAIN <= raw]
-            named = (
-                "height" in near
-                and _height_finding(
-                    d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"], raw, models["height"], fixes
-                ).kind
-                != "height_offset"
-            )
-            best = next(k for k in (("height",) if named else ()) + PREFERENCE if k in near)
-            after = models[best]
-            if best == "height":
-                findings.append(
-                    _height_finding(d_hat, u_hat, n_dh, nbar, checks["takeoff_terrain_m"], raw, after, fixes)
-                )
-            elif best == "agl":
-                g_med, g_u, g_n = median_uncertainty(-ground_p)
-                findings.append(
-                    Finding(
-                        "agl_read_as_absolute",
-                        "platform height",
-                        d_hat,
-                        u_hat,
-                        "m",
-                        g_med,
-                        f"-terrain below = {g_med:+.1f} m (median)",
-                        n_dh,
-                        raw,
-                        after,
-                        fixes["agl_read_as_absolute"],
-                    )
-                )
-            elif best == "flat":
-                hm, hu, hn = median_uncertainty(h_over)
-                findings.append(
-                    Finding(
-                        "flat_earth_frame_centre",
-                        "frame centres",
-                        hm,
-                        hu,
-                        "m",
-                        0.0,
-                        "the rays meet the reported centres at h ~ 0 m",
-                        hn,
-                        raw,
-                        after,
-                        fixes["flat_earth_frame_centre"],
-                        detail=f"terrain there {_median(dem_r):.0f} m (DEM, median)",
-                    )
-                )
-            elif best == "boresight":
-                findings.append(_boresight_finding(sensor, pose, row, col, drow, dcol, raw, after, fixes))
-            elif best == "shift":
-                dt = ""
-                if time_s is not None:
-                    step = _median(np.diff(np.asarray(time_s, float)))
-                    if np.isfinite(step):
-                        dt = f"{best_s * step:+.2f} s at {step:g} s per record"
-                findings.append(
-                    Finding(
-                        "time_offset",
-                        "time",
-                        float(best_s),
-                        0.5,
-                        "records",
-                        math.nan,
-                        "",
-                        int(n),
-                        raw,
-                        best_m,
-                        fixes["time_offset"],
-                        detail=(
-                            f"the {reported_name} of record k is the recomputed centre "
-                            f"of record k {best_s:+d}" + (f" ({dt})" if dt else "")
-                        ),
-                    )
-                )
-        else:  # random pointing errors, or a fault of no convention: said in the heading, not a finding
-            checks["unexplained_best"] = best or ""
-            checks["unexplained_after_m"] = models[best] if best else math.nan
-    elif checks["platform_below_terrain"] > n // 2 and _median(agl) < -HEIGHT_FLOOR_M:
-        # no reported centres to fit: the platform under the terrain is all the data say
-        a_med, a_u, a_n = median_uncertainty(agl)
-        findings.append(
-            Finding(
-                "relative_height_read_as_absolute",
-                "platform height",
-                a_med,
-                a_u,
-                "m",
-                -checks["takeoff_terrain_m"],
-                "the platform below the terrain",
-                a_n,
-                fix=fixes["relative_height_read_as_absolute"],
-                detail="no reported centres: the offset is a bound (the height above the terrain as read)",
-            )
-        )
-    # one fault, one line: a flat earth seen in the heights and in the recomputation is one finding
-    flat = [f for f in findings if f.kind == "flat_earth_frame_centre"]
-    if len(flat) == 2:
-        findings.remove(flat[0])
-        findings[findings.index(flat[1])] = dataclasses.replace(flat[1], detail=f"{flat[1].detail}; {flat[0].detail}")
-    # the records each estimate rests on (the viewer lists them as frames)
+def _pick_correction(models: Mapping[str, float], raw: float, height_named: bool) -> str | None:
+    """The correction that explains the misfit: the name in ``models`` (correction -> median misfit
+    after it [m]) whose misfit is at least :data:`MODEL_GAIN` times below ``raw``, the misfit before;
+    None when none is. Corrections leaving about the same misfit (within :data:`TIE_FACTOR` of the
+    least: the flight's random errors) are told apart by their estimate: a height that matches a
+    datum signature (``height_named``) first, then :data:`PREFERENCE`'s order."""
+    best = min(models, key=models.__getitem__) if models else None
+    if best is None or models[best] * MODEL_GAIN > raw:
+        return None
+    near = [k for k in models if models[k] <= TIE_FACTOR * models[best] and models[k] * MODEL_GAIN <= raw]
+    named = "height" in near and height_named
+    return next(k for k in (("height",) if named else ()) + PREFERENCE if k in near)
+
+
+def _below_terrain_finding(agl: np.ndarray, takeoff: float, fixes: Mapping[str, str]) -> Finding:
+    """A relative height read as absolute, from the platform's heights above the terrain ``agl``
+    alone (no reported centres to fit): the offset is a bound."""
+    a_med, a_u, a_n = median_uncertainty(agl)
+    return Finding(
+        "relative_height_read_as_absolute",
+        "platform height",
+        a_med,
+        a_u,
+        "m",
+        -takeoff,
+        "the platform below the terrain",
+        a_n,
+        fix=fixes["relative_height_read_as_absolute"],
+        detail="no reported centres: the offset is a bound (the height above the terrain as read)",
+    )
+
+
+def _with_frames(findings: list[Finding], columns: Mapping[str, np.ndarray]) -> list[Finding]:
+    """Each finding without its records (``frames``) given the records its estimate rests on (the
+    viewer lists them as frames): those with a finite value in the audit's column of its subject."""
+    dh, agl, misfit = columns["platform_dh_m"], columns["platform_agl_m"], columns["misfit_m"]
     drow_c, dcol_c = columns.get("reported_drow_px"), columns.get("reported_dcol_px")
     rests_on = {
         "platform height": np.isfinite(dh) if np.isfinite(dh).any() else np.isfinite(agl),
-        "frame-centre height": np.isfinite(fc_dem),
-        "frame centres": np.isfinite(h_over),
+        "frame-centre height": np.isfinite(columns["fc_minus_dem_m"]),
+        "frame centres": np.isfinite(columns["height_over_reported_m"]),
         "pointing": (
             np.isfinite(drow_c) & np.isfinite(dcol_c)
             if drow_c is not None and dcol_c is not None
@@ -610,11 +548,222 @@ def audit_flight(
         ),
         "time": np.isfinite(misfit),
     }
-    findings = [
+    return [
         f if f.frames else dataclasses.replace(f, frames=tuple(int(k) for k in np.flatnonzero(rests_on[f.subject])))
         for f in findings
     ]
-    return HeightAudit(source, findings, checks, columns)
+
+
+def _height_over_reported(
+    los: Any, rlat: np.ndarray, rlon: np.ndarray, dem_r: np.ndarray, h_p: np.ndarray
+) -> np.ndarray:
+    """The height [m] at which each line of sight passes over its reported centre ``(rlat, rlon)``
+    [rad]: the ray's ground track between its crossings of h = 0 and of the terrain there
+    (``dem_r``; a segment of 50 m at least, below the platform height ``h_p``), the reported
+    centre projected on it and the height taken linearly along it. NaN where the track moves
+    less than :data:`MIN_TRACK_SLOPE` per metre of height (a ray near nadir says little of
+    heights) or a crossing is missing."""
+    h_a = np.zeros(np.shape(rlat))
+    h_b = np.where(np.isfinite(dem_r), dem_r, 0.0)
+    h_b = np.where(np.abs(h_b - h_a) < 50.0, h_a + 50.0, h_b)  # a segment of 50 m at least
+    h_b = np.minimum(h_b, h_p - 1.0)  # below the platform, or the ray never gets there
+    la, lo_a, _ = _hit(HeightSurface(h_a, "geodetic"), los)
+    lb, lo_b, _ = _hit(HeightSurface(h_b, "geodetic"), los)
+    ref = (np.where(np.isfinite(lb), lb, 0.0), np.where(np.isfinite(lo_b), lo_b, 0.0))
+    A = geodetic_to_enu(la, lo_a, 0.0, ref[0], ref[1], 0.0)[..., :2]
+    B = geodetic_to_enu(lb, lo_b, 0.0, ref[0], ref[1], 0.0)[..., :2]
+    P = geodetic_to_enu(rlat, rlon, 0.0, ref[0], ref[1], 0.0)[..., :2]
+    AB = B - A
+    span = np.linalg.norm(AB, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = np.einsum("ni,ni->n", P - A, AB) / span**2
+        slope = span / np.abs(h_b - h_a)
+    return np.where(slope >= MIN_TRACK_SLOPE, h_a + s * (h_b - h_a), np.nan)
+
+
+def _best_shift(
+    rlat: np.ndarray, rlon: np.ndarray, lat_c: np.ndarray, lon_c: np.ndarray, raw: float, group: ArrayLike | None
+) -> tuple[int, float]:
+    """The record shift k (up to :data:`MAX_SHIFT` either way, at most a third of the records) that
+    best pairs each reported centre ``(rlat, rlon)`` of record i with the recomputed centre
+    ``(lat_c, lon_c)`` of record i + k, and its median misfit [m]; ``(0, raw)`` when none beats the
+    unshifted median misfit ``raw``. Only records of one ``group`` are paired, and a shift must
+    pair at least a third of the records (3 at least)."""
+    n = len(rlat)
+    best_s, best_m = 0, raw
+    grp = None if group is None else np.asarray(group)
+    for sh in range(-min(MAX_SHIFT, n // 3), min(MAX_SHIFT, n // 3) + 1):
+        if sh == 0:
+            continue
+        k = np.arange(max(0, -sh), min(n, n - sh))
+        same = np.ones(k.size, bool) if grp is None else grp[k] == grp[k + sh]
+        if same.sum() < max(3, n // 3):
+            continue
+        m = _median(_dist(rlat[k[same]], rlon[k[same]], lat_c[k[same] + sh], lon_c[k[same] + sh]))
+        if m < best_m:
+            best_s, best_m = sh, m
+    return best_s, best_m
+
+
+@dataclass
+class _Models:
+    """Each fault signature's correction, located again: the median misfit [m] after it, by name,
+    and what the findings quote (the height offset's median, uncertainty and count; the reported
+    centres' pixel offsets; the best record shift and its misfit)."""
+
+    models: dict[str, float]
+    d_hat: float
+    u_hat: float
+    n_dh: int
+    drow: np.ndarray
+    dcol: np.ndarray
+    best_s: int
+    best_m: float
+
+
+def _misfit_models(
+    pose: Pose,
+    h_p: np.ndarray,
+    sensor: Sensor,
+    row: np.ndarray,
+    col: np.ndarray,
+    surface: Surface,
+    los: Any,
+    rlat: np.ndarray,
+    rlon: np.ndarray,
+    rep_h: np.ndarray,
+    dem_r: np.ndarray,
+    dh: np.ndarray,
+    ground_p: np.ndarray,
+    lat_c: np.ndarray,
+    lon_c: np.ndarray,
+    raw: float,
+    group: ArrayLike | None,
+) -> _Models:
+    """Each signature's correction applied and the centres located again on ``surface``: the
+    platform height ``h_p`` less its median offset ``dh`` ("height"), the terrain below added back
+    ("agl"), the centres on the ellipsoid at h = 0 ("flat"), the pixels moved by the reported
+    centres' median pixel offset ("boresight"), the best record shift ("shift", only when one
+    beats ``raw``)."""
+    models: dict[str, float] = {}
+    # platform height: the median offset taken off
+    d_hat, u_hat, n_dh = median_uncertainty(dh)
+    if np.isfinite(d_hat):
+        p2 = dataclasses.replace(pose, h=h_p - d_hat)
+        la2, lo2, _ = _hit(surface, sensor.line_of_sight(row, col, p2, outside="extrapolate"))
+        models["height"] = _median(_dist(rlat, rlon, la2, lo2))
+    # a height above the ground read as absolute: the terrain below added back
+    if np.isfinite(ground_p).any():
+        p3 = dataclasses.replace(pose, h=h_p + ground_p)
+        la3, lo3, _ = _hit(surface, sensor.line_of_sight(row, col, p3, outside="extrapolate"))
+        models["agl"] = _median(_dist(rlat, rlon, la3, lo3))
+    # flat earth: the centres on the ellipsoid at h = 0
+    la0, lo0, _ = _hit(HeightSurface(0.0, "geodetic"), los)
+    models["flat"] = _median(_dist(rlat, rlon, la0, lo0))
+    # boresight: the reported centres' pixels, their median offset applied
+    h_rep_px = np.where(np.isfinite(rep_h), rep_h, dem_r)
+    px = sensor.ground_to_pixel(rlat, rlon, h_rep_px, pose)
+    drow, dcol = np.asarray(px.row, float) - row, np.asarray(px.col, float) - col
+    dr_hat, dc_hat = _median(drow), _median(dcol)
+    if np.isfinite(dr_hat) and np.isfinite(dc_hat):
+        la4, lo4, _ = _hit(surface, sensor.line_of_sight(row + dr_hat, col + dc_hat, pose, outside="extrapolate"))
+        models["boresight"] = _median(_dist(rlat, rlon, la4, lo4))
+    # a shift of k records
+    best_s, best_m = _best_shift(rlat, rlon, lat_c, lon_c, raw, group)
+    if best_s:
+        models["shift"] = best_m
+    return _Models(models, d_hat, u_hat, n_dh, drow, dcol, best_s, best_m)
+
+
+def _model_finding(
+    best: str,
+    fit: _Models,
+    raw: float,
+    nbar: float,
+    takeoff: float,
+    ground_p: np.ndarray,
+    h_over: np.ndarray,
+    dem_r: np.ndarray,
+    sensor: Sensor,
+    pose: Pose,
+    row: np.ndarray,
+    col: np.ndarray,
+    time_s: ArrayLike | None,
+    fixes: Mapping[str, str],
+    reported_name: str,
+) -> Finding:
+    """The finding of the correction ``best`` (a key of ``fit.models``) that explains the misfit."""
+    after = fit.models[best]
+    if best == "height":
+        return _height_finding(fit.d_hat, fit.u_hat, fit.n_dh, nbar, takeoff, raw, after, fixes)
+    if best == "agl":
+        g_med, _g_u, _g_n = median_uncertainty(-ground_p)
+        return Finding(
+            "agl_read_as_absolute",
+            "platform height",
+            fit.d_hat,
+            fit.u_hat,
+            "m",
+            g_med,
+            f"-terrain below = {g_med:+.1f} m (median)",
+            fit.n_dh,
+            raw,
+            after,
+            fixes["agl_read_as_absolute"],
+        )
+    if best == "flat":
+        hm, hu, hn = median_uncertainty(h_over)
+        return Finding(
+            "flat_earth_frame_centre",
+            "frame centres",
+            hm,
+            hu,
+            "m",
+            0.0,
+            "the rays meet the reported centres at h ~ 0 m",
+            hn,
+            raw,
+            after,
+            fixes["flat_earth_frame_centre"],
+            detail=f"terrain there {_median(dem_r):.0f} m (DEM, median)",
+        )
+    if best == "boresight":
+        return _boresight_finding(sensor, pose, row, col, fit.drow, fit.dcol, raw, after, fixes)
+    if best != "shift":
+        raise ValueError(f"correction {best!r}: not one of {PREFERENCE}")
+    dt = ""
+    if time_s is not None:
+        step = _median(np.diff(np.asarray(time_s, float)))
+        if np.isfinite(step):
+            dt = f"{fit.best_s * step:+.2f} s at {step:g} s per record"
+    return Finding(
+        "time_offset",
+        "time",
+        float(fit.best_s),
+        0.5,
+        "records",
+        math.nan,
+        "",
+        len(row),
+        raw,
+        fit.best_m,
+        fixes["time_offset"],
+        detail=(
+            f"the {reported_name} of record k is the recomputed centre "
+            f"of record k {fit.best_s:+d}" + (f" ({dt})" if dt else "")
+        ),
+    )
+
+
+def _one_flat_earth(findings: list[Finding]) -> list[Finding]:
+    """One fault, one line: a flat earth seen in the reported heights and in the recomputation is
+    one finding (the second, with the first's detail added)."""
+    findings = list(findings)
+    flat = [f for f in findings if f.kind == "flat_earth_frame_centre"]
+    if len(flat) == 2:
+        findings.remove(flat[0])
+        findings[findings.index(flat[1])] = dataclasses.replace(flat[1], detail=f"{flat[1].detail}; {flat[0].detail}")
+    return findings
 
 
 def _height_signatures(nbar, takeoff):
