@@ -53,7 +53,7 @@ Conventions: ``docs/conventions.md`` (degrees only at this edge, ``_deg`` names)
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 import os
 import dataclasses
 import math
@@ -676,41 +676,11 @@ def read_photo(path: str | os.PathLike[str], *, require: bool = True) -> PhotoMe
         file and the tag).
     """
     note_input(path)
-    from PIL import Image, UnidentifiedImageError
-
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"photo not found: {path}")
     notes: list = []
-    with p.open("rb") as fh:
-        jpeg = fh.read(2) == b"\xff\xd8"
-    packet = read_xmp_packet(p) if jpeg else None  # a broken JPEG segment is named here, precisely
-    try:
-        img = Image.open(p)
-    except UnidentifiedImageError:
-        raise ValueError(f"{p.name}: not an image file Pillow can read (file {path})") from None
-    except Image.DecompressionBombError as e:  # found by fuzzing: a header declaring 179 M pixels
-        raise ValueError(
-            f"{p.name}: its header declares more pixels than Pillow opens, a damaged file? ({e}) (file {path})"
-        ) from None
-    except OSError as e:
-        raise ValueError(f"{p.name}: Pillow cannot read it ({e}) (file {path})") from None
-    with img:
-        width, height = img.size
-        try:
-            ex = _read_exif(img, path, notes)
-        except (TypeError, AttributeError, KeyError, IndexError, SyntaxError, struct.error) as e:
-            # Pillow's EXIF directory parsing fails on some multispectral TIFFs (a
-            # MicaSense TIFF raised a TypeError here): the XMP still holds what is needed
-            notes.append(f"EXIF directories not readable by Pillow ({type(e).__name__}: {e}); using the XMP only")
-            ex = {}
-        if not jpeg:
-            try:
-                packet = read_xmp_packet(p, img)
-            except (TypeError, AttributeError) as e:
-                raise ValueError(
-                    f"{p.name}: TIFF tag 700 (XMP) not readable ({type(e).__name__}: {e}) (file {path})"
-                ) from None
+    width, height, ex, packet = _open_photo(p, path, notes)
     root = None
     if packet is not None:
         root = _xmp_root(packet, f"{p.name}")
@@ -751,15 +721,72 @@ def read_photo(path: str | os.PathLike[str], *, require: bool = True) -> PhotoMe
         return m
     m.maker = "DJI"
 
-    # position: DJI's XMP (8 decimals) first, the EXIF GPS IFD otherwise
+    _dji_position(m, dji, ex, notes, f"{p.name}", path)
+    _dji_altitude(m, dji, ex, notes)
+    _dji_attitude(m, dji, notes)
+    _dji_calibration(m, dji, notes, f"{p.name}")
+    m.dewarp_flag = _integer(dji, "DewarpFlag", notes)
+    m.rtk_flag = _integer(dji, "RtkFlag", notes)
+
+    _size_notes(m, notes)
+    _centre_notes(m, notes)
+    m.missing = _missing_required(m)
+    if m.missing and require:
+        raise PhotoTagError(path, m.missing)
+    return m
+
+
+def _open_photo(p: Path, path: str | os.PathLike[str], notes: list) -> tuple[int, int, dict, bytes | None]:
+    """The raster's width and height, the EXIF tags read (:func:`_read_exif`; none when Pillow
+    cannot parse its directories: said in ``notes``) and the XMP packet (None without one).
+
+    ValueError naming the file when Pillow cannot open it, its header declares too many pixels,
+    a JPEG segment is broken or a TIFF's XMP tag cannot be read."""
+    from PIL import Image, UnidentifiedImageError
+
+    with p.open("rb") as fh:
+        jpeg = fh.read(2) == b"\xff\xd8"
+    packet = read_xmp_packet(p) if jpeg else None  # a broken JPEG segment is named here, precisely
+    try:
+        img = Image.open(p)
+    except UnidentifiedImageError:
+        raise ValueError(f"{p.name}: not an image file Pillow can read (file {path})") from None
+    except Image.DecompressionBombError as e:  # found by fuzzing: a header declaring 179 M pixels
+        raise ValueError(
+            f"{p.name}: its header declares more pixels than Pillow opens, a damaged file? ({e}) (file {path})"
+        ) from None
+    except OSError as e:
+        raise ValueError(f"{p.name}: Pillow cannot read it ({e}) (file {path})") from None
+    with img:
+        width, height = img.size
+        try:
+            ex = _read_exif(img, path, notes)
+        except (TypeError, AttributeError, KeyError, IndexError, SyntaxError, struct.error) as e:
+            # Pillow's EXIF directory parsing fails on some multispectral TIFFs (a
+            # MicaSense TIFF raised a TypeError here): the XMP still holds what is needed
+            notes.append(f"EXIF directories not readable by Pillow ({type(e).__name__}: {e}); using the XMP only")
+            ex = {}
+        if not jpeg:
+            try:
+                packet = read_xmp_packet(p, img)
+            except (TypeError, AttributeError) as e:
+                raise ValueError(
+                    f"{p.name}: TIFF tag 700 (XMP) not readable ({type(e).__name__}: {e}) (file {path})"
+                ) from None
+    return int(width), int(height), ex, packet
+
+
+def _dji_position(
+    m: PhotoMeta, dji: dict[str, str], ex: Mapping[str, Any], notes: list, name: str, path: str | os.PathLike[str]
+) -> None:
+    """The position: DJI's XMP (8 decimals) first, the EXIF GPS IFD otherwise; a note when the two
+    differ by more than 1e-5 deg. ValueError naming the file and the tags when DJI's is out of range."""
     lat = _number(dji, "GpsLatitude", notes)
     lon_key = "GpsLongitude" if "GpsLongitude" in dji else "GpsLongtitude"  # DJI's older spelling
     lon = _number(dji, lon_key, notes)
     if lat is not None and lon is not None:
         if not (abs(lat) <= 90 and abs(lon) <= 180):
-            raise ValueError(
-                f"{p.name}: drone-dji:GpsLatitude/{lon_key} = {lat!r}, {lon!r}: out of range (file {path})"
-            )
+            raise ValueError(f"{name}: drone-dji:GpsLatitude/{lon_key} = {lat!r}, {lon!r}: out of range (file {path})")
         m.lat_deg, m.lon_deg, m.position_source = lat, lon, f"drone-dji:GpsLatitude/{lon_key}"
         if "gps_lat_deg" in ex:
             d = max(abs(ex["gps_lat_deg"] - lat), abs(ex["gps_lon_deg"] - lon))
@@ -768,6 +795,10 @@ def read_photo(path: str | os.PathLike[str], *, require: bool = True) -> PhotoMe
     elif "gps_lat_deg" in ex:
         m.lat_deg, m.lon_deg, m.position_source = ex["gps_lat_deg"], ex["gps_lon_deg"], "EXIF GPS"
 
+
+def _dji_altitude(m: PhotoMeta, dji: dict[str, str], ex: Mapping[str, Any], notes: list) -> None:
+    """The altitudes: DJI's AbsoluteAltitude, else EXIF GPSAltitude (noted); the relative altitude
+    and DJI's AltitudeType as read."""
     m.absolute_altitude_m = _number(dji, "AbsoluteAltitude", notes)
     m.relative_altitude_m = _number(dji, "RelativeAltitude", notes)
     m.gps_altitude_m = ex.get("gps_altitude_m")
@@ -778,6 +809,10 @@ def read_photo(path: str | os.PathLike[str], *, require: bool = True) -> PhotoMe
         m.altitude_source = "EXIF GPSAltitude"
         notes.append("no drone-dji:AbsoluteAltitude: using EXIF GPSAltitude (same datum question)")
 
+
+def _dji_attitude(m: PhotoMeta, dji: dict[str, str], notes: list) -> None:
+    """The gimbal's and the aircraft's yaw, pitch and roll; a flight angle missing where another is
+    given is taken as 0 (noted), all three missing are left None (noted when there is DJI XMP)."""
     for what in ("Gimbal", "Flight"):
         for axis in ("Yaw", "Pitch", "Roll"):
             setattr(m, f"{what.lower()}_{axis.lower()}_deg", _number(dji, f"{what}{axis}Degree", notes))
@@ -793,6 +828,11 @@ def read_photo(path: str | os.PathLike[str], *, require: bool = True) -> PhotoMe
                 setattr(m, f"flight_{a}_deg", 0.0)
                 notes.append(f"no drone-dji:Flight{a.capitalize()}Degree: taken as 0")
 
+
+def _dji_calibration(m: PhotoMeta, dji: dict[str, str], notes: list, name: str) -> None:
+    """DJI's calibrated focal length and optical centre (a focal length not > 0 ignored), and the
+    first usable DewarpData (the 12-value form first; all zeros, focal lengths not > 0 or a bad
+    value ignored, each noted)."""
     m.calibrated_focal_px = _number(dji, "CalibratedFocalLength", notes)
     m.calibrated_center_x_px = _number(dji, "CalibratedOpticalCenterX", notes)
     m.calibrated_center_y_px = _number(dji, "CalibratedOpticalCenterY", notes)
@@ -802,7 +842,7 @@ def read_photo(path: str | os.PathLike[str], *, require: bool = True) -> PhotoMe
     for key in ("DewarpDataK6", "DewarpData"):  # the 12-value form (k4..k6) first where DJI writes both
         if key in dji and dji[key].strip():
             try:
-                d = parse_dewarp_data(dji[key], f"{p.name}: drone-dji:{key}")
+                d = parse_dewarp_data(dji[key], f"{name}: drone-dji:{key}")
             except ValueError as e:
                 notes.append(f"{e}; ignored")
                 continue
@@ -814,28 +854,34 @@ def read_photo(path: str | os.PathLike[str], *, require: bool = True) -> PhotoMe
                 continue
             m.dewarp = d
             break
-    m.dewarp_flag = _integer(dji, "DewarpFlag", notes)
-    m.rtk_flag = _integer(dji, "RtkFlag", notes)
 
-    _size_notes(m, notes)
-    if m.calibrated_center_x_px is not None and m.calibrated_center_y_px is not None:
-        cx, cy = 2 * m.calibrated_center_x_px, 2 * m.calibrated_center_y_px
-        if m.exif_width is None and (abs(cx - m.width) > 0.05 * m.width or abs(cy - m.height) > 0.05 * m.height):
-            notes.append(
-                f"drone-dji:CalibratedOpticalCenterX/Y ({m.calibrated_center_x_px:g}, "
-                f"{m.calibrated_center_y_px:g}) is far from the centre of the {m.width} x "
-                f"{m.height} raster and EXIF PixelXDimension/PixelYDimension are absent: the "
-                f"photo may have been resized from about {cx:.0f} x {cy:.0f} (not scaled here)"
-            )
-        elif m.dewarp is not None and (abs(cx - m.full_width) > 2 or abs(cy - m.full_height) > 2):
-            notes.append(
-                f"drone-dji:CalibratedOpticalCenterX/Y ({m.calibrated_center_x_px:g}, "
-                f"{m.calibrated_center_y_px:g}) is not the image centre ({m.full_width / 2:g}, "
-                f"{m.full_height / 2:g}); DewarpData's offsets are taken from the image centre "
-                "(DJI: 'origin point: photo center')"
-            )
 
-    m.missing = tuple(
+def _centre_notes(m: PhotoMeta, notes: list) -> None:
+    """Notes on DJI's calibrated optical centre: far from the raster's centre without the EXIF
+    full size (a resized photo, not scaled), or off the image centre with DewarpData (whose offsets
+    are from the image centre)."""
+    if m.calibrated_center_x_px is None or m.calibrated_center_y_px is None:
+        return
+    cx, cy = 2 * m.calibrated_center_x_px, 2 * m.calibrated_center_y_px
+    if m.exif_width is None and (abs(cx - m.width) > 0.05 * m.width or abs(cy - m.height) > 0.05 * m.height):
+        notes.append(
+            f"drone-dji:CalibratedOpticalCenterX/Y ({m.calibrated_center_x_px:g}, "
+            f"{m.calibrated_center_y_px:g}) is far from the centre of the {m.width} x "
+            f"{m.height} raster and EXIF PixelXDimension/PixelYDimension are absent: the "
+            f"photo may have been resized from about {cx:.0f} x {cy:.0f} (not scaled here)"
+        )
+    elif m.dewarp is not None and (abs(cx - m.full_width) > 2 or abs(cy - m.full_height) > 2):
+        notes.append(
+            f"drone-dji:CalibratedOpticalCenterX/Y ({m.calibrated_center_x_px:g}, "
+            f"{m.calibrated_center_y_px:g}) is not the image centre ({m.full_width / 2:g}, "
+            f"{m.full_height / 2:g}); DewarpData's offsets are taken from the image centre "
+            "(DJI: 'origin point: photo center')"
+        )
+
+
+def _missing_required(m: PhotoMeta) -> tuple[str, ...]:
+    """The tags of :data:`REQUIRED` a DJI photo lacks (their descriptions)."""
+    return tuple(
         REQUIRED[k]
         for k in REQUIRED
         if (
@@ -844,9 +890,6 @@ def read_photo(path: str | os.PathLike[str], *, require: bool = True) -> PhotoMe
             or (k.endswith("_deg") and getattr(m, k) is None)
         )
     )
-    if m.missing and require:
-        raise PhotoTagError(path, m.missing)
-    return m
 
 
 def _size_notes(m: PhotoMeta, notes: list) -> None:
