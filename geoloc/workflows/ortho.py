@@ -31,7 +31,7 @@ import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -592,20 +592,7 @@ def orthorectify(
     bands = img.shape[0]
     src = [np.ascontiguousarray(b.astype(np.float32)) for b in img]
     dtype = img.dtype if img.dtype in (np.uint8, np.uint16, np.float32) else np.float32
-    profile = dict(
-        driver="GTiff",
-        width=grid.width,
-        height=grid.height,
-        count=bands + 1,
-        dtype=str(np.dtype(dtype)),
-        crs=grid.crs,
-        transform=grid.transform,
-        tiled=True,
-        blockxsize=256,
-        blockysize=256,
-        compress="deflate",
-        photometric="RGB" if bands == 3 and dtype == np.uint8 else "MINISBLACK",
-    )
+    profile = _ortho_profile(grid, bands, dtype)
     per = max(1, chunk // grid.width)
     seen_total = hidden_total = 0
     alpha_max = 255 if dtype == np.uint8 else (65535 if dtype == np.uint16 else 1.0)
@@ -629,27 +616,8 @@ def orthorectify(
             px = _project_cells(sensor, pose, lat, lon, h, p_all, corrections)
             inside = (st == Status.OK) & (px.status == Status.OK)
             r, c = np.where(inside, px.row, np.nan), np.where(inside, px.col, np.nan)
-            seen = np.zeros(lat.shape, dtype=bool)
-            idx = np.flatnonzero(inside)
-            if idx.size:
-                # the cell's pixel's line of sight is the ray from the optical centre through the
-                # cell's ground point (ground_to_pixel projects that point): built from the two
-                # points, it needs no unprojection through the lens
-                p = p_all.reshape(-1, 3)[idx]
-                if hasattr(sensor, "optical_centre_ecef") and not corrections:
-                    o = np.broadcast_to(np.asarray(sensor.optical_centre_ecef(pose), float).reshape(-1, 3)[0], p.shape)
-                    dvec = p - o
-                    los = LineOfSight(
-                        np.ascontiguousarray(o),
-                        dvec / np.linalg.norm(dvec, axis=-1, keepdims=True),
-                        np.zeros(len(idx), np.uint8),
-                    )
-                else:
-                    los = sensor.line_of_sight(r.reshape(-1)[idx], c.reshape(-1)[idx], pose)
-                hit = visibility.intersect(los)
-                ok = (hit.status == Status.OK) & (np.linalg.norm(hit.ecef - p, axis=-1) <= tol)
-                seen.reshape(-1)[idx[ok]] = True
-                hidden_total += int(idx.size - ok.sum())
+            seen, hidden = _seen_cells(sensor, pose, visibility, p_all, inside, r, c, tol, corrections)
+            hidden_total += hidden
             seen_total += int(seen.sum())
             # OpenCV's 0-based pixel centres (u, v) = (col - 1, row - 1); unseen cells sample nothing
             mx = np.where(seen, c - 1.0, -1e6).astype(np.float32)
@@ -661,14 +629,11 @@ def orthorectify(
             dst.write(np.where(seen, alpha_max, 0).astype(dtype), bands + 1, window=win)
             bar.update((i1 - i0) * grid.width)
         bar.close()
-        if bands == 3 and dtype == np.uint8:
-            from rasterio.enums import ColorInterp
+        from rasterio.enums import ColorInterp
 
-            dst.colorinterp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue, ColorInterp.alpha]
-        else:
-            from rasterio.enums import ColorInterp
-
-            dst.colorinterp = [ColorInterp.gray] * bands + [ColorInterp.alpha]
+        rgb = bands == 3 and dtype == np.uint8
+        interp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue] if rgb else [ColorInterp.gray] * bands
+        dst.colorinterp = [*interp, ColorInterp.alpha]
     return {
         "path": str(out_path),
         "crs": grid.crs,
@@ -679,6 +644,65 @@ def orthorectify(
         "cells_seen": seen_total,
         "cells_hidden": hidden_total,
     }
+
+
+def _ortho_profile(grid: OrthoGrid, bands: int, dtype: Any) -> dict[str, Any]:
+    """The orthophoto's rasterio profile: ``bands`` of ``dtype`` and an alpha band, tiled 256 x 256,
+    deflate; photometric RGB for three bands of uint8."""
+    return dict(
+        driver="GTiff",
+        width=grid.width,
+        height=grid.height,
+        count=bands + 1,
+        dtype=str(np.dtype(dtype)),
+        crs=grid.crs,
+        transform=grid.transform,
+        tiled=True,
+        blockxsize=256,
+        blockysize=256,
+        compress="deflate",
+        photometric="RGB" if bands == 3 and dtype == np.uint8 else "MINISBLACK",
+    )
+
+
+def _seen_cells(
+    sensor: Sensor,
+    pose: Pose,
+    visibility: Pipeline,
+    p_all: np.ndarray,
+    inside: np.ndarray,
+    r: np.ndarray,
+    c: np.ndarray,
+    tol: float,
+    corrections: Corrections,
+) -> tuple[np.ndarray, int]:
+    """Which cells the photo sees, and how many in it are hidden behind terrain.
+
+    A cell ``inside`` the photo (its point ``p_all`` [ECEF, m] projects to pixel ``(r, c)``) is
+    seen when its pixel's line of sight first meets the terrain (``visibility``) within ``tol``
+    [m] of the cell's point; the others inside are hidden."""
+    seen = np.zeros(inside.shape, dtype=bool)
+    idx = np.flatnonzero(inside)
+    if not idx.size:
+        return seen, 0
+    # the cell's pixel's line of sight is the ray from the optical centre through the
+    # cell's ground point (ground_to_pixel projects that point): built from the two
+    # points, it needs no unprojection through the lens
+    p = p_all.reshape(-1, 3)[idx]
+    if hasattr(sensor, "optical_centre_ecef") and not corrections:
+        o = np.broadcast_to(np.asarray(sensor.optical_centre_ecef(pose), float).reshape(-1, 3)[0], p.shape)
+        dvec = p - o
+        los = LineOfSight(
+            np.ascontiguousarray(o),
+            dvec / np.linalg.norm(dvec, axis=-1, keepdims=True),
+            np.zeros(len(idx), np.uint8),
+        )
+    else:
+        los = sensor.line_of_sight(r.reshape(-1)[idx], c.reshape(-1)[idx], pose)
+    hit = visibility.intersect(los)
+    ok = (hit.status == Status.OK) & (np.linalg.norm(hit.ecef - p, axis=-1) <= tol)
+    seen.reshape(-1)[idx[ok]] = True
+    return seen, int(idx.size - ok.sum())
 
 
 def read_photo_pixels(path: str | os.PathLike[str]) -> NDArray[np.uint8]:
