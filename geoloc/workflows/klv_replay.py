@@ -61,10 +61,10 @@ import dataclasses
 import math
 import os
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -1253,6 +1253,83 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
     )
 
     ts = g("precision_time_stamp_us")
+    cols = _packet_columns(read, g, hts, ang, ts, rk_lat, rk_lon, rep_corners)
+    cols.update(
+        {
+            "lat_deg": lat,
+            "lon_deg": lon,
+            "mgrs": np.array(mgrs_column(lat, lon), dtype=object),  # '' where no point (io.mgrs_grid)
+            "h_m": h,
+            "status": status,
+            "range_m": np.where(ok, gc.slant_range, np.nan),
+            "frame_center_error_m": fc_err,
+            "corrections": np.full(n, corrections.label, dtype=object),
+            "refraction_m": np.where(ok, np.asarray(gc.refraction_m, float), np.nan),
+        }
+    )
+    for j in range(4):
+        cols[f"corner{j + 1}_lat_deg"] = k_lat[j]
+        cols[f"corner{j + 1}_lon_deg"] = k_lon[j]
+        cols[f"corner{j + 1}_h_m"] = k_h[j]
+    unc_messages: list[str] = []
+    if budget is not None:
+        unc_surface = HeightSurface(h_int, "geodetic") if surface is None else surface
+        ucols, unc_messages = _uncertainty_columns(g, budget, geo, unc_surface, ok, hts, ts / 1e6)
+        cols.update(ucols)
+    cols.update(
+        {
+            "corner_status": _corner_status(kst),
+            "corner_error_m": corner_err,
+            "h_datum": np.full(n, H_DATUM, dtype=object),
+            "outlier": outlier.astype(np.int64),
+            "datum_warning": datum_warn,
+            "note": notes,
+        }
+    )
+
+    summ_notes = list(unc_messages)
+    if base_sensor is not None:
+        summ_notes.append(
+            f"sensor file: image {sens.cols} x {sens.rows}, mount, boresight and lever arm "
+            "used; its lens is replaced by each packet's fields of view (tags 16, 17)"
+        )
+    if terrain is not None and np.isfinite(fc_err).any():
+        note = _dem_height_note(hts, h)
+        if note is not None:
+            summ_notes.append(note)
+    summary = _summary(
+        read,
+        hts,
+        status,
+        fc_err,
+        corner_err,
+        outlier,
+        med,
+        thr,
+        invalid_reasons,
+        _surface_text(surface, terrain),
+        warnings,
+        summ_notes,
+        plaus,
+    )
+    return KlvReplay(cols, list(read.errors), summary, sens)
+
+
+def _packet_columns(
+    read: KlvRead,
+    g: Callable[[str], np.ndarray],
+    hts: _Heights,
+    ang: _Angles,
+    ts: np.ndarray,
+    rk_lat: np.ndarray,
+    rk_lon: np.ndarray,
+    rep_corners: np.ndarray,
+) -> dict[str, Any]:
+    """The replay's columns that echo each packet as read: where it is in the file, its time, the
+    platform's position, heights and attitude, the turret's angles and fields of view, the reported
+    frame centre and corners (``g(name)``: a decoded column as floats, NaN where absent)."""
+    c = read.columns
+    n = len(read)
     cols = {
         "file": np.full(n, Path(read.source).name, dtype=object),
         "packet": np.asarray(read.packet, np.int64),
@@ -1287,57 +1364,33 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         cols[f"reported_corner{j + 1}_lat_deg"] = rk_lat[j]
         cols[f"reported_corner{j + 1}_lon_deg"] = rk_lon[j]
     cols["reported_corners_from"] = rep_corners
-    cols.update(
-        {
-            "lat_deg": lat,
-            "lon_deg": lon,
-            "mgrs": np.array(mgrs_column(lat, lon), dtype=object),  # '' where no point (io.mgrs_grid)
-            "h_m": h,
-            "status": status,
-            "range_m": np.where(ok, gc.slant_range, np.nan),
-            "frame_center_error_m": fc_err,
-            "corrections": np.full(n, corrections.label, dtype=object),
-            "refraction_m": np.where(ok, np.asarray(gc.refraction_m, float), np.nan),
-        }
-    )
-    for j in range(4):
-        cols[f"corner{j + 1}_lat_deg"] = k_lat[j]
-        cols[f"corner{j + 1}_lon_deg"] = k_lon[j]
-        cols[f"corner{j + 1}_h_m"] = k_h[j]
-    unc_messages: list[str] = []
-    if budget is not None:
-        unc_surface = HeightSurface(h_int, "geodetic") if surface is None else surface
-        ucols, unc_messages = _uncertainty_columns(g, budget, geo, unc_surface, ok, hts, ts / 1e6)
-        cols.update(ucols)
-    cols.update(
-        {
-            "corner_status": _corner_status(kst),
-            "corner_error_m": corner_err,
-            "h_datum": np.full(n, H_DATUM, dtype=object),
-            "outlier": outlier.astype(np.int64),
-            "datum_warning": datum_warn,
-            "note": notes,
-        }
-    )
+    return cols
 
+
+def _summary(
+    read: KlvRead,
+    hts: _Heights,
+    status: np.ndarray,
+    fc_err: np.ndarray,
+    corner_err: np.ndarray,
+    outlier: np.ndarray,
+    outlier_median_m: float,
+    outlier_threshold_m: float,
+    invalid_reasons: dict,
+    surface_text: str,
+    datum_warnings: list,
+    notes: list[str],
+    plausibility_warnings: list,
+) -> KlvSummary:
+    """The replay's summary: packets per status, the frame-centre and corner errors' figures over
+    the packets compared (NaN where none), the outliers, where the heights came from."""
     fin = np.isfinite(fc_err)
     kfin = np.isfinite(corner_err)
-    counts = {s.name.lower(): int(np.sum(status == s)) for s in Status if np.any(status == s)}
-    summ_notes = list(unc_messages)
-    if base_sensor is not None:
-        summ_notes.append(
-            f"sensor file: image {sens.cols} x {sens.rows}, mount, boresight and lever arm "
-            "used; its lens is replaced by each packet's fields of view (tags 16, 17)"
-        )
-    if terrain is not None and fin.any():
-        note = _dem_height_note(hts, h)
-        if note is not None:
-            summ_notes.append(note)
-    summary = KlvSummary(
+    return KlvSummary(
         source=read.source,
-        packets=n,
+        packets=len(read),
         errors=list(read.errors),
-        status_counts=counts,
+        status_counts={s.name.lower(): int(np.sum(status == s)) for s in Status if np.any(status == s)},
         invalid_reasons=invalid_reasons,
         compared=int(fin.sum()),
         median_m=float(np.median(fc_err[fin])) if fin.any() else math.nan,
@@ -1347,18 +1400,17 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         corner_median_m=float(np.median(corner_err[kfin])) if kfin.any() else math.nan,
         corner_p90_m=float(np.percentile(corner_err[kfin], 90)) if kfin.any() else math.nan,
         outliers=read.packet[outlier].tolist(),
-        outlier_median_m=med,
-        outlier_threshold_m=thr,
+        outlier_median_m=outlier_median_m,
+        outlier_threshold_m=outlier_threshold_m,
         sensor_h_sources={"tag 75 (HAE)": int(hts.from75.sum()), "tag 15 (MSL) + EGM96 N": int(hts.from15.sum())},
         reported_h_sources={"tag 78 (HAE)": int(hts.from78.sum()), "tag 25 (MSL) + EGM96 N": int(hts.from25.sum())},
-        surface=_surface_text(surface, terrain),
-        datum_warnings=warnings,
-        notes=summ_notes,
-        plausibility_warnings=plaus,
+        surface=surface_text,
+        datum_warnings=datum_warnings,
+        notes=notes,
+        plausibility_warnings=plausibility_warnings,
         quirks=list(read.quirks),
         time_back=list(read.time_back),
     )
-    return KlvReplay(cols, list(read.errors), summary, sens)
 
 
 def _drone_height_warnings(
