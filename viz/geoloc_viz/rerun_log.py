@@ -369,143 +369,180 @@ def info_markdown(steps: LogSteps) -> str:
 
 def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float = 200.0) -> None:
     """Log every entity of a recording to ``rec`` (see the module docstring for the layout)."""
-    n = len(steps)
-    f32 = np.float32
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log("info", rr.TextDocument(info_markdown(steps), media_type=rr.MediaType.MARKDOWN), static=True)
-    T = steps.hop_transforms()
-    paths = steps.entity_paths()
-    lens = steps.camera.lens
-    v_mesh, f_mesh = _aircraft_mesh()
-    ac_all = steps.aircraft_enu
-    tgt_all = steps.target_enu
     refs = {}
     for key in ("truth", "published"):
         ref = getattr(steps, key)
         if ref is not None:
             refs[key] = steps.geodetic_enu(ref["lat_deg"], ref["lon_deg"], ref["h_m"])
     labels = np.asarray(steps.labels, dtype=object)
-    grp = steps.group_of
+    T = steps.hop_transforms()  # every record's, once: each flight logs its own
+    mesh = _aircraft_mesh()
+    ac_all, tgt_all = steps.aircraft_enu, steps.target_enu
 
     for g in steps.groups:
-        m = grp == g
-        idx = _index(steps, m)
-        root = steps.root(g)
+        m = steps.group_of == g
         if steps.multi:
-            rec.log(root, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-
-        # ------------------------------------------------------------ frames
-        for name, path in paths.items():
-            path = root + path[len("world") :]
-            Tn = np.broadcast_to(T[name], (n, 4, 4))[m]
-            cols = {"mat3x3": Tn[:, :3, :3]}
-            if name == "ned" or np.any(Tn[:, :3, 3]):
-                cols["translation"] = Tn[:, :3, 3]
-            rec.send_columns(path, indexes=idx, columns=rr.Transform3D.columns(**cols))
-            rec.log(path, rr.TransformAxes3D(axis_length=AXIS_LENGTH_M.get(name, 2000.0)), static=True)
-        cam = root + paths["cam"][len("world") :]
-        if steps.images is not None and np.any(np.asarray(steps.image_index)[m] >= 0):
-            log_images(rec, steps, cam, m)
-        else:
-            rec.log(
-                cam,
-                rr.Pinhole(
-                    focal_length=[float(lens.fx), float(lens.fy)],
-                    width=int(lens.width),
-                    height=int(lens.height),
-                    # the lens's 0-based pixel centres (OpenCV's) -> rerun's continuous (u, v): +0.5
-                    principal_point=[lens.cx + 0.5, lens.cy + 0.5],
-                    # the optical frame of the lens: X right, Y down, Z the line of sight
-                    camera_xyz=rr.ViewCoordinates.RDF,
-                    image_plane_distance=IMAGE_PLANE_M,
-                ),
-                static=True,
-            )
-        body = root + paths["body"][len("world") :]
-        rec.log(f"{body}/aircraft", rr.Transform3D(scale=display_scale), static=True)
-        rec.log(
-            f"{body}/aircraft",
-            rr.Mesh3D(vertex_positions=v_mesh, triangle_indices=f_mesh, albedo_factor=COLORS["aircraft"]),
-            static=True,
-        )
-
-        # -------------------------------------------------- points and lines
-        ac, tgt = ac_all[m], tgt_all[m]
-        rec.log(
-            f"{root}/track",
-            rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=SCENE_RADIUS_PT["track"]),
-            static=True,
-        )
-        ok = np.all(np.isfinite(tgt), axis=-1)
-        rec.log(
-            f"{root}/footprint",
-            rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=SCENE_RADIUS_PT["footprint"]),
-            static=True,
-        )
-        # The line of sight ends at the target, or runs 200 km into the sky where there is none.
-        d_enu = steps.enu_for(g).vector_from_ecef(np.broadcast_to(steps.los.direction_ecef, (n, 3))[m])
-        end = np.where(ok[:, None], tgt, ac + 2.0e5 * d_enu)
-        rec.send_columns(
-            f"{root}/los",
-            indexes=idx,
-            columns=rr.LineStrips3D.columns(strips=list(np.stack([ac, end], axis=1).astype(f32))),
-        )
-        rec.log(
-            f"{root}/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=SCENE_RADIUS_PT["los"]), static=True
-        )
-        _points(rec, steps, f"{root}/target", tgt_all, COLORS["target"], SCENE_RADIUS_PT["target"], m, labels)
-        for key, p in refs.items():
-            _points(rec, steps, f"{root}/{key}", p, COLORS[key], SCENE_RADIUS_PT["reference"], m)
-        # the entity the 3D view's eye tracks: a frame at the current hit (the last hit where a step has none)
-        cur = m & np.all(np.isfinite(tgt_all), axis=-1)
-        if np.any(cur):
-            rec.send_columns(
-                f"{root}/current", indexes=_index(steps, cur), columns=rr.Transform3D.columns(translation=tgt_all[cur])
-            )
-            rec.log(f"{root}/current", rr.TransformAxes3D(axis_length=CURRENT_AXIS_M), static=True)
-
+            rec.log(steps.root(g), rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        _log_frames(rec, steps, g, m, T, mesh, display_scale)
+        _log_points(rec, steps, g, m, ac_all, tgt_all, refs, labels)
         if steps.corners is not None:
             _log_corners(rec, steps, g, m)
-
         # ---------------------------------------------------- 2D plot, offline
         _plot2d(rec, steps, g, m, refs, labels)
+        _log_map(rec, steps, g, m, refs)
 
-        # --------------------------------------------------------------- map
-        mroot = steps.root(g, "map")
-        lat_ac = np.broadcast_to(np.rad2deg(steps.pose.lat), (n,))[m]
-        lon_ac = np.broadcast_to(np.rad2deg(steps.pose.lon), (n,))[m]
+    _log_series(rec, steps)
+    _log_texts(rec, steps, labels)
+    if steps.terrain is not None:
+        from geoloc_viz.rerun_terrain import log_terrain
+
+        log_terrain(rec, steps, _index)
+
+
+def _log_frames(
+    rec: rr.RecordingStream, steps: LogSteps, g: str, m: np.ndarray, T: dict, mesh: tuple, display_scale: float
+) -> None:
+    """Flight ``g``'s (records ``m``) frames, each hop's transform per record (``T``: the
+    recording's :meth:`LogSteps.hop_transforms`), its camera (images or a pinhole) and the
+    aircraft's mesh (vertices, triangles) scaled by ``display_scale``."""
+    n = len(steps)
+    paths = steps.entity_paths()
+    lens = steps.camera.lens
+    v_mesh, f_mesh = mesh
+    idx = _index(steps, m)
+    root = steps.root(g)
+
+    for name, path in paths.items():
+        path = root + path[len("world") :]
+        Tn = np.broadcast_to(T[name], (n, 4, 4))[m]
+        cols = {"mat3x3": Tn[:, :3, :3]}
+        if name == "ned" or np.any(Tn[:, :3, 3]):
+            cols["translation"] = Tn[:, :3, 3]
+        rec.send_columns(path, indexes=idx, columns=rr.Transform3D.columns(**cols))
+        rec.log(path, rr.TransformAxes3D(axis_length=AXIS_LENGTH_M.get(name, 2000.0)), static=True)
+    cam = root + paths["cam"][len("world") :]
+    if steps.images is not None and np.any(np.asarray(steps.image_index)[m] >= 0):
+        log_images(rec, steps, cam, m)
+    else:
         rec.log(
-            f"{mroot}/track",
-            rr.GeoLineStrings(lat_lon=[np.c_[lat_ac, lon_ac]], colors=COLORS["track"], radii=rr.Radius.ui_points(2.0)),
+            cam,
+            rr.Pinhole(
+                focal_length=[float(lens.fx), float(lens.fy)],
+                width=int(lens.width),
+                height=int(lens.height),
+                # the lens's 0-based pixel centres (OpenCV's) -> rerun's continuous (u, v): +0.5
+                principal_point=[lens.cx + 0.5, lens.cy + 0.5],
+                # the optical frame of the lens: X right, Y down, Z the line of sight
+                camera_xyz=rr.ViewCoordinates.RDF,
+                image_plane_distance=IMAGE_PLANE_M,
+            ),
             static=True,
         )
+    body = root + paths["body"][len("world") :]
+    rec.log(f"{body}/aircraft", rr.Transform3D(scale=display_scale), static=True)
+    rec.log(
+        f"{body}/aircraft",
+        rr.Mesh3D(vertex_positions=v_mesh, triangle_indices=f_mesh, albedo_factor=COLORS["aircraft"]),
+        static=True,
+    )
+
+
+def _log_points(
+    rec: rr.RecordingStream,
+    steps: LogSteps,
+    g: str,
+    m: np.ndarray,
+    ac_all: np.ndarray,
+    tgt_all: np.ndarray,
+    refs: dict,
+    labels: np.ndarray,
+) -> None:
+    """Flight ``g``'s (records ``m``) track, footprint, lines of sight, targets, references ``refs``
+    (their ENU points by name) and the frame the 3D view's eye tracks; ``ac_all``, ``tgt_all``:
+    every record's aircraft and target in ENU."""
+    n = len(steps)
+    f32 = np.float32
+    idx = _index(steps, m)
+    root = steps.root(g)
+
+    ac, tgt = ac_all[m], tgt_all[m]
+    rec.log(
+        f"{root}/track",
+        rr.LineStrips3D([ac.astype(f32)], colors=COLORS["track"], radii=SCENE_RADIUS_PT["track"]),
+        static=True,
+    )
+    ok = np.all(np.isfinite(tgt), axis=-1)
+    rec.log(
+        f"{root}/footprint",
+        rr.Points3D(tgt[ok].astype(f32), colors=COLORS["footprint"], radii=SCENE_RADIUS_PT["footprint"]),
+        static=True,
+    )
+    # The line of sight ends at the target, or runs 200 km into the sky where there is none.
+    d_enu = steps.enu_for(g).vector_from_ecef(np.broadcast_to(steps.los.direction_ecef, (n, 3))[m])
+    end = np.where(ok[:, None], tgt, ac + 2.0e5 * d_enu)
+    rec.send_columns(
+        f"{root}/los",
+        indexes=idx,
+        columns=rr.LineStrips3D.columns(strips=list(np.stack([ac, end], axis=1).astype(f32))),
+    )
+    rec.log(f"{root}/los", rr.LineStrips3D.from_fields(colors=COLORS["los"], radii=SCENE_RADIUS_PT["los"]), static=True)
+    _points(rec, steps, f"{root}/target", tgt_all, COLORS["target"], SCENE_RADIUS_PT["target"], m, labels)
+    for key, p in refs.items():
+        _points(rec, steps, f"{root}/{key}", p, COLORS[key], SCENE_RADIUS_PT["reference"], m)
+    # the entity the 3D view's eye tracks: a frame at the current hit (the last hit where a step has none)
+    cur = m & np.all(np.isfinite(tgt_all), axis=-1)
+    if np.any(cur):
         rec.send_columns(
-            f"{mroot}/aircraft", indexes=idx, columns=rr.GeoPoints.columns(positions=np.c_[lat_ac, lon_ac])
+            f"{root}/current", indexes=_index(steps, cur), columns=rr.Transform3D.columns(translation=tgt_all[cur])
         )
-        rec.log(
-            f"{mroot}/aircraft",
-            rr.GeoPoints.from_fields(colors=COLORS["aircraft"], radii=rr.Radius.ui_points(6.0)),
-            static=True,
-        )
-        geo = {"target": (steps.ground.lat_deg, steps.ground.lon_deg)}
-        for key in refs:
-            ref = getattr(steps, key)
-            geo[key] = (np.asarray(ref["lat_deg"], float), np.asarray(ref["lon_deg"], float))
-        for key, (la, lo) in geo.items():
-            good = m & np.isfinite(la) & np.isfinite(lo)
-            if np.any(good):
-                rec.send_columns(
-                    f"{mroot}/{key}",
-                    indexes=_index(steps, good),
-                    columns=rr.GeoPoints.columns(positions=np.c_[la[good], lo[good]]),
-                )
-                rec.log(
-                    f"{mroot}/{key}",
-                    rr.GeoPoints.from_fields(colors=COLORS[key], radii=rr.Radius.ui_points(5.0)),
-                    static=True,
-                )
+        rec.log(f"{root}/current", rr.TransformAxes3D(axis_length=CURRENT_AXIS_M), static=True)
 
-    # -------------------------------------------------------------- series
+
+def _log_map(rec: rr.RecordingStream, steps: LogSteps, g: str, m: np.ndarray, refs: dict) -> None:
+    """Flight ``g``'s (records ``m``) map: the track, the aircraft per record, the targets and the
+    references of ``refs`` where they have a position."""
+    n = len(steps)
+    idx = _index(steps, m)
+
+    mroot = steps.root(g, "map")
+    lat_ac = np.broadcast_to(np.rad2deg(steps.pose.lat), (n,))[m]
+    lon_ac = np.broadcast_to(np.rad2deg(steps.pose.lon), (n,))[m]
+    rec.log(
+        f"{mroot}/track",
+        rr.GeoLineStrings(lat_lon=[np.c_[lat_ac, lon_ac]], colors=COLORS["track"], radii=rr.Radius.ui_points(2.0)),
+        static=True,
+    )
+    rec.send_columns(f"{mroot}/aircraft", indexes=idx, columns=rr.GeoPoints.columns(positions=np.c_[lat_ac, lon_ac]))
+    rec.log(
+        f"{mroot}/aircraft",
+        rr.GeoPoints.from_fields(colors=COLORS["aircraft"], radii=rr.Radius.ui_points(6.0)),
+        static=True,
+    )
+    geo = {"target": (steps.ground.lat_deg, steps.ground.lon_deg)}
+    for key in refs:
+        ref = getattr(steps, key)
+        geo[key] = (np.asarray(ref["lat_deg"], float), np.asarray(ref["lon_deg"], float))
+    for key, (la, lo) in geo.items():
+        good = m & np.isfinite(la) & np.isfinite(lo)
+        if np.any(good):
+            rec.send_columns(
+                f"{mroot}/{key}",
+                indexes=_index(steps, good),
+                columns=rr.GeoPoints.columns(positions=np.c_[la[good], lo[good]]),
+            )
+            rec.log(
+                f"{mroot}/{key}",
+                rr.GeoPoints.from_fields(colors=COLORS[key], radii=rr.Radius.ui_points(5.0)),
+                static=True,
+            )
+
+
+def _log_series(rec: rr.RecordingStream, steps: LogSteps) -> None:
+    """The plotted series: one entity per flight and series, a missing value a gap."""
+    grp = steps.group_of
+
     # one entity per flight and series (series/<flight>/...): no plot line joins two flights
     present = series_values(steps)
     styles = series_styles(steps, present)
@@ -520,7 +557,12 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
                 color, name = styles[path]
                 rec.log(path, rr.SeriesLines(colors=[color], names=[name]), static=True)
 
-    # ------------------------------------------- labels and annotations
+
+def _log_texts(rec: rr.RecordingStream, steps: LogSteps, labels: np.ndarray) -> None:
+    """The text logs: each record's label (outliers flagged), the outliers' notes, the statuses other than OK."""
+    n = len(steps)
+    grp = steps.group_of
+
     flag = steps.outlier if steps.outlier is not None else np.zeros(n, bool)
     text = [
         f"{labels[k]}" + (f" ({grp[k]})" if steps.multi else "") + (" - outlier" if flag[k] else "") for k in range(n)
@@ -553,11 +595,6 @@ def log_steps(rec: rr.RecordingStream, steps: LogSteps, *, display_scale: float 
         rec.send_columns(
             "log/status", indexes=_index(steps, bad), columns=rr.TextLog.columns(text=text, level=["WARN"] * len(text))
         )
-
-    if steps.terrain is not None:
-        from geoloc_viz.rerun_terrain import log_terrain
-
-        log_terrain(rec, steps, _index)
 
 
 #: JPEG quality of the frames logged with their pinhole (a 640 x 360 frame: ~30 kB).
