@@ -13,9 +13,11 @@ Degrees and metres (docs/conventions.md).
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -33,8 +35,10 @@ class SurfaceSpec:
 
     Attributes
     ----------
-    dem : str, tuple of str or None
+    dem : path-like, sequence of path-like, or None
         ``--dem``: one raster, a folder of tiles, a ``.vrt``, or several rasters (one mosaic).
+        Once made, the spec holds one path as a ``str`` and several as a tuple of ``str`` (a
+        sequence of one path is that path), so that it is hashable.
     dem_datum : {"egm96", "ellipsoid"}
         Vertical datum of the DEM's heights.
     method, dem_model : str
@@ -51,7 +55,7 @@ class SurfaceSpec:
         The height surface's kind (:class:`geoloc.surfaces.height.HeightSurface`).
     """
 
-    dem: str | tuple | None = None
+    dem: str | os.PathLike[str] | Sequence[str | os.PathLike[str]] | None = None
     dem_datum: str = "egm96"
     method: str = "exact"
     dem_model: str = "bilinear"
@@ -65,13 +69,17 @@ class SurfaceSpec:
     def __post_init__(self):
         d = self.dem
         if isinstance(d, (list, tuple)):
-            d = tuple(str(x) for x in d)
-            d = d[0] if len(d) == 1 else d
+            names = tuple(str(x) for x in d)
+            d = names[0] if len(names) == 1 else names
         elif d is not None:
             d = str(d)
         object.__setattr__(self, "dem", d)  # one path, or a tuple of them: hashable
         if self.target_h_m is not None:
             object.__setattr__(self, "target_h_m", float(self.target_h_m))
+
+    def _dem_names(self) -> str | tuple[str, ...] | None:
+        """``dem`` as :meth:`__post_init__` holds it: one path, a tuple of them, or None."""
+        return cast("str | tuple[str, ...] | None", self.dem)
 
     @property
     def solver_options(self) -> dict:
@@ -85,10 +93,11 @@ class SurfaceSpec:
         files) is a ValueError naming ``what`` and the path."""
         from geoloc.surfaces.base import terrain_of
 
-        if self.dem is None:
+        dem = self._dem_names()
+        if dem is None:
             return None
-        if isinstance(self.dem, tuple) or Path(self.dem).is_dir() or self.dem.lower().endswith(".vrt"):
-            shown = ", ".join(self.dem) if isinstance(self.dem, tuple) else self.dem
+        if isinstance(dem, tuple) or Path(dem).is_dir() or dem.lower().endswith(".vrt"):
+            shown = ", ".join(dem) if isinstance(dem, tuple) else dem
             raise ValueError(f"{what} {shown} is a mosaic: this reads one DEM raster, not a mosaic")
         from geoloc.surfaces.dem import DEM
 
@@ -118,9 +127,10 @@ class SurfaceSpec:
         from geoloc.surfaces.mosaic import open_dem_or_mosaic
         from geoloc.surfaces.terrain import surface_for
 
-        if self.dem is not None:
+        names = self._dem_names()
+        if names is not None:
             mosaic = {} if self.cache_bytes is None else {"cache_bytes": int(self.cache_bytes)}
-            source = list(self.dem) if isinstance(self.dem, tuple) else Path(self.dem)
+            source = list(names) if isinstance(names, tuple) else Path(names)
             dem = open_dem_or_mosaic(
                 source, self.dem_datum, method=self.method, dem_model=self.dem_model, **mosaic, **self.solver_options
             )

@@ -824,7 +824,8 @@ class DemSurface:
 
     Parameters
     ----------
-    dem : geoloc.surfaces.dem.DEM
+    dem : geoloc.surfaces.dem.DEM or a mosaic (:class:`geoloc.surfaces.base.MosaicSource`)
+        A mosaic is solved region by region, within its memory bound (its ``with_solver``).
     method : {"steps", "bisect", "exact"}
         [Q17 section 2.3] descending steps, [L23] bisection, or the exact first hit.
     dem_model : {"bilinear", "triangles"}
@@ -833,15 +834,18 @@ class DemSurface:
         ``eps_h``, ``threshold``, ``trace``, ``max_iter``, ``parallel`` of :func:`intersect_dem`.
     """
 
-    def __init__(self, dem: DEM, method: str = "exact", dem_model: str = "bilinear", **options: Any):
+    def __init__(
+        self, dem: DEM | MosaicSource, method: str = "exact", dem_model: str = "bilinear", **options: Any
+    ) -> None:
         if method not in METHODS:
             raise ValueError(f"DEM method = {method!r}: must be one of {METHODS}")
-        self.dem, self.method, self.dem_model, self.options = dem, method, dem_model, options
+        self.dem: DEM | MosaicSource = dem
+        self.method, self.dem_model, self.options = method, dem_model, options
 
     def intersect(self, los: LineOfSight) -> TerrainHit:
         if is_mosaic(self.dem):  # region by region, within the mosaic's memory bound
             return cast(TerrainHit, self.dem.with_solver(self.method, self.dem_model, **self.options).intersect(los))
-        return intersect_dem(los, self.dem, self.method, dem_model=self.dem_model, **self.options)
+        return intersect_dem(los, cast(DEM, self.dem), self.method, dem_model=self.dem_model, **self.options)
 
     def __repr__(self) -> str:
         return f"DemSurface({self.dem!r}, method={self.method!r}, dem_model={self.dem_model!r})"

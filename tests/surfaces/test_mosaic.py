@@ -369,3 +369,13 @@ def test_with_solver_shares_the_cache(tmp_path, merged, rays):
     with pytest.raises(ValueError, match="method"):
         m.with_solver("newton")
     assert "(4 files)" in m.path and m.datum == "egm96"
+
+
+def test_dem_surface_takes_a_mosaic(tmp_path, merged, rays):
+    # DemSurface(dem) takes a mosaic as well as a raster (its annotation: DEM | MosaicSource) and
+    # solves it region by region: the raster's hits
+    from geoloc.surfaces.terrain import DemSurface
+
+    cut_tiles(tmp_path / "t", 2, 1)
+    m = DemMosaic.open(tmp_path / "t", block=64)
+    _same_hits(intersect_dem(rays, merged), DemSurface(m, "exact").intersect(rays))
