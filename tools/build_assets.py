@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import datetime as _dt
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import rasterio
@@ -156,7 +157,8 @@ def build_srtm(out: Path):
     """SRTM 3'' Jacksboro fault tile from matplotlib's sample data."""
     import matplotlib.cbook as cbook
 
-    d = cbook.get_sample_data("jacksboro_fault_dem.npz")
+    # numpy's NpzFile (np.load of the .npz); matplotlib's annotation says an array or a file
+    d: Any = cbook.get_sample_data("jacksboro_fault_dem.npz")
     z = d["elevation"].astype(np.int16)
     dx, dy = float(d["dx"]), float(d["dy"])
     # Keys: xmin/xmax are the west/east *edges*; ymin (36.73292) is the NORTH edge

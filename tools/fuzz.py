@@ -21,6 +21,7 @@ import resource
 import sys
 import time
 import warnings
+from typing import Any
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,7 +104,7 @@ def main(argv=None) -> int:
     if unknown:
         ap.error(f"--targets: unknown {unknown}; the targets are {sorted(F.TARGETS)}")
     warnings.simplefilter("ignore")  # the parsers' warnings are their business; exceptions are ours
-    stats = {n: {"examples": 0, "findings": 0, "errors": {}, "kept": 0} for n in names}
+    stats: dict[str, dict[str, Any]] = {n: {"examples": 0, "findings": 0, "errors": {}, "kept": 0} for n in names}
     failures, seen = [], set()
     t_end = time.monotonic() + 60.0 * args.minutes
     rss_first = None
@@ -113,7 +114,7 @@ def main(argv=None) -> int:
             if time.monotonic() >= t_end:
                 break
             target, st_ = F.TARGETS[name], stats[name]
-            last = {}
+            last: dict[str, Any] = {}
             one = _batch(target, st_, last, args, args.seed * 1_000_003 + rnd)
             F.OBSERVER = _observer(target, st_, last, args)
             try:

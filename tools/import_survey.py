@@ -89,9 +89,9 @@ def _target(node: ast.Import | ast.ImportFrom, module: str, package: bool) -> li
             f"{base}.{a.name}" for a in node.names if importlib.util.find_spec(base) and _is_module(f"{base}.{a.name}")
         ]
         return subs or [base]
-    base = module.split(".") if package else module.split(".")[:-1]
-    base = base[: len(base) - (node.level - 1)]
-    return [".".join(base + ([node.module] if node.module else []))]
+    parts = module.split(".") if package else module.split(".")[:-1]
+    parts = parts[: len(parts) - (node.level - 1)]
+    return [".".join(parts + ([node.module] if node.module else []))]
 
 
 def in_function_imports(path: Path) -> list[tuple[str, str, int, str]]:

@@ -63,6 +63,8 @@ def build() -> trimesh.Trimesh:
     pod.apply_translation([1.0, 0, 0.8])
     parts.append(pod)
     mesh = trimesh.util.concatenate(parts)
+    # meshes concatenated are a mesh, coloured per face (the annotations say any geometry, any visuals)
+    assert isinstance(mesh, trimesh.Trimesh) and isinstance(mesh.visual, trimesh.visual.ColorVisuals)
     mesh.visual.face_colors = np.tile([225, 228, 235, 255], (len(mesh.faces), 1)).astype(np.uint8)
     pod_faces = len(pod.faces)
     mesh.visual.face_colors[-pod_faces:] = [250, 60, 30, 255]

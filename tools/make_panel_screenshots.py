@@ -61,6 +61,7 @@ def main(argv=None) -> int:
             # the "picture size" box, set as a person chooses it, then the picture scrolled to the pixel
             for cid in list(server.get_clients()):
                 s = viewer.session_of(cid)
+                assert s is not None  # a client of the page: its session exists
                 next(o for o in s.layers if type(o).__name__ == "PanelLayer").dd_size.value = "2:1"
             img = page.locator("#geoloc-picture-large")
             wait_for(lambda: "shown 2:1" in page.locator("body").inner_text(), 60, "the picture at 2:1")
@@ -74,6 +75,7 @@ def main(argv=None) -> int:
             page.wait_for_selector("text=latitude", timeout=120000)
             for cid in list(server.get_clients()):  # the whole frame again, for the picture
                 s = viewer.session_of(cid)
+                assert s is not None  # a client of the page: its session exists
                 next(o for o in s.layers if type(o).__name__ == "PanelLayer").dd_size.value = "fit the panel"
             time.sleep(6.0)
             shot(page, args.out / "panel_picture.png")

@@ -62,7 +62,9 @@ def main(argv=None) -> int:
 
             # the "software WebGL" notice (SwiftShader) would cover the scene's corner
             page.add_style_tag(content="[class*='Notification-root']{display:none !important}")
-            app.sl_ac.value = 15.0  # the aircraft and its frames drawn x15 (not x200): the frustum in view
+            # the aircraft and its frames drawn x15 (not x200): the frustum in view; viser's value setter
+            # is not next to its getter: mypy sees the property read-only
+            app.sl_ac.value = 15.0  # type: ignore[misc]
             d = app.view.disp
 
             def frame_geometry():

@@ -91,8 +91,9 @@ def limb_shot(args) -> None:
             _settled(page, t0, ready=lambda: len(viewer.apps) == 1)
             app = next(iter(viewer.apps.values()))
             before = _canvas(page)
-            app.sl_frame.value = 0
-            app.sl_alpha.value = -1.5  # the line of sight meets the Earth (status HITS_EARTH)
+            # viser's value setter is not next to its getter: mypy sees the property read-only
+            app.sl_frame.value = 0  # type: ignore[misc]
+            app.sl_alpha.value = -1.5  # type: ignore[misc]  # the line of sight meets the Earth (HITS_EARTH)
             # the camera moves with the view angle: wait for a canvas that differs from before and holds
             # still over two shots 2 s apart (the probe's change count settles on its own too early here)
             t1, prev = time.monotonic(), None
@@ -121,7 +122,12 @@ def flight_shots(args) -> None:
     viewer = GeolocViewer(server, default_flight_scenario())
     built = []
     orig = viewer._build_tab
-    viewer._build_tab = lambda client, name: (orig(client, name), built.append(client.client_id))
+
+    def build_tab(client, name) -> None:  # the viewer's own, then the client noted as built
+        orig(client, name)
+        built.append(client.client_id)
+
+    viewer._build_tab = build_tab  # type: ignore[method-assign]
 
     try:
         with tempfile.TemporaryDirectory() as home, chromium(Path(home)) as browser:
@@ -131,7 +137,9 @@ def flight_shots(args) -> None:
             page.goto(f"http://127.0.0.1:{server.get_port()}/?fixedDpr=1", timeout=120000)
             _, seen = _settled(page, t0, ready=lambda: len(built) == 1)
             shot(page, args.out / "viewer_first_view.png")
-            fl = viewer.session_of(built[0]).layers[0]
+            session = viewer.session_of(built[0])
+            assert session is not None  # the client built its tab above
+            fl = session.layers[0]
             opt = next(o for o, i in zip(fl.opts, fl.top_idx) if fl.model.labels[i] == f"packet {args.packet}")
             t1 = time.time()
             fl.dd_goto.value = opt  # as the GUI would

@@ -64,13 +64,15 @@ def main(argv) -> int:
     product = s2.read_product(prod_dir)
     sen2vm = Corrections()
     rugged = Corrections(light_time=True, aberration=True)
-    table = {}
+    table: dict[tuple, list[list]] = {}  # (band, detector) -> [Sen2VM's, Rugged's corrections] distances
     for gdir in sorted(p for p in ref_dir.iterdir() if p.is_dir()):
         if gdir.name not in product.granules:
             continue
         g = product.granules[gdir.name]
         for f in sorted(gdir.rglob("*.tif")):
-            band = re.search(r"_(B\w\w)\.tif$", f.name).group(1)
+            m = re.search(r"_(B\w\w)\.tif$", f.name)
+            assert m is not None, f"{f}: not a band's grid (..._Bxx.tif)"
+            band = m.group(1)
             d0 = distances(product, g, band, f, sen2vm)
             d1 = distances(product, g, band, f, rugged)
             t = table.setdefault((band, g.detector), [[], []])

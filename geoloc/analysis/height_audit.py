@@ -369,6 +369,7 @@ def audit_flight(
         raise ValueError(
             f"the height audit compares heights with the terrain: it needs a DEM (--dem); got {type(surface).__name__}"
         )
+    assert surface is not None  # terrain_of(None) is None: refused above
     fixes = dict(RECORDS_FIXES, **(fixes or {}))
     row = np.atleast_1d(np.asarray(row, float))
     n = row.shape[0]

@@ -1,5 +1,5 @@
 """The type checker (mypy, configured in ``pyproject.toml`` [tool.mypy]) finds nothing in
-``geoloc/`` and ``viz/geoloc_viz/``, and every public function of the core says its types.
+``geoloc/``, ``viz/geoloc_viz/`` and ``tools/``, and every public function of the core says its types.
 
 mypy checks the annotated functions' bodies and every call into them. The modules whose findings
 were not yet mended when the check came in are listed in [tool.mypy]'s ``ignore_errors`` override;
@@ -14,7 +14,7 @@ that did not yet when this check came in are listed in ``tests/project/untyped_p
 that list only shrinks too.
 
 mypy runs without its cache (``--no-incremental``, the cache in a temporary folder): about 15 s
-of CPU over the 138 modules on this machine.
+of CPU over the 138 modules on this machine (before tools/ joined: 12 scripts more).
 """
 
 import ast
