@@ -57,8 +57,14 @@ array argument becomes a local bound to the caller's, counted in and out around 
 loops): the start cell, the cell where the ray enters a block, the step into the next block and
 the hit's conversion as inlined steps ran at 0.81 of the walk's speed (crop, triangles, 10 000
 rays, one thread, called in turn in one process; the block step alone 0.93). So only the steps
-on scalars are functions of their own (:func:`_ray_span`: where a ray's walk starts and ends),
-and the walk's arguments travel as three records (:class:`WalkRays`, :class:`WalkGrid`,
+on scalars are functions of their own, each inlined at its one call site and tested alone
+(``tests/surfaces/test_terrain_steps.py``): :func:`_ray_span` (where a ray's walk starts and
+ends), :func:`_ray_terms` (the ray's products every test reuses), :func:`_start_guess` and
+:func:`_start_cell_geodetic` (the start cell), :func:`_block_entry` (a block skipped, or where
+its cell walk starts), :func:`_bilinear_step` (a cell's bilinear test and the geodetic state it
+hands the next cell) and :func:`_hit_geodetic` (the hit's coordinates); the steps that read the
+tables (the start cell's correction, the climb, the cell loop, the step into the next block)
+stay in the walk's body, and the walk's arguments travel as three records (:class:`WalkRays`, :class:`WalkGrid`,
 :class:`WalkOut`), unpacked once a call (measured: 0.998 of the walk with 28 arguments).
 
 A small call is not compiled at all (:data:`PY_WALK_MAX_RAYS`: up to 64 rays over a DEM of
@@ -670,6 +676,67 @@ def _bilinear_cell(
 
 
 @cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+def _bilinear_step(
+    ox, oy, oz, dx, dy, dz, s, s_b, geo_ok, lat, lon, h, g, z00, z10, z01, z11, i, j, lat_n, lon_w, dlat, dlon
+):
+    """(t, lat_b, lon_b, h_b, g_b): the bilinear model's test of the cell (i, j) the ray crosses
+    from s to ``s_b``, with node heights ``z00`` (i, j), ``z10`` (i, j + 1), ``z01`` (i + 1, j),
+    ``z11`` (i + 1, j + 1): ``t`` the first hit on [s, s_b] (:func:`_bilinear_cell`), inf for none.
+
+    The geodetic state at s (latitude, longitude in the grid's window, height and g = dh/ds, the
+    up vector's component along the unit ray) is ``lat, lon, h, g`` when ``geo_ok`` (kept from
+    the cell before, whose exit is this cell's entry), else computed here (:func:`geodetic_up`);
+    the state at ``s_b`` is returned for the next cell. Scalars only; inlined into the walk.
+    """
+    if not geo_ok:
+        lat, lon, h, nx, ny, nz = geodetic_up(ox + s * dx, oy + s * dy, oz + s * dz)
+        lon = _wrap(lon, lon_w)
+        g = nx * dx + ny * dy + nz * dz
+    lat_b, lon_b, h_b, nx, ny, nz = geodetic_up(ox + s_b * dx, oy + s_b * dy, oz + s_b * dz)
+    lon_b = _wrap(lon_b, lon_w)
+    t = _bilinear_cell(
+        ox,
+        oy,
+        oz,
+        dx,
+        dy,
+        dz,
+        s,
+        s_b,
+        lat,
+        lon,
+        h,
+        g,
+        lat_b,
+        lon_b,
+        h_b,
+        z00,
+        z10,
+        z01,
+        z11,
+        i,
+        j,
+        lat_n,
+        lon_w,
+        dlat,
+        dlon,
+    )
+    return t, lat_b, lon_b, h_b, nx * dx + ny * dy + nz * dz
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+def _hit_geodetic(x, y, z, lat0, s0, c0, lon0, sl0, cl0):
+    """(lat, lon, h) of a hit at ECEF (x, y, z) [m] in the cell whose north-west corner is at
+    latitude ``lat0`` (sin, cos ``s0``, ``c0``) and longitude ``lon0`` (sin, cos ``sl0``,
+    ``cl0``): :func:`_geodetic_near` from that corner, or the closed form (:func:`geodetic_up`)
+    where the hit is too far from it. Scalars only; inlined into the walk (once a hit)."""
+    la, lo, hh = _geodetic_near(x, y, z, lat0, s0, c0, lon0, sl0, cl0)
+    if la != la:
+        la, lo, hh, _, _, _ = geodetic_up(x, y, z)
+    return la, lo, hh
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
 def _ray_span(ox, oy, oz, dx, dy, dz, ia_top, ib_top, ia_floor, ib_floor):
     """(status, ux, uy, uz, 1/|d|, s, send, st_end): where the walk of the ray o + s u (u = d / |d|)
     starts and ends.
@@ -699,6 +766,109 @@ def _ray_span(ox, oy, oz, dx, dy, dz, ia_top, ib_top, ia_floor, ib_floor):
     send = f0 if end_is_floor else s1
     st_end = _NOCONV if end_is_floor else _SKY  # status when the ray reaches send
     return _OK, dx, dy, dz, idn, s0, send, st_end
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+def _ray_terms(ox, oy, oz, dx, dy, dz):
+    """(dxy2, dz2, oxd, ozd, oxy2, oz2, east, along, dj): the terms of the ray o + s d that every
+    crossing and clearance test of its walk reuses, computed once a ray.
+
+    dxy2 = dx^2 + dy^2, dz2 = dz^2, oxd = ox dx + oy dy, ozd = oz dz, oxy2 = ox^2 + oy^2,
+    oz2 = oz^2 (the coefficients of :func:`_ellipsoid_quadratic` and :func:`_par_exit`);
+    ``east``: the longitude grows along the ray ((o x d)_z > 0: it is monotonic along a straight
+    line, :func:`_mer_exit`), ``along``: the line crosses meridians at all ((o x d)_z != 0, False
+    for a line in a meridian plane), ``dj``: the column step, +1 east, -1 west.
+    Scalars only; inlined into the walk (called once a ray).
+    """
+    lz = ox * dy - oy * dx  # (o x d)_z
+    east = lz > 0.0
+    return (
+        dx * dx + dy * dy,
+        dz * dz,
+        ox * dx + oy * dy,
+        oz * dz,
+        ox * ox + oy * oy,
+        oz * oz,
+        east,
+        lz != 0.0,
+        1 if east else -1,
+    )
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+def _start_guess(qx, qy, qz, cos_w, sin_w, tan_n, dlat, dlon, nr, nc):
+    """(ok, i, j, rho): a first guess of the cell of the point q without atan2, for a grid whose
+    west meridian has (cos, sin) ``cos_w``, ``sin_w`` and whose north parallel has tan phi
+    ``tan_n``; ``rho`` = sqrt(qx^2 + qy^2).
+
+    The column from u = tan(lon - lon_w) (from the meridian plane, by two terms of atan's series),
+    the row from tan(lat - lat_n), with tan(lat) = z / (rho (1 - e^2)) the latitude of the point
+    on the ellipsoid (off by ~e^2 h / a above it): a few cells off at most, within [0, nr - 2] x
+    [0, nc - 2]; the walk then corrects it on the exact cell boundaries. ``ok`` False where the
+    series does not hold (|lon - lon_w| or |lat - lat_n| about 0.47 rad or more, the point behind
+    the grid's meridian or on the axis): the caller then takes :func:`_start_cell_geodetic`.
+    Scalars only; inlined into the walk (called once a ray).
+    """
+    den = cos_w * qx + sin_w * qy
+    num = cos_w * qy - sin_w * qx
+    if not (den > 0.0 and abs(num) < 0.5 * den):
+        return False, -1, -1, 0.0
+    u = num / den  # tan(lon - lon_w), |lon - lon_w| < 0.47 rad
+    j = min(max(int((u - u * u * u / 3.0) / dlon), 0), nc - 2)
+    rho = math.sqrt(qx * qx + qy * qy)
+    t = qz / (rho * (1.0 - E2))  # tan(lat) on the ellipsoid; ~e^2 h / a off above it
+    w = (t - tan_n) / (1.0 + t * tan_n)  # tan(lat - lat_n)
+    if not abs(w) < 0.5:  # also False for NaN (on the axis)
+        return False, -1, j, rho
+    i = min(max(int(-(w - w * w * w / 3.0) / dlat), 0), nr - 2)
+    return True, i, j, rho
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+def _start_cell_geodetic(qx, qy, qz, lat_n, lon_w, dlat, dlon, nr, nc):
+    """(i, j): the cell of the point q from its latitude and longitude (:func:`latlon`), the
+    walk's start where :func:`_start_guess` does not apply: floor((lat_n - lat) / dlat),
+    floor((lon - lon_w) / dlon) with lon in the grid's window (:func:`_wrap`), except that a
+    point on the last node row or column (within 1e-9 of a cell) belongs to the last cell. The
+    cell may lie off the grid (the caller tests it). Scalars only; inlined into the walk."""
+    la0, lo0 = latlon(qx, qy, qz)
+    lo0 = _wrap(lo0, lon_w)
+    fi = (lat_n - la0) / dlat
+    fj = (lo0 - lon_w) / dlon
+    i = int(math.floor(fi))
+    j = int(math.floor(fj))
+    if i == nr - 1 and fi - i < 1e-9:
+        i = nr - 2
+    if j == nc - 1 and fj - j < 1e-9:
+        j = nc - 2
+    return i, j
+
+
+@cached_njit(KEY, error_model="numpy", fastmath={"contract"}, inline="always")
+def _block_entry(ia, ib, dxy2, dz2, oxd, ozd, oxy2, oz2, s, sx, send):
+    """(clear, s, entered): the block-level test of the walk, for a block whose inflated
+    ellipsoid is ``ia``, ``ib`` = 1/(a+H)^2, 1/(b+H)^2 (NaN: no data in the block, never clear).
+
+    ``clear``: the ray stays outside that ellipsoid from s to where it leaves the block (``sx``,
+    or ``send`` if sooner), so above all of the block's terrain: the walk skips the block in one
+    step. Otherwise, if the ray at s is still outside the ellipsoid and enters it before ``sx``,
+    every cell before that entry is clear too: s moves to the entry (the first root of the
+    quadratic F of :func:`_ellipsoid_quadratic`, clamped to ``sx``) and ``entered`` is True (the
+    cell at the new s is then found inside the block). Scalars only; inlined into the walk.
+    """
+    if not ia == ia:
+        return False, s, False
+    e = sx if sx < send else send
+    qa, hb, qc = _ellipsoid_quadratic(ia, ib, dxy2, dz2, oxd, ozd, oxy2, oz2)
+    if _clear_between(qa, hb, qc, s, e):
+        return True, s, False
+    if (qa * s + 2.0 * hb) * s + qc > 0.0:
+        disc = hb * hb - qa * qc
+        if disc > 0.0:
+            s_in = qc / (math.sqrt(disc) - hb)  # the smaller root (hb < 0 here)
+            if s_in > s:
+                return False, (s_in if s_in < sx else sx), True
+    return False, s, False
 
 
 def _walk(rays, grid, out):
@@ -741,6 +911,15 @@ def _walk(rays, grid, out):
     beyond; the node that stopped the climb is not tested again while the ray is in
     it. A jump lands on the block boundary crossing the block-by-block walk would
     compute (same function, same absolute parameters), so the hits do not change.
+
+    The steps, in the order a ray meets them (those on scalars are functions of their own,
+    inlined; those that read the tables are marked ``# ----`` in the body): the ray's span and
+    terms (:func:`_ray_span`, :func:`_ray_terms`); the start cell (:func:`_start_guess` corrected
+    on the exact sides, else :func:`_start_cell_geodetic`); per block, its test
+    (:func:`_block_entry`) and the cell at s; for a clear block the climb through the levels and
+    the jump beyond the largest clear node; for the others the cell loop, each cell's test
+    (:func:`_cell_triangles` or :func:`_bilinear_step`) and its step to the next cell; the step into
+    the next block; and the exit: the status and the hit's coordinates (:func:`_hit_geodetic`).
     """
     # the records unpacked once a call: in the loop these are the locals they were as arguments
     o = rays.o
@@ -818,44 +997,26 @@ def _walk(rays, grid, out):
         if st != _OK:
             status[r] = st
             continue
-        dxy2 = dx * dx + dy * dy
-        dz2 = dz * dz
-        oxd = ox * dx + oy * dy
-        ozd = oz * dz
-        oxy2 = ox * ox + oy * oy
-        oz2 = oz * oz
-        lz = ox * dy - oy * dx  # (o x d)_z: > 0, the longitude grows along the ray
-        east = lz > 0.0
-        along = lz != 0.0  # False: the line lies in a meridian plane, it crosses none
-        dj = 1 if east else -1
+        dxy2, dz2, oxd, ozd, oxy2, oz2, east, along, dj = _ray_terms(ox, oy, oz, dx, dy, dz)
         lat = 0.0
         lon = 0.0
         h = 0.0
         g = 0.0
         geo_ok = False  # lat, lon, h, g hold the geodetic state at s only when True
-        # Start cell without atan2: a guess from tan(lon - lon_w) and the latitude on
-        # the ellipsoid (a few cells off at most), then corrected on the exact cell
-        # boundaries (the side of the meridian planes and parallel cones, as in the
-        # walk). Near the grid's edges, for a wide grid or a far guess: the atan2 path.
+        # ------------------------------------------------ the start cell, without atan2: a
+        # guess (_start_guess, a few cells off at most), then corrected on the exact cell
+        # boundaries (the side of the meridian planes and parallel cones, as in the walk).
+        # Near the grid's edges, for a wide grid or a far guess: the atan2 path.
         qx = ox + s * dx
         qy = oy + s * dy
         qz = oz + s * dz
         i = -1
         j = -1
+        rho = 0.0
         fast = wide_ok
         if fast:
-            den = cos_col[0] * qx + sin_col[0] * qy
-            num = cos_col[0] * qy - sin_col[0] * qx
-            fast = den > 0.0 and abs(num) < 0.5 * den
+            fast, i, j, rho = _start_guess(qx, qy, qz, cos_col[0], sin_col[0], tan_row[0], dlat, dlon, nr, nc)
         if fast:
-            u = num / den  # tan(lon - lon_w), |lon - lon_w| < 0.47 rad
-            j = min(max(int((u - u * u * u / 3.0) / dlon), 0), nc - 2)
-            rho = math.sqrt(qx * qx + qy * qy)
-            t = qz / (rho * (1.0 - E2))  # tan(lat) on the ellipsoid; ~e^2 h / a off above it
-            w = (t - tan_row[0]) / (1.0 + t * tan_row[0])  # tan(lat - lat_n)
-            fast = abs(w) < 0.5  # also False for NaN (on the axis)
-        if fast:
-            i = min(max(int(-(w - w * w * w / 3.0) / dlat), 0), nr - 2)
             for _ in range(16):  # west of meridian j / east of j + 1: move
                 if cos_col[j] * qy - sin_col[j] * qx < 0.0:
                     if j == 0:
@@ -887,17 +1048,7 @@ def _walk(rays, grid, out):
             else:
                 fast = False
         if not fast:
-            la0, lo0 = latlon(qx, qy, qz)
-            lo0 = _wrap(lo0, lon_w)
-            fi = (lat_n - la0) / dlat
-            fj = (lo0 - lon_w) / dlon
-            i = int(math.floor(fi))
-            j = int(math.floor(fj))
-            # a start point on the last node line belongs to the last cell
-            if i == nr - 1 and fi - i < 1e-9:
-                i = nr - 2
-            if j == nc - 1 and fj - j < 1e-9:
-                j = nc - 2
+            i, j = _start_cell_geodetic(qx, qy, qz, lat_n, lon_w, dlat, dlon, nr, nc)
         if i < 0 or i >= nr - 1 or j < 0 or j >= nc - 1:
             status[r] = _LEFT
             continue
@@ -938,26 +1089,25 @@ def _walk(rays, grid, out):
                 break
             # ------------------------------------------------ block level
             sx = min(bN, bS, bM)
-            ia = ia_floor + binv[np.uint64(bi), np.uint64(bj), 0]
-            clear = False
-            if ia == ia:  # NaN: no data in the block, never skipped
-                ib = ib_floor + binv[np.uint64(bi), np.uint64(bj), 1]
-                e = sx if sx < send else send
-                # clear of the block's inflated ellipsoid from s to where the ray leaves it
-                qa, hb, qc = _ellipsoid_quadratic(ia, ib, dxy2, dz2, oxd, ozd, oxy2, oz2)
-                clear = _clear_between(qa, hb, qc, s, e)
-            if not clear and ia == ia:
-                # until the ray meets the block's inflated ellipsoid it is above all of the
-                # block's terrain: the cell walk starts there (the first root of F), not at
-                # the block's side (those cells would all be skipped, one step each)
-                if (qa * s + 2.0 * hb) * s + qc > 0.0:
-                    disc = hb * hb - qa * qc
-                    if disc > 0.0:
-                        s_in = qc / (math.sqrt(disc) - hb)  # the smaller root (hb < 0 here)
-                        if s_in > s:
-                            s = s_in if s_in < sx else sx
-                            came = 5
-                            geo_ok = False
+            # clear of the block's inflated ellipsoid up to where the ray leaves it: skipped;
+            # else the cell walk starts where the ray meets that ellipsoid, not at the block's
+            # side (those cells would all be skipped, one step each)
+            clear, s, entered = _block_entry(
+                ia_floor + binv[np.uint64(bi), np.uint64(bj), 0],
+                ib_floor + binv[np.uint64(bi), np.uint64(bj), 1],
+                dxy2,
+                dz2,
+                oxd,
+                ozd,
+                oxy2,
+                oz2,
+                s,
+                sx,
+                send,
+            )
+            if entered:
+                came = 5
+                geo_ok = False
             k = steps
             if not clear or k < mtrace:
                 # the cell at s: the coordinate along the side the block was entered by is
@@ -1058,11 +1208,7 @@ def _walk(rays, grid, out):
                             east,
                         )
                         nE = min(nN, nS, nM)
-                        e = nE if nE < send else send
-                        if not (
-                            ((qa * e + 2.0 * hb) * e + qc > 0.0)
-                            and not (qa * s < -hb and -hb < qa * e and hb * hb >= qa * qc)
-                        ):
+                        if not _clear_between(qa, hb, qc, s, nE if nE < send else send):
                             break
                         failed = -1
                         glv = sh
@@ -1231,9 +1377,6 @@ def _walk(rays, grid, out):
                     ib = ib_floor + cinv[ui, uj, 1]
                     qa, hb, qc = _ellipsoid_quadratic(ia, ib, dxy2, dz2, oxd, ozd, oxy2, oz2)
                     if not _clear_between(qa, hb, qc, s, s_b):
-                        px = ox + s * dx
-                        py = oy + s * dy
-                        pz = oz + s * dz
                         if _TRIANGLES:  # a constant of the variant (KERNELS): pruned
                             # the cell's two triangles, from the heights and the rows' and columns' tables
                             t1, t2 = _cell_triangles(
@@ -1266,13 +1409,8 @@ def _walk(rays, grid, out):
                                 hit_j = j
                             geo_ok = False
                         else:
-                            if not geo_ok:
-                                lat, lon, h, nx, ny, nz = geodetic_up(px, py, pz)
-                                lon = _wrap(lon, lon_w)
-                                g = nx * dx + ny * dy + nz * dz
-                            lat_b, lon_b, h_b, nx, ny, nz = geodetic_up(ox + s_b * dx, oy + s_b * dy, oz + s_b * dz)
-                            lon_b = _wrap(lon_b, lon_w)
-                            t1 = _bilinear_cell(
+                            # the geodetic state at s_b is the next cell's at its s
+                            t1, lat, lon, h, g = _bilinear_step(
                                 ox,
                                 oy,
                                 oz,
@@ -1281,13 +1419,11 @@ def _walk(rays, grid, out):
                                 dz,
                                 s,
                                 s_b,
+                                geo_ok,
                                 lat,
                                 lon,
                                 h,
                                 g,
-                                lat_b,
-                                lon_b,
-                                h_b,
                                 hgt[i, j],
                                 hgt[i, j + 1],
                                 hgt[i + 1, j],
@@ -1303,10 +1439,6 @@ def _walk(rays, grid, out):
                                 best = t1
                                 hit_i = i
                                 hit_j = j
-                            lat = lat_b
-                            lon = lon_b
-                            h = h_b
-                            g = nx * dx + ny * dy + nz * dz
                             geo_ok = True
                     else:
                         geo_ok = False
@@ -1389,6 +1521,7 @@ def _walk(rays, grid, out):
                 bN2 = np.inf
                 bS, bS2 = _par_exit(tan_row[i1], c_row[i1], oz, dz, dz2, dxy2, oxd, oxy2, s, _SOUTH)
                 came = 0
+        # ------------------------------------------------ the exit: status, and the hit
         ncell[r] = steps
         if best < np.inf and st != _OK:
             # a triangle sliver found beyond the last cell: still the first hit on the mesh
@@ -1402,7 +1535,7 @@ def _walk(rays, grid, out):
             p_out[r, 0] = hx
             p_out[r, 1] = hy
             p_out[r, 2] = hz
-            la, lo, hh = _geodetic_near(
+            la, lo, hh = _hit_geodetic(
                 hx,
                 hy,
                 hz,
@@ -1413,8 +1546,6 @@ def _walk(rays, grid, out):
                 sin_col[hit_j],
                 cos_col[hit_j],
             )
-            if la != la:
-                la, lo, hh, _, _, _ = geodetic_up(hx, hy, hz)
             geo_out[r, 0] = la
             geo_out[r, 1] = lo
             geo_out[r, 2] = hh
