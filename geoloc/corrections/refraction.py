@@ -72,11 +72,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
-from numba import prange
 
 from geoloc.corrections.atmosphere import CUT_M, LAYER_TOPS_M, STANDARD, StandardAtmosphere
 from geoloc.geodesy import _nbgeo
-from geoloc.geodesy._nbgeo import cached_njit, dependency_key, geodetic_up
+from geoloc.geodesy._nbgeo import cached_njit, dependency_key, geodetic_up, prange
 from geoloc.geodesy.ellipsoid import A, E2, ecef_to_geodetic
 from geoloc import status as _status_module
 from geoloc.status import Status

@@ -39,24 +39,16 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
+import threading
 import time
+import types
 from pathlib import Path
-
-from numba import njit
 
 from geoloc.geodesy import ellipsoid
 from geoloc.geodesy.ellipsoid import vermeille
 
-try:  # numba's per-function cache; its index key is what we extend
-    from numba.core import config as _nb_config
-    from numba.core.caching import CompileResultCacheImpl as _CacheImpl
-    from numba.core.caching import FunctionCache as _FunctionCache
-    from numba.core.caching import UserProvidedCacheLocator as _UserLocator
-    from numba.core.dispatcher import Dispatcher as _Dispatcher
-
-    _CACHE_API = True
-except ImportError:  # pragma: no cover - a numba without it: compile without a disk cache
-    _CACHE_API = False
+#: numba's cache API is there (set when numba is imported: :func:`_activate`); None before.
+_CACHE_API: bool | None = None
 
 #: Say on stderr, once per process, that kernels are being compiled: True, False, or None
 #: (the default: when stderr is a terminal, or the environment sets GEOLOC_ANNOUNCE_COMPILE=1).
@@ -79,7 +71,9 @@ def cache_dir() -> Path:
     """The folder geoloc's compiled kernels are cached in: ``NUMBA_CACHE_DIR`` when the user set
     one, else the user's cache folder + ``geoloc/numba`` (XDG on Linux, ``~/Library/Caches`` on
     macOS, ``%LOCALAPPDATA%`` on Windows): outside the installed package, so a reinstall keeps it."""
-    user = getattr(_nb_config, "CACHE_DIR", "") if _CACHE_API else os.environ.get("NUMBA_CACHE_DIR", "")
+    # numba's config reads NUMBA_CACHE_DIR when numba is imported; before that, the environment
+    cfg = sys.modules.get("numba.core.config")
+    user = getattr(cfg, "CACHE_DIR", "") if cfg is not None else os.environ.get("NUMBA_CACHE_DIR", "")
     if user:
         return Path(user)
     if sys.platform == "win32":
@@ -128,7 +122,22 @@ def dependency_key(*modules) -> str:
     return h.hexdigest()
 
 
-if _CACHE_API:
+def _numba_cache_classes() -> bool:
+    """Import numba's cache machinery and define this module's cache classes on it (they become
+    this module's globals: ``_KeyedFunctionCache`` ...); False when this numba has no such API
+    (then kernels compile without a disk cache: slower to start, never stale).
+
+    Called when the first kernel is made (:func:`_activate`), not at import: numba's import is
+    most of a one-pixel ``geoloc locate``'s start-up, which calls no kernel."""
+    global _CACHE_API
+    try:
+        from numba.core import config as _nb_config
+        from numba.core.caching import CompileResultCacheImpl as _CacheImpl
+        from numba.core.caching import FunctionCache as _FunctionCache
+        from numba.core.caching import UserProvidedCacheLocator as _UserLocator
+    except ImportError:  # pragma: no cover - a numba without it
+        _CACHE_API = False
+        return False
 
     class _GeolocCacheLocator(_UserLocator):
         """numba's user-folder locator pointed at :func:`cache_dir` (when ``NUMBA_CACHE_DIR`` is
@@ -197,6 +206,14 @@ if _CACHE_API:
             if fd is not None:
                 os.close(fd)  # closing the file releases its flock
 
+    globals().update(
+        _GeolocCacheLocator=_GeolocCacheLocator,
+        _GeolocCacheImpl=_GeolocCacheImpl,
+        _KeyedFunctionCache=_KeyedFunctionCache,
+    )
+    _CACHE_API = True
+    return True
+
 
 #: Seconds a process waits for another one compiling the same kernel before it compiles it itself
 #: (a process that failed to compile keeps its lock until it exits). The longest compile measured is
@@ -246,17 +263,140 @@ def cached_njit(key: str, **options):
     calls code from. Without numba's cache class (another numba version) the kernel is
     compiled without a disk cache: slower to start, never stale.
 
+    numba is not imported here: until a kernel is first called (or numba is imported by
+    something else), the decorated function is a :class:`LazyKernel`, and the first call
+    makes every kernel's dispatcher at once (:func:`_activate`). A one-pixel ``geoloc
+    locate`` runs the numpy path and so never imports numba (0.2-0.3 s of its start-up).
+
     No C-callable (``cfunc``) wrapper is made: nothing takes these kernels as first-class
     function pointers, and the wrapper was 2 % of the first compile's Python work (measured).
     """
 
     def deco(fn):
-        disp = njit(cache=False, no_cfunc_wrapper=True, **options)(fn)
-        if _CACHE_API and isinstance(disp, _Dispatcher):
-            disp._cache = _KeyedFunctionCache(disp.py_func, key)
-        return disp
+        with _LOCK:
+            if not (_ACTIVE or "numba" in sys.modules):
+                lazy = LazyKernel(fn, key, options)
+                _PENDING.append(lazy)
+                return lazy
+        _activate()  # numba is loaded already: nothing left to save
+        return _dispatcher(fn, key, options)
 
     return deco
+
+
+def _dispatcher(fn, key, options):
+    """numba's dispatcher of ``fn`` with :class:`_KeyedFunctionCache` (numba imported)."""
+    from numba import njit
+    from numba.core.dispatcher import Dispatcher
+
+    disp = njit(cache=False, no_cfunc_wrapper=True, **options)(fn)
+    if _CACHE_API and isinstance(disp, Dispatcher):
+        disp._cache = _KeyedFunctionCache(disp.py_func, key)  # noqa: F821 (made by _numba_cache_classes)
+    return disp
+
+
+class LazyKernel:
+    """A :func:`cached_njit` kernel before numba is imported: ``fn`` and its options.
+
+    Calling it, or reading any attribute of numba's dispatcher from it (``signatures``,
+    ``stats``, ...), imports numba and makes the dispatcher (:func:`_activate`, for every
+    kernel at once); ``py_func`` is ``fn`` without that. After :func:`_activate` no module
+    holds one any more (each global and closure cell that held one holds its dispatcher, so
+    that numba compiles and inlines the kernels a kernel calls); a reference kept elsewhere
+    still calls, and numba types it as the dispatcher (``_numba_type_``), not inlined.
+    """
+
+    def __init__(self, fn, key: str, options: dict):
+        self.py_func = fn
+        self._key = key
+        self._options = options
+        self._disp = None
+        for name in ("__module__", "__name__", "__qualname__", "__doc__"):
+            setattr(self, name, getattr(fn, name, None))
+
+    def dispatcher(self):
+        """numba's dispatcher of this kernel (numba imported now if it was not)."""
+        if self._disp is None:
+            _activate()
+        return self._disp
+
+    def __call__(self, *args, **kwargs):
+        return self.dispatcher()(*args, **kwargs)
+
+    def __getattr__(self, name):  # only for names the object lacks: numba's dispatcher's
+        if name.startswith("__") or name in ("_disp", "_key", "_options", "py_func"):
+            raise AttributeError(name)
+        return getattr(self.dispatcher(), name)
+
+    @property
+    def _numba_type_(self):  # numba's typeof: a kernel compiled with this object as a global
+        from numba.core import types as nb_types
+
+        return nb_types.Dispatcher(self.dispatcher())
+
+    def __repr__(self) -> str:
+        state = "not yet compiled, numba not imported" if self._disp is None else repr(self._disp)
+        return f"<LazyKernel {self.__qualname__}: {state}>"
+
+
+def prange(*args):
+    """``numba.prange`` for a kernel module that should not import numba: ``range`` in Python,
+    and swapped for ``numba.prange`` in every module's globals by :func:`_activate`, before
+    numba reads the globals of a ``parallel=True`` kernel."""
+    return range(*args)
+
+
+#: Kernels made before numba was imported, waiting for :func:`_activate`.
+_PENDING: list = []
+_ACTIVE = False
+_LOCK = threading.RLock()
+
+
+def _activate() -> None:
+    """Import numba, make the dispatcher of every :class:`LazyKernel` made so far, and put each
+    dispatcher (and ``numba.prange`` for :func:`prange`) in place of the lazy object in every
+    module's globals and in the kernels' closure cells.
+
+    numba reads a kernel's globals when it compiles it, and inlines a called kernel
+    (``inline="always"``) only when that global is the dispatcher itself: so every kernel is
+    made here at once, before any is compiled (the cost of making them is what importing
+    the kernel modules cost before: ~1 ms each)."""
+    global _ACTIVE
+    with _LOCK:  # two threads calling their first kernels: one makes them all, the other waits
+        if _ACTIVE:
+            return
+        import numba
+
+        _numba_cache_classes()
+        pending = list(_PENDING)
+        for lazy in pending:
+            lazy._disp = _dispatcher(lazy.py_func, lazy._key, lazy._options)
+        # id -> (the object, what replaces it); _nbgeo's own name prange is replaced too
+        swap = {id(lazy): (lazy, lazy._disp) for lazy in pending}
+        swap[id(prange)] = (prange, numba.prange)
+        # exact modules only: a lazy module's subclass may load itself when its __dict__ is read
+        for mod in list(sys.modules.values()):
+            if type(mod) is types.ModuleType:
+                _swap(mod.__dict__, swap)
+        for lazy in pending:
+            for cell in lazy.py_func.__closure__ or ():
+                try:
+                    value = cell.cell_contents
+                except ValueError:  # an empty cell
+                    continue
+                old, new = swap.get(id(value), (None, None))
+                if value is old:
+                    cell.cell_contents = new
+        _PENDING.clear()
+        _ACTIVE = True
+
+
+def _swap(ns: dict, swap: dict) -> None:
+    """In ``ns``, each value that is a key's object of ``swap`` (id -> (object, new)) becomes its new."""
+    for name, value in list(ns.items()):
+        old, new = swap.get(id(value), (None, None))
+        if value is old:
+            ns[name] = new
 
 
 #: The key of this module's kernels: the constants and ellipsoid.py (vermeille's body).

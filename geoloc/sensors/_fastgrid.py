@@ -26,11 +26,10 @@ import math
 import sys
 
 import numpy as np
-from numba import prange
 
 from geoloc import status as _status_module
 from geoloc.geodesy import _nbgeo
-from geoloc.geodesy._nbgeo import cached_njit, dependency_key
+from geoloc.geodesy._nbgeo import cached_njit, dependency_key, prange
 from geoloc.sensors import _fastlocate
 from geoloc.sensors import lenses as _lenses_module
 from geoloc.sensors._fastlocate import _AXIS, _body_to_ned, _mul_T, _turn_back

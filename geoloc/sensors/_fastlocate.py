@@ -57,11 +57,10 @@ import math
 import sys
 
 import numpy as np
-from numba import prange
 
 from geoloc import status as _status_module
 from geoloc.geodesy import _nbgeo
-from geoloc.geodesy._nbgeo import cached_njit, dependency_key, geodetic  # noqa: F401 (geodetic: public helper)
+from geoloc.geodesy._nbgeo import cached_njit, dependency_key, geodetic, prange  # noqa: F401 (geodetic: public helper)
 from geoloc.geodesy.ellipsoid import E2, A, B
 from geoloc.sensors import lenses as _lenses_module
 from geoloc.sensors.lenses import (

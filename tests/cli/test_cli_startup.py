@@ -1,4 +1,5 @@
-"""The command line answers at once: ``geoloc --help`` imports no verb, ``geoloc VERB`` only its own.
+"""The command line answers at once: ``geoloc --help`` imports no verb, ``geoloc VERB`` only its own,
+and a one-pixel ``geoloc locate`` no numba, scipy, pyproj or rasterio.
 
 Each verb's one-line help lives in :data:`geoloc.cli.VERB_HELP`, which its ``register`` reads;
 the help lists the verbs from it with their modules unimported. What a command imports is read
@@ -42,6 +43,21 @@ def test_a_verb_imports_its_own_module_only():
     assert "geoloc.cli.locate" in mods
     # its module and the shared options, no other verb
     assert [m for m in mods if m.startswith("geoloc.cli.")] == ["geoloc.cli._options", "geoloc.cli.locate"], mods
+
+
+#: bench_startup.py's one-pixel locate (the docs' first example): one ray, the numpy path.
+ONE_PIXEL = [
+    "locate", "--lat-deg", "35.48", "--lon-deg", "80.97", "--h-m", "18000", "--heading-deg", "45",
+    "--pitch-deg", "3.5", "--gimbal-roll-deg", "50", "--gimbal-pitch-deg", "-2.6", "--target-h-m", "5083.5", "--json",
+]  # fmt: skip
+
+
+def test_a_one_pixel_locate_imports_nothing_heavy():
+    # one ray is below sensors.base.COMPILED_MIN_RAYS: no kernel is called, so numba (a quarter
+    # of a second, and scipy with it) is not imported, nor PROJ, GDAL or a plot library
+    mods = _imported_after(ONE_PIXEL)
+    assert [m for m in mods if not m.startswith("geoloc.")] == [], mods
+    assert "geoloc.cli.locate" in mods
 
 
 def test_the_help_lines_are_the_verbs_own():
