@@ -139,13 +139,14 @@ def locate(
     check_outside(outside)
     s = as_sensor(sensor)
     surface = HeightSurface(target_h, height_kind)
-    from geoloc.sensors import _fastlocate
+    if engine == "numba":
+        from geoloc.sensors import _fastlocate
 
-    if engine == "numba" and not (height_kind == "inflated" and _fastlocate.serves(s)):
-        raise ValueError(
-            "engine='numba' needs height_kind='inflated' and a sensor the kernel serves "
-            "(one lens, no per-sample perturbation)"
-        )
+        if not (height_kind == "inflated" and _fastlocate.serves(s)):
+            raise ValueError(
+                "engine='numba' needs height_kind='inflated' and a sensor the kernel serves "
+                "(one lens, no per-sample perturbation)"
+            )
     row, col = _default_pixel(s, row, col)
     return Pipeline(s, surface, corrections).locate(row, col, pose, outside=outside, engine=engine)
 

@@ -114,14 +114,17 @@ class Corrections:
             An unknown refraction model, a correction asked of an RPC, or aberration asked of
             a sensor whose lines of sight carry no velocity, each named.
         """
-        from geoloc.corrections.refraction import STANDARD_REFRACTION, Refraction
-
         if isinstance(refraction, str):
             if refraction not in REFRACTION_MODELS:
                 raise ValueError(f"refraction = {refraction!r}: must be one of {list(REFRACTION_MODELS)}")
-            refraction = STANDARD_REFRACTION if refraction == "standard" else None
-        elif refraction is not None and not isinstance(refraction, Refraction):
-            raise ValueError(f"refraction = {refraction!r}: must be 'none', 'standard' or a Refraction")
+            refraction = None if refraction == "none" else refraction
+        if refraction is not None:  # its module (kernels, atmosphere) is imported only when asked for
+            from geoloc.corrections.refraction import STANDARD_REFRACTION, Refraction
+
+            if isinstance(refraction, str):  # "standard", the one model left
+                refraction = STANDARD_REFRACTION
+            elif not isinstance(refraction, Refraction):
+                raise ValueError(f"refraction = {refraction!r}: must be 'none', 'standard' or a Refraction")
         space = bool(getattr(sensor, "spaceborne", False))
         lt = space if light_time is None else bool(light_time)
         ab = space if aberration is None else bool(aberration)
@@ -206,9 +209,6 @@ def refraction_model(
     """The refraction of ``name`` (``"none"``, ``"standard"``, or a Refraction), its standard
     atmosphere fitted to ``ground`` (``ground_h_m``, ``ground_p_pa``, ``ground_t_k``: a measured
     ground pressure and temperature; ``StandardAtmosphere``) when given. Errors name ``source``."""
-    from geoloc.corrections.atmosphere import StandardAtmosphere
-    from geoloc.corrections.refraction import Refraction
-
     ground = {k: float(v) for k, v in (ground or {}).items() if v is not None}
     if not ground or not isinstance(name, str):
         return name
@@ -217,6 +217,9 @@ def refraction_model(
             f"{source}: {', '.join(sorted(ground))} given, but refraction = {name!r}: the ground "
             'measurement fits the standard atmosphere (refraction = "standard")'
         )
+    from geoloc.corrections.atmosphere import StandardAtmosphere
+    from geoloc.corrections.refraction import Refraction  # imported only when one is made
+
     try:
         return Refraction(StandardAtmosphere(**ground))
     except ValueError as e:
@@ -311,14 +314,14 @@ class Pipeline:
 
     def _fused(self, row, col, state, engine, outside):
         """The fused chain-and-ellipsoid kernel's results, when it serves this pipeline and batch, else None."""
-        from geoloc.sensors import _fastlocate
-
         surf = self.surface
         if engine == "numpy" or type(surf) is not HeightSurface or surf.kind != "inflated":
             return None
-        if self.corrections.aberration or self.corrections.light_time or not _fastlocate.serves(self.sensor):
-            return None
         if engine == "auto" and state.batch_size(row, col, surf.h) < COMPILED_MIN_RAYS:
+            return None  # a small batch: the kernel module is not even imported
+        from geoloc.sensors import _fastlocate
+
+        if self.corrections.aberration or self.corrections.light_time or not _fastlocate.serves(self.sensor):
             return None
         return _fastlocate.locate_fast(
             state, self.sensor, row, col, surf.h, outside=outside, refraction_m=self.corrections.refraction is None

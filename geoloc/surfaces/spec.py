@@ -124,11 +124,12 @@ class SurfaceSpec:
         FileNotFoundError, ValueError
             From the DEM's opener, naming the file.
         """
-        from geoloc.surfaces.mosaic import open_dem_or_mosaic
         from geoloc.surfaces.terrain import surface_for
 
         names = self._dem_names()
         if names is not None:
+            from geoloc.surfaces.mosaic import open_dem_or_mosaic  # a start-up cost a height does not need
+
             mosaic = {} if self.cache_bytes is None else {"cache_bytes": int(self.cache_bytes)}
             source = list(names) if isinstance(names, tuple) else Path(names)
             dem = open_dem_or_mosaic(
