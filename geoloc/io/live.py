@@ -487,7 +487,9 @@ def receive(
     Notes
     -----
     Stops on any of the conditions, on ``KeyboardInterrupt`` (then returns
-    normally), or never when none is given.
+    normally), or never when none is given. At the end the receiver is flushed
+    (:meth:`LiveReceiver.flush`): what it completes is yielded and given to
+    ``on_batch`` like every other batch.
     """
     u = url if isinstance(url, UdpUrl) else parse_udp_url(url)
     rx = receiver if receiver is not None else LiveReceiver()
@@ -531,11 +533,14 @@ def receive(
         pass
     finally:
         sock.close()
-    for r in rx.flush():
-        if packets is not None and got >= packets:
-            break
-        got += 1
-        yield r
+    # the end of the stream: the held datagram and the PES still open (one with no length field ends only
+    # at the next start on its PID, so the stream's last one is complete only now), to ``on_batch`` as well
+    res = rx.flush()
+    if packets is not None:
+        res = res[: max(packets - got, 0)]
+    if on_batch is not None and res:
+        on_batch(res)
+    yield from res
 
 
 # --------------------------------------------------------------------------- the sender
