@@ -292,3 +292,92 @@ def test_the_legend_on_the_page_names_the_drawn_colours_in_chromium(tmp_path):
         assert cols == {PALETTE[key].rgb} and PALETTE[key].name in words, (key, cols)
     assert "light grey: the ellipsoid hit at H_max" in text and "sky blue track" in text, text
     assert "light blue" not in text
+
+
+# the viewer's other scenes and the rerun recordings: their colours come from the palette's tables
+OTHER_MODULES = ("rerun_style", "scene_limb", "scene_sentinel2", "teaching_panel")
+
+
+@pytest.mark.parametrize("module", OTHER_MODULES)
+def test_no_colour_is_written_outside_the_palette(module):
+    # an sRGB triple written in the module's source (a colour given by hand, not by the table)
+    from pathlib import Path
+
+    import geoloc_viz
+
+    src = (Path(geoloc_viz.__file__).parent / f"{module}.py").read_text()
+    triples = re.findall(r"\(\s*\d{1,3}\s*,\s*\d{1,3}\s*,\s*\d{1,3}\s*(?:,\s*\d{1,3}\s*)?\)", src)
+    assert not triples, f"geoloc_viz/{module}.py: {triples}: give them a meaning in geoloc_viz.palette"
+
+
+def _limb_ramp(n: int) -> set:
+    """The Newton-Raphson iterates' colours as scene_limb draws n of them (g, g, 255 - g // 2)."""
+    from geoloc_viz.palette import LIMB
+
+    g0, g1 = LIMB["nr_first"].rgb[0], LIMB["nr_last"].rgb[0]
+    return {(g, g, 255 - g // 2) for g in (int(g0 + (g1 - g0) * k / max(n - 1, 1)) for k in range(n))}
+
+
+@pytest.mark.parametrize("table", ["flight", "limb", "sentinel2", "teaching", "rerun"])
+def test_no_two_meanings_of_one_table_look_alike(table):
+    # one table's colours can be on screen together (one scene, one recording); the scenes never are
+    from geoloc_viz.palette import TABLES
+
+    colours = TABLES[table][1]
+    same = {frozenset({"ground", "ground_hidden"}), frozenset({"nr_first", "nr_last"})}  # one meaning each
+    close = [
+        f"{a} {ca.rgb} ~ {b} {cb.rgb}: {delta_e(ca.rgb, cb.rgb):.1f}"
+        for (a, ca), (b, cb) in itertools.combinations(colours.items(), 2)
+        if frozenset({a, b}) not in same and delta_e(ca.rgb, cb.rgb) < 10.0
+    ]
+    if table == "limb":  # every iterate of the ramp, for 2 to 12 iterates, against the other meanings
+        for n in range(2, 13):
+            for x in _limb_ramp(n):
+                for k, c in colours.items():
+                    if k not in ("nr_first", "nr_last") and delta_e(x, c.rgb) < 10.0:
+                        close.append(f"iterate {x} ~ {k} {c.rgb}: {delta_e(x, c.rgb):.1f}")
+    assert not close, close
+
+
+def test_the_other_scenes_draw_their_tables_colours():
+    from geoloc_viz import rerun_style, scene_limb, scene_sentinel2, teaching_panel
+    from geoloc_viz.palette import FLIGHT_SERIES, LIMB, RERUN, SENTINEL2, TEACHING
+
+    assert rerun_style.COLORS == {k: (*c.rgb, 255) for k, c in RERUN.items()}
+    assert rerun_style.FLIGHT_COLORS == FLIGHT_SERIES
+    assert scene_limb.REFRACTED_COLOR == LIMB["refracted"].rgb
+    got = (scene_sentinel2.LOS_COLOR, scene_sentinel2.SWATH_COLOR, scene_sentinel2.FOOTPRINT_COLOR)
+    assert got == tuple(SENTINEL2[k].rgb for k in ("los", "swath", "footprint"))
+    assert scene_sentinel2.OTHER_FOOTPRINT_COLOR == SENTINEL2["other_footprint"].rgb
+    assert scene_sentinel2.EARTH_COLOR == SENTINEL2["earth"].rgb
+    assert teaching_panel.HIGHLIGHT == {"src": TEACHING["src"].rgb, "dst": TEACHING["dst"].rgb}
+    assert teaching_panel.VECTOR_COLOR == TEACHING["vector"].rgb
+    # the limb legend names what it draws by the table's words (each bold item starts with one)
+    from types import SimpleNamespace
+
+    from geoloc.status import Status
+
+    for ok, lref, status in ((True, object(), Status.OK), (False, None, Status.HITS_EARTH)):
+        me = SimpleNamespace(exaggeration=1.0, offset_exaggeration=1.0, lref=lref, tan=SimpleNamespace(status=status))
+        items = _bold_words(scene_limb.LimbApp.legend_markdown(me, ok))  # type: ignore[arg-type]
+        names = {c.name for c in LIMB.values()}
+        assert items and all(any(w.startswith(nm) for nm in names) for w in items), items
+
+
+def test_every_colour_name_names_one_colour_in_all_tables():
+    from geoloc_viz.palette import TABLES
+
+    by_name: dict = {}
+    for _, table in TABLES.values():
+        for c in table.values():
+            by_name.setdefault(c.name, set()).add(c.rgb)
+    assert all(len(v) == 1 for v in by_name.values()), {k: v for k, v in by_name.items() if len(v) > 1}
+
+
+def test_the_docs_colour_tables_are_the_palettes():
+    from pathlib import Path
+
+    from geoloc_viz.palette import colour_tables_markdown
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "viz.md").read_text()
+    assert colour_tables_markdown() in doc, "docs/viz.md: regenerate with python -m geoloc_viz.palette"

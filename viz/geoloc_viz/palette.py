@@ -91,6 +91,93 @@ PALETTE: dict[str, Colour] = {
 }
 
 
+#: The limb scene (``geoloc_viz.scene_limb``, ``geoloc view --limb``): meaning -> colour. Its legend
+#: (:meth:`geoloc_viz.scene_limb.LimbApp.legend_markdown`) names each by this table's word.
+LIMB: dict[str, Colour] = {
+    "earth": Colour("dark blue", (40, 90, 170), "the Earth: WGS-84 ellipsoid, h = 0 (a patch)", "`/limb/earth`"),
+    "earth_section": Colour(
+        "light blue", (120, 170, 255), "the Earth's section under the line of sight", "`/limb/earth_section`"
+    ),
+    "virtual": Colour(
+        "orange",
+        (255, 170, 60),
+        "the virtual ellipsoid of [L18] eq. 13 (translucent) and its section",
+        "`/limb/virtual`, `/limb/virtual_section`",
+    ),
+    # the Newton-Raphson iterates are a ramp (g, g, 255 - g // 2), g from 80 to 230: first and last here
+    "nr_first": Colour("slate blue", (80, 80, 215), "the first Newton-Raphson iterate of eq. 17", "`/limb/nr/*`"),
+    "nr_last": Colour("pale khaki", (230, 230, 140), "the last Newton-Raphson iterate of eq. 17", "`/limb/nr/*`"),
+    "spacecraft": Colour(
+        "white", (255, 255, 255), "the spacecraft and 60 s of its velocity", "`/limb/spacecraft`, `/limb/velocity`"
+    ),
+    "los": Colour("yellow", (255, 210, 0), "the line of sight", "`/limb/los`"),
+    "tangent": Colour("deep orange", (255, 120, 0), "the [L18] tangent point (eq. 21-26)", "`/limb/tangent`"),
+    "exact": Colour("green", (20, 220, 90), "the exact minimum-height point", "`/limb/exact`"),
+    "refracted": Colour("lime", (170, 255, 0), "the refracted tangent point", "`/limb/refracted`"),
+    "earth_hit": Colour(
+        "light red", (255, 60, 60), "where the line of sight meets the Earth (no tangent)", "`/limb/earth_hit`"
+    ),
+}
+
+#: The Sentinel-2 scene (``geoloc_viz.scene_sentinel2``, ``geoloc view --sentinel2``): meaning -> colour.
+SENTINEL2: dict[str, Colour] = {
+    "earth": Colour("dark blue", (40, 90, 170), "the Earth: WGS-84 ellipsoid (a patch)", "`/s2/earth`"),
+    "orbit": Colour("near white", (250, 250, 250), "the datastrip's orbit", "`/s2/orbit`"),
+    "los": Colour("yellow", (255, 210, 0), "the chosen line's lines of sight", "`/s2/los/*`"),
+    "swath": Colour("deep orange", (255, 120, 0), "the chosen line's ground", "`/s2/swath`"),
+    "footprint": Colour("hot pink", (255, 60, 200), "the chosen detector's footprint", "`/s2/footprints/*`"),
+    "other_footprint": Colour("pale cyan", (120, 220, 255), "the other detectors' footprints", "`/s2/footprints/*`"),
+}
+
+#: The teaching panel (``geoloc_viz.teaching_panel``, the frame chain drawn apart): meaning -> colour.
+TEACHING: dict[str, Colour] = {
+    "src": Colour("magenta", (255, 0, 255), "the chosen hop's source frame", "`/enu/teach/row/*`"),
+    "dst": Colour("bright cyan", (0, 255, 255), "the chosen hop's destination frame", "`/enu/teach/row/*`"),
+    "vector": Colour("yellow", (255, 210, 0), "the vector carried along the chain", "`/enu/teach/row/*/vector`"),
+    "leader": Colour("silver", (200, 200, 200), "the leader from the row to the aircraft", "`/enu/teach/leader`"),
+    "earth": Colour("navy", (30, 50, 150), "the Earth (translucent, to scale) of an ECEF hop", "`/enu/teach/*/earth`"),
+    "aircraft": Colour("red", (255, 40, 40), "the aircraft beside the Earth to scale", "`/enu/teach/*/aircraft`"),
+    "normal": Colour("white", (255, 255, 255), "the ellipsoid normal of [Q17]'s frames", "`/enu/teach/*/q17/normal`"),
+}
+
+#: The rerun recordings (``geoloc log``, ``geoloc_viz.rerun_log`` and ``rerun_terrain``): meaning -> colour
+#: (RGB; the recordings add alpha 255). The track and the published points take the viewer's colours of
+#: the same meanings (they were grey (200, 200, 200), 8.5 from the aircraft's (235, 235, 240), and blue
+#: (80, 160, 255), 9.7 from the iterations below the terrain: CIEDE2000 under 10, one colour to the eye).
+RERUN: dict[str, Colour] = {
+    "los": Colour("amber", (255, 200, 40), "line of sight", "`*/los`"),
+    "target": Colour("light red", (255, 60, 60), "the recomputed target", "`*/target`"),
+    "truth": Colour("leaf green", (60, 220, 90), "the surveyed truth", "`*/truth`"),
+    "published": Colour("violet", (180, 80, 255), "the published or reported position", "`*/published`"),
+    "track": Colour("sky blue", (90, 200, 255), "the flight's track", "`*/track`"),
+    "footprint": Colour("salmon", (255, 140, 140), "the footprints", "`*/footprint`"),
+    "aircraft": Colour("ghost white", (235, 235, 240), "the aircraft", "`*/aircraft`"),
+    "above": Colour("light orange", (255, 150, 40), "a terrain iteration above the terrain", "`*/iterations`"),
+    "below": Colour("cornflower", (70, 130, 255), "a terrain iteration below the terrain", "`*/iterations`"),
+}
+
+#: One hue per flight in the rerun recordings' time-series views (matplotlib's tab10 blue, orange, green,
+#: red, purple, brown; each series of a view a shade of its flight's hue, ``rerun_style.series_color``).
+FLIGHT_SERIES: tuple[tuple[int, int, int], ...] = (
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+)
+
+#: Every table: its title and meanings. Colours of one table can be on screen together (their meanings
+#: differ by CIEDE2000 10 or more, ``tests/viz/test_viz_colours.py``); the scenes are never drawn together.
+TABLES: dict[str, tuple[str, dict[str, Colour]]] = {
+    "flight": ("the flight debugger (`geoloc view`)", PALETTE),
+    "limb": ("the limb scene (`geoloc view --limb`)", LIMB),
+    "sentinel2": ("the Sentinel-2 scene", SENTINEL2),
+    "teaching": ("the teaching panel (drawn in the flight debugger)", TEACHING),
+    "rerun": ("the rerun recordings (`geoloc log`)", RERUN),
+}
+
+
 def rgb(key: str) -> tuple[int, int, int]:
     """The sRGB colour (0-255) of meaning ``key``."""
     return PALETTE[key].rgb
@@ -101,24 +188,39 @@ def word(key: str) -> str:
     return f"**{PALETTE[key].name}**"
 
 
-def colour_table_markdown() -> str:
-    """The colour table of ``docs/viz.md``: meaning, scene nodes, name, RGB (one row per meaning)."""
+def colour_table_markdown(table: str = "flight") -> str:
+    """A colour table of ``docs/viz.md``: meaning, scene nodes, name, RGB (one row per meaning).
+
+    ``table``: a key of :data:`TABLES` (default the flight debugger's, :data:`PALETTE`).
+    """
     rows = ["| meaning | scene nodes | colour | sRGB |", "|---|---|---|---|"]
-    for c in PALETTE.values():
+    for c in TABLES[table][1].values():
         rows.append(f"| {c.meaning} | {c.nodes} | {c.name} | {c.rgb[0]}, {c.rgb[1]}, {c.rgb[2]} |")
     return "\n".join(rows) + "\n"
 
 
+def colour_tables_markdown() -> str:
+    """Every table of :data:`TABLES`, each under a line naming where it is drawn (``docs/viz.md``)."""
+    return "\n".join(f"Colours of {title}:\n\n{colour_table_markdown(key)}" for key, (title, _) in TABLES.items())
+
+
+def rgba(table: dict[str, Colour], key: str) -> tuple[int, int, int, int]:
+    """``table[key]``'s colour with alpha 255 (rerun's colours)."""
+    r, g, b = table[key].rgb
+    return (r, g, b, 255)
+
+
 def _check_unique() -> None:
-    """One name per colour and one colour per name (a legend word must name one colour)."""
+    """One name per colour and one colour per name, over every table (a legend word must name one colour)."""
     by_name: dict[str, tuple[int, int, int]] = {}
-    for key, c in PALETTE.items():
-        if by_name.setdefault(c.name, c.rgb) != c.rgb:
-            raise ValueError(f"palette: colour name {c.name!r} of {key!r} names two colours")
+    for tk, (_, table) in TABLES.items():
+        for key, c in table.items():
+            if by_name.setdefault(c.name, c.rgb) != c.rgb:
+                raise ValueError(f"palette: colour name {c.name!r} of {tk} {key!r} names two colours")
 
 
 _check_unique()
 
 
-if __name__ == "__main__":  # the table of docs/viz.md: python -m geoloc_viz.palette
-    print(colour_table_markdown(), end="")
+if __name__ == "__main__":  # the tables of docs/viz.md: python -m geoloc_viz.palette
+    print(colour_tables_markdown(), end="")

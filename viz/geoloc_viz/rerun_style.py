@@ -1,21 +1,14 @@
-"""The rerun recordings' palette (one place, for the log and the terrain layers)."""
+"""The rerun recordings' colours (for the log and the terrain layers), from the viewer's colour table."""
 
 import numpy as np
 
-COLORS = {
-    "los": (255, 200, 40, 255),
-    "target": (255, 60, 60, 255),
-    "truth": (60, 220, 90, 255),
-    "published": (80, 160, 255, 255),
-    "track": (200, 200, 200, 255),
-    "footprint": (255, 140, 140, 255),
-    "aircraft": (235, 235, 240, 255),
-    "above": (255, 150, 40, 255),
-    "below": (70, 130, 255, 255),
-}
+from geoloc_viz.palette import FLIGHT_SERIES, RERUN, rgba
 
-#: One hue per flight in the time-series views (matplotlib's tab10 blue, orange, green, red, purple, brown).
-FLIGHT_COLORS = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75))
+#: meaning -> RGBA (:data:`geoloc_viz.palette.RERUN`, alpha 255)
+COLORS = {key: rgba(RERUN, key) for key in RERUN}
+
+#: One hue per flight in the time-series views (:data:`geoloc_viz.palette.FLIGHT_SERIES`).
+FLIGHT_COLORS = FLIGHT_SERIES
 
 
 def series_color(flight: int, k: int = 0, n: int = 1) -> tuple:

@@ -58,6 +58,7 @@ from geoloc.geodesy.ellipsoid import (
 from geoloc.sensors.limb import limb_tangent, line_of_sight_l18
 from geoloc.status import Status, describe
 from geoloc.userfiles import write_bytes, write_text
+from geoloc_viz.palette import LIMB
 from geoloc_viz.scene_geoloc import WORLD_SCALE
 from geoloc.workflows.scenario import load_scenario
 
@@ -79,9 +80,9 @@ CAMERA_NEAR_KM, CAMERA_FAR_KM = 1.0, 2.0e4
 CAMERA_CLEARANCE = 0.1
 #: Marker radii [km] when nothing forces them smaller, and their share of a separation.
 MARKER_KM = {"tangent": 12.0, "exact": 9.0}
-#: The refracted tangent point's marker [km] and colour (lime: the bent ray's colour in the flight scene).
+#: The refracted tangent point's marker [km] and colour (:data:`geoloc_viz.palette.LIMB`).
 REFRACTED_MARKER_KM = 6.0
-REFRACTED_COLOR = (170, 255, 0)
+REFRACTED_COLOR = LIMB["refracted"].rgb
 MARKER_SHARE = 0.4
 
 
@@ -320,32 +321,36 @@ class LimbApp:
                 "/limb/earth",
                 self.w(earth.reshape(-1, 3)).astype(np.float32),
                 faces,
-                color=(40, 90, 170),
+                color=LIMB["earth"].rgb,
                 side="double",
                 cast_shadow=False,
                 receive_shadow=False,
             )
-            self._polyline("/limb/earth_section", self.w(self.section_ecef), (120, 170, 255), 2.0)
+            self._polyline("/limb/earth_section", self.w(self.section_ecef), LIMB["earth_section"].rgb, 2.0)
             if ok:
                 virt = self.drawn_virtual(LA.reshape(-1), LO.reshape(-1))
                 sc.add_mesh_simple(
                     "/limb/virtual",
                     self.w(virt).astype(np.float32),
                     faces,
-                    color=(255, 170, 60),
+                    color=LIMB["virtual"].rgb,
                     opacity=0.25,
                     side="double",
                     cast_shadow=False,
                     receive_shadow=False,
                 )
                 self._polyline(
-                    "/limb/virtual_section", self.w(self.drawn_virtual(*self.section_geodetic)), (255, 170, 60), 3.0
+                    "/limb/virtual_section",
+                    self.w(self.drawn_virtual(*self.section_geodetic)),
+                    LIMB["virtual"].rgb,
+                    3.0,
                 )
                 hist = np.asarray(tan.nr_delta_a_history).reshape(-1)
                 hist = hist[np.isfinite(hist)]
                 sc.remove_by_name("/limb/nr")
+                g0, g1 = LIMB["nr_first"].rgb[0], LIMB["nr_last"].rgb[0]  # a ramp (g, g, 255 - g // 2)
                 for k, dk in enumerate(hist[:-1]):
-                    g = int(80 + 150 * k / max(len(hist) - 1, 1))
+                    g = int(g0 + (g1 - g0) * k / max(len(hist) - 1, 1))
                     self._polyline(
                         f"/limb/nr/iterate_{k}", self.w(self._virtual(self.section_ecef, dk)), (g, g, 255 - g // 2), 1.5
                     )
@@ -354,7 +359,7 @@ class LimbApp:
             sc.add_icosphere(
                 "/limb/spacecraft",
                 radius=25.0,
-                color=(250, 250, 250),
+                color=LIMB["spacecraft"].rgb,
                 position=sp,
                 cast_shadow=False,
                 receive_shadow=False,
@@ -366,19 +371,19 @@ class LimbApp:
             sc.add_arrows(
                 "/limb/velocity",
                 vel.astype(np.float32),
-                (255, 255, 255),
+                LIMB["spacecraft"].rgb,
                 shaft_radius=6.0,
                 head_radius=15.0,
                 head_length=40.0,
             )
-            self._polyline("/limb/los", self.w(self.los_ecef), (255, 210, 0), 3.0)
+            self._polyline("/limb/los", self.w(self.los_ecef), LIMB["los"].rgb, 3.0)
             if ok:
                 r = self.marker_radii_km()
                 off_m = float(np.linalg.norm(tan.exact_ecef - tan.tangent_ecef))
                 sc.add_icosphere(
                     "/limb/tangent",
                     radius=r["tangent"],
-                    color=(255, 120, 0),
+                    color=LIMB["tangent"].rgb,
                     position=self.w(tan.tangent_ecef),
                     cast_shadow=False,
                     receive_shadow=False,
@@ -391,7 +396,7 @@ class LimbApp:
                 sc.add_icosphere(
                     "/limb/exact",
                     radius=r["exact"],
-                    color=(20, 220, 90),
+                    color=LIMB["exact"].rgb,
                     position=self.w(self.drawn_exact_ecef()),
                     cast_shadow=False,
                     receive_shadow=False,
@@ -431,7 +436,7 @@ class LimbApp:
                     sc.add_icosphere(
                         "/limb/earth_hit",
                         radius=12.0,
-                        color=(255, 60, 60),
+                        color=LIMB["earth_hit"].rgb,
                         position=self.w(tan.earth_hit_ecef),
                         cast_shadow=False,
                         receive_shadow=False,
@@ -513,46 +518,54 @@ class LimbApp:
         return float(np.asarray(self.lref.refracted_tangent_h_m).reshape(-1)[0])
 
     def legend_markdown(self, ok: bool) -> str:
-        """The legend of what this frame draws (the colours of :meth:`draw`), one line each."""
+        """The legend of what this frame draws (the colours of :meth:`draw`, named by the colour table
+        :data:`geoloc_viz.palette.LIMB`), one line each."""
+
+        def n(key: str) -> str:
+            return LIMB[key].name
+
         rows = [
             (
-                "blue",
-                "the Earth: WGS-84 ellipsoid, h = 0 (a 30 x 30 deg patch); light blue line: its "
+                n("earth"),
+                f"the Earth: WGS-84 ellipsoid, h = 0 (a 30 x 30 deg patch); {n('earth_section')} line: its "
                 "section under the line of sight",
             )
         ]
         if ok:
             rows += [
                 (
-                    "orange, translucent",
+                    f"{n('virtual')}, translucent",
                     f"the virtual ellipsoid of [L18] eq. 13 (same flattening, a + Delta a; "
-                    f"its departure from a shell drawn x{self.exaggeration:g}); orange line: its section",
+                    f"its departure from a shell drawn x{self.exaggeration:g}); {n('virtual')} line: its section",
                 ),
                 (
-                    "blue to lilac lines",
+                    f"{n('nr_first')} to {n('nr_last')} lines",
                     "the Newton-Raphson iterates of eq. 17 (their virtual ellipsoids' "
                     "sections), converging onto the tangent one",
                 ),
             ]
-        rows += [("white ball and arrow", "the spacecraft and 60 s of its velocity"), ("yellow", "the line of sight")]
+        rows += [
+            (f"{n('spacecraft')} ball and arrow", "the spacecraft and 60 s of its velocity"),
+            (n("los"), "the line of sight"),
+        ]
         if ok:
             rows += [
-                ("orange ball", "the [L18] tangent point (eq. 21-26)"),
+                (f"{n('tangent')} ball", "the [L18] tangent point (eq. 21-26)"),
                 (
-                    "green ball",
+                    f"{n('exact')} ball",
                     f"the exact minimum-height point (drawn x{self.offset_exaggeration:g} farther along the line)",
                 ),
             ]
             if self.lref is not None:
                 rows.append(
                     (
-                        "lime ball",
+                        f"{n('refracted')} ball",
                         "the refracted tangent point: the lowest point of the ray bent through "
                         "the U.S. Standard Atmosphere 1976 (true position)",
                     )
                 )
         elif int(self.tan.status) == int(Status.HITS_EARTH):
-            rows.append(("red ball", "where the line of sight meets the Earth (no tangent)"))
+            rows.append((f"{n('earth_hit')} ball", "where the line of sight meets the Earth (no tangent)"))
         return "\n".join(f"- **{c}**: {w}" for c, w in rows) + "\n\nscene: local ENU at the exact tangent's foot, km"
 
     def _polyline(self, name, pts, color, thickness):

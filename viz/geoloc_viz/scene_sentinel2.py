@@ -38,6 +38,7 @@ from geoloc.io.sentinel2 import Sentinel2Product, band_info, detector_id, read_p
 from geoloc.pipeline import Corrections, Pipeline
 from geoloc.sensors.pushbroom_inertial import InertialPushbroomSensor
 from geoloc.surfaces.height import HeightSurface
+from geoloc_viz.palette import SENTINEL2
 from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
 
 #: body frames drawn along the datastrip, and the length of their axes [km]
@@ -46,9 +47,10 @@ ATTITUDE_AXES_KM, SATELLITE_AXES_KM = 40.0, 90.0
 #: the Earth patch around the scene origin [deg] and its nodes per side
 EARTH_HALF_DEG, EARTH_NODES = 3.0, 41
 #: colours: lines of sight, the line's ground, the chosen detector's footprint, the others'
-LOS_COLOR, SWATH_COLOR = (255, 210, 0), (255, 120, 0)
-FOOTPRINT_COLOR, OTHER_FOOTPRINT_COLOR = (255, 60, 200), (120, 220, 255)
-EARTH_COLOR = (40, 90, 170)
+#: (:data:`geoloc_viz.palette.SENTINEL2`)
+LOS_COLOR, SWATH_COLOR = SENTINEL2["los"].rgb, SENTINEL2["swath"].rgb
+FOOTPRINT_COLOR, OTHER_FOOTPRINT_COLOR = SENTINEL2["footprint"].rgb, SENTINEL2["other_footprint"].rgb
+EARTH_COLOR = SENTINEL2["earth"].rgb
 #: camera near and far planes [km]: the satellite is 790 km above the ground it looks at
 CAMERA_NEAR_KM, CAMERA_FAR_KM = 1.0, 2.0e4
 
@@ -174,7 +176,7 @@ class Sentinel2App:
             )
             t = np.linspace(s.orbit.span[0], s.orbit.span[1], 200)
             p, _ = s.orbit.state(t)
-            self._polyline("/s2/orbit", self.w(p), (250, 250, 250), 2.0)
+            self._polyline("/s2/orbit", self.w(p), SENTINEL2["orbit"].rgb, 2.0)
             ta = s.line_time(np.linspace(1.0, s.rows, N_ATTITUDE))
             pa, _ = s.orbit.state(ta)
             R = self.R_ecef_body(ta)

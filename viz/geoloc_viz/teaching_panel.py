@@ -14,7 +14,7 @@ gimbal preset, and shows:
   other), every axis labelled ``x <frame>``, ``y <frame>``,
   ``z <frame>``, the vector drawn from each frame's origin with its coordinates
   in that frame; the chosen hop ``T_dst_src`` highlights the source (magenta)
-  and the destination (cyan) frames;
+  and the destination (bright cyan) frames;
 - ECEF as an inset globe (the Earth scaled to a few km, ECEF axes, the aircraft
   marked, the vector drawn there too), with the [Q17] eq. 5 intermediate frames
   when the hop is ``T_ecef_ned`` (only then is the factor block shown);
@@ -47,12 +47,13 @@ import numpy as np
 
 from geoloc.geodesy.ellipsoid import A
 from geoloc_viz import teaching
+from geoloc_viz.palette import TEACHING
 from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
 
 ROOT = "/enu/teach"
 #: Highlight colours (RGB): the hop's source and destination frames.
-HIGHLIGHT = {"src": (255, 0, 255), "dst": (0, 255, 255)}
-VECTOR_COLOR = (255, 210, 0)
+HIGHLIGHT = {"src": TEACHING["src"].rgb, "dst": TEACHING["dst"].rgb}
+VECTOR_COLOR = TEACHING["vector"].rgb
 NONE = "(none)"
 PIXEL = "pixel ray (row, column)"
 TYPED = "typed vector"
@@ -185,7 +186,7 @@ class TeachingPanel:
                 "teaching hop",
                 [NONE] + self.hop_keys,
                 initial_value="T_ned_body" if "T_ned_body" in self.hop_keys else NONE,
-                hint="T_dst_src: source frame magenta, destination cyan",
+                hint=f"T_dst_src: source frame {TEACHING['src'].name}, destination {TEACHING['dst'].name}",
             )
             self.bt_hops = gui.add_button_group("step hop", ["previous hop", "next hop"])
             self.dd_vec = gui.add_dropdown("vector", [PIXEL, TYPED], initial_value=PIXEL)
@@ -385,7 +386,7 @@ class TeachingPanel:
             lambda: sc.add_line_segments(
                 f"{ROOT}/leader",
                 np.array([[[0, 0, 0], [0, 0, (LIFT - 3.0) * U]]], np.float32),
-                (200, 200, 200),
+                TEACHING["leader"].rgb,
                 thickness=1.5,
                 thickness_units="screen",
             ),
@@ -479,7 +480,7 @@ class TeachingPanel:
             lambda: sc.add_icosphere(
                 name + "/earth",
                 radius=R,
-                color=(30, 50, 150),
+                color=TEACHING["earth"].rgb,
                 subdivisions=3,
                 opacity=0.55,
                 scale=(1.0, 1.0, 1.0),
@@ -516,7 +517,7 @@ class TeachingPanel:
             h = sc.add_icosphere(
                 name + "/aircraft",
                 radius=0.08 * U,
-                color=(255, 40, 40),
+                color=TEACHING["aircraft"].rgb,
                 position=p_in,
                 cast_shadow=False,
                 receive_shadow=False,
@@ -561,7 +562,7 @@ class TeachingPanel:
             sc.add_line_segments(
                 name + "/q17/normal",
                 np.array([[pv, p_in]], np.float32),
-                (255, 255, 255),
+                TEACHING["normal"].rgb,
                 thickness=1.5,
                 thickness_units="screen",
             )
@@ -576,7 +577,10 @@ class TeachingPanel:
                     parts.append(f"`T_ecef_{f}` (partial product):\n```\n{teaching.fmt_matrix(chain.T_ecef(f))}\n```\n")
             self.md_hop.content = "\n".join(parts)
         else:
-            self.md_hop.content = "Choose a hop: its source frame is drawn magenta, its destination cyan."
+            self.md_hop.content = (
+                f"Choose a hop: its source frame is drawn {TEACHING['src'].name}, "
+                f"its destination {TEACHING['dst'].name}."
+            )
         self.md_vec.content = teaching.vector_markdown(chain, v, vframe, hop, what=what)
         if hop == "T_ecef_ned":
             frames = "\n".join(f"- {t}" for t, _ in teaching.q17_intermediate_frames(chain))
