@@ -81,3 +81,62 @@ def test_the_screenshot_tool_makes_both_views(tmp_path):
     r, g, b = (imgs[2][160:, :680, k] for k in range(3))
     earth = float(((b > r + 50) & (b > g + 25) & (r < 110)).mean())
     assert 0.15 < earth < 0.9, earth
+
+
+STAMPS = ROOT / "docs" / "img" / "palette_stamps.json"
+
+
+def test_every_docs_picture_is_stamped_with_the_colours_it_shows():
+    """Each picture of docs/img records the viewer's colour tables it shows (``geoloc_viz.palette``) and
+    their digest when it was taken. A colour changed since makes its digest differ: the picture fails
+    here, named with the tool that retakes it, until it is retaken (and its stamp set to the new digest)
+    or listed as not yet retaken (digest null, the "stale" list below, which may only shrink)."""
+    import json
+
+    from geoloc_viz.palette import TABLES, tables_digest
+
+    stamps = json.loads(STAMPS.read_text(encoding="utf-8"))
+    pictures = sorted(p.name for p in (ROOT / "docs" / "img").glob("*.png"))
+    assert sorted(stamps) == pictures, set(stamps) ^ set(pictures)
+    changed = []
+    for name, s in stamps.items():
+        assert s["tables"] and set(s["tables"]) <= set(TABLES), (name, s["tables"])
+        if s["digest"] is not None and s["digest"] != tables_digest(*s["tables"]):
+            changed.append(
+                f"{name}: the {', '.join(s['tables'])} colours changed since it was taken; retake it ({s['made_by']})"
+            )
+    assert not changed, "\n".join(changed)
+
+
+# pictures taken before a colour change they show, not yet retaken: this list may only shrink
+STALE = {
+    "flight_debugger.png",
+    "limb_overview.png",
+    "limb_tangent.png",
+    "panel_map.png",
+    "panel_picture.png",
+    "panel_plots.png",
+    "picture_drape.png",
+    "picture_frustum.png",
+    "picture_heading_bias.png",
+    "picture_pixel_pick.png",
+    "rerun_flights.png",
+    "rerun_viewer.png",
+    "teaching_q17_globe.png",
+    "teaching_turret_row.png",
+    "teaching_vector_panel.png",
+    "viewer_flight_test.png",
+    "viewer_limb.png",
+    "viewer_target_rays.png",
+    "viewer_turret.png",
+    "viewer_uncertainty_ellipse.png",
+}
+
+
+def test_the_stale_pictures_are_listed_and_the_list_only_shrinks():
+    import json
+
+    stamps = json.loads(STAMPS.read_text(encoding="utf-8"))
+    stale = {name for name, s in stamps.items() if s["digest"] is None}
+    assert stale <= STALE, f"newly unstamped pictures (retake them instead): {sorted(stale - STALE)}"
+    assert stale == STALE, f"retaken: take them off STALE here: {sorted(STALE - stale)}"

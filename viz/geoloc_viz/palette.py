@@ -210,6 +210,17 @@ def rgba(table: dict[str, Colour], key: str) -> tuple[int, int, int, int]:
     return (r, g, b, 255)
 
 
+def tables_digest(*tables: str) -> str:
+    """A short digest of the named tables' colours (keys and sRGB; names and meanings left out): a
+    picture of the docs records the digest of the tables it shows when it is taken
+    (``docs/img/palette_stamps.json``), so a later colour change names the pictures to retake."""
+    import hashlib
+    import json
+
+    rows = [[t, k, list(c.rgb)] for t in sorted(set(tables)) for k, c in sorted(TABLES[t][1].items())]
+    return hashlib.sha256(json.dumps(rows).encode()).hexdigest()[:16]
+
+
 def _check_unique() -> None:
     """One name per colour and one colour per name, over every table (a legend word must name one colour)."""
     by_name: dict[str, tuple[int, int, int]] = {}
