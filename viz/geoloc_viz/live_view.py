@@ -135,7 +135,6 @@ class LiveFeed:
         self._thread: threading.Thread | None = None
         self._decoder: av.VideoCodecContext | None = None
         self._video_done = 0
-        self._last_pts: int | None = None  # the last access unit's PTS (the parser's flushed unit's)
         self.pictures: deque = deque()  # (serial, pts [90 kHz], RGB uint8 array), PICTURES / PICTURE_BYTES at most
         self._picture_bytes = 0
         self.pictures_total = 0
@@ -225,9 +224,13 @@ class LiveFeed:
     def _decode(self, end: bool = False) -> None:
         """Decode the video access units that came since the last call (newest pictures kept).
 
-        ``end``: the stream ended; the access unit the parser still holds (it hands one out when the next
-        starts) and the pictures the decoder holds back are flushed out (``parse(None)``, then
-        ``decode(None)``: FFmpeg's draining), or the stream's last frames would never have a picture.
+        Each video PES of the stream is one access unit (ISO/IEC 13818-1 Section 2.4.3.7; the
+        demultiplexer completes a PES at the next one's start): it goes to the decoder whole, as a
+        packet carrying its own PTS, so each picture comes out with its unit's time stamp. (FFmpeg's
+        parser, given the units' bytes, hands a unit out only when the next one starts: its pictures
+        were stamped with the next unit's time, one frame late.) ``end``: the stream ended; the
+        pictures the decoder holds back are drained (``decode(None)``), or the stream's last frames
+        would never have a picture.
         """
         import av
 
@@ -237,31 +240,30 @@ class LiveFeed:
             return
         self._video_done = self.rx.stats.video_units
         units = list(video)[-min(n_new, len(video)) :] if n_new > 0 else []
-        try:
-            if self._decoder is None:
-                from geoloc.io.ts_demux import _STREAM_TYPES_VIDEO
+        for pts, data, _pid in units:
+            if data is None:
+                continue
+            try:
+                if self._decoder is None:
+                    from geoloc.io.ts_demux import _STREAM_TYPES_VIDEO
 
-                stype = self.rx.demux.streams.get(units[0][2], ("video", 0x1B))[1]
-                ctx = av.CodecContext.create(_STREAM_TYPES_VIDEO.get(stype, "h264"), "r")
-                if not isinstance(ctx, av.VideoCodecContext):  # a video stream type names a video codec
-                    raise ValueError(f"stream type 0x{stype:02x}: codec {ctx.name} is not a video decoder")
-                self._decoder = ctx
-            for pts, data, _pid in units:
-                if data is None:
-                    continue
-                self._last_pts = pts
-                for pkt in self._decoder.parse(data):
-                    pkt.pts = pts
-                    self._pictures(self._decoder.decode(pkt), pts)
-            if end and self._decoder is not None:  # the parser's last access unit, the decoder's held frames
-                for pkt in self._decoder.parse(None):
-                    pkt.pts = self._last_pts
-                    self._pictures(self._decoder.decode(pkt), self._last_pts)
-                self._pictures(self._decoder.decode(None), self._last_pts)
-        except (av.error.FFmpegError, ValueError) as e:  # a broken access unit: the next key frame recovers
-            self.decode_errors += 1
-            if "codec" in str(e).lower():
-                self._decoder = None
+                    stype = self.rx.demux.streams.get(units[0][2], ("video", 0x1B))[1]
+                    ctx = av.CodecContext.create(_STREAM_TYPES_VIDEO.get(stype, "h264"), "r")
+                    if not isinstance(ctx, av.VideoCodecContext):  # a video stream type names a video codec
+                        raise ValueError(f"stream type 0x{stype:02x}: codec {ctx.name} is not a video decoder")
+                    self._decoder = ctx
+                pkt = av.Packet(data)
+                pkt.pts = pts
+                self._pictures(self._decoder.decode(pkt), pts)
+            except (av.error.FFmpegError, ValueError) as e:  # a broken access unit: the next key frame recovers
+                self.decode_errors += 1
+                if "codec" in str(e).lower():
+                    self._decoder = None
+        if end and self._decoder is not None:  # the pictures the decoder holds back (reordering, threads)
+            try:
+                self._pictures(self._decoder.decode(None), None)
+            except (av.error.FFmpegError, ValueError):
+                self.decode_errors += 1
 
     def _pictures(self, frames, pts) -> None:
         """Keep decoded video frames (``pts``: the access unit's, for a frame without its own)."""
