@@ -51,6 +51,7 @@ import errno
 import ipaddress
 import os
 import socket
+import struct
 import sys
 import time
 from collections import deque
@@ -102,8 +103,13 @@ RESTART_BACK_S = 5.0
 #: A datagram that does not continue its streams' counters waits at most this long for the one
 #: before it (two swapped datagrams are put back in order) [s].
 REORDER_S = 0.1
-#: No datagram for longer than this, then one: a stall, counted [s].
+#: No datagram for longer than this, then one: a stall, counted [s] (on the kernel's arrival times where
+#: the socket gives them, so a receiver busy with a backlog neither hides a stall nor makes one).
 STALL_S = 1.0
+#: Linux's SO_TIMESTAMPNS (= SCM_TIMESTAMPNS, asm-generic/socket.h): each datagram's arrival time in its
+#: ancillary data, a struct timespec of CLOCK_REALTIME (Python's socket module does not name it).
+_SO_TIMESTAMPNS = 35
+_TIMESPEC = struct.Struct("@qq")
 
 
 # --------------------------------------------------------------------------- addresses
@@ -233,6 +239,7 @@ def open_socket(url: UdpUrl, rcvbuf: int = 4 << 20) -> socket.socket:
         except OSError:
             pass
         sock.bind((url.host, url.port))
+        _arrival_stamps(sock)  # from the first datagram queued: the kernel stamps it as it comes
         if url.multicast:
             mreq = socket.inet_aton(url.host) + socket.inet_aton(url.iface)
             sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, mreq)
@@ -355,18 +362,26 @@ class LiveReceiver:
         self.first_datagram_s: float | None = None  # time.monotonic()
         self.first_datagram_unix_s: float | None = None  # time.time(), to compare with other clocks
         self.last_datagram_s: float | None = None
+        self.last_arrival_s: float | None = None  # time.monotonic() clock, the kernel's arrival time if known
         self._last_klv_pts: int | None = None
 
-    def push(self, datagram: bytes, now: float | None = None) -> list:
-        """One datagram; returns the KLV results it completed."""
+    def push(self, datagram: bytes, now: float | None = None, arrived: float | None = None) -> list:
+        """One datagram; returns the KLV results it completed.
+
+        ``now``: when it is taken [s, ``time.monotonic()``]; ``arrived``: when it reached this machine, on
+        the same clock (the kernel's time stamp, :func:`receive`), default ``now``. Stalls are counted on
+        arrival times: a receiver that falls behind reads queued datagrams back to back, and a gap in
+        the stream would not show in the times it takes them."""
         now = time.monotonic() if now is None else now
+        arrived = now if arrived is None else arrived
         st = self.stats
         if self.first_datagram_s is None:
             self.first_datagram_s = now
             self.first_datagram_unix_s = time.time()
-        elif self.last_datagram_s is not None and now - self.last_datagram_s > STALL_S:
+        elif self.last_arrival_s is not None and arrived - self.last_arrival_s > STALL_S:
             st.stalls += 1
         self.last_datagram_s = now
+        self.last_arrival_s = arrived
         st.datagrams += 1
         st.bytes += len(datagram)
         self.demux.now = now
@@ -444,6 +459,27 @@ class LiveReceiver:
         return out
 
 
+def _arrival_stamps(sock: socket.socket) -> bool:
+    """Ask the kernel for each datagram's arrival time (Linux); False where it cannot give them."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
+    except OSError:
+        return False
+    return True
+
+
+def _arrival(ancillary) -> float | None:
+    """A datagram's arrival time on the ``time.monotonic()`` clock, from its SO_TIMESTAMPNS ancillary data
+    (CLOCK_REALTIME, moved onto the monotonic clock by their offset now); None without one."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(data)
+            return time.monotonic() - (time.time() - (sec + nsec * 1e-9))
+    return None
+
+
 def receive(
     url: str | UdpUrl,
     *,
@@ -499,6 +535,7 @@ def receive(
             (announce or (lambda m: print(m, file=sys.stderr, flush=True)))(note)
         sock = open_socket(u)
     sock.settimeout(poll_s)
+    stamped = _arrival_stamps(sock)
     t0 = time.monotonic()
     got = 0
     buf = bytearray(65536)
@@ -511,8 +548,13 @@ def receive(
                 break
             if stop is not None and stop():
                 break
+            arrived = None
             try:
-                n = sock.recv_into(buf)
+                if stamped:
+                    n, anc, _, _ = sock.recvmsg_into([buf], 64)
+                    arrived = _arrival(anc)
+                else:
+                    n = sock.recv_into(buf)
             except socket.timeout:
                 res = rx.tick()  # no datagram: what is due (a stalled stream's held packets)
             except InterruptedError:
@@ -521,7 +563,7 @@ def receive(
                 data = bytes(buf[:n])
                 if record is not None:
                     record(data)
-                res = rx.push(data)
+                res = rx.push(data, arrived=arrived)
             if on_batch is not None and res:
                 on_batch(res)
             for r in res:
