@@ -53,6 +53,11 @@ def main(argv=None) -> int:
             page.wait_for_selector("#geoloc-picture", timeout=60000)
             client = next(iter(server.get_clients().values()))
 
+            def panel_shows_the_picture():
+                """Scroll the panel so the picture is at its top, its numbers below it (under the legend
+                they are out of an 800-pixel window's view)."""
+                page.locator("#geoloc-picture").evaluate("e => e.scrollIntoView({block: 'start'})")
+
             def look(eye, aim, name, settle=3.0):
                 app.move_camera((eye, aim))
                 wait_for(lambda: np.linalg.norm(np.array(client.camera.position) - eye) < 1e-3, 30, "camera")
@@ -109,6 +114,7 @@ def main(argv=None) -> int:
             page.wait_for_selector("text=latitude", timeout=60000)
             layer.sl_dist.value = 0.25
             time.sleep(1.0)
+            panel_shows_the_picture()
             look(E0 + 0.15 * (A - E0), 0.55 * H + 0.45 * A, "picture_pixel_pick.png")
 
             layer.cb_drape.value = True
@@ -128,6 +134,7 @@ def main(argv=None) -> int:
             layer.sl_dist.value = 0.45
             time.sleep(2.0)
             page.wait_for_selector("text=disagree", timeout=60000)
+            panel_shows_the_picture()
             A, H, (E0, _) = frame_geometry()
             P = layer.plane[0]
             look(behind(A, P), P, "picture_heading_bias.png")
