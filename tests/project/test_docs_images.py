@@ -119,7 +119,6 @@ STALE = {
     "teaching_turret_row.png",
     "teaching_vector_panel.png",
     "viewer_flight_test.png",
-    "viewer_limb.png",
     "viewer_target_rays.png",
     "viewer_turret.png",
     "viewer_uncertainty_ellipse.png",
