@@ -134,6 +134,7 @@ class FlightLayer:
         self.closed = False
         self._mute = False
         self._pending: int | None = None
+        self._highlighted: int | None = None  # the frame the session's record callback highlighted
         self._busy = threading.Lock()
         self._playing = False
         self._thread: threading.Thread | None = None
@@ -665,10 +666,14 @@ class FlightLayer:
         self._markers_changed = False
         self.size_markers(idx, points=camera)
         loaded = self.session.scn.record_index == idx
+        self._highlighted = None
         self._load(idx)
         if loaded and self._markers_changed and hasattr(self.session, "refresh"):
             self.session.refresh(recompute=False)
-        self.highlight(idx)
+        if self._highlighted != idx:
+            # (a load already moved it: the session's record callback; a second pass would cost the
+            # step's server time again, before its scene batch, for messages viser drops as unchanged)
+            self.highlight(idx)
         if int(self.sl_frame.value) != idx:
             self._mute = True
             try:
@@ -909,6 +914,7 @@ class FlightLayer:
         if idx is None or self.closed:
             return
         self.highlight(int(idx))
+        self._highlighted = int(idx)
         if int(self.sl_frame.value) != int(idx):
             self._mute = True
             try:
