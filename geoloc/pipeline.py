@@ -317,8 +317,10 @@ class Pipeline:
         surf = self.surface
         if engine == "numpy" or type(surf) is not HeightSurface or surf.kind != "inflated":
             return None
-        if engine == "auto" and state.batch_size(row, col, surf.h) < COMPILED_MIN_RAYS:
-            return None  # a small batch: the kernel module is not even imported
+        if engine == "auto" and (state is None or state.batch_size(row, col, surf.h) < COMPILED_MIN_RAYS):
+            # a small batch, or a sensor with no platform state (a pushbroom's is in its own
+            # ephemeris), which the kernel does not serve: the kernel module is not even imported
+            return None
         from geoloc.sensors import _fastlocate
 
         if self.corrections.aberration or self.corrections.light_time or not _fastlocate.serves(self.sensor):
