@@ -315,6 +315,40 @@ def test_timeline_moves_only_the_highlight():
         assert fl.model.outlier[fl.top_idx[0]]
 
 
+def test_a_persons_move_goes_through_while_another_thread_mutes_the_layer():
+    """The layer mutes its callbacks while the server sets its own widgets (a live tab growing the
+    timeline sets the slider's range from its update thread). A person's move arriving meanwhile (from
+    viser's thread pool, its event naming the client) must still step: muting it left the slider on
+    frame 3 and the view on frame 107 (a CI run's live test). The server's own set stays muted."""
+    from viser import GuiEvent
+
+    from geoloc_viz import flight_layer
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.live_view import _first
+
+    with served() as server:
+        scn = flight_model.default_flight_scenario()
+        app = GeolocApp(server, scn, layers=(flight_layer.attach,))
+        fl = app.layers[-1]
+        fl.sl_frame.value = 10
+        assert app.scn.record_index == 10
+        order: list = []
+        _first(fl.sl_frame, lambda e: order.append(("hook", app.scn.record_index)))
+        fl._mute = True  # as another thread holds it
+        try:
+            fl.sl_frame.value = 150  # the server's own set: not a step
+            assert app.scn.record_index == 10 and fl.current == 10
+            fl.sl_frame._impl.value = 120  # viser stores a person's value, then calls each callback
+            for cb in list(fl.sl_frame._impl.update_cb):  # (each in a thread of its pool)
+                cb(GuiEvent(object(), 7, fl.sl_frame))
+        finally:
+            fl._mute = False
+        assert app.scn.record_index == 120 == fl.current == int(fl.sl_frame.value)
+        # the hook ran before the step, for the server's set and the person's, in the same call (one
+        # callable: viser's pool has no thread to put between them)
+        assert len(fl.sl_frame._impl.update_cb) == 1 and order == [("hook", 10), ("hook", 10)]
+
+
 def test_a_step_sends_its_scene_first_and_the_panel_text_after(monkeypatch):
     """A timeline step's first batch (flushed to the browser before the panels are worked out) holds
     the scene and no markdown: the browser handles a batch with scene messages in the frame that draws

@@ -93,6 +93,7 @@ from geoloc_viz import (
     teaching_panel,
     uncertainty_layer,
 )
+from geoloc_viz.layer_safety import own_update
 from geoloc_viz.model import Geometry, Inputs, Scenario, compute, drawn_frames, frame_name
 from geoloc_viz.scenario import select_record
 from geoloc_viz.scene_geoloc import Display, GeolocScene, camera_pose_for, drawn_factor
@@ -482,7 +483,7 @@ class GeolocSession:
                 initial_value=init,
                 hint="Load a record by its frame index (the timeline's), its time and its own label",
             )
-            self.dd_record.on_update(lambda _: self._on_record())
+            self.dd_record.on_update(self._on_record)
         with gui.add_folder("Aircraft and gimbal"):
             i = self.inputs
             self.num = {
@@ -495,7 +496,7 @@ class GeolocSession:
             self.num["row"] = gui.add_number("pixel row i", i.row, step=0.01)
             self.num["col"] = gui.add_number("pixel column j", i.col, step=0.01)
             for h in self.num.values():
-                h.on_update(lambda _: self._on_inputs())
+                h.on_update(self._on_inputs)
         with gui.add_folder("Terrain method", expand_by_default=False):
             from geoloc_viz import terrain_link
 
@@ -503,11 +504,11 @@ class GeolocSession:
             self.num_eps = gui.add_number("eps_h steps (m)", i.eps_h, min=0.1, max=1000.0, step=0.1)
             self.num_thr = gui.add_number("bisect threshold (m)", i.threshold, min=0.01, max=1000.0, step=0.01)
             for h in (self.dd_method, self.num_eps, self.num_thr):
-                h.on_update(lambda _: self._on_inputs())
+                h.on_update(self._on_inputs)
             self.cb_all_steps = gui.add_checkbox("show all iterations", True)
             self.sl_step = gui.add_slider("iteration n", 0, 1, 1, 0, disabled=True)
-            self.cb_all_steps.on_update(lambda _: self._on_display())
-            self.sl_step.on_update(lambda _: self._on_display())
+            self.cb_all_steps.on_update(self._on_display)
+            self.sl_step.on_update(self._on_display)
         with gui.add_folder("View"):
             self.bt_overview = gui.add_button("overview: aircraft, frames, line of sight")
             self.bt_target = gui.add_button("target: iterations and hits")
@@ -559,14 +560,14 @@ class GeolocSession:
                 self.cb_labels,
                 *self.cb_frames.values(),
             ):
-                h.on_update(lambda _: self._on_display())
+                h.on_update(self._on_display)
         with gui.add_folder("Teaching: the chain of 4x4 matrices", expand_by_default=False):
             hops0 = teaching.hops(self._chain0())
             self._hop_src = {h.key: h.src for h in hops0}
             self.dd_hop = gui.add_dropdown(
                 "hop", ["(none)"] + [h.key for h in hops0], hint="With the teaching panel: follows its 'teaching hop'"
             )
-            self.dd_hop.on_update(lambda _: self._on_display())
+            self.dd_hop.on_update(self._on_display)
             self.md_hop = gui.add_markdown("")
             self.md_q17 = gui.add_markdown("")
 
@@ -636,8 +637,8 @@ class GeolocSession:
                 self._mute = False
 
     # ------------------------------------------------------------ callbacks
-    def _on_inputs(self) -> None:
-        if self._mute or self.closed:
+    def _on_inputs(self, event=None) -> None:
+        if self.closed or own_update(self, event):
             return
         with self._lock:
             self.inputs = self._read_inputs()
@@ -645,15 +646,15 @@ class GeolocSession:
                 self._sync_record_box()
             self.refresh()
 
-    def _on_display(self) -> None:
-        if self._mute or self.closed:
+    def _on_display(self, event=None) -> None:
+        if self.closed or own_update(self, event):
             return
         with self._lock:
             self._read_display()
             self.refresh(recompute=False)
 
-    def _on_record(self) -> None:
-        if self._mute or self.closed or self.dd_record.value == CUSTOM:
+    def _on_record(self, event=None) -> None:
+        if self.closed or own_update(self, event) or self.dd_record.value == CUSTOM:
             return
         labels = record_options(self.scn)
         if self.dd_record.value in labels:

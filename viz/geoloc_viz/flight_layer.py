@@ -35,6 +35,7 @@ import numpy as np
 from viser import LabelHandle, LineSegmentsHandle, PointCloudHandle, SceneNodeHandle
 
 from geoloc_viz import flight_model
+from geoloc_viz.layer_safety import own_update
 from geoloc_viz.palette import rgb
 from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
 
@@ -541,11 +542,11 @@ class FlightLayer:
             self.md_accuracy = g.add_markdown(m.summary_markdown())
         with g.add_folder("Flight: heights and conventions", order=self._order(4)):
             self.md_audit = g.add_markdown(m.audit_markdown())
-        self.sl_frame.on_update(lambda _e: self._on_slider())
+        self.sl_frame.on_update(self._on_slider)
         self.bt_play.on_click(lambda _e: self.toggle_play())
         self.bt_whole.on_click(lambda _e: self.show_whole_flight())
         self.bt_worst.on_click(lambda _e: None if self.worst is None else self.go(self.worst, camera=True))
-        self.dd_goto.on_update(lambda _e: self._on_goto())
+        self.dd_goto.on_update(self._on_goto)
 
     def rebuild(self) -> None:
         """The model of the session's scenario as it is now (its corrections switched in the GUI):
@@ -584,10 +585,10 @@ class FlightLayer:
         self.current = None
         self.highlight(int(np.clip(0 if idx is None else idx, 0, n - 1)))
 
-    def _on_slider(self) -> None:
+    def _on_slider(self, event=None) -> None:
         # coalesced: a drag sends many values; while one step runs only the latest waiting value is
         # loaded next (the others would only queue scenes the browser has to draw and throw away)
-        if self._mute or self.closed:
+        if self.closed or own_update(self, event):
             return
         self._pending = int(self.sl_frame.value)
         while self._pending is not None and self._busy.acquire(blocking=False):
@@ -598,8 +599,8 @@ class FlightLayer:
             finally:
                 self._busy.release()
 
-    def _on_goto(self) -> None:
-        if self._mute or self.closed or self.dd_goto.value == CHOOSE:
+    def _on_goto(self, event=None) -> None:
+        if self.closed or own_update(self, event) or self.dd_goto.value == CHOOSE:
             return
         idx = self.top_idx[self.opts.index(self.dd_goto.value)]
         self.go(idx, camera=True)

@@ -59,7 +59,7 @@ from geoloc_viz import picture_model as pm
 from geoloc_viz import palette
 from geoloc_viz.palette import rgb
 from geoloc_viz.scene_geoloc import WORLD_SCALE, drawn_factor, wxyz
-from geoloc_viz.layer_safety import call_safely
+from geoloc_viz.layer_safety import call_safely, own_update
 
 ROOT = "/enu/picture"
 #: Width of the panel's image [screen px] (the crop is scaled to it, nearest neighbour).
@@ -320,7 +320,7 @@ class ImageLayer:
         self.cb_drape.on_update(lambda _e: self._safe(self.drape))
         self.bt_clear_target.on_click(lambda _e: self._safe(self.clear_target))
         self.sl_zoom.on_update(lambda _e: self._safe(self.redraw_images))
-        self.tx_pixel.on_update(lambda _e: self._on_pixel_text())
+        self.tx_pixel.on_update(self._on_pixel_text)
         for h in (self.cb_frustum, self.sl_dist, self.sl_opacity, self.cb_marks, self.cb_horizon):
             h.on_update(lambda _e: self._safe(self.redraw_images))
 
@@ -580,8 +580,8 @@ class ImageLayer:
             except Exception:  # a listener's bug must not undo the pick
                 traceback.print_exc(file=sys.stderr)
 
-    def _on_pixel_text(self) -> None:
-        if self._mute or self.closed:
+    def _on_pixel_text(self, event=None) -> None:
+        if self.closed or own_update(self, event):
             return
         rc = parse_pixel(str(self.tx_pixel.value))
         if rc is not None:

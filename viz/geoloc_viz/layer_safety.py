@@ -25,3 +25,15 @@ def call_safely(fn, *args, what: str = "", lock=None):
             print(f"geoloc view: error in {what}:", file=sys.stderr)
         traceback.print_exc(file=sys.stderr)
         return None
+
+
+def own_update(owner, event=None) -> bool:
+    """True for a GUI update the server made itself while ``owner`` muted its callbacks
+    (``owner._mute``: the server sets a handle's value and viser calls the handle's callbacks
+    with ``event.client`` None, in the setting thread).
+
+    A person's update (``event.client`` set) is never muted: it runs in viser's thread and may
+    arrive while another thread (a live tab growing its timeline) holds the mute for its own
+    sets. Muting it lost the person's move: the slider showed frame 3, the view stayed on 107
+    (``tests/viz/test_live_view.py``; ``tests/viz/test_viz_mute.py``)."""
+    return bool(getattr(owner, "_mute", False)) and getattr(event, "client", None) is None

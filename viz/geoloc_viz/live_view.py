@@ -864,13 +864,25 @@ class LiveTab:
 
 
 def _first(handle, cb) -> None:
-    """Register ``cb`` as the first of a GUI handle's update (or click) callbacks (viser runs them
-    in order); the public ``on_update`` (last) where its list is not there."""
+    """Run ``cb`` before a GUI handle's update (or click) callbacks, in the same thread.
+
+    viser submits each callback of a person's update to its own thread of a pool, so a callback
+    listed first is only started first: the tab's "stop following" and the layer's step raced,
+    and the follower could step back to the latest frame after the person's move. The handle's
+    callbacks so far become one callable that runs ``cb`` and then them, in order; the public
+    ``on_update`` (last) where the list is not there."""
     cbs = getattr(getattr(handle, "_impl", None), "update_cb", None)
-    if isinstance(cbs, list):
-        cbs.insert(0, cb)
-    else:
+    if not isinstance(cbs, list):
         handle.on_update(cb)
+        return
+    rest = list(cbs)
+
+    def chained(event) -> None:
+        cb(event)
+        for c in rest:
+            c(event)
+
+    cbs[:] = [chained]
 
 
 def flight_layer_choose() -> str:

@@ -38,7 +38,7 @@ import numpy as np
 
 from geoloc_viz import flight_layer as fl_mod
 from geoloc_viz import image_layer as il_mod
-from geoloc_viz.layer_safety import call_safely
+from geoloc_viz.layer_safety import call_safely, own_update
 
 #: Width [px] of the map's image and of the docked panel.
 MAP_PX = 520
@@ -524,7 +524,7 @@ class PanelLayer:
                 "",
                 hint="row, col (1-based pixel centres): a click on the large picture writes it; type one to locate it",
             )
-            self.tx_pixel.on_update(lambda _e: self._on_pixel_text())
+            self.tx_pixel.on_update(self._on_pixel_text)
         with self.panel.add_tab("Map"):
             self.dd_extent = g.add_dropdown(
                 "map shows", MAP_EXTENTS, initial_value=MAP_EXTENTS[0], hint="Frame the whole flight or the ground seen"
@@ -624,8 +624,8 @@ class PanelLayer:
             f'<div style="font-size:0.75em;opacity:0.8">{html.escape(cap)}; shown {html.escape(size)}</div></div>'
         )
 
-    def _on_pixel_text(self) -> None:
-        if self._mute or self.closed:
+    def _on_pixel_text(self, event=None) -> None:
+        if self.closed or own_update(self, event):
             return
         rc = il_mod.parse_pixel(str(self.tx_pixel.value))
         im = self.images
