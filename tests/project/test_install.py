@@ -9,21 +9,23 @@ are two packages (docs/architecture.md, "Two packages"). Here:
    backend is the running environment's setuptools, a test dependency);
 2. **the core alone, from the package registry**: a new virtual environment gets the core
    wheel and the dependencies it declares, resolved by pip as a user's ``pip install .``
-   would (from the pip cache on a machine that ran the README's test command, so no large
-   download). None of the viewer's libraries, nor the extras', is importable there, and
+   would. None of the viewer's libraries, nor the extras', is importable there, and
    ``locate``, ``replay``, ``report`` and ``export`` run; ``view`` and a video input each say
    in one line what to install;
-3. **both wheels, from the package registry**: a second new environment gets both wheels and
-   every dependency they declare, resolved by pip (``pip install . ./viz``): so the viewer's
-   own declared dependencies (viser, rerun, and the core's ``mesh`` and ``video`` extras) are
-   the ones it runs with, and the wheels' packages are the ones imported (checked);
-4. from a folder outside the repository, with ``GEOLOC_ASSETS`` unset, the second
-   environment's ``geoloc`` command runs ``reproduce qiao2017``, ``replay`` on the bundled
-   records, ``replay`` on the bundled ETOPO5 DEM with the EGM96 datum, and ``view
-   --export``, and the outputs are checked against the figures the docs give.
-
+3. **both wheels, from the package registry**: the same environment then gets both wheels, as
+   a user who adds the viewer to a core install does (``pip install . ./viz``): pip resolves
+   every dependency the two declare against the registry and installs what the core's install
+   lacks, so the viewer's own declared dependencies (viser, rerun, and the core's ``mesh`` and
+   ``video`` extras) are the ones it runs with, and the wheels' packages are the ones imported
+   (checked). One environment, not two: the registry's wheels of the core's dependencies
+   (numpy, scipy, numba, rasterio, matplotlib, pyarrow ...) are downloaded once, not twice (this
+   machine's pip keeps no HTTP cache, so every install downloads them: ``pip download`` of the
+   core's took 99 s of the 116 s of its install, load 11-15), one ``python -m venv`` (ensurepip:
+   39 s at load 12) is made, and the kernels the core's commands compiled in the installed copy
+   are not compiled again. The core-alone tests run first (the file's order); one run after the
+   viewer was added fails and says so;
 Marked ``install`` (``pytest -m install`` selects it, ``-m "not install"`` skips it); it
-runs in the normal suite (about two minutes on this machine, the pip cache warm).
+runs in the normal suite (its time: docs/testing.md, "The suite's time").
 """
 
 from __future__ import annotations
@@ -103,31 +105,40 @@ def _clean_env(env_dir: Path, work: Path) -> dict:
 
 
 @pytest.fixture(scope="module")
-def core_venv(wheels, tmp_path_factory):
-    """The core wheel alone, its declared dependencies resolved by pip (a user's ``pip install .``)."""
-    base = tmp_path_factory.mktemp("core")
+def _env(wheels, tmp_path_factory):
+    """One new environment, the core wheel alone installed; ``venv`` adds the viewer's wheel."""
+    base = tmp_path_factory.mktemp("env")
     env_dir = base / "env"
     _run([sys.executable, "-m", "venv", env_dir], cwd=base)
     env = _clean_env(env_dir, base)
-    _run([env_dir / "bin" / "python", "-m", "pip", "install", *PIP_INSTALL, wheels[0]], cwd=base, env=env, timeout=900)
-    work = base / "elsewhere"
-    work.mkdir()
-    return dict(py=env_dir / "bin" / "python", bin=env_dir / "bin", work=work, env=env)
+    py = env_dir / "bin" / "python"
+    _run([py, "-m", "pip", "install", *PIP_INSTALL, wheels[0]], cwd=base, env=env, timeout=900)
+    return dict(py=py, bin=env_dir / "bin", base=base, env=env, installed=["core"])
+
+
+@pytest.fixture
+def core_venv(_env):
+    """The core wheel alone, its declared dependencies resolved by pip (a user's ``pip install .``)."""
+    assert _env["installed"] == ["core"], (
+        "a core-alone test ran after the viewer's wheel was added to the environment: "
+        "run the core-alone tests first (this file's order)"
+    )
+    work = _env["base"] / "elsewhere-core"  # outside the repository, no assets/ here
+    work.mkdir(exist_ok=True)
+    return dict(_env, work=work)
 
 
 @pytest.fixture(scope="module")
-def venv(wheels, tmp_path_factory):
-    """Both wheels, their declared dependencies resolved by pip (a user's ``pip install . ./viz``)."""
-    base = tmp_path_factory.mktemp("venv")
-    env_dir = base / "env"
-    _run([sys.executable, "-m", "venv", env_dir], cwd=base)
-    py = env_dir / "bin" / "python"
+def venv(_env, wheels):
+    """Both wheels, their declared dependencies resolved by pip (a user's ``pip install . ./viz``
+    over the core's install)."""
+    py, base, env = _env["py"], _env["base"], _env["env"]
+    _run([py, "-m", "pip", "install", *PIP_INSTALL, *wheels], cwd=base, env=env, timeout=900)
+    _env["installed"] = ["core", "viewer"]
+    purelib = _run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], cwd=base).stdout.strip()
     work = base / "elsewhere"  # outside the repository, no assets/ here
     work.mkdir()
-    env = _clean_env(env_dir, work)
-    _run([py, "-m", "pip", "install", *PIP_INSTALL, *wheels], cwd=base, env=env, timeout=900)
-    purelib = _run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], cwd=base).stdout.strip()
-    return dict(py=py, bin=env_dir / "bin", purelib=Path(purelib), work=work, env=env)
+    return dict(_env, purelib=Path(purelib), work=work)
 
 
 def geoloc(venv, *args, timeout=600):
