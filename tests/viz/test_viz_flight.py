@@ -26,6 +26,7 @@ from test_viz_browser import served
 
 from geoloc.frames.enu import EnuFrame
 from geoloc_viz.model import frame_name
+from geoloc_viz.palette import PALETTE
 from geoloc.sensors.frame import FrameSensor
 from geoloc.sensors.gimbals import PRESETS
 from geoloc.sensors.lenses import lens_from_fov
@@ -616,6 +617,8 @@ def test_the_html_export_panel_states_the_frames_error_and_its_fault(tmp_path):
             "height in the wrong datum",
         ):
             assert text in panel, text
+        # the sidebar names the error vector by the palette's word for its colour (one source)
+        assert f"**{PALETTE['error'].name} vector**" in fl._frame_text(idx)
 
 
 def test_one_legend_per_scenario_from_what_it_draws():

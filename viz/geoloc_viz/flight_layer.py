@@ -36,7 +36,7 @@ from viser import LabelHandle, LineSegmentsHandle, PointCloudHandle, SceneNodeHa
 
 from geoloc_viz import flight_model
 from geoloc_viz.layer_safety import own_update
-from geoloc_viz.palette import rgb
+from geoloc_viz.palette import PALETTE, rgb
 from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
 
 if TYPE_CHECKING:
@@ -473,7 +473,7 @@ class FlightLayer:
             text += f"  \nrun: {f.headline()}"
         if self.focus_info.get("idx") == idx:
             fi = self.focus_info
-            text += f"  \n**pink vector**: {fi['label']}; markers {fi['radius_m']:.2g} m" + (
+            text += f"  \n**{PALETTE['error'].name} vector**: {fi['label']}; markers {fi['radius_m']:.2g} m" + (
                 f", drawn {fi['lift_m']:.0f} m above the terrain mesh (stems to the true points)"
                 if fi["lift_m"] > 0
                 else ""
