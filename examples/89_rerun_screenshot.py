@@ -11,10 +11,12 @@ It starts ``rerun --serve-web`` (the viewer's web assets are inside the rerun
 wheel: nothing is downloaded; the map view's tiles need a network and stay
 blank offline), opens the page in Debian's ``/usr/bin/chromium`` through
 playwright (never ``playwright install``), optionally clicks the time box and
-types ``--at`` seconds, and takes the screenshot. Best effort: under SwiftShader
-the viewer draws a frame every few seconds and egui does not always take the
-typed value as typed (asking for 9 s gave 1 s here), so look at the picture. WebGL runs on SwiftShader: on a
-2-core machine the page needs about a minute. HOME is pointed at a temporary
+types ``--at`` seconds, and takes the screenshot once the page has settled (two
+screenshots 5 s apart that agree, after the viewer's panels are up; ``--wait``
+is the most it waits). Best effort: under SwiftShader the viewer draws a frame
+every few seconds and egui does not always take the typed value as typed (asking
+for 9 s gave 1 s here), so look at the picture. WebGL runs on SwiftShader: on a
+2-core machine the page needs 2-3 minutes to settle. HOME is pointed at a temporary
 folder (rerun and Chromium write under ~/.config).
 """
 
@@ -51,6 +53,27 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def settle(page, most_s: float, every_s: float = 5.0, min_s: float = 10.0) -> None:
+    """Wait until two screenshots of the page ``every_s`` apart agree (mean change under 0.3 of 255),
+    at least ``min_s`` and at most ``most_s`` seconds: the viewer has loaded the recording and drawn it.
+    (egui draws on one WebGL canvas that cannot be read back from the page, so the page's pixels are
+    compared.)"""
+    import io
+
+    import numpy as np
+    import PIL.Image
+
+    t0, prev = time.monotonic(), None
+    while time.monotonic() - t0 < most_s:
+        img = np.asarray(PIL.Image.open(io.BytesIO(page.screenshot(timeout=240_000))).convert("L"), float)
+        if prev is not None and time.monotonic() - t0 >= min_s and np.abs(img - prev).mean() < 0.3:
+            print(f"settled after {time.monotonic() - t0:.0f} s")
+            return
+        prev = img
+        time.sleep(every_s)
+    print(f"not settled after {most_s:.0f} s: look at the picture")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("rrd", help="recording to show")
@@ -58,7 +81,9 @@ def main() -> int:
     ap.add_argument(
         "--at", type=float, default=None, help="time to type into the time box [s], best effort (default: the end)"
     )
-    ap.add_argument("--wait", type=float, default=30.0, help="seconds to let the viewer load (default 30)")
+    ap.add_argument(
+        "--wait", type=float, default=240.0, help="most seconds to wait for the page to settle (default 240)"
+    )
     ap.add_argument("--width", type=int, default=1280)
     ap.add_argument("--height", type=int, default=800)
     a = ap.parse_args()
@@ -82,7 +107,7 @@ def main() -> int:
             browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS, env=env)
             page = browser.new_page(viewport={"width": a.width, "height": a.height})
             page.goto(url, timeout=60_000)
-            time.sleep(a.wait)
+            settle(page, a.wait)
             if a.at is not None:
                 # the time box at the right end of the (collapsed) time panel
                 page.mouse.click(a.width - 100, a.height - 14, click_count=3)
@@ -91,9 +116,9 @@ def main() -> int:
                 time.sleep(1)
                 page.keyboard.type(f"{a.at:g}")
                 page.keyboard.press("Enter")
-                time.sleep(12)
+                settle(page, a.wait)
             page.mouse.move(a.width // 2, 5)  # no hover tooltips in the picture
-            time.sleep(3)
+            settle(page, a.wait)
             page.screenshot(path=a.png, timeout=240_000)
             browser.close()
     finally:
