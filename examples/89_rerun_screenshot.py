@@ -1,13 +1,17 @@
 """Screenshot a recording in rerun's web viewer, offline, in headless Chromium.
 
-How ``docs/img/rerun_viewer.png`` was made::
+How ``docs/img/rerun_viewer.png`` was made (``docs/rerun.md``)::
 
-    geoloc log flight_scan --out /tmp/scan.rrd
-    python examples/89_rerun_screenshot.py /tmp/scan.rrd docs/img/rerun_viewer.png --at 9
+    geoloc log flight_scan --out /tmp/scan.rrd --serve &    # Ctrl-C it afterwards
+    python examples/89_rerun_screenshot.py 'http://127.0.0.1:9090/?url=rerun%2Bhttp://127.0.0.1:9876/proxy' \\
+        docs/img/rerun_viewer.png --at 9
 
-(the picture shows t = 1 s: see ``--at`` below).
+(the picture shows t = 18 s, the recording playing: see ``--at`` below). Given a viewer's page
+(``http://...``), the script screenshots it; given an ``.rrd``, it starts ``rerun --serve-web``
+on it, where this rerun's web viewer (0.41) draws its heuristic layout, not the recording's
+blueprint (``geoloc log --serve`` streams the blueprint as the default: its page shows it).
 
-It starts ``rerun --serve-web`` (the viewer's web assets are inside the rerun
+Given a file, it starts ``rerun --serve-web`` (the viewer's web assets are inside the rerun
 wheel: nothing is downloaded; the map view's tiles need a network and stay
 blank offline), opens the page in Debian's ``/usr/bin/chromium`` through
 playwright (never ``playwright install``), optionally clicks the time box and
@@ -76,7 +80,11 @@ def settle(page, most_s: float, every_s: float = 5.0, min_s: float = 10.0) -> No
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("rrd", help="recording to show")
+    ap.add_argument(
+        "rrd",
+        help="recording to show, or the page of a viewer already serving one (http://..., e.g. "
+        "geoloc log ... --serve's http://127.0.0.1:9090/?url=rerun%%2Bhttp://127.0.0.1:9876/proxy)",
+    )
     ap.add_argument("png", help="output screenshot")
     ap.add_argument(
         "--at", type=float, default=None, help="time to type into the time box [s], best effort (default: the end)"
@@ -93,16 +101,24 @@ def main() -> int:
     env = dict(os.environ, HOME=home, XDG_CONFIG_HOME=f"{home}/.config", XDG_DATA_HOME=f"{home}/.local/share")
     web, grpc = free_port(), free_port()
     rerun = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-    server = subprocess.Popen(
-        [rerun, "--serve-web", "--web-viewer-port", str(web), "--port", str(grpc), a.rrd],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=True,
+    page_given = a.rrd.startswith(("http://", "https://"))
+    server = (
+        None
+        if page_given
+        else subprocess.Popen(
+            [rerun, "--serve-web", "--web-viewer-port", str(web), "--port", str(grpc), a.rrd],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
     )  # its own process group: the wrapper starts the binary
     try:
-        time.sleep(4)
-        url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy"
+        if page_given:
+            url = a.rrd
+        else:
+            time.sleep(4)
+            url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy"
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=ARGS, env=env)
             page = browser.new_page(viewport={"width": a.width, "height": a.height})
@@ -122,8 +138,9 @@ def main() -> int:
             page.screenshot(path=a.png, timeout=240_000)
             browser.close()
     finally:
-        os.killpg(server.pid, signal.SIGTERM)  # the wrapper and the viewer binary it started
-        server.wait(timeout=20)
+        if server is not None:
+            os.killpg(server.pid, signal.SIGTERM)  # the wrapper and the viewer binary it started
+            server.wait(timeout=20)
         shutil.rmtree(home, ignore_errors=True)
     print(f"wrote {a.png}")
     return 0
