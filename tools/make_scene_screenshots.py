@@ -230,7 +230,12 @@ def viewer_target_rays(browser, out: Path) -> None:
                 120,
                 "the panel to show the 4x crop",
             )
-            page.locator("#geoloc-picture").scroll_into_view_if_needed(timeout=60000)
+            for _ in range(10):  # the panel may redraw its picture under the locator: look it up again
+                try:
+                    page.locator("#geoloc-picture").scroll_into_view_if_needed(timeout=60000)
+                    break
+                except Exception:
+                    time.sleep(1.0)
             x, y = _panel_pixel_xy(page, r, c)
             page.mouse.click(x, y)
             wait_for(
