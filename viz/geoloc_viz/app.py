@@ -109,6 +109,9 @@ ANGLE_SLIDERS = (
 CUSTOM = "(custom pose)"
 #: Browser tabs served at once by default (``--max-clients``).
 MAX_CLIENTS = 16
+#: A timeline step waits at most this long [s] for viser's sender to take its scene batch before the
+#: panels' batch (:meth:`GeolocSession._send_scene`): a tab that reads nothing does not hold a step.
+SEND_WAIT_S = 0.5
 #: The ambient light that stands in for viser's environment map (:func:`configure_lighting`).
 AMBIENT_LIGHT = "/ambient_light"
 AMBIENT_INTENSITY = 1.0
@@ -414,7 +417,7 @@ class GeolocSession:
             later, self._later = self._later, []
             if (g is None and not later) or self.closed:
                 return
-            (self.client if self.client is not None else self.server).flush()
+            self._send_scene()
             if skip():
                 # the waiting step runs them (after its own: a step back to the frame already loaded
                 # redraws nothing, and its panels would otherwise keep the frame before)
@@ -426,6 +429,29 @@ class GeolocSession:
                 if g is not None:
                     for cb in list(self._deferred_cbs):
                         self._call(cb, g)
+
+    def _send_scene(self, timeout_s: float = SEND_WAIT_S) -> None:
+        """Flush the step's scene batch and wait (at most ``timeout_s``) until viser's sender has
+        taken it for every browser, before the panels' batch opens its atomic block.
+
+        viser's sender (its event loop thread) takes no message while an atomic block is open
+        (``AsyncMessageBuffer``'s window loop checks ``atomic_counter``), and ``flush`` only
+        schedules it: the panels' block, opened at once, held the scene back until the panels were
+        done, so a step's first canvas change waited for the panels' work too. Private viser state
+        (its message buffer's per-browser cursors) is read here; without it nothing waits."""
+        target = self.client if self.client is not None else self.server
+        target.flush()
+        conn = getattr(target, "_websock_connection", None) or getattr(target, "_websock_server", None)
+        buf = getattr(conn, "get_message_buffer", lambda: None)()
+        cursors, last = getattr(buf, "generator_cursors", None), getattr(buf, "message_counter", 0) - 1
+        if buf is None or not isinstance(cursors, dict):  # another viser: no wait
+            return
+        end = time.monotonic() + timeout_s
+        while time.monotonic() < end and not buf.done:
+            left = [c for c in list(cursors.values()) if c < last]
+            if not left:
+                return
+            time.sleep(0.001)  # the sender needs the GIL
 
     def on_record(self, callback):
         """Register ``callback(idx)``, called after record ``idx`` is loaded, before the redraw."""
