@@ -54,6 +54,16 @@ CASES = {
         ],
         900,
     ),
+    "bench_frame.py": (
+        ["--window", "1", "--rounds", "1", "--no-canvas"],
+        [
+            rf"^  everything shown +frame interval +{N} ms, main thread +{N} ms, +{N} frames/s; CPU per frame: GPU "
+            rf"process +{N} ms",
+            r"^  every node hidden +frame interval",
+            rf"^ratio: a default frame / an empty canvas's frame {N}$",
+        ],
+        600,
+    ),
     "bench_campaign.py": (
         # one worker: the same cluster path as the default two, 4 s less
         ["--records", "2000", "--partition", "1000", "--workers", "1"],
@@ -242,7 +252,7 @@ CASES = {
 #: Opens headless Chromium: on the xdist worker of tests/conftest.py's Chromium group (conftest
 #: does not see a browser in a subprocess), and marked ``browser`` like the other browser tests.
 #: Its smallest run (a warm-up load and one measured load) takes 46-54 s.
-BROWSER = {"bench_browser.py", "bench_viewer.py"}
+BROWSER = {"bench_browser.py", "bench_frame.py", "bench_viewer.py"}
 
 
 def _params():
