@@ -1203,82 +1203,123 @@ def _dem_height_note(hts: _Heights, h) -> str | None:
     return text
 
 
+@dataclass(frozen=True)
+class _GroundPoints:
+    """The batch's ground points in degrees and metres, NaN where a packet has none: the frame
+    centres' (shape (n,)) and the corners' (shape (4, n)), each with its status (a packet missing
+    a tag is ``INVALID_INPUT`` whatever the intersection said)."""
+
+    status: np.ndarray
+    ok: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    range_m: np.ndarray
+    refraction_m: np.ndarray
+    k_status: np.ndarray
+    k_lat: np.ndarray
+    k_lon: np.ndarray
+    k_h: np.ndarray
+
+
+def _ground_points(gc, gk, bad_c, bad_k) -> _GroundPoints:
+    """The intersections ``gc`` (centres) and ``gk`` (corners) as :class:`_GroundPoints`: radians
+    to degrees, NaN where the status is not OK, ``INVALID_INPUT`` where ``bad_c`` / ``bad_k``."""
+    status = np.where(bad_c, np.uint8(Status.INVALID_INPUT), np.asarray(gc.status, np.uint8)).astype(np.uint8)
+    ok = status == Status.OK
+    kst = np.where(bad_k[None, :], np.uint8(Status.INVALID_INPUT), np.asarray(gk.status, np.uint8))
+    kok = kst == Status.OK
+    return _GroundPoints(
+        status=status,
+        ok=ok,
+        lat=np.where(ok, np.rad2deg(gc.lat), np.nan),
+        lon=np.where(ok, np.rad2deg(gc.lon), np.nan),
+        h=np.where(ok, gc.h, np.nan),
+        range_m=np.where(ok, gc.slant_range, np.nan),
+        refraction_m=np.where(ok, np.asarray(gc.refraction_m, float), np.nan),
+        k_status=kst,
+        k_lat=np.where(kok, np.rad2deg(gk.lat), np.nan),
+        k_lon=np.where(kok, np.rad2deg(gk.lon), np.nan),
+        k_h=np.where(kok, gk.h, np.nan),
+    )
+
+
+def _mean_corner_error(pts: _GroundPoints, rk_lat, rk_lon) -> np.ndarray:
+    """Per packet, the mean horizontal distance [m] from its computed corners to its reported
+    ones (``rk_lat``, ``rk_lon`` [deg], shape (4, n)) over the corners both have; NaN where none."""
+    k_err = horizontal_distance_m(pts.k_lat, pts.k_lon, rk_lat, rk_lon)
+    k_cnt = np.isfinite(k_err).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(k_cnt > 0, np.nansum(k_err, axis=0) / np.maximum(k_cnt, 1), np.nan)
+
+
+def _point_columns(pts: _GroundPoints, fc_err, corrections: Corrections) -> dict:
+    """The recomputed frame centre's columns and the four corners', in the CSV's order."""
+    cols = {
+        "lat_deg": pts.lat,
+        "lon_deg": pts.lon,
+        "mgrs": np.array(mgrs_column(pts.lat, pts.lon), dtype=object),  # '' where no point (io.mgrs_grid)
+        "h_m": pts.h,
+        "status": pts.status,
+        "range_m": pts.range_m,
+        "frame_center_error_m": fc_err,
+        "corrections": np.full(len(pts.lat), corrections.label, dtype=object),
+        "refraction_m": pts.refraction_m,
+    }
+    for j in range(4):
+        cols[f"corner{j + 1}_lat_deg"] = pts.k_lat[j]
+        cols[f"corner{j + 1}_lon_deg"] = pts.k_lon[j]
+        cols[f"corner{j + 1}_h_m"] = pts.k_h[j]
+    return cols
+
+
+def _summary_notes(base_sensor, sens: FrameSensor, terrain, hts: _Heights, h, fc_err) -> list[str]:
+    """The summary's notes on the sensor file used and, with a DEM, the reported heights against it."""
+    out = []
+    if base_sensor is not None:
+        out.append(
+            f"sensor file: image {sens.cols} x {sens.rows}, mount, boresight and lever arm "
+            "used; its lens is replaced by each packet's fields of view (tags 16, 17)"
+        )
+    if terrain is not None and np.isfinite(fc_err).any():
+        note = _dem_height_note(hts, h)
+        if note is not None:
+            out.append(note)
+    return out
+
+
 def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corrections = NO_CORRECTIONS) -> KlvReplay:
+    """Every packet of ``read`` located on ``surface`` (None: its own frame-centre height) and
+    compared with its reported frame centre and corners; the steps are the functions above."""
     terrain = terrain_of(surface)
-    c = read.columns
     n = len(read)
-    g = lambda name: _f(c, name, n)  # noqa: E731
+    g = lambda name: _f(read.columns, name, n)  # noqa: E731
 
     hts = _packet_heights(g)
     ang = _packet_angles(g)
-    bad_c, bad_k, notes, invalid_reasons = _missing_tags(hts, ang, surface, base_sensor, c.get("reserved"))
+    bad_c, bad_k, notes, invalid_reasons = _missing_tags(hts, ang, surface, base_sensor, read.columns.get("reserved"))
     geo = _replay_geometry(hts, ang, bad_c, bad_k, base_sensor)
-    sens = geo.sensor
     h_int = _clean(hts.rep_h, bad_c)
-    gc, gk = _intersect_packets(geo, surface, h_int, corrections)
-
-    status = np.where(bad_c, np.uint8(Status.INVALID_INPUT), np.asarray(gc.status, np.uint8)).astype(np.uint8)
-    ok = status == Status.OK
-    lat = np.where(ok, np.rad2deg(gc.lat), np.nan)
-    lon = np.where(ok, np.rad2deg(gc.lon), np.nan)
-    h = np.where(ok, gc.h, np.nan)
-    kst = np.where(bad_k[None, :], np.uint8(Status.INVALID_INPUT), np.asarray(gk.status, np.uint8))
-    kok = kst == Status.OK
-    k_lat = np.where(kok, np.rad2deg(gk.lat), np.nan)
-    k_lon = np.where(kok, np.rad2deg(gk.lon), np.nan)
-    k_h = np.where(kok, gk.h, np.nan)
+    pts = _ground_points(*_intersect_packets(geo, surface, h_int, corrections), bad_c, bad_k)
     rk_lat, rk_lon, rep_corners = _reported_corners(g, hts)
 
-    # ---- errors
-    fc_err = horizontal_distance_m(lat, lon, hts.fc_lat, hts.fc_lon)
-    k_err = horizontal_distance_m(k_lat, k_lon, rk_lat, rk_lon)
-    k_cnt = np.isfinite(k_err).sum(axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corner_err = np.where(k_cnt > 0, np.nansum(k_err, axis=0) / np.maximum(k_cnt, 1), np.nan)
+    fc_err = horizontal_distance_m(pts.lat, pts.lon, hts.fc_lat, hts.fc_lon)
+    corner_err = _mean_corner_error(pts, rk_lat, rk_lon)
     outlier, med, _mad, thr = outlier_mask(fc_err)
     datum_warn, warnings = _datum_warnings(read, hts)
-    plaus = _drone_height_warnings(
-        read,
-        base_sensor,
-        terrain,
-        hts.lat_s,
-        hts.lon_s,
-        hts.h_s,
-        hts.h75,
-        hts.h15,
-        hts.from75,
-        hts.rep_h,
-        hts.from78,
-        h,
-    )
+    plaus = _drone_height_warnings(read, base_sensor, terrain, hts, pts.h)
 
     ts = g("precision_time_stamp_us")
     cols = _packet_columns(read, g, hts, ang, ts, rk_lat, rk_lon, rep_corners)
-    cols.update(
-        {
-            "lat_deg": lat,
-            "lon_deg": lon,
-            "mgrs": np.array(mgrs_column(lat, lon), dtype=object),  # '' where no point (io.mgrs_grid)
-            "h_m": h,
-            "status": status,
-            "range_m": np.where(ok, gc.slant_range, np.nan),
-            "frame_center_error_m": fc_err,
-            "corrections": np.full(n, corrections.label, dtype=object),
-            "refraction_m": np.where(ok, np.asarray(gc.refraction_m, float), np.nan),
-        }
-    )
-    for j in range(4):
-        cols[f"corner{j + 1}_lat_deg"] = k_lat[j]
-        cols[f"corner{j + 1}_lon_deg"] = k_lon[j]
-        cols[f"corner{j + 1}_h_m"] = k_h[j]
+    cols.update(_point_columns(pts, fc_err, corrections))
     unc_messages: list[str] = []
     if budget is not None:
         unc_surface = HeightSurface(h_int, "geodetic") if surface is None else surface
-        ucols, unc_messages = _uncertainty_columns(g, budget, geo, unc_surface, ok, hts, ts / 1e6)
+        ucols, unc_messages = _uncertainty_columns(g, budget, geo, unc_surface, pts.ok, hts, ts / 1e6)
         cols.update(ucols)
     cols.update(
         {
-            "corner_status": _corner_status(kst),
+            "corner_status": _corner_status(pts.k_status),
             "corner_error_m": corner_err,
             "h_datum": np.full(n, H_DATUM, dtype=object),
             "outlier": outlier.astype(np.int64),
@@ -1286,21 +1327,10 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
             "note": notes,
         }
     )
-
-    summ_notes = list(unc_messages)
-    if base_sensor is not None:
-        summ_notes.append(
-            f"sensor file: image {sens.cols} x {sens.rows}, mount, boresight and lever arm "
-            "used; its lens is replaced by each packet's fields of view (tags 16, 17)"
-        )
-    if terrain is not None and np.isfinite(fc_err).any():
-        note = _dem_height_note(hts, h)
-        if note is not None:
-            summ_notes.append(note)
     summary = _summary(
         read,
         hts,
-        status,
+        pts.status,
         fc_err,
         corner_err,
         outlier,
@@ -1309,10 +1339,10 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
         invalid_reasons,
         _surface_text(surface, terrain),
         warnings,
-        summ_notes,
+        unc_messages + _summary_notes(base_sensor, geo.sensor, terrain, hts, pts.h, fc_err),
         plaus,
     )
-    return KlvReplay(cols, list(read.errors), summary, sens)
+    return KlvReplay(cols, list(read.errors), summary, geo.sensor)
 
 
 def _packet_columns(
@@ -1413,11 +1443,9 @@ def _summary(
     )
 
 
-def _drone_height_warnings(
-    read: KlvRead, base_sensor, terrain, lat_s, lon_s, h_s, h75, h15, from75, rep_h, from78, h
-) -> list:
+def _drone_height_warnings(read: KlvRead, base_sensor, terrain, hts: _Heights, h) -> list:
     """One line per packet of a drone whose sensor is too high for a drone (a feet or datum mix-up
-    is still located as ok).
+    is still located as ok); ``h`` the located points' heights.
 
     A packet is a drone's when its Platform Designation (tag 10) names one, or, without a
     designation, when the sensor file's ``platform`` does (:func:`geoloc.sensors.platform.is_drone`).
@@ -1427,6 +1455,7 @@ def _drone_height_warnings(
     from geoloc.sensors.platform import drone_height_hint, drone_height_where, drone_too_high, is_drone
 
     c, n = read.columns, len(read)
+    h_s, h75, h15, rep_h = hts.h_s, hts.h75, hts.h15, hts.rep_h
     desig = c.get("platform_designation")
     desig = [None] * n if desig is None else list(desig)
     default = is_drone(getattr(base_sensor, "platform", ""))
@@ -1436,11 +1465,11 @@ def _drone_height_warnings(
     ref = np.where(np.isfinite(rep_h), rep_h, h)
     what = np.where(
         np.isfinite(rep_h),
-        np.where(from78, "the frame centre (tag 78)", "the frame centre (tag 25)"),
+        np.where(hts.from78, "the frame centre (tag 78)", "the frame centre (tag 25)"),
         "the located point",
     ).astype(object)
     if terrain is not None:
-        ground, _ = terrain.sample(np.deg2rad(lat_s), np.deg2rad(lon_s))
+        ground, _ = terrain.sample(np.deg2rad(hts.lat_s), np.deg2rad(hts.lon_s))
     else:
         ground = None
     high, ref, what = drone_too_high(h_s, ref, ground, what, "the terrain under it (the DEM)")
@@ -1449,7 +1478,7 @@ def _drone_height_warnings(
     for k in np.flatnonzero(high):
         tag, value = (
             ("tag 75 (Sensor Ellipsoid Height)", h75[k])
-            if from75[k]
+            if hts.from75[k]
             else ("tag 15 (Sensor True Altitude, MSL)", h15[k])
         )
         known = np.isfinite(ref[k])

@@ -1,18 +1,22 @@
 """The KLV replay's steps, each alone (geoloc.workflows.klv_replay: ``_packet_heights``,
-``_packet_angles``, ``_missing_tags``, ``_replay_geometry``, ``_reported_corners``,
-``_corner_status``, ``_datum_warnings``), on columns written here by hand.
+``_packet_angles``, ``_missing_tags``, ``_replay_geometry``, ``_reported_corners``, ``_ground_points``,
+``_mean_corner_error``, ``_point_columns``, ``_corner_status``, ``_datum_warnings``,
+``_drone_height_warnings``, ``_summary_notes``), on columns written here by hand.
 
 Oracles: PROJ's own vgridshift on the bundled EGM96 grid for N (tests/workflows/test_klv_replay.py's
 ``proj_undulation``), MISB ST 0601's tag rules (75 before 15, 78 before 25, 90/91 before 6/7,
 82-89 before 26-33 + the frame centre), and the pinhole's closed form for the corners: a pixel
 at column offset x from the centre of a lens whose focal length is f pixels looks atan(x / f)
-off the axis.
+off the axis; pyproj's geodesic (Karney's, on WGS-84) for the corners' distances.
 """
 
 import math
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
+from pyproj import Geod
 
 from geoloc.status import Status
 from geoloc.workflows import klv_replay as kr
@@ -166,3 +170,76 @@ def test_datum_warning_when_hae_minus_msl_is_not_n():
     assert warn[0] == ""
     assert "tag 75 - tag 15 = +0.0 m" in warn[1] and "at the sensor" in warn[1]
     assert lines == [f"packet 8 (byte 190): {warn[1]}"]
+
+
+def test_ground_points_are_degrees_where_ok_and_invalid_where_a_tag_is_missing():
+    OK, SKY, INV = int(Status.OK), int(Status.SKY), int(Status.INVALID_INPUT)
+    lat, lon = np.radians([36.5, 36.6, 36.7]), np.radians([-84.1, -84.2, -84.3])
+    gc = SimpleNamespace(
+        lat=lat,
+        lon=lon,
+        h=np.array([300.0, 310.0, 320.0]),
+        status=np.array([OK, SKY, OK], np.uint8),
+        slant_range=np.array([1000.0, 2000.0, 3000.0]),
+        refraction_m=np.array([0.1, 0.2, 0.3]),
+    )
+    gk = SimpleNamespace(
+        lat=np.tile(lat, (4, 1)), lon=np.tile(lon, (4, 1)), h=np.full((4, 3), 5.0), status=np.zeros((4, 3), np.uint8)
+    )
+    pts = kr._ground_points(gc, gk, np.array([False, False, True]), np.array([False, True, True]))
+    assert pts.status.tolist() == [OK, SKY, INV]
+    assert pts.lat[0] == pytest.approx(36.5, abs=1e-12) and pts.lon[0] == pytest.approx(-84.1, abs=1e-12)
+    assert np.isnan(pts.lat[1:]).all() and np.isnan(pts.h[1:]).all() and np.isnan(pts.range_m[1:]).all()
+    assert pts.refraction_m[0] == 0.1 and np.isnan(pts.refraction_m[2])
+    assert (pts.k_status[:, 1:] == INV).all() and (pts.k_status[:, 0] == OK).all()
+    assert pts.k_lat[:, 0] == pytest.approx([36.5] * 4, abs=1e-12) and np.isnan(pts.k_h[:, 1:]).all()
+    cols = kr._point_columns(pts, np.array([1.0, np.nan, np.nan]), kr.NO_CORRECTIONS)
+    assert list(cols)[:3] == ["lat_deg", "lon_deg", "mgrs"] and list(cols)[-3:] == [
+        "corner4_lat_deg",
+        "corner4_lon_deg",
+        "corner4_h_m",
+    ]
+    assert cols["mgrs"][1] == "" and cols["corner2_h_m"].tolist()[0] == 5.0
+
+
+def test_mean_corner_error_is_pyprojs_geodesic_over_the_corners_both_have():
+    # packet 0: four corners computed and reported; packet 1: two reported; packet 2: none
+    k_lat = np.full((4, 3), LAT)
+    k_lon = np.full((4, 3), LON)
+    rk_lat = np.array([[LAT + 0.001, LAT, np.nan]] * 4)
+    rk_lon = np.array(
+        [[LON, LON + 0.002, np.nan], [LON + 0.001, LON + 0.004, np.nan], [LON, np.nan, np.nan], [LON, np.nan, np.nan]]
+    )
+    pts = SimpleNamespace(k_lat=k_lat, k_lon=k_lon)
+    got = kr._mean_corner_error(pts, rk_lat, rk_lon)
+    geod = Geod(ellps="WGS84")
+    d = np.array([[geod.inv(LON, LAT, rk_lon[j, i], rk_lat[j, i])[2] for i in range(2)] for j in range(4)])
+    # 1 mm: two geodesic codes on a few hundred metres
+    assert got[0] == pytest.approx(d[:, 0].mean(), abs=1e-3)
+    assert got[1] == pytest.approx(d[:2, 1].mean(), abs=1e-3)
+    assert np.isnan(got[2])
+
+
+def test_summary_notes_name_the_sensor_file_and_a_dem_height_of_about_minus_n():
+    n_fc = proj_undulation(LAT, LON)
+    sens = SimpleNamespace(cols=640, rows=512)
+    # the reported frame-centre heights are orthometric (H) where the DEM's are ellipsoidal (H + N):
+    # reported minus the DEM's is -N
+    hts = SimpleNamespace(rep_h=np.array([300.0, 301.0]), n_fc=np.array([n_fc, n_fc]))
+    h_dem = hts.rep_h + n_fc
+    fc_err = np.array([1.0, 2.0])
+    notes = kr._summary_notes(object(), sens, object(), hts, h_dem, fc_err)
+    assert notes[0].startswith("sensor file: image 640 x 512")
+    assert f"median {-n_fc:+.2f} m" in notes[1] and "orthometric" in notes[1]
+    assert kr._summary_notes(None, sens, None, hts, h_dem, fc_err) == []
+
+
+def test_drone_height_warning_names_the_tag_and_the_height_above_the_frame_centre():
+    # a drone 2000 m above its frame centre (a feet / metres mix-up), the other packet 100 m
+    g = full_packet(2, sensor_ellipsoid_height_m=[2300.0, 400.0], frame_center_hae_m=300.0)
+    hts = kr._packet_heights(g)
+    cols = {"offset": np.array([0, 190]), "platform_designation": np.array(["DJI Mavic 3", "DJI Mavic 3"])}
+    read = type("R", (), {"packet": np.array([1, 2]), "columns": cols, "__len__": lambda self: 2})()
+    lines = kr._drone_height_warnings(read, None, None, hts, np.array([300.0, 300.0]))
+    assert len(lines) == 1
+    assert lines[0].startswith("packet 1 (byte 0): tag 75 (Sensor Ellipsoid Height) = 2300.0 m: a drone's camera")
