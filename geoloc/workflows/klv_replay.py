@@ -924,25 +924,9 @@ def _packet_angles(g) -> _Angles:
     )
 
 
-def _missing_tags(
-    hts: _Heights, ang: _Angles, surface, base_sensor, reserved=None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """What each packet lacks to be located (``bad_c``) and, beyond that, to have its corners
-    (``bad_k``); the note naming the tags per packet, and the count of each reason.
-
-    Without a surface the packet's own frame-centre height is where its rays end, so it is
-    needed; with a boresight the centre's ray turns with the sensor roll, so the roll is needed
-    for the centre, else only for the corners. ``reserved`` (per packet, the names of the items
-    it holds at the standard's reserved value, 0x80000000, "error"): a writer that has no value
-    may still send the item, and such an item is named as that, not as missing."""
-    n = len(hts.lat_s)
-    if reserved is None:
-        reserved = np.empty(n, object)
-        reserved[:] = [()] * n
-
-    def held(*names):
-        return np.fromiter((any(x in t for x in names) for t in reserved), bool, n)
-
+def _centre_needs(hts: _Heights, ang: _Angles, surface, centre_needs_roll: bool) -> list[tuple]:
+    """What a packet needs to be located: per need, (where it lacks it, the tags in words, the
+    items that may hold the reserved value instead of being absent)."""
     needs = [
         (~np.isfinite(hts.lat_s), _TAG_TEXT["sensor_latitude_deg"], ("sensor_latitude_deg",)),
         (~np.isfinite(hts.lon_s), _TAG_TEXT["sensor_longitude_deg"], ("sensor_longitude_deg",)),
@@ -970,35 +954,63 @@ def _missing_tags(
                 (),
             )
         )
-    centre_needs_roll = base_sensor is not None and any(getattr(base_sensor, "boresight", ()))
     if centre_needs_roll:
         needs.append((~np.isfinite(ang.sroll), _TAG_TEXT["sensor_relative_roll_deg"], ()))
-    notes = np.full(n, "", dtype=object)
-    bad_c = np.zeros(n, bool)
-    rnotes = np.full(n, "", dtype=object)
-    for mask, text, items in needs:
-        bad_c |= mask
-        r = mask & held(*items) if items else np.zeros(n, bool)
-        _append(notes, mask & ~r, f"{text}, ")
-        _append(rnotes, r, f"{text}, ")
+    return needs
 
-    def lacks(a, r):
-        """'missing tag ..., tag ...; tag ... holds a reserved value (no value)'."""
-        return "; ".join(
-            t for t in (("missing " + a[:-2]) if a else "", (r[:-2] + " " + _RESERVED_NOTE) if r else "") if t
-        )
 
-    centre_notes = [lacks(a, r) for a, r in zip(notes.tolist(), rnotes.tolist())]
-    invalid_reasons = dict(Counter(centre_notes[i] for i in np.flatnonzero(bad_c)).most_common())
-    corner_needs = [
+def _corner_needs(ang: _Angles, centre_needs_roll: bool) -> list[tuple]:
+    """What a located packet needs beyond that to have its corners: (where it lacks it, the tags)."""
+    needs = [
         (~ang.hfov_ok, "tag 16 (Sensor Horizontal Field of View; absent, 0 or 180)"),
         (~ang.vfov_ok, "tag 17 (Sensor Vertical Field of View; absent, 0 or 180)"),
     ]
     if not centre_needs_roll:
-        corner_needs.append((~np.isfinite(ang.sroll), _TAG_TEXT["sensor_relative_roll_deg"]))
+        needs.append((~np.isfinite(ang.sroll), _TAG_TEXT["sensor_relative_roll_deg"]))
+    return needs
+
+
+def _holds_reserved(reserved, names: tuple) -> np.ndarray:
+    """Per packet, whether it holds any of the items ``names`` at the reserved value."""
+    return np.fromiter((any(x in t for x in names) for t in reserved), bool, len(reserved))
+
+
+def _lacks_text(absent: str, reserved: str) -> str:
+    """'missing tag ..., tag ...; tag ... holds a reserved value (no value)' from the two lists
+    (each "tag ..., tag ..., ", ending in a comma and a space; either may be empty)."""
+    parts = (("missing " + absent[:-2]) if absent else "", (reserved[:-2] + " " + _RESERVED_NOTE) if reserved else "")
+    return "; ".join(t for t in parts if t)
+
+
+def _missing_tags(
+    hts: _Heights, ang: _Angles, surface, base_sensor, reserved=None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """What each packet lacks to be located (``bad_c``) and, beyond that, to have its corners
+    (``bad_k``); the note naming the tags per packet, and the count of each reason.
+
+    Without a surface the packet's own frame-centre height is where its rays end, so it is
+    needed; with a boresight the centre's ray turns with the sensor roll, so the roll is needed
+    for the centre, else only for the corners. ``reserved`` (per packet, the names of the items
+    it holds at the standard's reserved value, 0x80000000, "error"): a writer that has no value
+    may still send the item, and such an item is named as that, not as missing."""
+    n = len(hts.lat_s)
+    if reserved is None:
+        reserved = np.empty(n, object)
+        reserved[:] = [()] * n
+    centre_needs_roll = base_sensor is not None and any(getattr(base_sensor, "boresight", ()))
+    notes = np.full(n, "", dtype=object)
+    bad_c = np.zeros(n, bool)
+    rnotes = np.full(n, "", dtype=object)
+    for mask, text, items in _centre_needs(hts, ang, surface, centre_needs_roll):
+        bad_c |= mask
+        r = mask & _holds_reserved(reserved, items) if items else np.zeros(n, bool)
+        _append(notes, mask & ~r, f"{text}, ")
+        _append(rnotes, r, f"{text}, ")
+    centre_notes = [_lacks_text(a, r) for a, r in zip(notes.tolist(), rnotes.tolist())]
+    invalid_reasons = dict(Counter(centre_notes[i] for i in np.flatnonzero(bad_c)).most_common())
     knotes = np.full(n, "", dtype=object)
     bad_k = bad_c.copy()
-    for mask, text in corner_needs:
+    for mask, text in _corner_needs(ang, centre_needs_roll):
         bad_k |= mask
         _append(knotes, mask & ~bad_c, f"{text}, ")
     notes = np.array(

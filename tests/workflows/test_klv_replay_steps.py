@@ -1,5 +1,6 @@
 """The KLV replay's steps, each alone (geoloc.workflows.klv_replay: ``_packet_heights``,
-``_packet_angles``, ``_missing_tags``, ``_replay_geometry``, ``_reported_corners``, ``_ground_points``,
+``_packet_angles``, ``_missing_tags`` and its ``_centre_needs``, ``_corner_needs``,
+``_holds_reserved``, ``_lacks_text``, ``_replay_geometry``, ``_reported_corners``, ``_ground_points``,
 ``_mean_corner_error``, ``_point_columns``, ``_corner_status``, ``_datum_warnings``,
 ``_drone_height_warnings``, ``_summary_notes``), on columns written here by hand.
 
@@ -170,6 +171,43 @@ def test_datum_warning_when_hae_minus_msl_is_not_n():
     assert warn[0] == ""
     assert "tag 75 - tag 15 = +0.0 m" in warn[1] and "at the sensor" in warn[1]
     assert lines == [f"packet 8 (byte 190): {warn[1]}"]
+
+
+def test_missing_tags_name_a_reserved_item_as_reserved_not_as_missing():
+    # packet 0 sends tag 13 at the reserved value, packet 1 does not send it, packet 2 has both
+    g = full_packet(3, sensor_latitude_deg=[np.nan, np.nan, LAT])
+    reserved = np.empty(3, object)
+    reserved[:] = [("sensor_latitude_deg",), (), ()]
+    assert kr._holds_reserved(reserved, ("sensor_latitude_deg", "x")).tolist() == [True, False, False]
+    hts, ang = kr._packet_heights(g), kr._packet_angles(g)
+    bad_c, _, notes, reasons = kr._missing_tags(hts, ang, None, None, reserved)
+    assert bad_c.tolist() == [True, True, False]
+    assert notes[0] == f"tag 13 (Sensor Latitude) {kr._RESERVED_NOTE}"
+    assert notes[1] == "missing tag 13 (Sensor Latitude)"
+    assert reasons == {notes[0]: 1, notes[1]: 1}
+
+
+def test_lacks_text_joins_the_missing_and_the_reserved_lists():
+    assert kr._lacks_text("", "") == ""
+    assert kr._lacks_text("tag 5 (A), tag 6 (B), ", "") == "missing tag 5 (A), tag 6 (B)"
+    assert kr._lacks_text("", "tag 13 (C), ") == f"tag 13 (C) {kr._RESERVED_NOTE}"
+    assert kr._lacks_text("tag 5 (A), ", "tag 13 (C), ") == f"missing tag 5 (A); tag 13 (C) {kr._RESERVED_NOTE}"
+
+
+def test_the_sensor_roll_is_a_centre_need_with_a_boresight_else_a_corner_need():
+    g = full_packet(1, sensor_relative_roll_deg=np.nan)
+    hts, ang = kr._packet_heights(g), kr._packet_angles(g)
+    roll = kr._TAG_TEXT["sensor_relative_roll_deg"]
+    for centre in (True, False):
+        c_texts = [t for mask, t, _ in kr._centre_needs(hts, ang, object(), centre) if mask.any()]
+        k_texts = [t for mask, t in kr._corner_needs(ang, centre) if mask.any()]
+        assert (c_texts, k_texts) == (([roll], []) if centre else ([], [roll]))
+    # a surface given: the frame-centre height is no need; none given: it is one, and the only one lacking
+    g = full_packet(1, frame_center_hae_m=None)
+    hts = kr._packet_heights(g)
+    lacking = [t for mask, t, _ in kr._centre_needs(hts, kr._packet_angles(g), None, False) if mask.any()]
+    assert len(lacking) == 1 and lacking[0].startswith("tag 78")
+    assert not any(m.any() for m, _, _ in kr._centre_needs(hts, kr._packet_angles(g), object(), False))
 
 
 def test_ground_points_are_degrees_where_ok_and_invalid_where_a_tag_is_missing():
