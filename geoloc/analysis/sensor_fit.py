@@ -204,6 +204,91 @@ def _ground(sensor, pose, row, col, surface_of, corrections: Corrections = NO_CO
     return Pipeline(sensor, surface_of, corrections).locate(row, col, pose, outside="extrapolate")
 
 
+@dataclass(frozen=True)
+class _FitProblem:
+    """The records' poses, pixels and surveyed truth [rad] for fitting ``names`` of ``sensor``:
+    the (east, north) residuals [m] of any trial sensor on any subset of the records."""
+
+    sensor: Any
+    names: list
+    p0: np.ndarray
+    pose: Any
+    row: np.ndarray
+    col: np.ndarray
+    truth_lat: np.ndarray
+    truth_lon: np.ndarray
+    surface_of: Callable
+    corrections: Corrections
+
+    def trial(self, p: np.ndarray) -> Any:
+        """The sensor with the fitted parameters at ``p``."""
+        return with_fit_params(self.sensor, dict(zip(self.names, p)))
+
+    def errors(self, s: Any, ii: np.ndarray) -> np.ndarray:
+        """(east, north) of records ``ii``'s ground points with sensor ``s`` minus their truth, (len(ii), 2)."""
+        hit = _ground(s, self.pose.take(ii), self.row[ii], self.col[ii], self.surface_of(ii), self.corrections)
+        return _enu_residuals(hit, self.truth_lat[ii], self.truth_lon[ii])
+
+    def solve(self, ii: np.ndarray):
+        """``scipy.optimize.least_squares`` from the start values on records ``ii``."""
+        return least_squares(
+            lambda p: self.errors(self.trial(p), ii).ravel(),
+            self.p0,
+            x_scale="jac",
+            method="lm" if 2 * len(ii) >= len(self.names) else "trf",
+            xtol=1e-15,
+            ftol=1e-15,
+            gtol=1e-15,
+            max_nfev=200 * (len(self.names) + 1),
+        )
+
+
+def _fit_problem(
+    records: Records, sensor: Any, names: list, surface: Surface, corrections: Corrections, truth_prefix: str, idx
+) -> tuple[_FitProblem, np.ndarray]:
+    """The problem of :func:`fit_sensor_params` and the records to use, or ValueError naming what
+    is wrong: an unknown parameter, no parameter, fewer equations than parameters, a record
+    without its truth."""
+    known = _check_names(sensor, names)
+    if not names:
+        raise ValueError("name at least one parameter to fit")
+    idx = np.arange(len(records)) if idx is None else np.asarray(idx, int)
+    if 2 * idx.size < len(names):
+        raise ValueError(
+            f"{idx.size} record(s) give {2 * idx.size} equations for {len(names)} parameters; "
+            f"need at least {(len(names) + 1) // 2} records"
+        )
+    pose, row, col = records.pose(), records.column("row"), records.column("col")
+    tlat = np.deg2rad(records.column(f"{truth_prefix}_lat_deg"))
+    tlon = np.deg2rad(records.column(f"{truth_prefix}_lon_deg"))
+    if not np.all(np.isfinite(tlat[idx]) & np.isfinite(tlon[idx])):
+        raise ValueError(f"{records.path}: every record to fit needs {truth_prefix}_lat_deg and _lon_deg")
+    p0 = np.array([known[n] for n in names], float)
+    problem = _FitProblem(sensor, names, p0, pose, row, col, tlat, tlon, partial(for_records, surface), corrections)
+    return problem, idx
+
+
+def _correlation(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Standard deviations and the correlation matrix of a covariance (NaN where not determined)."""
+    sd = np.sqrt(np.diag(cov))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return sd, cov / np.outer(sd, sd)
+
+
+def _loo_errors(problem: _FitProblem, idx: np.ndarray) -> np.ndarray:
+    """Each record's horizontal error [m] against the fit to the other records of ``idx``."""
+    out = np.full(len(idx), np.nan)
+    for k in range(len(idx)):
+        s_k = problem.trial(problem.solve(np.delete(idx, k)).x)
+        out[k] = float(np.linalg.norm(problem.errors(s_k, idx[k : k + 1])))
+    return out
+
+
+def _rms_m(r: np.ndarray) -> float:
+    """RMS horizontal length of (east, north) vectors (n, 2) [m]."""
+    return float(np.sqrt(np.mean(np.sum(r**2, -1))))
+
+
 def fit_sensor_params(
     records: Records,
     sensor: Any,
@@ -235,72 +320,25 @@ def fit_sensor_params(
         Also refit without each record (leave-one-out).
     """
     names = list(names)
-    known = _check_names(sensor, names)
-    if not names:
-        raise ValueError("name at least one parameter to fit")
-    idx = np.arange(len(records)) if idx is None else np.asarray(idx, int)
-    if 2 * idx.size < len(names):
-        raise ValueError(
-            f"{idx.size} record(s) give {2 * idx.size} equations for {len(names)} parameters; "
-            f"need at least {(len(names) + 1) // 2} records"
-        )
-    pose_all = records.pose()
-    row_all, col_all = records.column("row"), records.column("col")
-    tlat_all = np.deg2rad(records.column(f"{truth_prefix}_lat_deg"))
-    tlon_all = np.deg2rad(records.column(f"{truth_prefix}_lon_deg"))
-    if not np.all(np.isfinite(tlat_all[idx]) & np.isfinite(tlon_all[idx])):
-        raise ValueError(f"{records.path}: every record to fit needs {truth_prefix}_lat_deg and _lon_deg")
-    surf = partial(for_records, surface)
-    p0 = np.array([known[n] for n in names], float)
-
-    def errors(s, ii):
-        hit = _ground(s, pose_all.take(ii), row_all[ii], col_all[ii], surf(ii), corrections)
-        return _enu_residuals(hit, tlat_all[ii], tlon_all[ii])
-
-    def solve(ii):
-        def resid(p):
-            return errors(with_fit_params(sensor, dict(zip(names, p))), ii).ravel()
-
-        return least_squares(
-            resid,
-            p0,
-            x_scale="jac",
-            method="lm" if 2 * len(ii) >= len(names) else "trf",
-            xtol=1e-15,
-            ftol=1e-15,
-            gtol=1e-15,
-            max_nfev=200 * (len(names) + 1),
-        )
-
-    r0 = errors(sensor, idx)
-    sol = solve(idx)
-    fitted = with_fit_params(sensor, dict(zip(names, sol.x)))
-    r1 = errors(fitted, idx)
-    m, p = r1.size, len(names)
-    dof = m - p
-    cov, s2 = _covariance(sol.jac, sol.fun, p)
-    sd = np.sqrt(np.diag(cov))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(sd, sd)
-    loo_err = None
-    if loo:
-        loo_err = np.full(len(idx), np.nan)
-        for k in range(len(idx)):
-            rest = np.delete(idx, k)
-            s_k = with_fit_params(sensor, dict(zip(names, solve(rest).x)))
-            loo_err[k] = float(np.linalg.norm(errors(s_k, idx[k : k + 1])))
+    problem, idx = _fit_problem(records, sensor, names, surface, corrections, truth_prefix, idx)
+    r0 = problem.errors(sensor, idx)
+    sol = problem.solve(idx)
+    fitted = problem.trial(sol.x)
+    r1 = problem.errors(fitted, idx)
+    cov, s2 = _covariance(sol.jac, sol.fun, len(names))
+    sd, corr = _correlation(cov)
     return SensorFit(
         names,
-        p0,
+        problem.p0,
         sol.x,
         sd,
         corr,
         fitted,
-        float(np.sqrt(np.mean(np.sum(r0**2, -1)))),
-        float(np.sqrt(np.mean(np.sum(r1**2, -1)))),
+        _rms_m(r0),
+        _rms_m(r1),
         np.linalg.norm(r1, axis=-1),
-        loo_err,
-        dof,
+        _loo_errors(problem, idx) if loo else None,
+        r1.size - len(names),
         residual_m=r1,
         sigma_m=float(np.sqrt(s2)) if np.isfinite(s2) else float("nan"),
         success=bool(sol.success),
