@@ -265,6 +265,78 @@ def _status_legend() -> str:
     return ", ".join(f"{int(s)}={s.name.lower()}" for s in Status)
 
 
+#: The bands' descriptions, in BANDS' order.
+BAND_DESCRIPTIONS = (
+    "lat_deg: geodetic latitude, WGS 84 [deg]",
+    "lon_deg: longitude, WGS 84, east + [deg]",
+    f"h_m: height [m], {ELLIPSOID_DATUM}",
+    "status: geoloc.status.Status code (0 = ok)",
+)
+
+
+def _geotiff_profile(width: int, height: int) -> dict:
+    """rasterio's creation options for a frame's file: four float64 bands, NaN as nodata, tiled
+    256 x 256, deflate with the floating-point predictor, BigTIFF if it may need it."""
+    return dict(
+        driver="GTiff",
+        width=width,
+        height=height,
+        count=len(BANDS),
+        dtype="float64",
+        nodata=float("nan"),
+        tiled=True,
+        blockxsize=256,
+        blockysize=256,
+        compress="deflate",
+        predictor=3,
+        BIGTIFF="IF_SAFER",
+    )
+
+
+def _geotiff_tags(sensor, step: int, tags: dict | None) -> dict:
+    """The file's metadata: datums, the pixel convention, the step, the sensor's size, the status
+    codes, then the caller's ``tags`` (as text; a caller's tag of the same name wins)."""
+    out = {
+        "h_datum": ELLIPSOID_DATUM,
+        "lat_lon_datum": "WGS 84 (geodetic)",
+        "pixel_convention": "1-based pixel centres (docs/conventions.md)",
+        "row_first": "1",
+        "col_first": "1",
+        "step": str(int(step)),
+        "sensor_rows": str(sensor.rows),
+        "sensor_cols": str(sensor.cols),
+        "status_codes": _status_legend(),
+        "software": "geoloc ortho (geoloc.workflows.ortho.write_frame_geotiff)",
+    }
+    out.update({k: str(v) for k, v in (tags or {}).items()})
+    return out
+
+
+def _label_bands(dst) -> None:
+    """Each band of the open dataset ``dst`` described, and tagged with its name, unit and datum."""
+    for b, (name, desc) in enumerate(zip(BANDS, BAND_DESCRIPTIONS), start=1):
+        dst.set_band_description(b, desc)
+        unit = {"lat_deg": "deg", "lon_deg": "deg", "h_m": "m"}.get(name, "")
+        dst.update_tags(b, name=name, unit=unit, **({"datum": ELLIPSOID_DATUM} if name == "h_m" else {}))
+
+
+def _write_chunks(dst, chunks, width: int, bar: Progress) -> np.ndarray:
+    """Write :func:`iter_frame`'s chunks of whole rows (radians to degrees, the status as a
+    number) into ``dst``; the count of pixels per status."""
+    import rasterio.windows
+
+    counts = np.zeros(len(Status), dtype=np.int64)
+    for i0, i1, lat, lon, h, st in chunks:
+        win = rasterio.windows.Window(0, i0, width, i1 - i0)
+        dst.write(np.rad2deg(lat), 1, window=win)
+        dst.write(np.rad2deg(lon), 2, window=win)
+        dst.write(h, 3, window=win)
+        dst.write(st.astype(np.float64), 4, window=win)
+        counts += np.bincount(st.reshape(-1), minlength=len(Status))
+        bar.update((i1 - i0) * width)
+    return counts
+
+
 def write_frame_geotiff(
     path: str | os.PathLike[str],
     sensor: SensorLike,
@@ -299,62 +371,19 @@ def write_frame_geotiff(
 
     sensor = _as_sensor(sensor)
     rows, cols = frame_pixels(sensor, step)
-    counts = np.zeros(len(Status), dtype=np.int64)
-    profile = dict(
-        driver="GTiff",
-        width=cols.size,
-        height=rows.size,
-        count=len(BANDS),
-        dtype="float64",
-        nodata=float("nan"),
-        tiled=True,
-        blockxsize=256,
-        blockysize=256,
-        compress="deflate",
-        predictor=3,
-        BIGTIFF="IF_SAFER",
-    )
-    all_tags = {
-        "h_datum": ELLIPSOID_DATUM,
-        "lat_lon_datum": "WGS 84 (geodetic)",
-        "pixel_convention": "1-based pixel centres (docs/conventions.md)",
-        "row_first": "1",
-        "col_first": "1",
-        "step": str(int(step)),
-        "sensor_rows": str(sensor.rows),
-        "sensor_cols": str(sensor.cols),
-        "status_codes": _status_legend(),
-        "software": "geoloc ortho (geoloc.workflows.ortho.write_frame_geotiff)",
-    }
-    all_tags.update({k: str(v) for k, v in (tags or {}).items()})
-    descriptions = (
-        "lat_deg: geodetic latitude, WGS 84 [deg]",
-        "lon_deg: longitude, WGS 84, east + [deg]",
-        f"h_m: height [m], {ELLIPSOID_DATUM}",
-        "status: geoloc.status.Status code (0 = ok)",
-    )
     path = Path(path)
     bar = Progress(rows.size * cols.size, f"ortho {path.name}", progress)
     with atomic_path(path) as tmp:
         with warnings.catch_warnings(), rasterio.Env():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)  # the image grid has no CRS by design
-            dst = rasterio.open(tmp, "w", **profile)
+            dst = rasterio.open(tmp, "w", **_geotiff_profile(cols.size, rows.size))
         with dst:
-            dst.update_tags(**all_tags)
-            for b, (name, desc) in enumerate(zip(BANDS, descriptions), start=1):
-                dst.set_band_description(b, desc)
-                unit = {"lat_deg": "deg", "lon_deg": "deg", "h_m": "m"}.get(name, "")
-                dst.update_tags(b, name=name, unit=unit, **({"datum": ELLIPSOID_DATUM} if name == "h_m" else {}))
-            for i0, i1, lat, lon, h, st in iter_frame(
+            dst.update_tags(**_geotiff_tags(sensor, step, tags))
+            _label_bands(dst)
+            chunks = iter_frame(
                 sensor, pose, surface, step=step, chunk=chunk, parallel=parallel, corrections=corrections
-            ):
-                win = rasterio.windows.Window(0, i0, cols.size, i1 - i0)
-                dst.write(np.rad2deg(lat), 1, window=win)
-                dst.write(np.rad2deg(lon), 2, window=win)
-                dst.write(h, 3, window=win)
-                dst.write(st.astype(np.float64), 4, window=win)
-                counts += np.bincount(st.reshape(-1), minlength=len(Status))
-                bar.update((i1 - i0) * cols.size)
+            )
+            counts = _write_chunks(dst, chunks, cols.size, bar)
     bar.close()
     return {
         "path": str(path),
