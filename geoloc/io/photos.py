@@ -1002,17 +1002,13 @@ def _pix4d_calibration(m: PhotoMeta, root, ex: dict, notes: list) -> None:
     )
 
 
-def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: list) -> None:
-    """Fill ``m`` from a non-DJI maker's tags (:mod:`geoloc.io.photo_makers`)."""
-    m.maker = maker.name
-    own: dict = {}
-    for u in maker.namespaces:
-        for k, v in props.get(u, {}).items():
-            own.setdefault(k, v)
-    ang = angles_namespace(maker, props)
-    m.xmp = {**own, **ang}
-    pre = maker.prefix
+_PLATFORM = ("platform_yaw", "platform_pitch", "platform_roll")
 
+
+def _maker_position(m: PhotoMeta, maker: MakerTags, own: dict, ex: dict, notes: list) -> None:
+    """``m``'s position from the maker's tags, else EXIF GPS; its heights and where they came
+    from (a note says the maker's datum). ValueError naming the tags for a position out of range."""
+    pre = maker.prefix
     lat, klat = _maker_number(own, maker.lat, pre, notes)
     lon, klon = _maker_number(own, maker.lon, pre, notes)
     if lat is not None and lon is not None:
@@ -1031,46 +1027,53 @@ def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: li
     if m.altitude_source:
         notes.append(f"{maker.name}: altitude from {m.altitude_source}; its datum: {maker.altitude_datum}")
 
+
+def _maker_angle_values(maker: MakerTags, own: dict, ang: dict, notes: list) -> tuple[dict, dict, float]:
+    """The camera's angles (yaw, pitch, roll) and the platform's as the tags give them (None where
+    absent), and the factor to degrees."""
+    pre = maker.prefix
     ang_pre = "Camera" if maker.convention == "pix4d-nadir" else pre
-    raw = {}
-    for which in ("yaw", "pitch", "roll"):
-        raw[which], _ = _maker_number(ang, getattr(maker, which), ang_pre, notes)
-    plat = {}
-    for which in ("platform_yaw", "platform_pitch", "platform_roll"):
-        plat[which], _ = _maker_number(
-            ang if maker.convention == "platform-relative" else own, getattr(maker, which), pre, notes
-        )
-    scale = math.degrees(1.0) if maker.unit == "rad" else 1.0
-    if any(v is not None for v in plat.values()):
-        m.flight_yaw_deg, m.flight_pitch_deg, m.flight_roll_deg = (
-            (plat[k] or 0.0) * scale for k in ("platform_yaw", "platform_pitch", "platform_roll")
-        )
-    missing = []
-    names = {"yaw": maker.tag_names("yaw"), "pitch": maker.tag_names("pitch"), "roll": maker.tag_names("roll")}
+    raw = {which: _maker_number(ang, getattr(maker, which), ang_pre, notes)[0] for which in ("yaw", "pitch", "roll")}
+    plat_from = ang if maker.convention == "platform-relative" else own
+    plat = {which: _maker_number(plat_from, getattr(maker, which), pre, notes)[0] for which in _PLATFORM}
+    return raw, plat, (math.degrees(1.0) if maker.unit == "rad" else 1.0)
+
+
+def _missing_angle_tags(maker: MakerTags, raw: dict, plat: dict) -> list[str]:
+    """The tags (alternatives joined by "or") of each angle the photo lacks."""
+    names = {k: maker.tag_names(k) for k in ("yaw", "pitch", "roll")}
     if maker.convention == "pix4d-nadir":
         names = {k: [f"Camera:{t}" for t in getattr(maker, k)] for k in ("yaw", "pitch", "roll")}
-    for which in ("yaw", "pitch", "roll"):
-        if raw[which] is None:
-            missing.append(" or ".join(names[which]))
+    missing = [" or ".join(names[k]) for k in ("yaw", "pitch", "roll") if raw[k] is None]
     if maker.convention == "platform-relative":
-        for which in ("platform_yaw", "platform_pitch", "platform_roll"):
-            if plat[which] is None:
-                missing.append(" or ".join(maker.tag_names(which)))
-    if not missing:
-        y, p_, r = (raw[k] * scale for k in ("yaw", "pitch", "roll"))
-        platform = (
-            tuple(plat[k] * scale for k in ("platform_yaw", "platform_pitch", "platform_roll"))
-            if maker.convention == "platform-relative"
-            else None
-        )
-        m.gimbal_yaw_deg, m.gimbal_pitch_deg, m.gimbal_roll_deg = earth_gimbal_deg(maker.convention, y, p_, r, platform)
-        if maker.convention != "ned-horizon":
-            notes.append(
-                f"{maker.name}: camera angles yaw {y:g}, pitch {p_:g}, roll {r:g} deg "
-                f"({CONVENTIONS[maker.convention]}) are DJI's earth-referenced gimbal yaw "
-                f"{m.gimbal_yaw_deg:.6g}, pitch {m.gimbal_pitch_deg:.6g}, roll {m.gimbal_roll_deg:.6g} deg"
-            )
+        missing += [" or ".join(maker.tag_names(k)) for k in _PLATFORM if plat[k] is None]
+    return missing
 
+
+def _maker_attitude(m: PhotoMeta, maker: MakerTags, own: dict, ang: dict, notes: list) -> list[str]:
+    """``m``'s flight attitude and DJI's earth-referenced gimbal angles from the maker's own
+    (:func:`geoloc.io.photo_makers.earth_gimbal_deg`); the tags of the angles missing."""
+    raw, plat, scale = _maker_angle_values(maker, own, ang, notes)
+    if any(v is not None for v in plat.values()):
+        m.flight_yaw_deg, m.flight_pitch_deg, m.flight_roll_deg = ((plat[k] or 0.0) * scale for k in _PLATFORM)
+    missing = _missing_angle_tags(maker, raw, plat)
+    if missing:
+        return missing
+    y, p_, r = (raw[k] * scale for k in ("yaw", "pitch", "roll"))
+    platform = tuple(plat[k] * scale for k in _PLATFORM) if maker.convention == "platform-relative" else None
+    m.gimbal_yaw_deg, m.gimbal_pitch_deg, m.gimbal_roll_deg = earth_gimbal_deg(maker.convention, y, p_, r, platform)
+    if maker.convention != "ned-horizon":
+        notes.append(
+            f"{maker.name}: camera angles yaw {y:g}, pitch {p_:g}, roll {r:g} deg "
+            f"({CONVENTIONS[maker.convention]}) are DJI's earth-referenced gimbal yaw "
+            f"{m.gimbal_yaw_deg:.6g}, pitch {m.gimbal_pitch_deg:.6g}, roll {m.gimbal_roll_deg:.6g} deg"
+        )
+    return []
+
+
+def _maker_lens(m: PhotoMeta, maker: MakerTags, own: dict, notes: list) -> None:
+    """``m``'s calibrated pinhole from the maker's tags, where it gives a positive focal length."""
+    pre = maker.prefix
     fx, _ = _maker_number(own, maker.focal_x_px, pre, notes)
     fy, _ = _maker_number(own, maker.focal_y_px, pre, notes)
     if fx is not None and fx > 0:
@@ -1080,7 +1083,10 @@ def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: li
         m.calibrated_center_y_px, _ = _maker_number(own, maker.center_y_px, pre, notes)
         m.xmp["_calibration_tags"] = f"{pre}:{maker.focal_x_px[0]}"
 
-    miss = []
+
+def _missing_position_tags(m: PhotoMeta, maker: MakerTags) -> list[str]:
+    """The tags (the maker's, then EXIF's) of the position and the altitude where ``m`` has none."""
+    pre, miss = maker.prefix, []
     if m.lat_deg is None:
         miss.append(
             " or ".join([f"{pre}:{maker.lat[0]}/{maker.lon[0]}"] if maker.lat else [])
@@ -1089,7 +1095,22 @@ def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: li
         )
     if m.altitude_m is None:
         miss.append((f"{pre}:{maker.altitude[0]} or " if maker.altitude else "") + "EXIF GPSAltitude")
-    m.missing = tuple(miss + missing)
+    return miss
+
+
+def _read_maker(m: PhotoMeta, maker: MakerTags, props: dict, ex: dict, notes: list) -> None:
+    """Fill ``m`` from a non-DJI maker's tags (:mod:`geoloc.io.photo_makers`)."""
+    m.maker = maker.name
+    own: dict = {}
+    for u in maker.namespaces:
+        for k, v in props.get(u, {}).items():
+            own.setdefault(k, v)
+    ang = angles_namespace(maker, props)
+    m.xmp = {**own, **ang}
+    _maker_position(m, maker, own, ex, notes)
+    missing = _maker_attitude(m, maker, own, ang, notes)
+    _maker_lens(m, maker, own, notes)
+    m.missing = tuple(_missing_position_tags(m, maker) + missing)
 
 
 # --------------------------------------------------------------------------- lens, sensor, pose
