@@ -1033,9 +1033,12 @@ def _maker_angle_values(maker: MakerTags, own: dict, ang: dict, notes: list) -> 
     absent), and the factor to degrees."""
     pre = maker.prefix
     ang_pre = "Camera" if maker.convention == "pix4d-nadir" else pre
-    raw = {which: _maker_number(ang, getattr(maker, which), ang_pre, notes)[0] for which in ("yaw", "pitch", "roll")}
+    raw, plat = {}, {}
+    for which in ("yaw", "pitch", "roll"):
+        raw[which], _ = _maker_number(ang, getattr(maker, which), ang_pre, notes)
     plat_from = ang if maker.convention == "platform-relative" else own
-    plat = {which: _maker_number(plat_from, getattr(maker, which), pre, notes)[0] for which in _PLATFORM}
+    for which in _PLATFORM:
+        plat[which], _ = _maker_number(plat_from, getattr(maker, which), pre, notes)
     return raw, plat, (math.degrees(1.0) if maker.unit == "rad" else 1.0)
 
 
