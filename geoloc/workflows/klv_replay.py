@@ -1312,7 +1312,8 @@ def _replay(read: KlvRead, surface, base_sensor, budget=None, corrections: Corre
     bad_c, bad_k, notes, invalid_reasons = _missing_tags(hts, ang, surface, base_sensor, read.columns.get("reserved"))
     geo = _replay_geometry(hts, ang, bad_c, bad_k, base_sensor)
     h_int = _clean(hts.rep_h, bad_c)
-    pts = _ground_points(*_intersect_packets(geo, surface, h_int, corrections), bad_c, bad_k)
+    gc, gk = _intersect_packets(geo, surface, h_int, corrections)
+    pts = _ground_points(gc, gk, bad_c, bad_k)
     rk_lat, rk_lon, rep_corners = _reported_corners(g, hts)
 
     fc_err = horizontal_distance_m(pts.lat, pts.lon, hts.fc_lat, hts.fc_lon)
