@@ -230,6 +230,14 @@ CASES = {
         ],
         300,
     ),
+    "bench_steps_ab.py": (
+        ["HEAD", "--pairs", "1", "--only", "maker,replay"],  # this tree against a copy of HEAD
+        [
+            rf"^maker +CPU old/new {N} \(quartiles {N}-{N}, fastest quarters {N}\); .*results equal: True$",
+            rf"^replay +CPU old/new {N} \(quartiles {N}-{N}, fastest quarters {N}\); .*results equal: True$",
+        ],
+        600,
+    ),
     "bench_walk_ab.py": (
         ["HEAD", "--repeat", "1"],  # this tree's walk against HEAD's (compiled afresh: ~35 s)
         [
@@ -271,8 +279,8 @@ def _run(args, tmp_path, timeout):
 @pytest.mark.parametrize("name", _params())
 def test_benchmark_runs_at_a_tiny_size(name, tmp_path):
     args, patterns, timeout = CASES[name]
-    if name == "bench_walk_ab.py" and not (ROOT / ".git").exists():
-        pytest.skip("bench_walk_ab reads REV's walk with git show: not a git checkout")
+    if name in ("bench_walk_ab.py", "bench_steps_ab.py") and not (ROOT / ".git").exists():
+        pytest.skip(f"{name} reads REV with git: not a git checkout")
     r = _run([BENCH / name, *args], tmp_path, timeout)
     cmd = f"python benchmarks/{name} {' '.join(args)}"
     assert r.returncode == 0, f"{cmd} exited {r.returncode}; stderr:\n{r.stderr[-6000:]}"
