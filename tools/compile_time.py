@@ -236,7 +236,7 @@ def main(argv=None) -> int:
             print(f"{name:12s} {c1:9.1f} {c2:9.1f} {c1 - c2:8.1f} {w1:9.1f}  {os.getloadavg()[0]:.1f}", flush=True)
         print()
         print(f"{'kernel':32s} {'own CPU s':>9s} {'with callees':>12s} {'sigs':>4s}")
-        per = {}
+        per: dict[str, tuple[float, float, int]] = {}
         for kname, whole, own in _self_times(spans):
             w0, o0, n0 = per.get(kname, (0.0, 0.0, 0))
             per[kname] = (w0 + whole, o0 + own, n0 + 1)
