@@ -216,9 +216,11 @@ def _numba_cache_classes() -> bool:
 
 
 #: Seconds a process waits for another one compiling the same kernel before it compiles it itself
-#: (a process that failed to compile keeps its lock until it exits). The longest compile measured is
-#: the flat bilinear walk's, 10.8 s of CPU (FIRST_COMPILE_CPU_S); a busy machine stretches it.
-COMPILE_WAIT_S = 120.0
+#: (a process that failed to compile keeps its lock until it exits). The longest compiles are the
+#: fused uncertainty kernels', 77-98 s of CPU (``tools/compile_time.py``), and a test run's three
+#: workers on two cores stretch that past 200 s of wall time: with 120 s the second worker gave up
+#: and compiled ``chain_surface_kernel`` again (about 100 s of CPU more, in every cold run).
+COMPILE_WAIT_S = 600.0
 
 
 #: The compile locks this process holds: lock file path -> its file descriptor.
