@@ -38,6 +38,7 @@ from geoloc.pipeline import NO_CORRECTIONS, Corrections, Pipeline
 from geoloc.status import Status
 from geoloc.surfaces.base import Surface
 from geoloc.surfaces.height import HeightSurface, for_records
+from geoloc.surfaces.terrain_numba import compiled_walk
 
 #: Residual given to a record whose ray finds no ground point during the fit [m].
 FAILED_RESIDUAL_M = 1.0e4
@@ -289,6 +290,7 @@ def _rms_m(r: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(r**2, -1))))
 
 
+@compiled_walk()  # a fit locates its records at every trial: the kernel, not the Python walk
 def fit_sensor_params(
     records: Records,
     sensor: Any,
@@ -346,6 +348,7 @@ def fit_sensor_params(
 
 
 # --------------------------------------------------------------------------- per flight
+@compiled_walk()  # a fit locates its records at every trial: the kernel, not the Python walk
 def fit_sensor_groups(
     records: Records,
     sensor: Any,
@@ -601,6 +604,7 @@ class SensorResection:
         }
 
 
+@compiled_walk()  # a fit locates its records at every trial: the kernel, not the Python walk
 def resect_sensor(
     records: Records,
     sensor: Any,

@@ -88,6 +88,25 @@ def test_small_calls_walk_uncompiled_whatever_the_process_compiled(monkeypatch):
     assert np.array_equal(first.ecef, again.ecef, equal_nan=True)
 
 
+def test_within_compiled_walk_a_small_call_takes_the_kernel(monkeypatch):
+    """A fit's loop of small calls (compiled_walk) walks them compiled: the Python walk is not
+    entered, and the hits are the uncompiled ones within the kernel's rounding (_assert_same)."""
+    dem = DEM.open(asset_path("dem", "srtm_jacksboro.tif"))
+    los = random_oblique_rays(dem, 12, np.random.default_rng(5))
+    used = []
+    real = tn._python_walk
+    monkeypatch.setattr(tn, "_python_walk", lambda k: (used.append(k), real(k))[1])
+    py = intersect_dem(los, dem, "exact")
+    assert len(used) == 1
+    with tn.compiled_walk():
+        nb = intersect_dem(los, dem, "exact")
+    assert len(used) == 1  # not entered again
+    _assert_same(py, nb)
+    assert (nb.status == 0).sum() >= 10
+    intersect_dem(los, dem, "exact")  # the block ended: small calls uncompiled again
+    assert len(used) == 2
+
+
 def _prefix_spy(monkeypatch):
     """A list that receives (rays walked uncompiled, rays in the call) for each walk call."""
     seen = []
