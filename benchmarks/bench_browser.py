@@ -198,6 +198,26 @@ def _census(browser, server, viewer, built, window_s=6.0) -> list:
     return rows
 
 
+def served_flight_viewer():
+    """The default flight's viewer on a fresh local server: (server, viewer, built), ``built``
+    mapping each tab's client id to ``time.time()`` when its tab was built (the server's side of a
+    first view)."""
+    from geoloc_viz.app import GeolocViewer, make_server
+    from geoloc_viz.flight_model import default_flight_scenario
+
+    server = make_server(port=0)
+    built: dict = {}
+    viewer = GeolocViewer(server, default_flight_scenario())
+    orig = viewer._build_tab
+
+    def timed_build(client, name):
+        orig(client, name)
+        built[client.client_id] = time.time()
+
+    viewer._build_tab = timed_build
+    return server, viewer, built
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="page loads (default 3)")

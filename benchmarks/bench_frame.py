@@ -319,22 +319,11 @@ def main(argv=None) -> int:
     ap.add_argument("--ab", action="store_true", help="with --step-trace: the scene batch's send, before and now")
     args = ap.parse_args(argv)
 
+    from bench_browser import served_flight_viewer
     from test_viz_browser import chromium
 
-    from geoloc_viz.app import GeolocViewer, make_server
-    from geoloc_viz.flight_model import default_flight_scenario
-
     load0 = os.getloadavg()
-    server = make_server(port=0)
-    built: dict = {}
-    viewer = GeolocViewer(server, default_flight_scenario())
-    orig = viewer._build_tab
-
-    def timed_build(client, name):
-        orig(client, name)
-        built[client.client_id] = time.time()
-
-    viewer._build_tab = timed_build
+    server, viewer, built = served_flight_viewer()
     scene_rows: dict = {}
     canvas_rows: dict = {}
     node_rows: dict = {}

@@ -201,23 +201,11 @@ def paired_text(n: int) -> int:
     pose boxes written with the panels' batch (``session.later``, the viewer's way) and written at
     once, inside the step's scene batch (the way before); each step to its first canvas change.
     Paired in time, so a load that drifts during the run weighs on both alike."""
-    from bench_browser import PROBE, _frames, _settled
+    from bench_browser import PROBE, _frames, _settled, served_flight_viewer
     from test_viz_browser import chromium
 
-    from geoloc_viz.app import GeolocViewer, make_server
-    from geoloc_viz.flight_model import default_flight_scenario
-
     load0 = os.getloadavg()
-    server = make_server(port=0)
-    built: dict = {}
-    viewer = GeolocViewer(server, default_flight_scenario())
-    orig = viewer._build_tab
-
-    def timed_build(client, name):
-        orig(client, name)
-        built[client.client_id] = time.time()
-
-    viewer._build_tab = timed_build
+    server, viewer, built = served_flight_viewer()
     res: dict = {"panels' batch": [], "scene batch": []}
     try:
         with tempfile.TemporaryDirectory() as tmp, chromium(Path(tmp)) as browser:
@@ -272,25 +260,12 @@ def main(argv=None) -> int:
 
     import numpy as np
     import viser
-    from bench_browser import COUNTER, PROBE, _browser_cpu_s, _frames, _settled
+    from bench_browser import COUNTER, PROBE, _browser_cpu_s, _frames, _settled, served_flight_viewer
     from test_viz_browser import chromium
-
-    from geoloc_viz.app import GeolocViewer, make_server
-    from geoloc_viz.flight_model import default_flight_scenario
 
     load0 = os.getloadavg()
     wire = _Wire()
-    scn = default_flight_scenario()
-    server = make_server(port=0)
-    built: dict = {}
-    viewer = GeolocViewer(server, scn)
-    orig = viewer._build_tab
-
-    def timed_build(client, name):
-        orig(client, name)
-        built[client.client_id] = time.time()
-
-    viewer._build_tab = timed_build
+    server, viewer, built = served_flight_viewer()
     flushed: list = []  # perf_counter of each client flush (a step's first one sends its scene batch)
     orig_flush = viser.ClientHandle.flush
 
