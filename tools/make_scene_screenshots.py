@@ -37,6 +37,7 @@ import copy
 import sys
 import tempfile
 import time
+from typing import Any
 from pathlib import Path
 
 import numpy as np
@@ -78,11 +79,11 @@ class Tab:
             shot(self.page, path)
             return
         orig = self.page.screenshot
-        self.page.screenshot = lambda **kw: orig(clip=clip, **kw)  # type: ignore[method-assign]
+        self.page.screenshot = lambda **kw: orig(clip=clip, **kw)
         try:
             shot(self.page, path)
         finally:
-            self.page.screenshot = orig  # type: ignore[method-assign]
+            self.page.screenshot = orig
 
     def close(self) -> None:
         """Close the page (software WebGL on 2 cores: one page drawing at a time)."""
@@ -107,8 +108,20 @@ def turret_scenario():
     )
 
 
+def node(server, name: str) -> Any:
+    """The scene node ``name`` (a label's ``text``, a marker's ``position``); a missing one is named."""
+    h = server.scene.get_handle_by_name(name)
+    if h is None:
+        raise LookupError(f"make_scene_screenshots: the scene has no node {name!r}")
+    return h
+
+
+def position_km(server, name: str) -> np.ndarray:
+    return np.asarray(node(server, name).position, dtype=np.float64)
+
+
 def hit_km(server) -> np.ndarray:
-    return np.asarray(server.scene.get_handle_by_name("/enu/hit/result").position, float)
+    return position_km(server, "/enu/hit/result")
 
 
 # ------------------------------------------------------------------ the pictures
@@ -124,7 +137,8 @@ def flight_debugger(browser, out: Path) -> None:
         tab = Tab(browser, server, 1100, 700)
         fl.go(fl.top_idx[0])
         c = app.scn.enu.from_ecef(fl.model.enu.to_ecef(np.nanmean(fl.model.centre_enu, axis=0))) * 1e-3
-        app.sl_marker.value = app.sl_ac.value = 60.0
+        # viser's value setter is not next to its getter: mypy sees the property read-only
+        app.sl_marker.value = app.sl_ac.value = 60.0  # type: ignore[misc]
         app.move_camera((c + [0.6, -1.2, 1.4], c + [-0.3, 0.1, 0.0]))
         tab.settle()
         tab.shot(out / "flight_debugger.png")
@@ -143,7 +157,7 @@ def _pose_shot(browser, out: Path, name: str, scn, size, scroll=None, zoom: floa
         tab = Tab(browser, server, *size)
         # the View folder's "overview: aircraft, frames, line of sight", nearer the aircraft by ``zoom``
         pos, aim = (np.asarray(v, float) for v in app.view.camera_pose("overview"))
-        ac = np.asarray(server.scene.get_handle_by_name("/enu/aircraft").position, float)
+        ac = position_km(server, "/enu/aircraft")
         app.move_camera((ac + zoom * (pos - ac), ac + zoom * (aim - ac)))
         tab.settle()
         if scroll is not None:
@@ -178,7 +192,7 @@ def viewer_uncertainty_ellipse(browser, out: Path) -> None:
         tab = Tab(browser, server, 800, 520)
         lay.sl_scale.value = 10.0  # its own factor: the label on the drawing says x10
         wait_for(
-            lambda: server.scene.get_handle_by_name("/enu/uncertainty/label").text.startswith("90 % ellipse, x10"),
+            lambda: node(server, "/enu/uncertainty/label").text.startswith("90 % ellipse, x10"),
             60,
             "the ellipse drawn x10",
         )
@@ -285,9 +299,11 @@ def _teaching(browser, out: Path, scn, size, hop: str, shots, globe: bool = Fals
 
             tp.cb_show.value = True
             wait_for(lambda: tp.cb_show.value, 60, "the frames row shown")
-            eye, aim = (np.asarray(v, float) for v in tp.camera_pose(*size))
+            eye, aim = (np.asarray(v, dtype=np.float64) for v in tp.camera_pose(*size))
             _, g, u = tp.layout(tp.chain)
-            g = np.asarray(app.view.disp.z(app.geometry.aircraft_enu), float) + g
+            geo = app.geometry
+            assert geo is not None  # the scenario was drawn: the overview above shows it
+            g = np.asarray(app.view.disp.z(geo.aircraft_enu), dtype=np.float64) + g
             w, h = size
             dist = 0.4 * float(np.linalg.norm(eye - aim))
             f = 0.5 * h / np.tan(0.5 * float(next(iter(server.get_clients().values())).camera.fov))
@@ -350,8 +366,8 @@ def _limb(browser, out: Path) -> None:
         app = LimbApp(server, load_limb())
         tab = Tab(browser, server, 1280, 800)
         tab.shot(out / "limb_overview.png")
-        tan = np.asarray(server.scene.get_handle_by_name("/limb/tangent").position, float)
-        ex = np.asarray(server.scene.get_handle_by_name("/limb/exact").position, float)
+        tan = position_km(server, "/limb/tangent")
+        ex = position_km(server, "/limb/exact")
         pos, aim, up = app.camera_pose()
         mid = 0.5 * (tan + ex)
         d = np.asarray(pos, float) - mid
