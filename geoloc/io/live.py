@@ -487,6 +487,27 @@ def _clock_offset_s() -> float:
     return best
 
 
+class _ClockOffset:
+    """:func:`_clock_offset_s`, read again when a second has passed (a clock set meanwhile)."""
+
+    def __init__(self) -> None:
+        self.value_s, self.read_at_s = _clock_offset_s(), time.monotonic()
+
+    def now_s(self) -> float:
+        now = time.monotonic()
+        if now - self.read_at_s > 1.0:
+            self.value_s, self.read_at_s = _clock_offset_s(), now
+        return self.value_s
+
+
+def _read_datagram(sock: socket.socket, buf: bytearray, offset: "_ClockOffset | None") -> tuple[int, float | None]:
+    """One datagram into ``buf``: its length and arrival (:func:`_arrival`; None unstamped, ``offset`` None)."""
+    if offset is None:
+        return sock.recv_into(buf), None
+    n, anc, _, _ = sock.recvmsg_into([buf], 64)
+    return n, _arrival(anc, offset.now_s())
+
+
 def _arrival(ancillary, offset_s: float | None = None) -> float | None:
     """A datagram's arrival time on the ``time.monotonic()`` clock, from its SO_TIMESTAMPNS ancillary data
     (CLOCK_REALTIME, moved onto the monotonic clock by ``offset_s``, :func:`_clock_offset_s`, read now
@@ -553,9 +574,8 @@ def receive(
             (announce or (lambda m: print(m, file=sys.stderr, flush=True)))(note)
         sock = open_socket(u)
     sock.settimeout(poll_s)
-    stamped = _arrival_stamps(sock)
+    offset = _ClockOffset() if _arrival_stamps(sock) else None
     t0 = time.monotonic()
-    offset_s, offset_at = _clock_offset_s(), t0  # read again each second: a clock set meanwhile
     got = 0
     buf = bytearray(65536)
     try:
@@ -567,15 +587,8 @@ def receive(
                 break
             if stop is not None and stop():
                 break
-            arrived = None
             try:
-                if stamped:
-                    n, anc, _, _ = sock.recvmsg_into([buf], 64)
-                    if now - offset_at > 1.0:
-                        offset_s, offset_at = _clock_offset_s(), now
-                    arrived = _arrival(anc, offset_s)
-                else:
-                    n = sock.recv_into(buf)
+                n, arrived = _read_datagram(sock, buf, offset)
             except socket.timeout:
                 res = rx.tick()  # no datagram: what is due (a stalled stream's held packets)
             except InterruptedError:
