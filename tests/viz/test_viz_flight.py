@@ -654,3 +654,23 @@ def test_a_flight_without_surveyed_truth_is_not_offered_a_calibration():
         assert "paper_height_m" not in cal.message and "surveyed target" in cal.message
         for text in (app.md_summary.content, app.md_legend.content):
             assert "paper_height" not in text and "truth_lat" not in text
+
+
+def test_the_flight_label_names_its_solver_beside_the_frames_own():
+    # one point, two numbers: the flight's frames are located by the exact walk, the viewer's current
+    # frame by its own method (bisection [L23] in the [Q17] flight test), 0.9 m apart at T3-1 on
+    # ETOPO5; the label said only "recomputed" beside the panel's other figure. Both now name their
+    # solver, so the 487.1 m and 486.5 m a person reads are told apart.
+    from geoloc_viz import flight_layer
+    from geoloc_viz.app import GeolocApp
+    from geoloc_viz.scenario import load_view_scenario
+
+    with served() as server:
+        app = GeolocApp(server, load_view_scenario(), layers=(flight_layer.attach,))
+        fl = app.layers[-1]
+        fl.go(0, camera=False)
+        label = fl.error_text(0)
+        assert "exact first hit on the DEM -> truth" in label, label
+        assert f"error {fl.error_m(0):.1f} m" in label
+        panel = app.md_summary.content
+        assert "bisection [L23]" in panel and "from the exact first hit" in panel, panel

@@ -441,7 +441,8 @@ class FlightLayer:
             return ""
         f = m.fault_of(idx)
         kind = f" ({KIND_NAMES.get(f.kind, f.kind)} run)" if f is not None else ""
-        return f"{self.frame_name(idx, of=False)}{kind}: error {e:.1f} m, recomputed -> {m.reference}"
+        # the solver named: the viewer's own point of this frame may use another (its panel says which)
+        return f"{self.frame_name(idx, of=False)}{kind}: error {e:.1f} m, {m.located_by} -> {m.reference}"
 
     def focus_world(self):
         """The lifted error vector's ends in the session's scene frame (km), for cameras and tests."""

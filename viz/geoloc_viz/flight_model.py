@@ -239,6 +239,9 @@ class FlightModel:
     #: the flight's heights and conventions audited (geoloc.analysis.height_audit.HeightAudit; its
     #: findings' ``frames`` are frame indices); None when the records report no positions
     audit: HeightAudit | None = None
+    #: how each frame's pixel was located, for labels: "exact first hit on the DEM" (the flight's own
+    #: solver, which may differ from the current frame's in the viewer) or "the record's target height"
+    located_by: str = "recomputed"
     H_DATUM: str = H_DATUM
     _report: object = None
 
@@ -638,6 +641,14 @@ def outline_pixels(sensor, edge_samples: int = EDGE_SAMPLES, fov_deg=None):
 # --------------------------------------------------------------------------- the model
 
 
+#: how a frame was located, by DEM solver, in labels (the panel's names, app.METHOD_NAMES, say the same)
+_LOCATED_BY = {
+    "exact": "exact first hit on the DEM",
+    "bisect": "bisection [L23] on the DEM",
+    "steps": "descending steps [Q17] on the DEM",
+}
+
+
 def _surface(scn, target_h, method):
     """The footprint's surface: the DEM, else (off the DEM, or no data) each record's target height."""
     dem = scn.dem if getattr(scn, "use_dem", True) else None
@@ -772,6 +783,7 @@ def extend(
         track_heading_rad=a["heading"],
         speed_m_per_frame=a["speed"],
         surface=new.surface,
+        located_by=new.located_by,
     )
     if diagnose_faults:
         m.faults = diagnose(m, scn, pose=pose, row=row, col=col, target_h=target_h)
@@ -906,6 +918,7 @@ def build(
         track_heading_rad=heading,
         speed_m_per_frame=speed,
         surface=desc,
+        located_by=_LOCATED_BY.get(method, method) if dem is not None else "the record's target height",
     )
     budget = getattr(scn, "budget", None)
     if budget is not None:  # the second outlier rule: outside the frame's own predicted 99 % ellipse
