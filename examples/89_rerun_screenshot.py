@@ -19,7 +19,10 @@ types ``--at`` seconds, and takes the screenshot once the page has settled (two
 screenshots 5 s apart that agree, after the viewer's panels are up; ``--wait``
 is the most it waits). Best effort: under SwiftShader the viewer draws a frame
 every few seconds and egui does not always take the typed value as typed (asking
-for 9 s gave 1 s here), so look at the picture. WebGL runs on SwiftShader: on a
+for 9 s gave 1 s here), so look at the picture. The viewer URL's ``#when=TIMELINE@VALUE``
+fragment, which rerun documents for moving the time cursor, was tried on this rerun (0.41, a
+recording served by ``rerun --serve-web``), outside and inside the encoded ``url`` parameter,
+as ``frame@120`` and ``time@9s``: the cursor stayed at the end each time. WebGL runs on SwiftShader: on a
 2-core machine the page needs 2-3 minutes to settle. HOME is pointed at a temporary
 folder (rerun and Chromium write under ~/.config).
 """
