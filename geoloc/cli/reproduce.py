@@ -20,7 +20,10 @@ PAPERS = {
 
 #: A quick run of the verb that writes its files (a tuple: commands run in turn, the earlier ones make
 #: its inputs): tests/cli/test_cli_rules.py runs it under every rule of docs/cli.md.
-EXAMPLE = "geoloc reproduce li2023 --rays 10 --json numbers.json"
+#: Two coarse tolerances: the descending steps take (relief / tolerance) DEM reads a ray, so the
+#: 20,10 m fills the same table through the same writer in about a tenth of the default 10,2,1 m's
+#: CPU (0.23 s against 2.8 s, warm, measured in one process).
+EXAMPLE = "geoloc reproduce li2023 --rays 10 --tolerances-m 20,10 --json numbers.json"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
