@@ -785,6 +785,22 @@ def test_a_tolerance_no_solver_reaches_still_ends(leaf, tmp_path, monkeypatch, c
     # --method steps --eps-h 1e-9: unbounded, the descending steps would take (relief / 1e-9) steps,
     # hours; bounded (docs/cli.md, "Bounded iterations"), the verb ends with statuses. The alarm only
     # turns a hang into a failure (it is no speed test: the run takes seconds)
+    import geoloc.surfaces.terrain as terrain
+
+    # the bound, whatever its value, turns into a status: a tenth of it here, where the real one
+    # (20 000 steps, its value checked by tests/cli/test_bad_inputs.py) took 14 s of CPU for pixel's
+    # one ray and 12 s for ortho's frame, 40 s each under CI's load. A verb that set its own larger
+    # bound (max_iter) or none would still run for hours and meet the alarm
+    bound = terrain.STEPS_MAX // 10
+    monkeypatch.setattr(terrain, "STEPS_MAX", bound)
+    real_steps, walked = terrain._steps, []
+
+    def steps(*a, **k):
+        out, evals = real_steps(*a, **k)
+        walked.append(int(evals.max(initial=0)))
+        return out, evals
+
+    monkeypatch.setattr(terrain, "_steps", steps)
     argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
 
     def hang(*_):
@@ -798,6 +814,9 @@ def test_a_tolerance_no_solver_reaches_still_ends(leaf, tmp_path, monkeypatch, c
         signal.alarm(0)
         signal.signal(signal.SIGALRM, old)
     assert r.rc in (0, 1) and "Traceback" not in r.err, r.err
+    # the examples on a DEM (pixel's --dem, ortho's record) stepped down to the bound; replay and
+    # calibrate locate on the records' heights, where --method steps takes no step
+    assert (max(walked) if walked else None) == (bound if leaf in {("pixel",), ("ortho",)} else None), walked
 
 
 def test_two_kml_exports_in_one_process_are_the_same_bytes(tmp_path, monkeypatch, capsysbinary):
