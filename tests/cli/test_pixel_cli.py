@@ -7,9 +7,11 @@ and a hand-made ridge DEM written with rasterio (a point behind it is hidden).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
+import os
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -37,8 +39,25 @@ POSE = [
 DEM = ["--dem", "assets/dem/srtm_jacksboro.tif"]
 
 
-def geoloc(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "geoloc", *args], capture_output=True, text=True, timeout=600, cwd=cwd)
+def geoloc(*args, cwd=None) -> subprocess.CompletedProcess:
+    """``geoloc ARGS`` run in this process (``geoloc.cli.main``, the function ``python -m geoloc``
+    calls), in ``cwd``, with its standard output and error captured: what a subprocess returns,
+    without a Python start-up and geoloc's imports each (about 4 s a call under CI's load)."""
+    from geoloc.cli import main
+
+    out, err = (io.TextIOWrapper(io.BytesIO(), encoding="utf-8", write_through=True) for _ in range(2))
+    old = os.getcwd()
+    try:
+        os.chdir(cwd or old)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                rc = main(list(args))
+            except SystemExit as e:  # argparse's usage errors
+                rc = e.code
+    finally:
+        os.chdir(old)
+    text = [s.buffer.getvalue().decode("utf-8") for s in (out, err)]  # type: ignore[attr-defined]
+    return subprocess.CompletedProcess(["geoloc", *args], rc, *text)
 
 
 def test_locate_then_pixel_comes_back_to_the_pixel(tmp_path):
