@@ -8,7 +8,8 @@ output of every example is written through a symlink to a file with other permis
 into a FIFO, into ``/dev/full``, onto a full filesystem, is hit by Ctrl-C and by ENOSPC at
 its rename, and every text output goes to standard output and into a closed pipe. A new
 verb is in the table the day it lands: ``test_every_verb_has_an_example`` fails until it
-declares one.
+declares one. A rule on one output runs the example with that output alone (:func:`_alone`:
+``calibrate``'s ``--out`` case draws no ``--plot``); each other output has its own case.
 
 The refusals that need no run (an input as an output, a read-only file, a folder, a
 missing folder, ``-`` for a binary file) are tests/cli/test_user_files.py's, over the same
@@ -104,6 +105,18 @@ def _with(argv, opt, value) -> list:
     return argv
 
 
+def _alone(leaf, argv, opt) -> list:
+    """``argv`` without its outputs other than ``opt`` that the verb does not require: a rule on one
+    output does not wait for the others (calibrate's figure is three quarters of its run)."""
+    argv = list(argv)
+    for o, _p, _r, _t in _outputs(argv):
+        required = any(a.required for a in LEAVES[leaf]._actions if o in a.option_strings)
+        if o != opt and o.startswith("-") and not required:
+            i = argv.index(o)
+            del argv[i : i + 2]
+    return argv
+
+
 class Run:
     def __init__(self, rc, out, err):
         self.rc, self.out, self.err = rc, out, err
@@ -134,12 +147,13 @@ def _setup(leaf, tmp_path, monkeypatch, capsysbinary):
 _REFERENCE: dict = {}
 
 
-def _reference(leaf, tmp_path_factory, dash: str | None = None) -> dict:
-    """The example run plainly once: its exit status and each output's bytes (a folder: its file names).
+def _reference(leaf, opt, tmp_path_factory, dash: bool = False) -> dict:
+    """The example with output ``opt`` alone (:func:`_alone`) run plainly once: its exit status and
+    that output's bytes (a folder: its file names).
 
-    ``dash``: the output option written as ``./-.SUFFIX``, a file whose name is standard output's
+    ``dash``: the output written as ``./-.SUFFIX``, a file whose name is standard output's
     (a KML names its document after its file: ``-``)."""
-    key = (leaf, dash)
+    key = (leaf, opt, dash)
     if key not in _REFERENCE:
         d = tmp_path_factory.mktemp("reference")
         old = os.getcwd()
@@ -148,16 +162,15 @@ def _reference(leaf, tmp_path_factory, dash: str | None = None) -> dict:
             setup, argv = EXAMPLES[leaf]
             for s in setup:
                 assert main(s) in (0, 1), s
+            argv = _alone(leaf, argv, opt)
             if dash:
-                argv = _with(argv, dash, "./-" + Path(_with_path(argv, dash)).suffix)
+                argv = _with(argv, opt, "./-" + Path(_with_path(argv, opt)).suffix)
             rc = main(argv)
         finally:
             os.chdir(old)
-        files = {}
-        for opt, path, role, _t in _outputs(argv):
-            p = d / path
-            files[opt] = sorted(os.listdir(p)) if role == "output_dir" else p.read_bytes()
-        _REFERENCE[key] = {"rc": rc, "files": files}
+        path, role = next((p, r) for o, p, r, _t in _outputs(argv) if o == opt)
+        got = d / path
+        _REFERENCE[key] = {"rc": rc, "file": sorted(os.listdir(got)) if role == "output_dir" else got.read_bytes()}
     return _REFERENCE[key]
 
 
@@ -257,12 +270,12 @@ def test_a_refused_output_stops_the_verb_before_it_starts(leaf, opt, tmp_path, m
 def test_out_dash_writes_standard_output_the_files_bytes(
     leaf, opt, tmp_path, tmp_path_factory, monkeypatch, capsysbinary
 ):
-    ref = _reference(leaf, tmp_path_factory, dash=opt)
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    ref = _reference(leaf, opt, tmp_path_factory, dash=True)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     before = set(os.listdir(tmp_path))
     r = _run(_with(argv, opt, "-"), capsysbinary)
     assert r.rc == ref["rc"], r.err
-    assert r.out == ref["files"][opt]  # the data alone: the messages went to stderr
+    assert r.out == ref["file"]  # the data alone: the messages went to stderr
     assert not (tmp_path / "-").exists()
     assert set(os.listdir(tmp_path)) - before <= {p for o, p, _r, _t in _outputs(argv) if o != opt}
 
@@ -287,7 +300,7 @@ class _ClosedPipe:
 
 @pytest.mark.parametrize("leaf,opt", _cases(text_only=True))
 def test_out_dash_into_a_closed_pipe_ends_quietly_with_141(leaf, opt, tmp_path, monkeypatch, capsysbinary):
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     capsysbinary.readouterr()
     monkeypatch.setattr(sys, "stdout", _ClosedPipe())
     rc = main(_with(argv, opt, "-"))
@@ -303,8 +316,8 @@ def test_out_dash_into_a_closed_pipe_ends_quietly_with_141(leaf, opt, tmp_path, 
 def test_a_symlink_stays_and_its_target_keeps_its_mode(
     leaf, opt, tmp_path, tmp_path_factory, monkeypatch, capsysbinary
 ):
-    ref = _reference(leaf, tmp_path_factory)
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    ref = _reference(leaf, opt, tmp_path_factory)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     real = tmp_path / "real"
     real.mkdir()
     is_dir = _role(leaf, opt) == "output_dir"
@@ -322,9 +335,9 @@ def test_a_symlink_stays_and_its_target_keeps_its_mode(
     assert r.rc == ref["rc"], r.err
     assert link.is_symlink() and os.readlink(link) == str(target)
     if is_dir:
-        assert sorted(os.listdir(target)) == ref["files"][opt]
+        assert sorted(os.listdir(target)) == ref["file"]
     else:
-        assert _same_output(link, target.read_bytes(), ref["files"][opt])
+        assert _same_output(link, target.read_bytes(), ref["file"])
         assert stat.S_IMODE(target.stat().st_mode) == 0o640
         assert sorted(os.listdir(real)) == [target.name]
     assert _temp_files(tmp_path) == []
@@ -336,8 +349,8 @@ def _file_cases(**kw):
 
 @pytest.mark.parametrize("leaf,opt", _file_cases())
 def test_a_fifo_is_written_through(leaf, opt, tmp_path, tmp_path_factory, monkeypatch, capsysbinary):
-    ref = _reference(leaf, tmp_path_factory)
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    ref = _reference(leaf, opt, tmp_path_factory)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     fifo = tmp_path / "fifos" / Path(_with_path(argv, opt)).name  # the example's name (a KML names itself by it)
     fifo.parent.mkdir()
     os.mkfifo(fifo)
@@ -351,7 +364,7 @@ def test_a_fifo_is_written_through(leaf, opt, tmp_path, tmp_path_factory, monkey
             os.close(fd)
     reader.join(timeout=60)
     assert r.rc == ref["rc"], r.err
-    assert fifo.is_fifo() and len(got) == 1 and _same_output(fifo, got[0], ref["files"][opt])
+    assert fifo.is_fifo() and len(got) == 1 and _same_output(fifo, got[0], ref["file"])
     assert _temp_files(tmp_path) == []
 
 
@@ -362,7 +375,7 @@ def _with_path(argv, opt):
 @pytest.mark.parametrize("leaf,opt", _file_cases())
 def test_dev_full_is_written_through_and_is_one_line(leaf, opt, tmp_path, monkeypatch, capsysbinary):
     # through a link, so that a verb that replaced its output would replace the link, not the device
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     link = tmp_path / ("full" + Path(_with_path(argv, opt)).suffix)
     link.symlink_to("/dev/full")
     r = _run(_with(argv, opt, link), capsysbinary)
@@ -403,7 +416,7 @@ def _old_output(tmp_path, leaf, opt):
 
 @pytest.mark.parametrize("leaf,opt", _cases())
 def test_ctrl_c_while_writing_is_one_line_130_and_the_old_output_stays(leaf, opt, tmp_path, monkeypatch, capsysbinary):
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     old, intact = _old_output(tmp_path, leaf, opt)
     hits = _replace_raising(monkeypatch, old, KeyboardInterrupt())
     r = _run(_with(argv, opt, old), capsysbinary)
@@ -416,7 +429,7 @@ def test_ctrl_c_while_writing_is_one_line_130_and_the_old_output_stays(leaf, opt
 @pytest.mark.parametrize("leaf,opt", _cases())
 def test_no_space_at_the_rename_keeps_the_old_output(leaf, opt, tmp_path, monkeypatch, capsysbinary):
     # a patched os.replace raising ENOSPC: the fault every platform can inject (the real full disk: below)
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     old, intact = _old_output(tmp_path, leaf, opt)
     hits = _replace_raising(monkeypatch, old, OSError(errno.ENOSPC, "No space left on device", str(old)))
     r = _run(_with(argv, opt, old), capsysbinary)
@@ -455,10 +468,10 @@ def _fill(mnt: Path, leave: int) -> None:
 def test_a_disk_full_while_writing_keeps_the_old_output(
     leaf, opt, small_fs, tmp_path, tmp_path_factory, monkeypatch, capsysbinary
 ):
-    ref = _reference(leaf, tmp_path_factory)
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    ref = _reference(leaf, opt, tmp_path_factory)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     old, intact = _old_output(small_fs, leaf, opt)
-    size = len(ref["files"][opt]) if isinstance(ref["files"][opt], bytes) else 4096
+    size = len(ref["file"]) if isinstance(ref["file"], bytes) else 4096
     _fill(small_fs, size // 2)  # the write runs out of space half way (or at its first block)
     before = sorted(os.listdir(small_fs))
     r = _run(_with(argv, opt, old), capsysbinary)
@@ -474,7 +487,7 @@ def test_a_folder_made_read_only_mid_run_is_one_line(leaf, opt, small_fs, tmp_pa
     # not stop a write); the verb ends with one line, the old output whole, nothing left behind
     import geoloc.cli._options as options
 
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     old, intact = _old_output(small_fs, leaf, opt)
     real = options.check_outputs
 
@@ -697,7 +710,7 @@ def test_a_folder_made_read_only_after_the_checks_keeps_the_old_output(
     # system calls are patched (_folder_turns_read_only); as root a permission bit would not stop a write
     import geoloc.cli._options as options
 
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     folder = tmp_path / "outputs"
     folder.mkdir()
     old, intact = _old_output(folder, leaf, opt)
@@ -737,7 +750,7 @@ def test_a_folder_made_read_only_at_the_rename_names_the_temp_file_it_cannot_rem
     # are both refused. The command ends with one error line naming the output (not the temporary file,
     # which the removal's own error once named), one warning line naming the file left behind so the
     # user can delete it, exit 2, the old output whole
-    argv = _setup(leaf, tmp_path, monkeypatch, capsysbinary)
+    argv = _alone(leaf, _setup(leaf, tmp_path, monkeypatch, capsysbinary), opt)
     folder = tmp_path / "outputs"
     folder.mkdir()
     old, intact = _old_output(folder, leaf, opt)
