@@ -137,7 +137,9 @@ def close_shared_chromium() -> None:
 def _shared_chromium(extra_flags):
     import playwright.sync_api as playwright  # a test dependency: installed, never skipped
 
-    flags = tuple(extra_flags)
+    # every launch carries the multi-tab flags: they change nothing for a page in front (a test's only page
+    # is), and without them the three multi-tab tests relaunched the browser and the next test again
+    flags = tuple(dict.fromkeys([*MULTI_TAB_FLAGS, *extra_flags]))
     browser = _SHARED.get("browser")
     if browser is not None and (_SHARED["flags"] != flags or not browser.is_connected()):
         if browser.is_connected():
@@ -167,7 +169,7 @@ def _shared_chromium(extra_flags):
 @contextlib.contextmanager
 def chromium(tmp_path, extra_flags=()):
     """Headless Debian chromium through playwright: the worker's one browser (``_SHARED``), launched with
-    ``extra_flags`` if it was not; every page the test opens is closed when it leaves. ``tmp_path``: the
+    ``MULTI_TAB_FLAGS`` and ``extra_flags`` if it was not; every page the test opens is closed when it leaves. ``tmp_path``: the
     test's folder, unused since the browser is shared (its HOME/XDG folders are one temp folder)."""
     # tests/conftest.py sets this for each test: "0" means its look-up did not see this test open
     # Chromium, so under xdist it would run beside another browser (unset: not under pytest)
