@@ -142,7 +142,7 @@ def test_every_panel_shows_one_frame_index_and_one_pixel_grid_in_chromium(flight
     with served() as server:
         app, il, fl = _app(flight)(server)
         with chromium(tmp_path) as browser:
-            page = open_viewer(browser, server, 1280, 900)
+            page = open_viewer(browser, server, 1000, 660)
             page.wait_for_selector("#geoloc-picture", timeout=120000)
             _type_frame(page, 202)
             wait_for(lambda: fl.current == 202 and il.index == 202, 120, "the timeline to reach frame 202")
@@ -190,7 +190,7 @@ def test_the_video_timing_fault_is_named_on_its_frames_in_chromium(flight, tmp_p
     with served() as server:
         app, il, fl = _app(flight)(server)
         with chromium(tmp_path) as browser:
-            page = open_viewer(browser, server, 1280, 900)
+            page = open_viewer(browser, server, 1000, 660)
             page.wait_for_selector("#geoloc-picture", timeout=120000)
             wait_for(lambda: il.timing is not None, 240, "the search for timing faults")
             assert [(f.first, f.last) for f in il.timing] == [(PLANTED_FIRST, PLANTED_LAST)]
