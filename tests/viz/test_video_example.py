@@ -341,3 +341,31 @@ def test_view_export_carries_the_picture_and_the_clicked_points(tmp_path, monkey
     b64 = re.search(r'window\.__VISER_EMBED_DATA__="([^"]*)"', page).group(1)
     names = {msg.get("name") for _, msg in _decode_recording(base64.b64decode(b64))["messages"]}
     assert "/enu/picture/frame" in names and "/enu/picture/ray" in names, sorted(n for n in names if n)
+
+
+def test_the_timing_search_runs_once_per_stream_and_records_not_per_scenario(monkeypatch):
+    # every tab of a flight built its own scenario and searched the whole video again (5.7 s of
+    # CPU for this flight): two scenarios read from one file now share the answer, and a scenario
+    # whose records differ (one record's reported position moved) is searched again
+    import dataclasses
+
+    from geoloc_viz import picture_model as pm
+    from geoloc_viz.flight_model import default_flight_scenario
+
+    calls = []
+    monkeypatch.setattr(pm, "_TIMING_CACHE", {})
+    monkeypatch.setattr(pm, "video_timing_faults", lambda scn, exclude=None, **kw: calls.append(scn) or ["run"])
+    a, b = default_flight_scenario(), default_flight_scenario()
+    assert a.records is not b.records
+    assert pm.cached_video_timing_faults(a) == ["run"] and pm.cached_video_timing_faults(b) == ["run"]
+    assert calls == [a]
+    info, inp = b.records[5]
+    b.records[5] = (dataclasses.replace(info, paper_lat_deg=info.paper_lat_deg + 1e-4), inp)
+    pm.cached_video_timing_faults(b)
+    assert calls == [a, b]
+    # a search stopped midway is not kept
+    c = default_flight_scenario()
+    c.records[7] = (dataclasses.replace(c.records[7][0], paper_lon_deg=0.0), c.records[7][1])
+    assert pm.cached_video_timing_faults(c, should_stop=lambda: True) == []
+    pm.cached_video_timing_faults(c)
+    assert calls == [a, b, c, c]
