@@ -28,6 +28,15 @@ run weighs on all alike; medians over rounds):
 
 Prints the medians, the load average before and after, and the ratio of the default frame to the
 empty canvas's last.
+
+``--pair NAME [--shots DIR]``: two configurations of the same page (:data:`PAIRS`), windows
+alternating ABBA, medians and the ratio B / A of the GPU process's CPU a frame (a screenshot of
+each into ``DIR``): ``layout`` (the control panel floating over the canvas, or beside it: fewer
+canvas pixels), ``lights`` (viser's two directional lights, or one), ``terrain-quad`` (the terrain,
+or two flat triangles over its extent: what its triangles cost beyond its pixels),
+``terrain-flat`` (its mesh flattened: the same triangles and colours), ``terrain-sorted`` (its
+triangles near the camera first) and ``terrain-textured`` (a 41 x 41 mesh with the colours and
+hillshade in a 1024 px texture).
 """
 
 from __future__ import annotations
@@ -298,6 +307,184 @@ def _terrain_ab(tab, args, tri, load0) -> int:
     return 0
 
 
+def _theme(tab, layout: str) -> None:
+    """The page's control panel ``layout`` (viser's ``control_layout``), the rest of the theme as
+    :func:`geoloc_viz.app.make_server` sets it."""
+    from geoloc_viz.app import THEME
+
+    target = tab.session.client if tab.session.client is not None else tab.session.server
+    target.gui.configure_theme(**{**THEME, "control_layout": layout})
+
+
+def _lights(tab, few: bool) -> None:
+    """viser's default lights (two directional lights, :func:`geoloc_viz.app.configure_lighting`) or,
+    ``few``, one directional light of the same direction instead (the ambient light either way)."""
+    s = tab.api
+    s.configure_default_lights(not few, cast_shadow=False)
+    if few and "/bench_sun" not in s._handle_from_node_name:
+        s.add_light_directional("/bench_sun", intensity=3.0, position=(-0.2, 0.2, 1.0))
+    elif not few:
+        s.remove_by_name("/bench_sun")
+
+
+def _terrain_copy(tab, name: str, make):
+    """A hidden copy of the drawn terrain as ``name`` (``make(tab)``'s mesh, unlit as the viewer
+    draws it), made once; returns the handles (drawn terrain, copy)."""
+    from geoloc_viz.scene_geoloc import unlit_glb
+
+    s = tab.session
+    table = s.scene._handle_from_node_name
+    if name not in table:
+        s.scene.add_glb(name, unlit_glb(make(tab)), scale=s.view._terrain_scale(), visible=False)
+        time.sleep(3.0)  # parsed and uploaded before any window
+    return table["/enu/terrain"], table[name]
+
+
+def _terrain_swap(tab, b: bool, name: str, make) -> None:
+    fine, other = _terrain_copy(tab, name, make)
+    fine.visible, other.visible = not b, b
+
+
+def _quad_mesh(tab):
+    """The drawn terrain's extent as two flat triangles at its mean height, one colour: the
+    pixels the terrain covers without its triangles."""
+    import trimesh
+
+    from geoloc_viz.scene_geoloc import terrain_mesh_cached
+
+    v = terrain_mesh_cached(tab.session.scn).vertices
+    lo, hi, z = v.min(axis=0), v.max(axis=0), float(v[:, 2].mean())
+    q = [[lo[0], lo[1], z], [hi[0], lo[1], z], [hi[0], hi[1], z], [lo[0], hi[1], z]]
+    m = trimesh.Trimesh(q, [[0, 1, 2], [0, 2, 3]], process=False)
+    m.visual.vertex_colors = [[120, 160, 110, 255]] * 4
+    return m
+
+
+def _flat_mesh(tab):
+    """The drawn terrain, its triangles and colours, flattened to its mean height."""
+    from geoloc_viz.scene_geoloc import terrain_mesh_cached
+
+    m = terrain_mesh_cached(tab.session.scn).copy()
+    v = m.vertices.copy()
+    v[:, 2] = v[:, 2].mean()
+    m.vertices = v
+    return m
+
+
+def _sorted_mesh(tab):
+    """The drawn terrain with its triangles ordered nearest the page's camera first (each pixel
+    shaded once where the depth test rejects what lies behind)."""
+    import numpy as np
+
+    from geoloc_viz.scene_geoloc import terrain_mesh_cached
+
+    m = terrain_mesh_cached(tab.session.scn).copy()
+    cam = np.asarray(tab.session.client.camera.position, float) / np.asarray(tab.session.view._terrain_scale())
+    d = np.linalg.norm(m.vertices[m.faces].mean(axis=1) - cam, axis=1)
+    m.faces = m.faces[np.argsort(d)]
+    return m
+
+
+def _textured_mesh(tab, nodes: int = 41, px: int = 1024):
+    """The terrain as a coarse mesh (``mesh_grid``'s ``nodes x nodes``) with its colours and
+    hillshade in a ``px x px`` texture on the same level-of-detail grid (so node (i, j) is texel
+    (i, j) (px - 1) / (nodes - 1)); normals of the texture's grid: the cross product of its ENU
+    tangents (central differences). Tried against the drawn terrain, not kept (docs/viz.md)."""
+    import io
+
+    import numpy as np
+    import PIL.Image
+    import trimesh
+
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+    from geoloc_viz import terrain_link as tl
+
+    scn = tab.session.scn
+    dem, enu = scn.dem, scn.enu
+
+    def grid(n):
+        lats, lons = tl.mesh_grid(scn, nodes=n)
+        LON, LAT = np.meshgrid(lons, lats)
+        return LAT, LON, dem.height(np.deg2rad(LAT), np.deg2rad(LON))
+
+    LAT, LON, H = grid(px)
+    P = enu.from_ecef(geodetic_to_ecef(np.deg2rad(LAT), np.deg2rad(LON), np.nan_to_num(H)).reshape(-1, 3))
+    P = P.reshape(px, px, 3)
+    n = np.cross(np.gradient(P, axis=1), np.gradient(P, axis=0))
+    n *= np.where(n[..., 2:3] < 0.0, -1.0, 1.0)
+    n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    rgb = tl._terrain_colours(H, np.nanmin(H), np.nanmax(H))[..., :3] * tl._shade(n)[..., None]
+    buf = io.BytesIO()
+    PIL.Image.fromarray((np.clip(rgb, 0.0, 1.0) * 255).astype(np.uint8)).save(buf, format="JPEG", quality=90)
+    buf.seek(0)
+    mesh = tl._grid_trimesh(*grid(nodes), enu)
+    t = (np.linspace(0.0, px - 1.0, nodes) + 0.5) / px  # texel centres; trimesh's v counts up
+    U, V = np.meshgrid(t, 1.0 - t)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.stack([U.ravel(), V.ravel()], 1), image=PIL.Image.open(buf))
+    return mesh
+
+
+#: ``--pair NAME``: (what A is, what B is, the function that sets the page to A (False) or B (True)).
+PAIRS = {
+    "layout": (
+        "panel floating over the canvas",
+        "panel beside the canvas",
+        lambda t, b: _theme(t, "fixed" if b else "floating"),
+    ),
+    "lights": ("viser's two directional lights", "one directional light", _lights),
+    "terrain-quad": (
+        "the terrain",
+        "a flat quad over its extent",
+        lambda t, b: _terrain_swap(t, b, "/enu/terrain_quad", _quad_mesh),
+    ),
+    "terrain-textured": (
+        "the terrain, vertex colours",
+        "a coarse mesh, textured",
+        lambda t, b: _terrain_swap(t, b, "/enu/terrain_textured", _textured_mesh),
+    ),
+    "terrain-flat": (
+        "the terrain",
+        "its mesh flattened",
+        lambda t, b: _terrain_swap(t, b, "/enu/terrain_flat", _flat_mesh),
+    ),
+    "terrain-sorted": (
+        "the terrain",
+        "its triangles near to far",
+        lambda t, b: _terrain_swap(t, b, "/enu/terrain_sorted", _sorted_mesh),
+    ),
+}
+
+
+def _pair(tab, args, load0) -> int:
+    """``--pair NAME``: configuration A against B (:data:`PAIRS`) in one page, windows
+    alternating ABBA, medians; with ``--shots DIR``, a screenshot of each way (its first window)."""
+    la, lb, apply = PAIRS[args.pair]
+    rows: dict = {}
+    apply(tab, False)
+    for j in range(4 * args.rounds):
+        b = (j + j // 2) % 2  # ABBA ...
+        apply(tab, bool(b))
+        rows.setdefault((la, lb)[b], []).append(tab.window(args.window))
+        if args.shots and len(rows[(la, lb)[b]]) == 1:
+            Path(args.shots).mkdir(parents=True, exist_ok=True)
+            tab.page.screenshot(path=str(Path(args.shots) / f"{args.pair}_{'ab'[b]}.png"))
+    apply(tab, False)
+    load1 = os.getloadavg()
+    med = statistics.median
+    print(
+        f"paired --pair {args.pair}, {4 * args.rounds} windows ABBA, load average {load0[0]:.1f} before, {load1[0]:.1f} after"
+    )
+    for label, rs in rows.items():
+        print(
+            f"  {label:32s} frame interval {med(r['interval_ms'] for r in rs):6.0f} ms; CPU per frame: GPU process "
+            f"{med(r['gpu_ms'] for r in rs):5.0f} ms, renderer {med(r['renderer_ms'] for r in rs):5.0f} ms; "
+            f"{med(r['draws'] for r in rs):4.0f} draw calls"
+        )
+    a, b = (med(r["gpu_ms"] for r in rows[n]) for n in (la, lb))
+    print(f"ratio: GPU process CPU per frame, B / A {b / a:.2f}")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--window", type=float, default=4.0, help="seconds of drawing per measure (default 4)")
@@ -317,6 +504,8 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--step-trace", type=int, default=0, metavar="N", help="only trace N timeline steps in the page")
     ap.add_argument("--ab", action="store_true", help="with --step-trace: the scene batch's send, before and now")
+    ap.add_argument("--pair", choices=sorted(PAIRS), help="only compare, paired in one page, two configurations")
+    ap.add_argument("--shots", metavar="DIR", help="with --pair: a screenshot of each configuration into DIR")
     args = ap.parse_args(argv)
 
     from bench_browser import served_flight_viewer
@@ -336,6 +525,8 @@ def main(argv=None) -> int:
             tri = _terrain_triangles(tab.session)
             if args.terrain_ab:
                 return _terrain_ab(tab, args, tri, load0)
+            if args.pair:
+                return _pair(tab, args, load0)
             configs = [
                 ("everything shown", ["*"]),
                 ("/flight hidden", ["/enu"]),

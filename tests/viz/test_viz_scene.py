@@ -602,6 +602,48 @@ def test_terrain_is_sent_unlit_with_the_mesh_unchanged(app):
     assert np.array_equal(rgba[:, 3], mesh.visual.vertex_colors[:, 3])
 
 
+def test_unlit_glb_keeps_a_texture_white_and_bilinear():
+    """A textured mesh (``bench_frame.py --pair terrain-textured``): the glTF, read back by trimesh
+    and by hand, holds the image as a JPEG (to a few levels), a white base colour (the
+    texture's colours unchanged) and one sampler, LINEAR both ways (9729, glTF 2.0 5.26: no
+    mipmaps read in software WebGL), the material unlit."""
+    import io
+    import json
+    import struct
+
+    import PIL.Image
+    import trimesh
+
+    from geoloc_viz.scene_geoloc import unlit_glb
+
+    y, x = np.mgrid[0:16, 0:16] * 16
+    rgb = np.stack([x, y, 255 - x], axis=-1).astype(np.uint8)  # smooth: JPEG keeps it to a few levels
+    buf = io.BytesIO()
+    PIL.Image.fromarray(rgb).save(buf, format="JPEG", quality=90)
+    jpeg = buf.getvalue()
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    mesh = trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=v[:, :2], image=PIL.Image.open(io.BytesIO(jpeg)))
+    glb = unlit_glb(mesh)
+    (jlen,) = struct.unpack_from("<I", glb, 12)
+    assert struct.unpack_from("<I", glb, 8)[0] == len(glb)
+    doc = json.loads(glb[20 : 20 + jlen])
+    (mat,) = doc["materials"]
+    assert mat["extensions"] == {"KHR_materials_unlit": {}}
+    assert mat["pbrMetallicRoughness"]["baseColorFactor"] == [1.0, 1.0, 1.0, 1.0]
+    assert doc["samplers"] == [{"magFilter": 9729, "minFilter": 9729}]
+    assert all(t["sampler"] == 0 for t in doc["textures"])
+    (img,) = doc["images"]
+    view = doc["bufferViews"][img["bufferView"]]
+    start = 20 + jlen + 8 + view.get("byteOffset", 0)
+    assert img["mimeType"] == "image/jpeg"
+    # trimesh writes the image again (one more JPEG encoding: a few levels on this smooth image)
+    back_rgb = np.asarray(PIL.Image.open(io.BytesIO(glb[start : start + view["byteLength"]])).convert("RGB"), float)
+    assert back_rgb.shape == rgb.shape and np.abs(back_rgb - rgb).mean() < 4.0
+    back = trimesh.load(io.BytesIO(glb), file_type="glb", force="mesh", process=False)
+    assert np.allclose(back.vertices, v) and np.allclose(back.visual.uv, v[:, :2])
+
+
 def test_terrain_mesh_level_of_detail_and_its_height_bound():
     """The drawn terrain, a level of detail: its nodes spaced as 1 + d / MESH_LOD_M at a
     distance d from the scene origin, its vertices on the DEM's surface at their nodes, and

@@ -73,6 +73,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import viser
@@ -115,6 +116,8 @@ SEND_WAIT_S = 0.5
 #: The ambient light that stands in for viser's environment map (:func:`configure_lighting`).
 AMBIENT_LIGHT = "/ambient_light"
 AMBIENT_INTENSITY = 1.0
+#: The control panel's theme (``GuiApi.configure_theme``).
+THEME: dict[str, Any] = {"dark_mode": True, "control_width": "large"}
 
 
 def attach_flight(session):
@@ -248,7 +251,7 @@ def make_server(host: str = "127.0.0.1", port: int = 8080, verbose: bool = False
     """A viser server bound to ``host`` (local only by default); ``port=0`` picks a free port."""
     server = viser.ViserServer(host=host, port=port, label="geoloc", verbose=verbose)
     server.scene.set_up_direction("+z")
-    server.gui.configure_theme(dark_mode=True, control_width="large")
+    server.gui.configure_theme(**THEME)
     # viser's default fog is tuned for scenes of a few metres; ours spans tens of km.
     server.scene.configure_fog(1.0, 1.0, enabled=False)
     configure_lighting(server.scene)

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from trimesh.visual import ColorVisuals
+from trimesh.visual import ColorVisuals, TextureVisuals
 import viser
 import viser.transforms as vtf
 
@@ -210,11 +210,15 @@ def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
     # glTF's COLOR_0 is linear (glTF 2.0, 3.7.2.1) and three.js converts it to sRGB on output: the
     # colours (sRGB, as a colour map gives them) go in linearised, so the unlit terrain shows them
     # as they are instead of washed out towards white
+    # (a texture is sRGB in glTF: it goes as it is)
     m = mesh.copy()
-    if not isinstance(mesh.visual, ColorVisuals) or not isinstance(m.visual, ColorVisuals):
-        raise TypeError(f"unlit_glb: the mesh's visual is a {type(mesh.visual).__name__}, not vertex colours")
-    rgba = np.asarray(mesh.visual.vertex_colors, np.uint8)
-    m.visual.vertex_colors = np.concatenate([srgb_to_linear_u8(rgba[:, :3]), rgba[:, 3:]], axis=1)
+    if isinstance(mesh.visual, ColorVisuals) and isinstance(m.visual, ColorVisuals):
+        rgba = np.asarray(mesh.visual.vertex_colors, np.uint8)
+        m.visual.vertex_colors = np.concatenate([srgb_to_linear_u8(rgba[:, :3]), rgba[:, 3:]], axis=1)
+    elif not isinstance(mesh.visual, TextureVisuals):
+        raise TypeError(
+            f"unlit_glb: the mesh's visual is a {type(mesh.visual).__name__}, not vertex colours or a texture"
+        )
     buf = io.BytesIO()
     m.export(buf, file_type="glb")
     b = buf.getvalue()
@@ -230,6 +234,15 @@ def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
                 p["material"] = 0
     for m in mats:
         m.setdefault("extensions", {})["KHR_materials_unlit"] = {}
+        pbr = m.get("pbrMetallicRoughness", {})
+        if "baseColorTexture" in pbr:  # the texture's colours as they are (trimesh's material greys them)
+            pbr["baseColorFactor"] = [1.0, 1.0, 1.0, 1.0]
+    if doc.get("textures"):
+        # bilinear, no mipmaps (glTF 2.0 sampler LINEAR = 9729): one texture read a pixel, where
+        # three.js's default (trilinear over generated mipmaps) reads two levels in software WebGL
+        doc["samplers"] = [{"magFilter": 9729, "minFilter": 9729}]
+        for t in doc["textures"]:
+            t["sampler"] = 0
     used = doc.setdefault("extensionsUsed", [])
     if "KHR_materials_unlit" not in used:
         used.append("KHR_materials_unlit")
