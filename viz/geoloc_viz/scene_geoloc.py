@@ -205,7 +205,13 @@ def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
     in headless Chromium with software WebGL the lit material (physically based, with viser's default
     environment map) over a 51 k-triangle terrain filling the canvas cost 1.9-2.6 s a frame, unlit
     0.4-0.45 s, about what the scene costs without the terrain (machine load 10-12;
-    a 161 or an 81 node grid made no difference: the cost is per pixel, not per triangle).
+    a 161 or an 81 node grid made no difference: the lit material's cost is per pixel). Unlit, what
+    is left of the terrain's cost is in its triangles: two flat triangles over its extent draw a
+    frame in 0.64 of its time, its own mesh flattened in the same time
+    (``benchmarks/bench_frame.py --pair terrain-quad``, ``--pair terrain-flat``).
+
+    A textured mesh goes with a white base colour and a bilinear sampler without mipmaps (the
+    texture's colours as they are, one texture read a pixel).
     """
     # glTF's COLOR_0 is linear (glTF 2.0, 3.7.2.1) and three.js converts it to sRGB on output: the
     # colours (sRGB, as a colour map gives them) go in linearised, so the unlit terrain shows them
