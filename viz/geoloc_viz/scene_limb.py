@@ -299,179 +299,217 @@ class LimbApp:
         return {k: marker_radius_km(k, sep_km) for k in MARKER_KM}
 
     def draw(self, reset_camera: bool = False) -> None:
+        """Draw the whole scene in one atomic update: the Earth patch, the virtual ellipsoid and
+        its Newton iterates (with a tangent), the spacecraft and its line of sight, the markers
+        (or where the line meets the Earth); then the text, the legend and, with
+        ``reset_camera``, the camera. ``last_update_s`` is the time it took [s]."""
         t0 = time.perf_counter()
-        sc, tan = self.server.scene, self.tan
-        ok = int(tan.status) == 0
+        ok = int(self.tan.status) == 0
         with self.server.atomic():
-            sc.add_frame("/limb", show_axes=False)
-            # Earth patch around the foot of what the view is about: 30 x 30 deg of WGS-84 at h = 0.
-            lat0, lon0 = np.rad2deg(self.focus_latlon)
-            la = np.deg2rad(np.clip(np.linspace(lat0 - 15, lat0 + 15, 61), -89.9, 89.9))
-            lo = np.deg2rad(np.linspace(lon0 - 15, lon0 + 15, 61))
-            LO, LA = np.meshgrid(lo, la)
-            earth = geodetic_to_ecef(LA, LO, np.zeros_like(LA))
-            idx = np.arange(LA.size).reshape(LA.shape)
-            faces = np.concatenate(
-                [
-                    np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
-                    np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3),
-                ]
-            )
-            sc.add_mesh_simple(
-                "/limb/earth",
-                self.w(earth.reshape(-1, 3)).astype(np.float32),
-                faces,
-                color=LIMB["earth"].rgb,
-                side="double",
-                cast_shadow=False,
-                receive_shadow=False,
-            )
-            self._polyline("/limb/earth_section", self.w(self.section_ecef), LIMB["earth_section"].rgb, 2.0)
+            self.server.scene.add_frame("/limb", show_axes=False)
+            LA, LO, faces = self._draw_earth()
             if ok:
-                virt = self.drawn_virtual(LA.reshape(-1), LO.reshape(-1))
-                sc.add_mesh_simple(
-                    "/limb/virtual",
-                    self.w(virt).astype(np.float32),
-                    faces,
-                    color=LIMB["virtual"].rgb,
-                    opacity=0.25,
-                    side="double",
-                    cast_shadow=False,
-                    receive_shadow=False,
-                )
-                self._polyline(
-                    "/limb/virtual_section",
-                    self.w(self.drawn_virtual(*self.section_geodetic)),
-                    LIMB["virtual"].rgb,
-                    3.0,
-                )
-                hist = np.asarray(tan.nr_delta_a_history).reshape(-1)
-                hist = hist[np.isfinite(hist)]
-                sc.remove_by_name("/limb/nr")
-                g0, g1 = LIMB["nr_first"].rgb[0], LIMB["nr_last"].rgb[0]  # a ramp (g, g, 255 - g // 2)
-                for k, dk in enumerate(hist[:-1]):
-                    g = int(g0 + (g1 - g0) * k / max(len(hist) - 1, 1))
-                    self._polyline(
-                        f"/limb/nr/iterate_{k}", self.w(self._virtual(self.section_ecef, dk)), (g, g, 255 - g // 2), 1.5
-                    )
-            # Spacecraft, its velocity (60 s of flight), the line of sight.
-            sp = self.w(self.p)
-            sc.add_icosphere(
-                "/limb/spacecraft",
-                radius=25.0,
-                color=LIMB["spacecraft"].rgb,
-                position=sp,
-                cast_shadow=False,
-                receive_shadow=False,
-            )
-            sc.add_label(
-                "/limb/spacecraft/label", f"spacecraft, {np.linalg.norm(self.v) / 1e3:.2f} km/s", anchor="bottom-left"
-            )
-            vel = np.stack([sp, self.w(self.p + 60.0 * self.v)])[None]
-            sc.add_arrows(
-                "/limb/velocity",
-                vel.astype(np.float32),
-                LIMB["spacecraft"].rgb,
-                shaft_radius=6.0,
-                head_radius=15.0,
-                head_length=40.0,
-            )
-            self._polyline("/limb/los", self.w(self.los_ecef), LIMB["los"].rgb, 3.0)
+                self._draw_virtual(LA, LO, faces)
+            self._draw_spacecraft()
             if ok:
-                r = self.marker_radii_km()
-                off_m = float(np.linalg.norm(tan.exact_ecef - tan.tangent_ecef))
-                sc.add_icosphere(
-                    "/limb/tangent",
-                    radius=r["tangent"],
-                    color=LIMB["tangent"].rgb,
-                    position=self.w(tan.tangent_ecef),
-                    cast_shadow=False,
-                    receive_shadow=False,
-                )
-                sc.add_label(
-                    "/limb/tangent/label",
-                    f"[L18] tangent: h = {float(tan.tangent_h) / 1e3:.3f} km",
-                    anchor="bottom-left",
-                )
-                sc.add_icosphere(
-                    "/limb/exact",
-                    radius=r["exact"],
-                    color=LIMB["exact"].rgb,
-                    position=self.w(self.drawn_exact_ecef()),
-                    cast_shadow=False,
-                    receive_shadow=False,
-                )
-                sc.add_label(
-                    "/limb/exact/label",
-                    f"exact minimum: h = {float(tan.exact_h) / 1e3:.3f} km, {off_m:.1f} m along the "
-                    f"line from the tangent (drawn x{self.offset_exaggeration:g})",
-                    anchor="top-left",
-                )
-                sc.remove_by_name("/limb/earth_hit")
-                if self.lref is not None:
-                    lr = self.lref
-                    drop = float(
-                        np.asarray(lr.tangent_h_m).reshape(-1)[0] - np.asarray(lr.refracted_tangent_h_m).reshape(-1)[0]
-                    )
-                    sc.add_icosphere(
-                        "/limb/refracted",
-                        radius=REFRACTED_MARKER_KM,
-                        color=REFRACTED_COLOR,
-                        position=self.w(np.asarray(lr.refracted_tangent_ecef).reshape(3)),
-                        cast_shadow=False,
-                        receive_shadow=False,
-                    )
-                    sc.add_label(
-                        "/limb/refracted/label",
-                        f"refracted tangent: h = {self.refracted_h_m() / 1e3:.3f} km ({drop:.0f} m lower)",
-                        anchor="top-right",
-                    )
-                else:
-                    sc.remove_by_name("/limb/refracted")
+                self._draw_tangents()
             else:
-                sc.remove_by_name("/limb/refracted")
-                for n in ("tangent", "exact", "virtual", "virtual_section", "nr"):
-                    sc.remove_by_name(f"/limb/{n}")
-                if int(tan.status) == int(Status.HITS_EARTH):
-                    sc.add_icosphere(
-                        "/limb/earth_hit",
-                        radius=12.0,
-                        color=LIMB["earth_hit"].rgb,
-                        position=self.w(tan.earth_hit_ecef),
-                        cast_shadow=False,
-                        receive_shadow=False,
-                    )
-                    sc.add_label(
-                        "/limb/earth_hit/label",
-                        "the line of sight meets the Earth here: no tangent",
-                        anchor="bottom-left",
-                    )
-                else:
-                    sc.remove_by_name("/limb/earth_hit")
+                self._draw_no_tangent()
         self._text()
         self.md_legend.content = self.legend_markdown(ok)
         if reset_camera:
-            pos, aim, up = self.camera_pose()
-            if hasattr(self.server, "initial_camera"):  # the server: every new tab's camera
-                cam = self.server.initial_camera
-                cam.up = tuple(up)
-                cam.near, cam.far = CAMERA_NEAR_KM, CAMERA_FAR_KM
-                cam.position, cam.look_at = tuple(pos), tuple(aim)
-                for c in list(self.server.get_clients().values()):  # and every open tab's
-                    try:
-                        with c.atomic():
-                            c.camera.up_direction = tuple(up)
-                            c.camera.position = tuple(pos)
-                            c.camera.look_at = tuple(aim)
-                    except Exception:  # a tab that left
-                        pass
-            else:  # one tab (a viser ClientHandle): its own camera (position first: viser moves look_at)
-                cam = self.server.camera
-                cam.up_direction = tuple(up)
-                cam.near, cam.far = CAMERA_NEAR_KM, CAMERA_FAR_KM
-                cam.position = tuple(pos)
-                cam.look_at = tuple(aim)
+            self._reset_camera()
         self.last_update_s = time.perf_counter() - t0
+
+    def _draw_earth(self):
+        """The Earth patch around the foot of what the view is about (30 x 30 deg of WGS-84 at
+        h = 0) and the Earth's section; returns the patch's grid (lat, lon [rad]) and faces."""
+        lat0, lon0 = np.rad2deg(self.focus_latlon)
+        la = np.deg2rad(np.clip(np.linspace(lat0 - 15, lat0 + 15, 61), -89.9, 89.9))
+        lo = np.deg2rad(np.linspace(lon0 - 15, lon0 + 15, 61))
+        LO, LA = np.meshgrid(lo, la)
+        earth = geodetic_to_ecef(LA, LO, np.zeros_like(LA))
+        idx = np.arange(LA.size).reshape(LA.shape)
+        faces = np.concatenate(
+            [
+                np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
+                np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3),
+            ]
+        )
+        self.server.scene.add_mesh_simple(
+            "/limb/earth",
+            self.w(earth.reshape(-1, 3)).astype(np.float32),
+            faces,
+            color=LIMB["earth"].rgb,
+            side="double",
+            cast_shadow=False,
+            receive_shadow=False,
+        )
+        self._polyline("/limb/earth_section", self.w(self.section_ecef), LIMB["earth_section"].rgb, 2.0)
+        return LA, LO, faces
+
+    def _draw_virtual(self, LA, LO, faces) -> None:
+        """The drawn virtual ellipsoid over the Earth patch's grid, its section, and the section
+        at each Newton iterate of its semi-axis change (a ramp from first to last)."""
+        sc, tan = self.server.scene, self.tan
+        virt = self.drawn_virtual(LA.reshape(-1), LO.reshape(-1))
+        sc.add_mesh_simple(
+            "/limb/virtual",
+            self.w(virt).astype(np.float32),
+            faces,
+            color=LIMB["virtual"].rgb,
+            opacity=0.25,
+            side="double",
+            cast_shadow=False,
+            receive_shadow=False,
+        )
+        self._polyline(
+            "/limb/virtual_section",
+            self.w(self.drawn_virtual(*self.section_geodetic)),
+            LIMB["virtual"].rgb,
+            3.0,
+        )
+        hist = np.asarray(tan.nr_delta_a_history).reshape(-1)
+        hist = hist[np.isfinite(hist)]
+        sc.remove_by_name("/limb/nr")
+        g0, g1 = LIMB["nr_first"].rgb[0], LIMB["nr_last"].rgb[0]  # a ramp (g, g, 255 - g // 2)
+        for k, dk in enumerate(hist[:-1]):
+            g = int(g0 + (g1 - g0) * k / max(len(hist) - 1, 1))
+            self._polyline(
+                f"/limb/nr/iterate_{k}", self.w(self._virtual(self.section_ecef, dk)), (g, g, 255 - g // 2), 1.5
+            )
+
+    def _draw_spacecraft(self) -> None:
+        """The spacecraft, its velocity (60 s of flight) and the line of sight."""
+        sc = self.server.scene
+        sp = self.w(self.p)
+        sc.add_icosphere(
+            "/limb/spacecraft",
+            radius=25.0,
+            color=LIMB["spacecraft"].rgb,
+            position=sp,
+            cast_shadow=False,
+            receive_shadow=False,
+        )
+        sc.add_label(
+            "/limb/spacecraft/label", f"spacecraft, {np.linalg.norm(self.v) / 1e3:.2f} km/s", anchor="bottom-left"
+        )
+        vel = np.stack([sp, self.w(self.p + 60.0 * self.v)])[None]
+        sc.add_arrows(
+            "/limb/velocity",
+            vel.astype(np.float32),
+            LIMB["spacecraft"].rgb,
+            shaft_radius=6.0,
+            head_radius=15.0,
+            head_length=40.0,
+        )
+        self._polyline("/limb/los", self.w(self.los_ecef), LIMB["los"].rgb, 3.0)
+
+    def _draw_tangents(self) -> None:
+        """The [L18] tangent point and the exact minimum (drawn offset), labelled with their
+        heights, and with refraction the refracted tangent; no Earth hit."""
+        sc, tan = self.server.scene, self.tan
+        r = self.marker_radii_km()
+        off_m = float(np.linalg.norm(tan.exact_ecef - tan.tangent_ecef))
+        sc.add_icosphere(
+            "/limb/tangent",
+            radius=r["tangent"],
+            color=LIMB["tangent"].rgb,
+            position=self.w(tan.tangent_ecef),
+            cast_shadow=False,
+            receive_shadow=False,
+        )
+        sc.add_label(
+            "/limb/tangent/label",
+            f"[L18] tangent: h = {float(tan.tangent_h) / 1e3:.3f} km",
+            anchor="bottom-left",
+        )
+        sc.add_icosphere(
+            "/limb/exact",
+            radius=r["exact"],
+            color=LIMB["exact"].rgb,
+            position=self.w(self.drawn_exact_ecef()),
+            cast_shadow=False,
+            receive_shadow=False,
+        )
+        sc.add_label(
+            "/limb/exact/label",
+            f"exact minimum: h = {float(tan.exact_h) / 1e3:.3f} km, {off_m:.1f} m along the "
+            f"line from the tangent (drawn x{self.offset_exaggeration:g})",
+            anchor="top-left",
+        )
+        sc.remove_by_name("/limb/earth_hit")
+        if self.lref is not None:
+            self._draw_refracted(self.lref)
+        else:
+            sc.remove_by_name("/limb/refracted")
+
+    def _draw_refracted(self, lr: LimbRefraction) -> None:
+        """The refracted tangent point of the limb refraction ``lr``, labelled with its height and
+        how much lower it is than the straight line's."""
+        sc = self.server.scene
+        drop = float(np.asarray(lr.tangent_h_m).reshape(-1)[0] - np.asarray(lr.refracted_tangent_h_m).reshape(-1)[0])
+        sc.add_icosphere(
+            "/limb/refracted",
+            radius=REFRACTED_MARKER_KM,
+            color=REFRACTED_COLOR,
+            position=self.w(np.asarray(lr.refracted_tangent_ecef).reshape(3)),
+            cast_shadow=False,
+            receive_shadow=False,
+        )
+        sc.add_label(
+            "/limb/refracted/label",
+            f"refracted tangent: h = {self.refracted_h_m() / 1e3:.3f} km ({drop:.0f} m lower)",
+            anchor="top-right",
+        )
+
+    def _draw_no_tangent(self) -> None:
+        """No tangent: the tangent's drawings removed, and where the line of sight meets the
+        Earth marked when it does."""
+        sc, tan = self.server.scene, self.tan
+        sc.remove_by_name("/limb/refracted")
+        for n in ("tangent", "exact", "virtual", "virtual_section", "nr"):
+            sc.remove_by_name(f"/limb/{n}")
+        if int(tan.status) != int(Status.HITS_EARTH):
+            sc.remove_by_name("/limb/earth_hit")
+            return
+        sc.add_icosphere(
+            "/limb/earth_hit",
+            radius=12.0,
+            color=LIMB["earth_hit"].rgb,
+            position=self.w(tan.earth_hit_ecef),
+            cast_shadow=False,
+            receive_shadow=False,
+        )
+        sc.add_label(
+            "/limb/earth_hit/label",
+            "the line of sight meets the Earth here: no tangent",
+            anchor="bottom-left",
+        )
+
+    def _reset_camera(self) -> None:
+        """The camera at :meth:`camera_pose`: on the server every new tab's and every open tab's,
+        on one tab (a viser ClientHandle) its own."""
+        pos, aim, up = self.camera_pose()
+        if hasattr(self.server, "initial_camera"):  # the server: every new tab's camera
+            cam = self.server.initial_camera
+            cam.up = tuple(up)
+            cam.near, cam.far = CAMERA_NEAR_KM, CAMERA_FAR_KM
+            cam.position, cam.look_at = tuple(pos), tuple(aim)
+            for c in list(self.server.get_clients().values()):  # and every open tab's
+                try:
+                    with c.atomic():
+                        c.camera.up_direction = tuple(up)
+                        c.camera.position = tuple(pos)
+                        c.camera.look_at = tuple(aim)
+                except Exception:  # a tab that left
+                    pass
+        else:  # one tab (a viser ClientHandle): its own camera (position first: viser moves look_at)
+            cam = self.server.camera
+            cam.up_direction = tuple(up)
+            cam.near, cam.far = CAMERA_NEAR_KM, CAMERA_FAR_KM
+            cam.position = tuple(pos)
+            cam.look_at = tuple(aim)
 
     def camera_pose(self):
         """Where the camera frames this frame's geometry: (position, look-at, up), scene km.
