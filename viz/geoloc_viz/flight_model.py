@@ -757,34 +757,7 @@ def extend(
     pose, row, col, target_h = records_pose(scn.records)
     if len(scn.records) != len(labels):
         raise ValueError(f"extend: scn has {len(scn.records)} records for {len(labels)} frames")
-    reference = "truth" if np.isfinite(joined["truth_lat_deg"]).any() else "reported"
-    pre = "truth" if reference == "truth" else "reported"
-    ref_h = np.where(np.isfinite(joined[f"{pre}_h_m"]), joined[f"{pre}_h_m"], joined["recomputed_h_m"])
-    a = _assessment(
-        joined["track_enu"],
-        pose,
-        joined["recomputed_lat_deg"],
-        joined["recomputed_lon_deg"],
-        joined["recomputed_h_m"],
-        joined["status"],
-        joined[f"{pre}_lat_deg"],
-        joined[f"{pre}_lon_deg"],
-        ref_h,
-    )
-    m = FlightModel(
-        labels=labels,
-        enu=new.enu,
-        **joined,
-        reference=reference,
-        residual_m=a["residual"],
-        components=a["components"],
-        outlier=a["outlier"],
-        order=a["order"],
-        track_heading_rad=a["heading"],
-        speed_m_per_frame=a["speed"],
-        surface=new.surface,
-        located_by=new.located_by,
-    )
+    m = _assessed(joined, labels, new.enu, pose, new.surface, new.located_by)
     if diagnose_faults:
         m.faults = diagnose(m, scn, pose=pose, row=row, col=col, target_h=target_h)
     return m
@@ -827,122 +800,183 @@ def build(
     recs = list(scn.records)
     if not recs:
         raise ValueError(f"scenario {scn.name!r}: no records: a flight needs at least one frame")
-    n = len(recs)
     sensor = scn.camera
     enu = enu or scn.enu
+    fov_deg = _frame_fov_deg(scn, fov_deg, len(recs))
+    pose, row, col, target_h = records_pose(recs)
+    surface = _surface(scn, target_h, method)
+    dem = terrain_of(surface)
+    corrections = getattr(scn, "corrections", NO_CORRECTIONS)
+    located, centre_deg = _located(sensor, pose, row, col, surface, corrections, enu, edge_samples, fov_deg)
+    refs = _references(recs, target_h, dem, enu)
+    labels = [info.label for info, _ in recs]
+    located_by = _LOCATED_BY.get(method, method) if dem is not None else "the record's target height"
+    model = _assessed({**located, **refs}, labels, enu, pose, _surface_text(scn, dem, method), located_by)
+    budget = getattr(scn, "budget", None)
+    if budget is not None:  # the second outlier rule: outside the frame's own predicted 99 % ellipse
+        model.outside_ellipse99 = outside_own_ellipse(
+            sensor, pose, row, col, surface, budget, model.components, model.residual_m
+        )
+    if diagnose_faults:
+        model.faults = diagnose(model, scn, pose=pose, row=row, col=col, target_h=target_h, method=method)
+    if audit:
+        _audit_model(model, scn, recs, pose, sensor, row, col, surface, centre_deg)
+    return model
+
+
+def _located(sensor, pose, row, col, surface, corrections, enu: EnuFrame, edge_samples: int, fov_deg):
+    """The flight located in one batch (:func:`_flight_pixels`'s rays on the surface): the
+    :class:`FlightModel` fields of the track, the footprints and their corners, the image centres
+    and the records' own pixels (recomputed); and the image centres' (lat, lon) [deg]."""
+    rows, cols = _flight_pixels(sensor, row, col, edge_samples, fov_deg)
+    los = sensor.line_of_sight(rows, cols, pose, outside="extrapolate")
+    lat, lon, h, ecef, st = _hit(surface, los, corrections)
+    P = rows.shape[0] - 2  # the outline's pixels
+    pts_enu = enu.from_ecef(ecef)  # (P + 2, n, 3)
+    footprint = np.swapaxes(pts_enu[:P], 0, 1)  # (n, P, 3)
+    corner_idx = np.arange(4) * int(edge_samples)
+    lat_d, lon_d = np.degrees(lat), np.degrees(lon)
+    fields = {
+        "track_enu": enu.from_ecef(los.origin_ecef[0]),
+        "footprint_enu": footprint,
+        "footprint_status": np.swapaxes(st[:P], 0, 1),
+        "corners_enu": footprint[:, corner_idx],
+        "corner_lat_deg": lat_d[:P][corner_idx].T,
+        "corner_lon_deg": lon_d[:P][corner_idx].T,
+        "corner_h_m": h[:P][corner_idx].T,
+        "centre_enu": pts_enu[P],
+        "recomputed_lat_deg": lat_d[-1],
+        "recomputed_lon_deg": lon_d[-1],
+        "recomputed_h_m": h[-1],
+        "recomputed_enu": pts_enu[-1],
+        "status": st[-1],
+    }
+    return fields, (lat_d[P], lon_d[P])
+
+
+def _references(recs, target_h, dem, enu: EnuFrame) -> dict:
+    """The :class:`FlightModel` fields of the records' reported positions and surveyed truth
+    (:func:`_truth_positions`; its height NaN where a record has no truth)."""
+    rep_lat, rep_lon, rep_h = (_num(recs, x) for x in ("paper_lat_deg", "paper_lon_deg", "paper_height_m"))
+    t_lat, t_lon, t_h = _truth_positions(recs, target_h, dem)
+
+    def enu_of(la, lo, hh):
+        return enu.from_geodetic(np.radians(la), np.radians(lo), np.where(np.isfinite(hh), hh, 0.0))
+
+    return {
+        "reported_lat_deg": rep_lat,
+        "reported_lon_deg": rep_lon,
+        "reported_h_m": rep_h,
+        "reported_enu": enu_of(rep_lat, rep_lon, np.where(np.isfinite(rep_h), rep_h, target_h)),
+        "truth_lat_deg": t_lat,
+        "truth_lon_deg": t_lon,
+        "truth_h_m": np.where(np.isfinite(t_lat) & np.isfinite(t_lon), t_h, np.nan),
+        "truth_enu": enu_of(t_lat, t_lon, t_h),
+    }
+
+
+def _assessed(per_frame: dict, labels: list, enu: EnuFrame, pose, surface: str, located_by: str) -> FlightModel:
+    """The flight's model from its per-frame fields (:data:`PER_FRAME`): the reference (the
+    surveyed truth where a frame has one, else the reported positions; its height, where
+    unknown, the recomputed one) and what :func:`_assessment` derives against it; ``surface``
+    and ``located_by`` say how the frames were located."""
+    has_truth = np.isfinite(per_frame["truth_lat_deg"]) & np.isfinite(per_frame["truth_lon_deg"])
+    reference = "truth" if has_truth.any() else "reported"
+    ref_h = per_frame[f"{reference}_h_m"]
+    a = _assessment(
+        per_frame["track_enu"],
+        pose,
+        *(per_frame[k] for k in ("recomputed_lat_deg", "recomputed_lon_deg", "recomputed_h_m", "status")),
+        per_frame[f"{reference}_lat_deg"],
+        per_frame[f"{reference}_lon_deg"],
+        np.where(np.isfinite(ref_h), ref_h, per_frame["recomputed_h_m"]),
+    )
+    return FlightModel(
+        labels=labels,
+        enu=enu,
+        **per_frame,
+        reference=reference,
+        residual_m=a["residual"],
+        components=a["components"],
+        outlier=a["outlier"],
+        order=a["order"],
+        track_heading_rad=a["heading"],
+        speed_m_per_frame=a["speed"],
+        surface=surface,
+        located_by=located_by,
+    )
+
+
+def _frame_fov_deg(scn, fov_deg, n: int):
+    """Each frame's (horizontal, vertical) fields of view [deg]: ``fov_deg``, else the scenario's
+    ``frame_fov_deg``, else None (the sensor's own lens); refused unless of shape (n, 2)."""
     if fov_deg is None:
         fov_deg = getattr(scn, "frame_fov_deg", None)
     if fov_deg is not None:
         fov_deg = np.asarray(fov_deg, float)
         if fov_deg.shape != (n, 2):
             raise ValueError(f"fov_deg: shape {fov_deg.shape}, expected ({n}, 2) (one hfov, vfov per frame)")
-    pose, row, col, target_h = records_pose(recs)
-    surface = _surface(scn, target_h, method)
-    dem = terrain_of(surface)
+    return fov_deg
 
-    # one batch: ring of P outline pixels, the image centre, the record's pixel; axis 0 the ray kind
+
+def _flight_pixels(sensor, row, col, edge_samples: int, fov_deg):
+    """The flight's pixels in one batch, (P + 2, n) rows and columns: the image outline's P
+    pixels (:func:`outline_pixels`), the image centre and the record's own pixel."""
+    n = len(row)
     rr, cc = outline_pixels(sensor, edge_samples, fov_deg)
     rr = np.broadcast_to(rr.reshape(len(rr), -1), (len(rr), n))
     cc = np.broadcast_to(cc.reshape(len(cc), -1), (len(cc), n))
     r0, c0 = sensor.center_pixel
     rows = np.concatenate([rr, np.full((1, n), r0), row[None]], axis=0)
     cols = np.concatenate([cc, np.full((1, n), c0), col[None]], axis=0)
-    los = sensor.line_of_sight(rows, cols, pose, outside="extrapolate")
-    lat, lon, h, ecef, st = _hit(surface, los, getattr(scn, "corrections", NO_CORRECTIONS))
-    P = rr.shape[0]
-    pts_enu = enu.from_ecef(ecef)  # (P + 2, n, 3)
-    track = enu.from_ecef(los.origin_ecef[0])
-    footprint = np.swapaxes(pts_enu[:P], 0, 1)  # (n, P, 3)
-    k = int(edge_samples)
-    corner_idx = np.arange(4) * k
-    lat_d, lon_d = np.degrees(lat), np.degrees(lon)
+    return rows, cols
 
-    rec_lat, rec_lon, rec_h, rec_st = lat_d[-1], lon_d[-1], h[-1], st[-1]
-    rep_lat, rep_lon, rep_h = (_num(recs, x) for x in ("paper_lat_deg", "paper_lon_deg", "paper_height_m"))
+
+def _truth_positions(recs, target_h, dem):
+    """The records' surveyed truth (lat, lon [deg], h [m]). The records give no truth height: the
+    truth sits on the DEM when there is one, else at the record's target height (the
+    calibration layer does the same)."""
     t_lat, t_lon = _num(recs, "truth_lat_deg"), _num(recs, "truth_lon_deg")
-    # the records give no truth height: the truth sits on the DEM when there is one, else at the
-    # record's target height (the calibration layer does the same)
     t_h = target_h.copy()
     if dem is not None and np.isfinite(t_lat).any():
         ok = np.isfinite(t_lat)
         dh = dem.height(np.radians(t_lat[ok]), np.radians(t_lon[ok]))
         t_h[ok] = np.where(np.isfinite(dh), dh, t_h[ok])
-    has_truth = np.isfinite(t_lat) & np.isfinite(t_lon)
-    reference = "truth" if has_truth.any() else "reported"
-    ref = (t_lat, t_lon, t_h) if reference == "truth" else (rep_lat, rep_lon, rep_h)
-    ref_h = np.where(np.isfinite(ref[2]), ref[2], rec_h)
+    return t_lat, t_lon, t_h
 
-    a = _assessment(track, pose, rec_lat, rec_lon, rec_h, rec_st, ref[0], ref[1], ref_h)
-    speed, heading, comp, residual, outlier, order = (
-        a[k] for k in ("speed", "heading", "components", "residual", "outlier", "order")
-    )
 
-    def enu_of(la, lo, hh):
-        return enu.from_geodetic(np.radians(la), np.radians(lo), np.where(np.isfinite(hh), hh, 0.0))
-
-    desc = (
+def _surface_text(scn, dem, method: str) -> str:
+    """What the flight's rays were located on, in words."""
+    if dem is None:
+        return "ellipsoid at each record's target height (no DEM)"
+    return (
         f"DEM {getattr(scn, 'dem_name', '') or 'given'}, {method} first hit (outline rays off the DEM: "
         "the record's target height)"
-        if dem is not None
-        else "ellipsoid at each record's target height (no DEM)"
     )
-    model = FlightModel(
-        labels=[info.label for info, _ in recs],
-        enu=enu,
-        track_enu=track,
-        footprint_enu=footprint,
-        footprint_status=np.swapaxes(st[:P], 0, 1),
-        corners_enu=footprint[:, corner_idx],
-        corner_lat_deg=lat_d[:P][corner_idx].T,
-        corner_lon_deg=lon_d[:P][corner_idx].T,
-        corner_h_m=h[:P][corner_idx].T,
-        centre_enu=pts_enu[P],
-        recomputed_lat_deg=rec_lat,
-        recomputed_lon_deg=rec_lon,
-        recomputed_h_m=rec_h,
-        recomputed_enu=pts_enu[-1],
-        status=rec_st,
-        reported_lat_deg=rep_lat,
-        reported_lon_deg=rep_lon,
-        reported_h_m=rep_h,
-        reported_enu=enu_of(rep_lat, rep_lon, np.where(np.isfinite(rep_h), rep_h, target_h)),
-        truth_lat_deg=t_lat,
-        truth_lon_deg=t_lon,
-        truth_h_m=np.where(has_truth, t_h, np.nan),
-        truth_enu=enu_of(t_lat, t_lon, t_h),
-        reference=reference,
-        residual_m=residual,
-        components=comp,
-        outlier=outlier,
-        order=order,
-        track_heading_rad=heading,
-        speed_m_per_frame=speed,
-        surface=desc,
-        located_by=_LOCATED_BY.get(method, method) if dem is not None else "the record's target height",
-    )
-    budget = getattr(scn, "budget", None)
-    if budget is not None:  # the second outlier rule: outside the frame's own predicted 99 % ellipse
-        model.outside_ellipse99 = outside_own_ellipse(sensor, pose, row, col, surface, budget, comp, residual)
-    if diagnose_faults:
-        model.faults = diagnose(model, scn, pose=pose, row=row, col=col, target_h=target_h, method=method)
-    if audit:
-        az = [float(inp.angles_deg.get("azimuth", np.nan)) for _, inp in recs]
-        angles = {
-            "heading": np.array([float(inp.heading_deg) for _, inp in recs]),
-            "azimuth": np.array(az) if np.isfinite(az).any() else None,
-        }
-        # the reported positions as the records audit takes them: the published ones, else the
-        # surveyed truth (its heights left out: the DEM's under it are no report)
-        has_rep = bool((np.isfinite(rep_lat) & np.isfinite(rep_lon)).any())
-        audited = (rep_lat, rep_lon, rep_h) if has_rep else (t_lat, t_lon, np.full(n, np.nan))
-        # under the same uncompiled budget as the footprints (_hit): the audit's 298 frame centres
-        # must not compile the walk before the first scene on a cold cache
-        from geoloc.surfaces.terrain_numba import uncompiled_budget
 
-        with uncompiled_budget():
-            model.audit = flight_audit(scn, pose, sensor, row, col, surface, audited, (lat_d[P], lon_d[P]), angles)
-        model.faults = name_runs_by_audit(model.faults, model.audit)
-    return model
+
+def _audit_model(model: FlightModel, scn, recs, pose, sensor, row, col, surface, centre_deg) -> None:
+    """The flight's heights and conventions audited (:func:`flight_audit`) with the recorded
+    heading and azimuth, against the reported positions as the records audit takes them: the
+    published ones, else the surveyed truth (its heights left out: the DEM's under it are no
+    report); the fault runs named by the audit."""
+    rep_lat, rep_lon = model.reported_lat_deg, model.reported_lon_deg
+    if bool((np.isfinite(rep_lat) & np.isfinite(rep_lon)).any()):
+        audited = (rep_lat, rep_lon, model.reported_h_m)
+    else:
+        audited = (model.truth_lat_deg, model.truth_lon_deg, np.full(len(recs), np.nan))
+    az = [float(inp.angles_deg.get("azimuth", np.nan)) for _, inp in recs]
+    angles = {
+        "heading": np.array([float(inp.heading_deg) for _, inp in recs]),
+        "azimuth": np.array(az) if np.isfinite(az).any() else None,
+    }
+    # under the same uncompiled budget as the footprints (_hit): the audit's 298 frame centres
+    # must not compile the walk before the first scene on a cold cache
+    from geoloc.surfaces.terrain_numba import uncompiled_budget
+
+    with uncompiled_budget():
+        model.audit = flight_audit(scn, pose, sensor, row, col, surface, audited, centre_deg, angles)
+    model.faults = name_runs_by_audit(model.faults, model.audit)
 
 
 def outside_own_ellipse(sensor, pose, row, col, surface, budget, components, residual, p: float = 0.99):
