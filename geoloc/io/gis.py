@@ -1140,19 +1140,39 @@ def _html_table(attrs) -> str:
 
 
 def _write_czml(layers, ctx, out, epoch):
+    """The layers as one CZML document (czml3): the document packet with its clock, then a packet
+    per feature: the platform's track as a moving point with its path, the others as points,
+    polylines or polygons, each shown from its time on."""
     C = _require("czml3", "czml3")
-    from czml3.enums import (
-        ClockRanges,
-        ClockSteps,
-        HeightReferences,
-        InterpolationAlgorithms,
-    )
-    from czml3.properties import HeightReference
-
     times = [t for t in ctx.seconds if np.isfinite(t)]
     start = float(min(times)) if times else 0.0
     stop = (float(max(times)) if times else 0.0) + 1.0  # one second past the last record, so it shows
+    packets = [_czml_document(C, layers, ctx, out, epoch, start, stop)]
     stop_iso = ctx.iso(stop)
+    for name in LAYERS:
+        layer = layers[name]
+        for f in layer.features:
+            common = {
+                "name": f.label,
+                "description": _html_table(f.attrs),
+                "properties": {k: v for k, v in f.attrs.items() if v is not None},
+            }
+            if name == "track":
+                packet = _czml_track(C, f, layer, ctx, stop_iso, common) if f.samples else None
+            else:
+                packet = _czml_feature(C, f, name, layer, ctx, stop_iso, common) if f.coords else None
+            if packet is not None:
+                packets.append(packet)
+    with atomic_path(out) as tmp:
+        C.Document(packets=packets).save(str(tmp))
+    return out
+
+
+def _czml_document(C, layers, ctx, out, epoch, start: float, stop: float):
+    """The CZML document packet: its description (the heights and where the times come from)
+    and a clock over the records' span, one minute of play at the least multiplier."""
+    from czml3.enums import ClockRanges, ClockSteps
+
     extra = [
         (
             "Heights are metres above the WGS 84 ellipsoid (CZML cartographicDegrees); "
@@ -1169,119 +1189,101 @@ def _write_czml(layers, ctx, out, epoch):
     else:
         extra.append("Times are the time_utc column.")
     clock = C.Clock(
-        interval=C.TimeInterval(start=ctx.iso(start), end=stop_iso),
+        interval=C.TimeInterval(start=ctx.iso(start), end=ctx.iso(stop)),
         currentTime=ctx.iso(start),
         multiplier=max(1.0, (stop - start) / 60.0),
         range=ClockRanges.CLAMPED,
         step=ClockSteps.SYSTEM_CLOCK_MULTIPLIER,
     )
-    packets = [
-        C.Packet(
-            id="document",
-            name=out.stem,
-            version=C.CZML_VERSION,
-            description=_document_description(ctx, layers, extra),
-            clock=clock,
+    return C.Packet(
+        id="document",
+        name=out.stem,
+        version=C.CZML_VERSION,
+        description=_document_description(ctx, layers, extra),
+        clock=clock,
+    )
+
+
+def _czml_color(C, name: str):
+    """A layer's CZML colour."""
+    return C.Color(rgba=_CZML_COLORS[name])
+
+
+def _czml_clamp(has_h: bool):
+    """The height reference of a position: None with heights, else clamped to the ground."""
+    from czml3.enums import HeightReferences
+    from czml3.properties import HeightReference
+
+    return None if has_h else HeightReference(heightReference=HeightReferences.CLAMP_TO_GROUND)
+
+
+def _czml_track(C, f, layer, ctx, stop_iso: str, common: dict):
+    """The platform's packet: a point moving along its samples (linear interpolation, time from
+    its first sample) drawn with its path, or one fixed point from its time to the end."""
+    from czml3.enums import InterpolationAlgorithms
+
+    s = f.samples
+    has_h = all(np.isfinite(c[2]) for c in s)
+    if len(s) >= 2:
+        t0 = f.times[0]
+        vals = []
+        for t, c in zip(f.times, s):
+            vals += [t - t0, c[0], c[1], c[2] if has_h else 0.0]
+        pos = C.Position(
+            epoch=ctx.iso(t0),
+            cartographicDegrees=vals,
+            interpolationAlgorithm=InterpolationAlgorithms.LINEAR,
+            interpolationDegree=1,
         )
-    ]
-    clamp = HeightReference(heightReference=HeightReferences.CLAMP_TO_GROUND)
+        avail = C.TimeInterval(start=ctx.iso(t0), end=ctx.iso(f.times[-1]))
+    else:
+        c = s[0]
+        pos = C.Position(cartographicDegrees=[c[0], c[1], c[2] if has_h else 0.0])
+        avail = C.TimeInterval(start=ctx.iso(f.times[0]), end=stop_iso)
+    return C.Packet(
+        id=f"platform/{f.attrs.get(layer.fields[0][0])}",
+        availability=avail,
+        position=pos,
+        point=C.Point(pixelSize=10, color=_czml_color(C, "track"), heightReference=_czml_clamp(has_h)),
+        path=C.Path(
+            width=2,
+            leadTime=0,
+            resolution=1,
+            material=C.PolylineMaterial(solidColor=C.SolidColorMaterial(color=_czml_color(C, "track"))),
+        ),
+        **common,
+    )
 
-    def color(name):
-        return C.Color(rgba=_CZML_COLORS[name])
 
-    for name in LAYERS:
-        layer = layers[name]
-        for f in layer.features:
-            common = {
-                "name": f.label,
-                "description": _html_table(f.attrs),
-                "properties": {k: v for k, v in f.attrs.items() if v is not None},
-            }
-            if name == "track":
-                s = f.samples
-                if not s:
-                    continue
-                has_h = all(np.isfinite(c[2]) for c in s)
-                if len(s) >= 2:
-                    t0 = f.times[0]
-                    vals = []
-                    for t, c in zip(f.times, s):
-                        vals += [t - t0, c[0], c[1], c[2] if has_h else 0.0]
-                    pos = C.Position(
-                        epoch=ctx.iso(t0),
-                        cartographicDegrees=vals,
-                        interpolationAlgorithm=InterpolationAlgorithms.LINEAR,
-                        interpolationDegree=1,
-                    )
-                    avail = C.TimeInterval(start=ctx.iso(t0), end=ctx.iso(f.times[-1]))
-                else:
-                    c = s[0]
-                    pos = C.Position(cartographicDegrees=[c[0], c[1], c[2] if has_h else 0.0])
-                    avail = C.TimeInterval(start=ctx.iso(f.times[0]), end=stop_iso)
-                packets.append(
-                    C.Packet(
-                        id=f"platform/{f.attrs.get(layer.fields[0][0])}",
-                        availability=avail,
-                        position=pos,
-                        point=C.Point(pixelSize=10, color=color(name), heightReference=None if has_h else clamp),
-                        path=C.Path(
-                            width=2,
-                            leadTime=0,
-                            resolution=1,
-                            material=C.PolylineMaterial(solidColor=C.SolidColorMaterial(color=color(name))),
-                        ),
-                        **common,
-                    )
-                )
-                continue
-            if not f.coords:
-                continue
-            avail = C.TimeInterval(start=ctx.iso(f.time), end=stop_iso) if f.time is not None else None
-            pid = f"{name}/{f.attrs.get('source') or f.attrs.get('target') or ''}/{f.row}".replace("//", "/")
-            has_h = all(np.isfinite(c[2]) for c in f.coords)
-            flat = []
-            for c in f.coords[:-1] if layer.geometry == "Polygon" else f.coords:
-                flat += [c[0], c[1], c[2] if has_h else 0.0]
-            if layer.geometry == "Point":
-                packets.append(
-                    C.Packet(
-                        id=pid,
-                        availability=avail,
-                        position=C.Position(cartographicDegrees=flat),
-                        point=C.Point(pixelSize=8, color=color(name), heightReference=None if has_h else clamp),
-                        **common,
-                    )
-                )
-            elif layer.geometry == "LineString":
-                packets.append(
-                    C.Packet(
-                        id=pid,
-                        availability=avail,
-                        polyline=C.Polyline(
-                            positions=C.PositionList(cartographicDegrees=flat),
-                            width=2,
-                            material=C.PolylineMaterial(solidColor=C.SolidColorMaterial(color=color(name))),
-                            clampToGround=None if has_h else True,
-                        ),
-                        **common,
-                    )
-                )
-            else:
-                packets.append(
-                    C.Packet(
-                        id=pid,
-                        availability=avail,
-                        polygon=C.Polygon(
-                            positions=C.PositionList(cartographicDegrees=flat),
-                            material=C.Material(solidColor=C.SolidColorMaterial(color=color(name))),
-                            outline=True,
-                            outlineColor=C.Color(rgba=[255, 255, 0, 255]),
-                            perPositionHeight=True if has_h else None,
-                            heightReference=None if has_h else clamp,
-                        ),
-                        **common,
-                    )
-                )
-    with atomic_path(out) as tmp:
-        C.Document(packets=packets).save(str(tmp))
-    return out
+def _czml_feature(C, f, name: str, layer, ctx, stop_iso: str, common: dict):
+    """A point, polyline or polygon feature's packet (a polygon's ring without its closing
+    point), shown from its time on; without heights clamped to the ground."""
+    avail = C.TimeInterval(start=ctx.iso(f.time), end=stop_iso) if f.time is not None else None
+    pid = f"{name}/{f.attrs.get('source') or f.attrs.get('target') or ''}/{f.row}".replace("//", "/")
+    has_h = all(np.isfinite(c[2]) for c in f.coords)
+    flat = []
+    for c in f.coords[:-1] if layer.geometry == "Polygon" else f.coords:
+        flat += [c[0], c[1], c[2] if has_h else 0.0]
+    color = _czml_color(C, name)
+    if layer.geometry == "Point":
+        point = C.Point(pixelSize=8, color=color, heightReference=_czml_clamp(has_h))
+        return C.Packet(
+            id=pid, availability=avail, position=C.Position(cartographicDegrees=flat), point=point, **common
+        )
+    if layer.geometry == "LineString":
+        polyline = C.Polyline(
+            positions=C.PositionList(cartographicDegrees=flat),
+            width=2,
+            material=C.PolylineMaterial(solidColor=C.SolidColorMaterial(color=color)),
+            clampToGround=None if has_h else True,
+        )
+        return C.Packet(id=pid, availability=avail, polyline=polyline, **common)
+    polygon = C.Polygon(
+        positions=C.PositionList(cartographicDegrees=flat),
+        material=C.Material(solidColor=C.SolidColorMaterial(color=color)),
+        outline=True,
+        outlineColor=C.Color(rgba=[255, 255, 0, 255]),
+        perPositionHeight=True if has_h else None,
+        heightReference=_czml_clamp(has_h),
+    )
+    return C.Packet(id=pid, availability=avail, polygon=polygon, **common)
