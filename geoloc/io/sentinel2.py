@@ -236,7 +236,38 @@ def read_datastrip(path: str | Path) -> Datastrip:
     ti = _find(root, "General_Info/Datastrip_Time_Info", w)
     start = gps_time(_find(ti, "DATASTRIP_SENSING_START", w).text, w)
     stop = gps_time(_find(ti, "DATASTRIP_SENSING_STOP", w).text, w)
+    t, p, v = _ds_orbit(root, w)
+    ta, qa = _ds_attitudes(root, w)
+    period, first = _ds_line_timing(root, w)
+    at_, ap, av = _ds_aocs(root, w)
+    return Datastrip(
+        path=path,
+        orbit_t=t,
+        orbit_position_itrf=p,
+        orbit_velocity_itrf=v,
+        attitude_t=ta,
+        q_eme2000_to_piloting=qa,
+        line_period_10m_s=period,
+        first_line=first,
+        granules=_ds_granules(root, w),
+        sensing_start_utc=start,
+        sensing_stop_utc=stop,
+        refining=_ds_refining(root, w, start, stop),
+        iers=_ds_iers(root),
+        aocs_t=at_,
+        aocs_position=ap,
+        aocs_velocity=av,
+    )
 
+
+def _first_of_each_time(t: np.ndarray) -> np.ndarray:
+    """True at each sorted date's first entry (a repeated date's later entries dropped)."""
+    return np.concatenate([[True], np.diff(t) > np.timedelta64(0, "ns")])
+
+
+def _ds_orbit(root, w: str):
+    """The dated GPS points of the ephemeris (dates, ITRF position and velocity [km, km/s]) in
+    time order, a repeated date's first kept; an undated point skipped; at least 4."""
     eph = _find(root, "Satellite_Ancillary_Data_Info/Ephemeris", w)
     t: Any = []  # the GPS dates, then their array
     p: Any = []
@@ -254,8 +285,13 @@ def read_datastrip(path: str | Path) -> Datastrip:
     t = np.array(t)
     order = np.argsort(t, kind="stable")
     t, p, v = t[order], np.array(p)[order], np.array(v)[order]
-    keep = np.concatenate([[True], np.diff(t) > np.timedelta64(0, "ns")])  # duplicates: the first kept
+    keep = _first_of_each_time(t)  # duplicates: the first kept
+    return t[keep], p[keep], v[keep]
 
+
+def _ds_attitudes(root, w: str):
+    """The corrected attitudes: dates and unit quaternions EME2000 -> piloting (scalar first) in
+    time order, a repeated date's first kept; a norm off 1 by 1e-3 refused; at least 4."""
     att = _find(root, "Satellite_Ancillary_Data_Info/Attitudes/Corrected_Attitudes", w)
     ta: Any = []  # the quaternions' dates, then their array
     qa: Any = []
@@ -272,8 +308,12 @@ def read_datastrip(path: str | Path) -> Datastrip:
     ta = np.array(ta)
     oa = np.argsort(ta, kind="stable")
     ta, qa = ta[oa], np.array(qa)[oa]
-    keep_a = np.concatenate([[True], np.diff(ta) > np.timedelta64(0, "ns")])
+    keep_a = _first_of_each_time(ta)
+    return ta[keep_a], qa[keep_a]
 
+
+def _ds_line_timing(root, w: str):
+    """The 10 m line period [s] (about 1.5 ms) and each (band, detector)'s reference line and its date."""
     ts = _find(root, "Image_Data_Info/Sensor_Configuration/Time_Stamp", w)
     lp = _find(ts, "LINE_PERIOD", w)
     period = float(lp.text) * (1e-3 if lp.get("unit", "ms") == "ms" else 1.0)
@@ -286,61 +326,82 @@ def read_datastrip(path: str | Path) -> Datastrip:
             d = detector_id(det.get("detectorId"))
             wi = f"{w}: Band_Time_Stamp {b} Detector {d}"
             first[(b, d)] = (int(_find(det, "REFERENCE_LINE", wi).text), gps_time(_find(det, "GPS_TIME", wi).text, wi))
+    return period, first
 
+
+def _ds_granules(root, w: str) -> dict:
+    """Each detector's granules, (granule id, first line) in line order."""
     granules = {}
     for det in root.iterfind("Image_Data_Info/Granules_Information/Detector_List/Detector"):
         d = detector_id(det.get("detectorId"))
         granules[d] = sorted(
             ((g.get("granuleId"), int(_find(g, "POSITION", w).text)) for g in det.iter("Granule")), key=lambda x: x[1]
         )
+    return granules
 
-    refining = None
+
+def _ds_refining(root, w: str, start, stop) -> Refining | None:
+    """The refined corrections' polynomials (MSI rotation and homothety, spacecraft position, each
+    focal plane's), counting seconds from the datastrip's middle; None unless flagged REFINED."""
     ir = root.find("Image_Data_Info/Geometric_Info/Image_Refining")
-    if ir is not None and (ir.get("flag") or "").upper() == "REFINED":
-        rc = root.find("Image_Data_Info/Geometric_Info/Refined_Corrections_List/Refined_Corrections")
-        from geoloc.frames.earth import utc_to_gps
+    if ir is None or (ir.get("flag") or "").upper() != "REFINED":
+        return None
+    rc = root.find("Image_Data_Info/Geometric_Info/Refined_Corrections_List/Refined_Corrections")
+    from geoloc.frames.earth import utc_to_gps
 
-        # the polynomials count seconds from the datastrip's middle, its start and stop being UTC
-        centre = utc_to_gps(start + (stop - start) / 2)
-        rot = [(0.0,), (0.0,), (0.0,)]
-        hom = (0.0,)
-        pos = None
-        focal: dict = {}
-        if rc is not None:
-            msi = rc.find("MSI_State")
-            if msi is not None:
-                r = msi.find("Rotation")
-                if r is not None:
-                    rot = [_poly(r.find(a), f"{w}: MSI_State Rotation {a}") or (0.0,) for a in "XYZ"]
-                h = msi.find("Homothety/Z")
-                hom = _poly(h, f"{w}: MSI_State Homothety Z") or (0.0,)
-            sp = rc.find("Spacecraft_Position")
-            if sp is not None and len(sp):
-                pos = tuple(_poly(sp.find(a), f"{w}: Spacecraft_Position {a}") or (0.0,) for a in "XYZ")
-            for fp in rc.iter("Focal_Plane_State"):
-                if not len(fp):
-                    continue
-                name = (fp.get("focalPlaneId") or "").upper()
-                wf = f"{w}: Focal_Plane_State {name}"
-                if name not in ("VNIR", "SWIR"):
-                    raise ValueError(f"{wf}: focalPlaneId = {fp.get('focalPlaneId')!r}: must be VNIR or SWIR")
-                r = fp.find("Rotation")
-                frot = (
-                    tuple(_poly(r.find(a), f"{wf} Rotation {a}") or (0.0,) for a in "XYZ")
-                    if r is not None
-                    else ((0.0,), (0.0,), (0.0,))
-                )
-                fh = _poly(fp.find("Homothety/Z"), f"{wf} Homothety Z") or (0.0,)
-                focal[name] = (frot, fh)
-        refining = Refining(cast(np.datetime64, centre), tuple(rot), hom, pos, focal)
+    # the polynomials count seconds from the datastrip's middle, its start and stop being UTC
+    centre = utc_to_gps(start + (stop - start) / 2)
+    rot = [(0.0,), (0.0,), (0.0,)]
+    hom = (0.0,)
+    pos = None
+    focal: dict = {}
+    if rc is not None:
+        msi = rc.find("MSI_State")
+        if msi is not None:
+            r = msi.find("Rotation")
+            if r is not None:
+                rot = [_poly(r.find(a), f"{w}: MSI_State Rotation {a}") or (0.0,) for a in "XYZ"]
+            h = msi.find("Homothety/Z")
+            hom = _poly(h, f"{w}: MSI_State Homothety Z") or (0.0,)
+        sp = rc.find("Spacecraft_Position")
+        if sp is not None and len(sp):
+            pos = tuple(_poly(sp.find(a), f"{w}: Spacecraft_Position {a}") or (0.0,) for a in "XYZ")
+        focal = _ds_focal_planes(rc, w)
+    return Refining(cast(np.datetime64, centre), tuple(rot), hom, pos, focal)
 
+
+def _ds_focal_planes(rc, w: str) -> dict:
+    """Each focal plane's refined rotation and homothety polynomials, by name (VNIR, SWIR)."""
+    focal = {}
+    for fp in rc.iter("Focal_Plane_State"):
+        if not len(fp):
+            continue
+        name = (fp.get("focalPlaneId") or "").upper()
+        wf = f"{w}: Focal_Plane_State {name}"
+        if name not in ("VNIR", "SWIR"):
+            raise ValueError(f"{wf}: focalPlaneId = {fp.get('focalPlaneId')!r}: must be VNIR or SWIR")
+        r = fp.find("Rotation")
+        frot = (
+            tuple(_poly(r.find(a), f"{wf} Rotation {a}") or (0.0,) for a in "XYZ")
+            if r is not None
+            else ((0.0,), (0.0,), (0.0,))
+        )
+        fh = _poly(fp.find("Homothety/Z"), f"{wf} Homothety Z") or (0.0,)
+        focal[name] = (frot, fh)
+    return focal
+
+
+def _ds_iers(root) -> tuple:
+    """The IERS bulletin's UT1 - UTC and pole angles, NaN without a bulletin."""
     ib = root.find("Auxiliary_Data_Info/IERS_Bulletin")
-    iers = (
-        (float(ib.find("UT1_UTC").text), float(ib.find("POLE_U_ANGLE").text), float(ib.find("POLE_V_ANGLE").text))
-        if ib is not None
-        else (np.nan, np.nan, np.nan)
-    )
+    if ib is None:
+        return (np.nan, np.nan, np.nan)
+    return (float(ib.find("UT1_UTC").text), float(ib.find("POLE_U_ANGLE").text), float(ib.find("POLE_V_ANGLE").text))
 
+
+def _ds_aocs(root, w: str):
+    """The on-board (AOCS) ephemeris, dates, positions, velocities; an unreadable entry skipped
+    (it is only a check)."""
     at_, ap, av = [], [], []
     for e in root.iterfind("Satellite_Ancillary_Data_Info/Ephemeris/AOCS_Ephemeris_List/AOCS_Ephemeris"):
         try:
@@ -349,24 +410,7 @@ def read_datastrip(path: str | Path) -> Datastrip:
             av.append(_floats(e.find("VELOCITY_VALUES").text, 3, w))
         except (AttributeError, ValueError):
             continue  # the on-board ephemeris is only a check
-    return Datastrip(
-        path=path,
-        orbit_t=t[keep],
-        orbit_position_itrf=p[keep],
-        orbit_velocity_itrf=v[keep],
-        attitude_t=ta[keep_a],
-        q_eme2000_to_piloting=qa[keep_a],
-        line_period_10m_s=period,
-        first_line=first,
-        granules=granules,
-        sensing_start_utc=start,
-        sensing_stop_utc=stop,
-        refining=refining,
-        iers=iers,
-        aocs_t=np.array(at_, "datetime64[ns]"),
-        aocs_position=np.array(ap).reshape(-1, 3),
-        aocs_velocity=np.array(av).reshape(-1, 3),
-    )
+    return np.array(at_, "datetime64[ns]"), np.array(ap).reshape(-1, 3), np.array(av).reshape(-1, 3)
 
 
 # ------------------------------------------------------------------ granules
