@@ -274,6 +274,23 @@ def _first_finite(lat, lon, h):
     return lat[k], lon[k], h[k]
 
 
+def _origin_at_ground(ground: GroundPoint) -> EnuFrame:
+    """The scene origin at the first step with a ground point (:func:`enu_origin`)."""
+    return enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
+
+
+def _mesh_terrain(dem, dem_path, n: int) -> TerrainSteps:
+    """A DEM drawn as the mesh only: the steps were not traced by a DEM solver ("ellipsoid": no
+    per-ray iterations)."""
+    return TerrainSteps("ellipsoid", dem, str(dem_path), np.zeros(n, int), [], [])
+
+
+def _analysed(steps: LogSteps, corrections, heading_deg=None, outlier=None) -> LogSteps:
+    """The steps with their corrections said (:func:`add_corrections`) and their errors analysed
+    (:func:`add_error_analysis`): the last step of every ``steps_from_*``."""
+    return add_error_analysis(add_corrections(steps, corrections), heading_deg=heading_deg, outlier=outlier)
+
+
 def steps_from_flight(
     scn: FlightScenario, camera: FrameSensor | None = None, corrections: Corrections = NO_CORRECTIONS
 ) -> LogSteps:
@@ -291,9 +308,8 @@ def steps_from_flight(
     col = np.full(n, camera.center_pixel[1] if scn.col is None else scn.col)
     chain = camera.frames(track.pose)
     los = line_of_sight(track.pose, camera, row, col)
-    terrain = None
     truth = None
-    extra = {}
+    extra: dict = {}
     # the scenario's DEM, opened once: the located points, the exact truth and the mesh
     dem_path = None if scn.dem_path is None else str(scn.dem_path)
     dem = SurfaceSpec(dem=dem_path, dem_datum=scn.dem_datum).raster(f"{scn.name}: dem")
@@ -303,58 +319,12 @@ def steps_from_flight(
         f"outer gimbal {scn.outer_min_deg:g}-{scn.outer_max_deg:g} deg ({scn.side}), "
         f"period {scn.scan_period_s:g} s",
     ]
-    # the scenario file's loader refuses either missing piece; a FlightScenario built in code may lack it
-    if scn.method == "ellipsoid":
-        if scn.target_h_m is None:
-            raise ValueError(f"{scn.name}: method = 'ellipsoid' needs target_h_m")
-        ground = Pipeline(None, HeightSurface(scn.target_h_m), corrections).intersect(los)
-        notes.append(f"located on the ellipsoid inflated to {scn.target_h_m:g} m [Q17 eq. 11]")
-    else:
-        if scn.dem_path is None or dem is None:
-            raise ValueError(f"{scn.name}: method = {scn.method!r} needs a dem")
-        ground, terrain = _terrain(los, dem, scn.method, scn.eps_h_m, scn.threshold_m, corrections)
-        notes.append(f"located on {scn.dem_path.name} ({scn.dem_datum}) by '{scn.method}'")
+    ground, terrain = _flight_ground(scn, los, dem, corrections, notes)
     if dem is not None:
-        exact = (
-            ground
-            if (terrain is not None and scn.method == "exact")
-            else _terrain(los, dem, "exact", corrections=corrections)[0]
-        )
-        if terrain is None:
-            terrain = TerrainSteps("ellipsoid", dem, str(scn.dem_path), np.zeros(n, int), [], [])
-        truth = {
-            "lat_deg": exact.lat_deg,
-            "lon_deg": exact.lon_deg,
-            "h_m": exact.h,
-            "error_m": horizontal_distance_m(ground.lat_deg, ground.lon_deg, exact.lat_deg, exact.lon_deg),
-        }
-        notes.append("truth: exact first hit on the DEM")
-        if scn.method != "ellipsoid" and scn.target_h_m is not None:
-            ell = Pipeline(None, HeightSurface(scn.target_h_m), corrections).intersect(los)
-            extra["series/ellipsoid_model/to_truth_m"] = horizontal_distance_m(
-                ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg
-            )
-            notes.append(f"ellipsoid model at {scn.target_h_m:g} m compared with the truth too")
+        truth = _flight_truth(scn, los, ground, terrain, dem, corrections, notes, extra)
+        terrain = terrain if terrain is not None else _mesh_terrain(dem, scn.dem_path, n)
     if scn.mc_model_path is not None:
-        from geoloc.analysis.errormodel import ErrorModel
-        from geoloc.workflows.flight import step_cep
-
-        if scn.target_h_m is None:
-            raise ValueError("[montecarlo] needs [terrain] target_h_m (the ellipsoid model's height)")
-        mc = step_cep(
-            track,
-            ErrorModel.from_toml(scn.mc_model_path),
-            scn.target_h_m,
-            scn.mc_samples,
-            np.random.default_rng(scn.mc_seed),
-        )
-        extra["series/cep/cep_m"] = mc["cep_m"]
-        extra["series/cep/cep50_empirical_m"] = mc["cep50_empirical_m"]
-        notes.append(
-            f"CEP: {scn.mc_samples} Monte Carlo samples per step, errors of "
-            f"{scn.mc_model_path.name}, seed {scn.mc_seed}"
-        )
-    enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
+        _flight_cep(scn, track, scn.mc_model_path, notes, extra)
     k = np.arange(n)
     steps = LogSteps(
         "flight",
@@ -368,13 +338,72 @@ def steps_from_flight(
         col,
         los,
         ground,
-        enu,
+        _origin_at_ground(ground),
         truth=truth,
         terrain=terrain,
         notes=notes,
         extra_series=extra,
     )
-    return add_error_analysis(add_corrections(steps, corrections))
+    return _analysed(steps, corrections)
+
+
+def _flight_ground(scn: FlightScenario, los: LineOfSight, dem, corrections, notes: list):
+    """The located targets by the scenario's method, (GroundPoint, TerrainSteps or None): the
+    ellipsoid inflated to ``target_h_m`` [Q17 eq. 11], or the DEM solver's traced steps."""
+    # the scenario file's loader refuses either missing piece; a FlightScenario built in code may lack it
+    if scn.method == "ellipsoid":
+        if scn.target_h_m is None:
+            raise ValueError(f"{scn.name}: method = 'ellipsoid' needs target_h_m")
+        notes.append(f"located on the ellipsoid inflated to {scn.target_h_m:g} m [Q17 eq. 11]")
+        return Pipeline(None, HeightSurface(scn.target_h_m), corrections).intersect(los), None
+    if scn.dem_path is None or dem is None:
+        raise ValueError(f"{scn.name}: method = {scn.method!r} needs a dem")
+    ground, terrain = _terrain(los, dem, scn.method, scn.eps_h_m, scn.threshold_m, corrections)
+    notes.append(f"located on {scn.dem_path.name} ({scn.dem_datum}) by '{scn.method}'")
+    return ground, terrain
+
+
+def _flight_truth(scn: FlightScenario, los, ground, terrain, dem, corrections, notes: list, extra: dict) -> dict:
+    """The simulation's truth: the exact first hit on the DEM and each step's horizontal error to
+    it; with a DEM method and a target height, the ellipsoid model's error too (a series)."""
+    exact = (
+        ground
+        if (terrain is not None and scn.method == "exact")
+        else _terrain(los, dem, "exact", corrections=corrections)[0]
+    )
+    truth = {
+        "lat_deg": exact.lat_deg,
+        "lon_deg": exact.lon_deg,
+        "h_m": exact.h,
+        "error_m": horizontal_distance_m(ground.lat_deg, ground.lon_deg, exact.lat_deg, exact.lon_deg),
+    }
+    notes.append("truth: exact first hit on the DEM")
+    if scn.method != "ellipsoid" and scn.target_h_m is not None:
+        ell = Pipeline(None, HeightSurface(scn.target_h_m), corrections).intersect(los)
+        extra["series/ellipsoid_model/to_truth_m"] = horizontal_distance_m(
+            ell.lat_deg, ell.lon_deg, exact.lat_deg, exact.lon_deg
+        )
+        notes.append(f"ellipsoid model at {scn.target_h_m:g} m compared with the truth too")
+    return truth
+
+
+def _flight_cep(scn: FlightScenario, track, model_path: Path, notes: list, extra: dict) -> None:
+    """The scenario's ``[montecarlo]`` CEP per step (:func:`geoloc.workflows.flight.step_cep`) as series."""
+    from geoloc.analysis.errormodel import ErrorModel
+    from geoloc.workflows.flight import step_cep
+
+    if scn.target_h_m is None:
+        raise ValueError("[montecarlo] needs [terrain] target_h_m (the ellipsoid model's height)")
+    mc = step_cep(
+        track,
+        ErrorModel.from_toml(model_path),
+        scn.target_h_m,
+        scn.mc_samples,
+        np.random.default_rng(scn.mc_seed),
+    )
+    extra["series/cep/cep_m"] = mc["cep_m"]
+    extra["series/cep/cep50_empirical_m"] = mc["cep50_empirical_m"]
+    notes.append(f"CEP: {scn.mc_samples} Monte Carlo samples per step, errors of {model_path.name}, seed {scn.mc_seed}")
 
 
 def steps_from_records(
@@ -416,67 +445,19 @@ def steps_from_records(
         raise ValueError(f"{path}: no valid record ({len(recs.errors)} rejected)")
     pose = recs.pose()
     row, col = recs.column("row"), recs.column("col")
-    chain = camera.frames(pose)
     los = line_of_sight(pose, camera, row, col, outside="extrapolate")  # recorded pixels
-    terrain = None
     notes = [f"records: {Path(path).name} ({len(recs)} records)"]
+    h = None
     if dem_path is not None:
-        ground, terrain = _terrain(
-            los, SurfaceSpec(dem=dem_path, dem_datum=dem_datum).raster(), method, eps_h_m, threshold_m, corrections
-        )
+        dem = SurfaceSpec(dem=dem_path, dem_datum=dem_datum).raster()
+        ground, terrain = _terrain(los, dem, method, eps_h_m, threshold_m, corrections)
         notes.append(f"located on {Path(dem_path).name} ({dem_datum}) by '{method}'")
     else:
-        if target_h_m is not None:
-            h = np.full(len(recs), float(target_h_m))
-            notes.append(f"located at one target height {target_h_m:g} m")
-        else:
-            col_name = height_column or ("paper_height_m" if recs.has("paper_height_m") else None)
-            if col_name is None:
-                raise ValueError(
-                    f"{path}: give a height column, a target height or a DEM (no paper_height_m column to default to)"
-                )
-            h = recs.column(col_name)
-            bad = ~np.isfinite(h)
-            if np.any(bad):
-                raise ValueError(
-                    f"height column {col_name!r} is empty or not finite on line(s) {[int(x) for x in recs.lines[bad]]}"
-                )
-            notes.append(f"located at each record's {col_name}")
+        h, terrain = _record_heights(path, recs, target_h_m, height_column, notes), None
         ground = Pipeline(None, HeightSurface(h, height_kind), corrections).intersect(los)
-    res = result_from_ground(recs, ground)
-    truth = published = None
-    if recs.has("truth_lat_deg") and recs.has("truth_lon_deg"):
-        th = recs.column("truth_h_m") if recs.has("truth_h_m") else ground.h
-        truth = {
-            "lat_deg": recs.column("truth_lat_deg"),
-            "lon_deg": recs.column("truth_lon_deg"),
-            "h_m": th,
-            "error_m": res.error_to_truth_m,
-        }
-    if recs.has("paper_lat_deg") and recs.has("paper_lon_deg"):
-        published = {
-            "lat_deg": recs.column("paper_lat_deg"),
-            "lon_deg": recs.column("paper_lon_deg"),
-            "error_m": res.error_to_paper_m,
-        }
-    grp = None
-    if group_column is not None and group_column in recs.header:
-        grp = np.array(recs.text(group_column), dtype=object)
-    if published is not None:
-        ph = recs.column("paper_height_m") if recs.has("paper_height_m") else ground.h
-        published["h_m"] = ph
-        olat, olon, oh = published["lat_deg"], published["lon_deg"], ph
-    else:
-        olat, olon, oh = ground.lat_deg, ground.lon_deg, ground.h
-    enus: dict[str, EnuFrame] | None = None
-    if grp is not None:
-        enus = {}
-        for g in dict.fromkeys(grp.tolist()):
-            m = grp == g
-            enus[g] = enu_origin(*_first_finite(olat[m], olon[m], np.broadcast_to(oh, m.shape)[m]))
-        if len(enus) == 1:
-            grp, enus = None, None
-    enu = next(iter(enus.values())) if enus else enu_origin(*_first_finite(olat, olon, oh))
+    truth, published = _records_references(recs, ground)
+    ref = published or {"lat_deg": ground.lat_deg, "lon_deg": ground.lon_deg, "h_m": ground.h}
+    grp, enus, enu = _flight_origins(recs, group_column, ref["lat_deg"], ref["lon_deg"], ref["h_m"])
     if grp is not None and enus is not None:  # both, or neither (one flight: no group)
         notes.append(f"flights ({group_column}): {', '.join(enus)}, each with its own scene origin")
     steps = LogSteps(
@@ -486,7 +467,7 @@ def steps_from_records(
         recs.labels(),
         camera,
         pose,
-        chain,
+        camera.frames(pose),
         row,
         col,
         los,
@@ -499,28 +480,91 @@ def steps_from_records(
         group=grp,
         enus=enus,
     )
-    add_corrections(steps, corrections)
-    if truth is not None:
-        truth["has_h"] = recs.has("truth_h_m")
-    add_error_analysis(steps, heading_deg=recs.column("heading_deg"))
-    gcol = group_column if steps.group is not None else None
+    _analysed(steps, corrections, heading_deg=recs.column("heading_deg"))
     if calibrate and truth is not None:
-        from geoloc.surfaces.terrain import surface_for
-
-        # the targets' surface: the DEM, else per-record heights (as geoloc calibrate's --height-column)
-        on_dem = terrain is not None  # a dem_path was given: the steps were located on it
-        options: SolverOptions = solver_options(eps_h_m, threshold_m) if on_dem else {}
-        surf = surface_for(
-            None if on_dem else np.broadcast_to(np.asarray(h, float), (len(recs),)),
-            terrain.dem if terrain is not None else None,
-            method=method,
-            kind=height_kind,
-            per_record=True,
-            **options,
-        )
         names = list(DEFAULT_FIT_NAMES if fit_names is None else fit_names)
-        steps.calibration = sensor_fit_series(steps, recs, names, surf, gcol)
+        surf = _targets_surface(steps, h, len(recs), method, height_kind, eps_h_m, threshold_m)
+        steps.calibration = sensor_fit_series(steps, recs, names, surf, group_column if grp is not None else None)
     return steps, list(recs.errors)
+
+
+def _record_heights(path, recs, target_h_m, height_column, notes: list) -> np.ndarray:
+    """Each record's target height without a DEM: ``target_h_m``, else ``height_column``, else
+    ``paper_height_m``; a column with an empty or non-finite height is refused by its lines."""
+    if target_h_m is not None:
+        notes.append(f"located at one target height {target_h_m:g} m")
+        return np.full(len(recs), float(target_h_m))
+    col_name = height_column or ("paper_height_m" if recs.has("paper_height_m") else None)
+    if col_name is None:
+        raise ValueError(
+            f"{path}: give a height column, a target height or a DEM (no paper_height_m column to default to)"
+        )
+    h = recs.column(col_name)
+    bad = ~np.isfinite(h)
+    if np.any(bad):
+        raise ValueError(
+            f"height column {col_name!r} is empty or not finite on line(s) {[int(x) for x in recs.lines[bad]]}"
+        )
+    notes.append(f"located at each record's {col_name}")
+    return h
+
+
+def _records_references(recs, ground: GroundPoint) -> tuple[dict | None, dict | None]:
+    """The records' surveyed truth and published positions (each None where the file lacks its
+    columns), with the located targets' horizontal errors to them (:func:`result_from_ground`)."""
+    res = result_from_ground(recs, ground)
+    truth = published = None
+    if recs.has("truth_lat_deg") and recs.has("truth_lon_deg"):
+        truth = {
+            "lat_deg": recs.column("truth_lat_deg"),
+            "lon_deg": recs.column("truth_lon_deg"),
+            "h_m": recs.column("truth_h_m") if recs.has("truth_h_m") else ground.h,
+            "error_m": res.error_to_truth_m,
+            "has_h": recs.has("truth_h_m"),
+        }
+    if recs.has("paper_lat_deg") and recs.has("paper_lon_deg"):
+        published = {
+            "lat_deg": recs.column("paper_lat_deg"),
+            "lon_deg": recs.column("paper_lon_deg"),
+            "error_m": res.error_to_paper_m,
+            "h_m": recs.column("paper_height_m") if recs.has("paper_height_m") else ground.h,
+        }
+    return truth, published
+
+
+def _flight_origins(recs, group_column: str | None, lat_deg, lon_deg, h_m) -> tuple:
+    """The records' flights (the ``group_column``'s values, None for one flight or no such column),
+    each flight's scene origin at its first finite reference position, and the first origin."""
+    grp = None
+    if group_column is not None and group_column in recs.header:
+        grp = np.array(recs.text(group_column), dtype=object)
+    enus: dict[str, EnuFrame] | None = None
+    if grp is not None:
+        enus = {}
+        for g in dict.fromkeys(grp.tolist()):
+            m = grp == g
+            enus[g] = enu_origin(*_first_finite(lat_deg[m], lon_deg[m], np.broadcast_to(h_m, m.shape)[m]))
+        if len(enus) == 1:
+            grp, enus = None, None
+    enu = next(iter(enus.values())) if enus else enu_origin(*_first_finite(lat_deg, lon_deg, h_m))
+    return grp, enus, enu
+
+
+def _targets_surface(steps: LogSteps, h, n: int, method: str, height_kind: str, eps_h_m, threshold_m):
+    """The surface the records' targets lie on, for the per-flight fit: the DEM the steps were
+    located on, else the per-record heights (as ``geoloc calibrate``'s ``--height-column``)."""
+    from geoloc.surfaces.terrain import surface_for
+
+    terrain = steps.terrain  # a dem_path was given: the steps were located on it
+    options: SolverOptions = solver_options(eps_h_m, threshold_m) if terrain is not None else {}
+    return surface_for(
+        None if terrain is not None else np.broadcast_to(np.asarray(h, float), (n,)),
+        terrain.dem if terrain is not None else None,
+        method=method,
+        kind=height_kind,
+        per_record=True,
+        **options,
+    )
 
 
 #: Parameters :func:`sensor_fit_series` fits by default (the sensor's mounting rotation).
@@ -672,95 +716,28 @@ def steps_from_klv(
     -------
     LogSteps, list of KlvError
     """
-    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
     from geoloc.workflows.klv_replay import klv_pose, replay_klv
 
-    from geoloc.surfaces.terrain import surface_for
-
-    # one surface for every ray (frame centres and corners), built as the core builds it:
-    # SurfaceSpec(...).build(), or for a DEM already open (a live session's) the same surface_for
-    spec = SurfaceSpec(
-        dem=dem_path,
-        dem_datum=dem_datum,
-        method=method,
-        eps_h=None if eps_h_m is None else float(eps_h_m),
-        threshold=None if threshold_m is None else float(threshold_m),
-    )
-    if dem is not None:
-        surface = surface_for(dem=dem, method=method, **spec.solver_options)
-    elif dem_path is not None:
-        surface = spec.build()
-        dem = terrain_of(surface)  # the raster drawn as the mesh (one raster: the CLI refuses a mosaic)
-    else:
-        surface = None
+    surface, dem = _klv_surface(dem_path, dem_datum, method, eps_h_m, threshold_m, dem)
     r = replay_klv(path, surface=surface, sensor=camera, label=label, corrections=corrections)
     c = r.columns
     if len(r) == 0:
         raise ValueError(f"{label or path}: no good packet ({len(r.errors)} bad)")
-    pose = klv_pose(c)
-    sensor = r.sensor
-    n = len(r)
+    pose, sensor, n = klv_pose(c), r.sensor, len(r)
     row, col = np.full(n, (sensor.rows + 1) / 2), np.full(n, (sensor.cols + 1) / 2)
     los = sensor.line_of_sight(row, col, pose)
-    lat, lon = (np.deg2rad(np.asarray(c[k], float)) for k in ("lat_deg", "lon_deg"))
-    h = np.asarray(c["h_m"], float)
-    status = np.asarray(c["status"], np.uint8)
-    shift = np.asarray(c["refraction_m"], float) if "refraction_m" in c else None
-    ground = GroundPoint(
-        lat,
-        lon,
-        h,
-        geodetic_to_ecef(lat, lon, h),
-        np.asarray(c["range_m"], float),
-        status,
-        los,
-        corrections=corrections.names,
-        refraction_m=shift,
-    )
-    published = {
-        "lat_deg": np.asarray(c["reported_lat_deg"], float),
-        "lon_deg": np.asarray(c["reported_lon_deg"], float),
-        "h_m": np.asarray(c["reported_h_m"], float),
-        "error_m": np.asarray(c["frame_center_error_m"], float),
-    }
-    t = np.asarray(c["time_s"], float)
-    if t0_s is None:
-        t = t - np.nanmin(t) if np.any(np.isfinite(t)) else np.arange(n, dtype=float)
-    else:
-        t = t - float(t0_s)
-    if enu is None:
-        enu = enu_origin(*_first_finite(ground.lat_deg, ground.lon_deg, ground.h))
-    if outlier is not None:
-        c["outlier"] = np.asarray(outlier(np.asarray(c["frame_center_error_m"], float)), np.int64)
-    if first_packet:
-        c["packet"] = np.asarray(c["packet"], np.int64) + int(first_packet)
+    ground = _klv_ground(c, los, corrections)
+    _live_batch(c, outlier, first_packet)
     name = label or Path(path).name
     notes = [
         f"MISB ST 0601: {name}, {n} packets ({len(r.errors)} bad, skipped)",
         "published = the packet's own frame centre (tags 23-25 / 78); target = recomputed",
         f"outliers flagged: {int(np.sum(c['outlier']))}",
     ]
-    extra = {
-        "series/klv/corner_error_m": np.asarray(c["corner_error_m"], float),
-        "series/klv/outlier": np.asarray(c["outlier"], float),
-    }
-    corners = {
-        key: np.stack([np.asarray(c[f"corner{j + 1}_{key}"], float) for j in range(4)], axis=-1)
-        for key in ("lat_deg", "lon_deg", "h_m")
-    }
-    terrain = None
-    if dem is not None:  # drawn as a mesh; the replay's solver keeps no per-ray trace ("ellipsoid": none)
-        terrain = TerrainSteps("ellipsoid", dem, str(getattr(dem, "path", dem_path)), np.zeros(n, int), [], [])
-        notes.append(
-            f"frame centres and corners located on {Path(str(terrain.dem_path)).name} "
-            f"(heights {getattr(dem, 'datum', dem_datum)}) by '{method}'"
-        )
-    else:
-        notes.append("no DEM: each packet located at its own frame-centre height (geodetic)")
     steps = LogSteps(
         "klv",
         name,
-        {"time": ("duration", t), "packet": ("sequence", np.asarray(c["packet"]))},
+        {"time": ("duration", _klv_time(c, t0_s, n)), "packet": ("sequence", np.asarray(c["packet"]))},
         [f"packet {k}" for k in c["packet"]],
         sensor,
         pose,
@@ -769,30 +746,118 @@ def steps_from_klv(
         col,
         los,
         ground,
-        enu,
-        published=published,
-        terrain=terrain,
+        enu if enu is not None else _origin_at_ground(ground),
+        published={k: np.asarray(c[v], float) for k, v in _KLV_PUBLISHED.items()},
+        terrain=_klv_terrain(dem, dem_path, dem_datum, method, n, notes),
         notes=notes,
-        extra_series=extra,
-        corners=corners,
+        extra_series={k: np.asarray(c[v], float) for k, v in _KLV_SERIES.items()},
+        corners={key: _klv_corners(c, key) for key in ("lat_deg", "lon_deg", "h_m")},
     )
-    add_corrections(steps, corrections)
     # the replay's own flags (the same median / MAD rule, on its geodesic frame-centre residual)
-    add_error_analysis(
-        steps, heading_deg=np.asarray(c["platform_heading_deg"], float), outlier=np.asarray(c["outlier"]).astype(bool)
-    )
-    if video is None and isinstance(path, (str, os.PathLike)):
-        video = path
-    if video is not None:
-        attach_klv_video(
-            steps,
-            video,
-            np.asarray(c["packet"]),
-            np.stack(
-                [np.asarray(c["sensor_horizontal_fov_deg"], float), np.asarray(c["sensor_vertical_fov_deg"], float)], -1
-            ),
-        )
+    _analysed(steps, corrections, np.asarray(c["platform_heading_deg"], float), np.asarray(c["outlier"]).astype(bool))
+    _attach_klv_pictures(steps, path if video is None and isinstance(path, (str, os.PathLike)) else video, c)
     return steps, list(r.errors)
+
+
+#: The published position of a KLV step: the packet's own frame centre (LogSteps.published's key -> column).
+_KLV_PUBLISHED = {
+    "lat_deg": "reported_lat_deg",
+    "lon_deg": "reported_lon_deg",
+    "h_m": "reported_h_m",
+    "error_m": "frame_center_error_m",
+}
+
+
+#: The further series of a KLV step (entity path -> column): the corner residual and the outlier flags.
+_KLV_SERIES = {"series/klv/corner_error_m": "corner_error_m", "series/klv/outlier": "outlier"}
+
+
+def _live_batch(c: dict, outlier, first_packet: int) -> None:
+    """A live session's batch in the session's terms: ``outlier`` (a function of the batch's
+    frame-centre residuals) gives its causal flags, and its packets are numbered from ``first_packet``."""
+    if outlier is not None:
+        c["outlier"] = np.asarray(outlier(np.asarray(c["frame_center_error_m"], float)), np.int64)
+    if first_packet:
+        c["packet"] = np.asarray(c["packet"], np.int64) + int(first_packet)
+
+
+def _klv_corners(c: dict, key: str) -> np.ndarray:
+    """The replay's four recomputed frame corners' ``key`` (``lat_deg``, ``lon_deg``, ``h_m``), (n, 4)."""
+    return np.stack([np.asarray(c[f"corner{j + 1}_{key}"], float) for j in range(4)], axis=-1)
+
+
+def _klv_surface(dem_path, dem_datum: str, method: str, eps_h_m, threshold_m, dem):
+    """One surface for every ray (frame centres and corners), built as the core builds it:
+    ``SurfaceSpec(...).build()``, or for a DEM already open (a live session's) the same
+    :func:`geoloc.surfaces.terrain.surface_for`; None without a DEM. Returns (surface, dem)."""
+    from geoloc.surfaces.terrain import surface_for
+
+    spec = SurfaceSpec(
+        dem=dem_path,
+        dem_datum=dem_datum,
+        method=method,
+        eps_h=None if eps_h_m is None else float(eps_h_m),
+        threshold=None if threshold_m is None else float(threshold_m),
+    )
+    if dem is not None:
+        return surface_for(dem=dem, method=method, **spec.solver_options), dem
+    if dem_path is not None:
+        surface = spec.build()
+        return surface, terrain_of(surface)  # the raster drawn as the mesh (one raster: the CLI refuses a mosaic)
+    return None, None
+
+
+def _klv_ground(c: dict, los: LineOfSight, corrections: Corrections) -> GroundPoint:
+    """The replay's recomputed frame centres (its columns) as the steps' ground points."""
+    from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+
+    lat, lon = (np.deg2rad(np.asarray(c[k], float)) for k in ("lat_deg", "lon_deg"))
+    h = np.asarray(c["h_m"], float)
+    return GroundPoint(
+        lat,
+        lon,
+        h,
+        geodetic_to_ecef(lat, lon, h),
+        np.asarray(c["range_m"], float),
+        np.asarray(c["status"], np.uint8),
+        los,
+        corrections=corrections.names,
+        refraction_m=np.asarray(c["refraction_m"], float) if "refraction_m" in c else None,
+    )
+
+
+def _klv_time(c: dict, t0_s: float | None, n: int) -> np.ndarray:
+    """The ``time`` timeline [s]: the precision time stamps from ``t0_s``, else from the first
+    packet (the packet index where no packet has a time stamp)."""
+    t = np.asarray(c["time_s"], float)
+    if t0_s is not None:
+        return t - float(t0_s)
+    return t - np.nanmin(t) if np.any(np.isfinite(t)) else np.arange(n, dtype=float)
+
+
+def _klv_terrain(dem, dem_path, dem_datum: str, method: str, n: int, notes: list) -> TerrainSteps | None:
+    """The DEM drawn as a mesh (the replay's solver keeps no per-ray trace), and the note saying
+    where the frame centres and corners were located."""
+    if dem is None:
+        notes.append("no DEM: each packet located at its own frame-centre height (geodetic)")
+        return None
+    terrain = _mesh_terrain(dem, getattr(dem, "path", dem_path), n)
+    notes.append(
+        f"frame centres and corners located on {Path(str(terrain.dem_path)).name} "
+        f"(heights {getattr(dem, 'datum', dem_datum)}) by '{method}'"
+    )
+    return terrain
+
+
+def _attach_klv_pictures(steps: LogSteps, video, c: dict) -> None:
+    """Each packet's picture from ``video`` (an MPEG-TS; None: no pictures) with the packet's
+    fields of view (:func:`attach_klv_video`)."""
+    if video is None:
+        return
+    fov_deg = np.stack(
+        [np.asarray(c["sensor_horizontal_fov_deg"], float), np.asarray(c["sensor_vertical_fov_deg"], float)], -1
+    )
+    attach_klv_video(steps, video, np.asarray(c["packet"]), fov_deg)
 
 
 def klv_default_dem(path):
