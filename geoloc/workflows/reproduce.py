@@ -108,9 +108,17 @@ def qiao2017_report(
     rep = Report()
     model = load_q17_model()
     rng = np.random.default_rng(seed)
-    use_dem = surface is not None
+    dmodel = load_q17_dem_model() if surface is not None else None
+    _q17_nominal(rep, model)
+    _q17_monte_carlo(rep, model, samples, seed, rng, progress)
+    _q17_monte_carlo_dem(rep, dmodel, samples, seed, surface, progress)
+    _q17_flight_test(rep)
+    _q17_fig10(rep, model, dmodel, sweep_samples, rng, surface, progress)
+    return rep
 
-    # 1. nominal point
+
+def _q17_nominal(rep: Report, model) -> None:
+    """Section 1: the Table 1 nominal target (CCD centre, ellipsoid inflated to h_T)."""
     lat, lon, h, _ = mc.nominal_point(model)
     la, lo = math.degrees(lat), math.degrees(lon)
     rep.numbers.update(nominal_lat_deg=la, nominal_lon_deg=lo, nominal_h_m=h)
@@ -123,7 +131,9 @@ def qiao2017_report(
         "",
     )
 
-    # 2. Monte Carlo, ellipsoid model
+
+def _q17_monte_carlo(rep: Report, model, samples: int, seed: int, rng, progress) -> None:
+    """Section 2: the Tables 1-2 Monte Carlo on the ellipsoid model, beside the first order."""
     res = mc.run(model, samples, rng, progress=progress)
     s = res.stats
     fo = mc.first_order(model)
@@ -142,33 +152,37 @@ def qiao2017_report(
         "",
     )
 
-    # 3. Monte Carlo with the DEM
-    if use_dem:
-        dmodel = load_q17_dem_model()
-        dres = mc.run(dmodel, samples, np.random.default_rng(seed), surface=surface, progress=progress)
-        ds = dres.stats
-        dlat, dlon, dh, _ = dres.nominal
-        rep.numbers.update({f"mcdem_{k}": v for k, v in ds.items()})
-        rep.add(
-            f"3. Monte Carlo with a DEM, N = {samples} (paper: ASTER GDEM 30 m; geoloc: bundled "
-            "ETOPO5 5' crop, so the terrain and its slopes differ)",
-            f"   {'':8} {'target':>24} {'h m':>8} {'std lat deg':>12} {'std lon deg':>12} {'std h m':>8}",
-            f"   {'paper':8} {Q17_DEM_TARGET_DEG[0]:10.5f} N {Q17_DEM_TARGET_DEG[1]:10.5f} E "
-            f"{Q17_DEM_TARGET_DEG[2]:8.1f} {Q17_STD_DEM[0]:12.5f} {Q17_STD_DEM[1]:12.5f} {Q17_STD_DEM[2]:8.2f}",
-            f"   {'geoloc':8} {math.degrees(dlat):10.5f} N {math.degrees(dlon):10.5f} E "
-            f"{dh:8.1f} {ds['std_lat_deg']:12.5f} {ds['std_lon_deg']:12.5f} {ds['std_h_m']:8.2f}",
-            f"   CEP [Q17 eq. 18] {ds['cep_m']:.1f} m, empirical 50 % radius "
-            f"{ds['cep50_empirical_m']:.1f} m; {ds['n_failed']} samples without a terrain hit",
-            "",
-        )
-    else:
+
+def _q17_monte_carlo_dem(rep: Report, dmodel, samples: int, seed: int, surface, progress) -> None:
+    """Section 3: the Monte Carlo on the DEM scenario (its own generator, seeded alike); skipped
+    without a DEM surface."""
+    if dmodel is None:
         rep.add(
             "3. Monte Carlo with a DEM: skipped (no DEM surface given: --no-dem, or the bundled DEM "
             "scenario is not installed)",
             "",
         )
+        return
+    dres = mc.run(dmodel, samples, np.random.default_rng(seed), surface=surface, progress=progress)
+    ds = dres.stats
+    dlat, dlon, dh, _ = dres.nominal
+    rep.numbers.update({f"mcdem_{k}": v for k, v in ds.items()})
+    rep.add(
+        f"3. Monte Carlo with a DEM, N = {samples} (paper: ASTER GDEM 30 m; geoloc: bundled "
+        "ETOPO5 5' crop, so the terrain and its slopes differ)",
+        f"   {'':8} {'target':>24} {'h m':>8} {'std lat deg':>12} {'std lon deg':>12} {'std h m':>8}",
+        f"   {'paper':8} {Q17_DEM_TARGET_DEG[0]:10.5f} N {Q17_DEM_TARGET_DEG[1]:10.5f} E "
+        f"{Q17_DEM_TARGET_DEG[2]:8.1f} {Q17_STD_DEM[0]:12.5f} {Q17_STD_DEM[1]:12.5f} {Q17_STD_DEM[2]:8.2f}",
+        f"   {'geoloc':8} {math.degrees(dlat):10.5f} N {math.degrees(dlon):10.5f} E "
+        f"{dh:8.1f} {ds['std_lat_deg']:12.5f} {ds['std_lon_deg']:12.5f} {ds['std_h_m']:8.2f}",
+        f"   CEP [Q17 eq. 18] {ds['cep_m']:.1f} m, empirical 50 % radius "
+        f"{ds['cep50_empirical_m']:.1f} m; {ds['n_failed']} samples without a terrain hit",
+        "",
+    )
 
-    # 4. flight test
+
+def _q17_flight_test(rep: Report) -> None:
+    """Section 4: the Tables 3-4 flight tests replayed at each point's published height, per flight."""
     from geoloc.io.records import load_records
     from geoloc.workflows.replay import replay_at_height
 
@@ -200,7 +214,10 @@ def qiao2017_report(
         "",
     )
 
-    # 5. Fig. 10 trend
+
+def _q17_fig10(rep: Report, model, dmodel, sweep_samples: int, rng, surface, progress) -> None:
+    """Section 5: the Fig. 10 trend, CEP against the outer frame angle: (a) on the ellipsoid model
+    for three terrain sigmas, (b) on the DEM when there is one; whether it grows as the paper's."""
     angles = np.array([10.0, 30.0, 50.0, 63.0, 70.0, 80.0, 82.0])
     sigmas = np.array([10.0, 62.47, 100.0])
     sw = mc.sweep_terrain_sigma(model, angles, sigmas, sweep_samples, rng, progress)
@@ -211,7 +228,7 @@ def qiao2017_report(
         "   (a) ellipsoid model; paper: CEP grows with the angle and with the terrain sigma",
     )
     dsw = None
-    if use_dem:
+    if dmodel is not None:
         dsw = mc.sweep_dem(dmodel, angles, sweep_samples, rng, surface=surface, progress=progress)
         rep.numbers["fig10b_cep_m"] = dsw.cep_m[:, 0].tolist()
         head += f"{'DEM (b)':>12}"
@@ -232,7 +249,6 @@ def qiao2017_report(
             f"   (b) paper with ASTER GDEM: CEP < 50 m below 70 deg, < 180 m at 80 deg; "
             f"geoloc on ETOPO5: {c70:.1f} m at 70 deg, {c80:.1f} m at 80 deg"
         )
-    return rep
 
 
 #: [L23] abstract: bisection is 45.5 % more iteration-efficient than stepping.
@@ -255,11 +271,8 @@ def li2023_report(
     the exact first hit of :mod:`geoloc.surfaces.terrain`.
     """
 
-    from geoloc.geodesy.geodesic import horizontal_distance_m
-    from geoloc.io.records import load_records
     from geoloc.surfaces.dem import DEM
-    from geoloc.surfaces.terrain import DemSurface, TerrainHit
-    from geoloc.workflows.replay import records_line_of_sight
+    from geoloc.surfaces.terrain import DemSurface
 
     dem = terrain_of(surface)
     if not isinstance(dem, DEM):  # the report reads the raster's nodes and file name: no mosaic
@@ -268,6 +281,43 @@ def li2023_report(
             "scenario's surface (geoloc.cli._options.surface_from_scenario(load_q17_dem_model()))"
         )
     rep = Report()
+    los, n_records = _l23_rays(seed, n_rays)
+    n = len(los.status)
+    # the paper's experiment is on the DEM solvers themselves: the same rays through the pipeline
+    # with each solver as its surface, no corrections (as [Q17] and [L23])
+    exact = Pipeline(None, DemSurface(dem, "exact")).intersect(los)
+    rep.add(
+        "[L23] Li et al. 2023 -- bisection on the target elevation vs [Q17] descending steps",
+        "",
+        f"DEM: {dem.path} ({dem.shape[0]}x{dem.shape[1]} nodes, heights {dem.min_height():.0f}-"
+        f"{dem.max_height():.0f} m); {n} rays: {n_rays} Table 1-2 rays with the outer gimbal "
+        f"angle in 10-80 deg (seed {seed}) + {n_records} flight-test records",
+        f"paper: bisection with the threshold at 1/10 of the DEM accuracy is {L23_SAVING_PCT} % "
+        "more iteration-efficient than the stepping method",
+        "",
+        f"{'tol m':>6} {'steps evals':>12} {'bisect evals':>13} {'saving %':>9} {'steps s':>8} "
+        f"{'bisect s':>9} {'max dist to exact m (steps/bisect)':>36} {'hidden':>7}",
+    )
+    for tol in tolerances_m:
+        _l23_tolerance(rep, dem, los, exact, tol)
+    rep.add(
+        "",
+        "evals: DEM heights read per ray (mean over rays where all three methods hit); "
+        "saving = 1 - bisect/steps evaluations; hidden: bisection answers behind a ridge.",
+        "The steps start at the DEM's highest node, so their count grows with (H_max - h)/tol; "
+        "bisection grows with log2((H_max - H_min)/tol): the saving depends on the relief and "
+        "the tolerance, not on one number.",
+    )
+    return rep
+
+
+def _l23_rays(seed: int, n_rays: int) -> tuple[LineOfSight, int]:
+    """The [L23] comparison's rays: ``n_rays`` of the [Q17] Table 1-2 geometry with the outer gimbal
+    angle uniform over 10-80 deg (the Table 1-2 errors sampled on top), then the flight-test
+    records' rays; and the number of records."""
+    from geoloc.io.records import load_records
+    from geoloc.workflows.replay import records_line_of_sight
+
     dmodel = load_q17_dem_model()
     rng = np.random.default_rng(seed)
     errs = dmodel.sample(n_rays, rng)
@@ -279,64 +329,50 @@ def li2023_report(
     los_a = camera_from_sensor(dmodel.camera).chain_line_of_sight(pose, row, col, chain=chain)
     records = load_records(asset_path(*DEFAULT_RECORDS))
     los_b = records_line_of_sight(records, load_sensor(asset_path(*DEFAULT_CAMERA)))
-
     los = LineOfSight(
         np.concatenate([los_a.origin_ecef, los_b.origin_ecef]),
         np.concatenate([los_a.direction_ecef, los_b.direction_ecef]),
         np.concatenate([los_a.status, los_b.status]),
     )
-    n = len(los.status)
-    # the paper's experiment is on the DEM solvers themselves: the same rays through the pipeline
-    # with each solver as its surface, no corrections (as [Q17] and [L23])
-    exact = Pipeline(None, DemSurface(dem, "exact")).intersect(los)
+    return los, len(records)
 
-    def solver_hit(surface: DemSurface) -> TerrainHit:
-        # DemSurface meets the rays in a TerrainHit (with its evaluation counts and hidden flags),
-        # which the pipeline passes on as it is without corrections: the type its signature cannot say
-        hit = Pipeline(None, surface).intersect(los)
-        assert isinstance(hit, TerrainHit)
-        return hit
 
-    rep.add(
-        "[L23] Li et al. 2023 -- bisection on the target elevation vs [Q17] descending steps",
-        "",
-        f"DEM: {dem.path} ({dem.shape[0]}x{dem.shape[1]} nodes, heights {dem.min_height():.0f}-"
-        f"{dem.max_height():.0f} m); {n} rays: {n_rays} Table 1-2 rays with the outer gimbal "
-        f"angle in 10-80 deg (seed {seed}) + {len(records)} flight-test records",
-        f"paper: bisection with the threshold at 1/10 of the DEM accuracy is {L23_SAVING_PCT} % "
-        "more iteration-efficient than the stepping method",
-        "",
-        f"{'tol m':>6} {'steps evals':>12} {'bisect evals':>13} {'saving %':>9} {'steps s':>8} "
-        f"{'bisect s':>9} {'max dist to exact m (steps/bisect)':>36} {'hidden':>7}",
+def _solver_hit(surface, los: LineOfSight):
+    """The rays through the pipeline on a DEM solver's surface, as the solver's TerrainHit (with
+    its evaluation counts and hidden flags)."""
+    from geoloc.surfaces.terrain import TerrainHit
+
+    # DemSurface meets the rays in a TerrainHit, which the pipeline passes on as it is without
+    # corrections: the type its signature cannot say
+    hit = Pipeline(None, surface).intersect(los)
+    assert isinstance(hit, TerrainHit)
+    return hit
+
+
+def _l23_tolerance(rep: Report, dem, los: LineOfSight, exact, tol: float) -> None:
+    """One tolerance's row: the descending steps (eps_h = tol) and the bisection (threshold tol)
+    on the same rays, their DEM reads, times and distances to the exact first hit."""
+    from geoloc.geodesy.geodesic import horizontal_distance_m
+    from geoloc.surfaces.terrain import DemSurface
+
+    t0 = time.perf_counter()
+    st = _solver_hit(DemSurface(dem, "steps", eps_h=tol), los)
+    t1 = time.perf_counter()
+    bi = _solver_hit(DemSurface(dem, "bisect", threshold=tol), los)
+    t2 = time.perf_counter()
+    ok = (st.status == 0) & (bi.status == 0) & (exact.status == 0)
+    es, eb = st.dem_evaluations[ok].astype(float), bi.dem_evaluations[ok].astype(float)
+    saving = 100.0 * (1.0 - eb.sum() / es.sum())
+    ds = horizontal_distance_m(st.lat_deg[ok], st.lon_deg[ok], exact.lat_deg[ok], exact.lon_deg[ok])
+    db = horizontal_distance_m(bi.lat_deg[ok], bi.lon_deg[ok], exact.lat_deg[ok], exact.lon_deg[ok])
+    rep.numbers[f"tol_{tol:g}"] = dict(
+        steps_mean_evals=float(es.mean()),
+        bisect_mean_evals=float(eb.mean()),
+        saving_pct=saving,
+        n_ok=int(ok.sum()),
+        hidden=int(bi.hidden[ok].sum()),
     )
-    for tol in tolerances_m:
-        t0 = time.perf_counter()
-        st = solver_hit(DemSurface(dem, "steps", eps_h=tol))
-        t1 = time.perf_counter()
-        bi = solver_hit(DemSurface(dem, "bisect", threshold=tol))
-        t2 = time.perf_counter()
-        ok = (st.status == 0) & (bi.status == 0) & (exact.status == 0)
-        es, eb = st.dem_evaluations[ok].astype(float), bi.dem_evaluations[ok].astype(float)
-        saving = 100.0 * (1.0 - eb.sum() / es.sum())
-        ds = horizontal_distance_m(st.lat_deg[ok], st.lon_deg[ok], exact.lat_deg[ok], exact.lon_deg[ok])
-        db = horizontal_distance_m(bi.lat_deg[ok], bi.lon_deg[ok], exact.lat_deg[ok], exact.lon_deg[ok])
-        rep.numbers[f"tol_{tol:g}"] = dict(
-            steps_mean_evals=float(es.mean()),
-            bisect_mean_evals=float(eb.mean()),
-            saving_pct=saving,
-            n_ok=int(ok.sum()),
-            hidden=int(bi.hidden[ok].sum()),
-        )
-        rep.add(
-            f"{tol:6g} {es.mean():12.1f} {eb.mean():13.1f} {saving:9.1f} {t1 - t0:8.2f} {t2 - t1:9.2f} "
-            f"{np.max(ds):17.1f} / {np.max(db):<16.1f} {int(bi.hidden[ok].sum()):7d}"
-        )
     rep.add(
-        "",
-        "evals: DEM heights read per ray (mean over rays where all three methods hit); "
-        "saving = 1 - bisect/steps evaluations; hidden: bisection answers behind a ridge.",
-        "The steps start at the DEM's highest node, so their count grows with (H_max - h)/tol; "
-        "bisection grows with log2((H_max - H_min)/tol): the saving depends on the relief and "
-        "the tolerance, not on one number.",
+        f"{tol:6g} {es.mean():12.1f} {eb.mean():13.1f} {saving:9.1f} {t1 - t0:8.2f} {t2 - t1:9.2f} "
+        f"{np.max(ds):17.1f} / {np.max(db):<16.1f} {int(bi.hidden[ok].sum()):7d}"
     )
-    return rep
