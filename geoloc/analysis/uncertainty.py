@@ -568,92 +568,160 @@ def propagate(
     PointUncertainty
         NaN and the status where a ray has no ground point.
     """
+    budget = _checked(budget, dem_slope, engine)
+    s = as_sensor(sensor)
+    if surface is None:
+        from geoloc.surfaces.terrain import surface_for
+
+        surface = surface_for(target_h, dem, method=dem_method)
+    row, col = (s.center_pixel[0] if row is None else row), (s.center_pixel[1] if col is None else col)
+    job = _Job(s, pose, row, col, surface, budget, corrections, outside, velocity_ned_m_s)
+    fast = _fast(job, engine)
+    sz = surface_sigma_m(surface, budget)
+    out = _compiled_rays(job, sz, dem_slope, footprint_iterations, jacobian) if fast else _numpy_rays(job)
+    if isinstance(out, _Rays):  # not the fused kernels' whole result: carry the columns onto the surface
+        out = _through_surface(out, surface, sz, dem_slope, footprint_iterations, jacobian)
+    return _with_refraction(out, job)
+
+
+@dataclass
+class _Job:
+    """What :func:`propagate` locates: the sensor, the poses, the pixels (defaulted), the surface,
+    the budget, the location pipeline's corrections, the ``outside`` rule and the velocity."""
+
+    s: Any
+    pose: Pose
+    row: Any
+    col: Any
+    surface: Any
+    budget: ErrorBudget
+    corrections: Corrections
+    outside: str
+    velocity_ned_m_s: Any
+
+
+def _checked(budget: ErrorBudget | None, dem_slope: str, engine: str) -> ErrorBudget:
+    """The budget, once :func:`propagate`'s options are checked: a bad one refused by name and value."""
     if budget is None:
         raise ValueError("propagate needs an error budget (the sensor file's [uncertainty] table)")
     if dem_slope not in ("footprint", "point"):
         raise ValueError(f"dem_slope = {dem_slope!r}: must be 'footprint' or 'point'")
     if engine not in ("auto", "numba", "numpy"):
         raise ValueError(f"engine = {engine!r}: must be 'auto', 'numba' or 'numpy'")
-    s = as_sensor(sensor)
-    if surface is None:
-        from geoloc.surfaces.terrain import surface_for
+    return budget
 
-        surface = surface_for(target_h, dem, method=dem_method)
+
+def _fast(job: _Job, engine: str) -> bool:
+    """Whether :func:`propagate` takes the compiled kernels: ``engine="numba"``, or ``"auto"`` with a
+    compiled sensor and a batch of :data:`COMPILED_MIN_RAYS` rays or more (as ``locate``)."""
+    s = job.s
     if engine == "auto" and s.compiled:
-        n_rays = int(
-            np.prod(
-                np.broadcast_shapes(
-                    pose.shape,
-                    np.shape(s.center_pixel[0] if row is None else row),
-                    np.shape(s.center_pixel[1] if col is None else col),
-                )
-            )
-        )
+        n_rays = int(np.prod(np.broadcast_shapes(job.pose.shape, np.shape(job.row), np.shape(job.col))))
         fast = n_rays >= COMPILED_MIN_RAYS
     else:
         fast = engine == "numba"
     if fast and not s.compiled:
         raise ValueError("engine='numba' needs a sensor with one lens and no per-sample perturbation")
-    sz = surface_sigma_m(surface, budget)
-    if row is None or col is None:
-        r0, c0 = s.center_pixel
-        row, col = (r0 if row is None else row), (c0 if col is None else col)
-    if fast:
-        hit, shape, O, D = _locate_for(s, pose, row, col, surface, outside, corrections)
-        status = np.broadcast_to(hit.status, shape).reshape(-1)
-        lat, lon, h = (
-            np.ascontiguousarray(np.broadcast_to(getattr(hit, k), shape).reshape(-1)) for k in ("lat", "lon", "h")
-        )
-        P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
-        dem = terrain_of(surface)
-        refraction = (s, pose, row, col, surface, budget, corrections, outside)
-        # one pass per ray where the kernels read the surface themselves: the chain's columns
-        # never leave the ray's scratch row
-        if dem is None:
-            out = _height_fused(s, pose, budget, velocity_ned_m_s, shape, O, D, P, lat, lon, h, status, sz, jacobian)
-            return _with_refraction(out, *refraction)
-        if _compiled_dem(dem):
-            it = footprint_iterations if dem_slope == "footprint" else 0
-            out = _dem_fused(
-                s,
-                pose,
-                budget,
-                velocity_ned_m_s,
-                shape,
-                O,
-                D,
-                P,
-                dem,
-                lat,
-                lon,
-                h,
-                status,
-                sz,
-                it,
-                dem_slope == "footprint",
-                jacobian,
-            )
-            return _with_refraction(out, *refraction)
-        t = np.sqrt(np.sum((P - O) ** 2, axis=-1))
-        names, free = _chain_fast(s, pose, budget, velocity_ned_m_s, shape, O, D, t)
-    else:
-        los = s.line_of_sight(row, col, pose, outside=outside)
-        hit = Pipeline(s, surface, corrections).intersect(los)
-        names, dO, dD, (O, D), shape = chain_derivatives(s, pose, row, col, budget, velocity_ned_m_s)
-        status = np.broadcast_to(hit.status, shape).reshape(-1)
-        lat, lon, h = (np.broadcast_to(getattr(hit, k), shape).reshape(-1) for k in ("lat", "lon", "h"))
-        P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
-        t = np.linalg.norm(P - O, axis=-1)
-        free = dO + t[:, None, None] * dD  # the point carried along the old range
+    return fast
+
+
+@dataclass
+class _Rays:
+    """Located rays, flat, with the chain's columns: what the surface step of :func:`propagate` needs.
+
+    ``free`` (n, 3, k): each source's 1-sigma shift of the point carried along the old range (ECEF);
+    ``D`` (n, 3) the unit directions, ``t`` (n,) the ranges; ``shape`` the batch's shape.
+    """
+
+    names: list
+    free: np.ndarray
+    D: np.ndarray
+    t: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    status: np.ndarray
+    shape: tuple
+
+
+def _flat_hits(hit, shape: tuple):
+    """The hits' status, latitude, longitude, height (contiguous) and ECEF points, flat over ``shape``."""
+    status = np.broadcast_to(hit.status, shape).reshape(-1)
+    lat, lon, h = (
+        np.ascontiguousarray(np.broadcast_to(getattr(hit, k), shape).reshape(-1)) for k in ("lat", "lon", "h")
+    )
+    P = np.broadcast_to(hit.ecef, shape + (3,)).reshape(-1, 3)
+    return status, lat, lon, h, P
+
+
+def _compiled_rays(job: _Job, sz: float, dem_slope: str, footprint_iterations: int, jacobian: bool):
+    """The compiled path: the points located by the pipeline's compiled executors, then on a
+    height surface or a compiled DEM one fused pass per ray (the chain's columns never leave the
+    ray's scratch row: the whole :class:`PointUncertainty`), else the chain's columns
+    (:func:`_chain_fast`) as :class:`_Rays`."""
+    s, pose, budget, v = job.s, job.pose, job.budget, job.velocity_ned_m_s
+    hit, shape, O, D = _locate_for(s, pose, job.row, job.col, job.surface, job.outside, job.corrections)
+    status, lat, lon, h, P = _flat_hits(hit, shape)
+    dem = terrain_of(job.surface)
+    if dem is None:
+        return _height_fused(s, pose, budget, v, shape, O, D, P, lat, lon, h, status, sz, jacobian)
+    if _compiled_dem(dem):
+        footprint = dem_slope == "footprint"
+        it = footprint_iterations if footprint else 0
+        return _dem_fused(s, pose, budget, v, shape, O, D, P, dem, lat, lon, h, status, sz, it, footprint, jacobian)
+    t = np.sqrt(np.sum((P - O) ** 2, axis=-1))
+    names, free = _chain_fast(s, pose, budget, v, shape, O, D, t)
+    return _Rays(names, free, D, t, lat, lon, h, status, shape)
+
+
+def _numpy_rays(job: _Job) -> _Rays:
+    """The reference path: the pipeline's hits and :func:`chain_derivatives`'s columns."""
+    s, pose, row, col = job.s, job.pose, job.row, job.col
+    hit = Pipeline(s, job.surface, job.corrections).intersect(s.line_of_sight(row, col, pose, outside=job.outside))
+    names, dO, dD, (O, D), shape = chain_derivatives(s, pose, row, col, job.budget, job.velocity_ned_m_s)
+    status, lat, lon, h, P = _flat_hits(hit, shape)
+    t = np.linalg.norm(P - O, axis=-1)
+    free = dO + t[:, None, None] * dD  # the point carried along the old range
+    return _Rays(names, free, D, t, lat, lon, h, status, shape)
+
+
+def _through_surface(
+    rays: _Rays, surface, sz: float, dem_slope: str, footprint_iterations: int, jacobian: bool
+) -> PointUncertainty:
+    """The rays' columns carried onto the surface: the ENU Jacobian and covariance
+    (:func:`_surface_jacobian`), the terrain's roughness over the footprint and the grazing flags
+    on a DEM, summarised per point (:func:`summarise`)."""
     dem = terrain_of(surface)
     on_dem = dem is not None
-    if sz > 0:
-        names = names + ["dem_m" if on_dem else "height_m"]
-    refraction = (s, pose, row, col, surface, budget, corrections, outside)
+    names = rays.names + (["dem_m" if on_dem else "height_m"] if sz > 0 else [])
+    lat, lon, h = rays.lat, rays.lon, rays.h
     Re = R_ecef_enu(lat, lon)
+    footprint = dem_slope == "footprint"
+    iterations = footprint_iterations if on_dem and footprint else 0
+    m, inv, J, cov, cov_en = _surface_jacobian(surface, rays, Re, sz, iterations, footprint)
+    terrain_rms = surface_normal(surface, lat, lon, h, cov_en, residual=True)[1] if on_dem else np.zeros(len(lat))
+    grazing = _grazing_of(dem, rays, Re, m, inv, sz) if on_dem else np.zeros(len(lat), bool)
+    shape = rays.shape
+    r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
+    out = summarise(
+        r(cov, (3, 3)), r(lat), r(lon), r(h), r(rays.status), r(J, (3, J.shape[-1])) if jacobian else None, names
+    )
+    out.terrain_rms_m = r(np.where(out.status.reshape(-1) == Status.OK, terrain_rms, np.nan))
+    out.surface_sigma_m = float(sz)
+    out.grazing = r(grazing & (out.status.reshape(-1) == Status.OK))
+    return out
+
+
+def _surface_jacobian(surface, rays: _Rays, Re, sz: float, iterations: int, footprint: bool):
+    """Each point's ENU Jacobian per 1 sigma on the surface: the free point slid along its ray back
+    onto the tangent plane of normal ``m`` (plus the surface's own vertical error ``sz``). With
+    ``footprint`` the plane is fitted over the predicted footprint, refitted ``iterations`` times
+    from the slope at the hit. Returns ``m``, ``inv`` (1 / m.D, NaN where the ray does not enter
+    the surface), ``J``, its covariance and that covariance's horizontal block (finite)."""
+    free, D = rays.free, rays.D
     cov_en = None
-    for _ in range(1 + (footprint_iterations if on_dem and dem_slope == "footprint" else 0)):
-        m = surface_normal(surface, lat, lon, h, cov_en if dem_slope == "footprint" else None)
+    for _ in range(1 + iterations):
+        m = surface_normal(surface, rays.lat, rays.lon, rays.h, cov_en if footprint else None)
         mD = np.einsum("ni,ni->n", m, D)
         with np.errstate(invalid="ignore", divide="ignore"):
             inv = np.where(mD < -1e-12, 1.0 / mD, np.nan)  # the ray must enter the surface
@@ -663,39 +731,35 @@ def propagate(
         J = np.einsum("nji,njk->nik", Re, dP)  # ENU at the hit, per 1 sigma
         cov = J @ np.swapaxes(J, -1, -2)
         cov_en = np.where(np.isfinite(cov[:, :2, :2]), cov[:, :2, :2], 0.0)
-    terrain_rms = surface_normal(surface, lat, lon, h, cov_en, residual=True)[1] if on_dem else np.zeros(len(lat))
-    grazing = np.zeros(len(lat), bool)
-    if on_dem:
-        dt = -np.einsum("ni,nik->nk", m, free) * inv[:, None]
-        sig_t = np.sqrt(np.sum(dt * dt, -1) + (sz * inv) ** 2)
-        grazing = _grazing(
-            dem, lat, lon, h, np.einsum("nji,nj->ni", Re, D), t, sig_t, np.einsum("nj,njk->nk", Re[..., 2], free), sz
-        )
-    r = lambda a, tail=(): a.reshape(shape + tail)  # noqa: E731
-    out = summarise(
-        r(cov, (3, 3)), r(lat), r(lon), r(h), r(status), r(J, (3, J.shape[-1])) if jacobian else None, names
-    )
-    out.terrain_rms_m = r(np.where(out.status.reshape(-1) == Status.OK, terrain_rms, np.nan))
-    out.surface_sigma_m = float(sz)
-    out.grazing = r(grazing & (out.status.reshape(-1) == Status.OK))
-    return _with_refraction(out, *refraction)
+    return m, inv, J, cov, cov_en
 
 
-def _with_refraction(out: PointUncertainty, s, pose, row, col, surface, budget, corrections, outside):
+def _grazing_of(dem, rays: _Rays, Re, m, inv, sz: float) -> np.ndarray:
+    """:func:`_grazing`'s flags for the rays: the range's 1-sigma spread along each ray from the
+    chain's columns and the DEM's vertical error, the ray and the free point's up shift in ENU."""
+    free = rays.free
+    dt = -np.einsum("ni,nik->nk", m, free) * inv[:, None]
+    sig_t = np.sqrt(np.sum(dt * dt, -1) + (sz * inv) ** 2)
+    D_enu = np.einsum("nji,nj->ni", Re, rays.D)
+    free_up = np.einsum("nj,njk->nk", Re[..., 2], free)
+    return _grazing(dem, rays.lat, rays.lon, rays.h, D_enu, rays.t, sig_t, free_up, sz)
+
+
+def _with_refraction(out: PointUncertainty, job: _Job) -> PointUncertainty:
     """The budget's ``refraction`` source (a fraction of the standard atmosphere's shift, 1 sigma)
     added to the points' covariance: the shift's vector (ENU at each point) times that fraction,
     one more column of the Jacobian. The shift is the pipeline's own (the point located with and
     without refraction, every other correction as given), so it holds on a DEM too: ``out``'s
     point is one of the two, the other is located here."""
-    sig = budget.sigma("refraction")
+    sig = job.budget.sigma("refraction")
     if not sig > 0:
         return out
     from geoloc.corrections.refraction import STANDARD_REFRACTION
 
-    on = corrections.refraction is not None
+    on = job.corrections.refraction is not None
     other = Pipeline(
-        s, surface, dataclasses.replace(corrections, refraction=None if on else STANDARD_REFRACTION)
-    ).locate(row, col, pose, outside=outside)
+        job.s, job.surface, dataclasses.replace(job.corrections, refraction=None if on else STANDARD_REFRACTION)
+    ).locate(job.row, job.col, job.pose, outside=job.outside)
     here = geodetic_to_ecef(out.lat, out.lon, out.h)
     v = (here - np.asarray(other.ecef, float)) * (1.0 if on else -1.0)  # bent minus straight
     shape = np.shape(out.status)
