@@ -709,31 +709,41 @@ def read_photo(path: str | os.PathLike[str], *, require: bool = True) -> PhotoMe
             raise PhotoTagError(path, m.missing)
         return m
     if not dji and (m.make or "").strip().lower() not in DJI_MAKES and m.make:
-        m.missing = (_unknown_maker_tags(),)
-        m.maker = m.make
-        if require:
-            raise PhotoTagError(
-                path,
-                m.missing,
-                why=f"camera maker {m.make!r} (EXIF Make) is not one geoloc "
-                "reads, and no known maker's XMP namespace is in the photo",
-            )
-        return m
+        return _unknown_maker(m, m.make, path, require)
     m.maker = "DJI"
-
-    _dji_position(m, dji, ex, notes, f"{p.name}", path)
-    _dji_altitude(m, dji, ex, notes)
-    _dji_attitude(m, dji, notes)
-    _dji_calibration(m, dji, notes, f"{p.name}")
-    m.dewarp_flag = _integer(dji, "DewarpFlag", notes)
-    m.rtk_flag = _integer(dji, "RtkFlag", notes)
-
+    _read_dji(m, dji, ex, notes, p.name, path)
     _size_notes(m, notes)
     _centre_notes(m, notes)
     m.missing = _missing_required(m)
     if m.missing and require:
         raise PhotoTagError(path, m.missing)
     return m
+
+
+def _unknown_maker(m: PhotoMeta, make: str, path: str | os.PathLike[str], require: bool) -> PhotoMeta:
+    """A photo of a camera maker geoloc does not read (``make``, its EXIF Make, and no known
+    maker's XMP namespace): its one missing tag says so; refused with ``require``."""
+    m.missing = (_unknown_maker_tags(),)
+    m.maker = make
+    if require:
+        raise PhotoTagError(
+            path,
+            m.missing,
+            why=f"camera maker {make!r} (EXIF Make) is not one geoloc "
+            "reads, and no known maker's XMP namespace is in the photo",
+        )
+    return m
+
+
+def _read_dji(m: PhotoMeta, dji: dict, ex: dict, notes: list, name: str, path: str | os.PathLike[str]) -> None:
+    """The drone-dji XMP tags read into ``m``: position, altitude, attitude, calibration, and the
+    dewarp and RTK flags."""
+    _dji_position(m, dji, ex, notes, name, path)
+    _dji_altitude(m, dji, ex, notes)
+    _dji_attitude(m, dji, notes)
+    _dji_calibration(m, dji, notes, name)
+    m.dewarp_flag = _integer(dji, "DewarpFlag", notes)
+    m.rtk_flag = _integer(dji, "RtkFlag", notes)
 
 
 def _open_photo(p: Path, path: str | os.PathLike[str], notes: list) -> tuple[int, int, dict, bytes | None]:
