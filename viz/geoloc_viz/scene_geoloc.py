@@ -40,6 +40,8 @@ import viser
 import viser.transforms as vtf
 
 from geoloc.assets import ASSETS
+from geoloc.geodesy.ellipsoid import geodetic_to_ecef
+from geoloc.surfaces.dem import grid_faces
 from geoloc_viz.model import Geometry, Scenario
 from geoloc_viz.palette import rgb
 
@@ -255,6 +257,17 @@ def unlit_glb(mesh: trimesh.Trimesh) -> bytes:
     j = json.dumps(doc, separators=(",", ":")).encode()
     j += b" " * (-len(j) % 4)  # chunks are 4-byte aligned (glTF 2.0, GLB file format)
     return struct.pack("<III", magic, version, 20 + len(j) + len(rest)) + struct.pack("<II", len(j), jtype) + j + rest
+
+
+def earth_patch(lat0_deg: float, lon0_deg: float, half_deg: float, nodes: int):
+    """A patch of the WGS-84 ellipsoid (h = 0) for a scene's Earth: ``nodes`` x ``nodes`` nodes over
+    ``half_deg`` either side of (``lat0_deg``, ``lon0_deg``), latitudes kept within +-89.9 deg.
+    Returns (lat, lon [rad], (nodes, nodes) each; ECEF [m], (nodes, nodes, 3); faces, two
+    triangles a cell as :func:`geoloc.surfaces.dem.grid_faces` splits them)."""
+    la = np.deg2rad(np.clip(np.linspace(lat0_deg - half_deg, lat0_deg + half_deg, nodes), -89.9, 89.9))
+    lo = np.deg2rad(np.linspace(lon0_deg - half_deg, lon0_deg + half_deg, nodes))
+    LO, LA = np.meshgrid(lo, la)
+    return LA, LO, geodetic_to_ecef(LA, LO, np.zeros_like(LA)), grid_faces(np.ones(LA.shape, bool))
 
 
 def wxyz(R) -> np.ndarray:

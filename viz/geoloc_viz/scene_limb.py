@@ -59,7 +59,7 @@ from geoloc.sensors.limb import limb_tangent, line_of_sight_l18
 from geoloc.status import Status, describe
 from geoloc.userfiles import write_bytes, write_text
 from geoloc_viz.palette import LIMB
-from geoloc_viz.scene_geoloc import WORLD_SCALE
+from geoloc_viz.scene_geoloc import WORLD_SCALE, earth_patch
 from geoloc.workflows.scenario import load_scenario
 
 if TYPE_CHECKING:
@@ -325,17 +325,7 @@ class LimbApp:
         """The Earth patch around the foot of what the view is about (30 x 30 deg of WGS-84 at
         h = 0) and the Earth's section; returns the patch's grid (lat, lon [rad]) and faces."""
         lat0, lon0 = np.rad2deg(self.focus_latlon)
-        la = np.deg2rad(np.clip(np.linspace(lat0 - 15, lat0 + 15, 61), -89.9, 89.9))
-        lo = np.deg2rad(np.linspace(lon0 - 15, lon0 + 15, 61))
-        LO, LA = np.meshgrid(lo, la)
-        earth = geodetic_to_ecef(LA, LO, np.zeros_like(LA))
-        idx = np.arange(LA.size).reshape(LA.shape)
-        faces = np.concatenate(
-            [
-                np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
-                np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3),
-            ]
-        )
+        LA, LO, earth, faces = earth_patch(lat0, lon0, 15.0, 61)
         self.server.scene.add_mesh_simple(
             "/limb/earth",
             self.w(earth.reshape(-1, 3)).astype(np.float32),

@@ -33,13 +33,13 @@ import numpy as np
 import viser
 
 from geoloc.frames.enu import EnuFrame
-from geoloc.geodesy.ellipsoid import ecef_to_geodetic, geodetic_to_ecef
+from geoloc.geodesy.ellipsoid import ecef_to_geodetic
 from geoloc.io.sentinel2 import Sentinel2Product, band_info, detector_id, read_product
 from geoloc.pipeline import Corrections, Pipeline
 from geoloc.sensors.pushbroom_inertial import InertialPushbroomSensor
 from geoloc.surfaces.height import HeightSurface
 from geoloc_viz.palette import SENTINEL2
-from geoloc_viz.scene_geoloc import WORLD_SCALE, wxyz
+from geoloc_viz.scene_geoloc import WORLD_SCALE, earth_patch, wxyz
 
 #: body frames drawn along the datastrip, and the length of their axes [km]
 N_ATTITUDE = 9
@@ -151,17 +151,8 @@ class Sentinel2App:
         """The Earth patch, the orbit, the attitude frames along the datastrip, the footprints."""
         sc = self.server.scene
         s = self.sensor
-        lat0, lon0 = np.rad2deg(self.enu.lat0), np.rad2deg(self.enu.lon0)
-        la = np.deg2rad(np.linspace(lat0 - EARTH_HALF_DEG, lat0 + EARTH_HALF_DEG, EARTH_NODES))
-        lo = np.deg2rad(np.linspace(lon0 - EARTH_HALF_DEG, lon0 + EARTH_HALF_DEG, EARTH_NODES))
-        LO, LA = np.meshgrid(lo, la)
-        earth = geodetic_to_ecef(LA, LO, np.zeros_like(LA))
-        idx = np.arange(LA.size).reshape(LA.shape)
-        faces = np.concatenate(
-            [
-                np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
-                np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3),
-            ]
+        _, _, earth, faces = earth_patch(
+            np.rad2deg(self.enu.lat0), np.rad2deg(self.enu.lon0), EARTH_HALF_DEG, EARTH_NODES
         )
         with self.server.atomic():
             sc.add_frame("/s2", show_axes=False)
