@@ -27,6 +27,13 @@ the same walk's speed (docs/terrain.md, seventh round): the flat walk of this tr
 helpers (B, ``numba.njit``, no cache), and REV's whole ``terrain_numba.py`` loaded as a scratch
 module (M, with helpers of its own, as the rows above load REV; pass ``HEAD`` for the same code),
 loaded in ORDER, then called in rotated turn, CPU medians, outputs compared bit for bit with A's.
+
+``--same-build``: when REV's ``terrain_numba.py`` is this tree's byte for byte, REV's rows call
+this tree's compiled walk instead of compiling the scratch copy (two cold compiles: about 50 s
+of CPU). Every row, table and comparison still runs and is measured, but both sides are then
+one machine code, so the ratios show only the calls' noise, not the placement a second copy
+gets; a line says so. For the tiny run of ``tests/project/test_benchmarks_run.py``; a REV
+that differs is compiled as without the flag.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from __future__ import annotations
 import argparse
 import inspect
 import time
+from pathlib import Path
 
 import numpy as np
 from _revision import module_at  # benchmarks/ is on sys.path when run as a script
@@ -52,6 +60,9 @@ def main(argv=None) -> None:
     ap.add_argument("--repeat", type=int, default=11)
     ap.add_argument("--dem-model", choices=("triangles", "bilinear"), default="triangles")
     ap.add_argument("--placement", default="", help="load order of A, B, M (see the module docstring)")
+    ap.add_argument(
+        "--same-build", action="store_true", help="REV identical to this tree: call this tree's walk for both"
+    )
     a = ap.parse_args(argv)
     import numba
 
@@ -60,6 +71,9 @@ def main(argv=None) -> None:
         placement(a)
         return
     old = module_at(a.rev, "geoloc/surfaces/terrain_numba.py")
+    if a.same_build and Path(old.__file__).read_bytes() == Path(tn.__file__).read_bytes():
+        print(f"--same-build: {a.rev}'s terrain_numba.py is this tree's; its rows call this tree's compiled walk")
+        old = tn
     dem = DEM.open(SRTM) if a.size == 0 else upsampled_dem(DEM.open(SRTM), a.size, np.random.default_rng(0))
     los = random_oblique_rays(
         dem, 10_000 if a.size == 0 else 100_000, np.random.default_rng(1), frame_angle_deg=(45.0, 82.0)
