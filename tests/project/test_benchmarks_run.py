@@ -9,8 +9,9 @@ benchmarks' own runs measure). A ``bench_*.py`` that is not in ``CASES`` fails
 ``test_every_benchmark_is_listed``.
 
 Wall time of this file, one process, 2-core machine at load 1.2-1.7: 254 s (the
-heaviest: bench_browser's two page loads in Chromium, bench_walk_ab's cold compile of REV's
-walk, bench_viz_churn's 20-client warm-up).
+heaviest then: bench_browser's two page loads in Chromium, bench_walk_ab's cold compile of REV's
+walk, bench_viz_churn's 20-client warm-up; the last two are gone from the tiny runs since:
+``--same-build`` 55.2 -> 2.9 s of CPU, a warm-up of N clients 16.6 -> 7.7 s, docs/testing.md).
 """
 
 from __future__ import annotations
