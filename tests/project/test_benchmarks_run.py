@@ -207,7 +207,7 @@ CASES = {
         300,
     ),
     "bench_viz.py": (
-        ["--nodes", "20"],
+        ["--nodes", "20", "--updates", "5"],  # 5 moves a case: each of the five slider values once
         [
             rf"^send 722-triangle DEM mesh, vertex colours \(add_mesh_trimesh\): median {N} s",
             rf"^slider -> updated scene, method exact : median {N} ms",
