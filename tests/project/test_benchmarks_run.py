@@ -11,7 +11,7 @@ benchmarks' own runs measure). A ``bench_*.py`` that is not in ``CASES`` fails
 Wall time of this file, one process, 2-core machine at load 1.2-1.7: 254 s (the
 heaviest then: bench_browser's two page loads in Chromium, bench_walk_ab's cold compile of REV's
 walk, bench_viz_churn's 20-client warm-up; the last two are gone from the tiny runs since:
-``--same-build`` 55.2 -> 2.9 s of CPU, a warm-up of N clients 16.6 -> 7.7 s, docs/testing.md).
+``--same-build`` 21.1 -> 2.1 s of CPU, a warm-up of N clients 16.6 -> 7.7 s, docs/testing.md).
 """
 
 from __future__ import annotations
@@ -243,8 +243,8 @@ CASES = {
     ),
     "bench_walk_ab.py": (
         # this tree's walk against HEAD's; HEAD's source is this tree's (unless the walk is being
-        # changed), so its rows call this tree's build: the scratch copy's two cold compiles were
-        # 55 s of CPU, every row and comparison still runs
+        # changed), so its rows call this tree's build: the scratch copy's compile was 21-55 s of
+        # CPU; every row and comparison still runs
         ["HEAD", "--repeat", "1", "--same-build"],
         [
             rf"^this tree, climbing +{N} ns a ray +{N} of HEAD +identical to HEAD: (?:True|False)",
