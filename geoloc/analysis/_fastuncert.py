@@ -636,6 +636,57 @@ def _grid_at(Z, margin, cw, r, c):
     return out
 
 
+#: Nodes per side of a tile of :func:`dem_tiles` (its bounds cover its cells' corner nodes).
+TILE = 8
+
+
+@cached_njit(KEY)
+def dem_tiles(Z):
+    """The lowest and highest finite node of each tile of ``TILE x TILE`` cells of the grid ``Z``
+    (rows ``a TILE .. a TILE + TILE`` of nodes, clipped), widened by 1e-6 of the height and 1e-6 m:
+    ``(2, ceil((nr - 1) / TILE), ceil((nc - 1) / TILE))``, ``(+inf, -inf)`` for a tile without
+    data. Every bilinear height of a cell in a tile lies inside (the widening covers the rounding
+    of the four weights, ~1e-16 of the height), so a sample whose ray is farther than its band
+    from both bounds cannot be grazing: :func:`_dem_ray` then skips its read."""
+    nr, nc = Z.shape
+    na = max((nr - 1 + TILE - 1) // TILE, 1)
+    nb = max((nc - 1 + TILE - 1) // TILE, 1)
+    out = np.empty((2, na, nb))
+    for a in range(na):
+        for b in range(nb):
+            lo, hi = math.inf, -math.inf
+            for r in range(a * TILE, min(a * TILE + TILE, nr - 1) + 1):
+                for c in range(b * TILE, min(b * TILE + TILE, nc - 1) + 1):
+                    z = Z[r, c]
+                    if math.isfinite(z):
+                        lo = min(lo, z)
+                        hi = max(hi, z)
+            out[0, a, b] = lo - 1e-6 * (1.0 + abs(lo)) if lo <= hi else math.inf
+            out[1, a, b] = hi + 1e-6 * (1.0 + abs(hi)) if lo <= hi else -math.inf
+    return out
+
+
+@cached_njit(KEY, inline="always")
+def _may_reach(tiles, nr, nc, margin, cw, r, c, lo, hi):
+    """False where :func:`_grid_at` at ``(r, c)`` is NaN or surely outside ``[lo, hi]``: the
+    bounds of the tile of the cell it interpolates in (the same window, hull and clamps), from
+    :func:`dem_tiles`; True without tiles (an empty ``tiles``)."""
+    if tiles.shape[1] == 0:
+        return True
+    if not (math.isfinite(r) and math.isfinite(c)):
+        return False
+    if not (-cw <= c < cw):
+        c = (c + cw) % (2.0 * cw) - cw
+    tol = 1e-9 + margin
+    if r < -tol or r > nr - 1 + tol or c < -tol or c > nc - 1 + tol:
+        return False
+    r0 = min(int(min(max(r, 0.0), nr - 1.0)), nr - 2) if nr > 1 else 0
+    c0 = min(int(min(max(c, 0.0), nc - 1.0)), nc - 2) if nc > 1 else 0
+    a = r0 // TILE
+    b = c0 // TILE
+    return tiles[1, a, b] >= lo and tiles[0, a, b] <= hi
+
+
 @cached_njit(KEY, inline="always")
 def _step(fr, d0, d1, d2, m0, m1, m2, ok, sz, E, N, U, Jo):
     """The surface step of one ray (chain columns ``fr`` (3, k), direction ``d``) for the normal
@@ -668,6 +719,47 @@ def _step(fr, d0, d1, d2, m0, m1, m2, ok, sz, E, N, U, Jo):
 
 
 @cached_njit(KEY, inline="always")
+def _gram(fr):
+    """The six entries ``(g00, g01, g02, g11, g12, g22)`` of ``fr fr^T`` (chain columns ``fr`` (3, k))."""
+    g00 = g01 = g02 = g11 = g12 = g22 = 0.0
+    for c in range(fr.shape[1]):
+        f0, f1, f2 = fr[0, c], fr[1, c], fr[2, c]
+        g00 += f0 * f0
+        g01 += f0 * f1
+        g02 += f0 * f2
+        g11 += f1 * f1
+        g12 += f1 * f2
+        g22 += f2 * f2
+    return g00, g01, g02, g11, g12, g22
+
+
+@cached_njit(KEY, inline="always")
+def _horizontal_cov(G, d0, d1, d2, m0, m1, m2, sz, E, N):
+    """:func:`_step`'s ``c00, c01, c11`` from the Gram matrix ``G`` of the chain's columns: the
+    east row of the Jacobian is ``a_e . f`` with ``a_e = E - (E . D) m / (m . D)`` (so its sum of
+    squares is ``a_e^T G a_e``), plus the surface's own column ``(E . D) sz / (m . D)``; NaN where
+    the ray does not enter the surface. The same sums as :func:`_step`'s in another order."""
+    g00, g01, g02, g11, g12, g22 = G
+    mD = m0 * d0 + m1 * d1 + m2 * d2
+    inv = 1.0 / mD if mD < -1e-12 else math.nan
+    ed = (E[0] * d0 + E[1] * d1 + E[2] * d2) * inv
+    nd = (N[0] * d0 + N[1] * d1 + N[2] * d2) * inv
+    x0, x1, x2 = E[0] - ed * m0, E[1] - ed * m1, E[2] - ed * m2
+    y0, y1, y2 = N[0] - nd * m0, N[1] - nd * m1, N[2] - nd * m2
+    gx0 = g00 * x0 + g01 * x1 + g02 * x2
+    gx1 = g01 * x0 + g11 * x1 + g12 * x2
+    gx2 = g02 * x0 + g12 * x1 + g22 * x2
+    gy0 = g00 * y0 + g01 * y1 + g02 * y2
+    gy1 = g01 * y0 + g11 * y1 + g12 * y2
+    gy2 = g02 * y0 + g12 * y1 + g22 * y2
+    se, sn = ed * sz, nd * sz
+    c00 = x0 * gx0 + x1 * gx1 + x2 * gx2 + se * se
+    c01 = x0 * gy0 + x1 * gy1 + x2 * gy2 + se * sn
+    c11 = y0 * gy0 + y1 * gy1 + y2 * gy2 + sn * sn
+    return c00, c01, c11
+
+
+@cached_njit(KEY, inline="always")
 def _dem_nan(i, J, cov, major, minor, az, ce, le, rms, grazing):
     """Row ``i`` of the DEM step's outputs for a ray without a ground point: NaN, not grazing."""
     kk = J.shape[2] if J.shape[0] != 0 else 0
@@ -695,6 +787,7 @@ def _dem_ray(
     iterations,
     footprint,
     Z,
+    tiles,
     lat_north,
     lon_west,
     idlat,
@@ -750,6 +843,8 @@ def _dem_ray(
     g_e = (_grid_at(Z, margin, cw, r_h, c_h + kc) - _grid_at(Z, margin, cw, r_h, c_h - kc)) / 2.0
     Jo = J[i] if J.shape[0] != 0 else Js
     n_fit = iterations + 1 if footprint else 1
+    G = _gram(fr) if n_fit > 1 else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    nZr, nZc = Z.shape
     c00 = c01 = c02 = c11 = c12 = c22 = 0.0
     m0 = m1 = m2 = inv = 0.0
     # one more pass than the fits: the last footprint only measures the terrain's departure
@@ -808,6 +903,12 @@ def _dem_ray(
         m0 = U[0] - g_e * E[0] - g_n * N[0]
         m1 = U[1] - g_e * E[1] - g_n * N[1]
         m2 = U[2] - g_e * E[2] - g_n * N[2]
+        if it < n_fit - 1:
+            # a footprint's fit needs only the horizontal covariance: a_x^T G a_y from the chain's
+            # Gram matrix (3x3, summed once) instead of the (3, k) Jacobian; the last pass below
+            # writes the Jacobian and the covariance column by column, as before
+            c00, c01, c11 = _horizontal_cov(G, d0, d1, d2, m0, m1, m2, sz, E, N)
+            continue
         inv, c00, c01, c02, c11, c12, c22 = _step(fr, d0, d1, d2, m0, m1, m2, True, sz, E, N, U, Jo)
     # grazing: the ray within 2 sigma of the terrain away from its hit
     k = fr.shape[1]
@@ -831,10 +932,14 @@ def _dem_ray(
             continue
         e_, n_, u_ = dr * de_, dr * dn_, dr * du_
         ray_h = hi + u_ + (e_ * e_ + n_ * n_) / (2.0 * mh)
-        ground = _grid_at(Z, margin, cw, r_h + n_ * kr, c_h + e_ * kc)
+        sig_v = math.sqrt(fu2 * (kr_ / ti) ** 2 + sz * sz)
+        rq, cq = r_h + n_ * kr, c_h + e_ * kc
+        # most samples are hundreds of metres above or below any node of their tile: no read
+        if not _may_reach(tiles, nZr, nZc, margin, cw, rq, cq, ray_h - 2.0 * sig_v, ray_h + 2.0 * sig_v):
+            continue
+        ground = _grid_at(Z, margin, cw, rq, cq)
         if not math.isfinite(ground):
             continue
-        sig_v = math.sqrt(fu2 * (kr_ / ti) ** 2 + sz * sz)
         if abs(ray_h - ground) < 2.0 * sig_v:
             gz = True
             break
@@ -876,6 +981,7 @@ def chain_dem_kernel(
     iterations,
     footprint,
     Z,
+    tiles,
     lat_north,
     lon_west,
     dlat,
@@ -968,6 +1074,7 @@ def chain_dem_kernel(
                 iterations,
                 footprint,
                 Z,
+                tiles,
                 lat_north,
                 lon_west,
                 idlat,

@@ -1006,6 +1006,10 @@ def _dem_fused(
     st = np.ascontiguousarray(status, dtype=np.uint8)
     g = dem.grid
     C = np.ascontiguousarray
+    Z = C(g.values, dtype=float)
+    # the grazing test's tile bounds: one pass over the grid, made only where it costs a small
+    # part of the rays' own work (a large DEM and a few rays read every sample instead)
+    tiles = F.dem_tiles(Z) if Z.size <= 8 * n else np.empty((2, 0, 0))
     F.chain_dem_kernel(
         *before,
         C(O),
@@ -1019,7 +1023,8 @@ def _dem_fused(
         float(sz),
         int(iterations),
         bool(footprint),
-        C(g.values, dtype=float),
+        Z,
+        tiles,
         float(g.lat_north_deg),
         float(g.lon_west_deg),
         float(g.dlat_deg),
