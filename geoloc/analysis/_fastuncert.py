@@ -773,6 +773,38 @@ def _dem_nan(i, J, cov, major, minor, az, ce, le, rms, grazing):
 
 
 @cached_njit(KEY, error_model="numpy")
+def _grazes(graze_r, ti, sig_t, fu2, sz, hi, mh, de_, dn_, du_, tiles, Z, margin, cw, r_h, c_h, kr, kc):
+    """:func:`_dem_ray`'s grazing test: True where the ray (ENU direction ``de_, dn_, du_``, range
+    ``ti``, hit height ``hi``) passes within 2 sigma of the terrain at one of the ranges
+    ``graze_r ti`` farther than 3 ``sig_t`` from its hit (``fu2``: the chain's vertical variance,
+    ``sz`` the surface's own sigma; the DEM as :func:`_grid_at` reads it, stepped from the hit's
+    ``r_h, c_h`` by ``kr, kc`` rows and columns per metre), as
+    :func:`geoloc.analysis.uncertainty._grazing`."""
+    nr_ = graze_r.shape[0]
+    nZr, nZc = Z.shape
+    gz = False
+    for q in range(nr_):
+        kr_ = graze_r[q] * ti
+        dr = kr_ - ti
+        if abs(dr) <= 3.0 * sig_t:
+            continue
+        e_, n_, u_ = dr * de_, dr * dn_, dr * du_
+        ray_h = hi + u_ + (e_ * e_ + n_ * n_) / (2.0 * mh)
+        sig_v = math.sqrt(fu2 * (kr_ / ti) ** 2 + sz * sz)
+        rq, cq = r_h + n_ * kr, c_h + e_ * kc
+        # most samples are hundreds of metres above or below any node of their tile: no read
+        if not _may_reach(tiles, nZr, nZc, margin, cw, rq, cq, ray_h - 2.0 * sig_v, ray_h + 2.0 * sig_v):
+            continue
+        ground = _grid_at(Z, margin, cw, rq, cq)
+        if not math.isfinite(ground):
+            continue
+        if abs(ray_h - ground) < 2.0 * sig_v:
+            gz = True
+            break
+    return gz
+
+
+@cached_njit(KEY, error_model="numpy")
 def _dem_ray(
     fr,
     i,
@@ -824,7 +856,6 @@ def _dem_ray(
     """
     J, cov, major, minor, az, ce, le, rms, grazing, Js = outs
     ng = gh_x.shape[0]
-    nr_ = graze_r.shape[0]
     sp, cp = _sincos(la)
     sl, cl = _sincos(lo)
     E = (-sl, cl, 0.0)  # the ENU axes in ECEF
@@ -844,7 +875,6 @@ def _dem_ray(
     Jo = J[i] if J.shape[0] != 0 else Js
     n_fit = iterations + 1 if footprint else 1
     G = _gram(fr) if n_fit > 1 else (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    nZr, nZc = Z.shape
     c00 = c01 = c02 = c11 = c12 = c22 = 0.0
     m0 = m1 = m2 = inv = 0.0
     # one more pass than the fits: the last footprint only measures the terrain's departure
@@ -924,26 +954,7 @@ def _dem_ray(
     de_ = E[0] * d0 + E[1] * d1 + E[2] * d2
     dn_ = N[0] * d0 + N[1] * d1 + N[2] * d2
     du_ = U[0] * d0 + U[1] * d1 + U[2] * d2
-    gz = False
-    for q in range(nr_):
-        kr_ = graze_r[q] * ti
-        dr = kr_ - ti
-        if abs(dr) <= 3.0 * sig_t:
-            continue
-        e_, n_, u_ = dr * de_, dr * dn_, dr * du_
-        ray_h = hi + u_ + (e_ * e_ + n_ * n_) / (2.0 * mh)
-        sig_v = math.sqrt(fu2 * (kr_ / ti) ** 2 + sz * sz)
-        rq, cq = r_h + n_ * kr, c_h + e_ * kc
-        # most samples are hundreds of metres above or below any node of their tile: no read
-        if not _may_reach(tiles, nZr, nZc, margin, cw, rq, cq, ray_h - 2.0 * sig_v, ray_h + 2.0 * sig_v):
-            continue
-        ground = _grid_at(Z, margin, cw, rq, cq)
-        if not math.isfinite(ground):
-            continue
-        if abs(ray_h - ground) < 2.0 * sig_v:
-            gz = True
-            break
-    grazing[i] = gz
+    grazing[i] = _grazes(graze_r, ti, sig_t, fu2, sz, hi, mh, de_, dn_, du_, tiles, Z, margin, cw, r_h, c_h, kr, kc)
     _ellipse_out(i, c00, c01, c02, c11, c12, c22, qt_n, rt, le90_per_sigma, cov, major, minor, az, ce, le)
 
 
@@ -1012,9 +1023,6 @@ def chain_dem_kernel(
     n = lat.shape[0]
     nj = axes.shape[0]
     ns = codes.shape[0]
-    ng = gh_x.shape[0]
-    idlat = 1.0 / dlat
-    idlon = 1.0 / dlon
     nb = (n + _BLOCK - 1) // _BLOCK
     for blk in prange(nb):
         Rn = np.empty((3, 3))
@@ -1025,7 +1033,7 @@ def chain_dem_kernel(
         Rj = np.empty((nj + 1, 3, 3))
         pp = lens_p.copy()
         fr = np.empty((3, ns))
-        Hf = np.empty(ng * ng)
+        Hf = np.empty(gh_x.shape[0] * gh_x.shape[0])
         Js = np.empty((3, J.shape[2]))  # the ray's Jacobian when the caller keeps none (J with no rows)
         for i in range(blk * _BLOCK, min(n, (blk + 1) * _BLOCK)):
             if status[i] != _OK:
@@ -1077,8 +1085,8 @@ def chain_dem_kernel(
                 tiles,
                 lat_north,
                 lon_west,
-                idlat,
-                idlon,
+                1.0 / dlat,
+                1.0 / dlon,
                 margin,
                 a_m,
                 e2,
