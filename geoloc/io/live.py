@@ -508,14 +508,14 @@ def _read_datagram(sock: socket.socket, buf: bytearray, offset: "_ClockOffset | 
     return n, _arrival(anc, offset.now_s())
 
 
-def _arrival(ancillary, offset_s: float | None = None) -> float | None:
+def _arrival(ancillary, offset_s: float) -> float | None:
     """A datagram's arrival time on the ``time.monotonic()`` clock, from its SO_TIMESTAMPNS ancillary data
-    (CLOCK_REALTIME, moved onto the monotonic clock by ``offset_s``, :func:`_clock_offset_s`, read now
-    when not given); None without one."""
+    (CLOCK_REALTIME, moved onto the monotonic clock by ``offset_s``, :class:`_ClockOffset`'s); None
+    without one."""
     for level, kind, data in ancillary:
         if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(data) >= _TIMESPEC.size:
             sec, nsec = _TIMESPEC.unpack_from(data)
-            return (sec + nsec * 1e-9) - (_clock_offset_s() if offset_s is None else offset_s)
+            return (sec + nsec * 1e-9) - offset_s
     return None
 
 

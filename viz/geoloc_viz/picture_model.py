@@ -27,6 +27,7 @@ ellipsoidal (WGS 84), with the EGM96 orthometric height beside them where shown.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import os
 import threading
@@ -643,8 +644,6 @@ def _timing_key(scn, exclude) -> tuple:
     the records, their pictures' times, the targets and ``exclude``. Two scenarios loaded from one
     file share the answer (each new tab of a flight, each scenario switch, built its own scenario
     and searched again: 5.7 s of CPU a time for the example flight)."""
-    import hashlib
-
     path = getattr(scn, "video_path", None)
     try:
         st = os.stat(path) if path is not None else None
