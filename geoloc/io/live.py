@@ -508,6 +508,11 @@ def _read_datagram(sock: socket.socket, buf: bytearray, offset: "_ClockOffset | 
     return n, _arrival(anc, offset.now_s())
 
 
+def _idle(rx: "LiveReceiver", idle_s: float | None) -> bool:
+    """Whether ``idle_s`` [s] have passed since ``rx`` took its last datagram (never before its first)."""
+    return idle_s is not None and rx.last_datagram_s is not None and time.monotonic() - rx.last_datagram_s >= idle_s
+
+
 def _arrival(ancillary, offset_s: float) -> float | None:
     """A datagram's arrival time on the ``time.monotonic()`` clock, from its SO_TIMESTAMPNS ancillary data
     (CLOCK_REALTIME, moved onto the monotonic clock by ``offset_s``, :class:`_ClockOffset`'s); None
@@ -583,13 +588,13 @@ def receive(
             now = time.monotonic()
             if duration_s is not None and now - t0 >= duration_s:
                 break
-            if idle_s is not None and rx.last_datagram_s is not None and now - rx.last_datagram_s >= idle_s:
-                break
             if stop is not None and stop():
                 break
             try:
                 n, arrived = _read_datagram(sock, buf, offset)
-            except socket.timeout:
+            except socket.timeout:  # idle only when nothing is queued (not when the reader fell behind)
+                if _idle(rx, idle_s):
+                    break
                 res = rx.tick()  # no datagram: what is due (a stalled stream's held packets)
             except InterruptedError:
                 continue

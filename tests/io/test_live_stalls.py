@@ -43,3 +43,19 @@ def test_a_gap_in_arrival_is_a_stall_even_when_read_back_to_back():
 def test_no_gap_no_stall_however_late_they_are_read():
     time.sleep(0.01)
     assert _stalls(0.0).stats.stalls == 0
+
+
+def test_a_reader_that_falls_behind_reads_what_is_queued_before_idling():
+    # idle_s means nothing arrived: a consumer slower than idle_s between two packets (a loaded
+    # machine, a slow on_batch) stopped the reception with datagrams still queued in the socket
+    grams = datagrams_of(TS.read_bytes())[:400]
+    url = parse_udp_url(f"udp://127.0.0.1:{free_port()}")
+    sock = open_socket(url)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        for g in grams:
+            tx.sendto(g, (url.host, url.port))
+    rx = LiveReceiver()
+    for k, _ in enumerate(receive(url, receiver=rx, sock=sock, idle_s=0.3, duration_s=60)):
+        if k == 5:
+            time.sleep(0.6)  # the consumer busy for twice idle_s, the rest of the stream queued
+    assert rx.stats.datagrams == len(grams)
