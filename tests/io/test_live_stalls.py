@@ -19,10 +19,31 @@ from test_live import TS, free_port
 from geoloc.io.live import STALL_S, LiveReceiver, datagrams_of, open_socket, parse_udp_url, receive
 
 
+def _wait_for_arrival_stamps(sock: socket.socket, url) -> None:
+    """Until the kernel stamps datagrams as they arrive. Linux turns its receive time stamps on
+    through a work queue after the first socket asks (net_enable_timestamp): until then a datagram
+    is stamped when it is read, and a burst sent at once after open_socket on an idle, loaded
+    machine read back to back showed no gap (a CI failure). A probe is sent, read 0.2 s later, and
+    its stamp must be older than the read."""
+    from geoloc.io.live import _arrival, _clock_offset_s
+
+    t0 = time.monotonic()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+        while time.monotonic() - t0 < 30:
+            tx.sendto(b"probe", (url.host, url.port))
+            time.sleep(0.2)
+            _, anc, _, _ = sock.recvmsg(64, 64)
+            arrived = _arrival(anc, _clock_offset_s())
+            if arrived is not None and time.monotonic() - arrived > 0.1:
+                return
+    raise AssertionError("the kernel never stamped a datagram on arrival within 30 s")
+
+
 def _stalls(gap_s: float) -> LiveReceiver:
     grams = datagrams_of(TS.read_bytes())[:400]
     url = parse_udp_url(f"udp://127.0.0.1:{free_port()}")
     sock = open_socket(url)
+    _wait_for_arrival_stamps(sock, url)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
         for k, g in enumerate(grams):
             if k == 200 and gap_s:
